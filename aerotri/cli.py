@@ -1,0 +1,18 @@
+"""``aerotri`` command line: thin click subcommands over library functions."""
+
+from __future__ import annotations
+
+import click
+
+
+@click.group()
+@click.version_option(package_name="aerotri")
+def main():
+    """Aerial triangulation of frame-camera blocks with LiDAR control, and the truth simulator."""
+
+
+from aerotri.sim.cli import demo, sim  # noqa: E402
+
+main.add_command(sim)
+main.add_command(demo)
+# Further stages register here: main.add_command(<group or command>)

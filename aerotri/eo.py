@@ -1,0 +1,131 @@
+"""Exterior orientation and GNSS text files (architecture doc: project folder).
+
+``eo.txt``: ``image_id X Y Z omega phi kappa`` (metres, degrees), optionally followed by standard
+deviations ``sX sY sZ somega sphi skappa``. ``gnss.txt``: ``image_id X Y Z [sX sY sZ]``.
+Lines starting with ``#`` are comments.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from pathlib import Path
+
+import numpy as np
+
+from aerotri.errors import InputError
+from aerotri.rotation import rotation_matrix_opk
+from lidarctl.atomic import write_text_atomic
+
+
+@dataclasses.dataclass
+class ExteriorOrientations:
+    """Exterior orientations of a block; arrays are aligned with ``image_id``."""
+
+    image_id: list[str]
+    centre_m: np.ndarray  # (N, 3) projection centres X Y Z
+    opk_deg: np.ndarray  # (N, 3) omega phi kappa
+    sigma: np.ndarray | None = None  # (N, 6) sX sY sZ (m) somega sphi skappa (deg)
+
+    def __len__(self):
+        return len(self.image_id)
+
+    def rotation(self, i: int) -> np.ndarray:
+        return rotation_matrix_opk(*self.opk_deg[i])
+
+    def rotations(self) -> np.ndarray:
+        return rotation_matrix_opk(self.opk_deg[:, 0], self.opk_deg[:, 1], self.opk_deg[:, 2])
+
+    def index(self) -> dict[str, int]:
+        return {k: i for i, k in enumerate(self.image_id)}
+
+
+def _parse_table(path: Path, min_cols: int, max_cols: int, what: str) -> tuple[list[str], np.ndarray]:
+    try:
+        text = path.read_text()
+    except FileNotFoundError:
+        raise InputError(f"{path}: file not found") from None
+    ids, rows, seen = [], [], {}
+    for lineno, line in enumerate(text.splitlines(), start=1):
+        s = line.strip()
+        if not s or s.startswith("#"):
+            continue
+        parts = s.split()
+        if not (min_cols <= len(parts) <= max_cols):
+            raise InputError(f"{path}:{lineno}: expected {what}, got {len(parts)} fields: {s!r}")
+        try:
+            vals = [float(p) for p in parts[1:]]
+        except ValueError:
+            raise InputError(f"{path}:{lineno}: non-numeric value in {s!r} (expected {what})") from None
+        if not all(math.isfinite(v) for v in vals):
+            raise InputError(f"{path}:{lineno}: NaN or infinite value in {s!r}")
+        if parts[0] in seen:
+            raise InputError(f"{path}:{lineno}: duplicate image id {parts[0]!r} (first on line {seen[parts[0]]})")
+        seen[parts[0]] = lineno
+        ids.append(parts[0])
+        rows.append(vals)
+    if not ids:
+        raise InputError(f"{path}: no records (expected {what})")
+    ncols = {len(r) for r in rows}
+    if len(ncols) > 1:
+        raise InputError(f"{path}: lines have different numbers of fields {sorted(ncols)}")
+    return ids, np.array(rows, dtype=float)
+
+
+def read_eo(path) -> ExteriorOrientations:
+    path = Path(path)
+    ids, a = _parse_table(path, 7, 13, "image_id X Y Z omega phi kappa [sX sY sZ somega sphi skappa]")
+    if a.shape[1] not in (6, 12):
+        raise InputError(f"{path}: expected 7 or 13 fields per line, got {a.shape[1] + 1}")
+    return ExteriorOrientations(ids, a[:, :3].copy(), a[:, 3:6].copy(), a[:, 6:12].copy() if a.shape[1] == 12 else None)
+
+
+def format_eo(eo: ExteriorOrientations) -> str:
+    head = "# image_id X_m Y_m Z_m omega_deg phi_deg kappa_deg"
+    if eo.sigma is not None:
+        head += " sX_m sY_m sZ_m somega_deg sphi_deg skappa_deg"
+    lines = [head]
+    for i, iid in enumerate(eo.image_id):
+        X, Y, Z = eo.centre_m[i]
+        o, p, k = eo.opk_deg[i]
+        s = f"{iid} {X:.4f} {Y:.4f} {Z:.4f} {o:.7f} {p:.7f} {k:.7f}"
+        if eo.sigma is not None:
+            s += " " + " ".join(f"{v:.4f}" for v in eo.sigma[i, :3]) + " " + " ".join(f"{v:.7f}" for v in eo.sigma[i, 3:])
+        lines.append(s)
+    return "\n".join(lines) + "\n"
+
+
+def write_eo(path, eo: ExteriorOrientations) -> None:
+    write_text_atomic(path, format_eo(eo))
+
+
+@dataclasses.dataclass
+class GnssPositions:
+    image_id: list[str]
+    position_m: np.ndarray  # (N, 3)
+    sigma_m: np.ndarray | None = None  # (N, 3)
+
+    def index(self) -> dict[str, int]:
+        return {k: i for i, k in enumerate(self.image_id)}
+
+
+def read_gnss(path) -> GnssPositions:
+    path = Path(path)
+    ids, a = _parse_table(path, 4, 7, "image_id X Y Z [sX sY sZ]")
+    if a.shape[1] not in (3, 6):
+        raise InputError(f"{path}: expected 4 or 7 fields per line, got {a.shape[1] + 1}")
+    sig = a[:, 3:6].copy() if a.shape[1] == 6 else None
+    if sig is not None and np.any(sig <= 0):
+        bad = ids[int(np.argmax(np.any(sig <= 0, axis=1)))]
+        raise InputError(f"{path}: standard deviations must be positive (image {bad})")
+    return GnssPositions(ids, a[:, :3].copy(), sig)
+
+
+def write_gnss(path, g: GnssPositions) -> None:
+    lines = ["# image_id X_m Y_m Z_m" + (" sX_m sY_m sZ_m" if g.sigma_m is not None else "")]
+    for i, iid in enumerate(g.image_id):
+        s = f"{iid} " + " ".join(f"{v:.4f}" for v in g.position_m[i])
+        if g.sigma_m is not None:
+            s += " " + " ".join(f"{v:.4f}" for v in g.sigma_m[i])
+        lines.append(s)
+    write_text_atomic(path, "\n".join(lines) + "\n")

@@ -1,0 +1,67 @@
+"""A project folder (architecture doc) and its ``project.toml``.
+
+```
+project.toml   [project] name, crs; [gnss] sigmas and lever arm; [control] sigmas; stage options
+camera.toml    frame camera (aerotri.camera)
+gnss.txt       image_id X Y Z [sX sY sZ]
+lidar/ images/ lidar_out/ control/ work/ at/ ortho/
+```
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import tomllib
+from pathlib import Path
+
+from aerotri.errors import InputError
+
+
+@dataclasses.dataclass
+class Project:
+    root: Path
+    config: dict
+
+    @classmethod
+    def open(cls, root) -> "Project":
+        root = Path(root)
+        if not root.is_dir():
+            raise InputError(f"{root}: project folder not found")
+        cfg_path = root / "project.toml"
+        if not cfg_path.exists():
+            raise InputError(f"{cfg_path}: missing (every project folder needs project.toml with [project] crs)")
+        try:
+            config = tomllib.loads(cfg_path.read_text())
+        except tomllib.TOMLDecodeError as exc:
+            raise InputError(f"{cfg_path}: not valid TOML ({exc})") from None
+        if "crs" not in config.get("project", {}):
+            raise InputError(f"{cfg_path}: [project] crs is missing (e.g. crs = \"EPSG:32649\")")
+        return cls(root, config)
+
+    @property
+    def name(self) -> str:
+        return str(self.config.get("project", {}).get("name", self.root.name))
+
+    @property
+    def crs(self) -> str:
+        return str(self.config["project"]["crs"])
+
+    def section(self, name: str) -> dict:
+        return dict(self.config.get(name, {}))
+
+    # Standard paths
+    camera_path = property(lambda self: self.root / "camera.toml")
+    gnss_path = property(lambda self: self.root / "gnss.txt")
+    images_dir = property(lambda self: self.root / "images")
+    lidar_dir = property(lambda self: self.root / "lidar")
+    lidar_out_dir = property(lambda self: self.root / "lidar_out")
+    control_dir = property(lambda self: self.root / "control")
+    work_dir = property(lambda self: self.root / "work")
+    at_dir = property(lambda self: self.root / "at")
+    ortho_dir = property(lambda self: self.root / "ortho")
+    truth_dir = property(lambda self: self.root / "truth")
+
+    def camera(self):
+        from aerotri.camera import FrameCamera
+
+        return FrameCamera.read(self.camera_path)
