@@ -171,7 +171,7 @@ class FrameCamera:
                 f"(did you give it in pixels? {self.focal_mm} px x {self.pixel_um} um = "
                 f"{self.focal_mm * self.pixel_um / 1000:.3f} mm)"
             )
-        if self.pixel_um > 100.0 or self.pixel_um < 0.5:
+        if self.pixel_um > 1000.0 or self.pixel_um < 0.5:
             raise InputError(f"{source}: pixel_um = {self.pixel_um} is not a plausible pixel size in micrometres")
         for f in ("ppx_mm", "ppy_mm", "k1", "k2", "k3", "p1", "p2"):
             v = getattr(self, f)

@@ -21,3 +21,13 @@ def shared_data() -> Path:
     if not d.is_dir():
         pytest.skip(f"real reference data not found at {d} (set AEROTRI_SHARED_DATA)")
     return d
+
+
+@pytest.fixture(scope="session")
+def tiny_project(tmp_path_factory) -> Path:
+    """A simulated ``tiny`` project (generated once per test session; treat it as read-only)."""
+    from aerotri.sim import load_preset, simulate
+
+    out = tmp_path_factory.mktemp("sim") / "tiny"
+    simulate(load_preset("tiny"), out, log=lambda m: None)
+    return out

@@ -1,0 +1,125 @@
+"""Simulator presets (TOML files in ``datasets/presets``) and their validation.
+
+A preset is a nested table: ``[preset] [crs] [camera] [flight] [gnss] [lidar] [scene] [render]
+[truth]``. ``--set section.key=value`` overrides single values (TOML syntax for the value).
+Every invalid value is refused with an ``InputError`` that names the key and what was expected.
+"""
+
+from __future__ import annotations
+
+import copy
+import math
+import os
+import tomllib
+from pathlib import Path
+
+from aerotri.errors import InputError
+
+PRESET_DIR = Path(os.environ.get("AEROTRI_PRESETS", Path(__file__).resolve().parents[2] / "datasets" / "presets"))
+
+
+def available_presets() -> list[str]:
+    return sorted(p.stem for p in PRESET_DIR.glob("*.toml"))
+
+
+def load_preset(name_or_path: str, overrides: list[str] | tuple[str, ...] = ()) -> dict:
+    """Load a preset by name (``tiny``, ``demo``, ``dmc``) or TOML path, apply overrides, validate."""
+    path = Path(name_or_path)
+    if not (path.suffix == ".toml" and path.exists()):
+        path = PRESET_DIR / f"{name_or_path}.toml"
+        if not path.exists():
+            raise InputError(f"unknown preset {name_or_path!r}; available: {', '.join(available_presets())} "
+                             f"(or a path to a preset .toml file)")
+    try:
+        cfg = tomllib.loads(path.read_text())
+    except tomllib.TOMLDecodeError as exc:
+        raise InputError(f"{path}: not valid TOML ({exc})") from None
+    cfg = apply_overrides(cfg, overrides)
+    validate(cfg, str(path))
+    return cfg
+
+
+def apply_overrides(cfg: dict, overrides) -> dict:
+    cfg = copy.deepcopy(cfg)
+    for item in overrides:
+        if "=" not in item or "." not in item.split("=", 1)[0]:
+            raise InputError(f"--set {item!r}: expected section.key=value, e.g. flight.side_overlap=0.3")
+        key, value = item.split("=", 1)
+        section, name = key.strip().split(".", 1)
+        if section not in cfg or name not in cfg[section]:
+            raise InputError(f"--set {item!r}: unknown parameter {key!r}")
+        try:
+            parsed = tomllib.loads(f"v = {value.strip()}")["v"]
+        except tomllib.TOMLDecodeError:
+            parsed = value.strip()
+        old = cfg[section][name]
+        if isinstance(old, (int, float)) and not isinstance(old, bool) and not isinstance(parsed, (int, float)):
+            raise InputError(f"--set {item!r}: {key} must be a number")
+        cfg[section][name] = float(parsed) if isinstance(old, float) and isinstance(parsed, int) else parsed
+    return cfg
+
+
+def _need(cfg, source, section, key, lo=None, hi=None, lo_open=False, integer=False):
+    try:
+        v = cfg[section][key]
+    except KeyError:
+        raise InputError(f"{source}: missing parameter {section}.{key}") from None
+    if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
+        raise InputError(f"{source}: {section}.{key} must be a finite number, got {v!r}")
+    if integer and int(v) != v:
+        raise InputError(f"{source}: {section}.{key} must be a whole number, got {v!r}")
+    if lo is not None and (v < lo or (lo_open and v == lo)):
+        raise InputError(f"{source}: {section}.{key} = {v} is out of range (must be {'>' if lo_open else '>='} {lo})")
+    if hi is not None and v > hi:
+        raise InputError(f"{source}: {section}.{key} = {v} is out of range (must be <= {hi})")
+    return v
+
+
+def validate(cfg: dict, source: str = "preset") -> None:
+    for section in ("preset", "crs", "camera", "flight", "gnss", "lidar", "scene", "render", "truth"):
+        if section not in cfg:
+            raise InputError(f"{source}: missing section [{section}]")
+    _need(cfg, source, "crs", "epsg", 1, integer=True)
+    _need(cfg, source, "camera", "focal_mm", 1.0, 1000.0, lo_open=True)
+    _need(cfg, source, "camera", "sensor_width_mm", 1.0, 1000.0)
+    _need(cfg, source, "camera", "sensor_height_mm", 1.0, 1000.0)
+    _need(cfg, source, "camera", "width", 16, 30000, integer=True)
+    _need(cfg, source, "camera", "height", 16, 30000, integer=True)
+    for side in ("forward_overlap", "side_overlap"):
+        _need(cfg, source, "flight", side, 0.0, 0.95)
+    _need(cfg, source, "lidar", "side_overlap", 0.0, 0.9)
+    _need(cfg, source, "flight", "strips", 1, 200, integer=True)
+    _need(cfg, source, "flight", "frames_per_strip", 2, 2000, integer=True)
+    _need(cfg, source, "flight", "speed_mps", 1.0, 500.0)
+    _need(cfg, source, "flight", "max_tilt_deg", 0.0, 10.0)
+    _need(cfg, source, "flight", "max_kappa_dev_deg", 0.0, 30.0)
+    _need(cfg, source, "gnss", "sigma_m", 0.0, 10.0)
+    _need(cfg, source, "lidar", "pulse_rate_hz", 100.0, 2e6)
+    _need(cfg, source, "lidar", "scan_frequency_hz", 1.0, 500.0)
+    _need(cfg, source, "lidar", "fov_deg", 1.0, 75.0)
+    _need(cfg, source, "lidar", "range_noise_m", 0.0, 5.0)
+    for key in ("low_outlier_rate", "high_outlier_rate", "water_return_fraction"):
+        _need(cfg, source, "lidar", key, 0.0, 1.0)
+    if cfg["lidar"].get("format") not in ("las", "laz"):
+        raise InputError(f"{source}: lidar.format must be 'las' or 'laz', got {cfg['lidar'].get('format')!r}")
+    _need(cfg, source, "scene", "terrain_res_m", 0.1, 10.0)
+    _need(cfg, source, "scene", "steep_slope_deg", 0.0, 60.0)
+    _need(cfg, source, "render", "samples", 1, 8, integer=True)
+    _need(cfg, source, "truth", "raster_res_m", 0.05, 50.0)
+    _need(cfg, source, "truth", "ortho_res_m", 0.02, 50.0)
+    lo, hi = cfg["scene"]["building_height_m"]
+    if not (0 < lo <= hi):
+        raise InputError(f"{source}: scene.building_height_m must be [min, max] with 0 < min <= max")
+    # Flying heights must clear the whole scene, the valley side and the tallest building with room
+    # to spare, and the frames must see the ground.
+    top_m = (cfg["scene"]["steep_band_m"] * math.tan(math.radians(cfg["scene"]["steep_slope_deg"]))
+             + 3 * cfg["scene"]["mountain_relief_m"] + 3 * cfg["scene"]["hill_amplitude_m"])
+    for section in ("flight", "lidar"):
+        h = _need(cfg, source, section, "height_above_ground_m")
+        if h <= 0:
+            raise InputError(f"{source}: {section}.height_above_ground_m = {h}: the flying height is below the terrain")
+        if h < top_m + hi + 50.0:
+            raise InputError(
+                f"{source}: {section}.height_above_ground_m = {h} m does not clear the terrain: the valley side "
+                f"rises about {top_m:.0f} m above the town and buildings reach {hi} m (need at least "
+                f"{top_m + hi + 50.0:.0f} m)")

@@ -1,0 +1,239 @@
+"""Airborne laser scanner model (Optech ALTM 3100-like) and LAS 1.4 output.
+
+Each strip is flown at constant speed and height; an oscillating mirror sweeps the beam across
+track in a zig-zag (triangle wave in scan angle) at ``scan_frequency_hz``; pulses leave at
+``pulse_rate_hz``. Every pulse is ray-cast into the scene. Tree crowns are porous: a pulse may
+return from the crown surface, from inside the crown and from what lies beneath (ground or roof),
+so vegetation gives several returns with the last one on the ground. Most pulses on water give
+no return. Range noise, a small per-strip offset (GNSS/IMU error), low outliers (multipath,
+50-110 m below the surface, also under trees and in ponds) and high outliers (birds) are added.
+Truth classes (ASPRS): 2 ground, 3/4/5 low/medium/high vegetation, 6 building, 7 low noise,
+9 water, 18 high noise.
+"""
+
+from __future__ import annotations
+
+import datetime
+import math
+
+import laspy
+import numba
+import numpy as np
+import pyproj
+
+from aerotri.sim import raycast
+from aerotri.sim.scene import KIND_NONE, KIND_ROOF, KIND_TERRAIN, KIND_TREE, KIND_WALL, WATER, Scene
+
+MAX_RET = 3
+
+
+@numba.njit(cache=True, parallel=True)
+def _pulses(origins, dirs, S, u, p_first, p_interior, p_ground):
+    """Up to three returns per pulse: (t, kind, obj) arrays (n, 3); t = inf where no return.
+
+    ``u`` (n, 3) are uniform random numbers deciding the canopy behaviour of each pulse.
+    """
+    n = dirs.shape[0]
+    tc = S[13]
+    ta = S[14]
+    T = np.full((n, MAX_RET), np.inf)
+    K = np.zeros((n, MAX_RET), np.int64)
+    O = np.full((n, MAX_RET), -1, np.int64)
+    for r in numba.prange(n):
+        o = origins[r]
+        d = dirs[r]
+        t, kind, obj, nx, ny, nz = raycast.cast(o, d, S, True, -1)
+        if kind == KIND_NONE:
+            continue
+        if kind != KIND_TREE:
+            T[r, 0] = t
+            K[r, 0] = kind
+            O[r, 0] = obj
+            continue
+        k = 0
+        if u[r, 0] < p_first:
+            T[r, k] = t
+            K[r, k] = KIND_TREE
+            O[r, k] = obj
+            k += 1
+            if u[r, 1] < p_interior:
+                # Exit of the ray from this crown (second root of the spheroid equation).
+                a = ta[obj, 0]
+                c = ta[obj, 1]
+                sx = (o[0] - tc[obj, 0]) / a
+                sy = (o[1] - tc[obj, 1]) / a
+                sz = (o[2] - tc[obj, 2]) / c
+                ux = d[0] / a
+                uy = d[1] / a
+                uz = d[2] / c
+                A = ux * ux + uy * uy + uz * uz
+                B = 2.0 * (sx * ux + sy * uy + sz * uz)
+                C = sx * sx + sy * sy + sz * sz - 1.0
+                disc = max(B * B - 4.0 * A * C, 0.0)
+                t2 = (-B + math.sqrt(disc)) / (2.0 * A)
+                frac = 0.25 + 0.5 * u[r, 2]
+                if t2 - t > 2.0:  # a return inside the crown needs room to separate from the first
+                    T[r, k] = t + frac * (t2 - t)
+                    K[r, k] = KIND_TREE
+                    O[r, k] = obj
+                    k += 1
+        if k == 0 or u[r, 2] < p_ground:
+            tg, kg, og, nx, ny, nz = raycast.cast(o, d, S, False, -1)
+            if kg != KIND_NONE and (k == 0 or tg - T[r, k - 1] > 1.5):
+                T[r, k] = tg
+                K[r, k] = kg
+                O[r, k] = og
+    return T, K, O
+
+
+def _triangle_wave(phase):
+    """-1..1..-1 over one period (phase in cycles); returns value and sign of its slope."""
+    p = phase % 1.0
+    val = np.where(p < 0.5, -1.0 + 4.0 * p, 3.0 - 4.0 * p)
+    rising = p < 0.5
+    return val, rising
+
+
+def scan_strip(scene: Scene, accel, line: dict, L: dict, rng, width_m: float):
+    """Simulate one strip; returns a dict of point arrays in local metres plus truth classes."""
+    v = L["speed_mps"]
+    prf = L["pulse_rate_hz"]
+    half_fov = math.radians(L["fov_deg"] / 2.0)
+    # Fly past the scene ends by half a swath so the corners are covered.
+    lead = line["swath_m"] / 2.0
+    length = width_m + 2 * lead
+    n = int(length / v * prf)
+    t = np.arange(n) / prf
+    x_air = (-lead + v * t) if line["east"] else (width_m + lead - v * t)
+    y_air = line["y_m"] + 0.5 * np.sin(2 * np.pi * t / 37.0)  # a gentle weave of the flight line
+    z_air = np.full(n, line["z_m"])
+    tri, rising = _triangle_wave(L["scan_frequency_hz"] * t)
+    theta = tri * half_fov
+    # Across-track is +y (left) flying east; the scan angle is positive to the right of the track.
+    side = -1.0 if line["east"] else 1.0
+    dirs = np.stack([np.zeros(n), side * np.sin(theta), -np.cos(theta)], axis=1)
+    att = np.radians(L["attitude_noise_deg"]) * rng.standard_normal((n, 2))
+    dirs[:, 0] += att[:, 0]
+    dirs[:, 1] += att[:, 1]
+    dirs /= np.linalg.norm(dirs, axis=1, keepdims=True)
+    origins = np.stack([x_air, y_air, z_air], axis=1)
+    u = rng.random((n, 3))
+    T, K, O = _pulses(origins, np.ascontiguousarray(dirs), accel, u, L["canopy_first_return_prob"],
+                      L["canopy_interior_return_prob"], L["canopy_ground_return_prob"])
+    valid = np.isfinite(T)
+    # Water: most pulses give no return.
+    first_hit = np.where(valid[:, 0], T[:, 0], 0.0)
+    px = origins[:, 0] + dirs[:, 0] * first_hit
+    py = origins[:, 1] + dirs[:, 1] * first_hit
+    mat = raycast.ground_materials(px, py, scene.roads, scene.ponds, scene.targets, scene.seed)
+    on_water = valid[:, 0] & (K[:, 0] == KIND_TERRAIN) & (mat == WATER)
+
+    # Outliers: low (below the surface along the beam) and high (birds).
+    n_low = rng.binomial(n, L["low_outlier_rate"])
+    n_high = rng.binomial(n, L["high_outlier_rate"])
+    cand_tree = np.flatnonzero(valid[:, 0] & (K[:, 0] == KIND_TREE))
+    cand_water = np.flatnonzero(on_water)
+    cand_any = np.flatnonzero(valid[:, 0])
+    picks = []
+    for cand, share in ((cand_tree, 0.3), (cand_water, 0.2)):
+        k = min(len(cand), int(round(share * n_low)))
+        if k:
+            picks.append(rng.choice(cand, k, replace=False))
+    k_rest = n_low - sum(len(p) for p in picks)
+    if k_rest > 0 and len(cand_any):
+        picks.append(rng.choice(cand_any, k_rest, replace=False))
+    low = np.unique(np.concatenate(picks)) if picks else np.zeros(0, int)
+    high = rng.choice(np.setdiff1d(cand_any, low), min(n_high, len(cand_any)), replace=False) if n_high else np.zeros(0, int)
+
+    keep_water = rng.random(n) < L["water_return_fraction"]
+    drop = on_water & ~keep_water
+    drop[low] = False
+    valid[drop] = False
+
+    ranges = T.copy()
+    kinds = K.copy()
+    objs = O.copy()
+    cls_override = np.zeros(n, np.int64)
+    # Low outliers: a single return 50-110 m beyond the surface along the beam.
+    last = np.where(valid, np.arange(MAX_RET)[None, :], -1).max(axis=1)
+    base_t = ranges[low, np.maximum(last[low], 0)]
+    ranges[low] = np.inf
+    ranges[low, 0] = base_t + rng.uniform(50.0, 110.0, len(low)) / np.maximum(-dirs[low, 2], 0.5)
+    valid[low] = False
+    valid[low, 0] = True
+    cls_override[low] = 7
+    # High outliers: a single return 40-300 m above the surface.
+    first_t = ranges[high, 0]
+    ranges[high] = np.inf
+    ranges[high, 0] = first_t - rng.uniform(40.0, 300.0, len(high)) / np.maximum(-dirs[high, 2], 0.5)
+    valid[high] = False
+    valid[high, 0] = True
+    cls_override[high] = 18
+
+    nret = valid.sum(axis=1)
+    pulse, ret = np.nonzero(valid)
+    # Returns are stored in time order per pulse: compact the valid slots.
+    order_in_pulse = np.cumsum(valid, axis=1)[pulse, ret]
+    rng_m = ranges[pulse, ret] + rng.normal(0.0, L["range_noise_m"], pulse.size)
+    P = origins[pulse] + dirs[pulse] * rng_m[:, None]
+    kind = kinds[pulse, ret]
+    obj = objs[pulse, ret]
+    # Truth classes.
+    zg = scene.terrain_height(P[:, 0], P[:, 1])
+    hag = P[:, 2] - zg
+    gm = raycast.ground_materials(P[:, 0].copy(), P[:, 1].copy(), scene.roads, scene.ponds, scene.targets, scene.seed)
+    cls = np.full(pulse.size, 1, np.uint8)
+    cls[kind == KIND_TERRAIN] = 2
+    cls[(kind == KIND_TERRAIN) & (gm == WATER)] = 9
+    cls[(kind == KIND_ROOF) | (kind == KIND_WALL)] = 6
+    veg = kind == KIND_TREE
+    cls[veg & (hag < 0.5)] = 3
+    cls[veg & (hag >= 0.5) & (hag < 2.0)] = 4
+    cls[veg & (hag >= 2.0)] = 5
+    ov = cls_override[pulse]
+    cls[ov > 0] = ov[ov > 0]
+    # Intensity from a reflectance per surface (1064 nm), incidence and range.
+    refl = np.select([kind == KIND_TREE, kind == KIND_ROOF, kind == KIND_WALL, gm == WATER, gm == 2, gm == 3,
+                      gm == 5, gm == 6, gm == 1], [0.5, 0.3, 0.25, 0.04, 0.12, 0.6, 0.8, 0.05, 0.35], 0.45)
+    refl = np.where(kind == KIND_ROOF, 0.15 + 0.5 * scene.roof_albedo[np.where(kind == KIND_ROOF, obj, 0)].mean(axis=1), refl)
+    split = np.where(nret[pulse] > 1, 0.6, 1.0)
+    inten = refl * split * (line["z_m"] / np.maximum(rng_m, 1.0)) ** 2 * 30000.0
+    inten *= rng.lognormal(0.0, 0.15, inten.size)
+    scan_deg = np.degrees(theta[pulse])
+    edge = np.zeros(pulse.size, bool)
+    # Edge of flight line: the last pulse before the mirror turns.
+    turn = np.flatnonzero(rising[1:] != rising[:-1])
+    edge_pulse = np.zeros(n, bool)
+    edge_pulse[turn] = True
+    edge = edge_pulse[pulse]
+    return dict(
+        xyz=P, intensity=np.clip(inten, 0, 65535).astype(np.uint16), return_number=order_in_pulse.astype(np.uint8),
+        number_of_returns=nret[pulse].astype(np.uint8), scan_direction_flag=rising[pulse].astype(np.uint8),
+        edge_of_flight_line=edge.astype(np.uint8), scan_angle_deg=scan_deg, gps_time=line["t0_s"] + t[pulse],
+        classification=cls, point_source_id=np.full(pulse.size, line["strip"], np.uint16),
+    )
+
+
+def write_las(path, pts: dict, origin_m, epsg: int, classification=None, creation_date=datetime.date(2026, 1, 1)):
+    """LAS 1.4, point format 6, millimetre scale, CRS (WKT) in the header. Deterministic bytes."""
+    header = laspy.LasHeader(point_format=6, version="1.4")
+    header.scales = np.array([0.001, 0.001, 0.001])
+    header.offsets = np.floor(np.asarray(origin_m, dtype=float) / 1000.0) * 1000.0
+    header.add_crs(pyproj.CRS.from_epsg(epsg))
+    header.creation_date = creation_date
+    header.system_identifier = "aerotri simulator"
+    header.generating_software = "aerotri sim"
+    header.global_encoding.gps_time_type = laspy.header.GpsTimeType.STANDARD
+    las = laspy.LasData(header)
+    xyz = pts["xyz"] + np.asarray(origin_m, dtype=float)
+    las.x, las.y, las.z = xyz[:, 0], xyz[:, 1], xyz[:, 2]
+    las.intensity = pts["intensity"]
+    las.return_number = pts["return_number"]
+    las.number_of_returns = pts["number_of_returns"]
+    las.scan_direction_flag = pts["scan_direction_flag"]
+    las.edge_of_flight_line = pts["edge_of_flight_line"]
+    las.classification = pts["classification"] if classification is None else classification
+    las.scan_angle = np.rint(pts["scan_angle_deg"] / 0.006).astype(np.int16)
+    las.point_source_id = pts["point_source_id"]
+    las.gps_time = pts["gps_time"] + 4.0e8  # adjusted standard GPS time
+    las.write(str(path))
