@@ -135,7 +135,8 @@ def simulate(cfg: dict, outdir, force: bool = False, log=print) -> dict:
             f"[gnss]\n# antenna positions in gnss.txt; lever arm = antenna in the camera frame (x right, y up, z up)\n"
             f"sigma_xy_m = {g['sigma_xy_m']}\nsigma_z_m = {g['sigma_z_m']}\nlever_arm_m = [{lever}]\n\n"
             f"[control]\nsigma_xy_m = 0.10\nsigma_z_m = 0.10\n\n"
-            f"[flight]\nspeed_mps = {cfg['flight']['speed_mps']}\n"
+            f"[flight]\n# from the flight plan: mean terrain height (m, ellipsoidal) and speed\n"
+            f"mean_terrain_height_m = {origin[2]}\nspeed_mps = {cfg['flight']['speed_mps']}\n"
         )
         (tmp / "truth" / "gnss_truth.toml").write_text(
             f"lever_arm_m = [{lever}]\n"

@@ -1,0 +1,40 @@
+"""``aerotri match PROJECT``."""
+
+from __future__ import annotations
+
+import dataclasses
+from pathlib import Path
+
+import click
+
+from aerotri.errors import exit_on_input_error
+
+
+@click.command()
+@click.argument("project", type=click.Path(file_okay=False, path_type=Path))
+@click.option("--budget", type=int, default=6000, show_default=True, help="Keypoints per frame (spatially spread).")
+@click.option("--max-dim", type=int, default=3000, show_default=True,
+              help="Detect on the pyramid level whose larger side is at most this many pixels.")
+@click.option("--ratio", type=float, default=0.8, show_default=True, help="Lowe ratio test threshold.")
+@click.option("--min-overlap", type=float, default=0.15, show_default=True,
+              help="Minimum predicted footprint overlap of a candidate pair (fraction of the smaller footprint).")
+@click.option("--terrain-height", type=float, default=None,
+              help="Mean terrain height (m) for the footprints; default: project.toml [flight] or lidar_out/dem.tif.")
+@click.option("--image-top-deg", type=float, default=0.0, show_default=True,
+              help="Direction of the image top relative to the flight direction (0 = forward).")
+@click.option("--no-densify", is_flag=True, help="Do not densify weak models.")
+@exit_on_input_error
+def match(project, budget, max_dim, ratio, min_overlap, terrain_height, image_top_deg, no_densify):
+    """Automatic tie points: writes at/tiepoints.csv and at/connectivity.{json,png}."""
+    from aerotri.match import MatchSettings, match_project
+    from aerotri.match.features import FeatureParams
+    from aerotri.match.matching import MatchParams
+
+    s = MatchSettings(sparse=FeatureParams(budget=budget, max_dim_px=max_dim), match=MatchParams(ratio=ratio),
+                      min_overlap=min_overlap, terrain_height_m=terrain_height, image_top_deg=image_top_deg,
+                      densify=not no_densify)
+    s = dataclasses.replace(s)
+    rep = match_project(project, s, log=lambda m: click.echo(m, err=True))
+    click.echo(f"frames {rep['frames']}  pairs {rep['pairs']}  tracks {rep['tracks']}  observations "
+               f"{rep['observations']}  3+ rays {100 * rep['tracks_3plus_fraction']:.1f} %  components "
+               f"{rep['components']}  weak models {len(rep['weak_models'])}")

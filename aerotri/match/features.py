@@ -1,0 +1,84 @@
+"""SIFT features with a spatial budget, cached per frame in ``work/features``.
+
+Detection runs on pyramid level L (the image shrunk by 2^L so that its larger side is at most
+``max_dim_px``) with a low contrast threshold; then every cell of a ``grid`` over the frame keeps
+its strongest keypoints (``budget`` in all), so that texture-poor parts of every frame still get
+points. Descriptors are RootSIFT (L1-normalised, square-rooted). Keypoints are stored in
+full-resolution pixel coordinates.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import hashlib
+import json
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from aerotri.match.images import downsample, level_to_full, pyramid_level, read_gray
+from lidarctl.atomic import atomic_path
+
+
+@dataclasses.dataclass(frozen=True)
+class FeatureParams:
+    budget: int = 6000
+    grid: tuple[int, int] = (12, 8)  # cells across the image width, height
+    max_dim_px: int = 3000
+    contrast_threshold: float = 0.01
+    name: str = "sparse"
+
+    def key(self) -> str:
+        return hashlib.sha1(json.dumps(dataclasses.asdict(self), sort_keys=True).encode()).hexdigest()[:12]
+
+
+@dataclasses.dataclass
+class Features:
+    xy_px: np.ndarray  # (K, 2) float64 full-resolution pixel coordinates
+    descriptors: np.ndarray  # (K, 128) float32 RootSIFT
+    level: int
+
+
+def extract(img: np.ndarray, p: FeatureParams) -> Features:
+    level = pyramid_level(img.shape[1], img.shape[0], p.max_dim_px)
+    small = downsample(img, level)
+    sift = cv2.SIFT_create(nfeatures=0, contrastThreshold=p.contrast_threshold)
+    kps = sift.detect(small, None)
+    if not kps:
+        return Features(np.zeros((0, 2)), np.zeros((0, 128), np.float32), level)
+    xy = np.array([k.pt for k in kps])
+    resp = np.array([k.response for k in kps])
+    gx, gy = p.grid
+    h, w = small.shape
+    cell = (np.minimum((xy[:, 1] * gy / h).astype(int), gy - 1) * gx
+            + np.minimum((xy[:, 0] * gx / w).astype(int), gx - 1))
+    per_cell = max(1, p.budget // (gx * gy))
+    # Strongest per cell: sort by (cell, -response) and keep the first per_cell of each cell.
+    order = np.lexsort((-resp, cell))
+    c_sorted = cell[order]
+    rank = np.arange(len(order)) - np.searchsorted(c_sorted, c_sorted)
+    keep = np.sort(order[rank < per_cell])
+    kps = [kps[k] for k in keep]
+    kps, desc = sift.compute(small, kps)
+    desc = desc.astype(np.float32)
+    desc /= desc.sum(axis=1, keepdims=True) + 1e-7
+    desc = np.sqrt(desc)
+    xy = level_to_full(np.array([k.pt for k in kps]), level)
+    return Features(xy, desc, level)
+
+
+def cached_features(image_path: Path, cache_dir: Path, p: FeatureParams, expect_size=None) -> Features:
+    """Features of one frame, from the cache when the image file and parameters are unchanged."""
+    st = image_path.stat()
+    tag = f"{image_path.stem}.{p.name}.{p.key()}"
+    meta = {"size": st.st_size, "mtime_ns": st.st_mtime_ns}
+    f = cache_dir / f"{tag}.npz"
+    if f.exists():
+        with np.load(f) as z:
+            if json.loads(str(z["meta"])) == meta:
+                return Features(z["xy_px"], z["descriptors"], int(z["level"]))
+    feats = extract(read_gray(image_path, expect_size), p)
+    with atomic_path(f) as tmp:
+        np.savez(tmp, xy_px=feats.xy_px, descriptors=feats.descriptors, level=feats.level, meta=json.dumps(meta))
+    return feats

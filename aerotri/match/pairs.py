@@ -1,0 +1,109 @@
+"""Candidate image pairs from the flight plan: strips, approximate orientations, predicted footprints.
+
+Before any matching the frames' exterior orientation is approximated from GNSS: centre = antenna
+minus the lever arm, omega = phi = 0, kappa from the strip direction with the top of the image
+facing forward (``image_top_deg`` turns that, e.g. 180 for cameras mounted backwards). Footprints are
+the image corners intersected with a horizontal plane at the mean terrain height. Pairs are frames
+whose footprints overlap: neighbours along a strip, second neighbours (triple overlap) and frames of
+adjacent strips. No exhaustive matching.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+from shapely.geometry import Polygon
+
+from aerotri.adjust.strips import strips_from_track
+from aerotri.camera import FrameCamera
+from aerotri.errors import InputError
+from aerotri.rotation import rotation_matrix_opk
+
+
+@dataclasses.dataclass
+class BlockPlan:
+    image_id: list[str]
+    strip: np.ndarray  # (N,) 0-based strip index
+    centre_m: np.ndarray  # (N, 3) approximate projection centres
+    kappa_deg: np.ndarray  # (N,)
+    terrain_height_m: float
+    footprints: list[Polygon]
+
+    def rotation(self, i: int) -> np.ndarray:
+        return rotation_matrix_opk(0.0, 0.0, self.kappa_deg[i])
+
+    def ground_xy(self, i: int, camera: FrameCamera, xy_px: np.ndarray) -> np.ndarray:
+        """Approximate ground coordinates of image points of frame i (flat terrain)."""
+        d = camera.rays(xy_px[:, 0], xy_px[:, 1], self.rotation(i))
+        t = (self.terrain_height_m - self.centre_m[i, 2]) / d[:, 2]
+        return self.centre_m[i, :2] + d[:, :2] * t[:, None]
+
+
+def plan_block(image_id, antenna_m, camera: FrameCamera, lever_arm_m, terrain_height_m: float,
+               image_top_deg: float = 0.0) -> BlockPlan:
+    antenna_m = np.asarray(antenna_m, dtype=float)
+    strip = strips_from_track(antenna_m)
+    kappa = np.zeros(len(image_id))
+    for s in np.unique(strip):
+        idx = np.flatnonzero(strip == s)
+        if len(idx) > 1:
+            d = antenna_m[idx[-1], :2] - antenna_m[idx[0], :2]
+        else:  # a single frame: take the direction of the previous strip, or north
+            d = np.array([0.0, 1.0])
+        kappa[idx] = np.degrees(np.arctan2(-d[0], d[1])) + image_top_deg
+    R = rotation_matrix_opk(np.zeros_like(kappa), np.zeros_like(kappa), kappa)
+    centre = antenna_m - np.einsum("nij,j->ni", R, np.asarray(lever_arm_m, dtype=float))
+    if np.any(centre[:, 2] <= terrain_height_m + 1.0):
+        bad = image_id[int(np.argmin(centre[:, 2]))]
+        raise InputError(f"frame {bad}: camera at {centre[:, 2].min():.1f} m is not above the terrain height "
+                         f"{terrain_height_m:.1f} m (check gnss.txt heights and the terrain height)")
+    W, H = camera.width, camera.height
+    corners = np.array([[-0.5, -0.5], [W - 0.5, -0.5], [W - 0.5, H - 0.5], [-0.5, H - 0.5]])
+    plan = BlockPlan(list(image_id), strip, centre, kappa, float(terrain_height_m), [])
+    for i in range(len(image_id)):
+        plan.footprints.append(Polygon(plan.ground_xy(i, camera, corners)))
+    return plan
+
+
+@dataclasses.dataclass
+class Pair:
+    i: int
+    j: int
+    kind: str  # along | second | cross | extra
+    overlap: float  # overlap area / smaller footprint area
+
+
+def candidate_pairs(plan: BlockPlan, min_overlap: float = 0.15, grow: float = 0.1) -> list[Pair]:
+    """Pairs of frames whose (slightly grown) footprints overlap by at least ``min_overlap``."""
+    fps = [fp.buffer(grow * np.sqrt(fp.area)) for fp in plan.footprints]
+    pairs = []
+    n = len(fps)
+    # Bounding-box prefilter keeps this O(N log N)-like for thousands of frames.
+    bounds = np.array([fp.bounds for fp in fps])
+    order = np.argsort(bounds[:, 0])
+    for a_pos, i in enumerate(order):
+        for j in order[a_pos + 1:]:
+            if bounds[j, 0] > bounds[i, 2]:
+                break
+            if bounds[j, 1] > bounds[i, 3] or bounds[j, 3] < bounds[i, 1]:
+                continue
+            inter = fps[i].intersection(fps[j]).area
+            ov = inter / min(fps[i].area, fps[j].area)
+            if ov < min_overlap:
+                continue
+            a, b = (int(i), int(j)) if i < j else (int(j), int(i))
+            pairs.append(Pair(a, b, _kind(plan, a, b), float(ov)))
+    pairs.sort(key=lambda p: (p.i, p.j))
+    if n > 1 and not pairs:
+        raise InputError("no two frames overlap according to gnss.txt, the camera and the terrain height: "
+                         "check the GNSS positions, the camera file and project.toml [flight] terrain height")
+    return pairs
+
+
+def _kind(plan: BlockPlan, a: int, b: int) -> str:
+    if plan.strip[a] != plan.strip[b]:
+        return "cross"
+    same = np.flatnonzero(plan.strip == plan.strip[a])
+    gap = abs(int(np.searchsorted(same, b)) - int(np.searchsorted(same, a)))
+    return "along" if gap == 1 else ("second" if gap == 2 else "extra")

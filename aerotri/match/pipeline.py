@@ -1,0 +1,195 @@
+"""``match_project``: the tie-point stage over a project folder."""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import sys
+import time
+
+import numpy as np
+import rasterio
+from scipy.sparse import coo_matrix
+from scipy.sparse.csgraph import connected_components
+from scipy.spatial import cKDTree
+from tqdm import tqdm
+
+from aerotri.eo import read_gnss
+from aerotri.errors import InputError
+from aerotri.match import features as F
+from aerotri.match import matching as M
+from aerotri.match.images import find_images
+from aerotri.match.pairs import Pair, candidate_pairs, plan_block
+from aerotri.match.report import plot_block, track_length_histogram
+from aerotri.match.tracks import build_tracks
+from aerotri.match.weak import analyse
+from aerotri.project import Project
+from lidarctl.atomic import write_text_atomic
+
+
+@dataclasses.dataclass
+class MatchSettings:
+    sparse: F.FeatureParams = dataclasses.field(default_factory=F.FeatureParams)
+    dense: F.FeatureParams = dataclasses.field(
+        default_factory=lambda: F.FeatureParams(budget=16000, grid=(24, 16), max_dim_px=6000,
+                                                contrast_threshold=0.004, name="dense"))
+    match: M.MatchParams = dataclasses.field(default_factory=M.MatchParams)
+    dense_ratio: float = 0.9
+    min_overlap: float = 0.15
+    terrain_height_m: float | None = None
+    image_top_deg: float = 0.0
+    densify: bool = True
+    min_per_region: int = 3
+    min_strip_ties: int = 20
+
+
+def _terrain_height(project: Project, s: MatchSettings) -> float:
+    if s.terrain_height_m is not None:
+        return float(s.terrain_height_m)
+    fl = project.section("flight")
+    if "mean_terrain_height_m" in fl:
+        return float(fl["mean_terrain_height_m"])
+    dem = project.lidar_out_dir / "dem.tif"
+    if dem.exists():
+        with rasterio.open(dem) as ds:
+            a = ds.read(1, masked=True, out_shape=(1, min(ds.height, 512), min(ds.width, 512)))
+            return float(a.mean())
+    raise InputError(f"{project.root / 'project.toml'}: no terrain height for the footprints: set [flight] "
+                     f"mean_terrain_height_m, give --terrain-height, or run lidarctl rasters first")
+
+
+def _progress(it, desc, total=None):
+    return tqdm(it, desc=desc, total=total, leave=False, disable=not sys.stderr.isatty())
+
+
+def match_project(root, settings: MatchSettings | None = None, log=lambda m: None) -> dict:
+    """Match the frames of a project; writes ``at/tiepoints.csv`` and the connectivity report."""
+    s = settings or MatchSettings()
+    t0 = time.perf_counter()
+    project = Project.open(root)
+    camera = project.camera()
+    gnss = read_gnss(project.gnss_path)
+    images = find_images(project.images_dir)
+    missing = sorted(set(images) - set(gnss.image_id))
+    if missing:
+        raise InputError(f"{project.gnss_path}: no GNSS position for frame(s) {', '.join(missing[:10])}"
+                         + (" ..." if len(missing) > 10 else ""))
+    no_image = sorted(set(gnss.image_id) - set(images))
+    if no_image:
+        raise InputError(f"{project.images_dir}: no image file for GNSS record(s) {', '.join(no_image[:10])}")
+    ids = list(gnss.image_id)
+    lever = project.section("gnss").get("lever_arm_m", [0.0, 0.0, 0.0])
+    plan = plan_block(ids, gnss.position_m, camera, lever, _terrain_height(project, s), s.image_top_deg)
+    pairs = candidate_pairs(plan, s.min_overlap)
+    cache_f = project.work_dir / "features"
+    cache_m = project.work_dir / "matches"
+    stats = dict(feature_cache_hits=0, match_cache_hits=0)
+
+    def feats(i, p: F.FeatureParams):
+        f = cache_f / f"{ids[i]}.{p.name}.{p.key()}.npz"
+        stats["feature_cache_hits"] += f.exists()
+        return F.cached_features(images[ids[i]], cache_f, p, (camera.width, camera.height))
+
+    def match(i, j, fa, fb, p: M.MatchParams, fkey):
+        tag = f"{ids[i]}__{ids[j]}"
+        stats["match_cache_hits"] += (cache_m / f"{tag}.{fkey}.{p.key()}.npy").exists()
+        return M.cached_match(tag, fa, fb, camera, p, cache_m, fkey)
+
+    sparse = [feats(i, s.sparse) for i in _progress(range(len(ids)), "features")]
+    matches = {}
+    for pr in _progress(pairs, "matching"):
+        matches[(pr.i, pr.j)] = ("sparse", match(pr.i, pr.j, sparse[pr.i], sparse[pr.j], s.match, s.sparse.key()))
+    track, image, xy, n_bad = _tracks(sparse, {}, matches)
+    analysis = analyse(plan, camera, track, image, xy, s.min_per_region, s.min_strip_ties)
+
+    densified = dict(models=[], strip_pairs=[])
+    if s.densify:
+        weak_pairs = {(m["i"], m["j"]) for m in analysis["models"] if m["weak"]}
+        extra: list[Pair] = []
+        for c in analysis["cross_strip"]:
+            if c["weak"]:
+                densified["strip_pairs"].append([c["strip_a"], c["strip_b"]])
+                # Extra cross pairs with a lower overlap threshold between the two strips.
+                for pr in candidate_pairs(plan, s.min_overlap / 3.0):
+                    if {int(plan.strip[pr.i]) + 1, int(plan.strip[pr.j]) + 1} == {c["strip_a"], c["strip_b"]}:
+                        if (pr.i, pr.j) not in matches:
+                            pr.kind = "extra"
+                            extra.append(pr)
+                        weak_pairs.add((pr.i, pr.j))
+        if weak_pairs:
+            densified["models"] = sorted([ids[i], ids[j]] for i, j in weak_pairs)
+            dense = {}
+            for i in sorted({k for p in weak_pairs for k in p}):
+                dense[i] = feats(i, s.dense)
+            dp = dataclasses.replace(s.match, ratio=s.dense_ratio)
+            for i, j in _progress(sorted(weak_pairs), "densifying"):
+                matches[(i, j)] = ("dense", match(i, j, dense[i], dense[j], dp, s.dense.key()))
+            pairs = pairs + extra
+            track, image, xy, n_bad = _tracks(sparse, dense, matches)
+            analysis = analyse(plan, camera, track, image, xy, s.min_per_region, s.min_strip_ties)
+
+    # Connectivity of the frames through verified matches.
+    ties = [(i, j, len(m)) for (i, j), (_, m) in matches.items()]
+    r = [i for i, j, t in ties if t > 0]
+    c = [j for i, j, t in ties if t > 0]
+    n = len(ids)
+    ncomp, comp = connected_components(coo_matrix((np.ones(len(r)), (r, c)), shape=(n, n)), directed=False)
+    components = [[ids[k] for k in np.flatnonzero(comp == q)] for q in range(ncomp)]
+
+    at = project.at_dir
+    at.mkdir(parents=True, exist_ok=True)
+    lines = ["point_id,image_id,x_px,y_px"]
+    lines += [f"T{t + 1:07d},{ids[i]},{x:.3f},{y:.3f}" for t, i, (x, y) in zip(track, image, xy)]
+    write_text_atomic(at / "tiepoints.csv", "\n".join(lines) + "\n")
+    lengths = np.bincount(track) if len(track) else np.zeros(0, int)
+    kinds = {}
+    for pr in pairs:
+        kinds[pr.kind] = kinds.get(pr.kind, 0) + 1
+    report = dict(
+        project=project.name, frames=n, strips=int(len(np.unique(plan.strip))), pairs=len(pairs),
+        pairs_by_kind=kinds, pairs_with_ties=int(sum(t > 0 for _, _, t in ties)), components=len(components),
+        component_frames=components if len(components) > 1 else [], tracks=int(len(lengths)),
+        observations=int(len(track)), inconsistent_tracks_dropped=n_bad,
+        tracks_3plus_fraction=float((lengths >= 3).mean()) if len(lengths) else 0.0,
+        track_length_histogram=track_length_histogram(track),
+        ties_per_pair=[dict(left=ids[i], right=ids[j], ties=t) for i, j, t in ties],
+        weak_models=[[m["left"], m["right"]] for m in analysis["models"] if m["weak"]],
+        weak_strip_pairs=[[c_["strip_a"], c_["strip_b"]] for c_ in analysis["cross_strip"] if c_["weak"]],
+        densified=densified, models=analysis["models"], cross_strip=analysis["cross_strip"],
+        terrain_height_m=plan.terrain_height_m, seconds=round(time.perf_counter() - t0, 2), **stats,
+    )
+    write_text_atomic(at / "connectivity.json", json.dumps(report, indent=1) + "\n")
+    plot_block(at / "connectivity.png", plan, ties, analysis)
+    log(f"{n} frames, {len(pairs)} pairs, {report['tracks']} tracks, {report['observations']} observations, "
+        f"{len(components)} component(s), {len(report['weak_models'])} weak model(s) -> {at / 'tiepoints.csv'}")
+    return report
+
+
+def _tracks(sparse, dense, matches):
+    """Tracks over the union of sparse and dense keypoints (dense ones that repeat a sparse keypoint
+    within 0.5 px are merged with it, so one image point never appears twice)."""
+    n_img = len(sparse)
+    xy_all, dense_map = [], {}
+    for i in range(n_img):
+        xs = sparse[i].xy_px
+        if i in dense:
+            xd = dense[i].xy_px
+            d, nn = cKDTree(xs).query(xd, distance_upper_bound=0.5) if len(xs) else (np.full(len(xd), np.inf), None)
+            same = np.isfinite(d)
+            idx = np.empty(len(xd), int)
+            idx[same] = nn[same]
+            idx[~same] = len(xs) + np.arange((~same).sum())
+            dense_map[i] = idx
+            xy_all.append(np.vstack([xs, xd[~same]]))
+        else:
+            xy_all.append(xs)
+    pm = []
+    for (i, j), (kind, m) in matches.items():
+        if len(m) == 0:
+            continue
+        if kind == "dense":
+            m = np.column_stack([dense_map[i][m[:, 0]], dense_map[j][m[:, 1]]])
+        pm.append((i, j, m))
+    track, image, kp, n_bad = build_tracks([len(x) for x in xy_all], pm)
+    xy = np.array([xy_all[i][k] for i, k in zip(image, kp)]).reshape(-1, 2)
+    return track, image, xy, n_bad

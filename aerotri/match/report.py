@@ -1,0 +1,51 @@
+"""Connectivity report: JSON numbers and a plot of the block (footprints, pairs, tie counts, weak areas)."""
+
+from __future__ import annotations
+
+import matplotlib
+
+matplotlib.use("Agg")
+import matplotlib.pyplot as plt  # noqa: E402
+import numpy as np  # noqa: E402
+
+from lidarctl.atomic import atomic_path  # noqa: E402
+
+
+def plot_block(path, plan, pairs_ties: list[tuple[int, int, int]], analysis: dict) -> None:
+    fig, ax = plt.subplots(figsize=(10, 8))
+    for fp in plan.footprints:
+        x, y = fp.exterior.xy
+        ax.plot(x, y, color="0.75", lw=0.6)
+    c = plan.centre_m
+    tmax = max([t for _, _, t in pairs_ties] + [1])
+    for i, j, t in pairs_ties:
+        ax.plot([c[i, 0], c[j, 0]], [c[i, 1], c[j, 1]], color=plt.cm.viridis(t / tmax), lw=0.5 + 3.0 * t / tmax,
+                alpha=0.8)
+    for m in analysis["models"]:
+        if m["weak"]:
+            ov = plan.footprints[m["i"]].intersection(plan.footprints[m["j"]])
+            if not ov.is_empty:
+                x, y = ov.exterior.xy
+                ax.fill(x, y, color="red", alpha=0.15)
+    ax.scatter(c[:, 0], c[:, 1], s=12, c="k", zorder=3)
+    for k, iid in enumerate(plan.image_id):
+        ax.annotate(iid, c[k, :2], fontsize=6, xytext=(2, 2), textcoords="offset points")
+    sm = plt.cm.ScalarMappable(cmap="viridis", norm=plt.Normalize(0, tmax))
+    fig.colorbar(sm, ax=ax, label="tie points per pair")
+    weak = sum(m["weak"] for m in analysis["models"])
+    ax.set_title(f"{len(plan.image_id)} frames, {len(pairs_ties)} pairs, {weak} weak models (red)")
+    ax.set_aspect("equal")
+    ax.set_xlabel("X (m)")
+    ax.set_ylabel("Y (m)")
+    ax.ticklabel_format(useOffset=False, style="plain")
+    with atomic_path(path) as tmp:
+        fig.savefig(tmp, dpi=120, bbox_inches="tight", format="png")
+    plt.close(fig)
+
+
+def track_length_histogram(track: np.ndarray) -> dict[str, int]:
+    if len(track) == 0:
+        return {}
+    lengths = np.bincount(track)
+    vals, cnt = np.unique(lengths[lengths > 0], return_counts=True)
+    return {str(int(v)): int(c) for v, c in zip(vals, cnt)}

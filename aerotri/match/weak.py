@@ -1,0 +1,68 @@
+"""Block strength: tie points in the 9 von Gruber regions of every stereo model, multi-ray points,
+and ties between adjacent strips.
+
+A stereo model is a pair of consecutive frames of a strip. Its overlap area (the intersection of
+the two predicted footprints) is divided into 3 x 3 regions along and across the base; a tie point
+of the model is a track seen in both frames, located on the ground through the first frame's
+approximate orientation.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from aerotri.camera import FrameCamera
+from aerotri.match.pairs import BlockPlan
+
+
+def model_regions(plan: BlockPlan, camera: FrameCamera, i: int, j: int, xy_i: np.ndarray) -> np.ndarray:
+    """Counts (3, 3) of tie points in the von Gruber regions of model (i, j); rows across, columns along."""
+    ov = plan.footprints[i].intersection(plan.footprints[j])
+    counts = np.zeros((3, 3), int)
+    if ov.is_empty or len(xy_i) == 0:
+        return counts
+    base = plan.centre_m[j, :2] - plan.centre_m[i, :2]
+    u = base / (np.linalg.norm(base) or 1.0)
+    v = np.array([-u[1], u[0]])
+    poly = np.asarray(ov.exterior.coords)
+    pu, pv = poly @ u, poly @ v
+    g = plan.ground_xy(i, camera, xy_i)
+    gu, gv = g @ u, g @ v
+    a = np.clip(((gu - pu.min()) / (np.ptp(pu) or 1.0) * 3).astype(int), 0, 2)
+    b = np.clip(((gv - pv.min()) / (np.ptp(pv) or 1.0) * 3).astype(int), 0, 2)
+    inside = (gu >= pu.min()) & (gu <= pu.max()) & (gv >= pv.min()) & (gv <= pv.max())
+    np.add.at(counts, (b[inside], a[inside]), 1)
+    return counts
+
+
+def stereo_models(plan: BlockPlan) -> list[tuple[int, int]]:
+    models = []
+    for s in np.unique(plan.strip):
+        idx = np.flatnonzero(plan.strip == s)
+        models.extend((int(a), int(b)) for a, b in zip(idx[:-1], idx[1:]))
+    return models
+
+
+def analyse(plan: BlockPlan, camera: FrameCamera, track, image, xy_px, min_per_region: int = 3,
+            min_strip_ties: int = 20) -> dict:
+    """Per-model region counts, weak models, cross-strip tie counts and weak strip pairs."""
+    n_img = len(plan.image_id)
+    by_image = [dict() for _ in range(n_img)]
+    for k, (t, i) in enumerate(zip(track, image)):
+        by_image[i][int(t)] = k
+    models = []
+    for i, j in stereo_models(plan):
+        common = sorted(set(by_image[i]) & set(by_image[j]))
+        xy_i = xy_px[[by_image[i][t] for t in common]] if common else np.zeros((0, 2))
+        c = model_regions(plan, camera, i, j, xy_i)
+        models.append(dict(left=plan.image_id[i], right=plan.image_id[j], i=i, j=j, ties=len(common),
+                           regions=c.tolist(), weak=bool(c.min() < min_per_region)))
+    strips = np.unique(plan.strip)
+    track_strips: dict[int, set] = {}
+    for t, i in zip(track, image):
+        track_strips.setdefault(int(t), set()).add(int(plan.strip[i]))
+    cross = []
+    for a, b in zip(strips[:-1], strips[1:]):
+        n = sum(1 for s in track_strips.values() if a in s and b in s)
+        cross.append(dict(strip_a=int(a) + 1, strip_b=int(b) + 1, ties=n, weak=n < min_strip_ties))
+    return dict(models=models, cross_strip=cross)

@@ -1,0 +1,90 @@
+"""Checks of pipeline products against a simulated project's truth (used by tests and bench scripts)."""
+
+from __future__ import annotations
+
+import csv
+
+import numpy as np
+import rasterio
+from scipy.ndimage import maximum_filter, minimum_filter
+
+from aerotri.camera import FrameCamera
+from aerotri.eo import read_eo
+
+
+def read_tiepoints(path):
+    with open(path, newline="") as f:
+        rows = list(csv.DictReader(f))
+    return ([r["point_id"] for r in rows], [r["image_id"] for r in rows],
+            np.array([[float(r["x_px"]), float(r["y_px"])] for r in rows]).reshape(-1, 2))
+
+
+def triangulate(centres, dirs, index, n):
+    """Least-squares intersection of rays (unit dirs) grouped by ``index`` (0..n-1)."""
+    A = np.zeros((n, 3, 3))
+    b = np.zeros((n, 3))
+    P = np.eye(3)[None] - dirs[:, :, None] * dirs[:, None, :]
+    np.add.at(A, index, P)
+    np.add.at(b, index, np.einsum("kij,kj->ki", P, centres))
+    return np.linalg.solve(A + 1e-12 * np.eye(3)[None], b[..., None])[..., 0]
+
+
+def tie_point_errors(project, tiepoints_csv=None, tol_px: float = 1.0) -> dict:
+    """Which tie observations are off by more than ``tol_px`` from their true image positions.
+
+    Each track is intersected with the true orientations and the true camera; an observation is off
+    when its reprojection residual exceeds ``tol_px``. Two-ray tracks cannot show errors along the
+    epipolar line in their residuals, so their intersected point must also lie on the true DSM
+    within the height error that ``tol_px`` of parallax would cause (tested against the DSM's local
+    minimum and maximum, so building edges do not count against the matcher).
+    """
+    from pathlib import Path
+
+    project = Path(project)
+    pid, iid, xy = read_tiepoints(tiepoints_csv or project / "at" / "tiepoints.csv")
+    eo = read_eo(project / "truth" / "eo.txt")
+    cam = FrameCamera.read(project / "truth" / "camera.toml")
+    idx = eo.index()
+    img = np.array([idx[i] for i in iid])
+    _, track = np.unique(pid, return_inverse=True)
+    n = int(track.max()) + 1 if len(track) else 0
+    R = eo.rotations()
+    d = np.empty((len(xy), 3))
+    for k in np.unique(img):
+        sel = img == k
+        d[sel] = cam.rays(xy[sel, 0], xy[sel, 1], R[k])
+    C = eo.centre_m[img]
+    X = triangulate(C, d, track, n)
+    res = np.empty(len(xy))
+    for k in np.unique(img):
+        sel = img == k
+        px, py, _ = cam.project(X[track[sel]], eo.centre_m[k], R[k])
+        res[sel] = np.hypot(px - xy[sel, 0], py - xy[sel, 1])
+    off = res > tol_px
+    length = np.bincount(track, minlength=n)
+    two = length[track] == 2
+    with rasterio.open(project / "truth" / "dsm.tif") as ds:
+        dsm = ds.read(1)
+        hi, lo = maximum_filter(dsm, 5), minimum_filter(dsm, 5)
+        T = ds.transform  # north-up grid: x = c + a col, y = f + e row
+        rows = np.clip(np.floor((X[:, 1] - T.f) / T.e).astype(int), 0, ds.height - 1)
+        cols = np.clip(np.floor((X[:, 0] - T.c) / T.a).astype(int), 0, ds.width - 1)
+    # Height error caused by tol_px of x-parallax in each two-ray track: dZ = tol * GSD * H / B.
+    first = np.full(n, -1)
+    second = np.full(n, -1)
+    for k in range(len(track)):
+        t = track[k]
+        if first[t] < 0:
+            first[t] = img[k]
+        elif second[t] < 0:
+            second[t] = img[k]
+    ok2 = second >= 0
+    B = np.where(ok2, np.linalg.norm(eo.centre_m[first] - eo.centre_m[np.maximum(second, 0)], axis=1), np.inf)
+    Hh = eo.centre_m[np.maximum(first, 0), 2] - X[:, 2]
+    dz_tol = tol_px * cam.pixel_um * 1e-6 / (cam.focal_mm * 1e-3) * Hh ** 2 / np.maximum(B, 1e-6) + 0.3
+    bad_height = (X[:, 2] > hi[rows, cols] + dz_tol) | (X[:, 2] < lo[rows, cols] - dz_tol)
+    off |= two & bad_height[track]
+    return dict(observations=int(len(xy)), tracks=n, off_by_more_than_px=float(tol_px), off_count=int(off.sum()),
+                off_fraction=float(off.mean()) if len(off) else 0.0,
+                median_residual_px=float(np.median(res)) if len(res) else 0.0,
+                rms_residual_px=float(np.sqrt(np.mean(res[~off] ** 2))) if (~off).any() else 0.0)

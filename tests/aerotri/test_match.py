@@ -1,0 +1,112 @@
+"""Tie-point matching on the simulated tiny block, caching, and refusal of bad inputs."""
+
+from __future__ import annotations
+
+import json
+import shutil
+
+import numpy as np
+import pytest
+from click.testing import CliRunner
+
+from aerotri.cli import main as aerotri_main
+from aerotri.match import match_project
+from aerotri.match.pairs import candidate_pairs, plan_block
+from aerotri.match.tracks import build_tracks
+from aerotri.sim.evaluate import tie_point_errors
+
+
+@pytest.fixture(scope="module")
+def matched(tiny_project, tmp_path_factory):
+    """A private copy of the tiny project (inputs only) with tie points matched once."""
+    p = tmp_path_factory.mktemp("match") / "tiny"
+    shutil.copytree(tiny_project, p)
+    rep = match_project(p)
+    return p, rep
+
+
+def test_tiny_block_is_connected_and_accurate(matched):
+    p, rep = matched
+    assert rep["components"] == 1
+    assert rep["pairs_by_kind"]["along"] == 4 and rep["pairs_by_kind"]["second"] == 2 and rep["pairs_by_kind"]["cross"] >= 3
+    # Not exhaustive: fewer pairs than all 15 combinations of 6 frames.
+    assert rep["pairs"] < 15
+    assert rep["tracks_3plus_fraction"] >= 0.15
+    assert all(not c["weak"] for c in rep["cross_strip"])
+    assert all(min(min(r) for r in m["regions"]) >= 3 for m in rep["models"])
+    err = tie_point_errors(p)
+    assert err["observations"] == rep["observations"] > 2000
+    assert err["off_fraction"] < 0.01
+    assert err["median_residual_px"] < 0.25
+    assert (p / "at" / "connectivity.png").stat().st_size > 10_000
+
+
+def test_rerun_reuses_cached_features_and_matches(matched):
+    p, rep = matched
+    again = match_project(p)
+    assert again["feature_cache_hits"] == again["frames"]
+    assert again["match_cache_hits"] >= again["pairs_with_ties"]
+    assert (p / "at" / "tiepoints.csv").read_text().count("\n") == rep["observations"] + 1
+
+
+def test_tracks_drop_inconsistent_chains():
+    # Image 0 kp 0 <-> image 1 kp 0 <-> image 2 kp 0 <-> image 0 kp 1: image 0 twice -> dropped.
+    m01 = np.array([[0, 0], [2, 2]])
+    m12 = np.array([[0, 0], [2, 2]])
+    m20 = np.array([[0, 1]])
+    track, image, kp, bad = build_tracks([3, 3, 3], [(0, 1, m01), (1, 2, m12), (2, 0, m20)])
+    assert bad == 1
+    assert len(np.unique(track)) == 1 and sorted(image.tolist()) == [0, 1, 2] and set(kp.tolist()) == {2}
+
+
+def test_pairs_follow_the_footprints():
+    from aerotri.camera import dmc_camera
+
+    cam = dmc_camera()
+    # Two strips flown east and west at 1000 m, base 300 m, strips 1000 m apart.
+    pos = [(x, 0.0, 1000.0) for x in (0, 300, 600, 900)] + [(x, 1000.0, 1000.0) for x in (900, 600, 300, 0)]
+    ids = [f"a{i}" for i in range(4)] + [f"b{i}" for i in range(4)]
+    plan = plan_block(ids, np.array(pos), cam, [0, 0, 0], 0.0)
+    assert plan.strip.tolist() == [0, 0, 0, 0, 1, 1, 1, 1]
+    assert np.allclose(plan.kappa_deg[:4], -90) and np.allclose(plan.kappa_deg[4:], 90)
+    pairs = candidate_pairs(plan)
+    kinds = {(ids[p.i], ids[p.j]): p.kind for p in pairs}
+    assert kinds[("a0", "a1")] == "along" and kinds[("a0", "a2")] == "second"
+    assert ("a0", "a3") not in kinds  # 900 m apart with a 768 m footprint: no overlap
+    assert kinds[("a0", "b3")] == "cross"
+
+
+def _copy_inputs(src, dst):
+    shutil.copytree(src, dst, ignore=shutil.ignore_patterns("at", "work", "truth"))
+    return dst
+
+
+@pytest.mark.parametrize("case", ["unreadable", "missing_gnss", "pixels_focal", "no_overlap"])
+def test_bad_inputs_name_the_culprit(tiny_project, tmp_path, case):
+    p = _copy_inputs(tiny_project, tmp_path / "p")
+    if case == "unreadable":
+        (p / "images" / "s01_002.tif").write_bytes(b"II*\x00garbage")
+        expect = "s01_002.tif: cannot read the image"
+    elif case == "missing_gnss":
+        lines = (p / "gnss.txt").read_text().splitlines()
+        (p / "gnss.txt").write_text("\n".join(l for l in lines if not l.startswith("s02_003")) + "\n")
+        expect = "no GNSS position for frame(s) s02_003"
+    elif case == "pixels_focal":
+        cam = (p / "camera.toml").read_text().replace("focal_mm = 120.0", "focal_mm = 312.5")
+        cam = cam.replace("pixel_um = 384.0", "pixel_um = 1.0")
+        cam = cam.replace("focal_mm = 312.5", "focal_mm = 312500.0")
+        (p / "camera.toml").write_text(cam)
+        expect = "not a plausible focal length in millimetres"
+    else:
+        lines = (p / "gnss.txt").read_text().splitlines()
+        out = [lines[0]]
+        for k, l in enumerate(lines[1:]):
+            f = l.split()
+            f[1] = f"{float(f[1]) + 5000.0 * k:.4f}"
+            out.append(" ".join(f))
+        (p / "gnss.txt").write_text("\n".join(out) + "\n")
+        expect = "no two frames overlap"
+    res = CliRunner().invoke(aerotri_main, ["match", str(p)])
+    assert res.exit_code == 2, res.output
+    assert expect in res.output
+    assert not (p / "at" / "tiepoints.csv").exists()
