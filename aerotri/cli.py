@@ -16,3 +16,7 @@ from aerotri.sim.cli import demo, sim  # noqa: E402
 main.add_command(sim)
 main.add_command(demo)
 # Further stages register here: main.add_command(<group or command>)
+from aerotri.crs.cli import crs  # noqa: E402
+main.add_command(crs)
+from aerotri.match.cli import match  # noqa: E402
+main.add_command(match)

@@ -1,0 +1,135 @@
+"""``aerotri crs``: fit datum/grid parameters and height anomaly surfaces, transform point files."""
+
+from __future__ import annotations
+
+import time
+from pathlib import Path
+
+import click
+import numpy as np
+
+from aerotri.crs.epsg import crs_label, parse_crs
+from aerotri.crs.files import (
+    LAS_SUFFIXES,
+    fit_common_points,
+    las_crs,
+    load_height_model,
+    load_transformation,
+    read_height_points,
+    transform_file,
+    write_json,
+)
+from aerotri.crs.fit import MODELS, PARAMETER_NAMES
+from aerotri.crs.heights import HEIGHT_MODELS, fit_height_anomaly
+from aerotri.crs.transform import CrsTransformer
+from aerotri.errors import InputError, exit_on_input_error
+
+
+@click.group()
+def crs():
+    """Datums, projections and heights: fit parameters from common points, transform files."""
+
+
+def format_fit_report(result, path) -> str:
+    t = result.transformation
+    lines = [f"Transformation {t.model}: {t.from_crs} -> {t.to_crs}  ({len(result.ids)} common points from {path})", ""]
+    lines.append(f"{'parameter':<18}{'value':>22}{'std dev':>16}")
+    for n in PARAMETER_NAMES[t.model]:
+        sd = None if t.std_devs is None else t.std_devs.get(n)
+        dec = 4 if "_" in n else 10  # unitless affine coefficients need more digits
+        lines.append(f"{n:<18}{t.parameters[n]:>22.{dec}f}{'' if sd is None else f'{sd:16.{dec}f}'}")
+    s0 = "n/a (no redundancy)" if not np.isfinite(result.sigma0_m) else f"{result.sigma0_m:.4f} m"
+    lines += ["", f"Sigma0: {s0}   Degrees of freedom: {result.redundancy}", ""]
+    v = result.residuals_m
+    head = f"{'id':<12}{'dE m':>10}{'dN m':>10}" + (f"{'dU m':>10}" if v.shape[1] == 3 else "") + f"{'r_i':>7}"
+    lines.append(head)
+    for pid, r, ri in zip(result.ids, v, result.redundancy_numbers):
+        lines.append(f"{pid:<12}" + "".join(f"{c:10.4f}" for c in r) + f"{ri:7.2f}")
+    rms = result.rms_m
+    lines.append(f"{'RMS':<12}{rms['e']:10.4f}{rms['n']:10.4f}" + (f"{rms['u']:10.4f}" if "u" in rms else "")
+                 + f"   horizontal {rms['horizontal']:.4f} m")
+    for w in result.warnings:
+        lines.append(f"Warning: {w}")
+    return "\n".join(lines)
+
+
+@crs.command("fit")
+@click.argument("common_points", type=click.Path(dir_okay=False))
+@click.option("--model", type=click.Choice(MODELS), required=True, help="transformation model")
+@click.option("--from", "from_epsg", required=True, help="EPSG code of the source coordinates (x_from, y_from)")
+@click.option("--to", "to_epsg", required=True, help="EPSG code of the target coordinates (x_to, y_to)")
+@click.option("-o", "--output", type=click.Path(dir_okay=False), help="parameter file (JSON); default <input>.<model>.json")
+@exit_on_input_error
+def fit_cmd(common_points, model, from_epsg, to_epsg, output):
+    """Least-squares transformation parameters from points known in both systems."""
+    result = fit_common_points(common_points, model, from_epsg, to_epsg)
+    out = Path(output) if output else Path(common_points).with_suffix(f".{model}.json")
+    write_json(out, result.to_dict())
+    click.echo(format_fit_report(result, common_points))
+    click.echo(f"Parameters written to {out}")
+
+
+@crs.command("fit-heights")
+@click.argument("points", type=click.Path(dir_okay=False))
+@click.option("--model", type=click.Choice(HEIGHT_MODELS), default="plane", show_default=True)
+@click.option("--epsg", "epsg", help="EPSG code of the points' x, y (a metre grid); recorded in the model file. Without it, 'crs transform' evaluates the model on the output coordinates")
+@click.option("--smoothing", type=float, default=0.0, show_default=True, help="tps smoothing (0 interpolates)")
+@click.option("-o", "--output", type=click.Path(dir_okay=False), help="model file (JSON); default <input>.<model>.json")
+@exit_on_input_error
+def fit_heights_cmd(points, model, epsg, smoothing, output):
+    """Height anomaly surface zeta = h - H from points with ellipsoidal and normal heights."""
+    ids, x, y, h, H = read_height_points(points, epsg)
+    label = crs_label(parse_crs(epsg, "--epsg")) if epsg else None
+    try:
+        res = fit_height_anomaly(ids, x, y, h, H, model, smoothing, label)
+    except InputError as exc:
+        raise InputError(f"{points}: {exc}") from None
+    out = Path(output) if output else Path(points).with_suffix(f".{model}.json")
+    write_json(out, res.to_dict())
+    click.echo(f"Height anomaly model {model} from {len(ids)} points ({points}); H = h - zeta")
+    click.echo(f"{'id':<12}{'zeta m':>10}{'resid m':>10}{'loo m':>10}")
+    for pid, z, r, lr in zip(ids, res.zeta_m, res.residuals_m, res.loo_residuals_m):
+        click.echo(f"{pid:<12}{z:10.4f}{r:10.4f}{lr:10.4f}")
+    click.echo(f"RMS {res.rms_m:.4f} m   leave-one-out RMS {res.loo_rms_m:.4f} m")
+    for w in res.warnings:
+        click.echo(f"Warning: {w}")
+    click.echo(f"Model written to {out}")
+
+
+@crs.command("transform")
+@click.argument("input_path", metavar="IN", type=click.Path(dir_okay=False))
+@click.argument("output_path", metavar="OUT", type=click.Path(dir_okay=False))
+@click.option("--from", "from_epsg", help="EPSG code of IN (LAS/LAZ: default the file's CRS record)")
+@click.option("--to", "to_epsg", required=True, help="EPSG code of OUT")
+@click.option("--params", type=click.Path(dir_okay=False), help="parameter file from 'crs fit'")
+@click.option("--heights", type=click.Path(dir_okay=False), help="height anomaly model from 'crs fit-heights'")
+@click.option("--allow-ballpark", is_flag=True, help="accept PROJ's ballpark operation that ignores a datum shift")
+@click.option("--chunk-size", type=int, default=1_000_000, show_default=True, help="LAS/LAZ points per chunk")
+@exit_on_input_error
+def transform_cmd(input_path, output_path, from_epsg, to_epsg, params, heights, allow_ballpark, chunk_size):
+    """Transform a CSV/TXT point list or a LAS/LAZ file (chunked, all point dimensions kept)."""
+    if Path(input_path).resolve() == Path(output_path).resolve():
+        raise InputError(f"{output_path}: output must differ from the input")
+    if not Path(input_path).exists():
+        raise InputError(f"{input_path}: file not found")
+    if from_epsg is None:
+        if Path(input_path).suffix.lower() not in LAS_SUFFIXES:
+            raise InputError("--from is required for point lists")
+        src = las_crs(input_path)
+        if src is None:
+            raise InputError(f"{input_path}: no CRS record in the file; give --from")
+    else:
+        src = parse_crs(from_epsg, "--from")
+    t = CrsTransformer(
+        src,
+        to_epsg,
+        params=load_transformation(params) if params else None,
+        heights=load_height_model(heights) if heights else None,
+        allow_ballpark=allow_ballpark,
+    )
+    t0 = time.perf_counter()
+    n = transform_file(input_path, output_path, t, chunk_size, progress=True)
+    dt = time.perf_counter() - t0
+    for w in t.warnings:
+        click.echo(f"Warning: {w}", err=True)
+    click.echo(f"{n} points {t.description}: {output_path} ({dt:.2f} s)")

@@ -1,0 +1,159 @@
+"""CRS look-up by EPSG code and plausibility checks of coordinates against a CRS.
+
+The checks catch the usual mix-ups before any arithmetic: degrees given for a projected CRS,
+feet for metres, eastings without the Gauss-Krueger zone prefix, or a wrong zone.
+"""
+
+from __future__ import annotations
+
+import functools
+
+import numpy as np
+import pyproj
+
+from aerotri.errors import InputError
+
+
+@functools.lru_cache(maxsize=256)
+def _crs_from_code(code: str) -> pyproj.CRS:
+    return pyproj.CRS.from_user_input(code)
+
+
+def parse_crs(value, source: str = "CRS") -> pyproj.CRS:
+    """A pyproj CRS from ``4326``, ``"4326"``, ``"EPSG:4326"`` or a pyproj CRS; ``InputError`` if unknown."""
+    if isinstance(value, pyproj.CRS):
+        return value
+    text = str(value).strip()
+    if text.isdigit():
+        text = f"EPSG:{text}"
+    try:
+        return _crs_from_code(text.upper() if text.lower().startswith("epsg:") else text)
+    except pyproj.exceptions.CRSError:
+        raise InputError(f"{source}: unknown CRS {value!r} (not an EPSG code in the PROJ database)") from None
+
+
+def crs_label(crs: pyproj.CRS) -> str:
+    """``EPSG:nnnn`` when the CRS has an EPSG identity, else its name."""
+    code = crs.to_epsg(min_confidence=90)
+    return f"EPSG:{code}" if code else crs.name
+
+
+def horizontal_crs(crs: pyproj.CRS) -> pyproj.CRS:
+    """The horizontal part of a compound CRS, else the CRS itself."""
+    if crs.is_compound:
+        return crs.sub_crs_list[0]
+    return crs
+
+
+def linear_unit_m(crs: pyproj.CRS) -> float:
+    """Metres per unit of the first horizontal axis (1 for metre grids, 0.3048006 for US survey feet);
+    ``nan`` for geographic CRSs (degrees)."""
+    h = horizontal_crs(crs)
+    if h.is_geographic:
+        return float("nan")
+    return float(h.axis_info[0].unit_conversion_factor)
+
+
+def unit_name(crs: pyproj.CRS) -> str:
+    """Short unit of the horizontal axes: 'deg', 'm', 'ft' or 'us-ft'."""
+    h = horizontal_crs(crs)
+    if h.is_geographic:
+        return "deg"
+    f = linear_unit_m(h)
+    if abs(f - 1.0) < 1e-12:
+        return "m"
+    if abs(f - 0.3048) < 1e-9:
+        return "ft"
+    if abs(f - 1200 / 3937) < 1e-9:
+        return "us-ft"
+    return f"{f:g}m"
+
+
+def check_coordinates(crs: pyproj.CRS, x, y, source: str, records=None, margin_deg: float = 1.0) -> None:
+    """Raise ``InputError`` naming the first record whose coordinates cannot belong to ``crs``.
+
+    Geographic CRSs need longitude/latitude in range; projected CRSs need points that fall, once
+    unprojected, within the CRS's area of use widened by ``margin_deg``, and within that area's
+    grid bounding box widened by 5 % (at least 10 km). Zone-prefixed
+    Gauss-Krueger eastings must carry their zone number. ``records`` labels the points (e.g. line
+    numbers or ids) in the messages.
+    """
+    x = np.asarray(x, dtype=float)
+    y = np.asarray(y, dtype=float)
+    label = crs_label(crs)
+
+    def where(i):
+        return f"{source}: {records[i]}" if records is not None else f"{source}: point {i + 1}"
+
+    bad = ~(np.isfinite(x) & np.isfinite(y))
+    if bad.any():
+        raise InputError(f"{where(int(np.argmax(bad)))}: coordinates are not finite numbers")
+    h = horizontal_crs(crs)
+    if h.is_geocentric:
+        return
+    if h.is_geographic:
+        bad = (np.abs(y) > 90.0) | (x < -180.0) | (x > 360.0)
+        if bad.any():
+            i = int(np.argmax(bad))
+            raise InputError(
+                f"{where(i)}: ({x[i]:.3f}, {y[i]:.3f}) is not a longitude/latitude in degrees, which {label} "
+                "expects (x = longitude, y = latitude); metres given for a geographic CRS? (mixed units)"
+            )
+        return
+    # Zone-prefixed Gauss-Krueger: the millions of the easting are the zone number.
+    op = h.coordinate_operation
+    fe = None
+    if op is not None and "transverse mercator" in op.method_name.lower():
+        params = {p.name.lower(): p.value for p in op.params}
+        fe = float(params.get("false easting", 0.0))
+    if fe is not None and fe >= 1_000_000.0 and abs(linear_unit_m(h) - 1.0) < 1e-12:
+        zone = int(fe // 1_000_000)
+        bad = np.floor(x / 1_000_000.0).astype(int) != zone
+        if bad.any():
+            i = int(np.argmax(bad))
+            raise InputError(
+                f"{where(i)}: easting {x[i]:.3f} does not carry the zone prefix {zone} of {label} "
+                f"(expected {zone}xxxxxx.xxx m; eastings without prefix belong to a 'CM' grid, "
+                "degrees or another zone are mixed units/zones)"
+            )
+    aou = h.area_of_use
+    if aou is None:
+        return
+    to_geo = pyproj.Transformer.from_crs(h, h.geodetic_crs, always_xy=True)
+    with np.errstate(all="ignore"):
+        lon, lat = to_geo.transform(x, y, errcheck=False)
+    lon = np.asarray(lon, dtype=float)
+    lat = np.asarray(lat, dtype=float)
+    west, east = aou.west, aou.east
+    if east < west:  # area crossing the antimeridian
+        east += 360.0
+        lon = np.where(lon < west - margin_deg, lon + 360.0, lon)
+    bad = ~(
+        np.isfinite(lon)
+        & np.isfinite(lat)
+        & (lon >= west - margin_deg)
+        & (lon <= east + margin_deg)
+        & (lat >= aou.south - margin_deg)
+        & (lat <= aou.north + margin_deg)
+    )
+    # The same area in grid coordinates, widened by 5 % (at least 10 km): catches small numbers
+    # (degrees, kilometres) that unproject to somewhere near the grid's false origin.
+    to_grid = pyproj.Transformer.from_crs(h.geodetic_crs, h, always_xy=True)
+    try:
+        xmin, ymin, xmax, ymax = to_grid.transform_bounds(
+            max(aou.west - margin_deg, -180.0), max(aou.south - margin_deg, -90.0),
+            min(aou.east + margin_deg, 180.0), min(aou.north + margin_deg, 90.0), densify_pts=21)
+    except pyproj.exceptions.ProjError:
+        xmin = ymin = -np.inf
+        xmax = ymax = np.inf
+    if np.all(np.isfinite([xmin, ymin, xmax, ymax])):
+        mx = max(0.05 * (xmax - xmin), 10_000.0 / linear_unit_m(h))
+        my = max(0.05 * (ymax - ymin), 10_000.0 / linear_unit_m(h))
+        bad |= (x < xmin - mx) | (x > xmax + mx) | (y < ymin - my) | (y > ymax + my)
+    if bad.any():
+        i = int(np.argmax(bad))
+        raise InputError(
+            f"{where(i)}: ({x[i]:.3f}, {y[i]:.3f}) lies outside the area of use of {label} ({h.name}, "
+            f"lon {aou.west:.1f}..{aou.east:.1f}, lat {aou.south:.1f}..{aou.north:.1f}); wrong CRS or mixed units "
+            f"(degrees, feet or metres)? {label} expects {unit_name(h)} in x = easting, y = northing order"
+        )

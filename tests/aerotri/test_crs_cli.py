@@ -1,0 +1,194 @@
+"""``aerotri crs`` commands: happy paths and clear errors (exit code 2, no output) for bad input."""
+
+import json
+
+import numpy as np
+import pytest
+from click.testing import CliRunner
+
+from aerotri.crs.cli import crs
+from aerotri.crs.synthetic import TRUE_BURSA_WOLF7, TRUE_HELMERT2D, simulate_plane, simulate_spatial, write_common_points
+from aerotri.crs.transform import CrsTransformer
+from aerotri.crs.fit import Transformation
+
+
+def _run(*args):
+    return CliRunner().invoke(crs, [str(a) for a in args])
+
+
+@pytest.fixture
+def common_points(tmp_path):
+    """20 common points WGS 84 UTM 49N -> Xian 1980 zone 37, 1 cm noise."""
+    rng = np.random.default_rng(1)
+    lon, lat, h = rng.uniform(109.6, 110.2, 20), rng.uniform(34.0, 34.5, 20), rng.uniform(400, 900, 20)
+    src, dst, _ = simulate_spatial(TRUE_BURSA_WOLF7, 32649, 2361, lon, lat, h, noise_m=0.01, seed=2)
+    path = tmp_path / "common.csv"
+    write_common_points(path, [f"P{i:02d}" for i in range(20)], src, dst)
+    return path, src, dst
+
+
+def test_fit_transform_round_trip(tmp_path, common_points):
+    path, src, dst = common_points
+    params = tmp_path / "bw7.json"
+    r = _run("fit", path, "--model", "bursa-wolf7", "--from", "32649", "--to", "EPSG:2361", "-o", params)
+    assert r.exit_code == 0, r.output
+    assert "Sigma0:" in r.output and "rx_arcsec" in r.output and "P19" in r.output
+    d = json.loads(params.read_text())
+    assert d["model"] == "bursa-wolf7" and d["from_crs"] == "EPSG:32649" and d["to_crs"] == "EPSG:2361"
+    assert d["convention"] == "coordinate_frame"
+    assert d["parameters"]["scale_ppm"]["unit"] == "ppm" and "std_dev" in d["parameters"]["scale_ppm"]
+    assert len(d["residuals"]) == 20 and set(d["residuals"][0]) >= {"id", "de_m", "dn_m", "du_m"}
+    assert d["sigma0_m"] == pytest.approx(0.01, rel=0.3)
+    for k, v in TRUE_BURSA_WOLF7.items():
+        assert abs(d["parameters"][k]["value"] - v) < 3 * d["parameters"][k]["std_dev"]
+    # transform the source points with the file: back on the target within the noise
+    pts = tmp_path / "pts.csv"
+    pts.write_text("id,x,y,z\n" + "".join(f"P{i},{s[0]:.4f},{s[1]:.4f},{s[2]:.4f}\n" for i, s in enumerate(src)))
+    out = tmp_path / "pts_xian.csv"
+    r = _run("transform", pts, out, "--from", "32649", "--to", "2361", "--params", params)
+    assert r.exit_code == 0, r.output
+    got = np.array([[float(v) for v in ln.split(",")[1:]] for ln in out.read_text().splitlines()[1:]])
+    assert np.sqrt(np.mean((got[:, :2] - dst[:, :2]) ** 2)) < 0.02
+
+
+def test_fit_heights_and_transform_with_heights(tmp_path):
+    rng = np.random.default_rng(4)
+    x, y = rng.uniform(37_420_000, 37_460_000, 12), rng.uniform(3_780_000, 3_820_000, 12)
+    zeta = -27.0 + 0.02 * (x - 37_440_000) / 1000 - 0.01 * (y - 3_800_000) / 1000
+    h = rng.uniform(300, 900, 12)
+    pts = tmp_path / "levelling.csv"
+    pts.write_text("id,x,y,h,H\n" + "".join(f"L{i},{x[i]:.3f},{y[i]:.3f},{h[i]:.4f},{h[i] - zeta[i]:.4f}\n" for i in range(12)))
+    model = tmp_path / "zeta.json"
+    r = _run("fit-heights", pts, "--model", "plane", "--epsg", "2361", "-o", model)
+    assert r.exit_code == 0, r.output
+    assert "leave-one-out RMS" in r.output
+    d = json.loads(model.read_text())
+    assert d["crs"] == "EPSG:2361" and d["rms_m"] < 1e-3
+    lst = tmp_path / "in.txt"
+    lst.write_text("Q1 37430000.0 3790000.0 600.0\n")
+    out = tmp_path / "out.txt"
+    r = _run("transform", lst, out, "--from", "2361", "--to", "2361", "--heights", model)
+    assert r.exit_code == 0, r.output
+    H = float(out.read_text().split()[3])
+    assert H == pytest.approx(600.0 - (-27.0 + 0.02 * -10 - 0.01 * -10), abs=1e-3)
+    # a geographic CRS for the anomaly surface, too few points for the model
+    r = _run("fit-heights", pts, "--model", "quadratic", "--epsg", "4326")
+    assert r.exit_code == 2 and "projected" in r.output
+    few = _write(tmp_path / "few.csv", "id,x,y,h,H\n" + "\n".join(pts.read_text().splitlines()[1:5]) + "\n")
+    r = _run("fit-heights", few, "--model", "quadratic")
+    assert r.exit_code == 2 and f"{few}: height model quadratic needs at least 6 points, got 4" in r.output
+
+
+def test_transform_refuses_ballpark_without_output(tmp_path):
+    pts = tmp_path / "pts.csv"
+    pts.write_text("id,x,y,z\nA,441000.0,3791000.0,500.0\n")
+    out = tmp_path / "out.csv"
+    r = _run("transform", pts, out, "--from", "32649", "--to", "2361")
+    assert r.exit_code == 2
+    assert "no rigorous transformation" in r.output and "crs fit" in r.output and "--allow-ballpark" in r.output
+    assert not out.exists()
+    r = _run("transform", pts, out, "--from", "32649", "--to", "2361", "--allow-ballpark")
+    assert r.exit_code == 0 and "BALLPARK" in r.output and out.exists()
+
+
+def _write(path, text):
+    path.write_text(text)
+    return path
+
+
+@pytest.mark.parametrize(
+    "body,args,message",
+    [
+        # too few points for the model
+        ("id,x_from,y_from,x_to,y_to\nA,441000,3791000,37441000,3791000\nB,442000,3792000,37442000,3792000\n",
+         ("--model", "affine2d"), "needs at least 3 common points"),
+        # duplicate ids
+        ("id,x_from,y_from,x_to,y_to\nA,441000,3791000,37441000,3791000\nB,442000,3792000,37442000,3792000\n"
+         "A,443000,3791000,37443000,3791000\n", ("--model", "helmert2d"), "line 4: duplicate point id 'A' (first on line 2)"),
+        # mixed units in the header
+        ("id,x_from_deg,y_from_m,x_to,y_to\nA,441000,3791000,37441000,3791000\n", ("--model", "helmert2d"),
+         "mixed units"),
+        # degrees in a UTM column
+        ("id,x_from,y_from,x_to,y_to\nA,441000,3791000,37441000,3791000\nB,109.6,34.2,37442000,3792000\n",
+         ("--model", "helmert2d"), "line 3 (id B): (109.600, 34.200) lies outside the area of use of EPSG:32649"),
+        # Gauss-Krueger easting without the zone prefix
+        ("id,x_from,y_from,x_to,y_to\nA,441000,3791000,441000,3791000\n", ("--model", "helmert2d"),
+         "does not carry the zone prefix 37"),
+        # a non-number
+        ("id,x_from,y_from,x_to,y_to\nA,441000,3791000,37441000,north\n", ("--model", "helmert2d"),
+         "line 2: y_to = 'north' is not a number"),
+        # missing column
+        ("id,x_from,y_from,x_to\nA,441000,3791000,37441000\n", ("--model", "helmert2d"), "lacks column(s) y_to"),
+        # spatial model without heights
+        ("id,x_from,y_from,x_to,y_to\nA,441000,3791000,37441000,3791000\n", ("--model", "bursa-wolf7"),
+         "need ellipsoidal heights"),
+    ],
+)
+def test_fit_bad_input_exit_2_without_output(tmp_path, body, args, message):
+    path = _write(tmp_path / "cp.csv", body)
+    out = tmp_path / "params.json"
+    r = _run("fit", path, *args, "--from", "32649", "--to", "2361", "-o", out)
+    assert r.exit_code == 2, r.output
+    assert message in r.output and r.output.startswith(f"Error: {path}")
+    assert not out.exists()
+
+
+def test_unknown_epsg_and_missing_file(tmp_path):
+    path = _write(tmp_path / "cp.csv", "id,x_from,y_from,x_to,y_to\nA,1,2,3,4\n")
+    r = _run("fit", path, "--model", "helmert2d", "--from", "99999", "--to", "2361")
+    assert r.exit_code == 2 and "--from: unknown CRS '99999'" in r.output
+    r = _run("transform", path, tmp_path / "o.csv", "--from", "32649", "--to", "EPSG:123456")
+    assert r.exit_code == 2 and "unknown CRS" in r.output
+    r = _run("fit", tmp_path / "nope.csv", "--model", "helmert2d", "--from", "32649", "--to", "2361")
+    assert r.exit_code == 2 and "file not found" in r.output
+    bad_params = _write(tmp_path / "p.json", "{not json")
+    r = _run("transform", path, tmp_path / "o.csv", "--from", "2361", "--to", "2361", "--params", bad_params)
+    assert r.exit_code == 2 and "not valid JSON" in r.output
+
+
+def test_helmert2d_cli_on_gk_grids(tmp_path):
+    """CGCS2000 3-degree CM 111E -> Xian 1980 zone 37: a 4-parameter set recovered through the CLI."""
+    rng = np.random.default_rng(6)
+    src = np.column_stack([rng.uniform(420_000, 480_000, 10), rng.uniform(3_770_000, 3_830_000, 10)])
+    truth = {**TRUE_HELMERT2D, "tx_m": 37_000_000.0 + TRUE_HELMERT2D["tx_m"]}
+    dst, _ = simulate_plane(truth, src, noise_m=0.005, seed=7)
+    path = tmp_path / "cp.csv"
+    write_common_points(path, range(10), src, dst)
+    out = tmp_path / "h4.json"
+    r = _run("fit", path, "--model", "helmert2d", "--from", "4546", "--to", "2361", "-o", out)
+    assert r.exit_code == 0, r.output
+    t = Transformation.from_dict(json.loads(out.read_text()))
+    for k, v in truth.items():
+        assert abs(t.parameters[k] - v) < 3 * t.std_devs[k], k
+    X, Y, _ = CrsTransformer(4546, 2361, params=t).transform(src[:, 0], src[:, 1])
+    assert np.sqrt(np.mean((X - dst[:, 0]) ** 2 + (Y - dst[:, 1]) ** 2)) < 0.01
+
+
+def test_transform_las_uses_the_file_crs(tmp_path):
+    import laspy
+    import pyproj
+
+    rng = np.random.default_rng(8)
+    header = laspy.LasHeader(version="1.4", point_format=6)
+    header.offsets = np.array([440_000.0, 3_790_000.0, 0.0])
+    header.scales = np.array([0.001, 0.001, 0.001])
+    las = laspy.LasData(header)
+    las.x, las.y, las.z = rng.uniform(440_000, 441_000, 500), rng.uniform(3_790_000, 3_791_000, 500), rng.uniform(0, 50, 500)
+    las.classification = rng.integers(1, 7, 500, dtype=np.uint8)
+    no_crs = tmp_path / "no_crs.las"
+    las.write(no_crs)
+    r = _run("transform", no_crs, tmp_path / "o.las", "--to", "4326")
+    assert r.exit_code == 2 and "no CRS record in the file; give --from" in r.output
+    las.header.add_crs(pyproj.CRS.from_epsg(32649))
+    src = tmp_path / "utm.las"
+    las.write(src)
+    out = tmp_path / "cm111.laz"
+    r = _run("transform", src, out, "--to", "2382", "--allow-ballpark")  # WGS 84 -> Xian 1980
+    assert r.exit_code == 0, r.output
+    assert "500 points" in r.output and "BALLPARK" in r.output
+    res = laspy.read(out)
+    assert res.header.parse_crs().to_epsg() == 2382 and len(res.points) == 500
+    assert np.array_equal(res.classification, las.classification)
+    r = _run("transform", src, tmp_path / "o.csv", "--to", "32650")
+    assert r.exit_code == 2 and "needs a .las or .laz output" in r.output
+    assert not (tmp_path / "o.csv").exists()
