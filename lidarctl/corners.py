@@ -1,0 +1,415 @@
+"""Roof corners as LiDAR ground control: detection, precision, control score, output files.
+
+A corner is the intersection of two adjacent fitted edges of a regularised roof (eave) outline
+(``lidarctl.roof_outline``); its height is the roof plane of the adjacent roof face evaluated at the
+corner (``lidarctl.roof_segments``), i.e. the eave height. Standard deviations sx_m, sy_m come from the
+edge-line adjustment, sz_m from the plane fit plus the roof slope times the horizontal uncertainty; both
+include the strip georeferencing error (``sigma_strip_xy_m``, ``sigma_strip_z_m``).
+
+Reported (corners.csv): corners whose two edges are at least ``min_edge_m`` long and whose horizontal
+sigma is below max(0.3 m, 0.4 spacing). The outlines in corners.geojson keep every traced corner.
+
+Score for use as control (0..1, product of factors, each 1 when ideal):
+  right angle (interior angle 90 or 270 deg within 10 deg), long edges (shorter edge / 2 min_edge_m),
+  well-supported edges (fewest boundary observations / 10), horizontal precision (1 / (1 + (s/0.15 m)^2)),
+  flat roof (pitched: 0.8), no taller structure within 5 m (else 0.3: occludes the corner in images),
+  not at the edge of a strip (the corner at least 10 m inside a strip's footprint, else 0.3).
+A corner is ``usable`` as control when its score >= ``USABLE_SCORE``, its angle is within 5 deg of a right
+angle, both edges are at least ``min_edge_m`` long and, with ``roof="flat"``, its roof is flat.
+
+Edge directions edge1_deg/edge2_deg are grid bearings (clockwise from grid north) of the incoming and
+outgoing edge lines in [0, 180); angle_deg is the interior angle of the roof polygon at the corner.
+"""
+
+from __future__ import annotations
+
+import csv
+import io
+import json
+import time
+from pathlib import Path
+
+import numpy as np
+import shapely
+from scipy import ndimage
+from scipy.spatial import cKDTree
+from tqdm import tqdm
+
+from lidarctl.atomic import write_text_atomic
+from lidarctl.errors import InputError
+from lidarctl.roof_outline import (
+    corners_from_edges,
+    edge_length_m,
+    edge_observations,
+    fit_edges,
+    regularise_rings,
+    trace_rings,
+)
+from lidarctl.roof_segments import cluster_roofs, point_spacing_m, segment_planes
+
+BUILDING = 6
+GROUND = 2
+NOISE = (7, 18)
+USABLE_SCORE = 0.5
+# Corners known worse than max(MAX_SIGMA_XY_M, MAX_SIGMA_XY_SPACINGS * spacing) are not reported (small
+# roofs, few edge points): their edges are not determined well enough to call the intersection a corner.
+MAX_SIGMA_XY_M = 0.3
+MAX_SIGMA_XY_SPACINGS = 0.4
+FLAT_SLOPE_DEG = 5.0
+
+CSV_COLUMNS = [
+    "id", "x", "y", "z", "sx_m", "sy_m", "sz_m", "roof", "building_id",
+    "edge1_deg", "edge2_deg", "angle_deg", "support_pts", "score", "usable",
+]
+
+
+def read_classified_cloud(path) -> dict:
+    """x, y, z (m), classification, point_source_id and the CRS (pyproj or None) of a LAS/LAZ file."""
+    import laspy
+
+    path = Path(path)
+    if not path.is_file():
+        raise InputError(f"{path}: file not found")
+    try:
+        las = laspy.read(path)
+    except Exception as exc:  # laspy raises several types for broken files
+        raise InputError(f"{path}: not a readable LAS/LAZ file ({exc})") from None
+    try:
+        crs = las.header.parse_crs()
+    except Exception:
+        crs = None
+    return {
+        "x": np.asarray(las.x, float),
+        "y": np.asarray(las.y, float),
+        "z": np.asarray(las.z, float),
+        "classification": np.asarray(las.classification, np.uint8),
+        "point_source_id": np.asarray(las.point_source_id, np.int64),
+        "crs": crs,
+    }
+
+
+def strip_margin_m(xy: np.ndarray, source_id: np.ndarray, query_xy: np.ndarray, cell_m: float = 2.0) -> np.ndarray:
+    """Distance (m) of each query point inside the footprint of the strip that covers it best.
+
+    Footprint of a strip (points sharing a point_source_id) = occupied cells, gaps closed, holes
+    (buildings' shadows, water) filled. A cloud without strip ids is one strip.
+    """
+    origin = xy.min(axis=0) - cell_m
+    ij_all = np.floor((xy - origin) / cell_m).astype(np.int64)
+    shape = tuple(ij_all.max(axis=0)[::-1] + 2)
+    qij = np.clip(np.floor((query_xy - origin) / cell_m).astype(np.int64), 0, np.array(shape[::-1]) - 1)
+    margin = np.zeros(len(query_xy))
+    for sid in np.unique(source_id):
+        sel = source_id == sid
+        if sel.sum() < 100:
+            continue
+        occ = np.zeros(shape, bool)
+        occ[ij_all[sel, 1], ij_all[sel, 0]] = True
+        occ = ndimage.binary_closing(occ, iterations=2, border_value=0)
+        occ = ndimage.binary_fill_holes(occ)
+        dist = ndimage.distance_transform_edt(np.pad(occ, 1))[1:-1, 1:-1] * cell_m
+        margin = np.maximum(margin, dist[qij[:, 1], qij[:, 0]] - 0.5 * cell_m)
+    return margin
+
+
+def _bearing_deg(edge) -> float:
+    d = edge.direction()
+    return float(np.mod(np.degrees(np.arctan2(d[0], d[1])), 180.0))
+
+
+def find_roof_corners(
+    x: np.ndarray,
+    y: np.ndarray,
+    z: np.ndarray,
+    classification: np.ndarray,
+    point_source_id: np.ndarray | None = None,
+    min_edge_m: float = 5.0,
+    roof: str = "flat",
+    sigma_strip_xy_m: float = 0.03,
+    sigma_strip_z_m: float = 0.03,
+    progress: bool = False,
+) -> dict:
+    """Corners and regularised outlines of all roofs of a classified cloud.
+
+    ``sigma_strip_xy_m``, ``sigma_strip_z_m``: georeferencing error of a strip (GNSS/IMU, boresight),
+    common to all points of the strip, so no fit over its points reduces it; added in quadrature to the
+    fitted corner's standard deviations. Take them from the system's (strip-adjusted) accuracy.
+
+    Returns ``{"corners": list of dict (CSV_COLUMNS), "outlines": list of dict, "stats": dict}``;
+    raises InputError when the cloud has no building points or no roof could be outlined.
+    """
+    if roof not in ("flat", "any"):
+        raise InputError(f"roof must be 'flat' or 'any', not {roof!r}")
+    t_start = time.perf_counter()
+    xyz = np.column_stack([x, y, z]).astype(float)
+    cls = np.asarray(classification)
+    keep = ~np.isin(cls, NOISE)
+    xyz, cls = xyz[keep], cls[keep]
+    sid = np.zeros(len(xyz), np.int64) if point_source_id is None else np.asarray(point_source_id)[keep]
+    is_bldg = cls == BUILDING
+    n_bldg = int(is_bldg.sum())
+    if n_bldg == 0:
+        raise InputError(
+            f"no building points (ASPRS class {BUILDING}) among {len(xyz)} points: classify the cloud first "
+            "(lidarctl classify) - roof corners need building points"
+        )
+    bldg_idx = np.flatnonzero(is_bldg)
+    spacing = point_spacing_m(xyz[bldg_idx, :2])
+    spacing = point_spacing_m(xyz[bldg_idx, :2], cell_m=max(2.0, 2.0 * spacing))
+    roof_of_bldg = cluster_roofs(xyz[bldg_idx], link_radius_m=2.0 * spacing, max_step_m=1.0,
+                                 min_points=max(30, int(25.0 / spacing**2)))
+    roof_label = np.full(len(xyz), -1, np.int64)
+    roof_label[bldg_idx] = roof_of_bldg
+    n_roofs = int(roof_of_bldg.max()) + 1 if (roof_of_bldg >= 0).any() else 0
+    tree_all = cKDTree(xyz[:, :2])
+    not_ground = cls != GROUND
+
+    corners, outlines = [], []
+    raw = []  # per corner: xy, cov, z, sz, roof type, building, bearings, angle, support, lengths
+    for r in tqdm(range(n_roofs), desc="roofs", unit="roof", disable=not progress):
+        idx = np.flatnonzero(roof_label == r)
+        pts = xyz[idx]
+        # cells of two spacings: smaller cells leave holes in sparse clouds and underestimate the spacing
+        s_roof = point_spacing_m(pts[:, :2], cell_m=max(1.0, 2.0 * spacing))
+        s_roof = float(np.clip(s_roof, 0.5 * spacing, 2.0 * spacing))
+        plane_of, planes = segment_planes(pts, roof_id=r)
+        rings = trace_rings(pts[:, :2], s_roof)
+        if not rings:
+            continue
+        theta, edge_rings = regularise_rings(rings, s_roof)
+        if not edge_rings:
+            continue
+        # Edge evidence from points on a roof face only: fascia and wall points lie on or inside the eave
+        # line below the roof and would pull the edge (they still shape the traced outline).
+        on_face = np.zeros(len(pts), bool)
+        for i_plane, plane in enumerate(planes):
+            m = plane_of == i_plane
+            on_face[m] = np.abs(plane.height_m(pts[m, 0], pts[m, 1]) - pts[m, 2]) < 3.0 * plane.rms_m + 0.02
+        face_xy = pts[on_face, :2] if on_face.sum() >= 10 else pts[:, :2]
+        obs = [edge_observations(edges, face_xy, s_roof) for edges in edge_rings]
+        fit = fit_edges(theta, edge_rings, obs)
+        roof_tree = cKDTree(pts[:, :2])
+        outline_rings = []
+        for edges in edge_rings:
+            rc = corners_from_edges(edges, fit)
+            lengths = np.array([edge_length_m(edges, i) for i in range(len(edges))])
+            trace = shapely.LinearRing(rings[edges[0].ring])
+            far = shapely.distance(shapely.points(rc.xy), trace) > max(2.0, 4.0 * s_roof)
+            outline_rings.append(rc.xy[~far])
+            for k in range(len(rc.xy)):
+                if far[k]:
+                    continue  # the fitted edges meet far from the traced outline: not a corner of this roof
+                i_out = edges.index(rc.edge_out[k])
+                l_in, l_out = lengths[i_out - 1], lengths[i_out]
+                # roof face at the corner: the plane most of the nearest roof points belong to
+                _, nb = roof_tree.query(rc.xy[k], k=min(15, len(pts)))
+                ids = plane_of[np.atleast_1d(nb)]
+                ids = ids[ids >= 0]
+                if len(ids) and planes:
+                    plane = planes[np.bincount(ids).argmax()]
+                    zc = float(plane.height_m(*rc.xy[k]))
+                    grad = float(np.hypot(plane.abc[0], plane.abc[1]))
+                    s_h2 = 0.5 * np.trace(rc.cov_xy[k])
+                    sz = float(np.sqrt(plane.height_sigma_m(*rc.xy[k]) ** 2 + grad**2 * s_h2))
+                    slope = plane.slope_deg
+                else:
+                    zc = float(np.median(pts[np.atleast_1d(nb), 2]))
+                    sz = float(np.std(pts[np.atleast_1d(nb), 2]) + 0.1)
+                    slope = 90.0
+                raw.append(dict(
+                    xy=rc.xy[k], cov=rc.cov_xy[k], z=zc, sz=sz,
+                    roof="flat" if slope < FLAT_SLOPE_DEG else "pitched", building_id=r,
+                    edge1_deg=_bearing_deg(rc.edge_in[k]), edge2_deg=_bearing_deg(rc.edge_out[k]),
+                    angle_deg=float(rc.angle_deg[k]), n_in=rc.edge_in[k].n_obs, n_out=rc.edge_out[k].n_obs,
+                    l_in=float(l_in), l_out=float(l_out),
+                ))
+        roof_types = ["flat" if p.slope_deg < FLAT_SLOPE_DEG else "pitched" for p in planes]
+        outlines.append(dict(
+            building_id=r, rings=outline_rings, n_points=len(idx), spacing_m=s_roof,
+            roof="flat" if roof_types and all(t == "flat" for t in roof_types) else "pitched",
+            n_planes=len(planes), sigma0=fit.sigma0, theta_deg=float(np.degrees(fit.theta)),
+        ))
+
+    if not raw:
+        raise InputError(
+            f"no roof outline could be traced from {n_bldg} building points ({n_roofs} roofs of at least "
+            f"25 m^2; point spacing {spacing:.2f} m)"
+        )
+    cxy = np.array([c["xy"] for c in raw])
+    cz = np.array([c["z"] for c in raw])
+    # taller structure within 5 m: non-ground points of other roofs/objects more than 1 m above the corner
+    taller = np.zeros(len(raw), bool)
+    for k, near in enumerate(tree_all.query_ball_point(cxy, 5.0)):
+        near = np.asarray(near, np.int64)
+        near = near[not_ground[near] & (roof_label[near] != raw[k]["building_id"])]
+        taller[k] = np.sum(xyz[near, 2] > cz[k] + 1.0) >= 3
+    margin = strip_margin_m(xyz[:, :2], sid, cxy)
+
+    for k, c in enumerate(raw):
+        sx, sy = np.sqrt(np.diag(c["cov"]) + sigma_strip_xy_m**2)
+        c["sz"] = float(np.hypot(c["sz"], sigma_strip_z_m))
+        s_h = float(np.sqrt(0.5 * (sx**2 + sy**2)))
+        dev = min(abs(c["angle_deg"] - 90.0), abs(c["angle_deg"] - 270.0))
+        f_angle = float(np.clip(1.0 - dev / 10.0, 0.0, 1.0))
+        f_len = float(np.clip(min(c["l_in"], c["l_out"]) / (2.0 * min_edge_m), 0.0, 1.0))
+        f_support = float(np.clip(min(c["n_in"], c["n_out"]) / 10.0, 0.0, 1.0))
+        f_prec = 1.0 / (1.0 + (s_h / 0.15) ** 2)
+        f_flat = 1.0 if c["roof"] == "flat" else 0.8
+        f_taller = 0.3 if taller[k] else 1.0
+        f_strip = 1.0 if margin[k] >= 10.0 else 0.3
+        score = f_angle * f_len * f_support * f_prec * f_flat * f_taller * f_strip
+        usable = (
+            score >= USABLE_SCORE and dev <= 5.0 and min(c["l_in"], c["l_out"]) >= min_edge_m
+            and (roof == "any" or c["roof"] == "flat")
+        )
+        c.update(sx=float(sx), sy=float(sy), score=float(score), usable=bool(usable), taller=bool(taller[k]),
+                 strip_margin_m=float(margin[k]),
+                 factors=dict(angle=f_angle, edge_length=f_len, support=f_support, precision=f_prec,
+                              flat=f_flat, taller_structure=f_taller, strip_edge=f_strip))
+
+    # Report corners between edges of at least min_edge_m, located well enough; the outlines keep every
+    # corner for review.
+    max_sigma = max(MAX_SIGMA_XY_M, MAX_SIGMA_XY_SPACINGS * spacing)
+    reported = [c for c in raw if min(c["l_in"], c["l_out"]) >= min_edge_m and max(c["sx"], c["sy"]) <= max_sigma]
+    reported.sort(key=lambda c: (c["building_id"], -c["score"]))
+    for n, c in enumerate(reported, 1):
+        corners.append({
+            "id": f"RC{n:05d}", "x": float(c["xy"][0]), "y": float(c["xy"][1]), "z": c["z"],
+            "sx_m": c["sx"], "sy_m": c["sy"], "sz_m": c["sz"], "roof": c["roof"], "building_id": c["building_id"],
+            "edge1_deg": c["edge1_deg"], "edge2_deg": c["edge2_deg"], "angle_deg": c["angle_deg"],
+            "support_pts": int(c["n_in"] + c["n_out"]), "score": c["score"], "usable": int(c["usable"]),
+            # not in the CSV; in the GeoJSON for review: why a corner is (not) usable
+            "edge1_m": c["l_in"], "edge2_m": c["l_out"], "strip_margin_m": c["strip_margin_m"],
+            **{f"score_{k}": v for k, v in c["factors"].items()},
+        })
+    n_usable = sum(c["usable"] for c in corners)
+    stats = {
+        "n_points": int(len(xyz)), "n_building_points": n_bldg, "point_spacing_m": spacing,
+        "n_roofs": n_roofs, "n_outlines": len(outlines), "n_corners_traced": len(raw),
+        "n_corners": len(corners), "n_usable": int(n_usable), "min_edge_m": min_edge_m, "roof": roof,
+        "sigma_strip_xy_m": sigma_strip_xy_m, "sigma_strip_z_m": sigma_strip_z_m,
+        "usable_score": USABLE_SCORE,
+        "median_sxy_usable_m": (
+            float(np.median([np.hypot(c["sx_m"], c["sy_m"]) / np.sqrt(2) for c in corners if c["usable"]]))
+            if n_usable else None
+        ),
+        "runtime_s": time.perf_counter() - t_start,
+    }
+    return {"corners": corners, "outlines": outlines, "stats": stats}
+
+
+# ------------------------------------------------------------------------------------------------ output
+def corners_csv_text(corners: list[dict]) -> str:
+    buf = io.StringIO()
+    w = csv.writer(buf, lineterminator="\n")
+    w.writerow(CSV_COLUMNS)
+    for c in corners:
+        w.writerow([
+            c["id"], f"{c['x']:.3f}", f"{c['y']:.3f}", f"{c['z']:.3f}", f"{c['sx_m']:.3f}", f"{c['sy_m']:.3f}",
+            f"{c['sz_m']:.3f}", c["roof"], c["building_id"], f"{c['edge1_deg']:.2f}", f"{c['edge2_deg']:.2f}",
+            f"{c['angle_deg']:.2f}", c["support_pts"], f"{c['score']:.3f}", c["usable"],
+        ])
+    return buf.getvalue()
+
+
+def corners_geojson(corners: list[dict], outlines: list[dict], crs=None) -> dict:
+    """Corners (Point) and regularised roof outlines (Polygon, exterior CCW, courtyards CW), map CRS."""
+    feats = []
+    for o in outlines:
+        if not o["rings"] or len(o["rings"][0]) < 3:
+            continue  # no exterior ring left
+        rings = [np.vstack([r, r[:1]]).round(3).tolist() for r in o["rings"] if len(r) >= 3]
+        props = {k: o[k] for k in ("building_id", "roof", "n_points", "n_planes")}
+        props.update(spacing_m=round(o["spacing_m"], 3), sigma0=round(o["sigma0"], 3),
+                     theta_deg=round(o["theta_deg"], 3))
+        feats.append({"type": "Feature", "geometry": {"type": "Polygon", "coordinates": rings},
+                      "properties": {"kind": "roof_outline", **props}})
+    for c in corners:
+        props = {k: (round(v, 4) if isinstance(v, float) else v) for k, v in c.items() if k not in ("x", "y", "z")}
+        xyz = [round(c["x"], 3), round(c["y"], 3), round(c["z"], 3)]
+        feats.append({"type": "Feature", "geometry": {"type": "Point", "coordinates": xyz},
+                      "properties": {"kind": "roof_corner", **props}})
+    out = {"type": "FeatureCollection", "features": feats}
+    if crs is not None:
+        epsg = crs.to_epsg() if hasattr(crs, "to_epsg") else None
+        name = f"urn:ogc:def:crs:EPSG::{epsg}" if epsg else str(crs)
+        out["crs"] = {"type": "name", "properties": {"name": name}}  # legacy member: coordinates are projected
+    return out
+
+
+def write_corner_files(outdir, result: dict, crs=None, source: str | None = None) -> dict:
+    """Write corners.csv, corners.geojson and corners.json (summary) atomically; return the paths."""
+    outdir = Path(outdir)
+    outdir.mkdir(parents=True, exist_ok=True)
+    paths = {"csv": outdir / "corners.csv", "geojson": outdir / "corners.geojson", "summary": outdir / "corners.json"}
+    write_text_atomic(paths["csv"], corners_csv_text(result["corners"]))
+    write_text_atomic(paths["geojson"], json.dumps(corners_geojson(result["corners"], result["outlines"], crs)))
+    summary = {"source": source, "crs": (crs.to_string() if crs is not None else None), **result["stats"]}
+    write_text_atomic(paths["summary"], json.dumps(summary, indent=2) + "\n")
+    return paths
+
+
+# ------------------------------------------------------------------------------------------------ figure
+def simple_ndsm(xyz: np.ndarray, classification: np.ndarray, cell_m: float = 1.0):
+    """Quick nDSM for figures: highest point per cell minus the ground (nearest ground point per cell)."""
+    xy = xyz[:, :2]
+    origin = xy.min(axis=0)
+    ij = np.floor((xy - origin) / cell_m).astype(np.int64)
+    shape = tuple(ij.max(axis=0)[::-1] + 1)
+    dsm = np.full(shape, -np.inf)
+    np.maximum.at(dsm, (ij[:, 1], ij[:, 0]), xyz[:, 2])
+    g = classification == GROUND
+    cy, cx = np.mgrid[0: shape[0], 0: shape[1]]
+    centres = origin + (np.column_stack([cx.ravel(), cy.ravel()]) + 0.5) * cell_m
+    if g.sum() > 0:
+        _, nn = cKDTree(xy[g]).query(centres)
+        ground = xyz[g, 2][nn].reshape(shape)
+    else:
+        ground = np.full(shape, np.nanmin(xyz[:, 2]))
+    ndsm = np.where(np.isfinite(dsm), dsm - ground, np.nan)
+    extent = (origin[0], origin[0] + shape[1] * cell_m, origin[1], origin[1] + shape[0] * cell_m)
+    return ndsm, extent
+
+
+def plot_corners(path, ndsm, extent, outlines, corners, truth_xy=None, reference_polygons=None, title="",
+                 window=None, marker_size=4.0):
+    """Outlines and corners over the nDSM (PNG, matplotlib Agg); truth corners / reference polygons optional.
+
+    ``window``: (xmin, xmax, ymin, ymax) to zoom into; default the whole nDSM extent.
+    """
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from lidarctl.atomic import atomic_path
+
+    view = extent if window is None else window
+    fig, ax = plt.subplots(figsize=(10, 10 * (view[3] - view[2]) / max(view[1] - view[0], 1e-9) + 0.5))
+    im = ax.imshow(ndsm, origin="lower", extent=extent, cmap="gray", vmin=0, vmax=np.nanpercentile(ndsm, 99.5))
+    fig.colorbar(im, ax=ax, shrink=0.6, label="nDSM (m)")
+    for poly in reference_polygons or []:
+        ax.plot(*np.asarray(poly).T, color="tab:cyan", lw=0.8)
+    for o in outlines:
+        for r in o["rings"]:
+            if len(r) >= 3:
+                rr = np.vstack([r, r[:1]])
+                ax.plot(rr[:, 0], rr[:, 1], color="tab:orange", lw=1.0)
+    if truth_xy is not None and len(truth_xy):
+        ax.plot(truth_xy[:, 0], truth_xy[:, 1], "+", color="tab:green", ms=2 * marker_size,
+                label="truth / reference vertices")
+    use = np.array([c["usable"] for c in corners], bool)
+    cxy = np.array([[c["x"], c["y"]] for c in corners]).reshape(-1, 2)
+    ax.plot(cxy[~use, 0], cxy[~use, 1], "o", mfc="none", color="tab:blue", ms=marker_size, label="corner (not usable)")
+    ax.plot(cxy[use, 0], cxy[use, 1], "o", color="tab:red", ms=marker_size, label="usable corner")
+    ax.set_aspect("equal")
+    ax.set_xlim(view[0], view[1])
+    ax.set_ylim(view[2], view[3])
+    ax.set_xlabel("x (m)")
+    ax.set_ylabel("y (m)")
+    ax.legend(loc="upper right", fontsize=8)
+    ax.set_title(title)
+    fig.tight_layout()
+    with atomic_path(path) as tmp:
+        fig.savefig(tmp, dpi=130)
+    plt.close(fig)

@@ -1,0 +1,64 @@
+"""``lidarctl corners``: roof corners of a classified cloud as LiDAR ground control candidates."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import click
+import numpy as np
+
+from lidarctl.corners import find_roof_corners, plot_corners, read_classified_cloud, simple_ndsm, write_corner_files
+from lidarctl.errors import InputError, exit_on_input_error
+
+
+@click.command("corners")
+@click.argument("classified", nargs=-1, required=True, type=click.Path(path_type=Path))
+@click.argument("outdir", type=click.Path(file_okay=False, path_type=Path))
+@click.option("--min-edge-m", default=5.0, show_default=True, type=click.FloatRange(min=0.5),
+              help="Report corners whose two edges are at least this long (m).")
+@click.option("--roof", type=click.Choice(["flat", "any"]), default="flat", show_default=True,
+              help="Roofs whose corners may be marked usable as control.")
+@click.option("--sigma-strip-xy-m", default=0.03, show_default=True, type=click.FloatRange(min=0.0),
+              help="Horizontal georeferencing error of a strip, added to every corner's sx_m, sy_m (m).")
+@click.option("--sigma-strip-z-m", default=0.03, show_default=True, type=click.FloatRange(min=0.0),
+              help="Vertical georeferencing error of a strip, added to every corner's sz_m (m).")
+@click.option("--figure/--no-figure", default=True, show_default=True,
+              help="Also write corners.png (outlines and corners over the nDSM).")
+@exit_on_input_error
+def corners(classified, outdir, min_edge_m, roof, sigma_strip_xy_m, sigma_strip_z_m, figure):
+    """Roof corners of CLASSIFIED LAS/LAZ file(s) (one or more strips, building class 6) into OUTDIR.
+
+    Writes corners.csv (id,x,y,z,sx_m,sy_m,sz_m,roof,building_id,edge1_deg,edge2_deg,angle_deg,
+    support_pts,score,usable), corners.geojson (corners and regularised roof outlines) and
+    corners.json (summary). Nothing is written when no usable corner is found.
+    """
+    clouds = [read_classified_cloud(p) for p in classified]
+    cat = {k: np.concatenate([c[k] for c in clouds]) for k in ("x", "y", "z", "classification", "point_source_id")}
+    if len(clouds) > 1 and all(len(np.unique(c["point_source_id"])) == 1 for c in clouds):
+        # one file per strip without strip ids: the file is the strip
+        cat["point_source_id"] = np.concatenate([np.full(len(c["x"]), i + 1) for i, c in enumerate(clouds)])
+    names = ", ".join(str(p) for p in classified)
+    try:
+        result = find_roof_corners(cat["x"], cat["y"], cat["z"], cat["classification"], cat["point_source_id"],
+                                   min_edge_m=min_edge_m, roof=roof, sigma_strip_xy_m=sigma_strip_xy_m,
+                                   sigma_strip_z_m=sigma_strip_z_m, progress=True)
+    except InputError as exc:
+        raise InputError(f"{names}: {exc}") from None
+    st = result["stats"]
+    if st["n_usable"] == 0:
+        raise InputError(
+            f"{names}: no usable roof corner ({st['n_corners']} corners on {st['n_outlines']} roof outlines, none "
+            f"with score >= {st['usable_score']} and edges >= {min_edge_m} m"
+            f"{' on a flat roof' if roof == 'flat' else ''}); "
+            "try --roof any or a smaller --min-edge-m"
+        )
+    paths = write_corner_files(outdir, result, crs=clouds[0]["crs"], source=names)
+    if figure:
+        xyz = np.column_stack([cat["x"], cat["y"], cat["z"]])
+        ndsm, extent = simple_ndsm(xyz, cat["classification"], cell_m=max(0.5, st["point_spacing_m"]))
+        plot_corners(Path(outdir) / "corners.png", ndsm, extent, result["outlines"], result["corners"],
+                     title=f"roof corners: {st['n_usable']} usable of {st['n_corners']}")
+    click.echo(
+        f"{st['n_corners']} corners ({st['n_usable']} usable) on {st['n_outlines']} roofs, "
+        f"point spacing {st['point_spacing_m']:.2f} m -> {paths['csv']}"
+    )

@@ -1,0 +1,44 @@
+"""Roof corners on a window of the AHN3 Delft crop against the surveyed BGT footprints (real data).
+
+BGT footprints are wall lines, AHN3 roof outlines are eave lines: offsets of a few decimetres are
+expected (bench/eval_corners_ahn3.py reports the whole crop).
+"""
+
+from __future__ import annotations
+
+import sqlite3
+
+import numpy as np
+import pytest
+import shapely
+import shapely.wkb
+from scipy.spatial import cKDTree
+
+from lidarctl.corners import find_roof_corners, read_classified_cloud
+
+WINDOW = (84880.0, 84990.0, 447480.0, 447600.0)  # the terraced blocks in the middle of the footprint set
+
+
+@pytest.mark.realdata
+def test_ahn3_window_corners_near_bgt_footprint_vertices(shared_data):
+    d = shared_data / "ahn3_delft"
+    c = read_classified_cloud(d / "ahn3_cropped_1.laz")
+    x0, x1, y0, y1 = WINDOW
+    w = (c["x"] >= x0) & (c["x"] < x1) & (c["y"] >= y0) & (c["y"] < y1)
+    res = find_roof_corners(c["x"][w], c["y"][w], c["z"][w], c["classification"][w], c["point_source_id"][w],
+                            roof="any")
+    con = sqlite3.connect(f"file:{d / 'bgt_pand.sqlite'}?mode=ro", uri=True)
+    polys = [shapely.wkb.loads(bytes(b)) for (b,) in con.execute("SELECT GEOMETRY FROM buildingpart")]
+    con.close()
+    vertices = np.concatenate([np.asarray(p.exterior.coords)[:-1] for p in polys])
+    cxy = np.array([[q["x"], q["y"]] for q in res["corners"]])
+    # corners well inside the window, where BGT has footprints
+    inner = (cxy[:, 0] > x0 + 10) & (cxy[:, 0] < x1 - 10) & (cxy[:, 1] > y0 + 10) & (cxy[:, 1] < y1 - 10)
+    dist, _ = cKDTree(vertices).query(cxy[inner])
+    matched = dist <= 2.0
+    assert matched.sum() >= 10
+    assert matched.mean() >= 0.7
+    assert np.median(dist[matched]) < 0.6
+    # roofs in Delft are 5-20 m above NAP ground; corner heights are roof heights, not ground
+    z = np.array([q["z"] for q in res["corners"]])
+    assert np.all((z > 2.0) & (z < 30.0))

@@ -1,0 +1,94 @@
+"""``lidarctl corners`` end to end on a small synthetic classified LAS file."""
+
+from __future__ import annotations
+
+import csv
+import importlib.util
+import json
+from pathlib import Path
+
+import laspy
+import numpy as np
+import pyproj
+from click.testing import CliRunner
+
+from lidarctl.cli import main
+
+_spec = importlib.util.spec_from_file_location("corners_synth", Path(__file__).with_name("corners_synth.py"))
+cs = importlib.util.module_from_spec(_spec)
+_spec.loader.exec_module(cs)
+
+COLUMNS = "id,x,y,z,sx_m,sy_m,sz_m,roof,building_id,edge1_deg,edge2_deg,angle_deg,support_pts,score,usable".split(",")
+E0, N0 = 452000.0, 3407000.0  # UTM 49N offsets: realistic coordinate magnitudes
+
+
+def _write_las(path, x, y, z, cls, sid):
+    header = laspy.LasHeader(point_format=6, version="1.4")
+    header.scales = np.array([0.001, 0.001, 0.001])
+    header.offsets = np.array([E0, N0, 0.0])
+    header.add_crs(pyproj.CRS.from_epsg(32649))
+    las = laspy.LasData(header)
+    las.x, las.y, las.z = x + E0, y + N0, z
+    las.classification = cls
+    las.point_source_id = sid
+    las.write(path)
+
+
+def test_corners_command_writes_csv_geojson_summary_and_figure(tmp_path):
+    buildings = cs.default_buildings()
+    x, y, z, cls, sid = cs.make_cloud(buildings, seed=3, heading_deg=-20.0)
+    las = tmp_path / "classified.las"
+    _write_las(las, x, y, z, cls, sid)
+    out = tmp_path / "out"
+    r = CliRunner().invoke(main, ["corners", str(las), str(out), "--roof", "flat"])
+    assert r.exit_code == 0, r.output
+    rows = list(csv.DictReader(open(out / "corners.csv")))
+    assert list(rows[0].keys()) == COLUMNS
+    truth_xyz, _, _ = cs.truth_corners(buildings)
+    xy = np.array([[float(q["x"]) - E0, float(q["y"]) - N0] for q in rows])
+    j, d = cs.match_corners(xy, truth_xyz[:, :2], max_dist_m=1.0)
+    assert np.all(j >= 0)
+    usable = np.array([q["usable"] == "1" for q in rows])
+    assert usable.sum() >= 15
+    assert np.sqrt(np.mean(d[usable] ** 2)) < 0.2
+    gj = json.loads((out / "corners.geojson").read_text())
+    kinds = [f["properties"]["kind"] for f in gj["features"]]
+    assert kinds.count("roof_corner") == len(rows)
+    assert kinds.count("roof_outline") >= 6
+    assert "32649" in gj["crs"]["properties"]["name"]
+    summary = json.loads((out / "corners.json").read_text())
+    assert summary["n_corners"] == len(rows) and summary["n_usable"] == int(usable.sum())
+    assert (out / "corners.png").stat().st_size > 10000
+
+
+def test_cloud_without_buildings_gives_clear_message_and_no_files(tmp_path):
+    rng = np.random.default_rng(1)
+    n = 3000
+    las = tmp_path / "ground.las"
+    _write_las(las, rng.uniform(0, 60, n), rng.uniform(0, 60, n), rng.normal(0, 0.05, n), np.full(n, 2), np.ones(n))
+    out = tmp_path / "out"
+    r = CliRunner().invoke(main, ["corners", str(las), str(out)])
+    assert r.exit_code == 2
+    assert "no building points" in r.output and "ground.las" in r.output
+    assert not out.exists() or not any(out.iterdir())
+
+
+def test_no_usable_corner_gives_clear_message_and_no_files(tmp_path):
+    # only a 6 x 6 m shed: its edges are shorter than --min-edge-m 8
+    shed = [(cs._rect(30, 30, 6, 6, 10.0), "flat", 4.0, 0.0, 0.0)]
+    x, y, z, cls, sid = cs.make_cloud(shed, extent=(0.0, 60.0, 0.0, 60.0), seed=2)
+    las = tmp_path / "shed.las"
+    _write_las(las, x, y, z, cls, sid)
+    out = tmp_path / "out"
+    r = CliRunner().invoke(main, ["corners", str(las), str(out), "--min-edge-m", "8"])
+    assert r.exit_code == 2
+    assert "no usable roof corner" in r.output
+    assert not out.exists() or not any(out.iterdir())
+
+
+def test_unreadable_file_is_an_input_error(tmp_path):
+    bad = tmp_path / "bad.laz"
+    bad.write_bytes(b"not a las file")
+    r = CliRunner().invoke(main, ["corners", str(bad), str(tmp_path / "out")])
+    assert r.exit_code == 2
+    assert "bad.laz" in r.output

@@ -1,0 +1,113 @@
+"""Unit tests of the roof-outline pieces: depth calibration, edge adjustment, corner covariance, planes."""
+
+from __future__ import annotations
+
+import numpy as np
+import shapely
+
+from lidarctl.roof_outline import (
+    Edge,
+    EdgeObservations,
+    corners_from_edges,
+    fit_edges,
+    outermost_depth,
+    regularise_rings,
+    trace_rings,
+)
+from lidarctl.roof_segments import cluster_roofs, segment_planes
+
+
+def _grid(spacing, angle_deg, extent=20.0, jitter=0.0, seed=0):
+    rng = np.random.default_rng(seed)
+    g = np.arange(-extent, extent, spacing) + rng.uniform(0, spacing)
+    u, v = [a.ravel() for a in np.meshgrid(g, g)]
+    u = u + rng.normal(0, jitter, u.size)
+    v = v + rng.normal(0, jitter, v.size)
+    a = np.radians(angle_deg)
+    return np.column_stack([u * np.cos(a) - v * np.sin(a), u * np.sin(a) + v * np.cos(a)])
+
+
+def test_outermost_depth_learns_half_spacing_and_common_error():
+    s = 0.7
+    # scan lines parallel to the edge: every bin sees the same depth -> error common to the edge
+    xy = _grid(s, 0.0)
+    xy = xy[np.abs(xy).max(axis=1) < 8.0]
+    mean, sd, common = outermost_depth(xy[:, 0], xy[:, 1], s, s)
+    assert abs(mean - s / 2) < 0.08
+    assert 0.6 * s / np.sqrt(12) < common < 1.4 * s / np.sqrt(12)
+    # oblique pattern: depth varies along the edge, the common part is small
+    xy = _grid(s, 23.0, jitter=0.1)
+    xy = xy[np.abs(xy).max(axis=1) < 8.0]
+    mean, sd, common = outermost_depth(xy[:, 0], xy[:, 1], s, s)
+    assert abs(mean - s / 2) < 0.1
+    assert sd > 0.1 and common < 0.5 * sd
+
+
+def _square_edges(theta, half=10.0, centre=(100.0, 50.0)):
+    edges = []
+    for q in range(4):
+        phi = theta + q * np.pi / 2
+        n = np.array([np.cos(phi), np.sin(phi)])
+        edges.append(Edge(0, q, phi, float(n @ np.asarray(centre) + half)))
+    return edges
+
+
+def test_corner_covariance_matches_monte_carlo():
+    """Scatter of corners over noisy edge observations equals the propagated covariance."""
+    rng = np.random.default_rng(3)
+    theta = np.radians(17.0)
+    truth = _square_edges(theta)
+    no_obs = [EdgeObservations(np.zeros((0, 2)), np.zeros(0))] * 4
+    corners_true = corners_from_edges(truth, fit_edges(theta, [truth], [no_obs])).xy
+    sigma = 0.1
+    xs, covs = [], []
+    for _ in range(300):
+        edges = _square_edges(theta + rng.normal(0, 0.02))
+        obs = []
+        for e in truth:
+            t = np.linspace(-7, 7, 15)
+            p = t[:, None] * e.direction() + (e.d + rng.normal(0, sigma, t.size))[:, None] * e.normal()
+            obs.append(EdgeObservations(p, np.full(t.size, sigma)))
+        fit = fit_edges(theta, [edges], [obs], min_sigma0=0.0)
+        rc = corners_from_edges(edges, fit)
+        xs.append(rc.xy)
+        covs.append(rc.cov_xy)
+    xs = np.array(xs)
+    err = xs - corners_true
+    assert np.abs(err.mean(axis=0)).max() < 0.02
+    emp = np.einsum("nki,nkj->kij", err, err) / len(xs)
+    pred = np.mean(covs, axis=0)
+    np.testing.assert_allclose(np.sqrt(np.diagonal(emp, axis1=1, axis2=2)),
+                               np.sqrt(np.diagonal(pred, axis1=1, axis2=2)), rtol=0.15)
+    # right angles, 90 deg interior for a convex square
+    assert np.allclose(rc.angle_deg, 90.0)
+
+
+def test_trace_and_regularise_l_shape():
+    poly = shapely.affinity.rotate(shapely.Polygon([(0, 0), (24, 0), (24, 10), (11, 10), (11, 22), (0, 22)]), 31.0)
+    xy = _grid(0.7, 5.0, extent=40.0, jitter=0.1)
+    xy = xy[shapely.contains_xy(poly, xy[:, 0], xy[:, 1])]
+    rings = trace_rings(xy, 0.7)
+    theta, edge_rings = regularise_rings(rings, 0.7)
+    assert len(edge_rings) == 1 and len(edge_rings[0]) == 6
+    assert abs(np.degrees(theta) - 31.0) < 3.0
+    assert all(e.q >= 0 for e in edge_rings[0])
+
+
+def test_clusters_split_at_height_steps_and_planes_of_a_hip_roof():
+    xy = _grid(0.7, 10.0, extent=15.0, jitter=0.1, seed=4)
+    # two roofs side by side: x < 0 at 10 m, x >= 0 at 14 m (a step of 4 m)
+    z = np.where(xy[:, 0] < 0, 10.0, 14.0)
+    labels = cluster_roofs(np.column_stack([xy, z]), link_radius_m=1.4)
+    assert len(np.unique(labels[labels >= 0])) == 2
+    # hip roof 20 x 14 m, 30 deg faces: four planes
+    sel = (np.abs(xy[:, 0]) < 10) & (np.abs(xy[:, 1]) < 7)
+    x, y = xy[sel, 0], xy[sel, 1]
+    t = np.tan(np.radians(30.0))
+    z = 20.0 - t * np.maximum(np.abs(y), np.abs(x) - 3.0)
+    z += np.random.default_rng(5).normal(0, 0.05, z.size)
+    plane_of, planes = segment_planes(np.column_stack([x, y, z]))
+    big = [p for p in planes if p.n_points > 40]
+    assert len(big) == 4
+    assert all(abs(p.slope_deg - 30.0) < 2.0 for p in big)
+    assert np.mean(plane_of >= 0) > 0.95
