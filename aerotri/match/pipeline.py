@@ -31,7 +31,7 @@ from lidarctl.atomic import write_text_atomic
 class MatchSettings:
     sparse: F.FeatureParams = dataclasses.field(default_factory=F.FeatureParams)
     dense: F.FeatureParams = dataclasses.field(
-        default_factory=lambda: F.FeatureParams(budget=16000, grid=(24, 16), max_dim_px=6000,
+        default_factory=lambda: F.FeatureParams(budget=10000, grid=(20, 12), max_dim_px=4500,
                                                 contrast_threshold=0.004, name="dense"))
     match: M.MatchParams = dataclasses.field(default_factory=M.MatchParams)
     dense_ratio: float = 0.9
@@ -41,6 +41,7 @@ class MatchSettings:
     densify: bool = True
     min_per_region: int = 3
     min_strip_ties: int = 20
+    retrieval_min_matches: int = 25
 
 
 def _terrain_height(project: Project, s: MatchSettings) -> float:
@@ -68,22 +69,28 @@ def match_project(root, settings: MatchSettings | None = None, log=lambda m: Non
     t0 = time.perf_counter()
     project = Project.open(root)
     camera = project.camera()
-    gnss = read_gnss(project.gnss_path)
     images = find_images(project.images_dir)
-    missing = sorted(set(images) - set(gnss.image_id))
-    if missing:
-        raise InputError(f"{project.gnss_path}: no GNSS position for frame(s) {', '.join(missing[:10])}"
-                         + (" ..." if len(missing) > 10 else ""))
-    no_image = sorted(set(gnss.image_id) - set(images))
-    if no_image:
-        raise InputError(f"{project.images_dir}: no image file for GNSS record(s) {', '.join(no_image[:10])}")
-    ids = list(gnss.image_id)
-    lever = project.section("gnss").get("lever_arm_m", [0.0, 0.0, 0.0])
-    plan = plan_block(ids, gnss.position_m, camera, lever, _terrain_height(project, s), s.image_top_deg)
-    pairs = candidate_pairs(plan, s.min_overlap)
     cache_f = project.work_dir / "features"
     cache_m = project.work_dir / "matches"
     stats = dict(feature_cache_hits=0, match_cache_hits=0)
+    if project.gnss_path.exists():
+        gnss = read_gnss(project.gnss_path)
+        missing = sorted(set(images) - set(gnss.image_id))
+        if missing:
+            raise InputError(f"{project.gnss_path}: no GNSS position for frame(s) {', '.join(missing[:10])}"
+                             + (" ..." if len(missing) > 10 else ""))
+        no_image = sorted(set(gnss.image_id) - set(images))
+        if no_image:
+            raise InputError(f"{project.images_dir}: no image file for GNSS record(s) {', '.join(no_image[:10])}")
+        ids = list(gnss.image_id)
+        lever = project.section("gnss").get("lever_arm_m", [0.0, 0.0, 0.0])
+        plan = plan_block(ids, gnss.position_m, camera, lever, _terrain_height(project, s), s.image_top_deg)
+        pairs = candidate_pairs(plan, s.min_overlap)
+    else:
+        # No GNSS (e.g. a kite block): find overlapping pairs by matching thumbnails, then match those.
+        ids = sorted(images)
+        plan = None
+        log(f"{project.gnss_path} not found: pairs by thumbnail retrieval")
 
     def feats(i, p: F.FeatureParams):
         f = cache_f / f"{ids[i]}.{p.name}.{p.key()}.npz"
@@ -95,15 +102,25 @@ def match_project(root, settings: MatchSettings | None = None, log=lambda m: Non
         stats["match_cache_hits"] += (cache_m / f"{tag}.{fkey}.{p.key()}.npy").exists()
         return M.cached_match(tag, fa, fb, camera, p, cache_m, fkey)
 
+    if plan is None:
+        thumb = F.FeatureParams(budget=1500, grid=(6, 4), max_dim_px=1000, name="thumb")
+        tf = [feats(i, thumb) for i in _progress(range(len(ids)), "thumbnails")]
+        pairs = []
+        for i in _progress(range(len(ids)), "retrieval"):
+            for j in range(i + 1, len(ids)):
+                m = match(i, j, tf[i], tf[j], s.match, thumb.key())
+                if len(m) >= s.retrieval_min_matches:
+                    pairs.append(Pair(i, j, "retrieved", float(len(m))))
     sparse = [feats(i, s.sparse) for i in _progress(range(len(ids)), "features")]
     matches = {}
     for pr in _progress(pairs, "matching"):
         matches[(pr.i, pr.j)] = ("sparse", match(pr.i, pr.j, sparse[pr.i], sparse[pr.j], s.match, s.sparse.key()))
     track, image, xy, n_bad = _tracks(sparse, {}, matches)
-    analysis = analyse(plan, camera, track, image, xy, s.min_per_region, s.min_strip_ties)
+    analysis = (analyse(plan, camera, track, image, xy, s.min_per_region, s.min_strip_ties) if plan is not None
+                else dict(models=[], cross_strip=[]))
 
     densified = dict(models=[], strip_pairs=[])
-    if s.densify:
+    if s.densify and plan is not None:
         weak_pairs = {(m["i"], m["j"]) for m in analysis["models"] if m["weak"]}
         extra: list[Pair] = []
         for c in analysis["cross_strip"]:
@@ -133,6 +150,8 @@ def match_project(root, settings: MatchSettings | None = None, log=lambda m: Non
     r = [i for i, j, t in ties if t > 0]
     c = [j for i, j, t in ties if t > 0]
     n = len(ids)
+    if n > 1 and not r:
+        raise InputError(f"{project.images_dir}: no two frames share verified tie points (no overlap at all?)")
     ncomp, comp = connected_components(coo_matrix((np.ones(len(r)), (r, c)), shape=(n, n)), directed=False)
     components = [[ids[k] for k in np.flatnonzero(comp == q)] for q in range(ncomp)]
 
@@ -146,7 +165,8 @@ def match_project(root, settings: MatchSettings | None = None, log=lambda m: Non
     for pr in pairs:
         kinds[pr.kind] = kinds.get(pr.kind, 0) + 1
     report = dict(
-        project=project.name, frames=n, strips=int(len(np.unique(plan.strip))), pairs=len(pairs),
+        project=project.name, frames=n, strips=int(len(np.unique(plan.strip))) if plan is not None else 0,
+        pairs=len(pairs),
         pairs_by_kind=kinds, pairs_with_ties=int(sum(t > 0 for _, _, t in ties)), components=len(components),
         component_frames=components if len(components) > 1 else [], tracks=int(len(lengths)),
         observations=int(len(track)), inconsistent_tracks_dropped=n_bad,
@@ -156,10 +176,11 @@ def match_project(root, settings: MatchSettings | None = None, log=lambda m: Non
         weak_models=[[m["left"], m["right"]] for m in analysis["models"] if m["weak"]],
         weak_strip_pairs=[[c_["strip_a"], c_["strip_b"]] for c_ in analysis["cross_strip"] if c_["weak"]],
         densified=densified, models=analysis["models"], cross_strip=analysis["cross_strip"],
-        terrain_height_m=plan.terrain_height_m, seconds=round(time.perf_counter() - t0, 2), **stats,
+        terrain_height_m=plan.terrain_height_m if plan is not None else None, seconds=round(time.perf_counter() - t0, 2), **stats,
     )
     write_text_atomic(at / "connectivity.json", json.dumps(report, indent=1) + "\n")
-    plot_block(at / "connectivity.png", plan, ties, analysis)
+    if plan is not None:
+        plot_block(at / "connectivity.png", plan, ties, analysis)
     log(f"{n} frames, {len(pairs)} pairs, {report['tracks']} tracks, {report['observations']} observations, "
         f"{len(components)} component(s), {len(report['weak_models'])} weak model(s) -> {at / 'tiepoints.csv'}")
     return report
