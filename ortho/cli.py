@@ -2,10 +2,85 @@
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import click
+
+from lidarctl.errors import exit_on_input_error
 
 
 @click.group()
 @click.version_option(package_name="aerotri")
 def main():
     """Orthorectification on the LiDAR DEM, seamlines, mosaics and DOM accuracy checks."""
+
+
+@main.command()
+@click.argument("project", type=click.Path(path_type=Path))
+@click.option("--dem", "dem_path", type=click.Path(path_type=Path), help="DEM GeoTIFF [lidar_out/dem.tif]")
+@click.option("--res", "res_m", type=float, help="output pixel size in metres [median nadir GSD, rounded]")
+@click.option("--crs", "crs", help="output CRS: EPSG code (e.g. EPSG:4546), or gk3:cgcs2000 / gk3:xian1980 for the "
+                                    "3-degree GK zone nearest the block centre [project CRS]")
+@click.option("--eo", "eo_path", type=click.Path(path_type=Path), help="EO file [at/eo.txt]")
+@click.option("--camera", "camera_path", type=click.Path(path_type=Path), help="camera file [camera.toml]")
+@click.option("--interpolation", type=click.Choice(["nearest", "bilinear", "cubic", "lanczos"]), default="bilinear",
+              show_default=True)
+@click.option("--true-ortho", is_flag=True, help="rectify on the DSM and mask pixels occluded by it")
+@click.option("--dsm", "dsm_path", type=click.Path(path_type=Path), help="DSM GeoTIFF for --true-ortho")
+@click.option("--frames", help="comma-separated image ids (default: all images)")
+@exit_on_input_error
+def rectify(project, dem_path, res_m, crs, eo_path, camera_path, interpolation, true_ortho, dsm_path, frames):
+    """One orthoimage per frame (ortho/frames/<image_id>.tif with a validity mask)."""
+    from ortho.block import rectify_block
+
+    index = rectify_block(project, dem_path, res_m, crs, eo_path, camera_path, interpolation, true_ortho, dsm_path,
+                          frames.split(",") if frames else None)
+    click.echo(f"rectified {len(index['frames'])} frames at {index['res_m']} m in {index['crs_name']} "
+               f"-> {Path(project) / 'ortho' / 'frames'}")
+
+
+@main.command()
+@click.argument("project", type=click.Path(path_type=Path))
+@click.option("--seams", type=click.Choice(["least-cost", "voronoi"]), default="least-cost", show_default=True)
+@click.option("--ndsm", "ndsm_path", type=click.Path(path_type=Path),
+              help="nDSM for seam costs (buildings, trees) [lidar_out/ndsm.tif if present]")
+@click.option("--feather-m", type=float, default=None, help="feather width across seams in metres [8 GSD]")
+@click.option("--no-balance", is_flag=True, help="skip the gain balancing between frames")
+@click.option("--tile-px", type=int, default=1024, show_default=True, help="mosaic processing tile size")
+@exit_on_input_error
+def mosaic(project, seams, ndsm_path, feather_m, no_balance, tile_px):
+    """Seamlines, blending and radiometric balancing into ortho/mosaic.tif (COG) and ortho/seamlines.geojson."""
+    from ortho.mosaic import mosaic_block
+
+    info = mosaic_block(project, seams=seams, ndsm_path=ndsm_path, feather_m=feather_m, balance=not no_balance,
+                        tile_px=tile_px)
+    click.echo(f"mosaic {info['width']} x {info['height']} px of {info['frames']} frames -> {info['path']}")
+
+
+@main.command()
+@click.argument("project", type=click.Path(path_type=Path))
+@click.option("--reference", "reference_path", type=click.Path(path_type=Path), help="reference orthophoto GeoTIFF")
+@click.option("--points", "points_path", type=click.Path(path_type=Path),
+              help="CSV id,x,y,x_dom,y_dom: surveyed points and their positions measured in the DOM")
+@click.option("--dom", "dom_path", type=click.Path(path_type=Path), help="DOM to check [ortho/mosaic.tif]")
+@click.option("--ndsm", "ndsm_path", type=click.Path(path_type=Path), help="keep only ground patches (nDSM <= --max-ndsm-m)")
+@click.option("--max-ndsm-m", type=float, default=0.5, show_default=True)
+@click.option("--patch-px", type=int, default=48, show_default=True)
+@click.option("--search-px", type=int, default=6, show_default=True)
+@click.option("--out", "out_stem", type=click.Path(path_type=Path), help="report stem [ortho/dom_report]")
+@exit_on_input_error
+def check(project, reference_path, points_path, dom_path, ndsm_path, max_ndsm_m, patch_px, search_px, out_stem):
+    """DOM accuracy against a reference orthophoto (NCC patches) or surveyed points; JSON and a plot."""
+    from ortho.check import run_check
+
+    if (reference_path is None) == (points_path is None):
+        raise click.UsageError("give exactly one of --reference or --points")
+    report = run_check(project, reference_path=reference_path, points_path=points_path, dom_path=dom_path,
+                       ndsm_path=ndsm_path, max_ndsm_m=max_ndsm_m, patch_px=patch_px, search_px=search_px,
+                       out_stem=out_stem)
+    s = report["displacement"]
+    if s.get("count"):
+        click.echo(f"{s['count']} {'patches' if reference_path else 'points'}: RMS {s['rms_xy_m']:.3f} m "
+                   f"({s['rms_xy_gsd']:.2f} GSD), max {s['max_xy_m']:.3f} m -> {report['json']}")
+    else:
+        click.echo(f"no usable {'patches' if reference_path else 'points'} -> {report['json']}")

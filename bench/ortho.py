@@ -1,0 +1,244 @@
+"""Benchmark ``ortho rectify`` on one full-size DMC frame against orthority and raw cv2.remap.
+
+Synthetic truth (``ortho.synthetic``): a band-limited RGB orthophoto (0.1 m) on a smooth DEM (1 m,
++-15 m relief), one 13824 x 7680 px DMC frame (f 120 mm, 12 um, with principal-point offset and
+radial distortion, 1000 m above ground, slight tilt) rendered from it by ray-DEM intersection.
+
+Measured, each in its own process (peak RSS = ru_maxrss of that process):
+
+- ``ours_library``: ``ortho.rectify.rectify_frame`` on the image in memory (the computing part);
+- ``ours_cli``: the whole ``ortho rectify`` stage (read TIFF + DEM, rectify, write deflate GeoTIFF);
+- ``remap_ceiling``: only ``cv2.remap`` on the same grid and tiles with precomputed maps;
+- ``orthority``: ``orthority.Ortho(...).process(...)`` with the same camera, EO, DEM, resolution,
+  bilinear interpolation and deflate output (peer, in the ``bench`` extra).
+
+Output megapixels = output grid pixels (the frame's bounding grid). Both DOMs are checked against the
+truth orthophoto with ``ortho.check`` (NCC patches). Writes results/ortho_bench.json.
+
+Usage: python bench/ortho.py [--workdir DIR] [--keep]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import resource
+import shutil
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+REPO = Path(__file__).resolve().parents[1]
+# this folder holds bench/ortho.py, which would shadow the ``ortho`` package: import it from the repo
+sys.path[:] = [p for p in sys.path if Path(p or ".").resolve() != Path(__file__).resolve().parent]
+sys.path.insert(0, str(REPO))
+RES_M = 0.1
+AGL_M = 1000.0
+BASE_M = 300.0
+
+
+def dmc_truth_camera():
+    from aerotri.camera import dmc_camera
+    import dataclasses
+
+    return dataclasses.replace(dmc_camera(), ppx_mm=0.1, ppy_mm=-0.06, k1=-4e-3, k2=1e-3, name="DMC (benchmark truth)")
+
+
+def prepare(d: Path) -> dict:
+    import cv2
+
+    from aerotri.eo import ExteriorOrientations, write_eo
+    from aerotri.rotation import rotation_matrix_opk
+    from lidarctl.atomic import write_text_atomic
+    from ortho.grid import OrthoGrid
+    from ortho.synthetic import render_frame, smooth_dem, textured_orthophoto, write_geotiff
+
+    cam = dmc_truth_camera()
+    e0, n0 = 452000.0, 3407000.0
+    C = np.array([e0 + 800.0, n0 + 500.0, BASE_M + AGL_M])
+    opk = np.array([0.8, -0.6, 3.0])
+    R = rotation_matrix_opk(*opk)
+    half_w = 0.5 * cam.width * cam.pixel_um * 1e-6 / (cam.focal_mm * 1e-3) * (AGL_M + 30)
+    half_h = 0.5 * cam.height * cam.pixel_um * 1e-6 / (cam.focal_mm * 1e-3) * (AGL_M + 30)
+    left, right = C[0] - half_w - 60, C[0] + half_w + 60
+    bottom, top = C[1] - half_h - 100, C[1] + half_h + 100  # kappa 3 deg: the long side turns by 37 m
+    grid = OrthoGrid(None, left, top, RES_M, int((right - left) / RES_M), int((top - bottom) / RES_M))
+    # texture generated at half resolution and upsampled: band-limited to about 2 px, cheap to make
+    t0 = time.perf_counter()
+    small = textured_orthophoto(grid.height // 2 + 1, grid.width // 2 + 1, 3, seed=3)
+    ortho = cv2.resize(small, (grid.width, grid.height), interpolation=cv2.INTER_CUBIC)
+    del small
+    dem = smooth_dem((left - 50, bottom - 50, right + 50, top + 50), 1.0, base_m=BASE_M, amplitude_m=15.0,
+                     wavelength_m=600.0, slope=0.01)
+    img, valid = render_frame(ortho, grid, dem, cam, C, R)
+    if not valid.all():
+        raise RuntimeError("the synthetic orthophoto does not cover the frame")
+    t_make = time.perf_counter() - t0
+    crs = "EPSG:32649"
+    (d / "images").mkdir(parents=True, exist_ok=True)
+    # uncompressed, as large-format frames usually come (and the same file for both programs)
+    cv2.imwrite(str(d / "images" / "dmc_001.tif"), cv2.cvtColor(img, cv2.COLOR_RGB2BGR),
+                [cv2.IMWRITE_TIFF_COMPRESSION, 1])
+    write_text_atomic(d / "project.toml", f'[project]\nname = "bench"\ncrs = "{crs}"\n')
+    write_text_atomic(d / "camera.toml", cam.to_toml())
+    write_eo(d / "at" / "eo.txt", ExteriorOrientations(["dmc_001"], C[None], opk[None]))
+    write_geotiff(d / "lidar_out" / "dem.tif", dem.heights_m, dem.x_left_m, dem.y_top_m, dem.res_m, crs)
+    write_geotiff(d / "truth" / "ortho.tif", ortho, grid.x_left_m, grid.y_top_m, RES_M, crs)
+    return {"frame_px": [cam.width, cam.height], "truth_ortho_px": [grid.width, grid.height], "make_s": t_make,
+            "centre_m": C.tolist(), "opk_deg": opk.tolist()}
+
+
+def _setup(d: Path):
+    import cv2  # noqa: F401
+
+    from aerotri.camera import FrameCamera
+    from aerotri.eo import read_eo
+    from ortho.block import read_image
+    from ortho.dem import open_height_raster, read_height_window
+    from ortho.grid import GridToProject, parse_crs
+    from ortho.rectify import frame_grid
+
+    crs = parse_crs("EPSG:32649")
+    cam = FrameCamera.read(d / "camera.toml")
+    eo = read_eo(d / "at" / "eo.txt")
+    C, R = eo.centre_m[0], eo.rotation(0)
+    with open_height_raster(d / "lidar_out" / "dem.tif", crs) as ds:
+        dem = read_height_window(ds, ds.bounds)
+    tp = GridToProject(crs, crs)
+    grid = frame_grid(cam, C, R, dem, RES_M, crs, tp)
+    img = read_image(d / "images" / "dmc_001.tif", cam)
+    return cam, C, R, dem, grid, img, tp
+
+
+def run_kind(kind: str, d: Path) -> dict:
+    out = {"kind": kind}
+    if kind == "ours_library":
+        from ortho.rectify import rectify_frame
+
+        cam, C, R, dem, grid, img, tp = _setup(d)
+        small = grid.window(0, 0, 64, 64)
+        rectify_frame(img, cam, C, R, dem, small)  # JIT warm-up (cached compile)
+        t = time.perf_counter()
+        ortho, mask = rectify_frame(img, cam, C, R, dem, grid)
+        out["seconds"] = time.perf_counter() - t
+        out["output_px"] = grid.width * grid.height
+        out["valid_px"] = int((mask > 0).sum())
+    elif kind == "ours_cli":
+        from ortho.block import rectify_block
+
+        t = time.perf_counter()
+        index = rectify_block(d, res_m=RES_M, progress=False)
+        out["seconds"] = time.perf_counter() - t
+        e = index["frames"][0]
+        out["output_px"] = e["width"] * e["height"]
+        out["output"] = str(d / "ortho" / "frames" / "dmc_001.tif")
+    elif kind == "remap_ceiling":
+        import cv2
+
+        from ortho.rectify import FrameGeometry, fixed_point_maps
+
+        cam, C, R, dem, grid, img, tp = _setup(d)
+        geom = FrameGeometry(cam, C, R)
+        tiles = []
+        for r0 in range(0, grid.height, 1024):
+            for c0 in range(0, grid.width, 1024):
+                tile = grid.window(c0, r0, min(1024, grid.width - c0), min(1024, grid.height - r0))
+                map_int, map_frac, *_ = fixed_point_maps(geom, dem, tile, tp)
+                tiles.append((map_int, map_frac))
+        t = time.perf_counter()
+        for map_int, map_frac in tiles:
+            cv2.remap(img, map_int, map_frac, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT)
+        out["seconds"] = time.perf_counter() - t
+        out["output_px"] = grid.width * grid.height
+    elif kind == "orthority":
+        import orthority as oty
+        from orthority.camera import OpenCVCamera
+
+        from aerotri.camera import FrameCamera
+        from aerotri.eo import read_eo
+
+        cam = FrameCamera.read(d / "camera.toml")
+        eo = read_eo(d / "at" / "eo.txt")
+        scale = max(cam.width, cam.height)
+        # orthority: principal point in normalised image coordinates (x right, y down, / max(w, h));
+        # opk in radians, PATB convention = our omega-phi-kappa
+        camera = OpenCVCamera(
+            (cam.width, cam.height), cam.focal_mm, sensor_size=(cam.width * cam.pixel_um / 1000, cam.height * cam.pixel_um / 1000),
+            cx=(cam.ppx_mm * 1000 / cam.pixel_um) / scale, cy=(-cam.ppy_mm * 1000 / cam.pixel_um) / scale,
+            k1=cam.k1, k2=cam.k2, k3=cam.k3, p1=cam.p1, p2=cam.p2,
+            xyz=tuple(eo.centre_m[0]), opk=tuple(np.radians(eo.opk_deg[0])), distort=True)
+        dst = d / "orthority_dmc_001.tif"
+        t = time.perf_counter()
+        o = oty.Ortho(d / "images" / "dmc_001.tif", d / "lidar_out" / "dem.tif", camera, crs="EPSG:32649")
+        o.process(dst, resolution=(RES_M, RES_M), interp="bilinear", dem_interp="bilinear", compress="deflate",
+                  write_mask=True, build_ovw=False, overwrite=True)
+        out["seconds"] = time.perf_counter() - t
+        import rasterio
+
+        with rasterio.open(dst) as ds:
+            out["output_px"] = ds.width * ds.height
+        out["output"] = str(dst)
+    else:
+        raise SystemExit(f"unknown kind {kind}")
+    out["output_mp_per_s"] = out["output_px"] / 1e6 / out["seconds"]
+    out["peak_rss_mb"] = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
+    return out
+
+
+def accuracy(dom: Path, truth: Path) -> dict:
+    from ortho.check import check_against_reference, displacement_statistics
+
+    p, _ = check_against_reference(dom, truth, patch_px=48, step_px=240, search_px=6)
+    s = displacement_statistics(p.de_m, p.dn_m, RES_M)
+    return {k: s[k] for k in ("count", "rms_xy_m", "rms_xy_gsd", "max_xy_m", "mean_e_m", "mean_n_m")}
+
+
+def main():
+    ap = argparse.ArgumentParser()
+    ap.add_argument("--workdir", type=Path)
+    ap.add_argument("--keep", action="store_true")
+    ap.add_argument("--run", nargs=2, metavar=("KIND", "DIR"), help=argparse.SUPPRESS)
+    ap.add_argument("--out", type=Path, default=REPO / "results" / "ortho_bench.json")
+    ap.add_argument("--kinds", default="ours_library,ours_cli,remap_ceiling,orthority")
+    args = ap.parse_args()
+    if args.run:
+        print(json.dumps(run_kind(args.run[0], Path(args.run[1]))))
+        return
+    d = args.workdir or Path(tempfile.mkdtemp(prefix="bench_ortho_"))
+    d.mkdir(parents=True, exist_ok=True)
+    # the machine is shared: record its load, which the timings depend on
+    res = {"machine_cpus": os.cpu_count(), "load_average_1min_start": os.getloadavg()[0], "res_m": RES_M,
+           "height_above_ground_m": AGL_M}
+    if not (d / "images" / "dmc_001.tif").exists():
+        (d / "prepare.json").write_text(json.dumps(prepare(d)))
+    res["prepare"] = json.loads((d / "prepare.json").read_text())
+    for kind in args.kinds.split(","):
+        r = subprocess.run([sys.executable, __file__, "--run", kind, str(d)], capture_output=True, text=True)
+        if r.returncode != 0:
+            res[kind] = {"error": r.stderr.strip()[-1500:]}
+            print(kind, "failed:", r.stderr.strip()[-1500:], file=sys.stderr)
+            continue
+        res[kind] = json.loads(r.stdout.strip().splitlines()[-1])
+        print(kind, json.dumps(res[kind]), flush=True)
+    for kind in ("ours_cli", "orthority"):
+        if "output" in res.get(kind, {}):
+            res[kind]["accuracy_vs_truth"] = accuracy(Path(res[kind]["output"]), d / "truth" / "ortho.tif")
+    if "seconds" in res.get("orthority", {}) and "seconds" in res.get("ours_cli", {}):
+        res["speed_ratio_ours_cli_over_orthority"] = res["orthority"]["seconds"] / res["ours_cli"]["seconds"]
+    if "seconds" in res.get("remap_ceiling", {}) and "seconds" in res.get("ours_library", {}):
+        res["ours_library_fraction_of_remap_ceiling"] = res["remap_ceiling"]["seconds"] / res["ours_library"]["seconds"]
+    res["load_average_1min_end"] = os.getloadavg()[0]
+    args.out.parent.mkdir(parents=True, exist_ok=True)
+    args.out.write_text(json.dumps(res, indent=2) + "\n")
+    print(json.dumps(res, indent=1))
+    if not args.keep and not args.workdir:
+        shutil.rmtree(d, ignore_errors=True)
+
+
+if __name__ == "__main__":
+    main()

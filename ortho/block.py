@@ -1,0 +1,259 @@
+"""Project-level orthorectification: every frame of a block onto one common, snapped output grid.
+
+Inputs (architecture doc): ``camera.toml`` (or ``--camera``), the adjusted EO ``at/eo.txt`` (or
+``--eo``, e.g. ``truth/eo.txt``), ``images/<image_id>.tif`` and the DEM ``lidar_out/dem.tif`` (or
+``--dem``), all in the project CRS. Outputs in ``ortho/frames/``: ``<image_id>.tif`` (tiled GeoTIFF
+with an internal validity mask; occluded pixels are masked in a true ortho) and ``index.json`` (grid,
+projection centre and nadir point of each frame, for the mosaic).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+from pathlib import Path
+
+import cv2
+import numpy as np
+import rasterio
+from pyproj import CRS
+from tqdm import tqdm
+
+from aerotri.camera import FrameCamera
+from aerotri.eo import ExteriorOrientations, read_eo
+from aerotri.errors import InputError
+from aerotri.project import Project
+from lidarctl.atomic import atomic_path, write_text_atomic
+from ortho.dem import height_range, open_height_raster, read_height_window
+from ortho.grid import GridToProject, OrthoGrid, nice_resolution, parse_crs, resolve_output_crs
+from ortho.rectify import border_pixels, frame_grid, rectify_frame
+
+IMAGE_SUFFIXES = (".tif", ".tiff", ".jpg", ".jpeg", ".png")
+
+
+@dataclasses.dataclass
+class BlockInputs:
+    project: Project
+    camera: FrameCamera
+    eo: ExteriorOrientations
+    eo_path: Path
+    images: dict[str, Path]  # image_id -> file, only frames that will be rectified
+
+    @property
+    def project_crs(self) -> CRS:
+        return parse_crs(self.project.crs, f"{self.project.root / 'project.toml'}: [project] crs")
+
+
+def load_block(root, eo_path=None, camera_path=None, frames=None) -> BlockInputs:
+    """Open a project and check that every selected image has an EO (InputError naming what is missing)."""
+    project = Project.open(root)
+    camera = FrameCamera.read(camera_path) if camera_path else project.camera()
+    eo_path = Path(eo_path) if eo_path else project.at_dir / "eo.txt"
+    if not eo_path.exists():
+        raise InputError(f"{eo_path}: exterior orientation not found (run the aerotri adjustment, or pass --eo FILE, "
+                         f"e.g. --eo {project.truth_dir / 'eo.txt'})")
+    eo = read_eo(eo_path)
+    if not project.images_dir.is_dir():
+        raise InputError(f"{project.images_dir}: images folder not found")
+    images = {p.stem: p for p in sorted(project.images_dir.iterdir()) if p.suffix.lower() in IMAGE_SUFFIXES}
+    if frames:
+        unknown = [f for f in frames if f not in images]
+        if unknown:
+            raise InputError(f"{project.images_dir}: no image for frame(s) {', '.join(unknown)}")
+        images = {f: images[f] for f in frames}
+    if not images:
+        raise InputError(f"{project.images_dir}: no images ({', '.join(IMAGE_SUFFIXES)})")
+    idx = eo.index()
+    missing = [k for k in images if k not in idx]
+    if missing:
+        raise InputError(f"{eo_path}: no exterior orientation for frame(s) {', '.join(missing[:10])}"
+                         f"{' ...' if len(missing) > 10 else ''} (images in {project.images_dir})")
+    return BlockInputs(project, camera, eo, eo_path, images)
+
+
+def read_image_native(path, camera: FrameCamera):
+    """A frame as stored, (rows, cols[, bands]), and for each channel its 1-based band in R, G, B order.
+
+    cv2 reads colour TIFFs as B, G, R: the band order lets the ortho be written as R, G, B without
+    converting the whole frame.
+    """
+    img = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
+    if img is None:
+        try:
+            with rasterio.open(path) as ds:
+                img = np.moveaxis(ds.read(), 0, -1)
+        except rasterio.errors.RasterioIOError as exc:
+            raise InputError(f"{path}: cannot read image ({exc})") from None
+        if img.shape[2] == 1:
+            img = img[:, :, 0]
+        order = list(range(1, (img.shape[2] if img.ndim == 3 else 1) + 1))
+    elif img.ndim == 3 and img.shape[2] in (3, 4):
+        order = [3, 2, 1] if img.shape[2] == 3 else [3, 2, 1, 4]
+    else:
+        order = list(range(1, (img.shape[2] if img.ndim == 3 else 1) + 1))
+    if img.shape[0] != camera.height or img.shape[1] != camera.width:
+        raise InputError(f"{path}: image is {img.shape[1]} x {img.shape[0]} px but the camera is "
+                         f"{camera.width} x {camera.height} px")
+    return img, order
+
+
+def read_image(path, camera: FrameCamera) -> np.ndarray:
+    """A frame as (rows, cols[, bands]) in band order R, G, B."""
+    img, order = read_image_native(path, camera)
+    if img.ndim == 3 and order != list(range(1, img.shape[2] + 1)):
+        out = np.empty_like(img)
+        out[:, :, [b - 1 for b in order]] = img
+        return out
+    return img
+
+
+def default_resolution(camera: FrameCamera, eo: ExteriorOrientations, ground_height_m) -> float:
+    """The median nadir GSD of the block (ground heights under the nadir points), rounded to a nice value."""
+    agl = float(np.median(eo.centre_m[:, 2] - ground_height_m))
+    if agl <= 0:
+        raise InputError(f"projection centres are below the DEM (median height above ground {agl:.1f} m)")
+    return nice_resolution(camera.gsd_m(float(agl)))
+
+
+def frame_profile(grid: OrthoGrid, bands: int, dtype: str, block_px: int = 512) -> dict:
+    """Per-frame ortho GeoTIFF: tiled, ZSTD level 1 (about 4x faster to write than deflate; these are
+    intermediate products for the mosaic), pixel interleaved."""
+    profile = dict(driver="GTiff", width=grid.width, height=grid.height, count=bands, dtype=dtype, crs=grid.crs,
+                   transform=grid.transform, tiled=True, blockxsize=block_px, blockysize=block_px, compress="zstd",
+                   zstd_level=1, predictor=2, num_threads="ALL_CPUS", interleave="pixel", BIGTIFF="IF_SAFER")
+    if grid.width < block_px or grid.height < block_px:
+        profile.update(tiled=False)
+        profile.pop("blockxsize")
+        profile.pop("blockysize")
+    return profile
+
+
+def write_frame_ortho(path, ortho: np.ndarray, mask: np.ndarray, grid: OrthoGrid) -> None:
+    """A whole frame ortho with its internal validity mask, written atomically."""
+    a = ortho if ortho.ndim == 3 else ortho[:, :, None]
+    with atomic_path(path) as tmp, rasterio.Env(GDAL_TIFF_INTERNAL_MASK=True):
+        with rasterio.open(tmp, "w", **frame_profile(grid, a.shape[2], a.dtype.name)) as dst:
+            dst.write(np.moveaxis(a, -1, 0))
+            dst.write_mask(mask)
+
+
+def rectify_frame_to_file(path, image, band_order, camera, C, R, heights, grid, interpolation, to_project,
+                          occlusion_dsm=None) -> float:
+    """Rectify tile by tile straight into a GeoTIFF (the frame ortho is never whole in memory).
+
+    Returns the valid fraction of the grid.
+    """
+    from rasterio.windows import Window
+
+    bands = 1 if image.ndim == 2 else image.shape[2]
+    with atomic_path(path) as tmp, rasterio.Env(GDAL_TIFF_INTERNAL_MASK=True):
+        with rasterio.open(tmp, "w", **frame_profile(grid, bands, image.dtype.name)) as dst:
+            def sink(r0, c0, o, m):
+                w = Window(c0, r0, m.shape[1], m.shape[0])
+                dst.write(np.moveaxis(o if o.ndim == 3 else o[:, :, None], -1, 0), window=w, indexes=band_order)
+                dst.write_mask(m, window=w)
+
+            _, mask = rectify_frame(image, camera, C, R, heights, grid, interpolation, to_project,
+                                    occlusion_dsm=occlusion_dsm, sink=sink)
+    return float((mask > 0).mean())
+
+
+def rectify_block(root, dem_path=None, res_m: float | None = None, crs: str | None = None, eo_path=None,
+                  camera_path=None, interpolation: str = "bilinear", true_ortho: bool = False, dsm_path=None,
+                  frames=None, progress: bool = True) -> dict:
+    """Rectify the frames of a project into ``ortho/frames/``; returns the index written to index.json."""
+    block = load_block(root, eo_path, camera_path, frames)
+    project = block.project
+    project_crs = block.project_crs
+    dem_path = Path(dem_path) if dem_path else project.lidar_out_dir / "dem.tif"
+    if true_ortho and not dsm_path:
+        raise InputError("--true-ortho needs --dsm (the DSM, e.g. lidar_out/dsm.tif)")
+    dem_ds = open_height_raster(dem_path, project_crs, "DEM")
+    dsm_ds = open_height_raster(dsm_path, project_crs, "DSM") if true_ortho else None
+    out_dir = project.ortho_dir / "frames"
+    try:
+        zlo, zhi = height_range(dem_ds)
+        eo_idx = block.eo.index()
+        sel = [eo_idx[k] for k in block.images]
+        eo_sel = ExteriorOrientations([block.eo.image_id[i] for i in sel], block.eo.centre_m[sel], block.eo.opk_deg[sel])
+        if res_m:
+            res = float(res_m)
+        else:
+            nadir_z = np.array([np.ma.filled(v.astype(float), np.nan)[0]
+                                for v in dem_ds.sample([tuple(p) for p in eo_sel.centre_m[:, :2]], masked=True)])
+            nadir_z = np.where(np.isfinite(nadir_z), nadir_z, 0.5 * (zlo + zhi))
+            res = default_resolution(block.camera, eo_sel, nadir_z)
+        centre_xy = np.median(eo_sel.centre_m[:, :2], axis=0)
+        out_crs = resolve_output_crs(crs, project_crs, centre_xy)
+        to_project = GridToProject(out_crs, project_crs)
+        entries = []
+        for image_id, path in tqdm(block.images.items(), desc="rectify", unit="frame", disable=not progress):
+            i = eo_idx[image_id]
+            C = block.eo.centre_m[i]
+            R = block.eo.rotation(i)
+            ground_bounds = _plane_footprint_bounds(block.camera, C, R, zlo - 5.0, zhi + 5.0, image_id)
+            dem = read_height_window(dem_ds, ground_bounds, margin_m=4 * dem_ds.transform.a, what="DEM", frame=image_id)
+            grid = frame_grid(block.camera, C, R, dem, res, out_crs, to_project, image_id=image_id)
+            image, band_order = read_image_native(path, block.camera)
+            heights = dem
+            if true_ortho:
+                heights = read_height_window(dsm_ds, ground_bounds, margin_m=4 * dsm_ds.transform.a, what="DSM",
+                                             frame=image_id)
+            valid_fraction = rectify_frame_to_file(out_dir / f"{image_id}.tif", image, band_order, block.camera, C, R,
+                                                   heights, grid, interpolation, to_project,
+                                                   occlusion_dsm=heights if true_ortho else None)
+            del image
+            nadir_x, nadir_y = to_project.to_output(np.array([C[0]]), np.array([C[1]]))
+            entries.append({
+                "image_id": image_id, "file": f"{image_id}.tif", "x_left_m": grid.x_left_m, "y_top_m": grid.y_top_m,
+                "width": grid.width, "height": grid.height, "centre_m": [float(v) for v in C],
+                "nadir_xy_m": [float(nadir_x[0]), float(nadir_y[0])], "valid_fraction": valid_fraction,
+            })
+    finally:
+        dem_ds.close()
+        if dsm_ds is not None:
+            dsm_ds.close()
+    index = {
+        "crs": out_crs.to_wkt(), "crs_name": out_crs.name, "epsg": out_crs.to_epsg(), "res_m": res,
+        "project_crs": project_crs.to_string(), "dem": str(dem_path), "eo": str(block.eo_path),
+        "true_ortho": bool(true_ortho), "dsm": str(dsm_path) if dsm_path else None, "interpolation": interpolation,
+        "frames": entries,
+    }
+    # merge with frames rectified earlier onto the same grid (re-runs of a subset)
+    index_path = out_dir / "index.json"
+    if frames and index_path.exists():
+        old = json.loads(index_path.read_text())
+        if old.get("res_m") == res and old.get("crs") == index["crs"]:
+            keep = [e for e in old["frames"] if e["image_id"] not in {x["image_id"] for x in entries}]
+            index["frames"] = sorted(keep + entries, key=lambda e: e["image_id"])
+    write_text_atomic(index_path, json.dumps(index, indent=1) + "\n")
+    return index
+
+
+def _plane_footprint_bounds(camera, C, R, z_lo, z_hi, image_id):
+    """Bounds (project CRS) of the frame footprint between two horizontal planes (to pick the DEM window)."""
+    x, y = border_pixels(camera, 16)
+    d = camera.rays(x, y, R)
+    if np.any(d[:, 2] >= -1e-6):
+        raise InputError(f"{image_id}: some rays of the frame do not point downwards (check its omega/phi/kappa)")
+    pts = []
+    for z in (z_lo, z_hi):
+        t = (z - C[2]) / d[:, 2]
+        if np.any(t <= 0):
+            raise InputError(f"{image_id}: the projection centre (Z = {C[2]:.1f} m) is below the DEM heights ({z:.1f} m)")
+        pts.append(C[:2] + t[:, None] * d[:, :2])
+    p = np.concatenate(pts)
+    return (float(p[:, 0].min()), float(p[:, 1].min()), float(p[:, 0].max()), float(p[:, 1].max()))
+
+
+def read_index(root) -> dict:
+    path = Path(root) / "ortho" / "frames" / "index.json"
+    if not path.exists():
+        raise InputError(f"{path}: not found (run `ortho rectify` first)")
+    return json.loads(path.read_text())
+
+
+def index_grids(index: dict) -> dict[str, OrthoGrid]:
+    crs = CRS.from_wkt(index["crs"])
+    return {e["image_id"]: OrthoGrid(crs, e["x_left_m"], e["y_top_m"], index["res_m"], e["width"], e["height"])
+            for e in index["frames"]}

@@ -1,0 +1,335 @@
+"""DOM accuracy: planimetric displacement of an orthoimage against a reference or surveyed points.
+
+Patch matching: the DOM is cut into square patches on a regular grid; each textured patch is
+located in the reference orthophoto (resampled onto the DOM grid) by normalised cross-correlation
+(``cv2.matchTemplate``, TM_CCOEFF_NORMED) within a search radius, refined to sub-pixel by a parabola
+through the correlation peak in x and y. The displacement is DOM position minus reference position,
+in pixels (x right, y down) and in metres (dE east, dN north).
+
+Surveyed points: a CSV ``id,x,y,x_dom,y_dom`` with the surveyed coordinates and the coordinates of
+the same point measured in the DOM (both in the DOM's CRS); the displacement is DOM minus survey.
+"""
+
+from __future__ import annotations
+
+import csv
+import dataclasses
+import json
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from aerotri.errors import InputError
+
+
+@dataclasses.dataclass
+class PatchDisplacements:
+    row_px: np.ndarray  # patch centre rows in the DOM grid
+    col_px: np.ndarray
+    dx_px: np.ndarray  # DOM minus reference, x right
+    dy_px: np.ndarray  # DOM minus reference, y down
+    ncc: np.ndarray
+    res_m: float
+
+    @property
+    def de_m(self):
+        return self.dx_px * self.res_m
+
+    @property
+    def dn_m(self):
+        return -self.dy_px * self.res_m
+
+    def select(self, keep) -> "PatchDisplacements":
+        keep = np.asarray(keep, bool)
+        return PatchDisplacements(self.row_px[keep], self.col_px[keep], self.dx_px[keep], self.dy_px[keep], self.ncc[keep], self.res_m)
+
+    def __len__(self):
+        return len(self.dx_px)
+
+
+def to_gray(image: np.ndarray) -> np.ndarray:
+    """(rows, cols[, bands]) -> float32 luminance (mean of the first three bands)."""
+    a = np.asarray(image)
+    if a.ndim == 3:
+        a = a[:, :, :3].astype(np.float32).mean(axis=2)
+    return a.astype(np.float32)
+
+
+def _subpixel(c_m, c_0, c_p):
+    den = c_m - 2.0 * c_0 + c_p
+    return 0.0 if den >= 0 else float(np.clip(0.5 * (c_m - c_p) / den, -0.5, 0.5))
+
+
+def match_patches(dom, reference, dom_valid=None, reference_valid=None, res_m: float = 1.0, patch_px: int = 48,
+                  step_px: int = 48, search_px: int = 6, min_ncc: float = 0.7, min_std: float = 4.0,
+                  keep=None) -> PatchDisplacements:
+    """Displacements of DOM patches against a reference on the same grid (see module doc).
+
+    ``keep``: optional boolean raster; a patch is used only if all its pixels are True (e.g. ground
+    from an nDSM). Patches with low texture (std < ``min_std`` grey levels), invalid pixels, a peak on
+    the search border or a peak NCC below ``min_ncc`` are discarded.
+    """
+    g = to_gray(dom)
+    ref = to_gray(reference)
+    if g.shape != ref.shape:
+        raise InputError(f"DOM ({g.shape}) and reference ({ref.shape}) are not on the same grid")
+    ok = np.ones(g.shape, bool) if dom_valid is None else np.asarray(dom_valid, bool)
+    if reference_valid is not None:
+        ok = ok & np.asarray(reference_valid, bool)
+    if keep is not None:
+        ok = ok & np.asarray(keep, bool)
+    # integral image of invalid pixels: patch validity in O(1)
+    bad = np.pad((~ok).astype(np.int64).cumsum(0).cumsum(1), ((1, 0), (1, 0)))
+    H, W = g.shape
+    P, S = patch_px, search_px
+    rows, cols, dxs, dys, nccs = [], [], [], [], []
+    for r in range(S, H - P - S + 1, step_px):
+        for c in range(S, W - P - S + 1, step_px):
+            r0, r1, c0, c1 = r - S, r + P + S, c - S, c + P + S
+            if bad[r1, c1] - bad[r0, c1] - bad[r1, c0] + bad[r0, c0]:
+                continue
+            t = g[r:r + P, c:c + P]
+            if t.std() < min_std:
+                continue
+            cc = cv2.matchTemplate(ref[r0:r1, c0:c1], t, cv2.TM_CCOEFF_NORMED)
+            _, peak, _, (px, py) = cv2.minMaxLoc(cc)
+            if peak < min_ncc or px in (0, cc.shape[1] - 1) or py in (0, cc.shape[0] - 1):
+                continue
+            sx = _subpixel(cc[py, px - 1], cc[py, px], cc[py, px + 1])
+            sy = _subpixel(cc[py - 1, px], cc[py, px], cc[py + 1, px])
+            # the DOM patch at (r, c) is found in the reference at (r + py - S, c + px - S):
+            # the DOM shows that content displaced by minus that offset
+            rows.append(r + (P - 1) / 2.0)
+            cols.append(c + (P - 1) / 2.0)
+            dxs.append(-(px + sx - S))
+            dys.append(-(py + sy - S))
+            nccs.append(peak)
+    a = lambda v: np.asarray(v, dtype=float)
+    return PatchDisplacements(a(rows), a(cols), a(dxs), a(dys), a(nccs), float(res_m))
+
+
+def displacement_statistics(de_m, dn_m, res_m: float) -> dict:
+    """RMS, max, mean and distribution of planimetric displacements (metres and GSD units)."""
+    de = np.asarray(de_m, float)
+    dn = np.asarray(dn_m, float)
+    n = len(de)
+    if n == 0:
+        return {"count": 0}
+    dxy = np.hypot(de, dn)
+    rms_xy = float(np.sqrt(np.mean(dxy ** 2)))
+    edges_gsd = [0.0, 0.25, 0.5, 1.0, 2.0, 3.0, np.inf]
+    hist, _ = np.histogram(dxy / res_m, bins=edges_gsd)
+    return {
+        "count": n,
+        "gsd_m": res_m,
+        "rms_e_m": float(np.sqrt(np.mean(de ** 2))),
+        "rms_n_m": float(np.sqrt(np.mean(dn ** 2))),
+        "rms_xy_m": rms_xy,
+        "rms_xy_gsd": rms_xy / res_m,
+        "mean_e_m": float(de.mean()),
+        "mean_n_m": float(dn.mean()),
+        "max_xy_m": float(dxy.max()),
+        "max_xy_gsd": float(dxy.max() / res_m),
+        "median_xy_m": float(np.median(dxy)),
+        "p95_xy_m": float(np.percentile(dxy, 95)),
+        "distribution_gsd": [
+            {"from_gsd": float(lo), "to_gsd": (None if not np.isfinite(hi) else float(hi)), "count": int(k),
+             "pct": 100.0 * int(k) / n}
+            for lo, hi, k in zip(edges_gsd[:-1], edges_gsd[1:], hist)
+        ],
+    }
+
+
+def read_points_csv(path) -> dict:
+    """Surveyed points with their DOM measurements: columns id, x, y, x_dom, y_dom (header required)."""
+    path = Path(path)
+    try:
+        text = path.read_text()
+    except FileNotFoundError:
+        raise InputError(f"{path}: points file not found") from None
+    reader = csv.DictReader(text.splitlines())
+    need = ["id", "x", "y", "x_dom", "y_dom"]
+    if reader.fieldnames is None or any(k not in reader.fieldnames for k in need):
+        raise InputError(f"{path}: header must contain {','.join(need)} (got {reader.fieldnames})")
+    ids, vals = [], []
+    for lineno, row in enumerate(reader, start=2):
+        try:
+            vals.append([float(row[k]) for k in need[1:]])
+        except (TypeError, ValueError):
+            raise InputError(f"{path}:{lineno}: non-numeric coordinate in {row}") from None
+        if not np.all(np.isfinite(vals[-1])):
+            raise InputError(f"{path}:{lineno}: NaN or infinite coordinate in {row}")
+        ids.append(row["id"])
+    if not ids:
+        raise InputError(f"{path}: no points")
+    a = np.array(vals)
+    return {"id": ids, "x": a[:, 0], "y": a[:, 1], "x_dom": a[:, 2], "y_dom": a[:, 3]}
+
+
+def plot_displacements(path, patches: PatchDisplacements | None, stats: dict, title: str, points=None,
+                       extent_px=None) -> None:
+    """Vector plot of displacements (exaggerated) and a histogram of their lengths; PNG."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from lidarctl.atomic import atomic_path
+
+    fig, (ax, bx) = plt.subplots(1, 2, figsize=(12, 5.5), gridspec_kw={"width_ratios": [1.4, 1]})
+    if patches is not None and len(patches):
+        d = np.hypot(patches.dx_px, patches.dy_px)
+        scale = 0.1 * (extent_px or max(patches.col_px.max(), patches.row_px.max())) / max(d.max(), 1e-3)
+        q = ax.quiver(patches.col_px, patches.row_px, patches.dx_px * scale, patches.dy_px * scale, d, angles="xy",
+                      scale_units="xy", scale=1, cmap="viridis")
+        fig.colorbar(q, ax=ax, label="displacement (GSD)")
+        ax.invert_yaxis()
+        ax.set_xlabel("column (px)")
+        ax.set_ylabel("row (px)")
+        bx.hist(d, bins=30)
+    elif points is not None:
+        de, dn = points
+        ax.quiver(np.arange(len(de)), np.zeros(len(de)), de, dn)
+        bx.hist(np.hypot(de, dn) / stats.get("gsd_m", 1.0), bins=20)
+    ax.set_title(title)
+    ax.set_aspect("equal")
+    bx.set_xlabel("displacement (GSD)")
+    bx.set_ylabel("count")
+    if stats.get("count"):
+        bx.set_title(f"RMS {stats['rms_xy_m']:.3f} m ({stats['rms_xy_gsd']:.2f} GSD), max {stats['max_xy_m']:.3f} m, n={stats['count']}")
+    fig.tight_layout()
+    with atomic_path(path) as tmp:
+        fig.savefig(tmp, dpi=100, format="png")
+    plt.close(fig)
+
+
+def write_json(path, obj) -> None:
+    from lidarctl.atomic import write_text_atomic
+
+    write_text_atomic(path, json.dumps(obj, indent=2) + "\n")
+
+
+def _open(path, what):
+    import rasterio
+
+    path = Path(path)
+    if not path.exists():
+        raise InputError(f"{path}: {what} not found")
+    try:
+        return rasterio.open(path)
+    except rasterio.errors.RasterioIOError as exc:
+        raise InputError(f"{path}: cannot read {what} ({exc})") from None
+
+
+def _on_grid(ds, window_transform, shape, crs, resampling, band_indexes=None):
+    """Resample (part of) an open raster onto a target window grid; returns (bands, rows, cols), valid."""
+    import rasterio
+    from rasterio.warp import reproject
+
+    idx = band_indexes or list(range(1, min(ds.count, 3) + 1))
+    out = np.zeros((len(idx),) + shape, np.float32)
+    valid = np.zeros(shape, np.uint8)
+    reproject(rasterio.band(ds, idx), out, dst_transform=window_transform, dst_crs=crs, resampling=resampling,
+              dst_nodata=np.nan, init_dest_nodata=True)
+    reproject(ds.dataset_mask(), valid, src_transform=ds.transform, src_crs=ds.crs, dst_transform=window_transform,
+              dst_crs=crs, resampling=rasterio.enums.Resampling.nearest)
+    return out, (valid > 0) & np.all(np.isfinite(out), axis=0)
+
+
+def check_against_reference(dom_path, reference_path, ndsm_path=None, max_ndsm_m: float = 0.5, block_px: int = 2048,
+                            patch_px: int = 48, step_px: int = 48, search_px: int = 6, min_ncc: float = 0.7):
+    """Patch displacements of a DOM against a reference orthophoto, block by block (bounded memory).
+
+    The reference (and the nDSM used to keep only ground patches, height above ground <= max_ndsm_m)
+    is resampled onto each DOM block (bilinear; nDSM by maximum so that patches touching objects drop).
+    """
+    import rasterio
+    from rasterio.enums import Resampling
+    from rasterio.windows import Window
+    from rasterio.windows import transform as wtransform
+
+    with _open(dom_path, "DOM") as dom, _open(reference_path, "reference orthophoto") as ref:
+        if dom.crs is None or ref.crs is None:
+            raise InputError(f"{dom_path if dom.crs is None else reference_path}: no CRS")
+        ndsm = _open(ndsm_path, "nDSM") if ndsm_path else None
+        res = abs(dom.transform.a)
+        pieces = []
+        halo = search_px + patch_px
+        try:
+            for r0 in range(0, dom.height, block_px):
+                for c0 in range(0, dom.width, block_px):
+                    w = Window(c0, r0, min(block_px + halo, dom.width - c0), min(block_px + halo, dom.height - r0))
+                    shape = (int(w.height), int(w.width))
+                    if shape[0] < patch_px + 2 * search_px or shape[1] < patch_px + 2 * search_px:
+                        continue
+                    dmask = dom.read_masks(1, window=w) > 0
+                    if not dmask.any():
+                        continue
+                    d = np.moveaxis(dom.read(list(range(1, min(dom.count, 3) + 1)), window=w), 0, -1)
+                    wt = wtransform(w, dom.transform)
+                    rimg, rvalid = _on_grid(ref, wt, shape, dom.crs, Resampling.bilinear)
+                    keep = None
+                    if ndsm is not None:
+                        nd, nvalid = _on_grid(ndsm, wt, shape, dom.crs, Resampling.max, [1])
+                        keep = nvalid & (nd[0] <= max_ndsm_m)
+                    p = match_patches(d, np.moveaxis(rimg, 0, -1), dmask, rvalid, res, patch_px, step_px, search_px,
+                                      min_ncc, keep=keep)
+                    # a patch belongs to the block whose core holds its centre (no duplicates from halos)
+                    core = (p.row_px < block_px) & (p.col_px < block_px)
+                    p = p.select(core)
+                    p.row_px += r0
+                    p.col_px += c0
+                    pieces.append(p)
+        finally:
+            if ndsm is not None:
+                ndsm.close()
+        cat = lambda f: np.concatenate([getattr(q, f) for q in pieces]) if pieces else np.zeros(0)
+        return PatchDisplacements(cat("row_px"), cat("col_px"), cat("dx_px"), cat("dy_px"), cat("ncc"), res), (dom.width, dom.height)
+
+
+def check_points(points_path, res_m: float) -> tuple[dict, dict]:
+    """Statistics and per-point table for surveyed points measured in the DOM."""
+    pts = read_points_csv(points_path)
+    de = pts["x_dom"] - pts["x"]
+    dn = pts["y_dom"] - pts["y"]
+    stats = displacement_statistics(de, dn, res_m)
+    table = [{"id": i, "x_m": float(x), "y_m": float(y), "x_dom_m": float(xd), "y_dom_m": float(yd), "de_m": float(a),
+              "dn_m": float(b)} for i, x, y, xd, yd, a, b in zip(pts["id"], pts["x"], pts["y"], pts["x_dom"], pts["y_dom"], de, dn)]
+    return stats, {"points": table, "_de": de, "_dn": dn}
+
+
+def run_check(project_root, reference_path=None, points_path=None, dom_path=None, ndsm_path=None, max_ndsm_m=0.5,
+              patch_px=48, search_px=6, out_stem=None, seams: bool = True) -> dict:
+    """The ``ortho check`` report: displacement statistics (+ per-seam misalignment when seamlines exist)."""
+    root = Path(project_root)
+    dom_path = Path(dom_path) if dom_path else root / "ortho" / "mosaic.tif"
+    out_stem = Path(out_stem) if out_stem else root / "ortho" / "dom_report"
+    with _open(dom_path, "DOM") as ds:
+        res = abs(ds.transform.a)
+        crs = ds.crs.to_string() if ds.crs else None
+    report = {"dom": str(dom_path), "crs": crs, "gsd_m": res}
+    if reference_path is not None:
+        patches, (w, h) = check_against_reference(dom_path, reference_path, ndsm_path, max_ndsm_m, patch_px=patch_px,
+                                                  step_px=patch_px, search_px=search_px)
+        stats = displacement_statistics(patches.de_m, patches.dn_m, res)
+        report.update(method="ncc_patches", reference=str(reference_path), ndsm=str(ndsm_path) if ndsm_path else None,
+                      max_ndsm_m=max_ndsm_m if ndsm_path else None, patch_px=patch_px, search_px=search_px,
+                      displacement=stats,
+                      patches=[{"row_px": float(r), "col_px": float(c), "de_m": float(a), "dn_m": float(b), "ncc": float(n)}
+                               for r, c, a, b, n in zip(patches.row_px, patches.col_px, patches.de_m, patches.dn_m, patches.ncc)])
+        plot_displacements(out_stem.with_suffix(".png"), patches, stats, f"DOM - reference ({Path(dom_path).name})",
+                           extent_px=max(w, h))
+    else:
+        stats, table = check_points(points_path, res)
+        report.update(method="surveyed_points", points_file=str(points_path), displacement=stats, points=table["points"])
+        plot_displacements(out_stem.with_suffix(".png"), None, stats, "DOM - survey", points=(table["_de"], table["_dn"]))
+    seam_file = root / "ortho" / "seamlines.geojson"
+    if seams and seam_file.exists() and (root / "ortho" / "frames" / "index.json").exists():
+        from ortho.mosaic import seam_misalignment
+
+        report["seams"] = seam_misalignment(root, ndsm_path=ndsm_path, max_ndsm_m=max_ndsm_m)
+    report["json"] = str(out_stem.with_suffix(".json"))
+    report["plot"] = str(out_stem.with_suffix(".png"))
+    write_json(out_stem.with_suffix(".json"), report)
+    return report

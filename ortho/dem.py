@@ -1,0 +1,126 @@
+"""Height rasters (DEM, DSM, nDSM) for orthorectification, read from lidarctl GeoTIFFs.
+
+A ``HeightRaster`` holds a north-up float32 grid in the project CRS with NaN for nodata; heights are
+sampled bilinearly at pixel centres (``x = x_left + (col + 0.5) * res``). Heights are assumed to be
+in the same vertical datum as the projection centres of the exterior orientation.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from pathlib import Path
+
+import numpy as np
+import rasterio
+from pyproj import CRS
+from rasterio.windows import Window, from_bounds
+
+from aerotri.errors import InputError
+
+
+@dataclasses.dataclass
+class HeightRaster:
+    heights_m: np.ndarray  # (rows, cols) float32, NaN = nodata
+    x_left_m: float
+    y_top_m: float
+    res_m: float
+    crs: CRS | None = None
+    source: str = "DEM"
+
+    @property
+    def bounds(self):
+        h, w = self.heights_m.shape
+        return (self.x_left_m, self.y_top_m - h * self.res_m, self.x_left_m + w * self.res_m, self.y_top_m)
+
+    def sample(self, x_m, y_m) -> np.ndarray:
+        """Bilinear heights at points (NaN outside the raster or next to nodata)."""
+        return _bilinear(self.heights_m, self.x_left_m, self.y_top_m, self.res_m, np.asarray(x_m, float), np.asarray(y_m, float))
+
+    def finite_range(self) -> tuple[float, float]:
+        v = self.heights_m[np.isfinite(self.heights_m)]
+        if v.size == 0:
+            raise InputError(f"{self.source}: no valid heights")
+        return float(v.min()), float(v.max())
+
+
+def _bilinear(a, x0, y0, res, x, y):
+    h, w = a.shape
+    u = (x - x0) / res - 0.5
+    v = (y0 - y) / res - 0.5
+    # half a pixel beyond the outer centres still belongs to the raster: clamp there
+    inside = (u >= -0.5) & (u <= w - 0.5) & (v >= -0.5) & (v <= h - 0.5)
+    u = np.clip(u, 0, w - 1)
+    v = np.clip(v, 0, h - 1)
+    i0 = np.minimum(np.floor(v).astype(int), max(h - 2, 0))
+    j0 = np.minimum(np.floor(u).astype(int), max(w - 2, 0))
+    fv = v - i0
+    fu = u - j0
+    i1 = np.minimum(i0 + 1, h - 1)
+    j1 = np.minimum(j0 + 1, w - 1)
+    z = (a[i0, j0] * (1 - fu) * (1 - fv) + a[i0, j1] * fu * (1 - fv) + a[i1, j0] * (1 - fu) * fv + a[i1, j1] * fu * fv)
+    return np.where(inside, z, np.nan)
+
+
+def open_height_raster(path, project_crs: CRS | None, what: str = "DEM"):
+    """Open a height GeoTIFF and check it against the project CRS; returns the rasterio dataset."""
+    path = Path(path)
+    if not path.exists():
+        raise InputError(f"{path}: {what} not found (run `lidarctl` to produce it, or pass --dem)")
+    try:
+        ds = rasterio.open(path)
+    except rasterio.errors.RasterioIOError as exc:
+        raise InputError(f"{path}: cannot read {what} ({exc})") from None
+    t = ds.transform
+    if abs(t.b) > 0 or abs(t.d) > 0 or t.e >= 0 or abs(abs(t.a) - abs(t.e)) > 1e-9 * abs(t.a):
+        ds.close()
+        raise InputError(f"{path}: {what} must be a north-up raster with square pixels (transform {tuple(t)[:6]})")
+    if ds.crs is None:
+        ds.close()
+        raise InputError(f"{path}: {what} has no CRS; expected the project CRS {project_crs.to_string() if project_crs else ''}")
+    if project_crs is not None and CRS(ds.crs) != CRS(project_crs):
+        got = CRS(ds.crs).to_string()
+        ds.close()
+        raise InputError(
+            f"{path}: CRS mismatch: {what} is in {got} but the project (project.toml [project] crs) is in "
+            f"{CRS(project_crs).to_string()}; reproject the {what} or fix project.toml"
+        )
+    return ds
+
+
+def read_height_window(ds, bounds, margin_m: float = 0.0, what: str = "DEM", frame: str | None = None) -> HeightRaster:
+    """Read the part of an open height raster covering ``bounds`` (project CRS) into a HeightRaster."""
+    left, bottom, right, top = bounds
+    res = ds.transform.a
+    win = from_bounds(left - margin_m, bottom - margin_m, right + margin_m, top + margin_m, ds.transform)
+    c0 = max(0, int(math.floor(win.col_off)))
+    r0 = max(0, int(math.floor(win.row_off)))
+    c1 = min(ds.width, int(math.ceil(win.col_off + win.width)) + 1)
+    r1 = min(ds.height, int(math.ceil(win.row_off + win.height)) + 1)
+    if c1 <= c0 or r1 <= r0:
+        raise InputError(
+            f"{ds.name}: the {what} does not cover "
+            f"{'frame ' + frame + ', footprint ' if frame else 'the area '}{tuple(round(b, 1) for b in bounds)} "
+            f"({what} bounds {tuple(round(b, 1) for b in ds.bounds)})"
+        )
+    w = Window(c0, r0, c1 - c0, r1 - r0)
+    a = ds.read(1, window=w, masked=True).astype(np.float32).filled(np.nan)
+    x0 = ds.transform.c + c0 * res
+    y0 = ds.transform.f + r0 * ds.transform.e
+    return HeightRaster(a, x0, y0, res, CRS(ds.crs), source=f"{ds.name}")
+
+
+def read_height_raster(path, project_crs: CRS | None = None, what: str = "DEM") -> HeightRaster:
+    with open_height_raster(path, project_crs, what) as ds:
+        return read_height_window(ds, ds.bounds, what=what)
+
+
+def height_range(ds, max_cells: int = 1_000_000) -> tuple[float, float]:
+    """Min and max height of a raster from a decimated read (the footprint search needs only a range)."""
+    step = max(1, int(math.ceil(math.sqrt(ds.width * ds.height / max_cells))))
+    a = ds.read(1, out_shape=(max(1, ds.height // step), max(1, ds.width // step)), masked=True,
+                resampling=rasterio.enums.Resampling.nearest)
+    v = a.compressed()
+    if v.size == 0:
+        raise InputError(f"{ds.name}: no valid heights")
+    return float(v.min()), float(v.max())

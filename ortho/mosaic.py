@@ -1,0 +1,340 @@
+"""Mosaic of the per-frame orthos: seamlines, gain balancing, feathering, tiled Cloud-Optimized GeoTIFF.
+
+Steps (``mosaic_block``):
+
+1. Every frame ortho (``ortho/frames``) is reduced by block averaging to the seam grid (``factor``
+   mosaic pixels per cell, chosen so that all reduced frames together stay small).
+2. Seamlines on the seam grid (``ortho.seamlines``): nearest-nadir Voronoi, then least-cost seams
+   avoiding objects of the nDSM and image differences. Written as ``seamlines.geojson`` (one polygon
+   per frame plus the seam lines between neighbours) and the label raster ``seams.tif``.
+3. Gain balancing: per band, log-gains g_k minimising sum over overlapping pairs of
+   n_ij (log m_i + g_i - log m_j - g_j)^2 + lambda sum g_k^2, with m_i the mean of frame i over the
+   common overlap (linear least squares).
+4. Blending, tile by tile: frame weights are the label masks blurred across the seam (feather width),
+   times the frame's validity; where the chosen frame is invalid (outside it, or occluded in a true
+   ortho) the nearest-nadir valid frame fills in. Only the frames touching a tile are read.
+5. The tiles go into a tiled GeoTIFF with an internal mask, copied to a COG (deflate, 512 px blocks,
+   overviews) - memory is bounded by the tile size, not the mosaic size.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+
+import cv2
+import numpy as np
+import rasterio
+import rasterio.shutil
+from rasterio.enums import Resampling
+from rasterio.transform import Affine
+from rasterio.windows import Window
+from tqdm import tqdm
+
+from aerotri.errors import InputError
+from lidarctl.atomic import atomic_path, write_text_atomic
+from ortho.block import index_grids, read_index
+from ortho.grid import OrthoGrid
+from ortho.seamlines import (keep_objects_whole, label_polygons, least_cost_seams, neighbour_pairs, seam_lines,
+                             voronoi_labels)
+
+
+def read_window(ds, col_off: int, row_off: int, width: int, height: int):
+    """Bands (height, width, bands) float32 and validity (bool) of a window that may extend past the raster (zeros)."""
+    img = np.zeros((height, width, ds.count), np.float32)
+    valid = np.zeros((height, width), bool)
+    c0, r0 = max(0, col_off), max(0, row_off)
+    c1, r1 = min(ds.width, col_off + width), min(ds.height, row_off + height)
+    if c1 > c0 and r1 > r0:
+        w = Window(c0, r0, c1 - c0, r1 - r0)
+        img[r0 - row_off:r1 - row_off, c0 - col_off:c1 - col_off] = np.moveaxis(ds.read(window=w), 0, -1)
+        valid[r0 - row_off:r1 - row_off, c0 - col_off:c1 - col_off] = ds.read_masks(1, window=w) > 0
+    return img, valid
+
+
+class ReducedFrames:
+    """Frames block-averaged onto the seam grid: rgb (float32, h, w, bands), valid (bool), offsets (row, col)."""
+
+    def __init__(self, names, rgb, valid, offsets, factor, seam_transform, shape):
+        self.names, self.rgb, self.valid, self.offsets = names, rgb, valid, offsets
+        self.factor, self.transform, self.shape = factor, seam_transform, shape
+
+    def gray(self):
+        return [a[:, :, :3].mean(axis=2) for a in self.rgb]
+
+
+def _reduce(a: np.ndarray, f: int, how: str) -> np.ndarray:
+    h, w = a.shape[:2]
+    a = a.reshape((h // f, f, w // f, f) + a.shape[2:])
+    return a.mean(axis=(1, 3)) if how == "mean" else a.min(axis=(1, 3))
+
+
+def reduce_frames(frames_dir: Path, index: dict, mosaic: OrthoGrid, factor: int) -> ReducedFrames:
+    grids = index_grids(index)
+    names, rgbs, valids, offsets = [], [], [], []
+    for e in index["frames"]:
+        g = grids[e["image_id"]]
+        c0, r0 = g.offset_in(mosaic)
+        # align the frame's window to whole seam-grid cells
+        rc0, cc0 = r0 // factor, c0 // factor
+        rc1, cc1 = -(-(r0 + g.height) // factor), -(-(c0 + g.width) // factor)
+        with rasterio.open(frames_dir / e["file"]) as ds:
+            a, m = read_window(ds, cc0 * factor - c0, rc0 * factor - r0, (cc1 - cc0) * factor, (rc1 - rc0) * factor)
+        names.append(e["image_id"])
+        rgbs.append(_reduce(a, factor, "mean"))
+        valids.append(_reduce(m, factor, "min").astype(bool))
+        offsets.append((rc0, cc0))
+    shape = (-(-mosaic.height // factor), -(-mosaic.width // factor))
+    t = Affine(mosaic.res_m * factor, 0, mosaic.x_left_m, 0, -mosaic.res_m * factor, mosaic.y_top_m)
+    return ReducedFrames(names, rgbs, valids, offsets, factor, t, shape)
+
+
+def balance_gains(red: ReducedFrames, labels: np.ndarray | None = None, prior_weight: float = 0.1,
+                  min_cells: int = 20) -> np.ndarray:
+    """Per-frame, per-band multiplicative gains (n_frames, bands) from the means of the pairwise overlaps."""
+    n = len(red.names)
+    bands = red.rgb[0].shape[2]
+    rows, rhs, wts = [], [], []
+    for i in range(n):
+        for j in range(i + 1, n):
+            (ri, ci), (rj, cj) = red.offsets[i], red.offsets[j]
+            r0, c0 = max(ri, rj), max(ci, cj)
+            r1 = min(ri + red.valid[i].shape[0], rj + red.valid[j].shape[0])
+            c1 = min(ci + red.valid[i].shape[1], cj + red.valid[j].shape[1])
+            if r1 <= r0 or c1 <= c0:
+                continue
+            vi = red.valid[i][r0 - ri:r1 - ri, c0 - ci:c1 - ci]
+            vj = red.valid[j][r0 - rj:r1 - rj, c0 - cj:c1 - cj]
+            both = vi & vj
+            cnt = int(both.sum())
+            if cnt < min_cells:
+                continue
+            mi = red.rgb[i][r0 - ri:r1 - ri, c0 - ci:c1 - ci][both].mean(axis=0)
+            mj = red.rgb[j][r0 - rj:r1 - rj, c0 - cj:c1 - cj][both].mean(axis=0)
+            row = np.zeros(n)
+            row[i], row[j] = 1.0, -1.0
+            rows.append(row)
+            rhs.append(np.log(np.maximum(mj, 1.0)) - np.log(np.maximum(mi, 1.0)))
+            wts.append(math.sqrt(cnt))
+    if not rows:
+        return np.ones((n, bands))
+    A = np.array(rows) * np.array(wts)[:, None]
+    b = np.array(rhs) * np.array(wts)[:, None]
+    lam = prior_weight * math.sqrt(float(np.mean(np.array(wts) ** 2)))
+    A = np.vstack([A, lam * np.eye(n)])
+    b = np.vstack([b, np.zeros((n, bands))])
+    g, *_ = np.linalg.lstsq(A, b, rcond=None)
+    return np.exp(g)
+
+
+def _read_ndsm_on(path, transform, shape, crs):
+    from rasterio.warp import reproject
+
+    out = np.full(shape, np.nan, np.float32)
+    with rasterio.open(path) as ds:
+        reproject(rasterio.band(ds, 1), out, dst_transform=transform, dst_crs=crs, resampling=Resampling.max,
+                  dst_nodata=np.nan)
+    return out
+
+
+def _write_labels(path, labels, transform, crs):
+    with atomic_path(path) as tmp:
+        with rasterio.open(tmp, "w", driver="GTiff", width=labels.shape[1], height=labels.shape[0], count=1,
+                           dtype="int32", crs=crs, transform=transform, nodata=-1, compress="deflate") as dst:
+            dst.write(labels, 1)
+
+
+def mosaic_block(root, seams: str = "least-cost", ndsm_path=None, feather_m: float | None = None, balance: bool = True,
+                 tile_px: int = 1024, object_height_m: float = 2.5, max_seam_cells: float = 5e7, end_reach_m: float = 30.0,
+                 progress: bool = True) -> dict:
+    """``ortho mosaic``: see the module doc. Returns a summary dict."""
+    root = Path(root)
+    index = read_index(root)
+    frames_dir = root / "ortho" / "frames"
+    if not index["frames"]:
+        raise InputError(f"{frames_dir / 'index.json'}: no frames")
+    grids = index_grids(index)
+    for e in index["frames"]:
+        if not (frames_dir / e["file"]).exists():
+            raise InputError(f"{frames_dir / e['file']}: frame ortho listed in index.json is missing (re-run ortho rectify)")
+    mosaic = OrthoGrid.union(grids.values())
+    res = mosaic.res_m
+    total_px = sum(g.width * g.height for g in grids.values())
+    factor = max(2, int(math.ceil(math.sqrt(total_px / max_seam_cells))))
+    red = reduce_frames(frames_dir, index, mosaic, factor)
+    crs = mosaic.crs
+    nadir = np.array([e["nadir_xy_m"] for e in index["frames"]])
+    nadir_rc = np.stack([(mosaic.y_top_m - nadir[:, 1]) / (res * factor) - 0.5,
+                         (nadir[:, 0] - mosaic.x_left_m) / (res * factor) - 0.5], axis=1)
+    labels = voronoi_labels(red.valid, red.offsets, nadir_rc, red.shape)
+    if ndsm_path is None and (root / "lidar_out" / "ndsm.tif").exists():
+        ndsm_path = root / "lidar_out" / "ndsm.tif"
+    objects = None
+    if ndsm_path is not None:
+        nd = _read_ndsm_on(ndsm_path, red.transform, red.shape, crs)
+        objects = np.nan_to_num(nd, nan=0.0) > object_height_m
+    if seams == "least-cost":
+        # a seam end may slide along the overlap border by up to end_reach_m to get round a building
+        labels = least_cost_seams(labels, red.valid, red.offsets, red.gray(), objects,
+                                  end_reach_cells=end_reach_m / (res * factor))
+        if objects is not None:
+            labels = keep_objects_whole(labels, objects, red.valid, red.offsets)
+    gains = balance_gains(red) if balance else np.ones((len(red.names), red.rgb[0].shape[2]))
+    out_dir = root / "ortho"
+    _write_labels(out_dir / "seams.tif", labels, red.transform, crs)
+    features = label_polygons(labels, red.transform, red.names)
+    for f in features:
+        f["properties"]["kind"] = "frame_region"
+    lines = seam_lines(labels, red.transform, red.names)
+    for f in lines:
+        f["properties"]["kind"] = "seamline"
+    geo = {"type": "FeatureCollection", "name": "seamlines", "crs_wkt": crs.to_wkt(),
+           "crs": {"type": "name", "properties": {"name": f"urn:ogc:def:crs:EPSG::{crs.to_epsg()}"}} if crs.to_epsg() else None,
+           "features": features + lines}
+    write_text_atomic(out_dir / "seamlines.geojson", json.dumps(geo) + "\n")
+    feather_px = max(1.0, (feather_m / res) if feather_m else 8.0)
+    path = out_dir / "mosaic.tif"
+    _write_mosaic(path, frames_dir, index, grids, mosaic, labels, factor, gains, nadir, feather_px, tile_px, progress)
+    summary = {"path": str(path), "width": mosaic.width, "height": mosaic.height, "frames": len(red.names),
+               "res_m": res, "seam_factor": factor, "seams": seams, "feather_px": feather_px,
+               "gains": {n: [float(v) for v in g] for n, g in zip(red.names, gains)},
+               "pairs": [[red.names[i], red.names[j]] for i, j in neighbour_pairs(labels)]}
+    write_text_atomic(out_dir / "mosaic.json", json.dumps(summary, indent=1) + "\n")
+    return summary
+
+
+def _write_mosaic(path, frames_dir, index, grids, mosaic: OrthoGrid, labels, factor, gains, nadir, feather_px, tile_px,
+                  progress):
+    names = [e["image_id"] for e in index["frames"]]
+    files = {e["image_id"]: frames_dir / e["file"] for e in index["frames"]}
+    with rasterio.open(files[names[0]]) as ds:
+        bands, dtype = ds.count, ds.dtypes[0]
+    halo = int(math.ceil(2.0 * feather_px)) + factor
+    offsets = [grids[n].offset_in(mosaic) for n in names]  # (col, row)
+    profile = dict(driver="GTiff", width=mosaic.width, height=mosaic.height, count=bands, dtype=dtype, crs=mosaic.crs,
+                   transform=mosaic.transform, tiled=True, blockxsize=512, blockysize=512, compress="deflate",
+                   predictor=2, zlevel=1, interleave="pixel", BIGTIFF="IF_SAFER")
+    import tempfile
+
+    path.parent.mkdir(parents=True, exist_ok=True)
+    with tempfile.TemporaryDirectory(prefix=".mosaic_stage.", dir=path.parent) as tmp_dir, \
+            rasterio.Env(GDAL_TIFF_INTERNAL_MASK=True):
+        stage = Path(tmp_dir) / "stage.tif"
+        with rasterio.open(stage, "w", **profile) as dst:
+            tiles = [(r0, c0) for r0 in range(0, mosaic.height, tile_px) for c0 in range(0, mosaic.width, tile_px)]
+            for r0, c0 in tqdm(tiles, desc="mosaic", unit="tile", disable=not progress):
+                th, tw = min(tile_px, mosaic.height - r0), min(tile_px, mosaic.width - c0)
+                out, valid = _blend_tile(r0, c0, th, tw, halo, names, files, offsets, grids, mosaic, labels, factor,
+                                         gains, nadir, feather_px, bands, dtype)
+                w = Window(c0, r0, tw, th)
+                dst.write(np.moveaxis(out.astype(dtype), -1, 0), window=w)
+                dst.write_mask(np.where(valid, 255, 0).astype(np.uint8), window=w)
+        with atomic_path(path) as tmp:
+            rasterio.shutil.copy(stage, tmp, driver="COG", COMPRESS="DEFLATE", BLOCKSIZE=512, OVERVIEWS="AUTO",
+                                 OVERVIEW_RESAMPLING="AVERAGE", BIGTIFF="IF_SAFER", NUM_THREADS="ALL_CPUS")
+
+
+def _blend_tile(r0, c0, th, tw, halo, names, files, offsets, grids, mosaic, labels, factor, gains, nadir, feather_px,
+                bands, dtype):
+    R0, C0 = r0 - halo, c0 - halo
+    H, W = th + 2 * halo, tw + 2 * halo
+    # labels of the halo'd tile at full resolution (nearest)
+    lr = np.clip((np.arange(R0, R0 + H)) // factor, 0, labels.shape[0] - 1)
+    lc = np.clip((np.arange(C0, C0 + W)) // factor, 0, labels.shape[1] - 1)
+    lab = labels[np.ix_(lr, lc)]
+    acc = np.zeros((th, tw, bands), np.float32)
+    wsum = np.zeros((th, tw), np.float32)
+    fallback_best = np.full((th, tw), np.inf, np.float32)
+    fallback = np.zeros((th, tw, bands), np.float32)
+    ys = mosaic.y_top_m - (np.arange(r0, r0 + th) + 0.5) * mosaic.res_m
+    xs = mosaic.x_left_m + (np.arange(c0, c0 + tw) + 0.5) * mosaic.res_m
+    sigma = max(0.5, feather_px / 2.0)
+    for k, name in enumerate(names):
+        fc, fr = offsets[k]
+        g = grids[name]
+        if fr >= r0 + th or fr + g.height <= r0 or fc >= c0 + tw or fc + g.width <= c0:
+            continue
+        with rasterio.open(files[name]) as ds:
+            img, m = read_window(ds, c0 - fc, r0 - fr, tw, th)
+        if not m.any():
+            continue
+        img *= gains[k][None, None, :]
+        own = (lab == k).astype(np.float32)
+        if own.any():
+            wk = cv2.GaussianBlur(own, (0, 0), sigma)[halo:halo + th, halo:halo + tw] * m
+            acc += img * wk[:, :, None]
+            wsum += wk
+        # nearest-nadir valid frame: fills pixels where the labelled frame is invalid
+        d = np.hypot(xs[None, :] - nadir[k, 0], ys[:, None] - nadir[k, 1]).astype(np.float32)
+        better = m & (d < fallback_best)
+        fallback_best[better] = d[better]
+        fallback[better] = img[better]
+    valid = np.isfinite(fallback_best)
+    out = np.where((wsum > 1e-3)[:, :, None], acc / np.maximum(wsum, 1e-6)[:, :, None], fallback)
+    top = float(np.iinfo(dtype).max) if np.issubdtype(np.dtype(dtype), np.integer) else np.inf
+    out = np.clip(np.rint(out) if np.isfinite(top) else out, 0, top)
+    out[~valid] = 0
+    return out, valid
+
+
+def seam_misalignment(root, patch_px: int = 32, search_px: int = 4, spacing_cells: int = 4, min_ncc: float = 0.7,
+                      ndsm_path=None, max_ndsm_m: float = 0.5) -> dict:
+    """Relative displacement of neighbouring frame orthos across each seam (NCC patches on the seam).
+
+    For every seam (pair of frames sharing a boundary in ``ortho/seams.tif``), patches centred on
+    seam cells (every ``spacing_cells``) are cut from frame a and matched in frame b; only patches
+    valid in both and, with an nDSM, on the ground. Returns per-seam and overall statistics in pixels.
+    """
+    from ortho.check import match_patches
+
+    root = Path(root)
+    index = read_index(root)
+    grids = index_grids(index)
+    mosaic = OrthoGrid.union(grids.values())
+    frames_dir = root / "ortho" / "frames"
+    with rasterio.open(root / "ortho" / "seams.tif") as ds:
+        labels = ds.read(1)
+        factor = int(round(ds.transform.a / mosaic.res_m))
+    names = [e["image_id"] for e in index["frames"]]
+    if ndsm_path is None and (root / "lidar_out" / "ndsm.tif").exists():
+        ndsm_path = root / "lidar_out" / "ndsm.tif"
+    half = patch_px // 2 + search_px
+    per_seam, all_d = [], []
+    for i, j in neighbour_pairs(labels):
+        a = labels == i
+        b = labels == j
+        seam = a & np.zeros_like(a)
+        seam[:, :-1] |= a[:, :-1] & b[:, 1:]
+        seam[:, 1:] |= a[:, 1:] & b[:, :-1]
+        seam[:-1, :] |= a[:-1, :] & b[1:, :]
+        seam[1:, :] |= a[1:, :] & b[:-1, :]
+        rc = np.argwhere(seam)[::spacing_cells]
+        ds_list = []
+        for rr, cc in rc:
+            R = int((rr + 0.5) * factor) - half
+            C = int((cc + 0.5) * factor) - half
+            size = 2 * half
+            win_imgs = []
+            for k in (i, j):
+                g = grids[names[k]]
+                fc, fr = g.offset_in(mosaic)
+                with rasterio.open(frames_dir / f"{names[k]}.tif") as ds:
+                    win_imgs.append(read_window(ds, C - fc, R - fr, size, size))
+            keep = None
+            if ndsm_path is not None:
+                t = Affine(mosaic.res_m, 0, mosaic.x_left_m + C * mosaic.res_m, 0, -mosaic.res_m,
+                           mosaic.y_top_m - R * mosaic.res_m)
+                nd = _read_ndsm_on(ndsm_path, t, (size, size), mosaic.crs)
+                keep = np.nan_to_num(nd, nan=1e9) <= max_ndsm_m
+            p = match_patches(win_imgs[0][0], win_imgs[1][0], win_imgs[0][1], win_imgs[1][1], mosaic.res_m, patch_px,
+                              patch_px, search_px, min_ncc, keep=keep)
+            ds_list.extend(np.hypot(p.dx_px, p.dy_px).tolist())
+        d = np.array(ds_list)
+        all_d.extend(ds_list)
+        per_seam.append({"image_a": names[i], "image_b": names[j], "patches": int(len(d)),
+                         "rms_px": float(np.sqrt(np.mean(d ** 2))) if len(d) else None,
+                         "max_px": float(d.max()) if len(d) else None})
+    d = np.array(all_d)
+    return {"patch_px": patch_px, "patches": int(len(d)), "rms_px": float(np.sqrt(np.mean(d ** 2))) if len(d) else None,
+            "max_px": float(d.max()) if len(d) else None, "per_seam": per_seam}

@@ -1,0 +1,282 @@
+"""Synthetic truth for tests and benchmarks: a textured orthophoto on a known DEM, and frames rendered
+from it by inverse mapping (for each image pixel, intersect its ray with the DEM by iteration and sample
+the orthophoto there).
+
+Rectifying such a frame with the same camera, EO and DEM must reproduce the orthophoto; the
+displacement measured by ``ortho.check`` is then the error of the rectification alone.
+"""
+
+from __future__ import annotations
+
+import math
+
+import cv2
+import numba
+import numpy as np
+
+from aerotri.camera import FrameCamera
+from aerotri.rotation import FLIP_YZ
+from ortho.dem import HeightRaster
+from ortho.grid import OrthoGrid
+
+
+def textured_orthophoto(height: int, width: int, bands: int = 3, seed: int = 0) -> np.ndarray:
+    """Band-limited texture (uint8): blurred noise at several scales plus sharp-edged blocks blurred by 1 px."""
+    rng = np.random.default_rng(seed)
+    out = np.zeros((height, width, bands), np.float32)
+    for b in range(bands):
+        acc = np.zeros((height, width), np.float32)
+        for sigma, amp in ((1.5, 1.0), (4.0, 1.6), (12.0, 2.5)):
+            n = rng.standard_normal((height, width)).astype(np.float32)
+            acc += amp * cv2.GaussianBlur(n, (0, 0), sigma) * sigma
+        out[:, :, b] = acc
+    # blocks (fields, roofs): piecewise constant patches give well-defined edges
+    n_blocks = max(4, height * width // 4000)
+    ys = rng.integers(0, height, n_blocks)
+    xs = rng.integers(0, width, n_blocks)
+    hs = rng.integers(4, 40, n_blocks)
+    ws = rng.integers(4, 40, n_blocks)
+    vals = rng.normal(0, 8, (n_blocks, bands)).astype(np.float32)
+    blocks = np.zeros_like(out)
+    for y, x, h, w, v in zip(ys, xs, hs, ws, vals):
+        blocks[y:y + h, x:x + w] = v
+    out += cv2.GaussianBlur(blocks, (0, 0), 1.0).reshape(out.shape)
+    out -= out.mean()
+    out *= 40.0 / max(float(out.std()), 1e-6)
+    return np.clip(out + 128.0, 0, 255).astype(np.uint8)
+
+
+def smooth_dem(bounds, res_m: float, base_m: float = 100.0, amplitude_m: float = 15.0, wavelength_m: float = 300.0,
+               slope: float = 0.03) -> HeightRaster:
+    """A smooth hill-and-valley DEM (sines plus a tilt) as a HeightRaster covering ``bounds``."""
+    left, bottom, right, top = bounds
+    w = int(math.ceil((right - left) / res_m))
+    h = int(math.ceil((top - bottom) / res_m))
+    x = left + (np.arange(w) + 0.5) * res_m
+    y = top - (np.arange(h) + 0.5) * res_m
+    X, Y = np.meshgrid(x, y)
+    k = 2 * np.pi / wavelength_m
+    Z = base_m + amplitude_m * np.sin(k * X) * np.cos(0.7 * k * Y) + slope * (X - left) - 0.5 * slope * (Y - bottom)
+    return HeightRaster(Z.astype(np.float32), left, top, res_m, None, "synthetic DEM")
+
+
+def add_box_buildings(dem: HeightRaster, n: int, size_m=(10.0, 25.0), height_m=(6.0, 20.0), seed: int = 0, bounds=None):
+    """A DSM: ``dem`` plus ``n`` flat-roofed box buildings (inside ``bounds``, default the whole DEM) that do
+    not touch each other; returns (dsm, list of (x0, y0, x1, y1, roof_z))."""
+    rng = np.random.default_rng(seed)
+    a = dem.heights_m.copy()
+    h, w = a.shape
+    left, bottom, right, top = bounds or dem.bounds
+    boxes = []
+    for _ in range(50 * n):
+        if len(boxes) == n:
+            break
+        sx, sy = rng.uniform(*size_m, 2)
+        cx = rng.uniform(left + sx, right - sx)
+        cy = rng.uniform(bottom + sy, top - sy)
+        gap = 6.0  # keep streets between buildings
+        if any(cx + sx / 2 + gap > b[0] and cx - sx / 2 - gap < b[2] and cy + sy / 2 + gap > b[1] and cy - sy / 2 - gap < b[3]
+               for b in boxes):
+            continue
+        c0 = int((cx - sx / 2 - dem.x_left_m) / dem.res_m)
+        c1 = int((cx + sx / 2 - dem.x_left_m) / dem.res_m)
+        r0 = int((dem.y_top_m - (cy + sy / 2)) / dem.res_m)
+        r1 = int((dem.y_top_m - (cy - sy / 2)) / dem.res_m)
+        roof = float(np.nanmax(a[r0:r1, c0:c1]) + rng.uniform(*height_m))
+        a[r0:r1, c0:c1] = roof
+        boxes.append((dem.x_left_m + c0 * dem.res_m, dem.y_top_m - r1 * dem.res_m, dem.x_left_m + c1 * dem.res_m,
+                      dem.y_top_m - r0 * dem.res_m, roof))
+    return HeightRaster(a, dem.x_left_m, dem.y_top_m, dem.res_m, dem.crs, "synthetic DSM"), boxes
+
+
+@numba.njit(cache=True, inline="always")
+def _sample_bilinear(a, u, v):
+    h, w = a.shape
+    if not (u >= 0 and v >= 0 and u <= w - 1 and v <= h - 1):
+        return np.nan
+    i = min(int(v), h - 2)
+    j = min(int(u), w - 2)
+    fv = v - i
+    fu = u - j
+    return (a[i, j] * (1 - fu) * (1 - fv) + a[i, j + 1] * fu * (1 - fv) + a[i + 1, j] * (1 - fu) * fv
+            + a[i + 1, j + 1] * fu * fv)
+
+
+@numba.njit(parallel=True, cache=True)
+def _render_kernel(ref, ref_x0, ref_y0, ref_res, dem, dem_x0, dem_y0, dem_res, z_start, centre, Rcv, cam, out, valid,
+                   march, z_top):
+    f, cx, cy, k1, k2, k3, p1, p2 = cam[0], cam[1], cam[2], cam[3], cam[4], cam[5], cam[6], cam[7]
+    H, W, B = out.shape
+    for r in numba.prange(H):
+        for c in range(W):
+            xd = (c - cx) / f
+            yd = (r - cy) / f
+            xn = xd
+            yn = yd
+            for _ in range(20):  # undistort by fixed-point iteration (as FrameCamera.undistort)
+                r2 = xn * xn + yn * yn
+                radial = 1.0 + r2 * (k1 + r2 * (k2 + r2 * k3))
+                dx = 2.0 * p1 * xn * yn + p2 * (r2 + 2.0 * xn * xn)
+                dy = p1 * (r2 + 2.0 * yn * yn) + 2.0 * p2 * xn * yn
+                xn = (xd - dx) / radial
+                yn = (yd - dy) / radial
+            # object-space ray d = Rcv @ (xn, yn, 1)
+            d0 = Rcv[0, 0] * xn + Rcv[0, 1] * yn + Rcv[0, 2]
+            d1 = Rcv[1, 0] * xn + Rcv[1, 1] * yn + Rcv[1, 2]
+            d2 = Rcv[2, 0] * xn + Rcv[2, 1] * yn + Rcv[2, 2]
+            if d2 >= 0:
+                continue
+            Z = z_start
+            X = 0.0
+            Y = 0.0
+            ok = True
+            if march:
+                # first crossing below the surface, stepping 0.25 cell along the ray from above the top
+                step = 0.25 * dem_res / math.sqrt(d0 * d0 + d1 * d1 + d2 * d2)
+                t = (z_top - centre[2]) / d2
+                t_prev = t
+                hit = False
+                for _ in range(200000):
+                    X = centre[0] + t * d0
+                    Y = centre[1] + t * d1
+                    zs = _sample_bilinear(dem, (X - dem_x0) / dem_res - 0.5, (dem_y0 - Y) / dem_res - 0.5)
+                    if zs != zs:
+                        break
+                    if centre[2] + t * d2 <= zs:
+                        hit = True
+                        break
+                    t_prev = t
+                    t += step
+                if not hit:
+                    continue
+                lo = t_prev
+                hi = t
+                for _ in range(30):
+                    tm = 0.5 * (lo + hi)
+                    X = centre[0] + tm * d0
+                    Y = centre[1] + tm * d1
+                    zs = _sample_bilinear(dem, (X - dem_x0) / dem_res - 0.5, (dem_y0 - Y) / dem_res - 0.5)
+                    if centre[2] + tm * d2 <= zs:
+                        hi = tm
+                    else:
+                        lo = tm
+                Z = centre[2] + hi * d2
+            for _ in range(0 if march else 60):
+                t = (Z - centre[2]) / d2
+                X = centre[0] + t * d0
+                Y = centre[1] + t * d1
+                Zn = _sample_bilinear(dem, (X - dem_x0) / dem_res - 0.5, (dem_y0 - Y) / dem_res - 0.5)
+                if Zn != Zn:
+                    ok = False
+                    break
+                if abs(Zn - Z) < 1e-5:
+                    Z = Zn
+                    break
+                Z = Zn
+            if not ok:
+                continue
+            t = (Z - centre[2]) / d2
+            X = centre[0] + t * d0
+            Y = centre[1] + t * d1
+            u = (X - ref_x0) / ref_res - 0.5
+            v = (ref_y0 - Y) / ref_res - 0.5
+            if not (u >= 0 and v >= 0 and u <= ref.shape[1] - 1 and v <= ref.shape[0] - 1):
+                continue
+            for b in range(B):
+                val = _sample_bilinear(ref[:, :, b], u, v)
+                out[r, c, b] = min(255.0, max(0.0, val + 0.5))
+            valid[r, c] = True
+
+
+def render_frame(reference: np.ndarray, reference_grid: OrthoGrid, dem: HeightRaster, camera: FrameCamera, centre_m, R,
+                 march: bool = False):
+    """Render a frame (height, width, bands) uint8 and its validity mask from a ground-truth orthophoto.
+
+    ``march``: intersect rays by marching (needed for a DSM with vertical walls); otherwise by
+    fixed-point iteration on Z (smooth DEMs).
+    """
+    ref = np.ascontiguousarray(reference if reference.ndim == 3 else reference[:, :, None]).astype(np.float32)
+    out = np.zeros((camera.height, camera.width, ref.shape[2]), np.uint8)
+    valid = np.zeros((camera.height, camera.width), np.bool_)
+    Rcv = np.ascontiguousarray(np.asarray(R, float) @ FLIP_YZ)
+    cam = np.array([camera.focal_px, camera.cx_px, camera.cy_px, camera.k1, camera.k2, camera.k3, camera.p1, camera.p2])
+    z0 = float(np.nanmean(dem.heights_m))
+    _render_kernel(ref, reference_grid.x_left_m, reference_grid.y_top_m, reference_grid.res_m, dem.heights_m,
+                   dem.x_left_m, dem.y_top_m, dem.res_m, z0, np.asarray(centre_m, float), Rcv, cam, out, valid,
+                   bool(march), float(np.nanmax(dem.heights_m)) + 0.1)
+    return (out if reference.ndim == 3 else out[:, :, 0]), valid
+
+
+def write_geotiff(path, array: np.ndarray, x_left_m: float, y_top_m: float, res_m: float, crs, nodata=None) -> None:
+    """A north-up GeoTIFF from (rows, cols[, bands])."""
+    import rasterio
+    from rasterio.transform import Affine
+
+    from lidarctl.atomic import atomic_path
+
+    a = array if array.ndim == 3 else array[:, :, None]
+    with atomic_path(path) as tmp:
+        with rasterio.open(tmp, "w", driver="GTiff", width=a.shape[1], height=a.shape[0], count=a.shape[2],
+                           dtype=a.dtype.name, crs=crs, transform=Affine(res_m, 0, x_left_m, 0, -res_m, y_top_m),
+                           nodata=nodata) as dst:
+            dst.write(np.moveaxis(a, -1, 0))
+
+
+def write_synthetic_project(root, strips: int = 2, frames_per_strip: int = 3, buildings: int = 20, seed: int = 7,
+                            res_m: float = 0.2, crs: str = "EPSG:32649") -> dict:
+    """A small project folder with truth, for tests: textured true orthophoto, smooth DEM, box buildings.
+
+    Camera 600 x 400 px, 12 um, f 24 mm with distortion, 400 m above ground (GSD 0.2 m); strips run
+    north-south (image rows along track), 60 % forward and about 33 % side overlap. Frames are rendered
+    from the truth orthophoto on the DSM (buildings lean in the images). Writes project.toml,
+    camera.toml, at/eo.txt (= truth), images/, lidar_out/dem.tif + ndsm.tif, truth/{eo.txt, dem.tif,
+    dsm.tif, ortho.tif}. Returns a dict of paths and the truth (buildings, grid).
+    """
+    from pathlib import Path
+
+    from aerotri.eo import ExteriorOrientations, write_eo
+    from lidarctl.atomic import write_text_atomic
+
+    root = Path(root)
+    rng = np.random.default_rng(seed)
+    e0, n0, base = 452000.0, 3407000.0, 300.0
+    width_m, height_m = 200.0 + 80.0 * (strips - 1), 160.0 + 32.0 * (frames_per_strip - 1)
+    grid = OrthoGrid(None, e0, n0 + height_m, res_m, int(width_m / res_m), int(height_m / res_m))
+    ortho_truth = textured_orthophoto(grid.height, grid.width, 3, seed)
+    margin = 40.0
+    dem = smooth_dem((e0 - margin, n0 - margin, e0 + width_m + margin, n0 + height_m + margin), 0.5, base_m=base,
+                     amplitude_m=6.0, wavelength_m=250.0, slope=0.02)
+    # buildings inside the central part of the scene only (kept inside the image overlaps)
+    inner = HeightRaster(dem.heights_m, dem.x_left_m, dem.y_top_m, dem.res_m)
+    dsm, boxes = add_box_buildings(inner, buildings, size_m=(8.0, 16.0), height_m=(8.0, 15.0), seed=seed,
+                                   bounds=(e0 + 30, n0 + 30, e0 + width_m - 30, n0 + height_m - 30)) if buildings \
+        else (dem, [])
+    camera = FrameCamera(focal_mm=24.0, pixel_um=12.0, width=600, height=400, ppx_mm=0.03, ppy_mm=-0.02, k1=-0.02,
+                         k2=0.004, name="synthetic")
+    agl = camera.focal_mm * 1e-3 * res_m / (camera.pixel_um * 1e-6)
+    ids, centres, opks = [], [], []
+    for s in range(strips):
+        x = e0 + 100.0 + 80.0 * s
+        for k in range(frames_per_strip):
+            y = n0 + 80.0 + 32.0 * k
+            if s % 2:
+                y = n0 + 80.0 + 32.0 * (frames_per_strip - 1 - k)
+            z = base + agl + rng.normal(0, 2.0)
+            ids.append(f"s{s + 1:02d}_{k + 1:03d}")
+            centres.append([x + rng.normal(0, 1.0), y + rng.normal(0, 1.0), z])
+            opks.append([rng.normal(0, 1.0), rng.normal(0, 1.0), 180.0 * (s % 2) + rng.normal(0, 2.0)])
+    eo = ExteriorOrientations(ids, np.array(centres), np.array(opks))
+    (root / "images").mkdir(parents=True, exist_ok=True)
+    write_text_atomic(root / "project.toml", f'[project]\nname = "synthetic"\ncrs = "{crs}"\n')
+    write_text_atomic(root / "camera.toml", camera.to_toml())
+    write_eo(root / "at" / "eo.txt", eo)
+    write_eo(root / "truth" / "eo.txt", eo)
+    for i, iid in enumerate(ids):
+        img, _ = render_frame(ortho_truth, grid, dsm, camera, eo.centre_m[i], eo.rotation(i), march=bool(buildings))
+        cv2.imwrite(str(root / "images" / f"{iid}.tif"), cv2.cvtColor(img, cv2.COLOR_RGB2BGR))
+    for name, hr in (("lidar_out/dem.tif", dem), ("truth/dem.tif", dem), ("truth/dsm.tif", dsm)):
+        write_geotiff(root / name, hr.heights_m, hr.x_left_m, hr.y_top_m, hr.res_m, crs)
+    write_geotiff(root / "lidar_out" / "ndsm.tif", dsm.heights_m - dem.heights_m, dem.x_left_m, dem.y_top_m, dem.res_m, crs)
+    write_geotiff(root / "truth" / "ndsm.tif", dsm.heights_m - dem.heights_m, dem.x_left_m, dem.y_top_m, dem.res_m, crs)
+    write_geotiff(root / "truth" / "ortho.tif", ortho_truth, grid.x_left_m, grid.y_top_m, res_m, crs)
+    return {"root": root, "camera": camera, "eo": eo, "buildings": boxes, "res_m": res_m, "truth_grid": grid}

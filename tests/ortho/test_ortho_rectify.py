@@ -1,0 +1,229 @@
+"""Rectification and DOM check against synthetic truth: a textured orthophoto on a known smooth DEM,
+frames rendered from it by inverse mapping through aerotri.camera (ray-DEM intersection per pixel)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import rasterio
+from click.testing import CliRunner
+from pyproj import CRS
+
+from aerotri.camera import FrameCamera
+from aerotri.rotation import rotation_matrix_opk
+from ortho.check import check_against_reference, displacement_statistics, match_patches
+from ortho.cli import main
+from ortho.grid import GridToProject, OrthoGrid, gk3_zone_crs, resolve_output_crs
+from ortho.rectify import frame_grid, rectify_frame
+from ortho.synthetic import render_frame, smooth_dem, textured_orthophoto, write_geotiff
+
+UTM49 = CRS.from_epsg(32649)
+RES = 0.2
+
+
+@pytest.fixture(scope="module")
+def scene():
+    grid = OrthoGrid(UTM49, 500000.0, 3000300.0, RES, 1500, 1200)
+    ref = textured_orthophoto(grid.height, grid.width, 3, seed=1)
+    b = grid.bounds
+    dem = smooth_dem((b[0] - 50, b[1] - 50, b[2] + 50, b[3] + 50), 1.0, amplitude_m=15.0)
+    # distortion, principal-point offset and tilt exercise every term of the collinearity
+    cam = FrameCamera(focal_mm=14.4, pixel_um=12.0, width=600, height=400, ppx_mm=0.05, ppy_mm=-0.03, k1=-0.04,
+                      k2=0.01, p1=1e-4, p2=-5e-5)
+    C = np.array([b[0] + 150, b[1] + 120, 400.0])
+    R = rotation_matrix_opk(2.0, -1.5, 30.0)
+    img, valid = render_frame(ref, grid, dem, cam, C, R)
+    assert valid.all()
+    return dict(grid=grid, ref=ref, dem=dem, cam=cam, C=C, R=R, img=img)
+
+
+def test_rectified_frame_matches_truth_orthophoto(scene):
+    s = scene
+    ortho, mask = rectify_frame(s["img"], s["cam"], s["C"], s["R"], s["dem"], s["grid"], tile_px=256)
+    assert 0.15 < (mask > 0).mean() < 0.4
+    p = match_patches(ortho, s["ref"], mask > 0, None, RES)
+    st = displacement_statistics(p.de_m, p.dn_m, RES)
+    assert st["count"] > 80
+    assert st["rms_xy_gsd"] < 0.1  # the 0.5 GSD requirement with a wide margin
+    assert st["max_xy_gsd"] < 0.4
+    # outside the frame: nodata
+    assert np.all(ortho[mask == 0] == 0)
+
+
+def test_wrong_eo_shows_up_as_displacement_of_the_right_sign(scene):
+    s = scene
+    ortho, mask = rectify_frame(s["img"], s["cam"], s["C"] + [1.0, 0.0, 0.0], s["R"], s["dem"], s["grid"])
+    p = match_patches(ortho, s["ref"], mask > 0, None, RES, search_px=10)
+    st = displacement_statistics(p.de_m, p.dn_m, RES)
+    # a camera placed 1 m too far east puts every ground point about 1 m east in the DOM
+    assert st["mean_e_m"] == pytest.approx(1.0, abs=0.06)
+    assert abs(st["mean_n_m"]) < 0.05
+
+
+def test_ignoring_distortion_is_detected(scene):
+    s = scene
+    ortho, mask = rectify_frame(s["img"], s["cam"].ideal(), s["C"], s["R"], s["dem"], s["grid"])
+    p = match_patches(ortho, s["ref"], mask > 0, None, RES, search_px=12)
+    assert displacement_statistics(p.de_m, p.dn_m, RES)["rms_xy_gsd"] > 1.0
+
+
+@pytest.mark.parametrize("interpolation", ["cubic", "lanczos"])
+def test_other_kernels(scene, interpolation):
+    s = scene
+    ortho, mask = rectify_frame(s["img"], s["cam"], s["C"], s["R"], s["dem"], s["grid"], interpolation)
+    p = match_patches(ortho, s["ref"], mask > 0, None, RES)
+    assert displacement_statistics(p.de_m, p.dn_m, RES)["rms_xy_gsd"] < 0.1
+
+
+def test_output_in_gauss_krueger_zone(scene, tmp_path):
+    """Product in CGCS2000 / 3-degree GK CM 111E (EPSG:4546) from a UTM 49N project, checked after reprojection."""
+    s = scene
+    gk = CRS.from_epsg(4546)
+    to_project = GridToProject(gk, UTM49)
+    assert not to_project.identity
+    grid = frame_grid(s["cam"], s["C"], s["R"], s["dem"], RES, gk, to_project)
+    ortho, mask = rectify_frame(s["img"], s["cam"], s["C"], s["R"], s["dem"], grid, to_project=to_project)
+    # the anchor grid reproduces the exact transform
+    AX, AY, sp = to_project.anchors(grid)
+    xs, ys = grid.centres(np.array([0.5 * sp]), np.array([0.5 * sp]))
+    ex, ey = to_project.exact(xs, ys)
+    assert sp >= 4
+    dom = tmp_path / "dom_gk.tif"
+    with rasterio.Env(GDAL_TIFF_INTERNAL_MASK=True):
+        with rasterio.open(dom, "w", driver="GTiff", width=grid.width, height=grid.height, count=3, dtype="uint8",
+                           crs=gk, transform=grid.transform) as dst:
+            dst.write(np.moveaxis(ortho, -1, 0))
+            dst.write_mask(mask)
+    ref = tmp_path / "ref_utm.tif"
+    write_geotiff(ref, s["ref"], s["grid"].x_left_m, s["grid"].y_top_m, RES, UTM49)
+    p, _ = check_against_reference(dom, ref)
+    st = displacement_statistics(p.de_m, p.dn_m, RES)
+    assert st["count"] > 50
+    assert st["rms_xy_gsd"] < 0.2  # includes resampling the reference into the GK grid
+
+
+def test_gauss_krueger_zone_choice():
+    assert gk3_zone_crs(110.6).to_epsg() == 4546  # CGCS2000 CM 111E
+    assert gk3_zone_crs(109.4).to_epsg() == 4545  # CM 108E
+    assert gk3_zone_crs(111.2, "xian1980").to_epsg() == 2382
+    # a block straddling the 109.5E zone boundary gets the single zone nearest its centre
+    utm = CRS.from_epsg(32649)
+    from pyproj import Transformer
+
+    e, n = Transformer.from_crs("EPSG:4326", utm, always_xy=True).transform(109.6, 30.0)
+    assert resolve_output_crs("gk3:cgcs2000", utm, (e, n)).to_epsg() == 4546
+    e, n = Transformer.from_crs("EPSG:4326", utm, always_xy=True).transform(109.4, 30.0)
+    assert resolve_output_crs("gk3:cgcs2000", utm, (e, n)).to_epsg() == 4545
+
+
+# -- project level: CLI and clear errors -----------------------------------------------------------
+
+@pytest.fixture(scope="module")
+def project(tmp_path_factory):
+    from ortho.synthetic import write_synthetic_project
+
+    root = tmp_path_factory.mktemp("ortho_project")
+    write_synthetic_project(root, strips=1, frames_per_strip=2, buildings=0)
+    return root
+
+
+def test_cli_rectify_and_check(project):
+    r = CliRunner().invoke(main, ["rectify", str(project)])
+    assert r.exit_code == 0, r.output
+    frames = sorted((project / "ortho" / "frames").glob("*.tif"))
+    assert [f.stem for f in frames] == ["s01_001", "s01_002"]
+    r = CliRunner().invoke(main, ["check", str(project), "--dom", str(frames[0]), "--reference",
+                                  str(project / "truth" / "ortho.tif")])
+    assert r.exit_code == 0, r.output
+    import json
+
+    rep = json.loads((project / "ortho" / "dom_report.json").read_text())
+    assert rep["displacement"]["count"] > 30
+    assert rep["displacement"]["rms_xy_gsd"] < 0.1
+    assert (project / "ortho" / "dom_report.png").stat().st_size > 1000
+
+
+def test_cli_check_points(project, tmp_path):
+    pts = tmp_path / "pts.csv"
+    pts.write_text("id,x,y,x_dom,y_dom\nA,452100.0,3407100.0,452100.1,3407100.0\nB,452120.0,3407090.0,452120.0,3406089.8\n"
+                   .replace("3406089.8", "3407089.8"))
+    r = CliRunner().invoke(main, ["rectify", str(project)])
+    assert r.exit_code == 0
+    out = tmp_path / "rep"
+    r = CliRunner().invoke(main, ["check", str(project), "--dom", str(project / "ortho/frames/s01_001.tif"),
+                                  "--points", str(pts), "--out", str(out)])
+    assert r.exit_code == 0, r.output
+    import json
+
+    rep = json.loads(out.with_suffix(".json").read_text())
+    assert rep["displacement"]["rms_xy_m"] == pytest.approx(np.sqrt((0.1 ** 2 + 0.2 ** 2) / 2), abs=1e-6)
+    bad = tmp_path / "bad.csv"
+    bad.write_text("id,x,y\nA,1,2\n")
+    r = CliRunner().invoke(main, ["check", str(project), "--dom", str(project / "ortho/frames/s01_001.tif"),
+                                  "--points", str(bad)])
+    assert r.exit_code == 2 and "x_dom" in r.output
+
+
+def test_error_frame_without_eo(project, tmp_path):
+    eo = tmp_path / "eo.txt"
+    eo.write_text((project / "at" / "eo.txt").read_text().replace("s01_002", "s09_009"))
+    r = CliRunner().invoke(main, ["rectify", str(project), "--eo", str(eo)])
+    assert r.exit_code == 2
+    assert "no exterior orientation for frame(s) s01_002" in r.output
+
+
+def test_error_dem_crs_mismatch(project, tmp_path):
+    with rasterio.open(project / "lidar_out" / "dem.tif") as ds:
+        a, t = ds.read(1), ds.transform
+    dem = tmp_path / "dem_4547.tif"
+    write_geotiff(dem, a, t.c, t.f, t.a, "EPSG:4547")
+    r = CliRunner().invoke(main, ["rectify", str(project), "--dem", str(dem)])
+    assert r.exit_code == 2
+    assert "CRS mismatch" in r.output and "EPSG:4547" in r.output and "EPSG:32649" in r.output
+
+
+def test_error_dem_does_not_cover_frame(project, tmp_path):
+    with rasterio.open(project / "lidar_out" / "dem.tif") as ds:
+        a, t = ds.read(1), ds.transform
+    dem = tmp_path / "dem_small.tif"
+    write_geotiff(dem, a[: a.shape[0] // 3], t.c, t.f, t.a, "EPSG:32649")  # only the northern third
+    r = CliRunner().invoke(main, ["rectify", str(project), "--dem", str(dem)])
+    assert r.exit_code == 2
+    assert "does not cover frame s01_001" in r.output
+    assert not (tmp_path / "ortho").exists()
+
+
+def test_error_missing_dem(project, tmp_path):
+    r = CliRunner().invoke(main, ["rectify", str(project), "--dem", str(tmp_path / "nope.tif")])
+    assert r.exit_code == 2 and "DEM not found" in r.output
+
+
+def test_heights_on_grid_match_bilinear_dem(scene):
+    from ortho.rectify import heights_on_grid
+
+    s = scene
+    g = s["grid"].window(100, 100, 300, 200)
+    z = heights_on_grid(s["dem"], g)
+    xs, ys = g.centres()
+    X, Y = np.meshgrid(xs, ys)
+    exact = s["dem"].sample(X, Y)
+    # 1/32-cell position quantisation of cv2.warpAffine: about a centimetre on this terrain
+    assert np.nanmax(np.abs(z - exact)) < 0.02
+
+
+def test_fast_path_equals_general_kernel(scene):
+    """The affine fast path (grid in the project CRS) and the anchor-grid kernel give the same maps."""
+    from ortho.rectify import FrameGeometry, fixed_point_maps, image_coordinates
+
+    s = scene
+    g = s["grid"].window(200, 150, 512, 400)
+    geom = FrameGeometry(s["cam"], s["C"], s["R"])
+    mi, mf, mask, _, _ = fixed_point_maps(geom, s["dem"], g)
+    mx, my, _, _ = image_coordinates(geom, s["dem"], g)
+    x = mi[:, :, 0] + (mf % 32) / 32.0
+    y = mi[:, :, 1] + (mf // 32) / 32.0
+    ok = mask > 0
+    assert ok.sum() > 20000
+    assert abs(ok.mean() - (mx > -5e4).mean()) < 1e-3
+    both = ok & (mx > -5e4)
+    assert np.max(np.abs(x[both] - mx[both])) < 0.05 and np.max(np.abs(y[both] - my[both])) < 0.05
