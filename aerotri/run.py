@@ -1,7 +1,7 @@
 """The production run: every stage over one project folder, resumable, with a summary at the end.
 
-A stage is skipped when its stamp (``work/stages/<stage>.json``) records the same input files (size
-and modification time) and options as now and all its outputs exist; otherwise it runs and writes
+A stage is skipped when its stamp (``work/stages/<stage>.json``) records the same input files (content
+hash; size and modification time for files over 64 MiB) and options as now and all its outputs exist; otherwise it runs and writes
 its outputs atomically, then its stamp. Killing a run leaves finished stages stamped and the
 interrupted stage without a stamp and without partial outputs, so a re-run continues there.
 """
@@ -9,6 +9,7 @@ interrupted stage without a stamp and without partial outputs, so a re-run conti
 from __future__ import annotations
 
 import dataclasses
+import hashlib
 import json
 import time
 from collections.abc import Callable
@@ -26,12 +27,17 @@ class Stage:
     options: dict = dataclasses.field(default_factory=dict)
 
 
-def _signature(paths: list[Path]) -> dict:
+def _signature(paths: list[Path], hash_limit_bytes: int = 64 << 20) -> dict:
+    """Content hash of each input up to ``hash_limit_bytes`` (timestamps are too coarse to trust),
+    size and modification time beyond that."""
     sig = {}
     for p in sorted(paths, key=str):
         if p.is_file():
             st = p.stat()
-            sig[str(p)] = [st.st_size, st.st_mtime_ns]
+            if st.st_size <= hash_limit_bytes:
+                sig[str(p)] = hashlib.sha1(p.read_bytes()).hexdigest()
+            else:
+                sig[str(p)] = [st.st_size, st.st_mtime_ns]
         else:
             sig[str(p)] = None
     return sig
@@ -91,3 +97,162 @@ def _fmt(v):
     if isinstance(v, float):
         return f"{v:.3g}"
     return str(v)
+
+
+# ----------------------------------------------------------------------------------------------
+# The chain of stages over one project folder
+
+
+def _invoke(group, args: list) -> None:
+    """Run a click command in-process; a failing command (its message already printed) stops the run."""
+    from aerotri.errors import InputError
+
+    try:
+        group.main(args=[str(a) for a in args], standalone_mode=False)
+    except SystemExit as exc:
+        if exc.code:
+            raise InputError(f"stage command failed: {' '.join(str(a) for a in args)}") from None
+
+
+def _lidar_inputs(root: Path) -> list[Path]:
+    return sorted(p for p in (root / "lidar").glob("*") if p.suffix.lower() in (".las", ".laz"))
+
+
+def _json(path: Path) -> dict:
+    return json.loads(path.read_text()) if path.exists() else {}
+
+
+def chain_stages(root: Path, raster_res_m: float = 0.5, reference_ortho: Path | None = None,
+                 surveyed_points: Path | None = None, truth_classes: bool = False) -> list[Stage]:
+    """The production chain: LiDAR -> control candidates -> tie points -> adjustments -> ortho -> checks.
+
+    ``reference_ortho`` and ``surveyed_points`` switch on the DOM and LiDAR height checks;
+    ``truth_classes`` (simulated projects) evaluates the classification against truth/lidar.
+    """
+    from aerotri.cli import main as aerotri_cli
+    from lidarctl.cli import main as lidarctl_cli
+    from ortho.cli import main as ortho_cli
+
+    merged = root / "work" / "lidar" / "merged.las"
+    classified = root / "lidar_out" / "classified.laz"
+    lo = root / "lidar_out"
+    first = root / "work" / "at_first"
+
+    def merge(r):
+        from lidarctl.merge import merge_las
+
+        return dict(points=merge_las(_lidar_inputs(r), merged))
+
+    def classify(r):
+        _invoke(lidarctl_cli, ["classify", merged, classified])
+        return {}
+
+    def rasters(r):
+        _invoke(lidarctl_cli, ["rasters", classified, lo, "--res", raster_res_m])
+        return {}
+
+    def corners(r):
+        _invoke(lidarctl_cli, ["corners", classified, lo])
+        s = _json(lo / "corners.json")
+        return {k: s[k] for k in ("corners", "usable") if k in s}
+
+    def match(r):
+        _invoke(aerotri_cli, ["match", r])
+        c = _json(r / "at" / "connectivity.json")
+        return dict(tracks=c.get("tracks"), observations=c.get("observations"), components=c.get("components"))
+
+    def adjust_first(r):
+        _invoke(aerotri_cli, ["adjust", r, "--self-cal", "pp,radial", "--no-html"])
+        from aerotri.camera import FrameCamera
+        from lidarctl.atomic import write_text_atomic as wta
+
+        first.mkdir(parents=True, exist_ok=True)
+        rep = _json(r / "at" / "report.json")
+        cam = rep.get("self_calibration", {}).get("camera")
+        wta(first / "camera.toml", (FrameCamera.from_dict(cam) if cam else FrameCamera.read(r / "camera.toml")).to_toml())
+        wta(first / "eo.txt", (r / "at" / "eo.txt").read_text())
+        wta(first / "report.json", (r / "at" / "report.json").read_text())
+        return _adjust_numbers(rep)
+
+    def control(r):
+        _invoke(aerotri_cli, ["control", r, "--eo", first / "eo.txt", "--camera", first / "camera.toml"])
+        t = _json(r / "control" / "transfer.json")
+        return {k: t[k] for k in ("control_points", "check_points") if k in t}
+
+    def adjust_final(r):
+        _invoke(aerotri_cli, ["adjust", r, "--gnss-correction", "shift", "--self-cal", "pp,radial"])
+        return _adjust_numbers(_json(r / "at" / "report.json"))
+
+    def rectify(r):
+        _invoke(ortho_cli, ["rectify", r, "--dem", lo / "dem.tif"])
+        return {}
+
+    def mosaic(r):
+        _invoke(ortho_cli, ["mosaic", r])
+        return {}
+
+    stages = [
+        Stage("merge", _lidar_inputs, lambda r: [merged], merge),
+        Stage("classify", lambda r: [merged], lambda r: [classified], classify),
+        Stage("rasters", lambda r: [classified], lambda r: [lo / f for f in ("dem.tif", "dsm.tif", "ndsm.tif")], rasters,
+              dict(res_m=raster_res_m)),
+        Stage("corners", lambda r: [classified], lambda r: [lo / "corners.csv"], corners),
+        Stage("match", lambda r: sorted((r / "images").glob("*")) + [r / "gnss.txt", r / "camera.toml"],
+              lambda r: [r / "at" / "tiepoints.csv"], match),
+        Stage("adjust_first", lambda r: [r / "at" / "tiepoints.csv", r / "gnss.txt"],
+              lambda r: [first / "eo.txt", first / "camera.toml"], adjust_first),
+        Stage("control", lambda r: [lo / "corners.csv", first / "eo.txt", first / "camera.toml"],
+              lambda r: [r / "control" / "points.csv", r / "control" / "image_points.csv"], control),
+        Stage("adjust_final", lambda r: [r / "at" / "tiepoints.csv", r / "control" / "points.csv",
+                                         r / "control" / "image_points.csv"],
+              lambda r: [r / "at" / "eo.txt", r / "at" / "report.json"], adjust_final),
+        Stage("rectify", lambda r: [r / "at" / "eo.txt", lo / "dem.tif"], lambda r: [r / "ortho" / "frames" / "index.json"],
+              rectify),
+        Stage("mosaic", lambda r: [r / "ortho" / "frames" / "index.json"], lambda r: [r / "ortho" / "mosaic.tif"], mosaic),
+    ]
+    if reference_ortho is not None:
+        def dom_check(r):
+            _invoke(ortho_cli, ["check", r, "--reference", reference_ortho, "--ndsm", lo / "ndsm.tif"])
+            s = _json(r / "ortho" / "dom_report.json")
+            st = s.get("statistics", s)
+            return {k: st[k] for k in ("rms_m", "rms_gsd", "n") if k in st}
+
+        stages.append(Stage("dom_check", lambda r: [r / "ortho" / "mosaic.tif", reference_ortho],
+                            lambda r: [r / "ortho" / "dom_report.json"], dom_check))
+    if surveyed_points is not None:
+        def height_check(r):
+            _invoke(lidarctl_cli, ["check-heights", classified, surveyed_points, "--json", lo / "height_check.json"])
+            s = _json(lo / "height_check.json")
+            al = s.get("all", s)
+            return {k: al[k] for k in ("rmse_m", "mean_abs_m", "n") if k in al}
+
+        stages.append(Stage("height_check", lambda r: [classified, surveyed_points],
+                            lambda r: [lo / "height_check.json"], height_check))
+    if truth_classes:
+        truth_merged = root / "work" / "lidar" / "truth_merged.las"
+
+        def lidar_eval(r):
+            from lidarctl.merge import merge_las
+
+            merge_las(sorted((r / "truth" / "lidar").glob("*.la[sz]")), truth_merged)
+            _invoke(lidarctl_cli, ["evaluate", classified, "--truth", truth_merged, "--json",
+                                   lo / "classification_eval.json"])
+            s = _json(lo / "classification_eval.json")
+            g = s.get("ground", s)
+            return {k: g[k] for k in ("type1_pct", "type2_pct", "total_error_pct", "kappa") if k in g}
+
+        stages.append(Stage("lidar_eval", lambda r: [classified], lambda r: [lo / "classification_eval.json"],
+                            lidar_eval))
+    return stages
+
+
+def _adjust_numbers(rep: dict) -> dict:
+    ks = rep.get("key_statistics", {})
+    out = {}
+    if "sigma0_um" in ks:
+        out["sigma0_um"] = ks["sigma0_um"]
+    par = rep.get("parameters", {})
+    for k in ("rms_check_xy_m", "rms_check_z_m", "rms_control_xy_m", "rms_control_z_m"):
+        if k in par:
+            out[k] = par[k]
+    return out

@@ -52,7 +52,7 @@ def colmap_exhaustive(project: Path) -> dict:
     pycolmap.match_exhaustive(db, device=pycolmap.Device.cpu)
     wall = time.perf_counter() - t
     d = pycolmap.Database.open(db) if hasattr(pycolmap.Database, "open") else pycolmap.Database(str(db))
-    n_img = d.num_images
+    n_img = d.num_images()
     pair_ids, geoms = d.read_two_view_geometries()
     edges = []
     for pid, g in zip(pair_ids, geoms):
