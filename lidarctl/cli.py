@@ -3,6 +3,9 @@
 from __future__ import annotations
 
 import click
+import numpy as np
+
+from lidarctl.errors import InputError, exit_on_input_error
 
 
 @click.group()
@@ -14,3 +17,146 @@ def main():
 from lidarctl.corners_cli import corners  # noqa: E402
 
 main.add_command(corners)
+
+
+def _progress(desc: str, steps: list[str]):
+    """tqdm over named pipeline steps (silent when not a TTY)."""
+    import sys
+
+    from tqdm import tqdm
+
+    bar = tqdm(total=len(steps), desc=desc, disable=not sys.stderr.isatty(), leave=False)
+
+    def step(name):
+        bar.set_postfix_str(name)
+        bar.update(1)
+
+    return bar, step
+
+
+def _parse_map(text: str | None) -> dict:
+    if not text:
+        return {}
+    out = {}
+    for item in text.split(","):
+        try:
+            a, b = item.split(":")
+            out[int(a)] = int(b)
+        except ValueError:
+            raise click.BadParameter(f"{item!r}: expected FROM:TO class pairs, e.g. 3:1,4:1") from None
+    return out
+
+
+@main.command()
+@click.argument("in_path", type=click.Path(dir_okay=False))
+@click.argument("out_path", type=click.Path(dir_okay=False))
+@click.option("--preset", type=click.Choice(["urban", "rural", "forest", "mountain"]), default=None,
+              help="Ground filter parameters for the terrain type (default: the single all-round set).")
+@click.option("--crs", default=None, help="CRS (EPSG:code) when the file has none; never guessed.")
+@click.option("--method", type=click.Choice(["morph", "ptd"]), default="morph", show_default=True,
+              help="Ground filter: morphological + TIN refinement, or progressive TIN densification.")
+@exit_on_input_error
+def classify(in_path, out_path, preset, crs, method):
+    """Noise, ground, buildings, vegetation and water as ASPRS classes (LAS/LAZ in, LAS/LAZ out)."""
+    import time
+    from pathlib import Path
+
+    from lidarctl import classify as cl
+    from lidarctl import io
+
+    if Path(in_path).resolve() == Path(out_path).resolve():
+        raise InputError(f"{out_path}: output must differ from the input (inputs are never modified)")
+    t0 = time.perf_counter()
+    cloud, records = io.read_cloud(in_path, crs=crs, keep_records=True)
+    bar, step = _progress("classify", ["noise", "ground", "buildings", "vegetation", "water"])
+    with bar:
+        classes = cl.classify_points(cloud.x, cloud.y, cloud.z, cloud.return_number, cloud.number_of_returns,
+                                     cloud.intensity, cl.ClassifyParams(ground_method=method, preset=preset),
+                                     progress=step)
+    io.write_classified(in_path, out_path, classes, crs=cloud.crs, records=records)
+    counts = {cl.CLASS_NAMES.get(int(c), str(c)): int(n) for c, n in zip(*np.unique(classes, return_counts=True))}
+    dt = time.perf_counter() - t0
+    click.echo(f"{out_path}: {len(classes)} points in {dt:.1f} s ({len(classes) / dt:,.0f} points/s); {counts}")
+
+
+@main.command()
+@click.argument("in_path", type=click.Path(dir_okay=False))
+@click.argument("outdir", type=click.Path(file_okay=False))
+@click.option("--res", "res_m", type=float, required=True, help="Cell size in metres.")
+@click.option("--crs", default=None, help="CRS (EPSG:code) when the file has none.")
+@exit_on_input_error
+def rasters(in_path, outdir, res_m, crs):
+    """dem/dsm/ndsm/chm/intensity COGs and hillshade.png from a classified cloud."""
+    from lidarctl import io
+    from lidarctl import rasters as rs
+
+    if not res_m > 0:
+        raise InputError(f"--res {res_m}: must be a positive cell size in metres")
+    cloud = io.read_cloud(in_path, crs=crs)
+    if not np.isin(cloud.classification, (2, 9)).any():
+        raise InputError(f"{in_path}: no ground points (class 2); run 'lidarctl classify' first")
+    for p in rs.write_rasters(cloud, outdir, res_m):
+        click.echo(str(p))
+
+
+@main.command()
+@click.argument("pred_path", type=click.Path(dir_okay=False))
+@click.option("--truth", "truth_path", type=click.Path(dir_okay=False), required=True)
+@click.option("--json", "json_path", type=click.Path(dir_okay=False), default=None, help="Write the numbers as JSON.")
+@click.option("--map-pred", default=None, help="Class mapping for the prediction, e.g. 3:1,4:1,5:1.")
+@click.option("--map-truth", default=None, help="Class mapping for the truth, e.g. 0:1.")
+@exit_on_input_error
+def evaluate(pred_path, truth_path, json_path, map_pred, map_truth):
+    """Type I/II/total error and kappa (ground = classes 2, 9) and the confusion matrix."""
+    import json
+
+    from lidarctl import evaluate as ev
+    from lidarctl import io
+    from lidarctl.atomic import write_text_atomic
+
+    pred = io.read_cloud(pred_path, require_crs=False)
+    truth = io.read_cloud(truth_path, require_crs=False)
+    if len(pred) != len(truth):
+        raise InputError(f"{pred_path}: {len(pred)} points, but {truth_path} has {len(truth)} (same order needed)")
+    if not (np.allclose(pred.x, truth.x, atol=0.011) and np.allclose(pred.y, truth.y, atol=0.011)):
+        raise InputError(f"{pred_path}: point coordinates differ from {truth_path} (same points, same order needed)")
+    pc, tc = pred.classification.astype(int), truth.classification.astype(int)
+    for mapping, arr in ((_parse_map(map_pred), pc), (_parse_map(map_truth), tc)):
+        src = arr.copy()
+        for a, b in mapping.items():
+            arr[src == a] = b
+    filt = ev.filter_errors(np.isin(pc, (2, 9)), np.isin(tc, (2, 9)))
+    conf = ev.confusion(pc, tc)
+    click.echo(ev.format_filter_table({"ground": filt}))
+    click.echo("")
+    click.echo(ev.format_confusion(conf))
+    if json_path:
+        write_text_atomic(json_path, json.dumps({"filter_test": filt, "confusion": conf}, indent=2))
+
+
+@main.command("check-heights")
+@click.argument("cloud_path", type=click.Path(dir_okay=False))
+@click.argument("points_csv", type=click.Path(dir_okay=False))
+@click.option("--radius", "radius_m", type=float, default=5.0, show_default=True, help="Search radius (m).")
+@click.option("--exclude", "exclude_m", type=float, default=1.0, show_default=True,
+              help="Statistics again without points with |dz| beyond this (m).")
+@click.option("--json", "json_path", type=click.Path(dir_okay=False), default=None)
+@click.option("--crs", default=None, help="CRS (EPSG:code) when the file has none.")
+@exit_on_input_error
+def check_heights(cloud_path, points_csv, radius_m, exclude_m, json_path, crs):
+    """Height check of the cloud's ground (class 2) against surveyed points (CSV id,x,y,z[,group])."""
+    import json
+
+    from lidarctl import heights_check as hc
+    from lidarctl import io
+    from lidarctl.atomic import write_text_atomic
+
+    cloud = io.read_cloud(cloud_path, crs=crs)
+    points = hc.read_points_csv(points_csv)
+    g = cloud.classification == 2
+    if not g.any():
+        raise InputError(f"{cloud_path}: no ground points (class 2); run 'lidarctl classify' first")
+    result = hc.check_heights(cloud.x[g], cloud.y[g], cloud.z[g], points, radius_m, exclude_m)
+    click.echo(hc.format_report(result))
+    if json_path:
+        write_text_atomic(json_path, json.dumps(result, indent=2))

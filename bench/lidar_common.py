@@ -1,0 +1,48 @@
+"""Shared helpers of the LiDAR benches: the ISPRS samples, published CSF numbers, the CSF peer."""
+
+from __future__ import annotations
+
+import os
+import sys
+from pathlib import Path
+
+import numpy as np
+
+REPO = Path(__file__).resolve().parents[1]
+DATA = Path(os.environ.get("AEROTRI_SHARED_DATA", REPO.parent / "shared" / "data")).resolve()
+SAMPLES = ("samp11", "samp21", "samp31", "samp41", "samp51", "samp61", "samp71")
+# Zhang et al. 2016, Remote Sensing 8(6):501, Table 3 (type I / type II / total, %), as quoted in
+# ../shared/data/isprs_filtertest/README.md; the search tool did not return the paper's table itself.
+CSF_PUBLISHED = {
+    "samp11": (7.23, 18.44, 12.01), "samp21": (3.89, 1.78, 3.42), "samp31": (0.96, 2.38, 1.61),
+    "samp41": (1.48, 8.78, 5.14), "samp51": (2.67, 4.57, 3.08), "samp61": (0.87, 18.94, 1.49),
+    "samp71": (1.61, 37.85, 5.71),
+}
+
+
+def csf_ground(xyz: np.ndarray, cloth_resolution: float = 1.0, rigidness: int = 2,
+               class_threshold: float = 0.5, slope_smooth: bool = True) -> np.ndarray:
+    """Ground mask from cloth-simulation-filter (pip cloth-simulation-filter), one parameter set."""
+    import CSF
+
+    csf = CSF.CSF()
+    csf.params.bSloopSmooth = slope_smooth
+    csf.params.cloth_resolution = cloth_resolution
+    csf.params.rigidness = rigidness
+    csf.params.class_threshold = class_threshold
+    # CSF wants coordinates near the origin (float precision) and prints progress on stdout.
+    local = xyz - xyz.min(axis=0)
+    csf.setPointCloud(local)
+    ground, non_ground = CSF.VecInt(), CSF.VecInt()
+    stdout = os.dup(1)
+    with open(os.devnull, "w") as null:
+        os.dup2(null.fileno(), 1)
+        try:
+            csf.do_filtering(ground, non_ground, exportCloth=False)
+        finally:
+            sys.stdout.flush()
+            os.dup2(stdout, 1)
+            os.close(stdout)
+    mask = np.zeros(len(xyz), bool)
+    mask[np.array(ground, dtype=np.int64)] = True
+    return mask

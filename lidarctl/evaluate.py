@@ -1,0 +1,105 @@
+"""Accuracy of a classification against truth labels.
+
+Filter-test measures (Sithole & Vosselman 2004, ISPRS WG III/3), ground = bare earth:
+  type I  = bare-earth points rejected as object / bare-earth points
+  type II = object points accepted as bare earth / object points
+  total   = all misclassified / all points
+  Cohen's kappa = (p_o - p_e) / (1 - p_e) of the 2x2 table.
+Confusion matrix: rows = truth class, columns = predicted class; producer's accuracy = diagonal /
+row sum (how much of the truth class was found), user's accuracy = diagonal / column sum (how
+much of what was labelled is right), overall accuracy = trace / total.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+
+def filter_errors(pred_ground: np.ndarray, true_ground: np.ndarray) -> dict:
+    """Type I / type II / total error (%) and Cohen's kappa (%) for boolean ground masks."""
+    pred_ground = np.asarray(pred_ground, bool)
+    true_ground = np.asarray(true_ground, bool)
+    n = len(true_ground)
+    a = int(np.sum(true_ground & pred_ground))      # ground kept
+    b = int(np.sum(true_ground & ~pred_ground))     # type I
+    c = int(np.sum(~true_ground & pred_ground))     # type II
+    d = int(np.sum(~true_ground & ~pred_ground))    # object kept
+    po = (a + d) / n
+    pe = ((a + b) * (a + c) + (c + d) * (b + d)) / (n * n)
+    kappa = (po - pe) / (1 - pe) if pe < 1 else 1.0
+    return {
+        "n_points": n,
+        "n_ground": a + b,
+        "n_object": c + d,
+        "type_i_count": b,
+        "type_ii_count": c,
+        "type_i_error_pct": 100.0 * b / max(a + b, 1),
+        "type_ii_error_pct": 100.0 * c / max(c + d, 1),
+        "total_error_pct": 100.0 * (b + c) / n,
+        "kappa_pct": 100.0 * kappa,
+    }
+
+
+def confusion(pred: np.ndarray, truth: np.ndarray, classes=None) -> dict:
+    """Confusion matrix (rows truth, columns prediction) with producer's/user's/overall accuracy (%)."""
+    pred = np.asarray(pred).astype(np.int64)
+    truth = np.asarray(truth).astype(np.int64)
+    if classes is None:
+        classes = np.union1d(np.unique(pred), np.unique(truth))
+    classes = [int(c) for c in classes]
+    index = {c: k for k, c in enumerate(classes)}
+    lut = np.full(max(max(classes), int(pred.max(initial=0)), int(truth.max(initial=0))) + 1, -1)
+    for c, k in index.items():
+        lut[c] = k
+    pi, ti = lut[pred], lut[truth]
+    ok = (pi >= 0) & (ti >= 0)
+    m = np.zeros((len(classes), len(classes)), np.int64)
+    np.add.at(m, (ti[ok], pi[ok]), 1)
+    diag = np.diag(m).astype(float)
+    rows, cols = m.sum(axis=1), m.sum(axis=0)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        producers = np.where(rows > 0, 100.0 * diag / rows, np.nan)
+        users = np.where(cols > 0, 100.0 * diag / cols, np.nan)
+    return {
+        "classes": classes,
+        "matrix": m.tolist(),
+        "producers_accuracy_pct": {str(c): _num(v) for c, v in zip(classes, producers)},
+        "users_accuracy_pct": {str(c): _num(v) for c, v in zip(classes, users)},
+        "overall_accuracy_pct": 100.0 * float(diag.sum()) / max(int(m.sum()), 1),
+    }
+
+
+def _num(v):
+    return None if not np.isfinite(v) else float(v)
+
+
+def format_filter_table(rows: dict, published: dict | None = None) -> str:
+    """Readable table: sample, type I, type II, total, kappa (%), and published numbers if given."""
+    head = f"{'sample':<10}{'type I':>9}{'type II':>9}{'total':>9}{'kappa':>9}"
+    if published:
+        head += f"   {'published type I / II / total':>30}"
+    lines = [head, "-" * len(head)]
+    for name, r in rows.items():
+        line = (f"{name:<10}{r['type_i_error_pct']:9.2f}{r['type_ii_error_pct']:9.2f}"
+                f"{r['total_error_pct']:9.2f}{r['kappa_pct']:9.2f}")
+        if published and name in published:
+            pub = published[name]
+            line += f"   {pub[0]:>9.2f} / {pub[1]:6.2f} / {pub[2]:6.2f}"
+        lines.append(line)
+    return "\n".join(lines)
+
+
+def format_confusion(conf: dict, names: dict | None = None) -> str:
+    names = names or {}
+    classes = conf["classes"]
+    labels = [names.get(c, str(c)) for c in classes]
+    w = max(10, max(len(s) for s in labels) + 2)
+    lines = ["truth \\ predicted".ljust(w) + "".join(s.rjust(w) for s in labels) + "producer %".rjust(w)]
+    for c, lab, row in zip(classes, labels, conf["matrix"]):
+        pa = conf["producers_accuracy_pct"][str(c)]
+        lines.append(lab.ljust(w) + "".join(str(v).rjust(w) for v in row)
+                     + (f"{pa:.2f}" if pa is not None else "-").rjust(w))
+    ua = [conf["users_accuracy_pct"][str(c)] for c in classes]
+    lines.append("user %".ljust(w) + "".join((f"{u:.2f}" if u is not None else "-").rjust(w) for u in ua))
+    lines.append(f"overall accuracy: {conf['overall_accuracy_pct']:.2f} %")
+    return "\n".join(lines)

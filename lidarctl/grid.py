@@ -1,0 +1,105 @@
+"""Regular 2D/3D grids over point clouds: cell indices, per-cell minima and neighbourhoods.
+
+Cells are square, ``cell_m`` wide, anchored at the lower-left corner (x0, y0) of the cloud; row
+index ``i`` grows with y, column index ``j`` with x. All functions are vectorised NumPy.
+"""
+
+from __future__ import annotations
+
+import numba
+import numpy as np
+
+
+@numba.njit(cache=True, parallel=True)
+def _floor_div(v, v0, cell_m):
+    out = np.empty(len(v), np.int64)
+    for k in numba.prange(len(v)):
+        out[k] = int(np.floor((v[k] - v0) / cell_m))
+    return out
+
+
+@numba.njit(cache=True, parallel=True)
+def _flat_ids(i, j, ncols):
+    out = np.empty(len(i), np.int64)
+    for k in numba.prange(len(i)):
+        out[k] = i[k] * ncols + j[k]
+    return out
+
+
+def cell_indices(x, y, cell_m: float, x0: float | None = None, y0: float | None = None):
+    """Return (i, j, nrows, ncols, x0, y0) for points (x, y) in a grid of ``cell_m`` cells."""
+    x = np.asarray(x, float)
+    y = np.asarray(y, float)
+    x0 = float(np.min(x)) if x0 is None else x0
+    y0 = float(np.min(y)) if y0 is None else y0
+    j = _floor_div(x, x0, float(cell_m))
+    i = _floor_div(y, y0, float(cell_m))
+    return i, j, int(i.max()) + 1, int(j.max()) + 1, x0, y0
+
+
+def cell_ids(x, y, cell_m: float, x0: float | None = None, y0: float | None = None):
+    """Flat cell index i * ncols + j per point, and (nrows, ncols, x0, y0)."""
+    i, j, nrows, ncols, x0, y0 = cell_indices(x, y, cell_m, x0, y0)
+    return _flat_ids(i, j, ncols), nrows, ncols, x0, y0
+
+
+@numba.njit(cache=True)
+def _counting_sort(cell_id, ncells):
+    count = np.zeros(ncells + 1, np.int64)
+    for c in cell_id:
+        count[c + 1] += 1
+    start = np.cumsum(count)
+    pos = start[:-1].copy()
+    order = np.empty(len(cell_id), np.int64)
+    for k in range(len(cell_id)):
+        c = cell_id[k]
+        order[pos[c]] = k
+        pos[c] += 1
+    return order, start
+
+
+@numba.njit(cache=True)
+def _sort_segments(order, start, key):
+    for c in range(len(start) - 1):
+        a, b = start[c], start[c + 1]
+        if b - a > 1:
+            seg = order[a:b]
+            order[a:b] = seg[np.argsort(key[seg], kind="mergesort")]
+    return order
+
+
+def cell_z_order(cell_id: np.ndarray, z: np.ndarray, descending: bool = False, ncells: int | None = None):
+    """Permutation sorting points by cell (counting sort, O(n)), then by z within each cell.
+
+    Returns (order, cell_start): points of cell c are order[cell_start[c]:cell_start[c + 1]].
+    """
+    cell_id = np.asarray(cell_id, np.int64)
+    ncells = int(cell_id.max()) + 1 if ncells is None else ncells
+    order, start = _counting_sort(cell_id, ncells)
+    key = -np.asarray(z, float) if descending else np.asarray(z, float)
+    return _sort_segments(order, start, key), start
+
+
+@numba.njit(cache=True)
+def _argmin_per_cell(cell_id, z, ncells):
+    best = np.full(ncells, -1, np.int64)
+    for k in range(len(cell_id)):
+        c = cell_id[k]
+        if best[c] < 0 or z[k] < z[best[c]]:
+            best[c] = k
+    return best
+
+
+def lowest_per_cell(cell_id: np.ndarray, z: np.ndarray) -> np.ndarray:
+    """Indices of the lowest point in each occupied cell, ordered by cell id (one O(n) pass)."""
+    cell_id = np.asarray(cell_id, np.int64)
+    best = _argmin_per_cell(cell_id, np.asarray(z, float), int(cell_id.max()) + 1)
+    return best[best >= 0]
+
+
+def neighbour_lookup(ucells: np.ndarray, query_cells: np.ndarray) -> np.ndarray:
+    """Position of each ``query_cells`` id in sorted ``ucells``, or -1 when that cell is empty."""
+    pos = np.searchsorted(ucells, query_cells)
+    pos = np.clip(pos, 0, len(ucells) - 1)
+    found = ucells[pos] == query_cells
+    return np.where(found, pos, -1)

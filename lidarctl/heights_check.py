@@ -1,0 +1,165 @@
+"""Field check of LiDAR heights against surveyed points (the production "height check table").
+
+For each surveyed point (X, Y, Z) the cloud's ground height is interpolated from the ground points
+(class 2) within ``radius_m`` horizontally: a least-squares plane, inverse-distance weighted
+(1/d^2), evaluated at (X, Y); with fewer than 3 points the IDW mean. dz = Z_lidar - Z_surveyed (m).
+Statistics: counts per error bin, mean |dz|, RMSE, mean dz; the same without |dz| > ``exclude_m``;
+all of it per group (e.g. open / road / steep / dense vegetation) when a group column is given.
+"""
+
+from __future__ import annotations
+
+import csv
+from pathlib import Path
+
+import numpy as np
+from scipy.spatial import cKDTree
+
+from lidarctl.errors import InputError
+
+BIN_EDGES_M = (-np.inf, -1.0, -0.5, 0.5, 1.0, 1.5, 2.0, 5.0, np.inf)
+
+
+def bin_labels(edges=BIN_EDGES_M) -> list[str]:
+    labels = []
+    for lo, hi in zip(edges[:-1], edges[1:]):
+        if np.isinf(lo):
+            labels.append(f"< {hi:g}")
+        elif np.isinf(hi):
+            labels.append(f"> {lo:g}")
+        else:
+            labels.append(f"{lo:g} .. {hi:g}")
+    return labels
+
+
+def read_points_csv(path) -> dict:
+    """Surveyed points: header with id, x, y, z (case-insensitive; also e/n/h) and optional group."""
+    path = Path(path)
+    if not path.is_file():
+        raise InputError(f"{path}: file not found")
+    with open(path, newline="") as fh:
+        rows = list(csv.reader(fh))
+    if not rows:
+        raise InputError(f"{path}: empty file, expected a header line 'id,x,y,z[,group]'")
+    head = [h.strip().lower() for h in rows[0]]
+    alias = {"x": ("x", "e", "easting"), "y": ("y", "n", "northing"), "z": ("z", "h", "height", "elevation")}
+    col = {}
+    for key, names in alias.items():
+        found = [k for k, h in enumerate(head) if h in names]
+        if not found:
+            raise InputError(f"{path}: line 1: no '{key}' column in header {rows[0]}")
+        col[key] = found[0]
+    col_id = head.index("id") if "id" in head else None
+    col_group = head.index("group") if "group" in head else None
+    ids, xyz, groups = [], [], []
+    for line_no, row in enumerate(rows[1:], start=2):
+        if not row or all(not c.strip() for c in row):
+            continue
+        if len(row) < len(head):
+            raise InputError(f"{path}: line {line_no}: {len(row)} fields, expected {len(head)}")
+        try:
+            vals = [float(row[col[k]]) for k in ("x", "y", "z")]
+        except ValueError:
+            raise InputError(f"{path}: line {line_no}: x/y/z not numbers: {row}") from None
+        if not np.all(np.isfinite(vals)):
+            raise InputError(f"{path}: line {line_no}: non-finite coordinate: {row}")
+        ids.append(row[col_id].strip() if col_id is not None else str(line_no - 1))
+        xyz.append(vals)
+        groups.append(row[col_group].strip() if col_group is not None else "")
+    if not xyz:
+        raise InputError(f"{path}: no surveyed points after the header")
+    xyz = np.array(xyz)
+    return {"id": ids, "x": xyz[:, 0], "y": xyz[:, 1], "z": xyz[:, 2],
+            "group": groups if col_group is not None else None}
+
+
+def ground_height_at(gx, gy, gz, qx, qy, radius_m: float = 5.0) -> tuple[np.ndarray, np.ndarray]:
+    """Interpolated ground height at (qx, qy) and the number of ground points used (NaN if none)."""
+    tree = cKDTree(np.column_stack([gx, gy]))
+    z_out = np.full(len(qx), np.nan)
+    n_used = np.zeros(len(qx), int)
+    for k, nb in enumerate(tree.query_ball_point(np.column_stack([qx, qy]), radius_m)):
+        if not nb:
+            continue
+        nb = np.asarray(nb)
+        dx, dy = gx[nb] - qx[k], gy[nb] - qy[k]
+        w = 1.0 / np.maximum(dx * dx + dy * dy, 0.01)
+        n_used[k] = len(nb)
+        if len(nb) >= 3:
+            a = np.column_stack([np.ones(len(nb)), dx, dy]) * np.sqrt(w)[:, None]
+            coef, _, rank, _ = np.linalg.lstsq(a, gz[nb] * np.sqrt(w), rcond=None)
+            if rank == 3:
+                z_out[k] = coef[0]
+                continue
+        z_out[k] = np.sum(w * gz[nb]) / np.sum(w)
+    return z_out, n_used
+
+
+def stats(dz: np.ndarray, exclude_m: float) -> dict:
+    dz = dz[np.isfinite(dz)]
+    counts, _ = np.histogram(dz, bins=np.array(BIN_EDGES_M))
+    kept = dz[np.abs(dz) <= exclude_m]
+    n = len(dz)
+
+    def block(d):
+        return {"n": int(len(d)),
+                "mean_dz_m": float(np.mean(d)) if len(d) else None,
+                "mean_abs_dz_m": float(np.mean(np.abs(d))) if len(d) else None,
+                "rmse_m": float(np.sqrt(np.mean(d * d))) if len(d) else None}
+
+    return {
+        "bins": [{"bin_m": lab, "count": int(c), "percent": 100.0 * c / n if n else 0.0}
+                 for lab, c in zip(bin_labels(), counts)],
+        "all": block(dz),
+        "excluded_beyond_m": exclude_m,
+        "without_excluded": block(kept),
+    }
+
+
+def check_heights(gx, gy, gz, points: dict, radius_m: float = 5.0, exclude_m: float = 1.0) -> dict:
+    z_lidar, n_used = ground_height_at(gx, gy, gz, points["x"], points["y"], radius_m)
+    dz = z_lidar - points["z"]
+    per_point = [{"id": i, "x_m": float(x), "y_m": float(y), "z_survey_m": float(z),
+                  "z_lidar_m": None if not np.isfinite(zl) else float(zl),
+                  "dz_m": None if not np.isfinite(d) else float(d), "n_ground": int(nu),
+                  "group": (points["group"][k] if points["group"] else None)}
+                 for k, (i, x, y, z, zl, d, nu) in enumerate(zip(points["id"], points["x"], points["y"],
+                                                                 points["z"], z_lidar, dz, n_used))]
+    result = {"radius_m": radius_m, "n_points": len(dz), "n_without_ground": int(np.sum(~np.isfinite(dz))),
+              "overall": stats(dz, exclude_m), "points": per_point, "groups": {}}
+    if points["group"]:
+        groups = np.array(points["group"])
+        for g in sorted(set(points["group"])):
+            result["groups"][g] = stats(dz[groups == g], exclude_m)
+    return result
+
+
+def _format_block(title: str, s: dict) -> list[str]:
+    lines = [title, f"  {'error bin (m)':<16}{'count':>8}{'percent':>10}"]
+    for b in s["bins"]:
+        lines.append(f"  {b['bin_m']:<16}{b['count']:>8}{b['percent']:>9.1f}%")
+
+    def fmt(v):
+        return "-" if v is None else f"{v:.3f}"
+
+    a, w = s["all"], s["without_excluded"]
+    lines.append(f"  n = {a['n']}  mean |dz| = {fmt(a['mean_abs_dz_m'])} m  RMSE = {fmt(a['rmse_m'])} m"
+                 f"  mean dz = {fmt(a['mean_dz_m'])} m")
+    lines.append(f"  without |dz| > {s['excluded_beyond_m']:g} m: n = {w['n']}  mean |dz| = "
+                 f"{fmt(w['mean_abs_dz_m'])} m  RMSE = {fmt(w['rmse_m'])} m")
+    return lines
+
+
+def format_report(result: dict) -> str:
+    lines = ["LiDAR height check (dz = Z_lidar - Z_surveyed)",
+             f"search radius {result['radius_m']:g} m, {result['n_points']} points, "
+             f"{result['n_without_ground']} without ground points in range", ""]
+    lines += _format_block("All points", result["overall"])
+    for g, s in result["groups"].items():
+        lines += [""] + _format_block(f"Group: {g}", s)
+    lines += ["", f"{'id':<12}{'group':<18}{'z survey':>10}{'z lidar':>10}{'dz':>8}"]
+    for p in result["points"]:
+        zl = "-" if p["z_lidar_m"] is None else f"{p['z_lidar_m']:.3f}"
+        dz = "-" if p["dz_m"] is None else f"{p['dz_m']:+.3f}"
+        lines.append(f"{p['id']:<12}{(p['group'] or ''):<18}{p['z_survey_m']:>10.3f}{zl:>10}{dz:>8}")
+    return "\n".join(lines)

@@ -1,0 +1,250 @@
+"""Noise detection: isolated points, low outliers, high outliers.
+
+Methods
+-------
+* Isolated points: 3D voxel grid (edge ``voxel_m``); a point whose 3x3x3 voxel neighbourhood holds
+  fewer than ``min_neighbours`` other points is isolated (birds, dust, sensor blunders).
+* Low outliers (multipath under water, reflections "below ground"): a *gap* test, not a
+  "below the local median" test, so that sparse true ground under canopy survives.  A point p is
+  supported when some other point q within ``radius_m`` horizontally lies not more than
+  ``gap_m + slope * d_pq`` above p (or anywhere below it).  True ground under trees has other
+  ground points at about its height nearby; a low outlier has nothing near its height and only
+  points far above it.
+* Low outlier clusters (a patch of multipath points that support each other): cell minima are
+  linked into terrain-connected components (neighbours within ``2.5 cells`` whose heights differ by
+  at most ``gap_m + slope * d``); a small component (at most ``cluster_max_cells``) whose every
+  non-linked neighbour lies higher is a low cluster, and its points near the cluster height are low
+  outliers.
+* High outliers: the mirrored test, with a larger gap (``high_gap_m``).
+
+Only the few lowest/highest points of each grid cell can fail the gap test, so only those are
+tested (numba loop over sorted cells, early exit on the z order).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numba
+import numpy as np
+from scipy.sparse import coo_matrix
+from scipy.sparse.csgraph import connected_components
+from scipy.spatial import cKDTree
+
+from lidarctl import grid
+
+ISOLATED, LOW, HIGH = 1, 2, 3
+
+
+@dataclasses.dataclass
+class NoiseParams:
+    voxel_m: float = 0.0            # 0: 2.5 x mean point spacing, at least 2 m
+    min_neighbours: int = 1
+    radius_m: float = 0.0           # 0: max(5 m, 5 x mean point spacing)
+    gap_m: float = 1.0
+    slope: float = 0.4              # tan of the terrain slope tolerated between neighbours (~22 deg)
+    high_gap_m: float = 10.0
+    candidates_per_cell: int = 3
+    cluster_cell_m: float = 0.0     # 0: max(2 m, 2 x mean point spacing)
+    cluster_max_cells: int = 400
+    cluster_passes: int = 3
+
+
+def mean_spacing_m(x, y, cell_m: float = 10.0) -> float:
+    """Mean point spacing sqrt(area/n), area = occupied 10 m cells (ignores empty corners of a tile)."""
+    cid, nrows, ncols, _, _ = grid.cell_ids(x, y, cell_m)
+    area = np.count_nonzero(np.bincount(cid, minlength=nrows * ncols)) * cell_m * cell_m
+    return float(np.sqrt(area / max(len(x), 1)))
+
+
+@numba.njit(cache=True, parallel=True)
+def _voxel_key(vi, vj, vk, nj, nk):
+    out = np.empty(len(vi), np.int64)
+    for k in numba.prange(len(vi)):
+        out[k] = (vi[k] * nj + vj[k]) * nk + vk[k]
+    return out
+
+
+def isolated_points(x, y, z, voxel_m: float, min_neighbours: int = 1) -> np.ndarray:
+    """Boolean mask: fewer than ``min_neighbours`` other points in the 3x3x3 voxel neighbourhood."""
+    vi = grid._floor_div(np.asarray(x, float), float(x.min()) - voxel_m, float(voxel_m))
+    vj = grid._floor_div(np.asarray(y, float), float(y.min()) - voxel_m, float(voxel_m))
+    vk = grid._floor_div(np.asarray(z, float), float(z.min()) - voxel_m, float(voxel_m))
+    ni, nj, nk = vi.max() + 2, vj.max() + 2, vk.max() + 2
+    key = _voxel_key(vi, vj, vk, nj, nk)
+    ukeys, inverse, counts = np.unique(key, return_inverse=True, return_counts=True)
+    total = np.zeros(len(ukeys), np.int64)
+    for di in (-1, 0, 1):
+        for dj in (-1, 0, 1):
+            for dk in (-1, 0, 1):
+                pos = grid.neighbour_lookup(ukeys, ukeys + (di * nj + dj) * nk + dk)
+                total += np.where(pos >= 0, counts[np.maximum(pos, 0)], 0)
+    return (total[inverse] - 1) < min_neighbours
+
+
+@numba.njit(cache=True)
+def _k_lowest_in_cells(order, cell_start, key, k):
+    """Positions (into ``order``) of the k smallest ``key`` values of every cell (k passes per cell)."""
+    out = np.empty(len(order), np.int64)
+    m = 0
+    for c in range(len(cell_start) - 1):
+        a, b = cell_start[c], cell_start[c + 1]
+        if b - a <= k:
+            for t in range(a, b):
+                out[m] = t
+                m += 1
+            continue
+        last = -np.inf
+        last_pos = -1
+        for _ in range(k):
+            best, best_pos = np.inf, -1
+            for t in range(a, b):
+                v = key[order[t]]
+                if (v > last or (v == last and t > last_pos)) and v < best:
+                    best, best_pos = v, t
+            out[m] = best_pos
+            m += 1
+            last, last_pos = best, best_pos
+    return out[:m]
+
+
+@numba.njit(cache=True, parallel=True)
+def _gap_test(px, py, key, order, cell_start, cell_of, nrows, ncols, cand, radius_m, gap_m, slope):
+    """True for candidates (positions into ``order``) without a supporter: some other point q
+    within ``radius_m`` with key_q - key_p <= gap_m + slope * d_pq (key = z, or -z for high)."""
+    out = np.zeros(len(cand), np.bool_)
+    r2 = radius_m * radius_m
+    for c in numba.prange(len(cand)):
+        p = order[cand[c]]
+        cp = cell_of[p]
+        ci = cp // ncols
+        cj = cp - ci * ncols
+        kp = key[p]
+        supported = False
+        for di in range(-1, 2):
+            ii = ci + di
+            if supported or ii < 0 or ii >= nrows:
+                continue
+            for dj in range(-1, 2):
+                jj = cj + dj
+                if supported or jj < 0 or jj >= ncols:
+                    continue
+                cc = ii * ncols + jj
+                for t in range(cell_start[cc], cell_start[cc + 1]):
+                    q = order[t]
+                    dk = key[q] - kp
+                    if q == p or dk > gap_m + slope * radius_m:
+                        continue
+                    dx = px[q] - px[p]
+                    dy = py[q] - py[p]
+                    d2 = dx * dx + dy * dy
+                    if d2 <= r2 and dk <= gap_m + slope * np.sqrt(d2):
+                        supported = True
+                        break
+        out[c] = not supported
+    return out
+
+
+def _gap_outliers(x, y, z, radius_m, gap_m, slope, per_cell, sign):
+    cell, nrows, ncols, _, _ = grid.cell_ids(x, y, radius_m)
+    order, cell_start = grid._counting_sort(cell, nrows * ncols)
+    key = sign * np.asarray(z, float)
+    cand = _k_lowest_in_cells(order, cell_start, key, per_cell)
+    flags = _gap_test(np.asarray(x, float), np.asarray(y, float), key, order, cell_start, cell, nrows, ncols,
+                      cand, float(radius_m), float(gap_m), float(slope))
+    mask = np.zeros(len(x), bool)
+    mask[order[cand[flags]]] = True
+    return mask
+
+
+def low_outliers(x, y, z, radius_m: float, gap_m: float = 1.0, slope: float = 1.2,
+                 candidates_per_cell: int = 3) -> np.ndarray:
+    """Boolean mask of points with no other point near their height within ``radius_m``, only points above."""
+    return _gap_outliers(x, y, z, radius_m, gap_m, slope, candidates_per_cell, +1.0)
+
+
+def high_outliers(x, y, z, radius_m: float, gap_m: float = 10.0, slope: float = 1.2,
+                  candidates_per_cell: int = 3) -> np.ndarray:
+    """Boolean mask of points with nothing within ``gap_m + slope*d`` below them (mirror of low test)."""
+    return _gap_outliers(x, y, z, radius_m, gap_m, slope, candidates_per_cell, -1.0)
+
+
+def low_clusters(x, y, z, cell_m: float, gap_m: float = 1.0, slope: float = 1.2,
+                 max_cells: int = 400, ring_m: float = 50.0, ring_slope: float = 0.3) -> np.ndarray:
+    """Boolean mask of points in small terrain-connected patches of cell minima lying below all around."""
+    cid, _, ncols, _, _ = grid.cell_ids(x, y, cell_m)
+    lowest = grid.lowest_per_cell(cid, z)
+    mx, my, mz = x[lowest], y[lowest], z[lowest]
+    pairs = cKDTree(np.column_stack([mx, my])).query_pairs(2.5 * cell_m, output_type="ndarray")
+    if len(pairs) == 0:
+        return np.zeros(len(x), bool)
+    a, b = pairs[:, 0], pairs[:, 1]
+    d = np.hypot(mx[a] - mx[b], my[a] - my[b])
+    dz = mz[b] - mz[a]
+    linked = np.abs(dz) <= gap_m + slope * d
+    m = len(mx)
+    graph = coo_matrix((np.ones(linked.sum()), (a[linked], b[linked])), shape=(m, m))
+    ncomp, label = connected_components(graph, directed=False)
+    size = np.bincount(label, minlength=ncomp)
+    # A component is "below" when no unlinked neighbour lies lower than it.
+    ua, ub = a[~linked], b[~linked]
+    cross = label[ua] != label[ub]
+    ua, ub, dzu = ua[cross], ub[cross], dz[~linked][cross]
+    has_higher = np.zeros(ncomp, bool)
+    has_lower = np.zeros(ncomp, bool)
+    has_higher[label[ua[dzu > 0]]] = True   # b above a -> a's component has a higher neighbour
+    has_lower[label[ua[dzu < 0]]] = True
+    has_higher[label[ub[dzu < 0]]] = True
+    has_lower[label[ub[dzu > 0]]] = True
+    low_comp = (size <= max_cells) & (size < 0.5 * size.max()) & has_higher & ~has_lower
+    # Courtyards also lie below all their unlinked neighbours (roofs); unlike an outlier patch they
+    # have terrain at about their height further out (the street beyond the buildings).
+    tree = cKDTree(np.column_stack([mx, my]))
+    for comp in np.flatnonzero(low_comp):
+        members = np.flatnonzero(label == comp)
+        for k, nb in zip(members, tree.query_ball_point(np.column_stack([mx[members], my[members]]),
+                                                         ring_m)):
+            nb = np.asarray(nb)
+            nb = nb[label[nb] != comp]
+            if len(nb) and np.any(mz[nb] <= mz[k] + gap_m + ring_slope * np.hypot(mx[nb] - mx[k], my[nb] - my[k])):
+                low_comp[comp] = False
+                break
+    if not low_comp.any():
+        return np.zeros(len(x), bool)
+    # Points of those cells at most gap_m above the cluster's cell minimum are the outliers.
+    cell_min = np.full(int(cid.max()) + 1, np.inf)
+    flagged_cells = lowest[low_comp[label]]
+    cell_min[cid[flagged_cells]] = z[flagged_cells]
+    return np.isfinite(cell_min[cid]) & (z <= cell_min[cid] + gap_m)
+
+
+def detect_noise(x, y, z, params: NoiseParams | None = None) -> np.ndarray:
+    """Noise code per point: 0 clean, 1 isolated, 2 low outlier, 3 high outlier.
+
+    Low outliers are tested twice: a first pass removes single blunders, the second catches
+    pairs that only supported each other through a blunder.
+    """
+    p = params or NoiseParams()
+    spacing = mean_spacing_m(x, y)
+    voxel = p.voxel_m or max(2.0, 2.5 * spacing)
+    radius = p.radius_m or max(5.0, 5.0 * spacing)
+    code = np.zeros(len(x), np.uint8)
+    iso = isolated_points(x, y, z, voxel, p.min_neighbours)
+    code[iso] = ISOLATED
+    keep = np.flatnonzero(code == 0)
+    for _ in range(2):
+        low = low_outliers(x[keep], y[keep], z[keep], radius, p.gap_m, p.slope, p.candidates_per_cell)
+        if not low.any():
+            break
+        code[keep[low]] = LOW
+        keep = keep[~low]
+    cell = p.cluster_cell_m or max(2.0, 2.0 * spacing)
+    for _ in range(p.cluster_passes):
+        low = low_clusters(x[keep], y[keep], z[keep], cell, p.gap_m, p.slope, p.cluster_max_cells)
+        if not low.any():
+            break
+        code[keep[low]] = LOW
+        keep = keep[~low]
+    high = high_outliers(x[keep], y[keep], z[keep], radius, p.high_gap_m, p.slope, p.candidates_per_cell)
+    code[keep[high]] = HIGH
+    return code

@@ -1,0 +1,82 @@
+"""Grid operations on height rasters: minimum surfaces, gap filling, bilinear sampling, slope.
+
+Rasters here are NumPy arrays with row 0 at the *south* edge (row index grows with y) and cell
+(i, j) centred at (x0 + (j + 0.5) * cell_m, y0 + (i + 0.5) * cell_m); NaN marks empty cells.
+Writers flip rows to the north-up GeoTIFF convention.
+"""
+
+from __future__ import annotations
+
+import numba
+import numpy as np
+from scipy import ndimage
+
+
+@numba.njit(cache=True)
+def _cell_extreme(flat, v, ncells, sign):
+    out = np.full(ncells, np.nan)
+    for k in range(len(flat)):
+        c = flat[k]
+        if np.isnan(out[c]) or sign * v[k] < sign * out[c]:
+            out[c] = v[k]
+    return out
+
+
+def reduce_grid(x, y, values, cell_m, x0, y0, nrows, ncols, how: str = "min") -> np.ndarray:
+    """Per-cell min / max / mean of ``values``; NaN where no point falls."""
+    j = np.floor((x - x0) / cell_m).astype(np.int64)
+    i = np.floor((y - y0) / cell_m).astype(np.int64)
+    ok = (i >= 0) & (i < nrows) & (j >= 0) & (j < ncols)
+    flat = i[ok] * ncols + j[ok]
+    v = np.asarray(values, float)[ok]
+    if how in ("min", "max"):
+        out = _cell_extreme(flat, v, nrows * ncols, 1.0 if how == "min" else -1.0)
+    elif how == "mean":
+        s = np.bincount(flat, v, minlength=nrows * ncols)
+        n = np.bincount(flat, minlength=nrows * ncols)
+        with np.errstate(invalid="ignore"):
+            out = s / n
+    else:
+        raise ValueError(how)
+    return out.reshape(nrows, ncols)
+
+
+def fill_nodata(a: np.ndarray) -> np.ndarray:
+    """Fill NaN cells by pull-push (pyramid averaging, then coarse-to-fine fill); smooth and O(n)."""
+    a = np.asarray(a, float)
+    valid = np.isfinite(a)
+    if valid.all() or not valid.any():
+        return a.copy()
+    levels = [(np.where(valid, a, 0.0), valid.astype(float))]
+    while True:
+        v, w = levels[-1]
+        if (w > 0).all() or min(v.shape) == 1:
+            break
+        h, wd = (v.shape[0] + 1) // 2 * 2, (v.shape[1] + 1) // 2 * 2
+        vp = np.zeros((h, wd)); wp = np.zeros((h, wd))
+        vp[:v.shape[0], :v.shape[1]] = v * w
+        wp[:v.shape[0], :v.shape[1]] = w
+        ws = wp.reshape(h // 2, 2, wd // 2, 2).sum(axis=(1, 3))
+        vs = vp.reshape(h // 2, 2, wd // 2, 2).sum(axis=(1, 3))
+        with np.errstate(invalid="ignore", divide="ignore"):
+            levels.append((np.where(ws > 0, vs / np.maximum(ws, 1e-12), 0.0), (ws > 0).astype(float)))
+    filled, _ = levels[-1]
+    if not (levels[-1][1] > 0).all():
+        filled = np.where(levels[-1][1] > 0, filled, np.sum(filled * levels[-1][1]) / levels[-1][1].sum())
+    for v, w in reversed(levels[:-1]):
+        up = np.repeat(np.repeat(filled, 2, axis=0), 2, axis=1)[:v.shape[0], :v.shape[1]]
+        filled = np.where(w > 0, v, up)
+    return filled
+
+
+def sample_bilinear(a: np.ndarray, x, y, cell_m, x0, y0) -> np.ndarray:
+    """Bilinear interpolation of a filled raster at points (edge cells extended)."""
+    col = (np.asarray(x) - x0) / cell_m - 0.5
+    row = (np.asarray(y) - y0) / cell_m - 0.5
+    return ndimage.map_coordinates(a, [row, col], order=1, mode="nearest")
+
+
+def slope_tan(a: np.ndarray, cell_m: float) -> np.ndarray:
+    """Tangent of the terrain slope (gradient magnitude) of a filled raster."""
+    gy, gx = np.gradient(a, cell_m)
+    return np.hypot(gx, gy)

@@ -1,0 +1,68 @@
+"""Classification of a synthetic scene and the evaluation measures."""
+
+import numpy as np
+import pytest
+
+from lidarctl import classify, evaluate, synthetic
+
+
+def test_filter_errors_by_hand():
+    truth = np.array([1, 1, 1, 1, 0, 0, 0, 0, 0, 0], bool)
+    pred = np.array([1, 1, 1, 0, 1, 0, 0, 0, 0, 0], bool)
+    e = evaluate.filter_errors(pred, truth)
+    assert e["type_i_error_pct"] == pytest.approx(25.0)
+    assert e["type_ii_error_pct"] == pytest.approx(100.0 / 6)
+    assert e["total_error_pct"] == pytest.approx(20.0)
+    po, pe = 0.8, (4 * 4 + 6 * 6) / 100
+    assert e["kappa_pct"] == pytest.approx(100 * (po - pe) / (1 - pe))
+
+
+def test_confusion_accuracies():
+    truth = np.array([2, 2, 2, 6, 6, 5])
+    pred = np.array([2, 2, 6, 6, 6, 6])
+    c = evaluate.confusion(pred, truth)
+    assert c["classes"] == [2, 5, 6]
+    assert c["matrix"] == [[2, 0, 1], [0, 0, 1], [0, 0, 2]]
+    assert c["producers_accuracy_pct"]["2"] == pytest.approx(200 / 3)
+    assert c["users_accuracy_pct"]["6"] == pytest.approx(50.0)
+    assert c["overall_accuracy_pct"] == pytest.approx(400 / 6)
+    assert "overall accuracy" in evaluate.format_confusion(c)
+
+
+def test_classify_synthetic_scene():
+    cloud, truth = synthetic.synthetic_scene(width_m=150.0, density_per_m2=3.0, seed=5)
+    cls = classify.classify_points(cloud.x, cloud.y, cloud.z, cloud.return_number,
+                                   cloud.number_of_returns, cloud.intensity)
+    conf = evaluate.confusion(cls, truth)
+    pa, ua = conf["producers_accuracy_pct"], conf["users_accuracy_pct"]
+    for c in ("2", "6"):
+        assert pa[c] > 98.0 and ua[c] > 98.0
+    veg_truth = np.isin(truth, (3, 4, 5))
+    assert np.mean(np.isin(cls[veg_truth], (3, 4, 5))) > 0.95
+    assert np.mean(cls[truth == 7] == 7) >= 0.99 and np.mean(cls[truth == 18] == 18) >= 0.99
+
+
+def test_deep_noise_patch_of_mixed_depths_is_not_ground():
+    cloud, truth = synthetic.synthetic_scene(width_m=150.0, density_per_m2=3.0, seed=8, n_low_outliers=0)
+    rng = np.random.default_rng(2)
+    k = 120   # a 25 m x 25 m cloud of multipath points 40-100 m below, at all depths in between
+    px = cloud.x.min() + 60 + rng.uniform(0, 25, k)
+    py = cloud.y.min() + 60 + rng.uniform(0, 25, k)
+    pz = synthetic.terrain_height(px - 500000.0, py - 5400000.0) - rng.uniform(40, 100, k)
+    n = len(cloud)
+    cls = classify.classify_points(np.r_[cloud.x, px], np.r_[cloud.y, py], np.r_[cloud.z, pz])
+    assert np.all(cls[n:] == classify.LOW_NOISE)
+    assert np.mean(cls[:n][truth == 2] == classify.GROUND) > 0.99
+
+
+def test_height_check_csv_errors_name_the_line(tmp_path):
+    from lidarctl import heights_check
+    from lidarctl.errors import InputError
+
+    f = tmp_path / "p.csv"
+    f.write_text("id,x,y,z\nA,1,2,3\nB,1,abc,3\n")
+    with pytest.raises(InputError, match="line 3"):
+        heights_check.read_points_csv(f)
+    f.write_text("id,x,y\nA,1,2\n")
+    with pytest.raises(InputError, match="no 'z' column"):
+        heights_check.read_points_csv(f)
