@@ -11,12 +11,17 @@ def main():
     """Aerial triangulation of frame-camera blocks with LiDAR control, and the truth simulator."""
 
 
-from aerotri.sim.cli import demo, sim  # noqa: E402
+from aerotri.sim.cli import demo, run, sim  # noqa: E402
 
 main.add_command(sim)
 main.add_command(demo)
+main.add_command(run)
 # Further stages register here: main.add_command(<group or command>)
 from aerotri.crs.cli import crs  # noqa: E402
 main.add_command(crs)
+from aerotri.adjust.cli import adjust  # noqa: E402
+main.add_command(adjust)
 from aerotri.match.cli import match  # noqa: E402
 main.add_command(match)
+from aerotri.control.cli import control  # noqa: E402
+main.add_command(control)

@@ -41,6 +41,9 @@ def make_grids(cloud: PointCloud, res_m: float, footprint_cells: int = 3) -> dic
     valid = ~np.isin(cls, (7, 18))
     occupied = np.isfinite(reduce_grid(x[valid], y[valid], z[valid], *args, "max"))
     footprint = ndimage.binary_dilation(occupied, np.ones((3, 3), bool), iterations=footprint_cells)
+    # Gaps enclosed by data (ponds without returns, shadows behind tall buildings) are interpolated,
+    # as production DEMs are: only the outside of the survey stays nodata.
+    footprint = ndimage.binary_fill_holes(footprint)
 
     g = np.isin(cls, (2, 9))
     if not g.any():

@@ -16,33 +16,84 @@ from aerotri.errors import InputError, exit_on_input_error
 @click.option("--set", "overrides", multiple=True, metavar="SECTION.KEY=VALUE",
               help="Override one preset parameter, e.g. --set flight.side_overlap=0.35 (repeatable).")
 @click.option("--force", is_flag=True, help="Replace OUTDIR if it exists.")
+@click.option("--observations", is_flag=True,
+              help="Also write tie and control observations straight from the truth geometry (at/tiepoints.csv, "
+                   "control/*.csv), to test the adjustment without matching or rendering.")
+@click.option("--tie-sigma-px", type=float, default=0.3, show_default=True, help="Image noise of those observations.")
+@click.option("--n-control", type=int, default=4, show_default=True, help="Number of full control points.")
+@click.option("--blunder-fraction", type=float, default=0.0, show_default=True,
+              help="Fraction of tie observations displaced by 5-50 px.")
+@click.option("--bad-control-shift-m", type=float, default=0.0, show_default=True,
+              help="Move the first control point horizontally by this much.")
 @click.argument("outdir", type=click.Path(file_okay=False, path_type=Path))
 @exit_on_input_error
-def sim(preset, seed, overrides, force, outdir):
+def sim(preset, seed, overrides, force, observations, tie_sigma_px, n_control, blunder_fraction,
+        bad_control_shift_m, outdir):
     """Simulate a complete project with known truth into OUTDIR."""
     from aerotri.sim import load_preset, simulate
 
     cfg = load_preset(preset, overrides)
     if seed is not None:
         cfg["preset"]["seed"] = seed
+    if not 0.0 <= blunder_fraction < 1.0:
+        raise InputError(f"--blunder-fraction {blunder_fraction}: must be in [0, 1)")
     simulate(cfg, outdir, force=force, log=lambda m: click.echo(m, err=True))
+    if observations:
+        from aerotri.sim.observations import write_truth_observations
+
+        summary = write_truth_observations(outdir, tie_sigma_px=tie_sigma_px, n_control=n_control,
+                                           blunder_fraction=blunder_fraction,
+                                           bad_control_shift_m=bad_control_shift_m, seed=cfg["preset"]["seed"])
+        click.echo(f"truth observations: {', '.join(f'{k} {v}' for k, v in summary.items() if isinstance(v, (int, float)))}",
+                   err=True)
 
 
 @click.command()
 @click.argument("outdir", type=click.Path(file_okay=False, path_type=Path), default=Path("out/demo"))
 @click.option("--preset", default="demo", show_default=True, help="Simulator preset for the embedded block.")
+@click.option("--force", is_flag=True, help="Re-run every stage even when it is up to date.")
 @exit_on_input_error
-def demo(outdir, preset):
-    """Run the main job on the embedded synthetic block: simulate it, then run every stage that exists."""
+def demo(outdir, preset, force):
+    """The main job on the embedded synthetic block: simulate it, then run the whole chain on it.
+
+    Every stage uses only the project's inputs; truth/ is read by the final checks alone (DOM against
+    the true orthophoto, LiDAR heights at the surveyed targets, classification against true classes).
+    """
+    from aerotri.run import chain_stages, format_summary, run_stages
     from aerotri.sim import load_preset, simulate
+    from lidarctl.atomic import write_text_atomic
 
     outdir = Path(outdir)
     project = outdir / "project"
-    cfg = load_preset(preset)
     if not (project / "truth" / "truth.json").exists():
-        simulate(cfg, project, force=True, log=lambda m: click.echo(m, err=True))
+        simulate(load_preset(preset), project, force=True, log=lambda m: click.echo(m, err=True))
     else:
         click.echo(f"{project}: simulated project exists, reusing it", err=True)
-    if not project.is_dir():
-        raise InputError(f"{project}: simulation did not produce a project")
-    click.echo(f"demo project ready in {project}")
+    stages = chain_stages(project, reference_ortho=project / "truth" / "ortho.tif",
+                          surveyed_points=project / "truth" / "checkpoints.csv", truth_classes=True)
+    rows = run_stages(project, stages, force=force, log=lambda m: click.echo(m, err=True))
+    table = format_summary(rows)
+    write_text_atomic(outdir / "summary.txt", table + "\n")
+    import json
+
+    write_text_atomic(outdir / "summary.json", json.dumps(rows, indent=1, default=str) + "\n")
+    click.echo(table)
+
+
+@click.command("run")
+@click.argument("project", type=click.Path(file_okay=False, path_type=Path))
+@click.option("--reference", type=click.Path(dir_okay=False, path_type=Path), help="Reference orthophoto for the DOM check.")
+@click.option("--points", type=click.Path(dir_okay=False, path_type=Path),
+              help="Surveyed points (id,x,y,z[,group]) for the LiDAR height check.")
+@click.option("--res", "res_m", type=float, default=0.5, show_default=True, help="Elevation raster cell size (m).")
+@click.option("--force", is_flag=True, help="Re-run every stage even when it is up to date.")
+@exit_on_input_error
+def run(project, reference, points, res_m, force):
+    """The whole chain over PROJECT, resumable: a re-run skips stages whose inputs did not change."""
+    from aerotri.project import Project
+    from aerotri.run import chain_stages, format_summary, run_stages
+
+    Project.open(project)
+    stages = chain_stages(Path(project), raster_res_m=res_m, reference_ortho=reference, surveyed_points=points)
+    rows = run_stages(Path(project), stages, force=force, log=lambda m: click.echo(m, err=True))
+    click.echo(format_summary(rows))

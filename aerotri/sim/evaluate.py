@@ -88,3 +88,60 @@ def tie_point_errors(project, tiepoints_csv=None, tol_px: float = 1.0) -> dict:
                 off_fraction=float(off.mean()) if len(off) else 0.0,
                 median_residual_px=float(np.median(res)) if len(res) else 0.0,
                 rms_residual_px=float(np.sqrt(np.mean(res[~off] ** 2))) if (~off).any() else 0.0)
+
+
+def truth_roof_corners(project) -> dict:
+    """The simulator's roof corners with their edge bearings, in the ``lidarctl corners`` layout.
+
+    Reads ``truth/roof_corners.csv`` and the roof outlines of ``truth/buildings.geojson``. Returns
+    arrays: id, xyz_m (N, 3), bearing_deg (N, 2) (grid bearings of the incoming and outgoing outline
+    edge, [0, 180)), angle_deg, roof. For development and tests of the control transfer only.
+    """
+    import json
+    from pathlib import Path
+
+    truth = Path(project) / "truth"
+    rows = list(csv.DictReader(open(truth / "roof_corners.csv", newline="")))
+    outlines = {}
+    for f in json.loads((truth / "buildings.geojson").read_text())["features"]:
+        if f["properties"].get("part") == "roof_outline":
+            outlines[int(f["properties"]["building_id"])] = np.array(f["geometry"]["coordinates"][0])[:-1, :2]
+    ids, xyz, bearing, angle, roof = [], [], [], [], []
+    for r in rows:
+        ring = outlines.get(int(r["building_id"]))
+        xy = np.array([float(r["x"]), float(r["y"])])
+        if ring is None:
+            continue
+        k = int(np.argmin(np.hypot(*(ring - xy).T)))
+        if np.hypot(*(ring[k] - xy)) > 0.01:
+            continue
+        b = []
+        for other in (ring[k - 1], ring[(k + 1) % len(ring)]):
+            d = other - ring[k]
+            b.append(np.mod(np.degrees(np.arctan2(d[0], d[1])), 180.0))
+        ids.append(r["id"])
+        xyz.append([float(r["x"]), float(r["y"]), float(r["z"])])
+        bearing.append(b)
+        angle.append(float(r["angle_deg"]))
+        roof.append(r["roof"])
+    return {"id": np.array(ids, dtype=object), "xyz_m": np.array(xyz), "bearing_deg": np.array(bearing),
+            "angle_deg": np.array(angle), "roof": np.array(roof, dtype=object)}
+
+
+def write_truth_corners_csv(project, path, sigma_xy_m: float = 0.1, sigma_z_m: float = 0.05, seed: int = 0,
+                            noise: bool = False) -> None:
+    """A ``corners.csv`` from the simulator truth (score 1; optional Gaussian noise with the given sigmas)."""
+    t = truth_roof_corners(project)
+    xyz = t["xyz_m"].copy()
+    if noise:
+        rng = np.random.default_rng(seed)
+        xyz += rng.normal(0.0, 1.0, xyz.shape) * [sigma_xy_m, sigma_xy_m, sigma_z_m]
+    lines = ["id,x,y,z,sx_m,sy_m,sz_m,roof,building_id,edge1_deg,edge2_deg,angle_deg,support_pts,score,usable"]
+    for k in range(len(t["id"])):
+        usable = int(t["roof"][k] == "flat")
+        lines.append(f"{t['id'][k]},{xyz[k, 0]:.4f},{xyz[k, 1]:.4f},{xyz[k, 2]:.4f},{sigma_xy_m},{sigma_xy_m},{sigma_z_m},"
+                     f"{t['roof'][k]},0,{t['bearing_deg'][k, 0]:.3f},{t['bearing_deg'][k, 1]:.3f},{t['angle_deg'][k]:.2f},"
+                     f"100,1.0,{usable}")
+    from lidarctl.atomic import write_text_atomic
+
+    write_text_atomic(path, "\n".join(lines) + "\n")

@@ -323,7 +323,7 @@ def write_block_project(block: GeometricBlock, out_dir, name: str = "geometric",
 def write_truth_observations(
     project_dir,
     tie_sigma_px: float = 0.3,
-    control_sigma_m: float | tuple = (0.03, 0.03, 0.05),
+    control_sigma_m: float | tuple | None = None,
     n_control: int = 4,
     blunder_fraction: float = 0.0,
     blunder_px_range=(5.0, 50.0),
@@ -332,17 +332,22 @@ def write_truth_observations(
     points_per_image: int = 150,
     n_check: int = 10,
     min_rays: int = 3,
+    check_sigma_m: float = 0.005,
 ) -> dict:
     """Write at/tiepoints.csv, control/points.csv, control/image_points.csv from a project's truth/.
 
     Needs truth/eo.txt, truth/camera.toml and either truth/dem.tif (simulator projects) or
     truth/terrain.json (geometric blocks) for the ground heights; control and check points come from
     truth/checkpoints.csv when present, else from the terrain. The first control point is moved by
-    ``bad_control_shift_m`` horizontally. Returns a summary with the blunder ids (for evaluations).
+    ``bad_control_shift_m`` horizontally; check points get ``check_sigma_m`` noise. ``control_sigma_m`` None: project.toml [control] sigma_xy_m,
+    sigma_z_m. Returns a summary with the blunder ids (for evaluations).
     """
     root = Path(project_dir)
     with open(root / "project.toml", "rb") as f:
         cfg = tomllib.load(f)
+    if control_sigma_m is None:
+        cc = cfg.get("control", {})
+        control_sigma_m = (float(cc.get("sigma_xy_m", 0.03)),) * 2 + (float(cc.get("sigma_z_m", 0.05)),)
     crs = cfg["project"]["crs"]
     eo = read_eo(root / "truth" / "eo.txt")
     cam = FrameCamera.read(root / "truth" / "camera.toml")
@@ -369,15 +374,24 @@ def write_truth_observations(
     if chk_file.exists():
         rows = np.genfromtxt(chk_file, delimiter=",", names=True, dtype=None, encoding="utf-8")
         cands = frame.to_local(np.column_stack([rows["x"], rows["y"], rows["z"]]))
-    if cands is None or len(cands) < n_control + n_check:
+    if cands is None or len(cands) < n_control + 3:
         cands = ground(20000)
     pi, _, _ = project_points(cands, C, R, cam, H_above)
     cands = cands[np.bincount(pi, minlength=len(cands)) >= 2]
     sel = _spread(cands, n_control)
     rest = np.setdiff1d(np.arange(len(cands)), sel)
     chk = rng.choice(rest, min(n_check, len(rest)), replace=False)
-    Pc = np.vstack([cands[sel], cands[chk]])
+    Pchk = cands[chk]
+    if len(Pchk) < n_check:  # top up with random ground points seen in >= 2 frames
+        extra = ground(20 * n_check)
+        pe, _, _ = project_points(extra, C, R, cam, H_above)
+        extra = extra[np.bincount(pe, minlength=len(extra)) >= 2][: n_check - len(Pchk)]
+        Pchk = np.vstack([Pchk, extra])
+    chk = np.arange(len(Pchk))
+    Pc = np.vstack([cands[sel], Pchk])
     sig = np.broadcast_to(np.asarray(control_sigma_m, dtype=float), (3,)) if np.ndim(control_sigma_m) else np.array([control_sigma_m] * 3)
+    # control points carry survey noise; check points are known better than the adjustment can reach
+    sig = np.vstack([np.tile(sig, (len(sel), 1)), np.full((len(chk), 3), check_sigma_m)])
     given = Pc + rng.normal(0, 1, Pc.shape) * sig
     bad_ids = []
     if bad_control_shift_m and n_control:
@@ -386,7 +400,7 @@ def write_truth_observations(
         bad_ids = ["gcp01"]
     ids = np.array([f"gcp{k + 1:02d}" for k in range(len(sel))] + [f"chk{k + 1:02d}" for k in range(len(chk))], dtype=object)
     kind = np.array(["full"] * len(sel) + ["check"] * len(chk), dtype=object)
-    cp = ControlPoints(ids, kind, frame.to_map(given), np.tile(sig, (len(Pc), 1)))
+    cp = ControlPoints(ids, kind, frame.to_map(given), sig)
     pi, ii, xy = project_points(Pc, C, R, cam, H_above)
     cobs = ImageObservations(ids[pi], np.asarray(eo.image_id, dtype=object)[ii], xy + rng.normal(0, tie_sigma_px, xy.shape))
     write_image_points(root / "at" / "tiepoints.csv", ties)

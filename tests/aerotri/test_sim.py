@@ -246,3 +246,17 @@ def test_bad_parameters_exit_2_without_output(tmp_path, args, message):
     assert res.exit_code == 2, res.output
     assert message in res.output
     assert not out.exists()
+
+
+def test_sim_observations_option_writes_adjustable_files(tmp_path):
+    out = tmp_path / "obs"
+    res = CliRunner().invoke(aerotri_main, ["sim", "--preset", "tiny", "--observations", "--blunder-fraction", "0.03",
+                                            str(out)])
+    assert res.exit_code == 0, res.output
+    ties = _rows(out / "at/tiepoints.csv")
+    ctrl = _rows(out / "control/points.csv")
+    assert len(ties) > 50 and {"point_id", "image_id", "x_px", "y_px"} <= set(ties[0])
+    assert sum(r["kind"] == "full" for r in ctrl) >= 3 and any(r["kind"] == "check" for r in ctrl)
+    res = CliRunner().invoke(aerotri_main, ["sim", "--preset", "tiny", "--observations", "--blunder-fraction", "2",
+                                            str(tmp_path / "bad")])
+    assert res.exit_code == 2 and "--blunder-fraction" in res.output

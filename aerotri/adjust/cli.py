@@ -1,0 +1,43 @@
+"""``aerotri adjust PROJECT``: bundle block adjustment with GNSS and ground control."""
+
+from __future__ import annotations
+
+import click
+
+from aerotri.errors import exit_on_input_error
+
+
+@click.command()
+@click.argument("project", type=click.Path(file_okay=False))
+@click.option("--gnss-correction", type=click.Choice(["none", "shift", "shift_drift"]), default="none", show_default=True,
+              help="GNSS corrections per strip: none, shift, or shift and drift.")
+@click.option("--lever-arm", nargs=3, type=float, default=None,
+              help="Antenna offset from the projection centre in the camera frame (m); default project.toml [gnss] lever_arm_m.")
+@click.option("--self-cal", "self_cal", default="", help="Comma-separated: focal, pp, radial, tangential.")
+@click.option("--image-sigma", type=float, default=None, help="A-priori image standard deviation (px); default 0.5.")
+@click.option("--check", "check", multiple=True, help="Use this control point id as a check point (repeatable).")
+@click.option("--control", "control", multiple=True, help="Use this point id as full control (repeatable).")
+@click.option("--no-snooping", is_flag=True, help="Disable blunder detection.")
+@click.option("--alpha", type=float, default=1e-4, show_default=True, help="Type I error per coordinate for data snooping.")
+@click.option("--no-html", is_flag=True, help="Skip report.html.")
+@exit_on_input_error
+def adjust(project, gnss_correction, lever_arm, self_cal, image_sigma, check, control, no_snooping, alpha, no_html):
+    """Adjust the block of PROJECT; writes at/eo.txt, at/object_points.csv, at/report.* and exports."""
+    from aerotri.adjust.pipeline import AdjustSettings, adjust_project, write_outputs
+
+    settings = AdjustSettings(
+        gnss_correction=gnss_correction,
+        lever_arm_m=tuple(lever_arm) if lever_arm else None,
+        self_calibration=tuple(s.strip() for s in self_cal.split(",") if s.strip()),
+        image_sigma_px=image_sigma,
+        check=tuple(check),
+        control=tuple(control),
+        snooping=not no_snooping,
+        alpha=alpha,
+    )
+    ba = adjust_project(project, settings, progress=lambda m: click.echo(m, err=True))
+    rep = write_outputs(ba, project, html=not no_html)
+    k = rep["key_statistics"]
+    click.echo(f"sigma0 {k['sigma0_um']} um, {k['iterations']} iterations, dof {k['degrees_of_freedom']}: {k['message']}")
+    if rep["check_rms_m"]:
+        click.echo("check RMS X Y Z (m): " + " ".join(f"{v:.3f}" for v in rep["check_rms_m"]))

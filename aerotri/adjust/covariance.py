@@ -1,0 +1,107 @@
+"""A-posteriori covariances from the reduced camera system (Schur complement), without per-key calls.
+
+The linearised normal equations are reduced by eliminating the object points (GTSAM partial
+elimination); the reduced system over orientations, calibration and GNSS unknowns is small enough to
+invert densely. The covariance of an object point then follows from its own normal-equation block
+``V`` and its coupling ``W`` to the orientations it is seen from:
+``Cov(X) = V^-1 + V^-1 W Cov(orientations) W^T V^-1`` (exact for the linearised problem).
+"""
+
+from __future__ import annotations
+
+import gtsam
+import numpy as np
+
+from aerotri.adjust import graph as G
+
+_DIM = {"x": 6, "k": 9}
+
+
+class _Joint:
+    def __init__(self, cov, keys):
+        self._cov, self._keys = cov, keys
+
+    def at(self, ka, kb):
+        return self._cov.block(ka, kb)
+
+
+class ReducedCovariance:
+    """Joint covariance (unit weight) of all variables except the object points."""
+
+    def __init__(self, gr: "G.Graph", values: gtsam.Values, point_keys):
+        gfg = gr.graph.linearize(values)
+        ordering = gtsam.Ordering()
+        for k in point_keys:
+            ordering.push_back(k)
+        _, reduced = gfg.eliminatePartialMultifrontal(ordering)
+        keys = sorted(set(reduced.keyVector()))
+        order = gtsam.Ordering()
+        for k in keys:
+            order.push_back(k)
+        H, _ = reduced.hessian(order)
+        dims = [_DIM.get(chr(gtsam.Symbol(k).chr()), 3) for k in keys]
+        self.offset = dict(zip(keys, np.concatenate([[0], np.cumsum(dims)[:-1]]).astype(int)))
+        self.dim = dict(zip(keys, dims))
+        # Jacobi scaling first: tight priors (fixed calibration terms) and metre/radian units differ by
+        # many orders of magnitude, which alone would make the Cholesky factorisation fail
+        d = 1.0 / np.sqrt(np.diag(H))
+        L = np.linalg.cholesky(H * d[:, None] * d[None, :])
+        Linv = np.linalg.inv(L)
+        self.Sigma = (Linv.T @ Linv) * d[:, None] * d[None, :]
+
+    def block(self, ka, kb) -> np.ndarray:
+        a, b = self.offset[ka], self.offset[kb]
+        return self.Sigma[a : a + self.dim[ka], b : b + self.dim[kb]]
+
+    def marginalCovariance(self, key) -> np.ndarray:  # noqa: N802 (gtsam.Marginals interface)
+        return self.block(key, key)
+
+    def jointMarginalCovariance(self, keys) -> _Joint:  # noqa: N802
+        return _Joint(self, keys)
+
+
+def point_covariances(block: "G.Block", state: "G.State", obs_active, sigma_px: float, rc: ReducedCovariance,
+                      self_cal: bool, chunk: int = 100_000) -> np.ndarray:
+    """Unit-weight covariances (P, 3, 3) of all object points in the local frame (NaN for unused)."""
+    k = np.flatnonzero(obs_active)
+    pt, im = block.obs_point[k], block.obs_image[k]
+    _, pc = G.project_cv(state.points[pt], state.centre[im], state.R_cv[im], state.cal)
+    out = G.jacobians_cv(pc, state.R_cv[im], state.cal, with_cal=self_cal)
+    Jp, Jc = out[0], out[1]
+    if self_cal:
+        Jc = np.concatenate([Jc, out[2]], axis=2)
+    w = 1.0 / sigma_px**2
+    V = np.zeros((block.n_points, 3, 3))
+    np.add.at(V, pt, w * np.einsum("kai,kaj->kij", Jp, Jp))
+    for c, j in enumerate(block.control_point):
+        if np.any(pt == j):
+            V[j] += np.linalg.inv(block.control_cov_local[c])
+    used = np.zeros(block.n_points, dtype=bool)
+    used[pt] = True
+    Vinv = np.full_like(V, np.nan)
+    Vinv[used] = np.linalg.inv(V[used])
+    # G_k = V^-1 W_k for each ray (3 x 6 or 3 x 15)
+    Gk = np.einsum("kij,kaj,kab->kib", Vinv[pt], Jp, Jc) * w
+    # indices of each ray's orientation (+ calibration) parameters in the reduced covariance
+    pose_off = np.array([rc.offset[G.X(i)] for i in range(block.n_images)])
+    idx = pose_off[im][:, None] + np.arange(6)[None]
+    if self_cal:
+        idx = np.concatenate([idx, np.broadcast_to(rc.offset[G.K_KEY] + np.arange(9), (len(k), 9))], axis=1)
+    # all ray pairs (a, b) of the same point
+    order = np.argsort(pt, kind="stable")
+    pts_sorted = pt[order]
+    starts = np.r_[0, np.flatnonzero(np.diff(pts_sorted)) + 1]
+    counts = np.diff(np.r_[starts, len(order)])
+    rep = np.repeat(counts, counts)  # per ray in sorted order: its point's ray count
+    first = np.repeat(starts, counts)
+    a_idx = np.repeat(np.arange(len(order)), rep)
+    b_idx = np.repeat(first, rep) + (np.arange(len(a_idx)) - np.repeat(np.cumsum(rep) - rep, rep))
+    extra = np.zeros((block.n_points, 3, 3))
+    for s in range(0, len(a_idx), chunk):
+        a = order[a_idx[s : s + chunk]]
+        b = order[b_idx[s : s + chunk]]
+        S = rc.Sigma[idx[a][:, :, None], idx[b][:, None, :]]
+        np.add.at(extra, pt[a], np.einsum("kia,kab,kjb->kij", Gk[a], S, Gk[b]))
+    cov = Vinv + extra
+    cov[~used] = np.nan
+    return cov

@@ -1,0 +1,376 @@
+"""The bundle block adjustment as a GTSAM factor graph (C++ factors only in the inner loop).
+
+Unknowns (symbols): ``x`` camera poses (gtsam Pose3: computer-vision camera -> local ENU, i.e.
+``R_cv = R_opk @ FLIP_YZ`` and the projection centre), ``p`` object points, ``k`` the Cal3DS2
+calibration (when self-calibrating), ``a`` GNSS antenna positions, ``l`` the lever arm, ``s``/``d``
+per-strip GNSS shift (m) and drift (m/km).
+
+Observation equations and their factors:
+
+- image point: collinearity with Cal3DS2 -> GenericProjectionFactorCal3DS2 (fixed camera) or
+  GeneralSFMFactor2Cal3DS2 (self-calibration), isotropic ``image_sigma_px``;
+- GNSS, no correction: ``g = C + R l`` -> GPSFactorArm;
+- GNSS with shift/drift: ``a_i = C_i + R_i l`` (ReferenceFrameFactorPoint3Pose3 as a hard constraint)
+  and the linear ``g_i = a_i + s_strip + t_i d_strip`` (t = along-track km) -> JacobianFactor in a
+  LinearContainerFactor (exact, the equation is linear);
+- control point: prior on the object point with its covariance rotated into ENU (a horizontal point
+  has a loose height, a height point loose planimetry);
+- calibration parameters not estimated: tight priors.
+
+Degrees of freedom count only real observations: 2 per image point, 3 per GNSS position, the
+constrained components of control points; hard constraints add as many equations as unknowns.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import time
+
+import gtsam
+import numpy as np
+
+from aerotri.camera import FrameCamera
+from aerotri.errors import InputError
+from aerotri.rotation import FLIP_YZ
+
+X = lambda i: gtsam.symbol("x", int(i))  # noqa: E731
+P = lambda j: gtsam.symbol("p", int(j))  # noqa: E731
+A = lambda i: gtsam.symbol("a", int(i))  # noqa: E731
+S = lambda s: gtsam.symbol("s", int(s))  # noqa: E731
+D = lambda s: gtsam.symbol("d", int(s))  # noqa: E731
+K_KEY = gtsam.symbol("k", 0)
+L_KEY = gtsam.symbol("l", 0)
+
+SELF_CAL_GROUPS = {"focal": (0, 1), "pp": (3, 4), "radial": (5, 6), "tangential": (7, 8)}
+GNSS_CORRECTIONS = ("none", "shift", "shift_drift")
+LOOSE_SIGMA_M = 1.0e3  # sigma of the unconstrained components of horizontal/height control
+
+
+@dataclasses.dataclass
+class Block:
+    """Adjustment inputs in the local frame; observations refer to images and points by index."""
+
+    image_id: list[str]
+    camera: FrameCamera  # a-priori interior orientation
+    point_id: np.ndarray  # (P,) tie and control point ids
+    obs_point: np.ndarray  # (K,) int
+    obs_image: np.ndarray  # (K,) int
+    obs_xy_px: np.ndarray  # (K, 2)
+    gnss_local: np.ndarray | None  # (N, 3) antenna positions ENU
+    gnss_sigma_m: np.ndarray | None  # (N, 3)
+    lever_arm_m: np.ndarray  # (3,) photogrammetric camera frame
+    strip: np.ndarray  # (N,) int
+    along_km: np.ndarray  # (N,)
+    control_point: np.ndarray  # (C,) int, index into points
+    control_local: np.ndarray  # (C, 3) given coordinates in ENU
+    control_cov_local: np.ndarray  # (C, 3, 3)
+    control_rows: np.ndarray  # (C,) number of constrained components (3 full, 2 horizontal, 1 height)
+
+    @property
+    def n_images(self):
+        return len(self.image_id)
+
+    @property
+    def n_points(self):
+        return len(self.point_id)
+
+    @property
+    def n_strips(self):
+        return int(self.strip.max()) + 1 if len(self.strip) else 0
+
+
+@dataclasses.dataclass
+class Options:
+    image_sigma_px: float = 0.5
+    gnss_correction: str = "none"  # none | shift | shift_drift
+    self_calibration: tuple = ()  # subset of SELF_CAL_GROUPS
+    huber_k: float = 2.5  # robust kernel threshold in standard deviations
+    max_iterations: int = 100
+    relative_tolerance: float = 1e-8
+
+    def __post_init__(self):
+        if self.gnss_correction not in GNSS_CORRECTIONS:
+            raise InputError(f"GNSS correction {self.gnss_correction!r} is not one of {GNSS_CORRECTIONS}")
+        bad = sorted(set(self.self_calibration) - set(SELF_CAL_GROUPS))
+        if bad:
+            raise InputError(f"self-calibration parameters {bad} are not among {sorted(SELF_CAL_GROUPS)}")
+
+
+@dataclasses.dataclass
+class State:
+    """Values of the unknowns (local frame)."""
+
+    centre: np.ndarray  # (N, 3)
+    R_cv: np.ndarray  # (N, 3, 3) computer-vision camera -> ENU
+    points: np.ndarray  # (P, 3)
+    cal: np.ndarray  # (9,) fx fy s u0 v0 k1 k2 p1 p2 (pixels, Cal3DS2)
+    shift: np.ndarray  # (S, 3)
+    drift: np.ndarray  # (S, 3)
+
+    def copy(self) -> "State":
+        return State(*(np.array(getattr(self, f.name), copy=True) for f in dataclasses.fields(self)))
+
+
+def cal_from_camera(cam: FrameCamera) -> np.ndarray:
+    f = cam.focal_px
+    return np.array([f, f, 0.0, cam.cx_px, cam.cy_px, cam.k1, cam.k2, cam.p1, cam.p2])
+
+
+def camera_from_cal(cal, like: FrameCamera) -> FrameCamera:
+    """FrameCamera from Cal3DS2 values (fx and fy averaged into the focal length)."""
+    f_px = 0.5 * (cal[0] + cal[1])
+    pix_mm = like.pixel_um / 1000.0
+    return dataclasses.replace(
+        like,
+        focal_mm=float(f_px * pix_mm),
+        ppx_mm=float((cal[3] - (like.width - 1) / 2.0) * pix_mm),
+        ppy_mm=float(-(cal[4] - (like.height - 1) / 2.0) * pix_mm),
+        k1=float(cal[5]),
+        k2=float(cal[6]),
+        p1=float(cal[7]),
+        p2=float(cal[8]),
+    )
+
+
+def _cal3ds2(cal) -> gtsam.Cal3DS2:
+    return gtsam.Cal3DS2(*[float(v) for v in cal])
+
+
+def _pose(C, R_cv) -> gtsam.Pose3:
+    return gtsam.Pose3(gtsam.Rot3(np.asarray(R_cv, dtype=float)), np.asarray(C, dtype=float))
+
+
+@dataclasses.dataclass
+class Graph:
+    graph: gtsam.NonlinearFactorGraph
+    values: gtsam.Values
+    n_equations: int
+    n_unknowns: int
+    image_factor_index: np.ndarray  # (K,) index of each active observation's factor, -1 if inactive
+    control_factor_index: np.ndarray  # (C,)
+
+    @property
+    def dof(self) -> int:
+        return self.n_equations - self.n_unknowns
+
+
+def build_graph(block: Block, opts: Options, state: State, obs_active, control_active, robust: bool) -> Graph:
+    """The factor graph for the active image observations and control points, initialised at ``state``."""
+    obs_active = np.asarray(obs_active, dtype=bool)
+    control_active = np.asarray(control_active, dtype=bool)
+    g = gtsam.NonlinearFactorGraph()
+    v = gtsam.Values()
+    self_cal = bool(opts.self_calibration)
+    used_points = np.unique(block.obs_point[obs_active])
+    used_images = np.unique(block.obs_image[obs_active])
+    n_eq = n_unk = 0
+
+    for i in range(block.n_images):
+        v.insert(X(i), _pose(state.centre[i], state.R_cv[i]))
+    n_unk += 6 * block.n_images
+    for j in used_points:
+        v.insert(P(j), np.asarray(state.points[j], dtype=float))
+    n_unk += 3 * len(used_points)
+
+    # image observations
+    base = gtsam.noiseModel.Isotropic.Sigma(2, opts.image_sigma_px)
+    noise = gtsam.noiseModel.Robust.Create(gtsam.noiseModel.mEstimator.Huber.Create(opts.huber_k), base) if robust else base
+    idx = np.flatnonzero(obs_active)
+    factor_index = np.full(len(block.obs_point), -1, dtype=int)
+    if self_cal:
+        v.insert(K_KEY, _cal3ds2(state.cal))
+        sig = np.array([200.0, 200.0, 1e-3, 200.0, 200.0, 0.05, 0.05, 0.01, 0.01])  # loose a-priori
+        fixed = np.ones(9, dtype=bool)
+        for grp in opts.self_calibration:
+            fixed[list(SELF_CAL_GROUPS[grp])] = False
+        sig[fixed] = np.array([1e-3, 1e-3, 1e-3, 1e-3, 1e-3, 1e-8, 1e-8, 1e-8, 1e-8])[fixed]
+        g.add(gtsam.PriorFactorCal3DS2(K_KEY, _cal3ds2(state.cal), gtsam.noiseModel.Diagonal.Sigmas(sig)))
+        n_unk += int((~fixed).sum())
+        for k in idx:
+            factor_index[k] = g.size()
+            g.add(gtsam.GeneralSFMFactor2Cal3DS2(block.obs_xy_px[k], noise, X(block.obs_image[k]), P(block.obs_point[k]), K_KEY))
+    else:
+        K = _cal3ds2(state.cal)
+        for k in idx:
+            factor_index[k] = g.size()
+            g.add(gtsam.GenericProjectionFactorCal3DS2(block.obs_xy_px[k], noise, X(block.obs_image[k]), P(block.obs_point[k]), K))
+    n_eq += 2 * len(idx)
+
+    # GNSS
+    lever_cv = FLIP_YZ @ block.lever_arm_m
+    if block.gnss_local is not None:
+        n_eq += 3 * block.n_images
+        if opts.gnss_correction == "none":
+            for i in range(block.n_images):
+                g.add(gtsam.GPSFactorArm(X(i), block.gnss_local[i], lever_cv, gtsam.noiseModel.Diagonal.Sigmas(block.gnss_sigma_m[i])))
+        else:
+            drift = opts.gnss_correction == "shift_drift"
+            v.insert(L_KEY, lever_cv)
+            g.add(gtsam.PriorFactorPoint3(L_KEY, lever_cv, gtsam.noiseModel.Isotropic.Sigma(3, 1e-6)))
+            for s in range(block.n_strips):
+                v.insert(S(s), np.asarray(state.shift[s], dtype=float))
+                if drift:
+                    v.insert(D(s), np.asarray(state.drift[s], dtype=float))
+            n_unk += 3 * block.n_strips * (2 if drift else 1)
+            hard = gtsam.noiseModel.Isotropic.Sigma(3, 1e-3)
+            I3 = np.eye(3)
+            for i in range(block.n_images):
+                a = state.centre[i] + state.R_cv[i] @ lever_cv
+                v.insert(A(i), a)
+                g.add(gtsam.ReferenceFrameFactorPoint3Pose3(L_KEY, X(i), A(i), hard))
+                s, t = int(block.strip[i]), float(block.along_km[i])
+                lin = gtsam.Values()
+                lin.insert(A(i), a)
+                lin.insert(S(s), np.asarray(state.shift[s], dtype=float))
+                pred = a + state.shift[s]
+                model = gtsam.noiseModel.Diagonal.Sigmas(block.gnss_sigma_m[i])
+                if drift:
+                    lin.insert(D(s), np.asarray(state.drift[s], dtype=float))
+                    pred = pred + t * state.drift[s]
+                    jf = gtsam.JacobianFactor(A(i), I3, S(s), I3, D(s), t * I3, block.gnss_local[i] - pred, model)
+                else:
+                    jf = gtsam.JacobianFactor(A(i), I3, S(s), I3, block.gnss_local[i] - pred, model)
+                g.add(gtsam.LinearContainerFactor(jf, lin))
+
+    # control points
+    control_index = np.full(len(block.control_point), -1, dtype=int)
+    for c in np.flatnonzero(control_active):
+        j = block.control_point[c]
+        if not v.exists(P(j)):
+            continue
+        cov = block.control_cov_local[c]
+        model = gtsam.noiseModel.Gaussian.Covariance(cov)
+        if robust:
+            model = gtsam.noiseModel.Robust.Create(gtsam.noiseModel.mEstimator.Huber.Create(opts.huber_k), model)
+        control_index[c] = g.size()
+        g.add(gtsam.PriorFactorPoint3(P(j), block.control_local[c], model))
+        n_eq += int(block.control_rows[c])
+    del used_images
+    return Graph(g, v, n_eq, n_unk, factor_index, control_index)
+
+
+@dataclasses.dataclass
+class SolveInfo:
+    iterations: int
+    chi2: float  # sum of squared standardised residuals (2 x graph error)
+    dof: int
+    seconds: float
+    converged: bool
+
+
+def optimize(gr: Graph, opts: Options) -> tuple[gtsam.Values, SolveInfo]:
+    params = gtsam.LevenbergMarquardtParams()
+    params.setMaxIterations(opts.max_iterations)
+    params.setRelativeErrorTol(opts.relative_tolerance)
+    params.setAbsoluteErrorTol(0.0)
+    params.setOrderingType("METIS")
+    t0 = time.perf_counter()
+    try:
+        opt = gtsam.LevenbergMarquardtOptimizer(gr.graph, gr.values, params)
+        result = opt.optimize()
+    except RuntimeError as exc:
+        raise InputError(
+            "the adjustment is singular (datum defect: too few control points or GNSS positions for "
+            f"the chosen corrections, or images/points without enough rays): {exc}"
+        ) from None
+    it = int(opt.iterations())
+    converged = it < opts.max_iterations
+    if not converged:
+        # stopped by the iteration limit: converged if one more step no longer reduces the error noticeably
+        e0 = opt.error()
+        opt.iterate()
+        converged = e0 - opt.error() <= 1e-6 * e0
+        result = opt.values()
+    return result, SolveInfo(it, 2.0 * gr.graph.error(result), gr.dof, time.perf_counter() - t0, converged)
+
+
+def state_from_values(values: gtsam.Values, block: Block, opts: Options, previous: State) -> State:
+    st = previous.copy()
+    for i in range(block.n_images):
+        pose = values.atPose3(X(i))
+        st.centre[i] = pose.translation()
+        st.R_cv[i] = pose.rotation().matrix()
+    for j in range(block.n_points):
+        if values.exists(P(j)):
+            st.points[j] = values.atPoint3(P(j))
+    if values.exists(K_KEY):
+        st.cal = np.asarray(values.atCal3DS2(K_KEY).vector(), dtype=float)
+    for s in range(block.n_strips):
+        if values.exists(S(s)):
+            st.shift[s] = values.atPoint3(S(s))
+        if values.exists(D(s)):
+            st.drift[s] = values.atPoint3(D(s))
+    return st
+
+
+# -- vectorised collinearity (numpy) for residuals and intersections ---------------------------
+def project_cv(points, centre, R_cv, cal):
+    """Pixel coordinates (K, 2) and camera coordinates (K, 3) of points in cameras (per-row arrays)."""
+    pc = np.einsum("kji,kj->ki", R_cv, points - centre)  # R^T (P - C)
+    z = pc[:, 2]
+    xn, yn = pc[:, 0] / z, pc[:, 1] / z
+    fx, fy, s, u0, v0, k1, k2, p1, p2 = cal
+    r2 = xn * xn + yn * yn
+    radial = 1.0 + k1 * r2 + k2 * r2 * r2
+    xd = xn * radial + 2 * p1 * xn * yn + p2 * (r2 + 2 * xn * xn)
+    yd = yn * radial + p1 * (r2 + 2 * yn * yn) + 2 * p2 * xn * yn
+    return np.column_stack([fx * xd + s * yd + u0, fy * yd + v0]), pc
+
+
+def jacobians_cv(pc, R_cv, cal, with_cal: bool = False):
+    """d(pixel)/d(point) (K, 2, 3), d(pixel)/d(pose tangent [omega, v]) (K, 2, 6) and, with ``with_cal``,
+    d(pixel)/d(Cal3DS2 [fx fy s u0 v0 k1 k2 p1 p2]) (K, 2, 9); lens distortion included.
+
+    Pose perturbation as in gtsam (right): R -> R Exp(omega), C -> C + R v, so d pc/d omega = [pc]x,
+    d pc/d v = -I.
+    """
+    fx, fy, s, u0, v0, k1, k2, p1, p2 = cal
+    z = pc[:, 2]
+    xn, yn = pc[:, 0] / z, pc[:, 1] / z
+    r2 = xn * xn + yn * yn
+    radial = 1.0 + k1 * r2 + k2 * r2 * r2
+    dr = k1 + 2.0 * k2 * r2  # d radial / d r2
+    Jd = np.empty((len(pc), 2, 2))  # d(xd, yd) / d(xn, yn)
+    Jd[:, 0, 0] = radial + 2 * xn * xn * dr + 2 * p1 * yn + 6 * p2 * xn
+    Jd[:, 0, 1] = 2 * xn * yn * dr + 2 * p1 * xn + 2 * p2 * yn
+    Jd[:, 1, 0] = 2 * xn * yn * dr + 2 * p1 * xn + 2 * p2 * yn
+    Jd[:, 1, 1] = radial + 2 * yn * yn * dr + 6 * p1 * yn + 2 * p2 * xn
+    Jn = np.zeros((len(pc), 2, 3))  # d(xn, yn) / d pc
+    Jn[:, 0, 0] = 1.0 / z
+    Jn[:, 0, 2] = -xn / z
+    Jn[:, 1, 1] = 1.0 / z
+    Jn[:, 1, 2] = -yn / z
+    Jp = np.array([[fx, s], [0.0, fy]]) @ Jd @ Jn
+    J_point = Jp @ np.swapaxes(R_cv, -1, -2)
+    skew = np.zeros((len(pc), 3, 3))
+    skew[:, 0, 1], skew[:, 0, 2] = -pc[:, 2], pc[:, 1]
+    skew[:, 1, 0], skew[:, 1, 2] = pc[:, 2], -pc[:, 0]
+    skew[:, 2, 0], skew[:, 2, 1] = -pc[:, 1], pc[:, 0]
+    J_pose = np.concatenate([Jp @ skew, -Jp], axis=2)
+    if not with_cal:
+        return J_point, J_pose
+    xd = xn * radial + 2 * p1 * xn * yn + p2 * (r2 + 2 * xn * xn)
+    yd = yn * radial + p1 * (r2 + 2 * yn * yn) + 2 * p2 * xn * yn
+    Jc = np.zeros((len(pc), 2, 9))
+    Jc[:, 0, 0], Jc[:, 0, 2], Jc[:, 0, 3] = xd, yd, 1.0
+    Jc[:, 1, 1], Jc[:, 1, 4] = yd, 1.0
+    # distortion parameters: d(xd, yd)/d(k1 k2 p1 p2), then through [[fx, s], [0, fy]]
+    dD = np.zeros((len(pc), 2, 4))
+    dD[:, 0, 0], dD[:, 1, 0] = xn * r2, yn * r2
+    dD[:, 0, 1], dD[:, 1, 1] = xn * r2 * r2, yn * r2 * r2
+    dD[:, 0, 2], dD[:, 1, 2] = 2 * xn * yn, r2 + 2 * yn * yn
+    dD[:, 0, 3], dD[:, 1, 3] = r2 + 2 * xn * xn, 2 * xn * yn
+    Jc[:, :, 5:] = np.array([[fx, s], [0.0, fy]]) @ dD
+    return J_point, J_pose, Jc
+
+
+def image_residuals(block: Block, state: State) -> np.ndarray:
+    """Residuals observed - computed (K, 2) in pixels for all observations."""
+    uv, _ = project_cv(
+        state.points[block.obs_point], state.centre[block.obs_image], state.R_cv[block.obs_image], state.cal
+    )
+    return block.obs_xy_px - uv
+
+
+def marginals(gr: Graph, values: gtsam.Values) -> gtsam.Marginals:
+    return gtsam.Marginals(gr.graph, values)

@@ -1,0 +1,74 @@
+"""Local Cartesian adjustment frame: East-North-Up tangent plane at the block centre.
+
+The bundle adjustment runs in a Cartesian frame in which the collinearity equations hold exactly;
+map-projection coordinates are not such a frame (scale factor, earth curvature). Project-CRS
+coordinates ``(x, y, h)`` (h ellipsoidal height, metres) go to ECEF with pyproj, then to ENU at the
+origin. Attitudes given in the project CRS refer to the grid axes (grid east, grid north, up) at the
+projection centre; ``rotation_local_from_map`` gives the rotation between those axes and ENU.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from pyproj import CRS, Transformer
+
+
+class LocalFrame:
+    """Tangent plane (ENU) at ``origin_map`` (x, y, h in the project CRS)."""
+
+    def __init__(self, crs, origin_map):
+        self.crs = CRS.from_user_input(crs)
+        self.origin_map = np.asarray(origin_map, dtype=float).reshape(3)
+        self.cartesian_crs = not self.crs.is_geographic and self.crs.is_engineering
+        if self.cartesian_crs:
+            self.R = np.eye(3)
+            self.ecef0 = self.origin_map.copy()
+            return
+        self._to_ecef = Transformer.from_crs(self.crs, CRS.from_epsg(4978), always_xy=True)
+        self._from_ecef = Transformer.from_crs(CRS.from_epsg(4978), self.crs, always_xy=True)
+        self.ecef0 = np.array(self._to_ecef.transform(*self.origin_map))
+        lon, lat, _ = Transformer.from_crs(CRS.from_epsg(4978), CRS.from_epsg(4979), always_xy=True).transform(
+            *self.ecef0
+        )
+        lam, phi = np.radians(lon), np.radians(lat)
+        sl, cl, sp, cp = np.sin(lam), np.cos(lam), np.sin(phi), np.cos(phi)
+        # rows: east, north, up in ECEF
+        self.R = np.array([[-sl, cl, 0.0], [-sp * cl, -sp * sl, cp], [cp * cl, cp * sl, sp]])
+
+    @classmethod
+    def at_centre(cls, crs, points_map) -> "LocalFrame":
+        """Frame at the centre of the bounding box of ``points_map`` (N, 3), at their mean height."""
+        p = np.asarray(points_map, dtype=float)
+        centre = np.array([(p[:, 0].min() + p[:, 0].max()) / 2, (p[:, 1].min() + p[:, 1].max()) / 2, p[:, 2].mean()])
+        return cls(crs, centre)
+
+    def to_local(self, xyz_map) -> np.ndarray:
+        """Project-CRS coordinates (N, 3) -> ENU metres (N, 3)."""
+        p = np.atleast_2d(np.asarray(xyz_map, dtype=float))
+        if self.cartesian_crs:
+            return p - self.origin_map
+        ecef = np.stack(self._to_ecef.transform(p[:, 0], p[:, 1], p[:, 2]), axis=-1)
+        return (ecef - self.ecef0) @ self.R.T
+
+    def to_map(self, enu) -> np.ndarray:
+        """ENU metres (N, 3) -> project-CRS coordinates (N, 3)."""
+        e = np.atleast_2d(np.asarray(enu, dtype=float))
+        if self.cartesian_crs:
+            return e + self.origin_map
+        ecef = e @ self.R + self.ecef0
+        return np.stack(self._from_ecef.transform(ecef[:, 0], ecef[:, 1], ecef[:, 2]), axis=-1)
+
+    def jacobian_local_from_map(self, xyz_map, step_m: float = 1.0) -> np.ndarray:
+        """d(ENU)/d(x, y, h) at each point (N, 3, 3), by central differences."""
+        p = np.atleast_2d(np.asarray(xyz_map, dtype=float))
+        J = np.empty((len(p), 3, 3))
+        for k in range(3):
+            d = np.zeros(3)
+            d[k] = step_m
+            J[:, :, k] = (self.to_local(p + d) - self.to_local(p - d)) / (2 * step_m)
+        return J
+
+    def rotation_local_from_map(self, xyz_map) -> np.ndarray:
+        """Rotation (N, 3, 3) from grid axes at each point to ENU axes (the scale factor removed)."""
+        U, _, Vt = np.linalg.svd(self.jacobian_local_from_map(xyz_map))
+        return U @ Vt

@@ -1,0 +1,184 @@
+"""Readers and validation of the adjustment inputs (tie points, control points and their image points).
+
+``at/tiepoints.csv``: ``point_id,image_id,x_px,y_px``; ``control/points.csv``:
+``id,kind,x,y,z,sx_m,sy_m,sz_m`` with kind ``full`` (XYZ control), ``horizontal``, ``height`` or
+``check``; ``control/image_points.csv``: ``point_id,image_id,x_px,y_px``. Pixel coordinates follow
+aerotri.camera (origin at the centre of the top-left pixel, x right, y down).
+Every problem raises InputError naming the file, line and record.
+"""
+
+from __future__ import annotations
+
+import csv
+import dataclasses
+import math
+from pathlib import Path
+
+import numpy as np
+
+from aerotri.errors import InputError
+
+TIE_HEADER = ["point_id", "image_id", "x_px", "y_px"]
+CONTROL_HEADER = ["id", "kind", "x", "y", "z", "sx_m", "sy_m", "sz_m"]
+CONTROL_KINDS = ("full", "horizontal", "height", "check")
+
+
+@dataclasses.dataclass
+class ImageObservations:
+    """Image measurements, one row per (point, image); arrays aligned."""
+
+    point_id: np.ndarray  # (N,) str
+    image_id: np.ndarray  # (N,) str
+    xy_px: np.ndarray  # (N, 2)
+
+    def __len__(self):
+        return len(self.point_id)
+
+    def subset(self, mask) -> "ImageObservations":
+        return ImageObservations(self.point_id[mask], self.image_id[mask], self.xy_px[mask])
+
+
+@dataclasses.dataclass
+class ControlPoints:
+    """Ground control and check points in the project CRS."""
+
+    id: np.ndarray  # (M,) str
+    kind: np.ndarray  # (M,) str, one of CONTROL_KINDS
+    xyz_m: np.ndarray  # (M, 3)
+    sigma_m: np.ndarray  # (M, 3)
+
+    def __len__(self):
+        return len(self.id)
+
+    def subset(self, mask) -> "ControlPoints":
+        return ControlPoints(self.id[mask], self.kind[mask], self.xyz_m[mask], self.sigma_m[mask])
+
+    def with_kinds(self, kinds: dict[str, str]) -> "ControlPoints":
+        """A copy with the kind of some points changed (e.g. ``{"gcp03": "check"}``)."""
+        unknown = sorted(set(kinds) - set(self.id.tolist()))
+        if unknown:
+            raise InputError(f"control points {unknown} are not in the control point file")
+        kind = self.kind.copy()
+        for i, pid in enumerate(self.id):
+            if pid in kinds:
+                kind[i] = kinds[pid]
+        return ControlPoints(self.id.copy(), kind, self.xyz_m.copy(), self.sigma_m.copy())
+
+
+def _rows(path: Path, header: list[str]):
+    try:
+        f = path.open(newline="")
+    except FileNotFoundError:
+        raise InputError(f"{path}: file not found") from None
+    with f:
+        reader = csv.reader(f)
+        try:
+            head = next(reader)
+        except StopIteration:
+            raise InputError(f"{path}: empty file (expected header {','.join(header)})") from None
+        if [h.strip() for h in head] != header:
+            raise InputError(f"{path}:1: header {','.join(head)!r} is not {','.join(header)!r}")
+        for lineno, row in enumerate(reader, start=2):
+            if not row or (len(row) == 1 and not row[0].strip()):
+                continue
+            if len(row) != len(header):
+                raise InputError(f"{path}:{lineno}: expected {len(header)} fields ({','.join(header)}), got {row}")
+            yield lineno, [c.strip() for c in row]
+
+
+def _number(path, lineno, row, field, text) -> float:
+    try:
+        v = float(text)
+    except ValueError:
+        raise InputError(f"{path}:{lineno}: {field} = {text!r} is not a number (record {row})") from None
+    if not math.isfinite(v):
+        raise InputError(f"{path}:{lineno}: {field} is NaN or infinite (record {row})")
+    return v
+
+
+def read_image_points(path) -> ImageObservations:
+    """Read a ``point_id,image_id,x_px,y_px`` file; rejects NaN and duplicate (point, image) pairs."""
+    path = Path(path)
+    pids, iids, xy, seen = [], [], [], {}
+    for lineno, row in _rows(path, TIE_HEADER):
+        pid, iid = row[0], row[1]
+        if not pid or not iid:
+            raise InputError(f"{path}:{lineno}: empty point_id or image_id (record {row})")
+        key = (pid, iid)
+        if key in seen:
+            raise InputError(
+                f"{path}:{lineno}: duplicate measurement of point {pid!r} in image {iid!r} (first on line {seen[key]})"
+            )
+        seen[key] = lineno
+        xy.append((_number(path, lineno, row, "x_px", row[2]), _number(path, lineno, row, "y_px", row[3])))
+        pids.append(pid)
+        iids.append(iid)
+    return ImageObservations(np.array(pids, dtype=object), np.array(iids, dtype=object), np.array(xy, dtype=float).reshape(-1, 2))
+
+
+def read_control_points(path) -> ControlPoints:
+    """Read ``control/points.csv``; rejects unknown kinds, NaN, non-positive sigmas, duplicate ids."""
+    path = Path(path)
+    ids, kinds, xyz, sig, seen = [], [], [], [], {}
+    for lineno, row in _rows(path, CONTROL_HEADER):
+        pid, kind = row[0], row[1].lower()
+        if not pid:
+            raise InputError(f"{path}:{lineno}: empty id (record {row})")
+        if pid in seen:
+            raise InputError(f"{path}:{lineno}: duplicate control point id {pid!r} (first on line {seen[pid]})")
+        seen[pid] = lineno
+        if kind not in CONTROL_KINDS:
+            raise InputError(f"{path}:{lineno}: kind {row[1]!r} of point {pid!r} is not one of {', '.join(CONTROL_KINDS)}")
+        vals = [_number(path, lineno, row, f, t) for f, t in zip(CONTROL_HEADER[2:], row[2:])]
+        if min(vals[3:]) <= 0:
+            raise InputError(f"{path}:{lineno}: standard deviations of point {pid!r} must be positive (record {row})")
+        ids.append(pid)
+        kinds.append(kind)
+        xyz.append(vals[:3])
+        sig.append(vals[3:])
+    if not ids:
+        raise InputError(f"{path}: no control points")
+    return ControlPoints(
+        np.array(ids, dtype=object), np.array(kinds, dtype=object), np.array(xyz, dtype=float), np.array(sig, dtype=float)
+    )
+
+
+def validate_references(
+    ties: ImageObservations,
+    control: ControlPoints | None,
+    control_obs: ImageObservations | None,
+    image_ids: list[str],
+    tie_path="at/tiepoints.csv",
+    control_path="control/points.csv",
+    control_obs_path="control/image_points.csv",
+    camera=None,
+) -> None:
+    """Cross-file checks: unknown images, control ids without image measurement, ids in both files."""
+    known = set(image_ids)
+    for obs, path in ((ties, tie_path), (control_obs, control_obs_path)):
+        if obs is None or len(obs) == 0:
+            continue
+        bad = [i for i in np.unique(obs.image_id) if i not in known]
+        if bad:
+            raise InputError(f"{path}: image ids {bad[:5]} have no GNSS position / are not in the block")
+        if camera is not None:
+            outside = ~camera.inside(obs.xy_px[:, 0], obs.xy_px[:, 1])
+            if outside.any():
+                k = int(np.argmax(outside))
+                raise InputError(
+                    f"{path}: measurement of point {obs.point_id[k]!r} in image {obs.image_id[k]!r} at "
+                    f"({obs.xy_px[k, 0]:.1f}, {obs.xy_px[k, 1]:.1f}) px is outside the {camera.width} x {camera.height} frame"
+                )
+    if control is None:
+        return
+    measured = set() if control_obs is None else set(np.unique(control_obs.point_id).tolist())
+    missing = [p for p in control.id if p not in measured]
+    if missing:
+        raise InputError(f"{control_path}: control points {missing} have no image measurement in {control_obs_path}")
+    if control_obs is not None:
+        orphan = sorted(set(measured) - set(control.id.tolist()))
+        if orphan:
+            raise InputError(f"{control_obs_path}: point ids {orphan[:5]} are not in {control_path}")
+    clash = sorted(set(control.id.tolist()) & set(np.unique(ties.point_id).tolist()))
+    if clash:
+        raise InputError(f"{tie_path}: point ids {clash[:5]} are also control point ids in {control_path}")

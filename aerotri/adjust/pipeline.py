@@ -1,0 +1,422 @@
+"""The ``adjust`` stage over a project folder: read, validate, adjust in the local frame, convert back.
+
+Inputs: ``camera.toml``, ``gnss.txt`` (antenna positions), ``project.toml`` ([gnss] sigma_xy_m,
+sigma_z_m, lever_arm_m; [control] sigmas; optional [adjust] options), ``at/tiepoints.csv``,
+``control/points.csv``, ``control/image_points.csv``. Outputs in ``at/``: eo.txt (with standard
+deviations), object_points.csv, report.txt/json/html and exports, all written only after the whole
+adjustment succeeded.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from pathlib import Path
+
+import numpy as np
+from scipy.sparse import coo_matrix
+from scipy.sparse.csgraph import connected_components
+
+from aerotri.adjust import graph as G
+from aerotri.adjust.approximate import approximate_orientations, approximate_points
+from aerotri.adjust.local_frame import LocalFrame
+from aerotri.adjust.observations import (
+    ControlPoints,
+    ImageObservations,
+    read_control_points,
+    read_image_points,
+    validate_references,
+)
+from aerotri.adjust.solve import AdjustmentResult, adjust_block, check_point_errors
+from aerotri.adjust.strips import along_track_km, strips_from_track
+from aerotri.camera import FrameCamera
+from aerotri.eo import ExteriorOrientations, read_eo, read_gnss
+from aerotri.errors import InputError
+from aerotri.project import Project
+from aerotri.rotation import FLIP_YZ, opk_from_matrix
+
+
+@dataclasses.dataclass
+class AdjustSettings:
+    gnss_correction: str = "none"
+    lever_arm_m: tuple | None = None  # None: from project.toml [gnss] lever_arm_m (else zero)
+    self_calibration: tuple = ()
+    image_sigma_px: float | None = None  # None: project.toml [adjust] image_sigma_px, else 0.5
+    check: tuple = ()  # ids to use as check points
+    control: tuple = ()  # ids to use as (full) control even if marked check
+    snooping: bool = True
+    alpha: float = 1e-4
+    rms_limit_xy_m: float | None = None
+    rms_limit_z_m: float | None = None
+    residual_limit_m: float | None = None
+    use_gnss: bool = True
+    initial_eo: str | None = None  # EO file for approximations (blocks without GNSS)
+    point_covariances: bool = True
+
+
+@dataclasses.dataclass
+class BlockAdjustment:
+    """Everything the reports and exports need (project CRS where it says _map)."""
+
+    project_name: str
+    crs: str
+    settings: AdjustSettings
+    frame: LocalFrame
+    camera_apriori: FrameCamera
+    camera_adjusted: FrameCamera
+    block: G.Block
+    opts: G.Options
+    result: AdjustmentResult
+    eo_map: ExteriorOrientations
+    points_map: np.ndarray  # (P, 3)
+    points_sigma_map: np.ndarray  # (P, 3)
+    control: ControlPoints
+    control_index_of_point: dict  # point index -> control row
+    check: dict  # id -> dict(measured, adjusted, sigma, rays)
+    gnss_map: np.ndarray | None
+    gnss_residual_m: np.ndarray | None  # (N, 3) adjusted antenna - observed (map axes)
+    n_tie_points: int
+    check_obs: ImageObservations | None
+
+
+def _settings_from_project(project: Project, s: AdjustSettings) -> AdjustSettings:
+    cfg = project.section("adjust")
+    out = dataclasses.replace(s)
+    if out.image_sigma_px is None:
+        out.image_sigma_px = float(cfg.get("image_sigma_px", 0.5))
+    if out.lever_arm_m is None:
+        out.lever_arm_m = tuple(project.section("gnss").get("lever_arm_m", (0.0, 0.0, 0.0)))
+    return out
+
+
+def connected_image_components(n_images, obs_point, obs_image) -> list[np.ndarray]:
+    """Image index groups connected through common points."""
+    n_points = int(obs_point.max()) + 1 if len(obs_point) else 0
+    n = n_images + n_points
+    m = coo_matrix((np.ones(len(obs_point)), (obs_image, n_images + obs_point)), shape=(n, n))
+    _, labels = connected_components(m, directed=False)
+    groups = {}
+    for i in range(n_images):
+        groups.setdefault(labels[i], []).append(i)
+    return sorted((np.array(g) for g in groups.values()), key=len, reverse=True)
+
+
+def check_datum(control: ControlPoints, gnss: bool, correction: str) -> None:
+    n_xy = int(np.isin(control.kind, ["full", "horizontal"]).sum())
+    n_z = int(np.isin(control.kind, ["full", "height"]).sum())
+    if not gnss:
+        need = (2, 3)
+    elif correction == "shift":
+        need = (1, 1)
+    elif correction == "shift_drift":
+        need = (2, 2)
+    else:
+        return
+    if n_xy < need[0] or n_z < need[1]:
+        what = "without GNSS" if not gnss else f"with GNSS {correction.replace('_', ' and ')} corrections per strip"
+        raise InputError(
+            f"too few control points for the datum {what}: need at least {need[0]} with plan and {need[1]} with "
+            f"height coordinates, have {n_xy} and {n_z} (control/points.csv)"
+        )
+
+
+def prepare_project(root, settings: AdjustSettings | None = None):
+    """Read and validate a project; returns (context dict, approximate State) in the local frame."""
+    project = Project.open(root)
+    st = _settings_from_project(project, settings or AdjustSettings())
+    cam = project.camera()
+    if cam.k3:
+        raise InputError(f"{project.camera_path}: k3 is not supported by the adjustment (Cal3DS2 has k1 k2 p1 p2)")
+    tie_path = project.at_dir / "tiepoints.csv"
+    ctrl_path = project.control_dir / "points.csv"
+    cobs_path = project.control_dir / "image_points.csv"
+    ties = read_image_points(tie_path)
+    if ctrl_path.exists() or cobs_path.exists() or not (st.use_gnss and project.gnss_path.exists()):
+        control = read_control_points(ctrl_path)
+        cobs = read_image_points(cobs_path)
+    else:
+        # GNSS alone can carry the datum (no corrections per strip): the first adjustment of the
+        # chain, before LiDAR control has been transferred. check_datum refuses the other cases.
+        control = ControlPoints(np.zeros(0, dtype=object), np.zeros(0, dtype=object), np.zeros((0, 3)), np.zeros((0, 3)))
+        cobs = ImageObservations(np.zeros(0, dtype=object), np.zeros(0, dtype=object), np.zeros((0, 2)))
+    kinds = {pid: "check" for pid in st.check}
+    kinds.update({pid: "full" for pid in st.control})
+    if kinds:
+        control = control.with_kinds(kinds)
+
+    # orientation source: GNSS (normal case) or given approximate EO
+    gnss = None
+    if st.use_gnss and project.gnss_path.exists():
+        gnss = read_gnss(project.gnss_path)
+        image_ids = list(gnss.image_id)
+        approx_pos_map = gnss.position_m
+    elif st.initial_eo:
+        eo0 = read_eo(st.initial_eo)
+        image_ids = list(eo0.image_id)
+        approx_pos_map = eo0.centre_m
+    else:
+        raise InputError(f"{project.gnss_path}: missing (or give initial orientations)")
+    validate_references(ties, control, cobs, image_ids, tie_path, ctrl_path, cobs_path, camera=cam)
+    check_datum(control, gnss is not None, st.gnss_correction)
+    # images in flight order (id order), drop images without any measurement
+    order = np.argsort(np.array(image_ids, dtype=object), kind="stable")
+    measured = set(np.unique(ties.image_id).tolist()) | set(np.unique(cobs.image_id).tolist())
+    order = np.array([i for i in order if image_ids[i] in measured], dtype=int)
+    image_ids = [image_ids[i] for i in order]
+    approx_pos_map = approx_pos_map[order]
+    img_index = {k: i for i, k in enumerate(image_ids)}
+
+    frame = LocalFrame.at_centre(project.crs, approx_pos_map)
+    approx_local = frame.to_local(approx_pos_map)
+    strip = strips_from_track(approx_pos_map)
+    along = along_track_km(approx_local, strip)
+
+    # points: ties, then control points used in the adjustment; check points separately
+    is_check = control.kind == "check"
+    ctrl_used = control.subset(~is_check)
+    chk = control.subset(is_check)
+    tie_ids, tie_inv = np.unique(ties.point_id.astype(str), return_inverse=True)
+    point_id = np.concatenate([tie_ids.astype(object), ctrl_used.id])
+    ctrl_pos = {pid: len(tie_ids) + c for c, pid in enumerate(ctrl_used.id)}
+    cmask = np.isin(cobs.point_id, ctrl_used.id)
+    obs_point = np.concatenate([tie_inv, np.array([ctrl_pos[p] for p in cobs.point_id[cmask]], dtype=int)])
+    obs_image = np.array([img_index[i] for i in np.concatenate([ties.image_id, cobs.image_id[cmask]])], dtype=int)
+    obs_xy = np.vstack([ties.xy_px, cobs.xy_px[cmask]])
+
+    comps = connected_image_components(len(image_ids), obs_point, obs_image)
+    if len(comps) > 1:
+        desc = "; ".join(
+            f"component {c + 1} ({len(g)} images): " + ", ".join(image_ids[i] for i in g[:8]) + (" ..." if len(g) > 8 else "")
+            for c, g in enumerate(comps)
+        )
+        raise InputError(f"{tie_path}: the block is not connected by tie points, {len(comps)} components: {desc}")
+    rays = np.bincount(obs_point, minlength=len(point_id))
+    few = np.flatnonzero(rays[: len(tie_ids)] < 2)
+    if len(few):
+        keep = ~np.isin(obs_point, few)
+        obs_point, obs_image, obs_xy = obs_point[keep], obs_image[keep], obs_xy[keep]
+    per_image = np.bincount(obs_image, minlength=len(image_ids))
+    if per_image.min() < 3:
+        i = int(np.argmin(per_image))
+        raise InputError(f"{tie_path}: image {image_ids[i]} has only {per_image[i]} tie measurements (need >= 3)")
+
+    # GNSS in the local frame; sigmas from gnss.txt or project.toml
+    gcfg = project.section("gnss")
+    if gnss is not None:
+        gl = frame.to_local(gnss.position_m[order])
+        if gnss.sigma_m is not None:
+            gs = gnss.sigma_m[order]
+        else:
+            gs = np.tile([float(gcfg.get("sigma_xy_m", 0.05))] * 2 + [float(gcfg.get("sigma_z_m", 0.1))], (len(order), 1))
+    else:
+        gl = gs = None
+
+    # control priors in the local frame (loose components for horizontal / height points)
+    ccfg = project.section("control")
+    cov_loc, rows, given_loc = [], [], frame.to_local(ctrl_used.xyz_m) if len(ctrl_used) else np.zeros((0, 3))
+    J = frame.jacobian_local_from_map(ctrl_used.xyz_m) if len(ctrl_used) else np.zeros((0, 3, 3))
+    for c in range(len(ctrl_used)):
+        sig = ctrl_used.sigma_m[c].copy()
+        k = ctrl_used.kind[c]
+        if k == "horizontal":
+            sig[2] = G.LOOSE_SIGMA_M
+        elif k == "height":
+            sig[:2] = G.LOOSE_SIGMA_M
+        cov_loc.append(J[c] @ np.diag(sig**2) @ J[c].T)
+        rows.append({"full": 3, "horizontal": 2, "height": 1}[k])
+    del ccfg
+
+    lever = np.asarray(st.lever_arm_m, dtype=float)
+    block = G.Block(
+        image_ids, cam, point_id, obs_point, obs_image, obs_xy, gl, gs, lever, strip, along,
+        np.array([ctrl_pos[p] for p in ctrl_used.id], dtype=int), given_loc,
+        np.array(cov_loc).reshape(-1, 3, 3), np.array(rows, dtype=int),
+    )
+    opts = G.Options(
+        image_sigma_px=float(st.image_sigma_px), gnss_correction=st.gnss_correction if gl is not None else "none",
+        self_calibration=tuple(st.self_calibration),
+    )
+
+    # approximations
+    cal0 = G.cal_from_camera(cam)
+    if gl is not None:
+        centre0, R0 = approximate_orientations(gl, lever, strip, obs_point, obs_image, obs_xy)
+    else:
+        centre0 = approx_local
+        R_map = eo0.rotations()[order]
+        R0 = frame.rotation_local_from_map(eo0.centre_m[order]) @ R_map @ FLIP_YZ
+    has_height = block.control_rows != 2
+    if has_height.any():
+        ground = float(np.median(given_loc[has_height, 2]))
+    else:
+        ground = float(np.median(centre0[:, 2]) - _flying_height_guess(centre0, cam))
+    pts0 = approximate_points(obs_point, obs_image, obs_xy, centre0, R0, cal0, len(point_id), ground)
+    for c, j in enumerate(block.control_point):
+        if block.control_rows[c] == 3:
+            pts0[j] = given_loc[c]
+    state0 = G.State(centre0, R0, pts0, cal0, np.zeros((block.n_strips, 3)), np.zeros((block.n_strips, 3)))
+    ctx = dict(project=project, st=st, frame=frame, cam=cam, block=block, opts=opts, control=control, ctrl_used=ctrl_used,
+               chk=chk, cobs=cobs, image_ids=image_ids, img_index=img_index,
+               gnss_map=gnss.position_m[order] if gnss is not None else None, n_tie=len(tie_ids))
+    return ctx, state0
+
+
+def adjust_project(root, settings: AdjustSettings | None = None, progress=None) -> BlockAdjustment:
+    """Run the adjustment of a project folder (no files written; see write_outputs)."""
+    ctx, state0 = prepare_project(root, settings)
+    st = ctx["st"]
+    result = adjust_block(
+        ctx["block"], ctx["opts"], state0, snooping=st.snooping, alpha=st.alpha, point_covariances=st.point_covariances,
+        progress=progress,
+    )
+    return finish(ctx, result)
+
+
+def _flying_height_guess(centre, cam) -> float:
+    """Flying height above ground from the base between frames, assuming 60 % forward overlap."""
+    d = np.linalg.norm(np.diff(centre[:, :2], axis=0), axis=1)
+    base = np.median(d[d > 0]) if np.any(d > 0) else 100.0
+    return float(base / 0.4 / (min(cam.width, cam.height) * cam.pixel_um / (cam.focal_mm * 1000.0)))
+
+
+def pose_to_map(frame: LocalFrame, state: G.State, pose_cov):
+    """EO in the project CRS with standard deviations (sX sY sZ m, somega sphi skappa deg)."""
+    centre_map = frame.to_map(state.centre)
+    R_l2m = np.swapaxes(frame.rotation_local_from_map(centre_map), -1, -2)
+    R_opk_local = state.R_cv @ FLIP_YZ
+    R_map = R_l2m @ R_opk_local
+    opk = np.stack(opk_from_matrix(R_map), axis=-1)
+    sigma = None
+    if pose_cov is not None:
+        sigma = np.zeros((len(opk), 6))
+        eps = 1e-7
+        for i in range(len(opk)):
+            Jr = np.zeros((3, 3))
+            for q in range(3):
+                w = np.zeros(3)
+                w[q] = eps
+                Rp = R_l2m[i] @ state.R_cv[i] @ _expm(w) @ FLIP_YZ
+                d = np.array(opk_from_matrix(Rp)) - opk[i]
+                Jr[:, q] = ((d + 180) % 360 - 180) / eps
+            cov_rot = Jr @ pose_cov[i, :3, :3] @ Jr.T
+            Rc = R_l2m[i] @ state.R_cv[i]
+            cov_c = Rc @ pose_cov[i, 3:, 3:] @ Rc.T
+            sigma[i, :3] = np.sqrt(np.diag(cov_c))
+            sigma[i, 3:] = np.sqrt(np.diag(cov_rot))
+    return centre_map, opk, sigma
+
+
+def _expm(w):
+    th = np.linalg.norm(w)
+    K = np.array([[0, -w[2], w[1]], [w[2], 0, -w[0]], [-w[1], w[0], 0]])
+    if th < 1e-12:
+        return np.eye(3) + K
+    return np.eye(3) + np.sin(th) / th * K + (1 - np.cos(th)) / th**2 * K @ K
+
+
+def finish(ctx: dict, result: AdjustmentResult) -> BlockAdjustment:
+    """Convert an adjustment result to the project CRS and intersect the check points."""
+    project, st, frame, cam, block, opts = (ctx[k] for k in ("project", "st", "frame", "cam", "block", "opts"))
+    ctrl_used, chk, cobs, image_ids, img_index = (ctx[k] for k in ("ctrl_used", "chk", "cobs", "image_ids", "img_index"))
+    gnss_map, n_tie = ctx["gnss_map"], ctx["n_tie"]
+    state = result.state
+    centre_map, opk, eo_sigma = pose_to_map(frame, state, result.pose_cov)
+    eo = ExteriorOrientations(list(image_ids), centre_map, opk, eo_sigma)
+    pts_map = frame.to_map(state.points)
+    used = np.zeros(block.n_points, dtype=bool)
+    used[block.obs_point[result.obs_active]] = True
+    pts_map[~used] = np.nan
+    psig = np.full((block.n_points, 3), np.nan)
+    if result.point_cov is not None:
+        Jinv = np.linalg.inv(frame.jacobian_local_from_map(frame.to_map(state.points[:1]))[0])
+        psig = np.sqrt(np.abs(np.einsum("ij,pjk,ik->pi", Jinv, result.point_cov, Jinv)))
+    # check points
+    check = {}
+    chk_obs = None
+    if len(chk):
+        m = np.isin(cobs.point_id, chk.id)
+        chk_obs = cobs.subset(m)
+        cid = {p: c for c, p in enumerate(chk.id)}
+        opi = np.array([cid[p] for p in chk_obs.point_id], dtype=int)
+        oim = np.array([img_index[i] for i in chk_obs.image_id], dtype=int)
+        P, C, rays = check_point_errors(chk_obs.xy_px, oim, opi, len(chk), state, opts, result, st.alpha)
+        Pm = frame.to_map(np.nan_to_num(P))
+        Jinv = np.linalg.inv(frame.jacobian_local_from_map(chk.xyz_m))
+        for c, pid in enumerate(chk.id):
+            ok = np.all(np.isfinite(P[c]))
+            cov_map = Jinv[c] @ C[c] @ Jinv[c].T if ok else np.full((3, 3), np.nan)
+            check[pid] = {
+                "measured_m": chk.xyz_m[c].tolist(),
+                "adjusted_m": Pm[c].tolist() if ok else [float("nan")] * 3,
+                "sigma_m": np.sqrt(np.abs(np.diag(cov_map))).tolist(),
+                "given_sigma_m": chk.sigma_m[c].tolist(),
+                "rays": int(rays[c]),
+            }
+    gres = None
+    if gnss_map is not None:
+        ant_local = state.centre + np.einsum("nij,j->ni", state.R_cv, FLIP_YZ @ block.lever_arm_m)
+        corr = state.shift[block.strip] + (state.drift[block.strip] * block.along_km[:, None] if opts.gnss_correction == "shift_drift" else 0.0)
+        if opts.gnss_correction == "none":
+            corr = 0.0 * corr
+        gres = frame.to_map(ant_local + corr) - gnss_map
+    return BlockAdjustment(
+        project.name, project.crs, st, frame, cam, G.camera_from_cal(state.cal, cam), block, opts, result, eo, pts_map,
+        psig, ctrl_used, {int(j): c for c, j in enumerate(block.control_point)}, check, gnss_map, gres, n_tie, chk_obs,
+    )
+
+
+def object_points_csv(ba: BlockAdjustment) -> str:
+    """``id,kind,x,y,z,sx_m,sy_m,sz_m,rays,rms_px`` for all adjusted points (project CRS)."""
+    b, r = ba.block, ba.result
+    act = r.obs_active
+    rays = np.bincount(b.obs_point[act], minlength=b.n_points)
+    ss = np.bincount(b.obs_point[act], (r.residual_px[act] ** 2).sum(1), minlength=b.n_points)
+    rms = np.sqrt(ss / np.maximum(2 * rays, 1))
+    kind = np.array(["tie"] * b.n_points, dtype=object)
+    for c, j in enumerate(b.control_point):
+        kind[j] = ba.control.kind[c] if r.control_active[c] else "rejected_control"
+    lines = ["id,kind,x,y,z,sx_m,sy_m,sz_m,rays,rms_px"]
+    for j in np.flatnonzero(rays > 0):
+        x, y, z = ba.points_map[j]
+        sx, sy, sz = ba.points_sigma_map[j]
+        lines.append(f"{b.point_id[j]},{kind[j]},{x:.4f},{y:.4f},{z:.4f},{sx:.4f},{sy:.4f},{sz:.4f},{rays[j]},{rms[j]:.3f}")
+    return "\n".join(lines) + "\n"
+
+
+def write_outputs(ba: BlockAdjustment, root, html: bool = True, exports: bool = True) -> dict:
+    """Write at/eo.txt, object_points.csv, report.txt/json/html and exports; returns the report dict.
+
+    All texts are produced first and written afterwards (each atomically), so an error in any of
+    them leaves no partial output.
+    """
+    import json
+
+    from aerotri.adjust import export, report
+    from aerotri.eo import format_eo
+    from lidarctl.atomic import write_text_atomic
+
+    at = Project.open(root).at_dir
+    rep = report.build_report(ba)
+    files = {
+        "eo.txt": format_eo(ba.eo_map),
+        "object_points.csv": object_points_csv(ba),
+        "report.txt": report.format_txt(rep),
+        "report.json": json.dumps(rep, indent=1, allow_nan=False, default=_json_default),
+    }
+    if html:
+        files["report.html"] = report.format_html(rep, ba)
+    if exports:
+        files.update(export.patb_files(ba))
+        files.update(export.colmap_files(ba))
+    for rel, text in files.items():
+        write_text_atomic(at / rel, text)
+    return rep
+
+
+def _json_default(o):
+    if isinstance(o, (np.integer,)):
+        return int(o)
+    if isinstance(o, (np.floating,)):
+        return float(o)
+    if isinstance(o, np.ndarray):
+        return o.tolist()
+    raise TypeError(type(o))

@@ -1,0 +1,352 @@
+"""Adjustment reports: ``report.json`` (all numbers), ``report.txt`` (ISAT Photo-T "Parameters and
+Results" layout, then PATB-style RMS tables, control and check tables, per-photo and per-point lists)
+and ``report.html`` (the same plus plots). Layouts: /work/shared/design/reports.md.
+Residuals are observed minus adjusted for image points, adjusted minus given for ground coordinates.
+"""
+
+from __future__ import annotations
+
+import base64
+import io
+import math
+import tomllib
+from pathlib import Path
+
+import numpy as np
+
+from aerotri.adjust import graph as G
+
+TOLERANCES = Path(__file__).with_name("tolerances") / "cn_1to5000_1to10000.toml"
+
+
+def _rms(a, axis=0):
+    a = np.asarray(a, dtype=float)
+    if a.size == 0:
+        return np.full(a.shape[1:] if a.ndim > 1 else (), np.nan)
+    return np.sqrt(np.nanmean(a**2, axis=axis))
+
+
+def _f(x, nd=3):
+    if x is None or (isinstance(x, float) and not math.isfinite(x)):
+        return None
+    return round(float(x), nd)
+
+
+def _lst(a, nd=3):
+    return [_f(v, nd) for v in np.asarray(a, dtype=float).ravel()]
+
+
+def build_report(ba, terrain: str = "flat") -> dict:
+    """All report numbers as a JSON-ready dict (keys with units)."""
+    r, b, opts, st = ba.result, ba.block, ba.opts, ba.settings
+    cam = ba.camera_apriori
+    pix_um = cam.pixel_um
+    s0_um = r.sigma0 * opts.image_sigma_px * pix_um
+    with open(TOLERANCES, "rb") as f:
+        tol = tomllib.load(f)[terrain]
+    rms_lim = [st.rms_limit_xy_m or tol["rms_xy_m"]] * 2 + [st.rms_limit_z_m or tol["rms_z_m"]]
+    res_lim = [st.residual_limit_m or tol["residual_xy_m"]] * 2 + [st.residual_limit_m or tol["residual_z_m"]]
+
+    active = r.obs_active
+    is_ctrl_obs = np.isin(b.obs_point, b.control_point)
+    v_um = r.residual_px * pix_um
+    # terrain units: image residual times the image scale at the point (depth / focal)
+    depth = np.einsum("kji,kj->ki", r.state.R_cv[b.obs_image], r.state.points[b.obs_point] - r.state.centre[b.obs_image])[:, 2]
+    v_m = r.residual_px * (depth / cam.focal_px)[:, None]
+    tie = active & ~is_ctrl_obs
+    ctl = active & is_ctrl_obs
+
+    def rms_block(mask):
+        if not mask.any():
+            return {"obs_x": 0, "obs_y": 0}
+        return {
+            "obs_x": int(mask.sum()), "obs_y": int(mask.sum()),
+            "rms_x_um": _f(_rms(v_um[mask, 0])), "rms_y_um": _f(_rms(v_um[mask, 1])),
+            "rms_x_m": _f(_rms(v_m[mask, 0]), 4), "rms_y_m": _f(_rms(v_m[mask, 1]), 4),
+            "chv_x_um": _f(np.max(np.abs(v_um[mask, 0]))), "chv_y_um": _f(np.max(np.abs(v_um[mask, 1]))),
+        }
+
+    # control points: ground residuals in the project CRS, adjusted minus given
+    control_rows = []
+    for c, pid in enumerate(ba.control.id):
+        j = b.control_point[c]
+        k = np.flatnonzero(b.obs_point == j)
+        adj = ba.points_map[j]
+        d = adj - ba.control.xyz_m[c]
+        kind = ba.control.kind[c]
+        comp = {"full": [1, 1, 1], "horizontal": [1, 1, 0], "height": [0, 0, 1]}[kind]
+        d = np.where(np.array(comp, dtype=bool), d, np.nan)
+        rejected = not r.control_active[c]
+        control_rows.append({
+            "id": pid, "kind": kind, "used": not rejected, "rays": int(active[k].sum()),
+            "given_m": _lst(ba.control.xyz_m[c], 4), "adjusted_m": _lst(adj, 4), "residual_m": _lst(d, 4),
+            "image_rms_um": _f(_rms(v_um[k][active[k]].ravel())) if active[k].any() else None,
+        })
+    used_ctrl = [row for row in control_rows if row["used"]]
+    cres = np.array([row["residual_m"] for row in used_ctrl], dtype=float).reshape(-1, 3)
+    rms_control = _rms(cres) if len(cres) else np.full(3, np.nan)
+
+    # check points
+    check_rows, dchk, nchk = [], [], []
+    for pid, c in ba.check.items():
+        d = np.array(c["adjusted_m"]) - np.array(c["measured_m"])
+        ok = np.all(np.isfinite(d))
+        sig = np.hypot(np.array(c["sigma_m"]), np.array(c["given_sigma_m"]))
+        check_rows.append({"id": pid, "rays": c["rays"], "measured_m": _lst(c["measured_m"], 4), "adjusted_m": _lst(c["adjusted_m"], 4),
+                           "d_m": _lst(d, 4), "sigma_m": _lst(c["sigma_m"], 4)})
+        if ok:
+            dchk.append(d)
+            nchk.append(d / sig)
+    dchk, nchk = np.array(dchk).reshape(-1, 3), np.array(nchk).reshape(-1, 3)
+
+    # photos
+    centre_sig = ba.eo_map.sigma[:, :3] if ba.eo_map.sigma is not None else None
+    att_sig = ba.eo_map.sigma[:, 3:] if ba.eo_map.sigma is not None else None
+    photos = []
+    for i, iid in enumerate(b.image_id):
+        k = active & (b.obs_image == i)
+        row = {"image_id": iid, "strip": int(b.strip[i]) + 1, "obs": int(k.sum()),
+               "rms_x_um": _f(_rms(v_um[k, 0])), "rms_y_um": _f(_rms(v_um[k, 1]))}
+        if ba.gnss_residual_m is not None:
+            row["gnss_residual_m"] = _lst(ba.gnss_residual_m[i], 4)
+        if ba.eo_map.sigma is not None:
+            row["sigma_position_m"] = _lst(centre_sig[i], 4)
+            row["sigma_attitude_deg"] = _lst(att_sig[i], 5)
+        photos.append(row)
+
+    # per-point residuals: the tie points with the largest image residual RMS (all points: object_points.csv)
+    n_rays = np.bincount(b.obs_point[tie], minlength=b.n_points)
+    ss = np.bincount(b.obs_point[tie], (v_um[tie] ** 2).sum(1), minlength=b.n_points)
+    pt_rms = np.sqrt(ss / np.maximum(2 * n_rays, 1))
+    worst = [j for j in np.argsort(-pt_rms)[:20] if n_rays[j] > 0]
+    worst_points = [{"point_id": str(b.point_id[j]), "rays": int(n_rays[j]), "rms_um": _f(pt_rms[j], 2),
+                     "xyz_m": _lst(ba.points_map[j], 3)} for j in worst]
+    removed = [{"point_id": str(b.point_id[b.obs_point[x.obs]]), "image_id": b.image_id[b.obs_image[x.obs]],
+                "w": _f(x.w, 2), "round": x.round, "residual_px": _lst(r.residual_px[x.obs], 2)} for x in r.removed]
+    rejected = [{"id": str(ba.control.id[c]), "w": _f(w, 2)} for c, w in r.rejected_control]
+
+    tie_pts = np.setdiff1d(np.unique(b.obs_point[active]), b.control_point)
+    sd_tie = ba.points_sigma_map[tie_pts]
+    mean_sd_obj = np.nanmean(sd_tie, axis=0) if len(tie_pts) and np.isfinite(sd_tie).any() else np.full(3, np.nan)
+    ratio = None
+    tie_rms = rms_block(tie)
+    ctl_rms = rms_block(ctl)
+    if ctl.any() and tie.any():
+        ratio = float(_rms(v_um[ctl].ravel()) / _rms(v_um[tie].ravel()))
+    warning = None
+    if ratio is not None and ratio > 10.0:
+        warning = (f"control image residuals are {ratio:.1f} x the tie residuals (> 10): a systematic error "
+                   "(camera, GNSS, datum or control coordinates) is worth compensating")
+
+    cal_sd = np.sqrt(np.diag(r.cal_cov)) if r.cal_cov is not None else None
+    selfcal = None
+    if opts.self_calibration:
+        names = ["fx_px", "fy_px", "skew_px", "u0_px", "v0_px", "k1", "k2", "p1", "p2"]
+        selfcal = {"groups": list(opts.self_calibration), "apriori": dict(zip(names, _lst(G.cal_from_camera(cam), 8))),
+                   "adjusted": dict(zip(names, _lst(r.state.cal, 8))),
+                   "std_dev": dict(zip(names, _lst(cal_sd, 8))) if cal_sd is not None else None,
+                   "camera": ba.camera_adjusted.to_dict()}
+    gps_mode = {"none": "Disabled", "shift": "Enabled (shift per strip)", "shift_drift": "Enabled (shift and drift per strip)"}
+    has_gnss = b.gnss_local is not None
+    success = bool(r.info.converged and math.isfinite(r.sigma0))
+    xy = lambda a: _f(math.hypot(a[0], a[1]), 4) if a is not None and np.all(np.isfinite(a[:2])) else None  # noqa: E731
+    params = {
+        "rms_control_m": _lst(rms_control, 4) + [xy(rms_control)],
+        "rms_check_m": (_lst(_rms(dchk), 4) + [xy(_rms(dchk))]) if len(dchk) else None,
+        "rms_limits_m": _lst(rms_lim, 3) + [None],
+        "max_ground_residual_m": (_lst(np.nanmax(np.abs(cres), axis=0), 4) + [None]) if len(cres) else None,
+        "residual_limits_m": _lst(res_lim, 3) + [None],
+        "mean_std_dev_object_m": _lst(mean_sd_obj, 4) + [xy(mean_sd_obj)],
+        "rms_photo_position_m": (_lst(_rms(ba.gnss_residual_m), 4) + [xy(_rms(ba.gnss_residual_m))]) if has_gnss else None,
+        "rms_photo_attitude_deg": None,
+        "mean_std_dev_photo_position_m": (_lst(np.mean(centre_sig, axis=0), 4) + [None]) if centre_sig is not None else None,
+        "mean_std_dev_photo_attitude_deg": (_lst(np.mean(att_sig, axis=0), 5) + [None]) if att_sig is not None else None,
+    }
+    return {
+        "project": ba.project_name,
+        "crs": ba.crs,
+        "options": {
+            "adjustment_mode": "Absolute" if (len(ba.control) or has_gnss) else "Relative",
+            "precision_computation": "Enabled" if r.pose_cov is not None else "Disabled",
+            "error_detection": "Enabled" if st.snooping else "Disabled",
+            "camera_calibration": "Enabled",
+            "self_calibration": ("Enabled (" + ", ".join(opts.self_calibration) + ")") if opts.self_calibration else "Disabled",
+            "given_eo_gps": "Enabled" if has_gnss else "Disabled",
+            "antenna_offsets": ("Enabled (" + ", ".join(f"{v:.3f}" for v in b.lever_arm_m) + " m)") if has_gnss and np.any(b.lever_arm_m) else "Disabled",
+            "gps_shift_drift_correction": gps_mode[opts.gnss_correction] if has_gnss else "Disabled",
+            "ins_shift_drift_correction": "Disabled",
+            "image_sigma_px": opts.image_sigma_px,
+            "snooping_alpha": st.alpha,
+        },
+        "parameters": params,
+        "key_statistics": {
+            "sigma0_um": _f(s0_um), "sigma0": _f(r.sigma0, 4), "iterations": int(r.iterations_total),
+            "degrees_of_freedom": int(r.info.dof), "success": success,
+            "message": "Solution Successful." if success else "Solution failed: the last solve did not converge.",
+        },
+        "counts": {"images": b.n_images, "strips": b.n_strips, "tie_points": int(len(tie_pts)),
+                   "control_points": int(len(used_ctrl)), "check_points": int(len(check_rows)),
+                   "image_observations": int(active.sum()), "removed_observations": len(removed)},
+        "image_residuals": {"tie": tie_rms, "control": ctl_rms, "control_to_tie_ratio": _f(ratio, 2), "warning": warning},
+        "control_points": control_rows,
+        "rms_control_ground_m": _lst(rms_control, 4),
+        "rejected_control": rejected,
+        "check_points": check_rows,
+        "check_sum_m": _lst(dchk.sum(axis=0), 4) if len(dchk) else None,
+        "check_rms_m": _lst(_rms(dchk), 4) if len(dchk) else None,
+        "check_normalised_rms": _lst(_rms(nchk), 3) if len(nchk) else None,
+        "photos": photos,
+        "removed_observations": removed,
+        "worst_tie_points": worst_points,
+        "self_calibration": selfcal,
+        "gnss_strips": [{"strip": s + 1, "shift_m": _lst(r.state.shift[s], 4), "drift_m_per_km": _lst(r.state.drift[s], 4)}
+                        for s in range(b.n_strips)] if opts.gnss_correction != "none" else None,
+        "timings_s": {k: _f(v, 3) for k, v in r.timings_s.items()},
+    }
+
+
+def _v(x, w=10, nd=3):
+    return f"{'' if x is None else f'{x:.{nd}f}':>{w}}"
+
+
+def format_txt(rep: dict) -> str:
+    o = rep["options"]
+    L = [f"Photo-T Parameters and Results for Project {rep['project']}", "", "PhotoT Triangulation Options"]
+    for name, key in [("Adjustment Mode", "adjustment_mode"), ("Precision Computation", "precision_computation"),
+                      ("Error Detection", "error_detection"), ("Camera Calibration", "camera_calibration"),
+                      ("Self-Calibration", "self_calibration"), ("Given EO/GPS", "given_eo_gps"),
+                      ("Antenna Offsets", "antenna_offsets"), ("GPS Shift/Drift Correction", "gps_shift_drift_correction"),
+                      ("INS Shift/Drift Correction", "ins_shift_drift_correction")]:
+        L.append(f"  {name} : {o[key]}")
+    L += ["", "Parameters", f"{'':32}{'X/Omega':>10}{'Y/Phi':>10}{'Z/Kappa':>10}{'XY':>10}"]
+    rows = [("RMS Control (m)", "rms_control_m", 3), ("RMS Check (m)", "rms_check_m", 3), ("RMS Limits (m)", "rms_limits_m", 3),
+            ("Max Ground Residual (m)", "max_ground_residual_m", 3), ("Residual Limits (m)", "residual_limits_m", 3),
+            ("Mean Std Dev Object (m)", "mean_std_dev_object_m", 3), ("RMS Photo Position (m)", "rms_photo_position_m", 3),
+            ("RMS Photo Attitude (deg)", "rms_photo_attitude_deg", 4),
+            ("Mean Std Dev Photo Position (m)", "mean_std_dev_photo_position_m", 3),
+            ("Mean Std Dev Photo Attitude (deg)", "mean_std_dev_photo_attitude_deg", 4)]
+    for label, key, nd in rows:
+        vals = rep["parameters"][key] or [None] * 4
+        L.append(f"{label:32}" + "".join(_v(x, 10, nd) for x in vals))
+    k = rep["key_statistics"]
+    L += ["", "Key Statistics", f"  Sigma: {k['sigma0_um']:.2f} um", f"  Number of iterations: {k['iterations']}",
+          f"  Degrees of Freedom: {k['degrees_of_freedom']}", f"  {k['message']}", ""]
+    c = rep["counts"]
+    L.append(f"Images {c['images']} in {c['strips']} strips, tie points {c['tie_points']}, control points {c['control_points']}, "
+             f"check points {c['check_points']}, image observations {c['image_observations']}, removed {c['removed_observations']}")
+    ir = rep["image_residuals"]
+    L += ["", "ROOT MEAN SQUARE VALUES AND CHECKVALUES OF RESIDUALS OF PHOTOGRAMMETRIC OBSERVATIONS"]
+    for name, blk in (("tie points", ir["tie"]), ("control points", ir["control"])):
+        if blk.get("obs_x"):
+            for ax in "xy":
+                L.append(f"  {name:15} obs {ax} = {blk['obs_' + ax]:7d}  rms {ax} = {blk['rms_' + ax + '_um']:7.2f} um"
+                         f"  rms {ax} = {blk['rms_' + ax + '_m']:7.4f} m  chv v{ax} = {blk['chv_' + ax + '_um']:7.2f} um")
+    if ir["control_to_tie_ratio"] is not None:
+        L.append(f"  control / tie image residual ratio: {ir['control_to_tie_ratio']:.2f}")
+    if ir["warning"]:
+        L.append(f"  WARNING: {ir['warning']}")
+    L += ["", "ROOT MEAN SQUARE VALUES AND CHECKVALUES OF RESIDUALS OF NONPHOTOGRAMMETRIC OBSERVATIONS (control, m)"]
+    used = [r for r in rep["control_points"] if r["used"]]
+    for a, ax in enumerate("xyz"):
+        vals = [r["residual_m"][a] for r in used if r["residual_m"][a] is not None]
+        if vals:
+            L.append(f"  obs {ax} = {len(vals):4d}  rms = {np.sqrt(np.mean(np.square(vals))):8.4f} m  chv = {np.max(np.abs(vals)):8.4f} m")
+    L += ["", "Control points (residual = adjusted - given, m; image rms in um)",
+          f"{'id':>12} {'kind':>10} {'used':>5} {'rays':>4} {'dX':>9} {'dY':>9} {'dZ':>9} {'img um':>8}"]
+    for r in rep["control_points"]:
+        d = r["residual_m"]
+        L.append(f"{r['id']:>12} {r['kind']:>10} {'yes' if r['used'] else 'NO':>5} {r['rays']:4d}" + "".join(_v(x, 10, 4) for x in d)
+                 + _v(r["image_rms_um"], 9, 2))
+    if rep["rejected_control"]:
+        L += ["", "Control points failing the test (excluded):"] + [f"  {x['id']}  w = {x['w']}" for x in rep["rejected_control"]]
+    L += ["", "Check points (d = adjusted - measured, m)",
+          f"{'id':>12} {'X':>13} {'Y':>13} {'Z':>9} {'X adj':>13} {'Y adj':>13} {'Z adj':>9} {'dX':>8} {'dY':>8} {'dZ':>8}"]
+    for r in rep["check_points"]:
+        m, a, d = r["measured_m"], r["adjusted_m"], r["d_m"]
+        L.append(f"{r['id']:>12}" + _v(m[0], 14, 3) + _v(m[1], 14, 3) + _v(m[2], 10, 3) + _v(a[0], 14, 3) + _v(a[1], 14, 3)
+                 + _v(a[2], 10, 3) + "".join(_v(x, 9, 3) for x in d))
+    if rep["check_sum_m"]:
+        L.append(f"{'sum':>12}" + " " * 84 + "".join(_v(x, 9, 3) for x in rep["check_sum_m"]))
+        L.append(f"{'rms':>12}" + " " * 84 + "".join(_v(x, 9, 3) for x in rep["check_rms_m"]))
+        L.append(f"  normalised check errors (d / sigma), RMS X Y Z: " + " ".join(f"{x:.2f}" for x in rep["check_normalised_rms"]))
+    if rep["self_calibration"]:
+        sc = rep["self_calibration"]
+        L += ["", "Self-calibration (" + ", ".join(sc["groups"]) + ")", f"{'param':>8} {'a priori':>14} {'adjusted':>14} {'std dev':>12}"]
+        for name in sc["adjusted"]:
+            sd = (sc["std_dev"] or {}).get(name)
+            L.append(f"{name:>8} {sc['apriori'][name]:14.6g} {sc['adjusted'][name]:14.6g} {'' if sd is None else f'{sd:12.3g}'}")
+    if rep["gnss_strips"]:
+        L += ["", "GNSS corrections per strip", f"{'strip':>6} {'shift X':>9} {'Y':>9} {'Z':>9} {'drift X':>9} {'Y':>9} {'Z':>9} (m, m/km)"]
+        for s in rep["gnss_strips"]:
+            L.append(f"{s['strip']:6d}" + "".join(_v(x, 10, 3) for x in s["shift_m"] + s["drift_m_per_km"]))
+    L += ["", "Photos (image residual RMS um; GNSS residual m; std dev of position m)",
+          f"{'image':>12} {'strip':>5} {'obs':>5} {'rms x':>7} {'rms y':>7} {'gX':>8} {'gY':>8} {'gZ':>8} {'sX':>7} {'sY':>7} {'sZ':>7}"]
+    for p in rep["photos"]:
+        g = p.get("gnss_residual_m", [None] * 3)
+        s = p.get("sigma_position_m", [None] * 3)
+        L.append(f"{p['image_id']:>12} {p['strip']:5d} {p['obs']:5d}" + _v(p["rms_x_um"], 8, 2) + _v(p["rms_y_um"], 8, 2)
+                 + "".join(_v(x, 9, 3) for x in g) + "".join(_v(x, 8, 3) for x in s))
+    L += ["", "Tie points with the largest image residuals (all points with their RMS: object_points.csv)",
+          f"{'point':>12} {'rays':>4} {'rms um':>8} {'X':>13} {'Y':>13} {'Z':>9}"]
+    for x in rep["worst_tie_points"]:
+        L.append(f"{x['point_id']:>12} {x['rays']:4d} {x['rms_um']:8.2f}" + _v(x["xyz_m"][0], 14, 3) + _v(x["xyz_m"][1], 14, 3)
+                 + _v(x["xyz_m"][2], 10, 3))
+    L += ["", f"Removed observations ({len(rep['removed_observations'])}; w = standardised residual)"]
+    for x in rep["removed_observations"]:
+        L.append(f"  {x['point_id']:>10} {x['image_id']:>12}  w = {x['w']:8.2f}  v = {x['residual_px'][0]:8.2f} {x['residual_px'][1]:8.2f} px  round {x['round']}")
+    return "\n".join(L) + "\n"
+
+
+def _png(fig) -> str:
+    import matplotlib.pyplot as plt
+
+    buf = io.BytesIO()
+    fig.savefig(buf, format="png", dpi=90, bbox_inches="tight")
+    plt.close(fig)
+    return base64.b64encode(buf.getvalue()).decode()
+
+
+def format_html(rep: dict, ba) -> str:
+    """report.html: the txt report plus residual vectors over the block, layout and histograms."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import jinja2
+    import matplotlib.pyplot as plt
+
+    b, r = ba.block, ba.result
+    act = r.obs_active
+    figs = []
+    # residual vectors over the block (object positions of the points, vectors exaggerated)
+    fig, ax = plt.subplots(figsize=(8, 6))
+    P = ba.points_map[b.obs_point[act]]
+    v = r.residual_px[act]
+    scale = 0.05 * (np.nanmax(P[:, 0]) - np.nanmin(P[:, 0]) + 1) / max(np.nanpercentile(np.hypot(*v.T), 99), 1e-9)
+    sel = np.arange(len(P))[:: max(1, len(P) // 5000)]
+    ax.quiver(P[sel, 0], P[sel, 1], v[sel, 0] * scale, -v[sel, 1] * scale, angles="xy", scale_units="xy", scale=1, width=0.002)
+    ax.set_title("Image residuals at the object points (exaggerated)")
+    ax.set_aspect("equal")
+    figs.append(("Residual vectors", _png(fig)))
+    # control / check layout
+    fig, ax = plt.subplots(figsize=(8, 6))
+    ax.plot(ba.eo_map.centre_m[:, 0], ba.eo_map.centre_m[:, 1], ".", color="0.6", label="projection centres")
+    for row in rep["control_points"]:
+        ax.plot(row["given_m"][0], row["given_m"][1], "^" if row["used"] else "x", color="tab:red")
+        ax.annotate(row["id"], row["given_m"][:2], fontsize=7)
+    for row in rep["check_points"]:
+        ax.plot(row["measured_m"][0], row["measured_m"][1], "o", color="tab:blue", mfc="none")
+    ax.set_aspect("equal")
+    ax.set_title("Control (triangles, x = rejected) and check points (circles)")
+    figs.append(("Control and check layout", _png(fig)))
+    fig, axs = plt.subplots(1, 2, figsize=(10, 4))
+    for a, ax in enumerate(axs):
+        ax.hist(r.residual_px[act, a] * ba.camera_apriori.pixel_um, bins=60)
+        ax.set_xlabel(f"v{'xy'[a]} (um)")
+    figs.append(("Residual histograms", _png(fig)))
+    tpl = jinja2.Template(
+        "<!doctype html><html><head><meta charset='utf-8'><title>Photo-T report {{ name }}</title></head><body>"
+        "<h1>Photo-T Parameters and Results for Project {{ name }}</h1>"
+        "{% for t, img in figs %}<h2>{{ t }}</h2><img src='data:image/png;base64,{{ img }}'>{% endfor %}"
+        "<h2>Report</h2><pre>{{ txt | e }}</pre></body></html>"
+    )
+    return tpl.render(name=rep["project"], figs=figs, txt=format_txt(rep))

@@ -1,0 +1,247 @@
+"""The adjustment procedure: robust solution, data snooping, control-point test, final least squares,
+marginal covariances and check points (all in the local frame)."""
+
+from __future__ import annotations
+
+import dataclasses
+import time
+
+import numpy as np
+
+from aerotri.adjust import graph as G
+from aerotri.adjust.check_points import intersect_with_covariance
+from aerotri.adjust.covariance import ReducedCovariance
+from aerotri.adjust.covariance import point_covariances as point_covariances_rcs
+from aerotri.adjust.snooping import (
+    critical_value,
+    redundancy_numbers,
+    robust_sigma0,
+    standardised_residuals,
+    worst_per_point,
+)
+
+
+@dataclasses.dataclass
+class Removed:
+    obs: int  # index into block observations
+    w: float  # standardised residual when removed
+    round: int
+
+
+@dataclasses.dataclass
+class AdjustmentResult:
+    state: G.State
+    info: G.SolveInfo
+    sigma0: float  # a-posteriori sigma naught (unitless, relative to image_sigma_px)
+    obs_active: np.ndarray
+    control_active: np.ndarray
+    removed: list
+    rejected_control: list  # (control index, w)
+    residual_px: np.ndarray  # (K, 2), observed - computed
+    redundancy: np.ndarray  # (K, 2)
+    pose_cov: np.ndarray | None  # (N, 6, 6) pose tangent [omega, v], a posteriori (x sigma0^2)
+    point_cov: np.ndarray | None  # (P, 3, 3) local frame, a posteriori
+    cal_cov: np.ndarray | None  # (9, 9)
+    marginals: object
+    iterations_total: int
+    timings_s: dict
+
+
+def adjust_block(
+    block: G.Block,
+    opts: G.Options,
+    state0: G.State,
+    snooping: bool = True,
+    alpha: float = 1e-4,
+    compute_marginals: bool = True,
+    point_covariances: bool = True,
+    max_rounds: int = 15,
+    progress=None,
+) -> AdjustmentResult:
+    """Adjust the block; with ``snooping``, remove blunders (image points, then control points)."""
+    t_start = time.perf_counter()
+    crit = critical_value(alpha)
+    obs_active = np.ones(len(block.obs_point), dtype=bool)
+    control_active = np.ones(len(block.control_point), dtype=bool)
+    removed, rejected = [], []
+    state = state0.copy()
+    iterations = 0
+    timings = {"robust_s": 0.0, "final_s": 0.0, "marginals_s": 0.0}
+
+    is_control_obs = np.isin(block.obs_point, block.control_point)
+
+    def snoop(st, rnd, with_control=True):
+        # control-point rays are tested only after the control points themselves: a wrong control
+        # coordinate pulls its rays, which would otherwise be removed in its place
+        v = G.image_residuals(block, st)
+        r = redundancy_numbers(block.obs_point, block.obs_image, st.points, st.centre, st.R_cv, st.cal, obs_active)
+        s0 = robust_sigma0(v, r, obs_active)
+        w = standardised_residuals(v, r, s0)
+        testable = obs_active if with_control else obs_active & ~is_control_obs
+        bad = worst_per_point(w, block.obs_point, testable, crit)
+        for k in np.flatnonzero(bad):
+            removed.append(Removed(int(k), float(w[k]), rnd))
+        obs_active[bad] = False
+        _drop_weak_points(block, obs_active)
+        return int(bad.sum())
+
+    _drop_weak_points(block, obs_active, state)
+    rnd = 0
+    if snooping:
+        while rnd < max_rounds:
+            rnd += 1
+            t0 = time.perf_counter()
+            gr = G.build_graph(block, opts, state, obs_active, control_active, robust=True)
+            # robust rounds only need to be close: the next round starts from here, the final one polishes
+            # (the first round runs to convergence: snooping needs residuals of a converged solution)
+            quick = dataclasses.replace(opts, max_iterations=30, relative_tolerance=1e-6)
+            values, info = G.optimize(gr, opts if rnd == 1 else quick)
+            timings["robust_s"] += time.perf_counter() - t0
+            iterations += info.iterations
+            state = G.state_from_values(values, block, opts, state)
+            if progress:
+                progress(f"robust round {rnd}: {info.iterations} iterations, {obs_active.sum()} observations")
+            if snoop(state, rnd, with_control=False):
+                continue
+            # control points: leave-one-out intersection against the given coordinates
+            if control_active.sum() > 0:
+                t0 = time.perf_counter()
+                marg = _marginals(gr, values, block, obs_active)
+                timings["marginals_s"] += time.perf_counter() - t0
+                w = control_test(block, opts, state, obs_active, control_active, marg)
+                worst = int(np.argmax(w)) if len(w) else -1
+                if worst >= 0 and w[worst] > crit:
+                    control_active[worst] = False
+                    rejected.append((worst, float(w[worst])))
+                    continue
+            if snoop(state, rnd, with_control=True):
+                continue
+            break
+
+    # final least squares without the robust kernel; a last snooping check
+    _drop_weak_points(block, obs_active, state)
+    for _ in range(3):
+        t0 = time.perf_counter()
+        gr = G.build_graph(block, opts, state, obs_active, control_active, robust=False)
+        values, info = G.optimize(gr, opts)
+        timings["final_s"] += time.perf_counter() - t0
+        iterations += info.iterations
+        state = G.state_from_values(values, block, opts, state)
+        if not snooping:
+            break
+        rnd += 1
+        if snoop(state, rnd) == 0:
+            break
+    sigma0 = float(np.sqrt(info.chi2 / info.dof)) if info.dof > 0 else float("nan")
+
+    pose_cov = point_cov = cal_cov = marg = None
+    if compute_marginals:
+        t0 = time.perf_counter()
+        marg = _marginals(gr, values, block, obs_active)
+        if marg is None:
+            # an (almost) indeterminate point makes the covariance fail: drop weakly intersected points and
+            # re-solve from the current solution
+            _drop_weak_points(block, obs_active, state, max_cond=1e4)
+            gr = G.build_graph(block, opts, state, obs_active, control_active, robust=False)
+            values, info = G.optimize(gr, opts)
+            iterations += info.iterations
+            state = G.state_from_values(values, block, opts, state)
+            sigma0 = float(np.sqrt(info.chi2 / info.dof)) if info.dof > 0 else float("nan")
+            marg = _marginals(gr, values, block, obs_active)
+        s2 = sigma0**2
+        if marg is not None:
+            pose_cov = np.array([marg.marginalCovariance(G.X(i)) for i in range(block.n_images)]) * s2
+            if point_covariances:
+                point_cov = point_covariances_rcs(block, state, obs_active, opts.image_sigma_px, marg, bool(opts.self_calibration)) * s2
+            if values.exists(G.K_KEY):
+                cal_cov = marg.marginalCovariance(G.K_KEY) * s2
+        timings["marginals_s"] += time.perf_counter() - t0
+    v = G.image_residuals(block, state)
+    r = redundancy_numbers(block.obs_point, block.obs_image, state.points, state.centre, state.R_cv, state.cal, obs_active)
+    timings["total_s"] = time.perf_counter() - t_start
+    return AdjustmentResult(
+        state, info, sigma0, obs_active, control_active, removed, rejected, v, r, pose_cov, point_cov, cal_cov, marg,
+        iterations, timings,
+    )
+
+
+def _drop_weak_points(block: G.Block, obs_active, state: G.State | None = None, max_cond: float = 1e5) -> None:
+    """Deactivate tie points that carry no information: a single ray left, or (given ``state``) rays
+    so nearly parallel that the point is indeterminate (condition of its normal matrix > ``max_cond``,
+    an intersection angle below about a third of a degree)."""
+    is_control = np.zeros(block.n_points, dtype=bool)
+    is_control[block.control_point] = True
+    rays = np.bincount(block.obs_point[obs_active], minlength=block.n_points)
+    weak = (rays < 2) & ~is_control
+    if state is not None:
+        k = np.flatnonzero(obs_active)
+        _, pc = G.project_cv(state.points[block.obs_point[k]], state.centre[block.obs_image[k]], state.R_cv[block.obs_image[k]], state.cal)
+        Jp, _ = G.jacobians_cv(pc, state.R_cv[block.obs_image[k]], state.cal)
+        N = np.zeros((block.n_points, 3, 3))
+        np.add.at(N, block.obs_point[k], np.einsum("kai,kaj->kij", Jp, Jp))
+        used = rays >= 2
+        ev = np.zeros((block.n_points, 3))
+        ev[used] = np.linalg.eigvalsh(N[used])
+        weak |= used & ~is_control & (ev[:, 0] * max_cond < ev[:, 2])
+    obs_active &= ~weak[block.obs_point]
+
+
+def _marginals(gr, values, block, obs_active):
+    """Covariances from the reduced camera system, or None when the (robustly weighted) system is too
+    ill-conditioned for them."""
+    keys = [G.P(j) for j in np.unique(block.obs_point[obs_active])]
+    try:
+        return ReducedCovariance(gr, values, keys)
+    except (RuntimeError, np.linalg.LinAlgError):
+        return None
+
+
+def control_test(block, opts, state, obs_active, control_active, marg) -> np.ndarray:
+    """Standardised discrepancy (max over components) between each active control point intersected
+    from its images alone and its given coordinates; 0 for points with fewer than 2 rays."""
+    w = np.zeros(len(block.control_point))
+    for c in np.flatnonzero(control_active):
+        j = block.control_point[c]
+        k = np.flatnonzero(obs_active & (block.obs_point == j))
+        if len(k) < 2:
+            continue
+        X0, cov, _ = intersect_with_covariance(
+            block.obs_xy_px[k], block.obs_image[k], state.centre, state.R_cv, state.cal, opts.image_sigma_px, marg,
+            bool(opts.self_calibration),
+        )
+        d = X0 - block.control_local[c]
+        Sigma = cov + block.control_cov_local[c]
+        # test in the axes of the given coordinates: whiten with the eigen-decomposition
+        evals, evecs = np.linalg.eigh(Sigma)
+        z = (evecs.T @ d) / np.sqrt(evals)
+        w[c] = float(np.max(np.abs(z[evals < (G.LOOSE_SIGMA_M / 10) ** 2]), initial=0.0))
+    return w
+
+
+def check_point_errors(obs_xy_px, obs_image, obs_point, n_points, state, opts, result: AdjustmentResult, alpha: float = 1e-4):
+    """Intersect check points with the final orientations: (points (M, 3), covariances (M, 3, 3), rays used (M,))."""
+    pts = np.full((n_points, 3), np.nan)
+    cov = np.full((n_points, 3, 3), np.nan)
+    rays = np.bincount(obs_point, minlength=n_points)
+    s0 = result.sigma0 if np.isfinite(result.sigma0) else 1.0
+    crit = critical_value(alpha)
+    dropped = np.zeros(n_points, dtype=int)
+    for j in range(n_points):
+        k = np.flatnonzero(obs_point == j)
+        while len(k) >= 2:
+            X0, C, v = intersect_with_covariance(
+                obs_xy_px[k], obs_image[k], state.centre, state.R_cv, state.cal, opts.image_sigma_px, result.marginals,
+                bool(opts.self_calibration),
+            )
+            # a check measurement can be a blunder too: with 3+ rays, drop the worst ray if it fails the test
+            # (redundancy of each coordinate about (2m - 3) / 2m)
+            w = np.abs(v).max(axis=1) / (opts.image_sigma_px * s0 * np.sqrt((2 * len(k) - 3) / (2 * len(k))))
+            if len(k) >= 3 and w.max() > crit:
+                k = np.delete(k, int(np.argmax(w)))
+                dropped[j] += 1
+                continue
+            pts[j] = X0
+            cov[j] = C * s0**2
+            break
+    rays = rays - dropped
+    return pts, cov, rays

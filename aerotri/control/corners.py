@@ -1,0 +1,107 @@
+"""LiDAR roof corners (``lidar_out/corners.csv`` from ``lidarctl corners``) and manual measurements.
+
+Columns: ``id,x,y,z,sx_m,sy_m,sz_m,roof,building_id,edge1_deg,edge2_deg,angle_deg,support_pts,score[,usable]``.
+Edge directions are grid bearings (clockwise from grid north, degrees, modulo 180) of the two roof
+edges meeting at the corner; ``angle_deg`` is the interior angle of the roof polygon (90 convex,
+270 re-entrant). Without a ``usable`` column a corner is usable when ``score >= USABLE_SCORE``.
+"""
+
+from __future__ import annotations
+
+import csv
+import dataclasses
+import math
+from pathlib import Path
+
+import numpy as np
+
+from aerotri.errors import InputError
+
+REQUIRED = ["id", "x", "y", "z", "sx_m", "sy_m", "sz_m", "edge1_deg", "edge2_deg", "angle_deg", "score"]
+USABLE_SCORE = 0.5  # lidarctl.corners.USABLE_SCORE (same rule when the file has no usable column)
+
+
+@dataclasses.dataclass
+class LidarCorners:
+    """Roof corners; arrays aligned with ``id``."""
+
+    id: np.ndarray  # (N,) str
+    xyz_m: np.ndarray  # (N, 3) project CRS
+    sigma_m: np.ndarray  # (N, 3) sx sy sz
+    bearing_deg: np.ndarray  # (N, 2) grid bearings of the two edges, [0, 180)
+    angle_deg: np.ndarray  # (N,)
+    score: np.ndarray  # (N,)
+    usable: np.ndarray  # (N,) bool
+    roof: np.ndarray  # (N,) str
+
+    def __len__(self):
+        return len(self.id)
+
+    def subset(self, mask) -> "LidarCorners":
+        return LidarCorners(*(getattr(self, f.name)[mask] for f in dataclasses.fields(self)))
+
+    def edge_directions_m(self) -> np.ndarray:
+        """Unit edge directions (N, 2, 3) in object space (east, north, up = 0)."""
+        b = np.radians(self.bearing_deg)
+        return np.stack([np.sin(b), np.cos(b), np.zeros_like(b)], axis=-1)
+
+
+def read_corners(path) -> LidarCorners:
+    path = Path(path)
+    try:
+        f = path.open(newline="")
+    except FileNotFoundError:
+        raise InputError(f"{path}: corners file not found (run lidarctl corners CLASSIFIED.laz lidar_out)") from None
+    with f:
+        reader = csv.DictReader(f)
+        missing = [c for c in REQUIRED if c not in (reader.fieldnames or [])]
+        if missing:
+            raise InputError(f"{path}:1: missing columns {missing} (expected {','.join(REQUIRED)},...)")
+        ids, num, usable, roof, seen = [], [], [], [], {}
+        for lineno, row in enumerate(reader, start=2):
+            pid = (row["id"] or "").strip()
+            if not pid:
+                raise InputError(f"{path}:{lineno}: empty id (record {row})")
+            if pid in seen:
+                raise InputError(f"{path}:{lineno}: duplicate corner id {pid!r} (first on line {seen[pid]})")
+            seen[pid] = lineno
+            vals = []
+            for c in REQUIRED[1:]:
+                try:
+                    v = float(row[c])
+                except (TypeError, ValueError):
+                    raise InputError(f"{path}:{lineno}: {c} = {row[c]!r} of corner {pid!r} is not a number") from None
+                if not math.isfinite(v):
+                    raise InputError(f"{path}:{lineno}: {c} of corner {pid!r} is NaN or infinite")
+                vals.append(v)
+            if min(vals[3:6]) <= 0:
+                raise InputError(f"{path}:{lineno}: standard deviations of corner {pid!r} must be positive")
+            ids.append(pid)
+            num.append(vals)
+            u = row.get("usable")
+            usable.append(vals[-1] >= USABLE_SCORE if u is None else u.strip().lower() in ("1", "true", "yes"))
+            roof.append((row.get("roof") or "").strip())
+    if not ids:
+        raise InputError(f"{path}: no corners")
+    a = np.array(num, dtype=float)
+    return LidarCorners(
+        np.array(ids, dtype=object), a[:, 0:3], a[:, 3:6], np.mod(a[:, 6:8], 180.0), a[:, 8], a[:, 9],
+        np.array(usable, dtype=bool), np.array(roof, dtype=object),
+    )
+
+
+def read_manual(path, corner_ids, image_ids) -> dict:
+    """Manual measurements ``point_id,image_id,x_px,y_px`` -> {(point_id, image_id): (x_px, y_px)}."""
+    from aerotri.adjust.observations import read_image_points
+
+    obs = read_image_points(path)
+    known_c, known_i = set(corner_ids), set(image_ids)
+    out = {}
+    for k in range(len(obs)):
+        pid, iid = str(obs.point_id[k]), str(obs.image_id[k])
+        if pid not in known_c:
+            raise InputError(f"{path}: point {pid!r} (record {k + 1}) is not a corner id in corners.csv")
+        if iid not in known_i:
+            raise InputError(f"{path}: image {iid!r} of point {pid!r} (record {k + 1}) is not in the orientations")
+        out[(pid, iid)] = tuple(obs.xy_px[k])
+    return out

@@ -1,0 +1,149 @@
+"""Control point layout: which measured LiDAR corners become control, which stay check points.
+
+Default rule, the production rule for DMC blocks flown with GNSS:
+- full (XYZ) control about every ``full_spacing_baselines`` (5) baselines along each strip at the
+  strip edges: on the outer edge of the block's first and last strip and in the middle of every side
+  overlap (such a point serves both strips);
+- extra height points in the middle strip of every ``height_every_strips`` (3) strips, half-way
+  between the full points along the strip centre line;
+- each point in the triple-overlap zone (measured in at least ``min_frames`` frames; along track the
+  targets lie between the second and the second-last frame of the strip);
+- for every target the corner nearest to it within ``search_radius_baselines`` is chosen, preferring
+  high score and small multi-ray residuals:
+  cost = distance / radius + ``score_weight`` * (1 - score) + ``residual_weight`` * max residual / tolerance.
+All other accepted corners are check points.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+
+from aerotri.adjust.strips import strips_from_track
+
+
+@dataclasses.dataclass(frozen=True)
+class LayoutRule:
+    full_spacing_baselines: float = 5.0
+    height_every_strips: int = 3
+    min_frames: int = 3
+    search_radius_baselines: float = 1.25
+    score_weight: float = 0.5
+    residual_weight: float = 0.5
+    edge_inset: float = 0.12  # outer block edge targets lie this fraction of the strip width inside
+
+
+@dataclasses.dataclass
+class Strip:
+    images: np.ndarray  # frame indices
+    centre_across_m: float
+    lo_m: float  # ground footprint edges across track (common across axis)
+    hi_m: float
+    along_first_m: float  # frame centres along track (common along axis), first and last
+    along_last_m: float
+    base_m: float
+
+
+def ground_footprints(camera, centres_m, Rs, ground_z_m: float) -> np.ndarray:
+    """Ground footprint corners (N, 4, 2) of the frames on the horizontal plane Z = ground_z_m."""
+    w, h = camera.width - 1, camera.height - 1
+    px = np.array([[0, 0], [w, 0], [w, h], [0, h]], float)
+    out = np.zeros((len(centres_m), 4, 2))
+    for i in range(len(centres_m)):
+        d = camera.rays(px[:, 0], px[:, 1], Rs[i])
+        s = (ground_z_m - centres_m[i, 2]) / d[:, 2]
+        out[i] = centres_m[i, :2] + s[:, None] * d[:, :2]
+    return out
+
+
+def block_axes(centres_m, strip):
+    """Common along-track unit vector (of the first strip) and across-track unit vector (2,)."""
+    idx = np.flatnonzero(strip == strip.min())
+    d = centres_m[idx[-1], :2] - centres_m[idx[0], :2] if len(idx) > 1 else np.array([1.0, 0.0])
+    u = d / (np.linalg.norm(d) or 1.0)
+    return u, np.array([-u[1], u[0]])
+
+
+def strips_of_block(camera, centres_m, Rs, ground_z_m: float, strip=None):
+    """Strip geometry on the common block axes; strips sorted across track."""
+    strip = strips_from_track(centres_m) if strip is None else np.asarray(strip)
+    u, w = block_axes(centres_m, strip)
+    fp = ground_footprints(camera, centres_m, Rs, ground_z_m)
+    origin = centres_m[:, :2].mean(axis=0)
+    out = []
+    for s in np.unique(strip):
+        idx = np.flatnonzero(strip == s)
+        along = (centres_m[idx, :2] - origin) @ u
+        across_fp = (fp[idx] - origin) @ w
+        base = float(np.median(np.abs(np.diff(np.sort(along))))) if len(idx) > 1 else float(np.ptp(across_fp))
+        out.append(Strip(idx, float(np.mean((centres_m[idx, :2] - origin) @ w)), float(np.median(across_fp.min(axis=1))),
+                         float(np.median(across_fp.max(axis=1))), float(along.min()), float(along.max()), base))
+    out.sort(key=lambda st: st.centre_across_m)
+    return out, origin, u, w
+
+
+def layout_targets(strips, rule: LayoutRule):
+    """Target positions (list of (kind, along_m, across_m)) on the common block axes."""
+    targets = []
+    n = len(strips)
+
+    def along_positions(sts, spacing_base, shift_half=False):
+        lo = max(st.along_first_m + st.base_m for st in sts)
+        hi = min(st.along_last_m - st.base_m for st in sts)
+        base = float(np.mean([st.base_m for st in sts]))
+        if hi < lo:
+            lo = hi = 0.5 * (lo + hi)
+        k = max(1, int(round((hi - lo) / (spacing_base * base))))
+        pos = np.linspace(lo, hi, k + 1)
+        return 0.5 * (pos[1:] + pos[:-1]) if shift_half else pos
+
+    for i, st in enumerate(strips):
+        width = st.hi_m - st.lo_m
+        if i == 0:
+            for a in along_positions([st], rule.full_spacing_baselines):
+                targets.append(("full", a, st.lo_m + rule.edge_inset * width))
+        if i == n - 1:
+            for a in along_positions([st], rule.full_spacing_baselines):
+                targets.append(("full", a, st.hi_m - rule.edge_inset * width))
+        if i < n - 1:
+            nb = strips[i + 1]
+            mid = 0.5 * (st.hi_m + nb.lo_m)
+            for a in along_positions([st, nb], rule.full_spacing_baselines):
+                targets.append(("full", a, mid))
+    if rule.height_every_strips >= 1:
+        for g in range(0, n - rule.height_every_strips + 1, rule.height_every_strips):
+            st = strips[g + rule.height_every_strips // 2]
+            for a in along_positions([st], rule.full_spacing_baselines, shift_half=True):
+                targets.append(("height", a, st.centre_across_m))
+    return targets
+
+
+def select_control(xy_m, score, n_frames, camera, centres_m, Rs, ground_z_m, rule: LayoutRule | None = None,
+                   strip=None, residual_ratio=None):
+    """Kind per corner ("full", "height" or "check"), the targets (list of dict, map coordinates), the base (m).
+
+    xy_m (N, 2): accepted corners; score (N,); n_frames (N,): frames each corner was accepted in;
+    residual_ratio (N,): largest multi-ray residual / tolerance (0..1), None for none.
+    """
+    rule = rule or LayoutRule()
+    strips, origin, u, w = strips_of_block(camera, centres_m, Rs, ground_z_m, strip)
+    base = float(np.median([st.base_m for st in strips]))
+    radius = rule.search_radius_baselines * base
+    kind = np.full(len(xy_m), "check", dtype=object)
+    eligible = np.asarray(n_frames) >= rule.min_frames
+    out = []
+    for k, a, c in layout_targets(strips, rule):
+        t_xy = origin + a * u + c * w
+        dist = np.hypot(*(xy_m - t_xy).T) if len(xy_m) else np.zeros(0)
+        cost = dist / radius + rule.score_weight * (1.0 - np.clip(score, 0.0, 1.0))
+        if residual_ratio is not None:
+            cost = cost + rule.residual_weight * np.clip(residual_ratio, 0.0, 1.0)
+        ok = eligible & (kind == "check") & (dist <= radius)
+        rec = {"kind": k, "target_x_m": float(t_xy[0]), "target_y_m": float(t_xy[1]), "corner": None, "distance_m": None}
+        if ok.any():
+            j = int(np.flatnonzero(ok)[np.argmin(cost[ok])])
+            kind[j] = k
+            rec.update(corner=j, distance_m=float(dist[j]))
+        out.append(rec)
+    return kind, out, base

@@ -1,0 +1,298 @@
+"""The ``control`` stage over a project folder: LiDAR corners -> measured control and check points.
+
+Inputs: ``lidar_out/corners.csv`` (``lidarctl corners``), ``at/eo.txt`` (orientations of a first
+adjustment with tie points and GNSS), the camera (the self-calibrated one from ``at/report.json``
+when present, else ``camera.toml``), ``images/``. Outputs (each written atomically, all after the
+whole transfer succeeded): ``control/points.csv``, ``control/image_points.csv``,
+``control/transfer.json`` (counts, rejection reasons, per-corner and per-measurement status),
+``control/review/review.html`` with ``control/review/chips/``.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+from collections import Counter
+from pathlib import Path
+
+import cv2
+import numpy as np
+from tqdm import tqdm
+
+from aerotri.camera import FrameCamera
+from aerotri.control.consistency import check_rays
+from aerotri.control.corners import LidarCorners, read_corners, read_manual
+from aerotri.control.layout import LayoutRule, select_control
+from aerotri.control.measure import MeasureSettings, Measurement, measure_in_image, predict
+from aerotri.eo import ExteriorOrientations, read_eo
+from aerotri.errors import InputError
+
+
+@dataclasses.dataclass(frozen=True)
+class ControlSettings:
+    measure: MeasureSettings = MeasureSettings()
+    layout: LayoutRule = LayoutRule()
+    tol_px: float = 0.7  # multi-ray reprojection residual tolerance (px)
+    image_sigma_px: float = 0.3  # measurement precision used for the LiDAR comparison
+    datum_sigma_m: float = 0.2  # datum error of the orientations before control, per coordinate
+    alpha: float = 1e-3  # type I error of the LiDAR comparison
+    usable_only: bool = True  # measure only corners marked usable (plus manually measured ones)
+    chips: bool = True
+
+
+@dataclasses.dataclass
+class TransferResult:
+    corners: LidarCorners
+    image_ids: list
+    measurements: dict  # (corner index, image index) -> Measurement (predicted inside the frame)
+    predicted: dict  # (corner index, image index) -> (x_px, y_px)
+    rays: dict  # corner index -> RayCheck
+    kind: np.ndarray  # per corner: full / height / check / rejected / not_measured
+    targets: list
+    base_m: float
+    manual: set  # (corner index, image index) measured manually
+
+
+def find_image(images_dir: Path, image_id: str) -> Path:
+    for ext in (".tif", ".tiff", ".jpg", ".jpeg", ".png", ".TIF", ".JPG"):
+        p = images_dir / f"{image_id}{ext}"
+        if p.is_file():
+            return p
+    raise InputError(f"{images_dir}: no image file for image id {image_id!r} (tried {image_id}.tif/.jpg/.png)")
+
+
+def read_rgb(path: Path) -> np.ndarray:
+    img = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
+    if img is None:
+        raise InputError(f"{path}: not a readable image")
+    if img.dtype != np.uint8:
+        img = cv2.normalize(img, None, 0, 255, cv2.NORM_MINMAX).astype(np.uint8)
+    if img.ndim == 3 and img.shape[2] >= 3:
+        img = img[:, :, 2::-1]  # BGR -> RGB (alpha dropped)
+    return np.ascontiguousarray(img)
+
+
+def project_camera(root: Path, camera_path=None) -> tuple[FrameCamera, str]:
+    """The camera to project with: explicit file, else self-calibrated from at/report.json, else camera.toml."""
+    if camera_path is not None:
+        return FrameCamera.read(camera_path), str(camera_path)
+    rep = root / "at" / "report.json"
+    if rep.is_file():
+        try:
+            cam = json.loads(rep.read_text()).get("self_calibration", {}).get("camera")
+        except json.JSONDecodeError:
+            raise InputError(f"{rep}: not valid JSON") from None
+        if cam:
+            return FrameCamera.from_dict(cam, source=f"{rep} self_calibration.camera"), f"{rep} (self-calibrated)"
+    return FrameCamera.read(root / "camera.toml"), str(root / "camera.toml")
+
+
+def transfer_control(corners: LidarCorners, camera: FrameCamera, eo: ExteriorOrientations, images_dir,
+                     settings: ControlSettings | None = None, manual: dict | None = None,
+                     progress: bool = False) -> TransferResult:
+    """Measure the corners in every frame, check them across frames, select control by the layout rule."""
+    s = settings or ControlSettings()
+    images_dir = Path(images_dir)
+    manual = manual or {}
+    cid = {str(p): k for k, p in enumerate(corners.id)}
+    iidx = eo.index()
+    manual_k = {(cid[p], iidx[i]): xy for (p, i), xy in manual.items()}
+    active = corners.usable.copy() if s.usable_only else np.ones(len(corners), bool)
+    active[[k for k, _ in manual_k]] = True
+    idx = np.flatnonzero(active)
+    dirs_m = corners.edge_directions_m()
+    Rs = eo.rotations()
+    meas, pred = {}, {}
+    for i, iid in enumerate(tqdm(eo.image_id, desc="frames", unit="frame", disable=not progress)):
+        x, y, d, _, radius = predict(camera, eo.centre_m[i], Rs[i], corners.xyz_m[idx], dirs_m[idx], corners.sigma_m[idx],
+                                     s.measure.eo_sigma_px, s.measure.window_k, s.measure.min_radius_px,
+                                     s.measure.max_radius_px)
+        inside = camera.inside(x, y, margin_px=2.0)
+        has_manual = any(i == j for _, j in manual_k)
+        if not inside.any() and not has_manual:
+            continue
+        image = read_rgb(find_image(images_dir, iid))
+        if image.shape[:2] != (camera.height, camera.width):
+            raise InputError(f"{find_image(images_dir, iid)}: {image.shape[1]} x {image.shape[0]} px, camera says "
+                             f"{camera.width} x {camera.height}")
+        for q in np.flatnonzero(inside):
+            k = int(idx[q])
+            pred[(k, i)] = (float(x[q]), float(y[q]))
+            meas[(k, i)] = measure_in_image(image, x[q], y[q], d[q], radius[q], s.measure,
+                                            convex=bool(corners.angle_deg[k] < 180.0))
+    for (k, i), xy in manual_k.items():
+        meas[(k, i)] = Measurement(float(xy[0]), float(xy[1]), True, "manual")
+        pred.setdefault((k, i), (float(xy[0]), float(xy[1])))
+
+    by_corner: dict[int, list[int]] = {}
+    for (k, i), m in meas.items():
+        if m.ok:
+            by_corner.setdefault(k, []).append(i)
+    rays = {}
+    for k in idx:
+        imgs = sorted(by_corner.get(int(k), []))
+        xy = np.array([[meas[(k, i)].x_px, meas[(k, i)].y_px] for i in imgs]).reshape(-1, 2)
+        rays[int(k)] = check_rays(camera, eo.centre_m[imgs], Rs[imgs], xy, corners.xyz_m[k], corners.sigma_m[k],
+                                  s.tol_px, s.image_sigma_px, s.datum_sigma_m, s.alpha)
+        rays[int(k)].images = imgs
+    accepted = np.array([k for k in idx if rays[int(k)].ok], dtype=int)
+    kind = np.full(len(corners), "not_measured", dtype=object)
+    kind[idx] = "rejected"
+    targets, base = [], float("nan")
+    if len(accepted):
+        n_frames = np.array([rays[int(k)].kept.sum() for k in accepted])
+        ground_z = float(np.median(corners.xyz_m[accepted, 2]))
+        worst = np.array([np.max(rays[int(k)].residual_px[rays[int(k)].kept]) for k in accepted])
+        kk, targets, base = select_control(corners.xyz_m[accepted, :2], corners.score[accepted], n_frames, camera,
+                                           eo.centre_m, Rs, ground_z, s.layout, residual_ratio=worst / s.tol_px)
+        kind[accepted] = kk
+        for t in targets:
+            if t["corner"] is not None:
+                t["corner"] = str(corners.id[accepted[t["corner"]]])
+    return TransferResult(corners, list(eo.image_id), meas, pred, rays, kind, targets, base,
+                          set(manual_k))
+
+
+def summary(res: TransferResult) -> dict:
+    """Counts and rejection reasons (machine-readable; also control/transfer.json)."""
+    meas_reasons = Counter(m.reason for m in res.measurements.values() if not m.ok)
+    ray_reasons = Counter(r.reason for r in res.rays.values() if not r.ok)
+    dropped = sum(int((~r.kept & np.isfinite(r.residual_px)).sum()) for r in res.rays.values() if r.ok)
+    kinds = Counter(res.kind.tolist())
+    sel = [k for k in range(len(res.kind)) if res.kind[k] in ("full", "height")]
+    rays_sel = [int(res.rays[k].kept.sum()) for k in sel]
+    return {
+        "corners_in_file": len(res.corners),
+        "corners_measured": len(res.rays),
+        "measurements_attempted": len(res.measurements),
+        "measurements_accepted_in_image": sum(m.ok for m in res.measurements.values()),
+        "measurements_rejected_in_image": dict(sorted(meas_reasons.items())),
+        "rays_dropped_inconsistent": dropped,
+        "corners_rejected": dict(sorted(ray_reasons.items())),
+        "corners_accepted": int(sum(r.ok for r in res.rays.values())),
+        "control_full": kinds.get("full", 0),
+        "control_height": kinds.get("height", 0),
+        "check_points": kinds.get("check", 0),
+        "layout_targets": len(res.targets),
+        "layout_targets_unfilled": sum(t["corner"] is None for t in res.targets),
+        "selected_rays_min": min(rays_sel) if rays_sel else 0,
+        "selected_rays_mean": float(np.mean(rays_sel)) if rays_sel else 0.0,
+        "manual_measurements": len(res.manual),
+        "base_m": res.base_m,
+    }
+
+
+def output_texts(res: TransferResult, checks: bool = True) -> dict[str, str]:
+    """control/points.csv, control/image_points.csv and control/transfer.json as texts."""
+    c = res.corners
+    pts = ["id,kind,x,y,z,sx_m,sy_m,sz_m"]
+    obs = ["point_id,image_id,x_px,y_px"]
+    per_corner = []
+    frames_of: dict[int, list[int]] = {}
+    for (kk, i) in res.measurements:
+        frames_of.setdefault(kk, []).append(i)
+    for k in sorted(res.rays):
+        r = res.rays[k]
+        rec = {"id": str(c.id[k]), "kind": str(res.kind[k]), "reason": r.reason, "score": float(c.score[k]),
+               "rays": int(r.kept.sum()) if r.ok else 0,
+               "max_residual_px": float(np.nanmax(r.residual_px[r.kept])) if r.ok else None,
+               "lidar_diff_m": [round(float(v), 4) for v in r.lidar_diff_m] if np.all(np.isfinite(r.lidar_diff_m)) else None,
+               "frames": {}}
+        for i in sorted(frames_of.get(k, [])):
+            m = res.measurements[(k, i)]
+            j = r.images.index(i) if i in r.images else None
+            if j is not None and r.ok and r.kept[j]:
+                status = "accepted"
+            elif m.reason:
+                status = m.reason  # rejected in the image
+            elif r.ok or (r.reason == "inconsistent_rays" and not r.kept[j]):
+                status = "inconsistent_ray"  # dropped by the multi-ray check
+            else:
+                status = f"corner_{r.reason}"  # fine in this frame, the corner failed as a whole
+            rec["frames"][res.image_ids[i]] = {
+                "x_px": None if not np.isfinite(m.x_px) else round(m.x_px, 3),
+                "y_px": None if not np.isfinite(m.y_px) else round(m.y_px, 3),
+                "status": status,
+                "residual_px": round(float(r.residual_px[j]), 3) if j is not None and np.isfinite(r.residual_px[j]) else None,
+            }
+        per_corner.append(rec)
+        if not r.ok or res.kind[k] not in ("full", "height", "check") or (res.kind[k] == "check" and not checks):
+            continue
+        x, y, z = c.xyz_m[k]
+        sx, sy, sz = c.sigma_m[k]
+        pts.append(f"{c.id[k]},{res.kind[k]},{x:.4f},{y:.4f},{z:.4f},{sx:.4f},{sy:.4f},{sz:.4f}")
+        for j, i in enumerate(r.images):
+            if r.kept[j]:
+                m = res.measurements[(k, i)]
+                obs.append(f"{c.id[k]},{res.image_ids[i]},{m.x_px:.3f},{m.y_px:.3f}")
+    rep = {"summary": summary(res), "layout_targets": res.targets, "corners": per_corner}
+    return {"points.csv": "\n".join(pts) + "\n", "image_points.csv": "\n".join(obs) + "\n",
+            "transfer.json": json.dumps(rep, indent=1, allow_nan=False, default=float)}
+
+
+def review_page(res: TransferResult, images_dir, project_name: str):
+    """(summary line, corner rows, chips) for chips.write_review: selected corners first, then checks, rejected."""
+    from aerotri.control.chips import chip_png
+
+    order = {"full": 0, "height": 1, "check": 2, "rejected": 3}
+    ks = sorted(res.rays, key=lambda k: (order.get(res.kind[k], 4), str(res.corners.id[k])))
+    by_image: dict[int, list] = {}
+    for (k, i) in res.measurements:
+        by_image.setdefault(i, []).append(k)
+    chips, rows = {}, {k: [] for k in ks}
+    for i, klist in by_image.items():
+        image = read_rgb(find_image(Path(images_dir), res.image_ids[i]))
+        for k in klist:
+            m, r = res.measurements[(k, i)], res.rays[k]
+            j = r.images.index(i) if i in r.images else None
+            ok = bool(j is not None and r.ok and r.kept[j])
+            name = f"{res.corners.id[k]}_{res.image_ids[i]}.png"
+            chips[name] = chip_png(image, res.predicted[(k, i)], (m.x_px, m.y_px), ok)
+            res_txt = f", {r.residual_px[j]:.2f} px" if j is not None and np.isfinite(r.residual_px[j]) else ""
+            cap = f"{res.image_ids[i]}: " + (f"{m.x_px:.1f}, {m.y_px:.1f}{res_txt}" if np.isfinite(m.x_px) else "-")
+            if not ok:
+                cap += f" ({m.reason or 'inconsistent'})"
+            rows[k].append({"file": name, "size": 132, "caption": cap, "image": res.image_ids[i]})
+    corners = []
+    for k in ks:
+        r = res.rays[k]
+        status = res.kind[k] if r.ok else f"rejected: {r.reason}"
+        if r.ok:
+            status += f", {int(r.kept.sum())} rays, LiDAR diff {np.linalg.norm(r.lidar_diff_m):.2f} m"
+        x, y, z = res.corners.xyz_m[k]
+        corners.append({"id": res.corners.id[k], "score": f"{res.corners.score[k]:.2f}", "xyz": f"{x:.2f} {y:.2f} {z:.2f}",
+                        "status": status, "cls": res.kind[k], "chips": sorted(rows[k], key=lambda c: c["image"])})
+    sm = summary(res)
+    line = (f"{sm['corners_accepted']} of {sm['corners_measured']} corners accepted; control: {sm['control_full']} full, "
+            f"{sm['control_height']} height; {sm['check_points']} check points; rejected corners: {sm['corners_rejected']}; "
+            f"rejected measurements: {sm['measurements_rejected_in_image']}.")
+    return line, corners, chips
+
+
+def run_control(root, corners_path=None, eo_path=None, camera_path=None, manual_path=None,
+                settings: ControlSettings | None = None, checks: bool = True, progress: bool = False) -> dict:
+    """The stage: read, transfer, write all outputs atomically; returns the summary dict."""
+    from lidarctl.atomic import atomic_dir, write_text_atomic
+
+    from aerotri.control.chips import write_review
+
+    root = Path(root)
+    s = settings or ControlSettings()
+    corners = read_corners(corners_path or root / "lidar_out" / "corners.csv")
+    eo = read_eo(eo_path or root / "at" / "eo.txt")
+    camera, _ = project_camera(root, camera_path)
+    manual = read_manual(manual_path, corners.id, eo.image_id) if manual_path else None
+    res = transfer_control(corners, camera, eo, root / "images", s, manual, progress)
+    sm = summary(res)
+    if sm["corners_accepted"] == 0:
+        raise InputError(f"no corner could be measured consistently in two or more frames ({sm['corners_measured']} "
+                         f"tried; rejected: {sm['corners_rejected']}) - check {eo_path or root / 'at' / 'eo.txt'} and the camera")
+    texts = output_texts(res, checks)
+    review = review_page(res, root / "images", root.name) if s.chips else None
+    out = root / "control"
+    if review is not None:
+        with atomic_dir(out / "review") as tmp:
+            write_review(tmp, root.name, *review)
+    for name, text in texts.items():
+        write_text_atomic(out / name, text)
+    return sm

@@ -1,0 +1,256 @@
+"""Real data: the Coal Oil Point kite block (../shared/data/copr_kite) adjusted with its painted targets
+as control, and a leave-one-out table (each target in turn as a check point) -> results/copr_kite.json.
+
+The block has no GNSS and no tie points, so this script makes them: SIFT features, exhaustive matching
+and incremental reconstruction with pycolmap (an arbitrary frame), a similarity transform of that model
+onto the targets (their planimetry; the given heights are 0), then tie points = COLMAP's tracks and
+approximate EO = the transformed COLMAP poses. Our adjustment then runs without GNSS, targets as
+control with sigma_xy 0.3 m (averaged handheld GNSS) and a loose height (sigma_z 5 m, heights unknown),
+self-calibration of focal length, principal point and radial distortion, data snooping on.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import shutil
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+from aerotri.adjust.pipeline import AdjustSettings, adjust_project, write_outputs
+from aerotri.camera import FrameCamera
+from aerotri.eo import ExteriorOrientations, write_eo
+from aerotri.rotation import FLIP_YZ, opk_from_matrix
+from lidarctl.atomic import write_text_atomic
+
+REPO = Path(__file__).resolve().parents[1]
+SIGMA_XY_M, SIGMA_Z_M = 0.3, 5.0
+CRS = "EPSG:32611"  # the PROJ string in gcp_list.txt: UTM 11N, WGS84
+
+
+def read_gcps(path: Path):
+    lines = path.read_text().splitlines()
+    rows = [ln.split() for ln in lines[1:] if ln.strip()]
+    gcp = {}
+    obs = []
+    for X, Y, Z, px, py, img, tid in rows:
+        gcp[tid] = (float(X), float(Y), float(Z))
+        obs.append((tid, Path(img).stem, float(px), float(py)))
+    return gcp, obs
+
+
+def sfm(images: Path, work: Path, max_image_size: int, max_features: int):
+    import pycolmap
+
+    db = work / "database.db"
+    ext = pycolmap.FeatureExtractionOptions()
+    ext.max_image_size = max_image_size
+    ext.sift.max_num_features = max_features
+    reader = pycolmap.ImageReaderOptions()
+    reader.camera_model = "SIMPLE_RADIAL"
+    pycolmap.extract_features(db, images, camera_mode=pycolmap.CameraMode.SINGLE, reader_options=reader, extraction_options=ext)
+    pycolmap.match_exhaustive(db)
+    recs = pycolmap.incremental_mapping(db, images, work / "sparse")
+    return max(recs.values(), key=lambda r: r.num_reg_images())
+
+
+def _rotation_between(a, b):
+    """Rotation matrix turning unit vector a onto unit vector b."""
+    v = np.cross(a, b)
+    c = float(np.dot(a, b))
+    K = np.array([[0, -v[2], v[1]], [v[2], 0, -v[0]], [-v[1], v[0], 0]])
+    return np.eye(3) + K + K @ K / (1.0 + c)
+
+
+def umeyama(src, dst):
+    """Similarity dst ~ s R src + t (least squares)."""
+    ms, md = src.mean(0), dst.mean(0)
+    A, B = src - ms, dst - md
+    U, S, Vt = np.linalg.svd(B.T @ A / len(src))
+    D = np.eye(len(ms))
+    D[-1, -1] = np.sign(np.linalg.det(U @ Vt))
+    R = U @ D @ Vt
+    s = np.trace(np.diag(S) @ D) / A.var(0).sum()
+    return s, R, md - s * R @ ms
+
+
+def build_project(data: Path, rec, root: Path) -> dict:
+    gcp, gobs = read_gcps(data / "gcp_list.txt")
+    cam = FrameCamera(focal_mm=30.0, pixel_um=22.2 / 4272 * 1000, width=4272, height=2848, name="Canon XSi (nominal)")
+    (root / "at").mkdir(parents=True, exist_ok=True)
+    (root / "control").mkdir(parents=True, exist_ok=True)
+    (root / "work").mkdir(parents=True, exist_ok=True)
+    write_text_atomic(root / "project.toml", f'[project]\nname = "copr_kite"\ncrs = "{CRS}"\n')
+    write_text_atomic(root / "camera.toml", cam.to_toml())
+    images = {im.image_id: im for im in rec.images.values()}
+    names = {iid: Path(im.name).stem for iid, im in images.items()}
+    # tie points: COLMAP tracks (pixel origin moved to the centre of the top-left pixel)
+    lines = ["point_id,image_id,x_px,y_px"]
+    for pid, p in rec.points3D.items():
+        if len({el.image_id for el in p.track.elements}) < 2:
+            continue
+        seen = set()
+        for el in p.track.elements:
+            if el.image_id in seen:  # a track may hold two keypoints of one image (SIFT orientations)
+                continue
+            seen.add(el.image_id)
+            xy = images[el.image_id].points2D[el.point2D_idx].xy - 0.5
+            lines.append(f"t{pid},{names[el.image_id]},{xy[0]:.3f},{xy[1]:.3f}")
+    write_text_atomic(root / "at" / "tiepoints.csv", "\n".join(lines) + "\n")
+    reg = set(names.values())
+    gobs = [o for o in gobs if o[1] in reg]
+    ctrl = ["id,kind,x,y,z,sx_m,sy_m,sz_m"] + [f"{t},full,{X},{Y},{Z},{SIGMA_XY_M},{SIGMA_XY_M},{SIGMA_Z_M}" for t, (X, Y, Z) in
+                                               sorted(gcp.items()) if any(o[0] == t for o in gobs)]
+    write_text_atomic(root / "control" / "points.csv", "\n".join(ctrl) + "\n")
+    write_text_atomic(root / "control" / "image_points.csv",
+                      "point_id,image_id,x_px,y_px\n" + "\n".join(f"{t},{i},{x - 0.5:.3f},{y - 0.5:.3f}" for t, i, x, y in gobs) + "\n")
+    # approximate EO: COLMAP poses, similarity onto the targets intersected in the COLMAP frame
+    from aerotri.adjust.check_points import intersect
+
+    cam_c = rec.cameras[next(iter(rec.cameras))]
+    K = cam_c.calibration_matrix()
+    cal = np.array([K[0, 0], K[1, 1], 0.0, K[0, 2] - 0.5, K[1, 2] - 0.5, cam_c.params[-1] if len(cam_c.params) > 3 else 0.0, 0, 0, 0])
+    order = sorted(images)
+    idx = {iid: n for n, iid in enumerate(order)}
+    by_name = {names[iid]: iid for iid in order}
+    Rcv = np.array([images[i].cam_from_world().rotation.matrix().T for i in order])
+    C = np.array([images[i].projection_center() for i in order])
+    tids = sorted({o[0] for o in gobs})
+    tix = {t: n for n, t in enumerate(tids)}
+    opt = np.array([tix[o[0]] for o in gobs])
+    oim = np.array([idx[by_name[o[1]]] for o in gobs])
+    oxy = np.array([[o[2] - 0.5, o[3] - 0.5] for o in gobs])
+    P, ok = intersect(oxy, opt, oim, C, Rcv, cal, len(tids))
+    ok &= np.bincount(opt, minlength=len(tids)) >= 2
+    src = P[ok]
+    dst = np.array([gcp[t] for t in np.array(tids)[ok]])
+    # the targets are (nearly) coplanar, so a 3D similarity may come out upside down: first turn the mean
+    # viewing direction of the near-nadir frames down, then fit planimetry (2D similarity) and height offset
+    view = np.mean(Rcv[:, :, 2], axis=0)
+    R1 = _rotation_between(view / np.linalg.norm(view), np.array([0.0, 0.0, -1.0]))
+    a = (R1 @ src.T).T
+    # robust: a target may be mislabelled in gcp_list.txt (gcp00 and gcp04 share a pixel in IMG_0031);
+    # drop targets above the cameras, then the worst one while its planimetric residual exceeds 1 m
+    keep = a[:, 2] < np.min((R1 @ C.T).T[:, 2])
+    while True:
+        s2, R2, t2 = umeyama(a[keep, :2], dst[keep, :2])
+        res = np.linalg.norm((s2 * (R2 @ a[:, :2].T)).T + t2 - dst[:, :2], axis=1)
+        res[~keep] = 0.0
+        if res.max() < 1.0 or keep.sum() <= 3:
+            break
+        keep[np.argmax(res)] = False
+    src, dst = src[keep], dst[keep]
+    R = np.eye(3)
+    R[:2, :2] = R2
+    R = R @ R1
+    s = s2
+    t = np.append(t2, np.mean(dst[:, 2]) - s * np.mean((R @ src.T).T[:, 2]))
+    C_map = (s * (R @ C.T)).T + t
+    R_map = R @ Rcv @ FLIP_YZ
+    opk = np.stack(opk_from_matrix(R_map), axis=-1)
+    write_eo(root / "work" / "initial_eo.txt", ExteriorOrientations([names[i] for i in order], C_map, opk))
+    return {"registered_images": len(order), "tracks": int(sum(1 for p in rec.points3D.values() if p.track.length() >= 2)),
+            "targets_used": len(tids), "similarity_scale": float(s),
+            "similarity_rms_m": float(np.sqrt(np.mean(np.sum((((s * (R @ src.T)).T + t) - dst)[:, :2] ** 2, 1))))}
+
+
+def main(argv=None):
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--data", type=Path, default=REPO.parent / "shared" / "data" / "copr_kite")
+    ap.add_argument("--work", type=Path, default=None, help="keep the work folder here (default: temporary)")
+    ap.add_argument("--max-image-size", type=int, default=1600)
+    ap.add_argument("--max-features", type=int, default=4000)
+    ap.add_argument("--out", type=Path, default=REPO / "results" / "copr_kite.json")
+    a = ap.parse_args(argv)
+    if not a.data.is_dir():
+        sys.exit(f"copr_kite data not found at {a.data}")
+    tmpd = None
+    if a.work is None:
+        tmpd = tempfile.TemporaryDirectory()
+        work = Path(tmpd.name)
+    else:
+        work = a.work
+        work.mkdir(parents=True, exist_ok=True)
+    res = {}
+    t0 = time.perf_counter()
+    sparse = work / "sparse_best"
+    import pycolmap
+
+    if (sparse / "images.bin").exists():
+        rec = pycolmap.Reconstruction(str(sparse))
+    else:
+        (work / "sparse").mkdir(exist_ok=True)
+        rec = sfm(a.data / "images", work, a.max_image_size, a.max_features)
+        sparse.mkdir(exist_ok=True)
+        rec.write(str(sparse))
+    res["sfm_s"] = time.perf_counter() - t0
+    root = work / "project"
+    if root.exists():
+        shutil.rmtree(root)
+    res.update(build_project(a.data, rec, root))
+    settings = dict(use_gnss=False, initial_eo=str(root / "work" / "initial_eo.txt"), self_calibration=("focal", "pp", "radial"),
+                    image_sigma_px=1.0)
+    t0 = time.perf_counter()
+    ba = adjust_project(root, AdjustSettings(**settings), progress=lambda m: print(m, file=sys.stderr, flush=True))
+    rep = write_outputs(ba, root)
+    res["adjust_s"] = time.perf_counter() - t0
+    res["all_control"] = {k: rep["key_statistics"][k] for k in ("sigma0_um", "sigma0", "iterations", "degrees_of_freedom", "success")}
+    res["all_control"]["rms_control_m"] = rep["parameters"]["rms_control_m"]
+    res["all_control"]["rejected_control"] = rep["rejected_control"]
+    res["all_control"]["removed_observations"] = rep["counts"]["removed_observations"]
+    res["all_control"]["image_observations"] = rep["counts"]["image_observations"]
+    res["all_control"]["self_calibration"] = rep["self_calibration"]["camera"]
+    res["all_control"]["tie_rms_um"] = [rep["image_residuals"]["tie"].get("rms_x_um"), rep["image_residuals"]["tie"].get("rms_y_um")]
+    # leave one out: every target with >= 2 rays in turn as check point. The observations removed by
+    # data snooping in the full adjustment stay removed (a cleaned copy of the project), and control points
+    # rejected there are not used as control; each leave-one-out run is then a plain least-squares solution.
+    b, r = ba.block, ba.result
+    clean = work / "project_clean"
+    if clean.exists():
+        shutil.rmtree(clean)
+    shutil.copytree(root, clean, ignore=shutil.ignore_patterns("at"))
+    # warm start: the full adjustment's orientations and camera as approximations / a-priori camera
+    shutil.copy(root / "at" / "eo.txt", clean / "work" / "initial_eo.txt")
+    write_text_atomic(clean / "camera.toml", ba.camera_adjusted.to_toml())
+    act = r.obs_active & ~np.isin(b.obs_point, b.control_point)
+    lines = ["point_id,image_id,x_px,y_px"] + [
+        f"{b.point_id[b.obs_point[k]]},{b.image_id[b.obs_image[k]]},{b.obs_xy_px[k, 0]:.3f},{b.obs_xy_px[k, 1]:.3f}"
+        for k in np.flatnonzero(act)]
+    write_text_atomic(clean / "at" / "tiepoints.csv", "\n".join(lines) + "\n")
+    rejected = [x["id"] for x in rep["rejected_control"]]
+    loo = []
+    ids = [row["id"] for row in rep["control_points"] if row["rays"] >= 2 or row["id"] in rejected]
+    for tid in ids:
+        loo_settings = dict(settings, initial_eo=str(clean / "work" / "initial_eo.txt"))
+        b1 = adjust_project(clean, AdjustSettings(**loo_settings, check=tuple({tid, *rejected}), snooping=False,
+                                                  point_covariances=False))
+        c = b1.check[tid]
+        d = np.subtract(c["adjusted_m"], c["measured_m"])
+        loo.append({"id": tid, "rays": c["rays"], "dx_m": float(d[0]), "dy_m": float(d[1]), "dxy_m": float(np.hypot(d[0], d[1])),
+                    "sigma_x_m": c["sigma_m"][0], "sigma_y_m": c["sigma_m"][1], "sigma0": b1.result.sigma0,
+                    "rejected_in_full_adjustment": tid in rejected})
+        print(f"{tid}: dX {d[0]:+.3f} dY {d[1]:+.3f} m", file=sys.stderr, flush=True)
+    ok = [x for x in loo if np.isfinite(x["dxy_m"]) and not x["rejected_in_full_adjustment"]]
+    dxy = np.array([[x["dx_m"], x["dy_m"]] for x in ok])
+    res["leave_one_out"] = loo
+    res["leave_one_out_rms_x_m"] = float(np.sqrt(np.mean(dxy[:, 0] ** 2)))
+    res["leave_one_out_rms_y_m"] = float(np.sqrt(np.mean(dxy[:, 1] ** 2)))
+    res["leave_one_out_rms_xy_m"] = float(np.sqrt(np.mean(np.sum(dxy**2, 1))))
+    res["control_sigma_xy_m"] = SIGMA_XY_M
+    a.out.parent.mkdir(parents=True, exist_ok=True)
+    a.out.write_text(json.dumps(res, indent=1))
+    print(f"{'id':>6} {'rays':>4} {'dX m':>8} {'dY m':>8} {'dXY m':>8} {'sX m':>7} {'sY m':>7}")
+    for x in loo:
+        print(f"{x['id']:>6} {x['rays']:4d} {x['dx_m']:8.3f} {x['dy_m']:8.3f} {x['dxy_m']:8.3f} {x['sigma_x_m']:7.3f} {x['sigma_y_m']:7.3f}"
+              + ("  (rejected as control in the full adjustment)" if x["rejected_in_full_adjustment"] else ""))
+    print(f"RMS X {res['leave_one_out_rms_x_m']:.3f}  Y {res['leave_one_out_rms_y_m']:.3f}  XY {res['leave_one_out_rms_xy_m']:.3f} m")
+    if tmpd:
+        tmpd.cleanup()
+
+
+if __name__ == "__main__":
+    main()

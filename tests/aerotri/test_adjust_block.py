@@ -1,0 +1,76 @@
+"""Bundle adjustment of small geometric blocks against their known truth."""
+
+import json
+
+import numpy as np
+import pytest
+
+from aerotri.adjust.pipeline import AdjustSettings, adjust_project, write_outputs
+from aerotri.sim.observations import geometric_block, write_block_project, write_truth_observations
+
+SIGMA_PX = 0.3
+
+
+@pytest.fixture(scope="module")
+def block_project(tmp_path_factory):
+    block = geometric_block(3, 6, seed=3)
+    root = write_block_project(block, tmp_path_factory.mktemp("adj") / "blk")
+    write_truth_observations(root, tie_sigma_px=SIGMA_PX, n_control=5, points_per_image=120, n_check=12, seed=4)
+    return block, root
+
+
+def _truth_eo(block, ba):
+    eo = block.eo_map()
+    idx = [eo.image_id.index(i) for i in ba.eo_map.image_id]
+    return eo.centre_m[idx], eo.opk_deg[idx]
+
+
+def test_adjustment_recovers_truth(block_project):
+    block, root = block_project
+    ba = adjust_project(root, AdjustSettings(gnss_correction="shift", image_sigma_px=SIGMA_PX, self_calibration=("pp", "radial")))
+    r = ba.result
+    # sigma0 honest: a-priori sigma equals the injected noise
+    assert 0.85 < r.sigma0 < 1.15
+    assert len(r.removed) < 0.01 * len(r.obs_active)
+    C_true, opk_true = _truth_eo(block, ba)
+    dC = ba.eo_map.centre_m - C_true
+    assert np.sqrt(np.mean(dC**2)) < 0.3
+    # standard deviations of the centres explain the errors (normalised RMS near 1)
+    z = dC / ba.eo_map.sigma[:, :3]
+    assert 0.4 < np.sqrt(np.mean(z**2)) < 2.0
+    # check points: accuracy in GSD (0.1 m) and honest precision
+    d = np.array([np.subtract(c["adjusted_m"], c["measured_m"]) for c in ba.check.values()])
+    s = np.array([np.hypot(c["sigma_m"], c["given_sigma_m"]) for c in ba.check.values()])
+    assert np.sqrt(np.mean(d[:, :2] ** 2)) < 0.1
+    assert np.sqrt(np.mean(d[:, 2] ** 2)) < 0.25
+    assert 0.5 < np.sqrt(np.mean((d / s) ** 2)) < 1.6
+    # self-calibration: principal point and k1 within 3 standard deviations of the truth
+    cam_t = block.camera_true
+    sd = np.sqrt(np.diag(r.cal_cov))
+    assert abs(r.state.cal[3] - cam_t.cx_px) < 3 * sd[3]
+    assert abs(r.state.cal[4] - cam_t.cy_px) < 3 * sd[4]
+    assert abs(r.state.cal[5] - cam_t.k1) < 3 * sd[5]
+    # GNSS shift per strip recovered (the truth shift, ENU, vs the estimate)
+    assert np.sqrt(np.mean((r.state.shift - block.gnss_shift_m) ** 2)) < 0.15
+
+
+def test_outputs_and_report(block_project):
+    block, root = block_project
+    ba = adjust_project(root, AdjustSettings(gnss_correction="shift", image_sigma_px=SIGMA_PX, point_covariances=False))
+    rep = write_outputs(ba, root)
+    at = root / "at"
+    for f in ("eo.txt", "object_points.csv", "report.txt", "report.json", "report.html", "patb/block.im",
+              "patb/block.con", "colmap/cameras.txt", "colmap/images.txt", "colmap/points3D.txt"):
+        assert (at / f).stat().st_size > 0, f
+    txt = (at / "report.txt").read_text()
+    for label in ("PhotoT Triangulation Options", "RMS Control", "RMS Check", "Mean Std Dev Photo Attitude",
+                  "Sigma:", "Degrees of Freedom:", "Solution Successful.", "Check points"):
+        assert label in txt
+    js = json.loads((at / "report.json").read_text())
+    assert js["key_statistics"]["sigma0_um"] == rep["key_statistics"]["sigma0_um"]
+    assert js["counts"]["images"] == 18 and js["counts"]["check_points"] == 12
+    assert js["counts"]["image_observations"] + js["counts"]["removed_observations"] >= len(ba.block.obs_point) - 5
+    from aerotri.eo import read_eo
+
+    eo = read_eo(at / "eo.txt")
+    assert eo.sigma is not None and len(eo.image_id) == 18

@@ -1,0 +1,92 @@
+"""Bad input: clear errors naming the file/record, exit code 2, and no output written."""
+
+import numpy as np
+import pytest
+from click.testing import CliRunner
+
+from aerotri.cli import main
+from aerotri.sim.observations import geometric_block, write_block_project, write_truth_observations
+
+
+@pytest.fixture()
+def project(tmp_path):
+    block = geometric_block(2, 5, seed=21)
+    root = write_block_project(block, tmp_path / "blk")
+    write_truth_observations(root, tie_sigma_px=0.3, n_control=4, points_per_image=60, n_check=3, seed=22)
+    return root
+
+
+def _run(root, *args):
+    res = CliRunner().invoke(main, ["adjust", str(root), "--no-html", *args])
+    return res
+
+
+def _no_output(root):
+    return not any((root / "at" / f).exists() for f in ("eo.txt", "report.txt", "report.json", "object_points.csv"))
+
+
+def test_cli_runs(project):
+    res = _run(project, "--gnss-correction", "shift", "--image-sigma", "0.3")
+    assert res.exit_code == 0, res.output
+    assert "sigma0" in res.output and (project / "at" / "report.txt").exists()
+
+
+def _edit(path, fn):
+    lines = path.read_text().splitlines()
+    path.write_text("\n".join(fn(lines)) + "\n")
+
+
+def test_duplicate_tie_measurement(project):
+    _edit(project / "at" / "tiepoints.csv", lambda L: L + [L[5]])
+    res = _run(project)
+    assert res.exit_code == 2 and "duplicate measurement" in res.output and "tiepoints.csv" in res.output
+    assert _no_output(project)
+
+
+def test_duplicate_control_id(project):
+    _edit(project / "control" / "points.csv", lambda L: L + [L[1]])
+    res = _run(project)
+    assert res.exit_code == 2 and "duplicate control point id 'gcp01'" in res.output
+    assert _no_output(project)
+
+
+def test_nan_value(project):
+    _edit(project / "at" / "tiepoints.csv", lambda L: L[:3] + [",".join(L[3].split(",")[:2] + ["nan", "10.0"])] + L[4:])
+    res = _run(project)
+    assert res.exit_code == 2 and "tiepoints.csv:4" in res.output and "NaN" in res.output
+    assert _no_output(project)
+
+
+def test_control_without_image_measurement(project):
+    _edit(project / "control" / "points.csv", lambda L: L + ["gcp99,full,420000.0,3380000.0,150.0,0.03,0.03,0.05"])
+    res = _run(project)
+    assert res.exit_code == 2 and "gcp99" in res.output and "no image measurement" in res.output
+    assert _no_output(project)
+
+
+def test_too_few_control_for_datum(project):
+    _edit(project / "control" / "points.csv", lambda L: [L[0]] + [x.replace(",full,", ",check,") for x in L[1:]])
+    res = _run(project, "--gnss-correction", "shift")
+    assert res.exit_code == 2 and "too few control points for the datum" in res.output
+    assert _no_output(project)
+
+
+def test_disconnected_block(project):
+    # keep only tie points seen exclusively within one strip: the two strips fall apart
+    import csv
+
+    rows = list(csv.reader((project / "at" / "tiepoints.csv").open()))
+    head, body = rows[0], rows[1:]
+    strips = {}
+    for p, i, *_ in body:
+        strips.setdefault(p, set()).add(i[:3])
+    body = [r for r in body if len(strips[r[0]]) == 1]
+    (project / "at" / "tiepoints.csv").write_text("\n".join(",".join(r) for r in [head] + body) + "\n")
+    # control measurements also connect images: drop them from the second strip
+    _edit(project / "control" / "image_points.csv", lambda L: [L[0]] + [x for x in L[1:] if ",s01_" in x])
+    _edit(project / "control" / "points.csv", lambda L: [L[0]] + [x for x in L[1:] if x.split(",")[0] in
+          {r.split(",")[0] for r in (project / "control" / "image_points.csv").read_text().splitlines()[1:]}])
+    res = _run(project)
+    assert res.exit_code == 2 and "not connected" in res.output
+    assert "component 1" in res.output and "s01_001" in res.output and "s02_001" in res.output
+    assert _no_output(project)
