@@ -65,3 +65,20 @@ class Project:
         from aerotri.camera import FrameCamera
 
         return FrameCamera.read(self.camera_path)
+
+    def adjusted_camera(self):
+        """(camera, source): the self-calibrated camera of the last adjustment (``at/report.json``)
+        when there is one, else the nominal ``camera.toml``. Orientations in ``at/eo.txt`` belong to it."""
+        import json
+
+        from aerotri.camera import FrameCamera
+
+        rep = self.at_dir / "report.json"
+        if rep.is_file():
+            try:
+                cam = json.loads(rep.read_text()).get("self_calibration", {}).get("camera")
+            except json.JSONDecodeError:
+                raise InputError(f"{rep}: not valid JSON") from None
+            if cam:
+                return FrameCamera.from_dict(cam, source=f"{rep} self_calibration.camera"), f"{rep} (self-calibrated)"
+        return self.camera(), str(self.camera_path)

@@ -162,7 +162,7 @@ def chain_stages(root: Path, raster_res_m: float = 0.5, reference_ortho: Path | 
         return dict(tracks=c.get("tracks"), observations=c.get("observations"), components=c.get("components"))
 
     def adjust_first(r):
-        _invoke(aerotri_cli, ["adjust", r, "--self-cal", "pp,radial", "--no-html"])
+        _invoke(aerotri_cli, ["adjust", r, "--self-cal", "pp,radial", "--no-control", "--no-html"])
         from aerotri.camera import FrameCamera
         from lidarctl.atomic import write_text_atomic as wta
 
@@ -176,8 +176,8 @@ def chain_stages(root: Path, raster_res_m: float = 0.5, reference_ortho: Path | 
 
     def control(r):
         _invoke(aerotri_cli, ["control", r, "--eo", first / "eo.txt", "--camera", first / "camera.toml"])
-        t = _json(r / "control" / "transfer.json")
-        return {k: t[k] for k in ("control_points", "check_points") if k in t}
+        t = _json(r / "control" / "transfer.json").get("summary", {})
+        return {k: t[k] for k in ("corners_accepted", "control_full", "control_height", "check_points") if k in t}
 
     def adjust_final(r):
         _invoke(aerotri_cli, ["adjust", r, "--gnss-correction", "shift", "--self-cal", "pp,radial"])
@@ -213,18 +213,16 @@ def chain_stages(root: Path, raster_res_m: float = 0.5, reference_ortho: Path | 
     if reference_ortho is not None:
         def dom_check(r):
             _invoke(ortho_cli, ["check", r, "--reference", reference_ortho, "--ndsm", lo / "ndsm.tif"])
-            s = _json(r / "ortho" / "dom_report.json")
-            st = s.get("statistics", s)
-            return {k: st[k] for k in ("rms_m", "rms_gsd", "n") if k in st}
+            d = _json(r / "ortho" / "dom_report.json").get("displacement", {})
+            return {k: d[k] for k in ("rms_xy_m", "rms_xy_gsd", "count") if k in d}
 
         stages.append(Stage("dom_check", lambda r: [r / "ortho" / "mosaic.tif", reference_ortho],
                             lambda r: [r / "ortho" / "dom_report.json"], dom_check))
     if surveyed_points is not None:
         def height_check(r):
             _invoke(lidarctl_cli, ["check-heights", classified, surveyed_points, "--json", lo / "height_check.json"])
-            s = _json(lo / "height_check.json")
-            al = s.get("all", s)
-            return {k: al[k] for k in ("rmse_m", "mean_abs_m", "n") if k in al}
+            a = _json(lo / "height_check.json").get("overall", {}).get("all", {})
+            return {k: a[k] for k in ("rmse_m", "mean_abs_dz_m", "n") if k in a}
 
         stages.append(Stage("height_check", lambda r: [classified, surveyed_points],
                             lambda r: [lo / "height_check.json"], height_check))
@@ -237,9 +235,8 @@ def chain_stages(root: Path, raster_res_m: float = 0.5, reference_ortho: Path | 
             merge_las(sorted((r / "truth" / "lidar").glob("*.la[sz]")), truth_merged)
             _invoke(lidarctl_cli, ["evaluate", classified, "--truth", truth_merged, "--json",
                                    lo / "classification_eval.json"])
-            s = _json(lo / "classification_eval.json")
-            g = s.get("ground", s)
-            return {k: g[k] for k in ("type1_pct", "type2_pct", "total_error_pct", "kappa") if k in g}
+            g = _json(lo / "classification_eval.json").get("filter_test", {})
+            return {k: g[k] for k in ("type_i_error_pct", "type_ii_error_pct", "kappa_pct") if k in g}
 
         stages.append(Stage("lidar_eval", lambda r: [classified], lambda r: [lo / "classification_eval.json"],
                             lidar_eval))
@@ -247,12 +244,12 @@ def chain_stages(root: Path, raster_res_m: float = 0.5, reference_ortho: Path | 
 
 
 def _adjust_numbers(rep: dict) -> dict:
-    ks = rep.get("key_statistics", {})
     out = {}
+    ks = rep.get("key_statistics", {})
     if "sigma0_um" in ks:
         out["sigma0_um"] = ks["sigma0_um"]
-    par = rep.get("parameters", {})
-    for k in ("rms_check_xy_m", "rms_check_z_m", "rms_control_xy_m", "rms_control_z_m"):
-        if k in par:
-            out[k] = par[k]
+    chk = rep.get("check_rms_m")
+    if chk and len(chk) == 3 and None not in chk:
+        out["rms_check_xy_m"] = round(float((chk[0] ** 2 + chk[1] ** 2) ** 0.5), 4)
+        out["rms_check_z_m"] = chk[2]
     return out

@@ -47,7 +47,12 @@ class BlockInputs:
 def load_block(root, eo_path=None, camera_path=None, frames=None) -> BlockInputs:
     """Open a project and check that every selected image has an EO (InputError naming what is missing)."""
     project = Project.open(root)
-    camera = FrameCamera.read(camera_path) if camera_path else project.camera()
+    if camera_path:
+        camera = FrameCamera.read(camera_path)
+    elif eo_path is None:
+        camera, _ = project.adjusted_camera()  # at/eo.txt belongs to the self-calibrated camera
+    else:
+        camera = project.camera()
     eo_path = Path(eo_path) if eo_path else project.at_dir / "eo.txt"
     if not eo_path.exists():
         raise InputError(f"{eo_path}: exterior orientation not found (run the aerotri adjustment, or pass --eo FILE, "

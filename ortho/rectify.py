@@ -116,6 +116,23 @@ def _backproject_kernel(anchor_x, anchor_y, spacing, rows, cols, dem, dem_x0, de
             height_out[r, c] = Z
 
 
+@numba.njit(cache=True, inline="always")
+def _store_map(map_int, map_frac, mask, r, c, x, y, ok):
+    """One pixel of cv2.remap's fixed-point map (integer part + interpolation-table index) and its mask."""
+    if ok:
+        ix = int(x * INTER_TAB_SIZE + 0.5)  # x, y >= 0 here: truncation rounds
+        iy = int(y * INTER_TAB_SIZE + 0.5)
+        map_int[r, c, 0] = ix >> INTER_BITS
+        map_int[r, c, 1] = iy >> INTER_BITS
+        map_frac[r, c] = (iy & (INTER_TAB_SIZE - 1)) * INTER_TAB_SIZE + (ix & (INTER_TAB_SIZE - 1))
+        mask[r, c] = 255
+    else:
+        map_int[r, c, 0] = -32768
+        map_int[r, c, 1] = -32768
+        map_frac[r, c] = 0
+        mask[r, c] = 0
+
+
 @numba.njit(parallel=True, cache=True, fastmath=_FASTMATH)
 def _fixed_point_kernel(anchor_x, anchor_y, spacing, rows, cols, dem, dem_x0, dem_y0, dem_res,
                         centre, M, cam, width, height, margin, map_int, map_frac, mask, height_out):
@@ -128,18 +145,7 @@ def _fixed_point_kernel(anchor_x, anchor_y, spacing, rows, cols, dem, dem_x0, de
             Z, x, y, ok = _ground_to_image(r, c, inv_s, anchor_x, anchor_y, dem, dem_x0, dem_y0, dem_res, centre, M,
                                            cam, width, height, margin)
             height_out[r, c] = Z
-            if ok:
-                ix = int(x * INTER_TAB_SIZE + 0.5)  # x, y >= 0 here: truncation rounds
-                iy = int(y * INTER_TAB_SIZE + 0.5)
-                map_int[r, c, 0] = ix >> INTER_BITS
-                map_int[r, c, 1] = iy >> INTER_BITS
-                map_frac[r, c] = (iy & (INTER_TAB_SIZE - 1)) * INTER_TAB_SIZE + (ix & (INTER_TAB_SIZE - 1))
-                mask[r, c] = 255
-            else:
-                map_int[r, c, 0] = -32768
-                map_int[r, c, 1] = -32768
-                map_frac[r, c] = 0
-                mask[r, c] = 0
+            _store_map(map_int, map_frac, mask, r, c, x, y, ok)
 
 
 @numba.njit(parallel=True, cache=True)
@@ -245,18 +251,7 @@ def _fixed_point_kernel_affine(heights, x0, y0, res, centre, M, cam, width, heig
                     x = f * (xn * radial + 2.0 * p1 * xn * yn + p2 * (r2 + 2.0 * xn * xn)) + cx
                     y = f * (yn * radial + p1 * (r2 + 2.0 * yn * yn) + 2.0 * p2 * xn * yn) + cy
                     ok = x >= margin and x <= width - 1 - margin and y >= margin and y <= height - 1 - margin
-            if ok:
-                ix = int(x * INTER_TAB_SIZE + 0.5)
-                iy = int(y * INTER_TAB_SIZE + 0.5)
-                map_int[r, c, 0] = ix >> INTER_BITS
-                map_int[r, c, 1] = iy >> INTER_BITS
-                map_frac[r, c] = (iy & (INTER_TAB_SIZE - 1)) * INTER_TAB_SIZE + (ix & (INTER_TAB_SIZE - 1))
-                mask[r, c] = 255
-            else:
-                map_int[r, c, 0] = -32768
-                map_int[r, c, 1] = -32768
-                map_frac[r, c] = 0
-                mask[r, c] = 0
+            _store_map(map_int, map_frac, mask, r, c, x, y, ok)
 
 
 def heights_on_grid(dem: HeightRaster, grid: OrthoGrid) -> np.ndarray:

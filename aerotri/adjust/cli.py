@@ -18,10 +18,13 @@ from aerotri.errors import exit_on_input_error
 @click.option("--check", "check", multiple=True, help="Use this control point id as a check point (repeatable).")
 @click.option("--control", "control", multiple=True, help="Use this point id as full control (repeatable).")
 @click.option("--no-snooping", is_flag=True, help="Disable blunder detection.")
+@click.option("--no-control", is_flag=True,
+              help="Ignore control/ (tie points + GNSS only, e.g. the first adjustment before control transfer).")
 @click.option("--alpha", type=float, default=1e-4, show_default=True, help="Type I error per coordinate for data snooping.")
 @click.option("--no-html", is_flag=True, help="Skip report.html.")
 @exit_on_input_error
-def adjust(project, gnss_correction, lever_arm, self_cal, image_sigma, check, control, no_snooping, alpha, no_html):
+def adjust(project, gnss_correction, lever_arm, self_cal, image_sigma, check, control, no_snooping, no_control, alpha,
+           no_html):
     """Adjust the block of PROJECT; writes at/eo.txt, at/object_points.csv, at/report.* and exports."""
     from aerotri.adjust.pipeline import AdjustSettings, adjust_project, write_outputs
 
@@ -33,6 +36,7 @@ def adjust(project, gnss_correction, lever_arm, self_cal, image_sigma, check, co
         check=tuple(check),
         control=tuple(control),
         snooping=not no_snooping,
+        use_control=not no_control,
         alpha=alpha,
     )
     ba = adjust_project(project, settings, progress=lambda m: click.echo(m, err=True))

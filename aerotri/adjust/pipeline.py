@@ -51,6 +51,7 @@ class AdjustSettings:
     use_gnss: bool = True
     initial_eo: str | None = None  # EO file for approximations (blocks without GNSS)
     point_covariances: bool = True
+    use_control: bool = True  # False: ignore control/ (GNSS must carry the datum)
 
 
 @dataclasses.dataclass
@@ -130,7 +131,10 @@ def prepare_project(root, settings: AdjustSettings | None = None):
     ctrl_path = project.control_dir / "points.csv"
     cobs_path = project.control_dir / "image_points.csv"
     ties = read_image_points(tie_path)
-    if ctrl_path.exists() or cobs_path.exists() or not (st.use_gnss and project.gnss_path.exists()):
+    gnss_datum = st.use_gnss and project.gnss_path.exists()
+    if not st.use_control and not gnss_datum:
+        raise InputError(f"{project.gnss_path}: without control the datum needs GNSS positions")
+    if st.use_control and (ctrl_path.exists() or cobs_path.exists() or not gnss_datum):
         control = read_control_points(ctrl_path)
         cobs = read_image_points(cobs_path)
     else:

@@ -26,6 +26,7 @@ from aerotri.control.layout import LayoutRule, select_control
 from aerotri.control.measure import MeasureSettings, Measurement, measure_in_image, predict
 from aerotri.eo import ExteriorOrientations, read_eo
 from aerotri.errors import InputError
+from aerotri.project import Project
 
 
 @dataclasses.dataclass(frozen=True)
@@ -76,15 +77,7 @@ def project_camera(root: Path, camera_path=None) -> tuple[FrameCamera, str]:
     """The camera to project with: explicit file, else self-calibrated from at/report.json, else camera.toml."""
     if camera_path is not None:
         return FrameCamera.read(camera_path), str(camera_path)
-    rep = root / "at" / "report.json"
-    if rep.is_file():
-        try:
-            cam = json.loads(rep.read_text()).get("self_calibration", {}).get("camera")
-        except json.JSONDecodeError:
-            raise InputError(f"{rep}: not valid JSON") from None
-        if cam:
-            return FrameCamera.from_dict(cam, source=f"{rep} self_calibration.camera"), f"{rep} (self-calibrated)"
-    return FrameCamera.read(root / "camera.toml"), str(root / "camera.toml")
+    return Project.open(root).adjusted_camera()
 
 
 def transfer_control(corners: LidarCorners, camera: FrameCamera, eo: ExteriorOrientations, images_dir,

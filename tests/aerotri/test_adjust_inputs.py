@@ -90,3 +90,22 @@ def test_disconnected_block(project):
     assert res.exit_code == 2 and "not connected" in res.output
     assert "component 1" in res.output and "s01_001" in res.output and "s02_001" in res.output
     assert _no_output(project)
+
+
+def test_gnss_only_adjustment_without_control(project):
+    """The first adjustment of the chain: tie points + GNSS, no control files (or --no-control)."""
+    res = _run(project, "--no-control", "--image-sigma", "0.3")
+    assert res.exit_code == 0, res.output
+    import json
+
+    rep = json.loads((project / "at" / "report.json").read_text())
+    assert rep["counts"]["control_points"] == 0 and rep["key_statistics"]["success"]
+    import shutil
+
+    shutil.rmtree(project / "control")
+    (project / "at" / "eo.txt").unlink()
+    res = _run(project, "--image-sigma", "0.3")
+    assert res.exit_code == 0, res.output
+    # Strip shifts cannot be separated from the datum without control: refused.
+    res = _run(project, "--no-control", "--gnss-correction", "shift")
+    assert res.exit_code == 2 and "too few control points for the datum" in res.output
