@@ -240,6 +240,15 @@ def chain_stages(root: Path, raster_res_m: float = 0.5, reference_ortho: Path | 
 
         stages.append(Stage("lidar_eval", lambda r: [classified], lambda r: [lo / "classification_eval.json"],
                             lidar_eval))
+    def report(r):
+        from aerotri.qa_report import write_qa_report
+
+        rep = write_qa_report(r)
+        return dict(verdict=rep["overall"], checks=len(rep["checks"]))
+
+    report_inputs = [root / "at" / "report.json", root / "control" / "transfer.json", root / "ortho" / "dom_report.json",
+                     lo / "height_check.json", lo / "classification_eval.json"]
+    stages.append(Stage("report", lambda r: report_inputs, lambda r: [r / "reports" / "index.html"], report))
     return stages
 
 
