@@ -71,6 +71,7 @@ def run_stages(root, stages: list[Stage], force: bool = False, log=print) -> lis
             log(f"[{st.name}] up to date, skipped")
             continue
         log(f"[{st.name}] running")
+        _remove_stale_temporaries(st.outputs(root))
         t = time.perf_counter()
         result = st.run(root) or {}
         dt = time.perf_counter() - t
@@ -83,6 +84,21 @@ def run_stages(root, stages: list[Stage], force: bool = False, log=print) -> lis
         rows.append(dict(stage=st.name, status="done", seconds=round(dt, 1), **result))
         log(f"[{st.name}] done in {dt:.1f} s")
     return rows
+
+
+def _remove_stale_temporaries(outputs: list[Path]) -> None:
+    """Delete what a killed earlier attempt left of its atomic writes (``.<stem>.XXXX<suffix>`` files
+    and ``.<name>.XXXX`` folders next to the outputs; see lidarctl.atomic)."""
+    import shutil
+
+    for p in outputs:
+        if not p.parent.is_dir():
+            continue
+        for q in p.parent.glob(f".{p.stem}.*"):
+            if q.is_dir():
+                shutil.rmtree(q, ignore_errors=True)
+            elif q.suffix == (p.suffix or ".tmp"):
+                q.unlink(missing_ok=True)
 
 
 def format_summary(rows: list[dict]) -> str:

@@ -63,3 +63,13 @@ def test_failed_stage_leaves_no_stamp_and_resumes(tmp_path):
     run_stages(tmp_path, _stages(calls), log=lambda m: None)
     assert calls == ["double", "add"]
     assert json.loads(stamp_path(tmp_path, "add").read_text())["result"]["value"] == 3
+
+
+def test_stale_temporaries_of_a_killed_attempt_are_removed(tmp_path):
+    (tmp_path / "in.txt").write_text("2")
+    # What a SIGKILL during lidarctl.atomic.atomic_path leaves behind:
+    (tmp_path / ".mid.abc123.txt").write_text("partial")
+    (tmp_path / ".out.xyz.txt").write_text("partial")
+    run_stages(tmp_path, _stages([]), log=lambda m: None)
+    assert not list(tmp_path.glob(".*.txt"))
+    assert (tmp_path / "out.txt").read_text() == "5"
