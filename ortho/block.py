@@ -22,13 +22,13 @@ from tqdm import tqdm
 from aerotri.camera import FrameCamera
 from aerotri.eo import ExteriorOrientations, read_eo
 from aerotri.errors import InputError
+from aerotri.match.images import find_images
 from aerotri.project import Project
 from lidarctl.atomic import atomic_path, write_text_atomic
 from ortho.dem import height_range, open_height_raster, read_height_window
 from ortho.grid import GridToProject, OrthoGrid, nice_resolution, parse_crs, resolve_output_crs
 from ortho.rectify import border_pixels, frame_grid, rectify_frame
 
-IMAGE_SUFFIXES = (".tif", ".tiff", ".jpg", ".jpeg", ".png")
 
 
 @dataclasses.dataclass
@@ -58,16 +58,12 @@ def load_block(root, eo_path=None, camera_path=None, frames=None) -> BlockInputs
         raise InputError(f"{eo_path}: exterior orientation not found (run the aerotri adjustment, or pass --eo FILE, "
                          f"e.g. --eo {project.truth_dir / 'eo.txt'})")
     eo = read_eo(eo_path)
-    if not project.images_dir.is_dir():
-        raise InputError(f"{project.images_dir}: images folder not found")
-    images = {p.stem: p for p in sorted(project.images_dir.iterdir()) if p.suffix.lower() in IMAGE_SUFFIXES}
+    images = find_images(project.images_dir)
     if frames:
         unknown = [f for f in frames if f not in images]
         if unknown:
             raise InputError(f"{project.images_dir}: no image for frame(s) {', '.join(unknown)}")
         images = {f: images[f] for f in frames}
-    if not images:
-        raise InputError(f"{project.images_dir}: no images ({', '.join(IMAGE_SUFFIXES)})")
     idx = eo.index()
     missing = [k for k in images if k not in idx]
     if missing:

@@ -8,6 +8,7 @@ import numpy as np
 import rasterio
 from scipy.ndimage import maximum_filter, minimum_filter
 
+from aerotri.adjust.check_points import intersect_rays
 from aerotri.camera import FrameCamera
 from aerotri.eo import read_eo
 
@@ -17,16 +18,6 @@ def read_tiepoints(path):
         rows = list(csv.DictReader(f))
     return ([r["point_id"] for r in rows], [r["image_id"] for r in rows],
             np.array([[float(r["x_px"]), float(r["y_px"])] for r in rows]).reshape(-1, 2))
-
-
-def triangulate(centres, dirs, index, n):
-    """Least-squares intersection of rays (unit dirs) grouped by ``index`` (0..n-1)."""
-    A = np.zeros((n, 3, 3))
-    b = np.zeros((n, 3))
-    P = np.eye(3)[None] - dirs[:, :, None] * dirs[:, None, :]
-    np.add.at(A, index, P)
-    np.add.at(b, index, np.einsum("kij,kj->ki", P, centres))
-    return np.linalg.solve(A + 1e-12 * np.eye(3)[None], b[..., None])[..., 0]
 
 
 def tie_point_errors(project, tiepoints_csv=None, tol_px: float = 1.0) -> dict:
@@ -54,13 +45,13 @@ def tie_point_errors(project, tiepoints_csv=None, tol_px: float = 1.0) -> dict:
         sel = img == k
         d[sel] = cam.rays(xy[sel, 0], xy[sel, 1], R[k])
     C = eo.centre_m[img]
-    X = triangulate(C, d, track, n)
+    X, ok = intersect_rays(C, d, track, n)
     res = np.empty(len(xy))
     for k in np.unique(img):
         sel = img == k
         px, py, _ = cam.project(X[track[sel]], eo.centre_m[k], R[k])
         res[sel] = np.hypot(px - xy[sel, 0], py - xy[sel, 1])
-    off = res > tol_px
+    off = (res > tol_px) | ~ok[track]  # a track whose rays do not intersect counts as wrong
     length = np.bincount(track, minlength=n)
     two = length[track] == 2
     with rasterio.open(project / "truth" / "dsm.tif") as ds:

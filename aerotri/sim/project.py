@@ -219,7 +219,7 @@ def simulate(cfg: dict, outdir, force: bool = False, log=print) -> dict:
             check_targets=int(len(tgt)), check_image_points=len(img_rows),
             lidar_strips=len(lines), lidar_points=int(n_points), lidar_class_counts=class_counts,
             lidar_strip_offsets_m=strip_offsets,
-            lidar_mean_spacing_m=_mean_spacing(n_points, class_counts, layout, L),
+            lidar_mean_spacing_m=_mean_spacing(L),
             steep_band_y_m=[scene.steep_band_y_m[0] + origin[1], scene.steep_band_y_m[1] + origin[1]],
             max_slope_deg=_max_slope_deg(scene),
         )
@@ -229,7 +229,7 @@ def simulate(cfg: dict, outdir, force: bool = False, log=print) -> dict:
     return truth
 
 
-def _mean_spacing(n_points, counts, layout, L):
+def _mean_spacing(L):
     """Nominal single-strip point spacing 1/sqrt(density) from the scanner settings."""
     swath = 2.0 * L["height_above_ground_m"] * math.tan(math.radians(L["fov_deg"] / 2.0))
     density = L["pulse_rate_hz"] / (L["speed_mps"] * swath)
