@@ -17,6 +17,7 @@ Schedulers:
 
 from __future__ import annotations
 
+import contextlib
 import os
 import sys
 from typing import Any, Callable, Iterable
@@ -123,14 +124,40 @@ class Executor:
 
 
 _LOCAL = None
+_ACTIVE: Executor | None = None
 
 
 def local_executor() -> Executor:
-    """The default executor (local threads), shared by library calls that were given none."""
+    """The executor for library calls that were given none: the one a production run made active
+    (:func:`activate`), else local threads."""
     global _LOCAL
+    if _ACTIVE is not None:
+        return _ACTIVE
     if _LOCAL is None:
         _LOCAL = Executor()
     return _LOCAL
+
+
+@contextlib.contextmanager
+def activate(executor: Executor):
+    """Make ``executor`` the one every stage of a run uses (one cluster connection for the whole run)."""
+    global _ACTIVE
+    previous, _ACTIVE = _ACTIVE, executor
+    try:
+        yield executor
+    finally:
+        _ACTIVE = previous
+
+
+@contextlib.contextmanager
+def executor_for(scheduler: str | None = None, workers: int | None = None):
+    """The executor of a command: a new one for an explicit ``--scheduler``/``--workers``, otherwise
+    the run's active one (or local threads)."""
+    if scheduler is None and workers is None:
+        yield local_executor()
+        return
+    with Executor(scheduler, workers) as ex:
+        yield ex
 
 
 def scheduler_options(f):

@@ -1,97 +1,294 @@
-"""Consolidated accuracy report of a project: ``reports/index.html`` and ``reports/summary.json``.
+"""Consolidated accuracy report of a project: ``reports/index.html``, ``reports/summary.json`` and,
+optionally, ``reports/report.pdf``.
 
-It gathers what the stages wrote (LiDAR classification and height checks, control-point transfer,
-the adjustment's ISAT-style numbers, the DOM check) and marks each quantity that has a tolerance
-as pass or fail. Tolerances come from a TOML table per map scale and standard (default: the Chinese
-specification for 1:5000 / 1:10000 photogrammetric office work, ``aerotri/adjust/tolerances``), for
-the terrain class of the project; users pass their own table for their contract.
+It gathers what the stages wrote - LiDAR classification and height checks, control-point quality,
+the adjustment's ISAT-style numbers, the DOM check with its seam misalignment - and marks every
+quantity that has a tolerance as pass or fail. Tolerances come from a TOML table per map scale
+(``aerotri/tolerances/cn_1to2000.toml``, ``cn_1to5000.toml``, ``cn_1to10000.toml``; sections
+``flat``, ``hilly``, ``mountainous`` plus ``general`` for every class) or from the user's own file
+for their contract. Scale, terrain class and file come from the arguments, else from ``[qa]`` in
+``project.toml`` (``map_scale = "1:2000"``, ``terrain = "hilly"``, ``tolerances = "my.toml"``, ``pdf``),
+else 1:5000 flat.
 """
 
 from __future__ import annotations
 
 import html
 import json
+import math
 import tomllib
 from pathlib import Path
 
-from aerotri.adjust.report import TOLERANCES
-from lidarctl.atomic import write_text_atomic
+from aerotri.errors import InputError
+from lidarctl.atomic import atomic_path, write_text_atomic
+
+TOLERANCE_DIR = Path(__file__).with_name("tolerances")
+SCALE_TABLES = {"1:2000": "cn_1to2000.toml", "1:5000": "cn_1to5000.toml", "1:10000": "cn_1to10000.toml"}
+TERRAINS = ("flat", "hilly", "mountainous")
 
 
 def _json(path: Path) -> dict:
     return json.loads(path.read_text()) if path.is_file() else {}
 
 
-def _check(name: str, value, limit, unit: str) -> dict:
-    row = dict(quantity=name, value=value, limit=limit, unit=unit)
-    row["verdict"] = None if value is None or limit is None else ("pass" if value <= limit else "fail")
+def tolerance_path(scale: str | None = None, tolerance_file=None) -> Path:
+    if tolerance_file:
+        p = Path(tolerance_file)
+        if not p.is_file():
+            raise InputError(f"{p}: tolerance table not found")
+        return p
+    scale = scale or "1:5000"
+    if scale not in SCALE_TABLES:
+        raise InputError(f"map scale {scale!r}: no built-in tolerance table (have {', '.join(SCALE_TABLES)}); "
+                         f"give your own with --tolerances FILE")
+    return TOLERANCE_DIR / SCALE_TABLES[scale]
+
+
+def load_tolerances(scale: str | None = None, terrain: str = "flat", tolerance_file=None) -> dict:
+    """Limits for one terrain class: the ``general`` section overlaid by the class's own."""
+    path = tolerance_path(scale, tolerance_file)
+    try:
+        table = tomllib.loads(path.read_text())
+    except tomllib.TOMLDecodeError as e:
+        raise InputError(f"{path}: not a valid TOML tolerance table ({e})") from None
+    if terrain not in table:
+        have = [k for k, v in table.items() if isinstance(v, dict) and k != "general"]
+        raise InputError(f"{path}: no [{terrain}] section (terrain classes here: {', '.join(have)})")
+    return {**table.get("general", {}), **table[terrain]}
+
+
+def qa_settings(root: Path) -> dict:
+    """``[qa]`` of project.toml (map_scale, terrain, tolerances, pdf), with defaults."""
+    cfg = {}
+    p = Path(root) / "project.toml"
+    if p.is_file():
+        cfg = tomllib.loads(p.read_text()).get("qa", {})
+    out = dict(map_scale=cfg.get("map_scale", "1:5000"), terrain=cfg.get("terrain", "flat"),
+               tolerances=cfg.get("tolerances"), pdf=bool(cfg.get("pdf", False)))
+    if out["tolerances"]:
+        out["tolerances"] = str((Path(root) / out["tolerances"]).resolve())
+    return out
+
+
+def _check(section: str, name: str, value, limit, unit: str, note: str = "") -> dict:
+    row = dict(section=section, quantity=name, value=value, limit=limit, unit=unit, note=note)
+    if value is None or limit is None:
+        row["verdict"] = None
+    elif isinstance(limit, bool):
+        row["verdict"] = "pass" if value == limit else "fail"
+    else:
+        row["verdict"] = "pass" if value <= limit else "fail"
     return row
 
 
-def build_qa_report(root, tolerance_file=None, terrain: str = "flat") -> dict:
+def _hypot(a, b):
+    return round(math.hypot(a, b), 4)
+
+
+def _pixel_um(root: Path, at: dict) -> float | None:
+    cam = at.get("self_calibration", {}).get("camera") or {}
+    if "pixel_um" in cam:
+        return float(cam["pixel_um"])
+    p = root / "camera.toml"
+    if p.is_file():
+        return float(tomllib.loads(p.read_text()).get("pixel_um", 0)) or None
+    return None
+
+
+def build_qa_report(root, tolerance_file=None, terrain: str | None = None, scale: str | None = None) -> dict:
     root = Path(root)
-    tol_path = Path(tolerance_file) if tolerance_file else TOLERANCES
-    tol_all = tomllib.loads(tol_path.read_text())
-    tol = tol_all.get(terrain, {})
+    cfg = qa_settings(root)
+    terrain = terrain or cfg["terrain"]
+    if terrain not in TERRAINS and not (tolerance_file or cfg["tolerances"]):
+        raise InputError(f"terrain class {terrain!r}: expected one of {', '.join(TERRAINS)}")
+    scale = scale or cfg["map_scale"]
+    tol_file = tolerance_file or cfg["tolerances"]
+    tol_path = tolerance_path(scale, tol_file)
+    tol = load_tolerances(scale, terrain, tol_file)
     at = _json(root / "at" / "report.json")
     ctl = _json(root / "control" / "transfer.json").get("summary", {})
-    dom = _json(root / "ortho" / "dom_report.json").get("displacement", {})
-    hc = _json(root / "lidar_out" / "height_check.json").get("overall", {})
+    dom_all = _json(root / "ortho" / "dom_report.json")
+    dom, seams = dom_all.get("displacement", {}), dom_all.get("seams", {})
+    hc_all = _json(root / "lidar_out" / "height_check.json")
+    hc = hc_all.get("overall", {})
     ce = _json(root / "lidar_out" / "classification_eval.json").get("filter_test", {})
-    chk = at.get("check_rms_m")
     rows = []
-    if chk and None not in chk:
-        rows.append(_check("aerotriangulation check points, plan RMS", round((chk[0] ** 2 + chk[1] ** 2) ** 0.5, 4),
-                           tol.get("rms_xy_m"), "m"))
-        rows.append(_check("aerotriangulation check points, height RMS", chk[2], tol.get("rms_z_m"), "m"))
+
+    # LiDAR
+    sec = "LiDAR classification"
+    if ce:
+        rows.append(_check(sec, "ground filter total error against the reference classes", round(ce["total_error_pct"], 3),
+                           tol.get("filter_total_error_pct"), "%"))
+        rows.append(_check(sec, "type I error (ground rejected)", round(ce["type_i_error_pct"], 3), None, "%"))
+        rows.append(_check(sec, "type II error (objects accepted as ground)", round(ce["type_ii_error_pct"], 3), None, "%"))
+        rows.append(_check(sec, "Cohen's kappa", round(ce["kappa_pct"], 2), None, "%"))
+    sec = "LiDAR height check"
+    if hc.get("all"):
+        a = hc["all"]
+        rows.append(_check(sec, f"ground height RMSE at {a['n']} surveyed points", round(a["rmse_m"], 4),
+                           tol.get("dem_rmse_m"), "m"))
+        dz = [p["dz_m"] for p in hc_all.get("points", []) if p.get("dz_m") is not None]
+        if dz and tol.get("dem_rmse_m"):
+            lim = 3.0 * tol["dem_rmse_m"]
+            pct = 100.0 * sum(abs(d) > lim for d in dz) / len(dz)
+            rows.append(_check(sec, f"surveyed points with |dz| > {lim:.2f} m (3 x the RMSE limit)", round(pct, 2),
+                               tol.get("height_check_max_outlier_pct"), "%"))
+
+    # Control and adjustment
+    sec = "Control points"
+    if ctl:
+        rows.append(_check(sec, "LiDAR corners accepted as control / check points",
+                           f"{ctl.get('control_full', 0)} full + {ctl.get('control_height', 0)} height / "
+                           f"{ctl.get('check_points', 0)} check", None, ""))
     ctrl = at.get("rms_control_ground_m")
     if ctrl and None not in ctrl:
-        rows.append(_check("control points, plan RMS residual", round((ctrl[0] ** 2 + ctrl[1] ** 2) ** 0.5, 4),
-                           tol.get("rms_xy_m"), "m"))
-        rows.append(_check("control points, height RMS residual", ctrl[2], tol.get("rms_z_m"), "m"))
-    if dom.get("rms_xy_m") is not None:
-        rows.append(_check("DOM displacement on ground patches, plan RMS", round(dom["rms_xy_m"], 4),
-                           tol.get("feature_rms_xy_m"), "m"))
+        rows.append(_check(sec, "control residuals, plan RMS", _hypot(ctrl[0], ctrl[1]), tol.get("rms_xy_m"), "m"))
+        rows.append(_check(sec, "control residuals, height RMS", ctrl[2], tol.get("rms_z_m"), "m"))
+    if at:
+        rej = at.get("rejected_control") or []
+        rows.append(_check(sec, "control points rejected by the adjustment",
+                           len(rej), None, "", ", ".join(str(r.get("id", r) if isinstance(r, dict) else r) for r in rej)))
+    sec = "Aerotriangulation"
     ks = at.get("key_statistics", {})
+    if ks:
+        rows.append(_check(sec, "solution successful", bool(ks.get("success")), True, "", ks.get("message", "")))
+        px = _pixel_um(root, at)
+        if ks.get("sigma0_um") is not None and px:
+            rows.append(_check(sec, "sigma naught", round(ks["sigma0_um"] / px, 3), tol.get("sigma0_max_px"), "px",
+                               f"{ks['sigma0_um']:.2f} um on {px:g} um pixels"))
+    chk = at.get("check_rms_m")
+    if chk and None not in chk:
+        n = len(at.get("check_points", []))
+        rows.append(_check(sec, "check points, plan RMS", _hypot(chk[0], chk[1]), tol.get("rms_xy_m"), "m", f"{n} points"))
+        rows.append(_check(sec, "check points, height RMS", chk[2], tol.get("rms_z_m"), "m", f"{n} points"))
+        d = [c["d_m"] for c in at.get("check_points", []) if c.get("d_m") and None not in c["d_m"]]
+        # Gross errors: single residuals beyond the residual limit (2 x the RMS limit); a few percent
+        # of them is tolerated (their share is limited, not their existence).
+        for k, (name, lim) in enumerate((("plan", tol.get("residual_xy_m")), ("height", tol.get("residual_z_m")))):
+            if d and lim:
+                big = sum((math.hypot(a, b) if k == 0 else abs(c)) > lim for a, b, c in d)
+                rows.append(_check(sec, f"check points with a {name} residual beyond {lim:g} m", round(100.0 * big / len(d), 2),
+                                   tol.get("gross_error_max_pct"), "%", f"{big} of {len(d)}"))
+
+    # DOM
+    sec = "DOM"
+    if dom.get("rms_xy_m") is not None:
+        rows.append(_check(sec, "displacement on ground patches, plan RMS", round(dom["rms_xy_m"], 4),
+                           tol.get("feature_rms_xy_m"), "m",
+                           f"{dom.get('count')} patches, {dom.get('rms_xy_gsd', float('nan')):.2f} GSD"))
+        if dom.get("p95_xy_m") is not None and tol.get("feature_rms_xy_m") and tol.get("gross_error_max_pct") == 5.0:
+            # 95th percentile within 2 x the RMS limit <=> at most 5 % gross errors.
+            rows.append(_check(sec, "95th percentile of the patch displacements", round(dom["p95_xy_m"], 4),
+                               2 * tol["feature_rms_xy_m"], "m", f"largest {dom.get('max_xy_m', float('nan')):.3f} m; "
+                               "limit 2 x the RMS limit (at most 5 % gross errors)"))
+    if seams.get("rms_px") is not None:
+        rows.append(_check(sec, "misalignment across seamlines, RMS", round(seams["rms_px"], 3),
+                           tol.get("seam_misalignment_rms_px"), "px", f"{seams.get('patches')} patches"))
+
+    verdicts = [r["verdict"] for r in rows if r["verdict"]]
     info = dict(
-        adjustment=dict(sigma0_um=ks.get("sigma0_um"), success=ks.get("success"), message=ks.get("message"),
-                        counts=at.get("counts"), rejected_control=at.get("rejected_control")),
-        control_transfer=ctl,
-        lidar_height_check=hc.get("all"),
+        adjustment=dict(sigma0_um=ks.get("sigma0_um"), iterations=ks.get("iterations"), counts=at.get("counts"),
+                        check_normalised_rms=at.get("check_normalised_rms")) if at else None,
+        control_transfer=ctl or None,
+        lidar_height_bins=hc.get("bins"),
+        lidar_height_groups=hc_all.get("groups") or None,
         lidar_classification=ce or None,
         dom=dom or None,
     )
-    verdicts = [r["verdict"] for r in rows if r["verdict"]]
-    return dict(project=at.get("project", root.name), tolerance_table=str(tol_path.name), terrain=terrain,
-                checks=rows, overall=("fail" if "fail" in verdicts else "pass") if verdicts else None, details=info)
+    return dict(project=at.get("project", root.name), map_scale=tol_path.stem if tol_file else scale,
+                tolerance_table=str(tol_path.name), terrain=terrain, tolerances=tol, checks=rows,
+                overall=("fail" if "fail" in verdicts else "pass") if verdicts else None,
+                passed=verdicts.count("pass"), failed=verdicts.count("fail"), details=info)
+
+
+def _cell(v) -> str:
+    if v is None:
+        return ""
+    if isinstance(v, float):
+        return html.escape(f"{v:.4g}")
+    return html.escape(str(v))
 
 
 def format_html(rep: dict) -> str:
-    def cell(v):
-        return "" if v is None else html.escape(f"{v:.4g}" if isinstance(v, float) else str(v))
-
-    rows = "".join(
-        f"<tr><td>{cell(r['quantity'])}</td><td>{cell(r['value'])}</td><td>{cell(r['limit'])}</td><td>{cell(r['unit'])}</td>"
-        f"<td class='{r['verdict'] or ''}'>{cell(r['verdict'])}</td></tr>" for r in rep["checks"])
+    body, section = [], None
+    for r in rep["checks"]:
+        if r["section"] != section:
+            section = r["section"]
+            body.append(f"<tr><th colspan='6' class='sec'>{html.escape(section)}</th></tr>")
+        body.append(f"<tr><td>{_cell(r['quantity'])}</td><td>{_cell(r['value'])}</td><td>{_cell(r['limit'])}</td>"
+                    f"<td>{_cell(r['unit'])}</td><td class='{r['verdict'] or ''}'>{_cell(r['verdict'])}</td>"
+                    f"<td>{_cell(r['note'])}</td></tr>")
     details = "".join(f"<h3>{html.escape(k.replace('_', ' '))}</h3><pre>{html.escape(json.dumps(v, indent=1))}</pre>"
                       for k, v in rep["details"].items() if v)
     return f"""<!doctype html><html><head><meta charset="utf-8"><title>Accuracy report {html.escape(rep['project'])}</title>
-<style>body{{font-family:sans-serif;margin:2em}}td,th{{border:1px solid #ccc;padding:4px 8px}}table{{border-collapse:collapse}}
-.pass{{background:#cfc}}.fail{{background:#fcc}}pre{{background:#f6f6f6;padding:8px}}</style></head><body>
+<style>body{{font-family:sans-serif;margin:2em}}td,th{{border:1px solid #ccc;padding:4px 8px;text-align:left}}
+table{{border-collapse:collapse}}th.sec{{background:#eef}}.pass{{background:#cfc}}.fail{{background:#fcc}}
+pre{{background:#f6f6f6;padding:8px}}img{{max-width:48%;margin:4px;border:1px solid #ddd}}</style></head><body>
 <h1>Accuracy report: {html.escape(rep['project'])}</h1>
-<p>Tolerances: {html.escape(rep['tolerance_table'])}, terrain class <b>{html.escape(rep['terrain'])}</b>.
-Overall verdict: <b class="{rep['overall'] or ''}">{html.escape(str(rep['overall']))}</b></p>
-<table><tr><th>quantity</th><th>value</th><th>limit</th><th>unit</th><th>verdict</th></tr>{rows}</table>
-<p>Stage reports: <a href="../at/report.html">adjustment (ISAT layout)</a>, <a href="../at/report.txt">report.txt</a>,
-<a href="../control/review/review.html">control transfer review</a>, <a href="../ortho/dom_report.png">DOM check plot</a>,
-<a href="../at/connectivity.png">tie-point connectivity</a>.</p>
+<p>Map scale <b>{html.escape(str(rep['map_scale']))}</b>, terrain class <b>{html.escape(rep['terrain'])}</b>,
+tolerances from {html.escape(rep['tolerance_table'])}.
+Overall verdict: <b class="{rep['overall'] or ''}">{html.escape(str(rep['overall']))}</b>
+({rep['passed']} passed, {rep['failed']} failed).</p>
+<table><tr><th>quantity</th><th>value</th><th>limit</th><th>unit</th><th>verdict</th><th>note</th></tr>{''.join(body)}</table>
+<h2>Stage reports</h2>
+<p><a href="../at/report.html">adjustment (ISAT layout)</a>, <a href="../at/report.txt">report.txt</a>,
+<a href="../control/review/review.html">control transfer review</a>, <a href="../ortho/dom_report.json">DOM check</a>,
+<a href="../lidar_out/height_check.json">LiDAR height check</a>.</p>
+<p><img src="../ortho/dom_report.png" alt="DOM displacement"><img src="../at/connectivity.png" alt="tie-point connectivity"></p>
 {details}</body></html>
 """
 
 
-def write_qa_report(root, tolerance_file=None, terrain: str = "flat") -> dict:
+def write_pdf(path: Path, rep: dict, root: Path) -> None:
+    """The verdict table on the first page, then the plots the stages wrote (A4 landscape)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    from matplotlib.backends.backend_pdf import PdfPages
+
+    with atomic_path(path) as tmp, PdfPages(tmp, metadata={"Title": f"Accuracy report {rep['project']}",
+                                                           "CreationDate": None}) as pdf:
+        fig = plt.figure(figsize=(11.69, 8.27))
+        fig.text(0.04, 0.95, f"Accuracy report: {rep['project']}", fontsize=16, weight="bold")
+        fig.text(0.04, 0.91, f"map scale {rep['map_scale']}, terrain {rep['terrain']}, tolerances "
+                             f"{rep['tolerance_table']}; overall verdict: {rep['overall']} "
+                             f"({rep['passed']} passed, {rep['failed']} failed)", fontsize=10)
+        cells, colours = [], []
+        for r in rep["checks"]:
+            cells.append([r["section"], r["quantity"][:70], _cell(r["value"]), _cell(r["limit"]), r["unit"],
+                          r["verdict"] or ""])
+            c = {"pass": "#ccffcc", "fail": "#ffcccc"}.get(r["verdict"], "white")
+            colours.append(["white"] * 5 + [c])
+        ax = fig.add_axes([0.03, 0.03, 0.94, 0.85])
+        ax.axis("off")
+        if cells:
+            t = ax.table(cellText=cells, cellColours=colours, colLabels=["section", "quantity", "value", "limit", "unit",
+                                                                          "verdict"],
+                         colWidths=[0.14, 0.52, 0.1, 0.08, 0.05, 0.07], loc="upper left", cellLoc="left")
+            t.auto_set_font_size(False)
+            t.set_fontsize(7.5)
+            t.scale(1, 1.25)
+        pdf.savefig(fig)
+        plt.close(fig)
+        for title, png in (("DOM displacement against the reference", root / "ortho" / "dom_report.png"),
+                           ("Tie-point connectivity", root / "at" / "connectivity.png")):
+            if png.is_file():
+                fig = plt.figure(figsize=(11.69, 8.27))
+                fig.suptitle(title)
+                ax = fig.add_axes([0.02, 0.02, 0.96, 0.9])
+                ax.imshow(plt.imread(png))
+                ax.axis("off")
+                pdf.savefig(fig)
+                plt.close(fig)
+
+
+def write_qa_report(root, tolerance_file=None, terrain: str | None = None, scale: str | None = None,
+                    pdf: bool | None = None) -> dict:
     root = Path(root)
-    rep = build_qa_report(root, tolerance_file, terrain)
+    rep = build_qa_report(root, tolerance_file, terrain, scale)
     write_text_atomic(root / "reports" / "summary.json", json.dumps(rep, indent=1) + "\n")
     write_text_atomic(root / "reports" / "index.html", format_html(rep))
+    if pdf if pdf is not None else qa_settings(root)["pdf"]:
+        write_pdf(root / "reports" / "report.pdf", rep, root)
     return rep

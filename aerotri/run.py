@@ -260,9 +260,9 @@ def chain_stages(root: Path, raster_res_m: float = 0.5, reference_ortho: Path | 
         from aerotri.qa_report import write_qa_report
 
         rep = write_qa_report(r)
-        return dict(verdict=rep["overall"], checks=len(rep["checks"]))
+        return dict(verdict=rep["overall"], passed=rep["passed"], failed=rep["failed"])
 
-    report_inputs = [root / "at" / "report.json", root / "control" / "transfer.json", root / "ortho" / "dom_report.json",
+    report_inputs = [root / "project.toml", root / "at" / "report.json", root / "control" / "transfer.json", root / "ortho" / "dom_report.json",
                      lo / "height_check.json", lo / "classification_eval.json"]
     stages.append(Stage("report", lambda r: report_inputs, lambda r: [r / "reports" / "index.html"], report))
     return stages

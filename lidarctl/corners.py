@@ -166,7 +166,7 @@ def find_roof_corners(
 
     corners, outlines = [], []
     raw = []  # per corner: xy, cov, z, sz, roof type, building, bearings, angle, support, lengths
-    for r in tqdm(range(n_roofs), desc="roofs", unit="roof", disable=not progress):
+    for r in tqdm(range(n_roofs), desc="roofs", unit="roof", disable=None if progress else True):
         idx = np.flatnonzero(roof_label == r)
         pts = xyz[idx]
         # cells of two spacings: smaller cells leave holes in sparse clouds and underestimate the spacing

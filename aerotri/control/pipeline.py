@@ -96,7 +96,7 @@ def transfer_control(corners: LidarCorners, camera: FrameCamera, eo: ExteriorOri
     dirs_m = corners.edge_directions_m()
     Rs = eo.rotations()
     meas, pred = {}, {}
-    for i, iid in enumerate(tqdm(eo.image_id, desc="frames", unit="frame", disable=not progress)):
+    for i, iid in enumerate(tqdm(eo.image_id, desc="frames", unit="frame", disable=None if progress else True)):
         x, y, d, _, radius = predict(camera, eo.centre_m[i], Rs[i], corners.xyz_m[idx], dirs_m[idx], corners.sigma_m[idx],
                                      s.measure.eo_sigma_px, s.measure.window_k, s.measure.min_radius_px,
                                      s.measure.max_radius_px)

@@ -8,6 +8,7 @@ from pathlib import Path
 import click
 
 from aerotri.errors import exit_on_input_error
+from aerotri.parallel import executor_for, scheduler_options
 
 
 @click.command()
@@ -23,8 +24,9 @@ from aerotri.errors import exit_on_input_error
 @click.option("--image-top-deg", type=float, default=0.0, show_default=True,
               help="Direction of the image top relative to the flight direction (0 = forward).")
 @click.option("--no-densify", is_flag=True, help="Do not densify weak models.")
+@scheduler_options
 @exit_on_input_error
-def match(project, budget, max_dim, ratio, min_overlap, terrain_height, image_top_deg, no_densify):
+def match(project, budget, max_dim, ratio, min_overlap, terrain_height, image_top_deg, no_densify, scheduler, workers):
     """Automatic tie points: writes at/tiepoints.csv and at/connectivity.{json,png}."""
     from aerotri.match import MatchSettings, match_project
     from aerotri.match.features import FeatureParams
@@ -34,7 +36,8 @@ def match(project, budget, max_dim, ratio, min_overlap, terrain_height, image_to
                       min_overlap=min_overlap, terrain_height_m=terrain_height, image_top_deg=image_top_deg,
                       densify=not no_densify)
     s = dataclasses.replace(s)
-    rep = match_project(project, s, log=lambda m: click.echo(m, err=True))
+    with executor_for(scheduler, workers) as ex:
+        rep = match_project(project, s, log=lambda m: click.echo(m, err=True), executor=ex)
     click.echo(f"frames {rep['frames']}  pairs {rep['pairs']}  tracks {rep['tracks']}  observations "
                f"{rep['observations']}  3+ rays {100 * rep['tracks_3plus_fraction']:.1f} %  components "
                f"{rep['components']}  weak models {len(rep['weak_models'])}")

@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import dataclasses
 import json
-import sys
 import time
 
 import numpy as np
@@ -12,7 +11,6 @@ import rasterio
 from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
-from tqdm import tqdm
 
 from aerotri.eo import read_gnss
 from aerotri.errors import InputError
@@ -23,6 +21,7 @@ from aerotri.match.pairs import Pair, candidate_pairs, plan_block
 from aerotri.match.report import plot_block, track_length_histogram
 from aerotri.match.tracks import build_tracks
 from aerotri.match.weak import analyse
+from aerotri.parallel import Executor, local_executor
 from aerotri.project import Project
 from lidarctl.atomic import write_text_atomic
 
@@ -59,12 +58,29 @@ def _terrain_height(project: Project, s: MatchSettings) -> float:
                      f"mean_terrain_height_m, give --terrain-height, or run lidarctl rasters first")
 
 
-def _progress(it, desc, total=None):
-    return tqdm(it, desc=desc, total=total, leave=False, disable=not sys.stderr.isatty())
+def _features_task(item) -> bool:
+    """Extract (or find cached) the features of one frame; True when they came from the cache."""
+    image_path, cache_dir, p, size = item
+    hit = (cache_dir / f"{image_path.stem}.{p.name}.{p.key()}.npz").exists()
+    F.cached_features(image_path, cache_dir, p, size)
+    return hit
 
 
-def match_project(root, settings: MatchSettings | None = None, log=lambda m: None) -> dict:
-    """Match the frames of a project; writes ``at/tiepoints.csv`` and the connectivity report."""
+def _match_task(item) -> tuple[bool, np.ndarray]:
+    """Match one frame pair (or read the cached matches); (cache hit, (M, 2) keypoint index pairs)."""
+    tag, fa, fb, camera, p, cache_dir = item
+    fkey = fa[2].key()
+    f = cache_dir / f"{tag}.{fkey}.{p.key()}.npy"
+    if f.exists():
+        return True, np.load(f)
+    return False, M.cached_match(tag, F.cached_features(*fa), F.cached_features(*fb), camera, p, cache_dir, fkey)
+
+
+def match_project(root, settings: MatchSettings | None = None, log=lambda m: None, executor: Executor | None = None) -> dict:
+    """Match the frames of a project; writes ``at/tiepoints.csv`` and the connectivity report.
+
+    Feature extraction (one task per frame) and matching (one task per pair) run on ``executor``
+    (default: local threads); the results are cached in ``work/features`` and ``work/matches``."""
     s = settings or MatchSettings()
     t0 = time.perf_counter()
     project = Project.open(root)
@@ -92,29 +108,34 @@ def match_project(root, settings: MatchSettings | None = None, log=lambda m: Non
         plan = None
         log(f"{project.gnss_path} not found: pairs by thumbnail retrieval")
 
-    def feats(i, p: F.FeatureParams):
-        f = cache_f / f"{ids[i]}.{p.name}.{p.key()}.npz"
-        stats["feature_cache_hits"] += f.exists()
-        return F.cached_features(images[ids[i]], cache_f, p, (camera.width, camera.height))
+    ex = executor or local_executor()
 
-    def match(i, j, fa, fb, p: M.MatchParams, fkey):
-        tag = f"{ids[i]}__{ids[j]}"
-        stats["match_cache_hits"] += (cache_m / f"{tag}.{fkey}.{p.key()}.npy").exists()
-        return M.cached_match(tag, fa, fb, camera, p, cache_m, fkey)
+    def feats(frames, p: F.FeatureParams, desc: str) -> dict:
+        """Features of the given frames (index -> Features), extracted as one task per frame."""
+        items = [(images[ids[i]], cache_f, p, (camera.width, camera.height)) for i in frames]
+        stats["feature_cache_hits"] += sum(ex.map(_features_task, items, desc=desc, unit="frame"))
+        return {i: F.cached_features(*item) for i, item in zip(frames, items)}
+
+    def match(pairs_ij, fp: F.FeatureParams, p: M.MatchParams, desc: str) -> list:
+        """Verified matches of the given frame pairs, one task per pair (features read from the cache)."""
+        items = [(f"{ids[i]}__{ids[j]}", (images[ids[i]], cache_f, fp, (camera.width, camera.height)),
+                  (images[ids[j]], cache_f, fp, (camera.width, camera.height)), camera, p, cache_m)
+                 for i, j in pairs_ij]
+        out = ex.map(_match_task, items, desc=desc, unit="pair")
+        stats["match_cache_hits"] += sum(hit for hit, _ in out)
+        return [m for _, m in out]
 
     if plan is None:
         thumb = F.FeatureParams(budget=1500, grid=(6, 4), max_dim_px=1000, name="thumb")
-        tf = [feats(i, thumb) for i in _progress(range(len(ids)), "thumbnails")]
-        pairs = []
-        for i in _progress(range(len(ids)), "retrieval"):
-            for j in range(i + 1, len(ids)):
-                m = match(i, j, tf[i], tf[j], s.match, thumb.key())
-                if len(m) >= s.retrieval_min_matches:
-                    pairs.append(Pair(i, j, "retrieved", float(len(m))))
-    sparse = [feats(i, s.sparse) for i in _progress(range(len(ids)), "features")]
-    matches = {}
-    for pr in _progress(pairs, "matching"):
-        matches[(pr.i, pr.j)] = ("sparse", match(pr.i, pr.j, sparse[pr.i], sparse[pr.j], s.match, s.sparse.key()))
+        feats(range(len(ids)), thumb, "thumbnails")
+        all_pairs = [(i, j) for i in range(len(ids)) for j in range(i + 1, len(ids))]
+        pairs = [Pair(i, j, "retrieved", float(len(m)))
+                 for (i, j), m in zip(all_pairs, match(all_pairs, thumb, s.match, "retrieval"))
+                 if len(m) >= s.retrieval_min_matches]
+    sparse = feats(range(len(ids)), s.sparse, "features")
+    sparse = [sparse[i] for i in range(len(ids))]
+    matches = {(pr.i, pr.j): ("sparse", m)
+               for pr, m in zip(pairs, match([(pr.i, pr.j) for pr in pairs], s.sparse, s.match, "matching"))}
     track, image, xy, n_bad = _tracks(sparse, {}, matches)
     analysis = (analyse(plan, camera, track, image, xy, s.min_per_region, s.min_strip_ties) if plan is not None
                 else dict(models=[], cross_strip=[]))
@@ -135,12 +156,11 @@ def match_project(root, settings: MatchSettings | None = None, log=lambda m: Non
                         weak_pairs.add((pr.i, pr.j))
         if weak_pairs:
             densified["models"] = sorted([ids[i], ids[j]] for i, j in weak_pairs)
-            dense = {}
-            for i in sorted({k for p in weak_pairs for k in p}):
-                dense[i] = feats(i, s.dense)
+            dense = feats(sorted({k for p in weak_pairs for k in p}), s.dense, "dense features")
             dp = dataclasses.replace(s.match, ratio=s.dense_ratio)
-            for i, j in _progress(sorted(weak_pairs), "densifying"):
-                matches[(i, j)] = ("dense", match(i, j, dense[i], dense[j], dp, s.dense.key()))
+            wp = sorted(weak_pairs)
+            for (i, j), m in zip(wp, match(wp, s.dense, dp, "densifying")):
+                matches[(i, j)] = ("dense", m)
             pairs = pairs + extra
             track, image, xy, n_bad = _tracks(sparse, dense, matches)
             analysis = analyse(plan, camera, track, image, xy, s.min_per_region, s.min_strip_ties)

@@ -7,6 +7,7 @@ from pathlib import Path
 import click
 
 from aerotri.errors import InputError, exit_on_input_error
+from aerotri.parallel import Executor, activate, scheduler_options
 
 
 @click.command()
@@ -52,8 +53,9 @@ def sim(preset, seed, overrides, force, observations, tie_sigma_px, n_control, b
 @click.argument("outdir", type=click.Path(file_okay=False, path_type=Path), default=Path("out/demo"))
 @click.option("--preset", default="demo", show_default=True, help="Simulator preset for the embedded block.")
 @click.option("--force", is_flag=True, help="Re-run every stage even when it is up to date.")
+@scheduler_options
 @exit_on_input_error
-def demo(outdir, preset, force):
+def demo(outdir, preset, force, scheduler, workers):
     """The main job on the embedded synthetic block: simulate it, then run the whole chain on it.
 
     Every stage uses only the project's inputs; truth/ is read by the final checks alone (DOM against
@@ -71,7 +73,9 @@ def demo(outdir, preset, force):
         click.echo(f"{project}: simulated project exists, reusing it", err=True)
     stages = chain_stages(project, reference_ortho=project / "truth" / "ortho.tif",
                           surveyed_points=project / "truth" / "checkpoints.csv", truth_classes=True)
-    rows = run_stages(project, stages, force=force, log=lambda m: click.echo(m, err=True))
+    with Executor(scheduler, workers) as ex, activate(ex):
+        click.echo(f"tasks run on {ex.describe()}", err=True)
+        rows = run_stages(project, stages, force=force, log=lambda m: click.echo(m, err=True))
     table = format_summary(rows)
     write_text_atomic(outdir / "summary.txt", table + "\n")
     import json
@@ -87,13 +91,16 @@ def demo(outdir, preset, force):
               help="Surveyed points (id,x,y,z[,group]) for the LiDAR height check.")
 @click.option("--res", "res_m", type=float, default=0.5, show_default=True, help="Elevation raster cell size (m).")
 @click.option("--force", is_flag=True, help="Re-run every stage even when it is up to date.")
+@scheduler_options
 @exit_on_input_error
-def run(project, reference, points, res_m, force):
+def run(project, reference, points, res_m, force, scheduler, workers):
     """The whole chain over PROJECT, resumable: a re-run skips stages whose inputs did not change."""
     from aerotri.project import Project
     from aerotri.run import chain_stages, format_summary, run_stages
 
     Project.open(project)
     stages = chain_stages(Path(project), raster_res_m=res_m, reference_ortho=reference, surveyed_points=points)
-    rows = run_stages(Path(project), stages, force=force, log=lambda m: click.echo(m, err=True))
+    with Executor(scheduler, workers) as ex, activate(ex):
+        click.echo(f"tasks run on {ex.describe()}", err=True)
+        rows = run_stages(Path(project), stages, force=force, log=lambda m: click.echo(m, err=True))
     click.echo(format_summary(rows))

@@ -136,7 +136,9 @@ def simulate(cfg: dict, outdir, force: bool = False, log=print) -> dict:
             f"sigma_xy_m = {g['sigma_xy_m']}\nsigma_z_m = {g['sigma_z_m']}\nlever_arm_m = [{lever}]\n\n"
             f"[control]\nsigma_xy_m = 0.10\nsigma_z_m = 0.10\n\n"
             f"[flight]\n# from the flight plan: mean terrain height (m, ellipsoidal) and speed\n"
-            f"mean_terrain_height_m = {origin[2]}\nspeed_mps = {cfg['flight']['speed_mps']}\n"
+            f"mean_terrain_height_m = {origin[2]}\nspeed_mps = {cfg['flight']['speed_mps']}\n\n"
+            f"[qa]\n# tolerance table of the accuracy report (aerotri report): map scale, terrain class, PDF copy\n"
+            f'map_scale = "1:5000"\nterrain = "flat"\npdf = true\n'
         )
         (tmp / "truth" / "gnss_truth.toml").write_text(
             f"lever_arm_m = [{lever}]\n"

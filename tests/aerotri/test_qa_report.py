@@ -21,13 +21,59 @@ def test_verdicts_match_numbers_and_terrain_class(tmp_path):
     p = _project(tmp_path, [0.3, 0.2, 1.5], 0.45)
     rep = write_qa_report(p)
     by = {r["quantity"]: r for r in rep["checks"]}
-    plan = by["aerotriangulation check points, plan RMS"]
+    plan = by["check points, plan RMS"]
     assert abs(plan["value"] - (0.3**2 + 0.2**2) ** 0.5) < 1e-4 and plan["limit"] == 0.35 and plan["verdict"] == "fail"
-    assert by["aerotriangulation check points, height RMS"]["verdict"] == "fail"  # 1.5 m > 1.0 m (flat)
-    assert by["DOM displacement on ground patches, plan RMS"]["verdict"] == "pass"
+    assert by["check points, height RMS"]["verdict"] == "fail"  # 1.5 m > 1.0 m (flat)
+    assert by["displacement on ground patches, plan RMS"]["verdict"] == "pass"
     assert rep["overall"] == "fail"
     assert (p / "reports" / "index.html").read_text().count("class='fail'") == 2
     # The same numbers pass the mountainous limits (0.50 m plan, 3.0 m height).
     rep = write_qa_report(p, terrain="mountainous")
     assert rep["overall"] == "pass"
     assert json.loads((p / "reports" / "summary.json").read_text())["overall"] == "pass"
+
+
+def test_map_scale_tables_and_project_settings(tmp_path):
+    p = _project(tmp_path, [0.1, 0.1, 0.5], 0.18)
+    assert write_qa_report(p)["overall"] == "pass"  # 1:5000 flat: 0.35 m / 1.0 m / 0.50 m
+    rep = write_qa_report(p, scale="1:2000")  # the same limits on the map: 0.14 m / 0.4 m / 0.20 m
+    by = {r["quantity"]: r for r in rep["checks"]}
+    assert by["check points, plan RMS"]["limit"] == 0.14
+    assert by["check points, plan RMS"]["verdict"] == "fail"  # 0.141 m > 0.14 m
+    assert by["check points, height RMS"]["verdict"] == "fail"  # 0.5 m > 0.4 m
+    assert rep["overall"] == "fail" and rep["failed"] == 2
+    # Hilly at 1:2000 allows 0.8 m in height; settings from project.toml, PDF on request.
+    (p / "project.toml").write_text('[qa]\nmap_scale = "1:2000"\nterrain = "hilly"\npdf = true\n')
+    rep = write_qa_report(p)
+    by = {r["quantity"]: r for r in rep["checks"]}
+    assert rep["map_scale"] == "1:2000" and rep["terrain"] == "hilly"
+    assert by["check points, height RMS"]["verdict"] == "pass"
+    pdf = (p / "reports" / "report.pdf").read_bytes()
+    assert pdf.startswith(b"%PDF") and pdf.count(b"/Type /Page\n") + pdf.count(b"/Type /Page ") >= 1
+
+
+def test_gross_error_share_of_check_points(tmp_path):
+    p = _project(tmp_path, [0.1, 0.1, 0.2], 0.2)
+    rep_path = p / "at" / "report.json"
+    rep = json.loads(rep_path.read_text())
+    # 1 of 10 check points beyond the 0.70 m plan residual limit: 10 % > 5 % tolerated.
+    rep["check_points"] = [dict(id=f"C{k}", d_m=[0.05, -0.05, 0.1]) for k in range(9)] + [dict(id="C9", d_m=[0.6, 0.5, 0.1])]
+    rep_path.write_text(json.dumps(rep))
+    by = {r["quantity"]: r for r in write_qa_report(p)["checks"]}
+    row = by["check points with a plan residual beyond 0.7 m"]
+    assert row["value"] == 10.0 and row["verdict"] == "fail" and row["note"] == "1 of 10"
+    assert by["check points with a height residual beyond 2 m"]["verdict"] == "pass"
+
+
+def test_bad_tolerance_settings_are_clear_errors(tmp_path):
+    from click.testing import CliRunner
+
+    from aerotri.cli import main
+
+    p = _project(tmp_path, [0.1, 0.1, 0.2], 0.2)
+    bad = tmp_path / "contract.toml"
+    bad.write_text("[flat]\nrms_xy_m = 0.2\n")
+    r = CliRunner().invoke(main, ["report", str(p), "--tolerances", str(bad), "--terrain", "hilly"])
+    assert r.exit_code == 2 and "no [hilly] section" in r.output and not (p / "reports").exists()
+    r = CliRunner().invoke(main, ["report", str(p), "--tolerances", str(bad)])
+    assert r.exit_code == 0 and "pass" in r.output

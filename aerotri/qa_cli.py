@@ -1,0 +1,33 @@
+"""``aerotri report PROJECT``: the consolidated accuracy report with pass/fail verdicts."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import click
+
+from aerotri.errors import exit_on_input_error
+
+
+@click.command("report")
+@click.argument("project", type=click.Path(file_okay=False, exists=True, path_type=Path))
+@click.option("--scale", "scale", type=click.Choice(["1:2000", "1:5000", "1:10000"]), default=None,
+              help="Target map scale (default: [qa] map_scale of project.toml, else 1:5000).")
+@click.option("--terrain", type=click.Choice(["flat", "hilly", "mountainous"]), default=None,
+              help="Terrain class of the tolerance table (default: [qa] terrain, else flat).")
+@click.option("--tolerances", type=click.Path(dir_okay=False, exists=True, path_type=Path), default=None,
+              help="Your own tolerance table (TOML, same layout as aerotri/tolerances/*.toml).")
+@click.option("--pdf/--no-pdf", default=None, help="Also write reports/report.pdf (default: [qa] pdf).")
+@exit_on_input_error
+def report(project, scale, terrain, tolerances, pdf):
+    """LiDAR, control, adjustment and DOM accuracy against the map-scale tolerances:
+    reports/index.html, reports/summary.json (and reports/report.pdf)."""
+    from aerotri.qa_report import write_qa_report
+
+    rep = write_qa_report(project, tolerances, terrain, scale, pdf)
+    for r in rep["checks"]:
+        if r["verdict"]:
+            click.echo(f"  {r['verdict']:<5} {r['section']}: {r['quantity']} = {r['value']} {r['unit']} "
+                       f"(limit {r['limit']})")
+    click.echo(f"{project / 'reports' / 'index.html'}: {rep['overall']} ({rep['passed']} passed, {rep['failed']} failed; "
+               f"{rep['map_scale']} {rep['terrain']})")

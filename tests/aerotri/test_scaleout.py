@@ -1,0 +1,71 @@
+"""Scale-out: the same tasks on local threads, one at a time, or a local Dask cluster of 2 worker
+processes give identical outputs."""
+
+from __future__ import annotations
+
+import json
+import shutil
+
+import pytest
+
+from aerotri.parallel import Executor, activate, executor_for, local_executor
+
+
+def _square(x):
+    return x * x
+
+
+def _fail_on_three(x):
+    if x == 3:
+        raise ValueError("task 3 failed")
+    return x
+
+
+@pytest.fixture(scope="module")
+def cluster():
+    with Executor("local:2") as ex:
+        yield ex
+
+
+@pytest.mark.parametrize("scheduler", [None, "synchronous", "cluster"])
+def test_results_come_back_in_item_order_and_errors_surface(scheduler, cluster):
+    ex = cluster if scheduler == "cluster" else Executor(scheduler)
+    assert ex.map(_square, range(20)) == [x * x for x in range(20)]
+    assert ex.map(_square, []) == []
+    with pytest.raises(ValueError, match="task 3 failed"):
+        ex.map(_fail_on_three, range(8))
+
+
+def test_the_run_executor_is_used_by_commands_without_their_own(cluster):
+    assert local_executor() is not cluster
+    with activate(cluster):
+        assert local_executor() is cluster
+        with executor_for(None, None) as ex:
+            assert ex is cluster
+        with executor_for("synchronous", None) as ex:
+            assert ex is not cluster
+    assert local_executor() is not cluster
+
+
+def test_bad_scheduler_is_a_clear_error():
+    from aerotri.errors import InputError
+
+    with pytest.raises(InputError, match="local:N"):
+        Executor("local:two")
+
+
+def test_matching_on_a_two_worker_cluster_equals_the_default_run(tiny_project, tmp_path, cluster):
+    from aerotri.match import match_project
+
+    outputs = {}
+    for name, ex in (("threads", Executor()), ("cluster", cluster)):
+        root = tmp_path / name
+        shutil.copytree(tiny_project, root, ignore=shutil.ignore_patterns("truth", "lidar"))
+        rep = match_project(root, executor=ex)
+        assert rep["feature_cache_hits"] == 0 and rep["match_cache_hits"] == 0
+        conn = json.loads((root / "at" / "connectivity.json").read_text())
+        conn.pop("seconds")
+        outputs[name] = ((root / "at" / "tiepoints.csv").read_bytes(), conn)
+    assert outputs["threads"][0] == outputs["cluster"][0]
+    assert outputs["threads"][1] == outputs["cluster"][1]
+    assert outputs["threads"][0].count(b"\n") > 1000
