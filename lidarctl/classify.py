@@ -12,6 +12,12 @@ Pipeline (``classify_points``):
    ``roof_rms_m``, HAG above ``building_min_height_m`` and few multi-return points (laser
    penetrates trees, not roofs) are roof cells; 8-connected roof segments of at least
    ``building_min_area_m2`` are buildings (-> 6, points within ``roof_depth_m`` below the DSM).
+   Small segments (sheds, garages: at least ``small_building_min_area_m2``) count by their whole
+   area when their median plane RMS is below ``rough_rms_m`` and they are mostly single-return
+   (the 3x3 fit eats a cell on every side of a small roof). Wall points: single returns in the
+   ring of cells around a building. Roof-edge completion (``roof_edge_completion``): region
+   growing of building points over eaves and low roof parts by local-plane continuity (kNN
+   least-squares plane of the neighbouring building points, ``edge_tolerance_m``).
 4. Vegetation by HAG: low (3) <= ``low_veg_max_m`` < medium (4) <= ``medium_veg_max_m`` < high (5).
    Where the cloud has multiple returns, a non-ground point above ``low_veg_max_m`` counts as
    vegetation only in cells with multi-return or rough (non-planar) structure; smooth single-return
@@ -24,8 +30,10 @@ from __future__ import annotations
 
 import dataclasses
 
+import numba
 import numpy as np
 from scipy import ndimage
+from scipy.spatial import cKDTree
 
 from lidarctl import grid
 from lidarctl import ground as ground_mod
@@ -56,6 +64,13 @@ class ClassifyParams:
     water_rms_m: float = 0.05
     deep_cell_m: float = 5.0
     deep_m: float = 5.0
+    small_building_min_area_m2: float = 6.0
+    small_building_max_multi_fraction: float = 0.2
+    edge_neighbours: int = 8
+    edge_radius_m: float = 1.0
+    edge_tolerance_m: float = 0.1
+    edge_iterations: int = 8
+    edge_zone_m: float = 3.0
     noise: noise_mod.NoiseParams = dataclasses.field(default_factory=noise_mod.NoiseParams)
 
 
@@ -103,6 +118,140 @@ def deep_ground_outliers(x, y, z, ground, cell_m: float = 5.0, deep_m: float = 5
     ref = (filled - relief).ravel()[cid]
     out[gi[z[gi] < ref - deep_m]] = True
     return out
+
+
+@numba.njit(cache=True, parallel=True)
+def _plane_offsets(x, y, z, query, nb, dist, min_points):
+    """Per query point: height above the LSQ plane z = a dx + b dy + c through its valid
+    neighbours ``nb`` (point indices; dx, dy relative to the query point, so c is the plane
+    height there), and the plane's RMS residual. NaN with fewer than ``min_points`` neighbours."""
+    n, k = nb.shape
+    dz = np.full(n, np.nan)
+    rms = np.full(n, np.nan)
+    for i in numba.prange(n):
+        q = query[i]
+        s_uu = s_uv = s_u = s_vv = s_v = s_1 = s_uh = s_vh = s_h = 0.0
+        m = 0
+        for t in range(k):
+            if not np.isfinite(dist[i, t]):
+                continue
+            r = nb[i, t]
+            u, v, h = x[r] - x[q], y[r] - y[q], z[r] - z[q]
+            s_uu += u * u; s_uv += u * v; s_u += u; s_vv += v * v; s_v += v; s_1 += 1.0
+            s_uh += u * h; s_vh += v * h; s_h += h
+            m += 1
+        if m < min_points:
+            continue
+        a = np.array([[s_uu, s_uv, s_u], [s_uv, s_vv, s_v], [s_u, s_v, s_1]]) + 1e-9 * np.eye(3)
+        coef = np.linalg.solve(a, np.array([s_uh, s_vh, s_h]))
+        ss = 0.0
+        for t in range(k):
+            if not np.isfinite(dist[i, t]):
+                continue
+            r = nb[i, t]
+            e = z[r] - z[q] - (coef[0] * (x[r] - x[q]) + coef[1] * (y[r] - y[q]) + coef[2])
+            ss += e * e
+        rms[i] = np.sqrt(ss / m)
+        dz[i] = -coef[2]
+    return dz, rms
+
+
+class _GrowingNeighbours:
+    """k nearest neighbours (horizontal) in a point set that grows: a KD-tree of the initial set,
+    built once, and one of the points added since, merged per query."""
+
+    def __init__(self, x, y, ref, radius_m: float):
+        self.x, self.y, self.r = x, y, radius_m
+        self.x0, self.y0 = float(np.min(x[ref])), float(np.min(y[ref]))
+        self.base = np.asarray(ref, np.int64)
+        self.base_tree = cKDTree(np.column_stack([x[ref] - self.x0, y[ref] - self.y0]))
+        self.added = np.zeros(0, np.int64)
+
+    def add(self, idx):
+        self.added = np.concatenate([self.added, idx])
+
+    def query(self, idx, k: int):
+        q = np.column_stack([self.x[idx] - self.x0, self.y[idx] - self.y0])
+        d, n = self.base_tree.query(q, k=k, distance_upper_bound=self.r)
+        d, n = d.reshape(len(idx), k), n.reshape(len(idx), k)
+        n = self.base[np.minimum(n, len(self.base) - 1)]
+        if len(self.added):
+            ka = min(k, len(self.added))
+            tree = cKDTree(np.column_stack([self.x[self.added] - self.x0, self.y[self.added] - self.y0]))
+            da, na = tree.query(q, k=ka, distance_upper_bound=self.r)
+            da, na = da.reshape(len(idx), ka), na.reshape(len(idx), ka)
+            d = np.concatenate([d, da], axis=1)
+            n = np.concatenate([n, self.added[np.minimum(na, len(self.added) - 1)]], axis=1)
+            first = np.argsort(d, axis=1, kind="stable")[:, :k]
+            d, n = np.take_along_axis(d, first, 1), np.take_along_axis(n, first, 1)
+        return d, n
+
+
+def local_plane_offsets(x, y, z, ref, query, k: int = 8, radius_m: float = 1.0, neighbours=None):
+    """Height of each query point above the least-squares plane through its k nearest reference
+    points (horizontal distance, within ``radius_m``), and that plane's RMS residual (m).
+
+    Returns (dz, rms, ok); ``ok`` is False where fewer than 5 reference points are near.
+    """
+    n = len(query)
+    if len(ref) < 5 or n == 0:
+        return np.full(n, np.nan), np.full(n, np.nan), np.zeros(n, bool)
+    nbrs = neighbours or _GrowingNeighbours(x, y, ref, radius_m)
+    dist, nb = nbrs.query(np.asarray(query, np.int64), min(k, len(ref)))
+    dz, rms = _plane_offsets(np.asarray(x, float), np.asarray(y, float), np.asarray(z, float),
+                             np.asarray(query, np.int64), nb, dist, 5)
+    return dz, rms, np.isfinite(dz)
+
+
+def _near_mask(xa, ya, xb, yb, cell_m: float) -> np.ndarray:
+    """Mask over points a lying in the 3x3 ``cell_m`` cells around any point b (so every a within
+    ``cell_m`` of some b is included)."""
+    if len(xb) == 0 or len(xa) == 0:
+        return np.zeros(len(xa), bool)
+    x0, y0 = float(min(np.min(xa), np.min(xb))) - cell_m, float(min(np.min(ya), np.min(yb))) - cell_m
+    ncols = int(np.floor((max(np.max(xa), np.max(xb)) - x0) / cell_m)) + 3
+    ia = np.floor((ya - y0) / cell_m).astype(np.int64) * ncols + np.floor((xa - x0) / cell_m).astype(np.int64)
+    ib = np.floor((yb - y0) / cell_m).astype(np.int64) * ncols + np.floor((xb - x0) / cell_m).astype(np.int64)
+    ib = np.unique(ib)
+    keys = np.unique((ib[:, None] + (np.array([-1, 0, 1])[:, None] * ncols + np.array([-1, 0, 1])).ravel()).ravel())
+    return np.isin(ia, keys)
+
+
+def roof_edge_completion(x, y, z, is_building, candidates, p: ClassifyParams) -> None:
+    """Grow building points (in place) over roof edges and low roof parts the cell rules missed.
+
+    Edge cells of a roof hold pulses split between the eave and the wall or ground below, so they
+    fail the multi-return and 3x3-plane tests; a lean-to roof sloping down to 1.5 m above the
+    ground falls below the building height threshold. A candidate point joins the building when it
+    lies within ``edge_tolerance_m`` of the local plane through its ``edge_neighbours`` nearest
+    building points (within ``edge_radius_m``) and that plane fits them to the same tolerance (a
+    planar roof continues; tree crowns beside the eave do not). Region growing: up to
+    ``edge_iterations`` passes, each testing only the candidates next to the points added before.
+    """
+    cand = np.flatnonzero(candidates & ~is_building)
+    ref = np.flatnonzero(is_building)
+    if len(cand) == 0 or len(ref) < 5:
+        return
+    r = p.edge_radius_m
+    # Only building points near a candidate can be its neighbours; the growth adds to them.
+    ref = ref[_near_mask(x[ref], y[ref], x[cand], y[cand], r)]
+    if len(ref) < 5:
+        return
+    neighbours = _GrowingNeighbours(x, y, ref, r)
+    query = cand
+    for _ in range(p.edge_iterations):
+        if len(query) == 0:
+            return
+        dz, rms, ok = local_plane_offsets(x, y, z, ref, query, p.edge_neighbours, r, neighbours)
+        add = ok & (np.abs(np.nan_to_num(dz, nan=np.inf)) < p.edge_tolerance_m)
+        add &= np.nan_to_num(rms, nan=np.inf) < p.edge_tolerance_m
+        if not add.any():
+            return
+        new = query[add]
+        is_building[new] = True
+        neighbours.add(new)
+        cand = cand[~is_building[cand]]
+        query = cand[_near_mask(x[cand], y[cand], x[new], y[new], r)]
 
 
 def classify_points(x, y, z, return_number=None, number_of_returns=None, intensity=None,
@@ -183,15 +332,25 @@ def classify_points(x, y, z, return_number=None, number_of_returns=None, intensi
     candidate = ndimage.binary_closing(candidate, np.ones((3, 3), bool)) & high_obj | roof
     labels, nlab = ndimage.label(candidate, np.ones((3, 3), int))
     if nlab:
-        roof_area = ndimage.sum_labels(roof, labels, np.arange(1, nlab + 1)) * c * c
-        big = np.concatenate([[False], roof_area >= p.building_min_area_m2])
-        building_cells = big[labels]
+        ids = np.arange(1, nlab + 1)
+        roof_area = ndimage.sum_labels(roof, labels, ids) * c * c
+        big = roof_area >= p.building_min_area_m2
+        # Sheds and garages: the planar interior of a small roof loses a cell on every side to the
+        # 3x3 fit, so a small segment counts by its whole area when it is planar and single-return.
+        small = ~big & (ndimage.sum_labels(candidate, labels, ids) * c * c >= p.small_building_min_area_m2)
+        if small.any():
+            small &= ndimage.median(rms, labels, ids) < p.rough_rms_m
+            small &= ndimage.mean(multi_frac, labels, ids) <= p.small_building_max_multi_fraction
+        building_cells = np.concatenate([[False], big | small])[labels]
     else:
         building_cells = np.zeros_like(roof)
     # Wall points fall in the ring of cells just outside the roof outline.
     ring = ndimage.binary_dilation(building_cells, np.ones((3, 3), bool)) & ~building_cells
     in_bld = (building_cells.ravel()[flat]) | (ring.ravel()[flat] & ~multi)
     is_building = obj & in_bld & (hag > p.wall_min_height_m) & (z >= dsm_f.ravel()[flat] - p.roof_depth_m)
+    zone = max(1, int(round(p.edge_zone_m / c)))
+    near = ndimage.binary_dilation(building_cells, np.ones((2 * zone + 1, 2 * zone + 1), bool)).ravel()[flat]
+    roof_edge_completion(x, y, z, is_building, obj & near & (hag > p.wall_min_height_m), p)
     cls[is_building] = BUILDING
 
     step("vegetation")

@@ -20,6 +20,16 @@ grid, progressive openings with growing windows; a cell is an object cell when i
 opened surface exceeds ``slope * window radius``; ground DEM interpolated from ground cells; points
 within ``elevation_threshold_m + elevation_scaler * local slope`` of it are ground.
 
+The TIN refinement's tolerance follows the sensor (``refine_tolerance_m``): 4.5 x the robust
+(MAD) spread of the first ground set about the refined surface, clipped to [0.1, 0.3] m, so a
+precise sensor (AHN3, 2 cm) leaves kerbs and low vegetation 15-30 cm high out of the ground while
+noisy data (ISPRS, 4-9 cm) keeps the wide band.
+
+Raised-plateau test (``raised_plateaus``, after both methods): ground cell minima are linked into
+segments where neighbours differ by less than a wall's step; a segment standing above all its
+neighbours by a step of at least 2 m, smaller than 2500 m^2 and beside a larger lower segment is a
+roof (a low wide roof, or a roof filling a tile corner, that the opening window could not lift).
+
 Presets tune the parameters for urban, rural, forest and mountain terrain. The default filter
 (``ground_filter`` with no preset) is the morphological filter with its TIN refinement and one
 parameter set (``MorphParams()``) for all reference samples: it met the ISPRS target, while the
@@ -34,6 +44,8 @@ import dataclasses
 import numba
 import numpy as np
 from scipy import ndimage
+from scipy.sparse import coo_matrix
+from scipy.sparse.csgraph import connected_components
 from scipy.spatial import Delaunay, cKDTree
 
 from lidarctl import grid
@@ -50,6 +62,8 @@ class GroundParams:
     seed_max_residual_m: float = 5.0
     final_distance_m: float = 0.3
     final_slope_factor: float = 0.0
+    plateau_min_step_m: float = 2.0     # raised-plateau test (see ``raised_plateaus``); 0 disables
+    plateau_max_area_m2: float = 2500.0
 
 
 DEFAULT = GroundParams()
@@ -252,10 +266,14 @@ class MorphParams:
     elevation_threshold_m: float = 0.5
     elevation_scaler: float = 1.25  # extra tolerance per unit of DEM slope (tan)
     below_threshold_m: float = np.inf
-    refine_threshold_m: float = 0.3
+    refine_threshold_m: float = 0.3     # upper bound of the refinement tolerance (noisy sensors)
+    refine_min_m: float = 0.1           # lower bound of the refinement tolerance (precise sensors)
+    refine_noise_factor: float = 4.5    # tolerance = factor x robust ground noise (MAD), clipped
     refine_scaler: float = 1.0
     refine_cell_m: float = 1.0
     dense_points_per_cell: float = 3.0  # ground points per refine cell above which a grid replaces the TIN
+    plateau_min_step_m: float = 2.0     # raised-plateau test (see ``raised_plateaus``); 0 disables
+    plateau_max_area_m2: float = 2500.0
 
 
 def ground_surface_morph(x, y, z, params: MorphParams | None = None):
@@ -313,10 +331,29 @@ def morphological_ground(x, y, z, params: MorphParams | None = None, return_dem:
             z_ref = tin_heights(x[lowest], y[lowest], z[lowest], delaunay_2d(x[lowest], y[lowest]), x, y)
             outside = ~np.isfinite(z_ref)
             z_ref[outside] = z[outside] - dz[outside]   # outside the hull: keep the DEM
-        ground = np.abs(z - z_ref) <= p.refine_threshold_m + p.refine_scaler * slope
+            g = np.setdiff1d(g, lowest, assume_unique=True)  # TIN vertices have no residual
+        res = (z - z_ref)[g]
+        res = res[np.isfinite(res)]
+        tol = refine_tolerance_m(res, p.refine_noise_factor, p.refine_min_m, p.refine_threshold_m)
+        ground = np.abs(z - z_ref) <= tol + p.refine_scaler * slope
     if return_dem:
         return ground, (dem, x0, y0, c)
     return ground
+
+
+def refine_tolerance_m(residuals_m, noise_factor: float, min_m: float, max_m: float) -> float:
+    """Ground tolerance scaled to the sensor: ``noise_factor`` x the robust spread of the residuals.
+
+    The spread is 1.4826 x the median absolute deviation of the first ground set from the refined
+    surface (objects near the ground are a minority there and do not inflate it). A precise sensor
+    (AHN3: about 2 cm) gets a tight band that leaves kerbs, low walls and low vegetation out; an old
+    noisy one (ISPRS samples: 4-9 cm) keeps its wider band; clipped to [min_m, max_m].
+    """
+    r = np.asarray(residuals_m, float)
+    if len(r) < 10:
+        return float(max_m)
+    sigma = 1.4826 * float(np.median(np.abs(r - np.median(r))))
+    return float(np.clip(noise_factor * sigma, min_m, max_m))
 
 
 MORPH_PRESETS = {
@@ -329,11 +366,90 @@ METHODS = ("morph", "ptd")
 
 
 def ground_filter(x, y, z, method: str = "morph", preset: str | None = None, **overrides) -> np.ndarray:
-    """Ground mask with the named method and preset (None = the default parameter set)."""
+    """Ground mask with the named method and preset (None = the default parameter set).
+
+    Both methods are followed by the raised-plateau test: ground segments standing on walls above
+    the surrounding terrain (low, wide roofs the filter window could not lift) become objects.
+    """
     if method == "morph":
         base = MorphParams() if preset is None else MORPH_PRESETS[preset]
         params = dataclasses.replace(base, **{k: v for k, v in overrides.items() if v is not None})
-        return morphological_ground(x, y, z, params)
-    if method == "ptd":
-        return ptd_ground(x, y, z, params_for(preset, **overrides))
-    raise ValueError(f"unknown ground method {method!r}, expected one of {METHODS}")
+        ground = morphological_ground(x, y, z, params)
+    elif method == "ptd":
+        params = params_for(preset, **overrides)
+        ground = ptd_ground(x, y, z, params)
+    else:
+        raise ValueError(f"unknown ground method {method!r}, expected one of {METHODS}")
+    if params.plateau_min_step_m > 0 and ground.sum() >= 10:
+        g = np.flatnonzero(ground)
+        cell_m = max(1.0, 1.5 * _mean_spacing_m(x, y))
+        ground[g[raised_plateaus(x[g], y[g], z[g], cell_m, params.plateau_min_step_m,
+                                 params.plateau_max_area_m2)]] = False
+    return ground
+
+
+def _mean_spacing_m(x, y, cell_m: float = 10.0) -> float:
+    """Mean point spacing sqrt(occupied area / n) (m), area from occupied 10 m cells."""
+    cid, nrows, ncols, _, _ = grid.cell_ids(x, y, cell_m)
+    area = np.count_nonzero(np.bincount(cid, minlength=nrows * ncols)) * cell_m * cell_m
+    return float(np.sqrt(area / max(len(x), 1)))
+
+
+def raised_plateaus(x, y, z, cell_m: float, min_step_m: float = 2.0, max_area_m2: float = 2500.0,
+                    link_step_m: float = 0.5, link_slope: float = 0.8) -> np.ndarray:
+    """Mask of ground points on raised plateaus: segments that stand on a step above all around.
+
+    Segment-based test (after Sithole & Vosselman's segment connectivity): the lowest ground point
+    of each ``cell_m`` cell is linked to those within 2.5 cells when their height difference is at
+    most ``link_step_m + link_slope * d`` (terrain up to ~39 deg stays connected; a wall does not).
+    A segment is a raised plateau when every unlinked neighbour lies lower, by a median step of at
+    least ``min_step_m``, its area is at most ``max_area_m2`` and the lower terrain beside it is a
+    larger segment (the ground a building stands on extends beyond it; two terrace levels of similar
+    size are both terrain). A low wide roof (a 3 m high shed of 15 m x 15 m) passes the morphological
+    opening, whose height threshold grows with the window (slope x radius), but not this test.
+    """
+    out = np.zeros(len(x), bool)
+    cid, _, _, _, _ = grid.cell_ids(x, y, cell_m)
+    lowest = grid.lowest_per_cell(cid, z)
+    mx, my, mz = x[lowest], y[lowest], z[lowest]
+    pairs = cKDTree(np.column_stack([mx, my])).query_pairs(2.5 * cell_m, output_type="ndarray")
+    if len(pairs) == 0:
+        return out
+    a, b = pairs[:, 0], pairs[:, 1]
+    d = np.hypot(mx[a] - mx[b], my[a] - my[b])
+    dz = mz[b] - mz[a]
+    linked = np.abs(dz) <= link_step_m + link_slope * d
+    m = len(mx)
+    graph = coo_matrix((np.ones(int(linked.sum())), (a[linked], b[linked])), shape=(m, m))
+    ncomp, label = connected_components(graph, directed=False)
+    size = np.bincount(label, minlength=ncomp)
+    ua, ub, dzu = a[~linked], b[~linked], dz[~linked]
+    cross = label[ua] != label[ub]
+    ua, ub, dzu = ua[cross], ub[cross], dzu[cross]
+    # Each unlinked cross pair seen from both sides: (segment, other segment, step down to the other).
+    seg = np.concatenate([label[ua], label[ub]])
+    other = np.concatenate([label[ub], label[ua]])
+    down = np.concatenate([-dzu, dzu])
+    has_higher = np.zeros(ncomp, bool)
+    has_higher[seg[down < 0]] = True
+    cand = ~has_higher & (size * cell_m * cell_m <= max_area_m2) & (size < 0.5 * size.max())
+    keep = cand[seg]
+    seg, other, down = seg[keep], other[keep], down[keep]
+    raised = np.zeros(ncomp, bool)
+    if len(seg) == 0:
+        return out
+    # Per candidate segment: median step down to its neighbours and the largest lower neighbour.
+    order = np.lexsort((down, seg))
+    seg, other, down = seg[order], other[order], down[order]
+    start = np.flatnonzero(np.r_[True, seg[1:] != seg[:-1]])
+    count = np.diff(np.r_[start, len(seg)])
+    lo, hi = start + (count - 1) // 2, start + count // 2
+    median_step = 0.5 * (down[lo] + down[hi])
+    largest_lower = np.maximum.reduceat(size[other], start)
+    k = seg[start]
+    raised[k] = (median_step >= min_step_m) & (largest_lower >= 2 * size[k])
+    if not raised.any():
+        return out
+    cell_raised = np.zeros(int(cid.max()) + 1, bool)
+    cell_raised[cid[lowest[raised[label]]]] = True
+    return cell_raised[cid]

@@ -14,7 +14,10 @@ Methods
   linked into terrain-connected components (neighbours within ``2.5 cells`` whose heights differ by
   at most ``gap_m + slope * d``); a small component (at most ``cluster_max_cells``) whose every
   non-linked neighbour lies higher is a low cluster, and its points near the cluster height are low
-  outliers.
+  outliers. Clouds of multipath points at mixed depths (under a pond: outliers below outliers)
+  never link into a coherent surface: scraps of at most 40 m^2 lying below the terrain surface
+  interpolated from the large components, with no coherent terrain at their height within 50 m,
+  are low clusters too. Later passes peel the next layer around what the previous pass flagged.
 * High outliers: the mirrored test, with a larger gap (``high_gap_m``).
 
 Only the few lowest/highest points of each grid cell can fail the gap test, so only those are
@@ -170,9 +173,26 @@ def high_outliers(x, y, z, radius_m: float, gap_m: float = 10.0, slope: float = 
 
 
 def low_clusters(x, y, z, cell_m: float, gap_m: float = 1.0, slope: float = 1.2,
-                 max_cells: int = 400, ring_m: float = 50.0, ring_slope: float = 0.3) -> np.ndarray:
-    """Boolean mask of points in small terrain-connected patches of cell minima lying below all around."""
-    cid, _, ncols, _, _ = grid.cell_ids(x, y, cell_m)
+                 max_cells: int = 400, ring_m: float = 50.0, ring_slope: float = 0.3,
+                 patch_max_m2: float = 40.0) -> np.ndarray:
+    """Boolean mask of points in small terrain-connected patches of cell minima lying below the terrain.
+
+    Two ways a small component (at most ``max_cells``) is "below":
+    (a) every unlinked neighbour lies higher (a single patch of multipath points);
+    (b) it is a scrap of at most ``patch_max_m2`` and all its cells lie more than ``gap_m`` below the
+        terrain surface interpolated (pull-push) from the large components: a cloud of outliers at
+        mixed depths (multipath under a pond) has outliers below outliers, so (a) would only peel
+        its deepest layer, but its scattered depths never link into a coherent surface.
+    Courtyards also lie below all their unlinked neighbours (roofs); unlike an outlier patch they
+    have terrain at about their height further out (the street beyond the buildings), so a
+    component with terrain within ``ring_m`` no higher than ``gap_m + ring_slope * d`` above it is
+    kept. For (b) only coherent components (larger than ``patch_max_m2``) count as that terrain:
+    ground split into levels by walls or data gaps (ISPRS samp41) keeps its scraps, pond outliers
+    have only other scraps at their depths.
+    """
+    from lidarctl.raster_ops import fill_nodata
+
+    cid, nrows, ncols, _, _ = grid.cell_ids(x, y, cell_m)
     lowest = grid.lowest_per_cell(cid, z)
     mx, my, mz = x[lowest], y[lowest], z[lowest]
     pairs = cKDTree(np.column_stack([mx, my])).query_pairs(2.5 * cell_m, output_type="ndarray")
@@ -186,7 +206,8 @@ def low_clusters(x, y, z, cell_m: float, gap_m: float = 1.0, slope: float = 1.2,
     graph = coo_matrix((np.ones(linked.sum()), (a[linked], b[linked])), shape=(m, m))
     ncomp, label = connected_components(graph, directed=False)
     size = np.bincount(label, minlength=ncomp)
-    # A component is "below" when no unlinked neighbour lies lower than it.
+    small = (size <= max_cells) & (size < 0.5 * size.max())
+    # (a) A component is "below" when no unlinked neighbour lies lower than it.
     ua, ub = a[~linked], b[~linked]
     cross = label[ua] != label[ub]
     ua, ub, dzu = ua[cross], ub[cross], dz[~linked][cross]
@@ -196,16 +217,30 @@ def low_clusters(x, y, z, cell_m: float, gap_m: float = 1.0, slope: float = 1.2,
     has_lower[label[ua[dzu < 0]]] = True
     has_higher[label[ub[dzu < 0]]] = True
     has_lower[label[ub[dzu > 0]]] = True
-    low_comp = (size <= max_cells) & (size < 0.5 * size.max()) & has_higher & ~has_lower
-    # Courtyards also lie below all their unlinked neighbours (roofs); unlike an outlier patch they
-    # have terrain at about their height further out (the street beyond the buildings).
+    low_a = small & has_higher & ~has_lower
+    # (b) Below the terrain of the large components, interpolated over the patch.
+    terrain = ~small[label]
+    coherent = size[label] * cell_m * cell_m > patch_max_m2
+    low_b = np.zeros(ncomp, bool)
+    if terrain.any() and not terrain.all():
+        surf = np.full(nrows * ncols, np.nan)
+        surf[cid[lowest[terrain]]] = mz[terrain]
+        surf = fill_nodata(surf.reshape(nrows, ncols)).ravel()
+        below = mz < surf[cid[lowest]] - gap_m
+        n_below = np.bincount(label, below.astype(float), minlength=ncomp)
+        low_b = (size * cell_m * cell_m <= patch_max_m2) & (n_below == size)
     tree = cKDTree(np.column_stack([mx, my]))
+    low_comp = low_a | low_b
+    by_label = np.argsort(label, kind="stable")
+    first = np.concatenate([[0], np.cumsum(size)])
     for comp in np.flatnonzero(low_comp):
-        members = np.flatnonzero(label == comp)
+        members = by_label[first[comp]:first[comp + 1]]
         for k, nb in zip(members, tree.query_ball_point(np.column_stack([mx[members], my[members]]),
                                                          ring_m)):
             nb = np.asarray(nb)
             nb = nb[label[nb] != comp]
+            if low_b[comp]:
+                nb = nb[coherent[nb]]     # other scattered outliers around it are no evidence of terrain
             if len(nb) and np.any(mz[nb] <= mz[k] + gap_m + ring_slope * np.hypot(mx[nb] - mx[k], my[nb] - my[k])):
                 low_comp[comp] = False
                 break
@@ -216,6 +251,19 @@ def low_clusters(x, y, z, cell_m: float, gap_m: float = 1.0, slope: float = 1.2,
     flagged_cells = lowest[low_comp[label]]
     cell_min[cid[flagged_cells]] = z[flagged_cells]
     return np.isfinite(cell_min[cid]) & (z <= cell_min[cid] + gap_m)
+
+
+def _near(x, y, fx, fy, dist_m: float) -> np.ndarray:
+    """Mask of points in the ``dist_m`` blocks around any of the points (fx, fy), block size dist_m."""
+    x0, y0 = float(np.min(x)), float(np.min(y))
+    i, j, nrows, ncols, _, _ = grid.cell_indices(x, y, dist_m, x0, y0)
+    fi = np.clip(np.floor((fy - y0) / dist_m).astype(np.int64), 0, nrows - 1)
+    fj = np.clip(np.floor((fx - x0) / dist_m).astype(np.int64), 0, ncols - 1)
+    hit = np.zeros((nrows + 2, ncols + 2), bool)
+    for di in (0, 1, 2):
+        for dj in (0, 1, 2):
+            hit[fi + di, fj + dj] = True
+    return hit[i + 1, j + 1]
 
 
 def detect_noise(x, y, z, params: NoiseParams | None = None) -> np.ndarray:
@@ -239,12 +287,16 @@ def detect_noise(x, y, z, params: NoiseParams | None = None) -> np.ndarray:
         code[keep[low]] = LOW
         keep = keep[~low]
     cell = p.cluster_cell_m or max(2.0, 2.0 * spacing)
+    # Later passes peel the next layer of a patch; they only need the surroundings of what the
+    # previous pass flagged (its patches and their 50 m ring), not the whole cloud again.
+    test = keep
     for _ in range(p.cluster_passes):
-        low = low_clusters(x[keep], y[keep], z[keep], cell, p.gap_m, p.slope, p.cluster_max_cells)
+        low = low_clusters(x[test], y[test], z[test], cell, p.gap_m, p.slope, p.cluster_max_cells)
         if not low.any():
             break
-        code[keep[low]] = LOW
-        keep = keep[~low]
+        code[test[low]] = LOW
+        keep = keep[code[keep] == 0]
+        test = keep[_near(x[keep], y[keep], x[test[low]], y[test[low]], 100.0)]
     high = high_outliers(x[keep], y[keep], z[keep], radius, p.high_gap_m, p.slope, p.candidates_per_cell)
     code[keep[high]] = HIGH
     return code
