@@ -15,10 +15,16 @@ Steps (``mosaic_block``):
    ortho) the nearest-nadir valid frame fills in. Only the frames touching a tile are read.
 5. The tiles go into a tiled GeoTIFF with an internal mask, copied to a COG (deflate, 512 px blocks,
    overviews) - memory is bounded by the tile size, not the mosaic size.
+
+Step 4 runs as Dask tasks, one per output tile (``blend_tile_task`` on a small ``MosaicTile``: a
+context file with frames, gains and nadir points, and the tile window; labels are read from
+``seams.tif``), in batches of a few tiles per worker whose results this process writes in tile order.
 """
 
 from __future__ import annotations
 
+import dataclasses
+import functools
 import json
 import math
 from pathlib import Path
@@ -27,6 +33,7 @@ import cv2
 import numpy as np
 import rasterio
 import rasterio.shutil
+from pyproj import CRS
 from rasterio.enums import Resampling
 from rasterio.transform import Affine
 from rasterio.windows import Window
@@ -147,8 +154,11 @@ def _write_labels(path, labels, transform, crs):
 
 def mosaic_block(root, seams: str = "least-cost", ndsm_path=None, feather_m: float | None = None, balance: bool = True,
                  tile_px: int = 1024, object_height_m: float = 2.5, max_seam_cells: float = 5e7, end_reach_m: float = 30.0,
-                 progress: bool = True) -> dict:
-    """``ortho mosaic``: see the module doc. Returns a summary dict."""
+                 progress: bool = True, executor=None) -> dict:
+    """``ortho mosaic``: see the module doc. Returns a summary dict.
+
+    The output tiles are blended as tasks on ``executor`` (``aerotri.parallel.Executor``, default:
+    local threads); the COG does not depend on the scheduler."""
     root = Path(root)
     index = read_index(root)
     frames_dir = root / "ortho" / "frames"
@@ -195,7 +205,8 @@ def mosaic_block(root, seams: str = "least-cost", ndsm_path=None, feather_m: flo
     write_text_atomic(out_dir / "seamlines.geojson", json.dumps(geo) + "\n")
     feather_px = max(1.0, (feather_m / res) if feather_m else 8.0)
     path = out_dir / "mosaic.tif"
-    _write_mosaic(path, frames_dir, index, grids, mosaic, labels, factor, gains, nadir, feather_px, tile_px, progress)
+    _write_mosaic(path, frames_dir, index, grids, mosaic, labels, factor, gains, nadir, feather_px, tile_px, progress,
+                  seams_path=out_dir / "seams.tif", executor=executor)
     summary = {"path": str(path), "width": mosaic.width, "height": mosaic.height, "frames": len(red.names),
                "res_m": res, "seam_factor": factor, "seams": seams, "feather_px": feather_px,
                "gains": {n: [float(v) for v in g] for n, g in zip(red.names, gains)},
@@ -204,14 +215,75 @@ def mosaic_block(root, seams: str = "least-cost", ndsm_path=None, feather_m: flo
     return summary
 
 
+@dataclasses.dataclass(frozen=True)
+class MosaicTile:
+    """One output tile of the mosaic as a Dask task: the shared context file and the tile's window."""
+
+    context_path: str
+    row0: int
+    col0: int
+    height: int
+    width: int
+
+
+@functools.lru_cache(maxsize=4)
+def _load_context(path: str, mtime_ns: int) -> dict:
+    """The mosaic context (frames, grids, gains, seam raster path), parsed once per worker process."""
+    ctx = json.loads(Path(path).read_text())
+    index = ctx["index"]
+    ctx["grids"] = index_grids(index)
+    ctx["names"] = [e["image_id"] for e in index["frames"]]
+    ctx["files"] = {e["image_id"]: Path(ctx["frames_dir"]) / e["file"] for e in index["frames"]}
+    m = ctx["mosaic"]
+    ctx["mosaic_grid"] = OrthoGrid(CRS.from_wkt(index["crs"]), m["x_left_m"], m["y_top_m"], m["res_m"], m["width"],
+                                   m["height"])
+    ctx["offsets"] = [ctx["grids"][n].offset_in(ctx["mosaic_grid"]) for n in ctx["names"]]
+    ctx["gains"] = np.asarray(ctx["gains"], float)
+    ctx["nadir"] = np.asarray(ctx["nadir"], float)
+    return ctx
+
+
+def _labels_at_full_resolution(read_cells, R0, C0, H, W, factor, shape):
+    """Seam labels (nearest) of the mosaic pixels R0..R0+H, C0..C0+W; ``read_cells(row, col, h, w)`` reads
+    a window of the seam grid of ``shape`` (cells of ``factor`` mosaic pixels)."""
+    lr = np.clip(np.arange(R0, R0 + H) // factor, 0, shape[0] - 1)
+    lc = np.clip(np.arange(C0, C0 + W) // factor, 0, shape[1] - 1)
+    r_lo, c_lo = int(lr.min()), int(lc.min())
+    cells = read_cells(r_lo, c_lo, int(lr.max()) + 1 - r_lo, int(lc.max()) + 1 - c_lo)
+    return cells[np.ix_(lr - r_lo, lc - c_lo)]
+
+
+def blend_tile_task(tile: MosaicTile):
+    """Blend one output tile from the frame orthos; returns (pixels (h, w, bands) of the frames' dtype,
+    validity bool (h, w)). Reads only the seam labels and frame windows it needs."""
+    ctx = _load_context(tile.context_path, Path(tile.context_path).stat().st_mtime_ns)
+    halo, factor = ctx["halo"], ctx["factor"]
+    with rasterio.open(ctx["seams_path"]) as sds:
+        def read_cells(r, c, h, w):
+            return sds.read(1, window=Window(c, r, w, h))
+
+        lab = _labels_at_full_resolution(read_cells, tile.row0 - halo, tile.col0 - halo, tile.height + 2 * halo,
+                                         tile.width + 2 * halo, factor, (sds.height, sds.width))
+    out, valid = _blend_tile(tile.row0, tile.col0, tile.height, tile.width, halo, ctx["names"], ctx["files"],
+                             ctx["offsets"], ctx["grids"], ctx["mosaic_grid"], lab, ctx["gains"], ctx["nadir"],
+                             ctx["feather_px"], ctx["bands"], ctx["dtype"])
+    return out.astype(ctx["dtype"]), valid
+
+
 def _write_mosaic(path, frames_dir, index, grids, mosaic: OrthoGrid, labels, factor, gains, nadir, feather_px, tile_px,
-                  progress):
+                  progress, seams_path=None, executor=None):
+    """Blend the output tiles as tasks on ``executor`` (batches of a few tiles per worker, written in
+    tile order as they come back: memory is bounded by the batch, not the mosaic) into a tiled
+    GeoTIFF, then copy that to the COG. ``seams_path``: the label raster already written (the tasks
+    read their windows from it)."""
+    from aerotri.parallel import local_executor
+
+    executor = executor or local_executor()
     names = [e["image_id"] for e in index["frames"]]
     files = {e["image_id"]: frames_dir / e["file"] for e in index["frames"]}
     with rasterio.open(files[names[0]]) as ds:
         bands, dtype = ds.count, ds.dtypes[0]
     halo = int(math.ceil(2.0 * feather_px)) + factor
-    offsets = [grids[n].offset_in(mosaic) for n in names]  # (col, row)
     profile = dict(driver="GTiff", width=mosaic.width, height=mosaic.height, count=bands, dtype=dtype, crs=mosaic.crs,
                    transform=mosaic.transform, tiled=True, blockxsize=512, blockysize=512, compress="deflate",
                    predictor=2, zlevel=1, interleave="pixel", BIGTIFF="IF_SAFER")
@@ -220,29 +292,39 @@ def _write_mosaic(path, frames_dir, index, grids, mosaic: OrthoGrid, labels, fac
     path.parent.mkdir(parents=True, exist_ok=True)
     with tempfile.TemporaryDirectory(prefix=".mosaic_stage.", dir=path.parent) as tmp_dir, \
             rasterio.Env(GDAL_TIFF_INTERNAL_MASK=True):
+        if seams_path is None:
+            seams_path = Path(tmp_dir) / "seams.tif"
+            _write_labels(seams_path, labels, Affine(mosaic.res_m * factor, 0, mosaic.x_left_m, 0,
+                                                     -mosaic.res_m * factor, mosaic.y_top_m), mosaic.crs)
+        context = {"index": index, "frames_dir": str(Path(frames_dir).resolve()),
+                   "mosaic": {"x_left_m": mosaic.x_left_m, "y_top_m": mosaic.y_top_m, "res_m": mosaic.res_m,
+                              "width": mosaic.width, "height": mosaic.height},
+                   "seams_path": str(Path(seams_path).resolve()), "factor": int(factor), "halo": halo,
+                   "gains": np.asarray(gains, float).tolist(), "nadir": np.asarray(nadir, float).tolist(),
+                   "feather_px": float(feather_px), "bands": int(bands), "dtype": dtype}
+        context_path = (Path(tmp_dir) / "context.json").resolve()
+        context_path.write_text(json.dumps(context))
+        tiles = [MosaicTile(str(context_path), r0, c0, min(tile_px, mosaic.height - r0), min(tile_px, mosaic.width - c0))
+                 for r0 in range(0, mosaic.height, tile_px) for c0 in range(0, mosaic.width, tile_px)]
+        batch = max(2, 2 * executor.workers)
         stage = Path(tmp_dir) / "stage.tif"
-        with rasterio.open(stage, "w", **profile) as dst:
-            tiles = [(r0, c0) for r0 in range(0, mosaic.height, tile_px) for c0 in range(0, mosaic.width, tile_px)]
-            for r0, c0 in tqdm(tiles, desc="mosaic", unit="tile", disable=not progress):
-                th, tw = min(tile_px, mosaic.height - r0), min(tile_px, mosaic.width - c0)
-                out, valid = _blend_tile(r0, c0, th, tw, halo, names, files, offsets, grids, mosaic, labels, factor,
-                                         gains, nadir, feather_px, bands, dtype)
-                w = Window(c0, r0, tw, th)
-                dst.write(np.moveaxis(out.astype(dtype), -1, 0), window=w)
-                dst.write_mask(np.where(valid, 255, 0).astype(np.uint8), window=w)
+        with rasterio.open(stage, "w", **profile) as dst, \
+                tqdm(total=len(tiles), desc="mosaic", unit="tile", disable=not progress) as bar:
+            for i in range(0, len(tiles), batch):
+                results = executor.map(blend_tile_task, tiles[i:i + batch], desc="mosaic tiles", unit="tile")
+                for t, (out, valid) in zip(tiles[i:i + batch], results):
+                    w = Window(t.col0, t.row0, t.width, t.height)
+                    dst.write(np.moveaxis(out, -1, 0), window=w)
+                    dst.write_mask(np.where(valid, 255, 0).astype(np.uint8), window=w)
+                    bar.update(1)
         with atomic_path(path) as tmp:
             rasterio.shutil.copy(stage, tmp, driver="COG", COMPRESS="DEFLATE", BLOCKSIZE=512, OVERVIEWS="AUTO",
                                  OVERVIEW_RESAMPLING="AVERAGE", BIGTIFF="IF_SAFER", NUM_THREADS="ALL_CPUS")
 
 
-def _blend_tile(r0, c0, th, tw, halo, names, files, offsets, grids, mosaic, labels, factor, gains, nadir, feather_px,
+def _blend_tile(r0, c0, th, tw, halo, names, files, offsets, grids, mosaic, lab, gains, nadir, feather_px,
                 bands, dtype):
-    R0, C0 = r0 - halo, c0 - halo
-    H, W = th + 2 * halo, tw + 2 * halo
-    # labels of the halo'd tile at full resolution (nearest)
-    lr = np.clip((np.arange(R0, R0 + H)) // factor, 0, labels.shape[0] - 1)
-    lc = np.clip((np.arange(C0, C0 + W)) // factor, 0, labels.shape[1] - 1)
-    lab = labels[np.ix_(lr, lc)]
+    """Blend one tile; ``lab``: seam labels of the tile and ``halo`` pixels around it, at full resolution."""
     acc = np.zeros((th, tw, bands), np.float32)
     wsum = np.zeros((th, tw), np.float32)
     fallback_best = np.full((th, tw), np.inf, np.float32)

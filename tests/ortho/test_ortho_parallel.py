@@ -1,0 +1,148 @@
+"""Scale-out and the fast rectification path: tile threads, per-frame and per-mosaic-tile Dask tasks give
+byte-identical outputs on every scheduler; memory-mapped frames equal decoded ones; pooled tiles
+handed to a sink equal the assembled ortho."""
+
+from __future__ import annotations
+
+import hashlib
+import shutil
+
+import cv2
+import numpy as np
+import pytest
+import rasterio
+from click.testing import CliRunner
+
+from aerotri.parallel import Executor
+from ortho.block import map_uncompressed_tiff, read_image_native, rectify_block
+from ortho.cli import main
+from ortho.mosaic import mosaic_block
+from ortho.synthetic import write_synthetic_project
+
+
+@pytest.fixture(scope="module")
+def small_block(tmp_path_factory):
+    root = tmp_path_factory.mktemp("ortho_parallel")
+    write_synthetic_project(root, strips=2, frames_per_strip=2, buildings=4, seed=11)
+    return root
+
+
+def _digests(root):
+    files = sorted((root / "ortho" / "frames").glob("*.tif")) + [root / "ortho" / "mosaic.tif", root / "ortho" / "seams.tif"]
+    d = {f.name: hashlib.sha256(f.read_bytes()).hexdigest() for f in files}
+    # the index names the DEM and EO files by their paths, which differ between the copies of the project
+    index = (root / "ortho" / "frames" / "index.json").read_text().replace(str(root), "ROOT")
+    d["index.json"] = hashlib.sha256(index.encode()).hexdigest()
+    return d
+
+
+def test_outputs_identical_on_every_scheduler(small_block, tmp_path):
+    """Frames as Dask tasks (rectify) and output tiles as Dask tasks (mosaic): the same bytes with the
+    synchronous scheduler, local threads and a local cluster of 2 worker processes."""
+    digests = {}
+    for scheduler in ("synchronous", None, "local:2"):
+        root = tmp_path / str(scheduler).replace(":", "_")
+        shutil.copytree(small_block, root)
+        with Executor(scheduler, 2) as ex:
+            index = rectify_block(root, progress=False, executor=ex)
+            # small tiles: several mosaic tiles and batches even on this small block
+            mosaic_block(root, tile_px=256, progress=False, executor=ex)
+        assert len(index["frames"]) == 4
+        digests[scheduler] = _digests(root)
+    assert len(digests["synchronous"]) == 7
+    assert digests["synchronous"] == digests[None] == digests["local:2"]
+    with rasterio.open(tmp_path / "synchronous" / "ortho" / "mosaic.tif") as ds:
+        assert ds.width > 512 and ds.height > 512  # more than one batch of 256 px tiles
+        assert (ds.read_masks(1) > 0).mean() > 0.8
+
+
+def test_cli_scheduler_option(small_block, tmp_path):
+    root = tmp_path / "cli"
+    shutil.copytree(small_block, root)
+    r = CliRunner().invoke(main, ["rectify", str(root), "--scheduler", "synchronous", "--frame-compress", "zstd-fast"])
+    assert r.exit_code == 0, r.output
+    with rasterio.open(root / "ortho" / "frames" / "s01_001.tif") as ds:
+        assert ds.compression.name.lower() == "zstd" and ds.tags(ns="IMAGE_STRUCTURE").get("PREDICTOR") is None
+        fast = ds.read()
+    r = CliRunner().invoke(main, ["rectify", str(root), "--frame-compress", "none"])
+    assert r.exit_code == 0, r.output
+    with rasterio.open(root / "ortho" / "frames" / "s01_001.tif") as ds:
+        assert ds.compression is None and np.array_equal(ds.read(), fast)
+    r = CliRunner().invoke(main, ["mosaic", str(root), "--workers", "2", "--tile-px", "512"])
+    assert r.exit_code == 0, r.output
+    assert (root / "ortho" / "mosaic.tif").exists()
+    r = CliRunner().invoke(main, ["rectify", str(root), "--scheduler", "local:x"])
+    assert r.exit_code == 2 and "local:N" in r.output
+
+
+def test_tile_threads_and_sink_do_not_change_the_ortho(small_block):
+    from aerotri.camera import FrameCamera
+    from aerotri.eo import read_eo
+    from ortho.dem import read_height_raster
+    from ortho.grid import GridToProject, parse_crs
+    from ortho.rectify import frame_grid, rectify_frame
+
+    crs = parse_crs("EPSG:32649")
+    cam = FrameCamera.read(small_block / "camera.toml")
+    eo = read_eo(small_block / "at" / "eo.txt")
+    dem = read_height_raster(small_block / "lidar_out" / "dem.tif", crs)
+    img, _ = read_image_native(small_block / "images" / "s01_001.tif", cam)
+    C, R = eo.centre_m[0], eo.rotation(0)
+    grid = frame_grid(cam, C, R, dem, 0.2, crs, GridToProject(crs, crs))
+    one, m1 = rectify_frame(img, cam, C, R, dem, grid, tile_px=128, threads=1)
+    three, m3 = rectify_frame(img, cam, C, R, dem, grid, tile_px=128, threads=3)
+    assert np.array_equal(one, three) and np.array_equal(m1, m3)
+    assert 0.3 < (m1 > 0).mean() < 1.0
+    # tiles handed to a sink, bands first, from the pooled buffers (reused after the sink returns)
+    got = np.zeros((img.shape[2], grid.height, grid.width), img.dtype)
+    got_mask = np.zeros((grid.height, grid.width), np.uint8)
+
+    def sink(r0, c0, o, m):
+        got[:, r0:r0 + m.shape[0], c0:c0 + m.shape[1]] = o
+        got_mask[r0:r0 + m.shape[0], c0:c0 + m.shape[1]] = m
+
+    none, _ = rectify_frame(img, cam, C, R, dem, grid, tile_px=128, threads=2, sink=sink, sink_bands_first=True)
+    assert none is None
+    assert np.array_equal(np.moveaxis(got, 0, -1), one) and np.array_equal(got_mask, m1)
+    # cubic: pixels outside the frame stay 0 also with the pooled, reused buffers
+    cub, mc = rectify_frame(img, cam, C, R, dem, grid, "cubic", tile_px=128, threads=2)
+    assert np.all(cub[mc == 0] == 0) and np.array_equal(mc, m1)
+
+
+@pytest.mark.parametrize("bands,dtype", [(3, np.uint8), (1, np.uint16), (4, np.uint16)])
+def test_uncompressed_frames_are_memory_mapped(tmp_path, bands, dtype):
+    rng = np.random.default_rng(5)
+    a = rng.integers(0, np.iinfo(dtype).max, (37, 53, bands) if bands > 1 else (37, 53), dtype=dtype)
+    path = tmp_path / "frame.tif"
+    with rasterio.open(path, "w", driver="GTiff", width=53, height=37, count=bands, dtype=a.dtype.name,
+                       interleave="pixel") as dst:
+        dst.write(np.moveaxis(a, -1, 0) if bands > 1 else a[None])
+    m = map_uncompressed_tiff(path)
+    assert isinstance(m, np.memmap) and m.shape == a.shape and np.array_equal(m, a)
+    # compressed or tiled files are decoded instead
+    for extra in (dict(compress="lzw"), dict(tiled=True, blockxsize=16, blockysize=16)):
+        p2 = tmp_path / "other.tif"
+        with rasterio.open(p2, "w", driver="GTiff", width=53, height=37, count=bands, dtype=a.dtype.name,
+                           interleave="pixel", **extra) as dst:
+            dst.write(np.moveaxis(a, -1, 0) if bands > 1 else a[None])
+        assert map_uncompressed_tiff(p2) is None
+
+
+def test_mapped_and_decoded_frames_give_the_same_ortho(small_block, tmp_path):
+    """A frame stored uncompressed (mapped, R, G, B) and LZW (decoded by cv2, B, G, R) rectify alike."""
+    from aerotri.camera import FrameCamera
+
+    cam = FrameCamera.read(small_block / "camera.toml")
+    img, order = read_image_native(small_block / "images" / "s01_001.tif", cam)
+    assert order == [3, 2, 1] and not isinstance(img, np.memmap)
+    root = tmp_path / "raw"
+    shutil.copytree(small_block, root)
+    for f in (root / "images").glob("*.tif"):
+        cv2.imwrite(str(f), cv2.imread(str(f), cv2.IMREAD_UNCHANGED), [cv2.IMWRITE_TIFF_COMPRESSION, 1])
+    mapped, order = read_image_native(root / "images" / "s01_001.tif", cam)
+    assert isinstance(mapped, np.memmap) and order == [1, 2, 3]
+    assert np.array_equal(np.asarray(mapped), img[:, :, ::-1])
+    rectify_block(root, frames=["s01_001"], progress=False)
+    rectify_block(small_block, frames=["s01_001"], progress=False)
+    with rasterio.open(root / "ortho/frames/s01_001.tif") as a, rasterio.open(small_block / "ortho/frames/s01_001.tif") as b:
+        assert np.array_equal(a.read(), b.read()) and np.array_equal(a.read_masks(1), b.read_masks(1))
