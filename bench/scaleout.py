@@ -28,8 +28,11 @@ ROOT = Path(__file__).resolve().parents[1]
 BIN = Path(sys.executable).parent
 
 
-def _sha(p: Path) -> str:
-    return hashlib.sha1(p.read_bytes()).hexdigest()
+def _sha(p: Path, root: Path | None = None) -> str:
+    data = p.read_bytes()
+    if root is not None and p.suffix in (".json", ".geojson"):
+        data = data.replace(str(root).encode(), b"ROOT")  # index files hold absolute paths
+    return hashlib.sha1(data).hexdigest()
 
 
 def _run(args, env=None) -> float:
@@ -90,7 +93,7 @@ def main() -> None:
                 w = Path(tmp) / f"{name}_{n}"
                 _copy(a.project, w, parts)
                 row[f"seconds_{n}_worker{'s' if n > 1 else ''}"] = round(_run(cmd(w, f"local:{n}"), env), 2)
-                digests[n] = {o: _sha(w / o) for o in outputs}
+                digests[n] = {o: _sha(w / o, w) for o in outputs}
                 if name == "rectify":  # per-frame orthos listed in the index
                     digests[n].update({f.name: _sha(f) for f in sorted((w / "ortho" / "frames").glob("*.tif"))})
                 shutil.rmtree(w)

@@ -7,6 +7,13 @@ tracks dropped) -> weak-area analysis per stereo model (von Gruber regions) and 
 densification where weak -> ``at/tiepoints.csv`` + connectivity report.
 """
 
-from aerotri.match.pipeline import MatchSettings, match_project
-
 __all__ = ["MatchSettings", "match_project"]
+
+
+def __getattr__(name):
+    # Lazy: other packages import aerotri.match.images alone, without the pipeline and matplotlib.
+    if name in __all__:
+        from aerotri.match import pipeline
+
+        return getattr(pipeline, name)
+    raise AttributeError(f"module 'aerotri.match' has no attribute {name!r}")
