@@ -1,4 +1,4 @@
-"""AHN3 Delft crop: building and ground producer's / user's accuracy against the AHN3 classes.
+"""AHN3 Delft crop: building, ground and water producer's / user's accuracy against the AHN3 classes.
 
 Our classes are mapped onto the AHN3 scheme: 2 -> 2, 6 -> 6, 9 -> 9, everything else -> 1
 (AHN3 class 1 holds vegetation and street furniture; 26 civil structures has no counterpart).
@@ -35,6 +35,8 @@ def main():
         "data": str(path), "points": int(len(c)), "classify_seconds": seconds,
         "building_producers_accuracy_pct": pa["6"], "building_users_accuracy_pct": ua["6"],
         "ground_producers_accuracy_pct": pa["2"], "ground_users_accuracy_pct": ua["2"],
+        "water_producers_accuracy_pct": pa["9"], "water_users_accuracy_pct": ua["9"],
+        "water_points_truth": int(np.sum(c.classification == 9)), "water_points_pred": int(np.sum(pred == 9)),
         "target_pct": 95.0,
         "target_met": bool(min(pa["6"], ua["6"], pa["2"], ua["2"]) >= 95.0),
         "ground_filter_errors": filt,
@@ -44,7 +46,8 @@ def main():
     print(evaluate.format_confusion(conf, {1: "1 other", 2: "2 ground", 6: "6 building", 9: "9 water",
                                            26: "26 civil"}))
     print(evaluate.format_filter_table({"ahn3": filt}))
-    print(f"building PA/UA {pa['6']:.2f} / {ua['6']:.2f} %, ground PA/UA {pa['2']:.2f} / {ua['2']:.2f} %")
+    print(f"building PA/UA {pa['6']:.2f} / {ua['6']:.2f} %, ground PA/UA {pa['2']:.2f} / {ua['2']:.2f} %, "
+          f"water PA/UA {pa['9']:.2f} / {ua['9'] or 0.0:.2f} %")
     out = REPO / "results" / "lidar_ahn3.json"
     out.write_text(json.dumps(res, indent=2))
     print(f"wrote {out}")

@@ -97,10 +97,16 @@ def main():
                     "false_noise_flags_pct": 0.1, "dem_rmse_open_m": 0.15, "dem_rmse_canopy_m": 0.30},
         "confusion": evaluate.confusion(pred, truth),
     }
+    # Water (9): the ponds' few surviving returns (the simulator drops most water pulses).
+    res["water_points_truth"] = int(np.sum(truth == 9))
+    res["water_points_pred"] = int(np.sum(pred == 9))
+    res["water_producers_accuracy_pct"] = res["confusion"]["producers_accuracy_pct"].get("9")
+    res["water_users_accuracy_pct"] = res["confusion"]["users_accuracy_pct"].get("9")
     print(evaluate.format_filter_table({"sim demo": filt}))
     print(evaluate.format_confusion(res["confusion"], classify.CLASS_NAMES))
     for k in ("points", "classify_seconds", "outliers_flagged_pct", "false_noise_flags_pct", "dem_rmse_open_m",
-              "dem_rmse_canopy_m", "dem_rmse_all_m", "dem_p99_abs_error_open_m"):
+              "dem_rmse_canopy_m", "dem_rmse_all_m", "dem_p99_abs_error_open_m", "water_points_truth",
+              "water_points_pred", "water_producers_accuracy_pct", "water_users_accuracy_pct"):
         print(f"{k}: {res[k]}")
     path = REPO / "results" / "lidar_sim.json"
     path.write_text(json.dumps(res, indent=2))

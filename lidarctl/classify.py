@@ -22,8 +22,26 @@ Pipeline (``classify_points``):
    Where the cloud has multiple returns, a non-ground point above ``low_veg_max_m`` counts as
    vegetation only in cells with multi-return or rough (non-planar) structure; smooth single-return
    objects that are too small for a building (cars, walls) stay unclassified (1).
-5. Water (9): ground cells that are flat and horizontal (plane RMS and slope tiny), where the point
-   density drops below ``water_density_ratio`` of the cloud's median (water absorbs the pulse).
+5. Water (9), *pulse-dropout water detection* (``detect_water``): water absorbs or mirrors away
+   the near-infrared pulse, so an airborne scan over water shows a gap in the return pattern
+   holding only a few returns, all at one level, with low intensity. On a ``water_cell_m`` grid
+   the 3x3-window return count below ``water_density_ratio`` of the cloud's median marks dropout
+   cells; each 8-connected dropout region of at least ``water_min_area_m2`` is a water body when
+   its candidate returns (ground, unclassified, low vegetation; noise stays noise)
+   (a) have a common level: the lowest well-populated height band (``water_level``; boats and
+   quays stand above the water) holds at least ``water_flat_fraction`` of them within
+   ``water_level_tol_m`` and at least ``water_min_points`` (b) that is horizontal (LSQ plane
+   slope <= ``water_max_slope``) and not above the ground on its banks (the bed test: the median
+   ground height of the rim cells, the DEM just across the gap, is not more than
+   ``water_level_tol_m`` below the level);
+   (c) are dark: the lower quartile of their intensity is below ``water_intensity_ratio`` of the
+   cloud's median ground intensity (skipped when the cloud carries no intensity; specular
+   returns near nadir are bright, hence the quartile); and (d) the gap is not an occlusion
+   shadow: at most ``water_shadow_fraction`` of its rim cells hold building points (a shadow is
+   bounded by the building that casts it). Returns within 3 sigma (their robust spread, clipped
+   to [1/4, 1] ``water_level_tol_m``) of the level become water; so do returns within
+   ``water_shore_m`` of the gap at that level that are as dark as the body (on clouds without
+   intensity: in a dropout cell), which the 3x3 window misses along the shore.
 """
 
 from __future__ import annotations
@@ -60,8 +78,16 @@ class ClassifyParams:
     low_veg_max_m: float = 2.0
     medium_veg_max_m: float = 5.0
     rough_rms_m: float = 0.3
+    water_cell_m: float = 0.0            # 0: max(1 m, 2 x mean point spacing)
     water_density_ratio: float = 0.3
-    water_rms_m: float = 0.05
+    water_min_area_m2: float = 20.0
+    water_level_tol_m: float = 0.2
+    water_flat_fraction: float = 0.6
+    water_min_points: int = 5
+    water_max_slope: float = 0.01
+    water_intensity_ratio: float = 0.5
+    water_shadow_fraction: float = 0.2
+    water_shore_m: float = 4.0
     deep_cell_m: float = 5.0
     deep_m: float = 5.0
     small_building_min_area_m2: float = 6.0
@@ -254,6 +280,124 @@ def roof_edge_completion(x, y, z, is_building, candidates, p: ClassifyParams) ->
         query = cand[_near_mask(x[cand], y[cand], x[new], y[new], r)]
 
 
+def water_level(z, tol_m: float) -> tuple[float, float]:
+    """Level (m) of the lowest well-populated height band of width ``tol_m / 2`` among the heights
+    ``z`` of a gap's returns, and the robust spread (m, 1.4826 MAD) of the returns about it.
+
+    Water is the lowest coherent surface in its gap (boats, pontoons and quays stand above it,
+    low noise is already removed): the lowest band holding at least half as many returns as the
+    densest band, refined twice by the median of the returns within ``tol_m / 2``.
+    """
+    zs = np.sort(np.asarray(z, float))
+    width = 0.5 * tol_m
+    count = np.searchsorted(zs, zs + width, side="right") - np.arange(len(zs))
+    k = int(np.flatnonzero(count >= 0.5 * count.max())[0])
+    level = float(np.median(zs[k:k + count[k]]))
+    for _ in range(2):
+        near = zs[np.abs(zs - level) <= width]
+        level = float(np.median(near))
+    sigma_m = 1.4826 * float(np.median(np.abs(near - level)))
+    return level, sigma_m
+
+
+def detect_water(x, y, z, intensity, candidate, is_building, is_ground, spacing_m: float,
+                 p: ClassifyParams) -> np.ndarray:
+    """Water returns (mask) by pulse-dropout water detection; see the module docstring, step 5.
+
+    ``candidate``: points that may be water returns (ground, unclassified, low vegetation);
+    ``is_building`` / ``is_ground``: class masks for the occlusion-shadow and bank tests.
+    Heights in metres; intensity in the sensor's units (only ratios to the cloud's median are used).
+    """
+    n = len(x)
+    water = np.zeros(n, bool)
+    c = p.water_cell_m or max(1.0, 2.0 * spacing_m)
+    flat, nrows, ncols, _, _ = grid.cell_ids(x, y, c)
+    count = np.bincount(flat, minlength=nrows * ncols).reshape(nrows, ncols).astype(float)
+    if not (count > 0).any():
+        return water
+    median_count = float(np.median(count[count > 0]))
+    # Dropout: the 3x3-window return count, so single empty cells in a sparse scan do not count.
+    dropout = ndimage.uniform_filter(count, 3, mode="nearest") < p.water_density_ratio * median_count
+    labels, nlab = ndimage.label(dropout, np.ones((3, 3), int))
+    if nlab == 0:
+        return water
+    area_m2 = np.bincount(labels.ravel(), minlength=nlab + 1) * c * c
+    building_cell = np.bincount(flat[is_building], minlength=nrows * ncols).reshape(nrows, ncols) > 0
+    ground_cell_z = reduce_grid(x[is_ground], y[is_ground], z[is_ground], c, float(np.min(x)),
+                                float(np.min(y)), nrows, ncols, "mean")
+    # Clouds without intensity (a constant field) skip the reflectance test.
+    use_intensity = intensity is not None and is_ground.any() and np.ptp(np.asarray(intensity)[is_ground]) > 0
+    if use_intensity:
+        inten = np.asarray(intensity, float)
+        ground_intensity = float(np.median(inten[is_ground]))
+    lab_pt = labels.ravel()[flat]
+    cand = np.flatnonzero(candidate & (lab_pt > 0) & (area_m2[lab_pt] >= p.water_min_area_m2))
+    if len(cand) == 0:
+        return water
+    shore_cand = np.flatnonzero(candidate & (lab_pt == 0))
+    shore_row, shore_col = np.divmod(flat[shore_cand], ncols)
+    shore_cells = max(1, int(np.ceil(p.water_shore_m / c)))
+    boxes = ndimage.find_objects(labels)
+    cand = cand[np.argsort(lab_pt[cand], kind="stable")]
+    lab_c = lab_pt[cand]
+    starts = np.flatnonzero(np.r_[True, lab_c[1:] != lab_c[:-1]])
+    tol = p.water_level_tol_m
+    for members in np.split(cand, starts[1:]):
+        k = int(lab_pt[members[0]])
+        zg = z[members]
+        if len(zg) < p.water_min_points:
+            continue
+        level, sigma_m = water_level(zg, tol)
+        n_level = int(np.sum(np.abs(zg - level) <= tol))
+        if n_level < p.water_min_points or n_level < p.water_flat_fraction * len(zg):
+            continue
+        # The water returns' own spread (sensor noise, waves) sets how far from the level they lie.
+        on_tol = np.clip(3.0 * sigma_m, 0.25 * tol, tol)
+        on_level = members[np.abs(zg - level) <= on_tol]
+        if len(on_level) < p.water_min_points:
+            continue
+        # Horizontal: least-squares plane through the level returns.
+        a = np.column_stack([x[on_level] - x[on_level].mean(), y[on_level] - y[on_level].mean(),
+                             np.ones(len(on_level))])
+        coef = np.linalg.lstsq(a, z[on_level], rcond=None)[0]
+        if np.hypot(coef[0], coef[1]) > p.water_max_slope:
+            continue
+        if use_intensity and np.percentile(inten[on_level], 25) \
+                >= p.water_intensity_ratio * ground_intensity:
+            continue
+        # The region's bounding box, padded for the rim and the shore (whole-grid work per region
+        # would cost O(regions x cells)).
+        pad = shore_cells + 1
+        r0, c0 = max(boxes[k - 1][0].start - pad, 0), max(boxes[k - 1][1].start - pad, 0)
+        win = (slice(r0, boxes[k - 1][0].stop + pad), slice(c0, boxes[k - 1][1].stop + pad))
+        region = labels[win] == k
+        rim = ndimage.binary_dilation(region, np.ones((3, 3), bool), 2) & ~region
+        if rim.any() and building_cell[win][rim].mean() > p.water_shadow_fraction:
+            continue
+        # Water lies in its bed: the ground on the banks is not below the water level.
+        bank_z = ground_cell_z[win][rim]
+        bank_z = bank_z[np.isfinite(bank_z)]
+        if len(bank_z) and np.median(bank_z) < level - tol:
+            continue
+        water[on_level] = True
+        # Shore: the 3x3 dropout window misses the water returns next to the banks; returns within
+        # ``water_shore_m`` of the body at its level join when they are dark too.
+        shore = ndimage.binary_dilation(region, np.ones((3, 3), bool), shore_cells)
+        i, j = shore_row - r0, shore_col - c0
+        inside = (i >= 0) & (i < shore.shape[0]) & (j >= 0) & (j < shore.shape[1])
+        inside[inside] = shore[i[inside], j[inside]]
+        near = shore_cand[inside & (np.abs(z[shore_cand] - level) <= on_tol)]
+        if use_intensity:
+            # As dark as the body's own returns (dark asphalt beside a pond is not water).
+            dark = min(p.water_intensity_ratio * ground_intensity,
+                       2.0 * np.median(inten[on_level]))
+            near = near[inten[near] < dark]
+        else:
+            near = near[count.ravel()[flat[near]] < p.water_density_ratio * median_count]
+        water[near] = True
+    return water
+
+
 def classify_points(x, y, z, return_number=None, number_of_returns=None, intensity=None,
                     params: ClassifyParams | None = None, progress=None) -> np.ndarray:
     """ASPRS class per point (uint8). Arrays are per point; heights in metres."""
@@ -367,12 +511,7 @@ def classify_points(x, y, z, return_number=None, number_of_returns=None, intensi
     cls[high] = HIGH_VEG
 
     step("water")
-    gcnt = np.bincount(flat[is_ground], minlength=nrows * ncols).reshape(nrows, ncols)
-    occupied = np.bincount(flat, minlength=nrows * ncols).reshape(nrows, ncols)
-    median_density = np.median(occupied[occupied > 0])
-    dem_rms = _plane_rms(dem, c)
-    sparse = ndimage.uniform_filter(occupied.astype(float), 5) < p.water_density_ratio * median_density
-    water_cells = sparse & (dem_rms < p.water_rms_m) & (slope_tan(dem, c) < 0.02) & (gcnt > 0)
-    water_cells = ndimage.binary_opening(water_cells, np.ones((3, 3), bool))
-    cls[is_ground & water_cells.ravel()[flat]] = WATER
+    water = detect_water(x, y, z, intensity, is_ground | (cls == UNCLASSIFIED) | (cls == LOW_VEG),
+                         is_building, is_ground, spacing, p)
+    cls[water] = WATER
     return cls
