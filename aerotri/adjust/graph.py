@@ -87,6 +87,9 @@ class Options:
     huber_k: float = 2.5  # robust kernel threshold in standard deviations
     max_iterations: int = 100
     relative_tolerance: float = 1e-8
+    ordering: str = "METIS"  # LM elimination ordering (METIS | COLAMD)
+    linear_solver: str = "MULTIFRONTAL_CHOLESKY"  # or SEQUENTIAL_CHOLESKY
+    diagonal_damping: bool = False  # Marquardt (diag(H)) instead of Levenberg (identity) damping
 
     def __post_init__(self):
         if self.gnss_correction not in GNSS_CORRECTIONS:
@@ -130,6 +133,15 @@ def camera_from_cal(cal, like: FrameCamera) -> FrameCamera:
         p1=float(cal[7]),
         p2=float(cal[8]),
     )
+
+
+def fixed_parameter_sigmas(cam: FrameCamera, cal, effect_px: float = 0.01) -> np.ndarray:
+    """Prior sigmas (9,) that hold calibration parameters which are not estimated: each may move the
+    image corner by ``effect_px`` at most. Tighter priors (1e-8) add information of 1e16 to the normal
+    equations, which makes the Cholesky factorisation fail at small LM damping (LM then crawls)."""
+    r = 0.5 * np.hypot(cam.width, cam.height) / cal[0]  # normalised radius of the corner
+    f = cal[0]
+    return effect_px * np.array([1 / r, 1 / r, 1 / r, 1.0, 1.0, 1 / (f * r**3), 1 / (f * r**5), 1 / (3 * f * r**2), 1 / (3 * f * r**2)])
 
 
 def _cal3ds2(cal) -> gtsam.Cal3DS2:
@@ -183,7 +195,7 @@ def build_graph(block: Block, opts: Options, state: State, obs_active, control_a
         fixed = np.ones(9, dtype=bool)
         for grp in opts.self_calibration:
             fixed[list(SELF_CAL_GROUPS[grp])] = False
-        sig[fixed] = np.array([1e-3, 1e-3, 1e-3, 1e-3, 1e-3, 1e-8, 1e-8, 1e-8, 1e-8])[fixed]
+        sig[fixed] = fixed_parameter_sigmas(block.camera, state.cal)[fixed]
         g.add(gtsam.PriorFactorCal3DS2(K_KEY, _cal3ds2(state.cal), gtsam.noiseModel.Diagonal.Sigmas(sig)))
         n_unk += int((~fixed).sum())
         for k in idx:
@@ -263,7 +275,9 @@ def optimize(gr: Graph, opts: Options) -> tuple[gtsam.Values, SolveInfo]:
     params.setMaxIterations(opts.max_iterations)
     params.setRelativeErrorTol(opts.relative_tolerance)
     params.setAbsoluteErrorTol(0.0)
-    params.setOrderingType("METIS")
+    params.setOrderingType(opts.ordering)
+    params.setLinearSolverType(opts.linear_solver)
+    params.setDiagonalDamping(opts.diagonal_damping)
     t0 = time.perf_counter()
     try:
         opt = gtsam.LevenbergMarquardtOptimizer(gr.graph, gr.values, params)

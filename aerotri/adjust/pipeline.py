@@ -17,7 +17,12 @@ from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 
 from aerotri.adjust import graph as G
-from aerotri.adjust.approximate import approximate_orientations, approximate_points
+from aerotri.adjust.approximate import (
+    approximate_orientations,
+    approximate_points,
+    intersect_points,
+    refine_orientations,
+)
 from aerotri.adjust.local_frame import LocalFrame
 from aerotri.adjust.observations import (
     ControlPoints,
@@ -52,6 +57,7 @@ class AdjustSettings:
     initial_eo: str | None = None  # EO file for approximations (blocks without GNSS)
     point_covariances: bool = True
     use_control: bool = True  # False: ignore control/ (GNSS must carry the datum)
+    refine_approximations: bool = True  # resection/intersection of the attitudes before the bundle (GNSS)
 
 
 @dataclasses.dataclass
@@ -240,7 +246,8 @@ def prepare_project(root, settings: AdjustSettings | None = None):
         self_calibration=tuple(st.self_calibration),
     )
 
-    # approximations
+    # approximations: GNSS centres + kappa from the strip direction, then alternating space resection
+    # and intersection refine the attitudes (st.refine_approximations); given EO: intersection only
     cal0 = G.cal_from_camera(cam)
     if gl is not None:
         centre0, R0 = approximate_orientations(gl, lever, strip, obs_point, obs_image, obs_xy)
@@ -253,7 +260,12 @@ def prepare_project(root, settings: AdjustSettings | None = None):
         ground = float(np.median(given_loc[has_height, 2]))
     else:
         ground = float(np.median(centre0[:, 2]) - _flying_height_guess(centre0, cam))
-    pts0 = approximate_points(obs_point, obs_image, obs_xy, centre0, R0, cal0, len(point_id), ground)
+    if gl is not None and st.refine_approximations:
+        centre0, R0, pts0 = refine_orientations(gl, lever, centre0, R0, obs_point, obs_image, obs_xy, cal0, len(point_id), ground)
+    elif gl is None:
+        pts0 = intersect_points(obs_point, obs_image, obs_xy, centre0, R0, cal0, len(point_id), ground)
+    else:
+        pts0 = approximate_points(obs_point, obs_image, obs_xy, centre0, R0, cal0, len(point_id), ground)
     for c, j in enumerate(block.control_point):
         if block.control_rows[c] == 3:
             pts0[j] = given_loc[c]
