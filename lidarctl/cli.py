@@ -5,6 +5,7 @@ from __future__ import annotations
 import click
 import numpy as np
 
+from lidarctl.parallel import scheduler_options
 from lidarctl.errors import InputError, exit_on_input_error
 
 
@@ -17,21 +18,6 @@ def main():
 from lidarctl.corners_cli import corners  # noqa: E402
 
 main.add_command(corners)
-
-
-def _progress(desc: str, steps: list[str]):
-    """tqdm over named pipeline steps (silent when not a TTY)."""
-    import sys
-
-    from tqdm import tqdm
-
-    bar = tqdm(total=len(steps), desc=desc, disable=not sys.stderr.isatty(), leave=False)
-
-    def step(name):
-        bar.set_postfix_str(name)
-        bar.update(1)
-
-    return bar, step
 
 
 def _parse_map(text: str | None) -> dict:
@@ -55,28 +41,37 @@ def _parse_map(text: str | None) -> dict:
 @click.option("--crs", default=None, help="CRS (EPSG:code) when the file has none; never guessed.")
 @click.option("--method", type=click.Choice(["morph", "ptd"]), default="morph", show_default=True,
               help="Ground filter: morphological + TIN refinement, or progressive TIN densification.")
+@click.option("--tile-size", "tile_size_m", type=float, default=None,
+              help="Tile size in metres (default: about 4 M points per tile with its buffer at the "
+                   "file's density).")
+@click.option("--buffer", "buffer_m", type=float, default=None,
+              help="Overlap buffer around each tile in metres (default: the ground filter's reach, 60 m).")
+@click.option("--work-dir", type=click.Path(file_okay=False), default=None,
+              help="Folder for the temporary tile files (default: next to the output; removed afterwards).")
+@scheduler_options
 @exit_on_input_error
-def classify(in_path, out_path, preset, crs, method):
-    """Noise, ground, buildings, vegetation and water as ASPRS classes (LAS/LAZ in, LAS/LAZ out)."""
-    import time
+def classify(in_path, out_path, preset, crs, method, tile_size_m, buffer_m, work_dir, scheduler, workers):
+    """Noise, ground, buildings, vegetation and water as ASPRS classes (LAS/LAZ in, LAS/LAZ out).
+
+    Large files are cut into tiles with overlap buffers, classified as parallel tasks and written
+    back in file order (memory bounded by the tile size, not the file size; lidarctl.tiles).
+    """
     from pathlib import Path
 
     from lidarctl import classify as cl
-    from lidarctl import io
+    from lidarctl import tiles
+    from lidarctl.parallel import executor_for
 
     if Path(in_path).resolve() == Path(out_path).resolve():
         raise InputError(f"{out_path}: output must differ from the input (inputs are never modified)")
-    t0 = time.perf_counter()
-    cloud, records = io.read_cloud(in_path, crs=crs, keep_records=True)
-    bar, step = _progress("classify", ["noise", "ground", "buildings", "vegetation", "water"])
-    with bar:
-        classes = cl.classify_points(cloud.x, cloud.y, cloud.z, cloud.return_number, cloud.number_of_returns,
-                                     cloud.intensity, cl.ClassifyParams(ground_method=method, preset=preset),
-                                     progress=step)
-    io.write_classified(in_path, out_path, classes, crs=cloud.crs, records=records)
-    counts = {cl.CLASS_NAMES.get(int(c), str(c)): int(n) for c, n in zip(*np.unique(classes, return_counts=True))}
-    dt = time.perf_counter() - t0
-    click.echo(f"{out_path}: {len(classes)} points in {dt:.1f} s ({len(classes) / dt:,.0f} points/s); {counts}")
+    params = cl.ClassifyParams(ground_method=method, preset=preset)
+    with executor_for(scheduler, workers) as executor:
+        stats = tiles.classify_file(in_path, out_path, crs=crs, params=params, tile_size_m=tile_size_m,
+                                    buffer_m=buffer_m, executor=executor, work_dir=work_dir)
+    counts = {cl.CLASS_NAMES.get(c, str(c)): k for c, k in stats["class_counts"].items()}
+    n, dt = stats["n_points"], stats["seconds"]
+    click.echo(f"{out_path}: {n} points in {dt:.1f} s ({n / dt:,.0f} points/s; {stats['n_tiles']} tiles of "
+               f"{stats['tile_m']:g} m + {stats['buffer_m']:g} m buffer, {executor.describe()}); {counts}")
 
 
 @main.command()
@@ -86,16 +81,15 @@ def classify(in_path, out_path, preset, crs, method):
 @click.option("--crs", default=None, help="CRS (EPSG:code) when the file has none.")
 @exit_on_input_error
 def rasters(in_path, outdir, res_m, crs):
-    """dem/dsm/ndsm/chm/intensity COGs and hillshade.png from a classified cloud."""
+    """dem/dsm/ndsm/chm/intensity COGs and hillshade.png from a classified cloud (streamed in chunks)."""
     from lidarctl import io
     from lidarctl import rasters as rs
 
     if not res_m > 0:
         raise InputError(f"--res {res_m}: must be a positive cell size in metres")
-    cloud = io.read_cloud(in_path, crs=crs)
-    if not np.isin(cloud.classification, (2, 9)).any():
-        raise InputError(f"{in_path}: no ground points (class 2); run 'lidarctl classify' first")
-    for p in rs.write_rasters(cloud, outdir, res_m):
+    # Streamed chunk by chunk into the grids: memory holds the grids, not the cloud.
+    resolved = io.resolve_crs(in_path, io.read_header(in_path), crs)
+    for p in rs.write_rasters(in_path, outdir, res_m, crs=resolved):
         click.echo(str(p))
 
 

@@ -8,6 +8,7 @@ so no more than one chunk of full records is in memory at a time.
 
 from __future__ import annotations
 
+import copy
 import dataclasses
 from pathlib import Path
 
@@ -159,11 +160,37 @@ def read_cloud(path, crs: str | int | None = None, require_crs: bool = True,
         rn[sl] = chunk.return_number
         nr[sl] = chunk.number_of_returns
         cls[sl] = chunk.classification
-    # Broken return counts (0) would mislead the multi-return rules: treat them as single returns.
-    rn[rn == 0] = 1
-    nr = np.maximum(nr, rn)
+    rn, nr = sanitize_returns(rn, nr)
     cloud = PointCloud(x, y, z, intensity, rn, nr, cls, resolved)
     return (cloud, records) if keep_records else cloud
+
+
+def sanitize_returns(return_number: np.ndarray, number_of_returns: np.ndarray):
+    """Broken return counts (0) would mislead the multi-return rules: treat them as single returns."""
+    rn = np.where(return_number == 0, 1, return_number).astype(np.uint8)
+    return rn, np.maximum(number_of_returns, rn).astype(np.uint8)
+
+
+def validate_xyz(path, x, y, z, first_index: int) -> None:
+    """InputError naming the record (``first_index`` + position) for NaN or absurd coordinates."""
+    _validate_xyz(path, x, y, z, first_index)
+
+
+def output_header(header: laspy.LasHeader, crs: pyproj.CRS | None = None) -> laspy.LasHeader:
+    """Copy of an input header for a derived file: same version, point format (with extra bytes),
+    scales, offsets, VLRs, EVLRs, system identifier, software, date and GUID; a CRS record is added
+    when ``crs`` is given and the input has none. Counts and bounds are set by the writer."""
+    out = copy.deepcopy(header)
+    if crs is not None and _try_crs(header) is None:
+        out.add_crs(crs)
+    return out
+
+
+def write_evlrs(writer, header: laspy.LasHeader) -> None:
+    """The streaming writer drops EVLRs (LAS 1.4) unless they are written explicitly."""
+    evlrs = getattr(header, "evlrs", None)
+    if evlrs is not None and len(evlrs) > 0:
+        writer.write_evlrs(evlrs)
 
 
 def _try_crs(header):
@@ -173,34 +200,36 @@ def _try_crs(header):
         return None
 
 
+def _numbered(records):
+    first = 0
+    for rec in records:
+        yield first, rec
+        first += len(rec)
+
+
 def write_classified(in_path, out_path, classification: np.ndarray, crs: pyproj.CRS | None = None,
-                     chunk_points: int = CHUNK_POINTS, records=None) -> None:
+                     chunk_points: int = CHUNK_POINTS, records=None, progress=None) -> None:
     """Copy ``in_path`` to ``out_path`` chunk by chunk with new classes (atomic; LAS or LAZ by suffix).
 
-    Adds a CRS record when ``crs`` is given and the input has none. ``records``: the chunks kept
-    by ``read_cloud(keep_records=True)`` (else the input is streamed again).
+    Everything but the classification is copied: the header (see ``output_header``; a CRS record is
+    added when ``crs`` is given and the input has none), VLRs, EVLRs and all point record fields.
+    ``classification`` may be a memory map (only a chunk of it is touched at a time); ``records``:
+    the chunks kept by ``read_cloud(keep_records=True)``, or any iterable of point-record chunks in
+    file order (consumed lazily), else the input is streamed again;
+    ``progress(n_points)`` is called after each chunk.
     """
-    classification = np.asarray(classification, np.uint8)
     header = read_header(in_path)
     if len(classification) != header.point_count:
         raise ValueError("classification length differs from the point count")
-    out_header = laspy.LasHeader(version=header.version, point_format=header.point_format)
-    out_header.scales, out_header.offsets = header.scales, header.offsets
-    for vlr in header.vlrs:
-        out_header.vlrs.append(vlr)
-    if crs is not None and _try_crs(header) is None:
-        out_header.add_crs(crs)
+    out_header = output_header(header, crs)
     out_path = Path(out_path)
     with atomic_path(out_path) as tmp:
         with laspy.open(tmp, mode="w", header=out_header,
                         do_compress=out_path.suffix.lower() == ".laz") as writer:
-            if records is not None:
-                chunks, first = [], 0
-                for rec in records:
-                    chunks.append((first, rec))
-                    first += len(rec)
-            else:
-                chunks = iter_chunks(in_path, chunk_points)
+            chunks = _numbered(records) if records is not None else iter_chunks(in_path, chunk_points)
             for first, chunk in chunks:
-                chunk.classification = classification[first:first + len(chunk)]
+                chunk.classification = np.asarray(classification[first:first + len(chunk)], np.uint8)
                 writer.write_points(chunk)
+                if progress is not None:
+                    progress(len(chunk))
+            write_evlrs(writer, out_header)

@@ -1,0 +1,170 @@
+"""Task execution for the scale-out stages (LiDAR tiles, features per frame, matches per pair,
+ortho per frame and per mosaic tile).
+
+Every stage hands its independent pieces of work to an :class:`Executor` as ``executor.map(fn, items)``
+and gets the results back in the order of ``items``, so the outputs do not depend on which worker ran
+which task or when it finished. ``fn`` must be a module-level function (it is pickled for a cluster)
+and its items small (paths, ids, parameter objects): tasks read their inputs from and write their
+outputs to the project folder, which every worker must see (a shared file system on a cluster).
+
+Schedulers:
+- ``None`` (default): Dask's local threaded scheduler in this process, ``workers`` threads
+  (default: the number of cores). NumPy, numba, OpenCV and GDAL release the GIL in the hot loops.
+- ``"synchronous"``: one task after the other in this thread (debugging, profiling).
+- ``"local:N"``: a Dask distributed cluster of N single-threaded worker processes on this machine.
+- ``"tcp://host:8786"`` (any other string): the Dask distributed scheduler at that address.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import os
+import sys
+from typing import Any, Callable, Iterable
+
+import click
+from tqdm import tqdm
+
+from lidarctl.errors import InputError
+
+
+def _bar(total: int, desc: str, unit: str):
+    return tqdm(total=total, desc=desc, unit=unit, leave=False, disable=not sys.stderr.isatty())
+
+
+class Executor:
+    """Runs independent tasks locally or on a Dask distributed cluster; use as a context manager."""
+
+    def __init__(self, scheduler: str | None = None, workers: int | None = None):
+        self.scheduler = scheduler
+        self.workers = workers or os.cpu_count() or 1
+        self._client = None
+        self._cluster = None
+        if scheduler is None or scheduler in ("threads", "synchronous"):
+            return
+        try:
+            from distributed import Client, LocalCluster
+        except ImportError as e:  # pragma: no cover - dask[distributed] is a core dependency
+            raise InputError(f"--scheduler {scheduler}: dask.distributed is not installed ({e})") from e
+        if scheduler.startswith("local:"):
+            try:
+                n = int(scheduler.split(":", 1)[1])
+            except ValueError:
+                raise InputError(f"--scheduler {scheduler}: expected local:N with N the number of workers")
+            self._cluster = LocalCluster(n_workers=n, threads_per_worker=1, processes=True,
+                                         dashboard_address=None, silence_logs=50)
+            self._client = Client(self._cluster)
+            self.workers = n
+        else:
+            try:
+                self._client = Client(scheduler, timeout="20s")
+            except (OSError, TimeoutError) as e:
+                raise InputError(f"--scheduler {scheduler}: cannot reach the Dask scheduler ({e})") from e
+            self.workers = max(1, sum(w.get("nthreads", 1) for w in
+                                      self._client.scheduler_info()["workers"].values()))
+
+    @property
+    def distributed(self) -> bool:
+        return self._client is not None
+
+    def describe(self) -> str:
+        if self._client is not None:
+            return f"dask distributed ({self.scheduler}, {self.workers} worker threads)"
+        if self.scheduler == "synchronous":
+            return "dask synchronous"
+        return f"dask local threads ({self.workers})"
+
+    def map(self, fn: Callable, items: Iterable, desc: str = "tasks", unit: str = "task") -> list[Any]:
+        """``[fn(item) for item in items]``, run as Dask tasks; results in the order of ``items``.
+
+        The first task exception is raised here (an InputError keeps its message)."""
+        items = list(items)
+        if not items:
+            return []
+        if self._client is not None:
+            from distributed import as_completed
+            futures = self._client.map(fn, items, pure=False)
+            with _bar(len(items), desc, unit) as bar:
+                for fut in as_completed(futures):
+                    if fut.status == "error":
+                        exc, tb = fut.exception(), fut.traceback()
+                        for f in futures:
+                            f.cancel()
+                        raise exc.with_traceback(tb)
+                    bar.update(1)
+            return self._client.gather(futures)
+        import dask
+        from dask.callbacks import Callback
+
+        tasks = [dask.delayed(fn, pure=False)(item) for item in items]
+        bar = _bar(len(items), desc, unit)
+
+        class _Progress(Callback):
+            def _posttask(self, key, result, dsk, state, worker_id):
+                bar.update(1)
+
+        with bar, _Progress():
+            if self.scheduler == "synchronous" or self.workers == 1:
+                return list(dask.compute(*tasks, scheduler="synchronous"))
+            return list(dask.compute(*tasks, scheduler="threads", num_workers=self.workers))
+
+    def close(self) -> None:
+        if self._client is not None:
+            self._client.close()
+            self._client = None
+        if self._cluster is not None:
+            self._cluster.close()
+            self._cluster = None
+
+    def __enter__(self) -> "Executor":
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+
+_LOCAL = None
+_ACTIVE: Executor | None = None
+
+
+def local_executor() -> Executor:
+    """The executor for library calls that were given none: the one a production run made active
+    (:func:`activate`), else local threads."""
+    global _LOCAL
+    if _ACTIVE is not None:
+        return _ACTIVE
+    if _LOCAL is None:
+        _LOCAL = Executor()
+    return _LOCAL
+
+
+@contextlib.contextmanager
+def activate(executor: Executor):
+    """Make ``executor`` the one every stage of a run uses (one cluster connection for the whole run)."""
+    global _ACTIVE
+    previous, _ACTIVE = _ACTIVE, executor
+    try:
+        yield executor
+    finally:
+        _ACTIVE = previous
+
+
+@contextlib.contextmanager
+def executor_for(scheduler: str | None = None, workers: int | None = None):
+    """The executor of a command: a new one for an explicit ``--scheduler``/``--workers``, otherwise
+    the run's active one (or local threads)."""
+    if scheduler is None and workers is None:
+        yield local_executor()
+        return
+    with Executor(scheduler, workers) as ex:
+        yield ex
+
+
+def scheduler_options(f):
+    """Click options ``--scheduler`` and ``--workers`` for commands that scale out."""
+    f = click.option("--workers", type=click.IntRange(min=1), default=None,
+                     help="Local worker threads (default: all cores); with --scheduler local:N, N processes.")(f)
+    f = click.option("--scheduler", "scheduler", default=None, metavar="ADDRESS",
+                     help="Dask scheduler: tcp://host:8786 for a cluster, local:N for N local worker "
+                          "processes, synchronous for one task at a time; default local threads.")(f)
+    return f

@@ -1,0 +1,446 @@
+"""Tiling with overlap buffers: classification of LAS/LAZ files of any size in bounded memory.
+
+The cloud is cut into square tiles over the header bounds. Every point belongs to exactly one tile
+*core* (column ``floor((x - x0) / tile_m)``, row ``floor((y - y0) / tile_m)``, clipped to the grid);
+a tile's *buffer* adds the points within ``buffer_m`` of its core (Chebyshev distance, so the
+buffered box is the core box grown by ``buffer_m`` on each side). Each tile is classified with its
+buffer so that the filters see the neighbourhood of every core point, and only the classes of the
+core points are kept.
+
+Three passes, memory bounded by the chunk size and the tile size, never by the file size:
+
+1. ``split_into_tiles``: stream the input in chunks (LAS 1.2-1.4, LAZ), validate every chunk as
+   ``io.read_cloud`` does, and append each tile's points (core + buffer, all point record fields,
+   file order) to a temporary LAS file ``tile_R_C.las`` plus their indices in the input file
+   (``tile_R_C.index``, int64).
+2. ``classify_tile`` (one executor task per tile, see ``lidarctl.parallel``): read the tile file,
+   run ``classify.classify_points`` and write the classes of the core points with their input
+   indices (``tile_R_C.classes.npy``, ``tile_R_C.core.npy``). Returns small statistics.
+3. ``classify_file`` scatters the tile results into a classes file on disk (1 byte per point,
+   memory-mapped) and streams the records copy to write the output (``io.write_classified``: same
+   header, VLRs, EVLRs and point records; only the classification changes; atomic).
+
+Tiled vs whole-cloud classes (bench/lidar_classify.py, 10.6 M simulated points, 4 tiles of 500 m
++ 60 m buffer): 0.41 % of the points differ (mostly vegetation <-> unclassified at tree edges),
+spread evenly over the area rather than at the tile edges: the grids inside ``classify_points``
+start at each tile's lowest coordinates, and the classifier alone changes 0.52 % of the points
+when its grid origin shifts by 0.75 m. Both agree with the simulator truth equally (99.69 % tiled,
+99.70 % whole). The classes do not depend on the scheduler or the number of workers (byte-identical
+output files).
+
+Limits: the tile size comes from the mean density over the header's bounding box, so a cloud that
+fills only part of its box (a diagonal strip) gets tiles with more points than planned; a tile
+with fewer than 10 points (a stray point off the grid) leaves its core points unclassified (1).
+
+Temporary disk space: about 2.3 x the uncompressed point records (tiles with buffers + the copy),
+in a hidden folder next to the output (or ``work_dir``), removed at the end, also on errors.
+
+Tasks take small items (paths and parameters) and exchange data through files, so the same task
+graph runs in local threads, local worker processes or on a Dask cluster with a shared file
+system; results are gathered in tile order, so the output is byte-identical for every scheduler.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import dataclasses
+import math
+import os
+import shutil
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import laspy
+import numpy as np
+
+from lidarctl import io
+from lidarctl.atomic import atomic_path
+from lidarctl.errors import InputError
+
+# An inner tile of about this many points (core + buffer) keeps one classification task under
+# about 1 GB of memory (classify_points needs about 200 bytes per point), so two tasks at a time
+# fit well under 3 GB. Dense clouds get smaller cores (and a larger buffer overhead) than sparse ones.
+DEFAULT_TILE_POINTS = 4_000_000
+TILE_ROUND_M = 10.0
+# Coarse upper limit on the number of tiles (a lying header with absurd bounds must not explode).
+MAX_TILES = 1_000_000
+
+
+def default_buffer_m(method: str = "morph", preset: str | None = None) -> float:
+    """Overlap buffer (m) beyond which a point cannot change the classes of a tile's core points.
+
+    * Morphological ground filter (default): the opening with the largest window of radius r
+      (``MorphParams.max_window_m``, 25 m) is an erosion then a dilation, so a cell's opened height
+      depends on the minimum surface up to 2 r away (50 m); a building is removed only when its
+      whole footprint (up to 2 r wide) lies in the tile. The noise filter's low-outlier patch test
+      looks 50 m around ("no terrain at their height within 50 m"), and the class rules add a few
+      cells (3x3 plane fits, 3x3 cells of 5 m for deep ground outliers, a 5-cell density window for
+      water): 2 r + 10 m = 60 m.
+    * Progressive TIN densification: seeds are the lowest points of ``seed_cell_m`` cells (60 m,
+      larger than the largest building) and are checked against the plane through the seeds
+      within 1.5 seed cells, so the buffer is 1.5 seed cells (90 m).
+    """
+    from lidarctl import ground
+
+    if method == "ptd":
+        return 1.5 * ground.params_for(preset).seed_cell_m
+    morph = ground.MorphParams() if preset is None else ground.MORPH_PRESETS[preset]
+    return max(2.0 * morph.max_window_m + 10.0, 50.0)
+
+
+@dataclasses.dataclass(frozen=True)
+class TileGrid:
+    """Square tiles of ``tile_m`` anchored at (x0_m, y0_m); row index grows with y, column with x."""
+
+    x0_m: float
+    y0_m: float
+    tile_m: float
+    buffer_m: float
+    nrows: int
+    ncols: int
+
+    @property
+    def n_tiles(self) -> int:
+        return self.nrows * self.ncols
+
+    def core_rc(self, x: np.ndarray, y: np.ndarray):
+        """(row, col) of the tile whose core holds each point; points off the grid go to the edge tile."""
+        col = np.clip(np.floor((np.asarray(x) - self.x0_m) / self.tile_m), 0, self.ncols - 1).astype(np.int64)
+        row = np.clip(np.floor((np.asarray(y) - self.y0_m) / self.tile_m), 0, self.nrows - 1).astype(np.int64)
+        return row, col
+
+    def core_box(self, row: int, col: int):
+        """(xmin, ymin, xmax, ymax) of a tile core in metres."""
+        x0 = self.x0_m + col * self.tile_m
+        y0 = self.y0_m + row * self.tile_m
+        return x0, y0, x0 + self.tile_m, y0 + self.tile_m
+
+    def assign(self, x: np.ndarray, y: np.ndarray):
+        """Tile memberships (core + buffer) of points: (tile_id, point_pos), sorted by tile then position.
+
+        tile_id = row * ncols + col. A point near a core edge also lies in the buffers of the 1..3
+        neighbouring tiles (``buffer_m <= tile_m``, so never further than the next tile).
+        """
+        x = np.asarray(x, float)
+        y = np.asarray(y, float)
+        row, col = self.core_rc(x, y)
+        fx = x - (self.x0_m + col * self.tile_m)       # offset inside the core tile (m)
+        fy = y - (self.y0_m + row * self.tile_m)
+        b, t = self.buffer_m, self.tile_m
+        near_x = {-1: (fx < b) & (col > 0), 0: None, 1: (fx >= t - b) & (col < self.ncols - 1)}
+        near_y = {-1: (fy < b) & (row > 0), 0: None, 1: (fy >= t - b) & (row < self.nrows - 1)}
+        ids, pos = [], []
+        for dr in (-1, 0, 1):
+            for dc in (-1, 0, 1):
+                mx, my = near_x[dc], near_y[dr]
+                if mx is None and my is None:
+                    sel = np.arange(len(x))
+                elif mx is None:
+                    sel = np.flatnonzero(my)
+                elif my is None:
+                    sel = np.flatnonzero(mx)
+                else:
+                    sel = np.flatnonzero(mx & my)
+                ids.append((row[sel] + dr) * self.ncols + col[sel] + dc)
+                pos.append(sel)
+        # One int64 sort key (tile, position) sorts faster than a lexsort of two keys.
+        key = np.concatenate(ids) * len(x) + np.concatenate(pos)
+        key.sort()
+        return np.divmod(key, max(len(x), 1))
+
+
+def plan_tiles(header: laspy.LasHeader, tile_size_m: float | None = None, buffer_m: float | None = None,
+               method: str = "morph", preset: str | None = None, path="input",
+               tile_points: int = DEFAULT_TILE_POINTS) -> TileGrid:
+    """Tile grid over the header bounds.
+
+    Default tile size: an inner tile (core + buffer on all sides) of about ``tile_points`` points
+    at the file's mean density (header point count over the bounding-box area), adjusted so that
+    whole tiles cover the extent, rounded up to 10 m and at least twice the buffer (else the
+    buffers would cost more than the cores). Default buffer: ``default_buffer_m``.
+    """
+    buffer_m = default_buffer_m(method, preset) if buffer_m is None else float(buffer_m)
+    if not (buffer_m >= 0 and math.isfinite(buffer_m)):
+        raise InputError(f"--buffer {buffer_m}: must be a non-negative distance in metres")
+    mins, maxs = np.asarray(header.mins, float), np.asarray(header.maxs, float)
+    if not (np.isfinite(mins).all() and np.isfinite(maxs).all()) or (maxs[:2] < mins[:2]).any() or \
+            (np.abs(np.concatenate([mins[:2], maxs[:2]])) > io.MAX_ABS_XY_M).any():
+        raise InputError(f"{path}: absurd bounds in the LAS header (min {mins.tolist()}, max {maxs.tolist()})")
+    width, height = max(maxs[0] - mins[0], 1e-3), max(maxs[1] - mins[1], 1e-3)
+    if tile_size_m is None:
+        density = header.point_count / (width * height)
+        target_m = math.sqrt(tile_points / max(density, 1e-12)) - 2.0 * buffer_m
+        # Whole tiles over the extent (no thin slivers of tiles along the far edges).
+        target_m = max(target_m, 2.0 * buffer_m, TILE_ROUND_M)
+        tile_m = max(width / max(1, round(width / target_m)), height / max(1, round(height / target_m)))
+        tile_m = max(TILE_ROUND_M * math.ceil(tile_m / TILE_ROUND_M), 2.0 * buffer_m, TILE_ROUND_M)
+    else:
+        tile_m = float(tile_size_m)
+        if not (tile_m > 0 and math.isfinite(tile_m)):
+            raise InputError(f"--tile-size {tile_size_m}: must be a positive size in metres")
+        if buffer_m > tile_m:
+            raise InputError(f"--buffer {buffer_m:g} m is larger than the tile size {tile_m:g} m")
+    ncols = max(1, math.ceil(width / tile_m))
+    nrows = max(1, math.ceil(height / tile_m))
+    if ncols * nrows > MAX_TILES:
+        raise InputError(f"{path}: {ncols} x {nrows} tiles of {tile_m:g} m; use a larger --tile-size")
+    return TileGrid(float(mins[0]), float(mins[1]), tile_m, buffer_m, nrows, ncols)
+
+
+@dataclasses.dataclass(frozen=True)
+class TileTask:
+    """One classification task: small enough to ship to a Dask worker (paths and parameters)."""
+
+    row: int
+    col: int
+    las_path: str
+    index_path: str
+    classes_path: str
+    core_index_path: str
+    grid: TileGrid
+    params: object          # classify.ClassifyParams
+    numba_threads: int = 0  # threads of numba's parallel loops in this task (0: numba's default)
+
+
+def _tile_stem(work_dir: Path, row: int, col: int) -> Path:
+    return work_dir / f"tile_{row:04d}_{col:04d}"
+
+
+def _tile_header(header: laspy.LasHeader) -> laspy.LasHeader:
+    """Header of a temporary tile file: input version, point format (with extra bytes), scales and
+    offsets (so the integer coordinates are copied unchanged); no VLRs needed."""
+    h = laspy.LasHeader(version=header.version, point_format=header.point_format)
+    h.scales, h.offsets = header.scales, header.offsets
+    return h
+
+
+def _bar(total: int, desc: str, unit: str):
+    from tqdm import tqdm
+
+    return tqdm(total=total, desc=desc, unit=unit, unit_scale=True, leave=False,
+                disable=not sys.stderr.isatty())
+
+
+def split_into_tiles(in_path, grid: TileGrid, work_dir, params, chunk_points: int = io.CHUNK_POINTS,
+                     records_path=None):
+    """Pass 1: stream the input and append each tile's points to its LAS file; list of TileTask.
+
+    Every chunk is validated (InputError naming the record for NaN / absurd coordinates; truncated
+    files are reported by ``io.iter_chunks``). Tiles without core points get no task. With
+    ``records_path`` the raw point records are also copied there in file order (uncompressed), so
+    that writing the output needs no second decompression of a LAZ input.
+    """
+    work_dir = Path(work_dir)
+    header = io.read_header(in_path)
+    tile_header = _tile_header(header)
+    has_core = np.zeros(grid.n_tiles, bool)
+    started: set[int] = set()
+    records = open(records_path, "wb") if records_path is not None else None
+    with _bar(header.point_count, "tiles: split", "pt") as bar:
+        for first, chunk in io.iter_chunks(in_path, chunk_points):
+            if records is not None:
+                records.write(chunk.array.tobytes())
+            x, y = np.asarray(chunk.x), np.asarray(chunk.y)
+            io.validate_xyz(in_path, x, y, np.asarray(chunk.z), first)
+            row, col = grid.core_rc(x, y)
+            has_core[np.unique(row * grid.ncols + col)] = True
+            ids, pos = grid.assign(x, y)
+            del x, y, row, col
+            bounds = np.flatnonzero(np.diff(ids)) + 1
+            for sel_ids, sel_pos in zip(np.split(ids, bounds), np.split(pos, bounds)):
+                tid = int(sel_ids[0])
+                stem = _tile_stem(work_dir, tid // grid.ncols, tid % grid.ncols)
+                las_path = stem.with_suffix(".las")
+                part = chunk[sel_pos]
+                if tid in started:
+                    with laspy.open(las_path, mode="a") as appender:
+                        appender.append_points(part)
+                else:
+                    with laspy.open(las_path, mode="w", header=tile_header) as writer:
+                        writer.write_points(part)
+                    started.add(tid)
+                with open(stem.with_suffix(".index"), "ab") as fh:
+                    (sel_pos.astype(np.int64) + first).tofile(fh)
+            bar.update(len(chunk))
+    if records is not None:
+        records.close()
+    tasks = []
+    for tid in np.flatnonzero(has_core):
+        r, c = divmod(int(tid), grid.ncols)
+        stem = _tile_stem(work_dir, r, c)
+        tasks.append(TileTask(r, c, str(stem.with_suffix(".las")), str(stem.with_suffix(".index")),
+                              str(stem) + ".classes.npy", str(stem) + ".core.npy", grid, params))
+    return tasks
+
+
+@contextlib.contextmanager
+def _numba_threads(n: int):
+    """Limit numba's parallel loops in this thread (numba's setting is thread-local): tasks running
+    side by side on a small machine should not each start a thread per core."""
+    if n <= 0:
+        yield
+        return
+    import numba
+
+    before = numba.get_num_threads()
+    numba.set_num_threads(min(n, numba.config.NUMBA_NUM_THREADS))
+    try:
+        yield
+    finally:
+        numba.set_num_threads(before)
+
+
+def classify_tile(task: TileTask) -> dict:
+    """Pass 2 (an executor task): classify one tile with its buffer, keep the core points' classes.
+
+    Writes ``classes_path`` (uint8 ASPRS classes) and ``core_index_path`` (int64 point indices in
+    the input file), both in input order. Returns small statistics (points, seconds).
+    """
+    from lidarctl import classify as cl
+
+    t0 = time.perf_counter()
+    with laspy.open(task.las_path) as reader:
+        rec = reader.read_points(reader.header.point_count)
+    index = np.fromfile(task.index_path, dtype=np.int64)
+    if len(index) != len(rec):
+        raise RuntimeError(f"{task.las_path}: {len(rec)} points but {len(index)} indices")
+    x, y, z = np.asarray(rec.x), np.asarray(rec.y), np.asarray(rec.z)
+    rn, nr = io.sanitize_returns(np.asarray(rec.return_number), np.asarray(rec.number_of_returns))
+    intensity = np.asarray(rec.intensity)
+    del rec
+    row, col = task.grid.core_rc(x, y)
+    core = (row == task.row) & (col == task.col)
+    if len(x) >= 10:
+        with _numba_threads(task.numba_threads):
+            classes = cl.classify_points(x, y, z, rn, nr, intensity, task.params)[core]
+    else:
+        # Too few points for any neighbourhood statistics (a stray point at the edge of the grid).
+        classes = np.full(int(core.sum()), cl.UNCLASSIFIED, np.uint8)
+    with atomic_path(task.classes_path) as tmp:
+        np.save(tmp, classes)
+    with atomic_path(task.core_index_path) as tmp:
+        np.save(tmp, index[core])
+    return {"row": task.row, "col": task.col, "n_points": int(len(x)), "n_core": int(core.sum()),
+            "seconds": time.perf_counter() - t0}
+
+
+def _direct_classes(in_path, crs, params, chunk_points):
+    """Classes of a one-tile input in memory (no temporary files): the tiled path with one tile."""
+    from lidarctl import classify as cl
+
+    cloud, records = io.read_cloud(in_path, crs=crs, chunk_points=chunk_points, keep_records=True)
+    if len(cloud) < 10:
+        raise InputError(f"{in_path}: only {len(cloud)} points; classification needs at least 10")
+    classes = cl.classify_points(cloud.x, cloud.y, cloud.z, cloud.return_number, cloud.number_of_returns,
+                                 cloud.intensity, params)
+    return classes, records, cloud.crs
+
+
+def classify_file(in_path, out_path, crs=None, params=None, tile_size_m: float | None = None,
+                  buffer_m: float | None = None, executor=None, work_dir=None,
+                  chunk_points: int = io.CHUNK_POINTS) -> dict:
+    """Classify a LAS/LAZ file of any size into ``out_path`` (LAS/LAZ by suffix), tile by tile.
+
+    ``crs``: used only when the file has none (never guessed). ``params``: classify.ClassifyParams.
+    ``tile_size_m`` / ``buffer_m``: default from ``plan_tiles``. ``executor``: an
+    ``lidarctl.parallel.Executor`` (default: local threads). ``work_dir``: parent folder of the
+    temporary tile files (default: next to the output); they are removed in any case.
+    The output is written atomically: on any error or interrupt no output file is left.
+    Returns statistics: points, tiles, buffer overhead, seconds per pass, class counts.
+    """
+    from lidarctl import classify as cl
+
+    t0 = time.perf_counter()
+    params = params or cl.ClassifyParams()
+    in_path, out_path = Path(in_path), Path(out_path)
+    header = io.read_header(in_path)
+    n = header.point_count
+    if n == 0:
+        raise InputError(f"{in_path}: the file holds no points")
+    resolved = io.resolve_crs(in_path, header, crs)
+    grid = plan_tiles(header, tile_size_m, buffer_m, params.ground_method, params.preset, in_path)
+    stats = {"n_points": int(n), "tile_m": grid.tile_m, "buffer_m": grid.buffer_m,
+             "tile_rows": grid.nrows, "tile_cols": grid.ncols}
+    if grid.n_tiles == 1:
+        classes, records, _ = _direct_classes(in_path, crs, params, chunk_points)
+        t1 = time.perf_counter()
+        io.write_classified(in_path, out_path, classes, crs=resolved, records=records)
+        stats.update(n_tiles=1, tiled_points=int(n), max_tile_points=int(n), classify_s=t1 - t0,
+                     write_s=time.perf_counter() - t1)
+        counts = np.bincount(classes, minlength=256)
+    else:
+        if n < 10:
+            raise InputError(f"{in_path}: only {n} points; classification needs at least 10")
+        if executor is None:
+            from lidarctl.parallel import local_executor
+            executor = local_executor()
+        parent = Path(work_dir) if work_dir is not None else out_path.parent
+        parent.mkdir(parents=True, exist_ok=True)
+        tmp_dir = Path(tempfile.mkdtemp(prefix=f".{out_path.stem}.tiles.", dir=parent))
+        try:
+            tasks = split_into_tiles(in_path, grid, tmp_dir, params, chunk_points, tmp_dir / "records.bin")
+            # Cores per task: tasks run side by side on the executor's workers (on a remote cluster
+            # the worker machines' own cores are unknown here, so numba keeps its default there).
+            if not getattr(executor, "distributed", False) or \
+                    str(getattr(executor, "scheduler", "")).startswith("local:"):
+                per_task = max(1, (os.cpu_count() or 1) // max(1, min(getattr(executor, "workers", 1), len(tasks))))
+                tasks = [dataclasses.replace(t, numba_threads=per_task) for t in tasks]
+            t1 = time.perf_counter()
+            results = executor.map(classify_tile, tasks, desc="tiles: classify", unit="tile")
+            t2 = time.perf_counter()
+            # 0 is no class classify_points assigns: it marks points no tile core claimed.
+            classes = np.lib.format.open_memmap(tmp_dir / "classes.npy", mode="w+", dtype=np.uint8, shape=(n,))
+            for task in tasks:
+                classes[np.load(task.core_index_path)] = np.load(task.classes_path)
+            classes.flush()
+            checked = _CheckedClasses(classes)
+            with _bar(n, "tiles: write", "pt") as bar:
+                io.write_classified(in_path, out_path, checked, crs=resolved, progress=bar.update,
+                                    records=_stored_records(tmp_dir / "records.bin", header, chunk_points))
+            counts = checked.counts
+            del classes
+            t3 = time.perf_counter()
+        finally:
+            shutil.rmtree(tmp_dir, ignore_errors=True)
+        stats.update(n_tiles=len(tasks), tiled_points=int(sum(r["n_points"] for r in results)),
+                     max_tile_points=int(max(r["n_points"] for r in results)),
+                     split_s=t1 - t0, classify_s=t2 - t1, write_s=t3 - t2,
+                     tile_cpu_s=float(sum(r["seconds"] for r in results)))
+    stats["buffer_overhead"] = stats["tiled_points"] / n
+    stats["seconds"] = time.perf_counter() - t0
+    stats["crs"] = resolved.to_string() if resolved is not None else None
+    stats["class_counts"] = {int(c): int(counts[c]) for c in np.flatnonzero(counts)}
+    return stats
+
+
+def _stored_records(path, header: laspy.LasHeader, chunk_points: int):
+    """Point-record chunks of the raw copy made in pass 1, read one chunk at a time (plain reads,
+    not a memory map: mapped pages would count in the resident memory until the end)."""
+    fmt = header.point_format
+    with open(path, "rb") as fh:
+        for first in range(0, header.point_count, chunk_points):
+            count = min(chunk_points, header.point_count - first)
+            array = np.fromfile(fh, dtype=fmt.dtype(), count=count)
+            if len(array) != count:
+                raise RuntimeError(f"{path}: records copy ends at point {first + len(array)}")
+            yield laspy.ScaleAwarePointRecord(array, fmt, header.scales, header.offsets)
+
+
+class _CheckedClasses:
+    """Slices of the assembled classes, refusing points that no tile core claimed (class 0)."""
+
+    def __init__(self, classes):
+        self._classes = classes
+        self.counts = np.zeros(256, np.int64)
+
+    def __len__(self):
+        return len(self._classes)
+
+    def __getitem__(self, sl):
+        part = np.asarray(self._classes[sl])
+        if not part.all():
+            raise RuntimeError(f"tiling left {int((part == 0).sum())} points without a class")
+        self.counts += np.bincount(part, minlength=256)
+        return part

@@ -1,0 +1,252 @@
+"""Tiled classification (lidarctl.tiles): tiling geometry, tiled == untiled, fields preserved,
+byte-identical output for every scheduler, bad input and interrupts leave no output."""
+
+import datetime
+
+import laspy
+import numpy as np
+import pytest
+from click.testing import CliRunner
+
+from aerotri.parallel import Executor
+from lidarctl import classify as cl
+from lidarctl import io, synthetic, tiles
+from lidarctl.cli import main
+from lidarctl.errors import InputError
+
+
+def _scene(width_m, density, seed, n_buildings=8, n_trees=60):
+    return synthetic.synthetic_scene(width_m=width_m, density_per_m2=density, seed=seed,
+                                     n_buildings=n_buildings, n_trees=n_trees)
+
+
+@pytest.fixture(scope="module")
+def big(tmp_path_factory):
+    """300 m x 300 m, 4 points/m^2 (~370 k points), LAS 1.4 with a CRS, an extra VLR, an EVLR and
+    an extra-bytes dimension."""
+    d = tmp_path_factory.mktemp("tiles")
+    cloud, truth = _scene(300.0, 4.0, 3, n_buildings=10, n_trees=80)
+    synthetic.write_las(d / "plain.las", cloud, crs="EPSG:32632")
+    las = laspy.read(d / "plain.las")
+    las.header.system_identifier = "tile test scanner"
+    las.header.generating_software = "test generator"
+    las.header.creation_date = datetime.date(2019, 3, 4)
+    las.header.vlrs.append(laspy.VLR("acme", 7, "project note", b"strip 12, flight 3"))
+    las.header.evlrs = type(las.header.vlrs)([laspy.VLR("acme", 8, "waveform note", b"e" * 64)])
+    las.gps_time = np.arange(len(las.points)) * 1e-5 + 1000.0      # fields the classifier ignores
+    las.add_extra_dim(laspy.ExtraBytesParams(name="echo_width", type=np.float32))
+    las.echo_width = np.arange(len(las.points), dtype=np.float32)
+    las.write(d / "in.laz")
+    return d, cloud, truth
+
+
+def _record_bytes_without_classification(las):
+    """Raw point records with the class bits zeroed (formats 0-5 share the byte with 3 flag bits)."""
+    arr = las.points.array.copy()
+    if "classification" in arr.dtype.names:
+        arr["classification"] = 0
+    else:
+        arr["raw_classification"] &= 0b11100000
+    return arr.tobytes()
+
+
+def test_tile_grid_cores_partition_and_buffers_match_brute_force():
+    rng = np.random.default_rng(1)
+    grid = tiles.TileGrid(1000.0, 2000.0, 100.0, 30.0, nrows=3, ncols=4)
+    x = rng.uniform(990.0, 1410.0, 20000)                # some points off the grid: edge tiles
+    y = rng.uniform(1990.0, 2310.0, 20000)
+    ids, pos = grid.assign(x, y)
+    row, col = grid.core_rc(x, y)
+    for tid in range(grid.n_tiles):
+        r, c = divmod(tid, grid.ncols)
+        x0, y0, x1, y1 = grid.core_box(r, c)
+        # Core = own tile; buffer = inside the core box grown by buffer_m (the grid's outer edges
+        # are open: off-grid points belong to the edge tiles).
+        lo_x = -np.inf if c == 0 else x0 - grid.buffer_m
+        hi_x = np.inf if c == grid.ncols - 1 else x1 + grid.buffer_m
+        lo_y = -np.inf if r == 0 else y0 - grid.buffer_m
+        hi_y = np.inf if r == grid.nrows - 1 else y1 + grid.buffer_m
+        expect = np.flatnonzero((x >= lo_x) & (x < hi_x) & (y >= lo_y) & (y < hi_y))
+        np.testing.assert_array_equal(pos[ids == tid], expect)          # file order within a tile
+        assert np.all(np.isin(np.flatnonzero((row == r) & (col == c)), expect))
+    assert np.bincount(row * grid.ncols + col, minlength=grid.n_tiles).sum() == len(x)
+
+
+def test_plan_defaults_and_option_errors(big):
+    d, _, _ = big
+    header = io.read_header(d / "in.laz")
+    grid = tiles.plan_tiles(header)
+    assert grid.n_tiles == 1 and grid.buffer_m == tiles.default_buffer_m() == 60.0
+    # 4 points/m^2: 250 k points in 250 m (core 130 m + 2 x 60 m) -> 2 tiles of 150 m per axis.
+    small = tiles.plan_tiles(header, tile_points=250_000)
+    assert (small.nrows, small.ncols) == (2, 2) and small.tile_m == 150.0
+    # Cores are at least twice the buffer (120 m): whole tiles of 150 m.
+    tiny = tiles.plan_tiles(header, tile_points=50_000)
+    assert (tiny.nrows, tiny.ncols) == (2, 2) and tiny.tile_m == 150.0
+    fine = tiles.plan_tiles(header, buffer_m=10.0, tile_points=50_000)    # 112 - 20 m -> 3 x 100 m
+    assert (fine.nrows, fine.ncols) == (3, 3) and fine.tile_m == 100.0
+    assert tiles.default_buffer_m("ptd") == 90.0
+    with pytest.raises(InputError, match="--buffer"):
+        tiles.plan_tiles(header, tile_size_m=50.0, buffer_m=60.0)
+    with pytest.raises(InputError, match="--tile-size"):
+        tiles.plan_tiles(header, tile_size_m=-5.0)
+
+
+@pytest.fixture(scope="module")
+def classified(big):
+    """The big scene classified in one piece (direct path) and in 4 tiles of 150 m (+ 60 m buffer)."""
+    d = big[0]
+    s1 = tiles.classify_file(d / "in.laz", d / "direct.laz")
+    with Executor("synchronous") as ex:
+        s2 = tiles.classify_file(d / "in.laz", d / "tiled.laz", tile_size_m=150.0, executor=ex)
+    return d / "direct.laz", d / "tiled.laz", s1, s2
+
+
+def test_tiled_equals_untiled_and_keeps_every_other_field(big, classified):
+    d, cloud, truth = big
+    direct, tiled, s1, s2 = classified
+    assert s1["n_tiles"] == 1 and s2["n_tiles"] == 4 and s2["buffer_m"] == 60.0
+    assert not list(d.glob(".*"))                                  # work files removed
+    src, a, b = laspy.read(d / "in.laz"), laspy.read(direct), laspy.read(tiled)
+    # Tiles classify the same points as the whole cloud except where a grid cell of
+    # classify_points moved with the tile's corner: measured 0.06 % (vegetation 1 <-> 5 at tree
+    # edges), the same size as the classifier's own sensitivity to its grid origin (0.06-0.09 %
+    # when a 0.4-1.3 m strip is cut off one side of the same cloud).
+    differ = np.asarray(a.classification) != np.asarray(b.classification)
+    assert differ.mean() < 0.002, differ.mean()
+    assert s1["class_counts"] == {int(c): int(k) for c, k in zip(*np.unique(a.classification, return_counts=True))}
+    assert np.mean(np.asarray(b.classification)[truth == 2] == 2) > 0.98
+    for out in (a, b):
+        assert _record_bytes_without_classification(out) == _record_bytes_without_classification(src)
+        h, hs = out.header, src.header
+        assert (h.version, h.point_format.id, h.system_identifier, h.generating_software, h.creation_date) == \
+            (hs.version, hs.point_format.id, hs.system_identifier, hs.generating_software, hs.creation_date)
+        np.testing.assert_array_equal(h.scales, hs.scales)
+        np.testing.assert_array_equal(h.offsets, hs.offsets)
+        assert [(v.user_id, v.record_id) for v in h.vlrs] == [(v.user_id, v.record_id) for v in hs.vlrs]
+        assert [(v.user_id, v.record_id, v.record_data) for v in h.evlrs] == [("acme", 8, b"e" * 64)]
+        assert h.parse_crs().to_epsg() == 32632
+        assert list(out.point_format.extra_dimension_names) == ["echo_width"]
+
+
+def test_one_tile_split_equals_direct_path(big, tmp_path):
+    d = big[0]
+    cloud = io.read_cloud(d / "plain.las")
+    header = io.read_header(d / "plain.las")
+    grid = tiles.plan_tiles(header, tile_size_m=1000.0)
+    assert grid.n_tiles == 1
+    params = cl.ClassifyParams()
+    (task,) = tiles.split_into_tiles(d / "plain.las", grid, tmp_path, params, chunk_points=50_000)
+    info = tiles.classify_tile(task)
+    assert info["n_points"] == info["n_core"] == len(cloud)
+    np.testing.assert_array_equal(np.load(task.core_index_path), np.arange(len(cloud)))
+    direct = cl.classify_points(cloud.x, cloud.y, cloud.z, cloud.return_number, cloud.number_of_returns,
+                                cloud.intensity, params)
+    np.testing.assert_array_equal(np.load(task.classes_path), direct)
+
+
+@pytest.fixture(scope="module")
+def small(tmp_path_factory):
+    d = tmp_path_factory.mktemp("tiles_small")
+    cloud, _ = _scene(200.0, 2.5, 5, n_buildings=4, n_trees=30)
+    synthetic.write_las(d / "in.laz", cloud, crs="EPSG:32632")
+    synthetic.write_las(d / "v12.las", cloud, version="1.2")
+    return d
+
+
+def test_same_bytes_for_synchronous_threads_and_local_cluster(small):
+    d = small
+    outs = []
+    for sched in ("synchronous", None, "local:2"):
+        out = d / f"out_{sched or 'threads'}.laz".replace(":", "")
+        args = ["classify", str(d / "in.laz"), str(out), "--tile-size", "100", "--buffer", "40"]
+        if sched:
+            args += ["--scheduler", sched]
+        r = CliRunner().invoke(main, args)
+        assert r.exit_code == 0, r.output
+        assert "4 tiles of 100 m + 40 m buffer" in r.output
+        outs.append(out.read_bytes())
+    assert outs[0] == outs[1] == outs[2]
+
+
+def test_las12_input_with_crs_option_tiled(small, tmp_path):
+    out = tmp_path / "o.las"
+    r = CliRunner().invoke(main, ["classify", str(small / "v12.las"), str(out), "--crs", "EPSG:32632",
+                                  "--tile-size", "100", "--buffer", "40", "--scheduler", "synchronous"])
+    assert r.exit_code == 0, r.output
+    src, res = laspy.read(small / "v12.las"), laspy.read(out)
+    assert res.header.version == src.header.version and res.header.point_format.id == 1
+    assert res.header.parse_crs().to_epsg() == 32632
+    assert _record_bytes_without_classification(res) == _record_bytes_without_classification(src)
+    assert np.isin(res.classification, list(cl.CLASS_NAMES)).all()
+
+
+def _fails(args, out, text):
+    r = CliRunner().invoke(main, args)
+    assert r.exit_code == 2, r.output
+    assert text in r.output
+    assert not out.exists()
+    assert not list(out.parent.glob(f".{out.stem}*"))              # no temporary output or tiles
+
+
+@pytest.mark.filterwarnings("ignore:invalid value encountered in cast:RuntimeWarning")
+def test_bad_input_in_tiled_mode_gives_exit_2_and_no_output(small, tmp_path):
+    d = small
+    out = tmp_path / "o.laz"
+    cloud = io.read_cloud(d / "in.laz")
+    cloud.z[len(cloud) - 5] = 1.0e6                                 # late record: found in pass 1
+    synthetic.write_las(tmp_path / "absurd.las", cloud, crs="EPSG:32632")
+    tiled = ["--tile-size", "100", "--buffer", "40"]
+    _fails(["classify", str(tmp_path / "absurd.las"), str(out), *tiled], out, f"record {len(cloud) - 5}")
+    cloud.z[len(cloud) - 5] = 100.0
+    cloud.x[7] = np.nan                              # stored as a huge integer: the header bounds break
+    synthetic.write_las(tmp_path / "nan.las", cloud, crs="EPSG:32632")
+    _fails(["classify", str(tmp_path / "nan.las"), str(out)], out, "absurd bounds")
+    data = (d / "in.laz").read_bytes()
+    (tmp_path / "trunc.laz").write_bytes(data[: len(data) * 2 // 3])
+    _fails(["classify", str(tmp_path / "trunc.laz"), str(out), *tiled], out, "trunc.laz")
+    _fails(["classify", str(d / "v12.las"), str(out), *tiled], out, "no CRS record")
+    _fails(["classify", str(d / "in.laz"), str(out), "--tile-size", "30"], out, "--buffer")
+
+
+def test_interrupt_during_tasks_leaves_no_output(small, tmp_path, monkeypatch):
+    out = tmp_path / "o.laz"
+    calls = []
+
+    def interrupted(task):
+        calls.append(task)
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(tiles, "classify_tile", interrupted)
+    with Executor("synchronous") as ex, pytest.raises(KeyboardInterrupt):
+        tiles.classify_file(small / "in.laz", out, tile_size_m=100.0, buffer_m=40.0, executor=ex)
+    assert calls and not out.exists()
+    assert not list(tmp_path.iterdir())
+
+
+def test_streamed_rasters_equal_in_memory_grids(classified, tmp_path):
+    from lidarctl import rasters
+
+    classified = classified[0]
+    cloud = io.read_cloud(classified)
+    ref = rasters.make_grids(cloud, 2.0)
+    got, n = rasters.make_grids_streamed(classified, 2.0, chunk_points=40_000)     # 10 chunks
+    assert n == len(cloud) and got["transform"] == ref["transform"]
+    for name in ("dem", "dsm", "ndsm", "chm", "intensity"):
+        a, b = ref[name], got[name]
+        np.testing.assert_array_equal(np.isfinite(a), np.isfinite(b))
+        # Means summed chunk by chunk: equal up to the summation order (float32 rounding).
+        np.testing.assert_allclose(b[np.isfinite(b)], a[np.isfinite(a)], rtol=1e-6, atol=1e-4)
+    r = CliRunner().invoke(main, ["rasters", str(classified), str(tmp_path / "r"), "--res", "2"])
+    assert r.exit_code == 0, r.output
+    import rasterio
+    with rasterio.open(tmp_path / "r" / "dem.tif") as ds:
+        dem = ds.read(1, masked=True)
+        assert ds.crs.to_epsg() == 32632
+    np.testing.assert_allclose(dem.filled(np.nan), got["dem"], rtol=1e-6, atol=1e-4)
+    raw = laspy.read(classified)
+    raw.classification = np.ones(len(raw.points), np.uint8)
+    raw.write(tmp_path / "unclassified.laz")
+    r = CliRunner().invoke(main, ["rasters", str(tmp_path / "unclassified.laz"), str(tmp_path / "r2"), "--res", "2"])
+    assert r.exit_code == 2 and "no ground points" in r.output
+    assert not (tmp_path / "r2" / "dem.tif").exists()
