@@ -78,11 +78,11 @@ def main() -> None:
     a = ap.parse_args()
     if not (a.project / "ortho" / "frames" / "index.json").exists():
         subprocess.run([BIN / "aerotri", "demo", a.project.parent], check=True)
-    env = dict(os.environ, OMP_NUM_THREADS="1", NUMBA_NUM_THREADS="1", OPENBLAS_NUM_THREADS="1",
+    env = dict(os.environ, OMP_NUM_THREADS="1", NUMBA_NUM_THREADS="1", OPENBLAS_NUM_THREADS="1", OPENCV_FOR_THREADS_NUM="1",
                GDAL_NUM_THREADS="1")
     result = dict(cpus=os.cpu_count(), load_average_start=os.getloadavg()[0], project=str(a.project),
                   note="local Dask cluster of N single-threaded worker processes; start-up included; "
-                       "OMP/numba/BLAS/GDAL threads pinned to 1 per worker", stages={})
+                       "OpenCV/OMP/numba/BLAS/GDAL threads pinned to 1 per worker, so N workers use N cores", stages={})
     with tempfile.TemporaryDirectory(prefix="aerotri_scaleout_") as tmp:
         for name, parts, cmd, outputs in stages(a.project):
             if a.only and name not in a.only:

@@ -309,7 +309,7 @@ def _write_mosaic(path, frames_dir, index, grids, mosaic: OrthoGrid, labels, fac
         batch = max(2, 2 * executor.workers)
         stage = Path(tmp_dir) / "stage.tif"
         with rasterio.open(stage, "w", **profile) as dst, \
-                tqdm(total=len(tiles), desc="mosaic", unit="tile", disable=not progress) as bar:
+                tqdm(total=len(tiles), desc="mosaic", unit="tile", disable=None if progress else True) as bar:
             for i in range(0, len(tiles), batch):
                 results = executor.map(blend_tile_task, tiles[i:i + batch], desc="mosaic tiles", unit="tile")
                 for t, (out, valid) in zip(tiles[i:i + batch], results):
