@@ -182,7 +182,10 @@ def build_report(ba, terrain: str = "flat") -> dict:
         "key_statistics": {
             "sigma0_um": _f(s0_um), "sigma0": _f(r.sigma0, 4), "iterations": int(r.iterations_total),
             "degrees_of_freedom": int(r.info.dof), "success": success,
-            "message": "Solution Successful." if success else "Solution failed: the last solve did not converge.",
+            "message": ("Solution failed: the last solve did not converge." if not success else
+                        "Solution Successful." if r.info.iterations < opts.max_iterations else
+                        f"Solution Successful (iteration limit {opts.max_iterations} reached; the last step "
+                        f"changed the error by less than 1e-6 relative)."),
         },
         "counts": {"images": b.n_images, "strips": b.n_strips, "tie_points": int(len(tie_pts)),
                    "control_points": int(len(used_ctrl)), "check_points": int(len(check_rows)),
