@@ -32,6 +32,14 @@ def _bar(total: int, desc: str, unit: str):
     return tqdm(total=total, desc=desc, unit=unit, leave=False, disable=not sys.stderr.isatty())
 
 
+class _Failed:
+    def __init__(self, exc: BaseException):
+        self.exc = exc
+
+
+_SKIPPED = object()
+
+
 class Executor:
     """Runs independent tasks locally or on a Dask distributed cluster; use as a context manager."""
 
@@ -77,26 +85,38 @@ class Executor:
     def map(self, fn: Callable, items: Iterable, desc: str = "tasks", unit: str = "task") -> list[Any]:
         """``[fn(item) for item in items]``, run as Dask tasks; results in the order of ``items``.
 
-        The first task exception is raised here (an InputError keeps its message)."""
+        When tasks fail, the exception of the first failing item in item order is raised (an
+        InputError keeps its message), whichever scheduler ran them: after the first failure no
+        later item is started, and earlier items still run, so the error a user sees is always the
+        same one."""
         items = list(items)
         if not items:
             return []
         if self._client is not None:
-            from distributed import as_completed
-            futures = self._client.map(fn, items, pure=False)
-            with _bar(len(items), desc, unit) as bar:
-                for fut in as_completed(futures):
-                    if fut.status == "error":
-                        exc, tb = fut.exception(), fut.traceback()
-                        for f in futures:
-                            f.cancel()
-                        raise exc.with_traceback(tb)
-                    bar.update(1)
-            return self._client.gather(futures)
+            return self._map_distributed(fn, items, desc, unit)
+        import threading
+
         import dask
         from dask.callbacks import Callback
 
-        tasks = [dask.delayed(fn, pure=False)(item) for item in items]
+        failed = threading.Event()
+        first_bad = [len(items)]
+        lock = threading.Lock()
+
+        def guarded(k_item):
+            k, item = k_item
+            with lock:
+                if k > first_bad[0]:
+                    return _SKIPPED
+            try:
+                return fn(item)
+            except BaseException as exc:  # noqa: BLE001 - handed back to the caller below
+                with lock:
+                    first_bad[0] = min(first_bad[0], k)
+                failed.set()
+                return _Failed(exc)
+
+        tasks = [dask.delayed(guarded, pure=False)((k, item)) for k, item in enumerate(items)]
         bar = _bar(len(items), desc, unit)
 
         class _Progress(Callback):
@@ -105,8 +125,34 @@ class Executor:
 
         with bar, _Progress():
             if self.scheduler == "synchronous" or self.workers == 1:
-                return list(dask.compute(*tasks, scheduler="synchronous"))
-            return list(dask.compute(*tasks, scheduler="threads", num_workers=self.workers))
+                out = list(dask.compute(*tasks, scheduler="synchronous"))
+            else:
+                out = list(dask.compute(*tasks, scheduler="threads", num_workers=self.workers))
+        for r in out:
+            if isinstance(r, _Failed):
+                raise r.exc
+        return out
+
+    def _map_distributed(self, fn, items, desc, unit):
+        from distributed import as_completed
+
+        futures = self._client.map(fn, items, pure=False)
+        index = {f.key: k for k, f in enumerate(futures)}
+        first_bad = len(items)
+        with _bar(len(items), desc, unit) as bar:
+            for fut in as_completed(futures):
+                k = index[fut.key]
+                if fut.status == "error" and k < first_bad:
+                    first_bad = k
+                    for f in futures[k + 1:]:
+                        f.cancel()
+                bar.update(1)
+                if all(f.done() for f in futures[:first_bad]) and first_bad < len(items):
+                    break
+        if first_bad < len(items):
+            fut = futures[first_bad]
+            raise fut.exception().with_traceback(fut.traceback())
+        return self._client.gather(futures)
 
     def close(self) -> None:
         if self._client is not None:

@@ -21,6 +21,15 @@ def _fail_on_three(x):
     return x
 
 
+def _fail_from_three(x):
+    import time
+
+    time.sleep(0.01 * (10 - x))  # later items finish first
+    if x >= 3:
+        raise ValueError(f"task {x} failed")
+    return x
+
+
 @pytest.fixture(scope="module")
 def cluster():
     with Executor("local:2") as ex:
@@ -34,6 +43,10 @@ def test_results_come_back_in_item_order_and_errors_surface(scheduler, cluster):
     assert ex.map(_square, []) == []
     with pytest.raises(ValueError, match="task 3 failed"):
         ex.map(_fail_on_three, range(8))
+    # Several failures: always the first failing item in item order, whoever finished first.
+    for _ in range(3):
+        with pytest.raises(ValueError, match="task 3 failed"):
+            ex.map(_fail_from_three, range(10))
 
 
 def test_the_run_executor_is_used_by_commands_without_their_own(cluster):
