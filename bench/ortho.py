@@ -123,6 +123,20 @@ def _setup(d: Path):
     return cam, C, R, dem, grid, img, tp
 
 
+def _rectify_command(project: Path) -> dict:
+    """``ortho rectify`` as a fresh process: wall time, its CPU time and peak RSS, output pixels."""
+    exe = Path(sys.executable).with_name("ortho")
+    t = time.perf_counter()
+    r = subprocess.run([str(exe), "rectify", str(project), "--res", str(RES_M)], capture_output=True, text=True)
+    seconds = time.perf_counter() - t
+    if r.returncode != 0:
+        raise SystemExit(r.stderr)
+    ru = resource.getrusage(resource.RUSAGE_CHILDREN)
+    index = json.loads((project / "ortho" / "frames" / "index.json").read_text())
+    return {"seconds": seconds, "cpu_s": ru.ru_utime + ru.ru_stime, "peak_rss_mb_command": ru.ru_maxrss / 1024.0,
+            "output_px": sum(e["width"] * e["height"] for e in index["frames"])}
+
+
 def run_kind(kind: str, d: Path) -> dict:
     out = {"kind": kind, "load_average_1min": os.getloadavg()[0]}
     t0_cpu = None
@@ -168,34 +182,11 @@ def run_kind(kind: str, d: Path) -> dict:
                                                  for k in range(1, n + 1)))
         for k in range(1, n + 1):
             os.link(d / "images" / "dmc_001.tif", b / "images" / f"dmc_{k:03d}.tif")
-        exe = Path(sys.executable).with_name("ortho")
-        t = time.perf_counter()
-        r = subprocess.run([str(exe), "rectify", str(b), "--res", str(RES_M)], capture_output=True, text=True)
-        out["seconds"] = time.perf_counter() - t
-        if r.returncode != 0:
-            raise SystemExit(r.stderr)
-        import resource as _r
-
-        ru = _r.getrusage(_r.RUSAGE_CHILDREN)
-        out["cpu_s"] = ru.ru_utime + ru.ru_stime
+        out.update(_rectify_command(b))
         out["frames"] = n
-        index = json.loads((b / "ortho" / "frames" / "index.json").read_text())
-        out["output_px"] = sum(e["width"] * e["height"] for e in index["frames"])
         shutil.rmtree(b, ignore_errors=True)
     elif kind == "ours_command":
-        exe = Path(sys.executable).with_name("ortho")
-        t = time.perf_counter()
-        r = subprocess.run([str(exe), "rectify", str(d), "--res", str(RES_M)], capture_output=True, text=True)
-        out["seconds"] = time.perf_counter() - t
-        if r.returncode != 0:
-            raise SystemExit(r.stderr)
-        import resource as _r
-
-        ru = _r.getrusage(_r.RUSAGE_CHILDREN)
-        out["cpu_s"] = ru.ru_utime + ru.ru_stime
-        out["peak_rss_mb_command"] = ru.ru_maxrss / 1024.0
-        index = json.loads((d / "ortho" / "frames" / "index.json").read_text())
-        out["output_px"] = index["frames"][0]["width"] * index["frames"][0]["height"]
+        out.update(_rectify_command(d))
     elif kind == "remap_ceiling":
         import cv2
 

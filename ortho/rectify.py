@@ -57,6 +57,27 @@ _FASTMATH = {"contract", "arcp", "reassoc", "nsz", "afn"}
 
 
 @numba.njit(cache=True, inline="always", fastmath=_FASTMATH)
+def _dem_height(dem, X, Y, dem_x0, dem_y0, dem_res):
+    """Bilinear DEM height at (X, Y), clamped half a pixel beyond the outer cell centres; NaN outside
+    the DEM or on nodata. Computed without an early return so that loops over it stay branch-free."""
+    dh, dw = dem.shape
+    u = (X - dem_x0) / dem_res - 0.5
+    v = (dem_y0 - Y) / dem_res - 0.5
+    inside = u >= -0.5 and u <= dw - 0.5 and v >= -0.5 and v <= dh - 0.5
+    u = min(max(u, 0.0), dw - 1.0)
+    v = min(max(v, 0.0), dh - 1.0)
+    di = min(int(v), max(dh - 2, 0))
+    dj = min(int(u), max(dw - 2, 0))
+    fv = v - di
+    fu = u - dj
+    di1 = min(di + 1, dh - 1)
+    dj1 = min(dj + 1, dw - 1)
+    Z = (dem[di, dj] * (1.0 - fu) * (1.0 - fv) + dem[di, dj1] * fu * (1.0 - fv)
+         + dem[di1, dj] * (1.0 - fu) * fv + dem[di1, dj1] * fu * fv)
+    return Z if inside else np.nan
+
+
+@numba.njit(cache=True, inline="always", fastmath=_FASTMATH)
 def _ground_to_image(r, c, inv_s, anchor_x, anchor_y, dem, dem_x0, dem_y0, dem_res, centre, M, cam, width, height,
                      margin):
     """Ground point of output pixel (r, c), its height and image position; ok False if not imaged."""
@@ -72,23 +93,8 @@ def _ground_to_image(r, c, inv_s, anchor_x, anchor_y, dem, dem_x0, dem_y0, dem_r
     w11 = fr * fc
     X = anchor_x[i0, j0] * w00 + anchor_x[i0, j0 + 1] * w01 + anchor_x[i0 + 1, j0] * w10 + anchor_x[i0 + 1, j0 + 1] * w11
     Y = anchor_y[i0, j0] * w00 + anchor_y[i0, j0 + 1] * w01 + anchor_y[i0 + 1, j0] * w10 + anchor_y[i0 + 1, j0 + 1] * w11
-    dh, dw = dem.shape
-    # bilinear height, clamped half a pixel beyond the outer centres
-    u = (X - dem_x0) / dem_res - 0.5
-    v = (dem_y0 - Y) / dem_res - 0.5
-    if not (u >= -0.5 and u <= dw - 0.5 and v >= -0.5 and v <= dh - 0.5):
-        return np.nan, 0.0, 0.0, False
-    u = min(max(u, 0.0), dw - 1.0)
-    v = min(max(v, 0.0), dh - 1.0)
-    di = min(int(v), max(dh - 2, 0))
-    dj = min(int(u), max(dw - 2, 0))
-    fv = v - di
-    fu = u - dj
-    di1 = min(di + 1, dh - 1)
-    dj1 = min(dj + 1, dw - 1)
-    Z = (dem[di, dj] * (1.0 - fu) * (1.0 - fv) + dem[di, dj1] * fu * (1.0 - fv)
-         + dem[di1, dj] * (1.0 - fu) * fv + dem[di1, dj1] * fu * fv)
-    if Z != Z:  # DEM nodata
+    Z = _dem_height(dem, X, Y, dem_x0, dem_y0, dem_res)
+    if Z != Z:  # outside the DEM or on its nodata
         return Z, 0.0, 0.0, False
     dx = X - centre[0]
     dy = Y - centre[1]
@@ -151,7 +157,6 @@ def _fixed_point_kernel(anchor_x, anchor_y, spacing, rows, cols, dem, dem_x0, de
                                                    M[2, 0], M[2, 1], M[2, 2])
     c0, c1, c2 = centre[0], centre[1], centre[2]
     x_lo, x_hi, y_lo, y_hi = margin, width - 1 - margin, margin, height - 1 - margin
-    dh, dw = dem.shape
     na = anchor_x.shape[1]
     far = np.int32(-32768 * INTER_TAB_SIZE)
     ix_row = np.empty(cols, np.int32)
@@ -168,22 +173,7 @@ def _fixed_point_kernel(anchor_x, anchor_y, spacing, rows, cols, dem, dem_x0, de
             fc = ac - j0
             X = (1.0 - fr) * ((1.0 - fc) * ax0[j0] + fc * ax0[j0 + 1]) + fr * ((1.0 - fc) * ax1[j0] + fc * ax1[j0 + 1])
             Y = (1.0 - fr) * ((1.0 - fc) * ay0[j0] + fc * ay0[j0 + 1]) + fr * ((1.0 - fc) * ay1[j0] + fc * ay1[j0 + 1])
-            # bilinear height, clamped half a pixel beyond the outer centres; NaN outside the DEM
-            u = (X - dem_x0) / dem_res - 0.5
-            v = (dem_y0 - Y) / dem_res - 0.5
-            inside = u >= -0.5 and u <= dw - 0.5 and v >= -0.5 and v <= dh - 0.5
-            u = min(max(u, 0.0), dw - 1.0)
-            v = min(max(v, 0.0), dh - 1.0)
-            di = min(int(v), max(dh - 2, 0))
-            dj = min(int(u), max(dw - 2, 0))
-            fv = v - di
-            fu = u - dj
-            di1 = min(di + 1, dh - 1)
-            dj1 = min(dj + 1, dw - 1)
-            Z = (dem[di, dj] * (1.0 - fu) * (1.0 - fv) + dem[di, dj1] * fu * (1.0 - fv)
-                 + dem[di1, dj] * (1.0 - fu) * fv + dem[di1, dj1] * fu * fv)
-            if not inside:
-                Z = np.nan
+            Z = _dem_height(dem, X, Y, dem_x0, dem_y0, dem_res)
             z_row[c] = Z
             dx = X - c0
             dy = Y - c1
