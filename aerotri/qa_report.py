@@ -85,14 +85,12 @@ def _hypot(a, b):
     return round(math.hypot(a, b), 4)
 
 
-def _pixel_um(root: Path, at: dict) -> float | None:
-    cam = at.get("self_calibration", {}).get("camera") or {}
-    if "pixel_um" in cam:
-        return float(cam["pixel_um"])
+def _pixel_um(root: Path) -> float | None:
+    """Pixel size of the project camera (self-calibration does not change it)."""
+    from aerotri.camera import FrameCamera
+
     p = root / "camera.toml"
-    if p.is_file():
-        return float(tomllib.loads(p.read_text()).get("pixel_um", 0)) or None
-    return None
+    return FrameCamera.read(p).pixel_um if p.is_file() else None
 
 
 def build_qa_report(root, tolerance_file=None, terrain: str | None = None, scale: str | None = None) -> dict:
@@ -152,7 +150,7 @@ def build_qa_report(root, tolerance_file=None, terrain: str | None = None, scale
     ks = at.get("key_statistics", {})
     if ks:
         rows.append(_check(sec, "solution successful", bool(ks.get("success")), True, "", ks.get("message", "")))
-        px = _pixel_um(root, at)
+        px = _pixel_um(root)
         if ks.get("sigma0_um") is not None and px:
             rows.append(_check(sec, "sigma naught", round(ks["sigma0_um"] / px, 3), tol.get("sigma0_max_px"), "px",
                                f"{ks['sigma0_um']:.2f} um on {px:g} um pixels"))

@@ -99,7 +99,6 @@ class Executor:
         import dask
         from dask.callbacks import Callback
 
-        failed = threading.Event()
         first_bad = [len(items)]
         lock = threading.Lock()
 
@@ -113,7 +112,6 @@ class Executor:
             except BaseException as exc:  # noqa: BLE001 - handed back to the caller below
                 with lock:
                     first_bad[0] = min(first_bad[0], k)
-                failed.set()
                 return _Failed(exc)
 
         tasks = [dask.delayed(guarded, pure=False)((k, item)) for k, item in enumerate(items)]

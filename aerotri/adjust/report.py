@@ -9,14 +9,11 @@ from __future__ import annotations
 import base64
 import io
 import math
-import tomllib
-from pathlib import Path
 
 import numpy as np
 
 from aerotri.adjust import graph as G
-
-TOLERANCES = Path(__file__).with_name("tolerances") / "cn_1to5000_1to10000.toml"
+from aerotri.qa_report import load_tolerances
 
 
 def _rms(a, axis=0):
@@ -42,8 +39,7 @@ def build_report(ba, terrain: str = "flat") -> dict:
     cam = ba.camera_apriori
     pix_um = cam.pixel_um
     s0_um = r.sigma0 * opts.image_sigma_px * pix_um
-    with open(TOLERANCES, "rb") as f:
-        tol = tomllib.load(f)[terrain]
+    tol = load_tolerances("1:5000", terrain)
     rms_lim = [st.rms_limit_xy_m or tol["rms_xy_m"]] * 2 + [st.rms_limit_z_m or tol["rms_z_m"]]
     res_lim = [st.residual_limit_m or tol["residual_xy_m"]] * 2 + [st.residual_limit_m or tol["residual_z_m"]]
 

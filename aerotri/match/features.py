@@ -68,12 +68,15 @@ def extract(img: np.ndarray, p: FeatureParams) -> Features:
     return Features(xy, desc, level)
 
 
+def features_cache_path(image_path: Path, cache_dir: Path, p: FeatureParams) -> Path:
+    return cache_dir / f"{image_path.stem}.{p.name}.{p.key()}.npz"
+
+
 def cached_features(image_path: Path, cache_dir: Path, p: FeatureParams, expect_size=None) -> Features:
     """Features of one frame, from the cache when the image file and parameters are unchanged."""
     st = image_path.stat()
-    tag = f"{image_path.stem}.{p.name}.{p.key()}"
     meta = {"size": st.st_size, "mtime_ns": st.st_mtime_ns}
-    f = cache_dir / f"{tag}.npz"
+    f = features_cache_path(image_path, cache_dir, p)
     if f.exists():
         with np.load(f) as z:
             if json.loads(str(z["meta"])) == meta:

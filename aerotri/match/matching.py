@@ -92,9 +92,13 @@ def match_pair(fa: Features, fb: Features, camera: FrameCamera, p: MatchParams) 
     return m if len(m) >= p.min_inliers else np.zeros((0, 2), int)
 
 
+def match_cache_path(tag: str, cache_dir: Path, p: MatchParams, feature_key: str) -> Path:
+    return cache_dir / f"{tag}.{feature_key}.{p.key()}.npy"
+
+
 def cached_match(tag: str, fa: Features, fb: Features, camera: FrameCamera, p: MatchParams, cache_dir: Path,
                  feature_key: str) -> np.ndarray:
-    f = cache_dir / f"{tag}.{feature_key}.{p.key()}.npy"
+    f = match_cache_path(tag, cache_dir, p, feature_key)
     if f.exists():
         return np.load(f)
     m = match_pair(fa, fb, camera, p)

@@ -61,7 +61,7 @@ def _terrain_height(project: Project, s: MatchSettings) -> float:
 def _features_task(item) -> bool:
     """Extract (or find cached) the features of one frame; True when they came from the cache."""
     image_path, cache_dir, p, size = item
-    hit = (cache_dir / f"{image_path.stem}.{p.name}.{p.key()}.npz").exists()
+    hit = F.features_cache_path(image_path, cache_dir, p).exists()
     F.cached_features(image_path, cache_dir, p, size)
     return hit
 
@@ -70,8 +70,8 @@ def _match_task(item) -> tuple[bool, np.ndarray]:
     """Match one frame pair (or read the cached matches); (cache hit, (M, 2) keypoint index pairs)."""
     tag, fa, fb, camera, p, cache_dir = item
     fkey = fa[2].key()
-    f = cache_dir / f"{tag}.{fkey}.{p.key()}.npy"
-    if f.exists():
+    f = M.match_cache_path(tag, cache_dir, p, fkey)
+    if f.exists():  # without reading the two frames' features
         return True, np.load(f)
     return False, M.cached_match(tag, F.cached_features(*fa), F.cached_features(*fb), camera, p, cache_dir, fkey)
 
