@@ -11,17 +11,15 @@ from __future__ import annotations
 
 import numpy as np
 
-from aerotri.adjust.graph import K_KEY, X, project_cv, jacobians_cv
+from aerotri.adjust.graph import K_KEY, X, jacobians_cv, point_jacobian_cv, project_cv
 
 
 def intersect_rays(centres, directions, point_index, n_points):
     """Least-squares intersection of rays (K, 3)+(K, 3) grouped by point_index -> points (n, 3), rank-ok mask."""
     d = directions / np.linalg.norm(directions, axis=1, keepdims=True)
     M = np.eye(3)[None] - d[:, :, None] * d[:, None, :]
-    N = np.zeros((n_points, 3, 3))
-    b = np.zeros((n_points, 3))
-    np.add.at(N, point_index, M)
-    np.add.at(b, point_index, np.einsum("kij,kj->ki", M, centres))
+    N = sum_by_index(point_index, M, n_points)
+    b = sum_by_index(point_index, np.einsum("kij,kj->ki", M, centres), n_points)
     ok = np.linalg.cond(N) < 1e8
     out = np.full((n_points, 3), np.nan)
     out[ok] = np.linalg.solve(N[ok], b[ok][..., None])[..., 0]
@@ -43,6 +41,41 @@ def pixel_rays(xy_px, R_cv, cal, iterations: int = 10):
     return np.einsum("kij,kj->ki", R_cv, d)
 
 
+def sum_by_index(index, values, n):
+    """Sums of ``values`` (K, ...) over rows with equal ``index`` -> (n, ...) (np.add.at, but fast)."""
+    flat = values.reshape(len(values), -1)
+    out = np.empty((n, flat.shape[1]))
+    for c in range(flat.shape[1]):
+        out[:, c] = np.bincount(index, weights=flat[:, c], minlength=n)
+    return out.reshape((n,) + values.shape[1:])
+
+
+def refine_points(xy_px, point_index, image_index, centre, R_cv, cal, points, iterations: int = 5, tol_m: float = 0.0):
+    """Gauss-Newton on the pixels for points (n, 3) with fixed orientations; rows that are not finite stay as
+    they are. Stops after ``iterations`` or once no point moves by more than ``tol_m`` (the step after
+    that is smaller by orders of magnitude: the convergence is quadratic). Returns a new array."""
+    pts = np.array(points, dtype=float, copy=True)
+    n = len(pts)
+    R = R_cv[image_index]
+    C = centre[image_index]
+    upper = [(0, 0), (0, 1), (0, 2), (1, 1), (1, 2), (2, 2)]
+    for _ in range(iterations):
+        uv, pc = project_cv(pts[point_index], C, R, cal)
+        Jp = point_jacobian_cv(pc, R, cal)
+        r = xy_px - uv
+        # normal equations per point from the 6 distinct products (einsum over (K, 2, 3) is slow)
+        N = np.empty((n, 3, 3))
+        for i, j in upper:
+            N[:, i, j] = N[:, j, i] = np.bincount(point_index, Jp[:, 0, i] * Jp[:, 0, j] + Jp[:, 1, i] * Jp[:, 1, j], minlength=n)
+        b = np.column_stack([np.bincount(point_index, Jp[:, 0, i] * r[:, 0] + Jp[:, 1, i] * r[:, 1], minlength=n) for i in range(3)])
+        good = np.all(np.isfinite(b), axis=1) & np.all(np.isfinite(pts), axis=1)
+        step = np.linalg.solve(N[good] + 1e-12 * np.eye(3), b[good][..., None])[..., 0]
+        pts[good] += step
+        if np.abs(step).max(initial=0.0) <= tol_m:
+            break
+    return pts
+
+
 def intersect(xy_px, point_index, image_index, centre, R_cv, cal, n_points, iterations: int = 5):
     """Intersect points from their image measurements: linear start, then Gauss-Newton on pixels.
 
@@ -50,16 +83,7 @@ def intersect(xy_px, point_index, image_index, centre, R_cv, cal, n_points, iter
     """
     rays = pixel_rays(xy_px, R_cv[image_index], cal)
     pts, ok = intersect_rays(centre[image_index], rays, point_index, n_points)
-    for _ in range(iterations):
-        uv, pc = project_cv(pts[point_index], centre[image_index], R_cv[image_index], cal)
-        Jp, _ = jacobians_cv(pc, R_cv[image_index], cal)
-        r = xy_px - uv
-        N = np.zeros((n_points, 3, 3))
-        b = np.zeros((n_points, 3))
-        np.add.at(N, point_index, np.einsum("kai,kaj->kij", Jp, Jp))
-        np.add.at(b, point_index, np.einsum("kai,ka->ki", Jp, r))
-        good = ok & np.all(np.isfinite(b), axis=1)
-        pts[good] += np.linalg.solve(N[good] + 1e-12 * np.eye(3), b[good][..., None])[..., 0]
+    pts = refine_points(xy_px, point_index, image_index, centre, R_cv, cal, pts, iterations)
     return pts, ok
 
 

@@ -1,7 +1,7 @@
 """A-posteriori covariances from the reduced camera system (Schur complement), without per-key calls.
 
 The linearised normal equations are reduced by eliminating the object points (GTSAM partial
-elimination); the reduced system over orientations, calibration and GNSS unknowns is small enough to
+elimination; tie points in smart factors arrive already reduced); the reduced system over orientations, calibration and GNSS unknowns is small enough to
 invert densely. The covariance of an object point then follows from its own normal-equation block
 ``V`` and its coupling ``W`` to the orientations it is seen from:
 ``Cov(X) = V^-1 + V^-1 W Cov(orientations) W^T V^-1`` (exact for the linearised problem).
@@ -30,9 +30,12 @@ class ReducedCovariance:
 
     def __init__(self, gr: "G.Graph", values: gtsam.Values, point_keys):
         gfg = gr.graph.linearize(values)
+        # tie points held in smart factors are already eliminated in their factors' linearisation
+        in_graph = set(gfg.keyVector())
         ordering = gtsam.Ordering()
         for k in point_keys:
-            ordering.push_back(k)
+            if k in in_graph:
+                ordering.push_back(k)
         _, reduced = gfg.eliminatePartialMultifrontal(ordering)
         keys = sorted(set(reduced.keyVector()))
         order = gtsam.Ordering()

@@ -9,6 +9,14 @@ Observation equations and their factors:
 
 - image point: collinearity with Cal3DS2 -> GenericProjectionFactorCal3DS2 (fixed camera) or
   GeneralSFMFactor2Cal3DS2 (self-calibration), isotropic ``image_sigma_px``;
+- tie points of a least-squares solve with a fixed camera: SmartProjectionPoseFactorCal3DS2, one factor
+  per point holding all its rays. The point is not an unknown of the graph: each linearisation
+  triangulates it from the current orientations and forms its Schur complement in C++ (the reduced
+  camera system, as Ceres' Schur solvers do), so the sparse elimination only sees the orientations.
+  The adjusted coordinates are then intersected by Gauss-Newton on the pixels with the final
+  orientations: the least-squares point the full bundle gives for them. Robust solves and
+  self-calibration keep explicit points (gtsam's smart factors take neither a robust kernel nor a
+  shared calibration unknown), and so do control points (they carry priors);
 - GNSS, no correction: ``g = C + R l`` -> GPSFactorArm;
 - GNSS with shift/drift: ``a_i = C_i + R_i l`` (ReferenceFrameFactorPoint3Pose3 as a hard constraint)
   and the linear ``g_i = a_i + s_strip + t_i d_strip`` (t = along-track km) -> JacobianFactor in a
@@ -90,6 +98,7 @@ class Options:
     ordering: str = "METIS"  # LM elimination ordering (METIS | COLAMD)
     linear_solver: str = "MULTIFRONTAL_CHOLESKY"  # or SEQUENTIAL_CHOLESKY
     diagonal_damping: bool = False  # Marquardt (diag(H)) instead of Levenberg (identity) damping
+    eliminate_tie_points: bool = True  # smart factors for tie points where possible (see module docstring)
 
     def __post_init__(self):
         if self.gnss_correction not in GNSS_CORRECTIONS:
@@ -160,10 +169,89 @@ class Graph:
     n_unknowns: int
     image_factor_index: np.ndarray  # (K,) index of each active observation's factor, -1 if inactive
     control_factor_index: np.ndarray  # (C,)
+    robust: bool = False
+    smart: "SmartTiePoints | None" = None
+    ordering: gtsam.Ordering | None = None  # elimination ordering, when computed here
 
     @property
     def dof(self) -> int:
         return self.n_equations - self.n_unknowns
+
+
+@dataclasses.dataclass
+class SmartTiePoints:
+    """Tie points eliminated inside their (smart) factors."""
+
+    point: np.ndarray  # (M,) point indices
+    obs: np.ndarray  # active observations of these points, grouped by point
+    factors: list  # (M,) gtsam smart factors, in the order of ``point``
+    others: gtsam.NonlinearFactorGraph  # all remaining factors of the graph (for the final chi-square)
+    block: Block
+    cal: np.ndarray  # (9,) the fixed Cal3DS2 values
+    sigma_px: float
+
+
+def _smart_params() -> gtsam.SmartProjectionParams:
+    params = gtsam.SmartProjectionParams()
+    params.setLinearizationMode(gtsam.LinearizationMode.HESSIAN)
+    # a point that cannot be triangulated contributes nothing (weak points are dropped before the solve)
+    params.setDegeneracyMode(gtsam.DegeneracyMode.ZERO_ON_DEGENERACY)
+    return params
+
+
+def _add_smart_tie_points(g: gtsam.NonlinearFactorGraph, block: Block, obs: np.ndarray, cal: np.ndarray, sigma_px: float) -> SmartTiePoints:
+    obs = obs[np.argsort(block.obs_point[obs], kind="stable")]
+    pt = block.obs_point[obs]
+    starts = np.r_[0, np.flatnonzero(np.diff(pt)) + 1]
+    ends = np.r_[starts[1:], len(obs)]
+    keys = [X(i) for i in range(block.n_images)]
+    xy = block.obs_xy_px[obs]
+    image = block.obs_image[obs].tolist()
+    params = _smart_params()
+    K = _cal3ds2(cal)
+    noise = gtsam.noiseModel.Isotropic.Sigma(2, sigma_px)
+    factors = []
+    for a, b in zip(starts.tolist(), ends.tolist()):
+        f = gtsam.SmartProjectionPoseFactorCal3DS2(noise, K, params)
+        for r in range(a, b):
+            f.add(xy[r], keys[image[r]])
+        g.add(f)
+        factors.append(f)
+    return SmartTiePoints(pt[starts], obs, factors, gtsam.NonlinearFactorGraph(), block, np.asarray(cal, dtype=float), float(sigma_px))
+
+
+def _smart_ordering(gr: "Graph") -> gtsam.Ordering:
+    """METIS ordering from the orientation adjacency (a pair per two images that see a common tie point)
+    plus the keys of every other factor: the same structure as the graph's, at a fraction of the size."""
+    sm = gr.smart
+    b = sm.block
+    pt, im = b.obs_point[sm.obs], b.obs_image[sm.obs]
+    # all image pairs per point: consecutive observations sorted by point, taken at every offset
+    pairs = [np.zeros((0, 2), dtype=int)]
+    off = 1
+    while off < len(pt):
+        same = np.flatnonzero(pt[:-off] == pt[off:])
+        if len(same) == 0:
+            break
+        pairs.append(np.column_stack([im[same], im[same + off]]))
+        off += 1
+    pairs = np.sort(np.concatenate(pairs), axis=1)
+    code = np.unique(pairs[:, 0].astype(np.int64) * b.n_images + pairs[:, 1])
+    pairs = np.column_stack([code // b.n_images, code % b.n_images])
+    sg = gtsam.SymbolicFactorGraph()
+    for i in range(b.n_images):
+        sg.push_factor(X(i))
+    for i, j in pairs.tolist():
+        if i != j:
+            sg.push_factor(X(i), X(j))
+    for n in range(sm.others.size()):
+        keys = list(sm.others.at(n).keys())
+        for a in range(len(keys)):
+            for c in range(a + 1, len(keys)):
+                sg.push_factor(keys[a], keys[c])
+            if len(keys) == 1:
+                sg.push_factor(keys[0])
+    return gtsam.Ordering.MetisSymbolicFactorGraph(sg)
 
 
 def build_graph(block: Block, opts: Options, state: State, obs_active, control_active, robust: bool) -> Graph:
@@ -174,13 +262,17 @@ def build_graph(block: Block, opts: Options, state: State, obs_active, control_a
     v = gtsam.Values()
     self_cal = bool(opts.self_calibration)
     used_points = np.unique(block.obs_point[obs_active])
-    used_images = np.unique(block.obs_image[obs_active])
     n_eq = n_unk = 0
+    smart = opts.eliminate_tie_points and not robust and not self_cal
+    explicit = np.ones(block.n_points, dtype=bool)  # points that are unknowns of the graph
+    if smart:
+        explicit[:] = False
+        explicit[block.control_point[control_active]] = True
 
     for i in range(block.n_images):
         v.insert(X(i), _pose(state.centre[i], state.R_cv[i]))
     n_unk += 6 * block.n_images
-    for j in used_points:
+    for j in used_points[explicit[used_points]]:
         v.insert(P(j), np.asarray(state.points[j], dtype=float))
     n_unk += 3 * len(used_points)
 
@@ -203,9 +295,14 @@ def build_graph(block: Block, opts: Options, state: State, obs_active, control_a
             g.add(gtsam.GeneralSFMFactor2Cal3DS2(block.obs_xy_px[k], noise, X(block.obs_image[k]), P(block.obs_point[k]), K_KEY))
     else:
         K = _cal3ds2(state.cal)
-        for k in idx:
+        explicit_obs = explicit[block.obs_point[idx]]
+        for k in idx[explicit_obs]:
             factor_index[k] = g.size()
             g.add(gtsam.GenericProjectionFactorCal3DS2(block.obs_xy_px[k], noise, X(block.obs_image[k]), P(block.obs_point[k]), K))
+        if smart:
+            first = g.size()
+            smart_tp = _add_smart_tie_points(g, block, idx[~explicit_obs], state.cal, opts.image_sigma_px)
+            smart_range = (first, g.size())
     n_eq += 2 * len(idx)
 
     # GNSS
@@ -257,8 +354,14 @@ def build_graph(block: Block, opts: Options, state: State, obs_active, control_a
         control_index[c] = g.size()
         g.add(gtsam.PriorFactorPoint3(P(j), block.control_local[c], model))
         n_eq += int(block.control_rows[c])
-    del used_images
-    return Graph(g, v, n_eq, n_unk, factor_index, control_index)
+    gr = Graph(g, v, n_eq, n_unk, factor_index, control_index, robust)
+    if smart:
+        for n in range(g.size()):
+            if not smart_range[0] <= n < smart_range[1]:
+                smart_tp.others.add(g.at(n))
+        gr.smart = smart_tp
+        gr.ordering = _smart_ordering(gr)
+    return gr
 
 
 @dataclasses.dataclass
@@ -270,32 +373,105 @@ class SolveInfo:
     converged: bool
 
 
-def optimize(gr: Graph, opts: Options) -> tuple[gtsam.Values, SolveInfo]:
-    params = gtsam.LevenbergMarquardtParams()
+def _ordered(params, gr: Graph, opts: Options):
     params.setMaxIterations(opts.max_iterations)
     params.setRelativeErrorTol(opts.relative_tolerance)
     params.setAbsoluteErrorTol(0.0)
-    params.setOrderingType(opts.ordering)
+    if gr.ordering is not None:
+        params.setOrdering(gr.ordering)
+    else:
+        params.setOrderingType(opts.ordering)
     params.setLinearSolverType(opts.linear_solver)
-    params.setDiagonalDamping(opts.diagonal_damping)
+    return params
+
+
+def _gauss_newton(gr: Graph, opts: Options) -> tuple[gtsam.Values, int, bool]:
+    """Gauss-Newton steps while each lowers the cost: (last good values, iterations, converged). Stops
+    unconverged at the first step that does not, or at a system too ill-conditioned to solve undamped,
+    for Levenberg-Marquardt to go on from the last good values."""
+    opt = gtsam.GaussNewtonOptimizer(gr.graph, gr.values, _ordered(gtsam.GaussNewtonParams(), gr, opts))
+    good, e_prev = gr.values, opt.error()
+    for it in range(1, opts.max_iterations + 1):
+        try:
+            opt.iterate()
+        except RuntimeError:  # indeterminate without damping
+            return good, it - 1, False
+        e = opt.error()
+        if not np.isfinite(e) or e > e_prev * (1.0 + opts.relative_tolerance):
+            return good, it - 1, False
+        if e >= e_prev:  # no decrease within the tolerance: at the minimum
+            return good, it, True
+        good = gtsam.Values(opt.values())  # a copy: the optimizer owns what values() refers to
+        if e_prev - e <= opts.relative_tolerance * e_prev:
+            return good, it, True
+        e_prev = e
+    return good, opts.max_iterations, False
+
+
+def optimize(gr: Graph, opts: Options) -> tuple[gtsam.Values, SolveInfo]:
+    """Least squares: Gauss-Newton, the classical bundle iteration, while its steps lower the cost (each
+    one is a single elimination); Levenberg-Marquardt from the last good values when a step does not, and
+    for robust solves (iteratively reweighted, where the damping keeps the reweighting stable)."""
     t0 = time.perf_counter()
+    it, converged, start = 0, False, gr.values
     try:
-        opt = gtsam.LevenbergMarquardtOptimizer(gr.graph, gr.values, params)
-        result = opt.optimize()
+        if not gr.robust:
+            start, it, converged = _gauss_newton(gr, opts)
+        result = start
+        if not converged and it < opts.max_iterations:
+            params = _ordered(gtsam.LevenbergMarquardtParams(), gr, opts)
+            params.setMaxIterations(opts.max_iterations - it)
+            params.setDiagonalDamping(opts.diagonal_damping)
+            opt = gtsam.LevenbergMarquardtOptimizer(gr.graph, start, params)
+            result = gtsam.Values(opt.optimize())
+            n = int(opt.iterations())
+            it += n
+            converged = n < params.getMaxIterations()
+            if not converged:
+                # stopped by the iteration limit: converged if one more step no longer reduces the error noticeably
+                e0 = opt.error()
+                opt.iterate()
+                converged = e0 - opt.error() <= 1e-6 * e0
+                result = gtsam.Values(opt.values())
     except RuntimeError as exc:
         raise InputError(
             "the adjustment is singular (datum defect: too few control points or GNSS positions for "
             f"the chosen corrections, or images/points without enough rays): {exc}"
         ) from None
-    it = int(opt.iterations())
-    converged = it < opts.max_iterations
-    if not converged:
-        # stopped by the iteration limit: converged if one more step no longer reduces the error noticeably
-        e0 = opt.error()
-        opt.iterate()
-        converged = e0 - opt.error() <= 1e-6 * e0
-        result = opt.values()
-    return result, SolveInfo(it, 2.0 * gr.graph.error(result), gr.dof, time.perf_counter() - t0, converged)
+    if gr.smart is None:
+        chi2 = 2.0 * gr.graph.error(result)
+    else:
+        result, chi2 = _smart_points_and_chi2(gr, result)
+    return result, SolveInfo(it, chi2, gr.dof, time.perf_counter() - t0, converged)
+
+
+def _smart_points_and_chi2(gr: Graph, values: gtsam.Values) -> tuple[gtsam.Values, float]:
+    """Adjusted tie points of the smart factors (Gauss-Newton intersection with the final orientations,
+    from the factors' last triangulation) inserted into ``values``, and the chi-square of the solution."""
+    from aerotri.adjust.check_points import refine_points
+
+    sm = gr.smart
+    b = sm.block
+    n = len(sm.point)
+    start = np.full((n, 3), np.nan)
+    for m, f in enumerate(sm.factors):
+        tri = f.point()
+        if tri.valid():
+            start[m] = tri.get()
+    pose = [values.atPose3(X(i)) for i in range(b.n_images)]
+    centre = np.array([p.translation() for p in pose])
+    R_cv = np.array([p.rotation().matrix() for p in pose])
+    # row of each observation's point in sm.point (observations are grouped by point)
+    row = np.cumsum(np.r_[0, np.diff(b.obs_point[sm.obs]) != 0])
+    im = b.obs_image[sm.obs]
+    pts = refine_points(b.obs_xy_px[sm.obs], row, im, centre, R_cv, sm.cal, start, iterations=5, tol_m=0.01)
+    uv, _ = project_cv(pts[row], centre[im], R_cv[im], sm.cal)
+    r = (b.obs_xy_px[sm.obs] - uv) / sm.sigma_px
+    ok = np.isfinite(pts).all(axis=1)
+    chi2 = float(np.sum(r[ok[row]] ** 2)) + 2.0 * sm.others.error(values)
+    for m in np.flatnonzero(ok):
+        values.insert(P(sm.point[m]), pts[m])
+    return values, chi2
 
 
 def state_from_values(values: gtsam.Values, block: Block, opts: Options, previous: State) -> State:
@@ -331,13 +507,8 @@ def project_cv(points, centre, R_cv, cal):
     return np.column_stack([fx * xd + s * yd + u0, fy * yd + v0]), pc
 
 
-def jacobians_cv(pc, R_cv, cal, with_cal: bool = False):
-    """d(pixel)/d(point) (K, 2, 3), d(pixel)/d(pose tangent [omega, v]) (K, 2, 6) and, with ``with_cal``,
-    d(pixel)/d(Cal3DS2 [fx fy s u0 v0 k1 k2 p1 p2]) (K, 2, 9); lens distortion included.
-
-    Pose perturbation as in gtsam (right): R -> R Exp(omega), C -> C + R v, so d pc/d omega = [pc]x,
-    d pc/d v = -I.
-    """
+def _dpixel_dpc(pc, cal):
+    """d(pixel)/d(camera coordinates) (K, 2, 3) with lens distortion."""
     fx, fy, s, u0, v0, k1, k2, p1, p2 = cal
     z = pc[:, 2]
     xn, yn = pc[:, 0] / z, pc[:, 1] / z
@@ -354,7 +525,22 @@ def jacobians_cv(pc, R_cv, cal, with_cal: bool = False):
     Jn[:, 0, 2] = -xn / z
     Jn[:, 1, 1] = 1.0 / z
     Jn[:, 1, 2] = -yn / z
-    Jp = np.array([[fx, s], [0.0, fy]]) @ Jd @ Jn
+    return np.array([[fx, s], [0.0, fy]]) @ Jd @ Jn
+
+
+def point_jacobian_cv(pc, R_cv, cal):
+    """d(pixel)/d(object point) (K, 2, 3)."""
+    return _dpixel_dpc(pc, cal) @ np.swapaxes(R_cv, -1, -2)
+
+
+def jacobians_cv(pc, R_cv, cal, with_cal: bool = False):
+    """d(pixel)/d(point) (K, 2, 3), d(pixel)/d(pose tangent [omega, v]) (K, 2, 6) and, with ``with_cal``,
+    d(pixel)/d(Cal3DS2 [fx fy s u0 v0 k1 k2 p1 p2]) (K, 2, 9); lens distortion included.
+
+    Pose perturbation as in gtsam (right): R -> R Exp(omega), C -> C + R v, so d pc/d omega = [pc]x,
+    d pc/d v = -I.
+    """
+    Jp = _dpixel_dpc(pc, cal)
     J_point = Jp @ np.swapaxes(R_cv, -1, -2)
     skew = np.zeros((len(pc), 3, 3))
     skew[:, 0, 1], skew[:, 0, 2] = -pc[:, 2], pc[:, 1]
@@ -363,6 +549,10 @@ def jacobians_cv(pc, R_cv, cal, with_cal: bool = False):
     J_pose = np.concatenate([Jp @ skew, -Jp], axis=2)
     if not with_cal:
         return J_point, J_pose
+    fx, fy, s, u0, v0, k1, k2, p1, p2 = cal
+    xn, yn = pc[:, 0] / pc[:, 2], pc[:, 1] / pc[:, 2]
+    r2 = xn * xn + yn * yn
+    radial = 1.0 + k1 * r2 + k2 * r2 * r2
     xd = xn * radial + 2 * p1 * xn * yn + p2 * (r2 + 2 * xn * xn)
     yd = yn * radial + p1 * (r2 + 2 * yn * yn) + 2 * p2 * xn * yn
     Jc = np.zeros((len(pc), 2, 9))
