@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from aerotri.adjust.graph import K_KEY, X, jacobians_cv, point_jacobian_cv, project_cv
+from aerotri.adjust.graph import K_KEY, X, jacobians_cv, point_jacobian_cv, point_normals, project_cv
 
 
 def intersect_rays(centres, directions, point_index, n_points):
@@ -58,16 +58,9 @@ def refine_points(xy_px, point_index, image_index, centre, R_cv, cal, points, it
     n = len(pts)
     R = R_cv[image_index]
     C = centre[image_index]
-    upper = [(0, 0), (0, 1), (0, 2), (1, 1), (1, 2), (2, 2)]
     for _ in range(iterations):
         uv, pc = project_cv(pts[point_index], C, R, cal)
-        Jp = point_jacobian_cv(pc, R, cal)
-        r = xy_px - uv
-        # normal equations per point from the 6 distinct products (einsum over (K, 2, 3) is slow)
-        N = np.empty((n, 3, 3))
-        for i, j in upper:
-            N[:, i, j] = N[:, j, i] = np.bincount(point_index, Jp[:, 0, i] * Jp[:, 0, j] + Jp[:, 1, i] * Jp[:, 1, j], minlength=n)
-        b = np.column_stack([np.bincount(point_index, Jp[:, 0, i] * r[:, 0] + Jp[:, 1, i] * r[:, 1], minlength=n) for i in range(3)])
+        N, b = point_normals(point_jacobian_cv(pc, R, cal), point_index, n, xy_px - uv)
         good = np.all(np.isfinite(b), axis=1) & np.all(np.isfinite(pts), axis=1)
         step = np.linalg.solve(N[good] + 1e-12 * np.eye(3), b[good][..., None])[..., 0]
         pts[good] += step

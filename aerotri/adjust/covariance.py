@@ -74,8 +74,7 @@ def point_covariances(block: "G.Block", state: "G.State", obs_active, sigma_px: 
     if self_cal:
         Jc = np.concatenate([Jc, out[2]], axis=2)
     w = 1.0 / sigma_px**2
-    V = np.zeros((block.n_points, 3, 3))
-    np.add.at(V, pt, w * np.einsum("kai,kaj->kij", Jp, Jp))
+    V = w * G.point_normals(Jp, pt, block.n_points)
     for c, j in enumerate(block.control_point):
         if np.any(pt == j):
             V[j] += np.linalg.inv(block.control_cov_local[c])

@@ -32,6 +32,7 @@ constrained components of control points; hard constraints add as many equations
 from __future__ import annotations
 
 import dataclasses
+import itertools
 import time
 
 import gtsam
@@ -167,8 +168,6 @@ class Graph:
     values: gtsam.Values
     n_equations: int
     n_unknowns: int
-    image_factor_index: np.ndarray  # (K,) index of each active observation's factor, -1 if inactive
-    control_factor_index: np.ndarray  # (C,)
     robust: bool = False
     smart: "SmartTiePoints | None" = None
     ordering: gtsam.Ordering | None = None  # elimination ordering, when computed here
@@ -185,6 +184,7 @@ class SmartTiePoints:
     point: np.ndarray  # (M,) point indices
     obs: np.ndarray  # active observations of these points, grouped by point
     factors: list  # (M,) gtsam smart factors, in the order of ``point``
+    first_factor: int  # index of factors[0] in the graph (the smart factors are added consecutively)
     others: gtsam.NonlinearFactorGraph  # all remaining factors of the graph (for the final chi-square)
     block: Block
     cal: np.ndarray  # (9,) the fixed Cal3DS2 values
@@ -210,14 +210,15 @@ def _add_smart_tie_points(g: gtsam.NonlinearFactorGraph, block: Block, obs: np.n
     params = _smart_params()
     K = _cal3ds2(cal)
     noise = gtsam.noiseModel.Isotropic.Sigma(2, sigma_px)
-    factors = []
+    factors, first = [], g.size()
     for a, b in zip(starts.tolist(), ends.tolist()):
         f = gtsam.SmartProjectionPoseFactorCal3DS2(noise, K, params)
         for r in range(a, b):
             f.add(xy[r], keys[image[r]])
         g.add(f)
         factors.append(f)
-    return SmartTiePoints(pt[starts], obs, factors, gtsam.NonlinearFactorGraph(), block, np.asarray(cal, dtype=float), float(sigma_px))
+    return SmartTiePoints(pt[starts], obs, factors, first, gtsam.NonlinearFactorGraph(), block, np.asarray(cal, dtype=float),
+                          float(sigma_px))
 
 
 def _smart_ordering(gr: "Graph") -> gtsam.Ordering:
@@ -246,11 +247,10 @@ def _smart_ordering(gr: "Graph") -> gtsam.Ordering:
             sg.push_factor(X(i), X(j))
     for n in range(sm.others.size()):
         keys = list(sm.others.at(n).keys())
-        for a in range(len(keys)):
-            for c in range(a + 1, len(keys)):
-                sg.push_factor(keys[a], keys[c])
-            if len(keys) == 1:
-                sg.push_factor(keys[0])
+        if len(keys) == 1:
+            sg.push_factor(keys[0])
+        for a, c in itertools.combinations(keys, 2):
+            sg.push_factor(a, c)
     return gtsam.Ordering.MetisSymbolicFactorGraph(sg)
 
 
@@ -280,7 +280,6 @@ def build_graph(block: Block, opts: Options, state: State, obs_active, control_a
     base = gtsam.noiseModel.Isotropic.Sigma(2, opts.image_sigma_px)
     noise = gtsam.noiseModel.Robust.Create(gtsam.noiseModel.mEstimator.Huber.Create(opts.huber_k), base) if robust else base
     idx = np.flatnonzero(obs_active)
-    factor_index = np.full(len(block.obs_point), -1, dtype=int)
     if self_cal:
         v.insert(K_KEY, _cal3ds2(state.cal))
         sig = np.array([200.0, 200.0, 1e-3, 200.0, 200.0, 0.05, 0.05, 0.01, 0.01])  # loose a-priori
@@ -291,18 +290,14 @@ def build_graph(block: Block, opts: Options, state: State, obs_active, control_a
         g.add(gtsam.PriorFactorCal3DS2(K_KEY, _cal3ds2(state.cal), gtsam.noiseModel.Diagonal.Sigmas(sig)))
         n_unk += int((~fixed).sum())
         for k in idx:
-            factor_index[k] = g.size()
             g.add(gtsam.GeneralSFMFactor2Cal3DS2(block.obs_xy_px[k], noise, X(block.obs_image[k]), P(block.obs_point[k]), K_KEY))
     else:
         K = _cal3ds2(state.cal)
         explicit_obs = explicit[block.obs_point[idx]]
         for k in idx[explicit_obs]:
-            factor_index[k] = g.size()
             g.add(gtsam.GenericProjectionFactorCal3DS2(block.obs_xy_px[k], noise, X(block.obs_image[k]), P(block.obs_point[k]), K))
         if smart:
-            first = g.size()
             smart_tp = _add_smart_tie_points(g, block, idx[~explicit_obs], state.cal, opts.image_sigma_px)
-            smart_range = (first, g.size())
     n_eq += 2 * len(idx)
 
     # GNSS
@@ -342,7 +337,6 @@ def build_graph(block: Block, opts: Options, state: State, obs_active, control_a
                 g.add(gtsam.LinearContainerFactor(jf, lin))
 
     # control points
-    control_index = np.full(len(block.control_point), -1, dtype=int)
     for c in np.flatnonzero(control_active):
         j = block.control_point[c]
         if not v.exists(P(j)):
@@ -351,13 +345,13 @@ def build_graph(block: Block, opts: Options, state: State, obs_active, control_a
         model = gtsam.noiseModel.Gaussian.Covariance(cov)
         if robust:
             model = gtsam.noiseModel.Robust.Create(gtsam.noiseModel.mEstimator.Huber.Create(opts.huber_k), model)
-        control_index[c] = g.size()
         g.add(gtsam.PriorFactorPoint3(P(j), block.control_local[c], model))
         n_eq += int(block.control_rows[c])
-    gr = Graph(g, v, n_eq, n_unk, factor_index, control_index, robust)
+    gr = Graph(g, v, n_eq, n_unk, robust)
     if smart:
+        first = smart_tp.first_factor
         for n in range(g.size()):
-            if not smart_range[0] <= n < smart_range[1]:
+            if not first <= n < first + len(smart_tp.factors):
                 smart_tp.others.add(g.at(n))
         gr.smart = smart_tp
         gr.ordering = _smart_ordering(gr)
@@ -458,9 +452,7 @@ def _smart_points_and_chi2(gr: Graph, values: gtsam.Values) -> tuple[gtsam.Value
         tri = f.point()
         if tri.valid():
             start[m] = tri.get()
-    pose = [values.atPose3(X(i)) for i in range(b.n_images)]
-    centre = np.array([p.translation() for p in pose])
-    R_cv = np.array([p.rotation().matrix() for p in pose])
+    centre, R_cv = orientations_from_values(values, b.n_images)
     # row of each observation's point in sm.point (observations are grouped by point)
     row = np.cumsum(np.r_[0, np.diff(b.obs_point[sm.obs]) != 0])
     im = b.obs_image[sm.obs]
@@ -474,12 +466,15 @@ def _smart_points_and_chi2(gr: Graph, values: gtsam.Values) -> tuple[gtsam.Value
     return values, chi2
 
 
+def orientations_from_values(values: gtsam.Values, n_images: int) -> tuple[np.ndarray, np.ndarray]:
+    """Projection centres (N, 3) and rotations R_cv (N, 3, 3) of the images' poses in ``values``."""
+    pose = [values.atPose3(X(i)) for i in range(n_images)]
+    return np.array([p.translation() for p in pose]), np.array([p.rotation().matrix() for p in pose])
+
+
 def state_from_values(values: gtsam.Values, block: Block, opts: Options, previous: State) -> State:
     st = previous.copy()
-    for i in range(block.n_images):
-        pose = values.atPose3(X(i))
-        st.centre[i] = pose.translation()
-        st.R_cv[i] = pose.rotation().matrix()
+    st.centre, st.R_cv = orientations_from_values(values, block.n_images)
     for j in range(block.n_points):
         if values.exists(P(j)):
             st.points[j] = values.atPoint3(P(j))
@@ -531,6 +526,20 @@ def _dpixel_dpc(pc, cal):
 def point_jacobian_cv(pc, R_cv, cal):
     """d(pixel)/d(object point) (K, 2, 3)."""
     return _dpixel_dpc(pc, cal) @ np.swapaxes(R_cv, -1, -2)
+
+
+def point_normals(J_point, point_index, n_points, residual=None):
+    """Normal matrices ``sum J^T J`` (n, 3, 3) of each object point from its rays' d(pixel)/d(point)
+    (K, 2, 3), unit weights; with ``residual`` (K, 2) also the right-hand sides ``sum J^T v`` (n, 3)."""
+    N = np.empty((n_points, 3, 3))
+    for i, j in ((0, 0), (0, 1), (0, 2), (1, 1), (1, 2), (2, 2)):  # bincount over products: np.add.at is slow
+        N[:, i, j] = N[:, j, i] = np.bincount(point_index, J_point[:, 0, i] * J_point[:, 0, j] + J_point[:, 1, i] * J_point[:, 1, j],
+                                              minlength=n_points)
+    if residual is None:
+        return N
+    b = np.column_stack([np.bincount(point_index, J_point[:, 0, i] * residual[:, 0] + J_point[:, 1, i] * residual[:, 1],
+                                     minlength=n_points) for i in range(3)])
+    return N, b
 
 
 def jacobians_cv(pc, R_cv, cal, with_cal: bool = False):

@@ -14,7 +14,7 @@ from __future__ import annotations
 import numpy as np
 from scipy.stats import norm
 
-from aerotri.adjust.graph import jacobians_cv, project_cv
+from aerotri.adjust.graph import point_jacobian_cv, point_normals, project_cv
 
 
 def critical_value(alpha: float = 1e-4) -> float:
@@ -29,9 +29,8 @@ def redundancy_numbers(obs_point, obs_image, points, centre, R_cv, cal, active) 
     if len(k) == 0:
         return r
     _, pc = project_cv(points[obs_point[k]], centre[obs_image[k]], R_cv[obs_image[k]], cal)
-    Jp, _ = jacobians_cv(pc, R_cv[obs_image[k]], cal)
-    N = np.zeros((len(points), 3, 3))
-    np.add.at(N, obs_point[k], np.einsum("kai,kaj->kij", Jp, Jp))
+    Jp = point_jacobian_cv(pc, R_cv[obs_image[k]], cal)
+    N = point_normals(Jp, obs_point[k], len(points))
     det_ok = np.abs(np.linalg.det(N)) > 0
     Ninv = np.zeros_like(N)
     Ninv[det_ok] = np.linalg.inv(N[det_ok])

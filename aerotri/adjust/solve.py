@@ -178,9 +178,7 @@ def _drop_weak_points(block: G.Block, obs_active, state: G.State | None = None, 
     if state is not None:
         k = np.flatnonzero(obs_active)
         _, pc = G.project_cv(state.points[block.obs_point[k]], state.centre[block.obs_image[k]], state.R_cv[block.obs_image[k]], state.cal)
-        Jp, _ = G.jacobians_cv(pc, state.R_cv[block.obs_image[k]], state.cal)
-        N = np.zeros((block.n_points, 3, 3))
-        np.add.at(N, block.obs_point[k], np.einsum("kai,kaj->kij", Jp, Jp))
+        N = G.point_normals(G.point_jacobian_cv(pc, state.R_cv[block.obs_image[k]], state.cal), block.obs_point[k], block.n_points)
         used = rays >= 2
         ev = np.zeros((block.n_points, 3))
         ev[used] = np.linalg.eigvalsh(N[used])
