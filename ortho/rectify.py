@@ -78,6 +78,25 @@ def _dem_height(dem, X, Y, dem_x0, dem_y0, dem_res):
 
 
 @numba.njit(cache=True, inline="always", fastmath=_FASTMATH)
+def _lens_to_pixel(xn, yn, f, cx, cy, k1, k2, k3, p1, p2):
+    """Pixel position (x, y) of normalised camera coordinates: radial k1-k3 and tangential p1, p2
+    distortion, focal length and principal point in pixels (the ``cam`` kernel parameters)."""
+    r2 = xn * xn + yn * yn
+    radial = 1.0 + r2 * (k1 + r2 * (k2 + r2 * k3))
+    return (f * (xn * radial + 2.0 * p1 * xn * yn + p2 * (r2 + 2.0 * xn * xn)) + cx,
+            f * (yn * radial + p1 * (r2 + 2.0 * yn * yn) + 2.0 * p2 * xn * yn) + cy)
+
+
+@numba.njit(cache=True, inline="always", fastmath=_FASTMATH)
+def _fixed_point_entry(x, y, in_front, x_lo, x_hi, y_lo, y_hi, far):
+    """cv2.remap 1/32 px fixed-point x, y and mask (255/0) of one output pixel. Where imaged x, y >= 0,
+    so truncation rounds; not imaged: ``far`` outside the image, branch-free (a select, vectorisable)."""
+    ok = in_front & (x >= x_lo) & (x <= x_hi) & (y >= y_lo) & (y <= y_hi)
+    return (np.int32(x * INTER_TAB_SIZE + 0.5) if ok else far, np.int32(y * INTER_TAB_SIZE + 0.5) if ok else far,
+            np.uint8(255) if ok else np.uint8(0))
+
+
+@numba.njit(cache=True, inline="always", fastmath=_FASTMATH)
 def _ground_to_image(r, c, inv_s, anchor_x, anchor_y, dem, dem_x0, dem_y0, dem_res, centre, M, cam, width, height,
                      margin):
     """Ground point of output pixel (r, c), its height and image position; ok False if not imaged."""
@@ -104,13 +123,7 @@ def _ground_to_image(r, c, inv_s, anchor_x, anchor_y, dem, dem_x0, dem_y0, dem_r
         return Z, 0.0, 0.0, False
     xn = (M[0, 0] * dx + M[0, 1] * dy + M[0, 2] * dz) / zc
     yn = (M[1, 0] * dx + M[1, 1] * dy + M[1, 2] * dz) / zc
-    k1, k2, k3, p1, p2 = cam[3], cam[4], cam[5], cam[6], cam[7]
-    r2 = xn * xn + yn * yn
-    radial = 1.0 + r2 * (k1 + r2 * (k2 + r2 * k3))
-    xd = xn * radial + 2.0 * p1 * xn * yn + p2 * (r2 + 2.0 * xn * xn)
-    yd = yn * radial + p1 * (r2 + 2.0 * yn * yn) + 2.0 * p2 * xn * yn
-    x = cam[0] * xd + cam[1]
-    y = cam[0] * yd + cam[2]
+    x, y = _lens_to_pixel(xn, yn, cam[0], cam[1], cam[2], cam[3], cam[4], cam[5], cam[6], cam[7])
     ok = x >= margin and x <= width - 1 - margin and y >= margin and y <= height - 1 - margin
     return Z, x, y, ok
 
@@ -182,14 +195,8 @@ def _fixed_point_kernel(anchor_x, anchor_y, spacing, rows, cols, dem, dem_x0, de
             inv_zc = 1.0 / zc
             xn = (m00 * dx + m01 * dy + m02 * dz) * inv_zc
             yn = (m10 * dx + m11 * dy + m12 * dz) * inv_zc
-            r2 = xn * xn + yn * yn
-            radial = 1.0 + r2 * (k1 + r2 * (k2 + r2 * k3))
-            x = f * (xn * radial + 2.0 * p1 * xn * yn + p2 * (r2 + 2.0 * xn * xn)) + cx
-            y = f * (yn * radial + p1 * (r2 + 2.0 * yn * yn) + 2.0 * p2 * xn * yn) + cy
-            ok = (zc > 0.0) & (x >= x_lo) & (x <= x_hi) & (y >= y_lo) & (y <= y_hi)
-            ix_row[c] = np.int32(x * INTER_TAB_SIZE + 0.5) if ok else far
-            iy_row[c] = np.int32(y * INTER_TAB_SIZE + 0.5) if ok else far
-            mask_row[c] = np.uint8(255) if ok else np.uint8(0)
+            x, y = _lens_to_pixel(xn, yn, f, cx, cy, k1, k2, k3, p1, p2)
+            ix_row[c], iy_row[c], mask_row[c] = _fixed_point_entry(x, y, zc > 0.0, x_lo, x_hi, y_lo, y_hi, far)
         _pack_fixed_point(ix_row, iy_row, map_int[r], map_frac[r])
 
 
@@ -297,15 +304,8 @@ def _fixed_point_kernel_affine(heights, x0, y0, res, centre, M, cam, width, heig
             inv_zc = 1.0 / zc
             xn = (bx + c * sx + m02 * dz) * inv_zc
             yn = (by + c * sy + m12 * dz) * inv_zc
-            r2 = xn * xn + yn * yn
-            radial = 1.0 + r2 * (k1 + r2 * (k2 + r2 * k3))
-            x = f * (xn * radial + 2.0 * p1 * xn * yn + p2 * (r2 + 2.0 * xn * xn)) + cx
-            y = f * (yn * radial + p1 * (r2 + 2.0 * yn * yn) + 2.0 * p2 * xn * yn) + cy
-            ok = (zc > 0.0) & (x >= x_lo) & (x <= x_hi) & (y >= y_lo) & (y <= y_hi)
-            # 1/32 px fixed point; x, y >= 0 where ok, so truncation rounds; not imaged: far outside
-            ix_row[c] = np.int32(x * INTER_TAB_SIZE + 0.5) if ok else far
-            iy_row[c] = np.int32(y * INTER_TAB_SIZE + 0.5) if ok else far
-            mask_row[c] = np.uint8(255) if ok else np.uint8(0)
+            x, y = _lens_to_pixel(xn, yn, f, cx, cy, k1, k2, k3, p1, p2)
+            ix_row[c], iy_row[c], mask_row[c] = _fixed_point_entry(x, y, zc > 0.0, x_lo, x_hi, y_lo, y_hi, far)
         _pack_fixed_point(ix_row, iy_row, map_int[r], map_frac[r])
 
 
