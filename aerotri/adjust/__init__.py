@@ -2,7 +2,8 @@
 
 Modules, one concept each: ``local_frame`` (tangent-plane frame), ``observations`` (CSV readers and
 validation), ``strips`` (strips from the GNSS track), ``approximate`` (initial exterior orientation),
-``graph`` (the GTSAM factor graph, vectorised collinearity), ``snooping`` (data snooping),
+``graph`` (the GTSAM factor graph, vectorised collinearity), ``schur`` (tie points eliminated by the
+Schur complement: the reduced camera system, linearised in numba), ``snooping`` (data snooping),
 ``solve`` (robust solution, snooping and control-point tests, final least squares),
 ``covariance`` (a-posteriori covariances from the reduced camera system), ``check_points``
 (multi-ray intersection), ``report`` (txt/json/html), ``export`` (PATB, COLMAP), ``pipeline`` (the

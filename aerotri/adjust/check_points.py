@@ -50,10 +50,9 @@ def sum_by_index(index, values, n):
     return out.reshape((n,) + values.shape[1:])
 
 
-def refine_points(xy_px, point_index, image_index, centre, R_cv, cal, points, iterations: int = 5, tol_m: float = 0.0):
+def refine_points(xy_px, point_index, image_index, centre, R_cv, cal, points, iterations: int = 5):
     """Gauss-Newton on the pixels for points (n, 3) with fixed orientations; rows that are not finite stay as
-    they are. Stops after ``iterations`` or once no point moves by more than ``tol_m`` (the step after
-    that is smaller by orders of magnitude: the convergence is quadratic). Returns a new array."""
+    they are. Returns a new array."""
     pts = np.array(points, dtype=float, copy=True)
     n = len(pts)
     R = R_cv[image_index]
@@ -64,8 +63,6 @@ def refine_points(xy_px, point_index, image_index, centre, R_cv, cal, points, it
         good = np.all(np.isfinite(b), axis=1) & np.all(np.isfinite(pts), axis=1)
         step = np.linalg.solve(N[good] + 1e-12 * np.eye(3), b[good][..., None])[..., 0]
         pts[good] += step
-        if np.abs(step).max(initial=0.0) <= tol_m:
-            break
     return pts
 
 

@@ -9,14 +9,14 @@ Observation equations and their factors:
 
 - image point: collinearity with Cal3DS2 -> GenericProjectionFactorCal3DS2 (fixed camera) or
   GeneralSFMFactor2Cal3DS2 (self-calibration), isotropic ``image_sigma_px``;
-- tie points of a least-squares solve with a fixed camera: SmartProjectionPoseFactorCal3DS2, one factor
-  per point holding all its rays. The point is not an unknown of the graph: each linearisation
-  triangulates it from the current orientations and forms its Schur complement in C++ (the reduced
-  camera system, as Ceres' Schur solvers do), so the sparse elimination only sees the orientations.
-  The adjusted coordinates are then intersected by Gauss-Newton on the pixels with the final
-  orientations: the least-squares point the full bundle gives for them. Robust solves and
-  self-calibration keep explicit points (gtsam's smart factors take neither a robust kernel nor a
-  shared calibration unknown), and so do control points (they carry priors);
+- tie points of a least-squares solve with a fixed camera: not unknowns of the gtsam graph. Each
+  Gauss-Newton iteration linearises their rays in numba and eliminates the points by the Schur
+  complement (``aerotri.adjust.schur``: the reduced camera system of Ceres' Schur solvers), hands the
+  reduced blocks to gtsam as HessianFactors next to gtsam's linearisation of all other factors, and
+  back-substitutes the point increments after gtsam's elimination; a self-calibration's Cal3DS2 unknown
+  is part of that reduced system. Robust solves keep every point an unknown of the graph
+  (GenericProjectionFactor / GeneralSFMFactor2 with the Huber kernel), and so do control points (they
+  carry priors);
 - GNSS, no correction: ``g = C + R l`` -> GPSFactorArm;
 - GNSS with shift/drift: ``a_i = C_i + R_i l`` (ReferenceFrameFactorPoint3Pose3 as a hard constraint)
   and the linear ``g_i = a_i + s_strip + t_i d_strip`` (t = along-track km) -> JacobianFactor in a
@@ -38,6 +38,7 @@ import time
 import gtsam
 import numpy as np
 
+from aerotri.adjust import schur
 from aerotri.camera import FrameCamera
 from aerotri.errors import InputError
 from aerotri.rotation import FLIP_YZ
@@ -99,7 +100,7 @@ class Options:
     ordering: str = "METIS"  # LM elimination ordering (METIS | COLAMD)
     linear_solver: str = "MULTIFRONTAL_CHOLESKY"  # or SEQUENTIAL_CHOLESKY
     diagonal_damping: bool = False  # Marquardt (diag(H)) instead of Levenberg (identity) damping
-    eliminate_tie_points: bool = True  # smart factors for tie points where possible (see module docstring)
+    eliminate_tie_points: bool = True  # Schur-eliminate tie points where possible (see module docstring)
 
     def __post_init__(self):
         if self.gnss_correction not in GNSS_CORRECTIONS:
@@ -163,90 +164,103 @@ def _pose(C, R_cv) -> gtsam.Pose3:
 
 
 @dataclasses.dataclass
+class TiePoints:
+    """Tie points eliminated by the Schur complement: their rays, grouped by point, and coordinates."""
+
+    point: np.ndarray  # (M,) point indices
+    pairs: schur.RayPairs  # rays grouped by point and their pairs (observation indices in pairs.obs)
+    xy_px: np.ndarray  # (K, 2) measured pixels of the rays, in pairs.obs order
+    image: np.ndarray  # (K,) image index of each ray
+    coords: np.ndarray  # (M, 3) current coordinates (local frame), updated by the solve
+    cal: np.ndarray  # (9,) Cal3DS2 values (fixed, or the start of self-calibration)
+    sigma_px: float
+    self_cal: bool  # the calibration is the unknown K_KEY
+
+    def _cameras(self, values: gtsam.Values, n_images: int):
+        centre, R_cv = orientations_from_values(values, n_images)
+        cal = np.asarray(values.atCal3DS2(K_KEY).vector(), dtype=float) if self.self_cal else self.cal
+        return centre, R_cv, cal
+
+    def reduced_system(self, values: gtsam.Values, n_images: int, coords: np.ndarray) -> schur.ReducedSystem:
+        """``schur.reduced_camera_system`` at the orientations (and calibration) in ``values`` and the points ``coords``."""
+        centre, R_cv, cal = self._cameras(values, n_images)
+        pr = self.pairs
+        return schur.ReducedSystem(*schur.reduced_camera_system(
+            self.xy_px, self.image, pr.row, pr.start, pr.a, pr.b, pr.pair_block, len(pr.images), n_images, centre, R_cv,
+            coords, cal, 1.0 / self.sigma_px, self.self_cal))
+
+    def factors(self, rs: schur.ReducedSystem, n_images: int) -> gtsam.GaussianFactorGraph:
+        keys = [X(i) for i in range(n_images)]
+        if self.self_cal:
+            return schur.hessian_factors(keys, rs.U, rs.S_pair, rs.s, rs.f, self.pairs.images, K_KEY, rs.U_cal, rs.s_cal,
+                                         rs.U_image_cal)
+        return schur.hessian_factors(keys, rs.U, rs.S_pair, rs.s, rs.f, self.pairs.images)
+
+    def updated(self, rs: schur.ReducedSystem, delta: gtsam.VectorValues, n_images: int, coords: np.ndarray) -> np.ndarray:
+        """The point coordinates after the back-substitution of the solved increments ``delta``."""
+        d_pose = np.array([delta.at(X(i)) for i in range(n_images)])
+        d_cal = np.asarray(delta.at(K_KEY), dtype=float) if self.self_cal else np.zeros(9)
+        return coords + schur.point_increments(rs.Vinv, rs.b_point, rs.W, rs.Z, self.image, self.pairs.start, d_pose, d_cal)
+
+    def sum_of_squares(self, values: gtsam.Values, n_images: int, coords: np.ndarray) -> float:
+        centre, R_cv, cal = self._cameras(values, n_images)
+        return float(schur.sum_of_squares(self.xy_px, self.image, self.pairs.row, centre, R_cv, coords, cal, 1.0 / self.sigma_px))
+
+
+@dataclasses.dataclass
 class Graph:
-    graph: gtsam.NonlinearFactorGraph
+    graph: gtsam.NonlinearFactorGraph  # with ``tie``: every factor except the tie points'
     values: gtsam.Values
     n_equations: int
     n_unknowns: int
+    n_images: int
     robust: bool = False
-    smart: "SmartTiePoints | None" = None
+    tie: TiePoints | None = None
     ordering: gtsam.Ordering | None = None  # elimination ordering, when computed here
 
     @property
     def dof(self) -> int:
         return self.n_equations - self.n_unknowns
 
-
-@dataclasses.dataclass
-class SmartTiePoints:
-    """Tie points eliminated inside their (smart) factors."""
-
-    point: np.ndarray  # (M,) point indices
-    obs: np.ndarray  # active observations of these points, grouped by point
-    factors: list  # (M,) gtsam smart factors, in the order of ``point``
-    first_factor: int  # index of factors[0] in the graph (the smart factors are added consecutively)
-    others: gtsam.NonlinearFactorGraph  # all remaining factors of the graph (for the final chi-square)
-    block: Block
-    cal: np.ndarray  # (9,) the fixed Cal3DS2 values
-    sigma_px: float
+    def linearize(self, values: gtsam.Values) -> gtsam.GaussianFactorGraph:
+        """The linearised normal equations at ``values`` (tie points of ``tie`` at their own coordinates,
+        already eliminated)."""
+        gfg = self.graph.linearize(values)
+        if self.tie is not None:
+            gfg.push_back(self.tie.factors(self.tie.reduced_system(values, self.n_images, self.tie.coords), self.n_images))
+        return gfg
 
 
-def _smart_params() -> gtsam.SmartProjectionParams:
-    params = gtsam.SmartProjectionParams()
-    params.setLinearizationMode(gtsam.LinearizationMode.HESSIAN)
-    # a point that cannot be triangulated contributes nothing (weak points are dropped before the solve)
-    params.setDegeneracyMode(gtsam.DegeneracyMode.ZERO_ON_DEGENERACY)
-    return params
+def _tie_points(block: Block, obs: np.ndarray, state: State, sigma_px: float, self_cal: bool) -> TiePoints:
+    pr = schur.ray_pairs(obs, block.obs_point, block.obs_image, block.n_images)
+    point = block.obs_point[pr.obs][pr.start[:-1]]
+    return TiePoints(point, pr, block.obs_xy_px[pr.obs], block.obs_image[pr.obs].astype(np.int64),
+                     np.array(state.points[point], dtype=float), np.asarray(state.cal, dtype=float), float(sigma_px), self_cal)
 
 
-def _add_smart_tie_points(g: gtsam.NonlinearFactorGraph, block: Block, obs: np.ndarray, cal: np.ndarray, sigma_px: float) -> SmartTiePoints:
-    obs = obs[np.argsort(block.obs_point[obs], kind="stable")]
-    pt = block.obs_point[obs]
-    starts = np.r_[0, np.flatnonzero(np.diff(pt)) + 1]
-    ends = np.r_[starts[1:], len(obs)]
-    keys = [X(i) for i in range(block.n_images)]
-    xy = block.obs_xy_px[obs]
-    image = block.obs_image[obs].tolist()
-    params = _smart_params()
-    K = _cal3ds2(cal)
-    noise = gtsam.noiseModel.Isotropic.Sigma(2, sigma_px)
-    factors, first = [], g.size()
-    for a, b in zip(starts.tolist(), ends.tolist()):
-        f = gtsam.SmartProjectionPoseFactorCal3DS2(noise, K, params)
-        for r in range(a, b):
-            f.add(xy[r], keys[image[r]])
-        g.add(f)
-        factors.append(f)
-    return SmartTiePoints(pt[starts], obs, factors, first, gtsam.NonlinearFactorGraph(), block, np.asarray(cal, dtype=float),
-                          float(sigma_px))
+def _add_projection_factors(g: gtsam.NonlinearFactorGraph, xy_px, image, point, noise, K) -> None:
+    """Collinearity factors: a fixed camera ``K`` (Cal3DS2), or the calibration unknown ``K_KEY`` (K None)."""
+    if K is None:
+        for uv, i, j in zip(xy_px, image.tolist(), point.tolist()):
+            g.add(gtsam.GeneralSFMFactor2Cal3DS2(uv, noise, X(i), P(j), K_KEY))
+        return
+    for uv, i, j in zip(xy_px, image.tolist(), point.tolist()):
+        g.add(gtsam.GenericProjectionFactorCal3DS2(uv, noise, X(i), P(j), K))
 
 
-def _smart_ordering(gr: "Graph") -> gtsam.Ordering:
-    """METIS ordering from the orientation adjacency (a pair per two images that see a common tie point)
-    plus the keys of every other factor: the same structure as the graph's, at a fraction of the size."""
-    sm = gr.smart
-    b = sm.block
-    pt, im = b.obs_point[sm.obs], b.obs_image[sm.obs]
-    # all image pairs per point: consecutive observations sorted by point, taken at every offset
-    pairs = [np.zeros((0, 2), dtype=int)]
-    off = 1
-    while off < len(pt):
-        same = np.flatnonzero(pt[:-off] == pt[off:])
-        if len(same) == 0:
-            break
-        pairs.append(np.column_stack([im[same], im[same + off]]))
-        off += 1
-    pairs = np.sort(np.concatenate(pairs), axis=1)
-    code = np.unique(pairs[:, 0].astype(np.int64) * b.n_images + pairs[:, 1])
-    pairs = np.column_stack([code // b.n_images, code % b.n_images])
+def _tie_ordering(gr: Graph) -> gtsam.Ordering:
+    """METIS ordering of the reduced system: the orientation adjacency (image pairs sharing a tie point)
+    plus the keys of every other factor."""
     sg = gtsam.SymbolicFactorGraph()
-    for i in range(b.n_images):
+    for i in range(gr.n_images):
         sg.push_factor(X(i))
-    for i, j in pairs.tolist():
-        if i != j:
-            sg.push_factor(X(i), X(j))
-    for n in range(sm.others.size()):
-        keys = list(sm.others.at(n).keys())
+    for i, j in gr.tie.pairs.images.tolist():
+        sg.push_factor(X(i), X(j))
+    if gr.tie.self_cal:
+        for i in range(gr.n_images):
+            sg.push_factor(X(i), K_KEY)
+    for n in range(gr.graph.size()):
+        keys = list(gr.graph.at(n).keys())
         if len(keys) == 1:
             sg.push_factor(keys[0])
         for a, c in itertools.combinations(keys, 2):
@@ -263,9 +277,9 @@ def build_graph(block: Block, opts: Options, state: State, obs_active, control_a
     self_cal = bool(opts.self_calibration)
     used_points = np.unique(block.obs_point[obs_active])
     n_eq = n_unk = 0
-    smart = opts.eliminate_tie_points and not robust and not self_cal
+    schur_tie = opts.eliminate_tie_points and not robust
     explicit = np.ones(block.n_points, dtype=bool)  # points that are unknowns of the graph
-    if smart:
+    if schur_tie:
         explicit[:] = False
         explicit[block.control_point[control_active]] = True
 
@@ -289,15 +303,9 @@ def build_graph(block: Block, opts: Options, state: State, obs_active, control_a
         sig[fixed] = fixed_parameter_sigmas(block.camera, state.cal)[fixed]
         g.add(gtsam.PriorFactorCal3DS2(K_KEY, _cal3ds2(state.cal), gtsam.noiseModel.Diagonal.Sigmas(sig)))
         n_unk += int((~fixed).sum())
-        for k in idx:
-            g.add(gtsam.GeneralSFMFactor2Cal3DS2(block.obs_xy_px[k], noise, X(block.obs_image[k]), P(block.obs_point[k]), K_KEY))
-    else:
-        K = _cal3ds2(state.cal)
-        explicit_obs = explicit[block.obs_point[idx]]
-        for k in idx[explicit_obs]:
-            g.add(gtsam.GenericProjectionFactorCal3DS2(block.obs_xy_px[k], noise, X(block.obs_image[k]), P(block.obs_point[k]), K))
-        if smart:
-            smart_tp = _add_smart_tie_points(g, block, idx[~explicit_obs], state.cal, opts.image_sigma_px)
+    k = idx[explicit[block.obs_point[idx]]]
+    _add_projection_factors(g, block.obs_xy_px[k], block.obs_image[k], block.obs_point[k], noise,
+                            None if self_cal else _cal3ds2(state.cal))
     n_eq += 2 * len(idx)
 
     # GNSS
@@ -347,14 +355,10 @@ def build_graph(block: Block, opts: Options, state: State, obs_active, control_a
             model = gtsam.noiseModel.Robust.Create(gtsam.noiseModel.mEstimator.Huber.Create(opts.huber_k), model)
         g.add(gtsam.PriorFactorPoint3(P(j), block.control_local[c], model))
         n_eq += int(block.control_rows[c])
-    gr = Graph(g, v, n_eq, n_unk, robust)
-    if smart:
-        first = smart_tp.first_factor
-        for n in range(g.size()):
-            if not first <= n < first + len(smart_tp.factors):
-                smart_tp.others.add(g.at(n))
-        gr.smart = smart_tp
-        gr.ordering = _smart_ordering(gr)
+    gr = Graph(g, v, n_eq, n_unk, block.n_images, robust)
+    if schur_tie:
+        gr.tie = _tie_points(block, idx[~explicit[block.obs_point[idx]]], state, opts.image_sigma_px, self_cal)
+        gr.ordering = _tie_ordering(gr)
     return gr
 
 
@@ -367,12 +371,12 @@ class SolveInfo:
     converged: bool
 
 
-def _ordered(params, gr: Graph, opts: Options):
+def _ordered(params, ordering: gtsam.Ordering | None, opts: Options):
     params.setMaxIterations(opts.max_iterations)
     params.setRelativeErrorTol(opts.relative_tolerance)
     params.setAbsoluteErrorTol(0.0)
-    if gr.ordering is not None:
-        params.setOrdering(gr.ordering)
+    if ordering is not None:
+        params.setOrdering(ordering)
     else:
         params.setOrderingType(opts.ordering)
     params.setLinearSolverType(opts.linear_solver)
@@ -383,7 +387,7 @@ def _gauss_newton(gr: Graph, opts: Options) -> tuple[gtsam.Values, int, bool]:
     """Gauss-Newton steps while each lowers the cost: (last good values, iterations, converged). Stops
     unconverged at the first step that does not, or at a system too ill-conditioned to solve undamped,
     for Levenberg-Marquardt to go on from the last good values."""
-    opt = gtsam.GaussNewtonOptimizer(gr.graph, gr.values, _ordered(gtsam.GaussNewtonParams(), gr, opts))
+    opt = gtsam.GaussNewtonOptimizer(gr.graph, gr.values, _ordered(gtsam.GaussNewtonParams(), gr.ordering, opts))
     good, e_prev = gr.values, opt.error()
     for it in range(1, opts.max_iterations + 1):
         try:
@@ -402,21 +406,77 @@ def _gauss_newton(gr: Graph, opts: Options) -> tuple[gtsam.Values, int, bool]:
     return good, opts.max_iterations, False
 
 
+def _schur_gauss_newton(gr: Graph, opts: Options) -> tuple[gtsam.Values, np.ndarray, int, bool, float]:
+    """Gauss-Newton on the reduced camera system while each step lowers the cost: (last good values, tie
+    point coordinates, iterations, converged, chi-square). Stops unconverged at the first step that does
+    not lower it, or at a system gtsam cannot factor undamped."""
+    tp, n = gr.tie, gr.n_images
+    values, coords = gr.values, tp.coords
+    rs = tp.reduced_system(values, n, coords)
+    cost = 0.5 * rs.rr + gr.graph.error(values)
+    for it in range(1, opts.max_iterations + 1):
+        gfg = gr.graph.linearize(values)
+        gfg.push_back(tp.factors(rs, n))
+        try:
+            delta = gfg.optimize(gr.ordering)
+        except RuntimeError:  # indeterminate without damping
+            return values, coords, it - 1, False, 2.0 * cost
+        new_values = values.retract(delta)
+        new_coords = tp.updated(rs, delta, n, coords)
+        new_rr = tp.sum_of_squares(new_values, n, new_coords)
+        new_cost = 0.5 * new_rr + gr.graph.error(new_values)
+        if not np.isfinite(new_cost) or new_cost > cost * (1.0 + opts.relative_tolerance):
+            return values, coords, it - 1, False, 2.0 * cost
+        if new_cost >= cost:  # no decrease within the tolerance: at the minimum
+            return values, coords, it, True, 2.0 * cost
+        values, coords = new_values, new_coords
+        if cost - new_cost <= opts.relative_tolerance * cost:
+            return values, coords, it, True, 2.0 * new_cost
+        cost = new_cost
+        rs = tp.reduced_system(values, n, coords)
+    return values, coords, opts.max_iterations, False, 2.0 * cost
+
+
+def _insert_tie_points(values: gtsam.Values, tp: TiePoints) -> gtsam.Values:
+    for j, xyz in zip(tp.point.tolist(), tp.coords):
+        values.insert(P(j), xyz)
+    return values
+
+
+def _explicit_tie_points(gr: Graph) -> gtsam.NonlinearFactorGraph:
+    """The full graph: the Schur-eliminated tie points as explicit unknowns."""
+    tp = gr.tie
+    g = gtsam.NonlinearFactorGraph(gr.graph)
+    _add_projection_factors(g, tp.xy_px, tp.image, tp.point[tp.pairs.row], gtsam.noiseModel.Isotropic.Sigma(2, tp.sigma_px),
+                            None if tp.self_cal else _cal3ds2(tp.cal))
+    return g
+
+
 def optimize(gr: Graph, opts: Options) -> tuple[gtsam.Values, SolveInfo]:
     """Least squares: Gauss-Newton, the classical bundle iteration, while its steps lower the cost (each
     one is a single elimination); Levenberg-Marquardt from the last good values when a step does not, and
-    for robust solves (iteratively reweighted, where the damping keeps the reweighting stable)."""
+    for robust solves (iteratively reweighted, where the damping keeps the reweighting stable).
+
+    With Schur-eliminated tie points (``gr.tie``) the Gauss-Newton steps run on the reduced camera system;
+    a Levenberg-Marquardt fallback runs on the full graph with the tie points as explicit unknowns. The
+    returned values hold the adjusted tie points either way."""
     t0 = time.perf_counter()
-    it, converged, start = 0, False, gr.values
+    it, converged, start, graph, chi2 = 0, False, gr.values, gr.graph, None
     try:
-        if not gr.robust:
+        if gr.tie is not None:
+            start, gr.tie.coords, it, converged, chi2 = _schur_gauss_newton(gr, opts)
+            start = _insert_tie_points(gtsam.Values(start), gr.tie)
+            if not converged:
+                graph = _explicit_tie_points(gr)
+        elif not gr.robust:
             start, it, converged = _gauss_newton(gr, opts)
         result = start
         if not converged and it < opts.max_iterations:
-            params = _ordered(gtsam.LevenbergMarquardtParams(), gr, opts)
+            # the reduced system's ordering lacks the tie points of the full graph
+            params = _ordered(gtsam.LevenbergMarquardtParams(), gr.ordering if gr.tie is None else None, opts)
             params.setMaxIterations(opts.max_iterations - it)
             params.setDiagonalDamping(opts.diagonal_damping)
-            opt = gtsam.LevenbergMarquardtOptimizer(gr.graph, start, params)
+            opt = gtsam.LevenbergMarquardtOptimizer(graph, start, params)
             result = gtsam.Values(opt.optimize())
             n = int(opt.iterations())
             it += n
@@ -427,43 +487,17 @@ def optimize(gr: Graph, opts: Options) -> tuple[gtsam.Values, SolveInfo]:
                 opt.iterate()
                 converged = e0 - opt.error() <= 1e-6 * e0
                 result = gtsam.Values(opt.values())
+            chi2 = None
+            if gr.tie is not None:
+                gr.tie.coords = np.array([result.atPoint3(P(j)) for j in gr.tie.point])
     except RuntimeError as exc:
         raise InputError(
             "the adjustment is singular (datum defect: too few control points or GNSS positions for "
             f"the chosen corrections, or images/points without enough rays): {exc}"
         ) from None
-    if gr.smart is None:
-        chi2 = 2.0 * gr.graph.error(result)
-    else:
-        result, chi2 = _smart_points_and_chi2(gr, result)
+    if chi2 is None:
+        chi2 = 2.0 * graph.error(result)
     return result, SolveInfo(it, chi2, gr.dof, time.perf_counter() - t0, converged)
-
-
-def _smart_points_and_chi2(gr: Graph, values: gtsam.Values) -> tuple[gtsam.Values, float]:
-    """Adjusted tie points of the smart factors (Gauss-Newton intersection with the final orientations,
-    from the factors' last triangulation) inserted into ``values``, and the chi-square of the solution."""
-    from aerotri.adjust.check_points import refine_points
-
-    sm = gr.smart
-    b = sm.block
-    n = len(sm.point)
-    start = np.full((n, 3), np.nan)
-    for m, f in enumerate(sm.factors):
-        tri = f.point()
-        if tri.valid():
-            start[m] = tri.get()
-    centre, R_cv = orientations_from_values(values, b.n_images)
-    # row of each observation's point in sm.point (observations are grouped by point)
-    row = np.cumsum(np.r_[0, np.diff(b.obs_point[sm.obs]) != 0])
-    im = b.obs_image[sm.obs]
-    pts = refine_points(b.obs_xy_px[sm.obs], row, im, centre, R_cv, sm.cal, start, iterations=5, tol_m=0.01)
-    uv, _ = project_cv(pts[row], centre[im], R_cv[im], sm.cal)
-    r = (b.obs_xy_px[sm.obs] - uv) / sm.sigma_px
-    ok = np.isfinite(pts).all(axis=1)
-    chi2 = float(np.sum(r[ok[row]] ** 2)) + 2.0 * sm.others.error(values)
-    for m in np.flatnonzero(ok):
-        values.insert(P(sm.point[m]), pts[m])
-    return values, chi2
 
 
 def orientations_from_values(values: gtsam.Values, n_images: int) -> tuple[np.ndarray, np.ndarray]:
@@ -584,6 +618,3 @@ def image_residuals(block: Block, state: State) -> np.ndarray:
     )
     return block.obs_xy_px - uv
 
-
-def marginals(gr: Graph, values: gtsam.Values) -> gtsam.Marginals:
-    return gtsam.Marginals(gr.graph, values)

@@ -1,0 +1,119 @@
+"""Tie points eliminated by the Schur complement give the same adjustment as explicit point unknowns."""
+
+import dataclasses
+
+import gtsam
+import numpy as np
+import pytest
+
+from aerotri.adjust import graph as G
+from aerotri.adjust import schur
+from aerotri.adjust.covariance import ReducedCovariance
+from aerotri.adjust.pipeline import AdjustSettings, prepare_project
+from aerotri.sim.observations import geometric_block, write_block_project, write_truth_observations
+
+
+def _project(root, correction="none", **kw):
+    ctx, st0 = prepare_project(root, AdjustSettings(gnss_correction=correction, image_sigma_px=0.3, **kw))
+    return ctx["block"], ctx["opts"], st0
+
+
+@pytest.mark.parametrize("correction,self_cal", [("none", ()), ("shift_drift", ()), ("none", ("pp", "radial"))])
+def test_schur_tie_points_match_explicit_points(tmp_path, correction, self_cal):
+    block = geometric_block(2, 6, seed=51)
+    root = write_block_project(block, tmp_path / "blk")
+    write_truth_observations(root, tie_sigma_px=0.3, n_control=4, points_per_image=60, n_check=2, seed=52)
+    b, opts, st0 = _project(root, correction, self_calibration=self_cal)
+    act = np.ones(len(b.obs_point), bool)
+    ctrl = np.ones(len(b.control_point), bool)
+    solved = {}
+    for eliminate in (True, False):
+        o = dataclasses.replace(opts, eliminate_tie_points=eliminate)
+        gr = G.build_graph(b, o, st0, act, ctrl, robust=False)
+        assert (gr.tie is not None) == eliminate
+        values, info = G.optimize(gr, o)
+        assert info.converged
+        st = G.state_from_values(values, b, o, st0)
+        rc = ReducedCovariance(gr, values, [G.P(j) for j in range(b.n_points)])
+        solved[eliminate] = (st, info, gr.dof, rc)
+    (s1, i1, d1, c1), (s0, i0, d0, c0) = solved[True], solved[False]
+    assert d1 == d0
+    assert i1.chi2 == pytest.approx(i0.chi2, rel=1e-7)
+    assert np.abs(s1.centre - s0.centre).max() < 1e-5  # m
+    assert np.abs(s1.R_cv - s0.R_cv).max() < 1e-8
+    assert np.nanmax(np.abs(s1.points - s0.points)) < 1e-5  # m, tie and control points
+    assert np.allclose(s1.cal, s0.cal, rtol=1e-9, atol=1e-9)
+    for key in [G.X(i) for i in range(b.n_images)] + ([G.K_KEY] if self_cal else []):
+        ref = c0.marginalCovariance(key)
+        assert np.allclose(c1.marginalCovariance(key), ref, rtol=1e-6, atol=1e-6 * np.abs(ref).max())
+
+
+def test_ray_jacobians_match_gtsam_retraction():
+    """d(residual)/d(pose tangent), d(residual)/d(point) and d(residual)/d(Cal3DS2) against finite
+    differences (the pose through gtsam's Pose3 retraction), with lens distortion."""
+    rng = np.random.default_rng(5)
+    cal = np.array([10000.0, 10000.0, 0.0, 6912.0, 3840.0, -2e-2, 3e-3, 1e-4, -2e-4])
+    R_cv = gtsam.Rot3.RzRyRx(np.pi + 0.02, -0.03, 0.4).matrix()  # looking down
+    centre = np.array([10.0, -5.0, 900.0])
+    pose = G._pose(centre, R_cv)
+    for _ in range(5):
+        point = np.array([*rng.uniform(-300, 300, 2), rng.uniform(0, 50)])
+        xy = G.project_cv(point[None], centre[None], R_cv[None], cal)[0][0] + rng.normal(0, 2, 2)
+        A, B, C, r = np.empty((2, 6)), np.empty((2, 3)), np.empty((2, 9)), np.empty(2)
+        assert schur._ray(xy, centre, R_cv, point, cal, 1 / 0.5, A, B, r, C, True)
+
+        def res(p, X, k=cal):
+            uv = G.project_cv(X[None], p.translation()[None], p.rotation().matrix()[None], k)[0][0]
+            return (xy - uv) / 0.5
+
+        assert np.allclose(r, res(pose, point))
+        h = 1e-6
+        A_num = np.column_stack([(res(pose.retract(h * e), point) - res(pose.retract(-h * e), point)) / (2 * h) for e in np.eye(6)])
+        B_num = np.column_stack([(res(pose, point + h * e) - res(pose, point - h * e)) / (2 * h) for e in np.eye(3)])
+        # the Jacobians are of the prediction (residual = observed - predicted)
+        assert np.allclose(A, -A_num, rtol=1e-5, atol=1e-3)
+        assert np.allclose(B, -B_num, rtol=1e-5, atol=1e-6)
+        step = np.array([1e-2, 1e-2, 1e-4, 1e-2, 1e-2, 1e-5, 1e-5, 1e-6, 1e-6])
+        C_num = np.column_stack([(res(pose, point, cal + d * e) - res(pose, point, cal - d * e)) / (2 * d)
+                                 for d, e in zip(step, np.eye(9))])
+        assert np.allclose(C, -C_num, rtol=1e-5, atol=1e-4)
+
+
+@pytest.mark.parametrize("self_cal", [(), ("focal", "pp", "radial", "tangential")])
+def test_reduced_system_equals_gtsam_elimination_of_the_points(tmp_path, self_cal):
+    """The numba Schur complement equals gtsam's own partial elimination of explicit point unknowns."""
+    block = geometric_block(2, 5, seed=55)
+    root = write_block_project(block, tmp_path / "blk")
+    write_truth_observations(root, tie_sigma_px=0.3, n_control=2, points_per_image=30, n_check=0, seed=56)
+    b, opts, st0 = _project(root, self_calibration=self_cal)
+    act = np.ones(len(b.obs_point), bool)
+    ctrl = np.zeros(len(b.control_point), bool)  # inactive control points are tie points here
+    gr = G.build_graph(b, opts, st0, act, ctrl, robust=False)
+    explicit = G.build_graph(b, dataclasses.replace(opts, eliminate_tie_points=False), st0, act, ctrl, robust=False)
+    keys = gtsam.Ordering()
+    for i in range(b.n_images):
+        keys.push_back(G.X(i))
+    if self_cal:
+        keys.push_back(G.K_KEY)
+    H_ours, g_ours = gr.linearize(gr.values).hessian(keys)
+    full = explicit.graph.linearize(explicit.values)
+    points = gtsam.Ordering()
+    for j in np.unique(b.obs_point):
+        points.push_back(G.P(j))
+    _, reduced = full.eliminatePartialMultifrontal(points)
+    H_ref, g_ref = reduced.hessian(keys)
+    assert np.allclose(H_ours, H_ref, rtol=1e-8, atol=1e-8 * np.abs(H_ref).max())
+    assert np.allclose(g_ours, g_ref, rtol=1e-8, atol=1e-8 * np.abs(g_ref).max())
+
+
+def test_robust_solves_keep_explicit_points(tmp_path):
+    block = geometric_block(2, 4, seed=53)
+    root = write_block_project(block, tmp_path / "blk")
+    write_truth_observations(root, tie_sigma_px=0.3, n_control=4, points_per_image=40, n_check=0, seed=54)
+    b, opts, st0 = _project(root)
+    act = np.ones(len(b.obs_point), bool)
+    ctrl = np.ones(len(b.control_point), bool)
+    assert G.build_graph(b, opts, st0, act, ctrl, robust=True).tie is None
+    cal = dataclasses.replace(opts, self_calibration=("pp",))
+    assert G.build_graph(b, cal, st0, act, ctrl, robust=True).tie is None
+    assert G.build_graph(b, cal, st0, act, ctrl, robust=False).tie is not None
