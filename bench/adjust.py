@@ -159,7 +159,7 @@ def main(argv=None):
             return gr, values, info, t_build, time.perf_counter() - t0
 
         gr, values, info_ours, t_build, t_ours = solve(opts)
-        st_ours = G.state_from_values(values, block, opts, state0)
+        st_ours = G.state_from_values(values, block, opts, state0, tie=gr.tie)
         print(f"ours: {t_ours:.2f} s ({info_ours.iterations} iterations)", flush=True)
         # marginal covariances: reduced camera system (all orientations, jointly) + every object point
         t0 = time.perf_counter()
@@ -176,7 +176,7 @@ def main(argv=None):
             # reference: every tie point an unknown of the graph (what robust and self-calibrating solves use)
             o = dataclasses.replace(opts, eliminate_tie_points=False)
             gr_e, values_e, info_e, t_build_e, t_e = solve(o)
-            explicit = (G.state_from_values(values_e, block, o, state0), info_e, t_build_e, t_e)
+            explicit = (G.state_from_values(values_e, block, o, state0, tie=gr_e.tie), info_e, t_build_e, t_e)
             print(f"gtsam, explicit points: {t_e:.1f} s ({info_e.iterations} iterations)", flush=True)
             del gr_e, values_e
 

@@ -2,8 +2,9 @@
 
 The linearised normal equations are reduced by eliminating the object points (GTSAM partial
 elimination; Schur-eliminated tie points arrive already reduced); the reduced system over
-orientations, calibration and GNSS unknowns is small enough to invert densely. The covariance of an object point then follows from its own normal-equation block
-``V`` and its coupling ``W`` to the orientations it is seen from:
+orientations, calibration and GNSS unknowns is small enough to invert densely. The covariance of an
+object point then follows from its own normal-equation block ``V`` and its coupling ``W`` to the
+orientations it is seen from:
 ``Cov(X) = V^-1 + V^-1 W Cov(orientations) W^T V^-1`` (exact for the linearised problem).
 """
 

@@ -189,13 +189,6 @@ class TiePoints:
             self.xy_px, self.image, pr.row, pr.start, pr.a, pr.b, pr.pair_block, len(pr.images), n_images, centre, R_cv,
             coords, cal, 1.0 / self.sigma_px, self.self_cal))
 
-    def factors(self, rs: schur.ReducedSystem, n_images: int) -> gtsam.GaussianFactorGraph:
-        keys = [X(i) for i in range(n_images)]
-        if self.self_cal:
-            return schur.hessian_factors(keys, rs.U, rs.S_pair, rs.s, rs.f, self.pairs.images, K_KEY, rs.U_cal, rs.s_cal,
-                                         rs.U_image_cal)
-        return schur.hessian_factors(keys, rs.U, rs.S_pair, rs.s, rs.f, self.pairs.images)
-
     def updated(self, rs: schur.ReducedSystem, delta: gtsam.VectorValues, n_images: int, coords: np.ndarray) -> np.ndarray:
         """The point coordinates after the back-substitution of the solved increments ``delta``."""
         d_pose = np.array([delta.at(X(i)) for i in range(n_images)])
@@ -225,10 +218,18 @@ class Graph:
     def linearize(self, values: gtsam.Values) -> gtsam.GaussianFactorGraph:
         """The linearised normal equations at ``values`` (tie points of ``tie`` at their own coordinates,
         already eliminated)."""
+        if self.tie is None:
+            return self.graph.linearize(values)
+        return self.linearize_reduced(values, self.tie.coords)[0]
+
+    def linearize_reduced(self, values: gtsam.Values, coords: np.ndarray) -> tuple[gtsam.GaussianFactorGraph, schur.ReducedSystem]:
+        """gtsam's linearisation of ``graph`` at ``values`` with the reduced camera system of the tie points
+        at ``coords`` added as HessianFactors, and that reduced system (for the back-substitution)."""
+        rs = self.tie.reduced_system(values, self.n_images, coords)
         gfg = self.graph.linearize(values)
-        if self.tie is not None:
-            gfg.push_back(self.tie.factors(self.tie.reduced_system(values, self.n_images, self.tie.coords), self.n_images))
-        return gfg
+        gfg.push_back(schur.hessian_factors([X(i) for i in range(self.n_images)], rs, self.tie.pairs.images,
+                                            K_KEY if self.tie.self_cal else None))
+        return gfg, rs
 
 
 def _tie_points(block: Block, obs: np.ndarray, state: State, sigma_px: float, self_cal: bool) -> TiePoints:
@@ -383,26 +384,35 @@ def _ordered(params, ordering: gtsam.Ordering | None, opts: Options):
     return params
 
 
+def _step_test(cost: float, new_cost: float, tol: float) -> tuple[bool, bool]:
+    """Gauss-Newton step test: (accept the step, stop as converged). A step that raises the cost beyond
+    the tolerance (or is not finite) is rejected unconverged: Levenberg-Marquardt goes on from the last
+    good values. No decrease within the tolerance: at the minimum, keep the old values. A decrease of at
+    most ``tol`` (relative): accepted and converged."""
+    if not np.isfinite(new_cost) or new_cost > cost * (1.0 + tol):
+        return False, False
+    if new_cost >= cost:
+        return False, True
+    return True, cost - new_cost <= tol * cost
+
+
 def _gauss_newton(gr: Graph, opts: Options) -> tuple[gtsam.Values, int, bool]:
     """Gauss-Newton steps while each lowers the cost: (last good values, iterations, converged). Stops
     unconverged at the first step that does not, or at a system too ill-conditioned to solve undamped,
     for Levenberg-Marquardt to go on from the last good values."""
     opt = gtsam.GaussNewtonOptimizer(gr.graph, gr.values, _ordered(gtsam.GaussNewtonParams(), gr.ordering, opts))
-    good, e_prev = gr.values, opt.error()
+    good, cost = gr.values, opt.error()
     for it in range(1, opts.max_iterations + 1):
         try:
             opt.iterate()
         except RuntimeError:  # indeterminate without damping
             return good, it - 1, False
-        e = opt.error()
-        if not np.isfinite(e) or e > e_prev * (1.0 + opts.relative_tolerance):
-            return good, it - 1, False
-        if e >= e_prev:  # no decrease within the tolerance: at the minimum
-            return good, it, True
-        good = gtsam.Values(opt.values())  # a copy: the optimizer owns what values() refers to
-        if e_prev - e <= opts.relative_tolerance * e_prev:
-            return good, it, True
-        e_prev = e
+        new_cost = opt.error()
+        accept, converged = _step_test(cost, new_cost, opts.relative_tolerance)
+        if accept:
+            good, cost = gtsam.Values(opt.values()), new_cost  # a copy: the optimizer owns what values() refers to
+        if converged or not accept:
+            return good, it if converged else it - 1, converged
     return good, opts.max_iterations, False
 
 
@@ -412,28 +422,22 @@ def _schur_gauss_newton(gr: Graph, opts: Options) -> tuple[gtsam.Values, np.ndar
     not lower it, or at a system gtsam cannot factor undamped."""
     tp, n = gr.tie, gr.n_images
     values, coords = gr.values, tp.coords
-    rs = tp.reduced_system(values, n, coords)
+    gfg, rs = gr.linearize_reduced(values, coords)
     cost = 0.5 * rs.rr + gr.graph.error(values)
     for it in range(1, opts.max_iterations + 1):
-        gfg = gr.graph.linearize(values)
-        gfg.push_back(tp.factors(rs, n))
         try:
             delta = gfg.optimize(gr.ordering)
         except RuntimeError:  # indeterminate without damping
             return values, coords, it - 1, False, 2.0 * cost
         new_values = values.retract(delta)
         new_coords = tp.updated(rs, delta, n, coords)
-        new_rr = tp.sum_of_squares(new_values, n, new_coords)
-        new_cost = 0.5 * new_rr + gr.graph.error(new_values)
-        if not np.isfinite(new_cost) or new_cost > cost * (1.0 + opts.relative_tolerance):
-            return values, coords, it - 1, False, 2.0 * cost
-        if new_cost >= cost:  # no decrease within the tolerance: at the minimum
-            return values, coords, it, True, 2.0 * cost
-        values, coords = new_values, new_coords
-        if cost - new_cost <= opts.relative_tolerance * cost:
-            return values, coords, it, True, 2.0 * new_cost
-        cost = new_cost
-        rs = tp.reduced_system(values, n, coords)
+        new_cost = 0.5 * tp.sum_of_squares(new_values, n, new_coords) + gr.graph.error(new_values)
+        accept, converged = _step_test(cost, new_cost, opts.relative_tolerance)
+        if accept:
+            values, coords, cost = new_values, new_coords, new_cost
+        if converged or not accept:
+            return values, coords, it if converged else it - 1, converged, 2.0 * cost
+        gfg, rs = gr.linearize_reduced(values, coords)
     return values, coords, opts.max_iterations, False, 2.0 * cost
 
 
@@ -459,19 +463,18 @@ def optimize(gr: Graph, opts: Options) -> tuple[gtsam.Values, SolveInfo]:
 
     With Schur-eliminated tie points (``gr.tie``) the Gauss-Newton steps run on the reduced camera system;
     a Levenberg-Marquardt fallback runs on the full graph with the tie points as explicit unknowns. The
-    returned values hold the adjusted tie points either way."""
+    adjusted tie points are then in ``gr.tie.coords`` (``state_from_values(..., tie=gr.tie)``)."""
     t0 = time.perf_counter()
     it, converged, start, graph, chi2 = 0, False, gr.values, gr.graph, None
     try:
         if gr.tie is not None:
             start, gr.tie.coords, it, converged, chi2 = _schur_gauss_newton(gr, opts)
-            start = _insert_tie_points(gtsam.Values(start), gr.tie)
-            if not converged:
-                graph = _explicit_tie_points(gr)
         elif not gr.robust:
             start, it, converged = _gauss_newton(gr, opts)
         result = start
         if not converged and it < opts.max_iterations:
+            if gr.tie is not None:
+                graph, start = _explicit_tie_points(gr), _insert_tie_points(gtsam.Values(start), gr.tie)
             # the reduced system's ordering lacks the tie points of the full graph
             params = _ordered(gtsam.LevenbergMarquardtParams(), gr.ordering if gr.tie is None else None, opts)
             params.setMaxIterations(opts.max_iterations - it)
@@ -506,10 +509,15 @@ def orientations_from_values(values: gtsam.Values, n_images: int) -> tuple[np.nd
     return np.array([p.translation() for p in pose]), np.array([p.rotation().matrix() for p in pose])
 
 
-def state_from_values(values: gtsam.Values, block: Block, opts: Options, previous: State) -> State:
+def state_from_values(values: gtsam.Values, block: Block, opts: Options, previous: State, tie: TiePoints | None = None) -> State:
+    """The unknowns in ``values`` and, given the graph's Schur-eliminated ``tie`` points, their coordinates."""
     st = previous.copy()
     st.centre, st.R_cv = orientations_from_values(values, block.n_images)
-    for j in range(block.n_points):
+    explicit = np.ones(block.n_points, dtype=bool)
+    if tie is not None:
+        st.points[tie.point] = tie.coords
+        explicit[tie.point] = False
+    for j in np.flatnonzero(explicit).tolist():
         if values.exists(P(j)):
             st.points[j] = values.atPoint3(P(j))
     if values.exists(K_KEY):

@@ -95,7 +95,6 @@ class ReducedSystem:
     Vinv: np.ndarray
     b_point: np.ndarray
     W: np.ndarray
-    ok: np.ndarray
     U_cal: np.ndarray
     s_cal: np.ndarray
     U_image_cal: np.ndarray
@@ -183,8 +182,8 @@ def reduced_camera_system(xy, obs_image, row, start, pair_a, pair_b, pair_block,
     (n_blocks, 6, 6) (image i < j of each pair), its right-hand side ``s`` (N, 6), the reduced constant
     ``f = r'r - b_point' V^-1 b_point``, the sum of squared whitened residuals ``r'r``, and what the
     back-substitution needs: ``V^-1`` (M, 3, 3), ``b_point`` (M, 3), ``W`` (K, 6, 3). Rays behind their
-    camera contribute nothing; ``ok`` (M,) is False for a point whose normal matrix is singular, which
-    then stays where it is and adds only its residuals (a constant) to the cost.
+    camera contribute nothing; a point whose normal matrix is singular stays where it is (``V^-1`` zero)
+    and adds only its residuals (a constant) to the cost.
 
     With ``with_cal`` the calibration (Cal3DS2, 9 parameters shared by all rays) is an unknown too: its
     block ``U_cal`` (9, 9), right-hand side ``s_cal`` (9,), the couplings ``U_image_cal`` (N, 6, 9) and,
@@ -309,7 +308,7 @@ def reduced_camera_system(xy, obs_image, row, start, pair_a, pair_b, pair_block,
             for q in range(p):
                 U[i, p, q] = U[i, q, p]
     f += rr
-    return U, S_pair, s, f, rr, Vinv, bp, W, ok, U_cal, s_cal, U_ic, Z
+    return U, S_pair, s, f, rr, Vinv, bp, W, U_cal, s_cal, U_ic, Z
 
 
 @numba.njit(cache=True)
@@ -350,7 +349,7 @@ def sum_of_squares(xy, obs_image, row, centre, R_cv, points, cal, inv_sigma):
     return total
 
 
-def hessian_factors(keys, U, S_pair, s, f, pair_images, cal_key=None, U_cal=None, s_cal=None, U_image_cal=None) -> gtsam.GaussianFactorGraph:
+def hessian_factors(keys, rs: ReducedSystem, pair_images, cal_key=None) -> gtsam.GaussianFactorGraph:
     """The reduced camera system as gtsam HessianFactors: one per image (diagonal block, right-hand side,
     the constant on the first) and one per image pair (the off-diagonal block); with ``cal_key`` one for
     the calibration and one per image for its coupling to the calibration. The error of their sum at a
@@ -358,12 +357,12 @@ def hessian_factors(keys, U, S_pair, s, f, pair_images, cal_key=None, U_cal=None
     gfg = gtsam.GaussianFactorGraph()
     z6, zg = np.zeros((6, 6)), np.zeros(6)
     for i, key in enumerate(keys):
-        gfg.push_back(gtsam.HessianFactor(key, U[i], s[i], f if i == 0 else 0.0))
-    for (i, j), blk in zip(pair_images.tolist(), S_pair):
+        gfg.push_back(gtsam.HessianFactor(key, rs.U[i], rs.s[i], rs.f if i == 0 else 0.0))
+    for (i, j), blk in zip(pair_images.tolist(), rs.S_pair):
         gfg.push_back(gtsam.HessianFactor(keys[i], keys[j], z6, blk, zg, z6, zg, 0.0))
     if cal_key is not None:
-        gfg.push_back(gtsam.HessianFactor(cal_key, U_cal, s_cal, 0.0))
+        gfg.push_back(gtsam.HessianFactor(cal_key, rs.U_cal, rs.s_cal, 0.0))
         z9, zc = np.zeros((9, 9)), np.zeros(9)
-        for key, blk in zip(keys, U_image_cal):
+        for key, blk in zip(keys, rs.U_image_cal):
             gfg.push_back(gtsam.HessianFactor(key, cal_key, z6, blk, zg, z9, zc, 0.0))
     return gfg

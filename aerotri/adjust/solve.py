@@ -100,7 +100,7 @@ def adjust_block(
             values, info = G.optimize(gr, quick)
             timings["robust_s"] += time.perf_counter() - t0
             iterations += info.iterations
-            state = G.state_from_values(values, block, opts, state)
+            state = G.state_from_values(values, block, opts, state, tie=gr.tie)
             if progress:
                 progress(f"robust round {rnd}: {info.iterations} iterations, {obs_active.sum()} observations")
             if snoop(state, rnd, with_control=False):
@@ -128,7 +128,7 @@ def adjust_block(
         values, info = G.optimize(gr, opts)
         timings["final_s"] += time.perf_counter() - t0
         iterations += info.iterations
-        state = G.state_from_values(values, block, opts, state)
+        state = G.state_from_values(values, block, opts, state, tie=gr.tie)
         if not snooping:
             break
         rnd += 1
@@ -147,7 +147,7 @@ def adjust_block(
             gr = G.build_graph(block, opts, state, obs_active, control_active, robust=False)
             values, info = G.optimize(gr, opts)
             iterations += info.iterations
-            state = G.state_from_values(values, block, opts, state)
+            state = G.state_from_values(values, block, opts, state, tie=gr.tie)
             sigma0 = float(np.sqrt(info.chi2 / info.dof)) if info.dof > 0 else float("nan")
             marg = _marginals(gr, values, block, obs_active)
         s2 = sigma0**2

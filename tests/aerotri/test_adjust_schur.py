@@ -33,7 +33,7 @@ def test_schur_tie_points_match_explicit_points(tmp_path, correction, self_cal):
         assert (gr.tie is not None) == eliminate
         values, info = G.optimize(gr, o)
         assert info.converged
-        st = G.state_from_values(values, b, o, st0)
+        st = G.state_from_values(values, b, o, st0, tie=gr.tie)
         rc = ReducedCovariance(gr, values, [G.P(j) for j in range(b.n_points)])
         solved[eliminate] = (st, info, gr.dof, rc)
     (s1, i1, d1, c1), (s0, i0, d0, c0) = solved[True], solved[False]
