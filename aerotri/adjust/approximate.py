@@ -18,7 +18,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from aerotri.adjust.check_points import intersect_rays, pixel_rays
+from aerotri.adjust.check_points import intersect_rays, pixel_rays, sum_by_index
 from aerotri.rotation import FLIP_YZ, rotation_matrix_opk
 
 
@@ -92,8 +92,7 @@ def resect_attitudes(centre, R_cv, points, obs_point, obs_image, rays_cam, itera
     w = np.ones(len(k))
     enough = np.bincount(im, minlength=n) >= 3
     for _ in range(iterations):
-        B = np.zeros((n, 3, 3))
-        np.add.at(B, im, w[:, None, None] * u[:, :, None] * d[:, None, :])
+        B = sum_by_index(im, w[:, None, None] * u[:, :, None] * d[:, None, :], n)
         U, _, Vt = np.linalg.svd(B)
         S = np.broadcast_to(np.eye(3), (n, 3, 3)).copy()
         S[:, 2, 2] = np.sign(np.linalg.det(U @ Vt))
@@ -121,8 +120,7 @@ def _ground_hits(centre, rays_world, obs_point, n_points, ground_height_m):
         t = (ground_height_m - centre[:, 2]) / rays_world[:, 2]
     good = np.isfinite(t) & (t > 0)
     hit = centre + t[:, None] * rays_world
-    s = np.zeros((n_points, 3))
-    np.add.at(s, obs_point[good], hit[good])
+    s = sum_by_index(obs_point[good], hit[good], n_points)
     n = np.bincount(obs_point[good], minlength=n_points)
     pts = s / np.maximum(n, 1)[:, None]
     pts[n == 0] = np.array([centre[:, 0].mean(), centre[:, 1].mean(), ground_height_m])
