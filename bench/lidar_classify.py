@@ -173,7 +173,8 @@ def main():
     # Byte identity with the default run. (Another engineer may be changing the classifier while
     # this runs: pairs run back to back are compared as well.)
     data = {k: (work / f"c_{k}.laz").read_bytes() for k in ("w1", "w2", "l1", "l2")}
-    identical = {k: v == out.read_bytes() for k, v in data.items()}
+    default = out.read_bytes()
+    identical = {k: v == default for k, v in data.items()}
     identical["w1_w2"] = data["w1"] == data["w2"]
     identical["l1_l2"] = data["l1"] == data["l2"]
     identical["w2_l2"] = data["w2"] == data["l2"]

@@ -311,7 +311,7 @@ def detect_water(x, y, z, intensity, candidate, is_building, is_ground, spacing_
     n = len(x)
     water = np.zeros(n, bool)
     c = p.water_cell_m or max(1.0, 2.0 * spacing_m)
-    flat, nrows, ncols, _, _ = grid.cell_ids(x, y, c)
+    flat, nrows, ncols, x0, y0 = grid.cell_ids(x, y, c)
     count = np.bincount(flat, minlength=nrows * ncols).reshape(nrows, ncols).astype(float)
     if not (count > 0).any():
         return water
@@ -323,8 +323,7 @@ def detect_water(x, y, z, intensity, candidate, is_building, is_ground, spacing_
         return water
     area_m2 = np.bincount(labels.ravel(), minlength=nlab + 1) * c * c
     building_cell = np.bincount(flat[is_building], minlength=nrows * ncols).reshape(nrows, ncols) > 0
-    ground_cell_z = reduce_grid(x[is_ground], y[is_ground], z[is_ground], c, float(np.min(x)),
-                                float(np.min(y)), nrows, ncols, "mean")
+    ground_cell_z = reduce_grid(x[is_ground], y[is_ground], z[is_ground], c, x0, y0, nrows, ncols, "mean")
     # Clouds without intensity (a constant field) skip the reflectance test.
     use_intensity = intensity is not None and is_ground.any() and np.ptp(np.asarray(intensity)[is_ground]) > 0
     if use_intensity:
@@ -399,16 +398,15 @@ def detect_water(x, y, z, intensity, candidate, is_building, is_ground, spacing_
 
 
 def classify_points(x, y, z, return_number=None, number_of_returns=None, intensity=None,
-                    params: ClassifyParams | None = None, progress=None) -> np.ndarray:
+                    params: ClassifyParams | None = None) -> np.ndarray:
     """ASPRS class per point (uint8). Arrays are per point; heights in metres."""
     p = params or ClassifyParams()
     n = len(x)
     if n < 10:
         raise ValueError("classification needs at least 10 points")
-    step = progress or (lambda name: None)
     cls = np.full(n, UNCLASSIFIED, np.uint8)
 
-    step("noise")
+    # noise
     code = noise_mod.detect_noise(x, y, z, p.noise)
     clean = code == 0
     # Only a last (or single) return can be bare earth: the pulse went on below the others.
@@ -417,7 +415,7 @@ def classify_points(x, y, z, return_number=None, number_of_returns=None, intensi
         last = np.asarray(return_number) >= np.asarray(number_of_returns)
     idx = np.flatnonzero(clean & last)
 
-    step("ground")
+    # ground
     is_ground = np.zeros(n, bool)
     for _ in range(2):
         g = ground_mod.ground_filter(x[idx], y[idx], z[idx], method=p.ground_method, preset=p.preset)
@@ -431,7 +429,7 @@ def classify_points(x, y, z, return_number=None, number_of_returns=None, intensi
         is_ground &= ~deep
         idx = idx[code[idx] == 0]
 
-    spacing = noise_mod.mean_spacing_m(x, y)
+    spacing = grid.mean_spacing_m(x, y)
     c = p.cell_m or max(0.5, 2.0 * spacing)
     x0, y0 = float(x.min()), float(y.min())
     ncols = int(np.floor((x.max() - x0) / c)) + 1
@@ -448,7 +446,7 @@ def classify_points(x, y, z, return_number=None, number_of_returns=None, intensi
     cls[iso] = np.where(hag[iso] < 0.0, LOW_NOISE, HIGH_NOISE)
     cls[is_ground] = GROUND
 
-    step("buildings")
+    # buildings
     obj = clean & ~is_ground
     flat = grid.cell_ids(x, y, c, x0, y0)[0]
     dsm = reduce_grid(x[obj], y[obj], z[obj], c, x0, y0, nrows, ncols, "max")
@@ -497,7 +495,7 @@ def classify_points(x, y, z, return_number=None, number_of_returns=None, intensi
     roof_edge_completion(x, y, z, is_building, obj & near & (hag > p.wall_min_height_m), p)
     cls[is_building] = BUILDING
 
-    step("vegetation")
+    # vegetation
     veg = obj & ~is_building
     low = veg & (hag <= p.low_veg_max_m)
     med = veg & (hag > p.low_veg_max_m) & (hag <= p.medium_veg_max_m)
@@ -510,7 +508,7 @@ def classify_points(x, y, z, return_number=None, number_of_returns=None, intensi
     cls[med] = MED_VEG
     cls[high] = HIGH_VEG
 
-    step("water")
+    # water
     water = detect_water(x, y, z, intensity, is_ground | (cls == UNCLASSIFIED) | (cls == LOW_VEG),
                          is_building, is_ground, spacing, p)
     cls[water] = WATER

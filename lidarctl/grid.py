@@ -6,8 +6,13 @@ index ``i`` grows with y, column index ``j`` with x. All functions are vectorise
 
 from __future__ import annotations
 
+import dataclasses
+
 import numba
 import numpy as np
+from scipy.sparse import coo_matrix
+from scipy.sparse.csgraph import connected_components
+from scipy.spatial import cKDTree
 
 
 @numba.njit(cache=True, parallel=True)
@@ -41,6 +46,50 @@ def cell_ids(x, y, cell_m: float, x0: float | None = None, y0: float | None = No
     """Flat cell index i * ncols + j per point, and (nrows, ncols, x0, y0)."""
     i, j, nrows, ncols, x0, y0 = cell_indices(x, y, cell_m, x0, y0)
     return _flat_ids(i, j, ncols), nrows, ncols, x0, y0
+
+
+@dataclasses.dataclass
+class MinimaSegments:
+    """Segments of cell minima (Sithole & Vosselman's segment connectivity): the lowest point of each
+    cell linked to those within 2.5 cells when their height difference is at most ``step + slope * d``."""
+
+    cid: np.ndarray  # (n,) flat cell index of every point
+    nrows: int
+    ncols: int
+    lowest: np.ndarray  # (m,) the lowest point of each occupied cell
+    label: np.ndarray  # (m,) segment of each cell minimum
+    size: np.ndarray  # (n_segments,) cells per segment
+    ua: np.ndarray  # unlinked neighbour pairs (indices into ``lowest``) in different segments
+    ub: np.ndarray
+    dz: np.ndarray  # height of ub above ua (m)
+
+
+def segment_cell_minima(x, y, z, cell_m: float, step_m: float, slope: float) -> MinimaSegments | None:
+    """The cell minima linked into segments; None when no two minima are within 2.5 cells."""
+    cid, nrows, ncols, _, _ = cell_ids(x, y, cell_m)
+    lowest = lowest_per_cell(cid, z)
+    mx, my, mz = x[lowest], y[lowest], z[lowest]
+    pairs = cKDTree(np.column_stack([mx, my])).query_pairs(2.5 * cell_m, output_type="ndarray")
+    if len(pairs) == 0:
+        return None
+    a, b = pairs[:, 0], pairs[:, 1]
+    d = np.hypot(mx[a] - mx[b], my[a] - my[b])
+    dz = mz[b] - mz[a]
+    linked = np.abs(dz) <= step_m + slope * d
+    m = len(mx)
+    graph = coo_matrix((np.ones(int(linked.sum())), (a[linked], b[linked])), shape=(m, m))
+    ncomp, label = connected_components(graph, directed=False)
+    size = np.bincount(label, minlength=ncomp)
+    ua, ub, dzu = a[~linked], b[~linked], dz[~linked]
+    cross = label[ua] != label[ub]
+    return MinimaSegments(cid, nrows, ncols, lowest, label, size, ua[cross], ub[cross], dzu[cross])
+
+
+def mean_spacing_m(x, y, cell_m: float = 10.0) -> float:
+    """Mean point spacing sqrt(area/n), area = occupied 10 m cells (ignores empty corners of a tile)."""
+    cid, nrows, ncols, _, _ = cell_ids(x, y, cell_m)
+    area = np.count_nonzero(np.bincount(cid, minlength=nrows * ncols)) * cell_m * cell_m
+    return float(np.sqrt(area / max(len(x), 1)))
 
 
 @numba.njit(cache=True)

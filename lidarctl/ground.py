@@ -44,8 +44,6 @@ import dataclasses
 import numba
 import numpy as np
 from scipy import ndimage
-from scipy.sparse import coo_matrix
-from scipy.sparse.csgraph import connected_components
 from scipy.spatial import Delaunay, cKDTree
 
 from lidarctl import grid
@@ -382,17 +380,10 @@ def ground_filter(x, y, z, method: str = "morph", preset: str | None = None, **o
         raise ValueError(f"unknown ground method {method!r}, expected one of {METHODS}")
     if params.plateau_min_step_m > 0 and ground.sum() >= 10:
         g = np.flatnonzero(ground)
-        cell_m = max(1.0, 1.5 * _mean_spacing_m(x, y))
+        cell_m = max(1.0, 1.5 * grid.mean_spacing_m(x, y))
         ground[g[raised_plateaus(x[g], y[g], z[g], cell_m, params.plateau_min_step_m,
                                  params.plateau_max_area_m2)]] = False
     return ground
-
-
-def _mean_spacing_m(x, y, cell_m: float = 10.0) -> float:
-    """Mean point spacing sqrt(occupied area / n) (m), area from occupied 10 m cells."""
-    cid, nrows, ncols, _, _ = grid.cell_ids(x, y, cell_m)
-    area = np.count_nonzero(np.bincount(cid, minlength=nrows * ncols)) * cell_m * cell_m
-    return float(np.sqrt(area / max(len(x), 1)))
 
 
 def raised_plateaus(x, y, z, cell_m: float, min_step_m: float = 2.0, max_area_m2: float = 2500.0,
@@ -409,23 +400,12 @@ def raised_plateaus(x, y, z, cell_m: float, min_step_m: float = 2.0, max_area_m2
     opening, whose height threshold grows with the window (slope x radius), but not this test.
     """
     out = np.zeros(len(x), bool)
-    cid, _, _, _, _ = grid.cell_ids(x, y, cell_m)
-    lowest = grid.lowest_per_cell(cid, z)
-    mx, my, mz = x[lowest], y[lowest], z[lowest]
-    pairs = cKDTree(np.column_stack([mx, my])).query_pairs(2.5 * cell_m, output_type="ndarray")
-    if len(pairs) == 0:
+    segments = grid.segment_cell_minima(x, y, z, cell_m, link_step_m, link_slope)
+    if segments is None:
         return out
-    a, b = pairs[:, 0], pairs[:, 1]
-    d = np.hypot(mx[a] - mx[b], my[a] - my[b])
-    dz = mz[b] - mz[a]
-    linked = np.abs(dz) <= link_step_m + link_slope * d
-    m = len(mx)
-    graph = coo_matrix((np.ones(int(linked.sum())), (a[linked], b[linked])), shape=(m, m))
-    ncomp, label = connected_components(graph, directed=False)
-    size = np.bincount(label, minlength=ncomp)
-    ua, ub, dzu = a[~linked], b[~linked], dz[~linked]
-    cross = label[ua] != label[ub]
-    ua, ub, dzu = ua[cross], ub[cross], dzu[cross]
+    cid, lowest, label, size = segments.cid, segments.lowest, segments.label, segments.size
+    ua, ub, dzu = segments.ua, segments.ub, segments.dz
+    ncomp = len(size)
     # Each unlinked cross pair seen from both sides: (segment, other segment, step down to the other).
     seg = np.concatenate([label[ua], label[ub]])
     other = np.concatenate([label[ub], label[ua]])

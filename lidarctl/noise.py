@@ -30,8 +30,6 @@ import dataclasses
 
 import numba
 import numpy as np
-from scipy.sparse import coo_matrix
-from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
 
 from lidarctl import grid
@@ -51,13 +49,6 @@ class NoiseParams:
     cluster_cell_m: float = 0.0     # 0: max(2 m, 2 x mean point spacing)
     cluster_max_cells: int = 400
     cluster_passes: int = 3
-
-
-def mean_spacing_m(x, y, cell_m: float = 10.0) -> float:
-    """Mean point spacing sqrt(area/n), area = occupied 10 m cells (ignores empty corners of a tile)."""
-    cid, nrows, ncols, _, _ = grid.cell_ids(x, y, cell_m)
-    area = np.count_nonzero(np.bincount(cid, minlength=nrows * ncols)) * cell_m * cell_m
-    return float(np.sqrt(area / max(len(x), 1)))
 
 
 @numba.njit(cache=True, parallel=True)
@@ -192,25 +183,15 @@ def low_clusters(x, y, z, cell_m: float, gap_m: float = 1.0, slope: float = 1.2,
     """
     from lidarctl.raster_ops import fill_nodata
 
-    cid, nrows, ncols, _, _ = grid.cell_ids(x, y, cell_m)
-    lowest = grid.lowest_per_cell(cid, z)
-    mx, my, mz = x[lowest], y[lowest], z[lowest]
-    pairs = cKDTree(np.column_stack([mx, my])).query_pairs(2.5 * cell_m, output_type="ndarray")
-    if len(pairs) == 0:
+    seg = grid.segment_cell_minima(x, y, z, cell_m, gap_m, slope)
+    if seg is None:
         return np.zeros(len(x), bool)
-    a, b = pairs[:, 0], pairs[:, 1]
-    d = np.hypot(mx[a] - mx[b], my[a] - my[b])
-    dz = mz[b] - mz[a]
-    linked = np.abs(dz) <= gap_m + slope * d
-    m = len(mx)
-    graph = coo_matrix((np.ones(linked.sum()), (a[linked], b[linked])), shape=(m, m))
-    ncomp, label = connected_components(graph, directed=False)
-    size = np.bincount(label, minlength=ncomp)
+    cid, nrows, ncols, lowest, label, size = seg.cid, seg.nrows, seg.ncols, seg.lowest, seg.label, seg.size
+    ua, ub, dzu = seg.ua, seg.ub, seg.dz
+    mx, my, mz = x[lowest], y[lowest], z[lowest]
+    ncomp = len(size)
     small = (size <= max_cells) & (size < 0.5 * size.max())
     # (a) A component is "below" when no unlinked neighbour lies lower than it.
-    ua, ub = a[~linked], b[~linked]
-    cross = label[ua] != label[ub]
-    ua, ub, dzu = ua[cross], ub[cross], dz[~linked][cross]
     has_higher = np.zeros(ncomp, bool)
     has_lower = np.zeros(ncomp, bool)
     has_higher[label[ua[dzu > 0]]] = True   # b above a -> a's component has a higher neighbour
@@ -273,7 +254,7 @@ def detect_noise(x, y, z, params: NoiseParams | None = None) -> np.ndarray:
     pairs that only supported each other through a blunder.
     """
     p = params or NoiseParams()
-    spacing = mean_spacing_m(x, y)
+    spacing = grid.mean_spacing_m(x, y)
     voxel = p.voxel_m or max(2.0, 2.5 * spacing)
     radius = p.radius_m or max(5.0, 5.0 * spacing)
     code = np.zeros(len(x), np.uint8)

@@ -28,8 +28,9 @@ from tqdm import tqdm
 from lidarctl.errors import InputError
 
 
-def _bar(total: int, desc: str, unit: str):
-    return tqdm(total=total, desc=desc, unit=unit, leave=False, disable=not sys.stderr.isatty())
+def progress_bar(total: int, desc: str, unit: str, **kw):
+    """A tqdm bar on stderr that disappears when done, silent when stderr is not a terminal."""
+    return tqdm(total=total, desc=desc, unit=unit, leave=False, disable=not sys.stderr.isatty(), **kw)
 
 
 class _Failed:
@@ -115,7 +116,7 @@ class Executor:
                 return _Failed(exc)
 
         tasks = [dask.delayed(guarded, pure=False)((k, item)) for k, item in enumerate(items)]
-        bar = _bar(len(items), desc, unit)
+        bar = progress_bar(len(items), desc, unit)
 
         class _Progress(Callback):
             def _posttask(self, key, result, dsk, state, worker_id):
@@ -137,7 +138,7 @@ class Executor:
         futures = self._client.map(fn, items, pure=False)
         index = {f.key: k for k, f in enumerate(futures)}
         first_bad = len(items)
-        with _bar(len(items), desc, unit) as bar:
+        with progress_bar(len(items), desc, unit) as bar:
             for fut in as_completed(futures):
                 k = index[fut.key]
                 if fut.status == "error" and k < first_bad:

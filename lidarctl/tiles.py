@@ -47,7 +47,6 @@ import dataclasses
 import math
 import os
 import shutil
-import sys
 import tempfile
 import time
 from pathlib import Path
@@ -58,6 +57,7 @@ import numpy as np
 from lidarctl import io
 from lidarctl.atomic import atomic_path
 from lidarctl.errors import InputError
+from lidarctl.parallel import local_executor, progress_bar
 
 # An inner tile of about this many points (core + buffer) keeps one classification task under
 # about 1 GB of memory (classify_points needs about 200 bytes per point), so two tasks at a time
@@ -216,13 +216,6 @@ def _tile_header(header: laspy.LasHeader) -> laspy.LasHeader:
     return h
 
 
-def _bar(total: int, desc: str, unit: str):
-    from tqdm import tqdm
-
-    return tqdm(total=total, desc=desc, unit=unit, unit_scale=True, leave=False,
-                disable=not sys.stderr.isatty())
-
-
 def split_into_tiles(in_path, grid: TileGrid, work_dir, params, chunk_points: int = io.CHUNK_POINTS,
                      records_path=None):
     """Pass 1: stream the input and append each tile's points to its LAS file; list of TileTask.
@@ -238,7 +231,7 @@ def split_into_tiles(in_path, grid: TileGrid, work_dir, params, chunk_points: in
     has_core = np.zeros(grid.n_tiles, bool)
     started: set[int] = set()
     records = open(records_path, "wb") if records_path is not None else None
-    with _bar(header.point_count, "tiles: split", "pt") as bar:
+    with progress_bar(header.point_count, "tiles: split", "pt", unit_scale=True) as bar:
         for first, chunk in io.iter_chunks(in_path, chunk_points):
             if records is not None:
                 records.write(chunk.array.tobytes())
@@ -374,7 +367,6 @@ def classify_file(in_path, out_path, crs=None, params=None, tile_size_m: float |
         if n < 10:
             raise InputError(f"{in_path}: only {n} points; classification needs at least 10")
         if executor is None:
-            from lidarctl.parallel import local_executor
             executor = local_executor()
         parent = Path(work_dir) if work_dir is not None else out_path.parent
         parent.mkdir(parents=True, exist_ok=True)
@@ -396,7 +388,7 @@ def classify_file(in_path, out_path, crs=None, params=None, tile_size_m: float |
                 classes[np.load(task.core_index_path)] = np.load(task.classes_path)
             classes.flush()
             checked = _CheckedClasses(classes)
-            with _bar(n, "tiles: write", "pt") as bar:
+            with progress_bar(n, "tiles: write", "pt", unit_scale=True) as bar:
                 io.write_classified(in_path, out_path, checked, crs=resolved, progress=bar.update,
                                     records=_stored_records(tmp_dir / "records.bin", header, chunk_points))
             counts = checked.counts
