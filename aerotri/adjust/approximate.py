@@ -157,8 +157,7 @@ def refine_orientations(gnss_local, lever_arm_m, centre, R_cv, obs_point, obs_im
     lever_cv = FLIP_YZ @ np.asarray(lever_arm_m, dtype=float)
     for _ in range(iterations):
         R = resect_attitudes(centre, R, pts, obs_point, obs_image, d_cam)
-        if gnss_local is not None:
-            centre = gnss_local - np.einsum("nij,j->ni", R, lever_cv)
+        centre = gnss_local - np.einsum("nij,j->ni", R, lever_cv)
         pts = intersect_points(obs_point, obs_image, obs_xy_px, centre, R, cal, n_points, ground_height_m, rays_cam=d_cam)
     return centre, R, pts
 

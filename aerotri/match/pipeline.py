@@ -110,11 +110,16 @@ def match_project(root, settings: MatchSettings | None = None, log=lambda m: Non
 
     ex = executor or local_executor()
 
-    def feats(frames, p: F.FeatureParams, desc: str) -> dict:
-        """Features of the given frames (index -> Features), extracted as one task per frame."""
+    def extract(frames, p: F.FeatureParams, desc: str) -> list:
+        """Extract (or find cached) the features of the given frames, one task per frame; their cache keys."""
         items = [(images[ids[i]], cache_f, p, (camera.width, camera.height)) for i in frames]
         stats["feature_cache_hits"] += sum(ex.map(_features_task, items, desc=desc, unit="frame"))
-        return {i: F.cached_features(*item) for i, item in zip(frames, items)}
+        return items
+
+    def feats(frames, p: F.FeatureParams, desc: str) -> dict:
+        """Features of the given frames (index -> Features), extracted as one task per frame."""
+        frames = list(frames)
+        return {i: F.cached_features(*item) for i, item in zip(frames, extract(frames, p, desc))}
 
     def match(pairs_ij, fp: F.FeatureParams, p: M.MatchParams, desc: str) -> list:
         """Verified matches of the given frame pairs, one task per pair (features read from the cache)."""
@@ -127,7 +132,7 @@ def match_project(root, settings: MatchSettings | None = None, log=lambda m: Non
 
     if plan is None:
         thumb = F.FeatureParams(budget=1500, grid=(6, 4), max_dim_px=1000, name="thumb")
-        feats(range(len(ids)), thumb, "thumbnails")
+        extract(range(len(ids)), thumb, "thumbnails")  # the retrieval tasks read them from the cache
         all_pairs = [(i, j) for i in range(len(ids)) for j in range(i + 1, len(ids))]
         pairs = [Pair(i, j, "retrieved", float(len(m)))
                  for (i, j), m in zip(all_pairs, match(all_pairs, thumb, s.match, "retrieval"))
