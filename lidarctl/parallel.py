@@ -76,6 +76,13 @@ class Executor:
     def distributed(self) -> bool:
         return self._client is not None
 
+    def cores_per_task(self, n_tasks: int) -> int | None:
+        """Cores for each of ``n_tasks`` tasks so that the tasks running at once on this machine share its
+        cores; None on a remote cluster (the worker machines' own cores are unknown here)."""
+        if self.distributed and not str(self.scheduler).startswith("local:"):
+            return None
+        return max(1, (os.cpu_count() or 1) // max(1, min(self.workers, n_tasks)))
+
     def describe(self) -> str:
         if self._client is not None:
             return f"dask distributed ({self.scheduler}, {self.workers} worker threads)"

@@ -45,7 +45,6 @@ from __future__ import annotations
 import contextlib
 import dataclasses
 import math
-import os
 import shutil
 import tempfile
 import time
@@ -374,10 +373,9 @@ def classify_file(in_path, out_path, crs=None, params=None, tile_size_m: float |
         try:
             tasks = split_into_tiles(in_path, grid, tmp_dir, params, chunk_points, tmp_dir / "records.bin")
             # Cores per task: tasks run side by side on the executor's workers (on a remote cluster
-            # the worker machines' own cores are unknown here, so numba keeps its default there).
-            if not getattr(executor, "distributed", False) or \
-                    str(getattr(executor, "scheduler", "")).startswith("local:"):
-                per_task = max(1, (os.cpu_count() or 1) // max(1, min(getattr(executor, "workers", 1), len(tasks))))
+            # numba keeps its default).
+            per_task = executor.cores_per_task(len(tasks))
+            if per_task is not None:
                 tasks = [dataclasses.replace(t, numba_threads=per_task) for t in tasks]
             t1 = time.perf_counter()
             results = executor.map(classify_tile, tasks, desc="tiles: classify", unit="tile")

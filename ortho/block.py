@@ -16,7 +16,6 @@ from __future__ import annotations
 
 import dataclasses
 import json
-import os
 from pathlib import Path
 
 import cv2
@@ -217,19 +216,16 @@ def rectify_frame_to_file(path, image, band_order, camera, C, R, heights, grid, 
     from rasterio.windows import Window
 
     bands = 1 if image.ndim == 2 else image.shape[2]
-    valid_px = 0
     with atomic_path(path) as tmp, rasterio.Env(GDAL_TIFF_INTERNAL_MASK=True):
         with rasterio.open(tmp, "w", **frame_profile(grid, bands, image.dtype.name, compression=compression)) as dst:
             def sink(r0, c0, o, m):
-                nonlocal valid_px
                 w = Window(c0, r0, m.shape[1], m.shape[0])
                 dst.write(o, window=w, indexes=band_order)
                 dst.write_mask(m, window=w)
-                valid_px += int(np.count_nonzero(m))
 
-            rectify_frame(image, camera, C, R, heights, grid, interpolation, to_project, occlusion_dsm=occlusion_dsm,
-                          sink=sink, sink_bands_first=True, threads=threads)
-    return valid_px / float(grid.width * grid.height)
+            _, mask = rectify_frame(image, camera, C, R, heights, grid, interpolation, to_project,
+                                    occlusion_dsm=occlusion_dsm, sink=sink, sink_bands_first=True, threads=threads)
+    return np.count_nonzero(mask) / float(mask.size)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -285,14 +281,6 @@ def rectify_frame_task(task: FrameTask) -> dict:
     }
 
 
-def tile_threads_per_task(executor, concurrent_tasks: int) -> int | None:
-    """Tile threads for each frame task so that the tasks running at once on this machine share its
-    cores; None (all cores of the worker) for a remote cluster."""
-    if executor.distributed and not str(executor.scheduler).startswith("local:"):
-        return None
-    return max(1, (os.cpu_count() or 1) // max(1, min(executor.workers, concurrent_tasks)))
-
-
 def rectify_block(root, dem_path=None, res_m: float | None = None, crs: str | None = None, eo_path=None,
                   camera_path=None, interpolation: str = "bilinear", true_ortho: bool = False, dsm_path=None,
                   frames=None, progress: bool = True, executor=None, compression: str = "zstd") -> dict:
@@ -335,7 +323,7 @@ def rectify_block(root, dem_path=None, res_m: float | None = None, crs: str | No
     centre_xy = np.median(eo_sel.centre_m[:, :2], axis=0)
     out_crs = resolve_output_crs(crs, project_crs, centre_xy)
     executor = executor or local_executor()
-    threads = tile_threads_per_task(executor, len(block.images))
+    threads = executor.cores_per_task(len(block.images))  # tile threads per frame task (None: all)
     tasks = [FrameTask(image_id, str(path), str(out_dir / f"{image_id}.tif"), block.camera,
                        tuple(float(v) for v in block.eo.centre_m[eo_idx[image_id]]),
                        tuple(float(v) for v in block.eo.opk_deg[eo_idx[image_id]]), str(dem_path),

@@ -205,8 +205,8 @@ def mosaic_block(root, seams: str = "least-cost", ndsm_path=None, feather_m: flo
     write_text_atomic(out_dir / "seamlines.geojson", json.dumps(geo) + "\n")
     feather_px = max(1.0, (feather_m / res) if feather_m else 8.0)
     path = out_dir / "mosaic.tif"
-    _write_mosaic(path, frames_dir, index, grids, mosaic, labels, factor, gains, nadir, feather_px, tile_px, progress,
-                  seams_path=out_dir / "seams.tif", executor=executor)
+    _write_mosaic(path, frames_dir, index, mosaic, out_dir / "seams.tif", factor, gains, nadir, feather_px, tile_px, progress,
+                  executor=executor)
     summary = {"path": str(path), "width": mosaic.width, "height": mosaic.height, "frames": len(red.names),
                "res_m": res, "seam_factor": factor, "seams": seams, "feather_px": feather_px,
                "gains": {n: [float(v) for v in g] for n, g in zip(red.names, gains)},
@@ -270,8 +270,8 @@ def blend_tile_task(tile: MosaicTile):
     return out.astype(ctx["dtype"]), valid
 
 
-def _write_mosaic(path, frames_dir, index, grids, mosaic: OrthoGrid, labels, factor, gains, nadir, feather_px, tile_px,
-                  progress, seams_path=None, executor=None):
+def _write_mosaic(path, frames_dir, index, mosaic: OrthoGrid, seams_path, factor, gains, nadir, feather_px, tile_px,
+                  progress, executor=None):
     """Blend the output tiles as tasks on ``executor`` (batches of a few tiles per worker, written in
     tile order as they come back: memory is bounded by the batch, not the mosaic) into a tiled
     GeoTIFF, then copy that to the COG. ``seams_path``: the label raster already written (the tasks
@@ -292,10 +292,6 @@ def _write_mosaic(path, frames_dir, index, grids, mosaic: OrthoGrid, labels, fac
     path.parent.mkdir(parents=True, exist_ok=True)
     with tempfile.TemporaryDirectory(prefix=".mosaic_stage.", dir=path.parent) as tmp_dir, \
             rasterio.Env(GDAL_TIFF_INTERNAL_MASK=True):
-        if seams_path is None:
-            seams_path = Path(tmp_dir) / "seams.tif"
-            _write_labels(seams_path, labels, Affine(mosaic.res_m * factor, 0, mosaic.x_left_m, 0,
-                                                     -mosaic.res_m * factor, mosaic.y_top_m), mosaic.crs)
         context = {"index": index, "frames_dir": str(Path(frames_dir).resolve()),
                    "mosaic": {"x_left_m": mosaic.x_left_m, "y_top_m": mosaic.y_top_m, "res_m": mosaic.res_m,
                               "width": mosaic.width, "height": mosaic.height},

@@ -415,25 +415,10 @@ def _interpolation_flag(interpolation: str) -> int:
         raise InputError(f"unknown interpolation {interpolation!r}; expected one of {sorted(INTERPOLATION)}") from None
 
 
-def _remap(image, map1, map2, flag, border):
-    if image.ndim == 3 and image.shape[2] > 4:
-        return np.stack([cv2.remap(image[:, :, b], map1, map2, flag, borderMode=border, borderValue=0)
-                         for b in range(image.shape[2])], axis=-1)
-    out = cv2.remap(image, map1, map2, flag, borderMode=border, borderValue=0)
-    if image.ndim == 3 and out.ndim == 2:
-        out = out[:, :, None]
-    return out
-
-
-def remap(image: np.ndarray, map1: np.ndarray, map2: np.ndarray, interpolation: str = "bilinear",
-          border=cv2.BORDER_CONSTANT) -> np.ndarray:
-    """cv2.remap with float maps (x, y) or fixed-point maps (int16 pairs, uint16 fractions).
-
-    Not-imaged pixels point far outside the image and get 0 from the constant border; valid pixels
-    lie within the outer pixel centres, so bilinear never blends with the border. Cubic and Lanczos
-    reach 1-3 px further: use ``border=cv2.BORDER_REPLICATE`` and zero the invalid pixels afterwards.
-    """
-    return _remap(image, map1, map2, _interpolation_flag(interpolation), border)
+def _remap_bands(image, map1, map2, flag, border):
+    """cv2.remap band by band (it takes at most 4 channels) -> (rows, cols, bands)."""
+    return np.stack([cv2.remap(image[:, :, b], map1, map2, flag, borderMode=border, borderValue=0)
+                     for b in range(image.shape[2])], axis=-1)
 
 
 def default_threads() -> int:
@@ -530,8 +515,8 @@ def rectify_frame(image: np.ndarray, camera: FrameCamera, centre_m, R, dem_datas
             o[...] = 0
             return r0, c0, handle, o, m
         if nb > 4:  # cv2.remap takes at most 4 channels
-            o[...] = np.moveaxis(_remap(image, map_int, map_frac, flag, border), -1, 0) if sink_bands_first else \
-                _remap(image, map_int, map_frac, flag, border)
+            o[...] = np.moveaxis(_remap_bands(image, map_int, map_frac, flag, border), -1, 0) if sink_bands_first else \
+                _remap_bands(image, map_int, map_frac, flag, border)
         elif sink_bands_first and nb > 1:
             pix = local.interleaved[:nb * tile.height * tile.width].reshape(tile.height, tile.width, nb)
             cv2.remap(image, map_int, map_frac, flag, dst=pix, borderMode=border, borderValue=0)
