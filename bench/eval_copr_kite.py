@@ -20,20 +20,16 @@ check point's adjusted sigma and its given sigma. The mislabelled observation in
 gcp04 measured at the same pixel of IMG_0031) is removed before the adjustment (its ray pulled gcp04
 away along its nearly parallel rays, 2 km below the ground, in the robust rounds).
 
-Still open: the plain least-squares solves stop at the 100-iteration limit. The cost then changes by
-~1e-6 per iteration (the extra-step test calls that converged) while the whole block keeps sliding by
-millimetres per iteration along a weakly determined mode (base/height ~0.1, no height control). What was
-measured: the reduced normal matrix (22 orientations, calibration, 9 control points: 168 unknowns) has a
-condition number of 1.5e13 after Jacobi scaling; its weakest mode is a common tilt of the block (every
-image's phi with its x translation), held only by the 5 m target heights. gtsam's Cholesky calls it
-indeterminate, so Gauss-Newton falls back to Levenberg-Marquardt at once. Even a Jacobi-scaled dense LM
-on the reduced system, damping down to 1e-8, converges only linearly (cost ratio ~0.95 per iteration:
-23705.5 after 28 iterations, 23704.2 after 200, minimum 23701.77). The quadratic model fails along that
-mode, most likely through the control points' nearly parallel rays. The next step would be to eliminate
-the control points with their priors as well, and re-intersect every point nonlinearly after each camera
-step. Because the solves stop short, the leave-one-out errors of gcp01 and gcp03 depend on the path
-taken: 0.96 / 1.04 m before the Schur elimination, 1.50 / 1.19 m after it; the other seven are equal to
-1 mm.
+Convergence: the block's tilt is held only by the 5 m target heights (no GNSS, base/height ~0.1), so the
+reduced normal matrix (22 orientations, calibration, control points) has a condition number of ~1e13
+after Jacobi scaling, and the tilt is a rotation, not linear in the unknowns. Gauss-Newton and
+Levenberg-Marquardt crept along it (cost ratio ~0.95 per iteration) and stopped at the 100-iteration limit
+wherever they were, so the leave-one-out errors depended on the path (gcp01 0.96 or 1.50 m). The
+adjustment now moves the whole block by the best-fitting similarity onto its control points after each
+step (``aerotri.adjust.datum``; image residuals are invariant under it): every solve here converges in 4
+iterations to the least-squares minimum (Levenberg-Marquardt with every point explicit lowers it no
+further). How far the block tilts is still decided by metre-level planimetric control against 5 m
+heights: the leave-one-out solutions' mean viewing direction lies 7.6 to 21.8 degrees off the vertical.
 """
 
 from __future__ import annotations
@@ -48,6 +44,7 @@ from pathlib import Path
 
 import numpy as np
 
+from aerotri.adjust.datum import umeyama
 from aerotri.adjust.pipeline import AdjustSettings, adjust_project, write_outputs
 from aerotri.camera import FrameCamera
 from aerotri.eo import ExteriorOrientations, write_eo
@@ -96,18 +93,6 @@ def _rotation_between(a, b):
     return np.eye(3) + K + K @ K / (1.0 + c)
 
 
-def umeyama(src, dst):
-    """Similarity dst ~ s R src + t (least squares)."""
-    ms, md = src.mean(0), dst.mean(0)
-    A, B = src - ms, dst - md
-    U, S, Vt = np.linalg.svd(B.T @ A / len(src))
-    D = np.eye(len(ms))
-    D[-1, -1] = np.sign(np.linalg.det(U @ Vt))
-    R = U @ D @ Vt
-    s = np.trace(np.diag(S) @ D) / A.var(0).sum()
-    return s, R, md - s * R @ ms
-
-
 def _summary(rep: dict, ba) -> dict:
     out = {k: rep["key_statistics"][k] for k in ("sigma0_um", "sigma0", "iterations", "degrees_of_freedom", "success")}
     out["rms_control_m"] = rep["parameters"]["rms_control_m"]
@@ -118,7 +103,15 @@ def _summary(rep: dict, ba) -> dict:
     out["tie_rms_um"] = [rep["image_residuals"]["tie"].get("rms_x_um"), rep["image_residuals"]["tie"].get("rms_y_um")]
     out["final_solve_iterations"] = ba.result.info.iterations
     out["timings_s"] = ba.result.timings_s
+    out["mean_view_off_vertical_deg"] = mean_view_off_vertical_deg(ba.result.state.R_cv)
     return out
+
+
+def mean_view_off_vertical_deg(R_cv) -> float:
+    """Angle between the images' mean viewing direction and the vertical (deg): the block's tilt, which only
+    the loose target heights hold."""
+    view = np.mean(R_cv[:, :, 2], axis=0)
+    return float(np.degrees(np.arccos(-view[2] / np.linalg.norm(view))))
 
 
 def control_variance_component(ba, sigma_xy_m: float):
@@ -325,7 +318,8 @@ def main(argv=None):
                     "sigma_x_m": c["sigma_m"][0], "sigma_y_m": c["sigma_m"][1], "given_sigma_xy_m": sig,
                     "normalised_x": float(d[0] / s_tot[0]), "normalised_y": float(d[1] / s_tot[1]), "sigma0": b1.result.sigma0,
                     "iterations": b1.result.info.iterations, "converged": b1.result.info.converged,
-                    "seconds": time.perf_counter() - t1, "rejected_in_full_adjustment": tid in rejected})
+                    "seconds": time.perf_counter() - t1, "rejected_in_full_adjustment": tid in rejected,
+                    "mean_view_off_vertical_deg": mean_view_off_vertical_deg(b1.result.state.R_cv)})
         print(f"{label} {tid}: dX {d[0]:+.3f} dY {d[1]:+.3f} m, {b1.result.info.iterations} iterations", file=sys.stderr, flush=True)
     ok = [x for x in loo if np.isfinite(x["dxy_m"]) and not x["rejected_in_full_adjustment"]]
     dxy = np.array([[x["dx_m"], x["dy_m"]] for x in ok])

@@ -25,6 +25,12 @@ Observation equations and their factors:
   has a loose height, a height point loose planimetry);
 - calibration parameters not estimated: tight priors.
 
+Solution (``optimize``): with Schur-eliminated tie points, Levenberg-Marquardt on the reduced camera
+system (pure Gauss-Newton while its steps lower the cost). A block without GNSS has its datum in the
+control points alone; with loose control heights its tilt is then held so weakly that the iteration creeps
+along it (a rotation is not linear in the unknowns), so a datum step (``aerotri.adjust.datum``: the block
+moved by the best-fitting similarity onto its control points) precedes and follows each step.
+
 Degrees of freedom count only real observations: 2 per image point, 3 per GNSS position, the
 constrained components of control points; hard constraints add as many equations as unknowns.
 """
@@ -38,7 +44,7 @@ import time
 import gtsam
 import numpy as np
 
-from aerotri.adjust import schur
+from aerotri.adjust import datum, schur
 from aerotri.camera import FrameCamera
 from aerotri.errors import InputError
 from aerotri.rotation import FLIP_YZ
@@ -99,7 +105,7 @@ class Options:
     relative_tolerance: float = 1e-8
     ordering: str = "METIS"  # LM elimination ordering (METIS | COLAMD)
     linear_solver: str = "MULTIFRONTAL_CHOLESKY"  # or SEQUENTIAL_CHOLESKY
-    diagonal_damping: bool = False  # Marquardt (diag(H)) instead of Levenberg (identity) damping
+    diagonal_damping: bool = False  # gtsam LM (robust, explicit-point solves): Marquardt (diag(H)), not Levenberg (I)
     eliminate_tie_points: bool = True  # Schur-eliminate tie points where possible (see module docstring)
 
     def __post_init__(self):
@@ -201,6 +207,20 @@ class TiePoints:
 
 
 @dataclasses.dataclass
+class ControlDatum:
+    """Control points that carry the datum alone (no GNSS), for the datum step: point indices, given
+    coordinates (local frame) and their covariances, and their rays (pixels, image, row into ``point``)."""
+
+    point: np.ndarray  # (n,)
+    given_m: np.ndarray  # (n, 3)
+    cov_m2: np.ndarray  # (n, 3, 3)
+    xy_px: np.ndarray  # (K, 2)
+    image: np.ndarray  # (K,)
+    row: np.ndarray  # (K,)
+    sigma_px: float
+
+
+@dataclasses.dataclass
 class Graph:
     graph: gtsam.NonlinearFactorGraph  # with ``tie``: every factor except the tie points'
     values: gtsam.Values
@@ -210,6 +230,7 @@ class Graph:
     robust: bool = False
     tie: TiePoints | None = None
     ordering: gtsam.Ordering | None = None  # elimination ordering, when computed here
+    datum: ControlDatum | None = None  # with ``tie``: the datum step's control points (blocks without GNSS)
 
     @property
     def dof(self) -> int:
@@ -221,6 +242,10 @@ class Graph:
         if self.tie is None:
             return self.graph.linearize(values)
         return self.linearize_reduced(values, self.tie.coords)[0]
+
+    def reduced_cost(self, values: gtsam.Values, coords: np.ndarray) -> float:
+        """Half the chi-square (gtsam's error) with the tie points of ``tie`` at ``coords``."""
+        return 0.5 * self.tie.sum_of_squares(values, self.n_images, coords) + self.graph.error(values)
 
     def linearize_reduced(self, values: gtsam.Values, coords: np.ndarray) -> tuple[gtsam.GaussianFactorGraph, schur.ReducedSystem]:
         """gtsam's linearisation of ``graph`` at ``values`` with the reduced camera system of the tie points
@@ -301,8 +326,11 @@ def build_graph(block: Block, opts: Options, state: State, obs_active, control_a
         fixed = np.ones(9, dtype=bool)
         for grp in opts.self_calibration:
             fixed[list(SELF_CAL_GROUPS[grp])] = False
-        sig[fixed] = fixed_parameter_sigmas(block.camera, state.cal)[fixed]
-        g.add(gtsam.PriorFactorCal3DS2(K_KEY, _cal3ds2(state.cal), gtsam.noiseModel.Diagonal.Sigmas(sig)))
+        # the prior is the a-priori camera, wherever this solve starts: a prior re-centred on the state of
+        # each rebuild (robust rounds, snooping) would let the parameters held fixed drift by a sigma per round
+        apriori = cal_from_camera(block.camera)
+        sig[fixed] = fixed_parameter_sigmas(block.camera, apriori)[fixed]
+        g.add(gtsam.PriorFactorCal3DS2(K_KEY, _cal3ds2(apriori), gtsam.noiseModel.Diagonal.Sigmas(sig)))
         n_unk += int((~fixed).sum())
     k = idx[explicit[block.obs_point[idx]]]
     _add_projection_factors(g, block.obs_xy_px[k], block.obs_image[k], block.obs_point[k], noise,
@@ -360,6 +388,13 @@ def build_graph(block: Block, opts: Options, state: State, obs_active, control_a
     if schur_tie:
         gr.tie = _tie_points(block, idx[~explicit[block.obs_point[idx]]], state, opts.image_sigma_px, self_cal)
         gr.ordering = _tie_ordering(gr)
+        ctrl = [c for c in np.flatnonzero(control_active) if v.exists(P(block.control_point[c]))]
+        if block.gnss_local is None and len(ctrl) >= 3:
+            point = block.control_point[ctrl]
+            row = np.full(block.n_points, -1)
+            row[point] = np.arange(len(point))
+            gr.datum = ControlDatum(point, block.control_local[ctrl], block.control_cov_local[ctrl], block.obs_xy_px[k],
+                                    block.obs_image[k], row[block.obs_point[k]], float(opts.image_sigma_px))
     return gr
 
 
@@ -416,90 +451,162 @@ def _gauss_newton(gr: Graph, opts: Options) -> tuple[gtsam.Values, int, bool]:
     return good, opts.max_iterations, False
 
 
-def _schur_gauss_newton(gr: Graph, opts: Options) -> tuple[gtsam.Values, np.ndarray, int, bool, float]:
-    """Gauss-Newton on the reduced camera system while each step lowers the cost: (last good values, tie
-    point coordinates, iterations, converged, chi-square). Stops unconverged at the first step that does
-    not lower it, or at a system gtsam cannot factor undamped."""
-    tp, n = gr.tie, gr.n_images
+# Marquardt damping of the reduced system, relative to diag(N): first value, floor, and the value at which
+# no step lowers the cost (gtsam's LM: 1e-5, 0, 1e5)
+LAMBDA_FIRST, LAMBDA_MIN, LAMBDA_MAX = 1e-6, 1e-9, 1e6
+
+
+def _key_diagonal(gfg: gtsam.GaussianFactorGraph) -> dict:
+    """The diagonal of the normal matrix of ``gfg``, per key."""
+    diag = {}
+    for n in range(gfg.size()):
+        f = gfg.at(n)
+        d, off = np.diag(f.information()), 0
+        for key in f.keys():
+            m = 6 if gtsam.Symbol(key).chr() == ord("x") else 9 if key == K_KEY else 3
+            diag[key] = diag.get(key, 0.0) + d[off:off + m]
+            off += m
+    return diag
+
+
+def _damped(gfg: gtsam.GaussianFactorGraph, diag: dict, lam: float) -> gtsam.GaussianFactorGraph:
+    """``gfg`` plus Marquardt's damping ``lam diag(N)`` (as gtsam's LM: diagonal clamped at 1e-6)."""
+    out = gtsam.GaussianFactorGraph()
+    out.push_back(gfg)
+    for key, d in diag.items():
+        out.push_back(gtsam.JacobianFactor(key, np.diag(np.sqrt(lam * np.maximum(d, 1e-6))), np.zeros(len(d)),
+                                           gtsam.noiseModel.Unit.Create(len(d))))
+    return out
+
+
+def _datum_step(gr: Graph, values: gtsam.Values, coords: np.ndarray, cost: float) -> tuple[gtsam.Values, np.ndarray, float]:
+    """The block moved by the similarity that brings its control points, as their rays intersect them,
+    closest to their given coordinates (``aerotri.adjust.datum``), if that lowers the cost.
+
+    The fit weighs each point with its given covariance plus its intersection's (image noise); points
+    with a single ray or nearly parallel rays only follow. Orientations and tie points move with the
+    similarity (their rays do not change); each control point becomes its moved intersection combined
+    with its given coordinates (the least-squares estimate from both, linearised)."""
+    from aerotri.adjust.check_points import intersect  # check_points imports this module
+
+    dc = gr.datum
+    centre, R_cv, cal = gr.tie._cameras(values, gr.n_images)
+    now = np.array([values.atPoint3(P(j)) for j in dc.point.tolist()])
+    meet, _ = intersect(dc.xy_px, dc.row, dc.image, centre, R_cv, cal, len(now))
+    ok = np.all(np.isfinite(meet), axis=1)  # NaN: fewer than two usable rays
+    meet[~ok] = now[~ok]
+    _, pc = project_cv(meet[dc.row], centre[dc.image], R_cv[dc.image], cal)
+    N = point_normals(point_jacobian_cv(pc, R_cv[dc.image], cal), dc.row, len(meet)) / dc.sigma_px**2
+    ev = np.linalg.eigvalsh(N)
+    ok &= ev[:, 0] > 1e-10 * ev[:, 2]
+    if ok.sum() < 3:
+        return values, coords, cost
+    cov_X = np.linalg.inv(N[ok])
+    fit = datum.fit_similarity(meet[ok], dc.given_m[ok], dc.cov_m2[ok] + cov_X)
+    if not fit.cost_after < fit.cost_before:
+        return values, coords, cost
+    sim = fit.similarity
+    moved = sim.apply(now)
+    Xt = sim.apply(meet[ok])
+    cov_t = sim.scale**2 * sim.R @ cov_X @ sim.R.T
+    gain = cov_t @ np.linalg.inv(cov_t + dc.cov_m2[ok])
+    moved[ok] = Xt + np.einsum("kij,kj->ki", gain, dc.given_m[ok] - Xt)
+    centre, R_cv = sim.apply(centre), sim.rotate(R_cv)
+    new = gtsam.Values(values)
+    for i in range(gr.n_images):
+        new.update(X(i), _pose(centre[i], R_cv[i]))
+    for j, xyz in zip(dc.point.tolist(), moved):
+        new.update(P(j), xyz)
+    new_coords = sim.apply(coords)
+    new_cost = gr.reduced_cost(new, new_coords)
+    return (new, new_coords, new_cost) if new_cost < cost else (values, coords, cost)
+
+
+def _schur_levenberg_marquardt(gr: Graph, opts: Options) -> tuple[gtsam.Values, np.ndarray, int, bool, float]:
+    """Levenberg-Marquardt on the reduced camera system: (values, tie point coordinates, iterations,
+    converged, chi-square).
+
+    Undamped Gauss-Newton steps while they lower the cost (each one elimination of the reduced system);
+    when a step does not, or the system cannot be factored undamped, Marquardt damping ``lam diag(N)`` on
+    every unknown of the reduced system from then on, raised tenfold until a step lowers the cost and
+    lowered tenfold after each success, down to LAMBDA_MIN. With the datum carried by control points alone
+    (``gr.datum``), the datum step precedes the first step and follows every step. An iteration is one
+    linearisation."""
+    tp, n, tol = gr.tie, gr.n_images, opts.relative_tolerance
     values, coords = gr.values, tp.coords
-    gfg, rs = gr.linearize_reduced(values, coords)
-    cost = 0.5 * rs.rr + gr.graph.error(values)
+    cost = gr.reduced_cost(values, coords)
+    if gr.datum is not None:
+        values, coords, cost = _datum_step(gr, values, coords, cost)
+    lam = 0.0
     for it in range(1, opts.max_iterations + 1):
-        try:
-            delta = gfg.optimize(gr.ordering)
-        except RuntimeError:  # indeterminate without damping
-            return values, coords, it - 1, False, 2.0 * cost
-        new_values = values.retract(delta)
-        new_coords = tp.updated(rs, delta, n, coords)
-        new_cost = 0.5 * tp.sum_of_squares(new_values, n, new_coords) + gr.graph.error(new_values)
-        accept, converged = _step_test(cost, new_cost, opts.relative_tolerance)
-        if accept:
-            values, coords, cost = new_values, new_coords, new_cost
-        if converged or not accept:
-            return values, coords, it if converged else it - 1, converged, 2.0 * cost
         gfg, rs = gr.linearize_reduced(values, coords)
+        diag, failure = None, None
+        while True:
+            if lam > 0.0 and diag is None:
+                diag = _key_diagonal(gfg)
+            try:
+                delta = (_damped(gfg, diag, lam) if lam > 0.0 else gfg).optimize(gr.ordering)
+                new_values, new_coords = values.retract(delta), tp.updated(rs, delta, n, coords)
+                new_cost, failure = gr.reduced_cost(new_values, new_coords), None
+            except RuntimeError as exc:  # indeterminate without (enough) damping
+                new_cost, failure = np.inf, exc
+            accept, converged = _step_test(cost, new_cost, tol)
+            if accept or converged:
+                break
+            lam = 10.0 * lam if lam > 0.0 else LAMBDA_FIRST
+            if lam > LAMBDA_MAX:
+                if failure is not None:
+                    raise failure
+                return values, coords, it - 1, False, 2.0 * cost
+        if not accept:  # no lower cost within the tolerance: at the minimum
+            return values, coords, it, True, 2.0 * cost
+        previous = cost
+        values, coords, cost = new_values, new_coords, new_cost
+        lam = max(lam / 10.0, LAMBDA_MIN) if lam > 0.0 else 0.0
+        if gr.datum is not None:
+            values, coords, cost = _datum_step(gr, values, coords, cost)
+        if previous - cost <= tol * previous:
+            return values, coords, it, True, 2.0 * cost
     return values, coords, opts.max_iterations, False, 2.0 * cost
 
 
-def _insert_tie_points(values: gtsam.Values, tp: TiePoints) -> gtsam.Values:
-    for j, xyz in zip(tp.point.tolist(), tp.coords):
-        values.insert(P(j), xyz)
-    return values
-
-
-def _explicit_tie_points(gr: Graph) -> gtsam.NonlinearFactorGraph:
-    """The full graph: the Schur-eliminated tie points as explicit unknowns."""
-    tp = gr.tie
-    g = gtsam.NonlinearFactorGraph(gr.graph)
-    _add_projection_factors(g, tp.xy_px, tp.image, tp.point[tp.pairs.row], gtsam.noiseModel.Isotropic.Sigma(2, tp.sigma_px),
-                            None if tp.self_cal else _cal3ds2(tp.cal))
-    return g
-
-
 def optimize(gr: Graph, opts: Options) -> tuple[gtsam.Values, SolveInfo]:
-    """Least squares: Gauss-Newton, the classical bundle iteration, while its steps lower the cost (each
-    one is a single elimination); Levenberg-Marquardt from the last good values when a step does not, and
-    for robust solves (iteratively reweighted, where the damping keeps the reweighting stable).
-
-    With Schur-eliminated tie points (``gr.tie``) the Gauss-Newton steps run on the reduced camera system;
-    a Levenberg-Marquardt fallback runs on the full graph with the tie points as explicit unknowns. The
-    adjusted tie points are then in ``gr.tie.coords`` (``state_from_values(..., tie=gr.tie)``)."""
+    """Least squares. With Schur-eliminated tie points (``gr.tie``): Levenberg-Marquardt on the reduced
+    camera system, which is Gauss-Newton (the classical bundle iteration) while its steps lower the cost;
+    the adjusted tie points are then in ``gr.tie.coords`` (``state_from_values(..., tie=gr.tie)``).
+    Otherwise Gauss-Newton in gtsam while its steps lower the cost, and gtsam's Levenberg-Marquardt from
+    the last good values when a step does not, and for robust solves (iteratively reweighted, where the
+    damping keeps the reweighting stable)."""
     t0 = time.perf_counter()
-    it, converged, start, graph, chi2 = 0, False, gr.values, gr.graph, None
+    it, converged, result, chi2 = 0, False, gr.values, None
     try:
         if gr.tie is not None:
-            start, gr.tie.coords, it, converged, chi2 = _schur_gauss_newton(gr, opts)
-        elif not gr.robust:
-            start, it, converged = _gauss_newton(gr, opts)
-        result = start
-        if not converged and it < opts.max_iterations:
-            if gr.tie is not None:
-                graph, start = _explicit_tie_points(gr), _insert_tie_points(gtsam.Values(start), gr.tie)
-            # the reduced system's ordering lacks the tie points of the full graph
-            params = _ordered(gtsam.LevenbergMarquardtParams(), gr.ordering if gr.tie is None else None, opts)
-            params.setMaxIterations(opts.max_iterations - it)
-            params.setDiagonalDamping(opts.diagonal_damping)
-            opt = gtsam.LevenbergMarquardtOptimizer(graph, start, params)
-            result = gtsam.Values(opt.optimize())
-            n = int(opt.iterations())
-            it += n
-            converged = n < params.getMaxIterations()
-            if not converged:
-                # stopped by the iteration limit: converged if one more step no longer reduces the error noticeably
-                e0 = opt.error()
-                opt.iterate()
-                converged = e0 - opt.error() <= 1e-6 * e0
-                result = gtsam.Values(opt.values())
-            chi2 = None
-            if gr.tie is not None:
-                gr.tie.coords = np.array([result.atPoint3(P(j)) for j in gr.tie.point])
+            result, gr.tie.coords, it, converged, chi2 = _schur_levenberg_marquardt(gr, opts)
+        else:
+            if not gr.robust:
+                result, it, converged = _gauss_newton(gr, opts)
+            if not converged and it < opts.max_iterations:
+                params = _ordered(gtsam.LevenbergMarquardtParams(), gr.ordering, opts)
+                params.setMaxIterations(opts.max_iterations - it)
+                params.setDiagonalDamping(opts.diagonal_damping)
+                opt = gtsam.LevenbergMarquardtOptimizer(gr.graph, result, params)
+                result = gtsam.Values(opt.optimize())
+                n = int(opt.iterations())
+                it += n
+                converged = n < params.getMaxIterations()
+                if not converged:
+                    # stopped by the iteration limit: converged if one more step no longer reduces the error noticeably
+                    e0 = opt.error()
+                    opt.iterate()
+                    converged = e0 - opt.error() <= 1e-6 * e0
+                    result = gtsam.Values(opt.values())
     except RuntimeError as exc:
         raise InputError(
             "the adjustment is singular (datum defect: too few control points or GNSS positions for "
             f"the chosen corrections, or images/points without enough rays): {exc}"
         ) from None
     if chi2 is None:
-        chi2 = 2.0 * graph.error(result)
+        chi2 = 2.0 * gr.graph.error(result)
     return result, SolveInfo(it, chi2, gr.dof, time.perf_counter() - t0, converged)
 
 
