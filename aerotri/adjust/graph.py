@@ -9,14 +9,13 @@ Observation equations and their factors:
 
 - image point: collinearity with Cal3DS2 -> GenericProjectionFactorCal3DS2 (fixed camera) or
   GeneralSFMFactor2Cal3DS2 (self-calibration), isotropic ``image_sigma_px``;
-- tie points of a least-squares solve with a fixed camera: not unknowns of the gtsam graph. Each
-  Gauss-Newton iteration linearises their rays in numba and eliminates the points by the Schur
-  complement (``aerotri.adjust.schur``: the reduced camera system of Ceres' Schur solvers), hands the
-  reduced blocks to gtsam as HessianFactors next to gtsam's linearisation of all other factors, and
-  back-substitutes the point increments after gtsam's elimination; a self-calibration's Cal3DS2 unknown
-  is part of that reduced system. Robust solves keep every point an unknown of the graph
-  (GenericProjectionFactor / GeneralSFMFactor2 with the Huber kernel), and so do control points (they
-  carry priors);
+- tie points: not unknowns of the gtsam graph. Each iteration linearises their rays in numba and
+  eliminates the points by the Schur complement (``aerotri.adjust.schur``: the reduced camera system of
+  Ceres' Schur solvers), hands the reduced blocks to gtsam as HessianFactors next to gtsam's
+  linearisation of all other factors, and back-substitutes the point increments after gtsam's
+  elimination; a self-calibration's Cal3DS2 unknown is part of that reduced system, and robust solves
+  weigh the rays with Huber's kernel there (iteratively reweighted). Control points stay unknowns of the
+  graph (they carry priors), and so does every point with ``Options.eliminate_tie_points`` off;
 - GNSS, no correction: ``g = C + R l`` -> GPSFactorArm;
 - GNSS with shift/drift: ``a_i = C_i + R_i l`` (ReferenceFrameFactorPoint3Pose3 as a hard constraint)
   and the linear ``g_i = a_i + s_strip + t_i d_strip`` (t = along-track km) -> JacobianFactor in a
@@ -106,7 +105,7 @@ class Options:
     ordering: str = "METIS"  # LM elimination ordering (METIS | COLAMD)
     linear_solver: str = "MULTIFRONTAL_CHOLESKY"  # or SEQUENTIAL_CHOLESKY
     diagonal_damping: bool = False  # gtsam LM (robust, explicit-point solves): Marquardt (diag(H)), not Levenberg (I)
-    eliminate_tie_points: bool = True  # Schur-eliminate tie points where possible (see module docstring)
+    eliminate_tie_points: bool = True  # Schur-eliminate the tie points (see module docstring)
 
     def __post_init__(self):
         if self.gnss_correction not in GNSS_CORRECTIONS:
@@ -181,6 +180,7 @@ class TiePoints:
     cal: np.ndarray  # (9,) Cal3DS2 values (fixed, or the start of self-calibration)
     sigma_px: float
     self_cal: bool  # the calibration is the unknown K_KEY
+    huber_k: float = 0.0  # > 0: robust solve, Huber's kernel at huber_k standard deviations
 
     def _cameras(self, values: gtsam.Values, n_images: int):
         centre, R_cv = orientations_from_values(values, n_images)
@@ -193,7 +193,7 @@ class TiePoints:
         pr = self.pairs
         return schur.ReducedSystem(*schur.reduced_camera_system(
             self.xy_px, self.image, pr.row, pr.start, pr.a, pr.b, pr.pair_block, len(pr.images), n_images, centre, R_cv,
-            coords, cal, 1.0 / self.sigma_px, self.self_cal))
+            coords, cal, 1.0 / self.sigma_px, self.self_cal, self.huber_k))
 
     def updated(self, rs: schur.ReducedSystem, delta: gtsam.VectorValues, n_images: int, coords: np.ndarray) -> np.ndarray:
         """The point coordinates after the back-substitution of the solved increments ``delta``."""
@@ -203,7 +203,8 @@ class TiePoints:
 
     def sum_of_squares(self, values: gtsam.Values, n_images: int, coords: np.ndarray) -> float:
         centre, R_cv, cal = self._cameras(values, n_images)
-        return float(schur.sum_of_squares(self.xy_px, self.image, self.pairs.row, centre, R_cv, coords, cal, 1.0 / self.sigma_px))
+        return float(schur.sum_of_squares(self.xy_px, self.image, self.pairs.row, centre, R_cv, coords, cal, 1.0 / self.sigma_px,
+                                          self.huber_k))
 
 
 @dataclasses.dataclass
@@ -244,7 +245,8 @@ class Graph:
         return self.linearize_reduced(values, self.tie.coords)[0]
 
     def reduced_cost(self, values: gtsam.Values, coords: np.ndarray) -> float:
-        """Half the chi-square (gtsam's error) with the tie points of ``tie`` at ``coords``."""
+        """gtsam's error (half the chi-square; robust graphs: the robust cost) with the tie points of ``tie``
+        at ``coords``."""
         return 0.5 * self.tie.sum_of_squares(values, self.n_images, coords) + self.graph.error(values)
 
     def linearize_reduced(self, values: gtsam.Values, coords: np.ndarray) -> tuple[gtsam.GaussianFactorGraph, schur.ReducedSystem]:
@@ -257,11 +259,12 @@ class Graph:
         return gfg, rs
 
 
-def _tie_points(block: Block, obs: np.ndarray, state: State, sigma_px: float, self_cal: bool) -> TiePoints:
+def _tie_points(block: Block, obs: np.ndarray, state: State, sigma_px: float, self_cal: bool, huber_k: float) -> TiePoints:
     pr = schur.ray_pairs(obs, block.obs_point, block.obs_image, block.n_images)
     point = block.obs_point[pr.obs][pr.start[:-1]]
     return TiePoints(point, pr, block.obs_xy_px[pr.obs], block.obs_image[pr.obs].astype(np.int64),
-                     np.array(state.points[point], dtype=float), np.asarray(state.cal, dtype=float), float(sigma_px), self_cal)
+                     np.array(state.points[point], dtype=float), np.asarray(state.cal, dtype=float), float(sigma_px), self_cal,
+                     float(huber_k))
 
 
 def _add_projection_factors(g: gtsam.NonlinearFactorGraph, xy_px, image, point, noise, K) -> None:
@@ -303,7 +306,7 @@ def build_graph(block: Block, opts: Options, state: State, obs_active, control_a
     self_cal = bool(opts.self_calibration)
     used_points = np.unique(block.obs_point[obs_active])
     n_eq = n_unk = 0
-    schur_tie = opts.eliminate_tie_points and not robust
+    schur_tie = opts.eliminate_tie_points
     explicit = np.ones(block.n_points, dtype=bool)  # points that are unknowns of the graph
     if schur_tie:
         explicit[:] = False
@@ -386,7 +389,8 @@ def build_graph(block: Block, opts: Options, state: State, obs_active, control_a
         n_eq += int(block.control_rows[c])
     gr = Graph(g, v, n_eq, n_unk, block.n_images, robust)
     if schur_tie:
-        gr.tie = _tie_points(block, idx[~explicit[block.obs_point[idx]]], state, opts.image_sigma_px, self_cal)
+        gr.tie = _tie_points(block, idx[~explicit[block.obs_point[idx]]], state, opts.image_sigma_px, self_cal,
+                             opts.huber_k if robust else 0.0)
         gr.ordering = _tie_ordering(gr)
         ctrl = [c for c in np.flatnonzero(control_active) if v.exists(P(block.control_point[c]))]
         if block.gnss_local is None and len(ctrl) >= 3:
@@ -571,12 +575,12 @@ def _schur_levenberg_marquardt(gr: Graph, opts: Options) -> tuple[gtsam.Values, 
 
 
 def optimize(gr: Graph, opts: Options) -> tuple[gtsam.Values, SolveInfo]:
-    """Least squares. With Schur-eliminated tie points (``gr.tie``): Levenberg-Marquardt on the reduced
-    camera system, which is Gauss-Newton (the classical bundle iteration) while its steps lower the cost;
-    the adjusted tie points are then in ``gr.tie.coords`` (``state_from_values(..., tie=gr.tie)``).
-    Otherwise Gauss-Newton in gtsam while its steps lower the cost, and gtsam's Levenberg-Marquardt from
-    the last good values when a step does not, and for robust solves (iteratively reweighted, where the
-    damping keeps the reweighting stable)."""
+    """Least squares (robust graphs: Huber M-estimate, iteratively reweighted). With Schur-eliminated tie
+    points (``gr.tie``): Levenberg-Marquardt on the reduced camera system, which is Gauss-Newton (the
+    classical bundle iteration) while its steps lower the cost; the adjusted tie points are then in
+    ``gr.tie.coords`` (``state_from_values(..., tie=gr.tie)``). With explicit points: Gauss-Newton in gtsam
+    while its steps lower the cost and gtsam's Levenberg-Marquardt from the last good values when a step
+    does not (robust graphs: Levenberg-Marquardt only)."""
     t0 = time.perf_counter()
     it, converged, result, chi2 = 0, False, gr.values, None
     try:
