@@ -15,7 +15,7 @@ import time
 from collections.abc import Callable
 from pathlib import Path
 
-from lidarctl.atomic import write_text_atomic
+from lidarctl.atomic import remove_leftovers, write_text_atomic
 
 
 @dataclasses.dataclass
@@ -87,18 +87,11 @@ def run_stages(root, stages: list[Stage], force: bool = False, log=print) -> lis
 
 
 def _remove_stale_temporaries(outputs: list[Path]) -> None:
-    """Delete what a killed earlier attempt left of its atomic writes (``.<stem>.XXXX<suffix>`` files
-    and ``.<name>.XXXX`` folders next to the outputs; see lidarctl.atomic)."""
-    import shutil
-
-    for p in outputs:
-        if not p.parent.is_dir():
-            continue
-        for q in p.parent.glob(f".{p.stem}.*"):
-            if q.is_dir():
-                shutil.rmtree(q, ignore_errors=True)
-            elif q.suffix == (p.suffix or ".tmp"):
-                q.unlink(missing_ok=True)
+    """Delete what a killed earlier attempt left of its atomic writes in the folders of the stage's
+    outputs (``lidarctl.atomic.remove_leftovers``: the frame files next to ortho/frames/index.json, the
+    mosaic's and the rasters' work folders, the LiDAR tiles' work folder, ...)."""
+    for folder in sorted({p.parent for p in outputs}):
+        remove_leftovers(folder)
 
 
 def format_summary(rows: list[dict]) -> str:
@@ -215,15 +208,18 @@ def chain_stages(root: Path, raster_res_m: float = 0.5, reference_ortho: Path | 
         Stage("corners", lambda r: [classified], lambda r: [lo / "corners.csv"], corners),
         Stage("match", lambda r: sorted((r / "images").glob("*")) + [r / "gnss.txt", r / "camera.toml"],
               lambda r: [r / "at" / "tiepoints.csv"], match),
-        Stage("adjust_first", lambda r: [r / "at" / "tiepoints.csv", r / "gnss.txt"],
+        # project.toml carries the [gnss]/[control] sigmas, [adjust] image sigma and the [qa] limits of the report
+        Stage("adjust_first", lambda r: [r / "at" / "tiepoints.csv", r / "gnss.txt", r / "camera.toml", r / "project.toml"],
               lambda r: [first / "eo.txt", first / "camera.toml"], adjust_first),
         Stage("control", lambda r: [lo / "corners.csv", first / "eo.txt", first / "camera.toml"],
               lambda r: [r / "control" / "points.csv", r / "control" / "image_points.csv"], control),
         Stage("adjust_final", lambda r: [r / "at" / "tiepoints.csv", r / "control" / "points.csv",
-                                         r / "control" / "image_points.csv"],
+                                         r / "control" / "image_points.csv", r / "gnss.txt", r / "camera.toml",
+                                         r / "project.toml"],
               lambda r: [r / "at" / "eo.txt", r / "at" / "report.json"], adjust_final),
-        Stage("rectify", lambda r: [r / "at" / "eo.txt", lo / "dem.tif"], lambda r: [r / "ortho" / "frames" / "index.json"],
-              rectify),
+        # (the self-calibrated camera in at/report.json changes only with at/eo.txt)
+        Stage("rectify", lambda r: [r / "at" / "eo.txt", lo / "dem.tif"] + sorted((r / "images").glob("*")),
+              lambda r: [r / "ortho" / "frames" / "index.json"], rectify),
         Stage("mosaic", lambda r: [r / "ortho" / "frames" / "index.json"], lambda r: [r / "ortho" / "mosaic.tif"], mosaic),
     ]
     if reference_ortho is not None:

@@ -1,6 +1,8 @@
 """Atomic output: write to a temporary file in the same folder, rename on success.
 
-A crash or an error never leaves a partial output file behind (used by all three packages).
+A crash or an error never leaves a partial output file behind (used by all three packages). Every
+temporary file and folder these helpers make next to an output is named ``.<name>.part-XXXX[suffix]``
+(``TEMP_MARKER``), so that what a killed process left behind can be found and swept (``remove_leftovers``).
 """
 
 from __future__ import annotations
@@ -10,6 +12,9 @@ import os
 import shutil
 import tempfile
 from pathlib import Path
+
+
+TEMP_MARKER = ".part-"
 
 
 def _umask() -> int:
@@ -26,7 +31,7 @@ def atomic_path(path):
     """
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.stem}.", suffix=path.suffix or ".tmp", dir=path.parent)
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.stem}{TEMP_MARKER}", suffix=path.suffix or ".tmp", dir=path.parent)
     os.close(fd)
     tmp = Path(tmp)
     try:
@@ -49,12 +54,12 @@ def atomic_dir(path):
     """Yield a temporary folder next to ``path``; it replaces ``path`` only if the block succeeds."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = Path(tempfile.mkdtemp(prefix=f".{path.name}.", dir=path.parent))
+    tmp = temporary_dir(path.parent, path.name)
     try:
         yield tmp
         os.chmod(tmp, 0o777 & ~_umask())
         if path.exists():
-            old = path.with_name(f".{path.name}.old")
+            old = path.with_name(f".{path.name}{TEMP_MARKER}old")
             if old.exists():
                 shutil.rmtree(old)
             os.replace(path, old)
@@ -65,3 +70,34 @@ def atomic_dir(path):
     finally:
         if tmp.exists():
             shutil.rmtree(tmp)
+
+
+def temporary_dir(parent, name: str) -> Path:
+    """A new temporary folder ``.<name>.part-XXXX`` in ``parent`` (the caller removes it)."""
+    Path(parent).mkdir(parents=True, exist_ok=True)
+    return Path(tempfile.mkdtemp(prefix=f".{name}{TEMP_MARKER}", dir=parent))
+
+
+@contextlib.contextmanager
+def scratch_dir(parent, name: str):
+    """``temporary_dir`` for the duration of a block, removed afterwards."""
+    tmp = temporary_dir(parent, name)
+    try:
+        yield tmp
+    finally:
+        shutil.rmtree(tmp, ignore_errors=True)
+
+
+def remove_leftovers(folder) -> list[Path]:
+    """Delete the temporaries a killed process left in ``folder`` (not below it): files and folders named
+    ``.<name>.part-*``. Returns what was removed. Only for folders no other process is writing to."""
+    folder = Path(folder)
+    if not folder.is_dir():
+        return []
+    gone = sorted(folder.glob(f".*{TEMP_MARKER}*"))
+    for q in gone:
+        if q.is_dir():
+            shutil.rmtree(q, ignore_errors=True)
+        else:
+            q.unlink(missing_ok=True)
+    return gone

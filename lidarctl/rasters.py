@@ -23,7 +23,7 @@ from rasterio.transform import from_origin
 from scipy import ndimage
 
 from lidarctl import io
-from lidarctl.atomic import atomic_path
+from lidarctl.atomic import atomic_path, temporary_dir
 from lidarctl.errors import InputError
 from lidarctl.io import PointCloud
 from lidarctl.raster_ops import fill_nodata, reduce_grid, sample_bilinear
@@ -195,7 +195,6 @@ def write_rasters(cloud, outdir, res_m: float, crs=None) -> list[Path]:
     """
     import os
     import shutil
-    import tempfile
 
     if isinstance(cloud, PointCloud):
         crs = cloud.crs
@@ -204,7 +203,7 @@ def write_rasters(cloud, outdir, res_m: float, crs=None) -> list[Path]:
     grids = make_grids(cloud, res_m) if isinstance(cloud, PointCloud) else make_grids_streamed(cloud, res_m)[0]
     outdir = Path(outdir)
     outdir.mkdir(parents=True, exist_ok=True)
-    tmp = Path(tempfile.mkdtemp(prefix=".rasters.", dir=outdir))
+    tmp = temporary_dir(outdir, "rasters")
     try:
         for name in ("dem", "dsm", "ndsm", "chm", "intensity"):
             write_cog(tmp / f"{name}.tif", grids[name], grids["transform"], crs)

@@ -46,7 +46,6 @@ import contextlib
 import dataclasses
 import math
 import shutil
-import tempfile
 import time
 from pathlib import Path
 
@@ -54,7 +53,7 @@ import laspy
 import numpy as np
 
 from lidarctl import io
-from lidarctl.atomic import atomic_path
+from lidarctl.atomic import atomic_path, temporary_dir
 from lidarctl.errors import InputError
 from lidarctl.parallel import local_executor, progress_bar
 
@@ -369,7 +368,7 @@ def classify_file(in_path, out_path, crs=None, params=None, tile_size_m: float |
             executor = local_executor()
         parent = Path(work_dir) if work_dir is not None else out_path.parent
         parent.mkdir(parents=True, exist_ok=True)
-        tmp_dir = Path(tempfile.mkdtemp(prefix=f".{out_path.stem}.tiles.", dir=parent))
+        tmp_dir = temporary_dir(parent, f"{out_path.stem}.tiles")
         try:
             tasks = split_into_tiles(in_path, grid, tmp_dir, params, chunk_points, tmp_dir / "records.bin")
             # Cores per task: tasks run side by side on the executor's workers (on a remote cluster

@@ -40,7 +40,7 @@ from rasterio.windows import Window
 from tqdm import tqdm
 
 from aerotri.errors import InputError
-from lidarctl.atomic import atomic_path, write_text_atomic
+from lidarctl.atomic import atomic_path, scratch_dir, write_text_atomic
 from ortho.block import index_grids, read_index
 from ortho.grid import OrthoGrid
 from ortho.seamlines import (keep_objects_whole, label_polygons, least_cost_seams, neighbour_pairs, seam_lines,
@@ -287,11 +287,7 @@ def _write_mosaic(path, frames_dir, index, mosaic: OrthoGrid, seams_path, factor
     profile = dict(driver="GTiff", width=mosaic.width, height=mosaic.height, count=bands, dtype=dtype, crs=mosaic.crs,
                    transform=mosaic.transform, tiled=True, blockxsize=512, blockysize=512, compress="deflate",
                    predictor=2, zlevel=1, interleave="pixel", BIGTIFF="IF_SAFER")
-    import tempfile
-
-    path.parent.mkdir(parents=True, exist_ok=True)
-    with tempfile.TemporaryDirectory(prefix=".mosaic_stage.", dir=path.parent) as tmp_dir, \
-            rasterio.Env(GDAL_TIFF_INTERNAL_MASK=True):
+    with scratch_dir(path.parent, "mosaic") as tmp_dir, rasterio.Env(GDAL_TIFF_INTERNAL_MASK=True):
         context = {"index": index, "frames_dir": str(Path(frames_dir).resolve()),
                    "mosaic": {"x_left_m": mosaic.x_left_m, "y_top_m": mosaic.y_top_m, "res_m": mosaic.res_m,
                               "width": mosaic.width, "height": mosaic.height},

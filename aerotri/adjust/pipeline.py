@@ -408,10 +408,12 @@ def write_outputs(ba: BlockAdjustment, root, html: bool = True, exports: bool = 
 
     from aerotri.adjust import export, report
     from aerotri.eo import format_eo
+    from aerotri.qa_report import qa_settings
     from lidarctl.atomic import write_text_atomic
 
     at = Project.open(root).at_dir
-    rep = report.build_report(ba)
+    qa = qa_settings(root)  # the limits of the project's map scale and terrain, as in reports/
+    rep = report.build_report(ba, qa["map_scale"], qa["terrain"], qa["tolerances"])
     files = {
         "eo.txt": format_eo(ba.eo_map),
         "object_points.csv": object_points_csv(ba),

@@ -13,7 +13,7 @@ import math
 import numpy as np
 
 from aerotri.adjust import graph as G
-from aerotri.qa_report import load_tolerances
+from aerotri.qa_report import load_tolerances, tolerance_path
 
 
 def _rms(a, axis=0):
@@ -33,13 +33,15 @@ def _lst(a, nd=3):
     return [_f(v, nd) for v in np.asarray(a, dtype=float).ravel()]
 
 
-def build_report(ba, terrain: str = "flat") -> dict:
-    """All report numbers as a JSON-ready dict (keys with units)."""
+def build_report(ba, map_scale: str = "1:5000", terrain: str = "flat", tolerance_file=None) -> dict:
+    """All report numbers as a JSON-ready dict (keys with units). RMS and residual limits come from the
+    tolerance table of ``map_scale`` and ``terrain`` (or ``tolerance_file``) unless the settings give them."""
     r, b, opts, st = ba.result, ba.block, ba.opts, ba.settings
     cam = ba.camera_apriori
     pix_um = cam.pixel_um
     s0_um = r.sigma0 * opts.image_sigma_px * pix_um
-    tol = load_tolerances("1:5000", terrain)
+    tol = load_tolerances(map_scale, terrain, tolerance_file)
+    tol_table = tolerance_path(map_scale, tolerance_file).name
     rms_lim = [st.rms_limit_xy_m or tol["rms_xy_m"]] * 2 + [st.rms_limit_z_m or tol["rms_z_m"]]
     res_lim = [st.residual_limit_m or tol["residual_xy_m"]] * 2 + [st.residual_limit_m or tol["residual_z_m"]]
 
@@ -173,6 +175,7 @@ def build_report(ba, terrain: str = "flat") -> dict:
             "ins_shift_drift_correction": "Disabled",
             "image_sigma_px": opts.image_sigma_px,
             "snooping_alpha": st.alpha,
+            "tolerances": f"{map_scale} {terrain} ({tol_table})" if tolerance_file is None else f"{terrain} ({tol_table})",
         },
         "parameters": params,
         "key_statistics": {
@@ -215,7 +218,7 @@ def format_txt(rep: dict) -> str:
                       ("Error Detection", "error_detection"), ("Camera Calibration", "camera_calibration"),
                       ("Self-Calibration", "self_calibration"), ("Given EO/GPS", "given_eo_gps"),
                       ("Antenna Offsets", "antenna_offsets"), ("GPS Shift/Drift Correction", "gps_shift_drift_correction"),
-                      ("INS Shift/Drift Correction", "ins_shift_drift_correction")]:
+                      ("INS Shift/Drift Correction", "ins_shift_drift_correction"), ("Tolerances", "tolerances")]:
         L.append(f"  {name} : {o[key]}")
     L += ["", "Parameters", f"{'':32}{'X/Omega':>10}{'Y/Phi':>10}{'Z/Kappa':>10}{'XY':>10}"]
     rows = [("RMS Control (m)", "rms_control_m", 3), ("RMS Check (m)", "rms_check_m", 3), ("RMS Limits (m)", "rms_limits_m", 3),

@@ -66,10 +66,37 @@ def test_failed_stage_leaves_no_stamp_and_resumes(tmp_path):
 
 
 def test_stale_temporaries_of_a_killed_attempt_are_removed(tmp_path):
+    from lidarctl.atomic import atomic_path, scratch_dir
+
     (tmp_path / "in.txt").write_text("2")
-    # What a SIGKILL during lidarctl.atomic.atomic_path leaves behind:
-    (tmp_path / ".mid.abc123.txt").write_text("partial")
-    (tmp_path / ".out.xyz.txt").write_text("partial")
+    # What a SIGKILL leaves behind in the folder of a stage's outputs: atomic_path files (the outputs', and
+    # other files written there, as the frames next to ortho/frames/index.json) and scratch folders (the
+    # mosaic's, the LiDAR tiles')
+    names = []
+    for name in ("mid.txt", "out.txt", "frame_007.tif"):
+        with pytest.raises(KeyboardInterrupt), atomic_path(tmp_path / name) as tmp:
+            names.append(tmp.name)
+            raise KeyboardInterrupt
+    with scratch_dir(tmp_path, "mosaic") as work:
+        names.append(work.name)
+    for n in names[:3]:  # as if the process had died before its clean-up
+        (tmp_path / n).write_text("partial")
+    (tmp_path / names[3]).mkdir()
+    (tmp_path / names[3] / "stage.tif").write_text("partial")
+    (tmp_path / ".keep").write_text("not a temporary")
     run_stages(tmp_path, _stages([]), log=lambda m: None)
-    assert not list(tmp_path.glob(".*.txt"))
+    assert sorted(p.name for p in tmp_path.glob(".*")) == [".keep"]
     assert (tmp_path / "out.txt").read_text() == "5"
+
+
+def test_chain_stages_list_the_project_files_their_commands_read(tmp_path):
+    """A changed camera, GNSS file or project.toml ([gnss]/[control] sigmas, [qa] limits) re-runs the
+    adjustments; a replaced image re-runs the rectification."""
+    from aerotri.run import chain_stages
+
+    (tmp_path / "images").mkdir()
+    (tmp_path / "images" / "a.tif").write_bytes(b"x")
+    inputs = {st.name: set(st.inputs(tmp_path)) for st in chain_stages(tmp_path)}
+    for name in ("adjust_first", "adjust_final"):
+        assert {tmp_path / "camera.toml", tmp_path / "gnss.txt", tmp_path / "project.toml"} <= inputs[name], name
+    assert tmp_path / "images" / "a.tif" in inputs["rectify"] and tmp_path / "images" / "a.tif" in inputs["match"]
