@@ -85,14 +85,6 @@ def _hypot(a, b):
     return round(math.hypot(a, b), 4)
 
 
-def _pixel_um(root: Path) -> float | None:
-    """Pixel size of the project camera (self-calibration does not change it)."""
-    from aerotri.camera import FrameCamera
-
-    p = root / "camera.toml"
-    return FrameCamera.read(p).pixel_um if p.is_file() else None
-
-
 def build_qa_report(root, tolerance_file=None, terrain: str | None = None, scale: str | None = None) -> dict:
     root = Path(root)
     cfg = qa_settings(root)
@@ -150,10 +142,12 @@ def build_qa_report(root, tolerance_file=None, terrain: str | None = None, scale
     ks = at.get("key_statistics", {})
     if ks:
         rows.append(_check(sec, "solution successful", bool(ks.get("success")), True, "", ks.get("message", "")))
-        px = _pixel_um(root)
-        if ks.get("sigma0_um") is not None and px:
-            rows.append(_check(sec, "sigma naught", round(ks["sigma0_um"] / px, 3), tol.get("sigma0_max_px"), "px",
-                               f"{ks['sigma0_um']:.2f} um on {px:g} um pixels"))
+        s0_px = ks.get("sigma0_px")
+        if s0_px is None and ks.get("sigma0") is not None:  # reports written before sigma0_px
+            s0_px = ks["sigma0"] * at.get("options", {}).get("image_sigma_px", float("nan"))
+        if s0_px is not None and math.isfinite(s0_px):
+            rows.append(_check(sec, "sigma naught", round(s0_px, 3), tol.get("sigma0_max_px"), "px",
+                               f"{ks['sigma0_um']:.2f} um" if ks.get("sigma0_um") is not None else ""))
     chk = at.get("check_rms_m")
     if chk and None not in chk:
         n = len(at.get("check_points", []))

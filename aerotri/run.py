@@ -258,8 +258,7 @@ def chain_stages(root: Path, raster_res_m: float = 0.5, reference_ortho: Path | 
         rep = write_qa_report(r)
         return dict(verdict=rep["overall"], passed=rep["passed"], failed=rep["failed"])
 
-    # camera.toml: the report converts sigma naught to pixels with its pixel size
-    report_inputs = [root / "project.toml", root / "camera.toml", root / "at" / "report.json", root / "control" / "transfer.json",
+    report_inputs = [root / "project.toml", root / "at" / "report.json", root / "control" / "transfer.json",
                      root / "ortho" / "dom_report.json", lo / "height_check.json", lo / "classification_eval.json"]
     stages.append(Stage("report", lambda r: report_inputs, lambda r: [r / "reports" / "index.html"], report))
     return stages

@@ -179,7 +179,8 @@ def build_report(ba, map_scale: str = "1:5000", terrain: str = "flat", tolerance
         },
         "parameters": params,
         "key_statistics": {
-            "sigma0_um": _f(s0_um), "sigma0": _f(r.sigma0, 4), "iterations": int(r.iterations_total),
+            "sigma0_um": _f(s0_um), "sigma0_px": _f(r.sigma0 * opts.image_sigma_px, 4), "sigma0": _f(r.sigma0, 4),
+            "iterations": int(r.iterations_total),
             "degrees_of_freedom": int(r.info.dof), "success": success,
             "message": ("Solution failed: the last solve did not converge." if not success else
                         "Solution Successful." if r.info.iterations < opts.max_iterations else

@@ -12,7 +12,7 @@ def _project(tmp_path, check_rms, dom_rms):
     (tmp_path / "ortho").mkdir()
     (tmp_path / "at" / "report.json").write_text(json.dumps(dict(
         project="t", check_rms_m=check_rms, rms_control_ground_m=[0.02, 0.02, 0.03],
-        key_statistics=dict(sigma0_um=5.1, success=True, message="Solution Successful."))))
+        key_statistics=dict(sigma0_um=5.1, sigma0_px=0.425, success=True, message="Solution Successful."))))
     (tmp_path / "ortho" / "dom_report.json").write_text(json.dumps(dict(displacement=dict(rms_xy_m=dom_rms))))
     return tmp_path
 
@@ -25,6 +25,8 @@ def test_verdicts_match_numbers_and_terrain_class(tmp_path):
     assert abs(plan["value"] - (0.3**2 + 0.2**2) ** 0.5) < 1e-4 and plan["limit"] == 0.35 and plan["verdict"] == "fail"
     assert by["check points, height RMS"]["verdict"] == "fail"  # 1.5 m > 1.0 m (flat)
     assert by["displacement on ground patches, plan RMS"]["verdict"] == "pass"
+    s0 = by["sigma naught"]  # from at/report.json alone: no camera file in this project
+    assert s0["value"] == 0.425 and s0["limit"] == 0.67 and s0["verdict"] == "pass"
     assert rep["overall"] == "fail"
     assert (p / "reports" / "index.html").read_text().count("class='fail'") == 2
     # The same numbers pass the mountainous limits (0.50 m plan, 3.0 m height).
