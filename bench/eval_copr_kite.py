@@ -282,6 +282,8 @@ def main(argv=None):
     rejected = [x["id"] for x in rep["rejected_control"]]
     clean_settings = dict(settings, initial_eo=str(clean / "work" / "initial_eo.txt"), snooping=False)
     gcp, gobs, _ = read_gcps(a.data / "gcp_list.txt")
+    registered = {Path(im.name).stem for im in rec.images.values()}
+    gobs = [o for o in gobs if o[1] in registered]  # as in build_project: targets seen only on unregistered frames drop out
 
     # variance component of the control group (horizontal): s_c^2 = sum v^2 / sum r, iterated
     sigma_c = SIGMA_XY_M
