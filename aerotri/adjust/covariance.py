@@ -10,9 +10,12 @@ orientations it is seen from:
 
 from __future__ import annotations
 
+import contextlib
+
 import gtsam
 import numpy as np
 import scipy.linalg
+from threadpoolctl import threadpool_limits
 
 from aerotri.adjust import graph as G
 
@@ -25,6 +28,33 @@ class _Joint:
 
     def at(self, ka, kb):
         return self._cov.block(ka, kb)
+
+
+# OpenBLAS (0.3.30 in the scipy wheel, 0.3.31 in numpy's) crashes with a segmentation fault in its threaded
+# Cholesky (potrf_parallel) once the matrix passes about 2 GB: n = 16,000 on this 2-core machine, a block
+# of 2,700 images. Its single-threaded path does not (potrf + potri checked at n = 20,000 and 24,000).
+_THREADED_LAPACK_MAX_BYTES = 1 << 30
+
+
+def _inverse_spd(H: np.ndarray) -> np.ndarray:
+    """Inverse of a symmetric positive definite matrix by LAPACK potrf + potri (a quarter of the work of
+    inverting the Cholesky factor and multiplying it out); ``H`` is overwritten where LAPACK can."""
+    big = H.nbytes > _THREADED_LAPACK_MAX_BYTES
+    a = H.T if H.flags.c_contiguous else H  # the same symmetric matrix in Fortran order: no copy for LAPACK
+    with threadpool_limits(1, user_api="blas") if big else contextlib.nullcontext():
+        c, info = scipy.linalg.lapack.dpotrf(a, lower=True, overwrite_a=True)
+        if info != 0:
+            raise np.linalg.LinAlgError(f"reduced normal matrix not positive definite (LAPACK dpotrf info {info})")
+        inv, info = scipy.linalg.lapack.dpotri(c, lower=True, overwrite_c=True)
+        if info != 0:
+            raise np.linalg.LinAlgError(f"reduced normal matrix singular (LAPACK dpotri info {info})")
+    # potri fills the lower triangle only: mirror it block by block (an index array of the whole upper
+    # triangle would take twice the matrix's memory)
+    n, b = len(inv), 2048
+    for i in range(0, n, b):
+        inv[i:i + b, i:i + b] = np.tril(inv[i:i + b, i:i + b]) + np.tril(inv[i:i + b, i:i + b], -1).T
+        inv[i:i + b, i + b:] = inv[i + b:, i:i + b].T
+    return inv
 
 
 class ReducedCovariance:
@@ -51,19 +81,9 @@ class ReducedCovariance:
         d = 1.0 / np.sqrt(np.diag(H))
         H *= d[:, None]
         H *= d[None, :]
-        # LAPACK potrf + potri: the inverse from the Cholesky factor, about a quarter of the work of
-        # inverting the factor and multiplying it out
-        c, info = scipy.linalg.lapack.dpotrf(H, lower=True, overwrite_a=True)
-        if info != 0:
-            raise np.linalg.LinAlgError(f"reduced normal matrix not positive definite (LAPACK dpotrf info {info})")
-        inv, info = scipy.linalg.lapack.dpotri(c, lower=True, overwrite_c=True)
-        if info != 0:
-            raise np.linalg.LinAlgError(f"reduced normal matrix singular (LAPACK dpotri info {info})")
-        upper = np.triu_indices(len(d), 1)
-        inv[upper] = inv.T[upper]  # potri fills the lower triangle only
-        inv *= d[:, None]
-        inv *= d[None, :]
-        self.Sigma = inv
+        self.Sigma = _inverse_spd(H)
+        self.Sigma *= d[:, None]
+        self.Sigma *= d[None, :]
 
     def block(self, ka, kb) -> np.ndarray:
         a, b = self.offset[ka], self.offset[kb]

@@ -4,6 +4,7 @@ import dataclasses
 
 import gtsam
 import numpy as np
+import pytest
 
 from aerotri.adjust import graph as G
 from aerotri.adjust.covariance import ReducedCovariance, point_covariances
@@ -34,3 +35,20 @@ def test_reduced_covariance_matches_gtsam_marginals(tmp_path):
     for j in list(range(0, b.n_points, max(1, b.n_points // 15))) + list(b.control_point):
         ref = marg.marginalCovariance(G.P(j))
         assert np.allclose(cov[j], ref, rtol=2e-3, atol=1e-9 * np.abs(ref).max()), j
+
+
+@pytest.mark.parametrize("single_thread", [False, True])
+def test_inverse_spd_matches_numpy(monkeypatch, single_thread):
+    """potrf + potri and the block-wise mirroring of the lower triangle (n > the 2048 mirroring block),
+    threaded and in the single-threaded path that large matrices take."""
+    from aerotri.adjust import covariance
+
+    if single_thread:
+        monkeypatch.setattr(covariance, "_THREADED_LAPACK_MAX_BYTES", 0)
+    rng = np.random.default_rng(8)
+    A = rng.standard_normal((2600, 200))
+    H = A @ A.T + 50.0 * np.eye(2600)
+    ref = np.linalg.inv(H)
+    inv = covariance._inverse_spd(H.copy())
+    assert np.allclose(inv, inv.T, rtol=0, atol=0)
+    assert np.allclose(inv, ref, rtol=1e-9, atol=1e-12 * np.abs(ref).max())
