@@ -23,7 +23,7 @@ from pathlib import Path
 
 import numpy as np
 
-from aerotri.errors import InputError
+from aerotri.core.errors import InputError
 from aerotri.rotation import FLIP_YZ
 
 _FIELDS = ("focal_mm", "pixel_um", "width", "height", "ppx_mm", "ppy_mm", "k1", "k2", "k3", "p1", "p2")

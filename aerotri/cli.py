@@ -4,8 +4,10 @@ from __future__ import annotations
 
 import click
 
+from aerotri.core.commands import Group
 
-@click.group()
+
+@click.group(cls=Group)
 @click.version_option(package_name="aerotri")
 def main():
     """Aerial triangulation of frame-camera blocks with LiDAR control, and the truth simulator."""

@@ -13,9 +13,9 @@ from pathlib import Path
 
 import numpy as np
 
-from aerotri.errors import InputError
+from aerotri.core.errors import InputError
 from aerotri.rotation import rotation_matrix_opk
-from lidarctl.atomic import write_text_atomic
+from aerotri.core.atomic import write_text_atomic
 
 
 @dataclasses.dataclass

@@ -14,7 +14,7 @@ import dataclasses
 import tomllib
 from pathlib import Path
 
-from aerotri.errors import InputError
+from aerotri.core.errors import InputError
 
 
 @dataclasses.dataclass

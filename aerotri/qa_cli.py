@@ -6,10 +6,11 @@ from pathlib import Path
 
 import click
 
-from aerotri.errors import exit_on_input_error
+from aerotri.core.commands import Command
 
 
-@click.command("report")
+
+@click.command(cls=Command, name="report")
 @click.argument("project", type=click.Path(file_okay=False, exists=True, path_type=Path))
 @click.option("--scale", "scale", type=click.Choice(["1:2000", "1:5000", "1:10000"]), default=None,
               help="Target map scale (default: [qa] map_scale of project.toml, else 1:5000).")
@@ -18,7 +19,6 @@ from aerotri.errors import exit_on_input_error
 @click.option("--tolerances", type=click.Path(dir_okay=False, exists=True, path_type=Path), default=None,
               help="Your own tolerance table (TOML, same layout as aerotri/tolerances/*.toml).")
 @click.option("--pdf/--no-pdf", default=None, help="Also write reports/report.pdf (default: [qa] pdf).")
-@exit_on_input_error
 def report(project, scale, terrain, tolerances, pdf):
     """LiDAR, control, adjustment and DOM accuracy against the map-scale tolerances:
     reports/index.html, reports/summary.json (and reports/report.pdf)."""

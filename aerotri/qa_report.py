@@ -19,8 +19,8 @@ import math
 import tomllib
 from pathlib import Path
 
-from aerotri.errors import InputError
-from lidarctl.atomic import atomic_path, write_text_atomic
+from aerotri.core.errors import InputError
+from aerotri.core.atomic import atomic_path, write_text_atomic
 
 TOLERANCE_DIR = Path(__file__).with_name("tolerances")
 SCALE_TABLES = {"1:2000": "cn_1to2000.toml", "1:5000": "cn_1to5000.toml", "1:10000": "cn_1to10000.toml"}

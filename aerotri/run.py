@@ -15,7 +15,7 @@ import time
 from collections.abc import Callable
 from pathlib import Path
 
-from lidarctl.atomic import remove_leftovers, write_text_atomic
+from aerotri.core.atomic import remove_leftovers, write_text_atomic
 
 
 @dataclasses.dataclass
@@ -88,7 +88,7 @@ def run_stages(root, stages: list[Stage], force: bool = False, log=print) -> lis
 
 def _remove_stale_temporaries(outputs: list[Path]) -> None:
     """Delete what a killed earlier attempt left of its atomic writes in the folders of the stage's
-    outputs (``lidarctl.atomic.remove_leftovers``: the frame files next to ortho/frames/index.json, the
+    outputs (``aerotri.core.atomic.remove_leftovers``: the frame files next to ortho/frames/index.json, the
     mosaic's and the rasters' work folders, the LiDAR tiles' work folder, ...)."""
     for folder in sorted({p.parent for p in outputs}):
         remove_leftovers(folder)
@@ -114,7 +114,7 @@ def _fmt(v):
 
 def _invoke(group, args: list) -> None:
     """Run a click command in-process; a failing command (its message already printed) stops the run."""
-    from aerotri.errors import InputError
+    from aerotri.core.errors import InputError
 
     try:
         group.main(args=[str(a) for a in args], standalone_mode=False)
@@ -173,7 +173,7 @@ def chain_stages(root: Path, raster_res_m: float = 0.5, reference_ortho: Path | 
     def adjust_first(r):
         _invoke(aerotri_cli, ["adjust", r, "--self-cal", "pp,radial", "--no-control", "--no-html"])
         from aerotri.camera import FrameCamera
-        from lidarctl.atomic import write_text_atomic as wta
+        from aerotri.core.atomic import write_text_atomic as wta
 
         first.mkdir(parents=True, exist_ok=True)
         rep = _json(r / "at" / "report.json")

@@ -37,7 +37,7 @@ from aerotri.adjust.observations import ControlPoints  # noqa: E402
 from aerotri.camera import FrameCamera  # noqa: E402
 from aerotri.eo import read_eo  # noqa: E402
 from aerotri.sim.evaluate import truth_roof_corners  # noqa: E402
-from lidarctl.atomic import write_text_atomic  # noqa: E402
+from aerotri.core.atomic import write_text_atomic  # noqa: E402
 
 VENV = REPO / ".venv" / "bin"
 

@@ -50,7 +50,7 @@ from aerotri.adjust.pipeline import AdjustSettings, adjust_project, write_output
 from aerotri.camera import FrameCamera
 from aerotri.eo import ExteriorOrientations, write_eo
 from aerotri.rotation import FLIP_YZ, opk_from_matrix
-from lidarctl.atomic import write_text_atomic
+from aerotri.core.atomic import write_text_atomic
 
 REPO = Path(__file__).resolve().parents[1]
 SIGMA_XY_M, SIGMA_Z_M = 0.3, 5.0  # a-priori target sigmas (averaged handheld GNSS; heights unknown)

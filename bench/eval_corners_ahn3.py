@@ -173,7 +173,7 @@ def main():
         "note": "footprints are wall lines, roof corners are eave corners: the offsets include the eave overhang",
     }
     args.out.mkdir(parents=True, exist_ok=True)
-    from lidarctl.atomic import write_text_atomic
+    from aerotri.core.atomic import write_text_atomic
 
     write_text_atomic(args.out / "corners_ahn3.json", json.dumps(summary, indent=2) + "\n")
     xyz = np.column_stack([cloud["x"], cloud["y"], cloud["z"]])

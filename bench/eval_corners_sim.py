@@ -25,7 +25,7 @@ from pathlib import Path
 import numpy as np
 from scipy.spatial import cKDTree
 
-from lidarctl.atomic import write_text_atomic
+from aerotri.core.atomic import write_text_atomic
 from lidarctl.corners import find_roof_corners, plot_corners, read_classified_cloud, simple_ndsm, write_corner_files
 
 REPO = Path(__file__).resolve().parents[1]

@@ -62,7 +62,7 @@ def prepare(d: Path) -> dict:
 
     from aerotri.eo import ExteriorOrientations, write_eo
     from aerotri.rotation import rotation_matrix_opk
-    from lidarctl.atomic import write_text_atomic
+    from aerotri.core.atomic import write_text_atomic
     from ortho.grid import OrthoGrid
     from ortho.synthetic import render_frame, smooth_dem, textured_orthophoto, write_geotiff
 

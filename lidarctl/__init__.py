@@ -1,3 +1,7 @@
 """lidarctl: airborne LiDAR processing (noise, ground, classes, rasters, roof-corner control)."""
 
-__version__ = "0.1.0"
+import logging
+
+logging.getLogger("lidarctl").addHandler(logging.NullHandler())
+
+from aerotri import __version__  # noqa: E402  one version for the whole distribution

@@ -5,11 +5,11 @@ from __future__ import annotations
 import click
 import numpy as np
 
-from lidarctl.parallel import scheduler_options
-from lidarctl.errors import InputError, exit_on_input_error
+from aerotri.core.commands import Group, scheduler_options
+from aerotri.core.errors import InputError
 
 
-@click.group()
+@click.group(cls=Group)
 @click.version_option(package_name="aerotri")
 def main():
     """Airborne LiDAR: noise removal, ground filtering, classification, rasters, roof-corner control."""
@@ -49,7 +49,6 @@ def _parse_map(text: str | None) -> dict:
 @click.option("--work-dir", type=click.Path(file_okay=False), default=None,
               help="Folder for the temporary tile files (default: next to the output; removed afterwards).")
 @scheduler_options
-@exit_on_input_error
 def classify(in_path, out_path, preset, crs, method, tile_size_m, buffer_m, work_dir, scheduler, workers):
     """Noise, ground, buildings, vegetation and water as ASPRS classes (LAS/LAZ in, LAS/LAZ out).
 
@@ -60,7 +59,7 @@ def classify(in_path, out_path, preset, crs, method, tile_size_m, buffer_m, work
 
     from lidarctl import classify as cl
     from lidarctl import tiles
-    from lidarctl.parallel import executor_for
+    from aerotri.core.executor import executor_for
 
     if Path(in_path).resolve() == Path(out_path).resolve():
         raise InputError(f"{out_path}: output must differ from the input (inputs are never modified)")
@@ -79,7 +78,6 @@ def classify(in_path, out_path, preset, crs, method, tile_size_m, buffer_m, work
 @click.argument("outdir", type=click.Path(file_okay=False))
 @click.option("--res", "res_m", type=float, required=True, help="Cell size in metres.")
 @click.option("--crs", default=None, help="CRS (EPSG:code) when the file has none.")
-@exit_on_input_error
 def rasters(in_path, outdir, res_m, crs):
     """dem/dsm/ndsm/chm/intensity COGs and hillshade.png from a classified cloud (streamed in chunks)."""
     from lidarctl import io
@@ -99,14 +97,13 @@ def rasters(in_path, outdir, res_m, crs):
 @click.option("--json", "json_path", type=click.Path(dir_okay=False), default=None, help="Write the numbers as JSON.")
 @click.option("--map-pred", default=None, help="Class mapping for the prediction, e.g. 3:1,4:1,5:1.")
 @click.option("--map-truth", default=None, help="Class mapping for the truth, e.g. 0:1.")
-@exit_on_input_error
 def evaluate(pred_path, truth_path, json_path, map_pred, map_truth):
     """Type I/II/total error and kappa (ground = classes 2, 9) and the confusion matrix."""
     import json
 
     from lidarctl import evaluate as ev
     from lidarctl import io
-    from lidarctl.atomic import write_text_atomic
+    from aerotri.core.atomic import write_text_atomic
 
     pred = io.read_cloud(pred_path, require_crs=False)
     truth = io.read_cloud(truth_path, require_crs=False)
@@ -136,14 +133,13 @@ def evaluate(pred_path, truth_path, json_path, map_pred, map_truth):
               help="Statistics again without points with |dz| beyond this (m).")
 @click.option("--json", "json_path", type=click.Path(dir_okay=False), default=None)
 @click.option("--crs", default=None, help="CRS (EPSG:code) when the file has none.")
-@exit_on_input_error
 def check_heights(cloud_path, points_csv, radius_m, exclude_m, json_path, crs):
     """Height check of the cloud's ground (class 2) against surveyed points (CSV id,x,y,z[,group])."""
     import json
 
     from lidarctl import heights_check as hc
     from lidarctl import io
-    from lidarctl.atomic import write_text_atomic
+    from aerotri.core.atomic import write_text_atomic
 
     cloud = io.read_cloud(cloud_path, crs=crs)
     points = hc.read_points_csv(points_csv)

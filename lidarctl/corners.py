@@ -35,8 +35,8 @@ from scipy import ndimage
 from scipy.spatial import cKDTree
 from tqdm import tqdm
 
-from lidarctl.atomic import write_text_atomic
-from lidarctl.errors import InputError
+from aerotri.core.atomic import write_text_atomic
+from aerotri.core.errors import InputError
 from lidarctl.roof_outline import (
     corners_from_edges,
     edge_length_m,
@@ -382,7 +382,7 @@ def plot_corners(path, ndsm, extent, outlines, corners, truth_xy=None, reference
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from lidarctl.atomic import atomic_path
+    from aerotri.core.atomic import atomic_path
 
     view = extent if window is None else window
     fig, ax = plt.subplots(figsize=(10, 10 * (view[3] - view[2]) / max(view[1] - view[0], 1e-9) + 0.5))

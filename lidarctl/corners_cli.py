@@ -5,13 +5,15 @@ from __future__ import annotations
 from pathlib import Path
 
 import click
+
+from aerotri.core.commands import Command
 import numpy as np
 
 from lidarctl.corners import find_roof_corners, plot_corners, read_classified_cloud, simple_ndsm, write_corner_files
-from lidarctl.errors import InputError, exit_on_input_error
+from aerotri.core.errors import InputError
 
 
-@click.command("corners")
+@click.command(cls=Command, name="corners")
 @click.argument("classified", nargs=-1, required=True, type=click.Path(path_type=Path))
 @click.argument("outdir", type=click.Path(file_okay=False, path_type=Path))
 @click.option("--min-edge-m", default=5.0, show_default=True, type=click.FloatRange(min=0.5),
@@ -24,7 +26,6 @@ from lidarctl.errors import InputError, exit_on_input_error
               help="Vertical georeferencing error of a strip, added to every corner's sz_m (m).")
 @click.option("--figure/--no-figure", default=True, show_default=True,
               help="Also write corners.png (outlines and corners over the nDSM).")
-@exit_on_input_error
 def corners(classified, outdir, min_edge_m, roof, sigma_strip_xy_m, sigma_strip_z_m, figure):
     """Roof corners of CLASSIFIED LAS/LAZ file(s) (one or more strips, building class 6) into OUTDIR.
 

@@ -16,8 +16,8 @@ import laspy
 import numpy as np
 import pyproj
 
-from lidarctl.atomic import atomic_path
-from lidarctl.errors import InputError
+from aerotri.core.atomic import atomic_path
+from aerotri.core.errors import InputError
 
 CHUNK_POINTS = 2_000_000
 # Projected coordinates beyond these bounds are not an airborne survey on Earth.

@@ -11,8 +11,8 @@ from pathlib import Path
 import laspy
 import numpy as np
 
-from lidarctl.atomic import atomic_path
-from lidarctl.errors import InputError
+from aerotri.core.atomic import atomic_path
+from aerotri.core.errors import InputError
 
 
 def merge_las(paths, out_path, chunk_points: int = 2_000_000) -> int:

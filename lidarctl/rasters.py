@@ -23,8 +23,8 @@ from rasterio.transform import from_origin
 from scipy import ndimage
 
 from lidarctl import io
-from lidarctl.atomic import atomic_path, temporary_dir
-from lidarctl.errors import InputError
+from aerotri.core.atomic import atomic_path, temporary_dir
+from aerotri.core.errors import InputError
 from lidarctl.io import PointCloud
 from lidarctl.raster_ops import fill_nodata, reduce_grid, sample_bilinear
 

@@ -13,7 +13,7 @@ Three passes, memory bounded by the chunk size and the tile size, never by the f
    ``io.read_cloud`` does, and append each tile's points (core + buffer, all point record fields,
    file order) to a temporary LAS file ``tile_R_C.las`` plus their indices in the input file
    (``tile_R_C.index``, int64).
-2. ``classify_tile`` (one executor task per tile, see ``lidarctl.parallel``): read the tile file,
+2. ``classify_tile`` (one executor task per tile, see ``aerotri.core.executor``): read the tile file,
    run ``classify.classify_points`` and write the classes of the core points with their input
    indices (``tile_R_C.classes.npy``, ``tile_R_C.core.npy``). Returns small statistics.
 3. ``classify_file`` scatters the tile results into a classes file on disk (1 byte per point,
@@ -53,9 +53,10 @@ import laspy
 import numpy as np
 
 from lidarctl import io
-from lidarctl.atomic import atomic_path, temporary_dir
-from lidarctl.errors import InputError
-from lidarctl.parallel import local_executor, progress_bar
+from aerotri.core.atomic import atomic_path, temporary_dir
+from aerotri.core.errors import InputError
+from aerotri.core.executor import local_executor
+from aerotri.core.log import progress
 
 # An inner tile of about this many points (core + buffer) keeps one classification task under
 # about 1 GB of memory (classify_points needs about 200 bytes per point), so two tasks at a time
@@ -229,7 +230,7 @@ def split_into_tiles(in_path, grid: TileGrid, work_dir, params, chunk_points: in
     has_core = np.zeros(grid.n_tiles, bool)
     started: set[int] = set()
     records = open(records_path, "wb") if records_path is not None else None
-    with progress_bar(header.point_count, "tiles: split", "pt", unit_scale=True) as bar:
+    with progress(header.point_count, "tiles: split", "pt", unit_scale=True) as bar:
         for first, chunk in io.iter_chunks(in_path, chunk_points):
             if records is not None:
                 records.write(chunk.array.tobytes())
@@ -336,7 +337,7 @@ def classify_file(in_path, out_path, crs=None, params=None, tile_size_m: float |
 
     ``crs``: used only when the file has none (never guessed). ``params``: classify.ClassifyParams.
     ``tile_size_m`` / ``buffer_m``: default from ``plan_tiles``. ``executor``: an
-    ``lidarctl.parallel.Executor`` (default: local threads). ``work_dir``: parent folder of the
+    ``aerotri.core.executor.Executor`` (default: local threads). ``work_dir``: parent folder of the
     temporary tile files (default: next to the output); they are removed in any case.
     The output is written atomically: on any error or interrupt no output file is left.
     Returns statistics: points, tiles, buffer overhead, seconds per pass, class counts.
@@ -385,7 +386,7 @@ def classify_file(in_path, out_path, crs=None, params=None, tile_size_m: float |
                 classes[np.load(task.core_index_path)] = np.load(task.classes_path)
             classes.flush()
             checked = _CheckedClasses(classes)
-            with progress_bar(n, "tiles: write", "pt", unit_scale=True) as bar:
+            with progress(n, "tiles: write", "pt", unit_scale=True) as bar:
                 io.write_classified(in_path, out_path, checked, crs=resolved, progress=bar.update,
                                     records=_stored_records(tmp_dir / "records.bin", header, chunk_points))
             counts = checked.counts

@@ -7,7 +7,7 @@ with an internal validity mask; occluded pixels are masked in a true ortho) and 
 projection centre and nadir point of each frame, for the mosaic).
 
 Every frame is one Dask task (``rectify_frame_task`` on a small ``FrameTask``) through
-``aerotri.parallel.Executor``: local threads by default, ``--scheduler local:N`` or a cluster address
+``aerotri.core.executor.Executor``: local threads by default, ``--scheduler local:N`` or a cluster address
 to scale out; each task writes its own GeoTIFF atomically and returns its index entry, so the
 outputs are byte-identical whichever scheduler runs them.
 """
@@ -25,11 +25,11 @@ from pyproj import CRS
 
 from aerotri.camera import FrameCamera
 from aerotri.eo import ExteriorOrientations, read_eo
-from aerotri.errors import InputError
+from aerotri.core.errors import InputError
 from aerotri.match.images import find_images
 from aerotri.project import Project
 from aerotri.rotation import rotation_matrix_opk
-from lidarctl.atomic import atomic_path, write_text_atomic
+from aerotri.core.atomic import atomic_path, write_text_atomic
 from ortho.dem import height_range, open_height_raster, read_height_window
 from ortho.grid import GridToProject, OrthoGrid, nice_resolution, parse_crs, resolve_output_crs
 from ortho.rectify import border_pixels, frame_grid, rectify_frame
@@ -286,13 +286,13 @@ def rectify_block(root, dem_path=None, res_m: float | None = None, crs: str | No
                   frames=None, progress: bool = True, executor=None, compression: str = "zstd") -> dict:
     """Rectify the frames of a project into ``ortho/frames/``; returns the index written to index.json.
 
-    One task per frame (``rectify_frame_task``) on ``executor`` (``aerotri.parallel.Executor``,
+    One task per frame (``rectify_frame_task``) on ``executor`` (``aerotri.core.executor.Executor``,
     default: the run's or local threads); every task writes its own GeoTIFF, the index is written
     here in frame order, so the outputs do not depend on the scheduler. ``compression``: one of
     ``FRAME_COMPRESSION``. ``progress`` is kept for compatibility: the executor shows the progress bar
     (on a terminal).
     """
-    from aerotri.parallel import local_executor
+    from aerotri.core.executor import local_executor
 
     block = load_block(root, eo_path, camera_path, frames)
     project = block.project

@@ -20,7 +20,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from aerotri.errors import InputError
+from aerotri.core.errors import InputError
 
 
 @dataclasses.dataclass
@@ -175,7 +175,7 @@ def plot_displacements(path, patches: PatchDisplacements | None, stats: dict, ti
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from lidarctl.atomic import atomic_path
+    from aerotri.core.atomic import atomic_path
 
     fig, (ax, bx) = plt.subplots(1, 2, figsize=(12, 5.5), gridspec_kw={"width_ratios": [1.4, 1]})
     if patches is not None and len(patches):
@@ -205,7 +205,7 @@ def plot_displacements(path, patches: PatchDisplacements | None, stats: dict, ti
 
 
 def write_json(path, obj) -> None:
-    from lidarctl.atomic import write_text_atomic
+    from aerotri.core.atomic import write_text_atomic
 
     write_text_atomic(path, json.dumps(obj, indent=2) + "\n")
 

@@ -6,11 +6,11 @@ from pathlib import Path
 
 import click
 
-from aerotri.parallel import executor_for, scheduler_options
-from lidarctl.errors import exit_on_input_error
+from aerotri.core.commands import Group, scheduler_options
+from aerotri.core.executor import executor_for
 
 
-@click.group()
+@click.group(cls=Group)
 @click.version_option(package_name="aerotri")
 def main():
     """Orthorectification on the LiDAR DEM, seamlines, mosaics and DOM accuracy checks."""
@@ -33,7 +33,6 @@ def main():
               show_default=True, help="per-frame GeoTIFFs: zstd (level 1 + predictor), zstd-fast (no predictor, "
                                       "~1.7x larger), none (least CPU, ~3.7x larger)")
 @scheduler_options
-@exit_on_input_error
 def rectify(project, dem_path, res_m, crs, eo_path, camera_path, interpolation, true_ortho, dsm_path, frames,
             compression, scheduler, workers):
     """One orthoimage per frame (ortho/frames/<image_id>.tif with a validity mask), one Dask task per frame."""
@@ -55,7 +54,6 @@ def rectify(project, dem_path, res_m, crs, eo_path, camera_path, interpolation, 
 @click.option("--no-balance", is_flag=True, help="skip the gain balancing between frames")
 @click.option("--tile-px", type=int, default=1024, show_default=True, help="mosaic processing tile size")
 @scheduler_options
-@exit_on_input_error
 def mosaic(project, seams, ndsm_path, feather_m, no_balance, tile_px, scheduler, workers):
     """Seamlines, blending and radiometric balancing into ortho/mosaic.tif (COG) and ortho/seamlines.geojson;
     one Dask task per output tile."""
@@ -78,7 +76,6 @@ def mosaic(project, seams, ndsm_path, feather_m, no_balance, tile_px, scheduler,
 @click.option("--patch-px", type=int, default=48, show_default=True)
 @click.option("--search-px", type=int, default=6, show_default=True)
 @click.option("--out", "out_stem", type=click.Path(path_type=Path), help="report stem [ortho/dom_report]")
-@exit_on_input_error
 def check(project, reference_path, points_path, dom_path, ndsm_path, max_ndsm_m, patch_px, search_px, out_stem):
     """DOM accuracy against a reference orthophoto (NCC patches) or surveyed points; JSON and a plot."""
     from ortho.check import run_check

@@ -16,7 +16,7 @@ import rasterio
 from pyproj import CRS
 from rasterio.windows import Window, from_bounds
 
-from aerotri.errors import InputError
+from aerotri.core.errors import InputError
 
 
 @dataclasses.dataclass

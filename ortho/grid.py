@@ -22,7 +22,7 @@ import numpy as np
 from pyproj import CRS, Transformer
 from rasterio.transform import Affine
 
-from aerotri.errors import InputError
+from aerotri.core.errors import InputError
 
 # EPSG codes of the 3-degree Gauss-Krueger zones with the central meridian in the code's name
 # (zone CM = 75E + 3 * (code - first)), 75E .. 135E.

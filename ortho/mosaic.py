@@ -39,8 +39,8 @@ from rasterio.transform import Affine
 from rasterio.windows import Window
 from tqdm import tqdm
 
-from aerotri.errors import InputError
-from lidarctl.atomic import atomic_path, scratch_dir, write_text_atomic
+from aerotri.core.errors import InputError
+from aerotri.core.atomic import atomic_path, scratch_dir, write_text_atomic
 from ortho.block import index_grids, read_index
 from ortho.grid import OrthoGrid
 from ortho.seamlines import (keep_objects_whole, label_polygons, least_cost_seams, neighbour_pairs, seam_lines,
@@ -157,7 +157,7 @@ def mosaic_block(root, seams: str = "least-cost", ndsm_path=None, feather_m: flo
                  progress: bool = True, executor=None) -> dict:
     """``ortho mosaic``: see the module doc. Returns a summary dict.
 
-    The output tiles are blended as tasks on ``executor`` (``aerotri.parallel.Executor``, default:
+    The output tiles are blended as tasks on ``executor`` (``aerotri.core.executor.Executor``, default:
     local threads); the COG does not depend on the scheduler."""
     root = Path(root)
     index = read_index(root)
@@ -276,7 +276,7 @@ def _write_mosaic(path, frames_dir, index, mosaic: OrthoGrid, seams_path, factor
     tile order as they come back: memory is bounded by the batch, not the mosaic) into a tiled
     GeoTIFF, then copy that to the COG. ``seams_path``: the label raster already written (the tasks
     read their windows from it)."""
-    from aerotri.parallel import local_executor
+    from aerotri.core.executor import local_executor
 
     executor = executor or local_executor()
     names = [e["image_id"] for e in index["frames"]]

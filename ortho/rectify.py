@@ -38,7 +38,7 @@ import numba
 import numpy as np
 
 from aerotri.camera import FrameCamera
-from aerotri.errors import InputError
+from aerotri.core.errors import InputError
 from aerotri.rotation import FLIP_YZ
 from ortho.dem import HeightRaster
 from ortho.grid import GridToProject, OrthoGrid

@@ -212,7 +212,7 @@ def write_geotiff(path, array: np.ndarray, x_left_m: float, y_top_m: float, res_
     import rasterio
     from rasterio.transform import Affine
 
-    from lidarctl.atomic import atomic_path
+    from aerotri.core.atomic import atomic_path
 
     a = array if array.ndim == 3 else array[:, :, None]
     with atomic_path(path) as tmp:
@@ -235,7 +235,7 @@ def write_synthetic_project(root, strips: int = 2, frames_per_strip: int = 3, bu
     from pathlib import Path
 
     from aerotri.eo import ExteriorOrientations, write_eo
-    from lidarctl.atomic import write_text_atomic
+    from aerotri.core.atomic import write_text_atomic
 
     root = Path(root)
     rng = np.random.default_rng(seed)

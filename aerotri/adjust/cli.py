@@ -4,10 +4,11 @@ from __future__ import annotations
 
 import click
 
-from aerotri.errors import exit_on_input_error
+from aerotri.core.commands import Command
 
 
-@click.command()
+
+@click.command(cls=Command)
 @click.argument("project", type=click.Path(file_okay=False))
 @click.option("--gnss-correction", type=click.Choice(["none", "shift", "shift_drift"]), default="none", show_default=True,
               help="GNSS corrections per strip: none, shift, or shift and drift.")
@@ -22,7 +23,6 @@ from aerotri.errors import exit_on_input_error
               help="Ignore control/ (tie points + GNSS only, e.g. the first adjustment before control transfer).")
 @click.option("--alpha", type=float, default=1e-4, show_default=True, help="Type I error per coordinate for data snooping.")
 @click.option("--no-html", is_flag=True, help="Skip report.html.")
-@exit_on_input_error
 def adjust(project, gnss_correction, lever_arm, self_cal, image_sigma, check, control, no_snooping, no_control, alpha,
            no_html):
     """Adjust the block of PROJECT; writes at/eo.txt, at/object_points.csv, at/report.* and exports."""

@@ -16,7 +16,7 @@ from pathlib import Path
 import numpy as np
 
 from aerotri.adjust.check_points import pixel_rays
-from lidarctl.atomic import write_text_atomic
+from aerotri.core.atomic import write_text_atomic
 
 
 def patb_files(ba) -> dict[str, str]:

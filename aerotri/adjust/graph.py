@@ -45,7 +45,7 @@ import numpy as np
 
 from aerotri.adjust import datum, schur
 from aerotri.camera import FrameCamera
-from aerotri.errors import InputError
+from aerotri.core.errors import InputError
 from aerotri.rotation import FLIP_YZ
 
 X = lambda i: gtsam.symbol("x", int(i))  # noqa: E731

@@ -16,7 +16,7 @@ from pathlib import Path
 
 import numpy as np
 
-from aerotri.errors import InputError
+from aerotri.core.errors import InputError
 
 TIE_HEADER = ["point_id", "image_id", "x_px", "y_px"]
 CONTROL_HEADER = ["id", "kind", "x", "y", "z", "sx_m", "sy_m", "sz_m"]

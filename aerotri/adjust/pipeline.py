@@ -35,7 +35,7 @@ from aerotri.adjust.solve import AdjustmentResult, adjust_block, check_point_err
 from aerotri.adjust.strips import along_track_km, strips_from_track
 from aerotri.camera import FrameCamera
 from aerotri.eo import ExteriorOrientations, read_eo, read_gnss
-from aerotri.errors import InputError
+from aerotri.core.errors import InputError
 from aerotri.project import Project
 from aerotri.rotation import FLIP_YZ, opk_from_matrix
 
@@ -409,7 +409,7 @@ def write_outputs(ba: BlockAdjustment, root, html: bool = True, exports: bool = 
     from aerotri.adjust import export, report
     from aerotri.eo import format_eo
     from aerotri.qa_report import qa_settings
-    from lidarctl.atomic import write_text_atomic
+    from aerotri.core.atomic import write_text_atomic
 
     at = Project.open(root).at_dir
     qa = qa_settings(root)  # the limits of the project's map scale and terrain, as in reports/

@@ -6,10 +6,11 @@ from pathlib import Path
 
 import click
 
-from aerotri.errors import exit_on_input_error
+from aerotri.core.commands import Command
 
 
-@click.command("control")
+
+@click.command(cls=Command, name="control")
 @click.argument("project", type=click.Path(file_okay=False, exists=True, path_type=Path))
 @click.option("--corners", "corners_path", type=click.Path(dir_okay=False, path_type=Path), default=None,
               help="Corner file from lidarctl corners [default: PROJECT/lidar_out/corners.csv].")
@@ -34,7 +35,6 @@ from aerotri.errors import exit_on_input_error
 @click.option("--checks/--no-checks", default=True, show_default=True,
               help="Write accepted corners that are not control as check points.")
 @click.option("--chips/--no-chips", default=True, show_default=True, help="Write control/review/ (HTML + chips).")
-@exit_on_input_error
 def control(project, corners_path, eo_path, camera_path, manual_path, full_spacing, height_every, min_frames, tol_px,
             eo_sigma_px, all_corners, checks, chips):
     """Measure LiDAR roof corners in the frames of PROJECT and write control/points.csv + image_points.csv.

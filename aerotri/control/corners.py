@@ -15,7 +15,7 @@ from pathlib import Path
 
 import numpy as np
 
-from aerotri.errors import InputError
+from aerotri.core.errors import InputError
 
 REQUIRED = ["id", "x", "y", "z", "sx_m", "sy_m", "sz_m", "edge1_deg", "edge2_deg", "angle_deg", "score"]
 USABLE_SCORE = 0.5  # lidarctl.corners.USABLE_SCORE (same rule when the file has no usable column)

@@ -25,7 +25,7 @@ from aerotri.control.corners import LidarCorners, read_corners, read_manual
 from aerotri.control.layout import LayoutRule, select_control
 from aerotri.control.measure import MeasureSettings, Measurement, measure_in_image, predict
 from aerotri.eo import ExteriorOrientations, read_eo
-from aerotri.errors import InputError
+from aerotri.core.errors import InputError
 from aerotri.project import Project
 
 
@@ -265,7 +265,7 @@ def review_page(res: TransferResult, images_dir, project_name: str):
 def run_control(root, corners_path=None, eo_path=None, camera_path=None, manual_path=None,
                 settings: ControlSettings | None = None, checks: bool = True, progress: bool = False) -> dict:
     """The stage: read, transfer, write all outputs atomically; returns the summary dict."""
-    from lidarctl.atomic import atomic_dir, write_text_atomic
+    from aerotri.core.atomic import atomic_dir, write_text_atomic
 
     from aerotri.control.chips import write_review
 

@@ -6,6 +6,8 @@ import time
 from pathlib import Path
 
 import click
+
+from aerotri.core.commands import Group
 import numpy as np
 
 from aerotri.crs.epsg import crs_label, parse_crs
@@ -22,10 +24,10 @@ from aerotri.crs.files import (
 from aerotri.crs.fit import MODELS, PARAMETER_NAMES
 from aerotri.crs.heights import HEIGHT_MODELS, fit_height_anomaly
 from aerotri.crs.transform import CrsTransformer
-from aerotri.errors import InputError, exit_on_input_error
+from aerotri.core.errors import InputError
 
 
-@click.group()
+@click.group(cls=Group)
 def crs():
     """Datums, projections and heights: fit parameters from common points, transform files."""
 
@@ -59,7 +61,6 @@ def format_fit_report(result, path) -> str:
 @click.option("--from", "from_epsg", required=True, help="EPSG code of the source coordinates (x_from, y_from)")
 @click.option("--to", "to_epsg", required=True, help="EPSG code of the target coordinates (x_to, y_to)")
 @click.option("-o", "--output", type=click.Path(dir_okay=False), help="parameter file (JSON); default <input>.<model>.json")
-@exit_on_input_error
 def fit_cmd(common_points, model, from_epsg, to_epsg, output):
     """Least-squares transformation parameters from points known in both systems."""
     result = fit_common_points(common_points, model, from_epsg, to_epsg)
@@ -75,7 +76,6 @@ def fit_cmd(common_points, model, from_epsg, to_epsg, output):
 @click.option("--epsg", "epsg", help="EPSG code of the points' x, y (a metre grid); recorded in the model file. Without it, 'crs transform' evaluates the model on the output coordinates")
 @click.option("--smoothing", type=float, default=0.0, show_default=True, help="tps smoothing (0 interpolates)")
 @click.option("-o", "--output", type=click.Path(dir_okay=False), help="model file (JSON); default <input>.<model>.json")
-@exit_on_input_error
 def fit_heights_cmd(points, model, epsg, smoothing, output):
     """Height anomaly surface zeta = h - H from points with ellipsoidal and normal heights."""
     ids, x, y, h, H = read_height_points(points, epsg)
@@ -105,7 +105,6 @@ def fit_heights_cmd(points, model, epsg, smoothing, output):
 @click.option("--heights", type=click.Path(dir_okay=False), help="height anomaly model from 'crs fit-heights'")
 @click.option("--allow-ballpark", is_flag=True, help="accept PROJ's ballpark operation that ignores a datum shift")
 @click.option("--chunk-size", type=int, default=1_000_000, show_default=True, help="LAS/LAZ points per chunk")
-@exit_on_input_error
 def transform_cmd(input_path, output_path, from_epsg, to_epsg, params, heights, allow_ballpark, chunk_size):
     """Transform a CSV/TXT point list or a LAS/LAZ file (chunked, all point dimensions kept)."""
     if Path(input_path).resolve() == Path(output_path).resolve():

@@ -11,7 +11,7 @@ import functools
 import numpy as np
 import pyproj
 
-from aerotri.errors import InputError
+from aerotri.core.errors import InputError
 
 
 @functools.lru_cache(maxsize=256)

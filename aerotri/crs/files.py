@@ -35,8 +35,8 @@ from aerotri.crs.epsg import check_coordinates, crs_label, horizontal_crs, linea
 from aerotri.crs.fit import SPATIAL, Transformation, fit_plane, fit_spatial
 from aerotri.crs.heights import HeightAnomalyModel
 from aerotri.crs.transform import CrsTransformer, _ProjLeg, z_unit_m
-from aerotri.errors import InputError
-from lidarctl.atomic import atomic_path, write_text_atomic
+from aerotri.core.errors import InputError
+from aerotri.core.atomic import atomic_path, write_text_atomic
 
 LAS_SUFFIXES = (".las", ".laz")
 _UNIT_SUFFIX = re.compile(r"^(?P<base>.+?)_(?P<unit>m|deg|ft|usft|us-ft)$", re.IGNORECASE)

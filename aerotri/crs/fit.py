@@ -29,7 +29,7 @@ import math
 import numpy as np
 
 from aerotri.crs.ellipsoid import ARCSEC_PER_RAD, enu_rotation
-from aerotri.errors import InputError
+from aerotri.core.errors import InputError
 
 MODELS = ("helmert2d", "affine2d", "bursa-wolf7", "translation3")
 MIN_POINTS = {"helmert2d": 2, "affine2d": 3, "bursa-wolf7": 3, "translation3": 1}

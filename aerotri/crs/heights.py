@@ -21,7 +21,7 @@ import dataclasses
 
 import numpy as np
 
-from aerotri.errors import InputError
+from aerotri.core.errors import InputError
 
 HEIGHT_MODELS = ("plane", "quadratic", "tps")
 MIN_HEIGHT_POINTS = {"plane": 3, "quadratic": 6, "tps": 3}

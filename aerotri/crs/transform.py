@@ -29,7 +29,7 @@ from aerotri.crs.ellipsoid import Ellipsoid, geocentric_to_geodetic, geodetic_to
 from aerotri.crs.epsg import crs_label, horizontal_crs, linear_unit_m, parse_crs
 from aerotri.crs.fit import Transformation, outside_extent
 from aerotri.crs.heights import HeightAnomalyModel
-from aerotri.errors import InputError
+from aerotri.core.errors import InputError
 
 
 class BallparkRefused(InputError):

@@ -7,11 +7,11 @@ from pathlib import Path
 
 import click
 
-from aerotri.errors import exit_on_input_error
-from aerotri.parallel import executor_for, scheduler_options
+from aerotri.core.commands import Command, scheduler_options
+from aerotri.core.executor import executor_for
 
 
-@click.command()
+@click.command(cls=Command)
 @click.argument("project", type=click.Path(file_okay=False, path_type=Path))
 @click.option("--budget", type=int, default=6000, show_default=True, help="Keypoints per frame (spatially spread).")
 @click.option("--max-dim", type=int, default=3000, show_default=True,
@@ -25,7 +25,6 @@ from aerotri.parallel import executor_for, scheduler_options
               help="Direction of the image top relative to the flight direction (0 = forward).")
 @click.option("--no-densify", is_flag=True, help="Do not densify weak models.")
 @scheduler_options
-@exit_on_input_error
 def match(project, budget, max_dim, ratio, min_overlap, terrain_height, image_top_deg, no_densify, scheduler, workers):
     """Automatic tie points: writes at/tiepoints.csv and at/connectivity.{json,png}."""
     from aerotri.match import MatchSettings, match_project

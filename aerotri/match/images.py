@@ -9,7 +9,7 @@ import cv2
 import numpy as np
 
 from aerotri.camera import FrameCamera
-from aerotri.errors import InputError
+from aerotri.core.errors import InputError
 
 IMAGE_SUFFIXES = (".tif", ".tiff", ".jpg", ".jpeg", ".png")
 

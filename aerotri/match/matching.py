@@ -14,7 +14,7 @@ from scipy.spatial import cKDTree
 
 from aerotri.camera import FrameCamera
 from aerotri.match.features import Features
-from lidarctl.atomic import atomic_path
+from aerotri.core.atomic import atomic_path
 
 
 @dataclasses.dataclass(frozen=True)

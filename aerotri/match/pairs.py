@@ -17,7 +17,7 @@ from shapely.geometry import Polygon
 
 from aerotri.adjust.strips import strips_from_track
 from aerotri.camera import FrameCamera
-from aerotri.errors import InputError
+from aerotri.core.errors import InputError
 from aerotri.rotation import rotation_matrix_opk
 
 

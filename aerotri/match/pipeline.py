@@ -13,7 +13,7 @@ from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
 
 from aerotri.eo import read_gnss
-from aerotri.errors import InputError
+from aerotri.core.errors import InputError
 from aerotri.match import features as F
 from aerotri.match import matching as M
 from aerotri.match.images import find_images
@@ -21,9 +21,9 @@ from aerotri.match.pairs import Pair, candidate_pairs, plan_block
 from aerotri.match.report import plot_block, track_length_histogram
 from aerotri.match.tracks import build_tracks
 from aerotri.match.weak import analyse
-from aerotri.parallel import Executor, local_executor
+from aerotri.core.executor import Executor, local_executor
 from aerotri.project import Project
-from lidarctl.atomic import write_text_atomic
+from aerotri.core.atomic import write_text_atomic
 
 
 @dataclasses.dataclass

@@ -8,7 +8,7 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
-from lidarctl.atomic import atomic_path  # noqa: E402
+from aerotri.core.atomic import atomic_path  # noqa: E402
 
 
 def plot_block(path, plan, pairs_ties: list[tuple[int, int, int]], analysis: dict) -> None:

@@ -6,11 +6,12 @@ from pathlib import Path
 
 import click
 
-from aerotri.errors import InputError, exit_on_input_error
-from aerotri.parallel import Executor, activate, scheduler_options
+from aerotri.core.errors import InputError
+from aerotri.core.commands import Command, scheduler_options
+from aerotri.core.executor import Executor, activate
 
 
-@click.command()
+@click.command(cls=Command)
 @click.option("--preset", "preset", default="demo", show_default=True,
               help="Preset name (tiny, demo, dmc) or path to a preset .toml file.")
 @click.option("--seed", type=int, default=None, help="Override the preset's random seed.")
@@ -27,7 +28,6 @@ from aerotri.parallel import Executor, activate, scheduler_options
 @click.option("--bad-control-shift-m", type=float, default=0.0, show_default=True,
               help="Move the first control point horizontally by this much.")
 @click.argument("outdir", type=click.Path(file_okay=False, path_type=Path))
-@exit_on_input_error
 def sim(preset, seed, overrides, force, observations, tie_sigma_px, n_control, blunder_fraction,
         bad_control_shift_m, outdir):
     """Simulate a complete project with known truth into OUTDIR."""
@@ -49,12 +49,11 @@ def sim(preset, seed, overrides, force, observations, tie_sigma_px, n_control, b
                    err=True)
 
 
-@click.command()
+@click.command(cls=Command)
 @click.argument("outdir", type=click.Path(file_okay=False, path_type=Path), default=Path("out/demo"))
 @click.option("--preset", default="demo", show_default=True, help="Simulator preset for the embedded block.")
 @click.option("--force", is_flag=True, help="Re-run every stage even when it is up to date.")
 @scheduler_options
-@exit_on_input_error
 def demo(outdir, preset, force, scheduler, workers):
     """The main job on the embedded synthetic block: simulate it, then run the whole chain on it.
 
@@ -63,7 +62,7 @@ def demo(outdir, preset, force, scheduler, workers):
     """
     from aerotri.run import chain_stages, format_summary, run_stages
     from aerotri.sim import load_preset, simulate
-    from lidarctl.atomic import write_text_atomic
+    from aerotri.core.atomic import write_text_atomic
 
     outdir = Path(outdir)
     project = outdir / "project"
@@ -84,7 +83,7 @@ def demo(outdir, preset, force, scheduler, workers):
     click.echo(table)
 
 
-@click.command("run")
+@click.command(cls=Command, name="run")
 @click.argument("project", type=click.Path(file_okay=False, path_type=Path))
 @click.option("--reference", type=click.Path(dir_okay=False, path_type=Path), help="Reference orthophoto for the DOM check.")
 @click.option("--points", type=click.Path(dir_okay=False, path_type=Path),
@@ -92,7 +91,6 @@ def demo(outdir, preset, force, scheduler, workers):
 @click.option("--res", "res_m", type=float, default=0.5, show_default=True, help="Elevation raster cell size (m).")
 @click.option("--force", is_flag=True, help="Re-run every stage even when it is up to date.")
 @scheduler_options
-@exit_on_input_error
 def run(project, reference, points, res_m, force, scheduler, workers):
     """The whole chain over PROJECT, resumable: a re-run skips stages whose inputs did not change."""
     from aerotri.project import Project

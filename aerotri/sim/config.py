@@ -13,7 +13,7 @@ import os
 import tomllib
 from pathlib import Path
 
-from aerotri.errors import InputError
+from aerotri.core.errors import InputError
 
 PRESET_DIR = Path(os.environ.get("AEROTRI_PRESETS", Path(__file__).resolve().parents[2] / "datasets" / "presets"))
 

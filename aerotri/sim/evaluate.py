@@ -133,6 +133,6 @@ def write_truth_corners_csv(project, path, sigma_xy_m: float = 0.1, sigma_z_m: f
         lines.append(f"{t['id'][k]},{xyz[k, 0]:.4f},{xyz[k, 1]:.4f},{xyz[k, 2]:.4f},{sigma_xy_m},{sigma_xy_m},{sigma_z_m},"
                      f"{t['roof'][k]},0,{t['bearing_deg'][k, 0]:.3f},{t['bearing_deg'][k, 1]:.3f},{t['angle_deg'][k]:.2f},"
                      f"100,1.0,{usable}")
-    from lidarctl.atomic import write_text_atomic
+    from aerotri.core.atomic import write_text_atomic
 
     write_text_atomic(path, "\n".join(lines) + "\n")

@@ -22,9 +22,9 @@ from aerotri.adjust.local_frame import LocalFrame
 from aerotri.adjust.observations import ControlPoints, ImageObservations
 from aerotri.camera import FrameCamera, dmc_camera
 from aerotri.eo import ExteriorOrientations, GnssPositions, read_eo, write_eo, write_gnss
-from aerotri.errors import InputError
+from aerotri.core.errors import InputError
 from aerotri.rotation import opk_from_matrix, rotation_matrix_opk
-from lidarctl.atomic import write_text_atomic
+from aerotri.core.atomic import write_text_atomic
 
 
 def true_dmc_camera() -> FrameCamera:

@@ -20,13 +20,13 @@ from rasterio.transform import from_origin
 from tqdm import tqdm
 
 from aerotri.eo import ExteriorOrientations, GnssPositions, format_eo, write_gnss
-from aerotri.errors import InputError
+from aerotri.core.errors import InputError
 from aerotri.rotation import rotation_matrix_opk
 from aerotri.sim import raycast, render
 from aerotri.sim.flight import block_layout, cameras_from_config, lidar_lines, plan_frames
 from aerotri.sim.lidar import scan_strip, write_las
 from aerotri.sim.scene import build_scene
-from lidarctl.atomic import atomic_dir
+from aerotri.core.atomic import atomic_dir
 
 
 def _write_geotiff(path: Path, data: np.ndarray, transform, epsg: int, nodata=None):

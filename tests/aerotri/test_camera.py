@@ -6,7 +6,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from aerotri.camera import FrameCamera, dmc_camera
-from aerotri.errors import InputError
+from aerotri.core.errors import InputError
 from aerotri.rotation import opk_from_matrix, rotation_matrix_opk
 
 

@@ -10,7 +10,7 @@ from aerotri.crs.fit import Transformation
 from aerotri.crs.heights import HeightAnomalyModel
 from aerotri.crs.synthetic import TRUE_BURSA_WOLF7
 from aerotri.crs.transform import CrsTransformer
-from aerotri.errors import InputError
+from aerotri.core.errors import InputError
 
 PARAMS = Transformation("bursa-wolf7", TRUE_BURSA_WOLF7, "EPSG:32649", "EPSG:2361")
 HEIGHTS = HeightAnomalyModel("plane", (37_450_000.0, 3_800_000.0), coefficients=[-27.5, 0.012, -0.03],

@@ -14,7 +14,7 @@ from aerotri.crs.synthetic import (
     simulate_spatial,
     write_common_points,
 )
-from aerotri.errors import InputError
+from aerotri.core.errors import InputError
 
 
 def _block(n, seed, lon=(109.6, 110.4), lat=(34.0, 34.6), h=(400.0, 900.0)):

@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 from aerotri.crs.heights import HeightAnomalyModel, fit_height_anomaly
-from aerotri.errors import InputError
+from aerotri.core.errors import InputError
 
 
 def _points(n, seed, size_m=20_000.0):

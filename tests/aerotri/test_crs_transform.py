@@ -11,7 +11,7 @@ from aerotri.crs.gauss_kruger import GaussKruger
 from aerotri.crs.heights import fit_height_anomaly
 from aerotri.crs.synthetic import TRUE_BURSA_WOLF7, simulate_spatial, write_common_points
 from aerotri.crs.transform import BallparkRefused, CrsTransformer, transform_points
-from aerotri.errors import InputError
+from aerotri.core.errors import InputError
 
 
 @pytest.mark.parametrize("src,dst", [(32649, 2361), (4326, 4610), (4326, 4490), (4610, 4490)])

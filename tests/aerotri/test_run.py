@@ -66,7 +66,7 @@ def test_failed_stage_leaves_no_stamp_and_resumes(tmp_path):
 
 
 def test_stale_temporaries_of_a_killed_attempt_are_removed(tmp_path):
-    from lidarctl.atomic import atomic_path, scratch_dir
+    from aerotri.core.atomic import atomic_path, scratch_dir
 
     (tmp_path / "in.txt").write_text("2")
     # What a SIGKILL leaves behind in the folder of a stage's outputs: atomic_path files (the outputs', and

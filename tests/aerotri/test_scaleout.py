@@ -8,7 +8,7 @@ import shutil
 
 import pytest
 
-from aerotri.parallel import Executor, activate, executor_for, local_executor
+from aerotri.core.executor import Executor, activate, executor_for, local_executor
 
 
 def _square(x):
@@ -61,7 +61,7 @@ def test_the_run_executor_is_used_by_commands_without_their_own(cluster):
 
 
 def test_bad_scheduler_is_a_clear_error():
-    from aerotri.errors import InputError
+    from aerotri.core.errors import InputError
 
     with pytest.raises(InputError, match="local:N"):
         Executor("local:two")

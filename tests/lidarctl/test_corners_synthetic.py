@@ -14,7 +14,7 @@ import pytest
 import shapely
 
 from lidarctl.corners import find_roof_corners, strip_margin_m
-from lidarctl.errors import InputError
+from aerotri.core.errors import InputError
 
 _spec = importlib.util.spec_from_file_location("corners_synth", Path(__file__).with_name("corners_synth.py"))
 cs = importlib.util.module_from_spec(_spec)

@@ -57,7 +57,7 @@ def test_deep_noise_patch_of_mixed_depths_is_not_ground():
 
 def test_height_check_csv_errors_name_the_line(tmp_path):
     from lidarctl import heights_check
-    from lidarctl.errors import InputError
+    from aerotri.core.errors import InputError
 
     f = tmp_path / "p.csv"
     f.write_text("id,x,y,z\nA,1,2,3\nB,1,abc,3\n")

@@ -10,7 +10,7 @@ from click.testing import CliRunner
 
 from lidarctl import io, synthetic
 from lidarctl.cli import main
-from lidarctl.errors import InputError
+from aerotri.core.errors import InputError
 
 
 @pytest.fixture(scope="module")

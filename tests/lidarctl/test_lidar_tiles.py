@@ -8,11 +8,11 @@ import numpy as np
 import pytest
 from click.testing import CliRunner
 
-from aerotri.parallel import Executor
+from aerotri.core.executor import Executor
 from lidarctl import classify as cl
 from lidarctl import io, synthetic, tiles
 from lidarctl.cli import main
-from lidarctl.errors import InputError
+from aerotri.core.errors import InputError
 
 
 def _scene(width_m, density, seed, n_buildings=8, n_trees=60):

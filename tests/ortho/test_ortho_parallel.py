@@ -13,7 +13,7 @@ import pytest
 import rasterio
 from click.testing import CliRunner
 
-from aerotri.parallel import Executor
+from aerotri.core.executor import Executor
 from ortho.block import map_uncompressed_tiff, read_image_native, rectify_block
 from ortho.cli import main
 from ortho.mosaic import mosaic_block

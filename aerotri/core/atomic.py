@@ -1,6 +1,6 @@
 """Atomic output: write to a temporary file in the same folder, rename on success.
 
-A crash or an error never leaves a partial output file behind (used by all three packages). Every
+A crash or an error never leaves a partial output file behind. Every
 temporary file and folder these helpers make next to an output is named ``.<name>.part-XXXX[suffix]``
 (``TEMP_MARKER``), so that what a killed process left behind can be found and swept (``remove_leftovers``).
 """
@@ -12,6 +12,8 @@ import os
 import shutil
 import tempfile
 from pathlib import Path
+
+from aerotri.core.errors import OptionError
 
 
 TEMP_MARKER = ".part-"
@@ -101,3 +103,16 @@ def remove_leftovers(folder) -> list[Path]:
         else:
             q.unlink(missing_ok=True)
     return gone
+
+
+def refuse_input_as_output(output, inputs, option: str = "output") -> None:
+    """``InputError`` when ``output`` is (or resolves to, through links) one of ``inputs``: a writer must
+    never replace what it reads. ``inputs`` may hold None (absent optional inputs)."""
+    out = Path(output).resolve()
+    for p in inputs:
+        if p is None:
+            continue
+        src = Path(p).resolve()
+        if out == src:
+            raise OptionError(f"{output}: the output is the input {p} (inputs are never modified; "
+                              "choose another output path)", param=option)

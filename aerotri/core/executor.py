@@ -19,18 +19,10 @@ from __future__ import annotations
 
 import contextlib
 import os
-import sys
 from typing import Any, Callable, Iterable
 
-import click
-from tqdm import tqdm
-
-from lidarctl.errors import InputError
-
-
-def progress_bar(total: int, desc: str, unit: str, **kw):
-    """A tqdm bar on stderr that disappears when done, silent when stderr is not a terminal."""
-    return tqdm(total=total, desc=desc, unit=unit, leave=False, disable=not sys.stderr.isatty(), **kw)
+from aerotri.core.errors import OptionError
+from aerotri.core.log import progress
 
 
 class _Failed:
@@ -54,12 +46,12 @@ class Executor:
         try:
             from distributed import Client, LocalCluster
         except ImportError as e:  # pragma: no cover - dask[distributed] is a core dependency
-            raise InputError(f"--scheduler {scheduler}: dask.distributed is not installed ({e})") from e
+            raise OptionError(f"--scheduler {scheduler}: dask.distributed is not installed ({e})", param="--scheduler") from e
         if scheduler.startswith("local:"):
             try:
                 n = int(scheduler.split(":", 1)[1])
             except ValueError:
-                raise InputError(f"--scheduler {scheduler}: expected local:N with N the number of workers")
+                raise OptionError(f"--scheduler {scheduler}: expected local:N with N the number of workers", param="--scheduler") from None
             self._cluster = LocalCluster(n_workers=n, threads_per_worker=1, processes=True,
                                          dashboard_address=None, silence_logs=50)
             self._client = Client(self._cluster)
@@ -68,7 +60,7 @@ class Executor:
             try:
                 self._client = Client(scheduler, timeout="20s")
             except (OSError, TimeoutError) as e:
-                raise InputError(f"--scheduler {scheduler}: cannot reach the Dask scheduler ({e})") from e
+                raise OptionError(f"--scheduler {scheduler}: cannot reach the Dask scheduler ({e})", param="--scheduler") from e
             self.workers = max(1, sum(w.get("nthreads", 1) for w in
                                       self._client.scheduler_info()["workers"].values()))
 
@@ -123,13 +115,11 @@ class Executor:
                 return _Failed(exc)
 
         tasks = [dask.delayed(guarded, pure=False)((k, item)) for k, item in enumerate(items)]
-        bar = progress_bar(len(items), desc, unit)
-
         class _Progress(Callback):
             def _posttask(self, key, result, dsk, state, worker_id):
                 bar.update(1)
 
-        with bar, _Progress():
+        with progress(len(items), desc, unit) as bar, _Progress():
             if self.scheduler == "synchronous" or self.workers == 1:
                 out = list(dask.compute(*tasks, scheduler="synchronous"))
             else:
@@ -145,7 +135,7 @@ class Executor:
         futures = self._client.map(fn, items, pure=False)
         index = {f.key: k for k, f in enumerate(futures)}
         first_bad = len(items)
-        with progress_bar(len(items), desc, unit) as bar:
+        with progress(len(items), desc, unit) as bar:
             for fut in as_completed(futures):
                 k = index[fut.key]
                 if fut.status == "error" and k < first_bad:
@@ -210,13 +200,3 @@ def executor_for(scheduler: str | None = None, workers: int | None = None):
         return
     with Executor(scheduler, workers) as ex:
         yield ex
-
-
-def scheduler_options(f):
-    """Click options ``--scheduler`` and ``--workers`` for commands that scale out."""
-    f = click.option("--workers", type=click.IntRange(min=1), default=None,
-                     help="Local worker threads (default: all cores); with --scheduler local:N, N processes.")(f)
-    f = click.option("--scheduler", "scheduler", default=None, metavar="ADDRESS",
-                     help="Dask scheduler: tcp://host:8786 for a cluster, local:N for N local worker "
-                          "processes, synchronous for one task at a time; default local threads.")(f)
-    return f

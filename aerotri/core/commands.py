@@ -1,0 +1,97 @@
+"""The click plumbing every command line shares (``aerotri``, ``lidarctl``, ``ortho``).
+
+- :class:`Group` / :class:`Command`: every command gets ``-v/--verbose``, ``-q/--quiet`` and
+  ``--log-file``, logging is configured before it runs (``aerotri.core.log``), and one handler maps
+  the error hierarchy (``aerotri.core.errors``) to a one-line message on stderr and exit code 2: no
+  traceback. A command that runs out of memory says so with the same exit code; Ctrl-C exits 130.
+- :func:`scheduler_options`: ``--scheduler``/``--workers`` for the commands that scale out.
+- :func:`positive`, :func:`at_least`, :func:`fraction`: click parameter types for ranges, so an
+  out-of-range option stops before any work with click's message naming the option.
+"""
+
+from __future__ import annotations
+
+import logging
+import sys
+
+import click
+
+from aerotri.core import log
+from aerotri.core.errors import AerotriError
+
+_logger = logging.getLogger("aerotri")
+
+
+def _logging_params() -> list[click.Option]:
+    return [
+        click.Option(["-v", "--verbose"], count=True, help="More messages (debug details)."),
+        click.Option(["-q", "--quiet"], count=True, help="Warnings and errors only; no progress."),
+        click.Option(["--log-file"], type=click.Path(dir_okay=False, writable=True),
+                     help="Also write every message, with time stamps, to this file."),
+    ]
+
+
+def report_error(exc: AerotriError) -> None:
+    click.echo(exc.user_message(), err=True)
+    _logger.debug("error details", exc_info=exc)
+
+
+class Command(click.Command):
+    """A command with the logging options and the error handler (see the module docstring)."""
+
+    def __init__(self, *args, **kwargs):
+        super().__init__(*args, **kwargs)
+        self.params.extend(_logging_params())
+
+    def invoke(self, ctx):
+        verbose = ctx.params.pop("verbose", 0) or 0
+        quiet = ctx.params.pop("quiet", 0) or 0
+        log_file = ctx.params.pop("log_file", None)
+        try:
+            log.configure(verbose - quiet, log_file)
+        except OSError as exc:
+            click.echo(f"Error: --log-file {log_file}: cannot write ({exc.strerror})", err=True)
+            sys.exit(2)
+        try:
+            return super().invoke(ctx)
+        except AerotriError as exc:
+            report_error(exc)
+            sys.exit(2)
+        except MemoryError:
+            click.echo(f"Error: {ctx.command_path}: out of memory; use a coarser resolution, smaller tiles or "
+                       "fewer workers", err=True)
+            sys.exit(2)
+        except KeyboardInterrupt:
+            click.echo("Interrupted.", err=True)
+            sys.exit(130)
+
+
+class Group(click.Group):
+    """A command group whose commands (and sub-groups) are :class:`Command` s."""
+
+    command_class = Command
+    group_class = type
+
+
+def scheduler_options(f):
+    """Click options ``--scheduler`` and ``--workers`` for commands that scale out."""
+    f = click.option("--workers", type=click.IntRange(min=1), default=None,
+                     help="Local worker threads (default: all cores); with --scheduler local:N, N processes.")(f)
+    f = click.option("--scheduler", "scheduler", default=None, metavar="ADDRESS",
+                     help="Dask scheduler: tcp://host:8786 for a cluster, local:N for N local worker "
+                          "processes, synchronous for one task at a time; default local threads.")(f)
+    return f
+
+
+def positive(kind=float) -> click.ParamType:
+    """A number strictly above zero."""
+    return click.FloatRange(min=0, min_open=True) if kind is float else click.IntRange(min=1)
+
+
+def at_least(minimum, kind=float) -> click.ParamType:
+    return click.FloatRange(min=minimum) if kind is float else click.IntRange(min=minimum)
+
+
+def fraction(open_low: bool = False, open_high: bool = True) -> click.ParamType:
+    """A number in [0, 1) (or the given openness)."""
+    return click.FloatRange(0.0, 1.0, min_open=open_low, max_open=open_high)
