@@ -17,7 +17,7 @@ import pyproj
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
 
-from aerotri.crs.epsg import parse_crs  # noqa: E402
+from aerotri.geom.crs import parse_crs  # noqa: E402
 from aerotri.crs.fit import PARAMETER_NAMES, fit_plane, fit_spatial  # noqa: E402
 from aerotri.crs.gauss_kruger import GaussKruger  # noqa: E402
 from aerotri.crs.synthetic import TRUE_BURSA_WOLF7, TRUE_HELMERT2D, simulate_plane, simulate_spatial  # noqa: E402

@@ -18,6 +18,7 @@ import pyproj
 
 from aerotri.core.atomic import atomic_path
 from aerotri.core.errors import InputError
+from aerotri.geom.crs import parse_crs
 
 CHUNK_POINTS = 2_000_000
 # Projected coordinates beyond these bounds are not an airborne survey on Earth.
@@ -79,13 +80,7 @@ def resolve_crs(path, header: laspy.LasHeader, crs_arg: str | int | None) -> pyp
         raise InputError(
             f"{path}: the file has no CRS record; give the CRS with --crs EPSG:<code> (it is never guessed)"
         )
-    text = str(crs_arg).strip()
-    if text.isdigit():
-        text = f"EPSG:{text}"
-    try:
-        crs = pyproj.CRS.from_user_input(text)
-    except pyproj.exceptions.CRSError as exc:
-        raise InputError(f"--crs {crs_arg!r}: not a valid CRS ({exc})") from exc
+    crs = parse_crs(crs_arg, "--crs")
     if not crs.is_projected:
         raise InputError(f"--crs {crs_arg!r}: expected a projected CRS in metres, got {crs.name}")
     return crs

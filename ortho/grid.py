@@ -23,21 +23,11 @@ from pyproj import CRS, Transformer
 from rasterio.transform import Affine
 
 from aerotri.core.errors import InputError
+from aerotri.geom.crs import parse_crs
 
 # EPSG codes of the 3-degree Gauss-Krueger zones with the central meridian in the code's name
 # (zone CM = 75E + 3 * (code - first)), 75E .. 135E.
 GK3_FIRST_EPSG = {"cgcs2000": 4534, "xian1980": 2370, "beijing1954": 2422}
-
-
-def parse_crs(text, source: str = "crs") -> CRS:
-    """A pyproj CRS from ``EPSG:nnnn``, a bare EPSG number, WKT or PROJ text; InputError if unknown."""
-    s = str(text).strip()
-    if s.isdigit():
-        s = f"EPSG:{s}"
-    try:
-        return CRS.from_user_input(s)
-    except Exception as exc:  # pyproj raises CRSError; keep the message
-        raise InputError(f"{source}: unknown CRS {text!r} ({exc})") from None
 
 
 def gk3_zone_crs(lon_deg: float, datum: str = "cgcs2000") -> CRS:

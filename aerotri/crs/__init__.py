@@ -10,7 +10,7 @@
 """
 
 from aerotri.crs.ellipsoid import CGCS2000, IAG75, KRASSOVSKY, WGS84, Ellipsoid
-from aerotri.crs.epsg import parse_crs
+from aerotri.geom.crs import parse_crs
 from aerotri.crs.fit import FitResult, Transformation, fit_plane, fit_spatial
 from aerotri.crs.gauss_kruger import (
     GaussKruger,

@@ -10,7 +10,7 @@ import click
 from aerotri.core.commands import Group
 import numpy as np
 
-from aerotri.crs.epsg import crs_label, parse_crs
+from aerotri.geom.crs import crs_label, parse_crs
 from aerotri.crs.files import (
     LAS_SUFFIXES,
     fit_common_points,

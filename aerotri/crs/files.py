@@ -31,7 +31,7 @@ from pathlib import Path
 import numpy as np
 
 from aerotri.crs.ellipsoid import Ellipsoid, geocentric_to_geodetic, geodetic_to_geocentric
-from aerotri.crs.epsg import check_coordinates, crs_label, horizontal_crs, linear_unit_m, parse_crs, unit_name
+from aerotri.geom.crs import check_coordinates, crs_label, horizontal_crs, linear_unit_m, parse_crs, unit_name
 from aerotri.crs.fit import SPATIAL, Transformation, fit_plane, fit_spatial
 from aerotri.crs.heights import HeightAnomalyModel
 from aerotri.crs.transform import CrsTransformer, _ProjLeg, z_unit_m

@@ -9,7 +9,7 @@ from __future__ import annotations
 import numpy as np
 
 from aerotri.crs.ellipsoid import Ellipsoid, geocentric_to_geodetic, geodetic_to_geocentric
-from aerotri.crs.epsg import parse_crs
+from aerotri.geom.crs import parse_crs
 from aerotri.crs.fit import Transformation
 from aerotri.crs.transform import _ProjLeg
 

@@ -26,7 +26,7 @@ import pyproj
 from pyproj.transformer import TransformerGroup
 
 from aerotri.crs.ellipsoid import Ellipsoid, geocentric_to_geodetic, geodetic_to_geocentric
-from aerotri.crs.epsg import crs_label, horizontal_crs, linear_unit_m, parse_crs
+from aerotri.geom.crs import crs_label, horizontal_crs, linear_unit_m, parse_crs
 from aerotri.crs.fit import Transformation, outside_extent
 from aerotri.crs.heights import HeightAnomalyModel
 from aerotri.core.errors import InputError

@@ -4,7 +4,7 @@ import numpy as np
 import pyproj
 import pytest
 
-from aerotri.crs.epsg import parse_crs
+from aerotri.geom.crs import parse_crs
 from aerotri.crs.files import fit_common_points
 from aerotri.crs.fit import Transformation, outside_extent
 from aerotri.crs.gauss_kruger import GaussKruger

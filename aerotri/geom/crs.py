@@ -1,4 +1,5 @@
-"""CRS look-up by EPSG code and plausibility checks of coordinates against a CRS.
+"""CRSs: parsing (the one parser every command uses), labels, units, and plausibility checks of
+coordinates against a CRS.
 
 The checks catch the usual mix-ups before any arithmetic: degrees given for a projected CRS,
 feet for metres, eastings without the Gauss-Krueger zone prefix, or a wrong zone.
@@ -11,7 +12,7 @@ import functools
 import numpy as np
 import pyproj
 
-from aerotri.core.errors import InputError
+from aerotri.core.errors import CrsError, InputError
 
 
 @functools.lru_cache(maxsize=256)
@@ -20,16 +21,21 @@ def _crs_from_code(code: str) -> pyproj.CRS:
 
 
 def parse_crs(value, source: str = "CRS") -> pyproj.CRS:
-    """A pyproj CRS from ``4326``, ``"4326"``, ``"EPSG:4326"`` or a pyproj CRS; ``InputError`` if unknown."""
+    """A pyproj CRS from ``4326``, ``"4326"``, ``"EPSG:4326"``, WKT, PROJ text or a pyproj CRS.
+
+    ``CrsError`` (an ``InputError``) naming ``source`` (the option, file or key) if PROJ does not know it.
+    """
     if isinstance(value, pyproj.CRS):
         return value
     text = str(value).strip()
+    if not text:
+        raise CrsError(f"{source}: empty CRS (expected e.g. EPSG:32649)")
     if text.isdigit():
         text = f"EPSG:{text}"
     try:
         return _crs_from_code(text.upper() if text.lower().startswith("epsg:") else text)
     except pyproj.exceptions.CRSError:
-        raise InputError(f"{source}: unknown CRS {value!r} (not an EPSG code in the PROJ database)") from None
+        raise CrsError(f"{source}: unknown CRS {value!r} (not an EPSG code, WKT or PROJ string PROJ knows)") from None
 
 
 def crs_label(crs: pyproj.CRS) -> str:
