@@ -30,7 +30,10 @@ from aerotri.match.images import find_images
 from aerotri.project import Project
 from aerotri.rotation import rotation_matrix_opk
 from aerotri.core.atomic import atomic_path, write_text_atomic
-from ortho.dem import height_range, open_height_raster, read_height_window
+from aerotri.geom.crs import parse_heights
+from aerotri.geom.datum import load_height_model, load_transformation
+from aerotri.geom.transform import CrsTransformer, OperationSpec
+from ortho.dem import dem_height_operation, height_range, open_height_raster, read_height_window
 from ortho.grid import GridToProject, OrthoGrid, nice_resolution, parse_crs, resolve_output_crs
 from ortho.rectify import border_pixels, frame_grid, rectify_frame
 
@@ -206,8 +209,20 @@ def write_frame_ortho(path, ortho: np.ndarray, mask: np.ndarray, grid: OrthoGrid
             dst.write_mask(mask)
 
 
+def operation_tags(operation: dict | None, height_operation: dict | None = None) -> dict:
+    """GeoTIFF metadata naming the coordinate operations a product went through (empty for none)."""
+    tags = {}
+    if operation is not None:
+        tags["COORDINATE_OPERATION"] = operation["description"]
+        tags["COORDINATE_OPERATION_JSON"] = json.dumps(operation)
+    if height_operation is not None:
+        tags["HEIGHT_OPERATION_JSON"] = json.dumps(height_operation)
+    return tags
+
+
 def rectify_frame_to_file(path, image, band_order, camera, C, R, heights, grid, interpolation, to_project,
-                          occlusion_dsm=None, compression: str = "zstd", threads: int | None = None) -> float:
+                          occlusion_dsm=None, compression: str = "zstd", threads: int | None = None,
+                          tags: dict | None = None) -> float:
     """Rectify tile by tile straight into a GeoTIFF (the frame ortho is never whole in memory).
 
     The tile threads compute the next tiles while this thread writes (GDAL compresses the blocks on
@@ -218,6 +233,9 @@ def rectify_frame_to_file(path, image, band_order, camera, C, R, heights, grid, 
     bands = 1 if image.ndim == 2 else image.shape[2]
     with atomic_path(path) as tmp, rasterio.Env(GDAL_TIFF_INTERNAL_MASK=True):
         with rasterio.open(tmp, "w", **frame_profile(grid, bands, image.dtype.name, compression=compression)) as dst:
+            if tags:
+                dst.update_tags(**tags)
+
             def sink(r0, c0, o, m):
                 w = Window(c0, r0, m.shape[1], m.shape[0])
                 dst.write(o, window=w, indexes=band_order)
@@ -248,30 +266,37 @@ class FrameTask:
     dsm_path: str | None = None  # true ortho: rectify on the DSM and mask what it occludes
     compression: str = "zstd"
     threads: int | None = None  # tile threads (None: all cores of the worker)
+    operation: OperationSpec | None = None  # project -> output CRS (None: the project CRS itself)
+    height_operation: OperationSpec | None = None  # DEM/DSM heights -> the project's height system
 
 
 def rectify_frame_task(task: FrameTask) -> dict:
     """Rectify one frame into ``task.out_path`` (atomic); returns its index.json entry."""
     project_crs = CRS.from_wkt(task.project_crs_wkt)
     out_crs = CRS.from_wkt(task.output_crs_wkt)
-    to_project = GridToProject(out_crs, project_crs)
+    zlo, zhi = task.z_range_m
+    to_project = GridToProject(out_crs, project_crs, operation=task.operation.build() if task.operation else None,
+                               z_m=0.5 * (zlo + zhi))
+    height_op = task.height_operation.build() if task.height_operation else None
     C = np.asarray(task.centre_m, float)
     R = rotation_matrix_opk(*task.opk_deg)
-    zlo, zhi = task.z_range_m
     ground_bounds = _plane_footprint_bounds(task.camera, C, R, zlo - 5.0, zhi + 5.0, task.image_id)
     with open_height_raster(task.dem_path, project_crs, "DEM") as dem_ds:
-        dem = read_height_window(dem_ds, ground_bounds, margin_m=4 * dem_ds.transform.a, what="DEM", frame=task.image_id)
+        dem = read_height_window(dem_ds, ground_bounds, margin_m=4 * dem_ds.transform.a, what="DEM", frame=task.image_id,
+                                 height_operation=height_op)
     grid = frame_grid(task.camera, C, R, dem, task.res_m, out_crs, to_project, image_id=task.image_id)
     heights = dem
     if task.dsm_path:
         with open_height_raster(task.dsm_path, project_crs, "DSM") as dsm_ds:
             heights = read_height_window(dsm_ds, ground_bounds, margin_m=4 * dsm_ds.transform.a, what="DSM",
-                                         frame=task.image_id)
+                                         frame=task.image_id, height_operation=height_op)
     image, band_order = read_image_native(task.image_path, task.camera)
     valid_fraction = rectify_frame_to_file(task.out_path, image, band_order, task.camera, C, R, heights, grid,
                                            task.interpolation, to_project,
                                            occlusion_dsm=heights if task.dsm_path else None,
-                                           compression=task.compression, threads=task.threads)
+                                           compression=task.compression, threads=task.threads,
+                                           tags=operation_tags(to_project.record(),
+                                                               height_op.record() if height_op else None))
     del image
     nadir_x, nadir_y = to_project.to_output(np.array([C[0]]), np.array([C[1]]))
     return {
@@ -283,8 +308,15 @@ def rectify_frame_task(task: FrameTask) -> dict:
 
 def rectify_block(root, dem_path=None, res_m: float | None = None, crs: str | None = None, eo_path=None,
                   camera_path=None, interpolation: str = "bilinear", true_ortho: bool = False, dsm_path=None,
-                  frames=None, progress: bool = True, executor=None, compression: str = "zstd") -> dict:
+                  frames=None, progress: bool = True, executor=None, compression: str = "zstd",
+                  params=None, heights=None, allow_ballpark: bool = False) -> dict:
     """Rectify the frames of a project into ``ortho/frames/``; returns the index written to index.json.
+
+    The output CRS (``crs``; default the target CRS of ``params``, else the project CRS) is reached by the
+    toolkit's coordinate-operation policy: ``params`` is a parameter file of ``aerotri crs fit`` (needed
+    for a datum change PROJ does not know rigorously), ``heights`` a height anomaly model (``aerotri crs
+    fit-heights``) for a DEM in normal heights, ``allow_ballpark`` accepts PROJ's ballpark operation.
+    The operations applied are recorded in index.json and in every frame's GeoTIFF tags.
 
     One task per frame (``rectify_frame_task``) on ``executor`` (``aerotri.core.executor.Executor``,
     default: the run's or local threads); every task writes its own GeoTIFF, the index is written
@@ -302,12 +334,22 @@ def rectify_block(root, dem_path=None, res_m: float | None = None, crs: str | No
         raise InputError("--true-ortho needs --dsm (the DSM, e.g. lidar_out/dsm.tif)")
     if compression not in FRAME_COMPRESSION:
         raise InputError(f"unknown frame compression {compression!r}; expected one of {sorted(FRAME_COMPRESSION)}")
+    transformation = load_transformation(params) if params else None
+    height_model = load_height_model(heights) if heights else None
+    project_heights = parse_heights(project.section("project").get("heights"),
+                                    f"{project.root / 'project.toml'}: [project] heights")
     dem_ds = open_height_raster(dem_path, project_crs, "DEM")
     if true_ortho:
         open_height_raster(dsm_path, project_crs, "DSM").close()
     out_dir = project.ortho_dir / "frames"
     try:
+        height_op = dem_height_operation(CRS(dem_ds.crs), project_crs, project_heights, height_model, allow_ballpark,
+                                         str(dem_path))
         zlo, zhi = height_range(dem_ds)
+        if height_op is not None:  # the range in the project's height system, for the footprints
+            b = dem_ds.bounds
+            _, _, zc = height_op.transform([0.5 * (b.left + b.right)], [0.5 * (b.bottom + b.top)], [0.5 * (zlo + zhi)])
+            zlo, zhi = zlo + float(zc[0]) - 0.5 * (zlo + zhi), zhi + float(zc[0]) - 0.5 * (zlo + zhi)
         eo_idx = block.eo.index()
         sel = [eo_idx[k] for k in block.images]
         eo_sel = ExteriorOrientations([block.eo.image_id[i] for i in sel], block.eo.centre_m[sel], block.eo.opk_deg[sel])
@@ -321,14 +363,21 @@ def rectify_block(root, dem_path=None, res_m: float | None = None, crs: str | No
     finally:
         dem_ds.close()
     centre_xy = np.median(eo_sel.centre_m[:, :2], axis=0)
+    if crs is None and transformation is not None:
+        crs = transformation.to_crs
     out_crs = resolve_output_crs(crs, project_crs, centre_xy)
+    operation = None
+    if transformation is not None or out_crs != project_crs:
+        operation = CrsTransformer(project_crs, out_crs, params=transformation, allow_ballpark=allow_ballpark)
     executor = executor or local_executor()
     threads = executor.cores_per_task(len(block.images))  # tile threads per frame task (None: all)
     tasks = [FrameTask(image_id, str(path), str(out_dir / f"{image_id}.tif"), block.camera,
                        tuple(float(v) for v in block.eo.centre_m[eo_idx[image_id]]),
                        tuple(float(v) for v in block.eo.opk_deg[eo_idx[image_id]]), str(dem_path),
                        project_crs.to_wkt(), out_crs.to_wkt(), res, (zlo, zhi), interpolation,
-                       str(dsm_path) if true_ortho else None, compression, threads)
+                       str(dsm_path) if true_ortho else None, compression, threads,
+                       operation.spec() if operation is not None else None,
+                       height_op.spec() if height_op is not None else None)
              for image_id, path in block.images.items()]
     out_dir.mkdir(parents=True, exist_ok=True)
     entries = executor.map(rectify_frame_task, tasks, desc="rectify", unit="frame")
@@ -336,6 +385,9 @@ def rectify_block(root, dem_path=None, res_m: float | None = None, crs: str | No
         "crs": out_crs.to_wkt(), "crs_name": out_crs.name, "epsg": out_crs.to_epsg(), "res_m": res,
         "project_crs": project_crs.to_string(), "dem": str(dem_path), "eo": str(block.eo_path),
         "true_ortho": bool(true_ortho), "dsm": str(dsm_path) if dsm_path else None, "interpolation": interpolation,
+        "coordinate_operation": operation.record() if operation is not None else None,
+        "operation": dataclasses.asdict(operation.spec()) if operation is not None else None,
+        "height_operation": height_op.record() if height_op is not None else None,
         "frames": entries,
     }
     # merge with frames rectified earlier onto the same grid (re-runs of a subset)
@@ -370,6 +422,27 @@ def read_index(root) -> dict:
     if not path.exists():
         raise InputError(f"{path}: not found (run `ortho rectify` first)")
     return json.loads(path.read_text())
+
+
+def require_frames_crs(root, crs: str) -> None:
+    """``OptionError`` unless the rectified frames are in ``crs`` (an EPSG code or ``gk3:<datum>``)."""
+    from aerotri.core.errors import OptionError
+
+    index = read_index(root)
+    have = CRS.from_wkt(index["crs"])
+    centre = np.median([e["centre_m"][:2] for e in index["frames"]], axis=0)
+    want = resolve_output_crs(crs, parse_crs(Project.open(root).crs, "[project] crs"), centre)
+    if want != have:
+        raise OptionError(f"--crs {crs}: the frames in {Path(root) / 'ortho' / 'frames'} are in {have.name}, not in "
+                          f"{want.name}; run `ortho rectify {root} --crs {crs} [--params FILE]` first (the mosaic "
+                          "does not resample the frames a second time)", param="--crs")
+
+
+def index_operation(index: dict) -> CrsTransformer | None:
+    """The coordinate operation from the frames' output CRS back to the project CRS (None when the
+    frames are in the project CRS), as recorded by ``rectify_block``."""
+    spec = index.get("operation")
+    return None if spec is None else OperationSpec(**spec).build().inverse()
 
 
 def index_grids(index: dict) -> dict[str, OrthoGrid]:

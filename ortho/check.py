@@ -222,12 +222,24 @@ def _open(path, what):
         raise InputError(f"{path}: cannot read {what} ({exc})") from None
 
 
-def _on_grid(ds, window_transform, shape, crs, resampling, band_indexes=None):
-    """Resample (part of) an open raster onto a target window grid; returns (bands, rows, cols), valid."""
+def _on_grid(ds, window_transform, shape, crs, resampling, band_indexes=None, operation=None):
+    """Resample (part of) an open raster onto a target window grid; returns (bands, rows, cols), valid.
+
+    A raster in another CRS than the grid's goes through the toolkit's coordinate-operation policy
+    (``operation``: grid CRS -> raster CRS; built without parameters when None, refusing a ballpark)."""
     import rasterio
     from rasterio.warp import reproject
 
+    from aerotri.geom.crs import same_horizontal
+    from aerotri.geom.raster_warp import read_on_grid
+    from aerotri.geom.transform import CrsTransformer
+
     idx = band_indexes or list(range(1, min(ds.count, 3) + 1))
+    if operation is not None or not same_horizontal(ds.crs, crs):
+        op = operation or CrsTransformer(crs, ds.crs)
+        maximum = resampling == rasterio.enums.Resampling.max
+        return read_on_grid(ds, window_transform.c, window_transform.f, window_transform.a, shape, op,
+                            "bilinear", idx, maximum=maximum)
     out = np.zeros((len(idx),) + shape, np.float32)
     valid = np.zeros(shape, np.uint8)
     reproject(rasterio.band(ds, idx), out, dst_transform=window_transform, dst_crs=crs, resampling=resampling,
@@ -237,12 +249,31 @@ def _on_grid(ds, window_transform, shape, crs, resampling, band_indexes=None):
     return out, (valid > 0) & np.all(np.isfinite(out), axis=0)
 
 
+def _operation_to(dom_path, other_path, params, allow_ballpark: bool, what: str):
+    """DOM CRS -> the other raster's CRS (None when they are the same and no parameters are given)."""
+    from aerotri.geom.crs import same_horizontal
+    from aerotri.geom.datum import load_transformation
+    from aerotri.geom.transform import CrsTransformer
+
+    with _open(dom_path, "DOM") as a, _open(other_path, what) as b:
+        if a.crs is None or b.crs is None:
+            raise InputError(f"{dom_path if a.crs is None else other_path}: no CRS")
+        if same_horizontal(a.crs, b.crs):
+            return None
+        return CrsTransformer(a.crs, b.crs, params=load_transformation(params) if params else None,
+                              allow_ballpark=allow_ballpark)
+
+
 def check_against_reference(dom_path, reference_path, ndsm_path=None, max_ndsm_m: float = 0.5, block_px: int = 2048,
-                            patch_px: int = 48, step_px: int = 48, search_px: int = 6, min_ncc: float = 0.7):
+                            patch_px: int = 48, step_px: int = 48, search_px: int = 6, min_ncc: float = 0.7,
+                            reference_operation=None, ndsm_operation=None):
     """Patch displacements of a DOM against a reference orthophoto, block by block (bounded memory).
 
     The reference (and the nDSM used to keep only ground patches, height above ground <= max_ndsm_m)
     is resampled onto each DOM block (bilinear; nDSM by maximum so that patches touching objects drop).
+    A reference or nDSM in another CRS is mapped through ``reference_operation`` / ``ndsm_operation``
+    (DOM CRS -> its CRS; ``aerotri.geom.transform.CrsTransformer``), by default PROJ's operation when
+    it is rigorous (a ballpark one is refused).
     """
     import rasterio
     from rasterio.enums import Resampling
@@ -268,10 +299,10 @@ def check_against_reference(dom_path, reference_path, ndsm_path=None, max_ndsm_m
                         continue
                     d = np.moveaxis(dom.read(list(range(1, min(dom.count, 3) + 1)), window=w), 0, -1)
                     wt = wtransform(w, dom.transform)
-                    rimg, rvalid = _on_grid(ref, wt, shape, dom.crs, Resampling.bilinear)
+                    rimg, rvalid = _on_grid(ref, wt, shape, dom.crs, Resampling.bilinear, operation=reference_operation)
                     keep = None
                     if ndsm is not None:
-                        nd, nvalid = _on_grid(ndsm, wt, shape, dom.crs, Resampling.max, [1])
+                        nd, nvalid = _on_grid(ndsm, wt, shape, dom.crs, Resampling.max, [1], operation=ndsm_operation)
                         keep = nvalid & (nd[0] <= max_ndsm_m)
                     p = match_patches(d, np.moveaxis(rimg, 0, -1), dmask, rvalid, res, patch_px, step_px, search_px,
                                       min_ncc, keep=keep)
@@ -300,8 +331,12 @@ def check_points(points_path, res_m: float) -> tuple[dict, dict]:
 
 
 def run_check(project_root, reference_path=None, points_path=None, dom_path=None, ndsm_path=None, max_ndsm_m=0.5,
-              patch_px=48, search_px=6, out_stem=None, seams: bool = True) -> dict:
-    """The ``ortho check`` report: displacement statistics (+ per-seam misalignment when seamlines exist)."""
+              patch_px=48, search_px=6, out_stem=None, seams: bool = True, params=None,
+              allow_ballpark: bool = False) -> dict:
+    """The ``ortho check`` report: displacement statistics (+ per-seam misalignment when seamlines exist).
+
+    A reference (or nDSM) in another CRS than the DOM is mapped through the coordinate-operation policy:
+    ``params`` (a parameter file of ``aerotri crs fit``, either direction) for a datum change."""
     root = Path(project_root)
     dom_path = Path(dom_path) if dom_path else root / "ortho" / "mosaic.tif"
     out_stem = Path(out_stem) if out_stem else root / "ortho" / "dom_report"
@@ -310,9 +345,14 @@ def run_check(project_root, reference_path=None, points_path=None, dom_path=None
         crs = ds.crs.to_string() if ds.crs else None
     report = {"dom": str(dom_path), "crs": crs, "gsd_m": res}
     if reference_path is not None:
+        ref_op = _operation_to(dom_path, reference_path, params, allow_ballpark, "reference orthophoto")
+        ndsm_op = _operation_to(dom_path, ndsm_path, params, allow_ballpark, "nDSM") if ndsm_path else None
         patches, (w, h) = check_against_reference(dom_path, reference_path, ndsm_path, max_ndsm_m, patch_px=patch_px,
-                                                  step_px=patch_px, search_px=search_px)
+                                                  step_px=patch_px, search_px=search_px, reference_operation=ref_op,
+                                                  ndsm_operation=ndsm_op)
         stats = displacement_statistics(patches.de_m, patches.dn_m, res)
+        if ref_op is not None:
+            report["reference_operation"] = ref_op.record()
         report.update(method="ncc_patches", reference=str(reference_path), ndsm=str(ndsm_path) if ndsm_path else None,
                       max_ndsm_m=max_ndsm_m if ndsm_path else None, patch_px=patch_px, search_px=search_px,
                       displacement=stats,

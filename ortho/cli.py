@@ -21,7 +21,16 @@ def main():
 @click.option("--dem", "dem_path", type=click.Path(path_type=Path), help="DEM GeoTIFF [lidar_out/dem.tif]")
 @click.option("--res", "res_m", type=float, help="output pixel size in metres [median nadir GSD, rounded]")
 @click.option("--crs", "crs", help="output CRS: EPSG code (e.g. EPSG:4546), or gk3:cgcs2000 / gk3:xian1980 for the "
-                                    "3-degree GK zone nearest the block centre [project CRS]")
+                                    "3-degree GK zone nearest the block centre [the --params target, else the "
+                                    "project CRS]")
+@click.option("--params", "params_path", type=click.Path(dir_okay=False, path_type=Path),
+              help="datum parameter file from 'aerotri crs fit' (e.g. WGS 84 UTM -> Xian 1980 GK); needed when the "
+                   "output CRS is on another datum")
+@click.option("--heights", "heights_path", type=click.Path(dir_okay=False, path_type=Path),
+              help="height anomaly model from 'aerotri crs fit-heights', for a DEM in normal heights")
+@click.option("--allow-ballpark", is_flag=True,
+              help="accept PROJ's ballpark operation that ignores a datum shift (errors of decimetres to "
+                   "hundreds of metres)")
 @click.option("--eo", "eo_path", type=click.Path(path_type=Path), help="EO file [at/eo.txt]")
 @click.option("--camera", "camera_path", type=click.Path(path_type=Path), help="camera file [camera.toml]")
 @click.option("--interpolation", type=click.Choice(["nearest", "bilinear", "cubic", "lanczos"]), default="bilinear",
@@ -33,16 +42,18 @@ def main():
               show_default=True, help="per-frame GeoTIFFs: zstd (level 1 + predictor), zstd-fast (no predictor, "
                                       "~1.7x larger), none (least CPU, ~3.7x larger)")
 @scheduler_options
-def rectify(project, dem_path, res_m, crs, eo_path, camera_path, interpolation, true_ortho, dsm_path, frames,
-            compression, scheduler, workers):
+def rectify(project, dem_path, res_m, crs, params_path, heights_path, allow_ballpark, eo_path, camera_path,
+            interpolation, true_ortho, dsm_path, frames, compression, scheduler, workers):
     """One orthoimage per frame (ortho/frames/<image_id>.tif with a validity mask), one Dask task per frame."""
     from ortho.block import rectify_block
 
     with executor_for(scheduler, workers) as executor:
         index = rectify_block(project, dem_path, res_m, crs, eo_path, camera_path, interpolation, true_ortho, dsm_path,
-                              frames.split(",") if frames else None, executor=executor, compression=compression)
-    click.echo(f"rectified {len(index['frames'])} frames at {index['res_m']} m in {index['crs_name']} "
-               f"-> {Path(project) / 'ortho' / 'frames'}")
+                              frames.split(",") if frames else None, executor=executor, compression=compression,
+                              params=params_path, heights=heights_path, allow_ballpark=allow_ballpark)
+    op = index.get("coordinate_operation")
+    click.echo(f"rectified {len(index['frames'])} frames at {index['res_m']} m in {index['crs_name']}"
+               f"{' (' + op['description'] + ')' if op else ''} -> {Path(project) / 'ortho' / 'frames'}")
 
 
 @main.command()
@@ -53,12 +64,18 @@ def rectify(project, dem_path, res_m, crs, eo_path, camera_path, interpolation, 
 @click.option("--feather-m", type=float, default=None, help="feather width across seams in metres [8 GSD]")
 @click.option("--no-balance", is_flag=True, help="skip the gain balancing between frames")
 @click.option("--tile-px", type=int, default=1024, show_default=True, help="mosaic processing tile size")
+@click.option("--crs", "crs", help="the product CRS the frames must be in (as given to ortho rectify); the mosaic never "
+                                    "resamples twice, so frames in another CRS are refused [the frames' CRS]")
 @scheduler_options
-def mosaic(project, seams, ndsm_path, feather_m, no_balance, tile_px, scheduler, workers):
+def mosaic(project, seams, ndsm_path, feather_m, no_balance, tile_px, crs, scheduler, workers):
     """Seamlines, blending and radiometric balancing into ortho/mosaic.tif (COG) and ortho/seamlines.geojson;
     one Dask task per output tile."""
     from ortho.mosaic import mosaic_block
 
+    if crs is not None:
+        from ortho.block import require_frames_crs
+
+        require_frames_crs(project, crs)
     with executor_for(scheduler, workers) as executor:
         info = mosaic_block(project, seams=seams, ndsm_path=ndsm_path, feather_m=feather_m, balance=not no_balance,
                             tile_px=tile_px, executor=executor)
@@ -76,7 +93,11 @@ def mosaic(project, seams, ndsm_path, feather_m, no_balance, tile_px, scheduler,
 @click.option("--patch-px", type=int, default=48, show_default=True)
 @click.option("--search-px", type=int, default=6, show_default=True)
 @click.option("--out", "out_stem", type=click.Path(path_type=Path), help="report stem [ortho/dom_report]")
-def check(project, reference_path, points_path, dom_path, ndsm_path, max_ndsm_m, patch_px, search_px, out_stem):
+@click.option("--params", "params_path", type=click.Path(dir_okay=False, path_type=Path),
+              help="datum parameter file ('aerotri crs fit') relating the reference's CRS and the DOM's")
+@click.option("--allow-ballpark", is_flag=True, help="accept PROJ's ballpark operation between the two CRSs")
+def check(project, reference_path, points_path, dom_path, ndsm_path, max_ndsm_m, patch_px, search_px, out_stem,
+          params_path, allow_ballpark):
     """DOM accuracy against a reference orthophoto (NCC patches) or surveyed points; JSON and a plot."""
     from ortho.check import run_check
 
@@ -84,7 +105,7 @@ def check(project, reference_path, points_path, dom_path, ndsm_path, max_ndsm_m,
         raise click.UsageError("give exactly one of --reference or --points")
     report = run_check(project, reference_path=reference_path, points_path=points_path, dom_path=dom_path,
                        ndsm_path=ndsm_path, max_ndsm_m=max_ndsm_m, patch_px=patch_px, search_px=search_px,
-                       out_stem=out_stem)
+                       out_stem=out_stem, params=params_path, allow_ballpark=allow_ballpark)
     s = report["displacement"]
     if s.get("count"):
         click.echo(f"{s['count']} {'patches' if reference_path else 'points'}: RMS {s['rms_xy_m']:.3f} m "

@@ -1,8 +1,14 @@
 """Height rasters (DEM, DSM, nDSM) for orthorectification, read from lidarctl GeoTIFFs.
 
 A ``HeightRaster`` holds a north-up float32 grid in the project CRS with NaN for nodata; heights are
-sampled bilinearly at pixel centres (``x = x_left + (col + 0.5) * res``). Heights are assumed to be
-in the same vertical datum as the projection centres of the exterior orientation.
+sampled bilinearly at pixel centres (``x = x_left + (col + 0.5) * res``).
+
+Heights must be in the project's height system ([project] heights: ellipsoidal by default), the one of
+the projection centres. A raster whose CRS is compound is taken by its parts: its horizontal part must
+be the project's; when its vertical part is another height system (e.g. EGM2008 heights for an
+ellipsoidal project), its heights are converted through the toolkit's coordinate-operation policy
+(``dem_height_operation``: a PROJ geoid grid, or a height anomaly model from ``aerotri crs fit-heights``).
+A raster without a vertical CRS is taken to be in the project's height system.
 """
 
 from __future__ import annotations
@@ -16,7 +22,10 @@ import rasterio
 from pyproj import CRS
 from rasterio.windows import Window, from_bounds
 
-from aerotri.core.errors import InputError
+from aerotri.core.errors import CrsError, InputError
+from aerotri.geom.crs import crs_label, height_crs, horizontal_crs, same_horizontal, vertical_crs
+from aerotri.geom.raster_warp import anchor_grid, height_change, interpolate_anchors
+from aerotri.geom.transform import CrsTransformer
 
 
 @dataclasses.dataclass
@@ -78,18 +87,43 @@ def open_height_raster(path, project_crs: CRS | None, what: str = "DEM"):
     if ds.crs is None:
         ds.close()
         raise InputError(f"{path}: {what} has no CRS; expected the project CRS {project_crs.to_string() if project_crs else ''}")
-    if project_crs is not None and CRS(ds.crs) != CRS(project_crs):
+    if project_crs is not None and not same_horizontal(CRS(ds.crs), CRS(project_crs)):
         got = CRS(ds.crs).to_string()
         ds.close()
-        raise InputError(
+        raise CrsError(
             f"{path}: CRS mismatch: {what} is in {got} but the project (project.toml [project] crs) is in "
-            f"{CRS(project_crs).to_string()}; reproject the {what} or fix project.toml"
+            f"{crs_label(CRS(project_crs))}; reproject the {what} (aerotri crs warp) or fix project.toml"
         )
     return ds
 
 
-def read_height_window(ds, bounds, margin_m: float = 0.0, what: str = "DEM", frame: str | None = None) -> HeightRaster:
-    """Read the part of an open height raster covering ``bounds`` (project CRS) into a HeightRaster."""
+def dem_height_operation(raster_crs, project_crs, project_heights=None, height_model=None,
+                         allow_ballpark: bool = False, source: str = "DEM") -> CrsTransformer | None:
+    """The operation that brings a height raster's heights into the project's height system, or None.
+
+    ``project_heights``: the project's vertical CRS (None: ellipsoidal heights); ``height_model``: a
+    ``HeightAnomalyModel`` relating ellipsoidal and normal heights (used when PROJ has no geoid grid).
+    Refuses (``CrsError``) what would be a silent ballpark height change, naming the grid to install."""
+    vertical = vertical_crs(CRS(raster_crs))
+    if vertical is None or (project_heights is not None and vertical == CRS(project_heights)):
+        return None
+    horizontal = horizontal_crs(CRS(project_crs))
+    src = height_crs(horizontal, vertical)
+    dst = height_crs(horizontal, project_heights)
+    if height_model is not None and project_heights is None:
+        # normal heights -> ellipsoidal by h = H + zeta: the model is the inverse of its H = h - zeta
+        return CrsTransformer(dst, dst, heights=height_model).inverse()
+    try:
+        return CrsTransformer(src, dst, allow_ballpark=allow_ballpark)
+    except CrsError as exc:
+        raise CrsError(f"{source}: heights in {vertical.name} ({crs_label(vertical)}), the project's in "
+                       f"{'ellipsoidal heights' if project_heights is None else project_heights.name}: {exc}") from None
+
+
+def read_height_window(ds, bounds, margin_m: float = 0.0, what: str = "DEM", frame: str | None = None,
+                       height_operation: CrsTransformer | None = None) -> HeightRaster:
+    """Read the part of an open height raster covering ``bounds`` (project CRS) into a HeightRaster;
+    ``height_operation`` (``dem_height_operation``) converts its heights to the project's system."""
     left, bottom, right, top = bounds
     res = ds.transform.a
     win = from_bounds(left - margin_m, bottom - margin_m, right + margin_m, top + margin_m, ds.transform)
@@ -107,7 +141,28 @@ def read_height_window(ds, bounds, margin_m: float = 0.0, what: str = "DEM", fra
     a = ds.read(1, window=w, masked=True).astype(np.float32).filled(np.nan)
     x0 = ds.transform.c + c0 * res
     y0 = ds.transform.f + r0 * ds.transform.e
+    if height_operation is not None:
+        a = convert_heights(a, x0, y0, res, height_operation)
     return HeightRaster(a, x0, y0, res, CRS(ds.crs), source=f"{ds.name}")
+
+
+def convert_heights(heights: np.ndarray, x_left: float, y_top: float, res: float,
+                    operation: CrsTransformer) -> np.ndarray:
+    """Heights of a north-up grid through ``operation`` (same horizontal CRS on both sides): the change,
+    smooth over the grid and linear in the height, is evaluated on anchors and interpolated."""
+    v = heights[np.isfinite(heights)]
+    if v.size == 0:
+        return heights
+    zlo, zhi = float(v.min()), float(v.max())
+    rows, cols = heights.shape
+
+    def change(x, y):
+        dz0, k = height_change(operation, x, y, zlo, zhi)
+        return dz0.reshape(np.shape(x)), k.reshape(np.shape(x))
+
+    D0, K, s = anchor_grid(change, x_left, y_top, res, cols, rows, spacing_px=64, tolerance=1e-3)
+    dz = interpolate_anchors(D0, s, rows, cols) + interpolate_anchors(K, s, rows, cols) * heights
+    return (heights + dz).astype(np.float32)
 
 
 def read_height_raster(path, project_crs: CRS | None = None, what: str = "DEM") -> HeightRaster:

@@ -7,10 +7,12 @@ multiples of ``res_m``, so every frame ortho is a window of the mosaic grid (no 
 time).
 
 Exterior orientations and DEMs are in the project CRS. When the product CRS differs (e.g. a
-3-degree Gauss-Krueger zone of CGCS2000 or Xian 1980 for a block surveyed in UTM), ``GridToProject``
-maps output coordinates to project coordinates with one pyproj Transformer built once; per pixel the
-transform is interpolated from an anchor grid whose spacing is halved until the interpolation error
-at the cell centres is below a tolerance (default 1 mm on the ground).
+3-degree Gauss-Krueger zone of CGCS2000 or Xian 1980 for a block surveyed in WGS 84 UTM),
+``GridToProject`` maps output coordinates to project coordinates through the toolkit's one
+coordinate-operation policy (``aerotri.geom.transform``): a datum change needs the parameter set fitted
+from common points (``--params``), PROJ's ballpark operation is refused unless explicitly allowed. The
+operation is built once; per pixel it is interpolated from an anchor grid whose spacing is halved
+until the interpolation error at the cell centres is below a tolerance (default 1 mm on the ground).
 """
 
 from __future__ import annotations
@@ -19,11 +21,13 @@ import dataclasses
 import math
 
 import numpy as np
-from pyproj import CRS, Transformer
+from pyproj import CRS
 from rasterio.transform import Affine
 
-from aerotri.core.errors import InputError
-from aerotri.geom.crs import parse_crs
+from aerotri.core.errors import CrsError, InputError
+from aerotri.geom.crs import crs_label, horizontal_crs, linear_unit_m, parse_crs
+from aerotri.geom.raster_warp import anchor_grid
+from aerotri.geom.transform import CrsTransformer
 
 # EPSG codes of the 3-degree Gauss-Krueger zones with the central meridian in the code's name
 # (zone CM = 75E + 3 * (code - first)), 75E .. 135E.
@@ -46,15 +50,27 @@ def gk3_zone_crs(lon_deg: float, datum: str = "cgcs2000") -> CRS:
 
 
 def resolve_output_crs(spec: str | None, project_crs: CRS, centre_xy_m) -> CRS:
-    """Output CRS from ``--crs``: None (project CRS), an EPSG/WKT, or ``gk3:<datum>`` (zone by block centre)."""
+    """Output CRS from ``--crs``: None (project CRS), an EPSG/WKT, or ``gk3:<datum>`` (zone by block centre).
+
+    Ortho products need a projected CRS in metres (their pixel size is a ground distance)."""
     if spec is None:
-        return project_crs
-    if str(spec).lower().startswith("gk3"):
+        crs = project_crs
+    elif str(spec).lower().startswith("gk3"):
         datum = spec.split(":", 1)[1] if ":" in spec else "cgcs2000"
-        to_ll = Transformer.from_crs(project_crs, "EPSG:4326", always_xy=True)
-        lon, _ = to_ll.transform(float(centre_xy_m[0]), float(centre_xy_m[1]))
-        return gk3_zone_crs(lon, datum)
-    return parse_crs(spec, "--crs")
+        geographic = horizontal_crs(project_crs).geodetic_crs  # same datum: a conversion, no shift
+        lon, _, _ = CrsTransformer(project_crs, geographic).transform(float(centre_xy_m[0]), float(centre_xy_m[1]))
+        crs = gk3_zone_crs(float(lon[0]), datum)
+    else:
+        crs = parse_crs(spec, "--crs")
+    h = horizontal_crs(crs)
+    if not h.is_projected:
+        raise CrsError(f"--crs {crs_label(crs)} ({h.name}) is not a projected CRS: ortho products have square "
+                       "pixels of a ground size in metres; choose a projected CRS (a UTM or Gauss-Krueger zone) "
+                       "and reproject the delivered mosaic afterwards if degrees are required", param="--crs")
+    if abs(linear_unit_m(h) - 1.0) > 1e-12:
+        raise CrsError(f"--crs {crs_label(crs)} ({h.name}) has axes in {h.axis_info[0].unit_name}; ortho products "
+                       "are written in metre grids", param="--crs")
+    return crs
 
 
 @dataclasses.dataclass(frozen=True)
@@ -128,56 +144,52 @@ def nice_resolution(gsd_m: float) -> float:
 
 
 class GridToProject:
-    """Output-grid pixel centres to project-CRS coordinates, via an anchor grid (built once per CRS pair)."""
+    """Output-grid coordinates to project-CRS coordinates and back (built once per CRS pair).
 
-    def __init__(self, output_crs: CRS, project_crs: CRS, tolerance_m: float = 1e-3):
-        self.identity = CRS(output_crs) == CRS(project_crs)
+    ``operation``: the project -> output coordinate operation (``aerotri.geom.transform.CrsTransformer``,
+    with a parameter set and height model when the datums differ); None builds PROJ's operation under
+    the policy (refused when it would be a ballpark). ``z_m``: the height used for the planimetric
+    mapping (a datum change through geocentric coordinates depends on it by rotation x height, under a
+    millimetre for 100 m of relief with arc-second rotations); the block's mean terrain height.
+    """
+
+    def __init__(self, output_crs: CRS, project_crs: CRS, tolerance_m: float = 1e-3,
+                 operation: CrsTransformer | None = None, z_m: float = 0.0):
         self.tolerance_m = tolerance_m
-        self._tr = None if self.identity else Transformer.from_crs(output_crs, project_crs, always_xy=True)
-        self._inv = None if self.identity else Transformer.from_crs(project_crs, output_crs, always_xy=True)
+        self.z_m = float(z_m)
+        self.identity = CRS(output_crs) == CRS(project_crs) and (operation is None or operation.identity)
+        self.operation = None if self.identity else operation or CrsTransformer(project_crs, output_crs)
+        self._inverse = None if self.identity else self.operation.inverse()
+
+    def record(self) -> dict | None:
+        """The coordinate operation applied (``CrsTransformer.record``), None for the project CRS itself."""
+        return None if self.identity else self.operation.record()
+
+    @staticmethod
+    def _apply(op: CrsTransformer, x_m, y_m, z_m: float):
+        x = np.asarray(x_m, float)
+        y = np.asarray(y_m, float)
+        X, Y, _ = op.transform(x.ravel(), y.ravel(), np.full(x.size, z_m))
+        return X.reshape(x.shape), Y.reshape(x.shape)
 
     def exact(self, x_m, y_m):
+        """Output-grid coordinates -> project coordinates."""
         if self.identity:
             return np.asarray(x_m, float), np.asarray(y_m, float)
-        return self._tr.transform(np.asarray(x_m, float), np.asarray(y_m, float))
+        return self._apply(self._inverse, x_m, y_m, self.z_m)
 
     def to_output(self, x_m, y_m):
+        """Project coordinates -> output-grid coordinates."""
         if self.identity:
             return np.asarray(x_m, float), np.asarray(y_m, float)
-        return self._inv.transform(np.asarray(x_m, float), np.asarray(y_m, float))
+        return self._apply(self.operation, x_m, y_m, self.z_m)
 
     def anchors(self, grid: OrthoGrid, spacing_px: int = 256):
         """Project-CRS coordinates on anchor nodes every ``spacing_px`` pixels, covering the grid.
 
-        Returns (anchor_x_m, anchor_y_m, spacing_px) with shape (ny, nx). The spacing is halved until
-        bilinear interpolation between anchors reproduces the exact transform at cell centres within
-        ``tolerance_m``; for an identical CRS the mapping is affine and one cell suffices.
+        Returns (anchor_x_m, anchor_y_m, spacing_px) with shape (ny, nx) (``aerotri.geom.raster_warp.
+        anchor_grid``: refined until bilinear interpolation between anchors reproduces the exact
+        transform at cell centres within ``tolerance_m``; for an identical CRS one cell suffices).
         """
-        if self.identity:
-            spacing_px = max(grid.width, grid.height)
-        while True:
-            cols = _anchor_positions(grid.width, spacing_px)
-            rows = _anchor_positions(grid.height, spacing_px)
-            xs, ys = grid.centres(rows, cols)
-            X, Y = np.meshgrid(xs, ys)
-            AX, AY = self.exact(X, Y)
-            AX, AY = np.asarray(AX), np.asarray(AY)
-            if self.identity or spacing_px <= 4:
-                return AX, AY, spacing_px
-            # check at the centres of cells
-            cc = (cols[:-1] + cols[1:]) / 2.0 if len(cols) > 1 else cols
-            rc = (rows[:-1] + rows[1:]) / 2.0 if len(rows) > 1 else rows
-            xc, yc = grid.centres(rc, cc)
-            EX, EY = self.exact(*np.meshgrid(xc, yc))
-            IX = 0.25 * (AX[:-1, :-1] + AX[1:, :-1] + AX[:-1, 1:] + AX[1:, 1:]) if AX.shape[0] > 1 and AX.shape[1] > 1 else AX
-            IY = 0.25 * (AY[:-1, :-1] + AY[1:, :-1] + AY[:-1, 1:] + AY[1:, 1:]) if AY.shape[0] > 1 and AY.shape[1] > 1 else AY
-            err = np.hypot(np.asarray(EX) - IX, np.asarray(EY) - IY) if IX.shape == np.shape(EX) else np.zeros(1)
-            if float(np.max(err)) <= self.tolerance_m:
-                return AX, AY, spacing_px
-            spacing_px //= 2
-
-
-def _anchor_positions(n: int, spacing: int) -> np.ndarray:
-    """Anchor pixel indices 0, s, 2s, ... up to or past the last pixel n-1 (uniform, at least two)."""
-    m = max(1, math.ceil((n - 1) / spacing))
-    return np.arange(m + 1, dtype=float) * spacing
+        return anchor_grid(self.exact, grid.x_left_m, grid.y_top_m, grid.res_m, grid.width, grid.height,
+                           spacing_px, self.tolerance_m, affine=self.identity)

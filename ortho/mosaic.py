@@ -41,7 +41,7 @@ from tqdm import tqdm
 
 from aerotri.core.errors import InputError
 from aerotri.core.atomic import atomic_path, scratch_dir, write_text_atomic
-from ortho.block import index_grids, read_index
+from ortho.block import index_grids, index_operation, operation_tags, read_index
 from ortho.grid import OrthoGrid
 from ortho.seamlines import (keep_objects_whole, label_polygons, least_cost_seams, neighbour_pairs, seam_lines,
                              voronoi_labels)
@@ -135,13 +135,24 @@ def balance_gains(red: ReducedFrames, labels: np.ndarray | None = None, prior_we
     return np.exp(g)
 
 
-def _read_ndsm_on(path, transform, shape, crs):
+def _read_ndsm_on(path, transform, shape, crs, operation=None):
+    """The nDSM (project CRS) on the mosaic grid, by maximum; a mosaic in another CRS than the nDSM's
+    is mapped back through the index's coordinate operation (``operation``: mosaic CRS -> nDSM CRS)."""
     from rasterio.warp import reproject
+
+    from aerotri.geom.crs import same_horizontal
+    from aerotri.geom.raster_warp import read_on_grid
+    from aerotri.geom.transform import CrsTransformer
 
     out = np.full(shape, np.nan, np.float32)
     with rasterio.open(path) as ds:
-        reproject(rasterio.band(ds, 1), out, dst_transform=transform, dst_crs=crs, resampling=Resampling.max,
-                  dst_nodata=np.nan)
+        if operation is None and same_horizontal(ds.crs, crs):
+            reproject(rasterio.band(ds, 1), out, dst_transform=transform, dst_crs=crs, resampling=Resampling.max,
+                      dst_nodata=np.nan)
+        else:
+            a, ok = read_on_grid(ds, transform.c, transform.f, transform.a, shape,
+                                 operation or CrsTransformer(crs, ds.crs), bands=[1], maximum=True)
+            out = np.where(ok, a[0], np.nan).astype(np.float32)
     return out
 
 
@@ -182,7 +193,7 @@ def mosaic_block(root, seams: str = "least-cost", ndsm_path=None, feather_m: flo
         ndsm_path = root / "lidar_out" / "ndsm.tif"
     objects = None
     if ndsm_path is not None:
-        nd = _read_ndsm_on(ndsm_path, red.transform, red.shape, crs)
+        nd = _read_ndsm_on(ndsm_path, red.transform, red.shape, crs, index_operation(index))
         objects = np.nan_to_num(nd, nan=0.0) > object_height_m
     if seams == "least-cost":
         # a seam end may slide along the overlap border by up to end_reach_m to get round a building
@@ -309,6 +320,8 @@ def _write_mosaic(path, frames_dir, index, mosaic: OrthoGrid, seams_path, factor
                     dst.write(np.moveaxis(out, -1, 0), window=w)
                     dst.write_mask(np.where(valid, 255, 0).astype(np.uint8), window=w)
                     bar.update(1)
+        with rasterio.open(stage, "r+") as dst:  # the COG copy keeps the tags
+            dst.update_tags(**operation_tags(index.get("coordinate_operation"), index.get("height_operation")))
         with atomic_path(path) as tmp:
             rasterio.shutil.copy(stage, tmp, driver="COG", COMPRESS="DEFLATE", BLOCKSIZE=512, OVERVIEWS="AUTO",
                                  OVERVIEW_RESAMPLING="AVERAGE", BIGTIFF="IF_SAFER", NUM_THREADS="ALL_CPUS")
@@ -373,6 +386,7 @@ def seam_misalignment(root, patch_px: int = 32, search_px: int = 4, spacing_cell
     names = [e["image_id"] for e in index["frames"]]
     if ndsm_path is None and (root / "lidar_out" / "ndsm.tif").exists():
         ndsm_path = root / "lidar_out" / "ndsm.tif"
+    to_project = index_operation(index)
     half = patch_px // 2 + search_px
     per_seam, all_d = [], []
     for i, j in neighbour_pairs(labels):
@@ -399,7 +413,7 @@ def seam_misalignment(root, patch_px: int = 32, search_px: int = 4, spacing_cell
             if ndsm_path is not None:
                 t = Affine(mosaic.res_m, 0, mosaic.x_left_m + C * mosaic.res_m, 0, -mosaic.res_m,
                            mosaic.y_top_m - R * mosaic.res_m)
-                nd = _read_ndsm_on(ndsm_path, t, (size, size), mosaic.crs)
+                nd = _read_ndsm_on(ndsm_path, t, (size, size), mosaic.crs, to_project)
                 keep = np.nan_to_num(nd, nan=1e9) <= max_ndsm_m
             p = match_patches(win_imgs[0][0], win_imgs[1][0], win_imgs[0][1], win_imgs[1][1], mosaic.res_m, patch_px,
                               patch_px, search_px, min_ncc, keep=keep)

@@ -23,7 +23,7 @@ from aerotri.adjust.approximate import (
     intersect_points,
     refine_orientations,
 )
-from aerotri.adjust.local_frame import LocalFrame
+from aerotri.geom.local_frame import LocalFrame
 from aerotri.adjust.observations import (
     ControlPoints,
     ImageObservations,

@@ -9,9 +9,9 @@
 - ``files``: common-point and height-point tables, parameter files, point lists and LAS/LAZ.
 """
 
-from aerotri.crs.ellipsoid import CGCS2000, IAG75, KRASSOVSKY, WGS84, Ellipsoid
+from aerotri.geom.ellipsoid import CGCS2000, IAG75, KRASSOVSKY, WGS84, Ellipsoid
 from aerotri.geom.crs import parse_crs
-from aerotri.crs.fit import FitResult, Transformation, fit_plane, fit_spatial
+from aerotri.crs.fit import FitResult, fit_plane, fit_spatial
 from aerotri.crs.gauss_kruger import (
     GaussKruger,
     central_meridian_deg,
@@ -22,8 +22,9 @@ from aerotri.crs.gauss_kruger import (
     zone_6deg,
     zone_for_block,
 )
-from aerotri.crs.heights import HeightAnomalyModel, fit_height_anomaly
-from aerotri.crs.transform import BallparkRefused, CrsTransformer, transform_points
+from aerotri.crs.heights import fit_height_anomaly
+from aerotri.geom.datum import HeightAnomalyModel, Transformation
+from aerotri.geom.transform import BallparkRefused, CrsTransformer, transform_points
 
 __all__ = [
     "BallparkRefused",

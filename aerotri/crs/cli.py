@@ -21,9 +21,11 @@ from aerotri.crs.files import (
     transform_file,
     write_json,
 )
-from aerotri.crs.fit import MODELS, PARAMETER_NAMES
-from aerotri.crs.heights import HEIGHT_MODELS, fit_height_anomaly
-from aerotri.crs.transform import CrsTransformer
+from aerotri.geom.datum import HEIGHT_MODELS, MODELS, PARAMETER_NAMES
+from aerotri.crs.heights import fit_height_anomaly
+from aerotri.crs.raster import KINDS, warp_raster
+from aerotri.geom.raster_warp import RESAMPLING
+from aerotri.geom.transform import CrsTransformer
 from aerotri.core.errors import InputError
 
 
@@ -94,6 +96,32 @@ def fit_heights_cmd(points, model, epsg, smoothing, output):
     for w in res.warnings:
         click.echo(f"Warning: {w}")
     click.echo(f"Model written to {out}")
+
+
+@crs.command("warp")
+@click.argument("input_path", metavar="IN", type=click.Path(dir_okay=False, path_type=Path))
+@click.argument("output_path", metavar="OUT", type=click.Path(dir_okay=False, path_type=Path))
+@click.option("--to", "to_epsg", required=True, help="target CRS (EPSG code, WKT or PROJ string)")
+@click.option("--from", "from_epsg", help="CRS of IN when its own is wrong or missing [the raster's CRS]")
+@click.option("--params", type=click.Path(dir_okay=False), help="parameter file from 'crs fit' (a datum change)")
+@click.option("--heights", type=click.Path(dir_okay=False), help="height anomaly model from 'crs fit-heights' "
+                                                                 "(ellipsoidal -> normal heights)")
+@click.option("--allow-ballpark", is_flag=True, help="accept PROJ's ballpark operation that ignores a datum shift")
+@click.option("--res", type=click.FloatRange(min=0, min_open=True),
+              help="target cell size in the target CRS's units [the source cell size]")
+@click.option("--kind", type=click.Choice(KINDS), default="auto", show_default=True,
+              help="height: cell values are heights and change with the datum (DEM, DSM); image: an orthophoto; "
+                   "auto: one floating-point band is a height raster")
+@click.option("--resampling", type=click.Choice(list(RESAMPLING)), default="bilinear", show_default=True)
+def warp_cmd(input_path, output_path, to_epsg, from_epsg, params, heights, allow_ballpark, res, kind, resampling):
+    """Reproject a GeoTIFF (DEM, DSM, DOM) across datums and projections into a COG, nodata kept."""
+    t0 = time.perf_counter()
+    r = warp_raster(input_path, output_path, to_epsg, from_crs=from_epsg,
+                    params=load_transformation(params) if params else None,
+                    heights=load_height_model(heights) if heights else None, allow_ballpark=allow_ballpark,
+                    res=res, kind=kind, resampling=resampling)
+    click.echo(f"{r.width} x {r.height} cells of {r.res:g} in {r.crs} ({r.kind} raster, {100 * r.valid_fraction:.1f} % "
+               f"valid) {r.operation['description']}: {output_path} ({time.perf_counter() - t0:.1f} s)")
 
 
 @crs.command("transform")

@@ -30,11 +30,18 @@ from pathlib import Path
 
 import numpy as np
 
-from aerotri.crs.ellipsoid import Ellipsoid, geocentric_to_geodetic, geodetic_to_geocentric
+from aerotri.geom.ellipsoid import Ellipsoid, geocentric_to_geodetic, geodetic_to_geocentric
 from aerotri.geom.crs import check_coordinates, crs_label, horizontal_crs, linear_unit_m, parse_crs, unit_name
-from aerotri.crs.fit import SPATIAL, Transformation, fit_plane, fit_spatial
-from aerotri.crs.heights import HeightAnomalyModel
-from aerotri.crs.transform import CrsTransformer, _ProjLeg, z_unit_m
+from aerotri.crs.fit import fit_plane, fit_spatial
+from aerotri.geom.datum import (  # noqa: F401  (load_*: the crs command's readers)
+    SPATIAL,
+    HeightAnomalyModel,
+    Transformation,
+    load_height_model,
+    load_json,
+    load_transformation,
+)
+from aerotri.geom.transform import CrsTransformer, _ProjLeg, z_unit_m
 from aerotri.core.errors import InputError
 from aerotri.core.atomic import atomic_path, write_text_atomic
 
@@ -258,27 +265,6 @@ def read_height_points(path, crs=None):
         rec = [f"line {ln} (id {pid})" for ln, pid in zip(table.line_numbers, ids)]
         check_coordinates(c, v["x"], v["y"], str(table.path), rec)
     return ids, v["x"], v["y"], v["h"], v["H"]
-
-
-def load_json(path, what: str) -> dict:
-    path = Path(path)
-    if not path.exists():
-        raise InputError(f"{path}: {what} not found")
-    try:
-        return json.loads(path.read_text())
-    except json.JSONDecodeError as exc:
-        raise InputError(f"{path}: not valid JSON ({exc})") from None
-
-
-def load_transformation(path) -> Transformation:
-    return Transformation.from_dict(load_json(path, "parameter file"), str(path))
-
-
-def load_height_model(path) -> HeightAnomalyModel:
-    d = load_json(path, "height model file")
-    if d.get("model") not in ("plane", "quadratic", "tps"):
-        raise InputError(f"{path}: not a height anomaly model file (model {d.get('model')!r})")
-    return HeightAnomalyModel.from_dict(d, str(path))
 
 
 def write_json(path, data: dict) -> None:

@@ -1,18 +1,7 @@
 """Datum/grid transformation parameters estimated from common points (Gauss-Markov least squares).
 
-Models (x = easting, y = northing in metres for the plane models; X, Y, Z geocentric metres for the
-spatial models):
-
-- ``helmert2d`` (4 parameters, similarity): ``X' = tx + s (x cos(theta) - y sin(theta))``,
-  ``Y' = ty + s (x sin(theta) + y cos(theta))``, s = 1 + scale_ppm * 1e-6, theta counter-clockwise
-  in the (easting, northing) plane. Note the textbook form with x = northing has the opposite sign.
-- ``affine2d`` (6 parameters): ``X' = a0 + a1 x + a2 y``, ``Y' = b0 + b1 x + b2 y``.
-- ``bursa-wolf7`` (7 parameters, coordinate-frame rotation convention, EPSG method 9607 /
-  ``+proj=helmert +convention=coordinate_frame``): ``X' = T + (1 + m) R X`` with the small-angle
-  ``R = [[1, rz, -ry], [-rz, 1, rx], [ry, -rx, 1]]``. The position-vector convention (EPSG 9606)
-  has the rotation signs flipped; published parameter sets in that convention are applied with
-  ``convention="position_vector"``.
-- ``translation3`` (3 parameters): ``X' = X + T``.
+The models and their conventions (helmert2d, affine2d, bursa-wolf7, translation3) are defined where
+they are applied, in ``aerotri.geom.datum``.
 
 Least squares (Gauss-Markov): observations l (target coordinates), v = A x^ - l (residual =
 transformed source minus given target), sigma0^2 = v'Pv / r with redundancy r = n - u, parameter
@@ -28,124 +17,16 @@ import math
 
 import numpy as np
 
-from aerotri.crs.ellipsoid import ARCSEC_PER_RAD, enu_rotation
 from aerotri.core.errors import InputError
-
-MODELS = ("helmert2d", "affine2d", "bursa-wolf7", "translation3")
-MIN_POINTS = {"helmert2d": 2, "affine2d": 3, "bursa-wolf7": 3, "translation3": 1}
-SPATIAL = {"helmert2d": False, "affine2d": False, "bursa-wolf7": True, "translation3": True}
-PARAMETER_NAMES = {
-    "helmert2d": ("tx_m", "ty_m", "scale_ppm", "rotation_arcsec"),
-    "affine2d": ("a0_m", "a1", "a2", "b0_m", "b1", "b2"),
-    "bursa-wolf7": ("tx_m", "ty_m", "tz_m", "rx_arcsec", "ry_arcsec", "rz_arcsec", "scale_ppm"),
-    "translation3": ("tx_m", "ty_m", "tz_m"),
-}
-
-
-# ----------------------------------------------------------------------------------------------
-# The transformations themselves
-# ----------------------------------------------------------------------------------------------
-
-
-@dataclasses.dataclass
-class Transformation:
-    """A parameter set: ``apply`` maps (n, 2) grid or (n, 3) geocentric coordinates in metres."""
-
-    model: str
-    parameters: dict  # name (with unit suffix) -> value
-    from_crs: str = ""
-    to_crs: str = ""
-    std_devs: dict | None = None
-    convention: str = "coordinate_frame"
-    fit_extent: dict | None = None  # {"xmin_m", "ymin_m", "xmax_m", "ymax_m"} of the fit points, from_crs
-
-    def __post_init__(self):
-        if self.model not in MODELS:
-            raise InputError(f"unknown model {self.model!r}; choose one of {', '.join(MODELS)}")
-        missing = [p for p in PARAMETER_NAMES[self.model] if p not in self.parameters]
-        if missing:
-            raise InputError(f"{self.model}: parameters missing: {', '.join(missing)}")
-        if self.convention not in ("coordinate_frame", "position_vector"):
-            raise InputError(f"unknown rotation convention {self.convention!r}")
-
-    @property
-    def spatial(self) -> bool:
-        return SPATIAL[self.model]
-
-    def apply(self, coords):
-        coords = np.asarray(coords, dtype=float)
-        p = self.parameters
-        if self.model == "helmert2d":
-            s = 1.0 + p["scale_ppm"] * 1e-6
-            theta = p["rotation_arcsec"] / ARCSEC_PER_RAD
-            a, b = s * math.cos(theta), s * math.sin(theta)
-            return _helmert2d(coords, a, b, p["tx_m"], p["ty_m"])
-        if self.model == "affine2d":
-            x, y = coords[:, 0], coords[:, 1]
-            return np.column_stack(
-                [p["a0_m"] + p["a1"] * x + p["a2"] * y, p["b0_m"] + p["b1"] * x + p["b2"] * y]
-            )
-        T = np.array([p["tx_m"], p["ty_m"], p["tz_m"]])
-        if self.model == "translation3":
-            return coords + T
-        sign = 1.0 if self.convention == "coordinate_frame" else -1.0
-        rx, ry, rz = (sign * p[k] / ARCSEC_PER_RAD for k in ("rx_arcsec", "ry_arcsec", "rz_arcsec"))
-        return _bursa_wolf(coords, np.array([*T, rx, ry, rz, p["scale_ppm"] * 1e-6]))
-
-    # JSON parameter file --------------------------------------------------------------------
-    def to_dict(self) -> dict:
-        units = {n: (n.rsplit("_", 1)[1] if "_" in n else "1") for n in PARAMETER_NAMES[self.model]}
-        params = {}
-        for n in PARAMETER_NAMES[self.model]:
-            entry = {"value": float(self.parameters[n]), "unit": units[n]}
-            if self.std_devs is not None and self.std_devs.get(n) is not None:
-                entry["std_dev"] = float(self.std_devs[n])
-            params[n] = entry
-        out = {"model": self.model, "from_crs": self.from_crs, "to_crs": self.to_crs, "parameters": params}
-        if self.model == "bursa-wolf7":
-            out["convention"] = self.convention
-        if self.fit_extent is not None:
-            out["fit_extent"] = self.fit_extent
-        return out
-
-    @classmethod
-    def from_dict(cls, d: dict, source: str = "parameter file") -> "Transformation":
-        try:
-            model = d["model"]
-            raw = d["parameters"]
-            params = {k: float(v["value"] if isinstance(v, dict) else v) for k, v in raw.items()}
-            sds = {k: float(v["std_dev"]) for k, v in raw.items() if isinstance(v, dict) and "std_dev" in v}
-        except (KeyError, TypeError, ValueError) as exc:
-            raise InputError(f"{source}: not a transformation parameter file ({exc!r})") from None
-        try:
-            return cls(
-                model,
-                params,
-                from_crs=str(d.get("from_crs", "")),
-                to_crs=str(d.get("to_crs", "")),
-                std_devs=sds or None,
-                convention=d.get("convention", "coordinate_frame"),
-                fit_extent=d.get("fit_extent"),
-            )
-        except InputError as exc:
-            raise InputError(f"{source}: {exc}") from None
-
-
-def _helmert2d(xy, a, b, tx, ty):
-    x, y = xy[:, 0], xy[:, 1]
-    return np.column_stack([tx + a * x - b * y, ty + b * x + a * y])
-
-
-def _rotation_cf(rx, ry, rz):
-    """Small-angle rotation matrix of the coordinate-frame convention (EPSG 9607)."""
-    return np.array([[1.0, rz, -ry], [-rz, 1.0, rx], [ry, -rx, 1.0]])
-
-
-def _bursa_wolf(XYZ, p):
-    """p = (tx, ty, tz, rx, ry, rz [rad], m [unitless]), coordinate-frame convention."""
-    R = _rotation_cf(*p[3:6])
-    return p[:3] + (1.0 + p[6]) * (XYZ @ R.T)
-
+from aerotri.geom.datum import (  # noqa: F401  (MODELS, PARAMETER_NAMES: the fit command's choices)
+    MODELS,
+    MIN_POINTS,
+    PARAMETER_NAMES,
+    Transformation,
+    _rotation_cf,
+    _bursa_wolf,
+)
+from aerotri.geom.ellipsoid import ARCSEC_PER_RAD, enu_rotation
 
 # ----------------------------------------------------------------------------------------------
 # Gauss-Markov least squares
@@ -474,18 +355,3 @@ def _extent(xy):
     xy = np.asarray(xy, dtype=float)
     lo, hi = xy.min(axis=0), xy.max(axis=0)
     return {"xmin_m": float(lo[0]), "ymin_m": float(lo[1]), "xmax_m": float(hi[0]), "ymax_m": float(hi[1])}
-
-
-def outside_extent(extent: dict | None, xy, margin_fraction: float = 0.1, margin_min_m: float = 100.0):
-    """Boolean mask of points outside the fit extent widened by 10 % of its size (at least 100 m)."""
-    xy = np.asarray(xy, dtype=float)
-    if extent is None:
-        return np.zeros(len(xy), dtype=bool)
-    mx = max(margin_fraction * (extent["xmax_m"] - extent["xmin_m"]), margin_min_m)
-    my = max(margin_fraction * (extent["ymax_m"] - extent["ymin_m"]), margin_min_m)
-    return (
-        (xy[:, 0] < extent["xmin_m"] - mx)
-        | (xy[:, 0] > extent["xmax_m"] + mx)
-        | (xy[:, 1] < extent["ymin_m"] - my)
-        | (xy[:, 1] > extent["ymax_m"] + my)
-    )

@@ -27,6 +27,8 @@ def parse_crs(value, source: str = "CRS") -> pyproj.CRS:
     """
     if isinstance(value, pyproj.CRS):
         return value
+    if hasattr(value, "to_wkt") and not isinstance(value, str):  # rasterio's CRS
+        return _crs_from_code(value.to_wkt())
     text = str(value).strip()
     if not text:
         raise CrsError(f"{source}: empty CRS (expected e.g. EPSG:32649)")
@@ -46,9 +48,46 @@ def crs_label(crs: pyproj.CRS) -> str:
 
 def horizontal_crs(crs: pyproj.CRS) -> pyproj.CRS:
     """The horizontal part of a compound CRS, else the CRS itself."""
+    crs = parse_crs(crs)
     if crs.is_compound:
         return crs.sub_crs_list[0]
     return crs
+
+
+def vertical_crs(crs: pyproj.CRS) -> pyproj.CRS | None:
+    """The vertical part of a compound CRS, else None (a 2D CRS's heights are not declared)."""
+    crs = parse_crs(crs)
+    if crs.is_compound:
+        for c in crs.sub_crs_list[1:]:
+            if c.is_vertical:
+                return c
+    return None
+
+
+def same_horizontal(a: pyproj.CRS, b: pyproj.CRS) -> bool:
+    """True when two CRSs have the same horizontal part (compound CRSs compared by their parts)."""
+    return horizontal_crs(a) == horizontal_crs(b)
+
+
+def parse_heights(value, source: str = "[project] heights") -> pyproj.CRS | None:
+    """The project's height system: ``"ellipsoidal"`` (None) or a vertical CRS (e.g. ``EPSG:3855``,
+    EGM2008 height; ``EPSG:5773``, EGM96 height)."""
+    text = str(value or "ellipsoidal").strip()
+    if text.lower() == "ellipsoidal":
+        return None
+    crs = parse_crs(text, source)
+    if not crs.is_vertical:
+        raise CrsError(f"{source}: {crs_label(crs)} ({crs.name}) is not a vertical CRS; expected \"ellipsoidal\" or "
+                       "a vertical CRS such as EPSG:3855 (EGM2008 height)")
+    return crs
+
+
+def height_crs(horizontal: pyproj.CRS, heights: pyproj.CRS | None) -> pyproj.CRS:
+    """The 3D CRS of coordinates in ``horizontal`` with heights in ``heights`` (None: ellipsoidal)."""
+    h = horizontal_crs(horizontal)
+    if heights is None:
+        return h.to_3d()
+    return pyproj.crs.CompoundCRS(f"{h.name} + {heights.name}", [h, heights])
 
 
 def linear_unit_m(crs: pyproj.CRS) -> float:

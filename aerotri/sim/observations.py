@@ -18,7 +18,7 @@ from pathlib import Path
 import numpy as np
 from scipy.spatial import cKDTree
 
-from aerotri.adjust.local_frame import LocalFrame
+from aerotri.geom.local_frame import LocalFrame
 from aerotri.adjust.observations import ControlPoints, ImageObservations
 from aerotri.camera import FrameCamera, dmc_camera
 from aerotri.eo import ExteriorOrientations, GnssPositions, read_eo, write_eo, write_gnss

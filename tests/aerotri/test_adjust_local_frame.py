@@ -2,7 +2,7 @@
 
 import numpy as np
 
-from aerotri.adjust.local_frame import LocalFrame
+from aerotri.geom.local_frame import LocalFrame
 from aerotri.adjust.strips import along_track_km, strips_from_track
 
 

@@ -6,10 +6,9 @@ import pyproj
 import pytest
 
 from aerotri.crs.files import las_crs, transform_las, transform_point_list
-from aerotri.crs.fit import Transformation
-from aerotri.crs.heights import HeightAnomalyModel
+from aerotri.geom.datum import HeightAnomalyModel, Transformation
 from aerotri.crs.synthetic import TRUE_BURSA_WOLF7
-from aerotri.crs.transform import CrsTransformer
+from aerotri.geom.transform import CrsTransformer
 from aerotri.core.errors import InputError
 
 PARAMS = Transformation("bursa-wolf7", TRUE_BURSA_WOLF7, "EPSG:32649", "EPSG:2361")

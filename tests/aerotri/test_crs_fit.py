@@ -4,9 +4,10 @@ import numpy as np
 import pyproj
 import pytest
 
-from aerotri.crs.ellipsoid import IAG75, WGS84, geodetic_to_geocentric
+from aerotri.geom.ellipsoid import IAG75, WGS84, geodetic_to_geocentric
 from aerotri.crs.files import fit_common_points
-from aerotri.crs.fit import PARAMETER_NAMES, Transformation, fit_plane, fit_spatial
+from aerotri.crs.fit import fit_plane, fit_spatial
+from aerotri.geom.datum import PARAMETER_NAMES, Transformation
 from aerotri.crs.synthetic import (
     TRUE_BURSA_WOLF7,
     TRUE_HELMERT2D,

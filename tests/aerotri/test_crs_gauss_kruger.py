@@ -4,7 +4,7 @@ import numpy as np
 import pyproj
 import pytest
 
-from aerotri.crs.ellipsoid import (
+from aerotri.geom.ellipsoid import (
     CGCS2000,
     IAG75,
     KRASSOVSKY,

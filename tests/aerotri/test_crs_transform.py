@@ -6,11 +6,11 @@ import pytest
 
 from aerotri.geom.crs import parse_crs
 from aerotri.crs.files import fit_common_points
-from aerotri.crs.fit import Transformation, outside_extent
+from aerotri.geom.datum import Transformation, outside_extent
 from aerotri.crs.gauss_kruger import GaussKruger
 from aerotri.crs.heights import fit_height_anomaly
 from aerotri.crs.synthetic import TRUE_BURSA_WOLF7, simulate_spatial, write_common_points
-from aerotri.crs.transform import BallparkRefused, CrsTransformer, transform_points
+from aerotri.geom.transform import BallparkRefused, CrsTransformer, transform_points
 from aerotri.core.errors import InputError
 
 

@@ -76,10 +76,19 @@ def test_other_kernels(scene, interpolation):
 
 
 def test_output_in_gauss_krueger_zone(scene, tmp_path):
-    """Product in CGCS2000 / 3-degree GK CM 111E (EPSG:4546) from a UTM 49N project, checked after reprojection."""
+    """Product in CGCS2000 / 3-degree GK CM 111E (EPSG:4546) from a UTM 49N project through a datum parameter
+    set, checked after mapping the reference through the same set; without the set, refused."""
+    from aerotri.geom.datum import Transformation
+    from aerotri.geom.transform import BallparkRefused, CrsTransformer
+
     s = scene
     gk = CRS.from_epsg(4546)
-    to_project = GridToProject(gk, UTM49)
+    with pytest.raises(BallparkRefused):
+        GridToProject(gk, UTM49)
+    T = Transformation("bursa-wolf7", {"tx_m": 0.41, "ty_m": -0.27, "tz_m": 0.18, "rx_arcsec": 0.012,
+                                       "ry_arcsec": -0.008, "rz_arcsec": 0.015, "scale_ppm": 0.021},
+                       "EPSG:32649", "EPSG:4546")
+    to_project = GridToProject(gk, UTM49, operation=CrsTransformer(UTM49, gk, params=T), z_m=float(np.nanmean(s["dem"].heights_m)))
     assert not to_project.identity
     grid = frame_grid(s["cam"], s["C"], s["R"], s["dem"], RES, gk, to_project)
     ortho, mask = rectify_frame(s["img"], s["cam"], s["C"], s["R"], s["dem"], grid, to_project=to_project)
@@ -96,7 +105,7 @@ def test_output_in_gauss_krueger_zone(scene, tmp_path):
             dst.write_mask(mask)
     ref = tmp_path / "ref_utm.tif"
     write_geotiff(ref, s["ref"], s["grid"].x_left_m, s["grid"].y_top_m, RES, UTM49)
-    p, _ = check_against_reference(dom, ref)
+    p, _ = check_against_reference(dom, ref, reference_operation=CrsTransformer(gk, UTM49, params=T))
     st = displacement_statistics(p.de_m, p.dn_m, RES)
     assert st["count"] > 50
     assert st["rms_xy_gsd"] < 0.2  # includes resampling the reference into the GK grid

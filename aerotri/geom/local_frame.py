@@ -2,34 +2,43 @@
 
 The bundle adjustment runs in a Cartesian frame in which the collinearity equations hold exactly;
 map-projection coordinates are not such a frame (scale factor, earth curvature). Project-CRS
-coordinates ``(x, y, h)`` (h ellipsoidal height, metres) go to ECEF with pyproj, then to ENU at the
-origin. Attitudes given in the project CRS refer to the grid axes (grid east, grid north, up) at the
-projection centre; ``rotation_local_from_map`` gives the rotation between those axes and ENU.
+coordinates ``(x, y, h)`` go to the geocentric frame of the project's OWN datum (a conversion, never a
+datum shift: ``aerotri.geom.transform``), then to ENU at the origin. Attitudes given in the project CRS
+refer to the grid axes (grid east, grid north, up) at the projection centre; ``rotation_local_from_map``
+gives the rotation between those axes and ENU.
+
+Heights: the frame reads the project's heights as ellipsoidal heights. When the project's heights are
+normal or orthometric heights ([project] heights), the points sit N (the geoid undulation, at most
+about 100 m) off their true place along the normal; within a block that is a translation plus a
+scale change of N / R (< 16 ppm), which the round trip map -> local -> map undoes exactly and which
+does not bend the bundles. So no geoid grid is needed for the adjustment.
 """
 
 from __future__ import annotations
 
 import numpy as np
-from pyproj import CRS, Transformer
+
+from aerotri.geom.crs import horizontal_crs, parse_crs
+from aerotri.geom.ellipsoid import Ellipsoid, geocentric_to_geodetic
+from aerotri.geom.transform import CrsTransformer, same_datum_geocentric
 
 
 class LocalFrame:
     """Tangent plane (ENU) at ``origin_map`` (x, y, h in the project CRS)."""
 
     def __init__(self, crs, origin_map):
-        self.crs = CRS.from_user_input(crs)
+        self.crs = horizontal_crs(parse_crs(crs, "project crs"))
         self.origin_map = np.asarray(origin_map, dtype=float).reshape(3)
         self.cartesian_crs = not self.crs.is_geographic and self.crs.is_engineering
         if self.cartesian_crs:
             self.R = np.eye(3)
             self.ecef0 = self.origin_map.copy()
             return
-        self._to_ecef = Transformer.from_crs(self.crs, CRS.from_epsg(4978), always_xy=True)
-        self._from_ecef = Transformer.from_crs(CRS.from_epsg(4978), self.crs, always_xy=True)
-        self.ecef0 = np.array(self._to_ecef.transform(*self.origin_map))
-        lon, lat, _ = Transformer.from_crs(CRS.from_epsg(4978), CRS.from_epsg(4979), always_xy=True).transform(
-            *self.ecef0
-        )
+        geocentric = same_datum_geocentric(self.crs)
+        self._to_ecef = CrsTransformer(self.crs, geocentric)
+        self._from_ecef = self._to_ecef.inverse()
+        self.ecef0 = np.concatenate(self._to_ecef.transform(*self.origin_map[:, None]))
+        lat, lon, _ = geocentric_to_geodetic(*self.ecef0, Ellipsoid.from_crs(self.crs))
         lam, phi = np.radians(lon), np.radians(lat)
         sl, cl, sp, cp = np.sin(lam), np.cos(lam), np.sin(phi), np.cos(phi)
         # rows: east, north, up in ECEF
