@@ -1,4 +1,5 @@
-"""Simulator presets (TOML files in ``datasets/presets``) and their validation.
+"""Simulator presets (TOML files in ``datasets/presets``; a wheel installs them into
+``<prefix>/share/aerotri/presets``) and their validation.
 
 A preset is a nested table: ``[preset] [crs] [camera] [flight] [gnss] [lidar] [scene] [render]
 [truth]``. ``--set section.key=value`` overrides single values (TOML syntax for the value).
@@ -15,7 +16,24 @@ from pathlib import Path
 
 from aerotri.core.errors import InputError
 
-PRESET_DIR = Path(os.environ.get("AEROTRI_PRESETS", Path(__file__).resolve().parents[2] / "datasets" / "presets"))
+def _preset_dir() -> Path:
+    """``$AEROTRI_PRESETS``, else the source checkout's datasets/presets, else the installed copy."""
+    if "AEROTRI_PRESETS" in os.environ:
+        return Path(os.environ["AEROTRI_PRESETS"])
+    checkout = Path(__file__).resolve().parents[2] / "datasets" / "presets"
+    if checkout.is_dir():
+        return checkout
+    import sysconfig
+
+    # an installed wheel: <prefix>/lib/pythonX.Y/site-packages/aerotri -> <prefix>/share/aerotri/presets
+    for prefix in (Path(__file__).resolve().parents[5], Path(sysconfig.get_path("data"))):
+        installed = prefix / "share" / "aerotri" / "presets"
+        if installed.is_dir():
+            return installed
+    return checkout
+
+
+PRESET_DIR = _preset_dir()
 
 
 def available_presets() -> list[str]:
