@@ -32,6 +32,7 @@ import pyproj
 from aerotri.core.atomic import atomic_path, refuse_input_as_output
 from aerotri.core.errors import InputError
 from aerotri.geom.crs import horizontal_crs, parse_crs
+from lidarctl.grid import check_allocation
 from lidarctl.units import EPSG_UNIT_M, METRE, UNKNOWN, LengthUnits, units_of
 
 logger = logging.getLogger(__name__)
@@ -338,6 +339,9 @@ def read_cloud(path, crs: str | int | None = None, require_crs: bool = True,
         except InputError:
             # A CRS lidarctl cannot use (unreadable, geographic) where none is required: compare as is.
             resolved, units = None, UNKNOWN
+    per_point = 8 * 3 + 2 + 3 + (2 if point_source_id else 0) + (header.point_format.size if keep_records else 0)
+    check_allocation(n * per_point, f"{path}: reading its {n:,} points at once",
+                     hint="'lidarctl classify' works in tiles; for the other commands split the cloud first")
     x = np.empty(n)
     y = np.empty(n)
     z = np.empty(n)

@@ -240,3 +240,18 @@ def test_vertical_unit_from_the_geotiff_keys(files, tmp_path):
     ref = io.read_cloud(d / "c12.las")
     np.testing.assert_allclose(c.z, ref.z * FOOT_M)
     np.testing.assert_array_equal(c.x, ref.x)
+
+
+def test_a_huge_point_count_is_refused_before_allocating(files, tmp_path):
+    """A LAZ file without chunk table (allowed) whose LAS 1.4 header claims 5 billion points: the
+    count cannot be checked against the records, but reading it whole would not fit in memory."""
+    d, _ = files
+    b = bytearray((d / "c.laz").read_bytes())
+    offset = struct.unpack("<I", b[96:100])[0]                 # offset to point data
+    b[offset:offset + 8] = struct.pack("<q", -1)             # no chunk table
+    b[247:255] = struct.pack("<Q", 5_000_000_000)
+    bad = tmp_path / "huge.laz"
+    bad.write_bytes(bytes(b))
+    r = CliRunner().invoke(main, ["check-heights", str(bad), str(d / "points.csv")])
+    assert r.exit_code == 2 and r.output.count("\n") == 1, r.output
+    assert "huge.laz: reading its 5,000,000,000 points at once would need" in r.output and "GiB" in r.output
