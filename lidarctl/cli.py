@@ -1,12 +1,17 @@
-"""``lidarctl`` command line: thin click subcommands over library functions."""
+"""``lidarctl`` command line: thin click subcommands over library functions.
+
+Every length option is in metres (``_m`` in its name), whatever the CRS of the cloud: clouds in
+feet are scaled to metres as they are read (``lidarctl.io``) and outputs are written back in the
+cloud's CRS and units, which the outputs name (raster tags, JSON keys, printed labels).
+"""
 
 from __future__ import annotations
 
 import click
 import numpy as np
 
-from aerotri.core.commands import Group, scheduler_options
-from aerotri.core.errors import InputError
+from aerotri.core.atomic import refuse_input_as_output
+from aerotri.core.commands import Group, positive, scheduler_options
 
 
 @click.group(cls=Group)
@@ -41,10 +46,10 @@ def _parse_map(text: str | None) -> dict:
 @click.option("--crs", default=None, help="CRS (EPSG:code) when the file has none; never guessed.")
 @click.option("--method", type=click.Choice(["morph", "ptd"]), default="morph", show_default=True,
               help="Ground filter: morphological + TIN refinement, or progressive TIN densification.")
-@click.option("--tile-size", "tile_size_m", type=float, default=None,
-              help="Tile size in metres (default: about 4 M points per tile with its buffer at the "
-                   "file's density).")
-@click.option("--buffer", "buffer_m", type=float, default=None,
+@click.option("--tile-size", "tile_size_m", type=positive(), default=None,
+              help="Tile size in metres, also for clouds in feet (default: about 4 M points per tile with its "
+                   "buffer at the file's density).")
+@click.option("--buffer", "buffer_m", type=positive(), default=None,
               help="Overlap buffer around each tile in metres (default: the ground filter's reach, 60 m).")
 @click.option("--work-dir", type=click.Path(file_okay=False), default=None,
               help="Folder for the temporary tile files (default: next to the output; removed afterwards).")
@@ -53,41 +58,50 @@ def classify(in_path, out_path, preset, crs, method, tile_size_m, buffer_m, work
     """Noise, ground, buildings, vegetation and water as ASPRS classes (LAS/LAZ in, LAS/LAZ out).
 
     Large files are cut into tiles with overlap buffers, classified as parallel tasks and written
-    back in file order (memory bounded by the tile size, not the file size; lidarctl.tiles).
+    back in file order (memory bounded by the tile size, not the file size; lidarctl.tiles). A cloud
+    in feet is classified in metres; the output is the input with new classes (same CRS and units).
     """
-    from pathlib import Path
-
     from lidarctl import classify as cl
     from lidarctl import tiles
     from aerotri.core.executor import executor_for
 
-    if Path(in_path).resolve() == Path(out_path).resolve():
-        raise InputError(f"{out_path}: output must differ from the input (inputs are never modified)")
+    refuse_input_as_output(out_path, [in_path], "OUT_PATH")
     params = cl.ClassifyParams(ground_method=method, preset=preset)
     with executor_for(scheduler, workers) as executor:
         stats = tiles.classify_file(in_path, out_path, crs=crs, params=params, tile_size_m=tile_size_m,
                                     buffer_m=buffer_m, executor=executor, work_dir=work_dir)
     counts = {cl.CLASS_NAMES.get(c, str(c)): k for c, k in stats["class_counts"].items()}
     n, dt = stats["n_points"], stats["seconds"]
+    units = "" if stats["xy_unit"] == "m" and stats["z_unit"] == "m" else \
+        f"; coordinates in {stats['xy_unit']}, heights in {stats['z_unit']}, processed in metres"
     click.echo(f"{out_path}: {n} points in {dt:.1f} s ({n / dt:,.0f} points/s; {stats['n_tiles']} tiles of "
-               f"{stats['tile_m']:g} m + {stats['buffer_m']:g} m buffer, {executor.describe()}); {counts}")
+               f"{stats['tile_m']:g} m + {stats['buffer_m']:g} m buffer, {executor.describe()}{units}); {counts}")
 
 
 @main.command()
 @click.argument("in_path", type=click.Path(dir_okay=False))
 @click.argument("outdir", type=click.Path(file_okay=False))
-@click.option("--res", "res_m", type=float, required=True, help="Cell size in metres.")
+@click.option("--res", "res_m", type=positive(), required=True,
+              help="Cell size in metres, also for clouds in feet (1 m = 3.2808 ft in the GeoTIFF).")
 @click.option("--crs", default=None, help="CRS (EPSG:code) when the file has none.")
 def rasters(in_path, outdir, res_m, crs):
-    """dem/dsm/ndsm/chm/intensity COGs and hillshade.png from a classified cloud (streamed in chunks)."""
+    """dem/dsm/ndsm/chm/intensity COGs and hillshade.png from a classified cloud (streamed in chunks).
+
+    The rasters are in the cloud's CRS; heights in its vertical unit (band unit type and tags say
+    which).
+    """
+    import logging
+
     from lidarctl import io
     from lidarctl import rasters as rs
 
-    if not res_m > 0:
-        raise InputError(f"--res {res_m}: must be a positive cell size in metres")
     # Streamed chunk by chunk into the grids: memory holds the grids, not the cloud.
-    resolved = io.resolve_crs(in_path, io.read_header(in_path), crs)
-    for p in rs.write_rasters(in_path, outdir, res_m, crs=resolved):
+    _, units = io.resolve_crs_units(in_path, io.read_header(in_path), crs)
+    if not units.is_metric:
+        logging.getLogger(__name__).info(
+            "%s: %s; cells of %g m = %.6g %s, heights in %s", in_path, units.describe(), res_m,
+            res_m / units.xy_m, units.xy_name, units.z_name)
+    for p in rs.write_rasters(in_path, outdir, res_m, crs=crs):
         click.echo(str(p))
 
 
@@ -102,15 +116,11 @@ def evaluate(pred_path, truth_path, json_path, map_pred, map_truth):
     import json
 
     from lidarctl import evaluate as ev
-    from lidarctl import io
     from aerotri.core.atomic import write_text_atomic
 
-    pred = io.read_cloud(pred_path, require_crs=False)
-    truth = io.read_cloud(truth_path, require_crs=False)
-    if len(pred) != len(truth):
-        raise InputError(f"{pred_path}: {len(pred)} points, but {truth_path} has {len(truth)} (same order needed)")
-    if not (np.allclose(pred.x, truth.x, atol=0.011) and np.allclose(pred.y, truth.y, atol=0.011)):
-        raise InputError(f"{pred_path}: point coordinates differ from {truth_path} (same points, same order needed)")
+    if json_path:
+        refuse_input_as_output(json_path, [pred_path, truth_path], "--json")
+    pred, truth = ev.read_same_points(pred_path, truth_path)
     pc, tc = pred.classification.astype(int), truth.classification.astype(int)
     for mapping, arr in ((_parse_map(map_pred), pc), (_parse_map(map_truth), tc)):
         src = arr.copy()
@@ -128,25 +138,25 @@ def evaluate(pred_path, truth_path, json_path, map_pred, map_truth):
 @main.command("check-heights")
 @click.argument("cloud_path", type=click.Path(dir_okay=False))
 @click.argument("points_csv", type=click.Path(dir_okay=False))
-@click.option("--radius", "radius_m", type=float, default=5.0, show_default=True, help="Search radius (m).")
-@click.option("--exclude", "exclude_m", type=float, default=1.0, show_default=True,
+@click.option("--radius", "radius_m", type=positive(), default=5.0, show_default=True,
+              help="Search radius (m, also for clouds in feet).")
+@click.option("--exclude", "exclude_m", type=positive(), default=1.0, show_default=True,
               help="Statistics again without points with |dz| beyond this (m).")
-@click.option("--json", "json_path", type=click.Path(dir_okay=False), default=None)
+@click.option("--json", "json_path", type=click.Path(dir_okay=False), default=None,
+              help="Write the numbers as JSON (dz and statistics in metres, _m keys; per-point coordinates "
+                   "in the cloud's units, named by xy_unit and z_unit).")
 @click.option("--crs", default=None, help="CRS (EPSG:code) when the file has none.")
 def check_heights(cloud_path, points_csv, radius_m, exclude_m, json_path, crs):
-    """Height check of the cloud's ground (class 2) against surveyed points (CSV id,x,y,z[,group])."""
+    """Height check of the cloud's ground (class 2) against surveyed points (CSV id,x,y,z[,group]
+    in the cloud's CRS and units); dz in metres."""
     import json
 
     from lidarctl import heights_check as hc
-    from lidarctl import io
     from aerotri.core.atomic import write_text_atomic
 
-    cloud = io.read_cloud(cloud_path, crs=crs)
-    points = hc.read_points_csv(points_csv)
-    g = cloud.classification == 2
-    if not g.any():
-        raise InputError(f"{cloud_path}: no ground points (class 2); run 'lidarctl classify' first")
-    result = hc.check_heights(cloud.x[g], cloud.y[g], cloud.z[g], points, radius_m, exclude_m)
+    if json_path:
+        refuse_input_as_output(json_path, [cloud_path, points_csv], "--json")
+    result = hc.check_heights_file(cloud_path, points_csv, radius_m, exclude_m, crs=crs)
     click.echo(hc.format_report(result))
     if json_path:
         write_text_atomic(json_path, json.dumps(result, indent=2))

@@ -17,6 +17,12 @@ Score for use as control (0..1, product of factors, each 1 when ideal):
 A corner is ``usable`` as control when its score >= ``USABLE_SCORE``, its angle is within 5 deg of a right
 angle, both edges are at least ``min_edge_m`` long and, with ``roof="flat"``, its roof is flat.
 
+Units: ``find_roof_corners`` works in metres (every length above, the sigmas and the edge lengths);
+``read_strips`` scales clouds in feet to metres and ``to_crs_units`` writes the corner and outline
+coordinates (x, y, z) back in the clouds' CRS units, so corners.csv holds coordinates in the input's
+CRS (x, y in its horizontal unit, z in its vertical unit) and sigmas in metres (``_m`` columns);
+corners.json names the units (``xy_unit``, ``z_unit``).
+
 Edge directions edge1_deg/edge2_deg are grid bearings (clockwise from grid north) of the incoming and
 outgoing edge lines in [0, 180); angle_deg is the interior angle of the roof polygon at the corner.
 """
@@ -35,8 +41,11 @@ from scipy import ndimage
 from scipy.spatial import cKDTree
 from tqdm import tqdm
 
-from aerotri.core.atomic import write_text_atomic
+from aerotri.core.atomic import refuse_input_as_output, write_text_atomic
 from aerotri.core.errors import InputError
+from aerotri.geom.crs import crs_label
+from lidarctl import io as las_io
+from lidarctl.grid import check_grid
 from lidarctl.roof_outline import (
     corners_from_edges,
     edge_length_m,
@@ -63,40 +72,62 @@ CSV_COLUMNS = [
 ]
 
 
-def read_classified_cloud(path) -> dict:
-    """x, y, z (m), classification, point_source_id and the CRS (pyproj or None) of a LAS/LAZ file."""
-    import laspy
-
-    path = Path(path)
-    if not path.is_file():
-        raise InputError(f"{path}: file not found")
-    try:
-        las = laspy.read(path)
-    except Exception as exc:  # laspy raises several types for broken files
-        raise InputError(f"{path}: not a readable LAS/LAZ file ({exc})") from None
-    try:
-        crs = las.header.parse_crs()
-    except Exception:
-        crs = None
-    return {
-        "x": np.asarray(las.x, float),
-        "y": np.asarray(las.y, float),
-        "z": np.asarray(las.z, float),
-        "classification": np.asarray(las.classification, np.uint8),
-        "point_source_id": np.asarray(las.point_source_id, np.int64),
-        "crs": crs,
-    }
+# Memory per cell of the strip-footprint grids (masks, closing, distance transform with its
+# feature transform) and of the figure's nDSM (maxima, cell centres, nearest ground, result).
+MARGIN_BYTES_PER_CELL = 40
+NDSM_BYTES_PER_CELL = 96
+MARGIN_CELL_M = 2.0
 
 
-def strip_margin_m(xy: np.ndarray, source_id: np.ndarray, query_xy: np.ndarray, cell_m: float = 2.0) -> np.ndarray:
+def read_classified_cloud(path, crs=None, require_crs: bool = False) -> dict:
+    """x, y, z (metres when the file's CRS is known, see ``lidarctl.io``), classification,
+    point_source_id, the CRS (pyproj or None) and the units of a LAS/LAZ file (read by lidarctl.io)."""
+    c = las_io.read_cloud(path, crs=crs, require_crs=require_crs, point_source_id=True)
+    return {"x": c.x, "y": c.y, "z": c.z, "classification": c.classification,
+            "point_source_id": c.point_source_id.astype(np.int64), "crs": c.crs, "units": c.units}
+
+
+def read_strips(paths, crs=None) -> dict:
+    """The classified strips of ``read_classified_cloud`` concatenated (x, y, z in metres), with one
+    CRS: a file whose CRS (or units) differs from the first file's is an InputError naming it.
+    Files without strip ids (all points of each file share one point_source_id) are told apart by
+    their position in ``paths`` (1, 2, ...)."""
+    paths = [Path(p) for p in paths]
+    clouds = [read_classified_cloud(p, crs=crs, require_crs=True) for p in paths]
+    first = clouds[0]
+    for p, c in zip(paths[1:], clouds[1:]):
+        if not las_io.same_crs(c["crs"], first["crs"]) or c["units"] != first["units"]:
+            raise InputError(
+                f"{p}: CRS {crs_label(c['crs'])} ({c['units'].describe()}) differs from the CRS of {paths[0]}, "
+                f"{crs_label(first['crs'])} ({first['units'].describe()}); give strips in one CRS "
+                "(aerotri crs transform)")
+    cat = {k: np.concatenate([c[k] for c in clouds]) for k in ("x", "y", "z", "classification", "point_source_id")}
+    if len(clouds) > 1 and all(len(np.unique(c["point_source_id"])) == 1 for c in clouds):
+        # one file per strip without strip ids: the file is the strip
+        cat["point_source_id"] = np.concatenate([np.full(len(c["x"]), i + 1) for i, c in enumerate(clouds)])
+    cat.update(crs=first["crs"], units=first["units"])
+    return cat
+
+
+def _margin_grid(xy: np.ndarray, cell_m: float):
+    """Origin and (rows, cols) of the strip-footprint grid over points ``xy`` (m)."""
+    origin = xy.min(axis=0) - cell_m
+    cols, rows = (np.floor((xy.max(axis=0) - origin) / cell_m).astype(np.int64) + 2)
+    return origin, (int(rows), int(cols))
+
+
+def strip_margin_m(xy: np.ndarray, source_id: np.ndarray, query_xy: np.ndarray,
+                   cell_m: float = MARGIN_CELL_M) -> np.ndarray:
     """Distance (m) of each query point inside the footprint of the strip that covers it best.
 
     Footprint of a strip (points sharing a point_source_id) = occupied cells, gaps closed, holes
-    (buildings' shadows, water) filled. A cloud without strip ids is one strip.
+    (buildings' shadows, water) filled. A cloud without strip ids is one strip. A grid larger than
+    the machine's RAM is a ResourceError before it is allocated.
     """
-    origin = xy.min(axis=0) - cell_m
+    origin, shape = _margin_grid(xy, cell_m)
+    check_grid(*shape, cell_m, MARGIN_BYTES_PER_CELL, "strip footprints",
+               hint="are the strips far apart (different zones or CRSs)?")
     ij_all = np.floor((xy - origin) / cell_m).astype(np.int64)
-    shape = tuple(ij_all.max(axis=0)[::-1] + 2)
     qij = np.clip(np.floor((query_xy - origin) / cell_m).astype(np.int64), 0, np.array(shape[::-1]) - 1)
     margin = np.zeros(len(query_xy))
     for sid in np.unique(source_id):
@@ -145,6 +176,10 @@ def find_roof_corners(
     cls = np.asarray(classification)
     keep = ~np.isin(cls, NOISE)
     xyz, cls = xyz[keep], cls[keep]
+    if len(xyz):
+        # The strip-footprint grid spans all points: refuse an impossible one before the roof work.
+        check_grid(*_margin_grid(xyz[:, :2], MARGIN_CELL_M)[1], MARGIN_CELL_M, MARGIN_BYTES_PER_CELL,
+                   "strip footprints", hint="are the strips far apart (different zones or CRSs)?")
     sid = np.zeros(len(xyz), np.int64) if point_source_id is None else np.asarray(point_source_id)[keep]
     is_bldg = cls == BUILDING
     n_bldg = int(is_bldg.sum())
@@ -337,11 +372,27 @@ def corners_geojson(corners: list[dict], outlines: list[dict], crs=None) -> dict
     return out
 
 
-def write_corner_files(outdir, result: dict, crs=None, source: str | None = None) -> dict:
-    """Write corners.csv, corners.geojson and corners.json (summary) atomically; return the paths."""
+def to_crs_units(result: dict, units) -> dict:
+    """``find_roof_corners`` result (metres) with corner and outline coordinates in the CRS units
+    (``lidarctl.units.LengthUnits``: x, y in the horizontal unit, z in the vertical unit); sigmas,
+    edge lengths and spacings stay in metres (``_m`` keys). The stats name the units."""
+    corners = [dict(c, x=float(units.xy_from_m(c["x"])), y=float(units.xy_from_m(c["y"])),
+                    z=float(units.z_from_m(c["z"]))) for c in result["corners"]]
+    outlines = [dict(o, rings=[np.asarray(units.xy_from_m(np.asarray(r, float))) for r in o["rings"]])
+                for o in result["outlines"]]
+    return {"corners": corners, "outlines": outlines, "stats": {**result["stats"], **units.as_dict()}}
+
+
+def write_corner_files(outdir, result: dict, crs=None, source: str | None = None, inputs=()) -> dict:
+    """Write corners.csv, corners.geojson and corners.json (summary) atomically; return the paths.
+
+    ``result``: corners in the CRS's units (``to_crs_units``). ``inputs``: the input files, which
+    no output may replace."""
     outdir = Path(outdir)
-    outdir.mkdir(parents=True, exist_ok=True)
     paths = {"csv": outdir / "corners.csv", "geojson": outdir / "corners.geojson", "summary": outdir / "corners.json"}
+    for p in paths.values():
+        refuse_input_as_output(p, inputs, "OUTDIR")
+    outdir.mkdir(parents=True, exist_ok=True)
     write_text_atomic(paths["csv"], corners_csv_text(result["corners"]))
     write_text_atomic(paths["geojson"], json.dumps(corners_geojson(result["corners"], result["outlines"], crs)))
     summary = {"source": source, "crs": (crs.to_string() if crs is not None else None), **result["stats"]}
@@ -351,9 +402,13 @@ def write_corner_files(outdir, result: dict, crs=None, source: str | None = None
 
 # ------------------------------------------------------------------------------------------------ figure
 def simple_ndsm(xyz: np.ndarray, classification: np.ndarray, cell_m: float = 1.0):
-    """Quick nDSM for figures: highest point per cell minus the ground (nearest ground point per cell)."""
+    """Quick nDSM for figures: highest point per cell minus the ground (nearest ground point per cell).
+    Coordinates and ``cell_m`` in metres; returns the nDSM (m) and its extent (m)."""
     xy = xyz[:, :2]
     origin = xy.min(axis=0)
+    cols, rows = np.floor((xy.max(axis=0) - origin) / cell_m).astype(np.int64) + 1
+    check_grid(int(rows), int(cols), cell_m, NDSM_BYTES_PER_CELL, "the corners figure (nDSM)", "--figure",
+               "use --no-figure (or are the strips far apart?)")
     ij = np.floor((xy - origin) / cell_m).astype(np.int64)
     shape = tuple(ij.max(axis=0)[::-1] + 1)
     dsm = np.full(shape, -np.inf)
@@ -372,10 +427,11 @@ def simple_ndsm(xyz: np.ndarray, classification: np.ndarray, cell_m: float = 1.0
 
 
 def plot_corners(path, ndsm, extent, outlines, corners, truth_xy=None, reference_polygons=None, title="",
-                 window=None, marker_size=4.0):
+                 window=None, marker_size=4.0, xy_unit: str = "m"):
     """Outlines and corners over the nDSM (PNG, matplotlib Agg); truth corners / reference polygons optional.
 
-    ``window``: (xmin, xmax, ymin, ymax) to zoom into; default the whole nDSM extent.
+    ``window``: (xmin, xmax, ymin, ymax) to zoom into; default the whole nDSM extent. Coordinates,
+    extent and window in ``xy_unit`` (the axis labels); the nDSM in metres.
     """
     import matplotlib
 
@@ -405,8 +461,8 @@ def plot_corners(path, ndsm, extent, outlines, corners, truth_xy=None, reference
     ax.set_aspect("equal")
     ax.set_xlim(view[0], view[1])
     ax.set_ylim(view[2], view[3])
-    ax.set_xlabel("x (m)")
-    ax.set_ylabel("y (m)")
+    ax.set_xlabel(f"x ({xy_unit})")
+    ax.set_ylabel(f"y ({xy_unit})")
     ax.legend(loc="upper right", fontsize=8)
     ax.set_title(title)
     fig.tight_layout()

@@ -8,11 +8,48 @@ Filter-test measures (Sithole & Vosselman 2004, ISPRS WG III/3), ground = bare e
 Confusion matrix: rows = truth class, columns = predicted class; producer's accuracy = diagonal /
 row sum (how much of the truth class was found), user's accuracy = diagonal / column sum (how
 much of what was labelled is right), overall accuracy = trace / total.
+
+Prediction and truth must hold the same points in the same order (``read_same_points``): their
+coordinates are compared in metres (each file scaled by its CRS's unit) within
+``SAME_POINT_TOL_M`` or 1.1 coordinate steps (the coarser scale factor), whichever is larger.
+A file without CRS is taken in the other file's units; with no CRS on either side the coordinates
+are compared as stored, within 1.1 coordinate steps.
 """
 
 from __future__ import annotations
 
 import numpy as np
+
+from aerotri.core.errors import InputError
+from lidarctl import io
+
+SAME_POINT_TOL_M = 0.011
+
+
+def read_same_points(pred_path, truth_path):
+    """(pred, truth) PointClouds of two LAS/LAZ files; InputError unless they hold the same points
+    in the same order (see the module docstring for the coordinate tolerance)."""
+    pred = io.read_cloud(pred_path, require_crs=False)
+    truth = io.read_cloud(truth_path, require_crs=False)
+    if len(pred) != len(truth):
+        raise InputError(f"{pred_path}: {len(pred)} points, but {truth_path} has {len(truth)} (same order needed)")
+    pu, tu = pred.units, truth.units
+    # x, y of a file with a known CRS are metres; a file without CRS takes the other's unit.
+    pf = 1.0 if pu.known else (tu.xy_m if tu.known else 1.0)
+    tf = 1.0 if tu.known else (pu.xy_m if pu.known else 1.0)
+    step = max(float(np.max(io.read_header(pred_path).scales[:2])) * (pu.xy_m if pu.known else pf),
+               float(np.max(io.read_header(truth_path).scales[:2])) * (tu.xy_m if tu.known else tf))
+    tol = max(SAME_POINT_TOL_M, 1.1 * step) if (pu.known or tu.known) else 1.1 * step
+    unit = "m" if (pu.known or tu.known) else "file units"
+    for axis in ("x", "y"):
+        a, b = getattr(pred, axis) * pf, getattr(truth, axis) * tf
+        d = np.abs(a - b)
+        if not (d <= tol).all():
+            k = int(np.argmax(~(d <= tol)))
+            raise InputError(
+                f"{pred_path}: point record {k}: {axis} differs from {truth_path} by {d[k]:.4g} {unit} "
+                f"(tolerance {tol:.4g} {unit}; same points, same order needed)")
+    return pred, truth
 
 
 def filter_errors(pred_ground: np.ndarray, true_ground: np.ndarray) -> dict:

@@ -2,17 +2,54 @@
 
 Cells are square, ``cell_m`` wide, anchored at the lower-left corner (x0, y0) of the cloud; row
 index ``i`` grows with y, column index ``j`` with x. All functions are vectorised NumPy.
+
+Grids over a bounding box can be absurdly large when points lie far apart (strips of two UTM zones
+under one CRS, a stray point): ``check_allocation`` compares a grid's memory with the machine's RAM
+before it is allocated, and ``cell_ids`` applies it to every grid made here.
 """
 
 from __future__ import annotations
 
 import dataclasses
+import os
 
 import numba
 import numpy as np
 from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
+
+from aerotri.core.errors import ResourceError
+
+# Per-cell memory of the grids callers of ``cell_ids`` build (a few float64/int64 arrays per cell).
+GRID_BYTES_PER_CELL = 48
+
+
+def machine_ram_bytes() -> int:
+    """Physical memory of this machine (bytes)."""
+    try:
+        return int(os.sysconf("SC_PAGE_SIZE")) * int(os.sysconf("SC_PHYS_PAGES"))
+    except (ValueError, OSError, AttributeError):  # not a POSIX system: no limit known
+        return 2 ** 62
+
+
+def check_allocation(n_bytes: float, what: str, option: str | None = None, hint: str = "") -> None:
+    """``ResourceError`` (naming ``what``, e.g. the file and grid, and ``option``) when ``n_bytes``
+    exceed this machine's RAM: refuse before allocating rather than fail with a MemoryError."""
+    ram = machine_ram_bytes()
+    if n_bytes > ram:
+        gib = 1024.0 ** 3
+        msg = f"{what} would need {n_bytes / gib:,.1f} GiB of memory, more than this machine's {ram / gib:,.1f} GiB"
+        if hint:
+            msg += f"; {hint}"
+        raise ResourceError(msg, param=option)
+
+
+def check_grid(nrows: int, ncols: int, cell_m: float, bytes_per_cell: float, what: str,
+               option: str | None = None, hint: str = "") -> None:
+    """``check_allocation`` for a grid of ``nrows`` x ``ncols`` cells of ``cell_m`` metres."""
+    check_allocation(float(nrows) * float(ncols) * bytes_per_cell,
+                     f"{what}: a grid of {nrows:,} x {ncols:,} cells of {cell_m:g} m", option, hint)
 
 
 @numba.njit(cache=True, parallel=True)
@@ -39,7 +76,10 @@ def cell_indices(x, y, cell_m: float, x0: float | None = None, y0: float | None 
     y0 = float(np.min(y)) if y0 is None else y0
     j = _floor_div(x, x0, float(cell_m))
     i = _floor_div(y, y0, float(cell_m))
-    return i, j, int(i.max()) + 1, int(j.max()) + 1, x0, y0
+    nrows, ncols = int(i.max()) + 1, int(j.max()) + 1
+    check_grid(nrows, ncols, cell_m, GRID_BYTES_PER_CELL, "the points' extent",
+               hint="are strips far apart (different zones or CRSs) in one cloud?")
+    return i, j, nrows, ncols, x0, y0
 
 
 def cell_ids(x, y, cell_m: float, x0: float | None = None, y0: float | None = None):

@@ -5,6 +5,11 @@ For each surveyed point (X, Y, Z) the cloud's ground height is interpolated from
 (1/d^2), evaluated at (X, Y); with fewer than 3 points the IDW mean. dz = Z_lidar - Z_surveyed (m).
 Statistics: counts per error bin, mean |dz|, RMSE, mean dz; the same without |dz| > ``exclude_m``;
 all of it per group (e.g. open / road / steep / dense vegetation) when a group column is given.
+
+Units: the surveyed points are in the cloud's CRS (x, y in its horizontal unit, z in its vertical
+unit). Radius, threshold, bins and every ``_m`` key (dz, mean, RMSE) are metres, also for clouds
+in feet; the per-point coordinates (``x``, ``y``, ``z_survey``, ``z_lidar``) are in the CRS's units,
+named by ``xy_unit`` and ``z_unit``.
 """
 
 from __future__ import annotations
@@ -15,7 +20,9 @@ from pathlib import Path
 import numpy as np
 from scipy.spatial import cKDTree
 
-from aerotri.core.errors import InputError
+from aerotri.core.errors import InputError, OptionError
+from lidarctl import io
+from lidarctl.units import METRE, LengthUnits
 
 BIN_EDGES_M = (-np.inf, -1.0, -0.5, 0.5, 1.0, 1.5, 2.0, 5.0, np.inf)
 
@@ -116,21 +123,47 @@ def stats(dz: np.ndarray, exclude_m: float) -> dict:
     }
 
 
-def check_heights(gx, gy, gz, points: dict, radius_m: float = 5.0, exclude_m: float = 1.0) -> dict:
+def check_heights(gx, gy, gz, points: dict, radius_m: float = 5.0, exclude_m: float = 1.0,
+                  units: LengthUnits = METRE) -> dict:
+    """dz statistics of surveyed ``points`` against ground points (gx, gy, gz); all in metres.
+
+    ``units``: the CRS's units, in which the per-point coordinates are reported (the points as read,
+    ``read_points_csv``, scaled by ``units`` to metres give ``points``)."""
     z_lidar, n_used = ground_height_at(gx, gy, gz, points["x"], points["y"], radius_m)
     dz = z_lidar - points["z"]
-    per_point = [{"id": i, "x_m": float(x), "y_m": float(y), "z_survey_m": float(z),
-                  "z_lidar_m": None if not np.isfinite(zl) else float(zl),
+    xs, ys = units.xy_from_m(np.asarray(points["x"])), units.xy_from_m(np.asarray(points["y"]))
+    zs, zl_crs = units.z_from_m(np.asarray(points["z"])), units.z_from_m(z_lidar)
+    per_point = [{"id": i, "x": float(x), "y": float(y), "z_survey": float(z),
+                  "z_lidar": None if not np.isfinite(zl) else float(zl),
                   "dz_m": None if not np.isfinite(d) else float(d), "n_ground": int(nu),
                   "group": (points["group"][k] if points["group"] else None)}
-                 for k, (i, x, y, z, zl, d, nu) in enumerate(zip(points["id"], points["x"], points["y"],
-                                                                 points["z"], z_lidar, dz, n_used))]
-    result = {"radius_m": radius_m, "n_points": len(dz), "n_without_ground": int(np.sum(~np.isfinite(dz))),
+                 for k, (i, x, y, z, zl, d, nu) in enumerate(zip(points["id"], xs, ys, zs, zl_crs, dz, n_used))]
+    result = {"radius_m": radius_m, **units.as_dict(), "n_points": len(dz),
+              "n_without_ground": int(np.sum(~np.isfinite(dz))),
               "overall": stats(dz, exclude_m), "points": per_point, "groups": {}}
     if points["group"]:
         groups = np.array(points["group"])
         for g in sorted(set(points["group"])):
             result["groups"][g] = stats(dz[groups == g], exclude_m)
+    return result
+
+
+def check_heights_file(cloud_path, points_csv, radius_m: float = 5.0, exclude_m: float = 1.0, crs=None) -> dict:
+    """``check_heights`` of a classified LAS/LAZ file's ground (class 2) against a CSV of surveyed
+    points in the cloud's CRS and units (``crs`` only for a file without CRS)."""
+    if not (np.isfinite(radius_m) and radius_m > 0):
+        raise OptionError(f"--radius {radius_m}: must be a positive distance in metres", param="--radius")
+    if not (np.isfinite(exclude_m) and exclude_m > 0):
+        raise OptionError(f"--exclude {exclude_m}: must be a positive height difference in metres", param="--exclude")
+    cloud = io.read_cloud(cloud_path, crs=crs)
+    points = read_points_csv(points_csv)
+    g = cloud.classification == 2
+    if not g.any():
+        raise InputError(f"{cloud_path}: no ground points (class 2); run 'lidarctl classify' first")
+    u = cloud.units
+    points_m = dict(points, x=u.xy_to_m(points["x"]), y=u.xy_to_m(points["y"]), z=u.z_to_m(points["z"]))
+    result = check_heights(cloud.x[g], cloud.y[g], cloud.z[g], points_m, radius_m, exclude_m, units=u)
+    result["crs"] = cloud.crs.to_string() if cloud.crs is not None else None
     return result
 
 
@@ -151,15 +184,27 @@ def _format_block(title: str, s: dict) -> list[str]:
 
 
 def format_report(result: dict) -> str:
-    lines = ["LiDAR height check (dz = Z_lidar - Z_surveyed)",
+    """The height check table; statistics in metres, heights in the CRS's vertical unit (named), dz
+    in metres and, for a cloud in feet, also in feet."""
+    zu = result.get("z_unit", "m")
+    z_unit_m = result.get("z_unit_m", 1.0)
+    lines = ["LiDAR height check (dz = Z_lidar - Z_surveyed, in metres)",
              f"search radius {result['radius_m']:g} m, {result['n_points']} points, "
              f"{result['n_without_ground']} without ground points in range", ""]
+    if zu != "m":
+        lines[-1:-1] = [f"heights in {zu} (the cloud's vertical unit); dz and statistics in m"]
     lines += _format_block("All points", result["overall"])
     for g, s in result["groups"].items():
         lines += [""] + _format_block(f"Group: {g}", s)
-    lines += ["", f"{'id':<12}{'group':<18}{'z survey':>10}{'z lidar':>10}{'dz':>8}"]
+    head = f"{'id':<12}{'group':<18}{f'z survey ({zu})':>16}{f'z lidar ({zu})':>16}{'dz (m)':>9}"
+    if zu != "m":
+        head += f"{f'dz ({zu})':>10}"
+    lines += ["", head]
     for p in result["points"]:
-        zl = "-" if p["z_lidar_m"] is None else f"{p['z_lidar_m']:.3f}"
+        zl = "-" if p["z_lidar"] is None else f"{p['z_lidar']:.3f}"
         dz = "-" if p["dz_m"] is None else f"{p['dz_m']:+.3f}"
-        lines.append(f"{p['id']:<12}{(p['group'] or ''):<18}{p['z_survey_m']:>10.3f}{zl:>10}{dz:>8}")
+        line = f"{p['id']:<12}{(p['group'] or ''):<18}{p['z_survey']:>16.3f}{zl:>16}{dz:>9}"
+        if zu != "m":
+            line += f"{'-' if p['dz_m'] is None else format(p['dz_m'] / z_unit_m, '+.3f'):>10}"
+        lines.append(line)
     return "\n".join(lines)

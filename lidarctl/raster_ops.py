@@ -11,6 +11,8 @@ import numba
 import numpy as np
 from scipy import ndimage
 
+from lidarctl.grid import GRID_BYTES_PER_CELL, check_grid
+
 
 @numba.njit(cache=True)
 def _cell_extreme(flat, v, ncells, sign):
@@ -23,7 +25,10 @@ def _cell_extreme(flat, v, ncells, sign):
 
 
 def reduce_grid(x, y, values, cell_m, x0, y0, nrows, ncols, how: str = "min") -> np.ndarray:
-    """Per-cell min / max / mean of ``values``; NaN where no point falls."""
+    """Per-cell min / max / mean of ``values``; NaN where no point falls. A grid larger than the
+    machine's RAM is a ResourceError before anything is allocated."""
+    check_grid(nrows, ncols, cell_m, GRID_BYTES_PER_CELL, "the points' extent",
+               hint="are strips far apart (different zones or CRSs) in one cloud?")
     j = np.floor((x - x0) / cell_m).astype(np.int64)
     i = np.floor((y - y0) / cell_m).astype(np.int64)
     ok = (i >= 0) & (i < nrows) & (j >= 0) & (j < ncols)

@@ -5,11 +5,16 @@ Trees: ellipsoidal crowns; a pulse hitting a crown gives a first return in the c
 probability ``canopy_gap``, a last return on the ground below (sparse ground under canopy).
 Outliers: low points 3-20 m below ground, high points 40-200 m above. Classes are ASPRS codes
 (2 ground, 3/4/5 vegetation by height, 6 building, 7 low noise, 18 high noise).
+
+Scenes are generated in metres; ``write_las`` writes them in the units of the CRS it is given (a
+scene written in a foot CRS holds feet). ``metric_twin_crs`` and ``metric_copy`` make the metric
+copy of a cloud in feet (same projection, metre units, same points), for unit tests.
 """
 
 from __future__ import annotations
 
 import numpy as np
+import pyproj
 
 from lidarctl.io import PointCloud
 
@@ -123,20 +128,74 @@ def synthetic_scene(width_m: float = 200.0, height_m: float | None = None, densi
 
 
 def write_las(path, cloud: PointCloud, classification=None, crs=None, version: str = "1.4") -> None:
-    """Write a cloud as LAS/LAZ (point format 6 for 1.4, 1 for 1.2), 1 mm scale."""
+    """Write a cloud (x, y, z in metres) as LAS/LAZ (point format 6 for 1.4, 1 for 1.2), scale 0.001
+    of the CRS's unit; coordinates in the CRS's units (feet for a foot CRS; metres without CRS)."""
     import laspy
+
+    from lidarctl.units import METRE, units_of
 
     fmt = 6 if version == "1.4" else 1
     header = laspy.LasHeader(version=version, point_format=fmt)
     header.scales = np.array([0.001, 0.001, 0.001])
-    header.offsets = np.array([np.floor(cloud.x.min()), np.floor(cloud.y.min()), 0.0])
+    units = METRE
     if crs is not None:
-        import pyproj
-        header.add_crs(pyproj.CRS.from_user_input(crs))
+        crs = pyproj.CRS.from_user_input(crs)
+        units = units_of(crs)
+    x, y, z = units.xy_from_m(cloud.x), units.xy_from_m(cloud.y), units.z_from_m(cloud.z)
+    header.offsets = np.array([np.floor(x.min()), np.floor(y.min()), 0.0])
+    if crs is not None:
+        header.add_crs(crs)
     las = laspy.LasData(header)
-    las.x, las.y, las.z = cloud.x, cloud.y, cloud.z
+    las.x, las.y, las.z = x, y, z
     las.intensity = cloud.intensity
     las.return_number = cloud.return_number
     las.number_of_returns = cloud.number_of_returns
     las.classification = cloud.classification if classification is None else classification
     las.write(str(path))
+
+
+def metric_twin_crs(crs) -> pyproj.CRS:
+    """The same projected CRS with metre units: axis units and length parameters (false easting and
+    northing) converted to metres. Coordinates of a point in ``crs`` times its unit are that point's
+    coordinates in the twin."""
+    from aerotri.geom.crs import horizontal_crs
+
+    d = horizontal_crs(pyproj.CRS.from_user_input(crs)).to_json_dict()
+    d.pop("id", None)
+    d["name"] = f"{d['name']} (metre twin)"
+    conversion = d["conversion"]
+    conversion.pop("id", None)
+    for p in conversion["parameters"]:
+        unit = p.get("unit")
+        if isinstance(unit, dict) and unit.get("type") == "LinearUnit":
+            p["value"] = p["value"] * unit["conversion_factor"]
+            p["unit"] = "metre"
+    for axis in d["coordinate_system"]["axis"]:
+        if isinstance(axis.get("unit"), dict) and axis["unit"].get("type") == "LinearUnit":
+            axis["unit"] = "metre"
+    return pyproj.CRS.from_json_dict(d)
+
+
+def metric_copy(in_path, out_path) -> pyproj.CRS:
+    """Copy a LAS/LAZ file in a foot CRS into metres without re-quantising: the same integer
+    records, scales and offsets multiplied by the unit, and the metric twin of its CRS (a WKT
+    record). Returns the twin CRS."""
+    import laspy
+    from laspy.vlrs.known import WktCoordinateSystemVlr
+
+    from lidarctl import io
+
+    header = io.read_header(in_path)
+    crs, units = io.resolve_crs_units(in_path, header, None)
+    twin = metric_twin_crs(crs)
+    records = io.read_records(in_path)
+    out = laspy.LasHeader(version=header.version, point_format=header.point_format)
+    factor = np.array([units.xy_m, units.xy_m, units.z_m])
+    out.scales, out.offsets = np.asarray(header.scales) * factor, np.asarray(header.offsets) * factor
+    out.vlrs.append(WktCoordinateSystemVlr(twin.to_wkt()))
+    if header.version.minor >= 4:
+        out.global_encoding.wkt = True
+    las = laspy.LasData(out)
+    las.points = laspy.ScaleAwarePointRecord(records.array.copy(), header.point_format, out.scales, out.offsets)
+    las.write(str(out_path))
+    return twin

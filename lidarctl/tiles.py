@@ -7,6 +7,10 @@ buffered box is the core box grown by ``buffer_m`` on each side). Each tile is c
 buffer so that the filters see the neighbourhood of every core point, and only the classes of the
 core points are kept.
 
+Units: the tile grid, the tile size and the buffer are in metres; a cloud in a foot CRS is scaled
+to metres as it is read (``io.read_cloud``, ``split_into_tiles``, ``classify_tile``) and its records
+are copied unchanged, so the output keeps the input's CRS and units.
+
 Three passes, memory bounded by the chunk size and the tile size, never by the file size:
 
 1. ``split_into_tiles``: stream the input in chunks (LAS 1.2-1.4, LAZ), validate every chunk as
@@ -53,10 +57,12 @@ import laspy
 import numpy as np
 
 from lidarctl import io
-from aerotri.core.atomic import atomic_path, temporary_dir
-from aerotri.core.errors import InputError
+from aerotri.core.atomic import atomic_path, refuse_input_as_output, temporary_dir
+from aerotri.core.errors import InputError, OptionError, ResourceError
 from aerotri.core.executor import local_executor
 from aerotri.core.log import progress
+from aerotri.geom.crs import parse_crs
+from lidarctl.units import METRE, LengthUnits
 
 # An inner tile of about this many points (core + buffer) keeps one classification task under
 # about 1 GB of memory (classify_points needs about 200 bytes per point), so two tasks at a time
@@ -91,7 +97,8 @@ def default_buffer_m(method: str = "morph", preset: str | None = None) -> float:
 
 @dataclasses.dataclass(frozen=True)
 class TileGrid:
-    """Square tiles of ``tile_m`` anchored at (x0_m, y0_m); row index grows with y, column with x."""
+    """Square tiles of ``tile_m`` anchored at (x0_m, y0_m); row index grows with y, column with x.
+    All in metres (point coordinates scaled to metres before they are assigned)."""
 
     x0_m: float
     y0_m: float
@@ -152,8 +159,8 @@ class TileGrid:
 
 def plan_tiles(header: laspy.LasHeader, tile_size_m: float | None = None, buffer_m: float | None = None,
                method: str = "morph", preset: str | None = None, path="input",
-               tile_points: int = DEFAULT_TILE_POINTS) -> TileGrid:
-    """Tile grid over the header bounds.
+               tile_points: int = DEFAULT_TILE_POINTS, units: LengthUnits = METRE) -> TileGrid:
+    """Tile grid (metres) over the header bounds (in the file's ``units``).
 
     Default tile size: an inner tile (core + buffer on all sides) of about ``tile_points`` points
     at the file's mean density (header point count over the bounding-box area), adjusted so that
@@ -162,8 +169,11 @@ def plan_tiles(header: laspy.LasHeader, tile_size_m: float | None = None, buffer
     """
     buffer_m = default_buffer_m(method, preset) if buffer_m is None else float(buffer_m)
     if not (buffer_m >= 0 and math.isfinite(buffer_m)):
-        raise InputError(f"--buffer {buffer_m}: must be a non-negative distance in metres")
+        raise OptionError(f"--buffer {buffer_m}: must be a non-negative distance in metres", param="--buffer")
     mins, maxs = np.asarray(header.mins, float), np.asarray(header.maxs, float)
+    if not units.is_metric:
+        mins, maxs = mins.copy(), maxs.copy()
+        mins[:2], maxs[:2] = units.xy_to_m(mins[:2]), units.xy_to_m(maxs[:2])
     if not (np.isfinite(mins).all() and np.isfinite(maxs).all()) or (maxs[:2] < mins[:2]).any() or \
             (np.abs(np.concatenate([mins[:2], maxs[:2]])) > io.MAX_ABS_XY_M).any():
         raise InputError(f"{path}: absurd bounds in the LAS header (min {mins.tolist()}, max {maxs.tolist()})")
@@ -178,9 +188,9 @@ def plan_tiles(header: laspy.LasHeader, tile_size_m: float | None = None, buffer
     else:
         tile_m = float(tile_size_m)
         if not (tile_m > 0 and math.isfinite(tile_m)):
-            raise InputError(f"--tile-size {tile_size_m}: must be a positive size in metres")
+            raise OptionError(f"--tile-size {tile_size_m}: must be a positive size in metres", param="--tile-size")
         if buffer_m > tile_m:
-            raise InputError(f"--buffer {buffer_m:g} m is larger than the tile size {tile_m:g} m")
+            raise OptionError(f"--buffer {buffer_m:g} m is larger than the tile size {tile_m:g} m", param="--buffer")
     ncols = max(1, math.ceil(width / tile_m))
     nrows = max(1, math.ceil(height / tile_m))
     if ncols * nrows > MAX_TILES:
@@ -201,6 +211,7 @@ class TileTask:
     grid: TileGrid
     params: object          # classify.ClassifyParams
     numba_threads: int = 0  # threads of numba's parallel loops in this task (0: numba's default)
+    units: LengthUnits = METRE  # the input's units: tile files hold its records unchanged
 
 
 def _tile_stem(work_dir: Path, row: int, col: int) -> Path:
@@ -216,13 +227,14 @@ def _tile_header(header: laspy.LasHeader) -> laspy.LasHeader:
 
 
 def split_into_tiles(in_path, grid: TileGrid, work_dir, params, chunk_points: int = io.CHUNK_POINTS,
-                     records_path=None):
+                     records_path=None, units: LengthUnits = METRE):
     """Pass 1: stream the input and append each tile's points to its LAS file; list of TileTask.
 
     Every chunk is validated (InputError naming the record for NaN / absurd coordinates; truncated
     files are reported by ``io.iter_chunks``). Tiles without core points get no task. With
     ``records_path`` the raw point records are also copied there in file order (uncompressed), so
-    that writing the output needs no second decompression of a LAZ input.
+    that writing the output needs no second decompression of a LAZ input. ``units``: the input's
+    linear units (points are assigned to tiles in metres; the records are copied unchanged).
     """
     work_dir = Path(work_dir)
     header = io.read_header(in_path)
@@ -235,7 +247,8 @@ def split_into_tiles(in_path, grid: TileGrid, work_dir, params, chunk_points: in
             if records is not None:
                 records.write(chunk.array.tobytes())
             x, y = np.asarray(chunk.x), np.asarray(chunk.y)
-            io.validate_xyz(in_path, x, y, np.asarray(chunk.z), first)
+            io.validate_xyz(in_path, x, y, np.asarray(chunk.z), first, units)
+            x, y = units.xy_to_m(x), units.xy_to_m(y)
             row, col = grid.core_rc(x, y)
             has_core[np.unique(row * grid.ncols + col)] = True
             ids, pos = grid.assign(x, y)
@@ -263,7 +276,8 @@ def split_into_tiles(in_path, grid: TileGrid, work_dir, params, chunk_points: in
         r, c = divmod(int(tid), grid.ncols)
         stem = _tile_stem(work_dir, r, c)
         tasks.append(TileTask(r, c, str(stem.with_suffix(".las")), str(stem.with_suffix(".index")),
-                              str(stem) + ".classes.npy", str(stem) + ".core.npy", grid, params))
+                              str(stem) + ".classes.npy", str(stem) + ".core.npy", grid, params,
+                              units=units))
     return tasks
 
 
@@ -293,12 +307,12 @@ def classify_tile(task: TileTask) -> dict:
     from lidarctl import classify as cl
 
     t0 = time.perf_counter()
-    with laspy.open(task.las_path) as reader:
-        rec = reader.read_points(reader.header.point_count)
+    rec = io.read_records(task.las_path)
     index = np.fromfile(task.index_path, dtype=np.int64)
     if len(index) != len(rec):
         raise RuntimeError(f"{task.las_path}: {len(rec)} points but {len(index)} indices")
-    x, y, z = np.asarray(rec.x), np.asarray(rec.y), np.asarray(rec.z)
+    u = task.units
+    x, y, z = u.xy_to_m(np.asarray(rec.x)), u.xy_to_m(np.asarray(rec.y)), u.z_to_m(np.asarray(rec.z))
     rn, nr = io.sanitize_returns(np.asarray(rec.return_number), np.asarray(rec.number_of_returns))
     intensity = np.asarray(rec.intensity)
     del rec
@@ -336,7 +350,8 @@ def classify_file(in_path, out_path, crs=None, params=None, tile_size_m: float |
     """Classify a LAS/LAZ file of any size into ``out_path`` (LAS/LAZ by suffix), tile by tile.
 
     ``crs``: used only when the file has none (never guessed). ``params``: classify.ClassifyParams.
-    ``tile_size_m`` / ``buffer_m``: default from ``plan_tiles``. ``executor``: an
+    ``tile_size_m`` / ``buffer_m``: metres, default from ``plan_tiles``; a cloud in feet is classified
+    in metres (its CRS's units) and written back unchanged but for the classes. ``executor``: an
     ``aerotri.core.executor.Executor`` (default: local threads). ``work_dir``: parent folder of the
     temporary tile files (default: next to the output); they are removed in any case.
     The output is written atomically: on any error or interrupt no output file is left.
@@ -347,18 +362,39 @@ def classify_file(in_path, out_path, crs=None, params=None, tile_size_m: float |
     t0 = time.perf_counter()
     params = params or cl.ClassifyParams()
     in_path, out_path = Path(in_path), Path(out_path)
+    refuse_input_as_output(out_path, [in_path], "OUT_PATH")
     header = io.read_header(in_path)
     n = header.point_count
     if n == 0:
         raise InputError(f"{in_path}: the file holds no points")
-    resolved = io.resolve_crs(in_path, header, crs)
-    grid = plan_tiles(header, tile_size_m, buffer_m, params.ground_method, params.preset, in_path)
+    resolved, units = io.resolve_crs_units(in_path, header, crs)
+    # A CRS record for an input without one: the --crs as given (a compound CRS keeps its vertical unit).
+    out_crs = parse_crs(crs, "--crs") if crs is not None and str(crs).strip() else resolved
+    grid = plan_tiles(header, tile_size_m, buffer_m, params.ground_method, params.preset, in_path, units=units)
     stats = {"n_points": int(n), "tile_m": grid.tile_m, "buffer_m": grid.buffer_m,
-             "tile_rows": grid.nrows, "tile_cols": grid.ncols}
+             "tile_rows": grid.nrows, "tile_cols": grid.ncols, **units.as_dict()}
+    try:
+        _classify_into(in_path, out_path, crs=crs, out_crs=out_crs, units=units, params=params, grid=grid,
+                       executor=executor, work_dir=work_dir, chunk_points=chunk_points, stats=stats, t0=t0)
+    except ResourceError as exc:
+        # A grid inside the classifier would not fit: name the file (points spread far apart, e.g.
+        # strips of two zones merged under one CRS).
+        raise ResourceError(f"{in_path}: {exc}", param=exc.param) from exc
+    stats["buffer_overhead"] = stats["tiled_points"] / n
+    stats["seconds"] = time.perf_counter() - t0
+    stats["crs"] = resolved.to_string() if resolved is not None else None
+    return stats
+
+
+def _classify_into(in_path, out_path, *, crs, out_crs, units, params, grid, executor, work_dir, chunk_points,
+                   stats, t0) -> None:
+    """The work of ``classify_file`` (one piece or tiled); fills ``stats``."""
+    header = io.read_header(in_path)
+    n = header.point_count
     if grid.n_tiles == 1:
         classes, records, _ = _direct_classes(in_path, crs, params, chunk_points)
         t1 = time.perf_counter()
-        io.write_classified(in_path, out_path, classes, crs=resolved, records=records)
+        io.write_classified(in_path, out_path, classes, crs=out_crs, records=records)
         stats.update(n_tiles=1, tiled_points=int(n), max_tile_points=int(n), classify_s=t1 - t0,
                      write_s=time.perf_counter() - t1)
         counts = np.bincount(classes, minlength=256)
@@ -371,7 +407,7 @@ def classify_file(in_path, out_path, crs=None, params=None, tile_size_m: float |
         parent.mkdir(parents=True, exist_ok=True)
         tmp_dir = temporary_dir(parent, f"{out_path.stem}.tiles")
         try:
-            tasks = split_into_tiles(in_path, grid, tmp_dir, params, chunk_points, tmp_dir / "records.bin")
+            tasks = split_into_tiles(in_path, grid, tmp_dir, params, chunk_points, tmp_dir / "records.bin", units)
             # Cores per task: tasks run side by side on the executor's workers (on a remote cluster
             # numba keeps its default).
             per_task = executor.cores_per_task(len(tasks))
@@ -387,7 +423,7 @@ def classify_file(in_path, out_path, crs=None, params=None, tile_size_m: float |
             classes.flush()
             checked = _CheckedClasses(classes)
             with progress(n, "tiles: write", "pt", unit_scale=True) as bar:
-                io.write_classified(in_path, out_path, checked, crs=resolved, progress=bar.update,
+                io.write_classified(in_path, out_path, checked, crs=out_crs, progress=bar.update,
                                     records=_stored_records(tmp_dir / "records.bin", header, chunk_points))
             counts = checked.counts
             del classes
@@ -398,11 +434,7 @@ def classify_file(in_path, out_path, crs=None, params=None, tile_size_m: float |
                      max_tile_points=int(max(r["n_points"] for r in results)),
                      split_s=t1 - t0, classify_s=t2 - t1, write_s=t3 - t2,
                      tile_cpu_s=float(sum(r["seconds"] for r in results)))
-    stats["buffer_overhead"] = stats["tiled_points"] / n
-    stats["seconds"] = time.perf_counter() - t0
-    stats["crs"] = resolved.to_string() if resolved is not None else None
     stats["class_counts"] = {int(c): int(counts[c]) for c in np.flatnonzero(counts)}
-    return stats
 
 
 def _stored_records(path, header: laspy.LasHeader, chunk_points: int):

@@ -1,0 +1,130 @@
+"""Linear units of a point cloud's CRS: metres, international feet, US survey feet.
+
+Every length lidarctl works with (tile sizes, buffers, radii, cell sizes, height thresholds) is in
+metres. A cloud in a foot CRS is scaled to metres once, when it is read (``lidarctl.io``), and its
+outputs are scaled back to the CRS's units when they are written (raster transforms and heights,
+corner coordinates), so the outputs stay in the input's CRS and units.
+
+Vertical unit: a compound CRS (or a LAS GeoTIFF ``VerticalUnitsGeoKey``) gives its own; a 2D
+projected CRS has z in its horizontal unit (the LAS convention). Geographic CRSs (degrees) are
+refused: the filters need lengths.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+import pyproj
+
+from aerotri.core.errors import CrsError
+from aerotri.geom.crs import crs_label, horizontal_crs, linear_unit_m, unit_name
+
+US_SURVEY_FOOT_M = 1200.0 / 3937.0
+FOOT_M = 0.3048
+# EPSG unit-of-measure codes (GeoTIFF VerticalUnitsGeoKey / ProjLinearUnitsGeoKey).
+EPSG_UNIT_M = {9001: 1.0, 9002: FOOT_M, 9003: US_SURVEY_FOOT_M}
+
+
+def short_name(unit_m: float) -> str:
+    """'m', 'ft' or 'us-ft' (the names ``aerotri.geom.crs.unit_name`` uses) for metres per unit."""
+    if abs(unit_m - 1.0) < 1e-12:
+        return "m"
+    if abs(unit_m - FOOT_M) < 1e-9:
+        return "ft"
+    if abs(unit_m - US_SURVEY_FOOT_M) < 1e-9:
+        return "us-ft"
+    return f"{unit_m:g}m"
+
+
+def long_name(unit_m: float) -> str:
+    """The unit's name as GDAL band unit types and WKT spell it: 'metre', 'foot', 'US survey foot'."""
+    return {"m": "metre", "ft": "foot", "us-ft": "US survey foot"}.get(short_name(unit_m), f"{unit_m:g} metre")
+
+
+@dataclasses.dataclass(frozen=True)
+class LengthUnits:
+    """Metres per unit of the horizontal axes (``xy_m``) and of heights (``z_m``) of a cloud's CRS.
+
+    ``known`` is False for a file without any CRS read where no CRS is required (``lidarctl
+    evaluate``): its coordinates are then taken as they are, in an unknown unit.
+    """
+
+    xy_m: float = 1.0
+    z_m: float = 1.0
+    known: bool = True
+
+    @property
+    def xy_name(self) -> str:
+        return short_name(self.xy_m) if self.known else "file units"
+
+    @property
+    def z_name(self) -> str:
+        return short_name(self.z_m) if self.known else "file units"
+
+    @property
+    def is_metric(self) -> bool:
+        return self.xy_m == 1.0 and self.z_m == 1.0
+
+    def describe(self) -> str:
+        if not self.known:
+            return "unknown units (no CRS)"
+        if self.xy_m == self.z_m:
+            return f"x, y, z in {long_name(self.xy_m)}"
+        return f"x, y in {long_name(self.xy_m)}, z in {long_name(self.z_m)}"
+
+    def as_dict(self) -> dict:
+        """JSON-ready description: unit names and metres per unit."""
+        return {"xy_unit": self.xy_name, "z_unit": self.z_name, "xy_unit_m": self.xy_m, "z_unit_m": self.z_m}
+
+    # Scaling: identity (no copy, no rounding) for metres, so metric data take exactly the old path.
+    def xy_to_m(self, v):
+        return v if self.xy_m == 1.0 else np.asarray(v, float) * self.xy_m
+
+    def z_to_m(self, v):
+        return v if self.z_m == 1.0 else np.asarray(v, float) * self.z_m
+
+    def xy_from_m(self, v):
+        return v if self.xy_m == 1.0 else np.asarray(v, float) / self.xy_m
+
+    def z_from_m(self, v):
+        return v if self.z_m == 1.0 else np.asarray(v, float) / self.z_m
+
+
+METRE = LengthUnits()
+UNKNOWN = LengthUnits(known=False)
+
+
+def _vertical_unit_m(crs: pyproj.CRS) -> float | None:
+    """Metres per unit of the vertical axis of a compound (or 3D) CRS, else None."""
+    if crs.is_compound:
+        for sub in crs.sub_crs_list:
+            if sub.is_vertical and sub.axis_info:
+                return float(sub.axis_info[0].unit_conversion_factor)
+        return None
+    if len(crs.axis_info) == 3:
+        factor = crs.axis_info[2].unit_conversion_factor
+        # A 3D geographic CRS has ellipsoidal heights in metres; a 3D projected CRS its own unit.
+        return float(factor)
+    return None
+
+
+def units_of(crs: pyproj.CRS, source: str = "CRS", vertical_unit_m: float | None = None) -> LengthUnits:
+    """The LengthUnits of a projected (or compound projected) CRS; ``CrsError`` naming ``source`` for
+    a geographic or geocentric CRS.
+
+    ``vertical_unit_m``: the vertical unit when it comes from elsewhere (a LAS VerticalUnitsGeoKey);
+    else the vertical sub-CRS's unit, else (2D CRS) the horizontal unit.
+    """
+    h = horizontal_crs(crs)
+    if h.is_geographic or h.is_geocentric or not h.is_projected:
+        raise CrsError(
+            f"{source}: {crs_label(crs)} ({h.name}) is a {'geographic' if h.is_geographic else 'non-projected'} CRS "
+            f"({unit_name(h) if h.is_geographic else 'no map grid'}); lidarctl needs a projected CRS in metres or "
+            "feet: reproject the cloud first (aerotri crs transform)"
+        )
+    xy_m = linear_unit_m(crs)
+    if not (np.isfinite(xy_m) and xy_m > 0):
+        raise CrsError(f"{source}: {crs_label(crs)} has no usable linear unit ({xy_m!r} m per unit)")
+    z_m = vertical_unit_m or _vertical_unit_m(crs) or xy_m
+    return LengthUnits(float(xy_m), float(z_m))

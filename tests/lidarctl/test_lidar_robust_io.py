@@ -1,0 +1,257 @@
+"""Broken LAS/LAZ input in every lidarctl command: one line naming the file (and record), exit code 2,
+no output; header point counts, scale factors, CRSs of several strips, impossible grids, option
+ranges and outputs that would replace an input (issue 17)."""
+
+from __future__ import annotations
+
+import importlib.util
+import struct
+from pathlib import Path
+
+import laspy
+import numpy as np
+import pyproj
+import pytest
+from click.testing import CliRunner
+from laspy.vlrs.known import GeoKeyEntryStruct
+
+from aerotri.core.errors import InputError
+from lidarctl import io, synthetic
+from lidarctl.cli import main
+from lidarctl.units import FOOT_M
+
+_spec = importlib.util.spec_from_file_location("corners_synth", Path(__file__).with_name("corners_synth.py"))
+cs = importlib.util.module_from_spec(_spec)
+_spec.loader.exec_module(cs)
+
+
+@pytest.fixture(scope="module")
+def files(tmp_path_factory):
+    """A classified synthetic scene as LAS 1.4, LAS 1.2 and LAZ (two LAZ chunks of 50,000 points)."""
+    d = tmp_path_factory.mktemp("robust")
+    cloud, truth = synthetic.synthetic_scene(width_m=130.0, density_per_m2=4.0, seed=3, n_buildings=4)
+    assert len(cloud) > 50_000
+    synthetic.write_las(d / "c14.las", cloud, classification=truth, crs="EPSG:32632")
+    synthetic.write_las(d / "c12.las", cloud, classification=truth, crs="EPSG:32632", version="1.2")
+    synthetic.write_las(d / "c.laz", cloud, classification=truth, crs="EPSG:32632")
+    rng = np.random.default_rng(1)
+    px, py = cloud.x.min() + rng.uniform(10, 120, 5), cloud.y.min() + rng.uniform(10, 120, 5)
+    (d / "points.csv").write_text("id,x,y,z\n" + "".join(
+        f"P{k},{a:.3f},{b:.3f},{synthetic.terrain_height(a - 500000.0, b - 5400000.0):.3f}\n"
+        for k, (a, b) in enumerate(zip(px, py))))
+    return d, len(cloud)
+
+
+def _commands(bad: Path, good: Path, points: Path, out: Path):
+    """Every lidarctl command reading ``bad`` (a classified cloud), writing under ``out``."""
+    return {
+        "classify": ["classify", bad, out / "o.laz"],
+        "rasters": ["rasters", bad, out / "r", "--res", "2"],
+        "evaluate": ["evaluate", bad, "--truth", good],
+        "evaluate-truth": ["evaluate", good, "--truth", bad],
+        "check-heights": ["check-heights", bad, points, "--json", out / "hc.json"],
+        "corners": ["corners", bad, out / "co"],
+        "corners-second": ["corners", good, bad, out / "co2"],
+    }
+
+
+def _fails_everywhere(bad: Path, good: Path, points: Path, out: Path, *texts):
+    out.mkdir(exist_ok=True)
+    for name, args in _commands(bad, good, points, out).items():
+        r = CliRunner().invoke(main, [str(a) for a in args])
+        assert r.exit_code == 2, (name, r.output, r.exception)
+        assert r.output.startswith("Error: ") and r.output.count("\n") == 1, (name, r.output)
+        for t in (str(bad), *texts):
+            assert t in r.output, (name, t, r.output)
+    assert not any(p for p in out.rglob("*")), list(out.rglob("*"))      # nothing written
+
+
+def _set_count(src: Path, dst: Path, n: int) -> None:
+    b = bytearray(src.read_bytes())
+    b[107:111] = struct.pack("<I", n)          # legacy point count
+    if b[25] >= 4:
+        b[247:255] = struct.pack("<Q", n)      # LAS 1.4 point count
+    dst.write_bytes(bytes(b))
+
+
+@pytest.mark.parametrize("name", ["c14.las", "c12.las", "c.laz"])
+def test_header_point_count_lower_than_the_records_is_refused(files, tmp_path, name):
+    d, n = files
+    bad = tmp_path / f"low_{name}"
+    _set_count(d / name, bad, n // 2)
+    held = str(n) if name.endswith(".las") else "at least 50001"
+    _fails_everywhere(bad, d / "c14.las", d / "points.csv", tmp_path / "out", f"header says {n // 2} points",
+                      f"holds {held} point records")
+    # a count above the records: a truncated file, both counts named
+    _set_count(d / name, bad, n + 10 if name.endswith(".las") else 100_001)
+    with pytest.raises(InputError, match="truncated"):
+        io.read_cloud(bad)
+
+
+@pytest.mark.realdata
+def test_autzen_with_half_its_header_count_is_refused(shared_data, tmp_path):
+    src = shared_data / "autzen" / "autzen_trim.laz"
+    if not src.is_file():
+        pytest.skip(f"{src} not found")
+    _set_count(src, tmp_path / "half.laz", 55_000)
+    with pytest.raises(InputError, match=r"header says 55000 points but the file holds at least 100001"):
+        io.read_cloud(tmp_path / "half.laz")
+
+
+@pytest.mark.parametrize("offset,value,text", [(131, 0.0, "x scale factor 0.0"), (139, float("nan"), "y scale factor nan"),
+                                               (147, float("inf"), "z scale factor inf"),
+                                               (155, float("nan"), "x offset nan")])
+def test_zero_or_non_finite_scales_and_offsets(files, tmp_path, offset, value, text):
+    d, _ = files
+    b = bytearray((d / "c14.las").read_bytes())
+    b[offset:offset + 8] = struct.pack("<d", value)
+    bad = tmp_path / "scale.las"
+    bad.write_bytes(bytes(b))
+    _fails_everywhere(bad, d / "c14.las", d / "points.csv", tmp_path / "out", text)
+
+
+@pytest.mark.parametrize("kind", ["truncated_laz", "truncated_las", "corrupt_laz"])
+def test_truncated_or_corrupt_files_in_every_command(files, tmp_path, kind):
+    d, n = files
+    bad = tmp_path / ("bad.laz" if kind.endswith("laz") else "bad.las")
+    data = (d / ("c.laz" if kind.endswith("laz") else "c14.las")).read_bytes()
+    if kind.startswith("truncated"):
+        bad.write_bytes(data[: len(data) * 2 // 3])
+        texts = ["truncated"]
+    else:
+        # garbage inside the second LAZ chunk: the decoder fails in that block of records
+        b = bytearray(data)
+        start = len(b) // 2
+        b[start:start + 3000] = np.random.default_rng(0).integers(0, 256, 3000).astype(np.uint8).tobytes()
+        bad.write_bytes(bytes(b))
+        texts = ["corrupt point data in records 0-", f"of {n}"]
+    _fails_everywhere(bad, d / "c14.las", d / "points.csv", tmp_path / "out", *texts)
+
+
+def _corner_strip(path, crs, e0, n0, seed):
+    buildings = cs.default_buildings()
+    x, y, z, cls, sid = cs.make_cloud(buildings, seed=seed)
+    header = laspy.LasHeader(point_format=6, version="1.4")
+    header.scales = np.array([0.001, 0.001, 0.001])
+    header.offsets = np.array([e0, n0, 0.0])
+    header.add_crs(pyproj.CRS(crs))
+    las = laspy.LasData(header)
+    las.x, las.y, las.z = x + e0, y + n0, z
+    las.classification, las.point_source_id = cls, sid
+    las.write(path)
+
+
+def test_strips_in_different_crss_are_refused_naming_the_file(tmp_path):
+    _corner_strip(tmp_path / "a.las", "EPSG:32649", 452000.0, 3407000.0, 1)
+    _corner_strip(tmp_path / "b.las", "EPSG:32650", 248000.0, 3407000.0, 2)
+    r = CliRunner().invoke(main, ["corners", str(tmp_path / "a.las"), str(tmp_path / "b.las"), str(tmp_path / "o")])
+    assert r.exit_code == 2 and r.output.count("\n") == 1, r.output
+    assert f"{tmp_path / 'b.las'}: CRS EPSG:32650" in r.output and "differs from the CRS of" in r.output
+    assert not (tmp_path / "o").exists()
+
+
+def test_strips_far_apart_are_refused_before_allocating(tmp_path):
+    """Two strips labelled with one UTM zone but 700 km apart (one of them belongs to the next zone):
+    the commands refuse the grids they would need instead of running out of memory."""
+    _corner_strip(tmp_path / "a.las", "EPSG:32649", 452000.0, 3407000.0, 1)
+    _corner_strip(tmp_path / "b.las", "EPSG:32649", 1152000.0, 4107000.0, 2)
+    r = CliRunner().invoke(main, ["corners", str(tmp_path / "a.las"), str(tmp_path / "b.las"), str(tmp_path / "o")])
+    assert r.exit_code == 2 and r.output.count("\n") == 1, r.output
+    assert "strip footprints: a grid of" in r.output and "GiB" in r.output and "b.las" in r.output
+    assert not (tmp_path / "o").exists()
+    merged = tmp_path / "merged.las"
+    a, b = laspy.read(tmp_path / "a.las"), laspy.read(tmp_path / "b.las")
+    las = laspy.LasData(laspy.LasHeader(point_format=6, version="1.4"))
+    las.header.scales, las.header.offsets = a.header.scales, a.header.offsets
+    las.header.add_crs(pyproj.CRS("EPSG:32649"))
+    las.x, las.y, las.z = np.concatenate([a.x, b.x]), np.concatenate([a.y, b.y]), np.concatenate([a.z, b.z])
+    las.classification = np.concatenate([a.classification, b.classification])
+    las.write(merged)
+    for args, text in ((["rasters", merged, tmp_path / "r", "--res", "1"], "--res"),
+                       (["classify", merged, tmp_path / "c.laz"], "are strips far apart")):
+        r = CliRunner().invoke(main, [str(x) for x in args])
+        assert r.exit_code == 2 and r.output.count("\n") == 1, r.output
+        assert str(merged) in r.output and "GiB" in r.output and text in r.output, r.output
+    assert not (tmp_path / "r").exists() and not (tmp_path / "c.laz").exists()
+
+
+@pytest.mark.parametrize("args,option", [
+    (["classify", "{las}", "{out}/o.laz", "--tile-size", "0"], "--tile-size"),
+    (["classify", "{las}", "{out}/o.laz", "--tile-size", "-50"], "--tile-size"),
+    (["classify", "{las}", "{out}/o.laz", "--buffer", "0"], "--buffer"),
+    (["classify", "{las}", "{out}/o.laz", "--buffer", "-5"], "--buffer"),
+    (["classify", "{las}", "{out}/o.laz", "--tile-size", "nan"], "--tile-size"),
+    (["rasters", "{las}", "{out}/r", "--res", "0"], "--res"),
+    (["rasters", "{las}", "{out}/r", "--res", "-1"], "--res"),
+    (["rasters", "{las}", "{out}/r", "--res", "nan"], "--res"),
+    (["check-heights", "{las}", "{pts}", "--radius", "-1"], "--radius"),
+    (["check-heights", "{las}", "{pts}", "--radius", "0"], "--radius"),
+    (["check-heights", "{las}", "{pts}", "--exclude", "-0.5"], "--exclude"),
+    (["check-heights", "{las}", "{pts}", "--radius", "inf"], "--radius"),
+    (["corners", "{las}", "{out}/co", "--min-edge-m", "0.1"], "--min-edge-m"),
+    (["corners", "{las}", "{out}/co", "--sigma-strip-xy-m", "-1"], "--sigma-strip-xy-m"),
+])
+def test_out_of_range_options_name_the_option(files, tmp_path, args, option):
+    d, _ = files
+    args = [a.format(las=d / "c14.las", out=tmp_path, pts=d / "points.csv") for a in args]
+    r = CliRunner().invoke(main, args)
+    assert r.exit_code == 2, r.output
+    assert option in r.output, r.output
+    assert not any(tmp_path.iterdir())
+
+
+def test_outputs_never_replace_an_input(files, tmp_path):
+    d, _ = files
+    las = tmp_path / "in.las"
+    las.write_bytes((d / "c14.las").read_bytes())
+    before = las.read_bytes()
+    pts = tmp_path / "points.csv"
+    pts.write_bytes((d / "points.csv").read_bytes())
+    # a classified cloud that happens to carry an output's name inside the output folder
+    (tmp_path / "out").mkdir()
+    disguised = tmp_path / "out" / "dem.tif"
+    disguised.write_bytes(before)
+    corners_json = tmp_path / "out" / "corners.json"
+    corners_json.write_bytes(before)
+    for args in (["classify", las, las],
+                 ["evaluate", las, "--truth", d / "c14.las", "--json", las],
+                 ["check-heights", las, pts, "--json", pts],
+                 ["rasters", disguised, tmp_path / "out", "--res", "2"],
+                 ["corners", corners_json, tmp_path / "out"]):
+        r = CliRunner().invoke(main, [str(a) for a in args])
+        assert r.exit_code == 2 and "the output is the input" in r.output, (args, r.output)
+    assert las.read_bytes() == before and pts.read_bytes() == (d / "points.csv").read_bytes()
+    assert disguised.read_bytes() == before and corners_json.read_bytes() == before
+    assert sorted(p.name for p in (tmp_path / "out").iterdir()) == ["corners.json", "dem.tif"]
+
+
+def test_vertical_unit_from_the_geotiff_keys(files, tmp_path):
+    """A LAS 1.2 file with a metric EPSG CRS and VerticalUnitsGeoKey = foot: z is scaled as feet."""
+    d, _ = files
+    las = laspy.read(d / "c12.las")
+    vlr = next(v for v in las.header.vlrs if type(v).__name__ == "GeoKeyDirectoryVlr")
+    key = GeoKeyEntryStruct()
+    key.id, key.tiff_tag_location, key.count, key.value_offset = 4099, 0, 1, 9002
+    vlr.geo_keys.append(key)
+    vlr.geo_keys_header.number_of_keys = len(vlr.geo_keys)
+    las.write(tmp_path / "zft.las")
+    c = io.read_cloud(tmp_path / "zft.las")
+    assert c.units.xy_m == 1.0 and c.units.z_m == FOOT_M
+    ref = io.read_cloud(d / "c12.las")
+    np.testing.assert_allclose(c.z, ref.z * FOOT_M)
+    np.testing.assert_array_equal(c.x, ref.x)
+
+
+def test_a_huge_point_count_is_refused_before_allocating(files, tmp_path):
+    """A LAZ file without chunk table (allowed) whose LAS 1.4 header claims 5 billion points: the
+    count cannot be checked against the records, but reading it whole would not fit in memory."""
+    d, _ = files
+    b = bytearray((d / "c.laz").read_bytes())
+    offset = struct.unpack("<I", b[96:100])[0]                 # offset to point data
+    b[offset:offset + 8] = struct.pack("<q", -1)             # no chunk table
+    b[247:255] = struct.pack("<Q", 5_000_000_000)
+    bad = tmp_path / "huge.laz"
+    bad.write_bytes(bytes(b))
+    r = CliRunner().invoke(main, ["check-heights", str(bad), str(d / "points.csv")])
+    assert r.exit_code == 2 and r.output.count("\n") == 1, r.output
+    assert "huge.laz: reading its 5,000,000,000 points at once would need" in r.output and "GiB" in r.output

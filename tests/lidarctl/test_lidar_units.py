@@ -1,0 +1,269 @@
+"""Linear units from the CRS (issue 17): a cloud in feet gives the same classes, rasters, height
+check, evaluation and roof corners as its metric copy, with outputs in the input's CRS and units."""
+
+from __future__ import annotations
+
+import csv
+import importlib.util
+import json
+from pathlib import Path
+
+import laspy
+import numpy as np
+import pyproj
+import pytest
+import rasterio
+from click.testing import CliRunner
+
+from aerotri.core.errors import CrsError
+from lidarctl import io, synthetic
+from lidarctl.cli import main
+from lidarctl.units import FOOT_M, US_SURVEY_FOOT_M, units_of
+
+_spec = importlib.util.spec_from_file_location("corners_synth", Path(__file__).with_name("corners_synth.py"))
+cs = importlib.util.module_from_spec(_spec)
+_spec.loader.exec_module(cs)
+
+FT_CRS = "EPSG:2994"        # NAD83(HARN) / Oregon GIC Lambert (ft), Autzen's projection
+USFT_CRS = "EPSG:2227"      # NAD83 / California zone 3 (ftUS)
+# Scene origin in the metric twin of the foot CRS (metres; near Eugene, Oregon for EPSG:2994).
+X0_M, Y0_M = 193000.0, 258000.0
+
+
+def _run(args):
+    r = CliRunner().invoke(main, [str(a) for a in args])
+    return r
+
+
+def _ok(args):
+    r = _run(args)
+    assert r.exit_code == 0, r.output
+    return r
+
+
+def _classes(path):
+    return np.asarray(laspy.read(path).classification)
+
+
+@pytest.fixture(scope="module")
+def scenes(tmp_path_factory):
+    """One synthetic scene written in international feet, in US survey feet, and the exact metric
+    copy of each (same integer records, scales x unit, the metric twin CRS)."""
+    d = tmp_path_factory.mktemp("units")
+    cloud, truth = synthetic.synthetic_scene(width_m=160.0, density_per_m2=3.0, seed=5, n_buildings=6,
+                                             x0=X0_M, y0=Y0_M)
+    out = {"cloud": cloud, "truth": truth, "dir": d}
+    for name, crs in (("ft", FT_CRS), ("usft", USFT_CRS)):
+        synthetic.write_las(d / f"{name}.laz", cloud, crs=crs)
+        synthetic.write_las(d / f"{name}_truth.laz", cloud, classification=truth, crs=crs)
+        synthetic.metric_copy(d / f"{name}.laz", d / f"{name}_m.laz")
+    return out
+
+
+def test_units_of_crs():
+    assert units_of(pyproj.CRS(FT_CRS)).xy_m == FOOT_M
+    u = units_of(pyproj.CRS(USFT_CRS))
+    assert u.xy_m == pytest.approx(US_SURVEY_FOOT_M, rel=1e-12) and u.z_m == u.xy_m and u.xy_name == "us-ft"
+    assert units_of(pyproj.CRS("EPSG:32632")).is_metric
+    # A compound CRS carries its own vertical unit: UTM metres + NAVD88 height in US survey feet.
+    comp = units_of(pyproj.CRS("EPSG:32610+6360"))
+    assert comp.xy_m == 1.0 and comp.z_m == pytest.approx(US_SURVEY_FOOT_M) and comp.z_name == "us-ft"
+    with pytest.raises(CrsError, match="geographic"):
+        units_of(pyproj.CRS("EPSG:4326"), "x.laz")
+
+
+def test_reading_scales_feet_to_metres(scenes):
+    d, cloud = scenes["dir"], scenes["cloud"]
+    for name, unit in (("ft", FOOT_M), ("usft", US_SURVEY_FOOT_M)):
+        c = io.read_cloud(d / f"{name}.laz")
+        assert c.units.xy_m == pytest.approx(unit, rel=1e-12)
+        # 0.001 ft quantisation: within 0.2 mm of the metric scene
+        np.testing.assert_allclose(c.x, cloud.x, atol=2e-4)
+        np.testing.assert_allclose(c.z, cloud.z, atol=2e-4)
+        m = io.read_cloud(d / f"{name}_m.laz")
+        assert m.units.is_metric
+        np.testing.assert_allclose(m.x, c.x, rtol=0, atol=1e-9)
+
+
+@pytest.mark.parametrize("name", ["ft", "usft"])
+def test_classify_feet_equals_metric_copy(scenes, name):
+    d = scenes["dir"]
+    for extra, tag in (([], "one"), (["--tile-size", "80", "--buffer", "40"], "tiled")):
+        r = _ok(["classify", d / f"{name}.laz", d / f"{name}_{tag}.laz", *extra])
+        assert "processed in metres" in r.output and f"tiles of {80 if extra else 160} m" in r.output, r.output
+        _ok(["classify", d / f"{name}_m.laz", d / f"{name}_m_{tag}.laz", *extra])
+        a, b = _classes(d / f"{name}_{tag}.laz"), _classes(d / f"{name}_m_{tag}.laz")
+        assert np.array_equal(a, b), f"{tag}: {np.mean(a != b) * 100:.3f} % of the points differ"
+        # and the classes are right (the same rules as for metric data)
+        truth = scenes["truth"]
+        assert np.mean(a[truth == 2] == 2) > 0.98 and np.mean(a[truth == 6] == 6) > 0.9
+    # the output is the input with new classes: same CRS, same coordinates in feet
+    out = laspy.read(d / f"{name}_one.laz")
+    src = laspy.read(d / f"{name}.laz")
+    assert out.header.parse_crs() == src.header.parse_crs()
+    np.testing.assert_array_equal(out.X, src.X)
+
+
+def test_rasters_in_feet_have_metre_cells_and_say_their_units(scenes):
+    d = scenes["dir"]
+    _ok(["classify", d / "ft.laz", d / "ft_c.laz"])
+    _ok(["classify", d / "ft_m.laz", d / "ft_m_c.laz"])
+    _ok(["rasters", d / "ft_c.laz", d / "r_ft", "--res", "1"])
+    _ok(["rasters", d / "ft_m_c.laz", d / "r_m", "--res", "1"])
+    for name in ("dem", "dsm", "ndsm", "chm", "intensity"):
+        with rasterio.open(d / "r_ft" / f"{name}.tif") as f, rasterio.open(d / "r_m" / f"{name}.tif") as m:
+            assert f.res == pytest.approx((1 / FOOT_M, 1 / FOOT_M))       # 1 m cells, 3.2808 ft
+            assert m.res == (1.0, 1.0) and f.shape == m.shape
+            assert f.transform.c * FOOT_M == pytest.approx(m.transform.c, abs=1e-6)
+            assert f.crs.linear_units == "foot" and f.tags()["LINEAR_UNITS"] == "foot"
+            assert f.tags()["CELL_SIZE_M"] == "1" and m.tags()["VERTICAL_UNITS"] == "metre"
+            vf, vm = f.read(1, masked=True), m.read(1, masked=True)
+            assert np.array_equal(vf.mask, vm.mask)
+            if name == "intensity":
+                assert f.units == (None,) and np.array_equal(vf, vm)
+            else:
+                # heights in the CRS's vertical unit (feet), and labelled so
+                assert f.units == ("foot",) and m.units == ("metre",) and "foot" in f.descriptions[0]
+                np.testing.assert_allclose(vf.compressed() * FOOT_M, vm.compressed(), atol=2e-5)
+    with rasterio.open(d / "r_ft" / "dem.tif") as f:
+        dem = f.read(1, masked=True)
+        rows, cols = np.mgrid[0:f.height, 0:f.width]
+        xs, ys = rasterio.transform.xy(f.transform, rows.ravel(), cols.ravel())
+    # the DEM in feet against the true terrain (metres)
+    true_m = synthetic.terrain_height(np.array(xs) * FOOT_M - X0_M, np.array(ys) * FOOT_M - Y0_M).reshape(dem.shape)
+    err_m = (dem * FOOT_M - true_m).compressed()
+    assert np.sqrt(np.mean(err_m ** 2)) < 0.15
+
+
+def test_check_heights_in_feet_reports_metres(scenes, tmp_path):
+    d = scenes["dir"]
+    _ok(["classify", d / "ft.laz", d / "ft_h.laz"])
+    rng = np.random.default_rng(0)
+    px_m, py_m = X0_M + rng.uniform(10, 150, 20), Y0_M + rng.uniform(10, 150, 20)
+    pz_m = synthetic.terrain_height(px_m - X0_M, py_m - Y0_M) - 0.2     # survey 0.2 m below the terrain
+    pts = tmp_path / "points_ft.csv"
+    pts.write_text("id,x,y,z\n" + "".join(f"P{k},{a / FOOT_M:.4f},{b / FOOT_M:.4f},{c / FOOT_M:.4f}\n"
+                                          for k, (a, b, c) in enumerate(zip(px_m, py_m, pz_m))))
+    r = _ok(["check-heights", d / "ft_h.laz", pts, "--radius", "3", "--json", tmp_path / "hc.json"])
+    hc = json.loads((tmp_path / "hc.json").read_text())
+    assert hc["radius_m"] == 3 and hc["xy_unit"] == "ft" and hc["z_unit"] == "ft"
+    assert hc["overall"]["all"]["mean_dz_m"] == pytest.approx(0.2, abs=0.05)     # metres, not feet
+    assert hc["overall"]["bins"][2]["count"] == 20 - hc["n_without_ground"]      # all in -0.5 .. 0.5 m
+    p0 = hc["points"][0]
+    assert p0["x"] == pytest.approx(px_m[0] / FOOT_M, abs=1e-3) and p0["dz_m"] == pytest.approx(0.2, abs=0.1)
+    assert p0["z_lidar"] - p0["z_survey"] == pytest.approx(p0["dz_m"] / FOOT_M, abs=1e-6)
+    assert "heights in ft" in r.output and "z survey (ft)" in r.output and "dz (m)" in r.output
+
+
+def test_evaluate_compares_points_in_metres(scenes, tmp_path):
+    d = scenes["dir"]
+    _ok(["classify", d / "ft.laz", d / "ft_e.laz"])
+    r = _ok(["evaluate", d / "ft_e.laz", "--truth", d / "ft_truth.laz", "--json", tmp_path / "e.json"])
+    assert json.loads((tmp_path / "e.json").read_text())["filter_test"]["total_error_pct"] < 2.0
+    # The truth in the metric copy holds the same points: compared in metres, they match.
+    synthetic.metric_copy(d / "ft_truth.laz", tmp_path / "truth_m.laz")
+    _ok(["evaluate", d / "ft_e.laz", "--truth", tmp_path / "truth_m.laz"])
+    # Points 2 cm apart are not the same points, in feet as in metres.
+    cloud = io.read_cloud(d / "ft_truth.laz")
+    cloud.x[10] += 0.02
+    synthetic.write_las(tmp_path / "moved.laz", cloud, classification=scenes["truth"], crs=FT_CRS)
+    r = _run(["evaluate", d / "ft_e.laz", "--truth", tmp_path / "moved.laz"])
+    assert r.exit_code == 2 and "point record 10" in r.output and "by 0.020" in r.output, r.output
+
+
+def _write_corner_las(path, x, y, z, cls, sid, crs):
+    units = units_of(pyproj.CRS(crs))
+    header = laspy.LasHeader(point_format=6, version="1.4")
+    header.scales = np.array([0.001, 0.001, 0.001])
+    header.offsets = np.array([np.floor(X0_M / units.xy_m), np.floor(Y0_M / units.xy_m), 0.0])
+    header.add_crs(pyproj.CRS(crs))
+    las = laspy.LasData(header)
+    las.x, las.y, las.z = units.xy_from_m(x + X0_M), units.xy_from_m(y + Y0_M), units.z_from_m(z)
+    las.classification = cls
+    las.point_source_id = sid
+    las.write(path)
+
+
+def test_corners_in_feet_match_the_metric_copy(tmp_path):
+    buildings = cs.default_buildings()
+    x, y, z, cls, sid = cs.make_cloud(buildings, seed=3, heading_deg=-20.0)
+    _write_corner_las(tmp_path / "c_ft.las", x, y, z, cls, sid, FT_CRS)
+    synthetic.metric_copy(tmp_path / "c_ft.las", tmp_path / "c_m.las")
+    r = _ok(["corners", tmp_path / "c_ft.las", tmp_path / "out_ft"])
+    assert "x, y, z in foot" in r.output
+    _ok(["corners", tmp_path / "c_m.las", tmp_path / "out_m", "--no-figure"])
+    rf = list(csv.DictReader(open(tmp_path / "out_ft" / "corners.csv")))
+    rm = list(csv.DictReader(open(tmp_path / "out_m" / "corners.csv")))
+    assert len(rf) == len(rm) >= 15
+    for a, b in zip(rf, rm):
+        assert float(a["x"]) * FOOT_M == pytest.approx(float(b["x"]), abs=1e-3)
+        assert float(a["z"]) * FOOT_M == pytest.approx(float(b["z"]), abs=1e-3)
+        assert a["sx_m"] == b["sx_m"] and a["usable"] == b["usable"]           # sigmas in metres
+    # the corners are where the truth is (coordinates in feet)
+    truth_xyz, _, _ = cs.truth_corners(buildings)
+    xy_m = np.array([[float(q["x"]) * FOOT_M - X0_M, float(q["y"]) * FOOT_M - Y0_M] for q in rf])
+    j, dist = cs.match_corners(xy_m, truth_xyz[:, :2], max_dist_m=1.0)
+    assert np.all(j >= 0)
+    summary = json.loads((tmp_path / "out_ft" / "corners.json").read_text())
+    assert summary["xy_unit"] == "ft" and summary["z_unit"] == "ft" and summary["min_edge_m"] == 5.0
+    gj = json.loads((tmp_path / "out_ft" / "corners.geojson").read_text())
+    pt = next(f for f in gj["features"] if f["properties"]["kind"] == "roof_corner")
+    assert pt["geometry"]["coordinates"][0] == pytest.approx(float(rf[0]["x"]), abs=1e-3)
+
+
+def test_geographic_crs_is_refused(scenes, tmp_path):
+    cloud = scenes["cloud"]
+    nocrs = tmp_path / "nocrs.las"
+    synthetic.write_las(nocrs, cloud, version="1.2")
+    for args in (["classify", nocrs, tmp_path / "o.las", "--crs", "EPSG:4326"],
+                 ["rasters", nocrs, tmp_path / "r", "--res", "1", "--crs", "EPSG:4326"]):
+        r = _run(args)
+        assert r.exit_code == 2 and "geographic" in r.output and "EPSG:4326" in r.output, r.output
+
+
+@pytest.mark.realdata
+def test_autzen_in_feet_equals_its_metric_copy(shared_data, tmp_path):
+    """Autzen (international feet): the same classes as the exact metric copy, 1 m raster cells."""
+    src = shared_data / "autzen" / "autzen_trim.laz"
+    if not src.is_file():
+        pytest.skip(f"{src} not found")
+    metric = tmp_path / "autzen_m.laz"
+    synthetic.metric_copy(src, metric)
+    _ok(["classify", src, tmp_path / "ft.laz"])
+    _ok(["classify", metric, tmp_path / "m.laz"])
+    a, b = _classes(tmp_path / "ft.laz"), _classes(tmp_path / "m.laz")
+    assert np.mean(a != b) * 100 < 0.1, f"{np.mean(a != b) * 100:.3f} % of the points differ"
+    assert np.mean(a == 2) > 0.7          # mostly ground (the stadium's surroundings)
+    _ok(["rasters", tmp_path / "ft.laz", tmp_path / "r", "--res", "1"])
+    with rasterio.open(tmp_path / "r" / "dem.tif") as ds:
+        assert ds.res == pytest.approx((1 / FOOT_M, 1 / FOOT_M))
+        assert ds.units == ("foot",)
+        dem = ds.read(1, masked=True)
+        # Autzen's ground lies at 400-430 ft (about 125 m): heights stay in feet
+        assert 380 < float(np.ma.median(dem)) < 440
+        # 1177 x 563 ft = 359 x 172 m: about 360 x 172 cells of 1 m
+        assert abs(ds.width - 360) <= 2 and abs(ds.height - 172) <= 2
+
+
+@pytest.mark.parametrize("version", ["1.2", "1.4"])
+def test_compound_crs_option_keeps_its_vertical_unit_in_the_output(scenes, tmp_path, version):
+    """--crs with a compound CRS (UTM metres + NAVD88 height in US survey feet) for a file without
+    CRS: heights are read as US feet, and the classified output says so (WKT, or for LAS 1.2 the
+    GeoTIFF vertical keys)."""
+    cloud = scenes["cloud"]
+    z_ft = io.PointCloud(**{k: getattr(cloud, k) for k in ("x", "y", "intensity", "return_number",
+                                                            "number_of_returns", "classification")},
+                         z=cloud.z / US_SURVEY_FOOT_M)          # stored in US feet (write_las: no CRS, as is)
+    src = tmp_path / "nocrs.las"
+    synthetic.write_las(src, z_ft, version=version)
+    c = io.read_cloud(src, crs="EPSG:32610+6360")
+    assert c.units.xy_m == 1.0 and c.units.z_m == pytest.approx(US_SURVEY_FOOT_M)
+    np.testing.assert_allclose(c.z, cloud.z, atol=1e-3)
+    _ok(["classify", src, tmp_path / "out.las", "--crs", "EPSG:32610+6360"])
+    out = io.read_cloud(tmp_path / "out.las")
+    assert out.units.z_m == pytest.approx(US_SURVEY_FOOT_M) and out.crs.to_epsg() == 32610
+    # the same classes as the cloud in metres
+    synthetic.write_las(tmp_path / "m.las", cloud, crs="EPSG:32610", version=version)
+    _ok(["classify", tmp_path / "m.las", tmp_path / "m_out.las"])
+    a, b = _classes(tmp_path / "out.las"), _classes(tmp_path / "m_out.las")
+    assert np.mean(a != b) < 0.002, np.mean(a != b)
