@@ -69,7 +69,7 @@ def test_every_imported_package_is_declared(wheel):
 
 def test_installed_wheel_simulates_tiny(wheel, tmp_path):
     prefix = tmp_path / "prefix"
-    subprocess.run([sys.executable, "-m", "pip", "install", "--no-deps", "-q", "--prefix", str(prefix), str(wheel)],
+    subprocess.run([sys.executable, "-m", "pip", "install", "--no-deps", "--ignore-installed", "-q", "--prefix", str(prefix), str(wheel)],
                    check=True, capture_output=True)
     (site,) = prefix.glob("lib/python*/site-packages")
     env = dict(os.environ, PYTHONPATH=str(site))
