@@ -156,11 +156,7 @@ def read_image_native(path, camera: FrameCamera):
     if img is not None:
         order = list(range(1, (img.shape[2] if img.ndim == 3 else 1) + 1))
     else:
-        img = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
-        if img is not None and (img.shape[2] if img.ndim == 3 else 1) != _image_layout(path)[0]:
-            # cv2 turns a multi-band TIFF that is not tagged RGB (e.g. 16-bit MINISBLACK with 3 or 4 samples)
-            # into one grey band: read every band as stored instead
-            img = None
+        img = cv2.imread(str(path), cv2.IMREAD_UNCHANGED) if _opencv_reads(path) else None
     if img is None:
         try:
             with rasterio.open(path) as ds:
@@ -180,6 +176,27 @@ def read_image_native(path, camera: FrameCamera):
         raise InputError(f"{path}: image is {img.shape[1]} x {img.shape[0]} px but the camera is "
                          f"{camera.width} x {camera.height} px")
     return img, order
+
+
+def _opencv_reads(path) -> bool:
+    """Whether OpenCV reads this frame as stored. It does not for multi-band TIFFs that are band-interleaved
+    (16-bit planar RGB comes out garbled: band means of 67-120 DN for 112-152) or not tagged RGB (3 or 4
+    MINISBLACK samples come out as one grey band); those are read through GDAL."""
+    import warnings
+
+    if Path(path).suffix.lower() not in (".tif", ".tiff"):
+        return True
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", rasterio.errors.NotGeoreferencedWarning)
+            with rasterio.open(path) as ds:
+                if ds.count == 1:
+                    return True
+                rgb = tuple(ds.colorinterp[:3]) == (rasterio.enums.ColorInterp.red, rasterio.enums.ColorInterp.green,
+                                                    rasterio.enums.ColorInterp.blue)
+                return rgb and ds.count in (3, 4) and ds.interleaving == rasterio.enums.Interleaving.pixel
+    except rasterio.errors.RasterioIOError:
+        return True  # let the readers below name the problem
 
 
 def read_image(path, camera: FrameCamera) -> np.ndarray:

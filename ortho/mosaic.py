@@ -26,6 +26,7 @@ from __future__ import annotations
 import dataclasses
 import functools
 import json
+import logging
 import math
 import os
 from pathlib import Path
@@ -48,6 +49,8 @@ from ortho.block import index_grids, index_operation, operation_tags, read_index
 from ortho.grid import OrthoGrid
 from ortho.seamlines import (keep_objects_whole, label_polygons, least_cost_seams, neighbour_pairs, seam_lines,
                              voronoi_labels)
+
+logger = logging.getLogger(__name__)
 
 
 def read_window(ds, col_off: int, row_off: int, width: int, height: int):
@@ -225,6 +228,10 @@ def mosaic_block(root, seams: str = "least-cost", ndsm_path=None, feather_m: flo
         if objects is not None:
             labels = keep_objects_whole(labels, objects, red.valid, red.offsets)
     gains = balance_gains(red) if balance else np.ones((len(red.names), red.rgb[0].shape[2]))
+    for name, g in zip(red.names, gains):
+        if np.any(np.abs(np.log(g)) > math.log(1.3)):  # beyond exposure differences between frames of one flight
+            logger.warning("frame %s needs gains %s to match its neighbours: check its exposure, or how its image "
+                           "file stores the bands", name, ", ".join(f"{v:.2f}" for v in g))
     out_dir = root / "ortho"
     # every output is made in a work folder first and moved into ortho/ only when all of them exist:
     # a failed run leaves the previous seams, seamlines, mosaic and summary together

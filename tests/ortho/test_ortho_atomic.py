@@ -179,27 +179,29 @@ def _mean_dn(path):
 
 def test_16bit_mosaic_keeps_the_radiometry(rectified, tmp_path):
     """Frames of identical radiometry (rendered from one orthophoto with the same exposure) in 16 bits
-    (x 257; the third frame's bands tagged MINISBLACK, which OpenCV would read as one grey band): the
-    mosaic keeps their brightness per band, the gains stay at 1, as for the 8-bit frames."""
+    (x 257), stored as production tools write them: pixel-interleaved RGB, band-interleaved (planar)
+    RGB, and 3 samples tagged MINISBLACK - OpenCV garbles the planar 16-bit frame and reads the
+    MINISBLACK one as a single grey band. The mosaic keeps the frames' brightness per band and the gains
+    stay at 1, as for the 8-bit frames."""
     root = tmp_path / "p16"
     shutil.copytree(rectified, root, ignore=shutil.ignore_patterns("ortho"))
     _to_16bit(root)
-    grey_tagged = root / "images" / "s01_003.tif"
-    with rasterio.open(grey_tagged) as ds:
-        a, prof = ds.read(), ds.profile
-    prof.update(photometric="MINISBLACK")
-    with rasterio.open(grey_tagged, "w", **prof) as dst:
-        dst.write(a)
+    for name, update in (("s01_003.tif", dict(photometric="MINISBLACK")), ("s02_001.tif", dict(interleave="band"))):
+        with rasterio.open(root / "images" / name) as ds:
+            a, prof = ds.read(), ds.profile
+        prof.update(**update)
+        with rasterio.open(root / "images" / name, "w", **prof) as dst:
+            dst.write(a)
     r = run("rectify", root)
     assert r.exit_code == 0, r.output
     r = run("mosaic", root)
     assert r.exit_code == 0, r.output
     frames = np.array([_mean_dn(p) for p in sorted((root / "ortho/frames").glob("*.tif"))])
-    assert frames.shape == (6, 3)
+    eight = np.array([_mean_dn(p) for p in sorted((rectified / "ortho/frames").glob("*.tif"))]) * 257.0
+    np.testing.assert_allclose(frames, eight, rtol=0.002)  # every frame ortho as its 8-bit twin
     mosaic = _mean_dn(root / "ortho/mosaic.tif")
-    eight = _mean_dn(rectified / "ortho/mosaic.tif") * 257.0
     np.testing.assert_allclose(mosaic, frames.mean(axis=0), rtol=0.01)
-    np.testing.assert_allclose(mosaic, eight, rtol=0.005)
+    np.testing.assert_allclose(mosaic, _mean_dn(rectified / "ortho/mosaic.tif") * 257.0, rtol=0.005)
     gains = np.array(list(json.loads((root / "ortho/mosaic.json").read_text())["gains"].values()))
     assert np.abs(gains - 1.0).max() < 0.01
 
