@@ -366,7 +366,7 @@ def open_las(path):
             raise InputError(f"{path}: truncated file: the header says {hdr.point_count} points of "
                              f"{hdr.point_format.size} bytes, the file holds "
                              f"{max(0, size - hdr.offset_to_point_data) // hdr.point_format.size}")
-        if data_end > end:
+        if data_end - end >= hdr.point_format.size:  # (a few bytes of padding are harmless)
             reader.close()
             raise InputError(f"{path}: the header says {hdr.point_count} points but the file holds "
                              f"{(data_end - hdr.offset_to_point_data) // hdr.point_format.size} point records")
