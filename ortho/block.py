@@ -4,7 +4,12 @@ Inputs (architecture doc): ``camera.toml`` (or ``--camera``), the adjusted EO ``
 ``--eo``, e.g. ``truth/eo.txt``), ``images/<image_id>.tif`` and the DEM ``lidar_out/dem.tif`` (or
 ``--dem``), all in the project CRS. Outputs in ``ortho/frames/``: ``<image_id>.tif`` (tiled GeoTIFF
 with an internal validity mask; occluded pixels are masked in a true ortho) and ``index.json`` (grid,
-projection centre and nadir point of each frame, for the mosaic).
+projection centre and nadir point of each frame, for the mosaic, and the size and sha1 of its file).
+
+All frames or none: a run writes into a temporary folder next to ``ortho/frames`` that replaces it only
+when every frame and the index are written, so a failed run leaves the previous complete output; a
+``--frames`` subset re-run brings the other frames of a compatible earlier run along (hard links).
+Consumers check the frame files against the index (``verify_index``) and never mix runs.
 
 Every frame is one Dask task (``rectify_frame_task`` on a small ``FrameTask``) through
 ``aerotri.core.executor.Executor``: local threads by default, ``--scheduler local:N`` or a cluster address

@@ -16,6 +16,10 @@ Steps (``mosaic_block``):
 5. The tiles go into a tiled GeoTIFF with an internal mask, copied to a COG (deflate, 512 px blocks,
    overviews) - memory is bounded by the tile size, not the mosaic size.
 
+The frames are checked against ``ortho/frames/index.json`` first (sizes and hashes), the tile size
+against the memory; seams.tif, seamlines.geojson, mosaic.tif and mosaic.json (which records the index
+it was made from) are made in a work folder and moved into ``ortho/`` together at the end.
+
 Step 4 runs as Dask tasks, one per output tile (``blend_tile_task`` on a small ``MosaicTile``: a
 context file with frames, gains and nadir points, and the tile window; labels are read from
 ``seams.tif``), in batches of a few tiles per worker whose results this process writes in tile order.
