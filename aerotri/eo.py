@@ -13,7 +13,8 @@ from pathlib import Path
 
 import numpy as np
 
-from aerotri.core.errors import InputError
+from aerotri.core.errors import CrsError, InputError
+from aerotri.core.textio import read_text
 from aerotri.rotation import rotation_matrix_opk
 from aerotri.core.atomic import write_text_atomic
 
@@ -40,11 +41,9 @@ class ExteriorOrientations:
         return {k: i for i, k in enumerate(self.image_id)}
 
 
-def _parse_table(path: Path, min_cols: int, max_cols: int, what: str) -> tuple[list[str], np.ndarray]:
-    try:
-        text = path.read_text()
-    except FileNotFoundError:
-        raise InputError(f"{path}: file not found") from None
+def _parse_table(path: Path, min_cols: int, max_cols: int, what: str) -> tuple[list[str], np.ndarray, list[int]]:
+    """(ids, values (N, fields - 1), line numbers) of a whitespace table ``image_id v1 v2 ...``."""
+    text = read_text(path, f"table ({what})")
     ids, rows, seen = [], [], {}
     for lineno, line in enumerate(text.splitlines(), start=1):
         s = line.strip()
@@ -66,17 +65,48 @@ def _parse_table(path: Path, min_cols: int, max_cols: int, what: str) -> tuple[l
         rows.append(vals)
     if not ids:
         raise InputError(f"{path}: no records (expected {what})")
-    ncols = {len(r) for r in rows}
-    if len(ncols) > 1:
-        raise InputError(f"{path}: lines have different numbers of fields {sorted(ncols)}")
-    return ids, np.array(rows, dtype=float)
+    lines = list(seen.values())
+    for r, lineno in zip(rows, lines):
+        if len(r) != len(rows[0]):
+            raise InputError(f"{path}:{lineno}: {len(r) + 1} fields, but line {lines[0]} has {len(rows[0]) + 1} "
+                             f"(expected {what} on every line)")
+    return ids, np.array(rows, dtype=float), lines
 
 
-def read_eo(path) -> ExteriorOrientations:
+def check_block_crs(crs, source: str):
+    """The project CRS of a photo block as a pyproj CRS: known to PROJ and with map coordinates in
+    metres or feet (projected or a local engineering CRS); ``CrsError`` naming ``source`` otherwise
+    (e.g. ``P/project.toml [project] crs``): the adjustment and the footprints need x = easting,
+    y = northing, not longitude/latitude."""
+    from aerotri.geom.crs import crs_label, horizontal_crs, parse_crs
+
+    c = parse_crs(crs, source)
+    h = horizontal_crs(c)
+    if h.is_geographic or h.is_geocentric:
+        raise CrsError(f"{source}: {crs_label(c)} ({c.name}) is {'geographic' if h.is_geographic else 'geocentric'}; "
+                       "the photo block needs a projected CRS in metres (e.g. the UTM zone, EPSG:326xx) for "
+                       "gnss.txt and the orientations")
+    return c
+
+
+def check_positions(path, ids, xyz_m, lines, crs) -> None:
+    """InputError naming the line whose X, Y cannot be in ``crs`` (swapped X/Y, degrees, another zone)."""
+    from aerotri.geom.crs import check_coordinates
+
+    xyz_m = np.asarray(xyz_m, dtype=float)
+    check_coordinates(crs, xyz_m[:, 0], xyz_m[:, 1], str(path),
+                      [f"line {ln} (image {i})" for ln, i in zip(lines, ids)])
+
+
+def read_eo(path, crs=None) -> ExteriorOrientations:
+    """``eo.txt``; with ``crs`` (pyproj CRS) the projection centres are checked against it."""
     path = Path(path)
-    ids, a = _parse_table(path, 7, 13, "image_id X Y Z omega phi kappa [sX sY sZ somega sphi skappa]")
+    ids, a, lines = _parse_table(path, 7, 13, "image_id X Y Z omega phi kappa [sX sY sZ somega sphi skappa]")
     if a.shape[1] not in (6, 12):
-        raise InputError(f"{path}: expected 7 or 13 fields per line, got {a.shape[1] + 1}")
+        raise InputError(f"{path}:{lines[0]}: expected 7 or 13 fields per line "
+                         f"(image_id X Y Z omega phi kappa [sX sY sZ somega sphi skappa]), got {a.shape[1] + 1}")
+    if crs is not None:
+        check_positions(path, ids, a[:, :3], lines, crs)
     return ExteriorOrientations(ids, a[:, :3].copy(), a[:, 3:6].copy(), a[:, 6:12].copy() if a.shape[1] == 12 else None)
 
 
@@ -109,15 +139,21 @@ class GnssPositions:
         return {k: i for i, k in enumerate(self.image_id)}
 
 
-def read_gnss(path) -> GnssPositions:
+def read_gnss(path, crs=None) -> GnssPositions:
+    """``gnss.txt``; with ``crs`` (pyproj CRS) the positions are checked against it (swapped X/Y,
+    degrees or another zone stop here, naming the line)."""
     path = Path(path)
-    ids, a = _parse_table(path, 4, 7, "image_id X Y Z [sX sY sZ]")
+    ids, a, lines = _parse_table(path, 4, 7, "image_id X Y Z [sX sY sZ]")
     if a.shape[1] not in (3, 6):
-        raise InputError(f"{path}: expected 4 or 7 fields per line, got {a.shape[1] + 1}")
+        raise InputError(f"{path}:{lines[0]}: expected 4 or 7 fields per line (image_id X Y Z [sX sY sZ]), "
+                         f"got {a.shape[1] + 1}")
     sig = a[:, 3:6].copy() if a.shape[1] == 6 else None
     if sig is not None and np.any(sig <= 0):
-        bad = ids[int(np.argmax(np.any(sig <= 0, axis=1)))]
-        raise InputError(f"{path}: standard deviations must be positive (image {bad})")
+        k = int(np.argmax(np.any(sig <= 0, axis=1)))
+        raise InputError(f"{path}:{lines[k]}: standard deviations sX sY sZ of image {ids[k]} must be positive, "
+                         f"got {' '.join(f'{v:g}' for v in sig[k])}")
+    if crs is not None:
+        check_positions(path, ids, a[:, :3], lines, crs)
     return GnssPositions(ids, a[:, :3].copy(), sig)
 
 

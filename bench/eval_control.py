@@ -51,12 +51,12 @@ def adjust_without_control(root: Path) -> dict:
     (ctrl / "image_points.csv").write_text("point_id,image_id,x_px,y_px\n")
     orig = adjust_pipeline.read_control_points
 
-    def read_or_empty(path):
+    def read_or_empty(path, *args, **kwargs):
         lines = [ln for ln in Path(path).read_text().splitlines()[1:] if ln.strip()]
         if not lines:
             e = np.zeros((0, 3))
             return ControlPoints(np.array([], dtype=object), np.array([], dtype=object), e, e.copy())
-        return orig(path)
+        return orig(path, *args, **kwargs)
 
     adjust_pipeline.read_control_points = read_or_empty
     try:

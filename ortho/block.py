@@ -4,7 +4,12 @@ Inputs (architecture doc): ``camera.toml`` (or ``--camera``), the adjusted EO ``
 ``--eo``, e.g. ``truth/eo.txt``), ``images/<image_id>.tif`` and the DEM ``lidar_out/dem.tif`` (or
 ``--dem``), all in the project CRS. Outputs in ``ortho/frames/``: ``<image_id>.tif`` (tiled GeoTIFF
 with an internal validity mask; occluded pixels are masked in a true ortho) and ``index.json`` (grid,
-projection centre and nadir point of each frame, for the mosaic).
+projection centre and nadir point of each frame, for the mosaic, and the size and sha1 of its file).
+
+All frames or none: a run writes into a temporary folder next to ``ortho/frames`` that replaces it only
+when every frame and the index are written, so a failed run leaves the previous complete output; a
+``--frames`` subset re-run brings the other frames of a compatible earlier run along (hard links).
+Consumers check the frame files against the index (``verify_index``) and never mix runs.
 
 Every frame is one Dask task (``rectify_frame_task`` on a small ``FrameTask``) through
 ``aerotri.core.executor.Executor``: local threads by default, ``--scheduler local:N`` or a cluster address
@@ -14,8 +19,11 @@ outputs are byte-identical whichever scheduler runs them.
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import json
+import math
+import os
 from pathlib import Path
 
 import cv2
@@ -26,10 +34,13 @@ from pyproj import CRS
 from aerotri.camera import FrameCamera
 from aerotri.eo import ExteriorOrientations, read_eo
 from aerotri.core.errors import InputError
-from aerotri.match.images import find_images
+from aerotri.match.images import check_frames, find_images
 from aerotri.project import Project
 from aerotri.rotation import rotation_matrix_opk
-from aerotri.core.atomic import atomic_path, write_text_atomic
+from aerotri.core.atomic import atomic_dir, atomic_path, write_text_atomic
+from aerotri.core.errors import OptionError
+from aerotri.core.limits import check_allocation, check_grid
+from aerotri.core.textio import read_json
 from aerotri.geom.crs import parse_heights
 from aerotri.geom.datum import load_height_model, load_transformation
 from aerotri.geom.transform import CrsTransformer, OperationSpec
@@ -37,6 +48,15 @@ from ortho.dem import dem_height_operation, height_range, open_height_raster, re
 from ortho.grid import GridToProject, OrthoGrid, nice_resolution, parse_crs, resolve_output_crs
 from ortho.rectify import border_pixels, frame_grid, rectify_frame
 
+
+
+@contextlib.contextmanager
+def _raster_read(path, what: str):
+    """Read errors of a height raster (truncated or corrupt data) as an InputError naming it."""
+    try:
+        yield
+    except (rasterio.errors.RasterioIOError, rasterio.errors.WarpOperationError) as exc:
+        raise InputError(f"{path}: cannot read the {what} (truncated or corrupt? {exc})") from None
 
 
 @dataclasses.dataclass
@@ -56,27 +76,35 @@ def load_block(root, eo_path=None, camera_path=None, frames=None) -> BlockInputs
     """Open a project and check that every selected image has an EO (InputError naming what is missing)."""
     project = Project.open(root)
     if camera_path:
-        camera = FrameCamera.read(camera_path)
+        camera, camera_source = FrameCamera.read(camera_path), str(camera_path)
     elif eo_path is None:
-        camera, _ = project.adjusted_camera()  # at/eo.txt belongs to the self-calibrated camera
+        camera, camera_source = project.adjusted_camera()  # at/eo.txt belongs to the self-calibrated camera
     else:
-        camera = project.camera()
+        camera, camera_source = project.camera(), str(project.camera_path)
     eo_path = Path(eo_path) if eo_path else project.at_dir / "eo.txt"
     if not eo_path.exists():
         raise InputError(f"{eo_path}: exterior orientation not found (run the aerotri adjustment, or pass --eo FILE, "
                          f"e.g. --eo {project.truth_dir / 'eo.txt'})")
     eo = read_eo(eo_path)
     images = find_images(project.images_dir)
+    idx = eo.index()
     if frames:
         unknown = [f for f in frames if f not in images]
         if unknown:
-            raise InputError(f"{project.images_dir}: no image for frame(s) {', '.join(unknown)}")
+            raise InputError(f"{project.images_dir}: no image for frame(s) {', '.join(unknown)} given with --frames")
         images = {f: images[f] for f in frames}
-    idx = eo.index()
     missing = [k for k in images if k not in idx]
     if missing:
         raise InputError(f"{eo_path}: no exterior orientation for frame(s) {', '.join(missing[:10])}"
                          f"{' ...' if len(missing) > 10 else ''} (images in {project.images_dir})")
+    if not frames:
+        # every oriented frame is rectified: one without its image is an error, never a silent gap in the mosaic
+        no_image = [k for k in eo.image_id if k not in images]
+        if no_image:
+            raise InputError(f"{project.images_dir / no_image[0]}.tif: image of frame(s) {', '.join(no_image[:10])}"
+                             f"{' ...' if len(no_image) > 10 else ''} not found (oriented in {eo_path}); restore it, "
+                             "or rectify the others with --frames")
+    check_frames(images, camera, camera_source)
     return BlockInputs(project, camera, eo, eo_path, images)
 
 
@@ -133,7 +161,7 @@ def read_image_native(path, camera: FrameCamera):
     if img is not None:
         order = list(range(1, (img.shape[2] if img.ndim == 3 else 1) + 1))
     else:
-        img = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
+        img = cv2.imread(str(path), cv2.IMREAD_UNCHANGED) if _opencv_reads(path) else None
     if img is None:
         try:
             with rasterio.open(path) as ds:
@@ -153,6 +181,27 @@ def read_image_native(path, camera: FrameCamera):
         raise InputError(f"{path}: image is {img.shape[1]} x {img.shape[0]} px but the camera is "
                          f"{camera.width} x {camera.height} px")
     return img, order
+
+
+def _opencv_reads(path) -> bool:
+    """Whether OpenCV reads this frame as stored. It does not for multi-band TIFFs that are band-interleaved
+    (16-bit planar RGB comes out garbled: band means of 67-120 DN for 112-152) or not tagged RGB (3 or 4
+    MINISBLACK samples come out as one grey band); those are read through GDAL."""
+    import warnings
+
+    if Path(path).suffix.lower() not in (".tif", ".tiff"):
+        return True
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", rasterio.errors.NotGeoreferencedWarning)
+            with rasterio.open(path) as ds:
+                if ds.count == 1:
+                    return True
+                rgb = tuple(ds.colorinterp[:3]) == (rasterio.enums.ColorInterp.red, rasterio.enums.ColorInterp.green,
+                                                    rasterio.enums.ColorInterp.blue)
+                return rgb and ds.count in (3, 4) and ds.interleaving == rasterio.enums.Interleaving.pixel
+    except rasterio.errors.RasterioIOError:
+        return True  # let the readers below name the problem
 
 
 def read_image(path, camera: FrameCamera) -> np.ndarray:
@@ -281,13 +330,13 @@ def rectify_frame_task(task: FrameTask) -> dict:
     C = np.asarray(task.centre_m, float)
     R = rotation_matrix_opk(*task.opk_deg)
     ground_bounds = _plane_footprint_bounds(task.camera, C, R, zlo - 5.0, zhi + 5.0, task.image_id)
-    with open_height_raster(task.dem_path, project_crs, "DEM") as dem_ds:
+    with open_height_raster(task.dem_path, project_crs, "DEM") as dem_ds, _raster_read(task.dem_path, "DEM"):
         dem = read_height_window(dem_ds, ground_bounds, margin_m=4 * dem_ds.transform.a, what="DEM", frame=task.image_id,
                                  height_operation=height_op)
     grid = frame_grid(task.camera, C, R, dem, task.res_m, out_crs, to_project, image_id=task.image_id)
     heights = dem
     if task.dsm_path:
-        with open_height_raster(task.dsm_path, project_crs, "DSM") as dsm_ds:
+        with open_height_raster(task.dsm_path, project_crs, "DSM") as dsm_ds, _raster_read(task.dsm_path, "DSM"):
             heights = read_height_window(dsm_ds, ground_bounds, margin_m=4 * dsm_ds.transform.a, what="DSM",
                                          frame=task.image_id, height_operation=height_op)
     image, band_order = read_image_native(task.image_path, task.camera)
@@ -303,7 +352,20 @@ def rectify_frame_task(task: FrameTask) -> dict:
         "image_id": task.image_id, "file": Path(task.out_path).name, "x_left_m": grid.x_left_m, "y_top_m": grid.y_top_m,
         "width": grid.width, "height": grid.height, "centre_m": [float(v) for v in C],
         "nadir_xy_m": [float(nadir_x[0]), float(nadir_y[0])], "valid_fraction": valid_fraction,
+        **file_fingerprint(task.out_path),
     }
+
+
+def file_fingerprint(path) -> dict:
+    """``size`` (bytes) and ``sha1`` of a file: what index.json records of every frame ortho, so that a
+    consumer can tell a frame file that does not belong to the index (``verify_index``)."""
+    import hashlib
+
+    h = hashlib.sha1()
+    with open(path, "rb") as f:
+        for block in iter(lambda: f.read(1 << 22), b""):
+            h.update(block)
+    return {"size": Path(path).stat().st_size, "sha1": h.hexdigest()}
 
 
 def rectify_block(root, dem_path=None, res_m: float | None = None, crs: str | None = None, eo_path=None,
@@ -326,6 +388,8 @@ def rectify_block(root, dem_path=None, res_m: float | None = None, crs: str | No
     """
     from aerotri.core.executor import local_executor
 
+    if res_m is not None and not (math.isfinite(res_m) and res_m > 0):
+        raise OptionError(f"{res_m!r}: expected a positive pixel size in metres", param="--res")
     block = load_block(root, eo_path, camera_path, frames)
     project = block.project
     project_crs = block.project_crs
@@ -345,7 +409,8 @@ def rectify_block(root, dem_path=None, res_m: float | None = None, crs: str | No
     try:
         height_op = dem_height_operation(CRS(dem_ds.crs), project_crs, project_heights, height_model, allow_ballpark,
                                          str(dem_path))
-        zlo, zhi = height_range(dem_ds)
+        with _raster_read(dem_path, "DEM"):
+            zlo, zhi = height_range(dem_ds)
         if height_op is not None:  # the range in the project's height system, for the footprints
             b = dem_ds.bounds
             _, _, zc = height_op.transform([0.5 * (b.left + b.right)], [0.5 * (b.bottom + b.top)], [0.5 * (zlo + zhi)])
@@ -353,11 +418,12 @@ def rectify_block(root, dem_path=None, res_m: float | None = None, crs: str | No
         eo_idx = block.eo.index()
         sel = [eo_idx[k] for k in block.images]
         eo_sel = ExteriorOrientations([block.eo.image_id[i] for i in sel], block.eo.centre_m[sel], block.eo.opk_deg[sel])
-        if res_m:
+        if res_m is not None:
             res = float(res_m)
         else:
-            nadir_z = np.array([np.ma.filled(v.astype(float), np.nan)[0]
-                                for v in dem_ds.sample([tuple(p) for p in eo_sel.centre_m[:, :2]], masked=True)])
+            with _raster_read(dem_path, "DEM"):
+                nadir_z = np.array([np.ma.filled(v.astype(float), np.nan)[0]
+                                    for v in dem_ds.sample([tuple(p) for p in eo_sel.centre_m[:, :2]], masked=True)])
             nadir_z = np.where(np.isfinite(nadir_z), nadir_z, 0.5 * (zlo + zhi))
             res = default_resolution(block.camera, eo_sel, nadir_z)
     finally:
@@ -370,7 +436,66 @@ def rectify_block(root, dem_path=None, res_m: float | None = None, crs: str | No
     if transformation is not None or out_crs != project_crs:
         operation = CrsTransformer(project_crs, out_crs, params=transformation, allow_ballpark=allow_ballpark)
     executor = executor or local_executor()
+    check_frame_sizes(block, eo_idx, zlo, zhi, res, "--res" if res_m is not None else None,
+                      min(len(block.images), max(1, executor.workers)), operation)
     threads = executor.cores_per_task(len(block.images))  # tile threads per frame task (None: all)
+    old_index = _compatible_old_index(out_dir, res, out_crs) if frames else None
+    # all frames or none: the frames are written into a temporary folder next to ortho/frames, which
+    # replaces it only when every frame and the index are written (a failed run leaves the old output)
+    with atomic_dir(out_dir) as tmp_dir:
+        index = _rectify_into(tmp_dir, block, eo_idx, res, out_crs, project_crs, dem_path, zlo, zhi, interpolation,
+                              true_ortho, dsm_path, compression, threads, operation, height_op, executor)
+        if old_index is not None:  # re-run of a subset: the other frames of the earlier run come along
+            done = {e["image_id"] for e in index["frames"]}
+            keep = [e for e in old_index["frames"] if e["image_id"] not in done]
+            for e in keep:
+                _link_or_copy(out_dir / e["file"], tmp_dir / e["file"])
+            index["frames"] = sorted(keep + index["frames"], key=lambda e: e["image_id"])
+        write_text_atomic(tmp_dir / "index.json", json.dumps(index, indent=1) + "\n")
+    return index
+
+
+def check_frame_sizes(block: BlockInputs, eo_idx: dict, zlo: float, zhi: float, res: float, option: str | None,
+                      concurrent: int = 1, operation=None) -> None:
+    """``ResourceError`` before any work when a frame ortho at ``res`` cannot be made on this machine: its
+    grid (footprint between the lowest and highest DEM height; ``operation``: project -> output CRS)
+    beyond a GeoTIFF's size, or the ortho and its validity mask beyond the memory (``concurrent``
+    frames at a time)."""
+    bands, itemsize = _image_layout(next(iter(block.images.values())))
+    to_output = operation.spec().build() if operation is not None else None
+    worst = (0.0, "", 0.0, 0.0)
+    for image_id in block.images:
+        i = eo_idx[image_id]
+        x0, y0, x1, y1 = _plane_footprint_bounds(block.camera, block.eo.centre_m[i], block.eo.rotation(i), zlo, zhi,
+                                                 image_id)
+        if to_output is not None:
+            xs, ys, _ = to_output.transform([x0, x1, x0, x1], [y0, y0, y1, y1], [zlo] * 4)
+            x0, x1, y0, y1 = float(np.min(xs)), float(np.max(xs)), float(np.min(ys)), float(np.max(ys))
+        w, h = (x1 - x0) / res + 1, (y1 - y0) / res + 1
+        if w * h > worst[0]:
+            worst = (w * h, image_id, w, h)
+    n_px, image_id, w, h = worst
+    what = f"{option} {res:g}: the ortho of frame {image_id} ({w:,.0f} x {h:,.0f} px)" if option else \
+        f"the ortho of frame {image_id} at {res:g} m ({w:,.0f} x {h:,.0f} px)"
+    check_grid(w, h, what, option)
+    check_allocation(n_px * (bands * itemsize + 1) * concurrent,
+                     f"{what}, {bands} band(s) of {itemsize} byte(s) and its mask"
+                     + (f", {concurrent} frames at a time," if concurrent > 1 else ","), option)
+
+
+def _image_layout(path) -> tuple[int, int]:
+    """(bands, bytes per sample) of an image file, from its header."""
+    import warnings
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", rasterio.errors.NotGeoreferencedWarning)
+        with rasterio.open(path) as ds:
+            return ds.count, np.dtype(ds.dtypes[0]).itemsize
+
+
+def _rectify_into(out_dir: Path, block: BlockInputs, eo_idx, res, out_crs, project_crs, dem_path, zlo, zhi,
+                  interpolation, true_ortho, dsm_path, compression, threads, operation, height_op, executor) -> dict:
+    """One task per frame writing ``out_dir/<image_id>.tif``; the index of the frames (in frame order)."""
     tasks = [FrameTask(image_id, str(path), str(out_dir / f"{image_id}.tif"), block.camera,
                        tuple(float(v) for v in block.eo.centre_m[eo_idx[image_id]]),
                        tuple(float(v) for v in block.eo.opk_deg[eo_idx[image_id]]), str(dem_path),
@@ -379,9 +504,8 @@ def rectify_block(root, dem_path=None, res_m: float | None = None, crs: str | No
                        operation.spec() if operation is not None else None,
                        height_op.spec() if height_op is not None else None)
              for image_id, path in block.images.items()]
-    out_dir.mkdir(parents=True, exist_ok=True)
     entries = executor.map(rectify_frame_task, tasks, desc="rectify", unit="frame")
-    index = {
+    return {
         "crs": out_crs.to_wkt(), "crs_name": out_crs.name, "epsg": out_crs.to_epsg(), "res_m": res,
         "project_crs": project_crs.to_string(), "dem": str(dem_path), "eo": str(block.eo_path),
         "true_ortho": bool(true_ortho), "dsm": str(dsm_path) if dsm_path else None, "interpolation": interpolation,
@@ -390,15 +514,28 @@ def rectify_block(root, dem_path=None, res_m: float | None = None, crs: str | No
         "height_operation": height_op.record() if height_op is not None else None,
         "frames": entries,
     }
-    # merge with frames rectified earlier onto the same grid (re-runs of a subset)
-    index_path = out_dir / "index.json"
-    if frames and index_path.exists():
-        old = json.loads(index_path.read_text())
-        if old.get("res_m") == res and old.get("crs") == index["crs"]:
-            keep = [e for e in old["frames"] if e["image_id"] not in {x["image_id"] for x in entries}]
-            index["frames"] = sorted(keep + entries, key=lambda e: e["image_id"])
-    write_text_atomic(index_path, json.dumps(index, indent=1) + "\n")
-    return index
+
+
+def _compatible_old_index(out_dir: Path, res: float, out_crs) -> dict | None:
+    """The index of the frames rectified earlier onto the same grid (resolution and CRS), checked against
+    its files, or None (no earlier run, or another grid: a subset re-run then replaces them all)."""
+    if not (out_dir / "index.json").exists():
+        return None
+    old = read_index(out_dir.parent.parent)
+    if old.get("res_m") != res or old.get("crs") != out_crs.to_wkt():
+        return None
+    verify_index(out_dir, old)
+    return old
+
+
+def _link_or_copy(src: Path, dst: Path) -> None:
+    """A hard link (no copy of the data) where the file system allows it, else a copy."""
+    import shutil
+
+    try:
+        os.link(src, dst)
+    except OSError:
+        shutil.copy2(src, dst)
 
 
 def _plane_footprint_bounds(camera, C, R, z_lo, z_hi, image_id):
@@ -417,11 +554,48 @@ def _plane_footprint_bounds(camera, C, R, z_lo, z_hi, image_id):
     return (float(p[:, 0].min()), float(p[:, 1].min()), float(p[:, 0].max()), float(p[:, 1].max()))
 
 
+_INDEX_KEYS = ("crs", "res_m", "frames")
+_FRAME_KEYS = ("image_id", "file", "x_left_m", "y_top_m", "width", "height", "nadir_xy_m")
+
+
 def read_index(root) -> dict:
+    """``ortho/frames/index.json`` (the frames of the last complete ``ortho rectify``), its layout checked."""
     path = Path(root) / "ortho" / "frames" / "index.json"
     if not path.exists():
         raise InputError(f"{path}: not found (run `ortho rectify` first)")
-    return json.loads(path.read_text())
+    index = read_json(path, "frame index", hint="run `ortho rectify` first")
+    if not isinstance(index, dict) or any(k not in index for k in _INDEX_KEYS) or not isinstance(index["frames"], list):
+        raise InputError(f"{path}: not a frame index of ortho rectify (expected keys {', '.join(_INDEX_KEYS)}); "
+                         "re-run `ortho rectify`")
+    for k, e in enumerate(index["frames"]):
+        if not isinstance(e, dict) or any(f not in e for f in _FRAME_KEYS):
+            raise InputError(f"{path}: frame record {k + 1} lacks {', '.join(f for f in _FRAME_KEYS if f not in e)}; "
+                             "re-run `ortho rectify`")
+    return index
+
+
+def verify_index(frames_dir, index: dict) -> None:
+    """``InputError`` naming the first frame file that is not the one ``index`` records (missing, another
+    size or content): frames from different runs must never be mixed. Indexes written before sizes and
+    hashes were recorded are checked for the files' presence only."""
+    from concurrent.futures import ThreadPoolExecutor
+
+    frames_dir = Path(frames_dir)
+    for e in index["frames"]:
+        p = frames_dir / e["file"]
+        if not p.is_file():
+            raise InputError(f"{p}: frame ortho listed in {frames_dir / 'index.json'} is missing (re-run ortho rectify)")
+        if "size" in e and p.stat().st_size != e["size"]:
+            raise InputError(f"{p}: {p.stat().st_size} bytes, but {frames_dir / 'index.json'} records {e['size']}: the "
+                             "frame does not belong to this index (changed or left by another run); re-run ortho rectify")
+    with_hash = [e for e in index["frames"] if "sha1" in e]
+    with ThreadPoolExecutor(max(1, min(8, os.cpu_count() or 1))) as pool:  # hashlib releases the GIL
+        got = list(pool.map(lambda e: file_fingerprint(frames_dir / e["file"])["sha1"], with_hash))
+    for e, h in zip(with_hash, got):
+        if h != e["sha1"]:
+            raise InputError(f"{frames_dir / e['file']}: content differs from {frames_dir / 'index.json'} (sha1 {h[:12]}, "
+                             f"recorded {e['sha1'][:12]}): the frame does not belong to this index (changed or left by "
+                             "another run); re-run ortho rectify")
 
 
 def require_frames_crs(root, crs: str) -> None:

@@ -12,15 +12,19 @@ the same point measured in the DOM (both in the DOM's CRS); the displacement is 
 
 from __future__ import annotations
 
+import contextlib
 import csv
 import dataclasses
 import json
+import math
 from pathlib import Path
 
 import cv2
 import numpy as np
 
-from aerotri.core.errors import InputError
+from aerotri.core.errors import InputError, OptionError
+from aerotri.core.atomic import refuse_input_as_output
+from aerotri.core.textio import read_text
 
 
 @dataclasses.dataclass
@@ -46,6 +50,9 @@ class PatchDisplacements:
 
     def __len__(self):
         return len(self.dx_px)
+
+
+MIN_PATCH_PX = 8  # smaller patches carry too little texture for a correlation peak
 
 
 def to_gray(image: np.ndarray) -> np.ndarray:
@@ -144,10 +151,7 @@ def displacement_statistics(de_m, dn_m, res_m: float) -> dict:
 def read_points_csv(path) -> dict:
     """Surveyed points with their DOM measurements: columns id, x, y, x_dom, y_dom (header required)."""
     path = Path(path)
-    try:
-        text = path.read_text()
-    except FileNotFoundError:
-        raise InputError(f"{path}: points file not found") from None
+    text = read_text(path, "points file (id,x,y,x_dom,y_dom)")
     reader = csv.DictReader(text.splitlines())
     need = ["id", "x", "y", "x_dom", "y_dom"]
     if reader.fieldnames is None or any(k not in reader.fieldnames for k in need):
@@ -222,6 +226,27 @@ def _open(path, what):
         raise InputError(f"{path}: cannot read {what} ({exc})") from None
 
 
+@contextlib.contextmanager
+def _reading(path, what):
+    """Read errors of a raster (truncated or corrupt data) as an InputError naming it."""
+    import rasterio
+
+    try:
+        yield
+    except (rasterio.errors.RasterioIOError, rasterio.errors.WarpOperationError) as exc:
+        raise InputError(f"{path}: cannot read the {what} (truncated or corrupt? {exc})") from None
+
+
+def check_block_memory(patch_px: int, search_px: int, block_px: int = 2048) -> None:
+    """``ResourceError`` naming --patch-px when the blocks the check reads (``block_px`` plus a halo of a
+    patch and its search range, DOM and reference) cannot fit this machine's memory."""
+    from aerotri.core.limits import check_allocation
+
+    side = block_px + patch_px + search_px
+    check_allocation(float(side) * side * (3 * 4 + 3 * 4 + 4 * 4),
+                     f"--patch-px {patch_px}: DOM and reference blocks of {side:,} x {side:,} px", "--patch-px")
+
+
 def _on_grid(ds, window_transform, shape, crs, resampling, band_indexes=None, operation=None):
     """Resample (part of) an open raster onto a target window grid; returns (bands, rows, cols), valid.
 
@@ -294,15 +319,20 @@ def check_against_reference(dom_path, reference_path, ndsm_path=None, max_ndsm_m
                     shape = (int(w.height), int(w.width))
                     if shape[0] < patch_px + 2 * search_px or shape[1] < patch_px + 2 * search_px:
                         continue
-                    dmask = dom.read_masks(1, window=w) > 0
-                    if not dmask.any():
-                        continue
-                    d = np.moveaxis(dom.read(list(range(1, min(dom.count, 3) + 1)), window=w), 0, -1)
+                    with _reading(dom_path, "DOM"):
+                        dmask = dom.read_masks(1, window=w) > 0
+                        if not dmask.any():
+                            continue
+                        d = np.moveaxis(dom.read(list(range(1, min(dom.count, 3) + 1)), window=w), 0, -1)
                     wt = wtransform(w, dom.transform)
-                    rimg, rvalid = _on_grid(ref, wt, shape, dom.crs, Resampling.bilinear, operation=reference_operation)
+                    with _reading(reference_path, "reference orthophoto"):
+                        rimg, rvalid = _on_grid(ref, wt, shape, dom.crs, Resampling.bilinear,
+                                                operation=reference_operation)
                     keep = None
                     if ndsm is not None:
-                        nd, nvalid = _on_grid(ndsm, wt, shape, dom.crs, Resampling.max, [1], operation=ndsm_operation)
+                        with _reading(ndsm_path, "nDSM"):
+                            nd, nvalid = _on_grid(ndsm, wt, shape, dom.crs, Resampling.max, [1],
+                                                  operation=ndsm_operation)
                         keep = nvalid & (nd[0] <= max_ndsm_m)
                     p = match_patches(d, np.moveaxis(rimg, 0, -1), dmask, rvalid, res, patch_px, step_px, search_px,
                                       min_ncc, keep=keep)
@@ -338,8 +368,18 @@ def run_check(project_root, reference_path=None, points_path=None, dom_path=None
     A reference (or nDSM) in another CRS than the DOM is mapped through the coordinate-operation policy:
     ``params`` (a parameter file of ``aerotri crs fit``, either direction) for a datum change."""
     root = Path(project_root)
+    if not (isinstance(patch_px, int) and patch_px >= MIN_PATCH_PX):
+        raise OptionError(f"{patch_px!r}: expected a patch of at least {MIN_PATCH_PX} px", param="--patch-px")
+    if not (isinstance(search_px, int) and search_px >= 1):
+        raise OptionError(f"{search_px!r}: expected a search radius of at least 1 px", param="--search-px")
+    if not math.isfinite(max_ndsm_m):
+        raise OptionError(f"{max_ndsm_m!r}: expected a height in metres", param="--max-ndsm-m")
+    check_block_memory(patch_px, search_px)
     dom_path = Path(dom_path) if dom_path else root / "ortho" / "mosaic.tif"
     out_stem = Path(out_stem) if out_stem else root / "ortho" / "dom_report"
+    for suffix in (".json", ".png"):
+        refuse_input_as_output(out_stem.with_suffix(suffix), [dom_path, reference_path, points_path, ndsm_path,
+                                                              root / "ortho" / "mosaic.json"], "--out")
     with _open(dom_path, "DOM") as ds:
         res = abs(ds.transform.a)
         crs = ds.crs.to_string() if ds.crs else None
@@ -358,17 +398,22 @@ def run_check(project_root, reference_path=None, points_path=None, dom_path=None
                       displacement=stats,
                       patches=[{"row_px": float(r), "col_px": float(c), "de_m": float(a), "dn_m": float(b), "ncc": float(n)}
                                for r, c, a, b, n in zip(patches.row_px, patches.col_px, patches.de_m, patches.dn_m, patches.ncc)])
-        plot_displacements(out_stem.with_suffix(".png"), patches, stats, f"DOM - reference ({Path(dom_path).name})",
-                           extent_px=max(w, h))
+        def plot():
+            plot_displacements(out_stem.with_suffix(".png"), patches, stats, f"DOM - reference ({Path(dom_path).name})",
+                               extent_px=max(w, h))
     else:
         stats, table = check_points(points_path, res)
         report.update(method="surveyed_points", points_file=str(points_path), displacement=stats, points=table["points"])
-        plot_displacements(out_stem.with_suffix(".png"), None, stats, "DOM - survey", points=(table["_de"], table["_dn"]))
+
+        def plot():
+            plot_displacements(out_stem.with_suffix(".png"), None, stats, "DOM - survey",
+                               points=(table["_de"], table["_dn"]))
     seam_file = root / "ortho" / "seamlines.geojson"
     if seams and seam_file.exists() and (root / "ortho" / "frames" / "index.json").exists():
         from ortho.mosaic import seam_misalignment
 
         report["seams"] = seam_misalignment(root, ndsm_path=ndsm_path, max_ndsm_m=max_ndsm_m)
+    plot()  # the outputs only after every measurement succeeded
     report["json"] = str(out_stem.with_suffix(".json"))
     report["plot"] = str(out_stem.with_suffix(".png"))
     write_json(out_stem.with_suffix(".json"), report)

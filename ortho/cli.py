@@ -6,7 +6,7 @@ from pathlib import Path
 
 import click
 
-from aerotri.core.commands import Group, scheduler_options
+from aerotri.core.commands import Group, at_least, finite, positive, scheduler_options
 from aerotri.core.executor import executor_for
 
 
@@ -19,7 +19,7 @@ def main():
 @main.command()
 @click.argument("project", type=click.Path(path_type=Path))
 @click.option("--dem", "dem_path", type=click.Path(path_type=Path), help="DEM GeoTIFF [lidar_out/dem.tif]")
-@click.option("--res", "res_m", type=float, help="output pixel size in metres [median nadir GSD, rounded]")
+@click.option("--res", "res_m", type=positive(), help="output pixel size in metres, > 0 [median nadir GSD, rounded]")
 @click.option("--crs", "crs", help="output CRS: EPSG code (e.g. EPSG:4546), or gk3:cgcs2000 / gk3:xian1980 for the "
                                     "3-degree GK zone nearest the block centre [the --params target, else the "
                                     "project CRS]")
@@ -61,9 +61,11 @@ def rectify(project, dem_path, res_m, crs, params_path, heights_path, allow_ball
 @click.option("--seams", type=click.Choice(["least-cost", "voronoi"]), default="least-cost", show_default=True)
 @click.option("--ndsm", "ndsm_path", type=click.Path(path_type=Path),
               help="nDSM for seam costs (buildings, trees) [lidar_out/ndsm.tif if present]")
-@click.option("--feather-m", type=float, default=None, help="feather width across seams in metres [8 GSD]")
+@click.option("--feather-m", type=at_least(0.0), default=None,
+              help="feather width across seams in metres, >= 0 (0: one pixel) [8 GSD]")
 @click.option("--no-balance", is_flag=True, help="skip the gain balancing between frames")
-@click.option("--tile-px", type=int, default=1024, show_default=True, help="mosaic processing tile size")
+@click.option("--tile-px", type=at_least(16, int), default=1024, show_default=True,
+              help="mosaic processing tile size (px, >= 16)")
 @click.option("--crs", "crs", help="the product CRS the frames must be in (as given to ortho rectify); the mosaic never "
                                     "resamples twice, so frames in another CRS are refused [the frames' CRS]")
 @scheduler_options
@@ -89,9 +91,11 @@ def mosaic(project, seams, ndsm_path, feather_m, no_balance, tile_px, crs, sched
               help="CSV id,x,y,x_dom,y_dom: surveyed points and their positions measured in the DOM")
 @click.option("--dom", "dom_path", type=click.Path(path_type=Path), help="DOM to check [ortho/mosaic.tif]")
 @click.option("--ndsm", "ndsm_path", type=click.Path(path_type=Path), help="keep only ground patches (nDSM <= --max-ndsm-m)")
-@click.option("--max-ndsm-m", type=float, default=0.5, show_default=True)
-@click.option("--patch-px", type=int, default=48, show_default=True)
-@click.option("--search-px", type=int, default=6, show_default=True)
+@click.option("--max-ndsm-m", type=finite(), default=0.5, show_default=True,
+              help="highest nDSM value (m) of a ground patch")
+@click.option("--patch-px", type=at_least(8, int), default=48, show_default=True, help="patch size (px, >= 8)")
+@click.option("--search-px", type=at_least(1, int), default=6, show_default=True,
+              help="search radius around each patch (px, >= 1)")
 @click.option("--out", "out_stem", type=click.Path(path_type=Path), help="report stem [ortho/dom_report]")
 @click.option("--params", "params_path", type=click.Path(dir_okay=False, path_type=Path),
               help="datum parameter file ('aerotri crs fit') relating the reference's CRS and the DOM's")

@@ -16,6 +16,10 @@ Steps (``mosaic_block``):
 5. The tiles go into a tiled GeoTIFF with an internal mask, copied to a COG (deflate, 512 px blocks,
    overviews) - memory is bounded by the tile size, not the mosaic size.
 
+The frames are checked against ``ortho/frames/index.json`` first (sizes and hashes), the tile size
+against the memory; seams.tif, seamlines.geojson, mosaic.tif and mosaic.json (which records the index
+it was made from) are made in a work folder and moved into ``ortho/`` together at the end.
+
 Step 4 runs as Dask tasks, one per output tile (``blend_tile_task`` on a small ``MosaicTile``: a
 context file with frames, gains and nadir points, and the tile window; labels are read from
 ``seams.tif``), in batches of a few tiles per worker whose results this process writes in tile order.
@@ -26,7 +30,9 @@ from __future__ import annotations
 import dataclasses
 import functools
 import json
+import logging
 import math
+import os
 from pathlib import Path
 
 import cv2
@@ -39,12 +45,16 @@ from rasterio.transform import Affine
 from rasterio.windows import Window
 from tqdm import tqdm
 
-from aerotri.core.errors import InputError
+from aerotri.core.errors import InputError, OptionError
 from aerotri.core.atomic import atomic_path, scratch_dir, write_text_atomic
-from ortho.block import index_grids, index_operation, operation_tags, read_index
+from aerotri.core.limits import check_allocation, check_grid
+from aerotri.core.textio import read_json
+from ortho.block import index_grids, index_operation, operation_tags, read_index, verify_index
 from ortho.grid import OrthoGrid
 from ortho.seamlines import (keep_objects_whole, label_polygons, least_cost_seams, neighbour_pairs, seam_lines,
                              voronoi_labels)
+
+logger = logging.getLogger(__name__)
 
 
 def read_window(ds, col_off: int, row_off: int, width: int, height: int):
@@ -55,8 +65,11 @@ def read_window(ds, col_off: int, row_off: int, width: int, height: int):
     c1, r1 = min(ds.width, col_off + width), min(ds.height, row_off + height)
     if c1 > c0 and r1 > r0:
         w = Window(c0, r0, c1 - c0, r1 - r0)
-        img[r0 - row_off:r1 - row_off, c0 - col_off:c1 - col_off] = np.moveaxis(ds.read(window=w), 0, -1)
-        valid[r0 - row_off:r1 - row_off, c0 - col_off:c1 - col_off] = ds.read_masks(1, window=w) > 0
+        try:
+            img[r0 - row_off:r1 - row_off, c0 - col_off:c1 - col_off] = np.moveaxis(ds.read(window=w), 0, -1)
+            valid[r0 - row_off:r1 - row_off, c0 - col_off:c1 - col_off] = ds.read_masks(1, window=w) > 0
+        except rasterio.errors.RasterioIOError as exc:
+            raise InputError(f"{ds.name}: cannot read the raster (truncated or corrupt? {exc})") from None
     return img, valid
 
 
@@ -86,7 +99,7 @@ def reduce_frames(frames_dir: Path, index: dict, mosaic: OrthoGrid, factor: int)
         # align the frame's window to whole seam-grid cells
         rc0, cc0 = r0 // factor, c0 // factor
         rc1, cc1 = -(-(r0 + g.height) // factor), -(-(c0 + g.width) // factor)
-        with rasterio.open(frames_dir / e["file"]) as ds:
+        with _open_frame(frames_dir / e["file"]) as ds:
             a, m = read_window(ds, cc0 * factor - c0, rc0 * factor - r0, (cc1 - cc0) * factor, (rc1 - rc0) * factor)
         names.append(e["image_id"])
         rgbs.append(_reduce(a, factor, "mean"))
@@ -145,14 +158,21 @@ def _read_ndsm_on(path, transform, shape, crs, operation=None):
     from aerotri.geom.transform import CrsTransformer
 
     out = np.full(shape, np.nan, np.float32)
-    with rasterio.open(path) as ds:
-        if operation is None and same_horizontal(ds.crs, crs):
-            reproject(rasterio.band(ds, 1), out, dst_transform=transform, dst_crs=crs, resampling=Resampling.max,
-                      dst_nodata=np.nan)
-        else:
-            a, ok = read_on_grid(ds, transform.c, transform.f, transform.a, shape,
-                                 operation or CrsTransformer(crs, ds.crs), bands=[1], maximum=True)
-            out = np.where(ok, a[0], np.nan).astype(np.float32)
+    if not Path(path).is_file():
+        raise InputError(f"{path}: nDSM not found")
+    try:
+        with rasterio.open(path) as ds:
+            if ds.crs is None:
+                raise InputError(f"{path}: the nDSM has no CRS")
+            if operation is None and same_horizontal(ds.crs, crs):
+                reproject(rasterio.band(ds, 1), out, dst_transform=transform, dst_crs=crs, resampling=Resampling.max,
+                          dst_nodata=np.nan)
+            else:
+                a, ok = read_on_grid(ds, transform.c, transform.f, transform.a, shape,
+                                     operation or CrsTransformer(crs, ds.crs), bands=[1], maximum=True)
+                out = np.where(ok, a[0], np.nan).astype(np.float32)
+    except (rasterio.errors.RasterioIOError, rasterio.errors.WarpOperationError) as exc:
+        raise InputError(f"{path}: cannot read the nDSM (truncated or corrupt? {exc})") from None
     return out
 
 
@@ -171,16 +191,26 @@ def mosaic_block(root, seams: str = "least-cost", ndsm_path=None, feather_m: flo
     The output tiles are blended as tasks on ``executor`` (``aerotri.core.executor.Executor``, default:
     local threads); the COG does not depend on the scheduler."""
     root = Path(root)
+    if not (isinstance(tile_px, int) and tile_px >= MIN_TILE_PX):
+        raise OptionError(f"{tile_px!r}: expected a tile size of at least {MIN_TILE_PX} px", param="--tile-px")
+    if feather_m is not None and not (math.isfinite(feather_m) and feather_m >= 0):
+        raise OptionError(f"{feather_m!r}: expected a feather width >= 0 m", param="--feather-m")
     index = read_index(root)
     frames_dir = root / "ortho" / "frames"
     if not index["frames"]:
         raise InputError(f"{frames_dir / 'index.json'}: no frames")
+    verify_index(frames_dir, index)
     grids = index_grids(index)
-    for e in index["frames"]:
-        if not (frames_dir / e["file"]).exists():
-            raise InputError(f"{frames_dir / e['file']}: frame ortho listed in index.json is missing (re-run ortho rectify)")
     mosaic = OrthoGrid.union(grids.values())
     res = mosaic.res_m
+    check_grid(mosaic.width, mosaic.height, f"the mosaic of {len(grids)} frames at {res:g} m")
+    feather_px = max(1.0, feather_m / res) if feather_m is not None else 8.0
+    bands, itemsize = _frame_layout(frames_dir / index["frames"][0]["file"])
+    check_allocation(_tile_bytes(tile_px, feather_px, bands, itemsize) * _tiles_in_flight(executor),
+                     f"--tile-px {tile_px}: mosaic tiles of {tile_px} x {tile_px} px (with their halo, {bands} band(s))",
+                     "--tile-px")
+    if ndsm_path is not None and not Path(ndsm_path).is_file():
+        raise InputError(f"{ndsm_path}: nDSM not found (--ndsm)")
     total_px = sum(g.width * g.height for g in grids.values())
     factor = max(2, int(math.ceil(math.sqrt(total_px / max_seam_cells))))
     red = reduce_frames(frames_dir, index, mosaic, factor)
@@ -202,8 +232,57 @@ def mosaic_block(root, seams: str = "least-cost", ndsm_path=None, feather_m: flo
         if objects is not None:
             labels = keep_objects_whole(labels, objects, red.valid, red.offsets)
     gains = balance_gains(red) if balance else np.ones((len(red.names), red.rgb[0].shape[2]))
+    for name, g in zip(red.names, gains):
+        if np.any(np.abs(np.log(g)) > math.log(1.3)):  # beyond exposure differences between frames of one flight
+            logger.warning("frame %s needs gains %s to match its neighbours: check its exposure, or how its image "
+                           "file stores the bands", name, ", ".join(f"{v:.2f}" for v in g))
     out_dir = root / "ortho"
-    _write_labels(out_dir / "seams.tif", labels, red.transform, crs)
+    # every output is made in a work folder first and moved into ortho/ only when all of them exist:
+    # a failed run leaves the previous seams, seamlines, mosaic and summary together
+    with scratch_dir(out_dir, "mosaic") as work:
+        outputs = _mosaic_outputs(Path(work), root, index, frames_dir, red, labels, gains, mosaic, factor, nadir,
+                                  feather_px, tile_px, seams, progress, executor)
+        for name in ("seams.tif", "seamlines.geojson", "mosaic.tif", "mosaic.json"):
+            os.replace(Path(work) / name, out_dir / name)
+    return outputs
+
+
+MIN_TILE_PX = 16
+
+
+def _frame_layout(path) -> tuple[int, int]:
+    with _open_frame(path) as ds:
+        return ds.count, np.dtype(ds.dtypes[0]).itemsize
+
+
+def _tile_bytes(tile_px: int, feather_px: float, bands: int, itemsize: int) -> float:
+    """Memory of one blended tile with its halo: per pixel the accumulator, fallback and frame window
+    (float32 per band), weights, labels and distances (``_blend_tile``), and the output samples."""
+    side = tile_px + 2 * (math.ceil(2.0 * feather_px) + 64)
+    return side * side * (3 * 4 * bands + 6 * 4) + tile_px * tile_px * (bands * itemsize + 1)
+
+
+def _tiles_in_flight(executor) -> int:
+    """Tiles held at once: the batch ``_write_mosaic`` hands to the executor."""
+    from aerotri.core.executor import local_executor
+
+    return max(2, 2 * (executor or local_executor()).workers)
+
+
+def _open_frame(path):
+    """A frame ortho opened for reading; an unreadable file is an InputError naming it."""
+    try:
+        return rasterio.open(path)
+    except rasterio.errors.RasterioIOError as exc:
+        raise InputError(f"{path}: cannot read the frame ortho ({exc}); re-run ortho rectify") from None
+
+
+def _mosaic_outputs(work: Path, root: Path, index, frames_dir, red, labels, gains, mosaic: OrthoGrid, factor, nadir,
+                    feather_px, tile_px, seams, progress, executor) -> dict:
+    """seams.tif, seamlines.geojson, mosaic.tif and mosaic.json into ``work``; returns the summary."""
+    crs, res = mosaic.crs, mosaic.res_m
+    out_dir = root / "ortho"
+    _write_labels(work / "seams.tif", labels, red.transform, crs)
     features = label_polygons(labels, red.transform, red.names)
     for f in features:
         f["properties"]["kind"] = "frame_region"
@@ -213,17 +292,23 @@ def mosaic_block(root, seams: str = "least-cost", ndsm_path=None, feather_m: flo
     geo = {"type": "FeatureCollection", "name": "seamlines", "crs_wkt": crs.to_wkt(),
            "crs": {"type": "name", "properties": {"name": f"urn:ogc:def:crs:EPSG::{crs.to_epsg()}"}} if crs.to_epsg() else None,
            "features": features + lines}
-    write_text_atomic(out_dir / "seamlines.geojson", json.dumps(geo) + "\n")
-    feather_px = max(1.0, (feather_m / res) if feather_m else 8.0)
-    path = out_dir / "mosaic.tif"
-    _write_mosaic(path, frames_dir, index, mosaic, out_dir / "seams.tif", factor, gains, nadir, feather_px, tile_px, progress,
-                  executor=executor)
-    summary = {"path": str(path), "width": mosaic.width, "height": mosaic.height, "frames": len(red.names),
-               "res_m": res, "seam_factor": factor, "seams": seams, "feather_px": feather_px,
+    write_text_atomic(work / "seamlines.geojson", json.dumps(geo) + "\n")
+    _write_mosaic(work / "mosaic.tif", frames_dir, index, mosaic, work / "seams.tif", factor, gains, nadir, feather_px,
+                  tile_px, progress, executor=executor)
+    summary = {"path": str(out_dir / "mosaic.tif"), "width": mosaic.width, "height": mosaic.height,
+               "frames": len(red.names), "res_m": res, "seam_factor": factor, "seams": seams, "feather_px": feather_px,
+               "index_sha1": index_sha1(root),
                "gains": {n: [float(v) for v in g] for n, g in zip(red.names, gains)},
                "pairs": [[red.names[i], red.names[j]] for i, j in neighbour_pairs(labels)]}
-    write_text_atomic(out_dir / "mosaic.json", json.dumps(summary, indent=1) + "\n")
+    write_text_atomic(work / "mosaic.json", json.dumps(summary, indent=1) + "\n")
     return summary
+
+
+def index_sha1(root) -> str:
+    """sha1 of ``ortho/frames/index.json``: the frames a mosaic (its seams) was made from."""
+    import hashlib
+
+    return hashlib.sha1((Path(root) / "ortho" / "frames" / "index.json").read_bytes()).hexdigest()
 
 
 @dataclasses.dataclass(frozen=True)
@@ -342,7 +427,7 @@ def _blend_tile(r0, c0, th, tw, halo, names, files, offsets, grids, mosaic, lab,
         g = grids[name]
         if fr >= r0 + th or fr + g.height <= r0 or fc >= c0 + tw or fc + g.width <= c0:
             continue
-        with rasterio.open(files[name]) as ds:
+        with _open_frame(files[name]) as ds:
             img, m = read_window(ds, c0 - fc, r0 - fr, tw, th)
         if not m.any():
             continue
@@ -377,9 +462,16 @@ def seam_misalignment(root, patch_px: int = 32, search_px: int = 4, spacing_cell
 
     root = Path(root)
     index = read_index(root)
+    frames_dir = root / "ortho" / "frames"
+    verify_index(frames_dir, index)
+    summary_path = root / "ortho" / "mosaic.json"
+    if summary_path.exists():
+        made_from = read_json(summary_path, "mosaic summary").get("index_sha1")
+        if made_from is not None and made_from != index_sha1(root):
+            raise InputError(f"{root / 'ortho' / 'seams.tif'}: the seamlines were made from other frames than "
+                             f"{frames_dir / 'index.json'} lists (ortho rectify ran again since); re-run ortho mosaic")
     grids = index_grids(index)
     mosaic = OrthoGrid.union(grids.values())
-    frames_dir = root / "ortho" / "frames"
     with rasterio.open(root / "ortho" / "seams.tif") as ds:
         labels = ds.read(1)
         factor = int(round(ds.transform.a / mosaic.res_m))
@@ -407,7 +499,7 @@ def seam_misalignment(root, patch_px: int = 32, search_px: int = 4, spacing_cell
             for k in (i, j):
                 g = grids[names[k]]
                 fc, fr = g.offset_in(mosaic)
-                with rasterio.open(frames_dir / f"{names[k]}.tif") as ds:
+                with _open_frame(frames_dir / f"{names[k]}.tif") as ds:
                     win_imgs.append(read_window(ds, C - fc, R - fr, size, size))
             keep = None
             if ndsm_path is not None:

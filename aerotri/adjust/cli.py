@@ -4,24 +4,38 @@ from __future__ import annotations
 
 import click
 
-from aerotri.core.commands import Command
+from aerotri.core.commands import Command, finite, fraction, positive
 
+
+def _self_cal_groups(ctx, param, value):
+    """--self-cal: comma-separated parameter groups of aerotri.adjust.graph.SELF_CAL_GROUPS."""
+    from aerotri.adjust.graph import SELF_CAL_GROUPS
+
+    groups = tuple(s.strip() for s in (value or "").split(",") if s.strip())
+    bad = [g for g in groups if g not in SELF_CAL_GROUPS]
+    if bad:
+        raise click.BadParameter(f"{', '.join(bad)}: expected a comma-separated list of {', '.join(SELF_CAL_GROUPS)}",
+                                 ctx=ctx, param=param)
+    return value
 
 
 @click.command(cls=Command)
 @click.argument("project", type=click.Path(file_okay=False))
 @click.option("--gnss-correction", type=click.Choice(["none", "shift", "shift_drift"]), default="none", show_default=True,
               help="GNSS corrections per strip: none, shift, or shift and drift.")
-@click.option("--lever-arm", nargs=3, type=float, default=None,
+@click.option("--lever-arm", nargs=3, type=finite(), default=None,
               help="Antenna offset from the projection centre in the camera frame (m); default project.toml [gnss] lever_arm_m.")
-@click.option("--self-cal", "self_cal", default="", help="Comma-separated: focal, pp, radial, tangential.")
-@click.option("--image-sigma", type=float, default=None, help="A-priori image standard deviation (px); default 0.5.")
+@click.option("--self-cal", "self_cal", default="", callback=_self_cal_groups,
+              help="Comma-separated: focal, pp, radial, tangential.")
+@click.option("--image-sigma", type=positive(), default=None,
+              help="A-priori image standard deviation (px); default project.toml [adjust] image_sigma_px, else 0.5.")
 @click.option("--check", "check", multiple=True, help="Use this control point id as a check point (repeatable).")
 @click.option("--control", "control", multiple=True, help="Use this point id as full control (repeatable).")
 @click.option("--no-snooping", is_flag=True, help="Disable blunder detection.")
 @click.option("--no-control", is_flag=True,
               help="Ignore control/ (tie points + GNSS only, e.g. the first adjustment before control transfer).")
-@click.option("--alpha", type=float, default=1e-4, show_default=True, help="Type I error per coordinate for data snooping.")
+@click.option("--alpha", type=fraction(open_low=True, open_high=True), default=1e-4, show_default=True,
+              help="Type I error per coordinate for data snooping, in (0, 1).")
 @click.option("--no-html", is_flag=True, help="Skip report.html.")
 def adjust(project, gnss_correction, lever_arm, self_cal, image_sigma, check, control, no_snooping, no_control, alpha,
            no_html):

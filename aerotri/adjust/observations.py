@@ -17,6 +17,7 @@ from pathlib import Path
 import numpy as np
 
 from aerotri.core.errors import InputError
+from aerotri.core.textio import read_text
 
 TIE_HEADER = ["point_id", "image_id", "x_px", "y_px"]
 CONTROL_HEADER = ["id", "kind", "x", "y", "z", "sx_m", "sy_m", "sz_m"]
@@ -30,12 +31,18 @@ class ImageObservations:
     point_id: np.ndarray  # (N,) str
     image_id: np.ndarray  # (N,) str
     xy_px: np.ndarray  # (N, 2)
+    line: np.ndarray | None = None  # (N,) line numbers in the file read (for messages)
 
     def __len__(self):
         return len(self.point_id)
 
     def subset(self, mask) -> "ImageObservations":
-        return ImageObservations(self.point_id[mask], self.image_id[mask], self.xy_px[mask])
+        return ImageObservations(self.point_id[mask], self.image_id[mask], self.xy_px[mask],
+                                 None if self.line is None else self.line[mask])
+
+    def where(self, k: int, path) -> str:
+        """``path:line`` of observation ``k`` (``path`` alone when the lines are unknown)."""
+        return f"{path}:{int(self.line[k])}" if self.line is not None else str(path)
 
 
 @dataclasses.dataclass
@@ -65,25 +72,22 @@ class ControlPoints:
         return ControlPoints(self.id.copy(), kind, self.xyz_m.copy(), self.sigma_m.copy())
 
 
-def _rows(path: Path, header: list[str]):
+def _rows(path: Path, header: list[str], hint: str = ""):
+    text = read_text(path, f"CSV table ({','.join(header)})", hint)
+    lines = text.splitlines()
+    reader = csv.reader(lines)
     try:
-        f = path.open(newline="")
-    except FileNotFoundError:
-        raise InputError(f"{path}: file not found") from None
-    with f:
-        reader = csv.reader(f)
-        try:
-            head = next(reader)
-        except StopIteration:
-            raise InputError(f"{path}: empty file (expected header {','.join(header)})") from None
-        if [h.strip() for h in head] != header:
-            raise InputError(f"{path}:1: header {','.join(head)!r} is not {','.join(header)!r}")
-        for lineno, row in enumerate(reader, start=2):
-            if not row or (len(row) == 1 and not row[0].strip()):
-                continue
-            if len(row) != len(header):
-                raise InputError(f"{path}:{lineno}: expected {len(header)} fields ({','.join(header)}), got {row}")
-            yield lineno, [c.strip() for c in row]
+        head = next(reader)
+    except StopIteration:
+        raise InputError(f"{path}: empty file (expected header {','.join(header)})") from None
+    if [h.strip() for h in head] != header:
+        raise InputError(f"{path}:1: header {','.join(head)!r} is not {','.join(header)!r}")
+    for lineno, row in enumerate(reader, start=2):
+        if not row or (len(row) == 1 and not row[0].strip()):
+            continue
+        if len(row) != len(header):
+            raise InputError(f"{path}:{lineno}: expected {len(header)} fields ({','.join(header)}), got {row}")
+        yield lineno, [c.strip() for c in row]
 
 
 def _number(path, lineno, row, field, text) -> float:
@@ -96,11 +100,12 @@ def _number(path, lineno, row, field, text) -> float:
     return v
 
 
-def read_image_points(path) -> ImageObservations:
-    """Read a ``point_id,image_id,x_px,y_px`` file; rejects NaN and duplicate (point, image) pairs."""
+def read_image_points(path, hint: str = "") -> ImageObservations:
+    """Read a ``point_id,image_id,x_px,y_px`` file; rejects NaN and duplicate (point, image) pairs.
+    ``hint``: added to the message when the file does not exist (the stage that writes it)."""
     path = Path(path)
     pids, iids, xy, seen = [], [], [], {}
-    for lineno, row in _rows(path, TIE_HEADER):
+    for lineno, row in _rows(path, TIE_HEADER, hint):
         pid, iid = row[0], row[1]
         if not pid or not iid:
             raise InputError(f"{path}:{lineno}: empty point_id or image_id (record {row})")
@@ -113,14 +118,16 @@ def read_image_points(path) -> ImageObservations:
         xy.append((_number(path, lineno, row, "x_px", row[2]), _number(path, lineno, row, "y_px", row[3])))
         pids.append(pid)
         iids.append(iid)
-    return ImageObservations(np.array(pids, dtype=object), np.array(iids, dtype=object), np.array(xy, dtype=float).reshape(-1, 2))
+    return ImageObservations(np.array(pids, dtype=object), np.array(iids, dtype=object),
+                             np.array(xy, dtype=float).reshape(-1, 2), np.array(list(seen.values()), dtype=int))
 
 
-def read_control_points(path) -> ControlPoints:
-    """Read ``control/points.csv``; rejects unknown kinds, NaN, non-positive sigmas, duplicate ids."""
+def read_control_points(path, crs=None, hint: str = "") -> ControlPoints:
+    """Read ``control/points.csv``; rejects unknown kinds, NaN, non-positive sigmas, duplicate ids, and
+    with ``crs`` (pyproj CRS) coordinates that cannot be in it (swapped x/y, degrees, another zone)."""
     path = Path(path)
     ids, kinds, xyz, sig, seen = [], [], [], [], {}
-    for lineno, row in _rows(path, CONTROL_HEADER):
+    for lineno, row in _rows(path, CONTROL_HEADER, hint):
         pid, kind = row[0], row[1].lower()
         if not pid:
             raise InputError(f"{path}:{lineno}: empty id (record {row})")
@@ -138,6 +145,11 @@ def read_control_points(path) -> ControlPoints:
         sig.append(vals[3:])
     if not ids:
         raise InputError(f"{path}: no control points")
+    if crs is not None:
+        from aerotri.geom.crs import check_coordinates
+
+        a = np.array(xyz, dtype=float)
+        check_coordinates(crs, a[:, 0], a[:, 1], str(path), [f"line {seen[p]} (point {p})" for p in ids])
     return ControlPoints(
         np.array(ids, dtype=object), np.array(kinds, dtype=object), np.array(xyz, dtype=float), np.array(sig, dtype=float)
     )
@@ -152,22 +164,30 @@ def validate_references(
     control_path="control/points.csv",
     control_obs_path="control/image_points.csv",
     camera=None,
+    block_path="gnss.txt",
+    camera_path="camera.toml",
 ) -> None:
-    """Cross-file checks: unknown images, control ids without image measurement, ids in both files."""
+    """Cross-file checks: unknown images, measurements outside the frame, control ids without image
+    measurement, ids in both files. ``block_path``: the file that defines the block's images
+    (gnss.txt or an EO file), ``camera_path``: the camera's file (both for the messages)."""
     known = set(image_ids)
     for obs, path in ((ties, tie_path), (control_obs, control_obs_path)):
         if obs is None or len(obs) == 0:
             continue
-        bad = [i for i in np.unique(obs.image_id) if i not in known]
-        if bad:
-            raise InputError(f"{path}: image ids {bad[:5]} have no GNSS position / are not in the block")
+        unknown = ~np.isin(obs.image_id, list(known))
+        if unknown.any():
+            k = int(np.argmax(unknown))
+            bad = [i for i in np.unique(obs.image_id) if i not in known]
+            raise InputError(f"{obs.where(k, path)}: image id(s) {bad[:5]} are not in the block ({block_path} has "
+                             f"{len(known)} image(s))")
         if camera is not None:
             outside = ~camera.inside(obs.xy_px[:, 0], obs.xy_px[:, 1])
             if outside.any():
                 k = int(np.argmax(outside))
                 raise InputError(
-                    f"{path}: measurement of point {obs.point_id[k]!r} in image {obs.image_id[k]!r} at "
-                    f"({obs.xy_px[k, 0]:.1f}, {obs.xy_px[k, 1]:.1f}) px is outside the {camera.width} x {camera.height} frame"
+                    f"{obs.where(k, path)}: measurement of point {obs.point_id[k]!r} in image {obs.image_id[k]!r} at "
+                    f"({obs.xy_px[k, 0]:.1f}, {obs.xy_px[k, 1]:.1f}) px is outside the {camera.width} x {camera.height} "
+                    f"px frame of {camera_path}"
                 )
     if control is None:
         return

@@ -10,6 +10,7 @@ adjustment succeeded.
 from __future__ import annotations
 
 import dataclasses
+import math
 from pathlib import Path
 
 import numpy as np
@@ -34,8 +35,9 @@ from aerotri.adjust.observations import (
 from aerotri.adjust.solve import AdjustmentResult, adjust_block, check_point_errors
 from aerotri.adjust.strips import along_track_km, strips_from_track
 from aerotri.camera import FrameCamera
-from aerotri.eo import ExteriorOrientations, read_eo, read_gnss
-from aerotri.core.errors import InputError
+from aerotri.eo import ExteriorOrientations, check_block_crs, read_eo, read_gnss
+from aerotri.core.config import config_number, config_vector
+from aerotri.core.errors import InputError, OptionError
 from aerotri.project import Project
 from aerotri.rotation import FLIP_YZ, opk_from_matrix
 
@@ -86,12 +88,20 @@ class BlockAdjustment:
 
 
 def _settings_from_project(project: Project, s: AdjustSettings) -> AdjustSettings:
-    cfg = project.section("adjust")
+    """Fill the settings left None from project.toml, every value checked (ConfigError naming the key)."""
+    toml = project.root / "project.toml"
     out = dataclasses.replace(s)
     if out.image_sigma_px is None:
-        out.image_sigma_px = float(cfg.get("image_sigma_px", 0.5))
+        out.image_sigma_px = config_number(project.section("adjust"), "image_sigma_px", 0.5, f"{toml} [adjust]",
+                                           positive=True)
+    elif not (math.isfinite(out.image_sigma_px) and out.image_sigma_px > 0):
+        raise OptionError(f"image sigma {out.image_sigma_px!r} px: expected a positive number", param="--image-sigma")
     if out.lever_arm_m is None:
-        out.lever_arm_m = tuple(project.section("gnss").get("lever_arm_m", (0.0, 0.0, 0.0)))
+        out.lever_arm_m = config_vector(project.section("gnss"), "lever_arm_m", (0.0, 0.0, 0.0), 3, f"{toml} [gnss]")
+    elif len(out.lever_arm_m) != 3 or not all(math.isfinite(v) for v in out.lever_arm_m):
+        raise OptionError(f"lever arm {out.lever_arm_m!r}: expected 3 finite numbers (m)", param="--lever-arm")
+    if not 0.0 < out.alpha < 1.0:
+        raise OptionError(f"alpha {out.alpha!r}: the type I error must be in (0, 1)", param="--alpha")
     return out
 
 
@@ -129,20 +139,28 @@ def check_datum(control: ControlPoints, gnss: bool, correction: str) -> None:
 def prepare_project(root, settings: AdjustSettings | None = None):
     """Read and validate a project; returns (context dict, approximate State) in the local frame."""
     project = Project.open(root)
+    toml = project.root / "project.toml"
+    crs = check_block_crs(project.crs, f"{toml} [project] crs")
     st = _settings_from_project(project, settings or AdjustSettings())
+    gcfg = project.section("gnss")
+    gnss_sigma = (config_number(gcfg, "sigma_xy_m", 0.05, f"{toml} [gnss]", positive=True),
+                  config_number(gcfg, "sigma_z_m", 0.1, f"{toml} [gnss]", positive=True))
+    ccfg = project.section("control")
+    for key in ("sigma_xy_m", "sigma_z_m"):
+        config_number(ccfg, key, None, f"{toml} [control]", positive=True)
     cam = project.camera()
     if cam.k3:
         raise InputError(f"{project.camera_path}: k3 is not supported by the adjustment (Cal3DS2 has k1 k2 p1 p2)")
     tie_path = project.at_dir / "tiepoints.csv"
     ctrl_path = project.control_dir / "points.csv"
     cobs_path = project.control_dir / "image_points.csv"
-    ties = read_image_points(tie_path)
+    ties = read_image_points(tie_path, hint="run aerotri match first")
     gnss_datum = st.use_gnss and project.gnss_path.exists()
     if not st.use_control and not gnss_datum:
         raise InputError(f"{project.gnss_path}: without control the datum needs GNSS positions")
     if st.use_control and (ctrl_path.exists() or cobs_path.exists() or not gnss_datum):
-        control = read_control_points(ctrl_path)
-        cobs = read_image_points(cobs_path)
+        control = read_control_points(ctrl_path, crs, hint="run aerotri control first, or --no-control")
+        cobs = read_image_points(cobs_path, hint="run aerotri control first, or --no-control")
     else:
         # GNSS alone can carry the datum (no corrections per strip): the first adjustment of the
         # chain, before LiDAR control has been transferred. check_datum refuses the other cases.
@@ -156,16 +174,19 @@ def prepare_project(root, settings: AdjustSettings | None = None):
     # orientation source: GNSS (normal case) or given approximate EO
     gnss = None
     if st.use_gnss and project.gnss_path.exists():
-        gnss = read_gnss(project.gnss_path)
+        gnss = read_gnss(project.gnss_path, crs)
         image_ids = list(gnss.image_id)
         approx_pos_map = gnss.position_m
+        block_path = project.gnss_path
     elif st.initial_eo:
-        eo0 = read_eo(st.initial_eo)
+        eo0 = read_eo(st.initial_eo, crs)
         image_ids = list(eo0.image_id)
         approx_pos_map = eo0.centre_m
+        block_path = st.initial_eo
     else:
         raise InputError(f"{project.gnss_path}: missing (or give initial orientations)")
-    validate_references(ties, control, cobs, image_ids, tie_path, ctrl_path, cobs_path, camera=cam)
+    validate_references(ties, control, cobs, image_ids, tie_path, ctrl_path, cobs_path, camera=cam,
+                        block_path=block_path, camera_path=project.camera_path)
     check_datum(control, gnss is not None, st.gnss_correction)
     # images in flight order (id order), drop images without any measurement
     order = np.argsort(np.array(image_ids, dtype=object), kind="stable")
@@ -210,18 +231,16 @@ def prepare_project(root, settings: AdjustSettings | None = None):
         raise InputError(f"{tie_path}: image {image_ids[i]} has only {per_image[i]} tie measurements (need >= 3)")
 
     # GNSS in the local frame; sigmas from gnss.txt or project.toml
-    gcfg = project.section("gnss")
     if gnss is not None:
         gl = frame.to_local(gnss.position_m[order])
         if gnss.sigma_m is not None:
             gs = gnss.sigma_m[order]
         else:
-            gs = np.tile([float(gcfg.get("sigma_xy_m", 0.05))] * 2 + [float(gcfg.get("sigma_z_m", 0.1))], (len(order), 1))
+            gs = np.tile([gnss_sigma[0]] * 2 + [gnss_sigma[1]], (len(order), 1))
     else:
         gl = gs = None
 
     # control priors in the local frame (loose components for horizontal / height points)
-    ccfg = project.section("control")
     cov_loc, rows, given_loc = [], [], frame.to_local(ctrl_used.xyz_m) if len(ctrl_used) else np.zeros((0, 3))
     J = frame.jacobian_local_from_map(ctrl_used.xyz_m) if len(ctrl_used) else np.zeros((0, 3, 3))
     for c in range(len(ctrl_used)):
@@ -233,7 +252,6 @@ def prepare_project(root, settings: AdjustSettings | None = None):
             sig[:2] = G.LOOSE_SIGMA_M
         cov_loc.append(J[c] @ np.diag(sig**2) @ J[c].T)
         rows.append({"full": 3, "horizontal": 2, "height": 1}[k])
-    del ccfg
 
     lever = np.asarray(st.lever_arm_m, dtype=float)
     block = G.Block(

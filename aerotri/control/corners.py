@@ -16,6 +16,7 @@ from pathlib import Path
 import numpy as np
 
 from aerotri.core.errors import InputError
+from aerotri.core.textio import read_text
 
 REQUIRED = ["id", "x", "y", "z", "sx_m", "sy_m", "sz_m", "edge1_deg", "edge2_deg", "angle_deg", "score"]
 USABLE_SCORE = 0.5  # lidarctl.corners.USABLE_SCORE (same rule when the file has no usable column)
@@ -48,39 +49,40 @@ class LidarCorners:
 
 def read_corners(path) -> LidarCorners:
     path = Path(path)
-    try:
-        f = path.open(newline="")
-    except FileNotFoundError:
-        raise InputError(f"{path}: corners file not found (run lidarctl corners CLASSIFIED.laz lidar_out)") from None
-    with f:
-        reader = csv.DictReader(f)
-        missing = [c for c in REQUIRED if c not in (reader.fieldnames or [])]
-        if missing:
-            raise InputError(f"{path}:1: missing columns {missing} (expected {','.join(REQUIRED)},...)")
-        ids, num, usable, roof, seen = [], [], [], [], {}
-        for lineno, row in enumerate(reader, start=2):
-            pid = (row["id"] or "").strip()
-            if not pid:
-                raise InputError(f"{path}:{lineno}: empty id (record {row})")
-            if pid in seen:
-                raise InputError(f"{path}:{lineno}: duplicate corner id {pid!r} (first on line {seen[pid]})")
-            seen[pid] = lineno
-            vals = []
-            for c in REQUIRED[1:]:
-                try:
-                    v = float(row[c])
-                except (TypeError, ValueError):
-                    raise InputError(f"{path}:{lineno}: {c} = {row[c]!r} of corner {pid!r} is not a number") from None
-                if not math.isfinite(v):
-                    raise InputError(f"{path}:{lineno}: {c} of corner {pid!r} is NaN or infinite")
-                vals.append(v)
-            if min(vals[3:6]) <= 0:
-                raise InputError(f"{path}:{lineno}: standard deviations of corner {pid!r} must be positive")
-            ids.append(pid)
-            num.append(vals)
-            u = row.get("usable")
-            usable.append(vals[-1] >= USABLE_SCORE if u is None else u.strip().lower() in ("1", "true", "yes"))
-            roof.append((row.get("roof") or "").strip())
+    text = read_text(path, "corners file", hint="run lidarctl corners CLASSIFIED.laz lidar_out")
+    reader = csv.DictReader(text.splitlines())
+    missing = [c for c in REQUIRED if c not in (reader.fieldnames or [])]
+    if missing:
+        raise InputError(f"{path}:1: missing columns {missing} (expected {','.join(REQUIRED)},...)")
+    ids, num, usable, roof, seen = [], [], [], [], {}
+    for row in reader:
+        lineno = reader.line_num
+        if None in row or None in row.values():
+            n = len(reader.fieldnames) + len(row.get(None) or []) - sum(v is None for v in row.values())
+            raise InputError(f"{path}:{lineno}: {n} fields, expected {len(reader.fieldnames)} "
+                             f"({','.join(reader.fieldnames)})")
+        pid = (row["id"] or "").strip()
+        if not pid:
+            raise InputError(f"{path}:{lineno}: empty id (record {row})")
+        if pid in seen:
+            raise InputError(f"{path}:{lineno}: duplicate corner id {pid!r} (first on line {seen[pid]})")
+        seen[pid] = lineno
+        vals = []
+        for c in REQUIRED[1:]:
+            try:
+                v = float(row[c])
+            except (TypeError, ValueError):
+                raise InputError(f"{path}:{lineno}: {c} = {row[c]!r} of corner {pid!r} is not a number") from None
+            if not math.isfinite(v):
+                raise InputError(f"{path}:{lineno}: {c} of corner {pid!r} is NaN or infinite")
+            vals.append(v)
+        if min(vals[3:6]) <= 0:
+            raise InputError(f"{path}:{lineno}: standard deviations of corner {pid!r} must be positive")
+        ids.append(pid)
+        num.append(vals)
+        u = row.get("usable")
+        usable.append(vals[-1] >= USABLE_SCORE if u is None else u.strip().lower() in ("1", "true", "yes"))
+        roof.append((row.get("roof") or "").strip())
     if not ids:
         raise InputError(f"{path}: no corners")
     a = np.array(num, dtype=float)
@@ -90,8 +92,11 @@ def read_corners(path) -> LidarCorners:
     )
 
 
-def read_manual(path, corner_ids, image_ids) -> dict:
-    """Manual measurements ``point_id,image_id,x_px,y_px`` -> {(point_id, image_id): (x_px, y_px)}."""
+def read_manual(path, corner_ids, image_ids, camera=None, corners_path="corners.csv", eo_path="eo.txt") -> dict:
+    """Manual measurements ``point_id,image_id,x_px,y_px`` -> {(point_id, image_id): (x_px, y_px)}.
+
+    Every record must name a corner and a frame of the block and, with ``camera``, lie inside the frame
+    (a measurement is never dropped silently: InputError naming the line)."""
     from aerotri.adjust.observations import read_image_points
 
     obs = read_image_points(path)
@@ -99,9 +104,15 @@ def read_manual(path, corner_ids, image_ids) -> dict:
     out = {}
     for k in range(len(obs)):
         pid, iid = str(obs.point_id[k]), str(obs.image_id[k])
+        where = obs.where(k, path)
         if pid not in known_c:
-            raise InputError(f"{path}: point {pid!r} (record {k + 1}) is not a corner id in corners.csv")
+            raise InputError(f"{where}: point {pid!r} is not a corner id in {corners_path}")
         if iid not in known_i:
-            raise InputError(f"{path}: image {iid!r} of point {pid!r} (record {k + 1}) is not in the orientations")
-        out[(pid, iid)] = tuple(obs.xy_px[k])
+            raise InputError(f"{where}: image {iid!r} of point {pid!r} is not in the orientations {eo_path}")
+        x, y = obs.xy_px[k]
+        if camera is not None and not camera.inside(x, y):
+            raise InputError(f"{where}: measurement ({x:.1f}, {y:.1f}) px of point {pid!r} is outside the "
+                             f"{camera.width} x {camera.height} px frame {iid!r} (x in 0..{camera.width - 1}, "
+                             f"y in 0..{camera.height - 1})")
+        out[(pid, iid)] = (float(x), float(y))
     return out

@@ -271,10 +271,16 @@ def run_control(root, corners_path=None, eo_path=None, camera_path=None, manual_
 
     root = Path(root)
     s = settings or ControlSettings()
-    corners = read_corners(corners_path or root / "lidar_out" / "corners.csv")
-    eo = read_eo(eo_path or root / "at" / "eo.txt")
+    corners_path = corners_path or root / "lidar_out" / "corners.csv"
+    eo_path = eo_path or root / "at" / "eo.txt"
+    corners = read_corners(corners_path)
+    if not Path(eo_path).exists():
+        raise InputError(f"{eo_path}: orientations not found (run the first aerotri adjust, tie points + GNSS, "
+                         "or pass --eo FILE)")
+    eo = read_eo(eo_path)
     camera, _ = project_camera(root, camera_path)
-    manual = read_manual(manual_path, corners.id, eo.image_id) if manual_path else None
+    manual = (read_manual(manual_path, corners.id, eo.image_id, camera, corners_path, eo_path)
+              if manual_path else None)
     res = transfer_control(corners, camera, eo, root / "images", s, manual, progress)
     sm = summary(res)
     if sm["corners_accepted"] == 0:

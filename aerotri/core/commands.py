@@ -5,13 +5,16 @@
   the error hierarchy (``aerotri.core.errors``) to a one-line message on stderr and exit code 2: no
   traceback. A command that runs out of memory says so with the same exit code; Ctrl-C exits 130.
 - :func:`scheduler_options`: ``--scheduler``/``--workers`` for the commands that scale out.
-- :func:`positive`, :func:`at_least`, :func:`fraction`: click parameter types for ranges, so an
-  out-of-range option stops before any work with click's message naming the option.
+- :func:`positive`, :func:`at_least`, :func:`fraction`, :func:`finite`: click parameter types for
+  ranges, so an out-of-range option stops before any work with click's message naming the option.
+  The float types also refuse NaN and infinities (``click.FloatRange`` alone lets NaN through: every
+  comparison with NaN is false).
 """
 
 from __future__ import annotations
 
 import logging
+import math
 import sys
 
 import click
@@ -83,15 +86,30 @@ def scheduler_options(f):
     return f
 
 
+class FiniteFloatRange(click.FloatRange):
+    """``click.FloatRange`` that also refuses NaN and infinities."""
+
+    def convert(self, value, param, ctx):
+        rv = super().convert(value, param, ctx)
+        if not math.isfinite(rv):
+            self.fail(f"{value!r} is not a finite number.", param, ctx)
+        return rv
+
+
+def finite() -> click.ParamType:
+    """Any finite number (no NaN, no infinity)."""
+    return FiniteFloatRange()
+
+
 def positive(kind=float) -> click.ParamType:
     """A number strictly above zero."""
-    return click.FloatRange(min=0, min_open=True) if kind is float else click.IntRange(min=1)
+    return FiniteFloatRange(min=0, min_open=True) if kind is float else click.IntRange(min=1)
 
 
 def at_least(minimum, kind=float) -> click.ParamType:
-    return click.FloatRange(min=minimum) if kind is float else click.IntRange(min=minimum)
+    return FiniteFloatRange(min=minimum) if kind is float else click.IntRange(min=minimum)
 
 
 def fraction(open_low: bool = False, open_high: bool = True) -> click.ParamType:
     """A number in [0, 1) (or the given openness)."""
-    return click.FloatRange(0.0, 1.0, min_open=open_low, max_open=open_high)
+    return FiniteFloatRange(0.0, 1.0, min_open=open_low, max_open=open_high)

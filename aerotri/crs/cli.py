@@ -7,7 +7,8 @@ from pathlib import Path
 
 import click
 
-from aerotri.core.commands import Group
+from aerotri.core.atomic import refuse_input_as_output
+from aerotri.core.commands import Group, at_least
 import numpy as np
 
 from aerotri.geom.crs import crs_label, parse_crs
@@ -65,8 +66,9 @@ def format_fit_report(result, path) -> str:
 @click.option("-o", "--output", type=click.Path(dir_okay=False), help="parameter file (JSON); default <input>.<model>.json")
 def fit_cmd(common_points, model, from_epsg, to_epsg, output):
     """Least-squares transformation parameters from points known in both systems."""
-    result = fit_common_points(common_points, model, from_epsg, to_epsg)
     out = Path(output) if output else Path(common_points).with_suffix(f".{model}.json")
+    refuse_input_as_output(out, [common_points], "-o")
+    result = fit_common_points(common_points, model, from_epsg, to_epsg)
     write_json(out, result.to_dict())
     click.echo(format_fit_report(result, common_points))
     click.echo(f"Parameters written to {out}")
@@ -76,17 +78,19 @@ def fit_cmd(common_points, model, from_epsg, to_epsg, output):
 @click.argument("points", type=click.Path(dir_okay=False))
 @click.option("--model", type=click.Choice(HEIGHT_MODELS), default="plane", show_default=True)
 @click.option("--epsg", "epsg", help="EPSG code of the points' x, y (a metre grid); recorded in the model file. Without it, 'crs transform' evaluates the model on the output coordinates")
-@click.option("--smoothing", type=float, default=0.0, show_default=True, help="tps smoothing (0 interpolates)")
+@click.option("--smoothing", type=at_least(0.0), default=0.0, show_default=True,
+              help="tps smoothing, >= 0 (0 interpolates)")
 @click.option("-o", "--output", type=click.Path(dir_okay=False), help="model file (JSON); default <input>.<model>.json")
 def fit_heights_cmd(points, model, epsg, smoothing, output):
     """Height anomaly surface zeta = h - H from points with ellipsoidal and normal heights."""
+    out = Path(output) if output else Path(points).with_suffix(f".{model}.json")
+    refuse_input_as_output(out, [points], "-o")
     ids, x, y, h, H = read_height_points(points, epsg)
     label = crs_label(parse_crs(epsg, "--epsg")) if epsg else None
     try:
         res = fit_height_anomaly(ids, x, y, h, H, model, smoothing, label)
     except InputError as exc:
         raise InputError(f"{points}: {exc}") from None
-    out = Path(output) if output else Path(points).with_suffix(f".{model}.json")
     write_json(out, res.to_dict())
     click.echo(f"Height anomaly model {model} from {len(ids)} points ({points}); H = h - zeta")
     click.echo(f"{'id':<12}{'zeta m':>10}{'resid m':>10}{'loo m':>10}")
@@ -132,11 +136,11 @@ def warp_cmd(input_path, output_path, to_epsg, from_epsg, params, heights, allow
 @click.option("--params", type=click.Path(dir_okay=False), help="parameter file from 'crs fit'")
 @click.option("--heights", type=click.Path(dir_okay=False), help="height anomaly model from 'crs fit-heights'")
 @click.option("--allow-ballpark", is_flag=True, help="accept PROJ's ballpark operation that ignores a datum shift")
-@click.option("--chunk-size", type=int, default=1_000_000, show_default=True, help="LAS/LAZ points per chunk")
+@click.option("--chunk-size", type=at_least(1, int), default=1_000_000, show_default=True,
+              help="LAS/LAZ points per chunk")
 def transform_cmd(input_path, output_path, from_epsg, to_epsg, params, heights, allow_ballpark, chunk_size):
     """Transform a CSV/TXT point list or a LAS/LAZ file (chunked, all point dimensions kept)."""
-    if Path(input_path).resolve() == Path(output_path).resolve():
-        raise InputError(f"{output_path}: output must differ from the input")
+    refuse_input_as_output(output_path, [input_path, params, heights], "OUT")
     if not Path(input_path).exists():
         raise InputError(f"{input_path}: file not found")
     if from_epsg is None:

@@ -42,8 +42,9 @@ from aerotri.geom.datum import (  # noqa: F401  (load_*: the crs command's reade
     load_transformation,
 )
 from aerotri.geom.transform import CrsTransformer, _ProjLeg, z_unit_m
-from aerotri.core.errors import InputError
+from aerotri.core.errors import InputError, OptionError
 from aerotri.core.atomic import atomic_path, write_text_atomic
+from aerotri.core.textio import read_text
 
 LAS_SUFFIXES = (".las", ".laz")
 _UNIT_SUFFIX = re.compile(r"^(?P<base>.+?)_(?P<unit>m|deg|ft|usft|us-ft)$", re.IGNORECASE)
@@ -66,12 +67,7 @@ class _Table:
 
 def _read_table(path, require_header: bool) -> _Table:
     path = Path(path)
-    if not path.exists():
-        raise InputError(f"{path}: file not found")
-    try:
-        text = path.read_text()
-    except UnicodeDecodeError:
-        raise InputError(f"{path}: not a text file") from None
+    text = read_text(path, "point table")
     lines = text.splitlines()
     data = [(i + 1, ln) for i, ln in enumerate(lines) if ln.strip() and not ln.lstrip().startswith("#")]
     if not data:
@@ -336,11 +332,66 @@ def transform_point_list(in_path, out_path, transformer: CrsTransformer) -> int:
 # ----------------------------------------------------------------------------------------------
 
 
-def las_crs(path):
-    """The CRS recorded in a LAS/LAZ header (WKT or GeoTIFF keys), or None."""
+def open_las(path):
+    """A laspy reader of a LAS/LAZ file whose header was checked against the file: ``InputError`` naming
+    the file for a missing, empty or non-LAS file, zero or non-finite scales, and (uncompressed LAS) a
+    file shorter or longer than the header's point count says (truncated, or more records than
+    counted: points would be lost silently). LAZ data is checked as it is decompressed
+    (``iter_las_chunks``)."""
     import laspy
 
-    with laspy.open(path) as reader:
+    path = Path(path)
+    if not path.is_file():
+        raise InputError(f"{path}: {'is a folder, expected' if path.is_dir() else 'not found:'} a LAS/LAZ file")
+    size = path.stat().st_size
+    if size == 0:
+        raise InputError(f"{path}: empty file (0 bytes), expected a LAS/LAZ point cloud")
+    with open(path, "rb") as fh:
+        signature = fh.read(4)
+    if signature != b"LASF":
+        raise InputError(f"{path}: not a LAS/LAZ file (signature {signature!r}, expected b'LASF')")
+    try:
+        reader = laspy.open(path)
+    except Exception as exc:  # laspy raises several types (LaspyException, ValueError, EOFError) for broken headers
+        raise InputError(f"{path}: unreadable LAS header ({exc})") from None
+    hdr = reader.header
+    if not (np.all(np.isfinite(hdr.scales)) and np.all(np.asarray(hdr.scales) > 0)):
+        reader.close()
+        raise InputError(f"{path}: header scale factors {list(hdr.scales)} must be positive numbers")
+    if not hdr.are_points_compressed:
+        end = hdr.offset_to_point_data + hdr.point_count * hdr.point_format.size
+        data_end = hdr.start_of_first_evlr if getattr(hdr, "number_of_evlrs", 0) else size
+        if size < end:
+            reader.close()
+            raise InputError(f"{path}: truncated file: the header says {hdr.point_count} points of "
+                             f"{hdr.point_format.size} bytes, the file holds "
+                             f"{max(0, size - hdr.offset_to_point_data) // hdr.point_format.size}")
+        if data_end - end >= hdr.point_format.size:  # (a few bytes of padding are harmless)
+            reader.close()
+            raise InputError(f"{path}: the header says {hdr.point_count} points but the file holds "
+                             f"{(data_end - hdr.offset_to_point_data) // hdr.point_format.size} point records")
+    return reader
+
+
+def iter_las_chunks(reader, path, chunk_size: int):
+    """(first index, chunk) of an open reader; a decompression or read error names the file and record."""
+    done = 0
+    try:
+        for chunk in reader.chunk_iterator(chunk_size):
+            yield done, chunk
+            done += len(chunk)
+    except InputError:
+        raise
+    except Exception as exc:  # lazrs/laszip and numpy raise their own types for corrupt data
+        raise InputError(f"{path}: truncated or corrupt point data near record {done} of "
+                         f"{reader.header.point_count} ({exc})") from None
+    if done != reader.header.point_count:
+        raise InputError(f"{path}: truncated file: the header says {reader.header.point_count} points, read {done}")
+
+
+def las_crs(path):
+    """The CRS recorded in a LAS/LAZ header (WKT or GeoTIFF keys), or None."""
+    with open_las(path) as reader:
         try:
             return reader.header.parse_crs()
         except Exception:  # laspy raises various errors on malformed CRS VLRs
@@ -369,13 +420,9 @@ def transform_las(in_path, out_path, transformer: CrsTransformer, chunk_size: in
     from tqdm import tqdm
 
     in_path, out_path = Path(in_path), Path(out_path)
-    if not in_path.exists():
-        raise InputError(f"{in_path}: file not found")
-    try:
-        reader_cm = laspy.open(in_path)
-    except (laspy.errors.LaspyException, OSError, ValueError) as exc:
-        raise InputError(f"{in_path}: not a readable LAS/LAZ file ({exc})") from None
-    with reader_cm as reader:
+    if chunk_size < 1:
+        raise OptionError(f"{chunk_size}: expected at least 1 point per chunk", param="--chunk-size")
+    with open_las(in_path) as reader:
         hdr = reader.header
         try:
             file_crs = hdr.parse_crs()
@@ -419,7 +466,7 @@ def transform_las(in_path, out_path, transformer: CrsTransformer, chunk_size: in
         with atomic_path(out_path) as tmp:
             with laspy.open(tmp, mode="w", header=out_hdr, do_compress=out_path.suffix.lower() == ".laz") as writer:
                 bar = tqdm(total=hdr.point_count, unit="pt", disable=None if progress else True, desc=in_path.name)
-                for chunk in reader.chunk_iterator(chunk_size):
+                for _, chunk in iter_las_chunks(reader, in_path, chunk_size):
                     X, Y, Z = transformer.transform(np.asarray(chunk.x), np.asarray(chunk.y), np.asarray(chunk.z))
                     out = laspy.ScaleAwarePointRecord.zeros(len(chunk), header=out_hdr)
                     out.array[:] = chunk.array  # every dimension bit for bit, then new X, Y, Z

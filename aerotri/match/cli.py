@@ -7,21 +7,22 @@ from pathlib import Path
 
 import click
 
-from aerotri.core.commands import Command, scheduler_options
+from aerotri.core.commands import Command, at_least, finite, fraction, scheduler_options
 from aerotri.core.executor import executor_for
 
 
 @click.command(cls=Command)
 @click.argument("project", type=click.Path(file_okay=False, path_type=Path))
-@click.option("--budget", type=int, default=6000, show_default=True, help="Keypoints per frame (spatially spread).")
-@click.option("--max-dim", type=int, default=3000, show_default=True,
+@click.option("--budget", type=at_least(100, int), default=6000, show_default=True, help="Keypoints per frame (spatially spread).")
+@click.option("--max-dim", type=at_least(64, int), default=3000, show_default=True,
               help="Detect on the pyramid level whose larger side is at most this many pixels.")
-@click.option("--ratio", type=float, default=0.8, show_default=True, help="Lowe ratio test threshold.")
-@click.option("--min-overlap", type=float, default=0.15, show_default=True,
+@click.option("--ratio", type=fraction(open_low=True, open_high=False), default=0.8, show_default=True,
+              help="Lowe ratio test threshold, in (0, 1].")
+@click.option("--min-overlap", type=fraction(), default=0.15, show_default=True,
               help="Minimum predicted footprint overlap of a candidate pair (fraction of the smaller footprint).")
-@click.option("--terrain-height", type=float, default=None,
+@click.option("--terrain-height", type=finite(), default=None,
               help="Mean terrain height (m) for the footprints; default: project.toml [flight] or lidar_out/dem.tif.")
-@click.option("--image-top-deg", type=float, default=0.0, show_default=True,
+@click.option("--image-top-deg", type=finite(), default=0.0, show_default=True,
               help="Direction of the image top relative to the flight direction (0 = forward).")
 @click.option("--no-densify", is_flag=True, help="Do not densify weak models.")
 @scheduler_options

@@ -17,6 +17,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from aerotri.core.errors import InputError
 from aerotri.match.images import downsample, level_to_full, pyramid_level, read_gray
 from aerotri.core.atomic import atomic_path
 
@@ -82,6 +83,9 @@ def cached_features(image_path: Path, cache_dir: Path, p: FeatureParams, expect_
             if json.loads(str(z["meta"])) == meta:
                 return Features(z["xy_px"], z["descriptors"], int(z["level"]))
     feats = extract(read_gray(image_path, expect_size), p)
+    if len(feats.xy_px) == 0:
+        raise InputError(f"{image_path}: no image features at all (a blank, uniform or all-black frame?); "
+                         "remove the frame from the block (images/ and gnss.txt) or replace it")
     with atomic_path(f) as tmp:
         np.savez(tmp, xy_px=feats.xy_px, descriptors=feats.descriptors, level=feats.level, meta=json.dumps(meta))
     return feats

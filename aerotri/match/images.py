@@ -30,6 +30,29 @@ def find_images(folder) -> dict[str, Path]:
     return out
 
 
+def check_frames(images: dict, camera: FrameCamera, camera_source="camera.toml") -> None:
+    """Every frame is a readable image file of the camera's size, checked from the file headers before
+    any work (a folder, an unreadable file or a frame of another size stops here, naming it)."""
+    import warnings
+
+    import rasterio
+
+    for image_id, path in images.items():
+        path = Path(path)
+        if not path.is_file():
+            raise InputError(f"{path}: not a file (image {image_id!r}); expected a TIFF/JPEG/PNG frame")
+        try:
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore", rasterio.errors.NotGeoreferencedWarning)
+                with rasterio.open(path) as ds:
+                    size = (ds.width, ds.height)
+        except (rasterio.errors.RasterioIOError, OSError) as exc:
+            raise InputError(f"{path}: cannot read the image ({exc})") from None
+        if size != (camera.width, camera.height):
+            raise InputError(f"{path}: image is {size[0]} x {size[1]} px but {camera_source} says "
+                             f"{camera.width} x {camera.height} px")
+
+
 def read_gray(path, expect_size: tuple[int, int] | None = None) -> np.ndarray:
     """8-bit grey image; refuses unreadable files and frames whose size differs from the camera's."""
     img = cv2.imread(str(path), cv2.IMREAD_GRAYSCALE)

@@ -12,11 +12,12 @@ from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
 
-from aerotri.eo import read_gnss
+from aerotri.eo import check_block_crs, read_gnss
+from aerotri.core.config import config_number, config_vector
 from aerotri.core.errors import InputError
 from aerotri.match import features as F
 from aerotri.match import matching as M
-from aerotri.match.images import find_images
+from aerotri.match.images import check_frames, find_images
 from aerotri.match.pairs import Pair, candidate_pairs, plan_block
 from aerotri.match.report import plot_block, track_length_histogram
 from aerotri.match.tracks import build_tracks
@@ -46,14 +47,20 @@ class MatchSettings:
 def _terrain_height(project: Project, s: MatchSettings) -> float:
     if s.terrain_height_m is not None:
         return float(s.terrain_height_m)
-    fl = project.section("flight")
-    if "mean_terrain_height_m" in fl:
-        return float(fl["mean_terrain_height_m"])
+    h = config_number(project.section("flight"), "mean_terrain_height_m", None,
+                      f"{project.root / 'project.toml'} [flight]")
+    if h is not None:
+        return h
     dem = project.lidar_out_dir / "dem.tif"
     if dem.exists():
-        with rasterio.open(dem) as ds:
-            a = ds.read(1, masked=True, out_shape=(1, min(ds.height, 512), min(ds.width, 512)))
-            return float(a.mean())
+        try:
+            with rasterio.open(dem) as ds:
+                a = ds.read(1, masked=True, out_shape=(1, min(ds.height, 512), min(ds.width, 512)))
+        except rasterio.errors.RasterioIOError as exc:
+            raise InputError(f"{dem}: cannot read the DEM for the mean terrain height ({exc})") from None
+        if a.count() == 0:
+            raise InputError(f"{dem}: the DEM has no valid heights")
+        return float(a.mean())
     raise InputError(f"{project.root / 'project.toml'}: no terrain height for the footprints: set [flight] "
                      f"mean_terrain_height_m, give --terrain-height, or run lidarctl rasters first")
 
@@ -84,27 +91,38 @@ def match_project(root, settings: MatchSettings | None = None, log=lambda m: Non
     s = settings or MatchSettings()
     t0 = time.perf_counter()
     project = Project.open(root)
+    toml = project.root / "project.toml"
+    crs = check_block_crs(project.crs, f"{toml} [project] crs")
     camera = project.camera()
     images = find_images(project.images_dir)
     cache_f = project.work_dir / "features"
     cache_m = project.work_dir / "matches"
     stats = dict(feature_cache_hits=0, match_cache_hits=0)
+    gnss = None
     if project.gnss_path.exists():
-        gnss = read_gnss(project.gnss_path)
+        gnss = read_gnss(project.gnss_path, crs)
         missing = sorted(set(images) - set(gnss.image_id))
         if missing:
             raise InputError(f"{project.gnss_path}: no GNSS position for frame(s) {', '.join(missing[:10])}"
                              + (" ..." if len(missing) > 10 else ""))
         no_image = sorted(set(gnss.image_id) - set(images))
         if no_image:
-            raise InputError(f"{project.images_dir}: no image file for GNSS record(s) {', '.join(no_image[:10])}")
+            raise InputError(f"{project.images_dir}: no image file for GNSS record(s) {', '.join(no_image[:10])} "
+                             f"of {project.gnss_path}")
         ids = list(gnss.image_id)
-        lever = project.section("gnss").get("lever_arm_m", [0.0, 0.0, 0.0])
-        plan = plan_block(ids, gnss.position_m, camera, lever, _terrain_height(project, s), s.image_top_deg)
+        lever = config_vector(project.section("gnss"), "lever_arm_m", (0.0, 0.0, 0.0), 3, f"{toml} [gnss]")
+    else:
+        ids = sorted(images)
+    if len(ids) < 2:
+        raise InputError(f"{project.images_dir}: a block of {len(ids)} frame ({', '.join(ids)}); tie points need "
+                         "at least 2 overlapping frames")
+    terrain_m = _terrain_height(project, s) if gnss is not None else None
+    check_frames(images, camera, project.camera_path)
+    if gnss is not None:
+        plan = plan_block(ids, gnss.position_m, camera, lever, terrain_m, s.image_top_deg)
         pairs = candidate_pairs(plan, s.min_overlap)
     else:
         # No GNSS (e.g. a kite block): find overlapping pairs by matching thumbnails, then match those.
-        ids = sorted(images)
         plan = None
         log(f"{project.gnss_path} not found: pairs by thumbnail retrieval")
 

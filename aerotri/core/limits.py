@@ -1,0 +1,52 @@
+"""Physical limits checked before allocating: memory of this machine and raster grid sizes.
+
+A command whose options ask for more than the machine can hold (``ortho rectify --res 0.0005`` over a
+block of 300 m frames is an ortho of 4e11 pixels per frame) stops at once with a ``ResourceError``
+naming the option and the size it would need, instead of trying to allocate it (a MemoryError, or
+the kernel's out-of-memory killer, minutes later).
+"""
+
+from __future__ import annotations
+
+import os
+
+from aerotri.core.errors import ResourceError
+
+# GeoTIFF and GDAL count rows and columns with signed 32-bit integers.
+MAX_GRID_SIDE_PX = 2**31 - 1
+
+
+def physical_memory_bytes() -> int:
+    """Physical memory of this machine (bytes); 0 when the system does not say."""
+    try:
+        return int(os.sysconf("SC_PAGE_SIZE")) * int(os.sysconf("SC_PHYS_PAGES"))
+    except (AttributeError, ValueError, OSError):
+        return 0
+
+
+def format_bytes(n: float) -> str:
+    for unit in ("bytes", "KiB", "MiB", "GiB", "TiB", "PiB"):
+        if abs(n) < 1024.0 or unit == "PiB":
+            return f"{n:.0f} {unit}" if unit == "bytes" else f"{n:.1f} {unit}"
+        n /= 1024.0
+    return f"{n:.1f} PiB"
+
+
+def check_allocation(n_bytes: float, what: str, option: str | None = None, fraction: float = 0.8) -> None:
+    """``ResourceError`` when ``what`` would need more than ``fraction`` of the physical memory.
+
+    ``option`` names the option that sets the size (e.g. ``--res``); the message gives both sizes."""
+    total = physical_memory_bytes()
+    if total and n_bytes > fraction * total:
+        hint = f"; change {option}" if option else ""
+        raise ResourceError(f"{what} would need {format_bytes(n_bytes)} of memory, more than this machine's "
+                            f"{format_bytes(total)}{hint}", param=option)
+
+
+def check_grid(width: float, height: float, what: str, option: str | None = None) -> None:
+    """``ResourceError`` when a raster grid is empty or has a side beyond what GeoTIFF/GDAL can index."""
+    if not (width >= 1 and height >= 1):
+        raise ResourceError(f"{what} is empty ({width:.0f} x {height:.0f} px)", param=option)
+    if width > MAX_GRID_SIDE_PX or height > MAX_GRID_SIDE_PX:
+        raise ResourceError(f"{what} would be {width:,.0f} x {height:,.0f} px, beyond the {MAX_GRID_SIDE_PX:,} px "
+                            f"a GeoTIFF side can have{f'; change {option}' if option else ''}", param=option)

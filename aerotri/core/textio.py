@@ -1,0 +1,60 @@
+"""Reading the project's text files (tables, EO/GNSS lists, JSON) with one set of rules.
+
+Text files are UTF-8 (a UTF-8 byte-order mark is accepted and dropped). Everything that makes a file
+unreadable as such - not found, a folder in its place, no permission, UTF-16 (as some Windows tools
+save tables), binary data, invalid UTF-8 - becomes one ``InputError`` naming the file (and the line of
+the first bad byte), never a ``UnicodeDecodeError`` or ``IsADirectoryError`` from deep inside a
+reader.
+"""
+
+from __future__ import annotations
+
+import codecs
+import json
+from pathlib import Path
+
+from aerotri.core.errors import InputError
+
+
+def read_text(path, what: str = "text file", hint: str = "") -> str:
+    """The text of ``path`` (UTF-8); ``what`` names the file's role in messages, ``hint`` is added
+    when the file does not exist (e.g. the stage that writes it)."""
+    path = Path(path)
+    try:
+        data = path.read_bytes()
+    except FileNotFoundError:
+        raise InputError(f"{path}: file not found, expected a {what}{f' ({hint})' if hint else ''}") from None
+    except IsADirectoryError:
+        raise InputError(f"{path}: is a folder, expected a {what}") from None
+    except PermissionError:
+        raise InputError(f"{path}: cannot read the {what} (permission denied)") from None
+    except OSError as exc:
+        raise InputError(f"{path}: cannot read the {what} ({exc.strerror or exc})") from None
+    return decode_text(data, path, what)
+
+
+def decode_text(data: bytes, path, what: str = "text file") -> str:
+    """Bytes of a text file as str (see ``read_text``); errors name ``path`` and the line."""
+    if data.startswith((codecs.BOM_UTF16_LE, codecs.BOM_UTF16_BE, codecs.BOM_UTF32_LE, codecs.BOM_UTF32_BE)):
+        raise InputError(f"{path}: the {what} is UTF-16/UTF-32 text; expected UTF-8 (save it as UTF-8 or ASCII)")
+    nul = data.find(b"\x00")
+    if nul >= 0:
+        line = data.count(b"\n", 0, nul) + 1
+        raise InputError(f"{path}:{line}: binary data (NUL byte at offset {nul}); expected a UTF-8 {what}")
+    try:
+        return data.decode("utf-8-sig")
+    except UnicodeDecodeError as exc:
+        line = data.count(b"\n", 0, exc.start) + 1
+        raise InputError(f"{path}:{line}: not UTF-8 text (byte 0x{data[exc.start]:02x} at offset {exc.start}); "
+                         f"expected a UTF-8 {what}") from None
+
+
+def read_json(path, what: str = "JSON file", hint: str = ""):
+    """A JSON document; a syntax error (e.g. a truncated file) names the file and line."""
+    path = Path(path)
+    text = read_text(path, what, hint)
+    try:
+        return json.loads(text)
+    except json.JSONDecodeError as exc:
+        raise InputError(f"{path}:{exc.lineno}: not valid JSON ({exc.msg}, column {exc.colno}); "
+                         f"the {what} is corrupt or truncated") from None

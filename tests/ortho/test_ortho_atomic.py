@@ -1,0 +1,231 @@
+"""All frames or none: ``ortho rectify`` commits ortho/frames as a whole, consumers refuse frames that do not
+belong to index.json, subset re-runs keep the other frames; 16-bit frames keep their radiometry through
+the mosaic; options that would need more than the machine has stop before allocating (issue 17)."""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+import shutil
+
+import cv2
+import numpy as np
+import pytest
+import rasterio
+from click.testing import CliRunner
+
+from aerotri.core.errors import ResourceError
+from aerotri.core.limits import check_allocation, check_grid, physical_memory_bytes
+from ortho.cli import main
+from ortho.synthetic import write_synthetic_project
+
+
+def run(*args):
+    return CliRunner().invoke(main, [str(a) for a in args])
+
+
+def tree(folder):
+    """sha1 of every file below ``folder`` (relative names), and the names of hidden temporaries next to it."""
+    out = {}
+    for dirpath, _, files in os.walk(folder):
+        for n in files:
+            p = os.path.join(dirpath, n)
+            out[os.path.relpath(p, folder)] = hashlib.sha1(open(p, "rb").read()).hexdigest()
+    return out
+
+
+def leftovers(folder):
+    return sorted(p.name for p in folder.iterdir() if ".part-" in p.name)
+
+
+@pytest.fixture(scope="module")
+def rectified(tmp_path_factory):
+    """A synthetic block (6 frames, truth EO) rectified and mosaicked once; tests work on copies."""
+    root = tmp_path_factory.mktemp("atomic") / "p"
+    write_synthetic_project(root, strips=2, frames_per_strip=3, buildings=0, seed=11)
+    r = run("rectify", root)
+    assert r.exit_code == 0, r.output
+    r = run("mosaic", root, "--seams", "voronoi")
+    assert r.exit_code == 0, r.output
+    return root
+
+
+@pytest.fixture
+def project(rectified, tmp_path):
+    root = tmp_path / "p"
+    shutil.copytree(rectified, root)
+    return root
+
+
+def test_index_records_every_frame_file(project):
+    index = json.loads((project / "ortho/frames/index.json").read_text())
+    assert len(index["frames"]) == 6
+    for e in index["frames"]:
+        data = (project / "ortho/frames" / e["file"]).read_bytes()
+        assert e["size"] == len(data) and e["sha1"] == hashlib.sha1(data).hexdigest()
+
+
+@pytest.mark.parametrize("breakage", ["truncated_image", "partial_dem"])
+def test_failed_rerun_leaves_the_previous_frames(project, breakage):
+    """A re-run that fails part-way (frames already written for other images) changes nothing in ortho/,
+    and the mosaic of the previous complete output still works."""
+    before = tree(project / "ortho")
+    if breakage == "truncated_image":  # the header is fine: found only when the frame is rectified
+        p = project / "images" / "s02_002.tif"
+        p.write_bytes(p.read_bytes()[: p.stat().st_size // 3])
+        culprit = "s02_002.tif"
+    else:  # a DEM covering the first strip only: the second strip's frames fail
+        with rasterio.open(project / "lidar_out/dem.tif") as ds:
+            a, prof, t = ds.read(1), ds.profile, ds.transform
+        keep = a[:, : a.shape[1] // 2]
+        prof.update(width=keep.shape[1])
+        with rasterio.open(project / "lidar_out/dem.tif", "w", **prof) as dst:
+            dst.write(keep, 1)
+        culprit = "dem.tif"
+    r = run("rectify", project)
+    assert r.exit_code == 2 and culprit in r.stderr, r.output
+    assert "Traceback" not in r.output
+    assert tree(project / "ortho") == before
+    assert leftovers(project / "ortho") == []
+    r = run("mosaic", project, "--seams", "voronoi")
+    assert r.exit_code == 0, r.output
+
+
+def test_consumers_refuse_frames_that_do_not_match_the_index(project):
+    """The state the issue found (new frames beside old ones under a stale index.json): mosaic and check
+    refuse it, naming the frame, instead of mosaicking misplaced frames."""
+    frames = project / "ortho/frames"
+    shutil.copy(frames / "s01_001.tif", frames / "s01_002.tif")  # same name, another frame's content
+    before = tree(project / "ortho")
+    r = run("mosaic", project)
+    assert r.exit_code == 2 and "s01_002.tif" in r.stderr and "index.json" in r.stderr, r.output
+    r = run("check", project, "--reference", project / "truth/ortho.tif")
+    assert r.exit_code == 2 and "s01_002.tif" in r.stderr, r.output
+    assert tree(project / "ortho") == before
+
+
+def test_an_edited_frame_of_the_same_size_is_refused(project):
+    p = project / "ortho/frames/s01_003.tif"
+    data = bytearray(p.read_bytes())
+    data[len(data) // 2] ^= 0xFF
+    p.write_bytes(bytes(data))
+    r = run("mosaic", project)
+    assert r.exit_code == 2 and "s01_003.tif" in r.stderr and "content differs" in r.stderr, r.output
+
+
+def test_subset_rerun_keeps_the_other_frames(project):
+    frames = project / "ortho/frames"
+    before = tree(frames)
+    inode = {n: (frames / n).stat().st_ino for n in before}
+    r = run("rectify", project, "--frames", "s01_002")
+    assert r.exit_code == 0, r.output
+    index = json.loads((frames / "index.json").read_text())
+    assert [e["image_id"] for e in index["frames"]] == ["s01_001", "s01_002", "s01_003", "s02_001", "s02_002",
+                                                       "s02_003"]
+    after = tree(frames)
+    assert {n: h for n, h in after.items() if n != "index.json"} == {n: h for n, h in before.items() if n != "index.json"}
+    # the untouched frames came along as hard links (no copy of the data), the re-rectified one is new
+    assert (frames / "s01_001.tif").stat().st_ino == inode["s01_001.tif"]
+    assert (frames / "s01_002.tif").stat().st_ino != inode["s01_002.tif"]
+    assert leftovers(project / "ortho") == []
+    r = run("mosaic", project, "--seams", "voronoi")
+    assert r.exit_code == 0, r.output
+    # a subset on another grid replaces the frames: the index never mixes grids
+    r = run("rectify", project, "--frames", "s01_002", "--res", "0.4")
+    assert r.exit_code == 0, r.output
+    index = json.loads((frames / "index.json").read_text())
+    assert [e["image_id"] for e in index["frames"]] == ["s01_002"] and index["res_m"] == 0.4
+    assert sorted(p.name for p in frames.iterdir()) == ["index.json", "s01_002.tif"]
+
+
+def test_mosaic_outputs_are_committed_together(project, monkeypatch):
+    """A mosaic failing while it blends leaves the previous seams, seamlines, mosaic and summary."""
+    import ortho.mosaic as M
+
+    before = tree(project / "ortho")
+
+    def broken(*args, **kwargs):
+        raise M.InputError("blending failed")
+
+    monkeypatch.setattr(M, "_write_mosaic", broken)
+    with pytest.raises(M.InputError):
+        M.mosaic_block(project, seams="voronoi")
+    assert tree(project / "ortho") == before
+    assert leftovers(project / "ortho") == []
+
+
+def test_check_refuses_seams_of_other_frames(project):
+    """ortho check measures seams on ortho/seams.tif: after a new rectify the seams belong to other frames."""
+    r = run("rectify", project, "--frames", "s01_002")
+    assert r.exit_code == 0, r.output
+    r = run("check", project, "--reference", project / "truth/ortho.tif")
+    assert r.exit_code == 2 and "seams.tif" in r.stderr and "ortho mosaic" in r.stderr, r.output
+
+
+def _to_16bit(root, scale=257.0, photometric="RGB"):
+    for p in sorted((root / "images").glob("*.tif")):
+        img = cv2.cvtColor(cv2.imread(str(p), cv2.IMREAD_UNCHANGED), cv2.COLOR_BGR2RGB)
+        a = np.clip(np.rint(np.moveaxis(img, -1, 0).astype(float) * scale), 0, 65535).astype(np.uint16)
+        with rasterio.open(p, "w", driver="GTiff", width=a.shape[2], height=a.shape[1], count=3, dtype="uint16",
+                           photometric=photometric, compress="deflate") as dst:
+            dst.write(a)
+
+
+def _mean_dn(path):
+    with rasterio.open(path) as ds:
+        return ds.read(masked=True).reshape(ds.count, -1).mean(axis=1).filled(np.nan)
+
+
+def test_16bit_mosaic_keeps_the_radiometry(rectified, tmp_path):
+    """Frames of identical radiometry (rendered from one orthophoto with the same exposure) in 16 bits
+    (x 257), stored as production tools write them: pixel-interleaved RGB, band-interleaved (planar)
+    RGB, and 3 samples tagged MINISBLACK - OpenCV garbles the planar 16-bit frame and reads the
+    MINISBLACK one as a single grey band. The mosaic keeps the frames' brightness per band and the gains
+    stay at 1, as for the 8-bit frames."""
+    root = tmp_path / "p16"
+    shutil.copytree(rectified, root, ignore=shutil.ignore_patterns("ortho"))
+    _to_16bit(root)
+    for name, update in (("s01_003.tif", dict(photometric="MINISBLACK")), ("s02_001.tif", dict(interleave="band"))):
+        with rasterio.open(root / "images" / name) as ds:
+            a, prof = ds.read(), ds.profile
+        prof.update(**update)
+        with rasterio.open(root / "images" / name, "w", **prof) as dst:
+            dst.write(a)
+    r = run("rectify", root)
+    assert r.exit_code == 0, r.output
+    r = run("mosaic", root)
+    assert r.exit_code == 0, r.output
+    frames = np.array([_mean_dn(p) for p in sorted((root / "ortho/frames").glob("*.tif"))])
+    eight = np.array([_mean_dn(p) for p in sorted((rectified / "ortho/frames").glob("*.tif"))]) * 257.0
+    np.testing.assert_allclose(frames, eight, rtol=0.002)  # every frame ortho as its 8-bit twin
+    mosaic = _mean_dn(root / "ortho/mosaic.tif")
+    np.testing.assert_allclose(mosaic, frames.mean(axis=0), rtol=0.01)
+    np.testing.assert_allclose(mosaic, _mean_dn(rectified / "ortho/mosaic.tif") * 257.0, rtol=0.005)
+    gains = np.array(list(json.loads((root / "ortho/mosaic.json").read_text())["gains"].values()))
+    assert np.abs(gains - 1.0).max() < 0.01
+
+
+def test_limits():
+    total = physical_memory_bytes()
+    assert total > 0
+    check_allocation(total * 0.1, "a small array", "--opt")
+    with pytest.raises(ResourceError) as e:
+        check_allocation(total * 2, "the ortho", "--res")
+    assert "--res" in e.value.user_message() and "GiB" in str(e.value)
+    with pytest.raises(ResourceError):
+        check_grid(3e9, 10, "a grid", "--res")
+    with pytest.raises(ResourceError):
+        check_grid(0, 10, "a grid")
+
+
+@pytest.mark.parametrize("args, option", [
+    (["rectify", "{p}", "--res", "0.0005"], "--res"),
+    (["mosaic", "{p}", "--tile-px", "1000000"], "--tile-px"),
+    (["check", "{p}", "--reference", "{p}/truth/ortho.tif", "--patch-px", "400000"], "--patch-px"),
+])
+def test_sizes_beyond_the_machine_stop_before_allocating(project, args, option):
+    before = tree(project / "ortho")
+    r = run(*[a.format(p=project) for a in args])
+    assert r.exit_code == 2 and option in r.stderr and "memory" in r.stderr, r.output
+    assert tree(project / "ortho") == before
