@@ -25,7 +25,7 @@ from lidarctl.corners_cli import corners  # noqa: E402
 main.add_command(corners)
 
 
-def _parse_map(text: str | None) -> dict:
+def _parse_map(text: str | None, option: str) -> dict:
     if not text:
         return {}
     out = {}
@@ -34,7 +34,7 @@ def _parse_map(text: str | None) -> dict:
             a, b = item.split(":")
             out[int(a)] = int(b)
         except ValueError:
-            raise click.BadParameter(f"{item!r}: expected FROM:TO class pairs, e.g. 3:1,4:1") from None
+            raise click.BadParameter(f"{item!r}: expected FROM:TO class pairs, e.g. 3:1,4:1", param_hint=option) from None
     return out
 
 
@@ -122,7 +122,7 @@ def evaluate(pred_path, truth_path, json_path, map_pred, map_truth):
         refuse_input_as_output(json_path, [pred_path, truth_path], "--json")
     pred, truth = ev.read_same_points(pred_path, truth_path)
     pc, tc = pred.classification.astype(int), truth.classification.astype(int)
-    for mapping, arr in ((_parse_map(map_pred), pc), (_parse_map(map_truth), tc)):
+    for mapping, arr in ((_parse_map(map_pred, "--map-pred"), pc), (_parse_map(map_truth, "--map-truth"), tc)):
         src = arr.copy()
         for a, b in mapping.items():
             arr[src == a] = b

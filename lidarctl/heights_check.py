@@ -15,12 +15,14 @@ named by ``xy_unit`` and ``z_unit``.
 from __future__ import annotations
 
 import csv
+import io as stringio
 from pathlib import Path
 
 import numpy as np
 from scipy.spatial import cKDTree
 
 from aerotri.core.errors import InputError, OptionError
+from aerotri.core.textio import read_text
 from lidarctl import io
 from lidarctl.units import METRE, LengthUnits
 
@@ -42,10 +44,7 @@ def bin_labels(edges=BIN_EDGES_M) -> list[str]:
 def read_points_csv(path) -> dict:
     """Surveyed points: header with id, x, y, z (case-insensitive; also e/n/h) and optional group."""
     path = Path(path)
-    if not path.is_file():
-        raise InputError(f"{path}: file not found")
-    with open(path, newline="") as fh:
-        rows = list(csv.reader(fh))
+    rows = list(csv.reader(stringio.StringIO(read_text(path, "surveyed points table (id,x,y,z[,group])"), newline="")))
     if not rows:
         raise InputError(f"{path}: empty file, expected a header line 'id,x,y,z[,group]'")
     head = [h.strip().lower() for h in rows[0]]

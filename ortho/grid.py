@@ -42,10 +42,12 @@ def gk3_zone_crs(lon_deg: float, datum: str = "cgcs2000") -> CRS:
     """
     first = GK3_FIRST_EPSG.get(datum.lower())
     if first is None:
-        raise InputError(f"unknown datum {datum!r} for Gauss-Krueger zones; expected one of {sorted(GK3_FIRST_EPSG)}")
+        raise CrsError(f"--crs gk3:{datum}: unknown datum for Gauss-Krueger zones; expected one of "
+                       f"{', '.join('gk3:' + d for d in sorted(GK3_FIRST_EPSG))}", param="--crs")
     cm = int(round(lon_deg / 3.0)) * 3
     if not 75 <= cm <= 135:
-        raise InputError(f"longitude {lon_deg:.3f} deg is outside the 3-degree GK zones 75E..135E of {datum}")
+        raise CrsError(f"--crs gk3:{datum}: the block centre at longitude {lon_deg:.3f} deg is outside the 3-degree GK "
+                       f"zones 75E..135E of {datum}", param="--crs")
     return CRS.from_epsg(first + (cm - 75) // 3)
 
 

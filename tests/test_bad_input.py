@@ -50,12 +50,6 @@ PENDING_OTHER_AREAS: set[str] = {
     "adjust_project_toml_unknown_key",
     # aerotri/sim/cli.py, aerotri/run.py (chain): options and project checked before the first stage runs
     "run_project_crs_unknown", "run_res_zero", "run_reference_missing",
-    # lidarctl (units): LAS header checks, option ranges, the surveyed-points reader
-    "classify_zero_scale", "classify_count_lower_than_records", "evaluate_bad_map", "evaluate_json_is_input",
-    "check_heights_radius_negative", "check_heights_exclude_negative", "check_heights_points_utf16",
-    "check_heights_points_binary",
-    # ortho/grid.py (CRS): a bad gk3 datum names --crs
-    "rectify_crs_bad_gk",
 }
 
 

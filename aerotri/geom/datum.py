@@ -24,13 +24,12 @@ Height anomaly (GNSS levelling): normal height H = h - zeta(x, y), zeta modelled
 from __future__ import annotations
 
 import dataclasses
-import json
 import math
-from pathlib import Path
 
 import numpy as np
 
 from aerotri.core.errors import ConfigError, InputError
+from aerotri.core.textio import read_json
 from aerotri.geom.ellipsoid import ARCSEC_PER_RAD
 
 MODELS = ("helmert2d", "affine2d", "bursa-wolf7", "translation3")
@@ -279,14 +278,8 @@ def _tps(xy_m, zeta_m, origin_m, smoothing):
 
 
 def load_json(path, what: str) -> dict:
-    """A JSON file as a dict; ``InputError`` naming the file when it is missing or not JSON."""
-    path = Path(path)
-    if not path.is_file():
-        raise InputError(f"{path}: {what} not found" + (" (a folder)" if path.is_dir() else ""))
-    try:
-        d = json.loads(path.read_text(encoding="utf-8"))
-    except (json.JSONDecodeError, UnicodeDecodeError) as exc:
-        raise InputError(f"{path}: {what} is not valid JSON ({exc})") from None
+    """A JSON object from a file; ``InputError`` naming the file when it is missing, unreadable or not JSON."""
+    d = read_json(path, what)
     if not isinstance(d, dict):
         raise InputError(f"{path}: {what} must hold a JSON object")
     return d
