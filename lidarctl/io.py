@@ -246,6 +246,14 @@ def resolve_crs_units(path, header: laspy.LasHeader, crs_arg: str | int | None,
     return horizontal_crs(crs), units
 
 
+def file_crs(header: laspy.LasHeader) -> pyproj.CRS | None:
+    """The CRS record of a file as it is (a compound CRS keeps its vertical part), or None."""
+    try:
+        return header.parse_crs()
+    except Exception:  # unreadable records were reported by resolve_crs_units already
+        return None
+
+
 def resolve_crs(path, header: laspy.LasHeader, crs_arg: str | int | None) -> pyproj.CRS:
     """The horizontal CRS of ``resolve_crs_units``."""
     return resolve_crs_units(path, header, crs_arg)[0]

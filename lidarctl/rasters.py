@@ -254,10 +254,16 @@ def write_rasters(cloud, outdir, res_m: float, crs=None) -> list[Path]:
         crs, units = cloud.crs, cloud.units
         if crs is None:
             raise ValueError("a CRS is needed for the rasters")
+        surface_crs = crs
     else:
         for f in FILES:
             refuse_input_as_output(outdir / f, [cloud], "OUTDIR")
-        crs, units = io.resolve_crs_units(cloud, io.read_header(cloud), crs)
+        header = io.read_header(cloud)
+        crs, units = io.resolve_crs_units(cloud, header, crs)
+        # The DEM and DSM keep a compound CRS's vertical part (their heights' datum and unit), so that
+        # ortho and 'crs warp' can bring them into another height system; the rest are relative.
+        file_crs = io.file_crs(header)
+        surface_crs = file_crs if file_crs is not None and file_crs.is_compound else crs
     grids = make_grids(cloud, res_m) if isinstance(cloud, PointCloud) else \
         make_grids_streamed(cloud, res_m, units=units)[0]
     # The hillshade needs heights and cell size in one unit: from the metric grids.
@@ -271,7 +277,7 @@ def write_rasters(cloud, outdir, res_m: float, crs=None) -> list[Path]:
         for name in ("dem", "dsm", "ndsm", "chm", "intensity"):
             height = name in HEIGHT_GRIDS
             desc = DESCRIPTIONS[name] + (f" ({long_name(units.z_m)})" if height else "")
-            write_cog(tmp / f"{name}.tif", grids[name], grids["transform"], crs,
+            write_cog(tmp / f"{name}.tif", grids[name], grids["transform"], surface_crs if name in ("dem", "dsm") else crs,
                       unit=long_name(units.z_m) if height else None, description=desc, tags=tags)
         import matplotlib
         matplotlib.use("Agg")

@@ -13,6 +13,7 @@ import numpy as np
 import pyproj
 import pytest
 import rasterio
+from pyproj import CRS
 from click.testing import CliRunner
 
 from aerotri.core.errors import CrsError
@@ -267,3 +268,19 @@ def test_compound_crs_option_keeps_its_vertical_unit_in_the_output(scenes, tmp_p
     _ok(["classify", tmp_path / "m.las", tmp_path / "m_out.las"])
     a, b = _classes(tmp_path / "out.las"), _classes(tmp_path / "m_out.las")
     assert np.mean(a != b) < 0.002, np.mean(a != b)
+
+
+def test_dem_keeps_the_compound_crs_of_its_cloud(scenes, tmp_path):
+    """A cloud in UTM metres + NAVD88 height in US survey feet: the DEM and DSM carry the compound CRS
+    (their heights' datum and unit), the relative rasters the horizontal CRS."""
+    cloud = scenes["cloud"]
+    z_ft = io.PointCloud(**{k: getattr(cloud, k) for k in ("x", "y", "intensity", "return_number",
+                                                            "number_of_returns", "classification")},
+                         z=cloud.z / US_SURVEY_FOOT_M)
+    src = tmp_path / "nocrs.las"
+    synthetic.write_las(src, z_ft, version="1.4")
+    _ok(["classify", src, tmp_path / "out.las", "--crs", "EPSG:32610+6360"])
+    _ok(["rasters", tmp_path / "out.las", tmp_path / "r", "--res", "1"])
+    with rasterio.open(tmp_path / "r" / "dem.tif") as dem, rasterio.open(tmp_path / "r" / "ndsm.tif") as ndsm:
+        assert CRS(dem.crs).is_compound and "NAVD88" in CRS(dem.crs).sub_crs_list[1].name
+        assert not CRS(ndsm.crs).is_compound and CRS(ndsm.crs).to_epsg() == 32610
