@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import click
-import numpy as np
 
 from aerotri.core.commands import Group, scheduler_options
 from aerotri.core.errors import InputError
@@ -16,8 +15,10 @@ def main():
 
 
 from lidarctl.corners_cli import corners  # noqa: E402
+from lidarctl.merge_cli import merge  # noqa: E402
 
 main.add_command(corners)
+main.add_command(merge)
 
 
 def _parse_map(text: str | None) -> dict:
@@ -102,27 +103,14 @@ def evaluate(pred_path, truth_path, json_path, map_pred, map_truth):
     import json
 
     from lidarctl import evaluate as ev
-    from lidarctl import io
     from aerotri.core.atomic import write_text_atomic
 
-    pred = io.read_cloud(pred_path, require_crs=False)
-    truth = io.read_cloud(truth_path, require_crs=False)
-    if len(pred) != len(truth):
-        raise InputError(f"{pred_path}: {len(pred)} points, but {truth_path} has {len(truth)} (same order needed)")
-    if not (np.allclose(pred.x, truth.x, atol=0.011) and np.allclose(pred.y, truth.y, atol=0.011)):
-        raise InputError(f"{pred_path}: point coordinates differ from {truth_path} (same points, same order needed)")
-    pc, tc = pred.classification.astype(int), truth.classification.astype(int)
-    for mapping, arr in ((_parse_map(map_pred), pc), (_parse_map(map_truth), tc)):
-        src = arr.copy()
-        for a, b in mapping.items():
-            arr[src == a] = b
-    filt = ev.filter_errors(np.isin(pc, (2, 9)), np.isin(tc, (2, 9)))
-    conf = ev.confusion(pc, tc)
-    click.echo(ev.format_filter_table({"ground": filt}))
+    result = ev.evaluate_files(pred_path, truth_path, _parse_map(map_pred), _parse_map(map_truth))
+    click.echo(ev.format_filter_table({"ground": result["filter_test"]}))
     click.echo("")
-    click.echo(ev.format_confusion(conf))
+    click.echo(ev.format_confusion(result["confusion"]))
     if json_path:
-        write_text_atomic(json_path, json.dumps({"filter_test": filt, "confusion": conf}, indent=2))
+        write_text_atomic(json_path, json.dumps(result, indent=2))
 
 
 @main.command("check-heights")
@@ -138,15 +126,9 @@ def check_heights(cloud_path, points_csv, radius_m, exclude_m, json_path, crs):
     import json
 
     from lidarctl import heights_check as hc
-    from lidarctl import io
     from aerotri.core.atomic import write_text_atomic
 
-    cloud = io.read_cloud(cloud_path, crs=crs)
-    points = hc.read_points_csv(points_csv)
-    g = cloud.classification == 2
-    if not g.any():
-        raise InputError(f"{cloud_path}: no ground points (class 2); run 'lidarctl classify' first")
-    result = hc.check_heights(cloud.x[g], cloud.y[g], cloud.z[g], points, radius_m, exclude_m)
+    result = hc.check_cloud_heights(cloud_path, points_csv, radius_m, exclude_m, crs)
     click.echo(hc.format_report(result))
     if json_path:
         write_text_atomic(json_path, json.dumps(result, indent=2))

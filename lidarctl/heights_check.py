@@ -163,3 +163,16 @@ def format_report(result: dict) -> str:
         dz = "-" if p["dz_m"] is None else f"{p['dz_m']:+.3f}"
         lines.append(f"{p['id']:<12}{(p['group'] or ''):<18}{p['z_survey_m']:>10.3f}{zl:>10}{dz:>8}")
     return "\n".join(lines)
+
+
+def check_cloud_heights(cloud_path, points_csv, radius_m: float = 5.0, exclude_m: float = 1.0, crs=None) -> dict:
+    """The stage (``lidarctl check-heights``): the ground (class 2) of a classified cloud file against the
+    surveyed points of a CSV file (id,x,y,z[,group]); ``crs`` when the cloud has none."""
+    from lidarctl import io
+
+    cloud = io.read_cloud(cloud_path, crs=crs)
+    points = read_points_csv(points_csv)
+    g = cloud.classification == 2
+    if not g.any():
+        raise InputError(f"{cloud_path}: no ground points (class 2); run 'lidarctl classify' first")
+    return check_heights(cloud.x[g], cloud.y[g], cloud.z[g], points, radius_m, exclude_m)

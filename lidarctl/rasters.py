@@ -13,6 +13,7 @@ The footprint is the set of cells within ``footprint_cells`` cells of a point.
 
 from __future__ import annotations
 
+import dataclasses
 from pathlib import Path
 
 import numpy as np
@@ -25,11 +26,19 @@ from scipy import ndimage
 from lidarctl import io
 from aerotri.core.atomic import atomic_path, temporary_dir
 from aerotri.core.errors import InputError
+from aerotri.core.settings import setting
 from lidarctl.io import PointCloud
 from lidarctl.raster_ops import fill_nodata, reduce_grid, sample_bilinear
 
 NODATA = -9999.0
 FILES = ("dem.tif", "dsm.tif", "ndsm.tif", "chm.tif", "intensity.tif", "hillshade.png")
+
+
+@dataclasses.dataclass(frozen=True)
+class RasterSettings:
+    """Options of the raster stage (``[rasters]`` in project.toml; ``lidarctl rasters --res``)."""
+
+    res_m: float = setting(0.5, min=0.0, min_open=True, help="Cell size in metres.")
 
 
 def grid_for_bounds(xmin: float, ymin: float, xmax: float, ymax: float, res_m: float):
