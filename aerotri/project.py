@@ -17,6 +17,18 @@ from pathlib import Path
 from aerotri.core.errors import InputError
 
 
+# The sections every project may have and their keys; ``aerotri run`` adds one section per stage with
+# the keys of the stage's settings dataclass (aerotri.chain.options) and refuses anything else.
+PROJECT_SECTIONS = {
+    "project": ("name", "crs", "heights"),
+    "camera": ("file",),
+    "gnss": ("sigma_xy_m", "sigma_z_m", "lever_arm_m"),
+    "control": ("sigma_xy_m", "sigma_z_m"),  # a-priori sigmas of control points the simulator writes
+    "flight": ("mean_terrain_height_m", "speed_mps"),
+    "qa": ("map_scale", "terrain", "tolerances", "pdf"),
+}
+
+
 @dataclasses.dataclass
 class Project:
     root: Path
@@ -37,6 +49,10 @@ class Project:
         if "crs" not in config.get("project", {}):
             raise InputError(f"{cfg_path}: [project] crs is missing (e.g. crs = \"EPSG:32649\")")
         return cls(root, config)
+
+    @property
+    def config_path(self) -> Path:
+        return self.root / "project.toml"
 
     @property
     def name(self) -> str:
@@ -76,7 +92,7 @@ class Project:
         rep = self.at_dir / "report.json"
         if rep.is_file():
             try:
-                cam = json.loads(rep.read_text()).get("self_calibration", {}).get("camera")
+                cam = (json.loads(rep.read_text()).get("self_calibration") or {}).get("camera")
             except json.JSONDecodeError:
                 raise InputError(f"{rep}: not valid JSON") from None
             if cam:
