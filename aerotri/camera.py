@@ -217,11 +217,11 @@ class FrameCamera:
 
     @classmethod
     def read(cls, path) -> "FrameCamera":
+        from aerotri.core.textio import read_text
+
         path = Path(path)
         try:
-            d = tomllib.loads(path.read_text())
-        except FileNotFoundError:
-            raise InputError(f"{path}: camera file not found") from None
+            d = tomllib.loads(read_text(path, "camera file (TOML)"))
         except tomllib.TOMLDecodeError as exc:
             raise InputError(f"{path}: not valid TOML ({exc})") from None
         return cls.from_dict(d, source=str(path))

@@ -13,7 +13,8 @@ def main():
     """Aerial triangulation of frame-camera blocks with LiDAR control, and the truth simulator."""
 
 
-from aerotri.sim.cli import demo, run, sim  # noqa: E402
+from aerotri.sim.cli import sim  # noqa: E402
+from aerotri.chain.cli import demo, run  # noqa: E402
 
 main.add_command(sim)
 main.add_command(demo)

@@ -29,5 +29,6 @@ def report(project, scale, terrain, tolerances, pdf):
         if r["verdict"]:
             click.echo(f"  {r['verdict']:<5} {r['section']}: {r['quantity']} = {r['value']} {r['unit']} "
                        f"(limit {r['limit']})")
-    click.echo(f"{project / 'reports' / 'index.html'}: {rep['overall']} ({rep['passed']} passed, {rep['failed']} failed; "
+    verdict = rep["overall"] or "no verdict (no quantity with a tolerance yet)"
+    click.echo(f"{project / 'reports' / 'index.html'}: {verdict} ({rep['passed']} passed, {rep['failed']} failed; "
                f"{rep['map_scale']} {rep['terrain']})")

@@ -19,8 +19,10 @@ import math
 import tomllib
 from pathlib import Path
 
-from aerotri.core.errors import InputError
 from aerotri.core.atomic import atomic_path, write_text_atomic
+from aerotri.core.errors import ConfigError, InputError, StageOrderError
+from aerotri.core.textio import read_json, read_text
+from aerotri.project import Project
 
 TOLERANCE_DIR = Path(__file__).with_name("tolerances")
 SCALE_TABLES = {"1:2000": "cn_1to2000.toml", "1:5000": "cn_1to5000.toml", "1:10000": "cn_1to10000.toml"}
@@ -28,10 +30,17 @@ TERRAINS = ("flat", "hilly", "mountainous")
 
 
 def _json(path: Path) -> dict:
-    return json.loads(path.read_text()) if path.is_file() else {}
+    """A stage's JSON report, {} when the stage did not run; a corrupt one names the file."""
+    if not path.exists():
+        return {}
+    d = read_json(path, "stage report (JSON)")
+    if not isinstance(d, dict):
+        raise InputError(f"{path}: expected a JSON object (a stage report), got {type(d).__name__}")
+    return d
 
 
-def tolerance_path(scale: str | None = None, tolerance_file=None) -> Path:
+def tolerance_path(scale: str | None = None, tolerance_file=None, source: str = "map scale") -> Path:
+    """The tolerance table of ``scale`` (or ``tolerance_file``); ``source`` names where the scale came from."""
     if tolerance_file:
         p = Path(tolerance_file)
         if not p.is_file():
@@ -39,8 +48,8 @@ def tolerance_path(scale: str | None = None, tolerance_file=None) -> Path:
         return p
     scale = scale or "1:5000"
     if scale not in SCALE_TABLES:
-        raise InputError(f"map scale {scale!r}: no built-in tolerance table (have {', '.join(SCALE_TABLES)}); "
-                         f"give your own with --tolerances FILE")
+        raise ConfigError(f"{source} {scale!r}: no built-in tolerance table (have {', '.join(SCALE_TABLES)}); "
+                          f"give your own with --tolerances FILE")
     return TOLERANCE_DIR / SCALE_TABLES[scale]
 
 
@@ -48,7 +57,7 @@ def load_tolerances(scale: str | None = None, terrain: str = "flat", tolerance_f
     """Limits for one terrain class: the ``general`` section overlaid by the class's own."""
     path = tolerance_path(scale, tolerance_file)
     try:
-        table = tomllib.loads(path.read_text())
+        table = tomllib.loads(read_text(path, "tolerance table (TOML)"))
     except tomllib.TOMLDecodeError as e:
         raise InputError(f"{path}: not a valid TOML tolerance table ({e})") from None
     if terrain not in table:
@@ -58,13 +67,19 @@ def load_tolerances(scale: str | None = None, terrain: str = "flat", tolerance_f
 
 
 def qa_settings(root: Path) -> dict:
-    """``[qa]`` of project.toml (map_scale, terrain, tolerances, pdf), with defaults."""
-    cfg = {}
-    p = Path(root) / "project.toml"
-    if p.is_file():
-        cfg = tomllib.loads(p.read_text()).get("qa", {})
+    """``[qa]`` of project.toml (map_scale, terrain, tolerances, pdf), with defaults; checked."""
+    project = Project.open(root)
+    cfg = project.section("qa")
+    src = f"{project.config_path} [qa]"
     out = dict(map_scale=cfg.get("map_scale", "1:5000"), terrain=cfg.get("terrain", "flat"),
-               tolerances=cfg.get("tolerances"), pdf=bool(cfg.get("pdf", False)))
+               tolerances=cfg.get("tolerances"), pdf=cfg.get("pdf", False))
+    if not out["tolerances"] and out["map_scale"] not in SCALE_TABLES:
+        raise ConfigError(f"{src} map_scale = {out['map_scale']!r}: no built-in tolerance table (have "
+                          f"{', '.join(SCALE_TABLES)}); give your own with tolerances = \"FILE\"")
+    if out["terrain"] not in TERRAINS and not out["tolerances"]:
+        raise ConfigError(f"{src} terrain = {out['terrain']!r}: expected one of {', '.join(TERRAINS)}")
+    if not isinstance(out["pdf"], bool):
+        raise ConfigError(f"{src} pdf = {out['pdf']!r}: expected true or false")
     if out["tolerances"]:
         out["tolerances"] = str((Path(root) / out["tolerances"]).resolve())
     return out
@@ -85,8 +100,19 @@ def _hypot(a, b):
     return round(math.hypot(a, b), 4)
 
 
+# What the stages leave for the report
+STAGE_RESULTS = ("at/report.json", "control/transfer.json", "ortho/dom_report.json", "lidar_out/height_check.json",
+                 "lidar_out/classification_eval.json")
+
+
 def build_qa_report(root, tolerance_file=None, terrain: str | None = None, scale: str | None = None) -> dict:
-    root = Path(root)
+    """The report of a project folder (``StageOrderError`` when no stage has left results yet)."""
+    root = Project.open(root).root  # a project folder: project.toml with [project] crs
+    if not any((root / rel).is_file() for rel in STAGE_RESULTS):
+        raise StageOrderError(
+            f"{root}: nothing to report yet, no stage has left its results ({', '.join(STAGE_RESULTS)}); "
+            f"run the adjustment first (aerotri match {root}, then aerotri adjust {root}) or the whole chain "
+            f"(aerotri run {root})")
     cfg = qa_settings(root)
     terrain = terrain or cfg["terrain"]
     if terrain not in TERRAINS and not (tolerance_file or cfg["tolerances"]):
@@ -130,6 +156,11 @@ def build_qa_report(root, tolerance_file=None, terrain: str | None = None, scale
         rows.append(_check(sec, "LiDAR corners accepted as control / check points",
                            f"{ctl.get('control_full', 0)} full + {ctl.get('control_height', 0)} height / "
                            f"{ctl.get('check_points', 0)} check", None, ""))
+    counts = at.get("counts", {})
+    if at and counts.get("control_points") == 0:
+        gnss = at.get("options", {}).get("given_eo_gps") == "Enabled"
+        why = "the datum comes from GNSS alone" if gnss else "no datum from control"
+        rows.append(_check(sec, "control points in the adjustment", 0, None, "", f"no LiDAR control: {why}"))
     ctrl = at.get("rms_control_ground_m")
     if ctrl and None not in ctrl:
         rows.append(_check(sec, "control residuals, plan RMS", _hypot(ctrl[0], ctrl[1]), tol.get("rms_xy_m"), "m"))
@@ -219,7 +250,7 @@ pre{{background:#f6f6f6;padding:8px}}img{{max-width:48%;margin:4px;border:1px so
 <h1>Accuracy report: {html.escape(rep['project'])}</h1>
 <p>Map scale <b>{html.escape(str(rep['map_scale']))}</b>, terrain class <b>{html.escape(rep['terrain'])}</b>,
 tolerances from {html.escape(rep['tolerance_table'])}.
-Overall verdict: <b class="{rep['overall'] or ''}">{html.escape(str(rep['overall']))}</b>
+Overall verdict: <b class="{rep['overall'] or ''}">{html.escape(rep['overall'] or 'none (no quantity with a tolerance)')}</b>
 ({rep['passed']} passed, {rep['failed']} failed).</p>
 <table><tr><th>quantity</th><th>value</th><th>limit</th><th>unit</th><th>verdict</th><th>note</th></tr>{''.join(body)}</table>
 <h2>Stage reports</h2>
@@ -244,7 +275,7 @@ def write_pdf(path: Path, rep: dict, root: Path) -> None:
         fig = plt.figure(figsize=(11.69, 8.27))
         fig.text(0.04, 0.95, f"Accuracy report: {rep['project']}", fontsize=16, weight="bold")
         fig.text(0.04, 0.91, f"map scale {rep['map_scale']}, terrain {rep['terrain']}, tolerances "
-                             f"{rep['tolerance_table']}; overall verdict: {rep['overall']} "
+                             f"{rep['tolerance_table']}; overall verdict: {rep['overall'] or 'none'} "
                              f"({rep['passed']} passed, {rep['failed']} failed)", fontsize=10)
         cells, colours = [], []
         for r in rep["checks"]:

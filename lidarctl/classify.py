@@ -53,6 +53,7 @@ import numpy as np
 from scipy import ndimage
 from scipy.spatial import cKDTree
 
+from aerotri.core.settings import setting
 from lidarctl import grid
 from lidarctl import ground as ground_mod
 from lidarctl import noise as noise_mod
@@ -65,8 +66,10 @@ CLASS_NAMES = {1: "unclassified", 2: "ground", 3: "low veg", 4: "medium veg", 5:
 
 @dataclasses.dataclass
 class ClassifyParams:
-    ground_method: str = "morph"
-    preset: str | None = None
+    ground_method: str = setting("morph", choices=ground_mod.METHODS, help="Ground filter: morphological + TIN "
+                                 "refinement, or progressive TIN densification.")
+    preset: str | None = setting(None, choices=tuple(ground_mod.MORPH_PRESETS), help="Ground filter parameters for "
+                                 "the terrain type (default: the single all-round set).")
     cell_m: float = 0.0                 # 0: max(0.5 m, 2 x mean point spacing)
     building_min_height_m: float = 2.0
     building_min_area_m2: float = 20.0

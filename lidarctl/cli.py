@@ -8,7 +8,6 @@ cloud's CRS and units, which the outputs name (raster tags, JSON keys, printed l
 from __future__ import annotations
 
 import click
-import numpy as np
 
 from aerotri.core.atomic import refuse_input_as_output
 from aerotri.core.commands import Group, positive, scheduler_options
@@ -21,8 +20,10 @@ def main():
 
 
 from lidarctl.corners_cli import corners  # noqa: E402
+from lidarctl.merge_cli import merge  # noqa: E402
 
 main.add_command(corners)
+main.add_command(merge)
 
 
 def _parse_map(text: str | None, option: str) -> dict:
@@ -120,19 +121,13 @@ def evaluate(pred_path, truth_path, json_path, map_pred, map_truth):
 
     if json_path:
         refuse_input_as_output(json_path, [pred_path, truth_path], "--json")
-    pred, truth = ev.read_same_points(pred_path, truth_path)
-    pc, tc = pred.classification.astype(int), truth.classification.astype(int)
-    for mapping, arr in ((_parse_map(map_pred, "--map-pred"), pc), (_parse_map(map_truth, "--map-truth"), tc)):
-        src = arr.copy()
-        for a, b in mapping.items():
-            arr[src == a] = b
-    filt = ev.filter_errors(np.isin(pc, (2, 9)), np.isin(tc, (2, 9)))
-    conf = ev.confusion(pc, tc)
-    click.echo(ev.format_filter_table({"ground": filt}))
+    result = ev.evaluate_files(pred_path, truth_path, _parse_map(map_pred, "--map-pred"),
+                               _parse_map(map_truth, "--map-truth"))
+    click.echo(ev.format_filter_table({"ground": result["filter_test"]}))
     click.echo("")
-    click.echo(ev.format_confusion(conf))
+    click.echo(ev.format_confusion(result["confusion"]))
     if json_path:
-        write_text_atomic(json_path, json.dumps({"filter_test": filt, "confusion": conf}, indent=2))
+        write_text_atomic(json_path, json.dumps(result, indent=2))
 
 
 @main.command("check-heights")

@@ -30,6 +30,7 @@ outgoing edge lines in [0, 180); angle_deg is the interior angle of the roof pol
 from __future__ import annotations
 
 import csv
+import dataclasses
 import io
 import json
 import time
@@ -43,6 +44,7 @@ from tqdm import tqdm
 
 from aerotri.core.atomic import refuse_input_as_output, write_text_atomic
 from aerotri.core.errors import InputError
+from aerotri.core.settings import setting
 from aerotri.geom.crs import crs_label
 from lidarctl import io as las_io
 from lidarctl.grid import check_grid
@@ -469,3 +471,75 @@ def plot_corners(path, ndsm, extent, outlines, corners, truth_xy=None, reference
     with atomic_path(path) as tmp:
         fig.savefig(tmp, dpi=130)
     plt.close(fig)
+
+
+# ------------------------------------------------------------------------------------------------ the stage
+@dataclasses.dataclass(frozen=True)
+class CornerSettings:
+    """Options of the roof-corner stage (``lidarctl corners``, ``[corners]`` in project.toml)."""
+
+    min_edge_m: float = setting(5.0, min=0.5, help="Report corners whose two edges are at least this long (m).")
+    roof: str = setting("flat", choices=("flat", "any"), help="Roofs whose corners may be marked usable as control.")
+    sigma_strip_xy_m: float = setting(0.03, min=0.0, help="Horizontal georeferencing error of a strip, added to "
+                                                          "every corner's sx_m, sy_m (m).")
+    sigma_strip_z_m: float = setting(0.03, min=0.0, help="Vertical georeferencing error of a strip, added to every "
+                                                         "corner's sz_m (m).")
+    figure: bool = setting(True, help="Also write corners.png (outlines and corners over the nDSM).")
+
+
+def corner_control(paths, outdir, settings: CornerSettings = CornerSettings(), crs=None, record_none: bool = False,
+                   progress: bool = False) -> dict:
+    """The stage: roof corners of classified LAS/LAZ file(s) (one or more strips in one CRS) as control
+    candidates. ``crs``: the CRS of files that have none (never guessed).
+
+    Writes corners.csv, corners.geojson, corners.json (summary) and, with ``settings.figure``,
+    corners.png into ``outdir`` when at least one corner is usable as control; x, y, z in the files'
+    CRS and units, sigmas in metres (every length setting is in metres, also for clouds in feet).
+    Without a usable corner it writes nothing, or, with ``record_none`` (the chain, which goes on
+    without LiDAR control), only corners.json saying why (``n_usable`` 0) and removes the corner files
+    of an earlier run, so that nothing downstream takes stale corners. Returns the summary, with
+    ``no_usable`` the one-line reason when no corner is usable (else None).
+    """
+    paths = [Path(p) for p in paths]
+    outdir = Path(outdir)
+    s = settings
+    for name in ("corners.csv", "corners.geojson", "corners.json", "corners.png"):
+        refuse_input_as_output(outdir / name, paths, "OUTDIR")
+    cat = read_strips(paths, crs=crs)
+    units = cat["units"]
+    names = ", ".join(str(p) for p in paths)
+    try:
+        result = find_roof_corners(cat["x"], cat["y"], cat["z"], cat["classification"], cat["point_source_id"],
+                                   min_edge_m=s.min_edge_m, roof=s.roof, sigma_strip_xy_m=s.sigma_strip_xy_m,
+                                   sigma_strip_z_m=s.sigma_strip_z_m, progress=progress)
+    except InputError as exc:
+        raise type(exc)(f"{names}: {exc}", param=exc.param) from None
+    st = result["stats"]
+    crs_out = cat["crs"]
+    head = {"source": names, "crs": crs_out.to_string() if crs_out is not None else None, **units.as_dict()}
+    if st["n_usable"] == 0:
+        reason = (f"{names}: no usable roof corner ({st['n_corners']} corners on {st['n_outlines']} roof outlines, "
+                  f"none with score >= {st['usable_score']} and edges >= {s.min_edge_m} m"
+                  f"{' on a flat roof' if s.roof == 'flat' else ''}; point spacing {st['point_spacing_m']:.2f} m)")
+        summary = {**head, **st, "no_usable": reason}
+        if not record_none:
+            return summary
+        outdir.mkdir(parents=True, exist_ok=True)
+        for name in ("corners.csv", "corners.geojson", "corners.png"):
+            (outdir / name).unlink(missing_ok=True)
+        write_text_atomic(outdir / "corners.json", json.dumps(summary, indent=2) + "\n")
+        return summary
+    if s.figure:
+        # Before any file is written: the figure's grid is checked against the machine's memory.
+        xyz = np.column_stack([cat["x"], cat["y"], cat["z"]])
+        try:
+            ndsm, extent_m = simple_ndsm(xyz, cat["classification"], cell_m=max(0.5, st["point_spacing_m"]))
+        except InputError as exc:
+            raise type(exc)(f"{names}: {exc}", param=exc.param) from None
+    out = to_crs_units(result, units)
+    files = write_corner_files(outdir, out, crs=crs_out, source=names, inputs=paths)
+    if s.figure:
+        extent = tuple(float(units.xy_from_m(v)) for v in extent_m)
+        plot_corners(outdir / "corners.png", ndsm, extent, out["outlines"], out["corners"],
+                     title=f"roof corners: {st['n_usable']} usable of {st['n_corners']}", xy_unit=units.xy_name)
+    return {**head, **st, "no_usable": None, "csv": str(files["csv"]), "units_text": units.describe()}

@@ -140,3 +140,16 @@ def format_confusion(conf: dict, names: dict | None = None) -> str:
     lines.append("user %".ljust(w) + "".join((f"{u:.2f}" if u is not None else "-").rjust(w) for u in ua))
     lines.append(f"overall accuracy: {conf['overall_accuracy_pct']:.2f} %")
     return "\n".join(lines)
+
+
+def evaluate_files(pred_path, truth_path, map_pred: dict | None = None, map_truth: dict | None = None) -> dict:
+    """The stage (``lidarctl evaluate``): filter-test errors (ground = classes 2, 9) and the confusion
+    matrix of a classified file against a truth file with the same points in the same order.
+    ``map_pred`` / ``map_truth``: class mappings applied first (e.g. ``{3: 1, 4: 1}``)."""
+    pred, truth = read_same_points(pred_path, truth_path)
+    pc, tc = pred.classification.astype(int), truth.classification.astype(int)
+    for mapping, arr in ((map_pred or {}, pc), (map_truth or {}, tc)):
+        src = arr.copy()
+        for a, b in mapping.items():
+            arr[src == a] = b
+    return {"filter_test": filter_errors(np.isin(pc, (2, 9)), np.isin(tc, (2, 9))), "confusion": confusion(pc, tc)}

@@ -2,6 +2,11 @@
 
 Points keep their values; integer coordinates are re-expressed in the first file's scales and
 offsets when the strips differ. ``point_source_id`` keeps telling the strips apart.
+
+CRS: with ``crs`` (the project CRS) given, a strip tagged with another horizontal CRS is refused
+(naming the file and both CRSs: it must be transformed first, never silently mixed), a strip without
+a CRS record is taken to be in ``crs``, and the merged file carries ``crs``. Without ``crs`` the strips
+must agree among themselves.
 """
 
 from __future__ import annotations
@@ -11,47 +16,82 @@ from pathlib import Path
 import laspy
 import numpy as np
 
-from aerotri.core.atomic import atomic_path
-from aerotri.core.errors import InputError
+from aerotri.core.atomic import atomic_path, refuse_input_as_output
+from aerotri.core.errors import CrsError, InputError
+from aerotri.geom.crs import crs_label, horizontal_crs, parse_crs
+from lidarctl import io
 
 
-def merge_las(paths, out_path, chunk_points: int = 2_000_000) -> int:
+def same_horizontal_crs(a, b) -> bool:
+    """Whether two CRSs have the same horizontal CRS (the same EPSG code, or equal definitions)."""
+    ha, hb = horizontal_crs(a), horizontal_crs(b)
+    if ha.equals(hb, ignore_axis_order=True):
+        return True
+    ea, eb = ha.to_epsg(min_confidence=70), hb.to_epsg(min_confidence=70)
+    return ea is not None and ea == eb
+
+
+def _file_crs(path, header: laspy.LasHeader):
+    try:
+        return header.parse_crs()
+    except Exception as exc:  # laspy/pyproj raise several types for broken CRS records
+        raise CrsError(f"{path}: CRS record present but unreadable ({exc})") from None
+
+
+def merge_las(paths, out_path, crs=None, chunk_points: int = 2_000_000) -> int:
     """Concatenate ``paths`` into ``out_path`` (written atomically); returns the number of points."""
     paths = [Path(p) for p in paths]
     if not paths:
         raise InputError("no LAS/LAZ files to merge")
-    headers = []
-    for p in paths:
-        try:
-            with laspy.open(p) as f:
-                headers.append(f.header)
-        except (laspy.LaspyException, OSError, ValueError) as exc:
-            raise InputError(f"{p}: not a readable LAS/LAZ file ({exc})") from None
+    refuse_input_as_output(out_path, paths)
+    project_crs = parse_crs(crs, "project CRS") if crs is not None else None
+    headers = [io.read_header(p) for p in paths]
     first = headers[0]
-    for p, h in zip(paths[1:], headers[1:]):
+    reference, reference_name = project_crs, "the project CRS"
+    for p, h in zip(paths, headers):
         if h.point_format.id != first.point_format.id:
             raise InputError(f"{p}: point format {h.point_format.id} differs from {paths[0]} "
                              f"({first.point_format.id}); convert before merging")
+        file_crs = _file_crs(p, h)
+        if file_crs is None:
+            continue
+        if reference is None:
+            reference, reference_name = file_crs, str(p)
+        elif not same_horizontal_crs(file_crs, reference):
+            raise CrsError(f"{p}: its CRS {crs_label(horizontal_crs(file_crs))} differs from {reference_name} "
+                           f"{crs_label(horizontal_crs(reference))}; transform the strip into "
+                           f"{crs_label(horizontal_crs(reference))} first (strips are never mixed or reprojected "
+                           "silently)")
     header = laspy.LasHeader(point_format=first.point_format, version=first.version)
     header.scales = first.scales
     header.offsets = first.offsets
-    header.vlrs = list(first.vlrs)
     header.creation_date = first.creation_date
     header.global_encoding = first.global_encoding
+    if project_crs is not None:
+        # the merged file states the project CRS (strips without a CRS record are taken to be in it)
+        header.vlrs = [v for v in first.vlrs if not _is_crs_vlr(v)]
+        header.add_crs(project_crs)
+    else:
+        header.vlrs = list(first.vlrs)
     total = 0
     with atomic_path(out_path) as tmp:
         with laspy.open(tmp, mode="w", header=header) as w:
             for p in paths:
-                with laspy.open(p) as r:
-                    for chunk in r.chunk_iterator(chunk_points):
-                        if np.array_equal(r.header.scales, header.scales) and np.array_equal(r.header.offsets, header.offsets):
-                            w.write_points(chunk)
-                        else:
-                            rec = laspy.ScaleAwarePointRecord.zeros(len(chunk), header=header)
-                            for name in chunk.point_format.dimension_names:
-                                if name not in ("X", "Y", "Z"):
-                                    rec[name] = chunk[name]
-                            rec.x, rec.y, rec.z = chunk.x, chunk.y, chunk.z
-                            w.write_points(rec)
-                        total += len(chunk)
+                for _, chunk in io.iter_chunks(p, chunk_points):
+                    if np.array_equal(chunk.scales, header.scales) and np.array_equal(chunk.offsets, header.offsets):
+                        w.write_points(chunk)
+                    else:
+                        rec = laspy.ScaleAwarePointRecord.zeros(len(chunk), header=header)
+                        for name in chunk.point_format.dimension_names:
+                            if name not in ("X", "Y", "Z"):
+                                rec[name] = chunk[name]
+                        rec.x, rec.y, rec.z = chunk.x, chunk.y, chunk.z
+                        w.write_points(rec)
+                    total += len(chunk)
     return total
+
+
+def _is_crs_vlr(vlr) -> bool:
+    """GeoTIFF keys (34735-34737) and OGC WKT (2112) records of the LASF_Projection user."""
+    return getattr(vlr, "user_id", "") == "LASF_Projection" and getattr(vlr, "record_id", None) in (
+        34735, 34736, 34737, 2111, 2112)

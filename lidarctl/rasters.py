@@ -19,6 +19,7 @@ The footprint is the set of cells within ``footprint_cells`` cells of a point.
 
 from __future__ import annotations
 
+import dataclasses
 from pathlib import Path
 
 import numpy as np
@@ -31,6 +32,7 @@ from scipy import ndimage
 from lidarctl import io
 from aerotri.core.atomic import atomic_path, refuse_input_as_output, temporary_dir
 from aerotri.core.errors import InputError, OptionError
+from aerotri.core.settings import setting
 from lidarctl.grid import check_grid
 from lidarctl.io import PointCloud
 from lidarctl.raster_ops import fill_nodata, reduce_grid, sample_bilinear
@@ -50,6 +52,13 @@ RASTER_BYTES_PER_CELL = 160
 def check_res(res_m: float) -> None:
     if not (np.isfinite(res_m) and res_m > 0):
         raise OptionError(f"--res {res_m}: must be a positive cell size in metres", param="--res")
+
+
+@dataclasses.dataclass(frozen=True)
+class RasterSettings:
+    """Options of the raster stage (``[rasters]`` in project.toml; ``lidarctl rasters --res``)."""
+
+    res_m: float = setting(0.5, min=0.0, min_open=True, help="Cell size in metres.")
 
 
 def grid_for_bounds(xmin: float, ymin: float, xmax: float, ymax: float, res_m: float):

@@ -13,8 +13,6 @@ snapshots the whole tree (hash of every file, every folder), runs the command in
 - the tree afterwards is identical: no output written, nothing changed or removed, no temporaries left.
 
 A few cases run again through a real subprocess (the console scripts) to show that no traceback escapes.
-Cases whose fix belongs to another area of issue 17 are listed in ``PENDING_OTHER_AREAS`` and marked
-``xfail(strict=True)``.
 """
 
 from __future__ import annotations
@@ -36,21 +34,6 @@ import rasterio
 from click.testing import CliRunner
 
 REPO = Path(__file__).resolve().parents[1]
-
-# Cases failing because the fix belongs to another area of issue 17 (the lead removes this list when
-# merging the other branches).
-PENDING_OTHER_AREAS: set[str] = {
-    # aerotri/camera.py, aerotri/project.py (chain): camera.toml, project.toml and at/report.json through the shared
-    # text reader (aerotri.core.textio), adjusted_camera on a corrupt report.json
-    "match_camera_utf16", "match_project_toml_utf16", "control_report_json_corrupt", "rectify_report_json_corrupt",
-    # aerotri/qa_report.py (chain): report without any stage run, corrupt JSON inputs, the map scale key
-    "report_no_stage_run", "report_at_report_corrupt", "report_dom_report_truncated", "report_map_scale_unknown",
-    "report_project_toml_missing", "report_project_toml_binary",
-    # aerotri/project.py (chain): the schema of project.toml refuses unknown keys (a typo is silently ignored)
-    "adjust_project_toml_unknown_key",
-    # aerotri/sim/cli.py, aerotri/run.py (chain): options and project checked before the first stage runs
-    "run_project_crs_unknown", "run_res_zero", "run_reference_missing",
-}
 
 
 # ----------------------------------------------------------------------------------------------
@@ -507,7 +490,7 @@ CASES = [
     C("adjust_image_points_binary", "aerotri", "adjust {p}", "image_points.csv", binary("p/control/image_points.csv")),
     C("adjust_gnss_utf16", "aerotri", "adjust {p}", "gnss.txt", utf16("p/gnss.txt")),
     C("adjust_gnss_xy_swapped", "aerotri", "adjust {p}", "gnss.txt", swap_fields("p/gnss.txt", 1, 2)),
-    C("adjust_camera_k3", "aerotri", "adjust {p}", ["camera.toml", "k3"], toml_set("p/camera.toml", None, "k3", "0.001")),
+    C("adjust_camera_k3_nan", "aerotri", "adjust {p}", ["camera.toml", "k3"], toml_set("p/camera.toml", None, "k3", "nan")),
     C("adjust_camera_size_mismatch", "aerotri", "adjust {p}", "camera.toml",
       toml_set("p/camera.toml", None, "width", "100")),
     C("adjust_self_cal_unknown", "aerotri", "adjust {p} --self-cal pp,focus", "--self-cal"),
@@ -750,7 +733,6 @@ def test_corpus_is_large_and_ids_unique():
     ids = [c.id for c in CASES]
     assert len(ids) == len(set(ids))
     assert len(ids) >= 100
-    assert PENDING_OTHER_AREAS <= set(ids)
     progs = {(c.prog, c.args[0]) for c in CASES}
     for cmd in [("aerotri", "sim"), ("aerotri", "match"), ("aerotri", "adjust"), ("aerotri", "control"),
                 ("aerotri", "report"), ("aerotri", "crs"), ("aerotri", "run"), ("lidarctl", "classify"),
@@ -802,13 +784,7 @@ def check_failure(case: Case, w: Path, before: dict, exit_code: int, stderr: str
     assert not changed, f"files written, changed or removed: {changed[:10]}"
 
 
-def _param(case: Case):
-    marks = [pytest.mark.xfail(strict=True, reason="fixed in another area of issue 17")] \
-        if case.id in PENDING_OTHER_AREAS else []
-    return pytest.param(case, id=case.id, marks=marks)
-
-
-@pytest.mark.parametrize("case", [_param(c) for c in CASES])
+@pytest.mark.parametrize("case", [pytest.param(c, id=c.id) for c in CASES])
 def test_bad_input(case: Case, workspace, tmp_path):
     w = prepare(case, workspace, tmp_path)
     before = snapshot(w)
@@ -819,7 +795,7 @@ def test_bad_input(case: Case, workspace, tmp_path):
 SUBPROCESS_CASES = ["match_gnss_utf16", "match_image_all_black", "rectify_res_too_fine", "crs_transform_truncated_laz"]
 
 
-@pytest.mark.parametrize("case", [_param(c) for c in CASES if c.id in SUBPROCESS_CASES])
+@pytest.mark.parametrize("case", [pytest.param(c, id=c.id) for c in CASES if c.id in SUBPROCESS_CASES])
 def test_bad_input_subprocess(case: Case, workspace, tmp_path):
     """The console script itself: no traceback escapes a real process."""
     w = prepare(case, workspace, tmp_path)

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import click
 
 from aerotri.core.commands import Command, finite, fraction, positive
@@ -37,10 +39,13 @@ def _self_cal_groups(ctx, param, value):
 @click.option("--alpha", type=fraction(open_low=True, open_high=True), default=1e-4, show_default=True,
               help="Type I error per coordinate for data snooping, in (0, 1).")
 @click.option("--no-html", is_flag=True, help="Skip report.html.")
+@click.option("--eo", "initial_eo", type=click.Path(dir_okay=False, exists=True, path_type=Path), default=None,
+              help="Approximate orientations (image_id X Y Z omega phi kappa): the start of a block without GNSS, "
+                   "whose datum then comes from the control points (at least 2 plan and 3 height).")
 def adjust(project, gnss_correction, lever_arm, self_cal, image_sigma, check, control, no_snooping, no_control, alpha,
-           no_html):
+           no_html, initial_eo):
     """Adjust the block of PROJECT; writes at/eo.txt, at/object_points.csv, at/report.* and exports."""
-    from aerotri.adjust.pipeline import AdjustSettings, adjust_project, write_outputs
+    from aerotri.adjust.pipeline import AdjustSettings, run_adjustment
 
     settings = AdjustSettings(
         gnss_correction=gnss_correction,
@@ -52,9 +57,9 @@ def adjust(project, gnss_correction, lever_arm, self_cal, image_sigma, check, co
         snooping=not no_snooping,
         use_control=not no_control,
         alpha=alpha,
+        initial_eo=initial_eo,
     )
-    ba = adjust_project(project, settings, progress=lambda m: click.echo(m, err=True))
-    rep = write_outputs(ba, project, html=not no_html)
+    _, rep = run_adjustment(project, settings, html=not no_html, progress=lambda m: click.echo(m, err=True))
     k = rep["key_statistics"]
     click.echo(f"sigma0 {k['sigma0_um']} um, {k['iterations']} iterations, dof {k['degrees_of_freedom']}: {k['message']}")
     if rep["check_rms_m"]:

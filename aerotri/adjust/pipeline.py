@@ -38,25 +38,35 @@ from aerotri.camera import FrameCamera
 from aerotri.eo import ExteriorOrientations, check_block_crs, read_eo, read_gnss
 from aerotri.core.config import config_number, config_vector
 from aerotri.core.errors import InputError, OptionError
+from aerotri.core.settings import setting
 from aerotri.project import Project
 from aerotri.rotation import FLIP_YZ, opk_from_matrix
 
 
 @dataclasses.dataclass
 class AdjustSettings:
-    gnss_correction: str = "none"
-    lever_arm_m: tuple | None = None  # None: from project.toml [gnss] lever_arm_m (else zero)
-    self_calibration: tuple = ()
-    image_sigma_px: float | None = None  # None: project.toml [adjust] image_sigma_px, else 0.5
-    check: tuple = ()  # ids to use as check points
-    control: tuple = ()  # ids to use as (full) control even if marked check
-    snooping: bool = True
-    alpha: float = 1e-4
-    rms_limit_xy_m: float | None = None
-    rms_limit_z_m: float | None = None
-    residual_limit_m: float | None = None
+    """Options of the adjustment (``aerotri adjust``, ``[adjust]`` in project.toml for ``aerotri run``)."""
+
+    gnss_correction: str = setting("none", choices=G.GNSS_CORRECTIONS,
+                                   help="GNSS corrections per strip: none, shift, or shift and drift.")
+    lever_arm_m: tuple[float, float, float] | None = setting(
+        None, help="Antenna offset from the projection centre in the camera frame (m); default project.toml [gnss] "
+                   "lever_arm_m, else zero.")
+    self_calibration: tuple[str, ...] = setting((), choices=tuple(G.SELF_CAL_GROUPS),
+                                                help="Interior orientation groups to estimate.")
+    image_sigma_px: float | None = setting(None, min=0.0, min_open=True,
+                                           help="A-priori image standard deviation (px); default 0.5.")
+    check: tuple[str, ...] = setting((), help="Control point ids to use as check points.")
+    control: tuple[str, ...] = setting((), help="Point ids to use as full control even if marked check.")
+    snooping: bool = setting(True, help="Blunder detection (data snooping).")
+    alpha: float = setting(1e-4, min=0.0, max=1.0, min_open=True, max_open=True,
+                           help="Type I error per coordinate for data snooping.")
+    rms_limit_xy_m: float | None = setting(None, min=0.0, min_open=True)
+    rms_limit_z_m: float | None = setting(None, min=0.0, min_open=True)
+    residual_limit_m: float | None = setting(None, min=0.0, min_open=True)
     use_gnss: bool = True
-    initial_eo: str | None = None  # EO file for approximations (blocks without GNSS)
+    initial_eo: Path | None = setting(None, path=True, help="Approximate orientations (EO file): the start of a block "
+                                                            "without GNSS, whose datum then comes from control.")
     point_covariances: bool = True
     use_control: bool = True  # False: ignore control/ (GNSS must carry the datum)
     refine_approximations: bool = True  # resection/intersection of the attitudes before the bundle (GNSS)
@@ -117,7 +127,8 @@ def connected_image_components(n_images, obs_point, obs_image) -> list[np.ndarra
     return sorted((np.array(g) for g in groups.values()), key=len, reverse=True)
 
 
-def check_datum(control: ControlPoints, gnss: bool, correction: str) -> None:
+def datum_shortfall(control: ControlPoints, gnss: bool, correction: str) -> str | None:
+    """Why the control points cannot fix the datum with (or without) GNSS and its corrections, or None."""
     n_xy = int(np.isin(control.kind, ["full", "horizontal"]).sum())
     n_z = int(np.isin(control.kind, ["full", "height"]).sum())
     if not gnss:
@@ -127,13 +138,82 @@ def check_datum(control: ControlPoints, gnss: bool, correction: str) -> None:
     elif correction == "shift_drift":
         need = (2, 2)
     else:
-        return
+        return None
     if n_xy < need[0] or n_z < need[1]:
         what = "without GNSS" if not gnss else f"with GNSS {correction.replace('_', ' and ')} corrections per strip"
-        raise InputError(
-            f"too few control points for the datum {what}: need at least {need[0]} with plan and {need[1]} with "
-            f"height coordinates, have {n_xy} and {n_z} (control/points.csv)"
-        )
+        return (f"too few control points for the datum {what}: need at least {need[0]} with plan and {need[1]} with "
+                f"height coordinates, have {n_xy} and {n_z} (control/points.csv)")
+    return None
+
+
+def check_datum(control: ControlPoints, gnss: bool, correction: str) -> None:
+    msg = datum_shortfall(control, gnss, correction)
+    if msg:
+        raise InputError(msg)
+
+
+def _empty_control():
+    return (ControlPoints(np.zeros(0, dtype=object), np.zeros(0, dtype=object), np.zeros((0, 3)), np.zeros((0, 3))),
+            ImageObservations(np.zeros(0, dtype=object), np.zeros(0, dtype=object), np.zeros((0, 2))))
+
+
+def read_project_control(project: Project, st: AdjustSettings, crs=None) -> tuple[ControlPoints, ImageObservations]:
+    """The control and check points the adjustment uses (``control/``, kinds changed by ``st.check`` and
+    ``st.control``), and their image measurements; none with ``st.use_control`` off. ``crs``: the
+    project CRS the points are checked against (default: the project's)."""
+    if crs is None:
+        crs = check_block_crs(project.crs, f"{project.root / 'project.toml'} [project] crs")
+    ctrl_path = project.control_dir / "points.csv"
+    cobs_path = project.control_dir / "image_points.csv"
+    gnss_datum = st.use_gnss and project.gnss_path.exists()
+    if not st.use_control and not gnss_datum:
+        raise InputError(f"{project.gnss_path}: without control the datum needs GNSS positions")
+    if st.use_control and (ctrl_path.exists() or cobs_path.exists() or not gnss_datum):
+        control = read_control_points(ctrl_path, crs, hint="run aerotri control first, or --no-control")
+        cobs = read_image_points(cobs_path, hint="run aerotri control first, or --no-control")
+    else:
+        # GNSS alone can carry the datum (no corrections per strip): the first adjustment of the
+        # chain, before LiDAR control has been transferred. check_datum refuses the other cases.
+        control, cobs = _empty_control()
+    kinds = {pid: "check" for pid in st.check}
+    kinds.update({pid: "full" for pid in st.control})
+    if kinds:
+        control = control.with_kinds(kinds)
+    return control, cobs
+
+
+def project_datum_shortfall(root, settings: AdjustSettings | None = None) -> str | None:
+    """``datum_shortfall`` of a project's control for these settings (None: the datum is fixed)."""
+    project = Project.open(root)
+    st = _settings_from_project(project, settings or AdjustSettings())
+    control, _ = read_project_control(project, st)
+    return datum_shortfall(control, st.use_gnss and project.gnss_path.exists(), st.gnss_correction)
+
+
+def observations_without_k3(cam: FrameCamera, xy_px: np.ndarray) -> np.ndarray:
+    """Image measurements of a camera with radial term k3 as the same camera without k3 sees the same rays.
+
+    The adjustment's camera model (Cal3DS2) has k1 k2 p1 p2 only; a known k3 (held fixed) is taken
+    off the measurements instead: x' = x - f xn k3 r^6 (likewise y), with (xn, yn) the normalised ray
+    of the measurement. Exact for a fixed camera; with self-calibrated k1, k2 the ray moves by second
+    order only.
+    """
+    if not cam.k3 or not len(xy_px):
+        return xy_px
+    xn, yn = cam.pixel_to_normalized(xy_px[:, 0], xy_px[:, 1])
+    t = cam.k3 * (xn * xn + yn * yn) ** 3
+    return xy_px - cam.focal_px * np.column_stack([xn * t, yn * t])
+
+
+def _initial_orientations(path, image_ids: list | None, crs=None) -> ExteriorOrientations:
+    """Approximate orientations for the adjustment; with ``image_ids`` (GNSS) every image must have one."""
+    eo0 = read_eo(path, crs)
+    if image_ids is not None:
+        missing = sorted(set(image_ids) - set(eo0.image_id))
+        if missing:
+            raise InputError(f"{path}: no approximate orientation for image(s) {', '.join(missing[:10])}"
+                             + (" ..." if len(missing) > 10 else "") + " (gnss.txt has them)")
+    return eo0
 
 
 def prepare_project(root, settings: AdjustSettings | None = None):
@@ -149,45 +229,35 @@ def prepare_project(root, settings: AdjustSettings | None = None):
     for key in ("sigma_xy_m", "sigma_z_m"):
         config_number(ccfg, key, None, f"{toml} [control]", positive=True)
     cam = project.camera()
-    if cam.k3:
-        raise InputError(f"{project.camera_path}: k3 is not supported by the adjustment (Cal3DS2 has k1 k2 p1 p2)")
     tie_path = project.at_dir / "tiepoints.csv"
     ctrl_path = project.control_dir / "points.csv"
     cobs_path = project.control_dir / "image_points.csv"
     ties = read_image_points(tie_path, hint="run aerotri match first")
-    gnss_datum = st.use_gnss and project.gnss_path.exists()
-    if not st.use_control and not gnss_datum:
-        raise InputError(f"{project.gnss_path}: without control the datum needs GNSS positions")
-    if st.use_control and (ctrl_path.exists() or cobs_path.exists() or not gnss_datum):
-        control = read_control_points(ctrl_path, crs, hint="run aerotri control first, or --no-control")
-        cobs = read_image_points(cobs_path, hint="run aerotri control first, or --no-control")
-    else:
-        # GNSS alone can carry the datum (no corrections per strip): the first adjustment of the
-        # chain, before LiDAR control has been transferred. check_datum refuses the other cases.
-        control = ControlPoints(np.zeros(0, dtype=object), np.zeros(0, dtype=object), np.zeros((0, 3)), np.zeros((0, 3)))
-        cobs = ImageObservations(np.zeros(0, dtype=object), np.zeros(0, dtype=object), np.zeros((0, 2)))
-    kinds = {pid: "check" for pid in st.check}
-    kinds.update({pid: "full" for pid in st.control})
-    if kinds:
-        control = control.with_kinds(kinds)
+    control, cobs = read_project_control(project, st, crs)
 
-    # orientation source: GNSS (normal case) or given approximate EO
-    gnss = None
+    # orientation source: GNSS (with given approximate EO, if any) or given approximate EO alone
+    gnss = eo0 = None
     if st.use_gnss and project.gnss_path.exists():
         gnss = read_gnss(project.gnss_path, crs)
         image_ids = list(gnss.image_id)
         approx_pos_map = gnss.position_m
         block_path = project.gnss_path
+        if st.initial_eo:
+            eo0 = _initial_orientations(st.initial_eo, image_ids, crs)
     elif st.initial_eo:
-        eo0 = read_eo(st.initial_eo, crs)
+        eo0 = _initial_orientations(st.initial_eo, None, crs)
         image_ids = list(eo0.image_id)
         approx_pos_map = eo0.centre_m
         block_path = st.initial_eo
     else:
-        raise InputError(f"{project.gnss_path}: missing (or give initial orientations)")
+        raise InputError(f"{project.gnss_path}: missing; a block without GNSS needs approximate orientations "
+                         "(aerotri adjust --eo FILE) and control points for its datum")
     validate_references(ties, control, cobs, image_ids, tie_path, ctrl_path, cobs_path, camera=cam,
                         block_path=block_path, camera_path=project.camera_path)
     check_datum(control, gnss is not None, st.gnss_correction)
+    # a known k3 is taken off the measurements (Cal3DS2 has no k3; the camera keeps it for the outputs)
+    ties = ImageObservations(ties.point_id, ties.image_id, observations_without_k3(cam, ties.xy_px))
+    cobs = ImageObservations(cobs.point_id, cobs.image_id, observations_without_k3(cam, cobs.xy_px))
     # images in flight order (id order), drop images without any measurement
     order = np.argsort(np.array(image_ids, dtype=object), kind="stable")
     measured = set(np.unique(ties.image_id).tolist()) | set(np.unique(cobs.image_id).tolist())
@@ -264,15 +334,17 @@ def prepare_project(root, settings: AdjustSettings | None = None):
         self_calibration=tuple(st.self_calibration),
     )
 
-    # approximations: GNSS centres + kappa from the strip direction, then alternating space resection
-    # and intersection refine the attitudes (st.refine_approximations); given EO: intersection only
+    # approximations: GNSS centres + kappa from the strip direction (or the given EO), then alternating
+    # space resection and intersection refine the attitudes (GNSS, st.refine_approximations); given EO
+    # without GNSS: intersection only
     cal0 = G.cal_from_camera(cam)
-    if gl is not None:
-        centre0, R0 = approximate_orientations(gl, lever, strip, obs_point, obs_image, obs_xy)
+    if eo0 is not None:
+        k = eo0.index()
+        sel = np.array([k[i] for i in image_ids], dtype=int)
+        centre0 = frame.to_local(eo0.centre_m[sel])
+        R0 = frame.rotation_local_from_map(eo0.centre_m[sel]) @ eo0.rotations()[sel] @ FLIP_YZ
     else:
-        centre0 = approx_local
-        R_map = eo0.rotations()[order]
-        R0 = frame.rotation_local_from_map(eo0.centre_m[order]) @ R_map @ FLIP_YZ
+        centre0, R0 = approximate_orientations(gl, lever, strip, obs_point, obs_image, obs_xy)
     has_height = block.control_rows != 2
     if has_height.any():
         ground = float(np.median(given_loc[has_height, 2]))
@@ -416,11 +488,12 @@ def object_points_csv(ba: BlockAdjustment) -> str:
     return "\n".join(lines) + "\n"
 
 
-def write_outputs(ba: BlockAdjustment, root, html: bool = True, exports: bool = True) -> dict:
+def write_outputs(ba: BlockAdjustment, root, html: bool = True, exports: bool = True, out_dir=None) -> dict:
     """Write at/eo.txt, object_points.csv, report.txt/json/html and exports; returns the report dict.
 
-    All texts are produced first and written afterwards (each atomically), so an error in any of
-    them leaves no partial output.
+    ``out_dir``: another folder than the project's ``at/`` (the chain's first adjustment). All texts
+    are produced first and written afterwards (each atomically), so an error in any of them leaves
+    no partial output.
     """
     import json
 
@@ -429,7 +502,7 @@ def write_outputs(ba: BlockAdjustment, root, html: bool = True, exports: bool = 
     from aerotri.qa_report import qa_settings
     from aerotri.core.atomic import write_text_atomic
 
-    at = Project.open(root).at_dir
+    at = Path(out_dir) if out_dir is not None else Project.open(root).at_dir
     qa = qa_settings(root)  # the limits of the project's map scale and terrain, as in reports/
     rep = report.build_report(ba, qa["map_scale"], qa["terrain"], qa["tolerances"])
     files = {
@@ -446,6 +519,14 @@ def write_outputs(ba: BlockAdjustment, root, html: bool = True, exports: bool = 
     for rel, text in files.items():
         write_text_atomic(at / rel, text)
     return rep
+
+
+def run_adjustment(root, settings: AdjustSettings | None = None, out_dir=None, html: bool = True,
+                   exports: bool = True, progress=None) -> tuple[BlockAdjustment, dict]:
+    """The stage: adjust the project and write its outputs (``write_outputs``); returns the adjustment
+    and the report dict. ``aerotri adjust`` and the chain both run this."""
+    ba = adjust_project(root, settings, progress=progress)
+    return ba, write_outputs(ba, root, html=html, exports=exports, out_dir=out_dir)
 
 
 def _json_default(o):

@@ -2,13 +2,14 @@
 ``<prefix>/share/aerotri/presets``) and their validation.
 
 A preset is a nested table: ``[preset] [crs] [camera] [flight] [gnss] [lidar] [scene] [render]
-[truth]``. ``--set section.key=value`` overrides single values (TOML syntax for the value).
+[truth]``, and ``[chain.<stage>]``: the stage options the simulated project's project.toml gets. ``--set section.key=value`` overrides single values (TOML syntax for the value).
 Every invalid value is refused with an ``InputError`` that names the key and what was expected.
 """
 
 from __future__ import annotations
 
 import copy
+import json
 import math
 import os
 import tomllib
@@ -97,6 +98,10 @@ def validate(cfg: dict, source: str = "preset") -> None:
     for section in ("preset", "crs", "camera", "flight", "gnss", "lidar", "scene", "render", "truth"):
         if section not in cfg:
             raise InputError(f"{source}: missing section [{section}]")
+    if "chain" in cfg:  # the stage options the project gets: the checks aerotri run makes
+        from aerotri.chain.options import read_stage_sections
+
+        read_stage_sections(cfg["chain"], f"{source} [chain]")
     _need(cfg, source, "crs", "epsg", 1, integer=True)
     _need(cfg, source, "camera", "focal_mm", 1.0, 1000.0, lo_open=True)
     _need(cfg, source, "camera", "sensor_width_mm", 1.0, 1000.0)
@@ -141,3 +146,28 @@ def validate(cfg: dict, source: str = "preset") -> None:
                 f"{source}: {section}.height_above_ground_m = {h} m does not clear the terrain: the valley side "
                 f"rises about {top_m:.0f} m above the town and buildings reach {hi} m (need at least "
                 f"{top_m + hi + 50.0:.0f} m)")
+
+
+def _toml_value(v) -> str:
+    if isinstance(v, bool):
+        return "true" if v else "false"
+    if isinstance(v, (int, float)):
+        return repr(v)
+    if isinstance(v, str):
+        return json.dumps(v)  # a TOML basic string for what presets hold
+    if isinstance(v, (list, tuple)):
+        return "[" + ", ".join(_toml_value(x) for x in v) + "]"
+    raise InputError(f"preset [chain]: cannot write {v!r} into project.toml")
+
+
+def stage_sections_toml(chain: dict, prefix: str = "") -> str:
+    """The preset's ``[chain.<stage>]`` tables as project.toml sections (``[<stage>]``, sub-tables nested)."""
+    out = []
+    for section, table in chain.items():
+        name = f"{prefix}{section}"
+        plain = {k: v for k, v in table.items() if not isinstance(v, dict)}
+        out.append(f"\n[{name}]\n" + "".join(f"{k} = {_toml_value(v)}\n" for k, v in plain.items()))
+        sub = {k: v for k, v in table.items() if isinstance(v, dict)}
+        if sub:
+            out.append(stage_sections_toml(sub, f"{name}."))
+    return "".join(out)

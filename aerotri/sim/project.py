@@ -23,6 +23,7 @@ from aerotri.eo import ExteriorOrientations, GnssPositions, format_eo, write_gns
 from aerotri.core.errors import InputError
 from aerotri.rotation import rotation_matrix_opk
 from aerotri.sim import raycast, render
+from aerotri.sim.config import stage_sections_toml
 from aerotri.sim.flight import block_layout, cameras_from_config, lidar_lines, plan_frames
 from aerotri.sim.lidar import scan_strip, write_las
 from aerotri.sim.scene import build_scene
@@ -139,6 +140,7 @@ def simulate(cfg: dict, outdir, force: bool = False, log=print) -> dict:
             f"mean_terrain_height_m = {origin[2]}\nspeed_mps = {cfg['flight']['speed_mps']}\n\n"
             f"[qa]\n# tolerance table of the accuracy report (aerotri report): map scale, terrain class, PDF copy\n"
             f'map_scale = "1:5000"\nterrain = "flat"\npdf = true\n'
+            + stage_sections_toml(cfg.get("chain", {}))
         )
         (tmp / "truth" / "gnss_truth.toml").write_text(
             f"lever_arm_m = [{lever}]\n"

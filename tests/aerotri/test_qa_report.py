@@ -7,7 +7,11 @@ import json
 from aerotri.qa_report import write_qa_report
 
 
+PROJECT = '[project]\nname = "t"\ncrs = "EPSG:32649"\n'
+
+
 def _project(tmp_path, check_rms, dom_rms):
+    (tmp_path / "project.toml").write_text(PROJECT)
     (tmp_path / "at").mkdir()
     (tmp_path / "ortho").mkdir()
     (tmp_path / "at" / "report.json").write_text(json.dumps(dict(
@@ -45,7 +49,7 @@ def test_map_scale_tables_and_project_settings(tmp_path):
     assert by["check points, height RMS"]["verdict"] == "fail"  # 0.5 m > 0.4 m
     assert rep["overall"] == "fail" and rep["failed"] == 2
     # Hilly at 1:2000 allows 0.8 m in height; settings from project.toml, PDF on request.
-    (p / "project.toml").write_text('[qa]\nmap_scale = "1:2000"\nterrain = "hilly"\npdf = true\n')
+    (p / "project.toml").write_text(PROJECT + '[qa]\nmap_scale = "1:2000"\nterrain = "hilly"\npdf = true\n')
     rep = write_qa_report(p)
     by = {r["quantity"]: r for r in rep["checks"]}
     assert rep["map_scale"] == "1:2000" and rep["terrain"] == "hilly"

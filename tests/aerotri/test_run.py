@@ -6,7 +6,7 @@ import json
 
 import pytest
 
-from aerotri.run import Stage, format_summary, run_stages, stamp_path
+from aerotri.chain import Stage, format_summary, run_stages, stamp_path
 
 
 def _stages(calls):
@@ -89,14 +89,42 @@ def test_stale_temporaries_of_a_killed_attempt_are_removed(tmp_path):
     assert (tmp_path / "out.txt").read_text() == "5"
 
 
+def test_skipped_stage_says_why_and_options_rerun_a_stage(tmp_path):
+    (tmp_path / "in.txt").write_text("3")
+    calls = []
+    stages = _stages(calls)
+    stages[1].skip = lambda r: "no mid.txt wanted" if (r / "skip").exists() else None
+    (tmp_path / "skip").write_text("")
+    rows = run_stages(tmp_path, stages, log=lambda m: None)
+    assert calls == ["double"] and rows[1]["status"] == "skipped" and rows[1]["why"] == "no mid.txt wanted"
+    assert not stamp_path(tmp_path, "add").exists()
+    assert "no mid.txt wanted" in format_summary(rows)
+    (tmp_path / "skip").unlink()
+    calls.clear()
+    run_stages(tmp_path, stages, log=lambda m: None)
+    assert calls == ["add"]
+    # changed options (tuples and paths as the JSON stamp keeps them) re-run the stage, equal ones do not
+    stages[1].options = lambda r: dict(k=(1, 2), p=r / "x")
+    calls.clear()
+    run_stages(tmp_path, stages, log=lambda m: None)
+    run_stages(tmp_path, stages, log=lambda m: None)
+    assert calls == ["add"]
+
+
 def test_chain_stages_list_the_project_files_their_commands_read(tmp_path):
     """A changed camera, GNSS file or project.toml ([gnss]/[control] sigmas, [qa] limits) re-runs the
-    adjustments; a replaced image re-runs the rectification."""
-    from aerotri.run import chain_stages
+    adjustments; a replaced image re-runs the matching, the control transfer and the rectification."""
+    from aerotri.chain import chain_stages
 
+    (tmp_path / "project.toml").write_text('[project]\ncrs = "EPSG:32649"\n')
     (tmp_path / "images").mkdir()
     (tmp_path / "images" / "a.tif").write_bytes(b"x")
-    inputs = {st.name: set(st.inputs(tmp_path)) for st in chain_stages(tmp_path)}
+    (tmp_path / "gnss.txt").write_text("")
+    inputs = {st.name: set(st.inputs(tmp_path)) for st in chain_stages(tmp_path, dem=tmp_path / "dem.tif")}
     for name in ("adjust_first", "adjust_final"):
         assert {tmp_path / "camera.toml", tmp_path / "gnss.txt", tmp_path / "project.toml"} <= inputs[name], name
-    assert tmp_path / "images" / "a.tif" in inputs["rectify"] and tmp_path / "images" / "a.tif" in inputs["match"]
+    assert tmp_path / "control" / "points.csv" in inputs["adjust_final"]
+    assert tmp_path / "control" / "points.csv" not in inputs["adjust_first"]  # written after it
+    for name in ("match", "control", "rectify"):
+        assert tmp_path / "images" / "a.tif" in inputs[name], name
+    assert tmp_path / "dem.tif" in inputs["rectify"]

@@ -14,7 +14,7 @@ import time
 SCRIPT = """
 import sys
 from pathlib import Path
-from aerotri.run import chain_stages, run_stages
+from aerotri.chain import chain_stages, run_stages
 root = Path(sys.argv[1])
 run_stages(root, chain_stages(root)[:3], log=lambda m: print(m, file=sys.stderr, flush=True))
 """

@@ -1,0 +1,118 @@
+"""``aerotri run`` and ``aerotri demo``: the chain over a project folder (and the embedded synthetic block)."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import click
+
+from aerotri.core.commands import Command, scheduler_options
+from aerotri.core.executor import Executor, activate
+
+
+def _run_chain(project_dir: Path, scheduler, workers, force: bool, **inputs) -> list[dict]:
+    from aerotri.chain.options import read_options
+    from aerotri.chain.runner import run_stages
+    from aerotri.chain.stages import Chain
+    from aerotri.project import Project
+
+    project = Project.open(project_dir)
+    chain = Chain(project, read_options(project), **inputs)  # project.toml checked whole before any stage runs
+    chain.check_files()
+    stages = chain.stages()
+    with Executor(scheduler, workers) as ex, activate(ex):
+        click.echo(f"tasks run on {ex.describe()}", err=True)
+        return run_stages(project.root, stages, force=force, log=lambda m: click.echo(m, err=True))
+
+
+def _closing_words(rows: list[dict]) -> str | None:
+    """One line when the chain could not make the orthophotos (it ran everything else it could)."""
+    for r in rows:
+        if r["stage"] == "rectify" and r["status"] == "skipped":
+            return f"stopped after the adjustment: {r['why']}"
+    return None
+
+
+def _stale_simulation(project: Path, cfg: dict) -> str | None:
+    """Why the simulated project must be made (again), or None: missing, or its project.toml lacks the
+    stage options the preset gives (a project simulated by an earlier version)."""
+    import tomllib
+
+    if not (project / "truth" / "truth.json").is_file() or not (project / "project.toml").is_file():
+        return "no simulated project yet"
+    have = tomllib.loads((project / "project.toml").read_text())
+
+    def differs(want: dict, got: dict, name: str) -> str | None:
+        for key, value in want.items():
+            if isinstance(value, dict):
+                why = differs(value, got.get(key) or {}, f"{name}.{key}")
+                if why:
+                    return why
+            elif got.get(key) != value:
+                return f"project.toml [{name}] {key} is not the preset's {value!r}"
+        return None
+
+    for section, table in cfg.get("chain", {}).items():
+        why = differs(table, have.get(section) or {}, section)
+        if why:
+            return why
+    return None
+
+
+@click.command(cls=Command, name="run")
+@click.argument("project", type=click.Path(file_okay=False, path_type=Path))
+@click.option("--reference", type=click.Path(dir_okay=False, exists=True, path_type=Path),
+              help="Reference orthophoto for the DOM check.")
+@click.option("--points", type=click.Path(dir_okay=False, exists=True, path_type=Path),
+              help="Surveyed points (id,x,y,z[,group]) for the LiDAR height check.")
+@click.option("--dem", type=click.Path(dir_okay=False, exists=True, path_type=Path),
+              help="DEM for the orthophotos (overrides [rectify] dem; default: the DEM of the LiDAR stages).")
+@click.option("--force", is_flag=True, help="Re-run every stage even when it is up to date.")
+@scheduler_options
+def run(project, reference, points, dem, force, scheduler, workers):
+    """The whole chain over PROJECT, resumable: a re-run skips stages whose inputs did not change.
+
+    Stage options come from project.toml, one section per stage ([classify], [rasters], [corners],
+    [match], [adjust], [control], [rectify], [mosaic]; the keys of each stage's settings). Stages the
+    inputs do not allow (no LiDAR, no usable roof corner, no DEM) are left out and the summary says why.
+    """
+    from aerotri.chain.runner import format_summary
+
+    rows = _run_chain(project, scheduler, workers, force, reference_ortho=reference, surveyed_points=points, dem=dem)
+    click.echo(format_summary(rows))
+    last = _closing_words(rows)
+    if last:
+        click.echo(last, err=True)
+
+
+@click.command(cls=Command)
+@click.argument("outdir", type=click.Path(file_okay=False, path_type=Path), default=Path("out/demo"))
+@click.option("--preset", default="demo", show_default=True, help="Simulator preset for the embedded block.")
+@click.option("--force", is_flag=True, help="Re-run every stage even when it is up to date.")
+@scheduler_options
+def demo(outdir, preset, force, scheduler, workers):
+    """The main job on the embedded synthetic block: simulate it, then run the whole chain on it.
+
+    Every stage uses only the project's inputs; truth/ is read by the final checks alone (DOM against
+    the true orthophoto, LiDAR heights at the surveyed targets, classification against true classes).
+    """
+    from aerotri.chain.runner import format_summary
+    from aerotri.core.atomic import write_text_atomic
+    from aerotri.sim import load_preset, simulate
+
+    outdir = Path(outdir)
+    project = outdir / "project"
+    cfg = load_preset(preset)
+    stale = _stale_simulation(project, cfg)
+    if stale:
+        click.echo(f"{project}: {stale}: simulating it", err=True)
+        simulate(cfg, project, force=True, log=lambda m: click.echo(m, err=True))
+    else:
+        click.echo(f"{project}: simulated project exists, reusing it", err=True)
+    rows = _run_chain(project, scheduler, workers, force, reference_ortho=project / "truth" / "ortho.tif",
+                      surveyed_points=project / "truth" / "checkpoints.csv", truth_classes=True)
+    table = format_summary(rows)
+    write_text_atomic(outdir / "summary.txt", table + "\n")
+    write_text_atomic(outdir / "summary.json", json.dumps(rows, indent=1, default=str) + "\n")
+    click.echo(table)

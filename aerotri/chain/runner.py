@@ -1,0 +1,138 @@
+"""The resumable stage runner: stamps, skipping what is up to date, the summary table.
+
+A stage is skipped when its stamp (``work/stages/<stage>.json``) records the same input files (content
+hash; size and modification time for files over 64 MiB) and options as now and all its outputs exist;
+otherwise it runs and writes its outputs atomically, then its stamp. Killing a run leaves finished
+stages stamped and the interrupted stage without a stamp and without partial outputs, so a re-run
+continues there. A stage may also be left out for a reason decided when its turn comes (``skip``:
+no LiDAR, no usable corner, no DEM ...); the summary row says why.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import hashlib
+import json
+import logging
+import time
+from collections.abc import Callable
+from pathlib import Path
+
+from aerotri.core.atomic import remove_leftovers, write_text_atomic
+
+_log = logging.getLogger(__name__)
+
+
+@dataclasses.dataclass
+class Stage:
+    name: str
+    inputs: Callable[[Path], list[Path]]  # files whose change re-runs the stage
+    outputs: Callable[[Path], list[Path]]  # files the stage must leave behind
+    run: Callable[[Path], dict]  # does the work, returns key numbers for the summary
+    options: dict | Callable[[Path], dict] = dataclasses.field(default_factory=dict)  # settings that re-run it
+    skip: Callable[[Path], str | None] | None = None  # a reason to leave the stage out, asked when its turn comes
+
+    def options_now(self, root: Path) -> dict:
+        return self.options(root) if callable(self.options) else self.options
+
+
+def _signature(paths: list[Path], hash_limit_bytes: int = 64 << 20) -> dict:
+    """Content hash of each input up to ``hash_limit_bytes`` (timestamps are too coarse to trust),
+    size and modification time beyond that."""
+    sig = {}
+    for p in sorted(paths, key=str):
+        if p.is_file():
+            st = p.stat()
+            if st.st_size <= hash_limit_bytes:
+                sig[str(p)] = hashlib.sha1(p.read_bytes()).hexdigest()
+            else:
+                sig[str(p)] = [st.st_size, st.st_mtime_ns]
+        else:
+            sig[str(p)] = None
+    return sig
+
+
+def _plain(options: dict) -> dict:
+    """Options as they read back from the JSON stamp (tuples become lists, paths text)."""
+    return json.loads(json.dumps(options, default=str))
+
+
+def stamp_path(root: Path, stage: str) -> Path:
+    return root / "work" / "stages" / f"{stage}.json"
+
+
+def is_current(root: Path, st: Stage) -> bool:
+    sp = stamp_path(root, st.name)
+    if not sp.exists():
+        return False
+    try:
+        stamp = json.loads(sp.read_text())
+    except json.JSONDecodeError:
+        return False
+    if not all(p.exists() for p in st.outputs(root)):
+        return False
+    return stamp.get("inputs") == _signature(st.inputs(root)) and stamp.get("options") == _plain(st.options_now(root))
+
+
+def run_stages(root, stages: list[Stage], force: bool = False, log: Callable[[str], None] = _log.info) -> list[dict]:
+    """Run (or skip) the stages in order; returns one summary row per stage."""
+    root = Path(root)
+    rows = []
+    for st in stages:
+        reason = st.skip(root) if st.skip is not None else None
+        if reason:
+            rows.append(dict(stage=st.name, status="skipped", seconds=0.0, why=reason))
+            log(f"[{st.name}] skipped: {reason}")
+            continue
+        if not force and is_current(root, st):
+            stamp = json.loads(stamp_path(root, st.name).read_text())
+            rows.append(dict(stage=st.name, status="skipped (up to date)", seconds=0.0, **stamp.get("result", {})))
+            log(f"[{st.name}] up to date, skipped")
+            continue
+        log(f"[{st.name}] running")
+        _remove_stale_temporaries(st.outputs(root))
+        options = _plain(st.options_now(root))  # before the run: the stage may change what they depend on
+        t = time.perf_counter()
+        result = st.run(root) or {}
+        dt = time.perf_counter() - t
+        missing = [str(p) for p in st.outputs(root) if not p.exists()]
+        if missing:
+            raise RuntimeError(f"stage {st.name} finished without writing {', '.join(missing)}")
+        write_text_atomic(stamp_path(root, st.name), json.dumps(
+            dict(inputs=_signature(st.inputs(root)), options=options, result=result, seconds=round(dt, 2)),
+            indent=1, default=str) + "\n")
+        rows.append(dict(stage=st.name, status="done", seconds=round(dt, 1), **result))
+        for note in result.get("notes", []):
+            log(f"[{st.name}] note: {note}")
+        log(f"[{st.name}] done in {dt:.1f} s")
+    return rows
+
+
+def _remove_stale_temporaries(outputs: list[Path]) -> None:
+    """Delete what a killed earlier attempt left of its atomic writes in the folders of the stage's
+    outputs (``aerotri.core.atomic.remove_leftovers``: the frame files next to ortho/frames/index.json, the
+    mosaic's and the rasters' work folders, the LiDAR tiles' work folder, ...)."""
+    for folder in sorted({p.parent for p in outputs}):
+        remove_leftovers(folder)
+
+
+def format_summary(rows: list[dict]) -> str:
+    """The table of stages: status, time and key numbers; skipped stages say why, notes follow."""
+    lines = [f"{'stage':<18} {'status':<22} {'time s':>7}  key numbers"]
+    notes = []
+    for r in rows:
+        extra = "  ".join(f"{k}={_fmt(v)}" for k, v in r.items() if k not in ("stage", "status", "seconds", "why",
+                                                                            "notes"))
+        if r.get("why"):
+            extra = r["why"]
+        lines.append(f"{r['stage']:<18} {r['status']:<22} {r['seconds']:>7.1f}  {extra}".rstrip())
+        notes += [f"{r['stage']}: {n}" for n in r.get("notes", [])]
+    if notes:
+        lines += ["", "notes:"] + [f"  {n}" for n in notes]
+    return "\n".join(lines)
+
+
+def _fmt(v):
+    if isinstance(v, float):
+        return f"{v:.3g}"
+    return str(v)

@@ -1,0 +1,386 @@
+"""The production chain over one project folder, built from its inputs and its stage options.
+
+LiDAR strips (lidar/) -> merge -> classify -> rasters -> roof corners; images -> tie points -> first
+adjustment (tie points + GNSS) -> control transfer of the LiDAR corners -> final adjustment ->
+rectification on the DEM -> mosaic -> optional checks -> accuracy report.
+
+Every stage calls its library function and keeps the numbers it returns for the summary. The chain
+runs what its inputs allow and says what it left out and why:
+
+- no LiDAR strips: no LiDAR stages and no control transfer; one adjustment, with the project's own
+  control/ if there is one, else on GNSS alone; the orthophotos need a DEM from elsewhere
+  (``[rectify] dem`` in project.toml or ``aerotri run --dem``), else the chain ends after the adjustment;
+- no usable roof corner (or ``[adjust] use_control = false``): no control transfer, the final
+  adjustment runs without LiDAR control;
+- GNSS corrections per strip (``[adjust] gnss_correction``) with too few control points for their
+  datum: the adjustment runs without them (GNSS carries the datum) and says so.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import logging
+from pathlib import Path
+
+from aerotri.chain.options import ChainOptions, read_options
+from aerotri.chain.runner import Stage
+from aerotri.core.atomic import write_text_atomic
+from aerotri.core.settings import to_table
+from aerotri.project import Project
+
+_log = logging.getLogger(__name__)
+
+LIDAR_SUFFIXES = (".las", ".laz")
+
+
+def lidar_strips(root: Path) -> list[Path]:
+    return sorted(p for p in (Path(root) / "lidar").glob("*") if p.suffix.lower() in LIDAR_SUFFIXES)
+
+
+def _json(path: Path) -> dict:
+    return json.loads(path.read_text()) if path.is_file() else {}
+
+
+def adjustment_numbers(rep: dict) -> dict:
+    """Key numbers of an adjustment report for the summary."""
+    out = {}
+    ks = rep.get("key_statistics", {})
+    if "sigma0_um" in ks:
+        out["sigma0_um"] = ks["sigma0_um"]
+    counts = rep.get("counts", {})
+    if "control_points" in counts:
+        out["control_points"] = counts["control_points"]
+    chk = rep.get("check_rms_m")
+    if chk and len(chk) == 3 and None not in chk:
+        out["rms_check_xy_m"] = round(float((chk[0] ** 2 + chk[1] ** 2) ** 0.5), 4)
+        out["rms_check_z_m"] = chk[2]
+    return out
+
+
+@dataclasses.dataclass
+class Chain:
+    """The stages of one project; ``stages()`` lists them in order (see the module docstring)."""
+
+    project: Project
+    options: ChainOptions
+    reference_ortho: Path | None = None  # DOM check against this orthophoto
+    surveyed_points: Path | None = None  # LiDAR height check at these points
+    dem: Path | None = None  # overrides [rectify] dem
+    truth_classes: bool = False  # simulated projects: classification against truth/lidar
+
+    # -- paths ------------------------------------------------------------------------------------
+    @property
+    def root(self) -> Path:
+        return self.project.root
+
+    @property
+    def lo(self) -> Path:
+        return self.project.lidar_out_dir
+
+    @property
+    def merged(self) -> Path:
+        return self.project.work_dir / "lidar" / "merged.las"
+
+    @property
+    def classified(self) -> Path:
+        return self.lo / "classified.laz"
+
+    @property
+    def first(self) -> Path:
+        return self.project.work_dir / "at_first"
+
+    def images(self) -> list[Path]:
+        return sorted(p for p in self.project.images_dir.glob("*") if p.is_file())
+
+    # -- what the inputs allow -------------------------------------------------------------------
+    @property
+    def has_lidar(self) -> bool:
+        return bool(lidar_strips(self.root))
+
+    @property
+    def has_gnss(self) -> bool:
+        return self.options.adjust.use_gnss and self.project.gnss_path.is_file()
+
+    def dem_path(self) -> Path | None:
+        """The DEM of the orthophotos: --dem, else [rectify] dem, else the LiDAR stages' DEM."""
+        if self.dem is not None:
+            return Path(self.dem)
+        if self.options.rectify.dem is not None:
+            return Path(self.options.rectify.dem)
+        return self.lo / "dem.tif" if self.has_lidar else None
+
+    def no_lidar(self, root=None) -> str | None:
+        if not self.has_lidar:
+            return f"no LiDAR strips (*.las, *.laz) in {self.project.lidar_dir}"
+        return None
+
+    def no_corners(self, root=None) -> str | None:
+        """Why no LiDAR control is transferred (None: it is)."""
+        why = self.no_lidar()
+        if why:
+            return why
+        if not self.options.adjust.use_control:
+            return f"{self.project.config_path}: [adjust] use_control = false"
+        summary = _json(self.lo / "corners.json")
+        if summary.get("no_usable"):
+            return f"no usable roof corner ({self.lo / 'corners.json'})"
+        if not self.has_gnss and self.options.adjust.initial_eo is None:
+            return ("no orientations to measure the corners with: no GNSS (gnss.txt) for a first adjustment and "
+                    "no [adjust] initial_eo")
+        return None
+
+    def no_dem(self, root=None) -> str | None:
+        if self.dem_path() is None:
+            return ("no DEM for the orthophotos: no LiDAR strips to make one; give one in project.toml "
+                    "([rectify] dem = \"DEM.tif\") or with aerotri run --dem DEM.tif")
+        return None
+
+    def check_files(self) -> None:
+        """Files named in project.toml must exist (found before the first stage, not hours into the run)."""
+        from aerotri.core.errors import ConfigError
+
+        for section, key, path in (("rectify", "dem", self.options.rectify.dem),
+                                   ("rectify", "dsm", self.options.rectify.dsm),
+                                   ("mosaic", "ndsm", self.options.mosaic.ndsm),
+                                   ("adjust", "initial_eo", self.options.adjust.initial_eo)):
+            if path is not None and not Path(path).is_file():
+                raise ConfigError(f"{self.project.config_path} [{section}] {key}: {path} not found")
+
+    # -- stages ---------------------------------------------------------------------------------
+    def stages(self) -> list[Stage]:
+        o, lo, first = self.options, self.lo, self.first
+        at = self.project.at_dir
+        stages = [
+            Stage("merge", lidar_strips, lambda r: [self.merged], self.run_merge,
+                  options=dict(crs=self.project.crs), skip=self.no_lidar),
+            Stage("classify", lambda r: [self.merged], lambda r: [self.classified], self.run_classify,
+                  options=to_table(o.classify), skip=self.no_lidar),
+            Stage("rasters", lambda r: [self.classified],
+                  lambda r: [lo / f for f in ("dem.tif", "dsm.tif", "ndsm.tif")], self.run_rasters,
+                  options=to_table(o.rasters), skip=self.no_lidar),
+            Stage("corners", lambda r: [self.classified], self.corner_outputs, self.run_corners,
+                  options=to_table(o.corners), skip=self.no_lidar),
+            Stage("match", lambda r: self.images() + [r / "gnss.txt", r / "camera.toml"],
+                  lambda r: [at / "tiepoints.csv"], self.run_match,
+                  # [flight] terrain height and [gnss] lever arm place the footprints of the pairs
+                  options=dict(to_table(o.match), flight=self.project.section("flight"),
+                               gnss=self.project.section("gnss"))),
+            # project.toml carries the [gnss] sigmas, [adjust] options and the [qa] limits of the report
+            Stage("adjust_first", lambda r: self.adjust_inputs(r, control=False),
+                  lambda r: [first / "eo.txt", first / "camera.toml"], self.run_adjust_first,
+                  options=lambda r: to_table(self.first_settings()), skip=self.no_first_adjustment),
+            Stage("control", self.control_inputs,
+                  lambda r: [r / "control" / "points.csv", r / "control" / "image_points.csv"], self.run_control,
+                  options=to_table(o.control), skip=self.no_corners),
+            Stage("adjust_final", self.adjust_inputs, lambda r: [at / "eo.txt", at / "report.json"],
+                  self.run_adjust_final, options=lambda r: to_table(self.final_settings()[0])),
+            # (the self-calibrated camera in at/report.json changes only with at/eo.txt)
+            Stage("rectify", lambda r: [at / "eo.txt", self.dem_path()] + self.images(),
+                  lambda r: [r / "ortho" / "frames" / "index.json"], self.run_rectify,
+                  options=lambda r: to_table(self.rectify_settings()), skip=self.no_dem),
+            Stage("mosaic", lambda r: [r / "ortho" / "frames" / "index.json"], lambda r: [r / "ortho" / "mosaic.tif"],
+                  self.run_mosaic, options=to_table(o.mosaic), skip=self.no_dem),
+        ]
+        if self.reference_ortho is not None:
+            stages.append(Stage("dom_check", lambda r: [r / "ortho" / "mosaic.tif", Path(self.reference_ortho)],
+                                lambda r: [r / "ortho" / "dom_report.json"], self.run_dom_check, skip=self.no_dem))
+        if self.surveyed_points is not None:
+            stages.append(Stage("height_check", lambda r: [self.classified, Path(self.surveyed_points)],
+                                lambda r: [lo / "height_check.json"], self.run_height_check, skip=self.no_lidar))
+        if self.truth_classes:
+            stages.append(Stage("lidar_eval", lambda r: [self.classified], lambda r: [lo / "classification_eval.json"],
+                                self.run_lidar_eval, skip=self.no_lidar))
+        report_inputs = [self.project.config_path, at / "report.json", self.project.control_dir / "transfer.json",
+                         self.project.ortho_dir / "dom_report.json", lo / "height_check.json",
+                         lo / "classification_eval.json"]
+        stages.append(Stage("report", lambda r: report_inputs, lambda r: [r / "reports" / "index.html"],
+                            self.run_report))
+        return stages
+
+    # -- LiDAR ----------------------------------------------------------------------------------
+    def run_merge(self, root) -> dict:
+        from lidarctl.merge import merge_las
+
+        return dict(points=merge_las(lidar_strips(root), self.merged, crs=self.project.crs))
+
+    def run_classify(self, root) -> dict:
+        from lidarctl.tiles import classify_file
+
+        st = classify_file(self.merged, self.classified, params=self.options.classify)
+        return dict(points=st["n_points"], tiles=st["n_tiles"])
+
+    def run_rasters(self, root) -> dict:
+        from lidarctl import io
+        from lidarctl.rasters import write_rasters
+
+        crs = io.resolve_crs(self.classified, io.read_header(self.classified), None)
+        write_rasters(self.classified, self.lo, self.options.rasters.res_m, crs=crs)
+        return dict(res_m=self.options.rasters.res_m)
+
+    def corner_outputs(self, root) -> list[Path]:
+        summary = _json(self.lo / "corners.json")
+        usable = summary.get("n_usable", 1) > 0 if summary else True
+        return [self.lo / "corners.json"] + ([self.lo / "corners.csv"] if usable else [])
+
+    def run_corners(self, root) -> dict:
+        from lidarctl.corners import corner_control
+
+        st = corner_control([self.classified], self.lo, self.options.corners, record_none=True)
+        out = dict(corners=st["n_corners"], usable=st["n_usable"])
+        if st["no_usable"]:
+            hint = "a smaller min_edge_m"
+            if self.options.corners.roof == "flat":
+                hint = "roof = \"any\" or " + hint
+            out["notes"] = [f"{st['no_usable']}; the chain goes on without LiDAR control (or try [corners] {hint} "
+                            "in project.toml)"]
+        return out
+
+    # -- tie points and adjustments -------------------------------------------------------------
+    def run_match(self, root) -> dict:
+        from aerotri.match import match_project
+
+        rep = match_project(root, self.options.match, log=_log.info)
+        return dict(tracks=rep["tracks"], observations=rep["observations"], components=rep["components"])
+
+    def adjust_inputs(self, root, control: bool = True) -> list[Path]:
+        r = Path(root)
+        files = [r / "at" / "tiepoints.csv", r / "gnss.txt", r / "camera.toml", self.project.config_path]
+        if control:
+            files += [r / "control" / "points.csv", r / "control" / "image_points.csv"]
+        if self.options.adjust.initial_eo is not None:
+            files.append(Path(self.options.adjust.initial_eo))
+        return files
+
+    def no_first_adjustment(self, root=None) -> str | None:
+        why = self.no_corners()
+        if why:
+            return f"only needed for the control transfer: {why}"
+        if not self.has_gnss:
+            return "no GNSS (gnss.txt): the control transfer starts from [adjust] initial_eo"
+        return None
+
+    def first_settings(self):
+        """The first adjustment: tie points and GNSS only (the datum from GNSS, no corrections per strip)."""
+        return dataclasses.replace(self.options.adjust, use_control=False, gnss_correction="none", check=(),
+                                   control=())
+
+    def run_adjust_first(self, root) -> dict:
+        from aerotri.adjust.pipeline import run_adjustment
+
+        ba, rep = run_adjustment(root, self.first_settings(), out_dir=self.first, html=False, exports=False,
+                                 progress=_log.info)
+        # the orientations belong to this camera (self-calibrated, or the nominal one)
+        write_text_atomic(self.first / "camera.toml", ba.camera_adjusted.to_toml())
+        return adjustment_numbers(rep)
+
+    def final_settings(self):
+        """(settings, notes) of the final adjustment: [adjust] with LiDAR control when it was transferred."""
+        from aerotri.adjust.pipeline import project_datum_shortfall
+
+        s, notes = self.options.adjust, []
+        if self.has_lidar:
+            why = self.no_corners()
+            if why:
+                s = dataclasses.replace(s, use_control=False)
+                notes.append(f"without LiDAR control: {why}")
+        elif s.use_control and (self.project.control_dir / "points.csv").is_file():
+            notes.append(f"with the control points of {self.project.control_dir / 'points.csv'} (no LiDAR)")
+        else:
+            notes.append("no LiDAR and no control/points.csv: the datum comes from GNSS alone")
+        if s.gnss_correction != "none" and self.has_gnss and (self.root / "at" / "tiepoints.csv").is_file():
+            short = project_datum_shortfall(self.root, s)
+            if short:
+                notes.append(f"[adjust] gnss_correction = \"{s.gnss_correction}\" not applied: {short}; GNSS alone "
+                             "carries the datum")
+                s = dataclasses.replace(s, gnss_correction="none")
+        return s, notes
+
+    def control_inputs(self, root) -> list[Path]:
+        eo, camera = self.control_orientations()
+        return [self.lo / "corners.csv", eo, camera] + self.images()
+
+    def control_orientations(self) -> tuple[Path, Path]:
+        """EO and camera the corners are measured with: the first adjustment's, else [adjust] initial_eo."""
+        if self.has_gnss:
+            return self.first / "eo.txt", self.first / "camera.toml"
+        return Path(self.options.adjust.initial_eo), self.project.camera_path
+
+    def run_control(self, root) -> dict:
+        from aerotri.control.pipeline import run_control
+
+        eo, camera = self.control_orientations()
+        sm = run_control(root, self.lo / "corners.csv", eo, camera, None, self.options.control)
+        return {k: sm[k] for k in ("corners_accepted", "control_full", "control_height", "check_points") if k in sm}
+
+    def run_adjust_final(self, root) -> dict:
+        from aerotri.adjust.pipeline import run_adjustment
+
+        settings, notes = self.final_settings()
+        _, rep = run_adjustment(root, settings, progress=_log.info)
+        out = adjustment_numbers(rep)
+        if notes:
+            out["notes"] = notes
+        return out
+
+    # -- orthophotos ----------------------------------------------------------------------------
+    def rectify_settings(self):
+        return dataclasses.replace(self.options.rectify, dem=self.dem_path())
+
+    def run_rectify(self, root) -> dict:
+        from ortho.block import rectify_block
+
+        index = rectify_block(root, **self.rectify_settings().kwargs())
+        return dict(frames=len(index["frames"]), res_m=index["res_m"])
+
+    def run_mosaic(self, root) -> dict:
+        from ortho.mosaic import mosaic_block
+
+        info = mosaic_block(root, **self.options.mosaic.kwargs())
+        return dict(width_px=info["width"], height_px=info["height"])
+
+    # -- checks and report ----------------------------------------------------------------------
+    def run_dom_check(self, root) -> dict:
+        from ortho.check import run_check
+
+        ndsm = self.lo / "ndsm.tif"
+        rep = run_check(root, reference_path=self.reference_ortho, ndsm_path=ndsm if ndsm.is_file() else None)
+        d = rep.get("displacement", {})
+        return {k: d[k] for k in ("rms_xy_m", "rms_xy_gsd", "count") if k in d}
+
+    def run_height_check(self, root) -> dict:
+        from lidarctl.heights_check import check_heights_file
+
+        result = check_heights_file(self.classified, self.surveyed_points)
+        write_text_atomic(self.lo / "height_check.json", json.dumps(result, indent=2))
+        a = result.get("overall", {}).get("all", {})
+        return {k: a[k] for k in ("rmse_m", "mean_abs_dz_m", "n") if k in a}
+
+    def run_lidar_eval(self, root) -> dict:
+        from lidarctl.evaluate import evaluate_files
+        from lidarctl.merge import merge_las
+
+        truth_merged = self.project.work_dir / "lidar" / "truth_merged.las"
+        merge_las(sorted((Path(root) / "truth" / "lidar").glob("*.la[sz]")), truth_merged, crs=self.project.crs)
+        result = evaluate_files(self.classified, truth_merged)
+        write_text_atomic(self.lo / "classification_eval.json", json.dumps(result, indent=2))
+        g = result["filter_test"]
+        return {k: g[k] for k in ("type_i_error_pct", "type_ii_error_pct", "kappa_pct") if k in g}
+
+    def run_report(self, root) -> dict:
+        from aerotri.qa_report import write_qa_report
+
+        rep = write_qa_report(root)
+        return dict(verdict=rep["overall"], passed=rep["passed"], failed=rep["failed"])
+
+
+def chain_stages(root, options: ChainOptions | None = None, reference_ortho=None, surveyed_points=None, dem=None,
+                 truth_classes: bool = False) -> list[Stage]:
+    """The stages of the project in ``root`` (its project.toml gives the options unless ``options``)."""
+    project = Project.open(root)
+    def path(p):
+        return Path(p) if p else None
+
+    chain = Chain(project, options if options is not None else read_options(project), path(reference_ortho),
+                  path(surveyed_points), path(dem), truth_classes)
+    return chain.stages()

@@ -1,0 +1,161 @@
+"""The production chain on the simulated tiny project: the README's chain command by command through the
+real command lines (with and without self-calibration), ``aerotri run`` to the end (the same result as
+by hand), and ``aerotri run`` without LiDAR on a DEM from elsewhere."""
+
+from __future__ import annotations
+
+import glob
+import json
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+from click.testing import CliRunner
+
+from aerotri.cli import main as aerotri_cli
+from aerotri.eo import read_eo
+
+REPO = Path(__file__).resolve().parents[2]
+BIN = Path(sys.executable).parent  # the venv's aerotri, lidarctl, ortho
+
+
+def readme_chain() -> list[list[str]]:
+    """The commands of the README's chain block, as argument lists (comments dropped)."""
+    text = (REPO / "README.md").read_text()
+    block = text.split("### The chain")[1].split("```")[1]
+    return [line.split("#")[0].split() for line in block.strip().splitlines() if line.split("#")[0].strip()]
+
+
+def _substitute(args: list[str], p: Path) -> list[str]:
+    out = []
+    for a in args:
+        if a == "P" or a.startswith("P/"):
+            a = str(p) + a[1:]
+        a = {"REF.tif": str(p / "truth" / "ortho.tif"), "POINTS.csv": str(p / "truth" / "checkpoints.csv")}.get(a, a)
+        out += sorted(glob.glob(a)) if "*" in a else [a]
+    return out
+
+
+def run_readme_chain(p: Path, self_cal: bool, start: str | None = None) -> dict:
+    """Run the README chain in ``p`` as a user would, following its rule for a block without usable
+    roof corners; from the first command ``start`` on (the earlier ones' outputs are in ``p``).
+    Returns {command: CompletedProcess}."""
+    done, no_control = {}, False
+    commands = readme_chain()
+    if start is not None:
+        commands = commands[[" ".join(a[:2]) for a in commands].index(start):]
+        no_control = not (p / "lidar_out" / "corners.csv").is_file()  # what lidarctl corners said before
+    for args in commands:
+        if not self_cal and "--self-cal" in args:
+            i = args.index("--self-cal")
+            args = args[:i] + args[i + 2:]
+        if no_control and args[:2] == ["aerotri", "control"]:
+            continue
+        if no_control and "--gnss-correction" in args:
+            i = args.index("--gnss-correction")
+            args = args[:i] + args[i + 2:]
+        cmd = [str(BIN / args[0])] + _substitute(args[1:], p)
+        res = subprocess.run(cmd, capture_output=True, text=True, timeout=600)
+        done[" ".join(args[:2])] = res
+        if args[:2] == ["lidarctl", "corners"] and res.returncode == 2:
+            # the README: no usable roof corner -> no control transfer, no GNSS corrections
+            assert "no usable roof corner" in res.stderr, res.stderr
+            no_control = True
+            continue
+        assert res.returncode == 0, f"{' '.join(cmd)}\n{res.stderr}"
+    return done
+
+
+@pytest.fixture(scope="module")
+def by_hand(tiny_project, tmp_path_factory):
+    """The README chain with self-calibration, then without (from the first adjustment on)."""
+    base = tmp_path_factory.mktemp("readme")
+    with_cal, without = base / "with_self_cal", base / "without_self_cal"
+    shutil.copytree(tiny_project, with_cal)
+    runs = run_readme_chain(with_cal, self_cal=True)
+    # the stages before the adjustments do not depend on it: their outputs are taken over
+    shutil.copytree(tiny_project, without)
+    for rel in ("lidar_out", "work", "at"):
+        shutil.copytree(with_cal / rel, without / rel)
+    shutil.rmtree(without / "work" / "stages", ignore_errors=True)
+    for f in (without / "at").iterdir():
+        if not f.name.startswith(("tiepoints", "connectivity")):
+            shutil.rmtree(f) if f.is_dir() else f.unlink()
+    runs_without = run_readme_chain(without, self_cal=False, start="aerotri adjust")
+    return with_cal, runs, without, runs_without
+
+
+def test_readme_chain_runs_stage_by_stage(by_hand):
+    with_cal, runs, without, runs_without = by_hand
+    assert [a[:2] for a in readme_chain()][0] == ["lidarctl", "merge"]
+    # tiny's LiDAR (1.2 m spacing) gives no usable roof corner: the README's rule applies
+    assert runs["lidarctl corners"].returncode == 2 and "aerotri control" not in runs
+    assert json.loads((with_cal / "lidar_out" / "height_check.json").read_text())["overall"]["all"]["n"] > 0
+    reps = [json.loads((p / "at" / "report.json").read_text()) for p in (with_cal, without)]
+    assert reps[0]["self_calibration"]["groups"] == ["pp", "radial"] and reps[1]["self_calibration"] is None
+    # the true camera has a principal point offset and radial distortion: self-calibration fits better
+    s0 = [r["key_statistics"]["sigma0_um"] for r in reps]
+    assert s0[0] < s0[1]
+    for p in (with_cal, without):
+        assert (p / "ortho" / "mosaic.tif").is_file()
+        dom = json.loads((p / "ortho" / "dom_report.json").read_text())["displacement"]
+        assert dom["count"] > 10 and dom["rms_xy_m"] < 3.0  # GSD about 1 m
+        summary = json.loads((p / "reports" / "summary.json").read_text())
+        assert summary["overall"] in ("pass", "fail")
+        rows = {r["quantity"]: r for r in summary["checks"]}
+        assert "no LiDAR control" in rows["control points in the adjustment"]["note"]
+
+
+def test_run_goes_to_the_end_and_equals_the_chain_by_hand(by_hand, tiny_project, tmp_path):
+    with_cal = by_hand[0]
+    p = tmp_path / "p"
+    shutil.copytree(tiny_project, p)
+    r = CliRunner().invoke(aerotri_cli, ["run", str(p), "--reference", str(p / "truth" / "ortho.tif"),
+                                         "--points", str(p / "truth" / "checkpoints.csv")], catch_exceptions=False)
+    assert r.exit_code == 0, r.output
+    table = r.stdout
+    for stage in ("merge", "classify", "rasters", "corners", "match", "adjust_final", "rectify", "mosaic", "dom_check",
+                  "height_check", "report"):
+        assert (p / "work" / "stages" / f"{stage}.json").is_file(), stage
+    # no usable corner: said, control transfer and first adjustment left out, the rest goes on
+    assert "no usable roof corner" in table and "without LiDAR control" in table
+    for stage in ("adjust_first", "control"):
+        assert not (p / "work" / "stages" / f"{stage}.json").exists()
+    assert "usable=0" in table
+    # the same options as the README chain with self-calibration ([adjust] of the tiny preset): same result
+    assert (p / "at" / "eo.txt").read_bytes() == (with_cal / "at" / "eo.txt").read_bytes()
+    summary = json.loads((p / "reports" / "summary.json").read_text())
+    assert summary == json.loads((with_cal / "reports" / "summary.json").read_text())
+    # a second run is up to date throughout
+    r = CliRunner().invoke(aerotri_cli, ["run", str(p), "--reference", str(p / "truth" / "ortho.tif"),
+                                         "--points", str(p / "truth" / "checkpoints.csv")], catch_exceptions=False)
+    assert r.exit_code == 0 and " done " not in r.stdout
+
+
+def test_run_without_lidar_stops_after_the_adjustment_or_uses_a_dem_from_elsewhere(tiny_project, tmp_path):
+    p = tmp_path / "p"
+    shutil.copytree(tiny_project, p, ignore=shutil.ignore_patterns("lidar"))
+    (tmp_path / "elsewhere").mkdir()
+    shutil.copy(tiny_project / "truth" / "dem.tif", tmp_path / "elsewhere" / "dem.tif")  # a DEM from another source
+    r = CliRunner().invoke(aerotri_cli, ["run", str(p)], catch_exceptions=False)
+    assert r.exit_code == 0, r.output
+    assert "stopped after the adjustment: no DEM" in r.stderr and "[rectify] dem" in r.stderr
+    for stage in ("merge", "classify", "rasters", "corners", "adjust_first", "control"):
+        assert f"{stage:<18} skipped" in r.stdout, stage
+    assert "no LiDAR strips" in r.stdout
+    assert (p / "at" / "eo.txt").is_file() and not (p / "ortho").exists()
+    eo, truth = read_eo(p / "at" / "eo.txt"), read_eo(p / "truth" / "eo.txt")
+    assert np.abs(eo.centre_m - truth.centre_m).max() < 2.0  # GNSS alone carries the datum
+    # the DEM given in project.toml: the orthophotos follow, nothing before them runs again
+    with open(p / "project.toml", "a") as f:
+        f.write('\n[rectify]\ndem = "../elsewhere/dem.tif"\n')
+    r = CliRunner().invoke(aerotri_cli, ["run", str(p)], catch_exceptions=False)
+    assert r.exit_code == 0, r.output
+    assert "match              skipped (up to date)" in r.stdout
+    assert (p / "ortho" / "mosaic.tif").is_file()
+    index = json.loads((p / "ortho" / "frames" / "index.json").read_text())
+    assert Path(index["dem"]).resolve() == (tmp_path / "elsewhere" / "dem.tif").resolve()
+    assert "stopped after" not in r.stderr
