@@ -18,17 +18,8 @@ import numpy as np
 
 from aerotri.core.atomic import atomic_path, refuse_input_as_output
 from aerotri.core.errors import CrsError, InputError
-from aerotri.geom.crs import crs_label, horizontal_crs, parse_crs
+from aerotri.geom.crs import crs_label, horizontal_crs, parse_crs, same_horizontal, same_vertical, vertical_crs
 from lidarctl import io
-
-
-def same_horizontal_crs(a, b) -> bool:
-    """Whether two CRSs have the same horizontal CRS (the same EPSG code, or equal definitions)."""
-    ha, hb = horizontal_crs(a), horizontal_crs(b)
-    if ha.equals(hb, ignore_axis_order=True):
-        return True
-    ea, eb = ha.to_epsg(min_confidence=70), hb.to_epsg(min_confidence=70)
-    return ea is not None and ea == eb
 
 
 def _file_crs(path, header: laspy.LasHeader):
@@ -57,7 +48,10 @@ def merge_las(paths, out_path, crs=None, chunk_points: int = 2_000_000) -> int:
             continue
         if reference is None:
             reference, reference_name = file_crs, str(p)
-        elif not same_horizontal_crs(file_crs, reference):
+        elif not same_vertical(file_crs, reference):
+            raise CrsError(f"{p}: its heights are in {vertical_crs(file_crs).name}, those of {reference_name} in "
+                           f"{vertical_crs(reference).name}; bring the strip into one height system first")
+        elif not same_horizontal(file_crs, reference):
             raise CrsError(f"{p}: its CRS {crs_label(horizontal_crs(file_crs))} differs from {reference_name} "
                            f"{crs_label(horizontal_crs(reference))}; transform the strip into "
                            f"{crs_label(horizontal_crs(reference))} first (strips are never mixed or reprojected "

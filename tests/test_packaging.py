@@ -45,8 +45,14 @@ def test_every_imported_package_is_declared(wheel):
     """Third-party imports of the three packages against the wheel's Requires-Dist."""
     meta = zipfile.ZipFile(wheel).read(next(n for n in zipfile.ZipFile(wheel).namelist()
                                             if n.endswith("dist-info/METADATA"))).decode()
-    declared = {ln.split(":", 1)[1].strip().split(">")[0].split("[")[0].split("=")[0].split("<")[0].strip().lower()
-                for ln in meta.splitlines() if ln.startswith("Requires-Dist:") and "extra ==" not in ln}
+    import re
+
+    declared = set()
+    for ln in meta.splitlines():
+        if ln.startswith("Requires-Dist:") and "extra ==" not in ln:
+            m = re.match(r"\s*([A-Za-z0-9_.-]+)(\[([^\]]*)\])?", ln.split(":", 1)[1])
+            declared.add(m.group(1).lower())
+            declared |= {e.strip().lower() for e in (m.group(3) or "").split(",") if e.strip()}  # laspy[lazrs]
     module_to_dist = {"cv2": "opencv-contrib-python-headless", "PIL": "pillow", "yaml": "pyyaml", "sklearn": None,
                       "distributed": "dask", "osgeo": None}
     stdlib = set(sys.stdlib_module_names)

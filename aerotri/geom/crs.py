@@ -64,9 +64,20 @@ def vertical_crs(crs: pyproj.CRS) -> pyproj.CRS | None:
     return None
 
 
-def same_horizontal(a: pyproj.CRS, b: pyproj.CRS) -> bool:
-    """True when two CRSs have the same horizontal part (compound CRSs compared by their parts)."""
-    return horizontal_crs(a) == horizontal_crs(b)
+def same_horizontal(a, b) -> bool:
+    """True when two CRSs have the same horizontal part (compound CRSs compared by their parts; axis
+    order ignored; definitions that differ only in naming but carry the same EPSG identity agree)."""
+    ha, hb = horizontal_crs(a), horizontal_crs(b)
+    if ha.equals(hb, ignore_axis_order=True):
+        return True
+    ea, eb = ha.to_epsg(min_confidence=70), hb.to_epsg(min_confidence=70)
+    return ea is not None and ea == eb
+
+
+def same_vertical(a, b) -> bool:
+    """False only when both CRSs declare a vertical part and the two differ (a 2D CRS says nothing)."""
+    va, vb = vertical_crs(a), vertical_crs(b)
+    return va is None or vb is None or va.equals(vb)
 
 
 def parse_heights(value, source: str = "[project] heights") -> pyproj.CRS | None:
