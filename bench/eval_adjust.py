@@ -116,7 +116,7 @@ def main(argv=None):
         else:
             from aerotri.sim import load_preset, simulate
 
-            simulate(load_preset("demo"), demo, log=lambda m: None)
+            simulate(load_preset("demo"), demo)
         truth = json.loads((demo / "truth" / "truth.json").read_text())
         gsd = float(truth.get("gsd_m", truth.get("gsd", 0.0)))
         for name, bl in (("demo", False), ("demo_blunders", True)):

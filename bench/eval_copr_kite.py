@@ -260,7 +260,7 @@ def main(argv=None):
     settings = dict(use_gnss=False, initial_eo=str(root / "work" / "initial_eo.txt"), self_calibration=("focal", "pp", "radial"),
                     image_sigma_px=IMAGE_SIGMA_PX)
     t0 = time.perf_counter()
-    ba = adjust_project(root, AdjustSettings(**settings), progress=lambda m: print(m, file=sys.stderr, flush=True))
+    ba = adjust_project(root, AdjustSettings(**settings))
     rep = write_outputs(ba, root)
     res["adjust_s"] = time.perf_counter() - t0
     res["all_control"] = _summary(rep, ba)

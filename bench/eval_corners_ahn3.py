@@ -99,7 +99,7 @@ def main():
     crs = pyproj.CRS.from_epsg(28992)  # the file has no CRS record (README): RD New
     t0 = time.perf_counter()
     res = find_roof_corners(cloud["x"], cloud["y"], cloud["z"], cloud["classification"], cloud["point_source_id"],
-                            min_edge_m=args.min_edge_m, roof="any", progress=True)
+                            min_edge_m=args.min_edge_m, roof="any")
     runtime = time.perf_counter() - t0
     write_corner_files(REPO / "out" / "corners_ahn3", res, crs=crs, source=str(args.data / "ahn3_cropped_1.laz"))
 

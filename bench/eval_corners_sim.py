@@ -67,7 +67,7 @@ def main():
 
     t0 = time.perf_counter()
     res = find_roof_corners(cat["x"], cat["y"], cat["z"], cat["classification"], cat["point_source_id"],
-                            min_edge_m=args.min_edge_m, roof=args.roof, progress=True)
+                            min_edge_m=args.min_edge_m, roof=args.roof)
     runtime = time.perf_counter() - t0
     write_corner_files(REPO / "out" / "corners_sim", res, crs=clouds[0]["crs"], source=", ".join(map(str, files)))
 

@@ -40,7 +40,6 @@ import numpy as np
 import shapely
 from scipy import ndimage
 from scipy.spatial import cKDTree
-from tqdm import tqdm
 
 from aerotri.core.atomic import refuse_input_as_output, write_text_atomic
 from aerotri.core.errors import InputError
@@ -57,6 +56,7 @@ from lidarctl.roof_outline import (
     trace_rings,
 )
 from lidarctl.roof_segments import cluster_roofs, point_spacing_m, segment_planes
+from aerotri.core.log import track
 
 BUILDING = 6
 GROUND = 2
@@ -160,7 +160,6 @@ def find_roof_corners(
     roof: str = "flat",
     sigma_strip_xy_m: float = 0.03,
     sigma_strip_z_m: float = 0.03,
-    progress: bool = False,
 ) -> dict:
     """Corners and regularised outlines of all roofs of a classified cloud.
 
@@ -203,7 +202,7 @@ def find_roof_corners(
 
     corners, outlines = [], []
     raw = []  # per corner: xy, cov, z, sz, roof type, building, bearings, angle, support, lengths
-    for r in tqdm(range(n_roofs), desc="roofs", unit="roof", disable=None if progress else True):
+    for r in track(range(n_roofs), "roof corners", "roofs"):
         idx = np.flatnonzero(roof_label == r)
         pts = xyz[idx]
         # cells of two spacings: smaller cells leave holes in sparse clouds and underestimate the spacing
@@ -487,8 +486,8 @@ class CornerSettings:
     figure: bool = setting(True, help="Also write corners.png (outlines and corners over the nDSM).")
 
 
-def corner_control(paths, outdir, settings: CornerSettings = CornerSettings(), crs=None, record_none: bool = False,
-                   progress: bool = False) -> dict:
+def corner_control(paths, outdir, settings: CornerSettings = CornerSettings(), crs=None,
+                   record_none: bool = False) -> dict:
     """The stage: roof corners of classified LAS/LAZ file(s) (one or more strips in one CRS) as control
     candidates. ``crs``: the CRS of files that have none (never guessed).
 
@@ -511,7 +510,7 @@ def corner_control(paths, outdir, settings: CornerSettings = CornerSettings(), c
     try:
         result = find_roof_corners(cat["x"], cat["y"], cat["z"], cat["classification"], cat["point_source_id"],
                                    min_edge_m=s.min_edge_m, roof=s.roof, sigma_strip_xy_m=s.sigma_strip_xy_m,
-                                   sigma_strip_z_m=s.sigma_strip_z_m, progress=progress)
+                                   sigma_strip_z_m=s.sigma_strip_z_m)
     except InputError as exc:
         raise type(exc)(f"{names}: {exc}", param=exc.param) from None
     st = result["stats"]

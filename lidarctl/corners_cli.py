@@ -40,7 +40,7 @@ def corners(classified, outdir, min_edge_m, roof, sigma_strip_xy_m, sigma_strip_
     """
     settings = CornerSettings(min_edge_m=min_edge_m, roof=roof, sigma_strip_xy_m=sigma_strip_xy_m,
                               sigma_strip_z_m=sigma_strip_z_m, figure=figure)
-    st = corner_control(classified, outdir, settings, crs=crs, progress=True)
+    st = corner_control(classified, outdir, settings, crs=crs)
     if st["no_usable"]:
         hint = "try --roof any or a smaller --min-edge-m" if roof == "flat" else "try a smaller --min-edge-m"
         raise InputError(f"{st['no_usable']}; {hint}")

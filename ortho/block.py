@@ -370,7 +370,7 @@ def file_fingerprint(path) -> dict:
 
 def rectify_block(root, dem_path=None, res_m: float | None = None, crs: str | None = None, eo_path=None,
                   camera_path=None, interpolation: str = "bilinear", true_ortho: bool = False, dsm_path=None,
-                  frames=None, progress: bool = True, executor=None, compression: str = "zstd",
+                  frames=None, executor=None, compression: str = "zstd",
                   params=None, heights=None, allow_ballpark: bool = False) -> dict:
     """Rectify the frames of a project into ``ortho/frames/``; returns the index written to index.json.
 
@@ -383,8 +383,7 @@ def rectify_block(root, dem_path=None, res_m: float | None = None, crs: str | No
     One task per frame (``rectify_frame_task``) on ``executor`` (``aerotri.core.executor.Executor``,
     default: the run's or local threads); every task writes its own GeoTIFF, the index is written
     here in frame order, so the outputs do not depend on the scheduler. ``compression``: one of
-    ``FRAME_COMPRESSION``. ``progress`` is kept for compatibility: the executor shows the progress bar
-    (on a terminal).
+    ``FRAME_COMPRESSION``.
     """
     from aerotri.core.executor import local_executor
 

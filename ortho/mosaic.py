@@ -43,9 +43,9 @@ from pyproj import CRS
 from rasterio.enums import Resampling
 from rasterio.transform import Affine
 from rasterio.windows import Window
-from tqdm import tqdm
 
 from aerotri.core.errors import InputError, OptionError
+from aerotri.core.log import progress
 from aerotri.core.atomic import atomic_path, scratch_dir, write_text_atomic
 from aerotri.core.limits import check_allocation, check_grid
 from aerotri.core.textio import read_json
@@ -185,7 +185,7 @@ def _write_labels(path, labels, transform, crs):
 
 def mosaic_block(root, seams: str = "least-cost", ndsm_path=None, feather_m: float | None = None, balance: bool = True,
                  tile_px: int = 1024, object_height_m: float = 2.5, max_seam_cells: float = 5e7, end_reach_m: float = 30.0,
-                 progress: bool = True, executor=None) -> dict:
+                 executor=None) -> dict:
     """``ortho mosaic``: see the module doc. Returns a summary dict.
 
     The output tiles are blended as tasks on ``executor`` (``aerotri.core.executor.Executor``, default:
@@ -241,7 +241,7 @@ def mosaic_block(root, seams: str = "least-cost", ndsm_path=None, feather_m: flo
     # a failed run leaves the previous seams, seamlines, mosaic and summary together
     with scratch_dir(out_dir, "mosaic") as work:
         outputs = _mosaic_outputs(Path(work), root, index, frames_dir, red, labels, gains, mosaic, factor, nadir,
-                                  feather_px, tile_px, seams, progress, executor)
+                                  feather_px, tile_px, seams, executor)
         for name in ("seams.tif", "seamlines.geojson", "mosaic.tif", "mosaic.json"):
             os.replace(Path(work) / name, out_dir / name)
     return outputs
@@ -278,7 +278,7 @@ def _open_frame(path):
 
 
 def _mosaic_outputs(work: Path, root: Path, index, frames_dir, red, labels, gains, mosaic: OrthoGrid, factor, nadir,
-                    feather_px, tile_px, seams, progress, executor) -> dict:
+                    feather_px, tile_px, seams, executor) -> dict:
     """seams.tif, seamlines.geojson, mosaic.tif and mosaic.json into ``work``; returns the summary."""
     crs, res = mosaic.crs, mosaic.res_m
     out_dir = root / "ortho"
@@ -294,7 +294,7 @@ def _mosaic_outputs(work: Path, root: Path, index, frames_dir, red, labels, gain
            "features": features + lines}
     write_text_atomic(work / "seamlines.geojson", json.dumps(geo) + "\n")
     _write_mosaic(work / "mosaic.tif", frames_dir, index, mosaic, work / "seams.tif", factor, gains, nadir, feather_px,
-                  tile_px, progress, executor=executor)
+                  tile_px, executor=executor)
     summary = {"path": str(out_dir / "mosaic.tif"), "width": mosaic.width, "height": mosaic.height,
                "frames": len(red.names), "res_m": res, "seam_factor": factor, "seams": seams, "feather_px": feather_px,
                "index_sha1": index_sha1(root),
@@ -367,7 +367,7 @@ def blend_tile_task(tile: MosaicTile):
 
 
 def _write_mosaic(path, frames_dir, index, mosaic: OrthoGrid, seams_path, factor, gains, nadir, feather_px, tile_px,
-                  progress, executor=None):
+                  executor=None):
     """Blend the output tiles as tasks on ``executor`` (batches of a few tiles per worker, written in
     tile order as they come back: memory is bounded by the batch, not the mosaic) into a tiled
     GeoTIFF, then copy that to the COG. ``seams_path``: the label raster already written (the tasks
@@ -397,7 +397,7 @@ def _write_mosaic(path, frames_dir, index, mosaic: OrthoGrid, seams_path, factor
         batch = max(2, 2 * executor.workers)
         stage = Path(tmp_dir) / "stage.tif"
         with rasterio.open(stage, "w", **profile) as dst, \
-                tqdm(total=len(tiles), desc="mosaic", unit="tile", disable=None if progress else True) as bar:
+                progress(len(tiles), "mosaic", "tiles") as bar:
             for i in range(0, len(tiles), batch):
                 results = executor.map(blend_tile_task, tiles[i:i + batch], desc="mosaic tiles", unit="tile")
                 for t, (out, valid) in zip(tiles[i:i + batch], results):

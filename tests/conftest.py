@@ -29,5 +29,5 @@ def tiny_project(tmp_path_factory) -> Path:
     from aerotri.sim import load_preset, simulate
 
     out = tmp_path_factory.mktemp("sim") / "tiny"
-    simulate(load_preset("tiny"), out, log=lambda m: None)
+    simulate(load_preset("tiny"), out)
     return out

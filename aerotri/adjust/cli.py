@@ -59,7 +59,7 @@ def adjust(project, gnss_correction, lever_arm, self_cal, image_sigma, check, co
         alpha=alpha,
         initial_eo=initial_eo,
     )
-    _, rep = run_adjustment(project, settings, html=not no_html, progress=lambda m: click.echo(m, err=True))
+    _, rep = run_adjustment(project, settings, html=not no_html)
     k = rep["key_statistics"]
     click.echo(f"sigma0 {k['sigma0_um']} um, {k['iterations']} iterations, dof {k['degrees_of_freedom']}: {k['message']}")
     if rep["check_rms_m"]:

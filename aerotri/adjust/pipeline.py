@@ -366,13 +366,12 @@ def prepare_project(root, settings: AdjustSettings | None = None):
     return ctx, state0
 
 
-def adjust_project(root, settings: AdjustSettings | None = None, progress=None) -> BlockAdjustment:
+def adjust_project(root, settings: AdjustSettings | None = None) -> BlockAdjustment:
     """Run the adjustment of a project folder (no files written; see write_outputs)."""
     ctx, state0 = prepare_project(root, settings)
     st = ctx["st"]
     result = adjust_block(
         ctx["block"], ctx["opts"], state0, snooping=st.snooping, alpha=st.alpha, point_covariances=st.point_covariances,
-        progress=progress,
     )
     return finish(ctx, result)
 
@@ -522,10 +521,10 @@ def write_outputs(ba: BlockAdjustment, root, html: bool = True, exports: bool = 
 
 
 def run_adjustment(root, settings: AdjustSettings | None = None, out_dir=None, html: bool = True,
-                   exports: bool = True, progress=None) -> tuple[BlockAdjustment, dict]:
+                   exports: bool = True) -> tuple[BlockAdjustment, dict]:
     """The stage: adjust the project and write its outputs (``write_outputs``); returns the adjustment
     and the report dict. ``aerotri adjust`` and the chain both run this."""
-    ba = adjust_project(root, settings, progress=progress)
+    ba = adjust_project(root, settings)
     return ba, write_outputs(ba, root, html=html, exports=exports, out_dir=out_dir)
 
 

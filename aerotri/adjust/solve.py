@@ -3,6 +3,8 @@ marginal covariances and check points (all in the local frame)."""
 
 from __future__ import annotations
 
+import logging
+
 import dataclasses
 import time
 
@@ -19,6 +21,8 @@ from aerotri.adjust.snooping import (
     standardised_residuals,
     worst_per_point,
 )
+
+log = logging.getLogger(__name__)
 
 
 @dataclasses.dataclass
@@ -56,7 +60,6 @@ def adjust_block(
     compute_marginals: bool = True,
     point_covariances: bool = True,
     max_rounds: int = 15,
-    progress=None,
 ) -> AdjustmentResult:
     """Adjust the block; with ``snooping``, remove blunders (image points, then control points)."""
     t_start = time.perf_counter()
@@ -101,8 +104,7 @@ def adjust_block(
             timings["robust_s"] += time.perf_counter() - t0
             iterations += info.iterations
             state = G.state_from_values(values, block, opts, state, tie=gr.tie)
-            if progress:
-                progress(f"robust round {rnd}: {info.iterations} iterations, {obs_active.sum()} observations")
+            log.info(f"robust round {rnd}: {info.iterations} iterations, {obs_active.sum()} observations")
             if snoop(state, rnd, with_control=False):
                 continue
             # control points: leave-one-out intersection against the given coordinates

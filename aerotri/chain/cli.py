@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import logging
+
 import json
 from pathlib import Path
 
@@ -9,6 +11,8 @@ import click
 
 from aerotri.core.commands import Command, scheduler_options
 from aerotri.core.executor import Executor, activate
+
+log = logging.getLogger(__name__)
 
 
 def _run_chain(project_dir: Path, scheduler, workers, force: bool, **inputs) -> list[dict]:
@@ -22,8 +26,8 @@ def _run_chain(project_dir: Path, scheduler, workers, force: bool, **inputs) -> 
     chain.check_files()
     stages = chain.stages()
     with Executor(scheduler, workers) as ex, activate(ex):
-        click.echo(f"tasks run on {ex.describe()}", err=True)
-        return run_stages(project.root, stages, force=force, log=lambda m: click.echo(m, err=True))
+        log.info(f"tasks run on {ex.describe()}")
+        return run_stages(project.root, stages, force=force)
 
 
 def _closing_words(rows: list[dict]) -> str | None:
@@ -83,7 +87,7 @@ def run(project, reference, points, dem, force, scheduler, workers):
     click.echo(format_summary(rows))
     last = _closing_words(rows)
     if last:
-        click.echo(last, err=True)
+        log.warning(last)
 
 
 @click.command(cls=Command)
@@ -106,10 +110,10 @@ def demo(outdir, preset, force, scheduler, workers):
     cfg = load_preset(preset)
     stale = _stale_simulation(project, cfg)
     if stale:
-        click.echo(f"{project}: {stale}: simulating it", err=True)
-        simulate(cfg, project, force=True, log=lambda m: click.echo(m, err=True))
+        log.info(f"{project}: {stale}: simulating it")
+        simulate(cfg, project, force=True)
     else:
-        click.echo(f"{project}: simulated project exists, reusing it", err=True)
+        log.info(f"{project}: simulated project exists, reusing it")
     rows = _run_chain(project, scheduler, workers, force, reference_ortho=project / "truth" / "ortho.tif",
                       surveyed_points=project / "truth" / "checkpoints.csv", truth_classes=True)
     table = format_summary(rows)

@@ -240,7 +240,7 @@ class Chain:
     def run_match(self, root) -> dict:
         from aerotri.match import match_project
 
-        rep = match_project(root, self.options.match, log=_log.info)
+        rep = match_project(root, self.options.match)
         return dict(tracks=rep["tracks"], observations=rep["observations"], components=rep["components"])
 
     def adjust_inputs(self, root, control: bool = True) -> list[Path]:
@@ -268,8 +268,7 @@ class Chain:
     def run_adjust_first(self, root) -> dict:
         from aerotri.adjust.pipeline import run_adjustment
 
-        ba, rep = run_adjustment(root, self.first_settings(), out_dir=self.first, html=False, exports=False,
-                                 progress=_log.info)
+        ba, rep = run_adjustment(root, self.first_settings(), out_dir=self.first, html=False, exports=False)
         # the orientations belong to this camera (self-calibrated, or the nominal one)
         write_text_atomic(self.first / "camera.toml", ba.camera_adjusted.to_toml())
         return adjustment_numbers(rep)
@@ -317,7 +316,7 @@ class Chain:
         from aerotri.adjust.pipeline import run_adjustment
 
         settings, notes = self.final_settings()
-        _, rep = run_adjustment(root, settings, progress=_log.info)
+        _, rep = run_adjustment(root, settings)
         out = adjustment_numbers(rep)
         if notes:
             out["notes"] = notes

@@ -2,11 +2,15 @@
 
 from __future__ import annotations
 
+import logging
+
 from pathlib import Path
 
 import click
 
 from aerotri.core.commands import Command
+
+log = logging.getLogger(__name__)
 
 
 
@@ -51,12 +55,12 @@ def control(project, corners_path, eo_path, camera_path, manual_path, full_spaci
         layout=LayoutRule(full_spacing_baselines=full_spacing, height_every_strips=height_every, min_frames=min_frames),
         tol_px=tol_px, usable_only=not all_corners, chips=chips,
     )
-    sm = run_control(project, corners_path, eo_path, camera_path, manual_path, settings, checks=checks, progress=True)
+    sm = run_control(project, corners_path, eo_path, camera_path, manual_path, settings, checks=checks)
     click.echo(
         f"{sm['corners_accepted']} of {sm['corners_measured']} corners accepted ({sm['measurements_accepted_in_image']} of "
         f"{sm['measurements_attempted']} image measurements); control {sm['control_full']} full + {sm['control_height']} "
         f"height, {sm['check_points']} check points; rejected corners {sm['corners_rejected']}"
     )
     if sm["layout_targets_unfilled"]:
-        click.echo(f"warning: {sm['layout_targets_unfilled']} of {sm['layout_targets']} layout positions have no "
-                   "accepted corner (measure one manually: --import-manual)", err=True)
+        log.warning(f"{sm['layout_targets_unfilled']} of {sm['layout_targets']} layout positions have no "
+                    "accepted corner (measure one manually: --import-manual)")

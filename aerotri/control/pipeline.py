@@ -17,7 +17,6 @@ from pathlib import Path
 
 import cv2
 import numpy as np
-from tqdm import tqdm
 
 from aerotri.camera import FrameCamera
 from aerotri.control.consistency import check_rays
@@ -27,6 +26,7 @@ from aerotri.control.measure import MeasureSettings, Measurement, measure_in_ima
 from aerotri.eo import ExteriorOrientations, read_eo
 from aerotri.core.errors import InputError
 from aerotri.project import Project
+from aerotri.core.log import track
 
 
 @dataclasses.dataclass(frozen=True)
@@ -81,8 +81,7 @@ def project_camera(root: Path, camera_path=None) -> tuple[FrameCamera, str]:
 
 
 def transfer_control(corners: LidarCorners, camera: FrameCamera, eo: ExteriorOrientations, images_dir,
-                     settings: ControlSettings | None = None, manual: dict | None = None,
-                     progress: bool = False) -> TransferResult:
+                     settings: ControlSettings | None = None, manual: dict | None = None) -> TransferResult:
     """Measure the corners in every frame, check them across frames, select control by the layout rule."""
     s = settings or ControlSettings()
     images_dir = Path(images_dir)
@@ -96,7 +95,7 @@ def transfer_control(corners: LidarCorners, camera: FrameCamera, eo: ExteriorOri
     dirs_m = corners.edge_directions_m()
     Rs = eo.rotations()
     meas, pred = {}, {}
-    for i, iid in enumerate(tqdm(eo.image_id, desc="frames", unit="frame", disable=None if progress else True)):
+    for i, iid in enumerate(track(eo.image_id, "control transfer", "frames")):
         x, y, d, _, radius = predict(camera, eo.centre_m[i], Rs[i], corners.xyz_m[idx], dirs_m[idx], corners.sigma_m[idx],
                                      s.measure.eo_sigma_px, s.measure.window_k, s.measure.min_radius_px,
                                      s.measure.max_radius_px)
@@ -263,7 +262,7 @@ def review_page(res: TransferResult, images_dir, project_name: str):
 
 
 def run_control(root, corners_path=None, eo_path=None, camera_path=None, manual_path=None,
-                settings: ControlSettings | None = None, checks: bool = True, progress: bool = False) -> dict:
+                settings: ControlSettings | None = None, checks: bool = True) -> dict:
     """The stage: read, transfer, write all outputs atomically; returns the summary dict."""
     from aerotri.core.atomic import atomic_dir, write_text_atomic
 
@@ -281,7 +280,7 @@ def run_control(root, corners_path=None, eo_path=None, camera_path=None, manual_
     camera, _ = project_camera(root, camera_path)
     manual = (read_manual(manual_path, corners.id, eo.image_id, camera, corners_path, eo_path)
               if manual_path else None)
-    res = transfer_control(corners, camera, eo, root / "images", s, manual, progress)
+    res = transfer_control(corners, camera, eo, root / "images", s, manual)
     sm = summary(res)
     if sm["corners_accepted"] == 0:
         raise InputError(f"no corner could be measured consistently in two or more frames ({sm['corners_measured']} "

@@ -138,3 +138,11 @@ def track(iterable, desc: str, unit: str = "", total: int | None = None):
         for item in iterable:
             yield item
             bar.update(1)
+
+
+def track_chunks(chunks, total_points: int, desc: str):
+    """Iterate over (first_index, chunk) pairs with :func:`progress` counted in points."""
+    with progress(total_points, desc, "points") as bar:
+        for first, chunk in chunks:
+            yield first, chunk
+            bar.update(len(chunk))

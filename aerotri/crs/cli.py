@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import logging
+
 import time
 from pathlib import Path
 
@@ -28,6 +30,8 @@ from aerotri.crs.raster import KINDS, warp_raster
 from aerotri.geom.raster_warp import RESAMPLING
 from aerotri.geom.transform import CrsTransformer
 from aerotri.core.errors import InputError
+
+log = logging.getLogger(__name__)
 
 
 @click.group(cls=Group)
@@ -159,8 +163,8 @@ def transform_cmd(input_path, output_path, from_epsg, to_epsg, params, heights, 
         allow_ballpark=allow_ballpark,
     )
     t0 = time.perf_counter()
-    n = transform_file(input_path, output_path, t, chunk_size, progress=True)
+    n = transform_file(input_path, output_path, t, chunk_size)
     dt = time.perf_counter() - t0
     for w in t.warnings:
-        click.echo(f"Warning: {w}", err=True)
+        log.warning(w)
     click.echo(f"{n} points {t.description}: {output_path} ({dt:.2f} s)")

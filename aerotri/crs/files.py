@@ -31,7 +31,7 @@ from pathlib import Path
 import numpy as np
 
 from aerotri.geom.ellipsoid import Ellipsoid, geocentric_to_geodetic, geodetic_to_geocentric
-from aerotri.geom.crs import check_coordinates, crs_label, horizontal_crs, linear_unit_m, parse_crs, unit_name
+from aerotri.geom.crs import check_coordinates, crs_label, horizontal_crs, linear_unit_m, parse_crs, same_crs, unit_name
 from aerotri.crs.fit import fit_plane, fit_spatial
 from aerotri.geom.datum import (  # noqa: F401  (load_*: the crs command's readers)
     SPATIAL,
@@ -43,6 +43,7 @@ from aerotri.geom.datum import (  # noqa: F401  (load_*: the crs command's reade
 )
 from aerotri.geom.transform import CrsTransformer, _ProjLeg, z_unit_m
 from aerotri.core.errors import InputError, OptionError
+from aerotri.core.log import track_chunks
 from aerotri.core.atomic import atomic_path, write_text_atomic
 from aerotri.core.textio import read_text
 
@@ -403,22 +404,12 @@ def _nice_scale(scale: float) -> float:
     return 10.0 ** math.floor(math.log10(scale) + 1e-9)
 
 
-def _same_crs(a, b) -> bool:
-    if a == b or a.equals(b, ignore_axis_order=True):
-        return True
-    ea, eb = a.to_epsg(min_confidence=70), b.to_epsg(min_confidence=70)
-    return ea is not None and ea == eb
-
-
-def transform_las(in_path, out_path, transformer: CrsTransformer, chunk_size: int = 1_000_000,
-                  progress: bool = False) -> int:
+def transform_las(in_path, out_path, transformer: CrsTransformer, chunk_size: int = 1_000_000) -> int:
     """Transform a LAS/LAZ file chunk by chunk; every point dimension other than x, y, z is copied
     bit for bit (classes, returns, GPS time, intensity, RGB, extra bytes). The header gets new
     scales/offsets for the target units and the target CRS record (WKT for point formats >= 6,
     GeoTIFF keys otherwise). Returns the number of points."""
     import laspy
-    from tqdm import tqdm
-
     in_path, out_path = Path(in_path), Path(out_path)
     if chunk_size < 1:
         raise OptionError(f"{chunk_size}: expected at least 1 point per chunk", param="--chunk-size")
@@ -428,7 +419,7 @@ def transform_las(in_path, out_path, transformer: CrsTransformer, chunk_size: in
             file_crs = hdr.parse_crs()
         except Exception:
             file_crs = None
-        if file_crs is not None and not _same_crs(file_crs, transformer.src):
+        if file_crs is not None and not same_crs(file_crs, transformer.src):
             raise InputError(
                 f"{in_path}: the file's CRS ({file_crs.name}) is not --from {crs_label(transformer.src)}"
             )
@@ -465,8 +456,8 @@ def transform_las(in_path, out_path, transformer: CrsTransformer, chunk_size: in
         n = 0
         with atomic_path(out_path) as tmp:
             with laspy.open(tmp, mode="w", header=out_hdr, do_compress=out_path.suffix.lower() == ".laz") as writer:
-                bar = tqdm(total=hdr.point_count, unit="pt", disable=None if progress else True, desc=in_path.name)
-                for _, chunk in iter_las_chunks(reader, in_path, chunk_size):
+                for _, chunk in track_chunks(iter_las_chunks(reader, in_path, chunk_size), hdr.point_count,
+                                             f"transform {in_path.name}"):
                     X, Y, Z = transformer.transform(np.asarray(chunk.x), np.asarray(chunk.y), np.asarray(chunk.z))
                     out = laspy.ScaleAwarePointRecord.zeros(len(chunk), header=out_hdr)
                     out.array[:] = chunk.array  # every dimension bit for bit, then new X, Y, Z
@@ -475,8 +466,6 @@ def transform_las(in_path, out_path, transformer: CrsTransformer, chunk_size: in
                     _set_scaled(out, "Z", Z, out_hdr.offsets[2], out_hdr.scales[2], in_path)
                     writer.write_points(out)
                     n += len(chunk)
-                    bar.update(len(chunk))
-                bar.close()
     return n
 
 
@@ -487,11 +476,10 @@ def _set_scaled(record, dim: str, values, offset, scale, path):
     record[dim] = q.astype(np.int32)
 
 
-def transform_file(in_path, out_path, transformer: CrsTransformer, chunk_size: int = 1_000_000,
-                   progress: bool = False) -> int:
+def transform_file(in_path, out_path, transformer: CrsTransformer, chunk_size: int = 1_000_000) -> int:
     """Dispatch on the suffix: LAS/LAZ chunked, anything else a point list."""
     if Path(in_path).suffix.lower() in LAS_SUFFIXES:
         if Path(out_path).suffix.lower() not in LAS_SUFFIXES:
             raise InputError(f"{out_path}: a LAS/LAZ input needs a .las or .laz output")
-        return transform_las(in_path, out_path, transformer, chunk_size, progress)
+        return transform_las(in_path, out_path, transformer, chunk_size)
     return transform_point_list(in_path, out_path, transformer)

@@ -64,14 +64,21 @@ def vertical_crs(crs: pyproj.CRS) -> pyproj.CRS | None:
     return None
 
 
-def same_horizontal(a, b) -> bool:
-    """True when two CRSs have the same horizontal part (compound CRSs compared by their parts; axis
-    order ignored; definitions that differ only in naming but carry the same EPSG identity agree)."""
-    ha, hb = horizontal_crs(a), horizontal_crs(b)
-    if ha.equals(hb, ignore_axis_order=True):
+def same_crs(a, b) -> bool:
+    """True when two CRSs are the same (axis order ignored; definitions that differ only in naming but
+    carry the same EPSG identity agree); None equals only None."""
+    if a is None or b is None:
+        return a is None and b is None
+    a, b = parse_crs(a), parse_crs(b)
+    if a.equals(b, ignore_axis_order=True):
         return True
-    ea, eb = ha.to_epsg(min_confidence=70), hb.to_epsg(min_confidence=70)
+    ea, eb = a.to_epsg(min_confidence=70), b.to_epsg(min_confidence=70)
     return ea is not None and ea == eb
+
+
+def same_horizontal(a, b) -> bool:
+    """True when two CRSs have the same horizontal part (compound CRSs compared by their parts)."""
+    return same_crs(horizontal_crs(a), horizontal_crs(b))
 
 
 def same_vertical(a, b) -> bool:

@@ -37,7 +37,7 @@ def match(project, budget, max_dim, ratio, min_overlap, terrain_height, image_to
                       densify=not no_densify)
     s = dataclasses.replace(s)
     with executor_for(scheduler, workers) as ex:
-        rep = match_project(project, s, log=lambda m: click.echo(m, err=True), executor=ex)
+        rep = match_project(project, s, executor=ex)
     click.echo(f"frames {rep['frames']}  pairs {rep['pairs']}  tracks {rep['tracks']}  observations "
                f"{rep['observations']}  3+ rays {100 * rep['tracks_3plus_fraction']:.1f} %  components "
                f"{rep['components']}  weak models {len(rep['weak_models'])}")

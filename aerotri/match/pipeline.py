@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import logging
+
 import dataclasses
 import json
 import time
@@ -25,6 +27,8 @@ from aerotri.match.weak import analyse
 from aerotri.core.executor import Executor, local_executor
 from aerotri.project import Project
 from aerotri.core.atomic import write_text_atomic
+
+log = logging.getLogger(__name__)
 
 
 @dataclasses.dataclass
@@ -83,7 +87,7 @@ def _match_task(item) -> tuple[bool, np.ndarray]:
     return False, M.cached_match(tag, F.cached_features(*fa), F.cached_features(*fb), camera, p, cache_dir, fkey)
 
 
-def match_project(root, settings: MatchSettings | None = None, log=lambda m: None, executor: Executor | None = None) -> dict:
+def match_project(root, settings: MatchSettings | None = None, executor: Executor | None = None) -> dict:
     """Match the frames of a project; writes ``at/tiepoints.csv`` and the connectivity report.
 
     Feature extraction (one task per frame) and matching (one task per pair) run on ``executor``
@@ -124,7 +128,7 @@ def match_project(root, settings: MatchSettings | None = None, log=lambda m: Non
     else:
         # No GNSS (e.g. a kite block): find overlapping pairs by matching thumbnails, then match those.
         plan = None
-        log(f"{project.gnss_path} not found: pairs by thumbnail retrieval")
+        log.info(f"{project.gnss_path} not found: pairs by thumbnail retrieval")
 
     ex = executor or local_executor()
 
@@ -224,7 +228,7 @@ def match_project(root, settings: MatchSettings | None = None, log=lambda m: Non
     write_text_atomic(at / "connectivity.json", json.dumps(report, indent=1) + "\n")
     if plan is not None:
         plot_block(at / "connectivity.png", plan, ties, analysis)
-    log(f"{n} frames, {len(pairs)} pairs, {report['tracks']} tracks, {report['observations']} observations, "
+    log.info(f"{n} frames, {len(pairs)} pairs, {report['tracks']} tracks, {report['observations']} observations, "
         f"{len(components)} component(s), {len(report['weak_models'])} weak model(s) -> {at / 'tiepoints.csv'}")
     return report
 

@@ -37,12 +37,11 @@ def sim(preset, seed, overrides, force, observations, tie_sigma_px, n_control, b
         cfg["preset"]["seed"] = seed
     if not 0.0 <= blunder_fraction < 1.0:
         raise InputError(f"--blunder-fraction {blunder_fraction}: must be in [0, 1)")
-    simulate(cfg, outdir, force=force, log=lambda m: click.echo(m, err=True))
+    simulate(cfg, outdir, force=force)
     if observations:
         from aerotri.sim.observations import write_truth_observations
 
         summary = write_truth_observations(outdir, tie_sigma_px=tie_sigma_px, n_control=n_control,
                                            blunder_fraction=blunder_fraction,
                                            bad_control_shift_m=bad_control_shift_m, seed=cfg["preset"]["seed"])
-        click.echo(f"truth observations: {', '.join(f'{k} {v}' for k, v in summary.items() if isinstance(v, (int, float)))}",
-                   err=True)
+        click.echo(f"truth observations: {', '.join(f'{k} {v}' for k, v in summary.items() if isinstance(v, (int, float)))}")

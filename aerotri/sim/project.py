@@ -7,9 +7,9 @@ every LiDAR strip (numpy SeedSequence spawning), so the same seed gives the same
 from __future__ import annotations
 
 import json
+import logging
 import math
 import shutil
-import sys
 import time
 from pathlib import Path
 
@@ -17,7 +17,6 @@ import cv2
 import numpy as np
 import rasterio
 from rasterio.transform import from_origin
-from tqdm import tqdm
 
 from aerotri.eo import ExteriorOrientations, GnssPositions, format_eo, write_gnss
 from aerotri.core.errors import InputError
@@ -28,6 +27,9 @@ from aerotri.sim.flight import block_layout, cameras_from_config, lidar_lines, p
 from aerotri.sim.lidar import scan_strip, write_las
 from aerotri.sim.scene import build_scene
 from aerotri.core.atomic import atomic_dir
+from aerotri.core.log import track
+
+log = logging.getLogger(__name__)
 
 
 def _write_geotiff(path: Path, data: np.ndarray, transform, epsg: int, nodata=None):
@@ -51,10 +53,10 @@ def _csv(path: Path, header: list[str], rows) -> None:
 
 
 def _progress(iterable, desc, total=None):
-    return tqdm(iterable, desc=desc, total=total, unit="", leave=False, disable=not sys.stderr.isatty())
+    return track(iterable, desc, total=total)
 
 
-def simulate(cfg: dict, outdir, force: bool = False, log=print) -> dict:
+def simulate(cfg: dict, outdir, force: bool = False) -> dict:
     """Generate the project described by preset ``cfg`` into ``outdir``; returns the truth summary."""
     outdir = Path(outdir)
     if outdir.exists() and any(outdir.iterdir()) and not force:
@@ -73,7 +75,7 @@ def simulate(cfg: dict, outdir, force: bool = False, log=print) -> dict:
     plan = plan_frames(cfg, layout, np.random.default_rng(s_flight))
     cam_true, cam_nominal = cameras_from_config(cfg["camera"])
     _check_plan(plan, scene, cfg)
-    log(f"scene {layout['width_m']:.0f} x {layout['height_m']:.0f} m: {len(scene.buildings)} buildings, "
+    log.info(f"scene {layout['width_m']:.0f} x {layout['height_m']:.0f} m: {len(scene.buildings)} buildings, "
         f"{len(scene.tree_c)} trees, {len(scene.roads)} roads, {len(scene.ponds)} ponds, {len(scene.targets)} targets")
 
     with atomic_dir(outdir) as tmp:
@@ -94,7 +96,7 @@ def simulate(cfg: dict, outdir, force: bool = False, log=print) -> dict:
             img = render.expose(rad, cam_true, gain, rcfg["vignetting"], rcfg["noise_dn"], frng)
             cv2.imwrite(str(tmp / "images" / f"{plan.image_id[i]}.tif"), img[:, :, ::-1])
         t_frames = time.perf_counter()
-        log(f"rendered {len(plan.image_id)} frames of {cam_true.width} x {cam_true.height} px "
+        log.info(f"rendered {len(plan.image_id)} frames of {cam_true.width} x {cam_true.height} px "
             f"in {t_frames - t_start:.1f} s")
 
         # -- LiDAR --------------------------------------------------------------------------
@@ -118,7 +120,7 @@ def simulate(cfg: dict, outdir, force: bool = False, log=print) -> dict:
             for c, k in zip(*np.unique(pts["classification"], return_counts=True)):
                 class_counts[int(c)] = class_counts.get(int(c), 0) + int(k)
         t_lidar = time.perf_counter()
-        log(f"scanned {len(lines)} LiDAR strips, {n_points} points in {t_lidar - t_frames:.1f} s")
+        log.info(f"scanned {len(lines)} LiDAR strips, {n_points} points in {t_lidar - t_frames:.1f} s")
 
         # -- project files ------------------------------------------------------------------
         g = cfg["gnss"]
@@ -229,7 +231,7 @@ def simulate(cfg: dict, outdir, force: bool = False, log=print) -> dict:
         )
         (tmp / "truth" / "truth.json").write_text(json.dumps(truth, indent=2, sort_keys=True) + "\n")
         (tmp / "README.txt").write_text(_README.format(**truth))
-    log(f"wrote {outdir} in {time.perf_counter() - t_start:.1f} s")
+    log.info(f"wrote {outdir} in {time.perf_counter() - t_start:.1f} s")
     return truth
 
 

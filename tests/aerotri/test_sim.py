@@ -224,7 +224,7 @@ def _digest(folder):
 
 def test_same_seed_same_bytes(tiny_project, tmp_path):
     again = tmp_path / "again"
-    simulate(load_preset("tiny"), again, log=lambda m: None)
+    simulate(load_preset("tiny"), again)
     assert _digest(again) == _digest(tiny_project)
 
 

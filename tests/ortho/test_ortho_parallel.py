@@ -44,9 +44,9 @@ def test_outputs_identical_on_every_scheduler(small_block, tmp_path):
         root = tmp_path / str(scheduler).replace(":", "_")
         shutil.copytree(small_block, root)
         with Executor(scheduler, 2) as ex:
-            index = rectify_block(root, progress=False, executor=ex)
+            index = rectify_block(root, executor=ex)
             # small tiles: several mosaic tiles and batches even on this small block
-            mosaic_block(root, tile_px=256, progress=False, executor=ex)
+            mosaic_block(root, tile_px=256, executor=ex)
         assert len(index["frames"]) == 4
         digests[scheduler] = _digests(root)
     assert len(digests["synchronous"]) == 7
@@ -142,7 +142,7 @@ def test_mapped_and_decoded_frames_give_the_same_ortho(small_block, tmp_path):
     mapped, order = read_image_native(root / "images" / "s01_001.tif", cam)
     assert isinstance(mapped, np.memmap) and order == [1, 2, 3]
     assert np.array_equal(np.asarray(mapped), img[:, :, ::-1])
-    rectify_block(root, frames=["s01_001"], progress=False)
-    rectify_block(small_block, frames=["s01_001"], progress=False)
+    rectify_block(root, frames=["s01_001"])
+    rectify_block(small_block, frames=["s01_001"])
     with rasterio.open(root / "ortho/frames/s01_001.tif") as a, rasterio.open(small_block / "ortho/frames/s01_001.tif") as b:
         assert np.array_equal(a.read(), b.read()) and np.array_equal(a.read_masks(1), b.read_masks(1))

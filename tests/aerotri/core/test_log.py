@@ -1,0 +1,54 @@
+"""Every command logs through Python logging: -q keeps warnings and errors only, -v adds debug details,
+--log-file gets everything with time stamps, and off a terminal progress comes as periodic log lines
+with counts and an ETA (tqdm only on a terminal)."""
+
+from __future__ import annotations
+
+import re
+
+import pytest
+from click.testing import CliRunner
+
+from aerotri.cli import main as aerotri_cli
+from aerotri.core import log as core_log
+from lidarctl import synthetic
+
+
+@pytest.fixture()
+def las(tmp_path):
+    cloud, truth = synthetic.synthetic_scene(width_m=60.0, seed=3)
+    path = tmp_path / "in.las"
+    synthetic.write_las(path, cloud, classification=truth, crs="EPSG:32649")
+    return path
+
+
+def _transform(las, out, *extra):
+    return CliRunner().invoke(aerotri_cli, ["crs", "transform", str(las), str(out), "--to", "EPSG:4326",
+                                            "--chunk-size", "2000", *extra])
+
+
+def test_progress_lines_off_a_terminal(las, tmp_path, monkeypatch):
+    monkeypatch.setattr(core_log, "PROGRESS_INTERVAL_S", 0.0)
+    r = _transform(las, tmp_path / "out.las")
+    assert r.exit_code == 0, r.output
+    lines = [ln for ln in r.stderr.splitlines() if ln.startswith("transform in.las:")]
+    assert len(lines) >= 3
+    assert re.search(r"[\d,]+/[\d,]+ points \(\d+\.\d %\), \d+ s elapsed, ETA \d+", lines[0])
+    assert "\r" not in r.stderr  # no tqdm bar off a terminal
+
+
+def test_quiet_and_log_file(las, tmp_path, monkeypatch):
+    monkeypatch.setattr(core_log, "PROGRESS_INTERVAL_S", 0.0)
+    log_file = tmp_path / "run.log"
+    r = _transform(las, tmp_path / "out.las", "-q", "--log-file", str(log_file))
+    assert r.exit_code == 0, r.output
+    assert "transform in.las:" not in r.stderr  # -q: no progress, no info on stderr
+    text = log_file.read_text()
+    assert re.search(r"^\d{4}-\d\d-\d\d \d\d:\d\d:\d\d,\d+ INFO +aerotri.progress: transform in.las: ", text, re.M)
+
+
+def test_errors_go_through_the_handler_with_exit_code_2(tmp_path):
+    r = CliRunner().invoke(aerotri_cli, ["crs", "transform", str(tmp_path / "missing.las"), str(tmp_path / "o.las"),
+                                         "--to", "EPSG:4326", "-v"])
+    assert r.exit_code == 2
+    assert r.stderr.startswith("Error: ") and "missing.las" in r.stderr and "Traceback" not in r.stderr
