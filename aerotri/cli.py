@@ -28,5 +28,5 @@ from aerotri.match.cli import match  # noqa: E402
 main.add_command(match)
 from aerotri.control.cli import control  # noqa: E402
 main.add_command(control)
-from aerotri.qa_cli import report  # noqa: E402
+from aerotri.qa.cli import report  # noqa: E402
 main.add_command(report)

@@ -31,7 +31,7 @@ from aerotri.adjust.check_points import intersect
 from aerotri.adjust.covariance import ReducedCovariance, point_covariances
 from aerotri.adjust.pipeline import AdjustSettings, finish, prepare_project
 from aerotri.adjust.solve import adjust_block
-from aerotri.camera import dmc_camera
+from aerotri.geom.camera import dmc_camera
 from aerotri.sim.observations import geometric_block, write_block_project, write_truth_observations
 
 SIGMA_PX = 0.3

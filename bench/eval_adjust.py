@@ -29,7 +29,7 @@ from pathlib import Path
 import numpy as np
 
 from aerotri.adjust.pipeline import AdjustSettings, adjust_project, write_outputs
-from aerotri.camera import FrameCamera
+from aerotri.geom.camera import FrameCamera
 from aerotri.sim.observations import geometric_block, write_block_project, write_truth_observations
 
 NOISE_PX = 0.3

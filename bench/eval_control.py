@@ -34,8 +34,8 @@ sys.path.insert(0, str(REPO))
 
 from aerotri.adjust import pipeline as adjust_pipeline  # noqa: E402
 from aerotri.adjust.observations import ControlPoints  # noqa: E402
-from aerotri.camera import FrameCamera  # noqa: E402
-from aerotri.eo import read_eo  # noqa: E402
+from aerotri.geom.camera import FrameCamera  # noqa: E402
+from aerotri.geom.eo import read_eo  # noqa: E402
 from aerotri.sim.evaluate import truth_roof_corners  # noqa: E402
 from aerotri.core.atomic import write_text_atomic  # noqa: E402
 

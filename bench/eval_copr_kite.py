@@ -47,9 +47,9 @@ import numpy as np
 
 from aerotri.adjust.datum import umeyama
 from aerotri.adjust.pipeline import AdjustSettings, adjust_project, write_outputs
-from aerotri.camera import FrameCamera
-from aerotri.eo import ExteriorOrientations, write_eo
-from aerotri.rotation import FLIP_YZ, opk_from_matrix
+from aerotri.geom.camera import FrameCamera
+from aerotri.geom.eo import ExteriorOrientations, write_eo
+from aerotri.geom.rotation import FLIP_YZ, opk_from_matrix
 from aerotri.core.atomic import write_text_atomic
 
 REPO = Path(__file__).resolve().parents[1]

@@ -23,7 +23,7 @@ REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
 
 from aerotri.match import match_project  # noqa: E402
-from aerotri.match.images import camera_from_exif, find_images  # noqa: E402
+from aerotri.geom.images import camera_from_exif, find_images  # noqa: E402
 from aerotri.sim import load_preset, simulate  # noqa: E402
 from aerotri.sim.evaluate import tie_point_errors  # noqa: E402
 

@@ -26,7 +26,7 @@ sys.path.insert(0, str(REPO))
 
 from aerotri.match import MatchSettings, match_project  # noqa: E402
 from aerotri.match.features import FeatureParams, extract  # noqa: E402
-from aerotri.match.images import read_gray  # noqa: E402
+from aerotri.geom.images import read_gray  # noqa: E402
 from aerotri.sim import load_preset, simulate  # noqa: E402
 
 

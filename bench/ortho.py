@@ -51,7 +51,7 @@ BASE_M = 300.0
 
 
 def dmc_truth_camera():
-    from aerotri.camera import dmc_camera
+    from aerotri.geom.camera import dmc_camera
     import dataclasses
 
     return dataclasses.replace(dmc_camera(), ppx_mm=0.1, ppy_mm=-0.06, k1=-4e-3, k2=1e-3, name="DMC (benchmark truth)")
@@ -60,8 +60,8 @@ def dmc_truth_camera():
 def prepare(d: Path) -> dict:
     import cv2
 
-    from aerotri.eo import ExteriorOrientations, write_eo
-    from aerotri.rotation import rotation_matrix_opk
+    from aerotri.geom.eo import ExteriorOrientations, write_eo
+    from aerotri.geom.rotation import rotation_matrix_opk
     from aerotri.core.atomic import write_text_atomic
     from ortho.grid import OrthoGrid
     from ortho.synthetic import render_frame, smooth_dem, textured_orthophoto, write_geotiff
@@ -104,8 +104,8 @@ def prepare(d: Path) -> dict:
 def _setup(d: Path):
     import cv2  # noqa: F401
 
-    from aerotri.camera import FrameCamera
-    from aerotri.eo import read_eo
+    from aerotri.geom.camera import FrameCamera
+    from aerotri.geom.eo import read_eo
     from ortho.block import read_image
     from ortho.dem import open_height_raster, read_height_window
     from ortho.grid import GridToProject, parse_crs
@@ -212,8 +212,8 @@ def run_kind(kind: str, d: Path) -> dict:
         import orthority as oty
         from orthority.camera import OpenCVCamera
 
-        from aerotri.camera import FrameCamera
-        from aerotri.eo import read_eo
+        from aerotri.geom.camera import FrameCamera
+        from aerotri.geom.eo import read_eo
 
         cam = FrameCamera.read(d / "camera.toml")
         eo = read_eo(d / "at" / "eo.txt")

@@ -31,12 +31,12 @@ import numpy as np
 import rasterio
 from pyproj import CRS
 
-from aerotri.camera import FrameCamera
-from aerotri.eo import ExteriorOrientations, read_eo
+from aerotri.geom.camera import FrameCamera
+from aerotri.geom.eo import ExteriorOrientations, read_eo
 from aerotri.core.errors import InputError
-from aerotri.match.images import check_frames, find_images
-from aerotri.project import Project
-from aerotri.rotation import rotation_matrix_opk
+from aerotri.geom.images import check_frames, find_images
+from aerotri.core.project import Project
+from aerotri.geom.rotation import rotation_matrix_opk
 from aerotri.core.atomic import atomic_dir, atomic_path, write_text_atomic
 from aerotri.core.errors import OptionError
 from aerotri.core.limits import check_allocation, check_grid

@@ -3,7 +3,7 @@
 For every pixel of the output grid (processed in tiles): the ground position in the project CRS
 (interpolated from an anchor grid of the output->project CRS transform, exact for an identical CRS),
 the height bilinearly from the DEM (or DSM for a true ortho), the collinearity equations with Brown
-lens distortion (``aerotri.camera`` conventions) to image coordinates, then ``cv2.remap``
+lens distortion (``aerotri.geom.camera`` conventions) to image coordinates, then ``cv2.remap``
 (bilinear default, cubic or Lanczos) with fixed-point maps written directly by the kernel. Pixels
 outside the frame, behind the camera or over DEM nodata are invalid (mask 0, value 0).
 
@@ -37,9 +37,9 @@ import cv2
 import numba
 import numpy as np
 
-from aerotri.camera import FrameCamera
+from aerotri.geom.camera import FrameCamera
 from aerotri.core.errors import InputError
-from aerotri.rotation import FLIP_YZ
+from aerotri.geom.rotation import FLIP_YZ
 from ortho.dem import HeightRaster
 from ortho.grid import GridToProject, OrthoGrid
 

@@ -14,8 +14,8 @@ import cv2
 import numba
 import numpy as np
 
-from aerotri.camera import FrameCamera
-from aerotri.rotation import FLIP_YZ
+from aerotri.geom.camera import FrameCamera
+from aerotri.geom.rotation import FLIP_YZ
 from ortho.dem import HeightRaster
 from ortho.grid import OrthoGrid
 
@@ -234,7 +234,7 @@ def write_synthetic_project(root, strips: int = 2, frames_per_strip: int = 3, bu
     """
     from pathlib import Path
 
-    from aerotri.eo import ExteriorOrientations, write_eo
+    from aerotri.geom.eo import ExteriorOrientations, write_eo
     from aerotri.core.atomic import write_text_atomic
 
     root = Path(root)

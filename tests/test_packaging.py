@@ -29,7 +29,7 @@ def test_wheel_file_list(wheel):
     for preset in ("tiny", "demo", "dmc"):
         assert any(n.endswith(f"data/share/aerotri/presets/{preset}.toml") for n in names), preset
     for scale in ("1to2000", "1to5000", "1to10000"):
-        assert f"aerotri/tolerances/cn_{scale}.toml" in names
+        assert f"aerotri/core/tolerance_tables/cn_{scale}.toml" in names
     assert any(n.endswith("dist-info/licenses/LICENSE") for n in names)
     for pkg in ("aerotri/core/errors.py", "aerotri/geom/transform.py", "lidarctl/cli.py", "ortho/cli.py"):
         assert pkg in names

@@ -19,7 +19,7 @@ from __future__ import annotations
 import numpy as np
 
 from aerotri.adjust.check_points import intersect_rays, pixel_rays, sum_by_index
-from aerotri.rotation import FLIP_YZ, rotation_matrix_opk
+from aerotri.geom.rotation import FLIP_YZ, rotation_matrix_opk
 
 
 def kappa_from_image_motion(gnss_local, strip, obs_point, obs_image, obs_xy_px) -> np.ndarray:

@@ -44,9 +44,9 @@ import gtsam
 import numpy as np
 
 from aerotri.adjust import datum, schur
-from aerotri.camera import FrameCamera
+from aerotri.geom.camera import FrameCamera
 from aerotri.core.errors import InputError
-from aerotri.rotation import FLIP_YZ
+from aerotri.geom.rotation import FLIP_YZ
 
 X = lambda i: gtsam.symbol("x", int(i))  # noqa: E731
 P = lambda j: gtsam.symbol("p", int(j))  # noqa: E731

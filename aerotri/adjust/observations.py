@@ -3,7 +3,7 @@
 ``at/tiepoints.csv``: ``point_id,image_id,x_px,y_px``; ``control/points.csv``:
 ``id,kind,x,y,z,sx_m,sy_m,sz_m`` with kind ``full`` (XYZ control), ``horizontal``, ``height`` or
 ``check``; ``control/image_points.csv``: ``point_id,image_id,x_px,y_px``. Pixel coordinates follow
-aerotri.camera (origin at the centre of the top-left pixel, x right, y down).
+aerotri.geom.camera (origin at the centre of the top-left pixel, x right, y down).
 Every problem raises InputError naming the file, line and record.
 """
 

@@ -34,13 +34,13 @@ from aerotri.adjust.observations import (
 )
 from aerotri.adjust.solve import AdjustmentResult, adjust_block, check_point_errors
 from aerotri.adjust.strips import along_track_km, strips_from_track
-from aerotri.camera import FrameCamera
-from aerotri.eo import ExteriorOrientations, check_block_crs, read_eo, read_gnss
+from aerotri.geom.camera import FrameCamera
+from aerotri.geom.eo import ExteriorOrientations, check_block_crs, read_eo, read_gnss
 from aerotri.core.config import config_number, config_vector
 from aerotri.core.errors import InputError, OptionError
 from aerotri.core.settings import setting
-from aerotri.project import Project
-from aerotri.rotation import FLIP_YZ, opk_from_matrix
+from aerotri.core.project import Project
+from aerotri.geom.rotation import FLIP_YZ, opk_from_matrix
 
 
 @dataclasses.dataclass
@@ -497,8 +497,8 @@ def write_outputs(ba: BlockAdjustment, root, html: bool = True, exports: bool = 
     import json
 
     from aerotri.adjust import export, report
-    from aerotri.eo import format_eo
-    from aerotri.qa_report import qa_settings
+    from aerotri.geom.eo import format_eo
+    from aerotri.core.tolerances import qa_settings
     from aerotri.core.atomic import write_text_atomic
 
     at = Path(out_dir) if out_dir is not None else Project.open(root).at_dir

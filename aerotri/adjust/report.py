@@ -13,7 +13,7 @@ import math
 import numpy as np
 
 from aerotri.adjust import graph as G
-from aerotri.qa_report import load_tolerances, tolerance_path
+from aerotri.core.tolerances import load_tolerances, tolerance_path
 
 
 def _rms(a, axis=0):

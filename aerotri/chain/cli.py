@@ -19,7 +19,7 @@ def _run_chain(project_dir: Path, scheduler, workers, force: bool, **inputs) -> 
     from aerotri.chain.options import read_options
     from aerotri.chain.runner import run_stages
     from aerotri.chain.stages import Chain
-    from aerotri.project import Project
+    from aerotri.core.project import Project
 
     project = Project.open(project_dir)
     chain = Chain(project, read_options(project), **inputs)  # project.toml checked whole before any stage runs

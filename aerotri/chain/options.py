@@ -27,7 +27,7 @@ from aerotri.control.pipeline import ControlSettings
 from aerotri.core.errors import ConfigError
 from aerotri.core.settings import from_table
 from aerotri.match.pipeline import MatchSettings
-from aerotri.project import PROJECT_SECTIONS, STAGE_SECTION_NAMES, Project
+from aerotri.core.project import PROJECT_SECTIONS, STAGE_SECTION_NAMES, Project
 from lidarctl.classify import ClassifyParams
 from lidarctl.corners import CornerSettings
 from lidarctl.rasters import RasterSettings

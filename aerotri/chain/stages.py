@@ -27,7 +27,7 @@ from aerotri.chain.options import ChainOptions, read_options
 from aerotri.chain.runner import Stage
 from aerotri.core.atomic import write_text_atomic
 from aerotri.core.settings import to_table
-from aerotri.project import Project
+from aerotri.core.project import Project
 
 _log = logging.getLogger(__name__)
 
@@ -367,7 +367,7 @@ class Chain:
         return {k: g[k] for k in ("type_i_error_pct", "type_ii_error_pct", "kappa_pct") if k in g}
 
     def run_report(self, root) -> dict:
-        from aerotri.qa_report import write_qa_report
+        from aerotri.qa.report import write_qa_report
 
         rep = write_qa_report(root)
         return dict(verdict=rep["overall"], passed=rep["passed"], failed=rep["failed"])

@@ -1,6 +1,6 @@
 """Measure a LiDAR roof corner in one frame: predicted window, edge segments, intersection, sub-pixel fit.
 
-Pixel convention as in ``aerotri.camera``: origin at the centre of the top-left pixel, x right, y down.
+Pixel convention as in ``aerotri.geom.camera``: origin at the centre of the top-left pixel, x right, y down.
 
 Method (per frame):
 1. Prediction: the corner and its two roof edges (object directions from the LiDAR bearings) are

@@ -18,14 +18,14 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from aerotri.camera import FrameCamera
+from aerotri.geom.camera import FrameCamera
 from aerotri.control.consistency import check_rays
 from aerotri.control.corners import LidarCorners, read_corners, read_manual
 from aerotri.control.layout import LayoutRule, select_control
 from aerotri.control.measure import MeasureSettings, Measurement, measure_in_image, predict
-from aerotri.eo import ExteriorOrientations, read_eo
+from aerotri.geom.eo import ExteriorOrientations, read_eo
 from aerotri.core.errors import InputError
-from aerotri.project import Project
+from aerotri.core.project import Project
 from aerotri.core.log import track
 
 

@@ -11,7 +11,7 @@ __all__ = ["MatchSettings", "match_project"]
 
 
 def __getattr__(name):
-    # Lazy: other packages import aerotri.match.images alone, without the pipeline and matplotlib.
+    # Lazy: other packages import aerotri.geom.images alone, without the pipeline and matplotlib.
     if name in __all__:
         from aerotri.match import pipeline
 

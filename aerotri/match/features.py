@@ -18,7 +18,7 @@ import cv2
 import numpy as np
 
 from aerotri.core.errors import InputError
-from aerotri.match.images import downsample, level_to_full, pyramid_level, read_gray
+from aerotri.geom.images import downsample, level_to_full, pyramid_level, read_gray
 from aerotri.core.atomic import atomic_path
 
 

@@ -12,7 +12,7 @@ import cv2
 import numpy as np
 from scipy.spatial import cKDTree
 
-from aerotri.camera import FrameCamera
+from aerotri.geom.camera import FrameCamera
 from aerotri.match.features import Features
 from aerotri.core.atomic import atomic_path
 

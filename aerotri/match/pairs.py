@@ -16,9 +16,9 @@ import numpy as np
 from shapely.geometry import Polygon
 
 from aerotri.adjust.strips import strips_from_track
-from aerotri.camera import FrameCamera
+from aerotri.geom.camera import FrameCamera
 from aerotri.core.errors import InputError
-from aerotri.rotation import rotation_matrix_opk
+from aerotri.geom.rotation import rotation_matrix_opk
 
 
 @dataclasses.dataclass

@@ -14,18 +14,18 @@ from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
 
-from aerotri.eo import check_block_crs, read_gnss
+from aerotri.geom.eo import check_block_crs, read_gnss
 from aerotri.core.config import config_number, config_vector
 from aerotri.core.errors import InputError
 from aerotri.match import features as F
 from aerotri.match import matching as M
-from aerotri.match.images import check_frames, find_images
+from aerotri.geom.images import check_frames, find_images
 from aerotri.match.pairs import Pair, candidate_pairs, plan_block
 from aerotri.match.report import plot_block, track_length_histogram
 from aerotri.match.tracks import build_tracks
 from aerotri.match.weak import analyse
 from aerotri.core.executor import Executor, local_executor
-from aerotri.project import Project
+from aerotri.core.project import Project
 from aerotri.core.atomic import write_text_atomic
 
 log = logging.getLogger(__name__)

@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from aerotri.camera import FrameCamera
+from aerotri.geom.camera import FrameCamera
 from aerotri.match.pairs import BlockPlan
 
 

@@ -9,8 +9,8 @@ import rasterio
 from scipy.ndimage import maximum_filter, minimum_filter
 
 from aerotri.adjust.check_points import intersect_rays
-from aerotri.camera import FrameCamera
-from aerotri.eo import read_eo
+from aerotri.geom.camera import FrameCamera
+from aerotri.geom.eo import read_eo
 
 
 def read_tiepoints(path):

@@ -12,8 +12,8 @@ import math
 
 import numpy as np
 
-from aerotri.camera import FrameCamera
-from aerotri.rotation import rotation_matrix_opk
+from aerotri.geom.camera import FrameCamera
+from aerotri.geom.rotation import rotation_matrix_opk
 
 
 @dataclasses.dataclass

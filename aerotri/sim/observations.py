@@ -20,10 +20,10 @@ from scipy.spatial import cKDTree
 
 from aerotri.geom.local_frame import LocalFrame
 from aerotri.adjust.observations import ControlPoints, ImageObservations
-from aerotri.camera import FrameCamera, dmc_camera
-from aerotri.eo import ExteriorOrientations, GnssPositions, read_eo, write_eo, write_gnss
+from aerotri.geom.camera import FrameCamera, dmc_camera
+from aerotri.geom.eo import ExteriorOrientations, GnssPositions, read_eo, write_eo, write_gnss
 from aerotri.core.errors import InputError
-from aerotri.rotation import opk_from_matrix, rotation_matrix_opk
+from aerotri.geom.rotation import opk_from_matrix, rotation_matrix_opk
 from aerotri.core.atomic import write_text_atomic
 
 

@@ -18,9 +18,9 @@ import numpy as np
 import rasterio
 from rasterio.transform import from_origin
 
-from aerotri.eo import ExteriorOrientations, GnssPositions, format_eo, write_gnss
+from aerotri.geom.eo import ExteriorOrientations, GnssPositions, format_eo, write_gnss
 from aerotri.core.errors import InputError
-from aerotri.rotation import rotation_matrix_opk
+from aerotri.geom.rotation import rotation_matrix_opk
 from aerotri.sim import raycast, render
 from aerotri.sim.config import stage_sections_toml
 from aerotri.sim.flight import block_layout, cameras_from_config, lidar_lines, plan_frames

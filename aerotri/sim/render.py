@@ -9,8 +9,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from aerotri.camera import FrameCamera
-from aerotri.rotation import FLIP_YZ
+from aerotri.geom.camera import FrameCamera
+from aerotri.geom.rotation import FLIP_YZ
 from aerotri.sim import raycast
 from aerotri.sim.scene import Scene
 

@@ -2,7 +2,7 @@
 
 ```
 project.toml   [project] name, crs; [gnss] sigmas and lever arm; [control] sigmas; stage options
-camera.toml    frame camera (aerotri.camera)
+camera.toml    frame camera (aerotri.geom.camera)
 gnss.txt       image_id X Y Z [sX sY sZ]
 lidar/ images/ lidar_out/ control/ work/ at/ ortho/
 ```
@@ -103,14 +103,14 @@ class Project:
     truth_dir = property(lambda self: self.root / "truth")
 
     def camera(self):
-        from aerotri.camera import FrameCamera
+        from aerotri.geom.camera import FrameCamera
 
         return FrameCamera.read(self.camera_path)
 
     def adjusted_camera(self):
         """(camera, source): the self-calibrated camera of the last adjustment (``at/report.json``)
         when there is one, else the nominal ``camera.toml``. Orientations in ``at/eo.txt`` belong to it."""
-        from aerotri.camera import FrameCamera
+        from aerotri.geom.camera import FrameCamera
 
         rep = self.at_dir / "report.json"
         if rep.is_file():

@@ -8,7 +8,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from aerotri.camera import FrameCamera
+from aerotri.geom.camera import FrameCamera
 from aerotri.core.errors import InputError
 
 IMAGE_SUFFIXES = (".tif", ".tiff", ".jpg", ".jpeg", ".png")

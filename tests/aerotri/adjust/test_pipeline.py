@@ -70,7 +70,7 @@ def test_outputs_and_report(block_project):
     assert js["key_statistics"]["sigma0_um"] == rep["key_statistics"]["sigma0_um"]
     assert js["counts"]["images"] == 18 and js["counts"]["check_points"] == 12
     assert js["counts"]["image_observations"] + js["counts"]["removed_observations"] >= len(ba.block.obs_point) - 5
-    from aerotri.eo import read_eo
+    from aerotri.geom.eo import read_eo
 
     eo = read_eo(at / "eo.txt")
     assert eo.sigma is not None and len(eo.image_id) == 18

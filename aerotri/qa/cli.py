@@ -17,12 +17,12 @@ from aerotri.core.commands import Command
 @click.option("--terrain", type=click.Choice(["flat", "hilly", "mountainous"]), default=None,
               help="Terrain class of the tolerance table (default: [qa] terrain, else flat).")
 @click.option("--tolerances", type=click.Path(dir_okay=False, exists=True, path_type=Path), default=None,
-              help="Your own tolerance table (TOML, same layout as aerotri/tolerances/*.toml).")
+              help="Your own tolerance table (TOML, same layout as aerotri/core/tolerance_tables/*.toml).")
 @click.option("--pdf/--no-pdf", default=None, help="Also write reports/report.pdf (default: [qa] pdf).")
 def report(project, scale, terrain, tolerances, pdf):
     """LiDAR, control, adjustment and DOM accuracy against the map-scale tolerances:
     reports/index.html, reports/summary.json (and reports/report.pdf)."""
-    from aerotri.qa_report import write_qa_report
+    from aerotri.qa.report import write_qa_report
 
     rep = write_qa_report(project, tolerances, terrain, scale, pdf)
     for r in rep["checks"]:

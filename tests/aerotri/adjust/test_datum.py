@@ -11,7 +11,7 @@ from scipy.spatial.transform import Rotation
 from aerotri.adjust import graph as G
 from aerotri.adjust.datum import Similarity, fit_similarity
 from aerotri.adjust.pipeline import AdjustSettings, prepare_project
-from aerotri.rotation import FLIP_YZ
+from aerotri.geom.rotation import FLIP_YZ
 from aerotri.sim.observations import geometric_block, write_block_project, write_truth_observations
 
 

@@ -5,9 +5,9 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from aerotri.camera import FrameCamera, dmc_camera
+from aerotri.geom.camera import FrameCamera, dmc_camera
 from aerotri.core.errors import InputError
-from aerotri.rotation import opk_from_matrix, rotation_matrix_opk
+from aerotri.geom.rotation import opk_from_matrix, rotation_matrix_opk
 
 
 def test_nadir_frame_looks_down_with_image_top_north():

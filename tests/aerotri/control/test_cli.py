@@ -9,9 +9,9 @@ import shutil
 import numpy as np
 from click.testing import CliRunner
 
-from aerotri.camera import FrameCamera
+from aerotri.geom.camera import FrameCamera
 from aerotri.cli import main
-from aerotri.eo import read_eo
+from aerotri.geom.eo import read_eo
 from aerotri.sim.evaluate import truth_roof_corners, write_truth_corners_csv
 
 

@@ -11,7 +11,7 @@ Conventions (see docs in README):
   ``r2 = xn^2 + yn^2``, ``xd = xn (1 + k1 r2 + k2 r2^2 + k3 r2^3) + 2 p1 xn yn + p2 (r2 + 2 xn^2)``,
   ``yd = yn (1 + ...) + p1 (r2 + 2 yn^2) + 2 p2 xn yn``.
 - Exterior orientation: projection centre C (object metres) and R = rotation_matrix_opk(omega, phi,
-  kappa) from camera to object (see aerotri.rotation).
+  kappa) from camera to object (see aerotri.geom.rotation).
 """
 
 from __future__ import annotations
@@ -24,7 +24,7 @@ from pathlib import Path
 import numpy as np
 
 from aerotri.core.errors import InputError
-from aerotri.rotation import FLIP_YZ
+from aerotri.geom.rotation import FLIP_YZ
 
 _FIELDS = ("focal_mm", "pixel_um", "width", "height", "ppx_mm", "ppy_mm", "k1", "k2", "k3", "p1", "p2")
 

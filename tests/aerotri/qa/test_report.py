@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import json
 
-from aerotri.qa_report import write_qa_report
+from aerotri.qa.report import write_qa_report
 
 
 PROJECT = '[project]\nname = "t"\ncrs = "EPSG:32649"\n'

@@ -4,9 +4,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from aerotri.camera import FrameCamera
+from aerotri.geom.camera import FrameCamera
 from aerotri.control.consistency import check_rays
-from aerotri.rotation import rotation_matrix_opk
+from aerotri.geom.rotation import rotation_matrix_opk
 
 CAM = FrameCamera(focal_mm=120.0, pixel_um=96.0, width=1728, height=960)
 

@@ -4,7 +4,7 @@ optionally, ``reports/report.pdf``.
 It gathers what the stages wrote - LiDAR classification and height checks, control-point quality,
 the adjustment's ISAT-style numbers, the DOM check with its seam misalignment - and marks every
 quantity that has a tolerance as pass or fail. Tolerances come from a TOML table per map scale
-(``aerotri/tolerances/cn_1to2000.toml``, ``cn_1to5000.toml``, ``cn_1to10000.toml``; sections
+(``aerotri.core.tolerances``: ``cn_1to2000.toml``, ``cn_1to5000.toml``, ``cn_1to10000.toml``; sections
 ``flat``, ``hilly``, ``mountainous`` plus ``general`` for every class) or from the user's own file
 for their contract. Scale, terrain class and file come from the arguments, else from ``[qa]`` in
 ``project.toml`` (``map_scale = "1:2000"``, ``terrain = "hilly"``, ``tolerances = "my.toml"``, ``pdf``),
@@ -22,12 +22,8 @@ from pathlib import Path
 from aerotri.core.atomic import atomic_path, write_text_atomic
 from aerotri.core.errors import ConfigError, InputError, StageOrderError
 from aerotri.core.textio import read_json, read_text
-from aerotri.project import Project
-
-TOLERANCE_DIR = Path(__file__).with_name("tolerances")
-SCALE_TABLES = {"1:2000": "cn_1to2000.toml", "1:5000": "cn_1to5000.toml", "1:10000": "cn_1to10000.toml"}
-TERRAINS = ("flat", "hilly", "mountainous")
-
+from aerotri.core.project import Project
+from aerotri.core.tolerances import SCALE_TABLES, TERRAINS, load_tolerances, qa_settings, tolerance_path
 
 def _json(path: Path) -> dict:
     """A stage's JSON report, {} when the stage did not run; a corrupt one names the file."""
@@ -37,52 +33,6 @@ def _json(path: Path) -> dict:
     if not isinstance(d, dict):
         raise InputError(f"{path}: expected a JSON object (a stage report), got {type(d).__name__}")
     return d
-
-
-def tolerance_path(scale: str | None = None, tolerance_file=None, source: str = "map scale") -> Path:
-    """The tolerance table of ``scale`` (or ``tolerance_file``); ``source`` names where the scale came from."""
-    if tolerance_file:
-        p = Path(tolerance_file)
-        if not p.is_file():
-            raise InputError(f"{p}: tolerance table not found")
-        return p
-    scale = scale or "1:5000"
-    if scale not in SCALE_TABLES:
-        raise ConfigError(f"{source} {scale!r}: no built-in tolerance table (have {', '.join(SCALE_TABLES)}); "
-                          f"give your own with --tolerances FILE")
-    return TOLERANCE_DIR / SCALE_TABLES[scale]
-
-
-def load_tolerances(scale: str | None = None, terrain: str = "flat", tolerance_file=None) -> dict:
-    """Limits for one terrain class: the ``general`` section overlaid by the class's own."""
-    path = tolerance_path(scale, tolerance_file)
-    try:
-        table = tomllib.loads(read_text(path, "tolerance table (TOML)"))
-    except tomllib.TOMLDecodeError as e:
-        raise InputError(f"{path}: not a valid TOML tolerance table ({e})") from None
-    if terrain not in table:
-        have = [k for k, v in table.items() if isinstance(v, dict) and k != "general"]
-        raise InputError(f"{path}: no [{terrain}] section (terrain classes here: {', '.join(have)})")
-    return {**table.get("general", {}), **table[terrain]}
-
-
-def qa_settings(root: Path) -> dict:
-    """``[qa]`` of project.toml (map_scale, terrain, tolerances, pdf), with defaults; checked."""
-    project = Project.open(root)
-    cfg = project.section("qa")
-    src = f"{project.config_path} [qa]"
-    out = dict(map_scale=cfg.get("map_scale", "1:5000"), terrain=cfg.get("terrain", "flat"),
-               tolerances=cfg.get("tolerances"), pdf=cfg.get("pdf", False))
-    if not out["tolerances"] and out["map_scale"] not in SCALE_TABLES:
-        raise ConfigError(f"{src} map_scale = {out['map_scale']!r}: no built-in tolerance table (have "
-                          f"{', '.join(SCALE_TABLES)}); give your own with tolerances = \"FILE\"")
-    if out["terrain"] not in TERRAINS and not out["tolerances"]:
-        raise ConfigError(f"{src} terrain = {out['terrain']!r}: expected one of {', '.join(TERRAINS)}")
-    if not isinstance(out["pdf"], bool):
-        raise ConfigError(f"{src} pdf = {out['pdf']!r}: expected true or false")
-    if out["tolerances"]:
-        out["tolerances"] = str((Path(root) / out["tolerances"]).resolve())
-    return out
 
 
 def _check(section: str, name: str, value, limit, unit: str, note: str = "") -> dict:

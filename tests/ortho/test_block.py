@@ -76,8 +76,8 @@ def test_cli_scheduler_option(small_block, tmp_path):
 
 
 def test_tile_threads_and_sink_do_not_change_the_ortho(small_block):
-    from aerotri.camera import FrameCamera
-    from aerotri.eo import read_eo
+    from aerotri.geom.camera import FrameCamera
+    from aerotri.geom.eo import read_eo
     from ortho.dem import read_height_raster
     from ortho.grid import GridToProject, parse_crs
     from ortho.rectify import frame_grid, rectify_frame
@@ -130,7 +130,7 @@ def test_uncompressed_frames_are_memory_mapped(tmp_path, bands, dtype):
 
 def test_mapped_and_decoded_frames_give_the_same_ortho(small_block, tmp_path):
     """A frame stored uncompressed (mapped, R, G, B) and LZW (decoded by cv2, B, G, R) rectify alike."""
-    from aerotri.camera import FrameCamera
+    from aerotri.geom.camera import FrameCamera
 
     cam = FrameCamera.read(small_block / "camera.toml")
     img, order = read_image_native(small_block / "images" / "s01_001.tif", cam)

@@ -15,7 +15,7 @@ import numpy as np
 
 from aerotri.core.errors import CrsError, InputError
 from aerotri.core.textio import read_text
-from aerotri.rotation import rotation_matrix_opk
+from aerotri.geom.rotation import rotation_matrix_opk
 from aerotri.core.atomic import write_text_atomic
 
 

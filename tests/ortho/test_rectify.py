@@ -1,5 +1,5 @@
 """Rectification and DOM check against synthetic truth: a textured orthophoto on a known smooth DEM,
-frames rendered from it by inverse mapping through aerotri.camera (ray-DEM intersection per pixel)."""
+frames rendered from it by inverse mapping through aerotri.geom.camera (ray-DEM intersection per pixel)."""
 
 from __future__ import annotations
 
@@ -9,8 +9,8 @@ import rasterio
 from click.testing import CliRunner
 from pyproj import CRS
 
-from aerotri.camera import FrameCamera
-from aerotri.rotation import rotation_matrix_opk
+from aerotri.geom.camera import FrameCamera
+from aerotri.geom.rotation import rotation_matrix_opk
 from ortho.check import check_against_reference, displacement_statistics, match_patches
 from ortho.cli import main
 from ortho.grid import GridToProject, OrthoGrid, gk3_zone_crs, resolve_output_crs

@@ -7,7 +7,7 @@ import pytest
 from aerotri.adjust import graph as G
 from aerotri.adjust.approximate import camera_rays, resect_attitudes
 from aerotri.adjust.pipeline import AdjustSettings, adjust_project, prepare_project
-from aerotri.rotation import FLIP_YZ, rotation_matrix_opk
+from aerotri.geom.rotation import FLIP_YZ, rotation_matrix_opk
 from aerotri.sim.observations import geometric_block, write_block_project, write_truth_observations
 
 SIGMA_PX = 0.3

@@ -16,9 +16,9 @@ import pytest
 from click.testing import CliRunner
 
 from aerotri.cli import main as aerotri_cli
-from aerotri.eo import read_eo
+from aerotri.geom.eo import read_eo
 
-REPO = Path(__file__).resolve().parents[2]
+REPO = Path(__file__).resolve().parents[3]
 BIN = Path(sys.executable).parent  # the venv's aerotri, lidarctl, ortho
 
 

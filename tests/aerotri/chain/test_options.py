@@ -16,12 +16,12 @@ import pytest
 from click.testing import CliRunner
 
 from aerotri.adjust.pipeline import AdjustSettings, adjust_project
-from aerotri.camera import FrameCamera
+from aerotri.geom.camera import FrameCamera
 from aerotri.chain.options import STAGE_SECTIONS, ChainOptions, read_stage_sections
 from aerotri.cli import main as aerotri_cli
 from aerotri.core.errors import ConfigError, CrsError
-from aerotri.eo import ExteriorOrientations, read_eo, write_eo
-from aerotri.project import Project
+from aerotri.geom.eo import ExteriorOrientations, read_eo, write_eo
+from aerotri.core.project import Project
 from aerotri.sim import load_preset
 from aerotri.sim.observations import geometric_block, true_dmc_camera, write_block_project, write_truth_observations
 from lidarctl.cli import main as lidarctl_cli

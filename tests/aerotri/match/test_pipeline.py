@@ -60,7 +60,7 @@ def test_tracks_drop_inconsistent_chains():
 
 
 def test_pairs_follow_the_footprints():
-    from aerotri.camera import dmc_camera
+    from aerotri.geom.camera import dmc_camera
 
     cam = dmc_camera()
     # Two strips flown east and west at 1000 m, base 300 m, strips 1000 m apart.
