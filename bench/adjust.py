@@ -29,8 +29,7 @@ import numpy as np
 from aerotri.adjust import graph as G
 from aerotri.adjust.check_points import intersect
 from aerotri.adjust.covariance import ReducedCovariance, point_covariances
-from aerotri.adjust.pipeline import AdjustSettings, finish, prepare_project
-from aerotri.adjust.solve import adjust_block
+from aerotri.adjust.pipeline import AdjustSettings, prepare_project
 from aerotri.geom.camera import dmc_camera
 from aerotri.sim.observations import geometric_block, write_block_project, write_truth_observations
 

@@ -33,7 +33,7 @@ REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
 
 from aerotri.adjust import pipeline as adjust_pipeline  # noqa: E402
-from aerotri.adjust.observations import ControlPoints  # noqa: E402
+from aerotri.geom.observations import ControlPoints  # noqa: E402
 from aerotri.geom.camera import FrameCamera  # noqa: E402
 from aerotri.geom.eo import read_eo  # noqa: E402
 from aerotri.sim.evaluate import truth_roof_corners  # noqa: E402

@@ -4,4 +4,4 @@ import logging
 
 logging.getLogger("lidarctl").addHandler(logging.NullHandler())
 
-from aerotri import __version__  # noqa: E402  one version for the whole distribution
+from aerotri import __version__  # noqa: E402,F401  one version for the whole distribution

@@ -64,7 +64,7 @@ def isolated_points(x, y, z, voxel_m: float, min_neighbours: int = 1) -> np.ndar
     vi = grid._floor_div(np.asarray(x, float), float(x.min()) - voxel_m, float(voxel_m))
     vj = grid._floor_div(np.asarray(y, float), float(y.min()) - voxel_m, float(voxel_m))
     vk = grid._floor_div(np.asarray(z, float), float(z.min()) - voxel_m, float(voxel_m))
-    ni, nj, nk = vi.max() + 2, vj.max() + 2, vk.max() + 2
+    nj, nk = vj.max() + 2, vk.max() + 2
     key = _voxel_key(vi, vj, vk, nj, nk)
     ukeys, inverse, counts = np.unique(key, return_inverse=True, return_counts=True)
     total = np.zeros(len(ukeys), np.int64)

@@ -23,7 +23,6 @@ import dataclasses
 from pathlib import Path
 
 import numpy as np
-import rasterio
 from rasterio.io import MemoryFile
 from rasterio.shutil import copy as rio_copy
 from rasterio.transform import from_origin

@@ -10,4 +10,4 @@ logging.getLogger("ortho").addHandler(logging.NullHandler())
 # Passive waiting costs nothing when the cores are free. (Read when libgomp loads: set it first.)
 os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
 
-from aerotri import __version__  # noqa: E402  one version for the whole distribution
+from aerotri import __version__  # noqa: E402,F401  one version for the whole distribution

@@ -31,7 +31,7 @@ import numpy as np
 import rasterio
 from pyproj import CRS
 
-from aerotri.geom.camera import FrameCamera
+from aerotri.geom.camera import FrameCamera, adjusted_camera, project_camera
 from aerotri.geom.eo import ExteriorOrientations, read_eo
 from aerotri.core.errors import InputError
 from aerotri.geom.images import check_frames, find_images
@@ -78,9 +78,9 @@ def load_block(root, eo_path=None, camera_path=None, frames=None) -> BlockInputs
     if camera_path:
         camera, camera_source = FrameCamera.read(camera_path), str(camera_path)
     elif eo_path is None:
-        camera, camera_source = project.adjusted_camera()  # at/eo.txt belongs to the self-calibrated camera
+        camera, camera_source = adjusted_camera(project)  # at/eo.txt belongs to the self-calibrated camera
     else:
-        camera, camera_source = project.camera(), str(project.camera_path)
+        camera, camera_source = project_camera(project), str(project.camera_path)
     eo_path = Path(eo_path) if eo_path else project.at_dir / "eo.txt"
     if not eo_path.exists():
         raise InputError(f"{eo_path}: exterior orientation not found (run the aerotri adjustment, or pass --eo FILE, "

@@ -458,7 +458,7 @@ def seam_misalignment(root, patch_px: int = 32, search_px: int = 4, spacing_cell
     seam cells (every ``spacing_cells``) are cut from frame a and matched in frame b; only patches
     valid in both and, with an nDSM, on the ground. Returns per-seam and overall statistics in pixels.
     """
-    from ortho.check import match_patches
+    from ortho.patches import match_patches
 
     root = Path(root)
     index = read_index(root)

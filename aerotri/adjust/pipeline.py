@@ -25,7 +25,7 @@ from aerotri.adjust.approximate import (
     refine_orientations,
 )
 from aerotri.geom.local_frame import LocalFrame
-from aerotri.adjust.observations import (
+from aerotri.geom.observations import (
     ControlPoints,
     ImageObservations,
     read_control_points,
@@ -33,8 +33,8 @@ from aerotri.adjust.observations import (
     validate_references,
 )
 from aerotri.adjust.solve import AdjustmentResult, adjust_block, check_point_errors
-from aerotri.adjust.strips import along_track_km, strips_from_track
-from aerotri.geom.camera import FrameCamera
+from aerotri.geom.strips import along_track_km, strips_from_track
+from aerotri.geom.camera import FrameCamera, project_camera
 from aerotri.geom.eo import ExteriorOrientations, check_block_crs, read_eo, read_gnss
 from aerotri.core.config import config_number, config_vector
 from aerotri.core.errors import InputError, OptionError
@@ -228,7 +228,7 @@ def prepare_project(root, settings: AdjustSettings | None = None):
     ccfg = project.section("control")
     for key in ("sigma_xy_m", "sigma_z_m"):
         config_number(ccfg, key, None, f"{toml} [control]", positive=True)
-    cam = project.camera()
+    cam = project_camera(project)
     tie_path = project.at_dir / "tiepoints.csv"
     ctrl_path = project.control_dir / "points.csv"
     cobs_path = project.control_dir / "image_points.csv"

@@ -97,7 +97,7 @@ def read_manual(path, corner_ids, image_ids, camera=None, corners_path="corners.
 
     Every record must name a corner and a frame of the block and, with ``camera``, lie inside the frame
     (a measurement is never dropped silently: InputError naming the line)."""
-    from aerotri.adjust.observations import read_image_points
+    from aerotri.geom.observations import read_image_points
 
     obs = read_image_points(path)
     known_c, known_i = set(corner_ids), set(image_ids)

@@ -20,7 +20,7 @@ import dataclasses
 
 import numpy as np
 
-from aerotri.adjust.strips import strips_from_track
+from aerotri.geom.strips import strips_from_track
 
 
 @dataclasses.dataclass(frozen=True)

@@ -18,7 +18,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from aerotri.geom.camera import FrameCamera
+from aerotri.geom.camera import FrameCamera, adjusted_camera
 from aerotri.control.consistency import check_rays
 from aerotri.control.corners import LidarCorners, read_corners, read_manual
 from aerotri.control.layout import LayoutRule, select_control
@@ -77,7 +77,7 @@ def project_camera(root: Path, camera_path=None) -> tuple[FrameCamera, str]:
     """The camera to project with: explicit file, else self-calibrated from at/report.json, else camera.toml."""
     if camera_path is not None:
         return FrameCamera.read(camera_path), str(camera_path)
-    return Project.open(root).adjusted_camera()
+    return adjusted_camera(Project.open(root))
 
 
 def transfer_control(corners: LidarCorners, camera: FrameCamera, eo: ExteriorOrientations, images_dir,

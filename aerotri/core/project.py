@@ -15,7 +15,7 @@ import tomllib
 from pathlib import Path
 
 from aerotri.core.errors import ConfigError, InputError
-from aerotri.core.textio import read_json, read_text
+from aerotri.core.textio import read_text
 
 
 # The sections every project may have and their keys; ``aerotri run`` adds one section per stage with
@@ -69,10 +69,6 @@ class Project:
         check_sections(config, cfg_path)
         if "crs" not in config.get("project", {}):
             raise ConfigError(f"{cfg_path}: [project] crs is missing (e.g. crs = \"EPSG:32649\")")
-        from aerotri.geom.crs import parse_crs, parse_heights
-
-        parse_crs(config["project"]["crs"], f"{cfg_path} [project] crs")
-        parse_heights(config["project"].get("heights"), f"{cfg_path} [project] heights")
         return cls(root, config)
 
     @property
@@ -90,32 +86,56 @@ class Project:
     def section(self, name: str) -> dict:
         return dict(self.config.get(name, {}))
 
-    # Standard paths
+    # The folder layout (architecture doc); nothing else spells these paths.
     camera_path = property(lambda self: self.root / "camera.toml")
     gnss_path = property(lambda self: self.root / "gnss.txt")
     images_dir = property(lambda self: self.root / "images")
     lidar_dir = property(lambda self: self.root / "lidar")
+    truth_dir = property(lambda self: self.root / "truth")  # simulated projects only (aerotri.sim)
+    # lidar_out/: the LiDAR products
     lidar_out_dir = property(lambda self: self.root / "lidar_out")
+    classified_path = property(lambda self: self.lidar_out_dir / "classified.laz")
+    dem_path = property(lambda self: self.lidar_out_dir / "dem.tif")
+    dsm_path = property(lambda self: self.lidar_out_dir / "dsm.tif")
+    ndsm_path = property(lambda self: self.lidar_out_dir / "ndsm.tif")
+    corners_path = property(lambda self: self.lidar_out_dir / "corners.csv")
+    height_check_path = property(lambda self: self.lidar_out_dir / "height_check.json")
+    classification_eval_path = property(lambda self: self.lidar_out_dir / "classification_eval.json")
+    # control/: the transferred LiDAR control
     control_dir = property(lambda self: self.root / "control")
+    control_points_path = property(lambda self: self.control_dir / "points.csv")
+    control_image_points_path = property(lambda self: self.control_dir / "image_points.csv")
+    control_transfer_path = property(lambda self: self.control_dir / "transfer.json")
+    # work/: caches and stage stamps
     work_dir = property(lambda self: self.root / "work")
+    stages_dir = property(lambda self: self.work_dir / "stages")
+    merged_lidar_path = property(lambda self: self.work_dir / "lidar" / "merged.las")
+    first_adjustment_dir = property(lambda self: self.work_dir / "at_first")
+    # at/: tie points and the adjustment
     at_dir = property(lambda self: self.root / "at")
+    tiepoints_path = property(lambda self: self.at_dir / "tiepoints.csv")
+    connectivity_path = property(lambda self: self.at_dir / "connectivity.json")
+    eo_path = property(lambda self: self.at_dir / "eo.txt")
+    adjustment_report_path = property(lambda self: self.at_dir / "report.json")
+    object_points_path = property(lambda self: self.at_dir / "object_points.csv")
+    exports_dir = property(lambda self: self.at_dir / "exports")
+    # ortho/: frame orthos, mosaic, DOM check
     ortho_dir = property(lambda self: self.root / "ortho")
-    truth_dir = property(lambda self: self.root / "truth")
+    frames_dir = property(lambda self: self.ortho_dir / "frames")
+    frames_index_path = property(lambda self: self.frames_dir / "index.json")
+    mosaic_path = property(lambda self: self.ortho_dir / "mosaic.tif")
+    seams_path = property(lambda self: self.ortho_dir / "seams.tif")
+    seamlines_path = property(lambda self: self.ortho_dir / "seamlines.geojson")
+    mosaic_summary_path = property(lambda self: self.ortho_dir / "mosaic.json")
+    dom_report_path = property(lambda self: self.ortho_dir / "dom_report.json")
+    # reports/: the consolidated accuracy report
+    reports_dir = property(lambda self: self.root / "reports")
+    report_index_path = property(lambda self: self.reports_dir / "index.html")
+    report_summary_path = property(lambda self: self.reports_dir / "summary.json")
+    report_pdf_path = property(lambda self: self.reports_dir / "report.pdf")
 
-    def camera(self):
-        from aerotri.geom.camera import FrameCamera
 
-        return FrameCamera.read(self.camera_path)
-
-    def adjusted_camera(self):
-        """(camera, source): the self-calibrated camera of the last adjustment (``at/report.json``)
-        when there is one, else the nominal ``camera.toml``. Orientations in ``at/eo.txt`` belong to it."""
-        from aerotri.geom.camera import FrameCamera
-
-        rep = self.at_dir / "report.json"
-        if rep.is_file():
-            d = read_json(rep, "adjustment report")
-            cam = (d.get("self_calibration") or {}).get("camera") if isinstance(d, dict) else None
-            if cam:
-                return FrameCamera.from_dict(cam, source=f"{rep} self_calibration.camera"), f"{rep} (self-calibrated)"
-        return self.camera(), str(self.camera_path)
+def project_paths(root) -> Project:
+    """The paths of a project folder without reading its project.toml (for code that only needs to
+    find files, e.g. tools that look at a finished project)."""
+    return Project(Path(root), {})

@@ -230,3 +230,22 @@ class FrameCamera:
 def dmc_camera() -> FrameCamera:
     """The nominal Z/I DMC: f = 120 mm, 12 um pixels, 13824 x 7680 px (long side across track)."""
     return FrameCamera(focal_mm=120.0, pixel_um=12.0, width=13824, height=7680, name="DMC")
+
+
+def project_camera(project) -> FrameCamera:
+    """The nominal camera of a project folder (``camera.toml``)."""
+    return FrameCamera.read(project.camera_path)
+
+
+def adjusted_camera(project) -> tuple[FrameCamera, str]:
+    """(camera, source): the self-calibrated camera of the project's last adjustment (``at/report.json``)
+    when there is one, else the nominal ``camera.toml``. Orientations in ``at/eo.txt`` belong to it."""
+    from aerotri.core.textio import read_json
+
+    rep = project.at_dir / "report.json"
+    if rep.is_file():
+        d = read_json(rep, "adjustment report")
+        cam = (d.get("self_calibration") or {}).get("camera") if isinstance(d, dict) else None
+        if cam:
+            return FrameCamera.from_dict(cam, source=f"{rep} self_calibration.camera"), f"{rep} (self-calibrated)"
+    return project_camera(project), str(project.camera_path)

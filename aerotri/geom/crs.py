@@ -220,3 +220,13 @@ def check_coordinates(crs: pyproj.CRS, x, y, source: str, records=None, margin_d
             f"lon {aou.west:.1f}..{aou.east:.1f}, lat {aou.south:.1f}..{aou.north:.1f}); wrong CRS or mixed units "
             f"(degrees, feet or metres)? {label} expects {unit_name(h)} in x = easting, y = northing order"
         )
+
+
+def project_crs(project) -> pyproj.CRS:
+    """The CRS of a project folder (``[project] crs`` of project.toml), checked."""
+    return parse_crs(project.crs, f"{project.config_path} [project] crs")
+
+
+def project_heights(project) -> pyproj.CRS | None:
+    """The height system of a project folder (``[project] heights``; None: ellipsoidal), checked."""
+    return parse_heights(project.section("project").get("heights"), f"{project.config_path} [project] heights")

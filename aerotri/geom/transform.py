@@ -37,7 +37,7 @@ import numpy as np
 import pyproj
 from pyproj.transformer import TransformerGroup
 
-from aerotri.core.errors import CrsError, InputError
+from aerotri.core.errors import CrsError
 from aerotri.geom.crs import crs_label, horizontal_crs, linear_unit_m, parse_crs, same_horizontal
 from aerotri.geom.datum import HeightAnomalyModel, Transformation, outside_extent
 from aerotri.geom.ellipsoid import Ellipsoid, geocentric_to_geodetic, geodetic_to_geocentric

@@ -15,7 +15,7 @@ import dataclasses
 import numpy as np
 from shapely.geometry import Polygon
 
-from aerotri.adjust.strips import strips_from_track
+from aerotri.geom.strips import strips_from_track
 from aerotri.geom.camera import FrameCamera
 from aerotri.core.errors import InputError
 from aerotri.geom.rotation import rotation_matrix_opk

@@ -14,6 +14,7 @@ from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
 
+from aerotri.geom.camera import project_camera
 from aerotri.geom.eo import check_block_crs, read_gnss
 from aerotri.core.config import config_number, config_vector
 from aerotri.core.errors import InputError
@@ -97,7 +98,7 @@ def match_project(root, settings: MatchSettings | None = None, executor: Executo
     project = Project.open(root)
     toml = project.root / "project.toml"
     crs = check_block_crs(project.crs, f"{toml} [project] crs")
-    camera = project.camera()
+    camera = project_camera(project)
     images = find_images(project.images_dir)
     cache_f = project.work_dir / "features"
     cache_m = project.work_dir / "matches"

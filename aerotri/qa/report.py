@@ -16,14 +16,13 @@ from __future__ import annotations
 import html
 import json
 import math
-import tomllib
 from pathlib import Path
 
 from aerotri.core.atomic import atomic_path, write_text_atomic
-from aerotri.core.errors import ConfigError, InputError, StageOrderError
-from aerotri.core.textio import read_json, read_text
+from aerotri.core.errors import InputError, StageOrderError
+from aerotri.core.textio import read_json
 from aerotri.core.project import Project
-from aerotri.core.tolerances import SCALE_TABLES, TERRAINS, load_tolerances, qa_settings, tolerance_path
+from aerotri.core.tolerances import TERRAINS, load_tolerances, qa_settings, tolerance_path
 
 def _json(path: Path) -> dict:
     """A stage's JSON report, {} when the stage did not run; a corrupt one names the file."""

@@ -19,7 +19,7 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from aerotri.geom.local_frame import LocalFrame
-from aerotri.adjust.observations import ControlPoints, ImageObservations
+from aerotri.geom.observations import ControlPoints, ImageObservations
 from aerotri.geom.camera import FrameCamera, dmc_camera
 from aerotri.geom.eo import ExteriorOrientations, GnssPositions, read_eo, write_eo, write_gnss
 from aerotri.core.errors import InputError
@@ -354,7 +354,6 @@ def write_truth_observations(
     frame = LocalFrame.at_centre(crs, eo.centre_m)
     C = frame.to_local(eo.centre_m)
     R = frame.rotation_local_from_map(eo.centre_m) @ eo.rotations()
-    H = float(np.median(C[:, 2]))
     height_fn, extent, H_above = _ground_model(root, frame, C, cam)
     rng = np.random.default_rng(seed)
 

@@ -3,7 +3,7 @@
 import numpy as np
 
 from aerotri.geom.local_frame import LocalFrame
-from aerotri.adjust.strips import along_track_km, strips_from_track
+from aerotri.geom.strips import along_track_km, strips_from_track
 
 
 def test_local_frame_round_trip_and_axes():

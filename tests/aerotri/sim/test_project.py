@@ -18,7 +18,6 @@ from shapely.geometry import Point
 from aerotri.geom.camera import FrameCamera
 from aerotri.cli import main as aerotri_main
 from aerotri.geom.eo import read_eo, read_gnss
-from aerotri.geom.rotation import rotation_matrix_opk
 from aerotri.sim import load_preset, simulate
 from aerotri.sim import raycast, render
 from aerotri.sim.flight import block_layout

@@ -1,6 +1,5 @@
 """Bad input: clear errors naming the file/record, exit code 2, and no output written."""
 
-import numpy as np
 import pytest
 from click.testing import CliRunner
 

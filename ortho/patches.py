@@ -1,0 +1,105 @@
+"""Patch displacements between two orthoimages on the same grid (DOM checks and seam misalignment).
+
+Each textured square patch of the first image is located in the second by normalised
+cross-correlation (``cv2.matchTemplate``, TM_CCOEFF_NORMED) within a search radius and refined to
+sub-pixel by a parabola through the correlation peak in x and y. The displacement is the first
+image's position minus the second's, in pixels (x right, y down) and in metres (dE east, dN north).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+import cv2
+import numpy as np
+
+from aerotri.core.errors import InputError
+
+
+@dataclasses.dataclass
+class PatchDisplacements:
+    row_px: np.ndarray  # patch centre rows in the DOM grid
+    col_px: np.ndarray
+    dx_px: np.ndarray  # DOM minus reference, x right
+    dy_px: np.ndarray  # DOM minus reference, y down
+    ncc: np.ndarray
+    res_m: float
+
+    @property
+    def de_m(self):
+        return self.dx_px * self.res_m
+
+    @property
+    def dn_m(self):
+        return -self.dy_px * self.res_m
+
+    def select(self, keep) -> "PatchDisplacements":
+        keep = np.asarray(keep, bool)
+        return PatchDisplacements(self.row_px[keep], self.col_px[keep], self.dx_px[keep], self.dy_px[keep], self.ncc[keep], self.res_m)
+
+    def __len__(self):
+        return len(self.dx_px)
+
+
+MIN_PATCH_PX = 8  # smaller patches carry too little texture for a correlation peak
+
+
+def to_gray(image: np.ndarray) -> np.ndarray:
+    """(rows, cols[, bands]) -> float32 luminance (mean of the first three bands)."""
+    a = np.asarray(image)
+    if a.ndim == 3:
+        a = a[:, :, :3].astype(np.float32).mean(axis=2)
+    return a.astype(np.float32)
+
+
+def _subpixel(c_m, c_0, c_p):
+    den = c_m - 2.0 * c_0 + c_p
+    return 0.0 if den >= 0 else float(np.clip(0.5 * (c_m - c_p) / den, -0.5, 0.5))
+
+
+def match_patches(dom, reference, dom_valid=None, reference_valid=None, res_m: float = 1.0, patch_px: int = 48,
+                  step_px: int = 48, search_px: int = 6, min_ncc: float = 0.7, min_std: float = 4.0,
+                  keep=None) -> PatchDisplacements:
+    """Displacements of DOM patches against a reference on the same grid (see module doc).
+
+    ``keep``: optional boolean raster; a patch is used only if all its pixels are True (e.g. ground
+    from an nDSM). Patches with low texture (std < ``min_std`` grey levels), invalid pixels, a peak on
+    the search border or a peak NCC below ``min_ncc`` are discarded.
+    """
+    g = to_gray(dom)
+    ref = to_gray(reference)
+    if g.shape != ref.shape:
+        raise InputError(f"DOM ({g.shape}) and reference ({ref.shape}) are not on the same grid")
+    ok = np.ones(g.shape, bool) if dom_valid is None else np.asarray(dom_valid, bool)
+    if reference_valid is not None:
+        ok = ok & np.asarray(reference_valid, bool)
+    if keep is not None:
+        ok = ok & np.asarray(keep, bool)
+    # integral image of invalid pixels: patch validity in O(1)
+    bad = np.pad((~ok).astype(np.int64).cumsum(0).cumsum(1), ((1, 0), (1, 0)))
+    H, W = g.shape
+    P, S = patch_px, search_px
+    rows, cols, dxs, dys, nccs = [], [], [], [], []
+    for r in range(S, H - P - S + 1, step_px):
+        for c in range(S, W - P - S + 1, step_px):
+            r0, r1, c0, c1 = r - S, r + P + S, c - S, c + P + S
+            if bad[r1, c1] - bad[r0, c1] - bad[r1, c0] + bad[r0, c0]:
+                continue
+            t = g[r:r + P, c:c + P]
+            if t.std() < min_std:
+                continue
+            cc = cv2.matchTemplate(ref[r0:r1, c0:c1], t, cv2.TM_CCOEFF_NORMED)
+            _, peak, _, (px, py) = cv2.minMaxLoc(cc)
+            if peak < min_ncc or px in (0, cc.shape[1] - 1) or py in (0, cc.shape[0] - 1):
+                continue
+            sx = _subpixel(cc[py, px - 1], cc[py, px], cc[py, px + 1])
+            sy = _subpixel(cc[py - 1, px], cc[py, px], cc[py + 1, px])
+            # the DOM patch at (r, c) is found in the reference at (r + py - S, c + px - S):
+            # the DOM shows that content displaced by minus that offset
+            rows.append(r + (P - 1) / 2.0)
+            cols.append(c + (P - 1) / 2.0)
+            dxs.append(-(px + sx - S))
+            dys.append(-(py + sy - S))
+            nccs.append(peak)
+    a = lambda v: np.asarray(v, dtype=float)
+    return PatchDisplacements(a(rows), a(cols), a(dxs), a(dys), a(nccs), float(res_m))
