@@ -140,7 +140,7 @@ def main(argv=None):
         ctx, state0 = prepare_project(root, AdjustSettings(gnss_correction="none", image_sigma_px=SIGMA_PX, check=tuple(chk_ids),
                                                            snooping=False, refine_approximations=not a.no_refine))
         res["read_and_approximate_s"] = time.perf_counter() - t0
-        block, opts = ctx["block"], ctx["opts"]
+        block, opts = ctx.block, ctx.opts
         res["start_median_abs_residual_px"] = float(np.median(np.abs(G.image_residuals(block, state0))))
         res.update({"images": block.n_images, "points": block.n_points, "observations": int(len(block.obs_point)),
                     "threads": a.threads})
@@ -180,24 +180,24 @@ def main(argv=None):
             del gr_e, values_e
 
         # pycolmap (Ceres)
-        st_col, t_col, summary = run_colmap(block, state0, ctx["cam"], tmp, a.threads)
+        st_col, t_col, summary = run_colmap(block, state0, ctx.camera, tmp, a.threads)
         print(f"colmap: {t_col:.1f} s", flush=True)
         # the gtsam wheel is built without TBB (one thread): Ceres on one thread too, for the like-for-like ratio
         t_col1 = None
         if a.threads > 1:
-            _, t_col1, _ = run_colmap(block, state0, ctx["cam"], tmp / "one", 1)
+            _, t_col1, _ = run_colmap(block, state0, ctx.camera, tmp / "one", 1)
             print(f"colmap (1 thread): {t_col1:.1f} s", flush=True)
 
         # accuracy of both against the truth
         eo_t = block_t.eo_map()
         idx = [eo_t.image_id.index(i) for i in block.image_id]
-        C_true = ctx["frame"].to_local(eo_t.centre_m[idx])
-        chk = ctx["chk"]
-        cobs = ctx["cobs"].subset(np.isin(ctx["cobs"].point_id, chk.id))
+        C_true = ctx.frame.to_local(eo_t.centre_m[idx])
+        chk = ctx.check_points
+        cobs = ctx.control_obs.subset(np.isin(ctx.control_obs.point_id, chk.id))
         cid = {p: c for c, p in enumerate(chk.id)}
         opi = np.array([cid[p] for p in cobs.point_id])
-        oim = np.array([ctx["img_index"][i] for i in cobs.image_id])
-        chk_true = ctx["frame"].to_local(chk.xyz_m)
+        oim = np.array([ctx.image_index[i] for i in cobs.image_id])
+        chk_true = ctx.frame.to_local(chk.xyz_m)
 
         def acc(st):
             v = G.image_residuals(block, st)

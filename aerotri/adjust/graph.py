@@ -61,7 +61,7 @@ GNSS_CORRECTIONS = ("none", "shift", "shift_drift")
 LOOSE_SIGMA_M = 1.0e3  # sigma of the unconstrained components of horizontal/height control
 
 
-@dataclasses.dataclass
+@dataclasses.dataclass(kw_only=True)
 class Block:
     """Adjustment inputs in the local frame; observations refer to images and points by index."""
 

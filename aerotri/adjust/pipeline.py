@@ -72,7 +72,7 @@ class AdjustSettings:
     refine_approximations: bool = True  # resection/intersection of the attitudes before the bundle (GNSS)
 
 
-@dataclasses.dataclass
+@dataclasses.dataclass(kw_only=True)
 class BlockAdjustment:
     """Everything the reports and exports need (project CRS where it says _map)."""
 
@@ -99,7 +99,7 @@ class BlockAdjustment:
 
 def _settings_from_project(project: Project, s: AdjustSettings) -> AdjustSettings:
     """Fill the settings left None from project.toml, every value checked (ConfigError naming the key)."""
-    toml = project.root / "project.toml"
+    toml = project.config_path
     out = dataclasses.replace(s)
     if out.image_sigma_px is None:
         out.image_sigma_px = config_number(project.section("adjust"), "image_sigma_px", 0.5, f"{toml} [adjust]",
@@ -162,9 +162,9 @@ def read_project_control(project: Project, st: AdjustSettings, crs=None) -> tupl
     ``st.control``), and their image measurements; none with ``st.use_control`` off. ``crs``: the
     project CRS the points are checked against (default: the project's)."""
     if crs is None:
-        crs = check_block_crs(project.crs, f"{project.root / 'project.toml'} [project] crs")
-    ctrl_path = project.control_dir / "points.csv"
-    cobs_path = project.control_dir / "image_points.csv"
+        crs = check_block_crs(project.crs, f"{project.config_path} [project] crs")
+    ctrl_path = project.control_points_path
+    cobs_path = project.control_image_points_path
     gnss_datum = st.use_gnss and project.gnss_path.exists()
     if not st.use_control and not gnss_datum:
         raise InputError(f"{project.gnss_path}: without control the datum needs GNSS positions")
@@ -216,10 +216,45 @@ def _initial_orientations(path, image_ids: list | None, crs=None) -> ExteriorOri
     return eo0
 
 
-def prepare_project(root, settings: AdjustSettings | None = None):
-    """Read and validate a project; returns (context dict, approximate State) in the local frame."""
-    project = Project.open(root)
-    toml = project.root / "project.toml"
+@dataclasses.dataclass
+class ProjectInputs:
+    """What the adjustment reads from a project folder, checked against each other (project CRS)."""
+
+    project: Project
+    settings: AdjustSettings
+    camera: FrameCamera
+    ties: ImageObservations  # measured, a known k3 taken off
+    control: ControlPoints  # every control and check point
+    control_obs: ImageObservations  # their measurements, a known k3 taken off
+    image_ids: list  # the block's images (GNSS or given orientations), flight order
+    approx_position_map: np.ndarray  # (N, 3) GNSS antenna or given projection centres
+    gnss: object | None  # GnssPositions
+    initial_eo: ExteriorOrientations | None
+    gnss_sigma_m: tuple  # (xy, z) default a-priori sigmas of project.toml [gnss]
+
+
+@dataclasses.dataclass
+class PreparedBlock:
+    """The block in the adjustment's local frame, and what turns the result back into the project CRS."""
+
+    project: Project
+    settings: AdjustSettings
+    frame: LocalFrame
+    camera: FrameCamera
+    block: G.Block
+    opts: G.Options
+    control_used: ControlPoints  # control points in the adjustment (block.control_point order)
+    check_points: ControlPoints
+    control_obs: ImageObservations
+    image_ids: list
+    image_index: dict
+    gnss_map: np.ndarray | None  # (N, 3) antenna positions, block order
+    n_tie_points: int
+
+
+def read_inputs(project: Project, settings: AdjustSettings | None = None) -> ProjectInputs:
+    """Read and cross-check the adjustment's inputs (InputError/ConfigError naming file and record)."""
+    toml = project.config_path
     crs = check_block_crs(project.crs, f"{toml} [project] crs")
     st = _settings_from_project(project, settings or AdjustSettings())
     gcfg = project.section("gnss")
@@ -229,52 +264,54 @@ def prepare_project(root, settings: AdjustSettings | None = None):
     for key in ("sigma_xy_m", "sigma_z_m"):
         config_number(ccfg, key, None, f"{toml} [control]", positive=True)
     cam = project_camera(project)
-    tie_path = project.at_dir / "tiepoints.csv"
-    ctrl_path = project.control_dir / "points.csv"
-    cobs_path = project.control_dir / "image_points.csv"
-    ties = read_image_points(tie_path, hint="run aerotri match first")
+    ties = read_image_points(project.tiepoints_path, hint="run aerotri match first")
     control, cobs = read_project_control(project, st, crs)
-
     # orientation source: GNSS (with given approximate EO, if any) or given approximate EO alone
     gnss = eo0 = None
     if st.use_gnss and project.gnss_path.exists():
         gnss = read_gnss(project.gnss_path, crs)
-        image_ids = list(gnss.image_id)
-        approx_pos_map = gnss.position_m
-        block_path = project.gnss_path
+        image_ids, approx_pos_map, block_path = list(gnss.image_id), gnss.position_m, project.gnss_path
         if st.initial_eo:
             eo0 = _initial_orientations(st.initial_eo, image_ids, crs)
     elif st.initial_eo:
         eo0 = _initial_orientations(st.initial_eo, None, crs)
-        image_ids = list(eo0.image_id)
-        approx_pos_map = eo0.centre_m
-        block_path = st.initial_eo
+        image_ids, approx_pos_map, block_path = list(eo0.image_id), eo0.centre_m, st.initial_eo
     else:
         raise InputError(f"{project.gnss_path}: missing; a block without GNSS needs approximate orientations "
                          "(aerotri adjust --eo FILE) and control points for its datum")
-    validate_references(ties, control, cobs, image_ids, tie_path, ctrl_path, cobs_path, camera=cam,
-                        block_path=block_path, camera_path=project.camera_path)
+    validate_references(ties, control, cobs, image_ids, project.tiepoints_path, project.control_points_path,
+                        project.control_image_points_path, camera=cam, block_path=block_path,
+                        camera_path=project.camera_path)
     check_datum(control, gnss is not None, st.gnss_correction)
     # a known k3 is taken off the measurements (Cal3DS2 has no k3; the camera keeps it for the outputs)
     ties = ImageObservations(ties.point_id, ties.image_id, observations_without_k3(cam, ties.xy_px))
     cobs = ImageObservations(cobs.point_id, cobs.image_id, observations_without_k3(cam, cobs.xy_px))
-    # images in flight order (id order), drop images without any measurement
+    return ProjectInputs(project=project, settings=st, camera=cam, ties=ties, control=control, control_obs=cobs,
+                         image_ids=image_ids, approx_position_map=approx_pos_map, gnss=gnss, initial_eo=eo0,
+                         gnss_sigma_m=gnss_sigma)
+
+
+@dataclasses.dataclass
+class _Observations:
+    image_ids: list
+    order: np.ndarray  # block image -> index in the input image list
+    point_id: np.ndarray  # tie point ids, then the control points used
+    control_position: dict  # control id -> point index
+    obs_point: np.ndarray
+    obs_image: np.ndarray
+    obs_xy: np.ndarray
+    n_tie: int
+
+
+def _observations(inp: ProjectInputs, ctrl_used: ControlPoints) -> _Observations:
+    """Images in flight order (those with measurements), points and observation index arrays; refuses a
+    disconnected block and images with fewer than 3 measurements, drops tie points seen once."""
+    ties, cobs, image_ids = inp.ties, inp.control_obs, inp.image_ids
     order = np.argsort(np.array(image_ids, dtype=object), kind="stable")
     measured = set(np.unique(ties.image_id).tolist()) | set(np.unique(cobs.image_id).tolist())
     order = np.array([i for i in order if image_ids[i] in measured], dtype=int)
     image_ids = [image_ids[i] for i in order]
-    approx_pos_map = approx_pos_map[order]
     img_index = {k: i for i, k in enumerate(image_ids)}
-
-    frame = LocalFrame.at_centre(project.crs, approx_pos_map)
-    approx_local = frame.to_local(approx_pos_map)
-    strip = strips_from_track(approx_pos_map)
-    along = along_track_km(approx_local, strip)
-
-    # points: ties, then control points used in the adjustment; check points separately
-    is_check = control.kind == "check"
-    ctrl_used = control.subset(~is_check)
-    chk = control.subset(is_check)
     tie_ids, tie_inv = np.unique(ties.point_id.astype(str), return_inverse=True)
     point_id = np.concatenate([tie_ids.astype(object), ctrl_used.id])
     ctrl_pos = {pid: len(tie_ids) + c for c, pid in enumerate(ctrl_used.id)}
@@ -282,7 +319,7 @@ def prepare_project(root, settings: AdjustSettings | None = None):
     obs_point = np.concatenate([tie_inv, np.array([ctrl_pos[p] for p in cobs.point_id[cmask]], dtype=int)])
     obs_image = np.array([img_index[i] for i in np.concatenate([ties.image_id, cobs.image_id[cmask]])], dtype=int)
     obs_xy = np.vstack([ties.xy_px, cobs.xy_px[cmask]])
-
+    tie_path = inp.project.tiepoints_path
     comps = connected_image_components(len(image_ids), obs_point, obs_image)
     if len(comps) > 1:
         desc = "; ".join(
@@ -299,20 +336,15 @@ def prepare_project(root, settings: AdjustSettings | None = None):
     if per_image.min() < 3:
         i = int(np.argmin(per_image))
         raise InputError(f"{tie_path}: image {image_ids[i]} has only {per_image[i]} tie measurements (need >= 3)")
+    return _Observations(image_ids, order, point_id, ctrl_pos, obs_point, obs_image, obs_xy, len(tie_ids))
 
-    # GNSS in the local frame; sigmas from gnss.txt or project.toml
-    if gnss is not None:
-        gl = frame.to_local(gnss.position_m[order])
-        if gnss.sigma_m is not None:
-            gs = gnss.sigma_m[order]
-        else:
-            gs = np.tile([gnss_sigma[0]] * 2 + [gnss_sigma[1]], (len(order), 1))
-    else:
-        gl = gs = None
 
-    # control priors in the local frame (loose components for horizontal / height points)
-    cov_loc, rows, given_loc = [], [], frame.to_local(ctrl_used.xyz_m) if len(ctrl_used) else np.zeros((0, 3))
+def _control_priors(frame: LocalFrame, ctrl_used: ControlPoints):
+    """Given coordinates (ENU), covariances (loose components of horizontal/height points) and the number
+    of constrained components of each control point used."""
+    given_loc = frame.to_local(ctrl_used.xyz_m) if len(ctrl_used) else np.zeros((0, 3))
     J = frame.jacobian_local_from_map(ctrl_used.xyz_m) if len(ctrl_used) else np.zeros((0, 3, 3))
+    cov_loc, rows = [], []
     for c in range(len(ctrl_used)):
         sig = ctrl_used.sigma_m[c].copy()
         k = ctrl_used.kind[c]
@@ -322,21 +354,16 @@ def prepare_project(root, settings: AdjustSettings | None = None):
             sig[:2] = G.LOOSE_SIGMA_M
         cov_loc.append(J[c] @ np.diag(sig**2) @ J[c].T)
         rows.append({"full": 3, "horizontal": 2, "height": 1}[k])
+    return given_loc, np.array(cov_loc).reshape(-1, 3, 3), np.array(rows, dtype=int)
 
-    lever = np.asarray(st.lever_arm_m, dtype=float)
-    block = G.Block(
-        image_ids, cam, point_id, obs_point, obs_image, obs_xy, gl, gs, lever, strip, along,
-        np.array([ctrl_pos[p] for p in ctrl_used.id], dtype=int), given_loc,
-        np.array(cov_loc).reshape(-1, 3, 3), np.array(rows, dtype=int),
-    )
-    opts = G.Options(
-        image_sigma_px=float(st.image_sigma_px), gnss_correction=st.gnss_correction if gl is not None else "none",
-        self_calibration=tuple(st.self_calibration),
-    )
 
-    # approximations: GNSS centres + kappa from the strip direction (or the given EO), then alternating
-    # space resection and intersection refine the attitudes (GNSS, st.refine_approximations); given EO
-    # without GNSS: intersection only
+def _approximations(inp: ProjectInputs, frame: LocalFrame, block: G.Block, image_ids: list) -> G.State:
+    """Start values: GNSS centres + kappa from the strip direction (or the given EO), then alternating
+    space resection and intersection refine the attitudes (GNSS, ``refine_approximations``); given EO
+    without GNSS: intersection only."""
+    st, cam, eo0 = inp.settings, inp.camera, inp.initial_eo
+    gl, lever, strip = block.gnss_local, block.lever_arm_m, block.strip
+    obs_point, obs_image, obs_xy = block.obs_point, block.obs_image, block.obs_xy_px
     cal0 = G.cal_from_camera(cam)
     if eo0 is not None:
         k = eo0.index()
@@ -345,35 +372,73 @@ def prepare_project(root, settings: AdjustSettings | None = None):
         R0 = frame.rotation_local_from_map(eo0.centre_m[sel]) @ eo0.rotations()[sel] @ FLIP_YZ
     else:
         centre0, R0 = approximate_orientations(gl, lever, strip, obs_point, obs_image, obs_xy)
+    given_loc = block.control_local
     has_height = block.control_rows != 2
     if has_height.any():
         ground = float(np.median(given_loc[has_height, 2]))
     else:
         ground = float(np.median(centre0[:, 2]) - _flying_height_guess(centre0, cam))
+    n_points = block.n_points
     if gl is not None and st.refine_approximations:
-        centre0, R0, pts0 = refine_orientations(gl, lever, centre0, R0, obs_point, obs_image, obs_xy, cal0, len(point_id), ground)
+        centre0, R0, pts0 = refine_orientations(gl, lever, centre0, R0, obs_point, obs_image, obs_xy, cal0, n_points, ground)
     elif gl is None:
-        pts0 = intersect_points(obs_point, obs_image, obs_xy, centre0, R0, cal0, len(point_id), ground)
+        pts0 = intersect_points(obs_point, obs_image, obs_xy, centre0, R0, cal0, n_points, ground)
     else:
-        pts0 = approximate_points(obs_point, obs_image, obs_xy, centre0, R0, cal0, len(point_id), ground)
+        pts0 = approximate_points(obs_point, obs_image, obs_xy, centre0, R0, cal0, n_points, ground)
     for c, j in enumerate(block.control_point):
         if block.control_rows[c] == 3:
             pts0[j] = given_loc[c]
-    state0 = G.State(centre0, R0, pts0, cal0, np.zeros((block.n_strips, 3)), np.zeros((block.n_strips, 3)))
-    ctx = dict(project=project, st=st, frame=frame, cam=cam, block=block, opts=opts, control=control, ctrl_used=ctrl_used,
-               chk=chk, cobs=cobs, image_ids=image_ids, img_index=img_index,
-               gnss_map=gnss.position_m[order] if gnss is not None else None, n_tie=len(tie_ids))
-    return ctx, state0
+    return G.State(centre0, R0, pts0, cal0, np.zeros((block.n_strips, 3)), np.zeros((block.n_strips, 3)))
+
+
+def prepare_project(root, settings: AdjustSettings | None = None) -> tuple[PreparedBlock, G.State]:
+    """Read and validate a project; returns the block in the local frame and its approximate state."""
+    project = Project.open(root)
+    inp = read_inputs(project, settings)
+    st = inp.settings
+    is_check = inp.control.kind == "check"
+    ctrl_used, chk = inp.control.subset(~is_check), inp.control.subset(is_check)
+    ob = _observations(inp, ctrl_used)
+    approx_pos_map = inp.approx_position_map[ob.order]
+    frame = LocalFrame.at_centre(project.crs, approx_pos_map)
+    strip = strips_from_track(approx_pos_map)
+    along = along_track_km(frame.to_local(approx_pos_map), strip)
+    gnss = inp.gnss
+    if gnss is not None:  # GNSS in the local frame; sigmas from gnss.txt or project.toml
+        gl = frame.to_local(gnss.position_m[ob.order])
+        gs = gnss.sigma_m[ob.order] if gnss.sigma_m is not None else \
+            np.tile([inp.gnss_sigma_m[0]] * 2 + [inp.gnss_sigma_m[1]], (len(ob.order), 1))
+    else:
+        gl = gs = None
+    given_loc, cov_loc, rows = _control_priors(frame, ctrl_used)
+    block = G.Block(
+        image_id=ob.image_ids, camera=inp.camera, point_id=ob.point_id, obs_point=ob.obs_point,
+        obs_image=ob.obs_image, obs_xy_px=ob.obs_xy, gnss_local=gl, gnss_sigma_m=gs,
+        lever_arm_m=np.asarray(st.lever_arm_m, dtype=float), strip=strip, along_km=along,
+        control_point=np.array([ob.control_position[p] for p in ctrl_used.id], dtype=int), control_local=given_loc,
+        control_cov_local=cov_loc, control_rows=rows,
+    )
+    opts = G.Options(
+        image_sigma_px=float(st.image_sigma_px), gnss_correction=st.gnss_correction if gl is not None else "none",
+        self_calibration=tuple(st.self_calibration),
+    )
+    state0 = _approximations(inp, frame, block, ob.image_ids)
+    prepared = PreparedBlock(
+        project=project, settings=st, frame=frame, camera=inp.camera, block=block, opts=opts, control_used=ctrl_used,
+        check_points=chk, control_obs=inp.control_obs, image_ids=ob.image_ids,
+        image_index={k: i for i, k in enumerate(ob.image_ids)},
+        gnss_map=gnss.position_m[ob.order] if gnss is not None else None, n_tie_points=ob.n_tie,
+    )
+    return prepared, state0
 
 
 def adjust_project(root, settings: AdjustSettings | None = None) -> BlockAdjustment:
     """Run the adjustment of a project folder (no files written; see write_outputs)."""
-    ctx, state0 = prepare_project(root, settings)
-    st = ctx["st"]
-    result = adjust_block(
-        ctx["block"], ctx["opts"], state0, snooping=st.snooping, alpha=st.alpha, point_covariances=st.point_covariances,
-    )
-    return finish(ctx, result)
+    prepared, state0 = prepare_project(root, settings)
+    st = prepared.settings
+    result = adjust_block(prepared.block, prepared.opts, state0, snooping=st.snooping, alpha=st.alpha,
+                          point_covariances=st.point_covariances)
+    return finish(prepared, result)
 
 
 def _flying_height_guess(centre, cam) -> float:
@@ -418,14 +483,14 @@ def _expm(w):
     return np.eye(3) + np.sin(th) / th * K + (1 - np.cos(th)) / th**2 * K @ K
 
 
-def finish(ctx: dict, result: AdjustmentResult) -> BlockAdjustment:
+def finish(prepared: PreparedBlock, result: AdjustmentResult) -> BlockAdjustment:
     """Convert an adjustment result to the project CRS and intersect the check points."""
-    project, st, frame, cam, block, opts = (ctx[k] for k in ("project", "st", "frame", "cam", "block", "opts"))
-    ctrl_used, chk, cobs, image_ids, img_index = (ctx[k] for k in ("ctrl_used", "chk", "cobs", "image_ids", "img_index"))
-    gnss_map, n_tie = ctx["gnss_map"], ctx["n_tie"]
+    p = prepared
+    st, frame, block, opts = p.settings, p.frame, p.block, p.opts
+    chk, cobs, img_index, gnss_map = p.check_points, p.control_obs, p.image_index, p.gnss_map
     state = result.state
     centre_map, opk, eo_sigma = pose_to_map(frame, state, result.pose_cov)
-    eo = ExteriorOrientations(list(image_ids), centre_map, opk, eo_sigma)
+    eo = ExteriorOrientations(list(p.image_ids), centre_map, opk, eo_sigma)
     pts_map = frame.to_map(state.points)
     used = np.zeros(block.n_points, dtype=bool)
     used[block.obs_point[result.obs_active]] = True
@@ -464,8 +529,11 @@ def finish(ctx: dict, result: AdjustmentResult) -> BlockAdjustment:
             corr = 0.0 * corr
         gres = frame.to_map(ant_local + corr) - gnss_map
     return BlockAdjustment(
-        project.name, project.crs, st, frame, cam, G.camera_from_cal(state.cal, cam), block, opts, result, eo, pts_map,
-        psig, ctrl_used, {int(j): c for c, j in enumerate(block.control_point)}, check, gnss_map, gres, n_tie, chk_obs,
+        project_name=p.project.name, crs=p.project.crs, settings=st, frame=frame, camera_apriori=p.camera,
+        camera_adjusted=G.camera_from_cal(state.cal, p.camera), block=block, opts=opts, result=result, eo_map=eo,
+        points_map=pts_map, points_sigma_map=psig, control=p.control_used,
+        control_index_of_point={int(j): c for c, j in enumerate(block.control_point)}, check=check, gnss_map=gnss_map,
+        gnss_residual_m=gres, n_tie_points=p.n_tie_points, check_obs=chk_obs,
     )
 
 

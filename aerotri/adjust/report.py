@@ -7,6 +7,7 @@ Residuals are observed minus adjusted for image points, adjusted minus given for
 from __future__ import annotations
 
 import base64
+import dataclasses
 import io
 import math
 
@@ -33,30 +34,21 @@ def _lst(a, nd=3):
     return [_f(v, nd) for v in np.asarray(a, dtype=float).ravel()]
 
 
-def build_report(ba, map_scale: str = "1:5000", terrain: str = "flat", tolerance_file=None) -> dict:
-    """All report numbers as a JSON-ready dict (keys with units). RMS and residual limits come from the
-    tolerance table of ``map_scale`` and ``terrain`` (or ``tolerance_file``) unless the settings give them."""
-    r, b, opts, st = ba.result, ba.block, ba.opts, ba.settings
-    cam = ba.camera_apriori
-    pix_um = cam.pixel_um
-    s0_um = r.sigma0 * opts.image_sigma_px * pix_um
-    tol = load_tolerances(map_scale, terrain, tolerance_file)
-    tol_table = tolerance_path(map_scale, tolerance_file).name
-    rms_lim = [st.rms_limit_xy_m or tol["rms_xy_m"]] * 2 + [st.rms_limit_z_m or tol["rms_z_m"]]
-    res_lim = [st.residual_limit_m or tol["residual_xy_m"]] * 2 + [st.residual_limit_m or tol["residual_z_m"]]
+@dataclasses.dataclass
+class _Residuals:
+    """Image residuals of the active observations, in microns and in terrain units, by kind."""
 
-    active = r.obs_active
-    is_ctrl_obs = np.isin(b.obs_point, b.control_point)
-    v_um = r.residual_px * pix_um
-    # terrain units: image residual times the image scale at the point (depth / focal)
-    depth = np.einsum("kji,kj->ki", r.state.R_cv[b.obs_image], r.state.points[b.obs_point] - r.state.centre[b.obs_image])[:, 2]
-    v_m = r.residual_px * (depth / cam.focal_px)[:, None]
-    tie = active & ~is_ctrl_obs
-    ctl = active & is_ctrl_obs
+    v_um: np.ndarray  # (K, 2)
+    v_m: np.ndarray  # (K, 2) on the ground: image residual times the image scale at the point (depth / focal)
+    active: np.ndarray  # (K,) bool
+    tie: np.ndarray  # active tie observations
+    control: np.ndarray  # active control observations
 
-    def rms_block(mask):
+    def rms_block(self, mask) -> dict:
+        """The PATB RMS table row of a set of observations."""
         if not mask.any():
             return {"obs_x": 0, "obs_y": 0}
+        v_um, v_m = self.v_um, self.v_m
         return {
             "obs_x": int(mask.sum()), "obs_y": int(mask.sum()),
             "rms_x_um": _f(_rms(v_um[mask, 0])), "rms_y_um": _f(_rms(v_um[mask, 1])),
@@ -64,8 +56,20 @@ def build_report(ba, map_scale: str = "1:5000", terrain: str = "flat", tolerance
             "chv_x_um": _f(np.max(np.abs(v_um[mask, 0]))), "chv_y_um": _f(np.max(np.abs(v_um[mask, 1]))),
         }
 
-    # control points: ground residuals in the project CRS, adjusted minus given
-    control_rows = []
+
+def _residuals(ba) -> _Residuals:
+    r, b, cam = ba.result, ba.block, ba.camera_apriori
+    active = r.obs_active
+    is_ctrl_obs = np.isin(b.obs_point, b.control_point)
+    depth = np.einsum("kji,kj->ki", r.state.R_cv[b.obs_image], r.state.points[b.obs_point] - r.state.centre[b.obs_image])[:, 2]
+    return _Residuals(r.residual_px * cam.pixel_um, r.residual_px * (depth / cam.focal_px)[:, None], active,
+                      active & ~is_ctrl_obs, active & is_ctrl_obs)
+
+
+def _control_rows(ba, res: _Residuals) -> list[dict]:
+    """Control points: ground residuals in the project CRS, adjusted minus given."""
+    r, b = ba.result, ba.block
+    rows = []
     for c, pid in enumerate(ba.control.id):
         j = b.control_point[c]
         k = np.flatnonzero(b.obs_point == j)
@@ -75,46 +79,53 @@ def build_report(ba, map_scale: str = "1:5000", terrain: str = "flat", tolerance
         comp = {"full": [1, 1, 1], "horizontal": [1, 1, 0], "height": [0, 0, 1]}[kind]
         d = np.where(np.array(comp, dtype=bool), d, np.nan)
         rejected = not r.control_active[c]
-        control_rows.append({
+        active = res.active
+        rows.append({
             "id": pid, "kind": kind, "used": not rejected, "rays": int(active[k].sum()),
             "given_m": _lst(ba.control.xyz_m[c], 4), "adjusted_m": _lst(adj, 4), "residual_m": _lst(d, 4),
-            "image_rms_um": _f(_rms(v_um[k][active[k]].ravel())) if active[k].any() else None,
+            "image_rms_um": _f(_rms(res.v_um[k][active[k]].ravel())) if active[k].any() else None,
         })
-    used_ctrl = [row for row in control_rows if row["used"]]
-    cres = np.array([row["residual_m"] for row in used_ctrl], dtype=float).reshape(-1, 3)
-    rms_control = _rms(cres) if len(cres) else np.full(3, np.nan)
+    return rows
 
-    # check points
-    check_rows, dchk, nchk = [], [], []
+
+def _check_rows(ba) -> tuple[list[dict], np.ndarray, np.ndarray]:
+    """Check points: rows, differences (adjusted minus measured) and normalised differences."""
+    rows, dchk, nchk = [], [], []
     for pid, c in ba.check.items():
         d = np.array(c["adjusted_m"]) - np.array(c["measured_m"])
         ok = np.all(np.isfinite(d))
         sig = np.hypot(np.array(c["sigma_m"]), np.array(c["given_sigma_m"]))
-        check_rows.append({"id": pid, "rays": c["rays"], "measured_m": _lst(c["measured_m"], 4), "adjusted_m": _lst(c["adjusted_m"], 4),
-                           "d_m": _lst(d, 4), "sigma_m": _lst(c["sigma_m"], 4)})
+        rows.append({"id": pid, "rays": c["rays"], "measured_m": _lst(c["measured_m"], 4), "adjusted_m": _lst(c["adjusted_m"], 4),
+                     "d_m": _lst(d, 4), "sigma_m": _lst(c["sigma_m"], 4)})
         if ok:
             dchk.append(d)
             nchk.append(d / sig)
-    dchk, nchk = np.array(dchk).reshape(-1, 3), np.array(nchk).reshape(-1, 3)
+    return rows, np.array(dchk).reshape(-1, 3), np.array(nchk).reshape(-1, 3)
 
-    # photos
-    centre_sig = ba.eo_map.sigma[:, :3] if ba.eo_map.sigma is not None else None
-    att_sig = ba.eo_map.sigma[:, 3:] if ba.eo_map.sigma is not None else None
+
+def _photo_rows(ba, res: _Residuals) -> list[dict]:
+    b = ba.block
+    sig = ba.eo_map.sigma
     photos = []
     for i, iid in enumerate(b.image_id):
-        k = active & (b.obs_image == i)
+        k = res.active & (b.obs_image == i)
         row = {"image_id": iid, "strip": int(b.strip[i]) + 1, "obs": int(k.sum()),
-               "rms_x_um": _f(_rms(v_um[k, 0])), "rms_y_um": _f(_rms(v_um[k, 1]))}
+               "rms_x_um": _f(_rms(res.v_um[k, 0])), "rms_y_um": _f(_rms(res.v_um[k, 1]))}
         if ba.gnss_residual_m is not None:
             row["gnss_residual_m"] = _lst(ba.gnss_residual_m[i], 4)
-        if ba.eo_map.sigma is not None:
-            row["sigma_position_m"] = _lst(centre_sig[i], 4)
-            row["sigma_attitude_deg"] = _lst(att_sig[i], 5)
+        if sig is not None:
+            row["sigma_position_m"] = _lst(sig[i, :3], 4)
+            row["sigma_attitude_deg"] = _lst(sig[i, 3:], 5)
         photos.append(row)
+    return photos
 
-    # per-point residuals: the tie points with the largest image residual RMS (all points: object_points.csv)
+
+def _point_lists(ba, res: _Residuals) -> tuple[list, list, list]:
+    """The tie points with the largest image residual RMS (all points: object_points.csv), the removed
+    observations and the rejected control points."""
+    r, b, tie = ba.result, ba.block, res.tie
     n_rays = np.bincount(b.obs_point[tie], minlength=b.n_points)
-    ss = np.bincount(b.obs_point[tie], (v_um[tie] ** 2).sum(1), minlength=b.n_points)
+    ss = np.bincount(b.obs_point[tie], (res.v_um[tie] ** 2).sum(1), minlength=b.n_points)
     pt_rms = np.sqrt(ss / np.maximum(2 * n_rays, 1))
     worst = [j for j in np.argsort(-pt_rms)[:20] if n_rays[j] > 0]
     worst_points = [{"point_id": str(b.point_id[j]), "rays": int(n_rays[j]), "rms_um": _f(pt_rms[j], 2),
@@ -122,33 +133,41 @@ def build_report(ba, map_scale: str = "1:5000", terrain: str = "flat", tolerance
     removed = [{"point_id": str(b.point_id[b.obs_point[x.obs]]), "image_id": b.image_id[b.obs_image[x.obs]],
                 "w": _f(x.w, 2), "round": x.round, "residual_px": _lst(r.residual_px[x.obs], 2)} for x in r.removed]
     rejected = [{"id": str(ba.control.id[c]), "w": _f(w, 2)} for c, w in r.rejected_control]
+    return worst_points, removed, rejected
 
-    tie_pts = np.setdiff1d(np.unique(b.obs_point[active]), b.control_point)
-    sd_tie = ba.points_sigma_map[tie_pts]
-    mean_sd_obj = np.nanmean(sd_tie, axis=0) if len(tie_pts) and np.isfinite(sd_tie).any() else np.full(3, np.nan)
+
+def _image_residual_summary(res: _Residuals) -> dict:
+    """PATB tables of tie and control observations and the control/tie ratio users check (about 4 is
+    normal, around 10 points at a systematic error)."""
     ratio = None
-    tie_rms = rms_block(tie)
-    ctl_rms = rms_block(ctl)
-    if ctl.any() and tie.any():
-        ratio = float(_rms(v_um[ctl].ravel()) / _rms(v_um[tie].ravel()))
+    if res.control.any() and res.tie.any():
+        ratio = float(_rms(res.v_um[res.control].ravel()) / _rms(res.v_um[res.tie].ravel()))
     warning = None
     if ratio is not None and ratio > 10.0:
         warning = (f"control image residuals are {ratio:.1f} x the tie residuals (> 10): a systematic error "
                    "(camera, GNSS, datum or control coordinates) is worth compensating")
+    return {"tie": res.rms_block(res.tie), "control": res.rms_block(res.control), "control_to_tie_ratio": _f(ratio, 2),
+            "warning": warning}
 
+
+def _self_calibration(ba) -> dict | None:
+    r, opts = ba.result, ba.opts
+    if not opts.self_calibration:
+        return None
     cal_sd = np.sqrt(np.diag(r.cal_cov)) if r.cal_cov is not None else None
-    selfcal = None
-    if opts.self_calibration:
-        names = ["fx_px", "fy_px", "skew_px", "u0_px", "v0_px", "k1", "k2", "p1", "p2"]
-        selfcal = {"groups": list(opts.self_calibration), "apriori": dict(zip(names, _lst(G.cal_from_camera(cam), 8))),
-                   "adjusted": dict(zip(names, _lst(r.state.cal, 8))),
-                   "std_dev": dict(zip(names, _lst(cal_sd, 8))) if cal_sd is not None else None,
-                   "camera": ba.camera_adjusted.to_dict()}
-    gps_mode = {"none": "Disabled", "shift": "Enabled (shift per strip)", "shift_drift": "Enabled (shift and drift per strip)"}
-    has_gnss = b.gnss_local is not None
-    success = bool(r.info.converged and math.isfinite(r.sigma0))
+    names = ["fx_px", "fy_px", "skew_px", "u0_px", "v0_px", "k1", "k2", "p1", "p2"]
+    return {"groups": list(opts.self_calibration), "apriori": dict(zip(names, _lst(G.cal_from_camera(ba.camera_apriori), 8))),
+            "adjusted": dict(zip(names, _lst(r.state.cal, 8))),
+            "std_dev": dict(zip(names, _lst(cal_sd, 8))) if cal_sd is not None else None,
+            "camera": ba.camera_adjusted.to_dict()}
+
+
+def _parameters(ba, rms_control, cres, dchk, mean_sd_obj, rms_lim, res_lim) -> dict:
+    """The ISAT "Parameters" block: X/Omega Y/Phi Z/Kappa XY per row."""
+    sig = ba.eo_map.sigma
+    has_gnss = ba.block.gnss_local is not None
     xy = lambda a: _f(math.hypot(a[0], a[1]), 4) if a is not None and np.all(np.isfinite(a[:2])) else None  # noqa: E731
-    params = {
+    return {
         "rms_control_m": _lst(rms_control, 4) + [xy(rms_control)],
         "rms_check_m": (_lst(_rms(dchk), 4) + [xy(_rms(dchk))]) if len(dchk) else None,
         "rms_limits_m": _lst(rms_lim, 3) + [None],
@@ -157,40 +176,76 @@ def build_report(ba, map_scale: str = "1:5000", terrain: str = "flat", tolerance
         "mean_std_dev_object_m": _lst(mean_sd_obj, 4) + [xy(mean_sd_obj)],
         "rms_photo_position_m": (_lst(_rms(ba.gnss_residual_m), 4) + [xy(_rms(ba.gnss_residual_m))]) if has_gnss else None,
         "rms_photo_attitude_deg": None,
-        "mean_std_dev_photo_position_m": (_lst(np.mean(centre_sig, axis=0), 4) + [None]) if centre_sig is not None else None,
-        "mean_std_dev_photo_attitude_deg": (_lst(np.mean(att_sig, axis=0), 5) + [None]) if att_sig is not None else None,
+        "mean_std_dev_photo_position_m": (_lst(np.mean(sig[:, :3], axis=0), 4) + [None]) if sig is not None else None,
+        "mean_std_dev_photo_attitude_deg": (_lst(np.mean(sig[:, 3:], axis=0), 5) + [None]) if sig is not None else None,
     }
+
+
+def _options(ba, tolerances: str) -> dict:
+    """The ISAT "PhotoT Triangulation Options" block."""
+    r, b, opts, st = ba.result, ba.block, ba.opts, ba.settings
+    gps_mode = {"none": "Disabled", "shift": "Enabled (shift per strip)", "shift_drift": "Enabled (shift and drift per strip)"}
+    has_gnss = b.gnss_local is not None
+    return {
+        "adjustment_mode": "Absolute" if (len(ba.control) or has_gnss) else "Relative",
+        "precision_computation": "Enabled" if r.pose_cov is not None else "Disabled",
+        "error_detection": "Enabled" if st.snooping else "Disabled",
+        "camera_calibration": "Enabled",
+        "self_calibration": ("Enabled (" + ", ".join(opts.self_calibration) + ")") if opts.self_calibration else "Disabled",
+        "given_eo_gps": "Enabled" if has_gnss else "Disabled",
+        "antenna_offsets": ("Enabled (" + ", ".join(f"{v:.3f}" for v in b.lever_arm_m) + " m)") if has_gnss and np.any(b.lever_arm_m) else "Disabled",
+        "gps_shift_drift_correction": gps_mode[opts.gnss_correction] if has_gnss else "Disabled",
+        "ins_shift_drift_correction": "Disabled",
+        "image_sigma_px": opts.image_sigma_px,
+        "snooping_alpha": st.alpha,
+        "tolerances": tolerances,
+    }
+
+
+def _key_statistics(ba) -> dict:
+    r, opts = ba.result, ba.opts
+    s0_um = r.sigma0 * opts.image_sigma_px * ba.camera_apriori.pixel_um
+    success = bool(r.info.converged and math.isfinite(r.sigma0))
+    return {
+        "sigma0_um": _f(s0_um), "sigma0_px": _f(r.sigma0 * opts.image_sigma_px, 4), "sigma0": _f(r.sigma0, 4),
+        "iterations": int(r.iterations_total),
+        "degrees_of_freedom": int(r.info.dof), "success": success,
+        "message": ("Solution failed: the last solve did not converge." if not success else
+                    "Solution Successful." if r.info.iterations < opts.max_iterations else
+                    f"Solution Successful (iteration limit {opts.max_iterations} reached; the last step "
+                    f"changed the error by less than 1e-6 relative)."),
+    }
+
+
+def build_report(ba, map_scale: str = "1:5000", terrain: str = "flat", tolerance_file=None) -> dict:
+    """All report numbers as a JSON-ready dict (keys with units). RMS and residual limits come from the
+    tolerance table of ``map_scale`` and ``terrain`` (or ``tolerance_file``) unless the settings give them."""
+    r, b, opts, st = ba.result, ba.block, ba.opts, ba.settings
+    tol = load_tolerances(map_scale, terrain, tolerance_file)
+    tol_table = tolerance_path(map_scale, tolerance_file).name
+    rms_lim = [st.rms_limit_xy_m or tol["rms_xy_m"]] * 2 + [st.rms_limit_z_m or tol["rms_z_m"]]
+    res_lim = [st.residual_limit_m or tol["residual_xy_m"]] * 2 + [st.residual_limit_m or tol["residual_z_m"]]
+    res = _residuals(ba)
+    control_rows = _control_rows(ba, res)
+    used_ctrl = [row for row in control_rows if row["used"]]
+    cres = np.array([row["residual_m"] for row in used_ctrl], dtype=float).reshape(-1, 3)
+    rms_control = _rms(cres) if len(cres) else np.full(3, np.nan)
+    check_rows, dchk, nchk = _check_rows(ba)
+    worst_points, removed, rejected = _point_lists(ba, res)
+    tie_pts = np.setdiff1d(np.unique(b.obs_point[res.active]), b.control_point)
+    sd_tie = ba.points_sigma_map[tie_pts]
+    mean_sd_obj = np.nanmean(sd_tie, axis=0) if len(tie_pts) and np.isfinite(sd_tie).any() else np.full(3, np.nan)
+    tolerances = f"{map_scale} {terrain} ({tol_table})" if tolerance_file is None else f"{terrain} ({tol_table})"
     return {
         "project": ba.project_name,
         "crs": ba.crs,
-        "options": {
-            "adjustment_mode": "Absolute" if (len(ba.control) or has_gnss) else "Relative",
-            "precision_computation": "Enabled" if r.pose_cov is not None else "Disabled",
-            "error_detection": "Enabled" if st.snooping else "Disabled",
-            "camera_calibration": "Enabled",
-            "self_calibration": ("Enabled (" + ", ".join(opts.self_calibration) + ")") if opts.self_calibration else "Disabled",
-            "given_eo_gps": "Enabled" if has_gnss else "Disabled",
-            "antenna_offsets": ("Enabled (" + ", ".join(f"{v:.3f}" for v in b.lever_arm_m) + " m)") if has_gnss and np.any(b.lever_arm_m) else "Disabled",
-            "gps_shift_drift_correction": gps_mode[opts.gnss_correction] if has_gnss else "Disabled",
-            "ins_shift_drift_correction": "Disabled",
-            "image_sigma_px": opts.image_sigma_px,
-            "snooping_alpha": st.alpha,
-            "tolerances": f"{map_scale} {terrain} ({tol_table})" if tolerance_file is None else f"{terrain} ({tol_table})",
-        },
-        "parameters": params,
-        "key_statistics": {
-            "sigma0_um": _f(s0_um), "sigma0_px": _f(r.sigma0 * opts.image_sigma_px, 4), "sigma0": _f(r.sigma0, 4),
-            "iterations": int(r.iterations_total),
-            "degrees_of_freedom": int(r.info.dof), "success": success,
-            "message": ("Solution failed: the last solve did not converge." if not success else
-                        "Solution Successful." if r.info.iterations < opts.max_iterations else
-                        f"Solution Successful (iteration limit {opts.max_iterations} reached; the last step "
-                        f"changed the error by less than 1e-6 relative)."),
-        },
+        "options": _options(ba, tolerances),
+        "parameters": _parameters(ba, rms_control, cres, dchk, mean_sd_obj, rms_lim, res_lim),
+        "key_statistics": _key_statistics(ba),
         "counts": {"images": b.n_images, "strips": b.n_strips, "tie_points": int(len(tie_pts)),
                    "control_points": int(len(used_ctrl)), "check_points": int(len(check_rows)),
-                   "image_observations": int(active.sum()), "removed_observations": len(removed)},
-        "image_residuals": {"tie": tie_rms, "control": ctl_rms, "control_to_tie_ratio": _f(ratio, 2), "warning": warning},
+                   "image_observations": int(res.active.sum()), "removed_observations": len(removed)},
+        "image_residuals": _image_residual_summary(res),
         "control_points": control_rows,
         "rms_control_ground_m": _lst(rms_control, 4),
         "rejected_control": rejected,
@@ -198,10 +253,10 @@ def build_report(ba, map_scale: str = "1:5000", terrain: str = "flat", tolerance
         "check_sum_m": _lst(dchk.sum(axis=0), 4) if len(dchk) else None,
         "check_rms_m": _lst(_rms(dchk), 4) if len(dchk) else None,
         "check_normalised_rms": _lst(_rms(nchk), 3) if len(nchk) else None,
-        "photos": photos,
+        "photos": _photo_rows(ba, res),
         "removed_observations": removed,
         "worst_tie_points": worst_points,
-        "self_calibration": selfcal,
+        "self_calibration": _self_calibration(ba),
         "gnss_strips": [{"strip": s + 1, "shift_m": _lst(r.state.shift[s], 4), "drift_m_per_km": _lst(r.state.drift[s], 4)}
                         for s in range(b.n_strips)] if opts.gnss_correction != "none" else None,
         "timings_s": {k: _f(v, 3) for k, v in r.timings_s.items()},

@@ -47,7 +47,7 @@ def test_refinement_reduces_attitude_errors(tilted_project):
     errs, resid = {}, {}
     for refine in (False, True):
         ctx, s0 = prepare_project(root, AdjustSettings(gnss_correction="shift", image_sigma_px=SIGMA_PX, refine_approximations=refine))
-        b = ctx["block"]
+        b = ctx.block
         idx = [block.image_id.index(i) for i in b.image_id]
         errs[refine] = _angle_deg(block.R_local[idx] @ FLIP_YZ, s0.R_cv)
         resid[refine] = np.median(np.abs(G.image_residuals(b, s0)))

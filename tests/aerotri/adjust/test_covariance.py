@@ -17,7 +17,7 @@ def test_reduced_covariance_matches_gtsam_marginals(tmp_path):
     root = write_block_project(block, tmp_path / "blk")
     write_truth_observations(root, tie_sigma_px=0.3, n_control=4, points_per_image=50, n_check=2, seed=42)
     ctx, st0 = prepare_project(root, AdjustSettings(gnss_correction="shift", image_sigma_px=0.3, self_calibration=("pp", "radial")))
-    b, opts = ctx["block"], ctx["opts"]
+    b, opts = ctx.block, ctx.opts
     act = np.ones(len(b.obs_point), bool)
     gr = G.build_graph(b, opts, st0, act, np.ones(len(b.control_point), bool), robust=False)
     values, _ = G.optimize(gr, opts)

@@ -55,7 +55,7 @@ def _tilted_control_only_block(tmp_path, sigma_z_m, tilt_deg):
     tilt = Similarity(Rotation.from_rotvec([0.0, np.radians(tilt_deg), 0.0]).as_matrix(), np.zeros(3), 1.0, st0.centre.mean(axis=0))
     start = st0.copy()
     start.centre, start.R_cv, start.points = tilt.apply(st0.centre), tilt.rotate(st0.R_cv), tilt.apply(st0.points)
-    return ctx["block"], ctx["opts"], start
+    return ctx.block, ctx.opts, start
 
 
 @pytest.mark.parametrize("sigma_z_m,tilt_deg", [(200.0, 10.0), (1000.0, 15.0)])

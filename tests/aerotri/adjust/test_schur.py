@@ -15,7 +15,7 @@ from aerotri.sim.observations import geometric_block, write_block_project, write
 
 def _project(root, correction="none", **kw):
     ctx, st0 = prepare_project(root, AdjustSettings(gnss_correction=correction, image_sigma_px=0.3, **kw))
-    return ctx["block"], ctx["opts"], st0
+    return ctx.block, ctx.opts, st0
 
 
 @pytest.mark.parametrize("correction,self_cal,robust", [("none", (), False), ("shift_drift", (), False),
