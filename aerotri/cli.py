@@ -30,3 +30,5 @@ from aerotri.control.cli import control  # noqa: E402
 main.add_command(control)
 from aerotri.qa.cli import report  # noqa: E402
 main.add_command(report)
+from aerotri.exchange.cli import export  # noqa: E402
+main.add_command(export)

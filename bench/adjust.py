@@ -47,7 +47,7 @@ def write_colmap_model(block: G.Block, state: G.State, cam, out: Path) -> None:
     for i, iid in enumerate(block.image_id):
         Rwc = state.R_cv[i].T
         t = -Rwc @ state.centre[i]
-        from aerotri.adjust.export import _quat_wxyz
+        from aerotri.exchange.colmap import _quat_wxyz
 
         q = _quat_wxyz(Rwc)
         lines.append(f"{i + 1} " + " ".join(f"{v:.15f}" for v in q) + " " + " ".join(f"{v:.9f}" for v in t) + f" 1 {iid}")

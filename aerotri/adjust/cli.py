@@ -39,13 +39,15 @@ def _self_cal_groups(ctx, param, value):
 @click.option("--alpha", type=fraction(open_low=True, open_high=True), default=1e-4, show_default=True,
               help="Type I error per coordinate for data snooping, in (0, 1).")
 @click.option("--no-html", is_flag=True, help="Skip report.html.")
+@click.option("--no-exports", is_flag=True, help="Skip the PATB and COLMAP exports (aerotri export writes them later).")
 @click.option("--eo", "initial_eo", type=click.Path(dir_okay=False, exists=True, path_type=Path), default=None,
               help="Approximate orientations (image_id X Y Z omega phi kappa): the start of a block without GNSS, "
                    "whose datum then comes from the control points (at least 2 plan and 3 height).")
 def adjust(project, gnss_correction, lever_arm, self_cal, image_sigma, check, control, no_snooping, no_control, alpha,
-           no_html, initial_eo):
+           no_html, no_exports, initial_eo):
     """Adjust the block of PROJECT; writes at/eo.txt, at/object_points.csv, at/report.* and exports."""
     from aerotri.adjust.pipeline import AdjustSettings, run_adjustment
+    from aerotri.exchange import export_project
 
     settings = AdjustSettings(
         gnss_correction=gnss_correction,
@@ -60,6 +62,8 @@ def adjust(project, gnss_correction, lever_arm, self_cal, image_sigma, check, co
         initial_eo=initial_eo,
     )
     _, rep = run_adjustment(project, settings, html=not no_html)
+    if not no_exports:
+        export_project(project)
     k = rep["key_statistics"]
     click.echo(f"sigma0 {k['sigma0_um']} um, {k['iterations']} iterations, dof {k['degrees_of_freedom']}: {k['message']}")
     if rep["check_rms_m"]:

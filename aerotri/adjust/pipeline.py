@@ -3,8 +3,8 @@
 Inputs: ``camera.toml``, ``gnss.txt`` (antenna positions), ``project.toml`` ([gnss] sigma_xy_m,
 sigma_z_m, lever_arm_m; [control] sigmas; optional [adjust] options), ``at/tiepoints.csv``,
 ``control/points.csv``, ``control/image_points.csv``. Outputs in ``at/``: eo.txt (with standard
-deviations), object_points.csv, report.txt/json/html and exports, all written only after the whole
-adjustment succeeded.
+deviations), object_points.csv and report.txt/json/html, all written only after the whole adjustment
+succeeded. Exports to other software read these files (``aerotri.exchange``).
 """
 
 from __future__ import annotations
@@ -34,7 +34,7 @@ from aerotri.geom.observations import (
 )
 from aerotri.adjust.solve import AdjustmentResult, adjust_block, check_point_errors
 from aerotri.geom.strips import along_track_km, strips_from_track
-from aerotri.geom.camera import FrameCamera, project_camera
+from aerotri.geom.camera import FrameCamera, observations_without_k3, project_camera
 from aerotri.geom.eo import ExteriorOrientations, check_block_crs, read_eo, read_gnss
 from aerotri.core.config import config_number, config_vector
 from aerotri.core.errors import InputError, OptionError
@@ -188,21 +188,6 @@ def project_datum_shortfall(root, settings: AdjustSettings | None = None) -> str
     st = _settings_from_project(project, settings or AdjustSettings())
     control, _ = read_project_control(project, st)
     return datum_shortfall(control, st.use_gnss and project.gnss_path.exists(), st.gnss_correction)
-
-
-def observations_without_k3(cam: FrameCamera, xy_px: np.ndarray) -> np.ndarray:
-    """Image measurements of a camera with radial term k3 as the same camera without k3 sees the same rays.
-
-    The adjustment's camera model (Cal3DS2) has k1 k2 p1 p2 only; a known k3 (held fixed) is taken
-    off the measurements instead: x' = x - f xn k3 r^6 (likewise y), with (xn, yn) the normalised ray
-    of the measurement. Exact for a fixed camera; with self-calibrated k1, k2 the ray moves by second
-    order only.
-    """
-    if not cam.k3 or not len(xy_px):
-        return xy_px
-    xn, yn = cam.pixel_to_normalized(xy_px[:, 0], xy_px[:, 1])
-    t = cam.k3 * (xn * xn + yn * yn) ** 3
-    return xy_px - cam.focal_px * np.column_stack([xn * t, yn * t])
 
 
 def _initial_orientations(path, image_ids: list | None, crs=None) -> ExteriorOrientations:
@@ -555,8 +540,8 @@ def object_points_csv(ba: BlockAdjustment) -> str:
     return "\n".join(lines) + "\n"
 
 
-def write_outputs(ba: BlockAdjustment, root, html: bool = True, exports: bool = True, out_dir=None) -> dict:
-    """Write at/eo.txt, object_points.csv, report.txt/json/html and exports; returns the report dict.
+def write_outputs(ba: BlockAdjustment, root, html: bool = True, out_dir=None) -> dict:
+    """Write at/eo.txt, object_points.csv and report.txt/json/html; returns the report dict.
 
     ``out_dir``: another folder than the project's ``at/`` (the chain's first adjustment). All texts
     are produced first and written afterwards (each atomically), so an error in any of them leaves
@@ -564,7 +549,7 @@ def write_outputs(ba: BlockAdjustment, root, html: bool = True, exports: bool = 
     """
     import json
 
-    from aerotri.adjust import export, report
+    from aerotri.adjust import report
     from aerotri.geom.eo import format_eo
     from aerotri.core.tolerances import qa_settings
     from aerotri.core.atomic import write_text_atomic
@@ -580,20 +565,17 @@ def write_outputs(ba: BlockAdjustment, root, html: bool = True, exports: bool = 
     }
     if html:
         files["report.html"] = report.format_html(rep, ba)
-    if exports:
-        files.update(export.patb_files(ba))
-        files.update(export.colmap_files(ba))
     for rel, text in files.items():
         write_text_atomic(at / rel, text)
     return rep
 
 
-def run_adjustment(root, settings: AdjustSettings | None = None, out_dir=None, html: bool = True,
-                   exports: bool = True) -> tuple[BlockAdjustment, dict]:
+def run_adjustment(root, settings: AdjustSettings | None = None, out_dir=None,
+                   html: bool = True) -> tuple[BlockAdjustment, dict]:
     """The stage: adjust the project and write its outputs (``write_outputs``); returns the adjustment
     and the report dict. ``aerotri adjust`` and the chain both run this."""
     ba = adjust_project(root, settings)
-    return ba, write_outputs(ba, root, html=html, exports=exports, out_dir=out_dir)
+    return ba, write_outputs(ba, root, html=html, out_dir=out_dir)
 
 
 def _json_default(o):

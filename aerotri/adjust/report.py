@@ -239,6 +239,8 @@ def build_report(ba, map_scale: str = "1:5000", terrain: str = "flat", tolerance
     return {
         "project": ba.project_name,
         "crs": ba.crs,
+        "local_frame": {"origin_map": [float(v) for v in ba.frame.origin_map],
+                        "note": "ENU tangent plane of the adjustment at origin_map (x, y, h in the project CRS)"},
         "options": _options(ba, tolerances),
         "parameters": _parameters(ba, rms_control, cres, dchk, mean_sd_obj, rms_lim, res_lim),
         "key_statistics": _key_statistics(ba),

@@ -268,7 +268,7 @@ class Chain:
     def run_adjust_first(self, root) -> dict:
         from aerotri.adjust.pipeline import run_adjustment
 
-        ba, rep = run_adjustment(root, self.first_settings(), out_dir=self.first, html=False, exports=False)
+        ba, rep = run_adjustment(root, self.first_settings(), out_dir=self.first, html=False)
         # the orientations belong to this camera (self-calibrated, or the nominal one)
         write_text_atomic(self.first / "camera.toml", ba.camera_adjusted.to_toml())
         return adjustment_numbers(rep)
@@ -315,8 +315,11 @@ class Chain:
     def run_adjust_final(self, root) -> dict:
         from aerotri.adjust.pipeline import run_adjustment
 
+        from aerotri.exchange import export_project
+
         settings, notes = self.final_settings()
         _, rep = run_adjustment(root, settings)
+        export_project(root)  # PATB and COLMAP, read back from at/
         out = adjustment_numbers(rep)
         if notes:
             out["notes"] = notes

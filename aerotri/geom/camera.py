@@ -249,3 +249,18 @@ def adjusted_camera(project) -> tuple[FrameCamera, str]:
         if cam:
             return FrameCamera.from_dict(cam, source=f"{rep} self_calibration.camera"), f"{rep} (self-calibrated)"
     return project_camera(project), str(project.camera_path)
+
+
+def observations_without_k3(cam: FrameCamera, xy_px: np.ndarray) -> np.ndarray:
+    """Image measurements of a camera with radial term k3 as the same camera without k3 sees the same rays.
+
+    The adjustment's camera model (Cal3DS2) has k1 k2 p1 p2 only; a known k3 (held fixed) is taken
+    off the measurements instead: x' = x - f xn k3 r^6 (likewise y), with (xn, yn) the normalised ray
+    of the measurement. Exact for a fixed camera; with self-calibrated k1, k2 the ray moves by second
+    order only.
+    """
+    if not cam.k3 or not len(xy_px):
+        return xy_px
+    xn, yn = cam.pixel_to_normalized(xy_px[:, 0], xy_px[:, 1])
+    t = cam.k3 * (xn * xn + yn * yn) ** 3
+    return xy_px - cam.focal_px * np.column_stack([xn * t, yn * t])

@@ -1,0 +1,116 @@
+"""An adjusted block as the project folder holds it: the input of every exporter.
+
+Read from ``at/eo.txt`` (orientations), ``at/object_points.csv`` (adjusted points, their kinds and
+rays), ``at/report.json`` (the local frame's origin, the self-calibrated camera, the removed
+observations, the control points used), ``at/tiepoints.csv`` and ``control/image_points.csv`` (the
+measurements; those of points the adjustment used and did not remove), ``control/points.csv`` and
+``camera.toml``. Poses and points are also given in the adjustment's local ENU frame
+(``aerotri.geom.local_frame``), where collinearity holds exactly.
+"""
+
+from __future__ import annotations
+
+import csv
+import dataclasses
+import io
+
+import numpy as np
+
+from aerotri.core.errors import InputError, StageOrderError
+from aerotri.core.project import Project
+from aerotri.core.textio import read_json, read_text
+from aerotri.geom.camera import FrameCamera, observations_without_k3, project_camera
+from aerotri.geom.eo import read_eo
+from aerotri.geom.local_frame import LocalFrame
+from aerotri.geom.observations import ImageObservations, read_control_points, read_image_points
+from aerotri.geom.rotation import FLIP_YZ
+
+CAL_NAMES = ("fx_px", "fy_px", "skew_px", "u0_px", "v0_px", "k1", "k2", "p1", "p2")
+
+
+@dataclasses.dataclass(kw_only=True)
+class AdjustedBlock:
+    """Orientations, points, measurements and control of an adjusted project (see module docstring)."""
+
+    project_name: str
+    crs: str
+    frame: LocalFrame
+    camera: FrameCamera  # the a-priori camera (camera.toml)
+    cal: np.ndarray  # (9,) adjusted interior orientation, Cal3DS2 order: fx fy skew u0 v0 k1 k2 p1 p2 (px)
+    image_id: list
+    centre_local: np.ndarray  # (N, 3) projection centres, ENU
+    R_cv: np.ndarray  # (N, 3, 3) computer-vision camera -> ENU
+    point_id: np.ndarray  # (P,) adjusted points
+    point_kind: np.ndarray  # (P,) tie, full, horizontal, height, rejected_control
+    points_local: np.ndarray  # (P, 3) ENU
+    point_rms_px: np.ndarray  # (P,) image residual RMS of each point
+    obs_point: np.ndarray  # (K,) index into the points
+    obs_image: np.ndarray  # (K,) index into the images
+    obs_xy_px: np.ndarray  # (K, 2) measured pixel coordinates (a known k3 taken off, as the adjustment saw them)
+    control_id: np.ndarray  # control points in the adjustment, not rejected
+    control_kind: np.ndarray
+    control_xyz_m: np.ndarray  # (C, 3) given coordinates, project CRS
+
+
+def _cal_of(camera: FrameCamera) -> np.ndarray:
+    f = camera.focal_px
+    return np.array([f, f, 0.0, camera.cx_px, camera.cy_px, camera.k1, camera.k2, camera.p1, camera.p2])
+
+
+def _object_points(path):
+    rows = list(csv.DictReader(io.StringIO(read_text(path, "adjusted object points (CSV)"))))
+    if not rows or not {"id", "kind", "x", "y", "z", "rms_px"} <= set(rows[0]):
+        raise InputError(f"{path}: expected the header id,kind,x,y,z,sx_m,sy_m,sz_m,rays,rms_px of aerotri adjust")
+    ids = np.array([r["id"] for r in rows], dtype=object)
+    kinds = np.array([r["kind"] for r in rows], dtype=object)
+    xyz = np.array([[float(r["x"]), float(r["y"]), float(r["z"])] for r in rows])
+    rms = np.array([float(r["rms_px"]) for r in rows])
+    return ids, kinds, xyz, rms
+
+
+def read_adjusted_block(root) -> AdjustedBlock:
+    """The adjusted block of a project folder (``StageOrderError`` when it has not been adjusted)."""
+    project = Project.open(root)
+    for path in (project.eo_path, project.object_points_path, project.adjustment_report_path):
+        if not path.is_file():
+            raise StageOrderError(f"{path}: not found; run the adjustment first (aerotri adjust {project.root})")
+    report = read_json(project.adjustment_report_path, "adjustment report")
+    frame_info = report.get("local_frame")
+    if not isinstance(frame_info, dict) or "origin_map" not in frame_info:
+        raise StageOrderError(f"{project.adjustment_report_path}: no local_frame (written by an older version); "
+                              f"adjust the project again (aerotri adjust {project.root})")
+    frame = LocalFrame(project.crs, frame_info["origin_map"])
+    camera = project_camera(project)
+    selfcal = report.get("self_calibration") or {}
+    cal = np.array([selfcal["adjusted"][k] for k in CAL_NAMES], float) if selfcal.get("adjusted") else _cal_of(camera)
+    eo = read_eo(project.eo_path)
+    centre_local = frame.to_local(eo.centre_m)
+    R_cv = frame.rotation_local_from_map(eo.centre_m) @ eo.rotations() @ FLIP_YZ
+    ids, kinds, xyz_map, rms = _object_points(project.object_points_path)
+    # the measurements the adjustment used: of its points, in its images, not removed by data snooping
+    obs = [read_image_points(project.tiepoints_path)]
+    if project.control_image_points_path.is_file():
+        obs.append(read_image_points(project.control_image_points_path))
+    pid = np.concatenate([o.point_id for o in obs]).astype(str)
+    iid = np.concatenate([o.image_id for o in obs]).astype(str)
+    xy = observations_without_k3(camera, np.vstack([o.xy_px for o in obs]))
+    removed = {(r["point_id"], r["image_id"]) for r in report.get("removed_observations", [])}
+    point_index = {p: j for j, p in enumerate(ids.astype(str))}
+    image_index = {i: n for n, i in enumerate(eo.image_id)}
+    keep = np.array([p in point_index and i in image_index and (p, i) not in removed for p, i in zip(pid, iid)], bool)
+    # control: the points of control/points.csv the adjustment kept as control
+    control = read_control_points(project.control_points_path) if project.control_points_path.is_file() else None
+    kind_of = dict(zip(ids.astype(str), kinds))
+    if control is not None and len(control):
+        used = np.array([kind_of.get(str(c), "") not in ("", "tie", "rejected_control") for c in control.id], bool)
+        control_id, control_kind, control_xyz = control.id[used], control.kind[used], control.xyz_m[used]
+    else:
+        control_id = control_kind = np.zeros(0, object)
+        control_xyz = np.zeros((0, 3))
+    return AdjustedBlock(
+        project_name=project.name, crs=project.crs, frame=frame, camera=camera, cal=cal, image_id=list(eo.image_id),
+        centre_local=centre_local, R_cv=R_cv, point_id=ids, point_kind=kinds, points_local=frame.to_local(xyz_map),
+        point_rms_px=rms, obs_point=np.array([point_index[p] for p in pid[keep]], int),
+        obs_image=np.array([image_index[i] for i in iid[keep]], int), obs_xy_px=xy[keep], control_id=control_id,
+        control_kind=control_kind, control_xyz_m=control_xyz,
+    )

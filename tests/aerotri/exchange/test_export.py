@@ -1,0 +1,85 @@
+"""Exports read the project folder: a small geometric block with known truth, adjusted (with
+self-calibration), then exported by ``aerotri export`` from the files alone."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from click.testing import CliRunner
+
+from aerotri.adjust.pipeline import AdjustSettings, run_adjustment
+from aerotri.cli import main as aerotri_cli
+from aerotri.core.errors import StageOrderError
+from aerotri.exchange import EXPORT_FORMATS, export_project
+from aerotri.exchange.adjusted import read_adjusted_block
+from aerotri.exchange.patb import photo_coordinates_mm
+from aerotri.sim.observations import geometric_block, write_block_project, write_truth_observations
+
+SIGMA_PX = 0.3
+
+
+@pytest.fixture(scope="module")
+def adjusted(tmp_path_factory):
+    block = geometric_block(2, 5, seed=7)
+    root = write_block_project(block, tmp_path_factory.mktemp("exp") / "blk")
+    write_truth_observations(root, tie_sigma_px=SIGMA_PX, n_control=5, points_per_image=80, n_check=4, seed=2)
+    with pytest.raises(StageOrderError):
+        read_adjusted_block(root)
+    ba, _ = run_adjustment(root, AdjustSettings(gnss_correction="shift", image_sigma_px=SIGMA_PX,
+                                                self_calibration=("pp", "radial")))
+    return root, ba
+
+
+def test_block_read_from_the_folder_is_the_adjusted_one(adjusted):
+    root, ba = adjusted
+    blk = read_adjusted_block(root)
+    assert blk.image_id == list(ba.eo_map.image_id)
+    assert np.abs(blk.centre_local - ba.result.state.centre).max() < 2e-4  # eo.txt keeps 0.1 mm
+    assert np.abs(blk.R_cv - ba.result.state.R_cv).max() < 1e-7  # and 1e-7 degrees
+    assert np.allclose(blk.cal, ba.result.state.cal, rtol=1e-6, atol=1e-8)
+    # the measurements the adjustment used, and no other
+    assert len(blk.obs_xy_px) == int(ba.result.obs_active.sum())
+    assert set(blk.control_id) == {c for c, a in zip(ba.control.id, ba.result.control_active) if a}
+
+
+def test_patb_photo_coordinates_are_the_ideal_projection(adjusted):
+    """Undistorted photo coordinates of every measurement against the distortion-free projection of the
+    adjusted point through the adjusted orientation: they differ by the image residuals only."""
+    root, _ = adjusted
+    blk = read_adjusted_block(root)
+    x_mm, y_mm, c_mm = photo_coordinates_mm(blk)
+    d = np.einsum("kji,kj->ki", blk.R_cv[blk.obs_image], blk.points_local[blk.obs_point] - blk.centre_local[blk.obs_image])
+    x_ideal, y_ideal = c_mm * d[:, 0] / d[:, 2], -c_mm * d[:, 1] / d[:, 2]
+    rms_um = 1000 * np.sqrt(np.mean((x_mm - x_ideal) ** 2 + (y_mm - y_ideal) ** 2) / 2)
+    sigma_um = SIGMA_PX * blk.camera.pixel_um
+    assert 0.5 * sigma_um < rms_um < 1.5 * sigma_um
+
+
+def test_export_command_writes_every_format_from_the_folder(adjusted, tmp_path):
+    root, _ = adjusted
+    r = CliRunner().invoke(aerotri_cli, ["export", str(root), "--out", str(tmp_path)])
+    assert r.exit_code == 0, r.output
+    for rel in ("patb/block.im", "patb/block.con", "colmap/cameras.txt", "colmap/images.txt", "colmap/points3D.txt"):
+        assert (tmp_path / rel).stat().st_size > 0
+    assert set(EXPORT_FORMATS) == {"patb", "colmap"}
+    # the same files as the adjustment's own export into at/
+    export_project(root)
+    for rel in ("patb/block.im", "colmap/points3D.txt"):
+        assert (tmp_path / rel).read_text() == (root / "at" / rel).read_text()
+
+
+def test_colmap_model_reprojects_like_the_adjustment(adjusted, tmp_path):
+    """pycolmap reads the text model; its reprojection errors are the adjustment's image residuals."""
+    import pycolmap
+
+    root, ba = adjusted
+    export_project(root, ["colmap"], tmp_path)
+    rec = pycolmap.Reconstruction()
+    rec.read_text(str(tmp_path / "colmap"))
+    assert rec.num_reg_images() == len(ba.eo_map.image_id)
+    assert rec.num_points3D() == len(np.unique(read_adjusted_block(root).obs_point))
+    err = np.array([p.error for p in rec.points3D.values()])
+    rms_px = float(np.sqrt(np.mean(ba.result.residual_px[ba.result.obs_active] ** 2)))
+    assert abs(float(np.sqrt(np.mean(err ** 2))) - rms_px) < 0.2 * rms_px
+    # pycolmap's own projection of our points through our cameras and poses (the model's consistency)
+    assert rec.compute_mean_reprojection_error() < 2.0 * rms_px
