@@ -1,0 +1,63 @@
+"""The adjustment report: the ISAT "Parameters and Results" layout and numbers consistent with the
+adjustment they report (a small geometric block with check points)."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from aerotri.adjust import report
+from aerotri.adjust.pipeline import AdjustSettings, adjust_project
+from aerotri.sim.observations import geometric_block, write_block_project, write_truth_observations
+
+
+@pytest.fixture(scope="module")
+def ba(tmp_path_factory):
+    block = geometric_block(2, 5, seed=11)
+    root = write_block_project(block, tmp_path_factory.mktemp("rep") / "blk")
+    write_truth_observations(root, tie_sigma_px=0.3, n_control=5, points_per_image=80, n_check=6, seed=5)
+    return adjust_project(root, AdjustSettings(gnss_correction="shift", image_sigma_px=0.3))
+
+
+def test_numbers_agree_with_the_adjustment(ba):
+    rep = report.build_report(ba)
+    json.dumps(rep, allow_nan=False, default=float)  # JSON-ready
+    d = np.array([row["d_m"] for row in rep["check_points"]], float)
+    assert rep["counts"]["check_points"] == len(ba.check) == len(d) > 0
+    assert np.allclose(rep["check_rms_m"], np.sqrt(np.mean(d ** 2, axis=0)), atol=1e-4)
+    assert rep["counts"]["image_observations"] == int(ba.result.obs_active.sum())
+    r = ba.result
+    assert rep["key_statistics"]["sigma0_px"] == pytest.approx(r.sigma0 * 0.3, abs=1e-4)
+    assert rep["key_statistics"]["sigma0_um"] == pytest.approx(r.sigma0 * 0.3 * ba.camera_apriori.pixel_um, abs=1e-3)
+    tie = rep["image_residuals"]["tie"]
+    act = r.obs_active & ~np.isin(ba.block.obs_point, ba.block.control_point)
+    assert tie["obs_x"] == int(act.sum())
+    assert tie["rms_x_um"] == pytest.approx(np.sqrt(np.mean((r.residual_px[act, 0] * ba.camera_apriori.pixel_um) ** 2)),
+                                            abs=1e-3)
+    assert rep["local_frame"]["origin_map"] == pytest.approx(list(ba.frame.origin_map))
+    assert rep["options"]["gps_shift_drift_correction"].startswith("Enabled (shift")
+    assert [p["image_id"] for p in rep["photos"]] == list(ba.eo_map.image_id)
+
+
+def test_limits_come_from_the_tolerance_table(ba):
+    rep = report.build_report(ba, "1:2000", "hilly")
+    from aerotri.core.tolerances import load_tolerances
+
+    tol = load_tolerances("1:2000", "hilly")
+    assert rep["parameters"]["rms_limits_m"][:3] == pytest.approx([tol["rms_xy_m"]] * 2 + [tol["rms_z_m"]])
+    assert "1:2000 hilly" in rep["options"]["tolerances"]
+
+
+def test_text_layout_is_isat_then_patb(ba):
+    rep = report.build_report(ba)
+    txt = report.format_txt(rep)
+    lines = txt.splitlines()
+    order = [next(i for i, ln in enumerate(lines) if ln.strip() == h) for h in
+             ("PhotoT Triangulation Options", "Parameters", "Key Statistics")]
+    assert lines[0].startswith("Photo-T Parameters and Results for Project") and order == sorted(order)
+    assert txt.index("Key Statistics") < txt.index("ROOT MEAN SQUARE VALUES")
+    assert f"Sigma: {rep['key_statistics']['sigma0_um']:.2f} um" in txt
+    html = report.format_html(rep, ba)
+    assert html.count("data:image/png;base64,") >= 1 and "Key Statistics" in html
