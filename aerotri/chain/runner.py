@@ -19,6 +19,7 @@ from collections.abc import Callable
 from pathlib import Path
 
 from aerotri.core.atomic import remove_leftovers, write_text_atomic
+from aerotri.core.project import project_paths
 
 _log = logging.getLogger(__name__)
 
@@ -58,7 +59,7 @@ def _plain(options: dict) -> dict:
 
 
 def stamp_path(root: Path, stage: str) -> Path:
-    return root / "work" / "stages" / f"{stage}.json"
+    return project_paths(root).stages_dir / f"{stage}.json"
 
 
 def is_current(root: Path, st: Stage) -> bool:

@@ -31,13 +31,6 @@ from aerotri.core.project import Project
 
 _log = logging.getLogger(__name__)
 
-LIDAR_SUFFIXES = (".las", ".laz")
-
-
-def lidar_strips(root: Path) -> list[Path]:
-    return sorted(p for p in (Path(root) / "lidar").glob("*") if p.suffix.lower() in LIDAR_SUFFIXES)
-
-
 def _json(path: Path) -> dict:
     return json.loads(path.read_text()) if path.is_file() else {}
 
@@ -80,15 +73,15 @@ class Chain:
 
     @property
     def merged(self) -> Path:
-        return self.project.work_dir / "lidar" / "merged.las"
+        return self.project.merged_lidar_path
 
     @property
     def classified(self) -> Path:
-        return self.lo / "classified.laz"
+        return self.project.classified_path
 
     @property
     def first(self) -> Path:
-        return self.project.work_dir / "at_first"
+        return self.project.first_adjustment_dir
 
     def images(self) -> list[Path]:
         return sorted(p for p in self.project.images_dir.glob("*") if p.is_file())
@@ -96,7 +89,7 @@ class Chain:
     # -- what the inputs allow -------------------------------------------------------------------
     @property
     def has_lidar(self) -> bool:
-        return bool(lidar_strips(self.root))
+        return bool(self.project.lidar_strips())
 
     @property
     def has_gnss(self) -> bool:
@@ -108,7 +101,7 @@ class Chain:
             return Path(self.dem)
         if self.options.rectify.dem is not None:
             return Path(self.options.rectify.dem)
-        return self.lo / "dem.tif" if self.has_lidar else None
+        return self.project.dem_path if self.has_lidar else None
 
     def no_lidar(self, root=None) -> str | None:
         if not self.has_lidar:
@@ -122,7 +115,7 @@ class Chain:
             return why
         if not self.options.adjust.use_control:
             return f"{self.project.config_path}: [adjust] use_control = false"
-        summary = _json(self.lo / "corners.json")
+        summary = _json(self.project.corners_summary_path)
         if summary.get("no_usable"):
             return f"no usable roof corner ({self.lo / 'corners.json'})"
         if not self.has_gnss and self.options.adjust.initial_eo is None:
@@ -150,9 +143,8 @@ class Chain:
     # -- stages ---------------------------------------------------------------------------------
     def stages(self) -> list[Stage]:
         o, lo, first = self.options, self.lo, self.first
-        at = self.project.at_dir
         stages = [
-            Stage("merge", lidar_strips, lambda r: [self.merged], self.run_merge,
+            Stage("merge", lambda r: self.project.lidar_strips(), lambda r: [self.merged], self.run_merge,
                   options=dict(crs=self.project.crs), skip=self.no_lidar),
             Stage("classify", lambda r: [self.merged], lambda r: [self.classified], self.run_classify,
                   options=to_table(o.classify), skip=self.no_lidar),
@@ -161,8 +153,8 @@ class Chain:
                   options=to_table(o.rasters), skip=self.no_lidar),
             Stage("corners", lambda r: [self.classified], self.corner_outputs, self.run_corners,
                   options=to_table(o.corners), skip=self.no_lidar),
-            Stage("match", lambda r: self.images() + [r / "gnss.txt", r / "camera.toml"],
-                  lambda r: [at / "tiepoints.csv"], self.run_match,
+            Stage("match", lambda r: self.images() + [self.project.gnss_path, self.project.camera_path],
+                  lambda r: [self.project.tiepoints_path], self.run_match,
                   # [flight] terrain height and [gnss] lever arm place the footprints of the pairs
                   options=dict(to_table(o.match), flight=self.project.section("flight"),
                                gnss=self.project.section("gnss"))),
@@ -171,30 +163,30 @@ class Chain:
                   lambda r: [first / "eo.txt", first / "camera.toml"], self.run_adjust_first,
                   options=lambda r: to_table(self.first_settings()), skip=self.no_first_adjustment),
             Stage("control", self.control_inputs,
-                  lambda r: [r / "control" / "points.csv", r / "control" / "image_points.csv"], self.run_control,
+                  lambda r: [self.project.control_points_path, self.project.control_image_points_path], self.run_control,
                   options=to_table(o.control), skip=self.no_corners),
-            Stage("adjust_final", self.adjust_inputs, lambda r: [at / "eo.txt", at / "report.json"],
+            Stage("adjust_final", self.adjust_inputs, lambda r: [self.project.eo_path, self.project.adjustment_report_path],
                   self.run_adjust_final, options=lambda r: to_table(self.final_settings()[0])),
             # (the self-calibrated camera in at/report.json changes only with at/eo.txt)
-            Stage("rectify", lambda r: [at / "eo.txt", self.dem_path()] + self.images(),
-                  lambda r: [r / "ortho" / "frames" / "index.json"], self.run_rectify,
+            Stage("rectify", lambda r: [self.project.eo_path, self.dem_path()] + self.images(),
+                  lambda r: [self.project.frames_index_path], self.run_rectify,
                   options=lambda r: to_table(self.rectify_settings()), skip=self.no_dem),
-            Stage("mosaic", lambda r: [r / "ortho" / "frames" / "index.json"], lambda r: [r / "ortho" / "mosaic.tif"],
+            Stage("mosaic", lambda r: [self.project.frames_index_path], lambda r: [self.project.mosaic_path],
                   self.run_mosaic, options=to_table(o.mosaic), skip=self.no_dem),
         ]
         if self.reference_ortho is not None:
-            stages.append(Stage("dom_check", lambda r: [r / "ortho" / "mosaic.tif", Path(self.reference_ortho)],
-                                lambda r: [r / "ortho" / "dom_report.json"], self.run_dom_check, skip=self.no_dem))
+            stages.append(Stage("dom_check", lambda r: [self.project.mosaic_path, Path(self.reference_ortho)],
+                                lambda r: [self.project.dom_report_path], self.run_dom_check, skip=self.no_dem))
         if self.surveyed_points is not None:
             stages.append(Stage("height_check", lambda r: [self.classified, Path(self.surveyed_points)],
-                                lambda r: [lo / "height_check.json"], self.run_height_check, skip=self.no_lidar))
+                                lambda r: [self.project.height_check_path], self.run_height_check, skip=self.no_lidar))
         if self.truth_classes:
-            stages.append(Stage("lidar_eval", lambda r: [self.classified], lambda r: [lo / "classification_eval.json"],
+            stages.append(Stage("lidar_eval", lambda r: [self.classified], lambda r: [self.project.classification_eval_path],
                                 self.run_lidar_eval, skip=self.no_lidar))
-        report_inputs = [self.project.config_path, at / "report.json", self.project.control_dir / "transfer.json",
-                         self.project.ortho_dir / "dom_report.json", lo / "height_check.json",
-                         lo / "classification_eval.json"]
-        stages.append(Stage("report", lambda r: report_inputs, lambda r: [r / "reports" / "index.html"],
+        report_inputs = [self.project.config_path, self.project.adjustment_report_path,
+                         self.project.control_transfer_path, self.project.dom_report_path,
+                         self.project.height_check_path, self.project.classification_eval_path]
+        stages.append(Stage("report", lambda r: report_inputs, lambda r: [self.project.report_index_path],
                             self.run_report))
         return stages
 
@@ -202,7 +194,7 @@ class Chain:
     def run_merge(self, root) -> dict:
         from lidarctl.merge import merge_las
 
-        return dict(points=merge_las(lidar_strips(root), self.merged, crs=self.project.crs))
+        return dict(points=merge_las(self.project.lidar_strips(), self.merged, crs=self.project.crs))
 
     def run_classify(self, root) -> dict:
         from lidarctl.tiles import classify_file
@@ -219,9 +211,9 @@ class Chain:
         return dict(res_m=self.options.rasters.res_m)
 
     def corner_outputs(self, root) -> list[Path]:
-        summary = _json(self.lo / "corners.json")
+        summary = _json(self.project.corners_summary_path)
         usable = summary.get("n_usable", 1) > 0 if summary else True
-        return [self.lo / "corners.json"] + ([self.lo / "corners.csv"] if usable else [])
+        return [self.project.corners_summary_path] + ([self.project.corners_path] if usable else [])
 
     def run_corners(self, root) -> dict:
         from lidarctl.corners import corner_control
@@ -244,10 +236,9 @@ class Chain:
         return dict(tracks=rep["tracks"], observations=rep["observations"], components=rep["components"])
 
     def adjust_inputs(self, root, control: bool = True) -> list[Path]:
-        r = Path(root)
-        files = [r / "at" / "tiepoints.csv", r / "gnss.txt", r / "camera.toml", self.project.config_path]
+        files = [self.project.tiepoints_path, self.project.gnss_path, self.project.camera_path, self.project.config_path]
         if control:
-            files += [r / "control" / "points.csv", r / "control" / "image_points.csv"]
+            files += [self.project.control_points_path, self.project.control_image_points_path]
         if self.options.adjust.initial_eo is not None:
             files.append(Path(self.options.adjust.initial_eo))
         return files
@@ -283,11 +274,11 @@ class Chain:
             if why:
                 s = dataclasses.replace(s, use_control=False)
                 notes.append(f"without LiDAR control: {why}")
-        elif s.use_control and (self.project.control_dir / "points.csv").is_file():
+        elif s.use_control and self.project.control_points_path.is_file():
             notes.append(f"with the control points of {self.project.control_dir / 'points.csv'} (no LiDAR)")
         else:
             notes.append("no LiDAR and no control/points.csv: the datum comes from GNSS alone")
-        if s.gnss_correction != "none" and self.has_gnss and (self.root / "at" / "tiepoints.csv").is_file():
+        if s.gnss_correction != "none" and self.has_gnss and self.project.tiepoints_path.is_file():
             short = project_datum_shortfall(self.root, s)
             if short:
                 notes.append(f"[adjust] gnss_correction = \"{s.gnss_correction}\" not applied: {short}; GNSS alone "
@@ -297,7 +288,7 @@ class Chain:
 
     def control_inputs(self, root) -> list[Path]:
         eo, camera = self.control_orientations()
-        return [self.lo / "corners.csv", eo, camera] + self.images()
+        return [self.project.corners_path, eo, camera] + self.images()
 
     def control_orientations(self) -> tuple[Path, Path]:
         """EO and camera the corners are measured with: the first adjustment's, else [adjust] initial_eo."""
@@ -309,7 +300,7 @@ class Chain:
         from aerotri.control.pipeline import run_control
 
         eo, camera = self.control_orientations()
-        sm = run_control(root, self.lo / "corners.csv", eo, camera, None, self.options.control)
+        sm = run_control(root, self.project.corners_path, eo, camera, None, self.options.control)
         return {k: sm[k] for k in ("corners_accepted", "control_full", "control_height", "check_points") if k in sm}
 
     def run_adjust_final(self, root) -> dict:
@@ -345,7 +336,7 @@ class Chain:
     def run_dom_check(self, root) -> dict:
         from ortho.check import run_check
 
-        ndsm = self.lo / "ndsm.tif"
+        ndsm = self.project.ndsm_path
         rep = run_check(root, reference_path=self.reference_ortho, ndsm_path=ndsm if ndsm.is_file() else None)
         d = rep.get("displacement", {})
         return {k: d[k] for k in ("rms_xy_m", "rms_xy_gsd", "count") if k in d}
@@ -354,7 +345,7 @@ class Chain:
         from lidarctl.heights_check import check_heights_file
 
         result = check_heights_file(self.classified, self.surveyed_points)
-        write_text_atomic(self.lo / "height_check.json", json.dumps(result, indent=2))
+        write_text_atomic(self.project.height_check_path, json.dumps(result, indent=2))
         a = result.get("overall", {}).get("all", {})
         return {k: a[k] for k in ("rmse_m", "mean_abs_dz_m", "n") if k in a}
 
@@ -362,10 +353,10 @@ class Chain:
         from lidarctl.evaluate import evaluate_files
         from lidarctl.merge import merge_las
 
-        truth_merged = self.project.work_dir / "lidar" / "truth_merged.las"
-        merge_las(sorted((Path(root) / "truth" / "lidar").glob("*.la[sz]")), truth_merged, crs=self.project.crs)
+        truth_merged = self.project.truth_merged_lidar_path
+        merge_las(sorted(self.project.truth_lidar_dir.glob("*.la[sz]")), truth_merged, crs=self.project.crs)
         result = evaluate_files(self.classified, truth_merged)
-        write_text_atomic(self.lo / "classification_eval.json", json.dumps(result, indent=2))
+        write_text_atomic(self.project.classification_eval_path, json.dumps(result, indent=2))
         g = result["filter_test"]
         return {k: g[k] for k in ("type_i_error_pct", "type_ii_error_pct", "kappa_pct") if k in g}
 

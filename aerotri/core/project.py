@@ -92,6 +92,11 @@ class Project:
     images_dir = property(lambda self: self.root / "images")
     lidar_dir = property(lambda self: self.root / "lidar")
     truth_dir = property(lambda self: self.root / "truth")  # simulated projects only (aerotri.sim)
+    truth_lidar_dir = property(lambda self: self.truth_dir / "lidar")
+
+    def lidar_strips(self) -> list[Path]:
+        """The LAS/LAZ strips in ``lidar/``, sorted by name."""
+        return sorted(p for p in self.lidar_dir.glob("*") if p.suffix.lower() in (".las", ".laz"))
     # lidar_out/: the LiDAR products
     lidar_out_dir = property(lambda self: self.root / "lidar_out")
     classified_path = property(lambda self: self.lidar_out_dir / "classified.laz")
@@ -99,6 +104,7 @@ class Project:
     dsm_path = property(lambda self: self.lidar_out_dir / "dsm.tif")
     ndsm_path = property(lambda self: self.lidar_out_dir / "ndsm.tif")
     corners_path = property(lambda self: self.lidar_out_dir / "corners.csv")
+    corners_summary_path = property(lambda self: self.lidar_out_dir / "corners.json")
     height_check_path = property(lambda self: self.lidar_out_dir / "height_check.json")
     classification_eval_path = property(lambda self: self.lidar_out_dir / "classification_eval.json")
     # control/: the transferred LiDAR control
@@ -110,11 +116,13 @@ class Project:
     work_dir = property(lambda self: self.root / "work")
     stages_dir = property(lambda self: self.work_dir / "stages")
     merged_lidar_path = property(lambda self: self.work_dir / "lidar" / "merged.las")
+    truth_merged_lidar_path = property(lambda self: self.work_dir / "lidar" / "truth_merged.las")
     first_adjustment_dir = property(lambda self: self.work_dir / "at_first")
     # at/: tie points and the adjustment
     at_dir = property(lambda self: self.root / "at")
     tiepoints_path = property(lambda self: self.at_dir / "tiepoints.csv")
     connectivity_path = property(lambda self: self.at_dir / "connectivity.json")
+    connectivity_plot_path = property(lambda self: self.at_dir / "connectivity.png")
     eo_path = property(lambda self: self.at_dir / "eo.txt")
     adjustment_report_path = property(lambda self: self.at_dir / "report.json")
     object_points_path = property(lambda self: self.at_dir / "object_points.csv")
@@ -128,6 +136,7 @@ class Project:
     seamlines_path = property(lambda self: self.ortho_dir / "seamlines.geojson")
     mosaic_summary_path = property(lambda self: self.ortho_dir / "mosaic.json")
     dom_report_path = property(lambda self: self.ortho_dir / "dom_report.json")
+    dom_report_plot_path = property(lambda self: self.ortho_dir / "dom_report.png")
     # reports/: the consolidated accuracy report
     reports_dir = property(lambda self: self.root / "reports")
     report_index_path = property(lambda self: self.reports_dir / "index.html")

@@ -242,7 +242,7 @@ def adjusted_camera(project) -> tuple[FrameCamera, str]:
     when there is one, else the nominal ``camera.toml``. Orientations in ``at/eo.txt`` belong to it."""
     from aerotri.core.textio import read_json
 
-    rep = project.at_dir / "report.json"
+    rep = project.adjustment_report_path
     if rep.is_file():
         d = read_json(rep, "adjustment report")
         cam = (d.get("self_calibration") or {}).get("camera") if isinstance(d, dict) else None

@@ -49,17 +49,22 @@ def _hypot(a, b):
     return round(math.hypot(a, b), 4)
 
 
-# What the stages leave for the report
-STAGE_RESULTS = ("at/report.json", "control/transfer.json", "ortho/dom_report.json", "lidar_out/height_check.json",
-                 "lidar_out/classification_eval.json")
+
+
+def stage_results(project: Project) -> list:
+    """What the stages leave for the report."""
+    return [project.adjustment_report_path, project.control_transfer_path, project.dom_report_path,
+            project.height_check_path, project.classification_eval_path]
 
 
 def build_qa_report(root, tolerance_file=None, terrain: str | None = None, scale: str | None = None) -> dict:
     """The report of a project folder (``StageOrderError`` when no stage has left results yet)."""
-    root = Project.open(root).root  # a project folder: project.toml with [project] crs
-    if not any((root / rel).is_file() for rel in STAGE_RESULTS):
+    project = Project.open(root)  # a project folder: project.toml with [project] crs
+    root = project.root
+    if not any(p.is_file() for p in stage_results(project)):
         raise StageOrderError(
-            f"{root}: nothing to report yet, no stage has left its results ({', '.join(STAGE_RESULTS)}); "
+            f"{root}: nothing to report yet, no stage has left its results "
+            f"({', '.join(str(p.relative_to(root)) for p in stage_results(project))}); "
             f"run the adjustment first (aerotri match {root}, then aerotri adjust {root}) or the whole chain "
             f"(aerotri run {root})")
     cfg = qa_settings(root)
@@ -70,13 +75,13 @@ def build_qa_report(root, tolerance_file=None, terrain: str | None = None, scale
     tol_file = tolerance_file or cfg["tolerances"]
     tol_path = tolerance_path(scale, tol_file)
     tol = load_tolerances(scale, terrain, tol_file)
-    at = _json(root / "at" / "report.json")
-    ctl = _json(root / "control" / "transfer.json").get("summary", {})
-    dom_all = _json(root / "ortho" / "dom_report.json")
+    at = _json(project.adjustment_report_path)
+    ctl = _json(project.control_transfer_path).get("summary", {})
+    dom_all = _json(project.dom_report_path)
     dom, seams = dom_all.get("displacement", {}), dom_all.get("seams", {})
-    hc_all = _json(root / "lidar_out" / "height_check.json")
+    hc_all = _json(project.height_check_path)
     hc = hc_all.get("overall", {})
-    ce = _json(root / "lidar_out" / "classification_eval.json").get("filter_test", {})
+    ce = _json(project.classification_eval_path).get("filter_test", {})
     rows = []
 
     # LiDAR
@@ -211,7 +216,7 @@ Overall verdict: <b class="{rep['overall'] or ''}">{html.escape(rep['overall'] o
 """
 
 
-def write_pdf(path: Path, rep: dict, root: Path) -> None:
+def write_pdf(path: Path, rep: dict, project: Project) -> None:
     """The verdict table on the first page, then the plots the stages wrote (A4 landscape)."""
     import matplotlib
 
@@ -243,8 +248,8 @@ def write_pdf(path: Path, rep: dict, root: Path) -> None:
             t.scale(1, 1.25)
         pdf.savefig(fig)
         plt.close(fig)
-        for title, png in (("DOM displacement against the reference", root / "ortho" / "dom_report.png"),
-                           ("Tie-point connectivity", root / "at" / "connectivity.png")):
+        for title, png in (("DOM displacement against the reference", project.dom_report_plot_path),
+                           ("Tie-point connectivity", project.connectivity_plot_path)):
             if png.is_file():
                 fig = plt.figure(figsize=(11.69, 8.27))
                 fig.suptitle(title)
@@ -257,10 +262,10 @@ def write_pdf(path: Path, rep: dict, root: Path) -> None:
 
 def write_qa_report(root, tolerance_file=None, terrain: str | None = None, scale: str | None = None,
                     pdf: bool | None = None) -> dict:
-    root = Path(root)
-    rep = build_qa_report(root, tolerance_file, terrain, scale)
-    write_text_atomic(root / "reports" / "summary.json", json.dumps(rep, indent=1) + "\n")
-    write_text_atomic(root / "reports" / "index.html", format_html(rep))
+    project = Project.open(root)
+    rep = build_qa_report(project.root, tolerance_file, terrain, scale)
+    write_text_atomic(project.report_summary_path, json.dumps(rep, indent=1) + "\n")
+    write_text_atomic(project.report_index_path, format_html(rep))
     if pdf if pdf is not None else qa_settings(root)["pdf"]:
-        write_pdf(root / "reports" / "report.pdf", rep, root)
+        write_pdf(project.report_pdf_path, rep, project)
     return rep
