@@ -45,7 +45,7 @@ import numpy as np
 
 from aerotri.adjust import datum, schur
 from aerotri.geom.camera import FrameCamera
-from aerotri.core.errors import InputError
+from aerotri.core.errors import InputError, SolveError
 from aerotri.geom.rotation import FLIP_YZ
 
 X = lambda i: gtsam.symbol("x", int(i))  # noqa: E731
@@ -605,7 +605,7 @@ def optimize(gr: Graph, opts: Options) -> tuple[gtsam.Values, SolveInfo]:
                     converged = e0 - opt.error() <= 1e-6 * e0
                     result = gtsam.Values(opt.values())
     except RuntimeError as exc:
-        raise InputError(
+        raise SolveError(
             "the adjustment is singular (datum defect: too few control points or GNSS positions for "
             f"the chosen corrections, or images/points without enough rays): {exc}"
         ) from None
