@@ -6,54 +6,55 @@ from pathlib import Path
 
 import click
 
-from aerotri.core.commands import Command, finite, fraction, positive
+from aerotri.adjust.settings import AdjustSettings
+from aerotri.core.commands import Command, finite
+from aerotri.core.settings import click_option, constraints, field_named
+
+
+_SELF_CAL = constraints(field_named(AdjustSettings, "self_calibration"))["choices"]
 
 
 def _self_cal_groups(ctx, param, value):
-    """--self-cal: comma-separated parameter groups of aerotri.adjust.graph.SELF_CAL_GROUPS."""
-    from aerotri.adjust.graph import SELF_CAL_GROUPS
-
+    """--self-cal: comma-separated parameter groups (AdjustSettings.self_calibration's choices)."""
     groups = tuple(s.strip() for s in (value or "").split(",") if s.strip())
-    bad = [g for g in groups if g not in SELF_CAL_GROUPS]
+    bad = [g for g in groups if g not in _SELF_CAL]
     if bad:
-        raise click.BadParameter(f"{', '.join(bad)}: expected a comma-separated list of {', '.join(SELF_CAL_GROUPS)}",
+        raise click.BadParameter(f"{', '.join(bad)}: expected a comma-separated list of {', '.join(_SELF_CAL)}",
                                  ctx=ctx, param=param)
     return value
 
 
 @click.command(cls=Command)
 @click.argument("project", type=click.Path(file_okay=False))
-@click.option("--gnss-correction", type=click.Choice(["none", "shift", "shift_drift"]), default="none", show_default=True,
-              help="GNSS corrections per strip: none, shift, or shift and drift.")
+@click_option(AdjustSettings, "gnss_correction", "--gnss-correction")
 @click.option("--lever-arm", nargs=3, type=finite(), default=None,
               help="Antenna offset from the projection centre in the camera frame (m); default project.toml [gnss] lever_arm_m.")
 @click.option("--self-cal", "self_cal", default="", callback=_self_cal_groups,
-              help="Comma-separated: focal, pp, radial, tangential.")
-@click.option("--image-sigma", type=positive(), default=None,
+              help=f"Interior orientation groups to estimate, comma-separated: {', '.join(_SELF_CAL)}.")
+@click_option(AdjustSettings, "image_sigma_px", "--image-sigma",
               help="A-priori image standard deviation (px); default project.toml [adjust] image_sigma_px, else 0.5.")
 @click.option("--check", "check", multiple=True, help="Use this control point id as a check point (repeatable).")
 @click.option("--control", "control", multiple=True, help="Use this point id as full control (repeatable).")
 @click.option("--no-snooping", is_flag=True, help="Disable blunder detection.")
 @click.option("--no-control", is_flag=True,
               help="Ignore control/ (tie points + GNSS only, e.g. the first adjustment before control transfer).")
-@click.option("--alpha", type=fraction(open_low=True, open_high=True), default=1e-4, show_default=True,
-              help="Type I error per coordinate for data snooping, in (0, 1).")
+@click_option(AdjustSettings, "alpha", "--alpha")
 @click.option("--no-html", is_flag=True, help="Skip report.html.")
 @click.option("--no-exports", is_flag=True, help="Skip the PATB and COLMAP exports (aerotri export writes them later).")
 @click.option("--eo", "initial_eo", type=click.Path(dir_okay=False, exists=True, path_type=Path), default=None,
               help="Approximate orientations (image_id X Y Z omega phi kappa): the start of a block without GNSS, "
                    "whose datum then comes from the control points (at least 2 plan and 3 height).")
-def adjust(project, gnss_correction, lever_arm, self_cal, image_sigma, check, control, no_snooping, no_control, alpha,
+def adjust(project, gnss_correction, lever_arm, self_cal, image_sigma_px, check, control, no_snooping, no_control, alpha,
            no_html, no_exports, initial_eo):
     """Adjust the block of PROJECT; writes at/eo.txt, at/object_points.csv, at/report.* and exports."""
-    from aerotri.adjust.pipeline import AdjustSettings, run_adjustment
+    from aerotri.adjust.pipeline import run_adjustment
     from aerotri.exchange import export_project
 
     settings = AdjustSettings(
         gnss_correction=gnss_correction,
         lever_arm_m=tuple(lever_arm) if lever_arm else None,
         self_calibration=tuple(s.strip() for s in self_cal.split(",") if s.strip()),
-        image_sigma_px=image_sigma,
+        image_sigma_px=image_sigma_px,
         check=tuple(check),
         control=tuple(control),
         snooping=not no_snooping,

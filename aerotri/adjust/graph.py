@@ -45,6 +45,7 @@ import numpy as np
 
 from aerotri.adjust import datum, schur
 from aerotri.geom.camera import FrameCamera
+from aerotri.adjust.settings import GNSS_CORRECTIONS, SELF_CAL_GROUP_NAMES
 from aerotri.core.errors import InputError, SolveError
 from aerotri.geom.rotation import FLIP_YZ
 
@@ -57,7 +58,7 @@ K_KEY = gtsam.symbol("k", 0)
 L_KEY = gtsam.symbol("l", 0)
 
 SELF_CAL_GROUPS = {"focal": (0, 1), "pp": (3, 4), "radial": (5, 6), "tangential": (7, 8)}
-GNSS_CORRECTIONS = ("none", "shift", "shift_drift")
+assert tuple(SELF_CAL_GROUPS) == SELF_CAL_GROUP_NAMES
 LOOSE_SIGMA_M = 1.0e3  # sigma of the unconstrained components of horizontal/height control
 
 

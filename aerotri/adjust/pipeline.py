@@ -38,38 +38,9 @@ from aerotri.geom.camera import FrameCamera, observations_without_k3, project_ca
 from aerotri.geom.eo import ExteriorOrientations, check_block_crs, read_eo, read_gnss
 from aerotri.core.config import config_number, config_vector
 from aerotri.core.errors import InputError, OptionError
-from aerotri.core.settings import setting
+from aerotri.adjust.settings import AdjustSettings  # noqa: F401  (the stage's settings, imported from here too)
 from aerotri.core.project import Project
 from aerotri.geom.rotation import FLIP_YZ, opk_from_matrix
-
-
-@dataclasses.dataclass
-class AdjustSettings:
-    """Options of the adjustment (``aerotri adjust``, ``[adjust]`` in project.toml for ``aerotri run``)."""
-
-    gnss_correction: str = setting("none", choices=G.GNSS_CORRECTIONS,
-                                   help="GNSS corrections per strip: none, shift, or shift and drift.")
-    lever_arm_m: tuple[float, float, float] | None = setting(
-        None, help="Antenna offset from the projection centre in the camera frame (m); default project.toml [gnss] "
-                   "lever_arm_m, else zero.")
-    self_calibration: tuple[str, ...] = setting((), choices=tuple(G.SELF_CAL_GROUPS),
-                                                help="Interior orientation groups to estimate.")
-    image_sigma_px: float | None = setting(None, min=0.0, min_open=True,
-                                           help="A-priori image standard deviation (px); default 0.5.")
-    check: tuple[str, ...] = setting((), help="Control point ids to use as check points.")
-    control: tuple[str, ...] = setting((), help="Point ids to use as full control even if marked check.")
-    snooping: bool = setting(True, help="Blunder detection (data snooping).")
-    alpha: float = setting(1e-4, min=0.0, max=1.0, min_open=True, max_open=True,
-                           help="Type I error per coordinate for data snooping.")
-    rms_limit_xy_m: float | None = setting(None, min=0.0, min_open=True)
-    rms_limit_z_m: float | None = setting(None, min=0.0, min_open=True)
-    residual_limit_m: float | None = setting(None, min=0.0, min_open=True)
-    use_gnss: bool = True
-    initial_eo: Path | None = setting(None, path=True, help="Approximate orientations (EO file): the start of a block "
-                                                            "without GNSS, whose datum then comes from control.")
-    point_covariances: bool = True
-    use_control: bool = True  # False: ignore control/ (GNSS must carry the datum)
-    refine_approximations: bool = True  # resection/intersection of the attitudes before the bundle (GNSS)
 
 
 @dataclasses.dataclass(kw_only=True)

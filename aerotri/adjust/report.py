@@ -328,7 +328,7 @@ def format_txt(rep: dict) -> str:
     if rep["check_sum_m"]:
         L.append(f"{'sum':>12}" + " " * 84 + "".join(_v(x, 9, 3) for x in rep["check_sum_m"]))
         L.append(f"{'rms':>12}" + " " * 84 + "".join(_v(x, 9, 3) for x in rep["check_rms_m"]))
-        L.append(f"  normalised check errors (d / sigma), RMS X Y Z: " + " ".join(f"{x:.2f}" for x in rep["check_normalised_rms"]))
+        L.append("  normalised check errors (d / sigma), RMS X Y Z: " + " ".join(f"{x:.2f}" for x in rep["check_normalised_rms"]))
     if rep["self_calibration"]:
         sc = rep["self_calibration"]
         L += ["", "Self-calibration (" + ", ".join(sc["groups"]) + ")", f"{'param':>8} {'a priori':>14} {'adjusted':>14} {'std dev':>12}"]

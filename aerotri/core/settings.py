@@ -184,15 +184,32 @@ def to_table(obj) -> dict:
 
 
 def click_type(cls, name: str):
-    """The click parameter type of a field: a Choice, an Int/FloatRange, or the plain type."""
+    """The click parameter type of a field: a Choice, an integer range, a finite float range (NaN and
+    infinities refused, as ``from_table`` refuses them), or the plain type."""
     import click
+
+    from aerotri.core.commands import FiniteFloatRange
 
     f = field_named(cls, name)
     cons = constraints(f)
     tp, _ = _unwrap_optional(typing.get_type_hints(cls)[name])
     if cons["choices"] is not None and tp is str:
         return click.Choice([str(c) for c in cons["choices"]])
-    if tp in (int, float) and (cons["min"] is not None or cons["max"] is not None):
-        rng = click.IntRange if tp is int else click.FloatRange
-        return rng(min=cons["min"], max=cons["max"], min_open=cons["min_open"], max_open=cons["max_open"])
-    return {int: click.INT, float: click.FLOAT, bool: click.BOOL}.get(tp, click.STRING)
+    bounds = dict(min=cons["min"], max=cons["max"], min_open=cons["min_open"], max_open=cons["max_open"])
+    if tp is float:
+        return FiniteFloatRange(**bounds)
+    if tp is int and (cons["min"] is not None or cons["max"] is not None):
+        return click.IntRange(**bounds)
+    return {int: click.INT, bool: click.BOOL}.get(tp, click.STRING)
+
+
+def click_option(cls, name: str, *decls, **kw):
+    """A click option for field ``name`` of a settings dataclass: its type, default and help come from the
+    dataclass (``decls`` e.g. ``"--min-edge-m"``; extra keywords go to ``click.option``). A field whose
+    default is None shows the help's words for what None means."""
+    import click
+
+    default = default_of(cls, name)
+    return click.option(*decls, name, type=kw.pop("type", click_type(cls, name)), default=default,
+                        show_default=default is not None,
+                        help=kw.pop("help", constraints(field_named(cls, name))["help"]), **kw)

@@ -5,6 +5,14 @@ Nothing in the library imports this package.
 """
 
 from aerotri.sim.config import available_presets, load_preset
-from aerotri.sim.project import simulate
 
 __all__ = ["available_presets", "load_preset", "simulate"]
+
+
+def __getattr__(name):
+    # Lazy: the command line imports this package for the presets without the renderer and scanner.
+    if name == "simulate":
+        from aerotri.sim.project import simulate
+
+        return simulate
+    raise AttributeError(f"module 'aerotri.sim' has no attribute {name!r}")
