@@ -83,13 +83,13 @@ def test_report_limits_follow_the_project_map_scale(block_project, tmp_path):
     block, root = block_project
     ba = adjust_project(root, AdjustSettings(gnss_correction="shift", image_sigma_px=SIGMA_PX, point_covariances=False,
                                              snooping=False))
-    rep = write_outputs(ba, root, html=False, exports=False)
+    rep = write_outputs(ba, root, html=False)
     assert rep["parameters"]["rms_limits_m"][:3] == [0.35, 0.35, 1.0]  # default: 1:5000, flat
     copy = tmp_path / "blk"
     shutil.copytree(root, copy)
     with open(copy / "project.toml", "a") as f:
         f.write('\n[qa]\nmap_scale = "1:2000"\nterrain = "hilly"\n')
-    rep = write_outputs(ba, copy, html=False, exports=False)
+    rep = write_outputs(ba, copy, html=False)
     assert rep["parameters"]["rms_limits_m"][:3] == [0.14, 0.14, 0.8]
     assert rep["parameters"]["residual_limits_m"][:3] == [0.28, 0.28, 1.6]
     assert "Tolerances : 1:2000 hilly (cn_1to2000.toml)" in (copy / "at" / "report.txt").read_text()
