@@ -7,14 +7,14 @@ from pathlib import Path
 import click
 
 from aerotri.core.commands import Command
-
+from aerotri.core.tolerances import SCALE_TABLES, TERRAINS
 
 
 @click.command(cls=Command, name="report")
 @click.argument("project", type=click.Path(file_okay=False, exists=True, path_type=Path))
-@click.option("--scale", "scale", type=click.Choice(["1:2000", "1:5000", "1:10000"]), default=None,
+@click.option("--scale", "scale", type=click.Choice(list(SCALE_TABLES)), default=None,
               help="Target map scale (default: [qa] map_scale of project.toml, else 1:5000).")
-@click.option("--terrain", type=click.Choice(["flat", "hilly", "mountainous"]), default=None,
+@click.option("--terrain", type=click.Choice(list(TERRAINS)), default=None,
               help="Terrain class of the tolerance table (default: [qa] terrain, else flat).")
 @click.option("--tolerances", type=click.Path(dir_okay=False, exists=True, path_type=Path), default=None,
               help="Your own tolerance table (TOML, same layout as aerotri/core/tolerance_tables/*.toml).")
@@ -30,5 +30,5 @@ def report(project, scale, terrain, tolerances, pdf):
             click.echo(f"  {r['verdict']:<5} {r['section']}: {r['quantity']} = {r['value']} {r['unit']} "
                        f"(limit {r['limit']})")
     verdict = rep["overall"] or "no verdict (no quantity with a tolerance yet)"
-    click.echo(f"{project / 'reports' / 'index.html'}: {verdict} ({rep['passed']} passed, {rep['failed']} failed; "
+    click.echo(f"{rep['html']}: {verdict} ({rep['passed']} passed, {rep['failed']} failed; "
                f"{rep['map_scale']} {rep['terrain']})")

@@ -266,6 +266,7 @@ def write_qa_report(root, tolerance_file=None, terrain: str | None = None, scale
     rep = build_qa_report(project.root, tolerance_file, terrain, scale)
     write_text_atomic(project.report_summary_path, json.dumps(rep, indent=1) + "\n")
     write_text_atomic(project.report_index_path, format_html(rep))
+    rep["html"] = str(project.report_index_path)
     if pdf if pdf is not None else qa_settings(root)["pdf"]:
         write_pdf(project.report_pdf_path, rep, project)
     return rep
