@@ -23,7 +23,7 @@ from aerotri.match import matching as M
 from aerotri.geom.images import check_frames, find_images
 from aerotri.match.pairs import Pair, candidate_pairs, plan_block
 from aerotri.match.report import plot_block, track_length_histogram
-from aerotri.match.tracks import build_tracks
+from aerotri.match.tracks import build_tracks, coincident
 from aerotri.match.weak import analyse
 from aerotri.core.executor import Executor, local_executor
 from aerotri.core.project import Project
@@ -238,18 +238,20 @@ def _tracks(sparse, dense, matches):
     """Tracks over the union of sparse and dense keypoints (dense ones that repeat a sparse keypoint
     within 0.5 px are merged with it, so one image point never appears twice)."""
     n_img = len(sparse)
-    xy_all, dense_map = [], {}
+    xy_all, dense_map, sparse_map = [], {}, {}
     for i in range(n_img):
         xs = sparse[i].xy_px
+        sparse_map[i] = coincident(xs)
         if i in dense:
             xd = dense[i].xy_px
             d, nn = cKDTree(xs).query(xd, distance_upper_bound=0.5) if len(xs) else (np.full(len(xd), np.inf), None)
             same = np.isfinite(d)
             idx = np.empty(len(xd), int)
-            idx[same] = nn[same]
-            idx[~same] = len(xs) + np.arange((~same).sum())
+            idx[same] = sparse_map[i][nn[same]]
+            new = xd[~same]
+            idx[~same] = len(xs) + coincident(new)  # dense keypoints at one place are one node too
             dense_map[i] = idx
-            xy_all.append(np.vstack([xs, xd[~same]]))
+            xy_all.append(np.vstack([xs, new]))
         else:
             xy_all.append(xs)
     pm = []
@@ -258,6 +260,8 @@ def _tracks(sparse, dense, matches):
             continue
         if kind == "dense":
             m = np.column_stack([dense_map[i][m[:, 0]], dense_map[j][m[:, 1]]])
+        else:
+            m = np.column_stack([sparse_map[i][m[:, 0]], sparse_map[j][m[:, 1]]])
         pm.append((i, j, m))
     track, image, kp, n_bad = build_tracks([len(x) for x in xy_all], pm)
     xy = np.array([xy_all[i][k] for i, k in zip(image, kp)]).reshape(-1, 2)

@@ -1,7 +1,9 @@
 """Tracks: union-find over (image, keypoint) nodes joined by verified matches.
 
 A track that reaches two different keypoints of the same image is inconsistent (two matches chains
-disagree); it is dropped rather than guessed.
+disagree); it is dropped rather than guessed. Keypoints at the same place in one image (SIFT gives a
+point one keypoint per dominant orientation) are one node (``coincident``): otherwise each of them
+would start its own track and the same image point would be measured twice.
 """
 
 from __future__ import annotations
@@ -9,6 +11,19 @@ from __future__ import annotations
 import numpy as np
 from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
+
+
+def coincident(xy_px: np.ndarray, tol_px: float = 0.5) -> np.ndarray:
+    """For each keypoint the index of the first keypoint within ``tol_px`` of it (itself if none)."""
+    from scipy.spatial import cKDTree
+
+    xy_px = np.asarray(xy_px, float)
+    rep = np.arange(len(xy_px))
+    if len(xy_px) < 2:
+        return rep
+    for a, b in sorted(cKDTree(xy_px).query_pairs(tol_px)):
+        rep[b] = min(rep[b], rep[a])
+    return rep[rep]  # chains (c -> b -> a) point at their first member
 
 
 def build_tracks(n_keypoints: list[int], pair_matches: list[tuple[int, int, np.ndarray]]):
