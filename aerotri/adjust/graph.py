@@ -262,6 +262,9 @@ class Graph:
 
 def _tie_points(block: Block, obs: np.ndarray, state: State, sigma_px: float, self_cal: bool, huber_k: float) -> TiePoints:
     pr = schur.ray_pairs(obs, block.obs_point, block.obs_image, block.n_images)
+    if len(pr.obs) == 0:
+        raise SolveError("no tie point is left with two or more rays (the approximate orientations put every "
+                         "intersection behind the cameras or far off: check the initial EO, --eo, or the GNSS)")
     point = block.obs_point[pr.obs][pr.start[:-1]]
     return TiePoints(point, pr, block.obs_xy_px[pr.obs], block.obs_image[pr.obs].astype(np.int64),
                      np.array(state.points[point], dtype=float), np.asarray(state.cal, dtype=float), float(sigma_px), self_cal,

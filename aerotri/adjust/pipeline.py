@@ -37,7 +37,7 @@ from aerotri.geom.strips import along_track_km, strips_from_track
 from aerotri.geom.camera import FrameCamera, observations_without_k3, project_camera
 from aerotri.geom.eo import ExteriorOrientations, check_block_crs, read_eo, read_gnss
 from aerotri.core.config import config_number, config_vector
-from aerotri.core.errors import InputError, OptionError
+from aerotri.core.errors import InputError, OptionError, SolveError
 from aerotri.adjust.settings import AdjustSettings  # noqa: F401  (the stage's settings, imported from here too)
 from aerotri.core.project import Project
 from aerotri.geom.rotation import FLIP_YZ, opk_from_matrix
@@ -516,7 +516,8 @@ def write_outputs(ba: BlockAdjustment, root, html: bool = True, out_dir=None) ->
 
     ``out_dir``: another folder than the project's ``at/`` (the chain's first adjustment). All texts
     are produced first and written afterwards (each atomically), so an error in any of them leaves
-    no partial output.
+    no partial output. A failed solve (not converged, or no finite sigma naught) writes only its
+    report, into ``work/adjust_failed/``, and raises ``SolveError``: the earlier outputs stay.
     """
     import json
 
@@ -525,17 +526,26 @@ def write_outputs(ba: BlockAdjustment, root, html: bool = True, out_dir=None) ->
     from aerotri.core.tolerances import qa_settings
     from aerotri.core.atomic import write_text_atomic
 
-    at = Path(out_dir) if out_dir is not None else Project.open(root).at_dir
+    project = Project.open(root)
+    at = Path(out_dir) if out_dir is not None else project.at_dir
     qa = qa_settings(root)  # the limits of the project's map scale and terrain, as in reports/
     rep = report.build_report(ba, qa["map_scale"], qa["terrain"], qa["tolerances"])
     files = {
-        "eo.txt": format_eo(ba.eo_map),
-        "object_points.csv": object_points_csv(ba),
         "report.txt": report.format_txt(rep),
         "report.json": json.dumps(rep, indent=1, allow_nan=False, default=_json_default),
     }
     if html:
         files["report.html"] = report.format_html(rep, ba)
+    if not rep["key_statistics"]["success"]:
+        # The orientations of a failed solve are no product: the outputs of an earlier solve stay, the
+        # report of this one goes where the user can read why.
+        failed = project.work_dir / "adjust_failed"
+        for rel, text in files.items():
+            write_text_atomic(failed / rel, text)
+        raise SolveError(f"{rep['key_statistics']['message']} sigma naught "
+                         f"{rep['key_statistics']['sigma0']}; the report of the failed solve is in {failed} "
+                         f"(the earlier outputs in {at} are unchanged)")
+    files.update({"eo.txt": format_eo(ba.eo_map), "object_points.csv": object_points_csv(ba)})
     for rel, text in files.items():
         write_text_atomic(at / rel, text)
     return rep

@@ -289,7 +289,8 @@ def format_txt(rep: dict) -> str:
         vals = rep["parameters"][key] or [None] * 4
         L.append(f"{label:32}" + "".join(_v(x, 10, nd) for x in vals))
     k = rep["key_statistics"]
-    L += ["", "Key Statistics", f"  Sigma: {k['sigma0_um']:.2f} um", f"  Number of iterations: {k['iterations']}",
+    sigma = "n/a" if k["sigma0_um"] is None else f"{k['sigma0_um']:.2f} um"
+    L += ["", "Key Statistics", f"  Sigma: {sigma}", f"  Number of iterations: {k['iterations']}",
           f"  Degrees of Freedom: {k['degrees_of_freedom']}", f"  {k['message']}", ""]
     c = rep["counts"]
     L.append(f"Images {c['images']} in {c['strips']} strips, tie points {c['tie_points']}, control points {c['control_points']}, "
@@ -299,8 +300,8 @@ def format_txt(rep: dict) -> str:
     for name, blk in (("tie points", ir["tie"]), ("control points", ir["control"])):
         if blk.get("obs_x"):
             for ax in "xy":
-                L.append(f"  {name:15} obs {ax} = {blk['obs_' + ax]:7d}  rms {ax} = {blk['rms_' + ax + '_um']:7.2f} um"
-                         f"  rms {ax} = {blk['rms_' + ax + '_m']:7.4f} m  chv v{ax} = {blk['chv_' + ax + '_um']:7.2f} um")
+                L.append(f"  {name:15} obs {ax} = {blk['obs_' + ax]:7d}  rms {ax} ={_v(blk['rms_' + ax + '_um'], 8, 2)} um"
+                         f"  rms {ax} ={_v(blk['rms_' + ax + '_m'], 8, 4)} m  chv v{ax} ={_v(blk['chv_' + ax + '_um'], 8, 2)} um")
     if ir["control_to_tie_ratio"] is not None:
         L.append(f"  control / tie image residual ratio: {ir['control_to_tie_ratio']:.2f}")
     if ir["warning"]:

@@ -57,9 +57,14 @@ class Executor:
             self._client = Client(self._cluster)
             self.workers = n
         else:
+            import re
+
+            if not re.fullmatch(r"[a-z]+://[^\s/]+:\d+", str(scheduler)):
+                raise OptionError(f"--scheduler {scheduler}: expected synchronous, local:N or the address of a Dask "
+                                  "scheduler such as tcp://host:8786", param="--scheduler")
             try:
                 self._client = Client(scheduler, timeout="20s")
-            except (OSError, TimeoutError) as e:
+            except (OSError, TimeoutError, ValueError) as e:
                 raise OptionError(f"--scheduler {scheduler}: cannot reach the Dask scheduler ({e})", param="--scheduler") from e
             self.workers = max(1, sum(w.get("nthreads", 1) for w in
                                       self._client.scheduler_info()["workers"].values()))

@@ -21,7 +21,7 @@ import sys
 import time
 
 PACKAGES = ("aerotri", "lidarctl", "ortho")
-PROGRESS_INTERVAL_S = float(os.environ.get("AEROTRI_PROGRESS_INTERVAL_S", "30"))
+PROGRESS_INTERVAL_S = 30.0  # default; the environment variable AEROTRI_PROGRESS_INTERVAL_S overrides it
 
 _log = logging.getLogger("aerotri.progress")
 _HANDLER_TAG = "_aerotri_cli_handler"
@@ -66,6 +66,20 @@ def configure(verbosity: int = 0, log_file=None) -> None:
 def is_quiet() -> bool:
     return logging.getLogger("aerotri").getEffectiveLevel() > logging.INFO and not any(
         isinstance(h, logging.FileHandler) for h in logging.getLogger("aerotri").handlers)
+
+
+def _interval_s() -> float:
+    text = os.environ.get("AEROTRI_PROGRESS_INTERVAL_S")
+    if text is None:
+        return PROGRESS_INTERVAL_S
+    try:
+        value = float(text)
+        if value >= 0:
+            return value
+    except ValueError:
+        pass
+    _log.warning(f"AEROTRI_PROGRESS_INTERVAL_S={text!r} is not a number of seconds >= 0; using {PROGRESS_INTERVAL_S:g}")
+    return PROGRESS_INTERVAL_S
 
 
 def _duration(s: float) -> str:
@@ -120,7 +134,7 @@ def progress(total: int | None, desc: str, unit: str = "", **tqdm_kw):
         with tqdm(total=total, desc=desc, unit=unit, leave=False, **tqdm_kw) as bar:
             yield bar
         return
-    rep = _LogProgress(total, desc, unit or "items", PROGRESS_INTERVAL_S)
+    rep = _LogProgress(total, desc, unit or "items", _interval_s())
     try:
         yield rep
     finally:

@@ -22,7 +22,7 @@ from aerotri.core.textio import read_json, read_text
 from aerotri.geom.camera import FrameCamera, observations_without_k3, project_camera
 from aerotri.geom.eo import read_eo
 from aerotri.geom.local_frame import LocalFrame
-from aerotri.geom.observations import ImageObservations, read_control_points, read_image_points
+from aerotri.geom.observations import read_control_points, read_image_points
 from aerotri.geom.rotation import FLIP_YZ
 
 CAL_NAMES = ("fx_px", "fy_px", "skew_px", "u0_px", "v0_px", "k1", "k2", "p1", "p2")

@@ -34,6 +34,11 @@ def _json(path: Path) -> dict:
     return d
 
 
+def _failed(section: str, name: str, why: str) -> dict:
+    """A check that ran but measured nothing: it cannot pass."""
+    return dict(section=section, quantity=name, value=None, limit=None, unit="", note=why, verdict="fail")
+
+
 def _check(section: str, name: str, value, limit, unit: str, note: str = "") -> dict:
     row = dict(section=section, quantity=name, value=value, limit=limit, unit=unit, note=note)
     if value is None or limit is None:
@@ -93,7 +98,10 @@ def build_qa_report(root, tolerance_file=None, terrain: str | None = None, scale
         rows.append(_check(sec, "type II error (objects accepted as ground)", round(ce["type_ii_error_pct"], 3), None, "%"))
         rows.append(_check(sec, "Cohen's kappa", round(ce["kappa_pct"], 2), None, "%"))
     sec = "LiDAR height check"
-    if hc.get("all"):
+    if hc.get("all") and not hc["all"].get("n"):
+        rows.append(_failed(sec, "ground height check", "no surveyed point has ground points within the search radius "
+                                                        "(points in another CRS, or x and y swapped?)"))
+    elif hc.get("all"):
         a = hc["all"]
         rows.append(_check(sec, f"ground height RMSE at {a['n']} surveyed points", round(a["rmse_m"], 4),
                            tol.get("dem_rmse_m"), "m"))
@@ -149,6 +157,10 @@ def build_qa_report(root, tolerance_file=None, terrain: str | None = None, scale
 
     # DOM
     sec = "DOM"
+    if dom.get("count") == 0:
+        rows.append(_failed(sec, "displacement of the DOM", "the check found no usable patch or point (no texture, "
+                                                            "no ground under --max-ndsm-m, or the reference misses the "
+                                                            "DOM)"))
     if dom.get("rms_xy_m") is not None:
         rows.append(_check(sec, "displacement on ground patches, plan RMS", round(dom["rms_xy_m"], 4),
                            tol.get("feature_rms_xy_m"), "m",

@@ -83,3 +83,12 @@ def test_bad_tolerance_settings_are_clear_errors(tmp_path):
     assert r.exit_code == 2 and "no [hilly] section" in r.output and not (p / "reports").exists()
     r = CliRunner().invoke(main, ["report", str(p), "--tolerances", str(bad)])
     assert r.exit_code == 0 and "pass" in r.output
+
+
+def test_a_check_that_measured_nothing_fails(tmp_path):
+    """An empty DOM check (no usable patch) is a failed check, not a missing row and not a pass."""
+    p = _project(tmp_path, [0.1, 0.1, 0.2], None)
+    (p / "ortho" / "dom_report.json").write_text(json.dumps(dict(displacement=dict(count=0, rms_xy_m=None))))
+    rep = write_qa_report(p)
+    by = {r["quantity"]: r for r in rep["checks"]}
+    assert by["displacement of the DOM"]["verdict"] == "fail" and rep["overall"] == "fail"
