@@ -190,21 +190,6 @@ def project_datum_shortfall(root, settings: AdjustSettings | None = None) -> str
     return datum_shortfall(control, st.use_gnss and project.gnss_path.exists(), st.gnss_correction)
 
 
-def observations_without_k3(cam: FrameCamera, xy_px: np.ndarray) -> np.ndarray:
-    """Image measurements of a camera with radial term k3 as the same camera without k3 sees the same rays.
-
-    The adjustment's camera model (Cal3DS2) has k1 k2 p1 p2 only; a known k3 (held fixed) is taken
-    off the measurements instead: x' = x - f xn k3 r^6 (likewise y), with (xn, yn) the normalised ray
-    of the measurement. Exact for a fixed camera; with self-calibrated k1, k2 the ray moves by second
-    order only.
-    """
-    if not cam.k3 or not len(xy_px):
-        return xy_px
-    xn, yn = cam.pixel_to_normalized(xy_px[:, 0], xy_px[:, 1])
-    t = cam.k3 * (xn * xn + yn * yn) ** 3
-    return xy_px - cam.focal_px * np.column_stack([xn * t, yn * t])
-
-
 def _initial_orientations(path, image_ids: list | None, crs=None) -> ExteriorOrientations:
     """Approximate orientations for the adjustment; with ``image_ids`` (GNSS) every image must have one."""
     eo0 = read_eo(path, crs)
@@ -256,8 +241,8 @@ def prepare_project(root, settings: AdjustSettings | None = None):
                         block_path=block_path, camera_path=project.camera_path)
     check_datum(control, gnss is not None, st.gnss_correction)
     # a known k3 is taken off the measurements (Cal3DS2 has no k3; the camera keeps it for the outputs)
-    ties = ImageObservations(ties.point_id, ties.image_id, observations_without_k3(cam, ties.xy_px))
-    cobs = ImageObservations(cobs.point_id, cobs.image_id, observations_without_k3(cam, cobs.xy_px))
+    ties = ImageObservations(ties.point_id, ties.image_id, cam.calibration_observations(ties.xy_px))
+    cobs = ImageObservations(cobs.point_id, cobs.image_id, cam.calibration_observations(cobs.xy_px))
     # images in flight order (id order), drop images without any measurement
     order = np.argsort(np.array(image_ids, dtype=object), kind="stable")
     measured = set(np.unique(ties.image_id).tolist()) | set(np.unique(cobs.image_id).tolist())
