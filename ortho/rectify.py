@@ -2,10 +2,10 @@
 
 For every pixel of the output grid (processed in tiles): the ground position in the project CRS
 (interpolated from an anchor grid of the output->project CRS transform, exact for an identical CRS),
-the height bilinearly from the DEM (or DSM for a true ortho), the collinearity equations with Brown
-lens distortion (``aerotri.geom.camera`` conventions) to image coordinates, then ``cv2.remap``
-(bilinear default, cubic or Lanczos) with fixed-point maps written directly by the kernel. Pixels
-outside the frame, behind the camera or over DEM nodata are invalid (mask 0, value 0).
+the height bilinearly from the DEM (or DSM for a true ortho), the collinearity equations with the
+camera's lens model (``aerotri.geom.lens_kernels``, inlined into the kernels here) to image coordinates,
+then ``cv2.remap`` (bilinear default, cubic or Lanczos) with fixed-point maps written directly by the
+kernel. Pixels outside the frame, behind the camera or over DEM nodata are invalid (mask 0, value 0).
 
 The collinearity is evaluated exactly at every output pixel in a compiled, vectorised kernel (about
 300 MP/s per core on AVX-512): cheaper than interpolating image coordinates from a coarse anchor
@@ -37,8 +37,9 @@ import cv2
 import numba
 import numpy as np
 
-from aerotri.geom.camera import FrameCamera
 from aerotri.core.errors import InputError
+from aerotri.geom.camera import Camera
+from aerotri.geom.lens_kernels import to_pixel
 from aerotri.geom.rotation import FLIP_YZ
 from ortho.dem import HeightRaster
 from ortho.grid import GridToProject, OrthoGrid
@@ -78,16 +79,6 @@ def _dem_height(dem, X, Y, dem_x0, dem_y0, dem_res):
 
 
 @numba.njit(cache=True, inline="always", fastmath=_FASTMATH)
-def _lens_to_pixel(xn, yn, f, cx, cy, k1, k2, k3, p1, p2):
-    """Pixel position (x, y) of normalised camera coordinates: radial k1-k3 and tangential p1, p2
-    distortion, focal length and principal point in pixels (the ``cam`` kernel parameters)."""
-    r2 = xn * xn + yn * yn
-    radial = 1.0 + r2 * (k1 + r2 * (k2 + r2 * k3))
-    return (f * (xn * radial + 2.0 * p1 * xn * yn + p2 * (r2 + 2.0 * xn * xn)) + cx,
-            f * (yn * radial + p1 * (r2 + 2.0 * yn * yn) + 2.0 * p2 * xn * yn) + cy)
-
-
-@numba.njit(cache=True, inline="always", fastmath=_FASTMATH)
 def _fixed_point_entry(x, y, in_front, x_lo, x_hi, y_lo, y_hi, far):
     """cv2.remap 1/32 px fixed-point x, y and mask (255/0) of one output pixel. Where imaged x, y >= 0,
     so truncation rounds; not imaged: ``far`` outside the image, branch-free (a select, vectorisable)."""
@@ -123,7 +114,7 @@ def _ground_to_image(r, c, inv_s, anchor_x, anchor_y, dem, dem_x0, dem_y0, dem_r
         return Z, 0.0, 0.0, False
     xn = (M[0, 0] * dx + M[0, 1] * dy + M[0, 2] * dz) / zc
     yn = (M[1, 0] * dx + M[1, 1] * dy + M[1, 2] * dz) / zc
-    x, y = _lens_to_pixel(xn, yn, cam[0], cam[1], cam[2], cam[3], cam[4], cam[5], cam[6], cam[7])
+    x, y = to_pixel(cam, xn, yn)
     ok = x >= margin and x <= width - 1 - margin and y >= margin and y <= height - 1 - margin
     return Z, x, y, ok
 
@@ -133,8 +124,9 @@ def _backproject_kernel(anchor_x, anchor_y, spacing, rows, cols, dem, dem_x0, de
                         centre, M, cam, width, height, margin, map_x, map_y, height_out):
     """Float image coordinates (map_x, map_y; -1e5 where not imaged) and heights of a rows x cols tile.
 
-    cam = (f_px, cx_px, cy_px, k1, k2, k3, p1, p2); M = (R @ FLIP_YZ).T maps object offsets to the
-    computer-vision camera frame.
+    cam: the camera's kernel parameters (``Camera.kernel_params()``, any model of
+    ``aerotri.geom.lens_kernels``); M = (R @ FLIP_YZ).T maps object offsets to the computer-vision camera
+    frame.
     """
     inv_s = 1.0 / spacing
     for r in numba.prange(rows):
@@ -165,7 +157,6 @@ def _fixed_point_kernel(anchor_x, anchor_y, spacing, rows, cols, dem, dem_x0, de
     Not-imaged pixels point far outside the image, so cv2.remap with a constant border gives 0.
     Loop invariants are hoisted by hand (LLVM cannot prove the output arrays do not alias them)."""
     inv_s = 1.0 / spacing
-    f, cx, cy, k1, k2, k3, p1, p2 = cam[0], cam[1], cam[2], cam[3], cam[4], cam[5], cam[6], cam[7]
     m00, m01, m02, m10, m11, m12, m20, m21, m22 = (M[0, 0], M[0, 1], M[0, 2], M[1, 0], M[1, 1], M[1, 2],
                                                    M[2, 0], M[2, 1], M[2, 2])
     c0, c1, c2 = centre[0], centre[1], centre[2]
@@ -195,7 +186,7 @@ def _fixed_point_kernel(anchor_x, anchor_y, spacing, rows, cols, dem, dem_x0, de
             inv_zc = 1.0 / zc
             xn = (m00 * dx + m01 * dy + m02 * dz) * inv_zc
             yn = (m10 * dx + m11 * dy + m12 * dz) * inv_zc
-            x, y = _lens_to_pixel(xn, yn, f, cx, cy, k1, k2, k3, p1, p2)
+            x, y = to_pixel(cam, xn, yn)
             ix_row[c], iy_row[c], mask_row[c] = _fixed_point_entry(x, y, zc > 0.0, x_lo, x_hi, y_lo, y_hi, far)
         _pack_fixed_point(ix_row, iy_row, map_int[r], map_frac[r])
 
@@ -261,15 +252,14 @@ def _occlusion_kernel(anchor_x, anchor_y, spacing, rows, cols, height_tile, dsm,
 class FrameGeometry:
     """The per-frame inputs of the back-projection."""
 
-    camera: FrameCamera
+    camera: Camera
     centre_m: np.ndarray
     R: np.ndarray
 
     def kernel_args(self):
         cam = self.camera
         M = np.ascontiguousarray((np.asarray(self.R, float) @ FLIP_YZ).T)
-        params = np.array([cam.focal_px, cam.cx_px, cam.cy_px, cam.k1, cam.k2, cam.k3, cam.p1, cam.p2], dtype=np.float64)
-        return np.asarray(self.centre_m, dtype=np.float64), M, params
+        return np.asarray(self.centre_m, dtype=np.float64), M, cam.kernel_params()
 
 
 @numba.njit(cache=True, nogil=True, fastmath=_FASTMATH, error_model="numpy")
@@ -283,7 +273,6 @@ def _fixed_point_kernel_affine(heights, x0, y0, res, centre, M, cam, width, heig
     fail the range test.
     """
     rows, cols = heights.shape
-    f, cx, cy, k1, k2, k3, p1, p2 = cam[0], cam[1], cam[2], cam[3], cam[4], cam[5], cam[6], cam[7]
     x_lo, x_hi, y_lo, y_hi = margin, width - 1 - margin, margin, height - 1 - margin
     m02, m12, m22 = M[0, 2], M[1, 2], M[2, 2]
     sx, sy, sz = M[0, 0] * res, M[1, 0] * res, M[2, 0] * res
@@ -304,7 +293,7 @@ def _fixed_point_kernel_affine(heights, x0, y0, res, centre, M, cam, width, heig
             inv_zc = 1.0 / zc
             xn = (bx + c * sx + m02 * dz) * inv_zc
             yn = (by + c * sy + m12 * dz) * inv_zc
-            x, y = _lens_to_pixel(xn, yn, f, cx, cy, k1, k2, k3, p1, p2)
+            x, y = to_pixel(cam, xn, yn)
             ix_row[c], iy_row[c], mask_row[c] = _fixed_point_entry(x, y, zc > 0.0, x_lo, x_hi, y_lo, y_hi, far)
         _pack_fixed_point(ix_row, iy_row, map_int[r], map_frac[r])
 
@@ -453,7 +442,7 @@ def ordered_thread_map(fn, items, threads: int, ahead: int | None = None):
                 f.cancel()
 
 
-def rectify_frame(image: np.ndarray, camera: FrameCamera, centre_m, R, dem_dataset: HeightRaster, grid: OrthoGrid,
+def rectify_frame(image: np.ndarray, camera: Camera, centre_m, R, dem_dataset: HeightRaster, grid: OrthoGrid,
                   interpolation: str = "bilinear", to_project: GridToProject | None = None,
                   occlusion_dsm: HeightRaster | None = None, tile_px: int = 1024, sink=None, threads: int | None = None,
                   sink_bands_first: bool = False):
@@ -544,7 +533,7 @@ def rectify_frame(image: np.ndarray, camera: FrameCamera, centre_m, R, dem_datas
 
 # -- footprints -------------------------------------------------------------------------------------
 
-def border_pixels(camera: FrameCamera, per_side: int = 64) -> tuple[np.ndarray, np.ndarray]:
+def border_pixels(camera: Camera, per_side: int = 64) -> tuple[np.ndarray, np.ndarray]:
     """Pixel coordinates along the outer edge of the frame (closed ring, counter-clockwise in the image)."""
     t = np.linspace(0.0, 1.0, per_side, endpoint=False)
     W, H = camera.width - 1.0, camera.height - 1.0
@@ -553,7 +542,7 @@ def border_pixels(camera: FrameCamera, per_side: int = 64) -> tuple[np.ndarray, 
     return x, y
 
 
-def intersect_rays_with_heights(camera: FrameCamera, centre_m, R, x_px, y_px, heights: HeightRaster, z_start_m: float,
+def intersect_rays_with_heights(camera: Camera, centre_m, R, x_px, y_px, heights: HeightRaster, z_start_m: float,
                                 iterations: int = 30, image_id: str = "frame"):
     """Ground points (N, 3) where the rays of pixels meet the height raster (fixed-point iteration on Z).
 
@@ -586,7 +575,7 @@ def intersect_rays_with_heights(camera: FrameCamera, centre_m, R, x_px, y_px, he
     return np.stack([C[0] + t * d[:, 0], C[1] + t * d[:, 1], Z], axis=-1)
 
 
-def frame_grid(camera: FrameCamera, centre_m, R, heights: HeightRaster, res_m: float, output_crs, to_project: GridToProject,
+def frame_grid(camera: Camera, centre_m, R, heights: HeightRaster, res_m: float, output_crs, to_project: GridToProject,
                image_id: str = "frame") -> OrthoGrid:
     """The snapped output grid covering the ground footprint of a frame on the height raster."""
     x, y = border_pixels(camera)
@@ -597,7 +586,7 @@ def frame_grid(camera: FrameCamera, centre_m, R, heights: HeightRaster, res_m: f
     return OrthoGrid.snapped(output_crs, (np.min(ox) - pad, np.min(oy) - pad, np.max(ox) + pad, np.max(oy) + pad), res_m)
 
 
-def footprint_polygon_xy(camera: FrameCamera, centre_m, R, heights: HeightRaster, to_project: GridToProject,
+def footprint_polygon_xy(camera: Camera, centre_m, R, heights: HeightRaster, to_project: GridToProject,
                          image_id: str = "frame", per_side: int = 16) -> np.ndarray:
     """Footprint ring (N, 2) in output-CRS coordinates."""
     x, y = border_pixels(camera, per_side)

@@ -14,7 +14,8 @@ import cv2
 import numba
 import numpy as np
 
-from aerotri.geom.camera import FrameCamera
+from aerotri.geom.camera import Camera, FrameCamera
+from aerotri.geom.lens_kernels import to_normalised
 from aerotri.geom.rotation import FLIP_YZ
 from ortho.dem import HeightRaster
 from ortho.grid import OrthoGrid
@@ -105,21 +106,10 @@ def _sample_bilinear(a, u, v):
 @numba.njit(parallel=True, cache=True)
 def _render_kernel(ref, ref_x0, ref_y0, ref_res, dem, dem_x0, dem_y0, dem_res, z_start, centre, Rcv, cam, out, valid,
                    march, z_top):
-    f, cx, cy, k1, k2, k3, p1, p2 = cam[0], cam[1], cam[2], cam[3], cam[4], cam[5], cam[6], cam[7]
     H, W, B = out.shape
     for r in numba.prange(H):
         for c in range(W):
-            xd = (c - cx) / f
-            yd = (r - cy) / f
-            xn = xd
-            yn = yd
-            for _ in range(20):  # undistort by fixed-point iteration (as FrameCamera.undistort)
-                r2 = xn * xn + yn * yn
-                radial = 1.0 + r2 * (k1 + r2 * (k2 + r2 * k3))
-                dx = 2.0 * p1 * xn * yn + p2 * (r2 + 2.0 * xn * xn)
-                dy = p1 * (r2 + 2.0 * yn * yn) + 2.0 * p2 * xn * yn
-                xn = (xd - dx) / radial
-                yn = (yd - dy) / radial
+            xn, yn = to_normalised(cam, float(c), float(r), 20)  # as Camera.pixel_to_normalized
             # object-space ray d = Rcv @ (xn, yn, 1)
             d0 = Rcv[0, 0] * xn + Rcv[0, 1] * yn + Rcv[0, 2]
             d1 = Rcv[1, 0] * xn + Rcv[1, 1] * yn + Rcv[1, 2]
@@ -188,7 +178,7 @@ def _render_kernel(ref, ref_x0, ref_y0, ref_res, dem, dem_x0, dem_y0, dem_res, z
             valid[r, c] = True
 
 
-def render_frame(reference: np.ndarray, reference_grid: OrthoGrid, dem: HeightRaster, camera: FrameCamera, centre_m, R,
+def render_frame(reference: np.ndarray, reference_grid: OrthoGrid, dem: HeightRaster, camera: Camera, centre_m, R,
                  march: bool = False):
     """Render a frame (height, width, bands) uint8 and its validity mask from a ground-truth orthophoto.
 
@@ -199,7 +189,7 @@ def render_frame(reference: np.ndarray, reference_grid: OrthoGrid, dem: HeightRa
     out = np.zeros((camera.height, camera.width, ref.shape[2]), np.uint8)
     valid = np.zeros((camera.height, camera.width), np.bool_)
     Rcv = np.ascontiguousarray(np.asarray(R, float) @ FLIP_YZ)
-    cam = np.array([camera.focal_px, camera.cx_px, camera.cy_px, camera.k1, camera.k2, camera.k3, camera.p1, camera.p2])
+    cam = camera.kernel_params()
     z0 = float(np.nanmean(dem.heights_m))
     _render_kernel(ref, reference_grid.x_left_m, reference_grid.y_top_m, reference_grid.res_m, dem.heights_m,
                    dem.x_left_m, dem.y_top_m, dem.res_m, z0, np.asarray(centre_m, float), Rcv, cam, out, valid,

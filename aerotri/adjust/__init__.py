@@ -2,7 +2,8 @@
 
 Modules, one concept each: ``local_frame`` (tangent-plane frame), ``observations`` (CSV readers and
 validation), ``strips`` (strips from the GNSS track), ``approximate`` (initial exterior orientation),
-``graph`` (the GTSAM factor graph, vectorised collinearity), ``schur`` (tie points eliminated by the
+``keys`` (the gtsam symbols of the unknowns), ``collinearity`` (the collinearity equations with Cal3DS2
+over arrays), ``graph`` (the GTSAM factor graph), ``schur`` (tie points eliminated by the
 Schur complement: the reduced camera system, linearised in numba), ``datum`` (the block moved by a
 similarity onto its control points: the datum step of blocks without GNSS), ``snooping`` (data snooping),
 ``solve`` (robust solution, snooping and control-point tests, final least squares),

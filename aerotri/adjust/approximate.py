@@ -18,7 +18,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from aerotri.adjust.check_points import intersect_rays, pixel_rays, sum_by_index
+from aerotri.adjust.check_points import intersect_rays, sum_by_index
+from aerotri.adjust.collinearity import pixel_rays
 from aerotri.geom.rotation import FLIP_YZ, rotation_matrix_opk
 
 

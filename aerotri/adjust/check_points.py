@@ -11,7 +11,10 @@ from __future__ import annotations
 
 import numpy as np
 
-from aerotri.adjust.graph import K_KEY, X, jacobians_cv, point_jacobian_cv, point_normals, project_cv
+from aerotri.adjust.collinearity import jacobians_cv, pixel_rays, point_jacobian_cv, point_normals, project_cv
+from aerotri.adjust.keys import K_KEY, X
+
+__all__ = ["intersect", "intersect_rays", "intersect_with_covariance", "pixel_rays", "refine_points", "sum_by_index"]
 
 
 def intersect_rays(centres, directions, point_index, n_points):
@@ -24,21 +27,6 @@ def intersect_rays(centres, directions, point_index, n_points):
     out = np.full((n_points, 3), np.nan)
     out[ok] = np.linalg.solve(N[ok], b[ok][..., None])[..., 0]
     return out, ok
-
-
-def pixel_rays(xy_px, R_cv, cal, iterations: int = 10):
-    """Object-space ray directions (K, 3) of pixels for cameras with rotation R_cv and Cal3DS2 values."""
-    fx, fy, s, u0, v0, k1, k2, p1, p2 = cal
-    yd = (xy_px[:, 1] - v0) / fy
-    xd = (xy_px[:, 0] - u0 - s * yd) / fx
-    xn, yn = xd.copy(), yd.copy()
-    for _ in range(iterations):
-        r2 = xn * xn + yn * yn
-        radial = 1.0 + k1 * r2 + k2 * r2 * r2
-        xn = (xd - 2 * p1 * xn * yn - p2 * (r2 + 2 * xn * xn)) / radial
-        yn = (yd - p1 * (r2 + 2 * yn * yn) - 2 * p2 * xn * yn) / radial
-    d = np.column_stack([xn, yn, np.ones_like(xn)])
-    return np.einsum("kij,kj->ki", R_cv, d)
 
 
 def sum_by_index(index, values, n):

@@ -18,6 +18,8 @@ import scipy.linalg
 from threadpoolctl import threadpool_limits
 
 from aerotri.adjust import graph as G
+from aerotri.adjust.collinearity import jacobians_cv, point_normals, project_cv
+from aerotri.adjust.keys import K_KEY, X
 
 _DIM = {"x": 6, "k": 9}
 
@@ -101,13 +103,13 @@ def point_covariances(block: "G.Block", state: "G.State", obs_active, sigma_px: 
     """Unit-weight covariances (P, 3, 3) of all object points in the local frame (NaN for unused)."""
     k = np.flatnonzero(obs_active)
     pt, im = block.obs_point[k], block.obs_image[k]
-    _, pc = G.project_cv(state.points[pt], state.centre[im], state.R_cv[im], state.cal)
-    out = G.jacobians_cv(pc, state.R_cv[im], state.cal, with_cal=self_cal)
+    _, pc = project_cv(state.points[pt], state.centre[im], state.R_cv[im], state.cal)
+    out = jacobians_cv(pc, state.R_cv[im], state.cal, with_cal=self_cal)
     Jp, Jc = out[0], out[1]
     if self_cal:
         Jc = np.concatenate([Jc, out[2]], axis=2)
     w = 1.0 / sigma_px**2
-    V = w * G.point_normals(Jp, pt, block.n_points)
+    V = w * point_normals(Jp, pt, block.n_points)
     for c, j in enumerate(block.control_point):
         if np.any(pt == j):
             V[j] += np.linalg.inv(block.control_cov_local[c])
@@ -118,10 +120,10 @@ def point_covariances(block: "G.Block", state: "G.State", obs_active, sigma_px: 
     # G_k = V^-1 W_k for each ray (3 x 6 or 3 x 15)
     Gk = np.einsum("kij,kaj,kab->kib", Vinv[pt], Jp, Jc) * w
     # indices of each ray's orientation (+ calibration) parameters in the reduced covariance
-    pose_off = np.array([rc.offset[G.X(i)] for i in range(block.n_images)])
+    pose_off = np.array([rc.offset[X(i)] for i in range(block.n_images)])
     idx = pose_off[im][:, None] + np.arange(6)[None]
     if self_cal:
-        idx = np.concatenate([idx, np.broadcast_to(rc.offset[G.K_KEY] + np.arange(9), (len(k), 9))], axis=1)
+        idx = np.concatenate([idx, np.broadcast_to(rc.offset[K_KEY] + np.arange(9), (len(k), 9))], axis=1)
     # all ray pairs (a, b) of the same point
     order = np.argsort(pt, kind="stable")
     pts_sorted = pt[order]

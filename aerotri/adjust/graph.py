@@ -44,21 +44,18 @@ import gtsam
 import numpy as np
 
 from aerotri.adjust import datum, schur
-from aerotri.geom.camera import FrameCamera
+from aerotri.adjust.check_points import intersect
+from aerotri.adjust.collinearity import point_jacobian_cv, point_normals, project_cv
+from aerotri.adjust.keys import A, D, K_KEY, L_KEY, P, S, X
 from aerotri.adjust.settings import GNSS_CORRECTIONS, SELF_CAL_GROUP_NAMES
 from aerotri.core.errors import InputError, SolveError
+from aerotri.geom.camera import SELF_CALIBRATION_GROUPS, Camera
 from aerotri.geom.rotation import FLIP_YZ
 
-X = lambda i: gtsam.symbol("x", int(i))  # noqa: E731
-P = lambda j: gtsam.symbol("p", int(j))  # noqa: E731
-A = lambda i: gtsam.symbol("a", int(i))  # noqa: E731
-S = lambda s: gtsam.symbol("s", int(s))  # noqa: E731
-D = lambda s: gtsam.symbol("d", int(s))  # noqa: E731
-K_KEY = gtsam.symbol("k", 0)
-L_KEY = gtsam.symbol("l", 0)
-
-SELF_CAL_GROUPS = {"focal": (0, 1), "pp": (3, 4), "radial": (5, 6), "tangential": (7, 8)}
-assert tuple(SELF_CAL_GROUPS) == SELF_CAL_GROUP_NAMES
+# every self-calibration group a camera model offers; which Cal3DS2 entries each frees is the camera's
+# ``SELF_CAL_GROUPS``
+SELF_CAL_GROUPS = SELF_CALIBRATION_GROUPS
+assert tuple(SELF_CAL_GROUPS) == SELF_CAL_GROUP_NAMES  # the light settings module spells them out
 LOOSE_SIGMA_M = 1.0e3  # sigma of the unconstrained components of horizontal/height control
 
 
@@ -67,7 +64,7 @@ class Block:
     """Adjustment inputs in the local frame; observations refer to images and points by index."""
 
     image_id: list[str]
-    camera: FrameCamera  # a-priori interior orientation
+    camera: Camera  # a-priori interior orientation
     point_id: np.ndarray  # (P,) tie and control point ids
     obs_point: np.ndarray  # (K,) int
     obs_image: np.ndarray  # (K,) int
@@ -131,28 +128,17 @@ class State:
         return State(*(np.array(getattr(self, f.name), copy=True) for f in dataclasses.fields(self)))
 
 
-def cal_from_camera(cam: FrameCamera) -> np.ndarray:
-    f = cam.focal_px
-    return np.array([f, f, 0.0, cam.cx_px, cam.cy_px, cam.k1, cam.k2, cam.p1, cam.p2])
+def cal_from_camera(cam: Camera) -> np.ndarray:
+    """The Cal3DS2 values of a camera (``Camera.calibration_vector``)."""
+    return cam.calibration_vector()
 
 
-def camera_from_cal(cal, like: FrameCamera) -> FrameCamera:
-    """FrameCamera from Cal3DS2 values (fx and fy averaged into the focal length)."""
-    f_px = 0.5 * (cal[0] + cal[1])
-    pix_mm = like.pixel_um / 1000.0
-    return dataclasses.replace(
-        like,
-        focal_mm=float(f_px * pix_mm),
-        ppx_mm=float((cal[3] - (like.width - 1) / 2.0) * pix_mm),
-        ppy_mm=float(-(cal[4] - (like.height - 1) / 2.0) * pix_mm),
-        k1=float(cal[5]),
-        k2=float(cal[6]),
-        p1=float(cal[7]),
-        p2=float(cal[8]),
-    )
+def camera_from_cal(cal, like: Camera) -> Camera:
+    """``like`` with the interior orientation of Cal3DS2 values (``Camera.from_calibration_vector``)."""
+    return like.from_calibration_vector(cal)
 
 
-def fixed_parameter_sigmas(cam: FrameCamera, cal, effect_px: float = 0.01) -> np.ndarray:
+def fixed_parameter_sigmas(cam: Camera, cal, effect_px: float = 0.01) -> np.ndarray:
     """Prior sigmas (9,) that hold calibration parameters which are not estimated: each may move the
     image corner by ``effect_px`` at most. Tighter priors (1e-8) add information of 1e16 to the normal
     equations, which makes the Cholesky factorisation fail at small LM damping (LM then crawls)."""
@@ -331,8 +317,12 @@ def build_graph(block: Block, opts: Options, state: State, obs_active, control_a
         v.insert(K_KEY, _cal3ds2(state.cal))
         sig = np.array([200.0, 200.0, 1e-3, 200.0, 200.0, 0.05, 0.05, 0.01, 0.01])  # loose a-priori
         fixed = np.ones(9, dtype=bool)
+        groups = block.camera.SELF_CAL_GROUPS
         for grp in opts.self_calibration:
-            fixed[list(SELF_CAL_GROUPS[grp])] = False
+            if grp not in groups:
+                raise InputError(f"self-calibration group {grp!r}: the {block.camera.MODEL} camera model has only "
+                                 f"{', '.join(groups)}")
+            fixed[list(groups[grp])] = False
         # the prior is the a-priori camera, wherever this solve starts: a prior re-centred on the state of
         # each rebuild (robust rounds, snooping) would let the parameters held fixed drift by a sigma per round
         apriori = cal_from_camera(block.camera)
@@ -495,8 +485,6 @@ def _datum_step(gr: Graph, values: gtsam.Values, coords: np.ndarray, cost: float
     with a single ray or nearly parallel rays only follow. Orientations and tie points move with the
     similarity (their rays do not change); each control point becomes its moved intersection combined
     with its given coordinates (the least-squares estimate from both, linearised)."""
-    from aerotri.adjust.check_points import intersect  # check_points imports this module
-
     dc = gr.datum
     centre, R_cv, cal = gr.tie._cameras(values, gr.n_images)
     now = np.array([values.atPoint3(P(j)) for j in dc.point.tolist()])
@@ -643,95 +631,6 @@ def state_from_values(values: gtsam.Values, block: Block, opts: Options, previou
         if values.exists(D(s)):
             st.drift[s] = values.atPoint3(D(s))
     return st
-
-
-# -- vectorised collinearity (numpy) for residuals and intersections ---------------------------
-def project_cv(points, centre, R_cv, cal):
-    """Pixel coordinates (K, 2) and camera coordinates (K, 3) of points in cameras (per-row arrays)."""
-    pc = np.einsum("kji,kj->ki", R_cv, points - centre)  # R^T (P - C)
-    z = pc[:, 2]
-    xn, yn = pc[:, 0] / z, pc[:, 1] / z
-    fx, fy, s, u0, v0, k1, k2, p1, p2 = cal
-    r2 = xn * xn + yn * yn
-    radial = 1.0 + k1 * r2 + k2 * r2 * r2
-    xd = xn * radial + 2 * p1 * xn * yn + p2 * (r2 + 2 * xn * xn)
-    yd = yn * radial + p1 * (r2 + 2 * yn * yn) + 2 * p2 * xn * yn
-    return np.column_stack([fx * xd + s * yd + u0, fy * yd + v0]), pc
-
-
-def _dpixel_dpc(pc, cal):
-    """d(pixel)/d(camera coordinates) (K, 2, 3) with lens distortion."""
-    fx, fy, s, u0, v0, k1, k2, p1, p2 = cal
-    z = pc[:, 2]
-    xn, yn = pc[:, 0] / z, pc[:, 1] / z
-    r2 = xn * xn + yn * yn
-    radial = 1.0 + k1 * r2 + k2 * r2 * r2
-    dr = k1 + 2.0 * k2 * r2  # d radial / d r2
-    Jd = np.empty((len(pc), 2, 2))  # d(xd, yd) / d(xn, yn)
-    Jd[:, 0, 0] = radial + 2 * xn * xn * dr + 2 * p1 * yn + 6 * p2 * xn
-    Jd[:, 0, 1] = 2 * xn * yn * dr + 2 * p1 * xn + 2 * p2 * yn
-    Jd[:, 1, 0] = 2 * xn * yn * dr + 2 * p1 * xn + 2 * p2 * yn
-    Jd[:, 1, 1] = radial + 2 * yn * yn * dr + 6 * p1 * yn + 2 * p2 * xn
-    Jn = np.zeros((len(pc), 2, 3))  # d(xn, yn) / d pc
-    Jn[:, 0, 0] = 1.0 / z
-    Jn[:, 0, 2] = -xn / z
-    Jn[:, 1, 1] = 1.0 / z
-    Jn[:, 1, 2] = -yn / z
-    return np.array([[fx, s], [0.0, fy]]) @ Jd @ Jn
-
-
-def point_jacobian_cv(pc, R_cv, cal):
-    """d(pixel)/d(object point) (K, 2, 3)."""
-    return _dpixel_dpc(pc, cal) @ np.swapaxes(R_cv, -1, -2)
-
-
-def point_normals(J_point, point_index, n_points, residual=None):
-    """Normal matrices ``sum J^T J`` (n, 3, 3) of each object point from its rays' d(pixel)/d(point)
-    (K, 2, 3), unit weights; with ``residual`` (K, 2) also the right-hand sides ``sum J^T v`` (n, 3)."""
-    N = np.empty((n_points, 3, 3))
-    for i, j in ((0, 0), (0, 1), (0, 2), (1, 1), (1, 2), (2, 2)):  # bincount over products: np.add.at is slow
-        N[:, i, j] = N[:, j, i] = np.bincount(point_index, J_point[:, 0, i] * J_point[:, 0, j] + J_point[:, 1, i] * J_point[:, 1, j],
-                                              minlength=n_points)
-    if residual is None:
-        return N
-    b = np.column_stack([np.bincount(point_index, J_point[:, 0, i] * residual[:, 0] + J_point[:, 1, i] * residual[:, 1],
-                                     minlength=n_points) for i in range(3)])
-    return N, b
-
-
-def jacobians_cv(pc, R_cv, cal, with_cal: bool = False):
-    """d(pixel)/d(point) (K, 2, 3), d(pixel)/d(pose tangent [omega, v]) (K, 2, 6) and, with ``with_cal``,
-    d(pixel)/d(Cal3DS2 [fx fy s u0 v0 k1 k2 p1 p2]) (K, 2, 9); lens distortion included.
-
-    Pose perturbation as in gtsam (right): R -> R Exp(omega), C -> C + R v, so d pc/d omega = [pc]x,
-    d pc/d v = -I.
-    """
-    Jp = _dpixel_dpc(pc, cal)
-    J_point = Jp @ np.swapaxes(R_cv, -1, -2)
-    skew = np.zeros((len(pc), 3, 3))
-    skew[:, 0, 1], skew[:, 0, 2] = -pc[:, 2], pc[:, 1]
-    skew[:, 1, 0], skew[:, 1, 2] = pc[:, 2], -pc[:, 0]
-    skew[:, 2, 0], skew[:, 2, 1] = -pc[:, 1], pc[:, 0]
-    J_pose = np.concatenate([Jp @ skew, -Jp], axis=2)
-    if not with_cal:
-        return J_point, J_pose
-    fx, fy, s, u0, v0, k1, k2, p1, p2 = cal
-    xn, yn = pc[:, 0] / pc[:, 2], pc[:, 1] / pc[:, 2]
-    r2 = xn * xn + yn * yn
-    radial = 1.0 + k1 * r2 + k2 * r2 * r2
-    xd = xn * radial + 2 * p1 * xn * yn + p2 * (r2 + 2 * xn * xn)
-    yd = yn * radial + p1 * (r2 + 2 * yn * yn) + 2 * p2 * xn * yn
-    Jc = np.zeros((len(pc), 2, 9))
-    Jc[:, 0, 0], Jc[:, 0, 2], Jc[:, 0, 3] = xd, yd, 1.0
-    Jc[:, 1, 1], Jc[:, 1, 4] = yd, 1.0
-    # distortion parameters: d(xd, yd)/d(k1 k2 p1 p2), then through [[fx, s], [0, fy]]
-    dD = np.zeros((len(pc), 2, 4))
-    dD[:, 0, 0], dD[:, 1, 0] = xn * r2, yn * r2
-    dD[:, 0, 1], dD[:, 1, 1] = xn * r2 * r2, yn * r2 * r2
-    dD[:, 0, 2], dD[:, 1, 2] = 2 * xn * yn, r2 + 2 * yn * yn
-    dD[:, 0, 3], dD[:, 1, 3] = r2 + 2 * xn * xn, 2 * xn * yn
-    Jc[:, :, 5:] = np.array([[fx, s], [0.0, fy]]) @ dD
-    return J_point, J_pose, Jc
 
 
 def image_residuals(block: Block, state: State) -> np.ndarray:

@@ -34,7 +34,7 @@ from aerotri.geom.observations import (
 )
 from aerotri.adjust.solve import AdjustmentResult, adjust_block, check_point_errors
 from aerotri.geom.strips import along_track_km, strips_from_track
-from aerotri.geom.camera import FrameCamera, observations_without_k3, project_camera
+from aerotri.geom.camera import FrameCamera, project_camera
 from aerotri.geom.eo import ExteriorOrientations, check_block_crs, read_eo, read_gnss
 from aerotri.core.config import config_number, config_vector
 from aerotri.core.errors import InputError, OptionError, SolveError
@@ -240,8 +240,8 @@ def read_inputs(project: Project, settings: AdjustSettings | None = None) -> Pro
                         camera_path=project.camera_path)
     check_datum(control, gnss is not None, st.gnss_correction)
     # a known k3 is taken off the measurements (Cal3DS2 has no k3; the camera keeps it for the outputs)
-    ties = ImageObservations(ties.point_id, ties.image_id, observations_without_k3(cam, ties.xy_px))
-    cobs = ImageObservations(cobs.point_id, cobs.image_id, observations_without_k3(cam, cobs.xy_px))
+    ties = ImageObservations(ties.point_id, ties.image_id, cam.calibration_observations(ties.xy_px))
+    cobs = ImageObservations(cobs.point_id, cobs.image_id, cam.calibration_observations(cobs.xy_px))
     return ProjectInputs(project=project, settings=st, camera=cam, ties=ties, control=control, control_obs=cobs,
                          image_ids=image_ids, approx_position_map=approx_pos_map, gnss=gnss, initial_eo=eo0,
                          gnss_sigma_m=gnss_sigma)

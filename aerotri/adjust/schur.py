@@ -37,6 +37,8 @@ import gtsam
 import numba
 import numpy as np
 
+from aerotri.geom.lens_kernels import brown_coefficient_jacobian, brown_distort, brown_distort_jacobian
+
 
 @dataclasses.dataclass
 class RayPairs:
@@ -110,7 +112,7 @@ class ReducedSystem:
 def _ray(xy, centre, R, point, cal, inv_sigma, A, B, r, C, with_cal):
     """Whitened residual r (2,) and Jacobians of the prediction A (2, 6) wrt the pose tangent, B (2, 3) wrt
     the point and, ``with_cal``, C (2, 9) wrt Cal3DS2 [fx fy s u0 v0 k1 k2 p1 p2] of one ray; returns False
-    behind the camera."""
+    behind the camera. The lens arithmetic is the Brown model's (``aerotri.geom.lens_kernels``)."""
     d0, d1, d2 = point[0] - centre[0], point[1] - centre[1], point[2] - centre[2]
     x = R[0, 0] * d0 + R[1, 0] * d1 + R[2, 0] * d2  # R^T (P - C)
     y = R[0, 1] * d0 + R[1, 1] * d1 + R[2, 1] * d2
@@ -119,16 +121,11 @@ def _ray(xy, centre, R, point, cal, inv_sigma, A, B, r, C, with_cal):
         return False
     fx, fy, s, u0, v0, k1, k2, p1, p2 = cal[0], cal[1], cal[2], cal[3], cal[4], cal[5], cal[6], cal[7], cal[8]
     xn, yn = x / z, y / z
-    r2 = xn * xn + yn * yn
-    radial = 1.0 + k1 * r2 + k2 * r2 * r2
-    xd = xn * radial + 2.0 * p1 * xn * yn + p2 * (r2 + 2.0 * xn * xn)
-    yd = yn * radial + p1 * (r2 + 2.0 * yn * yn) + 2.0 * p2 * xn * yn
+    # Cal3DS2 is the Brown lens without k3
+    xd, yd = brown_distort(xn, yn, k1, k2, 0.0, p1, p2)
     r[0] = (xy[0] - (fx * xd + s * yd + u0)) * inv_sigma
     r[1] = (xy[1] - (fy * yd + v0)) * inv_sigma
-    dr = k1 + 2.0 * k2 * r2
-    a00 = radial + 2.0 * xn * xn * dr + 2.0 * p1 * yn + 6.0 * p2 * xn  # d(xd, yd) / d(xn, yn)
-    a01 = 2.0 * xn * yn * dr + 2.0 * p1 * xn + 2.0 * p2 * yn
-    a11 = radial + 2.0 * yn * yn * dr + 6.0 * p1 * yn + 2.0 * p2 * xn
+    a00, a01, _, a11 = brown_distort_jacobian(xn, yn, k1, k2, 0.0, p1, p2)  # d(xd, yd) / d(xn, yn)
     # d pixel / d (xn, yn), whitened
     m00, m01 = (fx * a00 + s * a01) * inv_sigma, (fx * a01 + s * a11) * inv_sigma
     m10, m11 = fy * a01 * inv_sigma, fy * a11 * inv_sigma
@@ -152,11 +149,13 @@ def _ray(xy, centre, R, point, cal, inv_sigma, A, B, r, C, with_cal):
     if with_cal:
         C[0, 0], C[0, 1], C[0, 2], C[0, 3], C[0, 4] = xd * inv_sigma, 0.0, yd * inv_sigma, inv_sigma, 0.0
         C[1, 0], C[1, 1], C[1, 2], C[1, 3], C[1, 4] = 0.0, yd * inv_sigma, 0.0, 0.0, inv_sigma
-        # d(xd, yd) / d(k1, k2, p1, p2), then through [[fx, s], [0, fy]]
-        dx0, dy0 = xn * r2, yn * r2
-        dx1, dy1 = xn * r2 * r2, yn * r2 * r2
-        dx2, dy2 = 2.0 * xn * yn, r2 + 2.0 * yn * yn
-        dx3, dy3 = r2 + 2.0 * xn * xn, 2.0 * xn * yn
+        # d(xd, yd) / d(k1, k2, p1, p2) (the Brown coefficients k1 k2 k3 p1 p2 but k3), then through
+        # [[fx, s], [0, fy]]
+        dx, dy = brown_coefficient_jacobian(xn, yn)
+        dx0, dy0 = dx[0], dy[0]
+        dx1, dy1 = dx[1], dy[1]
+        dx2, dy2 = dx[3], dy[3]
+        dx3, dy3 = dx[4], dy[4]
         C[0, 5], C[1, 5] = (fx * dx0 + s * dy0) * inv_sigma, fy * dy0 * inv_sigma
         C[0, 6], C[1, 6] = (fx * dx1 + s * dy1) * inv_sigma, fy * dy1 * inv_sigma
         C[0, 7], C[1, 7] = (fx * dx2 + s * dy2) * inv_sigma, fy * dy2 * inv_sigma

@@ -14,7 +14,7 @@ from __future__ import annotations
 import numpy as np
 from scipy.stats import norm
 
-from aerotri.adjust.graph import point_jacobian_cv, point_normals, project_cv
+from aerotri.adjust.collinearity import point_jacobian_cv, point_normals, project_cv
 
 
 def critical_value(alpha: float = 1e-4) -> float:

@@ -12,6 +12,7 @@ import numpy as np
 
 from aerotri.adjust import graph as G
 from aerotri.adjust.check_points import intersect_with_covariance
+from aerotri.adjust.collinearity import point_jacobian_cv, point_normals, project_cv
 from aerotri.adjust.covariance import ReducedCovariance
 from aerotri.adjust.covariance import point_covariances as point_covariances_rcs
 from aerotri.adjust.snooping import (
@@ -179,8 +180,8 @@ def _drop_weak_points(block: G.Block, obs_active, state: G.State | None = None, 
     weak = (rays < 2) & ~is_control
     if state is not None:
         k = np.flatnonzero(obs_active)
-        _, pc = G.project_cv(state.points[block.obs_point[k]], state.centre[block.obs_image[k]], state.R_cv[block.obs_image[k]], state.cal)
-        N = G.point_normals(G.point_jacobian_cv(pc, state.R_cv[block.obs_image[k]], state.cal), block.obs_point[k], block.n_points)
+        _, pc = project_cv(state.points[block.obs_point[k]], state.centre[block.obs_image[k]], state.R_cv[block.obs_image[k]], state.cal)
+        N = point_normals(point_jacobian_cv(pc, state.R_cv[block.obs_image[k]], state.cal), block.obs_point[k], block.n_points)
         used = rays >= 2
         ev = np.zeros((block.n_points, 3))
         ev[used] = np.linalg.eigvalsh(N[used])

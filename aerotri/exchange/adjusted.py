@@ -19,7 +19,7 @@ import numpy as np
 from aerotri.core.errors import InputError, StageOrderError
 from aerotri.core.project import Project
 from aerotri.core.textio import read_json, read_text
-from aerotri.geom.camera import FrameCamera, observations_without_k3, project_camera
+from aerotri.geom.camera import Camera, project_camera
 from aerotri.geom.eo import read_eo
 from aerotri.geom.local_frame import LocalFrame
 from aerotri.geom.observations import read_control_points, read_image_points
@@ -35,7 +35,7 @@ class AdjustedBlock:
     project_name: str
     crs: str
     frame: LocalFrame
-    camera: FrameCamera  # the a-priori camera (camera.toml)
+    camera: Camera  # the a-priori camera (camera.toml)
     cal: np.ndarray  # (9,) adjusted interior orientation, Cal3DS2 order: fx fy skew u0 v0 k1 k2 p1 p2 (px)
     image_id: list
     centre_local: np.ndarray  # (N, 3) projection centres, ENU
@@ -52,9 +52,8 @@ class AdjustedBlock:
     control_xyz_m: np.ndarray  # (C, 3) given coordinates, project CRS
 
 
-def _cal_of(camera: FrameCamera) -> np.ndarray:
-    f = camera.focal_px
-    return np.array([f, f, 0.0, camera.cx_px, camera.cy_px, camera.k1, camera.k2, camera.p1, camera.p2])
+def _cal_of(camera: Camera) -> np.ndarray:
+    return camera.calibration_vector()
 
 
 def _object_points(path):
@@ -93,7 +92,7 @@ def read_adjusted_block(root) -> AdjustedBlock:
         obs.append(read_image_points(project.control_image_points_path))
     pid = np.concatenate([o.point_id for o in obs]).astype(str)
     iid = np.concatenate([o.image_id for o in obs]).astype(str)
-    xy = observations_without_k3(camera, np.vstack([o.xy_px for o in obs]))
+    xy = camera.calibration_observations(np.vstack([o.xy_px for o in obs]))
     removed = {(r["point_id"], r["image_id"]) for r in report.get("removed_observations", [])}
     point_index = {p: j for j, p in enumerate(ids.astype(str))}
     image_index = {i: n for n, i in enumerate(eo.image_id)}

@@ -1,6 +1,6 @@
 """COLMAP text model (``colmap/cameras.txt``, ``images.txt``, ``points3D.txt``).
 
-One OPENCV camera with the adjusted interior orientation; poses world-to-camera in the adjustment's
+One camera (OPENCV for a Brown camera, PINHOLE for a pinhole) with the adjusted interior orientation; poses world-to-camera in the adjustment's
 local ENU frame (origin and CRS in the header comments); pixel coordinates shifted by +0.5 (COLMAP's
 origin is the corner of the top-left pixel, ours the centre); image names are the image files' names
 in ``images/`` (with their extension), so COLMAP finds the frames.
@@ -23,13 +23,16 @@ def _quat_wxyz(R):
 
 def files(block: AdjustedBlock, image_names: dict | None = None) -> dict[str, str]:
     """``image_names``: image id -> file name (default: the id)."""
-    fx, fy, _, u0, v0, k1, k2, p1, p2 = block.cal
+    fx, fy, _, u0, v0 = block.cal[:5]
     cam = block.camera
+    # the model of the camera the measurements fit (COLMAP's PARAMS start fx fy cx cy in every model we
+    # write; fx and fy as adjusted, the rest as the model gives them)
+    model, params = cam.calibration_camera(block.cal).colmap_model()
     origin = block.frame.origin_map
     head = f"# local ENU frame of the adjustment, origin {origin[0]:.3f} {origin[1]:.3f} {origin[2]:.3f} in {block.crs}"
     cams = [head, "# CAMERA_ID, MODEL, WIDTH, HEIGHT, PARAMS[]",
-            f"1 OPENCV {cam.width} {cam.height} {fx:.6f} {fy:.6f} {u0 + 0.5:.6f} {v0 + 0.5:.6f} {k1:.10g} {k2:.10g} "
-            f"{p1:.10g} {p2:.10g}"]
+            f"1 {model} {cam.width} {cam.height} {fx:.6f} {fy:.6f} {u0 + 0.5:.6f} {v0 + 0.5:.6f}"
+            + "".join(f" {v:.10g}" for v in params[4:])]
     used = np.unique(block.obs_point)
     pid3 = {int(j): n + 1 for n, j in enumerate(used)}
     imgs = [head, "# IMAGE_ID, QW, QX, QY, QZ, TX, TY, TZ, CAMERA_ID, NAME", "#   POINTS2D[] as (X, Y, POINT3D_ID)"]

@@ -8,8 +8,6 @@ control points the adjustment kept, ``-99`` at the end.
 
 from __future__ import annotations
 
-import dataclasses
-
 import numpy as np
 
 from aerotri.exchange.adjusted import AdjustedBlock
@@ -17,11 +15,10 @@ from aerotri.exchange.adjusted import AdjustedBlock
 
 def photo_coordinates_mm(block: AdjustedBlock) -> tuple[np.ndarray, np.ndarray, float]:
     """(x_mm, y_mm, c_mm): undistorted photo coordinates of every measurement and the principal distance."""
-    fx, fy, _, u0, v0, k1, k2, p1, p2 = block.cal
+    fx, fy, _, u0, v0 = block.cal[:5]
     xd = (block.obs_xy_px[:, 0] - u0) / fx
     yd = (block.obs_xy_px[:, 1] - v0) / fy
-    lens = dataclasses.replace(block.camera, k1=float(k1), k2=float(k2), k3=0.0, p1=float(p1), p2=float(p2))
-    xn, yn = lens.undistort(xd, yd)
+    xn, yn = block.camera.calibration_camera(block.cal).undistort(xd, yd)
     c_mm = 0.5 * (fx + fy) * block.camera.pixel_um / 1000.0
     return xn * c_mm, -yn * c_mm, c_mm
 

@@ -1,4 +1,15 @@
-"""Frame camera interior orientation and the collinearity equations.
+"""Frame camera models: interior orientation and the collinearity equations.
+
+One base class (``Camera``: the frame geometry every model shares) and one subclass per lens model,
+registered by name in ``MODELS`` (the ``model`` key of a camera file; absent = ``brown``):
+
+- ``BrownCamera`` (``model = "brown"``, also known as ``FrameCamera``): radial k1 k2 k3 and tangential
+  p1 p2 distortion;
+- ``PinholeCamera`` (``model = "pinhole"``): no distortion.
+
+A new model is its class here (lens coefficient fields, ``MODEL``, ``kernel_params``, what the adjustment
+and the exports need) plus its entry in ``MODELS``, and its compiled lens kernels in
+``aerotri.geom.lens_kernels``, which hold the only implementation of each model's arithmetic.
 
 Conventions (see docs in README):
 
@@ -6,12 +17,15 @@ Conventions (see docs in README):
   top-left pixel, x right, y down. The image centre is at ((width-1)/2, (height-1)/2).
 - The principal point offset ``ppx_mm``, ``ppy_mm`` is measured from the image centre in photo
   coordinates (x right, y up), in millimetres.
-- Lens distortion is the Brown model on normalised coordinates (x/z, y/z in the computer-vision
-  camera frame, dimensionless), as in OpenCV, COLMAP and GTSAM's Cal3DS2:
+- Lens distortion acts on normalised coordinates (x/z, y/z in the computer-vision camera frame,
+  dimensionless), as in OpenCV, COLMAP and GTSAM's Cal3DS2. Brown:
   ``r2 = xn^2 + yn^2``, ``xd = xn (1 + k1 r2 + k2 r2^2 + k3 r2^3) + 2 p1 xn yn + p2 (r2 + 2 xn^2)``,
   ``yd = yn (1 + ...) + p1 (r2 + 2 yn^2) + 2 p2 xn yn``.
 - Exterior orientation: projection centre C (object metres) and R = rotation_matrix_opk(omega, phi,
   kappa) from camera to object (see aerotri.geom.rotation).
+- The adjustment's calibration vector is GTSAM's Cal3DS2 ``[fx fy s u0 v0 k1 k2 p1 p2]`` (pixels) for
+  every model (``calibration_vector``, ``from_calibration_vector``); ``SELF_CAL_GROUPS`` of a model
+  names the entries each self-calibration group frees.
 """
 
 from __future__ import annotations
@@ -20,18 +34,41 @@ import dataclasses
 import math
 import tomllib
 from pathlib import Path
+from typing import ClassVar
 
 import numpy as np
 
 from aerotri.core.errors import InputError
+from aerotri.geom import lens_kernels
 from aerotri.geom.rotation import FLIP_YZ
 
-_FIELDS = ("focal_mm", "pixel_um", "width", "height", "ppx_mm", "ppy_mm", "k1", "k2", "k3", "p1", "p2")
+_GEOMETRY = ("focal_mm", "pixel_um", "width", "height", "ppx_mm", "ppy_mm")
+CAL3DS2 = ("fx", "fy", "s", "u0", "v0", "k1", "k2", "p1", "p2")  # the adjustment's calibration vector
+UNDISTORT_ITERATIONS = 20
+
+
+def _as_array(v) -> np.ndarray:
+    return np.asarray(v, dtype=float)
+
+
+def _flat(a, b) -> tuple[tuple, np.ndarray, np.ndarray]:
+    """(shape, a, b): two arrays broadcast together and flattened into writeable contiguous float64 vectors
+    (what the array kernels take)."""
+    a, b = _as_array(a), _as_array(b)
+    if a.shape != b.shape:
+        a, b = np.broadcast_arrays(a, b)
+    flat = [np.require(np.ravel(v), np.float64, ("C", "W")) for v in (a, b)]
+    return a.shape, flat[0], flat[1]
 
 
 @dataclasses.dataclass(frozen=True)
-class FrameCamera:
-    """Interior orientation of a frame camera (units in the field names)."""
+class Camera:
+    """Interior orientation of a frame camera (units in the field names); the lens model is the subclass.
+
+    Subclasses set ``MODEL`` (their name in camera files and ``MODELS``), ``COEFFICIENTS`` (their lens
+    coefficient fields, in kernel order), ``SELF_CAL_GROUPS`` and implement ``kernel_params``,
+    ``calibration_vector``, ``from_calibration_vector`` and ``colmap_model``.
+    """
 
     focal_mm: float
     pixel_um: float
@@ -39,12 +76,12 @@ class FrameCamera:
     height: int
     ppx_mm: float = 0.0
     ppy_mm: float = 0.0
-    k1: float = 0.0
-    k2: float = 0.0
-    k3: float = 0.0
-    p1: float = 0.0
-    p2: float = 0.0
     name: str = "camera"
+
+    MODEL: ClassVar[str] = ""
+    COEFFICIENTS: ClassVar[tuple[str, ...]] = ()
+    # self-calibration group -> indices of the Cal3DS2 vector it frees
+    SELF_CAL_GROUPS: ClassVar[dict[str, tuple[int, ...]]] = {"focal": (0, 1), "pp": (3, 4)}
 
     def __post_init__(self):
         self.validate()
@@ -66,6 +103,11 @@ class FrameCamera:
     def sensor_mm(self) -> tuple[float, float]:
         return self.width * self.pixel_um / 1000.0, self.height * self.pixel_um / 1000.0
 
+    @property
+    def coefficients(self) -> tuple[float, ...]:
+        """The lens coefficients, in ``COEFFICIENTS`` order."""
+        return tuple(float(getattr(self, c)) for c in self.COEFFICIENTS)
+
     def gsd_m(self, height_above_ground_m: float) -> float:
         """Ground sample distance of a nadir frame at the given flying height above ground."""
         return height_above_ground_m * self.pixel_um * 1e-6 / (self.focal_mm * 1e-3)
@@ -75,45 +117,76 @@ class FrameCamera:
         f = self.focal_px
         return np.array([[f, 0.0, self.cx_px], [0.0, f, self.cy_px], [0.0, 0.0, 1.0]])
 
-    def distortion(self) -> np.ndarray:
-        """OpenCV order: k1, k2, p1, p2, k3."""
-        return np.array([self.k1, self.k2, self.p1, self.p2, self.k3])
-
-    def ideal(self) -> "FrameCamera":
+    def ideal(self) -> "Camera":
         """The same camera without principal-point offset and distortion (the nominal camera)."""
-        return dataclasses.replace(self, ppx_mm=0.0, ppy_mm=0.0, k1=0.0, k2=0.0, k3=0.0, p1=0.0, p2=0.0)
+        return dataclasses.replace(self, ppx_mm=0.0, ppy_mm=0.0, **{c: 0.0 for c in self.COEFFICIENTS})
 
-    def with_pixels(self, width: int, height: int) -> "FrameCamera":
+    def with_pixels(self, width: int, height: int) -> "Camera":
         """Keep the field of view and sensor size, change the pixel count (pixel size follows)."""
         sw, _ = self.sensor_mm
         return dataclasses.replace(self, width=int(width), height=int(height), pixel_um=sw * 1000.0 / width)
 
+    # -- the model: kernel parameters, adjustment calibration, exports --------------------------
+    def kernel_params(self) -> tuple:
+        """The parameter tuple the compiled kernels take (``aerotri.geom.lens_kernels``: f, cx, cy in
+        pixels, then the lens coefficients)."""
+        raise NotImplementedError
+
+    def calibration_vector(self) -> np.ndarray:
+        """The adjustment's calibration (Cal3DS2 ``fx fy s u0 v0 k1 k2 p1 p2``, pixels) of this camera."""
+        raise NotImplementedError
+
+    def from_calibration_vector(self, cal) -> "Camera":
+        """This camera with the interior orientation of Cal3DS2 values (fx and fy averaged into the focal
+        length); what Cal3DS2 does not hold stays as it is."""
+        raise NotImplementedError
+
+    def calibration_observations(self, xy_px: np.ndarray) -> np.ndarray:
+        """Image measurements (K, 2) as the camera of ``calibration_vector`` sees the same rays (the
+        measurements themselves for a model that Cal3DS2 holds entirely)."""
+        return xy_px
+
+    def calibration_camera(self, cal) -> "Camera":
+        """The camera that Cal3DS2 values describe exactly, the one that sees ``calibration_observations``
+        (this model with the parameters Cal3DS2 lacks set to zero)."""
+        return self.from_calibration_vector(cal)
+
+    def colmap_model(self) -> tuple[str, list[float]]:
+        """COLMAP camera model name and its PARAMS (COLMAP's pixel origin: the corner of the top-left
+        pixel, so the principal point is shifted by +0.5)."""
+        raise NotImplementedError
+
+    def _calibration_geometry(self, cal) -> dict:
+        f_px = 0.5 * (cal[0] + cal[1])
+        pix_mm = self.pixel_um / 1000.0
+        return dict(focal_mm=float(f_px * pix_mm), ppx_mm=float((cal[3] - (self.width - 1) / 2.0) * pix_mm),
+                    ppy_mm=float(-(cal[4] - (self.height - 1) / 2.0) * pix_mm))
+
     # -- distortion ---------------------------------------------------------------------------
     def distort(self, xn, yn):
         """Apply lens distortion to normalised coordinates (arrays); returns (xd, yd)."""
-        xn = np.asarray(xn, dtype=float)
-        yn = np.asarray(yn, dtype=float)
-        r2 = xn * xn + yn * yn
-        radial = 1.0 + r2 * (self.k1 + r2 * (self.k2 + r2 * self.k3))
-        xd = xn * radial + 2.0 * self.p1 * xn * yn + self.p2 * (r2 + 2.0 * xn * xn)
-        yd = yn * radial + self.p1 * (r2 + 2.0 * yn * yn) + 2.0 * self.p2 * xn * yn
-        return xd, yd
+        shape, xn, yn = _flat(xn, yn)
+        xd, yd = lens_kernels.distort_points(self.kernel_params(), xn, yn)
+        return xd.reshape(shape), yd.reshape(shape)
 
-    def undistort(self, xd, yd, iterations: int = 20):
+    def undistort(self, xd, yd, iterations: int = UNDISTORT_ITERATIONS):
         """Invert ``distort`` by fixed-point iteration (converges for photogrammetric lenses)."""
-        xd = np.asarray(xd, dtype=float)
-        yd = np.asarray(yd, dtype=float)
-        xn, yn = xd.copy(), yd.copy()
-        if not any((self.k1, self.k2, self.k3, self.p1, self.p2)):
-            return xn, yn
-        for _ in range(iterations):
-            r2 = xn * xn + yn * yn
-            radial = 1.0 + r2 * (self.k1 + r2 * (self.k2 + r2 * self.k3))
-            dx = 2.0 * self.p1 * xn * yn + self.p2 * (r2 + 2.0 * xn * xn)
-            dy = self.p1 * (r2 + 2.0 * yn * yn) + 2.0 * self.p2 * xn * yn
-            xn = (xd - dx) / radial
-            yn = (yd - dy) / radial
-        return xn, yn
+        shape, xd, yd = _flat(xd, yd)
+        if not any(self.coefficients):
+            return xd.reshape(shape).copy(), yd.reshape(shape).copy()
+        xn, yn = lens_kernels.undistort_points(self.kernel_params(), xd, yd, int(iterations))
+        return xn.reshape(shape), yn.reshape(shape)
+
+    def distort_jacobian(self, xn, yn) -> np.ndarray:
+        """d(xd, yd) / d(xn, yn) (..., 2, 2) at normalised coordinates."""
+        shape, xn, yn = _flat(xn, yn)
+        return lens_kernels.distort_jacobian_points(self.kernel_params(), xn, yn).reshape(shape + (2, 2))
+
+    def coefficient_jacobian(self, xn, yn) -> np.ndarray:
+        """d(xd, yd) / d(lens coefficients in ``COEFFICIENTS`` order) (..., 2, n) at normalised coordinates."""
+        shape, xn, yn = _flat(xn, yn)
+        n = len(self.COEFFICIENTS)
+        return lens_kernels.coefficient_jacobian_points(self.kernel_params(), xn, yn, n).reshape(shape + (2, n))
 
     def normalized_to_pixel(self, xn, yn):
         xd, yd = self.distort(xn, yn)
@@ -122,8 +195,8 @@ class FrameCamera:
 
     def pixel_to_normalized(self, x_px, y_px):
         f = self.focal_px
-        xd = (np.asarray(x_px, dtype=float) - self.cx_px) / f
-        yd = (np.asarray(y_px, dtype=float) - self.cy_px) / f
+        xd = (_as_array(x_px) - self.cx_px) / f
+        yd = (_as_array(y_px) - self.cy_px) / f
         return self.undistort(xd, yd)
 
     # -- collinearity -------------------------------------------------------------------------
@@ -133,8 +206,8 @@ class FrameCamera:
         Returns (x_px, y_px, depth_m); depth is the distance along the viewing axis, positive in
         front of the camera. Points behind the camera get NaN pixel coordinates.
         """
-        P = np.atleast_2d(np.asarray(points_m, dtype=float)) - np.asarray(centre_m, dtype=float)
-        d = P @ (np.asarray(R, dtype=float) @ FLIP_YZ)  # computer-vision camera coordinates
+        P = np.atleast_2d(_as_array(points_m)) - _as_array(centre_m)
+        d = P @ (_as_array(R) @ FLIP_YZ)  # computer-vision camera coordinates
         depth = d[:, 2]
         with np.errstate(divide="ignore", invalid="ignore"):
             xn = np.where(depth > 0, d[:, 0] / depth, np.nan)
@@ -146,7 +219,7 @@ class FrameCamera:
         """Unit viewing directions in object space (N, 3) for pixel coordinates of a frame with rotation R."""
         xn, yn = self.pixel_to_normalized(x_px, y_px)
         d_cv = np.stack([xn, yn, np.ones_like(xn)], axis=-1)
-        d = d_cv @ (np.asarray(R, dtype=float) @ FLIP_YZ).T
+        d = d_cv @ (_as_array(R) @ FLIP_YZ).T
         return d / np.linalg.norm(d, axis=-1, keepdims=True)
 
     def inside(self, x_px, y_px, margin_px: float = 0.0):
@@ -160,6 +233,11 @@ class FrameCamera:
         )
 
     # -- validation and files -----------------------------------------------------------------
+    @classmethod
+    def fields(cls) -> tuple[str, ...]:
+        """The numeric keys of this model's camera files."""
+        return _GEOMETRY + cls.COEFFICIENTS
+
     def validate(self, source: str = "camera"):
         for f in ("focal_mm", "pixel_um", "width", "height"):
             v = getattr(self, f)
@@ -173,50 +251,64 @@ class FrameCamera:
             )
         if self.pixel_um > 1000.0 or self.pixel_um < 0.5:
             raise InputError(f"{source}: pixel_um = {self.pixel_um} is not a plausible pixel size in micrometres")
-        for f in ("ppx_mm", "ppy_mm", "k1", "k2", "k3", "p1", "p2"):
+        for f in ("ppx_mm", "ppy_mm") + self.COEFFICIENTS:
             v = getattr(self, f)
             if not (isinstance(v, (int, float)) and math.isfinite(v)):
                 raise InputError(f"{source}: {f} must be a finite number, got {v!r}")
 
     def to_dict(self) -> dict:
-        return {f: getattr(self, f) for f in ("name",) + _FIELDS}
+        """The camera file's keys: ``name``, ``model`` and the model's fields."""
+        return {"name": self.name, "model": self.MODEL} | {f: getattr(self, f) for f in self.fields()}
 
     def to_toml(self) -> str:
         lines = [
             "# Frame camera interior orientation. Pixel origin: centre of the top-left pixel, x right, y down.",
             "# Principal point offset from the image centre in photo coordinates (x right, y up), mm.",
-            "# Distortion: Brown model on normalised coordinates (OpenCV/COLMAP/GTSAM Cal3DS2 convention).",
-            f'name = "{self.name}"',
+            f"# {self._toml_comment()}",
         ]
-        for f in _FIELDS:
-            v = getattr(self, f)
-            lines.append(f"{f} = {v if isinstance(v, int) else repr(float(v))}")
+        for k, v in self.to_dict().items():
+            if isinstance(v, str):
+                lines.append(f'{k} = "{v}"')
+            else:
+                lines.append(f"{k} = {v if isinstance(v, int) else repr(float(v))}")
         return "\n".join(lines) + "\n"
 
     @classmethod
-    def from_dict(cls, d: dict, source: str = "camera") -> "FrameCamera":
+    def _toml_comment(cls) -> str:
+        return f"Lens model {cls.MODEL!r}."
+
+    @classmethod
+    def from_dict(cls, d: dict, source: str = "camera") -> "Camera":
+        """The camera of a camera file's keys; its ``model`` key (absent: ``brown``) picks the class in
+        ``MODELS``, whichever class this is called on."""
+        model = d.get("model", DEFAULT_MODEL)
+        if model not in MODELS:
+            raise InputError(f"{source}: model = {model!r} is not one of {sorted(MODELS)}")
+        sub = MODELS[model]
+        fields = sub.fields()
         missing = [f for f in ("focal_mm", "pixel_um", "width", "height") if f not in d]
         if missing:
             raise InputError(f"{source}: missing {', '.join(missing)} (expected focal_mm, pixel_um, width, height)")
-        unknown = sorted(set(d) - set(_FIELDS) - {"name"})
+        unknown = sorted(set(d) - set(fields) - {"name", "model"})
         if unknown:
-            raise InputError(f"{source}: unknown keys {unknown}; expected {list(_FIELDS)}")
+            raise InputError(f"{source}: unknown keys {unknown} for model {model!r}; expected {list(fields)}")
         kwargs = {}
-        for f in _FIELDS:
+        for f in fields:
             if f in d:
                 v = d[f]
                 if isinstance(v, bool) or not isinstance(v, (int, float)):
                     raise InputError(f"{source}: {f} must be a number, got {v!r}")
                 kwargs[f] = int(v) if f in ("width", "height") else float(v)
-        cam = cls.__new__(cls)
+        cam = sub.__new__(sub)
         object.__setattr__(cam, "name", str(d.get("name", "camera")))
-        for f in _FIELDS:
+        for f in fields:
             object.__setattr__(cam, f, kwargs.get(f, 0.0))
         cam.validate(source)
         return cam
 
     @classmethod
-    def read(cls, path) -> "FrameCamera":
+    def read(cls, path) -> "Camera":
+        """A camera file (TOML); its ``model`` key picks the class (see ``from_dict``)."""
         from aerotri.core.textio import read_text
 
         path = Path(path)
@@ -227,17 +319,120 @@ class FrameCamera:
         return cls.from_dict(d, source=str(path))
 
 
-def dmc_camera() -> FrameCamera:
+@dataclasses.dataclass(frozen=True)
+class BrownCamera(Camera):
+    """Frame camera with Brown's lens distortion: radial k1 k2 k3, tangential (decentring) p1 p2.
+
+    Kernel parameters ``lens_kernels.BrownParams(f, cx, cy, k1, k2, k3, p1, p2)``. In the adjustment k1 k2
+    p1 p2 are Cal3DS2's; k3 (not in Cal3DS2) is held fixed by taking its effect off the measurements
+    (``calibration_observations``)."""
+
+    k1: float = 0.0
+    k2: float = 0.0
+    k3: float = 0.0
+    p1: float = 0.0
+    p2: float = 0.0
+
+    MODEL: ClassVar[str] = "brown"
+    COEFFICIENTS: ClassVar[tuple[str, ...]] = ("k1", "k2", "k3", "p1", "p2")
+    SELF_CAL_GROUPS: ClassVar[dict[str, tuple[int, ...]]] = {"focal": (0, 1), "pp": (3, 4), "radial": (5, 6),
+                                                             "tangential": (7, 8)}
+
+    def kernel_params(self) -> lens_kernels.BrownParams:
+        return lens_kernels.BrownParams(float(self.focal_px), float(self.cx_px), float(self.cy_px), *self.coefficients)
+
+    def distortion(self) -> np.ndarray:
+        """OpenCV order: k1, k2, p1, p2, k3."""
+        return np.array([self.k1, self.k2, self.p1, self.p2, self.k3])
+
+    def calibration_vector(self) -> np.ndarray:
+        f = self.focal_px
+        return np.array([f, f, 0.0, self.cx_px, self.cy_px, self.k1, self.k2, self.p1, self.p2])
+
+    def from_calibration_vector(self, cal) -> "BrownCamera":
+        return dataclasses.replace(self, **self._calibration_geometry(cal), k1=float(cal[5]), k2=float(cal[6]),
+                                   p1=float(cal[7]), p2=float(cal[8]))
+
+    def calibration_observations(self, xy_px: np.ndarray) -> np.ndarray:
+        """Image measurements as the same camera without k3 sees the same rays.
+
+        The adjustment's camera model (Cal3DS2) has k1 k2 p1 p2 only; a known k3 (held fixed) is taken
+        off the measurements instead: x' = x - f xn k3 r^6 (likewise y), with (xn, yn) the normalised ray
+        of the measurement. Exact for a fixed camera; with self-calibrated k1, k2 the ray moves by second
+        order only.
+        """
+        if not self.k3 or not len(xy_px):
+            return xy_px
+        xn, yn = self.pixel_to_normalized(xy_px[:, 0], xy_px[:, 1])
+        t = self.k3 * (xn * xn + yn * yn) ** 3
+        return xy_px - self.focal_px * np.column_stack([xn * t, yn * t])
+
+    def calibration_camera(self, cal) -> "BrownCamera":
+        return dataclasses.replace(self.from_calibration_vector(cal), k3=0.0)
+
+    def colmap_model(self) -> tuple[str, list[float]]:
+        """OPENCV (fx fy cx cy k1 k2 p1 p2), FULL_OPENCV (... k3 k4 k5 k6) when k3 is not zero."""
+        f = self.focal_px
+        params = [f, f, self.cx_px + 0.5, self.cy_px + 0.5, self.k1, self.k2, self.p1, self.p2]
+        if self.k3:
+            return "FULL_OPENCV", params + [self.k3, 0.0, 0.0, 0.0]
+        return "OPENCV", params
+
+    @classmethod
+    def _toml_comment(cls) -> str:
+        return "Distortion: Brown model on normalised coordinates (OpenCV/COLMAP/GTSAM Cal3DS2 convention)."
+
+
+@dataclasses.dataclass(frozen=True)
+class PinholeCamera(Camera):
+    """Frame camera without lens distortion (kernel parameters ``lens_kernels.PinholeParams(f, cx, cy)``);
+    in the adjustment a Cal3DS2 with its distortion held at zero."""
+
+    MODEL: ClassVar[str] = "pinhole"
+
+    def kernel_params(self) -> lens_kernels.PinholeParams:
+        return lens_kernels.PinholeParams(float(self.focal_px), float(self.cx_px), float(self.cy_px))
+
+    def calibration_vector(self) -> np.ndarray:
+        f = self.focal_px
+        return np.array([f, f, 0.0, self.cx_px, self.cy_px, 0.0, 0.0, 0.0, 0.0])
+
+    def from_calibration_vector(self, cal) -> "PinholeCamera":
+        return dataclasses.replace(self, **self._calibration_geometry(cal))
+
+    def colmap_model(self) -> tuple[str, list[float]]:
+        """PINHOLE (fx fy cx cy)."""
+        f = self.focal_px
+        return "PINHOLE", [f, f, self.cx_px + 0.5, self.cy_px + 0.5]
+
+
+# model name (the ``model`` key of camera files) -> class
+MODELS: dict[str, type[Camera]] = {"brown": BrownCamera, "pinhole": PinholeCamera}
+DEFAULT_MODEL = "brown"  # camera files without a ``model`` key
+
+# the name users and camera files know: a Brown camera (with zero coefficients, a pinhole)
+FrameCamera = BrownCamera
+
+# every self-calibration group some model offers (choices of the adjustment's ``--self-cal``)
+SELF_CALIBRATION_GROUPS: tuple[str, ...] = tuple(dict.fromkeys(g for m in MODELS.values() for g in m.SELF_CAL_GROUPS))
+
+
+def read_camera(path) -> Camera:
+    """The camera of a camera file (TOML), of the class its ``model`` key names."""
+    return Camera.read(path)
+
+
+def dmc_camera() -> BrownCamera:
     """The nominal Z/I DMC: f = 120 mm, 12 um pixels, 13824 x 7680 px (long side across track)."""
-    return FrameCamera(focal_mm=120.0, pixel_um=12.0, width=13824, height=7680, name="DMC")
+    return BrownCamera(focal_mm=120.0, pixel_um=12.0, width=13824, height=7680, name="DMC")
 
 
-def project_camera(project) -> FrameCamera:
+def project_camera(project) -> Camera:
     """The nominal camera of a project folder (``camera.toml``)."""
-    return FrameCamera.read(project.camera_path)
+    return Camera.read(project.camera_path)
 
 
-def adjusted_camera(project) -> tuple[FrameCamera, str]:
+def adjusted_camera(project) -> tuple[Camera, str]:
     """(camera, source): the self-calibrated camera of the project's last adjustment (``at/report.json``)
     when there is one, else the nominal ``camera.toml``. Orientations in ``at/eo.txt`` belong to it."""
     from aerotri.core.textio import read_json
@@ -247,20 +442,5 @@ def adjusted_camera(project) -> tuple[FrameCamera, str]:
         d = read_json(rep, "adjustment report")
         cam = (d.get("self_calibration") or {}).get("camera") if isinstance(d, dict) else None
         if cam:
-            return FrameCamera.from_dict(cam, source=f"{rep} self_calibration.camera"), f"{rep} (self-calibrated)"
+            return Camera.from_dict(cam, source=f"{rep} self_calibration.camera"), f"{rep} (self-calibrated)"
     return project_camera(project), str(project.camera_path)
-
-
-def observations_without_k3(cam: FrameCamera, xy_px: np.ndarray) -> np.ndarray:
-    """Image measurements of a camera with radial term k3 as the same camera without k3 sees the same rays.
-
-    The adjustment's camera model (Cal3DS2) has k1 k2 p1 p2 only; a known k3 (held fixed) is taken
-    off the measurements instead: x' = x - f xn k3 r^6 (likewise y), with (xn, yn) the normalised ray
-    of the measurement. Exact for a fixed camera; with self-calibrated k1, k2 the ray moves by second
-    order only.
-    """
-    if not cam.k3 or not len(xy_px):
-        return xy_px
-    xn, yn = cam.pixel_to_normalized(xy_px[:, 0], xy_px[:, 1])
-    t = cam.k3 * (xn * xn + yn * yn) ** 3
-    return xy_px - cam.focal_px * np.column_stack([xn * t, yn * t])

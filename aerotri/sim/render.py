@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from aerotri.geom.camera import FrameCamera
+from aerotri.geom.camera import Camera
 from aerotri.geom.rotation import FLIP_YZ
 from aerotri.sim import raycast
 from aerotri.sim.scene import Scene
@@ -29,7 +29,7 @@ class PixelRays:
     per frame. Large frames are computed per block of rows instead of cached.
     """
 
-    def __init__(self, camera: FrameCamera, samples: int = 1, cache_limit: int = 12_000_000):
+    def __init__(self, camera: Camera, samples: int = 1, cache_limit: int = 12_000_000):
         self.camera = camera
         self.samples = samples
         self.offsets = (np.arange(samples) + 0.5) / samples - 0.5
@@ -50,7 +50,7 @@ class PixelRays:
         return d
 
 
-def render_frame(scene: Scene, accel, camera: FrameCamera, centre_m, R, samples: int = 2,
+def render_frame(scene: Scene, accel, camera: Camera, centre_m, R, samples: int = 2,
                  rows_per_block: int = 256, with_ids: bool = False, pixel_rays: PixelRays | None = None):
     """Radiance image (H, W, 3) float32 of one frame, and optionally the surface id of each pixel centre."""
     W, H = camera.width, camera.height
@@ -79,7 +79,7 @@ def render_frame(scene: Scene, accel, camera: FrameCamera, centre_m, R, samples:
     return out, ids
 
 
-def expose(radiance: np.ndarray, camera: FrameCamera, gain: float, vignetting: float, noise_dn: float, rng) -> np.ndarray:
+def expose(radiance: np.ndarray, camera: Camera, gain: float, vignetting: float, noise_dn: float, rng) -> np.ndarray:
     """Per-frame exposure gain, radial vignetting (fraction lost at the corner) and sensor noise -> uint8 RGB."""
     H, W = radiance.shape[:2]
     y, x = np.mgrid[0:H, 0:W]

@@ -1,11 +1,15 @@
-"""Interior/exterior orientation conventions: collinearity, distortion, rotations, camera files."""
+"""Interior/exterior orientation conventions: collinearity, distortion, rotations, camera files, the camera
+model hierarchy and its registry."""
+
+import dataclasses
 
 import numpy as np
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from aerotri.geom.camera import FrameCamera, dmc_camera
+from aerotri.geom.camera import (MODELS, SELF_CALIBRATION_GROUPS, BrownCamera, Camera, FrameCamera, PinholeCamera,
+                                 dmc_camera, read_camera)
 from aerotri.core.errors import InputError
 from aerotri.geom.rotation import opk_from_matrix, rotation_matrix_opk
 
@@ -60,3 +64,112 @@ def test_camera_file_round_trip_and_unit_errors(tmp_path):
     p.write_text('focal_mm = 120.0\nwidth = 13824\nheight = 7680\n')
     with pytest.raises(InputError, match="missing pixel_um"):
         FrameCamera.read(p)
+
+
+# -- the model hierarchy -------------------------------------------------------------------------------
+BROWN = BrownCamera(focal_mm=120, pixel_um=12, width=13824, height=7680, ppx_mm=0.02, ppy_mm=-0.01,
+                    k1=-4e-3, k2=1e-3, k3=2e-4, p1=1e-5, p2=-2e-5, name="DMC test")
+PINHOLE = PinholeCamera(focal_mm=24, pixel_um=4.5, width=6000, height=4000, ppx_mm=0.05, ppy_mm=0.03, name="pin")
+
+
+def test_frame_camera_is_the_brown_model():
+    assert FrameCamera is BrownCamera and MODELS == {"brown": BrownCamera, "pinhole": PinholeCamera}
+    assert issubclass(BrownCamera, Camera) and issubclass(PinholeCamera, Camera)
+    assert dmc_camera().MODEL == "brown" and PINHOLE.coefficients == ()
+    assert set(SELF_CALIBRATION_GROUPS) == {"focal", "pp", "radial", "tangential"}
+    assert set(PinholeCamera.SELF_CAL_GROUPS) == {"focal", "pp"}
+
+
+@pytest.mark.parametrize("cam", [BROWN, PINHOLE], ids=["brown", "pinhole"])
+def test_pixel_ray_pixel_round_trip(cam):
+    """pixel -> ray -> ground -> pixel for each model, over the whole frame including its corners."""
+    rng = np.random.default_rng(1)
+    C = np.array([100.0, -50.0, 900.0])
+    R = rotation_matrix_opk(2.0, -1.0, 30.0)
+    x = np.r_[rng.uniform(-0.5, cam.width - 0.5, 300), -0.5, cam.width - 0.5]
+    y = np.r_[rng.uniform(-0.5, cam.height - 0.5, 300), -0.5, cam.height - 0.5]
+    d = cam.rays(x, y, R)
+    assert np.allclose(np.linalg.norm(d, axis=1), 1.0)
+    P = C + d * (-C[2] / d[:, 2])[:, None]
+    x2, y2, depth = cam.project(P, C, R)
+    assert np.all(depth > 0)
+    assert np.abs(x2 - x).max() < 1e-7 and np.abs(y2 - y).max() < 1e-7
+    xn, yn = cam.pixel_to_normalized(x, y)
+    assert np.abs(np.array(cam.normalized_to_pixel(xn, yn)) - [x, y]).max() < 1e-7
+
+
+def test_pinhole_is_brown_without_distortion():
+    brown = BrownCamera(**{f: getattr(PINHOLE, f) for f in ("focal_mm", "pixel_um", "width", "height", "ppx_mm", "ppy_mm")})
+    P = np.array([[10.0, 20.0, 0.0], [-300.0, 150.0, 12.0]])
+    C, R = np.array([0.0, 0.0, 500.0]), rotation_matrix_opk(1.0, 2.0, 3.0)
+    assert np.array_equal(np.array(PINHOLE.project(P, C, R)), np.array(brown.project(P, C, R)))
+    xn, yn = np.array([0.1, -0.3]), np.array([0.2, 0.05])
+    assert np.array_equal(np.array(PINHOLE.distort(xn, yn)), [xn, yn])
+    assert np.array_equal(PINHOLE.distort_jacobian(xn, yn), np.broadcast_to(np.eye(2), (2, 2, 2)))
+    assert PINHOLE.coefficient_jacobian(xn, yn).shape == (2, 2, 0)
+    assert np.array_equal(PINHOLE.calibration_vector(), [PINHOLE.focal_px, PINHOLE.focal_px, 0.0, PINHOLE.cx_px,
+                                                         PINHOLE.cy_px, 0, 0, 0, 0])
+
+
+@pytest.mark.parametrize("cam", [BROWN, PINHOLE], ids=["brown", "pinhole"])
+def test_camera_files_name_their_model(cam, tmp_path):
+    p = tmp_path / "camera.toml"
+    p.write_text(cam.to_toml())
+    assert f'model = "{cam.MODEL}"' in p.read_text()
+    back = Camera.read(p)
+    assert type(back) is type(cam) and back == cam
+    assert FrameCamera.read(p) == cam  # the file's model decides, whatever class reads it
+    assert read_camera(p) == cam and Camera.from_dict(cam.to_dict()) == cam
+    with pytest.raises(InputError, match="model = 'fisheye' is not one of"):
+        Camera.from_dict({**cam.to_dict(), "model": "fisheye"}, source="cam.toml")
+
+
+def test_camera_files_without_model_are_brown(tmp_path):
+    """Camera files written before the model key existed."""
+    p = tmp_path / "camera.toml"
+    p.write_text('name = "old"\nfocal_mm = 120.0\npixel_um = 12.0\nwidth = 13824\nheight = 7680\nk1 = -0.004\nk3 = 1e-4\n')
+    cam = FrameCamera.read(p)
+    assert type(cam) is BrownCamera and cam.k1 == -0.004 and cam.k3 == 1e-4 and cam.p1 == 0.0
+    p.write_text('model = "pinhole"\nfocal_mm = 24.0\npixel_um = 4.5\nwidth = 6000\nheight = 4000\nk1 = -0.004\n')
+    with pytest.raises(InputError, match=r"unknown keys \['k1'\] for model 'pinhole'"):
+        Camera.read(p)
+
+
+def test_calibration_vector_round_trip():
+    """Cal3DS2 values of a camera and back (k3 is not in Cal3DS2: it stays)."""
+    cal = BROWN.calibration_vector()
+    assert np.allclose(cal[5:], [BROWN.k1, BROWN.k2, BROWN.p1, BROWN.p2], rtol=0, atol=0)
+    same = BROWN.from_calibration_vector(cal)
+    assert same.focal_mm == pytest.approx(BROWN.focal_mm, rel=1e-15) and same.k3 == BROWN.k3
+    back = BROWN.from_calibration_vector(cal + np.array([2.0, 4.0, 0, 1.5, -2.5, 1e-4, 0, 0, 1e-6]))
+    assert back.focal_px == pytest.approx(BROWN.focal_px + 3.0)
+    assert back.cx_px == pytest.approx(BROWN.cx_px + 1.5) and back.cy_px == pytest.approx(BROWN.cy_px - 2.5)
+    assert back.k1 == BROWN.k1 + 1e-4 and back.p2 == BROWN.p2 + 1e-6 and back.k3 == BROWN.k3
+    pin = PINHOLE.from_calibration_vector(PINHOLE.calibration_vector() + np.array([1.0, 1.0, 0, 0.5, 0, 0, 0, 0, 0]))
+    assert type(pin) is PinholeCamera and pin.cx_px == pytest.approx(PINHOLE.cx_px + 0.5)
+
+
+def test_calibration_observations_take_k3_off():
+    """The measurements the adjustment's Cal3DS2 (no k3) sees: the same rays through the camera without k3."""
+    rng = np.random.default_rng(2)
+    xy = np.column_stack([rng.uniform(0, BROWN.width - 1, 50), rng.uniform(0, BROWN.height - 1, 50)])
+    no_k3 = dataclasses.replace(BROWN, k3=0.0)
+    xn, yn = BROWN.pixel_to_normalized(xy[:, 0], xy[:, 1])
+    expected = np.column_stack(no_k3.normalized_to_pixel(xn, yn))
+    assert np.abs(BROWN.calibration_observations(xy) - expected).max() < 1e-9
+    assert no_k3.calibration_observations(xy) is xy and PINHOLE.calibration_observations(xy) is xy
+
+
+def test_colmap_models():
+    name, params = BROWN.colmap_model()
+    assert name == "FULL_OPENCV" and len(params) == 12
+    assert params[:4] == [BROWN.focal_px, BROWN.focal_px, BROWN.cx_px + 0.5, BROWN.cy_px + 0.5]
+    assert params[4:9] == [BROWN.k1, BROWN.k2, BROWN.p1, BROWN.p2, BROWN.k3]
+    assert dataclasses.replace(BROWN, k3=0.0).colmap_model()[0] == "OPENCV"
+    assert PINHOLE.colmap_model() == ("PINHOLE", [PINHOLE.focal_px, PINHOLE.focal_px, PINHOLE.cx_px + 0.5,
+                                                  PINHOLE.cy_px + 0.5])
+
+
+def test_ideal_keeps_the_model():
+    assert BROWN.ideal() == BrownCamera(focal_mm=120, pixel_um=12, width=13824, height=7680, name="DMC test")
+    assert type(PINHOLE.ideal()) is PinholeCamera and PINHOLE.ideal().ppx_mm == 0.0
