@@ -93,11 +93,12 @@ def rasters(in_path, outdir, res_m, crs):
     """
     import logging
 
+    from aerotri.geom import las
     from lidarctl import io
     from lidarctl import rasters as rs
 
     # Streamed chunk by chunk into the grids: memory holds the grids, not the cloud.
-    _, units = io.resolve_crs_units(in_path, io.read_header(in_path), crs)
+    _, units = io.resolve_crs_units(in_path, las.read_header(in_path), crs)
     if not units.is_metric:
         logging.getLogger(__name__).info(
             "%s: %s; cells of %g m = %.6g %s, heights in %s", in_path, units.describe(), res_m,

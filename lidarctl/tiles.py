@@ -56,6 +56,7 @@ from pathlib import Path
 import laspy
 import numpy as np
 
+from aerotri.geom import las
 from lidarctl import io
 from aerotri.core.atomic import atomic_path, refuse_input_as_output, temporary_dir
 from aerotri.core.errors import InputError, OptionError, ResourceError
@@ -231,19 +232,19 @@ def split_into_tiles(in_path, grid: TileGrid, work_dir, params, chunk_points: in
     """Pass 1: stream the input and append each tile's points to its LAS file; list of TileTask.
 
     Every chunk is validated (InputError naming the record for NaN / absurd coordinates; truncated
-    files are reported by ``io.iter_chunks``). Tiles without core points get no task. With
+    files are reported by ``las.iter_chunks``). Tiles without core points get no task. With
     ``records_path`` the raw point records are also copied there in file order (uncompressed), so
     that writing the output needs no second decompression of a LAZ input. ``units``: the input's
     linear units (points are assigned to tiles in metres; the records are copied unchanged).
     """
     work_dir = Path(work_dir)
-    header = io.read_header(in_path)
+    header = las.read_header(in_path)
     tile_header = _tile_header(header)
     has_core = np.zeros(grid.n_tiles, bool)
     started: set[int] = set()
     records = open(records_path, "wb") if records_path is not None else None
     with progress(header.point_count, "tiles: split", "pt", unit_scale=True) as bar:
-        for first, chunk in io.iter_chunks(in_path, chunk_points):
+        for first, chunk in las.iter_file_chunks(in_path, chunk_points):
             if records is not None:
                 records.write(chunk.array.tobytes())
             x, y = np.asarray(chunk.x), np.asarray(chunk.y)
@@ -363,7 +364,7 @@ def classify_file(in_path, out_path, crs=None, params=None, tile_size_m: float |
     params = params or cl.ClassifyParams()
     in_path, out_path = Path(in_path), Path(out_path)
     refuse_input_as_output(out_path, [in_path], "OUT_PATH")
-    header = io.read_header(in_path)
+    header = las.read_header(in_path)
     n = header.point_count
     if n == 0:
         raise InputError(f"{in_path}: the file holds no points")
@@ -389,7 +390,7 @@ def classify_file(in_path, out_path, crs=None, params=None, tile_size_m: float |
 def _classify_into(in_path, out_path, *, crs, out_crs, units, params, grid, executor, work_dir, chunk_points,
                    stats, t0) -> None:
     """The work of ``classify_file`` (one piece or tiled); fills ``stats``."""
-    header = io.read_header(in_path)
+    header = las.read_header(in_path)
     n = header.point_count
     if grid.n_tiles == 1:
         classes, records, _ = _direct_classes(in_path, crs, params, chunk_points)

@@ -9,6 +9,7 @@ import pytest
 from click.testing import CliRunner
 
 from aerotri.core.executor import Executor
+from aerotri.geom import las as las_format
 from lidarctl import classify as cl
 from lidarctl import io, synthetic, tiles
 from lidarctl.cli import main
@@ -74,7 +75,7 @@ def test_tile_grid_cores_partition_and_buffers_match_brute_force():
 
 def test_plan_defaults_and_option_errors(big):
     d, _, _ = big
-    header = io.read_header(d / "in.laz")
+    header = las_format.read_header(d / "in.laz")
     grid = tiles.plan_tiles(header)
     assert grid.n_tiles == 1 and grid.buffer_m == tiles.default_buffer_m() == 60.0
     # 4 points/m^2: 250 k points in 250 m (core 130 m + 2 x 60 m) -> 2 tiles of 150 m per axis.
@@ -132,7 +133,7 @@ def test_tiled_equals_untiled_and_keeps_every_other_field(big, classified):
 def test_one_tile_split_equals_direct_path(big, tmp_path):
     d = big[0]
     cloud = io.read_cloud(d / "plain.las")
-    header = io.read_header(d / "plain.las")
+    header = las_format.read_header(d / "plain.las")
     grid = tiles.plan_tiles(header, tile_size_m=1000.0)
     assert grid.n_tiles == 1
     params = cl.ClassifyParams()
