@@ -208,7 +208,7 @@ class Chain:
         from lidarctl.tiles import classify_file
 
         st = classify_file(self.merged, self.classified, params=self.options.classify)
-        return dict(points=st["n_points"], tiles=st["n_tiles"])
+        return dict(points=st.n_points, tiles=st.run.n_tiles)
 
     def run_rasters(self, root) -> dict:
         from aerotri.geom import las
