@@ -66,9 +66,16 @@ CLASS_NAMES = {1: "unclassified", 2: "ground", 3: "low veg", 4: "medium veg", 5:
 
 @dataclasses.dataclass
 class ClassifyParams:
-    ground_method: str = setting("morph", choices=ground_mod.METHODS, help="Ground filter: morphological + TIN "
-                                 "refinement, or progressive TIN densification.")
-    preset: str | None = setting(None, choices=tuple(ground_mod.MORPH_PRESETS), help="Ground filter parameters for "
+    """Options of the classification stage (``lidarctl classify``, ``[classify]`` in project.toml).
+
+    ``ground_method`` and ``preset`` name a filter of the ground-filter registry
+    (``lidarctl.ground.GROUND_FILTERS``) and one of its presets; the field choices list the filters
+    registered when this module is imported, ``__post_init__`` checks against the registry as it is.
+    """
+
+    ground_method: str = setting("morph", choices=tuple(ground_mod.GROUND_FILTERS), help="Ground filter: " + ", ".join(
+        f"{name} ({f.help})" if f.help else name for name, f in ground_mod.GROUND_FILTERS.items()) + ".")
+    preset: str | None = setting(None, choices=ground_mod.preset_names(), help="Ground filter parameters for "
                                  "the terrain type (default: the single all-round set).")
     cell_m: float = 0.0                 # 0: max(0.5 m, 2 x mean point spacing)
     building_min_height_m: float = 2.0
@@ -101,6 +108,9 @@ class ClassifyParams:
     edge_iterations: int = 8
     edge_zone_m: float = 3.0
     noise: noise_mod.NoiseParams = dataclasses.field(default_factory=noise_mod.NoiseParams)
+
+    def __post_init__(self):
+        ground_mod.check_method_preset(self.ground_method, self.preset)
 
 
 def _plane_rms(a: np.ndarray, cell_m: float) -> np.ndarray:

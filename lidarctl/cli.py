@@ -11,6 +11,8 @@ import click
 
 from aerotri.core.atomic import refuse_input_as_output
 from aerotri.core.commands import Group, positive, scheduler_options
+from aerotri.core.settings import click_type, constraints, default_of, field_named
+from lidarctl.classify import ClassifyParams
 
 
 @click.group(cls=Group)
@@ -42,11 +44,12 @@ def _parse_map(text: str | None, option: str) -> dict:
 @main.command()
 @click.argument("in_path", type=click.Path(dir_okay=False))
 @click.argument("out_path", type=click.Path(dir_okay=False))
-@click.option("--preset", type=click.Choice(["urban", "rural", "forest", "mountain"]), default=None,
-              help="Ground filter parameters for the terrain type (default: the single all-round set).")
+@click.option("--preset", type=click_type(ClassifyParams, "preset"), default=default_of(ClassifyParams, "preset"),
+              help=constraints(field_named(ClassifyParams, "preset"))["help"])
 @click.option("--crs", default=None, help="CRS (EPSG:code) when the file has none; never guessed.")
-@click.option("--method", type=click.Choice(["morph", "ptd"]), default="morph", show_default=True,
-              help="Ground filter: morphological + TIN refinement, or progressive TIN densification.")
+@click.option("--method", type=click_type(ClassifyParams, "ground_method"),
+              default=default_of(ClassifyParams, "ground_method"), show_default=True,
+              help=constraints(field_named(ClassifyParams, "ground_method"))["help"])
 @click.option("--tile-size", "tile_size_m", type=positive(), default=None,
               help="Tile size in metres, also for clouds in feet (default: about 4 M points per tile with its "
                    "buffer at the file's density).")
@@ -67,16 +70,16 @@ def classify(in_path, out_path, preset, crs, method, tile_size_m, buffer_m, work
     from aerotri.core.executor import executor_for
 
     refuse_input_as_output(out_path, [in_path], "OUT_PATH")
-    params = cl.ClassifyParams(ground_method=method, preset=preset)
+    params = ClassifyParams(ground_method=method, preset=preset)
     with executor_for(scheduler, workers) as executor:
         stats = tiles.classify_file(in_path, out_path, crs=crs, params=params, tile_size_m=tile_size_m,
                                     buffer_m=buffer_m, executor=executor, work_dir=work_dir)
-    counts = {cl.CLASS_NAMES.get(c, str(c)): k for c, k in stats["class_counts"].items()}
-    n, dt = stats["n_points"], stats["seconds"]
-    units = "" if stats["xy_unit"] == "m" and stats["z_unit"] == "m" else \
-        f"; coordinates in {stats['xy_unit']}, heights in {stats['z_unit']}, processed in metres"
-    click.echo(f"{out_path}: {n} points in {dt:.1f} s ({n / dt:,.0f} points/s; {stats['n_tiles']} tiles of "
-               f"{stats['tile_m']:g} m + {stats['buffer_m']:g} m buffer, {executor.describe()}{units}); {counts}")
+    counts = {cl.CLASS_NAMES.get(c, str(c)): k for c, k in stats.run.class_counts.items()}
+    n, dt, u = stats.n_points, stats.seconds, stats.units
+    units = "" if u.xy_name == "m" and u.z_name == "m" else \
+        f"; coordinates in {u.xy_name}, heights in {u.z_name}, processed in metres"
+    click.echo(f"{out_path}: {n} points in {dt:.1f} s ({n / dt:,.0f} points/s; {stats.run.n_tiles} tiles of "
+               f"{stats.grid.tile_m:g} m + {stats.grid.buffer_m:g} m buffer, {executor.describe()}{units}); {counts}")
 
 
 @main.command()
@@ -93,11 +96,12 @@ def rasters(in_path, outdir, res_m, crs):
     """
     import logging
 
+    from aerotri.geom import las
     from lidarctl import io
     from lidarctl import rasters as rs
 
     # Streamed chunk by chunk into the grids: memory holds the grids, not the cloud.
-    _, units = io.resolve_crs_units(in_path, io.read_header(in_path), crs)
+    _, units = io.resolve_crs_units(in_path, las.read_header(in_path), crs)
     if not units.is_metric:
         logging.getLogger(__name__).info(
             "%s: %s; cells of %g m = %.6g %s, heights in %s", in_path, units.describe(), res_m,

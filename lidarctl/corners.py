@@ -44,7 +44,7 @@ from scipy.spatial import cKDTree
 from aerotri.core.atomic import refuse_input_as_output, write_text_atomic
 from aerotri.core.errors import InputError
 from aerotri.core.settings import setting
-from aerotri.geom.crs import crs_label
+from aerotri.geom.crs import crs_label, same_crs
 from lidarctl import io as las_io
 from lidarctl.grid import check_grid
 from lidarctl.roof_outline import (
@@ -98,7 +98,7 @@ def read_strips(paths, crs=None) -> dict:
     clouds = [read_classified_cloud(p, crs=crs, require_crs=True) for p in paths]
     first = clouds[0]
     for p, c in zip(paths[1:], clouds[1:]):
-        if not las_io.same_crs(c["crs"], first["crs"]) or c["units"] != first["units"]:
+        if not same_crs(c["crs"], first["crs"]) or c["units"] != first["units"]:
             raise InputError(
                 f"{p}: CRS {crs_label(c['crs'])} ({c['units'].describe()}) differs from the CRS of {paths[0]}, "
                 f"{crs_label(first['crs'])} ({first['units'].describe()}); give strips in one CRS "

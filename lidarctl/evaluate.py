@@ -21,6 +21,7 @@ from __future__ import annotations
 import numpy as np
 
 from aerotri.core.errors import InputError
+from aerotri.geom import las
 from lidarctl import io
 
 SAME_POINT_TOL_M = 0.011
@@ -37,8 +38,8 @@ def read_same_points(pred_path, truth_path):
     # x, y of a file with a known CRS are metres; a file without CRS takes the other's unit.
     pf = 1.0 if pu.known else (tu.xy_m if tu.known else 1.0)
     tf = 1.0 if tu.known else (pu.xy_m if pu.known else 1.0)
-    step = max(float(np.max(io.read_header(pred_path).scales[:2])) * (pu.xy_m if pu.known else pf),
-               float(np.max(io.read_header(truth_path).scales[:2])) * (tu.xy_m if tu.known else tf))
+    step = max(float(np.max(las.read_header(pred_path).scales[:2])) * (pu.xy_m if pu.known else pf),
+               float(np.max(las.read_header(truth_path).scales[:2])) * (tu.xy_m if tu.known else tf))
     tol = max(SAME_POINT_TOL_M, 1.1 * step) if (pu.known or tu.known) else 1.1 * step
     unit = "m" if (pu.known or tu.known) else "file units"
     for axis in ("x", "y"):

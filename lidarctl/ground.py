@@ -35,17 +35,26 @@ Presets tune the parameters for urban, rural, forest and mountain terrain. The d
 parameter set (``MorphParams()``) for all reference samples: it met the ISPRS target, while the
 PTD with cell-minimum seeds failed on the steep urban slope (samp11) and the gap/outlier sample
 (samp41); see results/lidar_isprs.json for both.
+
+Registry (``GROUND_FILTERS``): name -> ``GroundFilter`` (parameters dataclass, presets, reach,
+function). ``ground_filter``, the classifier's settings (``ClassifyParams``), the command line's
+``--method``/``--preset`` choices and the tile buffer (``lidarctl.tiles``) read it. Adding a filter:
+a module with its parameters dataclass and its function ``run(x, y, z, params) -> ground mask``, and
+one registry line, e.g. ``GROUND_FILTERS["csf"] = GroundFilter(CsfParams, csf_ground, reach_m=...)``.
 """
 
 from __future__ import annotations
 
 import dataclasses
+from collections.abc import Callable, Mapping
+from typing import Any
 
 import numba
 import numpy as np
 from scipy import ndimage
 from scipy.spatial import Delaunay, cKDTree
 
+from aerotri.core.errors import OptionError
 from lidarctl import grid
 
 
@@ -64,8 +73,7 @@ class GroundParams:
     plateau_max_area_m2: float = 2500.0
 
 
-DEFAULT = GroundParams()
-PRESETS = {
+PTD_PRESETS = {
     "urban": GroundParams(),
     "rural": GroundParams(seed_cell_m=40.0),
     "forest": GroundParams(seed_cell_m=30.0, max_angle_deg=14.0),
@@ -73,9 +81,10 @@ PRESETS = {
 }
 
 
-def params_for(preset: str | None, **overrides) -> GroundParams:
-    base = DEFAULT if preset is None else PRESETS[preset]
-    return dataclasses.replace(base, **{k: v for k, v in overrides.items() if v is not None})
+def ptd_reach_m(p: GroundParams) -> float:
+    """How far (m) the PTD looks: seeds are the lowest points of ``seed_cell_m`` cells (larger than the
+    largest building) and are checked against the plane through the seeds within 1.5 seed cells."""
+    return 1.5 * p.seed_cell_m
 
 
 def _seed_plane_check(sx, sy, sz, radius_m, max_residual_m):
@@ -194,7 +203,7 @@ def ptd_ground(x, y, z, params: GroundParams | None = None, return_tin: bool = F
     ``seed_mask`` (optional) restricts the seeds to points already known as ground (e.g. from
     the morphological filter); the lowest such point per seed cell becomes a seed.
     """
-    p = params or DEFAULT
+    p = params or GroundParams()
     n = len(x)
     if n < 3:
         raise ValueError("ground filtering needs at least 3 points")
@@ -360,29 +369,100 @@ MORPH_PRESETS = {
     "forest": MorphParams(max_window_m=18.0, slope=0.4, elevation_scaler=1.5),
     "mountain": MorphParams(max_window_m=18.0, slope=0.6, elevation_scaler=2.0, refine_scaler=1.5),
 }
-METHODS = ("morph", "ptd")
+
+
+def morph_reach_m(p: MorphParams) -> float:
+    """How far (m) the morphological filter and the classifier around it look from a point.
+
+    The opening with the largest window of radius r (``max_window_m``, 25 m) is an erosion then a
+    dilation, so a cell's opened height depends on the minimum surface up to 2 r away (50 m); a
+    building is removed only when its whole footprint (up to 2 r wide) lies in the tile. The noise
+    filter's low-outlier patch test looks 50 m around ("no terrain at their height within 50 m"),
+    and the class rules add a few cells (3x3 plane fits, 3x3 cells of 5 m for deep ground outliers,
+    a 5-cell density window for water): 2 r + 10 m, at least 50 m (60 m by default).
+    """
+    return max(2.0 * p.max_window_m + 10.0, 50.0)
+
+
+# ---------------------------------------------------------------------------------------- registry
+@dataclasses.dataclass(frozen=True)
+class GroundFilter:
+    """One ground filter of the registry.
+
+    ``params``: its parameters dataclass (``params()`` is the default set); ``run(x, y, z, params)``:
+    the ground mask (bool per point; x, y, z in metres); ``reach_m(params)``: how far (m) the filter
+    looks from a point, the overlap buffer a tile needs so that its core points are classified as in
+    the whole cloud (``lidarctl.tiles``); ``presets``: parameter sets by terrain type. Parameters
+    with ``plateau_min_step_m`` > 0 (and ``plateau_max_area_m2``) add the raised-plateau test.
+    """
+
+    params: type
+    run: Callable[..., np.ndarray]
+    reach_m: Callable[[Any], float]
+    presets: Mapping[str, Any] = dataclasses.field(default_factory=dict)
+    help: str = ""
+
+    def params_for(self, preset: str | None = None, **overrides):
+        """The parameters of ``preset`` (None: the defaults) with the overrides that are not None."""
+        base = self.params() if preset is None else self.presets[preset]
+        return dataclasses.replace(base, **{k: v for k, v in overrides.items() if v is not None})
+
+
+GROUND_FILTERS: dict[str, GroundFilter] = {
+    "morph": GroundFilter(MorphParams, morphological_ground, morph_reach_m, MORPH_PRESETS,
+                          help="morphological + TIN refinement"),
+    "ptd": GroundFilter(GroundParams, ptd_ground, ptd_reach_m, PTD_PRESETS, help="progressive TIN densification"),
+}
+
+
+def ground_filter_named(method: str) -> GroundFilter:
+    """The registry entry of ``method``; ValueError naming the registered filters."""
+    try:
+        return GROUND_FILTERS[method]
+    except KeyError:
+        raise ValueError(f"unknown ground method {method!r}, expected one of {', '.join(GROUND_FILTERS)}") from None
+
+
+def preset_names() -> tuple[str, ...]:
+    """Every preset name of the registered filters, in registry order (the ``--preset`` choices)."""
+    return tuple(dict.fromkeys(name for f in GROUND_FILTERS.values() for name in f.presets))
+
+
+def check_method_preset(method: str, preset: str | None) -> None:
+    """``OptionError`` (naming ``--method`` or ``--preset``) unless ``method`` is a registered filter
+    and ``preset`` (None: the defaults) one of its presets."""
+    if method not in GROUND_FILTERS:
+        raise OptionError(f"ground_method = {method!r}: expected one of {', '.join(GROUND_FILTERS)}",
+                          param="--method")
+    presets = GROUND_FILTERS[method].presets
+    if preset is not None and preset not in presets:
+        raise OptionError(f"preset = {preset!r}: the {method!r} ground filter has "
+                          + (f"the presets {', '.join(presets)}" if presets else "no presets"), param="--preset")
+
+
+def reach_m(method: str = "morph", preset: str | None = None) -> float:
+    """How far (m) the named filter with ``preset`` looks from a point (see ``GroundFilter``)."""
+    f = ground_filter_named(method)
+    return float(f.reach_m(f.params_for(preset)))
 
 
 def ground_filter(x, y, z, method: str = "morph", preset: str | None = None, **overrides) -> np.ndarray:
-    """Ground mask with the named method and preset (None = the default parameter set).
+    """Ground mask with the named filter (``GROUND_FILTERS``) and preset (None = its default
+    parameters); ``overrides``: parameter values (None = keep).
 
-    Both methods are followed by the raised-plateau test: ground segments standing on walls above
+    The filter is followed by the raised-plateau test: ground segments standing on walls above
     the surrounding terrain (low, wide roofs the filter window could not lift) become objects.
     """
-    if method == "morph":
-        base = MorphParams() if preset is None else MORPH_PRESETS[preset]
-        params = dataclasses.replace(base, **{k: v for k, v in overrides.items() if v is not None})
-        ground = morphological_ground(x, y, z, params)
-    elif method == "ptd":
-        params = params_for(preset, **overrides)
-        ground = ptd_ground(x, y, z, params)
-    else:
-        raise ValueError(f"unknown ground method {method!r}, expected one of {METHODS}")
-    if params.plateau_min_step_m > 0 and ground.sum() >= 10:
+    f = ground_filter_named(method)
+    if preset is not None and preset not in f.presets:
+        check_method_preset(method, preset)
+    params = f.params_for(preset, **overrides)
+    ground = f.run(x, y, z, params)
+    min_step_m = getattr(params, "plateau_min_step_m", 0.0)
+    if min_step_m > 0 and ground.sum() >= 10:
         g = np.flatnonzero(ground)
         cell_m = max(1.0, 1.5 * grid.mean_spacing_m(x, y))
-        ground[g[raised_plateaus(x[g], y[g], z[g], cell_m, params.plateau_min_step_m,
-                                 params.plateau_max_area_m2)]] = False
+        ground[g[raised_plateaus(x[g], y[g], z[g], cell_m, min_step_m, params.plateau_max_area_m2)]] = False
     return ground
 
 

@@ -19,14 +19,7 @@ import numpy as np
 from aerotri.core.atomic import atomic_path, refuse_input_as_output
 from aerotri.core.errors import CrsError, InputError
 from aerotri.geom.crs import crs_label, horizontal_crs, parse_crs, same_horizontal, same_vertical, vertical_crs
-from lidarctl import io
-
-
-def _file_crs(path, header: laspy.LasHeader):
-    try:
-        return header.parse_crs()
-    except Exception as exc:  # laspy/pyproj raise several types for broken CRS records
-        raise CrsError(f"{path}: CRS record present but unreadable ({exc})") from None
+from aerotri.geom import las
 
 
 def merge_las(paths, out_path, crs=None, chunk_points: int = 2_000_000) -> int:
@@ -36,14 +29,14 @@ def merge_las(paths, out_path, crs=None, chunk_points: int = 2_000_000) -> int:
         raise InputError("no LAS/LAZ files to merge")
     refuse_input_as_output(out_path, paths)
     project_crs = parse_crs(crs, "project CRS") if crs is not None else None
-    headers = [io.read_header(p) for p in paths]
+    headers = [las.read_header(p) for p in paths]
     first = headers[0]
     reference, reference_name = project_crs, "the project CRS"
     for p, h in zip(paths, headers):
         if h.point_format.id != first.point_format.id:
             raise InputError(f"{p}: point format {h.point_format.id} differs from {paths[0]} "
                              f"({first.point_format.id}); convert before merging")
-        file_crs = _file_crs(p, h)
+        file_crs = las.read_header_crs(p, h)
         if file_crs is None:
             continue
         if reference is None:
@@ -71,7 +64,7 @@ def merge_las(paths, out_path, crs=None, chunk_points: int = 2_000_000) -> int:
     with atomic_path(out_path) as tmp:
         with laspy.open(tmp, mode="w", header=header) as w:
             for p in paths:
-                for _, chunk in io.iter_chunks(p, chunk_points):
+                for _, chunk in las.iter_file_chunks(p, chunk_points):
                     if np.array_equal(chunk.scales, header.scales) and np.array_equal(chunk.offsets, header.offsets):
                         w.write_points(chunk)
                     else:

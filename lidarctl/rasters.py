@@ -28,6 +28,7 @@ from rasterio.shutil import copy as rio_copy
 from rasterio.transform import from_origin
 from scipy import ndimage
 
+from aerotri.geom import las
 from lidarctl import io
 from aerotri.core.atomic import atomic_path, refuse_input_as_output, temporary_dir
 from aerotri.core.errors import InputError, OptionError
@@ -161,7 +162,7 @@ def make_grids_streamed(path, res_m: float, footprint_cells: int = 3, chunk_poin
     LAS specification requires to enclose the points; a point outside them is an InputError).
     ``units``: the file's linear units (the grids are in metres). Returns (grids, number of points)."""
     check_res(res_m)
-    header = io.read_header(path)
+    header = las.read_header(path)
     mins, maxs = np.asarray(header.mins, float), np.asarray(header.maxs, float)
     if header.point_count == 0:
         raise InputError(f"{path}: the file holds no points")
@@ -174,7 +175,7 @@ def make_grids_streamed(path, res_m: float, footprint_cells: int = 3, chunk_poin
     sums = _CellSums(args)
 
     def chunks(validate):
-        for first, chunk in io.iter_chunks(path, chunk_points):
+        for first, chunk in las.iter_file_chunks(path, chunk_points):
             x, y, z = np.asarray(chunk.x), np.asarray(chunk.y), np.asarray(chunk.z)
             if validate:
                 io.validate_xyz(path, x, y, z, first, units)
@@ -266,11 +267,11 @@ def write_rasters(cloud, outdir, res_m: float, crs=None) -> list[Path]:
     else:
         for f in FILES:
             refuse_input_as_output(outdir / f, [cloud], "OUTDIR")
-        header = io.read_header(cloud)
+        header = las.read_header(cloud)
         crs, units = io.resolve_crs_units(cloud, header, crs)
         # The DEM and DSM keep a compound CRS's vertical part (their heights' datum and unit), so that
         # ortho and 'crs warp' can bring them into another height system; the rest are relative.
-        file_crs = io.file_crs(header)
+        file_crs = las.header_crs(header)
         surface_crs = file_crs if file_crs is not None and file_crs.is_compound else crs
     grids = make_grids(cloud, res_m) if isinstance(cloud, PointCloud) else \
         make_grids_streamed(cloud, res_m, units=units)[0]

@@ -183,9 +183,10 @@ def metric_copy(in_path, out_path) -> pyproj.CRS:
     import laspy
     from laspy.vlrs.known import WktCoordinateSystemVlr
 
+    from aerotri.geom import las
     from lidarctl import io
 
-    header = io.read_header(in_path)
+    header = las.read_header(in_path)
     crs, units = io.resolve_crs_units(in_path, header, None)
     twin = metric_twin_crs(crs)
     records = io.read_records(in_path)

@@ -48,6 +48,7 @@ from __future__ import annotations
 
 import contextlib
 import dataclasses
+import logging
 import math
 import shutil
 import time
@@ -56,6 +57,7 @@ from pathlib import Path
 import laspy
 import numpy as np
 
+from aerotri.geom import las
 from lidarctl import io
 from aerotri.core.atomic import atomic_path, refuse_input_as_output, temporary_dir
 from aerotri.core.errors import InputError, OptionError, ResourceError
@@ -63,6 +65,8 @@ from aerotri.core.executor import local_executor
 from aerotri.core.log import progress
 from aerotri.geom.crs import parse_crs
 from lidarctl.units import METRE, LengthUnits
+
+logger = logging.getLogger(__name__)
 
 # An inner tile of about this many points (core + buffer) keeps one classification task under
 # about 1 GB of memory (classify_points needs about 200 bytes per point), so two tasks at a time
@@ -74,25 +78,12 @@ MAX_TILES = 1_000_000
 
 
 def default_buffer_m(method: str = "morph", preset: str | None = None) -> float:
-    """Overlap buffer (m) beyond which a point cannot change the classes of a tile's core points.
-
-    * Morphological ground filter (default): the opening with the largest window of radius r
-      (``MorphParams.max_window_m``, 25 m) is an erosion then a dilation, so a cell's opened height
-      depends on the minimum surface up to 2 r away (50 m); a building is removed only when its
-      whole footprint (up to 2 r wide) lies in the tile. The noise filter's low-outlier patch test
-      looks 50 m around ("no terrain at their height within 50 m"), and the class rules add a few
-      cells (3x3 plane fits, 3x3 cells of 5 m for deep ground outliers, a 5-cell density window for
-      water): 2 r + 10 m = 60 m.
-    * Progressive TIN densification: seeds are the lowest points of ``seed_cell_m`` cells (60 m,
-      larger than the largest building) and are checked against the plane through the seeds
-      within 1.5 seed cells, so the buffer is 1.5 seed cells (90 m).
-    """
+    """Overlap buffer (m) beyond which a point cannot change the classes of a tile's core points: the
+    reach of the ground filter (``lidarctl.ground.GROUND_FILTERS``) with ``preset``; 60 m for the
+    default morphological filter, 90 m for the progressive TIN densification."""
     from lidarctl import ground
 
-    if method == "ptd":
-        return 1.5 * ground.params_for(preset).seed_cell_m
-    morph = ground.MorphParams() if preset is None else ground.MORPH_PRESETS[preset]
-    return max(2.0 * morph.max_window_m + 10.0, 50.0)
+    return ground.reach_m(method, preset)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -231,19 +222,19 @@ def split_into_tiles(in_path, grid: TileGrid, work_dir, params, chunk_points: in
     """Pass 1: stream the input and append each tile's points to its LAS file; list of TileTask.
 
     Every chunk is validated (InputError naming the record for NaN / absurd coordinates; truncated
-    files are reported by ``io.iter_chunks``). Tiles without core points get no task. With
+    files are reported by ``las.iter_chunks``). Tiles without core points get no task. With
     ``records_path`` the raw point records are also copied there in file order (uncompressed), so
     that writing the output needs no second decompression of a LAZ input. ``units``: the input's
     linear units (points are assigned to tiles in metres; the records are copied unchanged).
     """
     work_dir = Path(work_dir)
-    header = io.read_header(in_path)
+    header = las.read_header(in_path)
     tile_header = _tile_header(header)
     has_core = np.zeros(grid.n_tiles, bool)
     started: set[int] = set()
     records = open(records_path, "wb") if records_path is not None else None
     with progress(header.point_count, "tiles: split", "pt", unit_scale=True) as bar:
-        for first, chunk in io.iter_chunks(in_path, chunk_points):
+        for first, chunk in las.iter_file_chunks(in_path, chunk_points):
             if records is not None:
                 records.write(chunk.array.tobytes())
             x, y = np.asarray(chunk.x), np.asarray(chunk.y)
@@ -298,7 +289,18 @@ def _numba_threads(n: int):
         numba.set_num_threads(before)
 
 
-def classify_tile(task: TileTask) -> dict:
+@dataclasses.dataclass(frozen=True)
+class TileResult:
+    """What one tile task did: points with the buffer, core points, seconds."""
+
+    row: int
+    col: int
+    n_points: int
+    n_core: int
+    seconds: float
+
+
+def classify_tile(task: TileTask) -> TileResult:
     """Pass 2 (an executor task): classify one tile with its buffer, keep the core points' classes.
 
     Writes ``classes_path`` (uint8 ASPRS classes) and ``core_index_path`` (int64 point indices in
@@ -328,8 +330,7 @@ def classify_tile(task: TileTask) -> dict:
         np.save(tmp, classes)
     with atomic_path(task.core_index_path) as tmp:
         np.save(tmp, index[core])
-    return {"row": task.row, "col": task.col, "n_points": int(len(x)), "n_core": int(core.sum()),
-            "seconds": time.perf_counter() - t0}
+    return TileResult(task.row, task.col, int(len(x)), int(core.sum()), time.perf_counter() - t0)
 
 
 def _direct_classes(in_path, crs, params, chunk_points):
@@ -344,9 +345,57 @@ def _direct_classes(in_path, crs, params, chunk_points):
     return classes, records, cloud.crs
 
 
-def classify_file(in_path, out_path, crs=None, params=None, tile_size_m: float | None = None,
+@dataclasses.dataclass(frozen=True)
+class ClassifyRun:
+    """What the passes of ``classify_file`` did: tasks, points classified (with buffers, so at least
+    the file's count), class counts of the output and seconds per pass (``split_s`` and
+    ``tile_cpu_s``, the seconds summed over the tasks, only for a tiled run)."""
+
+    n_tiles: int
+    tiled_points: int
+    max_tile_points: int
+    class_counts: dict[int, int]
+    classify_s: float
+    write_s: float
+    split_s: float | None = None
+    tile_cpu_s: float | None = None
+
+
+@dataclasses.dataclass(frozen=True)
+class ClassifyStats:
+    """Statistics of ``classify_file``: the file's points, the tile grid (metres), the file's units,
+    the passes, total seconds and the CRS (text; None when unknown)."""
+
+    n_points: int
+    grid: TileGrid
+    units: LengthUnits
+    run: ClassifyRun
+    seconds: float
+    crs: str | None
+
+    @property
+    def buffer_overhead(self) -> float:
+        """Points classified (cores + buffers) per point of the file."""
+        return self.run.tiled_points / self.n_points
+
+    def to_dict(self) -> dict:
+        """The statistics as plain values (``_m`` keys in metres; units named)."""
+        r = self.run
+        passes = {"n_tiles": r.n_tiles, "tiled_points": r.tiled_points, "max_tile_points": r.max_tile_points}
+        if r.split_s is not None:
+            passes["split_s"] = r.split_s
+        passes.update(classify_s=r.classify_s, write_s=r.write_s)
+        if r.tile_cpu_s is not None:
+            passes["tile_cpu_s"] = r.tile_cpu_s
+        return {"n_points": self.n_points, "tile_m": self.grid.tile_m, "buffer_m": self.grid.buffer_m,
+                "tile_rows": self.grid.nrows, "tile_cols": self.grid.ncols, **self.units.as_dict(), **passes,
+                "class_counts": r.class_counts, "buffer_overhead": self.buffer_overhead, "seconds": self.seconds,
+                "crs": self.crs}
+
+
+def classify_file(in_path, out_path, crs=None, params=None, *, tile_size_m: float | None = None,
                   buffer_m: float | None = None, executor=None, work_dir=None,
-                  chunk_points: int = io.CHUNK_POINTS) -> dict:
+                  chunk_points: int = io.CHUNK_POINTS) -> ClassifyStats:
     """Classify a LAS/LAZ file of any size into ``out_path`` (LAS/LAZ by suffix), tile by tile.
 
     ``crs``: used only when the file has none (never guessed). ``params``: classify.ClassifyParams.
@@ -363,7 +412,7 @@ def classify_file(in_path, out_path, crs=None, params=None, tile_size_m: float |
     params = params or cl.ClassifyParams()
     in_path, out_path = Path(in_path), Path(out_path)
     refuse_input_as_output(out_path, [in_path], "OUT_PATH")
-    header = io.read_header(in_path)
+    header = las.read_header(in_path)
     n = header.point_count
     if n == 0:
         raise InputError(f"{in_path}: the file holds no points")
@@ -371,70 +420,79 @@ def classify_file(in_path, out_path, crs=None, params=None, tile_size_m: float |
     # A CRS record for an input without one: the --crs as given (a compound CRS keeps its vertical unit).
     out_crs = parse_crs(crs, "--crs") if crs is not None and str(crs).strip() else resolved
     grid = plan_tiles(header, tile_size_m, buffer_m, params.ground_method, params.preset, in_path, units=units)
-    stats = {"n_points": int(n), "tile_m": grid.tile_m, "buffer_m": grid.buffer_m,
-             "tile_rows": grid.nrows, "tile_cols": grid.ncols, **units.as_dict()}
+    logger.debug("%s: %d points, %d x %d tiles of %g m + %g m buffer", in_path, n, grid.nrows, grid.ncols,
+                 grid.tile_m, grid.buffer_m)
     try:
-        _classify_into(in_path, out_path, crs=crs, out_crs=out_crs, units=units, params=params, grid=grid,
-                       executor=executor, work_dir=work_dir, chunk_points=chunk_points, stats=stats, t0=t0)
+        if grid.n_tiles == 1:
+            run = _classify_whole(in_path, out_path, crs=crs, out_crs=out_crs, params=params,
+                                  chunk_points=chunk_points, t0=t0)
+        else:
+            run = _classify_tiled(in_path, out_path, out_crs=out_crs, units=units, params=params, grid=grid,
+                                  executor=executor, work_dir=work_dir, chunk_points=chunk_points, t0=t0)
     except ResourceError as exc:
         # A grid inside the classifier would not fit: name the file (points spread far apart, e.g.
         # strips of two zones merged under one CRS).
         raise ResourceError(f"{in_path}: {exc}", param=exc.param) from exc
-    stats["buffer_overhead"] = stats["tiled_points"] / n
-    stats["seconds"] = time.perf_counter() - t0
-    stats["crs"] = resolved.to_string() if resolved is not None else None
-    return stats
+    return ClassifyStats(n_points=int(n), grid=grid, units=units, run=run, seconds=time.perf_counter() - t0,
+                         crs=resolved.to_string() if resolved is not None else None)
 
 
-def _classify_into(in_path, out_path, *, crs, out_crs, units, params, grid, executor, work_dir, chunk_points,
-                   stats, t0) -> None:
-    """The work of ``classify_file`` (one piece or tiled); fills ``stats``."""
-    header = io.read_header(in_path)
+def _class_counts(counts: np.ndarray) -> dict[int, int]:
+    return {int(c): int(counts[c]) for c in np.flatnonzero(counts)}
+
+
+def _classify_whole(in_path, out_path, *, crs, out_crs, params, chunk_points, t0) -> ClassifyRun:
+    """``classify_file`` of a one-tile input: classified in memory, written from the records kept."""
+    n = las.read_header(in_path).point_count
+    classes, records, _ = _direct_classes(in_path, crs, params, chunk_points)
+    t1 = time.perf_counter()
+    io.write_classified(in_path, out_path, classes, crs=out_crs, records=records)
+    return ClassifyRun(n_tiles=1, tiled_points=int(n), max_tile_points=int(n),
+                       class_counts=_class_counts(np.bincount(classes, minlength=256)),
+                       classify_s=t1 - t0, write_s=time.perf_counter() - t1)
+
+
+def _classify_tiled(in_path, out_path, *, out_crs, units, params, grid, executor, work_dir, chunk_points,
+                    t0) -> ClassifyRun:
+    """``classify_file`` in tiles: split (pass 1), classify tiles on the executor (pass 2), scatter
+    the core classes into a memory-mapped file and write the output from the records copy (pass 3)."""
+    header = las.read_header(in_path)
     n = header.point_count
-    if grid.n_tiles == 1:
-        classes, records, _ = _direct_classes(in_path, crs, params, chunk_points)
+    if n < 10:
+        raise InputError(f"{in_path}: only {n} points; classification needs at least 10")
+    if executor is None:
+        executor = local_executor()
+    parent = Path(work_dir) if work_dir is not None else out_path.parent
+    parent.mkdir(parents=True, exist_ok=True)
+    tmp_dir = temporary_dir(parent, f"{out_path.stem}.tiles")
+    try:
+        tasks = split_into_tiles(in_path, grid, tmp_dir, params, chunk_points, tmp_dir / "records.bin", units)
+        # Cores per task: tasks run side by side on the executor's workers (on a remote cluster
+        # numba keeps its default).
+        per_task = executor.cores_per_task(len(tasks))
+        if per_task is not None:
+            tasks = [dataclasses.replace(t, numba_threads=per_task) for t in tasks]
         t1 = time.perf_counter()
-        io.write_classified(in_path, out_path, classes, crs=out_crs, records=records)
-        stats.update(n_tiles=1, tiled_points=int(n), max_tile_points=int(n), classify_s=t1 - t0,
-                     write_s=time.perf_counter() - t1)
-        counts = np.bincount(classes, minlength=256)
-    else:
-        if n < 10:
-            raise InputError(f"{in_path}: only {n} points; classification needs at least 10")
-        if executor is None:
-            executor = local_executor()
-        parent = Path(work_dir) if work_dir is not None else out_path.parent
-        parent.mkdir(parents=True, exist_ok=True)
-        tmp_dir = temporary_dir(parent, f"{out_path.stem}.tiles")
-        try:
-            tasks = split_into_tiles(in_path, grid, tmp_dir, params, chunk_points, tmp_dir / "records.bin", units)
-            # Cores per task: tasks run side by side on the executor's workers (on a remote cluster
-            # numba keeps its default).
-            per_task = executor.cores_per_task(len(tasks))
-            if per_task is not None:
-                tasks = [dataclasses.replace(t, numba_threads=per_task) for t in tasks]
-            t1 = time.perf_counter()
-            results = executor.map(classify_tile, tasks, desc="tiles: classify", unit="tile")
-            t2 = time.perf_counter()
-            # 0 is no class classify_points assigns: it marks points no tile core claimed.
-            classes = np.lib.format.open_memmap(tmp_dir / "classes.npy", mode="w+", dtype=np.uint8, shape=(n,))
-            for task in tasks:
-                classes[np.load(task.core_index_path)] = np.load(task.classes_path)
-            classes.flush()
-            checked = _CheckedClasses(classes)
-            with progress(n, "tiles: write", "pt", unit_scale=True) as bar:
-                io.write_classified(in_path, out_path, checked, crs=out_crs, progress=bar.update,
-                                    records=_stored_records(tmp_dir / "records.bin", header, chunk_points))
-            counts = checked.counts
-            del classes
-            t3 = time.perf_counter()
-        finally:
-            shutil.rmtree(tmp_dir, ignore_errors=True)
-        stats.update(n_tiles=len(tasks), tiled_points=int(sum(r["n_points"] for r in results)),
-                     max_tile_points=int(max(r["n_points"] for r in results)),
-                     split_s=t1 - t0, classify_s=t2 - t1, write_s=t3 - t2,
-                     tile_cpu_s=float(sum(r["seconds"] for r in results)))
-    stats["class_counts"] = {int(c): int(counts[c]) for c in np.flatnonzero(counts)}
+        results = executor.map(classify_tile, tasks, desc="tiles: classify", unit="tile")
+        t2 = time.perf_counter()
+        # 0 is no class classify_points assigns: it marks points no tile core claimed.
+        classes = np.lib.format.open_memmap(tmp_dir / "classes.npy", mode="w+", dtype=np.uint8, shape=(n,))
+        for task in tasks:
+            classes[np.load(task.core_index_path)] = np.load(task.classes_path)
+        classes.flush()
+        checked = _CheckedClasses(classes)
+        with progress(n, "tiles: write", "pt", unit_scale=True) as bar:
+            io.write_classified(in_path, out_path, checked, crs=out_crs, progress=bar.update,
+                                records=_stored_records(tmp_dir / "records.bin", header, chunk_points))
+        counts = checked.counts
+        del classes
+        t3 = time.perf_counter()
+    finally:
+        shutil.rmtree(tmp_dir, ignore_errors=True)
+    return ClassifyRun(n_tiles=len(tasks), tiled_points=int(sum(r.n_points for r in results)),
+                       max_tile_points=int(max(r.n_points for r in results)), class_counts=_class_counts(counts),
+                       classify_s=t2 - t1, write_s=t3 - t2, split_s=t1 - t0,
+                       tile_cpu_s=float(sum(r.seconds for r in results)))
 
 
 def _stored_records(path, header: laspy.LasHeader, chunk_points: int):

@@ -19,11 +19,7 @@ import pyproj
 
 from aerotri.core.errors import CrsError
 from aerotri.geom.crs import crs_label, horizontal_crs, linear_unit_m, unit_name
-
-US_SURVEY_FOOT_M = 1200.0 / 3937.0
-FOOT_M = 0.3048
-# EPSG unit-of-measure codes (GeoTIFF VerticalUnitsGeoKey / ProjLinearUnitsGeoKey).
-EPSG_UNIT_M = {9001: 1.0, 9002: FOOT_M, 9003: US_SURVEY_FOOT_M}
+from aerotri.geom.las import FOOT_M, US_SURVEY_FOOT_M
 
 
 def short_name(unit_m: float) -> str:

@@ -200,13 +200,14 @@ class Chain:
         from lidarctl.tiles import classify_file
 
         st = classify_file(self.merged, self.classified, params=self.options.classify)
-        return dict(points=st["n_points"], tiles=st["n_tiles"])
+        return dict(points=st.n_points, tiles=st.run.n_tiles)
 
     def run_rasters(self, root) -> dict:
+        from aerotri.geom import las
         from lidarctl import io
         from lidarctl.rasters import write_rasters
 
-        crs = io.resolve_crs(self.classified, io.read_header(self.classified), None)
+        crs = io.resolve_crs(self.classified, las.read_header(self.classified), None)
         write_rasters(self.classified, self.lo, self.options.rasters.res_m, crs=crs)
         return dict(res_m=self.options.rasters.res_m)
 

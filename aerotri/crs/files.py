@@ -30,6 +30,7 @@ from pathlib import Path
 
 import numpy as np
 
+from aerotri.geom import las
 from aerotri.geom.ellipsoid import Ellipsoid, geocentric_to_geodetic, geodetic_to_geocentric
 from aerotri.geom.crs import check_coordinates, crs_label, horizontal_crs, linear_unit_m, parse_crs, same_crs, unit_name
 from aerotri.crs.fit import fit_plane, fit_spatial
@@ -333,70 +334,10 @@ def transform_point_list(in_path, out_path, transformer: CrsTransformer) -> int:
 # ----------------------------------------------------------------------------------------------
 
 
-def open_las(path):
-    """A laspy reader of a LAS/LAZ file whose header was checked against the file: ``InputError`` naming
-    the file for a missing, empty or non-LAS file, zero or non-finite scales, and (uncompressed LAS) a
-    file shorter or longer than the header's point count says (truncated, or more records than
-    counted: points would be lost silently). LAZ data is checked as it is decompressed
-    (``iter_las_chunks``)."""
-    import laspy
-
-    path = Path(path)
-    if not path.is_file():
-        raise InputError(f"{path}: {'is a folder, expected' if path.is_dir() else 'not found:'} a LAS/LAZ file")
-    size = path.stat().st_size
-    if size == 0:
-        raise InputError(f"{path}: empty file (0 bytes), expected a LAS/LAZ point cloud")
-    with open(path, "rb") as fh:
-        signature = fh.read(4)
-    if signature != b"LASF":
-        raise InputError(f"{path}: not a LAS/LAZ file (signature {signature!r}, expected b'LASF')")
-    try:
-        reader = laspy.open(path)
-    except Exception as exc:  # laspy raises several types (LaspyException, ValueError, EOFError) for broken headers
-        raise InputError(f"{path}: unreadable LAS header ({exc})") from None
-    hdr = reader.header
-    if not (np.all(np.isfinite(hdr.scales)) and np.all(np.asarray(hdr.scales) > 0)):
-        reader.close()
-        raise InputError(f"{path}: header scale factors {list(hdr.scales)} must be positive numbers")
-    if not hdr.are_points_compressed:
-        end = hdr.offset_to_point_data + hdr.point_count * hdr.point_format.size
-        data_end = hdr.start_of_first_evlr if getattr(hdr, "number_of_evlrs", 0) else size
-        if size < end:
-            reader.close()
-            raise InputError(f"{path}: truncated file: the header says {hdr.point_count} points of "
-                             f"{hdr.point_format.size} bytes, the file holds "
-                             f"{max(0, size - hdr.offset_to_point_data) // hdr.point_format.size}")
-        if data_end - end >= hdr.point_format.size:  # (a few bytes of padding are harmless)
-            reader.close()
-            raise InputError(f"{path}: the header says {hdr.point_count} points but the file holds "
-                             f"{(data_end - hdr.offset_to_point_data) // hdr.point_format.size} point records")
-    return reader
-
-
-def iter_las_chunks(reader, path, chunk_size: int):
-    """(first index, chunk) of an open reader; a decompression or read error names the file and record."""
-    done = 0
-    try:
-        for chunk in reader.chunk_iterator(chunk_size):
-            yield done, chunk
-            done += len(chunk)
-    except InputError:
-        raise
-    except Exception as exc:  # lazrs/laszip and numpy raise their own types for corrupt data
-        raise InputError(f"{path}: truncated or corrupt point data near record {done} of "
-                         f"{reader.header.point_count} ({exc})") from None
-    if done != reader.header.point_count:
-        raise InputError(f"{path}: truncated file: the header says {reader.header.point_count} points, read {done}")
-
-
 def las_crs(path):
-    """The CRS recorded in a LAS/LAZ header (WKT or GeoTIFF keys), or None."""
-    with open_las(path) as reader:
-        try:
-            return reader.header.parse_crs()
-        except Exception:  # laspy raises various errors on malformed CRS VLRs
-            return None
+    """The CRS recorded in a LAS/LAZ header (WKT or GeoTIFF keys), or None (also when unreadable)."""
+    with las.open_las(path) as reader:
+        return las.header_crs(reader.header)
 
 
 def _nice_scale(scale: float) -> float:
@@ -413,12 +354,12 @@ def transform_las(in_path, out_path, transformer: CrsTransformer, chunk_size: in
     in_path, out_path = Path(in_path), Path(out_path)
     if chunk_size < 1:
         raise OptionError(f"{chunk_size}: expected at least 1 point per chunk", param="--chunk-size")
-    with open_las(in_path) as reader:
+    with las.open_las(in_path) as reader:
         hdr = reader.header
-        try:
-            file_crs = hdr.parse_crs()
-        except Exception:
-            file_crs = None
+        if not (np.asarray(hdr.scales) > 0).all():
+            # (new scales are derived from them below)
+            raise InputError(f"{in_path}: header scale factors {list(hdr.scales)} must be positive numbers")
+        file_crs = las.header_crs(hdr)
         if file_crs is not None and not same_crs(file_crs, transformer.src):
             raise InputError(
                 f"{in_path}: the file's CRS ({file_crs.name}) is not --from {crs_label(transformer.src)}"
@@ -456,7 +397,7 @@ def transform_las(in_path, out_path, transformer: CrsTransformer, chunk_size: in
         n = 0
         with atomic_path(out_path) as tmp:
             with laspy.open(tmp, mode="w", header=out_hdr, do_compress=out_path.suffix.lower() == ".laz") as writer:
-                for _, chunk in track_chunks(iter_las_chunks(reader, in_path, chunk_size), hdr.point_count,
+                for _, chunk in track_chunks(las.iter_chunks(reader, in_path, chunk_size), hdr.point_count,
                                              f"transform {in_path.name}"):
                     X, Y, Z = transformer.transform(np.asarray(chunk.x), np.asarray(chunk.y), np.asarray(chunk.z))
                     out = laspy.ScaleAwarePointRecord.zeros(len(chunk), header=out_hdr)

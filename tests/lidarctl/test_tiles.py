@@ -9,6 +9,7 @@ import pytest
 from click.testing import CliRunner
 
 from aerotri.core.executor import Executor
+from aerotri.geom import las as las_format
 from lidarctl import classify as cl
 from lidarctl import io, synthetic, tiles
 from lidarctl.cli import main
@@ -74,7 +75,7 @@ def test_tile_grid_cores_partition_and_buffers_match_brute_force():
 
 def test_plan_defaults_and_option_errors(big):
     d, _, _ = big
-    header = io.read_header(d / "in.laz")
+    header = las_format.read_header(d / "in.laz")
     grid = tiles.plan_tiles(header)
     assert grid.n_tiles == 1 and grid.buffer_m == tiles.default_buffer_m() == 60.0
     # 4 points/m^2: 250 k points in 250 m (core 130 m + 2 x 60 m) -> 2 tiles of 150 m per axis.
@@ -105,7 +106,7 @@ def classified(big):
 def test_tiled_equals_untiled_and_keeps_every_other_field(big, classified):
     d, cloud, truth = big
     direct, tiled, s1, s2 = classified
-    assert s1["n_tiles"] == 1 and s2["n_tiles"] == 4 and s2["buffer_m"] == 60.0
+    assert s1.run.n_tiles == 1 and s2.run.n_tiles == 4 and s2.grid.buffer_m == 60.0
     assert not list(d.glob(".*"))                                  # work files removed
     src, a, b = laspy.read(d / "in.laz"), laspy.read(direct), laspy.read(tiled)
     # Tiles classify the same points as the whole cloud except where a grid cell of
@@ -114,7 +115,7 @@ def test_tiled_equals_untiled_and_keeps_every_other_field(big, classified):
     # when a 0.4-1.3 m strip is cut off one side of the same cloud).
     differ = np.asarray(a.classification) != np.asarray(b.classification)
     assert differ.mean() < 0.002, differ.mean()
-    assert s1["class_counts"] == {int(c): int(k) for c, k in zip(*np.unique(a.classification, return_counts=True))}
+    assert s1.run.class_counts == {int(c): int(k) for c, k in zip(*np.unique(a.classification, return_counts=True))}
     assert np.mean(np.asarray(b.classification)[truth == 2] == 2) > 0.98
     for out in (a, b):
         assert _record_bytes_without_classification(out) == _record_bytes_without_classification(src)
@@ -132,13 +133,13 @@ def test_tiled_equals_untiled_and_keeps_every_other_field(big, classified):
 def test_one_tile_split_equals_direct_path(big, tmp_path):
     d = big[0]
     cloud = io.read_cloud(d / "plain.las")
-    header = io.read_header(d / "plain.las")
+    header = las_format.read_header(d / "plain.las")
     grid = tiles.plan_tiles(header, tile_size_m=1000.0)
     assert grid.n_tiles == 1
     params = cl.ClassifyParams()
     (task,) = tiles.split_into_tiles(d / "plain.las", grid, tmp_path, params, chunk_points=50_000)
     info = tiles.classify_tile(task)
-    assert info["n_points"] == info["n_core"] == len(cloud)
+    assert info.n_points == info.n_core == len(cloud)
     np.testing.assert_array_equal(np.load(task.core_index_path), np.arange(len(cloud)))
     direct = cl.classify_points(cloud.x, cloud.y, cloud.z, cloud.return_number, cloud.number_of_returns,
                                 cloud.intensity, params)

@@ -1,0 +1,286 @@
+"""LAS/LAZ files at the format level: every stage that reads a LAS/LAZ file opens it here, so that a
+broken file gives the same one-line error (naming the file and the record) in every command.
+
+- ``open_las``: a laspy reader whose header passed ``check_header`` (the LAS signature, a readable
+  header, finite non-zero scale factors and finite offsets, and the header's point count against
+  the point records the file holds: uncompressed, the size of the point data block; LAZ, the chunk
+  table; so that a header that understates the count does not silently drop the rest of the cloud).
+- ``iter_chunks``: point-record chunks of an open reader (coordinates in the file's units); a
+  decompression or read error names the block of records; ``iter_file_chunks`` opens the file too.
+- CRS of a header: ``header_crs`` (None when absent or unreadable), ``read_header_crs`` (an
+  unreadable record is an error), ``geokey_vertical_unit_m`` (the vertical unit the GeoTIFF keys
+  state, which laspy's CRS parser ignores) and ``add_crs`` (writes a compound CRS as GeoTIFF keys
+  with its vertical CRS and unit, so that ``geokey_vertical_unit_m`` reads it back).
+
+Units and scaling to metres belong to the readers of the stages (e.g. ``lidarctl.io``).
+"""
+
+from __future__ import annotations
+
+import logging
+import struct
+from pathlib import Path
+
+import laspy
+import numpy as np
+import pyproj
+
+from aerotri.core.errors import CrsError, InputError
+from aerotri.geom.crs import horizontal_crs
+
+logger = logging.getLogger(__name__)
+
+US_SURVEY_FOOT_M = 1200.0 / 3937.0
+FOOT_M = 0.3048
+# EPSG unit-of-measure codes (GeoTIFF VerticalUnitsGeoKey / ProjLinearUnitsGeoKey).
+EPSG_UNIT_M = {9001: 1.0, 9002: FOOT_M, 9003: US_SURVEY_FOOT_M}
+# GeoTIFF keys: vertical CRS (an EPSG code) and vertical units.
+VERTICAL_CS_KEY, VERTICAL_UNITS_KEY = 4096, 4099
+
+
+def one_line(exc: Exception) -> str:
+    """An exception's message on one line (laspy and lazrs messages may span several)."""
+    return " ".join(str(exc).split()) or type(exc).__name__
+
+
+# ------------------------------------------------------------------------------------------- opening
+def open_las(path):
+    """A laspy reader for a LAS/LAZ file whose header passed ``check_header`` (use it as a context
+    manager); ``InputError`` naming the file for a missing, empty or non-LAS file or a broken header."""
+    path = Path(path)
+    if not path.is_file():
+        raise InputError(f"{path}: is a folder, expected a LAS/LAZ file" if path.is_dir() else f"{path}: file not found")
+    if path.stat().st_size == 0:
+        raise InputError(f"{path}: empty file (0 bytes), expected a LAS/LAZ point cloud")
+    with open(path, "rb") as fh:
+        signature = fh.read(4)
+    if signature != b"LASF":
+        raise InputError(f"{path}: not a LAS/LAZ file (signature {signature!r}, expected b'LASF')")
+    try:
+        reader = laspy.open(path)
+    except Exception as exc:  # laspy raises several types (LaspyException, ValueError, EOFError) for broken headers
+        raise InputError(f"{path}: unreadable LAS header ({one_line(exc)})") from exc
+    try:
+        check_header(path, reader.header)
+    except BaseException:
+        reader.close()
+        raise
+    return reader
+
+
+def read_header(path) -> laspy.LasHeader:
+    """The checked header of a LAS/LAZ file (``open_las``)."""
+    with open_las(path) as reader:
+        return reader.header
+
+
+def check_header(path, header: laspy.LasHeader) -> None:
+    """InputError for scale factors that are zero or not finite, offsets that are not finite, or a
+    point count that differs from the point records the file holds (``check_point_count``)."""
+    for axis, scale, offset in zip("xyz", np.asarray(header.scales, float).tolist(),
+                                   np.asarray(header.offsets, float).tolist()):
+        if not np.isfinite(scale) or scale == 0.0:
+            raise InputError(f"{path}: LAS header: {axis} scale factor {scale!r}; expected a finite, non-zero "
+                             "scale (e.g. 0.01 or 0.001)")
+        if not np.isfinite(offset):
+            raise InputError(f"{path}: LAS header: {axis} offset {offset!r} is not a finite number")
+    check_point_count(path, header)
+
+
+def _laz_chunk_counts(path, header: laspy.LasHeader):
+    """(points per chunk, variable-size chunks?, chunk size) of a LAZ file from its chunk table;
+    None when the file has no chunk table (the LAZ format allows that)."""
+    import lazrs
+
+    vlr = next((v for v in header.vlrs if type(v).__name__ == "LasZipVlr"), None)
+    if vlr is None:
+        raise InputError(f"{path}: compressed points but no LASzip record in the header (corrupt LAZ file)")
+    size = Path(path).stat().st_size
+    with open(path, "rb") as fh:
+        fh.seek(header.offset_to_point_data)
+        raw = fh.read(8)
+        if len(raw) < 8:
+            raise InputError(f"{path}: truncated LAZ file: it ends ({size} bytes) before its point data "
+                             f"(byte {header.offset_to_point_data})")
+        (table_at,) = struct.unpack("<q", raw)
+        if table_at == -1:
+            return None
+        if not header.offset_to_point_data + 8 <= table_at <= size - 8:
+            raise InputError(f"{path}: truncated or corrupt LAZ file: its chunk table is said to start at byte "
+                             f"{table_at}, but the file has {size} bytes")
+        fh.seek(header.offset_to_point_data)
+        try:
+            lazvlr = lazrs.LazVlr(vlr.record_data)
+            table = lazrs.read_chunk_table(fh, lazvlr)
+        except Exception as exc:
+            raise InputError(f"{path}: corrupt LAZ chunk table ({one_line(exc)})") from exc
+    return [int(c) for c, _ in table], bool(lazvlr.uses_variable_size_chunks()), int(lazvlr.chunk_size())
+
+
+def _check_laz_point_count(path, header: laspy.LasHeader) -> None:
+    n = int(header.point_count)
+    counts = _laz_chunk_counts(path, header)
+    if counts is None:
+        return
+    per_chunk, variable, chunk_size = counts
+    if variable:
+        lo = hi = sum(per_chunk)
+    else:
+        lo, hi = (len(per_chunk) - 1) * chunk_size + 1, len(per_chunk) * chunk_size
+    if len(per_chunk) == 0:
+        lo = hi = 0
+    if n < lo:
+        held = f"{lo}" if lo == hi else f"at least {lo}"
+        raise InputError(
+            f"{path}: the header says {n} points but the file holds {held} point records "
+            f"({len(per_chunk)} LAZ chunks); refusing to read only part of the cloud (fix the header's "
+            "point count, e.g. by rewriting the file with lasinfo -repair or pdal translate)")
+    if n > hi:
+        held = f"{hi}" if lo == hi else f"at most {hi}"
+        raise InputError(f"{path}: truncated or corrupt LAZ file: the header says {n} points but the "
+                         f"file holds {held} point records ({len(per_chunk)} LAZ chunks)")
+
+
+def _check_las_point_count(path, header: laspy.LasHeader) -> None:
+    n = int(header.point_count)
+    rec_len = int(header.point_format.size)
+    offset = int(header.offset_to_point_data)
+    size = Path(path).stat().st_size
+    end = size
+    if getattr(header, "number_of_evlrs", 0) and 0 < int(header.start_of_first_evlr or 0) <= size:
+        end = int(header.start_of_first_evlr)
+    waveform = int(getattr(header, "start_of_waveform_data_packet_record", 0) or 0)
+    if offset < waveform <= end:
+        end = waveform
+    held, extra = divmod(max(end - offset, 0), rec_len)
+    if held < n:
+        raise InputError(f"{path}: truncated LAS file: the header says {n} points but the file holds {held} "
+                         f"point records of {rec_len} bytes ({size} bytes in all)")
+    if held > n:
+        raise InputError(
+            f"{path}: the header says {n} points but the file holds {held} point records of {rec_len} bytes; "
+            "refusing to read only part of the cloud (fix the header's point count, e.g. with lasinfo -repair)")
+    if extra:
+        logger.debug("%s: %d stray bytes after the last point record", path, extra)
+
+
+def check_point_count(path, header: laspy.LasHeader) -> None:
+    """InputError naming both counts when the header's point count differs from the point records
+    stored: a count that is too low would silently drop the rest of the cloud, one too high means
+    a truncated file.
+
+    Uncompressed LAS: the point data block (from ``offset_to_point_data`` to the EVLRs, the internal
+    waveform data or the end of the file) must hold ``point_count`` records of the record length.
+    LAZ: the chunk table gives the exact count for variable-size chunks, else the number of chunks
+    of ``chunk_size`` points (all but the last full), so the count must lie in
+    ((chunks - 1) x chunk_size, chunks x chunk_size]; a LAZ file without a chunk table is not checked
+    here (a truncated one still fails while it is read).
+    """
+    if header.are_points_compressed:
+        _check_laz_point_count(path, header)
+    else:
+        _check_las_point_count(path, header)
+
+
+# ------------------------------------------------------------------------------------------- reading
+def iter_chunks(reader, path, chunk_points: int):
+    """Yield (first_index, laspy.ScaleAwarePointRecord) chunks of an open reader (``open_las``),
+    coordinates in the file's units; a read or decompression error names the file and the block of
+    records, a file that ends early names both counts."""
+    n = reader.header.point_count
+    done = 0
+    try:
+        for chunk in reader.chunk_iterator(chunk_points):
+            yield done, chunk
+            done += len(chunk)
+    except InputError:
+        raise
+    except Exception as exc:  # lazrs/laszip and numpy raise their own types for corrupt data
+        # The reader decodes a block of records at a time: name the block (records counted from 0).
+        last = min(done + chunk_points, n) - 1
+        where = f"record {done}" if last <= done else f"records {done}-{last}"
+        raise InputError(f"{path}: truncated or corrupt point data in {where} of {n} ({one_line(exc)})") from exc
+    if done != n:
+        raise InputError(f"{path}: truncated file: header says {n} points, read {done}")
+
+
+def iter_file_chunks(path, chunk_points: int):
+    """``iter_chunks`` of a file, opened (and checked) by ``open_las`` and closed at the end."""
+    with open_las(path) as reader:
+        yield from iter_chunks(reader, path, chunk_points)
+
+
+# ----------------------------------------------------------------------------------------------- CRS
+def header_crs(header: laspy.LasHeader) -> pyproj.CRS | None:
+    """The CRS record of a header as it is (a compound CRS keeps its vertical part); None when the
+    header has none or it cannot be read (``read_header_crs`` reports that)."""
+    try:
+        return header.parse_crs()
+    except Exception:  # laspy/pyproj raise several types for malformed CRS records
+        return None
+
+
+def read_header_crs(path, header: laspy.LasHeader, hint: str = "") -> pyproj.CRS | None:
+    """The CRS record of a header, or None when it has none; ``CrsError`` naming the file for a record
+    that is present but unreadable (``hint``: what to do instead, appended after a semicolon)."""
+    try:
+        return header.parse_crs()
+    except Exception as exc:  # laspy/pyproj raise several types for malformed CRS records
+        raise CrsError(f"{path}: CRS record present but unreadable ({one_line(exc)})"
+                       + (f"; {hint}" if hint else "")) from exc
+
+
+def _geo_keys(header: laspy.LasHeader) -> dict | None:
+    for vlr in header.vlrs:
+        if type(vlr).__name__ == "GeoKeyDirectoryVlr":
+            return {k.id: k for k in vlr.geo_keys}
+    return None
+
+
+def geokey_vertical_unit_m(header: laspy.LasHeader) -> float | None:
+    """Metres per vertical unit from the GeoTIFF keys: VerticalUnitsGeoKey (4099), else the unit of the
+    EPSG vertical CRS in VerticalCSTypeGeoKey (4096); None when they say nothing (laspy's CRS parser
+    reads neither)."""
+    keys = _geo_keys(header)
+    if keys is None:
+        return None
+    units_key = keys.get(VERTICAL_UNITS_KEY)
+    if units_key is not None and units_key.tiff_tag_location == 0 and units_key.value_offset in EPSG_UNIT_M:
+        return EPSG_UNIT_M[units_key.value_offset]
+    vcs = keys.get(VERTICAL_CS_KEY)
+    if vcs is not None and vcs.tiff_tag_location == 0 and 1024 <= vcs.value_offset <= 32766:
+        try:
+            return float(pyproj.CRS.from_epsg(vcs.value_offset).axis_info[0].unit_conversion_factor)
+        except (pyproj.exceptions.CRSError, IndexError):
+            return None
+    return None
+
+
+def add_crs(header: laspy.LasHeader, crs: pyproj.CRS) -> None:
+    """Add a CRS record to a header (laspy: WKT for LAS 1.4 / point formats >= 6, else GeoTIFF keys).
+
+    GeoTIFF keys in laspy take only EPSG projected CRSs, not compound ones: a compound CRS
+    (projected + vertical) then gets the projected CRS's keys plus VerticalCSTypeGeoKey and
+    VerticalUnitsGeoKey, so that its vertical unit is read back (``geokey_vertical_unit_m``)."""
+    try:
+        header.add_crs(crs)
+        return
+    except RuntimeError:
+        if not crs.is_compound:
+            raise
+    from laspy.vlrs.known import GeoKeyEntryStruct
+
+    header.add_crs(horizontal_crs(crs))
+    vertical = next((c for c in crs.sub_crs_list if c.is_vertical), None)
+    vlr = next((v for v in header.vlrs if type(v).__name__ == "GeoKeyDirectoryVlr"), None)
+    if vertical is None or vlr is None:
+        return
+    unit_m = float(vertical.axis_info[0].unit_conversion_factor)
+    unit_code = next((code for code, f in EPSG_UNIT_M.items() if abs(f - unit_m) < 1e-12), None)
+    keys = [(VERTICAL_CS_KEY, vertical.to_epsg() or 32767), (VERTICAL_UNITS_KEY, unit_code or 32767)]
+    vlr.geo_keys = [k for k in vlr.geo_keys if k.id != 0 and k.id not in (VERTICAL_CS_KEY, VERTICAL_UNITS_KEY)]
+    for key_id, value in keys:
+        k = GeoKeyEntryStruct()
+        k.id, k.tiff_tag_location, k.count, k.value_offset = key_id, 0, 1, value
+        vlr.geo_keys.append(k)
+    vlr.geo_keys_header.number_of_keys = len(vlr.geo_keys)
