@@ -95,6 +95,10 @@ class FiniteFloatRange(click.FloatRange):
             self.fail(f"{value!r} is not a finite number.", param, ctx)
         return rv
 
+    def _describe_range(self) -> str:
+        # click would show "x<=None" in the help of an unbounded range
+        return "" if self.min is None and self.max is None else super()._describe_range()
+
 
 def finite() -> click.ParamType:
     """Any finite number (no NaN, no infinity)."""
