@@ -35,8 +35,8 @@ def ours(project: Path) -> dict:
     shutil.rmtree(project / "work", ignore_errors=True)
     t = time.perf_counter()
     rep = match_project(project, MatchSettings())
-    return dict(wall_s=time.perf_counter() - t, pairs_matched=rep["pairs"], pairs_with_ties=rep["pairs_with_ties"],
-                components=rep["components"], tracks=rep["tracks"], observations=rep["observations"])
+    return dict(wall_s=time.perf_counter() - t, pairs_matched=rep.pairs, pairs_with_ties=rep.pairs_with_ties,
+                components=rep.components, tracks=rep.tracks, observations=rep.observations)
 
 
 def colmap_exhaustive(project: Path) -> dict:

@@ -106,7 +106,7 @@ def _setup(d: Path):
 
     from aerotri.geom.camera import FrameCamera
     from aerotri.geom.eo import read_eo
-    from ortho.block import read_image
+    from aerotri.geom.images import read_rgb
     from ortho.dem import open_height_raster, read_height_window
     from ortho.grid import GridToProject, parse_crs
     from ortho.rectify import frame_grid
@@ -119,7 +119,7 @@ def _setup(d: Path):
         dem = read_height_window(ds, ds.bounds)
     tp = GridToProject(crs, crs)
     grid = frame_grid(cam, C, R, dem, RES_M, crs, tp)
-    img = read_image(d / "images" / "dmc_001.tif", cam)
+    img = read_rgb(d / "images" / "dmc_001.tif", (cam.width, cam.height))
     return cam, C, R, dem, grid, img, tp
 
 

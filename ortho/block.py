@@ -26,7 +26,6 @@ import math
 import os
 from pathlib import Path
 
-import cv2
 import numpy as np
 import rasterio
 from pyproj import CRS
@@ -34,7 +33,7 @@ from pyproj import CRS
 from aerotri.geom.camera import FrameCamera, adjusted_camera, project_camera
 from aerotri.geom.eo import ExteriorOrientations, read_eo
 from aerotri.core.errors import InputError
-from aerotri.geom.images import check_frames, find_images
+from aerotri.geom.images import check_frames, find_images, image_layout, read_native
 from aerotri.core.project import Project
 from aerotri.geom.rotation import rotation_matrix_opk
 from aerotri.core.atomic import atomic_dir, atomic_path, write_text_atomic
@@ -106,112 +105,6 @@ def load_block(root, eo_path=None, camera_path=None, frames=None) -> BlockInputs
                              "or rectify the others with --frames")
     check_frames(images, camera, camera_source)
     return BlockInputs(project, camera, eo, eo_path, images)
-
-
-def map_uncompressed_tiff(path):
-    """An uncompressed, pixel-interleaved TIFF whose strips or tiles are one contiguous run as a read-only
-    np.memmap (rows, cols[, bands]) in the file's band order, or None for any other layout.
-
-    Large-format frames usually come as such files: mapping them costs no decoding or copying, the
-    pages are read on demand by the resampling (the file is already in the page cache after a copy).
-    """
-    import warnings
-
-    try:
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore", rasterio.errors.NotGeoreferencedWarning)
-            with rasterio.open(path) as ds:
-                if ds.driver != "GTiff" or ds.compression is not None or len(set(ds.dtypes)) != 1:
-                    return None
-                if ds.count > 1 and ds.interleaving != rasterio.enums.Interleaving.pixel:
-                    return None
-                dtype = np.dtype(ds.dtypes[0])
-                if dtype.kind not in "ui":
-                    return None
-                bh, bw = ds.block_shapes[0]
-                if bw != ds.width:  # tiled: the blocks are not whole rows
-                    return None
-                nblocks = -(-ds.height // bh)
-                first = ds.get_tag_item("BLOCK_OFFSET_0_0", "TIFF", bidx=1)
-                last = ds.get_tag_item(f"BLOCK_OFFSET_0_{nblocks - 1}", "TIFF", bidx=1)
-                if first is None or last is None:
-                    return None
-                row_bytes = ds.width * ds.count * dtype.itemsize
-                if int(last) != int(first) + (nblocks - 1) * bh * row_bytes:
-                    return None
-                shape = (ds.height, ds.width) + ((ds.count,) if ds.count > 1 else ())
-        with open(path, "rb") as f:
-            byte_order = f.read(2)
-    except (rasterio.errors.RasterioIOError, OSError):
-        return None
-    if dtype.itemsize > 1:
-        dtype = dtype.newbyteorder("<" if byte_order == b"II" else ">")
-    img = np.memmap(path, dtype, "r", int(first), shape)
-    return img if dtype.isnative or dtype.itemsize == 1 else None
-
-
-def read_image_native(path, camera: FrameCamera):
-    """A frame as stored, (rows, cols[, bands]), and for each channel its 1-based band in R, G, B order.
-
-    Uncompressed TIFFs are memory-mapped (``map_uncompressed_tiff``, channels in file order R, G, B).
-    Otherwise cv2 reads colour TIFFs as B, G, R: the band order lets the ortho be written as R, G, B
-    without converting the whole frame.
-    """
-    img = map_uncompressed_tiff(path)
-    if img is not None:
-        order = list(range(1, (img.shape[2] if img.ndim == 3 else 1) + 1))
-    else:
-        img = cv2.imread(str(path), cv2.IMREAD_UNCHANGED) if _opencv_reads(path) else None
-    if img is None:
-        try:
-            with rasterio.open(path) as ds:
-                img = np.moveaxis(ds.read(), 0, -1)
-        except rasterio.errors.RasterioIOError as exc:
-            raise InputError(f"{path}: cannot read image ({exc})") from None
-        if img.shape[2] == 1:
-            img = img[:, :, 0]
-        order = list(range(1, (img.shape[2] if img.ndim == 3 else 1) + 1))
-    elif isinstance(img, np.memmap):
-        pass
-    elif img.ndim == 3 and img.shape[2] in (3, 4):
-        order = [3, 2, 1] if img.shape[2] == 3 else [3, 2, 1, 4]
-    else:
-        order = list(range(1, (img.shape[2] if img.ndim == 3 else 1) + 1))
-    if img.shape[0] != camera.height or img.shape[1] != camera.width:
-        raise InputError(f"{path}: image is {img.shape[1]} x {img.shape[0]} px but the camera is "
-                         f"{camera.width} x {camera.height} px")
-    return img, order
-
-
-def _opencv_reads(path) -> bool:
-    """Whether OpenCV reads this frame as stored. It does not for multi-band TIFFs that are band-interleaved
-    (16-bit planar RGB comes out garbled: band means of 67-120 DN for 112-152) or not tagged RGB (3 or 4
-    MINISBLACK samples come out as one grey band); those are read through GDAL."""
-    import warnings
-
-    if Path(path).suffix.lower() not in (".tif", ".tiff"):
-        return True
-    try:
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore", rasterio.errors.NotGeoreferencedWarning)
-            with rasterio.open(path) as ds:
-                if ds.count == 1:
-                    return True
-                rgb = tuple(ds.colorinterp[:3]) == (rasterio.enums.ColorInterp.red, rasterio.enums.ColorInterp.green,
-                                                    rasterio.enums.ColorInterp.blue)
-                return rgb and ds.count in (3, 4) and ds.interleaving == rasterio.enums.Interleaving.pixel
-    except rasterio.errors.RasterioIOError:
-        return True  # let the readers below name the problem
-
-
-def read_image(path, camera: FrameCamera) -> np.ndarray:
-    """A frame as (rows, cols[, bands]) in band order R, G, B."""
-    img, order = read_image_native(path, camera)
-    if img.ndim == 3 and order != list(range(1, img.shape[2] + 1)):
-        out = np.empty_like(img)
-        out[:, :, [b - 1 for b in order]] = img
-        return out
-    return img
 
 
 def default_resolution(camera: FrameCamera, eo: ExteriorOrientations, ground_height_m) -> float:
@@ -339,7 +232,7 @@ def rectify_frame_task(task: FrameTask) -> dict:
         with open_height_raster(task.dsm_path, project_crs, "DSM") as dsm_ds, _raster_read(task.dsm_path, "DSM"):
             heights = read_height_window(dsm_ds, ground_bounds, margin_m=4 * dsm_ds.transform.a, what="DSM",
                                          frame=task.image_id, height_operation=height_op)
-    image, band_order = read_image_native(task.image_path, task.camera)
+    image, band_order = read_native(task.image_path, (task.camera.width, task.camera.height))
     valid_fraction = rectify_frame_to_file(task.out_path, image, band_order, task.camera, C, R, heights, grid,
                                            task.interpolation, to_project,
                                            occlusion_dsm=heights if task.dsm_path else None,
@@ -460,7 +353,7 @@ def check_frame_sizes(block: BlockInputs, eo_idx: dict, zlo: float, zhi: float, 
     grid (footprint between the lowest and highest DEM height; ``operation``: project -> output CRS)
     beyond a GeoTIFF's size, or the ortho and its validity mask beyond the memory (``concurrent``
     frames at a time)."""
-    bands, itemsize = _image_layout(next(iter(block.images.values())))
+    bands, itemsize = image_layout(next(iter(block.images.values())))
     to_output = operation.spec().build() if operation is not None else None
     worst = (0.0, "", 0.0, 0.0)
     for image_id in block.images:
@@ -480,16 +373,6 @@ def check_frame_sizes(block: BlockInputs, eo_idx: dict, zlo: float, zhi: float, 
     check_allocation(n_px * (bands * itemsize + 1) * concurrent,
                      f"{what}, {bands} band(s) of {itemsize} byte(s) and its mask"
                      + (f", {concurrent} frames at a time," if concurrent > 1 else ","), option)
-
-
-def _image_layout(path) -> tuple[int, int]:
-    """(bands, bytes per sample) of an image file, from its header."""
-    import warnings
-
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore", rasterio.errors.NotGeoreferencedWarning)
-        with rasterio.open(path) as ds:
-            return ds.count, np.dtype(ds.dtypes[0]).itemsize
 
 
 def _rectify_into(out_dir: Path, block: BlockInputs, eo_idx, res, out_crs, project_crs, dem_path, zlo, zhi,

@@ -234,7 +234,7 @@ class Chain:
         from aerotri.match import match_project
 
         rep = match_project(root, self.options.match)
-        return dict(tracks=rep["tracks"], observations=rep["observations"], components=rep["components"])
+        return dict(tracks=rep.tracks, observations=rep.observations, components=rep.components)
 
     def adjust_inputs(self, root, control: bool = True) -> list[Path]:
         files = [self.project.tiepoints_path, self.project.gnss_path, self.project.camera_path, self.project.config_path]
@@ -301,8 +301,8 @@ class Chain:
         from aerotri.control.pipeline import run_control
 
         eo, camera = self.control_orientations()
-        sm = run_control(root, self.project.corners_path, eo, camera, None, self.options.control)
-        return {k: sm[k] for k in ("corners_accepted", "control_full", "control_height", "check_points") if k in sm}
+        sm = run_control(root, self.project.corners_path, eo, camera, settings=self.options.control)
+        return {k: getattr(sm, k) for k in ("corners_accepted", "control_full", "control_height", "check_points")}
 
     def run_adjust_final(self, root) -> dict:
         from aerotri.adjust.pipeline import run_adjustment

@@ -46,7 +46,7 @@ class RayCheck:
     mahalanobis: float
 
 
-def check_rays(camera, centres_m, Rs, xy_px, lidar_m, lidar_sigma_m, tol_px: float = 1.0, sigma_px: float = 0.3,
+def check_rays(camera, centres_m, Rs, xy_px, lidar_m, lidar_sigma_m, *, tol_px: float = 1.0, sigma_px: float = 0.3,
                datum_sigma_m: float = 0.2, alpha: float = 1e-3, min_rays: int = 2) -> RayCheck:
     """Intersect the measurements xy_px (k, 2) of one corner in frames (centres (k, 3), R (k, 3, 3)).
 

@@ -20,18 +20,22 @@ import dataclasses
 
 import numpy as np
 
+from aerotri.control.settings import LayoutRule
 from aerotri.geom.strips import strips_from_track
 
 
-@dataclasses.dataclass(frozen=True)
-class LayoutRule:
-    full_spacing_baselines: float = 5.0
-    height_every_strips: int = 3
-    min_frames: int = 3
-    search_radius_baselines: float = 1.25
-    score_weight: float = 0.5
-    residual_weight: float = 0.5
-    edge_inset: float = 0.12  # outer block edge targets lie this fraction of the strip width inside
+@dataclasses.dataclass
+class LayoutTarget:
+    """A position of the layout rule (map coordinates) and the corner chosen for it."""
+
+    kind: str  # full | height
+    target_x_m: float
+    target_y_m: float
+    corner: int | None = None  # index of the chosen corner (None: no eligible corner within the search radius)
+    distance_m: float | None = None  # from the target to the chosen corner
+
+    def to_dict(self) -> dict:
+        return dataclasses.asdict(self)
 
 
 @dataclasses.dataclass
@@ -119,9 +123,9 @@ def layout_targets(strips, rule: LayoutRule):
     return targets
 
 
-def select_control(xy_m, score, n_frames, camera, centres_m, Rs, ground_z_m, rule: LayoutRule | None = None,
-                   strip=None, residual_ratio=None):
-    """Kind per corner ("full", "height" or "check"), the targets (list of dict, map coordinates), the base (m).
+def select_control(xy_m, score, n_frames, camera, centres_m, Rs, ground_z_m, *, rule: LayoutRule | None = None,
+                   strip=None, residual_ratio=None) -> tuple[np.ndarray, list[LayoutTarget], float]:
+    """Kind per corner ("full", "height" or "check"), the layout targets, the base (m).
 
     xy_m (N, 2): accepted corners; score (N,); n_frames (N,): frames each corner was accepted in;
     residual_ratio (N,): largest multi-ray residual / tolerance (0..1), None for none.
@@ -140,10 +144,10 @@ def select_control(xy_m, score, n_frames, camera, centres_m, Rs, ground_z_m, rul
         if residual_ratio is not None:
             cost = cost + rule.residual_weight * np.clip(residual_ratio, 0.0, 1.0)
         ok = eligible & (kind == "check") & (dist <= radius)
-        rec = {"kind": k, "target_x_m": float(t_xy[0]), "target_y_m": float(t_xy[1]), "corner": None, "distance_m": None}
+        rec = LayoutTarget(k, float(t_xy[0]), float(t_xy[1]))
         if ok.any():
             j = int(np.flatnonzero(ok)[np.argmin(cost[ok])])
             kind[j] = k
-            rec.update(corner=j, distance_m=float(dist[j]))
+            rec.corner, rec.distance_m = j, float(dist[j])
         out.append(rec)
     return kind, out, base

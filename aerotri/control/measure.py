@@ -28,21 +28,9 @@ import cv2
 import numpy as np
 from scipy import ndimage
 
+from aerotri.control.settings import MeasureSettings
+
 REASONS = ("outside_frame", "no_edges", "occluded", "ambiguous", "poor_edge_fit")  # no_edges: no contrast or hidden
-
-
-@dataclasses.dataclass(frozen=True)
-class MeasureSettings:
-    eo_sigma_px: float = 1.0  # orientation uncertainty in the image (px)
-    window_k: float = 3.0  # search radius = k * predicted standard deviation
-    min_radius_px: float = 4.0
-    max_radius_px: float = 25.0
-    edge_len_px: float = 30.0  # longest edge piece used for the fit (px)
-    min_contrast: float = 4.0  # grey values per px across both edges (below: occluded or no contrast)
-    ambiguity_ratio: float = 0.7  # a rival junction scoring above this fraction of the best -> ambiguous
-    ambiguity_dist_px: float = 1.5  # rivals closer than this are the same corner
-    max_fit_rms_px: float = 0.35
-    min_edge_points: int = 6
 
 
 @dataclasses.dataclass
@@ -57,7 +45,7 @@ class Measurement:
 
 
 # -- prediction -------------------------------------------------------------------------------------
-def predict(camera, centre_m, R, xyz_m, edge_dir_m, sigma_m, eo_sigma_px: float = 1.0, window_k: float = 3.0,
+def predict(camera, centre_m, R, xyz_m, edge_dir_m, sigma_m, *, eo_sigma_px: float = 1.0, window_k: float = 3.0,
             min_radius_px: float = 4.0, max_radius_px: float = 25.0):
     """Project corners (N, 3) and their edge directions (N, 2, 3) into one frame.
 
@@ -286,7 +274,7 @@ def junction_visible(grad, X, legs, near_px=(1.5, 6.0), far_px=(6.0, 15.0), min_
     return True
 
 
-def measure_in_image(image, x0, y0, dirs, radius_px, settings: MeasureSettings | None = None,
+def measure_in_image(image, x0, y0, dirs, radius_px, *, settings: MeasureSettings | None = None,
                      convex: bool = True) -> Measurement:
     """Measure one corner predicted at (x0, y0) with image edge directions dirs (2, 2) in an image (H, W[, C]).
 

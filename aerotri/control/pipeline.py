@@ -12,33 +12,25 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import logging
 from collections import Counter
 from pathlib import Path
 
-import cv2
 import numpy as np
 
-from aerotri.geom.camera import FrameCamera, adjusted_camera
 from aerotri.control.consistency import check_rays
 from aerotri.control.corners import LidarCorners, read_corners, read_manual
-from aerotri.control.layout import LayoutRule, select_control
-from aerotri.control.measure import MeasureSettings, Measurement, measure_in_image, predict
-from aerotri.geom.eo import ExteriorOrientations, read_eo
+from aerotri.control.layout import LayoutTarget, select_control
+from aerotri.control.measure import Measurement, measure_in_image, predict
+from aerotri.control.settings import ControlSettings
 from aerotri.core.errors import InputError
-from aerotri.core.project import Project
 from aerotri.core.log import track
+from aerotri.core.project import Project, project_paths
+from aerotri.geom.camera import FrameCamera, adjusted_camera
+from aerotri.geom.eo import ExteriorOrientations, read_eo
+from aerotri.geom.images import find_image, read_rgb8
 
-
-@dataclasses.dataclass(frozen=True)
-class ControlSettings:
-    measure: MeasureSettings = MeasureSettings()
-    layout: LayoutRule = LayoutRule()
-    tol_px: float = 0.7  # multi-ray reprojection residual tolerance (px)
-    image_sigma_px: float = 0.3  # measurement precision used for the LiDAR comparison
-    datum_sigma_m: float = 0.2  # datum error of the orientations before control, per coordinate
-    alpha: float = 1e-3  # type I error of the LiDAR comparison
-    usable_only: bool = True  # measure only corners marked usable (plus manually measured ones)
-    chips: bool = True
+log = logging.getLogger(__name__)
 
 
 @dataclasses.dataclass
@@ -49,28 +41,44 @@ class TransferResult:
     predicted: dict  # (corner index, image index) -> (x_px, y_px)
     rays: dict  # corner index -> RayCheck
     kind: np.ndarray  # per corner: full / height / check / rejected / not_measured
-    targets: list
+    targets: list[LayoutTarget]  # ``corner``: index into ``corners`` (None: no corner within reach)
     base_m: float
     manual: set  # (corner index, image index) measured manually
 
 
-def find_image(images_dir: Path, image_id: str) -> Path:
-    for ext in (".tif", ".tiff", ".jpg", ".jpeg", ".png", ".TIF", ".JPG"):
-        p = images_dir / f"{image_id}{ext}"
-        if p.is_file():
-            return p
-    raise InputError(f"{images_dir}: no image file for image id {image_id!r} (tried {image_id}.tif/.jpg/.png)")
+@dataclasses.dataclass
+class TransferSummary:
+    """Counts and rejection reasons of a control transfer (``summary`` in control/transfer.json)."""
+
+    corners_in_file: int
+    corners_measured: int
+    measurements_attempted: int
+    measurements_accepted_in_image: int
+    measurements_rejected_in_image: dict[str, int]  # reason -> count
+    rays_dropped_inconsistent: int
+    corners_rejected: dict[str, int]  # reason -> count
+    corners_accepted: int
+    control_full: int
+    control_height: int
+    check_points: int
+    layout_targets: int
+    layout_targets_unfilled: int
+    selected_rays_min: int
+    selected_rays_mean: float
+    manual_measurements: int
+    base_m: float
+
+    def to_dict(self) -> dict:
+        return dataclasses.asdict(self)
 
 
-def read_rgb(path: Path) -> np.ndarray:
-    img = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
-    if img is None:
-        raise InputError(f"{path}: not a readable image")
-    if img.dtype != np.uint8:
-        img = cv2.normalize(img, None, 0, 255, cv2.NORM_MINMAX).astype(np.uint8)
-    if img.ndim == 3 and img.shape[2] >= 3:
-        img = img[:, :, 2::-1]  # BGR -> RGB (alpha dropped)
-    return np.ascontiguousarray(img)
+@dataclasses.dataclass
+class ReviewPage:
+    """What ``chips.write_review`` writes: the summary line, a row per corner, the chip PNGs by file name."""
+
+    summary: str
+    corners: list[dict]
+    chips: dict[str, bytes]
 
 
 def project_camera(root: Path, camera_path=None) -> tuple[FrameCamera, str]:
@@ -80,42 +88,37 @@ def project_camera(root: Path, camera_path=None) -> tuple[FrameCamera, str]:
     return adjusted_camera(Project.open(root))
 
 
-def transfer_control(corners: LidarCorners, camera: FrameCamera, eo: ExteriorOrientations, images_dir,
-                     settings: ControlSettings | None = None, manual: dict | None = None) -> TransferResult:
-    """Measure the corners in every frame, check them across frames, select control by the layout rule."""
-    s = settings or ControlSettings()
-    images_dir = Path(images_dir)
-    manual = manual or {}
-    cid = {str(p): k for k, p in enumerate(corners.id)}
-    iidx = eo.index()
-    manual_k = {(cid[p], iidx[i]): xy for (p, i), xy in manual.items()}
-    active = corners.usable.copy() if s.usable_only else np.ones(len(corners), bool)
-    active[[k for k, _ in manual_k]] = True
-    idx = np.flatnonzero(active)
+def _measure_frames(corners: LidarCorners, camera: FrameCamera, eo: ExteriorOrientations, images_dir: Path,
+                    idx: np.ndarray, manual_k: dict, s: ControlSettings) -> tuple[dict, dict]:
+    """Measurements and predictions {(corner index, image index): ...} of the corners ``idx`` in every frame
+    they are predicted in, then the manual measurements in place of the automatic ones."""
     dirs_m = corners.edge_directions_m()
     Rs = eo.rotations()
     meas, pred = {}, {}
     for i, iid in enumerate(track(eo.image_id, "control transfer", "frames")):
         x, y, d, _, radius = predict(camera, eo.centre_m[i], Rs[i], corners.xyz_m[idx], dirs_m[idx], corners.sigma_m[idx],
-                                     s.measure.eo_sigma_px, s.measure.window_k, s.measure.min_radius_px,
-                                     s.measure.max_radius_px)
+                                     eo_sigma_px=s.measure.eo_sigma_px, window_k=s.measure.window_k,
+                                     min_radius_px=s.measure.min_radius_px, max_radius_px=s.measure.max_radius_px)
         inside = camera.inside(x, y, margin_px=2.0)
         has_manual = any(i == j for _, j in manual_k)
         if not inside.any() and not has_manual:
             continue
-        image = read_rgb(find_image(images_dir, iid))
-        if image.shape[:2] != (camera.height, camera.width):
-            raise InputError(f"{find_image(images_dir, iid)}: {image.shape[1]} x {image.shape[0]} px, camera says "
-                             f"{camera.width} x {camera.height}")
+        image = read_rgb8(find_image(images_dir, iid), (camera.width, camera.height))
         for q in np.flatnonzero(inside):
             k = int(idx[q])
             pred[(k, i)] = (float(x[q]), float(y[q]))
-            meas[(k, i)] = measure_in_image(image, x[q], y[q], d[q], radius[q], s.measure,
+            meas[(k, i)] = measure_in_image(image, x[q], y[q], d[q], radius[q], settings=s.measure,
                                             convex=bool(corners.angle_deg[k] < 180.0))
     for (k, i), xy in manual_k.items():
         meas[(k, i)] = Measurement(float(xy[0]), float(xy[1]), True, "manual")
         pred.setdefault((k, i), (float(xy[0]), float(xy[1])))
+    return meas, pred
 
+
+def _check_corners(corners: LidarCorners, camera: FrameCamera, eo: ExteriorOrientations, idx: np.ndarray,
+                   meas: dict, s: ControlSettings) -> dict:
+    """Multi-ray check of every corner in ``idx`` over its accepted image measurements: {corner index: RayCheck}."""
+    Rs = eo.rotations()
     by_corner: dict[int, list[int]] = {}
     for (k, i), m in meas.items():
         if m.ok:
@@ -125,8 +128,16 @@ def transfer_control(corners: LidarCorners, camera: FrameCamera, eo: ExteriorOri
         imgs = sorted(by_corner.get(int(k), []))
         xy = np.array([[meas[(k, i)].x_px, meas[(k, i)].y_px] for i in imgs]).reshape(-1, 2)
         rays[int(k)] = check_rays(camera, eo.centre_m[imgs], Rs[imgs], xy, corners.xyz_m[k], corners.sigma_m[k],
-                                  s.tol_px, s.image_sigma_px, s.datum_sigma_m, s.alpha)
+                                  tol_px=s.tol_px, sigma_px=s.image_sigma_px, datum_sigma_m=s.datum_sigma_m,
+                                  alpha=s.alpha)
         rays[int(k)].images = imgs
+    return rays
+
+
+def _select(corners: LidarCorners, camera: FrameCamera, eo: ExteriorOrientations, idx: np.ndarray, rays: dict,
+            s: ControlSettings) -> tuple[np.ndarray, list[LayoutTarget], float]:
+    """Kind of every corner (full / height / check among the accepted ones, rejected, not_measured), the
+    layout targets (``corner``: index into ``corners``) and the base (m)."""
     accepted = np.array([k for k in idx if rays[int(k)].ok], dtype=int)
     kind = np.full(len(corners), "not_measured", dtype=object)
     kind[idx] = "rejected"
@@ -136,16 +147,31 @@ def transfer_control(corners: LidarCorners, camera: FrameCamera, eo: ExteriorOri
         ground_z = float(np.median(corners.xyz_m[accepted, 2]))
         worst = np.array([np.max(rays[int(k)].residual_px[rays[int(k)].kept]) for k in accepted])
         kk, targets, base = select_control(corners.xyz_m[accepted, :2], corners.score[accepted], n_frames, camera,
-                                           eo.centre_m, Rs, ground_z, s.layout, residual_ratio=worst / s.tol_px)
+                                           eo.centre_m, eo.rotations(), ground_z, rule=s.layout,
+                                           residual_ratio=worst / s.tol_px)
         kind[accepted] = kk
-        for t in targets:
-            if t["corner"] is not None:
-                t["corner"] = str(corners.id[accepted[t["corner"]]])
-    return TransferResult(corners, list(eo.image_id), meas, pred, rays, kind, targets, base,
-                          set(manual_k))
+        targets = [t if t.corner is None else dataclasses.replace(t, corner=int(accepted[t.corner])) for t in targets]
+    return kind, targets, base
 
 
-def summary(res: TransferResult) -> dict:
+def transfer_control(corners: LidarCorners, camera: FrameCamera, eo: ExteriorOrientations, images_dir,
+                     settings: ControlSettings | None = None, manual: dict | None = None) -> TransferResult:
+    """Measure the corners in every frame, check them across frames, select control by the layout rule."""
+    s = settings or ControlSettings()
+    manual = manual or {}
+    cid = {str(p): k for k, p in enumerate(corners.id)}
+    iidx = eo.index()
+    manual_k = {(cid[p], iidx[i]): xy for (p, i), xy in manual.items()}
+    active = corners.usable.copy() if s.usable_only else np.ones(len(corners), bool)
+    active[[k for k, _ in manual_k]] = True
+    idx = np.flatnonzero(active)
+    meas, pred = _measure_frames(corners, camera, eo, Path(images_dir), idx, manual_k, s)
+    rays = _check_corners(corners, camera, eo, idx, meas, s)
+    kind, targets, base = _select(corners, camera, eo, idx, rays, s)
+    return TransferResult(corners, list(eo.image_id), meas, pred, rays, kind, targets, base, set(manual_k))
+
+
+def summary(res: TransferResult) -> TransferSummary:
     """Counts and rejection reasons (machine-readable; also control/transfer.json)."""
     meas_reasons = Counter(m.reason for m in res.measurements.values() if not m.ok)
     ray_reasons = Counter(r.reason for r in res.rays.values() if not r.ok)
@@ -153,25 +179,25 @@ def summary(res: TransferResult) -> dict:
     kinds = Counter(res.kind.tolist())
     sel = [k for k in range(len(res.kind)) if res.kind[k] in ("full", "height")]
     rays_sel = [int(res.rays[k].kept.sum()) for k in sel]
-    return {
-        "corners_in_file": len(res.corners),
-        "corners_measured": len(res.rays),
-        "measurements_attempted": len(res.measurements),
-        "measurements_accepted_in_image": sum(m.ok for m in res.measurements.values()),
-        "measurements_rejected_in_image": dict(sorted(meas_reasons.items())),
-        "rays_dropped_inconsistent": dropped,
-        "corners_rejected": dict(sorted(ray_reasons.items())),
-        "corners_accepted": int(sum(r.ok for r in res.rays.values())),
-        "control_full": kinds.get("full", 0),
-        "control_height": kinds.get("height", 0),
-        "check_points": kinds.get("check", 0),
-        "layout_targets": len(res.targets),
-        "layout_targets_unfilled": sum(t["corner"] is None for t in res.targets),
-        "selected_rays_min": min(rays_sel) if rays_sel else 0,
-        "selected_rays_mean": float(np.mean(rays_sel)) if rays_sel else 0.0,
-        "manual_measurements": len(res.manual),
-        "base_m": res.base_m,
-    }
+    return TransferSummary(
+        corners_in_file=len(res.corners),
+        corners_measured=len(res.rays),
+        measurements_attempted=len(res.measurements),
+        measurements_accepted_in_image=sum(m.ok for m in res.measurements.values()),
+        measurements_rejected_in_image=dict(sorted(meas_reasons.items())),
+        rays_dropped_inconsistent=dropped,
+        corners_rejected=dict(sorted(ray_reasons.items())),
+        corners_accepted=int(sum(r.ok for r in res.rays.values())),
+        control_full=kinds.get("full", 0),
+        control_height=kinds.get("height", 0),
+        check_points=kinds.get("check", 0),
+        layout_targets=len(res.targets),
+        layout_targets_unfilled=sum(t.corner is None for t in res.targets),
+        selected_rays_min=min(rays_sel) if rays_sel else 0,
+        selected_rays_mean=float(np.mean(rays_sel)) if rays_sel else 0.0,
+        manual_measurements=len(res.manual),
+        base_m=res.base_m,
+    )
 
 
 def output_texts(res: TransferResult, checks: bool = True) -> dict[str, str]:
@@ -217,13 +243,14 @@ def output_texts(res: TransferResult, checks: bool = True) -> dict[str, str]:
             if r.kept[j]:
                 m = res.measurements[(k, i)]
                 obs.append(f"{c.id[k]},{res.image_ids[i]},{m.x_px:.3f},{m.y_px:.3f}")
-    rep = {"summary": summary(res), "layout_targets": res.targets, "corners": per_corner}
+    targets = [{**t.to_dict(), "corner": None if t.corner is None else str(c.id[t.corner])} for t in res.targets]
+    rep = {"summary": summary(res).to_dict(), "layout_targets": targets, "corners": per_corner}
     return {"points.csv": "\n".join(pts) + "\n", "image_points.csv": "\n".join(obs) + "\n",
             "transfer.json": json.dumps(rep, indent=1, allow_nan=False, default=float)}
 
 
-def review_page(res: TransferResult, images_dir, project_name: str):
-    """(summary line, corner rows, chips) for chips.write_review: selected corners first, then checks, rejected."""
+def review_page(res: TransferResult, images_dir) -> ReviewPage:
+    """The review page: selected corners first, then checks, rejected ones."""
     from aerotri.control.chips import chip_png
 
     order = {"full": 0, "height": 1, "check": 2, "rejected": 3}
@@ -233,7 +260,7 @@ def review_page(res: TransferResult, images_dir, project_name: str):
         by_image.setdefault(i, []).append(k)
     chips, rows = {}, {k: [] for k in ks}
     for i, klist in by_image.items():
-        image = read_rgb(find_image(Path(images_dir), res.image_ids[i]))
+        image = read_rgb8(find_image(images_dir, res.image_ids[i]))
         for k in klist:
             m, r = res.measurements[(k, i)], res.rays[k]
             j = r.images.index(i) if i in r.images else None
@@ -255,42 +282,46 @@ def review_page(res: TransferResult, images_dir, project_name: str):
         corners.append({"id": res.corners.id[k], "score": f"{res.corners.score[k]:.2f}", "xyz": f"{x:.2f} {y:.2f} {z:.2f}",
                         "status": status, "cls": res.kind[k], "chips": sorted(rows[k], key=lambda c: c["image"])})
     sm = summary(res)
-    line = (f"{sm['corners_accepted']} of {sm['corners_measured']} corners accepted; control: {sm['control_full']} full, "
-            f"{sm['control_height']} height; {sm['check_points']} check points; rejected corners: {sm['corners_rejected']}; "
-            f"rejected measurements: {sm['measurements_rejected_in_image']}.")
-    return line, corners, chips
+    line = (f"{sm.corners_accepted} of {sm.corners_measured} corners accepted; control: {sm.control_full} full, "
+            f"{sm.control_height} height; {sm.check_points} check points; rejected corners: {sm.corners_rejected}; "
+            f"rejected measurements: {sm.measurements_rejected_in_image}.")
+    return ReviewPage(line, corners, chips)
 
 
-def run_control(root, corners_path=None, eo_path=None, camera_path=None, manual_path=None,
-                settings: ControlSettings | None = None, checks: bool = True) -> dict:
-    """The stage: read, transfer, write all outputs atomically; returns the summary dict."""
+def run_control(root, corners_path=None, eo_path=None, camera_path=None, manual_path=None, *,
+                settings: ControlSettings | None = None, checks: bool = True) -> TransferSummary:
+    """The stage: read, transfer, write all outputs atomically; returns the summary.
+
+    Defaults: the corners ``lidar_out/corners.csv``, the orientations ``at/eo.txt``, the camera of
+    ``project_camera``; ``manual_path``: manual measurements (``read_manual``); ``checks``: write the
+    accepted corners that are not control as check points.
+    """
     from aerotri.core.atomic import atomic_dir, write_text_atomic
 
     from aerotri.control.chips import write_review
 
-    root = Path(root)
+    paths = project_paths(root)
     s = settings or ControlSettings()
-    corners_path = corners_path or root / "lidar_out" / "corners.csv"
-    eo_path = eo_path or root / "at" / "eo.txt"
+    corners_path = corners_path or paths.corners_path
+    eo_path = eo_path or paths.eo_path
     corners = read_corners(corners_path)
     if not Path(eo_path).exists():
         raise InputError(f"{eo_path}: orientations not found (run the first aerotri adjust, tie points + GNSS, "
                          "or pass --eo FILE)")
     eo = read_eo(eo_path)
-    camera, _ = project_camera(root, camera_path)
+    camera, _ = project_camera(paths.root, camera_path)
     manual = (read_manual(manual_path, corners.id, eo.image_id, camera, corners_path, eo_path)
               if manual_path else None)
-    res = transfer_control(corners, camera, eo, root / "images", s, manual)
+    res = transfer_control(corners, camera, eo, paths.images_dir, s, manual)
     sm = summary(res)
-    if sm["corners_accepted"] == 0:
-        raise InputError(f"no corner could be measured consistently in two or more frames ({sm['corners_measured']} "
-                         f"tried; rejected: {sm['corners_rejected']}) - check {eo_path or root / 'at' / 'eo.txt'} and the camera")
+    if sm.corners_accepted == 0:
+        raise InputError(f"no corner could be measured consistently in two or more frames ({sm.corners_measured} "
+                         f"tried; rejected: {sm.corners_rejected}) - check {eo_path} and the camera")
     texts = output_texts(res, checks)
-    review = review_page(res, root / "images", root.name) if s.chips else None
-    out = root / "control"
+    review = review_page(res, paths.images_dir) if s.chips else None
     if review is not None:
-        with atomic_dir(out / "review") as tmp:
-            write_review(tmp, root.name, *review)
+        with atomic_dir(paths.control_dir / "review") as tmp:
+            write_review(tmp, paths.root.name, review.summary, review.corners, review.chips)
     for name, text in texts.items():
-        write_text_atomic(out / name, text)
+        write_text_atomic(paths.control_dir / name, text)
     return sm

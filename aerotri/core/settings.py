@@ -184,8 +184,8 @@ def to_table(obj) -> dict:
 
 
 def click_type(cls, name: str):
-    """The click parameter type of a field: a Choice, an integer range, a finite float range (NaN and
-    infinities refused, as ``from_table`` refuses them), or the plain type."""
+    """The click parameter type of a field: a Choice, an Int/FloatRange (floats finite, as in
+    ``from_table``), a Path for file names, or the plain type."""
     import click
 
     from aerotri.core.commands import FiniteFloatRange
@@ -195,21 +195,29 @@ def click_type(cls, name: str):
     tp, _ = _unwrap_optional(typing.get_type_hints(cls)[name])
     if cons["choices"] is not None and tp is str:
         return click.Choice([str(c) for c in cons["choices"]])
-    bounds = dict(min=cons["min"], max=cons["max"], min_open=cons["min_open"], max_open=cons["max_open"])
+    if cons["path"] or tp is Path:
+        return click.Path(path_type=Path)
     if tp is float:
-        return FiniteFloatRange(**bounds)
+        return FiniteFloatRange(min=cons["min"], max=cons["max"], min_open=cons["min_open"], max_open=cons["max_open"])
     if tp is int and (cons["min"] is not None or cons["max"] is not None):
-        return click.IntRange(**bounds)
+        return click.IntRange(min=cons["min"], max=cons["max"], min_open=cons["min_open"], max_open=cons["max_open"])
     return {int: click.INT, bool: click.BOOL}.get(tp, click.STRING)
 
 
-def click_option(cls, name: str, *decls, **kw):
-    """A click option for field ``name`` of a settings dataclass: its type, default and help come from the
-    dataclass (``decls`` e.g. ``"--min-edge-m"``; extra keywords go to ``click.option``). A field whose
-    default is None shows the help's words for what None means."""
+def click_option(cls, name: str, *decls: str, **kw):
+    """A click option for the field ``name`` of the settings dataclass ``cls``: its type (``click_type``),
+    default and help from the field, the parameter named after the field. ``decls`` are the option's
+    names (``"--tol-px"``; for a boolean field a flag pair ``"--chips/--no-chips"``, or a single flag
+    for a field that defaults to false); ``kw`` overrides or adds click arguments (e.g. ``metavar``)."""
     import click
 
-    default = default_of(cls, name)
-    return click.option(*decls, name, type=kw.pop("type", click_type(cls, name)), default=default,
-                        show_default=default is not None,
-                        help=kw.pop("help", constraints(field_named(cls, name))["help"]), **kw)
+    f = field_named(cls, name)
+    tp, _ = _unwrap_optional(typing.get_type_hints(cls)[name])
+    opts = dict(default=default_of(cls, name), show_default=True, help=constraints(f)["help"])
+    if tp is bool:
+        if not any("/" in d for d in decls):
+            opts["is_flag"] = True
+    else:
+        opts["type"] = click_type(cls, name)
+    opts.update(kw)
+    return click.option(*decls, name, **opts)

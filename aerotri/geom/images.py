@@ -1,8 +1,27 @@
-"""Frame images: reading (TIFF/JPEG, any size), pyramid levels, and cameras described by EXIF."""
+"""Frame images: finding a project's frames, reading them, pyramid levels, cameras described by EXIF.
+
+The one place that finds and reads frames (``aerotri match``, ``aerotri control``, ``ortho rectify``).
+Frames are TIFF/JPEG/PNG files of any size, 8 or 16 bits per sample, one grey band or R, G, B (and
+alpha). Readers, all refusing an unreadable file or a frame whose size differs from the camera's
+(``expect_size`` = camera width, height in px) with an ``InputError`` naming the file:
+
+- :func:`read_native`: the frame as stored, (rows, cols[, bands]) in its own sample type, with the
+  1-based file band of each channel (so that R, G, B can be written without converting the frame);
+- :func:`read_rgb`: channels in R, G, B (, alpha) order, in the file's sample type;
+- :func:`read_rgb8`: 8-bit R, G, B for measuring and display (other depths stretched min-max, alpha dropped);
+- :func:`read_gray`: 8-bit grey (BT.601 luma as OpenCV's decoders compute it).
+
+How a file is read: an uncompressed pixel-interleaved TIFF is memory-mapped (no decoding, no copy;
+channels in file order); other files are decoded by OpenCV (channels B, G, R) where it reads the layout
+as stored, else through GDAL: OpenCV garbles band-interleaved (planar) 16-bit RGB and reads 3 or 4
+samples not tagged RGB as one grey band. EXIF orientation tags are ignored everywhere: pixel
+coordinates refer to the grid as stored, the grid whose size ``check_frames`` checks.
+"""
 
 from __future__ import annotations
 
 import math
+import warnings
 from pathlib import Path
 
 import cv2
@@ -12,8 +31,11 @@ from aerotri.geom.camera import FrameCamera
 from aerotri.core.errors import InputError
 
 IMAGE_SUFFIXES = (".tif", ".tiff", ".jpg", ".jpeg", ".png")
+# a frame of a given id: the suffixes in this order (upper case as cameras and Windows tools write them)
+_ID_SUFFIXES = IMAGE_SUFFIXES + (".TIF", ".JPG")
 
 
+# -- finding ----------------------------------------------------------------------------------------
 def find_images(folder) -> dict[str, Path]:
     """Image id (file stem) -> path for every frame in ``folder``."""
     folder = Path(folder)
@@ -30,11 +52,28 @@ def find_images(folder) -> dict[str, Path]:
     return out
 
 
+def find_image(images_dir, image_id: str) -> Path:
+    """The file of one frame: ``images_dir/<image_id>`` with the first suffix that exists."""
+    images_dir = Path(images_dir)
+    for ext in _ID_SUFFIXES:
+        p = images_dir / f"{image_id}{ext}"
+        if p.is_file():
+            return p
+    raise InputError(f"{images_dir}: no image file for image id {image_id!r} (tried {image_id}.tif/.jpg/.png)")
+
+
+def _open_raster(path):
+    """rasterio dataset of an image file (frames carry no georeferencing: that warning is silenced)."""
+    import rasterio
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", rasterio.errors.NotGeoreferencedWarning)
+        return rasterio.open(path)
+
+
 def check_frames(images: dict, camera: FrameCamera, camera_source="camera.toml") -> None:
     """Every frame is a readable image file of the camera's size, checked from the file headers before
     any work (a folder, an unreadable file or a frame of another size stops here, naming it)."""
-    import warnings
-
     import rasterio
 
     for image_id, path in images.items():
@@ -42,10 +81,8 @@ def check_frames(images: dict, camera: FrameCamera, camera_source="camera.toml")
         if not path.is_file():
             raise InputError(f"{path}: not a file (image {image_id!r}); expected a TIFF/JPEG/PNG frame")
         try:
-            with warnings.catch_warnings():
-                warnings.simplefilter("ignore", rasterio.errors.NotGeoreferencedWarning)
-                with rasterio.open(path) as ds:
-                    size = (ds.width, ds.height)
+            with _open_raster(path) as ds:
+                size = (ds.width, ds.height)
         except (rasterio.errors.RasterioIOError, OSError) as exc:
             raise InputError(f"{path}: cannot read the image ({exc})") from None
         if size != (camera.width, camera.height):
@@ -53,17 +90,174 @@ def check_frames(images: dict, camera: FrameCamera, camera_source="camera.toml")
                              f"{camera.width} x {camera.height} px")
 
 
-def read_gray(path, expect_size: tuple[int, int] | None = None) -> np.ndarray:
-    """8-bit grey image; refuses unreadable files and frames whose size differs from the camera's."""
-    img = cv2.imread(str(path), cv2.IMREAD_GRAYSCALE)
-    if img is None:
-        raise InputError(f"{path}: cannot read the image (not a TIFF/JPEG/PNG, or truncated)")
+def image_layout(path) -> tuple[int, int]:
+    """(bands, bytes per sample) of an image file, from its header."""
+    with _open_raster(path) as ds:
+        return ds.count, np.dtype(ds.dtypes[0]).itemsize
+
+
+# -- reading ----------------------------------------------------------------------------------------
+def map_uncompressed_tiff(path):
+    """An uncompressed, pixel-interleaved TIFF whose strips or tiles are one contiguous run as a read-only
+    np.memmap (rows, cols[, bands]) in the file's band order, or None for any other layout (or a file
+    shorter than its header says: the decoders then name the problem).
+
+    Large-format frames usually come as such files: mapping them costs no decoding or copying, the
+    pages are read on demand by the resampling (the file is already in the page cache after a copy).
+    """
+    import rasterio
+
+    try:
+        with _open_raster(path) as ds:
+            if ds.driver != "GTiff" or ds.compression is not None or len(set(ds.dtypes)) != 1:
+                return None
+            if ds.count > 1 and ds.interleaving != rasterio.enums.Interleaving.pixel:
+                return None
+            dtype = np.dtype(ds.dtypes[0])
+            if dtype.kind not in "ui":
+                return None
+            bh, bw = ds.block_shapes[0]
+            if bw != ds.width:  # tiled: the blocks are not whole rows
+                return None
+            nblocks = -(-ds.height // bh)
+            first = ds.get_tag_item("BLOCK_OFFSET_0_0", "TIFF", bidx=1)
+            last = ds.get_tag_item(f"BLOCK_OFFSET_0_{nblocks - 1}", "TIFF", bidx=1)
+            if first is None or last is None:
+                return None
+            row_bytes = ds.width * ds.count * dtype.itemsize
+            if int(last) != int(first) + (nblocks - 1) * bh * row_bytes:
+                return None
+            shape = (ds.height, ds.width) + ((ds.count,) if ds.count > 1 else ())
+            end = int(first) + ds.height * row_bytes
+        if Path(path).stat().st_size < end:
+            return None  # truncated
+        with open(path, "rb") as f:
+            byte_order = f.read(2)
+    except (rasterio.errors.RasterioIOError, OSError):
+        return None
+    if dtype.itemsize > 1:
+        dtype = dtype.newbyteorder("<" if byte_order == b"II" else ">")
+    img = np.memmap(path, dtype, "r", int(first), shape)
+    return img if dtype.isnative or dtype.itemsize == 1 else None
+
+
+def _opencv_reads(path) -> bool:
+    """Whether OpenCV reads this frame as stored. It does not for multi-band TIFFs that are band-interleaved
+    (16-bit planar RGB comes out garbled: band means of 67-120 DN for 112-152) or not tagged RGB (3 or 4
+    MINISBLACK samples come out as one grey band); those are read through GDAL."""
+    import rasterio
+
+    if Path(path).suffix.lower() not in (".tif", ".tiff"):
+        return True
+    try:
+        with _open_raster(path) as ds:
+            if ds.count == 1:
+                return True
+            rgb = tuple(ds.colorinterp[:3]) == (rasterio.enums.ColorInterp.red, rasterio.enums.ColorInterp.green,
+                                                rasterio.enums.ColorInterp.blue)
+            return rgb and ds.count in (3, 4) and ds.interleaving == rasterio.enums.Interleaving.pixel
+    except rasterio.errors.RasterioIOError:
+        return True  # let the readers name the problem
+
+
+def _read_gdal(path) -> np.ndarray:
+    """(rows, cols[, bands]) in file band order, decoded by GDAL."""
+    import rasterio
+
+    try:
+        with _open_raster(path) as ds:
+            img = np.moveaxis(ds.read(), 0, -1)
+    except rasterio.errors.RasterioIOError as exc:
+        raise InputError(f"{path}: cannot read the image ({exc})") from None
+    return img[:, :, 0] if img.shape[2] == 1 else img
+
+
+def _check_size(path, img: np.ndarray, expect_size) -> None:
     if expect_size is not None and (img.shape[1], img.shape[0]) != tuple(expect_size):
         raise InputError(f"{path}: image is {img.shape[1]} x {img.shape[0]} px but the camera says "
                          f"{expect_size[0]} x {expect_size[1]} px")
+
+
+def _file_order(img: np.ndarray) -> list[int]:
+    return list(range(1, (img.shape[2] if img.ndim == 3 else 1) + 1))
+
+
+def read_native(path, expect_size: tuple[int, int] | None = None) -> tuple[np.ndarray, list[int]]:
+    """A frame as stored, (rows, cols[, bands]), and for each channel its 1-based band in R, G, B order.
+
+    Uncompressed TIFFs are memory-mapped (``map_uncompressed_tiff``, channels in file order R, G, B).
+    Otherwise cv2 reads colour frames as B, G, R: the band order lets the ortho be written as R, G, B
+    without converting the whole frame. Layouts OpenCV does not read as stored go through GDAL.
+    """
+    img = map_uncompressed_tiff(path)
+    if img is not None:
+        order = _file_order(img)
+    else:
+        img = cv2.imread(str(path), cv2.IMREAD_UNCHANGED) if _opencv_reads(path) else None
+        if img is None:
+            img = _read_gdal(path)
+            order = _file_order(img)
+        elif img.ndim == 3 and img.shape[2] in (3, 4):
+            order = [3, 2, 1] if img.shape[2] == 3 else [3, 2, 1, 4]
+        else:
+            order = _file_order(img)
+    _check_size(path, img, expect_size)
+    return img, order
+
+
+def _to_file_order(img: np.ndarray, order: list[int]) -> np.ndarray:
+    """Channels in band order 1, 2, 3, ... (R, G, B) from channels in the bands ``order`` names."""
+    if img.ndim == 3 and order != list(range(1, img.shape[2] + 1)):
+        out = np.empty_like(img)
+        out[:, :, [b - 1 for b in order]] = img
+        return out
     return img
 
 
+def read_rgb(path, expect_size: tuple[int, int] | None = None) -> np.ndarray:
+    """A frame as (rows, cols[, bands]) in band order R, G, B (, alpha), in the file's sample type."""
+    return _to_file_order(*read_native(path, expect_size))
+
+
+def read_rgb8(path, expect_size: tuple[int, int] | None = None) -> np.ndarray:
+    """An 8-bit frame (rows, cols[, 3]) in R, G, B order: alpha dropped, other depths stretched from their
+    minimum to their maximum (over all bands) to 0..255."""
+    img = read_rgb(path, expect_size)
+    if img.ndim == 3 and img.shape[2] >= 3:
+        img = img[:, :, :3]
+    if img.dtype != np.uint8:
+        img = cv2.normalize(img, None, 0, 255, cv2.NORM_MINMAX).astype(np.uint8)
+    return np.ascontiguousarray(img)
+
+
+def _gray8(img: np.ndarray) -> np.ndarray:
+    """8-bit grey of R, G, B(, ...) channels in file order, as OpenCV decodes a colour TIFF to grey:
+    16-bit samples scaled to 8 bits with rounding, then BT.601 luma in 14-bit fixed point."""
+    if img.dtype == np.uint16:
+        img = ((img.astype(np.uint32) * 255 + 32767) // 65535).astype(np.uint8)
+    elif img.dtype != np.uint8:
+        img = cv2.normalize(img, None, 0, 255, cv2.NORM_MINMAX).astype(np.uint8)
+    if img.ndim == 2:
+        return img
+    if img.shape[2] < 3:
+        return np.ascontiguousarray(img[:, :, 0])
+    r, g, b = (img[:, :, k].astype(np.uint32) for k in range(3))
+    return ((b * 1868 + g * 9617 + r * 4899 + (1 << 13)) >> 14).astype(np.uint8)
+
+
+def read_gray(path, expect_size: tuple[int, int] | None = None) -> np.ndarray:
+    """8-bit grey image; refuses unreadable files and frames whose size differs from the camera's."""
+    if _opencv_reads(path):
+        img = cv2.imread(str(path), cv2.IMREAD_GRAYSCALE | cv2.IMREAD_IGNORE_ORIENTATION)
+        if img is None:
+            raise InputError(f"{path}: cannot read the image (not a TIFF/JPEG/PNG, or truncated)")
+    else:
+        img = _gray8(_read_gdal(path))
+    _check_size(path, img, expect_size)
+    return img
+
+
+# -- pyramid ----------------------------------------------------------------------------------------
 def pyramid_level(width: int, height: int, max_dim_px: int) -> int:
     """Smallest level L (image shrunk by 2^L) whose larger side is at most ``max_dim_px``."""
     return max(0, int(math.ceil(math.log2(max(width, height) / max_dim_px)))) if max(width, height) > max_dim_px else 0
@@ -82,6 +276,7 @@ def level_to_full(xy_level: np.ndarray, level: int) -> np.ndarray:
     return xy_level * s + (s - 1.0) / 2.0
 
 
+# -- cameras from EXIF ------------------------------------------------------------------------------
 def camera_from_exif(path, sensor_width_mm: float | None = None) -> FrameCamera:
     """A frame camera from an image's EXIF: focal length (mm) and sensor width (from the focal plane
     resolution tags, or given). Principal point at the centre, no distortion."""

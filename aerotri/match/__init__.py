@@ -7,7 +7,7 @@ tracks dropped) -> weak-area analysis per stereo model (von Gruber regions) and 
 densification where weak -> ``at/tiepoints.csv`` + connectivity report.
 """
 
-__all__ = ["MatchSettings", "match_project"]
+__all__ = ["MatchReport", "MatchSettings", "match_project"]
 
 
 def __getattr__(name):

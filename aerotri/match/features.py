@@ -10,7 +10,6 @@ full-resolution pixel coordinates.
 from __future__ import annotations
 
 import dataclasses
-import hashlib
 import json
 from pathlib import Path
 
@@ -19,19 +18,8 @@ import numpy as np
 
 from aerotri.core.errors import InputError
 from aerotri.geom.images import downsample, level_to_full, pyramid_level, read_gray
+from aerotri.match.settings import FeatureParams
 from aerotri.core.atomic import atomic_path
-
-
-@dataclasses.dataclass(frozen=True)
-class FeatureParams:
-    budget: int = 6000
-    grid: tuple[int, int] = (12, 8)  # cells across the image width, height
-    max_dim_px: int = 3000
-    contrast_threshold: float = 0.01
-    name: str = "sparse"
-
-    def key(self) -> str:
-        return hashlib.sha1(json.dumps(dataclasses.asdict(self), sort_keys=True).encode()).hexdigest()[:12]
 
 
 @dataclasses.dataclass

@@ -3,9 +3,6 @@ with the essential matrix (nominal camera, RANSAC seeded for repeatable results)
 
 from __future__ import annotations
 
-import dataclasses
-import hashlib
-import json
 from pathlib import Path
 
 import cv2
@@ -14,20 +11,8 @@ from scipy.spatial import cKDTree
 
 from aerotri.geom.camera import FrameCamera
 from aerotri.match.features import Features
+from aerotri.match.settings import MatchParams
 from aerotri.core.atomic import atomic_path
-
-
-@dataclasses.dataclass(frozen=True)
-class MatchParams:
-    ratio: float = 0.8
-    ransac_px: float = 1.0  # inlier threshold on the epipolar distance, full-resolution pixels
-    min_inliers: int = 15
-    seed: int = 0
-    local_px: float = 1.5  # local parallax consistency tolerance (pixels of the detection level)
-    local_k: int = 10
-
-    def key(self) -> str:
-        return hashlib.sha1(json.dumps(dataclasses.asdict(self), sort_keys=True).encode()).hexdigest()[:12]
 
 
 def mutual_ratio_matches(da: np.ndarray, db: np.ndarray, ratio: float) -> np.ndarray:
@@ -96,8 +81,10 @@ def match_cache_path(tag: str, cache_dir: Path, p: MatchParams, feature_key: str
     return cache_dir / f"{tag}.{feature_key}.{p.key()}.npy"
 
 
-def cached_match(tag: str, fa: Features, fb: Features, camera: FrameCamera, p: MatchParams, cache_dir: Path,
+def cached_match(tag: str, fa: Features, fb: Features, camera: FrameCamera, p: MatchParams, *, cache_dir: Path,
                  feature_key: str) -> np.ndarray:
+    """Verified matches of a frame pair, from ``cache_dir`` when matched before with the same parameters and
+    features (``feature_key``)."""
     f = match_cache_path(tag, cache_dir, p, feature_key)
     if f.exists():
         return np.load(f)

@@ -2,11 +2,11 @@
 
 from __future__ import annotations
 
-import logging
-
 import dataclasses
 import json
+import logging
 import time
+from pathlib import Path
 
 import numpy as np
 import rasterio
@@ -14,39 +14,71 @@ from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
 
-from aerotri.geom.camera import project_camera
-from aerotri.geom.eo import check_block_crs, read_gnss
+from aerotri.core.atomic import write_text_atomic
 from aerotri.core.config import config_number, config_vector
 from aerotri.core.errors import InputError
-from aerotri.match import features as F
-from aerotri.match import matching as M
-from aerotri.geom.images import check_frames, find_images
-from aerotri.match.pairs import Pair, candidate_pairs, plan_block
-from aerotri.match.report import plot_block, track_length_histogram
-from aerotri.match.tracks import build_tracks, coincident
-from aerotri.match.weak import analyse
 from aerotri.core.executor import Executor, local_executor
 from aerotri.core.project import Project
-from aerotri.core.atomic import write_text_atomic
+from aerotri.geom.camera import FrameCamera, project_camera
+from aerotri.geom.eo import check_block_crs, read_gnss
+from aerotri.geom.images import check_frames, find_images
+from aerotri.match import features as F
+from aerotri.match import matching as M
+from aerotri.match.pairs import BlockPlan, Pair, candidate_pairs, plan_block
+from aerotri.match.report import plot_block, track_length_histogram
+from aerotri.match.settings import MatchSettings
+from aerotri.match.tracks import build_tracks, coincident
+from aerotri.match.weak import BlockStrength, ModelStrength, StripTies, analyse
 
 log = logging.getLogger(__name__)
 
 
 @dataclasses.dataclass
-class MatchSettings:
-    sparse: F.FeatureParams = dataclasses.field(default_factory=F.FeatureParams)
-    dense: F.FeatureParams = dataclasses.field(
-        default_factory=lambda: F.FeatureParams(budget=10000, grid=(20, 12), max_dim_px=4500,
-                                                contrast_threshold=0.004, name="dense"))
-    match: M.MatchParams = dataclasses.field(default_factory=M.MatchParams)
-    dense_ratio: float = 0.9
-    min_overlap: float = 0.15
-    terrain_height_m: float | None = None
-    image_top_deg: float = 0.0
-    densify: bool = True
-    min_per_region: int = 3
-    min_strip_ties: int = 20
-    retrieval_min_matches: int = 25
+class PairTies:
+    left: str
+    right: str
+    ties: int
+
+
+@dataclasses.dataclass
+class Densified:
+    """What the densification matched again: frame pairs (weak models and the extra cross-strip pairs) and
+    the weakly tied strip pairs (1-based strip numbers)."""
+
+    models: list[list[str]] = dataclasses.field(default_factory=list)
+    strip_pairs: list[list[int]] = dataclasses.field(default_factory=list)
+
+
+@dataclasses.dataclass
+class MatchReport:
+    """The numbers of a matching run (``at/connectivity.json``, keys in this order)."""
+
+    project: str
+    frames: int
+    strips: int
+    pairs: int
+    pairs_by_kind: dict[str, int]
+    pairs_with_ties: int
+    components: int
+    component_frames: list[list[str]]  # the frames of each component when the block falls apart, else empty
+    tracks: int
+    observations: int
+    inconsistent_tracks_dropped: int
+    tracks_3plus_fraction: float
+    track_length_histogram: dict[str, int]
+    ties_per_pair: list[PairTies]
+    weak_models: list[list[str]]
+    weak_strip_pairs: list[list[int]]
+    densified: Densified
+    models: list[ModelStrength]
+    cross_strip: list[StripTies]
+    terrain_height_m: float | None
+    seconds: float
+    feature_cache_hits: int
+    match_cache_hits: int
+
+    def to_dict(self) -> dict:
+        return dataclasses.asdict(self)
 
 
 def _terrain_height(project: Project, s: MatchSettings) -> float:
@@ -85,24 +117,23 @@ def _match_task(item) -> tuple[bool, np.ndarray]:
     f = M.match_cache_path(tag, cache_dir, p, fkey)
     if f.exists():  # without reading the two frames' features
         return True, np.load(f)
-    return False, M.cached_match(tag, F.cached_features(*fa), F.cached_features(*fb), camera, p, cache_dir, fkey)
+    return False, M.cached_match(tag, F.cached_features(*fa), F.cached_features(*fb), camera, p, cache_dir=cache_dir,
+                                 feature_key=fkey)
 
 
-def match_project(root, settings: MatchSettings | None = None, executor: Executor | None = None) -> dict:
-    """Match the frames of a project; writes ``at/tiepoints.csv`` and the connectivity report.
+@dataclasses.dataclass
+class _Frames:
+    """The frames to match: ids in block order, their files, and their GNSS plan (None without GNSS)."""
 
-    Feature extraction (one task per frame) and matching (one task per pair) run on ``executor``
-    (default: local threads); the results are cached in ``work/features`` and ``work/matches``."""
-    s = settings or MatchSettings()
-    t0 = time.perf_counter()
-    project = Project.open(root)
+    ids: list[str]
+    images: dict[str, Path]
+    plan: BlockPlan | None
+
+
+def _read_frames(project: Project, crs, camera: FrameCamera, s: MatchSettings) -> _Frames:
+    """Images and GNSS positions checked against each other and the camera; the flight plan from GNSS."""
     toml = project.root / "project.toml"
-    crs = check_block_crs(project.crs, f"{toml} [project] crs")
-    camera = project_camera(project)
     images = find_images(project.images_dir)
-    cache_f = project.work_dir / "features"
-    cache_m = project.work_dir / "matches"
-    stats = dict(feature_cache_hits=0, match_cache_hits=0)
     gnss = None
     if project.gnss_path.exists():
         gnss = read_gnss(project.gnss_path, crs)
@@ -123,114 +154,182 @@ def match_project(root, settings: MatchSettings | None = None, executor: Executo
                          "at least 2 overlapping frames")
     terrain_m = _terrain_height(project, s) if gnss is not None else None
     check_frames(images, camera, project.camera_path)
-    if gnss is not None:
-        plan = plan_block(ids, gnss.position_m, camera, lever, terrain_m, s.image_top_deg)
-        pairs = candidate_pairs(plan, s.min_overlap)
-    else:
-        # No GNSS (e.g. a kite block): find overlapping pairs by matching thumbnails, then match those.
-        plan = None
-        log.info(f"{project.gnss_path} not found: pairs by thumbnail retrieval")
+    plan = plan_block(ids, gnss.position_m, camera, lever, terrain_m, s.image_top_deg) if gnss is not None else None
+    return _Frames(ids, images, plan)
 
-    ex = executor or local_executor()
 
-    def extract(frames, p: F.FeatureParams, desc: str) -> list:
+class _Matcher:
+    """Features (one task per frame) and matches (one task per pair) of a block's frames on an executor,
+    cached in ``work/features`` and ``work/matches``; counts the cache hits."""
+
+    def __init__(self, project: Project, frames: _Frames, camera: FrameCamera, executor: Executor):
+        self.ids, self.images, self.camera, self.ex = frames.ids, frames.images, camera, executor
+        self.cache_f = project.work_dir / "features"
+        self.cache_m = project.work_dir / "matches"
+        self.feature_cache_hits = 0
+        self.match_cache_hits = 0
+
+    def _item(self, i: int, p: F.FeatureParams) -> tuple:
+        return (self.images[self.ids[i]], self.cache_f, p, (self.camera.width, self.camera.height))
+
+    def extract(self, frames, p: F.FeatureParams, desc: str) -> list:
         """Extract (or find cached) the features of the given frames, one task per frame; their cache keys."""
-        items = [(images[ids[i]], cache_f, p, (camera.width, camera.height)) for i in frames]
-        stats["feature_cache_hits"] += sum(ex.map(_features_task, items, desc=desc, unit="frame"))
+        items = [self._item(i, p) for i in frames]
+        self.feature_cache_hits += sum(self.ex.map(_features_task, items, desc=desc, unit="frame"))
         return items
 
-    def feats(frames, p: F.FeatureParams, desc: str) -> dict:
+    def features(self, frames, p: F.FeatureParams, desc: str) -> dict:
         """Features of the given frames (index -> Features), extracted as one task per frame."""
         frames = list(frames)
-        return {i: F.cached_features(*item) for i, item in zip(frames, extract(frames, p, desc))}
+        return {i: F.cached_features(*item) for i, item in zip(frames, self.extract(frames, p, desc))}
 
-    def match(pairs_ij, fp: F.FeatureParams, p: M.MatchParams, desc: str) -> list:
+    def match(self, pairs_ij, fp: F.FeatureParams, p: M.MatchParams, desc: str) -> list:
         """Verified matches of the given frame pairs, one task per pair (features read from the cache)."""
-        items = [(f"{ids[i]}__{ids[j]}", (images[ids[i]], cache_f, fp, (camera.width, camera.height)),
-                  (images[ids[j]], cache_f, fp, (camera.width, camera.height)), camera, p, cache_m)
+        items = [(f"{self.ids[i]}__{self.ids[j]}", self._item(i, fp), self._item(j, fp), self.camera, p, self.cache_m)
                  for i, j in pairs_ij]
-        out = ex.map(_match_task, items, desc=desc, unit="pair")
-        stats["match_cache_hits"] += sum(hit for hit, _ in out)
+        out = self.ex.map(_match_task, items, desc=desc, unit="pair")
+        self.match_cache_hits += sum(hit for hit, _ in out)
         return [m for _, m in out]
 
-    if plan is None:
-        thumb = F.FeatureParams(budget=1500, grid=(6, 4), max_dim_px=1000, name="thumb")
-        extract(range(len(ids)), thumb, "thumbnails")  # the retrieval tasks read them from the cache
-        all_pairs = [(i, j) for i in range(len(ids)) for j in range(i + 1, len(ids))]
-        pairs = [Pair(i, j, "retrieved", float(len(m)))
-                 for (i, j), m in zip(all_pairs, match(all_pairs, thumb, s.match, "retrieval"))
-                 if len(m) >= s.retrieval_min_matches]
-    sparse = feats(range(len(ids)), s.sparse, "features")
-    sparse = [sparse[i] for i in range(len(ids))]
-    matches = {(pr.i, pr.j): ("sparse", m)
-               for pr, m in zip(pairs, match([(pr.i, pr.j) for pr in pairs], s.sparse, s.match, "matching"))}
-    track, image, xy, n_bad = _tracks(sparse, {}, matches)
-    analysis = (analyse(plan, camera, track, image, xy, s.min_per_region, s.min_strip_ties) if plan is not None
-                else dict(models=[], cross_strip=[]))
 
-    densified = dict(models=[], strip_pairs=[])
-    if s.densify and plan is not None:
-        weak_pairs = {(m["i"], m["j"]) for m in analysis["models"] if m["weak"]}
-        extra: list[Pair] = []
-        for c in analysis["cross_strip"]:
-            if c["weak"]:
-                densified["strip_pairs"].append([c["strip_a"], c["strip_b"]])
-                # Extra cross pairs with a lower overlap threshold between the two strips.
-                for pr in candidate_pairs(plan, s.min_overlap / 3.0):
-                    if {int(plan.strip[pr.i]) + 1, int(plan.strip[pr.j]) + 1} == {c["strip_a"], c["strip_b"]}:
-                        if (pr.i, pr.j) not in matches:
-                            pr.kind = "extra"
-                            extra.append(pr)
-                        weak_pairs.add((pr.i, pr.j))
-        if weak_pairs:
-            densified["models"] = sorted([ids[i], ids[j]] for i, j in weak_pairs)
-            dense = feats(sorted({k for p in weak_pairs for k in p}), s.dense, "dense features")
-            dp = dataclasses.replace(s.match, ratio=s.dense_ratio)
-            wp = sorted(weak_pairs)
-            for (i, j), m in zip(wp, match(wp, s.dense, dp, "densifying")):
-                matches[(i, j)] = ("dense", m)
-            pairs = pairs + extra
-            track, image, xy, n_bad = _tracks(sparse, dense, matches)
-            analysis = analyse(plan, camera, track, image, xy, s.min_per_region, s.min_strip_ties)
+def _retrieved_pairs(mt: _Matcher, s: MatchSettings) -> list[Pair]:
+    """Without GNSS (e.g. a kite block): the frame pairs whose thumbnails match."""
+    n = len(mt.ids)
+    thumb = F.FeatureParams(budget=1500, grid=(6, 4), max_dim_px=1000, name="thumb")
+    mt.extract(range(n), thumb, "thumbnails")  # the retrieval tasks read them from the cache
+    all_pairs = [(i, j) for i in range(n) for j in range(i + 1, n)]
+    return [Pair(i, j, "retrieved", float(len(m)))
+            for (i, j), m in zip(all_pairs, mt.match(all_pairs, thumb, s.match, "retrieval"))
+            if len(m) >= s.retrieval_min_matches]
 
-    # Connectivity of the frames through verified matches.
-    ties = [(i, j, len(m)) for (i, j), (_, m) in matches.items()]
-    r = [i for i, j, t in ties if t > 0]
-    c = [j for i, j, t in ties if t > 0]
+
+@dataclasses.dataclass
+class _Ties:
+    """Verified matches {(i, j): (feature kind, (M, 2) keypoint index pairs)} and their tracks."""
+
+    matches: dict
+    track: np.ndarray
+    image: np.ndarray
+    xy: np.ndarray
+    n_bad: int
+    strength: BlockStrength
+
+
+def _ties(plan: BlockPlan | None, camera: FrameCamera, sparse: list, dense: dict, matches: dict,
+          s: MatchSettings) -> _Ties:
+    track, image, xy, n_bad = _tracks(sparse, dense, matches)
+    strength = (analyse(plan, camera, track, image, xy, min_per_region=s.min_per_region,
+                        min_strip_ties=s.min_strip_ties) if plan is not None else BlockStrength([], []))
+    return _Ties(matches, track, image, xy, n_bad, strength)
+
+
+def _densify(mt: _Matcher, plan: BlockPlan, sparse: list, ties: _Ties, s: MatchSettings
+             ) -> tuple[_Ties, list[Pair], Densified]:
+    """Dense features and a looser ratio test on the weak models and between weakly tied strips (extra
+    cross-strip pairs at a third of the overlap threshold): the new ties, the extra pairs, what was done."""
+    ids = mt.ids
+    densified = Densified()
+    weak_pairs = {(m.i, m.j) for m in ties.strength.models if m.weak}
+    extra: list[Pair] = []
+    matches = dict(ties.matches)
+    for c in ties.strength.cross_strip:
+        if c.weak:
+            densified.strip_pairs.append([c.strip_a, c.strip_b])
+            # Extra cross pairs with a lower overlap threshold between the two strips.
+            for pr in candidate_pairs(plan, s.min_overlap / 3.0):
+                if {int(plan.strip[pr.i]) + 1, int(plan.strip[pr.j]) + 1} == {c.strip_a, c.strip_b}:
+                    if (pr.i, pr.j) not in matches:
+                        pr.kind = "extra"
+                        extra.append(pr)
+                    weak_pairs.add((pr.i, pr.j))
+    if not weak_pairs:
+        return ties, [], densified
+    densified.models = sorted([ids[i], ids[j]] for i, j in weak_pairs)
+    dense = mt.features(sorted({k for p in weak_pairs for k in p}), s.dense, "dense features")
+    dp = dataclasses.replace(s.match, ratio=s.dense_ratio)
+    wp = sorted(weak_pairs)
+    for (i, j), m in zip(wp, mt.match(wp, s.dense, dp, "densifying")):
+        matches[(i, j)] = ("dense", m)
+    return _ties(plan, mt.camera, sparse, dense, matches, s), extra, densified
+
+
+def _components(project: Project, ids: list[str], ties_per_pair: list[tuple[int, int, int]]) -> list[list[str]]:
+    """The frames of each connected part of the block (frames joined by verified ties)."""
+    r = [i for i, j, t in ties_per_pair if t > 0]
+    c = [j for i, j, t in ties_per_pair if t > 0]
     n = len(ids)
     if n > 1 and not r:
         raise InputError(f"{project.images_dir}: no two frames share verified tie points (no overlap at all?)")
     ncomp, comp = connected_components(coo_matrix((np.ones(len(r)), (r, c)), shape=(n, n)), directed=False)
-    components = [[ids[k] for k in np.flatnonzero(comp == q)] for q in range(ncomp)]
+    return [[ids[k] for k in np.flatnonzero(comp == q)] for q in range(ncomp)]
 
+
+def _write_tiepoints(path: Path, ids: list[str], ties: _Ties) -> None:
+    lines = ["point_id,image_id,x_px,y_px"]
+    lines += [f"T{t + 1:07d},{ids[i]},{x:.3f},{y:.3f}" for t, i, (x, y) in zip(ties.track, ties.image, ties.xy)]
+    write_text_atomic(path, "\n".join(lines) + "\n")
+
+
+def match_project(root, settings: MatchSettings | None = None, executor: Executor | None = None) -> MatchReport:
+    """Match the frames of a project; writes ``at/tiepoints.csv`` and the connectivity report.
+
+    Feature extraction (one task per frame) and matching (one task per pair) run on ``executor``
+    (default: local threads); the results are cached in ``work/features`` and ``work/matches``."""
+    s = settings or MatchSettings()
+    t0 = time.perf_counter()
+    project = Project.open(root)
+    crs = check_block_crs(project.crs, f"{project.config_path} [project] crs")
+    camera = project_camera(project)
+    frames = _read_frames(project, crs, camera, s)
+    ids, plan = frames.ids, frames.plan
+    if plan is not None:
+        pairs = candidate_pairs(plan, s.min_overlap)
+    else:
+        log.info(f"{project.gnss_path} not found: pairs by thumbnail retrieval")
+    mt = _Matcher(project, frames, camera, executor or local_executor())
+    if plan is None:
+        pairs = _retrieved_pairs(mt, s)
+    sparse = mt.features(range(len(ids)), s.sparse, "features")
+    sparse = [sparse[i] for i in range(len(ids))]
+    matches = {(pr.i, pr.j): ("sparse", m)
+               for pr, m in zip(pairs, mt.match([(pr.i, pr.j) for pr in pairs], s.sparse, s.match, "matching"))}
+    ties = _ties(plan, camera, sparse, {}, matches, s)
+    densified = Densified()
+    if s.densify and plan is not None:
+        ties, extra, densified = _densify(mt, plan, sparse, ties, s)
+        pairs = pairs + extra
+
+    ties_per_pair = [(i, j, len(m)) for (i, j), (_, m) in ties.matches.items()]
+    components = _components(project, ids, ties_per_pair)
     at = project.at_dir
     at.mkdir(parents=True, exist_ok=True)
-    lines = ["point_id,image_id,x_px,y_px"]
-    lines += [f"T{t + 1:07d},{ids[i]},{x:.3f},{y:.3f}" for t, i, (x, y) in zip(track, image, xy)]
-    write_text_atomic(at / "tiepoints.csv", "\n".join(lines) + "\n")
-    lengths = np.bincount(track) if len(track) else np.zeros(0, int)
+    _write_tiepoints(project.tiepoints_path, ids, ties)
+    lengths = np.bincount(ties.track) if len(ties.track) else np.zeros(0, int)
     kinds = {}
     for pr in pairs:
         kinds[pr.kind] = kinds.get(pr.kind, 0) + 1
-    report = dict(
-        project=project.name, frames=n, strips=int(len(np.unique(plan.strip))) if plan is not None else 0,
-        pairs=len(pairs),
-        pairs_by_kind=kinds, pairs_with_ties=int(sum(t > 0 for _, _, t in ties)), components=len(components),
-        component_frames=components if len(components) > 1 else [], tracks=int(len(lengths)),
-        observations=int(len(track)), inconsistent_tracks_dropped=n_bad,
+    strength = ties.strength
+    report = MatchReport(
+        project=project.name, frames=len(ids), strips=int(len(np.unique(plan.strip))) if plan is not None else 0,
+        pairs=len(pairs), pairs_by_kind=kinds, pairs_with_ties=int(sum(t > 0 for _, _, t in ties_per_pair)),
+        components=len(components), component_frames=components if len(components) > 1 else [],
+        tracks=int(len(lengths)), observations=int(len(ties.track)), inconsistent_tracks_dropped=ties.n_bad,
         tracks_3plus_fraction=float((lengths >= 3).mean()) if len(lengths) else 0.0,
-        track_length_histogram=track_length_histogram(track),
-        ties_per_pair=[dict(left=ids[i], right=ids[j], ties=t) for i, j, t in ties],
-        weak_models=[[m["left"], m["right"]] for m in analysis["models"] if m["weak"]],
-        weak_strip_pairs=[[c_["strip_a"], c_["strip_b"]] for c_ in analysis["cross_strip"] if c_["weak"]],
-        densified=densified, models=analysis["models"], cross_strip=analysis["cross_strip"],
-        terrain_height_m=plan.terrain_height_m if plan is not None else None, seconds=round(time.perf_counter() - t0, 2), **stats,
+        track_length_histogram=track_length_histogram(ties.track),
+        ties_per_pair=[PairTies(ids[i], ids[j], t) for i, j, t in ties_per_pair],
+        weak_models=[[m.left, m.right] for m in strength.models if m.weak],
+        weak_strip_pairs=[[c.strip_a, c.strip_b] for c in strength.cross_strip if c.weak],
+        densified=densified, models=strength.models, cross_strip=strength.cross_strip,
+        terrain_height_m=plan.terrain_height_m if plan is not None else None,
+        seconds=round(time.perf_counter() - t0, 2), feature_cache_hits=mt.feature_cache_hits,
+        match_cache_hits=mt.match_cache_hits,
     )
-    write_text_atomic(at / "connectivity.json", json.dumps(report, indent=1) + "\n")
+    write_text_atomic(project.connectivity_path, json.dumps(report.to_dict(), indent=1) + "\n")
     if plan is not None:
-        plot_block(at / "connectivity.png", plan, ties, analysis)
-    log.info(f"{n} frames, {len(pairs)} pairs, {report['tracks']} tracks, {report['observations']} observations, "
-        f"{len(components)} component(s), {len(report['weak_models'])} weak model(s) -> {at / 'tiepoints.csv'}")
+        plot_block(at / "connectivity.png", plan, ties_per_pair, strength)
+    log.info(f"{report.frames} frames, {report.pairs} pairs, {report.tracks} tracks, {report.observations} "
+             f"observations, {report.components} component(s), {len(report.weak_models)} weak model(s) -> "
+             f"{project.tiepoints_path}")
     return report
 
 

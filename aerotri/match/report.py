@@ -2,16 +2,18 @@
 
 from __future__ import annotations
 
-import matplotlib
+import numpy as np
 
-matplotlib.use("Agg")
-import matplotlib.pyplot as plt  # noqa: E402
-import numpy as np  # noqa: E402
-
-from aerotri.core.atomic import atomic_path  # noqa: E402
+from aerotri.core.atomic import atomic_path
 
 
-def plot_block(path, plan, pairs_ties: list[tuple[int, int, int]], analysis: dict) -> None:
+def plot_block(path, plan, pairs_ties: list[tuple[int, int, int]], strength) -> None:
+    """The block (footprints, frame centres, a line per pair coloured by its ties, weak models in red) as PNG;
+    ``strength``: ``aerotri.match.weak.BlockStrength``."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
     fig, ax = plt.subplots(figsize=(10, 8))
     for fp in plan.footprints:
         x, y = fp.exterior.xy
@@ -21,9 +23,9 @@ def plot_block(path, plan, pairs_ties: list[tuple[int, int, int]], analysis: dic
     for i, j, t in pairs_ties:
         ax.plot([c[i, 0], c[j, 0]], [c[i, 1], c[j, 1]], color=plt.cm.viridis(t / tmax), lw=0.5 + 3.0 * t / tmax,
                 alpha=0.8)
-    for m in analysis["models"]:
-        if m["weak"]:
-            ov = plan.footprints[m["i"]].intersection(plan.footprints[m["j"]])
+    for m in strength.models:
+        if m.weak:
+            ov = plan.footprints[m.i].intersection(plan.footprints[m.j])
             if not ov.is_empty:
                 x, y = ov.exterior.xy
                 ax.fill(x, y, color="red", alpha=0.15)
@@ -32,7 +34,7 @@ def plot_block(path, plan, pairs_ties: list[tuple[int, int, int]], analysis: dic
         ax.annotate(iid, c[k, :2], fontsize=6, xytext=(2, 2), textcoords="offset points")
     sm = plt.cm.ScalarMappable(cmap="viridis", norm=plt.Normalize(0, tmax))
     fig.colorbar(sm, ax=ax, label="tie points per pair")
-    weak = sum(m["weak"] for m in analysis["models"])
+    weak = sum(m.weak for m in strength.models)
     ax.set_title(f"{len(plan.image_id)} frames, {len(pairs_ties)} pairs, {weak} weak models (red)")
     ax.set_aspect("equal")
     ax.set_xlabel("X (m)")

@@ -9,6 +9,8 @@ approximate orientation.
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 
 from aerotri.geom.camera import FrameCamera
@@ -43,8 +45,37 @@ def stereo_models(plan: BlockPlan) -> list[tuple[int, int]]:
     return models
 
 
-def analyse(plan: BlockPlan, camera: FrameCamera, track, image, xy_px, min_per_region: int = 3,
-            min_strip_ties: int = 20) -> dict:
+@dataclasses.dataclass
+class ModelStrength:
+    """Tie points of one stereo model (frames i, j of a strip) in its 3 x 3 von Gruber regions."""
+
+    left: str
+    right: str
+    i: int
+    j: int
+    ties: int
+    regions: list[list[int]]  # (3, 3) counts: rows across, columns along the base
+    weak: bool  # fewer than ``min_per_region`` ties in some region
+
+
+@dataclasses.dataclass
+class StripTies:
+    """Tracks shared by two adjacent strips (1-based strip numbers)."""
+
+    strip_a: int
+    strip_b: int
+    ties: int
+    weak: bool  # fewer than ``min_strip_ties``
+
+
+@dataclasses.dataclass
+class BlockStrength:
+    models: list[ModelStrength]
+    cross_strip: list[StripTies]
+
+
+def analyse(plan: BlockPlan, camera: FrameCamera, track, image, xy_px, *, min_per_region: int = 3,
+            min_strip_ties: int = 20) -> BlockStrength:
     """Per-model region counts, weak models, cross-strip tie counts and weak strip pairs."""
     n_img = len(plan.image_id)
     by_image = [dict() for _ in range(n_img)]
@@ -55,8 +86,8 @@ def analyse(plan: BlockPlan, camera: FrameCamera, track, image, xy_px, min_per_r
         common = sorted(set(by_image[i]) & set(by_image[j]))
         xy_i = xy_px[[by_image[i][t] for t in common]] if common else np.zeros((0, 2))
         c = model_regions(plan, camera, i, j, xy_i)
-        models.append(dict(left=plan.image_id[i], right=plan.image_id[j], i=i, j=j, ties=len(common),
-                           regions=c.tolist(), weak=bool(c.min() < min_per_region)))
+        models.append(ModelStrength(left=plan.image_id[i], right=plan.image_id[j], i=i, j=j, ties=len(common),
+                                    regions=c.tolist(), weak=bool(c.min() < min_per_region)))
     strips = np.unique(plan.strip)
     track_strips: dict[int, set] = {}
     for t, i in zip(track, image):
@@ -64,5 +95,5 @@ def analyse(plan: BlockPlan, camera: FrameCamera, track, image, xy_px, min_per_r
     cross = []
     for a, b in zip(strips[:-1], strips[1:]):
         n = sum(1 for s in track_strips.values() if a in s and b in s)
-        cross.append(dict(strip_a=int(a) + 1, strip_b=int(b) + 1, ties=n, weak=n < min_strip_ties))
-    return dict(models=models, cross_strip=cross)
+        cross.append(StripTies(strip_a=int(a) + 1, strip_b=int(b) + 1, ties=n, weak=n < min_strip_ties))
+    return BlockStrength(models, cross)

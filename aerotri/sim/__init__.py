@@ -4,15 +4,16 @@
 Nothing in the library imports this package.
 """
 
-from aerotri.sim.config import available_presets, load_preset
+__all__ = ["SimTruth", "available_presets", "load_preset", "simulate"]
 
-__all__ = ["available_presets", "load_preset", "simulate"]
+_HOME = {"SimTruth": "aerotri.sim.project", "available_presets": "aerotri.sim.config",
+         "load_preset": "aerotri.sim.config", "simulate": "aerotri.sim.project"}
 
 
 def __getattr__(name):
-    # Lazy: the command line imports this package for the presets without the renderer and scanner.
-    if name == "simulate":
-        from aerotri.sim.project import simulate
+    # Lazy: the command line (``aerotri sim --help``) need not compile the ray caster (numba).
+    if name in _HOME:
+        import importlib
 
-        return simulate
+        return getattr(importlib.import_module(_HOME[name]), name)
     raise AttributeError(f"module 'aerotri.sim' has no attribute {name!r}")

@@ -43,7 +43,32 @@ def cameras_from_config(cam: dict) -> tuple[FrameCamera, FrameCamera]:
     return true, nominal
 
 
-def block_layout(cfg: dict) -> dict:
+@dataclasses.dataclass(frozen=True)
+class BlockLayout:
+    """Footprint, base and strip spacing of the frame block, and the scene that holds it (local metres)."""
+
+    footprint_along_m: float
+    footprint_across_m: float
+    base_m: float
+    strip_spacing_m: float
+    width_m: float  # scene size: the block plus a margin on every side
+    height_m: float
+    margin_m: float
+
+
+@dataclasses.dataclass(frozen=True)
+class LidarLine:
+    """One LiDAR flight line: east-west at ``y_m``, ``z_m`` above the local origin."""
+
+    strip: int  # 1-based
+    y_m: float
+    east: bool  # flown towards +x
+    z_m: float
+    swath_m: float
+    t0_s: float  # GPS time at the start of the line
+
+
+def block_layout(cfg: dict) -> BlockLayout:
     """Footprints, base and strip spacing, and the scene size that holds the block with margins."""
     f = cfg["flight"]
     cam = cfg["camera"]
@@ -55,29 +80,31 @@ def block_layout(cfg: dict) -> dict:
     block_x = (f["frames_per_strip"] - 1) * base + along
     block_y = (f["strips"] - 1) * spacing + across
     margin = cfg["scene"]["margin_m"]
-    return dict(footprint_along_m=along, footprint_across_m=across, base_m=base, strip_spacing_m=spacing,
-                width_m=block_x + 2 * margin, height_m=block_y + 2 * margin, margin_m=margin)
+    return BlockLayout(footprint_along_m=along, footprint_across_m=across, base_m=base, strip_spacing_m=spacing,
+                       width_m=block_x + 2 * margin, height_m=block_y + 2 * margin, margin_m=margin)
 
 
-def plan_frames(cfg: dict, layout: dict, rng) -> FramePlan:
+def plan_frames(cfg: dict, layout: BlockLayout, rng) -> FramePlan:
+    """Frame positions and attitudes along alternating strips, and the GNSS antenna observations with
+    per-strip shift and drift and white noise (``rng`` draws in a fixed order: same seed, same plan)."""
     f = cfg["flight"]
     g = cfg["gnss"]
     H = f["height_above_ground_m"]
     ns, nf = int(f["strips"]), int(f["frames_per_strip"])
-    margin = layout["margin_m"]
+    margin = layout.margin_m
     ids, strip, C, opk, times = [], [], [], [], []
     tilt_sd = f["max_tilt_deg"] / 2.5
     kap_sd = f["max_kappa_dev_deg"] / 3.0
     t_strip0 = []
     for s in range(ns):
         east = s % 2 == 0
-        y = margin + layout["footprint_across_m"] / 2 + s * layout["strip_spacing_m"]
-        xs = margin + layout["footprint_along_m"] / 2 + np.arange(nf) * layout["base_m"]
+        y = margin + layout.footprint_across_m / 2 + s * layout.strip_spacing_m
+        xs = margin + layout.footprint_along_m / 2 + np.arange(nf) * layout.base_m
         if not east:
             xs = xs[::-1]
         crab = np.clip(rng.normal(0, kap_sd), -0.6 * f["max_kappa_dev_deg"], 0.6 * f["max_kappa_dev_deg"])
         t0 = 1000.0 + s * 400.0  # strips flown 400 s apart (turns)
-        t_strip0.append(t0 + 0.5 * (nf - 1) * layout["base_m"] / f["speed_mps"])
+        t_strip0.append(t0 + 0.5 * (nf - 1) * layout.base_m / f["speed_mps"])
         for i, x in enumerate(xs):
             ids.append(f"s{s + 1:02d}_{i + 1:03d}")
             strip.append(s + 1)
@@ -85,7 +112,7 @@ def plan_frames(cfg: dict, layout: dict, rng) -> FramePlan:
             om, ph = np.clip(rng.normal(0, tilt_sd, 2), -0.95 * f["max_tilt_deg"], 0.95 * f["max_tilt_deg"])
             dk = np.clip(crab + rng.normal(0, kap_sd / 2), -0.95 * f["max_kappa_dev_deg"], 0.95 * f["max_kappa_dev_deg"])
             opk.append((om, ph, (-90.0 if east else 90.0) + dk))
-            times.append(t0 + i * layout["base_m"] / f["speed_mps"])
+            times.append(t0 + i * layout.base_m / f["speed_mps"])
     C = np.array(C)
     opk = np.array(opk)
     times = np.array(times)
@@ -101,17 +128,17 @@ def plan_frames(cfg: dict, layout: dict, rng) -> FramePlan:
     return FramePlan(ids, strip, C, opk, times, antenna, obs, shift, drift, t_ref)
 
 
-def lidar_lines(cfg: dict, layout: dict) -> list[dict]:
+def lidar_lines(cfg: dict, layout: BlockLayout) -> list[LidarLine]:
     """Flight lines of the LiDAR: east-west, covering the whole scene with the configured side overlap."""
     L = cfg["lidar"]
     H = L["height_above_ground_m"]
     swath = 2.0 * H * math.tan(math.radians(L["fov_deg"] / 2.0))
     spacing = (1.0 - L["side_overlap"]) * swath
-    Hs = layout["height_m"]
+    Hs = layout.height_m
     n = max(1, int(math.ceil(max(0.0, Hs - swath) / spacing)) + 1)
     y0 = Hs / 2 - (n - 1) * spacing / 2
     lines = []
     for s in range(n):
-        lines.append(dict(strip=s + 1, y_m=y0 + s * spacing, east=(s % 2 == 0), z_m=H, swath_m=swath,
-                          t0_s=5000.0 + s * 300.0))
+        lines.append(LidarLine(strip=s + 1, y_m=y0 + s * spacing, east=(s % 2 == 0), z_m=H, swath_m=swath,
+                               t0_s=5000.0 + s * 300.0))
     return lines

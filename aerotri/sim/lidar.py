@@ -13,6 +13,7 @@ Truth classes (ASPRS): 2 ground, 3/4/5 low/medium/high vegetation, 6 building, 7
 
 from __future__ import annotations
 
+import dataclasses
 import datetime
 import math
 
@@ -22,6 +23,7 @@ import numpy as np
 import pyproj
 
 from aerotri.sim import raycast
+from aerotri.sim.flight import LidarLine
 from aerotri.sim.scene import KIND_NONE, KIND_ROOF, KIND_TERRAIN, KIND_TREE, KIND_WALL, WATER, Scene
 
 MAX_RET = 3
@@ -94,37 +96,64 @@ def _triangle_wave(phase):
     return val, rising
 
 
-def scan_strip(scene: Scene, accel, line: dict, L: dict, rng, width_m: float):
-    """Simulate one strip; returns a dict of point arrays in local metres plus truth classes."""
+@dataclasses.dataclass
+class _Sweep:
+    """The pulses of one strip: emission time, origin and direction, scan angle and mirror direction."""
+
+    t: np.ndarray  # (n,) s since the start of the line
+    origins: np.ndarray  # (n, 3) local metres
+    dirs: np.ndarray  # (n, 3) unit
+    theta: np.ndarray  # (n,) scan angle (rad), positive to the right of the track
+    rising: np.ndarray  # (n,) bool: the mirror sweeps towards increasing angle
+
+
+def _sweep(line: LidarLine, L: dict, rng, width_m: float) -> _Sweep:
+    """Zig-zag pulses along the flight line with attitude noise (draws ``rng`` once: the attitude noise)."""
     v = L["speed_mps"]
     prf = L["pulse_rate_hz"]
     half_fov = math.radians(L["fov_deg"] / 2.0)
     # Fly past the scene ends by half a swath so the corners are covered.
-    lead = line["swath_m"] / 2.0
+    lead = line.swath_m / 2.0
     length = width_m + 2 * lead
     n = int(length / v * prf)
     t = np.arange(n) / prf
-    x_air = (-lead + v * t) if line["east"] else (width_m + lead - v * t)
-    y_air = line["y_m"] + 0.5 * np.sin(2 * np.pi * t / 37.0)  # a gentle weave of the flight line
-    z_air = np.full(n, line["z_m"])
+    x_air = (-lead + v * t) if line.east else (width_m + lead - v * t)
+    y_air = line.y_m + 0.5 * np.sin(2 * np.pi * t / 37.0)  # a gentle weave of the flight line
+    z_air = np.full(n, line.z_m)
     tri, rising = _triangle_wave(L["scan_frequency_hz"] * t)
     theta = tri * half_fov
     # Across-track is +y (left) flying east; the scan angle is positive to the right of the track.
-    side = -1.0 if line["east"] else 1.0
+    side = -1.0 if line.east else 1.0
     dirs = np.stack([np.zeros(n), side * np.sin(theta), -np.cos(theta)], axis=1)
     att = np.radians(L["attitude_noise_deg"]) * rng.standard_normal((n, 2))
     dirs[:, 0] += att[:, 0]
     dirs[:, 1] += att[:, 1]
     dirs /= np.linalg.norm(dirs, axis=1, keepdims=True)
     origins = np.stack([x_air, y_air, z_air], axis=1)
-    u = rng.random((n, 3))
-    T, K, O = _pulses(origins, np.ascontiguousarray(dirs), accel, u, L["canopy_first_return_prob"],
-                      L["canopy_interior_return_prob"], L["canopy_ground_return_prob"])
+    return _Sweep(t, origins, dirs, theta, rising)
+
+
+@dataclasses.dataclass
+class _Returns:
+    """Up to ``MAX_RET`` returns per pulse: ray parameter, surface kind and object, which ones are recorded,
+    and the class of the outliers (7 low, 18 high noise; 0 for the others)."""
+
+    ranges: np.ndarray  # (n, MAX_RET) t along the unit direction (m); inf: no return
+    kinds: np.ndarray  # (n, MAX_RET)
+    objs: np.ndarray  # (n, MAX_RET)
+    valid: np.ndarray  # (n, MAX_RET) bool
+    cls_override: np.ndarray  # (n,)
+
+
+def _water_and_outliers(scene: Scene, sw: _Sweep, T, K, O, L: dict, rng) -> _Returns:
+    """Most pulses on water give no return; low outliers (beyond the surface, preferably under trees and
+    in ponds) and high outliers (birds) replace the returns of some pulses."""
+    n = len(sw.t)
     valid = np.isfinite(T)
     # Water: most pulses give no return.
     first_hit = np.where(valid[:, 0], T[:, 0], 0.0)
-    px = origins[:, 0] + dirs[:, 0] * first_hit
-    py = origins[:, 1] + dirs[:, 1] * first_hit
+    px = sw.origins[:, 0] + sw.dirs[:, 0] * first_hit
+    py = sw.origins[:, 1] + sw.dirs[:, 1] * first_hit
     mat = raycast.ground_materials(px, py, scene.roads, scene.ponds, scene.targets, scene.seed)
     on_water = valid[:, 0] & (K[:, 0] == KIND_TERRAIN) & (mat == WATER)
 
@@ -154,6 +183,7 @@ def scan_strip(scene: Scene, accel, line: dict, L: dict, rng, width_m: float):
     kinds = K.copy()
     objs = O.copy()
     cls_override = np.zeros(n, np.int64)
+    dirs = sw.dirs
     # Low outliers: a single return 50-110 m beyond the surface along the beam.
     last = np.where(valid, np.arange(MAX_RET)[None, :], -1).max(axis=1)
     base_t = ranges[low, np.maximum(last[low], 0)]
@@ -169,20 +199,14 @@ def scan_strip(scene: Scene, accel, line: dict, L: dict, rng, width_m: float):
     valid[high] = False
     valid[high, 0] = True
     cls_override[high] = 18
+    return _Returns(ranges, kinds, objs, valid, cls_override)
 
-    nret = valid.sum(axis=1)
-    pulse, ret = np.nonzero(valid)
-    # Returns are stored in time order per pulse: compact the valid slots.
-    order_in_pulse = np.cumsum(valid, axis=1)[pulse, ret]
-    rng_m = ranges[pulse, ret] + rng.normal(0.0, L["range_noise_m"], pulse.size)
-    P = origins[pulse] + dirs[pulse] * rng_m[:, None]
-    kind = kinds[pulse, ret]
-    obj = objs[pulse, ret]
-    # Truth classes.
+
+def _truth_classes(scene: Scene, P, kind, gm, override) -> np.ndarray:
+    """ASPRS class of every point from the surface it hit, its height above the terrain and the outliers."""
     zg = scene.terrain_height(P[:, 0], P[:, 1])
     hag = P[:, 2] - zg
-    gm = raycast.ground_materials(P[:, 0].copy(), P[:, 1].copy(), scene.roads, scene.ponds, scene.targets, scene.seed)
-    cls = np.full(pulse.size, 1, np.uint8)
+    cls = np.full(len(P), 1, np.uint8)
     cls[kind == KIND_TERRAIN] = 2
     cls[(kind == KIND_TERRAIN) & (gm == WATER)] = 9
     cls[(kind == KIND_ROOF) | (kind == KIND_WALL)] = 6
@@ -190,27 +214,48 @@ def scan_strip(scene: Scene, accel, line: dict, L: dict, rng, width_m: float):
     cls[veg & (hag < 0.5)] = 3
     cls[veg & (hag >= 0.5) & (hag < 2.0)] = 4
     cls[veg & (hag >= 2.0)] = 5
-    ov = cls_override[pulse]
-    cls[ov > 0] = ov[ov > 0]
+    cls[override > 0] = override[override > 0]
+    return cls
+
+
+def scan_strip(scene: Scene, accel, line: LidarLine, L: dict, rng, width_m: float):
+    """Simulate one strip; returns a dict of point arrays in local metres plus truth classes (the fields
+    ``write_las`` writes)."""
+    sw = _sweep(line, L, rng, width_m)
+    n = len(sw.t)
+    u = rng.random((n, 3))
+    T, K, O = _pulses(sw.origins, np.ascontiguousarray(sw.dirs), accel, u, L["canopy_first_return_prob"],
+                      L["canopy_interior_return_prob"], L["canopy_ground_return_prob"])
+    rt = _water_and_outliers(scene, sw, T, K, O, L, rng)
+    valid = rt.valid
+    nret = valid.sum(axis=1)
+    pulse, ret = np.nonzero(valid)
+    # Returns are stored in time order per pulse: compact the valid slots.
+    order_in_pulse = np.cumsum(valid, axis=1)[pulse, ret]
+    rng_m = rt.ranges[pulse, ret] + rng.normal(0.0, L["range_noise_m"], pulse.size)
+    P = sw.origins[pulse] + sw.dirs[pulse] * rng_m[:, None]
+    kind = rt.kinds[pulse, ret]
+    obj = rt.objs[pulse, ret]
+    gm = raycast.ground_materials(P[:, 0].copy(), P[:, 1].copy(), scene.roads, scene.ponds, scene.targets, scene.seed)
+    cls = _truth_classes(scene, P, kind, gm, rt.cls_override[pulse])
     # Intensity from a reflectance per surface (1064 nm), incidence and range.
     refl = np.select([kind == KIND_TREE, kind == KIND_ROOF, kind == KIND_WALL, gm == WATER, gm == 2, gm == 3,
                       gm == 5, gm == 6, gm == 1], [0.5, 0.3, 0.25, 0.04, 0.12, 0.6, 0.8, 0.05, 0.35], 0.45)
     refl = np.where(kind == KIND_ROOF, 0.15 + 0.5 * scene.roof_albedo[np.where(kind == KIND_ROOF, obj, 0)].mean(axis=1), refl)
     split = np.where(nret[pulse] > 1, 0.6, 1.0)
-    inten = refl * split * (line["z_m"] / np.maximum(rng_m, 1.0)) ** 2 * 30000.0
+    inten = refl * split * (line.z_m / np.maximum(rng_m, 1.0)) ** 2 * 30000.0
     inten *= rng.lognormal(0.0, 0.15, inten.size)
-    scan_deg = np.degrees(theta[pulse])
-    edge = np.zeros(pulse.size, bool)
+    scan_deg = np.degrees(sw.theta[pulse])
     # Edge of flight line: the last pulse before the mirror turns.
-    turn = np.flatnonzero(rising[1:] != rising[:-1])
+    turn = np.flatnonzero(sw.rising[1:] != sw.rising[:-1])
     edge_pulse = np.zeros(n, bool)
     edge_pulse[turn] = True
     edge = edge_pulse[pulse]
     return dict(
         xyz=P, intensity=np.clip(inten, 0, 65535).astype(np.uint16), return_number=order_in_pulse.astype(np.uint8),
-        number_of_returns=nret[pulse].astype(np.uint8), scan_direction_flag=rising[pulse].astype(np.uint8),
-        edge_of_flight_line=edge.astype(np.uint8), scan_angle_deg=scan_deg, gps_time=line["t0_s"] + t[pulse],
-        classification=cls, point_source_id=np.full(pulse.size, line["strip"], np.uint16),
+        number_of_returns=nret[pulse].astype(np.uint8), scan_direction_flag=sw.rising[pulse].astype(np.uint8),
+        edge_of_flight_line=edge.astype(np.uint8), scan_angle_deg=scan_deg, gps_time=line.t0_s + sw.t[pulse],
+        classification=cls, point_source_id=np.full(pulse.size, line.strip, np.uint16),
     )
 
 

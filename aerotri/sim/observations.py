@@ -104,7 +104,8 @@ class GeometricBlock:
         n_cand = int(points_per_image * len(self.image_id) / 1.5)
         P = self.ground_points(n_cand, rng)
         return make_observations(
-            P, self.project(P), self.image_id, self.camera_true, "t", sigma_px, min_rays, blunder_fraction, blunder_px_range, rng
+            P, self.project(P), self.image_id, self.camera_true, "t", sigma_px=sigma_px, min_rays=min_rays,
+            blunder_fraction=blunder_fraction, blunder_px_range=blunder_px_range, rng=rng,
         )
 
 
@@ -130,7 +131,8 @@ def project_points(points_local, centre_local, R_local, camera: FrameCamera, fly
     return pi[order], ii[order], xy[order]
 
 
-def make_observations(P, projected, image_id, camera, prefix, sigma_px, min_rays, blunder_fraction, blunder_px_range, rng):
+def make_observations(P, projected, image_id, camera, prefix, *, sigma_px, min_rays, blunder_fraction, blunder_px_range,
+                      rng):
     """Keep points with >= min_rays, add Gaussian noise and blunders; ids ``<prefix>000001``..."""
     pi, ii, xy = projected
     rays = np.bincount(pi, minlength=len(P))
@@ -161,6 +163,7 @@ def make_observations(P, projected, image_id, camera, prefix, sigma_px, min_rays
 def geometric_block(
     n_strips: int = 3,
     n_frames: int = 6,
+    *,
     camera_true: FrameCamera | None = None,
     flying_height_m: float = 1000.0,
     forward_overlap: float = 0.6,
@@ -240,6 +243,7 @@ def control_layout(block: GeometricBlock, n_control: int, n_check: int, rng, min
 
 def block_control(
     block: GeometricBlock,
+    *,
     n_control: int = 4,
     n_check: int = 10,
     control_sigma_m=(0.03, 0.03, 0.05),
@@ -322,6 +326,7 @@ def write_block_project(block: GeometricBlock, out_dir, name: str = "geometric",
 
 def write_truth_observations(
     project_dir,
+    *,
     tie_sigma_px: float = 0.3,
     control_sigma_m: float | tuple | None = None,
     n_control: int = 4,
@@ -365,7 +370,8 @@ def write_truth_observations(
     P = ground(int(points_per_image * len(C) / 1.5))
     proj = project_points(P, C, R, cam, H_above)
     ties, _, blunder = make_observations(
-        P, proj, eo.image_id, cam, "t", tie_sigma_px, min_rays, blunder_fraction, blunder_px_range, rng
+        P, proj, eo.image_id, cam, "t", sigma_px=tie_sigma_px, min_rays=min_rays, blunder_fraction=blunder_fraction,
+        blunder_px_range=blunder_px_range, rng=rng,
     )
     # control and check points
     cands = None

@@ -6,6 +6,7 @@ every LiDAR strip (numpy SeedSequence spawning), so the same seed gives the same
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import logging
 import math
@@ -51,11 +52,58 @@ def _csv(path: Path, header: list[str], rows) -> None:
     path.write_text("\n".join(lines) + "\n")
 
 
-def _progress(iterable, desc, total=None):
-    return track(iterable, desc, total=total)
+@dataclasses.dataclass
+class SimTruth:
+    """The summary of a simulated project (``truth/truth.json``): the block, the scene, the LiDAR."""
+
+    preset: str
+    seed: int
+    crs: str
+    origin_m: list[float]  # project-CRS coordinates (E, N, h) of the local scene origin
+    scene_width_m: float
+    scene_height_m: float
+    flying_height_above_ground_m: float
+    gsd_m: float
+    frames: int
+    strips: int
+    frames_per_strip: int
+    image_width_px: int
+    image_height_px: int
+    pixel_um: float
+    base_m: float
+    strip_spacing_m: float
+    buildings: int
+    roof_corners: int
+    trees: int
+    check_targets: int
+    check_image_points: int
+    lidar_strips: int
+    lidar_points: int
+    lidar_class_counts: dict[int, int]  # ASPRS class -> points (truth classes)
+    lidar_strip_offsets_m: list[list[float]]  # per strip: the X, Y, Z offset added to its points
+    lidar_mean_spacing_m: float
+    steep_band_y_m: list[float]  # northing of the start and end of the steep valley side
+    max_slope_deg: float
+
+    def to_dict(self) -> dict:
+        return dataclasses.asdict(self)
 
 
-def simulate(cfg: dict, outdir, force: bool = False) -> dict:
+@dataclasses.dataclass
+class _LidarSummary:
+    lines: int
+    points: int
+    strip_offsets_m: list[list[float]]
+    class_counts: dict[int, int]
+
+
+@dataclasses.dataclass
+class _CheckTargets:
+    xyz_m: np.ndarray  # (C, 3) local metres
+    image_points: int  # observations of the targets in the frames
+
+
+def simulate(cfg: dict, outdir, force: bool = False) -> SimTruth:
     """Generate the project described by preset ``cfg`` into ``outdir``; returns the truth summary."""
     outdir = Path(outdir)
     if outdir.exists() and any(outdir.iterdir()) and not force:
@@ -69,169 +117,194 @@ def simulate(cfg: dict, outdir, force: bool = False) -> dict:
 
     layout = block_layout(cfg)
     scene_seed = int(np.random.default_rng(s_scene).integers(0, 2**31 - 1))
-    scene = build_scene(cfg["scene"], layout["width_m"], layout["height_m"], origin, scene_seed)
+    scene = build_scene(cfg["scene"], layout.width_m, layout.height_m, origin, scene_seed)
     accel = raycast.build_accel(scene)
     plan = plan_frames(cfg, layout, np.random.default_rng(s_flight))
     cam_true, cam_nominal = cameras_from_config(cfg["camera"])
     _check_plan(plan, scene, cfg)
-    log.info(f"scene {layout['width_m']:.0f} x {layout['height_m']:.0f} m: {len(scene.buildings)} buildings, "
-        f"{len(scene.tree_c)} trees, {len(scene.roads)} roads, {len(scene.ponds)} ponds, {len(scene.targets)} targets")
+    log.info(f"scene {layout.width_m:.0f} x {layout.height_m:.0f} m: {len(scene.buildings)} buildings, "
+             f"{len(scene.tree_c)} trees, {len(scene.roads)} roads, {len(scene.ponds)} ponds, {len(scene.targets)} targets")
 
     with atomic_dir(outdir) as tmp:
         for sub in ("images", "lidar", "truth", "truth/lidar"):
             (tmp / sub).mkdir(parents=True, exist_ok=True)
-        # -- frames -------------------------------------------------------------------------
-        rcfg = cfg["render"]
-        samples = int(rcfg["samples"])
-        pixel_rays = render.PixelRays(cam_true, samples)
-        frame_seeds = s_frames.spawn(len(plan.image_id))
-        gains = []
-        for i in _progress(range(len(plan.image_id)), "frames"):
-            frng = np.random.default_rng(frame_seeds[i])
-            R = rotation_matrix_opk(*plan.opk_deg[i])
-            rad, _ = render.render_frame(scene, accel, cam_true, plan.centre_m[i], R, samples, pixel_rays=pixel_rays)
-            gain = float(np.exp(frng.normal(0.0, rcfg["exposure_sigma"])))
-            gains.append(gain)
-            img = render.expose(rad, cam_true, gain, rcfg["vignetting"], rcfg["noise_dn"], frng)
-            cv2.imwrite(str(tmp / "images" / f"{plan.image_id[i]}.tif"), img[:, :, ::-1])
+        gains = _render_frames(tmp / "images", cfg, scene, accel, plan, cam_true, s_frames)
         t_frames = time.perf_counter()
         log.info(f"rendered {len(plan.image_id)} frames of {cam_true.width} x {cam_true.height} px "
-            f"in {t_frames - t_start:.1f} s")
-
-        # -- LiDAR --------------------------------------------------------------------------
-        L = cfg["lidar"]
-        lines = lidar_lines(cfg, layout)
-        strip_seeds = s_lidar.spawn(len(lines))
-        ext = L["format"]
-        n_points = 0
-        strip_offsets = []
-        class_counts: dict[int, int] = {}
-        for line, sseed in _progress(list(zip(lines, strip_seeds)), "LiDAR strips"):
-            lrng = np.random.default_rng(sseed)
-            pts = scan_strip(scene, accel, line, L, lrng, layout["width_m"])
-            off = lrng.normal(0.0, L["strip_offset_sigma_m"], 3)
-            strip_offsets.append(off.tolist())
-            pts["xyz"] = pts["xyz"] + off
-            name = f"strip_{line['strip']:02d}.{ext}"
-            write_las(tmp / "lidar" / name, pts, origin, epsg, classification=np.ones(len(pts["xyz"]), np.uint8))
-            write_las(tmp / "truth" / "lidar" / name, pts, origin, epsg)
-            n_points += len(pts["xyz"])
-            for c, k in zip(*np.unique(pts["classification"], return_counts=True)):
-                class_counts[int(c)] = class_counts.get(int(c), 0) + int(k)
-        t_lidar = time.perf_counter()
-        log.info(f"scanned {len(lines)} LiDAR strips, {n_points} points in {t_lidar - t_frames:.1f} s")
-
-        # -- project files ------------------------------------------------------------------
-        g = cfg["gnss"]
-        (tmp / "camera.toml").write_text(cam_nominal.to_toml())
-        (tmp / "truth" / "camera.toml").write_text(cam_true.to_toml())
-        n = len(plan.image_id)
-        sig = np.tile([g["sigma_xy_m"], g["sigma_xy_m"], g["sigma_z_m"]], (n, 1))
-        write_gnss(tmp / "gnss.txt", GnssPositions(plan.image_id, plan.antenna_obs_m + origin, sig))
-        eo = ExteriorOrientations(plan.image_id, plan.centre_m + origin, plan.opk_deg)
-        (tmp / "truth" / "eo.txt").write_text(format_eo(eo))
-        lever = ", ".join(f"{v}" for v in g["lever_arm_m"])
-        (tmp / "project.toml").write_text(
-            f'[project]\nname = "{cfg["preset"]["name"]}"\ncrs = "EPSG:{epsg}"\nheights = "ellipsoidal"\n\n'
-            f'[camera]\nfile = "camera.toml"\n\n'
-            f"[gnss]\n# antenna positions in gnss.txt; lever arm = antenna in the camera frame (x right, y up, z up)\n"
-            f"sigma_xy_m = {g['sigma_xy_m']}\nsigma_z_m = {g['sigma_z_m']}\nlever_arm_m = [{lever}]\n\n"
-            f"[control]\nsigma_xy_m = 0.10\nsigma_z_m = 0.10\n\n"
-            f"[flight]\n# from the flight plan: mean terrain height (m, ellipsoidal) and speed\n"
-            f"mean_terrain_height_m = {origin[2]}\nspeed_mps = {cfg['flight']['speed_mps']}\n\n"
-            f"[qa]\n# tolerance table of the accuracy report (aerotri report): map scale, terrain class, PDF copy\n"
-            f'map_scale = "1:5000"\nterrain = "flat"\npdf = true\n'
-            + stage_sections_toml(cfg.get("chain", {}))
-        )
-        (tmp / "truth" / "gnss_truth.toml").write_text(
-            f"lever_arm_m = [{lever}]\n"
-            + "".join(
-                f"\n[[strip]]\nstrip = {s + 1}\nshift_m = [{', '.join(f'{v:.4f}' for v in plan.strip_shift_m[s])}]\n"
-                f"drift_m_per_s = [{', '.join(f'{v:.6f}' for v in plan.strip_drift_m_per_s[s])}]\n"
-                f"t_ref_s = {plan.strip_t0_s[s]:.3f}\n"
-                for s in range(len(plan.strip_shift_m))
-            )
-        )
-        flight_rows = [(iid, int(plan.strip[i]), float(plan.time_s[i]), round(gains[i], 5))
-                       for i, iid in enumerate(plan.image_id)]
-        _csv(tmp / "truth" / "frames.csv", ["image_id", "strip", "gps_time_s", "exposure_gain"], flight_rows)
-
-        # -- truth: corners, check points, rasters ------------------------------------------
+                 f"in {t_frames - t_start:.1f} s")
+        lidar = _scan_lidar(tmp, cfg, layout, scene, accel, origin, epsg, s_lidar)
+        log.info(f"scanned {lidar.lines} LiDAR strips, {lidar.points} points in {time.perf_counter() - t_frames:.1f} s")
+        _write_project_files(tmp, cfg, plan, cam_true, cam_nominal, origin, epsg, gains)
         corners = scene.roof_corners()
-        _csv(tmp / "truth" / "roof_corners.csv",
-             ["id", "x", "y", "z", "roof", "building_id", "shape", "angle_deg", "length_m", "width_m"],
-             [(f"RC{k + 1:05d}", c["x"] + origin[0], c["y"] + origin[1], c["z"] + origin[2], c["roof"],
-               c["building_id"], c["shape"], round(c["angle_deg"], 2), round(c["length_m"], 2), round(c["width_m"], 2))
-              for k, c in enumerate(corners)])
-        _write_buildings_geojson(tmp / "truth" / "buildings.geojson", scene, origin)
-        tgt = np.column_stack([scene.targets[:, :2], scene.target_z]) if len(scene.targets) else np.zeros((0, 3))
-        _csv(tmp / "truth" / "checkpoints.csv", ["id", "x", "y", "z", "kind"],
-             [(f"CP{k + 1:03d}", p[0] + origin[0], p[1] + origin[1], p[2] + origin[2], "target") for k, p in enumerate(tgt)])
-        img_rows = []
-        for i, iid in enumerate(plan.image_id):
-            if not len(tgt):
-                break
-            R = rotation_matrix_opk(*plan.opk_deg[i])
-            x, y, depth = cam_true.project(tgt, plan.centre_m[i], R)
-            ok = cam_true.inside(x, y, margin_px=2.0) & (depth > 0)
-            # A target counts as seen only when all of it, out to its black ring, is unoccluded.
-            for a in np.linspace(0.0, 2.0 * np.pi, 12, endpoint=False):
-                rim = tgt.copy()
-                rim[:, 0] += 1.8 * scene.targets[:, 2] * np.cos(a)
-                rim[:, 1] += 1.8 * scene.targets[:, 2] * np.sin(a)
-                rim[:, 2] = scene.terrain_height(rim[:, 0], rim[:, 1]) + 0.02
-                ok &= render.visible(accel, plan.centre_m[i], rim)
-            ok &= render.visible(accel, plan.centre_m[i], tgt + [0.0, 0.0, 0.02])
-            for k in np.flatnonzero(ok):
-                img_rows.append((f"CP{k + 1:03d}", iid, float(x[k]), float(y[k])))
-        _csv(tmp / "truth" / "checkpoint_image_points.csv", ["point_id", "image_id", "x_px", "y_px"], img_rows)
-
-        res = cfg["truth"]["raster_res_m"]
-        nx, ny = int(math.floor(layout["width_m"] / res)), int(math.floor(layout["height_m"] / res))
-        xs = (np.arange(nx) + 0.5) * res
-        ys = layout["height_m"] - (np.arange(ny) + 0.5) * res
-        X, Y = np.meshgrid(xs, ys)
-        transform = from_origin(origin[0], origin[1] + layout["height_m"], res, res)
-        dem = scene.terrain_height(X, Y) + origin[2]
-        _write_geotiff(tmp / "truth" / "dem.tif", dem.astype(np.float32), transform, epsg, nodata=-9999.0)
-        dsm, _, _ = render.vertical_render(scene, accel, X.ravel(), Y.ravel())
-        dsm = dsm.reshape(X.shape) + origin[2]
-        _write_geotiff(tmp / "truth" / "dsm.tif", np.nan_to_num(dsm, nan=-9999.0).astype(np.float32), transform, epsg,
-                       nodata=-9999.0)
-        ores = cfg["truth"]["ortho_res_m"]
-        onx, ony = int(math.floor(layout["width_m"] / ores)), int(math.floor(layout["height_m"] / ores))
-        ortho = np.empty((ony, onx, 3), np.uint8)
-        oxs = (np.arange(onx) + 0.5) * ores
-        for r0 in range(0, ony, 512):
-            r1 = min(ony, r0 + 512)
-            oys = layout["height_m"] - (np.arange(r0, r1) + 0.5) * ores
-            OX, OY = np.meshgrid(oxs, oys)
-            _, rad, _ = render.vertical_render(scene, accel, OX.ravel(), OY.ravel())
-            ortho[r0:r1] = np.clip(np.rint(render.tone_map(rad.reshape(OX.shape + (3,)))), 0, 255).astype(np.uint8)
-        _write_geotiff(tmp / "truth" / "ortho.tif", ortho,
-                       from_origin(origin[0], origin[1] + layout["height_m"], ores, ores), epsg)
-
-        gsd = cam_true.gsd_m(cfg["flight"]["height_above_ground_m"])
-        truth = dict(
+        _write_truth_corners(tmp / "truth", scene, corners, origin)
+        targets = _write_check_targets(tmp / "truth", scene, accel, plan, cam_true, origin)
+        _write_truth_rasters(tmp / "truth", cfg, layout, scene, accel, origin, epsg)
+        truth = SimTruth(
             preset=cfg["preset"]["name"], seed=seed, crs=f"EPSG:{epsg}", origin_m=origin.tolist(),
-            scene_width_m=layout["width_m"], scene_height_m=layout["height_m"],
-            flying_height_above_ground_m=cfg["flight"]["height_above_ground_m"], gsd_m=gsd,
+            scene_width_m=layout.width_m, scene_height_m=layout.height_m,
+            flying_height_above_ground_m=cfg["flight"]["height_above_ground_m"],
+            gsd_m=cam_true.gsd_m(cfg["flight"]["height_above_ground_m"]),
             frames=len(plan.image_id), strips=int(cfg["flight"]["strips"]),
             frames_per_strip=int(cfg["flight"]["frames_per_strip"]),
             image_width_px=cam_true.width, image_height_px=cam_true.height, pixel_um=cam_true.pixel_um,
-            base_m=layout["base_m"], strip_spacing_m=layout["strip_spacing_m"],
+            base_m=layout.base_m, strip_spacing_m=layout.strip_spacing_m,
             buildings=len(scene.buildings), roof_corners=len(corners), trees=int(len(scene.tree_c)),
-            check_targets=int(len(tgt)), check_image_points=len(img_rows),
-            lidar_strips=len(lines), lidar_points=int(n_points), lidar_class_counts=class_counts,
-            lidar_strip_offsets_m=strip_offsets,
-            lidar_mean_spacing_m=_mean_spacing(L),
+            check_targets=int(len(targets.xyz_m)), check_image_points=targets.image_points,
+            lidar_strips=lidar.lines, lidar_points=int(lidar.points), lidar_class_counts=lidar.class_counts,
+            lidar_strip_offsets_m=lidar.strip_offsets_m,
+            lidar_mean_spacing_m=_mean_spacing(cfg["lidar"]),
             steep_band_y_m=[scene.steep_band_y_m[0] + origin[1], scene.steep_band_y_m[1] + origin[1]],
             max_slope_deg=_max_slope_deg(scene),
         )
-        (tmp / "truth" / "truth.json").write_text(json.dumps(truth, indent=2, sort_keys=True) + "\n")
-        (tmp / "README.txt").write_text(_README.format(**truth))
+        (tmp / "truth" / "truth.json").write_text(json.dumps(truth.to_dict(), indent=2, sort_keys=True) + "\n")
+        (tmp / "README.txt").write_text(_README.format(**truth.to_dict()))
     log.info(f"wrote {outdir} in {time.perf_counter() - t_start:.1f} s")
     return truth
+
+
+def _render_frames(images_dir: Path, cfg: dict, scene, accel, plan, cam_true, s_frames) -> list[float]:
+    """Render, expose and write every frame (``images_dir/<image_id>.tif``); the exposure gain of each."""
+    rcfg = cfg["render"]
+    samples = int(rcfg["samples"])
+    pixel_rays = render.PixelRays(cam_true, samples)
+    frame_seeds = s_frames.spawn(len(plan.image_id))
+    gains = []
+    for i in track(range(len(plan.image_id)), "frames"):
+        frng = np.random.default_rng(frame_seeds[i])
+        R = rotation_matrix_opk(*plan.opk_deg[i])
+        rad, _ = render.render_frame(scene, accel, cam_true, plan.centre_m[i], R, samples, pixel_rays=pixel_rays)
+        gain = float(np.exp(frng.normal(0.0, rcfg["exposure_sigma"])))
+        gains.append(gain)
+        img = render.expose(rad, cam_true, gain, rcfg["vignetting"], rcfg["noise_dn"], frng)
+        cv2.imwrite(str(images_dir / f"{plan.image_id[i]}.tif"), img[:, :, ::-1])
+    return gains
+
+
+def _scan_lidar(tmp: Path, cfg: dict, layout, scene, accel, origin, epsg: int, s_lidar) -> _LidarSummary:
+    """Scan every LiDAR strip: ``lidar/`` unclassified with a per-strip offset, ``truth/lidar/`` the same points
+    with their true classes."""
+    L = cfg["lidar"]
+    lines = lidar_lines(cfg, layout)
+    strip_seeds = s_lidar.spawn(len(lines))
+    ext = L["format"]
+    n_points = 0
+    strip_offsets = []
+    class_counts: dict[int, int] = {}
+    for line, sseed in track(list(zip(lines, strip_seeds)), "LiDAR strips"):
+        lrng = np.random.default_rng(sseed)
+        pts = scan_strip(scene, accel, line, L, lrng, layout.width_m)
+        off = lrng.normal(0.0, L["strip_offset_sigma_m"], 3)
+        strip_offsets.append(off.tolist())
+        pts["xyz"] = pts["xyz"] + off
+        name = f"strip_{line.strip:02d}.{ext}"
+        write_las(tmp / "lidar" / name, pts, origin, epsg, classification=np.ones(len(pts["xyz"]), np.uint8))
+        write_las(tmp / "truth" / "lidar" / name, pts, origin, epsg)
+        n_points += len(pts["xyz"])
+        for c, k in zip(*np.unique(pts["classification"], return_counts=True)):
+            class_counts[int(c)] = class_counts.get(int(c), 0) + int(k)
+    return _LidarSummary(len(lines), n_points, strip_offsets, class_counts)
+
+
+def _write_project_files(tmp: Path, cfg: dict, plan, cam_true, cam_nominal, origin, epsg: int, gains) -> None:
+    """project.toml, camera.toml, gnss.txt and the flight truth (truth/eo.txt, camera.toml, gnss_truth.toml,
+    frames.csv)."""
+    g = cfg["gnss"]
+    (tmp / "camera.toml").write_text(cam_nominal.to_toml())
+    (tmp / "truth" / "camera.toml").write_text(cam_true.to_toml())
+    n = len(plan.image_id)
+    sig = np.tile([g["sigma_xy_m"], g["sigma_xy_m"], g["sigma_z_m"]], (n, 1))
+    write_gnss(tmp / "gnss.txt", GnssPositions(plan.image_id, plan.antenna_obs_m + origin, sig))
+    eo = ExteriorOrientations(plan.image_id, plan.centre_m + origin, plan.opk_deg)
+    (tmp / "truth" / "eo.txt").write_text(format_eo(eo))
+    lever = ", ".join(f"{v}" for v in g["lever_arm_m"])
+    (tmp / "project.toml").write_text(
+        f'[project]\nname = "{cfg["preset"]["name"]}"\ncrs = "EPSG:{epsg}"\nheights = "ellipsoidal"\n\n'
+        f'[camera]\nfile = "camera.toml"\n\n'
+        f"[gnss]\n# antenna positions in gnss.txt; lever arm = antenna in the camera frame (x right, y up, z up)\n"
+        f"sigma_xy_m = {g['sigma_xy_m']}\nsigma_z_m = {g['sigma_z_m']}\nlever_arm_m = [{lever}]\n\n"
+        f"[control]\nsigma_xy_m = 0.10\nsigma_z_m = 0.10\n\n"
+        f"[flight]\n# from the flight plan: mean terrain height (m, ellipsoidal) and speed\n"
+        f"mean_terrain_height_m = {origin[2]}\nspeed_mps = {cfg['flight']['speed_mps']}\n\n"
+        f"[qa]\n# tolerance table of the accuracy report (aerotri report): map scale, terrain class, PDF copy\n"
+        f'map_scale = "1:5000"\nterrain = "flat"\npdf = true\n'
+        + stage_sections_toml(cfg.get("chain", {}))
+    )
+    (tmp / "truth" / "gnss_truth.toml").write_text(
+        f"lever_arm_m = [{lever}]\n"
+        + "".join(
+            f"\n[[strip]]\nstrip = {s + 1}\nshift_m = [{', '.join(f'{v:.4f}' for v in plan.strip_shift_m[s])}]\n"
+            f"drift_m_per_s = [{', '.join(f'{v:.6f}' for v in plan.strip_drift_m_per_s[s])}]\n"
+            f"t_ref_s = {plan.strip_t0_s[s]:.3f}\n"
+            for s in range(len(plan.strip_shift_m))
+        )
+    )
+    flight_rows = [(iid, int(plan.strip[i]), float(plan.time_s[i]), round(gains[i], 5))
+                   for i, iid in enumerate(plan.image_id)]
+    _csv(tmp / "truth" / "frames.csv", ["image_id", "strip", "gps_time_s", "exposure_gain"], flight_rows)
+
+
+def _write_truth_corners(truth_dir: Path, scene, corners: list[dict], origin) -> None:
+    """truth/roof_corners.csv (every eave outline corner) and truth/buildings.geojson."""
+    _csv(truth_dir / "roof_corners.csv",
+         ["id", "x", "y", "z", "roof", "building_id", "shape", "angle_deg", "length_m", "width_m"],
+         [(f"RC{k + 1:05d}", c["x"] + origin[0], c["y"] + origin[1], c["z"] + origin[2], c["roof"],
+           c["building_id"], c["shape"], round(c["angle_deg"], 2), round(c["length_m"], 2), round(c["width_m"], 2))
+          for k, c in enumerate(corners)])
+    _write_buildings_geojson(truth_dir / "buildings.geojson", scene, origin)
+
+
+def _write_check_targets(truth_dir: Path, scene, accel, plan, cam_true, origin) -> _CheckTargets:
+    """truth/checkpoints.csv (the painted targets) and truth/checkpoint_image_points.csv (their true image
+    positions in every frame that sees the whole target)."""
+    tgt = np.column_stack([scene.targets[:, :2], scene.target_z]) if len(scene.targets) else np.zeros((0, 3))
+    _csv(truth_dir / "checkpoints.csv", ["id", "x", "y", "z", "kind"],
+         [(f"CP{k + 1:03d}", p[0] + origin[0], p[1] + origin[1], p[2] + origin[2], "target") for k, p in enumerate(tgt)])
+    img_rows = []
+    for i, iid in enumerate(plan.image_id):
+        if not len(tgt):
+            break
+        R = rotation_matrix_opk(*plan.opk_deg[i])
+        x, y, depth = cam_true.project(tgt, plan.centre_m[i], R)
+        ok = cam_true.inside(x, y, margin_px=2.0) & (depth > 0)
+        # A target counts as seen only when all of it, out to its black ring, is unoccluded.
+        for a in np.linspace(0.0, 2.0 * np.pi, 12, endpoint=False):
+            rim = tgt.copy()
+            rim[:, 0] += 1.8 * scene.targets[:, 2] * np.cos(a)
+            rim[:, 1] += 1.8 * scene.targets[:, 2] * np.sin(a)
+            rim[:, 2] = scene.terrain_height(rim[:, 0], rim[:, 1]) + 0.02
+            ok &= render.visible(accel, plan.centre_m[i], rim)
+        ok &= render.visible(accel, plan.centre_m[i], tgt + [0.0, 0.0, 0.02])
+        for k in np.flatnonzero(ok):
+            img_rows.append((f"CP{k + 1:03d}", iid, float(x[k]), float(y[k])))
+    _csv(truth_dir / "checkpoint_image_points.csv", ["point_id", "image_id", "x_px", "y_px"], img_rows)
+    return _CheckTargets(tgt, len(img_rows))
+
+
+def _write_truth_rasters(truth_dir: Path, cfg: dict, layout, scene, accel, origin, epsg: int) -> None:
+    """truth/dem.tif and truth/dsm.tif (``[truth] raster_res_m``), truth/ortho.tif (``ortho_res_m``)."""
+    res = cfg["truth"]["raster_res_m"]
+    nx, ny = int(math.floor(layout.width_m / res)), int(math.floor(layout.height_m / res))
+    xs = (np.arange(nx) + 0.5) * res
+    ys = layout.height_m - (np.arange(ny) + 0.5) * res
+    X, Y = np.meshgrid(xs, ys)
+    transform = from_origin(origin[0], origin[1] + layout.height_m, res, res)
+    dem = scene.terrain_height(X, Y) + origin[2]
+    _write_geotiff(truth_dir / "dem.tif", dem.astype(np.float32), transform, epsg, nodata=-9999.0)
+    dsm, _, _ = render.vertical_render(scene, accel, X.ravel(), Y.ravel())
+    dsm = dsm.reshape(X.shape) + origin[2]
+    _write_geotiff(truth_dir / "dsm.tif", np.nan_to_num(dsm, nan=-9999.0).astype(np.float32), transform, epsg,
+                   nodata=-9999.0)
+    ores = cfg["truth"]["ortho_res_m"]
+    onx, ony = int(math.floor(layout.width_m / ores)), int(math.floor(layout.height_m / ores))
+    ortho = np.empty((ony, onx, 3), np.uint8)
+    oxs = (np.arange(onx) + 0.5) * ores
+    for r0 in range(0, ony, 512):
+        r1 = min(ony, r0 + 512)
+        oys = layout.height_m - (np.arange(r0, r1) + 0.5) * ores
+        OX, OY = np.meshgrid(oxs, oys)
+        _, rad, _ = render.vertical_render(scene, accel, OX.ravel(), OY.ravel())
+        ortho[r0:r1] = np.clip(np.rint(render.tone_map(rad.reshape(OX.shape + (3,)))), 0, 255).astype(np.uint8)
+    _write_geotiff(truth_dir / "ortho.tif", ortho, from_origin(origin[0], origin[1] + layout.height_m, ores, ores), epsg)
 
 
 def _mean_spacing(L):

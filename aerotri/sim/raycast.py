@@ -112,12 +112,123 @@ def _tri_hit(ox, oy, oz, dx, dy, dz, ax, ay, az, bx, by, bz, cx, cy, cz):
     return t
 
 
+@numba.njit(cache=True, inline="always")
+def _clip_to_scene(ox, oy, oz, dx, dy, dz, W, H, zlo, zhi):
+    """Ray interval (t0, t1) inside the z slab [zlo, zhi] and the XY box [0, W) x [0, H); t0 >= t1: none."""
+    t0 = max(0.0, (oz - zhi) / (-dz))
+    t1 = (oz - zlo) / (-dz)
+    if dx != 0.0:
+        ta_ = (0.0 - ox) / dx
+        tb_ = (W - ox) / dx
+        t0 = max(t0, min(ta_, tb_))
+        t1 = min(t1, max(ta_, tb_))
+    elif ox < 0.0 or ox >= W:
+        return 0.0, 0.0
+    if dy != 0.0:
+        ta_ = (0.0 - oy) / dy
+        tb_ = (H - oy) / dy
+        t0 = max(t0, min(ta_, tb_))
+        t1 = min(t1, max(ta_, tb_))
+    elif oy < 0.0 or oy >= H:
+        return 0.0, 0.0
+    return t0, t1
+
+
+@numba.njit(cache=True, inline="always")
+def _terrain_hits(ox, oy, oz, dx, dy, dz, tin, tout, ci, cj, hz, res, k, best, bkind, bobj, bnx, bny, bnz):
+    """The nearest hit so far (t, kind, obj, normal) after the terrain triangles under the ray segment
+    [tin, tout] within coarse cell (ci, cj)."""
+    nfx = hz.shape[1] - 1
+    nfy = hz.shape[0] - 1
+    xa = ox + dx * tin
+    xb = ox + dx * tout
+    ya = oy + dy * tin
+    yb = oy + dy * tout
+    j0 = max(int(math.floor(min(xa, xb) / res)) - 0, cj * k)
+    j1 = min(int(math.floor(max(xa, xb) / res)), cj * k + k - 1, nfx - 1)
+    i0 = max(int(math.floor(min(ya, yb) / res)) - 0, ci * k)
+    i1 = min(int(math.floor(max(ya, yb) / res)), ci * k + k - 1, nfy - 1)
+    for i in range(i0, i1 + 1):
+        for j in range(j0, j1 + 1):
+            x0 = j * res
+            y0 = i * res
+            x1 = x0 + res
+            y1 = y0 + res
+            h00 = hz[i, j]
+            h10 = hz[i, j + 1]
+            h01 = hz[i + 1, j]
+            h11 = hz[i + 1, j + 1]
+            t = _tri_hit(ox, oy, oz, dx, dy, dz, x0, y0, h00, x1, y0, h10, x1, y1, h11)
+            if t < best:
+                best = t
+                bkind = KIND_TERRAIN
+                bobj = 0
+                # normal of (00,10,11): e1 = (res,0,h10-h00), e2 = (res,res,h11-h00)
+                bnx = -(h10 - h00) * res
+                bny = -(h11 - h10) * res
+                bnz = res * res
+            t = _tri_hit(ox, oy, oz, dx, dy, dz, x0, y0, h00, x1, y1, h11, x0, y1, h01)
+            if t < best:
+                best = t
+                bkind = KIND_TERRAIN
+                bobj = 0
+                bnx = -(h11 - h01) * res
+                bny = -(h01 - h00) * res
+                bnz = res * res
+    return best, bkind, bobj, bnx, bny, bnz
+
+
+@numba.njit(cache=True, inline="always")
+def _item_hits(ox, oy, oz, dx, dy, dz, c, start, items, tv, tn, tkind, tobj, tc, ta, use_trees, skip_tree,
+               best, bkind, bobj, bnx, bny, bnz):
+    """The nearest hit so far (t, kind, obj, normal) after the building triangles and (``use_trees``, all
+    but crown ``skip_tree``) the crown spheroids registered in coarse cell ``c``."""
+    for q in range(start[c], start[c + 1]):
+        it = items[q]
+        if it >= 0:
+            t = _tri_hit(ox, oy, oz, dx, dy, dz, tv[it, 0, 0], tv[it, 0, 1], tv[it, 0, 2],
+                         tv[it, 1, 0], tv[it, 1, 1], tv[it, 1, 2], tv[it, 2, 0], tv[it, 2, 1], tv[it, 2, 2])
+            if t < best:
+                best = t
+                bkind = tkind[it]
+                bobj = tobj[it]
+                bnx, bny, bnz = tn[it, 0], tn[it, 1], tn[it, 2]
+        elif use_trees:
+            m = -it - 1
+            if m == skip_tree:
+                continue
+            a = ta[m, 0]
+            cz = ta[m, 1]
+            # Spheroid ((x-cx)/a)^2 + ((y-cy)/a)^2 + ((z-cz)/c)^2 = 1
+            sx = (ox - tc[m, 0]) / a
+            sy = (oy - tc[m, 1]) / a
+            sz = (oz - tc[m, 2]) / cz
+            ux = dx / a
+            uy = dy / a
+            uz = dz / cz
+            A = ux * ux + uy * uy + uz * uz
+            B = 2.0 * (sx * ux + sy * uy + sz * uz)
+            C = sx * sx + sy * sy + sz * sz - 1.0
+            disc = B * B - 4.0 * A * C
+            if disc > 0.0:
+                t = (-B - math.sqrt(disc)) / (2.0 * A)
+                if 1e-9 < t < best:
+                    best = t
+                    bkind = KIND_TREE
+                    bobj = m
+                    bnx = (sx + ux * t) / a
+                    bny = (sy + uy * t) / a
+                    bnz = (sz + uz * t) / cz
+    return best, bkind, bobj, bnx, bny, bnz
+
+
 @numba.njit(cache=True)
 def cast(o, d, S, use_trees, skip_tree):
     """First hit of the ray o + t d (d need not be unit; t in units of |d|).
 
     Returns (t, kind, obj, nx, ny, nz); kind KIND_NONE and t = inf when nothing is hit. ``skip_tree``
-    ignores one crown (index) so that a LiDAR pulse can continue through it.
+    ignores one crown (index) so that a LiDAR pulse can continue through it. The ray walks the coarse
+    cells (2D DDA) and tests those where it is below the cell's highest point.
     """
     (hz, res, k, cs, ncx, ncy, zmax, start, items, tv, tn, tkind, tobj, tc, ta, zlo, zhi) = S
     ox, oy, oz = o[0], o[1], o[2]
@@ -128,27 +239,10 @@ def cast(o, d, S, use_trees, skip_tree):
     bnx, bny, bnz = 0.0, 0.0, 1.0
     if dz >= 0.0:
         return best, bkind, bobj, bnx, bny, bnz
-    W = ncx * cs
-    H = ncy * cs
-    # Ray interval inside the z slab [zlo, zhi] and the XY box.
-    t0 = max(0.0, (oz - zhi) / (-dz))
-    t1 = (oz - zlo) / (-dz)
-    if dx != 0.0:
-        ta_ = (0.0 - ox) / dx
-        tb_ = (W - ox) / dx
-        t0 = max(t0, min(ta_, tb_))
-        t1 = min(t1, max(ta_, tb_))
-    elif ox < 0.0 or ox >= W:
-        return best, bkind, bobj, bnx, bny, bnz
-    if dy != 0.0:
-        ta_ = (0.0 - oy) / dy
-        tb_ = (H - oy) / dy
-        t0 = max(t0, min(ta_, tb_))
-        t1 = min(t1, max(ta_, tb_))
-    elif oy < 0.0 or oy >= H:
-        return best, bkind, bobj, bnx, bny, bnz
+    t0, t1 = _clip_to_scene(ox, oy, oz, dx, dy, dz, ncx * cs, ncy * cs, zlo, zhi)
     if t0 >= t1:
         return best, bkind, bobj, bnx, bny, bnz
+    # DDA set-up: the cell of the entry point, the ray parameter of the next cell boundary in x and y
     px = ox + dx * t0
     py = oy + dy * t0
     cj = min(max(int(px / cs), 0), ncx - 1)
@@ -170,86 +264,16 @@ def cast(o, d, S, use_trees, skip_tree):
         tmy = np.inf
         tdy = np.inf
     tin = t0
-    nfx = hz.shape[1] - 1
-    nfy = hz.shape[0] - 1
     while True:
         tout = min(tmx, tmy, t1)
         zin = oz + dz * tin
         zout = oz + dz * tout
         if min(zin, zout) <= zmax[ci, cj]:
-            # Terrain triangles under the ray segment within this coarse cell.
-            xa = ox + dx * tin
-            xb = ox + dx * tout
-            ya = oy + dy * tin
-            yb = oy + dy * tout
-            j0 = max(int(math.floor(min(xa, xb) / res)) - 0, cj * k)
-            j1 = min(int(math.floor(max(xa, xb) / res)), cj * k + k - 1, nfx - 1)
-            i0 = max(int(math.floor(min(ya, yb) / res)) - 0, ci * k)
-            i1 = min(int(math.floor(max(ya, yb) / res)), ci * k + k - 1, nfy - 1)
-            for i in range(i0, i1 + 1):
-                for j in range(j0, j1 + 1):
-                    x0 = j * res
-                    y0 = i * res
-                    x1 = x0 + res
-                    y1 = y0 + res
-                    h00 = hz[i, j]
-                    h10 = hz[i, j + 1]
-                    h01 = hz[i + 1, j]
-                    h11 = hz[i + 1, j + 1]
-                    t = _tri_hit(ox, oy, oz, dx, dy, dz, x0, y0, h00, x1, y0, h10, x1, y1, h11)
-                    if t < best:
-                        best = t
-                        bkind = KIND_TERRAIN
-                        bobj = 0
-                        # normal of (00,10,11): e1 = (res,0,h10-h00), e2 = (res,res,h11-h00)
-                        bnx = -(h10 - h00) * res
-                        bny = -(h11 - h10) * res
-                        bnz = res * res
-                    t = _tri_hit(ox, oy, oz, dx, dy, dz, x0, y0, h00, x1, y1, h11, x0, y1, h01)
-                    if t < best:
-                        best = t
-                        bkind = KIND_TERRAIN
-                        bobj = 0
-                        bnx = -(h11 - h01) * res
-                        bny = -(h01 - h00) * res
-                        bnz = res * res
-            c = ci * ncx + cj
-            for q in range(start[c], start[c + 1]):
-                it = items[q]
-                if it >= 0:
-                    t = _tri_hit(ox, oy, oz, dx, dy, dz, tv[it, 0, 0], tv[it, 0, 1], tv[it, 0, 2],
-                                 tv[it, 1, 0], tv[it, 1, 1], tv[it, 1, 2], tv[it, 2, 0], tv[it, 2, 1], tv[it, 2, 2])
-                    if t < best:
-                        best = t
-                        bkind = tkind[it]
-                        bobj = tobj[it]
-                        bnx, bny, bnz = tn[it, 0], tn[it, 1], tn[it, 2]
-                elif use_trees:
-                    m = -it - 1
-                    if m == skip_tree:
-                        continue
-                    a = ta[m, 0]
-                    cz = ta[m, 1]
-                    # Spheroid ((x-cx)/a)^2 + ((y-cy)/a)^2 + ((z-cz)/c)^2 = 1
-                    sx = (ox - tc[m, 0]) / a
-                    sy = (oy - tc[m, 1]) / a
-                    sz = (oz - tc[m, 2]) / cz
-                    ux = dx / a
-                    uy = dy / a
-                    uz = dz / cz
-                    A = ux * ux + uy * uy + uz * uz
-                    B = 2.0 * (sx * ux + sy * uy + sz * uz)
-                    C = sx * sx + sy * sy + sz * sz - 1.0
-                    disc = B * B - 4.0 * A * C
-                    if disc > 0.0:
-                        t = (-B - math.sqrt(disc)) / (2.0 * A)
-                        if 1e-9 < t < best:
-                            best = t
-                            bkind = KIND_TREE
-                            bobj = m
-                            bnx = (sx + ux * t) / a
-                            bny = (sy + uy * t) / a
-                            bnz = (sz + uz * t) / cz
+            best, bkind, bobj, bnx, bny, bnz = _terrain_hits(ox, oy, oz, dx, dy, dz, tin, tout, ci, cj, hz, res, k,
+                                                             best, bkind, bobj, bnx, bny, bnz)
+            best, bkind, bobj, bnx, bny, bnz = _item_hits(ox, oy, oz, dx, dy, dz, ci * ncx + cj, start, items, tv, tn,
+                                                          tkind, tobj, tc, ta, use_trees, skip_tree,
+                                                          best, bkind, bobj, bnx, bny, bnz)
             if best <= tout + 1e-9:
                 break
         if tout >= t1:

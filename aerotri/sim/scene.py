@@ -272,16 +272,10 @@ def _building_height(cfg, rng) -> float:
     return rng.uniform(min(hi, 35.0), hi)
 
 
-def build_scene(cfg: dict, width_m: float, height_m: float, origin_m, seed: int) -> Scene:
-    """Generate the whole scene from the ``[scene]`` preset table."""
-    rng = np.random.default_rng(seed)
-    res = cfg["terrain_res_m"]
-    z, steep = build_terrain(cfg, width_m, height_m, rng)
+def _ponds(cfg: dict, z: np.ndarray, res: float, width_m: float, steep: tuple[float, float], rng):
+    """Flat water surfaces set into the terrain of the urban/rural flats: (P, 6) ponds, the terrain with the
+    ponds and their banks, the pond outlines."""
     margin = cfg["urban_margin_m"]
-    urban = Polygon([(margin, margin), (width_m - margin, margin), (width_m - margin, steep[0] - 20.0),
-                     (margin, steep[0] - 20.0)])
-
-    # Ponds: flat water surfaces set into the terrain of the urban/rural flats.
     ponds = []
     for _ in range(cfg["ponds"]):
         a, b = rng.uniform(*cfg["pond_size_m"]), rng.uniform(*cfg["pond_size_m"])
@@ -309,24 +303,27 @@ def build_scene(cfg: dict, width_m: float, height_m: float, origin_m, seed: int)
                                 p[4], origin=(p[0], p[1]), use_radians=True)
         for p in ponds
     ]
+    return ponds, z, pond_polys
 
-    roads = build_roads(cfg, urban, rng)
-    road_area = unary_union([LineString([(r[0], r[1]), (r[2], r[3])]).buffer(r[4] / 2, cap_style="flat")
-                             for r in roads]) if len(roads) else Polygon()
 
-    scene_stub = Scene(width_m, height_m, np.asarray(origin_m, float), res, z, np.zeros((0, 3, 3)),
-                       np.zeros(0, np.int32), np.zeros(0, np.int32), np.zeros((0, 3)), np.zeros((0, 2)),
-                       roads, ponds, np.zeros((0, 3)), np.zeros(0), [], np.zeros((0, 3)), seed, steep)
+@dataclasses.dataclass
+class _Buildings:
+    buildings: list[Building]
+    footprints: list[Polygon]
+    tris: list  # (3, 3) triangles of all buildings
+    kinds: list  # KIND_ROOF or KIND_WALL per triangle
+    objs: list  # building id per triangle
 
-    # Buildings: footprints aligned with the road grid, kept off roads, ponds and each other.
-    blocked = unary_union([road_area.buffer(3.0)] + [p.buffer(6.0) for p in pond_polys])
+
+def _place_buildings(cfg: dict, ground: Scene, urban: Polygon, blocked, rng) -> _Buildings:
+    """Footprints aligned with the road grid, kept off roads, ponds (``blocked``) and each other, on ground
+    flat enough; their roofs and triangles."""
     angle = math.radians(cfg["road_angle_deg"])
-    buildings, tris, kinds, objs = [], [], [], []
-    occupied = []
+    out = _Buildings([], [], [], [], [])
     attempts = 0
     n_target = cfg["buildings"]
     shapes = ("rectangle", "L", "courtyard")
-    while len(buildings) < n_target and attempts < n_target * 60:
+    while len(out.buildings) < n_target and attempts < n_target * 60:
         attempts += 1
         shape = shapes[rng.choice(3, p=cfg["shape_weights"])]
         L = rng.uniform(*cfg["building_length_m"])
@@ -342,7 +339,7 @@ def build_scene(cfg: dict, width_m: float, height_m: float, origin_m, seed: int)
         fp = _place(fp0, rot, cx, cy)
         if not urban.contains(fp.buffer(3.0)) or fp.buffer(2.0).intersects(blocked):
             continue
-        if any(fp.buffer(cfg["building_gap_m"]).intersects(o) for o in occupied):
+        if any(fp.buffer(cfg["building_gap_m"]).intersects(o) for o in out.footprints):
             continue
         roof = "flat"
         if shape == "rectangle" and rng.random() < cfg["pitched_fraction"]:
@@ -350,7 +347,7 @@ def build_scene(cfg: dict, width_m: float, height_m: float, origin_m, seed: int)
         eave = rng.uniform(*cfg["eave_m"])
         outline = fp.buffer(eave, join_style="mitre")
         verts = np.asarray(outline.exterior.coords)
-        zt = scene_stub.terrain_height(verts[:, 0], verts[:, 1])
+        zt = ground.terrain_height(verts[:, 0], verts[:, 1])
         base = float(zt.min())
         if zt.max() - zt.min() > 4.0:
             continue
@@ -358,16 +355,20 @@ def build_scene(cfg: dict, width_m: float, height_m: float, origin_m, seed: int)
         eave_z = base + height
         pitch = rng.uniform(25.0, 40.0)
         ridge_z = eave_z + (W / 2 + eave) * math.tan(math.radians(pitch)) if roof != "flat" else eave_z
-        b = Building(len(buildings) + 1, fp, outline, shape, roof, base, eave_z, ridge_z, eave, (L, W))
+        b = Building(len(out.buildings) + 1, fp, outline, shape, roof, base, eave_z, ridge_z, eave, (L, W))
         t, k = _building_triangles(b, rot, (cx, cy), pitch)
-        buildings.append(b)
-        occupied.append(fp)
-        tris.extend(t)
-        kinds.extend(k)
-        objs.extend([b.building_id] * len(t))
+        out.buildings.append(b)
+        out.footprints.append(fp)
+        out.tris.extend(t)
+        out.kinds.extend(k)
+        out.objs.extend([b.building_id] * len(t))
+    return out
 
-    # Trees: single trees, clusters (groves) and forest on the steep slope; never on roofs or water.
-    no_tree = unary_union([road_area] + [p.buffer(2.0) for p in pond_polys] + [fp.buffer(3.0) for fp in occupied])
+
+def _plant_trees(cfg: dict, ground: Scene, no_tree, steep: tuple[float, float], rng) -> tuple[np.ndarray, np.ndarray]:
+    """Single trees, clusters (groves), forest on the steep slope and bushes, never where ``no_tree`` (roofs,
+    roads, water): crown centres (K, 3) and semi-axes (K, 2)."""
+    width_m, height_m = ground.width_m, ground.height_m
     centres, axes = [], []
 
     def try_tree(x, y, crown_r, height):
@@ -375,7 +376,7 @@ def build_scene(cfg: dict, width_m: float, height_m: float, origin_m, seed: int)
             return
         if no_tree.intersects(Point(x, y).buffer(crown_r)):
             return
-        zg = float(scene_stub.terrain_height(x, y))
+        zg = float(ground.terrain_height(x, y))
         c = crown_r * rng.uniform(0.8, 1.3)  # vertical semi-axis
         centres.append((x, y, zg + height - c))
         axes.append((crown_r, c))
@@ -394,13 +395,13 @@ def build_scene(cfg: dict, width_m: float, height_m: float, origin_m, seed: int)
                  rng.uniform(*cfg["tree_height_m"]))
     for _ in range(cfg["bushes"]):
         try_tree(rng.uniform(0, width_m), rng.uniform(0, steep[0]), rng.uniform(0.6, 1.2), rng.uniform(0.8, 1.8))
+    return np.array(centres, dtype=float).reshape(-1, 3), np.array(axes, dtype=float).reshape(-1, 2)
 
-    tree_c = np.array(centres, dtype=float).reshape(-1, 3)
-    tree_ac = np.array(axes, dtype=float).reshape(-1, 2)
 
-    # Painted check targets on open ground and roads: flat-ish, clear of buildings, trees and water.
-    clutter = unary_union([fp.buffer(12.0) for fp in occupied] + [p.buffer(4.0) for p in pond_polys]
-                          + [Point(c[0], c[1]).buffer(a[0] + 6.0) for c, a in zip(tree_c, tree_ac)])
+def _place_targets(cfg: dict, ground: Scene, clutter, rng) -> tuple[np.ndarray, np.ndarray]:
+    """Painted check targets on open, flat-ish ground at least 40 m apart, clear of ``clutter``: (C, 3)
+    x y radius and their terrain heights (C,)."""
+    width_m, height_m = ground.width_m, ground.height_m
     targets, tz = [], []
     radius = cfg["target_radius_m"]
     tries = 0
@@ -413,24 +414,56 @@ def build_scene(cfg: dict, width_m: float, height_m: float, origin_m, seed: int)
         if any(math.hypot(x - t[0], y - t[1]) < 40.0 for t in targets):
             continue
         ring = np.array([(x + radius * math.cos(a), y + radius * math.sin(a)) for a in np.linspace(0, 2 * math.pi, 8)])
-        hz = scene_stub.terrain_height(ring[:, 0], ring[:, 1])
+        hz = ground.terrain_height(ring[:, 0], ring[:, 1])
         if np.ptp(hz) > 0.5 * radius:  # too steep to paint a target on
             continue
         targets.append((x, y, radius))
-        tz.append(float(scene_stub.terrain_height(x, y)))
-    targets = np.array(targets, dtype=float).reshape(-1, 3)
+        tz.append(float(ground.terrain_height(x, y)))
+    return np.array(targets, dtype=float).reshape(-1, 3), np.array(tz)
+
+
+def build_scene(cfg: dict, width_m: float, height_m: float, origin_m, seed: int) -> Scene:
+    """Generate the whole scene from the ``[scene]`` preset table.
+
+    One random stream, drawn in a fixed order (terrain, ponds, roads, buildings, trees, targets, roof
+    colours): the same seed gives the same scene.
+    """
+    rng = np.random.default_rng(seed)
+    res = cfg["terrain_res_m"]
+    z, steep = build_terrain(cfg, width_m, height_m, rng)
+    margin = cfg["urban_margin_m"]
+    urban = Polygon([(margin, margin), (width_m - margin, margin), (width_m - margin, steep[0] - 20.0),
+                     (margin, steep[0] - 20.0)])
+    ponds, z, pond_polys = _ponds(cfg, z, res, width_m, steep, rng)
+    roads = build_roads(cfg, urban, rng)
+    road_area = unary_union([LineString([(r[0], r[1]), (r[2], r[3])]).buffer(r[4] / 2, cap_style="flat")
+                             for r in roads]) if len(roads) else Polygon()
+
+    # The terrain, roads and ponds first: buildings, trees and targets are placed on it.
+    scene = Scene(width_m, height_m, np.asarray(origin_m, float), res, z, np.zeros((0, 3, 3)),
+                  np.zeros(0, np.int32), np.zeros(0, np.int32), np.zeros((0, 3)), np.zeros((0, 2)),
+                  roads, ponds, np.zeros((0, 3)), np.zeros(0), [], np.zeros((0, 3)), seed, steep)
+    blocked = unary_union([road_area.buffer(3.0)] + [p.buffer(6.0) for p in pond_polys])
+    bld = _place_buildings(cfg, scene, urban, blocked, rng)
+    no_tree = unary_union([road_area] + [p.buffer(2.0) for p in pond_polys] + [fp.buffer(3.0) for fp in bld.footprints])
+    tree_c, tree_ac = _plant_trees(cfg, scene, no_tree, steep, rng)
+    # Check targets on open ground and roads: clear of buildings, trees and water.
+    clutter = unary_union([fp.buffer(12.0) for fp in bld.footprints] + [p.buffer(4.0) for p in pond_polys]
+                          + [Point(c[0], c[1]).buffer(a[0] + 6.0) for c, a in zip(tree_c, tree_ac)])
+    targets, tz = _place_targets(cfg, scene, clutter, rng)
 
     palette = np.array([[0.55, 0.25, 0.2], [0.5, 0.5, 0.52], [0.3, 0.3, 0.33], [0.7, 0.68, 0.62],
                         [0.45, 0.35, 0.3], [0.25, 0.38, 0.42], [0.62, 0.55, 0.45]])
-    roof_albedo = palette[rng.integers(0, len(palette), len(buildings) + 1)] * rng.uniform(0.85, 1.15, (len(buildings) + 1, 1))
+    nb = len(bld.buildings) + 1
+    roof_albedo = palette[rng.integers(0, len(palette), nb)] * rng.uniform(0.85, 1.15, (nb, 1))
 
-    scene_stub.tri_v = np.array(tris, dtype=float).reshape(-1, 3, 3)
-    scene_stub.tri_kind = np.array(kinds, dtype=np.int32)
-    scene_stub.tri_obj = np.array(objs, dtype=np.int32)
-    scene_stub.tree_c = tree_c
-    scene_stub.tree_ac = tree_ac
-    scene_stub.targets = targets
-    scene_stub.target_z = np.array(tz)
-    scene_stub.buildings = buildings
-    scene_stub.roof_albedo = np.clip(roof_albedo, 0, 1)
-    return scene_stub
+    scene.tri_v = np.array(bld.tris, dtype=float).reshape(-1, 3, 3)
+    scene.tri_kind = np.array(bld.kinds, dtype=np.int32)
+    scene.tri_obj = np.array(bld.objs, dtype=np.int32)
+    scene.tree_c = tree_c
+    scene.tree_ac = tree_ac
+    scene.targets = targets
+    scene.target_z = tz
+    scene.buildings = bld.buildings
+    scene.roof_albedo = np.clip(roof_albedo, 0, 1)
+    return scene

@@ -1,5 +1,5 @@
 """Scale-out and the fast rectification path: tile threads, per-frame and per-mosaic-tile Dask tasks give
-byte-identical outputs on every scheduler; memory-mapped frames equal decoded ones; pooled tiles
+byte-identical outputs on every scheduler; memory-mapped frames rectify as decoded ones; pooled tiles
 handed to a sink equal the assembled ortho."""
 
 from __future__ import annotations
@@ -14,7 +14,8 @@ import rasterio
 from click.testing import CliRunner
 
 from aerotri.core.executor import Executor
-from ortho.block import map_uncompressed_tiff, read_image_native, rectify_block
+from aerotri.geom.images import read_native
+from ortho.block import rectify_block
 from ortho.cli import main
 from ortho.mosaic import mosaic_block
 from ortho.synthetic import write_synthetic_project
@@ -86,7 +87,7 @@ def test_tile_threads_and_sink_do_not_change_the_ortho(small_block):
     cam = FrameCamera.read(small_block / "camera.toml")
     eo = read_eo(small_block / "at" / "eo.txt")
     dem = read_height_raster(small_block / "lidar_out" / "dem.tif", crs)
-    img, _ = read_image_native(small_block / "images" / "s01_001.tif", cam)
+    img, _ = read_native(small_block / "images" / "s01_001.tif", (cam.width, cam.height))
     C, R = eo.centre_m[0], eo.rotation(0)
     grid = frame_grid(cam, C, R, dem, 0.2, crs, GridToProject(crs, crs))
     one, m1 = rectify_frame(img, cam, C, R, dem, grid, tile_px=128, threads=1)
@@ -109,37 +110,18 @@ def test_tile_threads_and_sink_do_not_change_the_ortho(small_block):
     assert np.all(cub[mc == 0] == 0) and np.array_equal(mc, m1)
 
 
-@pytest.mark.parametrize("bands,dtype", [(3, np.uint8), (1, np.uint16), (4, np.uint16)])
-def test_uncompressed_frames_are_memory_mapped(tmp_path, bands, dtype):
-    rng = np.random.default_rng(5)
-    a = rng.integers(0, np.iinfo(dtype).max, (37, 53, bands) if bands > 1 else (37, 53), dtype=dtype)
-    path = tmp_path / "frame.tif"
-    with rasterio.open(path, "w", driver="GTiff", width=53, height=37, count=bands, dtype=a.dtype.name,
-                       interleave="pixel") as dst:
-        dst.write(np.moveaxis(a, -1, 0) if bands > 1 else a[None])
-    m = map_uncompressed_tiff(path)
-    assert isinstance(m, np.memmap) and m.shape == a.shape and np.array_equal(m, a)
-    # compressed or tiled files are decoded instead
-    for extra in (dict(compress="lzw"), dict(tiled=True, blockxsize=16, blockysize=16)):
-        p2 = tmp_path / "other.tif"
-        with rasterio.open(p2, "w", driver="GTiff", width=53, height=37, count=bands, dtype=a.dtype.name,
-                           interleave="pixel", **extra) as dst:
-            dst.write(np.moveaxis(a, -1, 0) if bands > 1 else a[None])
-        assert map_uncompressed_tiff(p2) is None
-
-
 def test_mapped_and_decoded_frames_give_the_same_ortho(small_block, tmp_path):
     """A frame stored uncompressed (mapped, R, G, B) and LZW (decoded by cv2, B, G, R) rectify alike."""
     from aerotri.geom.camera import FrameCamera
 
     cam = FrameCamera.read(small_block / "camera.toml")
-    img, order = read_image_native(small_block / "images" / "s01_001.tif", cam)
+    img, order = read_native(small_block / "images" / "s01_001.tif", (cam.width, cam.height))
     assert order == [3, 2, 1] and not isinstance(img, np.memmap)
     root = tmp_path / "raw"
     shutil.copytree(small_block, root)
     for f in (root / "images").glob("*.tif"):
         cv2.imwrite(str(f), cv2.imread(str(f), cv2.IMREAD_UNCHANGED), [cv2.IMWRITE_TIFF_COMPRESSION, 1])
-    mapped, order = read_image_native(root / "images" / "s01_001.tif", cam)
+    mapped, order = read_native(root / "images" / "s01_001.tif", (cam.width, cam.height))
     assert isinstance(mapped, np.memmap) and order == [1, 2, 3]
     assert np.array_equal(np.asarray(mapped), img[:, :, ::-1])
     rectify_block(root, frames=["s01_001"])

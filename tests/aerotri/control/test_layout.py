@@ -51,16 +51,16 @@ def test_full_points_at_strip_edges_every_five_baselines_and_height_points_in_th
     n = frames_seeing(xy, 310.0, centres, Rs)
     keep = n >= 2
     xy, score, n = xy[keep], score[keep], n[keep]
-    kind, targets, base = select_control(xy, score, n, CAM, centres, Rs, 310.0, LayoutRule(), strip)
+    kind, targets, base = select_control(xy, score, n, CAM, centres, Rs, 310.0, rule=LayoutRule(), strip=strip)
     # strip length 9 baselines, triple overlap from frame 2 to 9 = 7 baselines -> 2 positions per line;
     # 4 lines (2 outer edges, 2 side overlaps) -> 8 full points; 1 group of 3 strips -> 1 height point
-    assert sum(t["kind"] == "full" for t in targets) == 8
-    assert sum(t["kind"] == "height" for t in targets) == 1
+    assert sum(t.kind == "full" for t in targets) == 8
+    assert sum(t.kind == "height" for t in targets) == 1
     assert (kind == "full").sum() == 8 and (kind == "height").sum() == 1
     sel = np.isin(kind, ["full", "height"])
     assert np.all(n[sel] >= 3)  # triple overlap
     for t in targets:
-        assert t["distance_m"] is not None and t["distance_m"] < 1.25 * base
+        assert t.distance_m is not None and t.distance_m < 1.25 * base
     # side-overlap points lie between the strips, across-track (y) near 220 and 660 m
     ys = sorted(xy[kind == "full", 1])
     assert min(ys) < -100 and max(ys) > 1000

@@ -75,7 +75,7 @@ def test_matching_on_a_two_worker_cluster_equals_the_default_run(tiny_project, t
         root = tmp_path / name
         shutil.copytree(tiny_project, root, ignore=shutil.ignore_patterns("truth", "lidar"))
         rep = match_project(root, executor=ex)
-        assert rep["feature_cache_hits"] == 0 and rep["match_cache_hits"] == 0
+        assert rep.feature_cache_hits == 0 and rep.match_cache_hits == 0
         conn = json.loads((root / "at" / "connectivity.json").read_text())
         conn.pop("seconds")
         outputs[name] = ((root / "at" / "tiepoints.csv").read_bytes(), conn)

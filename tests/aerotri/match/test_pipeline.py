@@ -26,15 +26,15 @@ def matched(tiny_project, tmp_path_factory):
 
 def test_tiny_block_is_connected_and_accurate(matched):
     p, rep = matched
-    assert rep["components"] == 1
-    assert rep["pairs_by_kind"]["along"] == 4 and rep["pairs_by_kind"]["second"] == 2 and rep["pairs_by_kind"]["cross"] >= 3
+    assert rep.components == 1
+    assert rep.pairs_by_kind["along"] == 4 and rep.pairs_by_kind["second"] == 2 and rep.pairs_by_kind["cross"] >= 3
     # Not exhaustive: fewer pairs than all 15 combinations of 6 frames.
-    assert rep["pairs"] < 15
-    assert rep["tracks_3plus_fraction"] >= 0.15
-    assert all(not c["weak"] for c in rep["cross_strip"])
-    assert all(min(min(r) for r in m["regions"]) >= 3 for m in rep["models"])
+    assert rep.pairs < 15
+    assert rep.tracks_3plus_fraction >= 0.15
+    assert all(not c.weak for c in rep.cross_strip)
+    assert all(min(min(r) for r in m.regions) >= 3 for m in rep.models)
     err = tie_point_errors(p)
-    assert err["observations"] == rep["observations"] > 2000
+    assert err["observations"] == rep.observations > 2000
     assert err["off_fraction"] < 0.01
     assert err["median_residual_px"] < 0.25
     assert (p / "at" / "connectivity.png").stat().st_size > 10_000
@@ -43,9 +43,9 @@ def test_tiny_block_is_connected_and_accurate(matched):
 def test_rerun_reuses_cached_features_and_matches(matched):
     p, rep = matched
     again = match_project(p)
-    assert again["feature_cache_hits"] == again["frames"]
-    assert again["match_cache_hits"] >= again["pairs_with_ties"]
-    assert (p / "at" / "tiepoints.csv").read_text().count("\n") == rep["observations"] + 1
+    assert again.feature_cache_hits == again.frames
+    assert again.match_cache_hits >= again.pairs_with_ties
+    assert (p / "at" / "tiepoints.csv").read_text().count("\n") == rep.observations + 1
 
 
 def test_tracks_drop_inconsistent_chains():

@@ -97,7 +97,7 @@ def test_truth_corners_lie_on_rendered_roofs(tiny_project):
     # Rebuild the scene from the same seed stream as the simulator.
     ss = np.random.SeedSequence(cfg["preset"]["seed"]).spawn(4)
     scene_seed = int(np.random.default_rng(ss[0]).integers(0, 2**31 - 1))
-    scene = build_scene(cfg["scene"], layout["width_m"], layout["height_m"], origin, scene_seed)
+    scene = build_scene(cfg["scene"], layout.width_m, layout.height_m, origin, scene_seed)
     accel = raycast.build_accel(scene)
     corners = _rows(tiny_project / "truth/roof_corners.csv")
     assert len(corners) == sum(len(b.outline.exterior.coords) - 1 + sum(len(r.coords) - 1 for r in b.outline.interiors)
@@ -138,7 +138,7 @@ def test_rendered_id_buffer_shows_roofs_at_projected_corners(tiny_project):
     layout = block_layout(cfg)
     origin = np.array(json.loads((tiny_project / "truth/truth.json").read_text())["origin_m"])
     ss = np.random.SeedSequence(cfg["preset"]["seed"]).spawn(4)
-    scene = build_scene(cfg["scene"], layout["width_m"], layout["height_m"], origin,
+    scene = build_scene(cfg["scene"], layout.width_m, layout.height_m, origin,
                         int(np.random.default_rng(ss[0]).integers(0, 2**31 - 1)))
     accel = raycast.build_accel(scene)
     eo = read_eo(tiny_project / "truth/eo.txt")

@@ -1,0 +1,81 @@
+"""Options of the tie-point stage: ``MatchSettings`` (``aerotri match``, ``[match]`` in project.toml) with
+the feature extraction (``FeatureParams``, sparse and dense) and pair matching (``MatchParams``) it uses.
+
+Each dataclass is the one place of its options, defaults and allowed values (``aerotri.core.settings``);
+``FeatureParams.key()`` and ``MatchParams.key()`` name the cache files, so that changed options never
+reuse results of other ones.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import hashlib
+import json
+
+from aerotri.core.settings import setting
+
+
+def _key(params) -> str:
+    """12 hex digits naming a parameter set (its cache files)."""
+    return hashlib.sha1(json.dumps(dataclasses.asdict(params), sort_keys=True).encode()).hexdigest()[:12]
+
+
+@dataclasses.dataclass(frozen=True)
+class FeatureParams:
+    """Feature extraction of one kind (``name``: the cache files' tag); the key of the cache."""
+
+    budget: int = setting(6000, min=100, help="Keypoints per frame (spatially spread).")
+    grid: tuple[int, int] = setting((12, 8), min=1, help="Cells across the image width and height; each keeps its "
+                                                         "share of the budget.")
+    max_dim_px: int = setting(3000, min=64, help="Detect on the pyramid level whose larger side is at most this many "
+                                                 "pixels.")
+    contrast_threshold: float = setting(0.01, min=0.0, min_open=True, help="SIFT contrast threshold.")
+    name: str = setting("sparse", help="Tag of the cache files.")
+
+    def key(self) -> str:
+        return _key(self)
+
+
+@dataclasses.dataclass(frozen=True)
+class MatchParams:
+    """Matching of one frame pair; the key of the cache."""
+
+    ratio: float = setting(0.8, min=0.0, max=1.0, min_open=True, help="Lowe ratio test threshold.")
+    ransac_px: float = setting(1.0, min=0.0, min_open=True, help="RANSAC inlier threshold on the epipolar distance "
+                                                                 "(full-resolution px).")
+    min_inliers: int = setting(15, min=1, help="Fewest verified matches of a pair (fewer: no ties).")
+    seed: int = setting(0, help="Seed of the RANSAC (repeatable results).")
+    local_px: float = setting(1.5, min=0.0, min_open=True, help="Local parallax consistency tolerance (px of the "
+                                                                "detection level).")
+    local_k: int = setting(10, min=1, help="Neighbours of the local parallax consistency check.")
+
+    def key(self) -> str:
+        return _key(self)
+
+
+def _dense_features() -> FeatureParams:
+    return FeatureParams(budget=10000, grid=(20, 12), max_dim_px=4500, contrast_threshold=0.004, name="dense")
+
+
+@dataclasses.dataclass
+class MatchSettings:
+    """Options of the tie-point stage (``aerotri match``, ``[match]`` in project.toml)."""
+
+    sparse: FeatureParams = dataclasses.field(default_factory=FeatureParams)
+    dense: FeatureParams = dataclasses.field(default_factory=_dense_features)
+    match: MatchParams = dataclasses.field(default_factory=MatchParams)
+    dense_ratio: float = setting(0.9, min=0.0, max=1.0, min_open=True,
+                                 help="Lowe ratio test threshold of the densification.")
+    min_overlap: float = setting(0.15, min=0.0, max=1.0, max_open=True,
+                                 help="Minimum predicted footprint overlap of a candidate pair (fraction of the "
+                                      "smaller footprint).")
+    terrain_height_m: float | None = setting(None, help="Mean terrain height (m) for the footprints; default: "
+                                                        "project.toml [flight] or lidar_out/dem.tif.")
+    image_top_deg: float = setting(0.0, help="Direction of the image top relative to the flight direction "
+                                             "(0 = forward).")
+    densify: bool = setting(True, help="Densify weak models (dense features where a stereo model or a strip pair "
+                                       "has too few ties).")
+    min_per_region: int = setting(3, min=0, help="A stereo model is weak with fewer ties in a von Gruber region.")
+    min_strip_ties: int = setting(20, min=0, help="Two adjacent strips are weakly tied with fewer common tracks.")
+    retrieval_min_matches: int = setting(25, min=1, help="Without GNSS: thumbnails with this many matches make a "
+                                                         "pair.")

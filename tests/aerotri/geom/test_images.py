@@ -1,0 +1,127 @@
+"""Finding and reading frames: every layout production tools write gives the same pixels, in the stored grid."""
+
+from __future__ import annotations
+
+import cv2
+import numpy as np
+import pytest
+import rasterio
+
+from aerotri.core.errors import InputError
+from aerotri.geom.images import (
+    find_image, find_images, map_uncompressed_tiff, read_gray, read_native, read_rgb, read_rgb8,
+)
+
+pytestmark = pytest.mark.filterwarnings("ignore::rasterio.errors.NotGeoreferencedWarning")  # frames have no georeferencing
+
+
+def _rgb(dtype, h=37, w=53, bands=3, seed=5) -> np.ndarray:
+    rng = np.random.default_rng(seed)
+    return rng.integers(0, np.iinfo(dtype).max, (h, w, bands), dtype=dtype)
+
+
+def _write(path, a: np.ndarray, **kw) -> None:
+    """A TIFF through GDAL: (rows, cols, bands) in band order 1, 2, 3, ..."""
+    bands = a.shape[2] if a.ndim == 3 else 1
+    with rasterio.open(path, "w", driver="GTiff", width=a.shape[1], height=a.shape[0], count=bands,
+                       dtype=a.dtype.name, **kw) as dst:
+        dst.write(np.moveaxis(a, -1, 0) if a.ndim == 3 else a[None])
+
+
+@pytest.mark.parametrize("bands,dtype", [(3, np.uint8), (1, np.uint16), (4, np.uint16)])
+def test_uncompressed_frames_are_memory_mapped(tmp_path, bands, dtype):
+    a = _rgb(dtype, bands=bands)
+    a = a if bands > 1 else a[:, :, 0]
+    path = tmp_path / "frame.tif"
+    _write(path, a, interleave="pixel")
+    m = map_uncompressed_tiff(path)
+    assert isinstance(m, np.memmap) and m.shape == a.shape and np.array_equal(m, a)
+    # compressed or tiled files are decoded instead
+    for extra in (dict(compress="lzw"), dict(tiled=True, blockxsize=16, blockysize=16)):
+        p2 = tmp_path / "other.tif"
+        _write(p2, a, interleave="pixel", **extra)
+        assert map_uncompressed_tiff(p2) is None
+
+
+def test_a_truncated_uncompressed_frame_is_not_mapped_but_refused(tmp_path):
+    path = tmp_path / "frame.tif"
+    _write(path, _rgb(np.uint8), interleave="pixel")
+    data = path.read_bytes()
+    path.write_bytes(data[: len(data) // 2])
+    assert map_uncompressed_tiff(path) is None
+    with pytest.raises(InputError, match="frame.tif: cannot read the image"):
+        read_native(path)
+
+
+@pytest.mark.parametrize("dtype", [np.uint8, np.uint16])
+@pytest.mark.parametrize("layout", ["lzw", "raw", "planar", "minisblack"])
+def test_every_layout_reads_as_the_same_rgb(tmp_path, dtype, layout):
+    """Pixel-interleaved RGB (OpenCV: B, G, R), uncompressed (memory-mapped: R, G, B), band-interleaved RGB and
+    three samples tagged MINISBLACK (OpenCV garbles both: read through GDAL) give the same R, G, B and grey."""
+    a = _rgb(dtype)
+    ref = tmp_path / "ref.tif"
+    _write(ref, a, interleave="pixel", photometric="RGB", compress="lzw")
+    kw = {"lzw": dict(interleave="pixel", photometric="RGB", compress="lzw"),
+          "raw": dict(interleave="pixel", photometric="RGB"),
+          "planar": dict(interleave="band", photometric="RGB", compress="lzw"),
+          "minisblack": dict(interleave="pixel", photometric="MINISBLACK", compress="lzw")}[layout]
+    path = tmp_path / f"{layout}.tif"
+    _write(path, a, **kw)
+    native, order = read_native(path, (53, 37))
+    assert sorted(order) == [1, 2, 3]
+    assert np.array_equal(read_rgb(path), a)
+    expect8 = a if dtype == np.uint8 else cv2.normalize(a, None, 0, 255, cv2.NORM_MINMAX).astype(np.uint8)
+    assert np.array_equal(read_rgb8(path), expect8)
+    # grey as OpenCV decodes the pixel-interleaved RGB file
+    assert np.array_equal(read_gray(path), cv2.imread(str(ref), cv2.IMREAD_GRAYSCALE))
+
+
+def test_alpha_is_kept_in_rgb_and_dropped_in_rgb8(tmp_path):
+    a = _rgb(np.uint8, bands=4)
+    path = tmp_path / "rgba.png"
+    cv2.imwrite(str(path), a[:, :, [2, 1, 0, 3]])
+    native, order = read_native(path)
+    assert order == [3, 2, 1, 4]
+    assert np.array_equal(read_rgb(path), a)
+    assert np.array_equal(read_rgb8(path), a[:, :, :3])
+
+
+def test_exif_orientation_is_ignored(tmp_path):
+    """A JPEG tagged 'rotate 90' is read in its stored grid (the size the headers and the camera give)."""
+    from PIL import Image
+
+    a = np.zeros((40, 64, 3), np.uint8)
+    a[:10, :20] = 255  # a bright block at the stored top left
+    path = tmp_path / "rot.jpg"
+    exif = Image.Exif()
+    exif[0x0112] = 6
+    Image.fromarray(a).save(path, exif=exif, quality=95)
+    assert cv2.imread(str(path), cv2.IMREAD_GRAYSCALE).shape == (64, 40)  # what OpenCV does by default
+    g = read_gray(path, (64, 40))
+    assert g.shape == (40, 64) and g[:10, :20].mean() > 200 and g[20:, 30:].mean() < 30
+    assert read_rgb8(path, (64, 40)).shape == (40, 64, 3)
+
+
+def test_size_and_readability_are_checked(tmp_path):
+    path = tmp_path / "f.tif"
+    _write(path, _rgb(np.uint8), interleave="pixel", photometric="RGB", compress="lzw")
+    for reader in (read_native, read_rgb, read_rgb8, read_gray):
+        with pytest.raises(InputError, match=r"f.tif: image is 53 x 37 px but the camera says 60 x 40 px"):
+            reader(path, (60, 40))
+    bad = tmp_path / "bad.tif"
+    bad.write_bytes(b"II*\x00garbage")
+    for reader in (read_native, read_rgb8, read_gray):
+        with pytest.raises(InputError, match="bad.tif: cannot read the image"):
+            reader(bad)
+
+
+def test_frames_are_found_by_id(tmp_path):
+    for name in ("a.tif", "b.JPG", "c.png", "notes.txt"):
+        (tmp_path / name).write_bytes(b"")
+    assert list(find_images(tmp_path)) == ["a", "b", "c"]
+    assert find_image(tmp_path, "b") == tmp_path / "b.JPG"
+    with pytest.raises(InputError, match="no image file for image id 'd'"):
+        find_image(tmp_path, "d")
+    (tmp_path / "a.jpg").write_bytes(b"")
+    with pytest.raises(InputError, match="two images share the id 'a'"):
+        find_images(tmp_path)
