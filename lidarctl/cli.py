@@ -11,7 +11,7 @@ import click
 
 from aerotri.core.atomic import refuse_input_as_output
 from aerotri.core.commands import Group, positive, scheduler_options
-from aerotri.core.settings import click_type, constraints, default_of, field_named
+from aerotri.core.settings import click_option
 from lidarctl.classify import ClassifyParams
 
 
@@ -44,12 +44,9 @@ def _parse_map(text: str | None, option: str) -> dict:
 @main.command()
 @click.argument("in_path", type=click.Path(dir_okay=False))
 @click.argument("out_path", type=click.Path(dir_okay=False))
-@click.option("--preset", type=click_type(ClassifyParams, "preset"), default=default_of(ClassifyParams, "preset"),
-              help=constraints(field_named(ClassifyParams, "preset"))["help"])
+@click_option(ClassifyParams, "preset", "--preset")
 @click.option("--crs", default=None, help="CRS (EPSG:code) when the file has none; never guessed.")
-@click.option("--method", type=click_type(ClassifyParams, "ground_method"),
-              default=default_of(ClassifyParams, "ground_method"), show_default=True,
-              help=constraints(field_named(ClassifyParams, "ground_method"))["help"])
+@click_option(ClassifyParams, "ground_method", "--method")
 @click.option("--tile-size", "tile_size_m", type=positive(), default=None,
               help="Tile size in metres, also for clouds in feet (default: about 4 M points per tile with its "
                    "buffer at the file's density).")
@@ -58,7 +55,7 @@ def _parse_map(text: str | None, option: str) -> dict:
 @click.option("--work-dir", type=click.Path(file_okay=False), default=None,
               help="Folder for the temporary tile files (default: next to the output; removed afterwards).")
 @scheduler_options
-def classify(in_path, out_path, preset, crs, method, tile_size_m, buffer_m, work_dir, scheduler, workers):
+def classify(in_path, out_path, preset, crs, ground_method, tile_size_m, buffer_m, work_dir, scheduler, workers):
     """Noise, ground, buildings, vegetation and water as ASPRS classes (LAS/LAZ in, LAS/LAZ out).
 
     Large files are cut into tiles with overlap buffers, classified as parallel tasks and written
@@ -70,7 +67,7 @@ def classify(in_path, out_path, preset, crs, method, tile_size_m, buffer_m, work
     from aerotri.core.executor import executor_for
 
     refuse_input_as_output(out_path, [in_path], "OUT_PATH")
-    params = ClassifyParams(ground_method=method, preset=preset)
+    params = ClassifyParams(ground_method=ground_method, preset=preset)
     with executor_for(scheduler, workers) as executor:
         stats = tiles.classify_file(in_path, out_path, crs=crs, params=params, tile_size_m=tile_size_m,
                                     buffer_m=buffer_m, executor=executor, work_dir=work_dir)

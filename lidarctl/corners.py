@@ -150,29 +150,21 @@ def _bearing_deg(edge) -> float:
     return float(np.mod(np.degrees(np.arctan2(d[0], d[1])), 180.0))
 
 
-def find_roof_corners(
-    x: np.ndarray,
-    y: np.ndarray,
-    z: np.ndarray,
-    classification: np.ndarray,
-    point_source_id: np.ndarray | None = None,
-    min_edge_m: float = 5.0,
-    roof: str = "flat",
-    sigma_strip_xy_m: float = 0.03,
-    sigma_strip_z_m: float = 0.03,
-) -> dict:
-    """Corners and regularised outlines of all roofs of a classified cloud.
+@dataclasses.dataclass
+class _RoofClusters:
+    """The cloud without noise, its building points clustered into roofs."""
 
-    ``sigma_strip_xy_m``, ``sigma_strip_z_m``: georeferencing error of a strip (GNSS/IMU, boresight),
-    common to all points of the strip, so no fit over its points reduces it; added in quadrature to the
-    fitted corner's standard deviations. Take them from the system's (strip-adjusted) accuracy.
+    xyz: np.ndarray  # (N, 3) m
+    cls: np.ndarray
+    sid: np.ndarray  # point source (strip) id per point
+    n_building_points: int
+    spacing_m: float  # point spacing on the roofs
+    roof_label: np.ndarray  # roof per point, -1 for none
+    n_roofs: int
 
-    Returns ``{"corners": list of dict (CSV_COLUMNS), "outlines": list of dict, "stats": dict}``;
-    raises InputError when the cloud has no building points or no roof could be outlined.
-    """
-    if roof not in ("flat", "any"):
-        raise InputError(f"roof must be 'flat' or 'any', not {roof!r}")
-    t_start = time.perf_counter()
+
+def _roof_clusters(x, y, z, classification, point_source_id) -> _RoofClusters:
+    """Drop noise, refuse a cloud without building points, cluster the building points into roofs."""
     xyz = np.column_stack([x, y, z]).astype(float)
     cls = np.asarray(classification)
     keep = ~np.isin(cls, NOISE)
@@ -197,89 +189,94 @@ def find_roof_corners(
     roof_label = np.full(len(xyz), -1, np.int64)
     roof_label[bldg_idx] = roof_of_bldg
     n_roofs = int(roof_of_bldg.max()) + 1 if (roof_of_bldg >= 0).any() else 0
-    tree_all = cKDTree(xyz[:, :2])
-    not_ground = cls != GROUND
+    return _RoofClusters(xyz, cls, sid, n_bldg, spacing, roof_label, n_roofs)
 
-    corners, outlines = [], []
-    raw = []  # per corner: xy, cov, z, sz, roof type, building, bearings, angle, support, lengths
-    for r in track(range(n_roofs), "roof corners", "roofs"):
-        idx = np.flatnonzero(roof_label == r)
-        pts = xyz[idx]
-        # cells of two spacings: smaller cells leave holes in sparse clouds and underestimate the spacing
-        s_roof = point_spacing_m(pts[:, :2], cell_m=max(1.0, 2.0 * spacing))
-        s_roof = float(np.clip(s_roof, 0.5 * spacing, 2.0 * spacing))
-        plane_of, planes = segment_planes(pts, roof_id=r)
-        rings = trace_rings(pts[:, :2], s_roof)
-        if not rings:
-            continue
-        theta, edge_rings = regularise_rings(rings, s_roof)
-        if not edge_rings:
-            continue
-        # Edge evidence from points on a roof face only: fascia and wall points lie on or inside the eave
-        # line below the roof and would pull the edge (they still shape the traced outline).
-        on_face = np.zeros(len(pts), bool)
-        for i_plane, plane in enumerate(planes):
-            m = plane_of == i_plane
-            on_face[m] = np.abs(plane.height_m(pts[m, 0], pts[m, 1]) - pts[m, 2]) < 3.0 * plane.rms_m + 0.02
-        face_xy = pts[on_face, :2] if on_face.sum() >= 10 else pts[:, :2]
-        obs = [edge_observations(edges, face_xy, s_roof) for edges in edge_rings]
-        fit = fit_edges(theta, edge_rings, obs)
-        roof_tree = cKDTree(pts[:, :2])
-        outline_rings = []
-        for edges in edge_rings:
-            rc = corners_from_edges(edges, fit)
-            lengths = np.array([edge_length_m(edges, i) for i in range(len(edges))])
-            trace = shapely.LinearRing(rings[edges[0].ring])
-            far = shapely.distance(shapely.points(rc.xy), trace) > max(2.0, 4.0 * s_roof)
-            outline_rings.append(rc.xy[~far])
-            for k in range(len(rc.xy)):
-                if far[k]:
-                    continue  # the fitted edges meet far from the traced outline: not a corner of this roof
-                i_out = edges.index(rc.edge_out[k])
-                l_in, l_out = lengths[i_out - 1], lengths[i_out]
-                # roof face at the corner: the plane most of the nearest roof points belong to
-                _, nb = roof_tree.query(rc.xy[k], k=min(15, len(pts)))
-                ids = plane_of[np.atleast_1d(nb)]
-                ids = ids[ids >= 0]
-                if len(ids) and planes:
-                    plane = planes[np.bincount(ids).argmax()]
-                    zc = float(plane.height_m(*rc.xy[k]))
-                    grad = float(np.hypot(plane.abc[0], plane.abc[1]))
-                    s_h2 = 0.5 * np.trace(rc.cov_xy[k])
-                    sz = float(np.sqrt(plane.height_sigma_m(*rc.xy[k]) ** 2 + grad**2 * s_h2))
-                    slope = plane.slope_deg
-                else:
-                    zc = float(np.median(pts[np.atleast_1d(nb), 2]))
-                    sz = float(np.std(pts[np.atleast_1d(nb), 2]) + 0.1)
-                    slope = 90.0
-                raw.append(dict(
-                    xy=rc.xy[k], cov=rc.cov_xy[k], z=zc, sz=sz,
-                    roof="flat" if slope < FLAT_SLOPE_DEG else "pitched", building_id=r,
-                    edge1_deg=_bearing_deg(rc.edge_in[k]), edge2_deg=_bearing_deg(rc.edge_out[k]),
-                    angle_deg=float(rc.angle_deg[k]), n_in=rc.edge_in[k].n_obs, n_out=rc.edge_out[k].n_obs,
-                    l_in=float(l_in), l_out=float(l_out),
-                ))
-        roof_types = ["flat" if p.slope_deg < FLAT_SLOPE_DEG else "pitched" for p in planes]
-        outlines.append(dict(
-            building_id=r, rings=outline_rings, n_points=len(idx), spacing_m=s_roof,
-            roof="flat" if roof_types and all(t == "flat" for t in roof_types) else "pitched",
-            n_planes=len(planes), sigma0=fit.sigma0, theta_deg=float(np.degrees(fit.theta)),
-        ))
 
-    if not raw:
-        raise InputError(
-            f"no roof outline could be traced from {n_bldg} building points ({n_roofs} roofs of at least "
-            f"25 m^2; point spacing {spacing:.2f} m)"
-        )
+def _corner_height(pts, plane_of, planes, roof_tree, xy, cov_xy) -> tuple[float, float, float]:
+    """(z, sigma z, slope in degrees) of a corner: on the roof face most of the nearest roof points belong
+    to (its height sigma plus the plan sigma through the face's gradient), else the median of those points."""
+    _, nb = roof_tree.query(xy, k=min(15, len(pts)))
+    ids = plane_of[np.atleast_1d(nb)]
+    ids = ids[ids >= 0]
+    if len(ids) and planes:
+        plane = planes[np.bincount(ids).argmax()]
+        zc = float(plane.height_m(*xy))
+        grad = float(np.hypot(plane.abc[0], plane.abc[1]))
+        s_h2 = 0.5 * np.trace(cov_xy)
+        sz = float(np.sqrt(plane.height_sigma_m(*xy) ** 2 + grad**2 * s_h2))
+        return zc, sz, plane.slope_deg
+    zc = float(np.median(pts[np.atleast_1d(nb), 2]))
+    sz = float(np.std(pts[np.atleast_1d(nb), 2]) + 0.1)
+    return zc, sz, 90.0
+
+
+def _one_roof(pts: np.ndarray, r: int, spacing: float) -> tuple[list[dict], dict | None]:
+    """(traced corners, outline) of roof ``r`` (its points ``pts``): planes, traced and regularised
+    rings, edges fitted to the points on a roof face, corners where the fitted edges meet."""
+    # cells of two spacings: smaller cells leave holes in sparse clouds and underestimate the spacing
+    s_roof = point_spacing_m(pts[:, :2], cell_m=max(1.0, 2.0 * spacing))
+    s_roof = float(np.clip(s_roof, 0.5 * spacing, 2.0 * spacing))
+    plane_of, planes = segment_planes(pts, roof_id=r)
+    rings = trace_rings(pts[:, :2], s_roof)
+    if not rings:
+        return [], None
+    theta, edge_rings = regularise_rings(rings, s_roof)
+    if not edge_rings:
+        return [], None
+    # Edge evidence from points on a roof face only: fascia and wall points lie on or inside the eave
+    # line below the roof and would pull the edge (they still shape the traced outline).
+    on_face = np.zeros(len(pts), bool)
+    for i_plane, plane in enumerate(planes):
+        m = plane_of == i_plane
+        on_face[m] = np.abs(plane.height_m(pts[m, 0], pts[m, 1]) - pts[m, 2]) < 3.0 * plane.rms_m + 0.02
+    face_xy = pts[on_face, :2] if on_face.sum() >= 10 else pts[:, :2]
+    obs = [edge_observations(edges, face_xy, s_roof) for edges in edge_rings]
+    fit = fit_edges(theta, edge_rings, obs)
+    roof_tree = cKDTree(pts[:, :2])
+    raw, outline_rings = [], []
+    for edges in edge_rings:
+        rc = corners_from_edges(edges, fit)
+        lengths = np.array([edge_length_m(edges, i) for i in range(len(edges))])
+        trace = shapely.LinearRing(rings[edges[0].ring])
+        far = shapely.distance(shapely.points(rc.xy), trace) > max(2.0, 4.0 * s_roof)
+        outline_rings.append(rc.xy[~far])
+        for k in range(len(rc.xy)):
+            if far[k]:
+                continue  # the fitted edges meet far from the traced outline: not a corner of this roof
+            i_out = edges.index(rc.edge_out[k])
+            l_in, l_out = lengths[i_out - 1], lengths[i_out]
+            zc, sz, slope = _corner_height(pts, plane_of, planes, roof_tree, rc.xy[k], rc.cov_xy[k])
+            raw.append(dict(
+                xy=rc.xy[k], cov=rc.cov_xy[k], z=zc, sz=sz,
+                roof="flat" if slope < FLAT_SLOPE_DEG else "pitched", building_id=r,
+                edge1_deg=_bearing_deg(rc.edge_in[k]), edge2_deg=_bearing_deg(rc.edge_out[k]),
+                angle_deg=float(rc.angle_deg[k]), n_in=rc.edge_in[k].n_obs, n_out=rc.edge_out[k].n_obs,
+                l_in=float(l_in), l_out=float(l_out),
+            ))
+    roof_types = ["flat" if p.slope_deg < FLAT_SLOPE_DEG else "pitched" for p in planes]
+    outline = dict(
+        building_id=r, rings=outline_rings, n_points=len(pts), spacing_m=s_roof,
+        roof="flat" if roof_types and all(t == "flat" for t in roof_types) else "pitched",
+        n_planes=len(planes), sigma0=fit.sigma0, theta_deg=float(np.degrees(fit.theta)),
+    )
+    return raw, outline
+
+
+def _score_corners(raw: list[dict], rc: _RoofClusters, *, min_edge_m: float, roof: str, sigma_strip_xy_m: float,
+                   sigma_strip_z_m: float) -> None:
+    """Add to each traced corner its sigmas with the strip's georeferencing error, its score (product of
+    the factors: right angle, edge length, support, precision, flat roof, no taller structure within
+    5 m, away from the strip edge) and whether it is usable as control."""
     cxy = np.array([c["xy"] for c in raw])
     cz = np.array([c["z"] for c in raw])
     # taller structure within 5 m: non-ground points of other roofs/objects more than 1 m above the corner
+    not_ground = rc.cls != GROUND
     taller = np.zeros(len(raw), bool)
-    for k, near in enumerate(tree_all.query_ball_point(cxy, 5.0)):
+    for k, near in enumerate(cKDTree(rc.xyz[:, :2]).query_ball_point(cxy, 5.0)):
         near = np.asarray(near, np.int64)
-        near = near[not_ground[near] & (roof_label[near] != raw[k]["building_id"])]
-        taller[k] = np.sum(xyz[near, 2] > cz[k] + 1.0) >= 3
-    margin = strip_margin_m(xyz[:, :2], sid, cxy)
+        near = near[not_ground[near] & (rc.roof_label[near] != raw[k]["building_id"])]
+        taller[k] = np.sum(rc.xyz[near, 2] > cz[k] + 1.0) >= 3
+    margin = strip_margin_m(rc.xyz[:, :2], rc.sid, cxy)
 
     for k, c in enumerate(raw):
         sx, sy = np.sqrt(np.diag(c["cov"]) + sigma_strip_xy_m**2)
@@ -303,11 +300,14 @@ def find_roof_corners(
                  factors=dict(angle=f_angle, edge_length=f_len, support=f_support, precision=f_prec,
                               flat=f_flat, taller_structure=f_taller, strip_edge=f_strip))
 
-    # Report corners between edges of at least min_edge_m, located well enough; the outlines keep every
-    # corner for review.
+
+def _reported_corners(raw: list[dict], min_edge_m: float, spacing: float) -> list[dict]:
+    """The corner records (CSV_COLUMNS and the review fields) of the corners between edges of at least
+    ``min_edge_m``, located well enough; ids RC00001... by building, best score first."""
     max_sigma = max(MAX_SIGMA_XY_M, MAX_SIGMA_XY_SPACINGS * spacing)
     reported = [c for c in raw if min(c["l_in"], c["l_out"]) >= min_edge_m and max(c["sx"], c["sy"]) <= max_sigma]
     reported.sort(key=lambda c: (c["building_id"], -c["score"]))
+    corners = []
     for n, c in enumerate(reported, 1):
         corners.append({
             "id": f"RC{n:05d}", "x": float(c["xy"][0]), "y": float(c["xy"][1]), "z": c["z"],
@@ -318,10 +318,55 @@ def find_roof_corners(
             "edge1_m": c["l_in"], "edge2_m": c["l_out"], "strip_margin_m": c["strip_margin_m"],
             **{f"score_{k}": v for k, v in c["factors"].items()},
         })
+    return corners
+
+
+def find_roof_corners(
+    x: np.ndarray,
+    y: np.ndarray,
+    z: np.ndarray,
+    classification: np.ndarray,
+    point_source_id: np.ndarray | None = None,
+    *,
+    min_edge_m: float = 5.0,
+    roof: str = "flat",
+    sigma_strip_xy_m: float = 0.03,
+    sigma_strip_z_m: float = 0.03,
+) -> dict:
+    """Corners and regularised outlines of all roofs of a classified cloud (metres).
+
+    Steps: roofs (clusters of building points) -> per roof: planes, outline, fitted edges, corners ->
+    scores -> the corners reported.
+
+    ``sigma_strip_xy_m``, ``sigma_strip_z_m``: georeferencing error of a strip (GNSS/IMU, boresight),
+    common to all points of the strip, so no fit over its points reduces it; added in quadrature to the
+    fitted corner's standard deviations. Take them from the system's (strip-adjusted) accuracy.
+
+    Returns ``{"corners": list of dict (CSV_COLUMNS), "outlines": list of dict, "stats": dict}``;
+    raises InputError when the cloud has no building points or no roof could be outlined.
+    """
+    if roof not in ("flat", "any"):
+        raise InputError(f"roof must be 'flat' or 'any', not {roof!r}")
+    t_start = time.perf_counter()
+    rc = _roof_clusters(x, y, z, classification, point_source_id)
+    raw, outlines = [], []  # raw: per corner xy, cov, z, sz, roof type, building, bearings, angle, support, lengths
+    for r in track(range(rc.n_roofs), "roof corners", "roofs"):
+        roof_raw, outline = _one_roof(rc.xyz[rc.roof_label == r], r, rc.spacing_m)
+        raw += roof_raw
+        if outline is not None:
+            outlines.append(outline)
+    if not raw:
+        raise InputError(
+            f"no roof outline could be traced from {rc.n_building_points} building points ({rc.n_roofs} roofs of "
+            f"at least 25 m^2; point spacing {rc.spacing_m:.2f} m)"
+        )
+    _score_corners(raw, rc, min_edge_m=min_edge_m, roof=roof, sigma_strip_xy_m=sigma_strip_xy_m,
+                   sigma_strip_z_m=sigma_strip_z_m)
+    corners = _reported_corners(raw, min_edge_m, rc.spacing_m)
     n_usable = sum(c["usable"] for c in corners)
     stats = {
-        "n_points": int(len(xyz)), "n_building_points": n_bldg, "point_spacing_m": spacing,
-        "n_roofs": n_roofs, "n_outlines": len(outlines), "n_corners_traced": len(raw),
+        "n_points": int(len(rc.xyz)), "n_building_points": rc.n_building_points, "point_spacing_m": rc.spacing_m,
+        "n_roofs": rc.n_roofs, "n_outlines": len(outlines), "n_corners_traced": len(raw),
         "n_corners": len(corners), "n_usable": int(n_usable), "min_edge_m": min_edge_m, "roof": roof,
         "sigma_strip_xy_m": sigma_strip_xy_m, "sigma_strip_z_m": sigma_strip_z_m,
         "usable_score": USABLE_SCORE,

@@ -8,26 +8,19 @@ import click
 
 from aerotri.core.commands import Command
 from aerotri.core.errors import InputError
-from aerotri.core.settings import click_type, constraints, default_of, field_named
+from aerotri.core.settings import click_option
 from lidarctl.corners import CornerSettings, corner_control
-
-
-def _option(*decls, name: str, **kw):
-    """A click option whose type, default and help come from CornerSettings."""
-    return click.option(*decls, name, type=click_type(CornerSettings, name), default=default_of(CornerSettings, name),
-                        show_default=True, help=constraints(field_named(CornerSettings, name))["help"], **kw)
 
 
 @click.command(cls=Command, name="corners")
 @click.argument("classified", nargs=-1, required=True, type=click.Path(path_type=Path))
 @click.argument("outdir", type=click.Path(file_okay=False, path_type=Path))
-@_option("--min-edge-m", name="min_edge_m")
-@_option("--roof", name="roof")
-@_option("--sigma-strip-xy-m", name="sigma_strip_xy_m")
-@_option("--sigma-strip-z-m", name="sigma_strip_z_m")
+@click_option(CornerSettings, "min_edge_m", "--min-edge-m")
+@click_option(CornerSettings, "roof", "--roof")
+@click_option(CornerSettings, "sigma_strip_xy_m", "--sigma-strip-xy-m")
+@click_option(CornerSettings, "sigma_strip_z_m", "--sigma-strip-z-m")
 @click.option("--crs", default=None, help="CRS (EPSG:code) of files that have none; never guessed.")
-@click.option("--figure/--no-figure", "figure", default=default_of(CornerSettings, "figure"), show_default=True,
-              help=constraints(field_named(CornerSettings, "figure"))["help"])
+@click_option(CornerSettings, "figure", "--figure/--no-figure")
 def corners(classified, outdir, min_edge_m, roof, sigma_strip_xy_m, sigma_strip_z_m, crs, figure):
     """Roof corners of CLASSIFIED LAS/LAZ file(s) (one or more strips in one CRS, building class 6)
     into OUTDIR.

@@ -22,6 +22,7 @@ from __future__ import annotations
 import contextlib
 import dataclasses
 import json
+import logging
 import math
 import os
 from pathlib import Path
@@ -36,7 +37,7 @@ from aerotri.core.errors import InputError
 from aerotri.geom.images import check_frames, find_images, image_layout, read_native
 from aerotri.core.project import Project
 from aerotri.geom.rotation import rotation_matrix_opk
-from aerotri.core.atomic import atomic_dir, atomic_path, write_text_atomic
+from aerotri.core.atomic import atomic_dir, atomic_path, remove_leftovers, write_text_atomic
 from aerotri.core.errors import OptionError
 from aerotri.core.limits import check_allocation, check_grid
 from aerotri.core.textio import read_json
@@ -46,6 +47,8 @@ from aerotri.geom.transform import CrsTransformer, OperationSpec
 from ortho.dem import dem_height_operation, height_range, open_height_raster, read_height_window
 from ortho.grid import GridToProject, OrthoGrid, nice_resolution, parse_crs, resolve_output_crs
 from ortho.rectify import border_pixels, frame_grid, rectify_frame
+
+_log = logging.getLogger(__name__)
 
 
 
@@ -298,6 +301,10 @@ def rectify_block(root, dem_path=None, res_m: float | None = None, crs: str | No
     if true_ortho:
         open_height_raster(dsm_path, project_crs, "DSM").close()
     out_dir = project.ortho_dir / "frames"
+    # what a killed earlier run left of its atomic frames folder (.frames.part-*): one rectification per
+    # project at a time, so nothing else writes there now
+    for gone in remove_leftovers(project.ortho_dir):
+        _log.info(f"removed {gone.name}, left by an interrupted run")
     try:
         height_op = dem_height_operation(CRS(dem_ds.crs), project_crs, project_heights, height_model, allow_ballpark,
                                          str(dem_path))

@@ -37,19 +37,44 @@ class Stage:
         return self.options(root) if callable(self.options) else self.options
 
 
-def _signature(paths: list[Path], hash_limit_bytes: int = 64 << 20) -> dict:
+def _key(p: Path, root: Path) -> str:
+    """An input's name in a stamp: relative to the project root (so a moved or copied project, or a
+    run from another working directory, stays up to date), absolute for files outside it."""
+    p, root = Path(p).absolute(), Path(root).absolute()
+    try:
+        return p.relative_to(root).as_posix()
+    except ValueError:
+        return str(p.resolve())
+
+
+def _content(p: Path) -> bytes:
+    """The bytes that decide whether an input changed: for a TOML file its parsed values (a comment or
+    a reordered key does not re-run the chain), for any other file its bytes."""
+    data = p.read_bytes()
+    if p.suffix.lower() == ".toml":
+        import tomllib
+
+        try:
+            return json.dumps(tomllib.loads(data.decode("utf-8")), sort_keys=True, default=str).encode()
+        except (UnicodeDecodeError, tomllib.TOMLDecodeError):
+            return data
+    return data
+
+
+def _signature(paths: list[Path], root: Path, hash_limit_bytes: int = 64 << 20) -> dict:
     """Content hash of each input up to ``hash_limit_bytes`` (timestamps are too coarse to trust),
-    size and modification time beyond that."""
+    size and modification time beyond that; keys as ``_key`` names them."""
     sig = {}
     for p in sorted(paths, key=str):
+        k = _key(p, root)
         if p.is_file():
             st = p.stat()
             if st.st_size <= hash_limit_bytes:
-                sig[str(p)] = hashlib.sha1(p.read_bytes()).hexdigest()
+                sig[k] = hashlib.sha1(_content(p)).hexdigest()
             else:
-                sig[str(p)] = [st.st_size, st.st_mtime_ns]
+                sig[k] = [st.st_size, st.st_mtime_ns]
         else:
-            sig[str(p)] = None
+            sig[k] = None
     return sig
 
 
@@ -72,7 +97,7 @@ def is_current(root: Path, st: Stage) -> bool:
         return False
     if not all(p.exists() for p in st.outputs(root)):
         return False
-    return stamp.get("inputs") == _signature(st.inputs(root)) and stamp.get("options") == _plain(st.options_now(root))
+    return stamp.get("inputs") == _signature(st.inputs(root), root) and stamp.get("options") == _plain(st.options_now(root))
 
 
 def run_stages(root, stages: list[Stage], force: bool = False, log: Callable[[str], None] = _log.info) -> list[dict]:
@@ -100,7 +125,7 @@ def run_stages(root, stages: list[Stage], force: bool = False, log: Callable[[st
         if missing:
             raise RuntimeError(f"stage {st.name} finished without writing {', '.join(missing)}")
         write_text_atomic(stamp_path(root, st.name), json.dumps(
-            dict(inputs=_signature(st.inputs(root)), options=options, result=result, seconds=round(dt, 2)),
+            dict(inputs=_signature(st.inputs(root), root), options=options, result=result, seconds=round(dt, 2)),
             indent=1, default=str) + "\n")
         rows.append(dict(stage=st.name, status="done", seconds=round(dt, 1), **result))
         for note in result.get("notes", []):

@@ -16,6 +16,7 @@ from __future__ import annotations
 import logging
 import math
 import sys
+import time
 
 import click
 
@@ -39,6 +40,21 @@ def report_error(exc: AerotriError) -> None:
     _logger.debug("error details", exc_info=exc)
 
 
+def _exit_cleanly_on_sigterm() -> None:
+    """SIGTERM (a batch system's kill, ``timeout``) ends the command as Ctrl-C does: Python unwinds, so
+    the atomic writers remove their temporaries instead of leaving ``.<name>.part-*`` behind."""
+    import signal
+    import threading
+
+    if threading.current_thread() is not threading.main_thread():
+        return  # signal handlers belong to the main thread (a command called from a worker thread)
+
+    def _term(signum, frame):
+        raise KeyboardInterrupt
+
+    signal.signal(signal.SIGTERM, _term)
+
+
 class Command(click.Command):
     """A command with the logging options and the error handler (see the module docstring)."""
 
@@ -50,13 +66,23 @@ class Command(click.Command):
         verbose = ctx.params.pop("verbose", 0) or 0
         quiet = ctx.params.pop("quiet", 0) or 0
         log_file = ctx.params.pop("log_file", None)
+        if log_file and not log.is_log_file(log_file):
+            click.echo(f"Error: --log-file {log_file}: the file exists and is not a log of this toolkit; "
+                       "give a new file name (a log is only ever appended to, never an input overwritten)", err=True)
+            sys.exit(2)
         try:
             log.configure(verbose - quiet, log_file)
         except OSError as exc:
             click.echo(f"Error: --log-file {log_file}: cannot write ({exc.strerror})", err=True)
             sys.exit(2)
+        t0 = time.perf_counter()
+        _exit_cleanly_on_sigterm()
+        _logger.debug("%s started with %s", ctx.command_path,
+                      ", ".join(f"{k}={v!r}" for k, v in ctx.params.items()) or "no options")
         try:
-            return super().invoke(ctx)
+            result = super().invoke(ctx)
+            _logger.debug("%s finished in %.1f s", ctx.command_path, time.perf_counter() - t0)
+            return result
         except AerotriError as exc:
             report_error(exc)
             sys.exit(2)

@@ -17,6 +17,7 @@ from __future__ import annotations
 import contextlib
 import logging
 import os
+import re
 import sys
 import time
 
@@ -61,6 +62,23 @@ def configure(verbosity: int = 0, log_file=None) -> None:
             lg.addHandler(x)
         lg.setLevel(logging.DEBUG if log_file else level)
         lg.propagate = False
+
+
+_LOG_LINE = re.compile(r"\d{4}-\d\d-\d\d \d\d:\d\d:\d\d,\d{3} [A-Z]+ ")
+
+
+def is_log_file(path) -> bool:
+    """True when ``path`` may take log lines: it does not exist, is empty, or starts with a line of our
+    file format (``configure``'s time stamp, level, logger). Keeps ``--log-file`` from appending to an
+    input given by mistake."""
+    try:
+        with open(path, "rb") as f:
+            head = f.read(200)
+    except FileNotFoundError:
+        return True
+    except OSError:
+        return True  # configure() reports what is wrong with it
+    return not head or bool(_LOG_LINE.match(head.decode("utf-8", "replace")))
 
 
 def is_quiet() -> bool:

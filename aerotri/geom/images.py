@@ -62,13 +62,17 @@ def find_image(images_dir, image_id: str) -> Path:
     raise InputError(f"{images_dir}: no image file for image id {image_id!r} (tried {image_id}.tif/.jpg/.png)")
 
 
+# Frames carry no georeferencing, so rasterio's NotGeoreferencedWarning on opening one says nothing. A
+# process-wide filter, not warnings.catch_warnings around the open: frames are read in threads (the
+# executor), and catch_warnings is not thread-safe (one thread restoring the filters lets another's leak).
+warnings.filterwarnings("ignore", message="Dataset has no geotransform, gcps, or rpcs")
+
+
 def _open_raster(path):
-    """rasterio dataset of an image file (frames carry no georeferencing: that warning is silenced)."""
+    """rasterio dataset of an image file."""
     import rasterio
 
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore", rasterio.errors.NotGeoreferencedWarning)
-        return rasterio.open(path)
+    return rasterio.open(path)
 
 
 def check_frames(images: dict, camera: FrameCamera, camera_source="camera.toml") -> None:

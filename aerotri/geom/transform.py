@@ -32,6 +32,7 @@ from __future__ import annotations
 
 import dataclasses
 import functools
+import warnings
 
 import numpy as np
 import pyproj
@@ -81,15 +82,19 @@ def grid_advice(grids) -> str:
     names = ", ".join(name for name, _ in grids[:3])
     first = grids[0][0]
     return (f"the rigorous operation needs the PROJ grid {names}, which is not installed: get it with "
-            f"`projsync --file {first}` (or `python -c \"import pyproj.sync\"`-style pyproj sync, or set "
+            f"`pyproj sync --file {first}` (PROJ's `projsync --file {first}` works too; or set "
             f"PROJ_NETWORK=ON on a machine with internet), or put the file into "
             f"{pyproj.datadir.get_user_data_dir()}")
 
 
 @functools.lru_cache(maxsize=64)
 def _group(s3_wkt: str, d3_wkt: str):
-    return TransformerGroup(pyproj.CRS.from_wkt(s3_wkt), pyproj.CRS.from_wkt(d3_wkt), always_xy=True,
-                            allow_ballpark=False)
+    # pyproj warns "Best transformation is not available due to missing Grid": the caller names the
+    # missing grid and how to get it (grid_advice), so the bare warning would only repeat it half
+    with warnings.catch_warnings():
+        warnings.filterwarnings("ignore", message="Best transformation is not available", category=UserWarning)
+        return TransformerGroup(pyproj.CRS.from_wkt(s3_wkt), pyproj.CRS.from_wkt(d3_wkt), always_xy=True,
+                                allow_ballpark=False)
 
 
 class _ProjLeg:

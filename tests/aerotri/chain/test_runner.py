@@ -128,3 +128,38 @@ def test_chain_stages_list_the_project_files_their_commands_read(tmp_path):
     for name in ("match", "control", "rectify"):
         assert tmp_path / "images" / "a.tif" in inputs[name], name
     assert tmp_path / "dem.tif" in inputs["rectify"]
+
+
+def test_stamps_name_inputs_relative_to_the_project(tmp_path, monkeypatch):
+    """A project run from another working directory, or copied elsewhere, is still up to date."""
+    import shutil
+
+    p = tmp_path / "a" / "project"
+    p.mkdir(parents=True)
+    (p / "in.txt").write_text("3")
+    monkeypatch.chdir(tmp_path)
+    run_stages(p.relative_to(tmp_path), _stages([]), log=lambda m: None)
+    stamp = json.loads(stamp_path(p, "double").read_text())
+    assert list(stamp["inputs"]) == ["in.txt"]
+    copy = tmp_path / "b"
+    shutil.copytree(p, copy)
+    monkeypatch.chdir(copy)
+    calls = []
+    run_stages(copy, _stages(calls), log=lambda m: None)
+    run_stages(".", _stages(calls), log=lambda m: None)
+    assert calls == []
+
+
+def test_a_comment_in_a_toml_input_does_not_rerun_a_stage(tmp_path):
+    (tmp_path / "in.txt").write_text("3")
+    (tmp_path / "p.toml").write_text("[a]\nx = 1\n")
+    calls = []
+    stages = [Stage("s", lambda r: [r / "in.txt", r / "p.toml"], lambda r: [r / "mid.txt"],
+                    lambda r: calls.append("s") or (r / "mid.txt").write_text("x") and {})]
+    run_stages(tmp_path, stages, log=lambda m: None)
+    (tmp_path / "p.toml").write_text("# a comment\n[a]\nx = 1  # the same value\n")
+    run_stages(tmp_path, stages, log=lambda m: None)
+    assert calls == ["s"]
+    (tmp_path / "p.toml").write_text("[a]\nx = 2\n")
+    run_stages(tmp_path, stages, log=lambda m: None)
+    assert calls == ["s", "s"]

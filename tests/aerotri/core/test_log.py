@@ -51,4 +51,17 @@ def test_errors_go_through_the_handler_with_exit_code_2(tmp_path):
     r = CliRunner().invoke(aerotri_cli, ["crs", "transform", str(tmp_path / "missing.las"), str(tmp_path / "o.las"),
                                          "--to", "EPSG:4326", "-v"])
     assert r.exit_code == 2
-    assert r.stderr.startswith("Error: ") and "missing.las" in r.stderr and "Traceback" not in r.stderr
+    errors = [ln for ln in r.stderr.splitlines() if ln.startswith("Error: ")]  # -v: debug lines around it
+    assert len(errors) == 1 and "missing.las" in errors[0] and "Traceback" not in r.stderr
+
+
+def test_log_file_records_the_command_and_never_appends_to_another_file(las, tmp_path):
+    log_file = tmp_path / "run.log"
+    for out in ("a.las", "b.las"):
+        assert _transform(las, tmp_path / out, "-q", "--log-file", str(log_file)).exit_code == 0
+    text = log_file.read_text()
+    assert text.count("crs transform started with") == 2 and text.count("finished in") == 2
+    before = las.read_bytes()
+    r = _transform(las, tmp_path / "c.las", "--log-file", str(las))  # the input given as the log by mistake
+    assert r.exit_code == 2 and "not a log" in r.stderr and "Traceback" not in r.stderr
+    assert las.read_bytes() == before and not (tmp_path / "c.las").exists()

@@ -1,0 +1,39 @@
+"""The command class: SIGTERM unwinds like Ctrl-C, so atomic writers leave no temporaries."""
+
+from __future__ import annotations
+
+import signal
+import subprocess
+import sys
+import textwrap
+import time
+
+SCRIPT = textwrap.dedent("""
+    import sys, time
+    import click
+    from aerotri.core.atomic import atomic_dir
+    from aerotri.core.commands import Command
+
+    @click.command(cls=Command)
+    @click.argument("out")
+    def slow(out):
+        with atomic_dir(out) as tmp:
+            (tmp / "a.txt").write_text("partial")
+            print("writing", flush=True)
+            time.sleep(60)
+
+    slow()
+""")
+
+
+def test_sigterm_leaves_no_partial_output(tmp_path):
+    out = tmp_path / "frames"
+    p = subprocess.Popen([sys.executable, "-c", SCRIPT, str(out)], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                         text=True)
+    assert p.stdout.readline().strip() == "writing"
+    assert any(q.name.startswith(".frames.part-") for q in tmp_path.iterdir())
+    p.send_signal(signal.SIGTERM)
+    t0 = time.time()
+    _, err = p.communicate(timeout=30)
+    assert time.time() - t0 < 30 and p.returncode == 130 and "Interrupted." in err and "Traceback" not in err
+    assert list(tmp_path.iterdir()) == []  # neither the output nor its temporary

@@ -1,0 +1,67 @@
+"""Seamlines on a seam grid of two overlapping frames, against the geometry they must follow."""
+
+from __future__ import annotations
+
+import numpy as np
+from affine import Affine
+
+from ortho.seamlines import (keep_objects_whole, label_polygons, least_cost_seams, neighbour_pairs, seam_lines,
+                             voronoi_labels)
+
+H, W = 30, 40
+# frame 0 covers columns 0-27, frame 1 columns 13-39; overlap 13-27
+VALID = [np.ones((H, 28), bool), np.ones((H, 27), bool)]
+OFFSETS = [(0, 0), (0, 13)]
+NADIR_RC = np.array([[15.0, 10.25], [15.0, 30.25]])  # the Voronoi seam between columns 20 and 21
+
+
+def _voronoi():
+    return voronoi_labels(VALID, OFFSETS, NADIR_RC, (H, W))
+
+
+def test_voronoi_cells_go_to_the_nearest_nadir():
+    labels = _voronoi()
+    assert (labels[:, :21] == 0).all() and (labels[:, 21:] == 1).all()
+    assert neighbour_pairs(labels) == [(0, 1)]
+
+
+def test_cells_no_frame_sees_are_unlabelled():
+    valid = [np.ones((H, 10), bool), np.ones((H, 10), bool)]
+    labels = voronoi_labels(valid, [(0, 0), (0, 30)], NADIR_RC, (H, W))
+    assert (labels[:, 10:30] == -1).all() and neighbour_pairs(labels) == []
+
+
+def test_least_cost_seam_runs_round_a_building_within_the_overlap():
+    obj = np.zeros((H, W), bool)
+    obj[8:22, 17:25] = True  # a building astride the Voronoi seam
+    labels = least_cost_seams(_voronoi(), VALID, OFFSETS, object_mask=obj)
+    parts = set(np.unique(labels[obj]).tolist())
+    assert len(parts) == 1  # the seam does not cut the building
+    # every cell is still labelled by a frame that sees it; the seam stayed inside the overlap
+    assert (labels >= 0).all()
+    assert (labels[:, :13] == 0).all() and (labels[:, 28:] == 1).all()
+
+
+def test_keep_objects_whole_gives_a_split_object_to_a_frame_that_sees_all_of_it():
+    labels = _voronoi()
+    obj = np.zeros((H, W), bool)
+    obj[10:14, 18:23] = True  # split by column 20; both frames see all of it
+    out = keep_objects_whole(labels, obj, VALID, OFFSETS)
+    assert len(np.unique(out[obj])) == 1
+    assert len(np.unique(labels[obj])) == 2  # the input labels are untouched
+    wide = np.zeros((H, W), bool)
+    wide[10:14, 5:35] = True  # no frame sees all of it: stays split
+    assert len(np.unique(keep_objects_whole(labels, wide, VALID, OFFSETS)[wide])) == 2
+
+
+def test_polygons_and_seam_lines_in_map_units():
+    labels = _voronoi()
+    transform = Affine(2.0, 0.0, 1000.0, 0.0, -2.0, 5000.0)  # 2 m seam cells
+    polys = label_polygons(labels, transform, ["a", "b"])
+    area = {f["properties"]["image_id"]: f["properties"]["area_m2"] for f in polys}
+    assert area == {"a": 21 * H * 4.0, "b": 19 * H * 4.0}
+    seams = seam_lines(labels, transform, ["a", "b"])
+    assert len(seams) == 1 and seams[0]["properties"]["image_a"] == "a"
+    assert abs(seams[0]["properties"]["length_m"] - H * 2.0) < 1e-9
+    xs = {round(x, 6) for x, _ in seams[0]["geometry"]["coordinates"]}
+    assert xs == {1000.0 + 21 * 2.0}
