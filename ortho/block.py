@@ -41,7 +41,7 @@ from aerotri.core.atomic import atomic_dir, atomic_path, remove_leftovers, write
 from aerotri.core.errors import OptionError
 from aerotri.core.limits import check_allocation, check_grid
 from aerotri.core.textio import read_json
-from aerotri.geom.crs import parse_heights
+from aerotri.geom.crs import linear_unit_m, parse_heights
 from aerotri.geom.datum import load_height_model, load_transformation
 from aerotri.geom.transform import CrsTransformer, OperationSpec
 from ortho.dem import dem_height_operation, height_range, open_height_raster, read_height_window
@@ -317,20 +317,23 @@ def rectify_block(root, dem_path=None, res_m: float | None = None, crs: str | No
         eo_idx = block.eo.index()
         sel = [eo_idx[k] for k in block.images]
         eo_sel = ExteriorOrientations([block.eo.image_id[i] for i in sel], block.eo.centre_m[sel], block.eo.opk_deg[sel])
-        if res_m is not None:
-            res = float(res_m)
-        else:
-            with _raster_read(dem_path, "DEM"):
-                nadir_z = np.array([np.ma.filled(v.astype(float), np.nan)[0]
-                                    for v in dem_ds.sample([tuple(p) for p in eo_sel.centre_m[:, :2]], masked=True)])
-            nadir_z = np.where(np.isfinite(nadir_z), nadir_z, 0.5 * (zlo + zhi))
-            res = default_resolution(block.camera, eo_sel, nadir_z)
+        with _raster_read(dem_path, "DEM"):
+            nadir_z = np.array([np.ma.filled(v.astype(float), np.nan)[0]
+                                for v in dem_ds.sample([tuple(p) for p in eo_sel.centre_m[:, :2]], masked=True)])
+        nadir_z = np.where(np.isfinite(nadir_z), nadir_z, 0.5 * (zlo + zhi))
+        gsd_res = default_resolution(block.camera, eo_sel, nadir_z)
+        res = gsd_res if res_m is None else float(res_m)
     finally:
         dem_ds.close()
     centre_xy = np.median(eo_sel.centre_m[:, :2], axis=0)
     if crs is None and transformation is not None:
         crs = transformation.to_crs
     out_crs = resolve_output_crs(crs, project_crs, centre_xy)
+    res_in_m = res * linear_unit_m(out_crs)  # nan for degrees: no comparison
+    if res_m is not None and res_in_m < 0.5 * gsd_res:
+        _log.warning(f"--res {res:g} ({res_in_m:.3g} m) is finer than half the block's ground sample distance "
+                     f"({gsd_res:g} m): the orthophotos get {(gsd_res / res_in_m) ** 2:.0f} times the pixels of the "
+                     "default resolution without more detail")
     operation = None
     if transformation is not None or out_crs != project_crs:
         operation = CrsTransformer(project_crs, out_crs, params=transformation, allow_ballpark=allow_ballpark)

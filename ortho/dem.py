@@ -80,6 +80,11 @@ def open_height_raster(path, project_crs: CRS | None, what: str = "DEM"):
         ds = rasterio.open(path)
     except rasterio.errors.RasterioIOError as exc:
         raise InputError(f"{path}: cannot read {what} ({exc})") from None
+    if ds.count != 1 or np.dtype(ds.dtypes[0]).kind not in "iuf":
+        bands, dtype = ds.count, ds.dtypes[0]
+        ds.close()
+        raise InputError(f"{path}: a {what} has one band of heights; this file has {bands} band(s) of {dtype} "
+                         "(an orthophoto or a hillshade given as the DEM?)")
     t = ds.transform
     if abs(t.b) > 0 or abs(t.d) > 0 or t.e >= 0 or abs(abs(t.a) - abs(t.e)) > 1e-9 * abs(t.a):
         ds.close()

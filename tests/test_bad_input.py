@@ -334,6 +334,19 @@ def dem_part(rel):
     return f
 
 
+def dem_as_rgb(rel):
+    """The DEM replaced by a 3-band 8-bit image on the same grid (an orthophoto given as the DEM)."""
+    def f(w):
+        q = w / rel
+        with rasterio.open(q) as ds:
+            prof = ds.profile
+        prof.update(count=3, dtype="uint8", nodata=None)
+        q.unlink()
+        with rasterio.open(q, "w", **prof) as dst:
+            dst.write(np.full((3, prof["height"], prof["width"]), 100, np.uint8))
+    return f
+
+
 def copy(src_rel, dst_rel):
     def f(w):
         shutil.copy(w / src_rel, w / dst_rel)
@@ -655,6 +668,7 @@ CASES = [
     C("rectify_dem_truncated", "ortho", "rectify {p}", "dem.tif", truncate("p/lidar_out/dem.tif", 0.5)),
     C("rectify_dem_binary", "ortho", "rectify {p}", "dem.tif", binary("p/lidar_out/dem.tif")),
     C("rectify_dem_partial", "ortho", "rectify {p}", "dem.tif", dem_part("p/lidar_out/dem.tif")),
+    C("rectify_dem_rgb", "ortho", "rectify {p}", "band", dem_as_rgb("p/lidar_out/dem.tif")),
     C("rectify_dem_other_crs", "ortho", "rectify {p}", "dem.tif", raster_crs("p/lidar_out/dem.tif", "EPSG:32650")),
     C("rectify_image_missing", "ortho", "rectify {p}", "s01_002", remove("p/images/s01_002.tif")),
     C("rectify_image_truncated", "ortho", "rectify {p}", "s02_002.tif", truncate("p/images/s02_002.tif", 0.3)),
@@ -719,6 +733,11 @@ CASES = [
       toml_set("p/project.toml", "project", "crs", '"EPSG:999999"')),
     C("run_res_zero", "aerotri", "run {p} --res 0", "--res"),
     C("run_reference_missing", "aerotri", "run {p} --reference {w}/nope.tif", "nope.tif"),
+    # a DEM of another CRS or an image given as the DEM stops the run before its first stage
+    C("run_dem_other_crs", "aerotri", "run {p} --dem {w}/p/lidar_out/dem.tif", ["dem.tif", "CRS"],
+      raster_crs("p/lidar_out/dem.tif", "EPSG:32650")),
+    C("run_dem_rgb", "aerotri", "run {p} --dem {w}/p/lidar_out/dem.tif", ["dem.tif", "band"],
+      dem_as_rgb("p/lidar_out/dem.tif")),
 ]
 
 

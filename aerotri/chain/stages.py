@@ -139,6 +139,14 @@ class Chain:
                                    ("adjust", "initial_eo", self.options.adjust.initial_eo)):
             if path is not None and not Path(path).is_file():
                 raise ConfigError(f"{self.project.config_path} [{section}] {key}: {path} not found")
+        # a given DEM is read before the first stage: one band of heights, north up, in the project's CRS
+        # (a wrong one would otherwise stop the chain at the orthophotos, after the adjustment)
+        given = self.dem if self.dem is not None else self.options.rectify.dem
+        if given is not None:
+            from aerotri.geom.crs import project_crs
+            from ortho.dem import open_height_raster
+
+            open_height_raster(given, project_crs(self.project)).close()
 
     # -- stages ---------------------------------------------------------------------------------
     def stages(self) -> list[Stage]:

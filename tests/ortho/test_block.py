@@ -128,3 +128,26 @@ def test_mapped_and_decoded_frames_give_the_same_ortho(small_block, tmp_path):
     rectify_block(small_block, frames=["s01_001"])
     with rasterio.open(root / "ortho/frames/s01_001.tif") as a, rasterio.open(small_block / "ortho/frames/s01_001.tif") as b:
         assert np.array_equal(a.read(), b.read()) and np.array_equal(a.read_masks(1), b.read_masks(1))
+
+
+def test_a_resolution_far_finer_than_the_gsd_is_warned_about(small_block, tmp_path):
+    import logging
+
+    class Collect(logging.Handler):
+        def emit(self, record):
+            messages.append(record.getMessage())
+
+    root = tmp_path / "p"
+    shutil.copytree(small_block, root)
+    gsd = rectify_block(root, frames=["s01_001"])["res_m"]  # the default: the GSD
+    messages: list[str] = []
+    handler = Collect(logging.WARNING)
+    logging.getLogger("ortho").addHandler(handler)  # the CLIs' logging set-up may stop propagation
+    try:
+        rectify_block(root, frames=["s01_001"], res_m=0.2 * gsd)
+        assert any("finer than half the block's ground sample distance" in m for m in messages), messages
+        messages.clear()
+        rectify_block(root, frames=["s01_001"], res_m=0.8 * gsd)
+        assert not any("ground sample distance" in m for m in messages)
+    finally:
+        logging.getLogger("ortho").removeHandler(handler)
