@@ -23,6 +23,7 @@ from pyproj import CRS
 from rasterio.windows import Window, from_bounds
 
 from aerotri.core.errors import CrsError, InputError
+from aerotri.geom.raster_warp import open_north_up
 from aerotri.geom.crs import crs_label, height_crs, horizontal_crs, same_horizontal, vertical_crs
 from aerotri.geom.raster_warp import anchor_grid, height_change, interpolate_anchors
 from aerotri.geom.transform import CrsTransformer
@@ -76,22 +77,13 @@ def open_height_raster(path, project_crs: CRS | None, what: str = "DEM"):
     path = Path(path)
     if not path.exists():
         raise InputError(f"{path}: {what} not found (run `lidarctl` to produce it, or pass --dem)")
-    try:
-        ds = rasterio.open(path)
-    except rasterio.errors.RasterioIOError as exc:
-        raise InputError(f"{path}: cannot read {what} ({exc})") from None
+    expected = f"; expected the project CRS {project_crs.to_string()}" if project_crs is not None else ""
+    ds = open_north_up(path, what, no_crs_hint=expected, square=True)
     if ds.count != 1 or np.dtype(ds.dtypes[0]).kind not in "iuf":
         bands, dtype = ds.count, ds.dtypes[0]
         ds.close()
         raise InputError(f"{path}: a {what} has one band of heights; this file has {bands} band(s) of {dtype} "
                          "(an orthophoto or a hillshade given as the DEM?)")
-    t = ds.transform
-    if abs(t.b) > 0 or abs(t.d) > 0 or t.e >= 0 or abs(abs(t.a) - abs(t.e)) > 1e-9 * abs(t.a):
-        ds.close()
-        raise InputError(f"{path}: {what} must be a north-up raster with square pixels (transform {tuple(t)[:6]})")
-    if ds.crs is None:
-        ds.close()
-        raise InputError(f"{path}: {what} has no CRS; expected the project CRS {project_crs.to_string() if project_crs else ''}")
     if project_crs is not None and not same_horizontal(CRS(ds.crs), CRS(project_crs)):
         got = CRS(ds.crs).to_string()
         ds.close()

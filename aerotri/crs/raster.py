@@ -25,10 +25,10 @@ import rasterio.shutil
 from rasterio.windows import Window
 
 from aerotri.core.atomic import atomic_path, refuse_input_as_output, scratch_dir
-from aerotri.core.errors import CrsError, InputError, OptionError
+from aerotri.core.errors import CrsError, OptionError
 from aerotri.core.log import progress
 from aerotri.geom.crs import crs_label, horizontal_crs, linear_unit_m, parse_crs, same_horizontal
-from aerotri.geom.raster_warp import RESAMPLING, anchor_grid, height_change, interpolate_anchors, read_on_grid
+from aerotri.geom.raster_warp import RESAMPLING, anchor_grid, height_change, interpolate_anchors, open_north_up, read_on_grid
 from aerotri.geom.transform import CrsTransformer
 
 log = logging.getLogger(__name__)
@@ -49,21 +49,7 @@ class WarpResult:
 
 
 def _open(path):
-    path = Path(path)
-    if not path.is_file():
-        raise InputError(f"{path}: raster not found")
-    try:
-        ds = rasterio.open(path)
-    except rasterio.errors.RasterioIOError as exc:
-        raise InputError(f"{path}: not a readable raster ({exc})") from None
-    if ds.crs is None:
-        ds.close()
-        raise InputError(f"{path}: the raster has no CRS; give it one (e.g. gdal_edit.py -a_srs) before warping")
-    t = ds.transform
-    if abs(t.b) > 0 or abs(t.d) > 0 or t.e >= 0:
-        ds.close()
-        raise InputError(f"{path}: expected a north-up raster (transform {tuple(t)[:6]})")
-    return ds
+    return open_north_up(path, "raster", no_crs_hint="; give it one (e.g. gdal_edit.py -a_srs) before warping")
 
 
 def _footprint(ds, operation: CrsTransformer, per_side: int = 64):

@@ -183,3 +183,33 @@ def read_on_grid(ds, x_left: float, y_top: float, res: float, shape, operation=N
     dst, ok = warp_array(np.moveaxis(data, 0, -1), valid, x0, y0, abs(t.a), AX, AY, s, rows, cols,
                          "nearest" if maximum else resampling)
     return np.moveaxis(dst.reshape(rows, cols, -1), -1, 0), ok
+
+
+def open_north_up(path, what: str = "raster", *, no_crs_hint: str = "", square: bool = False):
+    """A rasterio dataset of a georeferenced, north-up raster (square pixels if ``square``); InputError
+    naming the file and ``what`` it should be when it is missing, unreadable, has no CRS or is rotated."""
+    from pathlib import Path
+
+    import rasterio
+
+    from aerotri.core.errors import InputError
+
+    path = Path(path)
+    if not path.is_file():
+        raise InputError(f"{path}: {what} not found")
+    try:
+        ds = rasterio.open(path)
+    except rasterio.errors.RasterioIOError as exc:
+        raise InputError(f"{path}: cannot read the {what} ({exc})") from None
+    problem = None
+    t = ds.transform
+    if ds.crs is None:
+        problem = f"the {what} has no CRS{no_crs_hint}"
+    elif abs(t.b) > 0 or abs(t.d) > 0 or t.e >= 0 or (square and abs(abs(t.a) - abs(t.e)) > 1e-9 * abs(t.a)):
+        problem = (f"expected a north-up {what}" + (" with square pixels" if square else "")
+                   + f" (transform {tuple(t)[:6]})")
+    if problem:
+        ds.close()
+        raise InputError(f"{path}: {problem}")
+    return ds
+
