@@ -44,8 +44,16 @@ def _self_cal_groups(ctx, param, value):
 @click.option("--eo", "initial_eo", type=click.Path(dir_okay=False, exists=True, path_type=Path), default=None,
               help="Approximate orientations (image_id X Y Z omega phi kappa): the start of a block without GNSS, "
                    "whose datum then comes from the control points (at least 2 plan and 3 height).")
+@click_option(AdjustSettings, "dem", "--dem", type=click.Path(dir_okay=False, path_type=Path),
+              help="DEM (GeoTIFF in the project CRS and heights) as surface control: tie points on the ground observe "
+                   "its height; default project.toml [adjust] dem, else none.")
+@click_option(AdjustSettings, "surface_sigma_m", "--surface-sigma-m")
+@click_option(AdjustSettings, "ndsm", "--ndsm", type=click.Path(dir_okay=False, path_type=Path),
+              help="nDSM (height above ground) to keep tie points on roofs and trees off the DEM; default project.toml "
+                   "[adjust] ndsm, else none.")
+@click_option(AdjustSettings, "max_ndsm_m", "--max-ndsm-m")
 def adjust(project, gnss_correction, lever_arm, self_cal, image_sigma_px, check, control, no_snooping, no_control, alpha,
-           no_html, no_exports, initial_eo):
+           no_html, no_exports, initial_eo, dem, surface_sigma_m, ndsm, max_ndsm_m):
     """Adjust the block of PROJECT; writes at/eo.txt, at/object_points.csv, at/report.* and exports."""
     from aerotri.adjust.pipeline import run_adjustment
     from aerotri.exchange import export_project
@@ -61,11 +69,16 @@ def adjust(project, gnss_correction, lever_arm, self_cal, image_sigma_px, check,
         use_control=not no_control,
         alpha=alpha,
         initial_eo=initial_eo,
+        dem=dem, surface_sigma_m=surface_sigma_m, ndsm=ndsm, max_ndsm_m=max_ndsm_m,
     )
     _, rep = run_adjustment(project, settings, html=not no_html)
     if not no_exports:
         export_project(project)
     k = rep["key_statistics"]
     click.echo(f"sigma0 {k['sigma0_um']} um, {k['iterations']} iterations, dof {k['degrees_of_freedom']}: {k['message']}")
+    sc = rep.get("surface_control")
+    if sc:
+        click.echo(f"surface control: {sc['used']} tie points on the DEM ({sc['rejected']} rejected), height - DEM "
+                   f"rms {sc['rms_m']} m")
     if rep["check_rms_m"]:
         click.echo("check RMS X Y Z (m): " + " ".join(f"{v:.3f}" for v in rep["check_rms_m"]))

@@ -44,6 +44,8 @@ import gtsam
 import numpy as np
 
 from aerotri.adjust import datum, schur
+from aerotri.adjust import surface as surface_mod
+from aerotri.adjust.surface import SurfaceControl
 from aerotri.adjust.check_points import intersect
 from aerotri.adjust.collinearity import point_jacobian_cv, point_normals, project_cv
 from aerotri.adjust.keys import A, D, K_KEY, L_KEY, P, S, X
@@ -78,6 +80,8 @@ class Block:
     control_local: np.ndarray  # (C, 3) given coordinates in ENU
     control_cov_local: np.ndarray  # (C, 3, 3)
     control_rows: np.ndarray  # (C,) number of constrained components (3 full, 2 horizontal, 1 height)
+    surface: SurfaceControl | None = None  # the DEM the tie points on the ground are held to
+    surface_active: np.ndarray | None = None  # (P,) bool: points whose surface observation is used
 
     @property
     def n_images(self):
@@ -168,6 +172,14 @@ class TiePoints:
     sigma_px: float
     self_cal: bool  # the calibration is the unknown K_KEY
     huber_k: float = 0.0  # > 0: robust solve, Huber's kernel at huber_k standard deviations
+    surface: SurfaceControl | None = None  # surface heights of the points with ``surface_active``
+    surface_active: np.ndarray | None = None  # (M,) bool
+
+    def _surface(self, coords: np.ndarray):
+        """Whitened surface observations of the points (``surface.whitened``), zeros without surface."""
+        if self.surface is None:
+            return np.zeros(len(coords)), np.zeros((len(coords), 3)), 0.0
+        return surface_mod.whitened(self.surface, coords, self.surface_active, self.huber_k)
 
     def _cameras(self, values: gtsam.Values, n_images: int):
         centre, R_cv = orientations_from_values(values, n_images)
@@ -178,9 +190,10 @@ class TiePoints:
         """``schur.reduced_camera_system`` at the orientations (and calibration) in ``values`` and the points ``coords``."""
         centre, R_cv, cal = self._cameras(values, n_images)
         pr = self.pairs
+        point_r, point_B, _ = self._surface(coords)
         return schur.ReducedSystem(*schur.reduced_camera_system(
             self.xy_px, self.image, pr.row, pr.start, pr.a, pr.b, pr.pair_block, len(pr.images), n_images, centre, R_cv,
-            coords, cal, 1.0 / self.sigma_px, self.self_cal, self.huber_k))
+            coords, cal, 1.0 / self.sigma_px, self.self_cal, self.huber_k, point_r, point_B))
 
     def updated(self, rs: schur.ReducedSystem, delta: gtsam.VectorValues, n_images: int, coords: np.ndarray) -> np.ndarray:
         """The point coordinates after the back-substitution of the solved increments ``delta``."""
@@ -190,8 +203,9 @@ class TiePoints:
 
     def sum_of_squares(self, values: gtsam.Values, n_images: int, coords: np.ndarray) -> float:
         centre, R_cv, cal = self._cameras(values, n_images)
-        return float(schur.sum_of_squares(self.xy_px, self.image, self.pairs.row, centre, R_cv, coords, cal, 1.0 / self.sigma_px,
-                                          self.huber_k))
+        rays = float(schur.sum_of_squares(self.xy_px, self.image, self.pairs.row, centre, R_cv, coords, cal,
+                                          1.0 / self.sigma_px, self.huber_k))
+        return rays + self._surface(coords)[2] if self.surface is not None else rays
 
 
 @dataclasses.dataclass
@@ -385,6 +399,11 @@ def build_graph(block: Block, opts: Options, state: State, obs_active, control_a
     if schur_tie:
         gr.tie = _tie_points(block, idx[~explicit[block.obs_point[idx]]], state, opts.image_sigma_px, self_cal,
                              opts.huber_k if robust else 0.0)
+        if block.surface is not None and block.surface_active is not None:
+            gr.tie.surface = block.surface
+            gr.tie.surface_active = np.asarray(block.surface_active, dtype=bool)[gr.tie.point]
+            n_eq += int(gr.tie.surface_active.sum())
+            gr.n_equations = n_eq
         gr.ordering = _tie_ordering(gr)
         ctrl = [c for c in np.flatnonzero(control_active) if v.exists(P(block.control_point[c]))]
         if block.gnss_local is None and len(ctrl) >= 3:

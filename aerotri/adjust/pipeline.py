@@ -25,6 +25,8 @@ from aerotri.adjust.approximate import (
     refine_orientations,
 )
 from aerotri.geom.local_frame import LocalFrame
+from aerotri.geom.crs import project_crs, project_heights
+from aerotri.adjust.surface import SurfaceControl, read_height_grid
 from aerotri.geom.observations import (
     ControlPoints,
     ImageObservations,
@@ -37,7 +39,7 @@ from aerotri.geom.strips import along_track_km, strips_from_track
 from aerotri.geom.camera import FrameCamera, project_camera
 from aerotri.geom.eo import ExteriorOrientations, check_block_crs, read_eo, read_gnss
 from aerotri.core.config import config_number, config_vector
-from aerotri.core.errors import InputError, OptionError, SolveError
+from aerotri.core.errors import ConfigError, InputError, OptionError, SolveError
 from aerotri.adjust.settings import AdjustSettings  # noqa: F401  (the stage's settings, imported from here too)
 from aerotri.core.project import Project
 from aerotri.geom.rotation import FLIP_YZ, opk_from_matrix
@@ -83,6 +85,13 @@ def _settings_from_project(project: Project, s: AdjustSettings) -> AdjustSetting
         raise OptionError(f"lever arm {out.lever_arm_m!r}: expected 3 finite numbers (m)", param="--lever-arm")
     if not 0.0 < out.alpha < 1.0:
         raise OptionError(f"alpha {out.alpha!r}: the type I error must be in (0, 1)", param="--alpha")
+    for key in ("dem", "ndsm"):  # surface control rasters: the option, else [adjust] (relative to the project)
+        if getattr(out, key) is None and project.section("adjust").get(key) is not None:
+            value = project.section("adjust")[key]
+            if not isinstance(value, str) or not value:
+                raise ConfigError(f"{toml} [adjust] {key}: expected the path of a GeoTIFF, not {value!r}")
+            path = Path(value)
+            setattr(out, key, path if path.is_absolute() else project.root / path)
     return out
 
 
@@ -98,8 +107,9 @@ def connected_image_components(n_images, obs_point, obs_image) -> list[np.ndarra
     return sorted((np.array(g) for g in groups.values()), key=len, reverse=True)
 
 
-def datum_shortfall(control: ControlPoints, gnss: bool, correction: str) -> str | None:
-    """Why the control points cannot fix the datum with (or without) GNSS and its corrections, or None."""
+def datum_shortfall(control: ControlPoints, gnss: bool, correction: str, surface: bool = False) -> str | None:
+    """Why the control points cannot fix the datum with (or without) GNSS and its corrections, or None.
+    With ``surface`` control (a DEM) the heights of every strip are observed: no height control is needed."""
     n_xy = int(np.isin(control.kind, ["full", "horizontal"]).sum())
     n_z = int(np.isin(control.kind, ["full", "height"]).sum())
     if not gnss:
@@ -110,6 +120,10 @@ def datum_shortfall(control: ControlPoints, gnss: bool, correction: str) -> str 
         need = (2, 2)
     else:
         return None
+    if surface:
+        need = (need[0], 0)
+    if need == (0, 0):
+        return None
     if n_xy < need[0] or n_z < need[1]:
         what = "without GNSS" if not gnss else f"with GNSS {correction.replace('_', ' and ')} corrections per strip"
         return (f"too few control points for the datum {what}: need at least {need[0]} with plan and {need[1]} with "
@@ -117,8 +131,8 @@ def datum_shortfall(control: ControlPoints, gnss: bool, correction: str) -> str 
     return None
 
 
-def check_datum(control: ControlPoints, gnss: bool, correction: str) -> None:
-    msg = datum_shortfall(control, gnss, correction)
+def check_datum(control: ControlPoints, gnss: bool, correction: str, surface: bool = False) -> None:
+    msg = datum_shortfall(control, gnss, correction, surface)
     if msg:
         raise InputError(msg)
 
@@ -158,7 +172,7 @@ def project_datum_shortfall(root, settings: AdjustSettings | None = None) -> str
     project = Project.open(root)
     st = _settings_from_project(project, settings or AdjustSettings())
     control, _ = read_project_control(project, st)
-    return datum_shortfall(control, st.use_gnss and project.gnss_path.exists(), st.gnss_correction)
+    return datum_shortfall(control, st.use_gnss and project.gnss_path.exists(), st.gnss_correction, st.dem is not None)
 
 
 def _initial_orientations(path, image_ids: list | None, crs=None) -> ExteriorOrientations:
@@ -238,7 +252,7 @@ def read_inputs(project: Project, settings: AdjustSettings | None = None) -> Pro
     validate_references(ties, control, cobs, image_ids, project.tiepoints_path, project.control_points_path,
                         project.control_image_points_path, camera=cam, block_path=block_path,
                         camera_path=project.camera_path)
-    check_datum(control, gnss is not None, st.gnss_correction)
+    check_datum(control, gnss is not None, st.gnss_correction, surface=st.dem is not None)
     # a known k3 is taken off the measurements (Cal3DS2 has no k3; the camera keeps it for the outputs)
     ties = ImageObservations(ties.point_id, ties.image_id, cam.calibration_observations(ties.xy_px))
     cobs = ImageObservations(cobs.point_id, cobs.image_id, cam.calibration_observations(cobs.xy_px))
@@ -347,6 +361,23 @@ def _approximations(inp: ProjectInputs, frame: LocalFrame, block: G.Block, image
     return G.State(centre0, R0, pts0, cal0, np.zeros((block.n_strips, 3)), np.zeros((block.n_strips, 3)))
 
 
+def _surface_control(project: Project, st: AdjustSettings, frame: LocalFrame, positions_map: np.ndarray) -> SurfaceControl:
+    """The DEM (and nDSM) of the settings, read over the block: the projection centres' extent plus a
+    margin of their height (more than the frames can see)."""
+    crs, heights = project_crs(project), project_heights(project)
+    p = np.asarray(positions_map, dtype=float)
+    # a frame sees less than its height above the ground around its nadir point; the centres' heights
+    # above the datum bound that (a window of the DEM, not the DEM of a whole country)
+    margin = float(np.clip(np.abs(p[:, 2]).max(), 500.0, 20_000.0))
+    bounds = (p[:, 0].min() - margin, p[:, 1].min() - margin, p[:, 0].max() + margin, p[:, 1].max() + margin)
+    dem = read_height_grid(st.dem, crs, heights, "DEM", bounds)
+    if not np.isfinite(dem.z).any():
+        raise InputError(f"{st.dem}: the DEM has no height under the block (extent {bounds[0]:.0f}..{bounds[2]:.0f}, "
+                         f"{bounds[1]:.0f}..{bounds[3]:.0f} in the project CRS)")
+    ndsm = read_height_grid(st.ndsm, crs, None, "nDSM", bounds) if st.ndsm is not None else None
+    return SurfaceControl(dem, frame, sigma_m=float(st.surface_sigma_m), ndsm=ndsm, max_ndsm_m=float(st.max_ndsm_m))
+
+
 def prepare_project(root, settings: AdjustSettings | None = None) -> tuple[PreparedBlock, G.State]:
     """Read and validate a project; returns the block in the local frame and its approximate state."""
     project = Project.open(root)
@@ -374,6 +405,8 @@ def prepare_project(root, settings: AdjustSettings | None = None) -> tuple[Prepa
         control_point=np.array([ob.control_position[p] for p in ctrl_used.id], dtype=int), control_local=given_loc,
         control_cov_local=cov_loc, control_rows=rows,
     )
+    if st.dem is not None:
+        block.surface = _surface_control(project, st, frame, approx_pos_map)
     opts = G.Options(
         image_sigma_px=float(st.image_sigma_px), gnss_correction=st.gnss_correction if gl is not None else "none",
         self_calibration=tuple(st.self_calibration),

@@ -261,8 +261,22 @@ def build_report(ba, map_scale: str = "1:5000", terrain: str = "flat", tolerance
         "self_calibration": _self_calibration(ba),
         "gnss_strips": [{"strip": s + 1, "shift_m": _lst(r.state.shift[s], 4), "drift_m_per_km": _lst(r.state.drift[s], 4)}
                         for s in range(b.n_strips)] if opts.gnss_correction != "none" else None,
+        "surface_control": _surface_control(ba),
         "timings_s": {k: _f(v, 3) for k, v in r.timings_s.items()},
     }
+
+
+def _surface_control(ba) -> dict | None:
+    """The DEM as surface control: tie points used and rejected, residuals (point height - DEM, m)."""
+    st = ba.result.surface
+    if st is None:
+        return None
+    d = st.as_dict()
+    d["dem"] = str(ba.settings.dem)
+    d["ndsm"] = str(ba.settings.ndsm) if ba.settings.ndsm is not None else None
+    for k in ("rms_m", "median_m", "rms_normalised"):
+        d[k] = _f(d[k], 4) if d[k] is not None else None
+    return d
 
 
 def _v(x, w=10, nd=3):
@@ -292,6 +306,14 @@ def format_txt(rep: dict) -> str:
     sigma = "n/a" if k["sigma0_um"] is None else f"{k['sigma0_um']:.2f} um"
     L += ["", "Key Statistics", f"  Sigma: {sigma}", f"  Number of iterations: {k['iterations']}",
           f"  Degrees of Freedom: {k['degrees_of_freedom']}", f"  {k['message']}", ""]
+    sc = rep.get("surface_control")
+    if sc:
+        L += ["SURFACE CONTROL (tie points on the ground observe the DEM height)",
+              f"  DEM {sc['dem']}, sigma {sc['sigma_m']:.3f} m (+ slope x half a cell)"
+              + (f", nDSM {sc['ndsm']} (objects above {sc['max_ndsm_m']:g} m excluded)" if sc.get("ndsm") else ""),
+              f"  candidates {sc['candidates']}, used {sc['used']}, rejected {sc['rejected']}; "
+              f"height - DEM: rms {_v(sc['rms_m'], 0, 3).strip() or 'n/a'} m, median {_v(sc['median_m'], 0, 3).strip() or 'n/a'} m",
+              ""]
     c = rep["counts"]
     L.append(f"Images {c['images']} in {c['strips']} strips, tie points {c['tie_points']}, control points {c['control_points']}, "
              f"check points {c['check_points']}, image observations {c['image_observations']}, removed {c['removed_observations']}")

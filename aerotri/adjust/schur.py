@@ -198,7 +198,7 @@ def _inverse_sym3(V, Vi):
 
 @numba.njit(cache=True)
 def reduced_camera_system(xy, obs_image, row, start, pair_a, pair_b, pair_block, n_blocks, n_images, centre, R_cv, points,
-                          cal, inv_sigma, with_cal, huber_k):
+                          cal, inv_sigma, with_cal, huber_k, point_r, point_B):
     """Linearise the tie-point rays at (orientations, points) and eliminate the points.
 
     Returns the reduced system ``S`` as diagonal blocks ``U`` (N, 6, 6) and pair blocks ``S_pair``
@@ -209,6 +209,10 @@ def reduced_camera_system(xy, obs_image, row, start, pair_a, pair_b, pair_block,
     and adds only its residuals (a constant) to the cost.
 
     ``huber_k`` > 0: each ray weighted by Huber's kernel (iteratively reweighted least squares).
+
+    ``point_r`` (M,), ``point_B`` (M, 3): one more whitened observation per point that involves the point
+    alone (a surface height, ``aerotri.adjust.surface``; zeros for none), added to its normal block
+    before the elimination.
 
     With ``with_cal`` the calibration (Cal3DS2, 9 parameters shared by all rays) is an unknown too: its
     block ``U_cal`` (9, 9), right-hand side ``s_cal`` (9,), the couplings ``U_image_cal`` (N, 6, 9) and,
@@ -255,6 +259,13 @@ def reduced_camera_system(xy, obs_image, row, start, pair_a, pair_b, pair_block,
                 bp[j, p] += B[n, 0, p] * r[n, 0] + B[n, 1, p] * r[n, 1]
                 for q in range(p, 3):
                     V[p, q] += B[n, 0, p] * B[n, 0, q] + B[n, 1, p] * B[n, 1, q]
+        rp = point_r[j]
+        if rp != 0.0 or point_B[j, 0] != 0.0 or point_B[j, 1] != 0.0 or point_B[j, 2] != 0.0:
+            rr += rp * rp
+            for p in range(3):
+                bp[j, p] += point_B[j, p] * rp
+                for q in range(p, 3):
+                    V[p, q] += point_B[j, p] * point_B[j, q]
         if not _inverse_sym3(V, Vi):
             # an indeterminate point contributes nothing (its rays stay in the cost, constant)
             ok[j] = False

@@ -39,6 +39,14 @@ class AdjustSettings:
     use_gnss: bool = True
     initial_eo: Path | None = setting(None, path=True, help="Approximate orientations (EO file): the start of a block "
                                                             "without GNSS, whose datum then comes from control.")
+    dem: Path | None = setting(None, path=True, help="DEM (GeoTIFF, project CRS and heights) as surface control: tie "
+                                                     "points on the ground observe its height.")
+    surface_sigma_m: float = setting(0.15, min=0.0, min_open=True,
+                                     help="Stated precision of the DEM heights (m); the slope adds to it.")
+    ndsm: Path | None = setting(None, path=True, help="nDSM (height above ground) that tells tie points on roofs and "
+                                                      "trees from those on the ground (default: none, robust only).")
+    max_ndsm_m: float = setting(1.0, min=0.0, help="Tie points higher than this above the ground (nDSM) get no "
+                                                   "surface observation (m).")
     point_covariances: bool = True
     use_control: bool = True  # False: ignore control/ (GNSS must carry the datum)
     refine_approximations: bool = True  # resection/intersection of the attitudes before the bundle (GNSS)

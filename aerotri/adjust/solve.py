@@ -11,6 +11,7 @@ import time
 import numpy as np
 
 from aerotri.adjust import graph as G
+from aerotri.adjust.surface import SurfaceStats, surface_stats
 from aerotri.adjust.check_points import intersect_with_covariance
 from aerotri.adjust.collinearity import point_jacobian_cv, point_normals, project_cv
 from aerotri.adjust.covariance import ReducedCovariance
@@ -50,6 +51,7 @@ class AdjustmentResult:
     marginals: object
     iterations_total: int
     timings_s: dict
+    surface: SurfaceStats | None = None  # what the surface control did (blocks with a DEM)
 
 
 def adjust_block(
@@ -90,6 +92,13 @@ def adjust_block(
         return int(bad.sum())
 
     _drop_weak_points(block, obs_active, state)
+    surface_candidates = None
+    if block.surface is not None:
+        # candidates by the DEM's extent and the nDSM; which of them lie on the ground is decided again
+        # after every robust round, as the orientation improves (gate)
+        surface_candidates = block.surface.candidates(state.points)
+        block.surface_active = surface_candidates.copy()
+        log.info(f"surface control: {int(surface_candidates.sum())} of {block.n_points} points are candidates")
     rnd = 0
     if snooping:
         while rnd < max_rounds:
@@ -106,6 +115,14 @@ def adjust_block(
             iterations += info.iterations
             state = G.state_from_values(values, block, opts, state, tie=gr.tie)
             log.info(f"robust round {rnd}: {info.iterations} iterations, {obs_active.sum()} observations")
+            if surface_candidates is not None:
+                gated = block.surface.gate(state.points, surface_candidates)
+                changed = bool((gated != block.surface_active).any())
+                block.surface_active = gated
+                log.info(f"robust round {rnd}: {int(gated.sum())} surface observations within "
+                         f"{block.surface.gate_sigmas:g} sigma")
+                if changed and rnd < max_rounds:
+                    continue
             if snoop(state, rnd, with_control=False):
                 continue
             # control points: leave-one-out intersection against the given coordinates
@@ -125,6 +142,8 @@ def adjust_block(
 
     # final least squares without the robust kernel; a last snooping check
     _drop_weak_points(block, obs_active, state)
+    if surface_candidates is not None:
+        block.surface_active = block.surface.gate(state.points, surface_candidates)
     for _ in range(3):
         t0 = time.perf_counter()
         gr = G.build_graph(block, opts, state, obs_active, control_active, robust=False)
@@ -164,9 +183,13 @@ def adjust_block(
     v = G.image_residuals(block, state)
     r = redundancy_numbers(block.obs_point, block.obs_image, state.points, state.centre, state.R_cv, state.cal, obs_active)
     timings["total_s"] = time.perf_counter() - t_start
+    stats = None
+    if surface_candidates is not None:
+        stats = surface_stats(block.surface, state.points, surface_candidates, block.surface_active)
+        log.info(f"surface control: {stats.used} points used, {stats.rejected} rejected, RMS {stats.rms_m} m")
     return AdjustmentResult(
         state, info, sigma0, obs_active, control_active, removed, rejected, v, r, pose_cov, point_cov, cal_cov, marg,
-        iterations, timings,
+        iterations, timings, stats,
     )
 
 

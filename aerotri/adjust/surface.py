@@ -1,0 +1,186 @@
+"""LiDAR surface control: tie points on open ground observe the height of the DEM.
+
+A tie point ``P`` (local frame) at map position ``(x, y, h) = map(P)`` observes ``h = DEM(x, y)``:
+the residual ``e = h - DEM(x, y)`` (metres, along the vertical) with the standard deviation
+
+    sigma^2 = sigma_dem^2 + (|grad DEM| * cell / 2)^2
+
+(the DEM's stated precision and what bilinear interpolation loses on a slope over half a cell). Its
+Jacobian with respect to the point is ``de/dP = (dh/dP) - DEM_x (dx/dP) - DEM_y (dy/dP)``, the rows of
+``d map / d local`` at the point. The observation joins each point's 3 x 3 normal block before the
+Schur elimination (``schur.reduced_camera_system``), so it costs nothing per image.
+
+Which tie point lies on the ground: points where the nDSM (when given) is above ``max_ndsm_m`` are
+not candidates (roofs, trees); robust solves weigh the observations with Huber's kernel, and
+``gate`` removes points whose residual stays beyond ``gate_sigmas`` sigmas once the orientation has
+settled (cars, low vegetation, DEM gaps). Heights: the DEM must be in the project's horizontal CRS
+and height system (its heights are read like the project's, as the local frame reads them).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import logging
+from pathlib import Path
+
+import numpy as np
+
+from aerotri.core.errors import CrsError, InputError
+from aerotri.geom.local_frame import LocalFrame
+
+log = logging.getLogger(__name__)
+
+
+@dataclasses.dataclass
+class HeightGrid:
+    """A north-up height raster in memory: ``z[row, col]`` (NaN = no height), pixel centres at
+    ``x0 + (col + 0.5) res``, ``y0 - (row + 0.5) res``."""
+
+    z: np.ndarray
+    x0: float
+    y0: float
+    res: float
+
+    def sample(self, x, y) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Bilinear height and its gradient (dz/dx, dz/dy) at map positions; NaN outside or next to a gap."""
+        x, y = np.asarray(x, dtype=float), np.asarray(y, dtype=float)
+        u = (x - self.x0) / self.res - 0.5
+        v = (self.y0 - y) / self.res - 0.5
+        c0, r0 = np.floor(u), np.floor(v)
+        fu, fv = u - c0, v - r0
+        H, W = self.z.shape
+        inside = (c0 >= 0) & (r0 >= 0) & (c0 < W - 1) & (r0 < H - 1)
+        c = np.where(inside, c0, 0).astype(np.int64)
+        r = np.where(inside, r0, 0).astype(np.int64)
+        z00, z01, z10, z11 = self.z[r, c], self.z[r, c + 1], self.z[r + 1, c], self.z[r + 1, c + 1]
+        h = z00 * (1 - fu) * (1 - fv) + z01 * fu * (1 - fv) + z10 * (1 - fu) * fv + z11 * fu * fv
+        hx = ((z01 - z00) * (1 - fv) + (z11 - z10) * fv) / self.res
+        hy = -((z10 - z00) * (1 - fu) + (z11 - z01) * fu) / self.res  # rows run south
+        nan = np.full(x.shape, np.nan)
+        return np.where(inside, h, nan), np.where(inside, hx, nan), np.where(inside, hy, nan)
+
+
+def read_height_grid(path, project_crs, project_heights=None, what: str = "DEM", bounds=None) -> HeightGrid:
+    """A height raster in the project's CRS and height system (``bounds`` = (xmin, ymin, xmax, ymax) in
+    map units: read only that window, plus a cell). Refuses another horizontal CRS or height system."""
+    import rasterio
+    from rasterio.windows import from_bounds
+
+    from aerotri.geom.crs import crs_label, parse_crs, same_horizontal, same_vertical, vertical_crs
+    from aerotri.geom.raster_warp import open_north_up
+
+    path = Path(path)
+    with open_north_up(path, what, square=True) as ds:
+        if ds.count != 1 or np.dtype(ds.dtypes[0]).kind not in "iuf":
+            raise InputError(f"{path}: a {what} has one band of heights; this file has {ds.count} band(s) of "
+                             f"{ds.dtypes[0]}")
+        crs = parse_crs(ds.crs.to_wkt(), f"{path} CRS")
+        if not same_horizontal(crs, project_crs):
+            raise CrsError(f"{path}: the {what} is in {crs_label(crs)}, the project in {crs_label(project_crs)}; "
+                           f"warp it first (aerotri crs warp)")
+        dem_v = vertical_crs(crs)
+        if dem_v is not None and (project_heights is None or not same_vertical(dem_v, project_heights)):
+            theirs = crs_label(project_heights) if project_heights is not None else "ellipsoidal heights"
+            raise CrsError(f"{path}: the {what}'s heights are in {crs_label(dem_v)}, the project's in {theirs} "
+                           "([project] heights); convert the heights first (aerotri crs warp)")
+        if dem_v is None:
+            log.info(f"{path}: the {what} declares no vertical CRS; its heights are taken as the project's")
+        t = ds.transform
+        if bounds is not None:
+            xmin, ymin, xmax, ymax = bounds
+            pad = 2 * t.a
+            win = from_bounds(xmin - pad, ymin - pad, xmax + pad, ymax + pad, t).round_offsets().round_lengths()
+            win = win.intersection(rasterio.windows.Window(0, 0, ds.width, ds.height))
+        else:
+            win = rasterio.windows.Window(0, 0, ds.width, ds.height)
+        a = ds.read(1, window=win, masked=True).astype(float).filled(np.nan)
+        wt = ds.window_transform(win)
+    return HeightGrid(a, float(wt.c), float(wt.f), float(t.a))
+
+
+@dataclasses.dataclass
+class SurfaceControl:
+    """The DEM (and optionally the nDSM) a block's tie points are held to, in the block's local frame."""
+
+    dem: HeightGrid
+    frame: LocalFrame
+    sigma_m: float = 0.15  # stated precision of the DEM heights
+    ndsm: HeightGrid | None = None
+    max_ndsm_m: float = 1.0  # above this height over the ground a point is on an object
+    gate_sigmas: float = 3.0
+
+    def observe(self, coords_local: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(e_m, J, sigma_m) for points (M, 3) in the local frame: residual height above the DEM (NaN where
+        the DEM has none), its Jacobian (M, 3) with respect to the local coordinates, its sigma (M,)."""
+        p = np.asarray(coords_local, dtype=float)
+        m = self.frame.to_map(p)
+        h, hx, hy = self.dem.sample(m[:, 0], m[:, 1])
+        e = m[:, 2] - h
+        # d map / d local: the inverse of the frame's Jacobian at the point
+        J_ml = np.linalg.inv(self.frame.jacobian_local_from_map(m))
+        J = J_ml[:, 2, :] - hx[:, None] * J_ml[:, 0, :] - hy[:, None] * J_ml[:, 1, :]
+        sigma = np.sqrt(self.sigma_m**2 + (np.hypot(hx, hy) * 0.5 * self.dem.res) ** 2)
+        return e, J, sigma
+
+    def candidates(self, coords_local: np.ndarray) -> np.ndarray:
+        """Points that may lie on the ground: inside the DEM and, with an nDSM, not on an object."""
+        p = np.asarray(coords_local, dtype=float)
+        m = self.frame.to_map(p)
+        ok = np.isfinite(self.dem.sample(m[:, 0], m[:, 1])[0])
+        if self.ndsm is not None:
+            nd = self.ndsm.sample(m[:, 0], m[:, 1])[0]
+            ok &= np.isfinite(nd) & (nd <= self.max_ndsm_m)
+        return ok
+
+    def gate(self, coords_local: np.ndarray, active: np.ndarray) -> np.ndarray:
+        """``active`` without the points whose residual is beyond ``gate_sigmas`` sigmas."""
+        e, _, sigma = self.observe(coords_local)
+        return active & np.isfinite(e) & (np.abs(e) <= self.gate_sigmas * sigma)
+
+
+def whitened(surface: SurfaceControl, coords_local: np.ndarray, active: np.ndarray, huber_k: float = 0.0):
+    """The surface observations of points ``coords_local`` (M, 3) as the Schur kernel takes them: whitened
+    residual ``r`` (observed - computed, M) and Jacobian of the prediction ``B`` (M, 3), zero for the inactive
+    ones; with ``huber_k`` > 0 scaled by the square root of Huber's weight. Also the cost ``sum rho(r)``
+    (twice Huber's robust cost, or r'r)."""
+    e, J, sigma = surface.observe(coords_local)
+    use = np.asarray(active, dtype=bool) & np.isfinite(e) & np.isfinite(J).all(axis=1)
+    r = np.where(use, -e / sigma, 0.0)
+    B = np.where(use[:, None], J / sigma[:, None], 0.0)
+    x = np.abs(r)
+    if huber_k > 0:
+        big = x > huber_k
+        cost = float(np.sum(np.where(big, 2 * huber_k * x - huber_k**2, x * x)))
+        s = np.where(big, np.sqrt(huber_k / np.where(big, x, 1.0)), 1.0)
+        r, B = r * s, B * s[:, None]
+    else:
+        cost = float(np.sum(x * x))
+    return np.ascontiguousarray(r), np.ascontiguousarray(B), cost
+
+
+@dataclasses.dataclass
+class SurfaceStats:
+    """What the surface control did, for the report (heights in metres)."""
+
+    candidates: int  # tie points inside the DEM (and on the ground by the nDSM)
+    used: int  # in the final solve
+    rejected: int  # candidates the gate removed
+    rms_m: float | None  # of the used points' residuals (point height - DEM)
+    median_m: float | None
+    rms_normalised: float | None  # of the used residuals in their sigmas (about 1 when the sigmas are right)
+    sigma_m: float
+    max_ndsm_m: float | None
+
+    def as_dict(self) -> dict:
+        return dataclasses.asdict(self)
+
+
+def surface_stats(surface: SurfaceControl, coords_local: np.ndarray, candidates: np.ndarray, active: np.ndarray
+                  ) -> SurfaceStats:
+    e, _, sigma = surface.observe(coords_local)
+    used = active & np.isfinite(e)
+    v, w = e[used], e[used] / sigma[used]
+    return SurfaceStats(int(candidates.sum()), int(used.sum()), int((candidates & ~active).sum()),
+                        float(np.sqrt(np.mean(v * v))) if len(v) else None, float(np.median(v)) if len(v) else None,
+                        float(np.sqrt(np.mean(w * w))) if len(w) else None,
+                        surface.sigma_m, surface.max_ndsm_m if surface.ndsm is not None else None)
