@@ -389,6 +389,25 @@ def _png(fig) -> str:
     return base64.b64encode(buf.getvalue()).decode()
 
 
+def _surface_figure(ba, plt) -> str:
+    """Map of the surface control: tie points held to the DEM coloured by height - DEM in sigmas, rejected
+    ones as crosses."""
+    r = ba.result
+    cand = np.flatnonzero(r.surface_use > 0)
+    e, _, sigma = ba.block.surface.observe(r.state.points[cand])
+    P = ba.points_map[cand]
+    used = r.surface_use[cand] == 1
+    fig, ax = plt.subplots(figsize=(8, 6))
+    ax.plot(ba.eo_map.centre_m[:, 0], ba.eo_map.centre_m[:, 1], ".", color="0.6", ms=3)
+    sc = ax.scatter(P[used, 0], P[used, 1], c=e[used] / sigma[used], cmap="RdBu_r", vmin=-3, vmax=3, s=6)
+    ax.plot(P[~used, 0], P[~used, 1], "x", color="0.3", ms=4, label=f"rejected ({int((~used).sum())})")
+    fig.colorbar(sc, ax=ax, label="point height - DEM (sigmas)")
+    ax.set_aspect("equal")
+    ax.legend(loc="lower right", fontsize=8)
+    ax.set_title(f"Surface control: {int(used.sum())} tie points on the DEM")
+    return _png(fig)
+
+
 def format_html(rep: dict, ba) -> str:
     """report.html: the txt report plus residual vectors over the block, layout and histograms."""
     import matplotlib
@@ -426,6 +445,8 @@ def format_html(rep: dict, ba) -> str:
         ax.hist(r.residual_px[act, a] * ba.camera_apriori.pixel_um, bins=60)
         ax.set_xlabel(f"v{'xy'[a]} (um)")
     figs.append(("Residual histograms", _png(fig)))
+    if r.surface_use is not None and b.surface is not None:
+        figs.append(("Surface control", _surface_figure(ba, plt)))
     tpl = jinja2.Template(
         "<!doctype html><html><head><meta charset='utf-8'><title>Photo-T report {{ name }}</title></head><body>"
         "<h1>Photo-T Parameters and Results for Project {{ name }}</h1>"

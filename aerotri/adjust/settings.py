@@ -47,6 +47,8 @@ class AdjustSettings:
                                                       "trees from those on the ground (default: none, robust only).")
     max_ndsm_m: float = setting(1.0, min=0.0, help="Tie points higher than this above the ground (nDSM) get no "
                                                    "surface observation (m).")
+    lidar_surface: bool = setting(True, help="aerotri run: without [adjust] dem, hold the tie points to the LiDAR "
+                                             "stages' DEM (lidar_out/dem.tif, nDSM ndsm.tif) in both adjustments.")
     point_covariances: bool = True
     use_control: bool = True  # False: ignore control/ (GNSS must carry the datum)
     refine_approximations: bool = True  # resection/intersection of the attitudes before the bundle (GNSS)

@@ -52,6 +52,7 @@ class AdjustmentResult:
     iterations_total: int
     timings_s: dict
     surface: SurfaceStats | None = None  # what the surface control did (blocks with a DEM)
+    surface_use: np.ndarray | None = None  # (P,) 0 no candidate, 1 used, 2 rejected by the gate
 
 
 def adjust_block(
@@ -183,13 +184,14 @@ def adjust_block(
     v = G.image_residuals(block, state)
     r = redundancy_numbers(block.obs_point, block.obs_image, state.points, state.centre, state.R_cv, state.cal, obs_active)
     timings["total_s"] = time.perf_counter() - t_start
-    stats = None
+    stats = use = None
     if surface_candidates is not None:
         stats = surface_stats(block.surface, state.points, surface_candidates, block.surface_active)
+        use = np.where(block.surface_active, 1, np.where(surface_candidates, 2, 0)).astype(np.int8)
         log.info(f"surface control: {stats.used} points used, {stats.rejected} rejected, RMS {stats.rms_m} m")
     return AdjustmentResult(
         state, info, sigma0, obs_active, control_active, removed, rejected, v, r, pose_cov, point_cov, cal_cov, marg,
-        iterations, timings, stats,
+        iterations, timings, stats, use,
     )
 
 

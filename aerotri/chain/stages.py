@@ -250,7 +250,16 @@ class Chain:
             files += [self.project.control_points_path, self.project.control_image_points_path]
         if self.options.adjust.initial_eo is not None:
             files.append(Path(self.options.adjust.initial_eo))
+        s = self.with_surface(self.options.adjust)
+        files += [Path(p) for p in (s.dem, s.ndsm) if p is not None]
         return files
+
+    def with_surface(self, s):
+        """The adjustment settings with the surface control of the chain: [adjust] dem when given, else the
+        LiDAR stages' DEM and nDSM (``[adjust] lidar_surface``, default true) when the project has LiDAR."""
+        if s.dem is not None or not s.lidar_surface or not self.has_lidar:
+            return s
+        return dataclasses.replace(s, dem=self.project.dem_path, ndsm=self.project.ndsm_path)
 
     def no_first_adjustment(self, root=None) -> str | None:
         why = self.no_corners()
@@ -262,8 +271,8 @@ class Chain:
 
     def first_settings(self):
         """The first adjustment: tie points and GNSS only (the datum from GNSS, no corrections per strip)."""
-        return dataclasses.replace(self.options.adjust, use_control=False, gnss_correction="none", check=(),
-                                   control=())
+        return dataclasses.replace(self.with_surface(self.options.adjust), use_control=False, gnss_correction="none",
+                                   check=(), control=())
 
     def run_adjust_first(self, root) -> dict:
         from aerotri.adjust.pipeline import run_adjustment
@@ -277,7 +286,9 @@ class Chain:
         """(settings, notes) of the final adjustment: [adjust] with LiDAR control when it was transferred."""
         from aerotri.adjust.pipeline import project_datum_shortfall
 
-        s, notes = self.options.adjust, []
+        s, notes = self.with_surface(self.options.adjust), []
+        if s.dem is not None:
+            notes.append(f"surface control: tie points on the ground held to {s.dem}")
         if self.has_lidar:
             why = self.no_corners()
             if why:

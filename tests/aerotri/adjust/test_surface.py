@@ -118,3 +118,21 @@ def test_a_dem_in_another_crs_is_refused(surface_block, tmp_path):
         dst.write(a, 1)
     with pytest.raises(CrsError, match="dem_utm50.tif"):
         adjust_project(root, AdjustSettings(dem=other))
+
+
+def test_the_report_has_a_surface_control_section(surface_block, tmp_path):
+    import json
+    import shutil
+
+    from aerotri.adjust.pipeline import write_outputs
+
+    _, root, dem, trees = surface_block
+    p = tmp_path / "p"
+    shutil.copytree(root, p)
+    ba = adjust_project(p, AdjustSettings(dem=trees, surface_sigma_m=0.05, point_covariances=False))
+    rep = write_outputs(ba, p)
+    sc = json.loads((p / "at" / "report.json").read_text())["surface_control"]
+    assert sc["used"] == ba.result.surface.used and sc["rejected"] == ba.result.surface.rejected > 0
+    assert sc["dem"].endswith("dem_trees.tif") and rep["surface_control"]["sigma_m"] == 0.05
+    assert "SURFACE CONTROL" in (p / "at" / "report.txt").read_text()
+    assert "<h2>Surface control</h2>" in (p / "at" / "report.html").read_text()
