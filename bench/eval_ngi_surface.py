@@ -4,7 +4,8 @@ Data: ../shared/data/ngi_dmc (4 Z/I DMC frames of NGI South Africa, 2 strips x 2
 triangulation's orientations, a 24 m SUDEM in Lo25 + EGM2008 heights; its README.md). The project is
 built by tests/realdata_ngi.py (images and DEM linked, never copied) in ``--out``; then
 
-1. ``aerotri match`` (library: aerotri.match.pipeline.match_project);
+1. ``aerotri match --image-top-deg 90`` (library: aerotri.match.pipeline.match_project; the portrait frames'
+   top is 90 degrees from the flight direction);
 2. ``aerotri adjust --no-control`` (aerotri.adjust.pipeline.run_adjustment) with the reference projection
    centres as GNSS (sigma 0.05 m), plus any ``--adjust-option KEY=VALUE`` (fields of AdjustSettings,
    e.g. ``--adjust-option dem=PATH`` for the DEM height observations of issue 19);
@@ -182,7 +183,7 @@ def evaluate(data_dir: Path, out_dir: Path, options: dict, with_ortho: bool = Fa
         shutil.rmtree(out_dir)
     root = ngi.build_ngi_project(data_dir, out_dir)
     t0 = time.perf_counter()
-    mrep = match_project(root)
+    mrep = match_project(root, ngi.match_settings())
     t_match = time.perf_counter() - t0
     settings = adjust_settings(options)
     t0 = time.perf_counter()

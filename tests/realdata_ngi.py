@@ -29,6 +29,9 @@ PIXEL_UM = SENSOR_MM[0] * 1000.0 / WIDTH_PX  # 144 um
 LO25 = "+proj=tmerc +lat_0=0 +lon_0=25 +k=1 +x_0=0 +y_0=0 +datum=WGS84 +units=m +no_defs +type=crs"
 HEIGHTS = "EPSG:3855"  # EGM2008 height, the DEM's vertical datum (EPSG datum 1027) and the reference's
 GNSS_SIGMA_M = 0.05
+# The portrait frames have their top 90 degrees from the flight direction (kappa near 180 flying west, near 0
+# flying east): the footprints of the match stage's flight plan need it, or no cross-strip pair is found.
+IMAGE_TOP_DEG = 90.0
 REFERENCE_FILE = "camera_pos_ori.txt"
 DEM_FILE = "dem.tif"
 
@@ -77,6 +80,8 @@ def build_ngi_project(data_dir, out_dir, gnss_sigma_m: float = GNSS_SIGMA_M) -> 
         "[gnss]\n"
         f"sigma_xy_m = {gnss_sigma_m}\n"
         f"sigma_z_m = {gnss_sigma_m}\n"
+        "[match]  # read by aerotri run; aerotri match needs --image-top-deg 90\n"
+        f"image_top_deg = {IMAGE_TOP_DEG}\n"
     )
     (root / "camera.toml").write_text(
         "# Z/I DMC downsampled by 12 and turned to portrait (orthority's test frames)\n"
@@ -99,6 +104,13 @@ def build_ngi_project(data_dir, out_dir, gnss_sigma_m: float = GNSS_SIGMA_M) -> 
         (root / "images" / src.name).symlink_to(src)
     (root / "lidar_out" / "dem.tif").symlink_to(data_dir / DEM_FILE)
     return root
+
+
+def match_settings(**changes):
+    """The match settings of this block (``IMAGE_TOP_DEG``), with ``changes`` (MatchSettings fields)."""
+    from aerotri.match.settings import MatchSettings
+
+    return MatchSettings(image_top_deg=IMAGE_TOP_DEG, **changes)
 
 
 # -- measures -----------------------------------------------------------------------------------------
@@ -131,8 +143,9 @@ def sample_dem_bilinear(dem_path, x, y) -> np.ndarray:
         a = ds.read(1, masked=True).astype(float).filled(np.nan)
         inv = ~ds.transform
     x, y = np.asarray(x, float), np.asarray(y, float)
-    col, row = inv * (x, y)
-    col, row = np.asarray(col) - 0.5, np.asarray(row) - 0.5  # cell-centre coordinates
+    # cell-centre coordinates (the cell's top-left corner is at whole numbers)
+    col = inv.a * x + inv.b * y + inv.c - 0.5
+    row = inv.d * x + inv.e * y + inv.f - 0.5
     c0, r0 = np.floor(col).astype(int), np.floor(row).astype(int)
     fc, fr = col - c0, row - r0
     ok = (c0 >= 0) & (r0 >= 0) & (c0 + 1 < a.shape[1]) & (r0 + 1 < a.shape[0])
