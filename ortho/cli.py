@@ -50,8 +50,10 @@ def rectify(project, dem, res_m, crs, params_path, heights_path, allow_ballpark,
         index = rectify_block(project, eo_path=eo_path, camera_path=camera_path,
                               frames=frames.split(",") if frames else None, executor=executor, params=params_path,
                               heights=heights_path, allow_ballpark=allow_ballpark, **settings.kwargs())
+    from aerotri.geom.crs import crs_label, parse_crs
+
     op = index.get("coordinate_operation")
-    click.echo(f"rectified {len(index['frames'])} frames at {index['res_m']} m in {index['crs_name']}"
+    click.echo(f"rectified {len(index['frames'])} frames at {index['res_m']} m in {crs_label(parse_crs(index['crs']))}"
                f"{' (' + op['description'] + ')' if op else ''} -> {Path(project) / 'ortho' / 'frames'}")
 
 

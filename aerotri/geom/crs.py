@@ -41,9 +41,17 @@ def parse_crs(value, source: str = "CRS") -> pyproj.CRS:
 
 
 def crs_label(crs: pyproj.CRS) -> str:
-    """``EPSG:nnnn`` when the CRS has an EPSG identity, else its name."""
+    """``EPSG:nnnn`` when the CRS has an EPSG identity, else its name; a projected CRS without a name (PROJ
+    calls one given as a PROJ string "unknown") by its projection, parameters and datum."""
     code = crs.to_epsg(min_confidence=90)
-    return f"EPSG:{code}" if code else crs.name
+    if code:
+        return f"EPSG:{code}"
+    op = crs.coordinate_operation
+    if crs.name in ("", "unknown") and op is not None:
+        params = ", ".join(f"{p.name} {p.value:g}" for p in op.params if p.value)
+        datum = crs.datum.name if crs.datum is not None else "unknown datum"
+        return f"{op.method_name} ({params}), {datum}"
+    return crs.name
 
 
 def horizontal_crs(crs: pyproj.CRS) -> pyproj.CRS:

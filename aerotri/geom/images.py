@@ -30,6 +30,11 @@ import numpy as np
 from aerotri.geom.camera import FrameCamera
 from aerotri.core.errors import InputError
 
+# OpenCV's libtiff does not know the GeoTIFF tags (33550, 33922, 34735-34737, 42112, 42113) and warns on
+# stderr for each one at every read of a georeferenced frame, outside the toolkit's logging and -q: a
+# block of GeoTIFF frames printed 4-6 lines per frame per read. Its errors still show.
+cv2.utils.logging.setLogLevel(cv2.utils.logging.LOG_LEVEL_ERROR)
+
 IMAGE_SUFFIXES = (".tif", ".tiff", ".jpg", ".jpeg", ".png")
 # a frame of a given id: the suffixes in this order (upper case as cameras and Windows tools write them)
 _ID_SUFFIXES = IMAGE_SUFFIXES + (".TIF", ".JPG")

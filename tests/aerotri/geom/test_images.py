@@ -125,3 +125,20 @@ def test_frames_are_found_by_id(tmp_path):
     (tmp_path / "a.jpg").write_bytes(b"")
     with pytest.raises(InputError, match="two images share the id 'a'"):
         find_images(tmp_path)
+
+
+def test_georeferenced_frames_read_without_opencv_tag_warnings(tmp_path, capfd):
+    """A compressed GeoTIFF frame (decoded by OpenCV) reads without libtiff's "Unknown field with tag"
+    warnings on stderr for the GeoTIFF tags (4-6 lines per read on the NGI DMC frames before)."""
+    from rasterio.transform import from_origin
+
+    rgb = np.random.default_rng(0).integers(0, 255, (3, 64, 48), dtype=np.uint8)
+    path = tmp_path / "geo.tif"
+    with rasterio.open(path, "w", driver="GTiff", width=48, height=64, count=3, dtype="uint8", crs="EPSG:32649",
+                       transform=from_origin(500000, 4000000, 1, 1), photometric="RGB", compress="deflate") as ds:
+        ds.write(rgb)
+    capfd.readouterr()
+    img, _ = read_native(path, (48, 64))
+    gray = read_gray(path, (48, 64))
+    assert img.shape == (64, 48, 3) and gray.shape == (64, 48)
+    assert "TIFF_Warning" not in capfd.readouterr().err

@@ -119,3 +119,17 @@ def test_plane_parameters_and_heights_in_the_chain():
     bad = Transformation("helmert2d", T.parameters, "EPSG:4490", "EPSG:2361")
     with pytest.raises(InputError, match="metre grid"):
         CrsTransformer(4490, 2361, params=bad)
+
+
+def test_crs_label_describes_an_unnamed_crs():
+    """A CRS written as a PROJ string (the NGI data's "Lo25"), or its WKT, is labelled by its projection,
+    parameters and datum in messages and the ortho summary, not by PROJ's "unknown"; EPSG codes and named
+    CRSs keep their labels."""
+    from aerotri.geom.crs import crs_label, parse_crs
+
+    lo25 = "+proj=tmerc +lat_0=0 +lon_0=25 +k=1 +x_0=0 +y_0=0 +datum=WGS84 +units=m +no_defs +type=crs"
+    want = "Transverse Mercator (Longitude of natural origin 25, Scale factor at natural origin 1), World Geodetic System 1984"
+    assert crs_label(parse_crs(lo25)) == want
+    assert crs_label(parse_crs(parse_crs(lo25).to_wkt())) == want
+    assert crs_label(parse_crs("EPSG:32649")) == "EPSG:32649"
+    assert crs_label(parse_crs(parse_crs(lo25).to_wkt().replace('"unknown"', '"Lo25"', 1))) == "Lo25"

@@ -1,0 +1,112 @@
+"""Match and adjust 4 real Z/I DMC frames (../shared/data/ngi_dmc) and compare with the national AT.
+
+The project is built by tests/realdata_ngi.py (Lo25 + EGM2008 heights, pinhole camera, the reference
+projection centres as GNSS with 0.05 m). The adjustment runs without control: GNSS carries the datum.
+Measured on this data (bench/eval_ngi_surface.py, results/ngi_surface.json, with densification):
+omega/phi/kappa 0.035 deg RMS from the reference (0.058 max), tie points 11 m below the DEM (median)
+where the same ties intersected with the reference orientation lie 1.5 m below it: the relative phi of
+the frames of a strip (30 % forward overlap) is weakly determined by tie points alone, which the DEM
+height observations of issue 19 are to fix. Without densification (here, for time) the numbers are
+about the same (0.030 deg, -11.1 m).
+"""
+
+from __future__ import annotations
+
+import importlib.util
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+pytestmark = pytest.mark.realdata
+
+_spec = importlib.util.spec_from_file_location("realdata_ngi", Path(__file__).parents[2] / "realdata_ngi.py")
+ngi = importlib.util.module_from_spec(_spec)
+sys.modules.setdefault("realdata_ngi", ngi)  # dataclasses look their module up
+_spec.loader.exec_module(ngi)
+
+
+@pytest.fixture(scope="module")
+def ngi_data(shared_data) -> Path:
+    d = shared_data / "ngi_dmc"
+    if not (d / ngi.REFERENCE_FILE).is_file():
+        pytest.skip(f"NGI DMC frames not found at {d}")
+    return d
+
+
+@pytest.fixture(scope="module")
+def ngi_adjusted(ngi_data, tmp_path_factory):
+    """The project matched (sparse features only, about 20 s) and adjusted without control."""
+    from aerotri.adjust.pipeline import run_adjustment
+    from aerotri.adjust.settings import AdjustSettings
+    from aerotri.match.pipeline import match_project
+
+    root = ngi.build_ngi_project(ngi_data, tmp_path_factory.mktemp("ngi") / "project")
+    match = match_project(root, ngi.match_settings(densify=False))
+    ba, report = run_adjustment(root, AdjustSettings(use_control=False), html=False)
+    return root, match, ba, report
+
+
+def test_project_is_read_as_built(ngi_data, tmp_path):
+    """The toolkit reads the built project as the data's README describes it."""
+    from aerotri.core.project import Project
+    from aerotri.geom.camera import project_camera
+    from aerotri.geom.crs import horizontal_crs, parse_crs, project_heights, same_crs
+    from ortho.dem import dem_height_operation
+    import rasterio
+
+    root = ngi.build_ngi_project(ngi_data, tmp_path / "p")
+    project = Project.open(root)
+    cam = project_camera(project)
+    assert cam.MODEL == "pinhole"
+    assert cam.pixel_um == pytest.approx(144.0)
+    assert cam.focal_px == pytest.approx(120.0e3 / 144.0)
+    assert cam.sensor_mm == pytest.approx(ngi.SENSOR_MM)
+    assert (cam.cx_px, cam.cy_px) == (pytest.approx(319.5), pytest.approx(575.5))
+    with rasterio.open(project.dem_path) as ds:
+        dem_crs = parse_crs(ds.crs)
+    assert same_crs(horizontal_crs(dem_crs), parse_crs(project.crs))
+    assert project_heights(project) == parse_crs("EPSG:3855")
+    # the DEM's EGM2008 heights are the project's: no height conversion, no geoid grid needed
+    assert dem_height_operation(dem_crs, project.crs, project_heights(project)) is None
+    # the frames are linked, never copied
+    images = sorted((root / "images").iterdir())
+    assert [p.stem for p in images] == ngi.read_reference(ngi_data).image_id
+    assert all(p.is_symlink() and p.resolve().parent == ngi_data.resolve() for p in images)
+
+
+def test_reference_orientation_fits_the_ties(ngi_adjusted, ngi_data):
+    """The matched ties intersected with the national AT reproject to about 0.1 px and lie near the DEM:
+    the project's conventions (pixels, omega/phi/kappa, CRS, heights) are the reference's."""
+    root, _, _, _ = ngi_adjusted
+    ref = ngi.read_reference(ngi_data)
+    pid, img, xy = ngi.read_tiepoints(root / "at" / "tiepoints.csv")
+    _, X, rms_px = ngi.intersect_with_orientation(root, ref.image_id, ref.centre_m, ref.opk_deg, pid, img, xy)
+    assert len(X) > 300
+    assert np.median(rms_px) < 0.2  # measured 0.085 px
+    d = ngi.height_stats(X[:, 2], ngi.sample_dem_bilinear(ngi_data / ngi.DEM_FILE, X[:, 0], X[:, 1]))
+    assert d["n"] > 300
+    assert abs(d["median_m"]) < 4.0  # measured -1.5 m (the issue: 1.6 m below the DEM)
+
+
+def test_adjustment_without_control_against_reference(ngi_adjusted, ngi_data):
+    root, match, ba, report = ngi_adjusted
+    ks = report["key_statistics"]
+    assert ks["success"]
+    assert match.components == 1 and match.strips == 2
+    # every cross-strip pair that overlaps gets ties (image_top_deg = 90 for these portrait frames)
+    assert sum(p.ties > 0 for p in match.ties_per_pair) >= 5
+    assert ks["sigma0_px"] < 0.4  # measured 0.20 px
+    ref = ngi.read_reference(ngi_data)
+    eo = ba.eo_map
+    d = ngi.opk_differences(eo.image_id, eo.opk_deg, eo.centre_m, ref)
+    assert d["centre_rms_diff_m"] < 0.05  # the GNSS (the reference centres, 0.05 m) holds them: measured 4 mm
+    assert d["opk_rms_diff_deg"] < 0.06  # measured 0.030 deg
+    assert d["opk_max_abs_diff_deg"] < 0.1  # measured 0.052 deg
+    # The weakness issue 19 addresses: without surface control the tie points sit well below the DEM
+    # (measured -11.1 m median) where the reference's sit 1.5 m below it.
+    _, xyz = ngi.read_object_points(root / "at" / "object_points.csv", "tie")
+    h = ngi.height_stats(xyz[:, 2], ngi.sample_dem_bilinear(ngi_data / ngi.DEM_FILE, xyz[:, 0], xyz[:, 1]))
+    assert h["n"] > 300
+    assert -20.0 < h["median_m"] < -5.0
