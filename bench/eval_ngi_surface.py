@@ -231,7 +231,7 @@ def main(argv=None) -> int:
     results = a.results or (REPO / "results" / ("ngi_surface.json" if not options else f"ngi_surface_{variant}.json"))
     res = {"variant": variant, "data": a.data.name} | evaluate(a.data.resolve(), a.out, options, a.ortho)
     results.parent.mkdir(parents=True, exist_ok=True)
-    results.write_text(json.dumps(res, indent=1) + "\n")
+    results.write_text(json.dumps(res, indent=1, default=str) + "\n")
     print(f"{variant}: opk RMS diff {res['opk_rms_diff_deg']:.4f} deg (max {res['opk_max_abs_diff_deg']:.4f}), "
           f"tie - DEM median {res['tie_minus_dem_median_m']:.2f} m (RMS {res['tie_minus_dem_rms_m']:.2f}), "
           f"with the reference orientation {res['reference_tie_minus_dem_median_m']:.2f} m -> {results}")

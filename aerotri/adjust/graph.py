@@ -186,14 +186,15 @@ class TiePoints:
         cal = np.asarray(values.atCal3DS2(K_KEY).vector(), dtype=float) if self.self_cal else self.cal
         return centre, R_cv, cal
 
-    def reduced_system(self, values: gtsam.Values, n_images: int, coords: np.ndarray) -> schur.ReducedSystem:
+    def reduced_system(self, values: gtsam.Values, n_images: int, coords: np.ndarray, point_damping: float = 0.0
+                       ) -> schur.ReducedSystem:
         """``schur.reduced_camera_system`` at the orientations (and calibration) in ``values`` and the points ``coords``."""
         centre, R_cv, cal = self._cameras(values, n_images)
         pr = self.pairs
         point_r, point_B, _ = self._surface(coords)
         return schur.ReducedSystem(*schur.reduced_camera_system(
             self.xy_px, self.image, pr.row, pr.start, pr.a, pr.b, pr.pair_block, len(pr.images), n_images, centre, R_cv,
-            coords, cal, 1.0 / self.sigma_px, self.self_cal, self.huber_k, point_r, point_B))
+            coords, cal, 1.0 / self.sigma_px, self.self_cal, self.huber_k, point_r, point_B, float(point_damping)))
 
     def updated(self, rs: schur.ReducedSystem, delta: gtsam.VectorValues, n_images: int, coords: np.ndarray) -> np.ndarray:
         """The point coordinates after the back-substitution of the solved increments ``delta``."""
@@ -250,10 +251,12 @@ class Graph:
         at ``coords``."""
         return 0.5 * self.tie.sum_of_squares(values, self.n_images, coords) + self.graph.error(values)
 
-    def linearize_reduced(self, values: gtsam.Values, coords: np.ndarray) -> tuple[gtsam.GaussianFactorGraph, schur.ReducedSystem]:
+    def linearize_reduced(self, values: gtsam.Values, coords: np.ndarray, point_damping: float = 0.0
+                          ) -> tuple[gtsam.GaussianFactorGraph, schur.ReducedSystem]:
         """gtsam's linearisation of ``graph`` at ``values`` with the reduced camera system of the tie points
-        at ``coords`` added as HessianFactors, and that reduced system (for the back-substitution)."""
-        rs = self.tie.reduced_system(values, self.n_images, coords)
+        at ``coords`` added as HessianFactors, and that reduced system (for the back-substitution);
+        ``point_damping``: Marquardt's lambda on the points' normal blocks."""
+        rs = self.tie.reduced_system(values, self.n_images, coords, point_damping)
         gfg = self.graph.linearize(values)
         gfg.push_back(schur.hessian_factors([X(i) for i in range(self.n_images)], rs, self.tie.pairs.images,
                                             K_KEY if self.tie.self_cal else None))
@@ -557,6 +560,10 @@ def _schur_levenberg_marquardt(gr: Graph, opts: Options) -> tuple[gtsam.Values, 
         gfg, rs = gr.linearize_reduced(values, coords)
         diag, failure = None, None
         while True:
+            if lam > 0.0 and tp.surface is not None:
+                # the points' own problem is nonlinear with a surface: damp their back-substitution too
+                gfg, rs = gr.linearize_reduced(values, coords, point_damping=lam)
+                diag = None
             if lam > 0.0 and diag is None:
                 diag = _key_diagonal(gfg)
             try:

@@ -198,7 +198,7 @@ def _inverse_sym3(V, Vi):
 
 @numba.njit(cache=True)
 def reduced_camera_system(xy, obs_image, row, start, pair_a, pair_b, pair_block, n_blocks, n_images, centre, R_cv, points,
-                          cal, inv_sigma, with_cal, huber_k, point_r, point_B):
+                          cal, inv_sigma, with_cal, huber_k, point_r, point_B, point_damping):
     """Linearise the tie-point rays at (orientations, points) and eliminate the points.
 
     Returns the reduced system ``S`` as diagonal blocks ``U`` (N, 6, 6) and pair blocks ``S_pair``
@@ -213,6 +213,10 @@ def reduced_camera_system(xy, obs_image, row, start, pair_a, pair_b, pair_block,
     ``point_r`` (M,), ``point_B`` (M, 3): one more whitened observation per point that involves the point
     alone (a surface height, ``aerotri.adjust.surface``; zeros for none), added to its normal block
     before the elimination.
+
+    ``point_damping`` (Levenberg-Marquardt's lambda, 0 for Gauss-Newton): each point's normal block gets
+    ``lambda diag(V_j)`` before the elimination, so that a damped step also damps the points' back-substitution
+    (a surface observation makes the points' own problem nonlinear).
 
     With ``with_cal`` the calibration (Cal3DS2, 9 parameters shared by all rays) is an unknown too: its
     block ``U_cal`` (9, 9), right-hand side ``s_cal`` (9,), the couplings ``U_image_cal`` (N, 6, 9) and,
@@ -266,6 +270,9 @@ def reduced_camera_system(xy, obs_image, row, start, pair_a, pair_b, pair_block,
                 bp[j, p] += point_B[j, p] * rp
                 for q in range(p, 3):
                     V[p, q] += point_B[j, p] * point_B[j, q]
+        if point_damping > 0.0:
+            for p in range(3):
+                V[p, p] *= 1.0 + point_damping
         if not _inverse_sym3(V, Vi):
             # an indeterminate point contributes nothing (its rays stay in the cost, constant)
             ok[j] = False

@@ -1,11 +1,12 @@
 """LiDAR surface control: tie points on open ground observe the height of the DEM.
 
-A tie point ``P`` (local frame) at map position ``(x, y, h) = map(P)`` observes ``h = DEM(x, y)``:
+A tie point ``P`` (local frame) at map position ``(x, y, h) = map(P)`` observes ``h = DEM(x, y)`` (cubic
+convolution of the DEM, continuous in height and slope):
 the residual ``e = h - DEM(x, y)`` (metres, along the vertical) with the standard deviation
 
     sigma^2 = sigma_dem^2 + (|grad DEM| * cell / 2)^2
 
-(the DEM's stated precision and what bilinear interpolation loses on a slope over half a cell). Its
+(the DEM's stated precision and what interpolation loses on a slope over half a cell). Its
 Jacobian with respect to the point is ``de/dP = (dh/dP) - DEM_x (dx/dP) - DEM_y (dy/dP)``, the rows of
 ``d map / d local`` at the point. The observation joins each point's 3 x 3 normal block before the
 Schur elimination (``schur.reduced_camera_system``), so it costs nothing per image.
@@ -42,22 +43,41 @@ class HeightGrid:
     res: float
 
     def sample(self, x, y) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """Bilinear height and its gradient (dz/dx, dz/dy) at map positions; NaN outside or next to a gap."""
+        """Height and its gradient (dz/dx, dz/dy) at map positions by cubic convolution (Catmull-Rom, 4 x 4
+        cells): the surface and its slope are continuous, so Gauss-Newton steps of the points do not
+        stall on the kinks a bilinear surface has at every cell edge. Exact for planes. NaN outside the
+        grid or where one of the 16 cells has no height."""
         x, y = np.asarray(x, dtype=float), np.asarray(y, dtype=float)
         u = (x - self.x0) / self.res - 0.5
         v = (self.y0 - y) / self.res - 0.5
         c0, r0 = np.floor(u), np.floor(v)
-        fu, fv = u - c0, v - r0
+        tu, tv = u - c0, v - r0
         H, W = self.z.shape
-        inside = (c0 >= 0) & (r0 >= 0) & (c0 < W - 1) & (r0 < H - 1)
-        c = np.where(inside, c0, 0).astype(np.int64)
-        r = np.where(inside, r0, 0).astype(np.int64)
-        z00, z01, z10, z11 = self.z[r, c], self.z[r, c + 1], self.z[r + 1, c], self.z[r + 1, c + 1]
-        h = z00 * (1 - fu) * (1 - fv) + z01 * fu * (1 - fv) + z10 * (1 - fu) * fv + z11 * fu * fv
-        hx = ((z01 - z00) * (1 - fv) + (z11 - z10) * fv) / self.res
-        hy = -((z10 - z00) * (1 - fu) + (z11 - z01) * fu) / self.res  # rows run south
+        inside = (c0 >= 1) & (r0 >= 1) & (c0 < W - 2) & (r0 < H - 2)
+        c = np.where(inside, c0, 1).astype(np.int64)
+        r = np.where(inside, r0, 1).astype(np.int64)
+        wu, du = _catmull_rom(tu)
+        wv, dv = _catmull_rom(tv)
+        h = np.zeros(x.shape)
+        hu = np.zeros(x.shape)
+        hv = np.zeros(x.shape)
+        for i in range(4):
+            for j in range(4):
+                z = self.z[r - 1 + i, c - 1 + j]
+                h += wv[i] * wu[j] * z
+                hu += wv[i] * du[j] * z
+                hv += dv[i] * wu[j] * z
         nan = np.full(x.shape, np.nan)
-        return np.where(inside, h, nan), np.where(inside, hx, nan), np.where(inside, hy, nan)
+        ok = inside & np.isfinite(h)
+        return np.where(ok, h, nan), np.where(ok, hu / self.res, nan), np.where(ok, -hv / self.res, nan)  # rows run south
+
+
+def _catmull_rom(t: np.ndarray) -> tuple[list, list]:
+    """Weights of the 4 taps (-1, 0, 1, 2) of cubic convolution at fraction ``t`` and their derivatives."""
+    t2, t3 = t * t, t * t * t
+    w = [(-t3 + 2 * t2 - t) / 2, (3 * t3 - 5 * t2 + 2) / 2, (-3 * t3 + 4 * t2 + t) / 2, (t3 - t2) / 2]
+    d = [(-3 * t2 + 4 * t - 1) / 2, (9 * t2 - 10 * t) / 2, (-9 * t2 + 8 * t + 1) / 2, (3 * t2 - 2 * t) / 2]
+    return w, d
 
 
 def read_height_grid(path, project_crs, project_heights=None, what: str = "DEM", bounds=None) -> HeightGrid:

@@ -110,3 +110,25 @@ def test_adjustment_without_control_against_reference(ngi_adjusted, ngi_data):
     h = ngi.height_stats(xyz[:, 2], ngi.sample_dem_bilinear(ngi_data / ngi.DEM_FILE, xyz[:, 0], xyz[:, 1]))
     assert h["n"] > 300
     assert -20.0 < h["median_m"] < -5.0
+
+
+def test_the_dem_as_surface_control_brings_the_orientation_to_the_national_solution(ngi_adjusted, ngi_data, tmp_path):
+    """Issue 19 on real DMC frames: the 24 m SUDEM (stated 3 m) as surface control, no control points.
+    The same tie points as above (without it: OPK 0.030 deg RMS off, tie points 11 m below the DEM)."""
+    import shutil
+
+    from aerotri.adjust.pipeline import run_adjustment
+    from aerotri.adjust.settings import AdjustSettings
+
+    root = tmp_path / "project"
+    shutil.copytree(ngi_adjusted[0], root, symlinks=True)
+    ba, report = run_adjustment(root, AdjustSettings(use_control=False, dem=ngi_data / ngi.DEM_FILE,
+                                                     surface_sigma_m=3.0), html=False)
+    assert report["key_statistics"]["success"]
+    sc = report["surface_control"]
+    assert sc["used"] > 0.9 * sc["candidates"] > 300
+    d = ngi.opk_differences(ba.eo_map.image_id, ba.eo_map.opk_deg, ba.eo_map.centre_m, ngi.read_reference(ngi_data))
+    assert d["opk_rms_diff_deg"] < 0.02  # bench/eval_ngi_surface.py (densified ties): 0.0139 deg, 0.039 without
+    _, xyz = ngi.read_object_points(root / "at" / "object_points.csv", "tie")
+    h = ngi.height_stats(xyz[:, 2], ngi.sample_dem_bilinear(ngi_data / ngi.DEM_FILE, xyz[:, 0], xyz[:, 1]))
+    assert abs(h["median_m"]) < 1.0  # within the DEM's precision (the reference orientation's: -1.5 m)
