@@ -117,7 +117,7 @@ def adjust_block(
             state = G.state_from_values(values, block, opts, state, tie=gr.tie)
             log.info(f"robust round {rnd}: {info.iterations} iterations, {obs_active.sum()} observations")
             if surface_candidates is not None:
-                gated = block.surface.gate(state.points, surface_candidates)
+                gated = _surface_gate(block, state, obs_active, surface_candidates, opts.image_sigma_px)
                 changed = bool((gated != block.surface_active).any())
                 block.surface_active = gated
                 log.info(f"robust round {rnd}: {int(gated.sum())} surface observations within "
@@ -144,7 +144,7 @@ def adjust_block(
     # final least squares without the robust kernel; a last snooping check
     _drop_weak_points(block, obs_active, state)
     if surface_candidates is not None:
-        block.surface_active = block.surface.gate(state.points, surface_candidates)
+        block.surface_active = _surface_gate(block, state, obs_active, surface_candidates, opts.image_sigma_px)
     for _ in range(3):
         t0 = time.perf_counter()
         gr = G.build_graph(block, opts, state, obs_active, control_active, robust=False)
@@ -193,6 +193,27 @@ def adjust_block(
         state, info, sigma0, obs_active, control_active, removed, rejected, v, r, pose_cov, point_cov, cal_cov, marg,
         iterations, timings, stats, use,
     )
+
+
+def _surface_gate(block: G.Block, state: G.State, obs_active, candidates: np.ndarray, sigma_px: float) -> np.ndarray:
+    """The candidates whose height from their rays alone (intersected at the current orientations, without
+    the DEM) agrees with the DEM within ``gate_sigmas`` of the combined sigma (the DEM's and the
+    intersection's height sigma): a point on a car, a hedge or a roof edge is judged by where the images put
+    it, not by where the DEM pulled it."""
+    from aerotri.adjust.check_points import refine_points
+
+    k = np.flatnonzero(obs_active)
+    pts = refine_points(block.obs_xy_px[k], block.obs_point[k], block.obs_image[k], state.centre, state.R_cv, state.cal,
+                        state.points, iterations=3)
+    uv, pc = project_cv(pts[block.obs_point[k]], state.centre[block.obs_image[k]], state.R_cv[block.obs_image[k]],
+                        state.cal)
+    N = point_normals(point_jacobian_cv(pc, state.R_cv[block.obs_image[k]], state.cal), block.obs_point[k], block.n_points)
+    sz2 = np.full(block.n_points, np.inf)
+    ok = np.linalg.cond(N) < 1e10
+    sz2[ok] = sigma_px**2 * np.linalg.inv(N[ok])[:, 2, 2]  # local up is the vertical within a block
+    e, _, sigma = block.surface.observe(pts)
+    tol = block.surface.gate_sigmas * np.sqrt(sigma**2 + sz2)
+    return candidates & np.isfinite(e) & (np.abs(e) <= tol)
 
 
 def _drop_weak_points(block: G.Block, obs_active, state: G.State | None = None, max_cond: float = 1e5) -> None:
