@@ -386,8 +386,9 @@ class Case:
 
 
 def C(id, prog, args, expect, setup=None, caches=()):
-    return Case(id, prog, tuple(args.split()), tuple(expect) if isinstance(expect, (list, tuple)) else (expect,),
-                setup, caches)
+    """``args``: the command line split at white space, or a list (an argument with spaces: a PROJ string)."""
+    return Case(id, prog, tuple(args.split()) if isinstance(args, str) else tuple(args),
+                tuple(expect) if isinstance(expect, (list, tuple)) else (expect,), setup, caches)
 
 
 CASES = [
@@ -591,6 +592,11 @@ CASES = [
     C("crs_transform_mismatched_from", "aerotri",
       "crs transform {w}/las/cloud.las {w}/out.las --from 32650 --to 32633", "cloud.las"),
     C("crs_transform_unknown_to", "aerotri", "crs transform {w}/las/cloud.las {w}/out.las --to EPSG:999999", "--to"),
+    # a 3D projected CRS (vertical axis in US feet): GeoTIFF cannot store it, the product would have no CRS
+    C("crs_warp_to_crs_geotiff_cannot_store", "aerotri",
+      ["crs", "warp", "{w}/p/lidar_out/dem.tif", "{w}/dem_lcc.tif", "--to", "+proj=lcc +lat_1=30 +lat_2=32 +lat_0=29 "
+       "+lon_0=111 +x_0=0 +y_0=0 +datum=WGS84 +units=us-ft +vunits=us-ft +no_defs"],
+      ["--to", "cannot be stored in a GeoTIFF"]),
     C("crs_transform_output_is_input", "aerotri", "crs transform {w}/las/pts.csv {w}/las/pts.csv --from 32649 --to 2361",
       "pts.csv"),
     C("crs_transform_points_utf16", "aerotri", "crs transform {w}/las/pts.csv {w}/out.csv --from 32649 --to 4326",
