@@ -364,6 +364,17 @@ def manual(x="{x}", y="{y}", extra=""):
     return f
 
 
+def readjusted(rel, dx_m=0.5):
+    """An EO file as a new adjustment leaves it: the first frame moved by ``dx_m`` in X."""
+    def f(w):
+        from aerotri.geom.eo import read_eo, write_eo
+
+        eo = read_eo(w / rel)
+        eo.centre_m[0, 0] += dx_m
+        write_eo(w / rel, eo)
+    return f
+
+
 def all_of(*fs):
     def f(w):
         for g in fs:
@@ -709,6 +720,9 @@ CASES = [
     C("mosaic_frame_truncated", "ortho", "mosaic {p}", "s02_001.tif", truncate("p/ortho/frames/s02_001.tif", 0.5)),
     C("mosaic_ndsm_missing", "ortho", "mosaic {p} --ndsm {w}/nope.tif", "nope.tif"),
     C("mosaic_ndsm_truncated", "ortho", "mosaic {p}", "ndsm.tif", truncate("p/lidar_out/ndsm.tif", 0.4)),
+    # frames rectified from an older at/eo.txt (the user re-adjusted since): never mosaicked silently
+    C("mosaic_eo_readjusted", "ortho", "mosaic {p}", ["index.json", "eo.txt", "ortho rectify"],
+      readjusted("p/at/eo.txt")),
 
     # --- ortho check
     C("check_patch_px_zero", "ortho", "check {p} --reference {w}/p/truth/ortho.tif --patch-px 0", "--patch-px"),
@@ -732,6 +746,8 @@ CASES = [
       "--out"),
     C("check_index_stale", "ortho", "check {p} --reference {w}/p/truth/ortho.tif", "s01_002.tif",
       copy("p/ortho/frames/s01_001.tif", "p/ortho/frames/s01_002.tif")),
+    C("check_eo_readjusted", "ortho", "check {p} --reference {w}/p/truth/ortho.tif",
+      ["index.json", "eo.txt", "ortho rectify"], readjusted("p/at/eo.txt")),
 
     # --- aerotri run
     C("run_no_project_toml", "aerotri", "run {p}", "project.toml", remove("p/project.toml")),
