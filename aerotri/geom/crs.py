@@ -202,7 +202,7 @@ def geotiff_crs(crs: pyproj.CRS, where: str, x, y, tolerance: float):
     """The rasterio CRS to write ``crs`` into a GeoTIFF (from its WKT), after a round trip through an
     in-memory GeoTIFF that ``check_stored_crs`` accepts (so a product never loses or changes its CRS)."""
     import rasterio
-    from affine import Affine
+    from rasterio.transform import Affine
     from rasterio.crs import CRS as RioCRS
     from rasterio.io import MemoryFile
 
