@@ -4,7 +4,9 @@ Inputs (architecture doc): ``camera.toml`` (or ``--camera``), the adjusted EO ``
 ``--eo``, e.g. ``truth/eo.txt``), ``images/<image_id>.tif`` and the DEM ``lidar_out/dem.tif`` (or
 ``--dem``), all in the project CRS. Outputs in ``ortho/frames/``: ``<image_id>.tif`` (tiled GeoTIFF
 with an internal validity mask; occluded pixels are masked in a true ortho) and ``index.json`` (grid,
-projection centre and nadir point of each frame, for the mosaic, and the size and sha1 of its file).
+projection centre and nadir point of each frame, for the mosaic, and the size and sha1 of its file;
+``inputs``: the sha256 of the EO file, the camera and the DEM it was made from, so that ``ortho
+mosaic``, ``ortho check`` and the QA report refuse frames of an older adjustment, ``stale_frames``).
 
 All frames or none: a run writes into a temporary folder next to ``ortho/frames`` that replaces it only
 when every frame and the index are written, so a failed run leaves the previous complete output; a
@@ -68,6 +70,8 @@ class BlockInputs:
     eo: ExteriorOrientations
     eo_path: Path
     images: dict[str, Path]  # image_id -> file, only frames that will be rectified
+    camera_path: Path | None = None  # a camera file given instead of the project's (``--camera``)
+    eo_given: bool = False  # ``eo_path`` was given (``--eo``) rather than the project's at/eo.txt
 
     @property
     def project_crs(self) -> CRS:
@@ -77,13 +81,9 @@ class BlockInputs:
 def load_block(root, eo_path=None, camera_path=None, frames=None) -> BlockInputs:
     """Open a project and check that every selected image has an EO (InputError naming what is missing)."""
     project = Project.open(root)
-    if camera_path:
-        camera, camera_source = FrameCamera.read(camera_path), str(camera_path)
-    elif eo_path is None:
-        camera, camera_source = adjusted_camera(project)  # at/eo.txt belongs to the self-calibrated camera
-    else:
-        camera, camera_source = project_camera(project), str(project.camera_path)
-    eo_path = Path(eo_path) if eo_path else project.at_dir / "eo.txt"
+    camera, camera_source = block_camera(project, eo_path, camera_path)
+    eo_given = eo_path is not None
+    eo_path = Path(eo_path) if eo_path else project.eo_path
     if not eo_path.exists():
         raise InputError(f"{eo_path}: exterior orientation not found (run the aerotri adjustment, or pass --eo FILE, "
                          f"e.g. --eo {project.truth_dir / 'eo.txt'})")
@@ -107,7 +107,19 @@ def load_block(root, eo_path=None, camera_path=None, frames=None) -> BlockInputs
                              f"{' ...' if len(no_image) > 10 else ''} not found (oriented in {eo_path}); restore it, "
                              "or rectify the others with --frames")
     check_frames(images, camera, camera_source)
-    return BlockInputs(project, camera, eo, eo_path, images)
+    return BlockInputs(project, camera, eo, eo_path, images, camera_path=Path(camera_path) if camera_path else None,
+                       eo_given=eo_given)
+
+
+def block_camera(project: Project, eo_path=None, camera_path=None) -> tuple[FrameCamera, str]:
+    """(camera, source) the frames are rectified with: ``camera_path`` when given, else the self-calibrated
+    camera of the last adjustment for the project's own at/eo.txt (its orientations belong to it), else
+    (an EO file given with --eo) the nominal camera.toml."""
+    if camera_path:
+        return FrameCamera.read(camera_path), str(camera_path)
+    if eo_path is None:
+        return adjusted_camera(project)
+    return project_camera(project), str(project.camera_path)
 
 
 def default_resolution(camera: FrameCamera, eo: ExteriorOrientations, ground_height_m) -> float:
@@ -341,12 +353,13 @@ def rectify_block(root, dem_path=None, res_m: float | None = None, crs: str | No
     check_frame_sizes(block, eo_idx, zlo, zhi, res, "--res" if res_m is not None else None,
                       min(len(block.images), max(1, executor.workers)), operation)
     threads = executor.cores_per_task(len(block.images))  # tile threads per frame task (None: all)
-    old_index = _compatible_old_index(out_dir, res, out_crs) if frames else None
+    inputs = rectify_inputs(block, dem_path)
+    old_index = _compatible_old_index(out_dir, res, out_crs, inputs) if frames else None
     # all frames or none: the frames are written into a temporary folder next to ortho/frames, which
     # replaces it only when every frame and the index are written (a failed run leaves the old output)
     with atomic_dir(out_dir) as tmp_dir:
         index = _rectify_into(tmp_dir, block, eo_idx, res, out_crs, project_crs, dem_path, zlo, zhi, interpolation,
-                              true_ortho, dsm_path, compression, threads, operation, height_op, executor)
+                              true_ortho, dsm_path, compression, threads, operation, height_op, executor, inputs)
         if old_index is not None:  # re-run of a subset: the other frames of the earlier run come along
             done = {e["image_id"] for e in index["frames"]}
             keep = [e for e in old_index["frames"] if e["image_id"] not in done]
@@ -386,7 +399,8 @@ def check_frame_sizes(block: BlockInputs, eo_idx: dict, zlo: float, zhi: float, 
 
 
 def _rectify_into(out_dir: Path, block: BlockInputs, eo_idx, res, out_crs, project_crs, dem_path, zlo, zhi,
-                  interpolation, true_ortho, dsm_path, compression, threads, operation, height_op, executor) -> dict:
+                  interpolation, true_ortho, dsm_path, compression, threads, operation, height_op, executor,
+                  inputs: dict) -> dict:
     """One task per frame writing ``out_dir/<image_id>.tif``; the index of the frames (in frame order)."""
     tasks = [FrameTask(image_id, str(path), str(out_dir / f"{image_id}.tif"), block.camera,
                        tuple(float(v) for v in block.eo.centre_m[eo_idx[image_id]]),
@@ -404,17 +418,118 @@ def _rectify_into(out_dir: Path, block: BlockInputs, eo_idx, res, out_crs, proje
         "coordinate_operation": operation.record() if operation is not None else None,
         "operation": dataclasses.asdict(operation.spec()) if operation is not None else None,
         "height_operation": height_op.record() if height_op is not None else None,
+        "inputs": inputs,
         "frames": entries,
     }
 
 
-def _compatible_old_index(out_dir: Path, res: float, out_crs) -> dict | None:
+def _sha256(path) -> str:
+    import hashlib
+
+    h = hashlib.sha256()
+    with open(path, "rb") as f:
+        for chunk in iter(lambda: f.read(1 << 22), b""):
+            h.update(chunk)
+    return h.hexdigest()
+
+
+def _camera_sha256(camera) -> str:
+    import hashlib
+
+    return hashlib.sha256(json.dumps(camera.to_dict(), sort_keys=True).encode()).hexdigest()
+
+
+def _in_project(path, root: Path) -> str:
+    """``path`` relative to the project folder when inside it (the record survives moving the folder)."""
+    path = Path(path).absolute()
+    try:
+        return str(path.relative_to(Path(root).absolute()))
+    except ValueError:
+        return str(path)
+
+
+def rectify_inputs(block: BlockInputs, dem_path) -> dict:
+    """What the frames were made from, for index.json: the EO file (sha256), the camera as used (sha256 of
+    its parameters; its file when given with --camera, else the project's choice, see ``block_camera``) and
+    the DEM (size, modification time, sha256). ``stale_frames`` compares them with the files now."""
+    root = block.project.root
+    st = Path(dem_path).stat()
+    return {
+        "eo": {"file": _in_project(block.eo_path, root), "given": block.eo_given, "sha256": _sha256(block.eo_path)},
+        "camera": {"file": _in_project(block.camera_path, root) if block.camera_path else None,
+                   "sha256": _camera_sha256(block.camera)},
+        "dem": {"file": _in_project(dem_path, root), "size": st.st_size, "mtime_ns": st.st_mtime_ns,
+                "sha256": _sha256(dem_path)},
+    }
+
+
+def _same_inputs(a, b) -> bool:
+    """The same EO, camera and DEM contents (file names and times aside)."""
+    if not (isinstance(a, dict) and isinstance(b, dict)):
+        return False
+    return all(a.get(k, {}).get("sha256") == b[k]["sha256"] for k in ("eo", "camera", "dem"))
+
+
+def stale_frames(root, index: dict) -> str | None:
+    """Why the frames of ``index`` no longer belong to the project's orientation (the EO file or the camera
+    changed since ``ortho rectify``, e.g. a re-adjustment wrote a new at/eo.txt), or None when they do.
+    A DEM changed since, and an index written before the inputs were recorded, are logged warnings."""
+    project = Project.open(root)
+    root, path = project.root, project.frames_index_path
+    rec = index.get("inputs")
+    if not isinstance(rec, dict):
+        _log.warning(f"{path}: written by an earlier version without the hashes of its EO, camera and DEM; the "
+                     "frames cannot be checked against the current at/eo.txt (re-run `ortho rectify` to record them)")
+        return None
+
+    def where(f):
+        return root / f if not Path(f).is_absolute() else Path(f)
+
+    eo = where(rec["eo"]["file"])
+    if not eo.is_file():
+        return f"{path}: the frames were rectified from {eo}, which no longer exists"
+    if _sha256(eo) != rec["eo"]["sha256"]:
+        return (f"{path}: the frames were rectified from an older {eo} (the exterior orientation changed since, "
+                "e.g. by a new adjustment)")
+    cam_file = rec["camera"]["file"]
+    try:
+        camera, source = block_camera(project, eo if rec["eo"].get("given") else None,
+                                      where(cam_file) if cam_file else None)
+    except InputError as exc:
+        return f"{path}: the camera the frames were rectified with cannot be read now ({exc})"
+    if _camera_sha256(camera) != rec["camera"]["sha256"]:
+        return f"{path}: the frames were rectified with another camera than {source} (it changed since)"
+    # a DEM changed since is said, not refused: the frames stay the last complete output of the orientation
+    # (a failed re-run on a new DEM leaves them for the mosaic)
+    dem = where(rec["dem"]["file"])
+    st = dem.stat() if dem.is_file() else None
+    if st is None or ((st.st_size, st.st_mtime_ns) != (rec["dem"]["size"], rec["dem"]["mtime_ns"])
+                      and _sha256(dem) != rec["dem"]["sha256"]):
+        _log.warning(f"{path}: the frames were rectified on another DEM than {dem} is now (changed or removed "
+                     "since); re-run `ortho rectify` for orthos on the current DEM")
+    return None
+
+
+def require_current_frames(root, index: dict, then: str) -> None:
+    """``InputError`` when the frames are stale (``stale_frames``), saying to re-run ortho rectify and
+    ``then`` (the commands after it, e.g. "`ortho mosaic P`")."""
+    why = stale_frames(root, index)
+    if why:
+        raise InputError(f"{why}; re-run `ortho rectify {root}`, then {then} (a DOM from these frames would show "
+                         "the old orientation)")
+
+
+def _compatible_old_index(out_dir: Path, res: float, out_crs, inputs: dict) -> dict | None:
     """The index of the frames rectified earlier onto the same grid (resolution and CRS), checked against
     its files, or None (no earlier run, or another grid: a subset re-run then replaces them all)."""
     if not (out_dir / "index.json").exists():
         return None
     old = read_index(out_dir.parent.parent)
     if old.get("res_m") != res or old.get("crs") != out_crs.to_wkt():
+        return None
+    if not _same_inputs(old.get("inputs"), inputs):  # the other frames are stale: never brought along
+        _log.info(f"{out_dir / 'index.json'}: the earlier frames were made from other inputs; only the frames "
+                  "given with --frames are kept")
         return None
     verify_index(out_dir, old)
     return old

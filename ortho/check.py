@@ -15,12 +15,14 @@ import contextlib
 import csv
 import json
 import math
+import os
 from pathlib import Path
 
 import numpy as np
 
 from aerotri.core.errors import InputError, OptionError
 from aerotri.core.atomic import refuse_input_as_output
+from aerotri.core.project import project_paths
 from aerotri.core.textio import read_text
 from ortho.patches import MIN_PATCH_PX, PatchDisplacements, match_patches  # noqa: F401  (PatchDisplacements: the report API)
 
@@ -268,6 +270,10 @@ def check_points(points_path, res_m: float) -> tuple[dict, dict]:
     return stats, {"points": table, "_de": de, "_dn": dn}
 
 
+def _same_file(a: Path, b: Path) -> bool:
+    return a.exists() and b.exists() and os.path.samefile(a, b)
+
+
 def run_check(project_root, reference_path=None, points_path=None, dom_path=None, ndsm_path=None, max_ndsm_m=0.5,
               patch_px=48, search_px=6, out_stem=None, seams: bool = True, params=None,
               allow_ballpark: bool = False) -> dict:
@@ -288,6 +294,13 @@ def run_check(project_root, reference_path=None, points_path=None, dom_path=None
     for suffix in (".json", ".png"):
         refuse_input_as_output(out_stem.with_suffix(suffix), [dom_path, reference_path, points_path, ndsm_path,
                                                               root / "ortho" / "mosaic.json"], "--out")
+    paths = project_paths(root)
+    seams = seams and paths.seamlines_path.exists() and paths.frames_index_path.exists()
+    # a DOM made from frames of an older adjustment is refused (the mosaic, and the seams measured on the frames)
+    if paths.frames_index_path.exists() and (seams or _same_file(dom_path, paths.mosaic_path)):
+        from ortho.block import read_index, require_current_frames
+
+        require_current_frames(root, read_index(root), f"`ortho mosaic {root}` and `ortho check`")
     with _open(dom_path, "DOM") as ds:
         res = abs(ds.transform.a)
         crs = ds.crs.to_string() if ds.crs else None
@@ -316,8 +329,7 @@ def run_check(project_root, reference_path=None, points_path=None, dom_path=None
         def plot():
             plot_displacements(out_stem.with_suffix(".png"), None, stats, "DOM - survey",
                                points=(table["_de"], table["_dn"]))
-    seam_file = root / "ortho" / "seamlines.geojson"
-    if seams and seam_file.exists() and (root / "ortho" / "frames" / "index.json").exists():
+    if seams:
         from ortho.mosaic import seam_misalignment
 
         report["seams"] = seam_misalignment(root, ndsm_path=ndsm_path, max_ndsm_m=max_ndsm_m)

@@ -49,7 +49,8 @@ from aerotri.core.log import progress
 from aerotri.core.atomic import atomic_path, scratch_dir, write_text_atomic
 from aerotri.core.limits import check_allocation, check_grid
 from aerotri.core.textio import read_json
-from ortho.block import index_grids, index_operation, operation_tags, read_index, verify_index
+from ortho.block import (index_grids, index_operation, operation_tags, read_index, require_current_frames,
+                         verify_index)
 from ortho.grid import OrthoGrid
 from ortho.seamlines import (keep_objects_whole, label_polygons, least_cost_seams, neighbour_pairs, seam_lines,
                              voronoi_labels)
@@ -200,6 +201,7 @@ def mosaic_block(root, seams: str = "least-cost", ndsm_path=None, feather_m: flo
     if not index["frames"]:
         raise InputError(f"{frames_dir / 'index.json'}: no frames")
     verify_index(frames_dir, index)
+    require_current_frames(root, index, f"`ortho mosaic {root}`")
     grids = index_grids(index)
     mosaic = OrthoGrid.union(grids.values())
     res = mosaic.res_m

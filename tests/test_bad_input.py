@@ -364,6 +364,17 @@ def manual(x="{x}", y="{y}", extra=""):
     return f
 
 
+def readjusted(rel, dx_m=0.5):
+    """An EO file as a new adjustment leaves it: the first frame moved by ``dx_m`` in X."""
+    def f(w):
+        from aerotri.geom.eo import read_eo, write_eo
+
+        eo = read_eo(w / rel)
+        eo.centre_m[0, 0] += dx_m
+        write_eo(w / rel, eo)
+    return f
+
+
 def all_of(*fs):
     def f(w):
         for g in fs:
@@ -386,8 +397,9 @@ class Case:
 
 
 def C(id, prog, args, expect, setup=None, caches=()):
-    return Case(id, prog, tuple(args.split()), tuple(expect) if isinstance(expect, (list, tuple)) else (expect,),
-                setup, caches)
+    """``args``: the command line split at white space, or a list (an argument with spaces: a PROJ string)."""
+    return Case(id, prog, tuple(args.split()) if isinstance(args, str) else tuple(args),
+                tuple(expect) if isinstance(expect, (list, tuple)) else (expect,), setup, caches)
 
 
 CASES = [
@@ -591,6 +603,11 @@ CASES = [
     C("crs_transform_mismatched_from", "aerotri",
       "crs transform {w}/las/cloud.las {w}/out.las --from 32650 --to 32633", "cloud.las"),
     C("crs_transform_unknown_to", "aerotri", "crs transform {w}/las/cloud.las {w}/out.las --to EPSG:999999", "--to"),
+    # a 3D projected CRS (vertical axis in US feet): GeoTIFF cannot store it, the product would have no CRS
+    C("crs_warp_to_crs_geotiff_cannot_store", "aerotri",
+      ["crs", "warp", "{w}/p/lidar_out/dem.tif", "{w}/dem_lcc.tif", "--to", "+proj=lcc +lat_1=30 +lat_2=32 +lat_0=29 "
+       "+lon_0=111 +x_0=0 +y_0=0 +datum=WGS84 +units=us-ft +vunits=us-ft +no_defs"],
+      ["--to", "cannot be stored in a GeoTIFF"]),
     C("crs_transform_output_is_input", "aerotri", "crs transform {w}/las/pts.csv {w}/las/pts.csv --from 32649 --to 2361",
       "pts.csv"),
     C("crs_transform_points_utf16", "aerotri", "crs transform {w}/las/pts.csv {w}/out.csv --from 32649 --to 4326",
@@ -703,6 +720,9 @@ CASES = [
     C("mosaic_frame_truncated", "ortho", "mosaic {p}", "s02_001.tif", truncate("p/ortho/frames/s02_001.tif", 0.5)),
     C("mosaic_ndsm_missing", "ortho", "mosaic {p} --ndsm {w}/nope.tif", "nope.tif"),
     C("mosaic_ndsm_truncated", "ortho", "mosaic {p}", "ndsm.tif", truncate("p/lidar_out/ndsm.tif", 0.4)),
+    # frames rectified from an older at/eo.txt (the user re-adjusted since): never mosaicked silently
+    C("mosaic_eo_readjusted", "ortho", "mosaic {p}", ["index.json", "eo.txt", "ortho rectify"],
+      readjusted("p/at/eo.txt")),
 
     # --- ortho check
     C("check_patch_px_zero", "ortho", "check {p} --reference {w}/p/truth/ortho.tif --patch-px 0", "--patch-px"),
@@ -726,6 +746,8 @@ CASES = [
       "--out"),
     C("check_index_stale", "ortho", "check {p} --reference {w}/p/truth/ortho.tif", "s01_002.tif",
       copy("p/ortho/frames/s01_001.tif", "p/ortho/frames/s01_002.tif")),
+    C("check_eo_readjusted", "ortho", "check {p} --reference {w}/p/truth/ortho.tif",
+      ["index.json", "eo.txt", "ortho rectify"], readjusted("p/at/eo.txt")),
 
     # --- aerotri run
     C("run_no_project_toml", "aerotri", "run {p}", "project.toml", remove("p/project.toml")),

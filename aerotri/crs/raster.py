@@ -27,7 +27,8 @@ from rasterio.windows import Window
 from aerotri.core.atomic import atomic_path, refuse_input_as_output, scratch_dir
 from aerotri.core.errors import CrsError, OptionError
 from aerotri.core.log import progress
-from aerotri.geom.crs import crs_label, horizontal_crs, linear_unit_m, parse_crs, same_horizontal
+from aerotri.geom.crs import (check_stored_crs, crs_label, geotiff_crs, height_unit_m, horizontal_crs,
+                               length_unit_name, linear_unit_m, parse_crs, same_horizontal, unit_long_name, unit_name)
 from aerotri.geom.raster_warp import RESAMPLING, anchor_grid, height_change, interpolate_anchors, open_north_up, read_on_grid
 from aerotri.geom.transform import CrsTransformer
 
@@ -103,10 +104,14 @@ def warp_raster(in_path, out_path, to_crs, *, from_crs=None, params=None, height
             width = int(math.ceil((right - x0) / res))
             height = int(math.ceil((y0 - bottom) / res))
         _check_disk(width * height * ds.count * np.dtype(ds.dtypes[0]).itemsize, out_path, width, height)
+        # the grid's corners and centre: where the stored CRS must put the grid as the requested one does
+        gx = x0 + res * np.array([0.0, width, 0.0, width, width / 2.0])
+        gy = y0 - res * np.array([0.0, 0.0, height, height, height / 2.0])
+        out_crs = geotiff_crs(dst_crs, f"--to {to_crs}", gx, gy, 1e-3 * res)
         nodata = ds.nodata
         dtype = ds.dtypes[0]
         record = forward.record()
-        profile = dict(driver="GTiff", width=width, height=height, count=ds.count, dtype=dtype, crs=dst_crs,
+        profile = dict(driver="GTiff", width=width, height=height, count=ds.count, dtype=dtype, crs=out_crs,
                        transform=rasterio.transform.Affine(res, 0.0, x0, 0.0, -res, y0), tiled=True,
                        blockxsize=512, blockysize=512, compress="deflate", BIGTIFF="IF_SAFER")
         use_mask = nodata is None
@@ -134,18 +139,35 @@ def warp_raster(in_path, out_path, to_crs, *, from_crs=None, params=None, height
                         dst.write(out, window=win)
                     bar.update(1)
                 dst.update_tags(COORDINATE_OPERATION=record["description"],
-                                COORDINATE_OPERATION_JSON=json.dumps(record), SOURCE=str(in_path))
+                                COORDINATE_OPERATION_JSON=json.dumps(record), SOURCE=str(in_path),
+                                **_unit_tags(dst_crs, res, kind))
                 if kind == "height":
-                    dst.update_tags(1, HEIGHTS="transformed with the coordinate operation")
+                    z_unit = length_unit_name(height_unit_m(dst_crs), long=True)
+                    dst.units = (z_unit,) * ds.count
+                    dst.update_tags(1, HEIGHTS=f"transformed with the coordinate operation, in {z_unit}")
             if n_valid == 0:
                 raise CrsError(f"{in_path}: no valid cell lands in the target grid of {crs_label(dst_crs)}")
             with atomic_path(out_path) as tmp:
                 rasterio.shutil.copy(stage, tmp, driver="COG", COMPRESS="DEFLATE", BLOCKSIZE=512,
                                      OVERVIEWS="AUTO", BIGTIFF="IF_SAFER")
+                with rasterio.Env(GDAL_PAM_ENABLED=False), rasterio.open(tmp) as written:  # as a reader sees it
+                    check_stored_crs(dst_crs, written.crs, str(out_path), gx, gy, 1e-3 * res)
     for w in forward.warnings:
         log.warning(w)
     return WarpResult(out_path, kind, width, height, float(res), crs_label(dst_crs), record,
                       n_valid / float(width * height))
+
+
+def _unit_tags(crs, res: float, kind: str) -> dict:
+    """The units a reader needs, from the CRS (as ``lidarctl rasters`` writes them): LINEAR_UNITS and the
+    cell size, and for height rasters VERTICAL_UNITS, the unit the height values are in (a 2D foot grid:
+    feet, converted from the source's unit by the operation; a compound CRS: its vertical unit)."""
+    tags = {"LINEAR_UNITS": unit_long_name(crs), "CELL_SIZE": f"{res:.10g} {unit_name(crs)}"}
+    if horizontal_crs(crs).is_projected:
+        tags["CELL_SIZE_M"] = f"{res * linear_unit_m(crs):.10g}"
+    if kind == "height":
+        tags["VERTICAL_UNITS"] = length_unit_name(height_unit_m(crs), long=True)
+    return tags
 
 
 def _check_disk(n_bytes: int, out_path: Path, width: int, height: int) -> None:

@@ -130,14 +130,100 @@ def unit_name(crs: pyproj.CRS) -> str:
     h = horizontal_crs(crs)
     if h.is_geographic:
         return "deg"
-    f = linear_unit_m(h)
-    if abs(f - 1.0) < 1e-12:
-        return "m"
-    if abs(f - 0.3048) < 1e-9:
-        return "ft"
-    if abs(f - 1200 / 3937) < 1e-9:
-        return "us-ft"
-    return f"{f:g}m"
+    return length_unit_name(linear_unit_m(h))
+
+
+_LONG_NAMES = {"deg": "degree", "m": "metre", "ft": "foot", "us-ft": "US survey foot"}
+
+
+def length_unit_name(unit_m: float, long: bool = False) -> str:
+    """Name of a length unit given in metres per unit: 'm', 'ft', 'us-ft' (``long``: as GDAL band unit
+    types and WKT spell them: 'metre', 'foot', 'US survey foot'); other units as '<f>m' / '<f> metre'."""
+    if abs(unit_m - 1.0) < 1e-12:
+        short = "m"
+    elif abs(unit_m - 0.3048) < 1e-9:
+        short = "ft"
+    elif abs(unit_m - 1200 / 3937) < 1e-9:
+        short = "us-ft"
+    else:
+        return f"{unit_m:g} metre" if long else f"{unit_m:g}m"
+    return _LONG_NAMES[short] if long else short
+
+
+def unit_long_name(crs: pyproj.CRS) -> str:
+    """The horizontal axes' unit as GDAL and WKT spell it: 'degree', 'metre', 'foot', 'US survey foot'."""
+    return _LONG_NAMES.get(unit_name(crs)) or length_unit_name(linear_unit_m(crs), long=True)
+
+
+def height_unit_m(crs: pyproj.CRS) -> float:
+    """Metres per unit of height values in ``crs``: the vertical axis's unit of a compound or 3D CRS; a 2D
+    projected CRS has heights in its horizontal unit (the LAS convention, as ``geom.transform`` reads
+    z); a 2D geographic CRS in metres."""
+    crs = parse_crs(crs)
+    if crs.is_compound:
+        v = vertical_crs(crs)
+        if v is not None and v.axis_info:
+            return float(v.axis_info[0].unit_conversion_factor)
+    if len(crs.axis_info) >= 3:
+        return float(crs.axis_info[2].unit_conversion_factor)
+    f = linear_unit_m(crs)
+    return 1.0 if np.isnan(f) else f
+
+
+def check_stored_crs(requested: pyproj.CRS, stored, where: str, x, y, tolerance: float) -> None:
+    """``CrsError`` naming ``where`` unless the CRS a GeoTIFF holds (``stored``: rasterio's CRS or None) is
+    ``requested``. GDAL may rewrite a definition into an equivalent one (polar stereographic variant A
+    as variant B): that counts as the same when datum, units and vertical part agree and the grid points
+    (x, y) unproject with ``requested`` and reproject with ``stored`` to within ``tolerance`` units."""
+    label = crs_label(requested) + ("" if crs_label(requested) == requested.name else f" ({requested.name})")
+    why = None
+    if stored is None:
+        why = "GDAL wrote no CRS at all"
+    else:
+        got = parse_crs(stored)
+        if not same_crs(requested, got):
+            h_req, h_got = horizontal_crs(requested), horizontal_crs(got)
+            if len(requested.axis_info) != len(got.axis_info) or requested.is_compound != got.is_compound:
+                why = f"GDAL stores it as {got.type_name} {got.name!r} (with {len(got.axis_info)} axes)"
+            elif requested.is_compound and not vertical_crs(requested).equals(vertical_crs(got)):
+                why = f"GDAL stores its vertical part as {vertical_crs(got).name!r}"
+            elif (h_req.type_name != h_got.type_name
+                  or not h_req.geodetic_crs.equals(h_got.geodetic_crs, ignore_axis_order=True)
+                  or h_req.is_bound and not h_req.coordinate_operation.equals(h_got.coordinate_operation)):
+                why = f"GDAL stores it with another datum ({h_got.name!r}, {h_got.geodetic_crs.name!r})"
+            elif h_req.is_projected and abs(linear_unit_m(h_req) - linear_unit_m(h_got)) > 1e-12:
+                why = f"GDAL stores it in {unit_name(h_got)}"
+            else:
+                with np.errstate(all="ignore"):
+                    X, Y = pyproj.Transformer.from_crs(h_req, h_got, always_xy=True).transform(
+                        np.asarray(x, float), np.asarray(y, float), errcheck=False)
+                err = np.hypot(np.asarray(X) - x, np.asarray(Y) - y)
+                if not np.all(np.isfinite(err)) or float(np.max(err)) > tolerance:
+                    why = f"GDAL stores it as {got.name!r}, which puts the grid elsewhere"
+    if why:
+        raise CrsError(f"{where}: {label} cannot be stored in a GeoTIFF ({why}); give the CRS in a form GeoTIFF "
+                       "keeps: an EPSG code, or a 2D projected CRS (heights are then in its linear unit and the "
+                       "raster says so in VERTICAL_UNITS), or a compound CRS with an EPSG vertical CRS")
+
+
+def geotiff_crs(crs: pyproj.CRS, where: str, x, y, tolerance: float):
+    """The rasterio CRS to write ``crs`` into a GeoTIFF (from its WKT), after a round trip through an
+    in-memory GeoTIFF that ``check_stored_crs`` accepts (so a product never loses or changes its CRS)."""
+    import rasterio
+    from rasterio.transform import Affine
+    from rasterio.crs import CRS as RioCRS
+    from rasterio.io import MemoryFile
+
+    rio = RioCRS.from_wkt(crs.to_wkt())
+    # without PAM: GDAL would keep a CRS it cannot encode in an .aux.xml side file, which a copy loses
+    with rasterio.Env(GDAL_PAM_ENABLED=False), MemoryFile() as mem:
+        with mem.open(driver="GTiff", width=1, height=1, count=1, dtype="uint8", crs=rio,
+                      transform=Affine(1.0, 0.0, 0.5, 0.0, -1.0, 0.5)):
+            pass
+        with mem.open() as ds:
+            stored = ds.crs
+    check_stored_crs(crs, stored, where, x, y, tolerance)
+    return rio
 
 
 def check_coordinates(crs: pyproj.CRS, x, y, source: str, records=None, margin_deg: float = 1.0) -> None:

@@ -39,7 +39,7 @@ import pyproj
 from pyproj.transformer import TransformerGroup
 
 from aerotri.core.errors import CrsError
-from aerotri.geom.crs import crs_label, horizontal_crs, linear_unit_m, parse_crs, same_horizontal
+from aerotri.geom.crs import crs_label, height_unit_m, horizontal_crs, length_unit_name, linear_unit_m, parse_crs, same_horizontal
 from aerotri.geom.datum import HeightAnomalyModel, Transformation, outside_extent
 from aerotri.geom.ellipsoid import Ellipsoid, geocentric_to_geodetic, geodetic_to_geocentric
 
@@ -285,8 +285,12 @@ class CrsTransformer:
         if self.heights is not None:
             steps.append({"step": "height anomaly", "model": self.heights.model,
                           "formula": "h = H + zeta(x, y)" if self.heights_inverse else "H = h - zeta(x, y)"})
+        # heights go in and out in these units (a 2D foot grid's heights are feet, whatever the PROJ
+        # pipeline's own z unit says: the legs scale z around it)
+        z_units = {"from": length_unit_name(height_unit_m(self.src), long=True),
+                   "to": length_unit_name(height_unit_m(self.dst), long=True)}
         return {"from_crs": crs_label(self.src), "to_crs": crs_label(self.dst), "description": self.description,
-                "ballpark": self.ballpark, "steps": steps, "warnings": self.warnings}
+                "ballpark": self.ballpark, "z_units": z_units, "steps": steps, "warnings": self.warnings}
 
     def transform(self, x, y, z=None):
         """Arrays in ``from_crs`` (x = easting/longitude) -> arrays in ``to_crs``; z defaults to 0."""

@@ -170,6 +170,13 @@ def build_qa_report(root, tolerance_file=None, terrain: str | None = None, scale
             rows.append(_check(sec, "95th percentile of the patch displacements", round(dom["p95_xy_m"], 4),
                                2 * tol["feature_rms_xy_m"], "m", f"largest {dom.get('max_xy_m', float('nan')):.3f} m; "
                                "limit 2 x the RMS limit (at most 5 % gross errors)"))
+    if project.frames_index_path.is_file() and (dom_all or project.mosaic_path.is_file()):
+        from ortho.block import read_index, stale_frames
+
+        why = stale_frames(root, read_index(root))
+        if why:
+            rows.append(_failed(sec, "DOM from an older adjustment", f"{why}; re-run ortho rectify, ortho mosaic and "
+                                                                     "ortho check"))
     if seams.get("rms_px") is not None:
         rows.append(_check(sec, "misalignment across seamlines, RMS", round(seams["rms_px"], 3),
                            tol.get("seam_misalignment_rms_px"), "px", f"{seams.get('patches')} patches"))

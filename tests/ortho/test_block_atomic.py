@@ -229,3 +229,68 @@ def test_sizes_beyond_the_machine_stop_before_allocating(project, args, option):
     r = run(*[a.format(p=project) for a in args])
     assert r.exit_code == 2 and option in r.stderr and "memory" in r.stderr, r.output
     assert tree(project / "ortho") == before
+
+
+def _readjusted(root, dx_m=0.8):
+    """at/eo.txt as a new adjustment leaves it: frame s01_002 moved by ``dx_m`` in X."""
+    from aerotri.geom.eo import read_eo, write_eo
+
+    eo = read_eo(root / "at/eo.txt")
+    eo.centre_m[eo.index()["s01_002"], 0] += dx_m
+    write_eo(root / "at/eo.txt", eo)
+
+
+def test_index_records_the_inputs_of_the_frames(project):
+    index = json.loads((project / "ortho/frames/index.json").read_text())
+    rec = index["inputs"]
+    assert rec["eo"]["file"] == "at/eo.txt" and rec["dem"]["file"] == "lidar_out/dem.tif"
+    assert rec["eo"]["sha256"] == hashlib.sha256((project / "at/eo.txt").read_bytes()).hexdigest()
+    assert rec["dem"]["sha256"] == hashlib.sha256((project / "lidar_out/dem.tif").read_bytes()).hexdigest()
+    assert len(rec["camera"]["sha256"]) == 64
+
+
+def test_frames_of_an_older_adjustment_are_refused(project):
+    """The trial's state: ortho rectify, then a new adjustment rewrites at/eo.txt; mosaic, check and the QA
+    report must not take the frames of the old orientation."""
+    from aerotri.qa.report import build_qa_report
+
+    r = run("check", project, "--reference", project / "truth/ortho.tif", "--patch-px", "24", "--search-px", "4")
+    assert r.exit_code == 0, r.output
+    rows = build_qa_report(project)["checks"]
+    assert not any(row["quantity"] == "DOM from an older adjustment" for row in rows)
+    _readjusted(project)
+    before = tree(project)
+    r = run("mosaic", project, "--seams", "voronoi")
+    assert r.exit_code == 2, r.output
+    assert all(s in r.stderr for s in ("index.json", "eo.txt", "ortho rectify")), r.stderr
+    r = run("check", project, "--reference", project / "truth/ortho.tif")
+    assert r.exit_code == 2 and "eo.txt" in r.stderr and "ortho rectify" in r.stderr, r.output
+    assert tree(project) == before  # nothing written
+    rep = build_qa_report(project)
+    stale = [row for row in rep["checks"] if row["quantity"] == "DOM from an older adjustment"]
+    assert len(stale) == 1 and stale[0]["verdict"] == "fail" and "eo.txt" in stale[0]["note"]
+    assert rep["overall"] == "fail"
+    # after a new rectify the chain goes on
+    assert run("rectify", project).exit_code == 0
+    r = run("mosaic", project, "--seams", "voronoi")
+    assert r.exit_code == 0, r.output
+
+
+def test_a_subset_rerun_after_a_readjustment_does_not_keep_the_old_frames(project):
+    _readjusted(project)
+    r = run("rectify", project, "--frames", "s01_002")
+    assert r.exit_code == 0, r.output
+    index = json.loads((project / "ortho/frames/index.json").read_text())
+    assert [e["image_id"] for e in index["frames"]] == ["s01_002"]
+
+
+def test_an_index_of_an_earlier_version_is_accepted_with_a_warning(project, caplog):
+    path = project / "ortho/frames/index.json"
+    index = json.loads(path.read_text())
+    del index["inputs"]
+    path.write_text(json.dumps(index))
+    _readjusted(project)  # cannot be seen without the record
+    with caplog.at_level("WARNING"):
+        r = run("mosaic", project, "--seams", "voronoi")
+    assert r.exit_code == 0, r.output
+    assert any("index.json" in m and "earlier version" in m for m in caplog.messages), caplog.messages

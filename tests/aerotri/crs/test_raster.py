@@ -152,3 +152,56 @@ def test_local_frame_uses_the_projects_own_datum():
     assert np.allclose(frame.to_map(frame.to_local(p)), p, atol=1e-6)
     with pytest.raises(BallparkRefused):
         CrsTransformer(crs, "EPSG:4978")
+
+
+@pytest.fixture
+def small_dem(tmp_path):
+    """50 x 50 float32 DEM of 1 m cells in EPSG:32649, heights 100..107.35 m (a tilted plane)."""
+    z = (100.0 + 0.1 * np.arange(50)[:, None] + 0.05 * np.arange(50)[None, :]).astype(np.float32)
+    dem = tmp_path / "dem.tif"
+    with rasterio.open(dem, "w", driver="GTiff", width=50, height=50, count=1, dtype="float32", crs="EPSG:32649",
+                       transform=rasterio.Affine(1.0, 0.0, 500_000.0, 0.0, -1.0, 3_400_000.0),
+                       nodata=-9999.0) as ds:
+        ds.write(z, 1)
+    return dem
+
+
+TMERC_PROJ = "+proj=tmerc +lon_0=111.2 +k=1 +x_0=0 +y_0=0 +datum=WGS84 +units=m +no_defs"
+LCC_USFT_PROJ = ("+proj=lcc +lat_1=30 +lat_2=32 +lat_0=29 +lon_0=111 +x_0=0 +y_0=0 +datum=WGS84 +units=us-ft "
+                 "+no_defs")
+
+
+@pytest.mark.parametrize("to, z_unit_m, z_unit", [(TMERC_PROJ, 1.0, "metre"),
+                                                  (LCC_USFT_PROJ, 1200 / 3937, "US survey foot")])
+def test_warp_to_a_proj_string_keeps_the_crs_and_labels_heights_with_their_unit(small_dem, tmp_path, to, z_unit_m,
+                                                                                z_unit):
+    out = tmp_path / "out.tif"
+    r = CliRunner().invoke(aerotri_cli, ["crs", "warp", str(small_dem), str(out), "--to", to])
+    assert r.exit_code == 0, r.output
+    want = CRS.from_user_input(to)
+    op = CrsTransformer("EPSG:32649", want)
+    rng = np.random.default_rng(8)
+    with rasterio.open(small_dem) as src, rasterio.open(out) as dst:
+        assert dst.crs is not None and CRS.from_wkt(dst.crs.to_wkt()).equals(want)
+        # heights 100..107 m: in a US-foot grid they are US feet (328..353), and the raster says so
+        assert dst.tags()["VERTICAL_UNITS"] == z_unit and dst.units == (z_unit,)
+        assert dst.tags()["LINEAR_UNITS"] == z_unit
+        assert json.loads(dst.tags()["COORDINATE_OPERATION_JSON"])["z_units"] == {"from": "metre", "to": z_unit}
+        x = rng.uniform(500_005.0, 500_045.0, 200)
+        y = rng.uniform(3_399_955.0, 3_399_995.0, 200)
+        z = _bilinear(src, x, y)
+        X, Y, Z = op.transform(x, y, z)
+        assert np.allclose(Z, z / z_unit_m, atol=1e-3)  # same datum: only the unit changes
+        got = _bilinear(dst, X, Y)
+        assert np.max(np.abs(got - Z)) < 0.01
+
+
+def test_warp_refuses_a_crs_geotiff_cannot_store(small_dem, tmp_path):
+    # a 3D projected CRS (vertical axis in US feet): GDAL's GeoTIFF writer silently drops it
+    out = tmp_path / "out" / "dem_lcc.tif"
+    out.parent.mkdir()
+    r = CliRunner().invoke(aerotri_cli, ["crs", "warp", str(small_dem), str(out), "--to",
+                                         LCC_USFT_PROJ + " +vunits=us-ft"])
+    assert r.exit_code == 2, r.output
+    assert "cannot be stored in a GeoTIFF" in r.output and "--to" in r.output
+    assert list(out.parent.iterdir()) == []  # no output, no temporary left
