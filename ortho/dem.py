@@ -23,9 +23,8 @@ from pyproj import CRS
 from rasterio.windows import Window, from_bounds
 
 from aerotri.core.errors import CrsError, InputError
-from aerotri.geom.raster_warp import open_north_up
 from aerotri.geom.crs import crs_label, height_crs, horizontal_crs, same_horizontal, vertical_crs
-from aerotri.geom.raster_warp import anchor_grid, height_change, interpolate_anchors
+from aerotri.geom.raster_warp import anchor_grid, height_change, interpolate_anchors, open_north_up
 from aerotri.geom.transform import CrsTransformer
 
 
@@ -78,12 +77,7 @@ def open_height_raster(path, project_crs: CRS | None, what: str = "DEM"):
     if not path.exists():
         raise InputError(f"{path}: {what} not found (run `lidarctl` to produce it, or pass --dem)")
     expected = f"; expected the project CRS {project_crs.to_string()}" if project_crs is not None else ""
-    ds = open_north_up(path, what, no_crs_hint=expected, square=True)
-    if ds.count != 1 or np.dtype(ds.dtypes[0]).kind not in "iuf":
-        bands, dtype = ds.count, ds.dtypes[0]
-        ds.close()
-        raise InputError(f"{path}: a {what} has one band of heights; this file has {bands} band(s) of {dtype} "
-                         "(an orthophoto or a hillshade given as the DEM?)")
+    ds = open_north_up(path, what, no_crs_hint=expected, square=True, heights=True)
     if project_crs is not None and not same_horizontal(CRS(ds.crs), CRS(project_crs)):
         got = CRS(ds.crs).to_string()
         ds.close()

@@ -206,7 +206,9 @@ class TiePoints:
         centre, R_cv, cal = self._cameras(values, n_images)
         rays = float(schur.sum_of_squares(self.xy_px, self.image, self.pairs.row, centre, R_cv, coords, cal,
                                           1.0 / self.sigma_px, self.huber_k))
-        return rays + self._surface(coords)[2] if self.surface is not None else rays
+        if self.surface is None:
+            return rays
+        return rays + surface_mod.surface_cost(self.surface, coords, self.surface_active, self.huber_k)
 
 
 @dataclasses.dataclass

@@ -205,13 +205,13 @@ def _surface_gate(block: G.Block, state: G.State, obs_active, candidates: np.nda
     k = np.flatnonzero(obs_active)
     pts = refine_points(block.obs_xy_px[k], block.obs_point[k], block.obs_image[k], state.centre, state.R_cv, state.cal,
                         state.points, iterations=3)
-    uv, pc = project_cv(pts[block.obs_point[k]], state.centre[block.obs_image[k]], state.R_cv[block.obs_image[k]],
+    _, pc = project_cv(pts[block.obs_point[k]], state.centre[block.obs_image[k]], state.R_cv[block.obs_image[k]],
                         state.cal)
     N = point_normals(point_jacobian_cv(pc, state.R_cv[block.obs_image[k]], state.cal), block.obs_point[k], block.n_points)
     sz2 = np.full(block.n_points, np.inf)
     ok = np.linalg.cond(N) < 1e10
     sz2[ok] = sigma_px**2 * np.linalg.inv(N[ok])[:, 2, 2]  # local up is the vertical within a block
-    e, _, sigma = block.surface.observe(pts)
+    e, _, sigma = block.surface.observe(pts, jacobian=False)
     tol = block.surface.gate_sigmas * np.sqrt(sigma**2 + sz2)
     return candidates & np.isfinite(e) & (np.abs(e) <= tol)
 

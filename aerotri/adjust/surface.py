@@ -12,9 +12,9 @@ Jacobian with respect to the point is ``de/dP = (dh/dP) - DEM_x (dx/dP) - DEM_y 
 Schur elimination (``schur.reduced_camera_system``), so it costs nothing per image.
 
 Which tie point lies on the ground: points where the nDSM (when given) is above ``max_ndsm_m`` are
-not candidates (roofs, trees); robust solves weigh the observations with Huber's kernel, and
-``gate`` removes points whose residual stays beyond ``gate_sigmas`` sigmas once the orientation has
-settled (cars, low vegetation, DEM gaps). Heights: the DEM must be in the project's horizontal CRS
+not candidates (roofs, trees); robust solves weigh the observations with Huber's kernel, and after
+every robust round the adjustment (``solve._surface_gate``) keeps those whose height from their rays
+alone is within ``gate_sigmas`` of the DEM (cars, low vegetation, DEM gaps are left out). Heights: the DEM must be in the project's horizontal CRS
 and height system (its heights are read like the project's, as the local frame reads them).
 """
 
@@ -26,7 +26,7 @@ from pathlib import Path
 
 import numpy as np
 
-from aerotri.core.errors import CrsError, InputError
+from aerotri.core.errors import CrsError
 from aerotri.geom.local_frame import LocalFrame
 
 log = logging.getLogger(__name__)
@@ -90,10 +90,7 @@ def read_height_grid(path, project_crs, project_heights=None, what: str = "DEM",
     from aerotri.geom.raster_warp import open_north_up
 
     path = Path(path)
-    with open_north_up(path, what, square=True) as ds:
-        if ds.count != 1 or np.dtype(ds.dtypes[0]).kind not in "iuf":
-            raise InputError(f"{path}: a {what} has one band of heights; this file has {ds.count} band(s) of "
-                             f"{ds.dtypes[0]}")
+    with open_north_up(path, what, square=True, heights=True) as ds:
         crs = parse_crs(ds.crs.to_wkt(), f"{path} CRS")
         if not same_horizontal(crs, project_crs):
             raise CrsError(f"{path}: the {what} is in {crs_label(crs)}, the project in {crs_label(project_crs)}; "
@@ -129,17 +126,20 @@ class SurfaceControl:
     max_ndsm_m: float = 1.0  # above this height over the ground a point is on an object
     gate_sigmas: float = 3.0
 
-    def observe(self, coords_local: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    def observe(self, coords_local: np.ndarray, jacobian: bool = True) -> tuple[np.ndarray, np.ndarray | None, np.ndarray]:
         """(e_m, J, sigma_m) for points (M, 3) in the local frame: residual height above the DEM (NaN where
-        the DEM has none), its Jacobian (M, 3) with respect to the local coordinates, its sigma (M,)."""
+        the DEM has none), its Jacobian (M, 3) with respect to the local coordinates (None unless
+        ``jacobian``: it costs six more coordinate conversions per point), its sigma (M,)."""
         p = np.asarray(coords_local, dtype=float)
         m = self.frame.to_map(p)
         h, hx, hy = self.dem.sample(m[:, 0], m[:, 1])
         e = m[:, 2] - h
+        sigma = np.sqrt(self.sigma_m**2 + (np.hypot(hx, hy) * 0.5 * self.dem.res) ** 2)
+        if not jacobian:
+            return e, None, sigma
         # d map / d local: the inverse of the frame's Jacobian at the point
         J_ml = np.linalg.inv(self.frame.jacobian_local_from_map(m))
         J = J_ml[:, 2, :] - hx[:, None] * J_ml[:, 0, :] - hy[:, None] * J_ml[:, 1, :]
-        sigma = np.sqrt(self.sigma_m**2 + (np.hypot(hx, hy) * 0.5 * self.dem.res) ** 2)
         return e, J, sigma
 
     def candidates(self, coords_local: np.ndarray) -> np.ndarray:
@@ -152,30 +152,36 @@ class SurfaceControl:
             ok &= np.isfinite(nd) & (nd <= self.max_ndsm_m)
         return ok
 
-    def gate(self, coords_local: np.ndarray, active: np.ndarray) -> np.ndarray:
-        """``active`` without the points whose residual is beyond ``gate_sigmas`` sigmas."""
-        e, _, sigma = self.observe(coords_local)
-        return active & np.isfinite(e) & (np.abs(e) <= self.gate_sigmas * sigma)
+def _robust_cost(x: np.ndarray, huber_k: float) -> float:
+    """``sum rho(x)`` of whitened residual sizes: twice Huber's robust cost (``huber_k`` > 0), or x'x."""
+    if huber_k > 0:
+        return float(np.sum(np.where(x > huber_k, 2 * huber_k * x - huber_k**2, x * x)))
+    return float(np.sum(x * x))
 
 
 def whitened(surface: SurfaceControl, coords_local: np.ndarray, active: np.ndarray, huber_k: float = 0.0):
     """The surface observations of points ``coords_local`` (M, 3) as the Schur kernel takes them: whitened
     residual ``r`` (observed - computed, M) and Jacobian of the prediction ``B`` (M, 3), zero for the inactive
-    ones; with ``huber_k`` > 0 scaled by the square root of Huber's weight. Also the cost ``sum rho(r)``
-    (twice Huber's robust cost, or r'r)."""
+    ones; with ``huber_k`` > 0 scaled by the square root of Huber's weight. Also the cost (``surface_cost``)."""
     e, J, sigma = surface.observe(coords_local)
     use = np.asarray(active, dtype=bool) & np.isfinite(e) & np.isfinite(J).all(axis=1)
     r = np.where(use, -e / sigma, 0.0)
     B = np.where(use[:, None], J / sigma[:, None], 0.0)
     x = np.abs(r)
+    cost = _robust_cost(x, huber_k)
     if huber_k > 0:
         big = x > huber_k
-        cost = float(np.sum(np.where(big, 2 * huber_k * x - huber_k**2, x * x)))
         s = np.where(big, np.sqrt(huber_k / np.where(big, x, 1.0)), 1.0)
         r, B = r * s, B * s[:, None]
-    else:
-        cost = float(np.sum(x * x))
     return np.ascontiguousarray(r), np.ascontiguousarray(B), cost
+
+
+def surface_cost(surface: SurfaceControl, coords_local: np.ndarray, active: np.ndarray, huber_k: float = 0.0) -> float:
+    """``sum rho(r)`` of the active points' whitened surface residuals (what ``whitened`` adds to the cost),
+    without the Jacobian: the cost of every trial step of the solve."""
+    e, _, sigma = surface.observe(coords_local, jacobian=False)
+    use = np.asarray(active, dtype=bool) & np.isfinite(e)
+    return _robust_cost(np.abs(np.where(use, e / sigma, 0.0)), huber_k)
 
 
 @dataclasses.dataclass
@@ -197,7 +203,7 @@ class SurfaceStats:
 
 def surface_stats(surface: SurfaceControl, coords_local: np.ndarray, candidates: np.ndarray, active: np.ndarray
                   ) -> SurfaceStats:
-    e, _, sigma = surface.observe(coords_local)
+    e, _, sigma = surface.observe(coords_local, jacobian=False)
     used = active & np.isfinite(e)
     v, w = e[used], e[used] / sigma[used]
     return SurfaceStats(int(candidates.sum()), int(used.sum()), int((candidates & ~active).sum()),

@@ -185,9 +185,10 @@ def read_on_grid(ds, x_left: float, y_top: float, res: float, shape, operation=N
     return np.moveaxis(dst.reshape(rows, cols, -1), -1, 0), ok
 
 
-def open_north_up(path, what: str = "raster", *, no_crs_hint: str = "", square: bool = False):
-    """A rasterio dataset of a georeferenced, north-up raster (square pixels if ``square``); InputError
-    naming the file and ``what`` it should be when it is missing, unreadable, has no CRS or is rotated."""
+def open_north_up(path, what: str = "raster", *, no_crs_hint: str = "", square: bool = False, heights: bool = False):
+    """A rasterio dataset of a georeferenced, north-up raster (square pixels if ``square``; one band of
+    numbers if ``heights``); InputError naming the file and ``what`` it should be when it is missing,
+    unreadable, has no CRS, is rotated or (``heights``) holds anything but one band of numbers."""
     from pathlib import Path
 
     import rasterio
@@ -203,7 +204,10 @@ def open_north_up(path, what: str = "raster", *, no_crs_hint: str = "", square: 
         raise InputError(f"{path}: cannot read the {what} ({exc})") from None
     problem = None
     t = ds.transform
-    if ds.crs is None:
+    if heights and (ds.count != 1 or np.dtype(ds.dtypes[0]).kind not in "iuf"):
+        problem = (f"a {what} has one band of heights; this file has {ds.count} band(s) of {ds.dtypes[0]} (an "
+                   f"orthophoto or a hillshade given as the {what}?)")
+    elif ds.crs is None:
         problem = f"the {what} has no CRS{no_crs_hint}"
     elif abs(t.b) > 0 or abs(t.d) > 0 or t.e >= 0 or (square and abs(abs(t.a) - abs(t.e)) > 1e-9 * abs(t.a)):
         problem = (f"expected a north-up {what}" + (" with square pixels" if square else "")
