@@ -13,6 +13,7 @@
 
 from __future__ import annotations
 
+import contextlib
 import logging
 import math
 import sys
@@ -40,19 +41,26 @@ def report_error(exc: AerotriError) -> None:
     _logger.debug("error details", exc_info=exc)
 
 
-def _exit_cleanly_on_sigterm() -> None:
-    """SIGTERM (a batch system's kill, ``timeout``) ends the command as Ctrl-C does: Python unwinds, so
-    the atomic writers remove their temporaries instead of leaving ``.<name>.part-*`` behind."""
+@contextlib.contextmanager
+def _exit_cleanly_on_sigterm():
+    """While the command runs, SIGTERM (a batch system's kill, ``timeout``) ends it as Ctrl-C does: Python
+    unwinds, so the atomic writers remove their temporaries instead of leaving ``.<name>.part-*`` behind.
+    The caller's handler is back afterwards (a command called in-process, e.g. from a test runner)."""
     import signal
     import threading
 
     if threading.current_thread() is not threading.main_thread():
-        return  # signal handlers belong to the main thread (a command called from a worker thread)
+        yield  # signal handlers belong to the main thread (a command called from a worker thread)
+        return
 
     def _term(signum, frame):
         raise KeyboardInterrupt
 
-    signal.signal(signal.SIGTERM, _term)
+    previous = signal.signal(signal.SIGTERM, _term)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGTERM, previous)
 
 
 class Command(click.Command):
@@ -76,11 +84,11 @@ class Command(click.Command):
             click.echo(f"Error: --log-file {log_file}: cannot write ({exc.strerror})", err=True)
             sys.exit(2)
         t0 = time.perf_counter()
-        _exit_cleanly_on_sigterm()
         _logger.debug("%s started with %s", ctx.command_path,
                       ", ".join(f"{k}={v!r}" for k, v in ctx.params.items()) or "no options")
         try:
-            result = super().invoke(ctx)
+            with _exit_cleanly_on_sigterm():
+                result = super().invoke(ctx)
             _logger.debug("%s finished in %.1f s", ctx.command_path, time.perf_counter() - t0)
             return result
         except AerotriError as exc:
