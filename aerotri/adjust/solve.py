@@ -188,7 +188,8 @@ def adjust_block(
     if surface_candidates is not None:
         stats = surface_stats(block.surface, state.points, surface_candidates, block.surface_active)
         use = np.where(block.surface_active, 1, np.where(surface_candidates, 2, 0)).astype(np.int8)
-        log.info(f"surface control: {stats.used} points used, {stats.rejected} rejected, RMS {stats.rms_m} m")
+        rms = "n/a" if stats.rms_m is None else f"{stats.rms_m:.3f} m"
+        log.info(f"surface control: {stats.used} points used, {stats.rejected} rejected, height - DEM RMS {rms}")
     return AdjustmentResult(
         state, info, sigma0, obs_active, control_active, removed, rejected, v, r, pose_cov, point_cov, cal_cov, marg,
         iterations, timings, stats, use,
