@@ -426,7 +426,9 @@ def adjust_project(root, settings: AdjustSettings | None = None) -> BlockAdjustm
     prepared, state0 = prepare_project(root, settings)
     st = prepared.settings
     result = adjust_block(prepared.block, prepared.opts, state0, snooping=st.snooping, alpha=st.alpha,
-                          point_covariances=st.point_covariances)
+                          point_covariances=st.point_covariances, variance_components=st.variance_components)
+    if result.block is not prepared.block:  # reweighted by variance components: report the weights solved with
+        prepared = dataclasses.replace(prepared, block=result.block, opts=result.opts)
     return finish(prepared, result)
 
 

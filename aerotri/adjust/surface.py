@@ -125,6 +125,7 @@ class SurfaceControl:
     ndsm: HeightGrid | None = None
     max_ndsm_m: float = 1.0  # above this height over the ground a point is on an object
     gate_sigmas: float = 3.0
+    sigma_factor: float = 1.0  # the variance component's factor on the stated sigmas (reweighting)
 
     def observe(self, coords_local: np.ndarray, jacobian: bool = True) -> tuple[np.ndarray, np.ndarray | None, np.ndarray]:
         """(e_m, J, sigma_m) for points (M, 3) in the local frame: residual height above the DEM (NaN where
@@ -134,7 +135,7 @@ class SurfaceControl:
         m = self.frame.to_map(p)
         h, hx, hy = self.dem.sample(m[:, 0], m[:, 1])
         e = m[:, 2] - h
-        sigma = np.sqrt(self.sigma_m**2 + (np.hypot(hx, hy) * 0.5 * self.dem.res) ** 2)
+        sigma = self.sigma_factor * np.sqrt(self.sigma_m**2 + (np.hypot(hx, hy) * 0.5 * self.dem.res) ** 2)
         if not jacobian:
             return e, None, sigma
         # d map / d local: the inverse of the frame's Jacobian at the point
