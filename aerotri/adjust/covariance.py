@@ -153,9 +153,10 @@ def point_rays(block: "G.Block", state: "G.State", obs_active, sigma_px: float, 
 
 
 def point_covariances(block: "G.Block", state: "G.State", obs_active, sigma_px: float, rc: ReducedCovariance,
-                      self_cal: bool, chunk: int = 100_000) -> np.ndarray:
-    """Unit-weight covariances (P, 3, 3) of all object points in the local frame (NaN for unused)."""
-    pr = point_rays(block, state, obs_active, sigma_px, rc, self_cal)
+                      self_cal: bool, chunk: int = 100_000, rays: PointRays | None = None) -> np.ndarray:
+    """Unit-weight covariances (P, 3, 3) of all object points in the local frame (NaN for unused); ``rays``:
+    their ``point_rays`` when already at hand."""
+    pr = rays if rays is not None else point_rays(block, state, obs_active, sigma_px, rc, self_cal)
     pt, Gk, idx, Vinv, used = pr.pt, pr.G, pr.idx, pr.Vinv, pr.used
     # all ray pairs (a, b) of the same point
     order = np.argsort(pt, kind="stable")

@@ -22,7 +22,7 @@ import dataclasses
 import numpy as np
 
 from aerotri.adjust import graph as G
-from aerotri.adjust.covariance import point_rays
+from aerotri.adjust.covariance import PointRays, point_rays
 from aerotri.adjust.surface import whitened
 from aerotri.adjust.variance_components import gnss_rows
 
@@ -49,11 +49,12 @@ class GeometryMode:
 
 
 def geometry_modes(block: G.Block, opts: G.Options, state: G.State, obs_active, control_active, rc,
-                   sigma0: float) -> list[GeometryMode]:
+                   sigma0: float, rays: PointRays | None = None) -> list[GeometryMode]:
     """The four modes of the tie points' heights (see the module docstring) at the solution ``state``;
-    ``rc``: the reduced covariance (``covariance.ReducedCovariance``, unit weight)."""
-    self_cal = bool(opts.self_calibration)
-    pr = point_rays(block, state, obs_active, opts.image_sigma_px, rc, self_cal)
+    ``rc``: the reduced covariance (``covariance.ReducedCovariance``, unit weight); ``rays``: the points'
+    ``covariance.point_rays`` when already at hand."""
+    pr = rays if rays is not None else point_rays(block, state, obs_active, opts.image_sigma_px, rc,
+                                                  bool(opts.self_calibration))
     tie = pr.used.copy()
     tie[block.control_point] = False
     j = np.flatnonzero(tie)
@@ -68,14 +69,17 @@ def geometry_modes(block: G.Block, opts: G.Options, state: G.State, obs_active, 
     L = np.zeros((4, block.n_points))
     L[:, j] = np.linalg.pinv(M)  # (4, n_tie): the modes' coefficients from the heights (local up = z)
     # u = Q l: camera part u_c = -Sigma a, a = sum over rays of G_ray' l_point; point part u_p = V^-1 l - G u_c
-    a = np.zeros((4, rc.Sigma.shape[0]))
+    n = rc.Sigma.shape[0]
     Gz = pr.G[:, 2, :]  # the height row of each ray's V^-1 W
-    np.add.at(a.T, pr.idx, Gz[:, :, None] * L[:, pr.pt].T[:, None, :])
+    a = np.array([np.bincount(pr.idx.ravel(), (Gz * L[m, pr.pt][:, None]).ravel(), n) for m in range(4)])
     u_c = -(a @ rc.Sigma)  # (4, n) (Sigma symmetric)
     l_p = np.zeros((4, block.n_points, 3))
     l_p[:, :, 2] = L
     u_p = np.einsum("pij,mpj->mpi", np.nan_to_num(pr.Vinv), l_p)
-    np.add.at(u_p, (slice(None), pr.pt), -np.einsum("kij,mkj->mki", pr.G, u_c[:, pr.idx]))
+    Gu = np.einsum("kij,mkj->mki", pr.G, u_c[:, pr.idx])
+    for m in range(4):
+        for i in range(3):
+            u_p[m, :, i] -= np.bincount(pr.pt, Gu[m, :, i], block.n_points)
     var = np.einsum("mpi,mpi->m", l_p, u_p)
     # information shares
     share = {}

@@ -16,7 +16,7 @@ from aerotri.adjust.surface import SurfaceStats, surface_stats
 from aerotri.core.errors import SolveError
 from aerotri.adjust.check_points import intersect_with_covariance
 from aerotri.adjust.collinearity import point_jacobian_cv, point_normals, project_cv
-from aerotri.adjust.covariance import ReducedCovariance
+from aerotri.adjust.covariance import ReducedCovariance, point_rays
 from aerotri.adjust.geometry_modes import geometry_modes
 from aerotri.adjust.covariance import point_covariances as point_covariances_rcs
 from aerotri.adjust.snooping import (
@@ -185,9 +185,11 @@ def adjust_block(
             iterations += info.iterations
             state = G.state_from_values(values, block, opts, state, tie=gr.tie)
             marg = _marginals(gr, values, block, obs_active)
-        point_unit = None
+        point_unit = rays = None
         if marg is not None and point_covariances:
-            point_unit = point_covariances_rcs(block, state, obs_active, opts.image_sigma_px, marg, bool(opts.self_calibration))
+            rays = point_rays(block, state, obs_active, opts.image_sigma_px, marg, bool(opts.self_calibration))
+            point_unit = point_covariances_rcs(block, state, obs_active, opts.image_sigma_px, marg,
+                                               bool(opts.self_calibration), rays=rays)
             components = vce.estimate(block, opts, state, obs_active, control_active, marg, point_unit, info.dof)
             factors = {c.group: 1.0 for c in components}
             for it in range(max_vce_iterations if variance_components else 0):
@@ -207,8 +209,9 @@ def adjust_block(
                 if marg is None:
                     raise SolveError("the covariances failed after reweighting by variance components; "
                                      "adjust without variance-component reweighting")
+                rays = point_rays(block, state, obs_active, opts.image_sigma_px, marg, bool(opts.self_calibration))
                 point_unit = point_covariances_rcs(block, state, obs_active, opts.image_sigma_px, marg,
-                                                   bool(opts.self_calibration))
+                                                   bool(opts.self_calibration), rays=rays)
                 components = vce.estimate(block, opts, state, obs_active, control_active, marg, point_unit, info.dof)
                 log.info("variance components, iteration %d: %s", it + 1, ", ".join(
                     f"{c.group} {c.factor:.3f}" for c in components if c.factor is not None))
@@ -218,7 +221,7 @@ def adjust_block(
             pose_cov = np.array([marg.marginalCovariance(G.X(i)) for i in range(block.n_images)]) * s2
             if point_unit is not None:
                 point_cov = point_unit * s2
-                geometry = geometry_modes(block, opts, state, obs_active, control_active, marg, sigma0)
+                geometry = geometry_modes(block, opts, state, obs_active, control_active, marg, sigma0, rays)
             if values.exists(G.K_KEY):
                 cal_cov = marg.marginalCovariance(G.K_KEY) * s2
         timings["marginals_s"] += time.perf_counter() - t0
