@@ -366,7 +366,7 @@ def format_txt(rep: dict) -> str:
         vals = rep["parameters"][key] or [None] * 4
         L.append(f"{label:32}" + "".join(_v(x, 10, nd) for x in vals))
     k = rep["key_statistics"]
-    sigma = "n/a" if k["sigma0_um"] is None else f"{k['sigma0_um']:.2f} um"
+    sigma = "n/a" if k["sigma0_um"] is None else f"{k['sigma0_um']:.2f} um ({k['sigma0_px']:.3f} px of {k['pixel_um']:g} um)"
     L += ["", "Key Statistics", f"  Sigma: {sigma}", f"  Number of iterations: {k['iterations']}",
           f"  Degrees of Freedom: {k['degrees_of_freedom']}", f"  {k['message']}", ""]
     sc = rep.get("surface_control")
