@@ -227,6 +227,10 @@ def _key_statistics(ba, height_limit_m: float) -> dict:
                f"changed the error by less than 1e-6 relative).")
     if success and weak:
         message += " Weak geometry: " + "; ".join(why for _, why in weak) + "."
+    if success and ba.left_out:
+        n = sum(len(lo.image_ids) for lo in ba.left_out)
+        message += (f" {n} images in {len(ba.left_out)} part(s) that no tie point connects to the block and that "
+                    f"have no datum of their own are not adjusted (components below).")
     return {
         "sigma0_um": _f(s0_um), "sigma0_px": _f(r.sigma0 * opts.image_sigma_px, 4), "sigma0": _f(r.sigma0, 4),
         "pixel_um": _f(ba.camera_apriori.pixel_um, 4),
@@ -305,6 +309,7 @@ def build_report(ba, map_scale: str = "1:5000", terrain: str = "flat", tolerance
         "options": _options(ba, tolerances),
         "parameters": _parameters(ba, rms_control, cres, dchk, mean_sd_obj, rms_lim, res_lim),
         "key_statistics": _key_statistics(ba, rms_lim[2]),
+        "components": {"adjusted": int(ba.components), "left_out": [lo.as_dict() for lo in ba.left_out]},
         "counts": {"images": b.n_images, "strips": b.n_strips, "tie_points": int(len(tie_pts)),
                    "control_points": int(len(used_ctrl)), "check_points": int(len(check_rows)),
                    "image_observations": int(res.active.sum()), "removed_observations": len(removed)},
@@ -399,6 +404,13 @@ def format_txt(rep: dict) -> str:
         L.append(f"  (height: the mean height; tilts and bending: the height change at the block's edge, "
                  f"{gm[0]['radius_m']:.0f} m from its centre; weak: held only by GNSS and priors, or 3 sigma above "
                  f"the height RMS limit)")
+        L.append("")
+    comp = rep.get("components") or {}
+    if comp.get("adjusted", 1) > 1 or comp.get("left_out"):
+        L.append(f"COMPONENTS: the tie points connect the adjusted images in {comp['adjusted']} part(s), each with "
+                 "its own datum")
+        for lo in comp.get("left_out", []):
+            L.append(f"  NOT ADJUSTED ({lo['reason']}): {', '.join(lo['images'])}")
         L.append("")
     c = rep["counts"]
     L.append(f"Images {c['images']} in {c['strips']} strips, tie points {c['tie_points']}, control points {c['control_points']}, "
