@@ -131,8 +131,11 @@ def default_resolution(camera: FrameCamera, eo: ExteriorOrientations, ground_hei
 
 
 # per-frame ortho compression: intermediates for the mosaic, so write speed matters as much as size.
-# Measured on a 120 MP DMC frame (band interleaved): zstd 102 MB, zstd-fast 172 MB, none 374 MB; the
-# CPU of zstd and zstd-fast is the same within the noise, none saves about 0.6 CPU-s per frame.
+# Measured on a 120 MP DMC frame (band interleaved; bench/ortho.py, results/ortho_bench.json, 2 cores):
+# zstd 102 MB, zstd-fast 172 MB, none 374 MB; the stage takes 3.1, 3.1 and 1.8 CPU-s (1.7, 1.7 and 1.1 s):
+# zstd-fast saves no CPU, none saves 40 % of it for 3.7 times the disk. zstd stays the default: on a
+# shared 2-core machine none does not bring the one-frame command to 100 MP/s either (interpreter,
+# imports and numba's set-up are about 0.7 s of it).
 FRAME_COMPRESSION = {
     "zstd": dict(compress="zstd", zstd_level=1, predictor=2),
     "zstd-fast": dict(compress="zstd", zstd_level=1),
