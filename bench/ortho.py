@@ -13,7 +13,9 @@ seconds of the measured part, which depends much less on the machine's load than
   rectify, write the tiled ZSTD-1 + predictor GeoTIFF with mask), plus ``ours_cli_zstd_fast`` /
   ``ours_cli_none`` for the other ``--frame-compress`` choices;
 - ``ours_command``: the ``ortho rectify`` console command in a fresh process (adds interpreter start,
-  imports and loading the cached numba kernels);
+  imports and loading the cached numba kernels) with the default ``--frame-compress`` (named in
+  ``frame_compress``), ``ours_command_zstd_fast`` / ``ours_command_none`` with the other choices (and
+  ``ours_command_zstd`` on request); ``file_mb``: the frame file's size;
 - ``remap_ceiling``: only ``cv2.remap`` (OpenCV's own threads) on the same grid and 1024 px tiles with
   precomputed fixed-point maps (the same map type as ours);
 - ``orthority``: ``orthority.Ortho(...).process(...)`` with the same camera, EO, DEM, resolution,
@@ -123,18 +125,23 @@ def _setup(d: Path):
     return cam, C, R, dem, grid, img, tp
 
 
-def _rectify_command(project: Path) -> dict:
-    """``ortho rectify`` as a fresh process: wall time, its CPU time and peak RSS, output pixels."""
+def _rectify_command(project: Path, compression: str | None = None) -> dict:
+    """``ortho rectify`` as a fresh process: wall time, its CPU time and peak RSS, output pixels and the
+    frame files' size (MB); ``compression``: its ``--frame-compress`` (None: the default)."""
     exe = Path(sys.executable).with_name("ortho")
+    args = [str(exe), "rectify", str(project), "--res", str(RES_M)]
+    if compression is not None:
+        args += ["--frame-compress", compression]
     t = time.perf_counter()
-    r = subprocess.run([str(exe), "rectify", str(project), "--res", str(RES_M)], capture_output=True, text=True)
+    r = subprocess.run(args, capture_output=True, text=True)
     seconds = time.perf_counter() - t
     if r.returncode != 0:
         raise SystemExit(r.stderr)
     ru = resource.getrusage(resource.RUSAGE_CHILDREN)
     index = json.loads((project / "ortho" / "frames" / "index.json").read_text())
     return {"seconds": seconds, "cpu_s": ru.ru_utime + ru.ru_stime, "peak_rss_mb_command": ru.ru_maxrss / 1024.0,
-            "output_px": sum(e["width"] * e["height"] for e in index["frames"])}
+            "output_px": sum(e["width"] * e["height"] for e in index["frames"]),
+            "file_mb": sum(e["size"] for e in index["frames"]) / 1e6}
 
 
 def run_kind(kind: str, d: Path) -> dict:
@@ -185,8 +192,16 @@ def run_kind(kind: str, d: Path) -> dict:
         out.update(_rectify_command(b))
         out["frames"] = n
         shutil.rmtree(b, ignore_errors=True)
-    elif kind == "ours_command":
-        out.update(_rectify_command(d))
+    elif kind.startswith("ours_command"):
+        compression = {"ours_command": None, "ours_command_zstd": "zstd", "ours_command_zstd_fast": "zstd-fast",
+                       "ours_command_none": "none"}[kind]
+        out.update(_rectify_command(d, compression))
+        if compression is None:
+            from aerotri.core.settings import default_of
+            from ortho.settings import RectifySettings
+
+            compression = default_of(RectifySettings, "compression")
+        out["frame_compress"] = compression
     elif kind == "remap_ceiling":
         import cv2
 
@@ -263,7 +278,8 @@ def main():
     ap.add_argument("--run", nargs=2, metavar=("KIND", "DIR"), help=argparse.SUPPRESS)
     ap.add_argument("--out", type=Path, default=REPO / "results" / "ortho_bench.json")
     ap.add_argument("--kinds", default="remap_ceiling,ours_library,ours_cli,ours_command,ours_command_block,ours_cli_zstd_fast,"
-                                       "ours_cli_none,remap_ceiling,orthority")
+                                       "ours_cli_none,ours_command_zstd_fast,ours_command_none,"
+                                       "remap_ceiling,orthority")
     args = ap.parse_args()
     if args.run:
         print(json.dumps(run_kind(args.run[0], Path(args.run[1]))))

@@ -150,8 +150,11 @@ def default_resolution(camera: FrameCamera, eo: ExteriorOrientations, ground_hei
 
 
 # per-frame ortho compression: intermediates for the mosaic, so write speed matters as much as size.
-# Measured on a 120 MP DMC frame (band interleaved): zstd 102 MB, zstd-fast 172 MB, none 374 MB; the
-# CPU of zstd and zstd-fast is the same within the noise, none saves about 0.6 CPU-s per frame.
+# Measured on a 120 MP DMC frame (band interleaved; bench/ortho.py, results/ortho_bench.json, 2 cores):
+# zstd 102 MB, zstd-fast 172 MB, none 374 MB; the stage takes 3.1, 3.1 and 1.8 CPU-s (1.7, 1.7 and 1.1 s):
+# zstd-fast saves no CPU, none saves 40 % of it for 3.7 times the disk. zstd stays the default: on a
+# shared 2-core machine none does not bring the one-frame command to 100 MP/s either (interpreter,
+# imports and numba's set-up are about 0.7 s of it).
 FRAME_COMPRESSION = {
     "zstd": dict(compress="zstd", zstd_level=1, predictor=2),
     "zstd-fast": dict(compress="zstd", zstd_level=1),
@@ -372,7 +375,7 @@ def rectify_block(root, dem_path=None, res_m: float | None = None, crs: str | No
     check_frame_sizes(block, eo_idx, zlo, zhi, res, "--res" if res_m is not None else None,
                       min(len(block.images), max(1, executor.workers)), operation)
     threads = executor.cores_per_task(len(block.images))  # tile threads per frame task (None: all)
-    inputs = rectify_inputs(block, dem_path)
+    inputs = rectify_inputs(block, dem_path, _recorded_inputs(out_dir))
     old_index = _compatible_old_index(out_dir, res, out_crs, inputs) if frames else None
     # all frames or none: the frames are written into a temporary folder next to ortho/frames, which
     # replaces it only when every frame and the index are written (a failed run leaves the old output)
@@ -467,19 +470,39 @@ def _in_project(path, root: Path) -> str:
         return str(path)
 
 
-def rectify_inputs(block: BlockInputs, dem_path) -> dict:
+def rectify_inputs(block: BlockInputs, dem_path, earlier: dict | None = None) -> dict:
     """What the frames were made from, for index.json: the EO file (sha256), the camera as used (sha256 of
     its parameters; its file when given with --camera, else the project's choice, see ``block_camera``) and
-    the DEM (size, modification time, sha256). ``stale_frames`` compares them with the files now."""
+    the DEM (size, modification time, sha256). ``stale_frames`` compares them with the files now.
+
+    The DEM's sha256 is taken from ``earlier`` (the ``inputs`` of the index there is now) when that
+    recorded the same file with the same size and modification time, which ``stale_frames`` also takes
+    for unchanged: a block's DEM runs to gigabytes, seconds of hashing on every run."""
     root = block.project.root
     st = Path(dem_path).stat()
+    dem = {"file": _in_project(dem_path, root), "size": st.st_size, "mtime_ns": st.st_mtime_ns}
+    before = earlier.get("dem") if isinstance(earlier, dict) else None
+    if isinstance(before, dict) and all(before.get(k) == v for k, v in dem.items()) \
+            and isinstance(before.get("sha256"), str):
+        dem["sha256"] = before["sha256"]
+    else:
+        dem["sha256"] = _sha256(dem_path)
     return {
         "eo": {"file": _in_project(block.eo_path, root), "given": block.eo_given, "sha256": _sha256(block.eo_path)},
         "camera": {"file": _in_project(block.camera_path, root) if block.camera_path else None,
                    "sha256": _camera_sha256(block.camera)},
-        "dem": {"file": _in_project(dem_path, root), "size": st.st_size, "mtime_ns": st.st_mtime_ns,
-                "sha256": _sha256(dem_path)},
+        "dem": dem,
     }
+
+
+def _recorded_inputs(out_dir: Path) -> dict | None:
+    """The ``inputs`` of ``out_dir/index.json`` if it is there and readable, else None (only a hint: an
+    unreadable index is replaced by this run, and ``_compatible_old_index`` checks it where it matters)."""
+    try:
+        index = json.loads((out_dir / "index.json").read_text())
+    except (OSError, ValueError):
+        return None
+    return index.get("inputs") if isinstance(index, dict) else None
 
 
 def _same_inputs(a, b) -> bool:

@@ -19,10 +19,9 @@ Labels are frame indices (int32), -1 where no frame is valid.
 from __future__ import annotations
 
 import numpy as np
-from scipy import ndimage
-from scipy.sparse import coo_matrix
-from scipy.sparse.csgraph import dijkstra
 
+# scipy (ndimage, sparse, csgraph: about 0.3 s to import) is imported by the functions that need it: this
+# module comes with ortho.settings into every ``ortho`` command, also ``ortho rectify``, which has no seams.
 
 
 def voronoi_labels(valid: list, offsets: list, nadir_rc: np.ndarray, shape) -> np.ndarray:
@@ -59,6 +58,8 @@ def neighbour_pairs(labels: np.ndarray) -> list[tuple[int, int]]:
 
 def _grid_graph(cost: np.ndarray, nodes: np.ndarray):
     """Sparse 8-connected graph over cells where ``nodes``; edge weight = mean cost x step length."""
+    from scipy.sparse import coo_matrix
+
     h, w = cost.shape
     idx = np.full((h, w), -1, np.int64)
     idx[nodes] = np.arange(int(nodes.sum()))
@@ -106,6 +107,8 @@ def least_cost_seams(labels: np.ndarray, valid: list, offsets: list, gray: list 
                      difference_cost: float = 5.0, min_overlap_cells: int = 16, end_reach: float = 0.1,
                      end_reach_cells: float = 0.0, passes: int = 2) -> np.ndarray:
     """Re-route every Voronoi seam along a least-cost path through the pair's overlap (module doc)."""
+    from scipy import ndimage
+
     obj = None
     if object_mask is not None:
         obj = ndimage.binary_dilation(object_mask, structure=np.ones((3, 3), bool))
@@ -122,6 +125,9 @@ def least_cost_seams(labels: np.ndarray, valid: list, offsets: list, gray: list 
 def _reroute_pair(labels, i, j, valid, offsets, gray, obj, object_cost, difference_cost, min_overlap_cells, end_reach,
                   end_reach_cells):
     """One seam (frames i, j) along its least-cost path; returns the updated labels."""
+    from scipy import ndimage
+    from scipy.sparse.csgraph import dijkstra
+
     # window covering both frames
     (ri, ci), (rj, cj) = offsets[i], offsets[j]
     r0, c0 = max(ri, rj), max(ci, cj)
@@ -220,6 +226,8 @@ def keep_objects_whole(labels: np.ndarray, object_mask: np.ndarray, valid: list,
 
     The seams then run round the object along its outline; objects no single frame covers stay split.
     """
+    from scipy import ndimage
+
     labels = labels.copy()
     parts, n = ndimage.label(object_mask)
     if n == 0:

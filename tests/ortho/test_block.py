@@ -174,3 +174,44 @@ def test_frames_the_adjustment_left_out_are_not_rectified(tmp_path):
         {"components": {"adjusted": 1, "left_out": [{"images": [dropped], "reason": "no control"}]}}))
     blk = load_block(root)
     assert dropped not in blk.images and len(blk.images) == 2
+
+
+@pytest.mark.parametrize("compression", ["zstd", "zstd-fast", "none"])
+def test_frame_files_hold_the_library_ortho(small_block, tmp_path, compression):
+    """Every --frame-compress choice stores exactly the ortho and mask of ``rectify_frame`` in memory (R, G,
+    B bands; mask 255 where valid), whatever the writer does to be fast (tiles written while the next
+    are computed, compression threads)."""
+    from aerotri.geom.camera import FrameCamera
+    from aerotri.geom.eo import read_eo
+    from aerotri.geom.images import read_rgb
+    from ortho.block import _plane_footprint_bounds, index_grids
+    from ortho.dem import height_range, open_height_raster, read_height_window
+    from ortho.grid import parse_crs
+    from ortho.rectify import rectify_frame
+
+    root = tmp_path / "p"
+    shutil.copytree(small_block, root)
+    gsd = rectify_block(root, frames=["s01_002"])["res_m"]
+    # finer than the GSD: a grid of several 512 px blocks and 1024 px compute tiles
+    index = rectify_block(root, frames=["s01_002"], res_m=0.55 * gsd, compression=compression)
+    grid = index_grids(index)["s01_002"]
+    assert grid.width > 1024 and grid.height > 512
+    cam = FrameCamera.read(root / "camera.toml")
+    eo = read_eo(root / "at" / "eo.txt")
+    k = eo.index()["s01_002"]
+    C, R = eo.centre_m[k], eo.rotation(k)
+    # the DEM window the stage reads (bilinear heights on the grid depend on the window's origin in the
+    # last of cv2's 1/32 cell position bits, so the whole DEM would differ by 1 in a few pixels)
+    with open_height_raster(root / "lidar_out" / "dem.tif", parse_crs("EPSG:32649")) as ds:
+        zlo, zhi = height_range(ds)
+        dem = read_height_window(ds, _plane_footprint_bounds(cam, C, R, zlo - 5.0, zhi + 5.0, "s01_002"),
+                                 margin_m=4 * ds.transform.a)
+    img = read_rgb(root / "images" / "s01_002.tif", (cam.width, cam.height))
+    want, want_mask = rectify_frame(img, cam, C, R, dem, grid)
+    with rasterio.open(root / "ortho" / "frames" / "s01_002.tif") as ds:
+        assert (ds.width, ds.height, ds.count) == (grid.width, grid.height, 3) and ds.block_shapes[0] == (512, 512)
+        got, got_mask = ds.read(), ds.read_masks(1)
+        assert all(np.array_equal(ds.read_masks(b), got_mask) for b in (2, 3))
+    assert 0.3 < (want_mask > 0).mean() < 1.0
+    assert np.array_equal(got_mask, want_mask)
+    assert np.array_equal(np.moveaxis(got, 0, -1), want)

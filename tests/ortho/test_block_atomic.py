@@ -294,3 +294,33 @@ def test_an_index_of_an_earlier_version_is_accepted_with_a_warning(project, capl
         r = run("mosaic", project, "--seams", "voronoi")
     assert r.exit_code == 0, r.output
     assert any("index.json" in m and "earlier version" in m for m in caplog.messages), caplog.messages
+
+
+def test_an_unchanged_dem_is_not_hashed_again(project, monkeypatch):
+    """A re-run takes the DEM's sha256 from the index when the file has the recorded size and modification
+    time (a block's DEM runs to gigabytes); a DEM touched or changed since is hashed again."""
+    import ortho.block
+
+    hashed = []
+    sha256 = ortho.block._sha256
+    monkeypatch.setattr(ortho.block, "_sha256", lambda p: hashed.append(os.path.basename(p)) or sha256(p))
+    dem = project / "lidar_out/dem.tif"
+
+    def recorded():
+        return json.loads((project / "ortho/frames/index.json").read_text())["inputs"]["dem"]
+
+    before = recorded()
+    r = run("rectify", project, "--frames", "s01_001")
+    assert r.exit_code == 0, r.output
+    assert "dem.tif" not in hashed and recorded() == before
+    st = dem.stat()
+    os.utime(dem, ns=(st.st_atime_ns, st.st_mtime_ns + 10**9))  # touched, same contents
+    r = run("rectify", project, "--frames", "s01_001")
+    assert r.exit_code == 0, r.output
+    assert hashed.count("dem.tif") == 1 and recorded()["sha256"] == before["sha256"]
+    with rasterio.open(dem, "r+") as ds:
+        ds.write(ds.read(1) + np.float32(0.5), 1)
+    r = run("rectify", project, "--frames", "s01_001")
+    assert r.exit_code == 0, r.output
+    assert hashed.count("dem.tif") == 2
+    assert recorded()["sha256"] == hashlib.sha256(dem.read_bytes()).hexdigest() != before["sha256"]
