@@ -117,6 +117,8 @@ def adjust_block(
             state = G.state_from_values(values, block, opts, state, tie=gr.tie)
             log.info(f"robust round {rnd}: {info.iterations} iterations, {obs_active.sum()} observations")
             if surface_candidates is not None:
+                # which points lie on the ground or on a roof face, judged where the orientation now puts them
+                surface_candidates = block.surface.candidates(state.points)
                 gated = _surface_gate(block, state, obs_active, surface_candidates, opts.image_sigma_px)
                 changed = bool((gated != block.surface_active).any())
                 block.surface_active = gated
@@ -144,6 +146,7 @@ def adjust_block(
     # final least squares without the robust kernel; a last snooping check
     _drop_weak_points(block, obs_active, state)
     if surface_candidates is not None:
+        surface_candidates = block.surface.candidates(state.points)
         block.surface_active = _surface_gate(block, state, obs_active, surface_candidates, opts.image_sigma_px)
     for _ in range(3):
         t0 = time.perf_counter()
