@@ -266,3 +266,30 @@ def test_aerotri_adjust_refuses_planes_in_another_crs_or_without_a_dem(roof_bloc
     assert "utm50/roof_planes.geojson: the roof planes are in EPSG:32650, the project in" in err[0]
     r = CliRunner().invoke(main, ["adjust", str(root), "--planes", str(other)])
     assert r.exit_code == 2 and "--planes" in r.output and "without a DEM" in r.output, r.output
+
+
+def test_the_report_has_a_surface_control_section_per_class(roof_block, tmp_path):
+    import json
+    import shutil
+
+    from aerotri.adjust.pipeline import write_outputs
+
+    block, root, dem, _, _, wrong, _ = roof_block
+    p = tmp_path / "p"
+    shutil.copytree(root, p)
+    ba = adjust_project(p, AdjustSettings(dem=dem, planes=wrong, surface_sigma_m=0.05, point_covariances=False))
+    write_outputs(ba, p)
+    sc = json.loads((p / "at" / "report.json").read_text())["surface_control"]
+    st = ba.result.surface
+    ground, roofs = sc["classes"]["ground (DEM)"], sc["classes"]["roof planes"]
+    assert sc["planes"].endswith("wrong/roof_planes.geojson") and sc["n_planes"] == len(_plane_faces(block))
+    assert ground["used"] > 50 and roofs["used"] > 200 and roofs["rejected"] > 10 and ground["rejected"] < 5, sc
+    assert ground["candidates"] + roofs["candidates"] == sc["candidates"] == st.candidates
+    assert ground["used"] + roofs["used"] == sc["used"] and roofs["rms_m"] == pytest.approx(
+        st.classes["roof planes"]["rms_m"], abs=1e-4)
+    txt = (p / "at" / "report.txt").read_text()
+    row = next(line for line in txt.splitlines() if line.strip().startswith("roof planes ") and "faces" not in line)
+    assert row.split()[2:5] == [str(roofs["candidates"]), str(roofs["used"]), str(roofs["rejected"])], row
+    assert "distance above the plane along its normal" in txt
+    html = (p / "at" / "report.html").read_text()
+    assert "<h2>Surface control</h2>" in html
