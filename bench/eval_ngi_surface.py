@@ -4,8 +4,8 @@ Data: ../shared/data/ngi_dmc (4 Z/I DMC frames of NGI South Africa, 2 strips x 2
 triangulation's orientations, a 24 m SUDEM in Lo25 + EGM2008 heights; its README.md). The project is
 built by tests/realdata_ngi.py (images and DEM linked, never copied) in ``--out``; then
 
-1. ``aerotri match --image-top-deg 90`` (library: aerotri.match.pipeline.match_project; the portrait frames'
-   top is 90 degrees from the flight direction);
+1. ``aerotri match`` with no options (library: aerotri.match.pipeline.match_project; the portrait frames'
+   top, 90 degrees from the flight direction, comes from the sensor's shape);
 2. ``aerotri adjust --no-control`` (aerotri.adjust.pipeline.run_adjustment) with the reference projection
    centres as GNSS (sigma 0.05 m), plus any ``--adjust-option KEY=VALUE`` (fields of AdjustSettings,
    e.g. ``--adjust-option dem=PATH`` for the DEM height observations of issue 19);

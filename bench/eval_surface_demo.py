@@ -71,6 +71,7 @@ def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--project", type=Path, default=REPO / "out" / "demo" / "project")
     ap.add_argument("--results", type=Path, default=REPO / "results" / "surface_demo.json")
+    ap.add_argument("--vce", action="store_true", help="also each variant with variance-component reweighting")
     a = ap.parse_args()
     src = a.project
     p = Project.open(src)
@@ -86,6 +87,9 @@ def main() -> int:
         "corners_and_surface_planes": dataclasses.replace(base, dem=p.dem_path, ndsm=p.ndsm_path,
                                                           planes=p.roof_planes_path),
     }
+    if a.vce:
+        variants.update({f"{k}_vce": dataclasses.replace(v, point_covariances=True, variance_components=True)
+                         for k, v in list(variants.items())})
     out = {"project": str(src), "gsd_m": gsd, "variants": {}}
     with tempfile.TemporaryDirectory() as tmp:
         for name, st in variants.items():
@@ -101,6 +105,8 @@ def main() -> int:
                                                       "control_points": int(ba.result.control_active.sum())}
             if ba.result.surface is not None:
                 row["surface"] = ba.result.surface.as_dict()
+            if ba.result.weight_factors:
+                row["weight_factors"] = ba.result.weight_factors
             row["rms_xy_gsd"], row["rms_z_gsd"] = row["rms_xy_m"] / gsd, row["rms_z_m"] / gsd
             out["variants"][name] = row
             print(f"{name:22s} check targets n={row['n']} plan {row['rms_xy_m']:.3f} m, height {row['rms_z_m']:.3f} m "

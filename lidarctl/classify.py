@@ -77,6 +77,9 @@ class ClassifyParams:
         f"{name} ({f.help})" if f.help else name for name, f in ground_mod.GROUND_FILTERS.items()) + ".")
     preset: str | None = setting(None, choices=ground_mod.preset_names(), help="Ground filter parameters for "
                                  "the terrain type (default: the single all-round set).")
+    keep_classes: bool = setting(False, help="Keep the classes the LiDAR was delivered with (vendor-classified) "
+                                             "after checking that ground and building classes are present and "
+                                             "plausible (lidarctl.delivered_classes); no classification is run.")
     cell_m: float = 0.0                 # 0: max(0.5 m, 2 x mean point spacing)
     building_min_height_m: float = 2.0
     building_min_area_m2: float = 20.0

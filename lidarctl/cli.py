@@ -54,8 +54,10 @@ def _parse_map(text: str | None, option: str) -> dict:
               help="Overlap buffer around each tile in metres (default: the ground filter's reach, 60 m).")
 @click.option("--work-dir", type=click.Path(file_okay=False), default=None,
               help="Folder for the temporary tile files (default: next to the output; removed afterwards).")
+@click_option(ClassifyParams, "keep_classes", "--keep-classes")
 @scheduler_options
-def classify(in_path, out_path, preset, crs, ground_method, tile_size_m, buffer_m, work_dir, scheduler, workers):
+def classify(in_path, out_path, preset, crs, ground_method, tile_size_m, buffer_m, work_dir, keep_classes, scheduler,
+             workers):
     """Noise, ground, buildings, vegetation and water as ASPRS classes (LAS/LAZ in, LAS/LAZ out).
 
     Large files are cut into tiles with overlap buffers, classified as parallel tasks and written
@@ -67,7 +69,7 @@ def classify(in_path, out_path, preset, crs, ground_method, tile_size_m, buffer_
     from aerotri.core.executor import executor_for
 
     refuse_input_as_output(out_path, [in_path], "OUT_PATH")
-    params = ClassifyParams(ground_method=ground_method, preset=preset)
+    params = ClassifyParams(ground_method=ground_method, preset=preset, keep_classes=keep_classes)
     with executor_for(scheduler, workers) as executor:
         stats = tiles.classify_file(in_path, out_path, crs=crs, params=params, tile_size_m=tile_size_m,
                                     buffer_m=buffer_m, executor=executor, work_dir=work_dir)
@@ -75,6 +77,9 @@ def classify(in_path, out_path, preset, crs, ground_method, tile_size_m, buffer_
     n, dt, u = stats.n_points, stats.seconds, stats.units
     units = "" if u.xy_name == "m" and u.z_name == "m" else \
         f"; coordinates in {u.xy_name}, heights in {u.z_name}, processed in metres"
+    if keep_classes:
+        click.echo(f"{out_path}: {n} points, the delivered classes kept; {counts}")
+        return
     click.echo(f"{out_path}: {n} points in {dt:.1f} s ({n / dt:,.0f} points/s; {stats.run.n_tiles} tiles of "
                f"{stats.grid.tile_m:g} m + {stats.grid.buffer_m:g} m buffer, {executor.describe()}{units}); {counts}")
 

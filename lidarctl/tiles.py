@@ -420,6 +420,10 @@ def classify_file(in_path, out_path, crs=None, params=None, *, tile_size_m: floa
     # A CRS record for an input without one: the --crs as given (a compound CRS keeps its vertical unit).
     out_crs = parse_crs(crs, "--crs") if crs is not None and str(crs).strip() else resolved
     grid = plan_tiles(header, tile_size_m, buffer_m, params.ground_method, params.preset, in_path, units=units)
+    if params.keep_classes:
+        run = _keep_delivered(in_path, out_path, out_crs=out_crs, units=units, chunk_points=chunk_points, t0=t0)
+        return ClassifyStats(n_points=int(n), grid=grid, units=units, run=run, seconds=time.perf_counter() - t0,
+                             crs=resolved.to_string() if resolved is not None else None)
     logger.debug("%s: %d points, %d x %d tiles of %g m + %g m buffer", in_path, n, grid.nrows, grid.ncols,
                  grid.tile_m, grid.buffer_m)
     try:
@@ -435,6 +439,21 @@ def classify_file(in_path, out_path, crs=None, params=None, *, tile_size_m: floa
         raise ResourceError(f"{in_path}: {exc}", param=exc.param) from exc
     return ClassifyStats(n_points=int(n), grid=grid, units=units, run=run, seconds=time.perf_counter() - t0,
                          crs=resolved.to_string() if resolved is not None else None)
+
+
+def _keep_delivered(in_path, out_path, *, out_crs, units, chunk_points, t0) -> ClassifyRun:
+    """``classify_file`` with ``keep_classes``: the delivered classes checked (``lidarctl.delivered_classes``)
+    and copied to the output as they are."""
+    from lidarctl.delivered_classes import check_delivered_classes
+
+    found = check_delivered_classes(in_path, units, chunk_points)
+    classes = np.concatenate([np.asarray(c.classification, np.uint8) for _, c in las.iter_file_chunks(in_path, chunk_points)])
+    t1 = time.perf_counter()
+    io.write_classified(in_path, out_path, classes, crs=out_crs)
+    logger.info("%s: delivered classes kept (ground %.1f %% of the points in %.0f %% of the cells)", in_path,
+                100 * found.ground_share, 100 * found.ground_cell_share)
+    return ClassifyRun(n_tiles=0, tiled_points=0, max_tile_points=0, class_counts=found.class_counts,
+                       classify_s=t1 - t0, write_s=time.perf_counter() - t1)
 
 
 def _class_counts(counts: np.ndarray) -> dict[int, int]:

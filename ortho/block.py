@@ -96,6 +96,15 @@ def load_block(root, eo_path=None, camera_path=None, frames=None) -> BlockInputs
             raise InputError(f"{project.images_dir}: no image for frame(s) {', '.join(unknown)} given with --frames")
         images = {f: images[f] for f in frames}
     missing = [k for k in images if k not in idx]
+    if missing and not eo_given and not frames:
+        # frames the adjustment left out (a part of the block without a datum) are not rectified
+        left = _left_out_by_adjustment(project)
+        skipped = [k for k in missing if k in left]
+        if skipped:
+            _log.warning(f"{len(skipped)} frame(s) the adjustment left out are not rectified ({', '.join(skipped[:8])}"
+                         f"{' ...' if len(skipped) > 8 else ''}): {left[skipped[0]]}")
+            images = {k: v for k, v in images.items() if k not in left}
+            missing = [k for k in missing if k not in left]
     if missing:
         raise InputError(f"{eo_path}: no exterior orientation for frame(s) {', '.join(missing[:10])}"
                          f"{' ...' if len(missing) > 10 else ''} (images in {project.images_dir})")
@@ -109,6 +118,16 @@ def load_block(root, eo_path=None, camera_path=None, frames=None) -> BlockInputs
     check_frames(images, camera, camera_source)
     return BlockInputs(project, camera, eo, eo_path, images, camera_path=Path(camera_path) if camera_path else None,
                        eo_given=eo_given)
+
+
+def _left_out_by_adjustment(project: Project) -> dict:
+    """Frame id -> reason, for the frames the project's adjustment left out (``at/report.json``
+    components.left_out): parts of the block that no tie point connects and that have no datum."""
+    path = project.adjustment_report_path
+    if not path.is_file():
+        return {}
+    comp = read_json(path).get("components") or {}
+    return {k: lo.get("reason", "") for lo in comp.get("left_out", []) for k in lo.get("images", [])}
 
 
 def block_camera(project: Project, eo_path=None, camera_path=None) -> tuple[FrameCamera, str]:

@@ -31,7 +31,7 @@ HEIGHTS = "EPSG:3855"  # EGM2008 height, the DEM's vertical datum (EPSG datum 10
 GNSS_SIGMA_M = 0.05
 # The portrait frames have their top 90 degrees from the flight direction (kappa near 180 flying west, near 0
 # flying east): the footprints of the match stage's flight plan need it, or no cross-strip pair is found.
-IMAGE_TOP_DEG = 90.0
+IMAGE_TOP_DEG = 90.0  # the portrait frames' top from the flight direction (found from the sensor)
 REFERENCE_FILE = "camera_pos_ori.txt"
 DEM_FILE = "dem.tif"
 
@@ -80,8 +80,6 @@ def build_ngi_project(data_dir, out_dir, gnss_sigma_m: float = GNSS_SIGMA_M) -> 
         "[gnss]\n"
         f"sigma_xy_m = {gnss_sigma_m}\n"
         f"sigma_z_m = {gnss_sigma_m}\n"
-        "[match]  # read by aerotri run; aerotri match needs --image-top-deg 90\n"
-        f"image_top_deg = {IMAGE_TOP_DEG}\n"
     )
     (root / "camera.toml").write_text(
         "# Z/I DMC downsampled by 12 and turned to portrait (orthority's test frames)\n"
@@ -107,10 +105,11 @@ def build_ngi_project(data_dir, out_dir, gnss_sigma_m: float = GNSS_SIGMA_M) -> 
 
 
 def match_settings(**changes):
-    """The match settings of this block (``IMAGE_TOP_DEG``), with ``changes`` (MatchSettings fields)."""
+    """The match settings of this block: the defaults (the portrait frames' top is found from the sensor's
+    shape, ``IMAGE_TOP_DEG``), with ``changes`` (MatchSettings fields)."""
     from aerotri.match.settings import MatchSettings
 
-    return MatchSettings(image_top_deg=IMAGE_TOP_DEG, **changes)
+    return MatchSettings(**changes)
 
 
 # -- measures -----------------------------------------------------------------------------------------

@@ -52,12 +52,14 @@ def _self_cal_groups(ctx, param, value):
               help="nDSM (height above ground) to keep tie points on roofs and trees off the DEM; default project.toml "
                    "[adjust] ndsm, else none.")
 @click_option(AdjustSettings, "max_ndsm_m", "--max-ndsm-m")
+@click_option(AdjustSettings, "variance_components", "--variance-components/--no-variance-components")
 @click_option(AdjustSettings, "planes", "--planes", type=click.Path(path_type=Path),
               help="Roof planes: the lidarctl corners folder (roof_planes.geojson, project CRS) as surface control: tie "
                    "points on a roof face observe its plane (with --dem); default project.toml [adjust] planes, else none.")
 @click_option(AdjustSettings, "plane_sigma_m", "--plane-sigma-m")
 def adjust(project, gnss_correction, lever_arm, self_cal, image_sigma_px, check, control, no_snooping, no_control, alpha,
-           no_html, no_exports, initial_eo, dem, surface_sigma_m, ndsm, max_ndsm_m, planes, plane_sigma_m):
+           no_html, no_exports, initial_eo, dem, surface_sigma_m, ndsm, max_ndsm_m, variance_components, planes,
+           plane_sigma_m):
     """Adjust the block of PROJECT; writes at/eo.txt, at/object_points.csv, at/report.* and exports."""
     from aerotri.adjust.pipeline import run_adjustment
     from aerotri.exchange import export_project
@@ -74,7 +76,7 @@ def adjust(project, gnss_correction, lever_arm, self_cal, image_sigma_px, check,
         alpha=alpha,
         initial_eo=initial_eo,
         dem=dem, surface_sigma_m=surface_sigma_m, ndsm=ndsm, max_ndsm_m=max_ndsm_m, planes=planes,
-        plane_sigma_m=plane_sigma_m,
+        plane_sigma_m=plane_sigma_m, variance_components=variance_components,
     )
     _, rep = run_adjustment(project, settings, html=not no_html)
     if not no_exports:

@@ -11,6 +11,7 @@ orientations it is seen from:
 from __future__ import annotations
 
 import contextlib
+import dataclasses
 
 import gtsam
 import numpy as np
@@ -20,6 +21,7 @@ from threadpoolctl import threadpool_limits
 from aerotri.adjust import graph as G
 from aerotri.adjust.collinearity import jacobians_cv, point_normals, project_cv
 from aerotri.adjust.keys import K_KEY, X
+from aerotri.adjust.surface import whitened
 
 _DIM = {"x": 6, "k": 9}
 
@@ -98,9 +100,29 @@ class ReducedCovariance:
         return _Joint(self, keys)
 
 
-def point_covariances(block: "G.Block", state: "G.State", obs_active, sigma_px: float, rc: ReducedCovariance,
-                      self_cal: bool, chunk: int = 100_000) -> np.ndarray:
-    """Unit-weight covariances (P, 3, 3) of all object points in the local frame (NaN for unused)."""
+@dataclasses.dataclass
+class PointRays:
+    """The active rays' linearisation around the points, for the points' covariances: point index ``pt``
+    and image ``im`` of each ray (K,), d pixel / d point ``Jp`` (K, 2, 3), d pixel / d orientation (and
+    calibration) ``Jc`` (K, 2, 6 or 15), the points' normal blocks ``V`` (P, 3, 3, rays + control + surface,
+    unit weight) and their inverses ``Vinv`` (NaN for unused points), ``G = V^-1 W`` per ray (K, 3, 6 or 15),
+    ``idx`` the ray's orientation (and calibration) parameters in the reduced covariance (K, 6 or 15)."""
+
+    pt: np.ndarray
+    im: np.ndarray
+    Jp: np.ndarray
+    Jc: np.ndarray
+    V: np.ndarray
+    Vinv: np.ndarray
+    used: np.ndarray
+    G: np.ndarray
+    idx: np.ndarray
+    weight: float  # 1 / sigma_px^2
+
+
+def point_rays(block: "G.Block", state: "G.State", obs_active, sigma_px: float, rc: ReducedCovariance,
+               self_cal: bool) -> PointRays:
+    """``PointRays`` of the active observations at ``state``."""
     k = np.flatnonzero(obs_active)
     pt, im = block.obs_point[k], block.obs_image[k]
     _, pc = project_cv(state.points[pt], state.centre[im], state.R_cv[im], state.cal)
@@ -113,17 +135,29 @@ def point_covariances(block: "G.Block", state: "G.State", obs_active, sigma_px: 
     for c, j in enumerate(block.control_point):
         if np.any(pt == j):
             V[j] += np.linalg.inv(block.control_cov_local[c])
+    if block.surface is not None and block.surface_active is not None:
+        # a surface observation (height above the DEM) joins its point's normal block, as in the solve
+        _, B, _ = whitened(block.surface, state.points, block.surface_active)
+        V += np.einsum("pi,pj->pij", B, B)
     used = np.zeros(block.n_points, dtype=bool)
     used[pt] = True
     Vinv = np.full_like(V, np.nan)
     Vinv[used] = np.linalg.inv(V[used])
     # G_k = V^-1 W_k for each ray (3 x 6 or 3 x 15)
     Gk = np.einsum("kij,kaj,kab->kib", Vinv[pt], Jp, Jc) * w
-    # indices of each ray's orientation (+ calibration) parameters in the reduced covariance
     pose_off = np.array([rc.offset[X(i)] for i in range(block.n_images)])
     idx = pose_off[im][:, None] + np.arange(6)[None]
     if self_cal:
         idx = np.concatenate([idx, np.broadcast_to(rc.offset[K_KEY] + np.arange(9), (len(k), 9))], axis=1)
+    return PointRays(pt, im, Jp, Jc, V, Vinv, used, Gk, idx, w)
+
+
+def point_covariances(block: "G.Block", state: "G.State", obs_active, sigma_px: float, rc: ReducedCovariance,
+                      self_cal: bool, chunk: int = 100_000, rays: PointRays | None = None) -> np.ndarray:
+    """Unit-weight covariances (P, 3, 3) of all object points in the local frame (NaN for unused); ``rays``:
+    their ``point_rays`` when already at hand."""
+    pr = rays if rays is not None else point_rays(block, state, obs_active, sigma_px, rc, self_cal)
+    pt, Gk, idx, Vinv, used = pr.pt, pr.G, pr.idx, pr.Vinv, pr.used
     # all ray pairs (a, b) of the same point
     order = np.argsort(pt, kind="stable")
     pts_sorted = pt[order]

@@ -10,6 +10,7 @@ succeeded. Exports to other software read these files (``aerotri.exchange``).
 from __future__ import annotations
 
 import dataclasses
+import logging
 import math
 from pathlib import Path
 
@@ -45,6 +46,8 @@ from aerotri.core.project import Project
 from aerotri.geom.rotation import FLIP_YZ, opk_from_matrix
 
 
+log = logging.getLogger(__name__)
+
 @dataclasses.dataclass(kw_only=True)
 class BlockAdjustment:
     """Everything the reports and exports need (project CRS where it says _map)."""
@@ -68,6 +71,8 @@ class BlockAdjustment:
     gnss_residual_m: np.ndarray | None  # (N, 3) adjusted antenna - observed (map axes)
     n_tie_points: int
     check_obs: ImageObservations | None
+    components: int = 1
+    left_out: list = dataclasses.field(default_factory=list)  # LeftOutComponent
 
 
 def _settings_from_project(project: Project, s: AdjustSettings) -> AdjustSettings:
@@ -224,6 +229,8 @@ class PreparedBlock:
     image_index: dict
     gnss_map: np.ndarray | None  # (N, 3) antenna positions, block order
     n_tie_points: int
+    components: int = 1  # parts of the block no tie point connects, adjusted together (each with its datum)
+    left_out: list = dataclasses.field(default_factory=list)  # LeftOutComponent: parts without a datum
 
 
 def read_inputs(project: Project, settings: AdjustSettings | None = None) -> ProjectInputs:
@@ -275,11 +282,34 @@ class _Observations:
     obs_image: np.ndarray
     obs_xy: np.ndarray
     n_tie: int
+    left_out: list = dataclasses.field(default_factory=list)  # LeftOutComponent: parts of the block without a datum
+    components: int = 1  # components of the block adjusted together
+
+
+@dataclasses.dataclass
+class LeftOutComponent:
+    """A part of the block no tie point connects to the rest and that has no datum of its own."""
+
+    image_ids: list
+    reason: str
+
+    def as_dict(self) -> dict:
+        return {"images": list(self.image_ids), "reason": self.reason}
+
+
+def _component_datum_gap(inp: ProjectInputs, ctrl_used: ControlPoints, ids: list) -> str | None:
+    """Why the images ``ids`` (a component of the block) have no datum of their own, or None: the test the
+    whole block gets (``datum_shortfall``) with the control points measured in them."""
+    cobs, st = inp.control_obs, inp.settings
+    measured = np.unique(cobs.point_id[np.isin(cobs.image_id, ids)])
+    ctrl = ctrl_used.subset(np.isin(ctrl_used.id, measured))
+    return datum_shortfall(ctrl, inp.gnss is not None, st.gnss_correction, st.dem is not None)
 
 
 def _observations(inp: ProjectInputs, ctrl_used: ControlPoints) -> _Observations:
-    """Images in flight order (those with measurements), points and observation index arrays; refuses a
-    disconnected block and images with fewer than 3 measurements, drops tie points seen once."""
+    """Images in flight order (those with measurements), points and observation index arrays; refuses
+    images with fewer than 3 measurements, drops tie points seen once. A block that tie points do not connect
+    is adjusted in its components that have a datum (GNSS, control, DEM); the others are left out, named."""
     ties, cobs, image_ids = inp.ties, inp.control_obs, inp.image_ids
     order = np.argsort(np.array(image_ids, dtype=object), kind="stable")
     measured = set(np.unique(ties.image_id).tolist()) | set(np.unique(cobs.image_id).tolist())
@@ -296,11 +326,32 @@ def _observations(inp: ProjectInputs, ctrl_used: ControlPoints) -> _Observations
     tie_path = inp.project.tiepoints_path
     comps = connected_image_components(len(image_ids), obs_point, obs_image)
     if len(comps) > 1:
-        desc = "; ".join(
-            f"component {c + 1} ({len(g)} images): " + ", ".join(image_ids[i] for i in g[:8]) + (" ..." if len(g) > 8 else "")
-            for c, g in enumerate(comps)
-        )
-        raise InputError(f"{tie_path}: the block is not connected by tie points, {len(comps)} components: {desc}")
+        def names(g):
+            return ", ".join(image_ids[i] for i in g[:8]) + (" ..." if len(g) > 8 else "")
+
+        gaps = [_component_datum_gap(inp, ctrl_used, [image_ids[i] for i in g]) for g in comps]
+        if inp.gnss is None and sum(gap is None for gap in gaps) > 1:
+            # without GNSS the datum step moves the whole block onto its control points: one component at a time
+            first = next(c for c, gap in enumerate(gaps) if gap is None)
+            gaps = [gap if gap is not None or c == first else "a block without GNSS is adjusted one component at a "
+                    "time: adjust this one as its own project" for c, gap in enumerate(gaps)]
+        if all(gap is not None for gap in gaps):
+            desc = "; ".join(f"component {c + 1} ({len(g)} images: {names(g)}): {gap}"
+                             for c, (g, gap) in enumerate(zip(comps, gaps)))
+            raise InputError(f"{tie_path}: the block is not connected by tie points and no component has a datum, "
+                             f"{len(comps)} components: {desc}")
+        if any(gap is not None for gap in gaps):
+            left = [LeftOutComponent([image_ids[i] for i in g], gap) for g, gap in zip(comps, gaps) if gap is not None]
+            for lo in left:
+                log.warning(f"{tie_path}: {len(lo.image_ids)} images no tie point connects to the rest are left out "
+                            f"({', '.join(lo.image_ids[:8])}{' ...' if len(lo.image_ids) > 8 else ''}): {lo.reason}")
+            drop = [k for lo in left for k in lo.image_ids]
+            kept = dataclasses.replace(inp, ties=inp.ties.subset(~np.isin(inp.ties.image_id, drop)),
+                                       control_obs=inp.control_obs.subset(~np.isin(inp.control_obs.image_id, drop)))
+            ob = _observations(kept, ctrl_used.subset(np.isin(ctrl_used.id, kept.control_obs.point_id)))
+            return dataclasses.replace(ob, left_out=left + ob.left_out)
+        log.warning(f"{tie_path}: the block falls apart into {len(comps)} components that no tie point connects; "
+                    "each has a datum of its own and is adjusted")
     rays = np.bincount(obs_point, minlength=len(point_id))
     few = np.flatnonzero(rays[: len(tie_ids)] < 2)
     if len(few):
@@ -310,7 +361,8 @@ def _observations(inp: ProjectInputs, ctrl_used: ControlPoints) -> _Observations
     if per_image.min() < 3:
         i = int(np.argmin(per_image))
         raise InputError(f"{tie_path}: image {image_ids[i]} has only {per_image[i]} tie measurements (need >= 3)")
-    return _Observations(image_ids, order, point_id, ctrl_pos, obs_point, obs_image, obs_xy, len(tie_ids))
+    return _Observations(image_ids, order, point_id, ctrl_pos, obs_point, obs_image, obs_xy, len(tie_ids),
+                         components=len(comps))
 
 
 def _control_priors(frame: LocalFrame, ctrl_used: ControlPoints):
@@ -394,6 +446,7 @@ def prepare_project(root, settings: AdjustSettings | None = None) -> tuple[Prepa
     is_check = inp.control.kind == "check"
     ctrl_used, chk = inp.control.subset(~is_check), inp.control.subset(is_check)
     ob = _observations(inp, ctrl_used)
+    ctrl_used = ctrl_used.subset(np.isin(ctrl_used.id, list(ob.control_position)))  # without left-out parts'
     approx_pos_map = inp.approx_position_map[ob.order]
     frame = LocalFrame.at_centre(project.crs, approx_pos_map)
     strip = strips_from_track(approx_pos_map)
@@ -425,6 +478,7 @@ def prepare_project(root, settings: AdjustSettings | None = None) -> tuple[Prepa
         check_points=chk, control_obs=inp.control_obs, image_ids=ob.image_ids,
         image_index={k: i for i, k in enumerate(ob.image_ids)},
         gnss_map=gnss.position_m[ob.order] if gnss is not None else None, n_tie_points=ob.n_tie,
+        components=ob.components, left_out=ob.left_out,
     )
     return prepared, state0
 
@@ -434,7 +488,9 @@ def adjust_project(root, settings: AdjustSettings | None = None) -> BlockAdjustm
     prepared, state0 = prepare_project(root, settings)
     st = prepared.settings
     result = adjust_block(prepared.block, prepared.opts, state0, snooping=st.snooping, alpha=st.alpha,
-                          point_covariances=st.point_covariances)
+                          point_covariances=st.point_covariances, variance_components=st.variance_components)
+    if result.block is not prepared.block:  # reweighted by variance components: report the weights solved with
+        prepared = dataclasses.replace(prepared, block=result.block, opts=result.opts)
     return finish(prepared, result)
 
 
@@ -530,7 +586,8 @@ def finish(prepared: PreparedBlock, result: AdjustmentResult) -> BlockAdjustment
         camera_adjusted=G.camera_from_cal(state.cal, p.camera), block=block, opts=opts, result=result, eo_map=eo,
         points_map=pts_map, points_sigma_map=psig, control=p.control_used,
         control_index_of_point={int(j): c for c, j in enumerate(block.control_point)}, check=check, gnss_map=gnss_map,
-        gnss_residual_m=gres, n_tie_points=p.n_tie_points, check_obs=chk_obs,
+        gnss_residual_m=gres, n_tie_points=p.n_tie_points, check_obs=chk_obs, components=p.components,
+        left_out=p.left_out,
     )
 
 

@@ -202,19 +202,84 @@ def _options(ba, tolerances: str) -> dict:
     }
 
 
-def _key_statistics(ba) -> dict:
+def _weak_modes(ba, height_limit_m: float) -> list:
+    """(mode, why) of the geometry modes that are weak: held only by GNSS positions and priors, or so loosely
+    determined that 3 sigma exceed the height RMS limit."""
+    out = []
+    for g in ba.result.geometry or []:
+        if g.held_by_priors:
+            out.append((g, f"{_MODE_NAMES[g.mode]} held only by {_holders(g)} (sigma {g.sigma_m:.3f} m)"))
+        elif 3 * g.sigma_m > height_limit_m:
+            by = ", ".join(f"{k} {v:.0%}" for k, v in sorted(g.shares.items(), key=lambda kv: -kv[1]) if v >= 0.05)
+            out.append((g, f"{_MODE_NAMES[g.mode]} sigma {g.sigma_m:.3f} m, 3 sigma above the {height_limit_m:.2f} m "
+                           f"height limit (determined by {by})"))
+    return out
+
+
+def _key_statistics(ba, height_limit_m: float) -> dict:
     r, opts = ba.result, ba.opts
     s0_um = r.sigma0 * opts.image_sigma_px * ba.camera_apriori.pixel_um
     success = bool(r.info.converged and math.isfinite(r.sigma0))
+    weak = _weak_modes(ba, height_limit_m)
+    message = ("Solution failed: the last solve did not converge." if not success else
+               "Solution Successful." if r.info.iterations < opts.max_iterations else
+               f"Solution Successful (iteration limit {opts.max_iterations} reached; the last step "
+               f"changed the error by less than 1e-6 relative).")
+    if success and weak:
+        message += " Weak geometry: " + "; ".join(why for _, why in weak) + "."
+    if success and ba.left_out:
+        n = sum(len(lo.image_ids) for lo in ba.left_out)
+        message += (f" {n} images in {len(ba.left_out)} part(s) that no tie point connects to the block and that "
+                    f"have no datum of their own are not adjusted (components below).")
     return {
         "sigma0_um": _f(s0_um), "sigma0_px": _f(r.sigma0 * opts.image_sigma_px, 4), "sigma0": _f(r.sigma0, 4),
+        "pixel_um": _f(ba.camera_apriori.pixel_um, 4),
         "iterations": int(r.iterations_total),
         "degrees_of_freedom": int(r.info.dof), "success": success,
-        "message": ("Solution failed: the last solve did not converge." if not success else
-                    "Solution Successful." if r.info.iterations < opts.max_iterations else
-                    f"Solution Successful (iteration limit {opts.max_iterations} reached; the last step "
-                    f"changed the error by less than 1e-6 relative)."),
+        "weak_geometry": [g.mode for g, _ in weak],
+        "message": message,
     }
+
+
+_MODE_NAMES = {"height": "block height", "tilt_east": "east-west tilt", "tilt_north": "north-south tilt",
+               "bending": "bending"}
+
+
+def _holders(g) -> str:
+    gnss, priors = g.shares.get("gnss", 0.0), g.shares.get("priors", 0.0)
+    return "the GNSS positions" if gnss >= priors else "the a-priori values"
+
+
+def _variance_components(ba) -> list | None:
+    """Per observation group: equations, redundancy, the estimated factor on the a-priori sigmas, and the
+    factor the solve's weights already carry (variance-component reweighting)."""
+    r = ba.result
+    if not r.variance_components:
+        return None
+    wf = r.weight_factors or {}
+    apriori = {"image": f"{ba.settings.image_sigma_px:g} px" if ba.settings.image_sigma_px else None,
+               "surface": f"{ba.settings.surface_sigma_m:g} m (+ slope)" if ba.settings.dem is not None else None}
+    if ba.block.gnss_sigma_m is not None:
+        med = np.median(ba.block.gnss_sigma_m, axis=0) / wf.get("gnss", 1.0)
+        apriori["gnss"] = f"{med[0]:.3f} / {med[2]:.3f} m"
+    out = []
+    for c in r.variance_components:
+        w = wf.get(c.group, 1.0)
+        out.append({"group": c.group, "observations": c.n, "redundancy": _f(c.redundancy, 1),
+                    "factor": _f(c.factor, 3) if c.factor is not None else None,
+                    "weight_factor": _f(w, 3), "apriori_sigma": apriori.get(c.group),
+                    "estimated_factor": _f(w * c.factor, 3) if c.factor is not None else None})
+    return out
+
+
+def _geometry_modes(ba, height_limit_m: float) -> list | None:
+    """The block's height modes: standard deviation, which observations determine them, whether weak."""
+    if not ba.result.geometry:
+        return None
+    weak = {g.mode for g, _ in _weak_modes(ba, height_limit_m)}
+    return [{**g.as_dict(), "weak": g.mode in weak, "sigma_m": _f(g.sigma_m, 4), "radius_m": _f(g.radius_m, 1),
+             "sigma_deg": _f(g.sigma_deg, 5) if g.mode.startswith("tilt") else None,
+             "shares": {k: _f(v, 3) for k, v in g.shares.items()}} for g in ba.result.geometry]
 
 
 def build_report(ba, map_scale: str = "1:5000", terrain: str = "flat", tolerance_file=None) -> dict:
@@ -243,7 +308,8 @@ def build_report(ba, map_scale: str = "1:5000", terrain: str = "flat", tolerance
                         "note": "ENU tangent plane of the adjustment at origin_map (x, y, h in the project CRS)"},
         "options": _options(ba, tolerances),
         "parameters": _parameters(ba, rms_control, cres, dchk, mean_sd_obj, rms_lim, res_lim),
-        "key_statistics": _key_statistics(ba),
+        "key_statistics": _key_statistics(ba, rms_lim[2]),
+        "components": {"adjusted": int(ba.components), "left_out": [lo.as_dict() for lo in ba.left_out]},
         "counts": {"images": b.n_images, "strips": b.n_strips, "tie_points": int(len(tie_pts)),
                    "control_points": int(len(used_ctrl)), "check_points": int(len(check_rows)),
                    "image_observations": int(res.active.sum()), "removed_observations": len(removed)},
@@ -262,6 +328,8 @@ def build_report(ba, map_scale: str = "1:5000", terrain: str = "flat", tolerance
         "gnss_strips": [{"strip": s + 1, "shift_m": _lst(r.state.shift[s], 4), "drift_m_per_km": _lst(r.state.drift[s], 4)}
                         for s in range(b.n_strips)] if opts.gnss_correction != "none" else None,
         "surface_control": _surface_control(ba),
+        "variance_components": _variance_components(ba),
+        "geometry_modes": _geometry_modes(ba, rms_lim[2]),
         "timings_s": {k: _f(v, 3) for k, v in r.timings_s.items()},
     }
 
@@ -334,12 +402,42 @@ def format_txt(rep: dict) -> str:
         vals = rep["parameters"][key] or [None] * 4
         L.append(f"{label:32}" + "".join(_v(x, 10, nd) for x in vals))
     k = rep["key_statistics"]
-    sigma = "n/a" if k["sigma0_um"] is None else f"{k['sigma0_um']:.2f} um"
+    sigma = "n/a" if k["sigma0_um"] is None else f"{k['sigma0_um']:.2f} um ({k['sigma0_px']:.3f} px of {k['pixel_um']:g} um)"
     L += ["", "Key Statistics", f"  Sigma: {sigma}", f"  Number of iterations: {k['iterations']}",
           f"  Degrees of Freedom: {k['degrees_of_freedom']}", f"  {k['message']}", ""]
     sc = rep.get("surface_control")
     if sc:
         L += _surface_txt(sc)
+    vc = rep.get("variance_components")
+    if vc:
+        L += ["VARIANCE COMPONENTS (factor on the a-priori sigmas: v'Pv / redundancy; 1 = the sigmas fit)",
+              f"  {'group':10}{'obs':>8}{'redundancy':>12}{'factor':>9}{'weighted':>10}{'estimated':>11}  a-priori"]
+        for g in vc:
+            L.append(f"  {g['group']:10}{g['observations']:8d}{_v(g['redundancy'], 12, 1)}{_v(g['factor'], 9, 3)}"
+                     f"{_v(g['weight_factor'], 10, 3)}{_v(g['estimated_factor'], 11, 3)}  {g['apriori_sigma'] or ''}")
+        L.append("  (factor: of this solve's weights; weighted: the factor they carry from reweighting; estimated: "
+                 "their product; blank: redundancy below 5)")
+        L.append("")
+    gm = rep.get("geometry_modes")
+    if gm:
+        groups = [k for k in ("image", "gnss", "control", "surface", "priors") if any(k in g["shares"] for g in gm)]
+        L += ["BLOCK GEOMETRY (modes of the tie-point heights: sigma, and the share of each group in determining them)",
+              f"  {'mode':12}{'sigma m':>9}{'deg':>9}" + "".join(f"{k:>9}" for k in groups) + "  weak"]
+        for g in gm:
+            L.append(f"  {g['mode']:12}{_v(g['sigma_m'], 9, 3)}{_v(g['sigma_deg'], 9, 4)}"
+                     + "".join(_v(g["shares"].get(k), 9, 2) for k in groups)
+                     + ("  YES (held by priors)" if g["held_by_priors"] else "  YES" if g["weak"] else "  no"))
+        L.append(f"  (height: the mean height; tilts and bending: the height change at the block's edge, "
+                 f"{gm[0]['radius_m']:.0f} m from its centre; weak: held only by GNSS and priors, or 3 sigma above "
+                 f"the height RMS limit)")
+        L.append("")
+    comp = rep.get("components") or {}
+    if comp.get("adjusted", 1) > 1 or comp.get("left_out"):
+        L.append(f"COMPONENTS: the tie points connect the adjusted images in {comp['adjusted']} part(s), each with "
+                 "its own datum")
+        for lo in comp.get("left_out", []):
+            L.append(f"  NOT ADJUSTED ({lo['reason']}): {', '.join(lo['images'])}")
+        L.append("")
     c = rep["counts"]
     L.append(f"Images {c['images']} in {c['strips']} strips, tie points {c['tie_points']}, control points {c['control_points']}, "
              f"check points {c['check_points']}, image observations {c['image_observations']}, removed {c['removed_observations']}")

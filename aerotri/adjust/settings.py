@@ -57,6 +57,9 @@ class AdjustSettings:
     lidar_surface: bool = setting(True, help="aerotri run: without [adjust] dem, hold the tie points to the LiDAR "
                                              "stages' DEM (lidar_out/dem.tif, nDSM ndsm.tif) and roof planes "
                                              "(lidar_out/roof_planes.geojson) in both adjustments.")
+    variance_components: bool = setting(False, help="Reweight the observation groups (image, GNSS, control, surface) "
+                                                    "by their estimated variance components and solve again; the "
+                                                    "components are reported either way.")
     point_covariances: bool = True
     use_control: bool = True  # False: ignore control/ (GNSS must carry the datum)
     refine_approximations: bool = True  # resection/intersection of the attitudes before the bundle (GNSS)

@@ -11,10 +11,13 @@ import time
 import numpy as np
 
 from aerotri.adjust import graph as G
+from aerotri.adjust import variance_components as vce
 from aerotri.adjust.surface import SurfaceStats, surface_stats
+from aerotri.core.errors import SolveError
 from aerotri.adjust.check_points import intersect_with_covariance
 from aerotri.adjust.collinearity import point_jacobian_cv, point_normals, project_cv
-from aerotri.adjust.covariance import ReducedCovariance
+from aerotri.adjust.covariance import ReducedCovariance, point_rays
+from aerotri.adjust.geometry_modes import geometry_modes
 from aerotri.adjust.covariance import point_covariances as point_covariances_rcs
 from aerotri.adjust.snooping import (
     critical_value,
@@ -53,6 +56,11 @@ class AdjustmentResult:
     timings_s: dict
     surface: SurfaceStats | None = None  # what the surface control did (blocks with a DEM)
     surface_use: np.ndarray | None = None  # (P,) 0 no candidate, 1 used, 2 rejected by the gate
+    variance_components: list | None = None  # variance_components.VarianceComponent per group (final weights)
+    weight_factors: dict | None = None  # group -> factor its a-priori sigmas were multiplied by (reweighting)
+    block: G.Block | None = None  # the block as solved last (its sigmas reweighted by the variance components)
+    opts: G.Options | None = None
+    geometry: list | None = None  # geometry_modes.GeometryMode: how well the block's height modes are determined
 
 
 def adjust_block(
@@ -64,8 +72,12 @@ def adjust_block(
     compute_marginals: bool = True,
     point_covariances: bool = True,
     max_rounds: int = 15,
+    variance_components: bool = False,
+    max_vce_iterations: int = 6,
 ) -> AdjustmentResult:
-    """Adjust the block; with ``snooping``, remove blunders (image points, then control points)."""
+    """Adjust the block; with ``snooping``, remove blunders (image points, then control points). The variance
+    components of the observation groups are estimated with the covariances; with ``variance_components``
+    the groups are reweighted by them and solved again until every factor is within 5 % of one."""
     t_start = time.perf_counter()
     crit = critical_value(alpha)
     obs_active = np.ones(len(block.obs_point), dtype=bool)
@@ -163,6 +175,7 @@ def adjust_block(
     sigma0 = float(np.sqrt(info.chi2 / info.dof)) if info.dof > 0 else float("nan")
 
     pose_cov = point_cov = cal_cov = marg = None
+    components, factors, geometry = None, None, None
     if compute_marginals:
         t0 = time.perf_counter()
         marg = _marginals(gr, values, block, obs_active)
@@ -174,13 +187,44 @@ def adjust_block(
             values, info = G.optimize(gr, opts)
             iterations += info.iterations
             state = G.state_from_values(values, block, opts, state, tie=gr.tie)
-            sigma0 = float(np.sqrt(info.chi2 / info.dof)) if info.dof > 0 else float("nan")
             marg = _marginals(gr, values, block, obs_active)
+        point_unit = rays = None
+        if marg is not None and point_covariances:
+            rays = point_rays(block, state, obs_active, opts.image_sigma_px, marg, bool(opts.self_calibration))
+            point_unit = point_covariances_rcs(block, state, obs_active, opts.image_sigma_px, marg,
+                                               bool(opts.self_calibration), rays=rays)
+            components = vce.estimate(block, opts, state, obs_active, control_active, marg, point_unit, info.dof)
+            factors = {c.group: 1.0 for c in components}
+            for it in range(max_vce_iterations if variance_components else 0):
+                if all(c.factor is None or abs(c.factor - 1.0) < 0.05 for c in components):
+                    break
+                for c in components:
+                    if c.factor is not None:
+                        factors[c.group] *= c.factor
+                block, opts = vce.reweighted(block, opts, components)
+                if surface_candidates is not None:
+                    block.surface_active = _surface_gate(block, state, obs_active, surface_candidates, opts.image_sigma_px)
+                gr = G.build_graph(block, opts, state, obs_active, control_active, robust=False)
+                values, info = G.optimize(gr, opts)
+                iterations += info.iterations
+                state = G.state_from_values(values, block, opts, state, tie=gr.tie)
+                marg = _marginals(gr, values, block, obs_active)
+                if marg is None:
+                    raise SolveError("the covariances failed after reweighting by variance components; "
+                                     "adjust without variance-component reweighting")
+                rays = point_rays(block, state, obs_active, opts.image_sigma_px, marg, bool(opts.self_calibration))
+                point_unit = point_covariances_rcs(block, state, obs_active, opts.image_sigma_px, marg,
+                                                   bool(opts.self_calibration), rays=rays)
+                components = vce.estimate(block, opts, state, obs_active, control_active, marg, point_unit, info.dof)
+                log.info("variance components, iteration %d: %s", it + 1, ", ".join(
+                    f"{c.group} {c.factor:.3f}" for c in components if c.factor is not None))
+        sigma0 = float(np.sqrt(info.chi2 / info.dof)) if info.dof > 0 else float("nan")
         s2 = sigma0**2
         if marg is not None:
             pose_cov = np.array([marg.marginalCovariance(G.X(i)) for i in range(block.n_images)]) * s2
-            if point_covariances:
-                point_cov = point_covariances_rcs(block, state, obs_active, opts.image_sigma_px, marg, bool(opts.self_calibration)) * s2
+            if point_unit is not None:
+                point_cov = point_unit * s2
+                geometry = geometry_modes(block, opts, state, obs_active, control_active, marg, sigma0, rays)
             if values.exists(G.K_KEY):
                 cal_cov = marg.marginalCovariance(G.K_KEY) * s2
         timings["marginals_s"] += time.perf_counter() - t0
@@ -195,7 +239,7 @@ def adjust_block(
         log.info(f"surface control: {stats.used} points used, {stats.rejected} rejected, height - DEM RMS {rms}")
     return AdjustmentResult(
         state, info, sigma0, obs_active, control_active, removed, rejected, v, r, pose_cov, point_cov, cal_cov, marg,
-        iterations, timings, stats, use,
+        iterations, timings, stats, use, components, factors, block, opts, geometry,
     )
 
 

@@ -290,6 +290,7 @@ class SurfaceControl:
     ndsm: HeightGrid | None = None
     max_ndsm_m: float = 1.0  # above this height over the ground a point is on an object
     gate_sigmas: float = 3.0
+    sigma_factor: float = 1.0  # the variance component's factor on the stated sigmas (reweighting)
     planes: RoofPlanes | None = None
     map_unit_m: tuple[float, float] = (1.0, 1.0)  # metres per unit of the map's x, y and of its heights
     face: np.ndarray | None = None  # roof face per point (-1: ground), decided by ``candidates``
@@ -311,7 +312,7 @@ class SurfaceControl:
         m = self.frame.to_map(p)
         h, hx, hy = self.dem.sample(m[:, 0], m[:, 1])
         e = m[:, 2] - h
-        sigma = np.sqrt(self.sigma_m**2 + (np.hypot(hx, hy) * 0.5 * self.dem.res) ** 2)
+        sigma = self.sigma_factor * np.sqrt(self.sigma_m**2 + (np.hypot(hx, hy) * 0.5 * self.dem.res) ** 2)
         face = self._faces(m)
         roof = np.flatnonzero(face >= 0)
         if len(roof):
@@ -323,7 +324,8 @@ class SurfaceControl:
             e[roof] = (m[roof, 2] * z_m - (a * dx + b * dy + c)) / s
             j = np.stack([dx, dy, np.ones_like(dx)], axis=1)
             fit2 = np.einsum("ni,nij,nj->n", j, pl.cov_abc[k], j)
-            sigma[roof] = np.sqrt(fit2 + pl.sigma_strip_z_m**2 + pl.sigma_strip_xy_m**2 * (a * a + b * b)) / s
+            strip2 = pl.sigma_strip_z_m**2 + pl.sigma_strip_xy_m**2 * (a * a + b * b)
+            sigma[roof] = self.sigma_factor * np.sqrt(fit2 + strip2) / s
             # slopes per map unit, for the Jacobian below (d map / d local is in map units)
             hx, hy = hx.copy(), hy.copy()
             hx[roof], hy[roof] = a * xy_m / z_m, b * xy_m / z_m

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import logging
 
+import dataclasses
 import json
 from pathlib import Path
 
@@ -15,14 +16,18 @@ from aerotri.core.executor import Executor, activate
 log = logging.getLogger(__name__)
 
 
-def _run_chain(project_dir: Path, scheduler, workers, force: bool, **inputs) -> list[dict]:
+def _run_chain(project_dir: Path, scheduler, workers, force: bool, keep_lidar_classes: bool = False,
+               **inputs) -> list[dict]:
     from aerotri.chain.options import read_options
     from aerotri.chain.runner import run_stages
     from aerotri.chain.stages import Chain
     from aerotri.core.project import Project
 
     project = Project.open(project_dir)
-    chain = Chain(project, read_options(project), **inputs)  # project.toml checked whole before any stage runs
+    options = read_options(project)  # project.toml checked whole before any stage runs
+    if keep_lidar_classes:
+        options = dataclasses.replace(options, classify=dataclasses.replace(options.classify, keep_classes=True))
+    chain = Chain(project, options, **inputs)
     chain.check_files()
     stages = chain.stages()
     with Executor(scheduler, workers) as ex, activate(ex):
@@ -73,8 +78,11 @@ def _stale_simulation(project: Path, cfg: dict) -> str | None:
 @click.option("--dem", type=click.Path(dir_okay=False, exists=True, path_type=Path),
               help="DEM for the orthophotos (overrides [rectify] dem; default: the DEM of the LiDAR stages).")
 @click.option("--force", is_flag=True, help="Re-run every stage even when it is up to date.")
+@click.option("--keep-lidar-classes", is_flag=True,
+              help="Keep the classes the LiDAR was delivered with (checked for plausible ground and buildings) "
+                   "instead of classifying it; the same as [classify] keep_classes = true.")
 @scheduler_options
-def run(project, reference, points, dem, force, scheduler, workers):
+def run(project, reference, points, dem, force, keep_lidar_classes, scheduler, workers):
     """The whole chain over PROJECT, resumable: a re-run skips stages whose inputs did not change.
 
     Stage options come from project.toml, one section per stage ([classify], [rasters], [corners],
@@ -83,7 +91,8 @@ def run(project, reference, points, dem, force, scheduler, workers):
     """
     from aerotri.chain.runner import format_summary
 
-    rows = _run_chain(project, scheduler, workers, force, reference_ortho=reference, surveyed_points=points, dem=dem)
+    rows = _run_chain(project, scheduler, workers, force, keep_lidar_classes, reference_ortho=reference,
+                      surveyed_points=points, dem=dem)
     click.echo(format_summary(rows))
     last = _closing_words(rows)
     if last:

@@ -27,13 +27,25 @@ _SPARSE = default_of(MatchSettings, "sparse")  # the --budget and --max-dim defa
 @scheduler_options
 def match(project, budget, max_dim_px, ratio, min_overlap, terrain_height_m, image_top_deg, densify, scheduler,
           workers):
-    """Automatic tie points: writes at/tiepoints.csv and at/connectivity.{json,png}."""
+    """Automatic tie points: writes at/tiepoints.csv and at/connectivity.{json,png}.
+
+    Settings: project.toml [match] (as ``aerotri run`` reads it), then the options given here."""
+    from aerotri.core.project import Project
+    from aerotri.core.settings import from_table
     from aerotri.match.pipeline import match_project
 
-    s = MatchSettings()
-    s = dataclasses.replace(s, sparse=dataclasses.replace(s.sparse, budget=budget, max_dim_px=max_dim_px),
-                            match=dataclasses.replace(s.match, ratio=ratio), min_overlap=min_overlap,
-                            terrain_height_m=terrain_height_m, image_top_deg=image_top_deg, densify=densify)
+    p = Project.open(project)
+    s = from_table(MatchSettings, p.section("match"), f"{p.config_path} [match]", base_dir=p.root)
+    ctx = click.get_current_context()
+
+    def given(name):
+        return ctx.get_parameter_source(name) == click.core.ParameterSource.COMMANDLINE
+
+    sparse = {k: v for k, v in (("budget", budget), ("max_dim_px", max_dim_px)) if given(k)}
+    top = {k: v for k, v in (("min_overlap", min_overlap), ("terrain_height_m", terrain_height_m),
+                             ("image_top_deg", image_top_deg), ("densify", densify)) if given(k)}
+    s = dataclasses.replace(s, sparse=dataclasses.replace(s.sparse, **sparse),
+                            match=dataclasses.replace(s.match, ratio=ratio) if given("ratio") else s.match, **top)
     with executor_for(scheduler, workers) as ex:
         rep = match_project(project, s, executor=ex)
     click.echo(f"frames {rep.frames}  pairs {rep.pairs}  tracks {rep.tracks}  observations "

@@ -29,6 +29,7 @@ class BlockPlan:
     kappa_deg: np.ndarray  # (N,)
     terrain_height_m: float
     footprints: list[Polygon]
+    image_top_deg: float = 0.0
 
     def rotation(self, i: int) -> np.ndarray:
         return rotation_matrix_opk(0.0, 0.0, self.kappa_deg[i])
@@ -40,8 +41,18 @@ class BlockPlan:
         return self.centre_m[i, :2] + d[:, :2] * t[:, None]
 
 
+def image_top_from_sensor(camera: FrameCamera) -> float:
+    """The image top's direction from the flight direction (degrees) that puts the sensor's long side across
+    track, as large-format frame cameras fly (DMC, UltraCam): 0 for a landscape frame, 90 for a portrait one
+    (a frame turned by +-90 degrees has the same footprint either way)."""
+    return 90.0 if camera.height > camera.width else 0.0
+
+
 def plan_block(image_id, antenna_m, camera: FrameCamera, lever_arm_m, terrain_height_m: float,
-               image_top_deg: float = 0.0) -> BlockPlan:
+               image_top_deg: float | None = None) -> BlockPlan:
+    """The flight plan of GNSS-positioned frames; ``image_top_deg`` None: ``image_top_from_sensor``."""
+    if image_top_deg is None:
+        image_top_deg = image_top_from_sensor(camera)
     antenna_m = np.asarray(antenna_m, dtype=float)
     strip = strips_from_track(antenna_m)
     kappa = np.zeros(len(image_id))
@@ -60,7 +71,7 @@ def plan_block(image_id, antenna_m, camera: FrameCamera, lever_arm_m, terrain_he
                          f"{terrain_height_m:.1f} m (check gnss.txt heights and the terrain height)")
     W, H = camera.width, camera.height
     corners = np.array([[-0.5, -0.5], [W - 0.5, -0.5], [W - 0.5, H - 0.5], [-0.5, H - 0.5]])
-    plan = BlockPlan(list(image_id), strip, centre, kappa, float(terrain_height_m), [])
+    plan = BlockPlan(list(image_id), strip, centre, kappa, float(terrain_height_m), [], float(image_top_deg))
     for i in range(len(image_id)):
         plan.footprints.append(Polygon(plan.ground_xy(i, camera, corners)))
     return plan

@@ -73,6 +73,7 @@ class MatchReport:
     models: list[ModelStrength]
     cross_strip: list[StripTies]
     terrain_height_m: float | None
+    image_top_deg: float | None  # the flight plan's image top from the flight direction (degrees)
     seconds: float
     feature_cache_hits: int
     match_cache_hits: int
@@ -321,6 +322,7 @@ def match_project(root, settings: MatchSettings | None = None, executor: Executo
         weak_strip_pairs=[[c.strip_a, c.strip_b] for c in strength.cross_strip if c.weak],
         densified=densified, models=strength.models, cross_strip=strength.cross_strip,
         terrain_height_m=plan.terrain_height_m if plan is not None else None,
+        image_top_deg=plan.image_top_deg if plan is not None else None,
         seconds=round(time.perf_counter() - t0, 2), feature_cache_hits=mt.feature_cache_hits,
         match_cache_hits=mt.match_cache_hits,
     )

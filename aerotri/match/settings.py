@@ -71,8 +71,10 @@ class MatchSettings:
                                       "smaller footprint).")
     terrain_height_m: float | None = setting(None, help="Mean terrain height (m) for the footprints; default: "
                                                         "project.toml [flight] or lidar_out/dem.tif.")
-    image_top_deg: float = setting(0.0, help="Direction of the image top relative to the flight direction "
-                                             "(0 = forward).")
+    image_top_deg: float | None = setting(None, help="Direction of the image top relative to the flight direction "
+                                                    "(degrees, 0 = forward); default: from the sensor's shape, "
+                                                    "0 for a landscape frame (the long side across track, as the "
+                                                    "DMC's), 90 for a portrait one.")
     densify: bool = setting(True, help="Densify weak models (dense features where a stereo model or a strip pair "
                                        "has too few ties).")
     min_per_region: int = setting(3, min=0, help="A stereo model is weak with fewer ties in a von Gruber region.")

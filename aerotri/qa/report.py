@@ -50,6 +50,17 @@ def _check(section: str, name: str, value, limit, unit: str, note: str = "") -> 
     return row
 
 
+def _sigma0_limit_px(tol: dict, ks: dict, s0_px: float) -> float | None:
+    """The self-check limit of sigma naught in the camera's pixels: ``sigma0_max_um`` over the pixel size
+    (``key_statistics`` pixel_um, or sigma0_um / sigma0_px of older reports), else ``sigma0_max_px``."""
+    pixel_um = ks.get("pixel_um")
+    if pixel_um is None and ks.get("sigma0_um") and s0_px:
+        pixel_um = ks["sigma0_um"] / s0_px
+    if tol.get("sigma0_max_um") is not None and pixel_um:
+        return round(float(tol["sigma0_max_um"]) / float(pixel_um), 3)
+    return tol.get("sigma0_max_px")
+
+
 def _hypot(a, b):
     return round(math.hypot(a, b), 4)
 
@@ -139,7 +150,7 @@ def build_qa_report(root, tolerance_file=None, terrain: str | None = None, scale
         if s0_px is None and ks.get("sigma0") is not None:  # reports written before sigma0_px
             s0_px = ks["sigma0"] * at.get("options", {}).get("image_sigma_px", float("nan"))
         if s0_px is not None and math.isfinite(s0_px):
-            rows.append(_check(sec, "sigma naught", round(s0_px, 3), tol.get("sigma0_max_px"), "px",
+            rows.append(_check(sec, "sigma naught", round(s0_px, 3), _sigma0_limit_px(tol, ks, s0_px), "px",
                                f"{ks['sigma0_um']:.2f} um" if ks.get("sigma0_um") is not None else ""))
     chk = at.get("check_rms_m")
     if chk and None not in chk:

@@ -151,3 +151,26 @@ def test_a_resolution_far_finer_than_the_gsd_is_warned_about(small_block, tmp_pa
         assert not any("ground sample distance" in m for m in messages)
     finally:
         logging.getLogger("ortho").removeHandler(handler)
+
+
+def test_frames_the_adjustment_left_out_are_not_rectified(tmp_path):
+    """A frame without EO stops the stage, unless the project's adjustment left it out (a part of the block
+    that no tie point connects and that has no datum): then the others are rectified and it is skipped."""
+    import json
+
+    from aerotri.core.errors import InputError
+    from ortho.block import load_block
+
+    root = tmp_path / "p"
+    write_synthetic_project(root, strips=1, frames_per_strip=3, buildings=2, seed=3)
+    eo = root / "at" / "eo.txt"
+    lines = eo.read_text().splitlines()
+    data = [ln for ln in lines if ln and not ln.startswith("#")]
+    dropped = data[-1].split()[0]
+    eo.write_text("\n".join(ln for ln in lines if ln != data[-1]) + "\n")
+    with pytest.raises(InputError, match=f"no exterior orientation for frame.*{dropped}"):
+        load_block(root)
+    (root / "at" / "report.json").write_text(json.dumps(
+        {"components": {"adjusted": 1, "left_out": [{"images": [dropped], "reason": "no control"}]}}))
+    blk = load_block(root)
+    assert dropped not in blk.images and len(blk.images) == 2

@@ -95,7 +95,9 @@ def test_adjustment_without_control_against_reference(ngi_adjusted, ngi_data):
     ks = report["key_statistics"]
     assert ks["success"]
     assert match.components == 1 and match.strips == 2
-    # every cross-strip pair that overlaps gets ties (image_top_deg = 90 for these portrait frames)
+    # every cross-strip pair that overlaps gets ties, with no option: the portrait frames' top (90 degrees from
+    # the flight direction) comes from the sensor's shape
+    assert match.image_top_deg == ngi.IMAGE_TOP_DEG
     assert sum(p.ties > 0 for p in match.ties_per_pair) >= 5
     assert ks["sigma0_px"] < 0.4  # measured 0.20 px
     ref = ngi.read_reference(ngi_data)
@@ -110,10 +112,16 @@ def test_adjustment_without_control_against_reference(ngi_adjusted, ngi_data):
     h = ngi.height_stats(xyz[:, 2], ngi.sample_dem_bilinear(ngi_data / ngi.DEM_FILE, xyz[:, 0], xyz[:, 1]))
     assert h["n"] > 300
     assert -20.0 < h["median_m"] < -5.0
+    # ... and the report says so instead of a bare "Solution Successful": the tie points' mean height has a
+    # sigma of metres, held by the images' convergence alone (bench: 4.6 m, image share 1.00)
+    height = {g["mode"]: g for g in report["geometry_modes"]}["height"]
+    assert "height" in ks["weak_geometry"] and "Weak geometry: block height sigma" in ks["message"]
+    assert height["sigma_m"] > 1.0 and height["shares"]["image"] > 0.9
 
 
 def test_the_dem_as_surface_control_brings_the_orientation_to_the_national_solution(ngi_adjusted, ngi_data, tmp_path):
-    """Issue 19 on real DMC frames: the 24 m SUDEM (stated 3 m) as surface control, no control points.
+    """Issue 19 on real DMC frames: the 24 m SUDEM as surface control, no control points, its sigma from the
+    variance components (started at the default 0.15 m plus the slope term; no value picked by hand).
     The same tie points as above (without it: OPK 0.030 deg RMS off, tie points 11 m below the DEM)."""
     import shutil
 
@@ -123,12 +131,16 @@ def test_the_dem_as_surface_control_brings_the_orientation_to_the_national_solut
     root = tmp_path / "project"
     shutil.copytree(ngi_adjusted[0], root, symlinks=True)
     ba, report = run_adjustment(root, AdjustSettings(use_control=False, dem=ngi_data / ngi.DEM_FILE,
-                                                     surface_sigma_m=3.0), html=False)
+                                                     variance_components=True), html=False)
     assert report["key_statistics"]["success"]
+    vc = {g["group"]: g for g in report["variance_components"]}
+    assert all(g["factor"] is None or abs(g["factor"] - 1) < 0.05 for g in vc.values())
+    assert vc["image"]["estimated_factor"] < 0.6  # 0.21 px from a stated 0.5 px (bench: 0.41)
+    assert "height" not in report["key_statistics"]["weak_geometry"]
     sc = report["surface_control"]
     assert sc["used"] > 0.9 * sc["candidates"] > 300
     d = ngi.opk_differences(ba.eo_map.image_id, ba.eo_map.opk_deg, ba.eo_map.centre_m, ngi.read_reference(ngi_data))
-    assert d["opk_rms_diff_deg"] < 0.02  # bench/eval_ngi_surface.py (densified ties): 0.0139 deg, 0.039 without
+    assert d["opk_rms_diff_deg"] < 0.02  # bench/eval_ngi_surface.py (densified ties): 0.0141 deg, 0.039 without
     _, xyz = ngi.read_object_points(root / "at" / "object_points.csv", "tie")
     h = ngi.height_stats(xyz[:, 2], ngi.sample_dem_bilinear(ngi_data / ngi.DEM_FILE, xyz[:, 0], xyz[:, 1]))
     assert abs(h["median_m"]) < 1.0  # within the DEM's precision (the reference orientation's: -1.5 m)

@@ -75,6 +75,43 @@ def test_pairs_follow_the_footprints():
     assert kinds[("a0", "b3")] == "cross"
 
 
+def test_a_portrait_sensor_flies_with_its_long_side_across_track():
+    """The same DMC frame stored portrait (turned by 90 degrees): without an option the plan turns its top
+    90 degrees from the flight direction, so its footprints are the landscape frame's and so are the pairs."""
+    from aerotri.geom.camera import BrownCamera, dmc_camera
+
+    land = dmc_camera()
+    portrait = BrownCamera(focal_mm=120.0, pixel_um=12.0, width=7680, height=13824, name="DMC portrait")
+    pos = np.array([(x, 0.0, 1000.0) for x in (0, 300, 600, 900)] + [(x, 1000.0, 1000.0) for x in (900, 600, 300, 0)])
+    ids = [f"a{i}" for i in range(4)] + [f"b{i}" for i in range(4)]
+    a, b = plan_block(ids, pos, land, [0, 0, 0], 0.0), plan_block(ids, pos, portrait, [0, 0, 0], 0.0)
+    assert a.image_top_deg == 0.0 and b.image_top_deg == 90.0
+    for fa, fb in zip(a.footprints, b.footprints):
+        assert fa.symmetric_difference(fb).area < 1e-6 * fa.area
+    assert [(q.i, q.j, q.kind) for q in candidate_pairs(a)] == [(q.i, q.j, q.kind) for q in candidate_pairs(b)]
+    # an explicit value wins
+    assert plan_block(ids, pos, portrait, [0, 0, 0], 0.0, image_top_deg=270.0).image_top_deg == 270.0
+
+
+def test_match_command_reads_the_project_match_section(matched, tmp_path):
+    """``aerotri match`` takes project.toml [match] (as ``aerotri run`` does); a command-line option wins."""
+    import json
+
+    p = shutil.copytree(matched[0], tmp_path / "p")
+    with open(p / "project.toml", "a") as f:
+        f.write("\n[match]\nimage_top_deg = 180.0\nmin_overlap = 0.2\n")
+    res = CliRunner().invoke(aerotri_main, ["match", str(p)])
+    assert res.exit_code == 0, res.output
+    assert json.loads((p / "at" / "connectivity.json").read_text())["image_top_deg"] == 180.0
+    res = CliRunner().invoke(aerotri_main, ["match", str(p), "--image-top-deg", "0"])
+    assert res.exit_code == 0, res.output
+    assert json.loads((p / "at" / "connectivity.json").read_text())["image_top_deg"] == 0.0
+    with open(p / "project.toml", "a") as f:
+        f.write("densfy = true\n")  # a misspelt key is refused, naming the file and section
+    res = CliRunner().invoke(aerotri_main, ["match", str(p)])
+    assert res.exit_code == 2 and "[match]" in res.output and "densfy" in res.output
+
+
 def _copy_inputs(src, dst):
     shutil.copytree(src, dst, ignore=shutil.ignore_patterns("at", "work", "truth"))
     return dst

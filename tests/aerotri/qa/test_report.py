@@ -30,7 +30,7 @@ def test_verdicts_match_numbers_and_terrain_class(tmp_path):
     assert by["check points, height RMS"]["verdict"] == "fail"  # 1.5 m > 1.0 m (flat)
     assert by["displacement on ground patches, plan RMS"]["verdict"] == "pass"
     s0 = by["sigma naught"]  # from at/report.json alone: no camera file in this project
-    assert s0["value"] == 0.425 and s0["limit"] == 0.67 and s0["verdict"] == "pass"
+    assert s0["value"] == 0.425 and s0["limit"] == 0.667 and s0["verdict"] == "pass"  # 8 um on the 12 um pixel
     assert rep["overall"] == "fail"
     assert (p / "reports" / "index.html").read_text().count("class='fail'") == 2
     # The same numbers pass the mountainous limits (0.50 m plan, 3.0 m height).
@@ -92,3 +92,14 @@ def test_a_check_that_measured_nothing_fails(tmp_path):
     rep = write_qa_report(p)
     by = {r["quantity"]: r for r in rep["checks"]}
     assert by["displacement of the DOM"]["verdict"] == "fail" and rep["overall"] == "fail"
+
+
+def test_sigma_naught_limit_follows_the_pixel_size(tmp_path):
+    """8 um is 0.67 px on the DMC's 12 um pixel but 1.78 px on a 4.5 um drone pixel: the same image
+    precision passes on both."""
+    p = _project(tmp_path, [0.1, 0.1, 0.5], 0.18)
+    rep = json.loads((p / "at" / "report.json").read_text())
+    rep["key_statistics"].update(sigma0_um=4.5, sigma0_px=1.0, pixel_um=4.5)
+    (p / "at" / "report.json").write_text(json.dumps(rep))
+    s0 = {r["quantity"]: r for r in write_qa_report(p)["checks"]}["sigma naught"]
+    assert s0["limit"] == 1.778 and s0["verdict"] == "pass"

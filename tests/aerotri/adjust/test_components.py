@@ -1,0 +1,71 @@
+"""A block that tie points do not connect: each part with a datum is adjusted, the others are named and left out."""
+
+from __future__ import annotations
+
+import csv
+import dataclasses
+
+import numpy as np
+import pytest
+
+from aerotri.adjust.pipeline import AdjustSettings, run_adjustment
+from aerotri.core.errors import InputError
+from aerotri.sim.observations import geometric_block, write_block_project, write_truth_observations
+
+SIGMA_PX = 0.3
+
+
+def _rewrite(path, keep):
+    rows = list(csv.DictReader(open(path)))
+    with open(path, "w", newline="") as f:
+        w = csv.DictWriter(f, fieldnames=list(rows[0]))
+        w.writeheader()
+        w.writerows(r for r in rows if keep(r))
+
+
+@pytest.fixture
+def split_block(tmp_path):
+    """3 strips; no tie point joins strip 1 to strips 2-3; the control points are measured in strips 2-3 only."""
+    block = geometric_block(3, 6, seed=11, gnss_shift_sigma_m=0.0, gnss_drift_sigma_m_per_km=0.0)
+    root = write_block_project(block, tmp_path / "blk")
+    write_truth_observations(root, tie_sigma_px=SIGMA_PX, n_control=4, points_per_image=150, n_check=0, seed=12)
+    rows = list(csv.DictReader(open(root / "at" / "tiepoints.csv")))
+    first = {r["point_id"] for r in rows if r["image_id"].startswith("s01")}
+    rest = {r["point_id"] for r in rows if not r["image_id"].startswith("s01")}
+    _rewrite(root / "at" / "tiepoints.csv", lambda r: r["point_id"] not in (first & rest))
+    _rewrite(root / "control" / "image_points.csv", lambda r: not r["image_id"].startswith("s01"))
+    measured = {r["point_id"] for r in csv.DictReader(open(root / "control" / "image_points.csv"))}
+    _rewrite(root / "control" / "points.csv", lambda r: r["id"] in measured)
+    return block, root
+
+
+def test_parts_with_gnss_are_adjusted_together(split_block):
+    """GNSS without corrections gives each part its datum: both are adjusted and the report says two parts."""
+    block, root = split_block
+    ba, rep = run_adjustment(root, AdjustSettings(image_sigma_px=SIGMA_PX), html=False)
+    assert rep["key_statistics"]["success"]
+    assert rep["components"] == {"adjusted": 2, "left_out": []}
+    assert ba.block.n_images == 18
+    truth = block.eo_map()
+    k = truth.index()
+    err = np.linalg.norm(ba.eo_map.centre_m - truth.centre_m[[k[i] for i in ba.eo_map.image_id]], axis=1)
+    assert err.max() < 0.2  # every frame oriented, strip 1 by its GNSS alone
+
+
+def test_a_part_without_datum_is_named_and_left_out(split_block):
+    """GNSS shifts per strip need control: strip 1 has none, so it is left out by name; the rest is adjusted,
+    its EO written without strip 1's frames; without any control the adjustment stops."""
+    block, root = split_block
+    st = AdjustSettings(image_sigma_px=SIGMA_PX, gnss_correction="shift")
+    ba, rep = run_adjustment(root, st, html=False)
+    left = rep["components"]["left_out"]
+    assert rep["components"]["adjusted"] == 1 and len(left) == 1
+    assert sorted(left[0]["images"]) == [i for i in block.image_id if i.startswith("s01")]
+    assert "control" in left[0]["reason"]
+    assert "not adjusted" in rep["key_statistics"]["message"]
+    eo_ids = [ln.split()[0] for ln in (root / "at" / "eo.txt").read_text().splitlines() if ln and not ln.startswith("#")]
+    assert sorted(eo_ids) == sorted(i for i in block.image_id if not i.startswith("s01"))
+    assert "NOT ADJUSTED" in (root / "at" / "report.txt").read_text()
+    # no control at all: the whole block has no datum -> a clear error before anything is solved
+    with pytest.raises(InputError, match="too few control points for the datum"):
+        run_adjustment(root, dataclasses.replace(st, use_control=False), html=False)
