@@ -665,8 +665,9 @@ def corner_control(paths, outdir, settings: CornerSettings = CornerSettings(), c
     corner is usable as control; x, y, z in the files' CRS and units, sigmas in metres (every length
     setting is in metres, also for clouds in feet). Without a usable corner it writes nothing, or, with
     ``record_none`` (the chain, which goes on without LiDAR control), only corners.json saying why
-    (``n_usable`` 0) and roof_planes.geojson, and removes the corner files of an earlier run, so that
-    nothing downstream takes stale corners. Returns the summary, with
+    (``n_usable`` 0), and removes the corner files (and roof planes) of an earlier run, so that nothing
+    downstream takes stale corners; the chain then adjusts as ``lidarctl corners``' exit code 2 tells a
+    user to (README), without roof planes. Returns the summary, with
     ``no_usable`` the one-line reason when no corner is usable (else None).
     """
     paths = [Path(p) for p in paths]
@@ -694,11 +695,8 @@ def corner_control(paths, outdir, settings: CornerSettings = CornerSettings(), c
         if not record_none:
             return summary
         outdir.mkdir(parents=True, exist_ok=True)
-        for name in ("corners.csv", "corners.geojson", "corners.png"):
+        for name in ("corners.csv", "corners.geojson", "corners.png", ROOF_PLANES_FILE):
             (outdir / name).unlink(missing_ok=True)
-        # the roof planes do not need a usable corner: the adjustment holds tie points on roofs to them
-        out = to_crs_units(result, units)
-        write_text_atomic(outdir / ROOF_PLANES_FILE, json.dumps(roof_planes_geojson(out["faces"], out["stats"], crs_out)))
         write_text_atomic(outdir / "corners.json", json.dumps(summary, indent=2) + "\n")
         return summary
     if s.figure:

@@ -222,8 +222,8 @@ class Chain:
     def corner_outputs(self, root) -> list[Path]:
         summary = _json(self.project.corners_summary_path)
         usable = summary.get("n_usable", 1) > 0 if summary else True
-        return [self.project.corners_summary_path, self.project.roof_planes_path] + (
-            [self.project.corners_path] if usable else [])
+        return [self.project.corners_summary_path] + (
+            [self.project.corners_path, self.project.roof_planes_path] if usable else [])
 
     def run_corners(self, root) -> dict:
         from lidarctl.corners import corner_control
@@ -259,12 +259,14 @@ class Chain:
 
     def with_surface(self, s):
         """The adjustment settings with the surface control of the chain: [adjust] dem (and planes) when given,
-        else the LiDAR stages' DEM, nDSM and roof planes (``[adjust] lidar_surface``, default true) when the
-        project has LiDAR."""
+        else the LiDAR stages' DEM, nDSM and roof planes (``[adjust] lidar_surface``, default true; the planes
+        when the corners stage found usable corners) when the project has LiDAR."""
         if s.dem is not None or not s.lidar_surface or not self.has_lidar:
             return s
+        # the roof planes come with usable corners (lidarctl corners writes nothing without, README)
+        usable = _json(self.project.corners_summary_path).get("n_usable", 0) > 0
         return dataclasses.replace(s, dem=self.project.dem_path, ndsm=self.project.ndsm_path,
-                                   planes=self.project.roof_planes_path)
+                                   planes=self.project.roof_planes_path if usable else None)
 
     def no_first_adjustment(self, root=None) -> str | None:
         why = self.no_corners()
