@@ -30,9 +30,10 @@ in metres of the map axes (``map_unit_m``):
 LiDAR strip's georeferencing error (the one ``lidarctl corners`` added to its corners, written in the
 file; ``plane_sigma_m`` overrides both), each projected onto the normal. The Jacobian is that of the
 DEM's with the plane's slopes, divided by ``s``: the plane's unit normal in the local frame. A roof point
-is a candidate whatever the nDSM says (the nDSM only tells the ground from what stands on it); which
-face a point lies on is decided in ``candidates`` (once per solve; the points move by far less than the
-footprints' margin) and kept by ``observe``, so the cost stays smooth; the gate then judges each point.
+is a candidate whatever the nDSM says (the nDSM only tells the ground from what stands on it). Which
+face a point lies on is decided in ``candidates`` and kept by ``observe`` (so the cost of a solve stays
+smooth); the gate decides the candidates again after every robust round where the point's rays alone put
+it (not where the surface pulled it: a point at the edge of a face would go in and out), then judges them.
 """
 
 from __future__ import annotations
