@@ -296,8 +296,15 @@ class SurfaceControl:
     map_unit_m: tuple[float, float] = (1.0, 1.0)  # metres per unit of the map's x, y and of its heights
     face: np.ndarray | None = None  # roof face per point (-1: ground), decided by ``candidates``
 
+    def of_points(self, index: np.ndarray) -> "SurfaceControl":
+        """This surface control for the block's points ``index`` (in that order): the roof faces ``candidates``
+        decided for them. Whoever observes a subset of the points (the solve's tie points with two rays or more)
+        takes this, so that each point keeps its face while it moves."""
+        return dataclasses.replace(self, face=None if self.face is None else self.face[np.asarray(index)])
+
     def _faces(self, m: np.ndarray) -> np.ndarray:
-        """The roof face of each point: as ``candidates`` decided for the block's points, else looked up."""
+        """The roof face of each point: as ``candidates`` decided (for the same points, ``of_points``), else
+        looked up at the points' positions (any other set of points)."""
         if self.planes is None:
             return np.full(len(m), -1, np.int64)
         if self.face is not None and len(self.face) == len(m):

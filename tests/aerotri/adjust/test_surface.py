@@ -293,3 +293,35 @@ def test_the_report_has_a_surface_control_section_per_class(roof_block, tmp_path
     assert "distance above the plane along its normal" in txt
     html = (p / "at" / "report.html").read_text()
     assert "<h2>Surface control</h2>" in html
+
+
+def test_a_point_keeps_its_roof_face_in_a_subset_of_the_points(roof_block):
+    """The solve observes the tie points with two rays or more (a subset, ``of_points``): each keeps the face
+    ``candidates`` gave it while it moves (a face looked up anew at every trial step made the cost jump and
+    the demo's first adjustment fail to converge)."""
+    import dataclasses
+
+    from aerotri.adjust.pipeline import prepare_project
+
+    _, root, dem, ndsm, good, _, _ = roof_block
+    pb, state = prepare_project(root, AdjustSettings(dem=dem, ndsm=ndsm, planes=good))
+    sc = pb.block.surface
+    cand = sc.candidates(state.points)
+    roof = np.flatnonzero(sc.face >= 0)
+    assert cand[roof].all() and len(roof) > 100
+    idx = roof[::2]
+    sub = sc.of_points(idx)
+    # 20 m north: out of their 50 m faces for about 40 % of them; the plane goes on under them
+    moved = state.points[idx] + [0.0, 20.0, 0.0]
+    e, J, sigma = sub.observe(moved)
+    e0, _, _ = sub.observe(state.points[idx])
+    pl = sc.planes
+    a, b = pl.abc[sc.face[idx], 0], pl.abc[sc.face[idx], 1]
+    # distance along the normal changes by the plane's rise over the move (the terrain's slope), for every point
+    d = sc.frame.to_map(moved) - sc.frame.to_map(state.points[idx])
+    s = np.sqrt(1 + a * a + b * b)
+    assert np.allclose(e - e0, (d[:, 2] - a * d[:, 0] - b * d[:, 1]) / s, atol=1e-3)
+    assert np.allclose(J[:, 2], 1 / s, atol=1e-3) and np.all(sigma < 0.05)
+    # looked up at the moved positions instead, some points would change face or fall to the DEM
+    looked_up = dataclasses.replace(sc, face=None).planes.face_of(*sc.frame.to_map(moved)[:, :2].T)
+    assert (looked_up != sc.face[idx]).mean() > 0.2
