@@ -1,8 +1,9 @@
-"""Surface control on the simulator's demo block: the final adjustment with corners only, surface only,
-corners plus surface, against the surveyed targets (check points) of the simulator's truth.
+"""Surface control on the simulator's demo block: the final adjustment with corners only, surface (DEM) only,
+corners plus surface, surface with the roof planes (DEM + roof planes) only, corners plus DEM plus roof planes,
+against the surveyed targets (check points) of the simulator's truth.
 
 Runs on a project that ``make demo`` (``aerotri run``) has taken through the control transfer (LiDAR DEM,
-nDSM, transferred corners). Each variant adjusts a copy of the project (GNSS with shift corrections per
+nDSM, roof planes, transferred corners). Each variant adjusts a copy of the project (GNSS with shift corrections per
 strip when corners are used, no corrections for surface only); the check points are the simulator's
 surveyed targets (``truth/checkpoints.csv`` and their image points, added to the copy as check points, never
 control). Writes ``results/surface_demo.json``.
@@ -80,6 +81,11 @@ def main() -> int:
         "corners_only": dataclasses.replace(base),
         "surface_only": dataclasses.replace(base, gnss_correction="none", dem=p.dem_path, ndsm=p.ndsm_path),
         "corners_and_surface": dataclasses.replace(base, dem=p.dem_path, ndsm=p.ndsm_path),
+        # the LiDAR roof planes next to the DEM (lidarctl corners' roof_planes.geojson)
+        "surface_planes_only": dataclasses.replace(base, gnss_correction="none", dem=p.dem_path, ndsm=p.ndsm_path,
+                                                   planes=p.roof_planes_path),
+        "corners_and_surface_planes": dataclasses.replace(base, dem=p.dem_path, ndsm=p.ndsm_path,
+                                                          planes=p.roof_planes_path),
     }
     if a.vce:
         variants.update({f"{k}_vce": dataclasses.replace(v, point_covariances=True, variance_components=True)
@@ -89,7 +95,7 @@ def main() -> int:
         for name, st in variants.items():
             root = Path(tmp) / name
             shutil.copytree(src, root, symlinks=True, ignore=shutil.ignore_patterns("ortho", "reports"))
-            _with_targets(root, corners_as_check=name == "surface_only")
+            _with_targets(root, corners_as_check=name.startswith("surface"))
             t0 = time.perf_counter()
             ba = adjust_project(root, st)
             row = _target_errors(ba, root) | {"seconds": round(time.perf_counter() - t0, 1),

@@ -67,6 +67,12 @@ USABLE_SCORE = 0.5
 MAX_SIGMA_XY_M = 0.3
 MAX_SIGMA_XY_SPACINGS = 0.4
 FLAT_SLOPE_DEG = 5.0
+# Roof-face footprints (roof_planes.geojson) are shrunk by max(FACE_MARGIN_M, FACE_MARGIN_SPACINGS * spacing)
+# so that tie points on eaves, ridges and step edges (where a face's plane no longer holds) fall outside.
+FACE_MARGIN_M = 1.0
+FACE_MARGIN_SPACINGS = 2.0
+MIN_FACE_AREA_M2 = 4.0
+ROOF_PLANES_FILE = "roof_planes.geojson"
 
 CSV_COLUMNS = [
     "id", "x", "y", "z", "sx_m", "sy_m", "sz_m", "roof", "building_id",
@@ -210,19 +216,69 @@ def _corner_height(pts, plane_of, planes, roof_tree, xy, cov_xy) -> tuple[float,
     return zc, sz, 90.0
 
 
-def _one_roof(pts: np.ndarray, r: int, spacing: float) -> tuple[list[dict], dict | None]:
-    """(traced corners, outline) of roof ``r`` (its points ``pts``): planes, traced and regularised
-    rings, edges fitted to the points on a roof face, corners where the fitted edges meet."""
+def face_footprint(xy: np.ndarray, spacing_m: float, margin_m: float):
+    """The footprint of a roof face's points ``xy`` (m) shrunk inward by ``margin_m``: the largest
+    polygon (exterior CCW) of the cells the points occupy (cells of half a spacing, closed over gaps of
+    two spacings) whose distance to the face's boundary exceeds the margin; None when
+    nothing is left. Eaves, ridges, hips and step edges lie on the boundary of a face, so the shrunk
+    footprint keeps tie points off them."""
+    from affine import Affine
+    from rasterio import features
+    from shapely.geometry import shape
+    from shapely.geometry.polygon import orient
+
+    cell = 0.5 * spacing_m
+    pad = 4
+    origin = xy.min(axis=0) - pad * cell
+    ij = np.floor((xy - origin) / cell).astype(np.int64)
+    cols, rows = ij.max(axis=0) + pad + 1
+    check_grid(int(rows), int(cols), cell, 16, "a roof face footprint")
+    occ = np.zeros((int(rows), int(cols)), bool)
+    occ[ij[:, 1], ij[:, 0]] = True
+    # closing bridges the gaps between scan lines; holes (courtyards, chimneys, dormers) stay holes
+    occ = ndimage.binary_closing(occ, structure=ndimage.generate_binary_structure(2, 2), iterations=2)
+    inner = ndimage.distance_transform_edt(occ) * cell > margin_m + 0.5 * cell
+    if not inner.any():
+        return None
+    polys = [shape(g) for g, _ in features.shapes(inner.astype(np.uint8), mask=inner,
+                                                   transform=Affine(cell, 0.0, origin[0], 0.0, cell, origin[1]))]
+    best = max(polys, key=lambda q: q.area)
+    return orient(best.simplify(0.25 * spacing_m), 1.0)
+
+
+def _roof_faces(pts: np.ndarray, plane_of: np.ndarray, planes: list, r: int, spacing: float) -> list[dict]:
+    """The roof faces of roof ``r`` as surface control: plane, footprint of its inliers shrunk by
+    ``max(FACE_MARGIN_M, FACE_MARGIN_SPACINGS * spacing)`` (m); faces with less than
+    ``MIN_FACE_AREA_M2`` left are dropped."""
+    margin = max(FACE_MARGIN_M, FACE_MARGIN_SPACINGS * spacing)
+    faces = []
+    for i, plane in enumerate(planes):
+        m = plane_of == i
+        m[m] = np.abs(plane.height_m(pts[m, 0], pts[m, 1]) - pts[m, 2]) < 3.0 * plane.rms_m + 0.02
+        if m.sum() < 10:
+            continue
+        poly = face_footprint(pts[m, :2], spacing, margin)
+        if poly is None or poly.area < MIN_FACE_AREA_M2:
+            continue
+        faces.append(dict(building_id=r, plane=plane, polygon=poly, margin_m=margin))
+    return faces
+
+
+def _one_roof(pts: np.ndarray, r: int, spacing: float) -> tuple[list[dict], dict | None, list[dict]]:
+    """(traced corners, outline, faces) of roof ``r`` (its points ``pts``): planes, traced and regularised
+    rings, edges fitted to the points on a roof face, corners where the fitted edges meet; the roof
+    faces (``_roof_faces``)."""
     # cells of two spacings: smaller cells leave holes in sparse clouds and underestimate the spacing
     s_roof = point_spacing_m(pts[:, :2], cell_m=max(1.0, 2.0 * spacing))
     s_roof = float(np.clip(s_roof, 0.5 * spacing, 2.0 * spacing))
     plane_of, planes = segment_planes(pts, roof_id=r)
+    faces = _roof_faces(pts, plane_of, planes, r, s_roof)
     rings = trace_rings(pts[:, :2], s_roof)
     if not rings:
-        return [], None
+        return [], None, faces
     theta, edge_rings = regularise_rings(rings, s_roof)
     if not edge_rings:
-        return [], None
+        return [], None, faces
     # Edge evidence from points on a roof face only: fascia and wall points lie on or inside the eave
     # line below the roof and would pull the edge (they still shape the traced outline).
     on_face = np.zeros(len(pts), bool)
@@ -259,7 +315,7 @@ def _one_roof(pts: np.ndarray, r: int, spacing: float) -> tuple[list[dict], dict
         roof="flat" if roof_types and all(t == "flat" for t in roof_types) else "pitched",
         n_planes=len(planes), sigma0=fit.sigma0, theta_deg=float(np.degrees(fit.theta)),
     )
-    return raw, outline
+    return raw, outline, faces
 
 
 def _score_corners(raw: list[dict], rc: _RoofClusters, *, min_edge_m: float, roof: str, sigma_strip_xy_m: float,
@@ -342,17 +398,19 @@ def find_roof_corners(
     common to all points of the strip, so no fit over its points reduces it; added in quadrature to the
     fitted corner's standard deviations. Take them from the system's (strip-adjusted) accuracy.
 
-    Returns ``{"corners": list of dict (CSV_COLUMNS), "outlines": list of dict, "stats": dict}``;
+    Returns ``{"corners": list of dict (CSV_COLUMNS), "outlines": list of dict, "faces": list of dict (roof
+    planes with their shrunk footprints, ``_roof_faces``), "stats": dict}``;
     raises InputError when the cloud has no building points or no roof could be outlined.
     """
     if roof not in ("flat", "any"):
         raise InputError(f"roof must be 'flat' or 'any', not {roof!r}")
     t_start = time.perf_counter()
     rc = _roof_clusters(x, y, z, classification, point_source_id)
-    raw, outlines = [], []  # raw: per corner xy, cov, z, sz, roof type, building, bearings, angle, support, lengths
+    raw, outlines, faces = [], [], []  # raw: per corner xy, cov, z, sz, roof type, building, bearings, angle, ...
     for r in track(range(rc.n_roofs), "roof corners", "roofs"):
-        roof_raw, outline = _one_roof(rc.xyz[rc.roof_label == r], r, rc.spacing_m)
+        roof_raw, outline, roof_faces = _one_roof(rc.xyz[rc.roof_label == r], r, rc.spacing_m)
         raw += roof_raw
+        faces += roof_faces
         if outline is not None:
             outlines.append(outline)
     if not raw:
@@ -367,7 +425,8 @@ def find_roof_corners(
     stats = {
         "n_points": int(len(rc.xyz)), "n_building_points": rc.n_building_points, "point_spacing_m": rc.spacing_m,
         "n_roofs": rc.n_roofs, "n_outlines": len(outlines), "n_corners_traced": len(raw),
-        "n_corners": len(corners), "n_usable": int(n_usable), "min_edge_m": min_edge_m, "roof": roof,
+        "n_corners": len(corners), "n_usable": int(n_usable), "n_roof_planes": len(faces),
+        "min_edge_m": min_edge_m, "roof": roof,
         "sigma_strip_xy_m": sigma_strip_xy_m, "sigma_strip_z_m": sigma_strip_z_m,
         "usable_score": USABLE_SCORE,
         "median_sxy_usable_m": (
@@ -376,7 +435,7 @@ def find_roof_corners(
         ),
         "runtime_s": time.perf_counter() - t_start,
     }
-    return {"corners": corners, "outlines": outlines, "stats": stats}
+    return {"corners": corners, "outlines": outlines, "faces": faces, "stats": stats}
 
 
 # ------------------------------------------------------------------------------------------------ output
@@ -418,29 +477,94 @@ def corners_geojson(corners: list[dict], outlines: list[dict], crs=None) -> dict
     return out
 
 
+ROOF_PLANE_MODEL = (
+    "z = a (x - x0) + b (y - y0) + c: x, y, x0, y0 in xy_unit, z and c in z_unit, a and b in z_unit per xy_unit; "
+    "cov_abc_m: covariance of (a, b, c) with x, y, z in metres (a, b in m/m, c in m); height sigma of the fit at "
+    "(x, y) in metres: sqrt(j' cov_abc_m j), j = ((x - x0) xy_unit_m, (y - y0) xy_unit_m, 1); sigma_strip_xy_m, "
+    "sigma_strip_z_m: georeferencing error of a LiDAR strip, common to all points of a face")
+
+
+def _crs_member(crs) -> dict | None:
+    """The legacy GeoJSON ``crs`` member (coordinates are projected, not WGS 84) of a pyproj CRS."""
+    if crs is None:
+        return None
+    epsg = crs.to_epsg() if hasattr(crs, "to_epsg") else None
+    return {"type": "name", "properties": {"name": f"urn:ogc:def:crs:EPSG::{epsg}" if epsg else crs.to_wkt()}}
+
+
+def roof_planes_geojson(faces: list[dict], stats: dict, crs=None) -> dict:
+    """roof_planes.geojson: one Polygon per roof face (its footprint shrunk inward by ``margin_m``, exterior
+    CCW) with the face's plane (``ROOF_PLANE_MODEL``); coordinates in the CRS's units. ``faces`` as
+    ``to_crs_units`` returns them, ``stats`` with the units (``xy_unit_m``, ``z_unit_m``) and strip sigmas."""
+    feats = []
+    for n, f in enumerate(faces, 1):
+        rings = [np.asarray(f["rings"][0]).round(3).tolist()] + [np.asarray(r).round(3).tolist() for r in f["rings"][1:]]
+        feats.append({"type": "Feature", "geometry": {"type": "Polygon", "coordinates": rings}, "properties": {
+            "kind": "roof_plane", "id": f"RP{n:05d}", "building_id": f["building_id"],
+            "x0": round(f["x0"], 3), "y0": round(f["y0"], 3), "a": f["a"], "b": f["b"], "c": round(f["c"], 4),
+            "cov_abc_m": np.asarray(f["cov_abc_m"]).tolist(), "rms_m": round(f["rms_m"], 4), "n_points": f["n_points"],
+            "slope_deg": round(f["slope_deg"], 3), "margin_m": round(f["margin_m"], 3), "area_m2": round(f["area_m2"], 1),
+        }})
+    out = {"type": "FeatureCollection", "plane_model": ROOF_PLANE_MODEL,
+           **{k: stats.get(k, 1.0) for k in ("xy_unit_m", "z_unit_m")},
+           **{k: stats.get(k) for k in ("xy_unit", "z_unit", "sigma_strip_xy_m", "sigma_strip_z_m")},
+           "features": feats}
+    member = _crs_member(crs)
+    if member is not None:
+        out["crs"] = member
+    return out
+
+
+def _faces_in_crs_units(faces: list[dict], units) -> list[dict]:
+    """Roof faces (``_roof_faces``, metres) as ``roof_planes_geojson`` writes them: footprint rings, centroid
+    and plane coefficients in the CRS's units; covariance, rms and margin in metres."""
+    out = []
+    for f in faces:
+        pl, poly = f["plane"], f["polygon"]
+        rings = [np.asarray(poly.exterior.coords)] + [np.asarray(r.coords) for r in poly.interiors]
+        k = units.xy_m / units.z_m  # z_unit per xy_unit of a slope of 1 m/m
+        out.append(dict(
+            building_id=int(f["building_id"]), rings=[np.asarray(units.xy_from_m(r), float) for r in rings],
+            x0=float(units.xy_from_m(pl.x0)), y0=float(units.xy_from_m(pl.y0)),
+            a=float(pl.abc[0] * k), b=float(pl.abc[1] * k), c=float(units.z_from_m(pl.abc[2])),
+            cov_abc_m=np.asarray(pl.cov_abc, float), rms_m=float(pl.rms_m), n_points=int(pl.n_points),
+            slope_deg=pl.slope_deg, margin_m=float(f["margin_m"]), area_m2=float(poly.area),
+        ))
+    return out
+
+
 def to_crs_units(result: dict, units) -> dict:
-    """``find_roof_corners`` result (metres) with corner and outline coordinates in the CRS units
+    """``find_roof_corners`` result (metres) with corner, outline and roof-face coordinates in the CRS units
     (``lidarctl.units.LengthUnits``: x, y in the horizontal unit, z in the vertical unit); sigmas,
     edge lengths and spacings stay in metres (``_m`` keys). The stats name the units."""
     corners = [dict(c, x=float(units.xy_from_m(c["x"])), y=float(units.xy_from_m(c["y"])),
                     z=float(units.z_from_m(c["z"]))) for c in result["corners"]]
     outlines = [dict(o, rings=[np.asarray(units.xy_from_m(np.asarray(r, float))) for r in o["rings"]])
                 for o in result["outlines"]]
-    return {"corners": corners, "outlines": outlines, "stats": {**result["stats"], **units.as_dict()}}
+    return {"corners": corners, "outlines": outlines, "faces": _faces_in_crs_units(result.get("faces", []), units),
+            "stats": {**result["stats"], **units.as_dict()}}
 
 
 def write_corner_files(outdir, result: dict, crs=None, source: str | None = None, inputs=()) -> dict:
-    """Write corners.csv, corners.geojson and corners.json (summary) atomically; return the paths.
+    """Write corners.csv, corners.geojson, roof_planes.geojson and corners.json (summary) atomically; return
+    the paths.
 
-    ``result``: corners in the CRS's units (``to_crs_units``). ``inputs``: the input files, which
-    no output may replace."""
+    ``result``: corners and faces in the CRS's units (``to_crs_units``; a result in metres without units
+    is written as metres). ``inputs``: the input files, which no output may replace."""
     outdir = Path(outdir)
-    paths = {"csv": outdir / "corners.csv", "geojson": outdir / "corners.geojson", "summary": outdir / "corners.json"}
+    paths = {"csv": outdir / "corners.csv", "geojson": outdir / "corners.geojson",
+             "planes": outdir / ROOF_PLANES_FILE, "summary": outdir / "corners.json"}
     for p in paths.values():
         refuse_input_as_output(p, inputs, "OUTDIR")
     outdir.mkdir(parents=True, exist_ok=True)
     write_text_atomic(paths["csv"], corners_csv_text(result["corners"]))
     write_text_atomic(paths["geojson"], json.dumps(corners_geojson(result["corners"], result["outlines"], crs)))
+    faces = result.get("faces", [])
+    if faces and "plane" in faces[0]:  # still in metres (find_roof_corners' result as it is)
+        from lidarctl.units import METRE
+
+        faces = _faces_in_crs_units(faces, METRE)
+    write_text_atomic(paths["planes"], json.dumps(roof_planes_geojson(faces, result["stats"], crs)))
     summary = {"source": source, "crs": (crs.to_string() if crs is not None else None), **result["stats"]}
     write_text_atomic(paths["summary"], json.dumps(summary, indent=2) + "\n")
     return paths
@@ -536,18 +660,20 @@ def corner_control(paths, outdir, settings: CornerSettings = CornerSettings(), c
     """The stage: roof corners of classified LAS/LAZ file(s) (one or more strips in one CRS) as control
     candidates. ``crs``: the CRS of files that have none (never guessed).
 
-    Writes corners.csv, corners.geojson, corners.json (summary) and, with ``settings.figure``,
-    corners.png into ``outdir`` when at least one corner is usable as control; x, y, z in the files'
-    CRS and units, sigmas in metres (every length setting is in metres, also for clouds in feet).
-    Without a usable corner it writes nothing, or, with ``record_none`` (the chain, which goes on
-    without LiDAR control), only corners.json saying why (``n_usable`` 0) and removes the corner files
-    of an earlier run, so that nothing downstream takes stale corners. Returns the summary, with
+    Writes corners.csv, corners.geojson, roof_planes.geojson (the roof faces as surface control),
+    corners.json (summary) and, with ``settings.figure``, corners.png into ``outdir`` when at least one
+    corner is usable as control; x, y, z in the files' CRS and units, sigmas in metres (every length
+    setting is in metres, also for clouds in feet). Without a usable corner it writes nothing, or, with
+    ``record_none`` (the chain, which goes on without LiDAR control), only corners.json saying why
+    (``n_usable`` 0), and removes the corner files (and roof planes) of an earlier run, so that nothing
+    downstream takes stale corners; the chain then adjusts as ``lidarctl corners``' exit code 2 tells a
+    user to (README), without roof planes. Returns the summary, with
     ``no_usable`` the one-line reason when no corner is usable (else None).
     """
     paths = [Path(p) for p in paths]
     outdir = Path(outdir)
     s = settings
-    for name in ("corners.csv", "corners.geojson", "corners.json", "corners.png"):
+    for name in ("corners.csv", "corners.geojson", "corners.json", "corners.png", ROOF_PLANES_FILE):
         refuse_input_as_output(outdir / name, paths, "OUTDIR")
     cat = read_strips(paths, crs=crs)
     units = cat["units"]
@@ -569,7 +695,7 @@ def corner_control(paths, outdir, settings: CornerSettings = CornerSettings(), c
         if not record_none:
             return summary
         outdir.mkdir(parents=True, exist_ok=True)
-        for name in ("corners.csv", "corners.geojson", "corners.png"):
+        for name in ("corners.csv", "corners.geojson", "corners.png", ROOF_PLANES_FILE):
             (outdir / name).unlink(missing_ok=True)
         write_text_atomic(outdir / "corners.json", json.dumps(summary, indent=2) + "\n")
         return summary

@@ -27,8 +27,10 @@ def corners(classified, outdir, min_edge_m, roof, sigma_strip_xy_m, sigma_strip_
 
     Writes corners.csv (id,x,y,z,sx_m,sy_m,sz_m,roof,building_id,edge1_deg,edge2_deg,angle_deg,
     support_pts,score,usable; x, y, z in the files' CRS and units, sigmas in metres),
-    corners.geojson (corners and regularised roof outlines) and corners.json (summary, with the
-    units). Every length option is in metres, also for clouds in feet. When no corner is usable as
+    corners.geojson (corners and regularised roof outlines), roof_planes.geojson (one polygon per
+    roof face, shrunk 1 m or 2 point spacings inside its edges, with its plane z = a (x - x0) +
+    b (y - y0) + c and the plane's covariance: surface control for aerotri adjust --planes) and
+    corners.json (summary, with the units). Every length option is in metres, also for clouds in feet. When no corner is usable as
     control it stops with exit code 2 and writes nothing.
     """
     settings = CornerSettings(min_edge_m=min_edge_m, roof=roof, sigma_strip_xy_m=sigma_strip_xy_m,

@@ -53,8 +53,13 @@ def _self_cal_groups(ctx, param, value):
                    "[adjust] ndsm, else none.")
 @click_option(AdjustSettings, "max_ndsm_m", "--max-ndsm-m")
 @click_option(AdjustSettings, "variance_components", "--variance-components/--no-variance-components")
+@click_option(AdjustSettings, "planes", "--planes", type=click.Path(path_type=Path),
+              help="Roof planes: the lidarctl corners folder (roof_planes.geojson, project CRS) as surface control: tie "
+                   "points on a roof face observe its plane (with --dem); default project.toml [adjust] planes, else none.")
+@click_option(AdjustSettings, "plane_sigma_m", "--plane-sigma-m")
 def adjust(project, gnss_correction, lever_arm, self_cal, image_sigma_px, check, control, no_snooping, no_control, alpha,
-           no_html, no_exports, initial_eo, dem, surface_sigma_m, ndsm, max_ndsm_m, variance_components):
+           no_html, no_exports, initial_eo, dem, surface_sigma_m, ndsm, max_ndsm_m, variance_components, planes,
+           plane_sigma_m):
     """Adjust the block of PROJECT; writes at/eo.txt, at/object_points.csv, at/report.* and exports."""
     from aerotri.adjust.pipeline import run_adjustment
     from aerotri.exchange import export_project
@@ -70,8 +75,8 @@ def adjust(project, gnss_correction, lever_arm, self_cal, image_sigma_px, check,
         use_control=not no_control,
         alpha=alpha,
         initial_eo=initial_eo,
-        dem=dem, surface_sigma_m=surface_sigma_m, ndsm=ndsm, max_ndsm_m=max_ndsm_m,
-        variance_components=variance_components,
+        dem=dem, surface_sigma_m=surface_sigma_m, ndsm=ndsm, max_ndsm_m=max_ndsm_m, planes=planes,
+        plane_sigma_m=plane_sigma_m, variance_components=variance_components,
     )
     _, rep = run_adjustment(project, settings, html=not no_html)
     if not no_exports:
@@ -80,7 +85,8 @@ def adjust(project, gnss_correction, lever_arm, self_cal, image_sigma_px, check,
     click.echo(f"sigma0 {k['sigma0_um']} um, {k['iterations']} iterations, dof {k['degrees_of_freedom']}: {k['message']}")
     sc = rep.get("surface_control")
     if sc:
-        click.echo(f"surface control: {sc['used']} tie points on the DEM ({sc['rejected']} rejected), height - DEM "
-                   f"rms {sc['rms_m']} m")
+        for name, c in (sc.get("classes") or {"DEM": sc}).items():
+            click.echo(f"surface control, {name}: {c['used']} tie points used ({c['rejected']} rejected), point - surface "
+                       f"rms {c['rms_m']} m")
     if rep["check_rms_m"]:
         click.echo("check RMS X Y Z (m): " + " ".join(f"{v:.3f}" for v in rep["check_rms_m"]))

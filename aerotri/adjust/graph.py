@@ -405,7 +405,7 @@ def build_graph(block: Block, opts: Options, state: State, obs_active, control_a
         gr.tie = _tie_points(block, idx[~explicit[block.obs_point[idx]]], state, opts.image_sigma_px, self_cal,
                              opts.huber_k if robust else 0.0)
         if block.surface is not None and block.surface_active is not None:
-            gr.tie.surface = block.surface
+            gr.tie.surface = block.surface.of_points(gr.tie.point)  # each point keeps its roof face
             gr.tie.surface_active = np.asarray(block.surface_active, dtype=bool)[gr.tie.point]
             n_eq += int(gr.tie.surface_active.sum())
             gr.n_equations = n_eq

@@ -26,8 +26,8 @@ from aerotri.adjust.approximate import (
     refine_orientations,
 )
 from aerotri.geom.local_frame import LocalFrame
-from aerotri.geom.crs import project_crs, project_heights
-from aerotri.adjust.surface import SurfaceControl, read_height_grid
+from aerotri.geom.crs import height_unit_m, horizontal_crs, linear_unit_m, project_crs, project_heights
+from aerotri.adjust.surface import SurfaceControl, read_height_grid, read_roof_planes
 from aerotri.geom.observations import (
     ControlPoints,
     ImageObservations,
@@ -90,13 +90,17 @@ def _settings_from_project(project: Project, s: AdjustSettings) -> AdjustSetting
         raise OptionError(f"lever arm {out.lever_arm_m!r}: expected 3 finite numbers (m)", param="--lever-arm")
     if not 0.0 < out.alpha < 1.0:
         raise OptionError(f"alpha {out.alpha!r}: the type I error must be in (0, 1)", param="--alpha")
-    for key in ("dem", "ndsm"):  # surface control rasters: the option, else [adjust] (relative to the project)
+    for key in ("dem", "ndsm", "planes"):  # surface control: the option, else [adjust] (relative to the project)
         if getattr(out, key) is None and project.section("adjust").get(key) is not None:
             value = project.section("adjust")[key]
             if not isinstance(value, str) or not value:
-                raise ConfigError(f"{toml} [adjust] {key}: expected the path of a GeoTIFF, not {value!r}")
+                what = "a lidarctl corners folder" if key == "planes" else "a GeoTIFF"
+                raise ConfigError(f"{toml} [adjust] {key}: expected the path of {what}, not {value!r}")
             path = Path(value)
             setattr(out, key, path if path.is_absolute() else project.root / path)
+    if out.planes is not None and out.dem is None:
+        raise OptionError(f"roof planes {out.planes} without a DEM: the planes hold the tie points on roofs, the DEM "
+                          "those on the ground; give --dem (or [adjust] dem) too", param="--planes")
     return out
 
 
@@ -427,7 +431,11 @@ def _surface_control(project: Project, st: AdjustSettings, frame: LocalFrame, po
         raise InputError(f"{st.dem}: the DEM has no height under the block (extent {bounds[0]:.0f}..{bounds[2]:.0f}, "
                          f"{bounds[1]:.0f}..{bounds[3]:.0f} in the project CRS)")
     ndsm = read_height_grid(st.ndsm, crs, None, "nDSM", bounds) if st.ndsm is not None else None
-    return SurfaceControl(dem, frame, sigma_m=float(st.surface_sigma_m), ndsm=ndsm, max_ndsm_m=float(st.max_ndsm_m))
+    planes = read_roof_planes(st.planes, crs, heights, st.plane_sigma_m) if st.planes is not None else None
+    # the frame's map heights are in the horizontal CRS's height unit (geom.transform's convention)
+    units = (linear_unit_m(crs), height_unit_m(horizontal_crs(crs)))
+    return SurfaceControl(dem, frame, sigma_m=float(st.surface_sigma_m), ndsm=ndsm, max_ndsm_m=float(st.max_ndsm_m),
+                          planes=planes, map_unit_m=units)
 
 
 def prepare_project(root, settings: AdjustSettings | None = None) -> tuple[PreparedBlock, G.State]:

@@ -335,16 +335,47 @@ def build_report(ba, map_scale: str = "1:5000", terrain: str = "flat", tolerance
 
 
 def _surface_control(ba) -> dict | None:
-    """The DEM as surface control: tie points used and rejected, residuals (point height - DEM, m)."""
+    """The DEM (and roof planes) as surface control: tie points used and rejected, residuals (m: point height -
+    DEM; distance above a roof plane along its normal), over all and per class (``classes``)."""
     st = ba.result.surface
     if st is None:
         return None
     d = st.as_dict()
     d["dem"] = str(ba.settings.dem)
     d["ndsm"] = str(ba.settings.ndsm) if ba.settings.ndsm is not None else None
-    for k in ("rms_m", "median_m", "rms_normalised"):
-        d[k] = _f(d[k], 4) if d[k] is not None else None
+    planes = ba.block.surface.planes if ba.block.surface is not None else None
+    d["planes"] = str(planes.path) if planes is not None else None
+
+    def rounded(c):
+        return {**c, **{k: (_f(c[k], 4) if c[k] is not None else None) for k in ("rms_m", "median_m", "rms_normalised")}}
+
+    d.update(rounded(d))
+    if d.get("classes"):
+        d["classes"] = {name: rounded(c) for name, c in d["classes"].items()}
+    if d.get("plane_sigma_strip_m"):
+        d["plane_sigma_strip_m"] = list(d["plane_sigma_strip_m"])
     return d
+
+
+def _surface_txt(sc: dict) -> list[str]:
+    """The SURFACE CONTROL lines of report.txt: sources, then a table per class (and all)."""
+    roofs = bool(sc.get("classes"))
+    L = ["SURFACE CONTROL (tie points on the ground observe the DEM height"
+         + (", on roof faces the roof plane)" if roofs else ")"),
+         f"  DEM {sc['dem']}, sigma {sc['sigma_m']:.3f} m (+ slope x half a cell)"
+         + (f", nDSM {sc['ndsm']} (objects above {sc['max_ndsm_m']:g} m excluded)" if sc.get("ndsm") else "")]
+    if roofs:
+        sxy, sz = sc["plane_sigma_strip_m"]
+        L.append(f"  roof planes {sc['planes']} ({sc['n_planes']} faces), sigma: the plane fit + LiDAR strip "
+                 f"{sxy:.3f} m plan, {sz:.3f} m height, along the normal")
+        L.append("  residual: point height - DEM (ground), distance above the plane along its normal (roof planes)")
+    rows = list(sc["classes"].items()) + [("all", sc)] if roofs else [("ground (DEM)", sc)]
+    L.append(f"  {'class':14}{'candidates':>11}{'used':>8}{'rejected':>9}{'rms (m)':>9}{'median (m)':>11}"
+             f"{'norm. rms':>10}")
+    for name, c in rows:
+        L.append(f"  {name:14}{c['candidates']:11d}{c['used']:8d}{c['rejected']:9d}{_v(c['rms_m'], 9, 3)}"
+                 f"{_v(c['median_m'], 11, 3)}{_v(c['rms_normalised'], 10, 2)}")
+    return L + [""]
 
 
 def _v(x, w=10, nd=3):
@@ -376,12 +407,7 @@ def format_txt(rep: dict) -> str:
           f"  Degrees of Freedom: {k['degrees_of_freedom']}", f"  {k['message']}", ""]
     sc = rep.get("surface_control")
     if sc:
-        L += ["SURFACE CONTROL (tie points on the ground observe the DEM height)",
-              f"  DEM {sc['dem']}, sigma {sc['sigma_m']:.3f} m (+ slope x half a cell)"
-              + (f", nDSM {sc['ndsm']} (objects above {sc['max_ndsm_m']:g} m excluded)" if sc.get("ndsm") else ""),
-              f"  candidates {sc['candidates']}, used {sc['used']}, rejected {sc['rejected']}; "
-              f"height - DEM: rms {_v(sc['rms_m'], 0, 3).strip() or 'n/a'} m, median {_v(sc['median_m'], 0, 3).strip() or 'n/a'} m",
-              ""]
+        L += _surface_txt(sc)
     vc = rep.get("variance_components")
     if vc:
         L += ["VARIANCE COMPONENTS (factor on the a-priori sigmas: v'Pv / redundancy; 1 = the sigmas fit)",
@@ -488,25 +514,35 @@ def _png(fig) -> str:
 
 
 def _surface_figure(ba, plt) -> str:
-    """Map of the surface control: tie points held to the DEM coloured by height - DEM in sigmas, rejected
-    ones as crosses."""
+    """Map of the surface control: tie points held to the DEM (dots) and to roof planes (squares) coloured by
+    their residual in sigmas, rejected ones as crosses (grey: ground, red: roof)."""
     r = ba.result
     cand = np.flatnonzero(r.surface_use > 0)
-    e, _, sigma = ba.block.surface.observe(r.state.points[cand])
+    e, _, sigma = ba.block.surface.observe(r.state.points, jacobian=False)
+    cls = ba.block.surface.point_class(len(e))[cand]
+    e, sigma = e[cand], sigma[cand]
     P = ba.points_map[cand]
     used = r.surface_use[cand] == 1
     fig, ax = plt.subplots(figsize=(8, 6))
     ax.plot(ba.eo_map.centre_m[:, 0], ba.eo_map.centre_m[:, 1], ".", color="0.6", ms=3)
-    sc = ax.scatter(P[used, 0], P[used, 1], c=e[used] / sigma[used], cmap="RdBu_r", vmin=-3, vmax=3, s=6)
-    ax.plot(P[~used, 0], P[~used, 1], "x", color="0.3", ms=4, label=f"rejected ({int((~used).sum())})")
-    fig.colorbar(sc, ax=ax, label="point height - DEM (sigmas)")
+    sc = None
+    for k, (name, marker, rej_colour) in enumerate((("ground (DEM)", "o", "0.3"), ("roof planes", "s", "tab:red"))):
+        u, x = used & (cls == k), ~used & (cls == k)
+        if not (u.any() or x.any()):
+            continue
+        sc = ax.scatter(P[u, 0], P[u, 1], c=e[u] / sigma[u], cmap="RdBu_r", vmin=-3, vmax=3, s=6 if k == 0 else 10,
+                        marker=marker, label=f"{name}: used ({int(u.sum())})")
+        ax.plot(P[x, 0], P[x, 1], "x", color=rej_colour, ms=4, label=f"{name}: rejected ({int(x.sum())})")
+    if sc is not None:
+        fig.colorbar(sc, ax=ax, label="point - surface (sigmas)")
     ax.ticklabel_format(useOffset=False, style="plain")
     ax.tick_params(axis="x", labelrotation=30)
     ax.set_xlabel("x (m)")
     ax.set_ylabel("y (m)")
     ax.set_aspect("equal")
     ax.legend(loc="lower right", fontsize=8)
-    ax.set_title(f"Surface control: {int(used.sum())} tie points on the DEM")
+    ax.set_title(f"Surface control: {int(used.sum())} tie points on the DEM" + (
+        f" and roof planes ({int((used & (cls == 1)).sum())})" if (cls == 1).any() else ""))
     return _png(fig)
 
 

@@ -47,8 +47,16 @@ class AdjustSettings:
                                                       "trees from those on the ground (default: none, robust only).")
     max_ndsm_m: float = setting(1.0, min=0.0, help="Tie points higher than this above the ground (nDSM) get no "
                                                    "surface observation (m).")
+    planes: Path | None = setting(None, path=True, help="Roof planes (a lidarctl corners folder with roof_planes.geojson, "
+                                                        "or the file) as surface control: tie points on a roof face "
+                                                        "observe its plane; needs a DEM.")
+    plane_sigma_m: float | None = setting(None, min=0.0, min_open=True,
+                                          help="LiDAR strip sigma at the roof planes, plan and height (m), added to "
+                                               "each plane's fit precision; default the strip sigmas lidarctl corners "
+                                               "wrote with the planes ([corners] sigma_strip_xy_m, sigma_strip_z_m).")
     lidar_surface: bool = setting(True, help="aerotri run: without [adjust] dem, hold the tie points to the LiDAR "
-                                             "stages' DEM (lidar_out/dem.tif, nDSM ndsm.tif) in both adjustments.")
+                                             "stages' DEM (lidar_out/dem.tif, nDSM ndsm.tif) and roof planes "
+                                             "(lidar_out/roof_planes.geojson) in both adjustments.")
     variance_components: bool = setting(False, help="Reweight the observation groups (image, GNSS, control, surface) "
                                                     "by their estimated variance components and solve again; the "
                                                     "components are reported either way.")

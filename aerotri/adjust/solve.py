@@ -129,7 +129,7 @@ def adjust_block(
             state = G.state_from_values(values, block, opts, state, tie=gr.tie)
             log.info(f"robust round {rnd}: {info.iterations} iterations, {obs_active.sum()} observations")
             if surface_candidates is not None:
-                gated = _surface_gate(block, state, obs_active, surface_candidates, opts.image_sigma_px)
+                surface_candidates, gated = _surface_gate(block, state, obs_active, opts.image_sigma_px)
                 changed = bool((gated != block.surface_active).any())
                 block.surface_active = gated
                 log.info(f"robust round {rnd}: {int(gated.sum())} surface observations within "
@@ -156,7 +156,7 @@ def adjust_block(
     # final least squares without the robust kernel; a last snooping check
     _drop_weak_points(block, obs_active, state)
     if surface_candidates is not None:
-        block.surface_active = _surface_gate(block, state, obs_active, surface_candidates, opts.image_sigma_px)
+        surface_candidates, block.surface_active = _surface_gate(block, state, obs_active, opts.image_sigma_px)
     for _ in range(3):
         t0 = time.perf_counter()
         gr = G.build_graph(block, opts, state, obs_active, control_active, robust=False)
@@ -200,7 +200,8 @@ def adjust_block(
                         factors[c.group] *= c.factor
                 block, opts = vce.reweighted(block, opts, components)
                 if surface_candidates is not None:
-                    block.surface_active = _surface_gate(block, state, obs_active, surface_candidates, opts.image_sigma_px)
+                    surface_candidates, block.surface_active = _surface_gate(block, state, obs_active,
+                                                                             opts.image_sigma_px)
                 gr = G.build_graph(block, opts, state, obs_active, control_active, robust=False)
                 values, info = G.optimize(gr, opts)
                 iterations += info.iterations
@@ -240,11 +241,13 @@ def adjust_block(
     )
 
 
-def _surface_gate(block: G.Block, state: G.State, obs_active, candidates: np.ndarray, sigma_px: float) -> np.ndarray:
-    """The candidates whose height from their rays alone (intersected at the current orientations, without
-    the DEM) agrees with the DEM within ``gate_sigmas`` of the combined sigma (the DEM's and the
-    intersection's height sigma): a point on a car, a hedge or a roof edge is judged by where the images put
-    it, not by where the DEM pulled it."""
+def _surface_gate(block: G.Block, state: G.State, obs_active, sigma_px: float) -> tuple[np.ndarray, np.ndarray]:
+    """(candidates, gated): the points that may lie on the ground or a roof face where their rays alone put them
+    (intersected at the current orientations, without the surface; ``SurfaceControl.candidates``), and those
+    of them whose height from their rays alone agrees with the surface within ``gate_sigmas`` of the combined
+    sigma (the surface's and the intersection's height sigma): a point on a car, a hedge or a roof edge is
+    judged by where the images put it, not by where the surface pulled it (judged by its pulled position, a
+    point at the edge of a roof face or of an object in the nDSM would go in and out, round after round)."""
     from aerotri.adjust.check_points import refine_points
 
     k = np.flatnonzero(obs_active)
@@ -256,9 +259,10 @@ def _surface_gate(block: G.Block, state: G.State, obs_active, candidates: np.nda
     sz2 = np.full(block.n_points, np.inf)
     ok = np.linalg.cond(N) < 1e10
     sz2[ok] = sigma_px**2 * np.linalg.inv(N[ok])[:, 2, 2]  # local up is the vertical within a block
+    candidates = block.surface.candidates(pts)
     e, _, sigma = block.surface.observe(pts, jacobian=False)
     tol = block.surface.gate_sigmas * np.sqrt(sigma**2 + sz2)
-    return candidates & np.isfinite(e) & (np.abs(e) <= tol)
+    return candidates, candidates & np.isfinite(e) & (np.abs(e) <= tol)
 
 
 def _drop_weak_points(block: G.Block, obs_active, state: G.State | None = None, max_cond: float = 1e5) -> None:

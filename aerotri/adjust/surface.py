@@ -1,4 +1,5 @@
-"""LiDAR surface control: tie points on open ground observe the height of the DEM.
+"""LiDAR surface control: tie points on open ground observe the height of the DEM, tie points on roofs
+the roof planes of the LiDAR (``lidarctl corners``' roof_planes.geojson).
 
 A tie point ``P`` (local frame) at map position ``(x, y, h) = map(P)`` observes ``h = DEM(x, y)`` (cubic
 convolution of the DEM, continuous in height and slope):
@@ -16,6 +17,23 @@ not candidates (roofs, trees); robust solves weigh the observations with Huber's
 every robust round the adjustment (``solve._surface_gate``) keeps those whose height from their rays
 alone is within ``gate_sigmas`` of the DEM (cars, low vegetation, DEM gaps are left out). Heights: the DEM must be in the project's horizontal CRS
 and height system (its heights are read like the project's, as the local frame reads them).
+
+Roof planes (``RoofPlanes``): a tie point whose map position lies inside the footprint of a roof face
+(the face's points' footprint shrunk inward by a margin, so eaves, ridges and step edges are outside)
+observes its distance from the face's plane ``Z = a (X - x0) + b (Y - y0) + c`` along the plane's normal,
+in metres of the map axes (``map_unit_m``):
+
+    e = (Z - plane(X, Y)) / s,    s = sqrt(1 + a^2 + b^2)
+    sigma^2 = (sigma_fit^2 + sigma_strip_z^2 + sigma_strip_xy^2 (a^2 + b^2)) / s^2
+
+``sigma_fit`` the plane's height sigma at the point from the covariance of its fit, ``sigma_strip_*`` the
+LiDAR strip's georeferencing error (the one ``lidarctl corners`` added to its corners, written in the
+file; ``plane_sigma_m`` overrides both), each projected onto the normal. The Jacobian is that of the
+DEM's with the plane's slopes, divided by ``s``: the plane's unit normal in the local frame. A roof point
+is a candidate whatever the nDSM says (the nDSM only tells the ground from what stands on it). Which
+face a point lies on is decided in ``candidates`` and kept by ``observe`` (so the cost of a solve stays
+smooth); the gate decides the candidates again after every robust round where the point's rays alone put
+it (not where the surface pulled it: a point at the edge of a face would go in and out), then judges them.
 """
 
 from __future__ import annotations
@@ -115,9 +133,157 @@ def read_height_grid(path, project_crs, project_heights=None, what: str = "DEM",
     return HeightGrid(a, float(wt.c), float(wt.f), float(t.a))
 
 
+ROOF_PLANES_FILE = "roof_planes.geojson"  # what lidarctl corners writes next to corners.csv
+_PLANE_KEYS = ("x0", "y0", "a", "b", "c", "cov_abc_m")
+
+
+@dataclasses.dataclass
+class RoofPlanes:
+    """Roof faces as surface control, in metres of the project's map axes (x, y, z times their units):
+    plane ``Z = a (X - x0) + b (Y - y0) + c`` per face (a, b in m/m), ``cov_abc`` (K, 3, 3) its fit's
+    covariance (m), the strip sigmas (m) and the footprints (shapely Polygons in map units)."""
+
+    path: Path
+    ids: list
+    x0: np.ndarray
+    y0: np.ndarray
+    abc: np.ndarray  # (K, 3)
+    cov_abc: np.ndarray  # (K, 3, 3)
+    sigma_strip_xy_m: float
+    sigma_strip_z_m: float
+    footprints: np.ndarray  # (K,) shapely Polygons, map units
+    xy_unit_m: float = 1.0  # metres per map unit of the footprints
+
+    def __post_init__(self):
+        import shapely
+
+        self._tree = shapely.STRtree(self.footprints)
+
+    def __len__(self) -> int:
+        return len(self.ids)
+
+    def face_of(self, x, y) -> np.ndarray:
+        """Index of the footprint each map position (map units) lies in, -1 for none (or more than one:
+        footprints overlapping in plan are at different heights, the point's face is unclear)."""
+        import shapely
+
+        x, y = np.asarray(x, float), np.asarray(y, float)
+        out = np.full(len(x), -1, np.int64)
+        ok = np.isfinite(x) & np.isfinite(y)
+        if not len(self) or not ok.any():
+            return out
+        idx = np.flatnonzero(ok)
+        pt, face = self._tree.query(shapely.points(x[idx], y[idx]), predicate="within")
+        hits = np.bincount(pt, minlength=len(idx))
+        one = hits[pt] == 1
+        out[idx[pt[one]]] = face[one]
+        return out
+
+
+def read_roof_planes(path, project_crs, project_heights=None, plane_sigma_m: float | None = None) -> RoofPlanes:
+    """The roof planes of ``path`` (a corners folder with roof_planes.geojson, or the file) for a project in
+    ``project_crs`` / ``project_heights``. Refuses a missing file, another CRS or height system, and
+    malformed features (InputError naming the file and the feature). ``plane_sigma_m``: the strip sigma
+    (plan and height) instead of the file's."""
+    import json
+
+    import shapely
+    from shapely.geometry import shape
+
+    from aerotri.core.errors import InputError
+    from aerotri.geom.crs import crs_label, height_unit_m, linear_unit_m, parse_crs, same_horizontal, same_vertical, \
+        vertical_crs
+
+    path = Path(path)
+    if not path.exists():
+        raise InputError(f"{path}: not found; expected a lidarctl corners folder with {ROOF_PLANES_FILE} (or the file)")
+    f = path / ROOF_PLANES_FILE if path.is_dir() else path
+    if not f.is_file():
+        raise InputError(f"{f}: no roof planes file (lidarctl corners writes {ROOF_PLANES_FILE} into its output folder)")
+    try:
+        doc = json.loads(f.read_text())
+    except (json.JSONDecodeError, UnicodeDecodeError) as exc:
+        where = f" line {exc.lineno}" if isinstance(exc, json.JSONDecodeError) else ""
+        raise InputError(f"{f}{where}: not a GeoJSON file ({exc})") from None
+    if not isinstance(doc, dict) or doc.get("type") != "FeatureCollection" or not isinstance(doc.get("features"), list):
+        raise InputError(f"{f}: expected a GeoJSON FeatureCollection of roof planes (lidarctl corners)")
+    try:
+        name = doc["crs"]["properties"]["name"]
+    except (KeyError, TypeError):
+        raise CrsError(f"{f}: names no CRS (a 'crs' member); the roof planes must be in the project's CRS, "
+                       f"{crs_label(project_crs)}") from None
+    crs = parse_crs(name, f"{f} crs")
+    if not same_horizontal(crs, project_crs):
+        raise CrsError(f"{f}: the roof planes are in {crs_label(crs)}, the project in {crs_label(project_crs)}; "
+                       "run lidarctl corners on strips in the project's CRS")
+    v = vertical_crs(crs)
+    if v is not None and (project_heights is None or not same_vertical(v, project_heights)):
+        theirs = crs_label(project_heights) if project_heights is not None else "ellipsoidal heights"
+        raise CrsError(f"{f}: the roof planes' heights are in {crs_label(v)}, the project's in {theirs} "
+                       "([project] heights)")
+
+    def number(d, key, where, default=None):
+        val = d.get(key, default)
+        if isinstance(val, bool) or not isinstance(val, (int, float)) or not np.isfinite(val):
+            raise InputError(f"{f}: {where}{key} {val!r}: expected a finite number")
+        return float(val)
+
+    xy_m = linear_unit_m(crs)
+    if "xy_unit_m" in doc and abs(number(doc, "xy_unit_m", "") - xy_m) > 1e-9:
+        raise InputError(f"{f}: xy_unit_m {doc['xy_unit_m']} differs from the unit of its CRS ({xy_m:g} m)")
+    z_m = number(doc, "z_unit_m", "", height_unit_m(crs))
+    if plane_sigma_m is None:
+        if doc.get("sigma_strip_xy_m") is None or doc.get("sigma_strip_z_m") is None:
+            raise InputError(f"{f}: no sigma_strip_xy_m / sigma_strip_z_m (the LiDAR strips' georeferencing error); "
+                             "give --plane-sigma-m")
+        s_xy, s_z = number(doc, "sigma_strip_xy_m", ""), number(doc, "sigma_strip_z_m", "")
+    else:
+        s_xy = s_z = float(plane_sigma_m)
+    rows, covs, polys, ids = [], [], [], []
+    for k, feat in enumerate(doc["features"], 1):
+        props = feat.get("properties") if isinstance(feat, dict) else None
+        fid = props.get("id", k) if isinstance(props, dict) else k
+        where = f"feature {k} ({fid}): "
+        if not isinstance(props, dict) or not isinstance(feat.get("geometry"), dict):
+            raise InputError(f"{f}: feature {k}: expected a Feature with geometry and properties")
+        if feat["geometry"].get("type") != "Polygon":
+            raise InputError(f"{f}: {where}geometry {feat['geometry'].get('type')!r}: expected a Polygon (the face's "
+                             "footprint)")
+        try:
+            poly = shape(feat["geometry"])
+        except (ValueError, TypeError, IndexError, AttributeError, shapely.errors.GEOSException) as exc:
+            raise InputError(f"{f}: {where}bad Polygon coordinates ({exc})") from None
+        if poly.is_empty or not poly.is_valid or not np.isfinite(poly.bounds).all():
+            raise InputError(f"{f}: {where}the footprint is not a valid polygon ({shapely.is_valid_reason(poly)})")
+        for key in _PLANE_KEYS:
+            if key not in props:
+                raise InputError(f"{f}: {where}no {key!r}; expected the plane z = a (x - x0) + b (y - y0) + c "
+                                 "and cov_abc_m")
+        cov = np.asarray(props["cov_abc_m"], dtype=object)
+        if cov.shape != (3, 3) or not all(isinstance(c, (int, float)) and not isinstance(c, bool) for c in cov.ravel()):
+            raise InputError(f"{f}: {where}cov_abc_m: expected a 3 x 3 matrix of numbers (m)")
+        cov = cov.astype(float)
+        if not np.isfinite(cov).all() or np.linalg.eigvalsh(0.5 * (cov + cov.T)).min() < -1e-12:
+            raise InputError(f"{f}: {where}cov_abc_m is not a covariance matrix (finite, symmetric, not negative)")
+        a, b, c = (number(props, key, where) for key in ("a", "b", "c"))
+        # to metres: slopes in z units per xy unit, heights in z units
+        rows.append((number(props, "x0", where) * xy_m, number(props, "y0", where) * xy_m,
+                     a * z_m / xy_m, b * z_m / xy_m, c * z_m))
+        covs.append(cov)
+        polys.append(poly)
+        ids.append(fid)
+    if not rows:
+        log.warning(f"{f}: no roof planes")
+    arr = np.array(rows, float).reshape(-1, 5)
+    log.info(f"{f}: {len(rows)} roof planes")
+    return RoofPlanes(f, ids, arr[:, 0], arr[:, 1], arr[:, 2:5], np.array(covs, float).reshape(-1, 3, 3), s_xy, s_z,
+                      np.array(polys, dtype=object), xy_m)
+
+
 @dataclasses.dataclass
 class SurfaceControl:
-    """The DEM (and optionally the nDSM) a block's tie points are held to, in the block's local frame."""
+    """The DEM (and optionally the nDSM and roof planes) a block's tie points are held to, in the block's
+    local frame."""
 
     dem: HeightGrid
     frame: LocalFrame
@@ -126,32 +292,80 @@ class SurfaceControl:
     max_ndsm_m: float = 1.0  # above this height over the ground a point is on an object
     gate_sigmas: float = 3.0
     sigma_factor: float = 1.0  # the variance component's factor on the stated sigmas (reweighting)
+    planes: RoofPlanes | None = None
+    map_unit_m: tuple[float, float] = (1.0, 1.0)  # metres per unit of the map's x, y and of its heights
+    face: np.ndarray | None = None  # roof face per point (-1: ground), decided by ``candidates``
+
+    def of_points(self, index: np.ndarray) -> "SurfaceControl":
+        """This surface control for the block's points ``index`` (in that order): the roof faces ``candidates``
+        decided for them. Whoever observes a subset of the points (the solve's tie points with two rays or more)
+        takes this, so that each point keeps its face while it moves."""
+        return dataclasses.replace(self, face=None if self.face is None else self.face[np.asarray(index)])
+
+    def _faces(self, m: np.ndarray) -> np.ndarray:
+        """The roof face of each point: as ``candidates`` decided (for the same points, ``of_points``), else
+        looked up at the points' positions (any other set of points)."""
+        if self.planes is None:
+            return np.full(len(m), -1, np.int64)
+        if self.face is not None and len(self.face) == len(m):
+            return self.face
+        return self.planes.face_of(m[:, 0], m[:, 1])
 
     def observe(self, coords_local: np.ndarray, jacobian: bool = True) -> tuple[np.ndarray, np.ndarray | None, np.ndarray]:
         """(e_m, J, sigma_m) for points (M, 3) in the local frame: residual height above the DEM (NaN where
-        the DEM has none), its Jacobian (M, 3) with respect to the local coordinates (None unless
-        ``jacobian``: it costs six more coordinate conversions per point), its sigma (M,)."""
+        the DEM has none), for points on a roof face (``face``) the distance above its plane along the normal;
+        its Jacobian (M, 3) with respect to the local coordinates (None unless ``jacobian``: it costs six more
+        coordinate conversions per point), its sigma (M,)."""
         p = np.asarray(coords_local, dtype=float)
         m = self.frame.to_map(p)
         h, hx, hy = self.dem.sample(m[:, 0], m[:, 1])
         e = m[:, 2] - h
         sigma = self.sigma_factor * np.sqrt(self.sigma_m**2 + (np.hypot(hx, hy) * 0.5 * self.dem.res) ** 2)
+        face = self._faces(m)
+        roof = np.flatnonzero(face >= 0)
+        if len(roof):
+            pl, k = self.planes, face[roof]
+            xy_m, z_m = self.map_unit_m
+            dx, dy = m[roof, 0] * xy_m - pl.x0[k], m[roof, 1] * xy_m - pl.y0[k]
+            a, b, c = pl.abc[k].T
+            s = np.sqrt(1.0 + a * a + b * b)
+            e[roof] = (m[roof, 2] * z_m - (a * dx + b * dy + c)) / s
+            j = np.stack([dx, dy, np.ones_like(dx)], axis=1)
+            fit2 = np.einsum("ni,nij,nj->n", j, pl.cov_abc[k], j)
+            strip2 = pl.sigma_strip_z_m**2 + pl.sigma_strip_xy_m**2 * (a * a + b * b)
+            sigma[roof] = self.sigma_factor * np.sqrt(fit2 + strip2) / s
+            # slopes per map unit, for the Jacobian below (d map / d local is in map units)
+            hx, hy = hx.copy(), hy.copy()
+            hx[roof], hy[roof] = a * xy_m / z_m, b * xy_m / z_m
         if not jacobian:
             return e, None, sigma
         # d map / d local: the inverse of the frame's Jacobian at the point
         J_ml = np.linalg.inv(self.frame.jacobian_local_from_map(m))
         J = J_ml[:, 2, :] - hx[:, None] * J_ml[:, 0, :] - hy[:, None] * J_ml[:, 1, :]
+        if len(roof):  # metres along the plane's normal: the unit normal in the local frame
+            J[roof] *= (self.map_unit_m[1] / s)[:, None]
         return e, J, sigma
 
     def candidates(self, coords_local: np.ndarray) -> np.ndarray:
-        """Points that may lie on the ground: inside the DEM and, with an nDSM, not on an object."""
+        """Points that may lie on the ground (inside the DEM and, with an nDSM, not on an object) or on a roof
+        face (inside its footprint, whatever the nDSM says). Decides (and keeps, in ``face``) which face each
+        point lies on."""
         p = np.asarray(coords_local, dtype=float)
         m = self.frame.to_map(p)
         ok = np.isfinite(self.dem.sample(m[:, 0], m[:, 1])[0])
         if self.ndsm is not None:
             nd = self.ndsm.sample(m[:, 0], m[:, 1])[0]
             ok &= np.isfinite(nd) & (nd <= self.max_ndsm_m)
-        return ok
+        if self.planes is None:
+            return ok
+        self.face = self.planes.face_of(m[:, 0], m[:, 1])
+        return ok | (self.face >= 0)
+
+    def point_class(self, n_points: int) -> np.ndarray:
+        """0 ground (DEM), 1 roof plane, per point of the block (as ``candidates`` decided)."""
+        if self.face is None or len(self.face) != n_points:
+            return np.zeros(n_points, np.int8)
+        return (self.face >= 0).astype(np.int8)
 
 def _robust_cost(x: np.ndarray, huber_k: float) -> float:
     """``sum rho(x)`` of whitened residual sizes: twice Huber's robust cost (``huber_k`` > 0), or x'x."""
@@ -185,29 +399,50 @@ def surface_cost(surface: SurfaceControl, coords_local: np.ndarray, active: np.n
     return _robust_cost(np.abs(np.where(use, e / sigma, 0.0)), huber_k)
 
 
+SURFACE_CLASSES = ("ground (DEM)", "roof planes")  # SurfaceControl.point_class 0, 1
+
+
 @dataclasses.dataclass
 class SurfaceStats:
-    """What the surface control did, for the report (heights in metres)."""
+    """What the surface control did, for the report (metres): over all candidates, and per class
+    (``classes``: ground (DEM), roof planes; the same keys, residuals height above the DEM and distance
+    above the roof plane along its normal)."""
 
-    candidates: int  # tie points inside the DEM (and on the ground by the nDSM)
+    candidates: int  # tie points inside the DEM (and on the ground by the nDSM) or inside a roof face
     used: int  # in the final solve
     rejected: int  # candidates the gate removed
-    rms_m: float | None  # of the used points' residuals (point height - DEM)
+    rms_m: float | None  # of the used points' residuals (point - surface)
     median_m: float | None
     rms_normalised: float | None  # of the used residuals in their sigmas (about 1 when the sigmas are right)
     sigma_m: float
     max_ndsm_m: float | None
+    classes: dict | None = None  # class name -> candidates, used, rejected, rms_m, median_m, rms_normalised
+    n_planes: int | None = None  # roof faces read (None: no roof planes)
+    plane_sigma_strip_m: tuple[float, float] | None = None  # strip sigma plan, height (m) at the roof planes
 
     def as_dict(self) -> dict:
         return dataclasses.asdict(self)
 
 
+def _residual_stats(e: np.ndarray, sigma: np.ndarray, candidates: np.ndarray, active: np.ndarray) -> dict:
+    used = active & np.isfinite(e)
+    v, w = e[used], e[used] / sigma[used]
+    return dict(candidates=int(candidates.sum()), used=int(used.sum()), rejected=int((candidates & ~active).sum()),
+                rms_m=float(np.sqrt(np.mean(v * v))) if len(v) else None,
+                median_m=float(np.median(v)) if len(v) else None,
+                rms_normalised=float(np.sqrt(np.mean(w * w))) if len(w) else None)
+
+
 def surface_stats(surface: SurfaceControl, coords_local: np.ndarray, candidates: np.ndarray, active: np.ndarray
                   ) -> SurfaceStats:
     e, _, sigma = surface.observe(coords_local, jacobian=False)
-    used = active & np.isfinite(e)
-    v, w = e[used], e[used] / sigma[used]
-    return SurfaceStats(int(candidates.sum()), int(used.sum()), int((candidates & ~active).sum()),
-                        float(np.sqrt(np.mean(v * v))) if len(v) else None, float(np.median(v)) if len(v) else None,
-                        float(np.sqrt(np.mean(w * w))) if len(w) else None,
-                        surface.sigma_m, surface.max_ndsm_m if surface.ndsm is not None else None)
+    total = _residual_stats(e, sigma, candidates, active)
+    classes = n_planes = strip = None
+    if surface.planes is not None:
+        cls = surface.point_class(len(e))
+        classes = {name: _residual_stats(e, sigma, candidates & (cls == k), active & (cls == k))
+                   for k, name in enumerate(SURFACE_CLASSES)}
+        n_planes = len(surface.planes)
+        strip = (surface.planes.sigma_strip_xy_m, surface.planes.sigma_strip_z_m)
+    return SurfaceStats(**total, sigma_m=surface.sigma_m, max_ndsm_m=surface.max_ndsm_m if surface.ndsm is not None else None,
+                        classes=classes, n_planes=n_planes, plane_sigma_strip_m=strip)

@@ -98,7 +98,7 @@ def estimate(block: G.Block, opts: G.Options, state: G.State, obs_active, contro
     if block.surface is not None and block.surface_active is not None:
         act = np.asarray(block.surface_active, dtype=bool) & np.isfinite(point_cov_unit).all(axis=(1, 2))
         if act.any():
-            e, J, sigma = block.surface.observe(state.points[act])
+            e, J, sigma = block.surface.of_points(np.flatnonzero(act)).observe(state.points[act])
             b = J / sigma[:, None]
             r = float(np.sum(1.0 - np.einsum("pi,pij,pj->p", b, point_cov_unit[act], b)))
             out.append(_component("surface", int(act.sum()), r, float(np.sum((e / sigma) ** 2))))

@@ -222,7 +222,8 @@ class Chain:
     def corner_outputs(self, root) -> list[Path]:
         summary = _json(self.project.corners_summary_path)
         usable = summary.get("n_usable", 1) > 0 if summary else True
-        return [self.project.corners_summary_path] + ([self.project.corners_path] if usable else [])
+        return [self.project.corners_summary_path] + (
+            [self.project.corners_path, self.project.roof_planes_path] if usable else [])
 
     def run_corners(self, root) -> dict:
         from lidarctl.corners import corner_control
@@ -252,14 +253,20 @@ class Chain:
             files.append(Path(self.options.adjust.initial_eo))
         s = self.with_surface(self.options.adjust)
         files += [Path(p) for p in (s.dem, s.ndsm) if p is not None]
+        if s.planes is not None:  # a corners folder or the file itself
+            files.append(Path(s.planes) / "roof_planes.geojson" if Path(s.planes).is_dir() else Path(s.planes))
         return files
 
     def with_surface(self, s):
-        """The adjustment settings with the surface control of the chain: [adjust] dem when given, else the
-        LiDAR stages' DEM and nDSM (``[adjust] lidar_surface``, default true) when the project has LiDAR."""
+        """The adjustment settings with the surface control of the chain: [adjust] dem (and planes) when given,
+        else the LiDAR stages' DEM, nDSM and roof planes (``[adjust] lidar_surface``, default true; the planes
+        when the corners stage found usable corners) when the project has LiDAR."""
         if s.dem is not None or not s.lidar_surface or not self.has_lidar:
             return s
-        return dataclasses.replace(s, dem=self.project.dem_path, ndsm=self.project.ndsm_path)
+        # the roof planes come with usable corners (lidarctl corners writes nothing without, README)
+        usable = _json(self.project.corners_summary_path).get("n_usable", 0) > 0
+        return dataclasses.replace(s, dem=self.project.dem_path, ndsm=self.project.ndsm_path,
+                                   planes=self.project.roof_planes_path if usable else None)
 
     def no_first_adjustment(self, root=None) -> str | None:
         why = self.no_corners()
@@ -288,7 +295,8 @@ class Chain:
 
         s, notes = self.with_surface(self.options.adjust), []
         if s.dem is not None:
-            notes.append(f"surface control: tie points on the ground held to {s.dem}")
+            notes.append(f"surface control: tie points on the ground held to {s.dem}"
+                         + (f", on roofs to the roof planes of {s.planes}" if s.planes is not None else ""))
         if self.has_lidar:
             why = self.no_corners()
             if why:

@@ -105,6 +105,7 @@ class Project:
     ndsm_path = property(lambda self: self.lidar_out_dir / "ndsm.tif")
     corners_path = property(lambda self: self.lidar_out_dir / "corners.csv")
     corners_summary_path = property(lambda self: self.lidar_out_dir / "corners.json")
+    roof_planes_path = property(lambda self: self.lidar_out_dir / "roof_planes.geojson")  # lidarctl corners
     height_check_path = property(lambda self: self.lidar_out_dir / "height_check.json")
     classification_eval_path = property(lambda self: self.lidar_out_dir / "classification_eval.json")
     # control/: the transferred LiDAR control

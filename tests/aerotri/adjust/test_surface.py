@@ -136,3 +136,192 @@ def test_the_report_has_a_surface_control_section(surface_block, tmp_path):
     assert sc["dem"].endswith("dem_trees.tif") and rep["surface_control"]["sigma_m"] == 0.05
     assert "SURFACE CONTROL" in (p / "at" / "report.txt").read_text()
     assert "<h2>Surface control</h2>" in (p / "at" / "report.html").read_text()
+
+
+# ---------------------------------------------------------------------------------------------- roof planes
+SQUARE_M, FACE_M = 60.0, 50.0  # "roofs": 50 m faces on a 60 m grid over the block, planes tangent to the terrain
+
+
+def _plane_faces(block, offset_m=None, seed=11):
+    """Faces as roof_planes.geojson holds them (``lidarctl.corners._faces_in_crs_units``' keys, metric CRS):
+    each a 50 m square of the block's terrain with the least-squares plane of 400 terrain points in map
+    coordinates, its covariance (point noise 2 cm) and rms. ``offset_m``: {face index: metres} added to c."""
+    rng = np.random.default_rng(seed)
+    xmin, xmax, ymin, ymax = block.extent_local
+    faces = []
+    for cx in np.arange(xmin + SQUARE_M / 2, xmax - SQUARE_M / 2, SQUARE_M):
+        for cy in np.arange(ymin + SQUARE_M / 2, ymax - SQUARE_M / 2, SQUARE_M):
+            u = rng.uniform(-FACE_M / 2, FACE_M / 2, (400, 2)) + [cx, cy]
+            m = block.frame.to_map(np.column_stack([u, block.terrain(u[:, 0], u[:, 1])]))
+            m[:, 2] += rng.normal(0, 0.02, len(m))
+            x0, y0 = m[:, :2].mean(axis=0)
+            A = np.column_stack([m[:, 0] - x0, m[:, 1] - y0, np.ones(len(m))])
+            abc, *_ = np.linalg.lstsq(A, m[:, 2], rcond=None)
+            v = A @ abc - m[:, 2]
+            s0 = float(np.sqrt(v @ v / (len(m) - 3)))
+            sq = np.array([[-1, -1], [1, -1], [1, 1], [-1, 1], [-1, -1]]) * FACE_M / 2 + [cx, cy]
+            ring = block.frame.to_map(np.column_stack([sq, np.zeros(5)]))[:, :2]
+            faces.append(dict(building_id=len(faces), rings=[ring], centre_local=(cx, cy), x0=x0, y0=y0, a=abc[0], b=abc[1], c=abc[2],
+                              cov_abc_m=s0**2 * np.linalg.inv(A.T @ A), rms_m=s0, n_points=len(m),
+                              slope_deg=float(np.degrees(np.arctan(np.hypot(*abc[:2])))), margin_m=0.0,
+                              area_m2=FACE_M**2))
+    for k, dz in (offset_m or {}).items():
+        faces[k]["c"] += dz
+    return faces
+
+
+def _write_planes(folder, faces, crs, **stats):
+    import json
+
+    from lidarctl.corners import roof_planes_geojson
+
+    folder.mkdir(parents=True, exist_ok=True)
+    gj = roof_planes_geojson(faces, {"sigma_strip_xy_m": 0.03, "sigma_strip_z_m": 0.03, **stats}, crs)
+    (folder / "roof_planes.geojson").write_text(json.dumps(gj))
+    return folder
+
+
+def _constant_raster(like, path, value):
+    with rasterio.open(like) as src:
+        prof, a = src.profile, src.read(1)
+    with rasterio.open(path, "w", **prof) as dst:
+        dst.write(np.full_like(a, value), 1)
+    return path
+
+
+@pytest.fixture(scope="module")
+def roof_block(surface_block, tmp_path_factory):
+    """The surface block with roof planes over it, an nDSM that puts every point on an object (so only the
+    planes hold heights), and the same planes with two faces 2 m too high."""
+    import pyproj
+
+    block, root, dem, _ = surface_block
+    d = tmp_path_factory.mktemp("roofs")
+    crs = pyproj.CRS(block.crs)
+    good = _write_planes(d / "good", _plane_faces(block), crs)
+    # every 7th face 2 m too high (a 50 m face holds a tie point or two of this sparse block)
+    off = list(range(3, len(_plane_faces(block)), 7))
+    wrong_faces = _plane_faces(block, offset_m={k: 2.0 for k in off})
+    wrong = _write_planes(d / "wrong", wrong_faces, crs)
+    ndsm = _constant_raster(dem, d / "ndsm_objects.tif", 10.0)
+    return block, root, dem, ndsm, good, wrong, [wrong_faces[k]["rings"][0] for k in off]
+
+
+def test_tie_points_on_roofs_observe_the_planes_and_fix_the_heights(roof_block):
+    import dataclasses
+
+    block, root, dem, ndsm, good, _, _ = roof_block
+    base = AdjustSettings(gnss_correction="none", image_sigma_px=SIGMA_PX, point_covariances=False, surface_sigma_m=0.05)
+    _, z0, _ = _check_rms(adjust_project(root, base))
+    ba_dem = adjust_project(root, dataclasses.replace(base, dem=dem))
+    ba = adjust_project(root, dataclasses.replace(base, dem=dem, ndsm=ndsm, planes=good))
+    sc = ba.result.surface
+    ground, roofs = sc.classes["ground (DEM)"], sc.classes["roof planes"]
+    # the nDSM leaves no point on the ground: every height observation is a roof plane's
+    assert ground["candidates"] == 0 and sc.n_planes == len(_plane_faces(block))
+    assert roofs["used"] > 0.9 * roofs["candidates"] > 300, roofs
+    # the planes' residuals: distances from tangent planes of smooth hills (a few cm)
+    assert abs(roofs["median_m"]) < 0.02 and roofs["rms_m"] < 0.06 and roofs["rms_normalised"] < 2.0, roofs
+    _, z_dem, _ = _check_rms(ba_dem)
+    _, z_planes, bias = _check_rms(ba)
+    assert z_planes < 0.5 * z0 and abs(bias) < 0.05, (z0, z_dem, z_planes, bias)
+    assert z_planes < z_dem + 0.05, (z_dem, z_planes)
+
+
+def test_a_roof_plane_2_m_off_is_gated(roof_block):
+    import dataclasses
+
+    import shapely
+
+    block, root, dem, ndsm, good, wrong, wrong_rings = roof_block
+    base = AdjustSettings(gnss_correction="none", image_sigma_px=SIGMA_PX, point_covariances=False, surface_sigma_m=0.05,
+                          dem=dem, ndsm=ndsm)
+    ok = adjust_project(root, dataclasses.replace(base, planes=good))
+    bad = adjust_project(root, dataclasses.replace(base, planes=wrong))
+    # the tie points inside the wrong faces (by their adjusted position) are all rejected by the gate
+    P = bad.points_map
+    inside = np.zeros(len(P), bool)
+    for ring in wrong_rings:
+        inside |= shapely.contains_xy(shapely.Polygon(ring), P[:, 0], P[:, 1])
+    use = bad.result.surface_use
+    assert inside.sum() > 10 and np.all(use[inside] == 2), np.bincount(use[inside])
+    roofs_ok, roofs_bad = ok.result.surface.classes["roof planes"], bad.result.surface.classes["roof planes"]
+    assert roofs_bad["rejected"] >= roofs_ok["rejected"] + inside.sum() - 2
+    _, z_ok, _ = _check_rms(ok)
+    _, z_bad, bias = _check_rms(bad)
+    assert z_bad < z_ok + 0.03 and abs(bias) < 0.05, (z_ok, z_bad, bias)
+
+
+def test_aerotri_adjust_refuses_planes_in_another_crs_or_without_a_dem(roof_block, tmp_path):
+    import pyproj
+    from click.testing import CliRunner
+
+    from aerotri.cli import main
+
+    block, root, dem, _, _, _, _ = roof_block
+    other = _write_planes(tmp_path / "utm50", _plane_faces(block)[:3], pyproj.CRS("EPSG:32650"))
+    r = CliRunner().invoke(main, ["adjust", str(root), "--dem", str(dem), "--planes", str(other)])
+    err = [line for line in r.output.splitlines() if line.startswith("Error: ")]
+    assert r.exit_code == 2 and len(err) == 1 and "Traceback" not in r.output, r.output
+    assert "utm50/roof_planes.geojson: the roof planes are in EPSG:32650, the project in" in err[0]
+    r = CliRunner().invoke(main, ["adjust", str(root), "--planes", str(other)])
+    assert r.exit_code == 2 and "--planes" in r.output and "without a DEM" in r.output, r.output
+
+
+def test_the_report_has_a_surface_control_section_per_class(roof_block, tmp_path):
+    import json
+    import shutil
+
+    from aerotri.adjust.pipeline import write_outputs
+
+    block, root, dem, _, _, wrong, _ = roof_block
+    p = tmp_path / "p"
+    shutil.copytree(root, p)
+    ba = adjust_project(p, AdjustSettings(dem=dem, planes=wrong, surface_sigma_m=0.05, point_covariances=False))
+    write_outputs(ba, p)
+    sc = json.loads((p / "at" / "report.json").read_text())["surface_control"]
+    st = ba.result.surface
+    ground, roofs = sc["classes"]["ground (DEM)"], sc["classes"]["roof planes"]
+    assert sc["planes"].endswith("wrong/roof_planes.geojson") and sc["n_planes"] == len(_plane_faces(block))
+    assert ground["used"] > 50 and roofs["used"] > 200 and roofs["rejected"] > 10 and ground["rejected"] < 5, sc
+    assert ground["candidates"] + roofs["candidates"] == sc["candidates"] == st.candidates
+    assert ground["used"] + roofs["used"] == sc["used"] and roofs["rms_m"] == pytest.approx(
+        st.classes["roof planes"]["rms_m"], abs=1e-4)
+    txt = (p / "at" / "report.txt").read_text()
+    row = next(line for line in txt.splitlines() if line.strip().startswith("roof planes ") and "faces" not in line)
+    assert row.split()[2:5] == [str(roofs["candidates"]), str(roofs["used"]), str(roofs["rejected"])], row
+    assert "distance above the plane along its normal" in txt
+    html = (p / "at" / "report.html").read_text()
+    assert "<h2>Surface control</h2>" in html
+
+
+def test_a_point_keeps_its_roof_face_in_a_subset_of_the_points(roof_block):
+    """The solve observes the tie points with two rays or more (a subset, ``of_points``): each keeps the face
+    ``candidates`` gave it while it moves (a face looked up anew at every trial step made the cost jump and
+    the demo's first adjustment fail to converge)."""
+    import dataclasses
+
+    from aerotri.adjust.pipeline import prepare_project
+
+    _, root, dem, ndsm, good, _, _ = roof_block
+    pb, state = prepare_project(root, AdjustSettings(dem=dem, ndsm=ndsm, planes=good))
+    sc = pb.block.surface
+    cand = sc.candidates(state.points)
+    roof = np.flatnonzero(sc.face >= 0)
+    assert cand[roof].all() and len(roof) > 100
+    idx = roof[::2]
+    sub = sc.of_points(idx)
+    # 20 m north: out of their 50 m faces for about 40 % of them; the plane goes on under them
+    moved = state.points[idx] + [0.0, 20.0, 0.0]
+    e, J, sigma = sub.observe(moved)
+    e0, _, _ = sub.observe(state.points[idx])
+    pl = sc.planes
+    a, b = pl.abc[sc.face[idx], 0], pl.abc[sc.face[idx], 1]
+    # distance along the normal changes by the plane's rise over the move (the terrain's slope), for every point
+    d = sc.frame.to_map(moved) - sc.frame.to_map(state.points[idx])
+    s = np.sqrt(1 + a * a + b * b)
+    assert np.allclose(e - e0, (d[:, 2] - a * d[:, 0] - b * d[:, 1]) / s, atol=1e-3)
+    assert np.allclose(J[:, 2], 1 / s, atol=1e-3) and np.all(sigma < 0.05)
+    # looked up at the moved positions instead, some points would change face or fall to the DEM
+    looked_up = dataclasses.replace(sc, face=None).planes.face_of(*sc.frame.to_map(moved)[:, :2].T)
+    assert (looked_up != sc.face[idx]).mean() > 0.2
