@@ -72,7 +72,7 @@ def _run(ties, roots, which, dem, ndsm):
 
 def _stats(d: np.ndarray) -> dict:
     d = d[np.isfinite(d)]
-    return {"n": int(len(d)), "mean_m": float(np.mean(d)), "rms_m": float(np.sqrt(np.mean(d * d)))} if len(d) else {"n": 0}
+    return {"n": len(d), "mean_m": float(np.mean(d)), "rms_m": float(np.sqrt(np.mean(d * d)))} if len(d) else {"n": 0}
 
 
 def by_class(ba, ties) -> dict:
@@ -227,6 +227,18 @@ def main(argv=None):
                      "moving": "cars 0.3-1.6 m above the ground moving 3-15 m between exposures, matched within one strip "
                                "(>= 2 rays)"},
            "variants": {k: {"ties": t, "dem": d, "ndsm": n} for k, (t, d, n) in VARIANTS.items()},
+           "definitions": {
+               "share_surface_used": "points with a surface observation in the final solve and >= 2 active rays (the "
+                                     "result's surface_use == 1 also marks points whose rays were all removed: the gate "
+                                     "passes a point without rays, and SurfaceStats.used/rms_m count them)",
+               "share_surface_gated": "candidates the rays-only gate rejected (surface_use == 2)",
+               "share_not_candidate": "no surface observation from the start: outside the DEM or, with the nDSM, above "
+                                      "max_ndsm_m at the approximate point (surface_use == 0)",
+               "share_observations_snooped": "image observations removed by data snooping (result.removed)",
+               "share_points_left_out": "points with fewer than 2 active rays at the end (snooped rays, then dropped)",
+               "against_clean_dem": "the same ground tie points, check points and centres of the dirty run minus the "
+                                    "clean run with the DEM; small = |mean| below bound_check_mean_standard_error_m, "
+                                    "the clean run's check-height RMS / sqrt(n)"},
            "summary": _summary(seeds), "seeds": seeds, "load_average_1min": os.getloadavg()[0]}
     a.out.parent.mkdir(parents=True, exist_ok=True)
     a.out.write_text(json.dumps(res, indent=1))

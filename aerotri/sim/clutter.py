@@ -33,7 +33,7 @@ class Trees:
     top_m: np.ndarray
 
     @classmethod
-    def random(cls, block: GeometricBlock, cover: float, rng, radius_m=(3.0, 8.0), top_m=(3.5, 20.0)) -> "Trees":
+    def random(cls, block: GeometricBlock, cover: float, rng, radius_m=(3.0, 8.0), top_m=(3.5, 20.0)) -> Trees:
         """Trees over about ``cover`` of the block's ground; a third of them in hedgerows (rows of
         crowns 1.5 radii apart)."""
         x0, x1, y0, y1 = block.extent_local
@@ -160,7 +160,7 @@ def clutter_ties(block: GeometricBlock, *, points_per_image: int = 150, vegetati
     g_obs, g_ids, g_P = _noisy(block, P, *block.project(P), PREFIX["ground"], sigma_px, 3, rng)
     n_g = len(g_ids)
     n_total = n_g / (1 - vegetation_share - moving_share)
-    n_veg, n_mov = int(round(vegetation_share * n_total)), int(round(moving_share * n_total))
+    n_veg, n_mov = round(vegetation_share * n_total), round(moving_share * n_total)
     V = trees.sample(block, 2 * n_veg + 100, rng)
     v_obs, v_ids, _ = _noisy(block, V, *block.project(V), PREFIX["vegetation"], sigma_px, 3, rng)
     v_obs, keep = _subset_points(v_obs, v_ids, n_veg, rng)
