@@ -203,6 +203,10 @@ def _summary(seeds: list) -> dict:
                           "ground_ties_dz_rms_m": agg([r[key]["ground_tie_points_dz"]["rms_m"] for r in rs]),
                           "check_dz_mean_m": agg([r[key]["check_points_dz"]["mean_m"] for r in rs]),
                           "centres_dz_mean_m": agg([r[key]["centres_dz"]["mean_m"] for r in rs])}
+                # small: on every seed the check heights' mean moved less than the clean mean's standard error
+                o[key]["bias_small"] = all(abs(r[key]["check_points_dz"]["mean_m"]) < r[key]["bound_check_mean_standard_error_m"]
+                                           and abs(r[key]["ground_tie_points_dz"]["mean_m"]) < r[key]["bound_check_mean_standard_error_m"]
+                                           for r in rs)
         out[v] = o
     return out
 
