@@ -256,10 +256,16 @@ def _surface_gate(block: G.Block, state: G.State, obs_active, sigma_px: float) -
     _, pc = project_cv(pts[block.obs_point[k]], state.centre[block.obs_image[k]], state.R_cv[block.obs_image[k]],
                         state.cal)
     N = point_normals(point_jacobian_cv(pc, state.R_cv[block.obs_image[k]], state.cal), block.obs_point[k], block.n_points)
+    # only points the solve holds (two rays or more, not parallel) are candidates: a point without rays has no
+    # height of its own, and with an infinite sigma it would pass the gate and count as used
+    rays = np.bincount(block.obs_point[k], minlength=block.n_points)
+    ev = np.zeros((block.n_points, 3))
+    used = rays >= 2
+    ev[used] = np.linalg.eigvalsh(N[used])
+    ok = used & (ev[:, 0] > 0) & (ev[:, 2] < 1e10 * ev[:, 0])
     sz2 = np.full(block.n_points, np.inf)
-    ok = np.linalg.cond(N) < 1e10
     sz2[ok] = sigma_px**2 * np.linalg.inv(N[ok])[:, 2, 2]  # local up is the vertical within a block
-    candidates = block.surface.candidates(pts)
+    candidates = block.surface.candidates(pts) & ok
     e, _, sigma = block.surface.observe(pts, jacobian=False)
     tol = block.surface.gate_sigmas * np.sqrt(sigma**2 + sz2)
     return candidates, candidates & np.isfinite(e) & (np.abs(e) <= tol)
