@@ -144,17 +144,8 @@ def main(argv=None):
     res = {}
     with tempfile.TemporaryDirectory() as tmp:
         tmp = Path(tmp)
-        t0 = time.perf_counter()
-        block_t = geometric_block(a.strips, a.frames, camera_true=dmc_camera(), lever_arm_m=(0.0, 0.0, 0.0), gnss_shift_sigma_m=0.0,
-                                  gnss_drift_sigma_m_per_km=0.0, seed=31)
-        root = write_block_project(block_t, tmp / "bench")
-        info = write_truth_observations(root, tie_sigma_px=SIGMA_PX, n_control=1, n_check=40, points_per_image=a.points_per_image, seed=32)
-        res["simulate_s"] = time.perf_counter() - t0
-        chk_ids = [line.split(",")[0] for line in (root / "control" / "points.csv").read_text().splitlines()[1:]]
-        t0 = time.perf_counter()
-        ctx, state0 = prepare_project(root, AdjustSettings(gnss_correction="none", image_sigma_px=SIGMA_PX, check=tuple(chk_ids),
-                                                           snooping=False, refine_approximations=not a.no_refine))
-        res["read_and_approximate_s"] = time.perf_counter() - t0
+        block_t, ctx, state0, times = _bench_project(a, tmp)
+        res.update(times)
         block, opts = ctx.block, ctx.opts
         res["start_median_abs_residual_px"] = float(np.median(np.abs(G.image_residuals(block, state0))))
         res.update({"images": block.n_images, "points": block.n_points, "observations": int(len(block.obs_point)),
@@ -204,25 +195,8 @@ def main(argv=None):
             print(f"colmap (1 thread): {t_col1:.1f} s", flush=True)
 
         # accuracy of both against the truth
-        eo_t = block_t.eo_map()
-        idx = [eo_t.image_id.index(i) for i in block.image_id]
-        C_true = ctx.frame.to_local(eo_t.centre_m[idx])
-        chk = ctx.check_points
-        cobs = ctx.control_obs.subset(np.isin(ctx.control_obs.point_id, chk.id))
-        cid = {p: c for c, p in enumerate(chk.id)}
-        opi = np.array([cid[p] for p in cobs.point_id])
-        oim = np.array([ctx.image_index[i] for i in cobs.image_id])
-        chk_true = ctx.frame.to_local(chk.xyz_m)
-
         def acc(st):
-            v = G.image_residuals(block, st)
-            P, _ = intersect(cobs.xy_px, opi, oim, st.centre, st.R_cv, st.cal, len(chk))
-            d = P - chk_true
-            ok = np.all(np.isfinite(d), axis=1)
-            return {"rms_reprojection_px": float(np.sqrt(np.mean(v**2))),
-                    "rms_centre_m": float(np.sqrt(np.mean((st.centre - C_true) ** 2))),
-                    "rms_check_xy_m": float(np.sqrt(np.mean(np.sum(d[ok, :2] ** 2, 1)))),
-                    "rms_check_z_m": float(np.sqrt(np.mean(d[ok, 2] ** 2)))}
+            return _accuracy(block_t, ctx, st)
 
         res["gtsam"] = {"ordering": a.ordering, "linear_solver": a.linear_solver, "diagonal_damping": a.diagonal_damping,
                         "tie_points": "Schur complement per point (numba), reduced camera system solved by gtsam",
@@ -257,15 +231,19 @@ def main(argv=None):
 
 
 def _bench_project(a, tmp: Path):
-    """The benchmark block (truth) and its prepared project and start values."""
+    """The benchmark block: (truth, prepared project, start values, {simulate_s, read_and_approximate_s})."""
+    t0 = time.perf_counter()
     block_t = geometric_block(a.strips, a.frames, camera_true=dmc_camera(), lever_arm_m=(0.0, 0.0, 0.0), gnss_shift_sigma_m=0.0,
                               gnss_drift_sigma_m_per_km=0.0, seed=31)
     root = write_block_project(block_t, tmp / "bench")
     write_truth_observations(root, tie_sigma_px=SIGMA_PX, n_control=1, n_check=40, points_per_image=a.points_per_image, seed=32)
+    times = {"simulate_s": time.perf_counter() - t0}
     chk_ids = [line.split(",")[0] for line in (root / "control" / "points.csv").read_text().splitlines()[1:]]
+    t0 = time.perf_counter()
     ctx, state0 = prepare_project(root, AdjustSettings(gnss_correction="none", image_sigma_px=SIGMA_PX, check=tuple(chk_ids),
                                                        snooping=False, refine_approximations=not a.no_refine))
-    return block_t, ctx, state0
+    times["read_and_approximate_s"] = time.perf_counter() - t0
+    return block_t, ctx, state0, times
 
 
 def _accuracy(block_t, ctx, st, surface=None) -> dict:
@@ -305,9 +283,8 @@ def surface_bench(a):
     out = a.out or Path("results/adjust_bench_surface.json")
     res = {}
     with tempfile.TemporaryDirectory() as tmp:
-        t0 = time.perf_counter()
-        block_t, ctx, state0 = _bench_project(a, Path(tmp))
-        res["simulate_and_prepare_s"] = time.perf_counter() - t0
+        block_t, ctx, state0, times = _bench_project(a, Path(tmp))
+        res.update(times)
     block = ctx.block
     opts = dataclasses.replace(ctx.opts, relative_tolerance=RELATIVE_TOLERANCE, ordering=a.ordering, linear_solver=a.linear_solver,
                                diagonal_damping=a.diagonal_damping)
