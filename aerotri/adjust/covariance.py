@@ -111,19 +111,18 @@ class _ArrowInverse:
             M_prev, C_prev = M, C
         self.Zdd = _inverse_spd(Sd)
         # backwards: the diagonal blocks, the first off-diagonal blocks and the border rows of the inverse
-        self.Zkk, self.Zsub, self.Zdk = [None] * N, [None] * N, [None] * N
+        Zkk, Zsub, Zdk = [None] * N, [None] * N, [None] * N
         for k in range(N - 1, -1, -1):
             M, E = self.M[k], self.E[k]
             if k == N - 1:
                 Zd = -(self.Zdd @ E)
-                Zkk = self.Sinv[k] - E.T @ Zd
+                Z = self.Sinv[k] - E.T @ Zd
             else:
-                Zsub = -(self.Zkk[k + 1] @ M + self.Zdk[k + 1].T @ E)
-                Zd = -(self.Zdk[k + 1] @ M + self.Zdd @ E)
-                Zkk = self.Sinv[k] - M.T @ Zsub - E.T @ Zd
-                self.Zsub[k] = Zsub
-            self.Zkk[k] = 0.5 * (Zkk + Zkk.T)
-            self.Zdk[k] = Zd
+                Zsub[k] = -(Zkk[k + 1] @ M + Zdk[k + 1].T @ E)
+                Zd = -(Zdk[k + 1] @ M + self.Zdd @ E)
+                Z = self.Sinv[k] - M.T @ Zsub[k] - E.T @ Zd
+            Zkk[k] = 0.5 * (Z + Z.T)
+            Zdk[k] = Zd
         # one flat store for the gather: per block the diagonal block, then the border rows, then the
         # sub-diagonal block Z_{k+1,k}; all row-major with the row stride of block k's size
         size = np.diff(np.r_[starts, n])  # block N: the border
@@ -132,11 +131,11 @@ class _ArrowInverse:
         self._border_base = np.zeros(N + 1, dtype=np.int64)
         self._sub_base = np.full(N + 1, -1, dtype=np.int64)
         for k in range(N + 1):
-            blocks = [("diag", self.Zkk[k] if k < N else self.Zdd)]
+            blocks = [("diag", Zkk[k] if k < N else self.Zdd)]
             if k < N:
-                blocks.append(("border", self.Zdk[k]))
+                blocks.append(("border", Zdk[k]))
                 if k < N - 1:
-                    blocks.append(("sub", self.Zsub[k]))
+                    blocks.append(("sub", Zsub[k]))
             for kind, Z in blocks:
                 getattr(self, f"_{kind}_base")[k] = base
                 parts.append(Z.ravel())
@@ -202,42 +201,70 @@ def _sparse_hessian(graph: gtsam.GaussianFactorGraph, offset: dict, dim: dict, n
     return scipy.sparse.csr_matrix((np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))), shape=(n, n))
 
 
+def _bfs_levels(adj: scipy.sparse.csr_matrix, sources: np.ndarray) -> np.ndarray:
+    """Breadth-first distance of every node from the nearest of ``sources`` (inf where unreachable)."""
+    n = adj.shape[0]
+    if len(sources) == 1:
+        return scipy.sparse.csgraph.shortest_path(adj, unweighted=True, directed=False, indices=int(sources[0]))
+    hub = scipy.sparse.csr_matrix((np.ones(len(sources)), (sources, np.zeros(len(sources), dtype=np.int64))), shape=(n, 1))
+    ext = scipy.sparse.bmat([[adj, hub], [hub.T, None]]).tocsr()  # a virtual node next to every source
+    return scipy.sparse.csgraph.shortest_path(ext, unweighted=True, directed=False, indices=n)[:n] - 1.0
+
+
+def _merge_levels(level_weight: np.ndarray, min_block: int) -> np.ndarray:
+    """Block number of each level when consecutive levels are merged until a block weighs ``min_block``."""
+    block = np.zeros(len(level_weight), dtype=np.int64)
+    k, w = 0, 0
+    for i, lw in enumerate(level_weight):
+        block[i] = k
+        w += lw
+        if w >= min_block:
+            k, w = k + 1, 0
+    return block
+
+
 def _level_blocks(adj: scipy.sparse.csr_matrix, weight: np.ndarray, min_block: int) -> list[np.ndarray]:
     """The nodes of a graph in consecutive blocks such that edges join only nodes of the same or of adjacent
-    blocks: the level sets of a breadth-first search (Cuthill-McKee) from a pseudo-peripheral node (George &
-    Liu 1979) per connected component, merged until a block weighs at least ``min_block``."""
+    blocks: the level sets of a breadth-first search (Cuthill-McKee), merged until a block weighs at least
+    ``min_block``. Per connected component the search starts from a pseudo-peripheral node (George & Liu
+    1979), or from the whole last level of that node's search when that gives cheaper blocks (sum of their
+    weights cubed): in a block of strips longer than wide the far end is one level, and the levels from it
+    are straight fronts across the strips instead of the corner's L-shaped ones."""
     n = adj.shape[0]
     degree = np.diff(adj.indptr)
     level = np.full(n, -1, dtype=np.int64)
+
+    def cost(d, reach):
+        lw = np.bincount(d[reach].astype(np.int64), weights=weight[reach])
+        blk = _merge_levels(lw, min_block)
+        return float(np.sum(np.bincount(blk, weights=lw) ** 3))
+
     top = 0
     for comp_start in range(n):
         if level[comp_start] >= 0:
             continue
-        start, depth = comp_start, -1
+        start, depth, candidates = comp_start, -1, []
         for _ in range(4):  # a far node of the last level, until the depth stops growing
-            d = scipy.sparse.csgraph.shortest_path(adj, unweighted=True, directed=False, indices=start)
+            d = _bfs_levels(adj, np.array([start]))
             reach = np.isfinite(d)
             ecc = int(d[reach].max())
             if ecc <= depth:
                 break
-            depth, best = ecc, d
+            depth = ecc
+            candidates.append(d)
             far = np.flatnonzero(d == ecc)
             start = int(far[np.argmin(degree[far])])
-        reach = np.isfinite(best)
+        candidates.append(_bfs_levels(adj, np.flatnonzero(candidates[-1] == depth)))
+        reach = np.isfinite(candidates[0])
+        best = min(candidates, key=lambda d: cost(d, reach))
         level[reach] = top + best[reach].astype(np.int64)
-        top += depth + 1
+        top += int(best[reach].max()) + 1
     order = np.argsort(level, kind="stable")
     bounds = np.r_[0, np.flatnonzero(np.diff(level[order])) + 1, n]
-    blocks, cur, w = [], [], 0
-    for a, b in zip(bounds[:-1], bounds[1:]):
-        cur.append(order[a:b])
-        w += int(weight[order[a:b]].sum())
-        if w >= min_block:
-            blocks.append(np.concatenate(cur))
-            cur, w = [], 0
-    if cur:
-        blocks.append(np.concatenate(cur))
-    return blocks
+    lw = np.add.reduceat(weight[order], bounds[:-1]) if n else np.zeros(0)
+    blk = _merge_levels(lw, min_block)
+    return [order[bounds[np.searchsorted(blk, k)]:bounds[np.searchsorted(blk, k, side="right")]]
+            for k in range(int(blk.max()) + 1 if n else 0)]
 
 
 def reduced_system(gr: "G.Graph", values: gtsam.Values, point_keys) -> tuple[gtsam.GaussianFactorGraph, list]:
@@ -251,6 +278,25 @@ def reduced_system(gr: "G.Graph", values: gtsam.Values, point_keys) -> tuple[gts
             ordering.push_back(k)
     _, reduced = gfg.eliminatePartialMultifrontal(ordering)
     return reduced, sorted(set(reduced.keyVector()))
+
+
+def _arrow_order(H: scipy.sparse.spmatrix, chars: list, dims: np.ndarray, min_block_dim: int
+                 ) -> tuple[np.ndarray, np.ndarray]:
+    """The scalar order that makes ``H`` (keys of symbol ``chars`` and dimension ``dims``, in that order)
+    block tridiagonal with a border (``_ArrowInverse``): the band keys by level blocks, then the others; and
+    the blocks' first rows."""
+    offs = np.r_[0, np.cumsum(dims)[:-1]].astype(np.int64)
+    key_of = np.repeat(np.arange(len(dims)), dims)
+    Hc = H.tocoo()
+    adj = scipy.sparse.csr_matrix((np.ones(Hc.nnz), (key_of[Hc.row], key_of[Hc.col])), shape=(len(dims),) * 2)
+    band = np.array([c in _BAND_CHARS for c in chars], dtype=bool)
+    bk = np.flatnonzero(band)
+    blocks = _level_blocks(adj[bk][:, bk].tocsr(), dims[bk], min_block_dim) if len(bk) else []
+    key_order = [bk[b] for b in blocks] + [np.flatnonzero(~band)]
+    sizes = [int(dims[ko].sum()) for ko in key_order]
+    ko = np.concatenate(key_order)
+    perm = np.concatenate([offs[k] + np.arange(dims[k]) for k in ko]) if len(ko) else np.zeros(0, np.int64)
+    return perm, np.r_[0, np.cumsum(sizes[:-1])].astype(np.int64)
 
 
 class ReducedCovariance:
@@ -270,8 +316,7 @@ class ReducedCovariance:
         reduced, keys = reduced_system(gr, values, point_keys)
         chars = [chr(gtsam.Symbol(k).chr()) for k in keys]
         dims = np.array([_DIM.get(c, 3) for c in chars], dtype=np.int64)
-        offs = np.r_[0, np.cumsum(dims)[:-1]].astype(np.int64)
-        self.offset = dict(zip(keys, offs.tolist()))
+        self.offset = dict(zip(keys, np.r_[0, np.cumsum(dims)[:-1]].astype(int).tolist()))
         self.dim = dict(zip(keys, dims.tolist()))
         self.n = n = int(dims.sum())
         H = _sparse_hessian(reduced, self.offset, self.dim, n)
@@ -282,20 +327,11 @@ class ReducedCovariance:
             raise np.linalg.LinAlgError("reduced normal matrix has a zero or negative diagonal")
         self._d = d = 1.0 / np.sqrt(diag)
         H = scipy.sparse.diags(d) @ H @ scipy.sparse.diags(d)
-        # the keys' graph and the order: band keys by level blocks, then the border
-        key_of = np.repeat(np.arange(len(keys)), dims)
-        Hc = H.tocoo()
-        adj = scipy.sparse.csr_matrix((np.ones(Hc.nnz), (key_of[Hc.row], key_of[Hc.col])), shape=(len(keys),) * 2)
-        band = np.array([c in _BAND_CHARS for c in chars])
-        bk = np.flatnonzero(band)
-        blocks = _level_blocks(adj[bk][:, bk].tocsr(), dims[bk], min_block_dim) if len(bk) else []
-        key_order = [bk[b] for b in blocks] + [np.flatnonzero(~band)]
-        sizes = [int(dims[ko].sum()) for ko in key_order]
-        ko = np.concatenate(key_order)
-        self._perm = perm = np.concatenate([offs[k] + np.arange(dims[k]) for k in ko]) if len(ko) else np.zeros(0, np.int64)
+        self._perm, starts = _arrow_order(H, chars, dims, min_block_dim)
         self._pos = np.empty(n, dtype=np.int64)
-        self._pos[perm] = np.arange(n)
-        self._inv = _ArrowInverse(H[perm][:, perm].tocsr(), np.r_[0, np.cumsum(sizes[:-1])])
+        self._pos[self._perm] = np.arange(n)
+        with threadpool_limits(1, user_api="blas"):  # blocks of a few hundred: threads only wait on each other
+            self._inv = _ArrowInverse(H[self._perm][:, self._perm].tocsr(), starts)
 
     def entries(self, rows, cols) -> np.ndarray:
         """The covariance entries ``Sigma[rows, cols]`` (scalar indices, broadcast together)."""
