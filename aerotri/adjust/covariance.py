@@ -110,37 +110,47 @@ class _ArrowInverse:
             self.E.append(E)
             M_prev, C_prev = M, C
         self.Zdd = _inverse_spd(Sd)
-        # backwards: the diagonal blocks, the first off-diagonal blocks and the border rows of the inverse
-        Zkk, Zsub, Zdk = [None] * N, [None] * N, [None] * N
-        for k in range(N - 1, -1, -1):
-            M, E = self.M[k], self.E[k]
-            if k == N - 1:
-                Zd = -(self.Zdd @ E)
-                Z = self.Sinv[k] - E.T @ Zd
-            else:
-                Zsub[k] = -(Zkk[k + 1] @ M + Zdk[k + 1].T @ E)
-                Zd = -(Zdk[k + 1] @ M + self.Zdd @ E)
-                Z = self.Sinv[k] - M.T @ Zsub[k] - E.T @ Zd
-            Zkk[k] = 0.5 * (Z + Z.T)
-            Zdk[k] = Zd
-        # one flat store for the gather: per block the diagonal block, then the border rows, then the
-        # sub-diagonal block Z_{k+1,k}; all row-major with the row stride of block k's size
+        # one flat store for the gather, written in place by the backward pass: per block its diagonal block
+        # Z_kk, its border rows Z_dk and the sub-diagonal block Z_{k+1,k}, all row-major with the row
+        # stride of block k's size; the border's Z_dd last
         size = np.diff(np.r_[starts, n])  # block N: the border
-        parts, base = [], 0
+        shapes = {}
         self._diag_base = np.zeros(N + 1, dtype=np.int64)
         self._border_base = np.zeros(N + 1, dtype=np.int64)
         self._sub_base = np.full(N + 1, -1, dtype=np.int64)
+        base = 0
         for k in range(N + 1):
-            blocks = [("diag", Zkk[k] if k < N else self.Zdd)]
+            parts = [("diag", (size[k], size[k]))]
             if k < N:
-                blocks.append(("border", Zdk[k]))
+                parts.append(("border", (self.m, size[k])))
                 if k < N - 1:
-                    blocks.append(("sub", Zsub[k]))
-            for kind, Z in blocks:
+                    parts.append(("sub", (size[k + 1], size[k])))
+            for kind, shape in parts:
                 getattr(self, f"_{kind}_base")[k] = base
-                parts.append(Z.ravel())
-                base += Z.size
-        self._z = np.concatenate(parts) if parts else np.zeros(0)
+                shapes[kind, k] = (base, shape)
+                base += shape[0] * shape[1]
+        self._z = np.empty(base)
+
+        def view(kind, k):
+            b, shape = shapes[kind, k]
+            return self._z[b:b + shape[0] * shape[1]].reshape(shape)
+
+        view("diag", N)[:] = self.Zdd
+        # backwards: the diagonal blocks, the first off-diagonal blocks and the border rows of the inverse
+        for k in range(N - 1, -1, -1):
+            M, E = self.M[k], self.E[k]
+            Zd = view("border", k)
+            if k == N - 1:
+                np.matmul(-self.Zdd, E, out=Zd)
+                Z = self.Sinv[k] - E.T @ Zd
+            else:
+                Zsub = view("sub", k)
+                Zsub[:] = -(view("diag", k + 1) @ M + view("border", k + 1).T @ E)
+                Zd[:] = -(view("border", k + 1) @ M + self.Zdd @ E)
+                Z = self.Sinv[k] - M.T @ Zsub - E.T @ Zd
+            Zkk = view("diag", k)
+            np.add(Z, Z.T, out=Zkk)
+            Zkk *= 0.5
         self._size = size
         self._block_of = np.repeat(np.arange(N + 1), size)
         self._start = np.r_[starts, n]
@@ -160,6 +170,10 @@ class _ArrowInverse:
 
     def solve(self, B: np.ndarray) -> np.ndarray:
         """``H^-1 B`` (permuted order; B (n,) or (n, r)) with the block factors."""
+        with threadpool_limits(1, user_api="blas"):  # blocks of a few hundred: threads only wait on each other
+            return self._solve(B)
+
+    def _solve(self, B: np.ndarray) -> np.ndarray:
         st, N, nb = self.starts, self.N, self.nb
         y = np.array(B, dtype=float, copy=True)
         yd = y[nb:]
