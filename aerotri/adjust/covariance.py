@@ -245,34 +245,36 @@ def _level_blocks(adj: scipy.sparse.csr_matrix, weight: np.ndarray, min_block: i
     weights cubed): in a block of strips longer than wide the far end is one level, and the levels from it
     are straight fronts across the strips instead of the corner's L-shaped ones."""
     n = adj.shape[0]
-    degree = np.diff(adj.indptr)
     level = np.full(n, -1, dtype=np.int64)
 
-    def cost(d, reach):
-        lw = np.bincount(d[reach].astype(np.int64), weights=weight[reach])
-        blk = _merge_levels(lw, min_block)
-        return float(np.sum(np.bincount(blk, weights=lw) ** 3))
+    def cost(d, w):
+        lw = np.bincount(d.astype(np.int64), weights=w)
+        return float(np.sum(np.bincount(_merge_levels(lw, min_block), weights=lw) ** 3))
 
+    n_comp, label = scipy.sparse.csgraph.connected_components(adj, directed=False)
+    members = np.split(np.argsort(label, kind="stable"), np.cumsum(np.bincount(label, minlength=n_comp))[:-1])
     top = 0
-    for comp_start in range(n):
-        if level[comp_start] >= 0:
+    for nodes in sorted(members, key=lambda m: m[0]):
+        if len(nodes) == 1:
+            level[nodes] = top
+            top += 1
             continue
-        start, depth, candidates = comp_start, -1, []
+        sub = adj[nodes][:, nodes].tocsr() if n_comp > 1 else adj
+        degree = np.diff(sub.indptr)
+        start, depth, candidates = 0, -1, []
         for _ in range(4):  # a far node of the last level, until the depth stops growing
-            d = _bfs_levels(adj, np.array([start]))
-            reach = np.isfinite(d)
-            ecc = int(d[reach].max())
+            d = _bfs_levels(sub, np.array([start]))
+            ecc = int(d.max())
             if ecc <= depth:
                 break
             depth = ecc
             candidates.append(d)
             far = np.flatnonzero(d == ecc)
             start = int(far[np.argmin(degree[far])])
-        candidates.append(_bfs_levels(adj, np.flatnonzero(candidates[-1] == depth)))
-        reach = np.isfinite(candidates[0])
-        best = min(candidates, key=lambda d: cost(d, reach))
-        level[reach] = top + best[reach].astype(np.int64)
-        top += int(best[reach].max()) + 1
+        candidates.append(_bfs_levels(sub, np.flatnonzero(candidates[-1] == depth)))
+        best = min(candidates, key=lambda d: cost(d, weight[nodes]))
+        level[nodes] = top + best.astype(np.int64)
+        top += int(best.max()) + 1
     order = np.argsort(level, kind="stable")
     bounds = np.r_[0, np.flatnonzero(np.diff(level[order])) + 1, n]
     lw = np.add.reduceat(weight[order], bounds[:-1]) if n else np.zeros(0)

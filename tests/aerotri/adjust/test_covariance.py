@@ -135,18 +135,24 @@ def test_level_blocks_couple_only_neighbours():
     a block or between adjacent blocks, every node once; the levels run across the grid's short side."""
     from aerotri.adjust.covariance import _level_blocks
 
-    r, c = np.meshgrid(np.arange(12), np.arange(7), indexing="ij")
-    r, c = r.ravel(), c.ravel()
-    edges = (np.abs(r[:, None] - r[None]) <= 1) & (np.abs(c[:, None] - c[None]) <= 1)
+    def grid(rows, cols):
+        r, c = np.meshgrid(np.arange(rows), np.arange(cols), indexing="ij")
+        r, c = r.ravel(), c.ravel()
+        return (np.abs(r[:, None] - r[None]) <= 1) & (np.abs(c[:, None] - c[None]) <= 1)
+
+    edges = grid(12, 7)
     adj = scipy.sparse.csr_matrix(edges.astype(float))
-    for min_block in (1, 18, 40):
-        blocks = _level_blocks(adj, np.full(len(r), 6), min_block)
-        assert np.array_equal(np.sort(np.concatenate(blocks)), np.arange(len(r)))
-        which = np.empty(len(r), int)
-        for k, bl in enumerate(blocks):
-            which[bl] = k
-        i, j = np.nonzero(edges)
-        assert np.all(np.abs(which[i] - which[j]) <= 1)
-        assert all(6 * len(bl) >= min_block for bl in blocks[:-1])
+    # and a block in three pieces: a 5 x 3 grid, two images without ties, the 12 x 7 grid
+    parts = scipy.sparse.block_diag([grid(5, 3), np.eye(2), edges]).toarray() != 0
+    for e in (edges, parts):
+        for min_block in (1, 18, 40):
+            blocks = _level_blocks(scipy.sparse.csr_matrix(e.astype(float)), np.full(len(e), 6), min_block)
+            assert np.array_equal(np.sort(np.concatenate(blocks)), np.arange(len(e)))
+            which = np.empty(len(e), int)
+            for k, bl in enumerate(blocks):
+                which[bl] = k
+            i, j = np.nonzero(e)
+            assert np.all(np.abs(which[i] - which[j]) <= 1)
+            assert all(6 * len(bl) >= min_block for bl in blocks[:-1])
     # from the far row, not from a corner: straight fronts, one per row of 7 (a corner's L-shapes grow to 18)
-    assert [len(bl) for bl in _level_blocks(adj, np.full(len(r), 6), 1)] == [7] * 12
+    assert [len(bl) for bl in _level_blocks(adj, np.full(len(edges), 6), 1)] == [7] * 12
