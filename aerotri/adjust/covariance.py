@@ -462,11 +462,12 @@ def point_covariances(block: "G.Block", state: "G.State", obs_active, sigma_px: 
     ia, ib = idx[ray_of_image[pairs // n_img]], idx[ray_of_image[pairs % n_img]]
     table = rc.entries(ia[:, :, None], ib[:, None, :])  # (pairs, 6 or 15, 6 or 15)
     extra = np.zeros((block.n_points, 3, 3))
-    for s in range(0, len(a_idx), chunk):
-        a = order[a_idx[s : s + chunk]]
-        b = order[b_idx[s : s + chunk]]
-        S = table[pair_of[s : s + chunk]]
-        np.add.at(extra, pt[a], Gk[a] @ S @ Gk[b].transpose(0, 2, 1))
+    with threadpool_limits(1, user_api="blas"):  # numpy's stacked matmul calls BLAS per 3 x 6 matrix
+        for s in range(0, len(a_idx), chunk):
+            a = order[a_idx[s : s + chunk]]
+            b = order[b_idx[s : s + chunk]]
+            S = table[pair_of[s : s + chunk]]
+            np.add.at(extra, pt[a], Gk[a] @ S @ Gk[b].transpose(0, 2, 1))
     cov = Vinv + extra
     cov[~used] = np.nan
     return cov
