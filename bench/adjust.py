@@ -11,8 +11,7 @@ solved by gtsam's multifrontal Cholesky with a METIS ordering of the orientation
 solve with every tie point an explicit unknown of the gtsam graph (the form robust and self-calibrating
 solves use) runs too. Reported: wall time of each solve, their ratio,
 final reprojection RMS (px), RMS of projection centres and check points against the truth, and the time
-and peak memory of the covariances (the reduced system's by selected inversion, compared with its dense
-inverse up to --dense-check-max unknowns; all object points). Writes results/adjust_bench.json.
+for the marginal covariances (poses, and all object points). Writes results/adjust_bench.json.
 """
 
 from __future__ import annotations
@@ -169,13 +168,14 @@ def main(argv=None):
     ap.add_argument("--points-per-image", type=int, default=280)
     ap.add_argument("--threads", type=int, default=os.cpu_count() or 1)
     ap.add_argument("--no-point-marginals", action="store_true")
+    ap.add_argument("--dense-check-max", type=int, default=8000,
+                    help="the reduced covariance's time and peak memory, and up to this many unknowns (6 per image) "
+                         "its largest difference to the dense inverse")
     ap.add_argument("--no-explicit", action="store_true", help="skip the reference solve with explicit point unknowns")
     ap.add_argument("--ordering", default="METIS", choices=["METIS", "COLAMD"])
     ap.add_argument("--linear-solver", default="MULTIFRONTAL_CHOLESKY", choices=["MULTIFRONTAL_CHOLESKY", "SEQUENTIAL_CHOLESKY"])
     ap.add_argument("--diagonal-damping", action="store_true")
     ap.add_argument("--no-refine", action="store_true", help="start from omega = phi = 0 (no resection/intersection step)")
-    ap.add_argument("--dense-check-max", type=int, default=8000,
-                    help="compare the covariance with the dense inverse up to this many unknowns (6 per image)")
     ap.add_argument("--out", type=Path, default=Path("results/adjust_bench.json"))
     a = ap.parse_args(argv)
     res = {}
