@@ -120,6 +120,55 @@ def run_colmap(block: G.Block, state0: G.State, cam, tmp: Path, threads: int):
     return st, seconds, summary
 
 
+def _peak_rss_mb() -> float:
+    """The process's peak resident memory since the last ``_reset_peak_rss_mb`` (Linux), MB."""
+    status = dict(line.split(":", 1) for line in Path("/proc/self/status").read_text().splitlines())
+    return int(status["VmHWM"].split()[0]) / 1024
+
+
+def _reset_peak_rss_mb() -> float:
+    """Reset the peak to the current resident memory (``/proc/self/clear_refs``), and return it, MB."""
+    Path("/proc/self/clear_refs").write_text("5")
+    return _peak_rss_mb()
+
+
+def _dense_check(rc: ReducedCovariance, gr, values, point_keys) -> dict:
+    """The selected covariance against the dense inverse of the reduced normal matrix (Jacobi-scaled, as
+    ``ReducedCovariance`` was before the selected inversion): the largest difference over every computed
+    entry relative to the two variables' sigmas, and over the poses' 6x6 blocks relative to the block."""
+    import gtsam
+
+    from aerotri.adjust.covariance import _inverse_spd, reduced_system
+
+    t0 = time.perf_counter()
+    reduced, keys = reduced_system(gr, values, point_keys)
+    order = gtsam.Ordering()
+    for k in keys:
+        order.push_back(k)
+    H, _ = reduced.hessian(order)
+    d = 1.0 / np.sqrt(np.diag(H))
+    ref = _inverse_spd(H * d[:, None] * d[None]) * d[:, None] * d[None]
+    t_dense = time.perf_counter() - t0
+    s = np.sqrt(np.diag(ref))
+    worst, worst_pose, computed = 0.0, 0.0, 0
+    for q0 in range(0, rc.n, 500):  # every entry in rows of 500: the pattern and what it leaves out
+        rows = np.arange(q0, min(q0 + 500, rc.n))
+        qi, qj = np.meshgrid(rc._pos[rows], np.arange(rc.n), indexing="ij")
+        _, missing = rc._inv.gather(qi, qj)
+        r, c = np.nonzero(~missing)
+        i, j = rows[r], rc._perm[qj[r, c]]
+        got = rc.entries(i, j)
+        worst = max(worst, float(np.max(np.abs(got - ref[i, j]) / (s[i] * s[j]))))
+        computed += len(i)
+    for k in keys:
+        if gtsam.Symbol(k).chr() == ord("x"):
+            a = rc.offset[k]
+            blk = ref[a:a + 6, a:a + 6]
+            worst_pose = max(worst_pose, float(np.abs(rc.block(k, k) - blk).max() / np.abs(blk).max()))
+    return {"dense_inverse_s": t_dense, "computed_fraction": computed / rc.n**2,
+            "max_difference_correlation_scale": worst, "max_difference_pose_blocks_relative": worst_pose}
+
+
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--strips", type=int, default=20)
@@ -127,6 +176,9 @@ def main(argv=None):
     ap.add_argument("--points-per-image", type=int, default=280)
     ap.add_argument("--threads", type=int, default=os.cpu_count() or 1)
     ap.add_argument("--no-point-marginals", action="store_true")
+    ap.add_argument("--dense-check-max", type=int, default=8000,
+                    help="the reduced covariance's time and peak memory, and up to this many unknowns (6 per image) "
+                         "its largest difference to the dense inverse")
     ap.add_argument("--no-explicit", action="store_true", help="skip the reference solve with explicit point unknowns")
     ap.add_argument("--ordering", default="METIS", choices=["METIS", "COLAMD"])
     ap.add_argument("--linear-solver", default="MULTIFRONTAL_CHOLESKY", choices=["MULTIFRONTAL_CHOLESKY", "SEQUENTIAL_CHOLESKY"])
@@ -166,10 +218,23 @@ def main(argv=None):
         gr, values, info_ours, t_build, t_ours = solve(opts)
         st_ours = G.state_from_values(values, block, opts, state0, tie=gr.tie)
         print(f"ours: {t_ours:.2f} s ({info_ours.iterations} iterations)", flush=True)
-        # marginal covariances: reduced camera system (all orientations, jointly) + every object point
+        # marginal covariances: reduced camera system (selected inversion) + every object point
+        point_keys = [G.P(j) for j in range(block.n_points)]
+        rss0 = _reset_peak_rss_mb()
         t0 = time.perf_counter()
-        rc = ReducedCovariance(gr, values, [G.P(j) for j in range(block.n_points)])
+        rc = ReducedCovariance(gr, values, point_keys)
         t_marg_pose = time.perf_counter() - t0
+        peak_marg_pose = _peak_rss_mb() - rss0
+        print(f"covariance (selected inversion): {t_marg_pose:.2f} s, peak memory +{peak_marg_pose:.0f} MB", flush=True)
+        sizes = np.diff(np.r_[rc._inv.starts, rc.n])
+        cov_info = {"method": "selected inversion (block-tridiagonal by level sets of the image graph, dense border)",
+                    "unknowns": rc.n, "blocks": int(rc._inv.N), "max_block": int(sizes[:-1].max(initial=0)),
+                    "mean_block": float(sizes[:-1].mean()) if rc._inv.N else 0.0, "border": int(rc._inv.m),
+                    "peak_rss_increase_mb": peak_marg_pose}
+        if rc.n <= a.dense_check_max:
+            cov_info.update(_dense_check(rc, gr, values, point_keys))
+            print(f"dense inverse: {cov_info['dense_inverse_s']:.1f} s, max difference "
+                  f"{cov_info['max_difference_correlation_scale']:.2e} (correlation scale)", flush=True)
         t_marg_pts = None
         if not a.no_point_marginals:
             t0 = time.perf_counter()
@@ -203,7 +268,8 @@ def main(argv=None):
                         "relative_tolerance": RELATIVE_TOLERANCE, "refined_approximations": not a.no_refine, "solve_s": t_ours,
                         "graph_build_s": t_build, "iterations": info_ours.iterations,
                         "sigma0": float(np.sqrt(info_ours.chi2 / info_ours.dof)),
-                        "marginals_orientations_joint_s": t_marg_pose, "marginals_all_points_s": t_marg_pts, **acc(st_ours)}
+                        "marginals_orientations_joint_s": t_marg_pose, "marginals_all_points_s": t_marg_pts,
+                        "covariance": cov_info, **acc(st_ours)}
         if explicit is not None:
             st_e, info_e, t_build_e, t_e = explicit
             res["gtsam_explicit_points"] = {"solve_s": t_e, "graph_build_s": t_build_e, "iterations": info_e.iterations,

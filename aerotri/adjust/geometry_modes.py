@@ -69,10 +69,10 @@ def geometry_modes(block: G.Block, opts: G.Options, state: G.State, obs_active, 
     L = np.zeros((4, block.n_points))
     L[:, j] = np.linalg.pinv(M)  # (4, n_tie): the modes' coefficients from the heights (local up = z)
     # u = Q l: camera part u_c = -Sigma a, a = sum over rays of G_ray' l_point; point part u_p = V^-1 l - G u_c
-    n = rc.Sigma.shape[0]
+    n = rc.n
     Gz = pr.G[:, 2, :]  # the height row of each ray's V^-1 W
     a = np.array([np.bincount(pr.idx.ravel(), (Gz * L[m, pr.pt][:, None]).ravel(), n) for m in range(4)])
-    u_c = -(a @ rc.Sigma)  # (4, n) (Sigma symmetric)
+    u_c = -rc.multiply(a.T).T  # (4, n)
     l_p = np.zeros((4, block.n_points, 3))
     l_p[:, :, 2] = L
     u_p = np.einsum("pij,mpj->mpi", np.nan_to_num(pr.Vinv), l_p)

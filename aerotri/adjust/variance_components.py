@@ -75,7 +75,10 @@ def estimate(block: G.Block, opts: G.Options, state: G.State, obs_active, contro
         pred, rows = gnss_rows(block, opts, state)
         e = block.gnss_local - pred
         w = 1.0 / block.gnss_sigma_m**2  # (N, 3)
-        cov = np.array([sum(Ja @ rc.block(ka, kb) @ Jb.T for ka, Ja in row for kb, Jb in row) for row in rows])
+        # each position's covariance J Sigma J' from its keys' joint block, all images in one gather
+        idx = np.array([np.concatenate([rc.offset[k] + np.arange(J.shape[1]) for k, J in row]) for row in rows])
+        J = np.array([np.hstack([Jk for _, Jk in row]) for row in rows])  # (N, 3, unknowns of a row)
+        cov = J @ rc.entries(idx[:, :, None], idx[:, None, :]) @ J.transpose(0, 2, 1)
         r = float(3 * block.n_images - np.einsum("ni,nii->", w, cov))
         out.append(_component("gnss", 3 * block.n_images, r, float(np.sum(e * e * w))))
         others += r
