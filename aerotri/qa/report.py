@@ -51,14 +51,17 @@ def _check(section: str, name: str, value, limit, unit: str, note: str = "") -> 
 
 
 def _sigma0_limit_px(tol: dict, ks: dict, s0_px: float) -> float | None:
-    """The self-check limit of sigma naught in the camera's pixels: ``sigma0_max_um`` over the pixel size
-    (``key_statistics`` pixel_um, or sigma0_um / sigma0_px of older reports), else ``sigma0_max_px``."""
+    """The self-check limit of sigma naught in the camera's pixels: ``sigma0_max_px`` (digital cameras: a
+    fraction of a pixel, whatever its size), or a contract's ``sigma0_max_um`` on the image over the pixel
+    size (``key_statistics`` pixel_um, or sigma0_um / sigma0_px of older reports)."""
+    if tol.get("sigma0_max_px") is not None:
+        return tol["sigma0_max_px"]
     pixel_um = ks.get("pixel_um")
     if pixel_um is None and ks.get("sigma0_um") and s0_px:
         pixel_um = ks["sigma0_um"] / s0_px
     if tol.get("sigma0_max_um") is not None and pixel_um:
         return round(float(tol["sigma0_max_um"]) / float(pixel_um), 3)
-    return tol.get("sigma0_max_px")
+    return None
 
 
 def _hypot(a, b):

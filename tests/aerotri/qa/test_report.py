@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+from pathlib import Path
 
 from aerotri.qa.report import write_qa_report
 
@@ -30,7 +31,7 @@ def test_verdicts_match_numbers_and_terrain_class(tmp_path):
     assert by["check points, height RMS"]["verdict"] == "fail"  # 1.5 m > 1.0 m (flat)
     assert by["displacement on ground patches, plan RMS"]["verdict"] == "pass"
     s0 = by["sigma naught"]  # from at/report.json alone: no camera file in this project
-    assert s0["value"] == 0.425 and s0["limit"] == 0.667 and s0["verdict"] == "pass"  # 8 um on the 12 um pixel
+    assert s0["value"] == 0.425 and s0["limit"] == 0.67 and s0["verdict"] == "pass"  # 2/3 px of any camera
     assert rep["overall"] == "fail"
     assert (p / "reports" / "index.html").read_text().count("class='fail'") == 2
     # The same numbers pass the mountainous limits (0.50 m plan, 3.0 m height).
@@ -95,11 +96,16 @@ def test_a_check_that_measured_nothing_fails(tmp_path):
 
 
 def test_sigma_naught_limit_follows_the_pixel_size(tmp_path):
-    """8 um is 0.67 px on the DMC's 12 um pixel but 1.78 px on a 4.5 um drone pixel: the same image
-    precision passes on both."""
+    """The tables' limit is 2/3 of the camera's pixel (8 um on the DMC's 12 um, 3 um on a 4.5 um drone pixel);
+    a contract that states it on the image in um is turned into pixels of the camera (8 um = 1.778 px of 4.5 um)."""
     p = _project(tmp_path, [0.1, 0.1, 0.5], 0.18)
     rep = json.loads((p / "at" / "report.json").read_text())
     rep["key_statistics"].update(sigma0_um=4.5, sigma0_px=1.0, pixel_um=4.5)
     (p / "at" / "report.json").write_text(json.dumps(rep))
     s0 = {r["quantity"]: r for r in write_qa_report(p)["checks"]}["sigma naught"]
+    assert s0["limit"] == 0.67 and s0["verdict"] == "fail"  # 1 px
+    table = (Path(__file__).parents[3] / "aerotri" / "core" / "tolerance_tables" / "cn_1to5000.toml").read_text()
+    contract = tmp_path / "contract.toml"
+    contract.write_text(table.replace("sigma0_max_px = 0.67", "sigma0_max_um = 8.0"))
+    s0 = {r["quantity"]: r for r in write_qa_report(p, tolerance_file=contract)["checks"]}["sigma naught"]
     assert s0["limit"] == 1.778 and s0["verdict"] == "pass"
