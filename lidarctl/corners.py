@@ -222,7 +222,7 @@ def face_footprint(xy: np.ndarray, spacing_m: float, margin_m: float):
     two spacings) whose distance to the face's boundary exceeds the margin; None when
     nothing is left. Eaves, ridges, hips and step edges lie on the boundary of a face, so the shrunk
     footprint keeps tie points off them."""
-    from affine import Affine
+    from rasterio.transform import Affine
     from rasterio import features
     from shapely.geometry import shape
     from shapely.geometry.polygon import orient
