@@ -319,8 +319,9 @@ class SurfaceControl:
         p = np.asarray(coords_local, dtype=float)
         m = self.frame.to_map(p)
         h, hx, hy = self.dem.sample(m[:, 0], m[:, 1])
-        e = m[:, 2] - h
-        sigma = self.sigma_factor * np.sqrt(self.sigma_m**2 + (np.hypot(hx, hy) * 0.5 * self.dem.res) ** 2)
+        z_u = self.map_unit_m[1]  # heights and their residuals in metres, whatever the map's unit
+        e = (m[:, 2] - h) * z_u
+        sigma = self.sigma_factor * np.sqrt(self.sigma_m**2 + (np.hypot(hx, hy) * 0.5 * self.dem.res * z_u) ** 2)
         face = self._faces(m)
         roof = np.flatnonzero(face >= 0)
         if len(roof):
@@ -341,9 +342,9 @@ class SurfaceControl:
             return e, None, sigma
         # d map / d local: the inverse of the frame's Jacobian at the point
         J_ml = np.linalg.inv(self.frame.jacobian_local_from_map(m))
-        J = J_ml[:, 2, :] - hx[:, None] * J_ml[:, 0, :] - hy[:, None] * J_ml[:, 1, :]
+        J = (J_ml[:, 2, :] - hx[:, None] * J_ml[:, 0, :] - hy[:, None] * J_ml[:, 1, :]) * z_u  # metres per metre
         if len(roof):  # metres along the plane's normal: the unit normal in the local frame
-            J[roof] *= (self.map_unit_m[1] / s)[:, None]
+            J[roof] /= s[:, None]
         return e, J, sigma
 
     def candidates(self, coords_local: np.ndarray) -> np.ndarray:
@@ -355,7 +356,7 @@ class SurfaceControl:
         ok = np.isfinite(self.dem.sample(m[:, 0], m[:, 1])[0])
         if self.ndsm is not None:
             nd = self.ndsm.sample(m[:, 0], m[:, 1])[0]
-            ok &= np.isfinite(nd) & (nd <= self.max_ndsm_m)
+            ok &= np.isfinite(nd) & (nd * self.map_unit_m[1] <= self.max_ndsm_m)
         if self.planes is None:
             return ok
         self.face = self.planes.face_of(m[:, 0], m[:, 1])

@@ -325,3 +325,22 @@ def test_a_point_keeps_its_roof_face_in_a_subset_of_the_points(roof_block):
     # looked up at the moved positions instead, some points would change face or fall to the DEM
     looked_up = dataclasses.replace(sc, face=None).planes.face_of(*sc.frame.to_map(moved)[:, :2].T)
     assert (looked_up != sc.face[idx]).mean() > 0.2
+
+
+def test_surface_residuals_are_metres_in_a_foot_crs():
+    """A project in US survey feet (heights in feet too): the residual, its sigma and Jacobian are metres, the
+    nDSM threshold is metres, as in a metric project."""
+    from aerotri.adjust.surface import SurfaceControl
+    from aerotri.geom.local_frame import LocalFrame
+
+    ft = 1200.0 / 3937.0
+    frame = LocalFrame("EPSG:2227", (6_000_000.0, 2_100_000.0, 300.0))
+    xs = 6_000_000.0 - 500.0
+    g = HeightGrid(np.full((100, 100), 300.0), xs, 2_100_000.0 + 500.0, 10.0)  # flat at 300 ft, 10 ft cells
+    nd = HeightGrid(np.full((100, 100), 2.0), xs, 2_100_000.0 + 500.0, 10.0)  # 2 ft = 0.61 m above the ground
+    sc = SurfaceControl(g, frame, sigma_m=0.15, ndsm=nd, max_ndsm_m=1.0, map_unit_m=(ft, ft))
+    p = frame.to_local(np.array([[6_000_010.0, 2_100_020.0, 310.0]]))  # 10 ft above the DEM
+    e, J, sigma = sc.observe(p)
+    assert e[0] == pytest.approx(10.0 * ft, rel=1e-6) and sigma[0] == pytest.approx(0.15)
+    assert J[0] @ np.array([0.0, 0.0, 1.0]) == pytest.approx(1.0, abs=1e-3)  # a metre up is a metre of residual
+    assert sc.candidates(p)[0]  # 0.61 m above the ground: below the 1 m limit
