@@ -296,6 +296,19 @@ def reduced_system(gr: "G.Graph", values: gtsam.Values, point_keys) -> tuple[gts
     return reduced, sorted(set(reduced.keyVector()))
 
 
+def dense_covariance(gr: "G.Graph", values: gtsam.Values, point_keys) -> np.ndarray:
+    """The whole covariance by the dense inverse of the Jacobi-scaled reduced normal matrix, in the scalar
+    order of ``ReducedCovariance.offset`` (sorted keys): the reference the selected inversion is checked
+    against (n x n: O(n^2) memory, O(n^3) time)."""
+    reduced, keys = reduced_system(gr, values, point_keys)
+    order = gtsam.Ordering()
+    for k in keys:
+        order.push_back(k)
+    H, _ = reduced.hessian(order)
+    d = 1.0 / np.sqrt(np.diag(H))
+    return _inverse_spd(H * d[:, None] * d[None]) * d[:, None] * d[None]
+
+
 def _arrow_order(H: scipy.sparse.spmatrix, chars: list, dims: np.ndarray, min_block_dim: int
                  ) -> tuple[np.ndarray, np.ndarray]:
     """The scalar order that makes ``H`` (keys of symbol ``chars`` and dimension ``dims``, in that order)
@@ -379,10 +392,6 @@ class ReducedCovariance:
         x = np.empty_like(b)
         x[self._perm] = self._inv.solve((b * d)[self._perm])
         return x * d
-
-    def dense(self) -> np.ndarray:
-        """The whole covariance (n x n: small blocks and tests only)."""
-        return self.multiply(np.eye(self.n))
 
 
 @dataclasses.dataclass
