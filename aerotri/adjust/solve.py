@@ -187,10 +187,8 @@ def adjust_block(
             marg = _marginals(gr, values, block, obs_active)
         point_unit = rays = None
         if marg is not None and point_covariances:
-            rays = point_rays(block, state, obs_active, opts.image_sigma_px, marg, bool(opts.self_calibration))
-            point_unit = point_covariances_rcs(block, state, obs_active, opts.image_sigma_px, marg,
-                                               bool(opts.self_calibration), rays=rays)
-            components = vce.estimate(block, opts, state, obs_active, control_active, marg, point_unit, info.dof)
+            rays, point_unit, components = _point_precision(block, opts, state, obs_active, control_active, marg,
+                                                            info.dof)
             factors = {c.group: 1.0 for c in components}
             for it in range(max_vce_iterations if variance_components else 0):
                 if all(c.factor is None or abs(c.factor - 1.0) < 0.05 for c in components):
@@ -210,10 +208,8 @@ def adjust_block(
                 if marg is None:
                     raise SolveError("the covariances failed after reweighting by variance components; "
                                      "adjust without variance-component reweighting")
-                rays = point_rays(block, state, obs_active, opts.image_sigma_px, marg, bool(opts.self_calibration))
-                point_unit = point_covariances_rcs(block, state, obs_active, opts.image_sigma_px, marg,
-                                                   bool(opts.self_calibration), rays=rays)
-                components = vce.estimate(block, opts, state, obs_active, control_active, marg, point_unit, info.dof)
+                rays, point_unit, components = _point_precision(block, opts, state, obs_active, control_active,
+                                                                marg, info.dof)
                 log.info("variance components, iteration %d: %s", it + 1, ", ".join(
                     f"{c.group} {c.factor:.3f}" for c in components if c.factor is not None))
         sigma0 = float(np.sqrt(info.chi2 / info.dof)) if info.dof > 0 else float("nan")
@@ -239,6 +235,15 @@ def adjust_block(
         state, info, sigma0, obs_active, control_active, removed, rejected, v, r, pose_cov, point_cov, cal_cov, marg,
         iterations, timings, stats, use, components, factors, block, opts, geometry,
     )
+
+
+def _point_precision(block: G.Block, opts: G.Options, state: G.State, obs_active, control_active, marg, dof: int):
+    """(the rays' linearisation, the points' unit-weight covariances, the groups' variance components) at the
+    solution ``state`` with its reduced covariance ``marg``."""
+    self_cal = bool(opts.self_calibration)
+    rays = point_rays(block, state, obs_active, opts.image_sigma_px, marg, self_cal)
+    unit = point_covariances_rcs(block, state, obs_active, opts.image_sigma_px, marg, self_cal, rays=rays)
+    return rays, unit, vce.estimate(block, opts, state, obs_active, control_active, marg, unit, dof)
 
 
 def _surface_gate(block: G.Block, state: G.State, obs_active, sigma_px: float) -> tuple[np.ndarray, np.ndarray]:
