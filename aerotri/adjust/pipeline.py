@@ -36,6 +36,7 @@ from aerotri.geom.observations import (
     validate_references,
 )
 from aerotri.adjust.solve import AdjustmentResult, adjust_block, check_point_errors
+from aerotri.adjust.variance_components import adjusted_gnss
 from aerotri.geom.strips import along_track_km, strips_from_track
 from aerotri.geom.camera import FrameCamera, project_camera
 from aerotri.geom.eo import ExteriorOrientations, check_block_crs, read_eo, read_gnss
@@ -576,11 +577,7 @@ def finish(prepared: PreparedBlock, result: AdjustmentResult) -> BlockAdjustment
             }
     gres = None
     if gnss_map is not None:
-        ant_local = state.centre + np.einsum("nij,j->ni", state.R_cv, FLIP_YZ @ block.lever_arm_m)
-        corr = state.shift[block.strip] + (state.drift[block.strip] * block.along_km[:, None] if opts.gnss_correction == "shift_drift" else 0.0)
-        if opts.gnss_correction == "none":
-            corr = 0.0 * corr
-        gres = frame.to_map(ant_local + corr) - gnss_map
+        gres = frame.to_map(adjusted_gnss(block, opts, state)) - gnss_map
     return BlockAdjustment(
         project_name=p.project.name, crs=p.project.crs, settings=st, frame=frame, camera_apriori=p.camera,
         camera_adjusted=G.camera_from_cal(state.cal, p.camera), block=block, opts=opts, result=result, eo_map=eo,

@@ -41,21 +41,30 @@ class VarianceComponent:
         return dataclasses.asdict(self)
 
 
+def adjusted_gnss(block: G.Block, opts: G.Options, state: G.State) -> np.ndarray:
+    """The GNSS positions the solution predicts (N, 3, local frame): antenna ``C + R l``, plus the strip's
+    shift (and drift times the along-track km) when the solve corrects them."""
+    pred = state.centre + state.R_cv @ (FLIP_YZ @ block.lever_arm_m)
+    if opts.gnss_correction == "none":
+        return pred
+    s, t = block.strip.astype(int), np.asarray(block.along_km, dtype=float)
+    return pred + state.shift[s] + (t[:, None] * state.drift[s] if opts.gnss_correction == "shift_drift" else 0.0)
+
+
 def gnss_rows(block: G.Block, opts: G.Options, state: G.State) -> tuple[np.ndarray, list]:
-    """The adjusted GNSS positions (N, 3, local frame) and, per image, their Jacobian as ``[(key, J), ...]``
+    """The adjusted GNSS positions (``adjusted_gnss``) and, per image, their Jacobian as ``[(key, J), ...]``
     (J: 3 x the key's dimension): ``g = C + R l`` (no correction; pose tangent [omega, v], right perturbation:
     d g / d omega = -R [l]x, d g / d v = R) or ``g = a + s + t d`` (per-strip shift/drift)."""
-    lever_cv = FLIP_YZ @ block.lever_arm_m
-    pred = state.centre + state.R_cv @ lever_cv
+    pred = adjusted_gnss(block, opts, state)
     rows = []
     if opts.gnss_correction == "none":
+        lever_cv = FLIP_YZ @ block.lever_arm_m
         lx = np.array([[0, -lever_cv[2], lever_cv[1]], [lever_cv[2], 0, -lever_cv[0]], [-lever_cv[1], lever_cv[0], 0]])
         for i in range(block.n_images):
             rows.append([(X(i), np.hstack([-state.R_cv[i] @ lx, state.R_cv[i]]))])
         return pred, rows
     drift = opts.gnss_correction == "shift_drift"
     s, t = block.strip.astype(int), np.asarray(block.along_km, dtype=float)
-    pred = pred + state.shift[s] + (t[:, None] * state.drift[s] if drift else 0.0)
     eye = np.eye(3)
     for i in range(block.n_images):
         rows.append([(A(i), eye), (S(s[i]), eye)] + ([(D(s[i]), t[i] * eye)] if drift else []))
