@@ -73,9 +73,7 @@ def check_delivered_classes(path, units: LengthUnits, chunk_points: int = 2_000_
     other_min = np.full(cells, np.inf)
     for _, chunk in las.iter_file_chunks(path, chunk_points):
         c = np.asarray(chunk.classification, dtype=np.uint8)
-        x, y = units.xy_to_m(np.asarray(chunk.x)), units.xy_to_m(np.asarray(chunk.y))
-        z = units.z_to_m(np.asarray(chunk.z))
-        cell = (((y - y0) // CELL_M).astype(np.int64) * ncol + ((x - x0) // CELL_M).astype(np.int64)).clip(0, cells - 1)
+        cell, z = _cells(chunk, units, x0, y0, ncol, cells)
         counts += np.bincount(c, minlength=256)
         occupied[cell] = True
         g = c == GROUND
@@ -118,6 +116,14 @@ def check_delivered_classes(path, units: LengthUnits, chunk_points: int = 2_000_
                             below_share, building_h, warnings)
 
 
+def _cells(chunk, units: LengthUnits, x0: float, y0: float, ncol: int, cells: int, mask=None):
+    """(cell index, height in metres) of a chunk's points (those of ``mask``) on the ``CELL_M`` grid."""
+    x, y, z = (np.asarray(v) if mask is None else np.asarray(v)[mask] for v in (chunk.x, chunk.y, chunk.z))
+    x, y, z = units.xy_to_m(x), units.xy_to_m(y), units.z_to_m(z)
+    cell = ((y - y0) // CELL_M).astype(np.int64) * ncol + ((x - x0) // CELL_M).astype(np.int64)
+    return cell.clip(0, cells - 1), z
+
+
 def _building_height(path, units, chunk_points, ground_min, x0, y0, ncol, cells) -> float:
     """Mean height (m) of the class 6 points above their cell's lowest ground (cells with ground)."""
     total, count = 0.0, 0
@@ -125,9 +131,7 @@ def _building_height(path, units, chunk_points, ground_min, x0, y0, ncol, cells)
         b = np.asarray(chunk.classification, dtype=np.uint8) == BUILDING
         if not b.any():
             continue
-        x, y = units.xy_to_m(np.asarray(chunk.x)[b]), units.xy_to_m(np.asarray(chunk.y)[b])
-        z = units.z_to_m(np.asarray(chunk.z)[b])
-        cell = (((y - y0) // CELL_M).astype(np.int64) * ncol + ((x - x0) // CELL_M).astype(np.int64)).clip(0, cells - 1)
+        cell, z = _cells(chunk, units, x0, y0, ncol, cells, b)
         h = z - ground_min[cell]
         ok = np.isfinite(h)
         total += float(h[ok].sum())
