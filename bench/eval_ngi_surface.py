@@ -173,6 +173,18 @@ def ortho_measures(root: Path, ref) -> dict:
     return out
 
 
+def _share_3plus(root: Path) -> float:
+    """Share of the tie points (at/tiepoints.csv tracks) measured in 3 or more frames."""
+    import csv
+
+    with open(root / "at" / "tiepoints.csv", newline="") as f:
+        rows = [r for r in csv.reader(f) if r and not r[0].startswith("#")]
+    head = [h.strip().lower() for h in rows[0]]
+    ids = [r[head.index("point_id")] for r in rows[1:]]
+    _, rays = np.unique(ids, return_counts=True)
+    return round(float(np.mean(rays >= 3)), 4) if len(rays) else 0.0
+
+
 def evaluate(data_dir: Path, out_dir: Path, options: dict, with_ortho: bool = False) -> dict:
     from aerotri.adjust.pipeline import run_adjustment
     from aerotri.core.settings import to_table
@@ -197,6 +209,10 @@ def evaluate(data_dir: Path, out_dir: Path, options: dict, with_ortho: bool = Fa
         "tracks": mrep.tracks,
         "tie_observations": mrep.observations,
         "ties_per_pair": {f"{p.left}|{p.right}": p.ties for p in mrep.ties_per_pair},
+        "tracks_in_3plus_frames_share": _share_3plus(root),
+        # after the adjustment: per pair of frames, the tie points both see and the RMS of their image
+        # residuals in the two frames (at/report.json "image_pairs")
+        "pairs_after_adjustment": rep["image_pairs"],
         "adjust_success": bool(ks["success"]),
         "adjust_iterations": ks["iterations"],
         "sigma0_um": ks["sigma0_um"],

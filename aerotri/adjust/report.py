@@ -120,6 +120,40 @@ def _photo_rows(ba, res: _Residuals) -> list[dict]:
     return photos
 
 
+def _pair_rows(ba, res: _Residuals, pixel_um: float) -> list[dict]:
+    """Image pairs that share adjusted tie points: the number of points, how many of them are seen in 3+
+    frames, and the RMS of the two frames' image residuals on those points (um, px); the connectivity
+    of every stereo model after the adjustment, weakest (fewest points) first."""
+    b, tie = ba.block, res.tie
+    pt, im, v2 = b.obs_point[tie], b.obs_image[tie], (res.v_um[tie] ** 2).sum(1)
+    order = np.lexsort((im, pt))
+    pt, im, v2 = pt[order], im[order], v2[order]
+    start = np.flatnonzero(np.r_[True, pt[1:] != pt[:-1]])
+    rays = np.diff(np.r_[start, len(pt)])
+    # every pair of observations of one point: (k, l) with k < l inside the point's run
+    pos = np.arange(len(pt)) - np.repeat(start, rays)
+    run = np.repeat(rays, rays)
+    k_idx, l_idx = [], []
+    for off in range(1, int(rays.max()) if len(rays) else 1):
+        k = np.flatnonzero(pos + off < run)
+        k_idx.append(k)
+        l_idx.append(k + off)
+    if not k_idx or not sum(len(k) for k in k_idx):
+        return []
+    k, l = np.concatenate(k_idx), np.concatenate(l_idx)
+    n = b.n_images
+    key = im[k] * n + im[l]
+    uniq, inv = np.unique(key, return_inverse=True)
+    count = np.bincount(inv)
+    multi = np.bincount(inv, weights=(run[k] >= 3))
+    ss = np.bincount(inv, weights=v2[k] + v2[l])
+    rms_um = np.sqrt(ss / (4 * count))
+    rows = [{"left": b.image_id[u // n], "right": b.image_id[u % n], "tie_points": int(c),
+             "in_3plus_frames": int(m), "rms_um": _f(r), "rms_px": _f(r / pixel_um)}
+            for u, c, m, r in zip(uniq, count, multi, rms_um)]
+    return sorted(rows, key=lambda row: (row["tie_points"], row["left"], row["right"]))
+
+
 def _point_lists(ba, res: _Residuals) -> tuple[list, list, list]:
     """The tie points with the largest image residual RMS (all points: object_points.csv), the removed
     observations and the rejected control points."""
@@ -322,6 +356,7 @@ def build_report(ba, map_scale: str = "1:5000", terrain: str = "flat", tolerance
         "check_rms_m": _lst(_rms(dchk), 4) if len(dchk) else None,
         "check_normalised_rms": _lst(_rms(nchk), 3) if len(nchk) else None,
         "photos": _photo_rows(ba, res),
+        "image_pairs": _pair_rows(ba, res, ba.camera_apriori.pixel_um),
         "removed_observations": removed,
         "worst_tie_points": worst_points,
         "self_calibration": _self_calibration(ba),
@@ -493,6 +528,12 @@ def format_txt(rep: dict) -> str:
         s = p.get("sigma_position_m", [None] * 3)
         L.append(f"{p['image_id']:>12} {p['strip']:5d} {p['obs']:5d}" + _v(p["rms_x_um"], 8, 2) + _v(p["rms_y_um"], 8, 2)
                  + "".join(_v(x, 9, 3) for x in g) + "".join(_v(x, 8, 3) for x in s))
+    pairs = rep.get("image_pairs") or []
+    L += ["", f"Image pairs ({len(pairs)} sharing tie points; the {min(len(pairs), 20)} weakest; all: report.json)",
+          f"{'left':>12} {'right':>12} {'points':>7} {'in 3+':>6} {'rms um':>8} {'rms px':>7}"]
+    for x in pairs[:20]:
+        L.append(f"{x['left']:>12} {x['right']:>12} {x['tie_points']:7d} {x['in_3plus_frames']:6d}"
+                 + _v(x["rms_um"], 9, 2) + _v(x["rms_px"], 8, 3))
     L += ["", "Tie points with the largest image residuals (all points with their RMS: object_points.csv)",
           f"{'point':>12} {'rays':>4} {'rms um':>8} {'X':>13} {'Y':>13} {'Z':>9}"]
     for x in rep["worst_tie_points"]:

@@ -61,3 +61,32 @@ def test_text_layout_is_isat_then_patb(ba):
     assert f"Sigma: {rep['key_statistics']['sigma0_um']:.2f} um" in txt
     html = report.format_html(rep, ba)
     assert html.count("data:image/png;base64,") >= 1 and "Key Statistics" in html
+
+
+def test_image_pairs_count_shared_points_and_their_residuals(ba):
+    """Per pair of frames: the tie points both see, and the RMS of both frames' residuals on them, checked
+    against a direct count over the points."""
+    rep = report.build_report(ba)
+    b, r = ba.block, ba.result
+    tie = r.obs_active & ~np.isin(b.obs_point, b.control_point)
+    v_um = r.residual_px * ba.camera_apriori.pixel_um
+    by_point = {}
+    for k in np.flatnonzero(tie):
+        by_point.setdefault(int(b.obs_point[k]), []).append(k)
+    expect = {}
+    for obs in by_point.values():
+        for a in obs:
+            for c in obs:
+                if b.obs_image[a] < b.obs_image[c]:
+                    e = expect.setdefault((b.image_id[b.obs_image[a]], b.image_id[b.obs_image[c]]), [0, 0, 0.0])
+                    e[0] += 1
+                    e[1] += len(obs) >= 3
+                    e[2] += (v_um[a] ** 2).sum() + (v_um[c] ** 2).sum()
+    rows = {(x["left"], x["right"]): x for x in rep["image_pairs"]}
+    assert set(rows) == set(expect) and len(rows) > 5
+    for key, (n, n3, ss) in expect.items():
+        assert rows[key]["tie_points"] == n and rows[key]["in_3plus_frames"] == n3
+        assert rows[key]["rms_um"] == pytest.approx(np.sqrt(ss / (4 * n)), abs=1e-3)
+    counts = [x["tie_points"] for x in rep["image_pairs"]]
+    assert counts == sorted(counts)  # weakest first
+    assert "Image pairs (" in report.format_txt(rep)
