@@ -155,6 +155,8 @@ class Executor:
                 if all(f.done() for f in futures[:first_bad]) and first_bad < len(items):
                     break
         if first_bad < len(items):
+            # an earlier item can be done (failed) before as_completed hands it over: look at all of them
+            first_bad = next(k for k, f in enumerate(futures[:first_bad + 1]) if f.status == "error")
             fut = futures[first_bad]
             raise fut.exception().with_traceback(fut.traceback())
         return self._client.gather(futures)
