@@ -106,13 +106,14 @@ def classify(in_paths, out_path, preset, crs, ground_method, tile_size_m, buffer
 
 
 @main.command()
-@click.argument("in_path", type=click.Path(dir_okay=False))
+@click.argument("in_paths", nargs=-1, required=True, type=click.Path(dir_okay=False))
 @click.argument("outdir", type=click.Path(file_okay=False))
 @click.option("--res", "res_m", type=positive(), required=True,
               help="Cell size in metres, also for clouds in feet (1 m = 3.2808 ft in the GeoTIFF).")
 @click.option("--crs", default=None, help="CRS (EPSG:code) when the file has none.")
-def rasters(in_path, outdir, res_m, crs):
-    """dem/dsm/ndsm/chm/intensity COGs and hillshade.png from a classified cloud (streamed in chunks).
+def rasters(in_paths, outdir, res_m, crs):
+    """dem/dsm/ndsm/chm/intensity COGs and hillshade.png from a classified cloud (streamed in chunks),
+    or from classified strips (STRIP... OUTDIR, one CRS; read together in memory for now).
 
     The rasters are in the cloud's CRS; heights in its vertical unit (band unit type and tags say
     which).
@@ -123,13 +124,16 @@ def rasters(in_path, outdir, res_m, crs):
     from lidarctl import io
     from lidarctl import rasters as rs
 
+    for f in rs.FILES:
+        refuse_input_as_output(f"{outdir}/{f}", in_paths, "OUTDIR")
     # Streamed chunk by chunk into the grids: memory holds the grids, not the cloud.
-    _, units = io.resolve_crs_units(in_path, las.read_header(in_path), crs)
+    _, units = io.resolve_crs_units(in_paths[0], las.read_header(in_paths[0]), crs)
     if not units.is_metric:
         logging.getLogger(__name__).info(
-            "%s: %s; cells of %g m = %.6g %s, heights in %s", in_path, units.describe(), res_m,
+            "%s: %s; cells of %g m = %.6g %s, heights in %s", in_paths[0], units.describe(), res_m,
             res_m / units.xy_m, units.xy_name, units.z_name)
-    for p in rs.write_rasters(in_path, outdir, res_m, crs=crs):
+    cloud = in_paths[0] if len(in_paths) == 1 else io.read_clouds(in_paths, crs=crs)
+    for p in rs.write_rasters(cloud, outdir, res_m, crs=crs):
         click.echo(str(p))
 
 
@@ -158,7 +162,7 @@ def evaluate(pred_path, truth_path, json_path, map_pred, map_truth):
 
 
 @main.command("check-heights")
-@click.argument("cloud_path", type=click.Path(dir_okay=False))
+@click.argument("cloud_paths", nargs=-1, required=True, type=click.Path(dir_okay=False))
 @click.argument("points_csv", type=click.Path(dir_okay=False))
 @click.option("--radius", "radius_m", type=positive(), default=5.0, show_default=True,
               help="Search radius (m, also for clouds in feet).")
@@ -168,17 +172,17 @@ def evaluate(pred_path, truth_path, json_path, map_pred, map_truth):
               help="Write the numbers as JSON (dz and statistics in metres, _m keys; per-point coordinates "
                    "in the cloud's units, named by xy_unit and z_unit).")
 @click.option("--crs", default=None, help="CRS (EPSG:code) when the file has none.")
-def check_heights(cloud_path, points_csv, radius_m, exclude_m, json_path, crs):
-    """Height check of the cloud's ground (class 2) against surveyed points (CSV id,x,y,z[,group]
-    in the cloud's CRS and units); dz in metres."""
+def check_heights(cloud_paths, points_csv, radius_m, exclude_m, json_path, crs):
+    """Height check of the cloud's ground (class 2; one file or classified strips) against surveyed
+    points (CSV id,x,y,z[,group] in the cloud's CRS and units); dz in metres."""
     import json
 
     from lidarctl import heights_check as hc
     from aerotri.core.atomic import write_text_atomic
 
     if json_path:
-        refuse_input_as_output(json_path, [cloud_path, points_csv], "--json")
-    result = hc.check_heights_file(cloud_path, points_csv, radius_m, exclude_m, crs=crs)
+        refuse_input_as_output(json_path, [*cloud_paths, points_csv], "--json")
+    result = hc.check_heights_file(list(cloud_paths), points_csv, radius_m, exclude_m, crs=crs)
     click.echo(hc.format_report(result))
     if json_path:
         write_text_atomic(json_path, json.dumps(result, indent=2))
