@@ -270,7 +270,10 @@ def strips(tmp_path_factory):
         paths.append(d / "lidar" / f"strip_{k}{suffix}")
         paths[-1].parent.mkdir(exist_ok=True)
         synthetic.write_las(paths[-1], part, crs="EPSG:32632")
+        (d / "truth").mkdir(exist_ok=True)
+        synthetic.write_las(d / "truth" / f"strip_{k}.las", part, classification=truth[sel], crs="EPSG:32632")
     merge_las(paths, d / "merged.las")
+    merge_las(sorted((d / "truth").glob("*.las")), d / "truth_merged.las")
     return d, paths
 
 
@@ -336,3 +339,28 @@ def test_strips_that_differ_are_refused_naming_the_strip_and_leave_no_output(str
     assert r.exit_code == 0, r.output
     assert "of 3 strips" in r.output and sorted(p.name for p in (tmp_path / "out").iterdir()) == [
         "strip_0.las", "strip_1.las", "strip_2.las"]
+
+
+def test_strips_evaluated_and_height_checked_as_the_merged_file(strips, tmp_path):
+    from lidarctl import evaluate, heights_check
+
+    d, paths = strips
+    tiles.classify_files(paths, tmp_path / "classified", suffix=".las", tile_size_m=100.0, buffer_m=40.0)
+    tiles.classify_file(d / "merged.las", tmp_path / "merged.las", tile_size_m=100.0, buffer_m=40.0)
+    classified = sorted((tmp_path / "classified").glob("*.las"))
+    truth = sorted((d / "truth").glob("*.las"))
+    # each strip against its truth strip: the numbers of the merged file against the merged truth
+    by_strip = evaluate.evaluate_strips(classified, truth)
+    assert by_strip == evaluate.evaluate_files(tmp_path / "merged.las", d / "truth_merged.las")
+    assert sum(map(sum, by_strip["confusion"]["matrix"])) == sum(laspy.read(p).header.point_count for p in paths)
+    with pytest.raises(InputError, match=r"classified/strip_0.las: \d+ points, but .*truth/strip_1.las"):
+        evaluate.evaluate_strips(classified, truth[1:] + truth[:1])
+    # the height check of the strips' ground: that of the merged file
+    rng = np.random.default_rng(0)
+    cloud = io.read_cloud(d / "merged.las")
+    k = rng.choice(len(cloud), 20, replace=False)
+    csv = tmp_path / "points.csv"
+    csv.write_text("id,x,y,z\n" + "".join(f"p{i},{cloud.x[j]:.3f},{cloud.y[j]:.3f},{cloud.z[j] + 0.1:.3f}\n"
+                                          for i, j in enumerate(k)))
+    merged = heights_check.check_heights_file(tmp_path / "merged.las", csv)
+    assert heights_check.check_heights_file(classified, csv) == merged and merged["overall"]["all"]["n"] > 10
