@@ -7,6 +7,7 @@ Run: .venv/bin/python bench/eval_isprs.py
 from __future__ import annotations
 
 import json
+import os
 import sys
 import time
 from pathlib import Path
@@ -14,23 +15,26 @@ from pathlib import Path
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from lidar_common import CSF_PUBLISHED, DATA, REPO, SAMPLES, csf_ground  # noqa: E402
+from lidar_common import CSF_PUBLISHED, DATA, REPO, SAMPLES, csf_ground, warm_up_jit  # noqa: E402
 
 from lidarctl import classify, evaluate, ground, io, noise  # noqa: E402
 
 
 def run_method(name, fn):
     rows = {}
-    seconds = 0.0
+    seconds = cpu_seconds = 0.0
+    load0 = os.getloadavg()
     for s in SAMPLES:
         c = io.read_cloud(DATA / "isprs_filtertest" / f"{s}-utm.laz")
-        t0 = time.perf_counter()
+        t0, c0 = time.perf_counter(), time.process_time()
         g = fn(c)
         seconds += time.perf_counter() - t0
+        cpu_seconds += time.process_time() - c0
         rows[s] = evaluate.filter_errors(g, c.classification == 2)
     mean = {k: float(np.mean([r[k] for r in rows.values()]))
             for k in ("type_i_error_pct", "type_ii_error_pct", "total_error_pct", "kappa_pct")}
-    return {"method": name, "samples": rows, "mean": mean, "seconds": seconds}
+    return {"method": name, "samples": rows, "mean": mean, "seconds": seconds, "cpu_seconds": cpu_seconds,
+            "load_average_before_after": [list(load0), list(os.getloadavg())]}
 
 
 def with_noise(filter_fn):
@@ -63,6 +67,10 @@ def main():
                                            "total_error_pct": v[2]} for s, v in CSF_PUBLISHED.items()},
            "csf_published_mean_total_error_pct": float(np.mean([v[2] for v in CSF_PUBLISHED.values()])),
            "runs": {}}
+    # numba compiles (cold cache) or loads the kernels on first use: not timed as filtering
+    first = io.read_cloud(DATA / "isprs_filtertest" / f"{SAMPLES[0]}-utm.laz")
+    warm_up_jit(classify.classify_points, first.x, first.y, first.z)
+    warm_up_jit(lambda x, y, z: ground.ground_filter(x, y, z, method="ptd"), first.x, first.y, first.z)
     for name, fn in methods.items():
         r = run_method(name, fn)
         out["runs"][name] = r
@@ -71,8 +79,8 @@ def main():
         print(evaluate.format_filter_table(r["samples"], CSF_PUBLISHED))
     d = out["runs"]["lidarctl_classify_pipeline"]["mean"]["total_error_pct"]
     out["default_mean_total_error_pct"] = d
-    out["target_mean_total_error_pct"] = 4.0
-    out["target_met"] = bool(d <= 4.0)
+    out["target_mean_total_error_pct"] = 3.8  # issue 20
+    out["target_met"] = bool(d <= 3.8)
     print(f"\npublished CSF mean total over these 7: {out['csf_published_mean_total_error_pct']:.2f} %")
     path = REPO / "results" / "lidar_isprs.json"
     path.parent.mkdir(exist_ok=True)

@@ -79,12 +79,14 @@ def _tree_rss(proc: psutil.Process) -> int:
     return total
 
 
-def run_classify(inp: Path, out: Path, extra: list[str] = ()) -> dict:
-    """Wall seconds, peak RSS of the process tree (MB), CPU seconds and the message of one command."""
+def run_classify(inp, out: Path, extra: list[str] = ()) -> dict:
+    """Wall seconds, peak RSS of the process tree (MB), CPU seconds and the message of one command.
+    ``inp``: a file, or a list of strips (``out`` then a folder)."""
     ru0 = resource.getrusage(resource.RUSAGE_CHILDREN)
     load0 = os.getloadavg()[0]
     t0 = time.perf_counter()
-    proc = subprocess.Popen([str(REPO / ".venv" / "bin" / "lidarctl"), "classify", str(inp), str(out), *extra],
+    inputs = [str(q) for q in inp] if isinstance(inp, (list, tuple)) else [str(inp)]
+    proc = subprocess.Popen([str(REPO / ".venv" / "bin" / "lidarctl"), "classify", *inputs, str(out), *extra],
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     ps = psutil.Process(proc.pid)
     peak = [0]

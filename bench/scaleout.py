@@ -55,9 +55,11 @@ def stages(project: Path):
     """(name, inputs to copy, command for a workdir and scheduler, outputs to compare)."""
     lo = "lidar_out"
     return [
-        ("classify", ["work/lidar/merged.las"],
-         lambda w, s: [BIN / "lidarctl", "classify", w / "work/lidar/merged.las", w / "classified.laz", "--scheduler", s],
-         ["classified.laz"]),
+        # the strips together, no merged file: one classified LAZ per strip
+        ("classify", ["lidar"],
+         lambda w, s: [BIN / "lidarctl", "classify", *sorted((w / "lidar").glob("*.la[sz]")), w / lo / "classified",
+                       "--format", "laz", "--scheduler", s],
+         [f"{lo}/classified/{p.stem}.laz" for p in sorted((project / "lidar").glob("*.la[sz]"))]),
         ("match", ["images", "gnss.txt", "camera.toml", "project.toml"],
          lambda w, s: [BIN / "aerotri", "match", w, "--scheduler", s],
          ["at/tiepoints.csv"]),

@@ -42,8 +42,8 @@ def _parse_map(text: str | None, option: str) -> dict:
 
 
 @main.command()
-@click.argument("in_path", type=click.Path(dir_okay=False))
-@click.argument("out_path", type=click.Path(dir_okay=False))
+@click.argument("in_paths", nargs=-1, required=True, type=click.Path(dir_okay=False))
+@click.argument("out_path", type=click.Path())
 @click_option(ClassifyParams, "preset", "--preset")
 @click.option("--crs", default=None, help="CRS (EPSG:code) when the file has none; never guessed.")
 @click_option(ClassifyParams, "ground_method", "--method")
@@ -55,43 +55,65 @@ def _parse_map(text: str | None, option: str) -> dict:
 @click.option("--work-dir", type=click.Path(file_okay=False), default=None,
               help="Folder for the temporary tile files (default: next to the output; removed afterwards).")
 @click_option(ClassifyParams, "keep_classes", "--keep-classes")
+@click.option("--format", "out_format", type=click.Choice(["las", "laz"]), default=None,
+              help="Format of the classified strips in an output folder (default: each strip's own).")
 @scheduler_options
-def classify(in_path, out_path, preset, crs, ground_method, tile_size_m, buffer_m, work_dir, keep_classes, scheduler,
-             workers):
+def classify(in_paths, out_path, preset, crs, ground_method, tile_size_m, buffer_m, work_dir, keep_classes, out_format,
+             scheduler, workers):
     """Noise, ground, buildings, vegetation and water as ASPRS classes (LAS/LAZ in, LAS/LAZ out).
 
-    Large files are cut into tiles with overlap buffers, classified as parallel tasks and written
-    back in file order (memory bounded by the tile size, not the file size; lidarctl.tiles). A cloud
-    in feet is classified in metres; the output is the input with new classes (same CRS and units).
+    One file: IN_PATH OUT_PATH (a .las/.laz file). Strips of a block: STRIP... OUT_DIR; they are
+    classified together without a merged file (a tile takes its points from every strip) and each
+    strip gets its classified copy OUT_DIR/<strip name> (the folder is replaced as a whole, all files
+    or none). The strips must share one point format and CRS (--crs: the CRS of strips without one).
+
+    Large clouds are cut into tiles with overlap buffers, classified as parallel tasks and written
+    back in file order (memory bounded by the tile size, not the file or block size; lidarctl.tiles).
+    A cloud in feet is classified in metres; the output is the input with new classes (same CRS and
+    units).
     """
+    from pathlib import Path
+
     from lidarctl import classify as cl
     from lidarctl import tiles
+    from aerotri.core.errors import OptionError
     from aerotri.core.executor import executor_for
 
-    refuse_input_as_output(out_path, [in_path], "OUT_PATH")
+    to_folder = len(in_paths) > 1 or Path(out_path).is_dir() or Path(out_path).suffix.lower() not in (".las", ".laz")
+    if not to_folder:
+        refuse_input_as_output(out_path, in_paths, "OUT_PATH")
+        if out_format is not None:
+            raise OptionError("--format: only for an output folder (OUT_PATH names the file and its format)",
+                              param="--format")
     params = ClassifyParams(ground_method=ground_method, preset=preset, keep_classes=keep_classes)
+    common = dict(crs=crs, params=params, tile_size_m=tile_size_m, buffer_m=buffer_m, work_dir=work_dir)
     with executor_for(scheduler, workers) as executor:
-        stats = tiles.classify_file(in_path, out_path, crs=crs, params=params, tile_size_m=tile_size_m,
-                                    buffer_m=buffer_m, executor=executor, work_dir=work_dir)
+        if to_folder:
+            stats = tiles.classify_files(in_paths, out_path, executor=executor,
+                                         suffix=None if out_format is None else f".{out_format}", **common)
+        else:
+            stats = tiles.classify_file(in_paths[0], out_path, executor=executor, **common)
     counts = {cl.CLASS_NAMES.get(c, str(c)): k for c, k in stats.run.class_counts.items()}
     n, dt, u = stats.n_points, stats.seconds, stats.units
+    what = f"{out_path}: {n} points" + (f" of {stats.n_files} strips" if to_folder else "")
     units = "" if u.xy_name == "m" and u.z_name == "m" else \
         f"; coordinates in {u.xy_name}, heights in {u.z_name}, processed in metres"
     if keep_classes:
-        click.echo(f"{out_path}: {n} points, the delivered classes kept; {counts}")
+        click.echo(f"{what}, the delivered classes kept; {counts}")
         return
-    click.echo(f"{out_path}: {n} points in {dt:.1f} s ({n / dt:,.0f} points/s; {stats.run.n_tiles} tiles of "
+    click.echo(f"{what} in {dt:.1f} s ({n / dt:,.0f} points/s; {stats.run.n_tiles} tiles of "
                f"{stats.grid.tile_m:g} m + {stats.grid.buffer_m:g} m buffer, {executor.describe()}{units}); {counts}")
 
 
 @main.command()
-@click.argument("in_path", type=click.Path(dir_okay=False))
+@click.argument("in_paths", nargs=-1, required=True, type=click.Path(dir_okay=False))
 @click.argument("outdir", type=click.Path(file_okay=False))
 @click.option("--res", "res_m", type=positive(), required=True,
               help="Cell size in metres, also for clouds in feet (1 m = 3.2808 ft in the GeoTIFF).")
 @click.option("--crs", default=None, help="CRS (EPSG:code) when the file has none.")
-def rasters(in_path, outdir, res_m, crs):
-    """dem/dsm/ndsm/chm/intensity COGs and hillshade.png from a classified cloud (streamed in chunks).
+def rasters(in_paths, outdir, res_m, crs):
+    """dem/dsm/ndsm/chm/intensity COGs and hillshade.png from a classified cloud (streamed in chunks),
+    or from classified strips (STRIP... OUTDIR, one CRS; read together in memory for now).
 
     The rasters are in the cloud's CRS; heights in its vertical unit (band unit type and tags say
     which).
@@ -102,13 +124,16 @@ def rasters(in_path, outdir, res_m, crs):
     from lidarctl import io
     from lidarctl import rasters as rs
 
+    for f in rs.FILES:
+        refuse_input_as_output(f"{outdir}/{f}", in_paths, "OUTDIR")
     # Streamed chunk by chunk into the grids: memory holds the grids, not the cloud.
-    _, units = io.resolve_crs_units(in_path, las.read_header(in_path), crs)
+    _, units = io.resolve_crs_units(in_paths[0], las.read_header(in_paths[0]), crs)
     if not units.is_metric:
         logging.getLogger(__name__).info(
-            "%s: %s; cells of %g m = %.6g %s, heights in %s", in_path, units.describe(), res_m,
+            "%s: %s; cells of %g m = %.6g %s, heights in %s", in_paths[0], units.describe(), res_m,
             res_m / units.xy_m, units.xy_name, units.z_name)
-    for p in rs.write_rasters(in_path, outdir, res_m, crs=crs):
+    cloud = in_paths[0] if len(in_paths) == 1 else io.read_clouds(in_paths, crs=crs)
+    for p in rs.write_rasters(cloud, outdir, res_m, crs=crs):
         click.echo(str(p))
 
 
@@ -137,7 +162,7 @@ def evaluate(pred_path, truth_path, json_path, map_pred, map_truth):
 
 
 @main.command("check-heights")
-@click.argument("cloud_path", type=click.Path(dir_okay=False))
+@click.argument("cloud_paths", nargs=-1, required=True, type=click.Path(dir_okay=False))
 @click.argument("points_csv", type=click.Path(dir_okay=False))
 @click.option("--radius", "radius_m", type=positive(), default=5.0, show_default=True,
               help="Search radius (m, also for clouds in feet).")
@@ -147,17 +172,17 @@ def evaluate(pred_path, truth_path, json_path, map_pred, map_truth):
               help="Write the numbers as JSON (dz and statistics in metres, _m keys; per-point coordinates "
                    "in the cloud's units, named by xy_unit and z_unit).")
 @click.option("--crs", default=None, help="CRS (EPSG:code) when the file has none.")
-def check_heights(cloud_path, points_csv, radius_m, exclude_m, json_path, crs):
-    """Height check of the cloud's ground (class 2) against surveyed points (CSV id,x,y,z[,group]
-    in the cloud's CRS and units); dz in metres."""
+def check_heights(cloud_paths, points_csv, radius_m, exclude_m, json_path, crs):
+    """Height check of the cloud's ground (class 2; one file or classified strips) against surveyed
+    points (CSV id,x,y,z[,group] in the cloud's CRS and units); dz in metres."""
     import json
 
     from lidarctl import heights_check as hc
     from aerotri.core.atomic import write_text_atomic
 
     if json_path:
-        refuse_input_as_output(json_path, [cloud_path, points_csv], "--json")
-    result = hc.check_heights_file(cloud_path, points_csv, radius_m, exclude_m, crs=crs)
+        refuse_input_as_output(json_path, [*cloud_paths, points_csv], "--json")
+    result = hc.check_heights_file(list(cloud_paths), points_csv, radius_m, exclude_m, crs=crs)
     click.echo(hc.format_report(result))
     if json_path:
         write_text_atomic(json_path, json.dumps(result, indent=2))

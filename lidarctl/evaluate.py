@@ -147,8 +147,21 @@ def evaluate_files(pred_path, truth_path, map_pred: dict | None = None, map_trut
     """The stage (``lidarctl evaluate``): filter-test errors (ground = classes 2, 9) and the confusion
     matrix of a classified file against a truth file with the same points in the same order.
     ``map_pred`` / ``map_truth``: class mappings applied first (e.g. ``{3: 1, 4: 1}``)."""
-    pred, truth = read_same_points(pred_path, truth_path)
-    pc, tc = pred.classification.astype(int), truth.classification.astype(int)
+    return evaluate_strips([pred_path], [truth_path], map_pred, map_truth)
+
+
+def evaluate_strips(pred_paths, truth_paths, map_pred: dict | None = None, map_truth: dict | None = None) -> dict:
+    """``evaluate_files`` over strips: each classified strip against its truth strip (same points, same
+    order; ``read_same_points``), the errors and the confusion matrix over all their points together
+    (only the classes of all strips are held, one byte per point each)."""
+    if len(pred_paths) != len(truth_paths) or not pred_paths:
+        raise InputError(f"{len(pred_paths)} classified strips for {len(truth_paths)} truth strips (one each needed)")
+    preds, truths = [], []
+    for pred_path, truth_path in zip(pred_paths, truth_paths):
+        pred, truth = read_same_points(pred_path, truth_path)
+        preds.append(pred.classification)
+        truths.append(truth.classification)
+    pc, tc = np.concatenate(preds).astype(int), np.concatenate(truths).astype(int)
     for mapping, arr in ((map_pred or {}, pc), (map_truth or {}, tc)):
         src = arr.copy()
         for a, b in mapping.items():

@@ -21,6 +21,8 @@ from pathlib import Path
 import numpy as np
 from scipy.spatial import cKDTree
 
+from aerotri.geom.crs import crs_label, same_crs
+
 from aerotri.core.errors import InputError, OptionError
 from aerotri.core.textio import read_text
 from lidarctl import io
@@ -147,22 +149,34 @@ def check_heights(gx, gy, gz, points: dict, radius_m: float = 5.0, exclude_m: fl
     return result
 
 
-def check_heights_file(cloud_path, points_csv, radius_m: float = 5.0, exclude_m: float = 1.0, crs=None) -> dict:
-    """``check_heights`` of a classified LAS/LAZ file's ground (class 2) against a CSV of surveyed
-    points in the cloud's CRS and units (``crs`` only for a file without CRS)."""
+def check_heights_file(cloud_paths, points_csv, radius_m: float = 5.0, exclude_m: float = 1.0, crs=None) -> dict:
+    """``check_heights`` of the ground (class 2) of a classified LAS/LAZ file, or of several strips
+    (one CRS and unit, else an InputError naming the strip; only their ground points are kept),
+    against a CSV of surveyed points in the cloud's CRS and units (``crs`` only for files without CRS)."""
     if not (np.isfinite(radius_m) and radius_m > 0):
         raise OptionError(f"--radius {radius_m}: must be a positive distance in metres", param="--radius")
     if not (np.isfinite(exclude_m) and exclude_m > 0):
         raise OptionError(f"--exclude {exclude_m}: must be a positive height difference in metres", param="--exclude")
-    cloud = io.read_cloud(cloud_path, crs=crs)
+    paths = [cloud_paths] if isinstance(cloud_paths, (str, Path)) else list(cloud_paths)
     points = read_points_csv(points_csv)
-    g = cloud.classification == 2
-    if not g.any():
-        raise InputError(f"{cloud_path}: no ground points (class 2); run 'lidarctl classify' first")
-    u = cloud.units
+    ground, first = [], None
+    for path in paths:
+        cloud = io.read_cloud(path, crs=crs)
+        if first is None:
+            first = (path, cloud.crs, cloud.units)
+        elif cloud.units != first[2] or not same_crs(cloud.crs, first[1]):
+            raise InputError(f"{path}: CRS {crs_label(cloud.crs)} ({cloud.units.describe()}) differs from that of "
+                             f"{first[0]}, {crs_label(first[1])} ({first[2].describe()})")
+        g = cloud.classification == 2
+        ground.append((cloud.x[g], cloud.y[g], cloud.z[g]))
+        del cloud
+    gx, gy, gz = (np.concatenate([gr[k] for gr in ground]) for k in range(3))
+    if not len(gx):
+        raise InputError(f"{', '.join(map(str, paths))}: no ground points (class 2); run 'lidarctl classify' first")
+    crs_found, u = first[1], first[2]
     points_m = dict(points, x=u.xy_to_m(points["x"]), y=u.xy_to_m(points["y"]), z=u.z_to_m(points["z"]))
-    result = check_heights(cloud.x[g], cloud.y[g], cloud.z[g], points_m, radius_m, exclude_m, units=u)
-    result["crs"] = cloud.crs.to_string() if cloud.crs is not None else None
+    result = check_heights(gx, gy, gz, points_m, radius_m, exclude_m, units=u)
+    result["crs"] = crs_found.to_string() if crs_found is not None else None
     return result
 
 

@@ -187,6 +187,28 @@ def read_cloud(path, crs: str | int | None = None, require_crs: bool = True,
     return (cloud, records) if keep_records else cloud
 
 
+def read_clouds(paths, crs: str | int | None = None) -> PointCloud:
+    """The ``read_cloud`` clouds of several strips concatenated (file after file), in one CRS and unit:
+    a strip whose CRS or units differ from the first one's is an InputError naming it. Holds the whole
+    set in memory (``read_cloud``'s allocation check applies per file)."""
+    from aerotri.geom.crs import crs_label, same_crs
+
+    paths = [Path(p) for p in paths]
+    if not paths:
+        raise InputError("no LAS/LAZ files to read")
+    clouds = [read_cloud(paths[0], crs=crs, point_source_id=True)]
+    for p in paths[1:]:
+        c = read_cloud(p, crs=crs, point_source_id=True)
+        first = clouds[0]
+        if c.units != first.units or not same_crs(c.crs, first.crs):
+            raise InputError(f"{p}: CRS {crs_label(c.crs)} ({c.units.describe()}) differs from that of {paths[0]}, "
+                             f"{crs_label(first.crs)} ({first.units.describe()}); give strips in one CRS")
+        clouds.append(c)
+    fields = ("x", "y", "z", "intensity", "return_number", "number_of_returns", "classification", "point_source_id")
+    cat = {f: np.concatenate([getattr(c, f) for c in clouds]) for f in fields}
+    return PointCloud(**cat, crs=clouds[0].crs, units=clouds[0].units)
+
+
 def sanitize_returns(return_number: np.ndarray, number_of_returns: np.ndarray):
     """Broken return counts (0) would mislead the multi-return rules: treat them as single returns."""
     rn = np.where(return_number == 0, 1, return_number).astype(np.uint8)

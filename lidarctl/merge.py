@@ -31,24 +31,7 @@ def merge_las(paths, out_path, crs=None, chunk_points: int = 2_000_000) -> int:
     project_crs = parse_crs(crs, "project CRS") if crs is not None else None
     headers = [las.read_header(p) for p in paths]
     first = headers[0]
-    reference, reference_name = project_crs, "the project CRS"
-    for p, h in zip(paths, headers):
-        if h.point_format.id != first.point_format.id:
-            raise InputError(f"{p}: point format {h.point_format.id} differs from {paths[0]} "
-                             f"({first.point_format.id}); convert before merging")
-        file_crs = las.read_header_crs(p, h)
-        if file_crs is None:
-            continue
-        if reference is None:
-            reference, reference_name = file_crs, str(p)
-        elif not same_vertical(file_crs, reference):
-            raise CrsError(f"{p}: its heights are in {vertical_crs(file_crs).name}, those of {reference_name} in "
-                           f"{vertical_crs(reference).name}; bring the strip into one height system first")
-        elif not same_horizontal(file_crs, reference):
-            raise CrsError(f"{p}: its CRS {crs_label(horizontal_crs(file_crs))} differs from {reference_name} "
-                           f"{crs_label(horizontal_crs(reference))}; transform the strip into "
-                           f"{crs_label(horizontal_crs(reference))} first (strips are never mixed or reprojected "
-                           "silently)")
+    check_strips(paths, headers, project_crs)
     header = laspy.LasHeader(point_format=first.point_format, version=first.version)
     header.scales = first.scales
     header.offsets = first.offsets
@@ -65,17 +48,52 @@ def merge_las(paths, out_path, crs=None, chunk_points: int = 2_000_000) -> int:
         with laspy.open(tmp, mode="w", header=header) as w:
             for p in paths:
                 for _, chunk in las.iter_file_chunks(p, chunk_points):
-                    if np.array_equal(chunk.scales, header.scales) and np.array_equal(chunk.offsets, header.offsets):
-                        w.write_points(chunk)
-                    else:
-                        rec = laspy.ScaleAwarePointRecord.zeros(len(chunk), header=header)
-                        for name in chunk.point_format.dimension_names:
-                            if name not in ("X", "Y", "Z"):
-                                rec[name] = chunk[name]
-                        rec.x, rec.y, rec.z = chunk.x, chunk.y, chunk.z
-                        w.write_points(rec)
+                    w.write_points(in_scales_of(chunk, header))
                     total += len(chunk)
     return total
+
+
+def check_strips(paths, headers, project_crs=None):
+    """The CRS the strips share (None: none has a CRS record and no ``project_crs``): one point format
+    (with the same extra bytes), one horizontal CRS and one height system, else an InputError /
+    CrsError naming the first file that differs. A strip without a CRS record is taken to be in
+    ``project_crs`` (pyproj CRS or None); without it, the strips must agree among themselves."""
+    first = headers[0]
+    reference, reference_name = project_crs, "the project CRS"
+    for p, h in zip(paths, headers):
+        if h.point_format.id != first.point_format.id or \
+                list(h.point_format.extra_dimension_names) != list(first.point_format.extra_dimension_names):
+            raise InputError(f"{p}: point format {h.point_format.id} (extra bytes "
+                             f"{list(h.point_format.extra_dimension_names)}) differs from {paths[0]} "
+                             f"({first.point_format.id}, {list(first.point_format.extra_dimension_names)}); "
+                             "convert the strips to one point format first")
+        file_crs = las.read_header_crs(p, h)
+        if file_crs is None:
+            continue
+        if reference is None:
+            reference, reference_name = file_crs, str(p)
+        elif not same_vertical(file_crs, reference):
+            raise CrsError(f"{p}: its heights are in {vertical_crs(file_crs).name}, those of {reference_name} in "
+                           f"{vertical_crs(reference).name}; bring the strip into one height system first")
+        elif not same_horizontal(file_crs, reference):
+            raise CrsError(f"{p}: its CRS {crs_label(horizontal_crs(file_crs))} differs from {reference_name} "
+                           f"{crs_label(horizontal_crs(reference))}; transform the strip into "
+                           f"{crs_label(horizontal_crs(reference))} first (strips are never mixed or reprojected "
+                           "silently)")
+    return reference
+
+
+def in_scales_of(chunk, header):
+    """A chunk of point records with the scales and offsets of ``header`` (the chunk itself when they
+    agree): every field copied, the coordinates re-expressed (same point format)."""
+    if np.array_equal(chunk.scales, header.scales) and np.array_equal(chunk.offsets, header.offsets):
+        return chunk
+    rec = laspy.ScaleAwarePointRecord.zeros(len(chunk), header=header)
+    for name in chunk.point_format.dimension_names:
+        if name not in ("X", "Y", "Z"):
+            rec[name] = chunk[name]
+    rec.x, rec.y, rec.z = chunk.x, chunk.y, chunk.z
+    return rec
 
 
 def _is_crs_vlr(vlr) -> bool:

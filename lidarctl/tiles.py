@@ -11,7 +11,12 @@ Units: the tile grid, the tile size and the buffer are in metres; a cloud in a f
 to metres as it is read (``io.read_cloud``, ``split_into_tiles``, ``classify_tile``) and its records
 are copied unchanged, so the output keeps the input's CRS and units.
 
-Three passes, memory bounded by the chunk size and the tile size, never by the file size:
+Several files (``classify_files``: the strips of a block, no merged file): the grid covers the union
+of their header bounds, a tile gathers its points from every strip, point indices run over the
+strips one after the other, and each strip gets its own classified copy; the set is written
+atomically (all outputs or none).
+
+Three passes, memory bounded by the chunk size and the tile size, never by the file or block size:
 
 1. ``split_into_tiles``: stream the input in chunks (LAS 1.2-1.4, LAZ), validate every chunk as
    ``io.read_cloud`` does, and append each tile's points (core + buffer, all point record fields,
@@ -59,7 +64,7 @@ import numpy as np
 
 from aerotri.geom import las
 from lidarctl import io
-from aerotri.core.atomic import atomic_path, refuse_input_as_output, temporary_dir
+from aerotri.core.atomic import atomic_dir, atomic_path, refuse_input_as_output, temporary_dir
 from aerotri.core.errors import InputError, OptionError, ResourceError
 from aerotri.core.executor import local_executor
 from aerotri.core.log import progress
@@ -151,7 +156,8 @@ class TileGrid:
 def plan_tiles(header: laspy.LasHeader, tile_size_m: float | None = None, buffer_m: float | None = None,
                method: str = "morph", preset: str | None = None, path="input",
                tile_points: int = DEFAULT_TILE_POINTS, units: LengthUnits = METRE) -> TileGrid:
-    """Tile grid (metres) over the header bounds (in the file's ``units``).
+    """Tile grid (metres) over the header bounds (in the file's ``units``). ``header``: a LAS header, or
+    anything with ``mins``, ``maxs`` and ``point_count`` (the union of several strips).
 
     Default tile size: an inner tile (core + buffer on all sides) of about ``tile_points`` points
     at the file's mean density (header point count over the bounding-box area), adjusted so that
@@ -217,51 +223,64 @@ def _tile_header(header: laspy.LasHeader) -> laspy.LasHeader:
     return h
 
 
-def split_into_tiles(in_path, grid: TileGrid, work_dir, params, chunk_points: int = io.CHUNK_POINTS,
-                     records_path=None, units: LengthUnits = METRE):
-    """Pass 1: stream the input and append each tile's points to its LAS file; list of TileTask.
+def split_into_tiles(in_paths, grid: TileGrid, work_dir, params, chunk_points: int = io.CHUNK_POINTS,
+                     records_paths=None, units: LengthUnits = METRE):
+    """Pass 1: stream the input file(s) and append each tile's points to its LAS file; list of TileTask.
 
-    Every chunk is validated (InputError naming the record for NaN / absurd coordinates; truncated
-    files are reported by ``las.iter_chunks``). Tiles without core points get no task. With
-    ``records_path`` the raw point records are also copied there in file order (uncompressed), so
-    that writing the output needs no second decompression of a LAZ input. ``units``: the input's
-    linear units (points are assigned to tiles in metres; the records are copied unchanged).
+    ``in_paths``: one LAS/LAZ file or a list of strips (one point format, see ``merge.check_strips``);
+    a tile gathers its points from all of them. Point indices run over the strips one after the other
+    (a strip's first point follows the previous strip's last). Every chunk is validated (InputError
+    naming the file and record for NaN / absurd coordinates; truncated files are reported by
+    ``las.iter_chunks``). Tiles without core points get no task. With ``records_paths`` (one per
+    file) the raw point records are also copied there in file order (uncompressed), so that writing
+    the outputs needs no second decompression of a LAZ input. ``units``: the inputs' linear units
+    (points are assigned to tiles in metres; the records are copied unchanged, re-expressed in the
+    first file's scales and offsets in the tile files).
     """
+    from lidarctl.merge import in_scales_of
+
+    in_paths = [Path(in_paths)] if isinstance(in_paths, (str, Path)) else [Path(q) for q in in_paths]
     work_dir = Path(work_dir)
-    header = las.read_header(in_path)
-    tile_header = _tile_header(header)
+    headers = [las.read_header(q) for q in in_paths]
+    tile_header = _tile_header(headers[0])
     has_core = np.zeros(grid.n_tiles, bool)
     started: set[int] = set()
-    records = open(records_path, "wb") if records_path is not None else None
-    with progress(header.point_count, "tiles: split", "pt", unit_scale=True) as bar:
-        for first, chunk in las.iter_file_chunks(in_path, chunk_points):
-            if records is not None:
-                records.write(chunk.array.tobytes())
-            x, y = np.asarray(chunk.x), np.asarray(chunk.y)
-            io.validate_xyz(in_path, x, y, np.asarray(chunk.z), first, units)
-            x, y = units.xy_to_m(x), units.xy_to_m(y)
-            row, col = grid.core_rc(x, y)
-            has_core[np.unique(row * grid.ncols + col)] = True
-            ids, pos = grid.assign(x, y)
-            del x, y, row, col
-            bounds = np.flatnonzero(np.diff(ids)) + 1
-            for sel_ids, sel_pos in zip(np.split(ids, bounds), np.split(pos, bounds)):
-                tid = int(sel_ids[0])
-                stem = _tile_stem(work_dir, tid // grid.ncols, tid % grid.ncols)
-                las_path = stem.with_suffix(".las")
-                part = chunk[sel_pos]
-                if tid in started:
-                    with laspy.open(las_path, mode="a") as appender:
-                        appender.append_points(part)
-                else:
-                    with laspy.open(las_path, mode="w", header=tile_header) as writer:
-                        writer.write_points(part)
-                    started.add(tid)
-                with open(stem.with_suffix(".index"), "ab") as fh:
-                    (sel_pos.astype(np.int64) + first).tofile(fh)
-            bar.update(len(chunk))
-    if records is not None:
-        records.close()
+    offset = 0
+    with progress(sum(h.point_count for h in headers), "tiles: split", "pt", unit_scale=True) as bar:
+        for k, (in_path, header) in enumerate(zip(in_paths, headers)):
+            records = open(records_paths[k], "wb") if records_paths is not None else None
+            try:
+                for first, chunk in las.iter_file_chunks(in_path, chunk_points):
+                    if records is not None:
+                        records.write(chunk.array.tobytes())
+                    x, y = np.asarray(chunk.x), np.asarray(chunk.y)
+                    io.validate_xyz(in_path, x, y, np.asarray(chunk.z), first, units)
+                    x, y = units.xy_to_m(x), units.xy_to_m(y)
+                    row, col = grid.core_rc(x, y)
+                    has_core[np.unique(row * grid.ncols + col)] = True
+                    ids, pos = grid.assign(x, y)
+                    del x, y, row, col
+                    chunk = in_scales_of(chunk, tile_header)
+                    bounds = np.flatnonzero(np.diff(ids)) + 1
+                    for sel_ids, sel_pos in zip(np.split(ids, bounds), np.split(pos, bounds)):
+                        tid = int(sel_ids[0])
+                        stem = _tile_stem(work_dir, tid // grid.ncols, tid % grid.ncols)
+                        las_path = stem.with_suffix(".las")
+                        part = chunk[sel_pos]
+                        if tid in started:
+                            with laspy.open(las_path, mode="a") as appender:
+                                appender.append_points(part)
+                        else:
+                            with laspy.open(las_path, mode="w", header=tile_header) as writer:
+                                writer.write_points(part)
+                            started.add(tid)
+                        with open(stem.with_suffix(".index"), "ab") as fh:
+                            (sel_pos.astype(np.int64) + (offset + first)).tofile(fh)
+                    bar.update(len(chunk))
+            finally:
+                if records is not None:
+                    records.close()
+            offset += header.point_count
     tasks = []
     for tid in np.flatnonzero(has_core):
         r, c = divmod(int(tid), grid.ncols)
@@ -333,16 +352,18 @@ def classify_tile(task: TileTask) -> TileResult:
     return TileResult(task.row, task.col, int(len(x)), int(core.sum()), time.perf_counter() - t0)
 
 
-def _direct_classes(in_path, crs, params, chunk_points):
-    """Classes of a one-tile input in memory (no temporary files): the tiled path with one tile."""
+def _direct_classes(in_paths, crs, params, chunk_points):
+    """Classes of a one-tile input in memory (no temporary files): the tiled path with one tile.
+    (classes of all files one after the other, the records of each file, the CRS of the first)."""
     from lidarctl import classify as cl
 
-    cloud, records = io.read_cloud(in_path, crs=crs, chunk_points=chunk_points, keep_records=True)
-    if len(cloud) < 10:
-        raise InputError(f"{in_path}: only {len(cloud)} points; classification needs at least 10")
-    classes = cl.classify_points(cloud.x, cloud.y, cloud.z, cloud.return_number, cloud.number_of_returns,
-                                 cloud.intensity, params)
-    return classes, records, cloud.crs
+    read = [io.read_cloud(q, crs=crs, chunk_points=chunk_points, keep_records=True) for q in in_paths]
+    fields = ("x", "y", "z", "return_number", "number_of_returns", "intensity")
+    cloud = {f: np.concatenate([getattr(c, f) for c, _ in read]) for f in fields}
+    if len(cloud["x"]) < 10:
+        raise InputError(f"{in_paths[0]}: only {len(cloud['x'])} points; classification needs at least 10")
+    classes = cl.classify_points(*(cloud[f] for f in fields), params)
+    return classes, [r for _, r in read], read[0][0].crs
 
 
 @dataclasses.dataclass(frozen=True)
@@ -363,8 +384,8 @@ class ClassifyRun:
 
 @dataclasses.dataclass(frozen=True)
 class ClassifyStats:
-    """Statistics of ``classify_file``: the file's points, the tile grid (metres), the file's units,
-    the passes, total seconds and the CRS (text; None when unknown)."""
+    """Statistics of ``classify_file`` / ``classify_files``: the points of the ``n_files`` files, the
+    tile grid (metres), their units, the passes, total seconds and the CRS (text; None when unknown)."""
 
     n_points: int
     grid: TileGrid
@@ -372,6 +393,7 @@ class ClassifyStats:
     run: ClassifyRun
     seconds: float
     crs: str | None
+    n_files: int = 1
 
     @property
     def buffer_overhead(self) -> float:
@@ -387,7 +409,7 @@ class ClassifyStats:
         passes.update(classify_s=r.classify_s, write_s=r.write_s)
         if r.tile_cpu_s is not None:
             passes["tile_cpu_s"] = r.tile_cpu_s
-        return {"n_points": self.n_points, "tile_m": self.grid.tile_m, "buffer_m": self.grid.buffer_m,
+        return {"n_points": self.n_points, "n_files": self.n_files, "tile_m": self.grid.tile_m, "buffer_m": self.grid.buffer_m,
                 "tile_rows": self.grid.nrows, "tile_cols": self.grid.ncols, **self.units.as_dict(), **passes,
                 "class_counts": r.class_counts, "buffer_overhead": self.buffer_overhead, "seconds": self.seconds,
                 "crs": self.crs}
@@ -406,39 +428,122 @@ def classify_file(in_path, out_path, crs=None, params=None, *, tile_size_m: floa
     The output is written atomically: on any error or interrupt no output file is left.
     Returns statistics: points, tiles, buffer overhead, seconds per pass, class counts.
     """
+    in_path, out_path = Path(in_path), Path(out_path)
+    refuse_input_as_output(out_path, [in_path], "OUT_PATH")
+    return _classify([in_path], [out_path], crs, params, tile_size_m=tile_size_m, buffer_m=buffer_m,
+                     executor=executor, work_parent=Path(work_dir) if work_dir is not None else out_path.parent,
+                     tiles_name=out_path.stem, chunk_points=chunk_points)
+
+
+def classified_names(in_paths, suffix: str | None = None) -> list[str]:
+    """File names of the classified strips: each strip's stem with ``suffix`` (".las" / ".laz"; None:
+    the strip's own). Two strips with one name are an OptionError naming both."""
+    names: dict[str, Path] = {}
+    for q in map(Path, in_paths):
+        name = q.stem + (suffix if suffix is not None else q.suffix.lower())
+        if name in names:
+            raise OptionError(f"{q}: its classified strip would be named {name}, like that of {names[name]}; "
+                              "rename one of the strips", param="IN_PATHS")
+        names[name] = q
+    return list(names)
+
+
+def classify_files(in_paths, out_dir, crs=None, params=None, *, suffix: str | None = None,
+                   tile_size_m: float | None = None, buffer_m: float | None = None, executor=None,
+                   work_dir=None, chunk_points: int = io.CHUNK_POINTS) -> ClassifyStats:
+    """Classify LiDAR strips (LAS/LAZ files) together, without merging them: one classified copy per
+    strip in ``out_dir`` (names: ``classified_names``; LAS/LAZ by ``suffix``, default the strip's).
+
+    The tile grid covers the union of the strips' header bounds and a tile gathers its points (core
+    and buffer) from every strip, so points in the overlap of two strips are classified with both
+    strips' neighbours, as in a merged file. Each output is its strip with new classes (header,
+    VLRs, EVLRs and point records copied; ``io.write_classified``). The strips must share one point
+    format and one CRS (``merge.check_strips``: InputError / CrsError naming the strip that differs);
+    ``crs`` is the CRS of strips without a CRS record (a strip tagged with another CRS is refused).
+    ``out_dir`` holds the set and is replaced as a whole, atomically (``atomic_dir``): all outputs
+    or none; an input inside it is refused. Other parameters as in ``classify_file``.
+    """
+    from lidarctl.merge import check_strips
+
+    in_paths = [Path(q) for q in in_paths]
+    if not in_paths:
+        raise InputError("no LAS/LAZ strips to classify")
+    out_dir = Path(out_dir)
+    names = classified_names(in_paths, suffix)
+    for q in in_paths:
+        if out_dir.resolve() == q.resolve() or out_dir.resolve() in q.resolve().parents:
+            raise OptionError(f"{q}: the input lies in the output folder {out_dir}, which is replaced as a whole; "
+                              "choose another output folder", param="OUT_DIR")
+    project_crs = parse_crs(crs, "--crs") if crs is not None and str(crs).strip() else None
+    check_strips(in_paths, [las.read_header(q) for q in in_paths], project_crs)
+    parent = Path(work_dir) if work_dir is not None else out_dir.parent
+    with atomic_dir(out_dir) as tmp:
+        return _classify(in_paths, [tmp / name for name in names], crs, params, tile_size_m=tile_size_m,
+                         buffer_m=buffer_m, executor=executor, work_parent=parent, tiles_name=out_dir.name,
+                         chunk_points=chunk_points)
+
+
+def _union_bounds(headers):
+    """The strips' headers as one for ``plan_tiles``: the union of their bounds, their summed count."""
+    import types
+
+    return types.SimpleNamespace(mins=np.min([h.mins for h in headers], axis=0),
+                                 maxs=np.max([h.maxs for h in headers], axis=0),
+                                 point_count=sum(h.point_count for h in headers))
+
+
+def _classify(in_paths, out_paths, crs, params, *, tile_size_m, buffer_m, executor, work_parent, tiles_name,
+              chunk_points) -> ClassifyStats:
+    """``classify_file`` / ``classify_files``: the files in ``in_paths`` (checked to agree) classified
+    together, each written to its ``out_paths`` entry."""
     from lidarctl import classify as cl
 
     t0 = time.perf_counter()
     params = params or cl.ClassifyParams()
-    in_path, out_path = Path(in_path), Path(out_path)
-    refuse_input_as_output(out_path, [in_path], "OUT_PATH")
-    header = las.read_header(in_path)
-    n = header.point_count
-    if n == 0:
-        raise InputError(f"{in_path}: the file holds no points")
-    resolved, units = io.resolve_crs_units(in_path, header, crs)
+    headers = [las.read_header(q) for q in in_paths]
+    for q, h in zip(in_paths, headers):
+        if h.point_count == 0:
+            raise InputError(f"{q}: the file holds no points")
+    crs_units = [io.resolve_crs_units(q, h, crs) for q, h in zip(in_paths, headers)]
+    resolved, units = crs_units[0]
+    for q, (_, u) in zip(in_paths[1:], crs_units[1:]):
+        if u != units:
+            raise InputError(f"{q}: {u.describe()}, but {in_paths[0]} {units.describe()}; give strips in one unit")
+    name = in_paths[0] if len(in_paths) == 1 else f"{in_paths[0]} (+{len(in_paths) - 1} strips)"
     # A CRS record for an input without one: the --crs as given (a compound CRS keeps its vertical unit).
     out_crs = parse_crs(crs, "--crs") if crs is not None and str(crs).strip() else resolved
-    grid = plan_tiles(header, tile_size_m, buffer_m, params.ground_method, params.preset, in_path, units=units)
+    bounds = headers[0] if len(headers) == 1 else _union_bounds(headers)
+    grid = plan_tiles(bounds, tile_size_m, buffer_m, params.ground_method, params.preset, name, units=units)
+    n = int(bounds.point_count)
+
+    def stats(run):
+        return ClassifyStats(n_points=n, grid=grid, units=units, run=run, seconds=time.perf_counter() - t0,
+                             crs=resolved.to_string() if resolved is not None else None, n_files=len(in_paths))
+
     if params.keep_classes:
-        run = _keep_delivered(in_path, out_path, out_crs=out_crs, units=units, chunk_points=chunk_points, t0=t0)
-        return ClassifyStats(n_points=int(n), grid=grid, units=units, run=run, seconds=time.perf_counter() - t0,
-                             crs=resolved.to_string() if resolved is not None else None)
-    logger.debug("%s: %d points, %d x %d tiles of %g m + %g m buffer", in_path, n, grid.nrows, grid.ncols,
+        runs = [_keep_delivered(q, out, out_crs=out_crs, units=units, chunk_points=chunk_points, t0=t0)
+                for q, out in zip(in_paths, out_paths)]
+        counts = np.zeros(256, np.int64)
+        for r in runs:
+            for c, k in r.class_counts.items():
+                counts[c] += k
+        return stats(dataclasses.replace(runs[0], class_counts=_class_counts(counts),
+                                         write_s=sum(r.write_s for r in runs), classify_s=runs[-1].classify_s))
+    logger.debug("%s: %d points, %d x %d tiles of %g m + %g m buffer", name, n, grid.nrows, grid.ncols,
                  grid.tile_m, grid.buffer_m)
     try:
         if grid.n_tiles == 1:
-            run = _classify_whole(in_path, out_path, crs=crs, out_crs=out_crs, params=params,
+            run = _classify_whole(in_paths, out_paths, crs=crs, out_crs=out_crs, params=params,
                                   chunk_points=chunk_points, t0=t0)
         else:
-            run = _classify_tiled(in_path, out_path, out_crs=out_crs, units=units, params=params, grid=grid,
-                                  executor=executor, work_dir=work_dir, chunk_points=chunk_points, t0=t0)
+            run = _classify_tiled(in_paths, out_paths, out_crs=out_crs, units=units, params=params, grid=grid,
+                                  executor=executor, work_parent=work_parent, tiles_name=tiles_name,
+                                  chunk_points=chunk_points, t0=t0)
     except ResourceError as exc:
         # A grid inside the classifier would not fit: name the file (points spread far apart, e.g.
         # strips of two zones merged under one CRS).
-        raise ResourceError(f"{in_path}: {exc}", param=exc.param) from exc
-    return ClassifyStats(n_points=int(n), grid=grid, units=units, run=run, seconds=time.perf_counter() - t0,
-                         crs=resolved.to_string() if resolved is not None else None)
+        raise ResourceError(f"{name}: {exc}", param=exc.param) from exc
+    return stats(run)
 
 
 def _keep_delivered(in_path, out_path, *, out_crs, units, chunk_points, t0) -> ClassifyRun:
@@ -460,32 +565,34 @@ def _class_counts(counts: np.ndarray) -> dict[int, int]:
     return {int(c): int(counts[c]) for c in np.flatnonzero(counts)}
 
 
-def _classify_whole(in_path, out_path, *, crs, out_crs, params, chunk_points, t0) -> ClassifyRun:
-    """``classify_file`` of a one-tile input: classified in memory, written from the records kept."""
-    n = las.read_header(in_path).point_count
-    classes, records, _ = _direct_classes(in_path, crs, params, chunk_points)
+def _classify_whole(in_paths, out_paths, *, crs, out_crs, params, chunk_points, t0) -> ClassifyRun:
+    """A one-tile input: classified in memory, each file written from the records kept."""
+    classes, records, _ = _direct_classes(in_paths, crs, params, chunk_points)
     t1 = time.perf_counter()
-    io.write_classified(in_path, out_path, classes, crs=out_crs, records=records)
-    return ClassifyRun(n_tiles=1, tiled_points=int(n), max_tile_points=int(n),
+    first = 0
+    for q, out, rec in zip(in_paths, out_paths, records):
+        count = sum(len(c) for c in rec)
+        io.write_classified(q, out, classes[first:first + count], crs=out_crs, records=rec)
+        first += count
+    return ClassifyRun(n_tiles=1, tiled_points=len(classes), max_tile_points=len(classes),
                        class_counts=_class_counts(np.bincount(classes, minlength=256)),
                        classify_s=t1 - t0, write_s=time.perf_counter() - t1)
 
 
-def _classify_tiled(in_path, out_path, *, out_crs, units, params, grid, executor, work_dir, chunk_points,
-                    t0) -> ClassifyRun:
-    """``classify_file`` in tiles: split (pass 1), classify tiles on the executor (pass 2), scatter
-    the core classes into a memory-mapped file and write the output from the records copy (pass 3)."""
-    header = las.read_header(in_path)
-    n = header.point_count
+def _classify_tiled(in_paths, out_paths, *, out_crs, units, params, grid, executor, work_parent, tiles_name,
+                    chunk_points, t0) -> ClassifyRun:
+    """In tiles: split all files (pass 1), classify tiles on the executor (pass 2), scatter the core
+    classes into a memory-mapped file and write each output from its records copy (pass 3)."""
+    headers = [las.read_header(q) for q in in_paths]
+    n = sum(h.point_count for h in headers)
     if n < 10:
-        raise InputError(f"{in_path}: only {n} points; classification needs at least 10")
+        raise InputError(f"{in_paths[0]}: only {n} points; classification needs at least 10")
     if executor is None:
         executor = local_executor()
-    parent = Path(work_dir) if work_dir is not None else out_path.parent
-    parent.mkdir(parents=True, exist_ok=True)
-    tmp_dir = temporary_dir(parent, f"{out_path.stem}.tiles")
+    tmp_dir = temporary_dir(work_parent, f"{tiles_name}.tiles")
     try:
-        tasks = split_into_tiles(in_path, grid, tmp_dir, params, chunk_points, tmp_dir / "records.bin", units)
+        records_paths = [tmp_dir / f"records_{k}.bin" for k in range(len(in_paths))]
+        tasks = split_into_tiles(in_paths, grid, tmp_dir, params, chunk_points, records_paths, units)
         # Cores per task: tasks run side by side on the executor's workers (on a remote cluster
         # numba keeps its default).
         per_task = executor.cores_per_task(len(tasks))
@@ -499,11 +606,15 @@ def _classify_tiled(in_path, out_path, *, out_crs, units, params, grid, executor
         for task in tasks:
             classes[np.load(task.core_index_path)] = np.load(task.classes_path)
         classes.flush()
-        checked = _CheckedClasses(classes)
+        counts = np.zeros(256, np.int64)
+        first = 0
         with progress(n, "tiles: write", "pt", unit_scale=True) as bar:
-            io.write_classified(in_path, out_path, checked, crs=out_crs, progress=bar.update,
-                                records=_stored_records(tmp_dir / "records.bin", header, chunk_points))
-        counts = checked.counts
+            for q, out, h, rp in zip(in_paths, out_paths, headers, records_paths):
+                checked = _CheckedClasses(classes[first:first + h.point_count])
+                io.write_classified(q, out, checked, crs=out_crs, progress=bar.update,
+                                    records=_stored_records(rp, h, chunk_points))
+                counts += checked.counts
+                first += h.point_count
         del classes
         t3 = time.perf_counter()
     finally:

@@ -1,6 +1,7 @@
 """The production chain over one project folder, built from its inputs and its stage options.
 
-LiDAR strips (lidar/) -> merge -> classify -> rasters -> roof corners; images -> tie points -> first
+LiDAR strips (lidar/) -> classify (the strips together, by tiles, no merged file; one classified
+copy per strip in lidar_out/classified/) -> rasters -> roof corners; images -> tie points -> first
 adjustment (tie points + GNSS) -> control transfer of the LiDAR corners -> final adjustment ->
 rectification on the DEM -> mosaic -> optional checks -> accuracy report.
 
@@ -71,13 +72,9 @@ class Chain:
     def lo(self) -> Path:
         return self.project.lidar_out_dir
 
-    @property
-    def merged(self) -> Path:
-        return self.project.merged_lidar_path
-
-    @property
-    def classified(self) -> Path:
-        return self.project.classified_path
+    def classified(self, root=None) -> list[Path]:
+        """The classified strips (lidar_out/classified/, one per strip of lidar/)."""
+        return self.project.classified_strips()
 
     @property
     def first(self) -> Path:
@@ -152,14 +149,12 @@ class Chain:
     def stages(self) -> list[Stage]:
         o, lo, first = self.options, self.lo, self.first
         stages = [
-            Stage("merge", lambda r: self.project.lidar_strips(), lambda r: [self.merged], self.run_merge,
-                  options=dict(crs=self.project.crs), skip=self.no_lidar),
-            Stage("classify", lambda r: [self.merged], lambda r: [self.classified], self.run_classify,
-                  options=to_table(o.classify), skip=self.no_lidar),
-            Stage("rasters", lambda r: [self.classified],
+            Stage("classify", lambda r: self.project.lidar_strips(), self.classified, self.run_classify,
+                  options=dict(to_table(o.classify), crs=self.project.crs), skip=self.no_lidar),
+            Stage("rasters", self.classified,
                   lambda r: [lo / f for f in ("dem.tif", "dsm.tif", "ndsm.tif")], self.run_rasters,
                   options=to_table(o.rasters), skip=self.no_lidar),
-            Stage("corners", lambda r: [self.classified], self.corner_outputs, self.run_corners,
+            Stage("corners", self.classified, self.corner_outputs, self.run_corners,
                   options=to_table(o.corners), skip=self.no_lidar),
             Stage("match", lambda r: self.images() + [self.project.gnss_path, self.project.camera_path],
                   lambda r: [self.project.tiepoints_path], self.run_match,
@@ -186,10 +181,11 @@ class Chain:
             stages.append(Stage("dom_check", lambda r: [self.project.mosaic_path, Path(self.reference_ortho)],
                                 lambda r: [self.project.dom_report_path], self.run_dom_check, skip=self.no_dem))
         if self.surveyed_points is not None:
-            stages.append(Stage("height_check", lambda r: [self.classified, Path(self.surveyed_points)],
+            stages.append(Stage("height_check", lambda r: self.classified() + [Path(self.surveyed_points)],
                                 lambda r: [self.project.height_check_path], self.run_height_check, skip=self.no_lidar))
         if self.truth_classes:
-            stages.append(Stage("lidar_eval", lambda r: [self.classified], lambda r: [self.project.classification_eval_path],
+            stages.append(Stage("lidar_eval", lambda r: self.classified() + self.project.truth_strips(),
+                                lambda r: [self.project.classification_eval_path],
                                 self.run_lidar_eval, skip=self.no_lidar))
         report_inputs = [self.project.config_path, self.project.adjustment_report_path,
                          self.project.control_transfer_path, self.project.dom_report_path,
@@ -199,24 +195,22 @@ class Chain:
         return stages
 
     # -- LiDAR ----------------------------------------------------------------------------------
-    def run_merge(self, root) -> dict:
-        from lidarctl.merge import merge_las
-
-        return dict(points=merge_las(self.project.lidar_strips(), self.merged, crs=self.project.crs))
-
     def run_classify(self, root) -> dict:
-        from lidarctl.tiles import classify_file
+        from aerotri.core.atomic import remove_leftovers
+        from lidarctl.tiles import classify_files
 
-        st = classify_file(self.merged, self.classified, params=self.options.classify)
-        return dict(points=st.n_points, tiles=st.run.n_tiles)
+        # what a killed run left next to classified/ (the set's temporary folder, the tiles' work folder)
+        remove_leftovers(self.lo)
+        st = classify_files(self.project.lidar_strips(), self.project.classified_dir, crs=self.project.crs,
+                            params=self.options.classify, suffix=".laz")
+        return dict(points=st.n_points, strips=st.n_files, tiles=st.run.n_tiles)
 
     def run_rasters(self, root) -> dict:
-        from aerotri.geom import las
         from lidarctl import io
         from lidarctl.rasters import write_rasters
 
-        crs = io.resolve_crs(self.classified, las.read_header(self.classified), None)
-        write_rasters(self.classified, self.lo, self.options.rasters.res_m, crs=crs)
+        # The strips in memory (io.read_clouds) until the rasters are written by windows from the strips.
+        write_rasters(io.read_clouds(self.classified(), crs=self.project.crs), self.lo, self.options.rasters.res_m)
         return dict(res_m=self.options.rasters.res_m)
 
     def corner_outputs(self, root) -> list[Path]:
@@ -228,7 +222,7 @@ class Chain:
     def run_corners(self, root) -> dict:
         from lidarctl.corners import corner_control
 
-        st = corner_control([self.classified], self.lo, self.options.corners, record_none=True)
+        st = corner_control(self.classified(), self.lo, self.options.corners, record_none=True)
         out = dict(corners=st["n_corners"], usable=st["n_usable"])
         if st["no_usable"]:
             hint = "a smaller min_edge_m"
@@ -372,18 +366,16 @@ class Chain:
     def run_height_check(self, root) -> dict:
         from lidarctl.heights_check import check_heights_file
 
-        result = check_heights_file(self.classified, self.surveyed_points)
+        result = check_heights_file(self.classified(), self.surveyed_points)
         write_text_atomic(self.project.height_check_path, json.dumps(result, indent=2))
         a = result.get("overall", {}).get("all", {})
         return {k: a[k] for k in ("rmse_m", "mean_abs_dz_m", "n") if k in a}
 
     def run_lidar_eval(self, root) -> dict:
-        from lidarctl.evaluate import evaluate_files
-        from lidarctl.merge import merge_las
+        from lidarctl.evaluate import evaluate_strips
 
-        truth_merged = self.project.truth_merged_lidar_path
-        merge_las(sorted(self.project.truth_lidar_dir.glob("*.la[sz]")), truth_merged, crs=self.project.crs)
-        result = evaluate_files(self.classified, truth_merged)
+        # each classified strip against its truth strip (truth/lidar/, same name, same points)
+        result = evaluate_strips(self.classified(), self.project.truth_strips())
         write_text_atomic(self.project.classification_eval_path, json.dumps(result, indent=2))
         g = result["filter_test"]
         return {k: g[k] for k in ("type_i_error_pct", "type_ii_error_pct", "kappa_pct") if k in g}

@@ -99,7 +99,16 @@ class Project:
         return sorted(p for p in self.lidar_dir.glob("*") if p.suffix.lower() in (".las", ".laz"))
     # lidar_out/: the LiDAR products
     lidar_out_dir = property(lambda self: self.root / "lidar_out")
-    classified_path = property(lambda self: self.lidar_out_dir / "classified.laz")
+    classified_dir = property(lambda self: self.lidar_out_dir / "classified")  # one classified LAZ per strip
+
+    def classified_strips(self) -> list[Path]:
+        """The classified copies of ``lidar_strips()`` in ``classified/``: the strip's name as LAZ (the names
+        ``lidarctl.tiles.classify_files`` gives with suffix ".laz", which refuses two strips with one name)."""
+        return [self.classified_dir / f"{p.stem}.laz" for p in self.lidar_strips()]
+
+    def truth_strips(self) -> list[Path]:
+        """The truth-classified strips of simulated projects: ``truth/lidar/`` files named as in ``lidar/``."""
+        return [self.truth_lidar_dir / p.name for p in self.lidar_strips()]
     dem_path = property(lambda self: self.lidar_out_dir / "dem.tif")
     dsm_path = property(lambda self: self.lidar_out_dir / "dsm.tif")
     ndsm_path = property(lambda self: self.lidar_out_dir / "ndsm.tif")
@@ -116,8 +125,6 @@ class Project:
     # work/: caches and stage stamps
     work_dir = property(lambda self: self.root / "work")
     stages_dir = property(lambda self: self.work_dir / "stages")
-    merged_lidar_path = property(lambda self: self.work_dir / "lidar" / "merged.las")
-    truth_merged_lidar_path = property(lambda self: self.work_dir / "lidar" / "truth_merged.las")
     first_adjustment_dir = property(lambda self: self.work_dir / "at_first")
     # at/: tie points and the adjustment
     at_dir = property(lambda self: self.root / "at")

@@ -251,3 +251,116 @@ def test_streamed_rasters_equal_in_memory_grids(classified, tmp_path):
     r = CliRunner().invoke(main, ["rasters", str(tmp_path / "unclassified.laz"), str(tmp_path / "r2"), "--res", "2"])
     assert r.exit_code == 2 and "no ground points" in r.output
     assert not (tmp_path / "r2" / "dem.tif").exists()
+
+
+# -- several strips, no merged file ---------------------------------------------------------------
+@pytest.fixture(scope="module")
+def strips(tmp_path_factory):
+    """The 200 m scene as three strips along x (own offsets each; LAZ, LAS, LAZ) and merged into one file."""
+    from lidarctl.merge import merge_las
+
+    d = tmp_path_factory.mktemp("strips")
+    cloud, truth = _scene(200.0, 2.5, 5, n_buildings=4, n_trees=30)
+    band = np.minimum(cloud.x // 70.0 - np.floor(cloud.x.min() / 70.0), 2).astype(int)
+    paths = []
+    for k, suffix in enumerate((".laz", ".las", ".laz")):
+        sel = band == k
+        part = io.PointCloud(*(getattr(cloud, f)[sel] for f in ("x", "y", "z", "intensity", "return_number",
+                                                                  "number_of_returns", "classification")))
+        paths.append(d / "lidar" / f"strip_{k}{suffix}")
+        paths[-1].parent.mkdir(exist_ok=True)
+        synthetic.write_las(paths[-1], part, crs="EPSG:32632")
+        (d / "truth").mkdir(exist_ok=True)
+        synthetic.write_las(d / "truth" / f"strip_{k}.las", part, classification=truth[sel], crs="EPSG:32632")
+    merge_las(paths, d / "merged.las")
+    merge_las(sorted((d / "truth").glob("*.las")), d / "truth_merged.las")
+    return d, paths
+
+
+def test_strips_classified_together_equal_the_merged_file(strips, tmp_path):
+    d, paths = strips
+    merged = tiles.classify_file(d / "merged.las", tmp_path / "merged_out.las", tile_size_m=100.0, buffer_m=40.0)
+    st = tiles.classify_files(paths, tmp_path / "classified", tile_size_m=100.0, buffer_m=40.0)
+    assert st.n_files == 3 and st.n_points == merged.n_points and st.run.n_tiles == merged.run.n_tiles == 4
+    outs = sorted((tmp_path / "classified").iterdir())
+    assert [p.name for p in outs] == ["strip_0.laz", "strip_1.las", "strip_2.laz"]
+    classes = []
+    for src, out in zip(paths, outs):
+        a, b = laspy.read(src), laspy.read(out)
+        # the strip unchanged but for its classes (header scales/offsets, CRS, every other field)
+        np.testing.assert_array_equal(a.header.offsets, b.header.offsets)
+        assert b.header.parse_crs().to_epsg() == 32632 and len(b.points) == len(a.points)
+        assert _record_bytes_without_classification(a) == _record_bytes_without_classification(b)
+        classes.append(np.asarray(b.classification))
+    # a tile takes its points from every strip: the same classes as the merged file, point for point
+    np.testing.assert_array_equal(np.concatenate(classes), np.asarray(laspy.read(tmp_path / "merged_out.las").classification))
+    assert st.run.class_counts == merged.run.class_counts
+    # one tile (the direct path) over the strips: the same as the merged file in one piece
+    whole = tiles.classify_files(paths, tmp_path / "whole", suffix=".las")
+    direct = tiles.classify_file(d / "merged.las", tmp_path / "direct.las")
+    assert whole.run.n_tiles == direct.run.n_tiles == 1
+    np.testing.assert_array_equal(
+        np.concatenate([laspy.read(tmp_path / "whole" / f"strip_{k}.las").classification for k in range(3)]),
+        laspy.read(tmp_path / "direct.las").classification)
+
+
+def test_strips_that_differ_are_refused_naming_the_strip_and_leave_no_output(strips, tmp_path):
+    from aerotri.core.errors import CrsError, OptionError
+
+    d, paths = strips
+    other = tmp_path / "zone33.las"
+    las = laspy.read(paths[1])
+    header = laspy.LasHeader(version="1.4", point_format=6)
+    header.scales, header.offsets = las.header.scales, las.header.offsets
+    import pyproj
+    header.add_crs(pyproj.CRS.from_epsg(32633))
+    out = laspy.LasData(header)
+    out.points = las.points
+    out.write(other)
+    with pytest.raises(CrsError, match="zone33.las.*EPSG:32633"):
+        tiles.classify_files([paths[0], other], tmp_path / "out", tile_size_m=100.0, buffer_m=40.0)
+    synthetic.write_las(tmp_path / "v12.las", io.read_cloud(paths[1]), crs="EPSG:32632", version="1.2")
+    with pytest.raises(InputError, match="v12.las: point format 1"):
+        tiles.classify_files([paths[0], tmp_path / "v12.las"], tmp_path / "out")
+    assert not (tmp_path / "out").exists() and not list(tmp_path.glob(".*")) and not list(d.glob(".*"))
+    # an input inside the output folder (replaced as a whole) and two strips with one output name
+    with pytest.raises(OptionError, match="strip_0.laz: the input lies in the output folder"):
+        tiles.classify_files(paths, d / "lidar")
+    copy = tmp_path / "copy" / "strip_0.las"
+    copy.parent.mkdir()
+    copy.write_bytes(paths[1].read_bytes())
+    with pytest.raises(OptionError, match="copy/strip_0.las: its classified strip would be named strip_0.las.*strip_0.laz"):
+        tiles.classify_files([paths[0], copy], tmp_path / "out", suffix=".las")
+    # the command: several strips into a folder, exit code 2 and one line on a bad set
+    r = CliRunner().invoke(main, ["classify", str(paths[0]), str(other), str(tmp_path / "out")])
+    assert r.exit_code == 2 and "zone33.las" in r.stderr and "Traceback" not in r.output
+    r = CliRunner().invoke(main, ["classify", *map(str, paths), str(tmp_path / "out"), "--format", "las",
+                                  "--tile-size", "100", "--buffer", "40"])
+    assert r.exit_code == 0, r.output
+    assert "of 3 strips" in r.output and sorted(p.name for p in (tmp_path / "out").iterdir()) == [
+        "strip_0.las", "strip_1.las", "strip_2.las"]
+
+
+def test_strips_evaluated_and_height_checked_as_the_merged_file(strips, tmp_path):
+    from lidarctl import evaluate, heights_check
+
+    d, paths = strips
+    tiles.classify_files(paths, tmp_path / "classified", suffix=".las", tile_size_m=100.0, buffer_m=40.0)
+    tiles.classify_file(d / "merged.las", tmp_path / "merged.las", tile_size_m=100.0, buffer_m=40.0)
+    classified = sorted((tmp_path / "classified").glob("*.las"))
+    truth = sorted((d / "truth").glob("*.las"))
+    # each strip against its truth strip: the numbers of the merged file against the merged truth
+    by_strip = evaluate.evaluate_strips(classified, truth)
+    assert by_strip == evaluate.evaluate_files(tmp_path / "merged.las", d / "truth_merged.las")
+    assert sum(map(sum, by_strip["confusion"]["matrix"])) == sum(laspy.read(p).header.point_count for p in paths)
+    with pytest.raises(InputError, match=r"classified/strip_0.las: \d+ points, but .*truth/strip_1.las"):
+        evaluate.evaluate_strips(classified, truth[1:] + truth[:1])
+    # the height check of the strips' ground: that of the merged file
+    rng = np.random.default_rng(0)
+    cloud = io.read_cloud(d / "merged.las")
+    k = rng.choice(len(cloud), 20, replace=False)
+    csv = tmp_path / "points.csv"
+    csv.write_text("id,x,y,z\n" + "".join(f"p{i},{cloud.x[j]:.3f},{cloud.y[j]:.3f},{cloud.z[j] + 0.1:.3f}\n"
+                                          for i, j in enumerate(k)))
+    merged = heights_check.check_heights_file(tmp_path / "merged.las", csv)
+    assert heights_check.check_heights_file(classified, csv) == merged and merged["overall"]["all"]["n"] > 10

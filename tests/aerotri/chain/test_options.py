@@ -147,11 +147,11 @@ def test_a_strip_in_another_crs_is_refused_and_one_without_crs_takes_the_project
     r = CliRunner().invoke(lidarctl_cli, ["merge", *map(str, sorted(lidar.glob("*.las"))), str(tmp_path / "m4.las"),
                                           "--crs", "EPSG:32649"])
     assert r.exit_code == 2 and "c.las" in r.stderr and "EPSG:32650" in r.stderr
-    # the chain: its merge stage stops with the same message
+    # the chain: its classify stage (the strips together, no merged file) stops with the same message
     (tmp_path / "project.toml").write_text(PROJECT)
     r = CliRunner().invoke(aerotri_cli, ["run", str(tmp_path)])
     assert r.exit_code == 2 and "c.las" in r.stderr and "EPSG:32650" in r.stderr and "EPSG:32649" in r.stderr
-    assert not (tmp_path / "work" / "lidar" / "merged.las").exists()
+    assert not (tmp_path / "lidar_out" / "classified").exists() and not (tmp_path / "work" / "lidar").exists()
 
 
 # -- the accuracy report ------------------------------------------------------------------------

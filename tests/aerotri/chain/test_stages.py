@@ -93,7 +93,7 @@ def by_hand(tiny_project, tmp_path_factory):
 
 def test_readme_chain_runs_stage_by_stage(by_hand):
     with_cal, runs, without, runs_without = by_hand
-    assert [a[:2] for a in readme_chain()][0] == ["lidarctl", "merge"]
+    assert [a[:2] for a in readme_chain()][0] == ["lidarctl", "classify"]  # the strips, no merged file
     # tiny's LiDAR (1.2 m spacing) gives no usable roof corner: the README's rule applies
     assert runs["lidarctl corners"].returncode == 2 and "aerotri control" not in runs
     assert json.loads((with_cal / "lidar_out" / "height_check.json").read_text())["overall"]["all"]["n"] > 0
@@ -120,7 +120,7 @@ def test_run_goes_to_the_end_and_equals_the_chain_by_hand(by_hand, tiny_project,
                                          "--points", str(p / "truth" / "checkpoints.csv")], catch_exceptions=False)
     assert r.exit_code == 0, r.output
     table = r.stdout
-    for stage in ("merge", "classify", "rasters", "corners", "match", "adjust_final", "rectify", "mosaic", "dom_check",
+    for stage in ("classify", "rasters", "corners", "match", "adjust_final", "rectify", "mosaic", "dom_check",
                   "height_check", "report"):
         assert (p / "work" / "stages" / f"{stage}.json").is_file(), stage
     # no usable corner: said, control transfer and first adjustment left out, the rest goes on
@@ -146,7 +146,7 @@ def test_run_without_lidar_stops_after_the_adjustment_or_uses_a_dem_from_elsewhe
     r = CliRunner().invoke(aerotri_cli, ["run", str(p)], catch_exceptions=False)
     assert r.exit_code == 0, r.output
     assert "stopped after the adjustment: no DEM" in r.stderr and "[rectify] dem" in r.stderr
-    for stage in ("merge", "classify", "rasters", "corners", "adjust_first", "control"):
+    for stage in ("classify", "rasters", "corners", "adjust_first", "control"):
         assert f"{stage:<18} skipped" in r.stdout, stage
     assert "no LiDAR strips" in r.stdout
     assert (p / "at" / "eo.txt").is_file() and not (p / "ortho").exists()
