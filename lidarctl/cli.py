@@ -13,6 +13,7 @@ from aerotri.core.atomic import refuse_input_as_output
 from aerotri.core.commands import Group, positive, scheduler_options
 from aerotri.core.settings import click_option
 from lidarctl.classify import ClassifyParams
+from lidarctl.rasters import DEFAULT_BUFFER_PX, DEFAULT_TILE_PX
 
 
 @click.group(cls=Group)
@@ -85,15 +86,20 @@ def classify(in_path, out_path, preset, crs, ground_method, tile_size_m, buffer_
 
 
 @main.command()
-@click.argument("in_path", type=click.Path(dir_okay=False))
+@click.argument("in_paths", nargs=-1, required=True, type=click.Path(dir_okay=False))
 @click.argument("outdir", type=click.Path(file_okay=False))
 @click.option("--res", "res_m", type=positive(), required=True,
               help="Cell size in metres, also for clouds in feet (1 m = 3.2808 ft in the GeoTIFF).")
-@click.option("--crs", default=None, help="CRS (EPSG:code) when the file has none.")
-def rasters(in_path, outdir, res_m, crs):
-    """dem/dsm/ndsm/chm/intensity COGs and hillshade.png from a classified cloud (streamed in chunks).
+@click.option("--crs", default=None, help="CRS (EPSG:code) of files that have none.")
+@click.option("--tile-px", type=click.IntRange(min=1), default=DEFAULT_TILE_PX, show_default=True,
+              help="Tile size in raster cells (memory: about 160 bytes per cell of a tile with its buffer).")
+@click.option("--buffer-px", type=click.IntRange(min=0), default=DEFAULT_BUFFER_PX, show_default=True,
+              help="Overlap buffer around each tile in cells: gaps up to about this size are filled as in one piece.")
+def rasters(in_paths, outdir, res_m, crs, tile_px, buffer_px):
+    """dem/dsm/ndsm/chm/intensity COGs and hillshade.png from classified LAS/LAZ file(s) (one or more
+    strips in one CRS) into OUTDIR, by tiles read straight from the files (no merged cloud).
 
-    The rasters are in the cloud's CRS; heights in its vertical unit (band unit type and tags say
+    The rasters are in the files' CRS; heights in its vertical unit (band unit type and tags say
     which).
     """
     import logging
@@ -102,13 +108,12 @@ def rasters(in_path, outdir, res_m, crs):
     from lidarctl import io
     from lidarctl import rasters as rs
 
-    # Streamed chunk by chunk into the grids: memory holds the grids, not the cloud.
-    _, units = io.resolve_crs_units(in_path, las.read_header(in_path), crs)
+    _, units = io.resolve_crs_units(in_paths[0], las.read_header(in_paths[0]), crs)
     if not units.is_metric:
         logging.getLogger(__name__).info(
-            "%s: %s; cells of %g m = %.6g %s, heights in %s", in_path, units.describe(), res_m,
+            "%s: %s; cells of %g m = %.6g %s, heights in %s", in_paths[0], units.describe(), res_m,
             res_m / units.xy_m, units.xy_name, units.z_name)
-    for p in rs.write_rasters(in_path, outdir, res_m, crs=crs):
+    for p in rs.write_rasters(list(in_paths), outdir, res_m, crs=crs, tile_px=tile_px, buffer_px=buffer_px):
         click.echo(str(p))
 
 

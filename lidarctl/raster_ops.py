@@ -24,6 +24,14 @@ def _cell_extreme(flat, v, ncells, sign):
     return out
 
 
+def cell_extreme(flat: np.ndarray, values, ncells: int, how: str = "min") -> np.ndarray:
+    """Per-cell min or max of ``values`` over flat cell indices ``flat`` (all in 0..ncells-1); NaN
+    where no value falls."""
+    if how not in ("min", "max"):
+        raise ValueError(how)
+    return _cell_extreme(np.asarray(flat, np.int64), np.asarray(values, float), ncells, 1.0 if how == "min" else -1.0)
+
+
 def reduce_grid(x, y, values, cell_m, x0, y0, nrows, ncols, how: str = "min") -> np.ndarray:
     """Per-cell min / max / mean of ``values``; NaN where no point falls. A grid larger than the
     machine's RAM is a ResourceError before anything is allocated."""
@@ -74,10 +82,11 @@ def fill_nodata(a: np.ndarray) -> np.ndarray:
     return filled
 
 
-def sample_bilinear(a: np.ndarray, x, y, cell_m, x0, y0) -> np.ndarray:
-    """Bilinear interpolation of a filled raster at points (edge cells extended)."""
-    col = (np.asarray(x) - x0) / cell_m - 0.5
-    row = (np.asarray(y) - y0) / cell_m - 0.5
+def sample_bilinear(a: np.ndarray, x, y, cell_m, x0, y0, row0: int = 0, col0: int = 0) -> np.ndarray:
+    """Bilinear interpolation of a filled raster at points (edge cells extended). ``row0``, ``col0``:
+    the raster is the window of a larger grid with origin (x0, y0) starting at that cell (tiles)."""
+    col = (np.asarray(x) - x0) / cell_m - 0.5 - col0
+    row = (np.asarray(y) - y0) / cell_m - 0.5 - row0
     return ndimage.map_coordinates(a, [row, col], order=1, mode="nearest")
 
 

@@ -216,7 +216,7 @@ class Chain:
         from lidarctl.rasters import write_rasters
 
         crs = io.resolve_crs(self.classified, las.read_header(self.classified), None)
-        write_rasters(self.classified, self.lo, self.options.rasters.res_m, crs=crs)
+        write_rasters([self.classified], self.lo, self.options.rasters.res_m, crs=crs)
         return dict(res_m=self.options.rasters.res_m)
 
     def corner_outputs(self, root) -> list[Path]:
