@@ -13,6 +13,7 @@ from aerotri.core.atomic import refuse_input_as_output
 from aerotri.core.commands import Group, positive, scheduler_options
 from aerotri.core.settings import click_option
 from lidarctl.classify import ClassifyParams
+from lidarctl.rasters import DEFAULT_BUFFER_PX, DEFAULT_TILE_PX
 
 
 @click.group(cls=Group)
@@ -110,12 +111,16 @@ def classify(in_paths, out_path, preset, crs, ground_method, tile_size_m, buffer
 @click.argument("outdir", type=click.Path(file_okay=False))
 @click.option("--res", "res_m", type=positive(), required=True,
               help="Cell size in metres, also for clouds in feet (1 m = 3.2808 ft in the GeoTIFF).")
-@click.option("--crs", default=None, help="CRS (EPSG:code) when the file has none.")
-def rasters(in_paths, outdir, res_m, crs):
-    """dem/dsm/ndsm/chm/intensity COGs and hillshade.png from a classified cloud (streamed in chunks),
-    or from classified strips (STRIP... OUTDIR, one CRS; read together in memory for now).
+@click.option("--crs", default=None, help="CRS (EPSG:code) of files that have none.")
+@click.option("--tile-px", type=click.IntRange(min=1), default=DEFAULT_TILE_PX, show_default=True,
+              help="Tile size in raster cells (memory: about 160 bytes per cell of a tile with its buffer).")
+@click.option("--buffer-px", type=click.IntRange(min=0), default=DEFAULT_BUFFER_PX, show_default=True,
+              help="Overlap buffer around each tile in cells: gaps up to about this size are filled as in one piece.")
+def rasters(in_paths, outdir, res_m, crs, tile_px, buffer_px):
+    """dem/dsm/ndsm/chm/intensity COGs and hillshade.png from classified LAS/LAZ file(s) (one or more
+    strips in one CRS) into OUTDIR, by tiles read straight from the files (no merged cloud).
 
-    The rasters are in the cloud's CRS; heights in its vertical unit (band unit type and tags say
+    The rasters are in the files' CRS; heights in its vertical unit (band unit type and tags say
     which).
     """
     import logging
@@ -124,16 +129,12 @@ def rasters(in_paths, outdir, res_m, crs):
     from lidarctl import io
     from lidarctl import rasters as rs
 
-    for f in rs.FILES:
-        refuse_input_as_output(f"{outdir}/{f}", in_paths, "OUTDIR")
-    # Streamed chunk by chunk into the grids: memory holds the grids, not the cloud.
     _, units = io.resolve_crs_units(in_paths[0], las.read_header(in_paths[0]), crs)
     if not units.is_metric:
         logging.getLogger(__name__).info(
             "%s: %s; cells of %g m = %.6g %s, heights in %s", in_paths[0], units.describe(), res_m,
             res_m / units.xy_m, units.xy_name, units.z_name)
-    cloud = in_paths[0] if len(in_paths) == 1 else io.read_clouds(in_paths, crs=crs)
-    for p in rs.write_rasters(cloud, outdir, res_m, crs=crs):
+    for p in rs.write_rasters(list(in_paths), outdir, res_m, crs=crs, tile_px=tile_px, buffer_px=buffer_px):
         click.echo(str(p))
 
 

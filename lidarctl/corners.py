@@ -42,7 +42,7 @@ from scipy import ndimage
 from scipy.spatial import cKDTree
 
 from aerotri.core.atomic import refuse_input_as_output, write_text_atomic
-from aerotri.core.errors import InputError
+from aerotri.core.errors import InputError, OptionError
 from aerotri.core.settings import setting
 from aerotri.geom.crs import crs_label, same_crs
 from lidarctl import io as las_io
@@ -80,6 +80,8 @@ CSV_COLUMNS = [
 ]
 
 
+# The corners figure's nDSM: at most this many cells a side (a 10 km block at 2.5 m).
+FIGURE_CELLS = 4000
 # Memory per cell of the strip-footprint grids (masks, closing, distance transform with its
 # feature transform) and of the figure's nDSM (maxima, cell centres, nearest ground, result).
 MARGIN_BYTES_PER_CELL = 40
@@ -117,26 +119,33 @@ def read_strips(paths, crs=None) -> dict:
     return cat
 
 
-def _margin_grid(xy: np.ndarray, cell_m: float):
-    """Origin and (rows, cols) of the strip-footprint grid over points ``xy`` (m)."""
-    origin = xy.min(axis=0) - cell_m
-    cols, rows = (np.floor((xy.max(axis=0) - origin) / cell_m).astype(np.int64) + 2)
-    return origin, (int(rows), int(cols))
+def _margin_grid(xy: np.ndarray, cell_m: float, anchor=None):
+    """Origin and (rows, cols) of the strip-footprint grid over points ``xy`` (m): a cell of padding
+    around them; with ``anchor`` (the origin of the whole cloud's grid, for a tile of it) the origin
+    is moved onto that grid's cells, (origin, offset in cells) then tell where."""
+    if anchor is None:
+        origin, offset = xy.min(axis=0) - cell_m, np.zeros(2, np.int64)
+    else:
+        origin = np.asarray(anchor, float)
+        offset = np.floor((xy.min(axis=0) - origin) / cell_m).astype(np.int64) - 1
+    cols, rows = (np.floor((xy.max(axis=0) - origin) / cell_m).astype(np.int64) - offset + 2)
+    return origin, (int(rows), int(cols)), offset
 
 
 def strip_margin_m(xy: np.ndarray, source_id: np.ndarray, query_xy: np.ndarray,
-                   cell_m: float = MARGIN_CELL_M) -> np.ndarray:
+                   cell_m: float = MARGIN_CELL_M, anchor=None) -> np.ndarray:
     """Distance (m) of each query point inside the footprint of the strip that covers it best.
 
     Footprint of a strip (points sharing a point_source_id) = occupied cells, gaps closed, holes
     (buildings' shadows, water) filled. A cloud without strip ids is one strip. A grid larger than
-    the machine's RAM is a ResourceError before it is allocated.
+    the machine's RAM is a ResourceError before it is allocated. ``anchor``: the grid origin of the
+    whole cloud when ``xy`` is a tile of it (the same cells; the tile's edge counts as a strip edge).
     """
-    origin, shape = _margin_grid(xy, cell_m)
+    origin, shape, offset = _margin_grid(xy, cell_m, anchor)
     check_grid(*shape, cell_m, MARGIN_BYTES_PER_CELL, "strip footprints",
                hint="are the strips far apart (different zones or CRSs)?")
-    ij_all = np.floor((xy - origin) / cell_m).astype(np.int64)
-    qij = np.clip(np.floor((query_xy - origin) / cell_m).astype(np.int64), 0, np.array(shape[::-1]) - 1)
+    ij_all = np.floor((xy - origin) / cell_m).astype(np.int64) - offset
+    qij = np.clip(np.floor((query_xy - origin) / cell_m).astype(np.int64) - offset, 0, np.array(shape[::-1]) - 1)
     margin = np.zeros(len(query_xy))
     for sid in np.unique(source_id):
         sel = source_id == sid
@@ -167,17 +176,20 @@ class _RoofClusters:
     spacing_m: float  # point spacing on the roofs
     roof_label: np.ndarray  # roof per point, -1 for none
     n_roofs: int
+    margin_anchor: object = None  # strip-footprint grid origin of the whole cloud (tiles), else None
 
 
-def _roof_clusters(x, y, z, classification, point_source_id) -> _RoofClusters:
-    """Drop noise, refuse a cloud without building points, cluster the building points into roofs."""
+def _roof_clusters(x, y, z, classification, point_source_id, spacing_m: float | None = None,
+                   margin_anchor=None) -> _RoofClusters:
+    """Drop noise, refuse a cloud without building points, cluster the building points into roofs.
+    ``spacing_m``: the building points' spacing of the whole cloud when this is a tile of it."""
     xyz = np.column_stack([x, y, z]).astype(float)
     cls = np.asarray(classification)
     keep = ~np.isin(cls, NOISE)
     xyz, cls = xyz[keep], cls[keep]
     if len(xyz):
         # The strip-footprint grid spans all points: refuse an impossible one before the roof work.
-        check_grid(*_margin_grid(xyz[:, :2], MARGIN_CELL_M)[1], MARGIN_CELL_M, MARGIN_BYTES_PER_CELL,
+        check_grid(*_margin_grid(xyz[:, :2], MARGIN_CELL_M, margin_anchor)[1], MARGIN_CELL_M, MARGIN_BYTES_PER_CELL,
                    "strip footprints", hint="are the strips far apart (different zones or CRSs)?")
     sid = np.zeros(len(xyz), np.int64) if point_source_id is None else np.asarray(point_source_id)[keep]
     is_bldg = cls == BUILDING
@@ -188,14 +200,17 @@ def _roof_clusters(x, y, z, classification, point_source_id) -> _RoofClusters:
             "(lidarctl classify) - roof corners need building points"
         )
     bldg_idx = np.flatnonzero(is_bldg)
-    spacing = point_spacing_m(xyz[bldg_idx, :2])
-    spacing = point_spacing_m(xyz[bldg_idx, :2], cell_m=max(2.0, 2.0 * spacing))
+    if spacing_m is None:
+        spacing = point_spacing_m(xyz[bldg_idx, :2])
+        spacing = point_spacing_m(xyz[bldg_idx, :2], cell_m=max(2.0, 2.0 * spacing))
+    else:
+        spacing = spacing_m
     roof_of_bldg = cluster_roofs(xyz[bldg_idx], link_radius_m=2.0 * spacing, max_step_m=1.0,
                                  min_points=max(30, int(25.0 / spacing**2)))
     roof_label = np.full(len(xyz), -1, np.int64)
     roof_label[bldg_idx] = roof_of_bldg
     n_roofs = int(roof_of_bldg.max()) + 1 if (roof_of_bldg >= 0).any() else 0
-    return _RoofClusters(xyz, cls, sid, n_bldg, spacing, roof_label, n_roofs)
+    return _RoofClusters(xyz, cls, sid, n_bldg, spacing, roof_label, n_roofs, margin_anchor)
 
 
 def _corner_height(pts, plane_of, planes, roof_tree, xy, cov_xy) -> tuple[float, float, float]:
@@ -332,7 +347,7 @@ def _score_corners(raw: list[dict], rc: _RoofClusters, *, min_edge_m: float, roo
         near = np.asarray(near, np.int64)
         near = near[not_ground[near] & (rc.roof_label[near] != raw[k]["building_id"])]
         taller[k] = np.sum(rc.xyz[near, 2] > cz[k] + 1.0) >= 3
-    margin = strip_margin_m(rc.xyz[:, :2], rc.sid, cxy)
+    margin = strip_margin_m(rc.xyz[:, :2], rc.sid, cxy, anchor=rc.margin_anchor)
 
     for k, c in enumerate(raw):
         sx, sy = np.sqrt(np.diag(c["cov"]) + sigma_strip_xy_m**2)
@@ -413,18 +428,27 @@ def find_roof_corners(
         faces += roof_faces
         if outline is not None:
             outlines.append(outline)
+    if raw:
+        _score_corners(raw, rc, min_edge_m=min_edge_m, roof=roof, sigma_strip_xy_m=sigma_strip_xy_m,
+                       sigma_strip_z_m=sigma_strip_z_m)
+    return _finish(raw, outlines, faces, n_points=len(rc.xyz), n_building_points=rc.n_building_points,
+                   spacing_m=rc.spacing_m, n_roofs=rc.n_roofs, t_start=t_start, min_edge_m=min_edge_m, roof=roof,
+                   sigma_strip_xy_m=sigma_strip_xy_m, sigma_strip_z_m=sigma_strip_z_m)
+
+
+def _finish(raw, outlines, faces, *, n_points, n_building_points, spacing_m, n_roofs, t_start, min_edge_m, roof,
+            sigma_strip_xy_m, sigma_strip_z_m) -> dict:
+    """The reported corners and the stats of the scored corners of all roofs (in roof order)."""
     if not raw:
         raise InputError(
-            f"no roof outline could be traced from {rc.n_building_points} building points ({rc.n_roofs} roofs of "
-            f"at least 25 m^2; point spacing {rc.spacing_m:.2f} m)"
+            f"no roof outline could be traced from {n_building_points} building points ({n_roofs} roofs of "
+            f"at least 25 m^2; point spacing {spacing_m:.2f} m)"
         )
-    _score_corners(raw, rc, min_edge_m=min_edge_m, roof=roof, sigma_strip_xy_m=sigma_strip_xy_m,
-                   sigma_strip_z_m=sigma_strip_z_m)
-    corners = _reported_corners(raw, min_edge_m, rc.spacing_m)
+    corners = _reported_corners(raw, min_edge_m, spacing_m)
     n_usable = sum(c["usable"] for c in corners)
     stats = {
-        "n_points": int(len(rc.xyz)), "n_building_points": rc.n_building_points, "point_spacing_m": rc.spacing_m,
-        "n_roofs": rc.n_roofs, "n_outlines": len(outlines), "n_corners_traced": len(raw),
+        "n_points": int(n_points), "n_building_points": n_building_points, "point_spacing_m": spacing_m,
+        "n_roofs": n_roofs, "n_outlines": len(outlines), "n_corners_traced": len(raw),
         "n_corners": len(corners), "n_usable": int(n_usable), "n_roof_planes": len(faces),
         "min_edge_m": min_edge_m, "roof": roof,
         "sigma_strip_xy_m": sigma_strip_xy_m, "sigma_strip_z_m": sigma_strip_z_m,
@@ -436,6 +460,271 @@ def find_roof_corners(
         "runtime_s": time.perf_counter() - t_start,
     }
     return {"corners": corners, "outlines": outlines, "faces": faces, "stats": stats}
+
+
+# ------------------------------------------------------------------------------------------------ by tiles
+# Tiles of the corner stage: a roof is found in the tile whose core holds its reference point (its first
+# point in file order), from the tile's points with a buffer larger than the largest roof.
+DEFAULT_TILE_M = 500.0
+DEFAULT_BUFFER_M = 150.0
+_CORNER_BIN = np.dtype([("x", "f8"), ("y", "f8"), ("z", "f8"), ("cls", "u1"), ("core", "u1"), ("file", "u2"),
+                        ("sid", "u2"), ("index", "i8")])
+
+
+@dataclasses.dataclass
+class _TiledCloud:
+    """The non-noise points of the files binned into tile files (``_CORNER_BIN``) and what the whole
+    cloud's processing needs from all of them."""
+
+    work: Path
+    grid: object            # lidarctl.tiles.TileGrid (metres)
+    used: np.ndarray        # tiles holding points
+    crs: object
+    units: object
+    n_points: int           # non-noise points
+    n_building: int
+    building_min: np.ndarray
+    margin_anchor: np.ndarray
+    file_is_strip: bool     # several files, each with one point_source_id: the file is the strip
+
+
+def _bin_corner_points(paths, crs, work: Path, tile_m: float, buffer_m: float, chunk_points: int) -> _TiledCloud:
+    """One streaming pass over the files: their non-noise points into per-tile files (core + buffer,
+    file order), with the global index each has in ``read_strips``' concatenation without noise."""
+    from aerotri.geom import las
+    from lidarctl.tiles import TileGrid
+
+    headers = [las.read_header(p) for p in paths]
+    first = None
+    lo, hi = np.full(2, np.inf), np.full(2, -np.inf)
+    for p, h in zip(paths, headers):
+        c, u = las_io.resolve_crs_units(p, h, crs)
+        if first is None:
+            first = (p, c, u)
+        elif not same_crs(c, first[1]) or u != first[2]:
+            raise InputError(
+                f"{p}: CRS {crs_label(c)} ({u.describe()}) differs from the CRS of {first[0]}, "
+                f"{crs_label(first[1])} ({first[2].describe()}); give strips in one CRS (aerotri crs transform)")
+        if h.point_count == 0:
+            raise InputError(f"{p}: the file holds no points")
+        lo = np.minimum(lo, u.xy_to_m(np.asarray(h.mins[:2], float)))
+        hi = np.maximum(hi, u.xy_to_m(np.asarray(h.maxs[:2], float)))
+    units = first[2]
+    if not (np.isfinite(lo).all() and np.isfinite(hi).all()) or (np.abs(np.r_[lo, hi]) > las_io.MAX_ABS_XY_M).any():
+        raise InputError(f"{', '.join(map(str, paths))}: absurd bounds in the LAS headers ({lo.tolist()} .. {hi.tolist()})")
+    nc, nr = np.maximum(np.ceil((hi - lo) / tile_m), 1).astype(int)
+    grid = TileGrid(float(lo[0]), float(lo[1]), float(tile_m), float(buffer_m), int(nr), int(nc))
+    used = np.zeros(grid.n_tiles, bool)
+    index = n_bldg = 0
+    bmin, amin = np.full(2, np.inf), np.full(2, np.inf)
+    one_sid = []
+    for k, p in enumerate(paths):
+        sids = set()
+        for first_rec, chunk in las.iter_file_chunks(p, chunk_points):
+            x, y, z = np.asarray(chunk.x), np.asarray(chunk.y), np.asarray(chunk.z)
+            las_io.validate_xyz(p, x, y, z, first_rec, units)
+            cls = np.asarray(chunk.classification)
+            sid = np.asarray(chunk.point_source_id)
+            sids.update(np.unique(sid).tolist())
+            keep = ~np.isin(cls, NOISE)
+            rec = np.empty(int(keep.sum()), _CORNER_BIN)
+            rec["x"], rec["y"], rec["z"] = units.xy_to_m(x[keep]), units.xy_to_m(y[keep]), units.z_to_m(z[keep])
+            rec["cls"], rec["file"], rec["sid"] = cls[keep], k, sid[keep]
+            rec["index"] = index + np.arange(len(rec))
+            index += len(rec)
+            if not len(rec):
+                continue
+            amin = np.minimum(amin, [rec["x"].min(), rec["y"].min()])
+            b = rec["cls"] == BUILDING
+            if b.any():
+                n_bldg += int(b.sum())
+                bmin = np.minimum(bmin, [rec["x"][b].min(), rec["y"][b].min()])
+            row, col = grid.core_rc(rec["x"], rec["y"])
+            core_id = row * grid.ncols + col
+            ids, pos = grid.assign(rec["x"], rec["y"])
+            cuts = np.flatnonzero(np.diff(ids)) + 1
+            for sel_ids, sel_pos in zip(np.split(ids, cuts), np.split(pos, cuts)):
+                tid = int(sel_ids[0])
+                part = rec[sel_pos]
+                part["core"] = core_id[sel_pos] == tid
+                used[tid] = True
+                with open(work / f"tile_{tid}.bin", "ab") as fh:
+                    part.tofile(fh)
+        one_sid.append(len(sids) == 1)
+    return _TiledCloud(work, grid, used, first[1], units, index, n_bldg, bmin, amin - MARGIN_CELL_M,
+                       len(paths) > 1 and all(one_sid))
+
+
+def _tile_points(tc: _TiledCloud, tid: int) -> np.ndarray:
+    return np.fromfile(tc.work / f"tile_{tid}.bin", _CORNER_BIN)
+
+
+def _global_spacing_m(tc: _TiledCloud) -> float:
+    """``point_spacing_m`` of all building points (as ``_roof_clusters`` computes it), from the tiles'
+    core building points: occupied cells anchored at the building points' lowest x, y."""
+    def spacing(cell_m):
+        cells = []  # occupied cells of each tile's core (a cell may straddle two cores)
+        for tid in np.flatnonzero(tc.used):
+            rec = _tile_points(tc, tid)
+            rec = rec[(rec["cls"] == BUILDING) & (rec["core"] == 1)]
+            ij = np.floor((np.column_stack([rec["x"], rec["y"]]) - tc.building_min) / cell_m).astype(np.int64)
+            cells.append(np.unique(ij[:, 0] * (1 << 31) + ij[:, 1]))
+        n_cells = len(np.unique(np.concatenate(cells)))
+        return float(np.sqrt(n_cells * cell_m * cell_m / tc.n_building))
+
+    if tc.n_building < 2:
+        return float("nan")
+    s = spacing(2.0)
+    return spacing(max(2.0, 2.0 * s))
+
+
+def _tile_clusters(tc: _TiledCloud, tid: int, spacing_m: float):
+    """(points, _RoofClusters) of one tile with its buffer, or None without building points."""
+    rec = _tile_points(tc, tid)
+    if not (rec["cls"] == BUILDING).any():
+        return rec, None
+    sid = (rec["file"].astype(np.int64) + 1) if tc.file_is_strip else rec["sid"].astype(np.int64)
+    rc = _roof_clusters(rec["x"], rec["y"], rec["z"], rec["cls"], sid, spacing_m=spacing_m,
+                        margin_anchor=tc.margin_anchor)
+    return rec, rc
+
+
+def _roof_keys(rec: np.ndarray, rc: _RoofClusters):
+    """Per roof of a tile: size, index of its first point (the reference point) and whether that point
+    lies in the tile's core."""
+    lab = rc.roof_label
+    size = np.bincount(lab[lab >= 0], minlength=rc.n_roofs)
+    first = np.full(rc.n_roofs, np.iinfo(np.int64).max)
+    np.minimum.at(first, lab[lab >= 0], rec["index"][lab >= 0])
+    pos = np.searchsorted(rec["index"], first.clip(max=rec["index"][-1]))
+    return size, first, rec["core"][pos] == 1
+
+
+def find_roof_corners_tiled(paths, crs=None, *, tile_m: float = DEFAULT_TILE_M, buffer_m: float = DEFAULT_BUFFER_M,
+                            min_edge_m: float = 5.0, roof: str = "flat", sigma_strip_xy_m: float = 0.03,
+                            sigma_strip_z_m: float = 0.03, work_dir=None, chunk_points: int = las_io.CHUNK_POINTS,
+                            figure_cells: int = 0):
+    """``find_roof_corners`` of classified LAS/LAZ files (strips in one CRS) by tiles of ``tile_m`` with a
+    ``buffer_m`` border (metres), read straight from the files: memory is set by the tile size.
+
+    The files are streamed once into per-tile files; the spacing of the building points comes from all
+    tiles' core points; each tile's building points are clustered into roofs and a roof is kept by the
+    tile whose core holds its reference point (its first point in file order), so every roof is found
+    once. Roof ids are ranked as in the whole cloud (size, then the reference point), so the result
+    equals the whole cloud's when every roof is smaller than the buffer, except the strip margin: a
+    tile sees a strip's footprint only within its buffer (clipped there, and a gap in the strip that
+    reaches past the buffer is not filled as a hole), so its margin is a lower bound of the whole
+    cloud's, equal for the corners the score looks at (10 m from a strip edge) unless such a gap
+    (e.g. a lake without returns, larger than the buffer) lies within 10 m of the corner. Returns (result as ``find_roof_corners``, crs, units, figure):
+    with ``figure_cells`` > 0 the figure's nDSM (``simple_ndsm`` per tile on a grid of at most that many
+    cells a side, and its extent in metres), else None.
+    """
+    import shutil
+
+    from aerotri.core.atomic import temporary_dir
+
+    if roof not in ("flat", "any"):
+        raise InputError(f"roof must be 'flat' or 'any', not {roof!r}")
+    if not (0 < buffer_m <= tile_m):
+        raise InputError(f"buffer {buffer_m:g} m: must be positive and at most the tile size {tile_m:g} m")
+    t_start = time.perf_counter()
+    paths = [Path(p) for p in paths]
+    names = ", ".join(str(p) for p in paths)
+    work = temporary_dir(Path(work_dir) if work_dir is not None else paths[0].parent, "corners")
+    try:
+        tc = _bin_corner_points(paths, crs, work, tile_m, buffer_m, chunk_points)
+        if tc.n_building == 0:
+            raise InputError(
+                f"{names}: no building points (ASPRS class {BUILDING}) among {tc.n_points} points: classify the "
+                "cloud first (lidarctl classify) - roof corners need building points")
+        spacing = _global_spacing_m(tc)
+        # Each tile's roofs; a tile keeps the roofs whose reference point lies in its core, numbered by their
+        # key (size, reference point) until all are known, then ranked as cluster_roofs ranks them.
+        keys, raw, outlines, faces = [], [], [], []
+        fig = None
+        tiles = [int(t) for t in np.flatnonzero(tc.used)]
+        for tid in track(tiles, "roof corners", "tiles"):
+            rec, rc = _tile_clusters(tc, tid, spacing)
+            if figure_cells:
+                fig = _figure_tile(fig, rec, tc, tid, spacing, figure_cells)
+            if rc is None or rc.n_roofs == 0:
+                continue
+            size, first, in_core = _roof_keys(rec, rc)
+            owned = np.flatnonzero(in_core)
+            # scoring tells a corner's own roof from the other points: the tile's other roofs are -1
+            to_key = np.full(rc.n_roofs + 1, -1, np.int64)
+            to_key[owned] = len(keys) + np.arange(len(owned))
+            keys += [(-int(size[r]), int(first[r])) for r in owned]
+            tile_raw = []
+            for r in owned:
+                roof_raw, outline, roof_faces = _one_roof(rc.xyz[rc.roof_label == r], int(to_key[r]), rc.spacing_m)
+                tile_raw += roof_raw
+                faces += roof_faces
+                if outline is not None:
+                    outlines.append(outline)
+            if tile_raw:
+                rc.roof_label = to_key[rc.roof_label]
+                _score_corners(tile_raw, rc, min_edge_m=min_edge_m, roof=roof, sigma_strip_xy_m=sigma_strip_xy_m,
+                               sigma_strip_z_m=sigma_strip_z_m)
+                raw += tile_raw
+    finally:
+        shutil.rmtree(work, ignore_errors=True)
+    # roof ids as the whole cloud's (by size, then reference point); roof order as its loop over roofs
+    # (stable sorts: the order within a roof stays)
+    rank = np.empty(len(keys), np.int64)
+    rank[sorted(range(len(keys)), key=keys.__getitem__)] = np.arange(len(keys))
+    for item in (*raw, *outlines, *faces):
+        item["building_id"] = int(rank[item["building_id"]])
+    for f in faces:
+        f["plane"].roof_id = f["building_id"]
+    raw.sort(key=lambda c: c["building_id"])
+    outlines.sort(key=lambda o: o["building_id"])
+    faces.sort(key=lambda f: f["building_id"])
+    try:
+        result = _finish(raw, outlines, faces, n_points=tc.n_points, n_building_points=tc.n_building,
+                         spacing_m=spacing, n_roofs=len(keys), t_start=t_start, min_edge_m=min_edge_m, roof=roof,
+                         sigma_strip_xy_m=sigma_strip_xy_m, sigma_strip_z_m=sigma_strip_z_m)
+    except InputError as exc:
+        raise InputError(f"{names}: {exc}") from None
+    result["stats"].update(tiles=len(tiles), tile_m=tile_m, buffer_m=buffer_m)
+    figure = None
+    if fig is not None:
+        figure = (fig["ndsm"], fig["extent"])
+    return result, tc.crs, tc.units, figure
+
+
+def _figure_tile(fig, rec, tc: _TiledCloud, tid: int, spacing_m: float, max_cells: int):
+    """Add a tile's core cells to the figure's nDSM (``simple_ndsm``: highest point minus the nearest
+    ground point, here among the tile's points with its buffer), on a grid over the tiles' extent with
+    cells of max(0.5 m, the spacing, extent / ``max_cells``)."""
+    g = tc.grid
+    if fig is None:
+        w, h = g.ncols * g.tile_m, g.nrows * g.tile_m
+        cell = max(0.5, spacing_m if np.isfinite(spacing_m) else 0.5, max(w, h) / max_cells)
+        shape = (int(np.ceil(h / cell)), int(np.ceil(w / cell)))
+        check_grid(*shape, cell, NDSM_BYTES_PER_CELL, "the corners figure (nDSM)", "--figure", "use --no-figure")
+        fig = {"cell": cell, "ndsm": np.full(shape, np.nan),
+               "extent": (g.x0_m, g.x0_m + shape[1] * cell, g.y0_m, g.y0_m + shape[0] * cell)}
+    core = rec[rec["core"] == 1]
+    if not len(core):
+        return fig
+    cell, ndsm = fig["cell"], fig["ndsm"]
+    j = np.clip(np.floor((core["x"] - g.x0_m) / cell).astype(np.int64), 0, ndsm.shape[1] - 1)
+    i = np.clip(np.floor((core["y"] - g.y0_m) / cell).astype(np.int64), 0, ndsm.shape[0] - 1)
+    flat = i * ndsm.shape[1] + j
+    cells, inv = np.unique(flat, return_inverse=True)
+    top = np.full(len(cells), -np.inf)
+    np.maximum.at(top, inv, core["z"])
+    ci, cj = np.divmod(cells, ndsm.shape[1])
+    centres = np.column_stack([g.x0_m + (cj + 0.5) * cell, g.y0_m + (ci + 0.5) * cell])
+    ground = rec["cls"] == GROUND
+    if ground.any():
+        _, nn = cKDTree(np.column_stack([rec["x"][ground], rec["y"][ground]])).query(centres)
+        base = rec["z"][ground][nn]
+    else:
+        base = np.full(len(cells), rec["z"].min())
+    ndsm.flat[cells] = top - base
+    return fig
 
 
 # ------------------------------------------------------------------------------------------------ output
@@ -653,6 +942,10 @@ class CornerSettings:
     sigma_strip_z_m: float = setting(0.03, min=0.0, help="Vertical georeferencing error of a strip, added to every "
                                                          "corner's sz_m (m).")
     figure: bool = setting(True, help="Also write corners.png (outlines and corners over the nDSM).")
+    tile_m: float = setting(DEFAULT_TILE_M, min=1.0, help="Tile size (m): the files are processed by tiles "
+                                                          "(memory set by the tile, not the block).")
+    buffer_m: float = setting(DEFAULT_BUFFER_M, min=1.0, help="Overlap buffer around each tile (m): larger than the "
+                                                              "largest roof, at most the tile size.")
 
 
 def corner_control(paths, outdir, settings: CornerSettings = CornerSettings(), crs=None,
@@ -675,17 +968,15 @@ def corner_control(paths, outdir, settings: CornerSettings = CornerSettings(), c
     s = settings
     for name in ("corners.csv", "corners.geojson", "corners.json", "corners.png", ROOF_PLANES_FILE):
         refuse_input_as_output(outdir / name, paths, "OUTDIR")
-    cat = read_strips(paths, crs=crs)
-    units = cat["units"]
     names = ", ".join(str(p) for p in paths)
-    try:
-        result = find_roof_corners(cat["x"], cat["y"], cat["z"], cat["classification"], cat["point_source_id"],
-                                   min_edge_m=s.min_edge_m, roof=s.roof, sigma_strip_xy_m=s.sigma_strip_xy_m,
-                                   sigma_strip_z_m=s.sigma_strip_z_m)
-    except InputError as exc:
-        raise type(exc)(f"{names}: {exc}", param=exc.param) from None
+    if s.buffer_m > s.tile_m:
+        raise OptionError(f"buffer {s.buffer_m:g} m is larger than the tile size {s.tile_m:g} m", param="--buffer-m")
+    result, crs_out, units, figure = find_roof_corners_tiled(
+        paths, crs=crs, tile_m=s.tile_m, buffer_m=s.buffer_m, min_edge_m=s.min_edge_m, roof=s.roof,
+        sigma_strip_xy_m=s.sigma_strip_xy_m, sigma_strip_z_m=s.sigma_strip_z_m,
+        work_dir=next(p for p in (outdir, *outdir.parents) if p.is_dir()),
+        figure_cells=FIGURE_CELLS if s.figure else 0)
     st = result["stats"]
-    crs_out = cat["crs"]
     head = {"source": names, "crs": crs_out.to_string() if crs_out is not None else None, **units.as_dict()}
     if st["n_usable"] == 0:
         reason = (f"{names}: no usable roof corner ({st['n_corners']} corners on {st['n_outlines']} roof outlines, "
@@ -700,12 +991,7 @@ def corner_control(paths, outdir, settings: CornerSettings = CornerSettings(), c
         write_text_atomic(outdir / "corners.json", json.dumps(summary, indent=2) + "\n")
         return summary
     if s.figure:
-        # Before any file is written: the figure's grid is checked against the machine's memory.
-        xyz = np.column_stack([cat["x"], cat["y"], cat["z"]])
-        try:
-            ndsm, extent_m = simple_ndsm(xyz, cat["classification"], cell_m=max(0.5, st["point_spacing_m"]))
-        except InputError as exc:
-            raise type(exc)(f"{names}: {exc}", param=exc.param) from None
+        ndsm, extent_m = figure
     out = to_crs_units(result, units)
     files = write_corner_files(outdir, out, crs=crs_out, source=names, inputs=paths)
     if s.figure:

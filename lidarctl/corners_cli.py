@@ -21,7 +21,9 @@ from lidarctl.corners import CornerSettings, corner_control
 @click_option(CornerSettings, "sigma_strip_z_m", "--sigma-strip-z-m")
 @click.option("--crs", default=None, help="CRS (EPSG:code) of files that have none; never guessed.")
 @click_option(CornerSettings, "figure", "--figure/--no-figure")
-def corners(classified, outdir, min_edge_m, roof, sigma_strip_xy_m, sigma_strip_z_m, crs, figure):
+@click_option(CornerSettings, "tile_m", "--tile-m")
+@click_option(CornerSettings, "buffer_m", "--buffer-m")
+def corners(classified, outdir, min_edge_m, roof, sigma_strip_xy_m, sigma_strip_z_m, crs, figure, tile_m, buffer_m):
     """Roof corners of CLASSIFIED LAS/LAZ file(s) (one or more strips in one CRS, building class 6)
     into OUTDIR.
 
@@ -31,10 +33,11 @@ def corners(classified, outdir, min_edge_m, roof, sigma_strip_xy_m, sigma_strip_
     roof face, shrunk 1 m or 2 point spacings inside its edges, with its plane z = a (x - x0) +
     b (y - y0) + c and the plane's covariance: surface control for aerotri adjust --planes) and
     corners.json (summary, with the units). Every length option is in metres, also for clouds in feet. When no corner is usable as
-    control it stops with exit code 2 and writes nothing.
+    control it stops with exit code 2 and writes nothing. The files are read by tiles (--tile-m with a
+    --buffer-m border larger than the largest roof), never merged: memory is set by the tile size.
     """
     settings = CornerSettings(min_edge_m=min_edge_m, roof=roof, sigma_strip_xy_m=sigma_strip_xy_m,
-                              sigma_strip_z_m=sigma_strip_z_m, figure=figure)
+                              sigma_strip_z_m=sigma_strip_z_m, figure=figure, tile_m=tile_m, buffer_m=buffer_m)
     st = corner_control(classified, outdir, settings, crs=crs)
     if st["no_usable"]:
         hint = "try --roof any or a smaller --min-edge-m" if roof == "flat" else "try a smaller --min-edge-m"

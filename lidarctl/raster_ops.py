@@ -9,7 +9,6 @@ from __future__ import annotations
 
 import numba
 import numpy as np
-from scipy import ndimage
 
 from lidarctl.grid import GRID_BYTES_PER_CELL, check_grid
 
@@ -22,6 +21,14 @@ def _cell_extreme(flat, v, ncells, sign):
         if np.isnan(out[c]) or sign * v[k] < sign * out[c]:
             out[c] = v[k]
     return out
+
+
+def cell_extreme(flat: np.ndarray, values, ncells: int, how: str = "min") -> np.ndarray:
+    """Per-cell min or max of ``values`` over flat cell indices ``flat`` (all in 0..ncells-1); NaN
+    where no value falls."""
+    if how not in ("min", "max"):
+        raise ValueError(how)
+    return _cell_extreme(np.asarray(flat, np.int64), np.asarray(values, float), ncells, 1.0 if how == "min" else -1.0)
 
 
 def reduce_grid(x, y, values, cell_m, x0, y0, nrows, ncols, how: str = "min") -> np.ndarray:
@@ -75,13 +82,13 @@ def fill_nodata(a: np.ndarray) -> np.ndarray:
 
 
 @numba.njit(cache=True, parallel=True)
-def _bilinear(a, x, y, cell_m, x0, y0):
+def _bilinear(a, x, y, cell_m, x0, y0, row0, col0):
     nrows, ncols = a.shape
     out = np.empty(len(x))
     for k in numba.prange(len(x)):
         # fractional cell index of the point, clamped to the cell centres (edge cells extended)
-        r = min(max((y[k] - y0) / cell_m - 0.5, 0.0), nrows - 1.0)
-        c = min(max((x[k] - x0) / cell_m - 0.5, 0.0), ncols - 1.0)
+        r = min(max((y[k] - y0) / cell_m - 0.5 - row0, 0.0), nrows - 1.0)
+        c = min(max((x[k] - x0) / cell_m - 0.5 - col0, 0.0), ncols - 1.0)
         i, j = min(int(r), nrows - 2) if nrows > 1 else 0, min(int(c), ncols - 2) if ncols > 1 else 0
         fr, fc = r - i, c - j
         i1, j1 = min(i + 1, nrows - 1), min(j + 1, ncols - 1)
@@ -90,12 +97,13 @@ def _bilinear(a, x, y, cell_m, x0, y0):
     return out
 
 
-def sample_bilinear(a: np.ndarray, x, y, cell_m, x0, y0) -> np.ndarray:
+def sample_bilinear(a: np.ndarray, x, y, cell_m, x0, y0, row0: int = 0, col0: int = 0) -> np.ndarray:
     """Bilinear interpolation of a filled raster at points (edge cells extended): the values of
     ``scipy.ndimage.map_coordinates(order=1, mode="nearest")``, in a parallel numba loop (about 10x
-    faster on 2 cores; the classifier samples its DEMs at every point several times)."""
+    faster on 2 cores; the classifier samples its DEMs at every point several times). ``row0``,
+    ``col0``: the raster is the window of a larger grid with origin (x0, y0) starting at that cell (tiles)."""
     return _bilinear(np.ascontiguousarray(a, float), np.asarray(x, float), np.asarray(y, float),
-                     float(cell_m), float(x0), float(y0))
+                     float(cell_m), float(x0), float(y0), float(row0), float(col0))
 
 
 def slope_tan(a: np.ndarray, cell_m: float) -> np.ndarray:

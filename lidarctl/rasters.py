@@ -35,7 +35,7 @@ from aerotri.core.errors import InputError, OptionError
 from aerotri.core.settings import setting
 from lidarctl.grid import check_grid
 from lidarctl.io import PointCloud
-from lidarctl.raster_ops import fill_nodata, reduce_grid, sample_bilinear
+from lidarctl.raster_ops import cell_extreme, fill_nodata, sample_bilinear
 from lidarctl.units import METRE, LengthUnits, long_name
 
 NODATA = -9999.0
@@ -47,6 +47,11 @@ DESCRIPTIONS = {"dem": "DEM: mean height of ground and water points", "dsm": "DS
 # Memory of the grids per cell at the peak of ``_CellSums`` and ``grids`` (sums, counts, maxima,
 # the filled DEM/DSM, the float32 outputs).
 RASTER_BYTES_PER_CELL = 160
+# Tiles of the rasters of LAS/LAZ files (cells): a 2048 + 2 x 256 cell window needs about 1 GB
+# (RASTER_BYTES_PER_CELL); both multiples of 256, so the gap filling's pyramid blocks up to 256
+# cells coincide with the whole grid's.
+DEFAULT_TILE_PX = 2048
+DEFAULT_BUFFER_PX = 256
 
 
 def check_res(res_m: float) -> None:
@@ -72,23 +77,31 @@ def grid_for_bounds(xmin: float, ymin: float, xmax: float, ymax: float, res_m: f
 
 class _CellSums:
     """Per-cell sums, counts and maxima, accumulated chunk by chunk (same result as all at once:
-    maxima are exact; means are sums over counts, equal up to the summation order)."""
+    maxima are exact; means are sums over counts, equal up to the summation order).
 
-    def __init__(self, args):
+    ``args``: (res_m, x0, y0, nrows, ncols) of the grid; ``offset``: (row, col) of its first cell in
+    a larger grid whose origin is (x0, y0) (a tile window, which may reach beyond that grid). Cell
+    indices are always computed from the large grid's origin, so a point falls into the same global
+    cell in a tile as in the whole grid."""
+
+    def __init__(self, args, offset: tuple[int, int] = (0, 0)):
         self.args = args
+        self.offset = offset
         ncells = args[3] * args[4]
         self.valid_n = np.zeros(ncells, np.int64)
         self.ground_sum = np.zeros(ncells)
         self.ground_n = np.zeros(ncells, np.int64)
-        self.dsm = np.full((args[3], args[4]), np.nan)
+        self.dsm = np.full(ncells, np.nan)
         self.inten_sum = np.zeros(ncells)
         self.inten_n = np.zeros(ncells, np.int64)
-        self.chm = np.full((args[3], args[4]), np.nan)
+        self.chm = np.full(ncells, np.nan)
 
     def _flat(self, x, y):
         res_m, x0, y0, nrows, ncols = self.args
-        j = np.floor((x - x0) / res_m).astype(np.int64)
-        i = np.floor((y - y0) / res_m).astype(np.int64)
+        j = np.floor((x - x0) / res_m).astype(np.int64) - self.offset[1]
+        i = np.floor((y - y0) / res_m).astype(np.int64) - self.offset[0]
+        if len(i) and (i.min() < 0 or i.max() >= nrows or j.min() < 0 or j.max() >= ncols):
+            raise RuntimeError("a point lies outside the raster grid")   # a tiling bug, not an input error
         return i * ncols + j
 
     def add(self, x, y, z, cls, return_number, intensity) -> None:
@@ -101,7 +114,7 @@ class _CellSums:
         self.ground_sum += np.bincount(flat[g], z[g], minlength=ncells)
         self.ground_n += np.bincount(flat[g], minlength=ncells)
         first = valid & (return_number == 1)
-        self.dsm = np.fmax(self.dsm, reduce_grid(x[first], y[first], z[first], *self.args, "max"))
+        self.dsm = np.fmax(self.dsm, cell_extreme(flat[first], z[first], ncells, "max"))
         self.inten_sum += np.bincount(flat[first], np.asarray(intensity, float)[first], minlength=ncells)
         self.inten_n += np.bincount(flat[first], minlength=ncells)
 
@@ -109,34 +122,43 @@ class _CellSums:
         """Pass 2 (after the DEM): highest vegetation height above the DEM per cell."""
         veg = np.isin(cls, (4, 5))
         if veg.any():
-            hag = z[veg] - sample_bilinear(dem, x[veg], y[veg], *self.args[:3])
-            self.chm = np.fmax(self.chm, reduce_grid(x[veg], y[veg], hag, *self.args, "max"))
+            res_m, x0, y0 = self.args[:3]
+            row0, col0 = self.offset
+            # sample_bilinear on the global grid, shifted to this window
+            hag = z[veg] - sample_bilinear(dem, x[veg], y[veg], res_m, x0, y0, row0, col0)
+            self.chm = np.fmax(self.chm, cell_extreme(self._flat(x[veg], y[veg]), hag, len(self.chm), "max"))
 
-    def dem(self) -> np.ndarray:
-        if not self.ground_n.any():
+    def dem(self, require_ground: bool = True) -> np.ndarray:
+        if require_ground and not self.ground_n.any():
             raise ValueError("the cloud has no ground points (class 2): classify it first")
         shape = self.args[3], self.args[4]
         with np.errstate(invalid="ignore"):
             return fill_nodata((self.ground_sum / self.ground_n).reshape(shape))
 
-    def grids(self, dem: np.ndarray, footprint_cells: int) -> dict:
+    def grids_south_up(self, dem: np.ndarray, footprint_cells: int) -> dict:
+        """float32 grids, rows south to north (row 0 = the grid's first row)."""
         res_m, x0, y0, nrows, ncols = self.args
         occupied = (self.valid_n > 0).reshape(nrows, ncols)
         footprint = ndimage.binary_dilation(occupied, np.ones((3, 3), bool), iterations=footprint_cells)
         # Gaps enclosed by data (ponds without returns, shadows behind tall buildings) are
         # interpolated, as production DEMs are: only the outside of the survey stays nodata.
         footprint = ndimage.binary_fill_holes(footprint)
-        dsm = np.maximum(fill_nodata(self.dsm), dem)
+        dsm = np.maximum(fill_nodata(self.dsm.reshape(nrows, ncols)), dem)
+        chm = self.chm.reshape(nrows, ncols)
         with np.errstate(invalid="ignore"):
             inten = (self.inten_sum / self.inten_n).reshape(nrows, ncols)
         out = {
             "dem": np.where(footprint, dem, np.nan),
             "dsm": np.where(footprint, dsm, np.nan),
-            "chm": np.where(self.chm > 0, self.chm, np.nan),
+            "chm": np.where(chm > 0, chm, np.nan),
             "intensity": inten,
         }
         out["ndsm"] = out["dsm"] - out["dem"]
-        out = {k: v[::-1].astype(np.float32) for k, v in out.items()}   # north-up rows
+        return {k: v.astype(np.float32) for k, v in out.items()}
+
+    def grids(self, dem: np.ndarray, footprint_cells: int) -> dict:
+        res_m, x0, y0, nrows, ncols = self.args
+        out = {k: v[::-1] for k, v in self.grids_south_up(dem, footprint_cells).items()}   # north-up rows
         out["transform"] = from_origin(x0, y0 + nrows * res_m, res_m, res_m)
         return out
 
@@ -155,44 +177,56 @@ def make_grids(cloud: PointCloud, res_m: float, footprint_cells: int = 3) -> dic
     return sums.grids(dem, footprint_cells)
 
 
-def make_grids_streamed(path, res_m: float, footprint_cells: int = 3, chunk_points: int = io.CHUNK_POINTS,
-                        units: LengthUnits = METRE):
-    """``make_grids`` of a LAS/LAZ file in two streaming passes over its chunks: memory holds one
-    chunk and the grids, never the whole cloud. The grid comes from the header bounds (which the
-    LAS specification requires to enclose the points; a point outside them is an InputError).
-    ``units``: the file's linear units (the grids are in metres). Returns (grids, number of points)."""
-    check_res(res_m)
-    header = las.read_header(path)
+def _header_bounds(path, header):
+    """(mins, maxs) of a LAS header in the file's units, checked: points, finite, ordered."""
     mins, maxs = np.asarray(header.mins, float), np.asarray(header.maxs, float)
     if header.point_count == 0:
         raise InputError(f"{path}: the file holds no points")
     if not (np.isfinite(mins).all() and np.isfinite(maxs).all()) or (maxs[:2] < mins[:2]).any():
         raise InputError(f"{path}: absurd bounds in the LAS header (min {mins.tolist()}, max {maxs.tolist()})")
+    return mins, maxs
+
+
+def _file_points(path, units: LengthUnits, chunk_points: int, validate: bool = True):
+    """Chunks of a LAS/LAZ file as (x, y, z in metres, class, return number, intensity); with
+    ``validate`` every chunk is checked (``io.validate_xyz``, and points outside the header bounds,
+    which the grids are made from, are an InputError naming the record)."""
+    mins, maxs = _header_bounds(path, las.read_header(path))
+    for first, chunk in las.iter_file_chunks(path, chunk_points):
+        x, y, z = np.asarray(chunk.x), np.asarray(chunk.y), np.asarray(chunk.z)
+        if validate:
+            io.validate_xyz(path, x, y, z, first, units)
+            out = (x < mins[0]) | (x > maxs[0]) | (y < mins[1]) | (y > maxs[1])
+            if out.any():
+                k = int(np.flatnonzero(out)[0])
+                raise InputError(f"{path}: point record {first + k} ({x[k]!r}, {y[k]!r}) lies outside the "
+                                 f"header bounds {mins[:2].tolist()} .. {maxs[:2].tolist()}")
+        rn, _ = io.sanitize_returns(np.asarray(chunk.return_number), np.asarray(chunk.number_of_returns))
+        yield (units.xy_to_m(x), units.xy_to_m(y), units.z_to_m(z), np.asarray(chunk.classification), rn,
+               np.asarray(chunk.intensity))
+
+
+def make_grids_streamed(path, res_m: float, footprint_cells: int = 3, chunk_points: int = io.CHUNK_POINTS,
+                        units: LengthUnits = METRE):
+    """``make_grids`` of a LAS/LAZ file in two streaming passes over its chunks: memory holds one
+    chunk and the whole grids (the reference for the tiled rasters of ``write_rasters``). The grid
+    comes from the header bounds (which the LAS specification requires to enclose the points; a
+    point outside them is an InputError). ``units``: the file's linear units (the grids are in
+    metres). Returns (grids, number of points)."""
+    check_res(res_m)
+    header = las.read_header(path)
+    mins, maxs = _header_bounds(path, header)
     args = grid_for_bounds(units.xy_to_m(mins[0]), units.xy_to_m(mins[1]), units.xy_to_m(maxs[0]),
                            units.xy_to_m(maxs[1]), res_m)
     check_grid(args[3], args[4], res_m, RASTER_BYTES_PER_CELL, f"{path}: rasters over the header bounds", "--res",
                "use a coarser --res (or check the bounds: strips far apart, a wrong CRS?)")
     sums = _CellSums(args)
-
-    def chunks(validate):
-        for first, chunk in las.iter_file_chunks(path, chunk_points):
-            x, y, z = np.asarray(chunk.x), np.asarray(chunk.y), np.asarray(chunk.z)
-            if validate:
-                io.validate_xyz(path, x, y, z, first, units)
-                out = (x < mins[0]) | (x > maxs[0]) | (y < mins[1]) | (y > maxs[1])
-                if out.any():
-                    k = int(np.flatnonzero(out)[0])
-                    raise InputError(f"{path}: point record {first + k} ({x[k]!r}, {y[k]!r}) lies outside the "
-                                     f"header bounds {mins[:2].tolist()} .. {maxs[:2].tolist()}")
-            yield chunk, units.xy_to_m(x), units.xy_to_m(y), units.z_to_m(z), np.asarray(chunk.classification)
-
-    for chunk, x, y, z, cls in chunks(True):
-        rn, _ = io.sanitize_returns(np.asarray(chunk.return_number), np.asarray(chunk.number_of_returns))
-        sums.add(x, y, z, cls, rn, np.asarray(chunk.intensity))
+    for x, y, z, cls, rn, inten in _file_points(path, units, chunk_points):
+        sums.add(x, y, z, cls, rn, inten)
     if not sums.ground_n.any():
         raise InputError(f"{path}: no ground points (class 2); run 'lidarctl classify' first")
     dem = sums.dem()
-    for chunk, x, y, z, cls in chunks(False):
+    for x, y, z, cls, _, _ in _file_points(path, units, chunk_points, validate=False):
         sums.add_chm(x, y, z, cls, dem)
     return sums.grids(dem, footprint_cells), int(header.point_count)
 
@@ -205,9 +239,14 @@ def to_crs_units(grids: dict, units: LengthUnits) -> dict:
     out = dict(grids)
     for name in HEIGHT_GRIDS:
         out[name] = (grids[name].astype(float) / units.z_m).astype(np.float32)
-    t = grids["transform"]
-    out["transform"] = from_origin(t.c / units.xy_m, t.f / units.xy_m, t.a / units.xy_m, -t.e / units.xy_m)
+    if "transform" in grids:
+        out["transform"] = _transform_in_units(grids["transform"], units)
     return out
+
+
+def _transform_in_units(t, units: LengthUnits):
+    """A north-up GeoTIFF transform in metres in the CRS's horizontal units."""
+    return from_origin(t.c / units.xy_m, t.f / units.xy_m, t.a / units.xy_m, -t.e / units.xy_m)
 
 
 def write_cog(path, array: np.ndarray, transform, crs, unit: str | None = None, description: str | None = None,
@@ -232,9 +271,11 @@ def write_cog(path, array: np.ndarray, transform, crs, unit: str | None = None, 
             rio_copy(src, tmp, driver="COG", compress="DEFLATE", predictor=3, overview_resampling="average")
 
 
-def hillshade(dem: np.ndarray, res_m: float, azimuth_deg: float = 315.0, altitude_deg: float = 45.0) -> np.ndarray:
-    """Hillshade 0..1 of a north-up DEM (NaN cells stay NaN)."""
-    filled = np.where(np.isfinite(dem), dem, np.nanmean(dem))
+def hillshade(dem: np.ndarray, res_m: float, azimuth_deg: float = 315.0, altitude_deg: float = 45.0,
+              fill_value=None) -> np.ndarray:
+    """Hillshade 0..1 of a north-up DEM (NaN cells stay NaN). NaN cells count as ``fill_value`` in the
+    slopes of their neighbours (default: the DEM's mean; a window of a larger DEM passes that one's)."""
+    filled = np.where(np.isfinite(dem), dem, np.nanmean(dem) if fill_value is None else fill_value)
     dz_dy, dz_dx = np.gradient(filled, res_m)
     dz_dy = -dz_dy   # rows run north to south
     slope = np.arctan(np.hypot(dz_dx, dz_dy))
@@ -244,57 +285,339 @@ def hillshade(dem: np.ndarray, res_m: float, azimuth_deg: float = 315.0, altitud
     return np.where(np.isfinite(dem), np.clip(shade, 0.0, 1.0), np.nan)
 
 
-def write_rasters(cloud, outdir, res_m: float, crs=None) -> list[Path]:
+def hillshade_rgba(hs: np.ndarray) -> np.ndarray:
+    """(rows, cols, 4) uint8 grey RGBA of a hillshade 0..1, NaN black, as ``matplotlib.pyplot.imsave``
+    with the grey colour map writes it."""
+    from matplotlib import cm, colors
+
+    mappable = cm.ScalarMappable(norm=colors.Normalize(0.0, 1.0), cmap="gray")
+    return mappable.to_rgba(np.where(np.isfinite(hs), hs, 0.0), bytes=True)
+
+
+def _check_tiling(tile_px: int, buffer_px: int) -> None:
+    if tile_px < 1:
+        raise OptionError(f"--tile-px {tile_px}: must be a positive number of cells", param="--tile-px")
+    if not 0 <= buffer_px <= tile_px:
+        raise OptionError(f"--buffer-px {buffer_px}: must be between 0 and the tile size ({tile_px} cells)",
+                          param="--buffer-px")
+
+
+@dataclasses.dataclass(frozen=True)
+class _Inputs:
+    """Classified files in one CRS: paths, CRSs, units, union of their header bounds (m), points."""
+
+    paths: tuple
+    crs: object
+    surface_crs: object   # the first file's compound CRS when it has one (DEM, DSM), else ``crs``
+    units: LengthUnits
+    bounds_m: tuple
+    n_points: int
+
+    @property
+    def names(self) -> str:
+        return ", ".join(str(p) for p in self.paths)
+
+
+def _inputs(paths, crs_arg) -> _Inputs:
+    """Headers of the files checked (points, bounds, one CRS and units) and their union bounds."""
+    from aerotri.geom.crs import crs_label, same_crs
+
+    paths = tuple(Path(p) for p in paths)
+    if not paths:
+        raise InputError("no classified LAS/LAZ file given")
+    lo, hi, n, first = np.full(2, np.inf), np.full(2, -np.inf), 0, None
+    for p in paths:
+        header = las.read_header(p)
+        mins, maxs = _header_bounds(p, header)
+        crs, units = io.resolve_crs_units(p, header, crs_arg)
+        if first is None:
+            file_crs = las.header_crs(header)
+            surface = file_crs if file_crs is not None and file_crs.is_compound else crs
+            first = (p, crs, units, surface)
+        elif not same_crs(crs, first[1]) or units != first[2]:
+            raise InputError(f"{p}: CRS {crs_label(crs)} ({units.describe()}) differs from the CRS of {first[0]}, "
+                             f"{crs_label(first[1])} ({first[2].describe()}); give files in one CRS "
+                             "(aerotri crs transform)")
+        lo = np.minimum(lo, units.xy_to_m(mins[:2]))
+        hi = np.maximum(hi, units.xy_to_m(maxs[:2]))
+        n += int(header.point_count)
+    return _Inputs(paths, first[1], first[3], first[2], (lo[0], lo[1], hi[0], hi[1]), n)
+
+
+_BIN_DTYPE = np.dtype([("x", "f8"), ("y", "f8"), ("z", "f8"), ("cls", "u1"), ("rn", "u1"), ("intensity", "u2")])
+_BLOCK_PX = 512
+# GDAL's block cache while windows are written and COGs copied (MB): bounded, not 5 % of the RAM.
+_GDAL_CACHE_MB = 256
+
+
+def _bin_points(inputs: _Inputs, args, grid, work: Path, chunk_points: int) -> np.ndarray:
+    """Pass 1: stream every file once and append each tile's points (core + buffer) to its
+    ``tile_<id>.bin`` (``_BIN_DTYPE``, metres, file order). Tiles are in raster cells: the tile grid's
+    coordinates are the global cell indices, so tile membership is exact integer arithmetic and
+    agrees with the cell ``_CellSums`` puts a point in. Returns which tiles hold points."""
+    from aerotri.core.log import progress
+
+    res_m, x0, y0 = args[:3]
+    used = np.zeros(grid.n_tiles, bool)
+    n_ground = 0
+    with progress(inputs.n_points, "rasters: bin points into tiles", "pt", unit_scale=True) as bar:
+        for path in inputs.paths:
+            for x, y, z, cls, rn, inten in _file_points(path, inputs.units, chunk_points):
+                n_ground += int(np.count_nonzero(np.isin(cls, (2, 9))))
+                col = np.floor((x - x0) / res_m)
+                row = np.floor((y - y0) / res_m)
+                ids, pos = grid.assign(col, row)
+                rec = np.empty(len(x), _BIN_DTYPE)
+                rec["x"], rec["y"], rec["z"], rec["cls"], rec["rn"], rec["intensity"] = x, y, z, cls, rn, inten
+                cuts = np.flatnonzero(np.diff(ids)) + 1
+                for sel_ids, sel_pos in zip(np.split(ids, cuts), np.split(pos, cuts)):
+                    tid = int(sel_ids[0])
+                    used[tid] = True
+                    with open(work / f"tile_{tid}.bin", "ab") as fh:
+                        rec[sel_pos].tofile(fh)
+                bar.update(len(x))
+    if n_ground == 0:
+        raise InputError(f"{inputs.names}: no ground points (class 2); run 'lidarctl classify' first")
+    return used
+
+
+def _bin_chunks(path: Path, chunk_points: int):
+    with open(path, "rb") as fh:
+        while True:
+            rec = np.fromfile(fh, _BIN_DTYPE, count=chunk_points)
+            if not len(rec):
+                return
+            yield rec
+
+
+def _tiled_gtiff(path, shape, transform, crs, count: int = 1, dtype: str = "float32", nodata=NODATA):
+    import rasterio
+
+    return rasterio.open(path, "w", driver="GTiff", width=shape[1], height=shape[0], count=count, dtype=dtype,
+                         crs=crs, transform=transform, nodata=nodata, tiled=True, blockxsize=_BLOCK_PX,
+                         blockysize=_BLOCK_PX, compress="DEFLATE", predictor=3 if dtype == "float32" else 2,
+                         zlevel=1, bigtiff="IF_SAFER")
+
+
+def _tile_windows(grid, nrows: int, ncols: int):
+    """(tile id, (row0, col0, rows, cols) of its buffered window clipped to the raster, core slices in
+    that window, north-up Window of the core in the raster) of every tile, rows of tiles south to
+    north. Clipping keeps the gap filling's pyramid aligned: a window starts at a multiple of the
+    tile and buffer sizes or at 0, and ends where the raster ends."""
+    from rasterio.windows import Window
+
+    t, b = int(grid.tile_m), int(grid.buffer_m)
+    for tid in range(grid.n_tiles):
+        r, c = divmod(tid, grid.ncols)
+        r_lo, r_hi, c_lo, c_hi = r * t, min((r + 1) * t, nrows), c * t, min((c + 1) * t, ncols)
+        row0, col0 = max(r_lo - b, 0), max(c_lo - b, 0)
+        rows, cols = min(r_hi + b, nrows) - row0, min(c_hi + b, ncols) - col0
+        core = (slice(r_lo - row0, r_hi - row0), slice(c_lo - col0, c_hi - col0))
+        yield tid, (row0, col0, rows, cols), core, Window(c_lo, nrows - r_hi, c_hi - c_lo, r_hi - r_lo)
+
+
+def write_rasters(cloud, outdir, res_m: float, crs=None, tile_px: int = DEFAULT_TILE_PX,
+                  buffer_px: int = DEFAULT_BUFFER_PX, chunk_points: int = io.CHUNK_POINTS) -> list[Path]:
     """Write all rasters into ``outdir``; other files there (e.g. the classified cloud) stay.
 
-    ``cloud``: a PointCloud (x, y, z in metres; its ``crs`` and ``units`` say how to write them), or
-    the path of a classified LAS/LAZ file, streamed chunk by chunk (``make_grids_streamed``; ``crs``
-    is then used only when the file has no CRS record). ``res_m``: cell size in metres. The rasters
-    are in the cloud's CRS and units (see the module docstring). Everything is written into a
-    temporary folder first and moved into place only when all files are complete, so an error
-    leaves no partial set behind.
+    ``cloud``: a PointCloud (x, y, z in metres; its ``crs`` and ``units`` say how to write them; whole
+    grids in memory), or the path or list of paths of classified LAS/LAZ files (strips in one CRS),
+    processed by tiles (``write_rasters_tiled``; ``crs`` is used only for files without a CRS
+    record). ``res_m``: cell size in metres. The rasters are in the cloud's CRS and units (see the
+    module docstring). Everything is written into a temporary folder first and moved into place only
+    when all files are complete, so an error leaves no partial set behind.
     """
-    import os
-    import shutil
-
     check_res(res_m)
-    outdir = Path(outdir)
-    if isinstance(cloud, PointCloud):
-        crs, units = cloud.crs, cloud.units
-        if crs is None:
-            raise ValueError("a CRS is needed for the rasters")
-        surface_crs = crs
-    else:
-        for f in FILES:
-            refuse_input_as_output(outdir / f, [cloud], "OUTDIR")
-        header = las.read_header(cloud)
-        crs, units = io.resolve_crs_units(cloud, header, crs)
-        # The DEM and DSM keep a compound CRS's vertical part (their heights' datum and unit), so that
-        # ortho and 'crs warp' can bring them into another height system; the rest are relative.
-        file_crs = las.header_crs(header)
-        surface_crs = file_crs if file_crs is not None and file_crs.is_compound else crs
-    grids = make_grids(cloud, res_m) if isinstance(cloud, PointCloud) else \
-        make_grids_streamed(cloud, res_m, units=units)[0]
+    if not isinstance(cloud, PointCloud):
+        paths = [cloud] if isinstance(cloud, (str, Path)) else list(cloud)
+        return write_rasters_tiled(paths, outdir, res_m, crs=crs, tile_px=tile_px, buffer_px=buffer_px,
+                                   chunk_points=chunk_points)
+    crs, units = cloud.crs, cloud.units
+    if crs is None:
+        raise ValueError("a CRS is needed for the rasters")
+    grids = make_grids(cloud, res_m)
     # The hillshade needs heights and cell size in one unit: from the metric grids.
     hs = hillshade(grids["dem"], res_m)
     grids = to_crs_units(grids, units)
-    tags = {"LINEAR_UNITS": long_name(units.xy_m), "VERTICAL_UNITS": long_name(units.z_m),
-            "CELL_SIZE_M": f"{res_m:g}", "CELL_SIZE": f"{res_m / units.xy_m:.10g} {units.xy_name}"}
-    outdir.mkdir(parents=True, exist_ok=True)
-    tmp = temporary_dir(outdir, "rasters")
-    try:
-        for name in ("dem", "dsm", "ndsm", "chm", "intensity"):
-            height = name in HEIGHT_GRIDS
-            desc = DESCRIPTIONS[name] + (f" ({long_name(units.z_m)})" if height else "")
-            write_cog(tmp / f"{name}.tif", grids[name], grids["transform"], surface_crs if name in ("dem", "dsm") else crs,
-                      unit=long_name(units.z_m) if height else None, description=desc, tags=tags)
+    tags = _tags(units, res_m)
+
+    def write(tmp: Path) -> None:
+        for name in RASTERS:
+            write_cog(tmp / f"{name}.tif", grids[name], grids["transform"], crs, unit=_unit(name, units),
+                      description=_description(name, units), tags=tags)
         import matplotlib
         matplotlib.use("Agg")
         import matplotlib.pyplot as plt
         plt.imsave(tmp / "hillshade.png", np.where(np.isfinite(hs), hs, 0.0), cmap="gray", vmin=0, vmax=1)
+
+    return _write_set(outdir, write)
+
+
+RASTERS = ("dem", "dsm", "ndsm", "chm", "intensity")
+
+
+def _tags(units: LengthUnits, res_m: float) -> dict:
+    return {"LINEAR_UNITS": long_name(units.xy_m), "VERTICAL_UNITS": long_name(units.z_m),
+            "CELL_SIZE_M": f"{res_m:g}", "CELL_SIZE": f"{res_m / units.xy_m:.10g} {units.xy_name}"}
+
+
+def _unit(name: str, units: LengthUnits) -> str | None:
+    return long_name(units.z_m) if name in HEIGHT_GRIDS else None
+
+
+def _description(name: str, units: LengthUnits) -> str:
+    return DESCRIPTIONS[name] + (f" ({long_name(units.z_m)})" if name in HEIGHT_GRIDS else "")
+
+
+def _write_set(outdir, write) -> list[Path]:
+    """``write(tmp)`` writes FILES into a temporary folder in ``outdir``; then they replace the old set."""
+    import os
+    import shutil
+
+    outdir = Path(outdir)
+    outdir.mkdir(parents=True, exist_ok=True)
+    tmp = temporary_dir(outdir, "rasters")
+    try:
+        write(tmp)
         for f in FILES:
             os.chmod(tmp / f, 0o644)
             os.replace(tmp / f, outdir / f)
     finally:
         shutil.rmtree(tmp, ignore_errors=True)
     return [outdir / f for f in FILES]
+
+
+def write_rasters_tiled(paths, outdir, res_m: float, crs=None, tile_px: int = DEFAULT_TILE_PX,
+                        buffer_px: int = DEFAULT_BUFFER_PX, chunk_points: int = io.CHUNK_POINTS,
+                        footprint_cells: int = 3) -> list[Path]:
+    """The rasters of classified LAS/LAZ files (strips in one CRS) by tiles: memory is set by the tile
+    size, not by the size of the block.
+
+    The raster grid covers the union of the files' header bounds. It is cut into square tiles of
+    ``tile_px`` cells; each tile is computed over its window grown by ``buffer_px`` cells on every
+    side (the points there are binned into a temporary file per tile in one pass over the files) and
+    only its core is written, by windows, into tiled GeoTIFFs, which are copied block by block into
+    COGs; the hillshade is computed by windows from the written DEM and copied into the PNG.
+
+    Equal to the whole grids (``make_grids``) except where a cell's value comes from further away
+    than the buffer: the pull-push gap filling at pyramid levels coarser than the tiles' alignment
+    (the tile size and buffer are multiples of 2^k cells: 256 for the defaults), i.e. extrapolated
+    cells near the edge of the survey and gaps wider than the buffer, and enclosed gaps wider than
+    the buffer (which the whole grid fills and a tile leaves nodata). ``bench/lidar_rasters.py``
+    measures the difference and the memory.
+
+    Temporary disk space: 28 bytes per point and buffer copy, plus the uncompressed-size GeoTIFFs
+    at worst, in a hidden folder in ``outdir``, removed at the end, also on errors.
+    """
+    import rasterio
+    from rasterio.transform import from_origin as _from_origin
+
+    from lidarctl.tiles import TileGrid
+
+    check_res(res_m)
+    _check_tiling(tile_px, buffer_px)
+    outdir = Path(outdir)
+    inputs = _inputs(paths, crs)
+    for f in FILES:
+        refuse_input_as_output(outdir / f, list(inputs.paths), "OUTDIR")
+    units = inputs.units
+    args = grid_for_bounds(*inputs.bounds_m, res_m)
+    _, x0, y0, nrows, ncols = args
+    win = min(tile_px + 2 * buffer_px, nrows), min(tile_px + 2 * buffer_px, ncols)
+    check_grid(*win, res_m, RASTER_BYTES_PER_CELL, "rasters: one tile with its buffer", "--tile-px",
+               "use a smaller --tile-px")
+    grid = TileGrid(0.0, 0.0, float(tile_px), float(buffer_px), -(-nrows // tile_px), -(-ncols // tile_px))
+    transform_m = _from_origin(x0, y0 + nrows * res_m, res_m, res_m)
+    transform = transform_m if units.is_metric else _transform_in_units(transform_m, units)
+    tags = _tags(units, res_m)
+
+    def write(tmp: Path) -> None:
+        work = tmp / "work"
+        work.mkdir()
+        used = _bin_points(inputs, args, grid, work, chunk_points)
+        with rasterio.Env(GDAL_CACHEMAX=_GDAL_CACHE_MB, GDAL_PAM_ENABLED="NO"):
+            dem_sum, dem_n = _tiles_to_gtiffs(inputs, args, grid, used, work, tmp, transform, tags,
+                                              chunk_points, footprint_cells)
+            fill = np.float32(dem_sum / dem_n) if dem_n else np.float32(np.nan)
+            _hillshade_by_windows(work / "dem_m.tif", work / "hillshade.tif", res_m, fill, grid, nrows, ncols,
+                                  transform, inputs.crs)
+            for name in RASTERS:
+                with rasterio.open(work / f"{name}.tif") as src, atomic_path(tmp / f"{name}.tif") as dst:
+                    rio_copy(src, dst, driver="COG", compress="DEFLATE", predictor=3, overview_resampling="average")
+            with rasterio.open(work / "hillshade.tif") as src:
+                rio_copy(src, tmp / "hillshade.png", driver="PNG")
+
+    return _write_set(outdir, write)
+
+
+def _tiles_to_gtiffs(inputs: _Inputs, args, grid, used, work: Path, tmp: Path, transform, tags,
+                     chunk_points: int, footprint_cells: int):
+    """Pass 2: each tile's grids from its binned points, the core written by window into tiled
+    GeoTIFFs (``work/<name>.tif`` in the CRS's units, ``work/dem_m.tif`` the DEM in metres for the
+    hillshade). Returns the sum and count of the DEM's cells (metres) for the hillshade's fill."""
+    import contextlib
+    import os
+
+    from aerotri.core.log import progress
+
+    res_m, x0, y0, nrows, ncols = args
+    units = inputs.units
+    dem_sum, dem_n = 0.0, 0
+    with contextlib.ExitStack() as stack:
+        out = {}
+        for name in RASTERS:
+            ds = stack.enter_context(_tiled_gtiff(work / f"{name}.tif", (nrows, ncols), transform,
+                                                  inputs.surface_crs if name in ("dem", "dsm") else inputs.crs))
+            if _unit(name, units):
+                ds.units = (_unit(name, units),)
+            ds.set_band_description(1, _description(name, units))
+            ds.update_tags(**tags)
+            out[name] = ds
+        dem_m = stack.enter_context(_tiled_gtiff(work / "dem_m.tif", (nrows, ncols), transform, inputs.crs))
+        with progress(grid.n_tiles, "rasters: tiles", "tile") as bar:
+            for tid, (row0, col0, rows, cols), core, window in _tile_windows(grid, nrows, ncols):
+                shape = (window.height, window.width)
+                bin_path = work / f"tile_{tid}.bin"
+                if not used[tid]:
+                    empty = np.full(shape, NODATA, np.float32)
+                    for ds in (*out.values(), dem_m):
+                        ds.write(empty, 1, window=window)
+                    bar.update(1)
+                    continue
+                sums = _CellSums((res_m, x0, y0, rows, cols), (row0, col0))
+                for rec in _bin_chunks(bin_path, chunk_points):
+                    sums.add(rec["x"], rec["y"], rec["z"], rec["cls"], rec["rn"], rec["intensity"])
+                dem = sums.dem(require_ground=False)
+                for rec in _bin_chunks(bin_path, chunk_points):
+                    sums.add_chm(rec["x"], rec["y"], rec["z"], rec["cls"], dem)
+                os.remove(bin_path)
+                grids = {k: v[core][::-1] for k, v in sums.grids_south_up(dem, footprint_cells).items()}
+                del sums, dem
+                finite = np.isfinite(grids["dem"])
+                dem_sum += float(grids["dem"][finite].sum(dtype=np.float64))
+                dem_n += int(finite.sum())
+                dem_m.write(np.where(finite, grids["dem"], NODATA).astype(np.float32), 1, window=window)
+                grids = to_crs_units(grids, units)
+                for name, ds in out.items():
+                    a = grids[name]
+                    ds.write(np.where(np.isfinite(a), a, NODATA).astype(np.float32), 1, window=window)
+                bar.update(1)
+    return dem_sum, dem_n
+
+
+def _hillshade_by_windows(dem_path: Path, out_path: Path, res_m: float, fill, grid, nrows: int, ncols: int,
+                          transform, crs) -> None:
+    """Pass 3: the hillshade (RGBA) of the metric DEM by the tiles' windows, each read with a one-cell
+    border (clipped to the raster, as ``np.gradient`` treats the raster's edges)."""
+    import rasterio
+    from rasterio.windows import Window
+
+    with rasterio.open(dem_path) as src, _tiled_gtiff(out_path, (nrows, ncols), transform, crs, count=4, dtype="uint8",
+                                                      nodata=None) as dst:
+        for _, _, _, w in _tile_windows(grid, nrows, ncols):
+            r0, c0 = max(w.row_off - 1, 0), max(w.col_off - 1, 0)
+            r1, c1 = min(w.row_off + w.height + 1, nrows), min(w.col_off + w.width + 1, ncols)
+            dem = src.read(1, window=Window(c0, r0, c1 - c0, r1 - r0), masked=True).filled(np.nan)
+            hs = hillshade(dem, res_m, fill_value=fill)
+            core = hs[w.row_off - r0: w.row_off - r0 + w.height, w.col_off - c0: w.col_off - c0 + w.width]
+            dst.write(np.moveaxis(hillshade_rgba(core), 2, 0), window=w)

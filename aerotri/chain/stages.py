@@ -209,8 +209,7 @@ class Chain:
         from lidarctl import io
         from lidarctl.rasters import write_rasters
 
-        # The strips in memory (io.read_clouds) until the rasters are written by windows from the strips.
-        write_rasters(io.read_clouds(self.classified(), crs=self.project.crs), self.lo, self.options.rasters.res_m)
+        write_rasters(self.classified(), self.lo, self.options.rasters.res_m, crs=self.project.crs)
         return dict(res_m=self.options.rasters.res_m)
 
     def corner_outputs(self, root) -> list[Path]:

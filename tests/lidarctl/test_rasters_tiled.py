@@ -1,0 +1,84 @@
+"""Rasters of several classified files by tiles (lidarctl.rasters.write_rasters_tiled) against the
+whole grids of the concatenated cloud (make_grids): same cells, same values, same metadata; the
+CLI takes several files; bad input leaves no output."""
+
+import numpy as np
+import pytest
+import rasterio
+from click.testing import CliRunner
+
+from lidarctl import io, rasters, synthetic
+from lidarctl.cli import main
+
+FIELDS = ("x", "y", "z", "intensity", "return_number", "number_of_returns")
+
+
+@pytest.fixture(scope="module")
+def strips(tmp_path_factory):
+    """A 300 m x 300 m classified scene (truth classes) in two overlapping strips, and a scene cut to a
+    diagonal band (an irregular footprint: nodata corners, extrapolated edge cells)."""
+    d = tmp_path_factory.mktemp("rasters_tiled")
+    cloud, truth = synthetic.synthetic_scene(width_m=300.0, density_per_m2=3.0, seed=5, n_buildings=10, n_trees=80)
+    u = cloud.x - cloud.x.min()
+    v = cloud.y - cloud.y.min()
+    parts = {"west": u < 180.0, "east": u >= 140.0,                       # 40 m overlap: points in both
+             "band": np.abs(u - v) < 90.0}
+    for name, m in parts.items():
+        sub = io.PointCloud(*[getattr(cloud, f)[m] for f in FIELDS], truth[m])
+        synthetic.write_las(d / f"{name}.las", sub, crs="EPSG:32632")
+    return d
+
+
+def _whole(paths, res_m, out):
+    clouds = [io.read_cloud(p) for p in paths]
+    cat = io.PointCloud(*[np.concatenate([getattr(c, f) for c in clouds]) for f in FIELDS + ("classification",)],
+                        crs=clouds[0].crs, units=clouds[0].units)
+    return rasters.write_rasters(cat, out, res_m)
+
+
+def _read(path):
+    with rasterio.open(path) as ds:
+        return ds.read(), ds.transform, ds.crs, ds.tags(), ds.units, ds.descriptions
+
+
+@pytest.mark.parametrize("names,tile_px,buffer_px", [(("west", "east"), 64, 32), (("band",), 48, 16)])
+def test_tiled_rasters_equal_whole_grids(strips, tmp_path, names, tile_px, buffer_px):
+    paths = [strips / f"{n}.las" for n in names]
+    _whole(paths, 1.0, tmp_path / "whole")
+    # small chunks: a tile's points arrive from several chunks of several files
+    rasters.write_rasters(paths, tmp_path / "tiled", 1.0, tile_px=tile_px, buffer_px=buffer_px, chunk_points=30_000)
+    with rasterio.open(tmp_path / "whole" / "dem.tif") as ds:
+        assert ds.width > 3 * tile_px and ds.height > 3 * tile_px          # several tiles each way
+    for f in rasters.FILES:
+        a, b = _read(tmp_path / "whole" / f), _read(tmp_path / "tiled" / f)
+        np.testing.assert_array_equal(a[0], b[0], err_msg=f)
+        if f.endswith(".tif"):   # (the PNG: the same pixels; matplotlib adds its name as a text chunk)
+            assert a[1:] == b[1:], f
+    assert sorted(p.name for p in (tmp_path / "tiled").iterdir()) == sorted(rasters.FILES)   # no temporaries
+
+
+def test_rasters_cli_several_files_and_errors(strips, tmp_path):
+    out = tmp_path / "r"
+    r = CliRunner().invoke(main, ["rasters", str(strips / "west.las"), str(strips / "east.las"), str(out),
+                                  "--res", "2", "--tile-px", "40", "--buffer-px", "20"])
+    assert r.exit_code == 0, r.output
+    with rasterio.open(out / "dem.tif") as ds:
+        assert ds.crs.to_epsg() == 32632 and ds.width == 150 and ds.is_tiled
+        dem = ds.read(1, masked=True)
+    assert dem.count() > 0.95 * dem.size                                   # the strips cover the square
+    before = {f: (out / f).read_bytes() for f in rasters.FILES}
+    r = CliRunner().invoke(main, ["rasters", str(strips / "west.las"), str(out), "--res", "2", "--tile-px", "10",
+                                  "--buffer-px", "20"])
+    assert r.exit_code == 2 and "--buffer-px" in r.output
+    # a file in another CRS: refused before anything is written, the old set stays
+    cloud = io.read_cloud(strips / "east.las")
+    synthetic.write_las(tmp_path / "other.las", cloud, crs="EPSG:32633")
+    r = CliRunner().invoke(main, ["rasters", str(strips / "west.las"), str(tmp_path / "other.las"), str(out),
+                                  "--res", "2"])
+    assert r.exit_code == 2 and "other.las" in r.output and "differs" in r.output
+    cloud.classification[:] = 1
+    synthetic.write_las(tmp_path / "unclassified.las", cloud, crs="EPSG:32632")
+    r = CliRunner().invoke(main, ["rasters", str(tmp_path / "unclassified.las"), str(out), "--res", "2"])
+    assert r.exit_code == 2 and "no ground points" in r.output
+    assert {f: (out / f).read_bytes() for f in rasters.FILES} == before
+    assert sorted(p.name for p in out.iterdir()) == sorted(rasters.FILES)
