@@ -116,6 +116,7 @@ class Project:
     # work/: caches and stage stamps
     work_dir = property(lambda self: self.root / "work")
     stages_dir = property(lambda self: self.work_dir / "stages")
+    run_summary_path = property(lambda self: self.work_dir / "run_summary.json")  # the last run's stage rows
     merged_lidar_path = property(lambda self: self.work_dir / "lidar" / "merged.las")
     truth_merged_lidar_path = property(lambda self: self.work_dir / "lidar" / "truth_merged.las")
     first_adjustment_dir = property(lambda self: self.work_dir / "at_first")
