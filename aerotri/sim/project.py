@@ -139,6 +139,7 @@ def simulate(cfg: dict, outdir, force: bool = False) -> SimTruth:
         t_frames = time.perf_counter()
         log.info(f"rendered {len(plan.image_id)} frames of {cam_true.width} x {cam_true.height} px "
                  f"in {t_frames - t_start:.1f} s")
+        log.info("LiDAR planned: {strips} strips, {pulses} pulses over {scene_km2} km2".format(**lidar_plan(cfg)))
         lidar = _scan_lidar(tmp, cfg, layout, scene, accel, origin, epsg, s_lidar)
         log.info(f"scanned {lidar.lines} LiDAR strips, {lidar.points} points in {time.perf_counter() - t_frames:.1f} s")
         _write_project_files(tmp, cfg, plan, cam_true, cam_nominal, origin, epsg, gains)
@@ -185,6 +186,16 @@ def _render_frames(images_dir: Path, cfg: dict, scene, accel, plan, cam_true, s_
         img = render.expose(rad, cam_true, gain, rcfg["vignetting"], rcfg["noise_dn"], frng)
         cv2.imwrite(str(images_dir / f"{plan.image_id[i]}.tif"), img[:, :, ::-1])
     return gains
+
+
+def lidar_plan(cfg: dict) -> dict:
+    """What the preset's LiDAR will be, before any scanning: strips, pulses (each gives 0 to 3 points:
+    none off the scene or on most water, several in trees: 0.5 points a pulse on tiny, 0.6 on demo)
+    and the scene area."""
+    layout = block_layout(cfg)
+    lines = lidar_lines(cfg, layout)
+    return dict(strips=len(lines), pulses=sum(strip_pulses(line, cfg["lidar"], layout.width_m) for line in lines),
+                scene_km2=round(layout.width_m * layout.height_m / 1e6, 3))
 
 
 def _scan_lidar(tmp: Path, cfg: dict, layout, scene, accel, origin, epsg: int, s_lidar) -> _LidarSummary:
