@@ -24,7 +24,7 @@ from pathlib import Path
 
 try:
     import psutil
-except ImportError:  # pragma: no cover - psutil comes with dask.distributed, a core dependency
+except ImportError:  # pragma: no cover - declared, and a dependency of dask.distributed; still optional here
     psutil = None
 
 try:
