@@ -6,6 +6,10 @@ otherwise it runs and writes its outputs atomically, then its stamp. Killing a r
 stages stamped and the interrupted stage without a stamp and without partial outputs, so a re-run
 continues there. A stage may also be left out for a reason decided when its turn comes (``skip``:
 no LiDAR, no usable corner, no DEM ...); the summary row says why.
+
+What a stage cost (``aerotri.core.resources.measure``: wall and CPU seconds, peak RSS of the process and
+of its Dask workers) goes into its stamp (``usage``) and its summary row; every run writes its rows and
+the load averages at its start and end to ``work/run_summary.json`` (bench/scale.py reads it).
 """
 
 from __future__ import annotations
@@ -14,12 +18,13 @@ import dataclasses
 import hashlib
 import json
 import logging
-import time
+import os
 from collections.abc import Callable
 from pathlib import Path
 
 from aerotri.core.atomic import remove_leftovers, write_text_atomic
 from aerotri.core.project import project_paths
+from aerotri.core.resources import measure
 
 _log = logging.getLogger(__name__)
 
@@ -104,6 +109,7 @@ def run_stages(root, stages: list[Stage], force: bool = False, log: Callable[[st
     """Run (or skip) the stages in order; returns one summary row per stage."""
     root = Path(root)
     rows = []
+    load_start = _load_avg()
     for st in stages:
         reason = st.skip(root) if st.skip is not None else None
         if reason:
@@ -118,20 +124,39 @@ def run_stages(root, stages: list[Stage], force: bool = False, log: Callable[[st
         log(f"[{st.name}] running")
         _remove_stale_temporaries(st.outputs(root))
         options = _plain(st.options_now(root))  # before the run: the stage may change what they depend on
-        t = time.perf_counter()
-        result = st.run(root) or {}
-        dt = time.perf_counter() - t
+        with measure() as usage:
+            result = st.run(root) or {}
+        dt = usage.wall_s
         missing = [str(p) for p in st.outputs(root) if not p.exists()]
         if missing:
             raise RuntimeError(f"stage {st.name} finished without writing {', '.join(missing)}")
         write_text_atomic(stamp_path(root, st.name), json.dumps(
-            dict(inputs=_signature(st.inputs(root), root), options=options, result=result, seconds=round(dt, 2)),
-            indent=1, default=str) + "\n")
-        rows.append(dict(stage=st.name, status="done", seconds=round(dt, 1), **result))
+            dict(inputs=_signature(st.inputs(root), root), options=options, result=result, seconds=round(dt, 2),
+                 usage=usage.record()), indent=1, default=str) + "\n")
+        rows.append(dict(stage=st.name, status="done", seconds=round(dt, 1), **_usage_columns(usage.record()),
+                         **result))
         for note in result.get("notes", []):
             log(f"[{st.name}] note: {note}")
         log(f"[{st.name}] done in {dt:.1f} s")
+    write_text_atomic(project_paths(root).run_summary_path, json.dumps(
+        dict(stages=rows, load_avg_start=load_start, load_avg_end=_load_avg()), indent=1, default=str) + "\n")
     return rows
+
+
+_USAGE_COLUMNS = ("cpu_s", "peak_rss_mb", "workers_peak_rss_mb")
+
+
+def _usage_columns(record: dict) -> dict:
+    """The stage-cost numbers a summary row carries (wall time is its ``seconds``)."""
+    return {k: record[k] for k in _USAGE_COLUMNS if k in record}
+
+
+def _load_avg() -> list[float] | None:
+    """1, 5 and 15 minute load averages (None where the system has none)."""
+    try:
+        return [round(v, 2) for v in os.getloadavg()]
+    except OSError:
+        return None
 
 
 def _remove_stale_temporaries(outputs: list[Path]) -> None:
@@ -143,15 +168,19 @@ def _remove_stale_temporaries(outputs: list[Path]) -> None:
 
 
 def format_summary(rows: list[dict]) -> str:
-    """The table of stages: status, time and key numbers; skipped stages say why, notes follow."""
-    lines = [f"{'stage':<18} {'status':<22} {'time s':>7}  key numbers"]
+    """The table of stages: status, wall and CPU time, peak RSS (the process plus its workers) and key
+    numbers; skipped stages say why, notes follow."""
+    lines = [f"{'stage':<18} {'status':<22} {'time s':>7} {'CPU s':>7} {'peak MB':>8}  key numbers"]
     notes = []
     for r in rows:
-        extra = "  ".join(f"{k}={_fmt(v)}" for k, v in r.items() if k not in ("stage", "status", "seconds", "why",
-                                                                            "notes"))
+        extra = "  ".join(f"{k}={_fmt(v)}" for k, v in r.items()
+                          if k not in ("stage", "status", "seconds", "why", "notes") + _USAGE_COLUMNS)
         if r.get("why"):
             extra = r["why"]
-        lines.append(f"{r['stage']:<18} {r['status']:<22} {r['seconds']:>7.1f}  {extra}".rstrip())
+        cpu = f"{r['cpu_s']:>7.1f}" if "cpu_s" in r else f"{'-':>7}"
+        peak = r.get("peak_rss_mb", 0.0) + r.get("workers_peak_rss_mb", 0.0)
+        peak = f"{peak:>8.0f}" if "peak_rss_mb" in r else f"{'-':>8}"
+        lines.append(f"{r['stage']:<18} {r['status']:<22} {r['seconds']:>7.1f} {cpu} {peak}  {extra}".rstrip())
         notes += [f"{r['stage']}: {n}" for n in r.get("notes", [])]
     if notes:
         lines += ["", "notes:"] + [f"  {n}" for n in notes]

@@ -125,6 +125,7 @@ class Project:
     # work/: caches and stage stamps
     work_dir = property(lambda self: self.root / "work")
     stages_dir = property(lambda self: self.work_dir / "stages")
+    run_summary_path = property(lambda self: self.work_dir / "run_summary.json")  # the last run's stage rows
     first_adjustment_dir = property(lambda self: self.work_dir / "at_first")
     # at/: tie points and the adjustment
     at_dir = property(lambda self: self.root / "at")

@@ -4,10 +4,11 @@
 Nothing in the library imports this package.
 """
 
-__all__ = ["SimTruth", "available_presets", "load_preset", "simulate"]
+__all__ = ["SimTruth", "available_presets", "lidar_plan", "load_preset", "simulate"]
 
 _HOME = {"SimTruth": "aerotri.sim.project", "available_presets": "aerotri.sim.config",
-         "load_preset": "aerotri.sim.config", "simulate": "aerotri.sim.project"}
+         "load_preset": "aerotri.sim.config", "simulate": "aerotri.sim.project",
+         "lidar_plan": "aerotri.sim.project"}
 
 
 def __getattr__(name):

@@ -27,6 +27,9 @@ from aerotri.sim.flight import LidarLine
 from aerotri.sim.scene import KIND_NONE, KIND_ROOF, KIND_TERRAIN, KIND_TREE, KIND_WALL, WATER, Scene
 
 MAX_RET = 3
+# Pulses ray-cast and written at a time: bounds the memory of a strip (about 250 bytes a pulse at the peak)
+# whatever its length. Every strip of the tiny, demo and dmc presets is one chunk.
+STRIP_CHUNK_PULSES = 3_000_000
 
 
 @numba.njit(cache=True, parallel=True)
@@ -107,16 +110,32 @@ class _Sweep:
     rising: np.ndarray  # (n,) bool: the mirror sweeps towards increasing angle
 
 
-def _sweep(line: LidarLine, L: dict, rng, width_m: float) -> _Sweep:
-    """Zig-zag pulses along the flight line with attitude noise (draws ``rng`` once: the attitude noise)."""
+def strip_pulses(line: LidarLine, L: dict, width_m: float) -> int:
+    """Number of pulses of one strip: the scene width plus half a swath at each end, flown at constant speed."""
+    return int((width_m + line.swath_m) / L["speed_mps"] * L["pulse_rate_hz"])
+
+
+def pulse_chunks(n_pulses: int, chunk_pulses: int | None = None) -> list[tuple[int, int]]:
+    """``[i0, i1)`` pulse ranges of at most ``chunk_pulses`` (default ``STRIP_CHUNK_PULSES``) that a strip is
+    scanned and written in."""
+    chunk_pulses = chunk_pulses or STRIP_CHUNK_PULSES
+    return [(i0, min(n_pulses, i0 + chunk_pulses)) for i0 in range(0, max(n_pulses, 1), chunk_pulses)]
+
+
+def _sweep(line: LidarLine, L: dict, rng, width_m: float, i0: int = 0, i1: int | None = None) -> _Sweep:
+    """Zig-zag pulses ``i0..i1`` of the flight line with attitude noise (draws ``rng`` once: the attitude noise).
+
+    Times, positions and scan angles follow from the pulse index, so a chunk of pulses is the same as that
+    part of the whole strip; only the attitude noise depends on how the strip is chunked.
+    """
     v = L["speed_mps"]
     prf = L["pulse_rate_hz"]
     half_fov = math.radians(L["fov_deg"] / 2.0)
     # Fly past the scene ends by half a swath so the corners are covered.
     lead = line.swath_m / 2.0
-    length = width_m + 2 * lead
-    n = int(length / v * prf)
-    t = np.arange(n) / prf
+    i1 = strip_pulses(line, L, width_m) if i1 is None else i1
+    n = i1 - i0
+    t = np.arange(i0, i1) / prf
     x_air = (-lead + v * t) if line.east else (width_m + lead - v * t)
     y_air = line.y_m + 0.5 * np.sin(2 * np.pi * t / 37.0)  # a gentle weave of the flight line
     z_air = np.full(n, line.z_m)
@@ -218,10 +237,13 @@ def _truth_classes(scene: Scene, P, kind, gm, override) -> np.ndarray:
     return cls
 
 
-def scan_strip(scene: Scene, accel, line: LidarLine, L: dict, rng, width_m: float):
-    """Simulate one strip; returns a dict of point arrays in local metres plus truth classes (the fields
-    ``write_las`` writes)."""
-    sw = _sweep(line, L, rng, width_m)
+def scan_strip(scene: Scene, accel, line: LidarLine, L: dict, rng, width_m: float, i0: int = 0,
+               i1: int | None = None):
+    """Simulate pulses ``i0..i1`` of one strip (default: all of it); returns a dict of point arrays in local
+    metres plus truth classes (the fields ``las_record`` writes). Draws ``rng`` in a fixed order per chunk."""
+    n_strip = strip_pulses(line, L, width_m)
+    i1 = n_strip if i1 is None else i1
+    sw = _sweep(line, L, rng, width_m, i0, i1)
     n = len(sw.t)
     u = rng.random((n, 3))
     T, K, O = _pulses(sw.origins, np.ascontiguousarray(sw.dirs), accel, u, L["canopy_first_return_prob"],
@@ -250,6 +272,9 @@ def scan_strip(scene: Scene, accel, line: LidarLine, L: dict, rng, width_m: floa
     turn = np.flatnonzero(sw.rising[1:] != sw.rising[:-1])
     edge_pulse = np.zeros(n, bool)
     edge_pulse[turn] = True
+    if i1 < n_strip:  # the chunk's last pulse is an edge when the mirror turns before the next chunk's first
+        _, rising_next = _triangle_wave(L["scan_frequency_hz"] * (i1 / L["pulse_rate_hz"]))
+        edge_pulse[-1] = bool(rising_next) != bool(sw.rising[-1])
     edge = edge_pulse[pulse]
     return dict(
         xyz=P, intensity=np.clip(inten, 0, 65535).astype(np.uint16), return_number=order_in_pulse.astype(np.uint8),
@@ -259,8 +284,8 @@ def scan_strip(scene: Scene, accel, line: LidarLine, L: dict, rng, width_m: floa
     )
 
 
-def write_las(path, pts: dict, origin_m, epsg: int, classification=None, creation_date=datetime.date(2026, 1, 1)):
-    """LAS 1.4, point format 6, millimetre scale, CRS (WKT) in the header. Deterministic bytes."""
+def las_header(origin_m, epsg: int, creation_date=datetime.date(2026, 1, 1)) -> laspy.LasHeader:
+    """LAS 1.4, point format 6, millimetre scale, CRS (WKT); the same for every chunk of a strip."""
     header = laspy.LasHeader(point_format=6, version="1.4")
     header.scales = np.array([0.001, 0.001, 0.001])
     header.offsets = np.floor(np.asarray(origin_m, dtype=float) / 1000.0) * 1000.0
@@ -269,6 +294,11 @@ def write_las(path, pts: dict, origin_m, epsg: int, classification=None, creatio
     header.system_identifier = "aerotri simulator"
     header.generating_software = "aerotri sim"
     header.global_encoding.gps_time_type = laspy.header.GpsTimeType.STANDARD
+    return header
+
+
+def las_record(header: laspy.LasHeader, pts: dict, origin_m, classification=None) -> laspy.LasData:
+    """The points of ``scan_strip`` (local metres) as LAS records in the project CRS."""
     las = laspy.LasData(header)
     xyz = pts["xyz"] + np.asarray(origin_m, dtype=float)
     las.x, las.y, las.z = xyz[:, 0], xyz[:, 1], xyz[:, 2]
@@ -281,4 +311,5 @@ def write_las(path, pts: dict, origin_m, epsg: int, classification=None, creatio
     las.scan_angle = np.rint(pts["scan_angle_deg"] / 0.006).astype(np.int16)
     las.point_source_id = pts["point_source_id"]
     las.gps_time = pts["gps_time"] + 4.0e8  # adjusted standard GPS time
-    las.write(str(path))
+    return las
+

@@ -14,8 +14,10 @@ import time
 from pathlib import Path
 
 import cv2
+import laspy
 import numpy as np
 import rasterio
+import rasterio.windows
 from rasterio.transform import from_origin
 
 from aerotri.geom.eo import ExteriorOrientations, GnssPositions, format_eo, write_gnss
@@ -24,7 +26,7 @@ from aerotri.geom.rotation import rotation_matrix_opk
 from aerotri.sim import raycast, render
 from aerotri.sim.config import stage_sections_toml
 from aerotri.sim.flight import block_layout, cameras_from_config, lidar_lines, plan_frames
-from aerotri.sim.lidar import scan_strip, write_las
+from aerotri.sim.lidar import las_header, las_record, pulse_chunks, scan_strip, strip_pulses
 from aerotri.sim.scene import build_scene
 from aerotri.core.atomic import atomic_dir
 from aerotri.core.log import track
@@ -32,17 +34,22 @@ from aerotri.core.log import track
 log = logging.getLogger(__name__)
 
 
-def _write_geotiff(path: Path, data: np.ndarray, transform, epsg: int, nodata=None):
-    """Tiled, deflate-compressed GeoTIFF with overviews-friendly 256 px blocks."""
-    bands = 1 if data.ndim == 2 else data.shape[2]
-    arr = data[None] if data.ndim == 2 else np.moveaxis(data, 2, 0)
-    profile = dict(driver="GTiff", width=arr.shape[2], height=arr.shape[1], count=bands, dtype=arr.dtype,
+def _write_geotiff(path: Path, width: int, height: int, bands: int, dtype, transform, epsg: int, rows, nodata=None,
+                   block_rows: int = 512):
+    """Tiled, deflate-compressed GeoTIFF with overviews-friendly 256 px blocks, written ``block_rows`` rows at a
+    time: ``rows(r0, r1)`` gives rows r0..r1 as (r1 - r0, width[, bands]), so a raster of any size is made
+    in bounded memory."""
+    profile = dict(driver="GTiff", width=width, height=height, count=bands, dtype=np.dtype(dtype).name,
                    crs=f"EPSG:{epsg}", transform=transform, tiled=True, blockxsize=256, blockysize=256,
                    compress="deflate", nodata=nodata)
-    if bands == 3 and arr.dtype == np.uint8:
+    if bands == 3 and np.dtype(dtype) == np.uint8:
         profile["photometric"] = "RGB"
     with rasterio.open(path, "w", **profile) as dst:
-        dst.write(arr)
+        for r0 in range(0, height, block_rows):
+            r1 = min(height, r0 + block_rows)
+            data = rows(r0, r1)
+            arr = data[None] if data.ndim == 2 else np.moveaxis(data, 2, 0)
+            dst.write(arr.astype(dtype, copy=False), window=rasterio.windows.Window(0, r0, width, r1 - r0))
 
 
 def _csv(path: Path, header: list[str], rows) -> None:
@@ -132,6 +139,7 @@ def simulate(cfg: dict, outdir, force: bool = False) -> SimTruth:
         t_frames = time.perf_counter()
         log.info(f"rendered {len(plan.image_id)} frames of {cam_true.width} x {cam_true.height} px "
                  f"in {t_frames - t_start:.1f} s")
+        log.info("LiDAR planned: {strips} strips, {pulses} pulses over {scene_km2} km2".format(**lidar_plan(cfg)))
         lidar = _scan_lidar(tmp, cfg, layout, scene, accel, origin, epsg, s_lidar)
         log.info(f"scanned {lidar.lines} LiDAR strips, {lidar.points} points in {time.perf_counter() - t_frames:.1f} s")
         _write_project_files(tmp, cfg, plan, cam_true, cam_nominal, origin, epsg, gains)
@@ -180,6 +188,16 @@ def _render_frames(images_dir: Path, cfg: dict, scene, accel, plan, cam_true, s_
     return gains
 
 
+def lidar_plan(cfg: dict) -> dict:
+    """What the preset's LiDAR will be, before any scanning: strips, pulses (each gives 0 to 3 points:
+    none off the scene or on most water, several in trees: 0.5 points a pulse on tiny, 0.6 on demo)
+    and the scene area."""
+    layout = block_layout(cfg)
+    lines = lidar_lines(cfg, layout)
+    return dict(strips=len(lines), pulses=sum(strip_pulses(line, cfg["lidar"], layout.width_m) for line in lines),
+                scene_km2=round(layout.width_m * layout.height_m / 1e6, 3))
+
+
 def _scan_lidar(tmp: Path, cfg: dict, layout, scene, accel, origin, epsg: int, s_lidar) -> _LidarSummary:
     """Scan every LiDAR strip: ``lidar/`` unclassified with a per-strip offset, ``truth/lidar/`` the same points
     with their true classes."""
@@ -192,16 +210,27 @@ def _scan_lidar(tmp: Path, cfg: dict, layout, scene, accel, origin, epsg: int, s
     class_counts: dict[int, int] = {}
     for line, sseed in track(list(zip(lines, strip_seeds)), "LiDAR strips"):
         lrng = np.random.default_rng(sseed)
-        pts = scan_strip(scene, accel, line, L, lrng, layout.width_m)
-        off = lrng.normal(0.0, L["strip_offset_sigma_m"], 3)
-        strip_offsets.append(off.tolist())
-        pts["xyz"] = pts["xyz"] + off
+        chunks = pulse_chunks(strip_pulses(line, L, layout.width_m))
+        # A strip of one chunk draws its offset after its points (the order the presets' published results
+        # were made with); a longer one draws it first, so every chunk is written as soon as it is scanned.
+        off = lrng.normal(0.0, L["strip_offset_sigma_m"], 3) if len(chunks) > 1 else None
         name = f"strip_{line.strip:02d}.{ext}"
-        write_las(tmp / "lidar" / name, pts, origin, epsg, classification=np.ones(len(pts["xyz"]), np.uint8))
-        write_las(tmp / "truth" / "lidar" / name, pts, origin, epsg)
-        n_points += len(pts["xyz"])
-        for c, k in zip(*np.unique(pts["classification"], return_counts=True)):
-            class_counts[int(c)] = class_counts.get(int(c), 0) + int(k)
+        rec_header = las_header(origin, epsg)  # the writers keep their own headers' counts and bounds
+        with (laspy.open(tmp / "lidar" / name, mode="w", header=las_header(origin, epsg)) as obs_las,
+              laspy.open(tmp / "truth" / "lidar" / name, mode="w", header=las_header(origin, epsg)) as truth_las):
+            for i0, i1 in chunks:
+                pts = scan_strip(scene, accel, line, L, lrng, layout.width_m, i0, i1)
+                if off is None:
+                    off = lrng.normal(0.0, L["strip_offset_sigma_m"], 3)
+                pts["xyz"] = pts["xyz"] + off
+                n = len(pts["xyz"])
+                obs_las.write_points(las_record(rec_header, pts, origin, np.ones(n, np.uint8)).points)
+                truth_las.write_points(las_record(rec_header, pts, origin).points)
+                n_points += n
+                for c, k in zip(*np.unique(pts["classification"], return_counts=True)):
+                    class_counts[int(c)] = class_counts.get(int(c), 0) + int(k)
+                del pts
+        strip_offsets.append(off.tolist())
     return _LidarSummary(len(lines), n_points, strip_offsets, class_counts)
 
 
@@ -285,26 +314,33 @@ def _write_truth_rasters(truth_dir: Path, cfg: dict, layout, scene, accel, origi
     res = cfg["truth"]["raster_res_m"]
     nx, ny = int(math.floor(layout.width_m / res)), int(math.floor(layout.height_m / res))
     xs = (np.arange(nx) + 0.5) * res
-    ys = layout.height_m - (np.arange(ny) + 0.5) * res
-    X, Y = np.meshgrid(xs, ys)
     transform = from_origin(origin[0], origin[1] + layout.height_m, res, res)
-    dem = scene.terrain_height(X, Y) + origin[2]
-    _write_geotiff(truth_dir / "dem.tif", dem.astype(np.float32), transform, epsg, nodata=-9999.0)
-    dsm, _, _ = render.vertical_render(scene, accel, X.ravel(), Y.ravel())
-    dsm = dsm.reshape(X.shape) + origin[2]
-    _write_geotiff(truth_dir / "dsm.tif", np.nan_to_num(dsm, nan=-9999.0).astype(np.float32), transform, epsg,
-                   nodata=-9999.0)
+
+    def grid(step, cols, r0, r1):
+        return np.meshgrid(cols, layout.height_m - (np.arange(r0, r1) + 0.5) * step)
+
+    def dem_rows(r0, r1):
+        X, Y = grid(res, xs, r0, r1)
+        return scene.terrain_height(X, Y) + origin[2]
+
+    def dsm_rows(r0, r1):
+        X, Y = grid(res, xs, r0, r1)
+        dsm, _, _ = render.vertical_render(scene, accel, X.ravel(), Y.ravel())
+        return np.nan_to_num(dsm.reshape(X.shape) + origin[2], nan=-9999.0)
+
+    _write_geotiff(truth_dir / "dem.tif", nx, ny, 1, np.float32, transform, epsg, dem_rows, nodata=-9999.0)
+    _write_geotiff(truth_dir / "dsm.tif", nx, ny, 1, np.float32, transform, epsg, dsm_rows, nodata=-9999.0)
     ores = cfg["truth"]["ortho_res_m"]
     onx, ony = int(math.floor(layout.width_m / ores)), int(math.floor(layout.height_m / ores))
-    ortho = np.empty((ony, onx, 3), np.uint8)
     oxs = (np.arange(onx) + 0.5) * ores
-    for r0 in range(0, ony, 512):
-        r1 = min(ony, r0 + 512)
-        oys = layout.height_m - (np.arange(r0, r1) + 0.5) * ores
-        OX, OY = np.meshgrid(oxs, oys)
+
+    def ortho_rows(r0, r1):
+        OX, OY = grid(ores, oxs, r0, r1)
         _, rad, _ = render.vertical_render(scene, accel, OX.ravel(), OY.ravel())
-        ortho[r0:r1] = np.clip(np.rint(render.tone_map(rad.reshape(OX.shape + (3,)))), 0, 255).astype(np.uint8)
-    _write_geotiff(truth_dir / "ortho.tif", ortho, from_origin(origin[0], origin[1] + layout.height_m, ores, ores), epsg)
+        return np.clip(np.rint(render.tone_map(rad.reshape(OX.shape + (3,)))), 0, 255).astype(np.uint8)
+
+    _write_geotiff(truth_dir / "ortho.tif", onx, ony, 3, np.uint8,
+                   from_origin(origin[0], origin[1] + layout.height_m, ores, ores), epsg, ortho_rows)
 
 
 def _mean_spacing(L):

@@ -163,3 +163,56 @@ def test_a_comment_in_a_toml_input_does_not_rerun_a_stage(tmp_path):
     (tmp_path / "p.toml").write_text("[a]\nx = 2\n")
     run_stages(tmp_path, stages, log=lambda m: None)
     assert calls == ["s", "s"]
+
+
+def test_stage_cost_in_stamp_summary_and_table(tmp_path):
+    """Each run stage records wall and CPU seconds and peak RSS in its stamp and summary row; the run writes
+    work/run_summary.json with the rows and the load averages."""
+    import numpy as np
+
+    def heavy(r):
+        a = np.ones(120 * 1024 * 1024 // 8)  # 120 MB held by the stage
+        t = __import__("time").process_time()
+        while __import__("time").process_time() - t < 0.3:
+            pass
+        (r / "heavy.txt").write_text(str(a.sum()))
+        return dict(points=int(a.size))
+
+    stages = [Stage("heavy", lambda r: [], lambda r: [r / "heavy.txt"], heavy)]
+    rows = run_stages(tmp_path, stages, log=lambda m: None)
+    stamp = json.loads(stamp_path(tmp_path, "heavy").read_text())
+    usage = stamp["usage"]
+    assert usage["cpu_s"] >= 0.3 and usage["wall_s"] >= 0.3
+    assert usage["peak_rss_mb"] >= 120
+    assert rows[0]["cpu_s"] == usage["cpu_s"] and rows[0]["peak_rss_mb"] == usage["peak_rss_mb"]
+    assert rows[0]["points"] == 120 * 1024 * 1024 // 8
+    summary = json.loads((tmp_path / "work" / "run_summary.json").read_text())
+    assert [r["stage"] for r in summary["stages"]] == ["heavy"]
+    assert summary["stages"][0]["cpu_s"] == usage["cpu_s"]
+    assert len(summary["load_avg_start"]) == 3 and len(summary["load_avg_end"]) == 3
+    table = format_summary(rows)
+    assert "CPU s" in table and "peak MB" in table
+    assert f"{usage['cpu_s']:.1f}" in table and "cpu_s=" not in table  # a column, not a key number
+    # An up-to-date re-run costs nothing and says so in the summary file.
+    rows = run_stages(tmp_path, stages, log=lambda m: None)
+    assert rows[0]["status"] == "skipped (up to date)" and "cpu_s" not in rows[0]
+    summary = json.loads((tmp_path / "work" / "run_summary.json").read_text())
+    assert summary["stages"][0]["status"] == "skipped (up to date)"
+
+
+def test_stage_cost_without_memory_figures(tmp_path, monkeypatch):
+    """Where neither /proc nor getrusage give a peak (not Linux, no resource module) the stage records its
+    times only and the table shows no peak."""
+    from aerotri.core import resources
+
+    monkeypatch.setattr(resources, "psutil", None)
+    monkeypatch.setattr(resources, "resource", None)
+    monkeypatch.setattr(resources, "_reset_hwm", lambda pid="self": False)
+    monkeypatch.setattr(resources, "_hwm_mb", lambda pid="self": None)
+    stages = [Stage("s", lambda r: [], lambda r: [r / "s.txt"], lambda r: (r / "s.txt").write_text("x") and {})]
+    rows = run_stages(tmp_path, stages, log=lambda m: None)
+    stamp = json.loads(stamp_path(tmp_path, "s").read_text())
+    assert set(stamp["usage"]) == {"wall_s", "cpu_s"}
+    assert "cpu_s" in rows[0] and "peak_rss_mb" not in rows[0]
+    line = format_summary(rows).splitlines()[1].split()
+    assert line[0] == "s" and line[3] == f"{rows[0]['cpu_s']:.1f}" and line[4] == "-"

@@ -1,0 +1,142 @@
+"""What a piece of work cost: wall time, CPU time and peak resident memory (for the chain's stage records
+and the benchmarks).
+
+CPU seconds are user + system of this process, of the children it reaped during the work (``os.times``)
+and of the worker processes still alive at the end (a Dask ``local:N`` cluster; ``psutil``), less what
+those had used before. Peak RSS: on Linux the high-water mark of this process is reset before the work
+(``5`` into ``/proc/self/clear_refs``) and read after (``VmHWM`` in ``/proc/self/status``); the worker
+processes' marks likewise (their sum: an upper bound of what they held together), and children that ended
+during the work count with the ``ru_maxrss`` of ``RUSAGE_CHILDREN`` when it grew (the largest of them; a
+smaller one is not seen). Elsewhere, or when the mark cannot be reset, the process's lifetime peak
+(``resource.getrusage``) stands in and ``rss_reset`` is False; without ``resource`` either, no peak (None).
+Without ``psutil`` live workers are not counted. Sizes in MiB.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import dataclasses
+import os
+import sys
+import time
+from collections.abc import Iterator
+from pathlib import Path
+
+try:
+    import psutil
+except ImportError:  # pragma: no cover - declared, and a dependency of dask.distributed; still optional here
+    psutil = None
+
+try:
+    import resource
+except ImportError:  # pragma: no cover - not on Windows
+    resource = None
+
+_MIB = 1024.0 * 1024.0
+
+
+@dataclasses.dataclass
+class Usage:
+    """The cost of one piece of work (filled in when the ``measure`` block ends)."""
+
+    wall_s: float = 0.0
+    cpu_s: float = 0.0  # this process, reaped children and live workers (user + system)
+    peak_rss_mb: float | None = None  # this process
+    workers_peak_rss_mb: float = 0.0  # sum of the worker processes' peaks (an upper bound of their total)
+    rss_reset: bool = False  # peaks are of this work alone (else: since the process started)
+
+    @property
+    def total_peak_rss_mb(self) -> float | None:
+        """This process plus its workers: an upper bound of the memory the work held at any time."""
+        return None if self.peak_rss_mb is None else self.peak_rss_mb + self.workers_peak_rss_mb
+
+    def record(self) -> dict:
+        """Rounded numbers for a stamp or a JSON record (keys with units)."""
+        out = dict(wall_s=round(self.wall_s, 2), cpu_s=round(self.cpu_s, 2))
+        if self.peak_rss_mb is not None:
+            out["peak_rss_mb"] = round(self.peak_rss_mb, 1)
+            if self.workers_peak_rss_mb:
+                out["workers_peak_rss_mb"] = round(self.workers_peak_rss_mb, 1)
+            out["rss_reset"] = self.rss_reset
+        return out
+
+
+def _reset_hwm(pid: int | str = "self") -> bool:
+    try:
+        Path(f"/proc/{pid}/clear_refs").write_text("5")
+        return True
+    except OSError:
+        return False
+
+
+def _hwm_mb(pid: int | str = "self") -> float | None:
+    """VmHWM of a process (Linux), MiB."""
+    try:
+        for line in Path(f"/proc/{pid}/status").read_text().splitlines():
+            if line.startswith("VmHWM:"):
+                return int(line.split()[1]) / 1024.0
+    except (OSError, ValueError, IndexError):
+        pass
+    return None
+
+
+def _maxrss_mb(who) -> float | None:
+    if resource is None:
+        return None
+    kb = resource.getrusage(who).ru_maxrss
+    return kb / _MIB if sys.platform == "darwin" else kb / 1024.0  # bytes on macOS, KiB elsewhere
+
+
+def _workers() -> dict:
+    """pid -> (process, CPU seconds so far) of every live descendant."""
+    if psutil is None:
+        return {}
+    out = {}
+    try:
+        kids = psutil.Process().children(recursive=True)
+    except psutil.Error:
+        return {}
+    for p in kids:
+        try:
+            t = p.cpu_times()
+            out[p.pid] = (p, t.user + t.system)
+        except psutil.Error:
+            continue
+    return out
+
+
+def _cpu_self_and_reaped() -> float:
+    t = os.times()
+    return t.user + t.system + t.children_user + t.children_system
+
+
+@contextlib.contextmanager
+def measure() -> Iterator[Usage]:
+    """``with measure() as usage:`` ... ``usage.wall_s, usage.cpu_s, usage.peak_rss_mb`` afterwards."""
+    usage = Usage()
+    reset = _reset_hwm()
+    before = _workers()
+    for pid in before:
+        _reset_hwm(pid)
+    reaped_rss0 = _maxrss_mb(resource.RUSAGE_CHILDREN) if resource else None
+    cpu0 = _cpu_self_and_reaped()
+    t0 = time.perf_counter()
+    try:
+        yield usage
+    finally:
+        usage.wall_s = time.perf_counter() - t0
+        after = _workers()
+        cpu = _cpu_self_and_reaped() - cpu0
+        for pid, (_, c1) in after.items():
+            cpu += c1 - before.get(pid, (None, 0.0))[1]
+        # a worker reaped during the work counts whole in os.times: take off what it had used before
+        cpu -= sum(c0 for pid, (_, c0) in before.items() if pid not in after)
+        usage.cpu_s = max(cpu, 0.0)
+        hwm = _hwm_mb() if reset else None
+        usage.rss_reset = hwm is not None
+        usage.peak_rss_mb = hwm if hwm is not None else _maxrss_mb(resource.RUSAGE_SELF if resource else None)
+        usage.workers_peak_rss_mb = sum(v for pid in after if (v := _hwm_mb(pid)) is not None)
+        # children that ended during the work: the largest of them, when it is larger than any reaped before
+        reaped_rss = _maxrss_mb(resource.RUSAGE_CHILDREN) if resource else None
+        if reaped_rss is not None and reaped_rss0 is not None and reaped_rss > reaped_rss0:
+            usage.workers_peak_rss_mb += reaped_rss

@@ -1,0 +1,328 @@
+"""Benchmark: the whole chain on a production-size block, per stage: wall and CPU time, peak RSS, throughput.
+
+The block is the simulator preset ``scale`` (300 frames of 1728 x 960 px, 13 LiDAR strips, about 120 million
+points over 21 km2), generated once outside the repository (``--generate``; the quarter block took 6.6 min
+and 1.5 GB at load 1-2, so the full one should take about half an hour) and reused: every run links the block's inputs (project.toml, camera.toml, gnss.txt, images/, lidar/; hard links,
+the chain never modifies its inputs) into a fresh run folder next to it and runs ``aerotri run`` there with
+the true orthophoto and the surveyed targets for the final checks. Smaller blocks of the same preset, so the
+LiDAR stages' peak RSS can be compared at two or three block sizes (tiled stages: nearly equal):
+``--size quarter`` (5 strips x 15 frames = 75 frames, 6.2 km2, 45 M pulses, about 35 M points) and
+``--size eighth`` (3 strips x 10 frames = 30 frames, 2.9 km2, 20 M pulses, about 16 M points); their
+buildings, trees, bushes and ponds scaled with the scene area, so the scene looks alike. ``--size tiny``
+(the simulator's ``tiny`` preset, seconds) checks the benchmark itself.
+
+The numbers come from the chain's own stage records (``work/run_summary.json``: wall and CPU seconds of the
+process and its Dask workers, peak RSS reset before every stage: the most the process held during the
+stage, including what it still holds of earlier stages); stage names are read from the record, so
+the table follows whatever stages the chain has. Throughput: frames/min for the frame stages, LiDAR points/s
+for the LiDAR stages (the block's points, whatever the stage read), MP/s of input frames for rectify and of
+mosaic pixels for mosaic. Load averages are recorded before and after: other work on the machine slows the
+wall times; CPU seconds are steadier.
+
+Writes results/scale.json (one entry per block size, kept across runs of the other size).
+
+Usage:
+  python bench/scale.py --generate-only                # once: simulate the block into /work/bench_blocks/scale
+  python bench/scale.py                                # run the chain on it, print the table
+  python bench/scale.py --size quarter --generate      # a smaller block (generated unless it exists), run
+  python bench/scale.py --size eighth --table-only     # the table of the last run of that size, run nothing
+  python bench/scale.py --size full --print-command    # the generation command, to run it elsewhere
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import shutil
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+BIN = Path(sys.executable).parent
+sys.path.insert(0, str(ROOT))
+
+from aerotri.core.resources import measure  # noqa: E402
+
+BLOCKS = Path(os.environ.get("AEROTRI_BENCH_BLOCKS", "/work/bench_blocks"))
+# --size: the simulator preset and the flight of each block (the scene's object counts follow its area)
+SIZES = {"full": ("scale", []), "quarter": ("scale", ["flight.strips=5", "flight.frames_per_strip=15"]),
+         "eighth": ("scale", ["flight.strips=3", "flight.frames_per_strip=10"]), "tiny": ("tiny", [])}
+SCENE_COUNTS = ("buildings", "single_trees", "tree_clusters", "slope_trees", "bushes", "ponds")
+LIMIT_WALL_MIN = 60.0
+LIMIT_PEAK_GB = 6.0
+
+# Throughput columns and what each stage is counted in. Stages not named here (a stage added to the chain):
+# LiDAR points/s when the stage's record counts points, else none. MP/s: of the input frames for rectify, of
+# the mosaic for mosaic.
+FRAMES, POINTS, MP = "frames/min", "points/s", "MP/s"
+UNITS = {
+    "merge": [POINTS], "classify": [POINTS], "rasters": [POINTS], "corners": [POINTS], "height_check": [POINTS],
+    "lidar_eval": [POINTS],
+    "match": [FRAMES], "adjust_first": [FRAMES], "control": [FRAMES], "adjust_final": [FRAMES],
+    "rectify": [FRAMES, MP], "mosaic": [MP],
+}
+COLUMNS = (FRAMES, POINTS, MP)
+# Final checks: they read the LiDAR too, but run after the frame stages, whose heap the process still holds
+# (their peak is the chain's, not the LiDAR's); left out of the LiDAR peak compared between block sizes.
+CHECKS = ("dom_check", "height_check", "lidar_eval", "report")
+INPUTS = ("project.toml", "camera.toml", "gnss.txt", "images", "lidar")
+
+
+def _load() -> list[float]:
+    return [round(v, 2) for v in os.getloadavg()]
+
+
+def _link_tree(src: Path, dst: Path) -> None:
+    """Hard links of the block's inputs (a copy across file systems)."""
+    for name in INPUTS:
+        s = src / name
+        if s.is_dir():
+            shutil.copytree(s, dst / name, copy_function=_link_or_copy)
+        else:
+            _link_or_copy(s, dst / name)
+
+
+def _link_or_copy(s, d) -> None:
+    try:
+        os.link(s, d)
+    except OSError:
+        shutil.copy2(s, d)
+
+
+def size_overrides(size: str) -> tuple[str, list[str]]:
+    """The preset and ``--set`` overrides of a block size: its flight, and the preset's counts of buildings,
+    trees, bushes and ponds times its scene area over the full block's (at least one of each)."""
+    from aerotri.sim import lidar_plan, load_preset
+
+    preset, flight = SIZES[size]
+    if not flight:
+        return preset, []
+    full = load_preset(preset)
+    ratio = lidar_plan(load_preset(preset, flight))["scene_km2"] / lidar_plan(full)["scene_km2"]
+    return preset, flight + [f"scene.{k}={max(1, round(full['scene'][k] * ratio))}" for k in SCENE_COUNTS]
+
+
+def generate_command(block: Path, size: str) -> list[str]:
+    preset, overrides = size_overrides(size)
+    return [str(BIN / "aerotri"), "sim", "--preset", preset, *[a for o in overrides for a in ("--set", o)], str(block)]
+
+
+def generate(block: Path, size: str) -> dict:
+    """Simulate the block (``aerotri sim``) in a child process; its time and peak RSS."""
+    from aerotri.sim import lidar_plan, load_preset
+
+    preset, overrides = size_overrides(size)
+    plan = lidar_plan(load_preset(preset, overrides))
+    print(f"generating {block}: LiDAR {plan['strips']} strips, {plan['pulses'] / 1e6:.1f} M pulses over "
+          f"{plan['scene_km2']} km2 (about 0.8 points a pulse)", flush=True)
+    cmd = generate_command(block, size)
+    load0 = _load()
+    with measure() as u:
+        subprocess.run(cmd, check=True)
+    truth = json.loads((block / "truth" / "truth.json").read_text())
+    # the simulator's peak: the largest child reaped (RUSAGE_CHILDREN), not this process's
+    return dict(wall_s=round(u.wall_s, 1), cpu_s=round(u.cpu_s, 1), peak_rss_mb=round(u.workers_peak_rss_mb, 1),
+                lidar_plan=plan, frames=truth["frames"], lidar_points=truth["lidar_points"], load_avg_before=load0,
+                load_avg_after=_load(), command=" ".join(Path(cmd[0]).name if i == 0 else c for i, c in enumerate(cmd)))
+
+
+def block_numbers(block: Path) -> dict:
+    """Frames, frame size and LiDAR points of the block (from the simulator's truth summary)."""
+    truth = json.loads((block / "truth" / "truth.json").read_text())
+    return dict(frames=truth["frames"], image_width_px=truth["image_width_px"],
+                image_height_px=truth["image_height_px"], lidar_points=truth["lidar_points"],
+                lidar_strips=truth["lidar_strips"], scene_km2=round(truth["scene_width_m"] * truth["scene_height_m"] / 1e6, 2))
+
+
+def run_chain(block: Path, run_dir: Path, scheduler: str | None, workers: int | None) -> dict:
+    """A fresh run folder with the block's inputs, ``aerotri run`` over it; the run's record."""
+    if run_dir.exists():
+        shutil.rmtree(run_dir)
+    run_dir.mkdir(parents=True)
+    _link_tree(block, run_dir)
+    cmd = [str(BIN / "aerotri"), "run", str(run_dir), "--reference", str(block / "truth" / "ortho.tif"),
+           "--points", str(block / "truth" / "checkpoints.csv")]
+    if scheduler:
+        cmd += ["--scheduler", scheduler]
+    if workers:
+        cmd += ["--workers", str(workers)]
+    load0 = _load()
+    with measure() as u:
+        proc = subprocess.run(cmd)
+    # the largest process of the run (RUSAGE_CHILDREN; None when an earlier child of this script was larger)
+    largest = round(u.workers_peak_rss_mb, 1) if u.workers_peak_rss_mb else None
+    return dict(returncode=proc.returncode, wall_s=round(u.wall_s, 1), cpu_s=round(u.cpu_s, 1),
+                largest_process_peak_rss_mb=largest, load_avg_before=load0, load_avg_after=_load(),
+                command=" ".join(["aerotri"] + cmd[1:]))
+
+
+def stage_records(run_dir: Path) -> list[dict]:
+    """The run's stage rows (``work/run_summary.json``); of an interrupted run, the stamps of the stages that
+    finished, in the order they finished."""
+    summary_path = run_dir / "work" / "run_summary.json"
+    if summary_path.exists():
+        return json.loads(summary_path.read_text())["stages"]
+    records = []
+    for p in sorted((run_dir / "work" / "stages").glob("*.json"), key=lambda p: p.stat().st_mtime):
+        s = json.loads(p.read_text())
+        usage = {k: v for k, v in s.get("usage", {}).items() if k not in ("wall_s", "rss_reset")}
+        records.append(dict(stage=p.stem, status="done", seconds=s.get("seconds", 0.0), **usage, **s.get("result", {})))
+    return records
+
+
+def stage_rows(records: list[dict], blk: dict) -> list[dict]:
+    """Per stage: wall, CPU, peak RSS (the process + its workers) and throughput."""
+    frame_mp = blk["frames"] * blk["image_width_px"] * blk["image_height_px"] / 1e6
+    rows = []
+    for r in records:
+        units = UNITS.get(r["stage"], [POINTS] if "points" in r else [])
+        row = dict(stage=r["stage"], status=r["status"], wall_s=r.get("seconds", 0.0), cpu_s=r.get("cpu_s"),
+                   peak_rss_mb=None, lidar=POINTS in units and r["stage"] not in CHECKS,
+                   **{c: None for c in COLUMNS})
+        if "peak_rss_mb" in r:
+            row["peak_rss_mb"] = round(r["peak_rss_mb"] + r.get("workers_peak_rss_mb", 0.0), 1)
+        dt = row["wall_s"]
+        if r["status"] != "done" or dt <= 0:
+            rows.append(row)
+            continue
+        for unit in units:
+            if unit == FRAMES:
+                v = blk["frames"] / (dt / 60.0)
+            elif unit == POINTS:
+                v = blk["lidar_points"] / dt
+            elif r["stage"] == "mosaic" and "width_px" in r and "height_px" in r:
+                v = r["width_px"] * r["height_px"] / 1e6 / dt
+            elif r["stage"] != "mosaic":
+                v = frame_mp / dt
+            else:
+                continue
+            row[unit] = round(v, 3 if v < 10 else 1)
+        rows.append(row)
+    return rows
+
+
+def format_table(rows: list[dict]) -> str:
+    head = (f"{'stage':<14} {'status':<22} {'wall s':>8} {'CPU s':>8} {'peak RSS MB':>11} "
+            f"{FRAMES:>10} {POINTS:>12} {MP:>8}")
+    lines = [head, "-" * len(head)]
+
+    def num(v, width, fmt):
+        return f"{'-':>{width}}" if v is None else f"{v:>{width}{fmt}}"
+
+    for r in rows:
+        lines.append(f"{r['stage']:<14} {r['status'][:22]:<22} {r['wall_s']:>8.1f} {num(r['cpu_s'], 8, '.1f')} "
+                     f"{num(r['peak_rss_mb'], 11, '.0f')} {num(r[FRAMES], 10, ',.1f')} {num(r[POINTS], 12, ',.0f')} "
+                     f"{num(r[MP], 8, '.2f')}")
+    return "\n".join(lines)
+
+
+def verdict(rows: list[dict], run: dict | None) -> dict:
+    """The whole chain against the issue's limits (60 min, 6 GB peak) and what bounds it."""
+    done = [r for r in rows if r["status"] == "done"]
+    stages_s = sum(r["wall_s"] for r in done)
+    wall_min = (run["wall_s"] if run else stages_s) / 60.0  # the run's own wall time includes start-up
+    peaks = [r for r in done if r["peak_rss_mb"] is not None]
+    top = max(peaks, key=lambda r: r["peak_rss_mb"]) if peaks else None
+    slow = max(done, key=lambda r: r["wall_s"]) if done else None
+    lidar = [r for r in peaks if r["lidar"]]
+    lidar_top = max(lidar, key=lambda r: r["peak_rss_mb"]) if lidar else None
+    complete = run is None or run["returncode"] == 0
+    return dict(
+        wall_min=round(wall_min, 1), stages_wall_min=round(stages_s / 60.0, 1),
+        cpu_min=round(sum(r["cpu_s"] or 0.0 for r in done) / 60.0, 1),
+        peak_rss_gb=round(top["peak_rss_mb"] / 1024.0, 2) if top else None, peak_stage=top["stage"] if top else None,
+        slowest_stage=slow["stage"] if slow else None,
+        slowest_stage_share=round(slow["wall_s"] / stages_s, 2) if slow and stages_s > 0 else None,
+        lidar_peak_rss_mb=lidar_top["peak_rss_mb"] if lidar_top else None,
+        lidar_peak_stage=lidar_top["stage"] if lidar_top else None,
+        complete=complete, limit_wall_min=LIMIT_WALL_MIN, limit_peak_gb=LIMIT_PEAK_GB,
+        under_60_min=complete and wall_min < LIMIT_WALL_MIN,
+        under_6_gb=complete and top is not None and top["peak_rss_mb"] / 1024.0 < LIMIT_PEAK_GB)
+
+
+def verdict_line(size: str, v: dict) -> str:
+    """The limits, stated plainly: within or not, and what bounds the run."""
+    if not v["complete"]:
+        return f"{size} block: the chain did NOT complete: no verdict on the limits"
+    ok = v["under_60_min"] and v["under_6_gb"]
+    return (f"{size} block: whole chain {v['wall_min']} min (limit {LIMIT_WALL_MIN:.0f} min: "
+            f"{'within' if v['under_60_min'] else 'NOT within'}; slowest stage {v['slowest_stage']}, "
+            f"{v['slowest_stage_share']:.0%} of the stages' time), CPU {v['cpu_min']} min, peak RSS {v['peak_rss_gb']} GB "
+            f"in {v['peak_stage']} (limit {LIMIT_PEAK_GB:.0f} GB: {'within' if v['under_6_gb'] else 'NOT within'})"
+            f" -> {'within both limits' if ok else 'NOT within the limits'}")
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--size", choices=list(SIZES), default="full", help="the block (default: full)")
+    ap.add_argument("--block", type=Path, help="the generated block (default: $AEROTRI_BENCH_BLOCKS/scale[_SIZE])")
+    ap.add_argument("--generate", action="store_true", help="simulate the block first unless it exists")
+    ap.add_argument("--generate-only", action="store_true", help="simulate the block, do not run the chain")
+    ap.add_argument("--print-command", action="store_true", help="print the generation command, run nothing")
+    ap.add_argument("--table-only", action="store_true", help="tabulate the last run of this size, run nothing")
+    ap.add_argument("--scheduler", help="passed to aerotri run (default: its own)")
+    ap.add_argument("--workers", type=int, help="passed to aerotri run")
+    ap.add_argument("--out", type=Path, default=ROOT / "results" / "scale.json")
+    args = ap.parse_args(argv)
+
+    block = args.block or BLOCKS / ("scale" if args.size == "full" else f"scale_{args.size}")
+    if args.print_command:
+        print(" ".join(generate_command(block, args.size)))
+        return 0
+    run_dir = block.parent / f"{block.name}_run"
+    results = json.loads(args.out.read_text()) if args.out.exists() else {}
+    entry = dict(results.get(args.size, {})) if args.table_only else {}
+    if args.generate or args.generate_only:
+        if (block / "truth" / "truth.json").exists():
+            print(f"{block}: block exists, reusing it", flush=True)
+        else:
+            entry["generation"] = g = generate(block, args.size)
+            print(f"generated in {g['wall_s'] / 60:.1f} min, CPU {g['cpu_s'] / 60:.1f} min, peak RSS "
+                  f"{g['peak_rss_mb']:.0f} MB, load {g['load_avg_before']} -> {g['load_avg_after']}", flush=True)
+        if args.generate_only:
+            results[args.size] = dict(results.get(args.size, {}), **entry)
+            args.out.parent.mkdir(parents=True, exist_ok=True)
+            args.out.write_text(json.dumps(results, indent=1) + "\n")
+            return 0
+    if not (block / "truth" / "truth.json").exists():
+        sys.exit(f"{block}: no generated block (bench/scale.py --size {args.size} --generate; "
+                 f"or run `bench/scale.py --size {args.size} --print-command` elsewhere)")
+    if args.table_only and not (run_dir / "work").is_dir():
+        sys.exit(f"{run_dir}: no run of the {args.size} block yet")
+    blk = block_numbers(block)
+    run = None if args.table_only else run_chain(block, run_dir, args.scheduler, args.workers)
+    rows = stage_rows(stage_records(run_dir), blk)
+    summary = run_dir / "work" / "run_summary.json"
+    chain_load = ({k: v for k, v in json.loads(summary.read_text()).items() if k.startswith("load_avg")}
+                  if summary.exists() else {})
+    run = run or entry.get("run")
+    entry.update(block=str(block), block_numbers=blk, stages=rows, verdict=verdict(rows, run),
+                 chain_load_avg=chain_load, cpu_count=os.cpu_count())
+    if run:
+        entry["run"] = run
+    if not args.table_only:
+        entry["measured_utc"] = time.strftime("%Y-%m-%d %H:%M", time.gmtime())
+    results[args.size] = dict(results.get(args.size, {}), **entry)
+    args.out.parent.mkdir(parents=True, exist_ok=True)
+    args.out.write_text(json.dumps(results, indent=1) + "\n")
+
+    print(f"\n{args.size} block: {blk['frames']} frames of {blk['image_width_px']} x {blk['image_height_px']} px, "
+          f"{blk['lidar_points'] / 1e6:.2f} M LiDAR points in {blk['lidar_strips']} strips, {blk['scene_km2']} km2")
+    print(format_table(rows))
+    print(verdict_line(args.size, entry["verdict"]))
+    if run:
+        print(f"load average (1, 5, 15 min) {run['load_avg_before']} before, {run['load_avg_after']} after "
+              f"on {os.cpu_count()} cores; aerotri run exit code {run['returncode']}")
+    lidar = {s: e["verdict"] for s, e in results.items() if e.get("verdict", {}).get("lidar_peak_rss_mb")}
+    if len(lidar) > 1:
+        print("LiDAR stages' peak RSS by block size: " + ", ".join(
+            f"{s} {v['lidar_peak_rss_mb']:.0f} MB ({v['lidar_peak_stage']}, {results[s]['block_numbers']['lidar_points'] / 1e6:.1f} M points)"
+            for s, v in lidar.items()))
+    return 0 if run is None or run["returncode"] == 0 else 1
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,126 @@
+"""measure(): CPU seconds of the work (not of the process before it), peak RSS of the work alone, children."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+import time
+
+import numpy as np
+import pytest
+
+from aerotri.core.resources import measure
+
+MB = 1024 * 1024
+
+
+def _busy(cpu_s: float) -> None:
+    t = time.process_time()
+    x = 0
+    while time.process_time() - t < cpu_s:
+        x += 1
+
+
+def _rss_mb() -> float:
+    for line in open("/proc/self/status"):
+        if line.startswith("VmRSS:"):
+            return int(line.split()[1]) / 1024.0
+    raise AssertionError("no VmRSS in /proc/self/status")
+
+
+def test_cpu_seconds_are_the_work_alone():
+    _busy(0.3)  # before: not counted
+    with measure() as u:
+        _busy(0.4)
+        time.sleep(0.2)  # wall time, no CPU
+    assert 0.35 <= u.cpu_s < 0.6
+    assert u.wall_s >= u.cpu_s + 0.15
+
+
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="resetting the high-water mark needs Linux /proc")
+def test_peak_rss_is_reset_before_the_work():
+    big = np.ones(600 * MB // 8)  # a peak before the work ...
+    del big
+    rss0 = _rss_mb()  # what the process holds anyway (in a full test session, much more than the interpreter)
+    with measure() as u:
+        small = np.ones(150 * MB // 8)
+        del small
+    assert u.rss_reset
+    # ... is not the work's: the work's peak is what the process held plus its 150 MB, not the 600 MB
+    assert 145 <= u.peak_rss_mb - rss0 < 450
+    assert u.record()["peak_rss_mb"] == round(u.peak_rss_mb, 1)
+
+
+def test_a_child_process_counts_in_cpu_and_memory():
+    code = "import numpy as np, time\na = np.ones(250 * 1024 * 1024 // 8)\nt = time.process_time()\n" \
+           "while time.process_time() - t < 0.3: pass"
+    with measure() as u:
+        subprocess.run([sys.executable, "-c", code], check=True)
+    assert u.cpu_s >= 0.3
+    if sys.platform.startswith("linux"):
+        assert u.workers_peak_rss_mb >= 250
+        assert u.total_peak_rss_mb == u.peak_rss_mb + u.workers_peak_rss_mb
+
+
+def _worker(tmp_path, cpu_s: float, mb: int) -> tuple[subprocess.Popen, object]:
+    """A process alive before and after the work (as a Dask worker is), which burns ``cpu_s`` and holds
+    ``mb`` MiB only once ``go`` exists, then writes ``done`` and stays alive."""
+    go, done = tmp_path / "go", tmp_path / "done"
+    code = ("import numpy as np, os, time, sys\n"
+            f"go, done = {str(go)!r}, {str(done)!r}\n"
+            "while not os.path.exists(go): time.sleep(0.01)\n"
+            f"a = np.ones({mb} * 1024 * 1024 // 8)\n"
+            "t = time.process_time()\n"
+            f"while time.process_time() - t < {cpu_s}: pass\n"
+            "del a\n"
+            "open(done, 'w').close()\n"
+            "time.sleep(120)\n")
+    proc = subprocess.Popen([sys.executable, "-c", code])
+    time.sleep(0.5)  # started (and its interpreter's start-up CPU spent) before the work
+    return proc, (go, done)
+
+
+def test_a_live_worker_counts_with_what_it_did_during_the_work(tmp_path):
+    proc, (go, done) = _worker(tmp_path, 0.4, 200)
+    try:
+        deadline = time.monotonic() + 60
+        with measure() as u:
+            go.touch()
+            while not done.exists() and time.monotonic() < deadline:
+                time.sleep(0.02)
+        assert done.exists()
+    finally:
+        proc.kill()
+        proc.wait()
+    # its CPU during the work (not its start-up before), its peak since the reset (the 200 MB, gone again)
+    assert 0.35 <= u.cpu_s < 1.0
+    if sys.platform.startswith("linux"):
+        assert 200 <= u.workers_peak_rss_mb < 400
+
+
+def test_without_psutil_or_proc_the_lifetime_peak_stands_in(monkeypatch):
+    from aerotri.core import resources
+
+    monkeypatch.setattr(resources, "psutil", None)
+    monkeypatch.setattr(resources, "_reset_hwm", lambda pid="self": False)
+    monkeypatch.setattr(resources, "_hwm_mb", lambda pid="self": None)
+    with measure() as u:
+        _busy(0.2)
+    assert u.cpu_s >= 0.15
+    assert not u.rss_reset
+    if resources.resource is not None:  # the process's peak since it started: at least its interpreter
+        assert u.peak_rss_mb > 10
+        assert u.record()["rss_reset"] is False
+
+
+def test_without_any_memory_source_only_times_are_recorded(monkeypatch):
+    from aerotri.core import resources
+
+    monkeypatch.setattr(resources, "psutil", None)
+    monkeypatch.setattr(resources, "resource", None)
+    monkeypatch.setattr(resources, "_reset_hwm", lambda pid="self": False)
+    monkeypatch.setattr(resources, "_hwm_mb", lambda pid="self": None)
+    with measure() as u:
+        _busy(0.2)
+    assert u.peak_rss_mb is None and u.total_peak_rss_mb is None
+    assert set(u.record()) == {"wall_s", "cpu_s"} and u.record()["cpu_s"] >= 0.15

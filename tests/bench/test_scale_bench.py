@@ -1,0 +1,125 @@
+"""bench/scale.py without the chain: block sizes, the stage table from a run's records, the verdict on the
+issue's limits and results/scale.json keyed by size. (The whole benchmark on the ``tiny`` preset:
+``bench/scale.py --size tiny --generate``, about 2 minutes.)"""
+
+from __future__ import annotations
+
+import importlib.util
+import json
+from pathlib import Path
+
+import pytest
+
+from aerotri.chain.runner import Stage, run_stages
+
+ROOT = Path(__file__).resolve().parents[2]
+
+
+@pytest.fixture(scope="module")
+def scale():
+    spec = importlib.util.spec_from_file_location("bench_scale", ROOT / "bench" / "scale.py")
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    return mod
+
+
+def test_smaller_blocks_keep_the_scene_density(scale):
+    from aerotri.sim import lidar_plan, load_preset
+
+    full = load_preset("scale")
+    full_km2 = lidar_plan(full)["scene_km2"]
+    for size, frames in (("quarter", 75), ("eighth", 30)):
+        preset, overrides = scale.size_overrides(size)
+        cfg = load_preset(preset, overrides)
+        assert cfg["flight"]["strips"] * cfg["flight"]["frames_per_strip"] == frames
+        km2 = lidar_plan(cfg)["scene_km2"]
+        assert km2 < full_km2 / 3
+        # buildings and trees per km2 as on the full block (to rounding)
+        for key in ("buildings", "single_trees", "bushes"):
+            assert cfg["scene"][key] / km2 == pytest.approx(full["scene"][key] / full_km2, rel=0.01)
+    assert scale.size_overrides("full") == ("scale", [])
+    assert scale.size_overrides("tiny") == ("tiny", [])
+
+
+BLOCK = dict(frames=30, image_width_px=1000, image_height_px=500, lidar_points=6_000_000, lidar_strips=4,
+             scene_width_m=2000.0, scene_height_m=1000.0)
+
+
+def _fake_run(scale, run_dir: Path, records: list[dict]) -> None:
+    (run_dir / "work").mkdir(parents=True)
+    (run_dir / "work" / "run_summary.json").write_text(json.dumps(dict(stages=records, load_avg_start=[1.0, 1.0, 1.0],
+                                                                       load_avg_end=[2.0, 1.5, 1.0])))
+
+
+def test_table_throughput_and_limits_from_stage_records(scale):
+    records = [
+        dict(stage="classify", status="done", seconds=60.0, cpu_s=90.0, peak_rss_mb=900.0, workers_peak_rss_mb=300.0,
+             points=6_000_000),
+        dict(stage="tile_dem", status="done", seconds=30.0, cpu_s=30.0, peak_rss_mb=800.0, points=6_000_000),
+        dict(stage="match", status="done", seconds=120.0, cpu_s=200.0, peak_rss_mb=2000.0),
+        dict(stage="control", status="skipped", seconds=0.0, why="no usable roof corner"),
+        dict(stage="rectify", status="done", seconds=50.0, cpu_s=60.0, peak_rss_mb=1500.0, frames=30),
+        dict(stage="mosaic", status="done", seconds=10.0, cpu_s=9.0, peak_rss_mb=7000.0, width_px=4000, height_px=3000),
+        dict(stage="height_check", status="done", seconds=2.0, cpu_s=2.0, peak_rss_mb=2500.0),
+    ]
+    rows = {r["stage"]: r for r in scale.stage_rows(records, dict(BLOCK, scene_km2=2.0))}
+    assert rows["classify"]["peak_rss_mb"] == 1200.0  # the process and its workers
+    assert rows["classify"]["points/s"] == 100_000.0
+    assert rows["tile_dem"]["points/s"] == 200_000.0  # a stage the table does not know, counting points
+    assert rows["match"]["frames/min"] == 15.0 and rows["match"]["points/s"] is None
+    assert rows["control"]["frames/min"] is None and rows["control"]["cpu_s"] is None
+    assert rows["rectify"]["frames/min"] == 36.0 and rows["rectify"]["MP/s"] == 0.3  # 15 MP of frames in 50 s
+    assert rows["mosaic"]["MP/s"] == 1.2
+    v = scale.verdict(list(rows.values()), dict(returncode=0, wall_s=300.0))
+    assert v["wall_min"] == 5.0 and v["under_60_min"]
+    assert v["peak_stage"] == "mosaic" and not v["under_6_gb"]  # 7000 MB
+    # the LiDAR peak is of the LiDAR stages, not of the final checks run after the frame stages
+    assert v["lidar_peak_stage"] == "classify" and v["lidar_peak_rss_mb"] == 1200.0
+    line = scale.verdict_line("eighth", v)
+    assert "NOT within the limits" in line and "limit 6 GB: NOT within" in line and "limit 60 min: within" in line
+    assert "did NOT complete" in scale.verdict_line("eighth", scale.verdict(list(rows.values()),
+                                                                             dict(returncode=1, wall_s=10.0)))
+    table = scale.format_table(list(rows.values())).splitlines()
+    assert table[0].split()[:5] == ["stage", "status", "wall", "s", "CPU"]
+    assert "frames/min" in table[0] and "points/s" in table[0] and "MP/s" in table[0]
+    classify = table[2].split()
+    assert classify[:6] == ["classify", "done", "60.0", "90.0", "1200", "-"] and classify[6] == "100,000"
+
+
+def test_table_only_reads_the_last_run_and_keeps_other_sizes(scale, tmp_path, capsys):
+    block = tmp_path / "scale_eighth"
+    (block / "truth").mkdir(parents=True)
+    (block / "truth" / "truth.json").write_text(json.dumps(BLOCK))
+    run_dir = tmp_path / "scale_eighth_run"
+    run_dir.mkdir()
+    # the records of a real (if tiny) run of the runner: two stages, one holding 100 MB
+    import numpy as np
+
+    def lidar(r):
+        a = np.ones(100 * 1024 * 1024 // 8)
+        (r / "l.txt").write_text(str(a.sum()))
+        return dict(points=6_000_000)
+
+    stages = [Stage("classify", lambda r: [], lambda r: [r / "l.txt"], lidar),
+              Stage("match", lambda r: [], lambda r: [r / "m.txt"], lambda r: (r / "m.txt").write_text("m") and {})]
+    run_stages(run_dir, stages, log=lambda m: None)
+    out = tmp_path / "scale.json"
+    out.write_text(json.dumps({"quarter": {"verdict": {"lidar_peak_rss_mb": 2000.0, "lidar_peak_stage": "classify"},
+                                           "block_numbers": {"lidar_points": 33_000_000}}}))
+    assert scale.main(["--size", "eighth", "--block", str(block), "--table-only", "--out", str(out)]) == 0
+    printed = capsys.readouterr().out
+    assert "eighth block: 30 frames of 1000 x 500 px, 6.00 M LiDAR points in 4 strips, 2.0 km2" in printed
+    assert "LiDAR stages' peak RSS by block size: quarter 2000 MB" in printed
+    results = json.loads(out.read_text())
+    assert set(results) == {"quarter", "eighth"}
+    e = results["eighth"]
+    assert [r["stage"] for r in e["stages"]] == ["classify", "match"]
+    assert e["stages"][0]["peak_rss_mb"] >= 100 and e["verdict"]["lidar_peak_stage"] == "classify"
+    assert e["chain_load_avg"]["load_avg_start"] and "run" not in e
+    # a block not run yet: said so, nothing written
+    other = tmp_path / "scale_quarter"
+    (other / "truth").mkdir(parents=True)
+    (other / "truth" / "truth.json").write_text(json.dumps(BLOCK))
+    with pytest.raises(SystemExit, match="no run of the quarter block"):
+        scale.main(["--size", "quarter", "--block", str(other), "--table-only", "--out", str(out)])
+    assert json.loads(out.read_text()) == results
