@@ -248,9 +248,10 @@ def verdict_line(size: str, v: dict) -> str:
     if not v["complete"]:
         return f"{size} block: the chain did NOT complete: no verdict on the limits"
     ok = v["under_60_min"] and v["under_6_gb"]
+    share = "-" if v["slowest_stage_share"] is None else f"{v['slowest_stage_share']:.0%}"
     return (f"{size} block: whole chain {v['wall_min']} min (limit {LIMIT_WALL_MIN:.0f} min: "
             f"{'within' if v['under_60_min'] else 'NOT within'}; slowest stage {v['slowest_stage']}, "
-            f"{v['slowest_stage_share']:.0%} of the stages' time), CPU {v['cpu_min']} min, peak RSS {v['peak_rss_gb']} GB "
+            f"{share} of the stages' time), CPU {v['cpu_min']} min, peak RSS {v['peak_rss_gb']} GB "
             f"in {v['peak_stage']} (limit {LIMIT_PEAK_GB:.0f} GB: {'within' if v['under_6_gb'] else 'NOT within'})"
             f" -> {'within both limits' if ok else 'NOT within the limits'}")
 
