@@ -15,19 +15,61 @@ from aerotri.match.settings import MatchParams
 from aerotri.core.atomic import atomic_path
 
 
-def mutual_ratio_matches(da: np.ndarray, db: np.ndarray, ratio: float) -> np.ndarray:
-    """(M, 2) index pairs that are each other's nearest neighbour and pass the ratio test both ways."""
-    if len(da) < 2 or len(db) < 2:
+def _two_nearest(d2: np.ndarray, axis: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Index of the smallest, the smallest and the second smallest squared distance along ``axis``."""
+    i1 = d2.argmin(axis=axis)
+    d1 = np.take_along_axis(d2, np.expand_dims(i1, axis), axis).squeeze(axis)
+    np.put_along_axis(d2, np.expand_dims(i1, axis), np.inf, axis)
+    second = d2.min(axis=axis)
+    np.put_along_axis(d2, np.expand_dims(i1, axis), d1[..., None] if axis == 1 else d1[None], axis)
+    return i1, d1, second
+
+
+def mutual_ratio_matches(da: np.ndarray, db: np.ndarray, ratio: float, chunk: int = 2048) -> np.ndarray:
+    """(M, 2) index pairs that are each other's nearest neighbour and pass the ratio test both ways.
+
+    Brute force as one BLAS product: squared L2 distances |a|^2 + |b|^2 - 2 a.b in row blocks of
+    ``chunk`` descriptors (memory ``chunk * len(db) * 4`` bytes); each block serves both directions
+    (nearest and second-nearest of every row, running nearest and second-nearest of every column), so
+    the distances are computed once, not twice as with two knnMatch calls. The ratio test compares
+    distances (``d1 < ratio * d2``, i.e. squared ``d1^2 < ratio^2 d2^2``). Rows in ``da`` order.
+    """
+    na, nb = len(da), len(db)
+    if na < 2 or nb < 2:
         return np.zeros((0, 2), int)
-    bf = cv2.BFMatcher(cv2.NORM_L2)
-    ab = bf.knnMatch(da, db, k=2)
-    ba = bf.knnMatch(db, da, k=2)
-    best_ba = np.array([m[0].trainIdx if m[0].distance < ratio * m[1].distance else -1 for m in ba])
-    out = []
-    for m in ab:
-        if m[0].distance < ratio * m[1].distance and best_ba[m[0].trainIdx] == m[0].queryIdx:
-            out.append((m[0].queryIdx, m[0].trainIdx))
-    return np.array(out, dtype=int).reshape(-1, 2)
+    da = np.ascontiguousarray(da, np.float32)
+    db = np.ascontiguousarray(db, np.float32)
+    sq_b = np.einsum("ij,ij->i", db, db)
+    sq_a = np.einsum("ij,ij->i", da, da)
+    row_i = np.empty(na, np.int64)
+    row_ok = np.empty(na, bool)
+    col_i = np.full(nb, -1, np.int64)
+    col_1 = np.full(nb, np.inf, np.float32)
+    col_2 = np.full(nb, np.inf, np.float32)
+    r2 = np.float32(ratio * ratio)
+    for s in range(0, na, chunk):
+        d2 = da[s:s + chunk] @ db.T
+        d2 *= -2.0
+        d2 += sq_a[s:s + chunk, None]
+        d2 += sq_b[None, :]
+        np.maximum(d2, 0.0, out=d2)  # rounding of near-identical descriptors
+        i1, d1, second = _two_nearest(d2, 1)
+        row_i[s:s + chunk] = i1
+        row_ok[s:s + chunk] = d1 < r2 * second
+        if len(d2) >= 2:
+            j1, e1, e2 = _two_nearest(d2, 0)
+        else:
+            j1, e1, e2 = np.zeros(nb, np.int64), d2[0], np.full(nb, np.inf, np.float32)
+        # Merge this block's two nearest with the running two nearest of every column.
+        better = e1 < col_1
+        col_2 = np.where(better, np.minimum(col_1, e2), np.minimum(col_2, e1))
+        col_i = np.where(better, j1 + s, col_i)
+        col_1 = np.where(better, e1, col_1)
+    col_ok = col_1 < r2 * col_2
+    a = np.flatnonzero(row_ok)
+    b = row_i[a]
+    keep = col_ok[b] & (col_i[b] == a)
+    return np.column_stack([a[keep], b[keep]]).astype(int).reshape(-1, 2)
 
 
 def verify(xa: np.ndarray, xb: np.ndarray, camera: FrameCamera, p: MatchParams) -> np.ndarray:
