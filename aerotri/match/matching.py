@@ -11,6 +11,7 @@ from scipy.spatial import cKDTree
 
 from aerotri.geom.camera import FrameCamera
 from aerotri.match.features import Features
+from aerotri.match.pairs import PairGuide
 from aerotri.match.settings import MatchParams
 from aerotri.core.atomic import atomic_path
 
@@ -107,8 +108,23 @@ def locally_consistent(xa: np.ndarray, xb: np.ndarray, tol_px: float, k: int) ->
     return np.hypot(*(r - med).T) <= tol_px
 
 
-def match_pair(fa: Features, fb: Features, camera: FrameCamera, p: MatchParams) -> np.ndarray:
-    m = mutual_ratio_matches(fa.descriptors, fb.descriptors, p.ratio)
+def guided_matches(fa: Features, fb: Features, camera: FrameCamera, ratio: float, guide: PairGuide | None
+                   ) -> np.ndarray:
+    """Mutual ratio-test matches (indices into ``fa``, ``fb``); with a ``guide`` only between the keypoints
+    that the flight plan puts in the other frame's (grown) footprint, so that a cross-strip pair with 30 %
+    overlap compares a tenth of the descriptor pairs, and the ratio test sees no distractors from
+    outside the overlap."""
+    if guide is None:
+        return mutual_ratio_matches(fa.descriptors, fb.descriptors, ratio)
+    ia, ib = (np.flatnonzero(m) for m in guide.in_overlap(camera, fa.xy_px, fb.xy_px))
+    m = mutual_ratio_matches(fa.descriptors[ia], fb.descriptors[ib], ratio)
+    return np.column_stack([ia[m[:, 0]], ib[m[:, 1]]]).reshape(-1, 2)
+
+
+def match_pair(fa: Features, fb: Features, camera: FrameCamera, p: MatchParams, guide: PairGuide | None = None
+               ) -> np.ndarray:
+    """Verified matches of a frame pair: (M, 2) keypoint indices; ``guide``: see ``guided_matches``."""
+    m = guided_matches(fa, fb, camera, p.ratio, guide)
     if len(m) == 0:
         return m
     ok = verify(fa.xy_px[m[:, 0]], fb.xy_px[m[:, 1]], camera, p)
@@ -119,18 +135,18 @@ def match_pair(fa: Features, fb: Features, camera: FrameCamera, p: MatchParams) 
     return m if len(m) >= p.min_inliers else np.zeros((0, 2), int)
 
 
-def match_cache_path(tag: str, cache_dir: Path, p: MatchParams, feature_key: str) -> Path:
-    return cache_dir / f"{tag}.{feature_key}.{p.key()}.npy"
+def match_cache_path(tag: str, cache_dir: Path, p: MatchParams, feature_key: str, guided: bool = False) -> Path:
+    return cache_dir / f"{tag}.{feature_key}.{p.key()}{'.guided' if guided else ''}.npy"
 
 
 def cached_match(tag: str, fa: Features, fb: Features, camera: FrameCamera, p: MatchParams, *, cache_dir: Path,
-                 feature_key: str) -> np.ndarray:
+                 feature_key: str, guide: PairGuide | None = None) -> np.ndarray:
     """Verified matches of a frame pair, from ``cache_dir`` when matched before with the same parameters and
     features (``feature_key``)."""
-    f = match_cache_path(tag, cache_dir, p, feature_key)
+    f = match_cache_path(tag, cache_dir, p, feature_key, guide is not None)
     if f.exists():
         return np.load(f)
-    m = match_pair(fa, fb, camera, p)
+    m = match_pair(fa, fb, camera, p, guide)
     with atomic_path(f) as tmp:
         np.save(tmp, m)
     return m
