@@ -11,23 +11,66 @@ from scipy.spatial import cKDTree
 
 from aerotri.geom.camera import FrameCamera
 from aerotri.match.features import Features
+from aerotri.match.pairs import PairGuide
 from aerotri.match.settings import MatchParams
 from aerotri.core.atomic import atomic_path
 
 
-def mutual_ratio_matches(da: np.ndarray, db: np.ndarray, ratio: float) -> np.ndarray:
-    """(M, 2) index pairs that are each other's nearest neighbour and pass the ratio test both ways."""
-    if len(da) < 2 or len(db) < 2:
+def _two_nearest(d2: np.ndarray, axis: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Index of the smallest, the smallest and the second smallest squared distance along ``axis``."""
+    i1 = d2.argmin(axis=axis)
+    d1 = np.take_along_axis(d2, np.expand_dims(i1, axis), axis).squeeze(axis)
+    np.put_along_axis(d2, np.expand_dims(i1, axis), np.inf, axis)
+    second = d2.min(axis=axis)
+    np.put_along_axis(d2, np.expand_dims(i1, axis), d1[..., None] if axis == 1 else d1[None], axis)
+    return i1, d1, second
+
+
+def mutual_ratio_matches(da: np.ndarray, db: np.ndarray, ratio: float, chunk: int = 2048) -> np.ndarray:
+    """(M, 2) index pairs that are each other's nearest neighbour and pass the ratio test both ways.
+
+    Brute force as one BLAS product: squared L2 distances |a|^2 + |b|^2 - 2 a.b in row blocks of
+    ``chunk`` descriptors (memory ``chunk * len(db) * 4`` bytes); each block serves both directions
+    (nearest and second-nearest of every row, running nearest and second-nearest of every column), so
+    the distances are computed once, not twice as with two knnMatch calls. The ratio test compares
+    distances (``d1 < ratio * d2``, i.e. squared ``d1^2 < ratio^2 d2^2``). Rows in ``da`` order.
+    """
+    na, nb = len(da), len(db)
+    if na < 2 or nb < 2:
         return np.zeros((0, 2), int)
-    bf = cv2.BFMatcher(cv2.NORM_L2)
-    ab = bf.knnMatch(da, db, k=2)
-    ba = bf.knnMatch(db, da, k=2)
-    best_ba = np.array([m[0].trainIdx if m[0].distance < ratio * m[1].distance else -1 for m in ba])
-    out = []
-    for m in ab:
-        if m[0].distance < ratio * m[1].distance and best_ba[m[0].trainIdx] == m[0].queryIdx:
-            out.append((m[0].queryIdx, m[0].trainIdx))
-    return np.array(out, dtype=int).reshape(-1, 2)
+    da = np.ascontiguousarray(da, np.float32)
+    db = np.ascontiguousarray(db, np.float32)
+    sq_b = np.einsum("ij,ij->i", db, db)
+    sq_a = np.einsum("ij,ij->i", da, da)
+    row_i = np.empty(na, np.int64)
+    row_ok = np.empty(na, bool)
+    col_i = np.full(nb, -1, np.int64)
+    col_1 = np.full(nb, np.inf, np.float32)
+    col_2 = np.full(nb, np.inf, np.float32)
+    r2 = np.float32(ratio * ratio)
+    for s in range(0, na, chunk):
+        d2 = da[s:s + chunk] @ db.T
+        d2 *= -2.0
+        d2 += sq_a[s:s + chunk, None]
+        d2 += sq_b[None, :]
+        np.maximum(d2, 0.0, out=d2)  # rounding of near-identical descriptors
+        i1, d1, second = _two_nearest(d2, 1)
+        row_i[s:s + chunk] = i1
+        row_ok[s:s + chunk] = d1 < r2 * second
+        if len(d2) >= 2:
+            j1, e1, e2 = _two_nearest(d2, 0)
+        else:
+            j1, e1, e2 = np.zeros(nb, np.int64), d2[0], np.full(nb, np.inf, np.float32)
+        # Merge this block's two nearest with the running two nearest of every column.
+        better = e1 < col_1
+        col_2 = np.where(better, np.minimum(col_1, e2), np.minimum(col_2, e1))
+        col_i = np.where(better, j1 + s, col_i)
+        col_1 = np.where(better, e1, col_1)
+    col_ok = col_1 < r2 * col_2
+    a = np.flatnonzero(row_ok)
+    b = row_i[a]
+    keep = col_ok[b] & (col_i[b] == a)
+    return np.column_stack([a[keep], b[keep]]).astype(int).reshape(-1, 2)
 
 
 def verify(xa: np.ndarray, xb: np.ndarray, camera: FrameCamera, p: MatchParams) -> np.ndarray:
@@ -65,8 +108,23 @@ def locally_consistent(xa: np.ndarray, xb: np.ndarray, tol_px: float, k: int) ->
     return np.hypot(*(r - med).T) <= tol_px
 
 
-def match_pair(fa: Features, fb: Features, camera: FrameCamera, p: MatchParams) -> np.ndarray:
-    m = mutual_ratio_matches(fa.descriptors, fb.descriptors, p.ratio)
+def guided_matches(fa: Features, fb: Features, camera: FrameCamera, ratio: float, guide: PairGuide | None
+                   ) -> np.ndarray:
+    """Mutual ratio-test matches (indices into ``fa``, ``fb``); with a ``guide`` only between the keypoints
+    that the flight plan puts in the other frame's (grown) footprint, so that a cross-strip pair with 30 %
+    overlap compares a tenth of the descriptor pairs, and the ratio test sees no distractors from
+    outside the overlap."""
+    if guide is None:
+        return mutual_ratio_matches(fa.descriptors, fb.descriptors, ratio)
+    ia, ib = (np.flatnonzero(m) for m in guide.in_overlap(camera, fa.xy_px, fb.xy_px))
+    m = mutual_ratio_matches(fa.descriptors[ia], fb.descriptors[ib], ratio)
+    return np.column_stack([ia[m[:, 0]], ib[m[:, 1]]]).reshape(-1, 2)
+
+
+def match_pair(fa: Features, fb: Features, camera: FrameCamera, p: MatchParams, guide: PairGuide | None = None
+               ) -> np.ndarray:
+    """Verified matches of a frame pair: (M, 2) keypoint indices; ``guide``: see ``guided_matches``."""
+    m = guided_matches(fa, fb, camera, p.ratio, guide)
     if len(m) == 0:
         return m
     ok = verify(fa.xy_px[m[:, 0]], fb.xy_px[m[:, 1]], camera, p)
@@ -77,18 +135,18 @@ def match_pair(fa: Features, fb: Features, camera: FrameCamera, p: MatchParams) 
     return m if len(m) >= p.min_inliers else np.zeros((0, 2), int)
 
 
-def match_cache_path(tag: str, cache_dir: Path, p: MatchParams, feature_key: str) -> Path:
-    return cache_dir / f"{tag}.{feature_key}.{p.key()}.npy"
+def match_cache_path(tag: str, cache_dir: Path, p: MatchParams, feature_key: str, guided: bool = False) -> Path:
+    return cache_dir / f"{tag}.{feature_key}.{p.key()}{'.guided' if guided else ''}.npy"
 
 
 def cached_match(tag: str, fa: Features, fb: Features, camera: FrameCamera, p: MatchParams, *, cache_dir: Path,
-                 feature_key: str) -> np.ndarray:
+                 feature_key: str, guide: PairGuide | None = None) -> np.ndarray:
     """Verified matches of a frame pair, from ``cache_dir`` when matched before with the same parameters and
     features (``feature_key``)."""
-    f = match_cache_path(tag, cache_dir, p, feature_key)
+    f = match_cache_path(tag, cache_dir, p, feature_key, guide is not None)
     if f.exists():
         return np.load(f)
-    m = match_pair(fa, fb, camera, p)
+    m = match_pair(fa, fb, camera, p, guide)
     with atomic_path(f) as tmp:
         np.save(tmp, m)
     return m

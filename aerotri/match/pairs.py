@@ -13,6 +13,7 @@ from __future__ import annotations
 import dataclasses
 
 import numpy as np
+import shapely
 from shapely.geometry import Polygon
 
 from aerotri.geom.strips import strips_from_track
@@ -39,6 +40,38 @@ class BlockPlan:
         d = camera.rays(xy_px[:, 0], xy_px[:, 1], self.rotation(i))
         t = (self.terrain_height_m - self.centre_m[i, 2]) / d[:, 2]
         return self.centre_m[i, :2] + d[:, :2] * t[:, None]
+
+
+    def guide(self, i: int, j: int, margin: float) -> "PairGuide":
+        """What guided matching of frames i and j needs (small, sent with the pair's task)."""
+        fp = [self.footprints[k].buffer(margin * np.sqrt(self.footprints[k].area)) for k in (i, j)]
+        return PairGuide(self.centre_m[[i, j]], self.kappa_deg[[i, j]], self.terrain_height_m, fp[0], fp[1])
+
+
+@dataclasses.dataclass
+class PairGuide:
+    """Guided matching of one frame pair from the flight plan: a keypoint is compared only when its
+    predicted ground position (nominal attitude, flat terrain) lies inside the other frame's footprint
+    grown by the plan's margin (a share of the footprint's size that covers attitude, crab and relief)."""
+
+    centre_m: np.ndarray  # (2, 3) approximate projection centres of the two frames
+    kappa_deg: np.ndarray  # (2,)
+    terrain_height_m: float
+    footprint_a: Polygon  # grown
+    footprint_b: Polygon
+
+    def _ground_xy(self, k: int, camera: FrameCamera, xy_px: np.ndarray) -> np.ndarray:
+        d = camera.rays(xy_px[:, 0], xy_px[:, 1], rotation_matrix_opk(0.0, 0.0, self.kappa_deg[k]))
+        t = (self.terrain_height_m - self.centre_m[k, 2]) / d[:, 2]
+        return self.centre_m[k, :2] + d[:, :2] * t[:, None]
+
+    def in_overlap(self, camera: FrameCamera, xy_a_px: np.ndarray, xy_b_px: np.ndarray
+                   ) -> tuple[np.ndarray, np.ndarray]:
+        """Masks of the keypoints of frame a (b) predicted inside the grown footprint of frame b (a)."""
+        ga = self._ground_xy(0, camera, xy_a_px)
+        gb = self._ground_xy(1, camera, xy_b_px)
+        return (shapely.contains_xy(self.footprint_b, ga[:, 0], ga[:, 1]),
+                shapely.contains_xy(self.footprint_a, gb[:, 0], gb[:, 1]))
 
 
 def image_top_from_sensor(camera: FrameCamera) -> float:

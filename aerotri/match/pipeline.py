@@ -113,13 +113,13 @@ def _features_task(item) -> bool:
 
 def _match_task(item) -> tuple[bool, np.ndarray]:
     """Match one frame pair (or read the cached matches); (cache hit, (M, 2) keypoint index pairs)."""
-    tag, fa, fb, camera, p, cache_dir = item
+    tag, fa, fb, camera, p, cache_dir, guide = item
     fkey = fa[2].key()
-    f = M.match_cache_path(tag, cache_dir, p, fkey)
+    f = M.match_cache_path(tag, cache_dir, p, fkey, guide is not None)
     if f.exists():  # without reading the two frames' features
         return True, np.load(f)
     return False, M.cached_match(tag, F.cached_features(*fa), F.cached_features(*fb), camera, p, cache_dir=cache_dir,
-                                 feature_key=fkey)
+                                 feature_key=fkey, guide=guide)
 
 
 @dataclasses.dataclass
@@ -165,6 +165,7 @@ class _Matcher:
 
     def __init__(self, project: Project, frames: _Frames, camera: FrameCamera, executor: Executor):
         self.ids, self.images, self.camera, self.ex = frames.ids, frames.images, camera, executor
+        self.plan = frames.plan
         self.cache_f = project.work_dir / "features"
         self.cache_m = project.work_dir / "matches"
         self.feature_cache_hits = 0
@@ -186,7 +187,8 @@ class _Matcher:
 
     def match(self, pairs_ij, fp: F.FeatureParams, p: M.MatchParams, desc: str) -> list:
         """Verified matches of the given frame pairs, one task per pair (features read from the cache)."""
-        items = [(f"{self.ids[i]}__{self.ids[j]}", self._item(i, fp), self._item(j, fp), self.camera, p, self.cache_m)
+        items = [(f"{self.ids[i]}__{self.ids[j]}", self._item(i, fp), self._item(j, fp), self.camera, p, self.cache_m,
+                  self.plan.guide(i, j, p.guide_margin) if self.plan is not None else None)
                  for i, j in pairs_ij]
         out = self.ex.map(_match_task, items, desc=desc, unit="pair")
         self.match_cache_hits += sum(hit for hit, _ in out)

@@ -48,6 +48,9 @@ class MatchParams:
     local_px: float = setting(1.5, min=0.0, min_open=True, help="Local parallax consistency tolerance (px of the "
                                                                 "detection level).")
     local_k: int = setting(10, min=1, help="Neighbours of the local parallax consistency check.")
+    guide_margin: float = setting(0.1, min=0.0, help="Guided matching with GNSS: compare only keypoints predicted "
+                                                     "inside the other frame's footprint grown by this share of "
+                                                     "its size (covers attitude, crab and relief).")
 
     def key(self) -> str:
         return _key(self)
