@@ -45,6 +45,24 @@ def check_allocation(n_bytes: float, what: str, option: str | None = None, hint:
         raise ResourceError(msg, param=option)
 
 
+def check_disk(n_bytes: float, folder, what: str, option: str | None = None, hint: str = "") -> None:
+    """``ResourceError`` when ``n_bytes`` exceed the free space on the disk holding ``folder`` (or
+    its nearest existing parent): refuse before writing rather than fill the disk."""
+    import shutil
+    from pathlib import Path
+
+    folder = Path(folder).absolute()
+    while not folder.exists() and folder != folder.parent:
+        folder = folder.parent
+    free = shutil.disk_usage(folder).free
+    if n_bytes > free:
+        gib = 1024.0 ** 3
+        msg = f"{what} would need up to {n_bytes / gib:,.1f} GiB of disk, more than the {free / gib:,.1f} GiB free in {folder}"
+        if hint:
+            msg += f"; {hint}"
+        raise ResourceError(msg, param=option)
+
+
 def check_grid(nrows: int, ncols: int, cell_m: float, bytes_per_cell: float, what: str,
                option: str | None = None, hint: str = "") -> None:
     """``check_allocation`` for a grid of ``nrows`` x ``ncols`` cells of ``cell_m`` metres."""

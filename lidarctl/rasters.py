@@ -33,7 +33,7 @@ from lidarctl import io
 from aerotri.core.atomic import atomic_path, refuse_input_as_output, temporary_dir
 from aerotri.core.errors import InputError, OptionError
 from aerotri.core.settings import setting
-from lidarctl.grid import check_grid
+from lidarctl.grid import check_disk, check_grid
 from lidarctl.io import PointCloud
 from lidarctl.raster_ops import cell_extreme, fill_nodata, sample_bilinear
 from lidarctl.units import METRE, LengthUnits, long_name
@@ -475,6 +475,8 @@ def _write_set(outdir, write) -> list[Path]:
     import shutil
 
     outdir = Path(outdir)
+    # folders this call creates go again if it fails (a corrupt chunk may only show in a late tile)
+    created = [d for d in (outdir, *outdir.parents) if not d.exists()]
     outdir.mkdir(parents=True, exist_ok=True)
     tmp = temporary_dir(outdir, "rasters")
     try:
@@ -482,6 +484,14 @@ def _write_set(outdir, write) -> list[Path]:
         for f in FILES:
             os.chmod(tmp / f, 0o644)
             os.replace(tmp / f, outdir / f)
+    except BaseException:
+        shutil.rmtree(tmp, ignore_errors=True)
+        for d in created:                     # deepest first; only if still empty
+            try:
+                d.rmdir()
+            except OSError:
+                break
+        raise
     finally:
         shutil.rmtree(tmp, ignore_errors=True)
     return [outdir / f for f in FILES]
@@ -526,6 +536,11 @@ def write_rasters_tiled(paths, outdir, res_m: float, crs=None, tile_px: int = DE
     win = min(tile_px + 2 * buffer_px, nrows), min(tile_px + 2 * buffer_px, ncols)
     check_grid(*win, res_m, RASTER_BYTES_PER_CELL, "rasters: one tile with its buffer", "--tile-px",
                "use a smaller --tile-px")
+    # the working GeoTIFFs and the COGs, uncompressed float32 at worst (a grid over strips far apart
+    # is mostly nodata, but the tiles are still visited and written)
+    check_disk(2.0 * 4 * (len(RASTERS) + 1) * nrows * ncols, outdir,
+               f"{inputs.names}: rasters over the header bounds, a grid of {nrows:,} x {ncols:,} cells of {res_m:g} m",
+               "--res", "use a coarser --res (or are strips far apart?)")
     grid = TileGrid(0.0, 0.0, float(tile_px), float(buffer_px), -(-nrows // tile_px), -(-ncols // tile_px))
     transform_m = _from_origin(x0, y0 + nrows * res_m, res_m, res_m)
     transform = transform_m if units.is_metric else _transform_in_units(transform_m, units)
