@@ -21,6 +21,7 @@ from pathlib import Path
 import numpy as np
 from scipy.spatial import cKDTree
 
+from aerotri.geom import las
 from aerotri.geom.crs import crs_label, same_crs
 
 from aerotri.core.errors import InputError, OptionError
@@ -149,6 +150,23 @@ def check_heights(gx, gy, gz, points: dict, radius_m: float = 5.0, exclude_m: fl
     return result
 
 
+def _near_points(px_m, py_m, radius_m: float):
+    """A function (x, y) -> mask of the points within ``radius_m`` of any of (px_m, py_m)."""
+    tree = cKDTree(np.column_stack([px_m, py_m]))
+    lo = np.array([np.min(px_m), np.min(py_m)]) - radius_m
+    hi = np.array([np.max(px_m), np.max(py_m)]) + radius_m
+
+    def near(x, y):
+        mask = (x >= lo[0]) & (x <= hi[0]) & (y >= lo[1]) & (y <= hi[1])
+        k = np.flatnonzero(mask)
+        if len(k):
+            d, _ = tree.query(np.column_stack([x[k], y[k]]), distance_upper_bound=radius_m)
+            mask[k] = d <= radius_m
+        return mask
+
+    return near
+
+
 def check_heights_file(cloud_paths, points_csv, radius_m: float = 5.0, exclude_m: float = 1.0, crs=None) -> dict:
     """``check_heights`` of the ground (class 2) of a classified LAS/LAZ file, or of several strips
     (one CRS and unit, else an InputError naming the strip; only their ground points are kept),
@@ -159,19 +177,30 @@ def check_heights_file(cloud_paths, points_csv, radius_m: float = 5.0, exclude_m
         raise OptionError(f"--exclude {exclude_m}: must be a positive height difference in metres", param="--exclude")
     paths = [cloud_paths] if isinstance(cloud_paths, (str, Path)) else list(cloud_paths)
     points = read_points_csv(points_csv)
-    ground, first = [], None
+    # Only ground points within radius_m of a surveyed point enter the interpolation: the strips
+    # are read by chunks and only those are kept (memory set by the chunk, not by the block).
+    ground, first, n_ground = [], None, 0
     for path in paths:
-        cloud = io.read_cloud(path, crs=crs)
+        header = las.read_header(path)
+        if header.point_count == 0:
+            raise InputError(f"{path}: the file holds no points")
+        crs_i, units = io.resolve_crs_units(path, header, crs)
         if first is None:
-            first = (path, cloud.crs, cloud.units)
-        elif cloud.units != first[2] or not same_crs(cloud.crs, first[1]):
-            raise InputError(f"{path}: CRS {crs_label(cloud.crs)} ({cloud.units.describe()}) differs from that of "
+            first = (path, crs_i, units)
+            near = _near_points(units.xy_to_m(points["x"]), units.xy_to_m(points["y"]), radius_m)
+        elif units != first[2] or not same_crs(crs_i, first[1]):
+            raise InputError(f"{path}: CRS {crs_label(crs_i)} ({units.describe()}) differs from that of "
                              f"{first[0]}, {crs_label(first[1])} ({first[2].describe()})")
-        g = cloud.classification == 2
-        ground.append((cloud.x[g], cloud.y[g], cloud.z[g]))
-        del cloud
+        for first_record, chunk in las.iter_file_chunks(path, io.CHUNK_POINTS):
+            cx, cy, cz = np.asarray(chunk.x), np.asarray(chunk.y), np.asarray(chunk.z)
+            io.validate_xyz(path, cx, cy, cz, first_record, units)
+            g = np.asarray(chunk.classification) == 2
+            n_ground += int(g.sum())
+            gx, gy = units.xy_to_m(cx[g]), units.xy_to_m(cy[g])
+            keep = near(gx, gy)
+            ground.append((gx[keep], gy[keep], units.z_to_m(cz[g][keep])))
     gx, gy, gz = (np.concatenate([gr[k] for gr in ground]) for k in range(3))
-    if not len(gx):
+    if not n_ground:
         raise InputError(f"{', '.join(map(str, paths))}: no ground points (class 2); run 'lidarctl classify' first")
     crs_found, u = first[1], first[2]
     points_m = dict(points, x=u.xy_to_m(points["x"]), y=u.xy_to_m(points["y"]), z=u.z_to_m(points["z"]))

@@ -284,3 +284,26 @@ def test_dem_keeps_the_compound_crs_of_its_cloud(scenes, tmp_path):
     with rasterio.open(tmp_path / "r" / "dem.tif") as dem, rasterio.open(tmp_path / "r" / "ndsm.tif") as ndsm:
         assert CRS(dem.crs).is_compound and "NAVD88" in CRS(dem.crs).sub_crs_list[1].name
         assert not CRS(ndsm.crs).is_compound and CRS(ndsm.crs).to_epsg() == 32610
+
+
+def test_check_heights_by_chunks_equals_all_ground_points(scenes, tmp_path, monkeypatch):
+    """The strips are read by chunks keeping only ground points near a surveyed point: the same
+    heights as interpolating from every ground point of the cloud held in memory."""
+    from lidarctl import heights_check as hc
+
+    d = scenes["dir"]
+    _ok(["classify", d / "ft_m.laz", tmp_path / "c.laz"])
+    rng = np.random.default_rng(1)
+    px, py = X0_M + rng.uniform(-20, 180, 25), Y0_M + rng.uniform(-20, 180, 25)   # some off the cloud
+    pts = tmp_path / "p.csv"
+    pts.write_text("id,x,y,z\n" + "".join(f"P{k},{a:.3f},{b:.3f},50\n" for k, (a, b) in enumerate(zip(px, py))))
+    monkeypatch.setattr(io, "CHUNK_POINTS", 7_000)
+    streamed = hc.check_heights_file(tmp_path / "c.laz", pts, radius_m=3.0)
+    cloud = io.read_cloud(tmp_path / "c.laz")
+    g = cloud.classification == 2
+    whole = hc.check_heights(cloud.x[g], cloud.y[g], cloud.z[g], hc.read_points_csv(pts), radius_m=3.0)
+    z_s = np.array([p["z_lidar"] if p["z_lidar"] is not None else np.nan for p in streamed["points"]])
+    z_w = np.array([p["z_lidar"] if p["z_lidar"] is not None else np.nan for p in whole["points"]])
+    assert np.isnan(z_w).sum() == np.isnan(z_s).sum() > 0 and np.isfinite(z_w).sum() > 15
+    np.testing.assert_allclose(z_s, z_w, rtol=0, atol=1e-9)
+    assert [p["n_ground"] for p in streamed["points"]] == [p["n_ground"] for p in whole["points"]]
