@@ -263,6 +263,10 @@ def test_a_huge_point_count_is_refused_before_allocating(files, tmp_path):
     b[247:255] = struct.pack("<Q", 5_000_000_000)
     bad = tmp_path / "huge.laz"
     bad.write_bytes(bytes(b))
-    r = CliRunner().invoke(main, ["check-heights", str(bad), str(d / "points.csv")])
+    r = CliRunner().invoke(main, ["evaluate", str(bad), "--truth", str(d / "c.laz")])
     assert r.exit_code == 2 and r.output.count("\n") == 1, r.output
     assert "huge.laz: reading its 5,000,000,000 points at once would need" in r.output and "GiB" in r.output
+    # check-heights reads by chunks: it finds the records missing instead
+    r = CliRunner().invoke(main, ["check-heights", str(bad), str(d / "points.csv")])
+    assert r.exit_code == 2 and r.output.count("\n") == 1, r.output
+    assert "huge.laz: truncated or corrupt point data in records 0-" in r.output and "of 5000000000" in r.output
