@@ -22,22 +22,18 @@ from __future__ import annotations
 import argparse
 import json
 import os
-import resource
-import subprocess
 import sys
 import tempfile
-import threading
 import time
 from pathlib import Path
 
 import laspy
 import numpy as np
-import psutil
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from lidar_common import CSF_PUBLISHED, REPO, csf_ground  # noqa: E402
+from lidar_common import CSF_PUBLISHED, REPO, csf_ground, run_peak
 
-from lidarctl import evaluate, io, synthetic  # noqa: E402
+from lidarctl import evaluate, io, synthetic
 
 TILE_M = 200.0
 
@@ -69,48 +65,15 @@ def make_tile(path: Path, tiles: int, density: float):
     return truth
 
 
-def _tree_rss(proc: psutil.Process) -> int:
-    total = 0
-    for p in [proc] + proc.children(recursive=True):
-        try:
-            total += p.memory_info().rss
-        except psutil.Error:
-            pass
-    return total
-
-
 def run_classify(inp, out: Path, extra: list[str] = ()) -> dict:
     """Wall seconds, peak RSS of the process tree (MB), CPU seconds and the message of one command.
     ``inp``: a file, or a list of strips (``out`` then a folder)."""
-    ru0 = resource.getrusage(resource.RUSAGE_CHILDREN)
-    load0 = os.getloadavg()[0]
-    t0 = time.perf_counter()
     inputs = [str(q) for q in inp] if isinstance(inp, (list, tuple)) else [str(inp)]
-    proc = subprocess.Popen([str(REPO / ".venv" / "bin" / "lidarctl"), "classify", *inputs, str(out), *extra],
-                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-    ps = psutil.Process(proc.pid)
-    peak = [0]
-
-    def poll():
-        while proc.poll() is None:
-            try:
-                peak[0] = max(peak[0], _tree_rss(ps))
-            except psutil.Error:
-                pass
-            time.sleep(0.1)
-
-    th = threading.Thread(target=poll, daemon=True)
-    th.start()
-    stdout, stderr = proc.communicate()
-    seconds = time.perf_counter() - t0
-    th.join()
-    if proc.returncode != 0:
-        raise RuntimeError(stderr)
-    ru1 = resource.getrusage(resource.RUSAGE_CHILDREN)
-    cpu = (ru1.ru_utime - ru0.ru_utime) + (ru1.ru_stime - ru0.ru_stime)
-    return {"args": list(extra), "seconds": seconds, "peak_rss_mb": peak[0] / 2 ** 20,
-            "max_single_process_rss_mb": ru1.ru_maxrss / 1024.0, "cpu_seconds": cpu,
-            "load_average_1min_before_after": [load0, os.getloadavg()[0]], "message": stdout.strip()}
+    r = run_peak([str(REPO / ".venv" / "bin" / "lidarctl"), "classify", *inputs, str(out), *extra])
+    return {"args": list(extra), "seconds": r["seconds"], "peak_rss_mb": r["peak_rss_mib"],
+            "max_single_process_rss_mb": r["max_single_process_rss_mib"], "cpu_seconds": r["cpu_seconds"],
+            "load_average_1min_before_after": [r["load_average_before"][0], r["load_average_after"][0]],
+            "message": r["stdout"].strip()}
 
 
 def grid_phase_sensitivity(path: Path, window_m: float = 400.0, cut_m: float = 0.75) -> dict:
@@ -267,6 +230,7 @@ def main():
         return
     # ISPRS tables of both filters, one parameter set each (from bench/eval_isprs.py).
     from eval_isprs import run_method, with_noise
+
     from lidarctl import ground
     isprs = {"lidarctl_default": run_method("lidarctl_default", with_noise(ground.ground_filter)),
              "csf_raw": run_method("csf_raw", lambda c: csf_ground(np.column_stack([c.x, c.y, c.z]))),

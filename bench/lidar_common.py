@@ -1,9 +1,14 @@
-"""Shared helpers of the LiDAR benches: the ISPRS samples, published CSF numbers, the CSF peer."""
+"""Shared helpers of the LiDAR benches: the ISPRS samples, published CSF numbers, the CSF peer, and
+running a command with its wall/CPU time and the peak RSS of its process tree."""
 
 from __future__ import annotations
 
 import os
+import resource
+import subprocess
 import sys
+import threading
+import time
 from pathlib import Path
 
 import numpy as np
@@ -58,3 +63,50 @@ def warm_up_jit(fn, *arrays, n: int = 50_000):
     t0, c0 = time.perf_counter(), time.process_time()
     fn(*(a[:n] for a in arrays))
     return time.perf_counter() - t0, time.process_time() - c0
+
+
+def tree_rss(proc) -> int:
+    """Resident memory (bytes) of a psutil process and all its children."""
+    import psutil
+
+    total = 0
+    for p in [proc] + proc.children(recursive=True):
+        try:
+            total += p.memory_info().rss
+        except psutil.Error:
+            pass
+    return total
+
+
+def run_peak(cmd: list[str], ok_codes=(0,)) -> dict:
+    """Run ``cmd``; wall and CPU seconds, peak RSS of its process tree (MiB, polled every 50 ms), the
+    largest single child's peak (MiB, from getrusage), load averages, the end of its stdout."""
+    import psutil
+
+    ru0 = resource.getrusage(resource.RUSAGE_CHILDREN)
+    load0 = os.getloadavg()
+    t0 = time.perf_counter()
+    proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    ps = psutil.Process(proc.pid)
+    peak = [0]
+
+    def poll():
+        while proc.poll() is None:
+            try:
+                peak[0] = max(peak[0], tree_rss(ps))
+            except psutil.Error:
+                pass
+            time.sleep(0.05)
+
+    th = threading.Thread(target=poll, daemon=True)
+    th.start()
+    stdout, stderr = proc.communicate()
+    seconds = time.perf_counter() - t0
+    th.join()
+    if proc.returncode not in ok_codes:
+        raise RuntimeError(f"{cmd[:3]}: exit {proc.returncode}: {stderr[-2000:]}")
+    ru1 = resource.getrusage(resource.RUSAGE_CHILDREN)
+    return {"seconds": seconds, "cpu_seconds": (ru1.ru_utime - ru0.ru_utime) + (ru1.ru_stime - ru0.ru_stime),
+            "peak_rss_mib": peak[0] / 2 ** 20, "max_single_process_rss_mib": ru1.ru_maxrss / 1024.0,
+            "exit_code": proc.returncode, "stdout": stdout,
+            "load_average_before": list(load0), "load_average_after": list(os.getloadavg())}

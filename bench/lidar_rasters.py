@@ -24,11 +24,8 @@ from __future__ import annotations
 import argparse
 import json
 import os
-import resource
 import shutil
-import subprocess
 import sys
-import threading
 import time
 from pathlib import Path
 
@@ -39,7 +36,10 @@ import rasterio
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
 
-from lidarctl import io, rasters, synthetic  # noqa: E402
+from lidarctl import io, rasters, synthetic
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from lidar_common import run_peak as _run_peak
 
 TILE_M = 200.0
 DENSITY = 10.0
@@ -66,44 +66,11 @@ def make_block(folder: Path, side: int) -> list[Path]:
     return paths
 
 
-def _tree_rss(proc: psutil.Process) -> int:
-    total = 0
-    for p in [proc] + proc.children(recursive=True):
-        try:
-            total += p.memory_info().rss
-        except psutil.Error:
-            pass
-    return total
-
-
 def run_peak(cmd: list[str], ok_codes=(0,)) -> dict:
-    """Run ``cmd``; wall and CPU seconds, peak RSS of its process tree (MiB), load averages."""
-    ru0 = resource.getrusage(resource.RUSAGE_CHILDREN)
-    load0 = os.getloadavg()
-    t0 = time.perf_counter()
-    proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-    ps = psutil.Process(proc.pid)
-    peak = [0]
-
-    def poll():
-        while proc.poll() is None:
-            try:
-                peak[0] = max(peak[0], _tree_rss(ps))
-            except psutil.Error:
-                pass
-            time.sleep(0.05)
-
-    th = threading.Thread(target=poll, daemon=True)
-    th.start()
-    stdout, stderr = proc.communicate()
-    seconds = time.perf_counter() - t0
-    th.join()
-    if proc.returncode not in ok_codes:
-        raise RuntimeError(f"{cmd[:3]}: exit {proc.returncode}: {stderr[-2000:]}")
-    ru1 = resource.getrusage(resource.RUSAGE_CHILDREN)
-    return {"seconds": seconds, "cpu_seconds": (ru1.ru_utime - ru0.ru_utime) + (ru1.ru_stime - ru0.ru_stime),
-            "peak_rss_mib": peak[0] / 2 ** 20, "exit_code": proc.returncode, "stdout_tail": stdout[-300:],
-            "load_average_before": list(load0), "load_average_after": list(os.getloadavg())}
+    """``lidar_common.run_peak`` with the end of stdout only (the JSON stays small)."""
+    r = _run_peak(cmd, ok_codes)
+    r["stdout_tail"] = r.pop("stdout")[-300:]
+    return r
 
 
 def lidarctl(*args: str) -> list[str]:
