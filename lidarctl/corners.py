@@ -44,7 +44,6 @@ from scipy.spatial import cKDTree
 from aerotri.core.atomic import refuse_input_as_output, write_text_atomic
 from aerotri.core.errors import InputError, OptionError
 from aerotri.core.settings import setting
-from aerotri.geom.crs import crs_label, same_crs
 from lidarctl import io as las_io
 from lidarctl.grid import check_grid
 from lidarctl.roof_outline import (
@@ -106,11 +105,7 @@ def read_strips(paths, crs=None) -> dict:
     clouds = [read_classified_cloud(p, crs=crs, require_crs=True) for p in paths]
     first = clouds[0]
     for p, c in zip(paths[1:], clouds[1:]):
-        if not same_crs(c["crs"], first["crs"]) or c["units"] != first["units"]:
-            raise InputError(
-                f"{p}: CRS {crs_label(c['crs'])} ({c['units'].describe()}) differs from the CRS of {paths[0]}, "
-                f"{crs_label(first['crs'])} ({first['units'].describe()}); give strips in one CRS "
-                "(aerotri crs transform)")
+        las_io.require_same_crs(p, c["crs"], c["units"], (paths[0], first["crs"], first["units"]))
     cat = {k: np.concatenate([c[k] for c in clouds]) for k in ("x", "y", "z", "classification", "point_source_id")}
     if len(clouds) > 1 and all(len(np.unique(c["point_source_id"])) == 1 for c in clouds):
         # one file per strip without strip ids: the file is the strip
@@ -501,10 +496,8 @@ def _bin_corner_points(paths, crs, work: Path, tile_m: float, buffer_m: float, c
         c, u = las_io.resolve_crs_units(p, h, crs)
         if first is None:
             first = (p, c, u)
-        elif not same_crs(c, first[1]) or u != first[2]:
-            raise InputError(
-                f"{p}: CRS {crs_label(c)} ({u.describe()}) differs from the CRS of {first[0]}, "
-                f"{crs_label(first[1])} ({first[2].describe()}); give strips in one CRS (aerotri crs transform)")
+        else:
+            las_io.require_same_crs(p, c, u, first)
         if h.point_count == 0:
             raise InputError(f"{p}: the file holds no points")
         lo = np.minimum(lo, u.xy_to_m(np.asarray(h.mins[:2], float)))

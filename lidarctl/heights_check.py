@@ -22,7 +22,6 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from aerotri.geom import las
-from aerotri.geom.crs import crs_label, same_crs
 
 from aerotri.core.errors import InputError, OptionError
 from aerotri.core.textio import read_text
@@ -188,9 +187,8 @@ def check_heights_file(cloud_paths, points_csv, radius_m: float = 5.0, exclude_m
         if first is None:
             first = (path, crs_i, units)
             near = _near_points(units.xy_to_m(points["x"]), units.xy_to_m(points["y"]), radius_m)
-        elif units != first[2] or not same_crs(crs_i, first[1]):
-            raise InputError(f"{path}: CRS {crs_label(crs_i)} ({units.describe()}) differs from that of "
-                             f"{first[0]}, {crs_label(first[1])} ({first[2].describe()})")
+        else:
+            io.require_same_crs(path, crs_i, units, first)
         for first_record, chunk in las.iter_file_chunks(path, io.CHUNK_POINTS):
             cx, cy, cz = np.asarray(chunk.x), np.asarray(chunk.y), np.asarray(chunk.z)
             io.validate_xyz(path, cx, cy, cz, first_record, units)

@@ -187,22 +187,29 @@ def read_cloud(path, crs: str | int | None = None, require_crs: bool = True,
     return (cloud, records) if keep_records else cloud
 
 
+def require_same_crs(path, crs, units: LengthUnits, first) -> None:
+    """InputError naming ``path`` when its CRS or units differ from ``first``, the (path, CRS, units)
+    of the first strip of a set that must share one CRS."""
+    from aerotri.geom.crs import crs_label, same_crs
+
+    first_path, first_crs, first_units = first
+    if units != first_units or not same_crs(crs, first_crs):
+        raise InputError(f"{path}: CRS {crs_label(crs)} ({units.describe()}) differs from the CRS of {first_path}, "
+                         f"{crs_label(first_crs)} ({first_units.describe()}); give strips in one CRS "
+                         "(aerotri crs transform)")
+
+
 def read_clouds(paths, crs: str | int | None = None) -> PointCloud:
     """The ``read_cloud`` clouds of several strips concatenated (file after file), in one CRS and unit:
     a strip whose CRS or units differ from the first one's is an InputError naming it. Holds the whole
     set in memory (``read_cloud``'s allocation check applies per file)."""
-    from aerotri.geom.crs import crs_label, same_crs
-
     paths = [Path(p) for p in paths]
     if not paths:
         raise InputError("no LAS/LAZ files to read")
     clouds = [read_cloud(paths[0], crs=crs, point_source_id=True)]
     for p in paths[1:]:
         c = read_cloud(p, crs=crs, point_source_id=True)
-        first = clouds[0]
-        if c.units != first.units or not same_crs(c.crs, first.crs):
-            raise InputError(f"{p}: CRS {crs_label(c.crs)} ({c.units.describe()}) differs from that of {paths[0]}, "
-                             f"{crs_label(first.crs)} ({first.units.describe()}); give strips in one CRS")
+        require_same_crs(p, c.crs, c.units, (paths[0], clouds[0].crs, clouds[0].units))
         clouds.append(c)
     fields = ("x", "y", "z", "intensity", "return_number", "number_of_returns", "classification", "point_source_id")
     cat = {f: np.concatenate([getattr(c, f) for c in clouds]) for f in fields}

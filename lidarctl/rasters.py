@@ -320,8 +320,6 @@ class _Inputs:
 
 def _inputs(paths, crs_arg) -> _Inputs:
     """Headers of the files checked (points, bounds, one CRS and units) and their union bounds."""
-    from aerotri.geom.crs import crs_label, same_crs
-
     paths = tuple(Path(p) for p in paths)
     if not paths:
         raise InputError("no classified LAS/LAZ file given")
@@ -334,10 +332,8 @@ def _inputs(paths, crs_arg) -> _Inputs:
             file_crs = las.header_crs(header)
             surface = file_crs if file_crs is not None and file_crs.is_compound else crs
             first = (p, crs, units, surface)
-        elif not same_crs(crs, first[1]) or units != first[2]:
-            raise InputError(f"{p}: CRS {crs_label(crs)} ({units.describe()}) differs from the CRS of {first[0]}, "
-                             f"{crs_label(first[1])} ({first[2].describe()}); give files in one CRS "
-                             "(aerotri crs transform)")
+        else:
+            io.require_same_crs(p, crs, units, first[:3])
         lo = np.minimum(lo, units.xy_to_m(mins[:2]))
         hi = np.maximum(hi, units.xy_to_m(maxs[:2]))
         n += int(header.point_count)
@@ -479,21 +475,20 @@ def _write_set(outdir, write) -> list[Path]:
     created = [d for d in (outdir, *outdir.parents) if not d.exists()]
     outdir.mkdir(parents=True, exist_ok=True)
     tmp = temporary_dir(outdir, "rasters")
+    done = False
     try:
         write(tmp)
         for f in FILES:
             os.chmod(tmp / f, 0o644)
             os.replace(tmp / f, outdir / f)
-    except BaseException:
+        done = True
+    finally:
         shutil.rmtree(tmp, ignore_errors=True)
-        for d in created:                     # deepest first; only if still empty
+        for d in created if not done else ():   # deepest first; only while empty
             try:
                 d.rmdir()
             except OSError:
                 break
-        raise
-    finally:
-        shutil.rmtree(tmp, ignore_errors=True)
     return [outdir / f for f in FILES]
 
 
