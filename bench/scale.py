@@ -59,7 +59,7 @@ LIMIT_PEAK_GB = 6.0
 # the mosaic for mosaic.
 FRAMES, POINTS, MP = "frames/min", "points/s", "MP/s"
 UNITS = {
-    "merge": [POINTS], "classify": [POINTS], "rasters": [POINTS], "corners": [POINTS], "height_check": [POINTS],
+    "classify": [POINTS], "rasters": [POINTS], "corners": [POINTS], "height_check": [POINTS],
     "lidar_eval": [POINTS],
     "match": [FRAMES], "adjust_first": [FRAMES], "control": [FRAMES], "adjust_final": [FRAMES],
     "rectify": [FRAMES, MP], "mosaic": [MP],

@@ -98,11 +98,6 @@ def resolve_crs_units(path, header: laspy.LasHeader, crs_arg: str | int | None,
     return horizontal_crs(crs), units
 
 
-def resolve_crs(path, header: laspy.LasHeader, crs_arg: str | int | None) -> pyproj.CRS:
-    """The horizontal CRS of ``resolve_crs_units``."""
-    return resolve_crs_units(path, header, crs_arg)[0]
-
-
 def _validate_xyz(path, x, y, z, first_index: int, units: LengthUnits = METRE) -> None:
     """Bounds in the file's units (the metre bounds scaled), so that the check costs no scaling."""
     max_xy, z_lo, z_hi = MAX_ABS_XY_M / units.xy_m, MIN_Z_M / units.z_m, MAX_Z_M / units.z_m
@@ -197,23 +192,6 @@ def require_same_crs(path, crs, units: LengthUnits, first) -> None:
         raise InputError(f"{path}: CRS {crs_label(crs)} ({units.describe()}) differs from the CRS of {first_path}, "
                          f"{crs_label(first_crs)} ({first_units.describe()}); give strips in one CRS "
                          "(aerotri crs transform)")
-
-
-def read_clouds(paths, crs: str | int | None = None) -> PointCloud:
-    """The ``read_cloud`` clouds of several strips concatenated (file after file), in one CRS and unit:
-    a strip whose CRS or units differ from the first one's is an InputError naming it. Holds the whole
-    set in memory (``read_cloud``'s allocation check applies per file)."""
-    paths = [Path(p) for p in paths]
-    if not paths:
-        raise InputError("no LAS/LAZ files to read")
-    clouds = [read_cloud(paths[0], crs=crs, point_source_id=True)]
-    for p in paths[1:]:
-        c = read_cloud(p, crs=crs, point_source_id=True)
-        require_same_crs(p, c.crs, c.units, (paths[0], clouds[0].crs, clouds[0].units))
-        clouds.append(c)
-    fields = ("x", "y", "z", "intensity", "return_number", "number_of_returns", "classification", "point_source_id")
-    cat = {f: np.concatenate([getattr(c, f) for c in clouds]) for f in fields}
-    return PointCloud(**cat, crs=clouds[0].crs, units=clouds[0].units)
 
 
 def sanitize_returns(return_number: np.ndarray, number_of_returns: np.ndarray):

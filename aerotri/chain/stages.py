@@ -206,7 +206,6 @@ class Chain:
         return dict(points=st.n_points, strips=st.n_files, tiles=st.run.n_tiles)
 
     def run_rasters(self, root) -> dict:
-        from lidarctl import io
         from lidarctl.rasters import write_rasters
 
         write_rasters(self.classified(), self.lo, self.options.rasters.res_m, crs=self.project.crs)

@@ -57,10 +57,7 @@ def mutual_ratio_matches(da: np.ndarray, db: np.ndarray, ratio: float, chunk: in
         i1, d1, second = _two_nearest(d2, 1)
         row_i[s:s + chunk] = i1
         row_ok[s:s + chunk] = d1 < r2 * second
-        if len(d2) >= 2:
-            j1, e1, e2 = _two_nearest(d2, 0)
-        else:
-            j1, e1, e2 = np.zeros(nb, np.int64), d2[0], np.full(nb, np.inf, np.float32)
+        j1, e1, e2 = _two_nearest(d2, 0)   # a one-row block: second nearest inf
         # Merge this block's two nearest with the running two nearest of every column.
         better = e1 < col_1
         col_2 = np.where(better, np.minimum(col_1, e2), np.minimum(col_2, e1))

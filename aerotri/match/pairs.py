@@ -22,6 +22,15 @@ from aerotri.core.errors import InputError
 from aerotri.geom.rotation import rotation_matrix_opk
 
 
+def flat_ground_xy(centre_m: np.ndarray, kappa_deg: float, terrain_height_m: float, camera: FrameCamera,
+                   xy_px: np.ndarray) -> np.ndarray:
+    """Ground (x, y) in metres of image points of a frame at ``centre_m`` with nominal attitude
+    (omega = phi = 0, ``kappa_deg``) over flat terrain at ``terrain_height_m``."""
+    d = camera.rays(xy_px[:, 0], xy_px[:, 1], rotation_matrix_opk(0.0, 0.0, kappa_deg))
+    t = (terrain_height_m - centre_m[2]) / d[:, 2]
+    return centre_m[:2] + d[:, :2] * t[:, None]
+
+
 @dataclasses.dataclass
 class BlockPlan:
     image_id: list[str]
@@ -37,9 +46,7 @@ class BlockPlan:
 
     def ground_xy(self, i: int, camera: FrameCamera, xy_px: np.ndarray) -> np.ndarray:
         """Approximate ground coordinates of image points of frame i (flat terrain)."""
-        d = camera.rays(xy_px[:, 0], xy_px[:, 1], self.rotation(i))
-        t = (self.terrain_height_m - self.centre_m[i, 2]) / d[:, 2]
-        return self.centre_m[i, :2] + d[:, :2] * t[:, None]
+        return flat_ground_xy(self.centre_m[i], self.kappa_deg[i], self.terrain_height_m, camera, xy_px)
 
 
     def guide(self, i: int, j: int, margin: float) -> "PairGuide":
@@ -61,9 +68,7 @@ class PairGuide:
     footprint_b: Polygon
 
     def _ground_xy(self, k: int, camera: FrameCamera, xy_px: np.ndarray) -> np.ndarray:
-        d = camera.rays(xy_px[:, 0], xy_px[:, 1], rotation_matrix_opk(0.0, 0.0, self.kappa_deg[k]))
-        t = (self.terrain_height_m - self.centre_m[k, 2]) / d[:, 2]
-        return self.centre_m[k, :2] + d[:, :2] * t[:, None]
+        return flat_ground_xy(self.centre_m[k], self.kappa_deg[k], self.terrain_height_m, camera, xy_px)
 
     def in_overlap(self, camera: FrameCamera, xy_a_px: np.ndarray, xy_b_px: np.ndarray
                    ) -> tuple[np.ndarray, np.ndarray]:
