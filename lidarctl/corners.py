@@ -466,6 +466,9 @@ _CORNER_BIN = np.dtype([("x", "f8"), ("y", "f8"), ("z", "f8"), ("cls", "u1"), ("
                         ("sid", "u2"), ("index", "i8")])
 
 
+_BUILDING_XY = "building_xy.bin"   # (x, y) float64 of every building point, in file order
+
+
 @dataclasses.dataclass
 class _TiledCloud:
     """The non-noise points of the files binned into tile files (``_CORNER_BIN``) and what the whole
@@ -532,6 +535,9 @@ def _bin_corner_points(paths, crs, work: Path, tile_m: float, buffer_m: float, c
             if b.any():
                 n_bldg += int(b.sum())
                 bmin = np.minimum(bmin, [rec["x"][b].min(), rec["y"][b].min()])
+                # every point lies in one tile's core: the building points once, for the spacing
+                with open(work / _BUILDING_XY, "ab") as fh:
+                    np.column_stack([rec["x"][b], rec["y"][b]]).tofile(fh)
             row, col = grid.core_rc(rec["x"], rec["y"])
             core_id = row * grid.ncols + col
             ids, pos = grid.assign(rec["x"], rec["y"])
@@ -552,16 +558,16 @@ def _tile_points(tc: _TiledCloud, tid: int) -> np.ndarray:
     return np.fromfile(tc.work / f"tile_{tid}.bin", _CORNER_BIN)
 
 
-def _global_spacing_m(tc: _TiledCloud) -> float:
-    """``point_spacing_m`` of all building points (as ``_roof_clusters`` computes it), from the tiles'
-    core building points: occupied cells anchored at the building points' lowest x, y."""
+def _global_spacing_m(tc: _TiledCloud, chunk_points: int = las_io.CHUNK_POINTS) -> float:
+    """``point_spacing_m`` of all building points (as ``_roof_clusters`` computes it), from the
+    building points' (x, y) the binning kept aside (read by chunks, not the tiles again): occupied
+    cells anchored at the building points' lowest x, y."""
     def spacing(cell_m):
-        cells = []  # occupied cells of each tile's core (a cell may straddle two cores)
-        for tid in np.flatnonzero(tc.used):
-            rec = _tile_points(tc, tid)
-            rec = rec[(rec["cls"] == BUILDING) & (rec["core"] == 1)]
-            ij = np.floor((np.column_stack([rec["x"], rec["y"]]) - tc.building_min) / cell_m).astype(np.int64)
-            cells.append(np.unique(ij[:, 0] * (1 << 31) + ij[:, 1]))
+        cells = []  # occupied cells of each chunk (a cell may hold points of several chunks)
+        with open(tc.work / _BUILDING_XY, "rb") as fh:
+            while len(xy := np.fromfile(fh, np.float64, count=2 * chunk_points)):
+                ij = np.floor((xy.reshape(-1, 2) - tc.building_min) / cell_m).astype(np.int64)
+                cells.append(np.unique(ij[:, 0] * (1 << 31) + ij[:, 1]))
         n_cells = len(np.unique(np.concatenate(cells)))
         return float(np.sqrt(n_cells * cell_m * cell_m / tc.n_building))
 
@@ -630,7 +636,7 @@ def find_roof_corners_tiled(paths, crs=None, *, tile_m: float = DEFAULT_TILE_M, 
             raise InputError(
                 f"{names}: no building points (ASPRS class {BUILDING}) among {tc.n_points} points: classify the "
                 "cloud first (lidarctl classify) - roof corners need building points")
-        spacing = _global_spacing_m(tc)
+        spacing = _global_spacing_m(tc, chunk_points)
         # Each tile's roofs; a tile keeps the roofs whose reference point lies in its core, numbered by their
         # key (size, reference point) until all are known, then ranked as cluster_roofs ranks them.
         keys, raw, outlines, faces = [], [], [], []
