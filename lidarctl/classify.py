@@ -38,7 +38,9 @@ Pipeline (``classify_points``):
    cloud's median ground intensity (skipped when the cloud carries no intensity; specular
    returns near nadir are bright, hence the quartile); and (d) the gap is not an occlusion
    shadow: at most ``water_shadow_fraction`` of its rim cells hold building points (a shadow is
-   bounded by the building that casts it). Returns within 3 sigma (their robust spread, clipped
+   bounded by the building that casts it); (e) open water has nothing above it: a return with any
+   return more than ``low_veg_max_m`` above the level within one water cell horizontally is forest
+   floor seen through a crown (drop-out under canopy), never water. Returns within 3 sigma (their robust spread, clipped
    to [1/4, 1] ``water_level_tol_m``) of the level become water; so do returns within
    ``water_shore_m`` of the gap at that level that are as dark as the body (on clouds without
    intensity: in a dropout cell), which the 3x3 window misses along the shore.
@@ -317,11 +319,12 @@ def water_level(z, tol_m: float) -> tuple[float, float]:
 
 
 def detect_water(x, y, z, intensity, candidate, is_building, is_ground, spacing_m: float,
-                 p: ClassifyParams) -> np.ndarray:
+                 p: ClassifyParams, solid=None) -> np.ndarray:
     """Water returns (mask) by pulse-dropout water detection; see the module docstring, step 5.
 
     ``candidate``: points that may be water returns (ground, unclassified, low vegetation);
-    ``is_building`` / ``is_ground``: class masks for the occlusion-shadow and bank tests.
+    ``is_building`` / ``is_ground``: class masks for the occlusion-shadow and bank tests;
+    ``solid``: the points that are not noise (default all), for the canopy test.
     Heights in metres; intensity in the sensor's units (only ratios to the cloud's median are used).
     """
     n = len(x)
@@ -339,6 +342,24 @@ def detect_water(x, y, z, intensity, candidate, is_building, is_ground, spacing_
         return water
     area_m2 = np.bincount(labels.ravel(), minlength=nlab + 1) * c * c
     building_cell = np.bincount(flat[is_building], minlength=nrows * ncols).reshape(nrows, ncols) > 0
+    # Canopy: the highest return within one water cell (m) horizontally of a point. A pulse that
+    # reached the level below a crown is ground seen through foliage, not open water.
+    solid = np.flatnonzero(np.ones(n, bool) if solid is None else solid)
+    solid_tree = cKDTree(np.column_stack([x[solid], y[solid]]))
+
+    def open_sky(idx, level):
+        """Mask over ``idx``: no return more than ``low_veg_max_m`` above ``level`` within ``c``."""
+        if len(idx) == 0:
+            return np.zeros(0, bool)
+        near = solid_tree.query_ball_point(np.column_stack([x[idx], y[idx]]), c)
+        lens = np.fromiter((len(v) for v in near), np.int64, len(near))
+        flat_nb = solid[np.concatenate([np.asarray(v, np.int64) for v in near])] if lens.sum() else np.zeros(0, np.int64)
+        high = np.zeros(len(idx), bool)
+        if len(flat_nb):
+            owner = np.repeat(np.arange(len(idx)), lens)
+            np.logical_or.at(high, owner, z[flat_nb] > level + p.low_veg_max_m)
+        return ~high
+
     ground_cell_z = reduce_grid(x[is_ground], y[is_ground], z[is_ground], c, x0, y0, nrows, ncols, "mean")
     # Clouds without intensity (a constant field) skip the reflectance test.
     use_intensity = intensity is not None and is_ground.any() and np.ptp(np.asarray(intensity)[is_ground]) > 0
@@ -369,6 +390,9 @@ def detect_water(x, y, z, intensity, candidate, is_building, is_ground, spacing_
         # The water returns' own spread (sensor noise, waves) sets how far from the level they lie.
         on_tol = np.clip(3.0 * sigma_m, 0.25 * tol, tol)
         on_level = members[np.abs(zg - level) <= on_tol]
+        # Open water has nothing above it: returns under a crown (any return more than
+        # ``low_veg_max_m`` above the level within one cell) are not water.
+        on_level = on_level[open_sky(on_level, level)]
         if len(on_level) < p.water_min_points:
             continue
         # Horizontal: least-squares plane through the level returns.
@@ -402,6 +426,7 @@ def detect_water(x, y, z, intensity, candidate, is_building, is_ground, spacing_
         inside = (i >= 0) & (i < shore.shape[0]) & (j >= 0) & (j < shore.shape[1])
         inside[inside] = shore[i[inside], j[inside]]
         near = shore_cand[inside & (np.abs(z[shore_cand] - level) <= on_tol)]
+        near = near[open_sky(near, level)]
         if use_intensity:
             # As dark as the body's own returns (dark asphalt beside a pond is not water).
             dark = min(p.water_intensity_ratio * ground_intensity,
@@ -479,12 +504,18 @@ def classify_points(x, y, z, return_number=None, number_of_returns=None, intensi
     with np.errstate(invalid="ignore", divide="ignore"):
         multi_frac = np.where(cnt > 0, cnt_multi / np.maximum(cnt, 1), 0.0)
     high_obj = has_obj & (dsm_f - dem > p.building_min_height_m)
-    roof = high_obj & (rms < p.roof_rms_m)
+    # Penetration: a roof stops every pulse at its surface, so a cell's returns lie within the
+    # roof's slope across the cell of its highest one; foliage spreads them through the crown.
+    # On single-return clouds this is the evidence the multi-return fraction gives elsewhere.
+    mean_obj = reduce_grid(x[obj], y[obj], z[obj], c, x0, y0, nrows, ncols, "mean")
+    depth = np.where(cnt >= 3, dsm_f - np.nan_to_num(mean_obj, nan=-np.inf), 0.0)
+    reach = 0.5 * c * slope_tan(dsm_f, c)
+    roof = high_obj & (rms < p.roof_rms_m) & (depth <= p.roof_rms_m + reach)
     if has_multi:
         roof &= multi_frac <= p.max_multi_return_fraction
         candidate = high_obj & (multi_frac <= p.grow_multi_return_fraction)
     else:
-        candidate = high_obj & (rms < p.rough_rms_m)
+        candidate = high_obj & (rms < p.rough_rms_m) & (depth <= p.rough_rms_m + reach)
     # Roof segments grow into connected object cells that are not tree-like (ridges, dormers and
     # roof edges break the 3x3 plane fit); a segment is a building when its planar part is large.
     candidate = ndimage.binary_closing(candidate, np.ones((3, 3), bool)) & high_obj | roof
@@ -526,6 +557,6 @@ def classify_points(x, y, z, return_number=None, number_of_returns=None, intensi
 
     # water
     water = detect_water(x, y, z, intensity, is_ground | (cls == UNCLASSIFIED) | (cls == LOW_VEG),
-                         is_building, is_ground, spacing, p)
+                         is_building, is_ground, spacing, p, solid=clean)
     cls[water] = WATER
     return cls

@@ -2,6 +2,7 @@
 
 import numpy as np
 import pytest
+from scipy.spatial import cKDTree
 
 from lidarctl import classify, evaluate, io, noise, ground
 
@@ -38,3 +39,30 @@ def test_ahn3_has_no_crs_and_ground_is_found(shared_data):
     for cls_ in ("2", "6"):
         assert conf["producers_accuracy_pct"][cls_] >= 95.0, conf
         assert conf["users_accuracy_pct"][cls_] >= 95.0, conf
+
+
+@pytest.mark.realdata
+def test_single_return_crowns_are_not_roofs(shared_data):
+    """laspy's Nebraska tile (single returns only, ~117 points/m2): without multi-return evidence the
+    crowns' smooth top surface looked like roofs (9,394 of 10,956 high-vegetation points became
+    building); the spread of a cell's returns below its highest one tells foliage from a roof."""
+    c = io.read_cloud(shared_data / "laspy_nebraska" / "file_with_both_wkt_and_geotiff_vlrs.las")
+    assert np.all(c.number_of_returns == 1)
+    cls = classify.classify_points(c.x, c.y, c.z, c.return_number, c.number_of_returns, c.intensity)
+    veg = np.isin(c.classification, (3, 4, 5))
+    building = cls == classify.BUILDING
+    assert np.mean(building[veg]) < 0.02
+    assert np.mean(c.classification[building] == 6) >= 0.95
+
+
+@pytest.mark.realdata
+def test_no_water_under_canopy_on_forested_hills(shared_data):
+    """lidR's forested Topography: no truth-ground point with a crown return more than 2 m above it
+    within 2 m becomes water (drop-out under canopy is not open water)."""
+    c = io.read_cloud(shared_data / "lidr_topography" / "Topography.laz")
+    cls = classify.classify_points(c.x, c.y, c.z, c.return_number, c.number_of_returns, c.intensity)
+    idx = np.flatnonzero((c.classification == 2) & (cls == classify.WATER))
+    near = cKDTree(np.column_stack([c.x, c.y])).query_ball_point(np.column_stack([c.x[idx], c.y[idx]]), 2.0)
+    assert not any(np.max(c.z[nb]) - c.z[i] > 2.0 for nb, i in zip(near, idx))
+    # The lakes' own returns are still found.
+    assert np.sum((c.classification == 9) & (cls == classify.WATER)) > 100

@@ -106,3 +106,28 @@ def test_water_level_is_lowest_coherent_surface():
     level, sigma_m = classify.water_level(np.concatenate([water_z, pontoon_z]), 0.2)
     assert abs(level + 0.46) < 0.01
     assert sigma_m < 0.03
+
+
+def test_dropout_under_canopy_is_not_water(scene):
+    """Crowns over the west half of the pond gap: the dark, level returns under them are forest floor
+    seen through foliage (drop-out under canopy), never water; the open east half stays water."""
+    s = scene
+    rng = np.random.default_rng(11)
+    u, v = s["x"] - X0, s["y"] - Y0
+    under = (s["truth"] == classify.WATER) & (u < POND_C[0])
+    # A closed canopy, 8-15 m up, at the scene's density over the west half of the pond.
+    n_crown = int(4.0 * POND_A * 2 * POND_B)
+    cu = POND_C[0] - rng.uniform(0.0, POND_A + 1.0, n_crown)
+    cv = POND_C[1] + rng.uniform(-POND_B - 1.0, POND_B + 1.0, n_crown)
+    cz = s["level"] + rng.uniform(8.0, 15.0, n_crown)
+    x = np.concatenate([s["x"], X0 + cu])
+    y = np.concatenate([s["y"], Y0 + cv])
+    z = np.concatenate([s["z"], cz])
+    rn = np.concatenate([s["rn"], np.ones(len(cu), s["rn"].dtype)])
+    nr = np.concatenate([s["nr"], np.full(len(cu), 2, s["nr"].dtype)])
+    inten = np.concatenate([s["intensity"], np.full(len(cu), 400, np.uint16)])
+    pred = classify.classify_points(x, y, z, rn, nr, inten)[:len(s["x"])]
+    assert under.sum() > 40
+    assert not np.any(pred[under] == classify.WATER)
+    open_water = (s["truth"] == classify.WATER) & (u > POND_C[0] + 3.0)
+    assert np.mean(pred[open_water] == classify.WATER) >= 0.8
