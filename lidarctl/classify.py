@@ -84,11 +84,11 @@ class ClassifyParams:
                                              "plausible (lidarctl.delivered_classes); no classification is run.")
     cell_m: float = 0.0                 # 0: max(0.5 m, 2 x mean point spacing)
     building_min_height_m: float = 2.0
-    building_min_area_m2: float = 20.0
-    roof_rms_m: float = 0.15
+    building_min_area_m2: float = 10.0
+    roof_rms_m: float = 0.25
     roof_depth_m: float = 100.0
     wall_min_height_m: float = 0.5
-    max_multi_return_fraction: float = 0.3
+    max_multi_return_fraction: float = 0.45
     grow_multi_return_fraction: float = 0.7
     low_veg_max_m: float = 2.0
     medium_veg_max_m: float = 5.0
