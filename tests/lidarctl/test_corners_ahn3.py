@@ -42,3 +42,32 @@ def test_ahn3_window_corners_near_bgt_footprint_vertices(shared_data):
     # roofs in Delft are 5-20 m above NAP ground; corner heights are roof heights, not ground
     z = np.array([q["z"] for q in res["corners"]])
     assert np.all((z > 2.0) & (z < 30.0))
+
+
+WEST_WINDOW = (84820.0, 84930.0, 447500.0, 447630.0)  # terraces with back gardens, a large tree at (84843, 447563)
+
+
+@pytest.mark.realdata
+def test_ahn3_tree_crowns_hide_corners_only_where_they_rise_above_the_view_rays(shared_data):
+    """Trees in the back gardens: the corner under the crown at (84842, 447563) is hidden from every side
+    and not usable; corners with trees on one side stay open from the others; the usable corners that
+    match a BGT vertex lie at most 0.5 m from it in the median (eave overhang included)."""
+    d = shared_data / "ahn3_delft"
+    c = read_classified_cloud(d / "ahn3_cropped_1.laz")
+    x0, x1, y0, y1 = WEST_WINDOW
+    w = (c["x"] >= x0) & (c["x"] < x1) & (c["y"] >= y0) & (c["y"] < y1)
+    res = find_roof_corners(c["x"][w], c["y"][w], c["z"][w], c["classification"][w], c["point_source_id"][w],
+                            roof="any")
+    corners = res["corners"]
+    under = [q for q in corners if np.hypot(q["x"] - 84842.0, q["y"] - 447563.0) < 1.5]
+    assert len(under) == 1 and under[0]["score_view_openness"] == 0.0 and not under[0]["usable"]
+    openness = np.array([q["score_view_openness"] for q in corners])
+    assert np.any((openness > 0.0) & (openness < 1.0))  # partly hidden: trees on some sides only
+    con = sqlite3.connect(f"file:{d / 'bgt_pand.sqlite'}?mode=ro", uri=True)
+    polys = [shapely.wkb.loads(bytes(b)) for (b,) in con.execute("SELECT GEOMETRY FROM buildingpart")]
+    con.close()
+    vertices = np.concatenate([np.asarray(p.exterior.coords)[:-1] for p in polys])
+    usable = np.array([[q["x"], q["y"]] for q in corners if q["usable"]])
+    dist, _ = cKDTree(vertices).query(usable)
+    assert (dist <= 2.0).sum() >= 5
+    assert np.median(dist[dist <= 2.0]) <= 0.5
