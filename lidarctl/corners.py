@@ -16,7 +16,8 @@ Score for use as control (0..1, product of factors, each 1 when ideal):
   the corner is seen at ``VIEW_OFF_NADIR_DEG`` off nadir, past trees and other roofs: ``view_openness``),
   not at the edge of a strip (the corner at least 10 m inside a strip's footprint, else 0.3).
 A corner is ``usable`` as control when its score >= ``USABLE_SCORE``, its angle is within 5 deg of a right
-angle, both edges are at least ``min_edge_m`` long and, with ``roof="flat"``, its roof is flat.
+angle, both edges are at least ``min_edge_m`` long and end at corners of the outline (not where the edge
+lines of a neighbour meet off the traced outline) and, with ``roof="flat"``, its roof is flat.
 
 Units: ``find_roof_corners`` works in metres (every length above, the sigmas and the edge lengths);
 ``read_strips`` scales clouds in feet to metres and ``to_crs_units`` writes the corner and outline
@@ -317,9 +318,14 @@ def _one_roof(pts: np.ndarray, r: int, spacing: float) -> tuple[list[dict], dict
         trace = shapely.LinearRing(rings[edges[0].ring])
         far = shapely.distance(shapely.points(rc.xy), trace) > max(2.0, 4.0 * s_roof)
         outline_rings.append(rc.xy[~far])
+        # an edge whose other end is no corner of the roof (its lines meet off the trace) has no known
+        # length or end: the corners on it are traced, never usable
+        far_start = {id(rc.edge_out[k]): bool(far[k]) for k in range(len(rc.xy))}
+        far_end = {id(rc.edge_in[k]): bool(far[k]) for k in range(len(rc.xy))}
         for k in range(len(rc.xy)):
             if far[k]:
                 continue  # the fitted edges meet far from the traced outline: not a corner of this roof
+            open_edge = far_start.get(id(rc.edge_in[k]), True) or far_end.get(id(rc.edge_out[k]), True)
             i_out = edges.index(rc.edge_out[k])
             l_in, l_out = lengths[i_out - 1], lengths[i_out]
             zc, sz, slope = _corner_height(pts, plane_of, planes, roof_tree, rc.xy[k], rc.cov_xy[k])
@@ -328,7 +334,7 @@ def _one_roof(pts: np.ndarray, r: int, spacing: float) -> tuple[list[dict], dict
                 roof="flat" if slope < FLAT_SLOPE_DEG else "pitched", building_id=r,
                 edge1_deg=_bearing_deg(rc.edge_in[k]), edge2_deg=_bearing_deg(rc.edge_out[k]),
                 angle_deg=float(rc.angle_deg[k]), n_in=rc.edge_in[k].n_obs, n_out=rc.edge_out[k].n_obs,
-                l_in=float(l_in), l_out=float(l_out),
+                l_in=float(l_in), l_out=float(l_out), open_edge=open_edge,
             ))
     roof_types = ["flat" if p.slope_deg < FLAT_SLOPE_DEG else "pitched" for p in planes]
     outline = dict(
@@ -402,7 +408,7 @@ def _score_corners(raw: list[dict], rc: _RoofClusters, *, min_edge_m: float, roo
         score = f_angle * f_len * f_support * f_prec * f_flat * f_open * f_strip
         usable = (
             score >= USABLE_SCORE and dev <= 5.0 and min(c["l_in"], c["l_out"]) >= min_edge_m
-            and (roof == "any" or c["roof"] == "flat")
+            and (roof == "any" or c["roof"] == "flat") and not c["open_edge"]
         )
         c.update(sx=float(sx), sy=float(sy), score=float(score), usable=bool(usable),
                  strip_margin_m=float(margin[k]),
