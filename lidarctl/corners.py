@@ -12,10 +12,12 @@ sigma is below max(0.3 m, 0.4 spacing). The outlines in corners.geojson keep eve
 Score for use as control (0..1, product of factors, each 1 when ideal):
   right angle (interior angle 90 or 270 deg within 10 deg), long edges (shorter edge / 2 min_edge_m),
   well-supported edges (fewest boundary observations / 10), horizontal precision (1 / (1 + (s/0.15 m)^2)),
-  flat roof (pitched: 0.8), no taller structure within 5 m (else 0.3: occludes the corner in images),
+  flat roof (pitched: 0.8), open to the sky (the fraction of ``VIEW_SECTORS`` azimuth sectors from which
+  the corner is seen at ``VIEW_OFF_NADIR_DEG`` off nadir, past trees and other roofs: ``view_openness``),
   not at the edge of a strip (the corner at least 10 m inside a strip's footprint, else 0.3).
 A corner is ``usable`` as control when its score >= ``USABLE_SCORE``, its angle is within 5 deg of a right
-angle, both edges are at least ``min_edge_m`` long and, with ``roof="flat"``, its roof is flat.
+angle, both edges are at least ``min_edge_m`` long and end at corners of the outline (not where the edge
+lines of a neighbour meet off the traced outline) and, with ``roof="flat"``, its roof is flat.
 
 Units: ``find_roof_corners`` works in metres (every length above, the sigmas and the edge lengths);
 ``read_strips`` scales clouds in feet to metres and ``to_crs_units`` writes the corner and outline
@@ -66,6 +68,16 @@ USABLE_SCORE = 0.5
 MAX_SIGMA_XY_M = 0.3
 MAX_SIGMA_XY_SPACINGS = 0.4
 FLAT_SLOPE_DEG = 5.0
+# Occlusion in the frames: a corner is seen from an azimuth sector when no tree, other roof or object
+# more than OCCLUDER_MIN_DZ_M above it rises above the view ray at VIEW_OFF_NADIR_DEG off nadir (a point
+# d metres away hides the corner when it stands more than d / tan(VIEW_OFF_NADIR_DEG) above it). 22.5 deg
+# is the median off-nadir angle of the rays through a DMC frame (165.9 x 92.2 mm format, f = 120 mm, uniform
+# over the format; quartiles 16 and 29.5 deg); the sectors are the directions the frames look from. A
+# property of the camera, not fitted to any data set.
+VIEW_OFF_NADIR_DEG = 22.5
+VIEW_SECTORS = 8
+OCCLUDER_MIN_DZ_M = 1.0
+OCCLUDER_MIN_POINTS = 3
 # Roof-face footprints (roof_planes.geojson) are shrunk by max(FACE_MARGIN_M, FACE_MARGIN_SPACINGS * spacing)
 # so that tie points on eaves, ridges and step edges (where a face's plane no longer holds) fall outside.
 FACE_MARGIN_M = 1.0
@@ -306,9 +318,14 @@ def _one_roof(pts: np.ndarray, r: int, spacing: float) -> tuple[list[dict], dict
         trace = shapely.LinearRing(rings[edges[0].ring])
         far = shapely.distance(shapely.points(rc.xy), trace) > max(2.0, 4.0 * s_roof)
         outline_rings.append(rc.xy[~far])
+        # an edge whose other end is no corner of the roof (its lines meet off the trace) has no known
+        # length or end: the corners on it are traced, never usable
+        far_start = {id(rc.edge_out[k]): bool(far[k]) for k in range(len(rc.xy))}
+        far_end = {id(rc.edge_in[k]): bool(far[k]) for k in range(len(rc.xy))}
         for k in range(len(rc.xy)):
             if far[k]:
                 continue  # the fitted edges meet far from the traced outline: not a corner of this roof
+            open_edge = far_start.get(id(rc.edge_in[k]), True) or far_end.get(id(rc.edge_out[k]), True)
             i_out = edges.index(rc.edge_out[k])
             l_in, l_out = lengths[i_out - 1], lengths[i_out]
             zc, sz, slope = _corner_height(pts, plane_of, planes, roof_tree, rc.xy[k], rc.cov_xy[k])
@@ -317,7 +334,7 @@ def _one_roof(pts: np.ndarray, r: int, spacing: float) -> tuple[list[dict], dict
                 roof="flat" if slope < FLAT_SLOPE_DEG else "pitched", building_id=r,
                 edge1_deg=_bearing_deg(rc.edge_in[k]), edge2_deg=_bearing_deg(rc.edge_out[k]),
                 angle_deg=float(rc.angle_deg[k]), n_in=rc.edge_in[k].n_obs, n_out=rc.edge_out[k].n_obs,
-                l_in=float(l_in), l_out=float(l_out),
+                l_in=float(l_in), l_out=float(l_out), open_edge=open_edge,
             ))
     roof_types = ["flat" if p.slope_deg < FLAT_SLOPE_DEG else "pitched" for p in planes]
     outline = dict(
@@ -328,20 +345,52 @@ def _one_roof(pts: np.ndarray, r: int, spacing: float) -> tuple[list[dict], dict
     return raw, outline, faces
 
 
+def view_openness(xyz: np.ndarray, cls: np.ndarray, roof_label: np.ndarray, corner_xyz: np.ndarray,
+                  building_id: np.ndarray, off_nadir_deg: float = VIEW_OFF_NADIR_DEG,
+                  n_sectors: int = VIEW_SECTORS) -> np.ndarray:
+    """Fraction of the azimuth sectors from which each corner is seen ``off_nadir_deg`` off nadir (0..1).
+
+    A sector is hidden when at least ``OCCLUDER_MIN_POINTS`` non-ground points of anything but the
+    corner's own roof (trees, other roofs) lie in it more than ``OCCLUDER_MIN_DZ_M`` above the corner and
+    above the view ray, i.e. more than d / tan(off_nadir) above it at horizontal distance d (m). A crown
+    over the corner hides it from every sector; a tree beside it only from the side it stands on, so the
+    frames looking from the other sides still see the corner. Coordinates in metres.
+    """
+    corner_xyz = np.asarray(corner_xyz, float).reshape(-1, 3)
+    out = np.ones(len(corner_xyz))
+    if not len(corner_xyz):
+        return out
+    cot = 1.0 / np.tan(np.radians(off_nadir_deg))
+    cand = cls != GROUND
+    idx_cand = np.flatnonzero(cand)
+    tree = cKDTree(xyz[idx_cand, :2])
+    # farthest point that can hide a corner: one 40 m above it (a tall tree or building)
+    radius = 40.0 / cot
+    for k, near in enumerate(tree.query_ball_point(corner_xyz[:, :2], radius)):
+        near = idx_cand[np.asarray(near, np.int64)]
+        near = near[roof_label[near] != building_id[k]]
+        dxy = xyz[near, :2] - corner_xyz[k, :2]
+        d = np.hypot(dxy[:, 0], dxy[:, 1])
+        dz = xyz[near, 2] - corner_xyz[k, 2]
+        hide = (dz > OCCLUDER_MIN_DZ_M) & (dz > d * cot)
+        if not hide.any():
+            continue
+        az = np.arctan2(dxy[hide, 1], dxy[hide, 0])
+        sector = np.floor(np.mod(az, 2.0 * np.pi) / (2.0 * np.pi / n_sectors)).astype(np.int64) % n_sectors
+        hidden = np.bincount(sector, minlength=n_sectors) >= OCCLUDER_MIN_POINTS
+        out[k] = 1.0 - hidden.sum() / n_sectors
+    return out
+
+
 def _score_corners(raw: list[dict], rc: _RoofClusters, *, min_edge_m: float, roof: str, sigma_strip_xy_m: float,
                    sigma_strip_z_m: float) -> None:
     """Add to each traced corner its sigmas with the strip's georeferencing error, its score (product of
-    the factors: right angle, edge length, support, precision, flat roof, no taller structure within
-    5 m, away from the strip edge) and whether it is usable as control."""
+    the factors: right angle, edge length, support, precision, flat roof, view openness past trees and
+    other roofs, away from the strip edge) and whether it is usable as control."""
     cxy = np.array([c["xy"] for c in raw])
     cz = np.array([c["z"] for c in raw])
-    # taller structure within 5 m: non-ground points of other roofs/objects more than 1 m above the corner
-    not_ground = rc.cls != GROUND
-    taller = np.zeros(len(raw), bool)
-    for k, near in enumerate(cKDTree(rc.xyz[:, :2]).query_ball_point(cxy, 5.0)):
-        near = np.asarray(near, np.int64)
-        near = near[not_ground[near] & (rc.roof_label[near] != raw[k]["building_id"])]
-        taller[k] = np.sum(rc.xyz[near, 2] > cz[k] + 1.0) >= 3
+    openness = view_openness(rc.xyz, rc.cls, rc.roof_label, np.column_stack([cxy, cz]),
+                             np.array([c["building_id"] for c in raw]))
     margin = strip_margin_m(rc.xyz[:, :2], rc.sid, cxy, anchor=rc.margin_anchor)
 
     for k, c in enumerate(raw):
@@ -354,17 +403,17 @@ def _score_corners(raw: list[dict], rc: _RoofClusters, *, min_edge_m: float, roo
         f_support = float(np.clip(min(c["n_in"], c["n_out"]) / 10.0, 0.0, 1.0))
         f_prec = 1.0 / (1.0 + (s_h / 0.15) ** 2)
         f_flat = 1.0 if c["roof"] == "flat" else 0.8
-        f_taller = 0.3 if taller[k] else 1.0
+        f_open = float(openness[k])
         f_strip = 1.0 if margin[k] >= 10.0 else 0.3
-        score = f_angle * f_len * f_support * f_prec * f_flat * f_taller * f_strip
+        score = f_angle * f_len * f_support * f_prec * f_flat * f_open * f_strip
         usable = (
             score >= USABLE_SCORE and dev <= 5.0 and min(c["l_in"], c["l_out"]) >= min_edge_m
-            and (roof == "any" or c["roof"] == "flat")
+            and (roof == "any" or c["roof"] == "flat") and not c["open_edge"]
         )
-        c.update(sx=float(sx), sy=float(sy), score=float(score), usable=bool(usable), taller=bool(taller[k]),
+        c.update(sx=float(sx), sy=float(sy), score=float(score), usable=bool(usable),
                  strip_margin_m=float(margin[k]),
                  factors=dict(angle=f_angle, edge_length=f_len, support=f_support, precision=f_prec,
-                              flat=f_flat, taller_structure=f_taller, strip_edge=f_strip))
+                              flat=f_flat, view_openness=f_open, strip_edge=f_strip))
 
 
 def _reported_corners(raw: list[dict], min_edge_m: float, spacing: float) -> list[dict]:
@@ -885,8 +934,9 @@ def simple_ndsm(xyz: np.ndarray, classification: np.ndarray, cell_m: float = 1.0
 
 
 def plot_corners(path, ndsm, extent, outlines, corners, truth_xy=None, reference_polygons=None, title="",
-                 window=None, marker_size=4.0, xy_unit: str = "m"):
+                 window=None, marker_size=4.0, xy_unit: str = "m", vlines=()):
     """Outlines and corners over the nDSM (PNG, matplotlib Agg); truth corners / reference polygons optional.
+    ``vlines``: x of vertical lines to draw (e.g. the split of a spatial hold-out).
 
     ``window``: (xmin, xmax, ymin, ymax) to zoom into; default the whole nDSM extent. Coordinates,
     extent and window in ``xy_unit`` (the axis labels); the nDSM in metres.
@@ -916,6 +966,8 @@ def plot_corners(path, ndsm, extent, outlines, corners, truth_xy=None, reference
     cxy = np.array([[c["x"], c["y"]] for c in corners]).reshape(-1, 2)
     ax.plot(cxy[~use, 0], cxy[~use, 1], "o", mfc="none", color="tab:blue", ms=marker_size, label="corner (not usable)")
     ax.plot(cxy[use, 0], cxy[use, 1], "o", color="tab:red", ms=marker_size, label="usable corner")
+    for x in vlines:
+        ax.axvline(x, color="tab:purple", lw=1.0, ls="--")
     ax.set_aspect("equal")
     ax.set_xlim(view[0], view[1])
     ax.set_ylim(view[2], view[3])

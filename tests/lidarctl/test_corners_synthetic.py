@@ -1,7 +1,8 @@
 """Roof corners on synthetic classified clouds with known eave corners (spacing 0.7 m, noise 0.05 m).
 
 Scene (tests/lidarctl/corners_synth.py): flat rectangles (axis-parallel and rotated), an L-shape, a
-courtyard building, a gable roof, a small 6 x 6 m shed and a tree next to one corner.
+courtyard building, a gable roof, a small 6 x 6 m shed and a tree next to one corner; occlusion of
+corners by trees (view_openness) on small hand-made scenes.
 """
 
 from __future__ import annotations
@@ -13,7 +14,7 @@ import numpy as np
 import pytest
 import shapely
 
-from lidarctl.corners import find_roof_corners, strip_margin_m
+from lidarctl.corners import VIEW_OFF_NADIR_DEG, VIEW_SECTORS, find_roof_corners, strip_margin_m, view_openness
 from aerotri.core.errors import InputError
 
 _spec = importlib.util.spec_from_file_location("corners_synth", Path(__file__).with_name("corners_synth.py"))
@@ -141,18 +142,57 @@ def test_roof_flat_marks_only_flat_usable():
     assert np.any(t["roof"] == "pitched")
 
 
-def test_tree_next_to_corner_lowers_score(runs):
-    """The 14 m tree 2.5 m from the corner (41, 23.5) of the 11 m high building 0 hides it in images."""
+def test_tree_beside_corner_below_the_view_rays_does_not_hide_it(runs):
+    """The 14 m tree whose crown edge is 2.5 m from the corner (41, 23.5) of the 11 m high building 0
+    rises only ~2 m above the eave there: every view ray 22.5 deg off nadir passes over it, so the corner
+    stays open from all sides and scores like the other corners of its building."""
     _, truth_xyz, _, _, results = runs
     k_true = int(np.argmin(np.hypot(truth_xyz[:, 0] - 41.0, truth_xyz[:, 1] - 23.5)))
     for res in results:
-        t = _table(res)
-        j, _ = cs.match_corners(t["xy"], truth_xyz[:, :2], max_dist_m=1.0)
-        same_building = np.isin(j, np.flatnonzero(np.isclose(truth_xyz[:, 2], truth_xyz[k_true, 2])))
-        hit = j == k_true
-        assert hit.sum() == 1
-        assert not t["usable"][hit][0]
-        assert t["score"][hit][0] < 0.5 * np.median(t["score"][same_building & ~hit])
+        hit = [q for q in res["corners"] if np.hypot(q["x"] - 41.0, q["y"] - 23.5) < 1.0]
+        assert len(hit) == 1
+        assert hit[0]["score_view_openness"] == 1.0
+        assert np.hypot(hit[0]["x"] - truth_xyz[k_true, 0], hit[0]["y"] - truth_xyz[k_true, 1]) < 0.5
+
+
+def _crown(cx, cy, top_z, radius_m, spacing_m=0.3):
+    """Points of a paraboloid tree crown (class 5), top ``top_z`` at (cx, cy)."""
+    g = np.arange(-radius_m, radius_m + 1e-9, spacing_m)
+    x, y = [a.ravel() for a in np.meshgrid(g, g)]
+    r = np.hypot(x, y)
+    x, y, r = x[r < radius_m], y[r < radius_m], r[r < radius_m]
+    return np.column_stack([cx + x, cy + y, top_z - 3.0 * (r / radius_m) ** 2])
+
+
+def test_view_openness_counts_the_hidden_sectors():
+    """A flat roof at 10 m with its corner at (0, 0); trees of class 5 around it; openness = fraction of
+    the VIEW_SECTORS azimuth sectors not hidden at VIEW_OFF_NADIR_DEG off nadir."""
+    g = np.arange(-20.0, 0.0, 0.3)
+    rx, ry = [a.ravel() for a in np.meshgrid(g, g)]
+    roof = np.column_stack([rx, ry, np.full(len(rx), 10.0)])
+    corner = np.array([[0.0, 0.0, 10.0]])
+    cot = 1.0 / np.tan(np.radians(VIEW_OFF_NADIR_DEG))
+
+    def openness(*crowns):
+        xyz = np.vstack([roof, *crowns])
+        cls = np.r_[np.full(len(roof), 6), np.full(len(xyz) - len(roof), 5)]
+        label = np.r_[np.zeros(len(roof), np.int64), np.full(len(xyz) - len(roof), -1)]
+        return float(view_openness(xyz, cls, label, corner, np.array([0]))[0])
+
+    assert openness() == 1.0
+    # the building's own roof, even a higher part of it, never hides its corner
+    assert view_openness(np.vstack([roof, [[-1.0, -1.0, 30.0]] * 5]), np.full(len(roof) + 5, 6),
+                         np.zeros(len(roof) + 5, np.int64), corner, np.array([0]))[0] == 1.0
+    # a crown over the corner hides it from every side
+    assert openness(_crown(0.0, 0.0, 18.0, 3.0)) == 0.0
+    # a tall crown to the east (edge 3 m away, 15 m above: above the rays) hides the east only: one or two sectors
+    east = openness(_crown(5.0, 1.0, 28.0, 2.0))
+    assert 1.0 - 2.0 / VIEW_SECTORS <= east <= 1.0 - 1.0 / VIEW_SECTORS
+    # a crown of the same size, but lower than the rays at its distance, hides nothing
+    low_top = 10.0 + 0.8 * 3.0 * cot
+    assert openness(_crown(5.0, 1.0, low_top, 2.0)) == 1.0
+    # two tall crowns (east and north) hide more than one
+    assert openness(_crown(5.0, 1.0, 28.0, 2.0), _crown(1.0, 5.0, 28.0, 2.0)) < east
 
 
 def test_strip_margin():
