@@ -166,11 +166,12 @@ def _select(corners: LidarCorners, camera: FrameCamera, eo: ExteriorOrientations
     return kind, targets, base
 
 
-def _near_empty_targets(corners: LidarCorners, targets: list[LayoutTarget], todo: np.ndarray) -> np.ndarray:
-    """Indices of the corners in ``todo`` within the search radius of a target without a corner."""
+def _near_unfilled_targets(corners: LidarCorners, targets: list[LayoutTarget], todo: np.ndarray) -> np.ndarray:
+    """Indices of the corners in ``todo`` within the search radius of a target the rule itself did not fill
+    (no corner, or one from a later fallback tier than those the corners in ``todo`` may give)."""
     near = np.zeros(len(corners), bool)
     for t in targets:
-        if t.corner is None:
+        if t.tier != "usable":
             near |= np.hypot(*(corners.xyz_m[:, :2] - [t.target_x_m, t.target_y_m]).T) <= t.search_radius_m
     return np.flatnonzero(near & todo)
 
@@ -232,10 +233,10 @@ def transfer_control(corners: LidarCorners, camera: FrameCamera, eo: ExteriorOri
                      settings: ControlSettings | None = None, manual: dict | None = None) -> TransferResult:
     """Measure the corners in every frame, check them across frames, select control by the layout rule.
 
-    When a layout target gets no corner and ``settings.layout.fallback`` is on, the corners not measured
-    yet (those lidarctl did not mark usable) within its search radius are measured and checked the
-    same way, then the selection is repeated with the fallback tiers (``aerotri.control.layout``);
-    targets filled by the rule itself keep their corner.
+    When a layout target gets no usable corner in ``min_frames`` frames and ``settings.layout.fallback``
+    is on, the corners not measured yet (those lidarctl did not mark usable) within its search radius are
+    measured and checked the same way, then the selection is repeated with the fallback tiers
+    (``aerotri.control.layout``); targets filled by the rule itself keep their corner.
     """
     s = settings or ControlSettings()
     manual = manual or {}
@@ -248,9 +249,9 @@ def transfer_control(corners: LidarCorners, camera: FrameCamera, eo: ExteriorOri
     meas, pred = _measure_frames(corners, camera, eo, Path(images_dir), idx, manual_k, s)
     rays = _check_corners(corners, camera, eo, idx, meas, s)
     kind, targets, base = _select(corners, camera, eo, primary, rays, s)
-    extra = _near_empty_targets(corners, targets, ~primary) if s.layout.fallback else np.zeros(0, int)
+    extra = _near_unfilled_targets(corners, targets, ~primary) if s.layout.fallback else np.zeros(0, int)
     if len(extra):
-        log.info(f"{sum(t.corner is None for t in targets)} layout targets without a usable corner: measuring "
+        log.info(f"{sum(t.tier != 'usable' for t in targets)} layout targets without a usable corner: measuring "
                  f"{len(extra)} more corners near them")
         m2, p2 = _measure_frames(corners, camera, eo, Path(images_dir), extra, {}, s)
         meas.update(m2)

@@ -192,3 +192,18 @@ def test_an_empty_layout_target_measures_fallback_corners_and_says_why_when_it_s
 def test_too_few_rays_by_cause(frames):
     res = transfer_control(corners(far=True), CAM, EO, frames, ControlSettings())
     assert summary(res).too_few_rays_by_cause == {"in_no_frame": 1}
+
+
+def test_fallback_corners_are_measured_near_targets_the_rule_did_not_fill():
+    # a target filled from a later tier (here: a usable corner in two frames, height only) must still try the
+    # lower-scored corners near it, which come first
+    from aerotri.control.layout import LayoutTarget
+    from aerotri.control.pipeline import _near_unfilled_targets
+
+    c = corners(far=True)
+    todo = np.array([False, True, True, True, True])
+    t = [LayoutTarget("full", 1000.0, 1996.0, corner=0, tier="usable", search_radius_m=20.0),
+         LayoutTarget("full", 1300.0, 2000.0, corner=4, tier="height_only", search_radius_m=5.0)]
+    assert _near_unfilled_targets(c, t, todo).tolist() == [4]
+    t[1] = LayoutTarget("full", 1012.0, 2004.0, search_radius_m=5.0)  # empty: C3 is within reach, C1 not todo
+    assert _near_unfilled_targets(c, t, todo).tolist() == [2]
