@@ -96,13 +96,21 @@ def layout_numbers(res) -> dict:
     }
 
 
-def check_rms(root: Path) -> dict | None:
+def check_rms(root: Path, ids=None) -> dict | None:
+    """Check-point RMS of the final adjustment (at/report.json), over the check points ``ids`` when given
+    (the points both runs kept: a corner that became control in one run is no check point there)."""
     p = root / "at" / "report.json"
     if not p.is_file():
         return None
-    rep = json.loads(p.read_text())
-    x, y, z = rep["check_rms_m"]
-    return {"rms_check_xyz_m": [x, y, z], "rms_check_xy_m": float(np.hypot(x, y)), "rms_check_z_m": z}
+    pts = {c["id"]: c["d_m"] for c in json.loads(p.read_text())["check_points"]}
+    d = np.array([pts[i] for i in (sorted(pts) if ids is None else ids)])
+    rms = np.sqrt(np.mean(d**2, axis=0))
+    return {"check_points": len(d), "rms_check_xyz_m": [round(float(v), 4) for v in rms],
+            "rms_check_xy_m": round(float(np.hypot(rms[0], rms[1])), 4), "rms_check_z_m": round(float(rms[2]), 4)}
+
+
+def check_ids(root: Path) -> set:
+    return {c["id"] for c in json.loads((root / "at" / "report.json").read_text())["check_points"]}
 
 
 def main(argv=None):
@@ -128,7 +136,10 @@ def main(argv=None):
         rec["fallback_on"] = layout_numbers(on)
         rec["too_few_rays_truth_visibility"] = truth_visibility(root, off)
         rec["check_rms_after"] = check_rms(root)
-        rec["check_rms_before"] = check_rms(a.before[n]) if n < len(a.before) else None
+        if n < len(a.before):
+            rec["check_rms_before"] = check_rms(a.before[n])
+            common = sorted(check_ids(root) & check_ids(a.before[n]))
+            rec["check_rms_common_points"] = {"before": check_rms(a.before[n], common), "after": check_rms(root, common)}
         rec["seconds"] = round(time.perf_counter() - t0, 1)
         out["projects"].append(rec)
         print(json.dumps({k: v for k, v in rec.items() if k not in ("fallback_off", "fallback_on")}, indent=1))
