@@ -321,7 +321,8 @@ class Chain:
 
         eo, camera = self.control_orientations()
         sm = run_control(root, self.project.corners_path, eo, camera, settings=self.options.control)
-        return {k: getattr(sm, k) for k in ("corners_accepted", "control_full", "control_height", "check_points")}
+        return {k: getattr(sm, k) for k in ("corners_accepted", "control_full", "control_height", "check_points",
+                                             "layout_targets", "layout_targets_unfilled")}
 
     def run_adjust_final(self, root) -> dict:
         from aerotri.adjust.pipeline import run_adjustment

@@ -29,6 +29,7 @@ log = logging.getLogger(__name__)
 @click_option(LayoutRule, "full_spacing_baselines", "--full-spacing")
 @click_option(LayoutRule, "height_every_strips", "--height-every")
 @click_option(LayoutRule, "min_frames", "--min-frames")
+@click_option(LayoutRule, "fallback", "--fallback/--no-fallback")
 @click_option(ControlSettings, "tol_px", "--tol-px")
 @click_option(MeasureSettings, "eo_sigma_px", "--eo-sigma-px")
 @click_option(ControlSettings, "usable_only", "--usable-only/--all-corners")
@@ -36,7 +37,7 @@ log = logging.getLogger(__name__)
               help="Write accepted corners that are not control as check points.")
 @click_option(ControlSettings, "chips", "--chips/--no-chips")
 def control(project, corners_path, eo_path, camera_path, manual_path, full_spacing_baselines, height_every_strips,
-            min_frames, tol_px, eo_sigma_px, usable_only, checks, chips):
+            min_frames, fallback, tol_px, eo_sigma_px, usable_only, checks, chips):
     """Measure LiDAR roof corners in the frames of PROJECT and write control/points.csv + image_points.csv.
 
     Chain: aerotri match P; aerotri adjust P (tie points + GNSS); aerotri control P;
@@ -48,7 +49,8 @@ def control(project, corners_path, eo_path, camera_path, manual_path, full_spaci
     settings = dataclasses.replace(
         s, measure=dataclasses.replace(s.measure, eo_sigma_px=eo_sigma_px),
         layout=dataclasses.replace(s.layout, full_spacing_baselines=full_spacing_baselines,
-                                   height_every_strips=height_every_strips, min_frames=min_frames),
+                                   height_every_strips=height_every_strips, min_frames=min_frames,
+                                   fallback=fallback),
         tol_px=tol_px, usable_only=usable_only, chips=chips,
     )
     sm = run_control(project, corners_path, eo_path, camera_path, manual_path, settings=settings, checks=checks)
@@ -59,4 +61,5 @@ def control(project, corners_path, eo_path, camera_path, manual_path, full_spaci
     )
     if sm.layout_targets_unfilled:
         log.warning(f"{sm.layout_targets_unfilled} of {sm.layout_targets} layout positions have no "
-                    "accepted corner (measure one manually: --import-manual)")
+                    "accepted corner (measure one manually: --import-manual; why: layout_targets in "
+                    "control/transfer.json)")

@@ -11,7 +11,12 @@ Default rule, the production rule for DMC blocks flown with GNSS:
 - for every target the corner nearest to it within ``search_radius_baselines`` is chosen, preferring
   high score and small multi-ray residuals:
   cost = distance / radius + ``score_weight`` * (1 - score) + ``residual_weight`` * max residual / tolerance.
-All other accepted corners are check points.
+- a target without such a corner falls back, in this order, to the first candidate set (``FALLBACKS``) with
+  a corner within reach: corners lidarctl did not mark usable on flat roofs (lower score, shorter edges or
+  not quite right-angled) as the target's kind; flat-roof corners measured in only two frames as height
+  control; pitched-roof corners in ``min_frames`` frames as the target's kind. Every candidate passed
+  the multi-ray and LiDAR checks (``aerotri.control.consistency``); the tier is recorded per target.
+All other accepted corners of the usable set are check points.
 """
 
 from __future__ import annotations
@@ -24,15 +29,25 @@ from aerotri.control.settings import LayoutRule
 from aerotri.geom.strips import strips_from_track
 
 
+# Candidate sets of a layout target, tried in this order: (name, kind of the chosen corner; None: the
+# target's kind). Tier 0 is the rule itself; the others are the fallbacks before a target stays empty.
+TIERS = (("usable", None), ("lower_score", None), ("height_only", "height"), ("pitched_roof", None))
+FALLBACKS = tuple(name for name, _ in TIERS[1:])
+
+
 @dataclasses.dataclass
 class LayoutTarget:
     """A position of the layout rule (map coordinates) and the corner chosen for it."""
 
-    kind: str  # full | height
+    kind: str  # full | height: the rule's kind of the target
     target_x_m: float
     target_y_m: float
     corner: int | None = None  # index of the chosen corner (None: no eligible corner within the search radius)
     distance_m: float | None = None  # from the target to the chosen corner
+    tier: str | None = None  # candidate set the corner came from (``TIERS``), None when empty
+    corner_kind: str | None = None  # kind the chosen corner got (full | height)
+    search_radius_m: float | None = None
+    empty_reason: str | None = None  # why no corner, for the control report (set by the caller)
 
     def to_dict(self) -> dict:
         return dataclasses.asdict(self)
@@ -123,19 +138,44 @@ def layout_targets(strips, rule: LayoutRule):
     return targets
 
 
+def candidate_tiers(n_frames, primary, roof, min_frames: int) -> np.ndarray:
+    """Candidate set (index into ``TIERS``, -1: none) of each accepted corner.
+
+    n_frames (N,): frames the corner was accepted in; primary (N,): the corner belongs to the set the
+    stage measures anyway (lidarctl's usable corners and manual ones; every corner with --all-corners);
+    roof (N,): "flat" | "pitched". Two frames suffice only for height control (no third ray to expose a
+    wrong measurement) and only on flat roofs, whose LiDAR height is the best known (about 0.03 m
+    against 0.07 m on pitched eaves, results/corners_sim.json).
+    """
+    n_frames, primary, flat = np.asarray(n_frames), np.asarray(primary, bool), np.asarray(roof) == "flat"
+    tier = np.full(len(n_frames), -1)
+    many = n_frames >= min_frames
+    tier[many & primary] = 0
+    tier[many & ~primary & flat] = 1
+    tier[~many & (n_frames >= 2) & flat] = 2
+    tier[many & ~primary & ~flat] = 3
+    return tier
+
+
 def select_control(xy_m, score, n_frames, camera, centres_m, Rs, ground_z_m, *, rule: LayoutRule | None = None,
-                   strip=None, residual_ratio=None) -> tuple[np.ndarray, list[LayoutTarget], float]:
-    """Kind per corner ("full", "height" or "check"), the layout targets, the base (m).
+                   strip=None, residual_ratio=None, tier=None,
+                   check=None) -> tuple[np.ndarray, list[LayoutTarget], float]:
+    """Kind per corner ("full", "height", "check", or "candidate": a fallback corner not chosen), the
+    layout targets, the base (m).
 
     xy_m (N, 2): accepted corners; score (N,); n_frames (N,): frames each corner was accepted in;
-    residual_ratio (N,): largest multi-ray residual / tolerance (0..1), None for none.
+    residual_ratio (N,): largest multi-ray residual / tolerance (0..1), None for none; tier (N,): the
+    candidate set of each corner (``candidate_tiers``; None: tier 0 for every corner in ``min_frames``
+    frames, none for the others); check (N,): corners that are check points when not chosen (None: all).
     """
     rule = rule or LayoutRule()
     strips, origin, u, w = strips_of_block(camera, centres_m, Rs, ground_z_m, strip)
     base = float(np.median([st.base_m for st in strips]))
     radius = rule.search_radius_baselines * base
-    kind = np.full(len(xy_m), "check", dtype=object)
-    eligible = np.asarray(n_frames) >= rule.min_frames
+    if tier is None:
+        tier = np.where(np.asarray(n_frames) >= rule.min_frames, 0, -1)
+    tier = np.asarray(tier)
+    free = np.ones(len(xy_m), bool)
     out = []
     for k, a, c in layout_targets(strips, rule):
         t_xy = origin + a * u + c * w
@@ -143,11 +183,21 @@ def select_control(xy_m, score, n_frames, camera, centres_m, Rs, ground_z_m, *, 
         cost = dist / radius + rule.score_weight * (1.0 - np.clip(score, 0.0, 1.0))
         if residual_ratio is not None:
             cost = cost + rule.residual_weight * np.clip(residual_ratio, 0.0, 1.0)
-        ok = eligible & (kind == "check") & (dist <= radius)
-        rec = LayoutTarget(k, float(t_xy[0]), float(t_xy[1]))
-        if ok.any():
-            j = int(np.flatnonzero(ok)[np.argmin(cost[ok])])
-            kind[j] = k
-            rec.corner, rec.distance_m = j, float(dist[j])
+        reach = free & (dist <= radius)
+        rec = LayoutTarget(k, float(t_xy[0]), float(t_xy[1]), search_radius_m=float(radius))
+        for t, (name, as_kind) in enumerate(TIERS):
+            if t > 0 and not rule.fallback:
+                break
+            ok = reach & (tier == t)
+            if ok.any():
+                j = int(np.flatnonzero(ok)[np.argmin(cost[ok])])
+                free[j] = False
+                rec.corner, rec.distance_m, rec.tier, rec.corner_kind = j, float(dist[j]), name, as_kind or k
+                break
         out.append(rec)
+    kind = np.where(np.ones(len(xy_m), bool) if check is None else np.asarray(check, bool), "check",
+                    "candidate").astype(object)
+    for rec in out:
+        if rec.corner is not None:
+            kind[rec.corner] = rec.corner_kind
     return kind, out, base

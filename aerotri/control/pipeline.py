@@ -20,7 +20,7 @@ import numpy as np
 
 from aerotri.control.consistency import check_rays
 from aerotri.control.corners import LidarCorners, read_corners, read_manual
-from aerotri.control.layout import LayoutTarget, select_control
+from aerotri.control.layout import LayoutTarget, candidate_tiers, select_control
 from aerotri.control.measure import Measurement, measure_in_image, predict
 from aerotri.control.settings import ControlSettings
 from aerotri.core.errors import InputError
@@ -44,6 +44,7 @@ class TransferResult:
     targets: list[LayoutTarget]  # ``corner``: index into ``corners`` (None: no corner within reach)
     base_m: float
     manual: set  # (corner index, image index) measured manually
+    primary: np.ndarray | None = None  # (N,) bool: the set measured anyway (usable + manual); the rest: fallback
 
 
 @dataclasses.dataclass
@@ -57,12 +58,16 @@ class TransferSummary:
     measurements_rejected_in_image: dict[str, int]  # reason -> count
     rays_dropped_inconsistent: int
     corners_rejected: dict[str, int]  # reason -> count
+    too_few_rays_by_cause: dict[str, int]  # in_no_frame / in_one_frame / measured_in_under_two: the corner's
+    # predicted position falls in no frame or one frame, or in two or more whose measurements failed
     corners_accepted: int
+    corners_measured_fallback: int  # of corners_measured: measured only for empty layout targets
     control_full: int
     control_height: int
     check_points: int
     layout_targets: int
     layout_targets_unfilled: int
+    layout_targets_by_tier: dict[str, int]  # candidate set that filled each target (aerotri.control.layout.TIERS)
     selected_rays_min: int
     selected_rays_mean: float
     manual_measurements: int
@@ -134,41 +139,129 @@ def _check_corners(corners: LidarCorners, camera: FrameCamera, eo: ExteriorOrien
     return rays
 
 
-def _select(corners: LidarCorners, camera: FrameCamera, eo: ExteriorOrientations, idx: np.ndarray, rays: dict,
+def _select(corners: LidarCorners, camera: FrameCamera, eo: ExteriorOrientations, primary: np.ndarray, rays: dict,
             s: ControlSettings) -> tuple[np.ndarray, list[LayoutTarget], float]:
-    """Kind of every corner (full / height / check among the accepted ones, rejected, not_measured), the
-    layout targets (``corner``: index into ``corners``) and the base (m)."""
-    accepted = np.array([k for k in idx if rays[int(k)].ok], dtype=int)
+    """Kind of every corner (full / height / check among the accepted ones of the ``primary`` set,
+    candidate for accepted fallback corners not chosen, rejected, not_measured), the layout targets
+    (``corner``: index into ``corners``) and the base (m)."""
+    measured = np.array(sorted(rays), dtype=int)
+    accepted = np.array([k for k in measured if rays[int(k)].ok], dtype=int)
     kind = np.full(len(corners), "not_measured", dtype=object)
-    kind[idx] = "rejected"
+    kind[measured] = "rejected"
     targets, base = [], float("nan")
-    if len(accepted):
-        n_frames = np.array([rays[int(k)].kept.sum() for k in accepted])
-        ground_z = float(np.median(corners.xyz_m[accepted, 2]))
+    first = accepted[primary[accepted]] if len(accepted) else accepted
+    if len(corners):
+        n_frames = np.array([rays[int(k)].kept.sum() for k in accepted], dtype=int)
+        # the ground plane of the targets from the accepted primary corners alone (fallback corners must not
+        # move the targets); without any, from all primary corners, so the targets can still fall back
+        zs = corners.xyz_m[first if len(first) else (np.flatnonzero(primary) if primary.any() else slice(None)), 2]
+        ground_z = float(np.median(zs))
         worst = np.array([np.max(rays[int(k)].residual_px[rays[int(k)].kept]) for k in accepted])
-        kk, targets, base = select_control(corners.xyz_m[accepted, :2], corners.score[accepted], n_frames, camera,
-                                           eo.centre_m, eo.rotations(), ground_z, rule=s.layout,
-                                           residual_ratio=worst / s.tol_px)
+        tier = candidate_tiers(n_frames, primary[accepted], corners.roof[accepted], s.layout.min_frames)
+        kk, targets, base = select_control(corners.xyz_m[accepted, :2].reshape(-1, 2), corners.score[accepted],
+                                           n_frames, camera, eo.centre_m, eo.rotations(), ground_z, rule=s.layout,
+                                           residual_ratio=worst / s.tol_px, tier=tier, check=primary[accepted])
         kind[accepted] = kk
         targets = [t if t.corner is None else dataclasses.replace(t, corner=int(accepted[t.corner])) for t in targets]
     return kind, targets, base
 
 
+def _near_unfilled_targets(corners: LidarCorners, targets: list[LayoutTarget], todo: np.ndarray) -> np.ndarray:
+    """Indices of the corners in ``todo`` within the search radius of a target the rule itself did not fill
+    (no corner, or one from a later fallback tier than those the corners in ``todo`` may give)."""
+    near = np.zeros(len(corners), bool)
+    for t in targets:
+        if t.tier != "usable":
+            near |= np.hypot(*(corners.xyz_m[:, :2] - [t.target_x_m, t.target_y_m]).T) <= t.search_radius_m
+    return np.flatnonzero(near & todo)
+
+
+def _plural(n: int, word: str) -> str:
+    return f"{n} {word}" if n == 1 else f"{n} {word}s"
+
+
+def why_empty(res: "TransferResult", t: LayoutTarget, s: ControlSettings) -> str:
+    """One line for the control report: why the layout target ``t`` got no corner (counts of the
+    corners within its search radius by what became of them)."""
+    c = res.corners
+    d = np.hypot(*(c.xyz_m[:, :2] - [t.target_x_m, t.target_y_m]).T)
+    r = t.search_radius_m
+    near = np.flatnonzero(d <= r)
+    if not len(near):
+        nearest = f" (nearest {d.min():.1f} m away)" if len(d) else ""
+        return f"no LiDAR roof corner within {r:.1f} m of the target{nearest}"
+    frames = Counter(k for k, _ in res.predicted)
+    fate, in_image = Counter(), Counter()
+    tier = {}
+    acc = [k for k in near if k in res.rays and res.rays[k].ok]
+    if acc:
+        n = np.array([res.rays[k].kept.sum() for k in acc])
+        tier = dict(zip(acc, candidate_tiers(n, res.primary[acc], c.roof[acc], s.layout.min_frames)))
+    for k in near:
+        k = int(k)
+        ray = res.rays.get(k)
+        if ray is None:
+            fate["not measured (not marked usable" + (")" if s.layout.fallback else "; fallback off)")] += 1
+        elif ray.reason == "too_few_rays":
+            n = frames.get(k, 0)
+            if n == 0:
+                fate["in no frame"] += 1
+            elif n == 1:
+                fate["seen in one frame only"] += 1
+            else:
+                fate["measured in fewer than two of the frames it is seen in"] += 1
+                in_image.update(m.reason for (kk, _), m in res.measurements.items() if kk == k and not m.ok)
+        elif not ray.ok:
+            fate[f"rejected by consistency ({ray.reason.replace('_', ' ')})"] += 1
+        elif res.kind[k] in ("full", "height"):
+            fate["control for another target"] += 1
+        elif tier.get(k, -1) < 0:
+            fate[f"accepted in {int(ray.kept.sum())} frames only (pitched roof or below {s.layout.min_frames})"] += 1
+        elif tier[k] > 0 and not s.layout.fallback:
+            fate["a fallback candidate (fallback off)"] += 1
+        else:  # cannot happen: an eligible free corner within reach is chosen
+            fate["eligible but not chosen"] += 1
+    parts = []
+    for what, n in fate.most_common():
+        if what.startswith("measured in fewer") and in_image:
+            what += " (" + ", ".join(f"{reason.replace('_', ' ')} {m}" for reason, m in in_image.most_common(3)) + ")"
+        parts.append(f"{n} {what}")
+    return f"{_plural(len(near), 'LiDAR corner')} within {r:.1f} m: " + "; ".join(parts)
+
+
 def transfer_control(corners: LidarCorners, camera: FrameCamera, eo: ExteriorOrientations, images_dir,
                      settings: ControlSettings | None = None, manual: dict | None = None) -> TransferResult:
-    """Measure the corners in every frame, check them across frames, select control by the layout rule."""
+    """Measure the corners in every frame, check them across frames, select control by the layout rule.
+
+    When a layout target gets no usable corner in ``min_frames`` frames and ``settings.layout.fallback``
+    is on, the corners not measured yet (those lidarctl did not mark usable) within its search radius are
+    measured and checked the same way, then the selection is repeated with the fallback tiers
+    (``aerotri.control.layout``); targets filled by the rule itself keep their corner.
+    """
     s = settings or ControlSettings()
     manual = manual or {}
     cid = {str(p): k for k, p in enumerate(corners.id)}
     iidx = eo.index()
     manual_k = {(cid[p], iidx[i]): xy for (p, i), xy in manual.items()}
-    active = corners.usable.copy() if s.usable_only else np.ones(len(corners), bool)
-    active[[k for k, _ in manual_k]] = True
-    idx = np.flatnonzero(active)
+    primary = corners.usable.copy() if s.usable_only else np.ones(len(corners), bool)
+    primary[[k for k, _ in manual_k]] = True
+    idx = np.flatnonzero(primary)
     meas, pred = _measure_frames(corners, camera, eo, Path(images_dir), idx, manual_k, s)
     rays = _check_corners(corners, camera, eo, idx, meas, s)
-    kind, targets, base = _select(corners, camera, eo, idx, rays, s)
-    return TransferResult(corners, list(eo.image_id), meas, pred, rays, kind, targets, base, set(manual_k))
+    kind, targets, base = _select(corners, camera, eo, primary, rays, s)
+    extra = _near_unfilled_targets(corners, targets, ~primary) if s.layout.fallback else np.zeros(0, int)
+    if len(extra):
+        log.info(f"{sum(t.tier != 'usable' for t in targets)} layout targets without a usable corner: measuring "
+                 f"{len(extra)} more corners near them")
+        m2, p2 = _measure_frames(corners, camera, eo, Path(images_dir), extra, {}, s)
+        meas.update(m2)
+        pred.update(p2)
+        rays.update(_check_corners(corners, camera, eo, extra, meas, s))
+        kind, targets, base = _select(corners, camera, eo, primary, rays, s)
+    res = TransferResult(corners, list(eo.image_id), meas, pred, rays, kind, targets, base, set(manual_k), primary)
+    res.targets = [t if t.corner is not None else dataclasses.replace(t, empty_reason=why_empty(res, t, s))
+                   for t in targets]
+    return res
 
 
 def summary(res: TransferResult) -> TransferSummary:
@@ -179,6 +272,10 @@ def summary(res: TransferResult) -> TransferSummary:
     kinds = Counter(res.kind.tolist())
     sel = [k for k in range(len(res.kind)) if res.kind[k] in ("full", "height")]
     rays_sel = [int(res.rays[k].kept.sum()) for k in sel]
+    frames = Counter(k for k, _ in res.predicted)
+    causes = Counter({0: "in_no_frame", 1: "in_one_frame"}.get(frames.get(k, 0), "measured_in_under_two")
+                     for k, r in res.rays.items() if r.reason == "too_few_rays")
+    primary = np.ones(len(res.corners), bool) if res.primary is None else res.primary
     return TransferSummary(
         corners_in_file=len(res.corners),
         corners_measured=len(res.rays),
@@ -187,12 +284,15 @@ def summary(res: TransferResult) -> TransferSummary:
         measurements_rejected_in_image=dict(sorted(meas_reasons.items())),
         rays_dropped_inconsistent=dropped,
         corners_rejected=dict(sorted(ray_reasons.items())),
+        too_few_rays_by_cause=dict(sorted(causes.items())),
         corners_accepted=int(sum(r.ok for r in res.rays.values())),
+        corners_measured_fallback=int(sum(not primary[k] for k in res.rays)),
         control_full=kinds.get("full", 0),
         control_height=kinds.get("height", 0),
         check_points=kinds.get("check", 0),
         layout_targets=len(res.targets),
         layout_targets_unfilled=sum(t.corner is None for t in res.targets),
+        layout_targets_by_tier=dict(sorted(Counter(t.tier for t in res.targets if t.tier).items())),
         selected_rays_min=min(rays_sel) if rays_sel else 0,
         selected_rays_mean=float(np.mean(rays_sel)) if rays_sel else 0.0,
         manual_measurements=len(res.manual),
@@ -212,6 +312,7 @@ def output_texts(res: TransferResult, checks: bool = True) -> dict[str, str]:
     for k in sorted(res.rays):
         r = res.rays[k]
         rec = {"id": str(c.id[k]), "kind": str(res.kind[k]), "reason": r.reason, "score": float(c.score[k]),
+               "fallback": bool(res.primary is not None and not res.primary[k]),
                "rays": int(r.kept.sum()) if r.ok else 0,
                "max_residual_px": float(np.nanmax(r.residual_px[r.kept])) if r.ok else None,
                "lidar_diff_m": [round(float(v), 4) for v in r.lidar_diff_m] if np.all(np.isfinite(r.lidar_diff_m)) else None,
@@ -249,11 +350,23 @@ def output_texts(res: TransferResult, checks: bool = True) -> dict[str, str]:
             "transfer.json": json.dumps(rep, indent=1, allow_nan=False, default=float)}
 
 
+def layout_line(res: TransferResult) -> str:
+    """The layout targets in one sentence: how many filled, by fallbacks, and why each empty one is empty."""
+    n, filled = len(res.targets), [t for t in res.targets if t.corner is not None]
+    fb = Counter(t.tier for t in filled if t.tier != "usable")
+    line = f"Layout: {len(filled)} of {n} targets filled"
+    if fb:
+        line += " (fallbacks: " + ", ".join(f"{k.replace('_', ' ')} {v}" for k, v in sorted(fb.items())) + ")"
+    empty = [f"{t.kind} target at {t.target_x_m:.0f} {t.target_y_m:.0f}: {t.empty_reason}" for t in res.targets
+             if t.corner is None]
+    return line + (("; empty: " + "; ".join(empty)) if empty else "") + "."
+
+
 def review_page(res: TransferResult, images_dir) -> ReviewPage:
     """The review page: selected corners first, then checks, rejected ones."""
     from aerotri.control.chips import chip_png
 
-    order = {"full": 0, "height": 1, "check": 2, "rejected": 3}
+    order = {"full": 0, "height": 1, "check": 2, "candidate": 3, "rejected": 4}
     ks = sorted(res.rays, key=lambda k: (order.get(res.kind[k], 4), str(res.corners.id[k])))
     by_image: dict[int, list] = {}
     for (k, i) in res.measurements:
@@ -284,7 +397,7 @@ def review_page(res: TransferResult, images_dir) -> ReviewPage:
     sm = summary(res)
     line = (f"{sm.corners_accepted} of {sm.corners_measured} corners accepted; control: {sm.control_full} full, "
             f"{sm.control_height} height; {sm.check_points} check points; rejected corners: {sm.corners_rejected}; "
-            f"rejected measurements: {sm.measurements_rejected_in_image}.")
+            f"rejected measurements: {sm.measurements_rejected_in_image}. {layout_line(res)}")
     return ReviewPage(line, corners, chips)
 
 

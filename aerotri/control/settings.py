@@ -49,6 +49,9 @@ class LayoutRule:
     score_weight: float = setting(0.5, min=0.0, help="Weight of the corner score in the choice of a target's corner.")
     residual_weight: float = setting(0.5, min=0.0, help="Weight of the largest multi-ray residual (relative to the "
                                                         "tolerance) in the choice of a target's corner.")
+    fallback: bool = setting(True, help="A target without a usable corner in min_frames frames takes, in this "
+                                         "order, a lower-scored flat-roof corner, a flat-roof corner in two frames "
+                                         "(as height control) or a pitched-roof corner before it stays empty.")
     edge_inset: float = setting(0.12, min=0.0, max=0.5, help="Outer block edge targets lie this fraction of the "
                                                              "strip width inside.")
 

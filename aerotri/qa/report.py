@@ -95,7 +95,8 @@ def build_qa_report(root, tolerance_file=None, terrain: str | None = None, scale
     tol_path = tolerance_path(scale, tol_file)
     tol = load_tolerances(scale, terrain, tol_file)
     at = _json(project.adjustment_report_path)
-    ctl = _json(project.control_transfer_path).get("summary", {})
+    ctl_all = _json(project.control_transfer_path)
+    ctl = ctl_all.get("summary", {})
     dom_all = _json(project.dom_report_path)
     dom, seams = dom_all.get("displacement", {}), dom_all.get("seams", {})
     hc_all = _json(project.height_check_path)
@@ -132,6 +133,16 @@ def build_qa_report(root, tolerance_file=None, terrain: str | None = None, scale
         rows.append(_check(sec, "LiDAR corners accepted as control / check points",
                            f"{ctl.get('control_full', 0)} full + {ctl.get('control_height', 0)} height / "
                            f"{ctl.get('check_points', 0)} check", None, ""))
+        targets = ctl_all.get("layout_targets") or []
+        if targets:
+            empty = [t for t in targets if t.get("corner") is None]
+            fb = sum(t.get("tier") not in (None, "usable") for t in targets)
+            note = "; ".join(f"{t['kind']} target at {t['target_x_m']:.0f} {t['target_y_m']:.0f}: "
+                             f"{t.get('empty_reason') or 'no corner'}" for t in empty)
+            if fb:
+                note = f"{fb} filled by fallbacks" + (f"; {note}" if note else "")
+            rows.append(_check(sec, "layout targets with a control point", f"{len(targets) - len(empty)} of {len(targets)}",
+                               None, "", note))
     counts = at.get("counts", {})
     if at and counts.get("control_points") == 0:
         gnss = at.get("options", {}).get("given_eo_gps") == "Enabled"

@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import csv
 import json
+import re
 
 import cv2
 import numpy as np
@@ -13,7 +14,7 @@ import pytest
 
 from aerotri.control.corners import LidarCorners
 from aerotri.control.pipeline import output_texts, run_control, summary, transfer_control
-from aerotri.control.settings import ControlSettings
+from aerotri.control.settings import ControlSettings, LayoutRule
 from aerotri.core.errors import InputError
 from aerotri.geom.camera import FrameCamera
 from aerotri.geom.eo import ExteriorOrientations, write_eo
@@ -153,3 +154,56 @@ def test_run_control_writes_every_output(frames, tmp_path):
     with pytest.raises(InputError, match="f1.tif: image is 200 x 150 px but the camera says 400 x 300 px"):
         run_control(root, eo_path=root / "eo.txt", camera_path=root / "camera.toml")
     assert (root / "control" / "points.csv").read_text() == before
+
+
+def test_an_empty_layout_target_measures_fallback_corners_and_says_why_when_it_stays_empty(frames):
+    # one usable corner (C1); a search radius of 2 baselines (12 m) reaches two corners from each target
+    c = corners(z_error_m=1.5, far=True)
+    c.usable[:] = False
+    c.usable[0] = True
+    res = transfer_control(c, CAM, EO, frames, ControlSettings(layout=LayoutRule(search_radius_baselines=2.0)))
+    sm = summary(res)
+    # C1 fails the LiDAR check, so every target was empty: C2-C4 (not usable) were measured and fill three
+    assert res.rays[0].reason == "lidar_mismatch"
+    assert sm.corners_measured_fallback == 3 and sorted(res.rays) == [0, 1, 2, 3]
+    filled = [t for t in res.targets if t.corner is not None]
+    assert sorted(t.corner for t in filled) == [1, 2, 3] and all(t.tier == "lower_score" for t in filled)
+    assert sm.layout_targets_by_tier == {"lower_score": 3} and sm.layout_targets_unfilled == 1
+    empty = [t for t in res.targets if t.corner is None][0]
+    assert empty.empty_reason == ("2 LiDAR corners within 12.0 m: 1 rejected by consistency (lidar mismatch); "
+                                  "1 control for another target")
+    pts = list(csv.DictReader(output_texts(res)["points.csv"].splitlines()))
+    assert sorted(p["id"] for p in pts) == ["C2", "C3", "C4"]
+    rep = json.loads(output_texts(res)["transfer.json"])
+    assert [c["fallback"] for c in rep["corners"]] == [False, True, True, True]
+    assert sum(t["empty_reason"] is not None for t in rep["layout_targets"]) == 1
+
+    off = transfer_control(c, CAM, EO, frames, ControlSettings(layout=LayoutRule(search_radius_baselines=2.0,
+                                                                                  fallback=False)))
+    assert sorted(off.rays) == [0] and all(t.corner is None for t in off.targets)
+    assert off.targets[0].empty_reason == ("2 LiDAR corners within 12.0 m: 1 rejected by consistency (lidar "
+                                           "mismatch); 1 not measured (not marked usable; fallback off)")
+    # out of reach: the nearest corner is named
+    near = transfer_control(c, CAM, EO, frames, ControlSettings(layout=LayoutRule(search_radius_baselines=0.2)))
+    assert re.fullmatch(r"no LiDAR roof corner within 1\.2 m of the target \(nearest \d+\.\d m away\)",
+                        near.targets[0].empty_reason)
+
+
+def test_too_few_rays_by_cause(frames):
+    res = transfer_control(corners(far=True), CAM, EO, frames, ControlSettings())
+    assert summary(res).too_few_rays_by_cause == {"in_no_frame": 1}
+
+
+def test_fallback_corners_are_measured_near_targets_the_rule_did_not_fill():
+    # a target filled from a later tier (here: a usable corner in two frames, height only) must still try the
+    # lower-scored corners near it, which come first
+    from aerotri.control.layout import LayoutTarget
+    from aerotri.control.pipeline import _near_unfilled_targets
+
+    c = corners(far=True)
+    todo = np.array([False, True, True, True, True])
+    t = [LayoutTarget("full", 1000.0, 1996.0, corner=0, tier="usable", search_radius_m=20.0),
+         LayoutTarget("full", 1300.0, 2000.0, corner=4, tier="height_only", search_radius_m=5.0)]
+    assert _near_unfilled_targets(c, t, todo).tolist() == [4]
+    t[1] = LayoutTarget("full", 1012.0, 2004.0, search_radius_m=5.0)  # empty: C3 is within reach, C1 not todo
+    assert _near_unfilled_targets(c, t, todo).tolist() == [2]

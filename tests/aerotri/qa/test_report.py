@@ -109,3 +109,19 @@ def test_sigma_naught_limit_follows_the_pixel_size(tmp_path):
     contract.write_text(table.replace("sigma0_max_px = 0.67", "sigma0_max_um = 8.0"))
     s0 = {r["quantity"]: r for r in write_qa_report(p, tolerance_file=contract)["checks"]}["sigma naught"]
     assert s0["limit"] == 1.778 and s0["verdict"] == "pass"
+
+
+def test_layout_targets_row_names_the_empty_ones(tmp_path):
+    p = _project(tmp_path, [0.1, 0.1, 0.2], 0.18)
+    (p / "control").mkdir()
+    empty = "no LiDAR roof corner within 172.8 m of the target (nearest 384.9 m away)"
+    targets = [dict(kind="full", target_x_m=1.0, target_y_m=2.0, corner="RC1", tier="usable", empty_reason=None),
+               dict(kind="full", target_x_m=3.0, target_y_m=4.0, corner="RC2", tier="pitched_roof", empty_reason=None),
+               dict(kind="height", target_x_m=452391.5, target_y_m=3408497.8, corner=None, tier=None,
+                    empty_reason=empty)]
+    (p / "control" / "transfer.json").write_text(json.dumps(dict(
+        summary=dict(control_full=2, control_height=0, check_points=5), layout_targets=targets)))
+    by = {r["quantity"]: r for r in write_qa_report(p)["checks"]}
+    row = by["layout targets with a control point"]
+    assert row["value"] == "2 of 3" and row["verdict"] is None
+    assert row["note"] == f"1 filled by fallbacks; height target at 452392 3408498: {empty}"
