@@ -20,7 +20,7 @@ Targets (issue 21): AT plan RMS <= 0.4 GSD, height RMS <= 0.7 GSD, DOM RMS <= 0.
 sequential (each ~10 min on 2 shared cores); a variant whose chain finished with the same simulator settings
 is not re-run. Projects live under /work/bench_blocks/variants/ (outside the repository).
 
-    .venv/bin/python bench/eval_variants.py [--only demo,seed7] [--table-only] [--force]
+    .venv/bin/python bench/eval_variants.py [--only demo,seed7] [--table-only] [--force] [--rerun-from match]
 """
 
 from __future__ import annotations
@@ -51,11 +51,11 @@ MORE_TREES = ("scene.single_trees=520", "scene.tree_clusters=20", "scene.slope_t
 VARIANTS: dict[str, tuple[int, tuple[str, ...], str]] = {
     "demo": (20261121, (), "the demo preset as it is (the block the defaults were tuned on)"),
     "seed7": (7, (), "another seed: other town, trees, flight jitter, GNSS errors"),
+    "hilly": (303, ("scene.hill_amplitude_m=8.0", "scene.mountain_relief_m=20.0"),
+              "hillier terrain: hills 8 m (demo 2), mountain relief 20 m (demo 6)"),
     "high_gsd045": (101, ("flight.height_above_ground_m=562.5",), "flying height 562.5 m: GSD 0.45 m"),
     "pitched_trees": (202, ("scene.pitched_fraction=0.7",) + MORE_TREES,
                       "70 % pitched roofs, twice the trees and bushes"),
-    "hilly": (303, ("scene.hill_amplitude_m=8.0", "scene.mountain_relief_m=20.0"),
-              "hillier terrain: hills 8 m (demo 2), mountain relief 20 m (demo 6)"),
     "combined": (404, ("flight.height_above_ground_m=562.5", "scene.pitched_fraction=0.7", *MORE_TREES,
                        "scene.hill_amplitude_m=8.0", "scene.mountain_relief_m=20.0"),
                  "all of it: GSD 0.45 m, pitched roofs, more trees, hillier"),
@@ -71,8 +71,28 @@ def _run(cmd: list[str], log_path: Path) -> float:
     return time.perf_counter() - t0
 
 
-def run_variant(name: str, base: Path, force: bool) -> dict:
-    """Simulate (unless the same settings were simulated) and run the chain; returns timings."""
+def code_version() -> str:
+    """The repository's commit, with "-dirty" when the packages the chain runs have uncommitted changes."""
+    head = subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=REPO, capture_output=True, text=True).stdout.strip()
+    dirty = subprocess.run(["git", "status", "--porcelain", "--", "aerotri", "lidarctl", "ortho"], cwd=REPO,
+                           capture_output=True, text=True).stdout.strip()
+    return head + ("-dirty" if dirty else "")
+
+
+def _drop_stamps_from(project: Path, stage: str) -> None:
+    """Remove the stamps of ``stage`` and every later stage: the chain runs them again (code changed)."""
+    from aerotri.chain.stages import chain_stages
+
+    names = [st.name for st in chain_stages(project)]
+    if stage not in names:
+        raise SystemExit(f"--rerun-from {stage}: not a stage of the chain ({', '.join(names)})")
+    for n in names[names.index(stage):]:
+        (project / "work" / "stages" / f"{n}.json").unlink(missing_ok=True)
+
+
+def run_variant(name: str, base: Path, force: bool, rerun_from: str | None = None) -> dict:
+    """Simulate (unless the same settings were simulated) and run the chain; returns timings. With
+    ``rerun_from``, a chain that last ran with other code runs again from that stage."""
     seed, sets, _ = VARIANTS[name]
     out = base / name
     project = out / "project"
@@ -80,14 +100,19 @@ def run_variant(name: str, base: Path, force: bool) -> dict:
     settings_path = out / "settings.json"
     same = settings_path.is_file() and json.loads(settings_path.read_text()) == settings
     done = (project / "work" / "stages" / "report.json").is_file()
+    last = json.loads((out / "timing.json").read_text()) if (out / "timing.json").is_file() else {}
     if same and done and not force:
-        print(f"{name}: chain already ran with these settings, kept")
-        return json.loads((out / "timing.json").read_text()) if (out / "timing.json").is_file() else {}
+        if rerun_from and last.get("code") != code_version():
+            print(f"{name}: chain ran with code {last.get('code')}, running it again from {rerun_from}")
+            _drop_stamps_from(project, rerun_from)
+        else:
+            print(f"{name}: chain already ran with these settings, kept")
+            return last
     out.mkdir(parents=True, exist_ok=True)
     log_path = out / "run.log"
     log_path.write_text("")
     bin_ = Path(sys.executable).parent
-    timing = dict(load_avg_start=os.getloadavg())
+    timing = dict(code=code_version(), load_avg_start=os.getloadavg())
     if not (same and (project / "truth" / "truth.json").is_file()) or force:
         cmd = [str(bin_ / "aerotri"), "sim", str(project), "--preset", "demo", "--seed", str(seed), "--force"]
         for s in sets:
@@ -208,6 +233,8 @@ def main() -> int:
     ap.add_argument("--only", default="", help="comma-separated variant names (default: all)")
     ap.add_argument("--table-only", action="store_true", help="rebuild the JSON and table from existing runs")
     ap.add_argument("--force", action="store_true", help="simulate and run again even when up to date")
+    ap.add_argument("--rerun-from", metavar="STAGE",
+                    help="a variant whose chain ran with other code runs again from this stage (e.g. match)")
     a = ap.parse_args()
     names = [n for n in a.only.split(",") if n] or list(VARIANTS)
     unknown = [n for n in names if n not in VARIANTS]
@@ -215,12 +242,12 @@ def main() -> int:
         ap.error(f"--only: unknown variant(s) {', '.join(unknown)}; known: {', '.join(VARIANTS)}")
     if not a.table_only:
         for n in names:
-            run_variant(n, a.base, a.force)
+            run_variant(n, a.base, a.force, a.rerun_from)
     rows = {n: r for n in VARIANTS if (r := variant_row(n, a.base)) is not None}
     out = dict(what="the chain (aerotri run) on simulator variants of the demo preset; AT checked at the surveyed "
                     "targets (truth/checkpoints.csv) intersected from their true image positions with the final "
                     "orientations and camera; DOM from ortho/dom_report.json",
-               targets_gsd=TARGETS_GSD, base=str(a.base), variants=rows, spread=spread(rows),
+               targets_gsd=TARGETS_GSD, base=str(a.base), code_now=code_version(), variants=rows, spread=spread(rows),
                all_pass={k: all(r["pass"][k] for r in rows.values()) for k in TARGETS_GSD} if rows else {})
     a.results.write_text(json.dumps(out, indent=1, default=str) + "\n")
     print(f"{'variant':15s} {'GSD m':>6s} {'n':>3s} {'AT plan m/GSD':>15s} {'AT height m/GSD':>16s} "
