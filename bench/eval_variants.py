@@ -244,7 +244,9 @@ def main() -> int:
         for n in names:
             run_variant(n, a.base, a.force, a.rerun_from)
     rows = {n: r for n in VARIANTS if (r := variant_row(n, a.base)) is not None}
-    out = dict(what="the chain (aerotri run) on simulator variants of the demo preset; AT checked at the surveyed "
+    # the demo before the tie-point fix (07a8d37), kept from its run with --table-only's row format
+    before = a.base / "before_sift_fix.json"
+    out = dict(before_sift_fix=json.loads(before.read_text()) if before.is_file() else None, what="the chain (aerotri run) on simulator variants of the demo preset; AT checked at the surveyed "
                     "targets (truth/checkpoints.csv) intersected from their true image positions with the final "
                     "orientations and camera; DOM from ortho/dom_report.json",
                targets_gsd=TARGETS_GSD, base=str(a.base), code_now=code_version(), variants=rows, spread=spread(rows),
