@@ -273,16 +273,18 @@ def pyramid_level(width: int, height: int, max_dim_px: int) -> int:
 
 
 def downsample(img: np.ndarray, level: int) -> np.ndarray:
-    """Level ``level`` of the image pyramid (area averaging, factor 2^level)."""
+    """Level ``level`` of the image pyramid (cv2.pyrDown: Gaussian smoothing, every second pixel; factor 2^level)."""
     for _ in range(level):
         img = cv2.pyrDown(img)
     return img
 
 
 def level_to_full(xy_level: np.ndarray, level: int) -> np.ndarray:
-    """Pixel coordinates on a pyramid level to full resolution (pixel-centre convention)."""
-    s = 2.0**level
-    return xy_level * s + (s - 1.0) / 2.0
+    """Pixel coordinates on a level of ``downsample`` to full resolution (pixel centres at integers).
+
+    cv2.pyrDown keeps the even pixels of the smoothed image: pixel i of a level is pixel 2^level i of the
+    frame (an area-averaging pyramid would need + (2^level - 1) / 2)."""
+    return xy_level * 2.0**level
 
 
 # -- cameras from EXIF ------------------------------------------------------------------------------

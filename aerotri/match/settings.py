@@ -15,9 +15,13 @@ import json
 from aerotri.core.settings import setting
 
 
-def _key(params) -> str:
-    """12 hex digits naming a parameter set (its cache files)."""
-    return hashlib.sha1(json.dumps(dataclasses.asdict(params), sort_keys=True).encode()).hexdigest()[:12]
+FEATURES_VERSION = 2  # 2: keypoints on the image content (SIFT precise upscale, pyramid levels without offset)
+
+
+def _key(params, version: int | None = None) -> str:
+    """12 hex digits naming a parameter set (its cache files); ``version`` of the code, when given."""
+    d = dataclasses.asdict(params) | ({} if version is None else {"version": version})
+    return hashlib.sha1(json.dumps(d, sort_keys=True).encode()).hexdigest()[:12]
 
 
 @dataclasses.dataclass(frozen=True)
@@ -33,7 +37,9 @@ class FeatureParams:
     name: str = setting("sparse", help="Tag of the cache files.")
 
     def key(self) -> str:
-        return _key(self)
+        # the extraction's version joins the key: features (and the matches indexing them) cached by an
+        # older version, with keypoints off the image content, are not reused
+        return _key(self, FEATURES_VERSION)
 
 
 @dataclasses.dataclass(frozen=True)

@@ -8,6 +8,7 @@ import os
 import cv2
 import numpy as np
 import pytest
+from scipy.spatial import cKDTree
 
 from aerotri.core.errors import InputError
 from aerotri.match.features import cached_features, extract, features_cache_path
@@ -88,3 +89,21 @@ def test_a_blank_frame_is_refused_by_name(tmp_path):
     with pytest.raises(InputError, match="blank.png: no image features"):
         cached_features(path, tmp_path / "cache", FeatureParams(), (160, 120))
     assert not (tmp_path / "cache").exists() or not any((tmp_path / "cache").iterdir())  # nothing cached
+
+
+@pytest.mark.parametrize("max_dim_px, level", [(1000, 0), (200, 3)])
+def test_keypoints_sit_on_the_image_content(max_dim_px, level):
+    """An image and its copy turned by 180 degrees give the same keypoints (x -> W-1-x, y -> H-1-y): no constant
+    offset in image coordinates, which the adjustment would take for a principal-point shift and the LiDAR
+    control (measured without it) would then show as plan errors flipping with the flight direction.
+    801 x 601 px: the pyramid levels (up to 3) of the turned copy sample the same pixels."""
+    img = cv2.resize(texture(150, 200, seed=5), (801, 601), interpolation=cv2.INTER_CUBIC)
+    p = FeatureParams(budget=600, grid=(3, 3), max_dim_px=max_dim_px)
+    fa, fb = extract(img, p), extract(img[::-1, ::-1].copy(), p)
+    assert fa.level == fb.level == level
+    back = np.array([800.0, 600.0]) - fb.xy_px  # the turned copy's keypoints in the image's pixels
+    d, j = cKDTree(back).query(fa.xy_px, distance_upper_bound=1.0)
+    near = np.isfinite(d)
+    assert near.sum() >= 100
+    offset = np.median(fa.xy_px[near] - back[j[near]], axis=0) / 2  # half the difference: the offset of one
+    assert np.abs(offset).max() < 0.03
