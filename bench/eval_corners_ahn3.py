@@ -1,9 +1,19 @@
 """Roof corners on the AHN3 Delft crop against the surveyed BGT building footprints.
 
     .venv/bin/python bench/eval_corners_ahn3.py [--data ../shared/data/ahn3_delft] [--out results]
+    .venv/bin/python bench/eval_corners_ahn3.py --laz PATH/ahn3_cropped_2.laz --name crop2
 
 Writes results/corners_ahn3.json and results/corners_ahn3.png (outlines, corners and footprints over
 the nDSM) and the corner files themselves under out/corners_ahn3/.
+
+Unseen crop (``--laz PATH --name NAME``): another crop of the same survey that no parameter was ever
+chosen on, e.g. ``ahn3_cropped_2.laz`` (tudelft3d/3dfier example_data/ahn3, GPL-3, directly east of
+the shared crop; not in ../shared/data, so no test needs it). The same extraction and scoring against
+the BGT footprint vertices inside that crop; its figures go into results/corners_ahn3.json under
+``unseen_NAME`` (the shared crop's stay as they are; a rerun of the shared crop keeps them) and the
+picture into results/corners_ahn3_NAME.png. ``whole_crop_by_reference_set`` sums up each crop with
+exact 95 % intervals of the completeness: the reference sets hold a few dozen vertices (crop 2: six
+with both edges >= 5 m), so one vertex moves a completeness by 4-17 points.
 
 Reference vertices (issue 21: "footprint vertices of buildings larger than 10 x 10 m"): the BGT splits a
 terraced block into houses, so a building is a block of footprints sharing walls (their union, 5 cm
@@ -159,6 +169,8 @@ def match_scores(ref: np.ndarray, corners: list[dict], frames: np.ndarray, usabl
     return {
         "n_reference_vertices": int(len(ref)),
         "n_matched": int(hit.sum()),
+        # BGT vertices a few decimetres apart (jogs) can share one corner: how many corners make the matches
+        "n_distinct_corners_matched": int(len(np.unique(j[hit]))),
         "completeness_pct": float(100.0 * hit.mean()),
         "offset_xy": offset_stats(d[hit], histogram=False),
         "overhang_normal_signed_median_m": float(np.median(normal[ok])) if ok.any() else None,
@@ -168,35 +180,31 @@ def match_scores(ref: np.ndarray, corners: list[dict], frames: np.ndarray, usabl
     }
 
 
-def main():
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--data", type=Path, default=SHARED / "ahn3_delft")
-    ap.add_argument("--out", type=Path, default=REPO / "results")
-    ap.add_argument("--min-edge-m", type=float, default=5.0)
-    args = ap.parse_args()
-
+def evaluate(laz: Path, polys: list, min_edge_m: float, corner_dir: Path, dataset: str) -> tuple[dict, dict]:
+    """Corners of one AHN3 crop scored against the BGT footprint vertices inside it: (summary for
+    results/corners_ahn3.json, what the figure needs)."""
     import pyproj
 
-    cloud = read_classified_cloud(args.data / "ahn3_cropped_1.laz")
+    cloud = read_classified_cloud(laz)
     crs = pyproj.CRS.from_epsg(28992)  # the file has no CRS record (README): RD New
     load0 = os.getloadavg()
     t0 = time.perf_counter()
     res = find_roof_corners(cloud["x"], cloud["y"], cloud["z"], cloud["classification"], cloud["point_source_id"],
-                            min_edge_m=args.min_edge_m, roof="any")
+                            min_edge_m=min_edge_m, roof="any")
     runtime = time.perf_counter() - t0
-    write_corner_files(REPO / "out" / "corners_ahn3", res, crs=crs, source=str(args.data / "ahn3_cropped_1.laz"))
+    write_corner_files(corner_dir, res, crs=crs, source=str(laz))
 
-    polys = read_footprints(args.data / "bgt_pand.sqlite")
     blocks = footprint_blocks(polys)
     vxy, v_short, v_angle, v_big = block_vertices(blocks)
     xy = np.column_stack([cloud["x"], cloud["y"]])
+    # only vertices inside this crop count (2 m from its edge, within 1 m of one of its points)
     lo, hi = xy.min(axis=0) + EDGE_OF_CROP_M, xy.max(axis=0) - EDGE_OF_CROP_M
     in_crop = np.all((vxy >= lo) & (vxy <= hi), axis=1) & (cKDTree(xy).query(vxy, distance_upper_bound=1.0)[0] <= 1.0)
     in_crop &= np.abs(180.0 - v_angle) >= MIN_TURN_DEG
     sets = {
         "all": in_crop & v_big,
-        "edges_ge_min_edge": in_crop & v_big & (v_short >= args.min_edge_m),
-        "legacy": in_crop & (v_short >= args.min_edge_m) & (np.abs(v_angle - 90.0) <= 15.0),
+        "edges_ge_min_edge": in_crop & v_big & (v_short >= min_edge_m),
+        "legacy": in_crop & (v_short >= min_edge_m) & (np.abs(v_angle - 90.0) <= 15.0),
     }
     x_split = float(np.median(vxy[sets["all"], 0]))
     halves = {"whole": np.ones(len(vxy), bool), "west": vxy[:, 0] < x_split, "east": vxy[:, 0] >= x_split}
@@ -223,8 +231,8 @@ def main():
 
     main_set = scores["edges_ge_min_edge"]
     summary = {
-        "dataset": "AHN3 Delft crop (ahn3_cropped_1.laz) vs BGT footprints (bgt_pand.sqlite), EPSG:28992",
-        "min_edge_m": args.min_edge_m,
+        "dataset": dataset,
+        "min_edge_m": min_edge_m,
         "match_radius_m": MATCH_M,
         "min_building_m": MIN_BUILDING_M,
         "x_split_m": x_split,
@@ -261,23 +269,107 @@ def main():
         "note": ("footprints are wall lines, roof corners are eave corners: offsets include the eave overhang "
                  "(overhang_normal: along the roof edges' outward normals)"),
     }
-    args.out.mkdir(parents=True, exist_ok=True)
+    figure = {"cloud": cloud, "res": res, "truth_xy": vxy[sets["edges_ge_min_edge"]], "x_split": x_split}
+    return summary, figure
+
+
+def clopper_pearson_pct(k: int, n: int, level: float = 0.95) -> list[float] | None:
+    """Exact binomial confidence interval (%) of k successes in n trials."""
+    from scipy.stats import beta
+
+    if n == 0:
+        return None
+    a = (1.0 - level) / 2.0
+    lo = 0.0 if k == 0 else float(beta.ppf(a, k, n - k + 1))
+    hi = 1.0 if k == n else float(beta.ppf(1.0 - a, k + 1, n - k))
+    return [100.0 * lo, 100.0 * hi]
+
+
+def whole_crop_table(summary: dict) -> dict:
+    """Per reference set, the whole crop's figures: completeness (any / usable corner, with its exact 95 %
+    interval: a few dozen vertices), and for usable corners the median offset, the signed median overhang
+    and the median |along-edge| offset."""
+    out = {}
+    for name, s in summary["by_reference_set"].items():
+        a, u = s["whole"]["any"], s["whole"]["usable"]
+        n = a["n_reference_vertices"]
+        out[name] = {"n_reference_vertices": n,
+                     "completeness_pct": a.get("completeness_pct"),
+                     "completeness_ci95_pct": clopper_pearson_pct(a.get("n_matched", 0), n),
+                     "usable_completeness_pct": u.get("completeness_pct"),
+                     "usable_completeness_ci95_pct": clopper_pearson_pct(u.get("n_matched", 0), n),
+                     "n_usable_matched": u.get("n_matched", 0),
+                     "n_distinct_usable_corners_matched": u.get("n_distinct_corners_matched", 0),
+                     "usable_offset_median_m": u.get("offset_xy", {}).get("median_m"),
+                     "usable_overhang_signed_median_m": u.get("overhang_normal_signed_median_m"),
+                     "usable_along_edge_abs_median_m": u.get("along_edge_abs", {}).get("median_m")}
+    return out
+
+
+def _num(v, digits: int) -> str:
+    return "-" if v is None else f"{v:.{digits}f}"
+
+
+def main():
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--data", type=Path, default=SHARED / "ahn3_delft")
+    ap.add_argument("--out", type=Path, default=REPO / "results")
+    ap.add_argument("--min-edge-m", type=float, default=5.0)
+    ap.add_argument("--laz", type=Path, default=None,
+                    help="another crop of the AHN3 survey, never used for tuning (scored against the same BGT "
+                         "footprints; its figures go under 'unseen_<name>', the shared crop's stay as they are)")
+    ap.add_argument("--name", default=None, help="with --laz: the crop's name (JSON key unseen_<name>, figure "
+                                                 "corners_ahn3_<name>.png)")
+    args = ap.parse_args()
+    if (args.laz is None) != (args.name is None):
+        ap.error("--laz and --name go together")
+    if args.name is not None and not args.name.replace("_", "").isalnum():
+        ap.error("--name: letters, digits and _ only")
+
     from aerotri.core.atomic import write_text_atomic
 
-    write_text_atomic(args.out / "corners_ahn3.json", json.dumps(summary, indent=2) + "\n")
+    polys = read_footprints(args.data / "bgt_pand.sqlite")
+    json_path = args.out / "corners_ahn3.json"
+    previous = json.loads(json_path.read_text()) if json_path.exists() else {}
+    if args.laz is None:
+        laz, key, stem = args.data / "ahn3_cropped_1.laz", None, "corners_ahn3"
+        dataset = "AHN3 Delft crop (ahn3_cropped_1.laz) vs BGT footprints (bgt_pand.sqlite), EPSG:28992"
+    else:
+        laz, key, stem = args.laz, f"unseen_{args.name}", f"corners_ahn3_{args.name}"
+        dataset = (f"AHN3 Delft, unseen crop ({args.laz.name}, never used for tuning) vs BGT footprints "
+                   "(bgt_pand.sqlite) inside it, EPSG:28992")
+    summary, fig = evaluate(laz, polys, args.min_edge_m, REPO / "out" / stem, dataset)
+    summary["whole_crop_by_reference_set"] = whole_crop_table(summary)
+    if key is None:
+        # the unseen crops' figures are kept when the shared crop is rerun
+        summary.update({k: v for k, v in previous.items() if k.startswith("unseen_")})
+        result = summary
+    else:
+        if "headline" not in previous:
+            raise SystemExit(f"{json_path}: run the shared crop first (no shared-crop figures to keep)")
+        summary["source"] = ("tudelft3d/3dfier example_data/ahn3/ahn3_cropped_2.laz (GPL-3; not in ../shared/data)"
+                             if args.laz.name == "ahn3_cropped_2.laz" else str(args.laz.name))
+        result = {**previous, key: summary}
+    args.out.mkdir(parents=True, exist_ok=True)
+    write_text_atomic(json_path, json.dumps(result, indent=2) + "\n")
+
+    cloud = fig["cloud"]
     xyz = np.column_stack([cloud["x"], cloud["y"], cloud["z"]])
     ndsm, extent = simple_ndsm(xyz, cloud["classification"], cell_m=0.5)
     h = summary["headline"]
+    place = "AHN3 Delft" if key is None else f"AHN3 Delft, unseen {laz.name}"
     plot_corners(
-        args.out / "corners_ahn3.png", ndsm, extent, res["outlines"], corners, truth_xy=vxy[sets["edges_ge_min_edge"]],
-        reference_polygons=[np.asarray(p.exterior.coords) for p in polys],
-        title=(f"AHN3 Delft: cyan BGT footprints, + footprint vertices (edges >= {args.min_edge_m:g} m), "
-               f"split x = {x_split:.0f}\nusable completeness {h['whole_usable_completeness_pct']:.0f} % "
-               f"(west {h['west_usable_completeness_pct']:.0f}, east {h['east_usable_completeness_pct']:.0f}), "
-               f"median offset {h['whole_usable_offset_median_m']:.2f} m"),
-        vlines=[x_split],
+        args.out / f"{stem}.png", ndsm, extent, fig["res"]["outlines"], fig["res"]["corners"],
+        truth_xy=fig["truth_xy"], reference_polygons=[np.asarray(p.exterior.coords) for p in polys],
+        title=(f"{place}: cyan BGT footprints, + footprint vertices (edges >= {args.min_edge_m:g} m), "
+               f"split x = {fig['x_split']:.0f}\nusable completeness {_num(h['whole_usable_completeness_pct'], 0)} % "
+               f"(west {_num(h['west_usable_completeness_pct'], 0)}, "
+               f"east {_num(h['east_usable_completeness_pct'], 0)}), "
+               f"median offset {_num(h['whole_usable_offset_median_m'], 2)} m"),
+        vlines=[fig["x_split"]],
     )
-    print(json.dumps(summary["headline"], indent=2))
+    print(json.dumps(summary["whole_crop_by_reference_set"], indent=2))
+    print(json.dumps(h, indent=2))
 
 
 if __name__ == "__main__":
