@@ -39,12 +39,14 @@ def _substitute(args: list[str], p: Path) -> list[str]:
     return out
 
 
-def run_readme_chain(p: Path, self_cal: bool, start: str | None = None) -> dict:
+def run_readme_chain(p: Path, self_cal: bool, start: str | None = None, stop: str | None = None) -> dict:
     """Run the README chain in ``p`` as a user would, following its rule for a block without usable
-    roof corners; from the first command ``start`` on (the earlier ones' outputs are in ``p``).
-    Returns {command: CompletedProcess}."""
+    roof corners; from the first command ``start`` on (the earlier ones' outputs are in ``p``), up to
+    the command before ``stop``. Returns {command: CompletedProcess}."""
     done, no_control = {}, False
     commands = readme_chain()
+    if stop is not None:
+        commands = commands[:[" ".join(a[:2]) for a in commands].index(stop)]
     if start is not None:
         commands = commands[[" ".join(a[:2]) for a in commands].index(start):]
         no_control = not (p / "lidar_out" / "corners.csv").is_file()  # what lidarctl corners said before
@@ -74,7 +76,8 @@ def run_readme_chain(p: Path, self_cal: bool, start: str | None = None) -> dict:
 
 @pytest.fixture(scope="module")
 def by_hand(tiny_project, tmp_path_factory):
-    """The README chain with self-calibration, then without (from the first adjustment on)."""
+    """The README chain with self-calibration, then its adjustments without (rectifying after an
+    adjustment without self-calibration: tests/aerotri/chain/test_options.py)."""
     base = tmp_path_factory.mktemp("readme")
     with_cal, without = base / "with_self_cal", base / "without_self_cal"
     shutil.copytree(tiny_project, with_cal)
@@ -87,7 +90,7 @@ def by_hand(tiny_project, tmp_path_factory):
     for f in (without / "at").iterdir():
         if not f.name.startswith(("tiepoints", "connectivity")):
             shutil.rmtree(f) if f.is_dir() else f.unlink()
-    runs_without = run_readme_chain(without, self_cal=False, start="aerotri adjust")
+    runs_without = run_readme_chain(without, self_cal=False, start="aerotri adjust", stop="ortho rectify")
     return with_cal, runs, without, runs_without
 
 
@@ -102,14 +105,14 @@ def test_readme_chain_runs_stage_by_stage(by_hand):
     # the true camera has a principal point offset and radial distortion: self-calibration fits better
     s0 = [r["key_statistics"]["sigma0_um"] for r in reps]
     assert s0[0] < s0[1]
-    for p in (with_cal, without):
-        assert (p / "ortho" / "mosaic.tif").is_file()
-        dom = json.loads((p / "ortho" / "dom_report.json").read_text())["displacement"]
-        assert dom["count"] > 10 and dom["rms_xy_m"] < 3.0  # GSD about 1 m
-        summary = json.loads((p / "reports" / "summary.json").read_text())
-        assert summary["overall"] in ("pass", "fail")
-        rows = {r["quantity"]: r for r in summary["checks"]}
-        assert "no LiDAR control" in rows["control points in the adjustment"]["note"]
+    assert (with_cal / "ortho" / "mosaic.tif").is_file()
+    dom = json.loads((with_cal / "ortho" / "dom_report.json").read_text())["displacement"]
+    assert dom["count"] > 10 and dom["rms_xy_m"] < 3.0  # GSD about 1 m
+    summary = json.loads((with_cal / "reports" / "summary.json").read_text())
+    assert summary["overall"] in ("pass", "fail")
+    rows = {r["quantity"]: r for r in summary["checks"]}
+    assert "no LiDAR control" in rows["control points in the adjustment"]["note"]
+    assert list(runs_without) == ["aerotri adjust"]
 
 
 def test_run_goes_to_the_end_and_equals_the_chain_by_hand(by_hand, tiny_project, tmp_path):
