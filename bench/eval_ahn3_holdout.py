@@ -14,7 +14,6 @@ Writes results/lidar_ahn3_holdout.json. Run: .venv/bin/python bench/eval_ahn3_ho
 from __future__ import annotations
 
 import dataclasses
-import itertools
 import json
 import os
 import sys
@@ -24,7 +23,7 @@ from pathlib import Path
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from lidar_common import DATA, REPO  # noqa: E402
+from lidar_common import DATA, REPO, grid_points  # noqa: E402
 
 from lidarctl import classify, evaluate, io  # noqa: E402
 
@@ -63,11 +62,8 @@ def main():
     c = io.read_cloud(path, crs="EPSG:28992")
     truth = c.classification
     part = part_of(c.x, c.y)
-    keys = list(GRID)
-    combos = [dict(zip(keys, v)) for v in itertools.product(*(GRID[k] for k in keys))]
-    default = {k: getattr(classify.ClassifyParams(), k) for k in keys}
-    if default not in combos:
-        combos.append(default)
+    default = {k: getattr(classify.ClassifyParams(), k) for k in GRID}
+    combos = grid_points(GRID, default)
     t0, load0 = time.perf_counter(), os.getloadavg()
     table = []          # table[i][k]: scores of grid point i on part k (k = 4: the whole crop)
     for i, params in enumerate(combos):

@@ -49,8 +49,8 @@ def topography():
     false_water = np.flatnonzero((truth == 2) & (pred == classify.WATER))
     canopy = under_canopy(c, false_water) if len(false_water) else np.zeros(0, bool)
     water = truth == 9
-    return {"points": int(len(c)), "truth_ground": int(np.sum(truth == 2)),
-            "ground_as_water": int(len(false_water)),
+    return {"points": len(c), "truth_ground": int(np.sum(truth == 2)),
+            "ground_as_water": len(false_water),
             "ground_as_water_under_canopy": int(canopy.sum()),
             "ground_as_water_open": int((~canopy).sum()),
             "truth_water": int(water.sum()), "truth_water_found": int(np.sum(water & (pred == classify.WATER))),
@@ -62,7 +62,7 @@ def autzen():
     c, pred = run(DATA / "autzen" / "autzen_trim.laz")
     g = c.classification == 2
     counts = {str(k): int(v) for k, v in zip(*np.unique(pred[g], return_counts=True))}
-    return {"points": int(len(c)), "truth_ground": int(g.sum()), "truth_ground_as_class": counts,
+    return {"points": len(c), "truth_ground": int(g.sum()), "truth_ground_as_class": counts,
             "truth_ground_as_object_pct": 100.0 * float(np.mean(pred[g] != classify.GROUND)),
             "truth_ground_as_water": int(np.sum(pred[g] == classify.WATER))}
 
@@ -73,7 +73,7 @@ def nebraska():
     veg = np.isin(truth, (3, 4, 5))
     b_true, b_pred = truth == 6, pred == classify.BUILDING
     tp = int(np.sum(b_true & b_pred))
-    return {"points": int(len(c)), "single_return_only": bool(np.all(c.number_of_returns == 1)),
+    return {"points": len(c), "single_return_only": bool(np.all(c.number_of_returns == 1)),
             "truth_vegetation": int(veg.sum()), "vegetation_as_building": int(np.sum(veg & b_pred)),
             "vegetation_as_building_pct": 100.0 * float(np.mean(b_pred[veg])),
             "building_producers_accuracy_pct": 100.0 * tp / max(int(b_true.sum()), 1),

@@ -14,7 +14,6 @@ Writes results/lidar_isprs_loo.json. Run: .venv/bin/python bench/eval_isprs_loo.
 
 from __future__ import annotations
 
-import itertools
 import json
 import os
 import sys
@@ -24,7 +23,7 @@ from pathlib import Path
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from lidar_common import DATA, REPO, SAMPLES  # noqa: E402
+from lidar_common import DATA, REPO, SAMPLES, grid_points  # noqa: E402
 
 from lidarctl import evaluate, ground, io, noise  # noqa: E402
 
@@ -36,11 +35,6 @@ GRID = {
     "elevation_scaler": (0.75, 1.0, 1.25),
     "max_window_m": (12.0, 18.0, 25.0),
 }
-
-
-def grid_points():
-    keys = list(GRID)
-    return [dict(zip(keys, values)) for values in itertools.product(*(GRID[k] for k in keys))]
 
 
 def total_errors(samples, combos):
@@ -70,10 +64,8 @@ def leave_one_out(err):
 
 
 def main():
-    combos = grid_points()
     default = {k: getattr(ground.MorphParams(), k) for k in GRID}
-    if default not in combos:
-        combos.append(default)
+    combos = grid_points(GRID, default)
     t0, load0 = time.perf_counter(), os.getloadavg()
     err = total_errors(SAMPLES, combos)
     chosen, loo_scores = leave_one_out(err)

@@ -3,6 +3,7 @@ running a command with its wall/CPU time and the peak RSS of its process tree.""
 
 from __future__ import annotations
 
+import itertools
 import os
 import resource
 import subprocess
@@ -110,3 +111,13 @@ def run_peak(cmd: list[str], ok_codes=(0,)) -> dict:
             "peak_rss_mib": peak[0] / 2 ** 20, "max_single_process_rss_mib": ru1.ru_maxrss / 1024.0,
             "exit_code": proc.returncode, "stdout": stdout,
             "load_average_before": list(load0), "load_average_after": list(os.getloadavg())}
+
+
+def grid_points(grid: dict, default: dict | None = None) -> list[dict]:
+    """Every combination of a parameter grid ({name: values}) as keyword dicts, in product order;
+    ``default`` (a dict of the same names) appended when the grid lacks it."""
+    keys = list(grid)
+    combos = [dict(zip(keys, values)) for values in itertools.product(*(grid[k] for k in keys))]
+    if default is not None and default not in combos:
+        combos.append(default)
+    return combos
