@@ -1,7 +1,7 @@
 """Control layout on simulated blocks (issue 21): layout targets filled without and with the fallbacks,
 why the empty ones are empty, and why corners end as "too few rays" -> results/control_layout.json.
 
-    .venv/bin/python bench/eval_layout.py PROJECT [PROJECT ...] [--before BASE_PROJECT ...] [--out FILE]
+    .venv/bin/python bench/eval_layout.py [PROJECT ...] [--before BASE_PROJECT ...] [--out FILE]
 
 Each PROJECT is a simulated project after a whole chain run (``aerotri demo`` / ``aerotri sim`` +
 ``aerotri run``) with the fallbacks on (the default). For each, the control transfer is repeated here
@@ -115,10 +115,17 @@ def check_ids(root: Path) -> set:
 
 def main(argv=None):
     ap = argparse.ArgumentParser()
-    ap.add_argument("projects", nargs="+", type=Path)
+    ap.add_argument("projects", nargs="*", type=Path, help="default: the project of `make demo` (out/demo/project)")
     ap.add_argument("--before", nargs="*", type=Path, default=[])
     ap.add_argument("--out", type=Path, default=REPO / "results" / "control_layout.json")
     a = ap.parse_args(argv)
+    if not a.projects:
+        demo = REPO / "out" / "demo" / "project"
+        if not (demo / "work" / "at_first" / "eo.txt").is_file():
+            # `make bench` runs every script without arguments
+            print(f"no project given and no chain run in {demo}: run `make demo` or pass PROJECT folders")
+            return
+        a.projects = [demo]
     out = {"load_avg_start": list(os.getloadavg()), "projects": []}
     for n, root in enumerate(a.projects):
         t0 = time.perf_counter()
