@@ -345,22 +345,28 @@ def detect_water(x, y, z, intensity, candidate, is_building, is_ground, spacing_
         return water
     area_m2 = np.bincount(labels.ravel(), minlength=nlab + 1) * c * c
     building_cell = np.bincount(flat[is_building], minlength=nrows * ncols).reshape(nrows, ncols) > 0
-    # Canopy: the highest return within one water cell (m) horizontally of a point. A pulse that
-    # reached the level below a crown is ground seen through foliage, not open water.
-    solid = np.flatnonzero(np.ones(n, bool) if solid is None else solid)
-    solid_tree = cKDTree(np.column_stack([x[solid], y[solid]]))
+    # Canopy: the returns within one water cell (m) horizontally of a point. A pulse that reached the
+    # level below a crown is ground seen through foliage, not open water. The KD-tree is built only
+    # when a gap gets this far (most tiles have none), over the returns that can stand more than
+    # ``low_veg_max_m`` above any level (levels are heights of candidate returns).
+    canopy = {}
 
     def open_sky(idx, level):
         """Mask over ``idx``: no return more than ``low_veg_max_m`` above ``level`` within ``c``."""
         if len(idx) == 0:
             return np.zeros(0, bool)
-        near = solid_tree.query_ball_point(np.column_stack([x[idx], y[idx]]), c)
+        if not canopy:
+            tall = np.ones(n, bool) if solid is None else np.asarray(solid, bool).copy()
+            tall &= z > np.min(z[candidate]) + p.low_veg_max_m
+            canopy["idx"] = np.flatnonzero(tall)
+            canopy["tree"] = cKDTree(np.column_stack([x[canopy["idx"]], y[canopy["idx"]]]))
+        near = canopy["tree"].query_ball_point(np.column_stack([x[idx], y[idx]]), c)
         lens = np.fromiter((len(v) for v in near), np.int64, len(near))
-        flat_nb = solid[np.concatenate([np.asarray(v, np.int64) for v in near])] if lens.sum() else np.zeros(0, np.int64)
+        if not lens.sum():
+            return np.ones(len(idx), bool)
+        nb = canopy["idx"][np.concatenate([np.asarray(v, np.int64) for v in near])]
         high = np.zeros(len(idx), bool)
-        if len(flat_nb):
-            owner = np.repeat(np.arange(len(idx)), lens)
-            np.logical_or.at(high, owner, z[flat_nb] > level + p.low_veg_max_m)
+        np.logical_or.at(high, np.repeat(np.arange(len(idx)), lens), z[nb] > level + p.low_veg_max_m)
         return ~high
 
     ground_cell_z = reduce_grid(x[is_ground], y[is_ground], z[is_ground], c, x0, y0, nrows, ncols, "mean")
@@ -510,8 +516,8 @@ def classify_points(x, y, z, return_number=None, number_of_returns=None, intensi
     # Penetration: a roof stops every pulse at its surface, so a cell's returns lie within the
     # roof's slope across the cell of its highest one; foliage spreads them through the crown.
     # On single-return clouds this is the evidence the multi-return fraction gives elsewhere.
-    mean_obj = reduce_grid(x[obj], y[obj], z[obj], c, x0, y0, nrows, ncols, "mean")
-    depth = np.where(cnt >= 3, dsm_f - np.nan_to_num(mean_obj, nan=-np.inf), 0.0)
+    sum_obj = np.bincount(flat[obj], z[obj], minlength=nrows * ncols).reshape(nrows, ncols)
+    depth = np.where(cnt >= 3, dsm_f - sum_obj / np.maximum(cnt, 1), 0.0)
     reach = 0.5 * c * slope_tan(dsm_f, c)
     roof = high_obj & (rms < p.roof_rms_m) & (depth <= p.roof_rms_m + reach)
     if has_multi:
