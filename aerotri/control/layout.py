@@ -53,6 +53,11 @@ class LayoutTarget:
         return dataclasses.asdict(self)
 
 
+def empty_target_text(t: dict) -> str:
+    """An empty layout target (``LayoutTarget.to_dict()``, as in control/transfer.json) in one phrase."""
+    return f"{t['kind']} target at {t['target_x_m']:.0f} {t['target_y_m']:.0f}: {t.get('empty_reason') or 'no corner'}"
+
+
 @dataclasses.dataclass
 class Strip:
     images: np.ndarray  # frame indices

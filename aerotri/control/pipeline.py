@@ -20,7 +20,7 @@ import numpy as np
 
 from aerotri.control.consistency import check_rays
 from aerotri.control.corners import LidarCorners, read_corners, read_manual
-from aerotri.control.layout import LayoutTarget, candidate_tiers, select_control
+from aerotri.control.layout import LayoutTarget, candidate_tiers, empty_target_text, select_control
 from aerotri.control.measure import Measurement, measure_in_image, predict
 from aerotri.control.settings import ControlSettings
 from aerotri.core.errors import InputError
@@ -176,6 +176,17 @@ def _near_unfilled_targets(corners: LidarCorners, targets: list[LayoutTarget], t
     return np.flatnonzero(near & todo)
 
 
+# Why a corner has too few rays: its predicted position falls in no frame, in one frame, or in two or more
+# whose measurements failed in all but one (keys of TransferSummary.too_few_rays_by_cause).
+TOO_FEW_RAYS_CAUSES = {"in_no_frame": "in no frame", "in_one_frame": "seen in one frame only",
+                       "measured_in_under_two": "measured in fewer than two of the frames it is seen in"}
+
+
+def too_few_rays_cause(frames: Counter, k: int) -> str:
+    """The ``TOO_FEW_RAYS_CAUSES`` key of corner ``k``; ``frames``: frames each corner's prediction falls in."""
+    return {0: "in_no_frame", 1: "in_one_frame"}.get(frames.get(k, 0), "measured_in_under_two")
+
+
 def _plural(n: int, word: str) -> str:
     return f"{n} {word}" if n == 1 else f"{n} {word}s"
 
@@ -203,13 +214,9 @@ def why_empty(res: "TransferResult", t: LayoutTarget, s: ControlSettings) -> str
         if ray is None:
             fate["not measured (not marked usable" + (")" if s.layout.fallback else "; fallback off)")] += 1
         elif ray.reason == "too_few_rays":
-            n = frames.get(k, 0)
-            if n == 0:
-                fate["in no frame"] += 1
-            elif n == 1:
-                fate["seen in one frame only"] += 1
-            else:
-                fate["measured in fewer than two of the frames it is seen in"] += 1
+            cause = too_few_rays_cause(frames, k)
+            fate[TOO_FEW_RAYS_CAUSES[cause]] += 1
+            if cause == "measured_in_under_two":
                 in_image.update(m.reason for (kk, _), m in res.measurements.items() if kk == k and not m.ok)
         elif not ray.ok:
             fate[f"rejected by consistency ({ray.reason.replace('_', ' ')})"] += 1
@@ -223,7 +230,7 @@ def why_empty(res: "TransferResult", t: LayoutTarget, s: ControlSettings) -> str
             fate["eligible but not chosen"] += 1
     parts = []
     for what, n in fate.most_common():
-        if what.startswith("measured in fewer") and in_image:
+        if what == TOO_FEW_RAYS_CAUSES["measured_in_under_two"] and in_image:
             what += " (" + ", ".join(f"{reason.replace('_', ' ')} {m}" for reason, m in in_image.most_common(3)) + ")"
         parts.append(f"{n} {what}")
     return f"{_plural(len(near), 'LiDAR corner')} within {r:.1f} m: " + "; ".join(parts)
@@ -273,8 +280,7 @@ def summary(res: TransferResult) -> TransferSummary:
     sel = [k for k in range(len(res.kind)) if res.kind[k] in ("full", "height")]
     rays_sel = [int(res.rays[k].kept.sum()) for k in sel]
     frames = Counter(k for k, _ in res.predicted)
-    causes = Counter({0: "in_no_frame", 1: "in_one_frame"}.get(frames.get(k, 0), "measured_in_under_two")
-                     for k, r in res.rays.items() if r.reason == "too_few_rays")
+    causes = Counter(too_few_rays_cause(frames, k) for k, r in res.rays.items() if r.reason == "too_few_rays")
     primary = np.ones(len(res.corners), bool) if res.primary is None else res.primary
     return TransferSummary(
         corners_in_file=len(res.corners),
@@ -357,8 +363,7 @@ def layout_line(res: TransferResult) -> str:
     line = f"Layout: {len(filled)} of {n} targets filled"
     if fb:
         line += " (fallbacks: " + ", ".join(f"{k.replace('_', ' ')} {v}" for k, v in sorted(fb.items())) + ")"
-    empty = [f"{t.kind} target at {t.target_x_m:.0f} {t.target_y_m:.0f}: {t.empty_reason}" for t in res.targets
-             if t.corner is None]
+    empty = [empty_target_text(t.to_dict()) for t in res.targets if t.corner is None]
     return line + (("; empty: " + "; ".join(empty)) if empty else "") + "."
 
 

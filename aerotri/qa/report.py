@@ -18,6 +18,7 @@ import json
 import math
 from pathlib import Path
 
+from aerotri.control.layout import empty_target_text
 from aerotri.core.atomic import atomic_path, write_text_atomic
 from aerotri.core.errors import InputError, StageOrderError
 from aerotri.core.textio import read_json
@@ -137,8 +138,7 @@ def build_qa_report(root, tolerance_file=None, terrain: str | None = None, scale
         if targets:
             empty = [t for t in targets if t.get("corner") is None]
             fb = sum(t.get("tier") not in (None, "usable") for t in targets)
-            note = "; ".join(f"{t['kind']} target at {t['target_x_m']:.0f} {t['target_y_m']:.0f}: "
-                             f"{t.get('empty_reason') or 'no corner'}" for t in empty)
+            note = "; ".join(empty_target_text(t) for t in empty)
             if fb:
                 note = f"{fb} filled by fallbacks" + (f"; {note}" if note else "")
             rows.append(_check(sec, "layout targets with a control point", f"{len(targets) - len(empty)} of {len(targets)}",
