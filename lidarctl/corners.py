@@ -737,8 +737,19 @@ def find_roof_corners_tiled(paths, crs=None, *, tile_m: float = DEFAULT_TILE_M, 
     result["stats"].update(tiles=len(tiles), tile_m=tile_m, buffer_m=buffer_m)
     figure = None
     if fig is not None:
-        figure = (fig["ndsm"], fig["extent"])
+        figure = _crop_to_data(fig["ndsm"], fig["extent"], fig["cell"])
     return result, tc.crs, tc.units, figure
+
+
+def _crop_to_data(ndsm: np.ndarray, extent, cell_m: float):
+    """The figure's nDSM and extent (xmin, xmax, ymin, ymax) cut to the rows and columns holding data:
+    the tile grid (whole tiles) reaches beyond the points."""
+    rows, cols = np.flatnonzero(np.isfinite(ndsm).any(axis=1)), np.flatnonzero(np.isfinite(ndsm).any(axis=0))
+    if not len(rows):
+        return ndsm, extent
+    r0, r1, c0, c1 = rows[0], rows[-1] + 1, cols[0], cols[-1] + 1
+    x0, y0 = extent[0], extent[2]
+    return ndsm[r0:r1, c0:c1], (x0 + c0 * cell_m, x0 + c1 * cell_m, y0 + r0 * cell_m, y0 + r1 * cell_m)
 
 
 def _figure_tile(fig, rec, tc: _TiledCloud, tid: int, spacing_m: float, max_cells: int):

@@ -51,6 +51,11 @@ def test_tiled_corners_equal_whole_cloud(tiny_project, tmp_path):
     assert sum(a["strip_margin_m"] == b["strip_margin_m"] for a, b in zip(whole["corners"], tiled["corners"])) > 0
     ndsm, extent = figure
     assert ndsm.shape[1] <= 500 and np.nanmax(ndsm) > 5.0                 # roofs stand out in the figure
+    # the figure ends where the points end, not with the whole tiles (no empty margins)
+    cell = (extent[1] - extent[0]) / ndsm.shape[1]
+    assert extent[0] >= cat["x"].min() - cell and extent[1] <= cat["x"].max() + cell
+    assert extent[2] >= cat["y"].min() - cell and extent[3] <= cat["y"].max() + cell
+    assert all(np.isfinite(edge).any() for edge in (ndsm[0], ndsm[-1], ndsm[:, 0], ndsm[:, -1]))
 
 
 def test_corners_cli_tiles_options(tiny_project, tmp_path):
