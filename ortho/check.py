@@ -165,6 +165,7 @@ def _on_grid(ds, window_transform, shape, crs, resampling, band_indexes=None, op
     (``operation``: grid CRS -> raster CRS; built without parameters when None, refusing a ballpark)."""
     import rasterio
     from rasterio.warp import reproject
+    from rasterio.windows import transform as window_transform_of
 
     from aerotri.geom.crs import same_horizontal
     from aerotri.geom.raster_warp import read_on_grid
@@ -176,13 +177,38 @@ def _on_grid(ds, window_transform, shape, crs, resampling, band_indexes=None, op
         maximum = resampling == rasterio.enums.Resampling.max
         return read_on_grid(ds, window_transform.c, window_transform.f, window_transform.a, shape, op,
                             "bilinear", idx, maximum=maximum)
-    out = np.zeros((len(idx),) + shape, np.float32)
+    out = np.full((len(idx),) + shape, np.nan, np.float32)
     valid = np.zeros(shape, np.uint8)
-    reproject(rasterio.band(ds, idx), out, dst_transform=window_transform, dst_crs=crs, resampling=resampling,
-              dst_nodata=np.nan, init_dest_nodata=True)
-    reproject(ds.dataset_mask(), valid, src_transform=ds.transform, src_crs=ds.crs, dst_transform=window_transform,
-              dst_crs=crs, resampling=rasterio.enums.Resampling.nearest)
+    src = _source_window(ds, window_transform, shape)
+    if src is None:
+        return out, valid > 0
+    # only the source pixels under the window are read (the whole mask per block made the check
+    # quadratic in the block size); the margin keeps every bilinear / maximum kernel whole
+    src_transform = window_transform_of(src, ds.transform)
+    reproject(ds.read(idx, window=src), out, src_transform=src_transform, src_crs=ds.crs, src_nodata=ds.nodata,
+              dst_transform=window_transform, dst_crs=crs, resampling=resampling, dst_nodata=np.nan,
+              init_dest_nodata=True)
+    reproject(ds.dataset_mask(window=src), valid, src_transform=src_transform, src_crs=ds.crs,
+              dst_transform=window_transform, dst_crs=crs, resampling=rasterio.enums.Resampling.nearest)
     return out, (valid > 0) & np.all(np.isfinite(out), axis=0)
+
+
+def _source_window(ds, window_transform, shape, margin_px: int = 3):
+    """The window of ``ds`` (same CRS) under a target grid, widened by a margin, clipped to the raster;
+    None when they do not overlap."""
+    from rasterio.windows import Window, from_bounds
+
+    left, top = window_transform.c, window_transform.f
+    right = left + shape[1] * window_transform.a
+    bottom = top + shape[0] * window_transform.e
+    w = from_bounds(min(left, right), min(top, bottom), max(left, right), max(top, bottom), ds.transform)
+    c0 = max(0, math.floor(w.col_off) - margin_px)
+    r0 = max(0, math.floor(w.row_off) - margin_px)
+    c1 = min(ds.width, math.ceil(w.col_off + w.width) + margin_px)
+    r1 = min(ds.height, math.ceil(w.row_off + w.height) + margin_px)
+    if c1 <= c0 or r1 <= r0:
+        return None
+    return Window(c0, r0, c1 - c0, r1 - r0)
 
 
 def _operation_to(dom_path, other_path, params, allow_ballpark: bool, what: str):

@@ -452,6 +452,30 @@ def _blend_tile(r0, c0, th, tw, halo, names, files, offsets, grids, mosaic, lab,
     return out, valid
 
 
+_SEAM_GROUP_PX = 2048  # mosaic pixels: the patches of a seam are read in windows of about this size
+
+
+def seam_samples(labels: np.ndarray, spacing_cells: int):
+    """For each touching pair (i < j) of ``labels`` (-1: none): the cells of i with a 4-neighbour in j,
+    in row-major order, every ``spacing_cells``-th; yields ((i, j), (n, 2) array of (row, col))."""
+    h, w = labels.shape
+    n_labels = int(labels.max()) + 1
+    flat = np.arange(h * w, dtype=np.int64).reshape(h, w)
+    keys = []
+    for a, b, fa in ((labels[:, :-1], labels[:, 1:], flat[:, :-1]), (labels[:, 1:], labels[:, :-1], flat[:, 1:]),
+                     (labels[:-1, :], labels[1:, :], flat[:-1, :]), (labels[1:, :], labels[:-1, :], flat[1:, :])):
+        m = (a >= 0) & (b >= 0) & (a < b)
+        keys.append((a[m].astype(np.int64) * n_labels + b[m]) * (h * w) + fa[m])
+    # sorted by pair, then row-major; a cell next to j on two sides counts once
+    keys = np.unique(np.concatenate(keys)) if keys else np.zeros(0, np.int64)
+    pair, cell = np.divmod(keys, h * w)
+    starts = np.flatnonzero(np.r_[True, pair[1:] != pair[:-1]]) if len(pair) else np.zeros(0, int)
+    for s, e in zip(starts, np.r_[starts[1:], len(pair)]):
+        i, j = divmod(int(pair[s]), n_labels)
+        c = cell[s:e][::spacing_cells]
+        yield (i, j), np.stack(np.divmod(c, w), axis=1)
+
+
 def seam_misalignment(root, patch_px: int = 32, search_px: int = 4, spacing_cells: int = 4, min_ncc: float = 0.7,
                       ndsm_path=None, max_ndsm_m: float = 0.5) -> dict:
     """Relative displacement of neighbouring frame orthos across each seam (NCC patches on the seam).
@@ -482,36 +506,37 @@ def seam_misalignment(root, patch_px: int = 32, search_px: int = 4, spacing_cell
         ndsm_path = root / "lidar_out" / "ndsm.tif"
     to_project = index_operation(index)
     half = patch_px // 2 + search_px
+    size = 2 * half
     per_seam, all_d = [], []
-    for i, j in neighbour_pairs(labels):
-        a = labels == i
-        b = labels == j
-        seam = a & np.zeros_like(a)
-        seam[:, :-1] |= a[:, :-1] & b[:, 1:]
-        seam[:, 1:] |= a[:, 1:] & b[:, :-1]
-        seam[:-1, :] |= a[:-1, :] & b[1:, :]
-        seam[1:, :] |= a[1:, :] & b[:-1, :]
-        rc = np.argwhere(seam)[::spacing_cells]
+    for (i, j), rc in seam_samples(labels, spacing_cells):
+        # mosaic pixel of each patch's upper-left corner
+        R = ((rc[:, 0] + 0.5) * factor).astype(int) - half
+        C = ((rc[:, 1] + 0.5) * factor).astype(int) - half
         ds_list = []
-        for rr, cc in rc:
-            R = int((rr + 0.5) * factor) - half
-            C = int((cc + 0.5) * factor) - half
-            size = 2 * half
-            win_imgs = []
-            for k in (i, j):
-                g = grids[names[k]]
-                fc, fr = g.offset_in(mosaic)
-                with _open_frame(frames_dir / f"{names[k]}.tif") as ds:
-                    win_imgs.append(read_window(ds, C - fc, R - fr, size, size))
-            keep = None
-            if ndsm_path is not None:
-                t = Affine(mosaic.res_m, 0, mosaic.x_left_m + C * mosaic.res_m, 0, -mosaic.res_m,
-                           mosaic.y_top_m - R * mosaic.res_m)
-                nd = _read_ndsm_on(ndsm_path, t, (size, size), mosaic.crs, to_project)
-                keep = np.nan_to_num(nd, nan=1e9) <= max_ndsm_m
-            p = match_patches(win_imgs[0][0], win_imgs[1][0], win_imgs[0][1], win_imgs[1][1], mosaic.res_m, patch_px,
-                              patch_px, search_px, min_ncc, keep=keep)
-            ds_list.extend(np.hypot(p.dx_px, p.dy_px).tolist())
+        with _open_frame(frames_dir / f"{names[i]}.tif") as fa, _open_frame(frames_dir / f"{names[j]}.tif") as fb:
+            # the patches of one seam are read by groups under one window (one read per frame and group,
+            # not one per patch); the nDSM likewise
+            group = (R // _SEAM_GROUP_PX) * (1 << 20) + C // _SEAM_GROUP_PX
+            for g in np.unique(group):
+                sel = np.flatnonzero(group == g)
+                r0, c0 = int(R[sel].min()), int(C[sel].min())
+                h, w = int(R[sel].max()) - r0 + size, int(C[sel].max()) - c0 + size
+                imgs = []
+                for k, ds in ((i, fa), (j, fb)):
+                    fc, fr = grids[names[k]].offset_in(mosaic)
+                    imgs.append(read_window(ds, c0 - fc, r0 - fr, w, h))
+                keep = None
+                if ndsm_path is not None:
+                    t = Affine(mosaic.res_m, 0, mosaic.x_left_m + c0 * mosaic.res_m, 0, -mosaic.res_m,
+                               mosaic.y_top_m - r0 * mosaic.res_m)
+                    nd = _read_ndsm_on(ndsm_path, t, (h, w), mosaic.crs, to_project)
+                    keep = np.nan_to_num(nd, nan=1e9) <= max_ndsm_m
+                for s in sel:
+                    win = (slice(R[s] - r0, R[s] - r0 + size), slice(C[s] - c0, C[s] - c0 + size))
+                    p = match_patches(imgs[0][0][win], imgs[1][0][win], imgs[0][1][win], imgs[1][1][win],
+                                      mosaic.res_m, patch_px, patch_px, search_px, min_ncc,
+                                      keep=None if keep is None else keep[win])
+                    ds_list.extend(np.hypot(p.dx_px, p.dy_px).tolist())
         d = np.array(ds_list)
         all_d.extend(ds_list)
         per_seam.append({"image_a": names[i], "image_b": names[j], "patches": int(len(d)),

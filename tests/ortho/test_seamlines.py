@@ -65,3 +65,21 @@ def test_polygons_and_seam_lines_in_map_units():
     assert abs(seams[0]["properties"]["length_m"] - H * 2.0) < 1e-9
     xs = {round(x, 6) for x, _ in seams[0]["geometry"]["coordinates"]}
     assert xs == {1000.0 + 21 * 2.0}
+
+
+def test_seam_samples_are_the_cells_of_i_beside_j_for_every_touching_pair():
+    from ortho.mosaic import seam_samples
+
+    rng = np.random.default_rng(3)
+    # blobs of five frames and unlabelled cells, so that pairs touch along ragged seams
+    labels = np.repeat(np.repeat(rng.integers(-1, 5, size=(9, 11)), 3, axis=0), 4, axis=1)
+    got = {pair: cells for pair, cells in seam_samples(labels, spacing_cells=3)}
+    assert sorted(got) == neighbour_pairs(labels)
+    for i, j in neighbour_pairs(labels):
+        a, b = labels == i, labels == j
+        beside_b = np.zeros_like(a)
+        beside_b[:, :-1] |= b[:, 1:]
+        beside_b[:, 1:] |= b[:, :-1]
+        beside_b[:-1, :] |= b[1:, :]
+        beside_b[1:, :] |= b[:-1, :]
+        np.testing.assert_array_equal(got[(i, j)], np.argwhere(a & beside_b)[::3])
