@@ -187,7 +187,7 @@ def _on_grid(ds, window_transform, shape, crs, resampling, band_indexes=None, op
     src_transform = window_transform_of(src, ds.transform)
     reproject(ds.read(idx, window=src), out, src_transform=src_transform, src_crs=ds.crs, src_nodata=ds.nodata,
               dst_transform=window_transform, dst_crs=crs, resampling=resampling, dst_nodata=np.nan,
-              init_dest_nodata=True)
+              init_dest_nodata=True, num_threads=os.cpu_count() or 1)
     reproject(ds.dataset_mask(window=src), valid, src_transform=src_transform, src_crs=ds.crs,
               dst_transform=window_transform, dst_crs=crs, resampling=rasterio.enums.Resampling.nearest)
     return out, (valid > 0) & np.all(np.isfinite(out), axis=0)
