@@ -59,13 +59,30 @@ def _voxel_key(vi, vj, vk, nj, nk):
     return out
 
 
+# Voxel grids up to this many cells are counted densely (a 3x3x3 box sum over an array); larger
+# ones (a stray point far above the scene) go through the sorted occupied voxels.
+DENSE_VOXELS = 1 << 25
+
+
 def isolated_points(x, y, z, voxel_m: float, min_neighbours: int = 1) -> np.ndarray:
     """Boolean mask: fewer than ``min_neighbours`` other points in the 3x3x3 voxel neighbourhood."""
     vi = grid._floor_div(np.asarray(x, float), float(x.min()) - voxel_m, float(voxel_m))
     vj = grid._floor_div(np.asarray(y, float), float(y.min()) - voxel_m, float(voxel_m))
     vk = grid._floor_div(np.asarray(z, float), float(z.min()) - voxel_m, float(voxel_m))
-    nj, nk = vj.max() + 2, vk.max() + 2
+    # Indices start at 1 and end 2 below the sizes: the +-1 neighbours never wrap.
+    ni, nj, nk = vi.max() + 2, vj.max() + 2, vk.max() + 2
     key = _voxel_key(vi, vj, vk, nj, nk)
+    if ni * nj * nk <= max(DENSE_VOXELS, 4 * len(key)):
+        counts = np.bincount(key, minlength=ni * nj * nk).reshape(ni, nj, nk)
+        total = counts.copy()
+        for axis in range(3):       # separable 3x3x3 box sum (edges hold no points)
+            s = [slice(None)] * 3
+            lo, mid, hi = list(s), list(s), list(s)
+            lo[axis], mid[axis], hi[axis] = slice(0, -2), slice(1, -1), slice(2, None)
+            box = total.copy()
+            box[tuple(mid)] += total[tuple(lo)] + total[tuple(hi)]
+            total = box
+        return (total.ravel()[key] - 1) < min_neighbours
     ukeys, inverse, counts = np.unique(key, return_inverse=True, return_counts=True)
     total = np.zeros(len(ukeys), np.int64)
     for di in (-1, 0, 1):
