@@ -302,12 +302,14 @@ def split_into_tiles(in_paths, grid: TileGrid, work_dir, params, chunk_points: i
                     del x, y
                     points = _tile_points(chunk, scales, offsets)
                     del chunk
+                    # Rows of bytes: numpy gathers them ~10x faster than structured records.
+                    rows = points.view(np.uint8).reshape(len(points), TILE_DTYPE.itemsize)
                     bounds = np.flatnonzero(np.diff(ids)) + 1
                     for sel_ids, sel_pos in zip(np.split(ids, bounds), np.split(pos, bounds)):
                         tid = int(sel_ids[0])
                         stem = _tile_stem(work_dir, tid // grid.ncols, tid % grid.ncols)
                         with open(stem.with_suffix(".pts"), "ab") as fh:
-                            points[sel_pos].tofile(fh)
+                            np.take(rows, sel_pos, axis=0).tofile(fh)
                         with open(stem.with_suffix(".index"), "ab") as fh:
                             (sel_pos + (offset + first)).tofile(fh)
                     bar.update(len(points))
