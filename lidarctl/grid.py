@@ -158,6 +158,18 @@ def _pairs_within(mx, my, mcell, ncols, nrows, reach_cells, r2):
 
 
 @numba.njit(cache=True)
+def _link_pairs(mx, my, mz, a, b, step_m, slope):
+    """Height of b above a per pair, and whether they link (``|dz| <= step_m + slope * d``)."""
+    dz = np.empty(len(a))
+    linked = np.empty(len(a), np.bool_)
+    for e in range(len(a)):
+        d = np.hypot(mx[a[e]] - mx[b[e]], my[a[e]] - my[b[e]])
+        dz[e] = mz[b[e]] - mz[a[e]]
+        linked[e] = np.abs(dz[e]) <= step_m + slope * d
+    return dz, linked
+
+
+@numba.njit(cache=True)
 def _find(parent, k):
     root = k
     while parent[root] != root:
@@ -207,9 +219,8 @@ def segment_cell_minima(x, y, z, cell_m: float, step_m: float, slope: float) -> 
                          int(np.ceil(radius / cell_m)), radius * radius)
     if len(a) == 0:
         return None
-    d = np.hypot(mx[a] - mx[b], my[a] - my[b])
-    dz = mz[b] - mz[a]
-    linked = np.abs(dz) <= step_m + slope * d
+    dz, linked = _link_pairs(np.asarray(mx, float), np.asarray(my, float), np.asarray(mz, float), a, b,
+                             float(step_m), float(slope))
     m = len(mx)
     ncomp, label = _components(m, a[linked], b[linked])
     size = np.bincount(label, minlength=ncomp)
@@ -218,11 +229,32 @@ def segment_cell_minima(x, y, z, cell_m: float, step_m: float, slope: float) -> 
     return MinimaSegments(cid, nrows, ncols, lowest, label, size, ua[cross], ub[cross], dzu[cross])
 
 
+@numba.njit(cache=True)
+def _occupied_cells(x, y, cell_m):
+    """Number of ``cell_m`` cells (anchored at the minima, as ``cell_ids``) holding points."""
+    x0, y0 = np.min(x), np.min(y)
+    ncols = int(np.floor((np.max(x) - x0) / cell_m)) + 1
+    nrows = int(np.floor((np.max(y) - y0) / cell_m)) + 1
+    seen = np.zeros(nrows * ncols, np.bool_)
+    n = 0
+    for k in range(len(x)):
+        c = int(np.floor((y[k] - y0) / cell_m)) * ncols + int(np.floor((x[k] - x0) / cell_m))
+        if not seen[c]:
+            seen[c] = True
+            n += 1
+    return n, nrows, ncols
+
+
 def mean_spacing_m(x, y, cell_m: float = 10.0) -> float:
     """Mean point spacing sqrt(area/n), area = occupied 10 m cells (ignores empty corners of a tile)."""
-    cid, nrows, ncols, _, _ = cell_ids(x, y, cell_m)
-    area = np.count_nonzero(np.bincount(cid, minlength=nrows * ncols)) * cell_m * cell_m
-    return float(np.sqrt(area / max(len(x), 1)))
+    x, y = np.asarray(x, float), np.asarray(y, float)
+    # the grid's size first (as cell_ids checks it), then one pass marking the occupied cells
+    nrows = int(np.floor((np.max(y) - np.min(y)) / cell_m)) + 1
+    ncols = int(np.floor((np.max(x) - np.min(x)) / cell_m)) + 1
+    check_grid(nrows, ncols, cell_m, GRID_BYTES_PER_CELL, "the points' extent",
+               hint="are strips far apart (different zones or CRSs) in one cloud?")
+    occupied = _occupied_cells(x, y, float(cell_m))[0]
+    return float(np.sqrt(occupied * cell_m * cell_m / max(len(x), 1)))
 
 
 @numba.njit(cache=True)

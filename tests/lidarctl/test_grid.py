@@ -27,3 +27,26 @@ def test_segment_cell_minima_matches_kdtree_pairs_and_scipy_components():
         cross = ~linked & (label[a] != label[b])
         want = sorted(zip(a[cross].tolist(), b[cross].tolist(), dz[cross].tolist()))
         assert sorted(zip(seg.ua.tolist(), seg.ub.tolist(), seg.dz.tolist())) == want
+
+
+def test_classifier_grid_helpers_equal_scipy():
+    from scipy import ndimage
+
+    from lidarctl.classify import dilate_square, labelled_median
+
+    rng = np.random.default_rng(3)
+    mask = rng.random((120, 90)) < 0.05
+    mask[0, :] = mask[:, -1] = True        # cells on the border
+    for size in (3, 11):
+        np.testing.assert_array_equal(dilate_square(mask, size), ndimage.binary_dilation(mask, np.ones((size, size), bool)))
+    labels, n = ndimage.label(rng.random((120, 90)) < 0.4)
+    values = np.round(rng.random((120, 90)), 1)     # ties, even and odd counts
+    np.testing.assert_array_equal(labelled_median(values, labels, n), ndimage.median(values, labels, np.arange(1, n + 1)))
+
+
+def test_mean_spacing_from_occupied_cells():
+    # 40 x 40 m fully covered at 4 points/m^2 plus a far corner point: 16 + 1 occupied 10 m cells
+    g = np.arange(0, 40, 0.5) + 0.25
+    x, y = np.meshgrid(g, g)
+    x, y = np.r_[x.ravel(), 95.0], np.r_[y.ravel(), 95.0]
+    assert grid.mean_spacing_m(x, y) == np.sqrt(17 * 100.0 / len(x))
