@@ -10,7 +10,9 @@ that the shared 2-core machine's load affects all alike; load averages recorded)
   with the same tile size: set by the tile, not by the block;
 * the CSF ground filter alone (pip cloth-simulation-filter, in-process) on the smaller block's
   points: speed ratio of our whole command over CSF's filter alone, and both filters' ground errors
-  against the simulator truth.
+  against the simulator truth;
+* the smaller block once more with the default tile size (what a user runs: one tile here, no
+  buffer classified twice), with its own ratios to CSF.
 Writes results/lidar_strips_bench.json.
 Run: .venv/bin/python bench/lidar_strips.py [--small 6 --large 18 --tile-size 200]
 """
@@ -86,6 +88,20 @@ def main():
         print(f"{name}: {len(paths)} strips {n:,} points {r['seconds']:.1f} s {r['points_per_s']:,.0f} points/s "
               f"CPU {r['cpu_seconds']:.1f} s ({r['points_per_cpu_s']:,.0f} points/CPU s) peak RSS "
               f"{r['peak_rss_mb']:.0f} MB load {r['load_average_1min_before_after']}", flush=True)
+    # The smaller block as a user runs it (no --tile-size: the default plans ~4 M points per tile with
+    # its buffer, here one tile, so no buffer is classified twice); its classes differ from the 200 m
+    # tiles' by the tiling's grid-origin effect (module docstring of lidarctl.tiles).
+    paths, truth = make_strips(work, args.small, args.density)
+    r = run_classify(paths, work / "classified_small_default", [])
+    pred = np.concatenate([np.asarray(laspy.read(work / "classified_small_default" / p.name).classification)
+                           for p in paths])
+    keep = ~np.isin(truth, (7, 18))
+    r.update(points=len(truth), points_per_s=len(truth) / r["seconds"], points_per_cpu_s=len(truth) / r["cpu_seconds"],
+             ground_filter_errors=evaluate.filter_errors(pred[keep] == 2, truth[keep] == 2),
+             correct_vs_truth_pct=100.0 * float(np.mean(pred == truth)))
+    runs["small_default_tiles"] = r
+    print(f"small, default tiles: {r['seconds']:.1f} s CPU {r['cpu_seconds']:.1f} s load "
+          f"{r['load_average_1min_before_after']}", flush=True)
     # CSF on the smaller block's points (filter only, no reading or writing)
     paths, truth = make_strips(work, args.small, args.density)
     clouds = [io.read_cloud(p) for p in paths]
@@ -107,12 +123,16 @@ def main():
         "csf_ground_filter_errors": evaluate.filter_errors(g[keep], truth[keep] == 2),
         "speed_ratio_ours_whole_command_over_csf_filter_only_wall": csf_s / small["seconds"],
         "speed_ratio_ours_whole_command_over_csf_filter_only_cpu": csf_cpu / small["cpu_seconds"],
+        "speed_ratio_default_tiles_over_csf_filter_only_wall": csf_s / runs["small_default_tiles"]["seconds"],
+        "speed_ratio_default_tiles_over_csf_filter_only_cpu": csf_cpu / runs["small_default_tiles"]["cpu_seconds"],
         "note": "the 2-core machine was shared with other developers' jobs (load averages per run): wall times "
                 "are inflated, CPU seconds and same-run ratios are the figures to compare",
     }
     print(f"CSF filter alone: {csf_s:.1f} s ({len(xyz) / csf_s:,.0f} points/s), CPU {csf_cpu:.1f} s; ours (whole "
           f"command) {result['speed_ratio_ours_whole_command_over_csf_filter_only_wall']:.2f}x wall, "
-          f"{result['speed_ratio_ours_whole_command_over_csf_filter_only_cpu']:.2f}x CPU; peak RSS "
+          f"{result['speed_ratio_ours_whole_command_over_csf_filter_only_cpu']:.2f}x CPU (default tiles "
+          f"{result['speed_ratio_default_tiles_over_csf_filter_only_wall']:.2f}x wall, "
+          f"{result['speed_ratio_default_tiles_over_csf_filter_only_cpu']:.2f}x CPU); peak RSS "
           f"{runs['large']['peak_rss_mb']:.0f} / {small['peak_rss_mb']:.0f} MB for "
           f"{result['points_ratio_large_over_small']:.1f}x the points")
     path = REPO / "results" / "lidar_strips_bench.json"

@@ -15,9 +15,6 @@ import os
 
 import numba
 import numpy as np
-from scipy.sparse import coo_matrix
-from scipy.sparse.csgraph import connected_components
-from scipy.spatial import cKDTree
 
 from aerotri.core.errors import ResourceError
 
@@ -122,32 +119,142 @@ class MinimaSegments:
     dz: np.ndarray  # height of ub above ua (m)
 
 
+@numba.njit(cache=True)
+def _pairs_within(mx, my, mcell, ncols, nrows, reach_cells, r2):
+    """Pairs (a, b), a < b, of cell minima (one per cell, sorted by cell ``mcell``) whose squared
+    horizontal distance is at most ``r2``; only cells within ``reach_cells`` rows/columns can hold
+    such a pair. The half-window (later cells) gives each pair once, with a < b."""
+    m = len(mx)
+    at = np.full(nrows * ncols, -1, np.int64)
+    for k in range(m):
+        at[mcell[k]] = k
+    count = 0
+    for pass_ in range(2):
+        if pass_ == 1:
+            a_out = np.empty(count, np.int64)
+            b_out = np.empty(count, np.int64)
+            count = 0
+        for a in range(m):
+            ci = mcell[a] // ncols
+            cj = mcell[a] - ci * ncols
+            for di in range(0, reach_cells + 1):
+                ii = ci + di
+                if ii >= nrows:
+                    break
+                j_lo = cj + 1 if di == 0 else max(cj - reach_cells, 0)
+                j_hi = min(cj + reach_cells, ncols - 1)
+                for jj in range(j_lo, j_hi + 1):
+                    b = at[ii * ncols + jj]
+                    if b < 0:
+                        continue
+                    dx = mx[a] - mx[b]
+                    dy = my[a] - my[b]
+                    if dx * dx + dy * dy <= r2:
+                        if pass_ == 1:
+                            a_out[count] = a
+                            b_out[count] = b
+                        count += 1
+    return a_out, b_out
+
+
+@numba.njit(cache=True)
+def _link_pairs(mx, my, mz, a, b, step_m, slope):
+    """Height of b above a per pair, and whether they link (``|dz| <= step_m + slope * d``)."""
+    dz = np.empty(len(a))
+    linked = np.empty(len(a), np.bool_)
+    for e in range(len(a)):
+        d = np.hypot(mx[a[e]] - mx[b[e]], my[a[e]] - my[b[e]])
+        dz[e] = mz[b[e]] - mz[a[e]]
+        linked[e] = np.abs(dz[e]) <= step_m + slope * d
+    return dz, linked
+
+
+@numba.njit(cache=True)
+def _find(parent, k):
+    root = k
+    while parent[root] != root:
+        root = parent[root]
+    while parent[k] != root:       # path compression
+        nxt = parent[k]
+        parent[k] = root
+        k = nxt
+    return root
+
+
+@numba.njit(cache=True)
+def _components(m, a, b):
+    """Connected components of the undirected graph (m nodes, edges a-b) by union-find, labelled
+    0, 1, ... in the order of each component's lowest node (the labels of scipy's
+    ``connected_components``)."""
+    parent = np.arange(m)
+    for e in range(len(a)):
+        ra, rb = _find(parent, a[e]), _find(parent, b[e])
+        if ra != rb:
+            if ra < rb:
+                parent[rb] = ra
+            else:
+                parent[ra] = rb
+    label = np.empty(m, np.int64)
+    of_root = np.full(m, -1, np.int64)
+    n = 0
+    for k in range(m):
+        r = _find(parent, k)
+        if of_root[r] < 0:
+            of_root[r] = n
+            n += 1
+        label[k] = of_root[r]
+    return n, label
+
+
 def segment_cell_minima(x, y, z, cell_m: float, step_m: float, slope: float) -> MinimaSegments | None:
-    """The cell minima linked into segments; None when no two minima are within 2.5 cells."""
+    """The cell minima linked into segments; None when no two minima are within 2.5 cells.
+
+    Neighbour pairs come from the grid itself (one minimum per cell, so two within 2.5 cells lie at
+    most 3 rows/columns apart), the same pairs as a KD-tree's ``query_pairs`` without building one."""
     cid, nrows, ncols, _, _ = cell_ids(x, y, cell_m)
     lowest = lowest_per_cell(cid, z)
     mx, my, mz = x[lowest], y[lowest], z[lowest]
-    pairs = cKDTree(np.column_stack([mx, my])).query_pairs(2.5 * cell_m, output_type="ndarray")
-    if len(pairs) == 0:
+    radius = 2.5 * cell_m
+    a, b = _pairs_within(np.asarray(mx, float), np.asarray(my, float), cid[lowest], ncols, nrows,
+                         int(np.ceil(radius / cell_m)), radius * radius)
+    if len(a) == 0:
         return None
-    a, b = pairs[:, 0], pairs[:, 1]
-    d = np.hypot(mx[a] - mx[b], my[a] - my[b])
-    dz = mz[b] - mz[a]
-    linked = np.abs(dz) <= step_m + slope * d
+    dz, linked = _link_pairs(np.asarray(mx, float), np.asarray(my, float), np.asarray(mz, float), a, b,
+                             float(step_m), float(slope))
     m = len(mx)
-    graph = coo_matrix((np.ones(int(linked.sum())), (a[linked], b[linked])), shape=(m, m))
-    ncomp, label = connected_components(graph, directed=False)
+    ncomp, label = _components(m, a[linked], b[linked])
     size = np.bincount(label, minlength=ncomp)
     ua, ub, dzu = a[~linked], b[~linked], dz[~linked]
     cross = label[ua] != label[ub]
     return MinimaSegments(cid, nrows, ncols, lowest, label, size, ua[cross], ub[cross], dzu[cross])
 
 
+@numba.njit(cache=True)
+def _occupied_cells(x, y, cell_m):
+    """Number of ``cell_m`` cells (anchored at the minima, as ``cell_ids``) holding points."""
+    x0, y0 = np.min(x), np.min(y)
+    ncols = int(np.floor((np.max(x) - x0) / cell_m)) + 1
+    nrows = int(np.floor((np.max(y) - y0) / cell_m)) + 1
+    seen = np.zeros(nrows * ncols, np.bool_)
+    n = 0
+    for k in range(len(x)):
+        c = int(np.floor((y[k] - y0) / cell_m)) * ncols + int(np.floor((x[k] - x0) / cell_m))
+        if not seen[c]:
+            seen[c] = True
+            n += 1
+    return n, nrows, ncols
+
+
 def mean_spacing_m(x, y, cell_m: float = 10.0) -> float:
     """Mean point spacing sqrt(area/n), area = occupied 10 m cells (ignores empty corners of a tile)."""
-    cid, nrows, ncols, _, _ = cell_ids(x, y, cell_m)
-    area = np.count_nonzero(np.bincount(cid, minlength=nrows * ncols)) * cell_m * cell_m
-    return float(np.sqrt(area / max(len(x), 1)))
+    x, y = np.asarray(x, float), np.asarray(y, float)
+    # the grid's size first (as cell_ids checks it), then one pass marking the occupied cells
+    nrows = int(np.floor((np.max(y) - np.min(y)) / cell_m)) + 1
+    ncols = int(np.floor((np.max(x) - np.min(x)) / cell_m)) + 1
+    check_grid(nrows, ncols, cell_m, GRID_BYTES_PER_CELL, "the points' extent",
+               hint="are strips far apart (different zones or CRSs) in one cloud?")
+    occupied = _occupied_cells(x, y, float(cell_m))[0]
+    return float(np.sqrt(occupied * cell_m * cell_m / max(len(x), 1)))
 
 
 @numba.njit(cache=True)

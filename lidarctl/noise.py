@@ -59,13 +59,32 @@ def _voxel_key(vi, vj, vk, nj, nk):
     return out
 
 
+# Voxel grids up to this many cells (64 MB of int32 counts) are counted densely (a 3x3x3 box sum
+# over an array); larger ones (a stray point far above the scene) go through the sorted occupied voxels.
+DENSE_VOXELS = 1 << 24
+
+
 def isolated_points(x, y, z, voxel_m: float, min_neighbours: int = 1) -> np.ndarray:
     """Boolean mask: fewer than ``min_neighbours`` other points in the 3x3x3 voxel neighbourhood."""
     vi = grid._floor_div(np.asarray(x, float), float(x.min()) - voxel_m, float(voxel_m))
     vj = grid._floor_div(np.asarray(y, float), float(y.min()) - voxel_m, float(voxel_m))
     vk = grid._floor_div(np.asarray(z, float), float(z.min()) - voxel_m, float(voxel_m))
-    nj, nk = vj.max() + 2, vk.max() + 2
+    # Indices start at 1 (0 for a point at a minimum when the division rounds down) and end 2 below
+    # the sizes: the +-1 neighbours never reach a point of another row or column.
+    ni, nj, nk = vi.max() + 2, vj.max() + 2, vk.max() + 2
     key = _voxel_key(vi, vj, vk, nj, nk)
+    if (ni + 2) * (nj + 2) * (nk + 2) <= DENSE_VOXELS:
+        # One more voxel on every side, so that every point's voxel gets the full box sum.
+        dense = _voxel_key(vi + 1, vj + 1, vk + 1, nj + 2, nk + 2)
+        total = np.bincount(dense, minlength=(ni + 2) * (nj + 2) * (nk + 2)).astype(np.int32)
+        total = total.reshape(ni + 2, nj + 2, nk + 2)
+        for axis in range(3):       # separable 3x3x3 box sum
+            lo, mid, hi = [slice(None)] * 3, [slice(None)] * 3, [slice(None)] * 3
+            lo[axis], mid[axis], hi[axis] = slice(0, -2), slice(1, -1), slice(2, None)
+            box = total.copy()
+            box[tuple(mid)] += total[tuple(lo)] + total[tuple(hi)]
+            total = box
+        return (total.ravel()[dense] - 1) < min_neighbours
     ukeys, inverse, counts = np.unique(key, return_inverse=True, return_counts=True)
     total = np.zeros(len(ukeys), np.int64)
     for di in (-1, 0, 1):

@@ -31,25 +31,54 @@ def cell_extreme(flat: np.ndarray, values, ncells: int, how: str = "min") -> np.
     return _cell_extreme(np.asarray(flat, np.int64), np.asarray(values, float), ncells, 1.0 if how == "min" else -1.0)
 
 
+@numba.njit(cache=True)
+def _cell_of(x, y, cell_m, x0, y0, nrows, ncols):
+    """Flat cell of a point, -1 off the grid (or NaN)."""
+    jf = np.floor((x - x0) / cell_m)
+    i_f = np.floor((y - y0) / cell_m)
+    if not (jf >= 0 and jf < ncols and i_f >= 0 and i_f < nrows):
+        return -1
+    return int(i_f) * ncols + int(jf)
+
+
+@numba.njit(cache=True)
+def _cell_extreme_xy(x, y, v, cell_m, x0, y0, nrows, ncols, sign):
+    out = np.full(nrows * ncols, np.nan)
+    for k in range(len(x)):
+        c = _cell_of(x[k], y[k], cell_m, x0, y0, nrows, ncols)
+        if c >= 0 and (np.isnan(out[c]) or sign * v[k] < sign * out[c]):
+            out[c] = v[k]
+    return out
+
+
+@numba.njit(cache=True)
+def _cell_sums(x, y, v, cell_m, x0, y0, nrows, ncols):
+    """Per-cell sum (in point order, as np.bincount adds) and count of ``v``."""
+    s = np.zeros(nrows * ncols)
+    n = np.zeros(nrows * ncols)
+    for k in range(len(x)):
+        c = _cell_of(x[k], y[k], cell_m, x0, y0, nrows, ncols)
+        if c >= 0:
+            s[c] += v[k]
+            n[c] += 1.0
+    return s, n
+
+
 def reduce_grid(x, y, values, cell_m, x0, y0, nrows, ncols, how: str = "min") -> np.ndarray:
     """Per-cell min / max / mean of ``values``; NaN where no point falls. A grid larger than the
     machine's RAM is a ResourceError before anything is allocated."""
     check_grid(nrows, ncols, cell_m, GRID_BYTES_PER_CELL, "the points' extent",
                hint="are strips far apart (different zones or CRSs) in one cloud?")
-    j = np.floor((x - x0) / cell_m).astype(np.int64)
-    i = np.floor((y - y0) / cell_m).astype(np.int64)
-    ok = (i >= 0) & (i < nrows) & (j >= 0) & (j < ncols)
-    flat = i[ok] * ncols + j[ok]
-    v = np.asarray(values, float)[ok]
-    if how in ("min", "max"):
-        out = _cell_extreme(flat, v, nrows * ncols, 1.0 if how == "min" else -1.0)
-    elif how == "mean":
-        s = np.bincount(flat, v, minlength=nrows * ncols)
-        n = np.bincount(flat, minlength=nrows * ncols)
+    if how not in ("min", "max", "mean"):
+        raise ValueError(how)
+    x, y, v = np.asarray(x, float), np.asarray(y, float), np.asarray(values, float)
+    if how == "mean":
+        s, n = _cell_sums(x, y, v, float(cell_m), float(x0), float(y0), int(nrows), int(ncols))
         with np.errstate(invalid="ignore"):
             out = s / n
     else:
-        raise ValueError(how)
+        out = _cell_extreme_xy(x, y, v, float(cell_m), float(x0), float(y0), int(nrows), int(ncols),
+                               1.0 if how == "min" else -1.0)
     return out.reshape(nrows, ncols)
 
 

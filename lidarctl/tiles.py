@@ -19,9 +19,9 @@ atomically (all outputs or none).
 Three passes, memory bounded by the chunk size and the tile size, never by the file or block size:
 
 1. ``split_into_tiles``: stream the input in chunks (LAS 1.2-1.4, LAZ), validate every chunk as
-   ``io.read_cloud`` does, and append each tile's points (core + buffer, all point record fields,
-   file order) to a temporary LAS file ``tile_R_C.las`` plus their indices in the input file
-   (``tile_R_C.index``, int64).
+   ``io.read_cloud`` does, and append each tile's points (core + buffer, file order; the fields the
+   classifier reads, ``TILE_DTYPE``: 28 bytes a point, raw, no LAS writer) to a temporary file
+   ``tile_R_C.pts`` plus their indices in the input file (``tile_R_C.index``, int64).
 2. ``classify_tile`` (one executor task per tile, see ``aerotri.core.executor``): read the tile file,
    run ``classify.classify_points`` and write the classes of the core points with their input
    indices (``tile_R_C.classes.npy``, ``tile_R_C.core.npy``). Returns small statistics.
@@ -60,6 +60,7 @@ import time
 from pathlib import Path
 
 import laspy
+import numba
 import numpy as np
 
 from aerotri.geom import las
@@ -125,32 +126,13 @@ class TileGrid:
         tile_id = row * ncols + col. A point near a core edge also lies in the buffers of the 1..3
         neighbouring tiles (``buffer_m <= tile_m``, so never further than the next tile).
         """
-        x = np.asarray(x, float)
-        y = np.asarray(y, float)
-        row, col = self.core_rc(x, y)
-        fx = x - (self.x0_m + col * self.tile_m)       # offset inside the core tile (m)
-        fy = y - (self.y0_m + row * self.tile_m)
-        b, t = self.buffer_m, self.tile_m
-        near_x = {-1: (fx < b) & (col > 0), 0: None, 1: (fx >= t - b) & (col < self.ncols - 1)}
-        near_y = {-1: (fy < b) & (row > 0), 0: None, 1: (fy >= t - b) & (row < self.nrows - 1)}
-        ids, pos = [], []
-        for dr in (-1, 0, 1):
-            for dc in (-1, 0, 1):
-                mx, my = near_x[dc], near_y[dr]
-                if mx is None and my is None:
-                    sel = np.arange(len(x))
-                elif mx is None:
-                    sel = np.flatnonzero(my)
-                elif my is None:
-                    sel = np.flatnonzero(mx)
-                else:
-                    sel = np.flatnonzero(mx & my)
-                ids.append((row[sel] + dr) * self.ncols + col[sel] + dc)
-                pos.append(sel)
-        # One int64 sort key (tile, position) sorts faster than a lexsort of two keys.
-        key = np.concatenate(ids) * len(x) + np.concatenate(pos)
-        key.sort()
-        return np.divmod(key, max(len(x), 1))
+        return self.memberships(x, y)[:2]
+
+    def memberships(self, x: np.ndarray, y: np.ndarray):
+        """``assign`` and whether each tile holds the core of any of these points: (tile_id, point_pos,
+        has_core), the last a bool per tile id."""
+        return _assign_points(np.asarray(x, float), np.asarray(y, float), float(self.x0_m), float(self.y0_m),
+                              float(self.tile_m), float(self.buffer_m), self.nrows, self.ncols)
 
 
 def plan_tiles(header: laspy.LasHeader, tile_size_m: float | None = None, buffer_m: float | None = None,
@@ -201,31 +183,93 @@ class TileTask:
 
     row: int
     col: int
-    las_path: str
+    points_path: str        # TILE_DTYPE records (``split_into_tiles``)
     index_path: str
     classes_path: str
     core_index_path: str
     grid: TileGrid
     params: object          # classify.ClassifyParams
     numba_threads: int = 0  # threads of numba's parallel loops in this task (0: numba's default)
-    units: LengthUnits = METRE  # the input's units: tile files hold its records unchanged
+    units: LengthUnits = METRE  # the input's units: tile files hold coordinates in them
+
+
+# What a tile file holds per point: the fields the classifier reads, coordinates in the input's
+# units as the first file's scales and offsets give them (see ``_tile_points``).
+TILE_DTYPE = np.dtype([("x", "<f8"), ("y", "<f8"), ("z", "<f8"), ("return_number", "u1"),
+                       ("number_of_returns", "u1"), ("intensity", "<u2")])
 
 
 def _tile_stem(work_dir: Path, row: int, col: int) -> Path:
     return work_dir / f"tile_{row:04d}_{col:04d}"
 
 
-def _tile_header(header: laspy.LasHeader) -> laspy.LasHeader:
-    """Header of a temporary tile file: input version, point format (with extra bytes), scales and
-    offsets (so the integer coordinates are copied unchanged); no VLRs needed."""
-    h = laspy.LasHeader(version=header.version, point_format=header.point_format)
-    h.scales, h.offsets = header.scales, header.offsets
-    return h
+def _tile_points(chunk, scales, offsets) -> np.ndarray:
+    """The classifier's fields of a chunk as ``TILE_DTYPE`` records. Coordinates are those of the
+    integer records in ``scales`` / ``offsets`` (the first file's): a strip with other offsets is
+    re-expressed on that integer grid as a merged file would hold it (laspy's rounding), so the
+    classes do not depend on which strip a point came from."""
+    out = np.empty(len(chunk), TILE_DTYPE)
+    same = np.array_equal(chunk.scales, scales) and np.array_equal(chunk.offsets, offsets)
+    for k, name in enumerate(("x", "y", "z")):
+        v = np.asarray(getattr(chunk, name))
+        if not same:
+            v = np.round((v - offsets[k]) / scales[k]).astype(np.int32) * scales[k] + offsets[k]
+        out[name] = v
+    for name in ("return_number", "number_of_returns", "intensity"):
+        out[name] = np.asarray(chunk[name])
+    return out
+
+
+@numba.njit(cache=True)
+def _assign_points(x, y, x0, y0, tile_m, buffer_m, nrows, ncols):
+    """``TileGrid.memberships`` in one pass: counting sort of the memberships by tile, positions ascending."""
+    n = len(x)
+    row = np.empty(n, np.int64)
+    col = np.empty(n, np.int64)
+    near = np.empty((n, 4), np.int8)   # dc- dc+ dr- dr+ flags
+    count = np.zeros(nrows * ncols + 1, np.int64)
+    own = np.zeros(nrows * ncols, np.bool_)
+    for k in range(n):
+        c = min(max(np.floor((x[k] - x0) / tile_m), 0.0), ncols - 1.0)
+        r = min(max(np.floor((y[k] - y0) / tile_m), 0.0), nrows - 1.0)
+        ci, ri = int(c), int(r)
+        row[k], col[k] = ri, ci
+        own[ri * ncols + ci] = True
+        fx = x[k] - (x0 + ci * tile_m)
+        fy = y[k] - (y0 + ri * tile_m)
+        near[k, 0] = fx < buffer_m and ci > 0
+        near[k, 1] = fx >= tile_m - buffer_m and ci < ncols - 1
+        near[k, 2] = fy < buffer_m and ri > 0
+        near[k, 3] = fy >= tile_m - buffer_m and ri < nrows - 1
+        for dr in range(-1, 2):
+            if (dr == -1 and not near[k, 2]) or (dr == 1 and not near[k, 3]):
+                continue
+            for dc in range(-1, 2):
+                if (dc == -1 and not near[k, 0]) or (dc == 1 and not near[k, 1]):
+                    continue
+                count[(ri + dr) * ncols + ci + dc + 1] += 1
+    start = np.cumsum(count)
+    ids = np.empty(start[-1], np.int64)
+    pos = np.empty(start[-1], np.int64)
+    fill = start[:-1].copy()
+    for k in range(n):
+        for dr in range(-1, 2):
+            if (dr == -1 and not near[k, 2]) or (dr == 1 and not near[k, 3]):
+                continue
+            for dc in range(-1, 2):
+                if (dc == -1 and not near[k, 0]) or (dc == 1 and not near[k, 1]):
+                    continue
+                t = (row[k] + dr) * ncols + col[k] + dc
+                ids[fill[t]] = t
+                pos[fill[t]] = k
+                fill[t] += 1
+    return ids, pos, own
 
 
 def split_into_tiles(in_paths, grid: TileGrid, work_dir, params, chunk_points: int = io.CHUNK_POINTS,
                      records_paths=None, units: LengthUnits = METRE):
-    """Pass 1: stream the input file(s) and append each tile's points to its LAS file; list of TileTask.
+    """Pass 1: stream the input file(s) and append each tile's points to its points file (``TILE_DTYPE``);
+    list of TileTask.
 
     ``in_paths``: one LAS/LAZ file or a list of strips (one point format, see ``merge.check_strips``);
     a tile gathers its points from all of them. Point indices run over the strips one after the other
@@ -234,17 +278,14 @@ def split_into_tiles(in_paths, grid: TileGrid, work_dir, params, chunk_points: i
     ``las.iter_chunks``). Tiles without core points get no task. With ``records_paths`` (one per
     file) the raw point records are also copied there in file order (uncompressed), so that writing
     the outputs needs no second decompression of a LAZ input. ``units``: the inputs' linear units
-    (points are assigned to tiles in metres; the records are copied unchanged, re-expressed in the
-    first file's scales and offsets in the tile files).
+    (points are assigned to tiles in metres; the tile files hold coordinates in these units, on the
+    first file's scales and offsets, ``_tile_points``).
     """
-    from lidarctl.merge import in_scales_of
-
     in_paths = [Path(in_paths)] if isinstance(in_paths, (str, Path)) else [Path(q) for q in in_paths]
     work_dir = Path(work_dir)
     headers = [las.read_header(q) for q in in_paths]
-    tile_header = _tile_header(headers[0])
+    scales, offsets = np.asarray(headers[0].scales, float), np.asarray(headers[0].offsets, float)
     has_core = np.zeros(grid.n_tiles, bool)
-    started: set[int] = set()
     offset = 0
     with progress(sum(h.point_count for h in headers), "tiles: split", "pt", unit_scale=True) as bar:
         for k, (in_path, header) in enumerate(zip(in_paths, headers)):
@@ -256,27 +297,22 @@ def split_into_tiles(in_paths, grid: TileGrid, work_dir, params, chunk_points: i
                     x, y = np.asarray(chunk.x), np.asarray(chunk.y)
                     io.validate_xyz(in_path, x, y, np.asarray(chunk.z), first, units)
                     x, y = units.xy_to_m(x), units.xy_to_m(y)
-                    row, col = grid.core_rc(x, y)
-                    has_core[np.unique(row * grid.ncols + col)] = True
-                    ids, pos = grid.assign(x, y)
-                    del x, y, row, col
-                    chunk = in_scales_of(chunk, tile_header)
+                    ids, pos, own = grid.memberships(x, y)
+                    has_core |= own
+                    del x, y
+                    points = _tile_points(chunk, scales, offsets)
+                    del chunk
+                    # Rows of bytes: numpy gathers them ~10x faster than structured records.
+                    rows = points.view(np.uint8).reshape(len(points), TILE_DTYPE.itemsize)
                     bounds = np.flatnonzero(np.diff(ids)) + 1
                     for sel_ids, sel_pos in zip(np.split(ids, bounds), np.split(pos, bounds)):
                         tid = int(sel_ids[0])
                         stem = _tile_stem(work_dir, tid // grid.ncols, tid % grid.ncols)
-                        las_path = stem.with_suffix(".las")
-                        part = chunk[sel_pos]
-                        if tid in started:
-                            with laspy.open(las_path, mode="a") as appender:
-                                appender.append_points(part)
-                        else:
-                            with laspy.open(las_path, mode="w", header=tile_header) as writer:
-                                writer.write_points(part)
-                            started.add(tid)
+                        with open(stem.with_suffix(".pts"), "ab") as fh:
+                            np.take(rows, sel_pos, axis=0).tofile(fh)
                         with open(stem.with_suffix(".index"), "ab") as fh:
-                            (sel_pos.astype(np.int64) + (offset + first)).tofile(fh)
-                    bar.update(len(chunk))
+                            (sel_pos + (offset + first)).tofile(fh)
+                    bar.update(len(points))
             finally:
                 if records is not None:
                     records.close()
@@ -285,7 +321,7 @@ def split_into_tiles(in_paths, grid: TileGrid, work_dir, params, chunk_points: i
     for tid in np.flatnonzero(has_core):
         r, c = divmod(int(tid), grid.ncols)
         stem = _tile_stem(work_dir, r, c)
-        tasks.append(TileTask(r, c, str(stem.with_suffix(".las")), str(stem.with_suffix(".index")),
+        tasks.append(TileTask(r, c, str(stem.with_suffix(".pts")), str(stem.with_suffix(".index")),
                               str(stem) + ".classes.npy", str(stem) + ".core.npy", grid, params,
                               units=units))
     return tasks
@@ -328,14 +364,15 @@ def classify_tile(task: TileTask) -> TileResult:
     from lidarctl import classify as cl
 
     t0 = time.perf_counter()
-    rec = io.read_records(task.las_path)
+    rec = np.fromfile(task.points_path, dtype=TILE_DTYPE)
     index = np.fromfile(task.index_path, dtype=np.int64)
     if len(index) != len(rec):
-        raise RuntimeError(f"{task.las_path}: {len(rec)} points but {len(index)} indices")
+        raise RuntimeError(f"{task.points_path}: {len(rec)} points but {len(index)} indices")
     u = task.units
-    x, y, z = u.xy_to_m(np.asarray(rec.x)), u.xy_to_m(np.asarray(rec.y)), u.z_to_m(np.asarray(rec.z))
-    rn, nr = io.sanitize_returns(np.asarray(rec.return_number), np.asarray(rec.number_of_returns))
-    intensity = np.asarray(rec.intensity)
+    x, y, z = (np.ascontiguousarray(rec[f]) for f in ("x", "y", "z"))
+    x, y, z = u.xy_to_m(x), u.xy_to_m(y), u.z_to_m(z)
+    rn, nr = io.sanitize_returns(rec["return_number"], rec["number_of_returns"])
+    intensity = np.ascontiguousarray(rec["intensity"])
     del rec
     row, col = task.grid.core_rc(x, y)
     core = (row == task.row) & (col == task.col)

@@ -66,3 +66,26 @@ def test_locate_in_tin_matches_scipy_and_interpolates_planes_exactly():
     ok = s >= 0
     np.testing.assert_allclose(zq[ok], 5.0 + 0.1 * qx[ok] - 0.2 * qy[ok], atol=1e-9)
     assert np.all(np.isnan(zq[~ok]))
+
+
+def test_isolated_points_dense_and_sparse_voxel_counts_match_brute_force(monkeypatch):
+    rng = np.random.default_rng(4)
+    # clumps and loners; points exactly at the minima: at this x0 and voxel the division rounds the
+    # minimum's voxel index down to 0 (the box must still reach the voxel above it)
+    x0 = 269.7867137638703
+    x = x0 + np.r_[rng.uniform(0, 40, 300), 0.0, 2.0, 40.0, rng.uniform(0, 40, 5)]
+    y = np.r_[rng.uniform(0, 40, 300), 0.0, 0.0, 0.0, rng.uniform(0, 40, 5)]
+    z = np.r_[rng.uniform(0, 10, 300), 0.0, 0.0, 10.0, rng.uniform(200, 300, 5)]
+    voxel = 2.7
+    v = [np.floor((a - (a.min() - voxel)) / voxel) for a in (x, y, z)]
+    near = np.all([np.abs(a[:, None] - a[None, :]) <= 1 for a in v], axis=0)
+    assert v[0][300] == 0 and v[0][301] == 1
+    for k in (1, 2):
+        want = near.sum(axis=1) - 1 < k
+        assert 0 < want.sum() < len(x)
+        dense = noise.isolated_points(x, y, z, voxel, k)
+        with monkeypatch.context() as m:
+            m.setattr(noise, "DENSE_VOXELS", 0)
+            sparse = noise.isolated_points(x, y, z, voxel, k)
+        np.testing.assert_array_equal(dense, want)
+        np.testing.assert_array_equal(sparse, want)

@@ -1,9 +1,11 @@
-"""lidarctl.raster_ops: the numba bilinear sampling gives scipy's map_coordinates(order=1, mode="nearest")."""
+"""lidarctl.raster_ops: the numba bilinear sampling gives scipy's map_coordinates(order=1, mode="nearest"); per-cell
+reductions equal bincount and per-cell extremes."""
 
 import numpy as np
 import pytest
 from scipy import ndimage
 
+from lidarctl import raster_ops
 from lidarctl.raster_ops import sample_bilinear
 
 
@@ -21,3 +23,25 @@ def test_bilinear_sampling_equals_scipy_inside_and_beyond_the_edges(shape):
     i, j = shape[0] - 1, shape[1] - 1
     assert sample_bilinear(a, [x0 + (j + 0.5) * cell_m], [y0 + (i + 0.5) * cell_m], cell_m, x0, y0)[0] == \
         pytest.approx(a[i, j], abs=1e-12)
+
+
+def test_reduce_grid_equals_bincount_and_per_cell_extremes():
+    rng = np.random.default_rng(2)
+    x, y = rng.uniform(-5, 55, 20_000), rng.uniform(-5, 35, 20_000)   # some points off the grid
+    v = rng.normal(10, 3, 20_000)
+    hole = (x > 20) & (x < 26) & (y > 10) & (y < 16)       # empty cells: NaN
+    x, y, v = x[~hole], y[~hole], v[~hole]
+    x[7] = np.nan
+    c, x0, y0, nrows, ncols = 1.5, 0.0, 0.0, 20, 30
+    j, i = np.floor((x - x0) / c), np.floor((y - y0) / c)
+    ok = (i >= 0) & (i < nrows) & (j >= 0) & (j < ncols)
+    flat = (i[ok] * ncols + j[ok]).astype(int)
+    n = np.bincount(flat, minlength=nrows * ncols)
+    want_mean = np.bincount(flat, v[ok], minlength=nrows * ncols) / np.where(n > 0, n, np.nan)
+    np.testing.assert_array_equal(raster_ops.reduce_grid(x, y, v, c, x0, y0, nrows, ncols, "mean").ravel(), want_mean)
+    want_min, want_max = np.full(nrows * ncols, np.nan), np.full(nrows * ncols, np.nan)
+    np.fmin.at(want_min, flat, v[ok])
+    np.fmax.at(want_max, flat, v[ok])
+    np.testing.assert_array_equal(raster_ops.reduce_grid(x, y, v, c, x0, y0, nrows, ncols, "min").ravel(), want_min)
+    np.testing.assert_array_equal(raster_ops.reduce_grid(x, y, v, c, x0, y0, nrows, ncols, "max").ravel(), want_max)
+    assert np.isnan(want_mean).any() and np.isfinite(want_mean).any()
