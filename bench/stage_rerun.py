@@ -8,12 +8,13 @@ wall and CPU seconds, peak RSS, and whether the outputs are the same:
 - ``dom_check`` (``ortho.check.run_check``: NCC patches of the DOM against the true orthophoto, by 2048 px
   blocks, plus the seam misalignment between neighbouring frame orthos): patches and RMS then and now;
 - ``rasters`` (``lidarctl.rasters.write_rasters`` on the classified strips): every raster's cells compared;
-- ``corners`` (``lidarctl.corners.corner_control``): corners.csv compared.
+- ``corners`` (``lidarctl.corners.corner_control``): corners.csv compared;
+- ``classify`` (``lidarctl.tiles.classify_files`` on the strips): points whose class differs from the run's.
 
 The chain total with the stage re-measured is the run's other stages' wall time plus the new stage (plus any
 stage re-measured earlier and recorded in the JSON): a composite of runs, labelled so.
 
-Usage: python bench/stage_rerun.py [--stage dom_check|rasters|corners|all] [--size full|quarter|eighth] [--run DIR]
+Usage: python bench/stage_rerun.py [--stage classify|dom_check|rasters|corners|all] [--size full|quarter|eighth] [--run DIR]
        [--reference TIF]
 """
 
@@ -84,7 +85,24 @@ def _corners(run: Path, reference: Path, ndsm: Path, tmp: Path) -> dict:
                                   corners_csv_same_as_the_run=same))
 
 
-STAGES = {"dom_check": _dom_check, "rasters": _rasters, "corners": _corners}
+def _classify(run: Path, reference: Path, ndsm: Path, tmp: Path) -> dict:
+    import laspy
+    import numpy as np
+
+    from lidarctl.tiles import classify_files
+
+    project, options = _options(run)
+    st = classify_files(project.lidar_strips(), tmp / "classified", crs=project.crs, params=options.classify,
+                        suffix=".laz")
+    differ = 0
+    for ours, theirs in zip(sorted((tmp / "classified").glob("*.laz")), project.classified_strips()):
+        with laspy.open(ours) as a, laspy.open(theirs) as b:
+            for ca, cb in zip(a.chunk_iterator(5_000_000), b.chunk_iterator(5_000_000)):
+                differ += int(np.count_nonzero(np.asarray(ca.classification) != np.asarray(cb.classification)))
+    return dict(then={}, now=dict(points=st.n_points, classes_differing_from_the_run=differ))
+
+
+STAGES = {"classify": _classify, "dom_check": _dom_check, "rasters": _rasters, "corners": _corners}
 
 
 def main(argv=None) -> int:
@@ -92,7 +110,7 @@ def main(argv=None) -> int:
     ap.add_argument("--size", choices=list(SUFFIX), default="full")
     ap.add_argument("--run", type=Path, help="the chain's run folder (default: $AEROTRI_BENCH_BLOCKS/scale[_SIZE]_run)")
     ap.add_argument("--reference", type=Path, help="true orthophoto (default: the block's truth/ortho.tif)")
-    ap.add_argument("--stage", choices=(*STAGES, "all"), default="all", help="default: all three, one after the other")
+    ap.add_argument("--stage", choices=(*STAGES, "all"), default="all", help="default: all of them, one after the other")
     ap.add_argument("--out", type=Path, default=ROOT / "results" / "stage_rerun.json")
     a = ap.parse_args(argv)
     run = a.run or BLOCKS / f"scale{SUFFIX[a.size]}_run"
