@@ -27,7 +27,7 @@ from aerotri.match import matching as M
 from aerotri.match.pairs import BlockPlan, Pair, candidate_pairs, plan_block
 from aerotri.match.report import plot_block, track_length_histogram
 from aerotri.match.settings import MatchSettings
-from aerotri.match.tracks import build_tracks, coincident
+from aerotri.match.tracks import build_tracks, coincident, complete_tracks
 from aerotri.match.weak import BlockStrength, ModelStrength, StripTies, analyse
 
 log = logging.getLogger(__name__)
@@ -220,7 +220,8 @@ class _Ties:
 
 def _ties(plan: BlockPlan | None, camera: FrameCamera, sparse: list, dense: dict, matches: dict,
           s: MatchSettings) -> _Ties:
-    track, image, xy, n_bad = _tracks(sparse, dense, matches)
+    complete_px = s.complete_px * 2.0 ** max(f.level for f in sparse) if s.complete_px > 0 else None
+    track, image, xy, n_bad = _tracks(sparse, dense, matches, complete_px, (camera.width, camera.height))
     strength = (analyse(plan, camera, track, image, xy, min_per_region=s.min_per_region,
                         min_strip_ties=s.min_strip_ties) if plan is not None else BlockStrength([], []))
     return _Ties(matches, track, image, xy, n_bad, strength)
@@ -337,11 +338,13 @@ def match_project(root, settings: MatchSettings | None = None, executor: Executo
     return report
 
 
-def _tracks(sparse, dense, matches):
+def _tracks(sparse, dense, matches, complete_px: float | None = None, size_px=None):
     """Tracks over the union of sparse and dense keypoints (dense ones that repeat a sparse keypoint
-    within 0.5 px are merged with it, so one image point never appears twice)."""
+    within 0.5 px are merged with it, so one image point never appears twice); with ``complete_px``
+    extended into the frames of verified pairs where they were missed (``complete_tracks``, tolerance in
+    full-resolution px)."""
     n_img = len(sparse)
-    xy_all, dense_map, sparse_map = [], {}, {}
+    xy_all, desc_all, rep_all, dense_map, sparse_map = [], [], [], {}, {}
     for i in range(n_img):
         xs = sparse[i].xy_px
         sparse_map[i] = coincident(xs)
@@ -355,8 +358,14 @@ def _tracks(sparse, dense, matches):
             idx[~same] = len(xs) + coincident(new)  # dense keypoints at one place are one node too
             dense_map[i] = idx
             xy_all.append(np.vstack([xs, new]))
+            if complete_px is not None:
+                desc_all.append(np.vstack([sparse[i].descriptors, dense[i].descriptors[~same]]))
+                rep_all.append(np.concatenate([sparse_map[i], len(xs) + coincident(new)]))
         else:
             xy_all.append(xs)
+            if complete_px is not None:
+                desc_all.append(sparse[i].descriptors)
+                rep_all.append(sparse_map[i])
     pm = []
     for (i, j), (kind, m) in matches.items():
         if len(m) == 0:
@@ -367,5 +376,9 @@ def _tracks(sparse, dense, matches):
             m = np.column_stack([sparse_map[i][m[:, 0]], sparse_map[j][m[:, 1]]])
         pm.append((i, j, m))
     track, image, kp, n_bad = build_tracks([len(x) for x in xy_all], pm)
+    if complete_px is not None:
+        track, image, kp, n_added = complete_tracks(track, image, kp, xy_all, desc_all, rep_all, pm, size_px,
+                                                    complete_px)
+        log.info(f"track completion: {n_added} observations added")
     xy = np.array([xy_all[i][k] for i, k in zip(image, kp)]).reshape(-1, 2)
     return track, image, xy, n_bad
