@@ -75,11 +75,27 @@ class MatchReport:
     terrain_height_m: float | None
     image_top_deg: float | None  # the flight plan's image top from the flight direction (degrees)
     seconds: float
+    # wall and CPU seconds (this process and its threads) of each phase: plan (frames, GNSS, pairs), features,
+    # matching, tracks (with completion and the model strength), densify, output (tie points, report, figure)
+    phase_seconds: dict[str, list[float]]
     feature_cache_hits: int
     match_cache_hits: int
 
     def to_dict(self) -> dict:
         return dataclasses.asdict(self)
+
+
+class _PhaseClock:
+    """Wall and CPU seconds of consecutive phases: ``lap(name)`` closes the phase that ends now."""
+
+    def __init__(self):
+        self.phases: dict[str, list[float]] = {}
+        self._wall, self._cpu = time.perf_counter(), time.process_time()
+
+    def lap(self, name: str) -> None:
+        wall, cpu = time.perf_counter(), time.process_time()
+        self.phases[name] = [round(wall - self._wall, 3), round(cpu - self._cpu, 3)]
+        self._wall, self._cpu = wall, cpu
 
 
 def _terrain_height(project: Project, s: MatchSettings) -> float:
@@ -281,6 +297,7 @@ def match_project(root, settings: MatchSettings | None = None, executor: Executo
     (default: local threads); the results are cached in ``work/features`` and ``work/matches``."""
     s = settings or MatchSettings()
     t0 = time.perf_counter()
+    clock = _PhaseClock()
     project = Project.open(root)
     crs = check_block_crs(project.crs, f"{project.config_path} [project] crs")
     camera = project_camera(project)
@@ -293,15 +310,20 @@ def match_project(root, settings: MatchSettings | None = None, executor: Executo
     mt = _Matcher(project, frames, camera, executor or local_executor())
     if plan is None:
         pairs = _retrieved_pairs(mt, s)
+    clock.lap("plan")
     sparse = mt.features(range(len(ids)), s.sparse, "features")
     sparse = [sparse[i] for i in range(len(ids))]
+    clock.lap("features")
     matches = {(pr.i, pr.j): ("sparse", m)
                for pr, m in zip(pairs, mt.match([(pr.i, pr.j) for pr in pairs], s.sparse, s.match, "matching"))}
+    clock.lap("matching")
     ties = _ties(plan, camera, sparse, {}, matches, s)
+    clock.lap("tracks")
     densified = Densified()
     if s.densify and plan is not None:
         ties, extra, densified = _densify(mt, plan, sparse, ties, s)
         pairs = pairs + extra
+    clock.lap("densify")
 
     ties_per_pair = [(i, j, len(m)) for (i, j), (_, m) in ties.matches.items()]
     components = _components(project, ids, ties_per_pair)
@@ -326,12 +348,14 @@ def match_project(root, settings: MatchSettings | None = None, executor: Executo
         densified=densified, models=strength.models, cross_strip=strength.cross_strip,
         terrain_height_m=plan.terrain_height_m if plan is not None else None,
         image_top_deg=plan.image_top_deg if plan is not None else None,
-        seconds=round(time.perf_counter() - t0, 2), feature_cache_hits=mt.feature_cache_hits,
+        seconds=0.0, phase_seconds=clock.phases, feature_cache_hits=mt.feature_cache_hits,
         match_cache_hits=mt.match_cache_hits,
     )
-    write_text_atomic(project.connectivity_path, json.dumps(report.to_dict(), indent=1) + "\n")
     if plan is not None:
         plot_block(at / "connectivity.png", plan, ties_per_pair, strength)
+    clock.lap("output")  # the report's own writing is left out of its numbers (milliseconds)
+    report.seconds = round(time.perf_counter() - t0, 2)
+    write_text_atomic(project.connectivity_path, json.dumps(report.to_dict(), indent=1) + "\n")
     log.info(f"{report.frames} frames, {report.pairs} pairs, {report.tracks} tracks, {report.observations} "
              f"observations, {report.components} component(s), {len(report.weak_models)} weak model(s) -> "
              f"{project.tiepoints_path}")
