@@ -88,9 +88,13 @@ def complete_tracks(track: np.ndarray, image: np.ndarray, node: np.ndarray, node
     n_img = len(node_xy)
     if len(track) == 0:
         return track, image, node, 0
-    n_tracks = int(track.max()) + 1
-    has = np.zeros(n_tracks * n_img, bool)
-    has[track * n_img + image] = True
+    # (track, frame) pairs present, as sorted keys: a dense table would grow with tracks x frames
+    seen = np.unique(track.astype(np.int64) * n_img + image)
+
+    def has(key: np.ndarray) -> np.ndarray:
+        pos = np.minimum(np.searchsorted(seen, key), len(seen) - 1)
+        return seen[pos] == key
+
     by_image = np.argsort(image, kind="stable")
     bounds = np.searchsorted(image[by_image], np.arange(n_img + 1))
     used = [np.zeros(len(x), bool) for x in node_xy]
@@ -110,7 +114,7 @@ def complete_tracks(track: np.ndarray, image: np.ndarray, node: np.ndarray, node
             d2_ok = np.quantile(np.sum((node_desc[a][m[:, 0]] - node_desc[b][m[:, 1]]) ** 2, axis=1), desc_quantile)
             resid = xb - cv2.perspectiveTransform(xa[None].astype(np.float64), Hab)[0]
             sel = by_image[bounds[a]:bounds[a + 1]]
-            sel = sel[~has[track[sel] * n_img + b]]
+            sel = sel[~has(track[sel].astype(np.int64) * n_img + b)]
             if len(sel) == 0:
                 continue
             pts = node_xy[a][node[sel]]
