@@ -13,6 +13,7 @@ into out/bench, never written): wall and CPU seconds of the process and of each 
 (``phase_seconds`` of at/connectivity.json), per frame and per pair; the fixed cost is what does not grow
 with the block: the process start (imports) and the plan and output phases. Kept in
 results/bench_match.json under ``per_frame`` (``--per-frame-only``: the rest of the file is kept).
+``--skip-dmc`` and a run without ``--per-frame`` keep those entries of the last run that made them.
 """
 
 from __future__ import annotations
@@ -270,6 +271,11 @@ def main():
         print("full-size DMC frame features:", json.dumps(res["dmc_frame_features"]))
     if args.per_frame:
         res["per_frame"] = per_frame(args.per_frame, out)
+    # what this run did not measure stays as the last run that did left it
+    old = json.loads(result.read_text()) if result.exists() else {}
+    for key in ("dmc_frame_features", "per_frame"):
+        if key not in res and key in old:
+            res[key] = old[key]
     (REPO / "results").mkdir(exist_ok=True)
     result.write_text(json.dumps(res, indent=1) + "\n")
 
