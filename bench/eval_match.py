@@ -2,7 +2,8 @@
 
     python bench/eval_match.py [--demo-project DIR] [--skip-real]
 
-Writes ``results/match.json``. The demo project is simulated into out/eval/match_demo unless given.
+Writes ``results/match.json`` (``--skip-real`` keeps the real blocks' entries of the last run that made them).
+The demo project is simulated into out/eval/match_demo unless given.
 Real blocks are set up as project folders under out/eval/ with the images linked, never copied.
 """
 
@@ -106,7 +107,10 @@ def main():
         results["brighton_beach"] = brighton()
         results["copr_kite"] = copr()
     (REPO / "results").mkdir(exist_ok=True)
-    (REPO / "results" / "match.json").write_text(json.dumps(results, indent=1) + "\n")
+    path = REPO / "results" / "match.json"
+    if args.skip_real and path.exists():
+        results = json.loads(path.read_text()) | results
+    path.write_text(json.dumps(results, indent=1) + "\n")
     for k, v in results.items():
         print(f"{k}: frames {v['frames']} pairs {v['pairs']} components {v['components']} tracks {v['tracks']} "
               f"observations {v['observations']} 3+ rays {100 * v['tracks_3plus_fraction']:.1f} %")

@@ -1,11 +1,19 @@
 """Benchmark ``aerotri match`` against pycolmap (extraction + exhaustive, and + spatial matching with the GNSS
 positions as pose priors) on the demo block, same session, same number of threads (2).
 
-    python bench/match.py [--demo-project DIR] [--skip-dmc]
+    python bench/match.py [--demo-project DIR] [--skip-dmc] [--per-frame BLOCK ...] [--per-frame-only]
 
 Prints pairs matched, wall times and their ratio, and the connectivity (connected components of the
 verified image graph) of both; then the feature-extraction time of one full-size DMC frame
 (13824 x 7680 px) rendered by the simulator. Writes results/bench_match.json.
+
+``--per-frame``: time per frame of ``aerotri match`` (a process of its own, fresh cache) on each block
+given (project folders, e.g. the 30- and 300-frame blocks of ``bench/scale.py``; their inputs are linked
+into out/bench, never written): wall and CPU seconds of the process and of each phase of the stage
+(``phase_seconds`` of at/connectivity.json), per frame and per pair; the fixed cost is what does not grow
+with the block: the process start (imports) and the plan and output phases. Kept in
+results/bench_match.json under ``per_frame`` (``--per-frame-only``: the rest of the file is kept).
+``--skip-dmc`` and a run without ``--per-frame`` keep those entries of the last run that made them.
 """
 
 from __future__ import annotations
@@ -159,13 +167,84 @@ def dmc_frame_extraction(out: Path) -> dict:
     return dict(image=str(img_path.name), size_px=[img.shape[1], img.shape[0]], read_s=round(t_read, 2), **res)
 
 
+PROJECT_INPUTS = ("project.toml", "camera.toml", "gnss.txt", "images")
+
+
+def _link_inputs(src: Path, dst: Path) -> None:
+    """Hard links of a project's inputs (copies across file systems); matching never writes them."""
+    def link(a, b):
+        try:
+            os.link(a, b)
+        except OSError:
+            shutil.copy2(a, b)
+
+    shutil.rmtree(dst, ignore_errors=True)
+    dst.mkdir(parents=True)
+    for name in PROJECT_INPUTS:
+        if (src / name).is_dir():
+            shutil.copytree(src / name, dst / name, copy_function=link)
+        elif (src / name).exists():
+            link(src / name, dst / name)
+
+
+def per_frame(blocks: list[Path], out: Path) -> dict:
+    """``aerotri match`` on each block in a fresh process and cache: seconds per frame, whole and by phase."""
+    import resource
+    import subprocess
+
+    rows = {}
+    for src in blocks:
+        run = out / f"per_frame_{src.name}"
+        _link_inputs(src, run)
+        load = os.getloadavg()
+        ru = resource.getrusage(resource.RUSAGE_CHILDREN)
+        t = time.perf_counter()
+        subprocess.run([str(Path(sys.executable).parent / "aerotri"), "match", str(run)], check=True)
+        wall = time.perf_counter() - t
+        ru2 = resource.getrusage(resource.RUSAGE_CHILDREN)
+        cpu = (ru2.ru_utime - ru.ru_utime) + (ru2.ru_stime - ru.ru_stime)
+        rep = json.loads((run / "at" / "connectivity.json").read_text())
+        n, pairs, ph = rep["frames"], rep["pairs"], rep["phase_seconds"]
+        stage_cpu = sum(c for _, c in ph.values())
+        fixed_wall = (wall - rep["seconds"]) + ph["plan"][0] + ph["output"][0]
+        fixed_cpu = (cpu - stage_cpu) + ph["plan"][1] + ph["output"][1]
+        rows[src.name] = dict(
+            frames=n, pairs=pairs, pairs_per_frame=round(pairs / n, 2), load_avg_before=[round(v, 2) for v in load],
+            load_avg_after=[round(v, 2) for v in os.getloadavg()], process_wall_s=round(wall, 2),
+            process_cpu_s=round(cpu, 2), stage_wall_s=rep["seconds"], phase_seconds=ph,
+            wall_s_per_frame=round(wall / n, 3), cpu_s_per_frame=round(cpu / n, 3),
+            stage_wall_s_per_frame=round(rep["seconds"] / n, 3),
+            fixed_wall_s=round(fixed_wall, 2), fixed_cpu_s=round(fixed_cpu, 2),
+            variable_wall_s_per_frame=round((wall - fixed_wall) / n, 3),
+            variable_cpu_s_per_frame=round((cpu - fixed_cpu) / n, 3),
+            features_cpu_s_per_frame=round(ph["features"][1] / n, 3),
+            matching_cpu_s_per_pair=round(ph["matching"][1] / max(pairs, 1), 3),
+            tracks_3plus_fraction=rep["tracks_3plus_fraction"], components=rep["components"],
+            weak_models=len(rep["weak_models"]))
+        r = rows[src.name]
+        print(f"{src.name}: {n} frames, {pairs} pairs ({r['pairs_per_frame']}/frame), process {wall:.1f} s wall "
+              f"{cpu:.1f} s CPU = {r['wall_s_per_frame']:.3f} / {r['cpu_s_per_frame']:.3f} s per frame; fixed "
+              f"{fixed_wall:.1f} s wall {fixed_cpu:.1f} s CPU; without it {r['variable_wall_s_per_frame']:.3f} / "
+              f"{r['variable_cpu_s_per_frame']:.3f} s per frame; phases {ph}; load {load[0]:.1f} -> "
+              f"{r['load_avg_after'][0]:.1f}", flush=True)
+    return rows
+
+
 def main():
     ap = argparse.ArgumentParser()
     ap.add_argument("--demo-project", type=Path)
     ap.add_argument("--skip-dmc", action="store_true")
+    ap.add_argument("--per-frame", type=Path, nargs="+", default=[], metavar="BLOCK")
+    ap.add_argument("--per-frame-only", action="store_true")
     args = ap.parse_args()
     out = REPO / "out" / "bench"
     out.mkdir(parents=True, exist_ok=True)
+    result = REPO / "results" / "bench_match.json"
+    if args.per_frame_only:
+        res = json.loads(result.read_text()) if result.exists() else {}
+        res["per_frame"] = per_frame(args.per_frame, out)
+        result.write_text(json.dumps(res, indent=1) + "\n")
+        return
     src = args.demo_project or out / "match_demo"
     if not (src / "truth" / "truth.json").exists():
         simulate(load_preset("demo"), src, force=True)
@@ -190,8 +269,15 @@ def main():
     if not args.skip_dmc:
         res["dmc_frame_features"] = dmc_frame_extraction(out)
         print("full-size DMC frame features:", json.dumps(res["dmc_frame_features"]))
+    if args.per_frame:
+        res["per_frame"] = per_frame(args.per_frame, out)
+    # what this run did not measure stays as the last run that did left it
+    old = json.loads(result.read_text()) if result.exists() else {}
+    for key in ("dmc_frame_features", "per_frame"):
+        if key not in res and key in old:
+            res[key] = old[key]
     (REPO / "results").mkdir(exist_ok=True)
-    (REPO / "results" / "bench_match.json").write_text(json.dumps(res, indent=1) + "\n")
+    result.write_text(json.dumps(res, indent=1) + "\n")
 
 
 if __name__ == "__main__":

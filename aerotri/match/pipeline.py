@@ -27,7 +27,7 @@ from aerotri.match import matching as M
 from aerotri.match.pairs import BlockPlan, Pair, candidate_pairs, plan_block
 from aerotri.match.report import plot_block, track_length_histogram
 from aerotri.match.settings import MatchSettings
-from aerotri.match.tracks import build_tracks, coincident
+from aerotri.match.tracks import build_tracks, coincident, complete_tracks
 from aerotri.match.weak import BlockStrength, ModelStrength, StripTies, analyse
 
 log = logging.getLogger(__name__)
@@ -75,11 +75,27 @@ class MatchReport:
     terrain_height_m: float | None
     image_top_deg: float | None  # the flight plan's image top from the flight direction (degrees)
     seconds: float
+    # wall and CPU seconds (this process and its threads) of each phase: plan (frames, GNSS, pairs), features,
+    # matching, tracks (with completion and the model strength), densify, output (tie points, report, figure)
+    phase_seconds: dict[str, list[float]]
     feature_cache_hits: int
     match_cache_hits: int
 
     def to_dict(self) -> dict:
         return dataclasses.asdict(self)
+
+
+class _PhaseClock:
+    """Wall and CPU seconds of consecutive phases: ``lap(name)`` closes the phase that ends now."""
+
+    def __init__(self):
+        self.phases: dict[str, list[float]] = {}
+        self._wall, self._cpu = time.perf_counter(), time.process_time()
+
+    def lap(self, name: str) -> None:
+        wall, cpu = time.perf_counter(), time.process_time()
+        self.phases[name] = [round(wall - self._wall, 3), round(cpu - self._cpu, 3)]
+        self._wall, self._cpu = wall, cpu
 
 
 def _terrain_height(project: Project, s: MatchSettings) -> float:
@@ -220,7 +236,8 @@ class _Ties:
 
 def _ties(plan: BlockPlan | None, camera: FrameCamera, sparse: list, dense: dict, matches: dict,
           s: MatchSettings) -> _Ties:
-    track, image, xy, n_bad = _tracks(sparse, dense, matches)
+    complete_px = s.complete_px * 2.0 ** max(f.level for f in sparse) if s.complete_px > 0 else None
+    track, image, xy, n_bad = _tracks(sparse, dense, matches, complete_px, (camera.width, camera.height))
     strength = (analyse(plan, camera, track, image, xy, min_per_region=s.min_per_region,
                         min_strip_ties=s.min_strip_ties) if plan is not None else BlockStrength([], []))
     return _Ties(matches, track, image, xy, n_bad, strength)
@@ -280,6 +297,7 @@ def match_project(root, settings: MatchSettings | None = None, executor: Executo
     (default: local threads); the results are cached in ``work/features`` and ``work/matches``."""
     s = settings or MatchSettings()
     t0 = time.perf_counter()
+    clock = _PhaseClock()
     project = Project.open(root)
     crs = check_block_crs(project.crs, f"{project.config_path} [project] crs")
     camera = project_camera(project)
@@ -292,15 +310,20 @@ def match_project(root, settings: MatchSettings | None = None, executor: Executo
     mt = _Matcher(project, frames, camera, executor or local_executor())
     if plan is None:
         pairs = _retrieved_pairs(mt, s)
+    clock.lap("plan")
     sparse = mt.features(range(len(ids)), s.sparse, "features")
     sparse = [sparse[i] for i in range(len(ids))]
+    clock.lap("features")
     matches = {(pr.i, pr.j): ("sparse", m)
                for pr, m in zip(pairs, mt.match([(pr.i, pr.j) for pr in pairs], s.sparse, s.match, "matching"))}
+    clock.lap("matching")
     ties = _ties(plan, camera, sparse, {}, matches, s)
+    clock.lap("tracks")
     densified = Densified()
     if s.densify and plan is not None:
         ties, extra, densified = _densify(mt, plan, sparse, ties, s)
         pairs = pairs + extra
+    clock.lap("densify")
 
     ties_per_pair = [(i, j, len(m)) for (i, j), (_, m) in ties.matches.items()]
     components = _components(project, ids, ties_per_pair)
@@ -325,23 +348,27 @@ def match_project(root, settings: MatchSettings | None = None, executor: Executo
         densified=densified, models=strength.models, cross_strip=strength.cross_strip,
         terrain_height_m=plan.terrain_height_m if plan is not None else None,
         image_top_deg=plan.image_top_deg if plan is not None else None,
-        seconds=round(time.perf_counter() - t0, 2), feature_cache_hits=mt.feature_cache_hits,
+        seconds=0.0, phase_seconds=clock.phases, feature_cache_hits=mt.feature_cache_hits,
         match_cache_hits=mt.match_cache_hits,
     )
-    write_text_atomic(project.connectivity_path, json.dumps(report.to_dict(), indent=1) + "\n")
     if plan is not None:
         plot_block(at / "connectivity.png", plan, ties_per_pair, strength)
+    clock.lap("output")  # the report's own writing is left out of its numbers (milliseconds)
+    report.seconds = round(time.perf_counter() - t0, 2)
+    write_text_atomic(project.connectivity_path, json.dumps(report.to_dict(), indent=1) + "\n")
     log.info(f"{report.frames} frames, {report.pairs} pairs, {report.tracks} tracks, {report.observations} "
              f"observations, {report.components} component(s), {len(report.weak_models)} weak model(s) -> "
              f"{project.tiepoints_path}")
     return report
 
 
-def _tracks(sparse, dense, matches):
+def _tracks(sparse, dense, matches, complete_px: float | None = None, size_px=None):
     """Tracks over the union of sparse and dense keypoints (dense ones that repeat a sparse keypoint
-    within 0.5 px are merged with it, so one image point never appears twice)."""
+    within 0.5 px are merged with it, so one image point never appears twice); with ``complete_px``
+    extended into the frames of verified pairs where they were missed (``complete_tracks``, tolerance in
+    full-resolution px)."""
     n_img = len(sparse)
-    xy_all, dense_map, sparse_map = [], {}, {}
+    xy_all, desc_all, rep_all, dense_map, sparse_map = [], [], [], {}, {}
     for i in range(n_img):
         xs = sparse[i].xy_px
         sparse_map[i] = coincident(xs)
@@ -355,8 +382,14 @@ def _tracks(sparse, dense, matches):
             idx[~same] = len(xs) + coincident(new)  # dense keypoints at one place are one node too
             dense_map[i] = idx
             xy_all.append(np.vstack([xs, new]))
+            if complete_px is not None:
+                desc_all.append(np.vstack([sparse[i].descriptors, dense[i].descriptors[~same]]))
+                rep_all.append(np.concatenate([sparse_map[i], len(xs) + coincident(new)]))
         else:
             xy_all.append(xs)
+            if complete_px is not None:
+                desc_all.append(sparse[i].descriptors)
+                rep_all.append(sparse_map[i])
     pm = []
     for (i, j), (kind, m) in matches.items():
         if len(m) == 0:
@@ -367,5 +400,9 @@ def _tracks(sparse, dense, matches):
             m = np.column_stack([sparse_map[i][m[:, 0]], sparse_map[j][m[:, 1]]])
         pm.append((i, j, m))
     track, image, kp, n_bad = build_tracks([len(x) for x in xy_all], pm)
+    if complete_px is not None:
+        track, image, kp, n_added = complete_tracks(track, image, kp, xy_all, desc_all, rep_all, pm, size_px,
+                                                    complete_px)
+        log.info(f"track completion: {n_added} observations added")
     xy = np.array([xy_all[i][k] for i, k in zip(image, kp)]).reshape(-1, 2)
     return track, image, xy, n_bad

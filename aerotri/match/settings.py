@@ -86,6 +86,11 @@ class MatchSettings:
                                                     "DMC's), 90 for a portrait one.")
     densify: bool = setting(True, help="Densify weak models (dense features where a stereo model or a strip pair "
                                        "has too few ties).")
+    complete_px: float = setting(0.5, min=0.0, help="Track completion: a track missed by the matching of a verified "
+                                                    "pair takes the free keypoint within this many px (of the "
+                                                    "detection level) of its place predicted from the pair's "
+                                                    "matches, when their descriptors are as close as the pair's "
+                                                    "matches' (0: off).")
     min_per_region: int = setting(3, min=0, help="A stereo model is weak with fewer ties in a von Gruber region.")
     min_strip_ties: int = setting(20, min=0, help="Two adjacent strips are weakly tied with fewer common tracks.")
     retrieval_min_matches: int = setting(25, min=1, help="Without GNSS: thumbnails with this many matches make a "

@@ -107,11 +107,12 @@ def test_adjustment_without_control_against_reference(ngi_adjusted, ngi_data):
     assert d["opk_rms_diff_deg"] < 0.06  # measured 0.030 deg
     assert d["opk_max_abs_diff_deg"] < 0.1  # measured 0.052 deg
     # The weakness issue 19 addresses: without surface control the tie points sit well below the DEM
-    # (measured -11.1 m median) where the reference's sit 1.5 m below it.
+    # (measured -4.2 m median; -11.1 m before the track completion gave more of them a third ray) where the
+    # reference's sit 1.5 m below it.
     _, xyz = ngi.read_object_points(root / "at" / "object_points.csv", "tie")
     h = ngi.height_stats(xyz[:, 2], ngi.sample_dem_bilinear(ngi_data / ngi.DEM_FILE, xyz[:, 0], xyz[:, 1]))
     assert h["n"] > 300
-    assert -20.0 < h["median_m"] < -5.0
+    assert -20.0 < h["median_m"] < -2.5
     # ... and the report says so instead of a bare "Solution Successful": the tie points' mean height has a
     # sigma of metres, held by the images' convergence alone (bench: 4.6 m, image share 1.00)
     height = {g["mode"]: g for g in report["geometry_modes"]}["height"]

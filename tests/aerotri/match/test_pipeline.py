@@ -48,6 +48,29 @@ def test_rerun_reuses_cached_features_and_matches(matched):
     assert (p / "at" / "tiepoints.csv").read_text().count("\n") == rep.observations + 1
 
 
+def test_track_completion_adds_true_observations_to_the_same_tracks(matched):
+    """Without completion (same cached matches) the block has the same tracks with fewer observations and a
+    lower share in 3+ frames; what completion added is as true as what matching found."""
+    import dataclasses
+
+    from aerotri.match import MatchSettings
+
+    p, rep = matched
+    with_c = tie_point_errors(p)
+    plain = match_project(p, dataclasses.replace(MatchSettings(), complete_px=0.0))
+    without = tie_point_errors(p)
+    assert plain.tracks == rep.tracks and plain.observations < rep.observations
+    assert plain.tracks_3plus_fraction < rep.tracks_3plus_fraction
+    added = rep.observations - plain.observations
+    assert with_c["off_count"] - without["off_count"] <= max(1, 0.02 * added)
+    match_project(p)  # the module's copy as the other tests expect it
+    # the stage's phases, wall and CPU seconds, add up to its time
+    ph = rep.phase_seconds
+    assert list(ph) == ["plan", "features", "matching", "tracks", "densify", "output"]
+    assert all(w >= 0 and c >= 0 for w, c in ph.values())
+    assert sum(w for w, _ in ph.values()) <= rep.seconds + 0.01
+
+
 def test_tracks_drop_inconsistent_chains():
     # Image 0 kp 0 <-> image 1 kp 0 <-> image 2 kp 0 <-> image 0 kp 1: image 0 twice -> dropped.
     m01 = np.array([[0, 0], [2, 2]])
