@@ -236,3 +236,39 @@ def test_fast_path_equals_general_kernel(scene):
     assert abs(ok.mean() - (mx > -5e4).mean()) < 1e-3
     both = ok & (mx > -5e4)
     assert np.max(np.abs(x[both] - mx[both])) < 0.05 and np.max(np.abs(y[both] - my[both])) < 0.05
+
+
+@pytest.mark.parametrize("res_m, tile_px, compact", [(0.1, 256, True), (2.0, 1024, False)])
+def test_wide_frame_resampled_from_compact_windows_gives_the_same_pixels(monkeypatch, res_m, tile_px, compact):
+    """A 3-band frame with rows of 32 KiB or more (here 11,264 px; the DMC has 13,824) is resampled from a
+    copy of the window each tile reads (cv2.remap's vectorised path): the same ortho and mask to the bit
+    as from the whole frame, at the frame's edges too; a tile reading wider than that uses the frame."""
+    import ortho.rectify as rectify
+
+    cam = FrameCamera(focal_mm=120.0, pixel_um=12.0, width=11264, height=256, ppx_mm=0.1, ppy_mm=-0.06, k1=-4e-3,
+                      k2=1e-3, p1=1e-5, p2=-5e-6)
+    rng = np.random.default_rng(5)
+    img = rng.integers(0, 256, (cam.height, cam.width, 3), dtype=np.uint8)
+    assert img.strides[0] >= rectify._REMAP_VECTOR_MAX_STEP
+    C = np.array([500000.0, 3000000.0, 400.0])
+    R = rotation_matrix_opk(1.0, -0.5, 3.0)
+    dem = smooth_dem((C[0] - 300, C[1] - 100, C[0] + 300, C[1] + 100), 2.0, amplitude_m=15.0)
+    grid = frame_grid(cam, C, R, dem, res_m, UTM49, GridToProject(UTM49, UTM49))
+    windows = []
+    source = rectify.SourceWindow.source
+
+    def counted(self, image, *args, **kw):
+        out = source(self, image, *args, **kw)
+        windows.append(out is not image)
+        return out
+
+    monkeypatch.setattr(rectify.SourceWindow, "source", counted)
+    ortho, mask = rectify_frame(img, cam, C, R, dem, grid, tile_px=tile_px)
+    assert windows and all(windows) if compact else not any(windows)
+    monkeypatch.setattr(rectify, "_REMAP_VECTOR_MAX_STEP", 1 << 40)  # the whole frame for every tile
+    ortho_whole, mask_whole = rectify_frame(img, cam, C, R, dem, grid, tile_px=tile_px)
+    assert (mask > 0).mean() > 0.1 and ortho[mask > 0].std() > 30  # resampled noise, not zeros
+    assert np.array_equal(mask, mask_whole) and np.array_equal(ortho, ortho_whole)
+    # the ortho runs from end to end of the strip, so tiles read the frame's first and last columns
+    edge = max(1, grid.width // 50)
+    assert mask[:, :edge].any() and mask[:, -edge:].any()
