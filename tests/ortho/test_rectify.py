@@ -272,3 +272,29 @@ def test_wide_frame_resampled_from_compact_windows_gives_the_same_pixels(monkeyp
     # the ortho runs from end to end of the strip, so tiles read the frame's first and last columns
     edge = max(1, grid.width // 50)
     assert mask[:, :edge].any() and mask[:, -edge:].any()
+
+
+def test_one_frame_command_imports_only_what_it_uses(tmp_path):
+    """``ortho rectify`` of one frame, as the console script runs it in a fresh interpreter: the frame is
+    written, and the command imports neither Dask (one task runs in the command's own thread) nor the
+    plotting or other stages' libraries (their import is a fixed cost of every run)."""
+    import os
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    from ortho.synthetic import write_synthetic_project
+
+    repo = Path(__file__).resolve().parents[2]
+    write_synthetic_project(tmp_path, strips=1, frames_per_strip=2, buildings=0)
+    code = ("import sys; sys.argv[0] = 'ortho'; from ortho.cli import main\n"
+            "try:\n    main()\nexcept SystemExit as e:\n    assert not e.code, e.code\n"
+            "print('imported:' + ','.join(m for m in ('dask', 'distributed', 'matplotlib', 'gtsam', 'laspy', 'sklearn') "
+            "if m in sys.modules))")
+    env = dict(os.environ, PYTHONPATH=os.pathsep.join([str(repo), os.environ.get("PYTHONPATH", "")]))
+    r = subprocess.run([sys.executable, "-c", code, "rectify", str(tmp_path), "--frames", "s01_002"],
+                       capture_output=True, text=True, timeout=300, env=env)
+    assert r.returncode == 0, r.stderr
+    assert r.stdout.strip().splitlines()[-1] == "imported:"  # none of them
+    with rasterio.open(tmp_path / "ortho" / "frames" / "s01_002.tif") as ds:
+        assert ds.count == 3 and ds.read_masks(1).any()
