@@ -425,7 +425,8 @@ def _interpolation_flag(interpolation: str) -> int:
 
 # cv2.remap's vectorised bilinear path for 8-bit images addresses source rows with 16-bit offsets:
 # images whose rows take 32 KiB or more (3-band frames wider than 10,922 px, e.g. the DMC's 13,824)
-# go through its scalar path, 2.3 times slower (bench/ortho.py). Such frames are resampled from a
+# go through its scalar path at about half the speed (one thread: 75 vs 130-160 MP/CPU-s on the DMC
+# frame; bench/ortho.py remap_ceiling vs remap_ceiling_windows). Such frames are resampled from a
 # compact copy of the window each tile reads; the result is the same to the bit.
 _REMAP_VECTOR_MAX_STEP = 1 << 15
 
