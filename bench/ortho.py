@@ -17,9 +17,19 @@ seconds of the measured part, which depends much less on the machine's load than
   ``frame_compress``), ``ours_command_zstd_fast`` / ``ours_command_none`` with the other choices (and
   ``ours_command_zstd`` on request); ``file_mb``: the frame file's size;
 - ``remap_ceiling``: only ``cv2.remap`` (OpenCV's own threads) on the same grid and 1024 px tiles with
-  precomputed fixed-point maps (the same map type as ours);
+  precomputed fixed-point maps (the same map type as ours), from the whole frame (rows of 41 KiB: cv2's
+  scalar bilinear path); ``remap_ceiling_windows``: the same from compact copies of the windows the
+  tiles read (copies made beforehand; cv2's vectorised path, as ``rectify_frame`` does);
+- ``write_profiles``: only writing the frame ortho (in memory, 1024-row strips, with its mask) as a
+  tiled 512 px GeoTIFF, compressed on all cores, with each GDAL compression worth considering for
+  the frame files (``WRITE_PROFILES``): CPU seconds, wall time and size of each, one after the other
+  in one process (the cost each would add to ``ours_cli``);
 - ``orthority``: ``orthority.Ortho(...).process(...)`` with the same camera, EO, DEM, resolution,
   bilinear interpolation and deflate output (peer, in the ``bench`` extra).
+
+The commands run as an installed console script runs: with the project's bytecode cached (a
+``PYTHONDONTWRITEBYTECODE`` of the calling shell is dropped) and after one untimed run at 5 m that
+fills numba's cache.
 
 Output megapixels = output grid pixels (the frame's bounding grid). Both DOMs are checked against the
 truth orthophoto with ``ortho.check`` (NCC patches). The machine may be shared: the 1-minute load
@@ -50,6 +60,21 @@ sys.path.insert(0, str(REPO))
 RES_M = 0.1
 AGL_M = 1000.0
 BASE_M = 300.0
+
+
+# GDAL GTiff compressions for the frame files (band interleaved, as ours, except JPEG in YCbCr, which
+# needs pixel interleave); the first three are the --frame-compress choices
+WRITE_PROFILES = {
+    "none": {},
+    "zstd1_predictor2": dict(compress="zstd", zstd_level=1, predictor=2),
+    "zstd1": dict(compress="zstd", zstd_level=1),
+    "deflate1_predictor2": dict(compress="deflate", zlevel=1, predictor=2),
+    "deflate1": dict(compress="deflate", zlevel=1),
+    "lzw_predictor2": dict(compress="lzw", predictor=2),
+    "packbits": dict(compress="packbits"),
+    "lerc_lossless": dict(compress="lerc", max_z_error=0),
+    "jpeg90_ycbcr_lossy": dict(compress="jpeg", jpeg_quality=90, photometric="ycbcr", interleave="pixel"),
+}
 
 
 def dmc_truth_camera():
@@ -129,17 +154,23 @@ def _rectify_command(project: Path, compression: str | None = None) -> dict:
     """``ortho rectify`` as a fresh process: wall time, its CPU time and peak RSS, output pixels and the
     frame files' size (MB); ``compression``: its ``--frame-compress`` (None: the default)."""
     exe = Path(sys.executable).with_name("ortho")
+    env = {k: v for k, v in os.environ.items() if k != "PYTHONDONTWRITEBYTECODE"}
+    warm = subprocess.run([str(exe), "rectify", str(project), "--res", "5"], capture_output=True, text=True, env=env)
+    if warm.returncode != 0:
+        raise SystemExit(warm.stderr)
     args = [str(exe), "rectify", str(project), "--res", str(RES_M)]
     if compression is not None:
         args += ["--frame-compress", compression]
+    ru0 = resource.getrusage(resource.RUSAGE_CHILDREN)
     t = time.perf_counter()
-    r = subprocess.run(args, capture_output=True, text=True)
+    r = subprocess.run(args, capture_output=True, text=True, env=env)
     seconds = time.perf_counter() - t
     if r.returncode != 0:
         raise SystemExit(r.stderr)
     ru = resource.getrusage(resource.RUSAGE_CHILDREN)
     index = json.loads((project / "ortho" / "frames" / "index.json").read_text())
-    return {"seconds": seconds, "cpu_s": ru.ru_utime + ru.ru_stime, "peak_rss_mb_command": ru.ru_maxrss / 1024.0,
+    cpu_s = (ru.ru_utime + ru.ru_stime) - (ru0.ru_utime + ru0.ru_stime)  # the timed run, not the warm-up
+    return {"seconds": seconds, "cpu_s": cpu_s, "peak_rss_mb_command": ru.ru_maxrss / 1024.0,
             "output_px": sum(e["width"] * e["height"] for e in index["frames"]),
             "file_mb": sum(e["size"] for e in index["frames"]) / 1e6}
 
@@ -202,10 +233,10 @@ def run_kind(kind: str, d: Path) -> dict:
 
             compression = default_of(RectifySettings, "compression")
         out["frame_compress"] = compression
-    elif kind == "remap_ceiling":
+    elif kind in ("remap_ceiling", "remap_ceiling_windows"):
         import cv2
 
-        from ortho.rectify import FrameGeometry, fixed_point_maps
+        from ortho.rectify import FrameGeometry, SourceWindow, fixed_point_maps
 
         cam, C, R, dem, grid, img, tp = _setup(d)
         img = np.ascontiguousarray(img)  # in memory, as for a decoded frame
@@ -214,15 +245,52 @@ def run_kind(kind: str, d: Path) -> dict:
         for r0 in range(0, grid.height, 1024):
             for c0 in range(0, grid.width, 1024):
                 tile = grid.window(c0, r0, min(1024, grid.width - c0), min(1024, grid.height - r0))
-                map_int, map_frac, *_ = fixed_point_maps(geom, dem, tile, tp)
-                tiles.append((map_int, map_frac, np.empty((tile.height, tile.width, 3), np.uint8)))
+                bounds = np.empty(4, np.int32)
+                map_int, map_frac, *_ = fixed_point_maps(geom, dem, tile, tp, bounds_out=bounds)
+                # the window (a copy of its own) and the maps shifted to it, or the whole frame
+                src = SourceWindow().source(img, map_int, bounds) if kind == "remap_ceiling_windows" else img
+                tiles.append((src, map_int, map_frac, np.empty((tile.height, tile.width, 3), np.uint8)))
         t0_cpu = os.times()
         t = time.perf_counter()
-        for map_int, map_frac, dst in tiles:
-            cv2.remap(img, map_int, map_frac, cv2.INTER_LINEAR, dst=dst, borderMode=cv2.BORDER_CONSTANT)
+        for src, map_int, map_frac, dst in tiles:
+            cv2.remap(src, map_int, map_frac, cv2.INTER_LINEAR, dst=dst, borderMode=cv2.BORDER_CONSTANT)
         out["seconds"] = time.perf_counter() - t
         out["output_px"] = grid.width * grid.height
         out["map_type"] = "CV_16SC2 + CV_16UC1 fixed point (1/32 px)"
+    elif kind == "write_profiles":
+        import rasterio
+        from rasterio.windows import Window
+
+        from ortho.block import frame_profile
+        from ortho.rectify import rectify_frame
+
+        cam, C, R, dem, grid, img, tp = _setup(d)
+        ortho, mask = rectify_frame(img, cam, C, R, dem, grid)
+        planes = np.ascontiguousarray(np.moveaxis(ortho, -1, 0))
+        del ortho, img
+        out["output_px"] = grid.width * grid.height
+        out["profiles"] = {}
+        base = {k: v for k, v in frame_profile(grid, 3, "uint8", compression="none").items()}
+        for name, options in WRITE_PROFILES.items():
+            path = d / f"write_{name}.tif"
+            load = os.getloadavg()[0]
+            c0 = os.times()
+            t = time.perf_counter()
+            with rasterio.Env(GDAL_TIFF_INTERNAL_MASK=True), rasterio.open(path, "w", **{**base, **options}) as dst:
+                for r0 in range(0, grid.height, 1024):
+                    w = Window(0, r0, grid.width, min(1024, grid.height - r0))
+                    dst.write(planes[:, r0:r0 + w.height], window=w)
+                    dst.write_mask(mask[r0:r0 + w.height], window=w)
+            seconds = time.perf_counter() - t
+            c1 = os.times()
+            cpu = (c1.user - c0.user) + (c1.system - c0.system)
+            out["profiles"][name] = {"options": options, "seconds": seconds, "cpu_s": cpu, "file_mb": path.stat().st_size / 1e6,
+                                     "output_mp_per_cpu_s": out["output_px"] / 1e6 / cpu, "load_average_1min": load}
+            path.unlink()
+        # the kind's own totals: every profile written once
+        out["seconds"] = sum(v["seconds"] for v in out["profiles"].values())
+        out["cpu_s"] = sum(v["cpu_s"] for v in out["profiles"].values())
+        out["output_px"] *= len(WRITE_PROFILES)
     elif kind == "orthority":
         import orthority as oty
         from orthority.camera import OpenCVCamera
@@ -277,9 +345,10 @@ def main():
     ap.add_argument("--keep", action="store_true")
     ap.add_argument("--run", nargs=2, metavar=("KIND", "DIR"), help=argparse.SUPPRESS)
     ap.add_argument("--out", type=Path, default=REPO / "results" / "ortho_bench.json")
-    ap.add_argument("--kinds", default="remap_ceiling,ours_library,ours_cli,ours_command,ours_command_block,ours_cli_zstd_fast,"
-                                       "ours_cli_none,ours_command_zstd_fast,ours_command_none,"
-                                       "remap_ceiling,orthority")
+    ap.add_argument("--kinds", default="remap_ceiling,remap_ceiling_windows,ours_library,ours_cli,ours_command,"
+                                       "ours_command_block,ours_cli_zstd_fast,ours_cli_none,ours_command_zstd_fast,"
+                                       "ours_command_none,write_profiles,ours_command,ours_command_none,remap_ceiling,"
+                                       "remap_ceiling_windows,orthority")
     args = ap.parse_args()
     if args.run:
         print(json.dumps(run_kind(args.run[0], Path(args.run[1]))))
@@ -299,7 +368,7 @@ def main():
             print(kind, "failed:", r.stderr.strip()[-1500:], file=sys.stderr)
             continue
         got = json.loads(r.stdout.strip().splitlines()[-1])
-        if kind in res:  # measured twice (the ceiling, before and after ours): keep both, report the faster
+        if kind in res:  # measured twice (the ceilings and commands, early and late): keep both, report the faster
             runs = res[kind].get("runs", [res[kind]]) + [got]
             got = dict(min(runs, key=lambda x: x["seconds"]), runs=runs)
         res[kind] = got
@@ -310,9 +379,19 @@ def main():
     if "seconds" in res.get("orthority", {}) and "seconds" in res.get("ours_cli", {}):
         res["speed_ratio_ours_cli_over_orthority"] = res["orthority"]["seconds"] / res["ours_cli"]["seconds"]
         res["cpu_ratio_orthority_over_ours_cli"] = res["orthority"]["cpu_s"] / res["ours_cli"]["cpu_s"]
-    for kind in ("ours_library", "ours_cli", "ours_command", "ours_command_block"):
-        if "seconds" in res.get("remap_ceiling", {}) and "seconds" in res.get(kind, {}):
-            res[f"{kind}_fraction_of_remap_ceiling"] = res["remap_ceiling"]["seconds"] / res[kind]["seconds"]
+    for kind in ("ours_library", "ours_cli", "ours_cli_zstd_fast", "ours_cli_none", "ours_command",
+                 "ours_command_zstd_fast", "ours_command_none", "ours_command_block"):
+        for ceiling in ("remap_ceiling", "remap_ceiling_windows"):
+            if "seconds" in res.get(ceiling, {}) and "seconds" in res.get(kind, {}):
+                # per output pixel: the block kind rectifies several frames
+                per_px = res[kind]["seconds"] / res[kind]["output_px"]
+                res[f"{kind}_fraction_of_{ceiling}"] = res[ceiling]["seconds"] / res[ceiling]["output_px"] / per_px
+    # the trade-off of each --frame-compress choice as the console command runs it: MP/s, CPU, size
+    res["frame_compress_tradeoff"] = {
+        res[kind]["frame_compress"]: {k: res[kind][k] for k in ("output_mp_per_s", "output_mp_per_cpu_s", "seconds",
+                                                                 "cpu_s", "file_mb", "load_average_1min")}
+        for kind in ("ours_command_zstd", "ours_command_zstd_fast", "ours_command_none", "ours_command")
+        if "seconds" in res.get(kind, {})}
     res["load_average_1min_end"] = os.getloadavg()[0]
     args.out.parent.mkdir(parents=True, exist_ok=True)
     args.out.write_text(json.dumps(res, indent=2) + "\n")

@@ -154,7 +154,9 @@ def default_resolution(camera: FrameCamera, eo: ExteriorOrientations, ground_hei
 # zstd 102 MB, zstd-fast 172 MB, none 374 MB; the stage takes 3.1, 3.1 and 1.8 CPU-s (1.7, 1.7 and 1.1 s):
 # zstd-fast saves no CPU, none saves 40 % of it for 3.7 times the disk. zstd stays the default: on a
 # shared 2-core machine none does not bring the one-frame command to 100 MP/s either (interpreter,
-# imports and numba's set-up are about 0.7 s of it).
+# imports and numba's set-up are about 0.7 s of it). The other GDAL codecs, writing alone (bench/ortho.py
+# write_profiles): DEFLATE 1 and PackBits cost as much CPU as ZSTD 1 for larger files, LZW and LERC
+# twice as much, JPEG (lossy, IJG libjpeg 9 in the wheel) nearly twice as much.
 FRAME_COMPRESSION = {
     "zstd": dict(compress="zstd", zstd_level=1, predictor=2),
     "zstd-fast": dict(compress="zstd", zstd_level=1),

@@ -16,7 +16,9 @@ error is cv2.remap's own 1/32 px quantisation (<= 0.022 px), not merely < 0.1 px
 Speed: tiles (1024 px) run on threads (the numba kernels and cv2.remap release the GIL; each kernel
 is serial, so there is one level of parallelism and no competing thread pools), map buffers are
 reused per thread and output tiles come from a pool (fresh arrays cost a page fault per 4 KiB), and
-with a ``sink`` the caller writes tile k while the threads compute the next ones.
+with a ``sink`` the caller writes tile k while the threads compute the next ones. 8-bit frames with
+rows of 32 KiB or more (3-band frames wider than 10,922 px, e.g. the DMC) are resampled from a copy
+of the window each tile reads, which keeps cv2.remap on its vectorised path (``SourceWindow``).
 
 True ortho: with ``occlusion_dsm`` every ground point is tested for visibility by marching along its
 ray towards the projection centre over the DSM; occluded pixels are invalid (mask 0), so the mosaic
@@ -139,21 +141,33 @@ def _backproject_kernel(anchor_x, anchor_y, spacing, rows, cols, dem, dem_x0, de
 
 
 @numba.njit(cache=True, nogil=True)
-def _pack_fixed_point(ix_row, iy_row, int_row, frac_row):
-    """1/32 px fixed-point positions -> cv2.remap's CV_16SC2 integer part + CV_16UC1 table index (one row)."""
+def _pack_fixed_point(ix_row, iy_row, int_row, frac_row, bounds):
+    """1/32 px fixed-point positions -> cv2.remap's CV_16SC2 integer part + CV_16UC1 table index (one row).
+
+    ``bounds`` (int32 x_min, x_max, y_min, y_max of the integer parts of the imaged pixels, which are
+    >= 0; not-imaged ones are far negative) is widened by this row."""
+    x_min, x_max, y_min, y_max = bounds[0], bounds[1], bounds[2], bounds[3]
     for c in range(ix_row.shape[0]):
         ix = ix_row[c]
         iy = iy_row[c]
-        int_row[c, 0] = np.int16(ix >> INTER_BITS)
-        int_row[c, 1] = np.int16(iy >> INTER_BITS)
+        xi = ix >> INTER_BITS
+        yi = iy >> INTER_BITS
+        int_row[c, 0] = np.int16(xi)
+        int_row[c, 1] = np.int16(yi)
         frac_row[c] = np.uint16(((iy & (INTER_TAB_SIZE - 1)) << INTER_BITS) | (ix & (INTER_TAB_SIZE - 1)))
+        x_min = min(x_min, xi if xi >= 0 else x_min)
+        x_max = max(x_max, xi)
+        y_min = min(y_min, yi if yi >= 0 else y_min)
+        y_max = max(y_max, yi)
+    bounds[0], bounds[1], bounds[2], bounds[3] = x_min, x_max, y_min, y_max
 
 
 @numba.njit(cache=True, nogil=True, fastmath=_FASTMATH, error_model="numpy")
 def _fixed_point_kernel(anchor_x, anchor_y, spacing, rows, cols, dem, dem_x0, dem_y0, dem_res,
-                        centre, M, cam, width, height, margin, map_int, map_frac, mask, height_out):
+                        centre, M, cam, width, height, margin, map_int, map_frac, mask, height_out, bounds):
     """As _backproject_kernel, but writes cv2.remap's fixed-point maps directly (CV_16SC2 integer
-    positions + CV_16UC1 1/32 px fractions, as cv2.convertMaps would) and the validity mask (255/0).
+    positions + CV_16UC1 1/32 px fractions, as cv2.convertMaps would), the validity mask (255/0) and
+    the integer bounds of the imaged positions (``bounds``, see _pack_fixed_point).
     Not-imaged pixels point far outside the image, so cv2.remap with a constant border gives 0.
     Loop invariants are hoisted by hand (LLVM cannot prove the output arrays do not alias them)."""
     inv_s = 1.0 / spacing
@@ -188,7 +202,7 @@ def _fixed_point_kernel(anchor_x, anchor_y, spacing, rows, cols, dem, dem_x0, de
             yn = (m10 * dx + m11 * dy + m12 * dz) * inv_zc
             x, y = to_pixel(cam, xn, yn)
             ix_row[c], iy_row[c], mask_row[c] = _fixed_point_entry(x, y, zc > 0.0, x_lo, x_hi, y_lo, y_hi, far)
-        _pack_fixed_point(ix_row, iy_row, map_int[r], map_frac[r])
+        _pack_fixed_point(ix_row, iy_row, map_int[r], map_frac[r], bounds)
 
 
 @numba.njit(cache=True, nogil=True)
@@ -263,7 +277,8 @@ class FrameGeometry:
 
 
 @numba.njit(cache=True, nogil=True, fastmath=_FASTMATH, error_model="numpy")
-def _fixed_point_kernel_affine(heights, x0, y0, res, centre, M, cam, width, height, margin, map_int, map_frac, mask):
+def _fixed_point_kernel_affine(heights, x0, y0, res, centre, M, cam, width, height, margin, map_int, map_frac, mask,
+                               bounds):
     """Fast path of _fixed_point_kernel when the output grid is in the project CRS: ground X, Y are
     affine in (row, col) and the heights on the grid are given (bilinear DEM, see heights_on_grid).
 
@@ -295,7 +310,7 @@ def _fixed_point_kernel_affine(heights, x0, y0, res, centre, M, cam, width, heig
             yn = (by + c * sy + m12 * dz) * inv_zc
             x, y = to_pixel(cam, xn, yn)
             ix_row[c], iy_row[c], mask_row[c] = _fixed_point_entry(x, y, zc > 0.0, x_lo, x_hi, y_lo, y_hi, far)
-        _pack_fixed_point(ix_row, iy_row, map_int[r], map_frac[r])
+        _pack_fixed_point(ix_row, iy_row, map_int[r], map_frac[r], bounds)
 
 
 def heights_on_grid(dem: HeightRaster, grid: OrthoGrid, out: np.ndarray | None = None) -> np.ndarray:
@@ -358,11 +373,13 @@ class MapBuffers:
 
 
 def fixed_point_maps(geometry: FrameGeometry, dem: HeightRaster, grid: OrthoGrid, to_project: GridToProject | None = None,
-                     margin_px: float = 0.0, buffers: MapBuffers | None = None, mask_out: np.ndarray | None = None):
+                     margin_px: float = 0.0, buffers: MapBuffers | None = None, mask_out: np.ndarray | None = None,
+                     bounds_out: np.ndarray | None = None):
     """cv2.remap fixed-point maps (int16 (H, W, 2), uint16 (H, W)), validity mask (uint8 255/0), heights, anchors.
 
     With ``buffers`` the maps and heights are views of those (valid until the next call with them);
-    the mask is ``mask_out`` if given, else a new array.
+    the mask is ``mask_out`` if given, else a new array. ``bounds_out`` (int32 [4]) receives the
+    integer image positions the imaged pixels read from: x_min, x_max, y_min, y_max (x_max < 0: none).
     """
     to_project = to_project or GridToProject(grid.crs, grid.crs)
     AX, AY, s = to_project.anchors(grid)
@@ -373,15 +390,17 @@ def fixed_point_maps(geometry: FrameGeometry, dem: HeightRaster, grid: OrthoGrid
     else:
         map_int, map_frac, z = np.empty(shape + (2,), np.int16), np.empty(shape, np.uint16), np.empty(shape, np.float32)
     mask = np.empty(shape, np.uint8) if mask_out is None else mask_out
+    bounds = np.empty(4, np.int32) if bounds_out is None else bounds_out
+    bounds[:] = (32767, -32768, 32767, -32768)
     if to_project.identity:
         z = heights_on_grid(dem, grid, out=z)
         _fixed_point_kernel_affine(z, grid.x_left_m + 0.5 * grid.res_m, grid.y_top_m - 0.5 * grid.res_m, grid.res_m,
                                    centre, M, params, geometry.camera.width, geometry.camera.height, float(margin_px),
-                                   map_int, map_frac, mask)
+                                   map_int, map_frac, mask, bounds)
         return map_int, map_frac, mask, z, (AX, AY, s)
     _fixed_point_kernel(AX, AY, float(s), grid.height, grid.width, dem.heights_m, dem.x_left_m, dem.y_top_m, dem.res_m,
                         centre, M, params, geometry.camera.width, geometry.camera.height, float(margin_px),
-                        map_int, map_frac, mask, z)
+                        map_int, map_frac, mask, z, bounds)
     return map_int, map_frac, mask, z, (AX, AY, s)
 
 
@@ -402,6 +421,42 @@ def _interpolation_flag(interpolation: str) -> int:
         return INTERPOLATION[interpolation]
     except KeyError:
         raise InputError(f"unknown interpolation {interpolation!r}; expected one of {sorted(INTERPOLATION)}") from None
+
+
+# cv2.remap's vectorised bilinear path for 8-bit images addresses source rows with 16-bit offsets:
+# images whose rows take 32 KiB or more (3-band frames wider than 10,922 px, e.g. the DMC's 13,824)
+# go through its scalar path at about half the speed (one thread: 75 vs 130-160 MP/CPU-s on the DMC
+# frame; bench/ortho.py remap_ceiling vs remap_ceiling_windows). Such frames are resampled from a
+# compact copy of the window each tile reads; the result is the same to the bit.
+_REMAP_VECTOR_MAX_STEP = 1 << 15
+
+
+class SourceWindow:
+    """Reusable per-thread copy of the part of a frame one tile reads, rows short enough for cv2.remap's
+    vectorised path (``_REMAP_VECTOR_MAX_STEP``)."""
+
+    def __init__(self):
+        self._flat = np.empty(0, np.uint8)
+
+    def source(self, image: np.ndarray, map_int: np.ndarray, bounds: np.ndarray, pad_px: int = 2) -> np.ndarray:
+        """The window of ``image`` holding the integer positions ``bounds`` (x_min, x_max, y_min, y_max)
+        plus the bilinear neighbour and ``pad_px``, clipped to the image (so its edges are the image's
+        where the tile reaches them, and cv2's border rule acts there as on the whole frame); shifts
+        ``map_int`` (int16 x, y) to it in place, saturating, so not-imaged positions stay far outside.
+        Returns ``image`` itself, maps unchanged, when the window's rows would not be short enough."""
+        h, w = image.shape[:2]
+        x0, x1 = max(0, int(bounds[0]) - pad_px), min(w, int(bounds[1]) + 2 + pad_px)
+        y0, y1 = max(0, int(bounds[2]) - pad_px), min(h, int(bounds[3]) + 2 + pad_px)
+        px_bytes = image.itemsize * (image.shape[2] if image.ndim == 3 else 1)
+        if (x1 - x0) * px_bytes >= _REMAP_VECTOR_MAX_STEP or x1 <= x0 or y1 <= y0:
+            return image
+        n = (y1 - y0) * (x1 - x0) * px_bytes
+        if self._flat.size < n:
+            self._flat = np.empty(n, np.uint8)
+        window = self._flat[:n].view(image.dtype).reshape((y1 - y0, x1 - x0) + image.shape[2:])
+        np.copyto(window, image[y0:y1, x0:x1])
+        cv2.subtract(map_int, (x0, y0, 0, 0), dst=map_int)
+        return window
 
 
 def _remap_bands(image, map1, map2, flag, border):
@@ -473,6 +528,9 @@ def rectify_frame(image: np.ndarray, camera: Camera, centre_m, R, dem_dataset: H
     wide_kernel = interpolation in ("cubic", "lanczos")
     border = cv2.BORDER_REPLICATE if wide_kernel else cv2.BORDER_CONSTANT
     nb = bands[0] if bands else 1
+    # only where cv2.remap has a vectorised path that such rows miss (the others gain nothing from a copy)
+    compact_source = (flag == cv2.INTER_LINEAR and image.dtype == np.uint8 and nb <= 4
+                      and image.strides[0] >= _REMAP_VECTOR_MAX_STEP)
     local = threading.local()
     # tile outputs handed to the consumer come from a pool and go back to it once consumed: fresh
     # arrays for every tile cost a page fault per 4 KiB (as much CPU as the GeoTIFF compression)
@@ -493,9 +551,11 @@ def rectify_frame(image: np.ndarray, camera: Camera, centre_m, R, dem_dataset: H
         if not hasattr(local, "buffers"):
             local.buffers = MapBuffers(tile_px)
             local.interleaved = np.empty(nb * tile_px * tile_px, image.dtype)
+            local.bounds = np.empty(4, np.int32)
+            local.window = SourceWindow()
         handle, o, m = take_out_buffers(tile.height, tile.width)
         map_int, map_frac, _, z, anchors = fixed_point_maps(geometry, dem_dataset, tile, to_project,
-                                                            buffers=local.buffers, mask_out=m)
+                                                            buffers=local.buffers, mask_out=m, bounds_out=local.bounds)
         if occlusion_dsm is not None:
             occluded = occlusion_mask(geometry, occlusion_dsm, tile, z, anchors)
             m[occluded] = 0
@@ -503,15 +563,16 @@ def rectify_frame(image: np.ndarray, camera: Camera, centre_m, R, dem_dataset: H
         if not m.any():
             o[...] = 0
             return r0, c0, handle, o, m
+        src = local.window.source(image, map_int, local.bounds) if compact_source else image
         if nb > 4:  # cv2.remap takes at most 4 channels
             o[...] = np.moveaxis(_remap_bands(image, map_int, map_frac, flag, border), -1, 0) if sink_bands_first else \
                 _remap_bands(image, map_int, map_frac, flag, border)
         elif sink_bands_first and nb > 1:
             pix = local.interleaved[:nb * tile.height * tile.width].reshape(tile.height, tile.width, nb)
-            cv2.remap(image, map_int, map_frac, flag, dst=pix, borderMode=border, borderValue=0)
+            cv2.remap(src, map_int, map_frac, flag, dst=pix, borderMode=border, borderValue=0)
             cv2.split(pix, list(o))  # (rows, cols, bands) -> (bands, rows, cols) into the pooled planes
         else:
-            cv2.remap(image, map_int, map_frac, flag, dst=o.reshape(tile.height, tile.width, *bands),
+            cv2.remap(src, map_int, map_frac, flag, dst=o.reshape(tile.height, tile.width, *bands),
                       borderMode=border, borderValue=0)
         if wide_kernel:  # cubic and Lanczos reach past the valid pixels into the replicated border
             if sink_bands_first:

@@ -236,3 +236,65 @@ def test_fast_path_equals_general_kernel(scene):
     assert abs(ok.mean() - (mx > -5e4).mean()) < 1e-3
     both = ok & (mx > -5e4)
     assert np.max(np.abs(x[both] - mx[both])) < 0.05 and np.max(np.abs(y[both] - my[both])) < 0.05
+
+
+@pytest.mark.parametrize("res_m, tile_px, compact", [(0.1, 256, True), (2.0, 1024, False)])
+def test_wide_frame_resampled_from_compact_windows_gives_the_same_pixels(monkeypatch, res_m, tile_px, compact):
+    """A 3-band frame with rows of 32 KiB or more (here 11,264 px; the DMC has 13,824) is resampled from a
+    copy of the window each tile reads (cv2.remap's vectorised path): the same ortho and mask to the bit
+    as from the whole frame, at the frame's edges too; a tile reading wider than that uses the frame."""
+    import ortho.rectify as rectify
+
+    cam = FrameCamera(focal_mm=120.0, pixel_um=12.0, width=11264, height=256, ppx_mm=0.1, ppy_mm=-0.06, k1=-4e-3,
+                      k2=1e-3, p1=1e-5, p2=-5e-6)
+    rng = np.random.default_rng(5)
+    img = rng.integers(0, 256, (cam.height, cam.width, 3), dtype=np.uint8)
+    assert img.strides[0] >= rectify._REMAP_VECTOR_MAX_STEP
+    C = np.array([500000.0, 3000000.0, 400.0])
+    R = rotation_matrix_opk(1.0, -0.5, 3.0)
+    dem = smooth_dem((C[0] - 300, C[1] - 100, C[0] + 300, C[1] + 100), 2.0, amplitude_m=15.0)
+    grid = frame_grid(cam, C, R, dem, res_m, UTM49, GridToProject(UTM49, UTM49))
+    windows = []
+    source = rectify.SourceWindow.source
+
+    def counted(self, image, *args, **kw):
+        out = source(self, image, *args, **kw)
+        windows.append(out is not image)
+        return out
+
+    monkeypatch.setattr(rectify.SourceWindow, "source", counted)
+    ortho, mask = rectify_frame(img, cam, C, R, dem, grid, tile_px=tile_px)
+    assert windows and all(windows) if compact else not any(windows)
+    monkeypatch.setattr(rectify, "_REMAP_VECTOR_MAX_STEP", 1 << 40)  # the whole frame for every tile
+    ortho_whole, mask_whole = rectify_frame(img, cam, C, R, dem, grid, tile_px=tile_px)
+    assert (mask > 0).mean() > 0.1 and ortho[mask > 0].std() > 30  # resampled noise, not zeros
+    assert np.array_equal(mask, mask_whole) and np.array_equal(ortho, ortho_whole)
+    # the ortho runs from end to end of the strip, so tiles read the frame's first and last columns
+    edge = max(1, grid.width // 50)
+    assert mask[:, :edge].any() and mask[:, -edge:].any()
+
+
+def test_one_frame_command_imports_only_what_it_uses(tmp_path):
+    """``ortho rectify`` of one frame, as the console script runs it in a fresh interpreter: the frame is
+    written, and the command imports neither Dask (one task runs in the command's own thread) nor the
+    plotting or other stages' libraries (their import is a fixed cost of every run)."""
+    import os
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    from ortho.synthetic import write_synthetic_project
+
+    repo = Path(__file__).resolve().parents[2]
+    write_synthetic_project(tmp_path, strips=1, frames_per_strip=2, buildings=0)
+    code = ("import sys; sys.argv[0] = 'ortho'; from ortho.cli import main\n"
+            "try:\n    main()\nexcept SystemExit as e:\n    assert not e.code, e.code\n"
+            "print('imported:' + ','.join(m for m in ('dask', 'distributed', 'matplotlib', 'gtsam', 'laspy', 'sklearn') "
+            "if m in sys.modules))")
+    env = dict(os.environ, PYTHONPATH=os.pathsep.join([str(repo), os.environ.get("PYTHONPATH", "")]))
+    r = subprocess.run([sys.executable, "-c", code, "rectify", str(tmp_path), "--frames", "s01_002"],
+                       capture_output=True, text=True, timeout=300, env=env)
+    assert r.returncode == 0, r.stderr
+    assert r.stdout.strip().splitlines()[-1] == "imported:"  # none of them
+    with rasterio.open(tmp_path / "ortho" / "frames" / "s01_002.tif") as ds:
+        assert ds.count == 3 and ds.read_masks(1).any()
