@@ -221,6 +221,14 @@ def _tile_points(chunk, scales, offsets) -> np.ndarray:
 
 
 @numba.njit(cache=True)
+def _in_buffer_of(near, dr, dc):
+    """Whether a point with the near flags (dc-, dc+, dr-, dr+) belongs to the tile (dr, dc) from its own
+    (its own tile: dr = dc = 0)."""
+    return not ((dr == -1 and not near[2]) or (dr == 1 and not near[3])
+                or (dc == -1 and not near[0]) or (dc == 1 and not near[1]))
+
+
+@numba.njit(cache=True)
 def _assign_points(x, y, x0, y0, tile_m, buffer_m, nrows, ncols):
     """``TileGrid.memberships`` in one pass: counting sort of the memberships by tile, positions ascending."""
     n = len(x)
@@ -242,22 +250,17 @@ def _assign_points(x, y, x0, y0, tile_m, buffer_m, nrows, ncols):
         near[k, 2] = fy < buffer_m and ri > 0
         near[k, 3] = fy >= tile_m - buffer_m and ri < nrows - 1
         for dr in range(-1, 2):
-            if (dr == -1 and not near[k, 2]) or (dr == 1 and not near[k, 3]):
-                continue
             for dc in range(-1, 2):
-                if (dc == -1 and not near[k, 0]) or (dc == 1 and not near[k, 1]):
-                    continue
-                count[(ri + dr) * ncols + ci + dc + 1] += 1
+                if _in_buffer_of(near[k], dr, dc):
+                    count[(ri + dr) * ncols + ci + dc + 1] += 1
     start = np.cumsum(count)
     ids = np.empty(start[-1], np.int64)
     pos = np.empty(start[-1], np.int64)
     fill = start[:-1].copy()
     for k in range(n):
         for dr in range(-1, 2):
-            if (dr == -1 and not near[k, 2]) or (dr == 1 and not near[k, 3]):
-                continue
             for dc in range(-1, 2):
-                if (dc == -1 and not near[k, 0]) or (dc == 1 and not near[k, 1]):
+                if not _in_buffer_of(near[k], dr, dc):
                     continue
                 t = (row[k] + dr) * ncols + col[k] + dc
                 ids[fill[t]] = t
