@@ -30,5 +30,6 @@ from aerotri.control.cli import control  # noqa: E402
 main.add_command(control)
 from aerotri.qa.cli import report  # noqa: E402
 main.add_command(report)
-from aerotri.exchange.cli import export  # noqa: E402
+from aerotri.exchange.cli import export, import_  # noqa: E402
 main.add_command(export)
+main.add_command(import_)

@@ -137,6 +137,10 @@ class Project:
     object_points_path = property(lambda self: self.at_dir / "object_points.csv")
     exports_dir = property(lambda self: self.at_dir / "exports")
     # ortho/: frame orthos, mosaic, DOM check
+    imported_dir = property(lambda self: self.root / "imported")  # aerotri import: what other software delivered
+    imported_eo_path = property(lambda self: self.imported_dir / "eo.txt")  # orientations (ortho rectify --eo)
+    imported_record_path = property(lambda self: self.imported_dir / "imports.json")  # what was imported from where
+
     ortho_dir = property(lambda self: self.root / "ortho")
     frames_dir = property(lambda self: self.ortho_dir / "frames")
     frames_index_path = property(lambda self: self.frames_dir / "index.json")

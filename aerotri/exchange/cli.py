@@ -1,4 +1,5 @@
-"""``aerotri export PROJECT``: the adjusted block in the formats other software reads."""
+"""``aerotri export PROJECT`` / ``aerotri import PROJECT``: the block in the formats other software reads
+and writes."""
 
 from __future__ import annotations
 
@@ -7,6 +8,8 @@ from pathlib import Path
 import click
 
 from aerotri.core.commands import Command
+from aerotri.core.commands import positive
+from aerotri.exchange.import_registry import IMPORT_FORMATS
 from aerotri.exchange.registry import DEFAULT_FORMATS, EXPORT_FORMATS
 
 
@@ -22,4 +25,25 @@ def export(project, formats, out_dir):
     from aerotri.exchange.registry import export_project
 
     for path in export_project(project, formats, out_dir):
+        click.echo(str(path))
+
+
+@click.command(cls=Command, name="import", help=(
+    "Import other software's cameras, positions, orientations and control into PROJECT (camera.toml, gnss.txt, "
+    "imported/eo.txt, control/): " + "; ".join(f"{i.name} ({i.files}): {i.description}" for i in IMPORT_FORMATS.values())))
+@click.argument("project", type=click.Path(file_okay=False, path_type=Path))
+@click.argument("files", nargs=-1, required=True, type=click.Path(path_type=Path))
+@click.option("--format", "format_name", required=True, type=click.Choice(list(IMPORT_FORMATS)),
+              help="Format of FILES.")
+@click.option("--crs", default=None, help="CRS of FILES when they carry none (e.g. EPSG:32611); converted to the "
+                                          "project CRS.")
+@click.option("--sigma-xyz", "sigma_xyz_m", type=positive(), nargs=3, default=None,
+              help="Accuracy (m) of imported positions that come without one.")
+@click.option("--force", is_flag=True, help="Replace project files the import writes (camera.toml, gnss.txt, ...).")
+def import_(project, files, format_name, crs, sigma_xyz_m, force):
+    from aerotri.exchange.import_registry import import_files
+    from aerotri.exchange.imported import ImportOptions
+
+    options = ImportOptions(crs=crs, sigma_xyz_m=tuple(sigma_xyz_m) if sigma_xyz_m else None)
+    for path in import_files(project, format_name, files, options, overwrite=force):
         click.echo(str(path))

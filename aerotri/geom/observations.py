@@ -155,6 +155,21 @@ def read_control_points(path, crs=None, hint: str = "") -> ControlPoints:
     )
 
 
+def format_image_points(obs: ImageObservations) -> str:
+    """``point_id,image_id,x_px,y_px`` CSV text (the reader's format; pixel centre origin, x right, y down)."""
+    rows = [",".join(TIE_HEADER)]
+    rows += [f"{p},{i},{x:.3f},{y:.3f}" for p, i, (x, y) in zip(obs.point_id, obs.image_id, obs.xy_px)]
+    return "\n".join(rows) + "\n"
+
+
+def format_control_points(cp: ControlPoints) -> str:
+    """``control/points.csv`` text (the reader's format: id,kind,x,y,z,sx_m,sy_m,sz_m; project CRS)."""
+    rows = [",".join(CONTROL_HEADER)]
+    for pid, kind, xyz, sig in zip(cp.id, cp.kind, cp.xyz_m, cp.sigma_m):
+        rows.append(f"{pid},{kind}," + ",".join(f"{v:.4f}" for v in xyz) + "," + ",".join(f"{v:.4f}" for v in sig))
+    return "\n".join(rows) + "\n"
+
+
 def validate_references(
     ties: ImageObservations,
     control: ControlPoints | None,

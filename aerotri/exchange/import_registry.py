@@ -1,0 +1,44 @@
+"""The import formats (name -> Importer) and the import of other programs' files into a project.
+
+Adding a format is one module with a ``read(files, project, options) -> ImportedBlock`` function and one
+line in ``IMPORT_FORMATS``; ``aerotri import --format`` offers the registry's names.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from pathlib import Path
+from typing import Callable
+
+from aerotri.core.errors import InputError, OptionError
+from aerotri.core.project import Project
+from aerotri.exchange.imported import ImportedBlock, ImportOptions, write_imported
+
+
+@dataclasses.dataclass(frozen=True)
+class Importer:
+    name: str
+    description: str
+    read: Callable[[list[Path], Project, ImportOptions], ImportedBlock]
+    files: str = "FILE..."  # what the format expects, for messages (e.g. "reconstruction.json")
+
+
+IMPORT_FORMATS: dict[str, Importer] = {}
+
+
+def import_files(root, format_name: str, files, options: ImportOptions | None = None,
+                 overwrite: bool = False) -> list[Path]:
+    """Read ``files`` of format ``format_name`` and write what they hold into the project folder ``root``
+    (``aerotri.exchange.imported.write_imported``). Returns the files written."""
+    if format_name not in IMPORT_FORMATS:
+        raise OptionError(f"unknown import format {format_name!r}; expected one of {', '.join(IMPORT_FORMATS)}",
+                          param="--format")
+    files = [Path(f) for f in files]
+    if not files:
+        raise OptionError(f"no input file; {format_name} expects {IMPORT_FORMATS[format_name].files}", param="FILE")
+    for f in files:
+        if not f.exists():
+            raise InputError(f"{f}: not found ({format_name} expects {IMPORT_FORMATS[format_name].files})")
+    project = Project.open(root)
+    block = IMPORT_FORMATS[format_name].read(files, project, options or ImportOptions())
+    return write_imported(project.root, block, format_name, overwrite=overwrite)
