@@ -12,6 +12,7 @@ from typing import Callable
 
 from aerotri.core.errors import InputError, OptionError
 from aerotri.core.project import Project
+from aerotri.exchange import orthority
 from aerotri.exchange.imported import ImportedBlock, ImportOptions, write_imported
 
 
@@ -23,7 +24,10 @@ class Importer:
     files: str = "FILE..."  # what the format expects, for messages (e.g. "reconstruction.json")
 
 
-IMPORT_FORMATS: dict[str, Importer] = {}
+IMPORT_FORMATS: dict[str, Importer] = {
+    "orthority": Importer("orthority", "orthority interior YAML and exterior OPK CSV (+ .prj) or GeoJSON",
+                          orthority.read, files="int_param.yaml [ext_param.csv | ext_param.geojson]"),
+}
 
 
 def import_files(root, format_name: str, files, options: ImportOptions | None = None,

@@ -10,7 +10,7 @@ from typing import Callable
 from aerotri.core.atomic import write_text_atomic
 from aerotri.core.errors import OptionError
 from aerotri.core.project import Project
-from aerotri.exchange import colmap, patb
+from aerotri.exchange import colmap, orthority, patb
 from aerotri.exchange.adjusted import AdjustedBlock, read_adjusted_block
 from aerotri.geom.images import find_images
 
@@ -31,6 +31,8 @@ EXPORT_FORMATS = {
                        lambda block, project: colmap.files(
                            block, {k: p.name for k, p in find_images(project.images_dir).items()}
                            if project.images_dir.is_dir() else None)),
+    "orthority": Exporter("orthority", "orthority interior YAML, OPK CSV + .prj and exterior GeoJSON (orthority/)",
+                          orthority.files),
 }
 DEFAULT_FORMATS = ("patb", "colmap")
 
