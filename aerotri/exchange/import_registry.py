@@ -12,7 +12,7 @@ from typing import Callable
 
 from aerotri.core.errors import InputError, OptionError
 from aerotri.core.project import Project
-from aerotri.exchange import orthority
+from aerotri.exchange import colmap, orthority
 from aerotri.exchange.imported import ImportedBlock, ImportOptions, write_imported
 
 
@@ -27,6 +27,8 @@ class Importer:
 IMPORT_FORMATS: dict[str, Importer] = {
     "orthority": Importer("orthority", "orthority interior YAML and exterior OPK CSV (+ .prj) or GeoJSON",
                           orthority.read, files="int_param.yaml [ext_param.csv | ext_param.geojson]"),
+    "colmap": Importer("colmap", "COLMAP model, text or binary (cameras, images; world frame from georef.txt or --crs)",
+                       colmap.read, files="MODEL_FOLDER (cameras.txt/.bin, images.txt/.bin[, georef.txt])"),
 }
 
 
