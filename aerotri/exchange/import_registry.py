@@ -12,7 +12,7 @@ from typing import Callable
 
 from aerotri.core.errors import InputError, OptionError
 from aerotri.core.project import Project
-from aerotri.exchange import colmap, orthority
+from aerotri.exchange import colmap, orthority, patb
 from aerotri.exchange.imported import ImportedBlock, ImportOptions, write_imported
 
 
@@ -29,6 +29,8 @@ IMPORT_FORMATS: dict[str, Importer] = {
                           orthority.read, files="int_param.yaml [ext_param.csv | ext_param.geojson]"),
     "colmap": Importer("colmap", "COLMAP model, text or binary (cameras, images; world frame from georef.txt or --crs)",
                        colmap.read, files="MODEL_FOLDER (cameras.txt/.bin, images.txt/.bin[, georef.txt])"),
+    "patb": Importer("patb", "PATB-style orientations, camera, control and image coordinates (aerotri's layout)",
+                     patb.read, files="block.ori block.cam block.con block.im (any of them)"),
 }
 
 

@@ -30,8 +30,8 @@ class Exporter:
 
 
 EXPORT_FORMATS = {
-    "patb": Exporter("patb", "PATB-style image coordinates and control (patb/block.im, .con)",
-                     lambda block, project: patb.files(block)),
+    "patb": Exporter("patb", "PATB-style image coordinates, control, orientations and camera (patb/block.im, .con, "
+                             ".ori, .cam)", patb.files),
     "colmap": Exporter("colmap", "COLMAP text model (colmap/cameras.txt, images.txt, points3D.txt)",
                        lambda block, project: colmap.files(
                            block, {k: p.name for k, p in find_images(project.images_dir).items()}
