@@ -12,7 +12,7 @@ from typing import Callable
 
 from aerotri.core.errors import InputError, OptionError
 from aerotri.core.project import Project
-from aerotri.exchange import colmap, orthority, patb
+from aerotri.exchange import colmap, metashape, orthority, patb
 from aerotri.exchange.imported import ImportedBlock, ImportOptions, write_imported
 
 
@@ -31,6 +31,8 @@ IMPORT_FORMATS: dict[str, Importer] = {
                        colmap.read, files="MODEL_FOLDER (cameras.txt/.bin, images.txt/.bin[, georef.txt])"),
     "patb": Importer("patb", "PATB-style orientations, camera, control and image coordinates (aerotri's layout)",
                      patb.read, files="block.ori block.cam block.con block.im (any of them)"),
+    "metashape": Importer("metashape", "Agisoft Metashape cameras XML (cameras, sensor, markers and their projections)",
+                          metashape.read, files="cameras.xml"),
 }
 
 

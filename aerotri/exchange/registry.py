@@ -10,7 +10,7 @@ from typing import Callable
 from aerotri.core.atomic import atomic_path, write_text_atomic
 from aerotri.core.errors import OptionError
 from aerotri.core.project import Project
-from aerotri.exchange import colmap, orthority, patb
+from aerotri.exchange import colmap, metashape, orthority, patb
 from aerotri.exchange.adjusted import AdjustedBlock, read_adjusted_block
 from aerotri.geom.images import find_images
 
@@ -40,6 +40,8 @@ EXPORT_FORMATS = {
                            lambda block, project: colmap.binary_files(block, _image_names(project))),
     "orthority": Exporter("orthority", "orthority interior YAML, OPK CSV + .prj and exterior GeoJSON (orthority/)",
                           orthority.files),
+    "metashape": Exporter("metashape", "Agisoft Metashape cameras XML with markers (metashape/cameras.xml)",
+                          metashape.files),
 }
 DEFAULT_FORMATS = ("patb", "colmap")
 
