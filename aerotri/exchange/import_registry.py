@@ -12,7 +12,7 @@ from typing import Callable
 
 from aerotri.core.errors import InputError, OptionError
 from aerotri.core.project import Project
-from aerotri.exchange import colmap, metashape, orthority, patb
+from aerotri.exchange import colmap, metashape, micmac, orthority, patb
 from aerotri.exchange.imported import ImportedBlock, ImportOptions, write_imported
 
 
@@ -33,6 +33,9 @@ IMPORT_FORMATS: dict[str, Importer] = {
                      patb.read, files="block.ori block.cam block.con block.im (any of them)"),
     "metashape": Importer("metashape", "Agisoft Metashape cameras XML (cameras, sensor, markers and their projections)",
                           metashape.read, files="cameras.xml"),
+    "micmac": Importer("micmac", "MicMac DicoAppuisFlottant (control; 'check' in the name: check points) and "
+                                 "SetOfMesureAppuisFlottants (image measurements) XML",
+                       micmac.read, files="gcp.xml [check.xml] [measures.xml]"),
 }
 
 

@@ -10,7 +10,7 @@ from typing import Callable
 from aerotri.core.atomic import atomic_path, write_text_atomic
 from aerotri.core.errors import OptionError
 from aerotri.core.project import Project
-from aerotri.exchange import colmap, metashape, orthority, patb
+from aerotri.exchange import colmap, metashape, micmac, orthority, patb
 from aerotri.exchange.adjusted import AdjustedBlock, read_adjusted_block
 from aerotri.geom.images import find_images
 
@@ -42,6 +42,8 @@ EXPORT_FORMATS = {
                           orthority.files),
     "metashape": Exporter("metashape", "Agisoft Metashape cameras XML with markers (metashape/cameras.xml)",
                           metashape.files),
+    "micmac": Exporter("micmac", "MicMac ground control and image measurement XML (micmac/gcp.xml, check.xml, "
+                                 "measures.xml)", micmac.files),
 }
 DEFAULT_FORMATS = ("patb", "colmap")
 
