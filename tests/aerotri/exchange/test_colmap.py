@@ -156,3 +156,31 @@ def test_bad_georef_and_cli(tiny_project, tmp_path):
     (m / "images.txt").unlink()
     r = CliRunner().invoke(aerotri_cli, ["import", str(root), "--format", "colmap", str(m)])
     assert r.exit_code == 2 and "no COLMAP model" in r.output and "Traceback" not in r.output
+
+
+def test_foreign_model_in_geocentric_coordinates(adjusted_tiny, tmp_path):
+    """A model georeferenced to geocentric (ECEF) coordinates, e.g. by colmap model_aligner, imported with
+    --crs EPSG:4978: centres and attitudes come back in the project CRS and grid axes."""
+    from aerotri.geom.local_frame import LocalFrame
+
+    root, _ = adjusted_tiny
+    p = Project.open(root)
+    eo = read_eo(p.eo_path)
+    m = tmp_path / "m"
+    m.mkdir()
+    (m / "cameras.txt").write_text("1 PINHOLE 13824 7680 10000 10000 6912 3840\n")
+    lines = []
+    for i, iid in enumerate(eo.image_id):
+        frame = LocalFrame(p.crs, eo.centre_m[i])  # ENU at the camera: its origin is the centre
+        R_ecef = frame.R.T @ frame.rotation_local_from_map(eo.centre_m[i:i + 1])[0] @ eo.rotation(i)
+        Rwc = (R_ecef @ FLIP_YZ).T
+        t = -Rwc @ frame.ecef0
+        q = _quat_wxyz(Rwc)
+        lines += [f"{i + 1} {' '.join(f'{v:.15f}' for v in q)} {' '.join(f'{v:.6f}' for v in t)} 1 {iid}.tif", ""]
+    (m / "images.txt").write_text("\n".join(lines) + "\n")
+    dst = fresh_project(root, tmp_path / "p")
+    import_files(dst, "colmap", [m], ImportOptions(crs="EPSG:4978"))
+    back = read_eo(dst / "imported" / "eo.txt")
+    assert back.image_id == eo.image_id
+    assert np.abs(back.centre_m - eo.centre_m).max() < 1e-3
+    assert np.abs(back.opk_deg - eo.opk_deg).max() < 1e-6
