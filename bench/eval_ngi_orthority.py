@@ -1,4 +1,4 @@
-"""The orthority exchange on real DMC frames (issue 22) -> results/ngi_orthority.json + results/ngi_orthority_mosaic.png.
+"""The orthority exchange on real DMC frames (issue 22) -> results/ngi_orthority.json + results/ngi_orthority_mosaic.jpg.
 
 Data: ../shared/data/ngi_dmc (4 Z/I DMC frames, the national AT's orientation in orthority's own files
 ``formats/ngi_int_param.yaml`` + ``ngi_ext_param.geojson`` / ``ngi_xyz_opk.csv`` + ``.prj``, a 24 m SUDEM).
@@ -166,7 +166,7 @@ def mosaic_png(mosaic: Path, png: Path, max_px: int = 1600) -> dict:
     img = np.moveaxis(rgb, 0, -1).astype(np.uint8)
     img[~mask] = 255
     png.parent.mkdir(parents=True, exist_ok=True)
-    Image.fromarray(img).save(png)
+    Image.fromarray(img).save(png, quality=85)  # JPEG by the suffix: a photo, a fifth of the PNG
     return {"mosaic_px": list(size), "png": str(png.relative_to(REPO)) if png.is_relative_to(REPO) else str(png)}
 
 
@@ -241,7 +241,7 @@ def main(argv=None) -> int:
     ap.add_argument("--out", type=Path, default=REPO / "out" / "ngi_orthority")
     ap.add_argument("--res", type=float, default=5.0, help="ortho cell size (m); orthority's config for this block: 5")
     ap.add_argument("--results", type=Path, default=REPO / "results" / "ngi_orthority.json")
-    ap.add_argument("--png", type=Path, default=REPO / "results" / "ngi_orthority_mosaic.png")
+    ap.add_argument("--png", type=Path, default=REPO / "results" / "ngi_orthority_mosaic.jpg")
     a = ap.parse_args(argv)
     if not a.data.is_dir():
         print(f"skip: {a.data} not found")
