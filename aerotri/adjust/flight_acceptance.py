@@ -162,6 +162,14 @@ def _strip_order(centre_m, strip) -> list:
     return sorted(ids, key=lambda s: float(np.mean(centre_m[strip == s, :2] @ w)))
 
 
+def _beyond(value, key, limits) -> bool:
+    """True when ``value`` breaks the limit ``key`` (a max or a min limit); False without either."""
+    limit = limits.get(key)
+    if value is None or limit is None:
+        return False
+    return value > limit if LIMIT_KEYS[key][2] == "max" else value < limit
+
+
 def _check(quantity, values, where, key, limits) -> dict:
     unit, kind = LIMIT_KEYS[key][1], LIMIT_KEYS[key][2]
     limit = limits.get(key)
@@ -170,7 +178,7 @@ def _check(quantity, values, where, key, limits) -> dict:
         return dict(quantity=quantity, value=None, limit=limit, unit=unit, verdict=None, where="", key=key,
                     n=0, n_fail=0)
     v, w = (max if kind == "max" else min)(pairs, key=lambda p: p[0])
-    bad = [] if limit is None else [p for p in pairs if (p[0] > limit if kind == "max" else p[0] < limit)]
+    bad = [p for p in pairs if _beyond(p[0], key, limits)]
     verdict = None if limit is None else ("fail" if bad else "pass")
     return dict(quantity=quantity, value=_r(v), limit=limit, unit=unit, verdict=verdict, where=w, key=key,
                 n=len(pairs), n_fail=len(bad))
@@ -246,6 +254,14 @@ def flight_acceptance(image_id, centre_m, opk_deg, camera, terrain: Terrain, str
                                             default=None),
                            max_kappa_deviation_deg=max((frames[i]["kappa_deviation_deg"] for i in idx
                                                         if frames[i]["kappa_deviation_deg"] is not None), default=None)))
+    frame_keys = {"tilt_deg": "flight_tilt_max_deg", "kappa_deviation_deg": "flight_kappa_max_deg",
+                  "height_step_m": "flight_height_step_max_m", "forward_overlap_pct": "flight_forward_overlap_min_pct",
+                  "side_overlap_pct": "flight_side_overlap_min_pct"}
+    strip_keys = {"curvature_pct": "flight_curvature_max_pct", "height_range_m": "flight_height_range_max_m",
+                  "side_overlap_median_pct": "flight_side_overlap_min_pct"}
+    for rows, keys in ((frames, frame_keys), (strips, strip_keys)):
+        for row in rows:
+            row["fails"] = [k for f, k in keys.items() if _beyond(row[f], k, lim)]
     fid = [f["image_id"] for f in frames]
     sid = [f"strip {st['strip']}" for st in strips]
     checks = [
@@ -268,6 +284,19 @@ def flight_acceptance(image_id, centre_m, opk_deg, camera, terrain: Terrain, str
                             "GNSS positions, nominal attitude (tilt and kappa not measured)", terrain.source, checks)
 
 
+def project_terrain(project) -> Terrain | None:
+    """The project's terrain for the footprints: ``lidar_out/dem.tif``, else ``[flight]
+    mean_terrain_height_m`` of project.toml, else None."""
+    mean_h = project.section("flight").get("mean_terrain_height_m")
+    if mean_h is not None and not isinstance(mean_h, (int, float)):
+        raise InputError(f"{project.config_path} [flight] mean_terrain_height_m = {mean_h!r}: expected metres")
+    if project.dem_path.is_file():
+        return Terrain.from_dem(project.dem_path, mean_h)
+    if mean_h is not None:
+        return Terrain(float(mean_h), source=f"{project.config_path} [flight] mean_terrain_height_m")
+    return None
+
+
 def project_flight_acceptance(root, limits: dict | None = None) -> FlightAcceptance | None:
     """The flight acceptance of a project folder: ``at/eo.txt`` (with the adjusted camera) when the block
     is adjusted, else ``gnss.txt`` with the nominal attitude; footprints on ``lidar_out/dem.tif`` when
@@ -278,13 +307,7 @@ def project_flight_acceptance(root, limits: dict | None = None) -> FlightAccepta
     from aerotri.geom.eo import read_eo, read_gnss
 
     project = Project.open(root)
-    mean_h = project.section("flight").get("mean_terrain_height_m")
-    if project.dem_path.is_file():
-        terrain = Terrain.from_dem(project.dem_path, mean_h)
-    elif mean_h is not None:
-        terrain = Terrain(float(mean_h), source=f"{project.config_path} [flight] mean_terrain_height_m")
-    else:
-        terrain = None
+    terrain = project_terrain(project)
     camera, _ = adjusted_camera(project)
     if project.eo_path.is_file():
         eo = read_eo(project.eo_path, parse_crs(project.crs))
