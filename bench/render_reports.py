@@ -109,6 +109,8 @@ def render_pdf(pdf: Path, outdir: Path, dpi: int = 80) -> list[dict]:
     if not shutil.which("pdftoppm"):
         sys.exit("pdftoppm not found: apt-get install -y poppler-utils (make bench does)")
     prefix = outdir / "report_pdf"
+    for old in outdir.glob("report_pdf-*.png"):  # pages of an earlier, longer PDF
+        old.unlink()
     subprocess.run(["pdftoppm", "-png", "-r", str(dpi), str(pdf), str(prefix)], check=True, timeout=300)
     return [dict(file=str(p), source=str(pdf), **image_checks(p)) for p in sorted(outdir.glob("report_pdf-*.png"))]
 

@@ -29,13 +29,19 @@ class Figure:
     key: str
     fig: object
 
-    def png_base64(self, dpi: int = 110) -> str:
-        import matplotlib.pyplot as plt
+    def png(self, dpi: int = 110) -> bytes:
+        """The figure as PNG (drawn once; the matplotlib figure is closed then)."""
+        if getattr(self, "_png", None) is None:
+            import matplotlib.pyplot as plt
 
-        buf = io.BytesIO()
-        self.fig.savefig(buf, format="png", dpi=dpi, bbox_inches="tight")
-        plt.close(self.fig)
-        return base64.b64encode(buf.getvalue()).decode()
+            buf = io.BytesIO()
+            self.fig.savefig(buf, format="png", dpi=dpi, bbox_inches="tight")
+            plt.close(self.fig)
+            self._png = buf.getvalue()
+        return self._png
+
+    def png_base64(self, dpi: int = 110) -> str:
+        return base64.b64encode(self.png(dpi)).decode()
 
     def html(self, dpi: int = 110) -> str:
         alt = html.escape(f"{self.title}. Scale: {self.key}", quote=True)
@@ -378,6 +384,17 @@ def table(headers: list[str], rows: list[list], nd: int = 3, verdict_col: int | 
     return f"<table><thead><tr>{head}</tr></thead><tbody>{''.join(body)}</tbody></table>"
 
 
+def strip_fails(fa: dict, strip: dict) -> list:
+    """The flight limits a strip or any of its frames breaks (tolerance-table keys, in table order)."""
+    from aerotri.adjust.flight_acceptance import LIMIT_KEYS
+
+    keys = set(strip.get("fails", []))
+    for f in fa["frames"]:
+        if f["strip"] == strip["strip"]:
+            keys.update(f.get("fails", []))
+    return [k for k in LIMIT_KEYS if k in keys]
+
+
 def flight_tables(fa: dict) -> str:
     """The flight acceptance: the checks with their limits, then per strip and per frame."""
     if not fa:
@@ -393,11 +410,12 @@ def flight_tables(fa: dict) -> str:
     out.append("<h3>Per strip</h3>")
     out.append(table(["strip", "frames", "first", "last", "length m", "curvature %", "height range m",
                       "mean Z m", "above ground m", "forward min %", "forward mean %", "side median %",
-                      "max tilt deg", "max kappa deg"],
+                      "max tilt deg", "max kappa deg", "failing"],
                      [[s["strip"], s["frames"], s["first"], s["last"], s["length_m"], s["curvature_pct"],
                        s["height_range_m"], s["mean_z_m"], s["mean_height_above_ground_m"], s["forward_overlap_min_pct"],
                        s["forward_overlap_mean_pct"], s["side_overlap_median_pct"], s["max_tilt_deg"],
-                       s["max_kappa_deviation_deg"]] for s in fa["strips"]], 2))
+                       s["max_kappa_deviation_deg"], ", ".join(LIMIT_KEYS[k][0] for k in strip_fails(fa, s))]
+                      for s in fa["strips"]], 2))
     lim = fa["limits"]
 
     def mark(v, key):
