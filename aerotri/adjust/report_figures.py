@@ -93,8 +93,8 @@ def _map_axes(ax, origin, extent_m: float) -> str:
 def ground_residual_map(rep: dict) -> Figure | None:
     """Control (triangles) and check points (circles) with their plan residual vectors (arrows, scale key
     in metres) and the height residual as colour (colour bar in metres)."""
-    ctrl = [r for r in rep.get("control_points", []) if r["used"]]
-    chk = [r for r in rep.get("check_points", []) if r.get("d_m") and None not in r["d_m"]]
+    ctrl = [r for r in rep.get("control_points", []) if r.get("used") and r.get("given_m") and r.get("residual_m")]
+    chk = [r for r in rep.get("check_points", []) if r.get("d_m") and None not in r["d_m"] and r.get("measured_m")]
     if not ctrl and not chk:
         return None
     plt = _plt()

@@ -239,6 +239,10 @@ def build_qa_report(root, tolerance_file=None, terrain: str | None = None, scale
         fa = got.as_dict() if got is not None else None
     if fa:
         rows += flight_rows(fa, tol)
+    elif project.eo_path.is_file() or project.gnss_path.is_file():
+        rows.append(_check("Flight acceptance", "flight acceptance", None, None, "",
+                           "not measured: no camera.toml, or no DEM (lidar_out/dem.tif) and no [flight] "
+                           "mean_terrain_height_m to put the footprints on"))
 
     verdicts = [r["verdict"] for r in rows if r["verdict"]]
     info = dict(
