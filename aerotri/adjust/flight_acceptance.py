@@ -121,7 +121,7 @@ class FlightAcceptance:
     frames: list[dict]
     strips: list[dict]
     limits: dict
-    source: str  # "adjusted orientations" or "GNSS positions, nominal attitude"
+    source: str  # "exterior orientations" or "GNSS positions, nominal attitude ..."
     terrain: str
     checks: list[dict]  # quantity, worst value, limit, unit, verdict, where
 
@@ -194,7 +194,7 @@ def flight_acceptance(image_id, centre_m, opk_deg, camera, terrain: Terrain, str
     c = np.asarray(centre_m, float)
     opk = np.asarray(opk_deg, float)
     n = len(c)
-    strip = strips_from_track(c) if strip is None else np.asarray(strip)
+    strip = strips_from_track(c) + 1 if strip is None else np.asarray(strip)
     lim = {**DEFAULT_LIMITS, **{k: v for k, v in (limits or {}).items() if k in LIMIT_KEYS}}
     R = rotation_matrix_opk(opk[:, 0], opk[:, 1], opk[:, 2])
     polys = [footprint(camera, c[i], R[i], terrain) for i in range(n)]
@@ -280,7 +280,7 @@ def flight_acceptance(image_id, centre_m, opk_deg, camera, terrain: Terrain, str
         _check("side overlap (median over a strip's frames)", [st["side_overlap_median_pct"] for st in strips], sid,
                "flight_side_overlap_min_pct", lim),
     ]
-    return FlightAcceptance(frames, strips, lim, "adjusted orientations" if attitude_measured else
+    return FlightAcceptance(frames, strips, lim, "exterior orientations" if attitude_measured else
                             "GNSS positions, nominal attitude (tilt and kappa not measured)", terrain.source, checks)
 
 
