@@ -83,7 +83,7 @@ def render_html(html_path: Path, out_png: Path, width: int) -> dict:
                      _page_copy(html_path, tmp, y0).as_uri()])
             im = Image.open(shot).convert("RGB").crop((0, y - y0, width, y - y0 + h))
             tiles.append(im)
-            if im.getextrema() in (((255, 255), (255, 255), (255, 255)),):
+            if h >= 200 and im.getextrema() == ((255, 255), (255, 255), (255, 255)):  # not the bottom margin
                 blank_windows.append(y)
         page = Image.new("RGB", (width, height), "white")
         for k, t in enumerate(tiles):

@@ -708,7 +708,7 @@ def format_html(rep: dict, ba=None) -> str:
     parts.append("<h2>Control and check points</h2>")
     parts.append(fig("Control and check-point residual vectors"))
     parts.append("<h3>Control points (residual = adjusted - given)</h3>")
-    parts.append(T(["id", "kind", "used", "rays", "dX m", "dY m", "dZ m", "image rms um"],
+    parts.append(RF.long_table("control points", ["id", "kind", "used", "rays", "dX m", "dY m", "dZ m", "image rms um"],
                    [[r["id"], r["kind"], r["used"], r["rays"], *r["residual_m"], r["image_rms_um"]]
                     for r in rep["control_points"]], 4, num_from=3))
     if rep["rejected_control"]:
@@ -718,9 +718,11 @@ def format_html(rep: dict, ba=None) -> str:
         parts.append("<h3>Check points (d = adjusted - measured)</h3>")
         crow = [[r["id"], r["rays"], *r["measured_m"], *r["adjusted_m"], *r["d_m"]] for r in rep["check_points"]]
         if rep["check_sum_m"]:
+            parts.append(T(["", "points", "dX m", "dY m", "dZ m"],
+                           [["sum", len(crow), *rep["check_sum_m"]], ["rms", len(crow), *rep["check_rms_m"]]], 3))
             crow += [["sum"] + [None] * 7 + list(rep["check_sum_m"]), ["rms"] + [None] * 7 + list(rep["check_rms_m"])]
-        parts.append(T(["id", "rays", "X m", "Y m", "Z m", "X adj m", "Y adj m", "Z adj m", "dX m", "dY m", "dZ m"],
-                       crow, 3))
+        parts.append(RF.long_table("check points", ["id", "rays", "X m", "Y m", "Z m", "X adj m", "Y adj m", "Z adj m",
+                                                    "dX m", "dY m", "dZ m"], crow, 3))
         if rep["check_normalised_rms"]:
             parts.append("<p>Normalised check errors (d / sigma), RMS X Y Z: "
                          + " ".join(f"{x:.2f}" for x in rep["check_normalised_rms"]) + "</p>")
@@ -758,7 +760,7 @@ def format_html(rep: dict, ba=None) -> str:
     if rep.get("surface_control"):
         parts.append("<h2>Surface control</h2>" + fig("Surface control"))
     parts.append("<h2>Photos</h2>")
-    parts.append(T(["image", "strip", "obs", "rms x um", "rms y um", "GNSS res X m", "Y m", "Z m", "sX m", "sY m", "sZ m",
+    parts.append(RF.long_table("photos", ["image", "strip", "obs", "rms x um", "rms y um", "GNSS res X m", "Y m", "Z m", "sX m", "sY m", "sZ m",
                     "tie obs per von Gruber area"],
                    [[p["image_id"], p["strip"], p["obs"], p["rms_x_um"], p["rms_y_um"],
                      *(p.get("gnss_residual_m") or [None] * 3), *(p.get("sigma_position_m") or [None] * 3),
@@ -775,7 +777,7 @@ def format_html(rep: dict, ba=None) -> str:
     rem = rep["removed_observations"]
     parts.append(f"<h2>Removed observations ({len(rem)})</h2>")
     if rem:
-        parts.append(T(["point", "image", "w", "vx px", "vy px", "round"],
+        parts.append(RF.long_table("removed observations", ["point", "image", "w", "vx px", "vy px", "round"],
                        [[x["point_id"], x["image_id"], x["w"], *x["residual_px"], x["round"]] for x in rem[:200]], 2))
     parts += [f.html() for f in figs.values()]  # any figure without a place of its own
     return (f"<!doctype html><html><head><meta charset='utf-8'><title>Photo-T report {esc(str(rep['project']))}"

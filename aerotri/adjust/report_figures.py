@@ -384,6 +384,15 @@ def table(headers: list[str], rows: list[list], nd: int = 3, verdict_col: int | 
     return f"<table><thead><tr>{head}</tr></thead><tbody>{''.join(body)}</tbody></table>"
 
 
+def long_table(what: str, headers: list[str], rows: list[list], nd: int = 3, shown: int = 40, **kw) -> str:
+    """A table; beyond ``shown`` rows it folds into a <details> element (click to open), so that a long
+    per-point list does not push the rest of the report pages down."""
+    t = table(headers, rows, nd, **kw)
+    if len(rows) <= shown:
+        return t
+    return f"<details><summary>{len(rows)} {html.escape(what)} (click to show the table)</summary>{t}</details>"
+
+
 def strip_fails(fa: dict, strip: dict) -> list:
     """The flight limits a strip or any of its frames breaks (tolerance-table keys, in table order)."""
     from aerotri.adjust.flight_acceptance import LIMIT_KEYS
@@ -425,7 +434,7 @@ def flight_tables(fa: dict) -> str:
         return f"{v:.2f} !" if bad else v
 
     out.append("<h3>Per frame</h3><p>! marks a value beyond its limit.</p>")
-    out.append(table(["image", "strip", "Z m", "above ground m", "tilt deg", "kappa dev. deg", "height step m",
+    out.append(long_table("frames", ["image", "strip", "Z m", "above ground m", "tilt deg", "kappa dev. deg", "height step m",
                       "forward %", "side %"],
                      [[f["image_id"], f["strip"], f["z_m"], f["height_above_ground_m"],
                        mark(f["tilt_deg"], "flight_tilt_max_deg"), mark(f["kappa_deviation_deg"], "flight_kappa_max_deg"),
@@ -440,4 +449,5 @@ table{border-collapse:collapse;margin:0.5em 0 1em 0;font-size:13px}
 td,th{border:1px solid #ccc;padding:3px 7px;text-align:left}th{background:#eef}
 td.num{text-align:right;font-variant-numeric:tabular-nums}.pass{background:#cfc}.fail{background:#fcc}
 figure{margin:1em 0}figure img{max-width:100%;border:1px solid #ddd}figcaption{font-size:13px;color:#444;max-width:1000px}
-h2{border-bottom:2px solid #99c;padding-bottom:2px;margin-top:1.6em}"""
+h2{border-bottom:2px solid #99c;padding-bottom:2px;margin-top:1.6em}
+summary{cursor:pointer;color:#225;margin:0.4em 0;font-size:14px}"""
