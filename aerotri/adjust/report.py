@@ -469,14 +469,18 @@ def _v(x, w=10, nd=3):
     return f"{'' if x is None else f'{x:.{nd}f}':>{w}}"
 
 
+# report.json option key -> the ISAT "PhotoT Triangulation Options" name
+ISAT_OPTIONS = {"adjustment_mode": "Adjustment Mode", "precision_computation": "Precision Computation",
+                "error_detection": "Error Detection", "camera_calibration": "Camera Calibration",
+                "self_calibration": "Self-Calibration", "given_eo_gps": "Given EO/GPS",
+                "antenna_offsets": "Antenna Offsets", "gps_shift_drift_correction": "GPS Shift/Drift Correction",
+                "ins_shift_drift_correction": "INS Shift/Drift Correction", "tolerances": "Tolerances"}
+
+
 def format_txt(rep: dict) -> str:
     o = rep["options"]
     L = [f"Photo-T Parameters and Results for Project {rep['project']}", "", "PhotoT Triangulation Options"]
-    for name, key in [("Adjustment Mode", "adjustment_mode"), ("Precision Computation", "precision_computation"),
-                      ("Error Detection", "error_detection"), ("Camera Calibration", "camera_calibration"),
-                      ("Self-Calibration", "self_calibration"), ("Given EO/GPS", "given_eo_gps"),
-                      ("Antenna Offsets", "antenna_offsets"), ("GPS Shift/Drift Correction", "gps_shift_drift_correction"),
-                      ("INS Shift/Drift Correction", "ins_shift_drift_correction"), ("Tolerances", "tolerances")]:
+    for key, name in ISAT_OPTIONS.items():
         L.append(f"  {name} : {o[key]}")
     L += ["", "Parameters", f"{'':32}{'X/Omega':>10}{'Y/Phi':>10}{'Z/Kappa':>10}{'XY':>10}"]
     rows = [("RMS Control (m)", "rms_control_m", 3), ("RMS Check (m)", "rms_check_m", 3), ("RMS Limits (m)", "rms_limits_m", 3),
@@ -573,6 +577,17 @@ def format_txt(rep: dict) -> str:
         L += ["", "GNSS corrections per strip", f"{'strip':>6} {'shift X':>9} {'Y':>9} {'Z':>9} {'drift X':>9} {'Y':>9} {'Z':>9} (m, m/km)"]
         for s in rep["gnss_strips"]:
             L.append(f"{s['strip']:6d}" + "".join(_v(x, 10, 3) for x in s["shift_m"] + s["drift_m_per_km"]))
+    fa = rep.get("flight_acceptance")
+    if fa:
+        from aerotri.adjust.flight_acceptance import LIMIT_KEYS
+
+        L += ["", f"FLIGHT ACCEPTANCE ({fa['source']}; footprints on {fa['terrain']})",
+              f"  {'check':48}{'worst':>9}{'limit':>9} {'unit':5} {'at':>14}{'failing':>10}  verdict"]
+        for c in fa["checks"]:
+            op = "<= " if LIMIT_KEYS[c["key"]][2] == "max" else ">= "
+            lim = "" if c["limit"] is None else f"{op}{c['limit']:g}"
+            L.append(f"  {c['quantity']:48}{_v(c['value'], 9, 2)}{lim:>9} {c['unit']:5} {c['where']:>14}"
+                     f"{c['n_fail']:>5} of {c['n']:<3} {c['verdict'] or 'not measured'}")
     L += ["", "Photos (image residual RMS um; GNSS residual m; std dev of position m)",
           f"{'image':>12} {'strip':>5} {'obs':>5} {'rms x':>7} {'rms y':>7} {'gX':>8} {'gY':>8} {'gZ':>8} {'sX':>7} {'sY':>7} {'sZ':>7}"]
     for p in rep["photos"]:
@@ -668,7 +683,9 @@ def format_html(rep: dict, ba=None) -> str:
     parts = [f"<h1>Photo-T Parameters and Results for Project {esc(str(rep['project']))}</h1>",
              "<p>Plain-text layout: <a href='report.txt'>report.txt</a>; all numbers: <a href='report.json'>"
              "report.json</a>.</p>", "<h2>PhotoT Triangulation Options</h2>"]
-    parts.append(T(["option", "value"], [[n.replace("_", " ").capitalize(), v] for n, v in o.items()]))
+    names = dict(ISAT_OPTIONS, image_sigma_px="A-priori image sigma (px)", snooping_alpha="Data snooping alpha")
+    parts.append(T(["option", "value"], [[names.get(n, n.replace("_", " ").capitalize()),
+                                          f"{v:g}" if isinstance(v, float) else v] for n, v in o.items()]))
     parts.append("<h2>Parameters</h2>")
     rows = [("RMS Control (m)", "rms_control_m"), ("RMS Check (m)", "rms_check_m"), ("RMS Limits (m)", "rms_limits_m"),
             ("Max Ground Residual (m)", "max_ground_residual_m"), ("Residual Limits (m)", "residual_limits_m"),
