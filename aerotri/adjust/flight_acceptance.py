@@ -55,13 +55,18 @@ class Terrain:
     source: str = "mean terrain height"
 
     @classmethod
-    def from_dem(cls, path, mean_height_m: float | None = None) -> "Terrain":
+    def from_dem(cls, path, mean_height_m: float | None = None, max_side_px: int = 2000) -> "Terrain":
+        """The DEM of ``path``, read averaged down to at most ``max_side_px`` cells a side (a footprint
+        corner needs the terrain height, not its detail; memory stays bounded on a large DEM)."""
         import rasterio
+        from rasterio.enums import Resampling
 
         path = Path(path)
         with rasterio.open(path) as ds:
-            z = ds.read(1, masked=True).astype(float).filled(np.nan)
-            tr = ds.transform
+            f = max(1.0, max(ds.width, ds.height) / max_side_px)
+            shape = (max(1, round(ds.height / f)), max(1, round(ds.width / f)))
+            z = ds.read(1, masked=True, out_shape=shape, resampling=Resampling.average).astype(float).filled(np.nan)
+            tr = ds.transform * ds.transform.scale(ds.width / shape[1], ds.height / shape[0])
         if not np.isfinite(z).any():
             raise InputError(f"{path}: the DEM holds no valid height")
         mean = float(np.nanmean(z)) if mean_height_m is None else float(mean_height_m)
