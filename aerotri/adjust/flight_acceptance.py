@@ -66,7 +66,7 @@ class Terrain:
             f = max(1.0, max(ds.width, ds.height) / max_side_px)
             shape = (max(1, round(ds.height / f)), max(1, round(ds.width / f)))
             z = ds.read(1, masked=True, out_shape=shape, resampling=Resampling.average).astype(float).filled(np.nan)
-            tr = ds.transform * ds.transform.scale(ds.width / shape[1], ds.height / shape[0])
+            tr = ds.transform @ ds.transform.scale(ds.width / shape[1], ds.height / shape[0])
         if not np.isfinite(z).any():
             raise InputError(f"{path}: the DEM holds no valid height")
         mean = float(np.nanmean(z)) if mean_height_m is None else float(mean_height_m)

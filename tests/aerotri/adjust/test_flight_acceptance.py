@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from aerotri.adjust.flight_acceptance import Terrain, flight_acceptance, project_flight_acceptance
-from aerotri.geom.camera import BrownCamera
+from aerotri.geom.camera import BrownCamera, read_camera
 from aerotri.geom.eo import read_eo
 
 CAM = BrownCamera(focal_mm=120.0, pixel_um=12.0, width=1728, height=960, name="DMC-like")  # long side across
@@ -86,6 +86,35 @@ def test_simulated_flight_against_its_truth(tiny_project):
     assert by["flight_tilt_max_deg"]["verdict"] == "pass" and by["flight_tilt_max_deg"]["value"] <= 0.95 * 2.0 + 1e-3
     fwd = [f["forward_overlap_pct"] for f in fa["frames"] if f["forward_overlap_pct"] is not None]
     assert 50.0 < np.mean(fwd) < 70.0  # 60 % planned at the mean terrain height; the relief moves it
+    # kappa: the plan's crab (kappa - (-90) flying east, - 90 flying west) against the direction of the
+    # base to the neighbouring frames (the plan scatters the centres 2 m across track)
+    frames = {f["image_id"]: f for f in fa["frames"]}
+    for s in {f["strip"] for f in fa["frames"]}:
+        ids = sorted(i for i in eo.image_id if frames[i]["strip"] == s)
+        c = np.array([eo.centre_m[eo.image_id.index(i)] for i in ids])
+        east = c[-1, 0] > c[0, 0]
+        for n, iid in enumerate(ids):
+            a, b = max(n - 1, 0), min(n + 1, len(ids) - 1)
+            turn = np.degrees(np.arctan2(c[b, 1] - c[a, 1], c[b, 0] - c[a, 0])) - (0.0 if east else 180.0)
+            crab = eo.opk_deg[eo.image_id.index(iid), 2] - (-90.0 if east else 90.0)
+            expect = abs((crab - turn + 180.0) % 360.0 - 180.0)
+            assert frames[iid]["kappa_deviation_deg"] == pytest.approx(expect, abs=0.01)
+            assert abs(crab) <= 0.95 * 7.0 + 1e-6  # the plan's clip
+    # forward overlap: the flat-terrain formula at each pair's height above the DEM under its centres
+    cam = read_camera(tiny_project / "truth" / "camera.toml")
+    idx = {iid: i for i, iid in enumerate(eo.image_id)}
+    diffs = []
+    for f in fa["frames"]:
+        nxt = [g for g in fa["frames"] if g["strip"] == f["strip"]]
+        k = nxt.index(f)
+        if f["forward_overlap_pct"] is None:
+            continue
+        g = nxt[k + 1]
+        base = np.linalg.norm(eo.centre_m[idx[g["image_id"]], :2] - eo.centre_m[idx[f["image_id"]], :2])
+        agl = (f["height_above_ground_m"] + g["height_above_ground_m"]) / 2
+        along = agl * cam.sensor_mm[1] / cam.focal_mm
+        diffs.append(f["forward_overlap_pct"] - 100.0 * (1 - base / along))
+    assert abs(np.mean(diffs)) < 3.0 and np.max(np.abs(diffs)) < 8.0
     # before the adjustment: GNSS positions with the nominal attitude give the same overlaps within a few %
     pre = project_flight_acceptance(tiny_project)
     assert pre.source.startswith("GNSS")
