@@ -55,9 +55,11 @@ class Terrain:
     source: str = "mean terrain height"
 
     @classmethod
-    def from_dem(cls, path, mean_height_m: float | None = None, max_side_px: int = 2000) -> "Terrain":
+    def from_dem(cls, path, mean_height_m: float | None = None, max_side_px: int = 2000,
+                 source: str | None = None) -> "Terrain":
         """The DEM of ``path``, read averaged down to at most ``max_side_px`` cells a side (a footprint
-        corner needs the terrain height, not its detail; memory stays bounded on a large DEM)."""
+        corner needs the terrain height, not its detail; memory stays bounded on a large DEM). ``source``:
+        how reports name it (default the path)."""
         import rasterio
         from rasterio.enums import Resampling
 
@@ -70,7 +72,7 @@ class Terrain:
         if not np.isfinite(z).any():
             raise InputError(f"{path}: the DEM holds no valid height")
         mean = float(np.nanmean(z)) if mean_height_m is None else float(mean_height_m)
-        return cls(mean, z, (tr.a, tr.b, tr.c, tr.d, tr.e, tr.f), source=str(path))
+        return cls(mean, z, (tr.a, tr.b, tr.c, tr.d, tr.e, tr.f), source=source or str(path))
 
     def height(self, x, y) -> np.ndarray:
         """Ground height at map positions; the mean height where the DEM has none."""
@@ -295,10 +297,11 @@ def project_terrain(project) -> Terrain | None:
     mean_h = project.section("flight").get("mean_terrain_height_m")
     if mean_h is not None and not isinstance(mean_h, (int, float)):
         raise InputError(f"{project.config_path} [flight] mean_terrain_height_m = {mean_h!r}: expected metres")
+    # named relative to the project folder: the same project elsewhere reports the same
     if project.dem_path.is_file():
-        return Terrain.from_dem(project.dem_path, mean_h)
+        return Terrain.from_dem(project.dem_path, mean_h, source=str(project.dem_path.relative_to(project.root)))
     if mean_h is not None:
-        return Terrain(float(mean_h), source=f"{project.config_path} [flight] mean_terrain_height_m")
+        return Terrain(float(mean_h), source="project.toml [flight] mean_terrain_height_m")
     return None
 
 
