@@ -338,13 +338,13 @@ def format_html(rep: dict, figures: list | None = None, stage_images=STAGE_IMAGE
     stage_imgs = "".join(f'<img src="{src}" alt="{html.escape(alt)}">' for src, alt in stage_images)
     return f"""<!doctype html><html><head><meta charset="utf-8"><title>Accuracy report {html.escape(rep['project'])}</title>
 <style>{RF.STYLE}
-th.sec{{background:#dde}}.stage img{{max-width:48%;margin:4px;border:1px solid #ddd}}</style></head><body>
+th.sec{{background:#dde}}table.verdicts td:first-child{{min-width:22em}}.stage img{{max-width:48%;margin:4px;border:1px solid #ddd}}</style></head><body>
 <h1>Accuracy report: {html.escape(rep['project'])}</h1>
 <p>Map scale <b>{html.escape(str(rep['map_scale']))}</b>, terrain class <b>{html.escape(rep['terrain'])}</b>,
 tolerances from {html.escape(rep['tolerance_table'])}.
 Overall verdict: <b class="{rep['overall'] or ''}">{html.escape(rep['overall'] or 'none (no quantity with a tolerance)')}</b>
 ({rep['passed']} passed, {rep['failed']} failed).</p>
-<table><tr><th>quantity</th><th>value</th><th>limit</th><th>unit</th><th>verdict</th><th>note</th></tr>{''.join(body)}</table>
+<table class="verdicts"><tr><th>quantity</th><th>value</th><th>limit</th><th>unit</th><th>verdict</th><th>note</th></tr>{''.join(body)}</table>
 <h2>Stage reports</h2>
 <p><a href="../at/report.html">adjustment (ISAT layout)</a>, <a href="../at/report.txt">report.txt</a>,
 <a href="../control/review/review.html">control transfer review</a>, <a href="../ortho/dom_report.json">DOM check</a>,
