@@ -75,17 +75,27 @@ def _origin(xy: np.ndarray) -> tuple[float, float]:
     return math.floor(np.nanmin(xy[:, 0]) / 1000.0) * 1000.0, math.floor(np.nanmin(xy[:, 1]) / 1000.0) * 1000.0
 
 
+def scale_bar(ax, length: float, label: str, thickness: float):
+    """A bar of ``length`` data units with its label, anchored in the lower left of ``ax`` (framed)."""
+    from matplotlib.offsetbox import AnchoredOffsetbox, AuxTransformBox, TextArea, VPacker
+    from matplotlib.patches import Rectangle
+
+    bar = AuxTransformBox(ax.transData)
+    bar.add_artist(Rectangle((0, 0), length, thickness, facecolor="black", edgecolor="black"))
+    box = VPacker(children=[bar, TextArea(label)], align="center", pad=0, sep=3)
+    sb = AnchoredOffsetbox(loc="lower left", child=box, pad=0.4, borderpad=0.5, frameon=True)
+    sb.scale_bar_label = label  # what the bar says, for checks
+    return sb
+
+
 def _map_axes(ax, origin, extent_m: float) -> str:
     """Axis labels relative to ``origin``, equal aspect, plain tick labels and a scale bar; returns its text."""
-    from mpl_toolkits.axes_grid1.anchored_artists import AnchoredSizeBar
-
     ax.set_aspect("equal")
     ax.ticklabel_format(useOffset=False, style="plain")
     ax.set_xlabel(f"easting - {origin[0]:,.0f} (m)".replace(",", " "))
     ax.set_ylabel(f"northing - {origin[1]:,.0f} (m)".replace(",", " "))
     bar = nice_length(extent_m / 5.0)
-    ax.add_artist(AnchoredSizeBar(ax.transData, bar, f"{_fmt(bar)} m", "lower left", pad=0.4, frameon=True,
-                                  size_vertical=extent_m / 300.0))
+    ax.add_artist(scale_bar(ax, bar, f"{_fmt(bar)} m", extent_m / 300.0))
     ax.grid(True, color="0.9", lw=0.5)
     return f"{_fmt(bar)} m"
 

@@ -364,7 +364,8 @@ def _write_flight_acceptance(truth_dir: Path, cfg: dict, plan, cam_true, origin)
     f = cfg["flight"]
     limits = {"flight_tilt_max_deg": f["max_tilt_deg"], "flight_kappa_max_deg": f["max_kappa_dev_deg"]}
     fa = flight_acceptance(plan.image_id, plan.centre_m + origin, plan.opk_deg, cam_true,
-                           Terrain.from_dem(truth_dir / "dem.tif", float(origin[2])), plan.strip, limits)
+                           Terrain.from_dem(truth_dir / "dem.tif", float(origin[2]), source="truth/dem.tif"),
+                           plan.strip, limits)
     for c in fa.failed:
         log.warning(f"flight acceptance: {c['quantity']} {c['value']} {c['unit']} at {c['where']} "
                     f"(limit {c['limit']})")

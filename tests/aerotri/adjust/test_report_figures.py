@@ -8,7 +8,7 @@ import re
 import numpy as np
 import pytest
 from matplotlib.quiver import QuiverKey
-from mpl_toolkits.axes_grid1.anchored_artists import AnchoredSizeBar
+from matplotlib.offsetbox import AnchoredOffsetbox
 
 from aerotri.adjust import report
 from aerotri.adjust import report_figures as RF
@@ -42,14 +42,15 @@ def test_every_figure_has_its_scale_key(adjusted):
     plan = [np.hypot(*r["d_m"][:2]) for r in rep["check_points"]] + [
         np.hypot(*r["residual_m"][:2]) for r in rep["control_points"] if r["used"] and None not in r["residual_m"][:2]]
     assert qk.U == RF.nice_length(np.percentile(plan, 95)) and qk.text.get_text().endswith("m plan residual")
-    assert _artists(ground.fig, AnchoredSizeBar) and f"arrow = {qk.U:g} m" in ground.key
+    (bar,) = [a for a in _artists(ground.fig, AnchoredOffsetbox) if hasattr(a, "scale_bar_label")]
+    assert f"arrow = {qk.U:g} m" in ground.key and f"map scale bar {bar.scale_bar_label}" in ground.key
     assert "1e6" not in " ".join(t.get_text() for ax in ground.fig.axes for t in ax.get_xticklabels())
     frames = figs["Image residuals per frame"]
     (fk,) = _artists(frames.fig, QuiverKey)
     assert " um " in fk.text.get_text() and f"{fk.U:g} um" in frames.key
-    assert _artists(figs["Von Gruber tie-point distribution"].fig, AnchoredSizeBar)
+    assert _artists(figs["Von Gruber tie-point distribution"].fig, AnchoredOffsetbox)
     assert any("von Gruber" in ax.get_ylabel() for ax in figs["Von Gruber tie-point distribution"].fig.axes)  # colour bar
-    assert _artists(figs["Flight: footprints on the terrain"].fig, AnchoredSizeBar)
+    assert _artists(figs["Flight: footprints on the terrain"].fig, AnchoredOffsetbox)
     assert all("(m)" in ax.get_ylabel() for ax in figs["GNSS shift and drift per strip"].fig.axes if ax.get_ylabel())
     for f in figs.values():
         assert f.key and f.caption
