@@ -25,6 +25,9 @@ test: $(STAMP)
 	$(BIN)/python -m pytest -q
 
 bench: $(STAMP)
+	# headless Chromium and pdftoppm for bench/render_reports.py (what a reviewer sees); bench only
+	if ! command -v chromium >/dev/null || ! command -v pdftoppm >/dev/null; then \
+		$$( [ "$$(id -u)" = 0 ] || echo sudo ) apt-get install -y chromium poppler-utils; fi
 	$(BIN)/pip install --quiet -e ".[test,bench]"
 	$(BIN)/pip install --quiet --no-deps "orthority>=0.4"
 	@for b in bench/*.py; do echo "== $$b"; $(BIN)/python $$b || exit 1; done

@@ -617,6 +617,7 @@ def write_outputs(ba: BlockAdjustment, root, html: bool = True, out_dir=None) ->
     import json
 
     from aerotri.adjust import report
+    from aerotri.adjust.flight_acceptance import project_terrain
     from aerotri.geom.eo import format_eo
     from aerotri.core.tolerances import qa_settings
     from aerotri.core.atomic import write_text_atomic
@@ -624,7 +625,7 @@ def write_outputs(ba: BlockAdjustment, root, html: bool = True, out_dir=None) ->
     project = Project.open(root)
     at = Path(out_dir) if out_dir is not None else project.at_dir
     qa = qa_settings(root)  # the limits of the project's map scale and terrain, as in reports/
-    rep = report.build_report(ba, qa["map_scale"], qa["terrain"], qa["tolerances"])
+    rep = report.build_report(ba, qa["map_scale"], qa["terrain"], qa["tolerances"], project_terrain(project))
     files = {
         "report.txt": report.format_txt(rep),
         "report.json": json.dumps(rep, indent=1, allow_nan=False, default=_json_default),

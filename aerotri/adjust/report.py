@@ -6,9 +6,8 @@ Residuals are observed minus adjusted for image points, adjusted minus given for
 
 from __future__ import annotations
 
-import base64
 import dataclasses
-import io
+import html
 import math
 
 import numpy as np
@@ -103,16 +102,56 @@ def _check_rows(ba) -> tuple[list[dict], np.ndarray, np.ndarray]:
     return rows, np.array(dchk).reshape(-1, 3), np.array(nchk).reshape(-1, 3)
 
 
+GRID_CELLS = (6, 4)  # cells of the image residual grid along the long and the short image side
+
+
+def _image_cells(xy_px, width: int, height: int, nx: int, ny: int) -> np.ndarray:
+    """Row-major cell index (0 .. nx * ny - 1, top-left first) of pixel positions on an nx x ny grid."""
+    cx = np.clip((np.asarray(xy_px[:, 0]) + 0.5) * nx // width, 0, nx - 1).astype(int)
+    cy = np.clip((np.asarray(xy_px[:, 1]) + 0.5) * ny // height, 0, ny - 1).astype(int)
+    return cy * nx + cx
+
+
+def _frame_grids(ba, res: _Residuals, i: int) -> dict:
+    """Per frame: tie observations in the nine von Gruber areas (3 x 3, row-major from the top left) and
+    the mean image residual (um) in the cells of a ``GRID_CELLS`` grid: the systematic part a reviewer
+    looks for (the random part averages out)."""
+    b, cam = ba.block, ba.camera_apriori
+    k = res.active & (b.obs_image == i)
+    tie = res.tie & (b.obs_image == i)
+    gruber = np.bincount(_image_cells(b.obs_xy_px[tie], cam.width, cam.height, 3, 3), minlength=9)
+    nx, ny = GRID_CELLS if cam.width >= cam.height else GRID_CELLS[::-1]
+    cell = _image_cells(b.obs_xy_px[k], cam.width, cam.height, nx, ny)
+    n = np.bincount(cell, minlength=nx * ny)
+    vx = np.bincount(cell, res.v_um[k, 0], minlength=nx * ny) / np.maximum(n, 1)
+    vy = np.bincount(cell, res.v_um[k, 1], minlength=nx * ny) / np.maximum(n, 1)
+    return {"von_gruber_tie_obs": [int(v) for v in gruber],
+            "residual_grid": {"nx": nx, "ny": ny, "n": [int(v) for v in n], "mean_vx_um": _lst(vx, 2),
+                              "mean_vy_um": _lst(vy, 2)}}
+
+
 def _photo_rows(ba, res: _Residuals) -> list[dict]:
     b = ba.block
     sig = ba.eo_map.sigma
     photos = []
+    corr = None
+    if ba.gnss_residual_m is not None and ba.opts.gnss_correction != "none":
+        s, t = b.strip.astype(int), np.asarray(b.along_km, dtype=float)
+        st = ba.result.state
+        corr = st.shift[s] + (t[:, None] * st.drift[s] if ba.opts.gnss_correction == "shift_drift" else 0.0)
     for i, iid in enumerate(b.image_id):
         k = res.active & (b.obs_image == i)
         row = {"image_id": iid, "strip": int(b.strip[i]) + 1, "obs": int(k.sum()),
-               "rms_x_um": _f(_rms(res.v_um[k, 0])), "rms_y_um": _f(_rms(res.v_um[k, 1]))}
+               "rms_x_um": _f(_rms(res.v_um[k, 0])), "rms_y_um": _f(_rms(res.v_um[k, 1])),
+               "along_km": _f(b.along_km[i], 4)}
         if ba.gnss_residual_m is not None:
             row["gnss_residual_m"] = _lst(ba.gnss_residual_m[i], 4)
+            # GNSS minus the adjusted antenna: the strip's correction minus the residual (local east,
+            # north, up; the correction is zero when the solve corrects none)
+            c = corr[i] if corr is not None else np.zeros(3)
+            row["gnss_offset_m"] = _lst(c - ba.gnss_residual_m[i], 4)
+            row["gnss_correction_m"] = _lst(c, 4)
+        row.update(_frame_grids(ba, res, i))
         if sig is not None:
             row["sigma_position_m"] = _lst(sig[i, :3], 4)
             row["sigma_attitude_deg"] = _lst(sig[i, 3:], 5)
@@ -316,9 +355,21 @@ def _geometry_modes(ba, height_limit_m: float) -> list | None:
              "shares": {k: _f(v, 3) for k, v in g.shares.items()}} for g in ba.result.geometry]
 
 
-def build_report(ba, map_scale: str = "1:5000", terrain: str = "flat", tolerance_file=None) -> dict:
+def _flight(ba, ground, tol: dict) -> dict | None:
+    """The flight acceptance of the adjusted orientations (``flight_acceptance``), footprints on ``ground``."""
+    if ground is None:
+        return None
+    from aerotri.adjust.flight_acceptance import flight_acceptance
+
+    eo = ba.eo_map
+    return flight_acceptance(eo.image_id, eo.centre_m, eo.opk_deg, ba.camera_adjusted, ground,
+                             np.asarray(ba.block.strip) + 1, tol).as_dict()
+
+
+def build_report(ba, map_scale: str = "1:5000", terrain: str = "flat", tolerance_file=None, ground=None) -> dict:
     """All report numbers as a JSON-ready dict (keys with units). RMS and residual limits come from the
-    tolerance table of ``map_scale`` and ``terrain`` (or ``tolerance_file``) unless the settings give them."""
+    tolerance table of ``map_scale`` and ``terrain`` (or ``tolerance_file``) unless the settings give them.
+    ``ground``: a ``flight_acceptance.Terrain`` for the flight acceptance section (None: no section)."""
     r, b, opts, st = ba.result, ba.block, ba.opts, ba.settings
     tol = load_tolerances(map_scale, terrain, tolerance_file)
     tol_table = tolerance_path(map_scale, tolerance_file).name
@@ -365,6 +416,7 @@ def build_report(ba, map_scale: str = "1:5000", terrain: str = "flat", tolerance
         "surface_control": _surface_control(ba),
         "variance_components": _variance_components(ba),
         "geometry_modes": _geometry_modes(ba, rms_lim[2]),
+        "flight_acceptance": _flight(ba, ground, tol),
         "timings_s": {k: _f(v, 3) for k, v in r.timings_s.items()},
     }
 
@@ -417,14 +469,18 @@ def _v(x, w=10, nd=3):
     return f"{'' if x is None else f'{x:.{nd}f}':>{w}}"
 
 
+# report.json option key -> the ISAT "PhotoT Triangulation Options" name
+ISAT_OPTIONS = {"adjustment_mode": "Adjustment Mode", "precision_computation": "Precision Computation",
+                "error_detection": "Error Detection", "camera_calibration": "Camera Calibration",
+                "self_calibration": "Self-Calibration", "given_eo_gps": "Given EO/GPS",
+                "antenna_offsets": "Antenna Offsets", "gps_shift_drift_correction": "GPS Shift/Drift Correction",
+                "ins_shift_drift_correction": "INS Shift/Drift Correction", "tolerances": "Tolerances"}
+
+
 def format_txt(rep: dict) -> str:
     o = rep["options"]
     L = [f"Photo-T Parameters and Results for Project {rep['project']}", "", "PhotoT Triangulation Options"]
-    for name, key in [("Adjustment Mode", "adjustment_mode"), ("Precision Computation", "precision_computation"),
-                      ("Error Detection", "error_detection"), ("Camera Calibration", "camera_calibration"),
-                      ("Self-Calibration", "self_calibration"), ("Given EO/GPS", "given_eo_gps"),
-                      ("Antenna Offsets", "antenna_offsets"), ("GPS Shift/Drift Correction", "gps_shift_drift_correction"),
-                      ("INS Shift/Drift Correction", "ins_shift_drift_correction"), ("Tolerances", "tolerances")]:
+    for key, name in ISAT_OPTIONS.items():
         L.append(f"  {name} : {o[key]}")
     L += ["", "Parameters", f"{'':32}{'X/Omega':>10}{'Y/Phi':>10}{'Z/Kappa':>10}{'XY':>10}"]
     rows = [("RMS Control (m)", "rms_control_m", 3), ("RMS Check (m)", "rms_check_m", 3), ("RMS Limits (m)", "rms_limits_m", 3),
@@ -521,6 +577,17 @@ def format_txt(rep: dict) -> str:
         L += ["", "GNSS corrections per strip", f"{'strip':>6} {'shift X':>9} {'Y':>9} {'Z':>9} {'drift X':>9} {'Y':>9} {'Z':>9} (m, m/km)"]
         for s in rep["gnss_strips"]:
             L.append(f"{s['strip']:6d}" + "".join(_v(x, 10, 3) for x in s["shift_m"] + s["drift_m_per_km"]))
+    fa = rep.get("flight_acceptance")
+    if fa:
+        from aerotri.adjust.flight_acceptance import LIMIT_KEYS
+
+        L += ["", f"FLIGHT ACCEPTANCE ({fa['source']}; footprints on {fa['terrain']})",
+              f"  {'check':48}{'worst':>9}{'limit':>9} {'unit':5} {'at':>14}{'failing':>10}  verdict"]
+        for c in fa["checks"]:
+            op = "<= " if LIMIT_KEYS[c["key"]][2] == "max" else ">= "
+            lim = "" if c["limit"] is None else f"{op}{c['limit']:g}"
+            L.append(f"  {c['quantity']:48}{_v(c['value'], 9, 2)}{lim:>9} {c['unit']:5} {c['where']:>14}"
+                     f"{c['n_fail']:>5} of {c['n']:<3} {c['verdict'] or 'not measured'}")
     L += ["", "Photos (image residual RMS um; GNSS residual m; std dev of position m)",
           f"{'image':>12} {'strip':>5} {'obs':>5} {'rms x':>7} {'rms y':>7} {'gX':>8} {'gY':>8} {'gZ':>8} {'sX':>7} {'sY':>7} {'sZ':>7}"]
     for p in rep["photos"]:
@@ -545,16 +612,7 @@ def format_txt(rep: dict) -> str:
     return "\n".join(L) + "\n"
 
 
-def _png(fig) -> str:
-    import matplotlib.pyplot as plt
-
-    buf = io.BytesIO()
-    fig.savefig(buf, format="png", dpi=90, bbox_inches="tight")
-    plt.close(fig)
-    return base64.b64encode(buf.getvalue()).decode()
-
-
-def _surface_figure(ba, plt) -> str:
+def _surface_figure(ba, plt):
     """Map of the surface control: tie points held to the DEM (dots) and to roof planes (squares) coloured by
     their residual in sigmas, rejected ones as crosses (grey: ground, red: roof)."""
     r = ba.result
@@ -584,52 +642,160 @@ def _surface_figure(ba, plt) -> str:
     ax.legend(loc="lower right", fontsize=8)
     ax.set_title(f"Surface control: {int(used.sum())} tie points on the DEM" + (
         f" and roof planes ({int((used & (cls == 1)).sum())})" if (cls == 1).any() else ""))
-    return _png(fig)
+    return fig
 
 
-def format_html(rep: dict, ba) -> str:
-    """report.html: the txt report plus residual vectors over the block, layout and histograms."""
-    import matplotlib
+def report_figures(rep: dict, ba=None) -> list:
+    """The report's figures (``report_figures.Figure``, each with its scale key): ground residual vectors,
+    image residuals per frame, GNSS per strip, von Gruber areas, flight footprints from ``rep``; the
+    residual histograms and the surface control map when the adjustment ``ba`` is at hand."""
+    from aerotri.adjust import report_figures as RF
 
-    matplotlib.use("Agg")
-    import jinja2
-    import matplotlib.pyplot as plt
+    figs = [RF.ground_residual_map(rep), RF.image_residual_frames(rep, (rep.get("key_statistics") or {}).get("pixel_um")),
+            RF.gnss_strip_plot(rep), RF.von_gruber_map(rep), RF.flight_map(rep.get("flight_acceptance") or {})]
+    if ba is not None:
+        plt = RF._plt()
+        r = ba.result
+        act = r.obs_active
+        fig, axs = plt.subplots(1, 2, figsize=(10, 3.6))
+        for a, ax in enumerate(axs):
+            ax.hist(r.residual_px[act, a] * ba.camera_apriori.pixel_um, bins=60, color="tab:blue")
+            ax.set_xlabel(f"image residual v{'xy'[a]} (um)")
+            ax.set_ylabel("observations")
+            ax.grid(True, color="0.9", lw=0.5)
+        figs.append(RF.Figure("Image residual histograms", "All active image observations.",
+                              "horizontal axes in microns on the image, vertical in observations", fig))
+        if r.surface_use is not None and ba.block.surface is not None:
+            figs.append(RF.Figure("Surface control", "Tie points held to the DEM (dots) and to roof planes "
+                                  "(squares), coloured by their residual; crosses: rejected.",
+                                  "colour = point - surface in sigmas (colour bar); axes in metres",
+                                  _surface_figure(ba, plt)))
+    return [f for f in figs if f is not None]
 
-    b, r = ba.block, ba.result
-    act = r.obs_active
-    figs = []
-    # residual vectors over the block (object positions of the points, vectors exaggerated)
-    fig, ax = plt.subplots(figsize=(8, 6))
-    P = ba.points_map[b.obs_point[act]]
-    v = r.residual_px[act]
-    scale = 0.05 * (np.nanmax(P[:, 0]) - np.nanmin(P[:, 0]) + 1) / max(np.nanpercentile(np.hypot(*v.T), 99), 1e-9)
-    sel = np.arange(len(P))[:: max(1, len(P) // 5000)]
-    ax.quiver(P[sel, 0], P[sel, 1], v[sel, 0] * scale, -v[sel, 1] * scale, angles="xy", scale_units="xy", scale=1, width=0.002)
-    ax.set_title("Image residuals at the object points (exaggerated)")
-    ax.set_aspect("equal")
-    figs.append(("Residual vectors", _png(fig)))
-    # control / check layout
-    fig, ax = plt.subplots(figsize=(8, 6))
-    ax.plot(ba.eo_map.centre_m[:, 0], ba.eo_map.centre_m[:, 1], ".", color="0.6", label="projection centres")
-    for row in rep["control_points"]:
-        ax.plot(row["given_m"][0], row["given_m"][1], "^" if row["used"] else "x", color="tab:red")
-        ax.annotate(row["id"], row["given_m"][:2], fontsize=7)
-    for row in rep["check_points"]:
-        ax.plot(row["measured_m"][0], row["measured_m"][1], "o", color="tab:blue", mfc="none")
-    ax.set_aspect("equal")
-    ax.set_title("Control (triangles, x = rejected) and check points (circles)")
-    figs.append(("Control and check layout", _png(fig)))
-    fig, axs = plt.subplots(1, 2, figsize=(10, 4))
-    for a, ax in enumerate(axs):
-        ax.hist(r.residual_px[act, a] * ba.camera_apriori.pixel_um, bins=60)
-        ax.set_xlabel(f"v{'xy'[a]} (um)")
-    figs.append(("Residual histograms", _png(fig)))
-    if r.surface_use is not None and b.surface is not None:
-        figs.append(("Surface control", _surface_figure(ba, plt)))
-    tpl = jinja2.Template(
-        "<!doctype html><html><head><meta charset='utf-8'><title>Photo-T report {{ name }}</title></head><body>"
-        "<h1>Photo-T Parameters and Results for Project {{ name }}</h1>"
-        "{% for t, img in figs %}<h2>{{ t }}</h2><img src='data:image/png;base64,{{ img }}'>{% endfor %}"
-        "<h2>Report</h2><pre>{{ txt | e }}</pre></body></html>"
-    )
-    return tpl.render(name=rep["project"], figs=figs, txt=format_txt(rep))
+
+def format_html(rep: dict, ba=None) -> str:
+    """report.html: the ISAT blocks and the RMS, control, check, GNSS, photo and flight tables as HTML
+    tables, and the figures with their scale keys (the plain-text layout: report.txt)."""
+    from aerotri.adjust import report_figures as RF
+
+    T, esc = RF.table, html.escape
+    o, k = rep["options"], rep["key_statistics"]
+    parts = [f"<h1>Photo-T Parameters and Results for Project {esc(str(rep['project']))}</h1>",
+             "<p>Plain-text layout: <a href='report.txt'>report.txt</a>; all numbers: <a href='report.json'>"
+             "report.json</a>.</p>", "<h2>PhotoT Triangulation Options</h2>"]
+    names = dict(ISAT_OPTIONS, image_sigma_px="A-priori image sigma (px)", snooping_alpha="Data snooping alpha")
+    parts.append(T(["option", "value"], [[names.get(n, n.replace("_", " ").capitalize()),
+                                          f"{v:g}" if isinstance(v, float) else v] for n, v in o.items()]))
+    parts.append("<h2>Parameters</h2>")
+    rows = [("RMS Control (m)", "rms_control_m"), ("RMS Check (m)", "rms_check_m"), ("RMS Limits (m)", "rms_limits_m"),
+            ("Max Ground Residual (m)", "max_ground_residual_m"), ("Residual Limits (m)", "residual_limits_m"),
+            ("Mean Std Dev Object (m)", "mean_std_dev_object_m"), ("RMS Photo Position (m)", "rms_photo_position_m"),
+            ("RMS Photo Attitude (deg)", "rms_photo_attitude_deg"),
+            ("Mean Std Dev Photo Position (m)", "mean_std_dev_photo_position_m"),
+            ("Mean Std Dev Photo Attitude (deg)", "mean_std_dev_photo_attitude_deg")]
+    parts.append(T(["", "X/Omega", "Y/Phi", "Z/Kappa", "XY"],
+                   [[label] + list(rep["parameters"][key] or [None] * 4) for label, key in rows], 4))
+    sigma = "n/a" if k["sigma0_um"] is None else f"{k['sigma0_um']:.2f} um ({k['sigma0_px']:.3f} px of {k['pixel_um']:g} um)"
+    parts.append("<h2>Key Statistics</h2>" + T(["statistic", "value"], [
+        ["Sigma", sigma], ["Number of iterations", k["iterations"]], ["Degrees of Freedom", k["degrees_of_freedom"]],
+        ["Result", k["message"]]], num_from=9))
+    c = rep["counts"]
+    parts.append(f"<p>Images {c['images']} in {c['strips']} strips, tie points {c['tie_points']}, control points "
+                 f"{c['control_points']}, check points {c['check_points']}, image observations "
+                 f"{c['image_observations']}, removed {c['removed_observations']}.</p>")
+    figs = {f.title: f for f in report_figures(rep, ba)}
+
+    def fig(title):
+        f = figs.pop(title, None)
+        return f.html() if f is not None else ""
+
+    ir = rep["image_residuals"]
+    parts.append("<h2>Residuals of photogrammetric observations (PATB)</h2>")
+    parts.append(T(["points", "axis", "obs", "rms um", "rms m", "check value um"],
+                   [[name, ax, blk.get("obs_" + ax), blk.get(f"rms_{ax}_um"), blk.get(f"rms_{ax}_m"), blk.get(f"chv_{ax}_um")]
+                    for name, blk in (("tie points", ir["tie"]), ("control points", ir["control"])) if blk.get("obs_x")
+                    for ax in "xy"], 4, num_from=2))
+    if ir["control_to_tie_ratio"] is not None:
+        parts.append(f"<p>Control / tie image residual ratio: {ir['control_to_tie_ratio']:.2f} (about 4 is normal, "
+                     "around 10 points at a systematic error).</p>")
+    if ir["warning"]:
+        parts.append(f"<p class='fail'>WARNING: {esc(ir['warning'])}</p>")
+    parts.append(fig("Image residuals per frame"))
+    parts.append(fig("Image residual histograms"))
+    parts.append("<h2>Control and check points</h2>")
+    parts.append(fig("Control and check-point residual vectors"))
+    parts.append("<h3>Control points (residual = adjusted - given)</h3>")
+    parts.append(RF.long_table("control points", ["id", "kind", "used", "rays", "dX m", "dY m", "dZ m", "image rms um"],
+                   [[r["id"], r["kind"], r["used"], r["rays"], *r["residual_m"], r["image_rms_um"]]
+                    for r in rep["control_points"]], 4, num_from=3))
+    if rep["rejected_control"]:
+        parts.append("<p>Control points failing the test (excluded): "
+                     + ", ".join(f"{esc(str(x['id']))} (w = {x['w']})" for x in rep["rejected_control"]) + "</p>")
+    if rep["check_points"]:
+        parts.append("<h3>Check points (d = adjusted - measured)</h3>")
+        crow = [[r["id"], r["rays"], *r["measured_m"], *r["adjusted_m"], *r["d_m"]] for r in rep["check_points"]]
+        if rep["check_sum_m"]:
+            parts.append(T(["", "points", "dX m", "dY m", "dZ m"],
+                           [["sum", len(crow), *rep["check_sum_m"]], ["rms", len(crow), *rep["check_rms_m"]]], 3))
+            crow += [["sum"] + [None] * 7 + list(rep["check_sum_m"]), ["rms"] + [None] * 7 + list(rep["check_rms_m"])]
+        parts.append(RF.long_table("check points", ["id", "rays", "X m", "Y m", "Z m", "X adj m", "Y adj m", "Z adj m",
+                                                    "dX m", "dY m", "dZ m"], crow, 3))
+        if rep["check_normalised_rms"]:
+            parts.append("<p>Normalised check errors (d / sigma), RMS X Y Z: "
+                         + " ".join(f"{x:.2f}" for x in rep["check_normalised_rms"]) + "</p>")
+    if rep.get("gnss_strips") or any(p.get("gnss_offset_m") for p in rep["photos"]):
+        parts.append("<h2>GNSS</h2>")
+        if rep.get("gnss_strips"):
+            parts.append(T(["strip", "shift X m", "shift Y m", "shift Z m", "drift X m/km", "drift Y m/km",
+                            "drift Z m/km"], [[s["strip"], *s["shift_m"], *s["drift_m_per_km"]]
+                                              for s in rep["gnss_strips"]], 4))
+        parts.append(fig("GNSS shift and drift per strip"))
+    parts.append("<h2>Tie-point distribution</h2>")
+    parts.append(fig("Von Gruber tie-point distribution"))
+    fa = rep.get("flight_acceptance")
+    if fa:
+        parts.append("<h2>Flight acceptance</h2>" + RF.flight_tables(fa))
+        parts.append(fig("Flight: footprints on the terrain"))
+    sc = rep.get("self_calibration")
+    if sc:
+        parts.append(f"<h2>Self-calibration ({esc(', '.join(sc['groups']))})</h2>")
+        parts.append(T(["parameter", "a priori", "adjusted", "std dev"],
+                       [[n, sc["apriori"][n], sc["adjusted"][n], (sc["std_dev"] or {}).get(n)] for n in sc["adjusted"]], 6))
+    vc = rep.get("variance_components")
+    if vc:
+        parts.append("<h2>Variance components</h2>" + T(
+            ["group", "obs", "redundancy", "factor", "weighted", "estimated", "a-priori"],
+            [[g["group"], g["observations"], g["redundancy"], g["factor"], g["weight_factor"], g["estimated_factor"],
+              g["apriori_sigma"]] for g in vc], 3))
+    gm = rep.get("geometry_modes")
+    if gm:
+        groups = [x for x in ("image", "gnss", "control", "surface", "priors") if any(x in g["shares"] for g in gm)]
+        parts.append("<h2>Block geometry</h2>" + T(
+            ["mode", "sigma m", "sigma deg"] + [f"share {x}" for x in groups] + ["weak"],
+            [[g["mode"], g["sigma_m"], g["sigma_deg"], *[g["shares"].get(x) for x in groups],
+              "YES (held by priors)" if g["held_by_priors"] else "YES" if g["weak"] else "no"] for g in gm], 4))
+    if rep.get("surface_control"):
+        parts.append("<h2>Surface control</h2>" + fig("Surface control"))
+    parts.append("<h2>Photos</h2>")
+    parts.append(RF.long_table("photos", ["image", "strip", "obs", "rms x um", "rms y um", "GNSS res X m", "Y m", "Z m", "sX m", "sY m", "sZ m",
+                    "tie obs per von Gruber area"],
+                   [[p["image_id"], p["strip"], p["obs"], p["rms_x_um"], p["rms_y_um"],
+                     *(p.get("gnss_residual_m") or [None] * 3), *(p.get("sigma_position_m") or [None] * 3),
+                     " ".join(str(v) for v in p.get("von_gruber_tie_obs", []))] for p in rep["photos"]], 3))
+    pairs = rep.get("image_pairs") or []
+    parts.append(f"<h2>Image pairs</h2><p>{len(pairs)} pairs share tie points; the {min(len(pairs), 20)} weakest "
+                 "(all: report.json).</p>")
+    parts.append(T(["left", "right", "points", "in 3+ frames", "rms um", "rms px"],
+                   [[x["left"], x["right"], x["tie_points"], x["in_3plus_frames"], x["rms_um"], x["rms_px"]]
+                    for x in pairs[:20]], 3, num_from=2))
+    parts.append("<h2>Tie points with the largest image residuals</h2>" + T(
+        ["point", "rays", "rms um", "X m", "Y m", "Z m"],
+        [[x["point_id"], x["rays"], x["rms_um"], *x["xyz_m"]] for x in rep["worst_tie_points"]], 3))
+    rem = rep["removed_observations"]
+    parts.append(f"<h2>Removed observations ({len(rem)})</h2>")
+    if rem:
+        parts.append(RF.long_table("removed observations", ["point", "image", "w", "vx px", "vy px", "round"],
+                       [[x["point_id"], x["image_id"], x["w"], *x["residual_px"], x["round"]] for x in rem[:200]], 2))
+    parts += [f.html() for f in figs.values()]  # any figure without a place of its own
+    return (f"<!doctype html><html><head><meta charset='utf-8'><title>Photo-T report {esc(str(rep['project']))}"
+            f"</title><style>{RF.STYLE}</style></head><body>{''.join(parts)}</body></html>")

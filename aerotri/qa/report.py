@@ -14,10 +14,13 @@ else 1:5000 flat.
 from __future__ import annotations
 
 import html
+import io
 import json
 import math
 from pathlib import Path
 
+from aerotri.adjust import report_figures as RF
+from aerotri.adjust.flight_acceptance import LIMIT_KEYS, project_flight_acceptance
 from aerotri.control.layout import empty_target_text
 from aerotri.core.atomic import atomic_path, write_text_atomic
 from aerotri.core.errors import InputError, StageOrderError
@@ -69,6 +72,28 @@ def _hypot(a, b):
     return round(math.hypot(a, b), 4)
 
 
+
+
+def flight_rows(fa: dict, tol: dict) -> list:
+    """The flight acceptance checks as verdict rows; the limits are those of this report's table (a
+    section computed by the adjustment with another table is judged again)."""
+    rows = []
+    for c in fa["checks"]:
+        kind = LIMIT_KEYS[c["key"]][2]
+        limit = tol.get(c["key"], c["limit"])
+        value = c["value"]
+        if value is None:
+            verdict = None
+        elif limit is None:
+            verdict = None
+        else:
+            verdict = "pass" if (value <= limit if kind == "max" else value >= limit) else "fail"
+        n_fail = c["n_fail"] if limit == c["limit"] else None
+        note = (f"worst at {c['where']}" + (f"; {n_fail} of {c['n']} beyond the limit" if n_fail else "")
+                + ("" if kind == "max" else "; a lower limit: the value must reach it"))
+        rows.append(dict(section="Flight acceptance", quantity=c["quantity"], value=value, limit=limit, unit=c["unit"],
+                         note=note if value is not None else "not measured", verdict=verdict))
+    return rows
 
 
 def stage_results(project: Project) -> list:
@@ -206,6 +231,19 @@ def build_qa_report(root, tolerance_file=None, terrain: str | None = None, scale
         rows.append(_check(sec, "misalignment across seamlines, RMS", round(seams["rms_px"], 3),
                            tol.get("seam_misalignment_rms_px"), "px", f"{seams.get('patches')} patches"))
 
+    # Flight acceptance: from the adjustment's report when it has the section, else computed here (before
+    # the adjustment: GNSS positions with the nominal attitude)
+    fa = at.get("flight_acceptance") if at.get("flight_acceptance") else None
+    if fa is None and (project.eo_path.is_file() or project.gnss_path.is_file()) and project.camera_path.is_file():
+        got = project_flight_acceptance(root, tol)
+        fa = got.as_dict() if got is not None else None
+    if fa:
+        rows += flight_rows(fa, tol)
+    elif project.eo_path.is_file() or project.gnss_path.is_file():
+        rows.append(_check("Flight acceptance", "flight acceptance", None, None, "",
+                           "not measured: no camera.toml, or no DEM (lidar_out/dem.tif) and no [flight] "
+                           "mean_terrain_height_m to put the footprints on"))
+
     verdicts = [r["verdict"] for r in rows if r["verdict"]]
     info = dict(
         adjustment=dict(sigma0_um=ks.get("sigma0_um"), iterations=ks.get("iterations"), counts=at.get("counts"),
@@ -219,7 +257,7 @@ def build_qa_report(root, tolerance_file=None, terrain: str | None = None, scale
     return dict(project=at.get("project", root.name), map_scale=tol_path.stem if tol_file else scale,
                 tolerance_table=str(tol_path.name), terrain=terrain, tolerances=tol, checks=rows,
                 overall=("fail" if "fail" in verdicts else "pass") if verdicts else None,
-                passed=verdicts.count("pass"), failed=verdicts.count("fail"), details=info)
+                passed=verdicts.count("pass"), failed=verdicts.count("fail"), details=info, flight_acceptance=fa)
 
 
 def _cell(v) -> str:
@@ -230,38 +268,123 @@ def _cell(v) -> str:
     return html.escape(str(v))
 
 
-def format_html(rep: dict) -> str:
+def _label(key: str) -> str:
+    """A JSON key as a column or row label: words, with the unit in brackets (``rms_xy_m`` -> rms xy (m))."""
+    units = {"m": "m", "pct": "%", "um": "um", "px": "px", "gsd": "GSD", "deg": "deg", "s": "s", "km": "km"}
+    parts = key.split("_")
+    if len(parts) > 1 and parts[-1] in units:
+        return " ".join(parts[:-1]) + f" ({units[parts[-1]]})"
+    return key.replace("_", " ")
+
+
+def details_html(value, depth: int = 0) -> str:
+    """A stage's numbers as tables: scalars as name/value rows, lists of records as tables, nested
+    objects as their own small tables (no JSON)."""
+    if isinstance(value, list) and value and all(isinstance(v, dict) for v in value):
+        cols = list(dict.fromkeys(k for v in value for k in v))
+        return RF.table([_label(c) for c in cols], [[_scalar(v.get(c)) for c in cols] for v in value], 3, num_from=0)
+    if isinstance(value, dict):
+        flat = [[_label(k), _scalar(v)] for k, v in value.items() if not isinstance(v, (dict, list)) or
+                (isinstance(v, list) and all(not isinstance(x, (dict, list)) for x in v))]
+        out = RF.table(["quantity", "value"], flat, 4) if flat else ""
+        for k, v in value.items():
+            if isinstance(v, dict) or (isinstance(v, list) and v and any(isinstance(x, (dict, list)) for x in v)):
+                out += f"<h{min(4 + depth, 6)}>{html.escape(_label(k))}</h{min(4 + depth, 6)}>" + details_html(v, depth + 1)
+        return out
+    return f"<p>{html.escape(str(_scalar(value)))}</p>"
+
+
+def _scalar(v):
+    if isinstance(v, list):
+        return ", ".join(_cell(x) for x in v)
+    if isinstance(v, float):
+        return round(v, 4)
+    return v
+
+
+def report_figures(rep: dict, project: Project) -> list:
+    """The adjustment's figures (drawn from at/report.json, as in at/report.html) and the flight map."""
+    at = _json(project.adjustment_report_path)
+    if at:
+        from aerotri.adjust.report import report_figures as at_figures
+
+        at = {**at, "flight_acceptance": rep.get("flight_acceptance") or at.get("flight_acceptance")}
+        return at_figures(at)
+    fig = RF.flight_map(rep.get("flight_acceptance") or {})
+    return [fig] if fig is not None else []
+
+
+STAGE_IMAGES = (("../ortho/dom_report.png", "DOM displacement against the reference"),
+                ("../at/connectivity.png", "Tie-point connectivity"))
+
+
+def format_html(rep: dict, figures: list | None = None, stage_images=STAGE_IMAGES) -> str:
+    """index.html: the verdict table, links to the stage reports, the stage plots present, the figures
+    (``report_figures``), the flight acceptance tables and the stages' numbers as tables."""
     body, section = [], None
     for r in rep["checks"]:
         if r["section"] != section:
             section = r["section"]
             body.append(f"<tr><th colspan='6' class='sec'>{html.escape(section)}</th></tr>")
-        body.append(f"<tr><td>{_cell(r['quantity'])}</td><td>{_cell(r['value'])}</td><td>{_cell(r['limit'])}</td>"
+        body.append(f"<tr><td>{_cell(r['quantity'])}</td><td class='num'>{_cell(r['value'])}</td>"
+                    f"<td class='num'>{_cell(r['limit'])}</td>"
                     f"<td>{_cell(r['unit'])}</td><td class='{r['verdict'] or ''}'>{_cell(r['verdict'])}</td>"
                     f"<td>{_cell(r['note'])}</td></tr>")
-    details = "".join(f"<h3>{html.escape(k.replace('_', ' '))}</h3><pre>{html.escape(json.dumps(v, indent=1))}</pre>"
+    details = "".join(f"<h3>{html.escape(k.replace('_', ' '))}</h3>{details_html(v)}"
                       for k, v in rep["details"].items() if v)
+    fa = rep.get("flight_acceptance")
+    flight = f"<h2>Flight acceptance</h2>{RF.flight_tables(fa)}" if fa else ""
+    figs = "".join(f.html() for f in (figures or []))
+    stage_imgs = "".join(f'<img src="{src}" alt="{html.escape(alt)}">' for src, alt in stage_images)
     return f"""<!doctype html><html><head><meta charset="utf-8"><title>Accuracy report {html.escape(rep['project'])}</title>
-<style>body{{font-family:sans-serif;margin:2em}}td,th{{border:1px solid #ccc;padding:4px 8px;text-align:left}}
-table{{border-collapse:collapse}}th.sec{{background:#eef}}.pass{{background:#cfc}}.fail{{background:#fcc}}
-pre{{background:#f6f6f6;padding:8px}}img{{max-width:48%;margin:4px;border:1px solid #ddd}}</style></head><body>
+<style>{RF.STYLE}
+th.sec{{background:#dde}}table.verdicts td:first-child{{min-width:22em}}.stage img{{max-width:48%;margin:4px;border:1px solid #ddd}}</style></head><body>
 <h1>Accuracy report: {html.escape(rep['project'])}</h1>
 <p>Map scale <b>{html.escape(str(rep['map_scale']))}</b>, terrain class <b>{html.escape(rep['terrain'])}</b>,
 tolerances from {html.escape(rep['tolerance_table'])}.
 Overall verdict: <b class="{rep['overall'] or ''}">{html.escape(rep['overall'] or 'none (no quantity with a tolerance)')}</b>
 ({rep['passed']} passed, {rep['failed']} failed).</p>
-<table><tr><th>quantity</th><th>value</th><th>limit</th><th>unit</th><th>verdict</th><th>note</th></tr>{''.join(body)}</table>
+<table class="verdicts"><tr><th>quantity</th><th>value</th><th>limit</th><th>unit</th><th>verdict</th><th>note</th></tr>{''.join(body)}</table>
 <h2>Stage reports</h2>
 <p><a href="../at/report.html">adjustment (ISAT layout)</a>, <a href="../at/report.txt">report.txt</a>,
 <a href="../control/review/review.html">control transfer review</a>, <a href="../ortho/dom_report.json">DOM check</a>,
 <a href="../lidar_out/height_check.json">LiDAR height check</a>.</p>
-<p><img src="../ortho/dom_report.png" alt="DOM displacement"><img src="../at/connectivity.png" alt="tie-point connectivity"></p>
-{details}</body></html>
+<p class="stage">{stage_imgs}</p>
+<h2>Figures</h2>{figs}
+{flight}
+<h2>Details</h2>{details}</body></html>
 """
 
 
-def write_pdf(path: Path, rep: dict, project: Project) -> None:
-    """The verdict table on the first page, then the plots the stages wrote (A4 landscape)."""
+def _text(v) -> str:
+    """A table cell for the PDF (plain text: no HTML escapes)."""
+    if v is None:
+        return ""
+    return f"{v:.4g}" if isinstance(v, float) else str(v)
+
+
+def _pdf_table(pdf, plt, title: str, header: list, rows: list, widths: list, colours=None) -> None:
+    """One A4-landscape page (or more, 34 rows each) with a table."""
+    for start in range(0, max(len(rows), 1), 34):
+        fig = plt.figure(figsize=(11.69, 8.27))
+        fig.text(0.04, 0.95, title + (" (continued)" if start else ""), fontsize=14, weight="bold")
+        ax = fig.add_axes([0.03, 0.03, 0.94, 0.88])
+        ax.axis("off")
+        chunk = rows[start:start + 34]
+        if chunk:
+            t = ax.table(cellText=[[_text(v) for v in r] for r in chunk], colLabels=header, colWidths=widths,
+                         loc="upper left", cellLoc="left",
+                         cellColours=colours[start:start + 34] if colours else None)
+            t.auto_set_font_size(False)
+            t.set_fontsize(7.5)
+            t.scale(1, 1.25)
+        pdf.savefig(fig)
+        plt.close(fig)
+
+
+def write_pdf(path: Path, rep: dict, project: Project, figures: list | None = None) -> None:
+    """The verdict table on the first page, the flight acceptance tables, the report's figures (each with
+    its caption and scale key), then the plots the stages wrote (A4 landscape)."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -292,6 +415,32 @@ def write_pdf(path: Path, rep: dict, project: Project) -> None:
             t.scale(1, 1.25)
         pdf.savefig(fig)
         plt.close(fig)
+        fa = rep.get("flight_acceptance")
+        if fa:
+            ops = {"max": "<=", "min": ">="}
+            rows = [[c["quantity"], c["value"], (f"{ops[LIMIT_KEYS[c['key']][2]]} {c['limit']:g}"
+                                                 if c["limit"] is not None else ""), c["unit"], c["where"],
+                     f"{c['n_fail']} of {c['n']}", c["verdict"] or ""] for c in fa["checks"]]
+            colours = [["white"] * 6 + [{"pass": "#ccffcc", "fail": "#ffcccc"}.get(r[-1], "white")] for r in rows]
+            _pdf_table(pdf, plt, f"Flight acceptance ({fa['source']}; footprints on {Path(str(fa['terrain'])).name})",
+                       ["check", "worst", "limit", "unit", "at", "failing", "verdict"], rows,
+                       [0.36, 0.08, 0.08, 0.05, 0.14, 0.08, 0.07], colours)
+            _pdf_table(pdf, plt, "Flight acceptance per strip",
+                       ["strip", "frames", "first", "last", "curvature %", "height range m", "forward min %",
+                        "side median %", "max tilt deg", "max kappa deg", "failing"],
+                       [[s["strip"], s["frames"], s["first"], s["last"], s["curvature_pct"], s["height_range_m"],
+                         s["forward_overlap_min_pct"], s["side_overlap_median_pct"], s["max_tilt_deg"],
+                         s["max_kappa_deviation_deg"], ", ".join(LIMIT_KEYS[k][0] for k in RF.strip_fails(fa, s))]
+                        for s in fa["strips"]], [0.05, 0.05, 0.1, 0.1, 0.08, 0.08, 0.08, 0.08, 0.08, 0.08, 0.2])
+        for f in figures or []:
+            fig = plt.figure(figsize=(11.69, 8.27))
+            fig.text(0.03, 0.96, f.title, fontsize=14, weight="bold")
+            fig.text(0.03, 0.025, f"{f.caption}  Scale: {f.key}", fontsize=8, wrap=True)
+            ax = fig.add_axes([0.02, 0.07, 0.96, 0.86])
+            ax.imshow(plt.imread(io.BytesIO(f.png()), format="png"))
+            ax.axis("off")
+            pdf.savefig(fig)
+            plt.close(fig)
         for title, png in (("DOM displacement against the reference", project.dom_report_plot_path),
                            ("Tie-point connectivity", project.connectivity_plot_path)):
             if png.is_file():
@@ -309,8 +458,10 @@ def write_qa_report(root, tolerance_file=None, terrain: str | None = None, scale
     project = Project.open(root)
     rep = build_qa_report(project.root, tolerance_file, terrain, scale)
     write_text_atomic(project.report_summary_path, json.dumps(rep, indent=1) + "\n")
-    write_text_atomic(project.report_index_path, format_html(rep))
+    figures = report_figures(rep, project)
+    present = [(src, alt) for src, alt in STAGE_IMAGES if (project.reports_dir / src).resolve().is_file()]
+    write_text_atomic(project.report_index_path, format_html(rep, figures, present))
     rep["html"] = str(project.report_index_path)
     if pdf if pdf is not None else qa_settings(root)["pdf"]:
-        write_pdf(project.report_pdf_path, rep, project)
+        write_pdf(project.report_pdf_path, rep, project, figures)
     return rep

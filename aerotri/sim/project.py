@@ -147,6 +147,7 @@ def simulate(cfg: dict, outdir, force: bool = False) -> SimTruth:
         _write_truth_corners(tmp / "truth", scene, corners, origin)
         targets = _write_check_targets(tmp / "truth", scene, accel, plan, cam_true, origin)
         _write_truth_rasters(tmp / "truth", cfg, layout, scene, accel, origin, epsg)
+        _write_flight_acceptance(tmp / "truth", cfg, plan, cam_true, origin)
         truth = SimTruth(
             preset=cfg["preset"]["name"], seed=seed, crs=f"EPSG:{epsg}", origin_m=origin.tolist(),
             scene_width_m=layout.width_m, scene_height_m=layout.height_m,
@@ -355,6 +356,22 @@ def _max_slope_deg(scene) -> float:
     return round(float(np.degrees(np.arctan(np.hypot(gx, gy))).max()), 1)
 
 
+def _write_flight_acceptance(truth_dir: Path, cfg: dict, plan, cam_true, origin) -> None:
+    """truth/flight_acceptance.json: the flown block's acceptance checks (the same library the reports
+    use) on the true orientations and the true DEM, held to the preset's tilt and kappa limits."""
+    from aerotri.adjust.flight_acceptance import Terrain, flight_acceptance
+
+    f = cfg["flight"]
+    limits = {"flight_tilt_max_deg": f["max_tilt_deg"], "flight_kappa_max_deg": f["max_kappa_dev_deg"]}
+    fa = flight_acceptance(plan.image_id, plan.centre_m + origin, plan.opk_deg, cam_true,
+                           Terrain.from_dem(truth_dir / "dem.tif", float(origin[2]), source="truth/dem.tif"),
+                           plan.strip, limits)
+    for c in fa.failed:
+        log.warning(f"flight acceptance: {c['quantity']} {c['value']} {c['unit']} at {c['where']} "
+                    f"(limit {c['limit']})")
+    (truth_dir / "flight_acceptance.json").write_text(json.dumps(fa.as_dict(), indent=1) + "\n")
+
+
 def _check_plan(plan, scene, cfg):
     """Refuse plans whose cameras do not clear the scene (validated presets should never hit this)."""
     z_top = float(scene.terrain_z.max())
@@ -387,5 +404,6 @@ lidar/                              {lidar_strips} LAS strips, {lidar_points} po
 truth/                              the truth: eo.txt, camera.toml (true interior orientation), dem.tif,
                                     dsm.tif, ortho.tif, lidar/ (true classes, same point order),
                                     roof_corners.csv, buildings.geojson, checkpoints.csv,
-                                    checkpoint_image_points.csv, gnss_truth.toml, frames.csv, truth.json
+                                    checkpoint_image_points.csv, gnss_truth.toml, frames.csv, truth.json,
+                                    flight_acceptance.json
 """

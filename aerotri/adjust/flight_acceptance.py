@@ -1,0 +1,336 @@
+"""Flight acceptance: the checks of an aerial-photography flight against the specification limits.
+
+Per frame: the tilt of the camera axis from the vertical, the kappa deviation (the angle between the
+image's sides and the base direction to the neighbouring frames, reduced modulo 90 deg so that a
+camera mounted with its long side along or across track reads the same), the flying height and its
+change from the previous frame, the forward overlap with the next frame of the strip and the side
+overlap with the neighbouring strip, both from the frames' footprints draped on the DEM (or on the
+mean terrain height when there is no DEM). Per strip: the curvature (the largest distance of a
+projection centre from the line joining the strip's first and last centres, in percent of that
+line's length) and the range of the flying heights.
+
+Limits (``LIMIT_KEYS`` in the tolerance tables' ``[general]`` sections): tilt 2 deg, kappa 7 deg,
+strip curvature 3 %, adjacent flying heights within 30 m, a strip's highest and lowest within 50 m,
+forward overlap at least 56 %, side overlap at least 13 % (the thesis's section 4.1 and the national
+aerial photography specifications it follows). Works from adjusted orientations (``at/eo.txt``) or,
+before the adjustment, from GNSS positions with a nominal attitude (level, image top looking forward:
+tilt and kappa are then not measured). Overlaps are areas: overlap / footprint area of the frame.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from pathlib import Path
+
+import numpy as np
+
+from aerotri.core.errors import InputError
+from aerotri.geom.rotation import rotation_matrix_opk
+from aerotri.geom.strips import strips_from_track
+
+# tolerance-table key -> (quantity, unit, "max" or "min")
+LIMIT_KEYS = {
+    "flight_tilt_max_deg": ("tilt", "deg", "max"),
+    "flight_kappa_max_deg": ("kappa deviation", "deg", "max"),
+    "flight_curvature_max_pct": ("strip curvature", "%", "max"),
+    "flight_height_step_max_m": ("flying-height change between adjacent frames", "m", "max"),
+    "flight_height_range_max_m": ("flying-height range in a strip", "m", "max"),
+    "flight_forward_overlap_min_pct": ("forward overlap", "%", "min"),
+    "flight_side_overlap_min_pct": ("side overlap", "%", "min"),
+}
+DEFAULT_LIMITS = {"flight_tilt_max_deg": 2.0, "flight_kappa_max_deg": 7.0, "flight_curvature_max_pct": 3.0,
+                  "flight_height_step_max_m": 30.0, "flight_height_range_max_m": 50.0,
+                  "flight_forward_overlap_min_pct": 56.0, "flight_side_overlap_min_pct": 13.0}
+BORDER_SAMPLES = 8  # points per image side of a draped footprint
+
+
+@dataclasses.dataclass
+class Terrain:
+    """Ground heights for draping footprints: a DEM (bilinear, NaN outside) or one mean height."""
+
+    mean_height_m: float
+    dem: np.ndarray | None = None  # (rows, cols) heights
+    transform: tuple | None = None  # affine (a, b, c, d, e, f) of the DEM: x = a col + b row + c, y = d col + e row + f
+    source: str = "mean terrain height"
+
+    @classmethod
+    def from_dem(cls, path, mean_height_m: float | None = None, max_side_px: int = 2000,
+                 source: str | None = None) -> "Terrain":
+        """The DEM of ``path``, read averaged down to at most ``max_side_px`` cells a side (a footprint
+        corner needs the terrain height, not its detail; memory stays bounded on a large DEM). ``source``:
+        how reports name it (default the path)."""
+        import rasterio
+        from rasterio.enums import Resampling
+
+        path = Path(path)
+        with rasterio.open(path) as ds:
+            f = max(1.0, max(ds.width, ds.height) / max_side_px)
+            shape = (max(1, round(ds.height / f)), max(1, round(ds.width / f)))
+            z = ds.read(1, masked=True, out_shape=shape, resampling=Resampling.average).astype(float).filled(np.nan)
+            tr = ds.transform @ ds.transform.scale(ds.width / shape[1], ds.height / shape[0])
+        if not np.isfinite(z).any():
+            raise InputError(f"{path}: the DEM holds no valid height")
+        mean = float(np.nanmean(z)) if mean_height_m is None else float(mean_height_m)
+        return cls(mean, z, (tr.a, tr.b, tr.c, tr.d, tr.e, tr.f), source=source or str(path))
+
+    def height(self, x, y) -> np.ndarray:
+        """Ground height at map positions; the mean height where the DEM has none."""
+        x, y = np.asarray(x, float), np.asarray(y, float)
+        if self.dem is None:
+            return np.full(x.shape, self.mean_height_m)
+        a, b, c, d, e, f = self.transform
+        det = a * e - b * d
+        col = (e * (x - c) - b * (y - f)) / det - 0.5  # pixel centres at integer positions
+        row = (-d * (x - c) + a * (y - f)) / det - 0.5
+        r0, c0 = np.floor(row).astype(int), np.floor(col).astype(int)
+        fr, fc = row - r0, col - c0
+        n_r, n_c = self.dem.shape
+        out = np.full(x.shape, np.nan)
+        ok = (r0 >= 0) & (c0 >= 0) & (r0 + 1 < n_r) & (c0 + 1 < n_c)
+        r, cc, fr, fc = r0[ok], c0[ok], fr[ok], fc[ok]
+        z = self.dem
+        out[ok] = ((1 - fr) * ((1 - fc) * z[r, cc] + fc * z[r, cc + 1])
+                   + fr * ((1 - fc) * z[r + 1, cc] + fc * z[r + 1, cc + 1]))
+        return np.where(np.isfinite(out), out, self.mean_height_m)
+
+
+def drape_rays(centre_m, dirs, terrain: Terrain, iterations: int = 12) -> np.ndarray:
+    """Ground points (K, 3) of rays from ``centre_m`` (3,) along unit ``dirs`` (K, 3) on the terrain:
+    fixed-point iteration on the height (converges for rays steeper than the terrain slope)."""
+    z = np.full(len(dirs), terrain.mean_height_m)
+    dz = np.where(np.abs(dirs[:, 2]) > 1e-6, dirs[:, 2], -1e-6)
+    for _ in range(iterations):
+        s = (z - centre_m[2]) / dz
+        p = centre_m[:2] + s[:, None] * dirs[:, :2]
+        z = terrain.height(p[:, 0], p[:, 1])
+    s = (z - centre_m[2]) / dz
+    return np.column_stack([centre_m[:2] + s[:, None] * dirs[:, :2], z])
+
+
+def footprint(camera, centre_m, R, terrain: Terrain):
+    """The frame's ground footprint (a shapely Polygon, map units) draped on the terrain."""
+    import shapely
+
+    w, h = camera.width - 0.5, camera.height - 0.5
+    t = np.linspace(0.0, 1.0, BORDER_SAMPLES, endpoint=False)
+    x = np.concatenate([-0.5 + t * (w + 0.5), np.full_like(t, w), w - t * (w + 0.5), np.full_like(t, -0.5)])
+    y = np.concatenate([np.full_like(t, -0.5), -0.5 + t * (h + 0.5), np.full_like(t, h), h - t * (h + 0.5)])
+    g = drape_rays(np.asarray(centre_m, float), camera.rays(x, y, R), terrain)
+    poly = shapely.Polygon(g[:, :2])
+    return poly if poly.is_valid else shapely.make_valid(poly).convex_hull
+
+
+@dataclasses.dataclass
+class FlightAcceptance:
+    """Per-frame and per-strip values (JSON-ready via ``as_dict``) and the limits they were held to."""
+
+    frames: list[dict]
+    strips: list[dict]
+    limits: dict
+    source: str  # "exterior orientations" or "GNSS positions, nominal attitude ..."
+    terrain: str
+    checks: list[dict]  # quantity, worst value, limit, unit, verdict, where
+
+    def as_dict(self) -> dict:
+        return dataclasses.asdict(self)
+
+    @property
+    def failed(self) -> list[dict]:
+        return [c for c in self.checks if c["verdict"] == "fail"]
+
+
+def _r(x, nd=2):
+    return None if x is None or not math.isfinite(float(x)) else round(float(x), nd)
+
+
+def nominal_attitude(centre_m, strip) -> np.ndarray:
+    """Omega, phi, kappa (deg) of a level camera whose image top looks along the flight direction
+    (the long side of a DMC frame across track, as the simulator flies): kappa = heading - 90 deg,
+    with the heading counted from the x axis towards y."""
+    c = np.asarray(centre_m, float)
+    opk = np.zeros((len(c), 3))
+    for s in np.unique(strip):
+        idx = np.flatnonzero(strip == s)
+        for n, i in enumerate(idx):
+            a, b = idx[max(n - 1, 0)], idx[min(n + 1, len(idx) - 1)]
+            d = c[b, :2] - c[a, :2]
+            opk[i, 2] = (math.degrees(math.atan2(d[1], d[0])) - 90.0 + 180.0) % 360.0 - 180.0 if a != b else 0.0
+    return opk
+
+
+def _strip_order(centre_m, strip) -> list:
+    """Strip numbers sorted across track (by the centres' mean distance along the normal to the first strip)."""
+    ids = list(np.unique(strip))
+    idx = np.flatnonzero(strip == ids[0])
+    d = centre_m[idx[-1], :2] - centre_m[idx[0], :2] if len(idx) > 1 else np.array([1.0, 0.0])
+    u = d / (np.linalg.norm(d) or 1.0)
+    w = np.array([-u[1], u[0]])
+    return sorted(ids, key=lambda s: float(np.mean(centre_m[strip == s, :2] @ w)))
+
+
+def _beyond(value, key, limits) -> bool:
+    """True when ``value`` breaks the limit ``key`` (a max or a min limit); False without either."""
+    limit = limits.get(key)
+    if value is None or limit is None:
+        return False
+    return value > limit if LIMIT_KEYS[key][2] == "max" else value < limit
+
+
+def _check(quantity, values, where, key, limits) -> dict:
+    unit, kind = LIMIT_KEYS[key][1], LIMIT_KEYS[key][2]
+    limit = limits.get(key)
+    pairs = [(v, w) for v, w in zip(values, where) if v is not None and math.isfinite(v)]
+    if not pairs:
+        return dict(quantity=quantity, value=None, limit=limit, unit=unit, verdict=None, where="", key=key,
+                    n=0, n_fail=0)
+    v, w = (max if kind == "max" else min)(pairs, key=lambda p: p[0])
+    bad = [p for p in pairs if _beyond(p[0], key, limits)]
+    verdict = None if limit is None else ("fail" if bad else "pass")
+    return dict(quantity=quantity, value=_r(v), limit=limit, unit=unit, verdict=verdict, where=w, key=key,
+                n=len(pairs), n_fail=len(bad))
+
+
+def flight_acceptance(image_id, centre_m, opk_deg, camera, terrain: Terrain, strip=None, limits: dict | None = None,
+                      attitude_measured: bool = True) -> FlightAcceptance:
+    """The flight acceptance of frames in flight order (``image_id`` order is the track order when
+    ``strip`` is None: ``strips_from_track`` splits it). ``opk_deg`` in the photogrammetric
+    convention; ``attitude_measured`` False for a nominal attitude (tilt and kappa not reported)."""
+    import shapely
+
+    c = np.asarray(centre_m, float)
+    opk = np.asarray(opk_deg, float)
+    n = len(c)
+    strip = strips_from_track(c) + 1 if strip is None else np.asarray(strip)
+    lim = {**DEFAULT_LIMITS, **{k: v for k, v in (limits or {}).items() if k in LIMIT_KEYS}}
+    R = rotation_matrix_opk(opk[:, 0], opk[:, 1], opk[:, 2])
+    polys = [footprint(camera, c[i], R[i], terrain) for i in range(n)]
+    ground = terrain.height(c[:, 0], c[:, 1])
+    frames = [dict(image_id=str(image_id[i]), strip=int(strip[i]), x_m=_r(c[i, 0], 3), y_m=_r(c[i, 1], 3),
+                   z_m=_r(c[i, 2], 3), height_above_ground_m=_r(c[i, 2] - ground[i], 1), tilt_deg=None,
+                   kappa_deviation_deg=None, height_step_m=None, forward_overlap_pct=None, side_overlap_pct=None,
+                   footprint=[[_r(x, 2), _r(y, 2)] for x, y in polys[i].exterior.coords])
+              for i in range(n)]
+    order = _strip_order(c, strip)
+    strips = []
+    for k, s in enumerate(order):
+        idx = np.flatnonzero(strip == s)
+        for m, i in enumerate(idx):
+            if attitude_measured:
+                # angle between the camera axis (third column of R) and the vertical
+                frames[i]["tilt_deg"] = _r(math.degrees(math.acos(min(1.0, abs(R[i][2, 2])))), 3)
+            if len(idx) > 1:
+                a, b = idx[max(m - 1, 0)], idx[min(m + 1, len(idx) - 1)]
+                base = c[b, :2] - c[a, :2]
+                # image x axis in the ground plane vs the base direction, modulo 90 deg
+                ax = R[i][:2, 0]
+                ang = math.degrees(math.atan2(ax[1], ax[0]) - math.atan2(base[1], base[0]))
+                if attitude_measured:
+                    frames[i]["kappa_deviation_deg"] = _r(abs((ang + 45.0) % 90.0 - 45.0), 3)
+            if m > 0:
+                frames[i]["height_step_m"] = _r(abs(c[i, 2] - c[idx[m - 1], 2]), 2)
+            if m + 1 < len(idx):
+                p, q = polys[i], polys[idx[m + 1]]
+                frames[i]["forward_overlap_pct"] = _r(100.0 * p.intersection(q).area / p.area, 1)
+        # side overlap: each frame's share covered by the neighbouring strip(s) across track (the
+        # smaller of the two for an inner strip: the weaker side decides)
+        neighbours = [order[j] for j in (k - 1, k + 1) if 0 <= j < len(order)]
+        unions = [shapely.union_all([polys[j] for j in np.flatnonzero(strip == t)]) for t in neighbours]
+        for i in idx:
+            if unions:
+                frames[i]["side_overlap_pct"] = _r(min(100.0 * polys[i].intersection(u).area / polys[i].area
+                                                       for u in unions), 1)
+        ends = c[idx[-1], :2] - c[idx[0], :2]
+        length = float(np.linalg.norm(ends))
+        if len(idx) > 2 and length > 0:
+            u = ends / length
+            off = np.abs((c[idx, 0] - c[idx[0], 0]) * u[1] - (c[idx, 1] - c[idx[0], 1]) * u[0])
+            curvature = 100.0 * float(off.max()) / length
+        else:
+            curvature = None  # two frames always lie on a line
+        side = [frames[i]["side_overlap_pct"] for i in idx if frames[i]["side_overlap_pct"] is not None]
+        fwd = [frames[i]["forward_overlap_pct"] for i in idx if frames[i]["forward_overlap_pct"] is not None]
+        strips.append(dict(strip=int(s), frames=len(idx), first=str(image_id[idx[0]]), last=str(image_id[idx[-1]]),
+                           length_m=_r(length, 1), curvature_pct=_r(curvature, 3),
+                           height_range_m=_r(float(np.ptp(c[idx, 2])), 2), mean_z_m=_r(float(c[idx, 2].mean()), 1),
+                           mean_height_above_ground_m=_r(float(np.mean(c[idx, 2] - ground[idx])), 1),
+                           forward_overlap_min_pct=min(fwd) if fwd else None,
+                           forward_overlap_mean_pct=_r(np.mean(fwd), 1) if fwd else None,
+                           side_overlap_median_pct=_r(np.median(side), 1) if side else None,
+                           max_tilt_deg=max((frames[i]["tilt_deg"] for i in idx if frames[i]["tilt_deg"] is not None),
+                                            default=None),
+                           max_kappa_deviation_deg=max((frames[i]["kappa_deviation_deg"] for i in idx
+                                                        if frames[i]["kappa_deviation_deg"] is not None), default=None)))
+    frame_keys = {"tilt_deg": "flight_tilt_max_deg", "kappa_deviation_deg": "flight_kappa_max_deg",
+                  "height_step_m": "flight_height_step_max_m", "forward_overlap_pct": "flight_forward_overlap_min_pct",
+                  "side_overlap_pct": "flight_side_overlap_min_pct"}
+    strip_keys = {"curvature_pct": "flight_curvature_max_pct", "height_range_m": "flight_height_range_max_m",
+                  "side_overlap_median_pct": "flight_side_overlap_min_pct"}
+    for rows, keys in ((frames, frame_keys), (strips, strip_keys)):
+        for row in rows:
+            row["fails"] = [k for f, k in keys.items() if _beyond(row[f], k, lim)]
+    fid = [f["image_id"] for f in frames]
+    sid = [f"strip {st['strip']}" for st in strips]
+    checks = [
+        _check("tilt of the camera axis", [f["tilt_deg"] for f in frames], fid, "flight_tilt_max_deg", lim),
+        _check("kappa deviation from the base direction", [f["kappa_deviation_deg"] for f in frames], fid,
+               "flight_kappa_max_deg", lim),
+        _check("strip curvature", [st["curvature_pct"] for st in strips], sid, "flight_curvature_max_pct", lim),
+        _check("flying-height change between adjacent frames", [f["height_step_m"] for f in frames], fid,
+               "flight_height_step_max_m", lim),
+        _check("flying-height range in a strip", [st["height_range_m"] for st in strips], sid,
+               "flight_height_range_max_m", lim),
+        _check("forward overlap (footprints on the terrain)", [f["forward_overlap_pct"] for f in frames], fid,
+               "flight_forward_overlap_min_pct", lim),
+        # the side overlap of a strip pair is the median over its frames: strip ends reach past the
+        # neighbouring strip's ends without being a gap in the cover
+        _check("side overlap (median over a strip's frames)", [st["side_overlap_median_pct"] for st in strips], sid,
+               "flight_side_overlap_min_pct", lim),
+    ]
+    return FlightAcceptance(frames, strips, lim, "exterior orientations" if attitude_measured else
+                            "GNSS positions, nominal attitude (tilt and kappa not measured)", terrain.source, checks)
+
+
+def project_terrain(project) -> Terrain | None:
+    """The project's terrain for the footprints: ``lidar_out/dem.tif``, else ``[flight]
+    mean_terrain_height_m`` of project.toml, else None."""
+    mean_h = project.section("flight").get("mean_terrain_height_m")
+    if mean_h is not None and not isinstance(mean_h, (int, float)):
+        raise InputError(f"{project.config_path} [flight] mean_terrain_height_m = {mean_h!r}: expected metres")
+    # named relative to the project folder: the same project elsewhere reports the same
+    if project.dem_path.is_file():
+        return Terrain.from_dem(project.dem_path, mean_h, source=str(project.dem_path.relative_to(project.root)))
+    if mean_h is not None:
+        return Terrain(float(mean_h), source="project.toml [flight] mean_terrain_height_m")
+    return None
+
+
+def project_flight_acceptance(root, limits: dict | None = None) -> FlightAcceptance | None:
+    """The flight acceptance of a project folder: ``at/eo.txt`` (with the adjusted camera) when the block
+    is adjusted, else ``gnss.txt`` with the nominal attitude; footprints on ``lidar_out/dem.tif`` when
+    present, else on ``[flight] mean_terrain_height_m``. None when there is neither EO nor GNSS, or neither
+    a DEM nor a mean terrain height."""
+    from aerotri.core.project import Project
+    from aerotri.geom.camera import adjusted_camera
+    from aerotri.geom.crs import parse_crs
+    from aerotri.geom.eo import read_eo, read_gnss
+
+    project = Project.open(root)
+    terrain = project_terrain(project)
+    camera, _ = adjusted_camera(project)
+    if project.eo_path.is_file():
+        eo = read_eo(project.eo_path, parse_crs(project.crs))
+        ids, c, opk, measured = eo.image_id, eo.centre_m, eo.opk_deg, True
+    elif project.gnss_path.is_file():
+        g = read_gnss(project.gnss_path, parse_crs(project.crs))
+        ids, c = g.image_id, g.position_m
+        opk, measured = None, False
+    else:
+        return None
+    order = np.argsort(np.asarray(ids))  # image-id order is the flight order (as the adjustment's strips)
+    ids, c = [ids[i] for i in order], np.asarray(c)[order]
+    strip = strips_from_track(c)
+    opk = np.asarray(opk)[order] if measured else nominal_attitude(c, strip)
+    if terrain is None:
+        return None  # the footprints need a terrain: the caller says the checks were not made
+    return flight_acceptance(ids, c, opk, camera, terrain, strip + 1, limits, measured)

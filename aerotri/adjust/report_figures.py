@@ -1,0 +1,463 @@
+"""Figures and HTML tables of the adjustment report, drawn from the report dict (``report.json``) alone, so
+that the consolidated report (``aerotri report``) and its PDF draw the same ones from the file.
+
+Every figure carries its scale key: vector plots a quiver key (an arrow of a round length in metres,
+microns or pixels), maps a scale bar in metres and coordinates relative to a round origin named in the
+axis label (no "1e6" offsets), colours a colour bar with units. ``Figure.key`` repeats the key in words
+for the HTML ``alt`` text and caption.
+"""
+
+from __future__ import annotations
+
+import base64
+import dataclasses
+import html
+import io
+import math
+
+import numpy as np
+
+MAX_FRAME_PANELS = 24  # image residual panels per figure (the frames with the largest RMS beyond that)
+
+
+@dataclasses.dataclass
+class Figure:
+    """A report figure: title, caption, the scale key in words and the matplotlib figure."""
+
+    title: str
+    caption: str
+    key: str
+    fig: object
+
+    def png(self, dpi: int = 110) -> bytes:
+        """The figure as PNG (drawn once; the matplotlib figure is closed then)."""
+        if getattr(self, "_png", None) is None:
+            import matplotlib.pyplot as plt
+
+            buf = io.BytesIO()
+            self.fig.savefig(buf, format="png", dpi=dpi, bbox_inches="tight")
+            plt.close(self.fig)
+            self._png = buf.getvalue()
+        return self._png
+
+    def png_base64(self, dpi: int = 110) -> str:
+        return base64.b64encode(self.png(dpi)).decode()
+
+    def html(self, dpi: int = 110) -> str:
+        alt = html.escape(f"{self.title}. Scale: {self.key}", quote=True)
+        return (f"<figure><img src='data:image/png;base64,{self.png_base64(dpi)}' alt='{alt}'>"
+                f"<figcaption>{html.escape(self.caption)} <b>Scale:</b> {html.escape(self.key)}</figcaption></figure>")
+
+
+def _plt():
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    return plt
+
+
+def nice_length(x: float) -> float:
+    """The 1-2-5 round number nearest below ``x`` (> 0)."""
+    if not (x > 0 and math.isfinite(x)):
+        return 1.0
+    e = 10.0 ** math.floor(math.log10(x))
+    return max(m for m in (1.0, 2.0, 5.0, 10.0) if m * e <= x * 1.0000001) * e
+
+
+def _fmt(x: float) -> str:
+    return f"{x:g}"
+
+
+def _origin(xy: np.ndarray) -> tuple[float, float]:
+    """A round origin (whole km) below the coordinates, so axes read in metres from it."""
+    return math.floor(np.nanmin(xy[:, 0]) / 1000.0) * 1000.0, math.floor(np.nanmin(xy[:, 1]) / 1000.0) * 1000.0
+
+
+def scale_bar(ax, length: float, label: str, thickness: float):
+    """A bar of ``length`` data units with its label, anchored in the lower left of ``ax`` (framed)."""
+    from matplotlib.offsetbox import AnchoredOffsetbox, AuxTransformBox, TextArea, VPacker
+    from matplotlib.patches import Rectangle
+
+    bar = AuxTransformBox(ax.transData)
+    bar.add_artist(Rectangle((0, 0), length, thickness, facecolor="black", edgecolor="black"))
+    box = VPacker(children=[bar, TextArea(label)], align="center", pad=0, sep=3)
+    sb = AnchoredOffsetbox(loc="lower left", child=box, pad=0.4, borderpad=0.5, frameon=True)
+    sb.scale_bar_label = label  # what the bar says, for checks
+    return sb
+
+
+def _map_axes(ax, origin, extent_m: float) -> str:
+    """Axis labels relative to ``origin``, equal aspect, plain tick labels and a scale bar; returns its text."""
+    ax.set_aspect("equal")
+    ax.ticklabel_format(useOffset=False, style="plain")
+    ax.set_xlabel(f"easting - {origin[0]:,.0f} (m)".replace(",", " "))
+    ax.set_ylabel(f"northing - {origin[1]:,.0f} (m)".replace(",", " "))
+    bar = nice_length(extent_m / 5.0)
+    ax.add_artist(scale_bar(ax, bar, f"{_fmt(bar)} m", extent_m / 300.0))
+    ax.grid(True, color="0.9", lw=0.5)
+    return f"{_fmt(bar)} m"
+
+
+def ground_residual_map(rep: dict) -> Figure | None:
+    """Control (triangles) and check points (circles) with their plan residual vectors (arrows, scale key
+    in metres) and the height residual as colour (colour bar in metres)."""
+    ctrl = [r for r in rep.get("control_points", []) if r.get("used") and r.get("given_m") and r.get("residual_m")]
+    chk = [r for r in rep.get("check_points", []) if r.get("d_m") and None not in r["d_m"] and r.get("measured_m")]
+    if not ctrl and not chk:
+        return None
+    plt = _plt()
+    pos = np.array([r["given_m"] for r in ctrl] + [r["measured_m"] for r in chk], dtype=float)
+    d = np.array([[np.nan if v is None else v for v in r["residual_m"]] for r in ctrl] + [r["d_m"] for r in chk],
+                 dtype=float)
+    is_ctrl = np.arange(len(pos)) < len(ctrl)
+    o = _origin(pos)
+    x, y = pos[:, 0] - o[0], pos[:, 1] - o[1]
+    extent = max(np.ptp(x), np.ptp(y), 1.0)
+    plan = np.hypot(d[:, 0], d[:, 1])
+    p95 = float(np.nanpercentile(plan, 95)) or 1e-3
+    scale = p95 / (0.08 * extent)  # the 95th percentile residual draws 8 % of the block
+    key_m = nice_length(p95)
+    fig, ax = plt.subplots(figsize=(10, 8))
+    dz = np.nan_to_num(d[:, 2])
+    lim = max(float(np.nanpercentile(np.abs(d[:, 2]), 95)) if np.isfinite(d[:, 2]).any() else 0.0, 0.01)
+    sc = None
+    for m, marker, label, size in ((~is_ctrl, "o", f"check points ({int((~is_ctrl).sum())})", 22),
+                                   (is_ctrl, "^", f"control points ({int(is_ctrl.sum())})", 70)):
+        if m.any():
+            sc = ax.scatter(x[m], y[m], c=dz[m], cmap="RdBu_r", vmin=-lim, vmax=lim, marker=marker, s=size,
+                            edgecolors="k", linewidths=0.4, label=label, zorder=3)
+    q = ax.quiver(x, y, np.nan_to_num(d[:, 0]), np.nan_to_num(d[:, 1]), angles="xy", scale_units="xy", scale=scale,
+                  width=0.0025, color=np.where(is_ctrl, "tab:red", "0.15").tolist(), zorder=4)
+    ax.margins(0.06)
+    ax.quiverkey(q, 0.97, 1.015, key_m, f"{_fmt(key_m)} m plan residual", labelpos="W", coordinates="axes")
+    bar = _map_axes(ax, o, extent)
+    fig.colorbar(sc, ax=ax, shrink=0.8, label="height residual dZ (m)")
+    for r, xi, yi in zip(ctrl, x[is_ctrl], y[is_ctrl]):
+        ax.annotate(str(r["id"]), (xi, yi), fontsize=7, xytext=(4, 4), textcoords="offset points")
+    worst = np.argsort(-np.nan_to_num(plan))[:5]
+    ids = [str(r["id"]) for r in ctrl] + [str(r["id"]) for r in chk]
+    for k in worst:
+        if not is_ctrl[k]:
+            ax.annotate(ids[k], (x[k], y[k]), fontsize=7, color="tab:blue", xytext=(4, -9), textcoords="offset points")
+    ax.legend(loc="upper left", fontsize=8)
+    ax.set_title("Ground residuals: adjusted - given (control), adjusted - measured (check)", loc="left", pad=16,
+                 fontsize=11)
+    return Figure("Control and check-point residual vectors",
+                  "Arrows: plan residual of each point (control red, check black; the five largest check "
+                  "residuals are named); marker colour: height residual.",
+                  f"arrow = {_fmt(key_m)} m on the ground; map scale bar {bar}; colour -{lim:.2f} .. +{lim:.2f} m dZ",
+                  fig)
+
+
+def image_residual_frames(rep: dict, pixel_um: float | None = None) -> Figure | None:
+    """Per frame: the mean image residual in each cell of the residual grid (arrows, one common scale with
+    a key in microns), over the frame's outline; the systematic pattern a camera or GNSS error leaves."""
+    photos = [p for p in rep.get("photos", []) if p.get("residual_grid")]
+    if not photos:
+        return None
+    plt = _plt()
+    shown = photos
+    note = ""
+    if len(photos) > MAX_FRAME_PANELS:
+        rms = [math.hypot(p["rms_x_um"] or 0, p["rms_y_um"] or 0) for p in photos]
+        keep = sorted(np.argsort(rms)[-MAX_FRAME_PANELS:])
+        shown = [photos[i] for i in keep]
+        note = f" The {MAX_FRAME_PANELS} frames with the largest RMS of {len(photos)}."
+    g0 = shown[0]["residual_grid"]
+    nx, ny = g0["nx"], g0["ny"]
+    allv = np.concatenate([np.hypot(np.array(p["residual_grid"]["mean_vx_um"], float),
+                                    np.array(p["residual_grid"]["mean_vy_um"], float)) for p in shown])
+    vmax = float(np.nanpercentile(allv, 95)) or 1e-3
+    key_um = nice_length(vmax)
+    cols = min(6, len(shown))
+    rows = math.ceil(len(shown) / cols)
+    aspect = ny / nx
+    height_in = 2.4 * rows * aspect + 1.0
+    cell_in = 2.4 * 0.8 / nx  # panels about 80 % of their 2.4 in slot
+    scale = vmax / (0.9 * cell_in)  # um per inch: the 95th percentile mean residual spans 0.9 of a cell
+    fig, axs = plt.subplots(rows, cols, figsize=(2.4 * cols, height_in), squeeze=False)
+
+    q = None
+    for ax, p in zip(axs.ravel(), shown):
+        g = p["residual_grid"]
+        cx = (np.arange(g["nx"]) + 0.5)
+        cy = (np.arange(g["ny"]) + 0.5)
+        X, Y = np.meshgrid(cx, cy)
+        n = np.array(g["n"]).reshape(g["ny"], g["nx"])
+        vx = np.array(g["mean_vx_um"], float).reshape(g["ny"], g["nx"])
+        vy = np.array(g["mean_vy_um"], float).reshape(g["ny"], g["nx"])
+        ok = n >= 3  # a mean of fewer observations is noise
+        q = ax.quiver(X[ok], Y[ok], vx[ok], -vy[ok], angles="xy", scale_units="inches", scale=scale, units="inches",
+                      width=0.025, color="tab:red")
+        ax.plot(X[~ok], Y[~ok], "x", color="0.7", ms=4)
+        ax.set_xlim(0, g["nx"])
+        ax.set_ylim(0, g["ny"])
+        ax.invert_yaxis()  # image rows down
+        ax.set_aspect("equal")
+        ax.set_xticks([])
+        ax.set_yticks([])
+        rms = math.hypot(p["rms_x_um"] or 0, p["rms_y_um"] or 0) / math.sqrt(2)
+        ax.set_title(f"{p['image_id']}  {rms:.1f} um", fontsize=8)
+    for ax in axs.ravel()[len(shown):]:
+        ax.axis("off")
+    px = f" ({key_um / pixel_um:.2g} px)" if pixel_um else ""
+    fig.subplots_adjust(top=1 - 0.8 / height_in, hspace=0.35)
+    # the key in its own strip above the panels, drawn with the panels' scale (um per inch)
+    kax = fig.add_axes([0.13, 1 - 0.55 / height_in, 0.5, 0.5 / height_in])
+    kax.axis("off")
+    kax.set_xlim(0, 1)
+    kax.set_ylim(0, 1)
+    kq = kax.quiver([-5.0], [-5.0], [0.0], [0.0], scale_units="inches", scale=scale, units="inches", width=0.025,
+                    color="tab:red")
+    kax.quiverkey(kq, 0.02, 0.5, key_um, f"{_fmt(key_um)} um{px} mean image residual", labelpos="E",
+                  coordinates="axes")
+    return Figure("Image residuals per frame",
+                  f"Mean image residual (observed - adjusted) in a {nx} x {ny} grid of each frame, image rows "
+                  f"down; grey crosses: cells with fewer than 3 observations; title: the frame's RMS.{note}",
+                  f"arrow = {_fmt(key_um)} um{px} on the image", fig)
+
+
+def gnss_strip_plot(rep: dict) -> Figure | None:
+    """Per strip: GNSS minus the adjusted antenna (dots) against the along-track distance, and the strip's
+    estimated shift (and drift) as lines; east, north, up in metres."""
+    photos = [p for p in rep.get("photos", []) if p.get("gnss_offset_m") and p.get("along_km") is not None]
+    if not photos:
+        return None
+    plt = _plt()
+    strips = sorted({p["strip"] for p in photos})
+    shown = strips[:16]
+    cols = min(4, len(shown))
+    rows = math.ceil(len(shown) / cols)
+    fig, axs = plt.subplots(rows, cols, figsize=(3.6 * cols, 2.9 * rows), squeeze=False, sharey=True)
+    colours = ("tab:blue", "tab:orange", "tab:green")
+    for ax, s in zip(axs.ravel(), shown):
+        ps = sorted((p for p in photos if p["strip"] == s), key=lambda p: p["along_km"])
+        t = np.array([p["along_km"] for p in ps])
+        off = np.array([p["gnss_offset_m"] for p in ps], float)
+        corr = np.array([p.get("gnss_correction_m") or [0.0, 0.0, 0.0] for p in ps], float)
+        for a, (name, c) in enumerate(zip(("east", "north", "up"), colours)):
+            ax.plot(t, off[:, a], "o", color=c, ms=4, label=f"{name}")
+            ax.plot(t, corr[:, a], "-", color=c, lw=1.2)
+        ax.axhline(0, color="0.6", lw=0.6)
+        ax.set_title(f"strip {s} ({len(ps)} frames)", fontsize=9)
+        ax.set_xlabel("along track (km)")
+        ax.grid(True, color="0.9", lw=0.5)
+    for ax in axs[:, 0]:
+        ax.set_ylabel("GNSS - adjusted (m)")
+    for ax in axs.ravel()[len(shown):]:
+        ax.axis("off")
+    axs[0, 0].legend(fontsize=7, loc="best")
+    mode = (rep.get("options") or {}).get("gps_shift_drift_correction", "")
+    return Figure("GNSS shift and drift per strip",
+                  "Dots: GNSS antenna position minus the adjusted antenna position per frame (local east, north, "
+                  f"up); lines: the strip's estimated correction ({mode}). A trend the lines miss calls for "
+                  "drift correction.", "vertical axes in metres, horizontal in km along the strip", fig)
+
+
+def von_gruber_map(rep: dict, min_per_area: int = 3) -> Figure | None:
+    """The tie observations in each frame's nine von Gruber areas, drawn as a 3 x 3 block at the frame's
+    projection centre (colour: count, colour bar; red outline: fewer than ``min_per_area``)."""
+    photos = [p for p in rep.get("photos", []) if p.get("von_gruber_tie_obs")]
+    fa = rep.get("flight_acceptance") or {}
+    pos = {f["image_id"]: (f["x_m"], f["y_m"]) for f in fa.get("frames", [])}
+    photos = [p for p in photos if p["image_id"] in pos]
+    if not photos:
+        return None
+    plt = _plt()
+    from matplotlib.collections import PatchCollection
+    from matplotlib.patches import Polygon as MplPolygon
+
+    fp = {f["image_id"]: np.array(f["footprint"], float) for f in fa.get("frames", [])}
+    xy = np.array([pos[p["image_id"]] for p in photos], float)
+    o = _origin(xy)
+    xy = xy - o
+    # each footprint's image corners (top-left, top-right, bottom-right, bottom-left: the draped border
+    # starts at the top-left corner, the same number of samples per side), shrunk about the centre so
+    # that neighbouring frames' blocks do not overlap; cells stay where they lie on the ground
+    corners = {}
+    for p in photos:
+        q = fp[p["image_id"]][:-1] - o
+        m = len(q) // 4
+        corners[p["image_id"]] = q[[0, m, 2 * m, 3 * m]]
+    size = np.median([np.ptp(c, axis=0).max() for c in corners.values()])
+    if len(xy) > 1:
+        d = np.hypot(*(xy[:, None, :] - xy[None, :, :]).transpose(2, 0, 1))
+        d[d == 0] = np.inf
+        shrink = min(0.85 * float(np.min(d)) / size, 1.0)
+    else:
+        shrink = 1.0
+    rects, vals, weak = [], [], []
+    for p, c0 in zip(photos, xy):
+        tl, tr, br, bl = corners[p["image_id"]]
+        centre = (tl + tr + br + bl) / 4.0
+
+        def at(u, v):  # image fractions (u right, v down) -> shrunk ground position
+            g = (1 - v) * ((1 - u) * tl + u * tr) + v * ((1 - u) * bl + u * br)
+            return centre + shrink * (g - centre)
+
+        for k, n in enumerate(p["von_gruber_tie_obs"]):
+            r, c = divmod(k, 3)  # row 0 = image top
+            u0, v0 = c / 3.0, r / 3.0
+            rects.append(MplPolygon([at(u0, v0), at(u0 + 1 / 3, v0), at(u0 + 1 / 3, v0 + 1 / 3), at(u0, v0 + 1 / 3)]))
+            vals.append(n)
+            weak.append(n < min_per_area)
+    cell = shrink * size / 3.0
+    fig, ax = plt.subplots(figsize=(10, 8))
+    pc = PatchCollection(rects, cmap="viridis", edgecolor="white", linewidth=0.4)
+    pc.set_array(np.array(vals, float))
+    ax.add_collection(pc)
+    bad = [MplPolygon(r.get_xy()) for r, w in zip(rects, weak) if w]
+    if bad:
+        ax.add_collection(PatchCollection(bad, facecolor="none", edgecolor="red", linewidth=1.5))
+    if len(photos) <= 40:
+        for p, (x0, y0) in zip(photos, xy):
+            ax.annotate(p["image_id"], (x0, y0 + 1.7 * cell), fontsize=6, ha="center")
+    pad = 2 * cell
+    ax.set_xlim(xy[:, 0].min() - pad, xy[:, 0].max() + pad)
+    ax.set_ylim(xy[:, 1].min() - 2.5 * pad, xy[:, 1].max() + pad)  # room for the scale bar
+    extent = max(np.ptp(xy[:, 0]), np.ptp(xy[:, 1]), 1.0)
+    bar = _map_axes(ax, o, extent)
+    fig.colorbar(pc, ax=ax, shrink=0.8, label="tie observations per von Gruber area")
+    n_weak = int(sum(weak))
+    ax.set_title(f"Von Gruber areas: tie observations per ninth of each frame ({n_weak} areas below {min_per_area})")
+    return Figure("Von Gruber tie-point distribution",
+                  "Each frame's nine areas where they lie on the ground, the frame shrunk about its centre so that "
+                  "neighbours do not overlap; red outline: "
+                  f"fewer than {min_per_area} tie observations in that area.",
+                  f"colour = tie observations per area (colour bar); map scale bar {bar}", fig)
+
+
+def flight_map(fa: dict) -> Figure | None:
+    """Frame footprints on the terrain by strip, frames failing a flight check hatched, with a scale bar."""
+    frames = fa.get("frames") or []
+    if not frames:
+        return None
+    plt = _plt()
+    from matplotlib.patches import Polygon as MplPolygon
+
+    fp = [np.array(f["footprint"], float) for f in frames]
+    o = _origin(np.vstack(fp))
+    bad_strips = {st["strip"] for st in fa.get("strips", []) if st.get("fails")}
+    fig, ax = plt.subplots(figsize=(10, 8))
+    cmap = plt.get_cmap("tab10")
+    strips = sorted({f["strip"] for f in frames})
+    for f, p in zip(frames, fp):
+        c = cmap(strips.index(f["strip"]) % 10)
+        failing = bool(f.get("fails"))
+        ax.add_patch(MplPolygon(p - o, closed=True, fill=failing, facecolor=(1, 0, 0, 0.12), edgecolor=c,
+                                lw=2.0 if f["strip"] in bad_strips else 0.9, hatch="//" if failing else None))
+        ax.plot(f["x_m"] - o[0], f["y_m"] - o[1], "+", color=c, ms=6)
+        if len(frames) <= 60:
+            ax.annotate(f["image_id"], (f["x_m"] - o[0], f["y_m"] - o[1]), fontsize=6, xytext=(3, 3),
+                        textcoords="offset points")
+    allp = np.vstack(fp) - o
+    ax.set_xlim(allp[:, 0].min(), allp[:, 0].max())
+    ax.set_ylim(allp[:, 1].min(), allp[:, 1].max())
+    for k, s in enumerate(strips):
+        ax.plot([], [], color=cmap(k % 10), label=f"strip {s}")
+    ax.legend(loc="upper right", fontsize=8)
+    bar = _map_axes(ax, o, max(np.ptp(allp[:, 0]), np.ptp(allp[:, 1])))
+    ax.set_title("Frame footprints on the terrain (hatched: the frame fails a flight check; thick: its strip does)")
+    return Figure("Flight: footprints on the terrain",
+                  f"Footprints draped on {fa.get('terrain')}; +: projection centres.", f"map scale bar {bar}", fig)
+
+
+# -- HTML tables ---------------------------------------------------------------------------------
+
+def cell(v, nd: int = 3) -> str:
+    if v is None:
+        return ""
+    if isinstance(v, bool):
+        return "yes" if v else "no"
+    if isinstance(v, float):
+        return f"{v:.{nd}f}" if math.isfinite(v) else ""
+    return html.escape(str(v))
+
+
+def table(headers: list[str], rows: list[list], nd: int = 3, verdict_col: int | None = None,
+          num_from: int = 1) -> str:
+    """An HTML table; numbers right-aligned from column ``num_from``; a verdict column coloured."""
+    head = "".join(f"<th>{html.escape(h)}</th>" for h in headers)
+    body = []
+    for r in rows:
+        tds = []
+        for j, v in enumerate(r):
+            cls = []
+            if j >= num_from and isinstance(v, (int, float)) and not isinstance(v, bool):
+                cls.append("num")
+            if verdict_col is not None and j == verdict_col and v in ("pass", "fail"):
+                cls.append(v)
+            tds.append(f"<td class='{' '.join(cls)}'>{cell(v, nd)}</td>" if cls else f"<td>{cell(v, nd)}</td>")
+        body.append("<tr>" + "".join(tds) + "</tr>")
+    return f"<table><thead><tr>{head}</tr></thead><tbody>{''.join(body)}</tbody></table>"
+
+
+def long_table(what: str, headers: list[str], rows: list[list], nd: int = 3, shown: int = 40, **kw) -> str:
+    """A table; beyond ``shown`` rows it folds into a <details> element (click to open), so that a long
+    per-point list does not push the rest of the report pages down."""
+    t = table(headers, rows, nd, **kw)
+    if len(rows) <= shown:
+        return t
+    return f"<details><summary>{len(rows)} {html.escape(what)} (click to show the table)</summary>{t}</details>"
+
+
+def strip_fails(fa: dict, strip: dict) -> list:
+    """The flight limits a strip or any of its frames breaks (tolerance-table keys, in table order)."""
+    from aerotri.adjust.flight_acceptance import LIMIT_KEYS
+
+    keys = set(strip.get("fails", []))
+    for f in fa["frames"]:
+        if f["strip"] == strip["strip"]:
+            keys.update(f.get("fails", []))
+    return [k for k in LIMIT_KEYS if k in keys]
+
+
+def flight_tables(fa: dict) -> str:
+    """The flight acceptance: the checks with their limits, then per strip and per frame."""
+    if not fa:
+        return ""
+    ops = {"max": "<=", "min": ">="}
+    from aerotri.adjust.flight_acceptance import LIMIT_KEYS
+
+    checks = [[c["quantity"], c["value"], f"{ops[LIMIT_KEYS[c['key']][2]]} {_fmt(c['limit'])}"
+               if c["limit"] is not None else "", c["unit"], c["where"], f"{c['n_fail']} of {c['n']}", c["verdict"]]
+              for c in fa["checks"]]
+    out = [f"<p>From the {html.escape(fa['source'])}; footprints on {html.escape(str(fa['terrain']))}.</p>",
+           table(["check", "worst", "limit", "unit", "at", "failing", "verdict"], checks, 2, verdict_col=6)]
+    out.append("<h3>Per strip</h3>")
+    out.append(table(["strip", "frames", "first", "last", "length m", "curvature %", "height range m",
+                      "mean Z m", "above ground m", "forward min %", "forward mean %", "side median %",
+                      "max tilt deg", "max kappa deg", "failing"],
+                     [[s["strip"], s["frames"], s["first"], s["last"], s["length_m"], s["curvature_pct"],
+                       s["height_range_m"], s["mean_z_m"], s["mean_height_above_ground_m"], s["forward_overlap_min_pct"],
+                       s["forward_overlap_mean_pct"], s["side_overlap_median_pct"], s["max_tilt_deg"],
+                       s["max_kappa_deviation_deg"], ", ".join(LIMIT_KEYS[k][0] for k in strip_fails(fa, s))]
+                      for s in fa["strips"]], 2))
+    lim = fa["limits"]
+
+    def mark(v, key):
+        if v is None or lim.get(key) is None:
+            return v
+        bad = v > lim[key] if LIMIT_KEYS[key][2] == "max" else v < lim[key]
+        return f"{v:.2f} !" if bad else v
+
+    out.append("<h3>Per frame</h3><p>! marks a value beyond its limit.</p>")
+    out.append(long_table("frames", ["image", "strip", "Z m", "above ground m", "tilt deg", "kappa dev. deg", "height step m",
+                      "forward %", "side %"],
+                     [[f["image_id"], f["strip"], f["z_m"], f["height_above_ground_m"],
+                       mark(f["tilt_deg"], "flight_tilt_max_deg"), mark(f["kappa_deviation_deg"], "flight_kappa_max_deg"),
+                       mark(f["height_step_m"], "flight_height_step_max_m"),
+                       mark(f["forward_overlap_pct"], "flight_forward_overlap_min_pct"),
+                       mark(f["side_overlap_pct"], "flight_side_overlap_min_pct")] for f in fa["frames"]], 2))
+    return "".join(out)
+
+
+STYLE = """body{font-family:sans-serif;margin:1.5em;max-width:1400px;color:#222}
+table{border-collapse:collapse;margin:0.5em 0 1em 0;font-size:13px}
+td,th{border:1px solid #ccc;padding:3px 7px;text-align:left}th{background:#eef}
+td.num{text-align:right;font-variant-numeric:tabular-nums}.pass{background:#cfc}.fail{background:#fcc}
+figure{margin:1em 0}figure img{max-width:100%;border:1px solid #ddd}figcaption{font-size:13px;color:#444;max-width:1000px}
+h2{border-bottom:2px solid #99c;padding-bottom:2px;margin-top:1.6em}
+summary{cursor:pointer;color:#225;margin:0.4em 0;font-size:14px}"""

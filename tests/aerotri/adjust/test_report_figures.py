@@ -1,0 +1,131 @@
+"""The adjustment report's HTML: tables instead of text dumps, every figure with its scale key, and the
+per-frame numbers the figures draw (von Gruber counts, residual grids, GNSS offsets) against the adjustment."""
+
+from __future__ import annotations
+
+import re
+
+import numpy as np
+import pytest
+from matplotlib.quiver import QuiverKey
+from matplotlib.offsetbox import AnchoredOffsetbox
+
+from aerotri.adjust import report
+from aerotri.adjust import report_figures as RF
+from aerotri.adjust.flight_acceptance import Terrain
+from aerotri.adjust.pipeline import AdjustSettings, adjust_project, write_outputs
+from aerotri.sim.observations import geometric_block, write_block_project, write_truth_observations
+
+GROUND_M = 150.0  # the geometric block's terrain: local height 0 (+- relief) at origin height 150 m
+
+
+@pytest.fixture(scope="module")
+def adjusted(tmp_path_factory):
+    block = geometric_block(2, 5, seed=11)
+    root = write_block_project(block, tmp_path_factory.mktemp("figs") / "blk")
+    write_truth_observations(root, tie_sigma_px=0.3, n_control=5, points_per_image=80, n_check=6, seed=5)
+    ba = adjust_project(root, AdjustSettings(gnss_correction="shift", image_sigma_px=0.3))
+    return root, ba, report.build_report(ba, ground=Terrain(GROUND_M))
+
+
+def _artists(fig, kind):
+    return [a for ax in fig.axes for a in ax.get_children() if isinstance(a, kind)]
+
+
+def test_every_figure_has_its_scale_key(adjusted):
+    _, ba, rep = adjusted
+    figs = {f.title: f for f in report.report_figures(rep, ba)}
+    assert {"Control and check-point residual vectors", "Image residuals per frame", "GNSS shift and drift per strip",
+            "Von Gruber tie-point distribution", "Flight: footprints on the terrain", "Image residual histograms"} <= set(figs)
+    ground = figs["Control and check-point residual vectors"]
+    (qk,) = _artists(ground.fig, QuiverKey)
+    plan = [np.hypot(*r["d_m"][:2]) for r in rep["check_points"]] + [
+        np.hypot(*r["residual_m"][:2]) for r in rep["control_points"] if r["used"] and None not in r["residual_m"][:2]]
+    assert qk.U == RF.nice_length(np.percentile(plan, 95)) and qk.text.get_text().endswith("m plan residual")
+    (bar,) = [a for a in _artists(ground.fig, AnchoredOffsetbox) if hasattr(a, "scale_bar_label")]
+    assert f"arrow = {qk.U:g} m" in ground.key and f"map scale bar {bar.scale_bar_label}" in ground.key
+    assert "1e6" not in " ".join(t.get_text() for ax in ground.fig.axes for t in ax.get_xticklabels())
+    frames = figs["Image residuals per frame"]
+    (fk,) = _artists(frames.fig, QuiverKey)
+    assert " um " in fk.text.get_text() and f"{fk.U:g} um" in frames.key
+    assert _artists(figs["Von Gruber tie-point distribution"].fig, AnchoredOffsetbox)
+    assert any("von Gruber" in ax.get_ylabel() for ax in figs["Von Gruber tie-point distribution"].fig.axes)  # colour bar
+    assert _artists(figs["Flight: footprints on the terrain"].fig, AnchoredOffsetbox)
+    assert all("(m)" in ax.get_ylabel() for ax in figs["GNSS shift and drift per strip"].fig.axes if ax.get_ylabel())
+    for f in figs.values():
+        assert f.key and f.caption
+
+
+def test_html_has_tables_and_keys_not_text_dumps(adjusted):
+    _, ba, rep = adjusted
+    html = report.format_html(rep, ba)
+    assert "<pre" not in html and html.count("<table>") >= 8
+    imgs = re.findall(r"<img src='data:image/png;base64,[^']+' alt='([^']*)'>", html)
+    assert len(imgs) == html.count("<img") >= 6 and all("Scale:" in alt for alt in imgs)
+    assert html.count("<figcaption>") == len(imgs)
+    for h in ("PhotoT Triangulation Options", "Parameters", "Key Statistics", "Flight acceptance", "Control and check points"):
+        assert f">{h}</h" in html
+    # the ISAT parameters row carries the numbers of report.json
+    rms = rep["parameters"]["rms_check_m"]
+    assert f"<td class='num'>{rms[0]:.4f}</td>" in html
+
+
+def test_frame_numbers_agree_with_the_adjustment(adjusted):
+    _, ba, rep = adjusted
+    b, r = ba.block, ba.result
+    tie = r.obs_active & ~np.isin(b.obs_point, b.control_point)
+    v_um = r.residual_px * ba.camera_apriori.pixel_um
+    for i, p in enumerate(rep["photos"]):
+        k = tie & (b.obs_image == i)
+        assert sum(p["von_gruber_tie_obs"]) == int(k.sum())
+        top_left = k & (b.obs_xy_px[:, 0] < ba.camera_apriori.width / 3) & (b.obs_xy_px[:, 1] < ba.camera_apriori.height / 3)
+        assert p["von_gruber_tie_obs"][0] == int(top_left.sum())
+        g = p["residual_grid"]
+        assert sum(g["n"]) == p["obs"]
+        a = r.obs_active & (b.obs_image == i)
+        c0 = a & (b.obs_xy_px[:, 0] < ba.camera_apriori.width / g["nx"]) & (b.obs_xy_px[:, 1] < ba.camera_apriori.height / g["ny"])
+        if c0.sum():
+            assert g["mean_vx_um"][0] == pytest.approx(v_um[c0, 0].mean(), abs=0.01)
+    # GNSS: with shift correction, the correction is one vector per strip, and offset = correction - residual
+    for s in {p["strip"] for p in rep["photos"]}:
+        corr = np.array([p["gnss_correction_m"] for p in rep["photos"] if p["strip"] == s])
+        assert np.allclose(corr, corr[0], atol=1e-4)
+        assert np.allclose(corr[0], rep["gnss_strips"][s - 1]["shift_m"], atol=2e-4)
+    p = rep["photos"][0]
+    assert np.allclose(p["gnss_offset_m"], np.subtract(p["gnss_correction_m"], p["gnss_residual_m"]), atol=2e-4)
+
+
+def test_flight_section_of_the_block(adjusted):
+    """The geometric block flies 60 % forward / 30 % side overlap at 1000 m over terrain at +-60 m, tilts
+    of 1 deg sigma: the report's overlaps are near the plan, tilts are those of the adjusted omega and phi."""
+    _, ba, rep = adjusted
+    fa = rep["flight_acceptance"]
+    fwd = [f["forward_overlap_pct"] for f in fa["frames"] if f["forward_overlap_pct"] is not None]
+    assert len(fwd) == 8 and abs(np.mean(fwd) - 60.0) < 3.0
+    side = [s["side_overlap_median_pct"] for s in fa["strips"]]
+    assert all(abs(v - 30.0) < 3.0 for v in side)
+    opk = ba.eo_map.opk_deg
+    tilt = np.degrees(np.arccos(np.cos(np.radians(opk[:, 0])) * np.cos(np.radians(opk[:, 1]))))
+    assert [f["tilt_deg"] for f in fa["frames"]] == pytest.approx(tilt, abs=1e-3)
+
+
+def test_consolidated_report_has_flight_rows_and_no_json_dumps(adjusted):
+    from aerotri.qa.report import write_qa_report
+
+    root, ba, _ = adjusted
+    with open(root / "project.toml", "a") as f:
+        f.write(f"\n[flight]\nmean_terrain_height_m = {GROUND_M}\n\n[qa]\npdf = true\n")
+    write_outputs(ba, root)
+    rep = write_qa_report(root)
+    rows = [r for r in rep["checks"] if r["section"] == "Flight acceptance"]
+    assert len(rows) == 7 and all(r["limit"] is not None for r in rows)
+    by = {r["quantity"]: r for r in rows}
+    worst = max(f["tilt_deg"] for f in rep["flight_acceptance"]["frames"])
+    assert by["tilt of the camera axis"]["value"] == pytest.approx(worst, abs=0.005)
+    assert by["tilt of the camera axis"]["verdict"] == ("fail" if worst > 2.0 else "pass")  # 1 deg sigma tilts
+    html = (root / "reports" / "index.html").read_text()
+    assert "<pre" not in html and "Flight acceptance" in html
+    alts = re.findall(r"alt='([^']*)'", html)
+    assert len(alts) >= 5 and all("Scale:" in a for a in alts)
+    pdf = (root / "reports" / "report.pdf").read_bytes()
+    assert pdf.count(b"/Type /Page\n") + pdf.count(b"/Type /Page ") >= 1 + 2 + len(alts)
