@@ -25,9 +25,10 @@ test: $(STAMP)
 	$(BIN)/python -m pytest -q
 
 bench: $(STAMP)
-	# headless Chromium and pdftoppm for bench/render_reports.py (what a reviewer sees); bench only
-	if ! command -v chromium >/dev/null || ! command -v pdftoppm >/dev/null; then \
-		$$( [ "$$(id -u)" = 0 ] || echo sudo ) apt-get install -y chromium poppler-utils; fi
+	# headless Chromium and pdftoppm for bench/render_reports.py (what a reviewer sees), gdal_contour for
+	# bench/eval_contours.py; bench only
+	if ! command -v chromium >/dev/null || ! command -v pdftoppm >/dev/null || ! command -v gdal_contour >/dev/null; then \
+		$$( [ "$$(id -u)" = 0 ] || echo sudo ) apt-get install -y chromium poppler-utils gdal-bin; fi
 	$(BIN)/pip install --quiet -e ".[test,bench]"
 	$(BIN)/pip install --quiet --no-deps "orthority>=0.4"
 	@for b in bench/*.py; do echo "== $$b"; $(BIN)/python $$b || exit 1; done
