@@ -12,6 +12,7 @@ from typing import Callable
 
 from aerotri.core.errors import InputError, OptionError
 from aerotri.core.project import Project
+from aerotri.exchange import exif
 from aerotri.exchange.imported import ImportedBlock, ImportOptions, write_imported
 
 
@@ -23,7 +24,10 @@ class Importer:
     files: str = "FILE..."  # what the format expects, for messages (e.g. "reconstruction.json")
 
 
-IMPORT_FORMATS: dict[str, Importer] = {}
+IMPORT_FORMATS: dict[str, Importer] = {
+    "exif": Importer("exif", "GNSS positions, DJI RTK accuracies, camera (DJI DewarpData) and gimbal attitudes "
+                             "from the images' EXIF/XMP", exif.read, files="IMAGE... or a folder"),
+}
 
 
 def import_files(root, format_name: str, files, options: ImportOptions | None = None,
