@@ -12,7 +12,7 @@ from typing import Callable
 
 from aerotri.core.errors import InputError, OptionError
 from aerotri.core.project import Project
-from aerotri.exchange import exif
+from aerotri.exchange import exif, opensfm
 from aerotri.exchange.imported import ImportedBlock, ImportOptions, write_imported
 
 
@@ -27,6 +27,8 @@ class Importer:
 IMPORT_FORMATS: dict[str, Importer] = {
     "exif": Importer("exif", "GNSS positions, DJI RTK accuracies, camera (DJI DewarpData) and gimbal attitudes "
                              "from the images' EXIF/XMP", exif.read, files="IMAGE... or a folder"),
+    "opensfm": Importer("opensfm", "OpenSfM/OpenDroneMap reconstruction: camera, orientations, GNSS positions",
+                        opensfm.read, files="reconstruction.json"),
 }
 
 
