@@ -12,7 +12,7 @@ from typing import Callable
 
 from aerotri.core.errors import InputError, OptionError
 from aerotri.core.project import Project
-from aerotri.exchange import exif, opensfm
+from aerotri.exchange import exif, odm, opensfm
 from aerotri.exchange.imported import ImportedBlock, ImportOptions, write_imported
 
 
@@ -29,6 +29,8 @@ IMPORT_FORMATS: dict[str, Importer] = {
                              "from the images' EXIF/XMP", exif.read, files="IMAGE... or a folder"),
     "opensfm": Importer("opensfm", "OpenSfM/OpenDroneMap reconstruction: camera, orientations, GNSS positions",
                         opensfm.read, files="reconstruction.json"),
+    "odm": Importer("odm", "OpenDroneMap ground control (control points and their image measurements)", odm.read,
+                    files="gcp_list.txt"),
 }
 
 

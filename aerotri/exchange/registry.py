@@ -10,7 +10,7 @@ from typing import Callable
 from aerotri.core.atomic import write_text_atomic
 from aerotri.core.errors import OptionError
 from aerotri.core.project import Project
-from aerotri.exchange import colmap, patb
+from aerotri.exchange import colmap, odm, patb
 from aerotri.exchange.adjusted import AdjustedBlock, read_adjusted_block
 from aerotri.geom.images import find_images
 
@@ -31,6 +31,9 @@ EXPORT_FORMATS = {
                        lambda block, project: colmap.files(
                            block, {k: p.name for k, p in find_images(project.images_dir).items()}
                            if project.images_dir.is_dir() else None)),
+    "odm": Exporter("odm", "OpenDroneMap/OpenSfM ground control (odm/gcp_list.txt, odm/ground_control_points.json)",
+                    lambda block, project: odm.files(block, project, {k: p.name for k, p in find_images(
+                        project.images_dir).items()} if project.images_dir.is_dir() else None)),
 }
 DEFAULT_FORMATS = ("patb", "colmap")
 

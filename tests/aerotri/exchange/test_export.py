@@ -61,7 +61,7 @@ def test_export_command_writes_every_format_from_the_folder(adjusted, tmp_path):
     assert r.exit_code == 0, r.output
     for rel in ("patb/block.im", "patb/block.con", "colmap/cameras.txt", "colmap/images.txt", "colmap/points3D.txt"):
         assert (tmp_path / rel).stat().st_size > 0
-    assert set(EXPORT_FORMATS) == {"patb", "colmap"}
+    assert {"patb", "colmap"} <= set(EXPORT_FORMATS)
     # the same files as the adjustment's own export into at/
     export_project(root)
     for rel in ("patb/block.im", "colmap/points3D.txt"):
