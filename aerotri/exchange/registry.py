@@ -7,10 +7,10 @@ import logging
 from pathlib import Path
 from typing import Callable
 
-from aerotri.core.atomic import write_text_atomic
+from aerotri.core.atomic import atomic_path, write_text_atomic
 from aerotri.core.errors import OptionError
 from aerotri.core.project import Project
-from aerotri.exchange import colmap, odm, patb
+from aerotri.exchange import colmap, layers, odm, patb
 from aerotri.exchange.adjusted import AdjustedBlock, read_adjusted_block
 from aerotri.geom.images import find_images
 
@@ -21,7 +21,7 @@ log = logging.getLogger(__name__)
 class Exporter:
     name: str
     description: str
-    files: Callable[[AdjustedBlock, Project], dict]  # relative path -> text
+    files: Callable[[AdjustedBlock, Project], dict]  # relative path -> text (or bytes, for binary files)
 
 
 EXPORT_FORMATS = {
@@ -34,6 +34,11 @@ EXPORT_FORMATS = {
     "odm": Exporter("odm", "OpenDroneMap/OpenSfM ground control (odm/gcp_list.txt, odm/ground_control_points.json)",
                     lambda block, project: odm.files(block, project, {k: p.name for k, p in find_images(
                         project.images_dir).items()} if project.images_dir.is_dir() else None)),
+    "gpkg": Exporter("gpkg", "GeoPackage map layers: control/check points with ground residuals, frame footprints, "
+                             "projection centres (layers/block.gpkg, project CRS)",
+                     lambda block, project: layers.files(block, project, "gpkg")),
+    "kml": Exporter("kml", "the same layers as KML (layers/block.kml, WGS84)",
+                    lambda block, project: layers.files(block, project, "kml")),
 }
 DEFAULT_FORMATS = ("patb", "colmap")
 
@@ -53,7 +58,11 @@ def export_project(root, formats=DEFAULT_FORMATS, out_dir=None) -> list[Path]:
     out = Path(out_dir) if out_dir is not None else project.at_dir
     written = []
     for rel, text in texts.items():
-        write_text_atomic(out / rel, text)
+        if isinstance(text, bytes):
+            with atomic_path(out / rel) as tmp:
+                tmp.write_bytes(text)
+        else:
+            write_text_atomic(out / rel, text)
         written.append(out / rel)
     log.info(f"exported {', '.join(formats)} of {project.root} -> {out}")
     return written
