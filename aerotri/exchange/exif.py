@@ -228,7 +228,7 @@ def opk_from_gimbal(ypr_deg, R_map_from_enu=None) -> np.ndarray:
     return np.array(opk_from_matrix(R))
 
 
-def _pixel_mm(m: FrameMetadata, full_w: int, full_h: int) -> tuple[float, str]:
+def pixel_size_mm(m: FrameMetadata, full_w: int, full_h: int) -> tuple[float, str]:
     """Pixel size (mm) of the full sensor and where it came from."""
     if m.focal_plane_px_per_mm:
         return 1.0 / m.focal_plane_px_per_mm, "EXIF focal plane resolution"
@@ -248,7 +248,7 @@ def camera_from_metadata(m: FrameMetadata) -> tuple[BrownCamera, list[str]]:
     if abs(m.height - full_h * scale) > 1.0:
         raise InputError(f"{m.path}: image is {m.width} x {m.height} px, EXIF says {full_w} x {full_h} px: not one "
                          f"scale (the frame was cropped?); the calibration cannot be scaled")
-    pix_full_mm, pix_source = _pixel_mm(m, full_w, full_h)
+    pix_full_mm, pix_source = pixel_size_mm(m, full_w, full_h)
     notes = []
     pix_mm = pix_full_mm / scale
     if m.dewarp is not None:

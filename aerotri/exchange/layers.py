@@ -10,7 +10,7 @@ Layers (the same in both files):
 - ``footprints``: each frame's outline on the ground (``image_id``, ``omega_deg``, ``phi_deg``, ``kappa_deg``):
   ``EDGE_POINTS`` points along each image edge (pixel-area corners included), their rays through the adjusted
   camera and orientation (``at/eo.txt``) intersected with the LiDAR DEM (``lidar/dem.tif``) when the project
-  has one, else with the mean height of the adjusted points;
+  has one, else with the mean height of the adjusted points (a frame whose edge rays miss the ground has none);
 - ``projection_centres``: the frames' adjusted centres.
 
 In the KML every placemark also has a ``Name`` (its point or image id), which KML viewers show.
@@ -18,6 +18,8 @@ In the KML every placemark also has a ``Name`` (its point or image id), which KM
 
 from __future__ import annotations
 
+import contextlib
+import logging
 import math
 import tempfile
 from pathlib import Path
@@ -28,6 +30,8 @@ from aerotri.core.errors import InputError
 from aerotri.core.project import Project
 from aerotri.core.textio import read_json
 from aerotri.exchange.adjusted import AdjustedBlock
+
+log = logging.getLogger(__name__)
 
 EDGE_POINTS = 8  # per image edge, corners included once
 DEM_ITERATIONS = 20
@@ -45,21 +49,15 @@ def _edge_pixels(width: int, height: int, n: int = EDGE_POINTS) -> np.ndarray:
     return np.vstack([top, right, bottom, left])
 
 
-def _dem_sampler(path: Path):
-    import rasterio
-
-    ds = rasterio.open(path)
-    band = ds.read(1, masked=True)
-    inv = ~ds.transform
+def _dem_sampler(ds):
+    """Heights of an open DEM at map points (NaN outside or on nodata), read point by point (a block's DEM may
+    be larger than memory)."""
 
     def sample(x, y):
-        col, row = inv * (np.asarray(x), np.asarray(y))
-        r = np.clip(np.floor(row).astype(int), 0, ds.height - 1)
-        c = np.clip(np.floor(col).astype(int), 0, ds.width - 1)
-        v = band[r, c]
-        return np.ma.filled(v.astype(float), np.nan)
+        vals = np.array([v[0] for v in ds.sample(zip(x, y), masked=True)], dtype=object)
+        return np.array([np.nan if v is np.ma.masked else float(v) for v in vals])
 
-    return ds, sample
+    return sample
 
 
 def footprints(project: Project, block: AdjustedBlock) -> tuple[list[str], list[np.ndarray], np.ndarray, str]:
@@ -71,38 +69,41 @@ def footprints(project: Project, block: AdjustedBlock) -> tuple[list[str], list[
     eo = read_eo(project.eo_path)
     xy = _edge_pixels(cam.width, cam.height)
     mean_h = float(np.mean(block.frame.to_map(block.points_local)[:, 2])) if len(block.points_local) else 0.0
-    sampler = None
     surface = f"mean height of the adjusted points ({mean_h:.2f})"
-    if project.dem_path.is_file():
-        ds, sampler = _dem_sampler(project.dem_path)
-        surface = f"DEM {project.dem_path}"
-    outlines = []
-    try:
+    with contextlib.ExitStack() as stack:
+        sampler = None
+        if project.dem_path.is_file():
+            import rasterio
+
+            from aerotri.geom.crs import parse_crs, same_horizontal
+
+            ds = stack.enter_context(rasterio.open(project.dem_path))
+            if ds.crs is not None and not same_horizontal(parse_crs(ds.crs, str(project.dem_path)), parse_crs(block.crs)):
+                raise InputError(f"{project.dem_path}: DEM in {ds.crs.to_string()}, the project in {block.crs}; "
+                                 f"footprints need the DEM in the project CRS")
+            sampler = _dem_sampler(ds)
+            surface = f"DEM {project.dem_path}"
+        ids, outlines, opk = [], [], []
         for i in range(len(eo)):
             C = eo.centre_m[i]
             d = cam.rays(xy[:, 0], xy[:, 1], eo.rotation(i))
-            down = d[:, 2] < -1e-9
-            if not down.all():
-                raise InputError(f"{project.eo_path}: image {eo.image_id[i]!r} sees the horizon (rays at its edges do "
-                                 f"not reach the ground); no footprint")
+            if not np.all(d[:, 2] < -1e-9):
+                log.warning(f"{eo.image_id[i]}: rays at the frame's edge do not reach the ground (an oblique frame "
+                            f"seeing the horizon); no footprint")
+                continue
             z = np.full(len(xy), mean_h)
-            for _ in range(DEM_ITERATIONS if sampler else 1):
-                t = (z - C[2]) / d[:, 2]
-                p = C + t[:, None] * d
-                if sampler is None:
-                    break
+            for _ in range(DEM_ITERATIONS if sampler else 0):
+                p = C + ((z - C[2]) / d[:, 2])[:, None] * d
                 zs = sampler(p[:, 0], p[:, 1])
                 z_new = np.where(np.isfinite(zs), zs, z)
-                if np.max(np.abs(z_new - z)) < 1e-3:
-                    z = z_new
-                    break
+                done = np.max(np.abs(z_new - z)) < 1e-3
                 z = z_new
-            t = (z - C[2]) / d[:, 2]
-            outlines.append(C + t[:, None] * d)
-    finally:
-        if sampler is not None:
-            ds.close()
-    return list(eo.image_id), outlines, eo.opk_deg, surface
+                if done:
+                    break
+            outlines.append(C + ((z - C[2]) / d[:, 2])[:, None] * d)
+            ids.append(eo.image_id[i])
+            opk.append(eo.opk_deg[i])
+    return ids, outlines, np.array(opk).reshape(-1, 3), surface
 
 
 def _control_rows(project: Project) -> list[dict]:
@@ -174,10 +175,8 @@ def _write(path: Path, layers, crs: str, driver: str) -> None:
 
 def files(block: AdjustedBlock, project: Project, fmt: str) -> dict[str, bytes | str]:
     """``layers/block.gpkg`` (``fmt`` gpkg, bytes) or ``layers/block.kml`` (kml, text)."""
-    import logging
-
     layers, surface = _layers(block, project)
-    logging.getLogger(__name__).info(f"footprints on the {surface}")
+    log.info(f"footprints on the {surface}")
     with tempfile.TemporaryDirectory() as tmp:
         if fmt == "gpkg":
             from aerotri.geom.crs import crs_label, horizontal_crs, parse_crs

@@ -71,23 +71,35 @@ def rotation_from_axis_angle(r) -> np.ndarray:
     return Rotation.from_rotvec(np.asarray(r, float)).as_matrix()
 
 
-def _frame_size(project: Project, recon_path: Path, shot_ids) -> tuple[int, int] | None:
-    """The size of the frames on disk: the project's images, else ``images/`` beside the OpenSfM folder."""
+def _frame_file(project: Project, recon_path: Path, shot_ids) -> Path | None:
+    """A frame of the reconstruction on disk: in the project's images/, else in images/ beside the OpenSfM
+    folder (ODM's layout)."""
     from aerotri.geom.images import find_image
 
     for folder in (project.images_dir, recon_path.parent.parent / "images"):
-        if folder.is_dir():
-            for sid in shot_ids:
-                for candidate in (folder / sid, folder / Path(sid).stem):
-                    try:
-                        path = candidate if candidate.is_file() else find_image(folder, Path(sid).stem)
-                    except InputError:
-                        continue
-                    import rasterio
-
-                    with rasterio.open(path) as ds:
-                        return ds.width, ds.height, path
+        if not folder.is_dir():
+            continue
+        for sid in shot_ids:
+            if (folder / sid).is_file():
+                return folder / sid
+            try:
+                return find_image(folder, Path(sid).stem)
+            except InputError:
+                continue
     return None
+
+
+def _frame_size_and_pixel(path: Path) -> tuple[tuple[int, int], float | None]:
+    """((width, height) px, pixel size in um or None) of a frame file (the pixel size from its EXIF)."""
+    from aerotri.exchange.exif import pixel_size_mm, read_frame_metadata
+
+    m = read_frame_metadata(path)
+    full_w, full_h = m.full_size or (m.width, m.height)
+    try:
+        pixel_um = pixel_size_mm(m, full_w, full_h)[0] * 1000.0 * full_w / m.width
+    except InputError:
+        pixel_um = None
+    return (m.width, m.height), pixel_um
 
 
 def camera_from_opensfm(cam: dict, where: str, size, pixel_um: float, name: str = "OpenSfM camera") -> tuple[BrownCamera, list[str]]:
@@ -163,24 +175,15 @@ def read(files, project: Project, options: ImportOptions) -> ImportedBlock:
                          f"shots into their own project)")
     cam_id, cam = next(iter(rec["cameras"].items()))
     shot_ids = sorted(rec["shots"])
-    found = _frame_size(project, path, shot_ids)
-    pixel_um = NOMINAL_PIXEL_UM
-    if found is not None:
-        w, h, image = found
-        size = (w, h)
-        try:
-            from aerotri.exchange.exif import _pixel_mm, read_frame_metadata
-
-            m = read_frame_metadata(image)
-            full_w, full_h = m.full_size or (w, h)
-            pixel_um = _pixel_mm(m, full_w, full_h)[0] * 1000.0 * full_w / w
-        except InputError:
-            block.notes.append(f"camera: pixel size unknown (EXIF of {image.name}); nominal {NOMINAL_PIXEL_UM} um "
-                               f"(pixel geometry exact, millimetre values nominal)")
-    else:
-        size = None
-        block.notes.append(f"camera: frames not found (project images/ or images/ beside {path.parent}); the size "
-                           f"in the file and a nominal {NOMINAL_PIXEL_UM} um pixel")
+    image = _frame_file(project, path, shot_ids)
+    size, pixel_um = _frame_size_and_pixel(image) if image is not None else (None, None)
+    if image is None:
+        block.notes.append(f"camera: frames not found (the project's images/ or images/ beside {path.parent}); "
+                           f"the camera at the size in the file")
+    if pixel_um is None:
+        pixel_um = NOMINAL_PIXEL_UM
+        block.notes.append(f"camera: pixel size unknown (no EXIF focal plane resolution or focal lengths); nominal "
+                           f"{NOMINAL_PIXEL_UM} um (the pixel geometry is exact, millimetre values nominal)")
     block.camera, notes = camera_from_opensfm(cam, f"{path} camera {cam_id!r}", size, pixel_um, name=str(cam_id))
     block.notes += notes
     crs = options.crs or DEFAULT_CRS

@@ -110,3 +110,18 @@ def test_unadjusted_project_is_refused(tmp_path, adjusted_tiny):
     with pytest.raises(InputError, match="run the adjustment first"):
         export_project(root, ["gpkg"], tmp_path / "out")
     assert not (tmp_path / "out").exists()
+
+
+def test_dem_in_another_crs_is_refused(adjusted_tiny, tmp_path):
+    import rasterio
+    from rasterio.transform import from_origin
+
+    root = _copy(adjusted_tiny, tmp_path)
+    project = Project.open(root)
+    project.dem_path.parent.mkdir(parents=True, exist_ok=True)
+    with rasterio.open(project.dem_path, "w", driver="GTiff", width=4, height=4, count=1, dtype="float32",
+                       crs="EPSG:32650", transform=from_origin(0, 0, 1, 1)) as ds:
+        ds.write(np.zeros((1, 4, 4), np.float32))
+    with pytest.raises(InputError, match="DEM in EPSG:32650"):
+        export_project(root, ["gpkg"], tmp_path / "out")
+    assert not (tmp_path / "out").exists()
