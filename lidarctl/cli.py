@@ -187,3 +187,57 @@ def check_heights(cloud_paths, points_csv, radius_m, exclude_m, json_path, crs):
     click.echo(hc.format_report(result))
     if json_path:
         write_text_atomic(json_path, json.dumps(result, indent=2))
+
+
+@main.command()
+@click.argument("dem_path", type=click.Path(dir_okay=False))
+@click.argument("out_path", type=click.Path(dir_okay=False))
+@click.option("--order", type=click.Choice(["4", "2"]), default="4", show_default=True,
+              help="4: keeps planes and the breaklines between them (crests, toes, embankments); 2 (Perona-Malik): "
+                   "keeps steps (walls, cliffs) but rounds creases.")
+@click.option("--edge", "edge_m", type=positive(), default=None,
+              help="What counts as a breakline rather than noise (m, also for DEMs in feet): order 4, the "
+                   "4-neighbour Laplacian [1.0]; order 2, the height difference between neighbouring cells [0.5].")
+@click.option("--iterations", type=click.IntRange(min=1, max=100000), default=None,
+              help="Diffusion steps [order 4: 100; order 2: 20].")
+@click.option("--step", type=click.FloatRange(min=0, max=0.25, min_open=True), default=None,
+              help="Diffusion time step [order 4: 0.03, at most 1/32; order 2: 0.2, at most 0.25].")
+@click.option("--window-px", type=click.IntRange(min=16), default=2048, show_default=True,
+              help="Processing window in cells (memory about 40 bytes per cell of a window with its halo).")
+def smooth(dem_path, out_path, order, edge_m, iterations, step, window_px):
+    """Edge-preserving smoothing of DEM_PATH (GeoTIFF) into OUT_PATH (COG): anisotropic diffusion, by
+    windows (the same result as in one piece); nodata respected, CRS and units kept."""
+    from lidarctl.smooth import DiffusionParams, smooth_dem
+
+    order = int(order)
+    params = DiffusionParams(order=order, edge_m=edge_m or (1.0 if order == 4 else 0.5),
+                             iterations=iterations or (100 if order == 4 else 20), step=step)
+    r = smooth_dem(dem_path, out_path, params, window_px)
+    click.echo(f"{r.path}: {r.valid_cells:,} of {r.cells:,} cells smoothed ({r.windows} window(s)); "
+               f"changes RMS {r.rms_change_m:.3f} m, max {r.max_change_m:.3f} m")
+
+
+@main.command()
+@click.argument("dem_path", type=click.Path(dir_okay=False))
+@click.argument("out_path", type=click.Path(dir_okay=False))
+@click.option("--interval", "interval_m", type=positive(), required=True,
+              help="Contour interval (m, also for DEMs in feet).")
+@click.option("--index", "index_every", type=click.IntRange(min=0), default=5, show_default=True,
+              help="Every N-th level is an index contour (0: none).")
+@click.option("--smooth", "smoothing", type=click.Choice(["none", "bspline", "tension"]), default="none",
+              show_default=True, help="Fit the traced lines: an approximating cubic B-spline, or a spline under "
+                                      "tension through the vertices; lines that would cross keep their traced form.")
+@click.option("--tolerance-px", type=positive(), default=0.5, show_default=True,
+              help="B-spline: RMS distance (cells) the fitted line may keep from the traced one.")
+@click.option("--tension", type=click.FloatRange(min=0), default=1.0, show_default=True,
+              help="Tension spline: 0 is a cubic spline, larger values tend to the traced polyline.")
+@click.option("--png/--no-png", default=True, show_default=True, help="A preview PNG beside OUT (over the hillshade).")
+def contours(dem_path, out_path, interval_m, index_every, smoothing, tolerance_px, tension, png):
+    """Contour lines of DEM_PATH (GeoTIFF) into OUT_PATH (.gpkg or .geojson, layer 'contours': elevation in the
+    DEM's unit, elevation_m, index, closed), traced on the cell centres and cut at nodata."""
+    from lidarctl.contours import contours_from_file
+
+    s = contours_from_file(dem_path, out_path, interval_m, index_every, smoothing, tolerance_px, tension, png)
+    click.echo(f"{out_path}: {s['contours']} contours on {s['levels']} levels ({s['closed']} closed, "
+               f"{s['index_contours']} index), smoothing {s['smoothing']} ({s['fell_back_to_traced']} kept traced "
+               f"to avoid crossings), {s['crossings']} crossings")

@@ -1,16 +1,60 @@
-"""COLMAP text model (``colmap/cameras.txt``, ``images.txt``, ``points3D.txt``).
+"""COLMAP models: export (text ``colmap/`` and binary ``colmap_bin/``) and import (text or binary).
 
-One camera (OPENCV for a Brown camera, PINHOLE for a pinhole) with the adjusted interior orientation; poses world-to-camera in the adjustment's
-local ENU frame (origin and CRS in the header comments); pixel coordinates shifted by +0.5 (COLMAP's
-origin is the corner of the top-left pixel, ours the centre); image names are the image files' names
-in ``images/`` (with their extension), so COLMAP finds the frames.
+Export: one camera (OPENCV for a Brown camera, FULL_OPENCV when k3 is not zero, PINHOLE for a pinhole)
+with the adjusted interior orientation; poses world-to-camera (computer-vision camera frame: x right, y
+down, z forward) in the adjustment's local ENU frame; pixel coordinates shifted by +0.5 (COLMAP's origin
+is the corner of the top-left pixel, ours the centre); image names are the image files' names in
+``images/`` (with their extension), so COLMAP finds the frames. The binary model is the text model
+written by pycolmap (``Reconstruction.write_binary``). Beside each model, ``georef.txt`` says what COLMAP
+files cannot::
+
+    # aerotri: the world frame of this COLMAP model
+    frame local_enu          # world = ENU tangent plane at origin_map (aerotri.geom.local_frame)
+    crs EPSG:32649           # the CRS of origin_map (the rest of the line)
+    origin_map 500000.000 4100000.000 850.000
+    pixel_um 12.0            # the sensor's pixel size (COLMAP cameras are in pixels only)
+
+Import (``aerotri import P --format colmap MODEL_FOLDER`` or its files): cameras -> camera.toml (one
+camera; SIMPLE_PINHOLE, PINHOLE, SIMPLE_RADIAL, RADIAL, OPENCV, FULL_OPENCV with k4 = k5 = k6 = 0;
+fx and fy averaged), images -> imported/eo.txt and gnss.txt in the project CRS. The world frame comes
+from ``georef.txt`` (our exports; or written by hand: ``frame local_enu`` + ``crs`` + ``origin_map``),
+else the text model's header comment of our older exports, else ``--crs``: a foreign model must be
+georeferenced already (e.g. ``colmap model_aligner``), its world coordinates in that CRS (projected, or
+geocentric EPSG:4978); a model in an arbitrary frame cannot be imported. Pixel size: ``georef.txt``, else
+the project's camera.toml, else a nominal 1 um (focal length in pixels kept; a note says so). Text files
+are read here (errors name the file and line); binary files through pycolmap.
 """
 
 from __future__ import annotations
 
+import re
+import tempfile
+from pathlib import Path
+
 import numpy as np
 
+from aerotri.core.errors import CrsError, InputError
+from aerotri.core.project import Project
+from aerotri.core.textio import read_text
 from aerotri.exchange.adjusted import AdjustedBlock
+from aerotri.exchange.imported import ImportedBlock, ImportOptions
+from aerotri.exchange.poses import image_id_of, number, orientations_to_project
+from aerotri.geom.camera import BrownCamera, PinholeCamera
+from aerotri.geom.eo import GnssPositions
+from aerotri.geom.local_frame import LocalFrame
+from aerotri.geom.rotation import FLIP_YZ
+
+# model -> names of its PARAMS (COLMAP's src/colmap/sensor/models.h)
+MODELS = {
+    "SIMPLE_PINHOLE": ("f", "cx", "cy"),
+    "PINHOLE": ("fx", "fy", "cx", "cy"),
+    "SIMPLE_RADIAL": ("f", "cx", "cy", "k1"),
+    "RADIAL": ("f", "cx", "cy", "k1", "k2"),
+    "OPENCV": ("fx", "fy", "cx", "cy", "k1", "k2", "p1", "p2"),
+    "FULL_OPENCV": ("fx", "fy", "cx", "cy", "k1", "k2", "p1", "p2", "k3", "k4", "k5", "k6"),
+}
+GEOREF = "georef.txt"
+_HEADER = re.compile(r"#\s*local ENU frame of the adjustment, origin (\S+) (\S+) (\S+) in (.+)$")
 
 
 def _quat_wxyz(R):
@@ -21,8 +65,30 @@ def _quat_wxyz(R):
     return w, x, y, z
 
 
+def _matrix_of_quat(q, where: str) -> np.ndarray:
+    from scipy.spatial.transform import Rotation
+
+    q = np.asarray(q, float)
+    n = np.linalg.norm(q)
+    if not 0.5 < n < 2.0:
+        raise InputError(f"{where}: quaternion QW QX QY QZ = {' '.join(f'{v:g}' for v in q)} is not a rotation "
+                         "(norm far from 1)")
+    return Rotation.from_quat([q[1], q[2], q[3], q[0]]).as_matrix()
+
+
+# -- export ------------------------------------------------------------------------------------------
+
+def georef_text(block: AdjustedBlock) -> str:
+    o = block.frame.origin_map
+    return ("# aerotri: the world frame of this COLMAP model (ENU tangent plane at origin_map, aerotri.geom.local_frame)\n"
+            "frame local_enu\n"
+            f"crs {block.crs}\n"
+            f"origin_map {o[0]:.4f} {o[1]:.4f} {o[2]:.4f}\n"
+            f"pixel_um {block.camera.pixel_um!r}\n")
+
+
 def files(block: AdjustedBlock, image_names: dict | None = None) -> dict[str, str]:
-    """``image_names``: image id -> file name (default: the id)."""
+    """The text model ``colmap/``; ``image_names``: image id -> file name (default: the id)."""
     fx, fy, _, u0, v0 = block.cal[:5]
     cam = block.camera
     # the model of the camera the measurements fit (COLMAP's PARAMS start fx fy cx cy in every model we
@@ -55,4 +121,266 @@ def files(block: AdjustedBlock, image_names: dict | None = None) -> dict[str, st
         X, Y, Z = block.points_local[j]
         p3.append(f"{n} {X:.4f} {Y:.4f} {Z:.4f} 128 128 128 {block.point_rms_px[j]:.4f} " + " ".join(track[j]))
     return {"colmap/cameras.txt": "\n".join(cams) + "\n", "colmap/images.txt": "\n".join(imgs) + "\n",
-            "colmap/points3D.txt": "\n".join(p3) + "\n"}
+            "colmap/points3D.txt": "\n".join(p3) + "\n", f"colmap/{GEOREF}": georef_text(block)}
+
+
+def binary_files(block: AdjustedBlock, image_names: dict | None = None) -> dict[str, bytes | str]:
+    """The binary model ``colmap_bin/`` (the text model written by pycolmap) and its georef.txt."""
+    import pycolmap
+
+    out = {}
+    with tempfile.TemporaryDirectory(prefix="aerotri-colmap-") as tmp:
+        txt, bin_ = Path(tmp) / "txt", Path(tmp) / "bin"
+        txt.mkdir()
+        bin_.mkdir()
+        for rel, text in files(block, image_names).items():
+            (txt / Path(rel).name).write_text(text)
+        rec = pycolmap.Reconstruction()
+        rec.read_text(str(txt))
+        rec.write_binary(str(bin_))
+        for f in sorted(bin_.iterdir()):
+            out[f"colmap_bin/{f.name}"] = f.read_bytes()
+    out[f"colmap_bin/{GEOREF}"] = georef_text(block)
+    return out
+
+
+# -- import ------------------------------------------------------------------------------------------
+
+def _lines(path: Path):
+    for n, line in enumerate(read_text(path, "COLMAP text model").splitlines(), start=1):
+        s = line.strip()
+        if s and not s.startswith("#"):
+            yield n, s
+
+
+def read_cameras_txt(path: Path) -> dict[int, tuple[str, int, int, list[float]]]:
+    """camera id -> (model, width, height, params) of ``cameras.txt``."""
+    cams = {}
+    for n, s in _lines(path):
+        where = f"{path}:{n}"
+        f = s.split()
+        if len(f) < 4:
+            raise InputError(f"{where}: expected CAMERA_ID MODEL WIDTH HEIGHT PARAMS..., got {s!r}")
+        model = f[1]
+        if model not in MODELS:
+            raise InputError(f"{where}: camera model {model} is not one of {', '.join(MODELS)}")
+        if len(f) != 4 + len(MODELS[model]):
+            raise InputError(f"{where}: {model} has {len(MODELS[model])} PARAMS ({' '.join(MODELS[model])}), "
+                             f"got {len(f) - 4}")
+        try:
+            cid, w, h = int(f[0]), int(f[2]), int(f[3])
+        except ValueError:
+            raise InputError(f"{where}: CAMERA_ID, WIDTH and HEIGHT must be whole numbers, got {s!r}") from None
+        if cid in cams:
+            raise InputError(f"{where}: duplicate CAMERA_ID {cid}")
+        cams[cid] = (model, w, h, [number(v, where, k) for k, v in zip(MODELS[model], f[4:])])
+    if not cams:
+        raise InputError(f"{path}: no cameras")
+    return cams
+
+
+def read_images_txt(path: Path) -> list[tuple[str, int, np.ndarray, np.ndarray, str]]:
+    """(name, camera id, R world -> camera (3, 3), t (3,), where) per image of ``images.txt`` (every other
+    data line: the image line, then its points line, which may be empty)."""
+    text = read_text(path, "COLMAP text model")
+    out, seen, expect_points = [], {}, False
+    for n, line in enumerate(text.splitlines(), start=1):
+        s = line.strip()
+        if s.startswith("#"):
+            continue
+        if expect_points:  # the POINTS2D line of the image before (not needed for the orientations)
+            expect_points = False
+            continue
+        if not s:
+            continue
+        where = f"{path}:{n}"
+        f = s.split()
+        if len(f) < 10:
+            raise InputError(f"{where}: expected IMAGE_ID QW QX QY QZ TX TY TZ CAMERA_ID NAME, got {len(f)} fields")
+        vals = [number(v, where, k) for k, v in zip(("QW", "QX", "QY", "QZ", "TX", "TY", "TZ"), f[1:8])]
+        try:
+            cid = int(f[8])
+        except ValueError:
+            raise InputError(f"{where}: CAMERA_ID {f[8]!r} is not a whole number") from None
+        name = " ".join(f[9:])
+        if name in seen:
+            raise InputError(f"{where}: duplicate image {name!r} (first on line {seen[name]})")
+        seen[name] = n
+        out.append((name, cid, _matrix_of_quat(vals[:4], where), np.array(vals[4:7]), where))
+        expect_points = True
+    if not out:
+        raise InputError(f"{path}: no images")
+    return out
+
+
+def _read_binary(folder: Path):
+    import pycolmap
+
+    rec = pycolmap.Reconstruction()
+    try:
+        rec.read_binary(str(folder))
+    except Exception as exc:  # pycolmap raises RuntimeError/ValueError for unreadable binary models
+        raise InputError(f"{folder}: not a readable COLMAP binary model ({exc})".replace("\n", " ")) from None
+    cams = {int(cid): (c.model.name, int(c.width), int(c.height), [float(v) for v in c.params])
+            for cid, c in rec.cameras.items()}
+    for cid, (model, *_r, params) in cams.items():
+        if model not in MODELS:
+            raise InputError(f"{folder}/cameras.bin: camera {cid}: model {model} is not one of {', '.join(MODELS)}")
+        if not all(np.isfinite(params)):
+            raise InputError(f"{folder}/cameras.bin: camera {cid}: PARAMS NaN or infinite")
+    images = []
+    for iid in sorted(rec.reg_image_ids()):
+        im = rec.image(iid)
+        pose = im.cam_from_world()
+        R, t = np.asarray(pose.rotation.matrix(), float), np.asarray(pose.translation, float)
+        if not (np.all(np.isfinite(R)) and np.all(np.isfinite(t))):
+            raise InputError(f"{folder}/images.bin: image {im.name!r}: pose NaN or infinite")
+        images.append((im.name, int(im.camera_id), R, t, f"{folder}/images.bin image {im.name!r}"))
+    if not images:
+        raise InputError(f"{folder}/images.bin: no registered images")
+    return cams, images
+
+
+def read_georef(folder: Path) -> dict:
+    """The keys of ``georef.txt`` (frame, crs, origin_map, pixel_um) or {} when there is none."""
+    path = folder / GEOREF
+    if not path.is_file():
+        return {}
+    out = {}
+    for n, line in enumerate(read_text(path, "COLMAP georeference").splitlines(), start=1):
+        s = line.split("#", 1)[0].strip()  # WKT and PROJ strings hold no '#'
+
+        if not s:
+            continue
+        key, _, value = s.partition(" ")
+        where = f"{path}:{n}"
+        value = value.strip()
+        if key == "frame":
+            if value not in ("local_enu", "crs"):
+                raise InputError(f"{where}: frame {value!r} is not local_enu or crs")
+            out["frame"] = value
+        elif key == "crs":
+            out["crs"] = value
+        elif key == "origin_map":
+            v = value.split()
+            if len(v) != 3:
+                raise InputError(f"{where}: origin_map needs 3 numbers X Y Z, got {len(v)}")
+            out["origin_map"] = [number(x, where, "origin_map") for x in v]
+        elif key == "pixel_um":
+            out["pixel_um"] = number(value, where, "pixel_um")
+        else:
+            raise InputError(f"{where}: unknown key {key!r} (expected frame, crs, origin_map, pixel_um)")
+    if out.get("frame", "local_enu") == "local_enu" and ("crs" not in out or "origin_map" not in out):
+        raise InputError(f"{path}: frame local_enu needs crs and origin_map")
+    if out.get("frame") == "crs" and "crs" not in out:
+        raise InputError(f"{path}: frame crs needs crs")
+    return out
+
+
+def _header_georef(folder: Path) -> dict:
+    """The frame of our older text exports' header comment, or {}."""
+    for name in ("cameras.txt", "images.txt"):
+        p = folder / name
+        if p.is_file():
+            for line in read_text(p, "COLMAP text model").splitlines()[:3]:
+                m = _HEADER.match(line.strip())
+                if m:
+                    return {"frame": "local_enu", "crs": m.group(4).strip(),
+                            "origin_map": [float(m.group(k)) for k in (1, 2, 3)]}
+    return {}
+
+
+def camera_of(cams: dict, images: list, pixel_um: float, where: str):
+    """Our camera of the COLMAP camera(s) the images use; PARAMS -> focal, principal point (pixel centre
+    origin), Brown coefficients."""
+    used = sorted({cid for _, cid, *_r in images})
+    missing = [c for c in used if c not in cams]
+    if missing:
+        raise InputError(f"{where}: images use CAMERA_ID(s) {missing}, which cameras does not have")
+    distinct = {(cams[c][0], cams[c][1], cams[c][2], tuple(cams[c][3])) for c in used}
+    if len(distinct) > 1:
+        raise InputError(f"{where}: the images use {len(distinct)} different cameras; a project has one camera "
+                         "(import the images of one camera at a time)")
+    model, w, h, params = cams[used[0]]
+    p = dict(zip(MODELS[model], params))
+    fx, fy = p.get("fx", p.get("f")), p.get("fy", p.get("f"))
+    notes = []
+    if abs(fx - fy) > 1e-6 * fx:
+        notes.append(f"COLMAP camera {used[0]}: fx {fx:.6f} and fy {fy:.6f} differ; their mean is the focal length")
+    if model == "FULL_OPENCV" and any(p[k] for k in ("k4", "k5", "k6")):
+        raise InputError(f"{where}: camera {used[0]}: FULL_OPENCV k4 k5 k6 must be zero (our Brown model has k1 k2 k3 "
+                         "p1 p2)")
+    if fx <= 0 or fy <= 0 or w <= 0 or h <= 0:
+        raise InputError(f"{where}: camera {used[0]}: focal length and image size must be positive")
+    f_px = 0.5 * (fx + fy)
+    pix_mm = pixel_um / 1000.0
+    geometry = dict(focal_mm=f_px * pix_mm, pixel_um=pixel_um, width=w, height=h,
+                    ppx_mm=(p["cx"] - 0.5 - (w - 1) / 2.0) * pix_mm, ppy_mm=-(p["cy"] - 0.5 - (h - 1) / 2.0) * pix_mm,
+                    name=f"colmap camera {used[0]}")
+    try:
+        if model in ("SIMPLE_PINHOLE", "PINHOLE"):
+            cam = PinholeCamera(**geometry)
+        else:
+            cam = BrownCamera(**geometry, **{k: p.get(k, 0.0) for k in ("k1", "k2", "k3", "p1", "p2")})
+    except InputError as exc:
+        raise InputError(f"{where}: camera {used[0]}: {exc}") from None
+    return cam, notes
+
+
+def _folder_of(files: list[Path]) -> Path:
+    folders = {f if f.is_dir() else f.parent for f in files}
+    if len(folders) != 1:
+        raise InputError(f"{', '.join(map(str, files))}: expected one COLMAP model folder (or files of one folder)")
+    return folders.pop()
+
+
+def read(files: list[Path], project: Project, options: ImportOptions) -> ImportedBlock:
+    """A COLMAP model (text or binary; see the module docstring) -> camera, orientations and positions."""
+    folder = _folder_of(files)
+    block = ImportedBlock(source=[str(folder)])
+    if (folder / "cameras.txt").is_file() and (folder / "images.txt").is_file():
+        cams, images = read_cameras_txt(folder / "cameras.txt"), read_images_txt(folder / "images.txt")
+        where = str(folder / "images.txt")
+    elif (folder / "cameras.bin").is_file() and (folder / "images.bin").is_file():
+        cams, images = _read_binary(folder)
+        where = str(folder / "images.bin")
+    else:
+        raise InputError(f"{folder}: no COLMAP model (expected cameras.txt + images.txt or cameras.bin + images.bin)")
+    georef = read_georef(folder) or _header_georef(folder)
+    # pixel size: georef.txt, else the project's camera, else nominal
+    if "pixel_um" in georef:
+        pixel_um = georef["pixel_um"]
+    elif project.camera_path.is_file():
+        from aerotri.geom.camera import read_camera
+
+        pixel_um = read_camera(project.camera_path).pixel_um
+        block.notes.append(f"pixel size {pixel_um} um taken from {project.camera_path} (COLMAP cameras are in pixels)")
+    else:
+        pixel_um = 1.0
+        block.notes.append("no pixel size (COLMAP cameras are in pixels): a nominal 1 um; edit camera.toml for the "
+                           "physical sensor")
+    block.camera, notes = camera_of(cams, images, pixel_um, where)
+    block.notes += notes
+    # poses: world -> camera (computer-vision frame) -> centre and photogrammetric camera -> world
+    R_wc = np.array([im[2] for im in images])
+    t = np.array([im[3] for im in images])
+    centre = -np.einsum("nji,nj->ni", R_wc, t)
+    R_photo = np.transpose(R_wc, (0, 2, 1)) @ FLIP_YZ
+    ids = [image_id_of(im[0]) for im in images]
+    dup = {i for i in ids if ids.count(i) > 1}
+    if dup:
+        raise InputError(f"{where}: image names {sorted(dup)} give the same image id twice")
+    if georef.get("frame", "local_enu") == "local_enu" and "origin_map" in georef:
+        frame = LocalFrame(georef["crs"], georef["origin_map"])
+        centre_map = frame.to_map(centre)
+        R_map = np.transpose(frame.rotation_local_from_map(centre_map), (0, 2, 1)) @ R_photo
+        block.eo = orientations_to_project(ids, centre_map, R_map, georef["crs"], project, f"{folder}/{GEOREF} crs")
+    elif georef.get("crs") or options.crs:
+        crs = georef.get("crs") or options.crs
+        block.eo = orientations_to_project(ids, centre, R_photo, crs, project, "--crs" if not georef else GEOREF)
+    else:
+        raise CrsError(f"{folder}: the model's world frame is unknown; a foreign COLMAP model must be georeferenced "
+                       f"(colmap model_aligner) and its CRS given with --crs, or described in {GEOREF}")
+    sigma = np.tile(options.sigma_xyz_m, (len(ids), 1)) if options.sigma_xyz_m else None
+    block.gnss = GnssPositions(list(ids), block.eo.centre_m.copy(), sigma)
+    return block

@@ -12,7 +12,7 @@ from typing import Callable
 
 from aerotri.core.errors import InputError, OptionError
 from aerotri.core.project import Project
-from aerotri.exchange import exif, odm, opensfm
+from aerotri.exchange import colmap, exif, metashape, micmac, odm, opensfm, orthority, patb
 from aerotri.exchange.imported import ImportedBlock, ImportOptions, write_imported
 
 
@@ -25,6 +25,17 @@ class Importer:
 
 
 IMPORT_FORMATS: dict[str, Importer] = {
+    "orthority": Importer("orthority", "orthority interior YAML and exterior OPK CSV (+ .prj) or GeoJSON",
+                          orthority.read, files="int_param.yaml [ext_param.csv | ext_param.geojson]"),
+    "colmap": Importer("colmap", "COLMAP model, text or binary (cameras, images; world frame from georef.txt or --crs)",
+                       colmap.read, files="MODEL_FOLDER (cameras.txt/.bin, images.txt/.bin[, georef.txt])"),
+    "patb": Importer("patb", "PATB-style orientations, camera, control and image coordinates (aerotri's layout)",
+                     patb.read, files="block.ori block.cam block.con block.im (any of them)"),
+    "metashape": Importer("metashape", "Agisoft Metashape cameras XML (cameras, sensor, markers and their projections)",
+                          metashape.read, files="cameras.xml"),
+    "micmac": Importer("micmac", "MicMac DicoAppuisFlottant (control; 'check' in the name: check points) and "
+                                 "SetOfMesureAppuisFlottants (image measurements) XML",
+                       micmac.read, files="gcp.xml [check.xml] [measures.xml]"),
     "exif": Importer("exif", "GNSS positions, DJI RTK accuracies, camera (DJI DewarpData) and gimbal attitudes "
                              "from the images' EXIF/XMP", exif.read, files="IMAGE... or a folder"),
     "opensfm": Importer("opensfm", "OpenSfM/OpenDroneMap reconstruction: camera, orientations, GNSS positions",

@@ -10,30 +10,42 @@ from typing import Callable
 from aerotri.core.atomic import atomic_path, write_text_atomic
 from aerotri.core.errors import OptionError
 from aerotri.core.project import Project
-from aerotri.exchange import colmap, layers, odm, patb
+from aerotri.exchange import colmap, layers, metashape, micmac, odm, orthority, patb
 from aerotri.exchange.adjusted import AdjustedBlock, read_adjusted_block
 from aerotri.geom.images import find_images
 
 log = logging.getLogger(__name__)
 
 
+def _image_names(project: Project) -> dict | None:
+    """image id -> file name in images/ (None without images/)."""
+    return {k: p.name for k, p in find_images(project.images_dir).items()} if project.images_dir.is_dir() else None
+
+
 @dataclasses.dataclass(frozen=True)
 class Exporter:
     name: str
     description: str
-    files: Callable[[AdjustedBlock, Project], dict]  # relative path -> text (or bytes, for binary files)
+    files: Callable[[AdjustedBlock, Project], dict]  # relative path -> text (str) or binary content (bytes)
 
 
 EXPORT_FORMATS = {
-    "patb": Exporter("patb", "PATB-style image coordinates and control (patb/block.im, .con)",
-                     lambda block, project: patb.files(block)),
+    "patb": Exporter("patb", "PATB-style image coordinates, control, orientations and camera (patb/block.im, .con, "
+                             ".ori, .cam)", patb.files),
     "colmap": Exporter("colmap", "COLMAP text model (colmap/cameras.txt, images.txt, points3D.txt)",
                        lambda block, project: colmap.files(
                            block, {k: p.name for k, p in find_images(project.images_dir).items()}
                            if project.images_dir.is_dir() else None)),
+    "colmap-bin": Exporter("colmap-bin", "COLMAP binary model (colmap_bin/cameras.bin, images.bin, points3D.bin)",
+                           lambda block, project: colmap.binary_files(block, _image_names(project))),
+    "orthority": Exporter("orthority", "orthority interior YAML, OPK CSV + .prj and exterior GeoJSON (orthority/)",
+                          orthority.files),
+    "metashape": Exporter("metashape", "Agisoft Metashape cameras XML with markers (metashape/cameras.xml)",
+                          metashape.files),
+    "micmac": Exporter("micmac", "MicMac ground control and image measurement XML (micmac/gcp.xml, check.xml, "
+                                 "measures.xml)", micmac.files),
     "odm": Exporter("odm", "OpenDroneMap/OpenSfM ground control (odm/gcp_list.txt, odm/ground_control_points.json)",
-                    lambda block, project: odm.files(block, project, {k: p.name for k, p in find_images(
-                        project.images_dir).items()} if project.images_dir.is_dir() else None)),
+                    lambda block, project: odm.files(block, project, _image_names(project))),
     "gpkg": Exporter("gpkg", "GeoPackage map layers: control/check points with ground residuals, frame footprints, "
                              "projection centres (layers/block.gpkg, project CRS)",
                      lambda block, project: layers.files(block, project, "gpkg")),
@@ -57,12 +69,12 @@ def export_project(root, formats=DEFAULT_FORMATS, out_dir=None) -> list[Path]:
         texts.update(EXPORT_FORMATS[name].files(block, project))
     out = Path(out_dir) if out_dir is not None else project.at_dir
     written = []
-    for rel, text in texts.items():
-        if isinstance(text, bytes):
+    for rel, content in texts.items():
+        if isinstance(content, bytes):
             with atomic_path(out / rel) as tmp:
-                tmp.write_bytes(text)
+                tmp.write_bytes(content)
         else:
-            write_text_atomic(out / rel, text)
+            write_text_atomic(out / rel, content)
         written.append(out / rel)
     log.info(f"exported {', '.join(formats)} of {project.root} -> {out}")
     return written

@@ -1,10 +1,14 @@
-"""Fixtures of the exchange tests: a small geometric block with known truth, adjusted (with self-calibration)."""
+"""The adjusted tiny block every exchange test exports from: a small geometric block with known truth
+(``aerotri.sim.observations.geometric_block``), adjusted with self-calibration (principal point, radial),
+so exports read an adjusted project folder and its self-calibrated camera."""
 
 from __future__ import annotations
 
 import pytest
 
 from aerotri.adjust.pipeline import AdjustSettings, run_adjustment
+from aerotri.core.errors import StageOrderError
+from aerotri.exchange.adjusted import read_adjusted_block
 from aerotri.sim.observations import geometric_block, write_block_project, write_truth_observations
 
 SIGMA_PX = 0.3
@@ -12,11 +16,12 @@ SIGMA_PX = 0.3
 
 @pytest.fixture(scope="session")
 def adjusted_tiny(tmp_path_factory):
-    """(project folder, adjustment) of a 2 x 5 frame block with 5 control and 4 check points, adjusted;
-    treat it as read-only (exporters write into a folder of their own)."""
+    """(project root, the adjustment's result); treat the folder as read-only."""
     block = geometric_block(2, 5, seed=7)
     root = write_block_project(block, tmp_path_factory.mktemp("exp") / "blk")
     write_truth_observations(root, tie_sigma_px=SIGMA_PX, n_control=5, points_per_image=80, n_check=4, seed=2)
+    with pytest.raises(StageOrderError):
+        read_adjusted_block(root)
     ba, _ = run_adjustment(root, AdjustSettings(gnss_correction="shift", image_sigma_px=SIGMA_PX,
                                                 self_calibration=("pp", "radial")))
     return root, ba

@@ -7,27 +7,17 @@ import numpy as np
 import pytest
 from click.testing import CliRunner
 
-from aerotri.adjust.pipeline import AdjustSettings, run_adjustment
 from aerotri.cli import main as aerotri_cli
-from aerotri.core.errors import StageOrderError
 from aerotri.exchange import EXPORT_FORMATS, export_project
 from aerotri.exchange.adjusted import read_adjusted_block
 from aerotri.exchange.patb import photo_coordinates_mm
-from aerotri.sim.observations import geometric_block, write_block_project, write_truth_observations
 
-SIGMA_PX = 0.3
+from tests.aerotri.exchange.conftest import SIGMA_PX
 
 
-@pytest.fixture(scope="module")
-def adjusted(tmp_path_factory):
-    block = geometric_block(2, 5, seed=7)
-    root = write_block_project(block, tmp_path_factory.mktemp("exp") / "blk")
-    write_truth_observations(root, tie_sigma_px=SIGMA_PX, n_control=5, points_per_image=80, n_check=4, seed=2)
-    with pytest.raises(StageOrderError):
-        read_adjusted_block(root)
-    ba, _ = run_adjustment(root, AdjustSettings(gnss_correction="shift", image_sigma_px=SIGMA_PX,
-                                                self_calibration=("pp", "radial")))
-    return root, ba
+@pytest.fixture
+def adjusted(adjusted_tiny):
+    return adjusted_tiny
 
 
 def test_block_read_from_the_folder_is_the_adjusted_one(adjusted):

@@ -1,0 +1,186 @@
+"""COLMAP models: pycolmap reads our text and binary exports and projects our points where we do; the
+round trip through a fresh project; a foreign georeferenced model with --crs; bad input."""
+
+from __future__ import annotations
+
+import shutil
+
+import numpy as np
+import pytest
+from click.testing import CliRunner
+
+from aerotri.cli import main as aerotri_cli
+from aerotri.core.errors import CrsError, InputError
+from aerotri.core.project import Project
+from aerotri.exchange import ImportOptions, export_project, import_files
+from aerotri.exchange.adjusted import read_adjusted_block
+from aerotri.exchange.colmap import _quat_wxyz
+from aerotri.geom.camera import adjusted_camera, read_camera
+from aerotri.geom.eo import read_eo
+from aerotri.geom.rotation import FLIP_YZ, rotation_matrix_opk
+
+
+def fresh_project(src, dst):
+    dst.mkdir(parents=True)
+    shutil.copy(src / "project.toml", dst / "project.toml")
+    return dst
+
+
+def our_projection_px(blk) -> np.ndarray:
+    """The adjustment's projection (Cal3DS2: fx fy u0 v0 k1 k2 p1 p2) of every used measurement's point."""
+    fx, fy, _, u0, v0 = blk.cal[:5]
+    d = np.einsum("kji,kj->ki", blk.R_cv[blk.obs_image], blk.points_local[blk.obs_point] - blk.centre_local[blk.obs_image])
+    xd, yd = blk.camera.calibration_camera(blk.cal).distort(d[:, 0] / d[:, 2], d[:, 1] / d[:, 2])
+    return np.column_stack([fx * xd + u0, fy * yd + v0])
+
+
+@pytest.fixture(scope="module")
+def exported(adjusted_tiny, tmp_path_factory):
+    root, _ = adjusted_tiny
+    out = tmp_path_factory.mktemp("colmap_exp")
+    export_project(root, ["colmap", "colmap-bin"], out)
+    return root, out
+
+
+@pytest.mark.parametrize("folder", ["colmap", "colmap_bin"])
+def test_pycolmap_reprojects_our_points_where_we_do(exported, folder):
+    import pycolmap
+
+    root, out = exported
+    blk = read_adjusted_block(root)
+    rec = pycolmap.Reconstruction(str(out / folder))
+    assert rec.num_reg_images() == len(blk.image_id) and rec.num_points3D() == len(np.unique(blk.obs_point))
+    by_name = {im.name: im for im in rec.images.values()}
+    ours = our_projection_px(blk)
+    theirs = np.array([by_name[blk.image_id[i]].project_point(blk.points_local[j]) for i, j in zip(blk.obs_image, blk.obs_point)])
+    err = np.abs(theirs - 0.5 - ours)  # COLMAP's pixel origin: the corner of the top-left pixel
+    assert err.max() < 0.01, err.max()
+    # and the measurements sit in the same places (the residuals are pycolmap's reprojection errors)
+    meas = np.array([by_name[blk.image_id[i]].points2D[n].xy for i in range(len(blk.image_id))
+                     for n in range(len(by_name[blk.image_id[i]].points2D))])
+    assert len(meas) == len(blk.obs_xy_px)
+
+
+@pytest.mark.parametrize("folder", ["colmap", "colmap_bin"])
+def test_round_trip(exported, tmp_path, folder):
+    root, out = exported
+    p = Project.open(root)
+    dst = fresh_project(root, tmp_path / "p")
+    import_files(dst, "colmap", [out / folder])
+    eo, back = read_eo(p.eo_path), read_eo(dst / "imported" / "eo.txt")
+    assert back.image_id == eo.image_id
+    assert np.abs(back.centre_m - eo.centre_m).max() < 1e-4
+    assert np.abs(back.opk_deg - eo.opk_deg).max() < 1e-6
+    got, cam = read_camera(dst / "camera.toml"), adjusted_camera(p)[0]
+    assert got.MODEL == cam.MODEL
+    for f in got.fields():
+        assert getattr(got, f) == pytest.approx(getattr(cam, f), rel=1e-7, abs=1e-8), f  # 1e-6 px in the file
+
+
+def test_older_export_without_georef_uses_the_header(exported, tmp_path):
+    root, out = exported
+    model = tmp_path / "m"
+    shutil.copytree(out / "colmap", model)
+    (model / "georef.txt").unlink()
+    dst = fresh_project(root, tmp_path / "p")
+    shutil.copy(root / "camera.toml", dst / "camera.toml")  # the pixel size comes from the project's camera
+    import_files(dst, "colmap", [model / "cameras.txt", model / "images.txt"], overwrite=True)
+    back, eo = read_eo(dst / "imported" / "eo.txt"), read_eo(Project.open(root).eo_path)
+    assert np.abs(back.centre_m - eo.centre_m).max() < 2e-3  # the header keeps the origin to 1 mm
+
+
+def _foreign_model(folder, centre, opk_deg, crs_line=None):
+    folder.mkdir()
+    R_cv = rotation_matrix_opk(*opk_deg) @ FLIP_YZ
+    Rwc = R_cv.T
+    t = -Rwc @ np.asarray(centre, float)
+    q = _quat_wxyz(Rwc)
+    (folder / "cameras.txt").write_text("1 SIMPLE_RADIAL 6000 4000 5000.5 3000 2000 -0.05\n")
+    (folder / "images.txt").write_text("# a foreign model in map coordinates\n"
+                                       f"7 {' '.join(f'{v:.15f}' for v in q)} {' '.join(f'{v:.9f}' for v in t)} 1 dir/IMG_0007.JPG\n"
+                                       "\n")
+    if crs_line:
+        (folder / "georef.txt").write_text(f"frame crs\n{crs_line}\npixel_um 4.0\n")
+
+
+def test_foreign_model_in_map_coordinates(tiny_project, tmp_path):
+    root = fresh_project(tiny_project, tmp_path / "p")
+    centre, opk = [500123.25, 4100456.5, 1200.75], [1.5, -2.25, 37.0]
+    _foreign_model(tmp_path / "m", centre, opk)
+    with pytest.raises(CrsError, match="world frame is unknown"):
+        import_files(root, "colmap", [tmp_path / "m"])
+    import_files(root, "colmap", [tmp_path / "m"], ImportOptions(crs=Project.open(root).crs))
+    eo = read_eo(root / "imported" / "eo.txt")
+    assert eo.image_id == ["IMG_0007"]
+    assert np.abs(eo.centre_m[0] - centre).max() < 1e-4 and np.abs(eo.opk_deg[0] - opk).max() < 1e-6
+    cam = read_camera(root / "camera.toml")
+    assert cam.MODEL == "brown" and cam.k1 == -0.05 and cam.focal_px == pytest.approx(5000.5)
+    assert cam.cx_px == pytest.approx(2999.5) and cam.cy_px == pytest.approx(1999.5)
+    # the same model with its frame in georef.txt
+    _foreign_model(tmp_path / "m2", centre, opk, crs_line=f"crs {Project.open(root).crs}")
+    import_files(root, "colmap", [tmp_path / "m2"], overwrite=True)
+    assert read_camera(root / "camera.toml").pixel_um == 4.0
+
+
+@pytest.mark.parametrize("cameras, images, match", [
+    ("1 OPENCV 10 10 1 2 3\n", None, r"cameras.txt:1: OPENCV has 8 PARAMS"),
+    ("1 FOV 10 10 1 2 3 4 5\n", None, r"cameras.txt:1: camera model FOV is not one of"),
+    ("1 PINHOLE 10 10 100 nan 5 5\n", None, r"cameras.txt:1: fy is NaN"),
+    ("1 FULL_OPENCV 10 10 100 100 5 5 0 0 0 0 0 0.1 0 0\n", None, "k4 k5 k6 must be zero"),
+    (None, "1 1 0 0 0 0 0 0 1 a.jpg\n\n1 1 0 0 0 0 0 0 1 a.jpg\n\n", r"images.txt:3: duplicate image 'a.jpg'"),
+    (None, "1 1 0 0 0 0 0 1 a.jpg\n\n", r"images.txt:1: expected IMAGE_ID QW"),
+    (None, "1 9 0 0 0 0 0 0 1 a.jpg\n\n", r"images.txt:1: quaternion .* is not a rotation"),
+    (None, "1 1 0 0 0 0 0 0 2 a.jpg\n\n", r"CAMERA_ID\(s\) \[2\]"),
+])
+def test_bad_text_model(tiny_project, tmp_path, cameras, images, match):
+    root = fresh_project(tiny_project, tmp_path / "p")
+    m = tmp_path / "m"
+    m.mkdir()
+    (m / "cameras.txt").write_text(cameras or "1 PINHOLE 10 10 100 100 5 5\n")
+    (m / "images.txt").write_text(images or "1 1 0 0 0 0 0 0 1 a.jpg\n\n")
+    with pytest.raises(InputError, match=match):
+        import_files(root, "colmap", [m], ImportOptions(crs=Project.open(root).crs))
+    assert not (root / "imported").exists()
+
+
+def test_bad_georef_and_cli(tiny_project, tmp_path):
+    root = fresh_project(tiny_project, tmp_path / "p")
+    m = tmp_path / "m"
+    m.mkdir()
+    (m / "cameras.txt").write_text("1 PINHOLE 10 10 100 100 5 5\n")
+    (m / "images.txt").write_text("1 1 0 0 0 0 0 0 1 a.jpg\n\n")
+    (m / "georef.txt").write_text("frame local_enu\ncrs EPSG:32649\n")
+    r = CliRunner().invoke(aerotri_cli, ["import", str(root), "--format", "colmap", str(m)])
+    assert r.exit_code == 2 and "georef.txt: frame local_enu needs crs and origin_map" in r.output
+    (m / "georef.txt").unlink()
+    (m / "images.txt").unlink()
+    r = CliRunner().invoke(aerotri_cli, ["import", str(root), "--format", "colmap", str(m)])
+    assert r.exit_code == 2 and "no COLMAP model" in r.output and "Traceback" not in r.output
+
+
+def test_foreign_model_in_geocentric_coordinates(adjusted_tiny, tmp_path):
+    """A model georeferenced to geocentric (ECEF) coordinates, e.g. by colmap model_aligner, imported with
+    --crs EPSG:4978: centres and attitudes come back in the project CRS and grid axes."""
+    from aerotri.geom.local_frame import LocalFrame
+
+    root, _ = adjusted_tiny
+    p = Project.open(root)
+    eo = read_eo(p.eo_path)
+    m = tmp_path / "m"
+    m.mkdir()
+    (m / "cameras.txt").write_text("1 PINHOLE 13824 7680 10000 10000 6912 3840\n")
+    lines = []
+    for i, iid in enumerate(eo.image_id):
+        frame = LocalFrame(p.crs, eo.centre_m[i])  # ENU at the camera: its origin is the centre
+        R_ecef = frame.R.T @ frame.rotation_local_from_map(eo.centre_m[i:i + 1])[0] @ eo.rotation(i)
+        Rwc = (R_ecef @ FLIP_YZ).T
+        t = -Rwc @ frame.ecef0
+        q = _quat_wxyz(Rwc)
+        lines += [f"{i + 1} {' '.join(f'{v:.15f}' for v in q)} {' '.join(f'{v:.6f}' for v in t)} 1 {iid}.tif", ""]
+    (m / "images.txt").write_text("\n".join(lines) + "\n")
+    dst = fresh_project(root, tmp_path / "p")
+    import_files(dst, "colmap", [m], ImportOptions(crs="EPSG:4978"))
+    back = read_eo(dst / "imported" / "eo.txt")
+    assert back.image_id == eo.image_id
+    assert np.abs(back.centre_m - eo.centre_m).max() < 1e-3
+    assert np.abs(back.opk_deg - eo.opk_deg).max() < 1e-6
