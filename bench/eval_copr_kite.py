@@ -31,6 +31,10 @@ converges in 2-3 iterations to the least-squares minimum (Levenberg-Marquardt wi
 lowers it by 4e-9 relative). How far the block tilts is still decided by metre-level planimetric control
 against 5 m heights: the mean viewing direction of the solutions lies 7.8 to 28 degrees off the vertical
 (``mean_view_off_vertical_deg`` in the results), though the frames are near-nadir.
+
+The control files come from ``gcp_list.txt`` through the ODM importer (``aerotri import --format odm``), not
+from a parser of this script: its pixel coordinates are taken as OpenSfM reads them (pixel centres at
+integers, as ours; this script used to shift them by -0.5 px, as for COLMAP's corner origin).
 """
 
 from __future__ import annotations
@@ -51,6 +55,7 @@ from aerotri.geom.camera import FrameCamera
 from aerotri.geom.eo import ExteriorOrientations, write_eo
 from aerotri.geom.rotation import FLIP_YZ, opk_from_matrix
 from aerotri.core.atomic import write_text_atomic
+from aerotri.geom.observations import format_control_points, format_image_points, read_control_points, read_image_points
 
 REPO = Path(__file__).resolve().parents[1]
 SIGMA_XY_M, SIGMA_Z_M = 0.3, 5.0  # a-priori target sigmas (averaged handheld GNSS; heights unknown)
@@ -58,17 +63,25 @@ IMAGE_SIGMA_PX = 0.5  # COLMAP's mean reprojection error is 0.49 px
 CRS = "EPSG:32611"  # the PROJ string in gcp_list.txt: UTM 11N, WGS84
 
 
-def read_gcps(path: Path):
-    lines = path.read_text().splitlines()
-    rows = [ln.split() for ln in lines[1:] if ln.strip()]
-    gcp = {}
-    obs = []
-    for X, Y, Z, px, py, img, tid in rows:
-        gcp[tid] = (float(X), float(Y), float(Z))
-        obs.append((tid, Path(img).stem, float(px), float(py)))
-    # two targets measured at (nearly) the same pixel of one image: at least one is mislabelled, drop both
-    amb = {(a[0], a[1]) for a in obs for b in obs if a[1] == b[1] and a[0] != b[0] and np.hypot(a[2] - b[2], a[3] - b[3]) < 5.0}
-    return gcp, [o for o in obs if (o[0], o[1]) not in amb], sorted(amb)
+def import_gcps(root: Path, path: Path, registered: set) -> list[str]:
+    """The targets of gcp_list.txt into the project through ``aerotri import --format odm`` (control/points.csv,
+    control/image_points.csv; pixel coordinates as OpenSfM reads them), then two cleanings the importer does not
+    know: measurements on frames COLMAP did not register, and two targets measured at (nearly) the same pixel of
+    one image (at least one is mislabelled: both dropped). Targets left without measurements are dropped; the
+    others are sorted by id.
+    Returns the dropped ambiguous measurements."""
+    from aerotri.exchange import ImportOptions, import_files
+
+    import_files(root, "odm", [path], ImportOptions(sigma_xyz_m=(SIGMA_XY_M, SIGMA_XY_M, SIGMA_Z_M)), overwrite=True)
+    obs = read_image_points(root / "control" / "image_points.csv")
+    o = list(zip(obs.point_id, obs.image_id, obs.xy_px[:, 0], obs.xy_px[:, 1]))
+    amb = {(a[0], a[1]) for a in o for b in o if a[1] == b[1] and a[0] != b[0] and np.hypot(a[2] - b[2], a[3] - b[3]) < 5.0}
+    keep = np.array([(p, i) not in amb and i in registered for p, i, _, _ in o], bool)
+    write_text_atomic(root / "control" / "image_points.csv", format_image_points(obs.subset(keep)))
+    control = read_control_points(root / "control" / "points.csv")
+    used = control.subset(np.isin(control.id, obs.point_id[keep]))
+    write_text_atomic(root / "control" / "points.csv", format_control_points(used.subset(np.argsort(used.id))))
+    return sorted(f"{t}@{i}" for t, i in amb)
 
 
 def sfm(images: Path, work: Path, max_image_size: int, max_features: int):
@@ -135,14 +148,14 @@ def control_variance_component(ba, sigma_xy_m: float):
     return float(np.sqrt(vv / red)), red, vv
 
 
-def write_control(root: Path, gcp: dict, gobs, sigma_xy_m: float) -> None:
-    ctrl = ["id,kind,x,y,z,sx_m,sy_m,sz_m"] + [f"{t},full,{X},{Y},{Z},{sigma_xy_m},{sigma_xy_m},{SIGMA_Z_M}" for t, (X, Y, Z) in
-                                               sorted(gcp.items()) if any(o[0] == t for o in gobs)]
-    write_text_atomic(root / "control" / "points.csv", "\n".join(ctrl) + "\n")
+def set_control_sigma(root: Path, sigma_xy_m: float) -> None:
+    """The horizontal standard deviation of every control point in control/points.csv (heights keep theirs)."""
+    c = read_control_points(root / "control" / "points.csv")
+    c.sigma_m[:, :2] = sigma_xy_m
+    write_text_atomic(root / "control" / "points.csv", format_control_points(c))
 
 
 def build_project(data: Path, rec, root: Path) -> dict:
-    gcp, gobs, ambiguous = read_gcps(data / "gcp_list.txt")
     cam_c = rec.cameras[next(iter(rec.cameras))]
     f_px, cx_c, cy_c, k_c = cam_c.params  # SIMPLE_RADIAL, pixel origin at the corner of the top-left pixel
     pix_um = 22.2 / 4272 * 1000
@@ -169,11 +182,11 @@ def build_project(data: Path, rec, root: Path) -> dict:
             xy = images[el.image_id].points2D[el.point2D_idx].xy - 0.5
             lines.append(f"t{pid},{names[el.image_id]},{xy[0]:.3f},{xy[1]:.3f}")
     write_text_atomic(root / "at" / "tiepoints.csv", "\n".join(lines) + "\n")
-    reg = set(names.values())
-    gobs = [o for o in gobs if o[1] in reg]
-    write_control(root, gcp, gobs, SIGMA_XY_M)
-    write_text_atomic(root / "control" / "image_points.csv",
-                      "point_id,image_id,x_px,y_px\n" + "\n".join(f"{t},{i},{x - 0.5:.3f},{y - 0.5:.3f}" for t, i, x, y in gobs) + "\n")
+    ambiguous = import_gcps(root, data / "gcp_list.txt", set(names.values()))
+    control = read_control_points(root / "control" / "points.csv")
+    gcp = dict(zip(control.id, control.xyz_m))
+    cobs = read_image_points(root / "control" / "image_points.csv")
+    gobs = list(zip(cobs.point_id, cobs.image_id, cobs.xy_px[:, 0], cobs.xy_px[:, 1]))
     # approximate EO: COLMAP poses, similarity onto the targets intersected in the COLMAP frame
     from aerotri.adjust.check_points import intersect
 
@@ -188,7 +201,7 @@ def build_project(data: Path, rec, root: Path) -> dict:
     tix = {t: n for n, t in enumerate(tids)}
     opt = np.array([tix[o[0]] for o in gobs])
     oim = np.array([idx[by_name[o[1]]] for o in gobs])
-    oxy = np.array([[o[2] - 0.5, o[3] - 0.5] for o in gobs])
+    oxy = np.array([[o[2], o[3]] for o in gobs])
     P, ok = intersect(oxy, opt, oim, C, Rcv, cal, len(tids))
     ok &= np.bincount(opt, minlength=len(tids)) >= 2
     src = P[ok]
@@ -218,7 +231,7 @@ def build_project(data: Path, rec, root: Path) -> dict:
     R_map = R @ Rcv @ FLIP_YZ
     opk = np.stack(opk_from_matrix(R_map), axis=-1)
     write_eo(root / "work" / "initial_eo.txt", ExteriorOrientations([names[i] for i in order], C_map, opk))
-    return {"ambiguous_observations_removed": [f"{t}@{i}" for t, i in ambiguous], "registered_images": len(order), "tracks": int(sum(1 for p in rec.points3D.values() if p.track.length() >= 2)),
+    return {"ambiguous_observations_removed": ambiguous, "registered_images": len(order), "tracks": int(sum(1 for p in rec.points3D.values() if p.track.length() >= 2)),
             "targets_used": len(tids), "similarity_scale": float(s),
             "similarity_rms_m": float(np.sqrt(np.mean(np.sum((((s * (R @ src.T)).T + t) - dst)[:, :2] ** 2, 1))))}
 
@@ -281,15 +294,12 @@ def main(argv=None):
     write_text_atomic(clean / "at" / "tiepoints.csv", "\n".join(lines) + "\n")
     rejected = [x["id"] for x in rep["rejected_control"]]
     clean_settings = dict(settings, initial_eo=str(clean / "work" / "initial_eo.txt"), snooping=False)
-    gcp, gobs, _ = read_gcps(a.data / "gcp_list.txt")
-    registered = {Path(im.name).stem for im in rec.images.values()}
-    gobs = [o for o in gobs if o[1] in registered]  # as in build_project: targets seen only on unregistered frames drop out
 
     # variance component of the control group (horizontal): s_c^2 = sum v^2 / sum r, iterated
     sigma_c = SIGMA_XY_M
     vce = []
     for _ in range(3):
-        write_control(clean, gcp, gobs, sigma_c)
+        set_control_sigma(clean, sigma_c)
         t1 = time.perf_counter()
         b1 = adjust_project(clean, AdjustSettings(**clean_settings, check=tuple(rejected)))
         s_new, red, vv = control_variance_component(b1, sigma_c)
@@ -309,7 +319,7 @@ def main(argv=None):
     ids = [row["id"] for row in rep["control_points"] if row["rays"] >= 2 or row["id"] in rejected]
     # (with the a-priori 0.3 m the first version's table gave normalised errors of ~5: see the closing note)
     label, sig = "estimated", sigma_c
-    write_control(clean, gcp, gobs, sig)
+    set_control_sigma(clean, sig)
     loo = []
     for tid in ids:
         t1 = time.perf_counter()

@@ -12,7 +12,7 @@ from typing import Callable
 
 from aerotri.core.errors import InputError, OptionError
 from aerotri.core.project import Project
-from aerotri.exchange import colmap, metashape, micmac, orthority, patb
+from aerotri.exchange import colmap, exif, metashape, micmac, odm, opensfm, orthority, patb
 from aerotri.exchange.imported import ImportedBlock, ImportOptions, write_imported
 
 
@@ -36,6 +36,12 @@ IMPORT_FORMATS: dict[str, Importer] = {
     "micmac": Importer("micmac", "MicMac DicoAppuisFlottant (control; 'check' in the name: check points) and "
                                  "SetOfMesureAppuisFlottants (image measurements) XML",
                        micmac.read, files="gcp.xml [check.xml] [measures.xml]"),
+    "exif": Importer("exif", "GNSS positions, DJI RTK accuracies, camera (DJI DewarpData) and gimbal attitudes "
+                             "from the images' EXIF/XMP", exif.read, files="IMAGE... or a folder"),
+    "opensfm": Importer("opensfm", "OpenSfM/OpenDroneMap reconstruction: camera, orientations, GNSS positions",
+                        opensfm.read, files="reconstruction.json"),
+    "odm": Importer("odm", "OpenDroneMap ground control (control points and their image measurements)", odm.read,
+                    files="gcp_list.txt"),
 }
 
 

@@ -10,7 +10,7 @@ from typing import Callable
 from aerotri.core.atomic import atomic_path, write_text_atomic
 from aerotri.core.errors import OptionError
 from aerotri.core.project import Project
-from aerotri.exchange import colmap, metashape, micmac, orthority, patb
+from aerotri.exchange import colmap, layers, metashape, micmac, odm, orthority, patb
 from aerotri.exchange.adjusted import AdjustedBlock, read_adjusted_block
 from aerotri.geom.images import find_images
 
@@ -44,6 +44,13 @@ EXPORT_FORMATS = {
                           metashape.files),
     "micmac": Exporter("micmac", "MicMac ground control and image measurement XML (micmac/gcp.xml, check.xml, "
                                  "measures.xml)", micmac.files),
+    "odm": Exporter("odm", "OpenDroneMap/OpenSfM ground control (odm/gcp_list.txt, odm/ground_control_points.json)",
+                    lambda block, project: odm.files(block, project, _image_names(project))),
+    "gpkg": Exporter("gpkg", "GeoPackage map layers: control/check points with ground residuals, frame footprints, "
+                             "projection centres (layers/block.gpkg, project CRS)",
+                     lambda block, project: layers.files(block, project, "gpkg")),
+    "kml": Exporter("kml", "the same layers as KML (layers/block.kml, WGS84)",
+                    lambda block, project: layers.files(block, project, "kml")),
 }
 DEFAULT_FORMATS = ("patb", "colmap")
 

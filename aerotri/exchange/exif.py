@@ -1,0 +1,338 @@
+"""Import of drone frames' own metadata: EXIF GPS and DJI XMP (``aerotri import --format exif``).
+
+What is read from each image (a JPEG or TIFF; tags through GDAL, which gives the EXIF of JPEGs and of
+GDAL-written TIFFs as ``EXIF_*`` items and the XMP packet as the ``xml:XMP`` domain):
+
+- position: DJI XMP ``drone-dji:GpsLatitude``, ``GpsLongtitude`` (DJI's spelling; ``GpsLongitude`` also
+  taken), ``AbsoluteAltitude``, else EXIF ``GPSLatitude/Longitude/Altitude`` (degrees, minutes, seconds;
+  references N/S, E/W, above/below). Positions are taken as WGS84 lat/lon with the altitude an
+  ellipsoidal height (EPSG:4979) unless ``--crs`` names the CRS they are in (e.g. ``EPSG:4326+3855`` when
+  the altitudes are EGM2008 heights; DJI states ellipsoidal heights for RTK fixes, consumer drones often
+  write heights above the geoid); then converted to the project CRS (``to_project_crs``). The antenna to
+  camera offset is not known and not applied.
+- accuracy: DJI RTK ``RtkStdLon``, ``RtkStdLat``, ``RtkStdHgt`` (m) -> gnss.txt sX sY sZ (east, north, up
+  taken as the grid axes: the meridian convergence mixes sX and sY by less than their difference matters),
+  else ``--sigma-xyz``, else none.
+- camera: DJI ``DewarpData`` = ``date;fx,fy,cx,cy,k1,k2,p1,p2,k3`` (the factory calibration; fx, fy in
+  pixels, cx, cy the principal point's offset from the photo centre in pixels, x right, y down, for the
+  full sensor of EXIF ``PixelXDimension`` x ``PixelYDimension``; k1 k2 p1 p2 k3 OpenCV's Brown model on
+  normalised coordinates: DJI's manuals, and its camera matrix [fx, 0, W/2 + cx; 0, fy, H/2 + cy] for
+  OpenCV ``undistort``). Scaled to the image size on disk (downsampled frames keep the full size in
+  EXIF): focal length and offsets in pixels scale, the coefficients do not. Our model has one focal
+  length: f = (fx + fy) / 2 (a note gives the difference at the image edge). Without DewarpData the
+  nominal camera: EXIF focal length, principal point at the centre, no distortion. Pixel size: EXIF
+  focal plane resolution, else DJI's ``CalibratedFocalLength`` (px) for the EXIF focal length (mm), else
+  the 35 mm equivalent focal length (diagonal).
+- attitude: DJI ``GimbalYawDegree``, ``GimbalPitchDegree``, ``GimbalRollDegree`` (the camera's attitude:
+  yaw from true north clockwise, pitch -90 = nadir; Tait-Bryan z-y-x in north-east-down) -> imported/eo.txt
+  as omega, phi, kappa (see :func:`opk_from_gimbal`). These are the drone's estimates, degrees off;
+  a note says so.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import logging
+import math
+import re
+from pathlib import Path
+
+import numpy as np
+
+from aerotri.core.errors import InputError
+from aerotri.core.project import Project
+from aerotri.exchange.imported import ImportedBlock, ImportOptions, to_project_crs
+from aerotri.geom.camera import BrownCamera
+from aerotri.geom.eo import ExteriorOrientations, GnssPositions
+from aerotri.geom.images import IMAGE_SUFFIXES
+from aerotri.geom.rotation import FLIP_YZ, opk_from_matrix
+
+log = logging.getLogger(__name__)
+
+DEFAULT_CRS = "EPSG:4979"  # WGS84 latitude, longitude, ellipsoidal height
+DIAGONAL_35MM_MM = math.hypot(36.0, 24.0)
+
+# body (x forward, y right, z down) -> computer-vision camera (x right, y down, z forward): the camera looks
+# along the gimbal's forward axis
+_BODY_FROM_CV = np.array([[0.0, 0.0, 1.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]])
+_ENU_FROM_NED = np.array([[0.0, 1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, -1.0]])
+
+
+@dataclasses.dataclass(kw_only=True)
+class FrameMetadata:
+    """What one frame's EXIF and XMP say (units in the names; None: not stated)."""
+
+    path: Path
+    width: int  # on disk, px
+    height: int
+    lat_deg: float | None = None
+    lon_deg: float | None = None
+    alt_m: float | None = None
+    rtk_sigma_m: tuple[float, float, float] | None = None  # east (lon), north (lat), up
+    rtk_flag: int | None = None
+    gimbal_ypr_deg: tuple[float, float, float] | None = None
+    flight_ypr_deg: tuple[float, float, float] | None = None
+    dewarp: tuple[float, ...] | None = None  # fx fy cx cy k1 k2 p1 p2 k3 (px of the full sensor)
+    full_size: tuple[int, int] | None = None  # EXIF PixelX/YDimension
+    focal_mm: float | None = None
+    focal_35mm: float | None = None
+    focal_plane_px_per_mm: float | None = None
+    calibrated_focal_px: float | None = None
+    model: str = ""
+
+
+# -- reading tags ---------------------------------------------------------------------------------------
+def _xmp_attributes(xmp: str) -> dict[str, str]:
+    """``prefix:Name`` -> value of an XMP packet's attributes and simple elements."""
+    out = {k: v for k, v in re.findall(r'([A-Za-z][\w-]*:[A-Za-z]\w*)\s*=\s*"([^"]*)"', xmp)}
+    out.update({k: v for k, v, _ in re.findall(r"<([A-Za-z][\w-]*:[A-Za-z]\w*)>([^<]*)</(\1)>", xmp)})
+    return out
+
+
+def read_tags(path) -> tuple[dict[str, str], dict[str, str]]:
+    """(EXIF items ``EXIF_*`` as GDAL gives them, XMP attributes) of an image file."""
+    import rasterio
+
+    try:
+        with rasterio.open(path) as ds:
+            exif = {k: v for k, v in ds.tags().items() if k.startswith("EXIF_")}
+            xmp = ds.tags(ns="xml:XMP") if "xml:XMP" in (ds.tag_namespaces() or []) else {}
+            size = (ds.width, ds.height)
+    except (rasterio.errors.RasterioIOError, OSError) as exc:
+        raise InputError(f"{path}: cannot read the image ({exc})") from None
+    packet = next(iter(xmp.values()), "") if xmp else ""
+    exif["_size"] = f"{size[0]} {size[1]}"
+    return exif, _xmp_attributes(packet)
+
+
+def _rationals(text: str, path, tag: str) -> list[float]:
+    """GDAL's ``(a) (b) (c)`` rendering of EXIF rationals."""
+    vals = re.findall(r"\(([^)]*)\)", text) or text.split()
+    try:
+        out = [float(v) for v in vals]
+    except ValueError:
+        raise InputError(f"{path}: EXIF {tag} = {text!r} is not a number") from None
+    if not out or not all(math.isfinite(v) for v in out):
+        raise InputError(f"{path}: EXIF {tag} = {text!r} is not a finite number")
+    return out
+
+
+def _dms(text: str, ref: str, path, tag: str) -> float:
+    v = _rationals(text, path, tag)
+    deg = v[0] + (v[1] if len(v) > 1 else 0.0) / 60.0 + (v[2] if len(v) > 2 else 0.0) / 3600.0
+    return -deg if ref.strip().upper() in ("S", "W") else deg
+
+
+def _xmp_float(xmp: dict, key: str, path) -> float | None:
+    if key not in xmp:
+        return None
+    try:
+        v = float(xmp[key])
+    except ValueError:
+        raise InputError(f"{path}: XMP {key} = {xmp[key]!r} is not a number") from None
+    if not math.isfinite(v):
+        raise InputError(f"{path}: XMP {key} = {xmp[key]!r} is not a finite number")
+    return v
+
+
+def _angles(xmp: dict, prefix: str, path) -> tuple[float, float, float] | None:
+    v = [_xmp_float(xmp, f"drone-dji:{prefix}{a}Degree", path) for a in ("Yaw", "Pitch", "Roll")]
+    return None if any(a is None for a in v) else (v[0], v[1], v[2])
+
+
+def _dewarp(text: str, path) -> tuple[float, ...]:
+    """``date;fx,fy,cx,cy,k1,k2,p1,p2,k3`` -> the 9 numbers."""
+    body = text.split(";", 1)[-1]
+    try:
+        vals = tuple(float(v) for v in body.split(","))
+    except ValueError:
+        raise InputError(f"{path}: XMP drone-dji:DewarpData = {text!r}; expected 'date;fx,fy,cx,cy,k1,k2,p1,p2,k3'") from None
+    if len(vals) != 9 or not all(math.isfinite(v) for v in vals):
+        raise InputError(f"{path}: XMP drone-dji:DewarpData has {len(vals)} values; expected 9 finite numbers "
+                         f"(date;fx,fy,cx,cy,k1,k2,p1,p2,k3)")
+    if vals[0] <= 0 or vals[1] <= 0:
+        raise InputError(f"{path}: XMP drone-dji:DewarpData focal lengths fx, fy must be positive, got {vals[:2]}")
+    return vals
+
+
+def read_frame_metadata(path) -> FrameMetadata:
+    """The EXIF and DJI XMP of one image (see the module docstring); refuses malformed values naming the tag."""
+    path = Path(path)
+    exif, xmp = read_tags(path)
+    w, h = (int(v) for v in exif.pop("_size").split())
+    m = FrameMetadata(path=path, width=w, height=h, model=exif.get("EXIF_Model", xmp.get("tiff:Model", "")).strip())
+    lat = _xmp_float(xmp, "drone-dji:GpsLatitude", path)
+    lon = _xmp_float(xmp, "drone-dji:GpsLongtitude", path)
+    if lon is None:
+        lon = _xmp_float(xmp, "drone-dji:GpsLongitude", path)
+    if lat is None and "EXIF_GPSLatitude" in exif:
+        lat = _dms(exif["EXIF_GPSLatitude"], exif.get("EXIF_GPSLatitudeRef", "N"), path, "GPSLatitude")
+    if lon is None and "EXIF_GPSLongitude" in exif:
+        lon = _dms(exif["EXIF_GPSLongitude"], exif.get("EXIF_GPSLongitudeRef", "E"), path, "GPSLongitude")
+    alt = _xmp_float(xmp, "drone-dji:AbsoluteAltitude", path)
+    if alt is None and "EXIF_GPSAltitude" in exif:
+        alt = _rationals(exif["EXIF_GPSAltitude"], path, "GPSAltitude")[0]
+        if exif.get("EXIF_GPSAltitudeRef", "0").strip() in ("1", "0x01"):
+            alt = -alt
+    if lat is not None and not -90.0 <= lat <= 90.0:
+        raise InputError(f"{path}: latitude {lat} is outside -90..90 degrees")
+    if lon is not None and not -180.0 <= lon <= 180.0:
+        raise InputError(f"{path}: longitude {lon} is outside -180..180 degrees")
+    m.lat_deg, m.lon_deg, m.alt_m = lat, lon, alt
+    std = [_xmp_float(xmp, f"drone-dji:RtkStd{a}", path) for a in ("Lon", "Lat", "Hgt")]
+    if all(s is not None for s in std):
+        if min(std) <= 0:
+            raise InputError(f"{path}: XMP RtkStdLon/Lat/Hgt must be positive, got {std}")
+        m.rtk_sigma_m = (std[0], std[1], std[2])
+    flag = _xmp_float(xmp, "drone-dji:RtkFlag", path)
+    m.rtk_flag = None if flag is None else int(flag)
+    m.gimbal_ypr_deg = _angles(xmp, "Gimbal", path)
+    m.flight_ypr_deg = _angles(xmp, "Flight", path)
+    if "drone-dji:DewarpData" in xmp:
+        m.dewarp = _dewarp(xmp["drone-dji:DewarpData"], path)
+    if "EXIF_PixelXDimension" in exif and "EXIF_PixelYDimension" in exif:
+        try:
+            m.full_size = (int(exif["EXIF_PixelXDimension"]), int(exif["EXIF_PixelYDimension"]))
+        except ValueError:
+            raise InputError(f"{path}: EXIF PixelXDimension/PixelYDimension are not integers") from None
+    if "EXIF_FocalLength" in exif:
+        m.focal_mm = _rationals(exif["EXIF_FocalLength"], path, "FocalLength")[0]
+    if "EXIF_FocalLengthIn35mmFilm" in exif:
+        m.focal_35mm = _rationals(exif["EXIF_FocalLengthIn35mmFilm"], path, "FocalLengthIn35mmFilm")[0] or None
+    if "EXIF_FocalPlaneXResolution" in exif:
+        per_unit = _rationals(exif["EXIF_FocalPlaneXResolution"], path, "FocalPlaneXResolution")[0]
+        unit = exif.get("EXIF_FocalPlaneResolutionUnit", "2").strip()
+        m.focal_plane_px_per_mm = per_unit / {"2": 25.4, "3": 10.0, "4": 1.0}.get(unit, 25.4) or None
+    m.calibrated_focal_px = _xmp_float(xmp, "drone-dji:CalibratedFocalLength", path)
+    return m
+
+
+# -- conversions ----------------------------------------------------------------------------------------
+def opk_from_gimbal(ypr_deg, R_map_from_enu=None) -> np.ndarray:
+    """Omega, phi, kappa (deg) of a camera with DJI gimbal yaw, pitch, roll (deg).
+
+    Gimbal angles are Tait-Bryan z-y-x in north-east-down (yaw from north clockwise, pitch up positive,
+    -90 = nadir, roll right positive) and rotate the gimbal's body frame (x forward, y right, z down),
+    along whose x axis the camera looks with the image's x axis to the right: R_NED<-cam =
+    Rz(yaw) Ry(pitch) Rx(roll) @ B with B the body <- computer-vision camera permutation. Then ENU <- NED,
+    the grid axes <- ENU (``R_map_from_enu``: the meridian convergence at the camera; identity if None),
+    and the photogrammetric camera frame (y, z flipped). A nadir frame with yaw 0 has the top of the image
+    to the north: omega = phi = kappa = 0."""
+    y, p, r = np.radians(np.asarray(ypr_deg, float))
+    cy, sy, cp, sp, cr, sr = np.cos(y), np.sin(y), np.cos(p), np.sin(p), np.cos(r), np.sin(r)
+    Rz = np.array([[cy, -sy, 0.0], [sy, cy, 0.0], [0.0, 0.0, 1.0]])
+    Ry = np.array([[cp, 0.0, sp], [0.0, 1.0, 0.0], [-sp, 0.0, cp]])
+    Rx = np.array([[1.0, 0.0, 0.0], [0.0, cr, -sr], [0.0, sr, cr]])
+    R_enu_cv = _ENU_FROM_NED @ Rz @ Ry @ Rx @ _BODY_FROM_CV
+    R = (np.eye(3) if R_map_from_enu is None else R_map_from_enu) @ R_enu_cv @ FLIP_YZ
+    return np.array(opk_from_matrix(R))
+
+
+def pixel_size_mm(m: FrameMetadata, full_w: int, full_h: int) -> tuple[float, str]:
+    """Pixel size (mm) of the full sensor and where it came from."""
+    if m.focal_plane_px_per_mm:
+        return 1.0 / m.focal_plane_px_per_mm, "EXIF focal plane resolution"
+    if m.focal_mm and m.calibrated_focal_px:
+        return m.focal_mm / m.calibrated_focal_px, "EXIF focal length / DJI CalibratedFocalLength"
+    if m.focal_mm and m.focal_35mm:
+        diag_mm = DIAGONAL_35MM_MM * m.focal_mm / m.focal_35mm
+        return diag_mm / math.hypot(full_w, full_h), "35 mm equivalent focal length (diagonal)"
+    raise InputError(f"{m.path}: no pixel size: EXIF has no focal plane resolution, and no focal length with "
+                     f"a 35 mm equivalent or DJI CalibratedFocalLength; write camera.toml yourself")
+
+
+def camera_from_metadata(m: FrameMetadata) -> tuple[BrownCamera, list[str]]:
+    """The camera of a frame's metadata at its size on disk, and notes (see the module docstring)."""
+    full_w, full_h = m.full_size or (m.width, m.height)
+    scale = m.width / full_w
+    if abs(m.height - full_h * scale) > 1.0:
+        raise InputError(f"{m.path}: image is {m.width} x {m.height} px, EXIF says {full_w} x {full_h} px: not one "
+                         f"scale (the frame was cropped?); the calibration cannot be scaled")
+    pix_full_mm, pix_source = pixel_size_mm(m, full_w, full_h)
+    notes = []
+    pix_mm = pix_full_mm / scale
+    if m.dewarp is not None:
+        fx, fy, cx, cy, k1, k2, p1, p2, k3 = m.dewarp
+        f_px = 0.5 * (fx + fy)
+        # the principal point's offset from the photo centre, in mm, is the same at every scale
+        cam = BrownCamera(focal_mm=f_px * pix_full_mm, pixel_um=pix_mm * 1000.0, width=m.width, height=m.height,
+                          ppx_mm=cx * pix_full_mm, ppy_mm=-cy * pix_full_mm, k1=k1, k2=k2, k3=k3, p1=p1, p2=p2,
+                          name=f"{m.model or 'DJI'} (DJI DewarpData)")
+        edge_px = abs(fx - fy) / f_px * (m.height / 2.0)
+        notes.append(f"camera: DJI factory calibration (DewarpData) of {full_w} x {full_h} px scaled by {scale:g} to "
+                     f"{m.width} x {m.height} px; fx {fx:g} and fy {fy:g} px averaged (one focal length: "
+                     f"{edge_px:.2f} px at the top and bottom edges of the frame on disk); pixel size from {pix_source}")
+    else:
+        if not m.focal_mm:
+            raise InputError(f"{m.path}: no EXIF FocalLength and no DJI DewarpData; write camera.toml yourself")
+        cam = BrownCamera(focal_mm=m.focal_mm, pixel_um=pix_mm * 1000.0, width=m.width, height=m.height,
+                          name=f"{m.model or 'camera'} (EXIF nominal)")
+        notes.append(f"camera: nominal from EXIF (focal length {m.focal_mm:g} mm, pixel size from {pix_source}); "
+                     f"principal point at the centre, no distortion: self-calibrate in the adjustment")
+    return cam, notes
+
+
+def image_files(files) -> list[Path]:
+    """The image files of FILE arguments (a folder stands for its images)."""
+    out = []
+    for f in files:
+        f = Path(f)
+        if f.is_dir():
+            found = sorted(p for p in f.iterdir() if p.suffix.lower() in IMAGE_SUFFIXES)
+            if not found:
+                raise InputError(f"{f}: no images ({', '.join(IMAGE_SUFFIXES)})")
+            out += found
+        else:
+            out.append(f)
+    seen = {}
+    for p in out:
+        if p.stem in seen and seen[p.stem] != p:
+            raise InputError(f"{p}: two images share the id {p.stem!r} ({seen[p.stem]})")
+        seen[p.stem] = p
+    return list(seen.values())
+
+
+def read(files, project: Project, options: ImportOptions) -> ImportedBlock:
+    """The ``exif`` importer: GNSS positions (with RTK accuracies), the camera and the gimbal attitudes of
+    image files or folders."""
+    paths = image_files(files)
+    metas = [read_frame_metadata(p) for p in paths]
+    block = ImportedBlock(source=[str(p) for p in paths])
+    without = [m.path.name for m in metas if None in (m.lat_deg, m.lon_deg, m.alt_m)]
+    if without:
+        raise InputError(f"{metas[0].path.parent}: no GNSS position (EXIF GPS or DJI XMP) in {', '.join(without[:5])}"
+                         + (f" and {len(without) - 5} more" if len(without) > 5 else ""))
+    # one camera: the first frame's; every frame must be of its size and calibration
+    cam, notes = camera_from_metadata(metas[0])
+    for m in metas[1:]:
+        if (m.width, m.height) != (cam.width, cam.height) or m.dewarp != metas[0].dewarp or m.model != metas[0].model:
+            raise InputError(f"{m.path}: another camera ({m.model} {m.width} x {m.height} px, calibration "
+                             f"{'none' if m.dewarp is None else m.dewarp[:4]}) than {metas[0].path.name}; import "
+                             f"each camera's frames into their own project")
+    block.camera = cam
+    block.notes += notes
+    crs = options.crs or DEFAULT_CRS
+    lla = np.array([[m.lon_deg, m.lat_deg, m.alt_m] for m in metas])
+    xyz = to_project_crs(lla, crs, project, f"{metas[0].path.parent} (positions, {crs})")
+    if options.crs is None:
+        block.notes.append(f"positions: EXIF/XMP latitude, longitude and altitude taken as {DEFAULT_CRS} (WGS84, "
+                           f"ellipsoidal heights); give --crs if the altitudes are above the geoid")
+    ids = [m.path.stem for m in metas]
+    if all(m.rtk_sigma_m is not None for m in metas):
+        sigma = np.array([m.rtk_sigma_m for m in metas])
+        flags = sorted({m.rtk_flag for m in metas if m.rtk_flag is not None})
+        block.notes.append(f"positions: accuracies from DJI RtkStdLon/Lat/Hgt (RtkFlag {flags}; 50 = fixed)")
+    elif options.sigma_xyz_m is not None:
+        sigma = np.tile(np.asarray(options.sigma_xyz_m, float), (len(metas), 1))
+    else:
+        sigma = None
+    block.gnss = GnssPositions(ids, xyz, sigma)
+    if all(m.gimbal_ypr_deg is not None for m in metas):
+        from aerotri.geom.local_frame import LocalFrame
+
+        opk = np.array([opk_from_gimbal(m.gimbal_ypr_deg, LocalFrame(project.crs, c).rotation_local_from_map(c[None])[0].T)
+                        for m, c in zip(metas, xyz)])
+        block.eo = ExteriorOrientations(ids, xyz.copy(), opk)
+        block.notes.append("orientations: from the DJI gimbal yaw/pitch/roll (the drone's own estimate, typically "
+                           "degrees off; approximations for the adjustment, not results)")
+    return block

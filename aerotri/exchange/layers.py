@@ -1,0 +1,194 @@
+"""Map layers of an adjusted block: GeoPackage (``aerotri export --format gpkg``, project CRS) and KML
+(``--format kml``, WGS84 longitude/latitude/ellipsoidal height, as KML requires), written with pyogrio.
+
+Layers (the same in both files):
+
+- ``control_points``: the control and check points of the adjustment report (``at/report.json``) at their
+  given coordinates, attributes ``point_id``, ``kind`` (full, horizontal, height, check), ``used`` (1: in the
+  adjustment as control), ``rays`` and the ground residuals ``dx_m``, ``dy_m``, ``dz_m`` = adjusted - given
+  (project CRS axes, metres; a coordinate the point does not control has no residual: NULL);
+- ``footprints``: each frame's outline on the ground (``image_id``, ``omega_deg``, ``phi_deg``, ``kappa_deg``):
+  ``EDGE_POINTS`` points along each image edge (pixel-area corners included), their rays through the adjusted
+  camera and orientation (``at/eo.txt``) intersected with the LiDAR DEM (``lidar/dem.tif``) when the project
+  has one, else with the mean height of the adjusted points (a frame whose edge rays miss the ground has none);
+- ``projection_centres``: the frames' adjusted centres.
+
+In the KML every placemark also has a ``Name`` (its point or image id), which KML viewers show.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import logging
+import math
+import tempfile
+from pathlib import Path
+
+import numpy as np
+
+from aerotri.core.errors import InputError
+from aerotri.core.project import Project
+from aerotri.core.textio import read_json
+from aerotri.exchange.adjusted import AdjustedBlock
+
+log = logging.getLogger(__name__)
+
+EDGE_POINTS = 8  # per image edge, corners included once
+DEM_ITERATIONS = 20
+
+
+def _edge_pixels(width: int, height: int, n: int = EDGE_POINTS) -> np.ndarray:
+    """(4n, 2) pixel coordinates around the frame's outer edge (the pixel-area corners), clockwise from the
+    top-left corner."""
+    x0, y0, x1, y1 = -0.5, -0.5, width - 0.5, height - 0.5
+    t = np.arange(n) / n
+    top = np.column_stack([x0 + t * (x1 - x0), np.full(n, y0)])
+    right = np.column_stack([np.full(n, x1), y0 + t * (y1 - y0)])
+    bottom = np.column_stack([x1 - t * (x1 - x0), np.full(n, y1)])
+    left = np.column_stack([np.full(n, x0), y1 - t * (y1 - y0)])
+    return np.vstack([top, right, bottom, left])
+
+
+def _dem_sampler(ds):
+    """Heights of an open DEM at map points (NaN outside or on nodata), read point by point (a block's DEM may
+    be larger than memory)."""
+
+    def sample(x, y):
+        vals = np.array([v[0] for v in ds.sample(zip(x, y), masked=True)], dtype=object)
+        return np.array([np.nan if v is np.ma.masked else float(v) for v in vals])
+
+    return sample
+
+
+def footprints(project: Project, block: AdjustedBlock) -> tuple[list[str], list[np.ndarray], np.ndarray, str]:
+    """(image ids, (M, 3) outline per frame in the project CRS, omega-phi-kappa (N, 3), surface used)."""
+    from aerotri.geom.camera import adjusted_camera
+    from aerotri.geom.eo import read_eo
+
+    cam, _ = adjusted_camera(project)
+    eo = read_eo(project.eo_path)
+    xy = _edge_pixels(cam.width, cam.height)
+    mean_h = float(np.mean(block.frame.to_map(block.points_local)[:, 2])) if len(block.points_local) else 0.0
+    surface = f"mean height of the adjusted points ({mean_h:.2f})"
+    with contextlib.ExitStack() as stack:
+        sampler = None
+        if project.dem_path.is_file():
+            import rasterio
+
+            from aerotri.geom.crs import parse_crs, same_horizontal
+
+            ds = stack.enter_context(rasterio.open(project.dem_path))
+            if ds.crs is not None and not same_horizontal(parse_crs(ds.crs, str(project.dem_path)), parse_crs(block.crs)):
+                raise InputError(f"{project.dem_path}: DEM in {ds.crs.to_string()}, the project in {block.crs}; "
+                                 f"footprints need the DEM in the project CRS")
+            sampler = _dem_sampler(ds)
+            surface = f"DEM {project.dem_path}"
+        ids, outlines, opk = [], [], []
+        for i in range(len(eo)):
+            C = eo.centre_m[i]
+            d = cam.rays(xy[:, 0], xy[:, 1], eo.rotation(i))
+            if not np.all(d[:, 2] < -1e-9):
+                log.warning(f"{eo.image_id[i]}: rays at the frame's edge do not reach the ground (an oblique frame "
+                            f"seeing the horizon); no footprint")
+                continue
+            z = np.full(len(xy), mean_h)
+            for _ in range(DEM_ITERATIONS if sampler else 0):
+                p = C + ((z - C[2]) / d[:, 2])[:, None] * d
+                zs = sampler(p[:, 0], p[:, 1])
+                z_new = np.where(np.isfinite(zs), zs, z)
+                done = np.max(np.abs(z_new - z)) < 1e-3
+                z = z_new
+                if done:
+                    break
+            outlines.append(C + ((z - C[2]) / d[:, 2])[:, None] * d)
+            ids.append(eo.image_id[i])
+            opk.append(eo.opk_deg[i])
+    return ids, outlines, np.array(opk).reshape(-1, 3), surface
+
+
+def _control_rows(project: Project) -> list[dict]:
+    report = read_json(project.adjustment_report_path, "adjustment report")
+    rows = []
+    for c in report.get("control_points", []):
+        given, adjusted = c.get("given_m"), c.get("adjusted_m")
+        if given is None:
+            raise InputError(f"{project.adjustment_report_path}: control point {c.get('id')!r} has no given_m")
+        res = c.get("residual_m") or ([a - g for a, g in zip(adjusted, given)] if adjusted else [None] * 3)
+        rows.append({"id": str(c["id"]), "kind": str(c.get("kind", "full")), "used": int(bool(c.get("used", True))),
+                     "rays": int(c.get("rays", 0)), "xyz": given, "d": res})
+    for c in report.get("check_points", []):
+        rows.append({"id": str(c["id"]), "kind": "check", "used": 0, "rays": int(c.get("rays", 0)),
+                     "xyz": c["measured_m"], "d": c.get("d_m") or [None] * 3})
+    return rows
+
+
+def _layers(block: AdjustedBlock, project: Project) -> tuple[list, str]:
+    """[(layer name, geometry type, shapely geometries (project CRS), {field: values})], surface note."""
+    import shapely
+
+    rows = _control_rows(project)
+    ids, outlines, opk, surface = footprints(project, block)
+    nan = float("nan")
+
+    def col(k):
+        return np.array([nan if r["d"][k] is None or not math.isfinite(r["d"][k]) else float(r["d"][k]) for r in rows])
+
+    control = ("control_points", "Point Z", [shapely.Point(*r["xyz"]) for r in rows],
+               {"point_id": np.array([r["id"] for r in rows], object), "kind": np.array([r["kind"] for r in rows], object),
+                "used": np.array([r["used"] for r in rows], np.int32), "rays": np.array([r["rays"] for r in rows], np.int32),
+                "dx_m": col(0), "dy_m": col(1), "dz_m": col(2)})
+    foot = ("footprints", "Polygon Z", [shapely.Polygon(o) for o in outlines],
+            {"image_id": np.array(ids, object), "omega_deg": opk[:, 0].copy(), "phi_deg": opk[:, 1].copy(),
+             "kappa_deg": opk[:, 2].copy()})
+    from aerotri.geom.eo import read_eo
+
+    eo = read_eo(project.eo_path)
+    centres = ("projection_centres", "Point Z", [shapely.Point(*c) for c in eo.centre_m],
+               {"image_id": np.array(eo.image_id, object)})
+    return [control, foot, centres], surface
+
+
+def _to_wgs84(geoms, block: AdjustedBlock, project: Project):
+    import shapely
+
+    from aerotri.geom.crs import parse_crs, project_heights
+    from aerotri.geom.transform import CrsTransformer
+
+    t = CrsTransformer(parse_crs(block.crs), parse_crs("EPSG:4979"), heights=project_heights(project))
+
+    def f(xyz):
+        lon, lat, h = t.transform(xyz[:, 0], xyz[:, 1], xyz[:, 2])
+        return np.column_stack([lon, lat, h])
+
+    return [shapely.transform(g, f, include_z=True) for g in geoms]
+
+
+def _write(path: Path, layers, crs: str, driver: str) -> None:
+    import shapely
+    from pyogrio.raw import write
+
+    for n, (name, gtype, geoms, fields) in enumerate(layers):
+        write(str(path), np.array(shapely.to_wkb(geoms, output_dimension=3), dtype=object),
+              [fields[k] for k in fields], fields=list(fields), layer=name, driver=driver, crs=crs,
+              geometry_type=gtype, append=n > 0)
+
+
+def files(block: AdjustedBlock, project: Project, fmt: str) -> dict[str, bytes | str]:
+    """``layers/block.gpkg`` (``fmt`` gpkg, bytes) or ``layers/block.kml`` (kml, text)."""
+    layers, surface = _layers(block, project)
+    log.info(f"footprints on the {surface}")
+    with tempfile.TemporaryDirectory() as tmp:
+        if fmt == "gpkg":
+            from aerotri.geom.crs import crs_label, horizontal_crs, parse_crs
+
+            path = Path(tmp) / "block.gpkg"
+            crs = parse_crs(block.crs)
+            label = crs_label(horizontal_crs(crs))
+            _write(path, layers, label if label.startswith("EPSG:") else horizontal_crs(crs).to_wkt(), "GPKG")
+            return {"layers/block.gpkg": path.read_bytes()}
+        path = Path(tmp) / "block.kml"
+        # KML shows a placemark's "Name": the point's or frame's id
+        wgs = [(n, g, _to_wgs84(geoms, block, project), {"Name": f.get("point_id", f.get("image_id"))} | f)
+               for n, g, geoms, f in layers]
+        _write(path, wgs, "EPSG:4326", "KML")
+        return {"layers/block.kml": path.read_text()}

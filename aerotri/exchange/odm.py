@@ -1,0 +1,184 @@
+"""OpenDroneMap's ``gcp_list.txt`` (import and export) and OpenSfM's ``ground_control_points.json`` (export).
+
+``gcp_list.txt`` (ODM's documentation; read by OpenSfM's ``io.read_gcp_list``): the first line that is
+not empty or a ``#`` comment names the CRS: a PROJ string (``+proj=utm ...``), ``EPSG:nnnn``,
+``WGS84 UTM <zone>[N|S]`` or ``WGS84`` (then x = longitude, y = latitude in degrees, z = ellipsoidal
+height). Then one line per image measurement, separated by blanks or tabs::
+
+    geo_x geo_y geo_z im_x im_y image_name [gcp_name] [extras...]
+
+Pixel coordinates: OpenSfM, which consumes the file for ODM, normalises them with
+``(x + 0.5 - width / 2) / max(width, height)``: pixel centres at integers, the origin at the centre of the
+top-left pixel, as ours; they are taken and written unchanged. A point without ``gcp_name`` is named by
+its coordinates (OpenSfM groups measurements by (x, y, z)): ``gcp1``, ``gcp2``, ... in order of first
+appearance. ``geo_z`` NaN (OpenSfM: no altitude) makes the point a horizontal control point. The file
+carries no accuracies: ``--sigma-xyz`` gives them (required).
+
+Export (``aerotri export --format odm``): the adjusted project's control points that the adjustment
+used (``control/points.csv``, check points included as ODM has no such kind — ``gcp_name`` keeps our
+id) and their measurements that it kept, from ``control/image_points.csv`` (the image files' names when
+``images/`` holds the frames), as ``odm/gcp_list.txt`` in the project CRS (its EPSG code, else its PROJ
+string), and as ``odm/ground_control_points.json`` (OpenSfM: WGS84 latitude, longitude, ellipsoidal
+altitude through the toolkit's coordinate-operation policy; measurements normalised as above, which
+needs the camera's size).
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import re
+from pathlib import Path
+
+import numpy as np
+
+from aerotri.core.errors import InputError, OptionError
+from aerotri.core.project import Project
+from aerotri.core.textio import read_text
+from aerotri.exchange.adjusted import AdjustedBlock
+from aerotri.exchange.imported import ImportedBlock, ImportOptions, to_project_crs
+from aerotri.geom.observations import ControlPoints, ImageObservations, read_image_points
+
+_UTM = re.compile(r"^WGS84\s+UTM\s+(\d{1,2})\s*([NS]?)$", re.IGNORECASE)
+
+
+def crs_of_header(line: str, source: str) -> str:
+    """The CRS text (for ``parse_crs``) of a gcp_list.txt header line."""
+    text = line.strip()
+    m = _UTM.match(text)
+    if m:
+        zone, hemi = int(m.group(1)), (m.group(2) or "N").upper()
+        if not 1 <= zone <= 60:
+            raise InputError(f"{source}: UTM zone {zone} in {text!r} is not 1..60")
+        return f"EPSG:{(32600 if hemi == 'N' else 32700) + zone}"
+    if text.upper() == "WGS84":
+        return "EPSG:4979"
+    if text.startswith("+proj") or text.upper().startswith("EPSG:"):
+        return text
+    raise InputError(f"{source}: first line {text!r} is not a CRS; expected a PROJ string (+proj=...), EPSG:nnnn, "
+                     f"'WGS84 UTM <zone>[N|S]' or 'WGS84'")
+
+
+def read_gcp_list(path) -> tuple[str, list[tuple[str, np.ndarray]], list[tuple[str, str, float, float, int]]]:
+    """(CRS text, [(point id, xyz)], [(point id, image id, x_px, y_px, line)]) of a gcp_list.txt."""
+    path = Path(path)
+    lines = read_text(path, "ODM gcp_list.txt").splitlines()
+    body = [(n, ln.strip()) for n, ln in enumerate(lines, start=1) if ln.strip() and not ln.strip().startswith("#")]
+    if not body:
+        raise InputError(f"{path}: empty; expected a CRS line and 'geo_x geo_y geo_z im_x im_y image_name [gcp_name]' lines")
+    crs = crs_of_header(body[0][1], f"{path}:{body[0][0]}")
+    points: dict[str, np.ndarray] = {}
+    first_line: dict[str, int] = {}
+    by_xyz: dict[tuple, str] = {}
+    obs = []
+    for lineno, s in body[1:]:
+        parts = s.split()
+        if len(parts) < 6:
+            raise InputError(f"{path}:{lineno}: {len(parts)} fields; expected geo_x geo_y geo_z im_x im_y image_name "
+                             f"[gcp_name]: {s!r}")
+        try:
+            x, y, z, px, py = (float(v) for v in parts[:5])
+        except ValueError:
+            raise InputError(f"{path}:{lineno}: non-numeric coordinate in {s!r} (expected geo_x geo_y geo_z im_x im_y)") from None
+        if not all(math.isfinite(v) for v in (x, y, px, py)) or math.isinf(z):
+            raise InputError(f"{path}:{lineno}: NaN or infinite coordinate in {s!r} (only geo_z may be NaN: no height)")
+        xyz = np.array([x, y, z])
+        key = (x, y, z if math.isfinite(z) else None)
+        pid = parts[6] if len(parts) > 6 else by_xyz.setdefault(key, f"gcp{len(by_xyz) + 1}")
+        if pid in points and not np.array_equal(points[pid], xyz, equal_nan=True):
+            raise InputError(f"{path}:{lineno}: point {pid!r} has the coordinates {x} {y} {z} here but "
+                             f"{' '.join(f'{v:g}' for v in points[pid])} on line {first_line[pid]}")
+        points.setdefault(pid, xyz)
+        first_line.setdefault(pid, lineno)
+        obs.append((pid, Path(parts[5]).stem, px, py, lineno))
+    if not obs:
+        raise InputError(f"{path}: no measurement lines after the CRS line")
+    seen = {}
+    for pid, iid, _, _, lineno in obs:
+        if (pid, iid) in seen:
+            raise InputError(f"{path}:{lineno}: point {pid!r} measured twice in image {iid!r} (first on line "
+                             f"{seen[(pid, iid)]})")
+        seen[(pid, iid)] = lineno
+    return crs, list(points.items()), obs
+
+
+def read(files, project: Project, options: ImportOptions) -> ImportedBlock:
+    """The ``odm`` importer: control points and their image measurements of a gcp_list.txt."""
+    if len(files) != 1:
+        raise InputError(f"odm expects one gcp_list.txt, got {len(files)} files")
+    path = Path(files[0])
+    if options.sigma_xyz_m is None:
+        raise OptionError(f"{path}: gcp_list.txt carries no accuracies; give the control points' with --sigma-xyz "
+                          f"SX SY SZ (m)", param="--sigma-xyz")
+    crs, points, obs = read_gcp_list(path)
+    if options.crs is not None:
+        raise OptionError(f"{path}: the file names its CRS ({crs}); --crs is for files that carry none",
+                          param="--crs")
+    ids = np.array([p for p, _ in points], dtype=object)
+    xyz = np.array([v for _, v in points])
+    no_z = ~np.isfinite(xyz[:, 2])
+    xyz_fill = xyz.copy()
+    xyz_fill[no_z, 2] = 0.0
+    xyz_map = to_project_crs(xyz_fill, crs, project, f"{path} (CRS {crs})")
+    xyz_map[no_z, 2] = 0.0
+    kinds = np.where(no_z, "horizontal", "full").astype(object)
+    block = ImportedBlock(source=[str(path)])
+    block.control = ControlPoints(ids, kinds, xyz_map, np.tile(np.asarray(options.sigma_xyz_m, float), (len(ids), 1)))
+    block.image_points = ImageObservations(np.array([o[0] for o in obs], dtype=object),
+                                           np.array([o[1] for o in obs], dtype=object),
+                                           np.array([[o[2], o[3]] for o in obs], float))
+    block.notes.append(f"control: {len(ids)} points ({int(no_z.sum())} without height: horizontal), "
+                       f"{len(obs)} measurements; pixel coordinates taken as OpenSfM reads them (centre of the "
+                       f"top-left pixel at 0, 0)")
+    return block
+
+
+# -- export ----------------------------------------------------------------------------------------------
+def _control_measurements(block: AdjustedBlock, project: Project) -> ImageObservations:
+    """The measurements of the exported control points that the adjustment kept, as measured (the file's
+    pixel coordinates, not the ones with a known k3 taken off)."""
+    control = set(block.control_id.astype(str))
+    kept = {(str(block.point_id[j]), block.image_id[i]) for j, i in zip(block.obs_point, block.obs_image)}
+    if not project.control_image_points_path.is_file():
+        return ImageObservations(np.zeros(0, object), np.zeros(0, object), np.zeros((0, 2)))
+    obs = read_image_points(project.control_image_points_path)
+    mask = np.array([p in control and (p, i) in kept for p, i in zip(obs.point_id.astype(str), obs.image_id.astype(str))], bool)
+    return obs.subset(mask) if len(obs) else obs
+
+
+def _crs_line(crs_text: str) -> str:
+    from aerotri.geom.crs import horizontal_crs, parse_crs
+
+    crs = horizontal_crs(parse_crs(crs_text))
+    code = crs.to_epsg(min_confidence=90)
+    return f"EPSG:{code}" if code else crs.to_proj4()
+
+
+def files(block: AdjustedBlock, project: Project, image_names: dict | None = None) -> dict[str, str]:
+    """``odm/gcp_list.txt`` and ``odm/ground_control_points.json`` of an adjusted project."""
+    from aerotri.geom.crs import parse_crs, project_heights
+    from aerotri.geom.transform import transform_points
+
+    if not len(block.control_id):
+        raise InputError(f"{project.root}: the adjustment used no control points; nothing to export to ODM")
+    names = image_names or {}
+    obs = _control_measurements(block, project)
+    xyz = dict(zip(block.control_id.astype(str), block.control_xyz_m))
+    rows = [_crs_line(block.crs)]
+    for p, i, (x, y) in zip(obs.point_id.astype(str), obs.image_id.astype(str), obs.xy_px):
+        X, Y, Z = xyz[p]
+        rows.append(f"{X:.4f}\t{Y:.4f}\t{Z:.4f}\t{x:.3f}\t{y:.3f}\t{names.get(i, i)}\t{p}")
+    ids = list(xyz)
+    lon, lat, h = transform_points(*np.array([xyz[p] for p in ids]).T, from_crs=parse_crs(block.crs),
+                                   to_crs=parse_crs("EPSG:4979"), heights=project_heights(project))
+    w, h_px = block.camera.width, block.camera.height
+    s = max(w, h_px)
+    points = []
+    for n, p in enumerate(ids):
+        m = obs.point_id.astype(str) == p
+        points.append({"id": p, "position": {"latitude": float(lat[n]), "longitude": float(lon[n]), "altitude": float(h[n])},
+                       "observations": [{"shot_id": names.get(i, i),
+                                         "projection": [(x + 0.5 - w / 2) / s, (y + 0.5 - h_px / 2) / s]}
+                                        for i, (x, y) in zip(obs.image_id[m].astype(str), obs.xy_px[m])]})
+    return {"odm/gcp_list.txt": "\n".join(rows) + "\n",
+            "odm/ground_control_points.json": json.dumps({"points": points}, indent=2) + "\n"}

@@ -1,0 +1,215 @@
+"""``aerotri import --format exif``: GNSS positions, DJI RTK accuracies, the DJI factory calibration and gimbal
+attitudes from the frames' own EXIF/XMP; checked against the tag text read independently, and against
+OpenSfM's solution of the same frames."""
+
+from __future__ import annotations
+
+import re
+import shutil
+
+import numpy as np
+import pytest
+from click.testing import CliRunner
+
+from aerotri.cli import main as aerotri_cli
+from aerotri.core.errors import InputError
+from aerotri.exchange import ImportOptions, import_files
+from aerotri.exchange.exif import opk_from_gimbal, read_frame_metadata
+from aerotri.geom.camera import read_camera
+from aerotri.geom.eo import read_eo, read_gnss
+from aerotri.geom.rotation import rotation_matrix_opk
+
+
+def _project(tmp_path, crs, name="p"):
+    root = tmp_path / name
+    root.mkdir()
+    (root / "project.toml").write_text(f'[project]\nname = "{name}"\ncrs = "{crs}"\n')
+    return root
+
+
+def _utm(lon, lat, h, epsg):
+    from pyproj import CRS, Transformer
+
+    t = Transformer.from_crs(CRS("EPSG:4979"), CRS(epsg).to_3d(), always_xy=True)
+    return np.column_stack(t.transform(lon, lat, h))
+
+
+def _xmp_values(path) -> dict:
+    """drone-dji attributes of the raw XMP packet in the file's bytes (no GDAL, no EXIF library)."""
+    data = path.read_bytes()
+    packet = data[data.index(b"<x:xmpmeta"):data.index(b"</x:xmpmeta>")].decode()
+    return dict(re.findall(r'drone-dji:(\w+)="([^"]*)"', packet))
+
+
+# -- conventions ----------------------------------------------------------------------------------------
+def test_gimbal_angles_to_omega_phi_kappa():
+    assert np.allclose(opk_from_gimbal((0.0, -90.0, 0.0)), 0.0, atol=1e-9)  # nadir, top of the image north
+    # nadir, flying east: the top of the image faces east, a clockwise turn of the image = kappa -90
+    assert np.allclose(opk_from_gimbal((90.0, -90.0, 0.0)), (0.0, 0.0, -90.0), atol=1e-9)
+    # pitched 60 degrees down looking north: the view (-z of the photogrammetric camera) 30 degrees off nadir
+    R = rotation_matrix_opk(*opk_from_gimbal((0.0, -60.0, 0.0)))
+    assert np.allclose(R @ [0, 0, -1.0], [0.0, np.sin(np.radians(30)), -np.cos(np.radians(30))], atol=1e-12)
+    # looking east at 60 degrees down: the view turns east, the image's x axis points south
+    R = rotation_matrix_opk(*opk_from_gimbal((90.0, -60.0, 0.0)))
+    assert np.allclose(R @ [0, 0, -1.0], [np.sin(np.radians(30)), 0.0, -np.cos(np.radians(30))], atol=1e-12)
+    assert np.allclose(R @ [1.0, 0, 0], [0.0, -1.0, 0.0], atol=1e-12)
+    # roll right (right side down) of a camera looking north at the horizon tilts the image's x axis down
+    R = rotation_matrix_opk(*opk_from_gimbal((0.0, 0.0, 10.0)))
+    assert np.allclose(R @ [0, 0, -1.0], [0.0, 1.0, 0.0], atol=1e-12)
+    assert np.allclose(R @ [1.0, 0, 0], [np.cos(np.radians(10)), 0.0, -np.sin(np.radians(10))], atol=1e-12)
+
+
+# -- real data ------------------------------------------------------------------------------------------
+@pytest.mark.realdata
+def test_tuniu_exif_xmp_import_equal_to_the_tag_values(shared_data, tmp_path):
+    """Tuniu: positions, RTK accuracies and the scaled factory calibration equal the raw XMP text."""
+    images = shared_data / "tuniu_drone" / "images"
+    root = _project(tmp_path, "EPSG:32651")
+    r = CliRunner().invoke(aerotri_cli, ["import", str(root), "--format", "exif", str(images)])
+    assert r.exit_code == 0, r.output
+    g = read_gnss(root / "gnss.txt")
+    files = sorted(images.glob("*.tif"))
+    assert g.image_id == [f.stem for f in files]
+    tags = [_xmp_values(f) for f in files]
+    lat = np.array([float(t["GpsLatitude"]) for t in tags])
+    lon = np.array([float(t["GpsLongtitude"]) for t in tags])
+    alt = np.array([float(t["AbsoluteAltitude"]) for t in tags])
+    assert np.abs(g.position_m - _utm(lon, lat, alt, "EPSG:32651")).max() < 1e-4  # gnss.txt keeps 0.1 mm
+    sig = np.array([[float(t["RtkStdLon"]), float(t["RtkStdLat"]), float(t["RtkStdHgt"])] for t in tags])
+    assert np.allclose(g.sigma_m, sig, atol=5e-5)
+    # the factory calibration, at the size on disk (1368 x 912 of the 5472 x 3648 px the EXIF states)
+    cam = read_camera(root / "camera.toml")
+    fx, fy, cx, cy, k1, k2, p1, p2, k3 = (float(v) for v in tags[0]["DewarpData"].split(";")[1].split(","))
+    assert (cam.width, cam.height) == (1368, 912)
+    s = 1368 / 5472
+    assert cam.focal_px == pytest.approx(0.5 * (fx + fy) * s, rel=1e-9)
+    # DJI: principal point = photo centre + (cx, cy) in corner-origin pixels; ours: centre of the top-left pixel
+    assert cam.cx_px == pytest.approx((5472 / 2 + cx) * s - 0.5, abs=1e-6)
+    assert cam.cy_px == pytest.approx((3648 / 2 + cy) * s - 0.5, abs=1e-6)
+    assert (cam.k1, cam.k2, cam.p1, cam.p2, cam.k3) == (k1, k2, p1, p2, k3)
+    # the pixel size: the EXIF focal length over DJI's CalibratedFocalLength, on disk four times as large
+    assert cam.pixel_um == pytest.approx(8.8 / float(tags[0]["CalibratedFocalLength"]) * 1000 / s, rel=1e-9)
+
+
+@pytest.mark.realdata
+def test_tuniu_gimbal_attitudes_agree_with_opensfm(shared_data, tmp_path):
+    """The gimbal angles (the drone's estimate) against OpenSfM's solution of the same frames: the
+    conversion's axes and signs are right when they agree to about a degree (one frame pitched 60 degrees
+    looking east, the others in the other three directions)."""
+    root = _project(tmp_path, "EPSG:32651", "g")
+    import_files(root, "exif", [shared_data / "tuniu_drone" / "images"])
+    mine = read_eo(root / "imported" / "eo.txt")
+    other = _project(tmp_path, "EPSG:32651", "o")
+    shutil.copytree(shared_data / "tuniu_drone" / "images", other / "images")
+    import_files(other, "opensfm", [shared_data / "tuniu_drone" / "opensfm" / "reconstruction.json"])
+    ref = read_eo(other / "imported" / "eo.txt")
+    assert mine.image_id == ref.image_id
+    R = mine.rotations()
+    R0 = ref.rotations()
+    angle = np.degrees(np.arccos(np.clip((np.trace(np.swapaxes(R, 1, 2) @ R0, axis1=1, axis2=2) - 1) / 2, -1, 1)))
+    assert angle.max() < 2.0, angle  # measured 0.9-1.2 degrees
+    assert np.abs(mine.centre_m - ref.centre_m).max() < 3.0  # OpenSfM's centres vs the GNSS antenna
+
+
+@pytest.mark.realdata
+def test_brighton_exif_positions_and_nominal_camera(shared_data, tmp_path):
+    """A Phantom 3 without RTK or DewarpData: positions equal to the README's table of the EXIF, no
+    accuracies unless given, a nominal camera from the focal length."""
+    import csv
+
+    data = shared_data / "brighton_beach"
+    root = _project(tmp_path, "EPSG:32615")
+    import_files(root, "exif", [data / "images"], ImportOptions(sigma_xyz_m=(3.0, 3.0, 5.0)))
+    g = read_gnss(root / "gnss.txt")
+    rows = {r["image"].rsplit(".", 1)[0]: r for r in csv.DictReader(open(data / "exif_positions.csv"))}
+    assert g.image_id == sorted(rows)
+    lla = np.array([[float(rows[i]["lon"]), float(rows[i]["lat"]), float(rows[i]["abs_alt_m"])] for i in g.image_id])
+    d = g.position_m - _utm(lla[:, 0], lla[:, 1], lla[:, 2], "EPSG:32615")
+    # the table keeps 8 decimals of a degree (<1 mm); its altitudes are EXIF's (3 decimals), XMP's have 2
+    assert np.abs(d[:, :2]).max() < 2e-3 and np.abs(d[:, 2]).max() < 6e-3
+    assert np.allclose(g.sigma_m, [3.0, 3.0, 5.0])
+    cam = read_camera(root / "camera.toml")
+    assert (cam.width, cam.height, cam.focal_mm) == (4000, 2250, 3.61)
+    assert cam.k1 == 0.0 and cam.ppx_mm == 0.0
+
+
+# -- synthetic frames and bad input ---------------------------------------------------------------------
+XMP = ('<?xpacket begin="" id="W5M0MpCehiHzreSzNTczkc9d"?><x:xmpmeta xmlns:x="adobe:ns:meta/"><rdf:RDF '
+       'xmlns:rdf="http://www.w3.org/1999/02/22-rdf-syntax-ns#"><rdf:Description rdf:about="DJI Meta Data" '
+       'xmlns:drone-dji="http://www.dji.com/drone-dji/1.0/" {attrs}></rdf:Description></rdf:RDF></x:xmpmeta>')
+
+
+def _frame(path, exif=None, xmp=None, size=(64, 48)):
+    """A small GeoTIFF-less frame with EXIF items (GDAL metadata) and an XMP packet, as the Tuniu frames."""
+    import rasterio
+
+    with rasterio.open(path, "w", driver="GTiff", width=size[0], height=size[1], count=1, dtype="uint8") as ds:
+        ds.write(np.zeros((1, size[1], size[0]), np.uint8))
+        if exif:
+            ds.update_tags(**exif)
+        if xmp is not None:
+            ds.update_tags(ns="xml:XMP", **{"xml:XMP": XMP.format(attrs=" ".join(f'drone-dji:{k}="{v}"' for k, v in xmp.items()))})
+    return path
+
+
+GOOD = dict(GpsLatitude="24.68", GpsLongtitude="120.95", AbsoluteAltitude="+150.5", RtkStdLon="0.02",
+            RtkStdLat="0.03", RtkStdHgt="0.05", CalibratedFocalLength="50.0",
+            DewarpData="2020-01-01;51.0,50.0,1.5,-2.0,-0.1,0.01,0.001,-0.002,0.003",
+            GimbalYawDegree="+10.0", GimbalPitchDegree="-90.0", GimbalRollDegree="+0.0")
+EXIF = {"EXIF_FocalLength": "(8.8)", "EXIF_PixelXDimension": "128", "EXIF_PixelYDimension": "96", "EXIF_Model": "TEST"}
+
+
+def test_synthetic_frames_read_back(tmp_path):
+    """Tags written into frames come back: EXIF degrees-minutes-seconds when XMP has no position, the
+    calibration scaled by the size on disk."""
+    f = _frame(tmp_path / "a.tif", EXIF, GOOD)
+    m = read_frame_metadata(f)
+    assert (m.lat_deg, m.lon_deg, m.alt_m) == (24.68, 120.95, 150.5)
+    assert m.rtk_sigma_m == (0.02, 0.03, 0.05) and m.full_size == (128, 96) and (m.width, m.height) == (64, 48)
+    dms = dict(EXIF, EXIF_GPSLatitude="(33) (30) (36)", EXIF_GPSLatitudeRef="S", EXIF_GPSLongitude="(70) (15) (0)",
+               EXIF_GPSLongitudeRef="W", EXIF_GPSAltitude="(12.5)", EXIF_GPSAltitudeRef="1")
+    m = read_frame_metadata(_frame(tmp_path / "b.tif", dms, {}))
+    assert m.lat_deg == pytest.approx(-33.51) and m.lon_deg == pytest.approx(-70.25) and m.alt_m == -12.5
+    root = _project(tmp_path, "EPSG:32651")
+    (tmp_path / "imgs").mkdir()
+    shutil.move(f, tmp_path / "imgs" / "a.tif")
+    import_files(root, "exif", [tmp_path / "imgs"])
+    cam = read_camera(root / "camera.toml")
+    assert cam.focal_px == pytest.approx(50.5 / 2) and cam.cx_px == pytest.approx((64 + 1.5) / 2 - 0.5)
+    assert cam.cy_px == pytest.approx((48 - 2.0) / 2 - 0.5)
+    # nadir, yaw 10 degrees from true north: kappa -10 degrees from true north, plus the meridian convergence
+    from pyproj import Proj
+
+    conv = Proj("EPSG:32651").get_factors(120.95, 24.68).meridian_convergence
+    assert read_eo(root / "imported" / "eo.txt").opk_deg[0, 2] == pytest.approx(-10.0 + conv, abs=2e-6)
+
+
+@pytest.mark.parametrize("change, message", [
+    (dict(GOOD, DewarpData="2020-01-01;51.0,50.0,1.5"), "DewarpData has 3 values"),
+    (dict(GOOD, DewarpData="2020-01-01;51.0,50.0,nan,1,1,1,1,1,1"), "expected 9 finite numbers"),
+    (dict(GOOD, GpsLatitude="north"), "GpsLatitude = 'north' is not a number"),
+    (dict(GOOD, GpsLatitude="95.0"), "latitude 95.0 is outside"),
+    (dict(GOOD, RtkStdHgt="0"), "must be positive"),
+    ({k: v for k, v in GOOD.items() if not k.startswith(("Gps", "Abs"))}, "no GNSS position"),
+])
+def test_bad_tags_are_refused_naming_file_and_tag(tmp_path, change, message):
+    root = _project(tmp_path, "EPSG:32651")
+    f = _frame(tmp_path / "x.tif", EXIF, change)
+    before = sorted(p.name for p in root.rglob("*"))
+    with pytest.raises(InputError, match=message) as e:
+        import_files(root, "exif", [f])
+    assert "x.tif" in str(e.value)
+    assert sorted(p.name for p in root.rglob("*")) == before
+
+
+def test_bad_input_through_the_command(tmp_path):
+    root = _project(tmp_path, "EPSG:32651")
+    (tmp_path / "empty").mkdir()
+    r = CliRunner().invoke(aerotri_cli, ["import", str(root), "--format", "exif", str(tmp_path / "empty")])
+    assert r.exit_code == 2 and "no images" in r.output and "Traceback" not in r.output
+    a = _frame(tmp_path / "a.tif", EXIF, GOOD)
+    b = _frame(tmp_path / "b.tif", EXIF, GOOD, size=(32, 24))
+    r = CliRunner().invoke(aerotri_cli, ["import", str(root), "--format", "exif", str(a), str(b)])
+    assert r.exit_code == 2 and "another camera" in r.output
+    r = CliRunner().invoke(aerotri_cli, ["import", str(root), "--format", "exif", str(a), "--crs", "EPSG:99999"])
+    assert r.exit_code == 2 and "Traceback" not in r.output

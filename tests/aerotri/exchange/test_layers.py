@@ -1,0 +1,127 @@
+"""GeoPackage and KML map layers of an adjusted block, read back with pyogrio: control/check points with the
+report's residuals, footprints on the DEM (every vertex on the surface and on the frame's edge), the CRS."""
+
+from __future__ import annotations
+
+import shutil
+
+import numpy as np
+import pytest
+import shapely
+
+from aerotri.core.errors import InputError
+from aerotri.core.textio import read_json
+from aerotri.exchange import export_project
+from aerotri.geom.camera import adjusted_camera
+from aerotri.core.project import Project
+from aerotri.geom.eo import read_eo
+
+
+def _read(path, layer):
+    from pyogrio import read_info
+    from pyogrio.raw import read
+
+    meta, _, geom, fields = read(str(path), layer=layer, return_fids=False)
+    cols = dict(zip(meta["fields"], fields))
+    return read_info(str(path), layer=layer)["crs"], shapely.from_wkb(geom), cols
+
+
+def _copy(adjusted_tiny, tmp_path):
+    root = tmp_path / "blk"
+    shutil.copytree(adjusted_tiny[0], root)
+    return root
+
+
+def test_geopackage_points_and_residuals(adjusted_tiny, tmp_path):
+    root = _copy(adjusted_tiny, tmp_path)
+    export_project(root, ["gpkg"], tmp_path / "out")
+    crs, geoms, cols = _read(tmp_path / "out" / "layers" / "block.gpkg", "control_points")
+    assert crs == "EPSG:32649"
+    report = read_json(root / "at" / "report.json")
+    want = {c["id"]: (c["given_m"], c["residual_m"]) for c in report["control_points"]}
+    want |= {c["id"]: (c["measured_m"], c["d_m"]) for c in report["check_points"]}
+    assert sorted(cols["point_id"]) == sorted(want) and len(report["check_points"]) == 4
+    for pid, kind, g, dx, dy, dz in zip(cols["point_id"], cols["kind"], geoms, cols["dx_m"], cols["dy_m"], cols["dz_m"]):
+        xyz, d = want[pid]
+        assert np.allclose(shapely.get_coordinates(g, include_z=True)[0], xyz, atol=1e-9)
+        assert np.allclose([dx, dy, dz], d, atol=1e-9)
+        assert (kind == "check") == pid.startswith("chk")
+    _, centres, c = _read(tmp_path / "out" / "layers" / "block.gpkg", "projection_centres")
+    eo = read_eo(root / "at" / "eo.txt")
+    assert list(c["image_id"]) == eo.image_id
+    assert np.allclose(shapely.get_coordinates(centres, include_z=True), eo.centre_m, atol=1e-9)
+
+
+def test_footprints_lie_on_the_dem_and_on_the_frame_edges(adjusted_tiny, tmp_path):
+    """A tilted plane as the project's DEM: every footprint vertex is on the plane (to the DEM cell's
+    nearest-value sampling: the plane's change across a cell) and projects back onto the frame's outer edge."""
+    import rasterio
+    from rasterio.transform import from_origin
+
+    root = _copy(adjusted_tiny, tmp_path)
+    project = Project.open(root)
+    eo = read_eo(project.eo_path)
+    x0, y0 = eo.centre_m[:, 0].min() - 3000, eo.centre_m[:, 1].max() + 3000
+    cell = 10.0
+    n = int((6000 + np.ptp(eo.centre_m[:, 0]) + np.ptp(eo.centre_m[:, 1])) / cell)
+    rows, cols = np.mgrid[0:n, 0:n]
+    xs, ys = x0 + (cols + 0.5) * cell, y0 - (rows + 0.5) * cell
+    plane = lambda x, y: 120.0 + 0.02 * (x - x0) - 0.01 * (y0 - y)  # noqa: E731
+    project.dem_path.parent.mkdir(parents=True, exist_ok=True)
+    with rasterio.open(project.dem_path, "w", driver="GTiff", width=n, height=n, count=1, dtype="float32",
+                       crs="EPSG:32649", transform=from_origin(x0, y0, cell, cell)) as ds:
+        ds.write(plane(xs, ys).astype(np.float32)[None])
+    export_project(root, ["gpkg"], tmp_path / "out")
+    crs, polys, cols_ = _read(tmp_path / "out" / "layers" / "block.gpkg", "footprints")
+    assert crs == "EPSG:32649" and list(cols_["image_id"]) == eo.image_id
+    assert np.allclose(np.column_stack([cols_["omega_deg"], cols_["phi_deg"], cols_["kappa_deg"]]), eo.opk_deg)
+    cam, _ = adjusted_camera(project)
+    for i, poly in enumerate(polys):
+        assert poly.is_valid and poly.area > 0
+        v = shapely.get_coordinates(poly, include_z=True)[:-1]
+        assert np.abs(v[:, 2] - plane(v[:, 0], v[:, 1])).max() < 0.03 * cell
+        x, y, _ = cam.project(v, eo.centre_m[i], eo.rotation(i))
+        on_edge = np.minimum.reduce([np.abs(x + 0.5), np.abs(x - cam.width + 0.5), np.abs(y + 0.5), np.abs(y - cam.height + 0.5)])
+        assert on_edge.max() < 1e-3
+
+
+def test_kml_in_wgs84(adjusted_tiny, tmp_path):
+    from pyproj import CRS, Transformer
+
+    root = _copy(adjusted_tiny, tmp_path)
+    export_project(root, ["gpkg", "kml"], tmp_path / "out")
+    crs, geoms, cols = _read(tmp_path / "out" / "layers" / "block.kml", "control_points")
+    assert crs == "EPSG:4326"
+    _, g_map, c_map = _read(tmp_path / "out" / "layers" / "block.gpkg", "control_points")
+    t = Transformer.from_crs(CRS("EPSG:32649").to_3d(), CRS("EPSG:4979"), always_xy=True)
+    want = np.column_stack(t.transform(*shapely.get_coordinates(g_map, include_z=True).T))
+    got = shapely.get_coordinates(geoms, include_z=True)
+    assert np.abs(got[:, :2] - want[:, :2]).max() < 1e-9 and np.abs(got[:, 2] - want[:, 2]).max() < 1e-3
+    assert list(cols["Name"]) == list(c_map["point_id"])
+    assert np.allclose(cols["dz_m"].astype(float), c_map["dz_m"], atol=1e-6)
+    _, polys, _ = _read(tmp_path / "out" / "layers" / "block.kml", "footprints")
+    assert len(polys) == 10 and all(p.is_valid for p in polys)
+
+
+def test_unadjusted_project_is_refused(tmp_path, adjusted_tiny):
+    root = tmp_path / "p"
+    root.mkdir()
+    shutil.copy(adjusted_tiny[0] / "project.toml", root / "project.toml")
+    with pytest.raises(InputError, match="run the adjustment first"):
+        export_project(root, ["gpkg"], tmp_path / "out")
+    assert not (tmp_path / "out").exists()
+
+
+def test_dem_in_another_crs_is_refused(adjusted_tiny, tmp_path):
+    import rasterio
+    from rasterio.transform import from_origin
+
+    root = _copy(adjusted_tiny, tmp_path)
+    project = Project.open(root)
+    project.dem_path.parent.mkdir(parents=True, exist_ok=True)
+    with rasterio.open(project.dem_path, "w", driver="GTiff", width=4, height=4, count=1, dtype="float32",
+                       crs="EPSG:32650", transform=from_origin(0, 0, 1, 1)) as ds:
+        ds.write(np.zeros((1, 4, 4), np.float32))
+    with pytest.raises(InputError, match="DEM in EPSG:32650"):
+        export_project(root, ["gpkg"], tmp_path / "out")
+    assert not (tmp_path / "out").exists()

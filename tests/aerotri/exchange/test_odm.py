@@ -1,0 +1,143 @@
+"""ODM ``gcp_list.txt`` import and export, OpenSfM ``ground_control_points.json`` export: a round trip through an
+adjusted block, the Coal Oil Point file read against an independent parse, and bad input."""
+
+from __future__ import annotations
+
+import json
+import shutil
+
+import numpy as np
+import pytest
+from click.testing import CliRunner
+
+from aerotri.cli import main as aerotri_cli
+from aerotri.core.errors import CrsError, InputError, OptionError
+from aerotri.exchange import ImportOptions, export_project, import_files
+from aerotri.exchange.adjusted import read_adjusted_block
+from aerotri.geom.observations import read_control_points, read_image_points
+
+
+def _fresh(tmp_path, source_root=None, crs=None, name="p"):
+    root = tmp_path / name
+    root.mkdir()
+    if source_root is not None:
+        shutil.copy(source_root / "project.toml", root / "project.toml")
+    else:
+        (root / "project.toml").write_text(f'[project]\nname = "{name}"\ncrs = "{crs}"\n')
+    return root
+
+
+def test_round_trip_through_gcp_list(adjusted_tiny, tmp_path):
+    """Export the adjusted block's control to ODM, import it into a fresh project: the same points (to the
+    file's 0.1 mm) and the same measurements (0.001 px) as the project's own control files."""
+    root, ba = adjusted_tiny
+    out = tmp_path / "out"
+    export_project(root, ["odm"], out)
+    text = (out / "odm" / "gcp_list.txt").read_text().splitlines()
+    assert text[0] == "EPSG:32649"
+    blk = read_adjusted_block(root)
+    fresh = _fresh(tmp_path, root)
+    r = CliRunner().invoke(aerotri_cli, ["import", str(fresh), "--format", "odm", str(out / "odm" / "gcp_list.txt"),
+                                         "--sigma-xyz", "0.02", "0.02", "0.04"])
+    assert r.exit_code == 0, r.output
+    got = read_control_points(fresh / "control" / "points.csv")
+    assert sorted(got.id) == sorted(blk.control_id)
+    want = dict(zip(blk.control_id, blk.control_xyz_m))
+    assert np.abs(np.array([want[p] for p in got.id]) - got.xyz_m).max() < 1e-4
+    assert set(got.kind) == {"full"} and np.allclose(got.sigma_m, [0.02, 0.02, 0.04])
+    mine = read_image_points(root / "control" / "image_points.csv")
+    theirs = read_image_points(fresh / "control" / "image_points.csv")
+    ref = {(p, i): xy for p, i, xy in zip(mine.point_id, mine.image_id, mine.xy_px)}
+    assert len(theirs) == len(text) - 1 > 0
+    assert max(np.abs(ref[(p, i)] - xy).max() for p, i, xy in zip(theirs.point_id, theirs.image_id, theirs.xy_px)) < 1e-3
+    # only measurements of control points the adjustment used
+    used = set(blk.control_id)
+    assert set(theirs.point_id) <= used
+
+
+def test_ground_control_points_json_is_opensfm_s(adjusted_tiny, tmp_path):
+    """WGS84 positions back through pyproj equal the control coordinates; projections denormalised with
+    OpenSfM's formula equal the measurements."""
+    from pyproj import CRS, Transformer
+
+    root, _ = adjusted_tiny
+    export_project(root, ["odm"], tmp_path)
+    doc = json.loads((tmp_path / "odm" / "ground_control_points.json").read_text())
+    blk = read_adjusted_block(root)
+    want = dict(zip(blk.control_id, blk.control_xyz_m))
+    t = Transformer.from_crs(CRS("EPSG:4979"), CRS("EPSG:32649").to_3d(), always_xy=True)
+    obs = read_image_points(root / "control" / "image_points.csv")
+    ref = {(p, i): xy for p, i, xy in zip(obs.point_id, obs.image_id, obs.xy_px)}
+    w, h = blk.camera.width, blk.camera.height
+    n = 0
+    for pt in doc["points"]:
+        pos = pt["position"]
+        assert np.abs(np.array(t.transform(pos["longitude"], pos["latitude"], pos["altitude"])) - want[pt["id"]]).max() < 1e-6
+        for o in pt["observations"]:
+            xn, yn = o["projection"]
+            x, y = xn * max(w, h) - 0.5 + w / 2, yn * max(w, h) - 0.5 + h / 2
+            assert np.allclose([x, y], ref[(pt["id"], o["shot_id"])], atol=1e-9)
+            n += 1
+    assert n > 0 and {p["id"] for p in doc["points"]} == set(blk.control_id)
+
+
+@pytest.mark.realdata
+def test_copr_kite_gcp_list_imported(shared_data, tmp_path):
+    """Coal Oil Point: 10 targets, 27 measurements, UTM 11N coordinates unchanged in an EPSG:32611 project."""
+    path = shared_data / "copr_kite" / "gcp_list.txt"
+    root = _fresh(tmp_path, crs="EPSG:32611")
+    import_files(root, "odm", [path], ImportOptions(sigma_xyz_m=(0.3, 0.3, 5.0)))
+    rows = [ln.split("\t") for ln in path.read_text().splitlines()[1:] if ln.strip()]
+    c = read_control_points(root / "control" / "points.csv")
+    o = read_image_points(root / "control" / "image_points.csv")
+    assert len(c) == 10 and len(o) == len(rows) == 27
+    want = {r[6].strip(): [float(v) for v in r[:3]] for r in rows}
+    assert np.abs(np.array([want[p] for p in c.id]) - c.xyz_m).max() < 1e-4
+    got = {(p, i): xy for p, i, xy in zip(o.point_id, o.image_id, o.xy_px)}
+    for r in rows:
+        assert np.allclose(got[(r[6].strip(), r[5].rsplit(".", 1)[0])], [float(r[3]), float(r[4])], atol=5e-4)
+
+
+def test_crs_lines_and_unnamed_points(tmp_path):
+    """'WGS84 UTM 11N' is EPSG:32611; points without gcp_name are grouped by their coordinates; a NaN height
+    makes a horizontal control point."""
+    f = tmp_path / "gcp_list.txt"
+    f.write_text("# made by hand\nWGS84 UTM 11N\n235269.88 3811198.11 12.5 10 20 a.jpg\n"
+                 "235269.88 3811198.11 12.5 30 40 b.jpg\n235262.54 3811203.5 NaN 50 60 a.jpg\n")
+    root = _fresh(tmp_path, crs="EPSG:32611")
+    import_files(root, "odm", [f], ImportOptions(sigma_xyz_m=(0.1, 0.1, 0.2)))
+    c = read_control_points(root / "control" / "points.csv")
+    assert list(c.id) == ["gcp1", "gcp2"] and list(c.kind) == ["full", "horizontal"]
+    assert np.allclose(c.xyz_m[0], [235269.88, 3811198.11, 12.5])
+    o = read_image_points(root / "control" / "image_points.csv")
+    assert list(o.point_id) == ["gcp1", "gcp1", "gcp2"] and list(o.image_id) == ["a", "b", "a"]
+
+
+@pytest.mark.parametrize("text, error, message", [
+    ("", InputError, "empty"),
+    ("UTM somewhere\n1 2 3 4 5 a.jpg p\n", InputError, ":1: first line 'UTM somewhere' is not a CRS"),
+    ("EPSG:99999\n1 2 3 4 5 a.jpg p\n", CrsError, "unknown CRS"),
+    ("EPSG:32611\n235269 3811198 0 4 a.jpg\n", InputError, ":2: 5 fields"),
+    ("EPSG:32611\n235269 3811198 0 4 x a.jpg p\n", InputError, ":2: non-numeric"),
+    ("EPSG:32611\nnan 3811198 0 4 5 a.jpg p\n", InputError, ":2: NaN or infinite"),
+    ("EPSG:32611\n235269 3811198 0 4 5 a.jpg p\n235270 3811198 0 4 5 b.jpg p\n", InputError, ":3: point 'p' has the coordinates"),
+    ("EPSG:32611\n235269 3811198 0 4 5 a.jpg p\n235269 3811198 0 6 7 a.jpg p\n", InputError, ":3: point 'p' measured twice"),
+    ("EPSG:32611\n", InputError, "no measurement lines"),
+])
+def test_bad_gcp_lists_are_refused(tmp_path, text, error, message):
+    f = tmp_path / "gcp_list.txt"
+    f.write_text(text)
+    root = _fresh(tmp_path, crs="EPSG:32611")
+    with pytest.raises(error, match=message):
+        import_files(root, "odm", [f], ImportOptions(sigma_xyz_m=(0.1, 0.1, 0.2)))
+    assert not (root / "control").exists()
+
+
+def test_accuracy_is_required_and_the_command_says_so(tmp_path):
+    f = tmp_path / "gcp_list.txt"
+    f.write_text("EPSG:32611\n235269 3811198 0 4 5 a.jpg p\n")
+    root = _fresh(tmp_path, crs="EPSG:32611")
+    with pytest.raises(OptionError, match="--sigma-xyz"):
+        import_files(root, "odm", [f])
+    r = CliRunner().invoke(aerotri_cli, ["import", str(root), "--format", "odm", str(f)])
+    assert r.exit_code == 2 and "--sigma-xyz" in r.output and "Traceback" not in r.output
