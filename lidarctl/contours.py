@@ -25,7 +25,7 @@ from pathlib import Path
 
 import numpy as np
 
-from aerotri.core.errors import InputError, OptionError
+from aerotri.core.errors import OptionError
 
 log = logging.getLogger(__name__)
 log.addHandler(logging.NullHandler())
@@ -268,29 +268,18 @@ def contours_from_file(dem_path, out_path, interval_m: float, index_every: int =
                        tolerance_px: float = 0.5, tension: float = 1.0, png: bool = True) -> dict:
     """Trace (and smooth) the contours of a DEM GeoTIFF into a GeoPackage/GeoJSON (+ a PNG preview beside it).
     Returns the summary (counts, fall-backs, crossings)."""
-    import rasterio
-
-    from aerotri.core.atomic import refuse_input_as_output
-    from aerotri.geom.crs import height_unit_m, unit_name
+    from aerotri.geom.crs import unit_name
+    from lidarctl.dem_io import open_dem
 
     if not (np.isfinite(interval_m) and interval_m > 0):
         raise OptionError(f"the contour interval must be a positive number of metres, got {interval_m}",
                           param="--interval")
     dem_path, out_path = Path(dem_path), Path(out_path)
-    refuse_input_as_output(out_path, [dem_path], option="OUT")
-    try:
-        src = rasterio.open(dem_path)
-    except rasterio.errors.RasterioIOError as exc:
-        raise InputError(f"{dem_path}: not a readable raster ({exc})") from None
+    src, z_m = open_dem(dem_path, out_path)
     with src:
-        if src.crs is None:
-            raise InputError(f"{dem_path}: the DEM has no CRS (contours need one)")
-        if abs(src.transform.b) > 1e-12 or abs(src.transform.d) > 1e-12:
-            raise InputError(f"{dem_path}: rotated rasters are not supported")
         # contours are lines over the whole DEM: it is read whole (a 10 x 10 km DEM at 1 m is 400 MB in float32)
         dem = src.read(1, masked=True).astype(np.float64).filled(np.nan)
         transform, crs = src.transform, src.crs
-    z_m = height_unit_m(crs.to_wkt())
     interval = interval_m / z_m
     traced = trace(dem, transform, interval, index_every)
     contours, fell_back = smooth_contours(traced, smoothing, abs(transform.a), tolerance_px, tension)

@@ -34,7 +34,7 @@ from pathlib import Path
 import numba
 import numpy as np
 
-from aerotri.core.errors import InputError, OptionError
+from aerotri.core.errors import OptionError
 
 log = logging.getLogger(__name__)
 log.addHandler(logging.NullHandler())
@@ -127,19 +127,14 @@ def _diffuse4(z, valid, iterations, step, inv_edge2):
     """``iterations`` fourth-order steps on ``z`` (float64, modified in place) where ``valid``."""
     ny, nx = z.shape
     g = np.zeros_like(z)
+    lap = np.zeros_like(z)
     for _ in range(iterations):
         _laplacian(z, valid, g, True, inv_edge2)
-        for i in numba.prange(ny):  # z -= step * Laplacian(g), with the same rule
+        _laplacian(g, valid, lap, False, inv_edge2)
+        for i in numba.prange(ny):
             for j in range(nx):
-                if not valid[i, j]:
-                    continue
-                c2 = 2.0 * g[i, j]
-                s = 0.0
-                if 0 < i < ny - 1 and valid[i - 1, j] and valid[i + 1, j]:
-                    s += g[i - 1, j] + g[i + 1, j] - c2
-                if 0 < j < nx - 1 and valid[i, j - 1] and valid[i, j + 1]:
-                    s += g[i, j - 1] + g[i, j + 1] - c2
-                z[i, j] -= step * s
+                if valid[i, j]:
+                    z[i, j] -= step * lap[i, j]
     return z
 
 
@@ -182,24 +177,15 @@ def smooth_dem(in_path, out_path, params: DiffusionParams = DiffusionParams(),
     from rasterio.shutil import copy as rio_copy
     from rasterio.windows import Window
 
-    from aerotri.core.atomic import atomic_path, refuse_input_as_output, temporary_dir
-    from aerotri.geom.crs import height_unit_m
+    from aerotri.core.atomic import atomic_path, temporary_dir
+    from lidarctl.dem_io import open_dem
 
     params.validate()
     if window_px < 16:
         raise OptionError(f"windows of at least 16 cells, got {window_px}", param="--window-px")
     in_path, out_path = Path(in_path), Path(out_path)
-    refuse_input_as_output(out_path, [in_path], option="OUT")
-    try:
-        src = rasterio.open(in_path)
-    except rasterio.errors.RasterioIOError as exc:
-        raise InputError(f"{in_path}: not a readable raster ({exc})") from None
+    src, z_m = open_dem(in_path, out_path)
     with src:
-        if src.count < 1 or src.crs is None:
-            raise InputError(f"{in_path}: a DEM needs one band and a CRS (got {src.count} band(s), CRS {src.crs})")
-        if abs(src.transform.b) > 1e-12 or abs(src.transform.d) > 1e-12:
-            raise InputError(f"{in_path}: rotated rasters are not supported (transform {tuple(src.transform)[:6]})")
-        z_m = height_unit_m(src.crs.to_wkt())
         nodata = src.nodata
         profile = dict(driver="GTiff", width=src.width, height=src.height, count=1, dtype="float32", crs=src.crs,
                        transform=src.transform, nodata=nodata if nodata is not None else -9999.0, tiled=True,
