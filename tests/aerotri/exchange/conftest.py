@@ -4,6 +4,8 @@ so exports read an adjusted project folder and its self-calibrated camera."""
 
 from __future__ import annotations
 
+import shutil
+
 import pytest
 
 from aerotri.adjust.pipeline import AdjustSettings, run_adjustment
@@ -25,3 +27,16 @@ def adjusted_tiny(tmp_path_factory):
     ba, _ = run_adjustment(root, AdjustSettings(gnss_correction="shift", image_sigma_px=SIGMA_PX,
                                                 self_calibration=("pp", "radial")))
     return root, ba
+
+
+@pytest.fixture
+def fresh_project():
+    """``fresh_project(src, dst)``: an empty project folder ``dst`` with the project.toml (CRS, heights) of
+    ``src``."""
+
+    def make(src, dst):
+        dst.mkdir(parents=True)
+        shutil.copy(src / "project.toml", dst / "project.toml")
+        return dst
+
+    return make

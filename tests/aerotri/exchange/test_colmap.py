@@ -20,12 +20,6 @@ from aerotri.geom.eo import read_eo
 from aerotri.geom.rotation import FLIP_YZ, rotation_matrix_opk
 
 
-def fresh_project(src, dst):
-    dst.mkdir(parents=True)
-    shutil.copy(src / "project.toml", dst / "project.toml")
-    return dst
-
-
 def our_projection_px(blk) -> np.ndarray:
     """The adjustment's projection (Cal3DS2: fx fy u0 v0 k1 k2 p1 p2) of every used measurement's point."""
     fx, fy, _, u0, v0 = blk.cal[:5]
@@ -62,7 +56,7 @@ def test_pycolmap_reprojects_our_points_where_we_do(exported, folder):
 
 
 @pytest.mark.parametrize("folder", ["colmap", "colmap_bin"])
-def test_round_trip(exported, tmp_path, folder):
+def test_round_trip(exported, tmp_path, folder, fresh_project):
     root, out = exported
     p = Project.open(root)
     dst = fresh_project(root, tmp_path / "p")
@@ -77,7 +71,7 @@ def test_round_trip(exported, tmp_path, folder):
         assert getattr(got, f) == pytest.approx(getattr(cam, f), rel=1e-7, abs=1e-8), f  # 1e-6 px in the file
 
 
-def test_older_export_without_georef_uses_the_header(exported, tmp_path):
+def test_older_export_without_georef_uses_the_header(exported, tmp_path, fresh_project):
     root, out = exported
     model = tmp_path / "m"
     shutil.copytree(out / "colmap", model)
@@ -103,7 +97,7 @@ def _foreign_model(folder, centre, opk_deg, crs_line=None):
         (folder / "georef.txt").write_text(f"frame crs\n{crs_line}\npixel_um 4.0\n")
 
 
-def test_foreign_model_in_map_coordinates(tiny_project, tmp_path):
+def test_foreign_model_in_map_coordinates(tiny_project, tmp_path, fresh_project):
     root = fresh_project(tiny_project, tmp_path / "p")
     centre, opk = [500123.25, 4100456.5, 1200.75], [1.5, -2.25, 37.0]
     _foreign_model(tmp_path / "m", centre, opk)
@@ -132,7 +126,7 @@ def test_foreign_model_in_map_coordinates(tiny_project, tmp_path):
     (None, "1 9 0 0 0 0 0 0 1 a.jpg\n\n", r"images.txt:1: quaternion .* is not a rotation"),
     (None, "1 1 0 0 0 0 0 0 2 a.jpg\n\n", r"CAMERA_ID\(s\) \[2\]"),
 ])
-def test_bad_text_model(tiny_project, tmp_path, cameras, images, match):
+def test_bad_text_model(tiny_project, tmp_path, cameras, images, match, fresh_project):
     root = fresh_project(tiny_project, tmp_path / "p")
     m = tmp_path / "m"
     m.mkdir()
@@ -143,7 +137,7 @@ def test_bad_text_model(tiny_project, tmp_path, cameras, images, match):
     assert not (root / "imported").exists()
 
 
-def test_bad_georef_and_cli(tiny_project, tmp_path):
+def test_bad_georef_and_cli(tiny_project, tmp_path, fresh_project):
     root = fresh_project(tiny_project, tmp_path / "p")
     m = tmp_path / "m"
     m.mkdir()
@@ -158,7 +152,7 @@ def test_bad_georef_and_cli(tiny_project, tmp_path):
     assert r.exit_code == 2 and "no COLMAP model" in r.output and "Traceback" not in r.output
 
 
-def test_foreign_model_in_geocentric_coordinates(adjusted_tiny, tmp_path):
+def test_foreign_model_in_geocentric_coordinates(adjusted_tiny, tmp_path, fresh_project):
     """A model georeferenced to geocentric (ECEF) coordinates, e.g. by colmap model_aligner, imported with
     --crs EPSG:4978: centres and attitudes come back in the project CRS and grid axes."""
     from aerotri.geom.local_frame import LocalFrame

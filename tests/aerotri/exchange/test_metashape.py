@@ -20,12 +20,6 @@ from aerotri.geom.eo import read_eo
 from aerotri.geom.observations import read_control_points, read_image_points
 
 
-def fresh_project(src, dst):
-    dst.mkdir(parents=True)
-    shutil.copy(src / "project.toml", dst / "project.toml")
-    return dst
-
-
 @pytest.fixture(scope="module")
 def exported(adjusted_tiny, tmp_path_factory):
     root, _ = adjusted_tiny
@@ -34,7 +28,7 @@ def exported(adjusted_tiny, tmp_path_factory):
     return root, out / "metashape" / "cameras.xml"
 
 
-def test_round_trip(exported, tmp_path):
+def test_round_trip(exported, tmp_path, fresh_project):
     root, xml = exported
     p = Project.open(root)
     dst = fresh_project(root, tmp_path / "p")
@@ -77,7 +71,7 @@ def test_metashape_conventions(exported):
     assert np.abs(np.array([e, n, h]) - eo.centre_m[0]).max() < 1e-3
 
 
-def test_bad_input(tiny_project, tmp_path):
+def test_bad_input(tiny_project, tmp_path, fresh_project):
     root = fresh_project(tiny_project, tmp_path / "p")
     f = tmp_path / "c.xml"
     f.write_text("<document><chunk><sensors/>")

@@ -16,13 +16,7 @@ from aerotri.exchange import export_project, import_files
 from aerotri.geom.observations import read_control_points, read_image_points
 
 
-def fresh_project(src, dst):
-    dst.mkdir(parents=True)
-    shutil.copy(src / "project.toml", dst / "project.toml")
-    return dst
-
-
-def test_round_trip(adjusted_tiny, tmp_path):
+def test_round_trip(adjusted_tiny, tmp_path, fresh_project):
     root, _ = adjusted_tiny
     out = tmp_path / "exp"
     export_project(root, ["micmac"], out)
@@ -44,7 +38,7 @@ def test_round_trip(adjusted_tiny, tmp_path):
     assert max(np.abs(xy - key[a, b]).max() for a, b, xy in zip(obs.point_id, obs.image_id, obs.xy_px)) < 1e-3
 
 
-def test_horizontal_and_height_control(tiny_project, tmp_path):
+def test_horizontal_and_height_control(tiny_project, tmp_path, fresh_project):
     root = fresh_project(tiny_project, tmp_path / "p")
     f = tmp_path / "gcp.xml"
     f.write_text("<Global><DicoAppuisFlottant>"
@@ -75,7 +69,7 @@ def test_horizontal_and_height_control(tiny_project, tmp_path):
     ("<Other/>", "neither DicoAppuisFlottant"),
     ("<Global>", "not valid XML"),
 ])
-def test_bad_input(tiny_project, tmp_path, text, match):
+def test_bad_input(tiny_project, tmp_path, text, match, fresh_project):
     root = fresh_project(tiny_project, tmp_path / "p")
     f = tmp_path / "x.xml"
     f.write_text(text)
@@ -84,7 +78,7 @@ def test_bad_input(tiny_project, tmp_path, text, match):
     assert not (root / "control").exists()
 
 
-def test_cli_exit_code(tiny_project, tmp_path):
+def test_cli_exit_code(tiny_project, tmp_path, fresh_project):
     root = fresh_project(tiny_project, tmp_path / "p")
     f = tmp_path / "x.xml"
     f.write_text("<Other/>")

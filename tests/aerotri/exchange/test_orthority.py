@@ -26,14 +26,7 @@ sys.modules.setdefault("realdata_ngi", ngi)  # dataclasses look their module up
 _spec.loader.exec_module(ngi)
 
 
-def fresh_project(src, dst):
-    """An empty project with the CRS of ``src``."""
-    dst.mkdir(parents=True)
-    shutil.copy(src / "project.toml", dst / "project.toml")
-    return dst
-
-
-def test_round_trip_through_an_adjusted_project(adjusted_tiny, tmp_path):
+def test_round_trip_through_an_adjusted_project(adjusted_tiny, tmp_path, fresh_project):
     root, _ = adjusted_tiny
     out = tmp_path / "exp"
     export_project(root, ["orthority"], out)
@@ -56,7 +49,7 @@ def test_round_trip_through_an_adjusted_project(adjusted_tiny, tmp_path):
     assert cam != read_camera(p.camera_path)
 
 
-def test_interior_conventions(tiny_project, tmp_path):
+def test_interior_conventions(tiny_project, tmp_path, fresh_project):
     """cx, cy: offset of the principal point from the image centre in pixels / max(w, h), y down; focal
     length and sensor in one unit (mm); no sensor_size: focal length / image width."""
     root = fresh_project(tiny_project, tmp_path / "p")
@@ -108,7 +101,7 @@ GOOD_CSV = "filename,x,y,z,omega,phi,kappa\nimg1,500100.0,4100200.0,900.0,0.5,-0
     ("filename,x,y,z,omega,phi,kappa\nimg1,500100.0,4100200.0,900.0,0.5,-0.3,ninety\n", r":2: kappa = 'ninety'"),
     (GOOD_CSV + "img1.tif,500100.0,4100200.0,900.0,0.5,-0.3,90.0\n", r":3: duplicate image 'img1'"),
 ])
-def test_bad_opk_csv(tiny_project, tmp_path, text, match):
+def test_bad_opk_csv(tiny_project, tmp_path, text, match, fresh_project):
     root = fresh_project(tiny_project, tmp_path / "p")
     f = tmp_path / "ext.csv"
     f.write_text(text)
@@ -117,7 +110,7 @@ def test_bad_opk_csv(tiny_project, tmp_path, text, match):
     assert not (root / "imported").exists()
 
 
-def test_crs_is_required_and_checked(tiny_project, tmp_path):
+def test_crs_is_required_and_checked(tiny_project, tmp_path, fresh_project):
     root = fresh_project(tiny_project, tmp_path / "p")
     f = tmp_path / "ext.csv"
     f.write_text(GOOD_CSV)
@@ -133,7 +126,7 @@ def test_crs_is_required_and_checked(tiny_project, tmp_path):
     assert np.allclose(eo.centre_m, [[500100.0, 4100200.0, 900.0]]) and np.allclose(eo.opk_deg, [[0.5, -0.3, 90.0]])
 
 
-def test_other_crs_rotates_onto_the_project_grid(tiny_project, tmp_path):
+def test_other_crs_rotates_onto_the_project_grid(tiny_project, tmp_path, fresh_project):
     """A position and attitude in the neighbouring UTM zone: the centre is transformed and the attitude is
     turned by the grid convergence between the zones (kappa changes, the viewing direction does not)."""
     from aerotri.geom.crs import project_crs
@@ -171,7 +164,7 @@ def test_other_crs_rotates_onto_the_project_grid(tiny_project, tmp_path):
     ("cam:\n  type: brown\n  im_size: [10, 10]\n  focal_len: [1, 2]\n", "different x and y"),
     ("a: [1\n", "not valid YAML"),
 ])
-def test_bad_interior(tiny_project, tmp_path, text, match):
+def test_bad_interior(tiny_project, tmp_path, text, match, fresh_project):
     root = fresh_project(tiny_project, tmp_path / "p")
     f = tmp_path / "int.yaml"
     f.write_text(text)
@@ -179,7 +172,7 @@ def test_bad_interior(tiny_project, tmp_path, text, match):
         import_files(root, "orthority", [f])
 
 
-def test_bad_geojson_and_cli_exit_code(tiny_project, tmp_path):
+def test_bad_geojson_and_cli_exit_code(tiny_project, tmp_path, fresh_project):
     root = fresh_project(tiny_project, tmp_path / "p")
     f = tmp_path / "ext.geojson"
     f.write_text('{"type": "FeatureCollection", "world_crs": "EPSG:32649", "features": '

@@ -19,12 +19,6 @@ from aerotri.geom.eo import read_eo
 from aerotri.geom.observations import read_control_points, read_image_points
 
 
-def fresh_project(src, dst):
-    dst.mkdir(parents=True)
-    shutil.copy(src / "project.toml", dst / "project.toml")
-    return dst
-
-
 @pytest.fixture(scope="module")
 def exported(adjusted_tiny, tmp_path_factory):
     root, _ = adjusted_tiny
@@ -33,7 +27,7 @@ def exported(adjusted_tiny, tmp_path_factory):
     return root, out / "patb"
 
 
-def test_round_trip(exported, tmp_path):
+def test_round_trip(exported, tmp_path, fresh_project):
     root, patb = exported
     p = Project.open(root)
     dst = fresh_project(root, tmp_path / "p")
@@ -59,7 +53,7 @@ def test_round_trip(exported, tmp_path):
     assert np.abs(d).max() < 0.01
 
 
-def test_ori_alone_with_explicit_crs(exported, tmp_path):
+def test_ori_alone_with_explicit_crs(exported, tmp_path, fresh_project):
     """A .ori alone, its CRS given with --crs (here the project's: nothing changes; another CRS goes through
     the same operation as orthority's, tested there)."""
     root, patb = exported
@@ -83,7 +77,7 @@ ORI_OK = "a 120.0\n 500000.0 4100000.0 1000.0\n 1 0 0\n 0 1 0\n 0 0 1\n"
     ("b.im", "a\n g1 1.0 2.0\n", "has no -99 at its end"),
     ("b.txt", "x\n", "not a PATB-style file"),
 ])
-def test_bad_input(tiny_project, tmp_path, name, text, match):
+def test_bad_input(tiny_project, tmp_path, name, text, match, fresh_project):
     root = fresh_project(tiny_project, tmp_path / "p")
     f = tmp_path / name
     f.write_text(text)
