@@ -233,18 +233,14 @@ def preview_png(cs: ContourSet, dem: np.ndarray, transform, path, title: str = "
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
-
-    from aerotri.core.atomic import atomic_path
-
-    dz_dy, dz_dx = np.gradient(np.where(np.isfinite(dem), dem, np.nanmean(dem)), abs(transform.e), transform.a)
-    az, alt = np.radians(315.0), np.radians(45.0)
-    slope = np.arctan(np.hypot(dz_dx, dz_dy))
-    aspect = np.arctan2(-dz_dx, dz_dy)
-    hs = np.sin(alt) * np.cos(slope) + np.cos(alt) * np.sin(slope) * np.cos(az - aspect)
     from scipy import ndimage
 
+    from aerotri.core.atomic import atomic_path
+    from lidarctl.rasters import hillshade
+
     # no shading where the filled nodata enters the gradient
-    hs = np.where(ndimage.binary_erosion(np.isfinite(dem), iterations=1, border_value=1), hs, np.nan)
+    hs = np.where(ndimage.binary_erosion(np.isfinite(dem), iterations=1, border_value=1),
+                  hillshade(dem, abs(transform.a)), np.nan)
     ny, nx = dem.shape
     extent = (transform.c, transform.c + nx * transform.a, transform.f + ny * transform.e, transform.f)
     h_in = min(12.0, 8.0 * ny / max(nx, 1)) + 0.8

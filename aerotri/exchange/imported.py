@@ -30,7 +30,7 @@ from aerotri.core.atomic import TEMP_MARKER, refuse_input_as_output
 from aerotri.core.errors import InputError
 from aerotri.core.project import Project
 from aerotri.geom.camera import Camera
-from aerotri.geom.eo import ExteriorOrientations, GnssPositions, format_eo
+from aerotri.geom.eo import ExteriorOrientations, GnssPositions, format_eo, format_gnss
 from aerotri.geom.observations import ControlPoints, ImageObservations, format_control_points, format_image_points
 
 log = logging.getLogger(__name__)
@@ -83,15 +83,7 @@ def _texts(project: Project, block: ImportedBlock) -> dict[Path, str]:
     if block.camera is not None:
         texts[project.camera_path] = block.camera.to_toml()
     if block.gnss is not None:
-        g = block.gnss
-        lines = ["# image_id X_m Y_m Z_m" + (" sX_m sY_m sZ_m" if g.sigma_m is not None else "")
-                 + f" (imported from {', '.join(block.source)})"]
-        for i, iid in enumerate(g.image_id):
-            s = f"{iid} " + " ".join(f"{v:.4f}" for v in g.position_m[i])
-            if g.sigma_m is not None:
-                s += " " + " ".join(f"{v:.4f}" for v in g.sigma_m[i])
-            lines.append(s)
-        texts[project.gnss_path] = "\n".join(lines) + "\n"
+        texts[project.gnss_path] = format_gnss(block.gnss, f" (imported from {', '.join(block.source)})")
     if block.eo is not None:
         texts[project.imported_eo_path] = format_eo(block.eo)
     if block.control is not None:

@@ -157,11 +157,16 @@ def read_gnss(path, crs=None) -> GnssPositions:
     return GnssPositions(ids, a[:, :3].copy(), sig)
 
 
-def write_gnss(path, g: GnssPositions) -> None:
-    lines = ["# image_id X_m Y_m Z_m" + (" sX_m sY_m sZ_m" if g.sigma_m is not None else "")]
+def format_gnss(g: GnssPositions, comment: str = "") -> str:
+    """``gnss.txt`` text (``comment`` appended to the header line)."""
+    lines = ["# image_id X_m Y_m Z_m" + (" sX_m sY_m sZ_m" if g.sigma_m is not None else "") + comment]
     for i, iid in enumerate(g.image_id):
         s = f"{iid} " + " ".join(f"{v:.4f}" for v in g.position_m[i])
         if g.sigma_m is not None:
             s += " " + " ".join(f"{v:.4f}" for v in g.sigma_m[i])
         lines.append(s)
-    write_text_atomic(path, "\n".join(lines) + "\n")
+    return "\n".join(lines) + "\n"
+
+
+def write_gnss(path, g: GnssPositions) -> None:
+    write_text_atomic(path, format_gnss(g))
