@@ -83,6 +83,7 @@ class CellPlanes:
     scan_angle_deg: np.ndarray  # mean scan angle of the cell's returns
     u_m: np.ndarray  # across-track position of the centroid, positive right of the flight direction
     extra: np.ndarray | None = None  # (m, k) per-cell means of caller-defined per-point quantities
+    occupied: np.ndarray | None = None  # ids of every cell holding points of the strip
     axis: np.ndarray | None = None  # unit flight direction (x, y)
     centre: np.ndarray | None = None  # (x, y, z) mean of the strip's planar cells
 
@@ -324,7 +325,7 @@ def _planes(source: StripSource, acc: _Accumulator, grid: Grid, params: SurfaceP
     k = np.searchsorted(ids_all, ids)
     multi_frac = A[k, 1] / np.maximum(A[k, 0], 1)
     spread = (grid.cell_m ** 2 / 12.0) ** 2  # det of points spread evenly over the cell
-    planar = (n >= params.min_points) & np.isfinite(rms) & (det > 0.1 * spread) & (rms <= params.max_rms_m) & \
+    planar = (n >= params.min_points) & np.isfinite(rms) & (det > 0.02 * spread) & (rms <= params.max_rms_m) & \
         (multi_frac <= params.max_multi_fraction)
     ids, n, S, a, b, c, rms, m = ids[planar], n[planar], S[planar], a[planar], b[planar], c[planar], rms[planar], m[planar]
     # edges, ridges and steps: every 4-neighbour planar and continuous with this cell at its centre
@@ -345,7 +346,7 @@ def _planes(source: StripSource, acc: _Accumulator, grid: Grid, params: SurfaceP
     extra = S[:, _N_SUMS:] / n[:, None] if S.shape[1] > _N_SUMS else None
     axis, centre, u = _across_track(centroid, n, t)
     return CellPlanes(source, acc.n_points, ids, n, centroid, np.column_stack([a, b]), z_ref + c, rms, ang, u,
-                      extra, axis, centre)
+                      extra, ids_all, axis, centre)
 
 
 def _across_track(centroid, w, t):
@@ -373,10 +374,10 @@ def pair_diffs(ss: StripSet, params: SurfaceParams, min_cells: int = 20):
     for ia in range(len(strips)):
         for ib in range(ia + 1, len(strips)):
             A, B = strips[ia], strips[ib]
-            common, ka, kb = np.intersect1d(A.ids, B.ids, assume_unique=True, return_indices=True)
-            if len(common) == 0:
+            if len(np.intersect1d(A.occupied, B.occupied, assume_unique=True)) == 0:
                 continue
             n_overlap += 1
+            common, ka, kb = np.intersect1d(A.ids, B.ids, assume_unique=True, return_indices=True)
             flat = (A.slope_deg[ka] <= params.max_slope_deg) & (B.slope_deg[kb] <= params.max_slope_deg)
             ka, kb = ka[flat], kb[flat]
             if len(ka) < min_cells:
@@ -396,8 +397,8 @@ def overlapping_pairs_or_error(ss: StripSet, params: SurfaceParams, paths, min_c
         raise InputError(f"{names}: one strip only; strip differences need at least two overlapping strips")
     pairs, skipped, n_overlap = pair_diffs(ss, params, min_cells)
     if n_overlap == 0:
-        raise InputError(f"{names}: no two strips overlap on a smooth single-return surface (cells of "
-                         f"{ss.grid.cell_m:g} m); give overlapping strips")
+        raise InputError(f"{names}: no two strips overlap (no cell of {ss.grid.cell_m:g} m holds points of two "
+                         "strips); give overlapping strips")
     if not pairs:
         raise InputError(f"{names}: the overlaps hold no smooth single-return surface (planar cells with at least "
                          f"{params.min_points} single returns, RMS <= {params.max_rms_m:g} m, slope <= "
