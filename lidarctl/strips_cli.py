@@ -8,7 +8,8 @@ from pathlib import Path
 import click
 
 from aerotri.core.commands import Group
-from aerotri.core.settings import click_option
+from aerotri.core.settings import click_option, click_type, default_of
+from lidarctl.strips.adjust import AdjustSettings
 from lidarctl.strips.overlap import SurfaceParams
 
 
@@ -53,3 +54,34 @@ def check(strip_paths, outdir, crs, png, **kw):
     a = s["all_pairs"]
     click.echo(f"{outdir}: {len(s['pairs'])} pairs of {len(s['strips'])} strips, RMS {a['rms_m']:.3f} m, "
                f"NMAD {a['nmad_m']:.3f} m ({s['points']:,} points, {s['points_per_s']:,.0f} points/s)")
+
+
+@strips.command()
+@click.argument("strip_paths", metavar="STRIP...", nargs=-1, required=True, type=click.Path(dir_okay=False, path_type=Path))
+@click.argument("outdir", type=click.Path(file_okay=False, path_type=Path))
+@click.option("--trajectory", "trajectories", multiple=True, type=click.Path(dir_okay=False, path_type=Path),
+              help="Trajectory text file(s) (time_s x y z roll_deg pitch_deg heading_deg; repeatable) covering every "
+                   "strip's GPS times: estimates the boresight angles and range offset shared by all strips and a "
+                   "shift per strip. Without: a shift and roll/pitch/heading per strip, one strip fixed.")
+@click.option("--fixed", default=None, help="Strip held fixed without a trajectory (a strip name as check names it).")
+@click.option("--adjust-max-slope-deg", "adjust_max_slope_deg", type=click_type(AdjustSettings, "max_slope_deg"),
+              default=default_of(AdjustSettings, "max_slope_deg"), show_default=True,
+              help="Steepest planar cells the adjustment uses (deg; sloped roofs carry the horizontal information).")
+@click_option(AdjustSettings, "shift_sigma_m", "--shift-sigma-m")
+@surface_options
+@click.option("--crs", default=None, help="CRS (EPSG:code) of files that have none; never guessed.")
+@click.option("--png/--no-png", default=True, show_default=True, help="Colour maps (PNG) of the differences.")
+def adjust(strip_paths, outdir, trajectories, fixed, adjust_max_slope_deg, shift_sigma_m, crs, png, **kw):
+    """Strip adjustment on plane correspondences in the overlaps; corrected strips (only X, Y, Z change) with
+    adjust.json (parameters, sigmas, correlations) and the check before and after (check_before/,
+    check_after/) into OUTDIR."""
+    from lidarctl.strips.adjust import adjust_strips
+
+    settings = AdjustSettings(max_slope_deg=adjust_max_slope_deg, fixed=fixed, shift_sigma_m=shift_sigma_m)
+    s = adjust_strips(strip_paths, outdir, settings, _params(kw), trajectories=trajectories, crs=crs, png=png)
+    for name, p in s["parameters"].items():
+        click.echo(f"{name:32s} {p['value']:+10.4f} +- {p['sigma']:.4f}")
+    b, a = s["check_before"], s["check_after"]
+    click.echo(f"{outdir}: {s['model']} model, {s['observations']} plane observations, sigma0 {s['sigma0']:.2f}; "
+               f"strip differences RMS {b['rms_m']:.3f} -> {a['rms_m']:.3f} m, NMAD {b['nmad_m']:.3f} -> "
+               f"{a['nmad_m']:.3f} m ({s['points']:,} points, {s['points_per_s']:,.0f} points/s)")

@@ -289,7 +289,7 @@ def read_strips(paths, params: SurfaceParams = SurfaceParams(), crs=None, extra=
                 w = np.flatnonzero(use)
                 q = np.column_stack([np.ones(len(w)), dx[w], dy[w], dz[w], dx[w] ** 2, dx[w] * dy[w], dy[w] ** 2,
                                      dx[w] * dz[w], dy[w] * dz[w], dz[w] ** 2, ang[w], t[w]]
-                                    + ([ex] if ex is not None else []))
+                                    + ([ex[w]] if ex is not None else []))
                 acc.add(cell[w], q, cell[sel], multi[sel].astype(float))
                 acc.n_points += int(sel.sum())
                 total += int(sel.sum())

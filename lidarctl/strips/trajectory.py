@@ -35,9 +35,9 @@ class Trajectory:
     rph_deg: np.ndarray  # (n, 3) roll, pitch, heading
     source: str = ""
 
-    def covers(self, t: np.ndarray) -> np.ndarray:
-        """Which times lie within a record interval no longer than ``max_gap_s`` (inside the trajectory)."""
-        return (t >= self.t[0]) & (t <= self.t[-1])
+    def covers(self, t: np.ndarray, tolerance_s: float = 1e-3) -> np.ndarray:
+        """Which times lie within the trajectory (up to ``tolerance_s``: times written with fewer decimals)."""
+        return (t >= self.t[0] - tolerance_s) & (t <= self.t[-1] + tolerance_s)
 
     def at(self, t: np.ndarray):
         """(positions (n, 3), body-to-map rotations (n, 3, 3)) at times ``t`` (linear interpolation)."""
@@ -69,7 +69,7 @@ def body_to_map(roll, pitch, heading) -> np.ndarray:
 def format_trajectory(t, xyz, rph_deg) -> str:
     lines = [HEADER]
     for ti, p, a in zip(t, xyz, rph_deg):
-        lines.append(f"{ti:.4f} {p[0]:.4f} {p[1]:.4f} {p[2]:.4f} {a[0]:.6f} {a[1]:.6f} {a[2]:.6f}")
+        lines.append(f"{ti:.6f} {p[0]:.4f} {p[1]:.4f} {p[2]:.4f} {a[0]:.6f} {a[1]:.6f} {a[2]:.6f}")
     return "\n".join(lines) + "\n"
 
 

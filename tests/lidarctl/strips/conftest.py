@@ -116,7 +116,7 @@ def scan(path: Path, traj_path: Path, k: int, errors: Errors, seed: int, n_pulse
         las.user_data = rng.integers(0, 255, len(pts)).astype(np.uint8)
         las.evlrs = VLRList([laspy.VLR("test_user", 9, "a test EVLR", b"evlr-payload" * 10)])
     las.write(path)
-    step = slice(None, None, 20)
+    step = np.unique(np.r_[0:n_pulses:20, n_pulses - 1])
     traj_xyz = O[step] + shift + np.array([X0, Y0, 0.0])
     rph = np.degrees(np.column_stack([roll, pitch, heading]))[step]
     traj_path.write_text(format_trajectory(t[step] + 4.0e8 + 1000.0 * k, traj_xyz, rph))
