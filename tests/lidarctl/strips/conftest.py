@@ -155,6 +155,8 @@ def shifted_block(tmp_path_factory):
 
 @pytest.fixture(scope="session")
 def make_strips(tmp_path_factory):
-    def make(name, errors, **kw):
+    """make(name, shifts (3, 3), boresight_deg=(0, 0, 0), range_offset_m=0, **scan options) -> StripBlock"""
+    def make(name, shifts, boresight_deg=(0.0, 0.0, 0.0), range_offset_m=0.0, **kw):
+        errors = Errors(np.asarray(shifts, float), tuple(boresight_deg), range_offset_m)
         return make_block(tmp_path_factory.mktemp(name), errors, **kw)
     return make
