@@ -344,6 +344,9 @@ def adjust_strips(paths, outdir, settings: AdjustSettings = AdjustSettings(),
             "strips": [s.name for s in ss.strips], "observations": int(len(obs.y)),
             "observations_per_pair": {f"{a}-{b}": int(np.sum(obs.pair == i)) for i, (a, b) in enumerate(obs.pairs)},
             "downweighted": sol.downweighted, "sigma0": sol.sigma0,
+            # strips that share no planar cell with another: their parameters stay at the prior (not corrected)
+            "strips_without_observations": [s.name for s in ss.strips
+                                            if not any(s.name in pair for pair in obs.pairs)],
             "plane_distance_rms_before_m": sol.residual_before_rms_m,
             "plane_distance_rms_after_m": sol.residual_after_rms_m,
             **parameters_dict(model, sol),

@@ -209,7 +209,7 @@ def _pair_png(path, p: PairDiff, ps: dict, a, transform, vmax: float, title: str
     ax.set_ylabel("northing")
     cb = fig.colorbar(im, ax=ax, shrink=0.85)
     cb.set_label(f"dz = z({p.b}) - z({p.a})  [m]")
-    ax.set_title(f"{p.b} - {p.a}: mean {ps['mean_m']:+.3f} m, RMS {ps['rms_m']:.3f} m, NMAD {ps['nmad_m']:.3f} m "
+    ax.set_title(f"{p.b} - {p.a}\nmean {ps['mean_m']:+.3f} m, RMS {ps['rms_m']:.3f} m, NMAD {ps['nmad_m']:.3f} m "
                  f"({ps['n_cells']} cells)", fontsize=9)
     ax2.scatter(p.scan_angle_a_deg, p.dz_m, s=2, color="0.6", alpha=0.5, rasterized=True)
     bins = ps["vs_scan_angle_a"]["bins"]
