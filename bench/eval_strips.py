@@ -56,6 +56,71 @@ def strips_of(project: Path):
     return sorted((project / "lidar").glob("*.las"))
 
 
+def dem_error(project: Path, strips: list[Path], res_m: float = 2.0) -> dict:
+    """DEM (mean height of the truth's ground points per cell, lidarctl.rasters.make_grids) of ``strips``
+    against truth/dem.tif, over the cells that hold ground points (no interpolated cell)."""
+    import rasterio
+    from scipy import ndimage
+
+    from lidarctl import io, rasters
+
+    clouds = [io.read_cloud(p) for p in strips]
+    truth_cls = [io.read_cloud(project / "truth" / "lidar" / p.name).classification for p in strips]
+    fields = ("x", "y", "z", "intensity", "return_number", "number_of_returns")
+    cloud = io.PointCloud(*[np.concatenate([getattr(c, f) for c in clouds]) for f in fields],
+                          np.concatenate(truth_cls), crs=clouds[0].crs)
+    grids = rasters.make_grids(cloud, res_m)
+    dem = grids["dem"][::-1].astype(float)
+    tr = grids["transform"]
+    nrows, ncols = dem.shape
+    x0, y0 = tr.c, tr.f - nrows * res_m
+    g = np.isin(cloud.classification, (2,))
+    jj = np.floor((cloud.x[g] - x0) / res_m).astype(int)
+    ii = np.floor((cloud.y[g] - y0) / res_m).astype(int)
+    has_ground = np.zeros((nrows, ncols), bool)
+    has_ground[ii, jj] = True
+    j, i = np.meshgrid(np.arange(ncols), np.arange(nrows))
+    cx, cy = x0 + (j + 0.5) * res_m, y0 + (i + 0.5) * res_m
+    with rasterio.open(project / "truth" / "dem.tif") as ds:
+        tdem = ds.read(1, masked=True).filled(np.nan)
+        col = (cx - ds.transform.c) / ds.transform.a - 0.5
+        row = (cy - ds.transform.f) / ds.transform.e - 0.5
+    true_z = ndimage.map_coordinates(tdem, [row.ravel(), col.ravel()], order=1, mode="nearest").reshape(dem.shape)
+    err = (dem - true_z)[has_ground & np.isfinite(dem) & np.isfinite(true_z)]
+    # the truth DEM is a raster of the terrain: slopes add their sampling error to both before and after alike
+    return {"cells": int(len(err)), "mean_m": float(err.mean()), "rms_m": float(np.sqrt(np.mean(err ** 2))),
+            "nmad_m": float(1.4826 * np.median(np.abs(err - np.median(err)))), "res_m": res_m}
+
+
+def corner_error(project: Path, strips: list[Path], match_m: float = 1.0) -> dict:
+    """Roof corners (lidarctl.corners, flat roofs, the truth's classes on the given coordinates) matched to
+    truth/roof_corners.csv within ``match_m``: RMS of the horizontal and vertical errors of the matched ones."""
+    import csv
+
+    from scipy.spatial import cKDTree
+
+    from lidarctl.corners import find_roof_corners, read_classified_cloud
+
+    clouds = [read_classified_cloud(p) for p in strips]
+    cls = [read_classified_cloud(project / "truth" / "lidar" / p.name)["classification"] for p in strips]
+    cat = {k: np.concatenate([c[k] for c in clouds]) for k in ("x", "y", "z", "point_source_id")}
+    res = find_roof_corners(cat["x"], cat["y"], cat["z"], np.concatenate(cls), cat["point_source_id"], roof="flat")
+    rows = list(csv.DictReader(open(project / "truth" / "roof_corners.csv")))
+    txyz = np.array([[float(r["x"]), float(r["y"]), float(r["z"])] for r in rows])
+    c = np.array([[k["x"], k["y"], k["z"]] for k in res["corners"]]).reshape(-1, 3)
+    usable = np.array([k["usable"] for k in res["corners"]], bool)
+    d, j = cKDTree(txyz[:, :2]).query(c[:, :2])
+    m = d <= match_m
+    e = c[m] - txyz[j[m]]
+    u = usable[m]
+    return {"corners": int(len(c)), "matched": int(m.sum()), "usable_matched": int(u.sum()),
+            "rms_xy_m": float(np.sqrt(np.mean(np.sum(e[:, :2] ** 2, 1)))) if len(e) else None,
+            "rms_z_m": float(np.sqrt(np.mean(e[:, 2] ** 2))) if len(e) else None,
+            "mean_dz_m": float(e[:, 2].mean()) if len(e) else None,
+            "rms_xy_usable_m": float(np.sqrt(np.mean(np.sum(e[u, :2] ** 2, 1)))) if u.any() else None,
+            "rms_z_usable_m": float(np.sqrt(np.mean(e[u, 2] ** 2))) if u.any() else None}
+
+
 def eval_seed(work: Path, seed: int) -> dict:
     err = sim(work, seed, "errors", [f"lidar.boresight_error_deg={list(BORESIGHT_DEG)}",
                                      f"lidar.range_offset_m={RANGE_OFFSET_M}"])
@@ -101,6 +166,15 @@ def eval_seed(work: Path, seed: int) -> dict:
                               "after_over_noise_only_rms": s["check_after"]["rms_m"] / noise["all_pairs"]["rms_m"]},
         "strong_correlations": s["strong_correlations"][:6],
         "adjust_seconds": dt,
+        "dem_error_vs_truth": {"before": dem_error(err, strips_of(err)),
+                               "after": dem_error(err, sorted((work / f"seed{seed}_adjusted").glob("*.las"))),
+                               "noise_only": dem_error(clean, strips_of(clean)),
+                               "note": "DEM from the truth's ground points (class 2), cells holding ground "
+                                       "points only; the same seed without systematic errors as the floor"},
+        "roof_corner_error_vs_truth": {
+            "before": corner_error(err, strips_of(err)),
+            "after": corner_error(err, sorted((work / f"seed{seed}_adjusted").glob("*.las"))),
+            "noise_only": corner_error(clean, strips_of(clean))},
         "strip_model_on_preset": {"fixed": fixed, "parameters": rel, "sigma0": sm["sigma0"],
                                   "before": sm["check_before"], "after": sm["check_after"]},
     }
@@ -131,6 +205,14 @@ def summarise(seeds: list[dict]) -> dict:
             "rms_before_m": [s["strip_differences"]["before"]["rms_m"] for s in rows],
             "rms_after_m": [s["strip_differences"]["after"]["rms_m"] for s in rows],
             "rms_noise_only_m": [s["strip_differences"]["noise_only"]["rms_m"] for s in rows],
+            "dem_rms_before_after_noise_only_m": [[s["dem_error_vs_truth"][k]["rms_m"] for k in
+                                                   ("before", "after", "noise_only")] for s in rows],
+            "corner_rms_xy_before_after_noise_only_m": [[s["roof_corner_error_vs_truth"][k]["rms_xy_m"] for k in
+                                                         ("before", "after", "noise_only")] for s in rows],
+            "corner_rms_z_before_after_noise_only_m": [[s["roof_corner_error_vs_truth"][k]["rms_z_m"] for k in
+                                                        ("before", "after", "noise_only")] for s in rows],
+            "dem_mean_before_after_noise_only_m": [[s["dem_error_vs_truth"][k]["mean_m"] for k in
+                                                    ("before", "after", "noise_only")] for s in rows],
         }
     return out
 
