@@ -69,7 +69,7 @@ def scan_profile(dz: np.ndarray, angle_deg: np.ndarray, u_m: np.ndarray, bin_deg
     return {"bins": bins, "fit": fit}
 
 
-def _huber_lsq(G: np.ndarray, y: np.ndarray, k: float = 1.5, iterations: int = 10) -> np.ndarray:
+def _huber_lsq(G: np.ndarray, y: np.ndarray, k: float = 1.5, iterations: int = 10, return_weights: bool = False):
     """Least squares with Huber weights (threshold ``k`` robust sigmas, the NMAD of the residuals)."""
     w = np.ones(len(y))
     x = np.zeros(G.shape[1])
@@ -80,7 +80,35 @@ def _huber_lsq(G: np.ndarray, y: np.ndarray, k: float = 1.5, iterations: int = 1
         s = max(NMAD_K * np.median(np.abs(r - np.median(r))), 1e-6)
         a = np.abs(r) / (k * s)
         w = np.where(a <= 1, 1.0, 1.0 / np.maximum(a, 1e-12))
-    return x
+    return (x, w) if return_weights else x
+
+
+def pair_offset_3d(A, B, max_slope_deg: float = 60.0) -> dict:
+    """The 3D offset t of strip B against strip A (B - A, metres) from every planar cell they share up to
+    ``max_slope_deg``: n . (c_B - c_A) = n . t (n the mean normal, c the centroids), Huber-weighted least
+    squares with sigmas (sigma0 a posteriori). Horizontal components come from sloped surfaces (roofs,
+    embankments): their sigmas say how well the overlap determines them."""
+    common, ka, kb = np.intersect1d(A.ids, B.ids, assume_unique=True, return_indices=True)
+    ok = (A.slope_deg[ka] <= max_slope_deg) & (B.slope_deg[kb] <= max_slope_deg)
+    ka, kb = ka[ok], kb[ok]
+    if len(ka) < 10:
+        return {}
+    n = A.normals()[ka] + B.normals()[kb]
+    n /= np.linalg.norm(n, axis=1, keepdims=True)
+    y = np.einsum("ij,ij->i", n, B.centroid[kb] - A.centroid[ka])
+    sig = np.sqrt(A.rms_m[ka] ** 2 / A.n[ka] + B.rms_m[kb] ** 2 / B.n[kb] + 0.003 ** 2)
+    t, w = _huber_lsq(n / sig[:, None], y / sig, return_weights=True)
+    N = (n / sig[:, None] * w[:, None]).T @ (n / sig[:, None])
+    r = (y - n @ t) / sig
+    s0 = float(np.sqrt(np.sum(w * r ** 2) / max(len(y) - 3, 1)))
+    try:
+        sd = s0 * np.sqrt(np.diag(np.linalg.inv(N)))
+    except np.linalg.LinAlgError:
+        sd = np.full(3, np.inf)
+    sloped = int(np.sum(np.maximum(A.slope_deg[ka], B.slope_deg[kb]) > 10.0))
+    return {"dx_m": float(t[0]), "dy_m": float(t[1]), "dz_m": float(t[2]), "sigma_dx_m": float(sd[0]),
+            "sigma_dy_m": float(sd[1]), "sigma_dz_m": float(sd[2]), "cells": int(len(y)), "sloped_cells": sloped,
+            "max_slope_deg": max_slope_deg}
 
 
 @dataclasses.dataclass
@@ -98,12 +126,14 @@ def analyse(ss: StripSet, params: SurfaceParams, paths, min_cells: int = 20) -> 
     pairs, skipped = overlapping_pairs_or_error(ss, params, paths, min_cells)
     per_strip: dict[str, list[np.ndarray]] = {s.name: [] for s in ss.strips}
     pair_out = []
+    by_name = {s.name: s for s in ss.strips}
     for p in pairs:
         per_strip[p.a].append(-p.dz_m)
         per_strip[p.b].append(p.dz_m)
         pair_out.append({"a": p.a, "b": p.b, "common_planar_cells": p.common_cells, **stats(p.dz_m),
                          "area_m2": float(len(p.dz_m) * ss.grid.cell_m ** 2),
-                         "vs_scan_angle_a": scan_profile(p.dz_m, p.scan_angle_a_deg, p.u_a_m)})
+                         "vs_scan_angle_a": scan_profile(p.dz_m, p.scan_angle_a_deg, p.u_a_m),
+                         "offset_3d_b_minus_a": pair_offset_3d(by_name[p.a], by_name[p.b])})
     strip_out = []
     for s in ss.strips:
         d = np.concatenate(per_strip[s.name]) if per_strip[s.name] else np.zeros(0)
@@ -268,11 +298,14 @@ padding:3px 8px;text-align:right} th{background:#eee} img{max-width:100%}</style
 {{ "%.3f"|format(s.all_pairs.nmad_m) }} m over {{ s.all_pairs.n_cells }} cells.</p>
 <h2>Pairs</h2>
 <table><tr><th>a</th><th>b</th><th>cells</th><th>mean [m]</th><th>RMS [m]</th><th>NMAD [m]</th>
-<th>relative roll [mdeg]</th><th>torsion [1/km]</th></tr>
+<th>relative roll [mdeg]</th><th>torsion [1/km]</th><th>3D offset b - a (dx, dy, dz +- sigma) [m]</th></tr>
 {% for p in s.pairs %}<tr><td>{{ p.a }}</td><td>{{ p.b }}</td><td>{{ p.n_cells }}</td>
 <td>{{ "%+.3f"|format(p.mean_m) }}</td><td>{{ "%.3f"|format(p.rms_m) }}</td><td>{{ "%.3f"|format(p.nmad_m) }}</td>
 <td>{% if p.vs_scan_angle_a.fit %}{{ "%+.1f"|format(p.vs_scan_angle_a.fit.relative_roll_deg * 1000) }}{% endif %}</td>
-<td>{% if p.vs_scan_angle_a.fit %}{{ "%+.3f"|format(p.vs_scan_angle_a.fit.curvature_per_m * 1000) }}{% endif %}</td></tr>
+<td>{% if p.vs_scan_angle_a.fit %}{{ "%+.3f"|format(p.vs_scan_angle_a.fit.curvature_per_m * 1000) }}{% endif %}</td>
+<td>{% set o = p.offset_3d_b_minus_a %}{% if o %}{{ "%+.3f"|format(o.dx_m) }} +- {{ "%.3f"|format(o.sigma_dx_m) }},
+{{ "%+.3f"|format(o.dy_m) }} +- {{ "%.3f"|format(o.sigma_dy_m) }}, {{ "%+.3f"|format(o.dz_m) }} +- {{ "%.3f"|format(o.sigma_dz_m) }}
+({{ o.cells }} cells, {{ o.sloped_cells }} sloped){% endif %}</td></tr>
 {% endfor %}</table>
 {% if s.skipped_pairs %}<p>Left out: {% for k, v in s.skipped_pairs.items() %}{{ k }} ({{ v }}); {% endfor %}</p>{% endif %}
 <h2>Strips (this strip minus the others)</h2>

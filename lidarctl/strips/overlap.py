@@ -9,9 +9,10 @@ ids in every strip). In a cell, a plane z = c + a dx + b dy is fitted by least s
 single returns (dx, dy from the cell centre; noise classes 7 and 18 and vegetation classes 3-5 left
 out). A cell is *planar* when it holds at least ``min_points`` such returns spread over the cell, the
 RMS residual is at most ``max_rms_m``, at most ``max_multi_fraction`` of its returns come from
-multi-return pulses (vegetation, edges of roofs) and each of its four neighbours is planar too and its
-plane, extended to this cell's centre, meets this cell's plane there within ``edge_tol_m`` (so cells on
-roof edges, ridges and steps drop out). Heights are compared at the cell centre, from each strip's plane.
+multi-return pulses (vegetation, edges of roofs), at least two of its four neighbours are planar and
+meet it (their planes, extended to this cell's centre, within ``edge_tol_m`` of its own there) and none
+is planar but misses it (so cells on roof edges, ridges and steps drop out; a cell across a ridge fails
+the RMS test and does not count as a neighbour). Heights are compared at the cell centre, from each strip's plane.
 
 Conventions: x, y, z in metres (clouds in feet are scaled when read); a pair (A, B) is ordered as the
 strips are given and its difference is dz = z_B - z_A. Scan angles in degrees, positive to the right of
@@ -328,16 +329,24 @@ def _planes(source: StripSource, acc: _Accumulator, grid: Grid, params: SurfaceP
     planar = (n >= params.min_points) & np.isfinite(rms) & (det > 0.02 * spread) & (rms <= params.max_rms_m) & \
         (multi_frac <= params.max_multi_fraction)
     ids, n, S, a, b, c, rms, m = ids[planar], n[planar], S[planar], a[planar], b[planar], c[planar], rms[planar], m[planar]
-    # edges, ridges and steps: every 4-neighbour planar and continuous with this cell at its centre
-    keep = np.ones(len(ids), bool)
+    # edges, ridges and steps: no planar 4-neighbour whose plane misses this cell's plane at its centre by more
+    # than edge_tol_m (a step, a roof's eave over the ground), and at least two that meet it (not an isolated
+    # cell); neighbours that are not planar (a cell across a ridge or an eave) do not count either way, so
+    # that the cells of a roof face next to its ridge stay
     h = grid.cell_m
+    n_continuous = np.zeros(len(ids), int)
+    broken = np.zeros(len(ids), bool)
     for d_id, ddx, ddy in ((1, 1, 0), (-1, -1, 0), (grid.ncols, 0, 1), (-grid.ncols, 0, -1)):
-        k = np.searchsorted(ids, ids + d_id)
-        k = np.minimum(k, len(ids) - 1)
-        found = (len(ids) > 0) & (ids[k] == ids + d_id) if len(ids) else np.zeros(0, bool)
+        if len(ids) == 0:
+            break
+        k = np.minimum(np.searchsorted(ids, ids + d_id), len(ids) - 1)
+        found = ids[k] == ids + d_id
         # the neighbour's plane at this cell's centre (dx = -ddx h, dy = -ddy h from its own centre)
         zn = c[k] - a[k] * ddx * h - b[k] * ddy * h
-        keep &= found & (np.abs(zn - c) <= params.edge_tol_m)
+        close = np.abs(zn - c) <= params.edge_tol_m
+        n_continuous += found & close
+        broken |= found & ~close
+    keep = (n_continuous >= 2) & ~broken
     ids, n, S, a, b, c, rms, m = ids[keep], n[keep], S[keep], a[keep], b[keep], c[keep], rms[keep], m[keep]
     xc, yc = grid.centres(ids)
     centroid = np.column_stack([xc + m[:, 0], yc + m[:, 1], z_ref + m[:, 2]])

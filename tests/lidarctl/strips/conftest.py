@@ -23,9 +23,10 @@ from lidarctl.strips.trajectory import body_to_map, format_trajectory
 
 X0, Y0 = 500000.0, 5400000.0
 EPSG = 32632
-BUILDINGS = [  # cx, cy, half length (x), half width (y), eave height, roof slope (deg; 0 flat)
+BUILDINGS = [  # cx, cy, half length (x), half width (y), eave height, roof slope (deg; 0 flat; < 0: ridge along y)
     (40.0, 45.0, 18.0, 11.0, 6.0, 30.0), (100.0, 20.0, 14.0, 10.0, 8.0, 0.0), (110.0, 75.0, 16.0, 12.0, 5.0, 25.0),
-    (60.0, 100.0, 12.0, 10.0, 7.0, 35.0), (25.0, -5.0, 10.0, 8.0, 4.0, 0.0)]
+    (60.0, 100.0, 12.0, 10.0, 7.0, 35.0), (25.0, -5.0, 10.0, 8.0, 4.0, 0.0), (140.0, 22.0, 12.0, 10.0, 6.0, -35.0),
+    (75.0, 20.0, 12.0, 9.0, 5.0, -30.0), (85.0, 70.0, 10.0, 8.0, 5.0, -30.0)]
 TREES = [(75.0, 50.0, 6.0), (140.0, 40.0, 5.0), (10.0, 80.0, 5.0)]
 
 
@@ -37,7 +38,10 @@ def surface(x, y):
     z = terrain(x, y)
     for cx, cy, hl, hw, eave, slope in BUILDINGS:
         inside = (np.abs(x - cx) <= hl) & (np.abs(y - cy) <= hw)
-        roof = terrain(cx, cy) + eave + np.tan(np.radians(slope)) * (hw - np.abs(y - cy))
+        if slope >= 0:
+            roof = terrain(cx, cy) + eave + np.tan(np.radians(slope)) * (hw - np.abs(y - cy))
+        else:
+            roof = terrain(cx, cy) + eave + np.tan(np.radians(-slope)) * (hl - np.abs(x - cx))
         z = np.where(inside, roof, z)
     return z
 

@@ -41,6 +41,12 @@ def test_shifted_strips_show_their_height_offsets_and_relative_roll(shifted_bloc
         assert p["median_m"] == pytest.approx(dz_true[(p["a"], p["b"])], abs=0.02)
         # a boresight roll of 0.05 deg tilts strips flown in opposite directions 0.1 deg against each other
         assert p["vs_scan_angle_a"]["fit"]["relative_roll_deg"] == pytest.approx(-0.10, abs=0.03)
+        # the 3D offset from every shared plane (roofs up to 60 deg): dx is the shift difference (no heading or
+        # pitch error; the roll moves the strips across the track, in y)
+        o = p["offset_3d_b_minus_a"]
+        dx_true = {("strip_1", "strip_2"): 0.05, ("strip_2", "strip_3"): -0.11}[(p["a"], p["b"])]
+        assert o["sloped_cells"] >= 10 and o["sigma_dx_m"] < 0.05
+        assert abs(o["dx_m"] - dx_true) < 3 * o["sigma_dx_m"] + 0.01
     strip2 = next(t for t in s["strips"] if t["name"] == "strip_2")
     assert strip2["minus_others"]["median_m"] == pytest.approx(0.175, abs=0.03)  # strip 2 is high against both
     with rasterio.open(tmp_path / "out" / "diff_strip_1_strip_2.tif") as ds:
