@@ -24,9 +24,11 @@ def main():
 
 from lidarctl.corners_cli import corners  # noqa: E402
 from lidarctl.merge_cli import merge  # noqa: E402
+from lidarctl.strips_cli import strips  # noqa: E402
 
 main.add_command(corners)
 main.add_command(merge)
+main.add_command(strips)
 
 
 def _parse_map(text: str | None, option: str) -> dict:

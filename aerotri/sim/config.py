@@ -121,6 +121,13 @@ def validate(cfg: dict, source: str = "preset") -> None:
     _need(cfg, source, "lidar", "range_noise_m", 0.0, 5.0)
     for key in ("low_outlier_rate", "high_outlier_rate", "water_return_fraction"):
         _need(cfg, source, "lidar", key, 0.0, 1.0)
+    bore = cfg["lidar"].get("boresight_error_deg", [0.0, 0.0, 0.0])
+    if not (isinstance(bore, (list, tuple)) and len(bore) == 3 and all(
+            isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v) and abs(v) <= 5.0 for v in bore)):
+        raise InputError(f"{source}: lidar.boresight_error_deg must be [roll, pitch, heading] in degrees (each within "
+                         f"+-5), got {bore!r}")
+    if "range_offset_m" in cfg["lidar"]:
+        _need(cfg, source, "lidar", "range_offset_m", -10.0, 10.0)
     if cfg["lidar"].get("format") not in ("las", "laz"):
         raise InputError(f"{source}: lidar.format must be 'las' or 'laz', got {cfg['lidar'].get('format')!r}")
     _need(cfg, source, "scene", "terrain_res_m", 0.1, 10.0)

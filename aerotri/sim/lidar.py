@@ -9,6 +9,13 @@ no return. Range noise, a small per-strip offset (GNSS/IMU error), low outliers 
 50-110 m below the surface, also under trees and in ponds) and high outliers (birds) are added.
 Truth classes (ASPRS): 2 ground, 3/4/5 low/medium/high vegetation, 6 building, 7 low noise,
 9 water, 18 high noise.
+
+System calibration errors (injected only when asked; zero in the presets, so that their output does
+not change): ``boresight_error_deg`` (roll, pitch, heading of the scanner against the IMU in the body
+frame x forward, y right, z down: the beam leaves along R_bw Rz(h) Ry(p) Rx(r) u while the points are
+computed along R_bw u) and ``range_offset_m`` (added to every measured range). ``trajectory`` gives
+the trajectory records of a strip (lidarctl.strips.trajectory text format), which carry the strip's
+GNSS offset as its points do.
 """
 
 from __future__ import annotations
@@ -30,6 +37,7 @@ MAX_RET = 3
 # Pulses ray-cast and written at a time: bounds the memory of a strip (about 250 bytes a pulse at the peak)
 # whatever its length. Every strip of the tiny, demo and dmc presets is one chunk.
 STRIP_CHUNK_PULSES = 3_000_000
+GPS_TIME_OFFSET_S = 4.0e8  # LAS gps_time = simulation time + this (adjusted standard GPS time)
 
 
 @numba.njit(cache=True, parallel=True)
@@ -108,6 +116,7 @@ class _Sweep:
     dirs: np.ndarray  # (n, 3) unit
     theta: np.ndarray  # (n,) scan angle (rad), positive to the right of the track
     rising: np.ndarray  # (n,) bool: the mirror sweeps towards increasing angle
+    nominal: np.ndarray | None = None  # (n, 3) directions the points are computed along (None: ``dirs``)
 
 
 def strip_pulses(line: LidarLine, L: dict, width_m: float) -> int:
@@ -149,7 +158,43 @@ def _sweep(line: LidarLine, L: dict, rng, width_m: float, i0: int = 0, i1: int |
     dirs[:, 1] += att[:, 1]
     dirs /= np.linalg.norm(dirs, axis=1, keepdims=True)
     origins = np.stack([x_air, y_air, z_air], axis=1)
-    return _Sweep(t, origins, dirs, theta, rising)
+    rb = boresight_rotation(L)
+    if rb is None:
+        return _Sweep(t, origins, dirs, theta, rising)
+    # the beam leaves rotated by the boresight error; the points are computed along the nominal direction
+    bw = body_to_world(line)
+    return _Sweep(t, origins, dirs @ (bw @ rb @ bw.T).T, theta, rising, nominal=dirs)
+
+
+def boresight_rotation(L: dict) -> np.ndarray | None:
+    """Rz(heading) Ry(pitch) Rx(roll) of ``boresight_error_deg`` in the body frame; None when zero (or absent)."""
+    r, p, h = np.radians(np.asarray(L.get("boresight_error_deg", (0.0, 0.0, 0.0)), float))
+    if r == 0 and p == 0 and h == 0:
+        return None
+    cr, sr, cp, sp, ch, sh = np.cos(r), np.sin(r), np.cos(p), np.sin(p), np.cos(h), np.sin(h)
+    return np.array([[ch * cp, ch * sp * sr - sh * cr, ch * sp * cr + sh * sr],
+                     [sh * cp, sh * sp * sr + ch * cr, sh * sp * cr - ch * sr],
+                     [-sp, cp * sr, cp * cr]])
+
+
+def body_to_world(line: LidarLine) -> np.ndarray:
+    """Columns: the body axes forward, right, down in local east-north-up (level flight along x)."""
+    f = 1.0 if line.east else -1.0
+    return np.array([[f, 0.0, 0.0], [0.0, -f, 0.0], [0.0, 0.0, -1.0]]).T
+
+
+def trajectory(line: LidarLine, L: dict, width_m: float, rate_hz: float = 50.0):
+    """(LAS gps_time, scanner positions (n, 3) in local metres, roll/pitch/heading (n, 3) deg) of a strip at
+    ``rate_hz``, over the strip's pulses and a second beyond; the positions follow ``_sweep`` (the weave)."""
+    v = L["speed_mps"]
+    lead = line.swath_m / 2.0
+    t_end = strip_pulses(line, L, width_m) / L["pulse_rate_hz"]
+    t = np.arange(-1.0, t_end + 1.0, 1.0 / rate_hz)
+    x = (-lead + v * t) if line.east else (width_m + lead - v * t)
+    y = line.y_m + 0.5 * np.sin(2 * np.pi * t / 37.0)
+    xyz = np.column_stack([x, y, np.full(len(t), line.z_m)])
+    rph = np.column_stack([np.zeros(len(t)), np.zeros(len(t)), np.full(len(t), 90.0 if line.east else 270.0)])
+    return line.t0_s + t + GPS_TIME_OFFSET_S, xyz, rph
 
 
 @dataclasses.dataclass
@@ -255,7 +300,12 @@ def scan_strip(scene: Scene, accel, line: LidarLine, L: dict, rng, width_m: floa
     # Returns are stored in time order per pulse: compact the valid slots.
     order_in_pulse = np.cumsum(valid, axis=1)[pulse, ret]
     rng_m = rt.ranges[pulse, ret] + rng.normal(0.0, L["range_noise_m"], pulse.size)
-    P = sw.origins[pulse] + sw.dirs[pulse] * rng_m[:, None]
+    offset = float(L.get("range_offset_m", 0.0))
+    if sw.nominal is None and offset == 0.0:
+        P = sw.origins[pulse] + sw.dirs[pulse] * rng_m[:, None]
+    else:
+        nominal = sw.dirs if sw.nominal is None else sw.nominal
+        P = sw.origins[pulse] + nominal[pulse] * (rng_m + offset)[:, None]
     kind = rt.kinds[pulse, ret]
     obj = rt.objs[pulse, ret]
     gm = raycast.ground_materials(P[:, 0].copy(), P[:, 1].copy(), scene.roads, scene.ponds, scene.targets, scene.seed)
@@ -310,6 +360,6 @@ def las_record(header: laspy.LasHeader, pts: dict, origin_m, classification=None
     las.classification = pts["classification"] if classification is None else classification
     las.scan_angle = np.rint(pts["scan_angle_deg"] / 0.006).astype(np.int16)
     las.point_source_id = pts["point_source_id"]
-    las.gps_time = pts["gps_time"] + 4.0e8  # adjusted standard GPS time
+    las.gps_time = pts["gps_time"] + GPS_TIME_OFFSET_S  # adjusted standard GPS time
     return las
 

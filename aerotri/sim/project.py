@@ -26,7 +26,8 @@ from aerotri.geom.rotation import rotation_matrix_opk
 from aerotri.sim import raycast, render
 from aerotri.sim.config import stage_sections_toml
 from aerotri.sim.flight import block_layout, cameras_from_config, lidar_lines, plan_frames
-from aerotri.sim.lidar import las_header, las_record, pulse_chunks, scan_strip, strip_pulses
+from aerotri.sim.lidar import las_header, las_record, pulse_chunks, scan_strip, strip_pulses, trajectory
+from lidarctl.strips.trajectory import format_trajectory
 from aerotri.sim.scene import build_scene
 from aerotri.core.atomic import atomic_dir
 from aerotri.core.log import track
@@ -88,6 +89,8 @@ class SimTruth:
     lidar_points: int
     lidar_class_counts: dict[int, int]  # ASPRS class -> points (truth classes)
     lidar_strip_offsets_m: list[list[float]]  # per strip: the X, Y, Z offset added to its points
+    lidar_boresight_error_deg: list[float]  # roll, pitch, heading of the scanner against the IMU (injected)
+    lidar_range_offset_m: float  # added to every measured range (injected)
     lidar_mean_spacing_m: float
     steep_band_y_m: list[float]  # northing of the start and end of the steep valley side
     max_slope_deg: float
@@ -133,7 +136,7 @@ def simulate(cfg: dict, outdir, force: bool = False) -> SimTruth:
              f"{len(scene.tree_c)} trees, {len(scene.roads)} roads, {len(scene.ponds)} ponds, {len(scene.targets)} targets")
 
     with atomic_dir(outdir) as tmp:
-        for sub in ("images", "lidar", "truth", "truth/lidar"):
+        for sub in ("images", "lidar", "trajectory", "truth", "truth/lidar"):
             (tmp / sub).mkdir(parents=True, exist_ok=True)
         gains = _render_frames(tmp / "images", cfg, scene, accel, plan, cam_true, s_frames)
         t_frames = time.perf_counter()
@@ -161,6 +164,8 @@ def simulate(cfg: dict, outdir, force: bool = False) -> SimTruth:
             check_targets=int(len(targets.xyz_m)), check_image_points=targets.image_points,
             lidar_strips=lidar.lines, lidar_points=int(lidar.points), lidar_class_counts=lidar.class_counts,
             lidar_strip_offsets_m=lidar.strip_offsets_m,
+            lidar_boresight_error_deg=[float(v) for v in cfg["lidar"].get("boresight_error_deg", (0.0, 0.0, 0.0))],
+            lidar_range_offset_m=float(cfg["lidar"].get("range_offset_m", 0.0)),
             lidar_mean_spacing_m=_mean_spacing(cfg["lidar"]),
             steep_band_y_m=[scene.steep_band_y_m[0] + origin[1], scene.steep_band_y_m[1] + origin[1]],
             max_slope_deg=_max_slope_deg(scene),
@@ -232,6 +237,9 @@ def _scan_lidar(tmp: Path, cfg: dict, layout, scene, accel, origin, epsg: int, s
                     class_counts[int(c)] = class_counts.get(int(c), 0) + int(k)
                 del pts
         strip_offsets.append(off.tolist())
+        # the trajectory holds the GNSS error of its strip as the points do
+        t, xyz, rph = trajectory(line, L, layout.width_m)
+        (tmp / "trajectory" / f"strip_{line.strip:02d}.txt").write_text(format_trajectory(t, xyz + origin + off, rph))
     return _LidarSummary(len(lines), n_points, strip_offsets, class_counts)
 
 
@@ -401,6 +409,8 @@ _README = """Simulated project "{preset}" (aerotri sim, seed {seed}), CRS {crs},
 project.toml camera.toml gnss.txt   project settings, nominal camera, GNSS antenna positions (with errors)
 images/                             {frames} frames, {image_width_px} x {image_height_px} px, GSD {gsd_m:.3f} m
 lidar/                              {lidar_strips} LAS strips, {lidar_points} points, unclassified
+trajectory/                         strip_NN.txt: each strip's scanner trajectory (time_s x y z roll_deg
+                                    pitch_deg heading_deg; lidarctl strips adjust --trajectory)
 truth/                              the truth: eo.txt, camera.toml (true interior orientation), dem.tif,
                                     dsm.tif, ortho.tif, lidar/ (true classes, same point order),
                                     roof_corners.csv, buildings.geojson, checkpoints.csv,

@@ -1,0 +1,362 @@
+"""``lidarctl strips adjust``: strip adjustment by least squares on plane correspondences in the overlaps.
+
+Observations: every planar cell (``overlap``; slopes up to ``max_slope_deg``, roofs included: sloped
+surfaces carry the horizontal information) that two strips share gives one point-to-plane distance,
+y = n . (c_A - c_B), with n the mean unit normal of the two cell planes and c the centroids of each
+strip's single returns in the cell, and sigma^2 = rms_A^2 / n_A + rms_B^2 / n_B (+ 3 mm^2 for the
+surface's own roughness). Model: the points of a strip are displaced by e(p) = J(p) theta (the error
+``theta`` describes); y = n . (e_A - e_B). Solved by iteratively reweighted least squares with Huber
+weights (k = 1.5 robust sigmas: vegetation left in a cell, moving cars, changes between the flights),
+parameter covariance sigma0^2 N^-1 (sigma0 a posteriori). Corrected points: p - e(p).
+
+Models (``theta`` and J, all in metres and radians; reported in metres and degrees):
+- ``strip`` (no trajectory): per strip a shift t (x, y, z) and a small rotation (roll about the flight
+  direction, pitch about the right-hand axis, heading about the downward axis) about the strip's
+  centre c: e = t + w x (p - c). The datum: one strip held fixed (``fixed``; default the strip with
+  the most planar cells), plus a weak prior (10 m, 1 deg) on every parameter so that directions the
+  surfaces cannot see (e.g. a horizontal shift over flat ground only) stay solvable, with a large sigma.
+- ``boresight`` (with the trajectory of every strip): the boresight angles (roll, pitch, heading of the
+  scanner in the body frame x forward, y right, z down) and a range offset shared by all strips, and per
+  strip a shift (the GNSS error) with the prior sigma ``shift_sigma_m`` (the datum). For a point p with
+  scanner position P and body-to-map rotation R at its GPS time, b = R^T (p - P):
+  e = R (w x b) + dr R b/|b| + t, i.e. the beam left rotated by the boresight error w and the range was
+  measured dr too long.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import logging
+import time
+from pathlib import Path
+
+import laspy
+import numpy as np
+
+from aerotri.core.atomic import atomic_dir, refuse_input_as_output
+from aerotri.core.errors import InputError, OptionError, SolveError
+from aerotri.core.settings import setting
+from aerotri.geom import las
+from lidarctl import io
+from lidarctl.strips import check as chk
+from lidarctl.strips import overlap as ov
+from lidarctl.strips import trajectory as tj
+
+log = logging.getLogger(__name__)
+log.addHandler(logging.NullHandler())
+
+SURFACE_ROUGHNESS_M = 0.003
+WEAK_SHIFT_M = 10.0
+WEAK_ANGLE_DEG = 1.0
+
+
+@dataclasses.dataclass(frozen=True)
+class AdjustSettings:
+    """Options of ``lidarctl strips adjust`` (lengths in metres, angles in degrees)."""
+
+    max_slope_deg: float = setting(60.0, min=0.0, max=85.0,
+                                   help="Steepest planar cells used as observations (deg).")
+    fixed: str | None = setting(None, help="Strip held fixed (strip model; default: the one with most planar cells).")
+    shift_sigma_m: float = setting(0.05, min=0.0, min_open=True,
+                                   help="Prior sigma of each strip's shift (m; with a trajectory: the datum).")
+    huber_k: float = setting(1.5, min=0.5, help="Huber threshold in robust sigmas.")
+    iterations: int = setting(10, min=1, help="Reweighting iterations.")
+
+
+@dataclasses.dataclass
+class Model:
+    """Parameter names, the strips' effect Jacobians at their planar cells, and the prior sigmas."""
+
+    kind: str
+    names: list[str]
+    prior_sigma: np.ndarray  # (K,) inf: no prior
+    jac: dict  # strip name -> (m, 3, K) effect Jacobians at the planar cells' centroids
+    apply: object  # callable(strip name, x, y, z (m), gps time) -> (n, 3, K) Jacobians of single points
+
+
+def _cross_matrix(b: np.ndarray) -> np.ndarray:
+    """(n, 3, 3) [b]x so that [b]x w = b x w."""
+    z = np.zeros(len(b))
+    return np.stack([np.stack([z, -b[:, 2], b[:, 1]], 1), np.stack([b[:, 2], z, -b[:, 0]], 1),
+                     np.stack([-b[:, 1], b[:, 0], z], 1)], 1)
+
+
+def strip_model(ss: ov.StripSet, fixed: str | None) -> Model:
+    """Per-strip shift and rotation about the strip centre; ``fixed`` has no parameters."""
+    names_s = [s.name for s in ss.strips]
+    if fixed is None:
+        fixed = max(ss.strips, key=lambda s: len(s.ids)).name
+    elif fixed not in names_s:
+        raise OptionError(f"--fixed {fixed}: not a strip of this block ({', '.join(names_s)})", param="--fixed")
+    free = [s for s in ss.strips if s.name != fixed]
+    K = 6 * len(free)
+    names, prior = [], []
+    for s in free:
+        names += [f"{s.name}.{k}" for k in ("shift_x_m", "shift_y_m", "shift_z_m", "roll_deg", "pitch_deg", "heading_deg")]
+        prior += [WEAK_SHIFT_M] * 3 + [np.radians(WEAK_ANGLE_DEG)] * 3
+    col = {s.name: 6 * i for i, s in enumerate(free)}
+    frames = {}
+    for s in ss.strips:
+        f = np.array([s.axis[0], s.axis[1], 0.0])
+        frames[s.name] = (np.array([f, [f[1], -f[0], 0.0], [0.0, 0.0, -1.0]]), s.centre.copy())
+
+    def apply(name, x, y, z, t=None):
+        J = np.zeros((len(x), 3, K))
+        if name not in col:
+            return J
+        axes, c = frames[name]
+        q = np.column_stack([x, y, z]) - c
+        k = col[name]
+        J[:, [0, 1, 2], [k, k + 1, k + 2]] = 1.0
+        for a in range(3):  # w x q for a unit rotation about each body axis
+            J[:, :, k + 3 + a] = np.cross(axes[a], q)
+        return J
+
+    jac = {s.name: apply(s.name, *s.centroid.T) for s in ss.strips}
+    return Model("strip", names, np.array(prior), jac, apply)
+
+
+def boresight_extra(trajs: list[tj.Trajectory]):
+    """The ``read_strips`` callback of the boresight model: per point the 12 entries of R [b]x and R b/|b|
+    (the effect Jacobians of the boresight angles and the range offset). InputError when a strip's GPS
+    times are not covered by a trajectory."""
+    chosen = {}
+
+    def extra(source, chunk, x, y, z, use):
+        out = np.zeros((len(x), 12))
+        if not use.any():
+            return out
+        t = np.asarray(chunk.gps_time, float)[use]
+        if source.name not in chosen:
+            chosen[source.name] = tj.for_times(trajs, t, f"{source.path} (strip {source.name})")
+        tr = chosen[source.name]
+        if not tr.covers(t).all():
+            bad = t[~tr.covers(t)]
+            raise InputError(f"{source.path} (strip {source.name}): GPS times {bad.min():.3f} .. {bad.max():.3f} lie "
+                             f"outside its trajectory {tr.source} ({tr.t[0]:.3f} .. {tr.t[-1]:.3f})")
+        out[use] = _sensor_jacobian(tr, t, x[use], y[use], z[use]).reshape(-1, 12)
+        return out
+
+    return extra, chosen
+
+
+def _sensor_jacobian(tr: tj.Trajectory, t, x, y, z) -> np.ndarray:
+    """(n, 3, 4): effect of the boresight angles (rad) and the range offset (m) on points at times t."""
+    P, R = tr.at(t)
+    v = np.column_stack([x, y, z]) - P
+    b = np.einsum("nji,nj->ni", R, v)
+    J = np.empty((len(t), 3, 4))
+    J[:, :, :3] = R @ _cross_matrix(b)
+    J[:, :, 3] = v / np.linalg.norm(v, axis=1, keepdims=True)
+    return J
+
+
+def boresight_model(ss: ov.StripSet, chosen: dict, shift_sigma_m: float) -> Model:
+    S = len(ss.strips)
+    K = 4 + 3 * S
+    names = ["boresight_roll_deg", "boresight_pitch_deg", "boresight_heading_deg", "range_offset_m"]
+    for s in ss.strips:
+        names += [f"{s.name}.shift_x_m", f"{s.name}.shift_y_m", f"{s.name}.shift_z_m"]
+    prior = np.array([np.inf] * 4 + [shift_sigma_m] * (3 * S))
+    col = {s.name: 4 + 3 * i for i, s in enumerate(ss.strips)}
+
+    def place(name, J4):
+        J = np.zeros((len(J4), 3, K))
+        J[:, :, :4] = J4
+        k = col[name]
+        J[:, [0, 1, 2], [k, k + 1, k + 2]] = 1.0
+        return J
+
+    jac = {s.name: place(s.name, s.extra.reshape(-1, 3, 4)) for s in ss.strips}
+
+    def apply(name, x, y, z, t):
+        return place(name, _sensor_jacobian(chosen[name], t, x, y, z))
+
+    return Model("boresight", names, prior, jac, apply)
+
+
+@dataclasses.dataclass
+class Observations:
+    G: np.ndarray  # (m, K)
+    y: np.ndarray  # (m,)
+    sigma: np.ndarray  # (m,)
+    pair: np.ndarray  # (m,) pair index
+    pairs: list[tuple[str, str]]
+
+
+def observations(ss: ov.StripSet, model: Model, max_slope_deg: float) -> Observations:
+    Gs, ys, ss_, ps, names = [], [], [], [], []
+    for ia, A in enumerate(ss.strips):
+        for B in ss.strips[ia + 1:]:
+            common, ka, kb = np.intersect1d(A.ids, B.ids, assume_unique=True, return_indices=True)
+            ok = (A.slope_deg[ka] <= max_slope_deg) & (B.slope_deg[kb] <= max_slope_deg)
+            ka, kb = ka[ok], kb[ok]
+            if len(ka) == 0:
+                continue
+            n = A.normals()[ka] + B.normals()[kb]
+            n /= np.linalg.norm(n, axis=1, keepdims=True)
+            ys.append(np.einsum("ij,ij->i", n, A.centroid[ka] - B.centroid[kb]))
+            Gs.append(np.einsum("ij,ijk->ik", n, model.jac[A.name][ka] - model.jac[B.name][kb]))
+            ss_.append(np.sqrt(A.rms_m[ka] ** 2 / A.n[ka] + B.rms_m[kb] ** 2 / B.n[kb] + SURFACE_ROUGHNESS_M ** 2))
+            ps.append(np.full(len(ka), len(names)))
+            names.append((A.name, B.name))
+    if not Gs:
+        raise InputError("no two strips share a planar cell: nothing to adjust")
+    return Observations(np.concatenate(Gs), np.concatenate(ys), np.concatenate(ss_), np.concatenate(ps), names)
+
+
+@dataclasses.dataclass
+class Solution:
+    theta: np.ndarray
+    cov: np.ndarray
+    sigma0: float
+    weights: np.ndarray
+    residual_before_rms_m: float
+    residual_after_rms_m: float
+    downweighted: int
+
+
+def solve(obs: Observations, model: Model, huber_k: float = 1.5, iterations: int = 10) -> Solution:
+    """IRLS with Huber weights; covariance sigma0^2 N^-1 (sigma0 from the weighted residuals, priors included)."""
+    K = obs.G.shape[1]
+    has_prior = np.isfinite(model.prior_sigma)
+    P = np.where(has_prior, 1.0 / np.where(has_prior, model.prior_sigma, 1.0) ** 2, 0.0)
+    w = np.ones(len(obs.y))
+    Gn, yn = obs.G / obs.sigma[:, None], obs.y / obs.sigma
+    theta = np.zeros(K)
+    for _ in range(iterations):
+        N = (Gn * w[:, None]).T @ Gn + np.diag(P)
+        try:
+            theta = np.linalg.solve(N, (Gn * w[:, None]).T @ yn)
+        except np.linalg.LinAlgError:
+            raise SolveError("the normal equations are singular: the overlaps do not determine the parameters") from None
+        r = yn - Gn @ theta
+        s = max(chk.NMAD_K * np.median(np.abs(r)), 1e-9)
+        a = np.abs(r) / (huber_k * s)
+        w = np.where(a <= 1.0, 1.0, 1.0 / np.maximum(a, 1e-12))
+    N = (Gn * w[:, None]).T @ Gn + np.diag(P)
+    Ninv = np.linalg.inv(N)
+    r = yn - Gn @ theta
+    dof = max(len(r) - K + int(has_prior.sum()), 1)
+    sigma0 = float(np.sqrt((np.sum(w * r ** 2) + np.sum(P * theta ** 2)) / dof))
+    rm = obs.y - obs.G @ theta
+    return Solution(theta, sigma0 ** 2 * Ninv, sigma0, w, float(np.sqrt(np.mean(obs.y ** 2))),
+                    float(np.sqrt(np.mean(rm ** 2))), int(np.sum(w < 1.0)))
+
+
+def _report_value(name: str, v: float) -> float:
+    return float(np.degrees(v)) if name.endswith("_deg") else float(v)
+
+
+def parameters_dict(model: Model, sol: Solution) -> dict:
+    sd = np.sqrt(np.diag(sol.cov))
+    corr = sol.cov / np.outer(sd, sd)
+    params = {n: {"value": _report_value(n, v), "sigma": _report_value(n, s)}
+              for n, v, s in zip(model.names, sol.theta, sd)}
+    # the strongest correlations (|r| >= 0.5) between different parameters
+    strong = []
+    iu = np.triu_indices(len(sd), 1)
+    for i, j in zip(*iu):
+        if abs(corr[i, j]) >= 0.5:
+            strong.append({"a": model.names[i], "b": model.names[j], "r": float(corr[i, j])})
+    strong.sort(key=lambda d: -abs(d["r"]))
+    return {"parameters": params, "correlation_matrix": np.round(corr, 4).tolist(), "strong_correlations": strong}
+
+
+def write_corrected(ss: ov.StripSet, model: Model, theta: np.ndarray, folder: Path,
+                    chunk_points: int = io.CHUNK_POINTS) -> list[Path]:
+    """Every input file with corrected X, Y, Z (p - e(p)) into ``folder``, everything else kept: header
+    fields, VLRs, EVLRs, point records (the coordinates re-quantised in the file's own scales and offsets)."""
+    units = ss.units
+    by_path: dict[Path, list[ov.StripSource]] = {}
+    for s in ss.strips:
+        by_path.setdefault(s.source.path, []).append(s.source)
+    out = []
+    for path, sources in by_path.items():
+        header = las.read_header(path)
+        out_header = io.output_header(header)
+        dst = folder / path.name
+        with laspy.open(dst, mode="w", header=out_header, do_compress=path.suffix.lower() == ".laz") as w:
+            for _, chunk in las.iter_file_chunks(path, chunk_points):
+                x, y, z = units.xy_to_m(np.asarray(chunk.x)), units.xy_to_m(np.asarray(chunk.y)), units.z_to_m(
+                    np.asarray(chunk.z))
+                x, y, z = np.array(x, float), np.array(y, float), np.array(z, float)
+                t = np.asarray(chunk.gps_time, float) if "gps_time" in chunk.point_format.dimension_names else None
+                psid = np.asarray(chunk.point_source_id)
+                for s in sources:
+                    sel = np.flatnonzero(psid == s.point_source_id) if s.point_source_id is not None else \
+                        np.arange(len(x))
+                    for k0 in range(0, len(sel), 200_000):  # bounded memory of the (n, 3, K) Jacobians
+                        i = sel[k0:k0 + 200_000]
+                        e = model.apply(s.name, x[i], y[i], z[i], None if t is None else t[i]) @ theta
+                        x[i] -= e[:, 0]
+                        y[i] -= e[:, 1]
+                        z[i] -= e[:, 2]
+                chunk.x, chunk.y, chunk.z = units.xy_from_m(x), units.xy_from_m(y), units.z_from_m(z)
+                w.write_points(chunk)
+            io.write_evlrs(w, out_header)
+        out.append(dst)
+    return out
+
+
+def adjust_strips(paths, outdir, settings: AdjustSettings = AdjustSettings(),
+                  surface: ov.SurfaceParams = ov.SurfaceParams(), trajectories=(), crs=None, png: bool = True) -> dict:
+    """The stage: estimate, write the corrected strips and the check before and after into OUTDIR
+    (``<strip files>``, ``adjust.json``, ``check_before/``, ``check_after/``). Returns the summary."""
+    t0 = time.perf_counter()
+    paths = [Path(p) for p in paths]
+    outdir = Path(outdir)
+    refuse_input_as_output(outdir, paths, "OUTDIR")
+    for p in paths:
+        refuse_input_as_output(outdir / p.name, paths, "OUTDIR")
+    if len({p.name for p in paths}) < len(paths):
+        raise InputError("strips with the same file name: the corrected strips are written under their names")
+    # the check's slope limit for the reports; the adjustment reads steeper cells too
+    read_params = dataclasses.replace(surface, max_slope_deg=max(surface.max_slope_deg, settings.max_slope_deg))
+    extra, chosen = (None, {})
+    if trajectories:
+        header = las.read_header(paths[0])
+        _, units = io.resolve_crs_units(paths[0], header, crs)
+        trajs = tj.read_trajectories(trajectories, units.xy_m, units.z_m)
+        extra, chosen = boresight_extra(trajs)
+    ss = ov.read_strips(paths, read_params, crs, extra=extra)
+    before = chk.analyse(ss, surface, paths)
+    t_read = time.perf_counter()
+    model = boresight_model(ss, chosen, settings.shift_sigma_m) if trajectories else strip_model(ss, settings.fixed)
+    obs = observations(ss, model, settings.max_slope_deg)
+    sol = solve(obs, model, settings.huber_k, settings.iterations)
+    t_solve = time.perf_counter()
+    with atomic_dir(outdir) as tmp:
+        corrected = write_corrected(ss, model, sol.theta, tmp)
+        t_write = time.perf_counter()
+        ss_after = ov.read_strips(corrected, surface, crs)
+        after = chk.analyse(ss_after, surface, corrected)
+        vmax = chk.colour_limit_m(before.pairs)
+        for name, res in (("check_before", before), ("check_after", after)):
+            (tmp / name).mkdir()
+            chk.write_outputs(res, tmp / name, f"Strip differences {name.split('_')[1]} adjustment", vmax, png)
+            (tmp / name / "strips.json").write_text(json.dumps(res.summary, indent=2) + "\n")
+        dt = time.perf_counter() - t0
+        summary = {
+            "model": model.kind, "fixed_strip": settings.fixed if model.kind == "strip" else None,
+            "settings": dataclasses.asdict(settings), "cell_m": ss.grid.cell_m, "points": ss.n_points,
+            "strips": [s.name for s in ss.strips], "observations": int(len(obs.y)),
+            "observations_per_pair": {f"{a}-{b}": int(np.sum(obs.pair == i)) for i, (a, b) in enumerate(obs.pairs)},
+            "downweighted": sol.downweighted, "sigma0": sol.sigma0,
+            # strips that share no planar cell with another: their parameters stay at the prior (not corrected)
+            "strips_without_observations": [s.name for s in ss.strips
+                                            if not any(s.name in pair for pair in obs.pairs)],
+            "plane_distance_rms_before_m": sol.residual_before_rms_m,
+            "plane_distance_rms_after_m": sol.residual_after_rms_m,
+            **parameters_dict(model, sol),
+            "check_before": before.summary["all_pairs"], "check_after": after.summary["all_pairs"],
+            "files": [p.name for p in corrected],
+            "seconds": dt, "points_per_s": ss.n_points / dt,
+            "seconds_read": t_read - t0, "seconds_solve": t_solve - t_read, "seconds_write": t_write - t_solve,
+        }
+        if model.kind == "strip" and settings.fixed is None:
+            summary["fixed_strip"] = next(s.name for s in ss.strips if not any(
+                n.startswith(f"{s.name}.") for n in model.names))
+        (tmp / "adjust.json").write_text(json.dumps(summary, indent=2) + "\n")
+    return summary

@@ -1,0 +1,331 @@
+"""``lidarctl strips check``: how overlapping strips disagree in height on smooth single-return surfaces.
+
+Per pair (A, B) the differences dz = z_B - z_A of the common planar cells (``overlap``) with their mean,
+RMS, standard deviation and NMAD (1.4826 x the median absolute deviation from the median: the spread
+without the blunders); per strip the same over the differences of its pairs, signed as "this strip
+minus the other" (a strip that is too high has a positive mean). Against the across-track position
+of strip A: the differences binned by A's scan angle, and a line dz = c + s u + q u^2 fitted over the
+across-track position u (m): s (m/m) is the relative roll of the two strips (a roll error tilts a strip
+across its track), q (1/m) its torsion-like bending; s is also given in degrees.
+
+Outputs (OUTDIR, written as a whole or not at all): ``diff_<A>_<B>.tif`` (COG, dz in the CRS's height
+unit, nodata outside the common smooth cells), ``diff_<A>_<B>.png`` (map with a diverging colour key in
+metres, and dz against A's scan angle), ``strips.json`` (every number; lengths in metres) and
+``index.html``.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import logging
+import time
+from pathlib import Path
+
+import numpy as np
+
+from aerotri.core.atomic import atomic_dir, refuse_input_as_output
+from lidarctl.strips.overlap import PairDiff, StripSet, SurfaceParams, overlapping_pairs_or_error, read_strips
+
+log = logging.getLogger(__name__)
+log.addHandler(logging.NullHandler())
+
+NMAD_K = 1.4826
+SCAN_BIN_DEG = 2.0
+FILES = ("strips.json", "index.html")
+
+
+def stats(dz: np.ndarray) -> dict:
+    """n, mean, RMS, standard deviation, median, NMAD and 95th percentile of |dz| (metres)."""
+    dz = np.asarray(dz, float)
+    if len(dz) == 0:
+        return {"n_cells": 0}
+    med = float(np.median(dz))
+    return {"n_cells": int(len(dz)), "mean_m": float(dz.mean()), "rms_m": float(np.sqrt(np.mean(dz ** 2))),
+            "std_m": float(dz.std(ddof=1)) if len(dz) > 1 else 0.0, "median_m": med,
+            "nmad_m": float(NMAD_K * np.median(np.abs(dz - med))), "p95_abs_m": float(np.percentile(np.abs(dz), 95))}
+
+
+def scan_profile(dz: np.ndarray, angle_deg: np.ndarray, u_m: np.ndarray, bin_deg: float = SCAN_BIN_DEG) -> dict:
+    """dz binned by scan angle (mean, NMAD, n per bin) and the robust fit dz = c + s u + q u^2 over the
+    across-track position (Huber-weighted; u in metres)."""
+    edges = np.arange(np.floor(angle_deg.min() / bin_deg) * bin_deg, angle_deg.max() + bin_deg, bin_deg)
+    k = np.clip(np.digitize(angle_deg, edges) - 1, 0, max(len(edges) - 2, 0))
+    bins = []
+    for b in np.unique(k):
+        d = dz[k == b]
+        bins.append({"scan_angle_deg": float(edges[b] + bin_deg / 2), "n": int(len(d)), "mean_m": float(d.mean()),
+                     "nmad_m": float(NMAD_K * np.median(np.abs(d - np.median(d))))})
+    fit = {}
+    if len(dz) >= 5 and np.ptp(u_m) > 0:
+        u0 = float(np.mean(u_m))
+        uu = u_m - u0
+        G = np.column_stack([np.ones_like(uu), uu, uu ** 2])
+        x = _huber_lsq(G, dz)
+        s_deg = np.polyfit(angle_deg, dz, 1)[0] if np.ptp(angle_deg) > 0 else np.nan
+        fit = {"u_ref_m": u0, "offset_m": float(x[0]), "slope_m_per_m": float(x[1]),
+               "relative_roll_deg": float(np.degrees(np.arctan(x[1]))), "curvature_per_m": float(x[2]),
+               "slope_m_per_scan_deg": float(s_deg), "u_span_m": float(np.ptp(u_m))}
+    return {"bins": bins, "fit": fit}
+
+
+def _huber_lsq(G: np.ndarray, y: np.ndarray, k: float = 1.5, iterations: int = 10, return_weights: bool = False):
+    """Least squares with Huber weights (threshold ``k`` robust sigmas, the NMAD of the residuals)."""
+    w = np.ones(len(y))
+    x = np.zeros(G.shape[1])
+    for _ in range(iterations):
+        sw = np.sqrt(w)
+        x = np.linalg.lstsq(G * sw[:, None], y * sw, rcond=None)[0]
+        r = y - G @ x
+        s = max(NMAD_K * np.median(np.abs(r - np.median(r))), 1e-6)
+        a = np.abs(r) / (k * s)
+        w = np.where(a <= 1, 1.0, 1.0 / np.maximum(a, 1e-12))
+    return (x, w) if return_weights else x
+
+
+def pair_offset_3d(A, B, max_slope_deg: float = 60.0) -> dict:
+    """The 3D offset t of strip B against strip A (B - A, metres) from every planar cell they share up to
+    ``max_slope_deg``: n . (c_B - c_A) = n . t (n the mean normal, c the centroids), Huber-weighted least
+    squares with sigmas (sigma0 a posteriori). Horizontal components come from sloped surfaces (roofs,
+    embankments): their sigmas say how well the overlap determines them."""
+    common, ka, kb = np.intersect1d(A.ids, B.ids, assume_unique=True, return_indices=True)
+    ok = (A.slope_deg[ka] <= max_slope_deg) & (B.slope_deg[kb] <= max_slope_deg)
+    ka, kb = ka[ok], kb[ok]
+    if len(ka) < 10:
+        return {}
+    n = A.normals()[ka] + B.normals()[kb]
+    n /= np.linalg.norm(n, axis=1, keepdims=True)
+    y = np.einsum("ij,ij->i", n, B.centroid[kb] - A.centroid[ka])
+    sig = np.sqrt(A.rms_m[ka] ** 2 / A.n[ka] + B.rms_m[kb] ** 2 / B.n[kb] + 0.003 ** 2)
+    t, w = _huber_lsq(n / sig[:, None], y / sig, return_weights=True)
+    N = (n / sig[:, None] * w[:, None]).T @ (n / sig[:, None])
+    r = (y - n @ t) / sig
+    s0 = float(np.sqrt(np.sum(w * r ** 2) / max(len(y) - 3, 1)))
+    try:
+        sd = s0 * np.sqrt(np.diag(np.linalg.inv(N)))
+    except np.linalg.LinAlgError:
+        sd = np.full(3, np.inf)
+    sloped = int(np.sum(np.maximum(A.slope_deg[ka], B.slope_deg[kb]) > 10.0))
+    return {"dx_m": float(t[0]), "dy_m": float(t[1]), "dz_m": float(t[2]), "sigma_dx_m": float(sd[0]),
+            "sigma_dy_m": float(sd[1]), "sigma_dz_m": float(sd[2]), "cells": int(len(y)), "sloped_cells": sloped,
+            "max_slope_deg": max_slope_deg}
+
+
+@dataclasses.dataclass
+class CheckResult:
+    """The numbers of a check (``summary`` is what strips.json holds) and the pair differences."""
+
+    summary: dict
+    pairs: list[PairDiff]
+    strip_set: StripSet
+
+
+def analyse(ss: StripSet, params: SurfaceParams, paths, min_cells: int = 20) -> CheckResult:
+    """Statistics of every overlapping pair and every strip (InputError: one strip, no overlap, no smooth
+    surface)."""
+    pairs, skipped = overlapping_pairs_or_error(ss, params, paths, min_cells)
+    per_strip: dict[str, list[np.ndarray]] = {s.name: [] for s in ss.strips}
+    pair_out = []
+    by_name = {s.name: s for s in ss.strips}
+    for p in pairs:
+        per_strip[p.a].append(-p.dz_m)
+        per_strip[p.b].append(p.dz_m)
+        pair_out.append({"a": p.a, "b": p.b, "common_planar_cells": p.common_cells, **stats(p.dz_m),
+                         "area_m2": float(len(p.dz_m) * ss.grid.cell_m ** 2),
+                         "vs_scan_angle_a": scan_profile(p.dz_m, p.scan_angle_a_deg, p.u_a_m),
+                         "offset_3d_b_minus_a": pair_offset_3d(by_name[p.a], by_name[p.b])})
+    strip_out = []
+    for s in ss.strips:
+        d = np.concatenate(per_strip[s.name]) if per_strip[s.name] else np.zeros(0)
+        strip_out.append({"name": s.name, "file": str(s.source.path), "point_source_id": s.source.point_source_id,
+                          "points": s.n_points, "planar_cells": int(len(s.ids)),
+                          "pairs": sum(1 for p in pairs if s.name in (p.a, p.b)),
+                          "minus_others": stats(d)})
+    all_dz = np.concatenate([p.dz_m for p in pairs])
+    summary = {
+        "convention": "dz = z_b - z_a per pair at the cell centres (metres); per strip: this strip minus the others",
+        "cell_m": ss.grid.cell_m, "crs": ss.crs.to_string() if ss.crs is not None else None, **ss.units.as_dict(),
+        "points": ss.n_points, "strips": strip_out, "pairs": pair_out, "skipped_pairs": skipped,
+        "all_pairs": stats(all_dz),
+        "surface": dataclasses.asdict(dataclasses.replace(params, cell_m=ss.grid.cell_m)),
+    }
+    return CheckResult(summary, pairs, ss)
+
+
+def check_strips(paths, outdir, params: SurfaceParams = SurfaceParams(), crs=None, title: str = "Strip differences",
+                 vmax_m: float | None = None, png: bool = True) -> dict:
+    """The stage: read the strips, analyse the overlaps and write OUTDIR (see the module docstring). Returns
+    the summary (with ``seconds`` and ``points_per_s``)."""
+    t0 = time.perf_counter()
+    paths = [Path(p) for p in paths]
+    outdir = Path(outdir)
+    refuse_input_as_output(outdir, paths, "OUTDIR")
+    ss = read_strips(paths, params, crs)
+    res = analyse(ss, params, paths)
+    with atomic_dir(outdir) as tmp:
+        write_outputs(res, tmp, title, vmax_m, png)
+        summary = _finish(res, t0)
+        (tmp / "strips.json").write_text(json.dumps(summary, indent=2) + "\n")
+    return summary
+
+
+def _finish(res: CheckResult, t0: float) -> dict:
+    dt = time.perf_counter() - t0
+    res.summary["seconds"] = dt
+    res.summary["points_per_s"] = res.summary["points"] / dt if dt > 0 else None
+    return res.summary
+
+
+def colour_limit_m(pairs: list[PairDiff]) -> float:
+    """Symmetric colour range of the maps: the 98th percentile of |dz| over all pairs, 2 cm to 1 m."""
+    d = np.abs(np.concatenate([p.dz_m for p in pairs]))
+    return float(np.clip(np.percentile(d, 98), 0.02, 1.0))
+
+
+def pair_raster(p: PairDiff, ss: StripSet):
+    """(north-up dz array in metres with NaN outside the cells, transform in metres) over the pair's cells."""
+    from rasterio.transform import from_origin
+
+    g = ss.grid
+    i, j = np.divmod(p.ids, g.ncols)
+    i0, i1, j0, j1 = i.min(), i.max(), j.min(), j.max()
+    a = np.full((i1 - i0 + 1, j1 - j0 + 1), np.nan)
+    a[i1 - i, j - j0] = p.dz_m
+    return a, from_origin(g.x0 + j0 * g.cell_m, g.y0 + (i1 + 1) * g.cell_m, g.cell_m, g.cell_m)
+
+
+def write_outputs(res: CheckResult, folder: Path, title: str, vmax_m: float | None, png: bool = True) -> None:
+    """Rasters, PNGs and the HTML page of a check into ``folder`` (strips.json is written by the caller)."""
+    from lidarctl.rasters import _transform_in_units, write_cog
+    from lidarctl.units import long_name
+
+    ss = res.strip_set
+    units = ss.units
+    vmax = vmax_m or colour_limit_m(res.pairs)
+    res.summary["map_colour_limit_m"] = vmax
+    images = []
+    for p, ps in zip(res.pairs, res.summary["pairs"]):
+        stem = f"diff_{p.a}_{p.b}"
+        a, transform = pair_raster(p, ss)
+        write_cog(folder / f"{stem}.tif", units.z_from_m(a), _transform_in_units(transform, units), ss.crs,
+                  unit=long_name(units.z_m), description=f"dz = z({p.b}) - z({p.a}) on smooth single-return surfaces",
+                  tags={"LINEAR_UNITS": units.xy_name, "VERTICAL_UNITS": units.z_name, "CELL_SIZE_M": ss.grid.cell_m})
+        ps["raster"] = f"{stem}.tif"
+        if png:
+            _pair_png(folder / f"{stem}.png", p, ps, a, transform, vmax, title)
+            ps["png"] = f"{stem}.png"
+            images.append(ps["png"])
+    if png:
+        _overview_png(folder / "overview.png", res, vmax, title)
+        res.summary["overview_png"] = "overview.png"
+    _html(folder / "index.html", res.summary, title)
+
+
+def _pair_png(path, p: PairDiff, ps: dict, a, transform, vmax: float, title: str) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    ny, nx = a.shape
+    extent = (transform.c, transform.c + nx * transform.a, transform.f - ny * transform.a, transform.f)
+    fig, (ax, ax2) = plt.subplots(1, 2, figsize=(12, 5.2), gridspec_kw={"width_ratios": [1.25, 1]})
+    im = ax.imshow(a, cmap="RdBu_r", vmin=-vmax, vmax=vmax, extent=extent, interpolation="nearest")
+    ax.set_facecolor("#d9d9d9")
+    ax.set_aspect("equal")
+    ax.ticklabel_format(useOffset=False, style="plain")
+    ax.tick_params(labelsize=7)
+    ax.set_xlabel("easting")
+    ax.set_ylabel("northing")
+    cb = fig.colorbar(im, ax=ax, shrink=0.85)
+    cb.set_label(f"dz = z({p.b}) - z({p.a})  [m]")
+    ax.set_title(f"{p.b} - {p.a}\nmean {ps['mean_m']:+.3f} m, RMS {ps['rms_m']:.3f} m, NMAD {ps['nmad_m']:.3f} m "
+                 f"({ps['n_cells']} cells)", fontsize=9)
+    ax2.scatter(p.scan_angle_a_deg, p.dz_m, s=2, color="0.6", alpha=0.5, rasterized=True)
+    bins = ps["vs_scan_angle_a"]["bins"]
+    ax2.errorbar([b["scan_angle_deg"] for b in bins], [b["mean_m"] for b in bins],
+                 yerr=[b["nmad_m"] for b in bins], fmt="o-", color="C3", ms=4, label="bin mean +- NMAD")
+    fit = ps["vs_scan_angle_a"]["fit"]
+    if fit:
+        ax2.set_title(f"relative roll {fit['relative_roll_deg'] * 1000:+.1f} mdeg "
+                      f"({fit['slope_m_per_scan_deg'] * 1000:+.2f} mm per scan degree)", fontsize=9)
+    ax2.axhline(0, color="k", lw=0.6)
+    ax2.set_ylim(-1.5 * vmax, 1.5 * vmax)
+    ax2.set_xlabel(f"scan angle of {p.a} [deg]")
+    ax2.set_ylabel("dz [m]")
+    ax2.legend(fontsize=8, loc="upper right")
+    fig.suptitle(title, fontsize=10)
+    fig.tight_layout()
+    fig.savefig(path, dpi=100)
+    plt.close(fig)
+
+
+def _overview_png(path, res: CheckResult, vmax: float, title: str) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    ss = res.strip_set
+    g = ss.grid
+    fig, ax = plt.subplots(figsize=(9, 8))
+    for k, s in enumerate(ss.strips):
+        xc, yc = g.centres(s.ids)
+        ax.scatter(xc, yc, s=1, color=f"C{k % 10}", alpha=0.15, label=f"{s.name} planar cells", rasterized=True)
+    im = None
+    for p in res.pairs:
+        xc, yc = g.centres(p.ids)
+        im = ax.scatter(xc, yc, c=p.dz_m, s=4, marker="s", cmap="RdBu_r", vmin=-vmax, vmax=vmax, rasterized=True)
+    ax.set_aspect("equal")
+    ax.ticklabel_format(useOffset=False, style="plain")
+    ax.tick_params(labelsize=7)
+    if im is not None:
+        fig.colorbar(im, ax=ax, shrink=0.8).set_label("dz of each pair (z_b - z_a) [m]")
+    ax.legend(fontsize=7, markerscale=8, loc="upper right")
+    ax.set_title(f"{title}: all pairs, RMS {res.summary['all_pairs']['rms_m']:.3f} m", fontsize=10)
+    fig.tight_layout()
+    fig.savefig(path, dpi=100)
+    plt.close(fig)
+
+
+_TEMPLATE = """<!doctype html>
+<html><head><meta charset="utf-8"><title>{{ title }}</title>
+<style>body{font-family:sans-serif;margin:2em} table{border-collapse:collapse} td,th{border:1px solid #aaa;
+padding:3px 8px;text-align:right} th{background:#eee} img{max-width:100%}</style></head><body>
+<h1>{{ title }}</h1>
+<p>{{ s.points }} points, {{ s.strips|length }} strips, cells of {{ s.cell_m }} m; CRS {{ s.crs }};
+{{ s.convention }}. All pairs: RMS {{ "%.3f"|format(s.all_pairs.rms_m) }} m, NMAD
+{{ "%.3f"|format(s.all_pairs.nmad_m) }} m over {{ s.all_pairs.n_cells }} cells.</p>
+<h2>Pairs</h2>
+<table><tr><th>a</th><th>b</th><th>cells</th><th>mean [m]</th><th>RMS [m]</th><th>NMAD [m]</th>
+<th>relative roll [mdeg]</th><th>torsion [1/km]</th><th>3D offset b - a (dx, dy, dz +- sigma) [m]</th></tr>
+{% for p in s.pairs %}<tr><td>{{ p.a }}</td><td>{{ p.b }}</td><td>{{ p.n_cells }}</td>
+<td>{{ "%+.3f"|format(p.mean_m) }}</td><td>{{ "%.3f"|format(p.rms_m) }}</td><td>{{ "%.3f"|format(p.nmad_m) }}</td>
+<td>{% if p.vs_scan_angle_a.fit %}{{ "%+.1f"|format(p.vs_scan_angle_a.fit.relative_roll_deg * 1000) }}{% endif %}</td>
+<td>{% if p.vs_scan_angle_a.fit %}{{ "%+.3f"|format(p.vs_scan_angle_a.fit.curvature_per_m * 1000) }}{% endif %}</td>
+<td>{% set o = p.offset_3d_b_minus_a %}{% if o %}{{ "%+.3f"|format(o.dx_m) }} +- {{ "%.3f"|format(o.sigma_dx_m) }},
+{{ "%+.3f"|format(o.dy_m) }} +- {{ "%.3f"|format(o.sigma_dy_m) }}, {{ "%+.3f"|format(o.dz_m) }} +- {{ "%.3f"|format(o.sigma_dz_m) }}
+({{ o.cells }} cells, {{ o.sloped_cells }} sloped){% endif %}</td></tr>
+{% endfor %}</table>
+{% if s.skipped_pairs %}<p>Left out: {% for k, v in s.skipped_pairs.items() %}{{ k }} ({{ v }}); {% endfor %}</p>{% endif %}
+<h2>Strips (this strip minus the others)</h2>
+<table><tr><th>strip</th><th>points</th><th>planar cells</th><th>pairs</th><th>mean [m]</th><th>RMS [m]</th>
+<th>NMAD [m]</th></tr>
+{% for t in s.strips %}<tr><td>{{ t.name }}</td><td>{{ t.points }}</td><td>{{ t.planar_cells }}</td><td>{{ t.pairs }}</td>
+<td>{% if t.minus_others.n_cells %}{{ "%+.3f"|format(t.minus_others.mean_m) }}{% endif %}</td>
+<td>{% if t.minus_others.n_cells %}{{ "%.3f"|format(t.minus_others.rms_m) }}{% endif %}</td>
+<td>{% if t.minus_others.n_cells %}{{ "%.3f"|format(t.minus_others.nmad_m) }}{% endif %}</td></tr>
+{% endfor %}</table>
+{% if s.overview_png %}<h2>Overview</h2><img src="{{ s.overview_png }}">{% endif %}
+<h2>Maps</h2>
+{% for p in s.pairs %}<h3>{{ p.b }} - {{ p.a }}</h3><p>raster: <a href="{{ p.raster }}">{{ p.raster }}</a></p>
+{% if p.png %}<img src="{{ p.png }}">{% endif %}{% endfor %}
+</body></html>
+"""
+
+
+def _html(path: Path, summary: dict, title: str) -> None:
+    import jinja2
+
+    env = jinja2.Environment(autoescape=True)
+    path.write_text(env.from_string(_TEMPLATE).render(s=summary, title=title))

@@ -1,0 +1,416 @@
+"""Strips as per-cell planes of smooth single-return surfaces, and the height differences of overlapping strips.
+
+Strips: several files are one strip each (named by the file's stem); a single file is split by its
+``point_source_id`` (named ``psid<id>``). Every strip is read chunk by chunk (memory is set by the
+occupied cells, not by the points).
+
+Cells: a grid of ``cell_m`` metres aligned to multiples of ``cell_m`` in the strips' CRS (the same cell
+ids in every strip). In a cell, a plane z = c + a dx + b dy is fitted by least squares to the strip's
+single returns (dx, dy from the cell centre; noise classes 7 and 18 and vegetation classes 3-5 left
+out). A cell is *planar* when it holds at least ``min_points`` such returns spread over the cell, the
+RMS residual is at most ``max_rms_m``, at most ``max_multi_fraction`` of its returns come from
+multi-return pulses (vegetation, edges of roofs), at least two of its four neighbours are planar and
+meet it (their planes, extended to this cell's centre, within ``edge_tol_m`` of its own there) and none
+is planar but misses it (so cells on roof edges, ridges and steps drop out; a cell across a ridge fails
+the RMS test and does not count as a neighbour). Heights are compared at the cell centre, from each strip's plane.
+
+Conventions: x, y, z in metres (clouds in feet are scaled when read); a pair (A, B) is ordered as the
+strips are given and its difference is dz = z_B - z_A. Scan angles in degrees, positive to the right of
+the flight direction (LAS); the across-track position ``u_m`` is positive to the right as well, from the
+strip's centre line (its principal axis, oriented by GPS time).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import logging
+from pathlib import Path
+
+import numpy as np
+import pyproj
+
+from aerotri.core.errors import InputError
+from aerotri.core.settings import setting
+from aerotri.geom import las
+from lidarctl import io
+from lidarctl.units import LengthUnits
+
+log = logging.getLogger(__name__)
+log.addHandler(logging.NullHandler())
+
+NOISE_CLASSES = (7, 18)
+VEGETATION_CLASSES = (3, 4, 5)
+# per-point sums accumulated per cell: count, dx, dy, dz, dx2, dxdy, dy2, dxdz, dydz, dz2, scan angle, time
+_N_SUMS = 12
+
+
+@dataclasses.dataclass(frozen=True)
+class SurfaceParams:
+    """What counts as a smooth surface (``lidarctl strips check``/``adjust`` options; lengths in metres)."""
+
+    cell_m: float | None = setting(None, min=0.0, min_open=True,
+                                   help="Cell size (m) of the planes and difference rasters (default: about 12 "
+                                        "single returns per cell at the strips' density, at least 1 m).")
+    min_points: int = setting(6, min=4, help="Single returns a cell needs for its plane.")
+    max_rms_m: float = setting(0.10, min=0.0, min_open=True, help="Largest RMS residual of a planar cell (m).")
+    max_multi_fraction: float = setting(0.3, min=0.0, max=1.0,
+                                        help="Largest share of returns of multi-return pulses in a planar cell.")
+    edge_tol_m: float = setting(0.15, min=0.0, min_open=True,
+                                help="Largest step between neighbouring cell planes at a cell centre (m).")
+    max_slope_deg: float = setting(20.0, min=0.0, max=89.0,
+                                   help="Steepest surface the height differences use (deg): on slopes a "
+                                        "horizontal offset shows as a height difference.")
+
+
+@dataclasses.dataclass(frozen=True)
+class StripSource:
+    name: str
+    path: Path
+    point_source_id: int | None  # None: the whole file
+
+
+@dataclasses.dataclass
+class CellPlanes:
+    """The planar cells of one strip (sorted by cell id); coordinates in metres."""
+
+    source: StripSource
+    n_points: int  # points of the strip (all returns)
+    ids: np.ndarray  # (m,) global cell ids
+    n: np.ndarray  # single returns in the plane
+    centroid: np.ndarray  # (m, 3) mean of those returns
+    grad: np.ndarray  # (m, 2) dz/dx, dz/dy
+    z_centre: np.ndarray  # plane height at the cell centre
+    rms_m: np.ndarray
+    scan_angle_deg: np.ndarray  # mean scan angle of the cell's returns
+    u_m: np.ndarray  # across-track position of the centroid, positive right of the flight direction
+    extra: np.ndarray | None = None  # (m, k) per-cell means of caller-defined per-point quantities
+    occupied: np.ndarray | None = None  # ids of every cell holding points of the strip
+    axis: np.ndarray | None = None  # unit flight direction (x, y)
+    centre: np.ndarray | None = None  # (x, y, z) mean of the strip's planar cells
+
+    @property
+    def name(self) -> str:
+        return self.source.name
+
+    @property
+    def slope_deg(self) -> np.ndarray:
+        return np.degrees(np.arctan(np.hypot(self.grad[:, 0], self.grad[:, 1])))
+
+    def normals(self) -> np.ndarray:
+        n = np.column_stack([-self.grad[:, 0], -self.grad[:, 1], np.ones(len(self.ids))])
+        return n / np.linalg.norm(n, axis=1, keepdims=True)
+
+
+@dataclasses.dataclass
+class Grid:
+    """Global cell grid: cell (i, j) covers x0 + j cell_m .. and y0 + i cell_m .. (metres); id = i ncols + j."""
+
+    cell_m: float
+    x0: float
+    y0: float
+    nrows: int
+    ncols: int
+
+    def centres(self, ids: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        i, j = np.divmod(ids, self.ncols)
+        return self.x0 + (j + 0.5) * self.cell_m, self.y0 + (i + 0.5) * self.cell_m
+
+
+@dataclasses.dataclass
+class StripSet:
+    strips: list[CellPlanes]
+    grid: Grid
+    crs: pyproj.CRS | None
+    units: LengthUnits
+    n_points: int
+
+
+@dataclasses.dataclass
+class PairDiff:
+    """Height differences dz = z_B - z_A of two strips on their common smooth cells."""
+
+    a: str
+    b: str
+    ids: np.ndarray  # common cell ids
+    dz_m: np.ndarray
+    scan_angle_a_deg: np.ndarray
+    scan_angle_b_deg: np.ndarray
+    u_a_m: np.ndarray
+    u_b_m: np.ndarray
+    common_cells: int  # cells both strips hold planes in (any slope)
+
+
+def strip_sources(paths) -> list[StripSource]:
+    """Several files: one strip each; one file: a strip per ``point_source_id`` (read from the file)."""
+    paths = [Path(p) for p in paths]
+    if len(paths) > 1:
+        names = [p.stem for p in paths]
+        if len(set(names)) < len(names):
+            names = [f"{i + 1}_{p.stem}" for i, p in enumerate(paths)]
+        return [StripSource(n, p, None) for n, p in zip(names, paths)]
+    path = paths[0]
+    ids = set()
+    for _, chunk in las.iter_file_chunks(path, io.CHUNK_POINTS):
+        ids.update(np.unique(np.asarray(chunk.point_source_id)).tolist())
+    if len(ids) < 2:
+        raise InputError(f"{path}: one strip only (point_source_id {sorted(ids)}); strip differences need at least "
+                         "two overlapping strips: give several files, or one file whose strips differ in "
+                         "point_source_id")
+    return [StripSource(f"psid{i}", path, int(i)) for i in sorted(ids)]
+
+
+def scan_angle_deg(chunk) -> np.ndarray:
+    """Scan angle in degrees: LAS 1.4 formats 6-10 store 0.006 degree steps, older ones whole degrees."""
+    if chunk.point_format.id >= 6:
+        return np.asarray(chunk.scan_angle, float) * 0.006
+    return np.asarray(chunk.scan_angle_rank, float)
+
+
+def _check_crs(sources, crs_arg):
+    """(crs, units) shared by every file; InputError naming the first file that differs."""
+    first = None
+    for path in dict.fromkeys(s.path for s in sources):
+        crs, units = io.resolve_crs_units(path, las.read_header(path), crs_arg)
+        if first is None:
+            first = (path, crs, units)
+        else:
+            io.require_same_crs(path, crs, units, first)
+    return first[1], first[2]
+
+
+def _default_cell_m(sources, units: LengthUnits) -> float:
+    """About 12 points per cell at the density of the files' header boxes (the boxes overestimate the
+    area of a strip that is not axis-aligned: the cell comes out a bit large, never too small; a file of
+    several strips counts the points of its overlaps twice: a bit small there)."""
+    dens = []
+    for path in dict.fromkeys(s.path for s in sources):
+        h = las.read_header(path)
+        mins, maxs = np.asarray(h.mins, float), np.asarray(h.maxs, float)
+        area = max((maxs[0] - mins[0]) * (maxs[1] - mins[1]) * units.xy_m ** 2, 1e-6)
+        dens.append(h.point_count / area)
+    cell = np.sqrt(12.0 / max(min(dens), 1e-9))
+    return float(max(1.0, np.ceil(cell * 2.0) / 2.0))
+
+
+def _grid(sources, units: LengthUnits, cell_m: float) -> Grid:
+    mins = np.min([np.asarray(las.read_header(s.path).mins, float) for s in sources], axis=0) * units.xy_m
+    maxs = np.max([np.asarray(las.read_header(s.path).maxs, float) for s in sources], axis=0) * units.xy_m
+    x0, y0 = np.floor(mins[0] / cell_m) * cell_m - cell_m, np.floor(mins[1] / cell_m) * cell_m - cell_m
+    ncols = int(np.ceil((maxs[0] - x0) / cell_m)) + 2
+    nrows = int(np.ceil((maxs[1] - y0) / cell_m)) + 2
+    return Grid(cell_m, float(x0), float(y0), nrows, ncols)
+
+
+class _Accumulator:
+    """Sparse per-cell sums of one strip, chunk by chunk (reduced once at the end)."""
+
+    def __init__(self, k_extra: int):
+        self.parts: list[tuple[np.ndarray, np.ndarray]] = []
+        self.all_parts: list[tuple[np.ndarray, np.ndarray]] = []
+        self.k = _N_SUMS + k_extra
+        self.n_points = 0
+
+    def add(self, cell, q, cell_all, multi):
+        if len(cell):
+            u, inv = np.unique(cell, return_inverse=True)
+            sums = np.stack([np.bincount(inv, q[:, k], minlength=len(u)) for k in range(q.shape[1])], axis=1)
+            self.parts.append((u, sums))
+        if len(cell_all):
+            u, inv = np.unique(cell_all, return_inverse=True)
+            self.all_parts.append((u, np.stack([np.bincount(inv, minlength=len(u)),
+                                                np.bincount(inv, multi, minlength=len(u))], axis=1).astype(float)))
+
+    @staticmethod
+    def _reduce(parts, k):
+        if not parts:
+            return np.zeros(0, np.int64), np.zeros((0, k))
+        ids = np.concatenate([p[0] for p in parts])
+        s = np.concatenate([p[1] for p in parts])
+        u, inv = np.unique(ids, return_inverse=True)
+        out = np.zeros((len(u), s.shape[1]))
+        np.add.at(out, inv, s)
+        return u, out
+
+    def reduce(self):
+        return self._reduce(self.parts, self.k), self._reduce(self.all_parts, 2)
+
+
+def read_strips(paths, params: SurfaceParams = SurfaceParams(), crs=None, extra=None) -> StripSet:
+    """Planar cells of every strip of ``paths`` (see the module docstring).
+
+    ``extra(source, chunk, x_m, y_m, z_m) -> (n, k)`` adds caller-defined per-point quantities whose
+    per-cell means end up in ``CellPlanes.extra`` (the adjustment's sensor-model derivatives)."""
+    paths = [Path(p) for p in paths]
+    for p in paths:
+        las.read_header(p)  # a missing or broken file stops here, naming it
+    sources = strip_sources(paths)
+    crs_out, units = _check_crs(sources, crs)
+    cell_m = params.cell_m or _default_cell_m(sources, units)
+    grid = _grid(sources, units, cell_m)
+    k_extra = 0
+    accs = {s.name: None for s in sources}
+    by_path: dict[Path, list[StripSource]] = {}
+    for s in sources:
+        by_path.setdefault(s.path, []).append(s)
+    z_ref = None
+    total = 0
+    for path, group in by_path.items():
+        for first, chunk in las.iter_file_chunks(path, io.CHUNK_POINTS):
+            cx, cy, cz = np.asarray(chunk.x), np.asarray(chunk.y), np.asarray(chunk.z)
+            io.validate_xyz(path, cx, cy, cz, first, units)
+            x, y, z = units.xy_to_m(cx), units.xy_to_m(cy), units.z_to_m(cz)
+            if z_ref is None:
+                z_ref = float(np.floor(np.median(z)))
+            cls = np.asarray(chunk.classification)
+            rn, nr = io.sanitize_returns(np.asarray(chunk.return_number), np.asarray(chunk.number_of_returns))
+            psid = np.asarray(chunk.point_source_id)
+            ang = scan_angle_deg(chunk)
+            t = np.asarray(chunk.gps_time, float) if "gps_time" in chunk.point_format.dimension_names else np.zeros(len(x))
+            j = np.floor((x - grid.x0) / cell_m).astype(np.int64)
+            i = np.floor((y - grid.y0) / cell_m).astype(np.int64)
+            cell = i * grid.ncols + j
+            dx = x - (grid.x0 + (j + 0.5) * cell_m)
+            dy = y - (grid.y0 + (i + 0.5) * cell_m)
+            dz = z - z_ref
+            ok = ~np.isin(cls, NOISE_CLASSES)
+            multi = (nr > 1) | np.isin(cls, VEGETATION_CLASSES)
+            single = ok & ~multi
+            ex = None
+            for s in group:
+                sel = ok if s.point_source_id is None else ok & (psid == s.point_source_id)
+                if not sel.any():
+                    continue
+                if extra is not None:
+                    ex = np.asarray(extra(s, chunk, x, y, z, sel & single))
+                    k_extra = ex.shape[1]
+                if accs[s.name] is None:
+                    accs[s.name] = _Accumulator(k_extra)
+                acc = accs[s.name]
+                use = sel & single
+                w = np.flatnonzero(use)
+                q = np.column_stack([np.ones(len(w)), dx[w], dy[w], dz[w], dx[w] ** 2, dx[w] * dy[w], dy[w] ** 2,
+                                     dx[w] * dz[w], dy[w] * dz[w], dz[w] ** 2, ang[w], t[w]]
+                                    + ([ex[w]] if ex is not None else []))
+                acc.add(cell[w], q, cell[sel], multi[sel].astype(float))
+                acc.n_points += int(sel.sum())
+                total += int(sel.sum())
+    strips = []
+    for s in sources:
+        acc = accs[s.name]
+        if acc is None:
+            raise InputError(f"{s.path}: strip {s.name} holds no points (other than noise)")
+        strips.append(_planes(s, acc, grid, params, z_ref))
+    log.debug("read %d strips, %d points, cell %g m", len(strips), total, cell_m)
+    return StripSet(strips, grid, crs_out, units, total)
+
+
+def _planes(source: StripSource, acc: _Accumulator, grid: Grid, params: SurfaceParams, z_ref: float) -> CellPlanes:
+    (ids, S), (ids_all, A) = acc.reduce()
+    n = S[:, 0]
+    with np.errstate(invalid="ignore", divide="ignore"):
+        m = S[:, 1:4] / n[:, None]
+        mx, my, mz = m[:, 0], m[:, 1], m[:, 2]
+        sxx = S[:, 4] / n - mx * mx
+        sxy = S[:, 5] / n - mx * my
+        syy = S[:, 6] / n - my * my
+        sxz = S[:, 7] / n - mx * mz
+        syz = S[:, 8] / n - my * mz
+        szz = S[:, 9] / n - mz * mz
+        det = sxx * syy - sxy * sxy
+        a = (sxz * syy - syz * sxy) / det
+        b = (syz * sxx - sxz * sxy) / det
+        var = np.maximum(szz - a * sxz - b * syz, 0.0) * n / np.maximum(n - 3, 1)
+        c = mz - a * mx - b * my
+    rms = np.sqrt(var)
+    # the share of multi-return (vegetation) returns among all of the cell's returns
+    k = np.searchsorted(ids_all, ids)
+    multi_frac = A[k, 1] / np.maximum(A[k, 0], 1)
+    spread = (grid.cell_m ** 2 / 12.0) ** 2  # det of points spread evenly over the cell
+    planar = (n >= params.min_points) & np.isfinite(rms) & (det > 0.02 * spread) & (rms <= params.max_rms_m) & \
+        (multi_frac <= params.max_multi_fraction)
+    ids, n, S, a, b, c, rms, m = ids[planar], n[planar], S[planar], a[planar], b[planar], c[planar], rms[planar], m[planar]
+    # edges, ridges and steps: no planar 4-neighbour whose plane misses this cell's plane at its centre by more
+    # than edge_tol_m (a step, a roof's eave over the ground), and at least two that meet it (not an isolated
+    # cell); neighbours that are not planar (a cell across a ridge or an eave) do not count either way, so
+    # that the cells of a roof face next to its ridge stay
+    h = grid.cell_m
+    n_continuous = np.zeros(len(ids), int)
+    broken = np.zeros(len(ids), bool)
+    for d_id, ddx, ddy in ((1, 1, 0), (-1, -1, 0), (grid.ncols, 0, 1), (-grid.ncols, 0, -1)):
+        if len(ids) == 0:
+            break
+        k = np.minimum(np.searchsorted(ids, ids + d_id), len(ids) - 1)
+        found = ids[k] == ids + d_id
+        # the neighbour's plane at this cell's centre (dx = -ddx h, dy = -ddy h from its own centre)
+        zn = c[k] - a[k] * ddx * h - b[k] * ddy * h
+        close = np.abs(zn - c) <= params.edge_tol_m
+        n_continuous += found & close
+        broken |= found & ~close
+    keep = (n_continuous >= 2) & ~broken
+    ids, n, S, a, b, c, rms, m = ids[keep], n[keep], S[keep], a[keep], b[keep], c[keep], rms[keep], m[keep]
+    xc, yc = grid.centres(ids)
+    centroid = np.column_stack([xc + m[:, 0], yc + m[:, 1], z_ref + m[:, 2]])
+    ang = S[:, 10] / n
+    t = S[:, 11] / n
+    extra = S[:, _N_SUMS:] / n[:, None] if S.shape[1] > _N_SUMS else None
+    axis, centre, u = _across_track(centroid, n, t)
+    return CellPlanes(source, acc.n_points, ids, n, centroid, np.column_stack([a, b]), z_ref + c, rms, ang, u,
+                      extra, ids_all, axis, centre)
+
+
+def _across_track(centroid, w, t):
+    """Flight direction (principal axis of the planar cells, oriented by GPS time), the strip's centre and
+    the signed across-track position (positive to the right of the flight direction)."""
+    if len(centroid) < 2:
+        return np.array([1.0, 0.0]), centroid.mean(axis=0) if len(centroid) else np.zeros(3), np.zeros(len(centroid))
+    c = np.average(centroid, axis=0, weights=w)
+    d = centroid[:, :2] - c[:2]
+    cov = (d * w[:, None]).T @ d
+    evals, evecs = np.linalg.eigh(cov)
+    e = evecs[:, 1]
+    along = d @ e
+    if np.ptp(t) > 0 and np.cov(along, t)[0, 1] < 0:
+        e = -e
+    right = np.array([e[1], -e[0]])
+    return e, c, d @ right
+
+
+def pair_diffs(ss: StripSet, params: SurfaceParams, min_cells: int = 20):
+    """(differences of every pair with at least ``min_cells`` common smooth cells of slope at most
+    ``max_slope_deg``, {pair: reason} of the pairs left out, number of pairs that overlap at all)."""
+    out, skipped, n_overlap = [], {}, 0
+    strips = ss.strips
+    for ia in range(len(strips)):
+        for ib in range(ia + 1, len(strips)):
+            A, B = strips[ia], strips[ib]
+            if len(np.intersect1d(A.occupied, B.occupied, assume_unique=True)) == 0:
+                continue
+            n_overlap += 1
+            common, ka, kb = np.intersect1d(A.ids, B.ids, assume_unique=True, return_indices=True)
+            flat = (A.slope_deg[ka] <= params.max_slope_deg) & (B.slope_deg[kb] <= params.max_slope_deg)
+            ka, kb = ka[flat], kb[flat]
+            if len(ka) < min_cells:
+                skipped[f"{A.name}-{B.name}"] = (f"{len(ka)} common smooth cells (slope <= {params.max_slope_deg:g} "
+                                                 f"deg), fewer than {min_cells}")
+                continue
+            out.append(PairDiff(A.name, B.name, A.ids[ka], B.z_centre[kb] - A.z_centre[ka], A.scan_angle_deg[ka],
+                                B.scan_angle_deg[kb], A.u_m[ka], B.u_m[kb], len(common)))
+    return out, skipped, n_overlap
+
+
+def overlapping_pairs_or_error(ss: StripSet, params: SurfaceParams, paths, min_cells: int = 20):
+    """``pair_diffs`` with the InputErrors a check needs: fewer than two strips, no two strips overlapping,
+    no smooth surface in any overlap."""
+    names = ", ".join(str(p) for p in dict.fromkeys(str(p) for p in paths))
+    if len(ss.strips) < 2:
+        raise InputError(f"{names}: one strip only; strip differences need at least two overlapping strips")
+    pairs, skipped, n_overlap = pair_diffs(ss, params, min_cells)
+    if n_overlap == 0:
+        raise InputError(f"{names}: no two strips overlap (no cell of {ss.grid.cell_m:g} m holds points of two "
+                         "strips); give overlapping strips")
+    if not pairs:
+        raise InputError(f"{names}: the overlaps hold no smooth single-return surface (planar cells with at least "
+                         f"{params.min_points} single returns, RMS <= {params.max_rms_m:g} m, slope <= "
+                         f"{params.max_slope_deg:g} deg, >= {min_cells} cells per pair); "
+                         + "; ".join(f"{k}: {v}" for k, v in skipped.items()))
+    return pairs, skipped

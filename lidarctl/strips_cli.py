@@ -1,0 +1,87 @@
+"""``lidarctl strips``: strip-to-strip differences (``check``) and strip adjustment (``adjust``)."""
+
+from __future__ import annotations
+
+import functools
+from pathlib import Path
+
+import click
+
+from aerotri.core.commands import Group
+from aerotri.core.settings import click_option, click_type, default_of
+from lidarctl.strips.adjust import AdjustSettings
+from lidarctl.strips.overlap import SurfaceParams
+
+
+def surface_options(f):
+    """The options of ``SurfaceParams`` (what counts as a smooth surface), in metres and degrees."""
+    for name, decl in reversed([("cell_m", "--cell-m"), ("min_points", "--min-points"), ("max_rms_m", "--max-rms-m"),
+                                ("max_multi_fraction", "--max-multi-fraction"), ("edge_tol_m", "--edge-tol-m"),
+                                ("max_slope_deg", "--max-slope-deg")]):
+        f = click_option(SurfaceParams, name, decl)(f)
+    return f
+
+
+def _params(kw: dict) -> SurfaceParams:
+    return SurfaceParams(**{k: kw.pop(k) for k in [f for f in SurfaceParams.__dataclass_fields__]})
+
+
+@click.group(cls=Group, name="strips")
+def strips():
+    """Strip-to-strip height differences in the overlaps, and strip adjustment."""
+
+
+@strips.command()
+@click.argument("strip_paths", metavar="STRIP...", nargs=-1, required=True, type=click.Path(dir_okay=False, path_type=Path))
+@click.argument("outdir", type=click.Path(file_okay=False, path_type=Path))
+@surface_options
+@click.option("--crs", default=None, help="CRS (EPSG:code) of files that have none; never guessed.")
+@click.option("--png/--no-png", default=True, show_default=True, help="Colour maps (PNG) of the differences.")
+def check(strip_paths, outdir, crs, png, **kw):
+    """Height differences of overlapping strips on smooth single-return surfaces into OUTDIR.
+
+    STRIP...: several LAS/LAZ files (one strip each) or one file whose strips differ in point_source_id.
+    Per pair: dz = z(b) - z(a) on common planar cells (mean, RMS, NMAD; binned by scan angle, with the
+    relative roll fitted across the track), diff_<a>_<b>.tif (COG) and .png; per strip the same
+    statistics; strips.json and index.html. Lengths in metres, also for clouds in feet.
+    """
+    from lidarctl.strips.check import check_strips
+
+    s = check_strips(strip_paths, outdir, _params(kw), crs=crs, png=png)
+    for p in s["pairs"]:
+        click.echo(f"{p['b']} - {p['a']}: {p['n_cells']} cells, mean {p['mean_m']:+.3f} m, RMS {p['rms_m']:.3f} m, "
+                   f"NMAD {p['nmad_m']:.3f} m")
+    a = s["all_pairs"]
+    click.echo(f"{outdir}: {len(s['pairs'])} pairs of {len(s['strips'])} strips, RMS {a['rms_m']:.3f} m, "
+               f"NMAD {a['nmad_m']:.3f} m ({s['points']:,} points, {s['points_per_s']:,.0f} points/s)")
+
+
+@strips.command()
+@click.argument("strip_paths", metavar="STRIP...", nargs=-1, required=True, type=click.Path(dir_okay=False, path_type=Path))
+@click.argument("outdir", type=click.Path(file_okay=False, path_type=Path))
+@click.option("--trajectory", "trajectories", multiple=True, type=click.Path(dir_okay=False, path_type=Path),
+              help="Trajectory text file(s) (time_s x y z roll_deg pitch_deg heading_deg; repeatable) covering every "
+                   "strip's GPS times: estimates the boresight angles and range offset shared by all strips and a "
+                   "shift per strip. Without: a shift and roll/pitch/heading per strip, one strip fixed.")
+@click.option("--fixed", default=None, help="Strip held fixed without a trajectory (a strip name as check names it).")
+@click.option("--adjust-max-slope-deg", "adjust_max_slope_deg", type=click_type(AdjustSettings, "max_slope_deg"),
+              default=default_of(AdjustSettings, "max_slope_deg"), show_default=True,
+              help="Steepest planar cells the adjustment uses (deg; sloped roofs carry the horizontal information).")
+@click_option(AdjustSettings, "shift_sigma_m", "--shift-sigma-m")
+@surface_options
+@click.option("--crs", default=None, help="CRS (EPSG:code) of files that have none; never guessed.")
+@click.option("--png/--no-png", default=True, show_default=True, help="Colour maps (PNG) of the differences.")
+def adjust(strip_paths, outdir, trajectories, fixed, adjust_max_slope_deg, shift_sigma_m, crs, png, **kw):
+    """Strip adjustment on plane correspondences in the overlaps; corrected strips (only X, Y, Z change) with
+    adjust.json (parameters, sigmas, correlations) and the check before and after (check_before/,
+    check_after/) into OUTDIR."""
+    from lidarctl.strips.adjust import adjust_strips
+
+    settings = AdjustSettings(max_slope_deg=adjust_max_slope_deg, fixed=fixed, shift_sigma_m=shift_sigma_m)
+    s = adjust_strips(strip_paths, outdir, settings, _params(kw), trajectories=trajectories, crs=crs, png=png)
+    for name, p in s["parameters"].items():
+        click.echo(f"{name:32s} {p['value']:+10.4f} +- {p['sigma']:.4f}")
+    b, a = s["check_before"], s["check_after"]
+    click.echo(f"{outdir}: {s['model']} model, {s['observations']} plane observations, sigma0 {s['sigma0']:.2f}; "
+               f"strip differences RMS {b['rms_m']:.3f} -> {a['rms_m']:.3f} m, NMAD {b['nmad_m']:.3f} -> "
+               f"{a['nmad_m']:.3f} m ({s['points']:,} points, {s['points_per_s']:,.0f} points/s)")

@@ -1,0 +1,98 @@
+"""lidarctl strips adjust: recovery of known strip errors, corrected strips that keep every other field, bad input."""
+
+from __future__ import annotations
+
+import json
+
+import laspy
+import numpy as np
+import pytest
+from click.testing import CliRunner
+
+from lidarctl.cli import main
+
+
+def _adjust(paths, out, *args):
+    return CliRunner().invoke(main, ["strips", "adjust", *map(str, paths), str(out), *args])
+
+
+SHIFTS = np.array([[0.0, 0.0, 0.0], [0.05, -0.08, 0.15], [-0.06, 0.04, -0.05]])
+
+
+@pytest.fixture(scope="module")
+def shift_only_block(make_strips):
+    return make_strips("strips_shift_only", SHIFTS, extras=True)
+
+
+@pytest.fixture(scope="module")
+def strip_adjusted(shift_only_block, tmp_path_factory):
+    out = tmp_path_factory.mktemp("adj") / "out"
+    r = _adjust(shift_only_block.paths, out, "--fixed", "strip_1")
+    assert r.exit_code == 0, r.output
+    return out, json.loads((out / "adjust.json").read_text())
+
+
+def test_strip_model_brings_the_differences_to_the_noise_level(strip_adjusted, clean_block, tmp_path):
+    out, s = strip_adjusted
+    assert s["check_before"]["rms_m"] > 0.1
+    r = CliRunner().invoke(main, ["strips", "check", *map(str, clean_block.paths), str(tmp_path / "clean")])
+    clean = json.loads((tmp_path / "clean" / "strips.json").read_text())["all_pairs"]
+    # the error-free strips show what the range noise alone leaves
+    assert s["check_after"]["rms_m"] <= 1.2 * clean["rms_m"]
+    p = s["parameters"]
+    # strip 2 was shifted 0.15 m up against strip 1 (fixed), strip 3 0.05 m down; no rotation
+    for name, truth in (("strip_2.shift_z_m", 0.15), ("strip_3.shift_z_m", -0.05), ("strip_2.roll_deg", 0.0),
+                        ("strip_3.roll_deg", 0.0), ("strip_2.heading_deg", 0.0)):
+        assert abs(p[name]["value"] - truth) < 3 * p[name]["sigma"] + 0.01, name
+    assert 0.7 < s["sigma0"] < 1.5
+    for name in ("check_before/strips.json", "check_after/strips.json", "check_after/index.html",
+                 "check_after/diff_strip_1_strip_2.tif"):
+        assert (out / name).is_file()
+
+
+def test_corrected_strips_keep_every_other_field_bit_for_bit(strip_adjusted, shift_only_block):
+    out, _ = strip_adjusted
+    for p in shift_only_block.paths:
+        a, b = laspy.read(p), laspy.read(out / p.name)
+        assert len(a.points) == len(b.points)
+        for name in a.point_format.dimension_names:
+            if name not in ("X", "Y", "Z"):
+                assert np.array_equal(a[name], b[name]), name
+        assert [bytes(v.record_data) for v in a.header.vlrs if v.user_id == "test_user"] == \
+            [bytes(v.record_data) for v in b.header.vlrs if v.user_id == "test_user"] == [b"\x01\x02\x03"]
+        assert [bytes(v.record_data) for v in b.header.evlrs] == [bytes(v.record_data) for v in a.header.evlrs]
+        assert np.array_equal(a.header.scales, b.header.scales) and np.array_equal(a.header.offsets, b.header.offsets)
+        assert b.header.parse_crs().to_epsg() == 32632
+    moved = np.asarray(laspy.read(out / "strip_2.las").z) - np.asarray(laspy.read(shift_only_block.paths[1]).z)
+    assert np.median(moved) == pytest.approx(-0.15, abs=0.03)  # strip 2 brought down to strip 1
+
+
+def test_trajectory_model_recovers_boresight_and_relative_shifts(shifted_block, tmp_path):
+    traj = [a for t in shifted_block.trajectories for a in ("--trajectory", str(t))]
+    r = _adjust(shifted_block.paths, tmp_path / "out", *traj, "--no-png")
+    assert r.exit_code == 0, r.output
+    s = json.loads((tmp_path / "out" / "adjust.json").read_text())
+    p = s["parameters"]
+    assert abs(p["boresight_roll_deg"]["value"] - 0.05) < 3 * p["boresight_roll_deg"]["sigma"]
+    assert p["boresight_roll_deg"]["sigma"] < 0.01
+    shifts = shifted_block.errors.shifts_m
+    for k in (2, 3):  # the common shift of all strips is held by the prior only: compare differences to strip 1
+        d = p[f"strip_{k}.shift_z_m"]["value"] - p["strip_1.shift_z_m"]["value"]
+        assert d == pytest.approx(shifts[k - 1, 2] - shifts[0, 2], abs=0.02)
+    assert s["check_after"]["rms_m"] < 0.015
+
+
+def test_trajectory_not_covering_a_strip_is_refused(shifted_block, tmp_path):
+    out = tmp_path / "out"
+    r = _adjust(shifted_block.paths, out, "--trajectory", str(shifted_block.trajectories[0]))
+    assert r.exit_code == 2 and "Traceback" not in r.output
+    assert "strip_2.las" in r.output and "not covered by any trajectory" in r.output
+    assert not out.exists()
+
+
+def test_malformed_trajectory_line_is_named(shifted_block, tmp_path):
+    bad = tmp_path / "bad.txt"
+    bad.write_text("# time_s x y z roll_deg pitch_deg heading_deg\n1 2 3 4 5 6 7\n2 3 4 5 six 7 8\n")
+    r = _adjust(shifted_block.paths, tmp_path / "out", "--trajectory", str(bad))
+    assert r.exit_code == 2 and "bad.txt: line 3" in r.output
+    assert not (tmp_path / "out").exists()

@@ -1,0 +1,112 @@
+"""lidarctl strips check: differences of synthetic strips with known shifts and roll; bad input through the CLI."""
+
+from __future__ import annotations
+
+import json
+
+import laspy
+import numpy as np
+import pytest
+import rasterio
+from click.testing import CliRunner
+
+from lidarctl.cli import main
+
+
+def _check(paths, out, *args):
+    return CliRunner().invoke(main, ["strips", "check", *map(str, paths), str(out), *args])
+
+
+def test_clean_strips_agree_at_the_noise_level(clean_block, tmp_path):
+    r = _check(clean_block.paths, tmp_path / "out")
+    assert r.exit_code == 0, r.output
+    s = json.loads((tmp_path / "out" / "strips.json").read_text())
+    assert len(s["pairs"]) == 2  # strips 1-3 do not overlap
+    for p in s["pairs"]:
+        assert p["n_cells"] >= 50
+        assert abs(p["mean_m"]) < 0.005
+        # two planes from ~13 returns of 2 cm noise each: about 1 cm
+        assert p["nmad_m"] < 0.015
+    for name in ("index.html", "overview.png", "diff_strip_1_strip_2.tif", "diff_strip_1_strip_2.png"):
+        assert (tmp_path / "out" / name).is_file()
+
+
+def test_shifted_strips_show_their_height_offsets_and_relative_roll(shifted_block, tmp_path):
+    r = _check(shifted_block.paths, tmp_path / "out")
+    assert r.exit_code == 0, r.output
+    s = json.loads((tmp_path / "out" / "strips.json").read_text())
+    dz_true = {("strip_1", "strip_2"): 0.15, ("strip_2", "strip_3"): -0.20}
+    for p in s["pairs"]:
+        # on surfaces up to 20 deg the horizontal shifts add a few cm at most: the median is the z offset
+        assert p["median_m"] == pytest.approx(dz_true[(p["a"], p["b"])], abs=0.02)
+        # a boresight roll of 0.05 deg tilts strips flown in opposite directions 0.1 deg against each other
+        assert p["vs_scan_angle_a"]["fit"]["relative_roll_deg"] == pytest.approx(-0.10, abs=0.03)
+        # the 3D offset from every shared plane (roofs up to 60 deg): dx is the shift difference (no heading or
+        # pitch error; the roll moves the strips across the track, in y)
+        o = p["offset_3d_b_minus_a"]
+        dx_true = {("strip_1", "strip_2"): 0.05, ("strip_2", "strip_3"): -0.11}[(p["a"], p["b"])]
+        assert o["sloped_cells"] >= 10 and o["sigma_dx_m"] < 0.05
+        assert abs(o["dx_m"] - dx_true) < 3 * o["sigma_dx_m"] + 0.01
+    strip2 = next(t for t in s["strips"] if t["name"] == "strip_2")
+    assert strip2["minus_others"]["median_m"] == pytest.approx(0.175, abs=0.03)  # strip 2 is high against both
+    with rasterio.open(tmp_path / "out" / "diff_strip_1_strip_2.tif") as ds:
+        a = ds.read(1, masked=True)
+        assert ds.crs.to_epsg() == 32632 and ds.res == (s["cell_m"], s["cell_m"])
+        assert a.count() == s["pairs"][0]["n_cells"]
+        assert float(np.ma.median(a)) == pytest.approx(s["pairs"][0]["median_m"], abs=1e-4)
+
+
+def test_one_file_split_by_point_source_id(shifted_block, tmp_path):
+    """The same strips merged into one file are told apart by point_source_id."""
+    las = [laspy.read(p) for p in shifted_block.paths]
+    merged = laspy.LasData(las[0].header)
+    merged.points = laspy.ScaleAwarePointRecord(np.concatenate([l.points.array for l in las]),
+                                                las[0].point_format, las[0].header.scales, las[0].header.offsets)
+    merged.write(tmp_path / "block.las")
+    r = _check([tmp_path / "block.las"], tmp_path / "out")
+    assert r.exit_code == 0, r.output
+    s = json.loads((tmp_path / "out" / "strips.json").read_text())
+    assert [t["name"] for t in s["strips"]] == ["psid101", "psid102", "psid103"]
+    assert s["pairs"][0]["median_m"] == pytest.approx(0.15, abs=0.02)
+
+
+def _assert_refused(r, out, *words):
+    assert r.exit_code == 2, r.output
+    assert "Traceback" not in r.output
+    for w in words:
+        assert w in r.output
+    assert not out.exists()
+
+
+def test_bad_input_one_strip(clean_block, tmp_path):
+    _assert_refused(_check(clean_block.paths[:1], tmp_path / "out"), tmp_path / "out", "one strip only")
+
+
+def test_bad_input_no_overlap(clean_block, tmp_path):
+    las = laspy.read(clean_block.paths[2])  # strip 3 without its edge that touches strip 1
+    las.points = las.points[np.asarray(las.y) > las.header.offsets[1] + 60.0]
+    las.write(tmp_path / "far.las")
+    out = tmp_path / "out"
+    _assert_refused(_check([clean_block.paths[0], tmp_path / "far.las"], out), out, "no two strips overlap")
+
+
+def test_bad_input_no_smooth_surface(clean_block, tmp_path):
+    """Every pulse a multi-return (a forest): nothing to compare."""
+    paths = []
+    for k, p in enumerate(clean_block.paths[:2]):
+        las = laspy.read(p)
+        las.number_of_returns = np.full(len(las.points), 2, np.uint8)
+        paths.append(tmp_path / f"veg_{k}.las")
+        las.write(paths[-1])
+    _assert_refused(_check(paths, tmp_path / "out"), tmp_path / "out", "hold no smooth single-return surface")
+
+
+def test_bad_input_mixed_crs(clean_block, tmp_path):
+    las = laspy.read(clean_block.paths[1])
+    las.header.vlrs = [v for v in las.header.vlrs if "Coordinate" not in type(v).__name__]
+    import pyproj
+    las.header.add_crs(pyproj.CRS.from_epsg(32633))
+    other = tmp_path / "other_crs.las"
+    las.write(other)
+    _assert_refused(_check([clean_block.paths[0], other], tmp_path / "out"), tmp_path / "out", "other_crs.las",
+                    "differs from the CRS")
