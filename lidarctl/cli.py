@@ -13,6 +13,7 @@ from aerotri.core.atomic import refuse_input_as_output
 from aerotri.core.commands import Group, positive, scheduler_options
 from aerotri.core.settings import click_option
 from lidarctl.classify import ClassifyParams
+from lidarctl.map_accuracy import MapEvalParams
 from lidarctl.rasters import DEFAULT_BUFFER_PX, DEFAULT_TILE_PX
 
 
@@ -140,19 +141,68 @@ def rasters(in_paths, outdir, res_m, crs, tile_px, buffer_px):
 
 @main.command()
 @click.argument("pred_path", type=click.Path(dir_okay=False))
-@click.option("--truth", "truth_path", type=click.Path(dir_okay=False), required=True)
+@click.option("--truth", "truth_path", type=click.Path(dir_okay=False), default=None,
+              help="Truth cloud with the same points in the same order (point-by-point filter test).")
+@click.option("--reference", "reference_path", type=click.Path(dir_okay=False), default=None,
+              help="Reference map: class GeoTIFF (ASPRS codes) or class polygons (.gpkg/.geojson); PRED is then a "
+                   "classified cloud or a class GeoTIFF, scored per cell and per building.")
 @click.option("--json", "json_path", type=click.Path(dir_okay=False), default=None, help="Write the numbers as JSON.")
-@click.option("--map-pred", default=None, help="Class mapping for the prediction, e.g. 3:1,4:1,5:1.")
-@click.option("--map-truth", default=None, help="Class mapping for the truth, e.g. 0:1.")
-def evaluate(pred_path, truth_path, json_path, map_pred, map_truth):
-    """Type I/II/total error and kappa (ground = classes 2, 9) and the confusion matrix."""
+@click.option("--map-pred", default=None, help="Class mapping for the prediction, e.g. 3:1,4:1,5:1 (TO 255: leave out).")
+@click.option("--map-truth", default=None, help="Class mapping for the truth or reference, e.g. 0:1.")
+@click.option("--res", "res_m", type=positive(), default=MapEvalParams.res_m, show_default=True,
+              help="--reference: cell size in metres when neither side is a raster.")
+@click.option("--class-field", default=MapEvalParams.class_field, show_default=True,
+              help="--reference polygons: the attribute holding the class (ASPRS code or name: building, tree, "
+                   "grass, road, bare ground, water).")
+@click.option("--reference-class", default=None,
+              help="--reference polygons: one class for every polygon (e.g. building for footprints).")
+@click.option("--min-overlap", type=click.FloatRange(0, 1, min_open=True), default=MapEvalParams.min_overlap,
+              show_default=True, help="--reference: share of a building's area that must overlap to count it as "
+                                      "found (reference) or correct (detected).")
+@click.option("--min-building-m2", type=click.FloatRange(min=0), default=MapEvalParams.min_building_m2,
+              show_default=True, help="--reference: buildings smaller than this (m2) are not counted per building.")
+@click.option("--within", default=None,
+              help="--reference: score only inside the polygons of this file, or 'hull': inside the convex hulls "
+                   "of the reference polygons' blocks (a reference that maps only part of the area).")
+@click.option("--crs", default=None, help="--reference: CRS (EPSG:code) of inputs that have none.")
+def evaluate(pred_path, truth_path, reference_path, json_path, map_pred, map_truth, res_m, class_field,
+             reference_class, min_overlap, min_building_m2, within, crs):
+    """Accuracy of the classification PRED_PATH.
+
+    --truth: a cloud against its truth cloud point by point: type I/II/total error and kappa (ground =
+    classes 2, 9) and the confusion matrix.
+
+    --reference: a classified cloud (the class of each cell's highest point, noise left out; medium
+    vegetation counts as tree) or a class raster against a reference map, as the seeds report it:
+    pixel confusion matrix over building, tree, grass, road, bare ground, water with producer's,
+    user's and overall accuracy and kappa; buildings per area (type I/II, overall) and per building
+    (completeness and correctness by count).
+    """
     import json
 
-    from lidarctl import evaluate as ev
     from aerotri.core.atomic import write_text_atomic
+    from aerotri.core.errors import OptionError
 
+    if (truth_path is None) == (reference_path is None):
+        raise OptionError("give either --truth (a truth cloud) or --reference (a reference map)",
+                          param="--truth" if truth_path is None else "--reference")
     if json_path:
-        refuse_input_as_output(json_path, [pred_path, truth_path], "--json")
+        refuse_input_as_output(json_path, [pred_path, truth_path, reference_path,
+                                           None if within in (None, "hull") else within], "--json")
+    if reference_path is not None:
+        from lidarctl import map_accuracy as ma
+
+        params = MapEvalParams(res_m=res_m, min_overlap=min_overlap, min_building_m2=min_building_m2,
+                               class_field=class_field, reference_class=reference_class,
+                               map_pred=_parse_map(map_pred, "--map-pred"), map_ref=_parse_map(map_truth, "--map-truth"),
+                               crs=crs, within=within)
+        result = ma.evaluate_map(pred_path, reference_path, params)
+        click.echo(ma.format_map_report(result))
+        if json_path:
+            write_text_atomic(json_path, json.dumps(result.as_dict(), indent=2))
+        return
+    from lidarctl import evaluate as ev
+
     result = ev.evaluate_files(pred_path, truth_path, _parse_map(map_pred, "--map-pred"),
                                _parse_map(map_truth, "--map-truth"))
     click.echo(ev.format_filter_table({"ground": result["filter_test"]}))
