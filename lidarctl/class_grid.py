@@ -249,9 +249,9 @@ def block_hulls(polys: ClassPolygons, join_m: float = 1.0) -> list:
     the area a partial reference (footprints of a few blocks) maps completely."""
     import shapely
 
-    union = shapely.union_all([g.buffer(join_m / 2) for g in polys.geometries])
+    union = shapely.union_all([g.buffer(join_m / 2, join_style="mitre") for g in polys.geometries])
     parts = list(union.geoms) if hasattr(union, "geoms") else [union]
-    return [p.convex_hull for p in parts]
+    return [p.convex_hull.buffer(-join_m / 2, join_style="mitre") for p in parts]
 
 
 def rasterize_mask(geometries: list, grid: ClassGrid) -> np.ndarray:
