@@ -25,6 +25,11 @@ footprints). BGT footprints are wall lines, LiDAR roofs include eaves: an overha
 decimetres around every roof is type II by construction (a 0.3 m eave on a 10 x 10 m house is 12 %
 of its area).
 
+Outline plan accuracy: the vertices of our regularised roof outlines (``lidarctl.corners`` over
+``lidarctl.roof_outline``) inside the scored blocks against the outer boundaries of the BGT footprint
+blocks: signed distance (positive: outside the footprint, the eave), RMS, mean and RMS about the
+mean of the vertices within 2 m (``outline_plan_offsets``).
+
 Writes results/buildings_ahn3.json and results/buildings_ahn3.png (agreement map: found, missed,
 false building cells, footprints outlined).
 """
@@ -47,6 +52,7 @@ import shapely.wkb
 from pyogrio.raw import write as write_vector
 
 from lidarctl import class_grid as cg
+from lidarctl.corners import find_roof_corners, read_classified_cloud
 from lidarctl import map_accuracy as ma
 from lidarctl import tiles
 from lidarctl.classify import ClassifyParams
@@ -54,6 +60,7 @@ from lidarctl.classify import ClassifyParams
 REPO = Path(__file__).resolve().parents[1]
 SHARED = Path(os.environ.get("AEROTRI_SHARED_DATA", REPO.parent / "shared" / "data"))
 CRS = "EPSG:28992"
+MATCH_M = 2.0   # an outline vertex farther than this from every footprint block boundary is not compared
 
 
 def write_bgt_gpkg(sqlite_path: Path, out: Path) -> list:
@@ -78,6 +85,35 @@ def score(pred: Path, ref: Path, within: str) -> dict:
     r = ma.evaluate_map(pred, ref, params)
     print(ma.format_map_report(r), "\n")
     return r.as_dict()
+
+
+def outline_plan_offsets(classified: Path, polys: list, hulls: list) -> dict:
+    """Plan offsets of our regularised roof outlines (``lidarctl.corners``, the roof_outline fit) from the BGT:
+    for every outline vertex inside the scored blocks, its distance to the nearest outer boundary of the
+    footprint blocks (footprints sharing walls joined: a roof shows no party wall), signed positive outside
+    the footprints (eave overhang). Vertices within MATCH_M count; RMS, mean (the systematic overhang)
+    and the RMS about the mean."""
+    cloud = read_classified_cloud(classified, crs=CRS)
+    res = find_roof_corners(cloud["x"], cloud["y"], cloud["z"], cloud["classification"], cloud["point_source_id"],
+                            roof="any")
+    union = shapely.union_all([p.buffer(0) for p in polys])
+    union = union.buffer(0.05, join_style="mitre").buffer(-0.05, join_style="mitre")
+    boundary = union.boundary
+    area = shapely.union_all(hulls).buffer(MATCH_M)
+    xy = np.concatenate([ring for o in res["outlines"] for ring in o["rings"] if len(ring)])
+    pts = shapely.points(xy)
+    keep = shapely.contains(area, pts)
+    d = shapely.distance(boundary, pts[keep])
+    sign = np.where(shapely.contains(union, pts[keep]), -1.0, 1.0)
+    near = d <= MATCH_M
+    sd = (sign * d)[near]
+    out = {"n_outline_vertices_in_blocks": int(keep.sum()), "n_within_match": int(near.sum()), "match_m": MATCH_M,
+           "n_roof_outlines": len(res["outlines"])}
+    if len(sd):
+        out.update(rms_m=float(np.sqrt(np.mean(sd ** 2))), mean_signed_m=float(np.mean(sd)),
+                   rms_about_mean_m=float(np.std(sd)), median_abs_m=float(np.median(np.abs(sd))),
+                   p90_abs_m=float(np.percentile(np.abs(sd), 90)))
+    return out
 
 
 def picture(pred: Path, ref: Path, hulls: list, out: Path, title: str) -> None:
@@ -169,6 +205,8 @@ def main(argv=None) -> int:
         for name, f in block_files:
             result["lidar_only"][name] = score(classified, bgt, str(f))
             result["ahn3_production_classes"][name] = score(laz, bgt, str(f))
+        result["outline_plan_offsets"] = outline_plan_offsets(classified, polys, hulls)
+        print("outline plan offsets:", result["outline_plan_offsets"])
         b = result["lidar_only"]["all_blocks"]["buildings"]
         picture(classified, bgt, hulls, args.out / "buildings_ahn3.png",
                 f"AHN3 Delft, lidarctl classify (LiDAR only) vs {len(polys)} BGT footprints, 0.5 m cells: "
