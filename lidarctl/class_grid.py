@@ -107,41 +107,54 @@ def _grid_for_cloud(bounds, cell_m: float, crs, units: LengthUnits, path) -> Cla
     return ClassGrid(Affine(step, 0, x0, 0, -step, y0 + nrows * step), (nrows, ncols), crs, cell_m)
 
 
-def cloud_grid(path, cell_m: float, crs=None) -> tuple[ClassGrid, LengthUnits]:
-    """The class grid over a LAS/LAZ file's header bounds (cells of ``cell_m`` metres aligned to multiples
-    of the cell size) and the file's units; ``crs`` (``--crs``) for a file without a CRS record."""
-    header = las.read_header(path)
-    resolved, units = io.resolve_crs_units(path, header, crs, require_crs=False)
-    mins, maxs = np.asarray(header.mins, float), np.asarray(header.maxs, float)
-    if header.point_count == 0 or not (np.isfinite(mins).all() and np.isfinite(maxs).all()):
-        raise InputError(f"{path}: no points or absurd header bounds ({mins.tolist()} .. {maxs.tolist()})")
+def cloud_grid(paths, cell_m: float, crs=None) -> tuple[ClassGrid, LengthUnits]:
+    """The class grid over the union of LAS/LAZ files' header bounds (cells of ``cell_m`` metres aligned to
+    multiples of the cell size) and the files' units; ``crs`` (``--crs``) for files without a CRS record.
+    The files (strips) must share one CRS."""
+    paths = [paths] if isinstance(paths, (str, Path)) else list(paths)
+    lo, hi, first = np.full(2, np.inf), np.full(2, -np.inf), None
+    for path in paths:
+        header = las.read_header(path)
+        resolved, units = io.resolve_crs_units(path, header, crs, require_crs=False)
+        mins, maxs = np.asarray(header.mins, float), np.asarray(header.maxs, float)
+        if header.point_count == 0 or not (np.isfinite(mins).all() and np.isfinite(maxs).all()):
+            raise InputError(f"{path}: no points or absurd header bounds ({mins.tolist()} .. {maxs.tolist()})")
+        if first is None:
+            first = (path, resolved, units)
+        else:
+            io.require_same_crs(path, resolved, units, first)
+        lo, hi = np.minimum(lo, mins[:2]), np.maximum(hi, maxs[:2])
+    _, resolved, units = first
     if not units.known:
         units = LengthUnits()
-    return _grid_for_cloud((mins[0], mins[1], maxs[0], maxs[1]), cell_m, resolved, units, path), units
+    return _grid_for_cloud((lo[0], lo[1], hi[0], hi[1]), cell_m, resolved, units, paths[0]), units
 
 
-def cloud_classes(path, grid: ClassGrid, chunk_points: int = io.CHUNK_POINTS) -> np.ndarray:
-    """uint8 class raster of a classified LAS/LAZ file on ``grid`` (same CRS units as the file): the
-    class of the highest non-noise point per cell, IGNORE where none; read chunk by chunk."""
+def cloud_classes(paths, grid: ClassGrid, chunk_points: int = io.CHUNK_POINTS) -> np.ndarray:
+    """uint8 class raster of classified LAS/LAZ files (strips) on ``grid`` (same CRS units as the files):
+    the class of the highest non-noise point per cell over all files, IGNORE where none; read chunk by
+    chunk."""
+    paths = [paths] if isinstance(paths, (str, Path)) else list(paths)
     nrows, ncols = grid.shape
     top = np.full(nrows * ncols, -np.inf)
     out = np.full(nrows * ncols, IGNORE, np.uint8)
     t = grid.transform
-    for _, chunk in las.iter_file_chunks(path, chunk_points):
-        x, y, z = np.asarray(chunk.x), np.asarray(chunk.y), np.asarray(chunk.z)
-        cls = np.asarray(chunk.classification).astype(np.uint8)
-        col = np.floor((x - t.c) / t.a).astype(np.int64)
-        row = np.floor((y - t.f) / t.e).astype(np.int64)
-        ok = (col >= 0) & (col < ncols) & (row >= 0) & (row < nrows) & ~np.isin(cls, NOISE) & np.isfinite(z)
-        flat, z, cls = row[ok] * ncols + col[ok], z[ok], cls[ok]
-        # Highest point per cell of this chunk: sort by (cell, z), take each cell's last.
-        order = np.lexsort((z, flat))
-        flat, z, cls = flat[order], z[order], cls[order]
-        last = np.r_[flat[1:] != flat[:-1], True]
-        flat, z, cls = flat[last], z[last], cls[last]
-        higher = z > top[flat]
-        top[flat[higher]] = z[higher]
-        out[flat[higher]] = cls[higher]
+    for path in paths:
+        for _, chunk in las.iter_file_chunks(path, chunk_points):
+            x, y, z = np.asarray(chunk.x), np.asarray(chunk.y), np.asarray(chunk.z)
+            cls = np.asarray(chunk.classification).astype(np.uint8)
+            col = np.floor((x - t.c) / t.a).astype(np.int64)
+            row = np.floor((y - t.f) / t.e).astype(np.int64)
+            ok = (col >= 0) & (col < ncols) & (row >= 0) & (row < nrows) & ~np.isin(cls, NOISE) & np.isfinite(z)
+            flat, z, cls = row[ok] * ncols + col[ok], z[ok], cls[ok]
+            # Highest point per cell of this chunk: sort by (cell, z), take each cell's last.
+            order = np.lexsort((z, flat))
+            flat, z, cls = flat[order], z[order], cls[order]
+            last = np.r_[flat[1:] != flat[:-1], True]
+            flat, z, cls = flat[last], z[last], cls[last]
+            higher = z > top[flat]
+            top[flat[higher]] = z[higher]
+            out[flat[higher]] = cls[higher]
     return out.reshape(nrows, ncols)
 
 
@@ -170,6 +183,17 @@ def read_class_raster(path, crs=None) -> tuple[np.ndarray, ClassGrid]:
     if abs(abs(transform.a) - abs(transform.e)) > 1e-9 * abs(transform.a):
         raise InputError(f"{path}: cells must be square (size {transform.a} x {-transform.e})")
     return classes, ClassGrid(transform, classes.shape, r_crs, cell_m)
+
+
+def regrid(grid: ClassGrid, cell_m: float) -> ClassGrid:
+    """A grid of ``cell_m`` metre cells over the area of ``grid``, from its top-left corner."""
+    unit_m = grid.cell_m / abs(grid.transform.a)
+    step = cell_m / unit_m
+    t = grid.transform
+    ncols = max(1, int(np.floor(grid.shape[1] * abs(t.a) / step)))
+    nrows = max(1, int(np.floor(grid.shape[0] * abs(t.e) / step)))
+    check_grid(nrows, ncols, cell_m, BYTES_PER_CELL, "evaluation grid", "--res", "use a coarser --res")
+    return ClassGrid(Affine(step, 0, t.c, 0, -step, t.f), (nrows, ncols), grid.crs, cell_m)
 
 
 def resample_nearest(classes: np.ndarray, src: ClassGrid, dst: ClassGrid) -> np.ndarray:

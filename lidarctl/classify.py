@@ -66,7 +66,7 @@ from lidarctl.raster_ops import fill_nodata, reduce_grid, sample_bilinear, slope
 
 UNCLASSIFIED, GROUND, LOW_VEG, MED_VEG, HIGH_VEG, BUILDING, LOW_NOISE, WATER, HIGH_NOISE = 1, 2, 3, 4, 5, 6, 7, 9, 18
 CLASS_NAMES = {1: "unclassified", 2: "ground", 3: "low veg", 4: "medium veg", 5: "high veg",
-               6: "building", 7: "low noise", 9: "water", 18: "high noise"}
+               6: "building", 7: "low noise", 9: "water", 11: "road", 18: "high noise"}
 
 
 @dataclasses.dataclass
@@ -482,8 +482,9 @@ def detect_water(x, y, z, intensity, candidate, is_building, is_ground, spacing_
 
 
 def classify_points(x, y, z, return_number=None, number_of_returns=None, intensity=None,
-                    params: ClassifyParams | None = None) -> np.ndarray:
-    """ASPRS class per point (uint8). Arrays are per point; heights in metres."""
+                    params: ClassifyParams | None = None, fusion=None) -> np.ndarray:
+    """ASPRS class per point (uint8). Arrays are per point; heights in metres. ``fusion``
+    (``lidarctl.fusion.Fusion``): the orthophoto's rules applied last (roads, grass/tree, building check)."""
     p = params or ClassifyParams()
     n = len(x)
     if n < 10:
@@ -611,4 +612,8 @@ def classify_points(x, y, z, return_number=None, number_of_returns=None, intensi
     water = detect_water(x, y, z, intensity, is_ground | (cls == UNCLASSIFIED) | (cls == LOW_VEG),
                          is_building, is_ground, spacing, p, solid=clean)
     cls[water] = WATER
+    if fusion is not None:
+        from lidarctl import fusion as fusion_mod
+
+        cls = fusion_mod.fuse(x, y, z, hag, cls, intensity, fusion.image, fusion.params)
     return cls

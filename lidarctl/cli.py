@@ -59,9 +59,16 @@ def _parse_map(text: str | None, option: str) -> dict:
 @click_option(ClassifyParams, "keep_classes", "--keep-classes")
 @click.option("--format", "out_format", type=click.Choice(["las", "laz"]), default=None,
               help="Format of the classified strips in an output folder (default: each strip's own).")
+@click.option("--image", "image_path", type=click.Path(dir_okay=False), default=None,
+              help="Orthophoto (GeoTIFF, R G B [NIR], the cloud's CRS) to fuse with: grass and trees split by "
+                   "greenness at 1 m, road surface (11) from intensity, smoothness and shape, green 'buildings' "
+                   "made trees (lidarctl.fusion).")
+@click.option("--nir", default=None,
+              help="--image: the near-infrared band number of the orthophoto (e.g. 4) or a one-band file on its "
+                   "grid; greenness is then NDVI, else excess green.")
 @scheduler_options
 def classify(in_paths, out_path, preset, crs, ground_method, tile_size_m, buffer_m, work_dir, keep_classes, out_format,
-             scheduler, workers):
+             image_path, nir, scheduler, workers):
     """Noise, ground, buildings, vegetation and water as ASPRS classes (LAS/LAZ in, LAS/LAZ out).
 
     One file: IN_PATH OUT_PATH (a .las/.laz file). Strips of a block: STRIP... OUT_DIR; they are
@@ -88,7 +95,19 @@ def classify(in_paths, out_path, preset, crs, ground_method, tile_size_m, buffer
             raise OptionError("--format: only for an output folder (OUT_PATH names the file and its format)",
                               param="--format")
     params = ClassifyParams(ground_method=ground_method, preset=preset, keep_classes=keep_classes)
-    common = dict(crs=crs, params=params, tile_size_m=tile_size_m, buffer_m=buffer_m, work_dir=work_dir)
+    fusion = None
+    if nir is not None and image_path is None:
+        raise OptionError("--nir: only with --image", param="--nir")
+    if image_path is not None:
+        from aerotri.geom import las
+        from lidarctl import fusion as fu
+        from lidarctl import io
+
+        refuse_input_as_output(out_path, [image_path, None if nir is None or str(nir).isdigit() else nir], "OUT_PATH")
+        cloud_crs, units = io.resolve_crs_units(in_paths[0], las.read_header(in_paths[0]), crs)
+        fusion = fu.Fusion(fu.open_image(image_path, nir, cloud_crs, units.xy_m))
+    common = dict(crs=crs, params=params, tile_size_m=tile_size_m, buffer_m=buffer_m, work_dir=work_dir,
+                  fusion=fusion)
     with executor_for(scheduler, workers) as executor:
         if to_folder:
             stats = tiles.classify_files(in_paths, out_path, executor=executor,
@@ -140,7 +159,7 @@ def rasters(in_paths, outdir, res_m, crs, tile_px, buffer_px):
 
 
 @main.command()
-@click.argument("pred_path", type=click.Path(dir_okay=False))
+@click.argument("pred_paths", nargs=-1, required=True, type=click.Path(dir_okay=False))
 @click.option("--truth", "truth_path", type=click.Path(dir_okay=False), default=None,
               help="Truth cloud with the same points in the same order (point-by-point filter test).")
 @click.option("--reference", "reference_path", type=click.Path(dir_okay=False), default=None,
@@ -149,8 +168,9 @@ def rasters(in_paths, outdir, res_m, crs, tile_px, buffer_px):
 @click.option("--json", "json_path", type=click.Path(dir_okay=False), default=None, help="Write the numbers as JSON.")
 @click.option("--map-pred", default=None, help="Class mapping for the prediction, e.g. 3:1,4:1,5:1 (TO 255: leave out).")
 @click.option("--map-truth", default=None, help="Class mapping for the truth or reference, e.g. 0:1.")
-@click.option("--res", "res_m", type=positive(), default=MapEvalParams.res_m, show_default=True,
-              help="--reference: cell size in metres when neither side is a raster.")
+@click.option("--res", "res_m", type=positive(), default=None,
+              help="--reference: cell size in metres [0.5; with a raster: the raster's cells, or a raster sampled at "
+                   "the centres of cells of this size, e.g. to match a sparse cloud].")
 @click.option("--class-field", default=MapEvalParams.class_field, show_default=True,
               help="--reference polygons: the attribute holding the class (ASPRS code or name: building, tree, "
                    "grass, road, bare ground, water).")
@@ -165,9 +185,9 @@ def rasters(in_paths, outdir, res_m, crs, tile_px, buffer_px):
               help="--reference: score only inside the polygons of this file, or 'hull': inside the convex hulls "
                    "of the reference polygons' blocks (a reference that maps only part of the area).")
 @click.option("--crs", default=None, help="--reference: CRS (EPSG:code) of inputs that have none.")
-def evaluate(pred_path, truth_path, reference_path, json_path, map_pred, map_truth, res_m, class_field,
+def evaluate(pred_paths, truth_path, reference_path, json_path, map_pred, map_truth, res_m, class_field,
              reference_class, min_overlap, min_building_m2, within, crs):
-    """Accuracy of the classification PRED_PATH.
+    """Accuracy of the classification PRED_PATHS (one file; --reference: also classified strips).
 
     --truth: a cloud against its truth cloud point by point: type I/II/total error and kappa (ground =
     classes 2, 9) and the confusion matrix.
@@ -187,7 +207,7 @@ def evaluate(pred_path, truth_path, reference_path, json_path, map_pred, map_tru
         raise OptionError("give either --truth (a truth cloud) or --reference (a reference map)",
                           param="--truth" if truth_path is None else "--reference")
     if json_path:
-        refuse_input_as_output(json_path, [pred_path, truth_path, reference_path,
+        refuse_input_as_output(json_path, [*pred_paths, truth_path, reference_path,
                                            None if within in (None, "hull") else within], "--json")
     if reference_path is not None:
         from lidarctl import map_accuracy as ma
@@ -196,14 +216,16 @@ def evaluate(pred_path, truth_path, reference_path, json_path, map_pred, map_tru
                                class_field=class_field, reference_class=reference_class,
                                map_pred=_parse_map(map_pred, "--map-pred"), map_ref=_parse_map(map_truth, "--map-truth"),
                                crs=crs, within=within)
-        result = ma.evaluate_map(pred_path, reference_path, params)
+        result = ma.evaluate_map(pred_paths, reference_path, params)
         click.echo(ma.format_map_report(result))
         if json_path:
             write_text_atomic(json_path, json.dumps(result.as_dict(), indent=2))
         return
     from lidarctl import evaluate as ev
 
-    result = ev.evaluate_files(pred_path, truth_path, _parse_map(map_pred, "--map-pred"),
+    if len(pred_paths) != 1:
+        raise OptionError(f"--truth: one classified file, not {len(pred_paths)}", param="--truth")
+    result = ev.evaluate_files(pred_paths[0], truth_path, _parse_map(map_pred, "--map-pred"),
                                _parse_map(map_truth, "--map-truth"))
     click.echo(ev.format_filter_table({"ground": result["filter_test"]}))
     click.echo("")

@@ -52,7 +52,8 @@ _EIGHT = np.ones((3, 3), bool)
 class MapEvalParams:
     """Options of ``lidarctl evaluate --reference``.
 
-    ``res_m``: cell size (m) when neither side is a raster; ``min_overlap``: fraction of a building's
+    ``res_m``: cell size (m; default 0.5 m when neither side is a raster, else the raster's; given with a
+    raster, the raster is sampled at the centres of ``res_m`` cells, e.g. to match a sparse cloud); ``min_overlap``: fraction of a building's
     area that must overlap for it to count as found/correct; ``min_building_m2``: smaller objects are
     not counted per building; ``class_field`` / ``reference_class``: the class of reference polygons
     (an attribute, or one class for all); ``map_pred`` / ``map_ref``: class mappings FROM -> TO applied
@@ -62,7 +63,7 @@ class MapEvalParams:
     blocks completely, e.g. footprints of part of the area).
     """
 
-    res_m: float = 0.5
+    res_m: float | None = None
     min_overlap: float = 0.5
     min_building_m2: float = 10.0
     class_field: str = "class"
@@ -73,7 +74,7 @@ class MapEvalParams:
     within: str | None = None
 
     def __post_init__(self):
-        if not (np.isfinite(self.res_m) and self.res_m > 0):
+        if self.res_m is not None and not (np.isfinite(self.res_m) and self.res_m > 0):
             raise OptionError(f"--res {self.res_m}: must be a positive cell size in metres", param="--res")
         if not 0 < self.min_overlap <= 1:
             raise OptionError(f"--min-overlap {self.min_overlap}: must be in (0, 1]", param="--min-overlap")
@@ -153,10 +154,14 @@ def building_accuracy(pred: np.ndarray, ref: np.ndarray, valid: np.ndarray, cell
     fn = int(np.sum(~pred & ref & valid))
     fp = int(np.sum(pred & ~ref & valid))
     if ref_ids is None:
-        ref_ids, _ = ndimage.label(ref, structure=_EIGHT)
+        ref_ids, _ = ndimage.label(ref & valid | (~valid & ndimage.binary_closing(ref & valid, _EIGHT)),
+                                   structure=_EIGHT)
     else:
         ref_ids = np.where(ref, ref_ids, 0)
-    det_ids, _ = ndimage.label(pred & valid, structure=_EIGHT)
+    # Unlabelled cells (no LiDAR point) inside a roof must not split it: they join the object they close
+    # (a 3x3 closing), its area still counts labelled cells only.
+    det_ids, _ = ndimage.label(pred & valid | (~valid & ndimage.binary_closing(pred & valid, _EIGHT)),
+                               structure=_EIGHT)
     min_cells = min_building_m2 / cell_area_m2
     r_area, r_hit = _overlaps(ref_ids, pred, valid)
     d_area, d_hit = _overlaps(det_ids, ref, valid)
@@ -198,35 +203,51 @@ def _kind(path: Path, allowed: tuple, what: str) -> str:
                      f"{', .gpkg/.geojson' if 'polygons' in allowed else ''}), not {suffix or 'no suffix'}")
 
 
-def evaluate_map(pred_path, ref_path, params: MapEvalParams = MapEvalParams()) -> MapAccuracy:
-    """The stage (``lidarctl evaluate PRED --reference REF``): both onto one grid, then ``score_maps``."""
-    pred_path, ref_path = Path(pred_path), Path(ref_path)
-    pk = _kind(pred_path, ("cloud", "raster"), "the prediction")
+def evaluate_map(pred_paths, ref_path, params: MapEvalParams = MapEvalParams()) -> MapAccuracy:
+    """The stage (``lidarctl evaluate PRED... --reference REF``): the prediction (one class raster, or one or
+    more classified clouds: strips) and the reference onto one grid, then ``score_maps``."""
+    pred_paths = [Path(pred_paths)] if isinstance(pred_paths, (str, Path)) else [Path(q) for q in pred_paths]
+    ref_path = Path(ref_path)
+    kinds = {_kind(q, ("cloud", "raster"), "the prediction") for q in pred_paths}
+    pk = kinds.pop()
+    if kinds or (pk == "raster" and len(pred_paths) > 1):
+        raise InputError(f"{pred_paths[0]}: the prediction is one class raster or classified clouds (strips), "
+                         "not a mixture")
     rk = _kind(ref_path, ("raster", "polygons"), "--reference")
-    for p in (pred_path, ref_path):
+    for p in (*pred_paths, ref_path):
         if not p.is_file():
             raise InputError(f"{p}: no such file")
+    pred_name = str(pred_paths[0]) + (f" (+{len(pred_paths) - 1} strips)" if len(pred_paths) > 1 else "")
     polys = ref_ids = None
     if rk == "raster":
         ref, grid = cg.read_class_raster(ref_path, params.crs)
+        if params.res_m is not None:
+            fine = grid
+            grid = cg.regrid(fine, params.res_m)
+            ref = cg.resample_nearest(ref, fine, grid)
     else:
         polys = cg.read_class_polygons(ref_path, params.class_field, params.reference_class)
+    res_m = params.res_m or 0.5
     if pk == "cloud":
         if rk == "raster":
-            # The reference's grid, in the same CRS (so the same units) as the cloud.
-            crs = cg.common_crs(cg.cloud_grid(pred_path, grid.cell_m, params.crs)[0].crs, pred_path, grid.crs, ref_path)
+            # The reference's grid, in the same CRS (so the same units) as the clouds.
+            crs = cg.common_crs(cg.cloud_grid(pred_paths, grid.cell_m, params.crs)[0].crs, pred_paths[0],
+                                grid.crs, ref_path)
         else:
-            grid, _ = cg.cloud_grid(pred_path, params.res_m, params.crs)
-            crs = cg.common_crs(grid.crs, pred_path, polys.crs, ref_path)
-        pred = cg.remap(cg.cloud_classes(pred_path, grid), cg.DEFAULT_CLOUD_MAP)
+            grid, _ = cg.cloud_grid(pred_paths, res_m, params.crs)
+            crs = cg.common_crs(grid.crs, pred_paths[0], polys.crs, ref_path)
+        pred = cg.remap(cg.cloud_classes(pred_paths, grid), cg.DEFAULT_CLOUD_MAP)
     else:
-        pred_r, pgrid = cg.read_class_raster(pred_path, params.crs)
+        pred_r, pgrid = cg.read_class_raster(pred_paths[0], params.crs)
         if rk == "raster":
-            crs = cg.common_crs(pgrid.crs, pred_path, grid.crs, ref_path)
+            crs = cg.common_crs(pgrid.crs, pred_paths[0], grid.crs, ref_path)
             pred = cg.resample_nearest(pred_r, pgrid, grid)
         else:
-            crs = cg.common_crs(pgrid.crs, pred_path, polys.crs, ref_path)
+            crs = cg.common_crs(pgrid.crs, pred_paths[0], polys.crs, ref_path)
             grid, pred = pgrid, pred_r
+            if params.res_m is not None:
+                grid = cg.regrid(pgrid, params.res_m)
+                pred = cg.resample_nearest(pred_r, pgrid, grid)
     grid = dataclasses.replace(grid, crs=crs)
     if polys is not None:
         ref, ref_ids = cg.rasterize_polygons(polys, grid)
@@ -240,10 +261,10 @@ def evaluate_map(pred_path, ref_path, params: MapEvalParams = MapEvalParams()) -
         pred = np.where((pred == cg.IGNORE) | np.isin(pred, used), pred, cg.OTHER).astype(np.uint8)
     labelled = pred != cg.IGNORE
     if not np.any(labelled & (ref != cg.IGNORE)):
-        raise InputError(f"{pred_path} and {ref_path} share no labelled cell (do they cover the same area, in one CRS?)")
+        raise InputError(f"{pred_name} and {ref_path} share no labelled cell (do they cover the same area, in one CRS?)")
     conf, bld, n = score_maps(pred, ref, grid.cell_area_m2, ref_ids, params.min_overlap, params.min_building_m2)
-    log.info("%s vs %s: %d cells of %g m", pred_path, ref_path, n, grid.cell_m)
-    return MapAccuracy(conf, bld, grid.cell_m, n, int(pred.size - n), str(pred_path), str(ref_path))
+    log.info("%s vs %s: %d cells of %g m", pred_name, ref_path, n, grid.cell_m)
+    return MapAccuracy(conf, bld, grid.cell_m, n, int(pred.size - n), pred_name, str(ref_path))
 
 
 def _within_mask(within: str, polys, grid, ref_path) -> np.ndarray:
