@@ -45,10 +45,15 @@ _EIGHT = np.ones((3, 3), bool)
 
 @dataclasses.dataclass(frozen=True)
 class FusionParams:
-    """Thresholds of the fusion rules (module docstring); lengths in metres."""
+    """Thresholds of the fusion rules (module docstring); lengths in metres.
 
-    ndvi_min: float = 0.2
-    exg_min: float = 0.05
+    ``ndvi_min`` / ``exg_min`` are for 8-bit (gamma-encoded) orthophotos, whose NDVI is lower than that of
+    reflectances (grass: about 0.23 in the simulator's tone-mapped ortho, 0.47 in reflectance); set on the
+    simulator's tiny project, halfway between grass and the greenest non-vegetation (NDVI 0.0, ExG 0.05).
+    """
+
+    ndvi_min: float = 0.1
+    exg_min: float = 0.1
     tree_min_height_m: float = 1.0
     road_intensity_ratio: float = 0.6
     road_roughness_m: float = 0.1
