@@ -35,6 +35,7 @@ import numpy as np
 from scipy import ndimage
 
 from aerotri.core.errors import CrsError, InputError, OptionError
+from lidarctl.raster_ops import plane_rms
 
 log = logging.getLogger(__name__)
 log.addHandler(logging.NullHandler())
@@ -178,18 +179,6 @@ def greenness(rgb: np.ndarray, nir: np.ndarray | None, p: FusionParams = FusionP
     return np.nan_to_num(index, nan=-np.inf) > threshold, index
 
 
-def _plane_rms(a: np.ndarray, cell_m: float) -> np.ndarray:
-    """RMS residual of the least-squares plane in each 3x3 window of a filled grid."""
-    k = np.ones((3, 3)) / 9.0
-    u = np.array([[-1, 0, 1]] * 3, float) * cell_m
-    mean = ndimage.correlate(a, k, mode="nearest")
-    mean2 = ndimage.correlate(a * a, k, mode="nearest")
-    sxz = ndimage.correlate(a, u / 9.0, mode="nearest")
-    syz = ndimage.correlate(a, u.T / 9.0, mode="nearest")
-    var_uv = (2.0 / 3.0) * cell_m * cell_m
-    return np.sqrt(np.maximum(mean2 - mean ** 2 - (sxz ** 2 + syz ** 2) / var_uv, 0.0))
-
-
 def road_shaped(mask: np.ndarray, cell_m: float, p: FusionParams = FusionParams()) -> np.ndarray:
     """Cells of the 8-connected regions of ``mask`` shaped like roads: mean width 2 A / P within
     [road_min_width_m, road_max_width_m] and elongation P^2 / (4 A) >= road_min_elongation."""
@@ -279,7 +268,7 @@ def fuse(x, y, z, hag, cls, intensity, img: ImageSource, p: FusionParams = Fusio
         if has.any():
             idx = ndimage.distance_transform_edt(~has, return_distances=False, return_indices=True)
             gz = gz[tuple(idx)]
-            smooth = _plane_rms(gz, c) < p.road_roughness_m
+            smooth = plane_rms(gz, c) < p.road_roughness_m
         else:
             smooth = np.zeros(shape, bool)
         ccount = np.zeros(shape, np.int64)
