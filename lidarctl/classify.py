@@ -62,11 +62,11 @@ from aerotri.core.settings import setting
 from lidarctl import grid
 from lidarctl import ground as ground_mod
 from lidarctl import noise as noise_mod
-from lidarctl.raster_ops import fill_nodata, reduce_grid, sample_bilinear, slope_tan
+from lidarctl.raster_ops import fill_nodata, plane_rms, reduce_grid, sample_bilinear, slope_tan
 
 UNCLASSIFIED, GROUND, LOW_VEG, MED_VEG, HIGH_VEG, BUILDING, LOW_NOISE, WATER, HIGH_NOISE = 1, 2, 3, 4, 5, 6, 7, 9, 18
 CLASS_NAMES = {1: "unclassified", 2: "ground", 3: "low veg", 4: "medium veg", 5: "high veg",
-               6: "building", 7: "low noise", 9: "water", 18: "high noise"}
+               6: "building", 7: "low noise", 9: "water", 11: "road", 18: "high noise"}
 
 
 @dataclasses.dataclass
@@ -124,20 +124,6 @@ class ClassifyParams:
 
     def __post_init__(self):
         ground_mod.check_method_preset(self.ground_method, self.preset)
-
-
-def _plane_rms(a: np.ndarray, cell_m: float) -> np.ndarray:
-    """RMS residual of the least-squares plane in each 3x3 window of a filled raster (m)."""
-    k = np.ones((3, 3)) / 9.0
-    u = np.array([[-1, 0, 1]] * 3, float) * cell_m      # x offsets (columns)
-    v = u.T                                              # y offsets (rows)
-    mean = ndimage.correlate(a, k, mode="nearest")
-    mean2 = ndimage.correlate(a * a, k, mode="nearest")
-    sxz = ndimage.correlate(a, u / 9.0, mode="nearest")
-    syz = ndimage.correlate(a, v / 9.0, mode="nearest")
-    var_uv = (2.0 / 3.0) * cell_m * cell_m              # mean of u^2 over the window
-    resid2 = mean2 - mean ** 2 - sxz ** 2 / var_uv - syz ** 2 / var_uv
-    return np.sqrt(np.maximum(resid2, 0.0))
 
 
 def fewer_multi_returns(n_multi: np.ndarray, n: np.ndarray, fraction: float, z: float = 1.645) -> np.ndarray:
@@ -482,8 +468,9 @@ def detect_water(x, y, z, intensity, candidate, is_building, is_ground, spacing_
 
 
 def classify_points(x, y, z, return_number=None, number_of_returns=None, intensity=None,
-                    params: ClassifyParams | None = None) -> np.ndarray:
-    """ASPRS class per point (uint8). Arrays are per point; heights in metres."""
+                    params: ClassifyParams | None = None, fusion=None) -> np.ndarray:
+    """ASPRS class per point (uint8). Arrays are per point; heights in metres. ``fusion``
+    (``lidarctl.fusion.Fusion``): the orthophoto's rules applied last (roads, grass/tree, building check)."""
     p = params or ClassifyParams()
     n = len(x)
     if n < 10:
@@ -536,7 +523,7 @@ def classify_points(x, y, z, return_number=None, number_of_returns=None, intensi
     dsm = reduce_grid(x[obj], y[obj], z[obj], c, x0, y0, nrows, ncols, "max")
     has_obj = np.isfinite(dsm)
     dsm_f = np.where(has_obj, dsm, dem)
-    rms = _plane_rms(dsm_f, c)
+    rms = plane_rms(dsm_f, c)
     multi = np.zeros(n, bool)
     has_multi = False
     if return_number is not None and number_of_returns is not None:
@@ -611,4 +598,8 @@ def classify_points(x, y, z, return_number=None, number_of_returns=None, intensi
     water = detect_water(x, y, z, intensity, is_ground | (cls == UNCLASSIFIED) | (cls == LOW_VEG),
                          is_building, is_ground, spacing, p, solid=clean)
     cls[water] = WATER
+    if fusion is not None:
+        from lidarctl import fusion as fusion_mod
+
+        cls = fusion_mod.fuse(x, y, z, hag, cls, intensity, fusion.image, fusion.params)
     return cls

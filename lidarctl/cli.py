@@ -13,6 +13,7 @@ from aerotri.core.atomic import refuse_input_as_output
 from aerotri.core.commands import Group, positive, scheduler_options
 from aerotri.core.settings import click_option
 from lidarctl.classify import ClassifyParams
+from lidarctl.map_accuracy import MapEvalParams
 from lidarctl.rasters import DEFAULT_BUFFER_PX, DEFAULT_TILE_PX
 
 
@@ -60,9 +61,16 @@ def _parse_map(text: str | None, option: str) -> dict:
 @click_option(ClassifyParams, "keep_classes", "--keep-classes")
 @click.option("--format", "out_format", type=click.Choice(["las", "laz"]), default=None,
               help="Format of the classified strips in an output folder (default: each strip's own).")
+@click.option("--image", "image_path", type=click.Path(dir_okay=False), default=None,
+              help="Orthophoto (GeoTIFF, R G B [NIR], the cloud's CRS) to fuse with: grass and trees split by "
+                   "greenness at 1 m, road surface (11) from intensity, smoothness and shape, green 'buildings' "
+                   "made trees (lidarctl.fusion).")
+@click.option("--nir", default=None,
+              help="--image: the near-infrared band number of the orthophoto (e.g. 4) or a one-band file on its "
+                   "grid; greenness is then NDVI, else excess green.")
 @scheduler_options
 def classify(in_paths, out_path, preset, crs, ground_method, tile_size_m, buffer_m, work_dir, keep_classes, out_format,
-             scheduler, workers):
+             image_path, nir, scheduler, workers):
     """Noise, ground, buildings, vegetation and water as ASPRS classes (LAS/LAZ in, LAS/LAZ out).
 
     One file: IN_PATH OUT_PATH (a .las/.laz file). Strips of a block: STRIP... OUT_DIR; they are
@@ -89,7 +97,19 @@ def classify(in_paths, out_path, preset, crs, ground_method, tile_size_m, buffer
             raise OptionError("--format: only for an output folder (OUT_PATH names the file and its format)",
                               param="--format")
     params = ClassifyParams(ground_method=ground_method, preset=preset, keep_classes=keep_classes)
-    common = dict(crs=crs, params=params, tile_size_m=tile_size_m, buffer_m=buffer_m, work_dir=work_dir)
+    fusion = None
+    if nir is not None and image_path is None:
+        raise OptionError("--nir: only with --image", param="--nir")
+    if image_path is not None:
+        from aerotri.geom import las
+        from lidarctl import fusion as fu
+        from lidarctl import io
+
+        refuse_input_as_output(out_path, [image_path, None if nir is None or str(nir).isdigit() else nir], "OUT_PATH")
+        cloud_crs, units = io.resolve_crs_units(in_paths[0], las.read_header(in_paths[0]), crs)
+        fusion = fu.Fusion(fu.open_image(image_path, nir, cloud_crs, units.xy_m))
+    common = dict(crs=crs, params=params, tile_size_m=tile_size_m, buffer_m=buffer_m, work_dir=work_dir,
+                  fusion=fusion)
     with executor_for(scheduler, workers) as executor:
         if to_folder:
             stats = tiles.classify_files(in_paths, out_path, executor=executor,
@@ -141,21 +161,73 @@ def rasters(in_paths, outdir, res_m, crs, tile_px, buffer_px):
 
 
 @main.command()
-@click.argument("pred_path", type=click.Path(dir_okay=False))
-@click.option("--truth", "truth_path", type=click.Path(dir_okay=False), required=True)
+@click.argument("pred_paths", nargs=-1, required=True, type=click.Path(dir_okay=False))
+@click.option("--truth", "truth_path", type=click.Path(dir_okay=False), default=None,
+              help="Truth cloud with the same points in the same order (point-by-point filter test).")
+@click.option("--reference", "reference_path", type=click.Path(dir_okay=False), default=None,
+              help="Reference map: class GeoTIFF (ASPRS codes) or class polygons (.gpkg/.geojson); PRED is then a "
+                   "classified cloud or a class GeoTIFF, scored per cell and per building.")
 @click.option("--json", "json_path", type=click.Path(dir_okay=False), default=None, help="Write the numbers as JSON.")
-@click.option("--map-pred", default=None, help="Class mapping for the prediction, e.g. 3:1,4:1,5:1.")
-@click.option("--map-truth", default=None, help="Class mapping for the truth, e.g. 0:1.")
-def evaluate(pred_path, truth_path, json_path, map_pred, map_truth):
-    """Type I/II/total error and kappa (ground = classes 2, 9) and the confusion matrix."""
+@click.option("--map-pred", default=None, help="Class mapping for the prediction, e.g. 3:1,4:1,5:1 (TO 255: leave out).")
+@click.option("--map-truth", default=None, help="Class mapping for the truth or reference, e.g. 0:1.")
+@click.option("--res", "res_m", type=positive(), default=None,
+              help="--reference: cell size in metres [0.5; with a raster: the raster's cells, or a raster sampled at "
+                   "the centres of cells of this size, e.g. to match a sparse cloud].")
+@click.option("--class-field", default=MapEvalParams.class_field, show_default=True,
+              help="--reference polygons: the attribute holding the class (ASPRS code or name: building, tree, "
+                   "grass, road, bare ground, water).")
+@click.option("--reference-class", default=None,
+              help="--reference polygons: one class for every polygon (e.g. building for footprints).")
+@click.option("--min-overlap", type=click.FloatRange(0, 1, min_open=True), default=MapEvalParams.min_overlap,
+              show_default=True, help="--reference: share of a building's area that must overlap to count it as "
+                                      "found (reference) or correct (detected).")
+@click.option("--min-building-m2", type=click.FloatRange(min=0), default=MapEvalParams.min_building_m2,
+              show_default=True, help="--reference: buildings smaller than this (m2) are not counted per building.")
+@click.option("--within", default=None,
+              help="--reference: score only inside the polygons of this file, or 'hull': inside the convex hulls "
+                   "of the reference polygons' blocks (a reference that maps only part of the area).")
+@click.option("--crs", default=None, help="--reference: CRS (EPSG:code) of inputs that have none.")
+def evaluate(pred_paths, truth_path, reference_path, json_path, map_pred, map_truth, res_m, class_field,
+             reference_class, min_overlap, min_building_m2, within, crs):
+    """Accuracy of the classification PRED_PATHS (one file; --reference: also classified strips).
+
+    --truth: a cloud against its truth cloud point by point: type I/II/total error and kappa (ground =
+    classes 2, 9) and the confusion matrix.
+
+    --reference: a classified cloud (the class of each cell's highest point, noise left out; medium
+    vegetation counts as tree) or a class raster against a reference map, as the seeds report it:
+    pixel confusion matrix over building, tree, grass, road, bare ground, water with producer's,
+    user's and overall accuracy and kappa; buildings per area (type I/II, overall) and per building
+    (completeness and correctness by count).
+    """
     import json
 
-    from lidarctl import evaluate as ev
     from aerotri.core.atomic import write_text_atomic
+    from aerotri.core.errors import OptionError
 
+    if (truth_path is None) == (reference_path is None):
+        raise OptionError("give either --truth (a truth cloud) or --reference (a reference map)",
+                          param="--truth" if truth_path is None else "--reference")
     if json_path:
-        refuse_input_as_output(json_path, [pred_path, truth_path], "--json")
-    result = ev.evaluate_files(pred_path, truth_path, _parse_map(map_pred, "--map-pred"),
+        refuse_input_as_output(json_path, [*pred_paths, truth_path, reference_path,
+                                           None if within in (None, "hull") else within], "--json")
+    if reference_path is not None:
+        from lidarctl import map_accuracy as ma
+
+        params = MapEvalParams(res_m=res_m, min_overlap=min_overlap, min_building_m2=min_building_m2,
+                               class_field=class_field, reference_class=reference_class,
+                               map_pred=_parse_map(map_pred, "--map-pred"), map_ref=_parse_map(map_truth, "--map-truth"),
+                               crs=crs, within=within)
+        result = ma.evaluate_map(pred_paths, reference_path, params)
+        click.echo(ma.format_map_report(result))
+        if json_path:
+            write_text_atomic(json_path, json.dumps(result.as_dict(), indent=2))
+        return
+    from lidarctl import evaluate as ev
+
+    if len(pred_paths) != 1:
+        raise OptionError(f"--truth: one classified file, not {len(pred_paths)}", param="--truth")
+    result = ev.evaluate_files(pred_paths[0], truth_path, _parse_map(map_pred, "--map-pred"),
                                _parse_map(map_truth, "--map-truth"))
     click.echo(ev.format_filter_table({"ground": result["filter_test"]}))
     click.echo("")

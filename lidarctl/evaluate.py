@@ -7,7 +7,8 @@ Filter-test measures (Sithole & Vosselman 2004, ISPRS WG III/3), ground = bare e
   Cohen's kappa = (p_o - p_e) / (1 - p_e) of the 2x2 table.
 Confusion matrix: rows = truth class, columns = predicted class; producer's accuracy = diagonal /
 row sum (how much of the truth class was found), user's accuracy = diagonal / column sum (how
-much of what was labelled is right), overall accuracy = trace / total.
+much of what was labelled is right), overall accuracy = trace / total, Cohen's kappa from the
+row and column sums (p_e = sum of row x column sums / total^2).
 
 Prediction and truth must hold the same points in the same order (``read_same_points``): their
 coordinates are compared in metres (each file scaled by its CRS's unit) within
@@ -98,12 +99,15 @@ def confusion(pred: np.ndarray, truth: np.ndarray, classes=None) -> dict:
     with np.errstate(invalid="ignore", divide="ignore"):
         producers = np.where(rows > 0, 100.0 * diag / rows, np.nan)
         users = np.where(cols > 0, 100.0 * diag / cols, np.nan)
+    n = max(int(m.sum()), 1)
+    po, pe = float(diag.sum()) / n, float(np.dot(rows.astype(float), cols.astype(float))) / (n * n)
     return {
         "classes": classes,
         "matrix": m.tolist(),
         "producers_accuracy_pct": {str(c): _num(v) for c, v in zip(classes, producers)},
         "users_accuracy_pct": {str(c): _num(v) for c, v in zip(classes, users)},
-        "overall_accuracy_pct": 100.0 * float(diag.sum()) / max(int(m.sum()), 1),
+        "overall_accuracy_pct": 100.0 * po,
+        "kappa_pct": 100.0 * ((po - pe) / (1 - pe) if pe < 1 else 1.0),
     }
 
 
@@ -131,7 +135,7 @@ def format_confusion(conf: dict, names: dict | None = None) -> str:
     names = names or {}
     classes = conf["classes"]
     labels = [names.get(c, str(c)) for c in classes]
-    w = max(10, max(len(s) for s in labels) + 2)
+    w = max(12, max(len(s) for s in labels) + 2)
     lines = ["truth \\ predicted".ljust(w) + "".join(s.rjust(w) for s in labels) + "producer %".rjust(w)]
     for c, lab, row in zip(classes, labels, conf["matrix"]):
         pa = conf["producers_accuracy_pct"][str(c)]
@@ -139,7 +143,10 @@ def format_confusion(conf: dict, names: dict | None = None) -> str:
                      + (f"{pa:.2f}" if pa is not None else "-").rjust(w))
     ua = [conf["users_accuracy_pct"][str(c)] for c in classes]
     lines.append("user %".ljust(w) + "".join((f"{u:.2f}" if u is not None else "-").rjust(w) for u in ua))
-    lines.append(f"overall accuracy: {conf['overall_accuracy_pct']:.2f} %")
+    line = f"overall accuracy: {conf['overall_accuracy_pct']:.2f} %"
+    if "kappa_pct" in conf:
+        line += f", kappa {conf['kappa_pct']:.2f} %"
+    lines.append(line)
     return "\n".join(lines)
 
 

@@ -1,4 +1,4 @@
-"""Grid operations on height rasters: minimum surfaces, gap filling, bilinear sampling, slope.
+"""Grid operations on height rasters: minimum surfaces, gap filling, bilinear sampling, slope, roughness.
 
 Rasters here are NumPy arrays with row 0 at the *south* edge (row index grows with y) and cell
 (i, j) centred at (x0 + (j + 0.5) * cell_m, y0 + (i + 0.5) * cell_m); NaN marks empty cells.
@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import numba
 import numpy as np
+from scipy import ndimage
 
 from lidarctl.grid import GRID_BYTES_PER_CELL, check_grid
 
@@ -139,3 +140,17 @@ def slope_tan(a: np.ndarray, cell_m: float) -> np.ndarray:
     """Tangent of the terrain slope (gradient magnitude) of a filled raster."""
     gy, gx = np.gradient(a, cell_m)
     return np.hypot(gx, gy)
+
+
+def plane_rms(a: np.ndarray, cell_m: float) -> np.ndarray:
+    """RMS residual of the least-squares plane in each 3x3 window of a filled raster (m)."""
+    k = np.ones((3, 3)) / 9.0
+    u = np.array([[-1, 0, 1]] * 3, float) * cell_m      # x offsets (columns)
+    v = u.T                                              # y offsets (rows)
+    mean = ndimage.correlate(a, k, mode="nearest")
+    mean2 = ndimage.correlate(a * a, k, mode="nearest")
+    sxz = ndimage.correlate(a, u / 9.0, mode="nearest")
+    syz = ndimage.correlate(a, v / 9.0, mode="nearest")
+    var_uv = (2.0 / 3.0) * cell_m * cell_m              # mean of u^2 over the window
+    resid2 = mean2 - mean ** 2 - sxz ** 2 / var_uv - syz ** 2 / var_uv
+    return np.sqrt(np.maximum(resid2, 0.0))

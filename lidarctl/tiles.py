@@ -191,6 +191,7 @@ class TileTask:
     params: object          # classify.ClassifyParams
     numba_threads: int = 0  # threads of numba's parallel loops in this task (0: numba's default)
     units: LengthUnits = METRE  # the input's units: tile files hold coordinates in them
+    fusion: object = None   # lidarctl.fusion.Fusion: the orthophoto's rules after the LiDAR classes
 
 
 # What a tile file holds per point: the fields the classifier reads, coordinates in the input's
@@ -381,7 +382,7 @@ def classify_tile(task: TileTask) -> TileResult:
     core = (row == task.row) & (col == task.col)
     if len(x) >= 10:
         with _numba_threads(task.numba_threads):
-            classes = cl.classify_points(x, y, z, rn, nr, intensity, task.params)[core]
+            classes = cl.classify_points(x, y, z, rn, nr, intensity, task.params, fusion=task.fusion)[core]
     else:
         # Too few points for any neighbourhood statistics (a stray point at the edge of the grid).
         classes = np.full(int(core.sum()), cl.UNCLASSIFIED, np.uint8)
@@ -392,7 +393,7 @@ def classify_tile(task: TileTask) -> TileResult:
     return TileResult(task.row, task.col, int(len(x)), int(core.sum()), time.perf_counter() - t0)
 
 
-def _direct_classes(in_paths, crs, params, chunk_points):
+def _direct_classes(in_paths, crs, params, chunk_points, fusion=None):
     """Classes of a one-tile input in memory (no temporary files): the tiled path with one tile.
     (classes of all files one after the other, the records of each file, the CRS of the first)."""
     from lidarctl import classify as cl
@@ -402,7 +403,7 @@ def _direct_classes(in_paths, crs, params, chunk_points):
     cloud = {f: np.concatenate([getattr(c, f) for c, _ in read]) for f in fields}
     if len(cloud["x"]) < 10:
         raise InputError(f"{in_paths[0]}: only {len(cloud['x'])} points; classification needs at least 10")
-    classes = cl.classify_points(*(cloud[f] for f in fields), params)
+    classes = cl.classify_points(*(cloud[f] for f in fields), params, fusion=fusion)
     return classes, [r for _, r in read], read[0][0].crs
 
 
@@ -457,7 +458,7 @@ class ClassifyStats:
 
 def classify_file(in_path, out_path, crs=None, params=None, *, tile_size_m: float | None = None,
                   buffer_m: float | None = None, executor=None, work_dir=None,
-                  chunk_points: int = io.CHUNK_POINTS) -> ClassifyStats:
+                  chunk_points: int = io.CHUNK_POINTS, fusion=None) -> ClassifyStats:
     """Classify a LAS/LAZ file of any size into ``out_path`` (LAS/LAZ by suffix), tile by tile.
 
     ``crs``: used only when the file has none (never guessed). ``params``: classify.ClassifyParams.
@@ -466,13 +467,14 @@ def classify_file(in_path, out_path, crs=None, params=None, *, tile_size_m: floa
     ``aerotri.core.executor.Executor`` (default: local threads). ``work_dir``: parent folder of the
     temporary tile files (default: next to the output); they are removed in any case.
     The output is written atomically: on any error or interrupt no output file is left.
+    ``fusion`` (``lidarctl.fusion.Fusion``): fuse each tile's classes with an orthophoto.
     Returns statistics: points, tiles, buffer overhead, seconds per pass, class counts.
     """
     in_path, out_path = Path(in_path), Path(out_path)
     refuse_input_as_output(out_path, [in_path], "OUT_PATH")
     return _classify([in_path], [out_path], crs, params, tile_size_m=tile_size_m, buffer_m=buffer_m,
                      executor=executor, work_parent=Path(work_dir) if work_dir is not None else out_path.parent,
-                     tiles_name=out_path.stem, chunk_points=chunk_points)
+                     tiles_name=out_path.stem, chunk_points=chunk_points, fusion=fusion)
 
 
 def classified_names(in_paths, suffix: str | None = None) -> list[str]:
@@ -490,7 +492,7 @@ def classified_names(in_paths, suffix: str | None = None) -> list[str]:
 
 def classify_files(in_paths, out_dir, crs=None, params=None, *, suffix: str | None = None,
                    tile_size_m: float | None = None, buffer_m: float | None = None, executor=None,
-                   work_dir=None, chunk_points: int = io.CHUNK_POINTS) -> ClassifyStats:
+                   work_dir=None, chunk_points: int = io.CHUNK_POINTS, fusion=None) -> ClassifyStats:
     """Classify LiDAR strips (LAS/LAZ files) together, without merging them: one classified copy per
     strip in ``out_dir`` (names: ``classified_names``; LAS/LAZ by ``suffix``, default the strip's).
 
@@ -520,7 +522,7 @@ def classify_files(in_paths, out_dir, crs=None, params=None, *, suffix: str | No
     with atomic_dir(out_dir) as tmp:
         return _classify(in_paths, [tmp / name for name in names], crs, params, tile_size_m=tile_size_m,
                          buffer_m=buffer_m, executor=executor, work_parent=parent, tiles_name=out_dir.name,
-                         chunk_points=chunk_points)
+                         chunk_points=chunk_points, fusion=fusion)
 
 
 def _union_bounds(headers):
@@ -533,7 +535,7 @@ def _union_bounds(headers):
 
 
 def _classify(in_paths, out_paths, crs, params, *, tile_size_m, buffer_m, executor, work_parent, tiles_name,
-              chunk_points) -> ClassifyStats:
+              chunk_points, fusion=None) -> ClassifyStats:
     """``classify_file`` / ``classify_files``: the files in ``in_paths`` (checked to agree) classified
     together, each written to its ``out_paths`` entry."""
     from lidarctl import classify as cl
@@ -560,6 +562,9 @@ def _classify(in_paths, out_paths, crs, params, *, tile_size_m, buffer_m, execut
         return ClassifyStats(n_points=n, grid=grid, units=units, run=run, seconds=time.perf_counter() - t0,
                              crs=resolved.to_string() if resolved is not None else None, n_files=len(in_paths))
 
+    if params.keep_classes and fusion is not None:
+        raise OptionError("--image: not with --keep-classes (the delivered classes are kept as they are)",
+                          param="--image")
     if params.keep_classes:
         runs = [_keep_delivered(q, out, out_crs=out_crs, units=units, chunk_points=chunk_points, t0=t0)
                 for q, out in zip(in_paths, out_paths)]
@@ -574,11 +579,11 @@ def _classify(in_paths, out_paths, crs, params, *, tile_size_m, buffer_m, execut
     try:
         if grid.n_tiles == 1:
             run = _classify_whole(in_paths, out_paths, crs=crs, out_crs=out_crs, params=params,
-                                  chunk_points=chunk_points, t0=t0)
+                                  chunk_points=chunk_points, t0=t0, fusion=fusion)
         else:
             run = _classify_tiled(in_paths, out_paths, out_crs=out_crs, units=units, params=params, grid=grid,
                                   executor=executor, work_parent=work_parent, tiles_name=tiles_name,
-                                  chunk_points=chunk_points, t0=t0)
+                                  chunk_points=chunk_points, t0=t0, fusion=fusion)
     except ResourceError as exc:
         # A grid inside the classifier would not fit: name the file (points spread far apart, e.g.
         # strips of two zones merged under one CRS).
@@ -605,9 +610,9 @@ def _class_counts(counts: np.ndarray) -> dict[int, int]:
     return {int(c): int(counts[c]) for c in np.flatnonzero(counts)}
 
 
-def _classify_whole(in_paths, out_paths, *, crs, out_crs, params, chunk_points, t0) -> ClassifyRun:
+def _classify_whole(in_paths, out_paths, *, crs, out_crs, params, chunk_points, t0, fusion=None) -> ClassifyRun:
     """A one-tile input: classified in memory, each file written from the records kept."""
-    classes, records, _ = _direct_classes(in_paths, crs, params, chunk_points)
+    classes, records, _ = _direct_classes(in_paths, crs, params, chunk_points, fusion)
     t1 = time.perf_counter()
     first = 0
     for q, out, rec in zip(in_paths, out_paths, records):
@@ -620,7 +625,7 @@ def _classify_whole(in_paths, out_paths, *, crs, out_crs, params, chunk_points, 
 
 
 def _classify_tiled(in_paths, out_paths, *, out_crs, units, params, grid, executor, work_parent, tiles_name,
-                    chunk_points, t0) -> ClassifyRun:
+                    chunk_points, t0, fusion=None) -> ClassifyRun:
     """In tiles: split all files (pass 1), classify tiles on the executor (pass 2), scatter the core
     classes into a memory-mapped file and write each output from its records copy (pass 3)."""
     headers = [las.read_header(q) for q in in_paths]
@@ -638,6 +643,8 @@ def _classify_tiled(in_paths, out_paths, *, out_crs, units, params, grid, execut
         per_task = executor.cores_per_task(len(tasks))
         if per_task is not None:
             tasks = [dataclasses.replace(t, numba_threads=per_task) for t in tasks]
+        if fusion is not None:
+            tasks = [dataclasses.replace(t, fusion=fusion) for t in tasks]
         t1 = time.perf_counter()
         results = executor.map(classify_tile, tasks, desc="tiles: classify", unit="tile")
         t2 = time.perf_counter()

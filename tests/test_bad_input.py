@@ -658,6 +658,10 @@ CASES = [
       "--map-pred"),
     C("evaluate_json_is_input", "lidarctl", "evaluate {w}/las/cloud.las --truth {w}/las/cloud.laz --json "
       "{w}/las/cloud.las", "cloud.las"),
+    C("evaluate_reference_and_truth", "lidarctl", "evaluate {w}/las/cloud.las --truth {w}/las/cloud.laz --reference "
+      "{w}/las/cloud.laz", "either --truth"),
+    C("evaluate_reference_not_a_map", "lidarctl", "evaluate {w}/las/cloud.las --reference {w}/las/points.csv --json "
+      "{w}/e.json", "points.csv"),
     C("check_heights_radius_negative", "lidarctl", "check-heights {w}/las/cloud.las {w}/las/points.csv --radius -1",
       "--radius"),
     C("check_heights_exclude_negative", "lidarctl", "check-heights {w}/las/cloud.las {w}/las/points.csv --exclude -1",

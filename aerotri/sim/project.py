@@ -23,7 +23,7 @@ from rasterio.transform import from_origin
 from aerotri.geom.eo import ExteriorOrientations, GnssPositions, format_eo, write_gnss
 from aerotri.core.errors import InputError
 from aerotri.geom.rotation import rotation_matrix_opk
-from aerotri.sim import raycast, render
+from aerotri.sim import landcover, raycast, render
 from aerotri.sim.config import stage_sections_toml
 from aerotri.sim.flight import block_layout, cameras_from_config, lidar_lines, plan_frames
 from aerotri.sim.lidar import las_header, las_record, pulse_chunks, scan_strip, strip_pulses, trajectory
@@ -51,6 +51,13 @@ def _write_geotiff(path: Path, width: int, height: int, bands: int, dtype, trans
             data = rows(r0, r1)
             arr = data[None] if data.ndim == 2 else np.moveaxis(data, 2, 0)
             dst.write(arr.astype(dtype, copy=False), window=rasterio.windows.Window(0, r0, width, r1 - r0))
+
+
+def _open_geotiff(path: Path, width: int, height: int, dtype, transform, epsg: int, nodata=None):
+    """A single-band GeoTIFF open for writing by windows, with ``_write_geotiff``'s layout."""
+    return rasterio.open(path, "w", driver="GTiff", width=width, height=height, count=1, dtype=np.dtype(dtype).name,
+                         crs=f"EPSG:{epsg}", transform=transform, tiled=True, blockxsize=256, blockysize=256,
+                         compress="deflate", nodata=nodata)
 
 
 def _csv(path: Path, header: list[str], rows) -> None:
@@ -319,7 +326,9 @@ def _write_check_targets(truth_dir: Path, scene, accel, plan, cam_true, origin) 
 
 
 def _write_truth_rasters(truth_dir: Path, cfg: dict, layout, scene, accel, origin, epsg: int) -> None:
-    """truth/dem.tif and truth/dsm.tif (``[truth] raster_res_m``), truth/ortho.tif (``ortho_res_m``)."""
+    """truth/dem.tif and truth/dsm.tif (``[truth] raster_res_m``), truth/ortho.tif (``ortho_res_m``) and on its
+    grid the land-cover truth (``aerotri.sim.landcover``): truth/ortho_nir.tif (near-infrared band) and
+    truth/classes.tif (ASPRS classes building, tree, grass, road, bare ground, water; nodata 255)."""
     res = cfg["truth"]["raster_res_m"]
     nx, ny = int(math.floor(layout.width_m / res)), int(math.floor(layout.height_m / res))
     xs = (np.arange(nx) + 0.5) * res
@@ -343,13 +352,23 @@ def _write_truth_rasters(truth_dir: Path, cfg: dict, layout, scene, accel, origi
     onx, ony = int(math.floor(layout.width_m / ores)), int(math.floor(layout.height_m / ores))
     oxs = (np.arange(onx) + 0.5) * ores
 
-    def ortho_rows(r0, r1):
-        OX, OY = grid(ores, oxs, r0, r1)
-        _, rad, _ = render.vertical_render(scene, accel, OX.ravel(), OY.ravel())
-        return np.clip(np.rint(render.tone_map(rad.reshape(OX.shape + (3,)))), 0, 255).astype(np.uint8)
+    otransform = from_origin(origin[0], origin[1] + layout.height_m, ores, ores)
+    # The land-cover truth (extra files beside ortho.tif, from the same rays: ortho.tif is unchanged).
+    with _open_geotiff(truth_dir / "ortho_nir.tif", onx, ony, np.uint8, otransform, epsg) as nir_dst, \
+            _open_geotiff(truth_dir / "classes.tif", onx, ony, np.uint8, otransform, epsg,
+                          nodata=landcover.NODATA) as cls_dst:
 
-    _write_geotiff(truth_dir / "ortho.tif", onx, ony, 3, np.uint8,
-                   from_origin(origin[0], origin[1] + layout.height_m, ores, ores), epsg, ortho_rows)
+        def ortho_rows(r0, r1):
+            OX, OY = grid(ores, oxs, r0, r1)
+            _, rad, ids = render.vertical_render(scene, accel, OX.ravel(), OY.ravel())
+            classes, nir = landcover.classes_and_nir(ids, rad, OX.ravel(), OY.ravel(), scene)
+            window = rasterio.windows.Window(0, r0, onx, r1 - r0)
+            nir_dst.write(np.clip(np.rint(render.tone_map(nir)), 0, 255).astype(np.uint8).reshape(OX.shape), 1,
+                          window=window)
+            cls_dst.write(classes.reshape(OX.shape), 1, window=window)
+            return np.clip(np.rint(render.tone_map(rad.reshape(OX.shape + (3,)))), 0, 255).astype(np.uint8)
+
+        _write_geotiff(truth_dir / "ortho.tif", onx, ony, 3, np.uint8, otransform, epsg, ortho_rows)
 
 
 def _mean_spacing(L):

@@ -259,3 +259,29 @@ def test_sim_observations_option_writes_adjustable_files(tmp_path):
     res = CliRunner().invoke(aerotri_main, ["sim", "--preset", "tiny", "--observations", "--blunder-fraction", "2",
                                             str(tmp_path / "bad")])
     assert res.exit_code == 2 and "--blunder-fraction" in res.output
+
+
+def test_land_cover_truth_beside_the_true_ortho(tiny_project):
+    """truth/classes.tif and truth/ortho_nir.tif on the grid of truth/ortho.tif: roofs (eave outlines) are
+    building, and the NIR band is bright on vegetation and dark on roofs, roads and water."""
+    import shapely
+    from rasterio.features import rasterize
+
+    t = tiny_project / "truth"
+    with rasterio.open(t / "ortho.tif") as o, rasterio.open(t / "classes.tif") as c, rasterio.open(t / "ortho_nir.tif") as n:
+        assert c.transform == o.transform and n.transform == o.transform and c.shape == n.shape == o.shape
+        assert c.crs == o.crs and c.nodata == 255
+        classes, nir, transform = c.read(1), n.read(1).astype(float), o.transform
+    assert set(np.unique(classes)) <= {2, 3, 5, 6, 9, 11, 255}
+    assert {3, 6, 11}.issubset(set(np.unique(classes)))
+    feats = json.loads((t / "buildings.geojson").read_text())["features"]
+    eaves = [shapely.geometry.shape(f["geometry"]) for f in feats if f["properties"]["part"] == "roof_outline"]
+    assert len(eaves) == len(feats) // 2
+    roof = rasterize(((g, 1) for g in eaves), out_shape=classes.shape, transform=transform, fill=0).astype(bool)
+    inner = rasterize(((g.buffer(-1.0), 1) for g in eaves), out_shape=classes.shape, transform=transform,
+                      fill=0).astype(bool)
+    # trees may hang over a roof edge; 1 m inside the eave a pixel is roof unless a crown covers it
+    assert np.mean(classes[inner] == 6) > 0.97
+    assert np.mean(classes[~roof] == 6) < 0.005
+    mean_nir = {k: nir[classes == k].mean() for k in (3, 5, 6, 11)}
+    assert min(mean_nir[3], mean_nir[5]) > 1.3 * max(mean_nir[6], mean_nir[11])

@@ -1,0 +1,124 @@
+"""``lidarctl classify --image [--nir]``: the fusion rules on hand-made tiles and through the command line."""
+
+from __future__ import annotations
+
+import laspy
+import numpy as np
+import pytest
+import rasterio
+from click.testing import CliRunner
+from rasterio.transform import from_origin
+
+from lidarctl import classify, fusion, synthetic
+from lidarctl.cli import main
+
+X0, Y0 = 500000.0, 5400000.0
+GREEN, GREY, BROWN = (60, 140, 50), (120, 120, 125), (150, 120, 80)
+
+
+def _image(path, rgb, nir=None, crs="EPSG:32632", x0=X0, y0=Y0, res=0.5):
+    """A north-up image from an (rows, cols, 3) array (row 0 north), optional NIR as band 4."""
+    bands = [rgb[..., k] for k in range(3)] + ([nir] if nir is not None else [])
+    h, w = rgb.shape[:2]
+    with rasterio.open(path, "w", driver="GTiff", width=w, height=h, count=len(bands), dtype="uint8", crs=crs,
+                       transform=from_origin(x0, y0 + h * res, res, res)) as ds:
+        for k, b in enumerate(bands):
+            ds.write(np.asarray(b, np.uint8), k + 1)
+
+
+def test_greenness_ndvi_and_excess_green():
+    rgb = np.array([[60, 140, 50], [120, 120, 125], [150, 120, 80]], float)
+    green, ndvi = fusion.greenness(rgb, np.array([180.0, 100.0, 160.0]))
+    assert ndvi == pytest.approx([120 / 240, -20 / 220, 10 / 310])
+    assert green.tolist() == [True, False, False]
+    green, exg = fusion.greenness(rgb, None)
+    assert exg[0] == pytest.approx((2 * 140 - 60 - 50) / 250)
+    assert green.tolist() == [True, False, False]
+
+
+def test_road_shape_width_and_elongation():
+    m = np.zeros((30, 60), bool)
+    m[2:6, 5:45] = True       # 40 x 4 m: width 2A/P = 320/88 = 3.6 m, elongation 88^2/640 = 12
+    m[12:22, 5:15] = True     # 10 x 10 m: width 5 m, elongation 4 (a square)
+    m[25:27, 20:60] = True    # 40 x 2 m: narrower than 2.5 m
+    road = fusion.road_shaped(m, 1.0)
+    assert road[2:6, 5:45].all() and not road[12:22, 5:15].any() and not road[25:27, 20:60].any()
+
+
+def test_fuse_roads_grass_bare_and_green_building(tmp_path):
+    """60 x 60 m of ground at 0.5 m spacing: a 6 m road (dark LiDAR, grey image) across, a 10 x 10 m bare
+    patch (brown, bright), grass elsewhere (green); a 10 x 10 m 'building' 8 m high under a green crown."""
+    g = np.arange(0.25, 60, 0.5)
+    x, y = (a.ravel() for a in np.meshgrid(g, g))
+    road = (y > 27) & (y < 33)
+    bare = (x > 5) & (x < 15) & (y > 40) & (y < 50)
+    bld = (x > 40) & (x < 50) & (y > 40) & (y < 50)
+    cls = np.where(bld, 6, 2).astype(np.uint8)
+    hag = np.where(bld, 8.0, 0.0)
+    z = 100.0 + hag
+    intensity = np.where(road, 100, 400).astype(np.uint16)
+    # image: 120 x 120 px of 0.5 m, row 0 north
+    rows = 119 - np.floor(y / 0.5).astype(int)
+    cols = np.floor(x / 0.5).astype(int)
+    rgb = np.zeros((120, 120, 3), np.uint8)
+    rgb[:] = GREEN
+    nir = np.full((120, 120), 180, np.uint8)
+    for mask, colour, n in ((road, GREY, 100), (bare, BROWN, 160)):
+        rgb[rows[mask], cols[mask]] = colour
+        nir[rows[mask], cols[mask]] = n
+    _image(tmp_path / "dom.tif", rgb, nir)
+    img = fusion.open_image(tmp_path / "dom.tif", "4")
+    out = fusion.fuse(x + X0, y + Y0, z, hag, cls, intensity, img)
+    assert np.mean(out[road] == 11) > 0.95
+    assert np.all(out[bare] == 2)
+    assert np.all(out[bld] == 5)
+    grass = ~road & ~bare & ~bld
+    assert np.mean(out[grass] == 3) > 0.99
+    # without the NIR band the excess green gives the same classes here
+    out_rgb = fusion.fuse(x + X0, y + Y0, z, hag, cls, intensity, fusion.open_image(tmp_path / "dom.tif"))
+    assert np.mean(out_rgb == out) > 0.99
+
+
+def _synthetic_las(path):
+    cloud, _ = synthetic.synthetic_scene(width_m=80.0, density_per_m2=2.0, n_buildings=2, n_trees=4, seed=3,
+                                         n_low_outliers=0, n_high_outliers=0)
+    synthetic.write_las(path, cloud, crs="EPSG:32632")
+    return cloud
+
+
+def _classes(path):
+    return np.asarray(laspy.read(path).classification)
+
+
+def test_classify_with_image_cli_and_bad_input(tmp_path):
+    cloud = _synthetic_las(tmp_path / "c.las")
+    x0, y0 = np.floor(cloud.x.min()) - 5, np.floor(cloud.y.min()) - 5
+    green = np.zeros((190, 190, 3), np.uint8)
+    green[:] = GREEN
+    _image(tmp_path / "green.tif", green, x0=x0, y0=y0)
+    _image(tmp_path / "utm33.tif", green, crs="EPSG:32633", x0=x0, y0=y0)
+    run = CliRunner().invoke
+    r = run(main, ["classify", str(tmp_path / "c.las"), str(tmp_path / "lo.las")])
+    assert r.exit_code == 0, r.output
+    r = run(main, ["classify", str(tmp_path / "c.las"), str(tmp_path / "fu.las"), "--image", str(tmp_path / "green.tif")])
+    assert r.exit_code == 0, r.output
+    lo, fu = _classes(tmp_path / "lo.las"), _classes(tmp_path / "fu.las")
+    # all green: the LiDAR ground is grass and the building, green on the image, is taken for a tree
+    assert np.all(fu[lo == 2] == 3)
+    assert (lo == 6).sum() > 50 and np.all(np.isin(fu[lo == 6], (3, 5)))
+    assert 11 not in fu and 4 not in fu
+    # the LiDAR-only run is what the classifier gives without an image
+    assert np.array_equal(lo, classify.classify_points(cloud.x, cloud.y, cloud.z, cloud.return_number,
+                                                       cloud.number_of_returns, cloud.intensity))
+    out = tmp_path / "bad.las"
+    for extra, message in [
+        (["--nir", "4"], "--nir: only with --image"),
+        (["--image", str(tmp_path / "utm33.tif")], "EPSG:32633"),
+        (["--image", str(tmp_path / "green.tif"), "--nir", "2"], "--nir 2"),
+        (["--image", str(tmp_path / "nothere.tif")], "nothere.tif"),
+        (["--image", str(tmp_path / "green.tif"), "--keep-classes"], "--image"),
+    ]:
+        r = run(main, ["classify", str(tmp_path / "c.las"), str(out), *extra])
+        assert r.exit_code == 2, (extra, r.output)
+        assert message in r.output and "Traceback" not in r.output, (extra, r.output)
+        assert not out.exists()
