@@ -58,6 +58,7 @@ import numpy as np
 from scipy import ndimage
 from scipy.spatial import cKDTree
 
+from aerotri.core.errors import ConfigError
 from aerotri.core.settings import setting
 from lidarctl import grid
 from lidarctl import ground as ground_mod
@@ -82,6 +83,8 @@ class ClassifyParams:
         f"{name} ({f.help})" if f.help else name for name, f in ground_mod.GROUND_FILTERS.items()) + ".")
     preset: str | None = setting(None, choices=ground_mod.preset_names(), help="Ground filter parameters for "
                                  "the terrain type (default: the single all-round set).")
+    ground_params: dict = setting(default_factory=dict, help="Ground-filter parameters that replace the "
+                                  "preset's (name -> value; lidarctl.ground.GroundParams / MorphParams fields).")
     keep_classes: bool = setting(False, help="Keep the classes the LiDAR was delivered with (vendor-classified) "
                                              "after checking that ground and building classes are present and "
                                              "plausible (lidarctl.delivered_classes); no classification is run.")
@@ -124,6 +127,11 @@ class ClassifyParams:
 
     def __post_init__(self):
         ground_mod.check_method_preset(self.ground_method, self.preset)
+        try:
+            self.ground_params = ground_mod.checked_overrides(self.ground_method, self.ground_params or {},
+                                                              f"ground_params of the {self.ground_method!r} filter")
+        except ConfigError as exc:  # from_table (project.toml [classify]) adds the file and section
+            raise ValueError(str(exc)) from None
 
 
 def fewer_multi_returns(n_multi: np.ndarray, n: np.ndarray, fraction: float, z: float = 1.645) -> np.ndarray:
@@ -489,7 +497,8 @@ def classify_points(x, y, z, return_number=None, number_of_returns=None, intensi
     # ground
     is_ground = np.zeros(n, bool)
     for _ in range(2):
-        g = ground_mod.ground_filter(x[idx], y[idx], z[idx], method=p.ground_method, preset=p.preset)
+        g = ground_mod.ground_filter(x[idx], y[idx], z[idx], method=p.ground_method, preset=p.preset,
+                                     **p.ground_params)
         is_ground[:] = False
         is_ground[idx[g]] = True
         deep = deep_ground_outliers(x, y, z, is_ground, p.deep_cell_m, p.deep_m)

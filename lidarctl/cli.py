@@ -45,6 +45,27 @@ def _parse_map(text: str | None, option: str) -> dict:
     return out
 
 
+def ground_filter_options(f):
+    """``--ground-params FILE`` and one option per parameter of every registered ground filter
+    (``--morph-cell-m``, ``--ptd-seed-cell-m``, ...), listed in ``--help`` under one heading per filter."""
+    import dataclasses
+
+    from aerotri.core.commands import GroupedOption
+    from aerotri.core.settings import click_type, constraints
+    from lidarctl import ground
+
+    for method, flt in reversed(list(ground.GROUND_FILTERS.items())):
+        defaults = flt.params()
+        for fld in reversed(dataclasses.fields(flt.params)):
+            f = click.option(ground.option_name(method, fld.name), f"gp__{method}__{fld.name}", cls=GroupedOption,
+                             group=f"Ground filter {method!r}, {flt.help} (--method {method}; [default] without --preset)",
+                             type=click_type(flt.params, fld.name), default=None,
+                             help=f"{constraints(fld)['help']} [{getattr(defaults, fld.name):g}]")(f)
+    return click.option("--ground-params", "ground_params_file", type=click.Path(dir_okay=False), default=None,
+                        help="TOML file of ground-filter parameters: optional method and preset keys and a table "
+                             "per filter, e.g. [ptd] seed_cell_m = 20.0; the options below override it.")(f)
+
+
 @main.command()
 @click.argument("in_paths", nargs=-1, required=True, type=click.Path(dir_okay=False))
 @click.argument("out_path", type=click.Path())
@@ -69,8 +90,9 @@ def _parse_map(text: str | None, option: str) -> dict:
               help="--image: the near-infrared band number of the orthophoto (e.g. 4) or a one-band file on its "
                    "grid; greenness is then NDVI, else excess green.")
 @scheduler_options
+@ground_filter_options
 def classify(in_paths, out_path, preset, crs, ground_method, tile_size_m, buffer_m, work_dir, keep_classes, out_format,
-             image_path, nir, scheduler, workers):
+             image_path, nir, scheduler, workers, ground_params_file, **ground_opts):
     """Noise, ground, buildings, vegetation and water as ASPRS classes (LAS/LAZ in, LAS/LAZ out).
 
     One file: IN_PATH OUT_PATH (a .las/.laz file). Strips of a block: STRIP... OUT_DIR; they are
@@ -96,7 +118,18 @@ def classify(in_paths, out_path, preset, crs, ground_method, tile_size_m, buffer
         if out_format is not None:
             raise OptionError("--format: only for an output folder (OUT_PATH names the file and its format)",
                               param="--format")
-    params = ClassifyParams(ground_method=ground_method, preset=preset, keep_classes=keep_classes)
+    from click.core import ParameterSource
+
+    from lidarctl import ground
+
+    ctx = click.get_current_context()
+    given = {name: ctx.get_parameter_source(name) != ParameterSource.DEFAULT for name in ("ground_method", "preset")}
+    ground_method, preset, overrides = ground.resolve_options(
+        ground_method, preset, ground_params_file,
+        {tuple(k.split("__")[1:]): v for k, v in ground_opts.items()},
+        method_given=given["ground_method"], preset_given=given["preset"])
+    params = ClassifyParams(ground_method=ground_method, preset=preset, keep_classes=keep_classes,
+                            ground_params=overrides)
     fusion = None
     if nir is not None and image_path is None:
         raise OptionError("--nir: only with --image", param="--nir")

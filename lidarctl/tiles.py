@@ -83,13 +83,13 @@ TILE_ROUND_M = 10.0
 MAX_TILES = 1_000_000
 
 
-def default_buffer_m(method: str = "morph", preset: str | None = None) -> float:
+def default_buffer_m(method: str = "morph", preset: str | None = None, ground_params=None) -> float:
     """Overlap buffer (m) beyond which a point cannot change the classes of a tile's core points: the
     reach of the ground filter (``lidarctl.ground.GROUND_FILTERS``) with ``preset``; 60 m for the
     default morphological filter, 90 m for the progressive TIN densification."""
     from lidarctl import ground
 
-    return ground.reach_m(method, preset)
+    return ground.reach_m(method, preset, **(ground_params or {}))
 
 
 @dataclasses.dataclass(frozen=True)
@@ -137,7 +137,7 @@ class TileGrid:
 
 def plan_tiles(header: laspy.LasHeader, tile_size_m: float | None = None, buffer_m: float | None = None,
                method: str = "morph", preset: str | None = None, path="input",
-               tile_points: int = DEFAULT_TILE_POINTS, units: LengthUnits = METRE) -> TileGrid:
+               tile_points: int = DEFAULT_TILE_POINTS, units: LengthUnits = METRE, ground_params=None) -> TileGrid:
     """Tile grid (metres) over the header bounds (in the file's ``units``). ``header``: a LAS header, or
     anything with ``mins``, ``maxs`` and ``point_count`` (the union of several strips).
 
@@ -146,7 +146,7 @@ def plan_tiles(header: laspy.LasHeader, tile_size_m: float | None = None, buffer
     whole tiles cover the extent, rounded up to 10 m and at least twice the buffer (else the
     buffers would cost more than the cores). Default buffer: ``default_buffer_m``.
     """
-    buffer_m = default_buffer_m(method, preset) if buffer_m is None else float(buffer_m)
+    buffer_m = default_buffer_m(method, preset, ground_params) if buffer_m is None else float(buffer_m)
     if not (buffer_m >= 0 and math.isfinite(buffer_m)):
         raise OptionError(f"--buffer {buffer_m}: must be a non-negative distance in metres", param="--buffer")
     mins, maxs = np.asarray(header.mins, float), np.asarray(header.maxs, float)
@@ -555,7 +555,8 @@ def _classify(in_paths, out_paths, crs, params, *, tile_size_m, buffer_m, execut
     # A CRS record for an input without one: the --crs as given (a compound CRS keeps its vertical unit).
     out_crs = parse_crs(crs, "--crs") if crs is not None and str(crs).strip() else resolved
     bounds = headers[0] if len(headers) == 1 else _union_bounds(headers)
-    grid = plan_tiles(bounds, tile_size_m, buffer_m, params.ground_method, params.preset, name, units=units)
+    grid = plan_tiles(bounds, tile_size_m, buffer_m, params.ground_method, params.preset, name, units=units,
+                      ground_params=params.ground_params)
     n = int(bounds.point_count)
 
     def stats(run):

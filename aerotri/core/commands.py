@@ -63,12 +63,34 @@ def _exit_cleanly_on_sigterm():
         signal.signal(signal.SIGTERM, previous)
 
 
+class GroupedOption(click.Option):
+    """An option that ``--help`` lists under its own heading (``group``), after the other options: e.g.
+    the parameters of each ground filter of ``lidarctl classify``."""
+
+    def __init__(self, *args, group: str, **kwargs):
+        super().__init__(*args, **kwargs)
+        self.group = group
+
+
 class Command(click.Command):
     """A command with the logging options and the error handler (see the module docstring)."""
 
     def __init__(self, *args, **kwargs):
         super().__init__(*args, **kwargs)
         self.params.extend(_logging_params())
+
+    def format_options(self, ctx, formatter):
+        """The options, then each heading of :class:`GroupedOption` s with its options."""
+        plain, groups = [], {}
+        for param in self.get_params(ctx):
+            record = param.get_help_record(ctx)
+            if record is not None:
+                group = getattr(param, "group", None)
+                (groups.setdefault(group, []) if group else plain).append(record)
+        for heading, records in [("Options", plain), *groups.items()]:
+            if records:
+                with formatter.section(heading):
+                    formatter.write_dl(records)
 
     def invoke(self, ctx):
         verbose = ctx.params.pop("verbose", 0) or 0

@@ -86,7 +86,7 @@ def test_plan_defaults_and_option_errors(big):
     assert (tiny.nrows, tiny.ncols) == (2, 2) and tiny.tile_m == 150.0
     fine = tiles.plan_tiles(header, buffer_m=10.0, tile_points=50_000)    # 112 - 20 m -> 3 x 100 m
     assert (fine.nrows, fine.ncols) == (3, 3) and fine.tile_m == 100.0
-    assert tiles.default_buffer_m("ptd") == 90.0
+    assert tiles.default_buffer_m("ptd") == 30.0 and tiles.default_buffer_m("ptd", ground_params={"seed_cell_m": 60}) == 90
     with pytest.raises(InputError, match="--buffer"):
         tiles.plan_tiles(header, tile_size_m=50.0, buffer_m=60.0)
     with pytest.raises(InputError, match="--tile-size"):
