@@ -18,9 +18,9 @@ Progressive TIN densification (``ptd_ground``)
 6. The raised-plateau test (below) after the filter: a ground segment standing on walls above its
    surroundings is a roof.
 
-The default parameters are the best of a grid on the 7 shared ISPRS samples, 5.40 % mean total error
-(6.26 % when each sample is scored with the grid point chosen on the other six): samp11 (steep slope
-with buildings) and samp41 (ground on two levels 6-9 m apart) stay at 12-14 %.
+The default parameters come from a grid on the 7 shared ISPRS samples: 5.27 % mean total error there
+(in-sample), 5.74 % when each sample is scored with the grid point chosen on the other six; samp11 (steep
+slope with buildings) and samp41 (ground on two levels 6-9 m apart) stay at 11-14 %.
 
 Morphological filter (``morphological_ground``, after SMRF, Pingel et al. 2013): minimum surface on a
 grid, progressive openings with growing windows; a cell is an object cell when its height above the
@@ -40,7 +40,7 @@ roof (a low wide roof, or a roof filling a tile corner, that the opening window 
 Presets tune the parameters for urban, rural, forest and mountain terrain. The default filter
 (``ground_filter`` with no preset) is the morphological filter with its TIN refinement and one
 parameter set (``MorphParams()``) for all reference samples: 3.8 % on the shared ISPRS samples against
-the PTD's 5.4 % (results/lidar_isprs.json, lidar_isprs_loo*.json).
+the PTD's 5.3 % (results/lidar_isprs.json, lidar_isprs_loo*.json).
 
 Registry (``GROUND_FILTERS``): name -> ``GroundFilter`` (parameters dataclass, presets, reach,
 function). ``ground_filter``, the classifier's settings (``ClassifyParams``), the command line's
@@ -89,8 +89,9 @@ class GroundParams:
                                          "roof area.")
 
 
-# The default set: the best of bench/eval_isprs_loo.py --method ptd's grid on the 7 shared ISPRS samples
-# (5.40 % mean total error in-sample, 6.26 % leave-one-sample-out: results/lidar_isprs_loo_ptd.json).
+# The default set: the best of a first grid on the 7 shared ISPRS samples (so its 5.27 % mean total error
+# there is in-sample); bench/eval_isprs_loo.py --method ptd scores each sample with the grid point chosen
+# on the other six: 5.74 % (results/lidar_isprs_loo_ptd.json).
 # The presets are starting points from the parameters' meaning, not measured: flat open land takes a
 # stricter angle, rough forest floor and mountains looser angles and distances.
 PTD_PRESETS = {
