@@ -191,12 +191,12 @@ def condition(dem: np.ndarray, method: str = "fill") -> Conditioned:
 # D8, accumulation
 
 
-@numba.njit(cache=True, parallel=True)
+@numba.njit(cache=True)  # serial: cheap next to the flood, and parallel compiles for seconds
 def _d8(z, valid, dx, dy):
     ny, nx = z.shape
     dist = np.array([dy, math.hypot(dx, dy), dx, math.hypot(dx, dy), dy, math.hypot(dx, dy), dx, math.hypot(dx, dy)])
     codes = np.zeros((ny, nx), dtype=np.uint8)
-    for i in numba.prange(ny):
+    for i in range(ny):
         for j in range(nx):
             if not valid[i, j]:
                 continue
