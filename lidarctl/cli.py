@@ -259,7 +259,8 @@ def drainage(dem_path, outdir, min_area_m2, fill, simplify_px, png):
     conditioned.tif, flowdir.tif (D8, ESRI codes 1 E 2 SE 4 S 8 SW 16 W 32 NW 64 N 128 NE), accum_cells.tif,
     accum_m2.tif, strahler.tif (COGs in the DEM's CRS, nodata kept), drainage.gpkg (layers streams with
     strahler_order, length_m, upstream_area_m2; watersheds per segment; basins per outlet), drainage.png and
-    drainage.json. Global: the whole DEM is held in memory, about 90 bytes per cell at the peak.
+    drainage.json. Global: the whole DEM is held in memory, about 100 bytes per cell at the peak (1 GB for
+    10 M cells).
     """
     from lidarctl.drainage import drainage as run
 
