@@ -348,3 +348,30 @@ def contours(dem_path, out_path, interval_m, index_every, smoothing, tolerance_p
     click.echo(f"{out_path}: {s['contours']} contours on {s['levels']} levels ({s['closed']} closed, "
                f"{s['index_contours']} index), smoothing {s['smoothing']} ({s['fell_back_to_traced']} kept traced "
                f"to avoid crossings), {s['crossings']} crossings")
+
+
+@main.command()
+@click.argument("dem_path", type=click.Path(dir_okay=False))
+@click.argument("outdir", type=click.Path(file_okay=False))
+@click.option("--min-area-m2", type=positive(), default=10_000.0, show_default=True,
+              help="Stream threshold: the upstream area (m2, also for DEMs in feet) from which a cell is a stream.")
+@click.option("--fill/--breach", "fill", default=True, show_default=True,
+              help="Depressions: priority-flood fill with a float64 epsilon gradient, or breaching (the outflow path "
+                   "carved down to the pit).")
+@click.option("--simplify-px", type=click.FloatRange(min=0), default=0.5, show_default=True,
+              help="Douglas-Peucker tolerance of the stream lines in cells (0: the D8 path through the cell centres).")
+@click.option("--png/--no-png", default=True, show_default=True, help="drainage.png: streams over the hillshade.")
+def drainage(dem_path, outdir, min_area_m2, fill, simplify_px, png):
+    """Drainage network of DEM_PATH (GeoTIFF) into OUTDIR (replaced as a whole; all files or none):
+    conditioned.tif, flowdir.tif (D8, ESRI codes 1 E 2 SE 4 S 8 SW 16 W 32 NW 64 N 128 NE), accum_cells.tif,
+    accum_m2.tif, strahler.tif (COGs in the DEM's CRS, nodata kept), drainage.gpkg (layers streams with
+    strahler_order, length_m, upstream_area_m2; watersheds per segment; basins per outlet), drainage.png and
+    drainage.json. Global: the whole DEM is held in memory, about 100 bytes per cell at the peak (1 GB for
+    10 M cells).
+    """
+    from lidarctl.drainage import drainage as run
+
+    r = run(dem_path, outdir, min_area_m2, "fill" if fill else "breach", simplify_px, png)
+    click.echo(f"{r.outdir}: {r.valid_cells:,} of {r.cells:,} cells; {r.method}: {r.cells_changed:,} cells changed "
+               f"(raised up to {r.raised_max_m:.3f} m, cut up to {r.lowered_max_m:.3f} m); {r.segments} stream "
+               f"segments up to Strahler order {r.max_order}, {r.basins} basins")
