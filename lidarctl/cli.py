@@ -24,9 +24,11 @@ def main():
 
 from lidarctl.corners_cli import corners  # noqa: E402
 from lidarctl.merge_cli import merge  # noqa: E402
+from lidarctl.trees_cli import trees  # noqa: E402
 
 main.add_command(corners)
 main.add_command(merge)
+main.add_command(trees)
 
 
 def _parse_map(text: str | None, option: str) -> dict:
