@@ -6,7 +6,10 @@ that fall between the crowns; the highest of them per cell is a vertex of a Dela
 interpolated linearly at the cell centres. Triangles with an edge longer than ``max_edge_m`` are left
 out, so gaps without returns (water, buildings, holes in the data) stay NODATA instead of being bridged;
 cells below ``min_height_m`` (open ground, low shrubs) are NODATA too, which leaves NODATA wherever
-there are no trees. The DEM is the one ``lidarctl rasters`` makes (mean height of the ground and water
+there are no trees. Pit-free (``pit_free``, Khosravipour et al. 2014): first returns from inside a crown
+or from the ground below it would cut pits into the crown; the CHM is the highest of that TIN and of
+partial TINs of the vegetation returns above 2, 5, 10, 15 ... m, each with the same edge limit, so
+within a crown the higher returns bridge the pits while at its edge the partial TINs end. The DEM is the one ``lidarctl rasters`` makes (mean height of the ground and water
 points per cell, gaps filled by pull-push), sampled bilinearly at each return.
 
 Stands: connected (8-neighbour) canopy regions of at least ``min_stand_area_m2``, polygonised
@@ -46,6 +49,8 @@ GROUND_CLASSES = (2, 9)
 NOISE_CLASSES = (7, 18)
 FILES = ("chm.tif", "trees.gpkg", "trees.png", "trees.json")
 PERCENTILES = (50, 90, 95)
+# height thresholds (m) of the pit-free CHM's partial TINs (Khosravipour et al. 2014)
+PIT_FREE_STEPS_M = (2.0, 5.0, 10.0, 15.0, 20.0, 25.0, 30.0, 40.0, 50.0, 60.0, 80.0)
 
 
 @dataclasses.dataclass(frozen=True, kw_only=True)
@@ -62,6 +67,9 @@ class TreeSettings:
     smooth_px: float = setting(0.75, min=0.0, help="Gaussian sigma (cells) of the CHM the tops are found on (0: none).")
     veg_classes: tuple[int, ...] = setting((3, 4, 5), min=0, max=255,
                                            help="Vegetation classes (comma-separated ASPRS codes).")
+    pit_free: bool = setting(True, help="Pit-free CHM: the highest of partial TINs of the returns above 2, 5, 10, "
+                                        "15 ... m (each with the edge limit), which bridge the holes first returns "
+                                        "through the crowns leave.")
 
     def validate(self) -> None:
         for name, opt in (("res_m", "--res-m"), ("max_edge_m", "--max-edge-m")):
@@ -194,11 +202,14 @@ def canopy_model(x, y, z, cls, return_number, settings: TreeSettings, name: str 
     cid = np.floor((py - y0) / res).astype(np.int64) * ncols + np.floor((px - x0) / res).astype(np.int64)
     top = lowest_per_cell(cid, -h)
     px, py, h = px[top], py[top], h[top]
-    if len(px) >= 3 and np.ptp(px) > 0 and np.ptp(py) > 0:
-        tri = delaunay_2d(px, py).astype(np.int64)
-        tin = _rasterise_tin(px - x0, py - y0, h, tri, s.max_edge_m ** 2, 0.0, 0.0, res, nrows, ncols)
-    else:
-        tin = np.full((nrows, ncols), np.nan)
+    tin = np.full((nrows, ncols), np.nan)
+    for t in (0.0, *PIT_FREE_STEPS_M) if s.pit_free else (0.0,):
+        k = h >= t if t > 0 else np.ones(len(h), bool)
+        if k.sum() < 3 or np.ptp(px[k]) == 0 or np.ptp(py[k]) == 0:
+            break
+        tri = delaunay_2d(px[k], py[k]).astype(np.int64)
+        tin = np.fmax(tin, _rasterise_tin(px[k] - x0, py[k] - y0, h[k], tri, s.max_edge_m ** 2, 0.0, 0.0, res,
+                                          nrows, ncols))
     chm = np.where(tin >= max(s.min_height_m, 1e-6), tin, np.nan)
     highest = np.full(nrows * ncols, np.nan)
     highest[cid[top]] = h

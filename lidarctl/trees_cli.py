@@ -22,9 +22,10 @@ from lidarctl.trees import TreeSettings
 @click_option(TreeSettings, "top_radius_per_m", "--top-radius-per-m")
 @click_option(TreeSettings, "smooth_px", "--smooth-px")
 @click_option(TreeSettings, "veg_classes", "--classes", metavar="C1,C2,...", default="3,4,5", type=str)
+@click_option(TreeSettings, "pit_free", "--pit-free/--no-pit-free")
 @click.option("--crs", default=None, help="CRS (EPSG:code) of files that have none; never guessed.")
 def trees(classified, outdir, res_m, max_edge_m, min_height_m, min_stand_area_m2, top_radius_m, top_radius_per_m,
-          smooth_px, veg_classes, crs):
+          smooth_px, veg_classes, pit_free, crs):
     """Tree heights of CLASSIFIED LAS/LAZ file(s) (one or more strips in one CRS) into OUTDIR.
 
     Writes chm.tif (canopy height model, COG, heights in the CRS's vertical unit, NODATA where no trees: a
@@ -40,7 +41,8 @@ def trees(classified, outdir, res_m, max_edge_m, min_height_m, min_stand_area_m2
         veg_classes = _classes(veg_classes)
     settings = TreeSettings(res_m=res_m, max_edge_m=max_edge_m, min_height_m=min_height_m,
                             min_stand_area_m2=min_stand_area_m2, top_radius_m=top_radius_m,
-                            top_radius_per_m=top_radius_per_m, smooth_px=smooth_px, veg_classes=tuple(veg_classes))
+                            top_radius_per_m=top_radius_per_m, smooth_px=smooth_px, veg_classes=tuple(veg_classes),
+                            pit_free=pit_free)
     r = trees_from_files(classified, outdir, settings, crs=crs)
     fh = r["forest_heights"] or {}
     click.echo(f"{outdir}: {r['stands']} stands, forest {r['forest_area_m2'] / 1e4:.3f} ha of "
