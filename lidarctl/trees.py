@@ -19,7 +19,9 @@ maximum of its CHM cells. Forest area = the stands' area.
 Tree tops: local maxima of the CHM (smoothed by a Gaussian of ``smooth_px`` cells against maxima on
 single branches) within a window whose radius grows with the height, ``top_radius_m +
 top_radius_per_m * h`` (taller trees have wider crowns: a tall crown holds one top, small trees close
-together keep theirs). A top's height is that of the highest return within one cell of it.
+together keep theirs). A top's height is that of the highest return within one cell of it. The defaults
+(1 m + 0.05 x h, smoothing 0.5 cells) are the best F-score of detection and commission on the simulator's
+scene seed 1 (``bench/eval_trees.py``, scored on seed 2).
 
 Units: every length and height here is in metres (a cloud in feet is scaled when read); the writers
 put the CHM, the polygons and the points back in the cloud's CRS and units (``*_m`` fields are metres).
@@ -62,9 +64,9 @@ class TreeSettings:
                                 help="TIN edge-length limit (m): longer triangles (gaps without returns) stay NODATA.")
     min_height_m: float = setting(2.0, min=0.0, help="Canopy below this height is not tree (NODATA) (m).")
     min_stand_area_m2: float = setting(200.0, min=0.0, help="Smallest connected canopy region that is a stand (m2).")
-    top_radius_m: float = setting(0.6, min=0.0, help="Tree-top window radius at height 0 (m).")
+    top_radius_m: float = setting(1.0, min=0.0, help="Tree-top window radius at height 0 (m).")
     top_radius_per_m: float = setting(0.05, min=0.0, help="Tree-top window radius added per metre of height.")
-    smooth_px: float = setting(0.75, min=0.0, help="Gaussian sigma (cells) of the CHM the tops are found on (0: none).")
+    smooth_px: float = setting(0.5, min=0.0, help="Gaussian sigma (cells) of the CHM the tops are found on (0: none).")
     veg_classes: tuple[int, ...] = setting((3, 4, 5), min=0, max=255,
                                            help="Vegetation classes (comma-separated ASPRS codes).")
     pit_free: bool = setting(True, help="Pit-free CHM: the highest of partial TINs of the returns above 2, 5, 10, "
