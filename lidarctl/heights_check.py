@@ -2,7 +2,8 @@
 
 For each surveyed point (X, Y, Z) the cloud's ground height is interpolated from the ground points
 (class 2) within ``radius_m`` horizontally: a least-squares plane, inverse-distance weighted
-(1/d^2), evaluated at (X, Y); with fewer than 3 points the IDW mean. dz = Z_lidar - Z_surveyed (m).
+(1/d^2), evaluated at (X, Y); with fewer than 3 points, or points nearly on a line (spread across
+it below 0.1 radius), the IDW mean. dz = Z_lidar - Z_surveyed (m).
 Statistics: counts per error bin, counts per |dz| bin (seed 004 Tab. 1: < 0.3, 0.3-0.5, 0.5-1, > 1 m),
 mean |dz|, RMSE, mean dz; the same without |dz| > ``exclude_m``; all of it per group.
 
@@ -122,6 +123,17 @@ def read_points_csv(path) -> dict:
             "group": groups if col_group is not None else None}
 
 
+# A plane needs ground points spread in both directions: nearly collinear points (a few returns along a scan
+# line in sparse ground) give a plane whose tilt across them is noise, metres off at the surveyed point.
+MIN_PLANE_SPREAD = 0.1
+
+
+def _spread_m(dx, dy) -> float:
+    """RMS spread of the points across their main direction (the smaller principal axis, metres)."""
+    c = np.cov(np.vstack([dx, dy]), bias=True)
+    return float(np.sqrt(max(np.linalg.eigvalsh(c)[0], 0.0)))
+
+
 def ground_height_at(gx, gy, gz, qx, qy, radius_m: float = 5.0, slopes: bool = False):
     """Interpolated ground height at (qx, qy) and the number of ground points used (NaN if none); with
     ``slopes`` also the plane's slopes dz/dx, dz/dy (0 where the IDW mean is used)."""
@@ -136,7 +148,7 @@ def ground_height_at(gx, gy, gz, qx, qy, radius_m: float = 5.0, slopes: bool = F
         dx, dy = gx[nb] - qx[k], gy[nb] - qy[k]
         w = 1.0 / np.maximum(dx * dx + dy * dy, 0.01)
         n_used[k] = len(nb)
-        if len(nb) >= 3:
+        if len(nb) >= 3 and _spread_m(dx, dy) >= MIN_PLANE_SPREAD * radius_m:
             a = np.column_stack([np.ones(len(nb)), dx, dy]) * np.sqrt(w)[:, None]
             coef, _, rank, _ = np.linalg.lstsq(a, gz[nb] * np.sqrt(w), rcond=None)
             if rank == 3:
