@@ -19,7 +19,7 @@ call) against the 1 m DEM ``lidarctl rasters`` makes from our classifier's groun
 cover of the first returns more than 2 m above that DEM within 10 m (open < 20 %, sparse 20-60 %, dense
 > 60 %). Also the DEM from the truth classes (the interpolation's share of the error without
 classification errors). The demo scene's crowns stand apart (no point reaches 60 % cover within 10 m),
-so the table is also made on a forested variant of seed 2 (six times the valley-side trees, three times
+so the table is also made on a forested variant of seed 2 (25 times the valley-side trees, three times
 the groves: a closed forest), where tree detection is scored too.
 
 Real set ``lidr_topography`` (73,403 points, 8,159 ground; classes 1/2/9): its class-2 points are the check
@@ -68,10 +68,10 @@ RESULTS = REPO / "results"
 
 def simulate(seed: int, forested: bool = False):
     """(scene, cloud in map metres with truth classes) of the demo preset's scene ``seed``, all LiDAR strips;
-    ``forested``: six times the trees on the valley side and three times the groves (a closed forest)."""
+    ``forested``: 25 times the trees on the valley side and three times the groves (a closed forest)."""
     cfg = load_preset("demo")
     if forested:
-        cfg["scene"]["slope_trees"] *= 6
+        cfg["scene"]["slope_trees"] *= 25
         cfg["scene"]["tree_clusters"] *= 3
     layout = block_layout(cfg)
     scene = build_scene(cfg["scene"], layout.width_m, layout.height_m, np.zeros(3), seed)
