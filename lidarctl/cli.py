@@ -10,9 +10,10 @@ from __future__ import annotations
 import click
 
 from aerotri.core.atomic import refuse_input_as_output
-from aerotri.core.commands import Group, positive, scheduler_options
+from aerotri.core.commands import Group, fraction, positive, scheduler_options
 from aerotri.core.settings import click_option
 from lidarctl.classify import ClassifyParams
+from lidarctl.heights_check import GROUPINGS, DensityGroups
 from lidarctl.map_accuracy import MapEvalParams
 from lidarctl.rasters import DEFAULT_BUFFER_PX, DEFAULT_TILE_PX
 
@@ -26,10 +27,15 @@ def main():
 from lidarctl.corners_cli import corners  # noqa: E402
 from lidarctl.merge_cli import merge  # noqa: E402
 from lidarctl.strips_cli import strips  # noqa: E402
+from lidarctl.trees_cli import trees  # noqa: E402
 
 main.add_command(corners)
 main.add_command(merge)
 main.add_command(strips)
+main.add_command(trees)
+
+
+_DENSITY = DensityGroups()
 
 
 def _parse_map(text: str | None, option: str) -> dict:
@@ -270,27 +276,46 @@ def evaluate(pred_paths, truth_path, reference_path, json_path, map_pred, map_tr
 
 
 @main.command("check-heights")
-@click.argument("cloud_paths", nargs=-1, required=True, type=click.Path(dir_okay=False))
-@click.argument("points_csv", type=click.Path(dir_okay=False))
+@click.argument("paths", nargs=-1, required=True, type=click.Path(dir_okay=False), metavar="[CLOUD]... POINTS_CSV")
+@click.option("--dem", "dem_path", type=click.Path(dir_okay=False), default=None,
+              help="Also check this DEM GeoTIFF (bilinear height at each point); with no CLOUD, the DEM alone.")
 @click.option("--radius", "radius_m", type=positive(), default=5.0, show_default=True,
               help="Search radius (m, also for clouds in feet).")
 @click.option("--exclude", "exclude_m", type=positive(), default=1.0, show_default=True,
               help="Statistics again without points with |dz| beyond this (m).")
+@click.option("--groups", "grouping", type=click.Choice(GROUPINGS), default="auto", show_default=True,
+              help="Group the statistics by the CSV's group column, by the vegetation density around each point "
+                   "(from the cloud's first returns), or not at all; auto: the column when there is one.")
+@click.option("--cover-radius", "cover_radius_m", type=positive(), default=_DENSITY.radius_m, show_default=True,
+              help="Density: radius (m) of the first returns counted around a point.")
+@click.option("--canopy-height", "canopy_height_m", type=positive(), default=_DENSITY.canopy_height_m,
+              show_default=True, help="Density: a first return this high above the ground (m) is canopy.")
+@click.option("--open-below", type=fraction(), default=_DENSITY.open_below, show_default=True,
+              help="Density: canopy cover below this fraction is open.")
+@click.option("--dense-above", type=fraction(open_high=False), default=_DENSITY.dense_above, show_default=True,
+              help="Density: canopy cover above this fraction is dense (between: sparse).")
 @click.option("--json", "json_path", type=click.Path(dir_okay=False), default=None,
               help="Write the numbers as JSON (dz and statistics in metres, _m keys; per-point coordinates "
                    "in the cloud's units, named by xy_unit and z_unit).")
 @click.option("--crs", default=None, help="CRS (EPSG:code) when the file has none.")
-def check_heights(cloud_paths, points_csv, radius_m, exclude_m, json_path, crs):
-    """Height check of the cloud's ground (class 2; one file or classified strips) against surveyed
-    points (CSV id,x,y,z[,group] in the cloud's CRS and units); dz in metres."""
+def check_heights(paths, dem_path, radius_m, exclude_m, grouping, cover_radius_m, canopy_height_m, open_below,
+                  dense_above, json_path, crs):
+    """Height check against surveyed points (CSV id,x,y,z[,group] in the CRS and units of the cloud, or of the
+    DEM): of the cloud's ground (class 2; one file or classified strips) and/or of the DEM raster (--dem);
+    dz in metres, error bins, mean |dz| and RMSE overall and per group (seed 004 Tab. 1: by vegetation
+    density with --groups density)."""
     import json
 
     from lidarctl import heights_check as hc
     from aerotri.core.atomic import write_text_atomic
 
+    *cloud_paths, points_csv = paths
     if json_path:
-        refuse_input_as_output(json_path, [*cloud_paths, points_csv], "--json")
-    result = hc.check_heights_file(list(cloud_paths), points_csv, radius_m, exclude_m, crs=crs)
+        refuse_input_as_output(json_path, [*cloud_paths, points_csv, dem_path], "--json")
+    density = hc.DensityGroups(radius_m=cover_radius_m, canopy_height_m=canopy_height_m, open_below=open_below,
+                               dense_above=dense_above)
+    result = hc.check_heights_file(cloud_paths, points_csv, radius_m, exclude_m, crs=crs, dem_path=dem_path,
+                                   grouping=grouping, density=density)
     click.echo(hc.format_report(result))
     if json_path:
         write_text_atomic(json_path, json.dumps(result, indent=2))

@@ -8,17 +8,18 @@ from pathlib import Path
 from aerotri.core.errors import InputError
 
 
-def open_dem(in_path, out_path):
+def open_dem(in_path, out_path=None):
     """(open rasterio dataset, metres per height unit) of a north-up, single-band DEM with a CRS; refuses
-    ``out_path`` equal to the input (``OptionError`` naming OUT) and anything else with an ``InputError``
-    naming the file. The caller closes the dataset."""
+    ``out_path`` equal to the input (``OptionError`` naming OUT; None: a check that writes no raster) and
+    anything else with an ``InputError`` naming the file. The caller closes the dataset."""
     import rasterio
 
     from aerotri.core.atomic import refuse_input_as_output
     from aerotri.geom.crs import height_unit_m
 
-    in_path, out_path = Path(in_path), Path(out_path)
-    refuse_input_as_output(out_path, [in_path], option="OUT")
+    in_path = Path(in_path)
+    if out_path is not None:
+        refuse_input_as_output(Path(out_path), [in_path], option="OUT")
     try:
         src = rasterio.open(in_path)
     except rasterio.errors.RasterioIOError as exc:

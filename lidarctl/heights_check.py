@@ -2,9 +2,21 @@
 
 For each surveyed point (X, Y, Z) the cloud's ground height is interpolated from the ground points
 (class 2) within ``radius_m`` horizontally: a least-squares plane, inverse-distance weighted
-(1/d^2), evaluated at (X, Y); with fewer than 3 points the IDW mean. dz = Z_lidar - Z_surveyed (m).
-Statistics: counts per error bin, mean |dz|, RMSE, mean dz; the same without |dz| > ``exclude_m``;
-all of it per group (e.g. open / road / steep / dense vegetation) when a group column is given.
+(1/d^2), evaluated at (X, Y); with fewer than 3 points, or points nearly on a line (spread across
+it below 0.1 radius), the IDW mean. dz = Z_lidar - Z_surveyed (m).
+Statistics: counts per error bin, counts per |dz| bin (seed 004 Tab. 1: < 0.3, 0.3-0.5, 0.5-1, > 1 m),
+mean |dz|, RMSE, mean dz; the same without |dz| > ``exclude_m``; all of it per group.
+
+The DEM raster itself (``dem_path``, ``--dem``) is checked the same way: its bilinear height at each
+surveyed point (NaN where one of the four cells around it is nodata), dz_dem = Z_dem - Z_surveyed. The
+DEM alone (no cloud) or both side by side.
+
+Groups: a ``group`` column of the points (e.g. open / road / steep), or the vegetation density around
+each point from the cloud (``DensityGroups``): the canopy cover is the share of the first returns
+(noise excluded) within ``radius_m`` horizontally that lie more than ``canopy_height_m`` above the
+ground: the DEM when one is given, else the local ground plane (least squares, 1/d^2 weights) of the
+ground points within that radius. open: cover < ``open_below``; sparse: up to ``dense_above``; dense:
+above; unknown: no first return in range.
 
 Units: the surveyed points are in the cloud's CRS (x, y in its horizontal unit, z in its vertical
 unit). Radius, threshold, bins and every ``_m`` key (dz, mean, RMSE) are metres, also for clouds
@@ -15,6 +27,7 @@ named by ``xy_unit`` and ``z_unit``.
 from __future__ import annotations
 
 import csv
+import dataclasses
 import io as stringio
 from pathlib import Path
 
@@ -29,6 +42,35 @@ from lidarctl import io
 from lidarctl.units import METRE, LengthUnits
 
 BIN_EDGES_M = (-np.inf, -1.0, -0.5, 0.5, 1.0, 1.5, 2.0, 5.0, np.inf)
+ABS_BIN_EDGES_M = (0.3, 0.5, 1.0)
+GROUPINGS = ("auto", "column", "density", "none")
+DENSITY_ORDER = ("open", "sparse", "dense", "unknown")
+
+
+@dataclasses.dataclass(frozen=True, kw_only=True)
+class DensityGroups:
+    """Vegetation density around a surveyed point from the cloud's first returns (module docstring)."""
+
+    radius_m: float = 10.0
+    canopy_height_m: float = 2.0
+    open_below: float = 0.2
+    dense_above: float = 0.6
+
+    def validate(self) -> None:
+        if not (np.isfinite(self.radius_m) and self.radius_m > 0):
+            raise OptionError(f"--cover-radius {self.radius_m}: must be a positive distance in metres",
+                              param="--cover-radius")
+        if not (np.isfinite(self.canopy_height_m) and self.canopy_height_m > 0):
+            raise OptionError(f"--canopy-height {self.canopy_height_m}: must be a positive height in metres",
+                              param="--canopy-height")
+        if not (0 <= self.open_below <= self.dense_above <= 1):
+            raise OptionError(f"--open-below {self.open_below:g} / --dense-above {self.dense_above:g}: expected "
+                              "0 <= open-below <= dense-above <= 1 (cover fractions)", param="--dense-above")
+
+    def label(self, cover: np.ndarray) -> list[str]:
+        cover = np.asarray(cover, float)
+        lab = np.where(cover < self.open_below, "open", np.where(cover <= self.dense_above, "sparse", "dense"))
+        return [str(v) for v in np.where(np.isfinite(cover), lab, "unknown")]
 
 
 def bin_labels(edges=BIN_EDGES_M) -> list[str]:
@@ -81,11 +123,24 @@ def read_points_csv(path) -> dict:
             "group": groups if col_group is not None else None}
 
 
-def ground_height_at(gx, gy, gz, qx, qy, radius_m: float = 5.0) -> tuple[np.ndarray, np.ndarray]:
-    """Interpolated ground height at (qx, qy) and the number of ground points used (NaN if none)."""
+# A plane needs ground points spread in both directions: nearly collinear points (a few returns along a scan
+# line in sparse ground) give a plane whose tilt across them is noise, metres off at the surveyed point.
+MIN_PLANE_SPREAD = 0.1
+
+
+def _spread_m(dx, dy) -> float:
+    """RMS spread of the points across their main direction (the smaller principal axis, metres)."""
+    c = np.cov(np.vstack([dx, dy]), bias=True)
+    return float(np.sqrt(max(np.linalg.eigvalsh(c)[0], 0.0)))
+
+
+def ground_height_at(gx, gy, gz, qx, qy, radius_m: float = 5.0, slopes: bool = False):
+    """Interpolated ground height at (qx, qy) and the number of ground points used (NaN if none); with
+    ``slopes`` also the plane's slopes dz/dx, dz/dy (0 where the IDW mean is used)."""
     tree = cKDTree(np.column_stack([gx, gy]))
     z_out = np.full(len(qx), np.nan)
     n_used = np.zeros(len(qx), int)
+    sxy = np.zeros((len(qx), 2))
     for k, nb in enumerate(tree.query_ball_point(np.column_stack([qx, qy]), radius_m)):
         if not nb:
             continue
@@ -93,19 +148,72 @@ def ground_height_at(gx, gy, gz, qx, qy, radius_m: float = 5.0) -> tuple[np.ndar
         dx, dy = gx[nb] - qx[k], gy[nb] - qy[k]
         w = 1.0 / np.maximum(dx * dx + dy * dy, 0.01)
         n_used[k] = len(nb)
-        if len(nb) >= 3:
+        if len(nb) >= 3 and _spread_m(dx, dy) >= MIN_PLANE_SPREAD * radius_m:
             a = np.column_stack([np.ones(len(nb)), dx, dy]) * np.sqrt(w)[:, None]
             coef, _, rank, _ = np.linalg.lstsq(a, gz[nb] * np.sqrt(w), rcond=None)
             if rank == 3:
                 z_out[k] = coef[0]
+                sxy[k] = coef[1:]
                 continue
         z_out[k] = np.sum(w * gz[nb]) / np.sum(w)
-    return z_out, n_used
+    return (z_out, n_used, sxy) if slopes else (z_out, n_used)
 
 
-def stats(dz: np.ndarray, exclude_m: float) -> dict:
+def canopy_cover(fx, fy, qx, qy, hag_of, density: DensityGroups) -> tuple[np.ndarray, np.ndarray]:
+    """(cover fraction, first returns counted) within ``density.radius_m`` of each (qx, qy), from first returns
+    (fx, fy); ``hag_of(k, idx)`` gives the heights above ground of returns ``idx`` around point k (metres).
+    NaN cover where no return is in range."""
+    cover = np.full(len(qx), np.nan)
+    n = np.zeros(len(qx), int)
+    if len(fx):
+        tree = cKDTree(np.column_stack([fx, fy]))
+        for k, nb in enumerate(tree.query_ball_point(np.column_stack([qx, qy]), density.radius_m)):
+            if not nb:
+                continue
+            hag = hag_of(k, np.asarray(nb))
+            ok = np.isfinite(hag)
+            n[k] = int(ok.sum())
+            if n[k]:
+                cover[k] = float(np.mean(hag[ok] > density.canopy_height_m))
+    return cover, n
+
+
+def dem_heights(dem_path, x, y):
+    """Bilinear heights of a DEM GeoTIFF at x, y (its CRS's units), in its height unit; NaN off the DEM and
+    next to nodata. Reads the window around the points only. Returns (heights, CRS, metres per height unit)."""
+    from rasterio.windows import Window
+    from scipy import ndimage
+
+    from lidarctl.dem_io import open_dem
+
+    x, y = np.asarray(x, float), np.asarray(y, float)
+    src, z_m = open_dem(dem_path)
+    with src:
+        t = src.transform
+        col, row = (x - t.c) / t.a - 0.5, (y - t.f) / t.e - 0.5
+        inside = (col >= -0.5) & (col <= src.width - 0.5) & (row >= -0.5) & (row <= src.height - 0.5)
+        out = np.full(len(x), np.nan)
+        if inside.any():
+            c0, r0 = max(int(np.floor(col[inside].min())), 0), max(int(np.floor(row[inside].min())), 0)
+            c1 = min(int(np.floor(col[inside].max())) + 2, src.width)
+            r1 = min(int(np.floor(row[inside].max())) + 2, src.height)
+            a = src.read(1, window=Window(c0, r0, c1 - c0, r1 - r0), masked=True).astype(float).filled(np.nan)
+            # the outer half cell takes the edge cell's value; a nodata neighbour makes the height NaN
+            rr = np.clip(row[inside] - r0, 0, a.shape[0] - 1)
+            cc = np.clip(col[inside] - c0, 0, a.shape[1] - 1)
+            out[inside] = ndimage.map_coordinates(a, [rr, cc], order=1, mode="nearest")
+        return out, src.crs, z_m
+
+
+def abs_bin_labels(edges=ABS_BIN_EDGES_M) -> list[str]:
+    e = list(edges)
+    return [f"< {e[0]:g}"] + [f"{a:g} .. {b:g}" for a, b in zip(e[:-1], e[1:])] + [f"> {e[-1]:g}"]
+
+
+def stats(dz: np.ndarray, exclude_m: float, abs_edges=ABS_BIN_EDGES_M) -> dict:
     dz = dz[np.isfinite(dz)]
     counts, _ = np.histogram(dz, bins=np.array(BIN_EDGES_M))
+    abs_counts, _ = np.histogram(np.abs(dz), bins=np.array([0.0, *abs_edges, np.inf]))
     kept = dz[np.abs(dz) <= exclude_m]
     n = len(dz)
 
@@ -118,6 +226,8 @@ def stats(dz: np.ndarray, exclude_m: float) -> dict:
     return {
         "bins": [{"bin_m": lab, "count": int(c), "percent": 100.0 * c / n if n else 0.0}
                  for lab, c in zip(bin_labels(), counts)],
+        "abs_bins": [{"abs_dz_m": lab, "count": int(c), "percent": 100.0 * c / n if n else 0.0}
+                     for lab, c in zip(abs_bin_labels(abs_edges), abs_counts)],
         "all": block(dz),
         "excluded_beyond_m": exclude_m,
         "without_excluded": block(kept),
@@ -143,10 +253,21 @@ def check_heights(gx, gy, gz, points: dict, radius_m: float = 5.0, exclude_m: fl
               "n_without_ground": int(np.sum(~np.isfinite(dz))),
               "overall": stats(dz, exclude_m), "points": per_point, "groups": {}}
     if points["group"]:
-        groups = np.array(points["group"])
-        for g in sorted(set(points["group"])):
-            result["groups"][g] = stats(dz[groups == g], exclude_m)
+        result["groups"] = group_stats(dz, points["group"], exclude_m)
     return result
+
+
+def group_order(labels) -> list[str]:
+    """The groups present: open, sparse, dense, unknown in that order for density groups, else sorted."""
+    present = set(labels)
+    if present <= set(DENSITY_ORDER):
+        return [g for g in DENSITY_ORDER if g in present]
+    return sorted(present)
+
+
+def group_stats(dz: np.ndarray, labels, exclude_m: float) -> dict:
+    labels_a = np.array(labels)
+    return {g: stats(dz[labels_a == g], exclude_m) for g in group_order(labels)}
 
 
 def _near_points(px_m, py_m, radius_m: float):
@@ -166,19 +287,113 @@ def _near_points(px_m, py_m, radius_m: float):
     return near
 
 
-def check_heights_file(cloud_paths, points_csv, radius_m: float = 5.0, exclude_m: float = 1.0, crs=None) -> dict:
-    """``check_heights`` of the ground (class 2) of a classified LAS/LAZ file, or of several strips
-    (one CRS and unit, else an InputError naming the strip; only their ground points are kept),
-    against a CSV of surveyed points in the cloud's CRS and units (``crs`` only for files without CRS)."""
+def check_heights_file(cloud_paths, points_csv, radius_m: float = 5.0, exclude_m: float = 1.0, crs=None,
+                       dem_path=None, grouping: str = "auto", density: DensityGroups | None = None) -> dict:
+    """Height check of surveyed points (CSV id,x,y,z[,group], in the CRS and units of the cloud, or of the
+    DEM without a cloud) against the ground (class 2) of a classified LAS/LAZ file or of several strips
+    (one CRS and unit, else an InputError naming the strip; ``crs`` only for files without CRS), and/or
+    against the DEM GeoTIFF ``dem_path`` (same horizontal CRS as the cloud).
+
+    ``grouping``: ``column`` (the CSV's group column), ``density`` (open / sparse / dense canopy from the
+    cloud's first returns, ``density``), ``none``, or ``auto`` (the column when there is one). The strips are
+    read by chunks and only the returns near a surveyed point are kept (memory set by the chunk)."""
     if not (np.isfinite(radius_m) and radius_m > 0):
         raise OptionError(f"--radius {radius_m}: must be a positive distance in metres", param="--radius")
     if not (np.isfinite(exclude_m) and exclude_m > 0):
         raise OptionError(f"--exclude {exclude_m}: must be a positive height difference in metres", param="--exclude")
-    paths = [cloud_paths] if isinstance(cloud_paths, (str, Path)) else list(cloud_paths)
+    if grouping not in GROUPINGS:
+        raise OptionError(f"--groups {grouping!r}: expected one of {', '.join(GROUPINGS)}", param="--groups")
+    density = density or DensityGroups()
+    density.validate()
+    paths = [] if cloud_paths is None else (
+        [cloud_paths] if isinstance(cloud_paths, (str, Path)) else list(cloud_paths))
+    if not paths and dem_path is None:
+        raise OptionError("nothing to check: give the classified cloud(s) before POINTS_CSV, --dem DEM.tif, or both",
+                          param="--dem")
     points = read_points_csv(points_csv)
-    # Only ground points within radius_m of a surveyed point enter the interpolation: the strips
-    # are read by chunks and only those are kept (memory set by the chunk, not by the block).
-    ground, first, n_ground = [], None, 0
+    if grouping == "auto":
+        grouping = "column" if points["group"] is not None else "none"
+    if grouping == "column" and points["group"] is None:
+        raise OptionError(f"--groups column: {points_csv} has no 'group' column", param="--groups")
+    if grouping == "density" and not paths:
+        raise OptionError("--groups density: the vegetation density comes from the cloud's first returns; give the "
+                          "classified cloud(s) before POINTS_CSV", param="--groups")
+    with_density = grouping == "density"
+
+    cloud = _read_near(paths, points, radius_m, density.radius_m if with_density else None, crs) if paths else None
+    if cloud is not None:
+        crs_found, u = cloud["crs"], cloud["units"]
+    else:
+        from lidarctl.units import units_of
+
+        _, crs_found, dem_z_m = dem_heights(dem_path, points["x"][:1], points["y"][:1])
+        u = units_of(crs_found, source=str(dem_path), vertical_unit_m=dem_z_m)
+    points_m = dict(points, x=u.xy_to_m(points["x"]), y=u.xy_to_m(points["y"]), z=u.z_to_m(points["z"]))
+
+    z_dem = dz_dem = dem_z_m = None
+    if dem_path is not None:
+        z_dem, dem_crs, dem_z_m = dem_heights(dem_path, points["x"], points["y"])
+        if cloud is not None and crs_found is not None:
+            from aerotri.core.errors import CrsError
+            from aerotri.geom.crs import same_horizontal
+
+            if not same_horizontal(dem_crs, crs_found):
+                raise CrsError(f"{dem_path}: the DEM's CRS ({dem_crs}) is not the cloud's ({crs_found.name}); "
+                               "reproject one of them (aerotri crs warp / transform)")
+        dz_dem = z_dem * dem_z_m - points_m["z"]
+
+    cover = n_first = None
+    if with_density:
+        fx, fy, fz = cloud["first"]
+        if dem_path is not None:
+            f_dem, _, _ = dem_heights(dem_path, u.xy_from_m(fx), u.xy_from_m(fy))
+            hag = fz - f_dem * dem_z_m
+
+            def hag_of(k, idx):
+                return hag[idx]
+        else:
+            gx, gy, gz = cloud["ground"]
+            z0, _, sxy = ground_height_at(gx, gy, gz, points_m["x"], points_m["y"], density.radius_m, slopes=True)
+
+            def hag_of(k, idx):
+                return fz[idx] - (z0[k] + sxy[k, 0] * (fx[idx] - points_m["x"][k]) + sxy[k, 1] * (fy[idx] - points_m["y"][k]))
+        cover, n_first = canopy_cover(fx, fy, points_m["x"], points_m["y"], hag_of, density)
+        points_m["group"] = density.label(cover)
+    elif grouping == "none":
+        points_m["group"] = None
+
+    if cloud is not None:
+        result = check_heights(*cloud["ground"], points_m, radius_m, exclude_m, units=u)
+    else:
+        xs, ys, zs = points["x"], points["y"], points["z"]
+        result = {"radius_m": None, **u.as_dict(), "n_points": len(xs), "n_without_ground": None, "overall": None,
+                  "groups": {}, "points": [{"id": i, "x": float(a), "y": float(b), "z_survey": float(c),
+                                            "group": points_m["group"][k] if points_m["group"] else None}
+                                           for k, (i, a, b, c) in enumerate(zip(points["id"], xs, ys, zs))]}
+    result["crs"] = crs_found.to_string() if crs_found is not None else None
+    result["grouping"] = grouping
+    result["abs_bin_edges_m"] = list(ABS_BIN_EDGES_M)
+    if with_density:
+        result["density"] = dataclasses.asdict(density)
+        for p, c, n in zip(result["points"], cover, n_first):
+            p["canopy_cover"] = None if not np.isfinite(c) else float(c)
+            p["first_returns"] = int(n)
+    if dem_path is not None:
+        labels = points_m["group"]
+        result["dem"] = {"path": str(dem_path), "z_unit_m": dem_z_m, "n_points": len(dz_dem),
+                         "n_without_dem": int(np.sum(~np.isfinite(dz_dem))), "overall": stats(dz_dem, exclude_m),
+                         "groups": group_stats(dz_dem, labels, exclude_m) if labels else {}}
+        for p, zd, d in zip(result["points"], z_dem, dz_dem):
+            p["z_dem"] = None if not np.isfinite(zd) else float(zd)
+            p["dz_dem_m"] = None if not np.isfinite(d) else float(d)
+    return result
+
+
+def _read_near(paths, points, radius_m: float, density_radius_m: float | None, crs) -> dict:
+    """The ground points (class 2) within ``radius_m`` (and ``density_radius_m``) of a surveyed point and, with
+    ``density_radius_m``, the first returns (noise excluded) within it; metres. Streamed by chunks."""
+    ground, first_returns, first, n_ground = [], [], None, 0
+    reach = max(radius_m, density_radius_m or 0.0)
     for path in paths:
         header = las.read_header(path)
         if header.point_count == 0:
@@ -186,25 +401,31 @@ def check_heights_file(cloud_paths, points_csv, radius_m: float = 5.0, exclude_m
         crs_i, units = io.resolve_crs_units(path, header, crs)
         if first is None:
             first = (path, crs_i, units)
-            near = _near_points(units.xy_to_m(points["x"]), units.xy_to_m(points["y"]), radius_m)
+            near = _near_points(units.xy_to_m(points["x"]), units.xy_to_m(points["y"]), reach)
         else:
             io.require_same_crs(path, crs_i, units, first)
         for first_record, chunk in las.iter_file_chunks(path, io.CHUNK_POINTS):
             cx, cy, cz = np.asarray(chunk.x), np.asarray(chunk.y), np.asarray(chunk.z)
             io.validate_xyz(path, cx, cy, cz, first_record, units)
-            g = np.asarray(chunk.classification) == 2
+            cls = np.asarray(chunk.classification)
+            g = cls == 2
             n_ground += int(g.sum())
             gx, gy = units.xy_to_m(cx[g]), units.xy_to_m(cy[g])
             keep = near(gx, gy)
             ground.append((gx[keep], gy[keep], units.z_to_m(cz[g][keep])))
-    gx, gy, gz = (np.concatenate([gr[k] for gr in ground]) for k in range(3))
+            if density_radius_m is not None:
+                rn, _ = io.sanitize_returns(np.asarray(chunk.return_number), np.asarray(chunk.number_of_returns))
+                f = (rn <= 1) & ~np.isin(cls, (7, 18))
+                fx, fy = units.xy_to_m(cx[f]), units.xy_to_m(cy[f])
+                keep = near(fx, fy)
+                first_returns.append((fx[keep], fy[keep], units.z_to_m(cz[f][keep])))
     if not n_ground:
         raise InputError(f"{', '.join(map(str, paths))}: no ground points (class 2); run 'lidarctl classify' first")
-    crs_found, u = first[1], first[2]
-    points_m = dict(points, x=u.xy_to_m(points["x"]), y=u.xy_to_m(points["y"]), z=u.z_to_m(points["z"]))
-    result = check_heights(gx, gy, gz, points_m, radius_m, exclude_m, units=u)
-    result["crs"] = crs_found.to_string() if crs_found is not None else None
-    return result
+    out = {"crs": first[1], "units": first[2],
+           "ground": tuple(np.concatenate([gr[k] for gr in ground]) for k in range(3))}
+    if density_radius_m is not None:
+        out["first"] = tuple(np.concatenate([fr[k] for fr in first_returns]) for k in range(3))
+    return out
 
 
 def _format_block(title: str, s: dict) -> list[str]:
@@ -223,28 +444,70 @@ def _format_block(title: str, s: dict) -> list[str]:
     return lines
 
 
+def _group_table(title: str, overall: dict, groups: dict) -> list[str]:
+    """Seed 004 Tab. 1: per group the share of points in each |dz| bin, mean |dz|, RMSE and the count."""
+    labels = [b["abs_dz_m"] for b in overall["abs_bins"]]
+    head = f"  {'group':<10}{'n':>6}" + "".join(f"{lab:>12}" for lab in labels) + f"{'mean |dz|':>11}{'RMSE':>8}"
+    lines = [title + " (|dz| bins in m: percent of points; mean |dz| and RMSE in m)", head]
+    for name, s in [*groups.items(), ("all", overall)]:
+        a = s["all"]
+        fmt = (lambda v: "-" if v is None else f"{v:.3f}")
+        lines.append(f"  {name:<10}{a['n']:>6}" + "".join(f"{b['percent']:>11.1f}%" for b in s["abs_bins"])
+                     + f"{fmt(a['mean_abs_dz_m']):>11}{fmt(a['rmse_m']):>8}")
+    return lines
+
+
 def format_report(result: dict) -> str:
     """The height check table; statistics in metres, heights in the CRS's vertical unit (named), dz
     in metres and, for a cloud in feet, also in feet."""
     zu = result.get("z_unit", "m")
     z_unit_m = result.get("z_unit_m", 1.0)
-    lines = ["LiDAR height check (dz = Z_lidar - Z_surveyed, in metres)",
-             f"search radius {result['radius_m']:g} m, {result['n_points']} points, "
-             f"{result['n_without_ground']} without ground points in range", ""]
-    if zu != "m":
-        lines[-1:-1] = [f"heights in {zu} (the cloud's vertical unit); dz and statistics in m"]
-    lines += _format_block("All points", result["overall"])
-    for g, s in result["groups"].items():
-        lines += [""] + _format_block(f"Group: {g}", s)
-    head = f"{'id':<12}{'group':<18}{f'z survey ({zu})':>16}{f'z lidar ({zu})':>16}{'dz (m)':>9}"
-    if zu != "m":
-        head += f"{f'dz ({zu})':>10}"
+    dem = result.get("dem")
+    lines = []
+    if result["overall"] is not None:
+        lines += ["LiDAR height check (dz = Z_lidar - Z_surveyed, in metres)",
+                  f"search radius {result['radius_m']:g} m, {result['n_points']} points, "
+                  f"{result['n_without_ground']} without ground points in range", ""]
+        if zu != "m":
+            lines[-1:-1] = [f"heights in {zu} (the cloud's vertical unit); dz and statistics in m"]
+        lines += _format_block("All points", result["overall"])
+        for g, s in result["groups"].items():
+            lines += [""] + _format_block(f"Group: {g}", s)
+    if dem is not None:
+        lines += ([""] if lines else []) + [
+            f"DEM height check (dz = Z_dem - Z_surveyed, in metres): {dem['path']}, {dem['n_points']} points, "
+            f"{dem['n_without_dem']} off the DEM or next to nodata", ""]
+        lines += _format_block("All points (DEM)", dem["overall"])
+        for g, s in dem["groups"].items():
+            lines += [""] + _format_block(f"Group: {g} (DEM)", s)
+    if result.get("density"):
+        d = result["density"]
+        lines += ["", f"groups by canopy cover (first returns more than {d['canopy_height_m']:g} m above the ground "
+                  f"within {d['radius_m']:g} m): open < {d['open_below']:.0%}, sparse up to {d['dense_above']:.0%}, "
+                  "dense above"]
+    if result["overall"] is not None:
+        lines += [""] + _group_table("Ground points by group", result["overall"], result["groups"])
+    if dem is not None:
+        lines += [""] + _group_table("DEM by group", dem["overall"], dem["groups"])
+    has_lidar = result["overall"] is not None
+    head = f"{'id':<12}{'group':<18}{f'z survey ({zu})':>16}"
+    if has_lidar:
+        head += f"{f'z lidar ({zu})':>16}{'dz (m)':>9}"
+        if zu != "m":
+            head += f"{f'dz ({zu})':>10}"
+    if dem is not None:
+        head += f"{'z dem':>12}{'dz dem (m)':>12}"
     lines += ["", head]
     for p in result["points"]:
-        zl = "-" if p["z_lidar"] is None else f"{p['z_lidar']:.3f}"
-        dz = "-" if p["dz_m"] is None else f"{p['dz_m']:+.3f}"
-        line = f"{p['id']:<12}{(p['group'] or ''):<18}{p['z_survey']:>16.3f}{zl:>16}{dz:>9}"
-        if zu != "m":
-            line += f"{'-' if p['dz_m'] is None else format(p['dz_m'] / z_unit_m, '+.3f'):>10}"
+        line = f"{p['id']:<12}{(p['group'] or ''):<18}{p['z_survey']:>16.3f}"
+        if has_lidar:
+            zl = "-" if p["z_lidar"] is None else f"{p['z_lidar']:.3f}"
+            dz = "-" if p["dz_m"] is None else f"{p['dz_m']:+.3f}"
+            line += f"{zl:>16}{dz:>9}"
+            if zu != "m":
+                line += f"{'-' if p['dz_m'] is None else format(p['dz_m'] / z_unit_m, '+.3f'):>10}"
+        if dem is not None:
+            line += f"{'-' if p['z_dem'] is None else format(p['z_dem'], '.3f'):>12}"
+            line += f"{'-' if p['dz_dem_m'] is None else format(p['dz_dem_m'], '+.3f'):>12}"
         lines.append(line)
     return "\n".join(lines)

@@ -465,8 +465,8 @@ def _description(name: str, units: LengthUnits) -> str:
     return DESCRIPTIONS[name] + (f" ({long_name(units.z_m)})" if name in HEIGHT_GRIDS else "")
 
 
-def _write_set(outdir, write) -> list[Path]:
-    """``write(tmp)`` writes FILES into a temporary folder in ``outdir``; then they replace the old set."""
+def _write_set(outdir, write, files=FILES, name: str = "rasters") -> list[Path]:
+    """``write(tmp)`` writes ``files`` into a temporary folder in ``outdir``; then they replace the old set."""
     import os
     import shutil
 
@@ -474,11 +474,11 @@ def _write_set(outdir, write) -> list[Path]:
     # folders this call creates go again if it fails (a corrupt chunk may only show in a late tile)
     created = [d for d in (outdir, *outdir.parents) if not d.exists()]
     outdir.mkdir(parents=True, exist_ok=True)
-    tmp = temporary_dir(outdir, "rasters")
+    tmp = temporary_dir(outdir, name)
     done = False
     try:
         write(tmp)
-        for f in FILES:
+        for f in files:
             os.chmod(tmp / f, 0o644)
             os.replace(tmp / f, outdir / f)
         done = True
@@ -489,7 +489,7 @@ def _write_set(outdir, write) -> list[Path]:
                 d.rmdir()
             except OSError:
                 break
-    return [outdir / f for f in FILES]
+    return [outdir / f for f in files]
 
 
 def write_rasters_tiled(paths, outdir, res_m: float, crs=None, tile_px: int = DEFAULT_TILE_PX,

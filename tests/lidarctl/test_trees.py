@@ -1,0 +1,272 @@
+"""lidarctl trees (CHM, stands, tree tops) and check-heights --dem / --groups density, on small synthetic clouds
+with known truth: cone-shaped trees of known height on flat ground, a forest edge of known canopy cover."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+import rasterio
+from click.testing import CliRunner
+from rasterio.transform import from_origin
+
+from aerotri.geom.las import US_SURVEY_FOOT_M
+from lidarctl import synthetic
+from lidarctl.cli import main
+from lidarctl.io import PointCloud
+from lidarctl.trees import TreeSettings, tree_model
+
+X0, Y0, GROUND_Z = 500000.0, 5000000.0, 100.0
+# (x, y, height, crown radius) in metres from the scene's corner
+CONES = ((25.0, 25.0, 15.0, 4.0), (62.0, 22.0, 10.0, 3.0), (45.0, 68.0, 20.0, 5.0), (18.0, 70.0, 8.0, 2.5),
+         (75.0, 75.0, 12.0, 3.5), (75.0, 45.0, 6.0, 2.5))
+
+
+def cone_cloud(cones=CONES, size_m: float = 100.0, density: float = 8.0, seed: int = 0, gap=None):
+    """Flat ground at 100 m with cone-shaped crowns (first returns on the cone, 30 % of them with a last
+    return on the ground), classes 2/3/4/5; ``gap`` (x0, x1): a band without any return (water, a shadow)."""
+    rng = np.random.default_rng(seed)
+    n = int(size_m * size_m * density)
+    x, y = rng.uniform(0, size_m, n), rng.uniform(0, size_m, n)
+    if gap is not None:
+        keep = (x < gap[0]) | (x > gap[1])
+        x, y = x[keep], y[keep]
+        n = len(x)
+    h = np.zeros(n)
+    for cx, cy, top, r in cones:
+        d = np.hypot(x - cx, y - cy)
+        h = np.maximum(h, np.where(d < r, top * (1 - d / r), 0.0))
+    veg = h > 0.3
+    cls = np.where(veg, np.where(h > 2, 5, np.where(h > 0.5, 4, 3)), 2).astype(np.uint8)
+    through = veg & (rng.random(n) < 0.3)
+    k = int(through.sum())
+    xs = np.concatenate([x, x[through]]) + X0
+    ys = np.concatenate([y, y[through]]) + Y0
+    zs = np.concatenate([GROUND_Z + h, np.full(k, GROUND_Z)]) + rng.normal(0, 0.02, n + k)
+    rn = np.concatenate([np.ones(n, np.uint8), np.full(k, 2, np.uint8)])
+    nr = np.concatenate([np.where(through, 2, 1), np.full(k, 2)]).astype(np.uint8)
+    cl = np.concatenate([cls, np.full(k, 2, np.uint8)])
+    return PointCloud(xs, ys, zs, np.full(n + k, 100, np.uint16), rn, nr, cl)
+
+
+@pytest.fixture(scope="module")
+def cones_las(tmp_path_factory):
+    d = tmp_path_factory.mktemp("trees")
+    cloud = cone_cloud()
+    synthetic.write_las(d / "cones.laz", cloud, crs="EPSG:32632")
+    synthetic.write_las(d / "cones_ft.laz", cloud, crs="EPSG:2264")   # NC state plane, US survey feet
+    return d, cloud
+
+
+def _ok(args):
+    r = CliRunner().invoke(main, [str(a) for a in args])
+    assert r.exit_code == 0, r.output
+    return r
+
+
+def _fails(args, out, text):
+    r = CliRunner().invoke(main, [str(a) for a in args])
+    assert r.exit_code == 2, r.output
+    assert text in r.output, r.output
+    assert "Traceback" not in r.output
+    assert not out.exists() or not any(out.iterdir())
+    return r
+
+
+def test_trees_heights_tops_and_stands_against_the_cones(cones_las):
+    import pyogrio.raw
+    import shapely
+
+    d, _ = cones_las
+    out = d / "out"
+    r = _ok(["trees", d / "cones.laz", out, "--min-stand-area-m2", "5"])
+    assert "6 stands" in r.output and "6 tree tops" in r.output
+    s = json.loads((out / "trees.json").read_text())
+    assert s["stands"] == 6 and s["tree_tops"] == 6 and s["xy_unit"] == "m"
+    _, _, geoms, (ids, heights, _, _, stand_ids) = pyogrio.raw.read(out / "trees.gpkg", layer="tree_tops")
+    tops = shapely.get_coordinates(shapely.from_wkb(geoms))
+    for cx, cy, top, r_m in CONES:
+        k = np.argmin(np.hypot(tops[:, 0] - X0 - cx, tops[:, 1] - Y0 - cy))
+        assert np.hypot(tops[k, 0] - X0 - cx, tops[k, 1] - Y0 - cy) < 0.75        # the apex found
+        # a cone's apex is sharp: the highest return lies up to a point spacing below it (slope top / r)
+        assert top - 0.5 * top / r_m - 0.15 < heights[k] <= top + 0.1
+    assert len(set(stand_ids)) == 6                                                # one top per stand
+    with rasterio.open(out / "chm.tif") as ds:
+        assert ds.crs.to_epsg() == 32632 and ds.units == ("metre",)
+        assert ds.tags(ns="IMAGE_STRUCTURE").get("LAYOUT") == "COG"
+        chm = ds.read(1, masked=True)
+        rows, cols = np.mgrid[0:ds.height, 0:ds.width]
+        xs, ys = rasterio.transform.xy(ds.transform, rows.ravel(), cols.ravel())
+    xs, ys = np.array(xs).reshape(chm.shape) - X0, np.array(ys).reshape(chm.shape) - Y0
+    true = np.zeros(chm.shape)
+    for cx, cy, top, r_m in CONES:
+        true = np.maximum(true, np.clip(top * (1 - np.hypot(xs - cx, ys - cy) / r_m), 0, None))
+    # NODATA where no trees (open ground and below 2 m), heights within 0.5 m where there are
+    assert not chm.mask[true > 3.0].any() and chm.mask[true < 1.0].all()
+    err = (chm - true)[~chm.mask & (true > 3.0)]
+    assert np.sqrt(np.mean(err ** 2)) < 0.5
+    _, _, sg, (sid, area, n_tops, mean_h, p50, p90, p95, hmax) = pyogrio.raw.read(out / "trees.gpkg", layer="stands")
+    for cx, cy, top, r_m in CONES:
+        k = int(np.argmin([shapely.distance(g, shapely.Point(X0 + cx, Y0 + cy)) for g in shapely.from_wkb(sg)]))
+        true_area = np.pi * (r_m * (1 - 2.0 / top)) ** 2     # the cone above the 2 m minimum height
+        assert area[k] == pytest.approx(true_area, rel=0.25) and n_tops[k] == 1
+        assert p50[k] <= p90[k] <= p95[k] <= hmax[k] <= top and hmax[k] > top - 0.5 * top / r_m - 0.15
+        # the mean height of a cone above 2 m: 2 + (top - 2) / 3
+        assert mean_h[k] == pytest.approx(2 + (top - 2) / 3, abs=0.4)
+    assert (out / "trees.png").stat().st_size > 10_000
+
+
+def test_trees_in_us_feet_equal_the_metric_run(cones_las):
+    import pyogrio.raw
+
+    d, _ = cones_las
+    _ok(["trees", d / "cones.laz", d / "m", "--min-stand-area-m2", "5"])
+    _ok(["trees", d / "cones_ft.laz", d / "ft", "--min-stand-area-m2", "5"])
+    sm, sf = (json.loads((d / k / "trees.json").read_text()) for k in ("m", "ft"))
+    assert sf["xy_unit"] == "us-ft" and sf["z_unit"] == "us-ft"
+    assert sf["forest_area_m2"] == pytest.approx(sm["forest_area_m2"], rel=0.02)
+    assert sf["forest_heights"]["max_height_m"] == pytest.approx(sm["forest_heights"]["max_height_m"], abs=0.02)
+    with rasterio.open(d / "m" / "chm.tif") as a, rasterio.open(d / "ft" / "chm.tif") as b:
+        assert b.units == ("US survey foot",)
+        assert b.transform.a == pytest.approx(0.5 / US_SURVEY_FOOT_M)
+        assert float(b.read(1, masked=True).max()) * US_SURVEY_FOOT_M == pytest.approx(
+            float(a.read(1, masked=True).max()), abs=0.02)
+    _, _, _, fm = pyogrio.raw.read(d / "m" / "trees.gpkg", layer="tree_tops")
+    _, _, _, ff = pyogrio.raw.read(d / "ft" / "trees.gpkg", layer="tree_tops")
+    np.testing.assert_allclose(ff[1], fm[1], atol=0.02)                    # height_m in metres
+    np.testing.assert_allclose(ff[2] * US_SURVEY_FOOT_M, fm[2], atol=0.02)  # height in the CRS's unit
+
+
+def test_tin_edge_limit_keeps_gaps_between_crowns_nodata():
+    # two crowns 9 m apart with a 4 m band without returns between them, lined up along y
+    cones = ((40.0, 30.0, 12.0, 6.0), (49.0, 30.0, 12.0, 6.0))
+    c = cone_cloud(cones, size_m=80.0, density=6.0, gap=(42.5, 46.5))
+    args = (c.x, c.y, c.z, c.classification, c.return_number)
+    short = tree_model(*args, TreeSettings(max_edge_m=2.0, min_stand_area_m2=10))
+    long = tree_model(*args, TreeSettings(max_edge_m=10.0, min_stand_area_m2=10))
+    g = short.grid
+    col = lambda x: int((X0 + x - g.x0) / g.res_m)   # noqa: E731
+    row = int((g.y_top - (Y0 + 30.0)) / g.res_m)
+    assert np.isnan(short.chm[row, col(43.5):col(45.5)]).all()      # the gap stays NODATA
+    assert np.isfinite(long.chm[row, col(43.5):col(45.5)]).all()    # a long edge bridges it
+    assert len(short.stands) == 2 and len(long.stands) == 1
+
+
+def test_trees_bad_input_exit_2_and_nothing_written(cones_las, tmp_path):
+    d, cloud = cones_las
+    no_ground = PointCloud(cloud.x, cloud.y, cloud.z, cloud.intensity, cloud.return_number,
+                           cloud.number_of_returns, np.where(cloud.classification == 2, 1, cloud.classification))
+    synthetic.write_las(tmp_path / "noground.laz", no_ground, crs="EPSG:32632")
+    out = tmp_path / "o"
+    _fails(["trees", tmp_path / "noground.laz", out], out, "noground.laz")
+    _fails(["trees", d / "cones.laz", out, "--max-edge-m", "0.2"], out, "--max-edge-m")
+    _fails(["trees", d / "cones.laz", out, "--classes", "3,x"], out, "--classes")
+    _fails(["trees", d / "cones.laz", out, "--classes", "2"], out, "--classes")
+    _fails(["trees", d / "cones.laz", out, "--res-m", "-1"], out, "--res-m")
+    (tmp_path / "trunc.laz").write_bytes((d / "cones.laz").read_bytes()[:5000])
+    _fails(["trees", tmp_path / "trunc.laz", out], out, "trunc.laz")
+    assert not list(tmp_path.glob(".*part-*"))
+
+
+# ------------------------------------------------------------------------------------------------
+# check-heights --dem and --groups density
+
+
+def forest_edge_cloud(seed: int = 1):
+    """60 x 60 m on a 5 % slope: canopy 15 m high with cover 0.9 (x < 20 m), 0.4 (20-40 m), 0 (x > 40 m)."""
+    rng = np.random.default_rng(seed)
+    n = 60 * 60 * 10
+    x, y = rng.uniform(0, 60, n), rng.uniform(0, 60, n)
+    ground = GROUND_Z + 0.05 * x
+    cover = np.where(x < 20, 0.9, np.where(x < 40, 0.4, 0.0))
+    canopy = rng.random(n) < cover
+    z = ground + np.where(canopy, 15.0 + rng.normal(0, 1, n), rng.normal(0, 0.02, n))
+    cls = np.where(canopy, 5, 2).astype(np.uint8)
+    under = canopy & (rng.random(n) < 0.5)
+    k = int(under.sum())
+    xs, ys = np.concatenate([x, x[under]]), np.concatenate([y, y[under]])
+    zs = np.concatenate([z, ground[under] + rng.normal(0, 0.02, k)])
+    rn = np.concatenate([np.ones(n, np.uint8), np.full(k, 2, np.uint8)])
+    nr = np.concatenate([np.where(under, 2, 1), np.full(k, 2)]).astype(np.uint8)
+    return PointCloud(xs + X0, ys + Y0, zs, np.full(n + k, 100, np.uint16), rn, nr,
+                      np.concatenate([cls, np.full(k, 2, np.uint8)]))
+
+
+@pytest.fixture(scope="module")
+def forest_edge(tmp_path_factory):
+    d = tmp_path_factory.mktemp("edge")
+    synthetic.write_las(d / "edge.laz", forest_edge_cloud(), crs="EPSG:32632")
+    # a DEM of the true terrain, 1 m cells, raised by 0.4 m where x > 40 m (the open part) and 0.7 m where
+    # x < 20 m (the dense part): the DEM check must report exactly these errors per group
+    xc = np.arange(60) + 0.5
+    dem = np.tile(GROUND_Z + 0.05 * xc + np.where(xc > 40, 0.4, np.where(xc < 20, 0.7, 0.0)), (60, 1))
+    with rasterio.open(d / "dem.tif", "w", driver="GTiff", width=60, height=60, count=1, dtype="float32",
+                       crs="EPSG:32632", transform=from_origin(X0, Y0 + 60, 1.0, 1.0), nodata=-9999.0) as ds:
+        ds.write(dem.astype(np.float32), 1)
+    rng = np.random.default_rng(5)
+    px = np.concatenate([rng.uniform(6, 14, 8), rng.uniform(26, 34, 8), rng.uniform(46, 54, 8)])
+    py = rng.uniform(8, 52, 24)
+    pz = GROUND_Z + 0.05 * px
+    (d / "pts.csv").write_text("id,x,y,z\n" + "".join(f"P{k},{X0 + a:.3f},{Y0 + b:.3f},{c:.4f}\n"
+                                                      for k, (a, b, c) in enumerate(zip(px, py, pz))))
+    return d
+
+
+def test_check_heights_dem_by_vegetation_density(forest_edge):
+    d = forest_edge
+    r = _ok(["check-heights", d / "edge.laz", d / "pts.csv", "--dem", d / "dem.tif", "--groups", "density",
+             "--json", d / "hc.json"])
+    hc = json.loads((d / "hc.json").read_text())
+    groups = [p["group"] for p in hc["points"]]
+    assert groups == ["dense"] * 8 + ["sparse"] * 8 + ["open"] * 8
+    cover = np.array([p["canopy_cover"] for p in hc["points"]])
+    np.testing.assert_allclose(cover, np.repeat([0.9, 0.4, 0.0], 8), atol=0.1)
+    dem = hc["dem"]
+    assert list(dem["groups"]) == ["open", "sparse", "dense"]
+    assert dem["groups"]["open"]["all"]["rmse_m"] == pytest.approx(0.4, abs=0.01)
+    assert dem["groups"]["sparse"]["all"]["mean_abs_dz_m"] == pytest.approx(0.0, abs=0.01)
+    assert dem["groups"]["dense"]["all"]["mean_dz_m"] == pytest.approx(0.7, abs=0.01)
+    # seed 004 Tab. 1 bins: the open points in 0.3-0.5, the dense ones in 0.5-1
+    assert [b["count"] for b in dem["groups"]["open"]["abs_bins"]] == [0, 8, 0, 0]
+    assert [b["count"] for b in dem["groups"]["dense"]["abs_bins"]] == [0, 0, 8, 0]
+    assert hc["groups"]["open"]["all"]["rmse_m"] < 0.05            # the ground points: no offset
+    assert "DEM by group" in r.output and "0.3 .. 0.5" in r.output
+    # the same groups from the cloud's ground planes (no DEM) and with other thresholds
+    _ok(["check-heights", d / "edge.laz", d / "pts.csv", "--groups", "density", "--dense-above", "0.95",
+         "--json", d / "hc2.json"])
+    hc2 = json.loads((d / "hc2.json").read_text())
+    assert [p["group"] for p in hc2["points"]] == ["sparse"] * 16 + ["open"] * 8 and "dem" not in hc2
+
+
+def test_check_heights_dem_alone_with_group_column(forest_edge, tmp_path):
+    d = forest_edge
+    lines = (d / "pts.csv").read_text().splitlines()
+    pts = tmp_path / "g.csv"
+    pts.write_text("\n".join([lines[0] + ",group"] + [f"{ln},{'wood' if k < 8 else 'field'}"
+                                                       for k, ln in enumerate(lines[1:])]) + "\n")
+    _ok(["check-heights", pts, "--dem", d / "dem.tif", "--json", tmp_path / "hc.json"])
+    hc = json.loads((tmp_path / "hc.json").read_text())
+    assert hc["overall"] is None and hc["grouping"] == "column"
+    assert hc["dem"]["groups"]["wood"]["all"]["mean_dz_m"] == pytest.approx(0.7, abs=0.01)
+    assert hc["dem"]["groups"]["field"]["all"]["n"] == 16
+
+
+def test_check_heights_dem_bad_input(forest_edge, tmp_path):
+    d = forest_edge
+    out = tmp_path / "x"
+    out.mkdir()
+    _fails(["check-heights", d / "pts.csv", "--json", out / "a.json"], out, "--dem")
+    _fails(["check-heights", d / "pts.csv", "--dem", d / "dem.tif", "--groups", "density", "--json", out / "a.json"],
+           out, "--groups")
+    _fails(["check-heights", d / "edge.laz", d / "pts.csv", "--groups", "density", "--open-below", "0.7",
+            "--json", out / "a.json"], out, "--dense-above")
+    with rasterio.open(d / "dem.tif") as src:
+        profile, data = src.profile, src.read()
+    profile.update(crs="EPSG:32633")
+    with rasterio.open(tmp_path / "other.tif", "w", **profile) as dst:
+        dst.write(data)
+    _fails(["check-heights", d / "edge.laz", d / "pts.csv", "--dem", tmp_path / "other.tif", "--json",
+            out / "a.json"], out, "other.tif")
+    (tmp_path / "bad.tif").write_text("not a raster")
+    _fails(["check-heights", d / "pts.csv", "--dem", tmp_path / "bad.tif", "--json", out / "a.json"], out, "bad.tif")
