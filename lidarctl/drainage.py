@@ -471,21 +471,9 @@ FILES = ("conditioned.tif", "flowdir.tif", "accum_cells.tif", "accum_m2.tif", "s
 
 
 def _cog(path, array, profile, nodata, unit=None, description=None):
-    from rasterio.io import MemoryFile
-    from rasterio.shutil import copy as rio_copy
+    from lidarctl.rasters import write_cog
 
-    p = dict(profile, dtype=array.dtype.name, nodata=nodata)
-    with MemoryFile() as mem:
-        with mem.open(**p) as ds:
-            ds.write(array, 1)
-            if unit:
-                ds.units = (unit,)
-            if description:
-                ds.set_band_description(1, description)
-        with mem.open() as src:
-            pred = 3 if array.dtype.kind == "f" else 2
-            rio_copy(src, path, driver="COG", compress="DEFLATE", predictor=pred,
-                     overview_resampling="nearest" if array.dtype.kind != "f" else "average")
+    write_cog(path, array, profile["transform"], profile["crs"], unit, description, nodata=nodata, dtype=None)
 
 
 def _write_gpkg(path, net: Network, sub_ids, sub_geoms, basin_ids, basin_geoms, crs_wkt, cell_area_m2):

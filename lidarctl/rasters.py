@@ -250,14 +250,18 @@ def _transform_in_units(t, units: LengthUnits):
 
 
 def write_cog(path, array: np.ndarray, transform, crs, unit: str | None = None, description: str | None = None,
-              tags: dict | None = None) -> None:
-    """Single-band float32 Cloud-Optimized GeoTIFF (deflate, internal overviews), nodata -9999.
+              tags: dict | None = None, nodata: float = NODATA, dtype: str | None = "float32") -> None:
+    """Single-band Cloud-Optimized GeoTIFF (deflate, internal overviews), float32 with nodata -9999 by
+    default; NaN cells of a float array become ``nodata``.
 
     ``unit``: the band's unit type (e.g. 'metre', 'foot'); ``description``: the band description;
-    ``tags``: dataset metadata (e.g. LINEAR_UNITS)."""
-    data = np.where(np.isfinite(array), array, NODATA).astype(np.float32)
-    profile = dict(driver="GTiff", width=data.shape[1], height=data.shape[0], count=1, dtype="float32",
-                   crs=crs, transform=transform, nodata=NODATA)
+    ``tags``: dataset metadata (e.g. LINEAR_UNITS); ``dtype``: None keeps the array's (codes and counts
+    as integers, a conditioned DEM in float64)."""
+    array = np.asarray(array)
+    is_float = array.dtype.kind == "f"
+    data = (np.where(np.isfinite(array), array, nodata) if is_float else array).astype(dtype or array.dtype)
+    profile = dict(driver="GTiff", width=data.shape[1], height=data.shape[0], count=1, dtype=data.dtype.name,
+                   crs=crs, transform=transform, nodata=nodata)
     with MemoryFile() as mem:
         with mem.open(**profile) as ds:
             ds.write(data, 1)
@@ -268,7 +272,8 @@ def write_cog(path, array: np.ndarray, transform, crs, unit: str | None = None, 
             if tags:
                 ds.update_tags(**tags)
         with mem.open() as src, atomic_path(path) as tmp:
-            rio_copy(src, tmp, driver="COG", compress="DEFLATE", predictor=3, overview_resampling="average")
+            rio_copy(src, tmp, driver="COG", compress="DEFLATE", predictor=3 if data.dtype.kind == "f" else 2,
+                     overview_resampling="average" if data.dtype.kind == "f" else "nearest")
 
 
 def hillshade(dem: np.ndarray, res_m: float, azimuth_deg: float = 315.0, altitude_deg: float = 45.0,
