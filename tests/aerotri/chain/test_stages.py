@@ -96,7 +96,9 @@ def by_hand(tiny_project, tmp_path_factory):
 
 def test_readme_chain_runs_stage_by_stage(by_hand):
     with_cal, runs, without, runs_without = by_hand
-    assert [a[:2] for a in readme_chain()][0] == ["lidarctl", "classify"]  # the strips, no merged file
+    # the strips checked first, then classified together (no merged file)
+    assert [a[:2] for a in readme_chain()][:2] == [["lidarctl", "strips"], ["lidarctl", "classify"]]
+    assert json.loads((with_cal / "lidar_out" / "strips" / "strips.json").read_text())["all_pairs"]["n_cells"] > 0
     # tiny's LiDAR (1.2 m spacing) gives no usable roof corner: the README's rule applies
     assert runs["lidarctl corners"].returncode == 2 and "aerotri control" not in runs
     assert json.loads((with_cal / "lidar_out" / "height_check.json").read_text())["overall"]["all"]["n"] > 0
