@@ -26,5 +26,6 @@ class StripsSettings:
 
     adjust: bool = setting(False, help="Adjust the strips and classify the corrected ones (default: check only).")
     use_trajectory: bool = setting(True, help="Adjust with the sensor model when the project has trajectory/*.txt.")
+    maps: bool = setting(True, help="Colour maps (PNG) of the differences next to their rasters.")
     surface: SurfaceParams = dataclasses.field(default_factory=SurfaceParams)
     adjustment: AdjustSettings = dataclasses.field(default_factory=AdjustSettings)

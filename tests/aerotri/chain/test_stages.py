@@ -205,7 +205,7 @@ def test_strip_stage_skips_a_single_strip_and_adjusts_when_asked(tiny_project, t
     p = tmp_path / "adjusted"
     shutil.copytree(tiny_project, p, ignore=shutil.ignore_patterns("images", "truth"))
     with open(p / "project.toml", "a") as f:
-        f.write("\n[strips]\nadjust = true\n")
+        f.write("\n[strips]\nadjust = true\nmaps = false\n")
     project, chain, stages = strip_stage(p)
     (r,) = run_stages(p, stages, log=lambda m: None)
     assert r["status"] == "done" and r["model"] == "boresight"  # the trajectories of trajectory/
