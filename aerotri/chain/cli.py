@@ -85,7 +85,7 @@ def _stale_simulation(project: Path, cfg: dict) -> str | None:
 def run(project, reference, points, dem, force, keep_lidar_classes, scheduler, workers):
     """The whole chain over PROJECT, resumable: a re-run skips stages whose inputs did not change.
 
-    Stage options come from project.toml, one section per stage ([classify], [rasters], [corners],
+    Stage options come from project.toml, one section per stage ([strips], [classify], [rasters], [corners],
     [match], [adjust], [control], [rectify], [mosaic]; the keys of each stage's settings). Stages the
     inputs do not allow (no LiDAR, no usable roof corner, no DEM) are left out and the summary says why.
     """

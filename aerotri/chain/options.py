@@ -3,6 +3,8 @@
 Each section's keys are the fields of the stage's settings dataclass, with its defaults and checks
 (``aerotri.core.settings``), e.g.::
 
+    [strips]
+    adjust = true
     [rasters]
     res_m = 0.5
     [corners]
@@ -31,10 +33,12 @@ from aerotri.core.project import PROJECT_SECTIONS, STAGE_SECTION_NAMES, Project
 from lidarctl.classify import ClassifyParams
 from lidarctl.corners import CornerSettings
 from lidarctl.rasters import RasterSettings
+from lidarctl.strips.settings import StripsSettings
 from ortho.settings import MosaicSettings, RectifySettings
 
 # section -> the settings dataclass of the stage it configures (in chain order)
 STAGE_SECTIONS = {
+    "strips": StripsSettings,
     "classify": ClassifyParams,
     "rasters": RasterSettings,
     "corners": CornerSettings,
@@ -51,6 +55,7 @@ assert tuple(STAGE_SECTIONS) == STAGE_SECTION_NAMES  # the project folder knows 
 class ChainOptions:
     """The settings of every stage, from project.toml (defaults where a section or key is absent)."""
 
+    strips: StripsSettings = dataclasses.field(default_factory=StripsSettings)
     classify: ClassifyParams = dataclasses.field(default_factory=ClassifyParams)
     rasters: RasterSettings = dataclasses.field(default_factory=RasterSettings)
     corners: CornerSettings = dataclasses.field(default_factory=CornerSettings)

@@ -5,7 +5,9 @@ hash; size and modification time for files over 64 MiB) and options as now and a
 otherwise it runs and writes its outputs atomically, then its stamp. Killing a run leaves finished
 stages stamped and the interrupted stage without a stamp and without partial outputs, so a re-run
 continues there. A stage may also be left out for a reason decided when its turn comes (``skip``:
-no LiDAR, no usable corner, no DEM ...); the summary row says why.
+no LiDAR, no usable corner, no DEM ...); the summary row says why. A stage that finds out only by
+running that it has nothing to do (the strip check of a single strip) returns ``{"why": reason}``: its
+row says skipped and why, and its stamp keeps that decision while its inputs stay the same.
 
 What a stage cost (``aerotri.core.resources.measure``: wall and CPU seconds, peak RSS of the process and
 of its Dask workers) goes into its stamp (``usage``) and its summary row; every run writes its rows and
@@ -133,10 +135,12 @@ def run_stages(root, stages: list[Stage], force: bool = False, log: Callable[[st
         write_text_atomic(stamp_path(root, st.name), json.dumps(
             dict(inputs=_signature(st.inputs(root), root), options=options, result=result, seconds=round(dt, 2),
                  usage=usage.record()), indent=1, default=str) + "\n")
-        rows.append(dict(stage=st.name, status="done", seconds=round(dt, 1), **_usage_columns(usage.record()),
-                         **result))
+        rows.append(dict(stage=st.name, status="skipped" if result.get("why") else "done", seconds=round(dt, 1),
+                         **_usage_columns(usage.record()), **result))
         for note in result.get("notes", []):
             log(f"[{st.name}] note: {note}")
+        if result.get("why"):
+            log(f"[{st.name}] skipped: {result['why']}")
         log(f"[{st.name}] done in {dt:.1f} s")
     write_text_atomic(project_paths(root).run_summary_path, json.dumps(
         dict(stages=rows, load_avg_start=load_start, load_avg_end=_load_avg()), indent=1, default=str) + "\n")

@@ -1,6 +1,7 @@
 """The production chain over one project folder, built from its inputs and its stage options.
 
-LiDAR strips (lidar/) -> classify (the strips together, by tiles, no merged file; one classified
+LiDAR strips (lidar/) -> strip check (how overlapping strips disagree in height, lidar_out/strips/; with
+``[strips] adjust = true`` the strip adjustment, and the corrected strips go on) -> classify (the strips together, by tiles, no merged file; one classified
 copy per strip in lidar_out/classified/) -> rasters -> roof corners; images -> tie points -> first
 adjustment (tie points + GNSS) -> control transfer of the LiDAR corners -> final adjustment ->
 rectification on the DEM -> mosaic -> optional checks -> accuracy report.
@@ -8,6 +9,7 @@ rectification on the DEM -> mosaic -> optional checks -> accuracy report.
 Every stage calls its library function and keeps the numbers it returns for the summary. The chain
 runs what its inputs allow and says what it left out and why:
 
+- one strip, or strips without a smooth overlap: no strip check (nor adjustment), the rest goes on;
 - no LiDAR strips: no LiDAR stages and no control transfer; one adjustment, with the project's own
   control/ if there is one, else on GNSS alone; the orthophotos need a DEM from elsewhere
   (``[rectify] dem`` in project.toml or ``aerotri run --dem``), else the chain ends after the adjustment;
@@ -149,7 +151,10 @@ class Chain:
     def stages(self) -> list[Stage]:
         o, lo, first = self.options, self.lo, self.first
         stages = [
-            Stage("classify", lambda r: self.project.lidar_strips(), self.classified, self.run_classify,
+            # only reads the strips unless [strips] adjust (then classify takes the corrected ones)
+            Stage("strips", self.strips_inputs, self.strips_outputs, self.run_strips,
+                  options=dict(to_table(o.strips), crs=self.project.crs), skip=self.no_lidar),
+            Stage("classify", lambda r: self.classify_inputs(), self.classified, self.run_classify,
                   options=dict(to_table(o.classify), crs=self.project.crs), skip=self.no_lidar),
             Stage("rasters", self.classified,
                   lambda r: [lo / f for f in ("dem.tif", "dsm.tif", "ndsm.tif")], self.run_rasters,
@@ -187,7 +192,8 @@ class Chain:
             stages.append(Stage("lidar_eval", lambda r: self.classified() + self.project.truth_strips(),
                                 lambda r: [self.project.classification_eval_path],
                                 self.run_lidar_eval, skip=self.no_lidar))
-        report_inputs = [self.project.config_path, self.project.adjustment_report_path,
+        report_inputs = [self.project.config_path, self.project.strips_check_path, self.project.strips_adjust_path,
+                         self.project.strips_check_after_path, self.project.adjustment_report_path,
                          self.project.control_transfer_path, self.project.dom_report_path,
                          self.project.height_check_path, self.project.classification_eval_path]
         stages.append(Stage("report", lambda r: report_inputs, lambda r: [self.project.report_index_path],
@@ -195,13 +201,55 @@ class Chain:
         return stages
 
     # -- LiDAR ----------------------------------------------------------------------------------
+    def adjusting(self) -> bool:
+        """The strips are adjusted: [strips] adjust, unless the check found nothing to compare."""
+        return self.options.strips.adjust and not _json(self.project.strips_check_path).get("why")
+
+    def strip_trajectories(self) -> list[Path]:
+        return self.project.trajectories() if self.options.strips.use_trajectory else []
+
+    def strips_inputs(self, root=None) -> list[Path]:
+        extra = self.strip_trajectories() if self.options.strips.adjust else []
+        return self.project.lidar_strips() + extra
+
+    def strips_outputs(self, root=None) -> list[Path]:
+        p = self.project
+        return [p.strips_adjust_path] + p.adjusted_strips() if self.adjusting() else [p.strips_check_path]
+
+    def classify_inputs(self) -> list[Path]:
+        """The strips the classification reads: the corrected ones when the strips were adjusted."""
+        return self.project.adjusted_strips() if self.adjusting() else self.project.lidar_strips()
+
+    def run_strips(self, root) -> dict:
+        from aerotri.core.atomic import atomic_dir
+        from lidarctl.strips.adjust import adjust_strips
+        from lidarctl.strips.check import check_strips
+        from lidarctl.strips.overlap import NothingToCompare
+
+        s, p = self.options.strips, self.project
+        try:
+            if s.adjust:
+                a = adjust_strips(p.lidar_strips(), p.strips_dir, s.adjustment, s.surface,
+                                  trajectories=self.strip_trajectories(), crs=p.crs, png=s.maps)
+                return dict(model=a["model"], rms_before_m=round(a["check_before"]["rms_m"], 4),
+                            rms_after_m=round(a["check_after"]["rms_m"], 4), sigma0=round(a["sigma0"], 3))
+            c = check_strips(p.lidar_strips(), p.strips_dir, s.surface, crs=p.crs, png=s.maps)
+        except NothingToCompare as e:
+            # recorded, so that the report and a re-run know (the folder holds nothing else)
+            why = f"nothing to compare: {e}"
+            with atomic_dir(p.strips_dir) as tmp:
+                (tmp / "strips.json").write_text(json.dumps({"why": why}, indent=2) + "\n")
+            return dict(why=why)
+        a = c["all_pairs"]
+        return dict(pairs=len(c["pairs"]), rms_m=round(a["rms_m"], 4), nmad_m=round(a["nmad_m"], 4))
+
     def run_classify(self, root) -> dict:
         from aerotri.core.atomic import remove_leftovers
         from lidarctl.tiles import classify_files
 
         # what a killed run left next to classified/ (the set's temporary folder, the tiles' work folder)
         remove_leftovers(self.lo)
-        st = classify_files(self.project.lidar_strips(), self.project.classified_dir, crs=self.project.crs,
+        st = classify_files(self.classify_inputs(), self.project.classified_dir, crs=self.project.crs,
                             params=self.options.classify, suffix=".laz")
         return dict(points=st.n_points, strips=st.n_files, tiles=st.run.n_tiles)
 

@@ -30,7 +30,7 @@ PROJECT_SECTIONS = {
 }
 # The stage sections (their keys are the fields of each stage's settings, checked by the stage and by
 # ``aerotri run``; aerotri.chain.options.STAGE_SECTIONS holds the same names).
-STAGE_SECTION_NAMES = ("classify", "rasters", "corners", "match", "adjust", "control", "rectify", "mosaic")
+STAGE_SECTION_NAMES = ("strips", "classify", "rasters", "corners", "match", "adjust", "control", "rectify", "mosaic")
 
 
 def check_sections(config: dict, source) -> None:
@@ -93,6 +93,11 @@ class Project:
     lidar_dir = property(lambda self: self.root / "lidar")
     truth_dir = property(lambda self: self.root / "truth")  # simulated projects only (aerotri.sim)
     truth_lidar_dir = property(lambda self: self.truth_dir / "lidar")
+    trajectory_dir = property(lambda self: self.root / "trajectory")  # scanner trajectories of the strips
+
+    def trajectories(self) -> list[Path]:
+        """The strips' trajectory files (``trajectory/*.txt``, lidarctl.strips.trajectory format), sorted."""
+        return sorted(p for p in self.trajectory_dir.glob("*.txt") if p.is_file())
 
     def lidar_strips(self) -> list[Path]:
         """The LAS/LAZ strips in ``lidar/``, sorted by name."""
@@ -109,6 +114,16 @@ class Project:
     def truth_strips(self) -> list[Path]:
         """The truth-classified strips of simulated projects: ``truth/lidar/`` files named as in ``lidar/``."""
         return [self.truth_lidar_dir / p.name for p in self.lidar_strips()]
+    # lidar_out/strips/: the strip check (strips.json; or what it could not compare, {"why": ...}), or with
+    # [strips] adjust the adjustment (adjust.json, check_before/, check_after/, the corrected strips)
+    strips_dir = property(lambda self: self.lidar_out_dir / "strips")
+    strips_check_path = property(lambda self: self.strips_dir / "strips.json")
+    strips_adjust_path = property(lambda self: self.strips_dir / "adjust.json")
+    strips_check_after_path = property(lambda self: self.strips_dir / "check_after" / "strips.json")
+
+    def adjusted_strips(self) -> list[Path]:
+        """The corrected copies of ``lidar_strips()`` a strip adjustment writes (same file names)."""
+        return [self.strips_dir / p.name for p in self.lidar_strips()]
     dem_path = property(lambda self: self.lidar_out_dir / "dem.tif")
     dsm_path = property(lambda self: self.lidar_out_dir / "dsm.tif")
     ndsm_path = property(lambda self: self.lidar_out_dir / "ndsm.tif")

@@ -1,7 +1,7 @@
 """Consolidated accuracy report of a project: ``reports/index.html``, ``reports/summary.json`` and,
 optionally, ``reports/report.pdf``.
 
-It gathers what the stages wrote - LiDAR classification and height checks, control-point quality,
+It gathers what the stages wrote - LiDAR strip consistency, classification and height checks, control-point quality,
 the adjustment's ISAT-style numbers, the DOM check with its seam misalignment - and marks every
 quantity that has a tolerance as pass or fail. Tolerances come from a TOML table per map scale
 (``aerotri.core.tolerances``: ``cn_1to2000.toml``, ``cn_1to5000.toml``, ``cn_1to10000.toml``; sections
@@ -96,6 +96,35 @@ def flight_rows(fa: dict, tol: dict) -> list:
     return rows
 
 
+def strip_rows(project: Project, tol: dict) -> tuple[list, list | None]:
+    """(the strip-consistency row, the pairs for the details) from lidar_out/strips/: the check, or after a
+    strip adjustment its check after (the note gives the value before).
+
+    The value is the RMS of the height differences of all pairs on smooth single-return surfaces (planar
+    cells without vegetation, edges or steps): the RMSDz of the LiDAR specifications (``strip_rmsdz_m``).
+    The RMS, not the NMAD: the systematic part (a strip too high, tilted by a roll error) is what
+    the check is there to find, and the NMAD, spread about each pair's median, does not see a constant
+    offset between two strips; blunders are kept out by the choice of cells, not by the statistic."""
+    adjusted = project.strips_adjust_path.is_file()
+    chk = _json(project.strips_check_after_path if adjusted else project.strips_check_path)
+    if not chk:
+        return [], None
+    sec = "LiDAR strip consistency"
+    name = "strip-to-strip height differences on smooth surfaces, RMS over all pairs"
+    if chk.get("why"):
+        return [_check(sec, name, None, None, "m", f"not checked: {chk['why']}")], None
+    a = chk["all_pairs"]
+    pairs = [{k: p.get(k) for k in ("a", "b", "n_cells", "mean_m", "rms_m", "nmad_m")} for p in chk["pairs"]]
+    worst = max(pairs, key=lambda p: p["rms_m"])
+    note = (f"{len(pairs)} pairs, {a['n_cells']} cells of {chk['cell_m']:g} m; NMAD {a['nmad_m']:.3f} m; worst pair "
+            f"{worst['b']} - {worst['a']}: mean {worst['mean_m']:+.3f} m, RMS {worst['rms_m']:.3f} m")
+    if adjusted:
+        before = _json(project.strips_adjust_path).get("check_before", {})
+        if before.get("rms_m") is not None:
+            note = f"after the strip adjustment (before: RMS {before['rms_m']:.3f} m); " + note
+    return [_check(sec, name, round(a["rms_m"], 4), tol.get("strip_rmsdz_m"), "m", note)], pairs
+
+
 def stage_results(project: Project) -> list:
     """What the stages leave for the report."""
     return [project.adjustment_report_path, project.control_transfer_path, project.dom_report_path,
@@ -128,7 +157,7 @@ def build_qa_report(root, tolerance_file=None, terrain: str | None = None, scale
     hc_all = _json(project.height_check_path)
     hc = hc_all.get("overall", {})
     ce = _json(project.classification_eval_path).get("filter_test", {})
-    rows = []
+    rows, strips = strip_rows(project, tol)
 
     # LiDAR
     sec = "LiDAR classification"
@@ -249,6 +278,7 @@ def build_qa_report(root, tolerance_file=None, terrain: str | None = None, scale
         adjustment=dict(sigma0_um=ks.get("sigma0_um"), iterations=ks.get("iterations"), counts=at.get("counts"),
                         check_normalised_rms=at.get("check_normalised_rms")) if at else None,
         control_transfer=ctl or None,
+        lidar_strips=strips,
         lidar_height_bins=hc.get("bins"),
         lidar_height_groups=hc_all.get("groups") or None,
         lidar_classification=ce or None,
@@ -348,7 +378,8 @@ Overall verdict: <b class="{rep['overall'] or ''}">{html.escape(rep['overall'] o
 <h2>Stage reports</h2>
 <p><a href="../at/report.html">adjustment (ISAT layout)</a>, <a href="../at/report.txt">report.txt</a>,
 <a href="../control/review/review.html">control transfer review</a>, <a href="../ortho/dom_report.json">DOM check</a>,
-<a href="../lidar_out/height_check.json">LiDAR height check</a>.</p>
+<a href="../lidar_out/height_check.json">LiDAR height check</a>,
+<a href="../lidar_out/strips/index.html">LiDAR strip differences</a>.</p>
 <p class="stage">{stage_imgs}</p>
 <h2>Figures</h2>{figs}
 {flight}

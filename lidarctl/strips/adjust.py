@@ -6,8 +6,14 @@ y = n . (c_A - c_B), with n the mean unit normal of the two cell planes and c th
 strip's single returns in the cell, and sigma^2 = rms_A^2 / n_A + rms_B^2 / n_B (+ 3 mm^2 for the
 surface's own roughness). Model: the points of a strip are displaced by e(p) = J(p) theta (the error
 ``theta`` describes); y = n . (e_A - e_B). Solved by iteratively reweighted least squares with Huber
-weights (k = 1.5 robust sigmas: vegetation left in a cell, moving cars, changes between the flights),
-parameter covariance sigma0^2 N^-1 (sigma0 a posteriori). Corrected points: p - e(p).
+weights (k = 1.5 robust sigmas: vegetation left in a cell, moving cars, changes between the flights).
+Parameter covariance: the M-estimator's sandwich A^-1 B A^-1 (Huber 1981, 7.6), A the normal matrix of
+the observations within the Huber threshold (psi' = 1; those beyond carry no information on the
+slope of the fit) plus the priors, B the sum of the outer products of the weighted residual scores,
+scaled by m / (m - K), plus the priors: sigma0^2 N^-1 of the reweighted normals leaves out the
+efficiency Huber loses on Gaussian noise (about 13 % of the observations beyond 1.5 sigma) and comes
+out about 6 % too small (Monte Carlo on the simulator's geometry: normalised RMS 1.07 against 0.99).
+Corrected points: p - e(p).
 
 Models (``theta`` and J, all in metres and radians; reported in metres and degrees):
 - ``strip`` (no trajectory): per strip a shift t (x, y, z) and a small rotation (roll about the flight
@@ -218,7 +224,8 @@ class Solution:
 
 
 def solve(obs: Observations, model: Model, huber_k: float = 1.5, iterations: int = 10) -> Solution:
-    """IRLS with Huber weights; covariance sigma0^2 N^-1 (sigma0 from the weighted residuals, priors included)."""
+    """IRLS with Huber weights; the sandwich covariance (module docstring); sigma0 from the weighted residuals,
+    priors included."""
     K = obs.G.shape[1]
     has_prior = np.isfinite(model.prior_sigma)
     P = np.where(has_prior, 1.0 / np.where(has_prior, model.prior_sigma, 1.0) ** 2, 0.0)
@@ -235,13 +242,21 @@ def solve(obs: Observations, model: Model, huber_k: float = 1.5, iterations: int
         s = max(chk.NMAD_K * np.median(np.abs(r)), 1e-9)
         a = np.abs(r) / (huber_k * s)
         w = np.where(a <= 1.0, 1.0, 1.0 / np.maximum(a, 1e-12))
-    N = (Gn * w[:, None]).T @ Gn + np.diag(P)
-    Ninv = np.linalg.inv(N)
     r = yn - Gn @ theta
     dof = max(len(r) - K + int(has_prior.sum()), 1)
     sigma0 = float(np.sqrt((np.sum(w * r ** 2) + np.sum(P * theta ** 2)) / dof))
+    s = max(chk.NMAD_K * np.median(np.abs(r)), 1e-9)
+    inside = np.abs(r) <= huber_k * s
+    A = Gn[inside].T @ Gn[inside] + np.diag(P)
+    g = Gn * (w * r)[:, None]  # psi of the standardised residuals, times s
+    B = g.T @ g * len(r) / max(len(r) - K, 1) + np.diag(P)
+    try:
+        Ainv = np.linalg.inv(A)
+    except np.linalg.LinAlgError:
+        raise SolveError("the normal equations are singular: the overlaps do not determine the parameters") from None
+    cov = Ainv @ B @ Ainv
     rm = obs.y - obs.G @ theta
-    return Solution(theta, sigma0 ** 2 * Ninv, sigma0, w, float(np.sqrt(np.mean(obs.y ** 2))),
+    return Solution(theta, cov, sigma0, w, float(np.sqrt(np.mean(obs.y ** 2))),
                     float(np.sqrt(np.mean(rm ** 2))), int(np.sum(w < 1.0)))
 
 

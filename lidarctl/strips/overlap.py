@@ -44,6 +44,11 @@ VEGETATION_CLASSES = (3, 4, 5)
 _N_SUMS = 12
 
 
+class NothingToCompare(InputError):
+    """The strips are readable but give nothing to compare: one strip only, no two strips overlapping, or
+    no smooth surface in the overlaps (a chain leaves the strip check out for these, a command stops)."""
+
+
 @dataclasses.dataclass(frozen=True)
 class SurfaceParams:
     """What counts as a smooth surface (``lidarctl strips check``/``adjust`` options; lengths in metres)."""
@@ -153,7 +158,7 @@ def strip_sources(paths) -> list[StripSource]:
     for _, chunk in las.iter_file_chunks(path, io.CHUNK_POINTS):
         ids.update(np.unique(np.asarray(chunk.point_source_id)).tolist())
     if len(ids) < 2:
-        raise InputError(f"{path}: one strip only (point_source_id {sorted(ids)}); strip differences need at least "
+        raise NothingToCompare(f"{path}: one strip only (point_source_id {sorted(ids)}); strip differences need at least "
                          "two overlapping strips: give several files, or one file whose strips differ in "
                          "point_source_id")
     return [StripSource(f"psid{i}", path, int(i)) for i in sorted(ids)]
@@ -403,13 +408,13 @@ def overlapping_pairs_or_error(ss: StripSet, params: SurfaceParams, paths, min_c
     no smooth surface in any overlap."""
     names = ", ".join(str(p) for p in dict.fromkeys(str(p) for p in paths))
     if len(ss.strips) < 2:
-        raise InputError(f"{names}: one strip only; strip differences need at least two overlapping strips")
+        raise NothingToCompare(f"{names}: one strip only; strip differences need at least two overlapping strips")
     pairs, skipped, n_overlap = pair_diffs(ss, params, min_cells)
     if n_overlap == 0:
-        raise InputError(f"{names}: no two strips overlap (no cell of {ss.grid.cell_m:g} m holds points of two "
+        raise NothingToCompare(f"{names}: no two strips overlap (no cell of {ss.grid.cell_m:g} m holds points of two "
                          "strips); give overlapping strips")
     if not pairs:
-        raise InputError(f"{names}: the overlaps hold no smooth single-return surface (planar cells with at least "
+        raise NothingToCompare(f"{names}: the overlaps hold no smooth single-return surface (planar cells with at least "
                          f"{params.min_points} single returns, RMS <= {params.max_rms_m:g} m, slope <= "
                          f"{params.max_slope_deg:g} deg, >= {min_cells} cells per pair); "
                          + "; ".join(f"{k}: {v}" for k, v in skipped.items()))

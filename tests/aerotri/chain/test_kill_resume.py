@@ -16,7 +16,7 @@ import sys
 from pathlib import Path
 from aerotri.chain import chain_stages, run_stages
 root = Path(sys.argv[1])
-run_stages(root, chain_stages(root)[:1], log=lambda m: print(m, file=sys.stderr, flush=True))
+run_stages(root, [s for s in chain_stages(root) if s.name == "classify"], log=lambda m: print(m, file=sys.stderr, flush=True))
 """
 
 

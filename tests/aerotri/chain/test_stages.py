@@ -96,7 +96,9 @@ def by_hand(tiny_project, tmp_path_factory):
 
 def test_readme_chain_runs_stage_by_stage(by_hand):
     with_cal, runs, without, runs_without = by_hand
-    assert [a[:2] for a in readme_chain()][0] == ["lidarctl", "classify"]  # the strips, no merged file
+    # the strips checked first, then classified together (no merged file)
+    assert [a[:2] for a in readme_chain()][:2] == [["lidarctl", "strips"], ["lidarctl", "classify"]]
+    assert json.loads((with_cal / "lidar_out" / "strips" / "strips.json").read_text())["all_pairs"]["n_cells"] > 0
     # tiny's LiDAR (1.2 m spacing) gives no usable roof corner: the README's rule applies
     assert runs["lidarctl corners"].returncode == 2 and "aerotri control" not in runs
     assert json.loads((with_cal / "lidar_out" / "height_check.json").read_text())["overall"]["all"]["n"] > 0
@@ -123,8 +125,8 @@ def test_run_goes_to_the_end_and_equals_the_chain_by_hand(by_hand, tiny_project,
                                          "--points", str(p / "truth" / "checkpoints.csv")], catch_exceptions=False)
     assert r.exit_code == 0, r.output
     table = r.stdout
-    for stage in ("classify", "rasters", "corners", "match", "adjust_final", "rectify", "mosaic", "dom_check",
-                  "height_check", "report"):
+    for stage in ("strips", "classify", "rasters", "corners", "match", "adjust_final", "rectify", "mosaic",
+                  "dom_check", "height_check", "report"):
         assert (p / "work" / "stages" / f"{stage}.json").is_file(), stage
     # no usable corner: said, control transfer and first adjustment left out, the rest goes on
     assert "no usable roof corner" in table and "without LiDAR control" in table
@@ -135,6 +137,15 @@ def test_run_goes_to_the_end_and_equals_the_chain_by_hand(by_hand, tiny_project,
     assert (p / "at" / "eo.txt").read_bytes() == (with_cal / "at" / "eo.txt").read_bytes()
     summary = json.loads((p / "reports" / "summary.json").read_text())
     assert summary == json.loads((with_cal / "reports" / "summary.json").read_text())
+    # the strips checked before classification (only read: classify took lidar/), judged in the report
+    strips = json.loads((p / "lidar_out" / "strips" / "strips.json").read_text())
+    assert len(strips["pairs"]) == 3 and (p / "lidar_out" / "strips" / "index.html").is_file()
+    classify = json.loads((p / "work" / "stages" / "classify.json").read_text())
+    assert sorted(classify["inputs"]) == [f"lidar/strip_0{k}.las" for k in range(1, 5)]
+    row = next(r for r in summary["checks"] if r["section"] == "LiDAR strip consistency")
+    assert row["value"] == round(strips["all_pairs"]["rms_m"], 4) and row["limit"] == 0.08
+    assert row["verdict"] == ("pass" if row["value"] <= 0.08 else "fail") and "3 pairs" in row["note"]
+    assert summary["details"]["lidar_strips"][0]["a"] == "strip_01"
     # a second run is up to date throughout
     r = CliRunner().invoke(aerotri_cli, ["run", str(p), "--reference", str(p / "truth" / "ortho.tif"),
                                          "--points", str(p / "truth" / "checkpoints.csv")], catch_exceptions=False)
@@ -149,7 +160,7 @@ def test_run_without_lidar_stops_after_the_adjustment_or_uses_a_dem_from_elsewhe
     r = CliRunner().invoke(aerotri_cli, ["run", str(p)], catch_exceptions=False)
     assert r.exit_code == 0, r.output
     assert "stopped after the adjustment: no DEM" in r.stderr and "[rectify] dem" in r.stderr
-    for stage in ("classify", "rasters", "corners", "adjust_first", "control"):
+    for stage in ("strips", "classify", "rasters", "corners", "adjust_first", "control"):
         assert f"{stage:<18} skipped" in r.stdout, stage
     assert "no LiDAR strips" in r.stdout
     assert (p / "at" / "eo.txt").is_file() and not (p / "ortho").exists()
@@ -165,3 +176,42 @@ def test_run_without_lidar_stops_after_the_adjustment_or_uses_a_dem_from_elsewhe
     index = json.loads((p / "ortho" / "frames" / "index.json").read_text())
     assert Path(index["dem"]).resolve() == (tmp_path / "elsewhere" / "dem.tif").resolve()
     assert "stopped after" not in r.stderr
+
+
+def test_strip_stage_skips_a_single_strip_and_adjusts_when_asked(tiny_project, tmp_path):
+    """The strip stage alone: one strip is left out with the reason (the chain goes on); with [strips]
+    adjust = true and the simulator's trajectories the boresight model corrects the strips, and the
+    classification reads the corrected ones."""
+    from aerotri.chain import Chain, read_options, run_stages
+    from aerotri.core.project import Project
+    from aerotri.core.tolerances import load_tolerances
+    from aerotri.qa.report import strip_rows
+
+    def strip_stage(p):
+        project = Project.open(p)
+        chain = Chain(project, read_options(project))
+        return project, chain, [s for s in chain.stages() if s.name == "strips"]
+
+    one = tmp_path / "one"
+    shutil.copytree(tiny_project, one, ignore=shutil.ignore_patterns("images", "truth", "strip_0[234].*"))
+    project, chain, stages = strip_stage(one)
+    rows = run_stages(one, stages, log=lambda m: None)
+    assert rows[0]["status"] == "skipped" and "one strip only" in rows[0]["why"]
+    assert chain.classify_inputs() == project.lidar_strips()
+    assert run_stages(one, stages, log=lambda m: None)[0]["status"] == "skipped (up to date)"
+    (row,), _ = strip_rows(project, load_tolerances())
+    assert row["value"] is None and row["verdict"] is None and "one strip only" in row["note"]
+
+    p = tmp_path / "adjusted"
+    shutil.copytree(tiny_project, p, ignore=shutil.ignore_patterns("images", "truth"))
+    with open(p / "project.toml", "a") as f:
+        f.write("\n[strips]\nadjust = true\nmaps = false\n")
+    project, chain, stages = strip_stage(p)
+    (r,) = run_stages(p, stages, log=lambda m: None)
+    assert r["status"] == "done" and r["model"] == "boresight"  # the trajectories of trajectory/
+    # the simulator's per-strip GNSS offsets (0.03 m) removed down to the range noise
+    assert r["rms_after_m"] < 0.6 * r["rms_before_m"]
+    assert chain.classify_inputs() == project.adjusted_strips() and all(f.is_file() for f in project.adjusted_strips())
+    (row,), pairs = strip_rows(project, load_tolerances())
+    assert row["value"] == r["rms_after_m"] and f"before: RMS {r['rms_before_m']:.3f} m" in row["note"]
+    assert len(pairs) == 3
