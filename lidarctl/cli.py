@@ -388,3 +388,28 @@ def vectors(paths, image, dem, contours_path, contour_interval_m, cell_m, min_ar
     counts = ", ".join(f"{k} {s[k]}" for k in ("buildings", "roads", "road_centrelines", "water", "spot_heights",
                                                "contours") if k in s)
     click.echo(f"{out_path}: {counts} ({s['units']['xy_unit']})")
+
+
+@main.command("check-vectors")
+@click.argument("product_path", type=click.Path(dir_okay=False))
+@click.option("--reference", "reference_path", type=click.Path(dir_okay=False), required=True,
+              help="Reference vectors (.gpkg) with layers of the same names (buildings, roads, ...).")
+@click.option("--layer", "layers", multiple=True, help="Check only this layer (repeatable) [every shared layer].")
+@click.option("--json", "json_path", type=click.Path(dir_okay=False), default=None, help="Write the numbers as JSON.")
+@click.option("--png", "png_path", type=click.Path(dir_okay=False), default=None,
+              help="Plot of the building outlines and corner offset vectors.")
+@click.option("--match", "match_m", type=positive(), default=3.0, show_default=True,
+              help="Largest distance (m) of a produced corner from its reference corner to pair them.")
+@click.option("--buffer", "buffer_m", type=positive(), default=2.0, show_default=True,
+              help="Buffer (m) around lines for their completeness and correctness.")
+@click.option("--scale", default="1:10000", show_default=True, help="Map scale of the tolerance table.")
+@click.option("--terrain", default="flat", show_default=True, help="Terrain class of the tolerance table.")
+def check_vectors(product_path, reference_path, layers, json_path, png_path, match_m, buffer_m, scale, terrain):
+    """Line-map accuracy of PRODUCT_PATH (lidarctl vectors) against --reference: plan RMS of the building corners
+    (to the nearest reference outline and to the matched reference corner), completeness and correctness of
+    each layer by area (polygons) or buffer (lines), with the map scale's tolerance for well-defined features."""
+    from lidarctl import vector_check as vc
+
+    params = vc.CheckParams(layers=tuple(layers), match_m=match_m, buffer_m=buffer_m, scale=scale, terrain=terrain)
+    result = vc.check_files(product_path, reference_path, params, json_path, png_path)
+    click.echo(vc.format_report(result))

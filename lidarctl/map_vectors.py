@@ -5,8 +5,9 @@ heights in CRS units, the ``_m`` attributes in metres):
 
 * ``buildings`` (Polygon): regularised roof (eave) outlines of the building points (class 6), traced,
   regularised and edge-fitted as ``lidarctl corners`` does (``corners.find_roof_corners``);
-  ``eave_z``: the ``EAVE_PERCENTILE`` of the roof points within ``max(1.5 m, 2 spacings)`` inside the
-  outline; ``ridge_z``: the ``RIDGE_PERCENTILE`` of all roof points inside it; ``ground_z``: the median of
+  ``eave_z``: the median height of its corners (each the roof plane at the corner, as in ``corners``),
+  without corners the most frequent height (``EAVE_BIN_M`` bins) of the roof points within
+  ``max(1.5 m, 2 spacings)`` inside the outline; ``ridge_z``: the ``RIDGE_PERCENTILE`` of all roof points inside it; ``ground_z``: the median of
   the ground points up to 5 m outside it; ``height_m`` = ridge - ground; ``area_m2``, ``roof``.
 * ``roads`` (Polygon): cells of ``cell_m`` holding road points (class 11, e.g. from ``classify --image``),
   closed over gaps of one cell, holes below ``min_area_m2`` filled, pieces below it dropped; the polygon
@@ -42,7 +43,7 @@ log.addHandler(logging.NullHandler())
 GROUND, BUILDING, WATER, ROAD = 2, 6, 9, 11
 NOISE = (7, 18)
 OPEN_GROUND = (GROUND, 3, ROAD)
-EAVE_PERCENTILE = 10.0
+EAVE_BIN_M = 0.25
 RIDGE_PERCENTILE = 99.0
 BREAKLINE_CLEAR_M = 3.0
 LAYERS = ("buildings", "roads", "road_centrelines", "water", "spot_heights", "contours")
@@ -293,6 +294,10 @@ def building_outlines(pts: dict, spacing_m: float | None = None) -> tuple[list, 
     from scipy.spatial import cKDTree
 
     btree = cKDTree(bxy)
+    # eave height: the corners' heights, each the roof plane at the corner (corners.py)
+    corner_z: dict = {}
+    for c in res["corners"]:
+        corner_z.setdefault(int(c["building_id"]), []).append(float(c["z"]))
     gtree = cKDTree(gxy) if len(gxy) else None
     polys, rows = [], []
     for o in res["outlines"]:
@@ -314,10 +319,18 @@ def building_outlines(pts: dict, spacing_m: float | None = None) -> tuple[list, 
         idx = idx[shapely.contains_xy(poly, bxy[idx, 0], bxy[idx, 1])] if len(idx) else idx
         if len(idx) < 3:
             continue
-        band = max(1.5, 2.0 * o["spacing_m"])
-        d_edge = shapely.distance(poly.boundary, shapely.points(bxy[idx]))
-        near = idx[d_edge < band]
-        eave = float(np.percentile(bz[near if len(near) >= 3 else idx], EAVE_PERCENTILE))
+        cz = corner_z.get(int(o["building_id"]))
+        if cz is not None:
+            eave = float(np.median(cz))
+        else:
+            # no fitted corner: the most frequent height of the roof points near the outline (the eave rim is
+            # level; wall points under it spread over the wall's height, gable ends over the gable's)
+            band = max(1.5, 2.0 * o["spacing_m"])
+            near = idx[shapely.distance(poly.boundary, shapely.points(bxy[idx])) < band]
+            zb = bz[near if len(near) >= 3 else idx]
+            bins = np.floor((zb - zb.min()) / EAVE_BIN_M).astype(np.int64)
+            top = np.bincount(bins).argmax()
+            eave = float(np.median(zb[np.abs(bins - top) <= 1]))
         ridge = float(np.percentile(bz[idx], RIDGE_PERCENTILE))
         ground = float("nan")
         if gtree is not None:
