@@ -13,8 +13,9 @@ heights in CRS units, the ``_m`` attributes in metres):
   closed over gaps of one cell, holes below ``min_area_m2`` filled, pieces below it dropped; the polygon
   edges are the road edges; ``width_m`` is the median width along its centre line.
 * ``road_centrelines`` (LineString): the skeleton of the road cells (Zhang-Suen thinning), cut at
-  junctions, spurs shorter than the road width dropped, simplified by ``simplify_m``; ``width_m``
-  = 2 x the median distance from the centre line to the road edge, ``length_m``.
+  junctions, spurs (a free end, shorter than twice the road width) dropped, merged through junctions
+  that are left with two lines, simplified by ``simplify_m``; ``width_m`` = 2 x the median distance
+  from the centre line to the road edge (within half a cell), ``length_m``.
 * ``water`` (Polygon): cells of water points (class 9) as for roads; ``water_z`` the median height.
 * ``spot_heights`` (Point): one per ``spot_spacing_m`` square, at the ground cell of the square with the
   flattest neighbourhood (smallest RMS of a plane over 3 x 3 cells) that is at least ``BREAKLINE_CLEAR_M``
@@ -184,33 +185,41 @@ def _skeleton_paths(skel: np.ndarray) -> list:
     for k, sl in enumerate(ndimage.find_objects(runs), start=1):
         rr, cc = np.nonzero(runs[sl] == k)
         pix = set(zip((rr + sl[0].start).tolist(), (cc + sl[1].start).tolist()))
-        start = next((q for q in sorted(pix) if sum((q[0] + a, q[1] + b) in pix for a, b in offsets) <= 1),
-                     min(pix))
-        path, seen = [start], {start}
-        while True:
-            q = path[-1]
-            nxt = [(q[0] + a, q[1] + b) for a, b in offsets
-                   if (q[0] + a, q[1] + b) in pix and (q[0] + a, q[1] + b) not in seen]
-            if not nxt:
-                break
-            path.append(nxt[0])
-            seen.add(nxt[0])
-        rc = np.array(path, float)
-        free, ends = 0, []
-        for end in (path[0], path[-1]):
-            r0, c0 = end
-            win = jlab[max(r0 - 2, 0):r0 + 3, max(c0 - 2, 0):c0 + 3]
-            ids = np.unique(win[win > 0])
-            if len(ids):
-                ends.append(jcentre[ids[0] - 1])  # the line reaches the junction's centre, so lines meet there
-            else:
-                ends.append(None)
-                free += 1
-        if ends[0] is not None:
-            rc = np.vstack([ends[0], rc])
-        if ends[1] is not None and not (len(path) == 1 and ends[0] is not None and np.array_equal(ends[0], ends[1])):
-            rc = np.vstack([rc, ends[1]])
-        paths.append((rc, free, ends[0] is not None, ends[1] is not None))
+        remaining = set(pix)
+        # a run with an undetected branch needs more than one walk: walk until every pixel is on a path
+        while remaining:
+            start = next((q for q in sorted(remaining)
+                          if sum((q[0] + a, q[1] + b) in remaining for a, b in offsets) <= 1), min(remaining))
+            path = [start]
+            remaining.discard(start)
+            while True:
+                q = path[-1]
+                nxt = [(q[0] + a, q[1] + b) for a, b in offsets if (q[0] + a, q[1] + b) in remaining]
+                if not nxt:
+                    break
+                path.append(nxt[0])
+                remaining.discard(nxt[0])
+            on_path = set(path)
+            rc = np.array(path, float)
+            free, ends = 0, []
+            for end in (path[0], path[-1]):
+                r0, c0 = end
+                win = jlab[max(r0 - 2, 0):r0 + 3, max(c0 - 2, 0):c0 + 3]
+                ids = np.unique(win[win > 0])
+                other = [(r0 + a, c0 + b) for a, b in offsets if (r0 + a, c0 + b) in pix and (r0 + a, c0 + b) not in on_path]
+                if len(ids):
+                    ends.append(jcentre[ids[0] - 1])  # the line reaches the junction's centre, so lines meet there
+                elif other:
+                    ends.append(np.array(other[0], float))  # a branch of the same run
+                else:
+                    ends.append(None)
+                    free += 1
+            if ends[0] is not None:
+                rc = np.vstack([ends[0], rc])
+            if ends[1] is not None and not (len(path) == 1 and ends[0] is not None
+                                            and np.array_equal(ends[0], ends[1])):
+                rc = np.vstack([rc, ends[1]])
+            paths.append((rc, free, ends[0] is not None, ends[1] is not None))
     return paths
 
 
@@ -224,8 +233,10 @@ def centrelines(mask: np.ndarray, x0, y0, cell_m: float, simplify_m: float) -> l
     if not mask.any():
         return []
     padded = np.pad(mask, 1)
-    # distance from a cell centre to the nearest cell outside the road: half the width plus half a cell
-    half = ndimage.distance_transform_edt(padded)[1:-1, 1:-1] * cell_m - 0.5 * cell_m
+    # Distance from a centre-line cell to the nearest cell outside the road: half the width plus half a cell
+    # when the road is an odd number of cells wide, half the width when even (the line then runs along one of
+    # the two middle cells); -0.25 cell is the mean of the two, so widths are within half a cell.
+    half = ndimage.distance_transform_edt(padded)[1:-1, 1:-1] * cell_m - 0.25 * cell_m
     # a rounded mask thins with fewer spurs from its ragged edges
     smooth = ndimage.binary_opening(padded, structure=np.ones((3, 3), bool), iterations=1)
     skel = cv2.ximgproc.thinning(smooth.astype(np.uint8) * 255, thinningType=cv2.ximgproc.THINNING_ZHANGSUEN) > 0
