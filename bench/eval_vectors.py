@@ -9,7 +9,8 @@ the strips fused with the true orthophoto (RGB + NIR; roads, class 11, need the 
 against a reference GeoPackage written from the simulator's scene (rebuilt from the preset's seed as
 ``aerotri sim`` builds it): buildings = the roof (eave) outlines, roads = the union of the road rectangles,
 road_centrelines = the road axes, water = the pond outlines. Also the eave and ridge heights of the buildings
-against the scene's (the product building overlapping a true one most).
+against the scene's (the product building overlapping a true one most), and the centre lines' widths against
+the true width of the nearest road axis.
 
 The demo's GeoPackage is opened a second time without pyogrio (geopandas and fiona are not installed):
 ``sqlite3`` on the GeoPackage tables (gpkg_contents, gpkg_geometry_columns, gpkg_spatial_ref_sys and the
@@ -127,6 +128,27 @@ def height_errors(product: Path, scene, origin) -> dict:
     return out
 
 
+def width_errors(product: Path, scene, origin) -> dict:
+    """Centre-line width against the true width of the road whose axis is nearest to the line's midpoint."""
+    from pyogrio.raw import read
+
+    meta, _, wkb, fields = read(product, layer="road_centrelines")
+    width = fields[list(meta["fields"]).index("width_m")]
+    lines = [shapely.from_wkb(b) for b in wkb]
+    axes = [shapely.LineString([(r[0] + origin[0], r[1] + origin[1]), (r[2] + origin[0], r[3] + origin[1])])
+            for r in scene.roads]
+    d = []
+    for ln, w in zip(lines, width):
+        mid = ln.interpolate(0.5, normalized=True)
+        j = int(np.argmin([a.distance(mid) for a in axes]))
+        d.append(w - scene.roads[j][4])
+    d = np.array(d)
+    lengths = np.array([ln.length for ln in lines])
+    return {"n_lines": len(d), "width_rms_m": float(np.sqrt(np.mean(d**2))) if len(d) else None,
+            "width_mean_m": float(d.mean()) if len(d) else None,
+            "width_rms_length_weighted_m": float(np.sqrt(np.average(d**2, weights=lengths))) if len(d) else None}
+
+
 # ------------------------------------------------------------------------------- the second reader: sqlite3
 def _gpkg_geometry(blob: bytes):
     """A GeoPackage binary geometry: 'GP', version, flags (envelope code in bits 1-3), srs_id, envelope, WKB."""
@@ -240,8 +262,10 @@ def main(argv=None) -> int:
             print(f"--- {name} ({ROLES.get(name)}): vectors {seconds:.0f} s\n{vc.format_report(check)}")
             entry = {"role": ROLES.get(name), "vectors_seconds": seconds,
                      "vectors": {k: v for k, v in summary.items() if k != "files"},
-                     "reference_features": n_ref, "check": check, "heights": height_errors(dlg, scene, origin)}
+                     "reference_features": n_ref, "check": check, "heights": height_errors(dlg, scene, origin),
+                     "road_widths": width_errors(dlg, scene, origin)}
             print("heights:", json.dumps(entry["heights"]["all"]))
+            print("road widths:", json.dumps(entry["road_widths"]))
             if name == "demo":
                 entry["second_reader"] = compare_readers(dlg)
                 draw_from_sqlite(dlg, proj / "truth" / "ortho.tif", args.out / "vectors_demo.png",

@@ -227,10 +227,10 @@ def plot_offsets(result: dict, prod: dict, ref: dict, path, title: str = "") -> 
     r = result["layers"].get("buildings", {})
     if off is not None and len(off["to_corner"]):
         span = max(np.ptp(off["corners"][:, 0]), np.ptp(off["corners"][:, 1]), 1.0)
-        scale = 1.0 / (0.02 * span)  # a 1 m offset is drawn 2 % of the plot wide
+        scale = unit / (0.05 * span)  # a 1 m offset is drawn 5 % of the plot wide
         q = ax.quiver(off["matched_from"][:, 0], off["matched_from"][:, 1], off["to_corner"][:, 0],
                       off["to_corner"][:, 1], np.hypot(*off["to_corner"].T) * unit, cmap="viridis", angles="xy",
-                      scale_units="xy", scale=scale, width=0.003)
+                      scale_units="xy", scale=scale, width=0.004)
         ax.quiverkey(q, 0.85, 0.03, 1.0 / unit, "1 m offset", coordinates="axes")
         fig.colorbar(q, ax=ax, shrink=0.6, label="corner offset (m)")
         tc = off["to_corner"] * unit
