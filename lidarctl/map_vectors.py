@@ -36,7 +36,7 @@ from pathlib import Path
 
 import numpy as np
 
-from aerotri.core.errors import InputError, OptionError
+from aerotri.core.errors import CrsError, InputError, OptionError
 
 log = logging.getLogger(__name__)
 log.addHandler(logging.NullHandler())
@@ -399,15 +399,34 @@ def spot_heights(gxy: np.ndarray, gz: np.ndarray, other_xy: np.ndarray, cell_m: 
 
 
 # ------------------------------------------------------------------------------------------------- main
-def _read_contours(path: Path, units) -> Layer:
+def _same_crs(path: Path, crs_wkt, cloud_crs) -> None:
+    """CrsError naming ``path`` when its CRS differs from the cloud's (never a silent transform)."""
+    import pyproj
+
+    from aerotri.geom.crs import crs_label, same_horizontal
+
+    if cloud_crs is None or not crs_wkt:
+        return
+    crs = pyproj.CRS.from_user_input(crs_wkt)
+    if not same_horizontal(crs, cloud_crs):
+        raise CrsError(f"{path} is in {crs_label(crs)} but the cloud in {crs_label(cloud_crs)}; give both in one CRS "
+                       "(aerotri crs transform)")
+
+
+def _read_contours(path: Path, cloud_crs) -> Layer:
     import shapely
     from pyogrio.errors import DataLayerError, DataSourceError
     from pyogrio.raw import read
 
+    import pyogrio
+
     try:
-        meta, _, wkb, fields = read(path)
-    except (DataSourceError, DataLayerError, OSError) as exc:
+        names = [str(n) for n, _ in pyogrio.list_layers(path)]
+        # a DLG GeoPackage of an earlier run holds many layers: take its contours
+        meta, _, wkb, fields = read(path, layer="contours" if "contours" in names else names[0])
+    except (DataSourceError, DataLayerError, OSError, IndexError) as exc:
         raise InputError(f"{path}: not a readable vector layer ({exc})") from None
+    _same_crs(path, meta.get("crs"), cloud_crs)
     geoms = [shapely.from_wkb(b) for b in wkb]
     if any(g is None or g.geom_type not in ("LineString", "MultiLineString") for g in geoms):
         raise InputError(f"{path}: contours must be lines")
@@ -416,7 +435,7 @@ def _read_contours(path: Path, units) -> Layer:
     return Layer("contours", gtype, geoms, cols)
 
 
-def _dem_contours(path: Path, out_path: Path, interval_m: float) -> Layer:
+def _dem_contours(path: Path, out_path: Path, interval_m: float, cloud_crs) -> Layer:
     import shapely
 
     from lidarctl.contours import trace
@@ -424,6 +443,7 @@ def _dem_contours(path: Path, out_path: Path, interval_m: float) -> Layer:
 
     src, z_m = open_dem(path, out_path)
     with src:
+        _same_crs(path, src.crs.to_wkt(), cloud_crs)
         dem = src.read(1, masked=True).astype(np.float64).filled(np.nan)
         transform = src.transform
     cs = trace(dem, transform, interval_m / z_m)
@@ -529,9 +549,9 @@ def extract_vectors(paths, out_path, params: VectorParams = VectorParams(), crs=
     stats["spot_heights"] = len(sz)
 
     if contours is not None:
-        layers.append(_read_contours(Path(contours), units))
+        layers.append(_read_contours(Path(contours), pts["crs"]))
     elif dem is not None:
-        layers.append(_dem_contours(Path(dem), Path(out_path), p.contour_interval_m))
+        layers.append(_dem_contours(Path(dem), Path(out_path), p.contour_interval_m, pts["crs"]))
     if len(layers) == 6:
         stats["contours"] = len(layers[-1].geometries)
     return MapVectors(layers, pts["crs"], units, stats)

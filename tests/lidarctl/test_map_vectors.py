@@ -145,6 +145,40 @@ def test_check_vectors_against_reference(made):
     assert (d / "c.png").stat().st_size > 10_000
 
 
+def _dem(path, crs=M_CRS):
+    import rasterio
+    from rasterio.transform import from_origin
+
+    xs, ys = np.arange(0, 120, 2.0) + 1.0, 100.0 - (np.arange(0, 100, 2.0) + 1.0)
+    z = ground_z(*np.meshgrid(xs, ys)).astype("float32")
+    with rasterio.open(path, "w", driver="GTiff", width=60, height=50, count=1, dtype="float32", crs=crs,
+                       transform=from_origin(X0, Y0 + 100, 2.0, 2.0)) as dst:
+        dst.write(z, 1)
+    return path
+
+
+def test_contours_from_dem_and_copied(made, tmp_path):
+    _, cloud, _ = made
+    dem = _dem(tmp_path / "dem.tif")
+    out = tmp_path / "a.gpkg"
+    r = CliRunner().invoke(main, ["vectors", str(cloud), str(out), "--dem", str(dem), "--contour-interval", "0.5"])
+    assert r.exit_code == 0, r.output
+    meta, lines, f = _layer(out, "contours")
+    assert pyproj.CRS(meta["crs"]).to_epsg() == 32632
+    assert set(np.round(f["elevation"], 3)) == set(np.arange(100.5, 103.01, 0.5))   # 100.02 .. 103.38 m
+    xy = np.vstack([np.asarray(ln.coords) for ln in lines])
+    lv = np.concatenate([np.full(len(ln.coords), e) for ln, e in zip(lines, f["elevation"])])
+    assert np.abs(ground_z(xy[:, 0] - X0, xy[:, 1] - Y0) - lv).max() < 1e-3   # on the plane
+    out2 = tmp_path / "b.gpkg"
+    r = CliRunner().invoke(main, ["vectors", str(cloud), str(out2), "--contours", str(out)])
+    assert r.exit_code == 0, r.output
+    assert len(_layer(out2, "contours")[1]) == len(lines)
+    bad = _dem(tmp_path / "dem_ft.tif", FT_CRS)
+    out3 = tmp_path / "c.gpkg"
+    r = CliRunner().invoke(main, ["vectors", str(cloud), str(out3), "--dem", str(bad)])
+    assert r.exit_code == 2 and "dem_ft.tif" in r.output and not out3.exists()
+
+
 def test_offsets_of_a_known_shift(tmp_path):
     sq = [box(0, 0, 10, 10)]
     moved = [affinity.translate(sq[0], 0.3, 0.0)]
@@ -179,7 +213,7 @@ def test_cloud_in_feet(tmp_path):
     assert res["layers"]["buildings"]["rms_xy_corner_m"] < 0.5
 
 
-@pytest.mark.parametrize("case", ["missing", "no_crs", "suffix", "same_as_input", "dem_and_contours"])
+@pytest.mark.parametrize("case", ["missing", "no_crs", "suffix", "same_as_input", "dem_and_contours", "bad_image"])
 def test_vectors_bad_input_exit_2_nothing_written(made, tmp_path, case):
     d, cloud, _ = made
     out = tmp_path / "o.gpkg"
@@ -187,13 +221,16 @@ def test_vectors_bad_input_exit_2_nothing_written(made, tmp_path, case):
             "no_crs": [str(_write_las(tmp_path / "nocrs.las", crs=None)), str(out)],
             "suffix": [str(cloud), str(tmp_path / "o.txt")],
             "same_as_input": [str(cloud), str(cloud)],
-            "dem_and_contours": [str(cloud), str(out), "--dem", str(cloud), "--contours", str(cloud)]}[case]
+            "dem_and_contours": [str(cloud), str(out), "--dem", str(cloud), "--contours", str(cloud)],
+            "bad_image": [str(cloud), str(out), "--image", str(d / "ref_missing_is_not_a_raster.txt")]}[case]
+    if case == "bad_image":
+        (d / "ref_missing_is_not_a_raster.txt").write_text("not a raster")
     before = {p.name for p in tmp_path.iterdir()}
     r = CliRunner().invoke(main, ["vectors", *args])
     assert r.exit_code == 2, r.output
     assert "Traceback" not in r.output
     named = {"missing": "nope.las", "no_crs": "nocrs.las", "suffix": "o.txt", "same_as_input": "cloud.las",
-             "dem_and_contours": "--contours"}[case]
+             "dem_and_contours": "--contours", "bad_image": "ref_missing_is_not_a_raster.txt"}[case]
     assert named in r.output
     assert {p.name for p in tmp_path.iterdir()} == before
 
