@@ -400,3 +400,68 @@ def drainage(dem_path, outdir, min_area_m2, fill, simplify_px, png):
     click.echo(f"{r.outdir}: {r.valid_cells:,} of {r.cells:,} cells; {r.method}: {r.cells_changed:,} cells changed "
                f"(raised up to {r.raised_max_m:.3f} m, cut up to {r.lowered_max_m:.3f} m); {r.segments} stream "
                f"segments up to Strahler order {r.max_order}, {r.basins} basins")
+
+
+@main.command()
+@click.argument("paths", nargs=-1, required=True, type=click.Path(dir_okay=False))
+@click.option("--image", type=click.Path(dir_okay=False), default=None,
+              help="Orthophoto (GeoTIFF): OUT.png shows the layers over it.")
+@click.option("--dem", type=click.Path(dir_okay=False), default=None,
+              help="DEM GeoTIFF: its contours (--contour-interval) become the 'contours' layer.")
+@click.option("--contours", "contours_path", type=click.Path(dir_okay=False), default=None,
+              help="Contour layer (.gpkg/.geojson, lidarctl contours) copied into OUT as 'contours'.")
+@click.option("--contour-interval", "contour_interval_m", type=positive(), default=1.0, show_default=True,
+              help="--dem: contour interval (m).")
+@click.option("--cell", "cell_m", type=positive(), default=1.0, show_default=True,
+              help="Cell of the road and water masks (m); about the point spacing or larger.")
+@click.option("--min-area", "min_area_m2", type=positive(), default=50.0, show_default=True,
+              help="Road and water pieces (and holes in them) smaller than this (m2) are dropped (filled).")
+@click.option("--simplify", "simplify_m", type=positive(), default=0.5, show_default=True,
+              help="Douglas-Peucker tolerance of road/water polygons and centre lines (m).")
+@click.option("--spot-spacing", "spot_spacing_m", type=positive(), default=100.0, show_default=True,
+              help="One spot height per square of this side (m).")
+@click.option("--crs", default=None, help="CRS (EPSG:code) when the files have none; never guessed.")
+def vectors(paths, image, dem, contours_path, contour_interval_m, cell_m, min_area_m2, simplify_m, spot_spacing_m,
+            crs):
+    """Line-map (DLG) layers of the classified clouds PATHS... into OUT (the last argument, .gpkg): buildings
+    (regularised outlines, eave/ridge heights, area), roads (polygons of class 11) and road_centrelines
+    (width), water (class 9), spot_heights, and contours (--contours or --dem)."""
+    from aerotri.core.errors import OptionError
+    from lidarctl.map_vectors import VectorParams, vectors_to_file
+
+    if len(paths) < 2:
+        raise OptionError("give the classified cloud(s) and then OUT.gpkg", param="PATHS")
+    *clouds, out_path = paths
+    if dem and contours_path:
+        raise OptionError("give --dem or --contours, not both", param="--contours")
+    params = VectorParams(cell_m=cell_m, min_area_m2=min_area_m2, simplify_m=simplify_m, spot_spacing_m=spot_spacing_m,
+                          contour_interval_m=contour_interval_m)
+    s = vectors_to_file(clouds, out_path, params, crs=crs, dem=dem, contours=contours_path, image=image)
+    counts = ", ".join(f"{k} {s[k]}" for k in ("buildings", "roads", "road_centrelines", "water", "spot_heights",
+                                               "contours") if k in s)
+    click.echo(f"{out_path}: {counts} ({s['units']['xy_unit']})")
+
+
+@main.command("check-vectors")
+@click.argument("product_path", type=click.Path(dir_okay=False))
+@click.option("--reference", "reference_path", type=click.Path(dir_okay=False), required=True,
+              help="Reference vectors (.gpkg) with layers of the same names (buildings, roads, ...).")
+@click.option("--layer", "layers", multiple=True, help="Check only this layer (repeatable) [every shared layer].")
+@click.option("--json", "json_path", type=click.Path(dir_okay=False), default=None, help="Write the numbers as JSON.")
+@click.option("--png", "png_path", type=click.Path(dir_okay=False), default=None,
+              help="Plot of the building outlines and corner offset vectors.")
+@click.option("--match", "match_m", type=positive(), default=3.0, show_default=True,
+              help="Largest distance (m) of a produced corner from its reference corner to pair them.")
+@click.option("--buffer", "buffer_m", type=positive(), default=2.0, show_default=True,
+              help="Buffer (m) around lines for their completeness and correctness.")
+@click.option("--scale", default="1:10000", show_default=True, help="Map scale of the tolerance table.")
+@click.option("--terrain", default="flat", show_default=True, help="Terrain class of the tolerance table.")
+def check_vectors(product_path, reference_path, layers, json_path, png_path, match_m, buffer_m, scale, terrain):
+    """Line-map accuracy of PRODUCT_PATH (lidarctl vectors) against --reference: plan RMS of the building corners
+    (to the nearest reference outline and to the matched reference corner), completeness and correctness of
+    each layer by area (polygons) or buffer (lines), with the map scale's tolerance for well-defined features."""
+    from lidarctl import vector_check as vc
+
+    params = vc.CheckParams(layers=tuple(layers), match_m=match_m, buffer_m=buffer_m, scale=scale, terrain=terrain)
+    result = vc.check_files(product_path, reference_path, params, json_path, png_path)
+    click.echo(vc.format_report(result))

@@ -1,0 +1,304 @@
+"""Line-map (DLG) accuracy against reference vectors: plan offsets of well-defined points, completeness
+and correctness per layer.
+
+* Well-defined points are the corners of the ``buildings`` outlines (vertices whose interior angle differs
+  from a straight line by more than ``CORNER_MIN_TURN_DEG``). For each produced corner: the offset vector to
+  the nearest point of any reference outline (vertex-to-line), and, when a reference corner lies within
+  ``match_m`` and the two are each other's nearest, the corner-to-corner offset. Plan RMS of both.
+* Polygon layers (buildings, roads, water): completeness = area of reference covered by the product /
+  reference area; correctness = area of product covered by the reference / product area (Heipke et al. 1997
+  as areas). Line layers (road_centrelines, contours): the same with lengths inside a buffer of
+  ``buffer_m`` around the other set's lines.
+* Tolerance: the plan RMS of well-defined map features of the map scale's tolerance table
+  (``aerotri.core.tolerances``, ``feature_rms_xy_m``; 1:10000 flat 0.50 m, mountainous 0.75 m, the table of
+  the Chinese specification in ../shared/design/reports.md).
+
+Lengths and areas are in the CRS units of the files, reported in metres (``_m``, ``_m2``).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import logging
+from pathlib import Path
+
+import numpy as np
+
+from aerotri.core.errors import CrsError, InputError, OptionError
+
+log = logging.getLogger(__name__)
+log.addHandler(logging.NullHandler())
+
+CORNER_MIN_TURN_DEG = 30.0
+POLYGON_LAYERS = ("buildings", "roads", "water")
+LINE_LAYERS = ("road_centrelines", "contours")
+
+
+@dataclasses.dataclass(frozen=True)
+class CheckParams:
+    layers: tuple = ()  # empty: every layer the two files share
+    match_m: float = 3.0
+    buffer_m: float = 2.0
+    scale: str = "1:10000"
+    terrain: str = "flat"
+
+
+def read_layers(path: Path) -> tuple[dict, object, float]:
+    """{layer: list of shapely geometries}, CRS (pyproj), metres per CRS unit of a GeoPackage/GeoJSON."""
+    import pyogrio
+    import pyproj
+    import shapely
+    from pyogrio.errors import DataLayerError, DataSourceError
+    from pyogrio.raw import read
+
+    from lidarctl.units import units_of
+
+    path = Path(path)
+    if not path.is_file():
+        raise InputError(f"{path}: no such file")
+    try:
+        names = [str(n) for n, _ in pyogrio.list_layers(path)]
+        out, crs = {}, None
+        for name in names:
+            meta, _, wkb, _ = read(path, layer=name)
+            if meta.get("crs") and crs is None:
+                crs = pyproj.CRS.from_user_input(meta["crs"])
+            out[name] = [g for g in (shapely.from_wkb(b) for b in wkb if b is not None) if g is not None and not g.is_empty]
+    except (DataSourceError, DataLayerError, OSError) as exc:
+        raise InputError(f"{path}: not a readable vector file ({exc})") from None
+    xy_m = units_of(crs, str(path)).xy_m if crs is not None else 1.0
+    return out, crs, xy_m
+
+
+def corners_of(polys: list) -> np.ndarray:
+    """(N, 2) vertices of the polygons' rings where the outline turns by more than CORNER_MIN_TURN_DEG."""
+    pts = []
+    for g in polys:
+        for p in getattr(g, "geoms", [g]):
+            if p.geom_type != "Polygon":
+                continue
+            for ring in (p.exterior, *p.interiors):
+                xy = np.asarray(ring.coords)[:-1, :2]
+                if len(xy) < 3:
+                    continue
+                a, b = xy - np.roll(xy, 1, axis=0), np.roll(xy, -1, axis=0) - xy
+                turn = np.degrees(np.abs(np.arctan2(a[:, 0] * b[:, 1] - a[:, 1] * b[:, 0], (a * b).sum(axis=1))))
+                pts.append(xy[turn > CORNER_MIN_TURN_DEG])
+    return np.vstack(pts) if pts else np.zeros((0, 2))
+
+
+def _rms(v: np.ndarray) -> float | None:
+    return float(np.sqrt(np.mean((v**2).sum(axis=1)))) if len(v) else None
+
+
+def point_offsets(prod: list, ref: list, match_m: float) -> dict:
+    """Offsets (CRS units) of the produced building corners: to the nearest reference outline and to the
+    mutually nearest reference corner within ``match_m``."""
+    import shapely
+    from scipy.spatial import cKDTree
+
+    pc, rc = corners_of(prod), corners_of(ref)
+    out = {"corners": pc, "to_line": np.zeros((0, 2)), "to_corner": np.zeros((0, 2)), "matched_from": np.zeros((0, 2)),
+           "n_reference_corners": len(rc)}
+    if len(pc) == 0 or not ref:
+        return out
+    bounds = shapely.union_all([g.boundary for g in ref])
+    near = shapely.shortest_line(shapely.points(pc), bounds)
+    out["to_line"] = np.array([np.asarray(ln.coords)[1] - np.asarray(ln.coords)[0] for ln in near])
+    if len(rc):
+        d1, j = cKDTree(rc).query(pc)
+        _, back = cKDTree(pc).query(rc)
+        mutual = (back[j] == np.arange(len(pc))) & (d1 <= match_m)
+        out["to_corner"] = rc[j[mutual]] - pc[mutual]
+        out["matched_from"] = pc[mutual]
+    return out
+
+
+def area_overlap(prod: list, ref: list) -> dict:
+    import shapely
+
+    P = shapely.union_all(prod) if prod else shapely.Polygon()
+    R = shapely.union_all(ref) if ref else shapely.Polygon()
+    inter = P.intersection(R).area
+    return {"reference_area": R.area, "product_area": P.area, "overlap_area": inter,
+            "completeness_pct": 100 * inter / R.area if R.area else None,
+            "correctness_pct": 100 * inter / P.area if P.area else None}
+
+
+def buffer_overlap(prod: list, ref: list, buffer: float) -> dict:
+    import shapely
+
+    P = shapely.union_all(prod) if prod else shapely.LineString()
+    R = shapely.union_all(ref) if ref else shapely.LineString()
+    lr, lp = R.length, P.length
+    matched_ref = R.intersection(P.buffer(buffer)).length if lp else 0.0
+    matched_prod = P.intersection(R.buffer(buffer)).length if lr else 0.0
+    return {"reference_length": lr, "product_length": lp,
+            "completeness_pct": 100 * matched_ref / lr if lr else None,
+            "correctness_pct": 100 * matched_prod / lp if lp else None}
+
+
+def check_vectors(product_path, reference_path, params: CheckParams = CheckParams()) -> dict:
+    """Accuracy of the DLG ``product_path`` against ``reference_path`` (see the module doc), as a JSON-ready
+    dict (metres). Raises InputError / CrsError / OptionError naming the file or option."""
+    from aerotri.core.tolerances import TERRAINS, load_tolerances
+    from aerotri.geom.crs import crs_label, same_horizontal
+
+    for name in ("match_m", "buffer_m"):
+        v = getattr(params, name)
+        if not (np.isfinite(v) and v > 0):
+            raise OptionError(f"must be a positive number of metres, got {v}", param="--" + name[:-2].replace("_", "-"))
+    if params.terrain not in TERRAINS:
+        raise OptionError(f"{params.terrain!r}: expected one of {', '.join(TERRAINS)}", param="--terrain")
+    tol = load_tolerances(params.scale, params.terrain).get("feature_rms_xy_m")
+    prod, pcrs, p_m = read_layers(product_path)
+    ref, rcrs, r_m = read_layers(reference_path)
+    if pcrs is not None and rcrs is not None and not same_horizontal(pcrs, rcrs):
+        raise CrsError(f"{product_path} is in {crs_label(pcrs)} but {reference_path} in {crs_label(rcrs)}; give both "
+                       "in one CRS (aerotri crs transform)")
+    unit = p_m if pcrs is not None else r_m
+    shared = [n for n in prod if n in ref]
+    layers = list(params.layers) or shared
+    for n in layers:
+        if n not in prod or n not in ref:
+            where = product_path if n not in prod else reference_path
+            raise OptionError(f"{where}: no layer {n!r} (layers: {', '.join(prod if n not in prod else ref)})",
+                              param="--layer")
+    if not layers:
+        raise InputError(f"{product_path} and {reference_path} share no layer")
+    out = {"product": str(product_path), "reference": str(reference_path), "xy_unit_m": unit,
+           "map_scale": params.scale, "terrain": params.terrain, "tolerance_feature_rms_xy_m": tol,
+           "match_m": params.match_m, "buffer_m": params.buffer_m, "layers": {}}
+    offsets = None
+    for n in layers:
+        P, R = prod[n], ref[n]
+        kind = (P or R)[0].geom_type if (P or R) else "Polygon"
+        if "Polygon" in kind:
+            r = area_overlap(P, R)
+            r = {"reference_area_m2": r["reference_area"] * unit**2, "product_area_m2": r["product_area"] * unit**2,
+                 "completeness_pct": r["completeness_pct"], "correctness_pct": r["correctness_pct"],
+                 "n_reference": len(R), "n_product": len(P)}
+        elif "Line" in kind:
+            r = buffer_overlap(P, R, params.buffer_m / unit)
+            r = {"reference_length_m": r["reference_length"] * unit, "product_length_m": r["product_length"] * unit,
+                 "completeness_pct": r["completeness_pct"], "correctness_pct": r["correctness_pct"],
+                 "n_reference": len(R), "n_product": len(P)}
+        else:
+            r = {"n_reference": len(R), "n_product": len(P)}
+        if n == "buildings":
+            off = point_offsets(P, R, params.match_m / unit)
+            tl, tc = off["to_line"] * unit, off["to_corner"] * unit
+            offsets = off
+            r.update(n_corners=len(off["corners"]), n_reference_corners=off["n_reference_corners"],
+                     n_matched_corners=len(tc), rms_xy_to_line_m=_rms(tl), rms_xy_corner_m=_rms(tc),
+                     rms_x_corner_m=float(np.sqrt(np.mean(tc[:, 0] ** 2))) if len(tc) else None,
+                     rms_y_corner_m=float(np.sqrt(np.mean(tc[:, 1] ** 2))) if len(tc) else None,
+                     mean_dx_corner_m=float(tc[:, 0].mean()) if len(tc) else None,
+                     mean_dy_corner_m=float(tc[:, 1].mean()) if len(tc) else None,
+                     max_offset_to_line_m=float(np.hypot(*tl.T).max()) if len(tl) else None)
+            rms = r["rms_xy_corner_m"]
+            r["within_tolerance"] = None if rms is None or tol is None else bool(rms <= tol)
+        out["layers"][n] = r
+    out["_offsets"] = offsets
+    return out
+
+
+def plot_offsets(result: dict, prod: dict, ref: dict, path, title: str = "") -> Path:
+    """Reference (grey) and produced outlines, the corner-to-corner offset vectors exaggerated, with a key."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from aerotri.core.atomic import atomic_path
+
+    unit = result["xy_unit_m"]
+    fig, (ax, ax2) = plt.subplots(1, 2, figsize=(15, 7.5), gridspec_kw={"width_ratios": [2, 1]})
+    for name, geoms, colour, lw in (("reference", ref.get("buildings", []), "0.6", 2.0),
+                                    ("product", prod.get("buildings", []), "firebrick", 0.8)):
+        first = True
+        for g in geoms:
+            for p in getattr(g, "geoms", [g]):
+                for ring in (p.exterior, *p.interiors):
+                    xy = np.asarray(ring.coords)
+                    ax.plot(xy[:, 0], xy[:, 1], color=colour, lw=lw, label=f"{name} outlines" if first else None)
+                    first = False
+    off = result.get("_offsets")
+    r = result["layers"].get("buildings", {})
+    if off is not None and len(off["to_corner"]):
+        span = max(np.ptp(off["corners"][:, 0]), np.ptp(off["corners"][:, 1]), 1.0)
+        scale = unit / (0.05 * span)  # a 1 m offset is drawn 5 % of the plot wide
+        q = ax.quiver(off["matched_from"][:, 0], off["matched_from"][:, 1], off["to_corner"][:, 0],
+                      off["to_corner"][:, 1], np.hypot(*off["to_corner"].T) * unit, cmap="viridis", angles="xy",
+                      scale_units="xy", scale=scale, width=0.004)
+        ax.quiverkey(q, 0.85, 0.03, 1.0 / unit, "1 m offset", coordinates="axes")
+        fig.colorbar(q, ax=ax, shrink=0.6, label="corner offset (m)")
+        tc = off["to_corner"] * unit
+        ax2.scatter(tc[:, 0], tc[:, 1], s=10, c="k", label="corner to corner")
+        tl = off["to_line"] * unit
+        ax2.scatter(tl[:, 0], tl[:, 1], s=6, c="tab:orange", alpha=0.6, label="corner to outline")
+        tol = result.get("tolerance_feature_rms_xy_m")
+        if tol:
+            ax2.add_patch(plt.Circle((0, 0), tol, fill=False, ls="--", color="tab:blue",
+                                     label=f"tolerance {tol:g} m ({result['map_scale']}, {result['terrain']})"))
+        lim = max(1.0, float(np.nanmax(np.abs(np.r_[tc.ravel(), tl.ravel()]))) * 1.1)
+        ax2.set_xlim(-lim, lim)
+        ax2.set_ylim(-lim, lim)
+        ax2.axhline(0, color="0.8", lw=0.5)
+        ax2.axvline(0, color="0.8", lw=0.5)
+        ax2.set_aspect("equal")
+        ax2.set_xlabel("dx (m)")
+        ax2.set_ylabel("dy (m)")
+        ax2.legend(fontsize=8, loc="upper left")
+        ax2.set_title(f"corner RMS {r.get('rms_xy_corner_m') or float('nan'):.2f} m (n={r.get('n_matched_corners')}),"
+                      f" to outline {r.get('rms_xy_to_line_m') or float('nan'):.2f} m")
+    ax.set_aspect("equal")
+    ax.ticklabel_format(useOffset=False, style="plain")
+    ax.legend(loc="upper left", fontsize=8)
+    ax.set_title(title or "building corners: offsets product -> reference (exaggerated)")
+    fig.tight_layout()
+    with atomic_path(path) as tmp:
+        fig.savefig(tmp, dpi=90)
+    plt.close(fig)
+    return Path(path)
+
+
+def format_report(result: dict) -> str:
+    lines = [f"line-map check: {result['product']} against {result['reference']}",
+             f"tolerance for well-defined features ({result['map_scale']}, {result['terrain']}): plan RMS "
+             f"{result['tolerance_feature_rms_xy_m']} m"]
+    for n, r in result["layers"].items():
+        comp, corr = r.get("completeness_pct"), r.get("correctness_pct")
+        s = f"{n:18s} reference {r['n_reference']:5d}  product {r['n_product']:5d}"
+        if comp is not None or corr is not None:
+            s += f"  completeness {comp or 0:6.2f} %  correctness {corr or 0:6.2f} %"
+        lines.append(s)
+        if n == "buildings" and r.get("n_corners"):
+            f = lambda v: "-" if v is None else f"{v:.3f}"  # noqa: E731
+            lines.append(f"  corners {r['n_corners']} (reference {r['n_reference_corners']}), matched "
+                         f"{r['n_matched_corners']}: plan RMS corner-to-corner {f(r['rms_xy_corner_m'])} m "
+                         f"(x {f(r['rms_x_corner_m'])}, y {f(r['rms_y_corner_m'])}; mean dx {f(r['mean_dx_corner_m'])}, "
+                         f"dy {f(r['mean_dy_corner_m'])}), corner-to-outline {f(r['rms_xy_to_line_m'])} m -> "
+                         f"{'within' if r['within_tolerance'] else 'NOT within'} tolerance")
+    return "\n".join(lines)
+
+
+def check_files(product_path, reference_path, params: CheckParams = CheckParams(), json_path=None,
+                png_path=None) -> dict:
+    """``check_vectors`` + the JSON and the offset plot (atomic), refusing an input as output."""
+    import json
+
+    from aerotri.core.atomic import refuse_input_as_output, write_text_atomic
+
+    for opt, p in (("--json", json_path), ("--png", png_path)):
+        if p is not None:
+            refuse_input_as_output(p, [product_path, reference_path], opt)
+    result = check_vectors(product_path, reference_path, params)
+    if png_path is not None:
+        prod, _, _ = read_layers(product_path)
+        ref, _, _ = read_layers(reference_path)
+        plot_offsets(result, prod, ref, png_path)
+    result.pop("_offsets")
+    if json_path is not None:
+        write_text_atomic(json_path, json.dumps(result, indent=2))
+    return result

@@ -1,0 +1,246 @@
+"""``lidarctl vectors`` and ``lidarctl check-vectors`` on a small synthetic classified cloud with known
+rectangles: two flat roofs, a 10 m road, a pond with few returns, a sloping ground plane."""
+
+from __future__ import annotations
+
+import json
+
+import laspy
+import numpy as np
+import pyproj
+import pytest
+import shapely
+from click.testing import CliRunner
+from pyogrio.raw import read, write
+from shapely import affinity
+from shapely.geometry import box
+
+from lidarctl import vector_check as vc
+from lidarctl.cli import main
+from lidarctl.units import FOOT_M
+
+X0, Y0 = 500000.0, 5400000.0
+M_CRS, FT_CRS = "EPSG:32632", "EPSG:2994"
+SPACING = 0.7
+ROOFS = [(affinity.rotate(box(20, 20, 44, 36), 17.0, origin=(32, 28)), 9.0),   # (outline, eave height above ground)
+         (box(70, 60, 88, 84), 14.0)]
+ROAD = box(0, 48, 120, 58)          # 10 m wide, axis y = 53
+POND = box(85, 10, 110, 30)
+
+
+def ground_z(x, y):
+    return 100.0 + 0.02 * x + 0.01 * y
+
+
+def _truth_m():
+    """Points (local metres) and classes: ground 2, building 6 (roof at ground + eave), road 11, water 9 (a
+    tenth of the pond's points: water returns are few)."""
+    rng = np.random.default_rng(3)
+    gx, gy = np.meshgrid(np.arange(0, 120, SPACING), np.arange(0, 100, SPACING))
+    x = gx.ravel() + rng.uniform(-0.2, 0.2, gx.size)
+    y = gy.ravel() + rng.uniform(-0.2, 0.2, gx.size)
+    z = ground_z(x, y) + rng.normal(0, 0.02, x.size)
+    cls = np.full(x.size, 2, np.uint8)
+    cls[shapely.contains_xy(ROAD, x, y)] = 11
+    pond = shapely.contains_xy(POND, x, y)
+    cls[pond] = 9
+    z[pond] = 99.0
+    keep = ~pond | (rng.random(x.size) < 0.1)
+    for poly, h in ROOFS:
+        inside = shapely.contains_xy(poly, x, y)
+        cls[inside] = 6
+        z[inside] = ground_z(poly.centroid.x, poly.centroid.y) + h + rng.normal(0, 0.02, inside.sum())
+    return x[keep], y[keep], z[keep], cls[keep]
+
+
+def _write_las(path, crs=M_CRS, unit_m=1.0):
+    x, y, z, cls = _truth_m()
+    header = laspy.LasHeader(point_format=6, version="1.4")
+    header.scales, header.offsets = np.array([0.001] * 3), np.array([X0 / unit_m, Y0 / unit_m, 0.0])
+    if crs:
+        header.add_crs(pyproj.CRS(crs))
+    las = laspy.LasData(header)
+    las.x, las.y, las.z = (X0 + x) / unit_m, (Y0 + y) / unit_m, z / unit_m
+    las.classification = cls
+    las.write(path)
+    return path
+
+
+def _reference(path, unit_m=1.0, shift_m=(0.0, 0.0)):
+    sh = lambda g: affinity.scale(affinity.translate(g, X0 + shift_m[0], Y0 + shift_m[1]), 1 / unit_m, 1 / unit_m,  # noqa: E731
+                                  origin=(0, 0))
+    crs = pyproj.CRS(M_CRS if unit_m == 1.0 else FT_CRS).to_wkt()
+    layers = {"buildings": ([sh(p) for p, _ in ROOFS], "Polygon"), "roads": ([sh(ROAD)], "Polygon"),
+              "road_centrelines": ([sh(shapely.LineString([(0, 53), (120, 53)]))], "LineString"),
+              "water": ([sh(POND)], "Polygon")}
+    for i, (name, (geoms, gtype)) in enumerate(layers.items()):
+        write(path, np.array(shapely.to_wkb(np.array(geoms, dtype=object)), dtype=object), field_data=[np.arange(len(geoms))],
+              fields=["id"], geometry_type=gtype, crs=crs, driver="GPKG", layer=name, append=i > 0)
+    return path
+
+
+@pytest.fixture(scope="module")
+def made(tmp_path_factory):
+    d = tmp_path_factory.mktemp("vectors")
+    cloud = _write_las(d / "cloud.las")
+    out = d / "dlg.gpkg"
+    r = CliRunner().invoke(main, ["vectors", str(cloud), str(out), "--spot-spacing", "40"])
+    assert r.exit_code == 0, r.output
+    return d, cloud, out
+
+
+def _layer(path, name):
+    meta, _, wkb, fields = read(path, layer=name)
+    return meta, [shapely.from_wkb(b) for b in wkb], dict(zip(meta["fields"], fields))
+
+
+def test_layers_match_the_known_rectangles(made):
+    d, _, out = made
+    for name in ("buildings", "roads", "road_centrelines", "water", "spot_heights"):
+        meta, _, _ = _layer(out, name)
+        assert pyproj.CRS(meta["crs"]).to_epsg() == 32632, name
+    _, bl, f = _layer(out, "buildings")
+    assert len(bl) == 2
+    for (poly, h) in ROOFS:
+        true = affinity.translate(poly, X0, Y0)
+        k = int(np.argmax([g.intersection(true).area for g in bl]))
+        assert bl[k].symmetric_difference(true).area / true.area < 0.06
+        ground = ground_z(poly.centroid.x, poly.centroid.y)
+        assert f["eave_z"][k] == pytest.approx(ground + h, abs=0.1)
+        assert f["ridge_z"][k] == pytest.approx(ground + h, abs=0.15)
+        assert f["area_m2"][k] == pytest.approx(true.area, rel=0.06)
+    _, roads, f = _layer(out, "roads")
+    assert len(roads) == 1
+    assert f["width_m"][0] == pytest.approx(10.0, abs=0.8)
+    _, lines, f = _layer(out, "road_centrelines")
+    assert sum(ln.length for ln in lines) > 100
+    assert max(float(np.max(np.abs(np.asarray(ln.coords)[:, 1] - (Y0 + 53)))) for ln in lines) < 1.0
+    assert np.all(np.abs(f["width_m"] - 10.0) < 0.8)
+    _, water, _ = _layer(out, "water")   # from 10 % of the returns: the void around them joins
+    assert len(water) == 1
+    pond = affinity.translate(POND, X0, Y0)
+    assert water[0].intersection(pond).area / water[0].union(pond).area > 0.85
+    _, spots, f = _layer(out, "spot_heights")
+    assert len(spots) >= 6
+    xy = np.array([s.coords[0] for s in spots])
+    assert np.abs(f["z"] - ground_z(xy[:, 0] - X0, xy[:, 1] - Y0)).max() < 0.05
+    obstacles = shapely.union_all([affinity.translate(g, X0, Y0) for g in [p for p, _ in ROOFS] + [POND]])
+    assert shapely.distance(shapely.points(xy), obstacles).min() > 2.0   # off the breaklines
+
+
+def test_check_vectors_against_reference(made):
+    d, _, out = made
+    ref = _reference(d / "ref.gpkg")
+    r = CliRunner().invoke(main, ["check-vectors", str(out), "--reference", str(ref), "--json", str(d / "c.json"),
+                                  "--png", str(d / "c.png")])
+    assert r.exit_code == 0, r.output
+    res = json.loads((d / "c.json").read_text())
+    b = res["layers"]["buildings"]
+    assert b["n_matched_corners"] == 8
+    assert b["rms_xy_corner_m"] < 0.5 and b["within_tolerance"]
+    assert res["tolerance_feature_rms_xy_m"] == 0.5   # 1:10000 flat, the table of design/reports.md
+    for name in ("buildings", "roads", "water"):
+        assert res["layers"][name]["completeness_pct"] > 85 and res["layers"][name]["correctness_pct"] > 90
+    assert res["layers"]["road_centrelines"]["completeness_pct"] > 85
+    assert (d / "c.png").stat().st_size > 10_000
+
+
+def _dem(path, crs=M_CRS):
+    import rasterio
+    from rasterio.transform import from_origin
+
+    xs, ys = np.arange(0, 120, 2.0) + 1.0, 100.0 - (np.arange(0, 100, 2.0) + 1.0)
+    z = ground_z(*np.meshgrid(xs, ys)).astype("float32")
+    with rasterio.open(path, "w", driver="GTiff", width=60, height=50, count=1, dtype="float32", crs=crs,
+                       transform=from_origin(X0, Y0 + 100, 2.0, 2.0)) as dst:
+        dst.write(z, 1)
+    return path
+
+
+def test_contours_from_dem_and_copied(made, tmp_path):
+    _, cloud, _ = made
+    dem = _dem(tmp_path / "dem.tif")
+    out = tmp_path / "a.gpkg"
+    r = CliRunner().invoke(main, ["vectors", str(cloud), str(out), "--dem", str(dem), "--contour-interval", "0.5"])
+    assert r.exit_code == 0, r.output
+    meta, lines, f = _layer(out, "contours")
+    assert pyproj.CRS(meta["crs"]).to_epsg() == 32632
+    assert set(np.round(f["elevation"], 3)) == set(np.arange(100.5, 103.01, 0.5))   # 100.02 .. 103.38 m
+    xy = np.vstack([np.asarray(ln.coords) for ln in lines])
+    lv = np.concatenate([np.full(len(ln.coords), e) for ln, e in zip(lines, f["elevation"])])
+    assert np.abs(ground_z(xy[:, 0] - X0, xy[:, 1] - Y0) - lv).max() < 1e-3   # on the plane
+    out2 = tmp_path / "b.gpkg"
+    r = CliRunner().invoke(main, ["vectors", str(cloud), str(out2), "--contours", str(out)])
+    assert r.exit_code == 0, r.output
+    assert len(_layer(out2, "contours")[1]) == len(lines)
+    bad = _dem(tmp_path / "dem_ft.tif", FT_CRS)
+    out3 = tmp_path / "c.gpkg"
+    r = CliRunner().invoke(main, ["vectors", str(cloud), str(out3), "--dem", str(bad)])
+    assert r.exit_code == 2 and "dem_ft.tif" in r.output and not out3.exists()
+
+
+def test_offsets_of_a_known_shift(tmp_path):
+    sq = [box(0, 0, 10, 10)]
+    moved = [affinity.translate(sq[0], 0.3, 0.0)]
+    off = vc.point_offsets(moved, sq, match_m=3.0)
+    assert np.allclose(off["to_corner"], [[-0.3, 0.0]] * 4)
+    # the two corners moved off the outline are 0.3 away; the other two slid along the top and bottom edges
+    assert np.allclose(np.sort(np.hypot(*off["to_line"].T)), [0.0, 0.0, 0.3, 0.3])
+    a = vc.area_overlap(moved, sq)
+    assert a["completeness_pct"] == pytest.approx(97.0) and a["correctness_pct"] == pytest.approx(97.0)
+    ln = vc.buffer_overlap([shapely.LineString([(0, 0.5), (10, 0.5)])], [shapely.LineString([(0, 0), (20, 0)])], 1.0)
+    # the buffer's round cap reaches sqrt(1 - 0.5^2) beyond the line's end
+    assert ln["completeness_pct"] == pytest.approx(100 * (10 + 0.75 ** 0.5) / 20, rel=1e-3) and ln["correctness_pct"] == pytest.approx(100.0)
+
+
+def test_cloud_in_feet(tmp_path):
+    cloud = _write_las(tmp_path / "ft.las", FT_CRS, FOOT_M)
+    out = tmp_path / "ft.gpkg"
+    r = CliRunner().invoke(main, ["vectors", str(cloud), str(out)])
+    assert r.exit_code == 0, r.output
+    meta, bl, f = _layer(out, "buildings")
+    assert pyproj.CRS(meta["crs"]).to_epsg() == 2994
+    true = affinity.scale(affinity.translate(ROOFS[1][0], X0, Y0), 1 / FOOT_M, 1 / FOOT_M, origin=(0, 0))
+    k = int(np.argmax([g.intersection(true).area for g in bl]))
+    assert bl[k].symmetric_difference(true).area / true.area < 0.06       # coordinates in feet
+    assert f["area_m2"][k] == pytest.approx(ROOFS[1][0].area, rel=0.06)    # areas in square metres
+    ground = ground_z(ROOFS[1][0].centroid.x, ROOFS[1][0].centroid.y)
+    assert f["eave_z"][k] * FOOT_M == pytest.approx(ground + ROOFS[1][1], abs=0.1)
+    _, _, rf = _layer(out, "roads")
+    assert rf["width_m"][0] == pytest.approx(10.0, abs=0.8)
+    res = vc.check_vectors(out, _reference(tmp_path / "ref_ft.gpkg", FOOT_M))
+    assert res["xy_unit_m"] == pytest.approx(FOOT_M)
+    assert res["layers"]["buildings"]["rms_xy_corner_m"] < 0.5
+
+
+@pytest.mark.parametrize("case", ["missing", "no_crs", "suffix", "same_as_input", "dem_and_contours", "bad_image"])
+def test_vectors_bad_input_exit_2_nothing_written(made, tmp_path, case):
+    d, cloud, _ = made
+    out = tmp_path / "o.gpkg"
+    args = {"missing": [str(tmp_path / "nope.las"), str(out)],
+            "no_crs": [str(_write_las(tmp_path / "nocrs.las", crs=None)), str(out)],
+            "suffix": [str(cloud), str(tmp_path / "o.txt")],
+            "same_as_input": [str(cloud), str(cloud)],
+            "dem_and_contours": [str(cloud), str(out), "--dem", str(cloud), "--contours", str(cloud)],
+            "bad_image": [str(cloud), str(out), "--image", str(d / "ref_missing_is_not_a_raster.txt")]}[case]
+    if case == "bad_image":
+        (d / "ref_missing_is_not_a_raster.txt").write_text("not a raster")
+    before = {p.name for p in tmp_path.iterdir()}
+    r = CliRunner().invoke(main, ["vectors", *args])
+    assert r.exit_code == 2, r.output
+    assert "Traceback" not in r.output
+    named = {"missing": "nope.las", "no_crs": "nocrs.las", "suffix": "o.txt", "same_as_input": "cloud.las",
+             "dem_and_contours": "--contours", "bad_image": "ref_missing_is_not_a_raster.txt"}[case]
+    assert named in r.output
+    assert {p.name for p in tmp_path.iterdir()} == before
+
+
+def test_check_vectors_bad_input(made, tmp_path):
+    d, _, out = made
+    ref = _reference(tmp_path / "ref.gpkg")
+    js = tmp_path / "c.json"
+    r = CliRunner().invoke(main, ["check-vectors", str(out), "--reference", str(ref), "--layer", "bridges",
+                                  "--json", str(js)])
+    assert r.exit_code == 2 and "bridges" in r.output and not js.exists()
+    r = CliRunner().invoke(main, ["check-vectors", str(out), "--reference", str(tmp_path / "none.gpkg")])
+    assert r.exit_code == 2 and "none.gpkg" in r.output
