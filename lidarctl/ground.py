@@ -123,16 +123,25 @@ def _seed_plane_check(sx, sy, sz, radius_m, max_residual_m):
     return keep
 
 
-def _virtual_border(x, y, gx, gy, gz, step_m):
-    """Points on the bounding box border with the height of the nearest seed (TIN covers all points)."""
+def _virtual_border(x, y, step_m):
+    """x, y of points every ``step_m`` on the bounding box border grown by 1 m (so the TIN covers all points)."""
     x0, x1, y0, y1 = x.min() - 1.0, x.max() + 1.0, y.min() - 1.0, y.max() + 1.0
     nx = max(2, int(np.ceil((x1 - x0) / step_m)) + 1)
     ny = max(2, int(np.ceil((y1 - y0) / step_m)) + 1)
     xs, ys = np.linspace(x0, x1, nx), np.linspace(y0, y1, ny)
     bx = np.concatenate([xs, xs, np.full(ny - 2, x0), np.full(ny - 2, x1)])
     by = np.concatenate([np.full(nx, y0), np.full(nx, y1), ys[1:-1], ys[1:-1]])
+    return bx, by
+
+
+def _ground_tin(gx, gy, gz, bx, by):
+    """Delaunay TIN of the ground points and the virtual border, each border point at the height of the
+    nearest ground point: the border follows the ground found so far (a fixed height, e.g. the nearest
+    seed's, tilts the edge triangles on a slope and stops the densification there).
+    Returns (tx, ty, tz, simplices)."""
     _, nearest = cKDTree(np.column_stack([gx, gy])).query(np.column_stack([bx, by]))
-    return bx, by, gz[nearest]
+    tx, ty, tz = np.concatenate([gx, bx]), np.concatenate([gy, by]), np.concatenate([gz, gz[nearest]])
+    return tx, ty, tz, delaunay_2d(tx, ty)
 
 
 def _plane_distance(tri_pts, px, py, pz):
@@ -245,17 +254,12 @@ def ptd_ground(x, y, z, params: GroundParams | None = None, return_tin: bool = F
                                         p.seed_max_residual_m)]
     is_ground = np.zeros(len(cand), bool)
     is_ground[seeds] = True
-    bx, by, bz = _virtual_border(x, y, cx[seeds], cy[seeds], cz[seeds], p.seed_cell_m)
+    bx, by = _virtual_border(x, y, p.seed_cell_m)
     max_angle = np.radians(p.max_angle_deg)
+    tin = None  # the TIN of the current ground set (None: the set changed since it was built)
     for _ in range(p.max_iterations):
         g = np.flatnonzero(is_ground)
-        # the border follows the ground found so far (the nearest seed's height tilts the edge triangles
-        # on a slope and stops the densification there)
-        bz = cz[g][cKDTree(np.column_stack([cx[g], cy[g]])).query(np.column_stack([bx, by]))[1]]
-        tx = np.concatenate([cx[g], bx])
-        ty = np.concatenate([cy[g], by])
-        tz = np.concatenate([cz[g], bz])
-        simplices = delaunay_2d(tx, ty)
+        tin = tx, ty, tz, simplices = _ground_tin(cx[g], cy[g], cz[g], bx, by)
         rest = np.flatnonzero(~is_ground)
         if len(rest) == 0:
             break
@@ -276,12 +280,11 @@ def ptd_ground(x, y, z, params: GroundParams | None = None, return_tin: bool = F
             order = order[(rank - first) < p.points_per_triangle]
             rest = rest[order]
         is_ground[rest] = True
+        tin = None
     g = np.flatnonzero(is_ground)
-    bz = cz[g][cKDTree(np.column_stack([cx[g], cy[g]])).query(np.column_stack([bx, by]))[1]]
-    tx = np.concatenate([cx[g], bx])
-    ty = np.concatenate([cy[g], by])
-    tz = np.concatenate([cz[g], bz])
-    simplices = delaunay_2d(tx, ty)
+    if tin is None:  # the last iteration added points (or there was none)
+        tin = _ground_tin(cx[g], cy[g], cz[g], bx, by)
+    tx, ty, tz, simplices = tin
     z_tin = tin_heights(tx, ty, tz, simplices, x, y)
     ground = z - z_tin <= p.final_distance_m
     ground[cand[g]] = True
