@@ -15,7 +15,7 @@ from aerotri.core.settings import click_option
 from lidarctl.classify import ClassifyParams
 from lidarctl.heights_check import GROUPINGS, DensityGroups
 from lidarctl.map_accuracy import MapEvalParams
-from lidarctl.rasters import DEFAULT_BUFFER_PX, DEFAULT_TILE_PX
+from lidarctl.rasters import DEFAULT_BUFFER_PX, DEFAULT_TILE_PX, DEFAULT_TIN_FILL_RADIUS_PX
 
 
 @click.group(cls=Group)
@@ -177,7 +177,12 @@ def classify(in_paths, out_path, preset, crs, ground_method, tile_size_m, buffer
               help="Tile size in raster cells (memory: about 160 bytes per cell of a tile with its buffer).")
 @click.option("--buffer-px", type=click.IntRange(min=0), default=DEFAULT_BUFFER_PX, show_default=True,
               help="Overlap buffer around each tile in cells: gaps up to about this size are filled as in one piece.")
-def rasters(in_paths, outdir, res_m, crs, tile_px, buffer_px):
+@click.option("--dem-fill-radius-px", type=click.FloatRange(min=0), default=DEFAULT_TIN_FILL_RADIUS_PX,
+              show_default=True,
+              help="DEM cells without ground are interpolated in the TIN of the ground around them where the "
+                   "triangle's circumradius is at most this many cells (buildings, sparse ground under canopy); "
+                   "wider gaps get a smooth pyramid fill. 0: pyramid fill only.")
+def rasters(in_paths, outdir, res_m, crs, tile_px, buffer_px, dem_fill_radius_px):
     """dem/dsm/ndsm/chm/intensity COGs and hillshade.png from classified LAS/LAZ file(s) (one or more
     strips in one CRS) into OUTDIR, by tiles read straight from the files (no merged cloud).
 
@@ -195,7 +200,8 @@ def rasters(in_paths, outdir, res_m, crs, tile_px, buffer_px):
         logging.getLogger(__name__).info(
             "%s: %s; cells of %g m = %.6g %s, heights in %s", in_paths[0], units.describe(), res_m,
             res_m / units.xy_m, units.xy_name, units.z_name)
-    for p in rs.write_rasters(list(in_paths), outdir, res_m, crs=crs, tile_px=tile_px, buffer_px=buffer_px):
+    for p in rs.write_rasters(list(in_paths), outdir, res_m, crs=crs, tile_px=tile_px, buffer_px=buffer_px,
+                              dem_fill_radius_px=dem_fill_radius_px):
         click.echo(str(p))
 
 

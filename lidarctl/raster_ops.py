@@ -154,3 +154,74 @@ def plane_rms(a: np.ndarray, cell_m: float) -> np.ndarray:
     var_uv = (2.0 / 3.0) * cell_m * cell_m              # mean of u^2 over the window
     resid2 = mean2 - mean ** 2 - sxz ** 2 / var_uv - syz ** 2 / var_uv
     return np.sqrt(np.maximum(resid2, 0.0))
+
+
+DEFAULT_TIN_FILL_RADIUS_PX = 64
+"""Largest circumradius (cells) of a TIN triangle that fills a DEM gap; gaps needing larger triangles
+(open water, survey edges) keep the pull-push fill."""
+
+
+def _lattice_jitter(rows: np.ndarray, cols: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """A fixed sub-cell offset per global cell (at most 0.01 cell): cell centres of a regular grid are
+    cocircular, so their Delaunay triangulation is not unique; a jitter that depends only on the cell's
+    global index makes it unique, and a tile triangulates its part of the grid as the whole grid does."""
+    h = (rows.astype(np.uint64) * np.uint64(73856093)) ^ (cols.astype(np.uint64) * np.uint64(19349663))
+    h = (h * np.uint64(2654435761)) % np.uint64(1 << 32)
+    u = h.astype(float) / float(1 << 32)
+    return 0.01 * (u - 0.5), 0.01 * (np.modf(u * 1024.0)[0] - 0.5)
+
+
+def fill_nodata_tin(a: np.ndarray, max_radius_px: float = DEFAULT_TIN_FILL_RADIUS_PX,
+                    offset: tuple[int, int] = (0, 0)) -> np.ndarray:
+    """Fill NaN cells by linear interpolation in the Delaunay TIN of the valid cells around the gaps
+    (as production DEMs interpolate ground under buildings and sparse canopy ground); cells whose
+    triangle has a circumradius above ``max_radius_px`` cells, or that lie outside the TIN, keep the
+    pull-push fill (``fill_nodata``).
+
+    Local by construction: a cell's value depends only on valid cells within ``2 * max_radius_px + 2``
+    cells, so a window of a larger grid (``offset``: its first cell's (row, col) there) gets the same
+    values as the whole grid wherever it has that margin.
+    """
+    from scipy.spatial import Delaunay, QhullError
+
+    a = np.asarray(a, float)
+    filled = fill_nodata(a)
+    valid = np.isfinite(a)
+    if valid.all() or not valid.any():
+        return filled
+    gaps = ~valid
+    # the vertices of a gap's triangles are the valid cells at its rim
+    rim = valid & ndimage.binary_dilation(gaps, np.ones((3, 3), bool), iterations=2)
+    vr, vc = np.nonzero(rim)
+    if len(vr) < 3:
+        return filled
+    gr, gc = vr + offset[0], vc + offset[1]
+    jr, jc = _lattice_jitter(gr, gc)
+    pts = np.column_stack([gc + jc, gr + jr]).astype(float)
+    try:
+        tri = Delaunay(pts)
+    except QhullError:          # all rim cells on one line
+        return filled
+    qr, qc = np.nonzero(gaps)
+    q = np.column_stack([qc + offset[1], qr + offset[0]]).astype(float)
+    s = tri.find_simplex(q)
+    inside = s >= 0
+    qr, qc, q, s = qr[inside], qc[inside], q[inside], s[inside]
+    # vertices in a canonical order (by global cell), so that a tile computes bit-identical weights
+    v = np.sort(tri.simplices[s], axis=1)
+    p0, p1, p2 = pts[v[:, 0]], pts[v[:, 1]], pts[v[:, 2]]
+    e1, e2, d = p1 - p0, p2 - p0, q - p0
+    det = e1[:, 0] * e2[:, 1] - e1[:, 1] * e2[:, 0]
+    l1 = (d[:, 0] * e2[:, 1] - d[:, 1] * e2[:, 0]) / det
+    l2 = (e1[:, 0] * d[:, 1] - e1[:, 1] * d[:, 0]) / det
+    l0 = 1.0 - l1 - l2
+    # circumradius R = abc / (4 area)
+    a_len = np.hypot(*(p1 - p2).T)
+    b_len = np.hypot(*(p0 - p2).T)
+    c_len = np.hypot(*e1.T)
+    radius = a_len * b_len * c_len / np.maximum(2.0 * np.abs(det), 1e-12)
+    ok = radius <= max_radius_px
+    z = a[vr, vc]
+    zq = l0 * z[v[:, 0]] + l1 * z[v[:, 1]] + l2 * z[v[:, 2]]
+    filled[qr[ok], qc[ok]] = zq[ok]
+    return filled

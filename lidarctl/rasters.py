@@ -20,6 +20,7 @@ The footprint is the set of cells within ``footprint_cells`` cells of a point.
 from __future__ import annotations
 
 import dataclasses
+import logging
 from pathlib import Path
 
 import numpy as np
@@ -35,8 +36,10 @@ from aerotri.core.errors import InputError, OptionError
 from aerotri.core.settings import setting
 from lidarctl.grid import check_disk, check_grid
 from lidarctl.io import PointCloud
-from lidarctl.raster_ops import cell_extreme, fill_nodata, sample_bilinear
+from lidarctl.raster_ops import DEFAULT_TIN_FILL_RADIUS_PX, cell_extreme, fill_nodata, fill_nodata_tin, sample_bilinear
 from lidarctl.units import METRE, LengthUnits, long_name
+
+log = logging.getLogger(__name__)
 
 NODATA = -9999.0
 FILES = ("dem.tif", "dsm.tif", "ndsm.tif", "chm.tif", "intensity.tif", "hillshade.png")
@@ -128,12 +131,14 @@ class _CellSums:
             hag = z[veg] - sample_bilinear(dem, x[veg], y[veg], res_m, x0, y0, row0, col0)
             self.chm = np.fmax(self.chm, cell_extreme(self._flat(x[veg], y[veg]), hag, len(self.chm), "max"))
 
-    def dem(self, require_ground: bool = True) -> np.ndarray:
+    def dem(self, require_ground: bool = True, fill_radius_px: float = DEFAULT_TIN_FILL_RADIUS_PX) -> np.ndarray:
+        """Mean ground height per cell; cells without ground (under buildings, sparse ground under
+        canopy) from the TIN of the surrounding cells (``fill_nodata_tin``)."""
         if require_ground and not self.ground_n.any():
             raise ValueError("the cloud has no ground points (class 2): classify it first")
         shape = self.args[3], self.args[4]
         with np.errstate(invalid="ignore"):
-            return fill_nodata((self.ground_sum / self.ground_n).reshape(shape))
+            return fill_nodata_tin((self.ground_sum / self.ground_n).reshape(shape), fill_radius_px, self.offset)
 
     def grids_south_up(self, dem: np.ndarray, footprint_cells: int) -> dict:
         """float32 grids, rows south to north (row 0 = the grid's first row)."""
@@ -163,16 +168,18 @@ class _CellSums:
         return out
 
 
-def make_grids(cloud: PointCloud, res_m: float, footprint_cells: int = 3) -> dict:
+def make_grids(cloud: PointCloud, res_m: float, footprint_cells: int = 3,
+               dem_fill_radius_px: float = DEFAULT_TIN_FILL_RADIUS_PX) -> dict:
     """Arrays (rows north-up, NaN = nodata) and the GeoTIFF transform of all rasters, in metres
-    (``to_crs_units`` converts them to the cloud's units)."""
+    (``to_crs_units`` converts them to the cloud's units). ``dem_fill_radius_px``: see
+    ``_CellSums.dem``."""
     check_res(res_m)
     x, y, z, cls = cloud.x, cloud.y, cloud.z, cloud.classification
     args = grid_for_bounds(x.min(), y.min(), x.max(), y.max(), res_m)
     check_grid(args[3], args[4], res_m, RASTER_BYTES_PER_CELL, "rasters", "--res", "use a coarser --res")
     sums = _CellSums(args)
     sums.add(x, y, z, cls, cloud.return_number, cloud.intensity)
-    dem = sums.dem()
+    dem = sums.dem(fill_radius_px=dem_fill_radius_px)
     sums.add_chm(x, y, z, cls, dem)
     return sums.grids(dem, footprint_cells)
 
@@ -299,12 +306,23 @@ def hillshade_rgba(hs: np.ndarray) -> np.ndarray:
     return mappable.to_rgba(np.where(np.isfinite(hs), hs, 0.0), bytes=True)
 
 
-def _check_tiling(tile_px: int, buffer_px: int) -> None:
+def _check_fill_radius(dem_fill_radius_px: float) -> None:
+    if not dem_fill_radius_px >= 0:
+        raise OptionError(f"--dem-fill-radius-px {dem_fill_radius_px:g}: must be 0 or more cells",
+                          param="--dem-fill-radius-px")
+
+
+def _check_tiling(tile_px: int, buffer_px: int, dem_fill_radius_px: float = 0.0) -> None:
     if tile_px < 1:
         raise OptionError(f"--tile-px {tile_px}: must be a positive number of cells", param="--tile-px")
     if not 0 <= buffer_px <= tile_px:
         raise OptionError(f"--buffer-px {buffer_px}: must be between 0 and the tile size ({tile_px} cells)",
                           param="--buffer-px")
+    _check_fill_radius(dem_fill_radius_px)
+    if buffer_px < 2 * dem_fill_radius_px + 2:
+        log.warning("--buffer-px %d is less than 2 x --dem-fill-radius-px + 2 = %d cells: DEM cells filled "
+                    "from gaps near a tile's edge may differ from those of an untiled run",
+                    buffer_px, int(2 * dem_fill_radius_px + 2))
 
 
 @dataclasses.dataclass(frozen=True)
@@ -418,13 +436,17 @@ def _tile_windows(grid, nrows: int, ncols: int):
 
 
 def write_rasters(cloud, outdir, res_m: float, crs=None, tile_px: int = DEFAULT_TILE_PX,
-                  buffer_px: int = DEFAULT_BUFFER_PX, chunk_points: int = io.CHUNK_POINTS) -> list[Path]:
+                  buffer_px: int = DEFAULT_BUFFER_PX, chunk_points: int = io.CHUNK_POINTS,
+                  dem_fill_radius_px: float = DEFAULT_TIN_FILL_RADIUS_PX) -> list[Path]:
     """Write all rasters into ``outdir``; other files there (e.g. the classified cloud) stay.
 
     ``cloud``: a PointCloud (x, y, z in metres; its ``crs`` and ``units`` say how to write them; whole
     grids in memory), or the path or list of paths of classified LAS/LAZ files (strips in one CRS),
     processed by tiles (``write_rasters_tiled``; ``crs`` is used only for files without a CRS
-    record). ``res_m``: cell size in metres. The rasters are in the cloud's CRS and units (see the
+    record). ``res_m``: cell size in metres. ``dem_fill_radius_px``: DEM cells without ground are
+    interpolated in the TIN of the ground cells around them where its triangle's circumradius is at
+    most this many cells (under buildings, sparse ground under canopy); wider gaps keep the smooth
+    pyramid fill. The rasters are in the cloud's CRS and units (see the
     module docstring). Everything is written into a temporary folder first and moved into place only
     when all files are complete, so an error leaves no partial set behind.
     """
@@ -432,11 +454,12 @@ def write_rasters(cloud, outdir, res_m: float, crs=None, tile_px: int = DEFAULT_
     if not isinstance(cloud, PointCloud):
         paths = [cloud] if isinstance(cloud, (str, Path)) else list(cloud)
         return write_rasters_tiled(paths, outdir, res_m, crs=crs, tile_px=tile_px, buffer_px=buffer_px,
-                                   chunk_points=chunk_points)
+                                   chunk_points=chunk_points, dem_fill_radius_px=dem_fill_radius_px)
     crs, units = cloud.crs, cloud.units
     if crs is None:
         raise ValueError("a CRS is needed for the rasters")
-    grids = make_grids(cloud, res_m)
+    _check_fill_radius(dem_fill_radius_px)
+    grids = make_grids(cloud, res_m, dem_fill_radius_px=dem_fill_radius_px)
     # The hillshade needs heights and cell size in one unit: from the metric grids.
     hs = hillshade(grids["dem"], res_m)
     grids = to_crs_units(grids, units)
@@ -499,7 +522,7 @@ def _write_set(outdir, write, files=FILES, name: str = "rasters") -> list[Path]:
 
 def write_rasters_tiled(paths, outdir, res_m: float, crs=None, tile_px: int = DEFAULT_TILE_PX,
                         buffer_px: int = DEFAULT_BUFFER_PX, chunk_points: int = io.CHUNK_POINTS,
-                        footprint_cells: int = 3) -> list[Path]:
+                        footprint_cells: int = 3, dem_fill_radius_px: float = DEFAULT_TIN_FILL_RADIUS_PX) -> list[Path]:
     """The rasters of classified LAS/LAZ files (strips in one CRS) by tiles: memory is set by the tile
     size, not by the size of the block.
 
@@ -513,7 +536,8 @@ def write_rasters_tiled(paths, outdir, res_m: float, crs=None, tile_px: int = DE
     than the buffer: the pull-push gap filling at pyramid levels coarser than the tiles' alignment
     (the tile size and buffer are multiples of 2^k cells: 256 for the defaults), i.e. extrapolated
     cells near the edge of the survey and gaps wider than the buffer, and enclosed gaps wider than
-    the buffer (which the whole grid fills and a tile leaves nodata). ``bench/lidar_rasters.py``
+    the buffer (which the whole grid fills and a tile leaves nodata). The DEM's TIN gap fill is
+    equal wherever ``buffer_px >= 2 * dem_fill_radius_px + 2``. ``bench/lidar_rasters.py``
     measures the difference and the memory.
 
     Temporary disk space: 28 bytes per point and buffer copy, plus the uncompressed-size GeoTIFFs
@@ -525,7 +549,7 @@ def write_rasters_tiled(paths, outdir, res_m: float, crs=None, tile_px: int = DE
     from lidarctl.tiles import TileGrid
 
     check_res(res_m)
-    _check_tiling(tile_px, buffer_px)
+    _check_tiling(tile_px, buffer_px, dem_fill_radius_px)
     outdir = Path(outdir)
     inputs = _inputs(paths, crs)
     for f in FILES:
@@ -552,7 +576,7 @@ def write_rasters_tiled(paths, outdir, res_m: float, crs=None, tile_px: int = DE
         used = _bin_points(inputs, args, grid, work, chunk_points)
         with rasterio.Env(GDAL_CACHEMAX=_GDAL_CACHE_MB, GDAL_PAM_ENABLED="NO"):
             dem_sum, dem_n = _tiles_to_gtiffs(inputs, args, grid, used, work, tmp, transform, tags,
-                                              chunk_points, footprint_cells)
+                                              chunk_points, footprint_cells, dem_fill_radius_px)
             fill = np.float32(dem_sum / dem_n) if dem_n else np.float32(np.nan)
             _hillshade_by_windows(work / "dem_m.tif", work / "hillshade.tif", res_m, fill, grid, nrows, ncols,
                                   transform, inputs.crs)
@@ -568,7 +592,7 @@ def write_rasters_tiled(paths, outdir, res_m: float, crs=None, tile_px: int = DE
 
 
 def _tiles_to_gtiffs(inputs: _Inputs, args, grid, used, work: Path, tmp: Path, transform, tags,
-                     chunk_points: int, footprint_cells: int):
+                     chunk_points: int, footprint_cells: int, dem_fill_radius_px: float):
     """Pass 2: each tile's grids from its binned points, the core written by window into tiled
     GeoTIFFs (``work/<name>.tif`` in the CRS's units, ``work/dem_m.tif`` the DEM in metres for the
     hillshade). Returns the sum and count of the DEM's cells (metres) for the hillshade's fill."""
@@ -604,7 +628,7 @@ def _tiles_to_gtiffs(inputs: _Inputs, args, grid, used, work: Path, tmp: Path, t
                 sums = _CellSums((res_m, x0, y0, rows, cols), (row0, col0))
                 for rec in _bin_chunks(bin_path, chunk_points):
                     sums.add(rec["x"], rec["y"], rec["z"], rec["cls"], rec["rn"], rec["intensity"])
-                dem = sums.dem(require_ground=False)
+                dem = sums.dem(require_ground=False, fill_radius_px=dem_fill_radius_px)
                 for rec in _bin_chunks(bin_path, chunk_points):
                     sums.add_chm(rec["x"], rec["y"], rec["z"], rec["cls"], dem)
                 os.remove(bin_path)

@@ -45,3 +45,29 @@ def test_reduce_grid_equals_bincount_and_per_cell_extremes():
     np.testing.assert_array_equal(raster_ops.reduce_grid(x, y, v, c, x0, y0, nrows, ncols, "min").ravel(), want_min)
     np.testing.assert_array_equal(raster_ops.reduce_grid(x, y, v, c, x0, y0, nrows, ncols, "max").ravel(), want_max)
     assert np.isnan(want_mean).any() and np.isfinite(want_mean).any()
+
+
+def test_tin_fill_reproduces_a_plane_and_a_window_equals_the_whole():
+    """A TIN interpolates a plane: gaps (scattered cells and a 'building' block) in a tilted plane are filled
+    to within the vertices' fixed jitter (at most 0.005 cell x the slope); gaps wider than the radius keep the pyramid fill; a window with a margin of
+    2 r + 2 cells gets bit-identical values (tiles)."""
+    from lidarctl.raster_ops import fill_nodata, fill_nodata_tin
+
+    rows, cols = np.mgrid[0:120, 0:150]
+    plane = 10.0 + 0.3 * cols - 0.2 * rows
+    a = plane.copy()
+    gaps = np.random.default_rng(3).random(a.shape) < 0.4
+    gaps[40:60, 50:75] = True                                            # a building, 25 x 20 cells
+    a[gaps] = np.nan
+    f = fill_nodata_tin(a, max_radius_px=20)
+    interior = np.zeros_like(gaps)
+    interior[3:-3, 3:-3] = True                                          # inside the TIN's hull
+    np.testing.assert_allclose(f[gaps & interior], plane[gaps & interior], atol=0.005 * 0.51)
+    assert np.abs(fill_nodata(a) - plane)[40:60, 50:75].max() > 0.5    # the pyramid fill alone is blocky
+    # a radius below the building's keeps the pyramid fill in its middle
+    small = fill_nodata_tin(a, max_radius_px=3)
+    assert small[50, 62] == fill_nodata(a)[50, 62]
+    r = 20
+    m = 2 * r + 2
+    w = fill_nodata_tin(a[10:110, 20:140], max_radius_px=r, offset=(10, 20))
+    np.testing.assert_array_equal(w[m:-m, m:-m], fill_nodata_tin(a, max_radius_px=r)[10 + m:110 - m, 20 + m:140 - m])
