@@ -42,6 +42,18 @@ SETTINGS = {"demo": {"res": 1.0, "interval": 2.0, "index": 5, "min_area_m2": 20_
             "lidr": {"res": 2.0, "interval": 2.0, "index": 5, "min_area_m2": 2_000.0}}
 
 
+FILLED_M = 0.1  # a stream cell raised more than this by the depression fill lies in a filled depression
+
+
+def _runs(flags: np.ndarray):
+    """(first, last, value) of the runs of equal values in a boolean array."""
+    if len(flags) == 0:
+        return []
+    cut = np.flatnonzero(np.diff(flags.astype(np.int8))) + 1
+    starts, ends = np.r_[0, cut], np.r_[cut, len(flags)] - 1
+    return [(int(a), int(b), bool(flags[a])) for a, b in zip(starts, ends)]
+
+
 def run(*args) -> str:
     r = subprocess.run([str(a) for a in args], check=True, capture_output=True, text=True)
     print(" ".join(str(a) for a in args[1:3]), "...:", r.stdout.strip().splitlines()[-1] if r.stdout.strip() else "")
@@ -109,7 +121,9 @@ def draw(work: Path, out_png: Path, title: str, truth_streams: Path | None = Non
     aspect = ny / nx
     fig, ax = plt.subplots(figsize=(12.5, min(13.0, 8.5 * aspect + 1.2)))
     ax.imshow(hs, cmap="gray", extent=extent, vmin=-0.1, vmax=1.05, interpolation="bilinear")
-    ax.imshow(dem, cmap="terrain", extent=extent, alpha=0.25, interpolation="bilinear")
+    # height tint without terrain's blue low end (which reads as water)
+    tint = matplotlib.colors.LinearSegmentedColormap.from_list("land", plt.get_cmap("terrain")(np.linspace(0.25, 0.95, 64)))
+    ax.imshow(dem, cmap=tint, extent=extent, alpha=0.25, interpolation="bilinear")
     label_min = 0.15 * (extent[1] - extent[0])
     for g, z, idx in zip(cont, cf["elevation"], cf["index"]):
         xy = np.asarray(g.coords)
@@ -124,24 +138,41 @@ def draw(work: Path, out_png: Path, title: str, truth_streams: Path | None = Non
     orders = sf["strahler_order"].astype(int)
     top = max(int(orders.max(initial=1)), 1)
     cmap = plt.get_cmap("cool", top)
+    with rasterio.open(work / "drainage" / "conditioned.tif") as src:
+        filled = src.read(1, masked=True).astype(float).filled(np.nan) - dem  # depth the depression fill added
+    n_filled_m = 0.0
     for g, o in sorted(zip(streams, orders), key=lambda v: v[1]):
+        # D8 paths across a filled depression are straight lines to its spill point, not channels: dotted
+        if shapely.get_num_coordinates(g) < 2 or g.length == 0:  # a one-cell segment (a confluence at the outlet)
+            continue
+        g = shapely.segmentize(g, abs(t.a))
         xy = np.asarray(g.coords)
-        ax.plot(xy[:, 0], xy[:, 1], color=cmap(o - 1), lw=0.6 + 0.8 * o, solid_capstyle="round", zorder=5)
+        col, row = ~t * (xy[:, 0], xy[:, 1])
+        r = np.clip(row.astype(int), 0, ny - 1)
+        c = np.clip(col.astype(int), 0, nx - 1)
+        in_pit = np.nan_to_num(filled[r, c]) > FILLED_M
+        seg_pit = in_pit[:-1] & in_pit[1:]
+        for k0, k1, pit in _runs(seg_pit):
+            part = xy[k0:k1 + 2]
+            ax.plot(part[:, 0], part[:, 1], color=cmap(o - 1), lw=(0.6 + 0.8 * o) * (0.6 if pit else 1.0),
+                    ls=(0, (1, 1.5)) if pit else "-", solid_capstyle="round", zorder=5)
+            if pit:
+                n_filled_m += float(np.hypot(*np.diff(part, axis=0).T).sum())
     handles = [Line2D([], [], color="#7a3b10", lw=0.45, label="contour"),
                Line2D([], [], color="#7a3b10", lw=1.1, label="index contour")]
     handles += [Line2D([], [], color=cmap(o - 1), lw=0.6 + 0.8 * o, label=f"stream, Strahler order {o}")
                 for o in range(1, top + 1)]
+    handles.append(Line2D([], [], color="0.3", lw=0.9, ls=(0, (1, 1.5)),
+                          label=f"flow path across a filled depression (> {FILLED_M:g} m)"))
     n_true = 0
     if truth_streams is not None:
-        tl, tf = read_lines(truth_streams, "streams", ("strahler_order",))
-        t_top = int(tf["strahler_order"].max(initial=1))
-        keep = tf["strahler_order"] >= max(1, t_top - 1)  # the main streams of the true terrain
-        for g in np.asarray(tl)[keep]:
+        tl, _ = read_lines(truth_streams, "streams", ("strahler_order",))
+        for g in tl:
             xy = np.asarray(g.coords)
-            ax.plot(xy[:, 0], xy[:, 1], color="gold", lw=1.6, ls=(0, (3, 2)), zorder=4.5)
-        n_true = int(keep.sum())
-        handles.append(Line2D([], [], color="gold", lw=1.6, ls=(0, (3, 2)),
-                              label=f"true-terrain streams, order >= {max(1, t_top - 1)}"))
+            ax.plot(xy[:, 0], xy[:, 1], color="gold", lw=1.0, ls=(0, (4, 3)), zorder=6)
+        n_true = int(len(tl))
+        handles.append(Line2D([], [], color="gold", lw=1.0, ls=(0, (4, 3)),
+                              label="streams of the TRUE terrain (same command)"))
     _scale_bar(ax, extent)
     ax.legend(handles=handles, loc="upper left", bbox_to_anchor=(1.01, 1.0), fontsize=8, framealpha=0.85)
     ax.set_xlim(extent[0], extent[1])
@@ -154,12 +185,13 @@ def draw(work: Path, out_png: Path, title: str, truth_streams: Path | None = Non
     ax.set_title(title, fontsize=10)
     fig.tight_layout()
     out_png.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(out_png, dpi=110)
+    fig.savefig(out_png, dpi=110, bbox_inches="tight")
     plt.close(fig)
     lengths = shapely.length(streams)
     return {"contours": int(len(cont)), "index_contours": int(cf["index"].sum()), "stream_segments": int(len(streams)),
             "stream_length_m_by_order": {str(o): float(lengths[orders == o].sum()) for o in range(1, top + 1)},
-            "true_main_stream_segments": n_true, "png": str(out_png)}
+            "stream_length_m_across_filled_depressions": n_filled_m, "true_terrain_stream_segments": n_true,
+            "png": str(out_png)}
 
 
 def demo(work: Path, out: Path) -> dict:

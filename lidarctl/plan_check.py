@@ -216,7 +216,7 @@ def plot_plan_check(result: dict, corners: list[dict], path, title: str = "") ->
     ax.ticklabel_format(useOffset=False, style="plain")
     ax.set_xlabel(f"easting ({result['xy_unit']})")
     ax.set_ylabel(f"northing ({result['xy_unit']})")
-    ax.legend(loc="best", fontsize=8)
+    ax.legend(loc="upper left", bbox_to_anchor=(0.0, -0.09), ncol=2, fontsize=8)  # below: the map stays clear
     ax.set_title(title or "plan check: LiDAR corner - surveyed point (vectors exaggerated)")
     f_ = lambda v: "-" if v is None else f"{v:.2f}"  # noqa: E731
     ax2.set_title(f"found {s['n_found']} of {s['n_points']}; RMS x {f_(s['rms_x_m'])}, y {f_(s['rms_y_m'])}, "
@@ -225,7 +225,7 @@ def plot_plan_check(result: dict, corners: list[dict], path, title: str = "") ->
     ax2.set_ylabel("points")
     fig.tight_layout()
     with atomic_path(path) as tmp:
-        fig.savefig(tmp, dpi=90)
+        fig.savefig(tmp, dpi=90, bbox_inches="tight", format="png")
     plt.close(fig)
     return Path(path)
 
