@@ -54,7 +54,12 @@ def _runs(flags: np.ndarray):
     return [(int(a), int(b), bool(flags[a])) for a, b in zip(starts, ends)]
 
 
+REUSE = False  # --reuse: keep the products already in the work folder (redraw only)
+
+
 def run(*args) -> str:
+    if REUSE:
+        return "(reused)"
     r = subprocess.run([str(a) for a in args], check=True, capture_output=True, text=True)
     print(" ".join(str(a) for a in args[1:3]), "...:", r.stdout.strip().splitlines()[-1] if r.stdout.strip() else "")
     return r.stdout.strip()
@@ -185,7 +190,7 @@ def draw(work: Path, out_png: Path, title: str, truth_streams: Path | None = Non
     ax.set_title(title, fontsize=10)
     fig.tight_layout()
     out_png.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(out_png, dpi=110, bbox_inches="tight")
+    fig.savefig(out_png, dpi=85, bbox_inches="tight")
     plt.close(fig)
     lengths = shapely.length(streams)
     return {"contours": int(len(cont)), "index_contours": int(cf["index"].sum()), "stream_segments": int(len(streams)),
@@ -231,10 +236,17 @@ def main():
     ap.add_argument("--which", nargs="+", default=["demo", "lidr"], choices=["demo", "lidr"])
     ap.add_argument("--work", type=Path, default=REPO / "out" / "plot_terrain")
     ap.add_argument("--out", type=Path, default=REPO / "results")
+    ap.add_argument("--reuse", action="store_true", help="Redraw from the products already in --work.")
     args = ap.parse_args()
+    global REUSE
+    REUSE = args.reuse
     path = args.out / "terrain.json"
     res = json.loads(path.read_text()) if path.exists() else {}
     for name in args.which:
+        if REUSE and name in res:
+            res[name].update({k: v for k, v in {"demo": demo, "lidr": lidr}[name](args.work / name, args.out).items()
+                              if k != "commands"})
+            continue
         res[name] = {"demo": demo, "lidr": lidr}[name](args.work / name, args.out)
     path.write_text(json.dumps(res, indent=2) + "\n")
 
