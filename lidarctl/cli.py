@@ -15,6 +15,7 @@ from aerotri.core.settings import click_option
 from lidarctl.classify import ClassifyParams
 from lidarctl.heights_check import GROUPINGS, DensityGroups
 from lidarctl.map_accuracy import MapEvalParams
+from lidarctl.plan_check import PlanCheckParams
 from lidarctl.rasters import DEFAULT_BUFFER_PX, DEFAULT_TILE_PX, DEFAULT_TIN_FILL_RADIUS_PX
 
 
@@ -325,6 +326,39 @@ def check_heights(paths, dem_path, radius_m, exclude_m, grouping, cover_radius_m
     click.echo(hc.format_report(result))
     if json_path:
         write_text_atomic(json_path, json.dumps(result, indent=2))
+
+
+_PLAN = PlanCheckParams()
+
+
+@main.command("check-plan")
+@click.argument("paths", nargs=-1, required=True, type=click.Path(dir_okay=False), metavar="CLOUD... POINTS_CSV")
+@click.option("--radius", "radius_m", type=positive(), default=_PLAN.radius_m, show_default=True,
+              help="Largest distance (m) from a surveyed point to its LiDAR corner.")
+@click.option("--min-edge", "min_edge_m", type=positive(), default=_PLAN.min_edge_m, show_default=True,
+              help="LiDAR corners whose two roof edges are at least this long (m), as lidarctl corners.")
+@click.option("--scale", default=_PLAN.scale, show_default=True, help="Map scale of the tolerance table.")
+@click.option("--terrain", default=_PLAN.terrain, show_default=True, help="Terrain class of the tolerance table.")
+@click.option("--json", "json_path", type=click.Path(dir_okay=False), default=None,
+              help="Write the numbers as JSON (offsets in metres, _m keys; per-point coordinates in the cloud's "
+                   "units).")
+@click.option("--png", "png_path", type=click.Path(dir_okay=False), default=None,
+              help="Offset vectors over the surveyed points and the histogram of the plan offsets.")
+@click.option("--crs", default=None, help="CRS (EPSG:code) of clouds that have none.")
+@click.option("--points-crs", default=None, help="CRS of POINTS_CSV, checked against the cloud's (never transformed).")
+def check_plan(paths, radius_m, min_edge_m, scale, terrain, json_path, png_path, crs, points_crs):
+    """Plan check of classified CLOUD(s) (building class 6; strips in one CRS) against surveyed roof / building
+    corners (POINTS_CSV id,x,y[,z] in the cloud's CRS and units): each point's nearest LiDAR roof corner (the
+    eave corners of lidarctl corners) within --radius; dx, dy, plan offset (LiDAR - surveyed), RMS x / y /
+    plan, mean (bias), max, found / not found, dz when the CSV has z; pass / fail against the map scale's
+    plan RMS of well-defined features. Wall corners (cadastre footprints) include the roof overhang."""
+    from lidarctl import plan_check as pc
+
+    *cloud_paths, points_csv = paths
+    params = PlanCheckParams(radius_m=radius_m, min_edge_m=min_edge_m, scale=scale, terrain=terrain)
+    result = pc.check_plan_files(cloud_paths, points_csv, params, crs=crs, points_crs=points_crs,
+                                 json_path=json_path, png_path=png_path)
+    click.echo(pc.format_report(result))
 
 
 @main.command()

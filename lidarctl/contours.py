@@ -13,8 +13,10 @@ Smoothing (fit) of each traced line:
   the polyline), resampled the same way;
 - ``none``: the traced polyline.
 A smoothed line that crosses itself or a neighbouring contour (shapely, against the lines of the
-levels next to it) falls back to the traced line, which never crosses: contours stay topologically
-valid, and how many fell back is reported.
+levels next to it), or leaves the DEM's valid-data footprint (the union of its valid cells,
+``data_footprint``; an approximating spline can cut outside near the border or a nodata edge) falls
+back to the traced line, which never crosses and stays on the cell centres: contours stay topologically
+valid and inside the data, and how many fell back is reported.
 """
 
 from __future__ import annotations
@@ -74,11 +76,14 @@ def trace(dem: np.ndarray, transform, interval: float, index_every: int = 5) -> 
         for line in gen.lines(level):
             if len(line) < 2:
                 continue
+            # closed in cell coordinates, exactly: contourpy repeats a ring's first point, while an open line
+            # from the border back to it may end a fraction of a cell from its start (np.allclose's relative
+            # tolerance on map coordinates of 10^5..10^6 m would call ends metres apart the same point)
+            closed = len(line) > 3 and bool(np.all(np.abs(line[0] - line[-1]) <= 1e-9))
             x = a * line[:, 0] + b * line[:, 1] + c
             y = d * line[:, 0] + e * line[:, 1] + f
             xy = np.column_stack([x, y])
-            closed = len(xy) > 3 and np.allclose(xy[0], xy[-1])
-            out.append(Contour(float(level), index_every > 0 and k % index_every == 0, bool(closed), xy))
+            out.append(Contour(float(level), index_every > 0 and k % index_every == 0, closed, xy))
     return out
 
 
@@ -151,10 +156,21 @@ def _tension(xy, closed, tension, step):
     return out
 
 
+def data_footprint(valid: np.ndarray, transform):
+    """The union of the valid cells (``valid``: 2-D bool) as a shapely (Multi)Polygon in map coordinates."""
+    import shapely
+    from rasterio import features
+
+    parts = [shapely.geometry.shape(g) for g, v in features.shapes(valid.astype(np.uint8), transform=transform)
+             if v == 1]
+    return shapely.union_all(parts) if parts else shapely.Polygon()
+
+
 def smooth_contours(contours: list, method: str, cell: float, tolerance_px: float = 0.5,
-                    tension: float = 1.0) -> tuple[list, int]:
+                    tension: float = 1.0, footprint=None) -> tuple[list, int]:
     """Smoothed copies of ``contours`` (``method`` in SMOOTHING; ``cell``: the DEM cell size in map units);
-    lines whose smoothed form crosses itself or a contour of the same or a neighbouring level keep their traced
+    lines whose smoothed form crosses itself or a contour of the same or a neighbouring level, or is not
+    covered by ``footprint`` (shapely geometry, ``data_footprint``; None: not checked), keep their traced
     form. Returns (contours, number that fell back)."""
     if method not in SMOOTHING:
         raise OptionError(f"unknown smoothing {method!r}; expected one of {', '.join(SMOOTHING)}", param="--smooth")
@@ -177,6 +193,9 @@ def smooth_contours(contours: list, method: str, cell: float, tolerance_px: floa
     # One pass suffices: traced lines never cross, so a smoothed line that meets neither the traced nor the
     # smoothed form of any line of its own or the neighbouring levels stays clear whichever form those keep.
     ok = np.array([ln.is_simple for ln in lines])
+    if footprint is not None:
+        # a hair of slack: vertices pinned on the footprint's boundary must not fail on rounding
+        ok &= shapely.covered_by(lines, shapely.buffer(footprint, 1e-6 * cell, join_style="mitre"))
     tree = shapely.STRtree(lines + traced)
     for i in np.flatnonzero(ok):
         for j in tree.query(lines[i], predicate="intersects"):
@@ -278,7 +297,8 @@ def contours_from_file(dem_path, out_path, interval_m: float, index_every: int =
         transform, crs = src.transform, src.crs
     interval = interval_m / z_m
     traced = trace(dem, transform, interval, index_every)
-    contours, fell_back = smooth_contours(traced, smoothing, abs(transform.a), tolerance_px, tension)
+    footprint = data_footprint(np.isfinite(dem), transform) if smoothing != "none" else None
+    contours, fell_back = smooth_contours(traced, smoothing, abs(transform.a), tolerance_px, tension, footprint)
     cs = ContourSet(contours, interval, smoothing, fell_back)
     n_cross = crossings(contours) if smoothing != "none" else 0  # traced lines of one surface never cross
     if n_cross:

@@ -85,8 +85,9 @@ def bin_labels(edges=BIN_EDGES_M) -> list[str]:
     return labels
 
 
-def read_points_csv(path) -> dict:
-    """Surveyed points: header with id, x, y, z (case-insensitive; also e/n/h) and optional group."""
+def read_points_csv(path, require_z: bool = True) -> dict:
+    """Surveyed points: header with id, x, y, z (case-insensitive; also e/n/h) and optional group; without
+    ``require_z`` the z column may be missing (``z`` None)."""
     path = Path(path)
     rows = list(csv.reader(stringio.StringIO(read_text(path, "surveyed points table (id,x,y,z[,group])"), newline="")))
     if not rows:
@@ -97,6 +98,8 @@ def read_points_csv(path) -> dict:
     for key, names in alias.items():
         found = [k for k, h in enumerate(head) if h in names]
         if not found:
+            if key == "z" and not require_z:
+                continue
             raise InputError(f"{path}: line 1: no '{key}' column in header {rows[0]}")
         col[key] = found[0]
     col_id = head.index("id") if "id" in head else None
@@ -108,9 +111,9 @@ def read_points_csv(path) -> dict:
         if len(row) < len(head):
             raise InputError(f"{path}: line {line_no}: {len(row)} fields, expected {len(head)}")
         try:
-            vals = [float(row[col[k]]) for k in ("x", "y", "z")]
+            vals = [float(row[col[k]]) for k in ("x", "y", "z") if k in col]
         except ValueError:
-            raise InputError(f"{path}: line {line_no}: x/y/z not numbers: {row}") from None
+            raise InputError(f"{path}: line {line_no}: {'/'.join(col)} not numbers: {row}") from None
         if not np.all(np.isfinite(vals)):
             raise InputError(f"{path}: line {line_no}: non-finite coordinate: {row}")
         ids.append(row[col_id].strip() if col_id is not None else str(line_no - 1))
@@ -119,7 +122,7 @@ def read_points_csv(path) -> dict:
     if not xyz:
         raise InputError(f"{path}: no surveyed points after the header")
     xyz = np.array(xyz)
-    return {"id": ids, "x": xyz[:, 0], "y": xyz[:, 1], "z": xyz[:, 2],
+    return {"id": ids, "x": xyz[:, 0], "y": xyz[:, 1], "z": xyz[:, 2] if "z" in col else None,
             "group": groups if col_group is not None else None}
 
 

@@ -9,7 +9,7 @@ from click.testing import CliRunner
 from rasterio.transform import from_origin
 
 from lidarctl.cli import main
-from lidarctl.contours import _tension_1d, crossings, smooth_contours, trace
+from lidarctl.contours import _tension_1d, crossings, data_footprint, smooth_contours, trace
 
 
 def _surface(x, y):
@@ -93,3 +93,38 @@ def test_command_geopackage_and_feet(tmp_path):
     r = CliRunner().invoke(main, ["contours", str(tmp_path / "bad.tif"), str(tmp_path / "x.gpkg"), "--interval", "1"])
     assert r.exit_code == 2 and "bad.tif" in r.output and "Traceback" not in r.output
     assert not (tmp_path / "x.gpkg").exists()
+
+
+@pytest.mark.parametrize("method", ["bspline", "tension"])
+def test_smoothed_lines_stay_inside_the_data(method):
+    """lidr_topography's case: domes cut by the raster's edge give open lines that leave the border and come back
+    to it a few cells further on; with map coordinates of 10^5..10^6 m they were taken for closed rings (a
+    relative tolerance) and smoothed as periodic splines, bulging metres past the border. Plus a nodata hole
+    that cuts rings open. Every smoothed vertex must lie within the valid cells (plus half a cell), no crossings."""
+    ny, nx, cell = 90, 90, 2.0
+    x0, y0 = 273_600.0, 5_274_600.0  # UTM-like origin (lidr_topography's)
+    rows, cols = np.mgrid[0:ny, 0:nx] + 0.5
+    x, y = x0 + cols * cell, y0 - rows * cell
+    z = np.full((ny, nx), 800.3)
+    # two low domes (one level each) centred ~10 m inside the east and west borders: the border cuts a cap off
+    # their 801 m rings; two higher domes at the south border and in the middle
+    for cx, cy, h, r in ((x0 + nx * cell - 10.0, y0 - 40.0, 1.2, 20.0), (x0 + 12.0, y0 - 120.0, 1.2, 20.0),
+                         (x0 + 40.0, y0 - ny * cell - 2.0, 8.0, 12.0), (x0 + 90.0, y0 - 90.0, 8.0, 12.0)):
+        z += h * np.exp(-((x - cx) ** 2 + (y - cy) ** 2) / (2 * r ** 2))
+    z += 0.1 * np.sin(x / 3.1) * np.cos(y / 2.3)  # wiggles the splines smooth away
+    z[40:46, 42:50] = np.nan  # a nodata hole inside the middle dome
+    t = from_origin(x0, y0, cell, cell)
+    cs = trace(z, t, 1.0, 5)
+    border_hits = [c for c in cs if not c.closed and np.hypot(*(c.xy[0] - c.xy[-1])) < 50.0]
+    assert border_hits  # the case is reproduced: open lines whose ends lie close together
+    valid = np.isfinite(z)
+    foot = data_footprint(valid, t)
+    assert foot.area == pytest.approx(valid.sum() * cell ** 2)
+    sm, _ = smooth_contours(cs, method, cell, tolerance_px=1.0, footprint=foot)
+    import shapely
+
+    d = np.concatenate([shapely.distance(shapely.points(c.xy), foot) for c in sm])
+    assert d.max() <= 0.5 * cell
+    assert crossings(sm) == 0
+    for c in sm:
+        assert c.closed == bool(np.array_equal(c.xy[0], c.xy[-1]))
