@@ -117,6 +117,18 @@ def plan_frames(cfg: dict, layout: BlockLayout, rng) -> FramePlan:
     opk = np.array(opk)
     times = np.array(times)
     strip = np.array(strip)
+    # The drift (crab) angle is relative to the track actually flown, which wanders with the lateral
+    # position: heading = track direction + drift. Track from the neighbouring frames (one-sided at the
+    # ends), as flight acceptance measures it.
+    for s in range(1, ns + 1):
+        idx = np.flatnonzero(strip == s)
+        if len(idx) < 2:
+            continue
+        ahead = C[idx[np.minimum(np.arange(len(idx)) + 1, len(idx) - 1)], :2]
+        behind = C[idx[np.maximum(np.arange(len(idx)) - 1, 0)], :2]
+        d = ahead - behind
+        nominal = np.arctan2(0.0, np.sign(d[:, 0]))
+        opk[idx, 2] += np.degrees((np.arctan2(d[:, 1], d[:, 0]) - nominal + np.pi) % (2 * np.pi) - np.pi)
     R = rotation_matrix_opk(opk[:, 0], opk[:, 1], opk[:, 2])
     lever = np.asarray(g["lever_arm_m"], dtype=float)
     antenna = C + np.einsum("nij,j->ni", R, lever)
