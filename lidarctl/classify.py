@@ -8,8 +8,8 @@ Pipeline (``classify_points``):
    and the ground is filtered again. Ground refinement (``lifted_ground``): a ground point that
    stands more than ``ground_lift_sigma`` range-noise sigmas above the least-squares plane of its
    neighbouring ground points (sigma measured on the cloud's own ground set) is the last return of
-   a low object (hedge base, planter, car body, low wall), not bare earth; it becomes an object
-   point. Height above ground (HAG) from a DEM of the ground points;
+   a low object (hedge base, planter, car body, low wall), not bare earth; it becomes low
+   vegetation but stays in the DEM. Height above ground (HAG) from a DEM of the ground points;
    non-ground points more than ``deep_m`` below that DEM are low noise too.
 3. Buildings from planar roof segments: on a ``cell_m`` grid of the highest non-ground point (object
    DSM), a least-squares plane is fitted in every 3x3 window; cells with plane RMS below
@@ -546,8 +546,12 @@ def classify_points(x, y, z, return_number=None, number_of_returns=None, intensi
         idx = idx[code[idx] == 0]
 
     spacing = grid.mean_spacing_m(x, y)
-    # Ground refinement: last returns of low objects that the filter took for bare earth.
-    is_ground &= ~lifted_ground(x, y, z, is_ground, spacing, p.ground_lift_sigma)
+    # Ground refinement: last returns of low objects that the filter took for bare earth. They
+    # leave the ground class but stay in the DEM (they lie a decimetre or two above it; without
+    # them the DEM sags under hedges, the hedges reach building height and roof segments grow
+    # into them) and out of the object grids (their single returns would dilute the crowns'
+    # multi-return share): they end as low vegetation.
+    lifted = lifted_ground(x, y, z, is_ground, spacing, p.ground_lift_sigma)
     c = p.cell_m or max(0.5, 2.0 * spacing)
     x0, y0 = float(x.min()), float(y.min())
     ncols = int(np.floor((x.max() - x0) / c)) + 1
@@ -562,10 +566,10 @@ def classify_points(x, y, z, return_number=None, number_of_returns=None, intensi
     cls[code == noise_mod.HIGH] = HIGH_NOISE
     iso = code == noise_mod.ISOLATED
     cls[iso] = np.where(hag[iso] < 0.0, LOW_NOISE, HIGH_NOISE)
-    cls[is_ground] = GROUND
-
     # buildings
-    obj = clean & ~is_ground
+    obj = clean & ~is_ground & ~lifted
+    is_ground &= ~lifted
+    cls[is_ground] = GROUND
     flat = grid.cell_ids(x, y, c, x0, y0)[0]
     dsm = reduce_grid(x[obj], y[obj], z[obj], c, x0, y0, nrows, ncols, "max")
     has_obj = np.isfinite(dsm)
@@ -637,7 +641,7 @@ def classify_points(x, y, z, return_number=None, number_of_returns=None, intensi
         structured = ((multi_frac > 0) | (rms >= p.rough_rms_m)).ravel()[flat]
         med &= structured
         high &= structured
-    cls[low] = LOW_VEG
+    cls[low | (lifted & clean)] = LOW_VEG
     cls[med] = MED_VEG
     cls[high] = HIGH_VEG
 
