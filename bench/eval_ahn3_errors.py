@@ -9,7 +9,8 @@ and by where the points lie:
 - false ground (we say 2, AHN3 says 1/6/9/26): their height above the truth ground (the median of
   the 8 nearest truth ground points) and multi-return share;
 - missed buildings: what we called them instead.
-Quarters as bench/eval_ahn3_holdout.py (split at the median x and y).
+Quarters as bench/eval_ahn3_holdout.py (split at the median x and y). The false ground is also
+given without the ground refinement (``ground_lift_sigma`` 0: what the ground filter hands over).
 Writes results/lidar_ahn3_errors.json and results/ahn3_errors_<quarter>.png (errors over the
 quarter: grey correct building, light grey correct ground; the legend counts each error kind).
 Run: .venv/bin/python bench/eval_ahn3_errors.py
@@ -17,6 +18,7 @@ Run: .venv/bin/python bench/eval_ahn3_errors.py
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import sys
 from pathlib import Path
@@ -103,11 +105,17 @@ def main():
     mapped = np.where(np.isin(pred, (2, 6, 9)), pred, 1)
     part = part_of(c.x, c.y)
     nr = np.asarray(c.number_of_returns)
+    unrefined = classify.classify_points(c.x, c.y, c.z, c.return_number, c.number_of_returns, c.intensity,
+                                         dataclasses.replace(classify.ClassifyParams(), ground_lift_sigma=0.0))
     out = {"data": "ahn3_cropped_1.laz, shipped ClassifyParams defaults", "parts": {}}
     for k, name in enumerate(PARTS):
         m = part == k
+        before = breakdown(c.x, c.y, c.z, nr, truth, unrefined, m)
         out["parts"][name] = {"scores": scores(pred[m], truth[m]),
-                              **breakdown(c.x, c.y, c.z, nr, truth, pred, m)}
+                              **breakdown(c.x, c.y, c.z, nr, truth, pred, m),
+                              "without_ground_refinement": {
+                                  "scores": scores(unrefined[m], truth[m]),
+                                  **{key: before[key] for key in before if "ground" in key}}}
         png = REPO / "results" / f"ahn3_errors_{name}.png"
         plot(png, name, c.x, c.y, truth, mapped, m)
         print(name, json.dumps(out["parts"][name]))
