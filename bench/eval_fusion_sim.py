@@ -9,7 +9,9 @@ seed 7; held-out). Each is simulated into a temporary folder (``--keep DIR``: th
 present).
 
 Per project, the LiDAR strips are classified three ways: LiDAR only; fused with the true orthophoto's
-RGB (greenness = excess green); fused with RGB + NIR (truth/ortho.tif + truth/ortho_nir.tif, NDVI).
+RGB (greenness = excess green); fused with RGB + NIR (truth/ortho.tif + truth/ortho_nir.tif, NDVI); and two ablations of the fused RGB + NIR run:
+without the straight-line building check (``building_min_lines = 0``) and without the first-minus-last
+return rule (``building_max_fml_m = inf``). ``--only NAME`` runs one project and writes no JSON.
 Each is scored against truth/classes.tif (building, tree, grass, road, bare ground, water) on cells of
 about the LiDAR point spacing (the class of each cell's highest point; the reference sampled at the
 cell centres; cells without a point are left out). Reported: the 6-class matrix (PA/UA, overall,
