@@ -9,7 +9,9 @@ seed 7; held-out). Each is simulated into a temporary folder (``--keep DIR``: th
 present).
 
 Per project, the LiDAR strips are classified three ways: LiDAR only; fused with the true orthophoto's
-RGB (greenness = excess green); fused with RGB + NIR (truth/ortho.tif + truth/ortho_nir.tif, NDVI).
+RGB (greenness = excess green); fused with RGB + NIR (truth/ortho.tif + truth/ortho_nir.tif, NDVI); and two ablations of the fused RGB + NIR run:
+without the straight-line building check (``building_min_lines = 0``) and without the first-minus-last
+return rule (``building_max_fml_m = inf``). ``--only NAME`` runs one project and writes no JSON.
 Each is scored against truth/classes.tif (building, tree, grass, road, bare ground, water) on cells of
 about the LiDAR point spacing (the class of each cell's highest point; the reference sampled at the
 cell centres; cells without a point are left out). Reported: the 6-class matrix (PA/UA, overall,
@@ -46,6 +48,7 @@ from lidarctl.classify import ClassifyParams
 REPO = Path(__file__).resolve().parents[1]
 PROJECTS = [("tiny", None, "development"), ("demo", None, "development"), ("demo", 7, "held-out")]
 SEED_CLASSES = (6, 5, 3, 11)   # building, tree, grass, road: the classes seed 000 reports
+VARIANTS = ("lidar_only", "fused_rgb", "fused_rgb_nir", "fused_rgb_nir_no_lines", "fused_rgb_nir_no_fml")
 TARGETS = {"overall_accuracy_pct": 95.0, "road_pa_ua_pct": 90.0, "building_area_overall_pct": 97.0}
 
 
@@ -78,10 +81,15 @@ def subset(conf: dict, keep=SEED_CLASSES) -> dict:
 def run(proj: Path, work: Path, res_m: float) -> dict:
     strips = sorted((proj / "lidar").glob("*.las"))
     truth = proj / "truth" / "classes.tif"
+    rgb = fu.open_image(proj / "truth" / "ortho.tif", None)
+    nir = fu.open_image(proj / "truth" / "ortho.tif", str(proj / "truth" / "ortho_nir.tif"))
     variants = {
         "lidar_only": None,
-        "fused_rgb": fu.Fusion(fu.open_image(proj / "truth" / "ortho.tif", None)),
-        "fused_rgb_nir": fu.Fusion(fu.open_image(proj / "truth" / "ortho.tif", str(proj / "truth" / "ortho_nir.tif"))),
+        "fused_rgb": fu.Fusion(rgb),
+        "fused_rgb_nir": fu.Fusion(nir),
+        # ablations of the building confirmation: without the straight-line count, without the FML rule
+        "fused_rgb_nir_no_lines": fu.Fusion(nir, fu.FusionParams(building_min_lines=0)),
+        "fused_rgb_nir_no_fml": fu.Fusion(nir, fu.FusionParams(building_max_fml_m=float("inf"))),
     }
     out = {}
     for name, fusion in variants.items():
@@ -160,6 +168,7 @@ def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--out", type=Path, default=REPO / "results")
     ap.add_argument("--keep", type=Path, default=None, help="Keep (and reuse) the simulated projects here.")
+    ap.add_argument("--only", default=None, help="Run only this project (tiny, demo, demo_seed7); no JSON written.")
     args = ap.parse_args(argv)
     args.out.mkdir(parents=True, exist_ok=True)
     tmp = Path(tempfile.mkdtemp(prefix="eval_fusion_sim_"))
@@ -169,6 +178,8 @@ def main(argv=None) -> int:
               "targets": TARGETS, "projects": {}}
     try:
         for name, seed, role in PROJECTS:
+            if args.only and args.only != (name if seed is None else f"{name}_seed{seed}"):
+                continue
             proj = project(name, seed, root)
             spacing = json.loads((proj / "truth" / "truth.json").read_text())["lidar_mean_spacing_m"]
             # cells of about the point spacing, a multiple of the truth raster's cells
@@ -180,14 +191,20 @@ def main(argv=None) -> int:
                 picture(proj, tmp, args.out / "fusion_sim.png", res_m)
     finally:
         shutil.rmtree(tmp, ignore_errors=True)
-    (args.out / "fusion_sim.json").write_text(json.dumps(result, indent=2))
+    if not args.only:
+        (args.out / "fusion_sim.json").write_text(json.dumps(result, indent=2))
     for pname, p in result["projects"].items():
-        for v in ("lidar_only", "fused_rgb", "fused_rgb_nir"):
+        for v in VARIANTS:
             c, s, b = p[v]["confusion"], p[v]["seed_classes"], p[v]["buildings"]
-            print(f"{pname:14s} {v:14s} OA6 {c['overall_accuracy_pct']:6.2f}  kappa {c['kappa_pct']:6.2f}  "
-                  f"OA4 {s['overall_accuracy_pct']:6.2f}  road PA/UA {c['producers_accuracy_pct'].get('11') or 0:6.2f}/"
-                  f"{c['users_accuracy_pct'].get('11') or 0:6.2f}  bld area OA {b['overall_accuracy_pct']:6.2f}")
-    print(f"wrote {args.out / 'fusion_sim.json'}")
+            pa, ua = c["producers_accuracy_pct"], c["users_accuracy_pct"]
+            print(f"{pname:11s} {v:23s} OA6 {c['overall_accuracy_pct']:6.2f}  kappa {c['kappa_pct']:6.2f}  "
+                  f"OA4 {s['overall_accuracy_pct']:6.2f}  road PA/UA {pa.get('11') or 0:6.2f}/{ua.get('11') or 0:6.2f}  "
+                  f"bld PA/UA {pa.get('6') or 0:6.2f}/{ua.get('6') or 0:6.2f}  tree PA/UA {pa.get('5') or 0:6.2f}/"
+                  f"{ua.get('5') or 0:6.2f}  bld area OA {b['overall_accuracy_pct']:6.2f} (I {b['type_i_error_pct']:.2f} "
+                  f"II {b['type_ii_error_pct']:.2f})  per bld compl/corr {b['completeness_count_pct']:.1f}/"
+                  f"{b['correctness_count_pct']:.1f}")
+    if not args.only:
+        print(f"wrote {args.out / 'fusion_sim.json'}")
     return 0
 
 

@@ -662,5 +662,6 @@ def classify_points(x, y, z, return_number=None, number_of_returns=None, intensi
     if fusion is not None:
         from lidarctl import fusion as fusion_mod
 
-        cls = fusion_mod.fuse(x, y, z, hag, cls, intensity, fusion.image, fusion.params)
+        cls = fusion_mod.fuse(x, y, z, hag, cls, intensity, fusion.image, fusion.params, return_number,
+                              number_of_returns)
     return cls

@@ -36,6 +36,32 @@ main.add_command(strips)
 main.add_command(trees)
 
 
+def renamed_option(old: str, new: str, dest: str, type_=None):
+    """The old spelling ``old`` of option ``new`` (parameter ``dest``), hidden from ``--help``: it still works,
+    with a deprecation note on stderr, so users' scripts keep running; giving both is an OptionError."""
+    import functools
+
+    hidden = "old__" + dest
+
+    def deco(f):
+        @functools.wraps(f)
+        def wrapper(*args, **kwargs):
+            value = kwargs.pop(hidden)
+            if value is not None:
+                from aerotri.core.errors import OptionError
+
+                ctx = click.get_current_context()
+                if ctx.get_parameter_source(dest) is not click.core.ParameterSource.DEFAULT:
+                    raise OptionError(f"{old} is the old name of {new}: give one of them", param=new)
+                click.echo(f"warning: {old} is deprecated, use {new}", err=True)
+                kwargs[dest] = value
+            return f(*args, **kwargs)
+
+        return click.option(old, hidden, type=type_, default=None, hidden=True)(wrapper)
+
+    return deco
+
+
 _DENSITY = DensityGroups()
 
 
@@ -447,20 +473,25 @@ def drainage(dem_path, outdir, min_area_m2, fill, simplify_px, png):
 @click.option("--image", type=click.Path(dir_okay=False), default=None,
               help="Orthophoto (GeoTIFF): OUT.png shows the layers over it.")
 @click.option("--dem", type=click.Path(dir_okay=False), default=None,
-              help="DEM GeoTIFF: its contours (--contour-interval) become the 'contours' layer.")
+              help="DEM GeoTIFF: its contours (--contour-interval-m) become the 'contours' layer.")
 @click.option("--contours", "contours_path", type=click.Path(dir_okay=False), default=None,
               help="Contour layer (.gpkg/.geojson, lidarctl contours) copied into OUT as 'contours'.")
-@click.option("--contour-interval", "contour_interval_m", type=positive(), default=1.0, show_default=True,
+@click.option("--contour-interval-m", "contour_interval_m", type=positive(), default=1.0, show_default=True,
               help="--dem: contour interval (m).")
-@click.option("--cell", "cell_m", type=positive(), default=1.0, show_default=True,
+@click.option("--cell-m", "cell_m", type=positive(), default=1.0, show_default=True,
               help="Cell of the road and water masks (m); about the point spacing or larger.")
-@click.option("--min-area", "min_area_m2", type=positive(), default=50.0, show_default=True,
+@click.option("--min-area-m2", "min_area_m2", type=positive(), default=50.0, show_default=True,
               help="Road and water pieces (and holes in them) smaller than this (m2) are dropped (filled).")
-@click.option("--simplify", "simplify_m", type=positive(), default=0.5, show_default=True,
+@click.option("--simplify-m", "simplify_m", type=positive(), default=0.5, show_default=True,
               help="Douglas-Peucker tolerance of road/water polygons and centre lines (m).")
-@click.option("--spot-spacing", "spot_spacing_m", type=positive(), default=100.0, show_default=True,
+@click.option("--spot-spacing-m", "spot_spacing_m", type=positive(), default=100.0, show_default=True,
               help="One spot height per square of this side (m).")
 @click.option("--crs", default=None, help="CRS (EPSG:code) when the files have none; never guessed.")
+@renamed_option("--contour-interval", "--contour-interval-m", "contour_interval_m", positive())
+@renamed_option("--cell", "--cell-m", "cell_m", positive())
+@renamed_option("--min-area", "--min-area-m2", "min_area_m2", positive())
+@renamed_option("--simplify", "--simplify-m", "simplify_m", positive())
+@renamed_option("--spot-spacing", "--spot-spacing-m", "spot_spacing_m", positive())
 def vectors(paths, image, dem, contours_path, contour_interval_m, cell_m, min_area_m2, simplify_m, spot_spacing_m,
             crs):
     """Line-map (DLG) layers of the classified clouds PATHS... into OUT (the last argument, .gpkg): buildings
@@ -490,12 +521,14 @@ def vectors(paths, image, dem, contours_path, contour_interval_m, cell_m, min_ar
 @click.option("--json", "json_path", type=click.Path(dir_okay=False), default=None, help="Write the numbers as JSON.")
 @click.option("--png", "png_path", type=click.Path(dir_okay=False), default=None,
               help="Plot of the building outlines and corner offset vectors.")
-@click.option("--match", "match_m", type=positive(), default=3.0, show_default=True,
+@click.option("--match-m", "match_m", type=positive(), default=3.0, show_default=True,
               help="Largest distance (m) of a produced corner from its reference corner to pair them.")
-@click.option("--buffer", "buffer_m", type=positive(), default=2.0, show_default=True,
+@click.option("--buffer-m", "buffer_m", type=positive(), default=2.0, show_default=True,
               help="Buffer (m) around lines for their completeness and correctness.")
 @click.option("--scale", default="1:10000", show_default=True, help="Map scale of the tolerance table.")
 @click.option("--terrain", default="flat", show_default=True, help="Terrain class of the tolerance table.")
+@renamed_option("--match", "--match-m", "match_m", positive())
+@renamed_option("--buffer", "--buffer-m", "buffer_m", positive())
 def check_vectors(product_path, reference_path, layers, json_path, png_path, match_m, buffer_m, scale, terrain):
     """Line-map accuracy of PRODUCT_PATH (lidarctl vectors) against --reference: plan RMS of the building corners
     (to the nearest reference outline and to the matched reference corner), completeness and correctness of

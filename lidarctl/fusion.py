@@ -19,10 +19,26 @@ Rules (ASPRS codes):
    like a road: mean width 2 A / P between ``road_min_width_m`` and ``road_max_width_m`` and elongation
    P^2 / (4 A) at least ``road_min_elongation`` (a long strip L x w: about L / w; a square: 4). Points
    of the other ground stay bare ground (2). Water (9) stays water.
-3. Building confirmation: a building (a connected region of building cells) whose points are mostly
-   green (share above ``building_max_green``) is a tree the roof test took for a plane: its points
-   become tree (5).
+3. Building confirmation, per candidate (a connected region of building cells of ``road_cell_m``):
+   a. mostly green (share of its points above ``building_max_green``): a tree the roof test took for a
+      plane;
+   b. penetrable (first-minus-last return height, below): the share of its cells whose FML is at least
+      ``building_max_fml_m`` above ``building_max_fml_share``: pulses went through it, a crown;
+   c. straight lines (seed 000): Canny edges of the orthophoto's grey values, straight segments by the
+      probabilistic Hough transform (OpenCV), segments shorter than ``building_min_line_m`` dropped;
+      a segment belongs to the candidate its midpoint lies in or within ``building_line_reach_m`` of
+      (roof outlines and ridges; relief displacement moves them off the LiDAR outline). A candidate
+      with fewer than ``building_min_lines`` segments is not a building (0: no line check). Candidates
+      the image does not cover are kept.
+   Points of a rejected candidate get the class the other rules give: green -> tree (5) or grass (3)
+   by height; not green -> tree (5) above ``tree_min_height_m`` (an object that is not a building is
+   vegetation, as in the LiDAR-only rules), else ground (2, then the ground rules below).
 Without intensity (all zero) the road rule uses the image alone (not green, smooth, road-shaped).
+
+First-minus-last return height (FML) per cell: the highest first return minus the lowest last return
+of the cell's pulses that have more than one return; cells without such pulses have 0 (so a cloud of
+single returns gives 0 everywhere and rule 3b never fires). Roofs stop the pulses (0 but at the
+eaves); canopy lets them through to the ground (the tree height).
 """
 
 from __future__ import annotations
@@ -63,6 +79,13 @@ class FusionParams:
     road_max_width_m: float = 30.0
     road_min_elongation: float = 6.0
     building_max_green: float = 0.5
+    building_max_fml_m: float = 2.0
+    building_max_fml_share: float = 0.3
+    building_min_lines: int = 2
+    building_min_line_m: float = 2.0
+    building_line_reach_m: float = 1.5
+    canny_low: float = 50.0
+    canny_high: float = 150.0
 
 
 @dataclasses.dataclass(frozen=True)
@@ -203,6 +226,112 @@ def road_shaped(mask: np.ndarray, cell_m: float, p: FusionParams = FusionParams(
     return np.r_[False, ok][labels]
 
 
+def read_grey(img: ImageSource, xmin: float, ymin: float, xmax: float, ymax: float):
+    """(grey uint8 array, (x of column 0's centre, y of row 0's centre, pixel size), all in metres) of the
+    orthophoto over the box (metres; clipped to the image), or None when the image does not cover it.
+    Grey is the mean of R, G, B stretched between the window's 1st and 99th percentiles, so Canny's
+    thresholds mean the same on 8- and 16-bit images."""
+    import rasterio
+    from rasterio.windows import Window
+
+    with rasterio.open(img.path) as src:
+        t = src.transform
+        c0 = max(int(np.floor((xmin / img.xy_m - t.c) / t.a)), 0)
+        c1 = min(int(np.ceil((xmax / img.xy_m - t.c) / t.a)), src.width)
+        r0 = max(int(np.floor((ymax / img.xy_m - t.f) / t.e)), 0)
+        r1 = min(int(np.ceil((ymin / img.xy_m - t.f) / t.e)), src.height)
+        if c1 - c0 < 3 or r1 - r0 < 3:
+            return None
+        win = Window(c0, r0, c1 - c0, r1 - r0)
+        bands = np.stack([src.read(b, window=win, masked=True).astype(np.float64) for b in img.rgb_bands])
+    grey = np.ma.mean(bands, axis=0)
+    valid = ~np.ma.getmaskarray(grey)
+    if not valid.any():
+        return None
+    lo, hi = np.percentile(grey.compressed(), (1, 99))
+    g = np.clip((np.ma.filled(grey, lo) - lo) / max(hi - lo, 1e-9) * 255.0, 0, 255).astype(np.uint8)
+    px_m = t.a * img.xy_m
+    return g, ((t.c + (c0 + 0.5) * t.a) * img.xy_m, (t.f + (r0 + 0.5) * t.e) * img.xy_m, px_m)
+
+
+def line_segments(grey: np.ndarray, px_m: float, p: FusionParams = FusionParams()) -> np.ndarray:
+    """Straight segments (n, 4: u0 v0 u1 v1 in pixels, column/row) of the Canny edges of ``grey`` (uint8)
+    at least ``building_min_line_m`` long (``px_m``: pixel size in metres); probabilistic Hough transform
+    with a gap of up to a quarter of the minimum length bridged."""
+    import cv2
+
+    min_px = max(p.building_min_line_m / px_m, 3.0)
+    edges = cv2.Canny(cv2.GaussianBlur(grey, (3, 3), 0), p.canny_low, p.canny_high)
+    lines = cv2.HoughLinesP(edges, 1, np.pi / 180, threshold=max(int(0.5 * min_px), 3),
+                            minLineLength=min_px, maxLineGap=max(0.25 * min_px, 1.0))
+    if lines is None:
+        return np.zeros((0, 4), np.float64)
+    seg = lines.reshape(-1, 4).astype(np.float64)
+    length_m = np.hypot(seg[:, 2] - seg[:, 0], seg[:, 3] - seg[:, 1]) * px_m
+    return seg[length_m >= p.building_min_line_m]
+
+
+def first_minus_last(z, row, col, shape, return_number=None, number_of_returns=None) -> np.ndarray:
+    """FML per cell (module docstring): highest first return minus lowest last return of the pulses with
+    more than one return; 0 where a cell has none (and everywhere without return numbers)."""
+    fml = np.zeros(shape, np.float64)
+    if return_number is None or number_of_returns is None:
+        return fml
+    rn, nr = np.asarray(return_number), np.asarray(number_of_returns)
+    multi = nr > 1
+    first, last = multi & (rn == 1), multi & (rn >= nr)
+    if not (first.any() and last.any()):
+        return fml
+    flat = row * shape[1] + col
+    top = np.full(fml.size, -np.inf)
+    np.maximum.at(top, flat[first], z[first])
+    bottom = np.full(fml.size, np.inf)
+    np.minimum.at(bottom, flat[last], z[last])
+    both = np.isfinite(top) & np.isfinite(bottom)
+    fml.ravel()[both] = np.maximum(top[both] - bottom[both], 0.0)
+    return fml
+
+
+def lines_per_building(labels: np.ndarray, nb: int, x0: float, y0: float, cell_m: float, img: ImageSource,
+                       p: FusionParams = FusionParams()):
+    """(segments per candidate (nb + 1,), covered (nb + 1,) bool) for the candidates ``labels`` (grid rows
+    northwards from ``y0``, columns from ``x0``, cells of ``cell_m``): one Canny/Hough pass over the
+    orthophoto window of all candidates; a segment counts for the candidate nearest its midpoint within
+    ``building_line_reach_m``."""
+    count = np.zeros(nb + 1, np.int64)
+    covered = np.zeros(nb + 1, bool)
+    rows, cols = np.nonzero(labels)
+    reach = p.building_line_reach_m
+    box = (x0 + cols.min() * cell_m - reach, y0 + rows.min() * cell_m - reach,
+           x0 + (cols.max() + 1) * cell_m + reach, y0 + (rows.max() + 1) * cell_m + reach)
+    got = read_grey(img, *box)
+    if got is None:
+        return count, covered
+    grey, (gx0, gy0, px_m) = got
+    # candidates the image covers: their cells' centres fall inside the window
+    h, w = grey.shape
+    xc, yc = x0 + (cols + 0.5) * cell_m, y0 + (rows + 0.5) * cell_m
+    u, v = (xc - gx0) / px_m, (gy0 - yc) / px_m
+    inside = (u >= 0) & (u < w - 1) & (v >= 0) & (v < h - 1)
+    covered[np.unique(labels[rows[inside], cols[inside]])] = True
+    seg = line_segments(grey, px_m, p)
+    if len(seg) == 0:
+        return count, covered
+    mx = gx0 + 0.5 * (seg[:, 0] + seg[:, 2]) * px_m
+    my = gy0 - 0.5 * (seg[:, 1] + seg[:, 3]) * px_m
+    # nearest candidate cell of every cell, and how far it is
+    dist, idx = ndimage.distance_transform_edt(labels == 0, return_indices=True)
+    nearest = labels[tuple(idx)]
+    c = np.floor((mx - x0) / cell_m).astype(np.int64)
+    r = np.floor((my - y0) / cell_m).astype(np.int64)
+    ok = (r >= 0) & (r < labels.shape[0]) & (c >= 0) & (c < labels.shape[1])
+    r, c = r[ok], c[ok]
+    near = dist[r, c] * cell_m <= reach
+    count += np.bincount(nearest[r[near], c[near]], minlength=nb + 1)
+    count[0] = 0
+    return count, covered
+
+
 @dataclasses.dataclass(frozen=True)
 class Fusion:
     """What ``classify_points`` needs to fuse: the image and the rule thresholds."""
@@ -211,9 +340,11 @@ class Fusion:
     params: FusionParams = FusionParams()
 
 
-def fuse(x, y, z, hag, cls, intensity, img: ImageSource, p: FusionParams = FusionParams()) -> np.ndarray:
+def fuse(x, y, z, hag, cls, intensity, img: ImageSource, p: FusionParams = FusionParams(),
+         return_number=None, number_of_returns=None) -> np.ndarray:
     """Classes after the fusion rules (module docstring) for one tile's points (x, y, z in metres; ``hag``:
-    height above the ground DEM; ``cls``: the LiDAR-only classes). Returns a new array."""
+    height above the ground DEM; ``cls``: the LiDAR-only classes; return numbers for the first-minus-last
+    height, optional). Returns a new array."""
     cls = np.asarray(cls).copy()
     n = len(cls)
     if n == 0:
@@ -227,7 +358,7 @@ def fuse(x, y, z, hag, cls, intensity, img: ImageSource, p: FusionParams = Fusio
     cls[veg & (hag < p.tree_min_height_m)] = LOW_VEG
     cls[veg & (hag >= p.tree_min_height_m)] = HIGH_VEG
 
-    # 3. buildings that are mostly green are trees
+    # 3. building confirmation: green, penetrable or without straight lines -> not a building
     c = p.road_cell_m
     x0, y0 = float(np.min(x)), float(np.min(y))
     col = np.floor((x - x0) / c).astype(np.int64)
@@ -237,15 +368,28 @@ def fuse(x, y, z, hag, cls, intensity, img: ImageSource, p: FusionParams = Fusio
     if bld.any():
         bcell = np.zeros(shape, bool)
         bcell[row[bld], col[bld]] = True
-        labels, nb = ndimage.label(bcell, structure=_EIGHT)
+        # one cell of dilation joins a roof's cells across the gaps of a point spacing above the cell
+        labels, nb = ndimage.label(ndimage.binary_dilation(bcell, _EIGHT), structure=_EIGHT)
         lab = labels[row[bld], col[bld]]
-        n_pts = np.bincount(lab, minlength=nb + 1)
         n_green = np.bincount(lab, weights=(green & seen)[bld], minlength=nb + 1)
         n_seen = np.bincount(lab, weights=seen[bld], minlength=nb + 1)
-        with np.errstate(invalid="ignore", divide="ignore"):
-            tree_like = (n_seen > 0) & (n_green / np.maximum(n_seen, 1) > p.building_max_green) & (n_pts > 0)
-        to_tree = np.flatnonzero(bld)[tree_like[lab]]
-        cls[to_tree] = np.where(hag[to_tree] >= p.tree_min_height_m, HIGH_VEG, LOW_VEG)
+        tree_like = (n_seen > 0) & (n_green > p.building_max_green * n_seen)
+        fml = first_minus_last(np.asarray(z, float), row, col, shape, return_number, number_of_returns)
+        ids = np.arange(nb + 1)
+        deep = ndimage.sum_labels(fml >= p.building_max_fml_m, labels, ids)
+        cells = np.maximum(ndimage.sum_labels(np.ones(shape), labels, ids), 1)
+        penetrable = deep > p.building_max_fml_share * cells
+        no_lines = np.zeros(nb + 1, bool)
+        if p.building_min_lines > 0:
+            n_lines, covered = lines_per_building(labels, nb, x0, y0, c, img, p)
+            no_lines = covered & (n_lines < p.building_min_lines)
+        rejected = (tree_like | penetrable | no_lines)
+        rejected[0] = False
+        log.debug("building candidates %d: green %d, penetrable %d, without %d straight lines %d", nb,
+                  tree_like[1:].sum(), penetrable[1:].sum(), p.building_min_lines, no_lines[1:].sum())
+        gone = np.flatnonzero(bld)[rejected[lab]]
+        high = hag[gone] >= p.tree_min_height_m
+        cls[gone] = np.where(high, HIGH_VEG, np.where(green[gone], LOW_VEG, GROUND))
 
     # 2. ground: grass, road, bare
     ground = cls == GROUND

@@ -86,8 +86,9 @@ def run(project, reference, points, dem, force, keep_lidar_classes, scheduler, w
     """The whole chain over PROJECT, resumable: a re-run skips stages whose inputs did not change.
 
     Stage options come from project.toml, one section per stage ([strips], [classify], [rasters], [corners],
-    [match], [adjust], [control], [rectify], [mosaic]; the keys of each stage's settings). Stages the
-    inputs do not allow (no LiDAR, no usable roof corner, no DEM) are left out and the summary says why.
+    [vectors], [match], [adjust], [control], [rectify], [mosaic]; the keys of each stage's settings). Stages
+    the inputs do not allow (no LiDAR, no usable roof corner, no DEM) are left out and the summary says why;
+    the line map ([vectors] enabled = true) is optional.
     """
     from aerotri.chain.runner import format_summary
 

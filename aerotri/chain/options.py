@@ -10,6 +10,8 @@ Each section's keys are the fields of the stage's settings dataclass, with its d
     [corners]
     roof = "any"
     min_edge_m = 4.0
+    [vectors]
+    enabled = true
     [adjust]
     self_calibration = ["pp", "radial"]
     gnss_correction = "shift"
@@ -34,6 +36,7 @@ from lidarctl.classify import ClassifyParams
 from lidarctl.corners import CornerSettings
 from lidarctl.rasters import RasterSettings
 from lidarctl.strips.settings import StripsSettings
+from lidarctl.vectors_settings import VectorsSettings
 from ortho.settings import MosaicSettings, RectifySettings
 
 # section -> the settings dataclass of the stage it configures (in chain order)
@@ -42,6 +45,7 @@ STAGE_SECTIONS = {
     "classify": ClassifyParams,
     "rasters": RasterSettings,
     "corners": CornerSettings,
+    "vectors": VectorsSettings,
     "match": MatchSettings,
     "adjust": AdjustSettings,
     "control": ControlSettings,
@@ -59,6 +63,7 @@ class ChainOptions:
     classify: ClassifyParams = dataclasses.field(default_factory=ClassifyParams)
     rasters: RasterSettings = dataclasses.field(default_factory=RasterSettings)
     corners: CornerSettings = dataclasses.field(default_factory=CornerSettings)
+    vectors: VectorsSettings = dataclasses.field(default_factory=VectorsSettings)
     match: MatchSettings = dataclasses.field(default_factory=MatchSettings)
     adjust: AdjustSettings = dataclasses.field(default_factory=AdjustSettings)
     control: ControlSettings = dataclasses.field(default_factory=ControlSettings)

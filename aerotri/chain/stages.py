@@ -161,6 +161,12 @@ class Chain:
                   options=to_table(o.rasters), skip=self.no_lidar),
             Stage("corners", self.classified, self.corner_outputs, self.run_corners,
                   options=to_table(o.corners), skip=self.no_lidar),
+        ]
+        if o.vectors.enabled:
+            # optional ([vectors] enabled): the line map of the classified strips and its check
+            stages.append(Stage("vectors", self.vectors_inputs, self.vectors_outputs, self.run_vectors,
+                                options=dict(to_table(o.vectors), qa=self.project.section("qa")), skip=self.no_lidar))
+        stages += [
             Stage("match", lambda r: self.images() + [self.project.gnss_path, self.project.camera_path],
                   lambda r: [self.project.tiepoints_path], self.run_match,
                   # [flight] terrain height and [gnss] lever arm place the footprints of the pairs
@@ -195,7 +201,10 @@ class Chain:
         report_inputs = [self.project.config_path, self.project.strips_check_path, self.project.strips_adjust_path,
                          self.project.strips_check_after_path, self.project.adjustment_report_path,
                          self.project.control_transfer_path, self.project.dom_report_path,
-                         self.project.height_check_path, self.project.classification_eval_path]
+                         self.project.height_check_path, self.project.classification_eval_path,
+                         self.project.vectors_check_path]
+        if self.options.vectors.check_json is not None:
+            report_inputs.append(Path(self.options.vectors.check_json))
         stages.append(Stage("report", lambda r: report_inputs, lambda r: [self.project.report_index_path],
                             self.run_report))
         return stages
@@ -276,6 +285,64 @@ class Chain:
                 hint = "roof = \"any\" or " + hint
             out["notes"] = [f"{st['no_usable']}; the chain goes on without LiDAR control (or try [corners] {hint} "
                             "in project.toml)"]
+        return out
+
+    def vectors_reference(self) -> Path | None:
+        """[vectors] reference, else the simulator's true building outlines when present."""
+        ref = self.options.vectors.reference
+        if ref is not None:
+            return Path(ref)
+        return self.project.truth_buildings_path if self.project.truth_buildings_path.is_file() else None
+
+    def vectors_inputs(self, root=None) -> list[Path]:
+        ref = self.vectors_reference()
+        return self.classified() + ([ref] if ref is not None else [])
+
+    def vectors_outputs(self, root=None) -> list[Path]:
+        return [self.project.vectors_path] + ([self.project.vectors_check_path] if self.vectors_reference() else [])
+
+    def run_vectors(self, root) -> dict:
+        from aerotri.core.tolerances import qa_settings
+        from lidarctl.map_vectors import VectorParams, vectors_to_file
+        from lidarctl.vector_check import CheckParams, check_files
+
+        p = self.project
+        s = vectors_to_file(self.classified(), p.vectors_path, VectorParams(), crs=p.crs)
+        out = {k: s[k] for k in ("buildings", "roads", "water", "spot_heights") if k in s}
+        ref = self.vectors_reference()
+        if ref is None:
+            out["notes"] = ["no reference vectors ([vectors] reference): the line map is not checked"]
+            return out
+        if ref == p.truth_buildings_path:
+            ref = self.truth_outline_reference()
+        qa = qa_settings(root)
+        check = check_files(p.vectors_path, ref, CheckParams(layers=("buildings",), scale=qa["map_scale"],
+                                                             terrain=qa["terrain"]), p.vectors_check_path)
+        b = check["layers"].get("buildings", {})
+        out.update(corner_rms_xy_m=b.get("rms_xy_corner_m"), corners=b.get("n_matched_corners"))
+        return out
+
+    def truth_outline_reference(self) -> Path:
+        """The simulator's roof outlines (truth/buildings.geojson, part "roof_outline": what the LiDAR sees;
+        the GeoJSON carries no CRS) as the "buildings" layer of a GeoPackage in the project's CRS
+        (work/vectors_reference.gpkg)."""
+        import numpy as np
+        import pyproj
+        import shapely
+        from pyogrio.raw import write
+
+        from aerotri.core.atomic import atomic_path
+
+        feats = [f for f in _json(self.project.truth_buildings_path)["features"]
+                 if f["properties"].get("part") == "roof_outline"]
+        geoms = np.array([shapely.geometry.shape(f["geometry"]) for f in feats], dtype=object)
+        out = self.project.work_dir / "vectors_reference.gpkg"
+        out.parent.mkdir(parents=True, exist_ok=True)
+        with atomic_path(out) as tmp:
+            tmp.unlink()  # a new GeoPackage, not the empty temporary file
+            write(tmp, np.array(shapely.to_wkb(geoms), dtype=object),
+                  field_data=[np.array([f["properties"]["building_id"] for f in feats])], fields=["building_id"],
+                  geometry_type="Polygon", crs=pyproj.CRS(self.project.crs).to_wkt(), driver="GPKG", layer="buildings")
         return out
 
     # -- tie points and adjustments -------------------------------------------------------------

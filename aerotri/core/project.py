@@ -30,7 +30,7 @@ PROJECT_SECTIONS = {
 }
 # The stage sections (their keys are the fields of each stage's settings, checked by the stage and by
 # ``aerotri run``; aerotri.chain.options.STAGE_SECTIONS holds the same names).
-STAGE_SECTION_NAMES = ("strips", "classify", "rasters", "corners", "match", "adjust", "control", "rectify", "mosaic")
+STAGE_SECTION_NAMES = ("strips", "classify", "rasters", "corners", "vectors", "match", "adjust", "control", "rectify", "mosaic")
 
 
 def check_sections(config: dict, source) -> None:
@@ -132,6 +132,9 @@ class Project:
     roof_planes_path = property(lambda self: self.lidar_out_dir / "roof_planes.geojson")  # lidarctl corners
     height_check_path = property(lambda self: self.lidar_out_dir / "height_check.json")
     classification_eval_path = property(lambda self: self.lidar_out_dir / "classification_eval.json")
+    vectors_path = property(lambda self: self.lidar_out_dir / "vectors.gpkg")  # [vectors] enabled: the line map
+    vectors_check_path = property(lambda self: self.lidar_out_dir / "vectors_check.json")  # and its check
+    truth_buildings_path = property(lambda self: self.truth_dir / "buildings.geojson")  # simulated projects
     # control/: the transferred LiDAR control
     control_dir = property(lambda self: self.root / "control")
     control_points_path = property(lambda self: self.control_dir / "points.csv")

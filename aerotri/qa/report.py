@@ -125,6 +125,34 @@ def strip_rows(project: Project, tol: dict) -> tuple[list, list | None]:
     return [_check(sec, name, round(a["rms_m"], 4), tol.get("strip_rmsdz_m"), "m", note)], pairs
 
 
+def line_map_rows(project: Project, tol: dict) -> list:
+    """The "Line map (DLG) plan accuracy" row from a check-vectors result: the chain's (lidar_out/
+    vectors_check.json, ``[vectors] enabled``), else ``[vectors] check_json`` of project.toml; none without.
+
+    The value is the plan RMS of the building corners (well-defined points) to their matched reference
+    corners, judged against this report's tolerance for well-defined map features (``feature_rms_xy_m``
+    of the map scale and terrain class), not the one the check was made with."""
+    path = project.vectors_check_path
+    if not path.is_file():
+        given = project.section("vectors").get("check_json")
+        if not given:
+            return []
+        path = Path(given) if Path(given).is_absolute() else project.root / given
+        if not path.is_file():
+            raise InputError(f"{project.config_path} [vectors] check_json: {path} not found")
+    chk = _json(path)
+    sec, name = "Line map (DLG)", "Line map (DLG) plan accuracy: building corners, plan RMS"
+    b = (chk.get("layers") or {}).get("buildings")
+    if not b:
+        return [_failed(sec, name, f"{path.name}: no buildings layer checked")]
+    if not b.get("n_matched_corners"):
+        return [_failed(sec, name, f"{path.name}: no building corner matched a reference corner")]
+    note = (f"{b['n_matched_corners']} corners within {chk.get('match_m', 0):g} m of a reference corner; to the nearest "
+            f"reference outline {b['rms_xy_to_line_m']:.3f} m RMS; buildings complete {b['completeness_pct']:.1f} %, "
+            f"correct {b['correctness_pct']:.1f} %; reference {Path(str(chk.get('reference', '?'))).name}")
+    return [_check(sec, name, round(b["rms_xy_corner_m"], 4), tol.get("feature_rms_xy_m"), "m", note)]
+
+
 def stage_results(project: Project) -> list:
     """What the stages leave for the report."""
     return [project.adjustment_report_path, project.control_transfer_path, project.dom_report_path,
@@ -181,6 +209,8 @@ def build_qa_report(root, tolerance_file=None, terrain: str | None = None, scale
             pct = 100.0 * sum(abs(d) > lim for d in dz) / len(dz)
             rows.append(_check(sec, f"surveyed points with |dz| > {lim:.2f} m (3 x the RMSE limit)", round(pct, 2),
                                tol.get("height_check_max_outlier_pct"), "%"))
+
+    rows += line_map_rows(project, tol)
 
     # Control and adjustment
     sec = "Control points"

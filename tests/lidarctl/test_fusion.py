@@ -122,3 +122,55 @@ def test_classify_with_image_cli_and_bad_input(tmp_path):
         assert r.exit_code == 2, (extra, r.output)
         assert message in r.output and "Traceback" not in r.output, (extra, r.output)
         assert not out.exists()
+
+
+def test_first_minus_last_per_cell():
+    """FML: highest first minus lowest last return of the multi-return pulses per cell; 0 elsewhere."""
+    z = np.array([20.0, 12.0, 2.0, 5.0, 5.5, 7.0])
+    rn = np.array([1, 2, 3, 1, 1, 1])       # a 3-return pulse in cell 0; single returns in cell 1
+    nr = np.array([3, 3, 3, 1, 1, 1])
+    row, col = np.array([0, 0, 0, 0, 0, 0]), np.array([0, 0, 0, 1, 1, 1])
+    assert fusion.first_minus_last(z, row, col, (1, 3), rn, nr).tolist() == [[18.0, 0.0, 0.0]]
+    assert not fusion.first_minus_last(z, row, col, (1, 3), np.ones(6), np.ones(6)).any()   # single returns only
+    assert not fusion.first_minus_last(z, row, col, (1, 3)).any()                          # no return numbers
+
+
+def test_building_confirmation_by_lines_and_penetration(tmp_path):
+    """Three 12 x 12 m flat 'roofs' 8 m high on 60 x 60 m of grey ground: A drawn on the image as a bright
+    roof with straight edges; B on uniform grey (no straight line: not a building); C drawn like A but the
+    pulses go through it (first return on top, last on the ground: canopy). Not green: B and C become tree
+    (above 1 m), A stays a building; with the line check off B stays a building; single returns keep C."""
+    g = np.arange(0.25, 60, 0.5)
+    x, y = (a.ravel() for a in np.meshgrid(g, g))
+    boxes = {"A": (8, 20, 8, 20), "B": (30, 42, 8, 20), "C": (8, 20, 35, 47)}
+    inside = {k: (x > x0) & (x < x1) & (y > y0) & (y < y1) for k, (x0, x1, y0, y1) in boxes.items()}
+    obj = inside["A"] | inside["B"] | inside["C"]
+    hag = np.where(obj, 8.0, 0.0)
+    cls = np.where(obj, 6, 2).astype(np.uint8)
+    # C: every other point a last return on the ground under the crown
+    under = inside["C"] & (np.arange(len(x)) % 2 == 1)
+    hag[under] = 0.0
+    rn = np.where(under, 2, 1)
+    nr = np.where(inside["C"], 2, 1)
+    res = 0.25
+    n = int(60 / res)
+    rgb = np.zeros((n, n, 3), np.uint8)
+    rgb[:] = GREY
+    for k in ("A", "C"):
+        x0, x1, y0, y1 = boxes[k]
+        rgb[n - int(y1 / res):n - int(y0 / res), int(x0 / res):int(x1 / res)] = (230, 225, 220)
+    _image(tmp_path / "dom.tif", rgb, res=res)
+    img = fusion.open_image(tmp_path / "dom.tif")
+    args = (x + X0, y + Y0, 100.0 + hag, hag, cls, np.full(len(x), 300))
+    out = fusion.fuse(*args, img, fusion.FusionParams(), rn, nr)
+    assert np.all(out[inside["A"]] == 6)
+    assert np.all(out[inside["B"]] == 5)
+    assert np.all(out[inside["C"] & ~under] == 5)
+    kept = fusion.fuse(*args, img, fusion.FusionParams(building_min_lines=0), rn, nr)
+    assert np.all(kept[inside["B"]] == 6) and np.all(kept[inside["A"]] == 6)
+    single = fusion.fuse(*args, img, fusion.FusionParams(), np.ones(len(x)), np.ones(len(x)))
+    assert np.all(single[inside["C"] & ~under] == 6)
+    # the segments counted are those of 2 m or more, in metres whatever the pixel size
+    grey, (_, _, px_m) = fusion.read_grey(img, X0, Y0, X0 + 60, Y0 + 60)
+    seg = fusion.line_segments(grey, px_m)
+    assert len(seg) >= 4 and np.all(np.hypot(seg[:, 2] - seg[:, 0], seg[:, 3] - seg[:, 1]) * px_m >= 2.0)

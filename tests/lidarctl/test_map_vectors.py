@@ -84,7 +84,7 @@ def made(tmp_path_factory):
     d = tmp_path_factory.mktemp("vectors")
     cloud = _write_las(d / "cloud.las")
     out = d / "dlg.gpkg"
-    r = CliRunner().invoke(main, ["vectors", str(cloud), str(out), "--spot-spacing", "40"])
+    r = CliRunner().invoke(main, ["vectors", str(cloud), str(out), "--spot-spacing-m", "40"])
     assert r.exit_code == 0, r.output
     return d, cloud, out
 
@@ -161,7 +161,7 @@ def test_contours_from_dem_and_copied(made, tmp_path):
     _, cloud, _ = made
     dem = _dem(tmp_path / "dem.tif")
     out = tmp_path / "a.gpkg"
-    r = CliRunner().invoke(main, ["vectors", str(cloud), str(out), "--dem", str(dem), "--contour-interval", "0.5"])
+    r = CliRunner().invoke(main, ["vectors", str(cloud), str(out), "--dem", str(dem), "--contour-interval-m", "0.5"])
     assert r.exit_code == 0, r.output
     meta, lines, f = _layer(out, "contours")
     assert pyproj.CRS(meta["crs"]).to_epsg() == 32632
@@ -244,3 +244,26 @@ def test_check_vectors_bad_input(made, tmp_path):
     assert r.exit_code == 2 and "bridges" in r.output and not js.exists()
     r = CliRunner().invoke(main, ["check-vectors", str(out), "--reference", str(tmp_path / "none.gpkg")])
     assert r.exit_code == 2 and "none.gpkg" in r.output
+
+
+def test_old_option_names_still_work_hidden(made, tmp_path):
+    """--cell/--min-area/--simplify/--spot-spacing/--contour-interval (vectors) and --match/--buffer
+    (check-vectors) were renamed with their units; the old names keep working, hidden from --help."""
+    d, cloud, out = made
+    old = tmp_path / "old.gpkg"
+    r = CliRunner().invoke(main, ["vectors", str(cloud), str(old), "--spot-spacing", "40", "--cell", "1",
+                                  "--min-area", "50", "--simplify", "0.5"])
+    assert r.exit_code == 0, r.output
+    assert "--spot-spacing is deprecated, use --spot-spacing-m" in r.output
+    for name in ("buildings", "roads", "spot_heights"):
+        assert len(_layer(old, name)[1]) == len(_layer(out, name)[1])
+    r = CliRunner().invoke(main, ["vectors", "--help"])
+    assert "--spot-spacing-m" in r.output and "--spot-spacing " not in r.output and "--cell " not in r.output
+    both = tmp_path / "both.gpkg"
+    r = CliRunner().invoke(main, ["vectors", str(cloud), str(both), "--cell", "1", "--cell-m", "2"])
+    assert r.exit_code == 2 and "--cell-m" in r.output and not both.exists()
+    ref = _reference(tmp_path / "ref.gpkg")
+    r = CliRunner().invoke(main, ["check-vectors", str(out), "--reference", str(ref), "--match", "3", "--buffer", "2",
+                                  "--json", str(tmp_path / "c.json")])
+    assert r.exit_code == 0, r.output
+    assert json.loads((tmp_path / "c.json").read_text())["layers"]["buildings"]["n_matched_corners"] == 8

@@ -97,7 +97,7 @@ def test_the_command_line_and_project_toml_refuse_the_same_values(tmp_path):
     assert r.exit_code == 2 and "0.2" in r.stderr and "--min-edge-m" in r.stderr
     r = CliRunner().invoke(lidarctl_cli, ["corners", str(tmp_path / "x.las"), str(tmp_path), "--roof", "pointy"])
     assert r.exit_code == 2 and "'pointy' is not one of 'flat', 'any'" in r.stderr
-    assert set(STAGE_SECTIONS) == {"strips", "classify", "rasters", "corners", "match", "adjust", "control", "rectify", "mosaic"}
+    assert set(STAGE_SECTIONS) == {"strips", "classify", "rasters", "corners", "vectors", "match", "adjust", "control", "rectify", "mosaic"}
 
 
 @pytest.mark.parametrize("preset", ["tiny", "demo", "dmc"])

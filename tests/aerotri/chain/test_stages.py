@@ -215,3 +215,31 @@ def test_strip_stage_skips_a_single_strip_and_adjusts_when_asked(tiny_project, t
     (row,), pairs = strip_rows(project, load_tolerances())
     assert row["value"] == r["rms_after_m"] and f"before: RMS {r['rms_before_m']:.3f} m" in row["note"]
     assert len(pairs) == 3
+
+
+def test_optional_vectors_stage_checks_the_line_map_for_the_report(by_hand, tmp_path):
+    """[vectors] enabled: a stage after the corners writes lidar_out/vectors.gpkg from the classified strips
+    and checks it against the simulator's true outlines (truth/buildings.geojson); the report gets the
+    line-map row. Off by default."""
+    from aerotri.chain.options import read_options
+    from aerotri.chain.stages import Chain, chain_stages
+    from aerotri.core.project import Project
+    from aerotri.qa.report import write_qa_report
+
+    assert "vectors" not in [s.name for s in chain_stages(by_hand[0])]
+    p = tmp_path / "p"
+    shutil.copytree(by_hand[0], p, ignore=shutil.ignore_patterns("images", "ortho"))
+    (p / "project.toml").write_text((p / "project.toml").read_text() + "\n[vectors]\nenabled = true\n")
+    names = [s.name for s in chain_stages(p)]
+    assert names.index("vectors") == names.index("corners") + 1
+    project = Project.open(p)
+    out = Chain(project, read_options(project)).run_vectors(p)
+    assert out["buildings"] > 10 and project.vectors_path.is_file()
+    check = json.loads(project.vectors_check_path.read_text())
+    b = check["layers"]["buildings"]
+    assert b["n_matched_corners"] > 20 and b["rms_xy_corner_m"] < 1.0   # LiDAR at ~1.5 m spacing
+    assert check["reference"].endswith("work/vectors_reference.gpkg")   # truth/buildings.geojson roof outlines, CRS
+    rep = write_qa_report(p)
+    row = next(r for r in rep["checks"] if r["section"] == "Line map (DLG)")
+    assert row["value"] == round(b["rms_xy_corner_m"], 4) and row["limit"] == rep["tolerances"]["feature_rms_xy_m"]
+    assert row["verdict"] == ("pass" if row["value"] <= row["limit"] else "fail")

@@ -125,3 +125,48 @@ def test_layout_targets_row_names_the_empty_ones(tmp_path):
     row = by["layout targets with a control point"]
     assert row["value"] == "2 of 3" and row["verdict"] is None
     assert row["note"] == f"1 filled by fallbacks; height target at 452392 3408498: {empty}"
+
+
+def _dlg(path, shift_m):
+    """A one-layer line map: two rectangular buildings (the reference's moved by ``shift_m`` east)."""
+    import numpy as np
+    import pyproj
+    import shapely
+    from pyogrio.raw import write
+
+    geoms = [shapely.box(500000 + shift_m, 4000000, 500030 + shift_m, 4000020),
+             shapely.box(500060 + shift_m, 4000050, 500080 + shift_m, 4000090)]
+    write(path, np.array(shapely.to_wkb(np.array(geoms, dtype=object)), dtype=object), field_data=[np.arange(2)],
+          fields=["id"], geometry_type="Polygon", crs=pyproj.CRS("EPSG:32649").to_wkt(), driver="GPKG", layer="buildings")
+    return path
+
+
+def test_line_map_row_from_the_check_vectors_result(tmp_path):
+    """The "Line map (DLG) plan accuracy" row: the building corners' plan RMS of a check-vectors run, judged
+    against the report's own tolerance for well-defined features; from lidar_out/vectors_check.json (the
+    chain's [vectors] stage) or [vectors] check_json; absent without either."""
+    import pytest
+
+    from aerotri.core.errors import InputError
+    from lidarctl.vector_check import check_files
+
+    (tmp_path / "p").mkdir()
+    p = _project(tmp_path / "p", [0.1, 0.1, 0.5], 0.18)
+    name = "Line map (DLG) plan accuracy: building corners, plan RMS"
+    assert name not in {r["quantity"] for r in write_qa_report(p)["checks"]}
+    prod, ref = _dlg(tmp_path / "dlg.gpkg", 0.0), _dlg(tmp_path / "ref.gpkg", 0.3)
+    (p / "lidar_out").mkdir()
+    check_files(prod, ref, json_path=p / "lidar_out" / "vectors_check.json")
+    row = {r["quantity"]: r for r in write_qa_report(p)["checks"]}[name]
+    assert row["value"] == pytest.approx(0.3, abs=1e-3) and row["limit"] == 0.5 and row["verdict"] == "pass"
+    assert "8 corners" in row["note"] and "ref.gpkg" in row["note"]
+    # 1:2000: 0.20 m for well-defined features, whatever scale the check was made with (its default 1:10000)
+    row = {r["quantity"]: r for r in write_qa_report(p, scale="1:2000")["checks"]}[name]
+    assert row["limit"] == 0.2 and row["verdict"] == "fail"
+    # a check made elsewhere, named in project.toml
+    (p / "lidar_out" / "vectors_check.json").rename(p / "dlg_check.json")
+    (p / "project.toml").write_text(PROJECT + '[vectors]\ncheck_json = "dlg_check.json"\n')
+    assert {r["quantity"]: r for r in write_qa_report(p)["checks"]}[name]["verdict"] == "pass"
+    (p / "dlg_check.json").unlink()
+    with pytest.raises(InputError, match="dlg_check.json"):
+        write_qa_report(p)
