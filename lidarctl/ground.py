@@ -438,27 +438,30 @@ def morphological_ground(x, y, z, params: MorphParams | None = None, return_dem:
 
 
 @numba.njit(cache=True)
-def _plane_residuals(px, py, pz, nb, dist):
-    """Per point: its height above the weighted (1/d^2) least-squares plane through its neighbours
-    ``nb`` (itself and missing neighbours, index >= n, skipped), and the lowest height above the planes
-    through the neighbours of each of four half-planes (x >= 0, y >= 0, x <= 0, y <= 0 about the
-    point). NaN (full) / inf (half-planes) where fewer than 3 neighbours or a degenerate layout."""
-    n, k = nb.shape
-    full = np.full(n, np.nan)
-    side = np.full(n, np.inf)
-    for i in range(n):
+def _plane_residuals(px, py, pz, query, nb, dist):
+    """Per query point: its height above the weighted (1/d^2) least-squares plane through its
+    neighbours ``nb`` (indices into px; itself and missing neighbours, index >= n, skipped), and the
+    lowest height above the planes through the neighbours in each of four half-planes (x >= 0, y >= 0,
+    x <= 0, y <= 0 about the point). NaN (full) / inf (half-planes) where fewer than 3 neighbours or a
+    degenerate layout."""
+    m, k = nb.shape
+    n = len(px)
+    full = np.full(m, np.nan)
+    side = np.full(m, np.inf)
+    for qi in range(m):
+        i = query[qi]
         for q in range(5):
             a11 = a12 = a13 = a22 = a23 = a33 = b1 = b2 = b3 = 0.0
             cnt = 0
             for jj in range(k):
-                j = nb[i, jj]
+                j = nb[qi, jj]
                 if j >= n or j == i:
                     continue
                 dx, dy = px[j] - px[i], py[j] - py[i]
                 if (q == 1 and dx < 0.0) or (q == 2 and dy < 0.0) or (q == 3 and dx > 0.0) or (q == 4 and dy > 0.0):
                     continue
                 dzj = pz[j] - pz[i]
-                w = 1.0 / max(dist[i, jj], 1e-3) ** 2
+                w = 1.0 / max(dist[qi, jj], 1e-3) ** 2
                 a11 += w * dx * dx
                 a12 += w * dx * dy
                 a13 += w * dx
@@ -478,9 +481,9 @@ def _plane_residuals(px, py, pz, nb, dist):
             # Cramer's rule for the plane's offset c at the point (dz = a dx + b dy + c)
             c = (a11 * (a22 * b3 - b2 * a23) - a12 * (a12 * b3 - b2 * a13) + b1 * (a12 * a23 - a22 * a13)) / det
             if q == 0:
-                full[i] = -c
+                full[qi] = -c
             else:
-                side[i] = min(side[i], -c)
+                side[qi] = min(side[qi], -c)
     return full, side
 
 
@@ -494,20 +497,24 @@ def surface_outliers(x, y, z, neighbours: int = 16, height_m: float = 0.5, break
     line -- the top edge of an embankment -- lies on the plane of its neighbours on the top side).
     ``iterations`` passes, each on the points kept so far (a bush's top first, then its lower points).
     """
-    keep = np.arange(len(x))
-    out = []
+    n = len(x)
+    is_out = np.zeros(n, bool)
+    check = np.arange(n)  # the points to test: all, then those whose neighbourhood lost a point
     for _ in range(iterations):
-        if len(keep) <= neighbours:
+        keep = np.flatnonzero(~is_out)
+        if len(keep) <= neighbours or len(check) == 0:
             break
-        xy = np.column_stack([x[keep], y[keep]])
-        dist, nb = cKDTree(xy).query(xy, k=neighbours + 1)
-        full, side = _plane_residuals(x[keep], y[keep], z[keep], nb, dist)
+        dist, nb = cKDTree(np.column_stack([x[keep], y[keep]])).query(np.column_stack([x[check], y[check]]),
+                                                                      k=neighbours + 1)
+        nb = np.where(nb < len(keep), keep[np.minimum(nb, len(keep) - 1)], n)  # indices into x (n: none)
+        full, side = _plane_residuals(x, y, z, check, nb, dist)
         bad = (full > height_m) & (side > breakline_m)
         if not bad.any():
             break
-        out.append(keep[bad])
-        keep = keep[~bad]
-    return np.sort(np.concatenate(out)) if out else np.zeros(0, np.int64)
+        is_out[check[bad]] = True
+        lost = np.append(is_out, False)[nb].any(axis=1)
+        check = check[lost & ~bad]
+    return np.flatnonzero(is_out)
 
 
 def refine_tolerance_m(residuals_m, noise_factor: float, min_m: float, max_m: float) -> float:
