@@ -22,7 +22,9 @@ def test_isprs_mean_total_error_one_parameter_set(shared_data):
         # No true bare-earth point may be thrown away as noise.
         assert not np.any((code > 0) & (c.classification == 2)), s
         totals.append(e["total_error_pct"])
-    assert np.mean(totals) <= 4.0, totals
+    # 3.23 % with the local-surface test and the TIN angle criterion (issue 21; 3.82 % before;
+    # results/lidar_isprs_loo.json: 3.52 % leave-one-sample-out)
+    assert np.mean(totals) <= 3.3, totals
 
 
 @pytest.mark.realdata
