@@ -431,6 +431,7 @@ def _reported_corners(raw: list[dict], min_edge_m: float, spacing: float) -> lis
             "support_pts": int(c["n_in"] + c["n_out"]), "score": c["score"], "usable": int(c["usable"]),
             # not in the CSV; in the GeoJSON for review: why a corner is (not) usable
             "edge1_m": c["l_in"], "edge2_m": c["l_out"], "strip_margin_m": c["strip_margin_m"],
+            "open_edge": bool(c["open_edge"]),
             **{f"score_{k}": v for k, v in c["factors"].items()},
         })
     return corners
