@@ -54,6 +54,7 @@ from lidarctl.roof_outline import (
     edge_observations,
     fit_edges,
     regularise_rings,
+    reweight_observations,
     trace_rings,
 )
 from lidarctl.roof_segments import cluster_roofs, point_spacing_m, segment_planes
@@ -310,6 +311,7 @@ def _one_roof(pts: np.ndarray, r: int, spacing: float) -> tuple[list[dict], dict
     face_xy = pts[on_face, :2] if on_face.sum() >= 10 else pts[:, :2]
     obs = [edge_observations(edges, face_xy, s_roof) for edges in edge_rings]
     fit = fit_edges(theta, edge_rings, obs)
+    fit = fit_edges(theta, edge_rings, reweight_observations(edge_rings, obs, fit.sigma0))
     roof_tree = cKDTree(pts[:, :2])
     raw, outline_rings = [], []
     for edges in edge_rings:
@@ -399,10 +401,10 @@ def _score_corners(raw: list[dict], rc: _RoofClusters, *, min_edge_m: float, roo
         s_h = float(np.sqrt(0.5 * (sx**2 + sy**2)))
         dev = min(abs(c["angle_deg"] - 90.0), abs(c["angle_deg"] - 270.0))
         f_angle = float(np.clip(1.0 - dev / 10.0, 0.0, 1.0))
-        f_len = float(np.clip(min(c["l_in"], c["l_out"]) / (2.0 * min_edge_m), 0.0, 1.0))
+        f_len = float(np.clip(min(c["l_in"], c["l_out"]) / min_edge_m, 0.0, 1.0))
         f_support = float(np.clip(min(c["n_in"], c["n_out"]) / 10.0, 0.0, 1.0))
         f_prec = 1.0 / (1.0 + (s_h / 0.15) ** 2)
-        f_flat = 1.0 if c["roof"] == "flat" else 0.8
+        f_flat = 1.0  # pitched: the plan position is an eave corner's as well; its height sigma holds the slope
         f_open = float(openness[k])
         f_strip = 1.0 if margin[k] >= 10.0 else 0.3
         score = f_angle * f_len * f_support * f_prec * f_flat * f_open * f_strip

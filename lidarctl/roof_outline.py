@@ -23,7 +23,8 @@ Method
    (scan lines parallel to the edge). Fitting the outermost points alone would put the edge about half a
    spacing inside the roof; the points outside the roof are not used (under eaves and next to walls they
    are occluded or lie under the roof).
-4. ``fit_edges``: one Gauss-Markov adjustment per roof: a shared direction theta for all snapped edges
+4. ``fit_edges``: one Gauss-Markov adjustment per roof, twice: ``reweight_observations`` in between gives each
+   edge its own variance factor and drops its outlying bins (a ragged edge does not degrade the clean ones). Parameters: a shared direction theta for all snapped edges
    (parallel and perpendicular by construction), their offsets d, and phi, d of the free edges; weak
    pseudo-observations keep edges without enough boundary points determined (with large sigma).
 5. ``corners_from_edges``: corners are intersections of consecutive fitted edges; their covariance is the
@@ -304,7 +305,7 @@ def edge_observations(
     Bins are one spacing long; ``corner_margin_m`` (default 1.5 spacings, at least 1 m) is left out at
     both ends where the other edge and the rounded trace interfere.
     """
-    margin = corner_margin_m if corner_margin_m is not None else max(1.0, 1.5 * spacing_m)
+    margin = corner_margin_m if corner_margin_m is not None else 1.5 * spacing_m
     band = 2.0 * spacing_m + 1.0
     out = []
     for i, e in enumerate(edges):
@@ -471,6 +472,38 @@ def fit_edges(
             e.d = float(p_map[e.param_d])
     cov_map = t @ cov @ t.T
     return EdgeFit(float(p[0]), p_map, cov_map, sigma0, dof)
+
+
+def reweight_observations(
+    rings: list[list[Edge]], observations: list[list[EdgeObservations]], sigma0: float,
+    k_reject: float = 3.0, prior_dof: float = 3.0,
+) -> list[list[EdgeObservations]]:
+    """Per-edge precision after a first ``fit_edges`` (the edges hold the fitted lines).
+
+    Real eaves are not equally clean: gutters, dormers, a branch over one edge. One variance factor per
+    roof (the fit's sigma0) lets a ragged edge inflate the sigmas of the clean ones. Per edge: bins whose
+    normalised residual exceeds ``k_reject`` times the edge's robust scale (1.4826 MAD, at least 1) are
+    dropped, and the sigmas of the rest are scaled by the edge's own variance factor, pooled with
+    ``prior_dof`` degrees of freedom of the roof's ``sigma0`` (a few bins alone do not know their scatter);
+    never below the a priori sigma. Refit with the returned observations.
+    """
+    out = []
+    for edges, obs in zip(rings, observations):
+        ring_out = []
+        for e, o in zip(edges, obs):
+            if len(o.xy) < 3:
+                ring_out.append(o)
+                continue
+            v = (o.xy @ e.normal() - e.d) / o.sigma_m
+            scale = max(1.0, 1.4826 * float(np.median(np.abs(v))))
+            keep = np.abs(v) <= k_reject * scale
+            if keep.sum() < 2:
+                keep[:] = True
+            s2 = (float(np.sum(v[keep] ** 2)) + prior_dof * sigma0**2) / (keep.sum() - 1 + prior_dof)
+            e.n_obs = int(keep.sum())
+            ring_out.append(dataclasses.replace(o, xy=o.xy[keep], sigma_m=o.sigma_m[keep] * np.sqrt(max(s2, 1.0))))
+        out.append(ring_out)
+    return out
 
 
 # ---------------------------------------------------------------------------------------------- corners
