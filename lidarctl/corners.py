@@ -188,9 +188,10 @@ class _RoofClusters:
 
 
 def _roof_clusters(x, y, z, classification, point_source_id, spacing_m: float | None = None,
-                   margin_anchor=None) -> _RoofClusters:
-    """Drop noise, refuse a cloud without building points, cluster the building points into roofs.
-    ``spacing_m``: the building points' spacing of the whole cloud when this is a tile of it."""
+                   margin_anchor=None, min_roof_m2: float = 25.0) -> _RoofClusters:
+    """Drop noise, refuse a cloud without building points, cluster the building points into roofs of at
+    least ``min_roof_m2`` (and 30 points). ``spacing_m``: the building points' spacing of the whole cloud
+    when this is a tile of it."""
     xyz = np.column_stack([x, y, z]).astype(float)
     cls = np.asarray(classification)
     keep = ~np.isin(cls, NOISE)
@@ -214,7 +215,7 @@ def _roof_clusters(x, y, z, classification, point_source_id, spacing_m: float | 
     else:
         spacing = spacing_m
     roof_of_bldg = cluster_roofs(xyz[bldg_idx], link_radius_m=2.0 * spacing, max_step_m=1.0,
-                                 min_points=max(30, int(25.0 / spacing**2)))
+                                 min_points=max(30, int(min_roof_m2 / spacing**2)))
     roof_label = np.full(len(xyz), -1, np.int64)
     roof_label[bldg_idx] = roof_of_bldg
     n_roofs = int(roof_of_bldg.max()) + 1 if (roof_of_bldg >= 0).any() else 0
@@ -467,7 +468,7 @@ def find_roof_corners(
     if roof not in ("flat", "any"):
         raise InputError(f"roof must be 'flat' or 'any', not {roof!r}")
     t_start = time.perf_counter()
-    rc = _roof_clusters(x, y, z, classification, point_source_id)
+    rc = _roof_clusters(x, y, z, classification, point_source_id, min_roof_m2=min_roof_m2(min_edge_m))
     raw, outlines, faces = [], [], []  # raw: per corner xy, cov, z, sz, roof type, building, bearings, angle, ...
     for r in track(range(rc.n_roofs), "roof corners", "roofs"):
         roof_raw, outline, roof_faces = _one_roof(rc.xyz[rc.roof_label == r], r, rc.spacing_m)
@@ -483,13 +484,19 @@ def find_roof_corners(
                    sigma_strip_xy_m=sigma_strip_xy_m, sigma_strip_z_m=sigma_strip_z_m)
 
 
+def min_roof_m2(min_edge_m: float) -> float:
+    """Smallest roof searched for corners (m^2): 25 m^2, less when ``min_edge_m`` is below 5 m (a roof of
+    min_edge_m x min_edge_m has a corner between two such edges: the corners of small annexes)."""
+    return min(25.0, float(min_edge_m) ** 2)
+
+
 def _finish(raw, outlines, faces, *, n_points, n_building_points, spacing_m, n_roofs, t_start, min_edge_m, roof,
             sigma_strip_xy_m, sigma_strip_z_m) -> dict:
     """The reported corners and the stats of the scored corners of all roofs (in roof order)."""
     if not raw:
         raise InputError(
             f"no roof outline could be traced from {n_building_points} building points ({n_roofs} roofs of "
-            f"at least 25 m^2; point spacing {spacing_m:.2f} m)"
+            f"at least {min_roof_m2(min_edge_m):g} m^2; point spacing {spacing_m:.2f} m)"
         )
     corners = _reported_corners(raw, min_edge_m, spacing_m)
     n_usable = sum(c["usable"] for c in corners)
@@ -629,14 +636,15 @@ def _global_spacing_m(tc: _TiledCloud, chunk_points: int = las_io.CHUNK_POINTS) 
     return spacing(max(2.0, 2.0 * s))
 
 
-def _tile_clusters(tc: _TiledCloud, tid: int, spacing_m: float):
-    """(points, _RoofClusters) of one tile with its buffer, or None without building points."""
+def _tile_clusters(tc: _TiledCloud, tid: int, spacing_m: float, min_roof: float = 25.0):
+    """(points, _RoofClusters) of one tile with its buffer, or None without building points; roofs of at
+    least ``min_roof`` m^2."""
     rec = _tile_points(tc, tid)
     if not (rec["cls"] == BUILDING).any():
         return rec, None
     sid = (rec["file"].astype(np.int64) + 1) if tc.file_is_strip else rec["sid"].astype(np.int64)
     rc = _roof_clusters(rec["x"], rec["y"], rec["z"], rec["cls"], sid, spacing_m=spacing_m,
-                        margin_anchor=tc.margin_anchor)
+                        margin_anchor=tc.margin_anchor, min_roof_m2=min_roof)
     return rec, rc
 
 
@@ -695,7 +703,7 @@ def find_roof_corners_tiled(paths, crs=None, *, tile_m: float = DEFAULT_TILE_M, 
         fig = None
         tiles = [int(t) for t in np.flatnonzero(tc.used)]
         for tid in track(tiles, "roof corners", "tiles"):
-            rec, rc = _tile_clusters(tc, tid, spacing)
+            rec, rc = _tile_clusters(tc, tid, spacing, min_roof_m2(min_edge_m))
             if figure_cells:
                 fig = _figure_tile(fig, rec, tc, tid, spacing, figure_cells)
             if rc is None or rc.n_roofs == 0:
