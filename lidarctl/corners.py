@@ -14,7 +14,8 @@ Score for use as control (0..1, product of factors, each 1 when ideal):
   well-supported edges (fewest boundary observations / 10), horizontal precision (1 / (1 + (s/0.15 m)^2)),
   flat roof (1 for pitched roofs too: an eave corner's plan position is as good, and its height sigma
   sz_m holds the slope times the plan sigma; ``score_flat`` stays in the records), open to the sky (the
-  fraction of ``VIEW_SECTORS`` azimuth sectors from which the corner is seen at ``VIEW_OFF_NADIR_DEG`` off nadir, past trees and other roofs: ``view_openness``),
+  fraction of ``VIEW_SECTORS`` azimuth sectors from which the corner is seen at ``VIEW_OFF_NADIR_DEG`` off
+  nadir, past trees and other roofs: ``view_openness``),
   not at the edge of a strip (the corner at least 10 m inside a strip's footprint, else 0.3).
 A corner is ``usable`` as control when its score >= ``USABLE_SCORE``, its angle is within 5 deg of a right
 angle, both edges are at least ``min_edge_m`` long and end at corners of the outline (not where the edge
