@@ -10,10 +10,12 @@ Reported (corners.csv): corners whose two edges are at least ``min_edge_m`` long
 sigma is below max(0.3 m, 0.4 spacing). The outlines in corners.geojson keep every traced corner.
 
 Score for use as control (0..1, product of factors, each 1 when ideal):
-  right angle (interior angle 90 or 270 deg within 10 deg), long edges (shorter edge / 2 min_edge_m),
+  right angle (interior angle 90 or 270 deg within 10 deg), long edges (shorter edge / min_edge_m),
   well-supported edges (fewest boundary observations / 10), horizontal precision (1 / (1 + (s/0.15 m)^2)),
-  flat roof (pitched: 0.8), open to the sky (the fraction of ``VIEW_SECTORS`` azimuth sectors from which
-  the corner is seen at ``VIEW_OFF_NADIR_DEG`` off nadir, past trees and other roofs: ``view_openness``),
+  flat roof (1 for pitched roofs too: an eave corner's plan position is as good, and its height sigma
+  sz_m holds the slope times the plan sigma; ``score_flat`` stays in the records), open to the sky (the
+  fraction of ``VIEW_SECTORS`` azimuth sectors from which the corner is seen at ``VIEW_OFF_NADIR_DEG`` off
+  nadir, past trees and other roofs: ``view_openness``),
   not at the edge of a strip (the corner at least 10 m inside a strip's footprint, else 0.3).
 A corner is ``usable`` as control when its score >= ``USABLE_SCORE``, its angle is within 5 deg of a right
 angle, both edges are at least ``min_edge_m`` long and end at corners of the outline (not where the edge
@@ -54,6 +56,7 @@ from lidarctl.roof_outline import (
     edge_observations,
     fit_edges,
     regularise_rings,
+    reweight_observations,
     trace_rings,
 )
 from lidarctl.roof_segments import cluster_roofs, point_spacing_m, segment_planes
@@ -187,9 +190,10 @@ class _RoofClusters:
 
 
 def _roof_clusters(x, y, z, classification, point_source_id, spacing_m: float | None = None,
-                   margin_anchor=None) -> _RoofClusters:
-    """Drop noise, refuse a cloud without building points, cluster the building points into roofs.
-    ``spacing_m``: the building points' spacing of the whole cloud when this is a tile of it."""
+                   margin_anchor=None, min_roof_m2: float = 25.0) -> _RoofClusters:
+    """Drop noise, refuse a cloud without building points, cluster the building points into roofs of at
+    least ``min_roof_m2`` (and 30 points). ``spacing_m``: the building points' spacing of the whole cloud
+    when this is a tile of it."""
     xyz = np.column_stack([x, y, z]).astype(float)
     cls = np.asarray(classification)
     keep = ~np.isin(cls, NOISE)
@@ -213,7 +217,7 @@ def _roof_clusters(x, y, z, classification, point_source_id, spacing_m: float | 
     else:
         spacing = spacing_m
     roof_of_bldg = cluster_roofs(xyz[bldg_idx], link_radius_m=2.0 * spacing, max_step_m=1.0,
-                                 min_points=max(30, int(25.0 / spacing**2)))
+                                 min_points=max(30, int(min_roof_m2 / spacing**2)))
     roof_label = np.full(len(xyz), -1, np.int64)
     roof_label[bldg_idx] = roof_of_bldg
     n_roofs = int(roof_of_bldg.max()) + 1 if (roof_of_bldg >= 0).any() else 0
@@ -310,6 +314,7 @@ def _one_roof(pts: np.ndarray, r: int, spacing: float) -> tuple[list[dict], dict
     face_xy = pts[on_face, :2] if on_face.sum() >= 10 else pts[:, :2]
     obs = [edge_observations(edges, face_xy, s_roof) for edges in edge_rings]
     fit = fit_edges(theta, edge_rings, obs)
+    fit = fit_edges(theta, edge_rings, reweight_observations(edge_rings, obs, fit.sigma0))
     roof_tree = cKDTree(pts[:, :2])
     raw, outline_rings = [], []
     for edges in edge_rings:
@@ -399,10 +404,10 @@ def _score_corners(raw: list[dict], rc: _RoofClusters, *, min_edge_m: float, roo
         s_h = float(np.sqrt(0.5 * (sx**2 + sy**2)))
         dev = min(abs(c["angle_deg"] - 90.0), abs(c["angle_deg"] - 270.0))
         f_angle = float(np.clip(1.0 - dev / 10.0, 0.0, 1.0))
-        f_len = float(np.clip(min(c["l_in"], c["l_out"]) / (2.0 * min_edge_m), 0.0, 1.0))
+        f_len = float(np.clip(min(c["l_in"], c["l_out"]) / min_edge_m, 0.0, 1.0))
         f_support = float(np.clip(min(c["n_in"], c["n_out"]) / 10.0, 0.0, 1.0))
         f_prec = 1.0 / (1.0 + (s_h / 0.15) ** 2)
-        f_flat = 1.0 if c["roof"] == "flat" else 0.8
+        f_flat = 1.0  # pitched: the plan position is an eave corner's as well; its height sigma holds the slope
         f_open = float(openness[k])
         f_strip = 1.0 if margin[k] >= 10.0 else 0.3
         score = f_angle * f_len * f_support * f_prec * f_flat * f_open * f_strip
@@ -431,6 +436,7 @@ def _reported_corners(raw: list[dict], min_edge_m: float, spacing: float) -> lis
             "support_pts": int(c["n_in"] + c["n_out"]), "score": c["score"], "usable": int(c["usable"]),
             # not in the CSV; in the GeoJSON for review: why a corner is (not) usable
             "edge1_m": c["l_in"], "edge2_m": c["l_out"], "strip_margin_m": c["strip_margin_m"],
+            "open_edge": bool(c["open_edge"]),
             **{f"score_{k}": v for k, v in c["factors"].items()},
         })
     return corners
@@ -464,7 +470,7 @@ def find_roof_corners(
     if roof not in ("flat", "any"):
         raise InputError(f"roof must be 'flat' or 'any', not {roof!r}")
     t_start = time.perf_counter()
-    rc = _roof_clusters(x, y, z, classification, point_source_id)
+    rc = _roof_clusters(x, y, z, classification, point_source_id, min_roof_m2=min_roof_m2(min_edge_m))
     raw, outlines, faces = [], [], []  # raw: per corner xy, cov, z, sz, roof type, building, bearings, angle, ...
     for r in track(range(rc.n_roofs), "roof corners", "roofs"):
         roof_raw, outline, roof_faces = _one_roof(rc.xyz[rc.roof_label == r], r, rc.spacing_m)
@@ -480,13 +486,19 @@ def find_roof_corners(
                    sigma_strip_xy_m=sigma_strip_xy_m, sigma_strip_z_m=sigma_strip_z_m)
 
 
+def min_roof_m2(min_edge_m: float) -> float:
+    """Smallest roof searched for corners (m^2): 25 m^2, less when ``min_edge_m`` is below 5 m (a roof of
+    min_edge_m x min_edge_m has a corner between two such edges: the corners of small annexes)."""
+    return min(25.0, float(min_edge_m) ** 2)
+
+
 def _finish(raw, outlines, faces, *, n_points, n_building_points, spacing_m, n_roofs, t_start, min_edge_m, roof,
             sigma_strip_xy_m, sigma_strip_z_m) -> dict:
     """The reported corners and the stats of the scored corners of all roofs (in roof order)."""
     if not raw:
         raise InputError(
             f"no roof outline could be traced from {n_building_points} building points ({n_roofs} roofs of "
-            f"at least 25 m^2; point spacing {spacing_m:.2f} m)"
+            f"at least {min_roof_m2(min_edge_m):g} m^2; point spacing {spacing_m:.2f} m)"
         )
     corners = _reported_corners(raw, min_edge_m, spacing_m)
     n_usable = sum(c["usable"] for c in corners)
@@ -626,14 +638,15 @@ def _global_spacing_m(tc: _TiledCloud, chunk_points: int = las_io.CHUNK_POINTS) 
     return spacing(max(2.0, 2.0 * s))
 
 
-def _tile_clusters(tc: _TiledCloud, tid: int, spacing_m: float):
-    """(points, _RoofClusters) of one tile with its buffer, or None without building points."""
+def _tile_clusters(tc: _TiledCloud, tid: int, spacing_m: float, min_roof: float = 25.0):
+    """(points, _RoofClusters) of one tile with its buffer, or None without building points; roofs of at
+    least ``min_roof`` m^2."""
     rec = _tile_points(tc, tid)
     if not (rec["cls"] == BUILDING).any():
         return rec, None
     sid = (rec["file"].astype(np.int64) + 1) if tc.file_is_strip else rec["sid"].astype(np.int64)
     rc = _roof_clusters(rec["x"], rec["y"], rec["z"], rec["cls"], sid, spacing_m=spacing_m,
-                        margin_anchor=tc.margin_anchor)
+                        margin_anchor=tc.margin_anchor, min_roof_m2=min_roof)
     return rec, rc
 
 
@@ -692,7 +705,7 @@ def find_roof_corners_tiled(paths, crs=None, *, tile_m: float = DEFAULT_TILE_M, 
         fig = None
         tiles = [int(t) for t in np.flatnonzero(tc.used)]
         for tid in track(tiles, "roof corners", "tiles"):
-            rec, rc = _tile_clusters(tc, tid, spacing)
+            rec, rc = _tile_clusters(tc, tid, spacing, min_roof_m2(min_edge_m))
             if figure_cells:
                 fig = _figure_tile(fig, rec, tc, tid, spacing, figure_cells)
             if rc is None or rc.n_roofs == 0:

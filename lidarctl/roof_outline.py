@@ -23,7 +23,8 @@ Method
    (scan lines parallel to the edge). Fitting the outermost points alone would put the edge about half a
    spacing inside the roof; the points outside the roof are not used (under eaves and next to walls they
    are occluded or lie under the roof).
-4. ``fit_edges``: one Gauss-Markov adjustment per roof: a shared direction theta for all snapped edges
+4. ``fit_edges``: one Gauss-Markov adjustment per roof, twice: ``reweight_observations`` in between gives each
+   edge its own variance factor and drops its outlying bins (a ragged edge does not degrade the clean ones). Parameters: a shared direction theta for all snapped edges
    (parallel and perpendicular by construction), their offsets d, and phi, d of the free edges; weak
    pseudo-observations keep edges without enough boundary points determined (with large sigma).
 5. ``corners_from_edges``: corners are intersections of consecutive fitted edges; their covariance is the
@@ -86,7 +87,8 @@ def trace_rings(
 # ----------------------------------------------------------------------------------------- regularising
 @dataclasses.dataclass
 class Edge:
-    """One edge line. ``q`` in 0..3: snapped, outward normal phi = theta + q*90 deg; q = -1: free edge."""
+    """One edge line. ``q`` in 0..3: snapped, outward normal phi = theta_fam + q*90 deg (``fam``: 0 the roof's
+    dominant direction, 1 its second direction family); q = -1: free edge."""
 
     ring: int
     q: int
@@ -98,6 +100,7 @@ class Edge:
     depth_m: float = float("nan")  # mean depth of the outermost roof point inside the edge
     p_start: np.ndarray | None = None  # rough trace vertices the edge came from (for inserting steps)
     p_end: np.ndarray | None = None
+    fam: int = 0  # direction family of a snapped edge (0: theta, 1: the second family)
 
     def normal(self) -> np.ndarray:
         return np.array([np.cos(self.phi), np.sin(self.phi)])
@@ -119,6 +122,33 @@ def dominant_direction(rings: list[np.ndarray]) -> float:
     return float(np.mod(np.arctan2(s, c) / 4.0, np.pi / 2))
 
 
+def _dev_deg(a: np.ndarray, theta: float) -> np.ndarray:
+    """Angle (deg) between directions ``a`` (rad) and the nearest of theta + q 90 deg."""
+    k = (a - theta) / (np.pi / 2)
+    return np.abs(k - np.round(k)) * 90.0
+
+
+def second_direction(rings: list[np.ndarray], theta: float, snap_tol_deg: float, min_edges: int = 4,
+                     min_edge_m: float = 1.0) -> float | None:
+    """A second direction family of a roof, or None: a terraced block whose houses are staggered along a
+    street that runs at an angle to the houses, or two wings at an angle, has right-angled corners in two
+    orientations. The edges (of at least ``min_edge_m``) more than ``snap_tol_deg`` off theta form a family
+    when at least ``min_edges`` of them (two steps) lie within ``snap_tol_deg`` of their length-weighted mean
+    direction modulo 90 deg."""
+    segs = [np.roll(r, -1, axis=0) - r for r in rings]
+    e = np.concatenate(segs) if segs else np.zeros((0, 2))
+    length = np.hypot(e[:, 0], e[:, 1])
+    a = np.arctan2(e[:, 1], e[:, 0])
+    off = (_dev_deg(a, theta) > snap_tol_deg) & (length >= min_edge_m)
+    if off.sum() < min_edges:
+        return None
+    w = length[off]
+    t2 = float(np.mod(np.arctan2(np.sum(w * np.sin(4 * a[off])), np.sum(w * np.cos(4 * a[off]))) / 4.0, np.pi / 2))
+    if (_dev_deg(a[off], t2) <= snap_tol_deg).sum() < min_edges or _dev_deg(np.array([t2]), theta)[0] <= snap_tol_deg:
+        return None
+    return t2
+
+
 def _intersect(e1: Edge, e2: Edge) -> np.ndarray | None:
     a = np.array([[np.cos(e1.phi), np.sin(e1.phi)], [np.cos(e2.phi), np.sin(e2.phi)]])
     if abs(np.linalg.det(a)) < np.sin(np.radians(10)):
@@ -127,19 +157,20 @@ def _intersect(e1: Edge, e2: Edge) -> np.ndarray | None:
 
 
 def _edges_of_ring(
-    ring: np.ndarray, ring_id: int, theta: float, snap_tol_deg: float, min_free_edge_m: float
+    ring: np.ndarray, ring_id: int, thetas: list[float], snap_tol_deg: float, min_free_edge_m: float
 ) -> list[Edge]:
-    """Edges of a traced ring, snapped to theta + q 90 deg when close; short edges that do not snap
-    (corner rounding of the trace) are left out, so their neighbours meet directly."""
+    """Edges of a traced ring, snapped to the nearer family theta_f + q 90 deg when close; short edges that
+    do not snap (corner rounding of the trace) are left out, so their neighbours meet directly."""
     edges = []
     for p, p_next in zip(ring, np.roll(ring, -1, axis=0)):
         e = p_next - p
         if np.hypot(*e) < 1e-9:
             continue
         phi = np.arctan2(e[1], e[0]) - np.pi / 2  # outward normal, roof on the left
-        k = (phi - theta) / (np.pi / 2)
-        q = int(np.round(k)) % 4
-        dev_deg = abs(k - np.round(k)) * 90.0
+        devs = [float(_dev_deg(np.array([phi]), t)[0]) for t in thetas]
+        fam = int(np.argmin(devs))
+        theta, dev_deg = thetas[fam], devs[fam]
+        q = int(np.round((phi - theta) / (np.pi / 2))) % 4
         short = np.hypot(*e) < min_free_edge_m
         # short edges have poorly defined directions: a wider tolerance, and dropped when they still miss
         if dev_deg <= (2.0 * snap_tol_deg if short else snap_tol_deg):
@@ -147,9 +178,10 @@ def _edges_of_ring(
         elif short:
             continue
         else:
-            q = -1
+            q, fam = -1, 0
         n = np.array([np.cos(phi), np.sin(phi)])
-        edges.append(Edge(ring_id, q, float(phi), float(n @ (0.5 * (p + p_next))), p_start=p, p_end=p_next))
+        edges.append(Edge(ring_id, q, float(phi), float(n @ (0.5 * (p + p_next))), p_start=p, p_end=p_next,
+                          fam=fam))
     return edges
 
 
@@ -162,7 +194,7 @@ def _edge_length(edges: list[Edge], i: int) -> float:
 
 
 def _clean_ring(
-    edges: list[Edge], theta: float, merge_tol_m: float, min_edge_m: float, min_free_edge_m: float
+    edges: list[Edge], thetas: list[float], merge_tol_m: float, min_edge_m: float, min_free_edge_m: float
 ) -> list[Edge]:
     """Merge collinear neighbours, insert steps between parallel neighbours, drop short/negative edges."""
     for _ in range(4 * len(edges) + 10):
@@ -171,7 +203,7 @@ def _clean_ring(
         changed = False
         for i in range(len(edges)):
             a, b = edges[i], edges[(i + 1) % len(edges)]
-            if a.q >= 0 and a.q == b.q:
+            if a.q >= 0 and a.q == b.q and a.fam == b.fam:
                 if abs(a.d - b.d) < merge_tol_m:
                     la, lb = np.hypot(*(a.p_end - a.p_start)), np.hypot(*(b.p_end - b.p_start))
                     d = (la * a.d + lb * b.d) / max(la + lb, 1e-9)
@@ -181,13 +213,13 @@ def _clean_ring(
                     # a step between two parallel lines: it runs outward (normal = direction - 90 deg)
                     # when the second line lies outward of the first, inward otherwise
                     q = (a.q + (3 if b.d > a.d else 1)) % 4
-                    phi = theta + q * np.pi / 2
+                    phi = thetas[a.fam] + q * np.pi / 2
                     p = 0.5 * (a.p_end + b.p_start)
                     n = np.array([np.cos(phi), np.sin(phi)])
-                    edges.insert(i + 1, Edge(a.ring, q, float(phi), float(n @ p), p_start=p, p_end=p))
+                    edges.insert(i + 1, Edge(a.ring, q, float(phi), float(n @ p), p_start=p, p_end=p, fam=a.fam))
                 changed = True
                 break
-            if a.q >= 0 and b.q >= 0 and (a.q - b.q) % 2 == 0:
+            if a.q >= 0 and b.q >= 0 and a.fam == b.fam and (a.q - b.q) % 2 == 0:
                 # opposite normals on consecutive edges: a spike; drop the shorter
                 i_next = (i + 1) % len(edges)
                 del edges[i if _edge_length(edges, i) < _edge_length(edges, i_next) else i_next]
@@ -217,6 +249,11 @@ def regularise_rings(
 ) -> tuple[float, list[list[Edge]]]:
     """Dominant direction theta (rad) and the regularised edge list of every ring (cyclic order).
 
+    Edges within ``snap_tol_deg`` of theta + q 90 deg are snapped to it; a second direction family
+    (``second_direction``: staggered houses along a street at an angle, wings at an angle) snaps the edges
+    near it the same way (``Edge.fam`` 1), so its right angles are kept too instead of fitting each of its
+    edges on its own.
+
     Parallel neighbours closer than ``min_edge_m`` (default max(1.5 m, 2 spacings)) merge, farther ones
     get a step; free (not snapped) edges shorter than ``min_free_edge_m`` (default max(3 m, 5 spacings))
     are dropped: at the trace's resolution they are corner rounding, not building edges.
@@ -224,10 +261,12 @@ def regularise_rings(
     min_edge_m = max(1.5, 2.0 * spacing_m) if min_edge_m is None else min_edge_m
     min_free_edge_m = max(3.0, 5.0 * spacing_m) if min_free_edge_m is None else min_free_edge_m
     theta = dominant_direction(rings)
+    theta2 = second_direction(rings, theta, snap_tol_deg, min_edge_m=min_edge_m)
+    thetas = [theta] if theta2 is None else [theta, theta2]
     out = []
     for r, ring in enumerate(rings):
-        edges = _edges_of_ring(ring, r, theta, snap_tol_deg, min_free_edge_m)
-        edges = _clean_ring(edges, theta, min_edge_m, min_edge_m, min_free_edge_m)
+        edges = _edges_of_ring(ring, r, thetas, snap_tol_deg, min_free_edge_m)
+        edges = _clean_ring(edges, thetas, min_edge_m, min_edge_m, min_free_edge_m)
         if edges:
             out.append(edges)
     return theta, out
@@ -304,7 +343,7 @@ def edge_observations(
     Bins are one spacing long; ``corner_margin_m`` (default 1.5 spacings, at least 1 m) is left out at
     both ends where the other edge and the rounded trace interfere.
     """
-    margin = corner_margin_m if corner_margin_m is not None else max(1.0, 1.5 * spacing_m)
+    margin = corner_margin_m if corner_margin_m is not None else 1.5 * spacing_m
     band = 2.0 * spacing_m + 1.0
     out = []
     for i, e in enumerate(edges):
@@ -362,15 +401,19 @@ def fit_edges(
 ) -> EdgeFit:
     """Least-squares fit of all edges of one roof (Gauss-Newton, weighted by 1/sigma^2).
 
-    Parameters: theta (shared by snapped edges), d per edge, phi per free edge. The covariance is
+    Parameters: theta (shared by the snapped edges of family 0; a second theta for family 1, started from
+    its edges' direction), d per edge, phi per free edge. The covariance is
     ``max(sigma0, min_sigma0)^2 (J^T P J)^-1``: the a posteriori variance factor is used when the
     residuals are larger than their a priori sigmas, never to shrink them.
     """
     n_par = 1
+    theta2 = next((e.phi - e.q * np.pi / 2 for edges in rings for e in edges if e.q >= 0 and e.fam == 1), None)
+    if theta2 is not None:
+        n_par = 2  # the second family's direction
     for edges in rings:
         for e in edges:
             if e.q >= 0:
-                e.param_phi = 0
+                e.param_phi = 1 if (e.fam == 1 and theta2 is not None) else 0
             else:
                 e.param_phi = n_par
                 n_par += 1
@@ -378,6 +421,8 @@ def fit_edges(
             n_par += 1
     p = np.zeros(n_par)
     p[0] = theta
+    if theta2 is not None:
+        p[1] = theta2
     for edges in rings:
         for e in edges:
             if e.q < 0:
@@ -393,7 +438,7 @@ def fit_edges(
             p0[e.param_d] = p[e.param_d]
 
     def phi_of(e, p):
-        return p[0] + e.q * np.pi / 2 if e.q >= 0 else p[e.param_phi]
+        return p[e.param_phi] + e.q * np.pi / 2 if e.q >= 0 else p[e.param_phi]
 
     rows_j, res, w = [], [], []
     for _ in range(iterations):
@@ -424,11 +469,12 @@ def fit_edges(
                     res.append(np.array([p[e.param_phi] - p0[e.param_phi]]))
                     w.append(np.array([1.0 / np.radians(prior_phi_deg) ** 2]))
         # weak prior on theta too: a roof without boundary points (or without snapped edges) stays solvable
-        j = np.zeros((1, n_par))
-        j[0, 0] = 1.0
-        rows_j.append(j)
-        res.append(np.array([p[0] - p0[0]]))
-        w.append(np.array([1.0 / np.radians(prior_phi_deg) ** 2]))
+        for k_theta in range(2 if theta2 is not None else 1):
+            j = np.zeros((1, n_par))
+            j[0, k_theta] = 1.0
+            rows_j.append(j)
+            res.append(np.array([p[k_theta] - p0[k_theta]]))
+            w.append(np.array([1.0 / np.radians(prior_phi_deg) ** 2]))
         jac = np.vstack(rows_j)
         f = np.concatenate(res)
         wt = np.concatenate(w)
@@ -471,6 +517,38 @@ def fit_edges(
             e.d = float(p_map[e.param_d])
     cov_map = t @ cov @ t.T
     return EdgeFit(float(p[0]), p_map, cov_map, sigma0, dof)
+
+
+def reweight_observations(
+    rings: list[list[Edge]], observations: list[list[EdgeObservations]], sigma0: float,
+    k_reject: float = 3.0, prior_dof: float = 3.0,
+) -> list[list[EdgeObservations]]:
+    """Per-edge precision after a first ``fit_edges`` (the edges hold the fitted lines).
+
+    Real eaves are not equally clean: gutters, dormers, a branch over one edge. One variance factor per
+    roof (the fit's sigma0) lets a ragged edge inflate the sigmas of the clean ones. Per edge: bins whose
+    normalised residual exceeds ``k_reject`` times the edge's robust scale (1.4826 MAD, at least 1) are
+    dropped, and the sigmas of the rest are scaled by the edge's own variance factor, pooled with
+    ``prior_dof`` degrees of freedom of the roof's ``sigma0`` (a few bins alone do not know their scatter);
+    never below the a priori sigma. Refit with the returned observations.
+    """
+    out = []
+    for edges, obs in zip(rings, observations):
+        ring_out = []
+        for e, o in zip(edges, obs):
+            if len(o.xy) < 3:
+                ring_out.append(o)
+                continue
+            v = (o.xy @ e.normal() - e.d) / o.sigma_m
+            scale = max(1.0, 1.4826 * float(np.median(np.abs(v))))
+            keep = np.abs(v) <= k_reject * scale
+            if keep.sum() < 2:
+                keep[:] = True
+            s2 = (float(np.sum(v[keep] ** 2)) + prior_dof * sigma0**2) / (keep.sum() - 1 + prior_dof)
+            e.n_obs = int(keep.sum())
+            ring_out.append(dataclasses.replace(o, xy=o.xy[keep], sigma_m=o.sigma_m[keep] * np.sqrt(max(s2, 1.0))))
+        out.append(ring_out)
+    return out
 
 
 # ---------------------------------------------------------------------------------------------- corners

@@ -11,7 +11,10 @@ from lidarctl.roof_outline import (
     corners_from_edges,
     fit_edges,
     outermost_depth,
+    corners_from_edges as _corners,
+    edge_observations,
     regularise_rings,
+    reweight_observations,
     trace_rings,
 )
 from lidarctl.roof_segments import cluster_roofs, segment_planes
@@ -111,3 +114,57 @@ def test_clusters_split_at_height_steps_and_planes_of_a_hip_roof():
     assert len(big) == 4
     assert all(abs(p.slope_deg - 30.0) < 2.0 for p in big)
     assert np.mean(plane_of >= 0) > 0.95
+
+
+def _staggered_row():
+    """A terraced row: four houses (0 deg) whose fronts step back 2 m each, 6 m wide, 20 m deep on the
+    right; the back wall runs at 35 deg to them (a street at an angle), 30 m long."""
+    a = np.radians(35.0)
+    back_end = (24.0 - 30.0 * np.cos(a), 26.0 - 30.0 * np.sin(a))
+    return shapely.Polygon([(0, 0), (6, 0), (6, 2), (12, 2), (12, 4), (18, 4), (18, 6), (24, 6), (24, 26), back_end])
+
+
+def test_second_direction_family_keeps_right_angles_of_staggered_houses():
+    poly = _staggered_row()
+    xy = _grid(0.3, 7.0, extent=40.0, jitter=0.03, seed=6)
+    xy = xy[shapely.contains_xy(poly, xy[:, 0], xy[:, 1])]
+    rings = trace_rings(xy, 0.3)
+    theta, edge_rings = regularise_rings(rings, 0.3)
+    edges = edge_rings[0]
+    fams = {e.fam for e in edges if e.q >= 0}
+    assert fams == {0, 1}  # the two long walls and the house steps: two families
+    obs = [edge_observations(edges, xy, 0.3)]
+    fit = fit_edges(theta, edge_rings, obs)
+    rc = _corners(edges, fit)
+    # every step corner of the houses is a right angle (snapped to one family), and near a true vertex
+    true_xy = np.asarray(poly.exterior.coords)[:-1]
+    d = np.min(np.hypot(*(rc.xy[:, None, :] - true_xy[None]).transpose(2, 0, 1)), axis=1)
+    steps = (rc.xy[:, 1] < 8.5) & (rc.xy[:, 0] > 1.0) & (d < 1.0)
+    assert steps.sum() >= 6
+    dev = np.minimum(np.abs(rc.angle_deg[steps] - 90.0), np.abs(rc.angle_deg[steps] - 270.0))
+    assert np.all(dev < 0.5)
+    assert np.median(d[steps]) < 0.25
+
+
+def test_reweighting_keeps_a_ragged_edge_from_inflating_the_clean_ones():
+    """Square roof, three clean edges (sigma 0.05 m) and one ragged edge (scatter 0.5 m and outliers): the
+    clean edges' offset sigmas stay near their own precision, the ragged edge's grows."""
+    rng = np.random.default_rng(8)
+    theta = np.radians(12.0)
+    edges = _square_edges(theta)
+    obs = []
+    for q, e in enumerate(edges):
+        t = np.linspace(-8, 8, 40)
+        noise = rng.normal(0, 0.5 if q == 0 else 0.05, t.size)
+        if q == 0:
+            noise[::7] += 3.0  # bins on a dormer or a branch
+        p = t[:, None] * e.direction() + (e.d + noise)[:, None] * e.normal()
+        obs.append(EdgeObservations(p, np.full(t.size, 0.05)))
+    one = fit_edges(theta, [edges], [obs])
+    s_one = np.sqrt(np.diag(one.cov))[[e.param_d for e in edges]]
+    two = fit_edges(theta, [edges], reweight_observations([edges], [obs], one.sigma0))
+    s_two = np.sqrt(np.diag(two.cov))[[e.param_d for e in edges]]
+    assert one.sigma0 > 5.0  # one factor for the roof: every edge inflated alike
+    assert np.all(s_two[1:] < 0.3 * s_one[1:])  # the clean edges get their own precision back
+    assert s_two[0] > 3.0 * s_two[1:].max()
+    assert edges[0].n_obs < 40  # the outlying bins are dropped
