@@ -46,6 +46,7 @@ from aerotri.core.settings import setting
 from aerotri.geom import las
 from lidarctl import io
 from lidarctl.strips import check as chk
+from lidarctl.strips import control as ctl
 from lidarctl.strips import overlap as ov
 from lidarctl.strips import trajectory as tj
 
@@ -68,6 +69,8 @@ class AdjustSettings:
     fixed: str | None = setting(None, help="Strip held fixed (strip model; default: the one with most planar cells).")
     shift_sigma_m: float = setting(0.05, min=0.0, min_open=True,
                                    help="Prior sigma of each strip's shift (m; with a trajectory: the datum).")
+    control_sigma_m: float = setting(0.02, min=0.0, min_open=True,
+                                     help="Sigma of a control point's height on its surface (m).")
     huber_k: float = setting(1.5, min=0.5, help="Huber threshold in robust sigmas.")
     iterations: int = setting(10, min=1, help="Reweighting iterations.")
     relinearise: int = setting(4, min=1, help="Reads of the strips: after the first, each re-read with the "
@@ -106,12 +109,13 @@ def _cross_matrix(b: np.ndarray) -> np.ndarray:
                      np.stack([-b[:, 1], b[:, 0], z], 1)], 1)
 
 
-def strip_model(ss: ov.StripSet, fixed: str | None) -> Model:
-    """Per-strip shift and rotation about the strip centre; ``fixed`` has no parameters."""
+def strip_model(ss: ov.StripSet, fixed: str | None, controlled: bool = False) -> Model:
+    """Per-strip shift and rotation about the strip centre; ``fixed`` has no parameters (default: the strip
+    with the most planar cells; none when ``controlled``: the control points hold the datum)."""
     names_s = [s.name for s in ss.strips]
-    if fixed is None:
+    if fixed is None and not controlled:
         fixed = max(ss.strips, key=lambda s: len(s.ids)).name
-    elif fixed not in names_s:
+    elif fixed is not None and fixed not in names_s:
         raise OptionError(f"--fixed {fixed}: not a strip of this block ({', '.join(names_s)})", param="--fixed")
     free = [s for s in ss.strips if s.name != fixed]
     K = 6 * len(free)
@@ -217,10 +221,31 @@ class Observations:
     y: np.ndarray  # (m,)
     sigma: np.ndarray  # (m,)
     pair: np.ndarray  # (m,) pair index
-    pairs: list[tuple[str, str]]
+    pairs: list[tuple[str, str]]  # (strip, "control") for the control observations of a strip
+    control: ctl.ControlObservations | None = None  # the last rows of G, y, sigma
 
 
-def observations(ss: ov.StripSet, model: Model, max_slope_deg: float) -> Observations:
+def observations(ss: ov.StripSet, model: Model, max_slope_deg: float, control: ctl.ControlPoints | None = None,
+                 control_sigma_m: float = 0.02) -> Observations:
+    """The overlaps' plane distances, then those of the control points (``lidarctl.strips.control``)."""
+    obs = _overlap_observations(ss, model, max_slope_deg)
+    if control is None:
+        return obs
+    co = ctl.control_observations(ss, control, control_sigma_m, max_slope_deg)
+    G = np.zeros((len(co.y), obs.G.shape[1]))
+    pair = np.zeros(len(co.y), int)
+    pairs = list(obs.pairs)
+    for si, s in enumerate(ss.strips):
+        m = co.strip == si
+        if m.any():
+            G[m] = np.einsum("ij,ijk->ik", co.normal[m], model.jac[s.name][co.cell[m]])
+            pair[m] = len(pairs)
+            pairs.append((s.name, "control"))
+    return Observations(np.vstack([obs.G, G]), np.concatenate([obs.y, co.y]), np.concatenate([obs.sigma, co.sigma]),
+                        np.concatenate([obs.pair, pair]), pairs, co)
+
+
+def _overlap_observations(ss: ov.StripSet, model: Model, max_slope_deg: float) -> Observations:
     Gs, ys, ss_, ps, names = [], [], [], [], []
     for ia, A in enumerate(ss.strips):
         for B in ss.strips[ia + 1:]:
@@ -348,7 +373,8 @@ def write_corrected(ss: ov.StripSet, model: Model, theta: np.ndarray, folder: Pa
     return out
 
 
-def estimate(paths, ss: ov.StripSet, model: Model, settings: AdjustSettings, read_params, crs, extra):
+def estimate(paths, ss: ov.StripSet, model: Model, settings: AdjustSettings, read_params, crs, extra,
+             control: ctl.ControlPoints | None = None):
     """Least squares on the planes of ``ss``, then again on the strips re-read with the correction so far,
     until a step moves no planar cell by ``STEP_TOL_M`` (at most ``settings.relinearise`` reads).
 
@@ -358,9 +384,9 @@ def estimate(paths, ss: ov.StripSet, model: Model, settings: AdjustSettings, rea
     into residuals that correlate with the fitted slope: errors in variables, shrinking the horizontal
     relative shifts the gentle slopes see (the neighbours' across-track shift of a strip seen only over
     gentle terrain came out 2-4 sigma off). Once the strips are corrected that displacement, and with it
-    the bias, is gone. Returns (solution, observations of the last read, reads)."""
+    the bias, is gone. Returns (solution, observations of the first and of the last read, reads)."""
     theta = np.zeros(len(model.names))
-    obs = observations(ss, model, settings.max_slope_deg)
+    obs = first = observations(ss, model, settings.max_slope_deg, control, settings.control_sigma_m)
     sol = solve(obs, model, settings.huber_k, settings.iterations)
     before_rms = sol.residual_before_rms_m
     passes = 1
@@ -373,15 +399,30 @@ def estimate(paths, ss: ov.StripSet, model: Model, settings: AdjustSettings, rea
         theta = sol.theta
         ss_i = ov.read_strips(paths, read_params, crs, extra=extra, correct=model.correction(theta), grid=ss.grid)
         model.jac = model.jac_of(ss_i)
-        obs = observations(ss_i, model, settings.max_slope_deg)
+        obs = observations(ss_i, model, settings.max_slope_deg, control, settings.control_sigma_m)
         sol = solve(obs, model, settings.huber_k, settings.iterations, theta0=theta)
         passes += 1
     sol.residual_before_rms_m = before_rms
-    return sol, obs, passes
+    return sol, first, obs, passes
+
+
+def control_summary(cps: ctl.ControlPoints, ss: ov.StripSet, first: Observations, theta: np.ndarray) -> dict:
+    """The control points' distances above their strips' planes before and after the correction (the
+    first read's observations and the linear model; metres)."""
+    co = first.control
+    k0 = len(first.y) - len(co.y)
+    after = co.y - first.G[k0:] @ theta
+    rows = [{"id": cps.ids[p], "strip": ss.strips[s].name, "before_m": float(b), "after_m": float(a)}
+            for p, s, b, a in zip(co.point, co.strip, co.y, after)]
+    return {"file": str(cps.path), "points": len(cps.ids), "points_used": int(len(np.unique(co.point))),
+            "observations": int(len(co.y)), "mean_before_m": float(co.y.mean()), "mean_after_m": float(after.mean()),
+            "rms_before_m": float(np.sqrt(np.mean(co.y ** 2))), "rms_after_m": float(np.sqrt(np.mean(after ** 2))),
+            "residuals": rows}
 
 
 def adjust_strips(paths, outdir, settings: AdjustSettings = AdjustSettings(),
-                  surface: ov.SurfaceParams = ov.SurfaceParams(), trajectories=(), crs=None, png: bool = True) -> dict:
+                  surface: ov.SurfaceParams = ov.SurfaceParams(), trajectories=(), crs=None, png: bool = True,
+                  control=None) -> dict:
     """The stage: estimate, write the corrected strips and the check before and after into OUTDIR
     (``<strip files>``, ``adjust.json``, ``check_before/``, ``check_after/``). Returns the summary."""
     t0 = time.perf_counter()
@@ -395,16 +436,17 @@ def adjust_strips(paths, outdir, settings: AdjustSettings = AdjustSettings(),
     # the check's slope limit for the reports; the adjustment reads steeper cells too
     read_params = dataclasses.replace(surface, max_slope_deg=max(surface.max_slope_deg, settings.max_slope_deg))
     extra, chosen = (None, {})
+    _, units = io.resolve_crs_units(paths[0], las.read_header(paths[0]), crs)
+    cps = ctl.read_control(control, units) if control is not None else None
     if trajectories:
-        header = las.read_header(paths[0])
-        _, units = io.resolve_crs_units(paths[0], header, crs)
         trajs = tj.read_trajectories(trajectories, units.xy_m, units.z_m)
         extra, chosen = boresight_extra(trajs)
     ss = ov.read_strips(paths, read_params, crs, extra=extra)
     before = chk.analyse(ss, surface, paths)
     t_read = time.perf_counter()
-    model = boresight_model(ss, chosen, settings.shift_sigma_m) if trajectories else strip_model(ss, settings.fixed)
-    sol, obs, passes = estimate(paths, ss, model, settings, read_params, crs, extra)
+    model = boresight_model(ss, chosen, settings.shift_sigma_m) if trajectories else \
+        strip_model(ss, settings.fixed, controlled=cps is not None)
+    sol, first, obs, passes = estimate(paths, ss, model, settings, read_params, crs, extra, cps)
     t_solve = time.perf_counter()
     with atomic_dir(outdir) as tmp:
         corrected = write_corrected(ss, model, sol.theta, tmp)
@@ -435,7 +477,9 @@ def adjust_strips(paths, outdir, settings: AdjustSettings = AdjustSettings(),
             "seconds_read": t_read - t0, "seconds_solve": t_solve - t_read, "seconds_write": t_write - t_solve,
         }
         if model.kind == "strip" and settings.fixed is None:
-            summary["fixed_strip"] = next(s.name for s in ss.strips if not any(
-                n.startswith(f"{s.name}.") for n in model.names))
+            summary["fixed_strip"] = next((s.name for s in ss.strips if not any(
+                n.startswith(f"{s.name}.") for n in model.names)), None)
+        if cps is not None:
+            summary["control"] = control_summary(cps, ss, first, sol.theta)
         (tmp / "adjust.json").write_text(json.dumps(summary, indent=2) + "\n")
     return summary

@@ -164,3 +164,24 @@ def make_strips(tmp_path_factory):
         errors = Errors(np.asarray(shifts, float), tuple(boresight_deg), range_offset_m)
         return make_block(tmp_path_factory.mktemp(name), errors, **kw)
     return make
+
+
+def write_control_csv(path: Path, step_m: float = 20.0) -> Path:
+    """Control points on open ground (clear of the buildings and tree crowns), at their true heights."""
+    x, y = np.meshgrid(np.arange(5.0, 150.0, step_m), np.arange(-30.0, 125.0, step_m))
+    x, y = x.ravel(), y.ravel()
+    clear = np.ones(len(x), bool)
+    for cx, cy, hl, hw, *_ in BUILDINGS:
+        clear &= (np.abs(x - cx) > hl + 6.0) | (np.abs(y - cy) > hw + 6.0)
+    for cx, cy, r in TREES:
+        clear &= np.hypot(x - cx, y - cy) > r + 6.0
+    x, y = x[clear], y[clear]
+    rows = [f"gcp{i},{X0 + a:.3f},{Y0 + b:.3f},{surface(a, b):.3f}" for i, (a, b) in enumerate(zip(x, y))]
+    path.write_text("id,x,y,z\n" + "\n".join(rows) + "\n")
+    return path
+
+
+@pytest.fixture(scope="session")
+def control_csv():
+    """control_csv(path, step_m=20) -> path: control points of the synthetic scene written to ``path``."""
+    return write_control_csv
