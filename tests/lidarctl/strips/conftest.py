@@ -52,6 +52,7 @@ class Errors:
     boresight_deg: tuple = (0.0, 0.0, 0.0)  # roll, pitch, heading of the scanner in the body frame
     range_offset_m: float = 0.0
     noise_m: float = 0.02
+    scan_angle_scale: float = 0.0  # the beam leaves at theta (1 + this), theta the angle read
 
 
 def scan(path: Path, traj_path: Path, k: int, errors: Errors, seed: int, n_pulses: int = 20000,
@@ -71,10 +72,12 @@ def scan(path: Path, traj_path: Path, k: int, errors: Errors, seed: int, n_pulse
     heading = np.full(n_pulses, np.radians(90.0 if east else 270.0))
     R = body_to_map(roll, pitch, heading)
     u = np.column_stack([np.zeros(n_pulses), np.sin(theta), np.cos(theta)])
+    theta_beam = theta * (1.0 + errors.scan_angle_scale)
+    u_beam = np.column_stack([np.zeros(n_pulses), np.sin(theta_beam), np.cos(theta_beam)])
     br, bp, bh = np.radians(errors.boresight_deg)
     Rb = body_to_map(np.array(br), np.array(bp), np.array(bh))
     Rb = np.linalg.inv(np.array([[0, 1, 0], [1, 0, 0], [0, 0, -1.0]])) @ Rb  # body-to-body (drop NED->ENU)
-    d_true = np.einsum("nij,jk,nk->ni", R, Rb, u)
+    d_true = np.einsum("nij,jk,nk->ni", R, Rb, u_beam)
     O = np.column_stack([xs, ys, zs])
     rho = (zs - terrain(xs, ys)) / -d_true[:, 2]
     for _ in range(8):  # the beam meets the height field: fixed point of the range
@@ -159,9 +162,11 @@ def shifted_block(tmp_path_factory):
 
 @pytest.fixture(scope="session")
 def make_strips(tmp_path_factory):
-    """make(name, shifts (3, 3), boresight_deg=(0, 0, 0), range_offset_m=0, **scan options) -> StripBlock"""
-    def make(name, shifts, boresight_deg=(0.0, 0.0, 0.0), range_offset_m=0.0, **kw):
-        errors = Errors(np.asarray(shifts, float), tuple(boresight_deg), range_offset_m)
+    """make(name, shifts (3, 3), boresight_deg=(0, 0, 0), range_offset_m=0, scan_angle_scale=0, **scan options)
+    -> StripBlock"""
+    def make(name, shifts, boresight_deg=(0.0, 0.0, 0.0), range_offset_m=0.0, scan_angle_scale=0.0, **kw):
+        errors = Errors(np.asarray(shifts, float), tuple(boresight_deg), range_offset_m,
+                        scan_angle_scale=scan_angle_scale)
         return make_block(tmp_path_factory.mktemp(name), errors, **kw)
     return make
 
