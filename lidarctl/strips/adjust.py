@@ -56,7 +56,9 @@ log.addHandler(logging.NullHandler())
 SURFACE_ROUGHNESS_M = 0.003
 WEAK_SHIFT_M = 10.0
 WEAK_ANGLE_DEG = 1.0
-STEP_TOL_M = 0.001
+# a step below this many standard deviations in every parameter ends the re-reads (cells gained and lost
+# between reads leave a jitter of a few mm at the swath edges, a tenth of a sigma or less)
+STEP_TOL_SIGMA = 0.1
 N_SENSOR = 5  # boresight roll, pitch, heading, range offset, scan-angle scale
 
 
@@ -73,8 +75,8 @@ class AdjustSettings:
                                      help="Sigma of a control point's height on its surface (m).")
     huber_k: float = setting(1.5, min=0.5, help="Huber threshold in robust sigmas.")
     iterations: int = setting(10, min=1, help="Reweighting iterations.")
-    relinearise: int = setting(4, min=1, help="Reads of the strips: after the first, each re-read with the "
-                                              "correction so far, until a step moves no cell by 1 mm.")
+    relinearise: int = setting(5, min=1, help="Reads of the strips: after the first, each re-read with the "
+                                              "correction so far, until a step is below 0.1 sigma.")
 
 
 @dataclasses.dataclass
@@ -376,7 +378,8 @@ def write_corrected(ss: ov.StripSet, model: Model, theta: np.ndarray, folder: Pa
 def estimate(paths, ss: ov.StripSet, model: Model, settings: AdjustSettings, read_params, crs, extra,
              control: ctl.ControlPoints | None = None):
     """Least squares on the planes of ``ss``, then again on the strips re-read with the correction so far,
-    until a step moves no planar cell by ``STEP_TOL_M`` (at most ``settings.relinearise`` reads).
+    until a step is below ``STEP_TOL_SIGMA`` standard deviations in every parameter (at most
+    ``settings.relinearise`` reads).
 
     Why re-read: the horizontal part of e reaches the observations through the surface slope, which the
     model takes from the fitted cell planes. Their slope noise multiplies the strips' relative horizontal
@@ -393,8 +396,9 @@ def estimate(paths, ss: ov.StripSet, model: Model, settings: AdjustSettings, rea
     while passes < settings.relinearise:
         step = sol.theta - theta
         moved = max(float(np.max(np.abs(J @ step), initial=0.0)) for J in model.jac.values())
-        log.info("strip adjustment pass %d: largest step at a planar cell %.4f m", passes, moved)
-        if moved < STEP_TOL_M:
+        rel = float(np.max(np.abs(step) / np.sqrt(np.diag(sol.cov))))
+        log.info("strip adjustment pass %d: largest step at a planar cell %.4f m, %.2f sigma", passes, moved, rel)
+        if rel < STEP_TOL_SIGMA:
             break
         theta = sol.theta
         ss_i = ov.read_strips(paths, read_params, crs, extra=extra, correct=model.correction(theta), grid=ss.grid)
