@@ -13,20 +13,24 @@ slope of the fit) plus the priors, B the sum of the outer products of the weight
 scaled by m / (m - K), plus the priors: sigma0^2 N^-1 of the reweighted normals leaves out the
 efficiency Huber loses on Gaussian noise (about 13 % of the observations beyond 1.5 sigma) and comes
 out about 6 % too small (Monte Carlo on the simulator's geometry: normalised RMS 1.07 against 0.99).
-Corrected points: p - e(p).
+Corrected points: p - e(p). The strips are then read again with the correction so far and the
+least squares repeated (``estimate``: noisy cell slopes times a large relative horizontal displacement
+bias the horizontal parameters, errors in variables; the bias goes with the displacement).
+Control points (``--control``, lidarctl.strips.control) add point-to-plane distances to single strips.
 
 Models (``theta`` and J, all in metres and radians; reported in metres and degrees):
 - ``strip`` (no trajectory): per strip a shift t (x, y, z) and a small rotation (roll about the flight
   direction, pitch about the right-hand axis, heading about the downward axis) about the strip's
   centre c: e = t + w x (p - c). The datum: one strip held fixed (``fixed``; default the strip with
-  the most planar cells), plus a weak prior (10 m, 1 deg) on every parameter so that directions the
+  the most planar cells; none with control points), plus a weak prior (10 m, 1 deg) on every parameter so that directions the
   surfaces cannot see (e.g. a horizontal shift over flat ground only) stay solvable, with a large sigma.
 - ``boresight`` (with the trajectory of every strip): the boresight angles (roll, pitch, heading of the
-  scanner in the body frame x forward, y right, z down) and a range offset shared by all strips, and per
-  strip a shift (the GNSS error) with the prior sigma ``shift_sigma_m`` (the datum). For a point p with
-  scanner position P and body-to-map rotation R at its GPS time, b = R^T (p - P):
-  e = R (w x b) + dr R b/|b| + t, i.e. the beam left rotated by the boresight error w and the range was
-  measured dr too long.
+  scanner in the body frame x forward, y right, z down), a range offset and a scan-angle scale shared by
+  all strips, and per strip a shift (the GNSS error) with the prior sigma ``shift_sigma_m`` (the datum,
+  unless control points hold it). For a point p with scanner position P and body-to-map rotation R at
+  its GPS time, b = R^T (p - P), scan angle theta = atan2(b_right, b_down):
+  e = R (b x w) + dr R b/|b| - k theta |b| R (0, cos theta, -sin theta) + t, i.e. the beam left rotated by
+  the boresight error w, at theta (1 + k) where theta was read, and the range was measured dr too long.
 """
 
 from __future__ import annotations
