@@ -91,20 +91,30 @@ class Model:
     names: list[str]
     prior_sigma: np.ndarray  # (K,) inf: no prior
     jac: dict  # strip name -> (m, 3, K) effect Jacobians at the planar cells' centroids
-    apply: object  # callable(strip name, x, y, z (m), gps time) -> (n, 3, K) Jacobians of single points
+    local: object  # callable(strip name, x, y, z (m), gps time) -> ((n, 3, k) Jacobians, the k columns)
     jac_of: object  # callable(StripSet) -> ``jac`` of the planar cells of a re-read of the strips
 
-    def correction(self, theta: np.ndarray, block: int = 200_000):
+    def apply(self, name, x, y, z, t=None) -> np.ndarray:
+        """(n, 3, K) Jacobians of single points of strip ``name``."""
+        Jl, cols = self.local(name, x, y, z, t)
+        J = np.zeros((len(x), 3, len(self.names)))
+        J[:, :, cols] = Jl
+        return J
+
+    def displacement(self, name, x, y, z, t, theta: np.ndarray, block: int = 200_000) -> np.ndarray:
+        """(n, 3) e(p) = J(p) theta of points of strip ``name`` (only the strip's own columns are formed)."""
+        e = np.zeros((len(x), 3))
+        for k0 in range(0, len(x), block):  # bounded memory of the (n, 3, k) Jacobians
+            i = slice(k0, k0 + block)
+            Jl, cols = self.local(name, x[i], y[i], z[i], None if t is None else t[i])
+            e[i] = Jl @ theta[cols]
+        return e
+
+    def correction(self, theta: np.ndarray):
         """``read_strips``' ``correct`` callback: the points of a strip moved by -e(p) = -J(p) theta."""
         def correct(source, x, y, z, t):
-            x, y, z = np.array(x, float), np.array(y, float), np.array(z, float)
-            for k0 in range(0, len(x), block):  # bounded memory of the (n, 3, K) Jacobians
-                i = slice(k0, k0 + block)
-                e = self.apply(source.name, x[i], y[i], z[i], t[i]) @ theta
-                x[i] -= e[:, 0]
-                y[i] -= e[:, 1]
-                z[i] -= e[:, 2]
-            return x, y, z
+            e = self.displacement(source.name, x, y, z, t, theta)
+            return np.asarray(x, float) - e[:, 0], np.asarray(y, float) - e[:, 1], np.asarray(z, float) - e[:, 2]
         return correct
 
 
@@ -135,22 +145,21 @@ def strip_model(ss: ov.StripSet, fixed: str | None, controlled: bool = False) ->
         f = np.array([s.axis[0], s.axis[1], 0.0])
         frames[s.name] = (np.array([f, [f[1], -f[0], 0.0], [0.0, 0.0, -1.0]]), s.centre.copy())
 
-    def apply(name, x, y, z, t=None):
-        J = np.zeros((len(x), 3, K))
+    def local(name, x, y, z, t=None):
         if name not in col:
-            return J
+            return np.zeros((len(x), 3, 0)), np.zeros(0, int)
+        J = np.zeros((len(x), 3, 6))
         axes, c = frames[name]
         q = np.column_stack([x, y, z]) - c
-        k = col[name]
-        J[:, [0, 1, 2], [k, k + 1, k + 2]] = 1.0
+        J[:, [0, 1, 2], [0, 1, 2]] = 1.0
         for a in range(3):  # w x q for a unit rotation about each body axis
-            J[:, :, k + 3 + a] = np.cross(axes[a], q)
-        return J
+            J[:, :, 3 + a] = np.cross(axes[a], q)
+        return J, np.arange(col[name], col[name] + 6)
 
-    def jac_of(ss_):
-        return {s.name: apply(s.name, *s.centroid.T) for s in ss_.strips}
-
-    return Model("strip", names, np.array(prior), jac_of(ss), apply, jac_of)
+    model = Model("strip", names, np.array(prior), {}, local, None)
+    model.jac_of = lambda ss_: {s.name: model.apply(s.name, *s.centroid.T) for s in ss_.strips}
+    model.jac = model.jac_of(ss)
+    return model
 
 
 def boresight_extra(trajs: list[tj.Trajectory]):
@@ -215,10 +224,13 @@ def boresight_model(ss: ov.StripSet, chosen: dict, shift_sigma_m: float) -> Mode
     def jac_of(ss_):
         return {s.name: place(s.name, s.extra.reshape(-1, 3, N_SENSOR)) for s in ss_.strips}
 
-    def apply(name, x, y, z, t):
-        return place(name, _sensor_jacobian(chosen[name], t, x, y, z))
+    def local(name, x, y, z, t):
+        J = np.zeros((len(x), 3, N_SENSOR + 3))
+        J[:, :, :N_SENSOR] = _sensor_jacobian(chosen[name], t, x, y, z)
+        J[:, [0, 1, 2], [N_SENSOR, N_SENSOR + 1, N_SENSOR + 2]] = 1.0
+        return J, np.r_[np.arange(N_SENSOR), np.arange(col[name], col[name] + 3)]
 
-    return Model("boresight", names, prior, jac_of(ss), apply, jac_of)
+    return Model("boresight", names, prior, jac_of(ss), local, jac_of)
 
 
 @dataclasses.dataclass
@@ -364,14 +376,12 @@ def write_corrected(ss: ov.StripSet, model: Model, theta: np.ndarray, folder: Pa
                 t = np.asarray(chunk.gps_time, float) if "gps_time" in chunk.point_format.dimension_names else None
                 psid = np.asarray(chunk.point_source_id)
                 for s in sources:
-                    sel = np.flatnonzero(psid == s.point_source_id) if s.point_source_id is not None else \
+                    i = np.flatnonzero(psid == s.point_source_id) if s.point_source_id is not None else \
                         np.arange(len(x))
-                    for k0 in range(0, len(sel), 200_000):  # bounded memory of the (n, 3, K) Jacobians
-                        i = sel[k0:k0 + 200_000]
-                        e = model.apply(s.name, x[i], y[i], z[i], None if t is None else t[i]) @ theta
-                        x[i] -= e[:, 0]
-                        y[i] -= e[:, 1]
-                        z[i] -= e[:, 2]
+                    e = model.displacement(s.name, x[i], y[i], z[i], None if t is None else t[i], theta)
+                    x[i] -= e[:, 0]
+                    y[i] -= e[:, 1]
+                    z[i] -= e[:, 2]
                 chunk.x, chunk.y, chunk.z = units.xy_from_m(x), units.xy_from_m(y), units.z_from_m(z)
                 w.write_points(chunk)
             io.write_evlrs(w, out_header)
