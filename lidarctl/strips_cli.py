@@ -63,7 +63,13 @@ def check(strip_paths, outdir, crs, png, **kw):
               help="Trajectory text file(s) (time_s x y z roll_deg pitch_deg heading_deg; repeatable) covering every "
                    "strip's GPS times: estimates the boresight angles and range offset shared by all strips and a "
                    "shift per strip. Without: a shift and roll/pitch/heading per strip, one strip fixed.")
-@click.option("--fixed", default=None, help="Strip held fixed without a trajectory (a strip name as check names it).")
+@click.option("--fixed", default=None, help="Strip held fixed without a trajectory (a strip name as check names it; "
+                                            "with --control none by default).")
+@click.option("--control", "control", default=None, type=click.Path(dir_okay=False, path_type=Path),
+              help="Control points on smooth surfaces (CSV with a header id,x,y,z in the strips' CRS and units; a "
+                   "control surface as several points on it): fix the block's datum (absolute height, and position "
+                   "across sloped faces).")
+@click_option(AdjustSettings, "control_sigma_m", "--control-sigma-m")
 @click.option("--adjust-max-slope-deg", "adjust_max_slope_deg", type=click_type(AdjustSettings, "max_slope_deg"),
               default=default_of(AdjustSettings, "max_slope_deg"), show_default=True,
               help="Steepest planar cells the adjustment uses (deg; sloped roofs carry the horizontal information).")
@@ -71,16 +77,24 @@ def check(strip_paths, outdir, crs, png, **kw):
 @surface_options
 @click.option("--crs", default=None, help="CRS (EPSG:code) of files that have none; never guessed.")
 @click.option("--png/--no-png", default=True, show_default=True, help="Colour maps (PNG) of the differences.")
-def adjust(strip_paths, outdir, trajectories, fixed, adjust_max_slope_deg, shift_sigma_m, crs, png, **kw):
+def adjust(strip_paths, outdir, trajectories, fixed, control, control_sigma_m, adjust_max_slope_deg, shift_sigma_m, crs,
+           png, **kw):
     """Strip adjustment on plane correspondences in the overlaps; corrected strips (only X, Y, Z change) with
     adjust.json (parameters, sigmas, correlations) and the check before and after (check_before/,
     check_after/) into OUTDIR."""
     from lidarctl.strips.adjust import adjust_strips
 
-    settings = AdjustSettings(max_slope_deg=adjust_max_slope_deg, fixed=fixed, shift_sigma_m=shift_sigma_m)
-    s = adjust_strips(strip_paths, outdir, settings, _params(kw), trajectories=trajectories, crs=crs, png=png)
+    settings = AdjustSettings(max_slope_deg=adjust_max_slope_deg, fixed=fixed, shift_sigma_m=shift_sigma_m,
+                              control_sigma_m=control_sigma_m)
+    s = adjust_strips(strip_paths, outdir, settings, _params(kw), trajectories=trajectories, crs=crs, png=png,
+                      control=control)
     for name, p in s["parameters"].items():
         click.echo(f"{name:32s} {p['value']:+10.4f} +- {p['sigma']:.4f}")
+    if "control" in s:
+        c = s["control"]
+        click.echo(f"control: {c['points_used']} of {c['points']} points on {c['observations']} strip planes, mean "
+                   f"distance {c['mean_before_m']:+.3f} -> {c['mean_after_m']:+.3f} m, RMS {c['rms_before_m']:.3f} -> "
+                   f"{c['rms_after_m']:.3f} m")
     b, a = s["check_before"], s["check_after"]
     click.echo(f"{outdir}: {s['model']} model, {s['observations']} plane observations, sigma0 {s['sigma0']:.2f}; "
                f"strip differences RMS {b['rms_m']:.3f} -> {a['rms_m']:.3f} m, NMAD {b['nmad_m']:.3f} -> "

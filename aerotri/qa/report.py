@@ -101,7 +101,9 @@ def strip_rows(project: Project, tol: dict) -> tuple[list, list | None]:
     strip adjustment its check after (the note gives the value before).
 
     The value is the RMS of the height differences of all pairs on smooth single-return surfaces (planar
-    cells without vegetation, edges or steps): the RMSDz of the LiDAR specifications (``strip_rmsdz_m``).
+    cells without vegetation, edges or steps): the RMSDz of the LiDAR specifications (``strip_rmsdz_m``;
+    USGS Lidar Base Specification v1.3 table 2, swath overlap difference, QL1/QL2 0.08 m: see the
+    tolerance tables for the source and its verification status).
     The RMS, not the NMAD: the systematic part (a strip too high, tilted by a roll error) is what
     the check is there to find, and the NMAD, spread about each pair's median, does not see a constant
     offset between two strips; blunders are kept out by the choice of cells, not by the statistic."""

@@ -128,6 +128,8 @@ def validate(cfg: dict, source: str = "preset") -> None:
                          f"+-5), got {bore!r}")
     if "range_offset_m" in cfg["lidar"]:
         _need(cfg, source, "lidar", "range_offset_m", -10.0, 10.0)
+    if "scan_angle_scale_error" in cfg["lidar"]:
+        _need(cfg, source, "lidar", "scan_angle_scale_error", -0.01, 0.01)
     if cfg["lidar"].get("format") not in ("las", "laz"):
         raise InputError(f"{source}: lidar.format must be 'las' or 'laz', got {cfg['lidar'].get('format')!r}")
     _need(cfg, source, "scene", "terrain_res_m", 0.1, 10.0)

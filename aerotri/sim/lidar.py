@@ -13,7 +13,9 @@ Truth classes (ASPRS): 2 ground, 3/4/5 low/medium/high vegetation, 6 building, 7
 System calibration errors (injected only when asked; zero in the presets, so that their output does
 not change): ``boresight_error_deg`` (roll, pitch, heading of the scanner against the IMU in the body
 frame x forward, y right, z down: the beam leaves along R_bw Rz(h) Ry(p) Rx(r) u while the points are
-computed along R_bw u) and ``range_offset_m`` (added to every measured range). ``trajectory`` gives
+computed along R_bw u), ``range_offset_m`` (added to every measured range) and
+``scan_angle_scale_error`` k (the mirror's angle encoder reads theta while the beam leaves at
+theta (1 + k): the points are computed at the angle read). ``trajectory`` gives
 the trajectory records of a strip (lidarctl.strips.trajectory text format), which carry the strip's
 GNSS offset as its points do.
 """
@@ -152,18 +154,27 @@ def _sweep(line: LidarLine, L: dict, rng, width_m: float, i0: int = 0, i1: int |
     theta = tri * half_fov
     # Across-track is +y (left) flying east; the scan angle is positive to the right of the track.
     side = -1.0 if line.east else 1.0
-    dirs = np.stack([np.zeros(n), side * np.sin(theta), -np.cos(theta)], axis=1)
     att = np.radians(L["attitude_noise_deg"]) * rng.standard_normal((n, 2))
-    dirs[:, 0] += att[:, 0]
-    dirs[:, 1] += att[:, 1]
-    dirs /= np.linalg.norm(dirs, axis=1, keepdims=True)
+
+    def beam(angle):
+        d = np.stack([np.zeros(n), side * np.sin(angle), -np.cos(angle)], axis=1)
+        d[:, 0] += att[:, 0]
+        d[:, 1] += att[:, 1]
+        return d / np.linalg.norm(d, axis=1, keepdims=True)
+
+    dirs = beam(theta)
     origins = np.stack([x_air, y_air, z_air], axis=1)
     rb = boresight_rotation(L)
-    if rb is None:
+    k = float(L.get("scan_angle_scale_error", 0.0))
+    if rb is None and k == 0.0:
         return _Sweep(t, origins, dirs, theta, rising)
-    # the beam leaves rotated by the boresight error; the points are computed along the nominal direction
-    bw = body_to_world(line)
-    return _Sweep(t, origins, dirs @ (bw @ rb @ bw.T).T, theta, rising, nominal=dirs)
+    # the beam leaves at the scaled angle, rotated by the boresight error; the points are computed along the
+    # nominal direction (the angle read, the IMU's attitude)
+    actual = beam(theta * (1.0 + k)) if k != 0.0 else dirs
+    if rb is not None:
+        bw = body_to_world(line)
+        actual = actual @ (bw @ rb @ bw.T).T
+    return _Sweep(t, origins, actual, theta, rising, nominal=dirs)
 
 
 def boresight_rotation(L: dict) -> np.ndarray | None:

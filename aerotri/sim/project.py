@@ -98,6 +98,7 @@ class SimTruth:
     lidar_strip_offsets_m: list[list[float]]  # per strip: the X, Y, Z offset added to its points
     lidar_boresight_error_deg: list[float]  # roll, pitch, heading of the scanner against the IMU (injected)
     lidar_range_offset_m: float  # added to every measured range (injected)
+    lidar_scan_angle_scale_error: float  # the beam leaves at theta (1 + this) where theta is read (injected)
     lidar_mean_spacing_m: float
     steep_band_y_m: list[float]  # northing of the start and end of the steep valley side
     max_slope_deg: float
@@ -173,6 +174,7 @@ def simulate(cfg: dict, outdir, force: bool = False) -> SimTruth:
             lidar_strip_offsets_m=lidar.strip_offsets_m,
             lidar_boresight_error_deg=[float(v) for v in cfg["lidar"].get("boresight_error_deg", (0.0, 0.0, 0.0))],
             lidar_range_offset_m=float(cfg["lidar"].get("range_offset_m", 0.0)),
+            lidar_scan_angle_scale_error=float(cfg["lidar"].get("scan_angle_scale_error", 0.0)),
             lidar_mean_spacing_m=_mean_spacing(cfg["lidar"]),
             steep_band_y_m=[scene.steep_band_y_m[0] + origin[1], scene.steep_band_y_m[1] + origin[1]],
             max_slope_deg=_max_slope_deg(scene),

@@ -240,18 +240,23 @@ class _Accumulator:
         return self._reduce(self.parts, self.k), self._reduce(self.all_parts, 2)
 
 
-def read_strips(paths, params: SurfaceParams = SurfaceParams(), crs=None, extra=None) -> StripSet:
+def read_strips(paths, params: SurfaceParams = SurfaceParams(), crs=None, extra=None, correct=None,
+                grid: Grid | None = None) -> StripSet:
     """Planar cells of every strip of ``paths`` (see the module docstring).
 
     ``extra(source, chunk, x_m, y_m, z_m) -> (n, k)`` adds caller-defined per-point quantities whose
-    per-cell means end up in ``CellPlanes.extra`` (the adjustment's sensor-model derivatives)."""
+    per-cell means end up in ``CellPlanes.extra`` (the adjustment's sensor-model derivatives).
+    ``correct(source, x_m, y_m, z_m, gps_time) -> (x_m, y_m, z_m)`` moves a strip's points before they are
+    binned (the adjustment re-reads the strips with its current correction); ``grid`` reuses the cells of an
+    earlier read."""
     paths = [Path(p) for p in paths]
     for p in paths:
         las.read_header(p)  # a missing or broken file stops here, naming it
     sources = strip_sources(paths)
     crs_out, units = _check_crs(sources, crs)
-    cell_m = params.cell_m or _default_cell_m(sources, units)
-    grid = _grid(sources, units, cell_m)
+    if grid is None:
+        grid = _grid(sources, units, params.cell_m or _default_cell_m(sources, units))
+    cell_m = grid.cell_m
     k_extra = 0
     accs = {s.name: None for s in sources}
     by_path: dict[Path, list[StripSource]] = {}
@@ -271,6 +276,11 @@ def read_strips(paths, params: SurfaceParams = SurfaceParams(), crs=None, extra=
             psid = np.asarray(chunk.point_source_id)
             ang = scan_angle_deg(chunk)
             t = np.asarray(chunk.gps_time, float) if "gps_time" in chunk.point_format.dimension_names else np.zeros(len(x))
+            if correct is not None:
+                x, y, z = np.array(x, float), np.array(y, float), np.array(z, float)
+                for s in group:
+                    k = slice(None) if s.point_source_id is None else np.flatnonzero(psid == s.point_source_id)
+                    x[k], y[k], z[k] = correct(s, x[k], y[k], z[k], t[k])
             j = np.floor((x - grid.x0) / cell_m).astype(np.int64)
             i = np.floor((y - grid.y0) / cell_m).astype(np.int64)
             cell = i * grid.ncols + j

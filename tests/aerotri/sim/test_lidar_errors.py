@@ -24,6 +24,7 @@ def _lidar(**kw):
 def test_presets_inject_nothing():
     L = _lidar()
     assert L["boresight_error_deg"] == [0.0, 0.0, 0.0] and L["range_offset_m"] == 0.0
+    assert L["scan_angle_scale_error"] == 0.0
     sw = _sweep(LINE, L, np.random.default_rng(0), 300.0, 0, 2000)
     assert sw.nominal is None  # the points are computed as before: the presets' output does not move
 
@@ -38,6 +39,16 @@ def test_boresight_roll_turns_the_beam_about_the_flight_direction(east):
     axis /= np.linalg.norm(axis, axis=1, keepdims=True)
     # roll: a right-handed turn about the forward axis (x east or west) tips the beam to the right
     assert np.allclose(axis[:, 0], 1.0 if east else -1.0, atol=1e-6)
+
+
+def test_scan_angle_scale_error_widens_the_beam_angle():
+    k = 5e-4
+    sw = _sweep(LINE, _lidar(scan_angle_scale_error=k, attitude_noise_deg=0.0), np.random.default_rng(0), 300.0, 0, 2000)
+    # flying east, right is -y: the scan angle is atan2(-y, -z) of a direction
+    read = np.arctan2(-sw.nominal[:, 1], -sw.nominal[:, 2])
+    left = np.arctan2(-sw.dirs[:, 1], -sw.dirs[:, 2])
+    assert np.allclose(read, sw.theta, atol=1e-12) and np.allclose(left, sw.theta * (1 + k), atol=1e-12)
+    assert np.allclose(sw.dirs[:, 0], 0.0)
 
 
 def test_trajectory_follows_the_scanner():

@@ -52,6 +52,7 @@ class Errors:
     boresight_deg: tuple = (0.0, 0.0, 0.0)  # roll, pitch, heading of the scanner in the body frame
     range_offset_m: float = 0.0
     noise_m: float = 0.02
+    scan_angle_scale: float = 0.0  # the beam leaves at theta (1 + this), theta the angle read
 
 
 def scan(path: Path, traj_path: Path, k: int, errors: Errors, seed: int, n_pulses: int = 20000,
@@ -71,10 +72,12 @@ def scan(path: Path, traj_path: Path, k: int, errors: Errors, seed: int, n_pulse
     heading = np.full(n_pulses, np.radians(90.0 if east else 270.0))
     R = body_to_map(roll, pitch, heading)
     u = np.column_stack([np.zeros(n_pulses), np.sin(theta), np.cos(theta)])
+    theta_beam = theta * (1.0 + errors.scan_angle_scale)
+    u_beam = np.column_stack([np.zeros(n_pulses), np.sin(theta_beam), np.cos(theta_beam)])
     br, bp, bh = np.radians(errors.boresight_deg)
     Rb = body_to_map(np.array(br), np.array(bp), np.array(bh))
     Rb = np.linalg.inv(np.array([[0, 1, 0], [1, 0, 0], [0, 0, -1.0]])) @ Rb  # body-to-body (drop NED->ENU)
-    d_true = np.einsum("nij,jk,nk->ni", R, Rb, u)
+    d_true = np.einsum("nij,jk,nk->ni", R, Rb, u_beam)
     O = np.column_stack([xs, ys, zs])
     rho = (zs - terrain(xs, ys)) / -d_true[:, 2]
     for _ in range(8):  # the beam meets the height field: fixed point of the range
@@ -159,8 +162,31 @@ def shifted_block(tmp_path_factory):
 
 @pytest.fixture(scope="session")
 def make_strips(tmp_path_factory):
-    """make(name, shifts (3, 3), boresight_deg=(0, 0, 0), range_offset_m=0, **scan options) -> StripBlock"""
-    def make(name, shifts, boresight_deg=(0.0, 0.0, 0.0), range_offset_m=0.0, **kw):
-        errors = Errors(np.asarray(shifts, float), tuple(boresight_deg), range_offset_m)
+    """make(name, shifts (3, 3), boresight_deg=(0, 0, 0), range_offset_m=0, scan_angle_scale=0, **scan options)
+    -> StripBlock"""
+    def make(name, shifts, boresight_deg=(0.0, 0.0, 0.0), range_offset_m=0.0, scan_angle_scale=0.0, **kw):
+        errors = Errors(np.asarray(shifts, float), tuple(boresight_deg), range_offset_m,
+                        scan_angle_scale=scan_angle_scale)
         return make_block(tmp_path_factory.mktemp(name), errors, **kw)
     return make
+
+
+def write_control_csv(path: Path, step_m: float = 20.0) -> Path:
+    """Control points on open ground (clear of the buildings and tree crowns), at their true heights."""
+    x, y = np.meshgrid(np.arange(5.0, 150.0, step_m), np.arange(-30.0, 125.0, step_m))
+    x, y = x.ravel(), y.ravel()
+    clear = np.ones(len(x), bool)
+    for cx, cy, hl, hw, *_ in BUILDINGS:
+        clear &= (np.abs(x - cx) > hl + 6.0) | (np.abs(y - cy) > hw + 6.0)
+    for cx, cy, r in TREES:
+        clear &= np.hypot(x - cx, y - cy) > r + 6.0
+    x, y = x[clear], y[clear]
+    rows = [f"gcp{i},{X0 + a:.3f},{Y0 + b:.3f},{surface(a, b):.3f}" for i, (a, b) in enumerate(zip(x, y))]
+    path.write_text("id,x,y,z\n" + "\n".join(rows) + "\n")
+    return path
+
+
+@pytest.fixture(scope="session")
+def control_csv():
+    """control_csv(path, step_m=20) -> path: control points of the synthetic scene written to ``path``."""
+    return write_control_csv
