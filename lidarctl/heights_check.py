@@ -397,16 +397,10 @@ def _read_near(paths, points, radius_m: float, density_radius_m: float | None, c
     ``density_radius_m``, the first returns (noise excluded) within it; metres. Streamed by chunks."""
     ground, first_returns, first, n_ground = [], [], None, 0
     reach = max(radius_m, density_radius_m or 0.0)
-    for path in paths:
-        header = las.read_header(path)
-        if header.point_count == 0:
-            raise InputError(f"{path}: the file holds no points")
-        crs_i, units = io.resolve_crs_units(path, header, crs)
+    for path, _, crs_i, units in io.checked_headers(paths, crs):
         if first is None:
             first = (path, crs_i, units)
             near = _near_points(units.xy_to_m(points["x"]), units.xy_to_m(points["y"]), reach)
-        else:
-            io.require_same_crs(path, crs_i, units, first)
         for first_record, chunk in las.iter_file_chunks(path, io.CHUNK_POINTS):
             cx, cy, cz = np.asarray(chunk.x), np.asarray(chunk.y), np.asarray(chunk.z)
             io.validate_xyz(path, cx, cy, cz, first_record, units)

@@ -194,6 +194,22 @@ def require_same_crs(path, crs, units: LengthUnits, first) -> None:
                          "(aerotri crs transform)")
 
 
+def checked_headers(paths, crs=None):
+    """(path, header, CRS, units) of each file of a set of strips, read from the headers only and checked:
+    no empty file, one CRS and units for all (``require_same_crs``); ``crs`` for files without a CRS record."""
+    first = None
+    for path in paths:
+        header = las.read_header(path)
+        if header.point_count == 0:
+            raise InputError(f"{path}: the file holds no points")
+        crs_i, units = resolve_crs_units(path, header, crs)
+        if first is None:
+            first = (path, crs_i, units)
+        else:
+            require_same_crs(path, crs_i, units, first)
+        yield path, header, crs_i, units
+
+
 def sanitize_returns(return_number: np.ndarray, number_of_returns: np.ndarray):
     """Broken return counts (0) would mislead the multi-return rules: treat them as single returns."""
     rn = np.where(return_number == 0, 1, return_number).astype(np.uint8)

@@ -112,20 +112,12 @@ def check_plan(corners: list[dict], points_m: dict, params: PlanCheckParams, uni
 def _cloud_extent(paths, crs, points_crs):
     """(CRS, units, (xmin, ymin, xmax, ymax) in the CRS's units) of the clouds from their headers; the
     strips must share one CRS, ``points_crs`` (the CSV's, when given) must be theirs."""
-    from aerotri.geom import las
     from aerotri.geom.crs import crs_label, same_horizontal
     from lidarctl import io
 
     first, box = None, [np.inf, np.inf, -np.inf, -np.inf]
-    for p in paths:
-        header = las.read_header(p)
-        if header.point_count == 0:
-            raise InputError(f"{p}: the file holds no points")
-        crs_i, units = io.resolve_crs_units(p, header, crs)
-        if first is None:
-            first = (p, crs_i, units)
-        else:
-            io.require_same_crs(p, crs_i, units, first)
+    for p, header, crs_i, units in io.checked_headers(paths, crs):
+        first = first or (p, crs_i, units)
         box = [min(box[0], header.mins[0]), min(box[1], header.mins[1]), max(box[2], header.maxs[0]),
                max(box[3], header.maxs[1])]
     if points_crs is not None:
