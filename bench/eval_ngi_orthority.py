@@ -22,7 +22,6 @@ Usage: python bench/eval_ngi_orthority.py [--data ../shared/data/ngi_dmc] [--out
 from __future__ import annotations
 
 import argparse
-import importlib.util
 import json
 import os
 import shutil
@@ -34,20 +33,12 @@ from pathlib import Path
 import numpy as np
 
 REPO = Path(__file__).resolve().parents[1]
-# this folder holds bench/ortho.py, which would shadow the ``ortho`` package: import it from the repo
-sys.path[:] = [p for p in sys.path if Path(p or ".").resolve() != Path(__file__).resolve().parent]
 sys.path.insert(0, str(REPO))
 
 
-def _load_ngi():
-    spec = importlib.util.spec_from_file_location("realdata_ngi", REPO / "tests" / "realdata_ngi.py")
-    mod = importlib.util.module_from_spec(spec)
-    sys.modules["realdata_ngi"] = mod
-    spec.loader.exec_module(mod)
-    return mod
+from ngi_common import load_ngi  # noqa: E402
 
-
-ngi = _load_ngi()
+ngi = load_ngi()
 
 
 def _cli(main, args):

@@ -38,8 +38,6 @@ from rasterio import features
 from shapely.geometry import shape
 
 REPO = Path(__file__).resolve().parents[1]
-# this folder holds bench/ortho.py, which would shadow the ``ortho`` package: import it from the repo
-sys.path[:] = [p for p in sys.path if Path(p or ".").resolve() != Path(__file__).resolve().parent]
 sys.path.insert(0, str(REPO))
 BIN = Path(sys.executable).parent
 

@@ -35,7 +35,7 @@ Output megapixels = output grid pixels (the frame's bounding grid). Both DOMs ar
 truth orthophoto with ``ortho.check`` (NCC patches). The machine may be shared: the 1-minute load
 average is recorded before every kind. Writes results/ortho_bench.json.
 
-Usage: python bench/ortho.py [--workdir DIR] [--keep]
+Usage: python bench/ortho_speed.py [--workdir DIR] [--keep]
 """
 
 from __future__ import annotations
@@ -54,8 +54,6 @@ from pathlib import Path
 import numpy as np
 
 REPO = Path(__file__).resolve().parents[1]
-# this folder holds bench/ortho.py, which would shadow the ``ortho`` package: import it from the repo
-sys.path[:] = [p for p in sys.path if Path(p or ".").resolve() != Path(__file__).resolve().parent]
 sys.path.insert(0, str(REPO))
 RES_M = 0.1
 AGL_M = 1000.0
