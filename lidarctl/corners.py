@@ -12,7 +12,7 @@ whose horizontal sigma is below max(0.3 m, 0.4 spacing). The outlines in corners
 
 Score for use as control (0..1, product of factors, each 1 when ideal):
   right angle (interior angle 90 or 270 deg within 10 deg), long edges (shorter edge / min_edge_m),
-  well-supported edges (fewest boundary observations / 10), horizontal precision (1 / (1 + (s/0.15 m)^2)),
+  well-supported edges (fewest boundary observations / SUPPORT_FULL_BINS, 5), horizontal precision (1 / (1 + (s/0.15 m)^2)),
   flat roof (1 for pitched roofs too: an eave corner's plan position is as good, and its height sigma
   sz_m holds the slope times the plan sigma; ``score_flat`` stays in the records), open to the sky (the
   fraction of ``VIEW_SECTORS`` azimuth sectors from which the corner is seen at ``VIEW_OFF_NADIR_DEG`` off
@@ -52,6 +52,7 @@ from aerotri.core.settings import setting
 from lidarctl import io as las_io
 from lidarctl.grid import check_grid
 from lidarctl.roof_outline import (
+    CORNER_MARGIN_SPACINGS,
     corners_from_edges,
     edge_length_m,
     edge_observations,
@@ -88,14 +89,21 @@ FACE_MARGIN_M = 1.0
 FACE_MARGIN_SPACINGS = 2.0
 MIN_FACE_AREA_M2 = 4.0
 # Default shortest edge of a reported corner: MIN_EDGE_SPACINGS point spacings, at least MIN_EDGE_FLOOR_M.
-# Why 8: the outermost point of a bin of one spacing lies uniformly 0..s inside the edge (sigma s/sqrt(12)),
-# so a line fitted to the n = L/s bins of an edge of length L has a direction sigma of
-# sqrt(12 / (n L^2)) s/sqrt(12) = (s/L)^1.5 rad; L = 8 s gives 2.5 deg, so the 5 deg right-angle gate of a
-# usable corner is a 2-sigma test of a free edge, and the direction error moves the corner at the edge's end
-# by sigma L/2 = 0.17 s (less than the edge offset's own sigma at one bin). Why 2 m: shorter roof edges are dormer cheeks, chimney breasts and bay windows, not
-# building corners, however dense the cloud. AHN3 (0.31 m) gets 2.5 m, the simulator (0.6 m) 5 m.
+# Why 8: an edge of length L = N s is observed in n = N - 3 bins of one spacing (1.5 spacings left out at
+# each end, roof_outline.CORNER_MARGIN_SPACINGS) spanning n s; the outermost point of a bin lies uniformly
+# 0..s inside the edge (sigma s/sqrt(12)), so a line fitted to them has a direction sigma of
+# (s/sqrt(12)) sqrt(12 / (n (n s)^2)) = n^-1.5 rad. N = 8 (n = 5) gives 5.1 deg: the shortest edge whose own
+# direction is known to the 5 deg right-angle tolerance of a usable corner (N = 6: 11 deg, a free edge's
+# direction then says nothing about the angle); the offset of a snapped edge (direction shared with the
+# whole roof) is then known to s/sqrt(12 n) = 0.13 s. Why 2 m: shorter roof edges are dormer cheeks,
+# chimney breasts and bay windows, not building corners, however dense the cloud. AHN3 (0.31 m spacing)
+# gets 2.5 m, the simulator's demo (0.62 m) 4.9 m (the fixed default was 5 m).
 MIN_EDGE_SPACINGS = 8.0
 MIN_EDGE_FLOOR_M = 2.0
+# The support factor is 1 when an edge has the bins an edge of the default minimum length has (5): the
+# precision the edge length rule is built on. (It was 10 bins, i.e. edges of 13 spacings: the edge length
+# was scored twice, once by the length factor and once by the support.)
+SUPPORT_FULL_BINS = MIN_EDGE_SPACINGS - 2.0 * CORNER_MARGIN_SPACINGS
 ROOF_PLANES_FILE = "roof_planes.geojson"
 
 CSV_COLUMNS = [
@@ -425,7 +433,7 @@ def _score_corners(raw: list[dict], rc: _RoofClusters, *, min_edge_m: float, roo
         dev = min(abs(c["angle_deg"] - 90.0), abs(c["angle_deg"] - 270.0))
         f_angle = float(np.clip(1.0 - dev / 10.0, 0.0, 1.0))
         f_len = float(np.clip(min(c["l_in"], c["l_out"]) / min_edge_m, 0.0, 1.0))
-        f_support = float(np.clip(min(c["n_in"], c["n_out"]) / 10.0, 0.0, 1.0))
+        f_support = float(np.clip(min(c["n_in"], c["n_out"]) / SUPPORT_FULL_BINS, 0.0, 1.0))
         f_prec = 1.0 / (1.0 + (s_h / 0.15) ** 2)
         f_flat = 1.0  # pitched: the plan position is an eave corner's as well; its height sigma holds the slope
         f_open = float(openness[k])
