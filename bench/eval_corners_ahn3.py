@@ -273,8 +273,10 @@ def why_not_usable(ref: np.ndarray, res: dict, min_edge_m: float) -> dict:
                 out["edge_shorter_than_min_edge"] += 1
             elif c.get("open_edge"):
                 out["edge_ends_off_outline"] += 1
-            elif dev > 5.0:
-                out["not_right_angle"] += 1
+            elif dev > 5.0 and c.get("angle_sigma_deg", np.inf) > 2.5:
+                out["not_right_angle_nor_determined_oblique"] += 1
+            elif dev > 5.0 and abs(180.0 - c["angle_deg"]) < 30.0:
+                out["oblique_turn_below_30deg"] += 1
             else:
                 out["score_below_usable:weakest_" + min(factors, key=lambda f: c[f])[6:]] += 1
     return dict(sorted(out.items()))

@@ -19,7 +19,8 @@ Score for use as control (0..1, product of factors, each 1 when ideal):
   nadir, past trees and other roofs: ``view_openness``),
   not at the edge of a strip (the corner at least 10 m inside a strip's footprint, else 0.3).
 A corner is ``usable`` as control when its score >= ``USABLE_SCORE``, its angle is within 5 deg of a right
-angle, both edges are at least ``min_edge_m`` long and end at corners of the outline (not where the edge
+angle (or it is a well-determined oblique corner: the angle's sigma from the edge adjustment at most 2.5 deg
+and a turn of at least 30 deg; its angle factor is then 1), both edges are at least ``min_edge_m`` long and end at corners of the outline (not where the edge
 lines of a neighbour meet off the traced outline) and, with ``roof="flat"``, its roof is flat.
 
 Units: ``find_roof_corners`` works in metres (every length above, the sigmas and the edge lengths);
@@ -104,6 +105,12 @@ MIN_EDGE_FLOOR_M = 2.0
 # precision the edge length rule is built on. (It was 10 bins, i.e. edges of 13 spacings: the edge length
 # was scored twice, once by the length factor and once by the support.)
 SUPPORT_FULL_BINS = MIN_EDGE_SPACINGS - 2.0 * CORNER_MARGIN_SPACINGS
+# A usable corner: a right angle within RIGHT_ANGLE_TOL_DEG, or an oblique corner whose angle is known to
+# 2 sigma within that tolerance and where the outline turns by at least MIN_OBLIQUE_TURN_DEG (a flatter
+# bend is no point one can identify in the images; the intersection's covariance grows as the lines meet
+# at a shallower angle, and the precision factor sees that).
+RIGHT_ANGLE_TOL_DEG = 5.0
+MIN_OBLIQUE_TURN_DEG = 30.0
 ROOF_PLANES_FILE = "roof_planes.geojson"
 
 CSV_COLUMNS = [
@@ -362,12 +369,16 @@ def _one_roof(pts: np.ndarray, r: int, spacing: float) -> tuple[list[dict], dict
             i_out = edges.index(rc.edge_out[k])
             l_in, l_out = lengths[i_out - 1], lengths[i_out]
             zc, sz, slope = _corner_height(pts, plane_of, planes, roof_tree, rc.xy[k], rc.cov_xy[k])
+            # sigma of the angle between the two edges: 0 between edges of one direction family (right
+            # angles by construction), else from the adjusted directions (free edges, two families)
+            p1, p2 = rc.edge_in[k].param_phi, rc.edge_out[k].param_phi
+            s_angle = float(np.degrees(np.sqrt(max(fit.cov[p1, p1] + fit.cov[p2, p2] - 2.0 * fit.cov[p1, p2], 0.0))))
             raw.append(dict(
                 xy=rc.xy[k], cov=rc.cov_xy[k], z=zc, sz=sz,
                 roof="flat" if slope < FLAT_SLOPE_DEG else "pitched", building_id=r,
                 edge1_deg=_bearing_deg(rc.edge_in[k]), edge2_deg=_bearing_deg(rc.edge_out[k]),
                 angle_deg=float(rc.angle_deg[k]), n_in=rc.edge_in[k].n_obs, n_out=rc.edge_out[k].n_obs,
-                l_in=float(l_in), l_out=float(l_out), open_edge=open_edge,
+                l_in=float(l_in), l_out=float(l_out), open_edge=open_edge, s_angle_deg=s_angle,
             ))
     roof_types = ["flat" if p.slope_deg < FLAT_SLOPE_DEG else "pitched" for p in planes]
     outline = dict(
@@ -431,7 +442,12 @@ def _score_corners(raw: list[dict], rc: _RoofClusters, *, min_edge_m: float, roo
         c["sz"] = float(np.hypot(c["sz"], sigma_strip_z_m))
         s_h = float(np.sqrt(0.5 * (sx**2 + sy**2)))
         dev = min(abs(c["angle_deg"] - 90.0), abs(c["angle_deg"] - 270.0))
-        f_angle = float(np.clip(1.0 - dev / 10.0, 0.0, 1.0))
+        # an oblique corner (a trapezoid block, a wing at an angle) is a corner like a right-angled one when
+        # both edge directions are adjusted well enough that the angle is known (2 sigma within the right
+        # angle's 5 deg tolerance) and the outline turns by at least MIN_OBLIQUE_TURN_DEG there
+        oblique = (c["s_angle_deg"] <= 0.5 * RIGHT_ANGLE_TOL_DEG
+                   and abs(180.0 - c["angle_deg"]) >= MIN_OBLIQUE_TURN_DEG)
+        f_angle = 1.0 if oblique else float(np.clip(1.0 - dev / 10.0, 0.0, 1.0))
         f_len = float(np.clip(min(c["l_in"], c["l_out"]) / min_edge_m, 0.0, 1.0))
         f_support = float(np.clip(min(c["n_in"], c["n_out"]) / SUPPORT_FULL_BINS, 0.0, 1.0))
         f_prec = 1.0 / (1.0 + (s_h / 0.15) ** 2)
@@ -440,7 +456,7 @@ def _score_corners(raw: list[dict], rc: _RoofClusters, *, min_edge_m: float, roo
         f_strip = 1.0 if margin[k] >= 10.0 else 0.3
         score = f_angle * f_len * f_support * f_prec * f_flat * f_open * f_strip
         usable = (
-            score >= USABLE_SCORE and dev <= 5.0 and min(c["l_in"], c["l_out"]) >= min_edge_m
+            score >= USABLE_SCORE and (dev <= RIGHT_ANGLE_TOL_DEG or oblique) and min(c["l_in"], c["l_out"]) >= min_edge_m
             and (roof == "any" or c["roof"] == "flat") and not c["open_edge"]
         )
         c.update(sx=float(sx), sy=float(sy), score=float(score), usable=bool(usable),
@@ -464,7 +480,7 @@ def _reported_corners(raw: list[dict], min_edge_m: float, spacing: float) -> lis
             "support_pts": int(c["n_in"] + c["n_out"]), "score": c["score"], "usable": int(c["usable"]),
             # not in the CSV; in the GeoJSON for review: why a corner is (not) usable
             "edge1_m": c["l_in"], "edge2_m": c["l_out"], "strip_margin_m": c["strip_margin_m"],
-            "open_edge": bool(c["open_edge"]),
+            "open_edge": bool(c["open_edge"]), "angle_sigma_deg": c["s_angle_deg"],
             **{f"score_{k}": v for k, v in c["factors"].items()},
         })
     return corners
