@@ -3,8 +3,9 @@
     .venv/bin/python bench/eval_corners_ahn3.py [--data ../shared/data/ahn3_delft] [--out results]
     .venv/bin/python bench/eval_corners_ahn3.py --laz PATH/ahn3_cropped_2.laz --name crop2
 
-Writes results/corners_ahn3.json and results/corners_ahn3.png (outlines, corners and footprints over
-the nDSM) and the corner files themselves under out/corners_ahn3/.
+Writes results/corners_ahn3.json, results/corners_ahn3.png (outlines, corners and footprints over
+the nDSM), results/corners_ahn3_misses.png (zoomed on the reference vertices with an outline but no corner:
+``outline_but_no_corner_detail`` says what the tracing did there) and the corner files themselves under out/corners_ahn3/.
 
 Unseen crop (``--laz PATH --name NAME``): another crop of the same survey that no parameter was ever
 chosen on, e.g. ``ahn3_cropped_2.laz`` (tudelft3d/3dfier example_data/ahn3, GPL-3, directly east of
@@ -282,6 +283,86 @@ def why_not_usable(ref: np.ndarray, res: dict, min_edge_m: float) -> dict:
     return dict(sorted(out.items()))
 
 
+def outline_but_no_corner(ref: np.ndarray, res: dict, res_short: dict, min_edge_m: float) -> dict:
+    """The reference vertices with a roof outline within ``MATCH_M`` but no reported corner, split by what the
+    tracing did there, from a second run with min_edge_m 0.5 m (``res_short``, every traced corner that
+    passes the sigma gate): a traced corner with an edge shorter than ``min_edge_m`` (the LiDAR edge is
+    shorter than the BGT wall: a setback, a porch), or no outline vertex near the vertex at all (the
+    regularised outline runs past it: a lower annex merged into the roof, an annex not in the building
+    class, a rounded or chamfered corner) - or a traced corner dropped by the sigma gate. With the vertices
+    (x, y) for the zoomed figure."""
+    corners = res["corners"]
+    cxy = np.array([[c["x"], c["y"]] for c in corners]).reshape(-1, 2)
+    d_any = cKDTree(cxy).query(ref)[0] if len(cxy) else np.full(len(ref), np.inf)
+    rings = [r for o in res["outlines"] for r in o["rings"] if len(r) >= 3]
+    lines = shapely.MultiLineString([np.vstack([r, r[:1]]) for r in rings]) if rings else None
+    d_line = shapely.distance(lines, shapely.points(ref)) if lines is not None else np.full(len(ref), np.inf)
+    miss = np.flatnonzero((d_any > MATCH_M) & (d_line <= MATCH_M))
+    sxy = np.array([[c["x"], c["y"]] for c in res_short["corners"]]).reshape(-1, 2)
+    d_s, j_s = cKDTree(sxy).query(ref[miss]) if len(sxy) else (np.full(len(miss), np.inf), None)
+    kinds = {}
+    for n, k in enumerate(miss):
+        if d_s[n] > MATCH_M:
+            kind = "no_outline_vertex_near"
+        else:
+            c = res_short["corners"][j_s[n]]
+            kind = ("traced_corner_edge_shorter_than_min_edge" if min(c["edge1_m"], c["edge2_m"]) < min_edge_m
+                    else "traced_corner_dropped_by_sigma_gate")
+        kinds.setdefault(kind, []).append([round(float(v), 2) for v in ref[k]])
+    return {"counts": {k: len(v) for k, v in sorted(kinds.items())}, "vertices_xy": dict(sorted(kinds.items()))}
+
+
+def plot_misses(path: Path, cloud: dict, res: dict, polys, detail: dict, half_m: float = 9.0) -> None:
+    """Zoomed panels (nDSM, BGT footprints cyan, roof outlines orange, corners as in ``plot_corners``) around
+    the ``outline_but_no_corner`` vertices (green +), titled with what the tracing did there."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from aerotri.core.atomic import atomic_path
+
+    items = [(kind, xy) for kind, v in detail["vertices_xy"].items() for xy in v][:20]
+    if not items:
+        return
+    xyz = np.column_stack([cloud["x"], cloud["y"], cloud["z"]])
+    ndsm, ext = simple_ndsm(xyz, cloud["classification"], cell_m=0.5)
+    cols = 5
+    rows = (len(items) + cols - 1) // cols
+    fig, axs = plt.subplots(rows, cols, figsize=(3.0 * cols + 1.0, 3.2 * rows + 0.6), squeeze=False,
+                            layout="constrained")
+    cxy = np.array([[c["x"], c["y"]] for c in res["corners"]]).reshape(-1, 2)
+    use = np.array([bool(c["usable"]) for c in res["corners"]], bool)
+    short = {"no_outline_vertex_near": "no outline vertex", "traced_corner_edge_shorter_than_min_edge": "LiDAR edge short",
+             "traced_corner_dropped_by_sigma_gate": "sigma gate"}
+    for ax in axs.ravel():
+        ax.set_axis_off()
+    for ax, (kind, (x, y)) in zip(axs.ravel(), items):
+        ax.set_axis_on()
+        im = ax.imshow(ndsm, origin="lower", extent=ext, cmap="gray", vmin=0, vmax=15)
+        for p in polys:
+            ax.plot(*np.asarray(p.exterior.coords).T, color="tab:cyan", lw=0.8)
+        for o in res["outlines"]:
+            for r in o["rings"]:
+                if len(r) >= 3:
+                    rr = np.vstack([r, r[:1]])
+                    ax.plot(rr[:, 0], rr[:, 1], color="tab:orange", lw=1.0)
+        ax.plot(cxy[~use, 0], cxy[~use, 1], "o", mfc="none", color="tab:blue", ms=4)
+        ax.plot(cxy[use, 0], cxy[use, 1], "o", color="tab:red", ms=4)
+        ax.plot(x, y, "+", color="tab:green", ms=12, mew=2)
+        ax.set_xlim(x - half_m, x + half_m)
+        ax.set_ylim(y - half_m, y + half_m)
+        ax.set_xticks([])
+        ax.set_yticks([])
+        ax.set_title(f"{short.get(kind, kind)} ({x:.0f}, {y:.0f})", fontsize=8)
+    fig.colorbar(im, ax=axs, shrink=0.6, label="nDSM (m)")
+    fig.suptitle(f"outline but no corner: BGT vertex (green +), BGT cyan, roof outline orange, corners red "
+                 f"(usable) / blue; windows {2 * half_m:g} m", fontsize=10)
+    with atomic_path(path) as tmp:
+        fig.savefig(tmp, dpi=90)
+    plt.close(fig)
+
+
 def detect(cloud: dict, min_edge_m: float | None) -> tuple[dict, float]:
     t0 = time.perf_counter()
     res = find_roof_corners(cloud["x"], cloud["y"], cloud["z"], cloud["classification"], cloud["point_source_id"],
@@ -377,6 +458,8 @@ def evaluate(laz: Path, polys: list, min_edge_m: float, corner_dir: Path, datase
                 **{f"{h}_usable_completeness_pct": s_f[head][h]["usable"].get("completeness_pct") for h in halves},
                 "whole_usable_offset_median_m": s_f[head]["whole"]["usable"].get("offset_xy", {}).get("median_m"),
                 "why_not_usable": why_not_usable(vxy[sets[head]], res_f, fixed)}
+    res_short, _ = detect(cloud, 0.5)
+    summary["outline_but_no_corner_detail"] = outline_but_no_corner(vxy[sets[head]], res, res_short, min_edge_m)
     figure = {"cloud": cloud, "res": res, "truth_xy": vxy[sets[head]], "x_split": x_split}
     return summary, figure
 
@@ -471,12 +554,14 @@ def main():
         args.out / f"{stem}.png", ndsm, extent, fig["res"]["outlines"], fig["res"]["corners"],
         truth_xy=fig["truth_xy"], reference_polygons=[np.asarray(p.exterior.coords) for p in polys],
         title=(f"{place}: cyan BGT footprints, + block corners (edges >= {REF_MIN_EDGE_M:g} m, turn >= {REF_MIN_TURN_DEG:g} deg), "
-               f"split x = {fig['x_split']:.0f}\nusable completeness {_num(h['whole_usable_completeness_pct'], 0)} % "
+               f"split x = {fig['x_split']:.0f}\nstage defaults (min edge {summary['min_edge_m']:.2f} m): "
+               f"usable completeness {_num(h['whole_usable_completeness_pct'], 0)} % "
                f"(west {_num(h['west_usable_completeness_pct'], 0)}, "
                f"east {_num(h['east_usable_completeness_pct'], 0)}), "
                f"median offset {_num(h['whole_usable_offset_median_m'], 2)} m"),
         vlines=[fig["x_split"]],
     )
+    plot_misses(args.out / f"{stem}_misses.png", cloud, fig["res"], polys, summary["outline_but_no_corner_detail"])
     print(json.dumps(summary["whole_crop_by_reference_set"], indent=2))
     print(json.dumps(h, indent=2))
 
