@@ -12,7 +12,8 @@ whose horizontal sigma is below max(0.3 m, 0.4 spacing). The outlines in corners
 
 Score for use as control (0..1, product of factors, each 1 when ideal):
   right angle (interior angle 90 or 270 deg within 10 deg), long edges (shorter edge / min_edge_m),
-  well-supported edges (fewest boundary observations / SUPPORT_FULL_BINS, 5), horizontal precision (1 / (1 + (s/0.15 m)^2)),
+  well-supported edges (fewest boundary observations / ``SUPPORT_FULL_BINS``, 5), horizontal precision
+  (1 / (1 + (s/0.15 m)^2)),
   flat roof (1 for pitched roofs too: an eave corner's plan position is as good, and its height sigma
   sz_m holds the slope times the plan sigma; ``score_flat`` stays in the records), open to the sky (the
   fraction of ``VIEW_SECTORS`` azimuth sectors from which the corner is seen at ``VIEW_OFF_NADIR_DEG`` off
@@ -20,8 +21,9 @@ Score for use as control (0..1, product of factors, each 1 when ideal):
   not at the edge of a strip (the corner at least 10 m inside a strip's footprint, else 0.3).
 A corner is ``usable`` as control when its score >= ``USABLE_SCORE``, its angle is within 5 deg of a right
 angle (or it is a well-determined oblique corner: the angle's sigma from the edge adjustment at most 2.5 deg
-and a turn of at least 30 deg; its angle factor is then 1), both edges are at least ``min_edge_m`` long and end at corners of the outline (not where the edge
-lines of a neighbour meet off the traced outline) and, with ``roof="flat"``, its roof is flat.
+and a turn of at least 30 deg; its angle factor is then 1), both edges are at least ``min_edge_m`` long and
+end at corners of the outline (not where the edge lines of a neighbour meet off the traced outline) and,
+with ``roof="flat"``, its roof is flat.
 
 Units: ``find_roof_corners`` works in metres (every length above, the sigmas and the edge lengths);
 ``read_strips`` scales clouds in feet to metres and ``to_crs_units`` writes the corner and outline
