@@ -52,7 +52,8 @@ def main():
     ap.add_argument("--out", type=Path, default=REPO / "results")
     ap.add_argument("--classified", default="truth", help="'truth' (truth/lidar/*.las) or a classified LAS/LAZ file")
     ap.add_argument("--roof", default="flat", choices=["flat", "any"])
-    ap.add_argument("--min-edge-m", type=float, default=5.0)
+    ap.add_argument("--min-edge-m", type=float, default=None,
+                    help="the detector's min_edge_m (default: the stage's default, density-adaptive)")
     args = ap.parse_args()
 
     if not (args.project / "truth" / "roof_corners.csv").exists():
@@ -109,7 +110,8 @@ def main():
         "seed": truth_info.get("seed"),
         "lidar_mean_spacing_m": truth_info.get("lidar_mean_spacing_m"),
         "roof": args.roof,
-        "min_edge_m": args.min_edge_m,
+        "min_edge_m": res["stats"]["min_edge_m"],
+        "min_edge_rule": res["stats"]["min_edge_rule"],
         "match_radius_m": MATCH_M,
         "n_points": res["stats"]["n_points"],
         "point_spacing_m": res["stats"]["point_spacing_m"],

@@ -6,20 +6,24 @@ corner (``lidarctl.roof_segments``), i.e. the eave height. Standard deviations s
 edge-line adjustment, sz_m from the plane fit plus the roof slope times the horizontal uncertainty; both
 include the strip georeferencing error (``sigma_strip_xy_m``, ``sigma_strip_z_m``).
 
-Reported (corners.csv): corners whose two edges are at least ``min_edge_m`` long and whose horizontal
-sigma is below max(0.3 m, 0.4 spacing). The outlines in corners.geojson keep every traced corner.
+Reported (corners.csv): corners whose two edges are at least ``min_edge_m`` long (default: max(2 m, 8 point
+spacings), ``default_min_edge_m``: density-adaptive, so one default serves 0.3 m and 1 m spacings) and
+whose horizontal sigma is below max(0.3 m, 0.4 spacing). The outlines in corners.geojson keep every traced corner.
 
 Score for use as control (0..1, product of factors, each 1 when ideal):
   right angle (interior angle 90 or 270 deg within 10 deg), long edges (shorter edge / min_edge_m),
-  well-supported edges (fewest boundary observations / 10), horizontal precision (1 / (1 + (s/0.15 m)^2)),
+  well-supported edges (fewest boundary observations / ``SUPPORT_FULL_BINS``, 5), horizontal precision
+  (1 / (1 + (s/0.15 m)^2)),
   flat roof (1 for pitched roofs too: an eave corner's plan position is as good, and its height sigma
   sz_m holds the slope times the plan sigma; ``score_flat`` stays in the records), open to the sky (the
   fraction of ``VIEW_SECTORS`` azimuth sectors from which the corner is seen at ``VIEW_OFF_NADIR_DEG`` off
   nadir, past trees and other roofs: ``view_openness``),
   not at the edge of a strip (the corner at least 10 m inside a strip's footprint, else 0.3).
 A corner is ``usable`` as control when its score >= ``USABLE_SCORE``, its angle is within 5 deg of a right
-angle, both edges are at least ``min_edge_m`` long and end at corners of the outline (not where the edge
-lines of a neighbour meet off the traced outline) and, with ``roof="flat"``, its roof is flat.
+angle (or it is a well-determined oblique corner: the angle's sigma from the edge adjustment at most 2.5 deg
+and a turn of at least 30 deg; its angle factor is then 1), both edges are at least ``min_edge_m`` long and
+end at corners of the outline (not where the edge lines of a neighbour meet off the traced outline) and,
+with ``roof="flat"``, its roof is flat.
 
 Units: ``find_roof_corners`` works in metres (every length above, the sigmas and the edge lengths);
 ``read_strips`` scales clouds in feet to metres and ``to_crs_units`` writes the corner and outline
@@ -51,6 +55,7 @@ from aerotri.core.settings import setting
 from lidarctl import io as las_io
 from lidarctl.grid import check_grid
 from lidarctl.roof_outline import (
+    CORNER_MARGIN_SPACINGS,
     corners_from_edges,
     edge_length_m,
     edge_observations,
@@ -86,6 +91,28 @@ OCCLUDER_MIN_POINTS = 3
 FACE_MARGIN_M = 1.0
 FACE_MARGIN_SPACINGS = 2.0
 MIN_FACE_AREA_M2 = 4.0
+# Default shortest edge of a reported corner: MIN_EDGE_SPACINGS point spacings, at least MIN_EDGE_FLOOR_M.
+# Why 8: an edge of length L = N s is observed in n = N - 3 bins of one spacing (1.5 spacings left out at
+# each end, roof_outline.CORNER_MARGIN_SPACINGS) spanning n s; the outermost point of a bin lies uniformly
+# 0..s inside the edge (sigma s/sqrt(12)), so a line fitted to them has a direction sigma of
+# (s/sqrt(12)) sqrt(12 / (n (n s)^2)) = n^-1.5 rad. N = 8 (n = 5) gives 5.1 deg: the shortest edge whose own
+# direction is known to the 5 deg right-angle tolerance of a usable corner (N = 6: 11 deg, a free edge's
+# direction then says nothing about the angle); the offset of a snapped edge (direction shared with the
+# whole roof) is then known to s/sqrt(12 n) = 0.13 s. Why 2 m: shorter roof edges are dormer cheeks,
+# chimney breasts and bay windows, not building corners, however dense the cloud. AHN3 (0.31 m spacing)
+# gets 2.5 m, the simulator's demo (0.62 m) 4.9 m (the fixed default was 5 m).
+MIN_EDGE_SPACINGS = 8.0
+MIN_EDGE_FLOOR_M = 2.0
+# The support factor is 1 when an edge has the bins an edge of the default minimum length has (5): the
+# precision the edge length rule is built on. (It was 10 bins, i.e. edges of 13 spacings: the edge length
+# was scored twice, once by the length factor and once by the support.)
+SUPPORT_FULL_BINS = MIN_EDGE_SPACINGS - 2.0 * CORNER_MARGIN_SPACINGS
+# A usable corner: a right angle within RIGHT_ANGLE_TOL_DEG, or an oblique corner whose angle is known to
+# 2 sigma within that tolerance and where the outline turns by at least MIN_OBLIQUE_TURN_DEG (a flatter
+# bend is no point one can identify in the images; the intersection's covariance grows as the lines meet
+# at a shallower angle, and the precision factor sees that).
+RIGHT_ANGLE_TOL_DEG = 5.0
+MIN_OBLIQUE_TURN_DEG = 30.0
 ROOF_PLANES_FILE = "roof_planes.geojson"
 
 CSV_COLUMNS = [
@@ -187,13 +214,21 @@ class _RoofClusters:
     roof_label: np.ndarray  # roof per point, -1 for none
     n_roofs: int
     margin_anchor: object = None  # strip-footprint grid origin of the whole cloud (tiles), else None
+    min_edge_m: float = 5.0  # shortest edge of a reported corner (resolved from the spacing by default)
+
+
+def default_min_edge_m(spacing_m: float) -> float:
+    """The stage's default shortest edge (m): max(MIN_EDGE_FLOOR_M, MIN_EDGE_SPACINGS * spacing) (see there)."""
+    if not np.isfinite(spacing_m):
+        return 5.0
+    return float(max(MIN_EDGE_FLOOR_M, MIN_EDGE_SPACINGS * spacing_m))
 
 
 def _roof_clusters(x, y, z, classification, point_source_id, spacing_m: float | None = None,
-                   margin_anchor=None, min_roof_m2: float = 25.0) -> _RoofClusters:
+                   margin_anchor=None, min_edge_m: float | None = None) -> _RoofClusters:
     """Drop noise, refuse a cloud without building points, cluster the building points into roofs of at
-    least ``min_roof_m2`` (and 30 points). ``spacing_m``: the building points' spacing of the whole cloud
-    when this is a tile of it."""
+    least ``min_roof_m2(min_edge_m)`` (and 30 points; ``min_edge_m`` None: ``default_min_edge_m`` of the
+    spacing). ``spacing_m``: the building points' spacing of the whole cloud when this is a tile of it."""
     xyz = np.column_stack([x, y, z]).astype(float)
     cls = np.asarray(classification)
     keep = ~np.isin(cls, NOISE)
@@ -216,12 +251,14 @@ def _roof_clusters(x, y, z, classification, point_source_id, spacing_m: float | 
         spacing = point_spacing_m(xyz[bldg_idx, :2], cell_m=max(2.0, 2.0 * spacing))
     else:
         spacing = spacing_m
+    if min_edge_m is None:
+        min_edge_m = default_min_edge_m(spacing)
     roof_of_bldg = cluster_roofs(xyz[bldg_idx], link_radius_m=2.0 * spacing, max_step_m=1.0,
-                                 min_points=max(30, int(min_roof_m2 / spacing**2)))
+                                 min_points=max(30, int(min_roof_m2(min_edge_m) / spacing**2)))
     roof_label = np.full(len(xyz), -1, np.int64)
     roof_label[bldg_idx] = roof_of_bldg
     n_roofs = int(roof_of_bldg.max()) + 1 if (roof_of_bldg >= 0).any() else 0
-    return _RoofClusters(xyz, cls, sid, n_bldg, spacing, roof_label, n_roofs, margin_anchor)
+    return _RoofClusters(xyz, cls, sid, n_bldg, spacing, roof_label, n_roofs, margin_anchor, float(min_edge_m))
 
 
 def _corner_height(pts, plane_of, planes, roof_tree, xy, cov_xy) -> tuple[float, float, float]:
@@ -334,12 +371,16 @@ def _one_roof(pts: np.ndarray, r: int, spacing: float) -> tuple[list[dict], dict
             i_out = edges.index(rc.edge_out[k])
             l_in, l_out = lengths[i_out - 1], lengths[i_out]
             zc, sz, slope = _corner_height(pts, plane_of, planes, roof_tree, rc.xy[k], rc.cov_xy[k])
+            # sigma of the angle between the two edges: 0 between edges of one direction family (right
+            # angles by construction), else from the adjusted directions (free edges, two families)
+            p1, p2 = rc.edge_in[k].param_phi, rc.edge_out[k].param_phi
+            s_angle = float(np.degrees(np.sqrt(max(fit.cov[p1, p1] + fit.cov[p2, p2] - 2.0 * fit.cov[p1, p2], 0.0))))
             raw.append(dict(
                 xy=rc.xy[k], cov=rc.cov_xy[k], z=zc, sz=sz,
                 roof="flat" if slope < FLAT_SLOPE_DEG else "pitched", building_id=r,
                 edge1_deg=_bearing_deg(rc.edge_in[k]), edge2_deg=_bearing_deg(rc.edge_out[k]),
                 angle_deg=float(rc.angle_deg[k]), n_in=rc.edge_in[k].n_obs, n_out=rc.edge_out[k].n_obs,
-                l_in=float(l_in), l_out=float(l_out), open_edge=open_edge,
+                l_in=float(l_in), l_out=float(l_out), open_edge=open_edge, s_angle_deg=s_angle,
             ))
     roof_types = ["flat" if p.slope_deg < FLAT_SLOPE_DEG else "pitched" for p in planes]
     outline = dict(
@@ -403,16 +444,21 @@ def _score_corners(raw: list[dict], rc: _RoofClusters, *, min_edge_m: float, roo
         c["sz"] = float(np.hypot(c["sz"], sigma_strip_z_m))
         s_h = float(np.sqrt(0.5 * (sx**2 + sy**2)))
         dev = min(abs(c["angle_deg"] - 90.0), abs(c["angle_deg"] - 270.0))
-        f_angle = float(np.clip(1.0 - dev / 10.0, 0.0, 1.0))
+        # an oblique corner (a trapezoid block, a wing at an angle) is a corner like a right-angled one when
+        # both edge directions are adjusted well enough that the angle is known (2 sigma within the right
+        # angle's 5 deg tolerance) and the outline turns by at least MIN_OBLIQUE_TURN_DEG there
+        oblique = (c["s_angle_deg"] <= 0.5 * RIGHT_ANGLE_TOL_DEG
+                   and abs(180.0 - c["angle_deg"]) >= MIN_OBLIQUE_TURN_DEG)
+        f_angle = 1.0 if oblique else float(np.clip(1.0 - dev / 10.0, 0.0, 1.0))
         f_len = float(np.clip(min(c["l_in"], c["l_out"]) / min_edge_m, 0.0, 1.0))
-        f_support = float(np.clip(min(c["n_in"], c["n_out"]) / 10.0, 0.0, 1.0))
+        f_support = float(np.clip(min(c["n_in"], c["n_out"]) / SUPPORT_FULL_BINS, 0.0, 1.0))
         f_prec = 1.0 / (1.0 + (s_h / 0.15) ** 2)
         f_flat = 1.0  # pitched: the plan position is an eave corner's as well; its height sigma holds the slope
         f_open = float(openness[k])
         f_strip = 1.0 if margin[k] >= 10.0 else 0.3
         score = f_angle * f_len * f_support * f_prec * f_flat * f_open * f_strip
         usable = (
-            score >= USABLE_SCORE and dev <= 5.0 and min(c["l_in"], c["l_out"]) >= min_edge_m
+            score >= USABLE_SCORE and (dev <= RIGHT_ANGLE_TOL_DEG or oblique) and min(c["l_in"], c["l_out"]) >= min_edge_m
             and (roof == "any" or c["roof"] == "flat") and not c["open_edge"]
         )
         c.update(sx=float(sx), sy=float(sy), score=float(score), usable=bool(usable),
@@ -436,7 +482,7 @@ def _reported_corners(raw: list[dict], min_edge_m: float, spacing: float) -> lis
             "support_pts": int(c["n_in"] + c["n_out"]), "score": c["score"], "usable": int(c["usable"]),
             # not in the CSV; in the GeoJSON for review: why a corner is (not) usable
             "edge1_m": c["l_in"], "edge2_m": c["l_out"], "strip_margin_m": c["strip_margin_m"],
-            "open_edge": bool(c["open_edge"]),
+            "open_edge": bool(c["open_edge"]), "angle_sigma_deg": c["s_angle_deg"],
             **{f"score_{k}": v for k, v in c["factors"].items()},
         })
     return corners
@@ -449,12 +495,15 @@ def find_roof_corners(
     classification: np.ndarray,
     point_source_id: np.ndarray | None = None,
     *,
-    min_edge_m: float = 5.0,
+    min_edge_m: float | None = None,
     roof: str = "flat",
     sigma_strip_xy_m: float = 0.03,
     sigma_strip_z_m: float = 0.03,
 ) -> dict:
     """Corners and regularised outlines of all roofs of a classified cloud (metres).
+
+    ``min_edge_m``: shortest edge of a reported corner; None: ``default_min_edge_m`` of the building
+    points' spacing (the resolved value is ``stats["min_edge_m"]``).
 
     Steps: roofs (clusters of building points) -> per roof: planes, outline, fitted edges, corners ->
     scores -> the corners reported.
@@ -470,7 +519,8 @@ def find_roof_corners(
     if roof not in ("flat", "any"):
         raise InputError(f"roof must be 'flat' or 'any', not {roof!r}")
     t_start = time.perf_counter()
-    rc = _roof_clusters(x, y, z, classification, point_source_id, min_roof_m2=min_roof_m2(min_edge_m))
+    rc = _roof_clusters(x, y, z, classification, point_source_id, min_edge_m=min_edge_m)
+    min_edge_auto, min_edge_m = min_edge_m is None, rc.min_edge_m
     raw, outlines, faces = [], [], []  # raw: per corner xy, cov, z, sz, roof type, building, bearings, angle, ...
     for r in track(range(rc.n_roofs), "roof corners", "roofs"):
         roof_raw, outline, roof_faces = _one_roof(rc.xyz[rc.roof_label == r], r, rc.spacing_m)
@@ -483,7 +533,7 @@ def find_roof_corners(
                        sigma_strip_z_m=sigma_strip_z_m)
     return _finish(raw, outlines, faces, n_points=len(rc.xyz), n_building_points=rc.n_building_points,
                    spacing_m=rc.spacing_m, n_roofs=rc.n_roofs, t_start=t_start, min_edge_m=min_edge_m, roof=roof,
-                   sigma_strip_xy_m=sigma_strip_xy_m, sigma_strip_z_m=sigma_strip_z_m)
+                   sigma_strip_xy_m=sigma_strip_xy_m, sigma_strip_z_m=sigma_strip_z_m, min_edge_auto=min_edge_auto)
 
 
 def min_roof_m2(min_edge_m: float) -> float:
@@ -493,7 +543,7 @@ def min_roof_m2(min_edge_m: float) -> float:
 
 
 def _finish(raw, outlines, faces, *, n_points, n_building_points, spacing_m, n_roofs, t_start, min_edge_m, roof,
-            sigma_strip_xy_m, sigma_strip_z_m) -> dict:
+            sigma_strip_xy_m, sigma_strip_z_m, min_edge_auto=False) -> dict:
     """The reported corners and the stats of the scored corners of all roofs (in roof order)."""
     if not raw:
         raise InputError(
@@ -506,7 +556,10 @@ def _finish(raw, outlines, faces, *, n_points, n_building_points, spacing_m, n_r
         "n_points": int(n_points), "n_building_points": n_building_points, "point_spacing_m": spacing_m,
         "n_roofs": n_roofs, "n_outlines": len(outlines), "n_corners_traced": len(raw),
         "n_corners": len(corners), "n_usable": int(n_usable), "n_roof_planes": len(faces),
-        "min_edge_m": min_edge_m, "roof": roof,
+        "min_edge_m": min_edge_m,
+        "min_edge_rule": (f"max({MIN_EDGE_FLOOR_M:g} m, {MIN_EDGE_SPACINGS:g} point spacings)" if min_edge_auto
+                          else "given"),
+        "roof": roof,
         "sigma_strip_xy_m": sigma_strip_xy_m, "sigma_strip_z_m": sigma_strip_z_m,
         "usable_score": USABLE_SCORE,
         "median_sxy_usable_m": (
@@ -638,15 +691,15 @@ def _global_spacing_m(tc: _TiledCloud, chunk_points: int = las_io.CHUNK_POINTS) 
     return spacing(max(2.0, 2.0 * s))
 
 
-def _tile_clusters(tc: _TiledCloud, tid: int, spacing_m: float, min_roof: float = 25.0):
+def _tile_clusters(tc: _TiledCloud, tid: int, spacing_m: float, min_edge_m: float):
     """(points, _RoofClusters) of one tile with its buffer, or None without building points; roofs of at
-    least ``min_roof`` m^2."""
+    least ``min_roof_m2(min_edge_m)``."""
     rec = _tile_points(tc, tid)
     if not (rec["cls"] == BUILDING).any():
         return rec, None
     sid = (rec["file"].astype(np.int64) + 1) if tc.file_is_strip else rec["sid"].astype(np.int64)
     rc = _roof_clusters(rec["x"], rec["y"], rec["z"], rec["cls"], sid, spacing_m=spacing_m,
-                        margin_anchor=tc.margin_anchor, min_roof_m2=min_roof)
+                        margin_anchor=tc.margin_anchor, min_edge_m=min_edge_m)
     return rec, rc
 
 
@@ -662,7 +715,7 @@ def _roof_keys(rec: np.ndarray, rc: _RoofClusters):
 
 
 def find_roof_corners_tiled(paths, crs=None, *, tile_m: float = DEFAULT_TILE_M, buffer_m: float = DEFAULT_BUFFER_M,
-                            min_edge_m: float = 5.0, roof: str = "flat", sigma_strip_xy_m: float = 0.03,
+                            min_edge_m: float | None = None, roof: str = "flat", sigma_strip_xy_m: float = 0.03,
                             sigma_strip_z_m: float = 0.03, work_dir=None, chunk_points: int = las_io.CHUNK_POINTS,
                             figure_cells: int = 0):
     """``find_roof_corners`` of classified LAS/LAZ files (strips in one CRS) by tiles of ``tile_m`` with a
@@ -699,13 +752,16 @@ def find_roof_corners_tiled(paths, crs=None, *, tile_m: float = DEFAULT_TILE_M, 
                 f"{names}: no building points (ASPRS class {BUILDING}) among {tc.n_points} points: classify the "
                 "cloud first (lidarctl classify) - roof corners need building points")
         spacing = _global_spacing_m(tc, chunk_points)
+        min_edge_auto = min_edge_m is None
+        if min_edge_auto:
+            min_edge_m = default_min_edge_m(spacing)
         # Each tile's roofs; a tile keeps the roofs whose reference point lies in its core, numbered by their
         # key (size, reference point) until all are known, then ranked as cluster_roofs ranks them.
         keys, raw, outlines, faces = [], [], [], []
         fig = None
         tiles = [int(t) for t in np.flatnonzero(tc.used)]
         for tid in track(tiles, "roof corners", "tiles"):
-            rec, rc = _tile_clusters(tc, tid, spacing, min_roof_m2(min_edge_m))
+            rec, rc = _tile_clusters(tc, tid, spacing, min_edge_m)
             if figure_cells:
                 fig = _figure_tile(fig, rec, tc, tid, spacing, figure_cells)
             if rc is None or rc.n_roofs == 0:
@@ -744,7 +800,8 @@ def find_roof_corners_tiled(paths, crs=None, *, tile_m: float = DEFAULT_TILE_M, 
     try:
         result = _finish(raw, outlines, faces, n_points=tc.n_points, n_building_points=tc.n_building,
                          spacing_m=spacing, n_roofs=len(keys), t_start=t_start, min_edge_m=min_edge_m, roof=roof,
-                         sigma_strip_xy_m=sigma_strip_xy_m, sigma_strip_z_m=sigma_strip_z_m)
+                         sigma_strip_xy_m=sigma_strip_xy_m, sigma_strip_z_m=sigma_strip_z_m,
+                         min_edge_auto=min_edge_auto)
     except InputError as exc:
         raise InputError(f"{names}: {exc}") from None
     result["stats"].update(tiles=len(tiles), tile_m=tile_m, buffer_m=buffer_m)
@@ -1029,7 +1086,9 @@ def plot_corners(path, ndsm, extent, outlines, corners, truth_xy=None, reference
 class CornerSettings:
     """Options of the roof-corner stage (``lidarctl corners``, ``[corners]`` in project.toml)."""
 
-    min_edge_m: float = setting(5.0, min=0.5, help="Report corners whose two edges are at least this long (m).")
+    min_edge_m: float | None = setting(None, min=0.5, help="Report corners whose two edges are at least this long "
+                                                            "(m); default max(2 m, 8 point spacings) of the roofs' "
+                                                            "measured spacing.")
     roof: str = setting("flat", choices=("flat", "any"), help="Roofs whose corners may be marked usable as control.")
     sigma_strip_xy_m: float = setting(0.03, min=0.0, help="Horizontal georeferencing error of a strip, added to "
                                                           "every corner's sx_m, sy_m (m).")
@@ -1074,7 +1133,7 @@ def corner_control(paths, outdir, settings: CornerSettings = CornerSettings(), c
     head = {"source": names, "crs": crs_out.to_string() if crs_out is not None else None, **units.as_dict()}
     if st["n_usable"] == 0:
         reason = (f"{names}: no usable roof corner ({st['n_corners']} corners on {st['n_outlines']} roof outlines, "
-                  f"none with score >= {st['usable_score']} and edges >= {s.min_edge_m} m"
+                  f"none with score >= {st['usable_score']} and edges >= {st['min_edge_m']:.2f} m"
                   f"{' on a flat roof' if s.roof == 'flat' else ''}; point spacing {st['point_spacing_m']:.2f} m)")
         summary = {**head, **st, "no_usable": reason}
         if not record_none:

@@ -293,7 +293,9 @@ def building_outlines(pts: dict, spacing_m: float | None = None) -> tuple[list, 
     if not (cls == BUILDING).any():
         return [], [], {"n_roofs": 0}
     try:
-        res = find_roof_corners(pts["x"], pts["y"], pts["z"], cls, pts["point_source_id"], roof="any")
+        # min_edge_m as before the corner stage's density-adaptive default (issue 21): it sets the smallest
+        # roof outlined (25 m^2) and the corners the eave heights come from; not re-evaluated for the line map
+        res = find_roof_corners(pts["x"], pts["y"], pts["z"], cls, pts["point_source_id"], roof="any", min_edge_m=5.0)
     except InputError as exc:
         log.info(f"no building outlines: {exc}")
         return [], [], {"n_roofs": 0}

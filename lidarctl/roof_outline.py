@@ -39,6 +39,10 @@ import cv2
 import numpy as np
 
 
+# Bins left out at each end of an edge (spacings), where the other edge and the rounded trace interfere.
+CORNER_MARGIN_SPACINGS = 1.5
+
+
 # ----------------------------------------------------------------------------------------------- tracing
 def _signed_area(ring: np.ndarray) -> float:
     x, y = ring[:, 0], ring[:, 1]
@@ -340,10 +344,10 @@ def edge_observations(
 
     Fitting the outermost points alone puts the edge about half a spacing inside the roof. Points outside
     the roof are not used: under eaves and next to walls they are hidden or lie under the roof.
-    Bins are one spacing long; ``corner_margin_m`` (default 1.5 spacings, at least 1 m) is left out at
-    both ends where the other edge and the rounded trace interfere.
+    Bins are one spacing long; ``corner_margin_m`` (default ``CORNER_MARGIN_SPACINGS`` spacings) is left out
+    at both ends where the other edge and the rounded trace interfere.
     """
-    margin = corner_margin_m if corner_margin_m is not None else 1.5 * spacing_m
+    margin = corner_margin_m if corner_margin_m is not None else CORNER_MARGIN_SPACINGS * spacing_m
     band = 2.0 * spacing_m + 1.0
     out = []
     for i, e in enumerate(edges):

@@ -206,7 +206,10 @@ def test_corners_in_feet_match_the_metric_copy(tmp_path):
     j, dist = cs.match_corners(xy_m, truth_xyz[:, :2], max_dist_m=1.0)
     assert np.all(j >= 0)
     summary = json.loads((tmp_path / "out_ft" / "corners.json").read_text())
-    assert summary["xy_unit"] == "ft" and summary["z_unit"] == "ft" and summary["min_edge_m"] == 5.0
+    assert summary["xy_unit"] == "ft" and summary["z_unit"] == "ft"
+    # the default edge length follows the spacing, both in metres (0.7 m nominal: 2.3 ft if it were feet)
+    assert 0.5 < summary["point_spacing_m"] < 1.0
+    assert summary["min_edge_m"] == pytest.approx(max(2.0, 8.0 * summary["point_spacing_m"]))
     gj = json.loads((tmp_path / "out_ft" / "corners.geojson").read_text())
     pt = next(f for f in gj["features"] if f["properties"]["kind"] == "roof_corner")
     assert pt["geometry"]["coordinates"][0] == pytest.approx(float(rf[0]["x"]), abs=1e-3)
