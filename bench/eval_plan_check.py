@@ -101,13 +101,13 @@ def ahn3(out: Path, params: PlanCheckParams) -> dict:
     lo, hi = xy.min(axis=0) + m.EDGE_OF_CROP_M, xy.max(axis=0) - m.EDGE_OF_CROP_M
     keep = np.all((vxy >= lo) & (vxy <= hi), axis=1) & (cKDTree(xy).query(vxy, distance_upper_bound=1.0)[0] <= 1.0)
     keep &= (np.abs(180.0 - v_angle) >= m.MIN_TURN_DEG) & v_big
-    long_edges = v_short[keep] >= params.min_edge_m
     with tempfile.TemporaryDirectory() as tmp:
         csv_path = Path(tmp) / "bgt_vertices.csv"
         csv_path.write_text("id,x,y\n" + "".join(f"V{k},{x:.3f},{y:.3f}\n" for k, (x, y) in enumerate(vxy[keep])))
         t0 = time.perf_counter()
         res = check_plan_files([laz], csv_path, params, crs="EPSG:28992", png_path=out / "plan_check_ahn3.png")
         runtime = time.perf_counter() - t0
+    long_edges = v_short[keep] >= res["min_edge_m"]
     f = [p for p, le in zip(res["points"], long_edges) if le and p["found"]]
     d = np.array([[p["dx_m"], p["dy_m"]] for p in f]).reshape(-1, 2)
     return {"dataset": "AHN3 Delft crop (ahn3_cropped_1.laz, EPSG:28992) vs BGT footprint vertices (bgt_pand.sqlite)",

@@ -37,13 +37,16 @@ log.addHandler(logging.NullHandler())
 @dataclasses.dataclass(frozen=True)
 class PlanCheckParams:
     radius_m: float = 2.0
-    min_edge_m: float = 5.0  # lidarctl corners' default: corners whose two edges are at least this long
+    min_edge_m: float | None = None  # corners whose two edges are at least this long; None: lidarctl corners'
+    # density-adaptive default (``corners.default_min_edge_m`` of the measured point spacing)
     scale: str = "1:10000"
     terrain: str = "flat"
 
     def validate(self) -> None:
         for name, opt in (("radius_m", "--radius"), ("min_edge_m", "--min-edge")):
             v = getattr(self, name)
+            if v is None and name == "min_edge_m":
+                continue
             if not (np.isfinite(v) and v > 0):
                 raise OptionError(f"{opt} {v}: must be a positive distance in metres", param=opt)
 
@@ -159,6 +162,7 @@ def check_plan_file(cloud_paths, points_csv, params: PlanCheckParams = PlanCheck
     points_m = dict(points, x=units.xy_to_m(points["x"]), y=units.xy_to_m(points["y"]),
                     z=units.z_to_m(z) if z is not None else None)
     out = check_plan(result["corners"], points_m, params, units, tol)
+    out["min_edge_m"] = result["stats"]["min_edge_m"]  # the value used (resolved from the spacing by default)
     out.update(clouds=[str(p) for p in paths], points_csv=str(points_csv),
                crs=crs_found.to_string() if crs_found is not None else None,
                n_outside_cloud=int((~inside).sum()))

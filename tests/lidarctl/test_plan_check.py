@@ -76,6 +76,8 @@ def test_check_plan_recovers_the_bias_and_counts(scene):
     assert res["has_z"] and abs(s["mean_dz_m"]) < 0.15
     assert s["tolerance_rms_plan_m"] == 0.5 and s["within_tolerance"] is True
     assert (d / "plan.png").stat().st_size > 20000
+    # the minimum edge is lidarctl corners' default, resolved from the measured spacing, in metres
+    assert res["min_edge_m"] >= 2.0 and res["min_edge_m"] < 20.0
     assert "RMS x" in r.output and "within tolerance" in r.output
 
 
