@@ -8,8 +8,10 @@ Pipeline (``classify_points``):
    and the ground is filtered again. Ground refinement (``lifted_ground``): a ground point that
    stands more than ``ground_lift_sigma`` range-noise sigmas above the least-squares plane of its
    neighbouring ground points (sigma measured on the cloud's own ground set) is the last return of
-   low vegetation when its pulse also returned from above (multi-return), not bare earth; it
-   becomes low vegetation but stays in the DEM. Height above ground (HAG) from a DEM of the ground points;
+   low vegetation when its pulse also returned from above (multi-return), not bare earth; a single
+   return is judged too (``ground_lift_single``) when it also stands that many times its
+   neighbours' robust spread above the plane (a strip offset widens the spread, a low object among
+   bare earth does not); it becomes low vegetation but stays in the DEM. Height above ground (HAG) from a DEM of the ground points;
    non-ground points more than ``deep_m`` below that DEM are low noise too.
 3. Buildings from planar roof segments: on a ``cell_m`` grid of the highest non-ground point (object
    DSM), a least-squares plane is fitted in every 3x3 window; cells with plane RMS below
@@ -51,6 +53,12 @@ Pipeline (``classify_points``):
    to [1/4, 1] ``water_level_tol_m``) of the level become water; so do returns within
    ``water_shore_m`` of the gap at that level that are as dark as the body (on clouds without
    intensity: in a dropout cell), which the 3x3 window misses along the shore.
+6. Bridge decks (17, ``bridge_decks``): ground between two open-water-sized dropout gaps (not
+   occlusion shadows) at most ``bridge_max_width_m`` apart along a grid direction within 30 degrees
+   of a gap's long axis (a watercourse runs on under the deck), standing more than
+   ``bridge_min_clearance_m`` above the lower of the two gaps' banks (median ground of their rims).
+   On the AHN3 Delft crop this finds 755 of the 1,365 civil-structure (26) points (two bridges over
+   the canals) and takes 205 true ground points of an approach ramp (results/lidar_ahn3_errors.json).
 """
 
 from __future__ import annotations
@@ -199,7 +207,7 @@ def lifted_ground(x, y, z, is_ground, spacing_m: float, lift_sigma: float, inter
     """
     out = np.zeros(len(x), bool)
     gi = np.flatnonzero(is_ground)
-    if lift_sigma <= 0 or intercepted is None or len(gi) < 4 * k or not np.any(intercepted[gi]):
+    if lift_sigma <= 0 or intercepted is None or len(gi) < 4 * k or not (judge_single or np.any(intercepted[gi])):
         return out
     radius_m = max(1.0, 6.0 * spacing_m)
     gx, gy = x[gi] - x[gi].min(), y[gi] - y[gi].min()
