@@ -163,7 +163,8 @@ def main():
         plot(png, name, c.x, c.y, truth, mapped, m)
         print(name, json.dumps(out["parts"][name]))
     spacing = grid.mean_spacing_m(c.x, c.y)
-    labels, _, _, _, cell = classify.dropout_gaps(c.x, c.y, c.z, pred == 2, pred == 6, spacing, classify.ClassifyParams())
+    labels, _, _, _, cell = classify.dropout_gaps(c.x, c.y, c.z, pred == 2, pred == 6, spacing,
+                                                  classify.ClassifyParams())
     se = part == PARTS.index("south-east")
     plot_ground_errors(REPO / "results" / "ahn3_ground_errors_se.png", c.x, c.y, truth,
                        {"south-east quarter, bridge rule off": nobridge, "bridge rule on (shipped)": pred},

@@ -11,8 +11,9 @@ Pipeline (``classify_points``):
    low vegetation when its pulse also returned from above (multi-return), not bare earth; a single
    return is judged too (``ground_lift_single``) when it also stands that many times its
    neighbours' robust spread above the plane (a strip offset widens the spread, a low object among
-   bare earth does not); it becomes low vegetation but stays in the DEM. Height above ground (HAG) from a DEM of the ground points;
-   non-ground points more than ``deep_m`` below that DEM are low noise too.
+   bare earth does not); it becomes low vegetation but stays in the DEM. Height above ground (HAG)
+   from a DEM of the ground points; non-ground points more than ``deep_m`` below that DEM are low
+   noise too.
 3. Buildings from planar roof segments: on a ``cell_m`` grid of the highest non-ground point (object
    DSM), a least-squares plane is fitted in every 3x3 window; cells with plane RMS below
    ``roof_rms_m``, HAG above ``building_min_height_m`` and few multi-return points (laser
