@@ -11,6 +11,10 @@ and by where the points lie:
 - missed buildings: what we called them instead.
 Quarters as bench/eval_ahn3_holdout.py (split at the median x and y). The false ground is also
 given without the ground refinement (``ground_lift_sigma`` 0: what the ground filter hands over).
+The bridge-deck rule (``classify.bridge_decks``: ground between two water gaps along a watercourse,
+above the quays -> 17) is shown by its own picture, results/ahn3_ground_errors_se.png: the
+south-east quarter's false ground by truth class with the rule off and on, the deck points it finds
+and the dropout gaps (water without returns) it reads; per quarter the false ground without it.
 Writes results/lidar_ahn3_errors.json and results/ahn3_errors_<quarter>.png (errors over the
 quarter: grey correct building, light grey correct ground; the legend counts each error kind).
 Run: .venv/bin/python bench/eval_ahn3_errors.py
@@ -34,7 +38,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from eval_ahn3_holdout import PARTS, part_of, scores  # noqa: E402
 from lidar_common import DATA, REPO  # noqa: E402
 
-from lidarctl import classify, io  # noqa: E402
+from lidarctl import classify, grid, io  # noqa: E402
 
 ERROR_KINDS = (  # (truth classes, our AHN3-mapped class, colour, label)
     ((1, 26), 6, "red", "false building (truth 1/26)"),
@@ -98,6 +102,37 @@ def plot(path: Path, name: str, x, y, truth, mapped, m):
     plt.close(fig)
 
 
+def plot_ground_errors(path: Path, x, y, truth, preds: dict, gaps, m):
+    """False ground by truth class over one quarter, one panel per classification in ``preds``;
+    dropout gaps (``gaps``: (mask, cell m, x0, y0)) shaded, bridge-deck points (17) by truth."""
+    mask, c, x0, y0 = gaps
+    fig, axes = plt.subplots(1, len(preds), figsize=(8 * len(preds), 6.2))
+    for ax, (title, pred) in zip(np.atleast_1d(axes), preds.items()):
+        ax.imshow(np.where(mask, 1.0, np.nan), origin="lower", cmap="Blues", vmin=0, vmax=2.5,
+                  extent=(x0, x0 + mask.shape[1] * c, y0, y0 + mask.shape[0] * c), interpolation="nearest")
+        ok = m & (truth == 2) & (pred == 2)
+        ax.scatter(x[ok], y[ok], s=0.3, c="0.85", lw=0, label="ground, correct")
+        for t, colour in ((1, "green"), (6, "red"), (9, "blue"), (26, "darkorange")):
+            s = m & (truth == t) & (pred == 2)
+            ax.scatter(x[s], y[s], s=2, c=colour, lw=0, label=f"we: ground, AHN3: {t}: {s.sum():,}")
+        for t, colour in ((26, "purple"), (2, "black")):
+            s = m & (truth == t) & (pred == classify.BRIDGE_DECK)
+            if s.any():
+                ax.scatter(x[s], y[s], s=2, c=colour, lw=0, label=f"we: bridge deck (17), AHN3: {t}: {s.sum():,}")
+        ax.scatter([], [], marker="s", s=3, c="lightsteelblue", label="dropout gap (water without returns)")
+        ax.set_xlim(x[m].min(), x[m].max())
+        ax.set_ylim(y[m].min(), y[m].max())
+        ax.set_aspect("equal")
+        ax.set_xlabel("x (m, EPSG:28992)")
+        ax.set_ylabel("y (m)")
+        ax.ticklabel_format(useOffset=False, style="plain")
+        ax.set_title(title)
+        ax.legend(loc="upper left", markerscale=6, fontsize=8, framealpha=0.9)
+    fig.tight_layout()
+    fig.savefig(path, dpi=80)
+    plt.close(fig)
+
+
 def main():
     c = io.read_cloud(DATA / "ahn3_delft" / "ahn3_cropped_1.laz", crs="EPSG:28992")
     truth = c.classification
@@ -107,6 +142,8 @@ def main():
     nr = np.asarray(c.number_of_returns)
     unrefined = classify.classify_points(c.x, c.y, c.z, c.return_number, c.number_of_returns, c.intensity,
                                          dataclasses.replace(classify.ClassifyParams(), ground_lift_sigma=0.0))
+    nobridge = classify.classify_points(c.x, c.y, c.z, c.return_number, c.number_of_returns, c.intensity,
+                                        dataclasses.replace(classify.ClassifyParams(), bridge_max_width_m=0.0))
     out = {"data": "ahn3_cropped_1.laz, shipped ClassifyParams defaults", "parts": {}}
     for k, name in enumerate(PARTS):
         m = part == k
@@ -115,10 +152,23 @@ def main():
                               **breakdown(c.x, c.y, c.z, nr, truth, pred, m),
                               "without_ground_refinement": {
                                   "scores": scores(unrefined[m], truth[m]),
-                                  **{key: before[key] for key in before if "ground" in key}}}
+                                  **{key: before[key] for key in before if "ground" in key}},
+                              "without_bridge_rule": {
+                                  "scores": scores(nobridge[m], truth[m]),
+                                  "false_ground_by_truth": breakdown(c.x, c.y, c.z, nr, truth, nobridge, m)[
+                                      "false_ground_by_truth"]},
+                              "bridge_deck_points_by_truth": {str(int(t)): int(k) for t, k in zip(
+                                  *np.unique(truth[m & (pred == classify.BRIDGE_DECK)], return_counts=True))}}
         png = REPO / "results" / f"ahn3_errors_{name}.png"
         plot(png, name, c.x, c.y, truth, mapped, m)
         print(name, json.dumps(out["parts"][name]))
+    spacing = grid.mean_spacing_m(c.x, c.y)
+    labels, _, _, _, cell = classify.dropout_gaps(c.x, c.y, c.z, pred == 2, pred == 6, spacing,
+                                                  classify.ClassifyParams())
+    se = part == PARTS.index("south-east")
+    plot_ground_errors(REPO / "results" / "ahn3_ground_errors_se.png", c.x, c.y, truth,
+                       {"south-east quarter, bridge rule off": nobridge, "bridge rule on (shipped)": pred},
+                       (labels > 0, cell, float(c.x.min()), float(c.y.min())), se)
     dest = REPO / "results" / "lidar_ahn3_errors.json"
     dest.write_text(json.dumps(out, indent=2))
     print(f"wrote {dest}")

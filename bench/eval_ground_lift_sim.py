@@ -1,9 +1,10 @@
 """Simulator: what the ground refinement (``ClassifyParams.ground_lift_sigma``) costs on a scene
 whose truth is exact.
 
-Classifies a simulated project's strips together with the refinement off (0), at the default,
-and with every ground point judged (not only the last returns of multi-return pulses, the
-variant the default replaced): ground-filter type I / II errors (ground and water against the
+Classifies a simulated project's strips together with the refinement off (0) and, at 4 and 6
+sigma, judging the last returns of multi-return pulses only, also the single returns against the
+larger of sigma and their neighbours' robust spread (``ground_lift_single``, the default), and
+every ground point against sigma alone: ground-filter type I / II errors (ground and water against the
 rest, outliers left out), building PA/UA and water. The simulator's strips are unadjusted (height
 offsets of a few cm between strips), which is what made the all-points variant lift ground.
 Writes results/lidar_ground_lift_sim.json.
@@ -43,21 +44,28 @@ def main():
         return np.concatenate([getattr(c, field) for c in clouds])
 
     x, y, z, inten, rn, nr = (cat(f) for f in ("x", "y", "z", "intensity", "return_number", "number_of_returns"))
-    default = classify.ClassifyParams().ground_lift_sigma
     runs = {}
     original = classify.lifted_ground
-    for name, lift, every_point in (("off", 0.0, False), ("default", default, False),
-                                    ("every_ground_point_judged", default, True)):
-        def judged(x_, y_, z_, g, sp, s, intercepted=None, k=12, _all=every_point):
-            return original(x_, y_, z_, g, sp, s, np.ones(len(x_), bool) if _all else intercepted, k)
+    # (name, sigma, single returns judged against max(sigma, their neighbours' spread) (shipped),
+    #  every ground point judged against sigma alone (the variant the guard replaced))
+    variants = [("off", 0.0, False, False)]
+    for lift in (4.0, 6.0):
+        variants += [(f"multi_return_only_{lift:g}", lift, False, False),
+                     (f"single_guarded_{lift:g}", lift, True, False),
+                     (f"every_ground_point_judged_{lift:g}", lift, False, True)]
+    for name, lift, single, every_point in variants:
+        def judged(x_, y_, z_, g, sp, s, intercepted=None, k=12, judge_single=True, _all=every_point):
+            return original(x_, y_, z_, g, sp, s, np.ones(len(x_), bool) if _all else intercepted, k,
+                            judge_single=judge_single)
 
         with mock.patch.object(classify, "lifted_ground", judged):
-            pred = classify.classify_points(x, y, z, rn, nr, inten,
-                                            dataclasses.replace(classify.ClassifyParams(), ground_lift_sigma=lift))
+            pred = classify.classify_points(x, y, z, rn, nr, inten, dataclasses.replace(
+                classify.ClassifyParams(), ground_lift_sigma=lift, ground_lift_single=single))
         keep = ~np.isin(truth, (7, 18))
         err = evaluate.filter_errors(np.isin(pred[keep], (2, 9)), np.isin(truth[keep], (2, 9)))
         b, tb = pred == 6, truth == 6
-        runs[name] = {"ground_lift_sigma": lift, "every_ground_point_judged": every_point,
+        runs[name] = {"ground_lift_sigma": lift, "ground_lift_single": single,
+                      "every_ground_point_judged": every_point, "bridge_deck_points": int((pred == 17).sum()),
                       "type_i_error_pct": err["type_i_error_pct"], "type_i_count": int(err["type_i_count"]),
                       "type_ii_error_pct": err["type_ii_error_pct"], "type_ii_count": int(err["type_ii_count"]),
                       "total_error_pct": err["total_error_pct"],
