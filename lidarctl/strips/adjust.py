@@ -417,11 +417,12 @@ def _reach_m(model: Model, theta: np.ndarray) -> float:
                default=0.0)
 
 
-def keep_region(ss: ov.StripSet, reach_m: float) -> ov.KeepRegion:
+def keep_region(ss: ov.StripSet, reach_m: float, times: bool = False) -> ov.KeepRegion:
     """The cells (as read, before any correction) of each strip within D = 2 ceil(reach / cell) + 3 cells of a
     cell another strip occupies: once every point moves by at most ``reach_m``, a cell two strips share, and
     its 4-neighbours, only hold points of that region (D: both strips' moves, the neighbour, one cell of slack
-    for the floor). Coarse cells of D x D cells, kept with their 8 neighbours: at least D cells around."""
+    for the floor). Coarse cells of D x D cells, kept with their 8 neighbours: at least D cells around.
+    ``times``: keep the GPS times as well (the sensor model's correction needs them)."""
     grid = ss.grid
     d = 2 * int(np.ceil(reach_m / grid.cell_m)) + 3
     cn = grid.ncols // d + 2
@@ -435,7 +436,7 @@ def keep_region(ss: ov.StripSet, reach_m: float) -> ov.KeepRegion:
         others = [coarse[o.name] for o in ss.strips if o.name != s.name]
         other = np.unique(np.concatenate(others)) if others else np.zeros(0, np.int64)
         ids[s.name] = np.intersect1d(np.unique((other[:, None] + offsets).ravel()), coarse[s.name])
-    return ov.KeepRegion(d, cn, ids)
+    return ov.KeepRegion(d, cn, ids, times)
 
 
 def estimate(paths, ss: ov.StripSet, model: Model, settings: AdjustSettings, read_params, crs, extra,
@@ -478,7 +479,7 @@ def estimate(paths, ss: ov.StripSet, model: Model, settings: AdjustSettings, rea
             keep = None
             if passes + 1 < settings.relinearise:  # another read may follow: keep the overlaps' points
                 kept_reach = reach + REACH_MARGIN_M
-                keep = keep_region(ss, kept_reach)
+                keep = keep_region(ss, kept_reach, times=model.kind == "boresight")
             ss_i = ov.read_strips(paths, read_params, crs, extra=extra, correct=model.correction(theta),
                                   grid=ss.grid, keep=keep, z_ref=ss.z_ref)
             kept = ss_i if keep is not None else None

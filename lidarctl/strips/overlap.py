@@ -252,6 +252,7 @@ class KeepRegion:
     block: int
     coarse_ncols: int
     ids: dict  # strip name -> sorted coarse cell ids
+    times: bool = False  # keep the GPS times too (a correction or ``extra`` that needs them)
 
     def coarse(self, i: np.ndarray, j: np.ndarray) -> np.ndarray:
         return (i // self.block) * self.coarse_ncols + j // self.block
@@ -260,17 +261,17 @@ class KeepRegion:
 @dataclasses.dataclass
 class KeptPoints:
     """The non-noise points of one strip inside its ``KeepRegion``, as read (before any correction): the
-    file's integer coordinates (exact, 12 bytes a point; metres by ``scale``, ``offset`` and the units)."""
+    file's integer coordinates (exact, 12 bytes a point; metres by ``scale``, ``offset`` and the units), whether
+    a single return (1 byte) and, when asked for, the GPS time (8 bytes)."""
 
     xyz_int: np.ndarray  # (n, 3) int32 LAS X, Y, Z
     scale: np.ndarray  # (3,)
     offset: np.ndarray  # (3,)
     single: np.ndarray  # (n,) bool: a single return (not of a multi-return pulse, not vegetation)
-    scan_angle_deg: np.ndarray  # (n,) float32
-    gps_time: np.ndarray | None  # (n,) float64, when the file has it
+    gps_time: np.ndarray | None  # (n,) float64 (``KeepRegion.times`` and the file has them)
 
-    def xyz_m(self, units: LengthUnits):
-        c = self.xyz_int * self.scale + self.offset
+    def xyz_m(self, units: LengthUnits, k=slice(None)):
+        c = self.xyz_int[k] * self.scale + self.offset
         return units.xy_to_m(c[:, 0]), units.xy_to_m(c[:, 1]), units.z_to_m(c[:, 2])
 
 
@@ -323,7 +324,7 @@ def read_strips(paths, params: SurfaceParams = SurfaceParams(), crs=None, extra=
                     w = w[np.isin(coarse[w], keep.ids[s.name])]
                     kept_parts[s.name].append((np.column_stack([np.asarray(chunk.X)[w], np.asarray(chunk.Y)[w],
                                                                 np.asarray(chunk.Z)[w]]).astype(np.int32),
-                                               ~multi[w], ang[w].astype(np.float32), t[w] if has_t else None))
+                                               ~multi[w], t[w] if has_t and keep.times else None))
             if correct is not None:
                 x, y, z = np.array(x, float), np.array(y, float), np.array(z, float)
                 for s in group:
@@ -337,13 +338,12 @@ def read_strips(paths, params: SurfaceParams = SurfaceParams(), crs=None, extra=
         if keep is not None:
             for s in group:
                 parts = kept_parts[s.name]
-                has_t = bool(parts) and parts[0][3] is not None
+                has_t = bool(parts) and parts[0][2] is not None
                 kept_parts[s.name] = KeptPoints(
                     np.concatenate([q[0] for q in parts]) if parts else np.zeros((0, 3), np.int32),
                     np.asarray(header.scales, float), np.asarray(header.offsets, float),
                     np.concatenate([q[1] for q in parts]) if parts else np.zeros(0, bool),
-                    np.concatenate([q[2] for q in parts]) if parts else np.zeros(0, np.float32),
-                    np.concatenate([q[3] for q in parts]) if has_t else None)
+                    np.concatenate([q[2] for q in parts]) if has_t else None)
     strips = []
     for s in sources:
         acc = accs[s.name]
@@ -354,47 +354,66 @@ def read_strips(paths, params: SurfaceParams = SurfaceParams(), crs=None, extra=
     return StripSet(strips, grid, crs_out, units, total, z_ref, kept_parts)
 
 
-# the dense per-chunk sums (``_cell_sums``) are used while the chunk's box of cells holds at most this many cells
-# per point (a strip's chunk is a stretch of its swath, flown in order: a box of a fraction of a cell per point
-# even for a diagonal strip); beyond, the sparse sums (np.unique, bincount)
+# the per-chunk sums in numba (``_cell_sums``) index the chunk's box of cells (4 bytes a cell) while it holds at
+# most this many cells per point (a strip's chunk is a stretch of its swath, flown in order: about a tenth of a
+# cell per point even for a diagonal strip); beyond, the sparse sums (np.unique, bincount)
 DENSE_CELLS_PER_POINT = 4.0
 
 
 @numba.njit(cache=True)
 def _cell_sums(x, y, z, sel, single, ang, t, ex, x0, y0, cell_m, z_ref, i0, j0, nr, nc):
-    """Per cell of the box (i0.., j0.., nr x nc cells): the sums of ``_N_SUMS`` + k per single return and
-    (count, multi-return count) of every point of ``sel``; added in the points' order."""
+    """The occupied cells of the box (rows i0.., columns j0.., nr x nc cells) in id order (box indices), the
+    sums of ``_N_SUMS`` + k per single return in each, and (count, multi-return count) of every point of
+    ``sel``; points added in their order."""
     k = ex.shape[1]
-    S = np.zeros((nr * nc, _N_SUMS + k))
-    A = np.zeros((nr * nc, 2))
-    for p in range(len(x)):
+    n = len(x)
+    cell = np.empty(n, np.int64)
+    idx = np.zeros(nr * nc, np.int32)
+    for p in range(n):
+        if sel[p]:
+            c = (np.int64(np.floor((y[p] - y0) / cell_m)) - i0) * nc + np.int64(np.floor((x[p] - x0) / cell_m)) - j0
+            cell[p] = c
+            idx[c] = 1
+    m = 0
+    for c in range(nr * nc):
+        if idx[c]:
+            idx[c] = m
+            m += 1
+        else:
+            idx[c] = -1
+    box = np.empty(m, np.int64)
+    S = np.zeros((m, _N_SUMS + k))
+    A = np.zeros((m, 2))
+    for p in range(n):
         if not sel[p]:
             continue
-        j = np.int64(np.floor((x[p] - x0) / cell_m))
-        i = np.int64(np.floor((y[p] - y0) / cell_m))
-        c = (i - i0) * nc + (j - j0)
-        A[c, 0] += 1.0
+        c = cell[p]
+        r = idx[c]
+        box[r] = c
+        A[r, 0] += 1.0
         if not single[p]:
-            A[c, 1] += 1.0
+            A[r, 1] += 1.0
             continue
+        i = c // nc + i0
+        j = c % nc + j0
         dx = x[p] - (x0 + (j + 0.5) * cell_m)
         dy = y[p] - (y0 + (i + 0.5) * cell_m)
         dz = z[p] - z_ref
-        S[c, 0] += 1.0
-        S[c, 1] += dx
-        S[c, 2] += dy
-        S[c, 3] += dz
-        S[c, 4] += dx * dx
-        S[c, 5] += dx * dy
-        S[c, 6] += dy * dy
-        S[c, 7] += dx * dz
-        S[c, 8] += dy * dz
-        S[c, 9] += dz * dz
-        S[c, 10] += ang[p]
-        S[c, 11] += t[p]
+        S[r, 0] += 1.0
+        S[r, 1] += dx
+        S[r, 2] += dy
+        S[r, 3] += dz
+        S[r, 4] += dx * dx
+        S[r, 5] += dx * dy
+        S[r, 6] += dy * dy
+        S[r, 7] += dx * dz
+        S[r, 8] += dy * dz
+        S[r, 9] += dz * dz
+        S[r, 10] += ang[p]
+        S[r, 11] += t[p]
         for q in range(k):
-            S[c, _N_SUMS + q] += ex[p, q]
-    return S, A
+            S[r, _N_SUMS + q] += ex[p, q]
+    return box, S, A
 
 
 def _accumulate(accs, s, chunk, x, y, z, sel, multi, ang, t, grid, z_ref, extra) -> int:
@@ -415,13 +434,12 @@ def _accumulate(accs, s, chunk, x, y, z, sel, multi, ang, t, grid, z_ref, extra)
     i0, j0 = int(i.min()), int(j.min())
     nr, nc = int(i.max()) - i0 + 1, int(j.max()) - j0 + 1
     if nr * nc <= DENSE_CELLS_PER_POINT * len(w) + 4096:
-        S, A = _cell_sums(x, y, z, sel, use, ang, t, ex if ex is not None else np.zeros((len(x), 0)), grid.x0,
-                          grid.y0, cell_m, z_ref, i0, j0, nr, nc)
-        r_all = np.flatnonzero(A[:, 0] > 0)
-        r = np.flatnonzero(S[:, 0] > 0)
-        to_id = lambda rr: (i0 + rr // nc) * grid.ncols + j0 + rr % nc  # noqa: E731 (sorted as rr)
-        acc.parts.append((to_id(r), S[r]))
-        acc.all_parts.append((to_id(r_all), A[r_all]))
+        box, S, A = _cell_sums(x, y, z, sel, use, ang, t, ex if ex is not None else np.zeros((len(x), 0)), grid.x0,
+                               grid.y0, cell_m, z_ref, i0, j0, nr, nc)
+        ids = (i0 + box // nc) * grid.ncols + j0 + box % nc  # ascending as box
+        r = S[:, 0] > 0
+        acc.parts.append((ids[r], S[r]))
+        acc.all_parts.append((ids, A))
         return n
     cell_sel = i * grid.ncols + j
     u = use[w]
@@ -439,24 +457,25 @@ def _accumulate(accs, s, chunk, x, y, z, sel, multi, ang, t, grid, z_ref, extra)
     return n
 
 
-def regrid(ss: StripSet, params: SurfaceParams, extra=None, correct=None) -> StripSet:
+def regrid(ss: StripSet, params: SurfaceParams, extra=None, correct=None,
+           chunk_points: int = io.CHUNK_POINTS) -> StripSet:
     """The planar cells of the points ``ss.kept`` (a read with ``keep``), moved by ``correct``, on the grid and
     height reference of ``ss``: what ``read_strips`` with that correction gives at every cell whose points and
-    4-neighbours' points all lie in the kept region (the caller sizes the region for that)."""
+    4-neighbours' points all lie in the kept region (the caller sizes the region for that). Scan angles are
+    not kept (the cells' ``scan_angle_deg`` are 0), nor GPS times unless the region asked for them."""
     units, grid = ss.units, ss.grid
     accs = {s.name: None for s in ss.strips}
     total = 0
     for cp in ss.strips:
         s, kp = cp.source, ss.kept[cp.name]
-        x, y, z = kp.xyz_m(units)
-        t = kp.gps_time if kp.gps_time is not None else np.zeros(len(x))
-        if correct is not None:
-            x, y, z = correct(s, x, y, z, t)
-        sel = np.ones(len(x), bool)
-        chunk = _KeptChunk(kp.gps_time)
-        if len(x):
-            total += _accumulate(accs, s, chunk, x, y, z, sel, ~kp.single, kp.scan_angle_deg.astype(float), t,
-                                 grid, ss.z_ref, extra)
+        for k0 in range(0, len(kp.single), chunk_points):  # bounded memory of the moved coordinates
+            k = slice(k0, k0 + chunk_points)
+            x, y, z = kp.xyz_m(units, k)
+            t = kp.gps_time[k] if kp.gps_time is not None else np.zeros(len(x))
+            if correct is not None:
+                x, y, z = correct(s, x, y, z, t)
+            total += _accumulate(accs, s, _KeptChunk(t), x, y, z, np.ones(len(x), bool), ~kp.single[k],
+                                 np.zeros(len(x)), t, grid, ss.z_ref, extra)
         if accs[s.name] is None:  # nothing kept: no cell of this strip in an overlap
             accs[s.name] = _Accumulator(0 if cp.extra is None else cp.extra.shape[1])
     strips = [_planes(cp.source, accs[cp.name], grid, params, ss.z_ref) for cp in ss.strips]
