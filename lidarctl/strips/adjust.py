@@ -486,6 +486,7 @@ def estimate(paths, ss: ov.StripSet, model: Model, settings: AdjustSettings, rea
             if kept is not None:
                 log.info("strip adjustment: %d points of the overlaps kept for re-gridding (moves up to %.2f m)",
                          sum(len(k.single) for k in kept.kept.values()), kept_reach)
+        model.jac = {}  # (cells, 3, K) a strip: not the old and the new at once
         model.jac = model.jac_of(ss_i)
         obs = observations(ss_i, model, settings.max_slope_deg, control, settings.control_sigma_m)
         sol = solve(obs, model, settings.huber_k, settings.iterations, theta0=theta)
@@ -535,6 +536,7 @@ def adjust_strips(paths, outdir, settings: AdjustSettings = AdjustSettings(),
     model = boresight_model(ss, chosen, settings.shift_sigma_m) if trajectories else \
         strip_model(ss, settings.fixed, controlled=cps is not None)
     sol, first, obs, passes = estimate(paths, ss, model, settings, read_params, crs, extra, cps)
+    model.jac = {}  # the cells' Jacobians (K columns each, 0.5 GB on 20 M points) are not needed any more
     t_solve = time.perf_counter()
     with atomic_dir(outdir) as tmp:
         corrected = write_corrected(ss, model, sol.theta, tmp)
