@@ -94,7 +94,7 @@ class Model:
     kind: str
     names: list[str]
     prior_sigma: np.ndarray  # (K,) inf: no prior
-    jac: dict  # strip name -> (m, 3, K) effect Jacobians at the planar cells' centroids
+    jac: dict  # strip name -> ((m, 3, k) effect Jacobians at the planar cells' centroids, their k columns of K)
     local: object  # callable(strip name, x, y, z (m), gps time) -> ((n, 3, k) Jacobians, the k columns)
     jac_of: object  # callable(StripSet) -> ``jac`` of the planar cells of a re-read of the strips
     displace: object = None  # callable(strip name, x, y, z, t, theta) -> (n, 3) J theta without forming J
@@ -172,7 +172,7 @@ def strip_model(ss: ov.StripSet, fixed: str | None, controlled: bool = False) ->
         return th[:3] + np.cross(w, np.column_stack([x, y, z]) - c)
 
     model = Model("strip", names, np.array(prior), {}, local, None, displace)
-    model.jac_of = lambda ss_: {s.name: model.apply(s.name, *s.centroid.T) for s in ss_.strips}
+    model.jac_of = lambda ss_: {s.name: local(s.name, *s.centroid.T) for s in ss_.strips}
     model.jac = model.jac_of(ss)
     return model
 
@@ -221,7 +221,6 @@ def _sensor_jacobian(tr: tj.Trajectory, t, x, y, z) -> np.ndarray:
 
 def boresight_model(ss: ov.StripSet, chosen: dict, shift_sigma_m: float) -> Model:
     S = len(ss.strips)
-    K = N_SENSOR + 3 * S
     names = ["boresight_roll_deg", "boresight_pitch_deg", "boresight_heading_deg", "range_offset_m",
              "scan_angle_scale"]
     for s in ss.strips:
@@ -230,11 +229,10 @@ def boresight_model(ss: ov.StripSet, chosen: dict, shift_sigma_m: float) -> Mode
     col = {s.name: N_SENSOR + 3 * i for i, s in enumerate(ss.strips)}
 
     def place(name, J4):
-        J = np.zeros((len(J4), 3, K))
+        J = np.zeros((len(J4), 3, N_SENSOR + 3))
         J[:, :, :N_SENSOR] = J4
-        k = col[name]
-        J[:, [0, 1, 2], [k, k + 1, k + 2]] = 1.0
-        return J
+        J[:, [0, 1, 2], [N_SENSOR, N_SENSOR + 1, N_SENSOR + 2]] = 1.0
+        return J, np.r_[np.arange(N_SENSOR), np.arange(col[name], col[name] + 3)]
 
     def jac_of(ss_):
         return {s.name: place(s.name, s.extra.reshape(-1, 3, N_SENSOR)) for s in ss_.strips}
@@ -271,7 +269,8 @@ def observations(ss: ov.StripSet, model: Model, max_slope_deg: float, control: c
     for si, s in enumerate(ss.strips):
         m = co.strip == si
         if m.any():
-            G[m] = np.einsum("ij,ijk->ik", co.normal[m], model.jac[s.name][co.cell[m]])
+            J, cols = model.jac[s.name]
+            G[np.ix_(np.flatnonzero(m), cols)] = np.einsum("ij,ijk->ik", co.normal[m], J[co.cell[m]])
             pair[m] = len(pairs)
             pairs.append((s.name, "control"))
     return Observations(np.vstack([obs.G, G]), np.concatenate([obs.y, co.y]), np.concatenate([obs.sigma, co.sigma]),
@@ -290,7 +289,11 @@ def _overlap_observations(ss: ov.StripSet, model: Model, max_slope_deg: float) -
             n = A.normals()[ka] + B.normals()[kb]
             n /= np.linalg.norm(n, axis=1, keepdims=True)
             ys.append(np.einsum("ij,ij->i", n, A.centroid[ka] - B.centroid[kb]))
-            Gs.append(np.einsum("ij,ijk->ik", n, model.jac[A.name][ka] - model.jac[B.name][kb]))
+            (JA, ca), (JB, cb) = model.jac[A.name], model.jac[B.name]
+            G = np.zeros((len(ka), len(model.names)))
+            G[:, ca] += np.einsum("ij,ijk->ik", n, JA[ka])
+            G[:, cb] -= np.einsum("ij,ijk->ik", n, JB[kb])
+            Gs.append(G)
             ss_.append(np.sqrt(A.rms_m[ka] ** 2 / A.n[ka] + B.rms_m[kb] ** 2 / B.n[kb] + SURFACE_ROUGHNESS_M ** 2))
             ps.append(np.full(len(ka), len(names)))
             names.append((A.name, B.name))
@@ -413,7 +416,7 @@ def write_corrected(ss: ov.StripSet, model: Model, theta: np.ndarray, folder: Pa
 
 def _reach_m(model: Model, theta: np.ndarray) -> float:
     """Largest displacement |J theta| (m) at the planar cells of the read ``model.jac`` was formed on."""
-    return max((float(np.max(np.linalg.norm(J @ theta, axis=1), initial=0.0)) for J in model.jac.values()),
+    return max((float(np.max(np.linalg.norm(J @ theta[c], axis=1), initial=0.0)) for J, c in model.jac.values()),
                default=0.0)
 
 
@@ -466,7 +469,7 @@ def estimate(paths, ss: ov.StripSet, model: Model, settings: AdjustSettings, rea
     kept, kept_reach = None, 0.0
     while passes < settings.relinearise:
         step = sol.theta - theta
-        moved = max(float(np.max(np.abs(J @ step), initial=0.0)) for J in model.jac.values())
+        moved = max(float(np.max(np.abs(J @ step[c]), initial=0.0)) for J, c in model.jac.values())
         rel = float(np.max(np.abs(step) / np.sqrt(np.diag(sol.cov))))
         log.info("strip adjustment pass %d: largest step at a planar cell %.4f m, %.2f sigma", passes, moved, rel)
         if rel < STEP_TOL_SIGMA:
@@ -486,7 +489,7 @@ def estimate(paths, ss: ov.StripSet, model: Model, settings: AdjustSettings, rea
             if kept is not None:
                 log.info("strip adjustment: %d points of the overlaps kept for re-gridding (moves up to %.2f m)",
                          sum(len(k.single) for k in kept.kept.values()), kept_reach)
-        model.jac = {}  # (cells, 3, K) a strip: not the old and the new at once
+        model.jac = {}  # not the old and the new at once
         model.jac = model.jac_of(ss_i)
         obs = observations(ss_i, model, settings.max_slope_deg, control, settings.control_sigma_m)
         sol = solve(obs, model, settings.huber_k, settings.iterations, theta0=theta)
@@ -536,7 +539,7 @@ def adjust_strips(paths, outdir, settings: AdjustSettings = AdjustSettings(),
     model = boresight_model(ss, chosen, settings.shift_sigma_m) if trajectories else \
         strip_model(ss, settings.fixed, controlled=cps is not None)
     sol, first, obs, passes = estimate(paths, ss, model, settings, read_params, crs, extra, cps)
-    model.jac = {}  # the cells' Jacobians (K columns each, 0.5 GB on 20 M points) are not needed any more
+    model.jac = {}  # the cells' Jacobians are not needed any more
     t_solve = time.perf_counter()
     with atomic_dir(outdir) as tmp:
         corrected = write_corrected(ss, model, sol.theta, tmp)
