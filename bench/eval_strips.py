@@ -15,7 +15,8 @@
 2. AHN3 Delft (4 strips by point_source_id, one of them 50 points): check before and after the strip model;
    per-pair numbers; maps results/strips_ahn3_{before,after}_*.png.
 3. Speed: a block of >= 20 M points (the seed-1 strips tiled 70 times along the flight lines, 4 strips of
-   ~5 M points), points per second of `check` and `adjust` (strip model), wall time.
+   ~5 M points), points per second of `check` and `adjust` (strip model), wall time (with --skip-speed the
+   previous run's, and bench/eval_strips_speed.py's comparison against an earlier revision when present).
 Writes results/strips.json.
 Run: .venv/bin/python bench/eval_strips.py [--seeds 1 2 3 4 5] [--copies 70] [--work /tmp/eval_strips]
 """
@@ -416,6 +417,13 @@ def main():
     elif (results / "strips.json").is_file() and "speed" in json.loads((results / "strips.json").read_text()):
         out["speed"] = json.loads((results / "strips.json").read_text())["speed"]
         out["speed"]["note"] = "carried over from the previous run of this script (--skip-speed)"
+    if "speed" in out and (results / "strips_speed.json").is_file():  # bench/eval_strips_speed.py: before/after
+        sp = json.loads((results / "strips_speed.json").read_text())
+        out["speed"]["baseline_against_now"] = {
+            "see": "results/strips_speed.json (bench/eval_strips_speed.py)", "baseline_rev": sp["baseline_rev"],
+            **{k: sp[k] for k in ("points", "adjust_points_per_s_baseline_ours", "adjust_speed_ratio_wall",
+                                  "adjust_speed_ratio_cpu", "adjust_peak_rss_mb_baseline_ours",
+                                  "check_points_per_s_baseline_ours", "parameters_max_abs_difference_in_sigma")}}
     (results / "strips.json").write_text(json.dumps(out, indent=2) + "\n")
 
 

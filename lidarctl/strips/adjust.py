@@ -43,6 +43,7 @@ from pathlib import Path
 
 import laspy
 import numpy as np
+from threadpoolctl import threadpool_limits
 
 from aerotri.core.atomic import atomic_dir, refuse_input_as_output
 from aerotri.core.errors import InputError, OptionError, SolveError
@@ -63,6 +64,9 @@ WEAK_ANGLE_DEG = 1.0
 # a step below this many standard deviations in every parameter ends the re-reads (cells gained and lost
 # between reads leave a jitter of a few mm at the swath edges, a tenth of a sigma or less)
 STEP_TOL_SIGMA = 0.1
+# re-gridding the kept points is exact while no point moves further than the largest move at a planar cell
+# when they were kept plus this (the models are smooth: a 0.05 deg rotation changes a move by 0.9 m per km)
+REACH_MARGIN_M = 1.0
 N_SENSOR = 5  # boresight roll, pitch, heading, range offset, scan-angle scale
 
 
@@ -90,9 +94,10 @@ class Model:
     kind: str
     names: list[str]
     prior_sigma: np.ndarray  # (K,) inf: no prior
-    jac: dict  # strip name -> (m, 3, K) effect Jacobians at the planar cells' centroids
+    jac: dict  # strip name -> ((m, 3, k) effect Jacobians at the planar cells' centroids, their k columns of K)
     local: object  # callable(strip name, x, y, z (m), gps time) -> ((n, 3, k) Jacobians, the k columns)
     jac_of: object  # callable(StripSet) -> ``jac`` of the planar cells of a re-read of the strips
+    displace: object = None  # callable(strip name, x, y, z, t, theta) -> (n, 3) J theta without forming J
 
     def apply(self, name, x, y, z, t=None) -> np.ndarray:
         """(n, 3, K) Jacobians of single points of strip ``name``."""
@@ -103,6 +108,8 @@ class Model:
 
     def displacement(self, name, x, y, z, t, theta: np.ndarray, block: int = 200_000) -> np.ndarray:
         """(n, 3) e(p) = J(p) theta of points of strip ``name`` (only the strip's own columns are formed)."""
+        if self.displace is not None:
+            return self.displace(name, x, y, z, t, theta)
         e = np.zeros((len(x), 3))
         for k0 in range(0, len(x), block):  # bounded memory of the (n, 3, k) Jacobians
             i = slice(k0, k0 + block)
@@ -156,8 +163,16 @@ def strip_model(ss: ov.StripSet, fixed: str | None, controlled: bool = False) ->
             J[:, :, 3 + a] = np.cross(axes[a], q)
         return J, np.arange(col[name], col[name] + 6)
 
-    model = Model("strip", names, np.array(prior), {}, local, None)
-    model.jac_of = lambda ss_: {s.name: model.apply(s.name, *s.centroid.T) for s in ss_.strips}
+    def displace(name, x, y, z, t, theta):
+        if name not in col:
+            return np.zeros((len(x), 3))
+        th = theta[col[name]:col[name] + 6]
+        axes, c = frames[name]
+        w = axes.T @ th[3:]  # the rotation vector: sum of the body axes' angles
+        return th[:3] + np.cross(w, np.column_stack([x, y, z]) - c)
+
+    model = Model("strip", names, np.array(prior), {}, local, None, displace)
+    model.jac_of = lambda ss_: {s.name: local(s.name, *s.centroid.T) for s in ss_.strips}
     model.jac = model.jac_of(ss)
     return model
 
@@ -206,7 +221,6 @@ def _sensor_jacobian(tr: tj.Trajectory, t, x, y, z) -> np.ndarray:
 
 def boresight_model(ss: ov.StripSet, chosen: dict, shift_sigma_m: float) -> Model:
     S = len(ss.strips)
-    K = N_SENSOR + 3 * S
     names = ["boresight_roll_deg", "boresight_pitch_deg", "boresight_heading_deg", "range_offset_m",
              "scan_angle_scale"]
     for s in ss.strips:
@@ -215,11 +229,10 @@ def boresight_model(ss: ov.StripSet, chosen: dict, shift_sigma_m: float) -> Mode
     col = {s.name: N_SENSOR + 3 * i for i, s in enumerate(ss.strips)}
 
     def place(name, J4):
-        J = np.zeros((len(J4), 3, K))
+        J = np.zeros((len(J4), 3, N_SENSOR + 3))
         J[:, :, :N_SENSOR] = J4
-        k = col[name]
-        J[:, [0, 1, 2], [k, k + 1, k + 2]] = 1.0
-        return J
+        J[:, [0, 1, 2], [N_SENSOR, N_SENSOR + 1, N_SENSOR + 2]] = 1.0
+        return J, np.r_[np.arange(N_SENSOR), np.arange(col[name], col[name] + 3)]
 
     def jac_of(ss_):
         return {s.name: place(s.name, s.extra.reshape(-1, 3, N_SENSOR)) for s in ss_.strips}
@@ -256,7 +269,8 @@ def observations(ss: ov.StripSet, model: Model, max_slope_deg: float, control: c
     for si, s in enumerate(ss.strips):
         m = co.strip == si
         if m.any():
-            G[m] = np.einsum("ij,ijk->ik", co.normal[m], model.jac[s.name][co.cell[m]])
+            J, cols = model.jac[s.name]
+            G[np.ix_(np.flatnonzero(m), cols)] = np.einsum("ij,ijk->ik", co.normal[m], J[co.cell[m]])
             pair[m] = len(pairs)
             pairs.append((s.name, "control"))
     return Observations(np.vstack([obs.G, G]), np.concatenate([obs.y, co.y]), np.concatenate([obs.sigma, co.sigma]),
@@ -275,7 +289,11 @@ def _overlap_observations(ss: ov.StripSet, model: Model, max_slope_deg: float) -
             n = A.normals()[ka] + B.normals()[kb]
             n /= np.linalg.norm(n, axis=1, keepdims=True)
             ys.append(np.einsum("ij,ij->i", n, A.centroid[ka] - B.centroid[kb]))
-            Gs.append(np.einsum("ij,ijk->ik", n, model.jac[A.name][ka] - model.jac[B.name][kb]))
+            (JA, ca), (JB, cb) = model.jac[A.name], model.jac[B.name]
+            G = np.zeros((len(ka), len(model.names)))
+            G[:, ca] += np.einsum("ij,ijk->ik", n, JA[ka])
+            G[:, cb] -= np.einsum("ij,ijk->ik", n, JB[kb])
+            Gs.append(G)
             ss_.append(np.sqrt(A.rms_m[ka] ** 2 / A.n[ka] + B.rms_m[kb] ** 2 / B.n[kb] + SURFACE_ROUGHNESS_M ** 2))
             ps.append(np.full(len(ka), len(names)))
             names.append((A.name, B.name))
@@ -300,6 +318,13 @@ def solve(obs: Observations, model: Model, huber_k: float = 1.5, iterations: int
     """IRLS with Huber weights; the sandwich covariance (module docstring); sigma0 from the weighted residuals,
     priors included. ``theta0``: the correction the observations were made with (strips re-read with it):
     the solution is theta0 plus the step the observations ask for, the priors apply to the total."""
+    # G is tall and thin (m x a few dozen): one BLAS thread does G^T G in milliseconds; two threads on a loaded
+    # machine wait on each other up to 100x longer (0.3 s against 3 ms for 40 k x 18), most of adjust's time
+    with threadpool_limits(1, user_api="blas"):
+        return _solve(obs, model, huber_k, iterations, theta0)
+
+
+def _solve(obs: Observations, model: Model, huber_k: float, iterations: int, theta0: np.ndarray | None) -> Solution:
     K = obs.G.shape[1]
     theta0 = np.zeros(K) if theta0 is None else np.asarray(theta0, float)
     has_prior = np.isfinite(model.prior_sigma)
@@ -389,6 +414,34 @@ def write_corrected(ss: ov.StripSet, model: Model, theta: np.ndarray, folder: Pa
     return out
 
 
+def _reach_m(model: Model, theta: np.ndarray) -> float:
+    """Largest displacement |J theta| (m) at the planar cells of the read ``model.jac`` was formed on."""
+    return max((float(np.max(np.linalg.norm(J @ theta[c], axis=1), initial=0.0)) for J, c in model.jac.values()),
+               default=0.0)
+
+
+def keep_region(ss: ov.StripSet, reach_m: float, times: bool = False) -> ov.KeepRegion:
+    """The cells (as read, before any correction) of each strip within D = 2 ceil(reach / cell) + 3 cells of a
+    cell another strip occupies: once every point moves by at most ``reach_m``, a cell two strips share, and
+    its 4-neighbours, only hold points of that region (D: both strips' moves, the neighbour, one cell of slack
+    for the floor). Coarse cells of D x D cells, kept with their 8 neighbours: at least D cells around.
+    ``times``: keep the GPS times as well (the sensor model's correction needs them)."""
+    grid = ss.grid
+    d = 2 * int(np.ceil(reach_m / grid.cell_m)) + 3
+    cn = grid.ncols // d + 2
+    coarse = {}
+    for s in ss.strips:
+        i, j = np.divmod(s.occupied, grid.ncols)
+        coarse[s.name] = np.unique((i // d) * cn + j // d)
+    offsets = np.array([di * cn + dj for di in (-1, 0, 1) for dj in (-1, 0, 1)])
+    ids = {}
+    for s in ss.strips:
+        others = [coarse[o.name] for o in ss.strips if o.name != s.name]
+        other = np.unique(np.concatenate(others)) if others else np.zeros(0, np.int64)
+        ids[s.name] = np.intersect1d(np.unique((other[:, None] + offsets).ravel()), coarse[s.name])
+    return ov.KeepRegion(d, cn, ids, times)
+
+
 def estimate(paths, ss: ov.StripSet, model: Model, settings: AdjustSettings, read_params, crs, extra,
              control: ctl.ControlPoints | None = None):
     """Least squares on the planes of ``ss``, then again on the strips re-read with the correction so far,
@@ -401,21 +454,42 @@ def estimate(paths, ss: ov.StripSet, model: Model, settings: AdjustSettings, rea
     into residuals that correlate with the fitted slope: errors in variables, shrinking the horizontal
     relative shifts the gentle slopes see (the neighbours' across-track shift of a strip seen only over
     gentle terrain came out 2-4 sigma off). Once the strips are corrected that displacement, and with it
-    the bias, is gone. Returns (solution, observations of the first and of the last read, reads)."""
+    the bias, is gone.
+
+    The files are read at most twice: the first re-read also keeps the points of the overlaps (and a margin
+    for the correction's move, ``keep_region``: ``REACH_MARGIN_M`` beyond the largest move at a planar cell)
+    in memory, and later reads re-grid those (``overlap.regrid``): the same planes in every shared cell, at
+    a fraction of the time. A later correction that moves a planar cell further than the margin reads the
+    files again. Returns (solution, observations of the first and of the last read, reads)."""
     theta = np.zeros(len(model.names))
     obs = first = observations(ss, model, settings.max_slope_deg, control, settings.control_sigma_m)
     sol = solve(obs, model, settings.huber_k, settings.iterations)
     before_rms = sol.residual_before_rms_m
     passes = 1
+    kept, kept_reach = None, 0.0
     while passes < settings.relinearise:
         step = sol.theta - theta
-        moved = max(float(np.max(np.abs(J @ step), initial=0.0)) for J in model.jac.values())
+        moved = max(float(np.max(np.abs(J @ step[c]), initial=0.0)) for J, c in model.jac.values())
         rel = float(np.max(np.abs(step) / np.sqrt(np.diag(sol.cov))))
         log.info("strip adjustment pass %d: largest step at a planar cell %.4f m, %.2f sigma", passes, moved, rel)
         if rel < STEP_TOL_SIGMA:
             break
         theta = sol.theta
-        ss_i = ov.read_strips(paths, read_params, crs, extra=extra, correct=model.correction(theta), grid=ss.grid)
+        reach = _reach_m(model, theta)
+        if kept is not None and reach <= kept_reach:
+            ss_i = ov.regrid(kept, read_params, extra=extra, correct=model.correction(theta))
+        else:
+            keep = None
+            if passes + 1 < settings.relinearise:  # another read may follow: keep the overlaps' points
+                kept_reach = reach + REACH_MARGIN_M
+                keep = keep_region(ss, kept_reach, times=model.kind == "boresight")
+            ss_i = ov.read_strips(paths, read_params, crs, extra=extra, correct=model.correction(theta),
+                                  grid=ss.grid, keep=keep, z_ref=ss.z_ref)
+            kept = ss_i if keep is not None else None
+            if kept is not None:
+                log.info("strip adjustment: %d points of the overlaps kept for re-gridding (moves up to %.2f m)",
+                         sum(len(k.single) for k in kept.kept.values()), kept_reach)
+        model.jac = {}  # not the old and the new at once
         model.jac = model.jac_of(ss_i)
         obs = observations(ss_i, model, settings.max_slope_deg, control, settings.control_sigma_m)
         sol = solve(obs, model, settings.huber_k, settings.iterations, theta0=theta)
@@ -465,6 +539,7 @@ def adjust_strips(paths, outdir, settings: AdjustSettings = AdjustSettings(),
     model = boresight_model(ss, chosen, settings.shift_sigma_m) if trajectories else \
         strip_model(ss, settings.fixed, controlled=cps is not None)
     sol, first, obs, passes = estimate(paths, ss, model, settings, read_params, crs, extra, cps)
+    model.jac = {}  # the cells' Jacobians are not needed any more
     t_solve = time.perf_counter()
     with atomic_dir(outdir) as tmp:
         corrected = write_corrected(ss, model, sol.theta, tmp)

@@ -26,6 +26,7 @@ import dataclasses
 import logging
 from pathlib import Path
 
+import numba
 import numpy as np
 import pyproj
 
@@ -128,6 +129,8 @@ class StripSet:
     crs: pyproj.CRS | None
     units: LengthUnits
     n_points: int
+    z_ref: float | None = None  # height reference of the cell sums (m)
+    kept: dict | None = None  # strip name -> KeptPoints (a read with ``keep``)
 
 
 @dataclasses.dataclass
@@ -229,26 +232,59 @@ class _Accumulator:
     def _reduce(parts, k):
         if not parts:
             return np.zeros(0, np.int64), np.zeros((0, k))
+        if len(parts) == 1:
+            return parts[0]
         ids = np.concatenate([p[0] for p in parts])
         s = np.concatenate([p[1] for p in parts])
         u, inv = np.unique(ids, return_inverse=True)
-        out = np.zeros((len(u), s.shape[1]))
-        np.add.at(out, inv, s)
-        return u, out
+        # bincount adds in the parts' order, as np.add.at would, at a tenth of its time
+        return u, np.stack([np.bincount(inv, s[:, k], minlength=len(u)) for k in range(s.shape[1])], axis=1)
 
     def reduce(self):
         return self._reduce(self.parts, self.k), self._reduce(self.all_parts, 2)
 
 
+@dataclasses.dataclass
+class KeepRegion:
+    """The cells whose points a read keeps in memory (``KeptPoints``): coarse cells of ``block`` x ``block``
+    grid cells, ids i // block * coarse_ncols + j // block of a point's cell (i, j) before any correction."""
+
+    block: int
+    coarse_ncols: int
+    ids: dict  # strip name -> sorted coarse cell ids
+    times: bool = False  # keep the GPS times too (a correction or ``extra`` that needs them)
+
+    def coarse(self, i: np.ndarray, j: np.ndarray) -> np.ndarray:
+        return (i // self.block) * self.coarse_ncols + j // self.block
+
+
+@dataclasses.dataclass
+class KeptPoints:
+    """The non-noise points of one strip inside its ``KeepRegion``, as read (before any correction): the
+    file's integer coordinates (exact, 12 bytes a point; metres by ``scale``, ``offset`` and the units), whether
+    a single return (1 byte) and, when asked for, the GPS time (8 bytes)."""
+
+    xyz_int: np.ndarray  # (n, 3) int32 LAS X, Y, Z
+    scale: np.ndarray  # (3,)
+    offset: np.ndarray  # (3,)
+    single: np.ndarray  # (n,) bool: a single return (not of a multi-return pulse, not vegetation)
+    gps_time: np.ndarray | None  # (n,) float64 (``KeepRegion.times`` and the file has them)
+
+    def xyz_m(self, units: LengthUnits, k=slice(None)):
+        c = self.xyz_int[k] * self.scale + self.offset
+        return units.xy_to_m(c[:, 0]), units.xy_to_m(c[:, 1]), units.z_to_m(c[:, 2])
+
+
 def read_strips(paths, params: SurfaceParams = SurfaceParams(), crs=None, extra=None, correct=None,
-                grid: Grid | None = None) -> StripSet:
+                grid: Grid | None = None, keep: KeepRegion | None = None, z_ref: float | None = None) -> StripSet:
     """Planar cells of every strip of ``paths`` (see the module docstring).
 
     ``extra(source, chunk, x_m, y_m, z_m) -> (n, k)`` adds caller-defined per-point quantities whose
     per-cell means end up in ``CellPlanes.extra`` (the adjustment's sensor-model derivatives).
     ``correct(source, x_m, y_m, z_m, gps_time) -> (x_m, y_m, z_m)`` moves a strip's points before they are
-    binned (the adjustment re-reads the strips with its current correction); ``grid`` reuses the cells of an
-    earlier read."""
+    binned (the adjustment re-reads the strips with its current correction); ``grid`` and ``z_ref`` reuse
+    the cells and height reference of an earlier read. ``keep``: the points inside it are also kept in
+    memory (``StripSet.kept``) for ``regrid``."""
     paths = [Path(p) for p in paths]
     for p in paths:
         las.read_header(p)  # a missing or broken file stops here, naming it
@@ -257,14 +293,14 @@ def read_strips(paths, params: SurfaceParams = SurfaceParams(), crs=None, extra=
     if grid is None:
         grid = _grid(sources, units, params.cell_m or _default_cell_m(sources, units))
     cell_m = grid.cell_m
-    k_extra = 0
     accs = {s.name: None for s in sources}
+    kept_parts = {s.name: [] for s in sources} if keep is not None else None
     by_path: dict[Path, list[StripSource]] = {}
     for s in sources:
         by_path.setdefault(s.path, []).append(s)
-    z_ref = None
     total = 0
     for path, group in by_path.items():
+        header = las.read_header(path)
         for first, chunk in las.iter_file_chunks(path, io.CHUNK_POINTS):
             cx, cy, cz = np.asarray(chunk.x), np.asarray(chunk.y), np.asarray(chunk.z)
             io.validate_xyz(path, cx, cy, cz, first, units)
@@ -275,40 +311,39 @@ def read_strips(paths, params: SurfaceParams = SurfaceParams(), crs=None, extra=
             rn, nr = io.sanitize_returns(np.asarray(chunk.return_number), np.asarray(chunk.number_of_returns))
             psid = np.asarray(chunk.point_source_id)
             ang = scan_angle_deg(chunk)
-            t = np.asarray(chunk.gps_time, float) if "gps_time" in chunk.point_format.dimension_names else np.zeros(len(x))
+            has_t = "gps_time" in chunk.point_format.dimension_names
+            t = np.asarray(chunk.gps_time, float) if has_t else np.zeros(len(x))
+            ok = ~np.isin(cls, NOISE_CLASSES)
+            multi = (nr > 1) | np.isin(cls, VEGETATION_CLASSES)
+            if keep is not None:  # by the cell a point was read in, before any correction
+                coarse = keep.coarse(np.floor((y - grid.y0) / cell_m).astype(np.int64),
+                                     np.floor((x - grid.x0) / cell_m).astype(np.int64))
+                for s in group:
+                    sel = ok if s.point_source_id is None else ok & (psid == s.point_source_id)
+                    w = np.flatnonzero(sel)
+                    w = w[np.isin(coarse[w], keep.ids[s.name])]
+                    kept_parts[s.name].append((np.column_stack([np.asarray(chunk.X)[w], np.asarray(chunk.Y)[w],
+                                                                np.asarray(chunk.Z)[w]]).astype(np.int32),
+                                               ~multi[w], t[w] if has_t and keep.times else None))
             if correct is not None:
                 x, y, z = np.array(x, float), np.array(y, float), np.array(z, float)
                 for s in group:
                     k = slice(None) if s.point_source_id is None else np.flatnonzero(psid == s.point_source_id)
                     x[k], y[k], z[k] = correct(s, x[k], y[k], z[k], t[k])
-            j = np.floor((x - grid.x0) / cell_m).astype(np.int64)
-            i = np.floor((y - grid.y0) / cell_m).astype(np.int64)
-            cell = i * grid.ncols + j
-            dx = x - (grid.x0 + (j + 0.5) * cell_m)
-            dy = y - (grid.y0 + (i + 0.5) * cell_m)
-            dz = z - z_ref
-            ok = ~np.isin(cls, NOISE_CLASSES)
-            multi = (nr > 1) | np.isin(cls, VEGETATION_CLASSES)
-            single = ok & ~multi
-            ex = None
             for s in group:
                 sel = ok if s.point_source_id is None else ok & (psid == s.point_source_id)
                 if not sel.any():
                     continue
-                if extra is not None:
-                    ex = np.asarray(extra(s, chunk, x, y, z, sel & single))
-                    k_extra = ex.shape[1]
-                if accs[s.name] is None:
-                    accs[s.name] = _Accumulator(k_extra)
-                acc = accs[s.name]
-                use = sel & single
-                w = np.flatnonzero(use)
-                q = np.column_stack([np.ones(len(w)), dx[w], dy[w], dz[w], dx[w] ** 2, dx[w] * dy[w], dy[w] ** 2,
-                                     dx[w] * dz[w], dy[w] * dz[w], dz[w] ** 2, ang[w], t[w]]
-                                    + ([ex[w]] if ex is not None else []))
-                acc.add(cell[w], q, cell[sel], multi[sel].astype(float))
-                acc.n_points += int(sel.sum())
-                total += int(sel.sum())
+                total += _accumulate(accs, s, chunk, x, y, z, sel, multi, ang, t, grid, z_ref, extra)
+        if keep is not None:
+            for s in group:
+                parts = kept_parts[s.name]
+                has_t = bool(parts) and parts[0][2] is not None
+                kept_parts[s.name] = KeptPoints(
+                    np.concatenate([q[0] for q in parts]) if parts else np.zeros((0, 3), np.int32),
+                    np.asarray(header.scales, float), np.asarray(header.offsets, float),
+                    np.concatenate([q[1] for q in parts]) if parts else np.zeros(0, bool),
+                    np.concatenate([q[2] for q in parts]) if has_t else None)
     strips = []
     for s in sources:
         acc = accs[s.name]
@@ -316,7 +351,142 @@ def read_strips(paths, params: SurfaceParams = SurfaceParams(), crs=None, extra=
             raise InputError(f"{s.path}: strip {s.name} holds no points (other than noise)")
         strips.append(_planes(s, acc, grid, params, z_ref))
     log.debug("read %d strips, %d points, cell %g m", len(strips), total, cell_m)
-    return StripSet(strips, grid, crs_out, units, total)
+    return StripSet(strips, grid, crs_out, units, total, z_ref, kept_parts)
+
+
+# the per-chunk sums in numba (``_cell_sums``) index the chunk's box of cells (4 bytes a cell) while it holds at
+# most this many cells per point (a strip's chunk is a stretch of its swath, flown in order: about a tenth of a
+# cell per point even for a diagonal strip); beyond, the sparse sums (np.unique, bincount)
+DENSE_CELLS_PER_POINT = 4.0
+
+
+@numba.njit(cache=True)
+def _cell_sums(x, y, z, sel, single, ang, t, ex, x0, y0, cell_m, z_ref, i0, j0, nr, nc):
+    """The occupied cells of the box (rows i0.., columns j0.., nr x nc cells) in id order (box indices), the
+    sums of ``_N_SUMS`` + k per single return in each, and (count, multi-return count) of every point of
+    ``sel``; points added in their order."""
+    k = ex.shape[1]
+    n = len(x)
+    cell = np.empty(n, np.int64)
+    idx = np.zeros(nr * nc, np.int32)
+    for p in range(n):
+        if sel[p]:
+            c = (np.int64(np.floor((y[p] - y0) / cell_m)) - i0) * nc + np.int64(np.floor((x[p] - x0) / cell_m)) - j0
+            cell[p] = c
+            idx[c] = 1
+    m = 0
+    for c in range(nr * nc):
+        if idx[c]:
+            idx[c] = m
+            m += 1
+        else:
+            idx[c] = -1
+    box = np.empty(m, np.int64)
+    S = np.zeros((m, _N_SUMS + k))
+    A = np.zeros((m, 2))
+    for p in range(n):
+        if not sel[p]:
+            continue
+        c = cell[p]
+        r = idx[c]
+        box[r] = c
+        A[r, 0] += 1.0
+        if not single[p]:
+            A[r, 1] += 1.0
+            continue
+        i = c // nc + i0
+        j = c % nc + j0
+        dx = x[p] - (x0 + (j + 0.5) * cell_m)
+        dy = y[p] - (y0 + (i + 0.5) * cell_m)
+        dz = z[p] - z_ref
+        S[r, 0] += 1.0
+        S[r, 1] += dx
+        S[r, 2] += dy
+        S[r, 3] += dz
+        S[r, 4] += dx * dx
+        S[r, 5] += dx * dy
+        S[r, 6] += dy * dy
+        S[r, 7] += dx * dz
+        S[r, 8] += dy * dz
+        S[r, 9] += dz * dz
+        S[r, 10] += ang[p]
+        S[r, 11] += t[p]
+        for q in range(k):
+            S[r, _N_SUMS + q] += ex[p, q]
+    return box, S, A
+
+
+def _accumulate(accs, s, chunk, x, y, z, sel, multi, ang, t, grid, z_ref, extra) -> int:
+    """Adds the points ``sel`` of strip ``s`` (metres, corrected) to its cell sums; returns their number."""
+    cell_m = grid.cell_m
+    use = sel & ~multi
+    ex = None
+    if extra is not None:
+        ex = np.asarray(extra(s, chunk, x, y, z, use), float)
+    if accs[s.name] is None:
+        accs[s.name] = _Accumulator(0 if ex is None else ex.shape[1])
+    acc = accs[s.name]
+    n = int(sel.sum())
+    acc.n_points += n
+    w = np.flatnonzero(sel)
+    j = np.floor((x[w] - grid.x0) / cell_m).astype(np.int64)
+    i = np.floor((y[w] - grid.y0) / cell_m).astype(np.int64)
+    i0, j0 = int(i.min()), int(j.min())
+    nr, nc = int(i.max()) - i0 + 1, int(j.max()) - j0 + 1
+    if nr * nc <= DENSE_CELLS_PER_POINT * len(w) + 4096:
+        box, S, A = _cell_sums(x, y, z, sel, use, ang, t, ex if ex is not None else np.zeros((len(x), 0)), grid.x0,
+                               grid.y0, cell_m, z_ref, i0, j0, nr, nc)
+        ids = (i0 + box // nc) * grid.ncols + j0 + box % nc  # ascending as box
+        r = S[:, 0] > 0
+        acc.parts.append((ids[r], S[r]))
+        acc.all_parts.append((ids, A))
+        return n
+    cell_sel = i * grid.ncols + j
+    u = use[w]
+    wu = w[u]
+    cell = cell_sel[u]
+    dx = x[wu] - (grid.x0 + (j[u] + 0.5) * cell_m)
+    dy = y[wu] - (grid.y0 + (i[u] + 0.5) * cell_m)
+    dz = z[wu] - z_ref
+    q = np.empty((len(wu), acc.k))
+    for k, col in enumerate((1.0, dx, dy, dz, dx * dx, dx * dy, dy * dy, dx * dz, dy * dz, dz * dz, ang[wu], t[wu])):
+        q[:, k] = col
+    if ex is not None:
+        q[:, _N_SUMS:] = ex[wu]
+    acc.add(cell, q, cell_sel, multi[w].astype(float))
+    return n
+
+
+def regrid(ss: StripSet, params: SurfaceParams, extra=None, correct=None,
+           chunk_points: int = io.CHUNK_POINTS) -> StripSet:
+    """The planar cells of the points ``ss.kept`` (a read with ``keep``), moved by ``correct``, on the grid and
+    height reference of ``ss``: what ``read_strips`` with that correction gives at every cell whose points and
+    4-neighbours' points all lie in the kept region (the caller sizes the region for that). Scan angles are
+    not kept (the cells' ``scan_angle_deg`` are 0), nor GPS times unless the region asked for them."""
+    units, grid = ss.units, ss.grid
+    accs = {s.name: None for s in ss.strips}
+    total = 0
+    for cp in ss.strips:
+        s, kp = cp.source, ss.kept[cp.name]
+        for k0 in range(0, len(kp.single), chunk_points):  # bounded memory of the moved coordinates
+            k = slice(k0, k0 + chunk_points)
+            x, y, z = kp.xyz_m(units, k)
+            t = kp.gps_time[k] if kp.gps_time is not None else np.zeros(len(x))
+            if correct is not None:
+                x, y, z = correct(s, x, y, z, t)
+            total += _accumulate(accs, s, _KeptChunk(t), x, y, z, np.ones(len(x), bool), ~kp.single[k],
+                                 np.zeros(len(x)), t, grid, ss.z_ref, extra)
+        if accs[s.name] is None:  # nothing kept: no cell of this strip in an overlap
+            accs[s.name] = _Accumulator(0 if cp.extra is None else cp.extra.shape[1])
+    strips = [_planes(cp.source, accs[cp.name], grid, params, ss.z_ref) for cp in ss.strips]
+    return StripSet(strips, grid, ss.crs, units, total, ss.z_ref, ss.kept)
+
+
+@dataclasses.dataclass
+class _KeptChunk:
+    """What ``extra`` callbacks read of a chunk, for kept points."""
+
+    gps_time: np.ndarray | None
 
 
 def _planes(source: StripSource, acc: _Accumulator, grid: Grid, params: SurfaceParams, z_ref: float) -> CellPlanes:
