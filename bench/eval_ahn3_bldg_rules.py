@@ -4,7 +4,8 @@ Runs the classification with each rule switched on alone and in combination (all
 the shipped defaults) and scores building, ground PA/UA per quarter (quarters and class mapping as
 bench/eval_ahn3_holdout.py). For every quarter the variant chosen on the other three quarters (the
 mean of building PA and UA there) is scored on it: a rule is kept only if it helps held-out
-quarters. Rules:
+quarters (two criteria: the mean of PA and UA, and the worst of them, which is what the 95 %
+target asks). Rules:
 - ``rooftop_object_max_area_m2`` (``classify.rooftop_objects``): step-separated parts of a roof
   smaller than the area that stand above their surroundings are not building;
 - ``wall_multi_return``: multi-return points in the ring around a roof below its eave are walls.
@@ -27,20 +28,34 @@ from lidar_common import DATA, REPO  # noqa: E402
 
 from lidarctl import classify, io  # noqa: E402
 
-VARIANTS = {
-    "default": {},
-    "wall_multi_return": {"wall_multi_return": True},
+VARIANTS = {  # "default": both rules off (before this bench); the shipped defaults are rooftop_20m2
+    "default": {"rooftop_object_max_area_m2": 0.0, "wall_multi_return": False},
+    "wall_multi_return": {"rooftop_object_max_area_m2": 0.0, "wall_multi_return": True},
     "rooftop_10m2": {"rooftop_object_max_area_m2": 10.0},
     "rooftop_20m2": {"rooftop_object_max_area_m2": 20.0},
     "rooftop_40m2": {"rooftop_object_max_area_m2": 40.0},
     "rooftop_20m2_pitch45": {"rooftop_object_max_area_m2": 20.0, "roof_max_pitch_deg": 45.0},
+    "rooftop_10m2_pitch45": {"rooftop_object_max_area_m2": 10.0, "roof_max_pitch_deg": 45.0},
     "rooftop_20m2_pitch65": {"rooftop_object_max_area_m2": 20.0, "roof_max_pitch_deg": 65.0},
+    "rooftop_10m2_pitch65": {"rooftop_object_max_area_m2": 10.0, "roof_max_pitch_deg": 65.0},
+    "small_plane_fit": {"rooftop_object_max_area_m2": 0.0, "small_building_plane_fit": True},
+    "small_plane_fit_0.1m": {"rooftop_object_max_area_m2": 0.0, "small_building_plane_fit": True,
+                             "small_plane_rms_m": 0.1},
+    "small_plane_fit_0.2m": {"rooftop_object_max_area_m2": 0.0, "small_building_plane_fit": True,
+                             "small_plane_rms_m": 0.2},
+    "rooftop_20m2+small_plane_fit_0.1m": {"rooftop_object_max_area_m2": 20.0, "small_building_plane_fit": True,
+                                          "small_plane_rms_m": 0.1},
+    "rooftop_20m2_pitch65+small_plane_fit_0.1m": {"rooftop_object_max_area_m2": 20.0, "roof_max_pitch_deg": 65.0,
+                                                  "small_building_plane_fit": True, "small_plane_rms_m": 0.1},
     "rooftop_20m2+wall_multi_return": {"rooftop_object_max_area_m2": 20.0, "wall_multi_return": True},
 }
 
 
-def building_criterion(s: dict) -> float:
-    return 0.5 * (s["building_pa_pct"] + s["building_ua_pct"])
+CRITERIA = {  # what the choice on the other three quarters maximises
+    "mean": lambda s: 0.5 * (s["building_pa_pct"] + s["building_ua_pct"]),
+    # the target is PA and UA >= 95 % in every part: the worse of the two, worst part
+    "worst": lambda s: min(s["building_pa_pct"], s["building_ua_pct"]),
+}
 
 
 def main():
@@ -58,15 +73,19 @@ def main():
               {p: (round(s["building_pa_pct"], 2), round(s["building_ua_pct"], 2))
                for p, s in rows[name]["parts"].items()}, flush=True)
     held_out = {}
-    for p in PARTS:
-        others = [q for q in PARTS if q != p]
-        best = max(rows, key=lambda v: np.mean([building_criterion(rows[v]["parts"][q]) for q in others]))
-        held_out[p] = {"chosen": best, "held_out": rows[best]["parts"][p], "default": rows["default"]["parts"][p]
-                       if "default" in rows else None}
-        print(p, "chosen on the others:", best, {k: round(v, 2) for k, v in rows[best]["parts"][p].items()
-                                                  if k.startswith("building") and v is not None})
+    for cname, crit in CRITERIA.items():
+        held_out[cname] = {}
+        for p in PARTS:
+            others = [q for q in PARTS if q != p]
+            agg = np.mean if cname == "mean" else np.min
+            best = max(rows, key=lambda v: agg([crit(rows[v]["parts"][q]) for q in others]))
+            held_out[cname][p] = {"chosen": best, "held_out": rows[best]["parts"][p],
+                                  "before_rules": rows["default"]["parts"][p] if "default" in rows else None}
+            print(cname, p, "chosen on the others:", best,
+                  {k: round(v, 2) for k, v in rows[best]["parts"][p].items() if k.startswith("building") and v is not None})
     out = {"data": "ahn3_cropped_1.laz, quarters at the median x/y, AHN3 scheme (2, 6, 9 kept; else 1)",
-           "criterion": "mean of building PA and UA (%) on the other three quarters",
+           "criteria": {"mean": "mean of building PA and UA (%) over the other three quarters",
+                        "worst": "the lowest building PA or UA (%) over the other three quarters"},
            "variants": rows, "held_out": held_out}
     dest = REPO / "results" / "lidar_ahn3_bldg_rules.json"
     dest.write_text(json.dumps(out, indent=2))
