@@ -31,7 +31,7 @@ from lidarctl import classify, io  # noqa: E402
 # Every variant states all the rule knobs (the shipped defaults have the rules on): "default" is the
 # classification before these rules; "shipped" is ClassifyParams() as it is now.
 RULES_OFF = {"rooftop_object_max_area_m2": 0.0, "roof_max_pitch_deg": 65.0, "small_building_plane_fit": False,
-             "small_plane_rms_m": 0.1, "wall_multi_return": False}
+             "small_plane_rms_m": 0.1, "wall_multi_return": False, "small_building_max_multi_fraction": 0.2}
 RULES = {
     "default": {},
     "wall_multi_return": {"wall_multi_return": True},
@@ -47,6 +47,10 @@ RULES = {
     "small_plane_fit_0.3m": {"small_building_plane_fit": True, "small_plane_rms_m": 0.3},
     "rooftop_20m2_pitch65+small_plane_fit_0.1m": {"rooftop_object_max_area_m2": 20.0, "roof_max_pitch_deg": 65.0,
                                                   "small_building_plane_fit": True, "small_plane_rms_m": 0.1},
+    "small_plane_fit_0.1m_multi0.35": {"small_building_plane_fit": True, "small_plane_rms_m": 0.1,
+                                       "small_building_max_multi_fraction": 0.35},
+    "small_plane_fit_0.1m_multi0.5": {"small_building_plane_fit": True, "small_plane_rms_m": 0.1,
+                                      "small_building_max_multi_fraction": 0.5},
     "rooftop_20m2_pitch65+wall_multi_return": {"rooftop_object_max_area_m2": 20.0, "roof_max_pitch_deg": 65.0,
                                                "wall_multi_return": True},
 }

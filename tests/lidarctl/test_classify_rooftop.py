@@ -1,5 +1,6 @@
 """Rooftop objects (lidarctl.classify.rooftop_objects): units standing on a roof are cut from it by
-their step; pitched roofs, ridges and the roof itself stay building."""
+their step; pitched roofs, ridges and the roof itself stay building. The one-plane fit of a
+segment (segment_plane_rms) that lets narrow sheds count as planar."""
 
 import numpy as np
 from lidarctl import classify
@@ -47,3 +48,19 @@ def test_classify_points_keeps_the_roof_around_a_rooftop_unit():
     cls = classify.classify_points(x, y, z, ones, ones)
     assert np.mean(cls[roof & ~unit] == classify.BUILDING) > 0.97
     assert np.mean(cls[unit] == classify.BUILDING) < 0.05
+
+
+def test_segment_plane_rms_tells_a_narrow_planar_roof_from_a_crown():
+    rng = np.random.default_rng(4)
+    cell_m = 0.5
+    rows, cols = np.mgrid[0:40, 0:40]
+    surface = 100.0 + 0.3 * cols * cell_m + 0.1 * rows * cell_m      # a tilted plane
+    labels = np.zeros((40, 40), int)
+    labels[5:8, 5:30] = 1                                             # a shed 1.5 m wide: no 3x3 roof interior
+    labels[20:30, 20:30] = 2                                          # a crown: the same plane, bumpy
+    surface[20:30, 20:30] += rng.uniform(0.0, 1.0, (10, 10))
+    labels[35, 35] = 3                                                # too few cells for a plane
+    rms = classify.segment_plane_rms(surface, labels, 3, cell_m)
+    assert rms[0] < 1e-6
+    assert 0.2 < rms[1] < 0.4                                         # uniform(0, 1): sigma 0.29
+    assert np.isnan(rms[2])
