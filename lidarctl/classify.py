@@ -24,10 +24,16 @@ Pipeline (``classify_points``):
    within ``roof_depth_m`` below the DSM).
    Small segments (sheds, garages: at least ``small_building_min_area_m2``) count by their whole
    area when their median plane RMS is below ``rough_rms_m`` and they are mostly single-return
-   (the 3x3 fit eats a cell on every side of a small roof). Wall points: single returns in the
+   (the 3x3 fit eats a cell on every side of a small roof; a segment too narrow for any 3x3 window
+   on its roof shows its planarity by one plane through all its cells, ``segment_plane_rms``
+   below ``small_plane_rms_m``). Wall points: single returns in the
    ring of cells around a building. Roof-edge completion (``roof_edge_completion``): region
    growing of building points over eaves and low roof parts by local-plane continuity (kNN
-   least-squares plane of the neighbouring building points, ``edge_tolerance_m``).
+   least-squares plane of the neighbouring building points, ``edge_tolerance_m``). Rooftop objects
+   (``rooftop_objects``): parts of a building cut from its roof by a height step (more than 3 sigma
+   of the range noise plus the rise of a ``roof_max_pitch_deg`` roof between neighbouring returns),
+   smaller than ``rooftop_object_max_area_m2`` and higher than the surfaces around them (rooftop
+   units, cables, crowns over a roof) leave the building class.
 4. Vegetation by HAG: low (3) <= ``low_veg_max_m`` < medium (4) <= ``medium_veg_max_m`` < high (5).
    Where the cloud has multiple returns, a non-ground point above ``low_veg_max_m`` counts as
    vegetation only in cells with multi-return or rough (non-planar) structure; smooth single-return
@@ -142,11 +148,26 @@ class ClassifyParams:
     deep_m: float = 5.0
     small_building_min_area_m2: float = 6.0
     small_building_max_multi_fraction: float = 0.2
+    # Small segments may also show their planarity by one plane fitted to all their DSM cells (RMS
+    # below small_plane_rms_m; 0.2 and 0.3 m let hedges and vans in, bench/eval_ahn3_bldg_rules.py).
+    small_building_plane_fit: bool = True
+    small_plane_rms_m: float = 0.1
     edge_neighbours: int = 8
     edge_radius_m: float = 1.0
     edge_tolerance_m: float = 0.1
     edge_iterations: int = 8
     edge_zone_m: float = 3.0
+    # Rooftop objects (``rooftop_objects``): step-separated parts of a building smaller than this
+    # (m2, from point count x spacing^2) that stand above the roof around them are not building
+    # (AHN3 labels rooftop units, cables and crowns over roofs unclassified). 0: off. 20 m2 and 65 deg:
+    # chosen on held-out quarters by bench/eval_ahn3_bldg_rules.py (10/40 m2, 45/55 deg scored too;
+    # larger areas or flatter pitches take dormers and roof steps from the buildings).
+    rooftop_object_max_area_m2: float = 20.0
+    # Steepest rise (deg) between neighbouring returns that still counts as one surface.
+    roof_max_pitch_deg: float = 65.0
+    # Walls: multi-return points in the ring around a roof that lie below its eave join too
+    # (a facade splits pulses with the eave above it). False: single returns only.
+    wall_multi_return: bool = False
     noise: noise_mod.NoiseParams = dataclasses.field(default_factory=noise_mod.NoiseParams)
 
     def __post_init__(self):
@@ -185,6 +206,32 @@ def labelled_median(values: np.ndarray, labels: np.ndarray, nlab: int) -> np.nda
     first = np.concatenate([[0], np.cumsum(count)[:-1]])
     lo, hi = first + (count - 1) // 2, first + count // 2
     return (v[lo] + v[hi]) / 2.0
+
+
+def segment_plane_rms(surface: np.ndarray, labels: np.ndarray, nlab: int, cell_m: float) -> np.ndarray:
+    """RMS residual (m) of the least-squares plane through each labelled segment's cells of
+    ``surface`` (labels 1..nlab; NaN for segments of fewer than 4 cells)."""
+    rows, cols = np.nonzero(labels)
+    lab = labels[rows, cols]
+    h = surface[rows, cols].astype(float)
+    cnt = np.bincount(lab, minlength=nlab + 1).astype(float)
+    n = np.maximum(cnt, 1)
+    # centred coordinates (m) per segment for a well-conditioned fit
+    u = cols * cell_m
+    v = rows * cell_m
+    u = u - (np.bincount(lab, u, nlab + 1) / n)[lab]
+    v = v - (np.bincount(lab, v, nlab + 1) / n)[lab]
+    hc = h - (np.bincount(lab, h, nlab + 1) / n)[lab]
+    suu, svv, suv = (np.bincount(lab, w, nlab + 1) for w in (u * u, v * v, u * v))
+    suh, svh, shh = (np.bincount(lab, w, nlab + 1) for w in (u * hc, v * hc, hc * hc))
+    det = suu * svv - suv * suv
+    with np.errstate(invalid="ignore", divide="ignore"):
+        a = (suh * svv - svh * suv) / det
+        b = (svh * suu - suh * suv) / det
+        ss = shh - a * suh - b * svh       # residual sum of squares of the centred fit
+        out = np.sqrt(np.maximum(ss, 0.0) / n)
+    out[(cnt < 4) | ~np.isfinite(out)] = np.nan
+    return out[1:]
 
 
 def lifted_ground(x, y, z, is_ground, spacing_m: float, lift_sigma: float, intercepted=None,
@@ -435,6 +482,61 @@ def roof_edge_completion(x, y, z, is_building, candidates, p: ClassifyParams) ->
         neighbours.add(new)
         cand = cand[~is_building[cand]]
         query = cand[_near_mask(x[cand], y[cand], x[new], y[new], r)]
+
+
+def range_noise_m(x, y, z, surface, k: int = 8, sample: int = 20000) -> float:
+    """Range noise (m): the robust spread (1.4826 MAD) of the heights of ``surface`` points (mask;
+    the ground) above the LSQ plane of their ``k`` nearest ``surface`` neighbours, on a seeded
+    sample of at most ``sample`` points. 0.05 m when the surface has too few points."""
+    b = np.flatnonzero(surface)
+    if len(b) < 4 * k:
+        return 0.05
+    q = np.random.default_rng(0).choice(b, min(sample, len(b)), replace=False) if len(b) > sample else b
+    nbrs = _GrowingNeighbours(x, y, b, np.inf)
+    dist, nb = nbrs.query(q, k + 1)
+    dz = _plane_offsets(np.asarray(x, float), np.asarray(y, float), np.asarray(z, float), q, nb[:, 1:],
+                        dist[:, 1:], 5)[0]
+    dz = dz[np.isfinite(dz)]
+    return 1.4826 * float(np.median(np.abs(dz))) if len(dz) else 0.05
+
+
+def rooftop_objects(x, y, z, is_building, spacing_m: float, noise_m: float, max_area_m2: float,
+                    max_pitch_deg: float = 55.0) -> np.ndarray:
+    """Building points that belong to objects standing on a roof (mask over all points).
+
+    Building points within 2 point spacings are one surface when their height difference is at
+    most 3 sigma of the range noise (``noise_m``, ``range_noise_m`` of the ground) plus the rise of a roof pitched at
+    ``max_pitch_deg`` over their horizontal distance; a rooftop unit, a cable or a crown over the
+    roof is cut from the roof by its step. A surface component is an object when its area (point
+    count x mean spacing^2) is below ``max_area_m2`` and it stands above the surfaces next to it:
+    on at least 80 % of the neighbour pairs that cross to another component it is the higher.
+    """
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+
+    out = np.zeros(len(x), bool)
+    b = np.flatnonzero(is_building)
+    if len(b) < 10:
+        return out
+    sigma_m = noise_m
+    xb, yb, zb = x[b] - x[b].min(), y[b] - y[b].min(), z[b]
+    pairs = cKDTree(np.column_stack([xb, yb])).query_pairs(2.0 * spacing_m, output_type="ndarray")
+    if len(pairs) == 0:
+        return out
+    i, j = pairs[:, 0], pairs[:, 1]
+    dh = np.hypot(xb[i] - xb[j], yb[i] - yb[j])
+    dz = zb[i] - zb[j]
+    same = np.abs(dz) <= 3.0 * sigma_m + dh * np.tan(np.radians(max_pitch_deg))
+    graph = coo_matrix((np.ones(int(same.sum())), (i[same], j[same])), shape=(len(b), len(b)))
+    ncomp, lab = connected_components(graph, directed=False)
+    area_m2 = np.bincount(lab, minlength=ncomp) * spacing_m ** 2
+    li, lj = lab[i[~same]], lab[j[~same]]
+    up = dz[~same] > 0
+    higher = np.bincount(li, up, ncomp) + np.bincount(lj, ~up, ncomp)
+    crossing = np.bincount(li, minlength=ncomp) + np.bincount(lj, minlength=ncomp)
+    obj = (area_m2 < max_area_m2) & (crossing > 0) & (higher >= 0.8 * np.maximum(crossing, 1))
+    out[b[obj[lab]]] = True
+    return out
 
 
 def water_level(z, tol_m: float) -> tuple[float, float]:
@@ -786,18 +888,35 @@ def classify_points(x, y, z, return_number=None, number_of_returns=None, intensi
         # 3x3 fit, so a small segment counts by its whole area when it is planar and single-return.
         small = ~big & (ndimage.sum_labels(candidate, labels, ids) * c * c >= p.small_building_min_area_m2)
         if small.any():
-            small &= labelled_median(rms, labels, nlab) < p.rough_rms_m
+            planar = labelled_median(rms, labels, nlab) < p.rough_rms_m
+            if p.small_building_plane_fit:
+                # A narrow shed (under 3 cells wide) has no 3x3 window on its roof alone; one
+                # plane through the whole segment's DSM tells a planar roof from a crown.
+                planar |= segment_plane_rms(dsm_f, labels, nlab, c) < p.small_plane_rms_m
+            small &= planar
             small &= ndimage.mean(multi_frac, labels, ids) <= p.small_building_max_multi_fraction
         building_cells = np.concatenate([[False], big | small])[labels]
     else:
         building_cells = np.zeros_like(roof)
     # Wall points fall in the ring of cells just outside the roof outline.
     ring = dilate_square(building_cells, 3) & ~building_cells
-    in_bld = (building_cells.ravel()[flat]) | (ring.ravel()[flat] & ~multi)
+    wall_ok = ~multi
+    if p.wall_multi_return:
+        # The eave: the highest roof top among the building cells next to a ring cell. A facade
+        # return lies below it (a crown overhanging the eave stands above it).
+        eave = ndimage.maximum_filter(np.where(building_cells, dsm_f, -np.inf), size=3, mode="constant",
+                                      cval=-np.inf)
+        wall_ok = wall_ok | (z <= eave.ravel()[flat])
+    in_bld = (building_cells.ravel()[flat]) | (ring.ravel()[flat] & wall_ok)
     is_building = obj & in_bld & (hag > p.wall_min_height_m) & (z >= dsm_f.ravel()[flat] - p.roof_depth_m)
     zone = max(1, int(round(p.edge_zone_m / c)))
     near = dilate_square(building_cells, 2 * zone + 1).ravel()[flat]
     roof_edge_completion(x, y, z, is_building, obj & near & (hag > p.wall_min_height_m), p)
+    if p.rooftop_object_max_area_m2 > 0:
+        # The range noise of the sensor, measured on the bare earth (roof plane fits cross ridges
+        # and eaves).
+        is_building &= ~rooftop_objects(x, y, z, is_building, spacing, range_noise_m(x, y, z, is_ground),
+                                        p.rooftop_object_max_area_m2, p.roof_max_pitch_deg)
     cls[is_building] = BUILDING
 
     # vegetation
