@@ -246,8 +246,8 @@ def lifted_ground(x, y, z, is_ground, spacing_m: float, lift_sigma: float, inter
     roughness, not a fixed height. Flagged: points of ``intercepted`` (the last returns of
     multi-return pulses: leaves or an edge above took part of the pulse, so the last return may
     be the low vegetation under them) more than ``lift_sigma`` sigma above their plane. A single
-    return (``judge_single``) must also stand ``lift_sigma`` times its plane's RMS residual above
-    it: in the overlap of two strips with a height offset half the points stand above the plane
+    return (``judge_single``) must also stand ``lift_sigma`` times its neighbours' robust spread
+    (1.4826 MAD) about the plane above it: in the overlap of two strips with a height offset half the points stand above the plane
     through both, with nothing over them (judged against sigma alone, the simulator's unadjusted
     strips, 4-9 cm apart, lost 0.3 % of their ground that way), and that plane's residuals hold
     the offset. ``intercepted`` None: no point is judged.
@@ -263,8 +263,8 @@ def lifted_ground(x, y, z, is_ground, spacing_m: float, lift_sigma: float, inter
                                                          distance_upper_bound=radius_m)
     # the first neighbour is the point itself
     dist, nb = dist[:, 1:], gi[np.minimum(nb[:, 1:], len(gi) - 1)]
-    dz, spread = _plane_offsets_mad(np.asarray(x, float), np.asarray(y, float), np.asarray(z, float), gi, nb,
-                                    dist, 5)
+    dz, spread = _plane_offsets(np.asarray(x, float), np.asarray(y, float), np.asarray(z, float), gi, nb,
+                                dist, 5, True)
     ok = np.isfinite(dz)
     if ok.sum() < 4 * k:
         return out
@@ -314,13 +314,14 @@ def deep_ground_outliers(x, y, z, ground, cell_m: float = 5.0, deep_m: float = 5
 
 
 @numba.njit(cache=True, parallel=True)
-def _plane_offsets(x, y, z, query, nb, dist, min_points):
+def _plane_offsets(x, y, z, query, nb, dist, min_points, robust=False):
     """Per query point: height above the LSQ plane z = a dx + b dy + c through its valid
     neighbours ``nb`` (point indices; dx, dy relative to the query point, so c is the plane
-    height there), and the plane's RMS residual. NaN with fewer than ``min_points`` neighbours."""
+    height there), and the neighbours' spread about the plane: their RMS residual, or with ``robust``
+    1.4826 x their median absolute residual. NaN with fewer than ``min_points`` neighbours."""
     n, k = nb.shape
     dz = np.full(n, np.nan)
-    rms = np.full(n, np.nan)
+    spread = np.full(n, np.nan)
     for i in numba.prange(n):
         q = query[i]
         s_uu = s_uv = s_u = s_vv = s_v = s_1 = s_uh = s_vh = s_h = 0.0
@@ -337,51 +338,18 @@ def _plane_offsets(x, y, z, query, nb, dist, min_points):
             continue
         a = np.array([[s_uu, s_uv, s_u], [s_uv, s_vv, s_v], [s_u, s_v, s_1]]) + 1e-9 * np.eye(3)
         coef = np.linalg.solve(a, np.array([s_uh, s_vh, s_h]))
+        res = np.empty(m)
         ss = 0.0
+        j = 0
         for t in range(k):
             if not np.isfinite(dist[i, t]):
                 continue
             r = nb[i, t]
             e = z[r] - z[q] - (coef[0] * (x[r] - x[q]) + coef[1] * (y[r] - y[q]) + coef[2])
             ss += e * e
-        rms[i] = np.sqrt(ss / m)
-        dz[i] = -coef[2]
-    return dz, rms
-
-
-@numba.njit(cache=True, parallel=True)
-def _plane_offsets_mad(x, y, z, query, nb, dist, min_points):
-    """As ``_plane_offsets``, with the robust spread (1.4826 x median absolute residual) of the
-    neighbours about their plane instead of the RMS."""
-    n, k = nb.shape
-    dz = np.full(n, np.nan)
-    spread = np.full(n, np.nan)
-    for i in numba.prange(n):
-        q = query[i]
-        a = np.zeros((3, 3))
-        rhs = np.zeros(3)
-        m = 0
-        for t in range(k):
-            if not np.isfinite(dist[i, t]):
-                continue
-            r = nb[i, t]
-            u, v, h = x[r] - x[q], y[r] - y[q], z[r] - z[q]
-            row = np.array([u, v, 1.0])
-            a += np.outer(row, row)
-            rhs += row * h
-            m += 1
-        if m < min_points:
-            continue
-        coef = np.linalg.solve(a + 1e-9 * np.eye(3), rhs)
-        res = np.empty(m)
-        j = 0
-        for t in range(k):
-            if not np.isfinite(dist[i, t]):
-                continue
-            r = nb[i, t]
-            res[j] = abs(z[r] - z[q] - (coef[0] * (x[r] - x[q]) + coef[1] * (y[r] - y[q]) + coef[2]))
+            res[j] = abs(e)
             j += 1
-        spread[i] = 1.4826 * np.median(res)
+        spread[i] = 1.4826 * np.median(res) if robust else np.sqrt(ss / m)
         dz[i] = -coef[2]
     return dz, spread
 
