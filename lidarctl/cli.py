@@ -361,9 +361,10 @@ _PLAN = PlanCheckParams()
 @click.argument("paths", nargs=-1, required=True, type=click.Path(dir_okay=False), metavar="CLOUD... POINTS_CSV")
 @click.option("--radius", "radius_m", type=positive(), default=_PLAN.radius_m, show_default=True,
               help="Largest distance (m) from a surveyed point to its LiDAR corner.")
-@click.option("--min-edge", "min_edge_m", type=positive(), default=None,
-              help="LiDAR corners whose two roof edges are at least this long (m). Default: lidarctl corners' "
-                   "default, max(2 m, 8 point spacings) of the measured spacing.")
+@click.option("--min-edge-m", "min_edge_m", type=positive(), default=None,
+              help="LiDAR corners whose two roof edges are at least this long (m), as lidarctl corners "
+                   "--min-edge-m. Default: max(2 m, 8 point spacings) of the measured spacing.")
+@renamed_option("--min-edge", "--min-edge-m", "min_edge_m", positive())
 @click.option("--scale", default=_PLAN.scale, show_default=True, help="Map scale of the tolerance table.")
 @click.option("--terrain", default=_PLAN.terrain, show_default=True, help="Terrain class of the tolerance table.")
 @click.option("--json", "json_path", type=click.Path(dir_okay=False), default=None,

@@ -1050,8 +1050,16 @@ def plot_corners(path, ndsm, extent, outlines, corners, truth_xy=None, reference
     view = extent if window is None else window
     ndsm = _fill_small_gaps(ndsm)
     fig, ax = plt.subplots(figsize=(10, 10 * (view[3] - view[2]) / max(view[1] - view[0], 1e-9) + 0.5))
-    im = ax.imshow(ndsm, origin="lower", extent=extent, cmap="gray", vmin=0, vmax=np.nanpercentile(ndsm, 99.5))
+    # Cells without a height (water drop-outs, gaps) in a colour of their own: drawn white they read as the
+    # tallest roofs of the grey scale.
+    cmap = plt.get_cmap("gray").with_extremes(bad="lightsteelblue")
+    im = ax.imshow(ndsm, origin="lower", extent=extent, cmap=cmap, vmin=0, vmax=np.nanpercentile(ndsm, 99.5))
     fig.colorbar(im, ax=ax, shrink=0.6, label="nDSM (m)")
+    if np.isnan(ndsm).any():
+        from matplotlib.patches import Patch
+
+        ax.add_artist(ax.legend(handles=[Patch(color="lightsteelblue", label="no nDSM (no returns)")],
+                                loc="lower right", fontsize=8))
     for poly in reference_polygons or []:
         ax.plot(*np.asarray(poly).T, color="tab:cyan", lw=0.8)
     for o in outlines:
@@ -1150,5 +1158,6 @@ def corner_control(paths, outdir, settings: CornerSettings = CornerSettings(), c
     if s.figure:
         extent = tuple(float(units.xy_from_m(v)) for v in extent_m)
         plot_corners(outdir / "corners.png", ndsm, extent, out["outlines"], out["corners"],
-                     title=f"roof corners: {st['n_usable']} usable of {st['n_corners']}", xy_unit=units.xy_name)
+                     title=f"roof corners: {st['n_usable']} usable of {st['n_corners']} (edges >= {st['min_edge_m']:.2f} m)",
+                     xy_unit=units.xy_name)
     return {**head, **st, "no_usable": None, "csv": str(files["csv"]), "units_text": units.describe()}

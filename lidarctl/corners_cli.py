@@ -44,6 +44,6 @@ def corners(classified, outdir, min_edge_m, roof, sigma_strip_xy_m, sigma_strip_
         raise InputError(f"{st['no_usable']}; {hint}")
     click.echo(
         f"{st['n_corners']} corners ({st['n_usable']} usable) on {st['n_outlines']} roofs, "
-        f"point spacing {st['point_spacing_m']:.2f} m, edges >= {st['min_edge_m']:.2f} m; coordinates in "
+        f"point spacing {st['point_spacing_m']:.2f} m, edges >= {st['min_edge_m']:.2f} m; "
         f"{st['units_text']} -> {st['csv']}"
     )

@@ -43,7 +43,7 @@ class PlanCheckParams:
     terrain: str = "flat"
 
     def validate(self) -> None:
-        for name, opt in (("radius_m", "--radius"), ("min_edge_m", "--min-edge")):
+        for name, opt in (("radius_m", "--radius"), ("min_edge_m", "--min-edge-m")):
             v = getattr(self, name)
             if v is None and name == "min_edge_m":
                 continue
@@ -230,7 +230,8 @@ def format_report(result: dict) -> str:
     s = result["overall"]
     f = lambda v: "-" if v is None else f"{v:.3f}"  # noqa: E731
     lines = [f"plan check: {result['points_csv']} against the roof corners of {', '.join(result['clouds'])} "
-             f"({result['n_lidar_corners']} LiDAR corners, search radius {result['radius_m']:g} m)",
+             f"({result['n_lidar_corners']} LiDAR corners with edges >= {result['min_edge_m']:.2f} m, search radius "
+             f"{result['radius_m']:g} m)",
              f"found {s['n_found']} of {s['n_points']} ({s['n_not_found']} without a LiDAR corner"
              + (f", {result['n_outside_cloud']} outside the cloud" if result["n_outside_cloud"] else "") + ")",
              f"RMS x {f(s['rms_x_m'])}  y {f(s['rms_y_m'])}  plan {f(s['rms_plan_m'])} m; mean dx {f(s['mean_dx_m'])}"

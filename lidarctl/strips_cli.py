@@ -95,6 +95,12 @@ def adjust(strip_paths, outdir, trajectories, fixed, control, control_sigma_m, a
         click.echo(f"control: {c['points_used']} of {c['points']} points on {c['observations']} strip planes, mean "
                    f"distance {c['mean_before_m']:+.3f} -> {c['mean_after_m']:+.3f} m, RMS {c['rms_before_m']:.3f} -> "
                    f"{c['rms_after_m']:.3f} m")
+    if s["fixed_strip"]:
+        click.echo(f"fixed: {s['fixed_strip']} (the others are adjusted to it)")
+    if s["strips_without_observations"]:
+        # their parameters above are the prior's (0 +- sigma): say so rather than let them pass as estimates
+        click.echo(f"warning: not adjusted, no planar cell shared with another strip: "
+                   f"{', '.join(s['strips_without_observations'])} (copied unchanged)")
     b, a = s["check_before"], s["check_after"]
     click.echo(f"{outdir}: {s['model']} model, {s['observations']} plane observations, sigma0 {s['sigma0']:.2f}; "
                f"strip differences RMS {b['rms_m']:.3f} -> {a['rms_m']:.3f} m, NMAD {b['nmad_m']:.3f} -> "

@@ -59,6 +59,23 @@ def test_corners_command_writes_csv_geojson_summary_and_figure(tmp_path):
     summary = json.loads((out / "corners.json").read_text())
     assert summary["n_corners"] == len(rows) and summary["n_usable"] == int(usable.sum())
     assert (out / "corners.png").stat().st_size > 10000
+    # the printed summary names the resolved minimum edge (the same as the JSON's) and the units
+    assert f"edges >= {summary['min_edge_m']:.2f} m; x, y, z in metre" in r.output
+
+
+def test_figure_draws_cells_without_height_apart_from_the_tallest(tmp_path):
+    """nDSM cells without a height (water drop-outs) get a colour of their own, not the grey scale's white."""
+    import matplotlib.image as mpimg
+
+    from lidarctl.corners import plot_corners
+
+    ndsm = np.tile(np.linspace(0.0, 15.0, 60), (60, 1))
+    ndsm[20:40, 20:40] = np.nan
+    png = tmp_path / "c.png"
+    plot_corners(png, ndsm, (0.0, 60.0, 0.0, 60.0), [], [])
+    rgb = mpimg.imread(png)[..., :3]
+    blue = np.all(np.abs(rgb - np.array([176, 196, 222]) / 255.0) < 0.02, axis=-1)   # lightsteelblue
+    assert blue.sum() > 1000
 
 
 def test_cloud_without_buildings_gives_clear_message_and_no_files(tmp_path):

@@ -29,6 +29,7 @@ def strip_adjusted(shift_only_block, tmp_path_factory):
     out = tmp_path_factory.mktemp("adj") / "out"
     r = _adjust(shift_only_block.paths, out, "--fixed", "strip_1")
     assert r.exit_code == 0, r.output
+    assert "fixed: strip_1" in r.output and "not adjusted" not in r.output
     return out, json.loads((out / "adjust.json").read_text())
 
 
