@@ -52,6 +52,10 @@ def test_deck_between_two_gaps_along_the_canal_is_a_bridge_the_strip_between_can
     # a deck at quay level (a dam between two basins) is not a bridge
     flat = np.where(deck, z - 1.2, z)
     assert not classify.bridge_decks(x, y, flat, ground, np.zeros(len(x), bool), spacing, p)[deck].any()
+    # a ridge of land across the water (an isthmus: its crest 1.2 m up, its sides sloping into the water
+    # on both sides) clears the quays only along its crest: not a level deck
+    crest = np.where(deck, z - 1.2 + 1.2 * np.clip(1.0 - np.abs(x - X0 - 95.0) / 5.0, 0.0, 1.0), z)
+    assert not classify.bridge_decks(x, y, crest, ground, np.zeros(len(x), bool), spacing, p).any()
 
 
 def test_classification_labels_the_deck_17_and_keeps_the_quays_ground():
