@@ -152,7 +152,8 @@ class ClassifyParams:
     # Lift test (multi-return last returns only): 4 sigma of the measured range noise. On AHN3 the
     # false ground stands 0.13 m (median) above the true ground, whose own scatter is ~0.02 m.
     ground_lift_sigma: float = 4.0
-    # Single returns judged too, against the larger of sigma and their neighbours' plane RMS.
+    # Single returns judged too: they must also stand ground_lift_sigma times their neighbours'
+    # robust spread (1.4826 MAD) about the plane above it.
     ground_lift_single: bool = True
     deep_cell_m: float = 5.0
     deep_m: float = 5.0
@@ -170,8 +171,9 @@ class ClassifyParams:
     # Rooftop objects (``rooftop_objects``): step-separated parts of a building smaller than this
     # (m2, from point count x spacing^2) that stand above the roof around them are not building
     # (AHN3 labels rooftop units, cables and crowns over roofs unclassified). 0: off. 20 m2 and 65 deg:
-    # chosen on held-out quarters by bench/eval_ahn3_bldg_rules.py (10/40 m2, 45/55 deg scored too;
-    # larger areas or flatter pitches take dormers and roof steps from the buildings).
+    # scored per AHN3 quarter by bench/eval_ahn3_bldg_rules.py (10/40 m2, 45/55 deg too; larger areas
+    # or flatter pitches take dormers and roof steps from the buildings); chosen on the other three
+    # quarters it is taken when SE, NW or NE is held out, not when SW is.
     rooftop_object_max_area_m2: float = 20.0
     # Steepest rise (deg) between neighbouring returns that still counts as one surface.
     roof_max_pitch_deg: float = 65.0
@@ -257,8 +259,8 @@ def lifted_ground(x, y, z, is_ground, spacing_m: float, lift_sigma: float, inter
     multi-return pulses: leaves or an edge above took part of the pulse, so the last return may
     be the low vegetation under them) more than ``lift_sigma`` sigma above their plane. A single
     return (``judge_single``) must also stand ``lift_sigma`` times its neighbours' robust spread
-    (1.4826 MAD) about the plane above it: in the overlap of two strips with a height offset half the points stand above the plane
-    through both, with nothing over them (judged against sigma alone, the simulator's unadjusted
+    (1.4826 MAD) about the plane above it: in the overlap of two strips with a height offset half
+    the points stand above the plane through both, with nothing over them (judged against sigma alone, the simulator's unadjusted
     strips, 4-9 cm apart, lost 0.3 % of their ground that way), and that plane's residuals hold
     the offset. ``intercepted`` None: no point is judged.
     0 or a negative ``lift_sigma`` disables the test.
@@ -483,8 +485,8 @@ def rooftop_objects(x, y, z, is_building, spacing_m: float, noise_m: float, max_
     """Building points that belong to objects standing on a roof (mask over all points).
 
     Building points within 2 point spacings are one surface when their height difference is at
-    most 3 sigma of the range noise (``noise_m``, ``range_noise_m`` of the ground) plus the rise of a roof pitched at
-    ``max_pitch_deg`` over their horizontal distance; a rooftop unit, a cable or a crown over the
+    most 3 sigma of the range noise (``noise_m``, ``range_noise_m`` of the ground) plus the rise of
+    a roof pitched at ``max_pitch_deg`` over their horizontal distance; a rooftop unit, a cable or a crown over the
     roof is cut from the roof by its step. A surface component is an object when its area (point
     count x mean spacing^2) is below ``max_area_m2`` and it stands above the surfaces next to it:
     on at least 80 % of the neighbour pairs that cross to another component it is the higher.
@@ -496,7 +498,6 @@ def rooftop_objects(x, y, z, is_building, spacing_m: float, noise_m: float, max_
     b = np.flatnonzero(is_building)
     if len(b) < 10:
         return out
-    sigma_m = noise_m
     xb, yb, zb = x[b] - x[b].min(), y[b] - y[b].min(), z[b]
     pairs = cKDTree(np.column_stack([xb, yb])).query_pairs(2.0 * spacing_m, output_type="ndarray")
     if len(pairs) == 0:
@@ -504,7 +505,7 @@ def rooftop_objects(x, y, z, is_building, spacing_m: float, noise_m: float, max_
     i, j = pairs[:, 0], pairs[:, 1]
     dh = np.hypot(xb[i] - xb[j], yb[i] - yb[j])
     dz = zb[i] - zb[j]
-    same = np.abs(dz) <= 3.0 * sigma_m + dh * np.tan(np.radians(max_pitch_deg))
+    same = np.abs(dz) <= 3.0 * noise_m + dh * np.tan(np.radians(max_pitch_deg))
     graph = coo_matrix((np.ones(int(same.sum())), (i[same], j[same])), shape=(len(b), len(b)))
     ncomp, lab = connected_components(graph, directed=False)
     area_m2 = np.bincount(lab, minlength=ncomp) * spacing_m ** 2
@@ -537,30 +538,64 @@ def water_level(z, tol_m: float) -> tuple[float, float]:
     return level, sigma_m
 
 
+@dataclasses.dataclass
+class DropoutGrid:
+    """The water grid of step 5 (cells of ``c`` m): the cell id of every point, the returns per
+    cell, the 8-connected pulse-dropout regions (3x3-window return count below
+    ``water_density_ratio`` of the median occupied cell, so single empty cells in a sparse scan do
+    not count; labels 1..nlab, 0 elsewhere) with their areas (m2), and the cells holding building
+    points (for the occlusion-shadow test at a region's rim)."""
+
+    c: float
+    flat: np.ndarray
+    nrows: int
+    ncols: int
+    x0: float
+    y0: float
+    count: np.ndarray
+    median_count: float
+    labels: np.ndarray
+    nlab: int
+    area_m2: np.ndarray
+    building_cell: np.ndarray
+
+    def ground_cell_z(self, x, y, z, is_ground) -> np.ndarray:
+        """Mean height (m) of the ``is_ground`` points per cell (NaN without)."""
+        return reduce_grid(x[is_ground], y[is_ground], z[is_ground], self.c, self.x0, self.y0, self.nrows,
+                           self.ncols, "mean")
+
+
+def dropout_grid(x, y, is_building, spacing_m: float, p: ClassifyParams) -> DropoutGrid:
+    """The ``DropoutGrid`` of the cloud (cell ``water_cell_m``, default max(1 m, 2 point spacings))."""
+    c = p.water_cell_m or max(1.0, 2.0 * spacing_m)
+    flat, nrows, ncols, x0, y0 = grid.cell_ids(x, y, c)
+    count = np.bincount(flat, minlength=nrows * ncols).reshape(nrows, ncols).astype(float)
+    occupied = count > 0
+    median_count = float(np.median(count[occupied])) if occupied.any() else 0.0
+    dropout = ndimage.uniform_filter(count, 3, mode="nearest") < p.water_density_ratio * median_count
+    labels, nlab = ndimage.label(dropout, np.ones((3, 3), int))
+    area_m2 = np.bincount(labels.ravel(), minlength=nlab + 1) * c * c
+    building_cell = np.bincount(flat[is_building], minlength=nrows * ncols).reshape(nrows, ncols) > 0
+    return DropoutGrid(c, flat, nrows, ncols, x0, y0, count, median_count, labels, nlab, area_m2, building_cell)
+
+
 def detect_water(x, y, z, intensity, candidate, is_building, is_ground, spacing_m: float,
-                 p: ClassifyParams, solid=None) -> np.ndarray:
+                 p: ClassifyParams, solid=None, dropout: DropoutGrid | None = None) -> np.ndarray:
     """Water returns (mask) by pulse-dropout water detection; see the module docstring, step 5.
 
     ``candidate``: points that may be water returns (ground, unclassified, low vegetation);
     ``is_building`` / ``is_ground``: class masks for the occlusion-shadow and bank tests;
-    ``solid``: the points that are not noise (default all), for the canopy test.
+    ``solid``: the points that are not noise (default all), for the canopy test; ``dropout``: the
+    cloud's ``dropout_grid`` when the caller has it.
     Heights in metres; intensity in the sensor's units (only ratios to the cloud's median are used).
     """
     n = len(x)
     water = np.zeros(n, bool)
-    c = p.water_cell_m or max(1.0, 2.0 * spacing_m)
-    flat, nrows, ncols, x0, y0 = grid.cell_ids(x, y, c)
-    count = np.bincount(flat, minlength=nrows * ncols).reshape(nrows, ncols).astype(float)
-    if not (count > 0).any():
+    g = dropout if dropout is not None else dropout_grid(x, y, is_building, spacing_m, p)
+    if g.nlab == 0:
         return water
-    median_count = float(np.median(count[count > 0]))
-    # Dropout: the 3x3-window return count, so single empty cells in a sparse scan do not count.
-    dropout = ndimage.uniform_filter(count, 3, mode="nearest") < p.water_density_ratio * median_count
-    labels, nlab = ndimage.label(dropout, np.ones((3, 3), int))
-    if nlab == 0:
-        return water
-    area_m2 = np.bincount(labels.ravel(), minlength=nlab + 1) * c * c
-    building_cell = np.bincount(flat[is_building], minlength=nrows * ncols).reshape(nrows, ncols) > 0
+    c, flat, ncols, count, median_count = g.c, g.flat, g.ncols, g.count, g.median_count
+    labels, area_m2, building_cell = g.labels, g.area_m2, g.building_cell
     # Canopy: the returns within one water cell (m) horizontally of a point. A pulse that reached the
     # level below a crown is ground seen through foliage, not open water. The KD-tree is built only
     # when a gap gets this far (most tiles have none), over the returns that can stand more than
@@ -585,7 +620,7 @@ def detect_water(x, y, z, intensity, candidate, is_building, is_ground, spacing_
         np.logical_or.at(high, np.repeat(np.arange(len(idx)), lens), z[nb] > level + p.low_veg_max_m)
         return ~high
 
-    ground_cell_z = reduce_grid(x[is_ground], y[is_ground], z[is_ground], c, x0, y0, nrows, ncols, "mean")
+    ground_cell_z = g.ground_cell_z(x, y, z, is_ground)
     # Clouds without intensity (a constant field) skip the reflectance test.
     use_intensity = intensity is not None and is_ground.any() and np.ptp(np.asarray(intensity)[is_ground]) > 0
     if use_intensity:
@@ -663,10 +698,10 @@ def detect_water(x, y, z, intensity, candidate, is_building, is_ground, spacing_
     return water
 
 
-def dropout_gaps(x, y, z, is_ground, is_building, spacing_m: float, p: ClassifyParams):
-    """Open-water-sized pulse-dropout gaps on the water grid (step 5's dropout cells in 8-connected
-    regions of at least ``water_min_area_m2`` that are not occlusion shadows, i.e. at most
-    ``water_shadow_fraction`` of their rim cells hold building points).
+def dropout_gaps(x, y, z, is_ground, g: DropoutGrid, p: ClassifyParams):
+    """Open-water-sized pulse-dropout gaps of ``g`` (step 5's dropout regions of at least
+    ``water_min_area_m2`` that are not occlusion shadows, i.e. at most ``water_shadow_fraction`` of
+    their rim cells hold building points).
 
     Returns (labels, bank, axis, flat, c): the gap label of every cell (0: no gap); per label the
     bank level (m: the median mean-ground height of its rim cells, the quays; NaN without ground
@@ -674,22 +709,12 @@ def dropout_gaps(x, y, z, is_ground, is_building, spacing_m: float, p: ClassifyP
     axes at least 3:1), else (0, 0); the cell id of every point; the cell size (m). Gaps need no
     returns in them: a canal whose calm surface returned nothing counts.
     """
-    c = p.water_cell_m or max(1.0, 2.0 * spacing_m)
-    flat, nrows, ncols, x0, y0 = grid.cell_ids(x, y, c)
-    count = np.bincount(flat, minlength=nrows * ncols).reshape(nrows, ncols).astype(float)
-    labels = np.zeros((nrows, ncols), np.int64)
-    if not (count > 0).any():
-        return labels, np.zeros(1), np.zeros((1, 2)), flat, c
-    dropout = ndimage.uniform_filter(count, 3, mode="nearest") < p.water_density_ratio * float(
-        np.median(count[count > 0]))
-    labels, nlab = ndimage.label(dropout, np.ones((3, 3), int))
+    c, flat, labels, nlab, area_m2, building_cell = g.c, g.flat, g.labels, g.nlab, g.area_m2, g.building_cell
     bank = np.full(nlab + 1, np.nan)
     axis = np.zeros((nlab + 1, 2))
     if nlab == 0:
         return labels, bank, axis, flat, c
-    area_m2 = np.bincount(labels.ravel(), minlength=nlab + 1) * c * c
-    building_cell = np.bincount(flat[is_building], minlength=nrows * ncols).reshape(nrows, ncols) > 0
-    ground_z = reduce_grid(x[is_ground], y[is_ground], z[is_ground], c, x0, y0, nrows, ncols, "mean")
+    ground_z = g.ground_cell_z(x, y, z, is_ground)
     keep = np.zeros(nlab + 1, bool)
     boxes = ndimage.find_objects(labels)
     for k in np.flatnonzero(area_m2[1:] >= p.water_min_area_m2) + 1:
@@ -707,7 +732,8 @@ def dropout_gaps(x, y, z, is_ground, is_building, spacing_m: float, p: ClassifyP
     return labels, bank, axis, flat, c
 
 
-def bridge_decks(x, y, z, is_ground, is_building, spacing_m: float, p: ClassifyParams) -> np.ndarray:
+def bridge_decks(x, y, z, is_ground, is_building, spacing_m: float, p: ClassifyParams,
+                 dropout: DropoutGrid | None = None) -> np.ndarray:
     """Ground points on bridge decks (mask): ground between two water gaps at most
     ``bridge_max_width_m`` apart along one of the four grid directions, running along a
     watercourse (within 30 degrees of the long axis of a gap on at least one side), and standing
@@ -718,12 +744,14 @@ def bridge_decks(x, y, z, is_ground, is_building, spacing_m: float, p: ClassifyP
     stands clear of the water, above the quays it joins. A quay has water on one side; the land
     between two canals meeting at an angle lies across the canals' axes, not along one. The ground
     filter takes a deck for terrain (it ramps smoothly into the approaches); a bare-earth DEM
-    passes under it, and AHN3 labels it a civil structure (26), not ground.
+    passes under it, and AHN3 labels it a civil structure (26), not ground. ``dropout``: the
+    cloud's ``dropout_grid`` when the caller has it.
     """
     out = np.zeros(len(x), bool)
     if p.bridge_max_width_m <= 0 or not np.any(is_ground):
         return out
-    labels, bank, axis, flat, c = dropout_gaps(x, y, z, is_ground, is_building, spacing_m, p)
+    g = dropout if dropout is not None else dropout_grid(x, y, is_building, spacing_m, p)
+    labels, bank, axis, flat, c = dropout_gaps(x, y, z, is_ground, g, p)
     if not labels.any():
         return out
     gap = labels > 0
@@ -755,7 +783,6 @@ def bridge_decks(x, y, z, is_ground, is_building, spacing_m: float, p: ClassifyP
     if not out.any():
         return out
     # Whole decks: the 8-connected spans between two gaps, each large enough and standing clear as a whole.
-    n_cells = nrows * ncols
     span_lab, n_span = ndimage.label(np.isfinite(need), np.ones((3, 3), int))
     lab = span_lab.ravel()
     area_m2 = np.bincount(lab, minlength=n_span + 1) * c * c
@@ -923,10 +950,11 @@ def classify_points(x, y, z, return_number=None, number_of_returns=None, intensi
     cls[high] = HIGH_VEG
 
     # water
+    gaps = dropout_grid(x, y, is_building, spacing, p)
     water = detect_water(x, y, z, intensity, is_ground | (cls == UNCLASSIFIED) | (cls == LOW_VEG),
-                         is_building, is_ground, spacing, p, solid=clean)
+                         is_building, is_ground, spacing, p, solid=clean, dropout=gaps)
     cls[water] = WATER
-    cls[bridge_decks(x, y, z, cls == GROUND, is_building, spacing, p)] = BRIDGE_DECK
+    cls[bridge_decks(x, y, z, cls == GROUND, is_building, spacing, p, dropout=gaps)] = BRIDGE_DECK
     if fusion is not None:
         from lidarctl import fusion as fusion_mod
 
