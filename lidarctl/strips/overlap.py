@@ -286,8 +286,7 @@ def read_strips(paths, params: SurfaceParams = SurfaceParams(), crs=None, extra=
     the cells and height reference of an earlier read. ``keep``: the points inside it are also kept in
     memory (``StripSet.kept``) for ``regrid``."""
     paths = [Path(p) for p in paths]
-    for p in paths:
-        las.read_header(p)  # a missing or broken file stops here, naming it
+    headers = {p: las.read_header(p) for p in paths}  # a missing or broken file stops here, naming it
     sources = strip_sources(paths)
     crs_out, units = _check_crs(sources, crs)
     if grid is None:
@@ -300,7 +299,7 @@ def read_strips(paths, params: SurfaceParams = SurfaceParams(), crs=None, extra=
         by_path.setdefault(s.path, []).append(s)
     total = 0
     for path, group in by_path.items():
-        header = las.read_header(path)
+        header = headers[path]
         for first, chunk in las.iter_file_chunks(path, io.CHUNK_POINTS):
             cx, cy, cz = np.asarray(chunk.x), np.asarray(chunk.y), np.asarray(chunk.z)
             io.validate_xyz(path, cx, cy, cz, first, units)
