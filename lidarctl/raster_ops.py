@@ -171,6 +171,47 @@ def _lattice_jitter(rows: np.ndarray, cols: np.ndarray) -> tuple[np.ndarray, np.
     return 0.01 * (u - 0.5), 0.01 * (np.modf(u * 1024.0)[0] - 0.5)
 
 
+
+@numba.njit(cache=True)
+def _fill_triangles(filled, gaps, pts, z, simplices, max_radius_px, row0, col0):
+    """Linear interpolation of the gap cells of ``filled`` inside each triangle of circumradius at most
+    ``max_radius_px``: every triangle visits the cell centres of its bounding box (scan conversion),
+    instead of a point location per gap cell (Qhull's walk degenerates on a near-regular lattice and
+    falls back to a search over all triangles). ``pts`` are (col, row) in global cells, the window's
+    first cell at (``row0``, ``col0``). A cell on an edge shared by two triangles takes the first."""
+    nrows, ncols = gaps.shape
+    done = np.zeros_like(gaps)
+    eps = 1e-12
+    for t in range(simplices.shape[0]):
+        i0, i1, i2 = simplices[t, 0], simplices[t, 1], simplices[t, 2]
+        x0, y0 = pts[i0, 0], pts[i0, 1]
+        e1x, e1y = pts[i1, 0] - x0, pts[i1, 1] - y0
+        e2x, e2y = pts[i2, 0] - x0, pts[i2, 1] - y0
+        det = e1x * e2y - e1y * e2x
+        # circumradius R = abc / (4 area)
+        a_len = np.hypot(pts[i1, 0] - pts[i2, 0], pts[i1, 1] - pts[i2, 1])
+        b_len = np.hypot(e2x, e2y)
+        c_len = np.hypot(e1x, e1y)
+        if a_len * b_len * c_len / max(2.0 * abs(det), 1e-12) > max_radius_px:
+            continue
+        cmin = int(np.ceil(min(x0, pts[i1, 0], pts[i2, 0]))) - col0
+        cmax = int(np.floor(max(x0, pts[i1, 0], pts[i2, 0]))) - col0
+        rmin = int(np.ceil(min(y0, pts[i1, 1], pts[i2, 1]))) - row0
+        rmax = int(np.floor(max(y0, pts[i1, 1], pts[i2, 1]))) - row0
+        for r in range(max(rmin, 0), min(rmax, nrows - 1) + 1):
+            for c in range(max(cmin, 0), min(cmax, ncols - 1) + 1):
+                if not gaps[r, c] or done[r, c]:
+                    continue
+                dx, dy = (c + col0) - x0, (r + row0) - y0
+                l1 = (dx * e2y - dy * e2x) / det
+                l2 = (e1x * dy - e1y * dx) / det
+                l0 = 1.0 - l1 - l2
+                if l0 < -eps or l1 < -eps or l2 < -eps:
+                    continue
+                filled[r, c] = l0 * z[i0] + l1 * z[i1] + l2 * z[i2]
+                done[r, c] = True
+
+
 def fill_nodata_tin(a: np.ndarray, max_radius_px: float = DEFAULT_TIN_FILL_RADIUS_PX,
                     offset: tuple[int, int] = (0, 0)) -> np.ndarray:
     """Fill NaN cells by linear interpolation in the Delaunay TIN of the valid cells around the gaps
@@ -202,26 +243,7 @@ def fill_nodata_tin(a: np.ndarray, max_radius_px: float = DEFAULT_TIN_FILL_RADIU
         tri = Delaunay(pts)
     except QhullError:          # all rim cells on one line
         return filled
-    qr, qc = np.nonzero(gaps)
-    q = np.column_stack([qc + offset[1], qr + offset[0]]).astype(float)
-    s = tri.find_simplex(q)
-    inside = s >= 0
-    qr, qc, q, s = qr[inside], qc[inside], q[inside], s[inside]
     # vertices in a canonical order (by global cell), so that a tile computes bit-identical weights
-    v = np.sort(tri.simplices[s], axis=1)
-    p0, p1, p2 = pts[v[:, 0]], pts[v[:, 1]], pts[v[:, 2]]
-    e1, e2, d = p1 - p0, p2 - p0, q - p0
-    det = e1[:, 0] * e2[:, 1] - e1[:, 1] * e2[:, 0]
-    l1 = (d[:, 0] * e2[:, 1] - d[:, 1] * e2[:, 0]) / det
-    l2 = (e1[:, 0] * d[:, 1] - e1[:, 1] * d[:, 0]) / det
-    l0 = 1.0 - l1 - l2
-    # circumradius R = abc / (4 area)
-    a_len = np.hypot(*(p1 - p2).T)
-    b_len = np.hypot(*(p0 - p2).T)
-    c_len = np.hypot(*e1.T)
-    radius = a_len * b_len * c_len / np.maximum(2.0 * np.abs(det), 1e-12)
-    ok = radius <= max_radius_px
-    z = a[vr, vc]
-    zq = l0 * z[v[:, 0]] + l1 * z[v[:, 1]] + l2 * z[v[:, 2]]
-    filled[qr[ok], qc[ok]] = zq[ok]
+    simplices = np.sort(tri.simplices, axis=1)
+    _fill_triangles(filled, gaps, pts, a[vr, vc], simplices, float(max_radius_px), offset[0], offset[1])
     return filled
