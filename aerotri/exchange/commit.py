@@ -10,10 +10,12 @@ the new set, never a mix. A multi-file commit in ``aerotri.core.atomic`` can rep
 from __future__ import annotations
 
 import os
+import secrets
 import tempfile
 from pathlib import Path
 
 from aerotri.core.atomic import TEMP_MARKER
+from aerotri.core.errors import InputError
 
 
 def _umask() -> int:
@@ -27,11 +29,17 @@ def write_together(contents: dict) -> list[Path]:
     temps: dict[Path, Path] = {}
     backups: dict[Path, Path] = {}
     done: list[Path] = []
+    made: list[Path] = []  # folders this call creates (removed again on failure)
     mode = 0o666 & ~_umask()
+    for path in contents:
+        if Path(path).is_dir():
+            raise InputError(f"{path}: a folder is in the way of the file to write (move it away)")
     try:
         for path, content in contents.items():
             path = Path(path)
+            missing = [d for d in (path.parent, *path.parent.parents) if not d.exists()]
             path.parent.mkdir(parents=True, exist_ok=True)
+            made += reversed(missing)
             fd, tmp = tempfile.mkstemp(prefix=f".{path.name}{TEMP_MARKER}", suffix=".new", dir=path.parent)
             with os.fdopen(fd, "wb") as f:
                 f.write(content.encode() if isinstance(content, str) else content)
@@ -39,10 +47,9 @@ def write_together(contents: dict) -> list[Path]:
             temps[path] = Path(tmp)
         for path, tmp in temps.items():
             if path.exists():
-                fd, bak = tempfile.mkstemp(prefix=f".{path.name}{TEMP_MARKER}", suffix=".old", dir=path.parent)
-                os.close(fd)
+                bak = path.with_name(f".{path.name}{TEMP_MARKER}{secrets.token_hex(4)}.old")
                 os.replace(path, bak)
-                backups[path] = Path(bak)
+                backups[path] = bak
             os.replace(tmp, path)
             done.append(path)
     except BaseException:
@@ -50,6 +57,13 @@ def write_together(contents: dict) -> list[Path]:
             path.unlink(missing_ok=True)
         for path, bak in backups.items():
             os.replace(bak, path)
+        for tmp in temps.values():
+            tmp.unlink(missing_ok=True)
+        for d in reversed(made):
+            try:
+                d.rmdir()
+            except OSError:  # not empty: someone else's files
+                pass
         raise
     finally:
         for tmp in temps.values():
