@@ -14,8 +14,8 @@
   UTM coordinates of a neighbouring zone read in the project's zone land 200-700 km away (6 degrees of
   longitude), inside that zone's area of use, where only the block itself can tell. Files that state their
   CRS are transformed rigorously (``aerotri.geom.transform``) before these checks.
-- **Images**: when ``images/`` holds frames, every image id of the import must be one of them (named when
-  not).
+- **Ids**: when ``images/`` holds frames, every image id of the import must be one of them; every measured
+  point must be a control point (of the import, else of control/points.csv). Those that are not are named.
 """
 
 from __future__ import annotations
@@ -169,10 +169,30 @@ def check_image_ids(project: Project, block: ImportedBlock) -> None:
                              f"in {project.images_dir} ({len(frames)} frames, e.g. {_listing(sorted(frames), 3)})")
 
 
+def check_point_ids(project: Project, block: ImportedBlock, replaced: set) -> None:
+    """Every measured point of the import is a control point: of the import, else of control/points.csv."""
+    from aerotri.geom.observations import read_control_points
+
+    if block.image_points is None:
+        return
+    if block.control is not None:
+        known, where = set(map(str, block.control.id)), block.source_of("control")
+    elif project.control_points_path.is_file() and project.control_points_path not in replaced:
+        known, where = set(map(str, read_control_points(project.control_points_path).id)), str(project.control_points_path)
+    else:
+        raise InputError(f"{block.source_of('image_points')}: image measurements of points no control file names "
+                         f"(import the control points with them, or have {project.control_points_path})")
+    missing = sorted({str(p) for p in block.image_points.point_id} - known)
+    if missing:
+        raise InputError(f"{block.source_of('image_points')}: measurements of point(s) {_listing(missing)} that are "
+                         f"not control points in {where}")
+
+
 def check_import(project: Project, block: ImportedBlock, options: ImportOptions, replaced: set) -> list[str]:
     """Every check of the module docstring; returns the notes to print (``replaced``: the project files
     this import writes, which do not stand for the project's position)."""
     notes = check_project_crs(project, block, options)
     check_positions(project, block, replaced)
     check_image_ids(project, block)
+    check_point_ids(project, block, replaced)
     return notes
