@@ -26,7 +26,7 @@ import numpy as np
 
 from aerotri.core.errors import CrsError, InputError
 from aerotri.core.project import Project
-from aerotri.exchange.imported import ImportedBlock, ImportOptions
+from aerotri.exchange.imported import ImportedBlock
 
 log = logging.getLogger(__name__)
 
@@ -39,7 +39,7 @@ def _listing(ids, n: int = 10) -> str:
     return ", ".join(map(str, ids[:n])) + (f" and {len(ids) - n} more" if len(ids) > n else "")
 
 
-def check_project_crs(project: Project, block: ImportedBlock, options: ImportOptions) -> list[str]:
+def check_project_crs(project: Project, block: ImportedBlock) -> list[str]:
     """Refuse a project CRS a photo block cannot use; notes on a CRS in feet (see the module docstring)."""
     from aerotri.geom.crs import crs_label, linear_unit_m, unit_long_name
     from aerotri.geom.eo import check_block_crs
@@ -188,10 +188,10 @@ def check_point_ids(project: Project, block: ImportedBlock, replaced: set) -> No
                          f"not control points in {where}")
 
 
-def check_import(project: Project, block: ImportedBlock, options: ImportOptions, replaced: set) -> list[str]:
+def check_import(project: Project, block: ImportedBlock, replaced: set) -> list[str]:
     """Every check of the module docstring; returns the notes to print (``replaced``: the project files
     this import writes, which do not stand for the project's position)."""
-    notes = check_project_crs(project, block, options)
+    notes = check_project_crs(project, block)
     check_positions(project, block, replaced)
     check_image_ids(project, block)
     check_point_ids(project, block, replaced)

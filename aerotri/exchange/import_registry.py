@@ -83,5 +83,5 @@ def import_files(root, format_name: str, files, options: ImportOptions | None = 
                                   (project.imported_eo_path, "eo"), (project.control_points_path, "control"),
                                   (project.control_image_points_path, "image_points"))
                 if getattr(block, name) is not None}
-    block.notes += check_import(project, block, options, replaced)
+    block.notes += check_import(project, block, replaced)
     return write_imported(project.root, block, format_name, overwrite=overwrite)
