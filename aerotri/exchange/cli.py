@@ -29,8 +29,8 @@ def export(project, formats, out_dir):
 
 
 @click.command(cls=Command, name="import", help=(
-    "Import other software's cameras, positions, orientations and control into PROJECT (camera.toml, gnss.txt, "
-    "imported/eo.txt, control/): " + "; ".join(f"{i.name} ({i.files}): {i.description}" for i in IMPORT_FORMATS.values())))
+    "Import other software's cameras, orientations (imported/eo.txt, approximations), positions (gnss.txt: EXIF "
+    "GNSS, or with --as-gnss) and control (control/) into PROJECT; imported/imports.json lists every file written: " + "; ".join(f"{i.name} ({i.files}): {i.description}" for i in IMPORT_FORMATS.values())))
 @click.argument("project", type=click.Path(file_okay=False, path_type=Path))
 @click.argument("files", nargs=-1, required=True, type=click.Path(path_type=Path))
 @click.option("--format", "format_name", required=True, type=click.Choice(list(IMPORT_FORMATS)),
@@ -39,11 +39,14 @@ def export(project, formats, out_dir):
                                           "project CRS.")
 @click.option("--sigma-xyz", "sigma_xyz_m", type=positive(), nargs=3, default=None,
               help="Accuracy (m) of imported positions that come without one.")
+@click.option("--as-gnss", is_flag=True, help="Also write the imported camera positions to gnss.txt as GNSS "
+                                             "observations (accuracies: --sigma-xyz, else the format's own); without "
+                                             "it a reconstruction's orientations go to imported/eo.txt only.")
 @click.option("--force", is_flag=True, help="Replace project files the import writes (camera.toml, gnss.txt, ...).")
-def import_(project, files, format_name, crs, sigma_xyz_m, force):
+def import_(project, files, format_name, crs, sigma_xyz_m, as_gnss, force):
     from aerotri.exchange.import_registry import import_files
     from aerotri.exchange.imported import ImportOptions
 
-    options = ImportOptions(crs=crs, sigma_xyz_m=tuple(sigma_xyz_m) if sigma_xyz_m else None)
-    for path in import_files(project, format_name, files, options, overwrite=force):
-        click.echo(str(path))
+    options = ImportOptions(crs=crs, sigma_xyz_m=tuple(sigma_xyz_m) if sigma_xyz_m else None, as_gnss=as_gnss)
+    for written in import_files(project, format_name, files, options, overwrite=force):
+        click.echo(str(written))

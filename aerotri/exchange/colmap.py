@@ -16,7 +16,8 @@ files cannot::
 
 Import (``aerotri import P --format colmap MODEL_FOLDER`` or its files): cameras -> camera.toml (one
 camera; SIMPLE_PINHOLE, PINHOLE, SIMPLE_RADIAL, RADIAL, OPENCV, FULL_OPENCV with k4 = k5 = k6 = 0;
-fx and fy averaged), images -> imported/eo.txt and gnss.txt in the project CRS. The world frame comes
+fx and fy averaged), images -> imported/eo.txt (approximations) in the project CRS; the projection centres
+go to gnss.txt only with ``--as-gnss`` (accuracies from ``--sigma-xyz``: COLMAP models carry none). The world frame comes
 from ``georef.txt`` (our exports; or written by hand: ``frame local_enu`` + ``crs`` + ``origin_map``),
 else the text model's header comment of our older exports, else ``--crs``: a foreign model must be
 georeferenced already (e.g. ``colmap model_aligner``), its world coordinates in that CRS (projected, or
@@ -37,10 +38,9 @@ from aerotri.core.errors import CrsError, InputError
 from aerotri.core.project import Project
 from aerotri.core.textio import read_text
 from aerotri.exchange.adjusted import AdjustedBlock
-from aerotri.exchange.imported import ImportedBlock, ImportOptions
+from aerotri.exchange.imported import ImportedBlock, ImportOptions, positions_as_gnss
 from aerotri.exchange.poses import image_id_of, number, orientations_to_project
 from aerotri.geom.camera import BrownCamera, PinholeCamera
-from aerotri.geom.eo import GnssPositions
 from aerotri.geom.local_frame import LocalFrame
 from aerotri.geom.rotation import FLIP_YZ
 
@@ -381,6 +381,9 @@ def read(files: list[Path], project: Project, options: ImportOptions) -> Importe
     else:
         raise CrsError(f"{folder}: the model's world frame is unknown; a foreign COLMAP model must be georeferenced "
                        f"(colmap model_aligner) and its CRS given with --crs, or described in {GEOREF}")
-    sigma = np.tile(options.sigma_xyz_m, (len(ids), 1)) if options.sigma_xyz_m else None
-    block.gnss = GnssPositions(list(ids), block.eo.centre_m.copy(), sigma)
+    block.origin = {"camera": Path(where).name.replace("images", "cameras"), "eo": Path(where).name}
+    if options.as_gnss:
+        block.gnss, block.gnss_holds = positions_as_gnss(ids, block.eo.centre_m, options, project,
+                                                         "projection centres of the COLMAP model")
+        block.origin["gnss"] = Path(where).name
     return block

@@ -1,7 +1,10 @@
 """The import formats (name -> Importer) and the import of other programs' files into a project.
 
 Adding a format is one module with a ``read(files, project, options) -> ImportedBlock`` function and one
-line in ``IMPORT_FORMATS``; ``aerotri import --format`` offers the registry's names.
+line in ``IMPORT_FORMATS``; ``aerotri import --format`` offers the registry's names. ``Importer.positions``
+says what the format's positions are: ``"reconstruction"`` (another program's solution: orientations as
+approximations in imported/eo.txt, gnss.txt only with ``--as-gnss``), ``"gnss"`` (GNSS measurements, as
+the EXIF tags: gnss.txt) or ``None`` (no positions; ``--as-gnss`` refused).
 """
 
 from __future__ import annotations
@@ -13,7 +16,7 @@ from typing import Callable
 from aerotri.core.errors import InputError, OptionError
 from aerotri.core.project import Project
 from aerotri.exchange import colmap, exif, metashape, micmac, odm, opensfm, orthority, patb
-from aerotri.exchange.imported import ImportedBlock, ImportOptions, write_imported
+from aerotri.exchange.imported import ImportedBlock, ImportOptions, WrittenFile, write_imported
 
 
 @dataclasses.dataclass(frozen=True)
@@ -22,6 +25,7 @@ class Importer:
     description: str
     read: Callable[[list[Path], Project, ImportOptions], ImportedBlock]
     files: str = "FILE..."  # what the format expects, for messages (e.g. "reconstruction.json")
+    positions: str | None = "reconstruction"  # "reconstruction", "gnss" or None (see the module docstring)
 
 
 IMPORT_FORMATS: dict[str, Importer] = {
@@ -29,35 +33,55 @@ IMPORT_FORMATS: dict[str, Importer] = {
                           orthority.read, files="int_param.yaml [ext_param.csv | ext_param.geojson]"),
     "colmap": Importer("colmap", "COLMAP model, text or binary (cameras, images; world frame from georef.txt or --crs)",
                        colmap.read, files="MODEL_FOLDER (cameras.txt/.bin, images.txt/.bin[, georef.txt])"),
-    "patb": Importer("patb", "PATB-style orientations, camera, control and image coordinates (aerotri's layout)",
-                     patb.read, files="block.ori block.cam block.con block.im (any of them)"),
+    "patb": Importer("patb", "PAT-B orientations (.ori), control (.con), image coordinates (.im) and aerotri's camera "
+                             "(.cam)", patb.read, files="block.ori block.cam block*.con block.im numbers.txt (any of them)"),
     "metashape": Importer("metashape", "Agisoft Metashape cameras XML (cameras, sensor, markers and their projections)",
                           metashape.read, files="cameras.xml"),
     "micmac": Importer("micmac", "MicMac DicoAppuisFlottant (control; 'check' in the name: check points) and "
                                  "SetOfMesureAppuisFlottants (image measurements) XML",
-                       micmac.read, files="gcp.xml [check.xml] [measures.xml]"),
+                       micmac.read, files="gcp.xml [check.xml] [measures.xml]", positions=None),
     "exif": Importer("exif", "GNSS positions, DJI RTK accuracies, camera (DJI DewarpData) and gimbal attitudes "
-                             "from the images' EXIF/XMP", exif.read, files="IMAGE... or a folder"),
-    "opensfm": Importer("opensfm", "OpenSfM/OpenDroneMap reconstruction: camera, orientations, GNSS positions",
-                        opensfm.read, files="reconstruction.json"),
+                             "from the images' EXIF/XMP", exif.read, files="IMAGE... or a folder", positions="gnss"),
+    "opensfm": Importer("opensfm", "OpenSfM/OpenDroneMap reconstruction: camera, orientations (and with --as-gnss "
+                                   "the shots' GNSS positions)", opensfm.read, files="reconstruction.json"),
     "odm": Importer("odm", "OpenDroneMap ground control (control points and their image measurements)", odm.read,
-                    files="gcp_list.txt"),
+                    files="gcp_list.txt", positions=None),
 }
 
 
 def import_files(root, format_name: str, files, options: ImportOptions | None = None,
-                 overwrite: bool = False) -> list[Path]:
-    """Read ``files`` of format ``format_name`` and write what they hold into the project folder ``root``
-    (``aerotri.exchange.imported.write_imported``). Returns the files written."""
+                 overwrite: bool = False) -> list[WrittenFile]:
+    """Read ``files`` of format ``format_name``, check them against the project
+    (``aerotri.exchange.import_checks``) and write what they hold into the project folder ``root``
+    (``aerotri.exchange.imported.write_imported``). Returns what was written, one record per file."""
+    from aerotri.exchange.import_checks import check_import
+    from aerotri.geom.eo import check_block_crs
+
     if format_name not in IMPORT_FORMATS:
         raise OptionError(f"unknown import format {format_name!r}; expected one of {', '.join(IMPORT_FORMATS)}",
                           param="--format")
+    importer = IMPORT_FORMATS[format_name]
+    options = options or ImportOptions()
     files = [Path(f) for f in files]
     if not files:
-        raise OptionError(f"no input file; {format_name} expects {IMPORT_FORMATS[format_name].files}", param="FILE")
+        raise OptionError(f"no input file; {format_name} expects {importer.files}", param="FILE")
+    if options.as_gnss and importer.positions is None:
+        raise OptionError(f"{format_name} files hold no positions; --as-gnss is for formats with camera positions",
+                          param="--as-gnss")
     for f in files:
         if not f.exists():
-            raise InputError(f"{f}: not found ({format_name} expects {IMPORT_FORMATS[format_name].files})")
+            raise InputError(f"{f}: not found ({format_name} expects {importer.files})")
     project = Project.open(root)
-    block = IMPORT_FORMATS[format_name].read(files, project, options or ImportOptions())
+    check_block_crs(project.crs, f"{project.config_path} [project] crs")  # before reading: no degrees, no geocentric
+    block = importer.read(files, project, options)
+    if importer.positions == "reconstruction" and block.eo is not None and block.gnss is None \
+            and not any("--as-gnss" in n for n in block.notes):
+        block.notes.append(f"positions: the {len(block.eo)} projection centres are another program's solution: "
+                           "imported/eo.txt (approximations), not gnss.txt (--as-gnss with --sigma-xyz to weight them "
+                           "as GNSS)")
+    replaced = {p for p, name in ((project.camera_path, "camera"), (project.gnss_path, "gnss"),
+                                  (project.imported_eo_path, "eo"), (project.control_points_path, "control"),
+                                  (project.control_image_points_path, "image_points"))
+                if getattr(block, name) is not None}
+    block.notes += check_import(project, block, replaced)
     return write_imported(project.root, block, format_name, overwrite=overwrite)

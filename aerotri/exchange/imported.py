@@ -4,16 +4,24 @@ An importer returns an :class:`ImportedBlock` in the project's CRS (coordinates 
 toolkit's one coordinate-operation policy, :func:`to_project_crs`). :func:`write_imported` turns it into
 the project's own files:
 
-| block field | project file |
-|---|---|
-| ``camera`` | ``camera.toml`` |
-| ``gnss`` | ``gnss.txt`` (positions and, when the source gives them, their accuracies) |
-| ``eo`` | ``imported/eo.txt`` (orientations; ``ortho rectify --eo imported/eo.txt``) |
-| ``control`` | ``control/points.csv`` |
-| ``image_points`` | ``control/image_points.csv`` (the control points' image measurements) |
+| block field | project file | holds |
+|---|---|---|
+| ``camera`` | ``camera.toml`` | the camera |
+| ``eo`` | ``imported/eo.txt`` | orientations as approximations (``aerotri adjust --eo imported/eo.txt``; ``ortho rectify --eo``) |
+| ``gnss`` | ``gnss.txt`` | GNSS positions the adjustment weights as observations |
+| ``control`` | ``control/points.csv`` | control and check points |
+| ``image_points`` | ``control/image_points.csv`` | the control points' image measurements |
 
-plus a record of every import in ``imported/imports.json``. Existing project files are never
-overwritten without ``overwrite=True``; all files of one import are written or none.
+``gnss.txt`` gets only what the source measured with GNSS (EXIF positions) or, with ``--as-gnss``, a
+reconstruction's positions the user declares to be GNSS, with the accuracies the user states
+(``--sigma-xyz``) or the format's own (OpenSfM ``gps_dop``); :func:`positions_as_gnss` says which.
+A reconstruction's camera centres are never weighted as GNSS by default: the adjustment would take
+another program's solution for measurements (at the project's default 0.05 / 0.10 m).
+
+``imported/imports.json`` lists every import: format, input files, and one entry per file written
+(:class:`WrittenFile`: path, what it holds, count, from which input file), the same lines the console
+prints. Existing project files are never overwritten without ``overwrite=True``; all files of one import
+are written or none (:func:`aerotri.exchange.commit.write_together`).
 """
 
 from __future__ import annotations
@@ -21,14 +29,14 @@ from __future__ import annotations
 import dataclasses
 import json
 import logging
-import os
 from pathlib import Path
 
 import numpy as np
 
-from aerotri.core.atomic import TEMP_MARKER, refuse_input_as_output
-from aerotri.core.errors import InputError
+from aerotri.core.atomic import refuse_input_as_output
+from aerotri.core.errors import InputError, OptionError
 from aerotri.core.project import Project
+from aerotri.exchange.commit import write_together
 from aerotri.geom.camera import Camera
 from aerotri.geom.eo import ExteriorOrientations, GnssPositions, format_eo, format_gnss
 from aerotri.geom.observations import ControlPoints, ImageObservations, format_control_points, format_image_points
@@ -39,7 +47,11 @@ log = logging.getLogger(__name__)
 @dataclasses.dataclass(kw_only=True)
 class ImportedBlock:
     """Camera, positions, orientations and control read from another program's files (project CRS;
-    pixel coordinates with the origin at the centre of the top-left pixel, x right, y down)."""
+    pixel coordinates with the origin at the centre of the top-left pixel, x right, y down).
+
+    ``origin``: the input file each field came from (field name -> file, for the record and the console);
+    ``crs_assumed``: coordinates were taken in the project CRS because the files carry no CRS and no
+    ``--crs`` was given (the import checks refuse that in a project whose CRS is not in metres)."""
 
     source: list[str]  # the files read
     camera: Camera | None = None
@@ -48,18 +60,43 @@ class ImportedBlock:
     control: ControlPoints | None = None
     image_points: ImageObservations | None = None
     notes: list[str] = dataclasses.field(default_factory=list)  # what the user should know (assumptions made)
+    gnss_holds: str = "GNSS positions"  # what gnss.txt holds, in words (with where its accuracies came from)
+    origin: dict = dataclasses.field(default_factory=dict)
+    crs_assumed: bool = False
 
     def contents(self) -> list[str]:
         return [name for name in ("camera", "gnss", "eo", "control", "image_points") if getattr(self, name) is not None]
+
+    def source_of(self, field: str) -> str:
+        return self.origin.get(field) or ", ".join(Path(s).name for s in self.source)
 
 
 @dataclasses.dataclass(frozen=True, kw_only=True)
 class ImportOptions:
     """Choices a format may need. ``crs``: the CRS of the input when the file does not carry one;
-    ``sigma_xyz_m``: accuracy of positions the source gives none for."""
+    ``sigma_xyz_m``: accuracy of positions the source gives none for; ``as_gnss``: write the imported
+    positions to gnss.txt as GNSS observations (see :func:`positions_as_gnss`)."""
 
     crs: str | None = None
     sigma_xyz_m: tuple[float, float, float] | None = None
+    as_gnss: bool = False
+
+
+@dataclasses.dataclass(frozen=True)
+class WrittenFile:
+    """One file an import wrote: ``path`` relative to the project, what it ``holds``, ``count`` records,
+    ``source``: the input file it came from."""
+
+    path: str
+    holds: str
+    count: int
+    source: str
+
+    def __str__(self) -> str:
+        return f"{self.path}: {self.count} {self.holds} (from {self.source})"
+
+    def as_dict(self) -> dict:
+        return dataclasses.asdict(self)
 
 
 def to_project_crs(xyz_m, from_crs, project: Project, source: str) -> np.ndarray:
@@ -78,56 +115,99 @@ def to_project_crs(xyz_m, from_crs, project: Project, source: str) -> np.ndarray
     return np.column_stack([x, y, z])
 
 
-def _texts(project: Project, block: ImportedBlock) -> dict[Path, str]:
-    texts = {}
+def positions_as_gnss(ids, position_m, options: ImportOptions, project: Project, what: str,
+                      own_sigma_m=None, own_sigma_name: str = "") -> tuple[GnssPositions, str]:
+    """(GNSS positions, what gnss.txt holds in words) of imported positions the user declared GNSS
+    (``--as-gnss``). Accuracies: ``--sigma-xyz`` (the user's), else ``own_sigma_m`` (N, 3; the format's,
+    named ``own_sigma_name``), else project.toml [gnss] sigma_xy_m and sigma_z_m when both are set (gnss.txt
+    then carries none and the adjustment takes those); ``OptionError`` otherwise: a reconstruction's
+    positions have no accuracy the toolkit could assume."""
+    ids = list(ids)
+    pos = np.asarray(position_m, float).reshape(-1, 3)
+    if options.sigma_xyz_m is not None:
+        s = np.asarray(options.sigma_xyz_m, float)
+        sigma, said = np.tile(s, (len(ids), 1)), f"accuracies {s[0]:g} {s[1]:g} {s[2]:g} m from --sigma-xyz"
+    elif own_sigma_m is not None:
+        sigma = np.asarray(own_sigma_m, float).reshape(-1, 3)
+        said = f"accuracies from {own_sigma_name} ({sigma.min():.3g}..{sigma.max():.3g} m)"
+    else:
+        g = project.section("gnss")
+        if "sigma_xy_m" not in g or "sigma_z_m" not in g:
+            raise OptionError(f"--as-gnss: the {what} come without accuracies; state them with --sigma-xyz SX SY SZ "
+                              f"(m) or [gnss] sigma_xy_m and sigma_z_m in {project.config_path}", param="--sigma-xyz")
+        sigma, said = None, (f"accuracies {g['sigma_xy_m']:g} / {g['sigma_z_m']:g} m from {project.config_path.name} "
+                             "[gnss]")
+    return GnssPositions(ids, pos.copy(), sigma), f"GNSS positions ({what}, --as-gnss; {said})"
+
+
+# -- writing -----------------------------------------------------------------------------------------
+
+def _files(project: Project, block: ImportedBlock) -> list[tuple[Path, str, WrittenFile]]:
+    """(path, text, record) of every project file the block fills."""
+    rel = lambda p: str(p.relative_to(project.root))  # noqa: E731
+    out = []
     if block.camera is not None:
-        texts[project.camera_path] = block.camera.to_toml()
-    if block.gnss is not None:
-        texts[project.gnss_path] = format_gnss(block.gnss, f" (imported from {', '.join(block.source)})")
+        out.append((project.camera_path, block.camera.to_toml(),
+                    WrittenFile(path=rel(project.camera_path), holds=f"camera ({block.camera.MODEL}, "
+                                f"{block.camera.width} x {block.camera.height} px)", count=1,
+                                source=block.source_of("camera"))))
     if block.eo is not None:
-        texts[project.imported_eo_path] = format_eo(block.eo)
+        out.append((project.imported_eo_path, format_eo(block.eo),
+                    WrittenFile(path=rel(project.imported_eo_path), holds="approximate orientations (projection "
+                                "centres and attitudes; adjust with --eo imported/eo.txt)", count=len(block.eo),
+                                source=block.source_of("eo"))))
+    if block.gnss is not None:
+        out.append((project.gnss_path, format_gnss(block.gnss, f" ({block.gnss_holds}, from "
+                                                              f"{block.source_of('gnss')})"),
+                    WrittenFile(path=rel(project.gnss_path), holds=block.gnss_holds, count=len(block.gnss.image_id),
+                                source=block.source_of("gnss"))))
     if block.control is not None:
-        texts[project.control_points_path] = format_control_points(block.control)
+        kinds = {k: int(np.sum(block.control.kind == k)) for k in dict.fromkeys(block.control.kind)}
+        out.append((project.control_points_path, format_control_points(block.control),
+                    WrittenFile(path=rel(project.control_points_path), holds="control and check points ("
+                                + ", ".join(f"{n} {k}" for k, n in kinds.items()) + ")", count=len(block.control.id),
+                                source=block.source_of("control"))))
     if block.image_points is not None:
-        texts[project.control_image_points_path] = format_image_points(block.image_points)
-    return texts
+        out.append((project.control_image_points_path, format_image_points(block.image_points),
+                    WrittenFile(path=rel(project.control_image_points_path), holds="image measurements of control "
+                                "points", count=len(block.image_points), source=block.source_of("image_points"))))
+    return out
 
 
-def write_imported(root, block: ImportedBlock, format_name: str, overwrite: bool = False) -> list[Path]:
-    """Write an imported block into a project folder (see the module docstring); returns the files written.
+def write_imported(root, block: ImportedBlock, format_name: str, overwrite: bool = False) -> list[WrittenFile]:
+    """Write an imported block into a project folder (see the module docstring); returns what was written
+    (the record file ``imported/imports.json`` last).
 
     Refuses (``InputError``) to replace an existing file unless ``overwrite``, and to write onto a file the
-    import read. Every file goes to a temporary name first and all are renamed at the end, so an error
-    leaves the project as it was."""
+    import read. All files are written or none (an error leaves the project as it was)."""
     project = Project.open(root)
     if not block.contents():
         raise InputError(f"{', '.join(block.source)}: nothing to import (no camera, positions, orientations or control)")
-    texts = _texts(project, block)
-    for path in texts:
+    files = _files(project, block)
+    for path, _, _ in files:
         refuse_input_as_output(path, block.source, option="FILE")
-    existing = [p for p in texts if p.exists()]
+    existing = [p for p, _, _ in files if p.exists()]
     if existing and not overwrite:
         raise InputError(f"{', '.join(str(p) for p in existing)}: exists; the import would replace it "
                          f"(use --force to replace, or import into another project)")
     record_path = project.imported_record_path
-    record = json.loads(record_path.read_text()) if record_path.is_file() else {"imports": []}
-    record["imports"].append({"format": format_name, "source": block.source,
-                              "files": [str(p.relative_to(project.root)) for p in texts], "notes": block.notes})
-    texts[record_path] = json.dumps(record, indent=2) + "\n"
-    temps = {}
-    try:
-        for path, text in texts.items():
-            path.parent.mkdir(parents=True, exist_ok=True)
-            tmp = path.with_name(f".{path.name}{TEMP_MARKER}import")
-            tmp.write_text(text)
-            temps[path] = tmp
-        for path, tmp in temps.items():
-            os.replace(tmp, path)
-    finally:
-        for tmp in temps.values():
-            if tmp.exists():
-                tmp.unlink()
+    record = {"imports": []}
+    if record_path.is_file():
+        try:
+            record = json.loads(record_path.read_text())
+        except (OSError, UnicodeDecodeError, json.JSONDecodeError):
+            record = None
+        if not isinstance(record, dict) or not isinstance(record.get("imports"), list):
+            raise InputError(f"{record_path}: not a record of imports (expected {{\"imports\": [...]}}); move it away "
+                             "to import")
+    written = [w for _, _, w in files]
+    record["imports"].append({"format": format_name, "source": block.source, "files": [w.as_dict() for w in written],
+                              "notes": block.notes})
+    contents = {p: text for p, text, _ in files}
+    contents[record_path] = json.dumps(record, indent=2) + "\n"
+    write_together(contents)
     for note in block.notes:
         log.warning(note)
-    log.info(f"imported {', '.join(block.contents())} ({format_name}) from {', '.join(block.source)} into {project.root}")
-    return list(texts)
+    log.debug(f"imported {', '.join(block.contents())} ({format_name}) from {', '.join(block.source)} into {project.root}")
+    return written + [WrittenFile(path=str(record_path.relative_to(project.root)), holds="record of this import "
+                                  f"({len(written)} files)", count=1, source=format_name)]

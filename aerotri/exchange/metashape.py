@@ -32,6 +32,9 @@ Conventions (Metashape manual, appendix "Camera models"):
   as full XYZ control: horizontal and height control come back as full, noted); marker projections:
   the control points' measured pixels (control/image_points.csv, as measured).
 
+Import: the sensor -> camera.toml, the aligned cameras -> imported/eo.txt (approximations), markers ->
+control/; the camera positions go to gnss.txt only with ``--as-gnss`` (accuracies from ``--sigma-xyz``).
+
 Heights: the geocentric coordinates come from the project's heights read as ellipsoidal
 (``aerotri.geom.local_frame``); the round trip is exact, but with ``[project] heights`` a geoid
 Metashape reads the heights N (the geoid undulation) off.
@@ -48,10 +51,9 @@ from aerotri.core.errors import CrsError, InputError
 from aerotri.core.project import Project
 from aerotri.core.textio import read_text
 from aerotri.exchange.adjusted import AdjustedBlock
-from aerotri.exchange.imported import ImportedBlock, ImportOptions
+from aerotri.exchange.imported import ImportedBlock, ImportOptions, positions_as_gnss
 from aerotri.exchange.poses import adjusted_orientations, image_id_of, number, orientations_to_project
 from aerotri.geom.camera import BrownCamera, Camera
-from aerotri.geom.eo import GnssPositions
 from aerotri.geom.local_frame import LocalFrame
 from aerotri.geom.observations import ControlPoints, ImageObservations, read_control_points, read_image_points
 from aerotri.geom.rotation import FLIP_YZ
@@ -247,8 +249,9 @@ def read(files: list[Path], project: Project, options: ImportOptions) -> Importe
         centre_map = frame.to_map((X - frame.ecef0) @ frame.R.T)
         R_map = np.transpose(frame.rotation_local_from_map(centre_map), (0, 2, 1)) @ frame.R @ R_world @ FLIP_YZ
     block.eo = orientations_to_project(ids, centre_map, R_map, ref_crs, project, f"{path} <reference>")
-    sigma = np.tile(options.sigma_xyz_m, (len(ids), 1)) if options.sigma_xyz_m else None
-    block.gnss = GnssPositions(list(ids), block.eo.centre_m.copy(), sigma)
+    if options.as_gnss:
+        block.gnss, block.gnss_holds = positions_as_gnss(ids, block.eo.centre_m, options, project,
+                                                         "camera positions of Metashape's alignment")
     # markers: control (enabled) and check points, and their projections
     markers = chunk.findall("markers/marker")
     if markers:

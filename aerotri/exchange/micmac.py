@@ -183,8 +183,10 @@ def read(files: list[Path], project: Project, options: ImportOptions) -> Importe
             if block.image_points is not None:
                 raise InputError(f"{f}: a second measurement file (import one)")
             block.image_points = read_measures(f, root)
+            block.origin["image_points"] = f.name
         elif root.tag == "DicoAppuisFlottant" or root.find("DicoAppuisFlottant") is not None:
             controls.append(read_gcp(f, root, project, options))
+            block.origin["control"] = ", ".join(filter(None, [block.origin.get("control"), f.name]))
         else:
             raise InputError(f"{f}: neither DicoAppuisFlottant (ground control) nor SetOfMesureAppuisFlottants "
                              "(image measurements)")
@@ -194,4 +196,5 @@ def read(files: list[Path], project: Project, options: ImportOptions) -> Importe
         if dup:
             raise InputError(f"{', '.join(block.source)}: points {dup} are in more than one control file")
         block.control = cp
+        block.crs_assumed = options.crs is None  # DicoAppuisFlottant carries no CRS
     return block

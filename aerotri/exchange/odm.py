@@ -14,18 +14,12 @@ its coordinates (OpenSfM groups measurements by (x, y, z)): ``gcp1``, ``gcp2``, 
 appearance. ``geo_z`` NaN (OpenSfM: no altitude) makes the point a horizontal control point. The file
 carries no accuracies: ``--sigma-xyz`` gives them (required).
 
-Export (``aerotri export --format odm``): the adjusted project's control points that the adjustment
-used (``control/points.csv``, check points included as ODM has no such kind — ``gcp_name`` keeps our
-id) and their measurements that it kept, from ``control/image_points.csv`` (the image files' names when
-``images/`` holds the frames), as ``odm/gcp_list.txt`` in the project CRS (its EPSG code, else its PROJ
-string), and as ``odm/ground_control_points.json`` (OpenSfM: WGS84 latitude, longitude, ellipsoidal
-altitude through the toolkit's coordinate-operation policy; measurements normalised as above, which
-needs the camera's size).
+Export (``aerotri export --format odm``): ``aerotri.exchange.odm_export`` (this layout, in the project CRS:
+its EPSG code, else its PROJ string).
 """
 
 from __future__ import annotations
 
-import json
 import math
 import re
 from pathlib import Path
@@ -35,9 +29,8 @@ import numpy as np
 from aerotri.core.errors import InputError, OptionError
 from aerotri.core.project import Project
 from aerotri.core.textio import read_text
-from aerotri.exchange.adjusted import AdjustedBlock
 from aerotri.exchange.imported import ImportedBlock, ImportOptions, to_project_crs
-from aerotri.geom.observations import ControlPoints, ImageObservations, read_image_points
+from aerotri.geom.observations import ControlPoints, ImageObservations
 
 _UTM = re.compile(r"^WGS84\s+UTM\s+(\d{1,2})\s*([NS]?)$", re.IGNORECASE)
 
@@ -131,54 +124,3 @@ def read(files, project: Project, options: ImportOptions) -> ImportedBlock:
                        f"{len(obs)} measurements; pixel coordinates taken as OpenSfM reads them (centre of the "
                        f"top-left pixel at 0, 0)")
     return block
-
-
-# -- export ----------------------------------------------------------------------------------------------
-def _control_measurements(block: AdjustedBlock, project: Project) -> ImageObservations:
-    """The measurements of the exported control points that the adjustment kept, as measured (the file's
-    pixel coordinates, not the ones with a known k3 taken off)."""
-    control = set(block.control_id.astype(str))
-    kept = {(str(block.point_id[j]), block.image_id[i]) for j, i in zip(block.obs_point, block.obs_image)}
-    if not project.control_image_points_path.is_file():
-        return ImageObservations(np.zeros(0, object), np.zeros(0, object), np.zeros((0, 2)))
-    obs = read_image_points(project.control_image_points_path)
-    mask = np.array([p in control and (p, i) in kept for p, i in zip(obs.point_id.astype(str), obs.image_id.astype(str))], bool)
-    return obs.subset(mask) if len(obs) else obs
-
-
-def _crs_line(crs_text: str) -> str:
-    from aerotri.geom.crs import horizontal_crs, parse_crs
-
-    crs = horizontal_crs(parse_crs(crs_text))
-    code = crs.to_epsg(min_confidence=90)
-    return f"EPSG:{code}" if code else crs.to_proj4()
-
-
-def files(block: AdjustedBlock, project: Project, image_names: dict | None = None) -> dict[str, str]:
-    """``odm/gcp_list.txt`` and ``odm/ground_control_points.json`` of an adjusted project."""
-    from aerotri.geom.crs import parse_crs, project_heights
-    from aerotri.geom.transform import transform_points
-
-    if not len(block.control_id):
-        raise InputError(f"{project.root}: the adjustment used no control points; nothing to export to ODM")
-    names = image_names or {}
-    obs = _control_measurements(block, project)
-    xyz = dict(zip(block.control_id.astype(str), block.control_xyz_m))
-    rows = [_crs_line(block.crs)]
-    for p, i, (x, y) in zip(obs.point_id.astype(str), obs.image_id.astype(str), obs.xy_px):
-        X, Y, Z = xyz[p]
-        rows.append(f"{X:.4f}\t{Y:.4f}\t{Z:.4f}\t{x:.3f}\t{y:.3f}\t{names.get(i, i)}\t{p}")
-    ids = list(xyz)
-    lon, lat, h = transform_points(*np.array([xyz[p] for p in ids]).T, from_crs=parse_crs(block.crs),
-                                   to_crs=parse_crs("EPSG:4979"), heights=project_heights(project))
-    w, h_px = block.camera.width, block.camera.height
-    s = max(w, h_px)
-    points = []
-    for n, p in enumerate(ids):
-        m = obs.point_id.astype(str) == p
-        points.append({"id": p, "position": {"latitude": float(lat[n]), "longitude": float(lon[n]), "altitude": float(h[n])},
-                       "observations": [{"shot_id": names.get(i, i),
-                                         "projection": [(x + 0.5 - w / 2) / s, (y + 0.5 - h_px / 2) / s]}
-                                        for i, (x, y) in zip(obs.image_id[m].astype(str), obs.xy_px[m])]})
-    return {"odm/gcp_list.txt": "\n".join(rows) + "\n",
-            "odm/ground_control_points.json": json.dumps({"points": points}, indent=2) + "\n"}

@@ -1,26 +1,36 @@
-"""OpenSfM ``reconstruction.json`` import (``aerotri import --format opensfm``), and OpenSfM's
-``ground_control_points.json`` (written by :mod:`aerotri.exchange.odm`).
+"""OpenSfM ``reconstruction.json``: import (``aerotri import --format opensfm``) and the writer behind the ODM
+export (``aerotri.exchange.odm_export``); OpenSfM's ``ground_control_points.json`` is written there too.
 
-OpenSfM's conventions (its ``types.py``/``geo.py``, and ``features.normalized_image_coordinates``):
+OpenSfM's conventions (its ``doc/source/geometry.rst`` and ``dataset.rst``; ``opensfm/io.py``,
+``opensfm/geo.py``; mapillary/OpenSfM at 238744c):
 
-- world frame: topocentric east-north-up at ``reference_lla`` (latitude, longitude, altitude on the WGS84
-  ellipsoid), in the reconstruction or in ``reference_lla.json`` beside it;
+- world frame: topocentric east-north-up at ``reference_lla`` (latitude, longitude in degrees, altitude in
+  metres above the WGS84 ellipsoid; in the reconstruction, or ``reference_lla.json`` beside it in older
+  datasets). ``geo.ecef_from_topocentric_transform``: ``X_ecef = R_et X_topo + ecef(ref)``, the columns
+  of ``R_et`` the east, north and up axes at the reference (WGS84 a = 6378137, b = 6356752.314245);
 - shot pose: ``rotation`` (axis-angle, radians) and ``translation`` of world -> camera,
   ``x_cam = R X + t``, camera frame x right, y down, z forward; projection centre ``-R^T t``;
+  ``gps_position`` in the topocentric frame, ``gps_dop`` its accuracy (m);
 - cameras: coordinates normalised by ``max(width, height)``; ``brown``: OpenCV's k1 k2 p1 p2 k3 on
   x/z, y/z, then ``focal_x * xd + c_x``, ``focal_y * yd + c_y`` (offsets from the image centre);
   ``perspective``: one focal, radial k1 k2, principal point at the centre. Pixels:
-  ``s * xn + (w - 1) / 2`` with ``s = max(w, h)``: origin at the centre of the top-left pixel, as ours.
+  ``s * xn + (w - 1) / 2`` with ``s = max(w, h)``: origin at the centre of the top-left pixel, as ours;
+- points: ``{"coordinates": [x, y, z] (topocentric), "color": [r, g, b]}``.
+
+Coordinates go between the topocentric frame and the project CRS through geocentric coordinates:
+topocentric <-> ECEF with OpenSfM's own formulas, ECEF <-> project CRS through the toolkit's
+coordinate-operation policy (``to_project_crs``; the project's height system included), attitudes
+through the rotation between the ECEF axes and the project's grid axes at each centre
+(``aerotri.exchange.poses.rotation_to_project``). No map-projection approximation: writing and reading
+back reproduces the orientations to 1e-9 m and 1e-9 degrees.
 
 Import: the camera at the size of the frames on disk (the project's ``images/``, else ``images/`` beside
 the OpenSfM folder, else the size in the file; normalised coordinates do not change with downsampling),
-one focal length (f = (focal_x + focal_y) / 2, noted when they differ); the shots' centres and
-attitudes -> ``imported/eo.txt`` and their ``gps_position`` -> ``gnss.txt`` (accuracy ``gps_dop`` when
-given), both in the project CRS. The reference point goes to the project CRS through ``to_project_crs``
-(``--crs``: the CRS of its latitude, longitude and altitude, default EPSG:4979); the topocentric
-coordinates then go to the project CRS through the local ENU frame at that point (the adjustment's
-``LocalFrame``: exact, no map-projection approximation), and the attitudes to the grid axes at each
-centre.
+one focal length (f = (focal_x + focal_y) / 2, noted when they differ); pixel size from the frames'
+EXIF, else the project's camera.toml, else nominal; the shots' centres and attitudes ->
+``imported/eo.txt`` (approximations). With ``--as-gnss`` the shots' ``gps_position`` (the GNSS the
+reconstruction was made with, not its solution) -> ``gnss.txt``, accuracies ``--sigma-xyz`` or else
+``gps_dop`` in X, Y and Z. ``--crs``: the CRS of ``reference_lla`` (default EPSG:4979, WGS84).
 """
 
 from __future__ import annotations
@@ -33,10 +43,13 @@ import numpy as np
 from aerotri.core.errors import InputError
 from aerotri.core.project import Project
 from aerotri.core.textio import read_json
-from aerotri.exchange.imported import ImportedBlock, ImportOptions, to_project_crs
-from aerotri.geom.camera import BrownCamera
+from aerotri.exchange.imported import ImportedBlock, ImportOptions, positions_as_gnss, to_project_crs
+from aerotri.geom.camera import BrownCamera, Camera
 from aerotri.geom.eo import ExteriorOrientations, GnssPositions
 from aerotri.geom.rotation import FLIP_YZ, opk_from_matrix
+
+WGS84_A_M = 6378137.0  # opensfm/geo.py
+WGS84_B_M = 6356752.314245
 
 DEFAULT_CRS = "EPSG:4979"
 NOMINAL_PIXEL_UM = 5.0  # when no image tells the pixel size: the geometry in pixels does not depend on it
@@ -91,9 +104,15 @@ def _frame_file(project: Project, recon_path: Path, shot_ids) -> Path | None:
 
 def _frame_size_and_pixel(path: Path) -> tuple[tuple[int, int], float | None]:
     """((width, height) px, pixel size in um or None) of a frame file (the pixel size from its EXIF)."""
+    import warnings
+
+    from rasterio.errors import NotGeoreferencedWarning
+
     from aerotri.exchange.exif import pixel_size_mm, read_frame_metadata
 
-    m = read_frame_metadata(path)
+    with warnings.catch_warnings():  # frames are not georeferenced rasters; rasterio says so for each
+        warnings.simplefilter("ignore", NotGeoreferencedWarning)
+        m = read_frame_metadata(path)
     full_w, full_h = m.full_size or (m.width, m.height)
     try:
         pixel_um = pixel_size_mm(m, full_w, full_h)[0] * 1000.0 * full_w / m.width
@@ -159,38 +178,119 @@ def read_reconstruction(path) -> tuple[dict, dict]:
     return rec, ref
 
 
+# -- the topocentric frame ---------------------------------------------------------------------------
+
+def ecef_from_lla(lat_deg, lon_deg, alt_m) -> np.ndarray:
+    """(..., 3) geocentric coordinates of latitude, longitude, ellipsoidal altitude (OpenSfM's ``geo.ecef_from_lla``)."""
+    a2, b2 = WGS84_A_M ** 2, WGS84_B_M ** 2
+    lat, lon = np.radians(lat_deg), np.radians(lon_deg)
+    L = 1.0 / np.sqrt(a2 * np.cos(lat) ** 2 + b2 * np.sin(lat) ** 2)
+    return np.stack([(a2 * L + alt_m) * np.cos(lat) * np.cos(lon), (a2 * L + alt_m) * np.cos(lat) * np.sin(lon),
+                     (b2 * L + alt_m) * np.sin(lat)], axis=-1)
+
+
+def ecef_from_topocentric(ref: dict) -> tuple[np.ndarray, np.ndarray]:
+    """(R_et (3, 3), origin (3,)): ``X_ecef = R_et X_topo + origin`` (OpenSfM's ``geo.ecef_from_topocentric_transform``)."""
+    sa, ca = np.sin(np.radians(ref["latitude"])), np.cos(np.radians(ref["latitude"]))
+    so, co = np.sin(np.radians(ref["longitude"])), np.cos(np.radians(ref["longitude"]))
+    R = np.array([[-so, -sa * co, ca * co], [co, -sa * so, ca * so], [0.0, ca, sa]])
+    return R, ecef_from_lla(ref["latitude"], ref["longitude"], ref["altitude"])
+
+
+def _geocentric(ref_crs: str, source: str):
+    from aerotri.geom.crs import parse_crs
+    from aerotri.geom.transform import same_datum_geocentric
+
+    return same_datum_geocentric(parse_crs(ref_crs, source))
+
+
+def topocentric_to_project(ref: dict, ref_crs: str, project: Project, xyz_topo, R_cv_topo, source: str
+                           ) -> tuple[np.ndarray, np.ndarray | None]:
+    """(centres (N, 3) in the project CRS, camera -> project-grid rotations (N, 3, 3) in the photogrammetric
+    camera frame, or None without ``R_cv_topo``) of topocentric positions and computer-vision camera ->
+    topocentric rotations."""
+    from aerotri.exchange.poses import rotation_to_project
+
+    R_et, origin = ecef_from_topocentric(ref)
+    ecef = np.asarray(xyz_topo, float).reshape(-1, 3) @ R_et.T + origin
+    geocentric = _geocentric(ref_crs, source)
+    xyz = to_project_crs(ecef, geocentric, project, source)
+    if R_cv_topo is None:
+        return xyz, None
+    R = rotation_to_project(geocentric, project, ecef, source) @ R_et @ np.asarray(R_cv_topo, float) @ FLIP_YZ
+    return xyz, R
+
+
+def project_to_topocentric(ref: dict, project: Project, xyz_map, R_photo_map=None, source: str = "project"
+                           ) -> tuple[np.ndarray, np.ndarray | None]:
+    """The inverse of :func:`topocentric_to_project` for a WGS84 ``reference_lla``: (topocentric positions,
+    computer-vision camera -> topocentric rotations or None)."""
+    from aerotri.exchange.poses import rotation_to_project
+    from aerotri.geom.crs import project_crs, project_heights
+    from aerotri.geom.transform import transform_points
+
+    R_et, origin = ecef_from_topocentric(ref)
+    geocentric = _geocentric(DEFAULT_CRS, source)
+    xyz = np.asarray(xyz_map, float).reshape(-1, 3)
+    ecef = np.column_stack(transform_points(xyz[:, 0], xyz[:, 1], xyz[:, 2], from_crs=project_crs(project),
+                                            to_crs=geocentric, heights=project_heights(project)))
+    topo = (ecef - origin) @ R_et
+    if R_photo_map is None:
+        return topo, None
+    R_grid_from_ecef = rotation_to_project(geocentric, project, ecef, source)
+    R = R_et.T @ np.swapaxes(R_grid_from_ecef, -1, -2) @ np.asarray(R_photo_map, float) @ FLIP_YZ
+    return topo, R
+
+
+def reference_of(project: Project, xyz_map) -> dict:
+    """``reference_lla`` (WGS84) of a project-CRS point, through the coordinate-operation policy."""
+    from aerotri.geom.crs import parse_crs, project_crs, project_heights
+    from aerotri.geom.transform import transform_points
+
+    x, y, z = np.asarray(xyz_map, float).reshape(3)
+    lon, lat, alt = transform_points(np.array([x]), np.array([y]), np.array([z]), from_crs=project_crs(project),
+                                     to_crs=parse_crs(DEFAULT_CRS), heights=project_heights(project))
+    return {"latitude": float(lat[0]), "longitude": float(lon[0]), "altitude": float(alt[0])}
+
+
+# -- import ------------------------------------------------------------------------------------------
+
+def _pixel_size_um(project: Project, block: ImportedBlock, image, path: Path) -> tuple:
+    size, pixel_um = _frame_size_and_pixel(image) if image is not None else (None, None)
+    if image is None:
+        block.notes.append(f"camera: frames not found (the project's images/ or images/ beside {path.parent}); "
+                           f"the camera at the size in the file")
+    if pixel_um is None and project.camera_path.is_file():
+        pixel_um = Camera.read(project.camera_path).pixel_um
+        block.notes.append(f"camera: pixel size {pixel_um:g} um from {project.camera_path} (OpenSfM cameras are "
+                           "normalised)")
+    if pixel_um is None:
+        pixel_um = NOMINAL_PIXEL_UM
+        block.notes.append(f"camera: pixel size unknown (no EXIF focal plane resolution or focal lengths); nominal "
+                           f"{NOMINAL_PIXEL_UM} um (the pixel geometry is exact, millimetre values nominal)")
+    return size, pixel_um
+
+
 def read(files, project: Project, options: ImportOptions) -> ImportedBlock:
     """The ``opensfm`` importer (see the module docstring)."""
-    from aerotri.geom.local_frame import LocalFrame
-
     if len(files) != 1:
         raise InputError(f"opensfm expects one reconstruction.json, got {len(files)} files")
     path = Path(files[0])
     if path.is_dir():
         path = path / "reconstruction.json"
     rec, ref = read_reconstruction(path)
-    block = ImportedBlock(source=[str(path)])
+    block = ImportedBlock(source=[str(path)], origin={"camera": path.name, "eo": path.name, "gnss": path.name})
     if len(rec["cameras"]) != 1:
         raise InputError(f"{path}: {len(rec['cameras'])} cameras; the project holds one (import each camera's "
                          f"shots into their own project)")
     cam_id, cam = next(iter(rec["cameras"].items()))
     shot_ids = sorted(rec["shots"])
-    image = _frame_file(project, path, shot_ids)
-    size, pixel_um = _frame_size_and_pixel(image) if image is not None else (None, None)
-    if image is None:
-        block.notes.append(f"camera: frames not found (the project's images/ or images/ beside {path.parent}); "
-                           f"the camera at the size in the file")
-    if pixel_um is None:
-        pixel_um = NOMINAL_PIXEL_UM
-        block.notes.append(f"camera: pixel size unknown (no EXIF focal plane resolution or focal lengths); nominal "
-                           f"{NOMINAL_PIXEL_UM} um (the pixel geometry is exact, millimetre values nominal)")
+    size, pixel_um = _pixel_size_um(project, block, _frame_file(project, path, shot_ids), path)
     block.camera, notes = camera_from_opensfm(cam, f"{path} camera {cam_id!r}", size, pixel_um, name=str(cam_id))
     block.notes += notes
     crs = options.crs or DEFAULT_CRS
-    ref_map = to_project_crs([[ref["longitude"], ref["latitude"], ref["altitude"]]], crs, project,
-                             f"{path} reference_lla ({crs})")[0]
-    frame = LocalFrame(project.crs, ref_map)
-    centres, R_enu, gps, dop = [], [], [], []
+    source = f"{path} reference_lla ({crs})"
+    centres, R_cv, gps, dop = [], [], [], []
     for sid in shot_ids:
         shot = rec["shots"][sid]
         where = f"{path} shot {sid!r}"
@@ -198,23 +298,89 @@ def read(files, project: Project, options: ImportOptions) -> ImportedBlock:
             raise InputError(f"{where}: expected an object")
         if shot.get("camera") != cam_id:
             raise InputError(f"{where}: camera {shot.get('camera')!r} is not the reconstruction's camera {cam_id!r}")
-        R_cw = rotation_from_axis_angle(_vector(shot, "rotation", where))
+        R_wc = rotation_from_axis_angle(_vector(shot, "rotation", where))
         t = _vector(shot, "translation", where)
-        centres.append(-R_cw.T @ t)
-        R_enu.append(R_cw.T)
+        centres.append(-R_wc.T @ t)
+        R_cv.append(R_wc.T)
         gps.append(_vector(shot, "gps_position", where) if "gps_position" in shot else None)
         dop.append(_number(shot, "gps_dop", where, positive=True) if "gps_dop" in shot else None)
-    C_map = frame.to_map(np.array(centres))
-    R_map = np.swapaxes(frame.rotation_local_from_map(C_map), -1, -2) @ np.array(R_enu) @ FLIP_YZ
+    C_map, R_map = topocentric_to_project(ref, crs, project, np.array(centres), np.array(R_cv), source)
     ids = [Path(s).stem for s in shot_ids]
     block.eo = ExteriorOrientations(ids, C_map, np.stack(opk_from_matrix(R_map), axis=-1))
-    if all(g is not None for g in gps):
-        sigma = np.array([[d, d, d] for d in dop]) if all(d is not None for d in dop) else None
-        if sigma is None and options.sigma_xyz_m is not None:
-            sigma = np.tile(np.asarray(options.sigma_xyz_m, float), (len(ids), 1))
-        block.gnss = GnssPositions(ids, frame.to_map(np.array(gps)), sigma)
-        if sigma is not None and all(d is not None for d in dop):
-            block.notes.append("positions: accuracies = OpenSfM gps_dop (m) in X, Y and Z")
     block.notes.append(f"orientations: OpenSfM's solution (topocentric frame at lat {ref['latitude']:.8f}, lon "
                        f"{ref['longitude']:.8f}, altitude {ref['altitude']:g} taken as {crs})")
+    with_gps = [g is not None for g in gps]
+    if options.as_gnss:
+        if not all(with_gps):
+            missing = [s for s, g in zip(shot_ids, with_gps) if not g]
+            raise InputError(f"{path}: --as-gnss: shot(s) {', '.join(missing[:10])} have no gps_position")
+        gps_map, _ = topocentric_to_project(ref, crs, project, np.array(gps), None, source)
+        own = np.array([[d, d, d] for d in dop]) if all(d is not None for d in dop) else None
+        block.gnss, block.gnss_holds = positions_as_gnss(ids, gps_map, options, project, "the shots' gps_position",
+                                                         own, "OpenSfM gps_dop (in X, Y and Z)")
+    elif any(with_gps):
+        d = [v for v in dop if v is not None]
+        block.notes.append(f"{sum(with_gps)} shots carry gps_position" + (f" (gps_dop {min(d):.3g}..{max(d):.3g} m)"
+                           if d else "") + ": not imported; --as-gnss writes them to gnss.txt")
     return block
+
+
+# -- export ------------------------------------------------------------------------------------------
+
+def camera_to_opensfm(camera: Camera) -> dict:
+    """OpenSfM's ``brown`` camera of ours (a pinhole: zero coefficients; ``camera_to_json``'s keys)."""
+    w, h = camera.width, camera.height
+    s = float(max(w, h))
+    f = camera.focal_px / s
+    k = {c: float(getattr(camera, c, 0.0)) for c in ("k1", "k2", "p1", "p2", "k3")}
+    return {"projection_type": "brown", "width": int(w), "height": int(h), "focal_x": f, "focal_y": f,
+            "c_x": (camera.cx_px - (w - 1) / 2.0) / s, "c_y": (camera.cy_px - (h - 1) / 2.0) / s, **k}
+
+
+def camera_id_of(camera: Camera) -> str:
+    """The camera's OpenSfM id: its name when it is one (``v2 ...``: imported from OpenSfM/ODM, so ODM's
+    ``--cameras`` matches it to the frames' EXIF), else OpenSfM's pattern ``v2 <make> <model> <width>
+    <height> <projection> <focal ratio>`` with make ``aerotri`` and our camera name as the model."""
+    if camera.name.startswith("v2 "):
+        return camera.name
+    ratio = str(float(camera.focal_px / max(camera.width, camera.height)))[:6]
+    return " ".join(["v2", "aerotri", camera.name.strip() or "camera", str(camera.width), str(camera.height), "brown",
+                     ratio]).lower()
+
+
+def reconstruction(eo: ExteriorOrientations, camera: Camera, project: Project, reference: dict,
+                   shot_names: dict | None = None, points=None, gnss: GnssPositions | None = None,
+                   gnss_sigma_m: float | None = None) -> dict:
+    """One OpenSfM reconstruction (a JSON object): shots of ``eo`` (project CRS), ``camera``, topocentric
+    frame at ``reference`` (reference_lla); ``shot_names``: image id -> shot id (the frames' file names);
+    ``points``: (ids, (P, 3) project CRS); ``gnss``: the shots' gps_position with gps_dop = its sX (or
+    ``gnss_sigma_m``)."""
+    from scipy.spatial.transform import Rotation
+
+    names = shot_names or {}
+    cam_id = camera_id_of(camera)
+    topo, R_cv = project_to_topocentric(reference, project, eo.centre_m, eo.rotations(), "orientations")
+    R_wc = np.swapaxes(R_cv, -1, -2)
+    rotvec = Rotation.from_matrix(R_wc).as_rotvec()
+    t = -np.einsum("nij,nj->ni", R_wc, topo)
+    gps = {}
+    if gnss is not None:
+        gi = gnss.index()
+        g_topo, _ = project_to_topocentric(reference, project, gnss.position_m, None, "gnss.txt")
+        for iid in eo.image_id:
+            if iid in gi:
+                k = gi[iid]
+                dop = float(gnss.sigma_m[k, 0]) if gnss.sigma_m is not None else gnss_sigma_m
+                gps[iid] = {"gps_position": [float(v) for v in g_topo[k]]} | ({"gps_dop": dop} if dop else {})
+    shots = {}
+    for i, iid in enumerate(eo.image_id):
+        shots[names.get(iid, iid)] = {"rotation": [float(v) for v in rotvec[i]], "translation": [float(v) for v in t[i]],
+                                      "camera": cam_id, "orientation": 1, **gps.get(iid, {})}
+    rec = {"cameras": {cam_id: camera_to_opensfm(camera)}, "shots": shots, "points": {}, "biases": {},
+           "reference_lla": dict(reference)}
+    if points is not None:
+        pid, xyz = points
+        p_topo, _ = project_to_topocentric(reference, project, xyz, None, "object points")
+        rec["points"] = {str(p): {"color": [128.0, 128.0, 128.0], "coordinates": [float(v) for v in c]}
+                         for p, c in zip(pid, p_topo)}
+    return rec

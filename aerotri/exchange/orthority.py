@@ -21,9 +21,9 @@ world coordinates with R = Rx(omega) Ry(phi) Rz(kappa): our convention (``aerotr
 angles pass unchanged (checked on the NGI block: orthority's ngi_xyz_opk.csv carries the national AT's
 camera_pos_ori.txt angles, and orthority's camera projects our object points to our pixels).
 
-Import: camera.toml (one camera), imported/eo.txt and gnss.txt (the projection centres) in the project
-CRS. Export (``orthority/``): ``int_param.yaml``, ``ext_param.csv`` + ``ext_param.prj`` and
-``ext_param.geojson`` of the adjusted orientations (``at/eo.txt``, project CRS, its heights) and the
+Import: camera.toml (one camera) and imported/eo.txt (approximations) in the project CRS; the camera
+positions go to gnss.txt only with ``--as-gnss`` (accuracies from ``--sigma-xyz``: the files carry none).
+Export (``orthority/``): ``int_param.yaml``, ``ext_param.csv`` + ``ext_param.prj`` and ``ext_param.geojson`` of the adjusted orientations (``at/eo.txt``, project CRS, its heights) and the
 self-calibrated camera.
 """
 
@@ -40,11 +40,11 @@ from aerotri.core.errors import CrsError, InputError
 from aerotri.core.project import Project
 from aerotri.core.textio import read_text
 from aerotri.exchange.adjusted import AdjustedBlock
-from aerotri.exchange.imported import ImportedBlock, ImportOptions
+from aerotri.exchange.imported import ImportedBlock, ImportOptions, positions_as_gnss
 from aerotri.exchange.poses import (adjusted_orientations, horizontal_wkt, image_id_of, number,
                                     opk_orientations_to_project)
 from aerotri.geom.camera import BrownCamera, Camera, PinholeCamera
-from aerotri.geom.eo import ExteriorOrientations, GnssPositions
+from aerotri.geom.eo import ExteriorOrientations
 
 BROWN_KEYS = ("k1", "k2", "p1", "p2", "k3")
 OPTIONAL_KEYS = {"pinhole": ("sensor_size", "cx", "cy"), "brown": ("sensor_size", "cx", "cy") + BROWN_KEYS,
@@ -270,8 +270,11 @@ def read(files: list[Path], project: Project, options: ImportOptions) -> Importe
         used = {c for c in cams if c}
         eo = opk_orientations_to_project(ids, xyz, opk, crs, project, crs_source)
         block.eo = eo
-        sigma = np.tile(options.sigma_xyz_m, (len(ids), 1)) if options.sigma_xyz_m else None
-        block.gnss = GnssPositions(list(ids), eo.centre_m.copy(), sigma)
+        block.origin["eo"] = Path(path).name
+        if options.as_gnss:
+            block.gnss, block.gnss_holds = positions_as_gnss(ids, eo.centre_m, options, project,
+                                                             "camera positions of the orthority exterior parameters")
+            block.origin["gnss"] = Path(path).name
     if cameras:
         chosen = [c for c in cameras if c in used] or list(cameras)
         if len(chosen) > 1:
@@ -282,6 +285,7 @@ def read(files: list[Path], project: Project, options: ImportOptions) -> Importe
             raise InputError(f"{exterior[0]}: camera(s) {missing} are not in the interior parameters "
                              f"({', '.join(cameras)})")
         block.camera = cameras[chosen[0]]
+        block.origin["camera"] = next((f.name for f in files if f.suffix.lower() in (".yaml", ".yml")), "")
         if chosen[0] in nominal:
             block.notes.append(f"camera {chosen[0]!r} has no sensor_size: focal length in pixels kept, pixel size "
                                "set to a nominal 1 um (edit camera.toml for the physical sensor)")

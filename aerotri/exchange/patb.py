@@ -1,32 +1,40 @@
-"""PATB-style files (``patb/``): image coordinates, control, orientations and camera; export and import.
+"""PAT-B files (``patb/``): orientations, control and image coordinates; export and import.
 
-Every file: free-format whitespace-separated records, ``*`` starts a comment (to the end of the line),
-``-99`` ends a block (a photo in ``.im``) or the file (``.con``, ``.ori``).
+PAT-B (Ackermann's bundle block adjustment, Inpho/Trimble) exchanges fixed-column Fortran records. Layouts:
 
-- ``block.im`` (image coordinates): per photo an ``image_id`` line, then ``point_id x_mm y_mm`` lines and
-  ``-99``. Photo frame (x right, y up, origin at the principal point), millimetres, distortion removed with
-  the adjusted interior orientation (the adjustment's camera: ``photo_coordinates_mm``).
-- ``block.con`` (control): ``point_id X Y Z  * kind`` (project CRS) of the control points the adjustment
-  kept; the kind (full, horizontal, height, check) in the comment; ``-99`` at the end.
-- ``block.ori`` (orientations), per photo five records::
+- ``block.ori`` (orientations), the layout PCI Geomatics documents for reading PAT-B orientations
+  ("Using Pat-B in OrthoEngine"): three records per photo, no terminator::
 
-      image_id  c_mm
-      X0 Y0 Z0                 (projection centre, project CRS)
-      r11 r12 r13              (rotation matrix R, camera -> object: P - C = s R p, photo frame x right,
-      r21 r22 r23               y up, z back; R = Rx(omega) Ry(phi) Rz(kappa) of aerotri.geom.rotation)
-      r31 r32 r33
+      I16, 16X, 3F16.5    photo number, (16 columns not read), X0 Y0 Z0 (projection centre, project CRS)
+      5F16.12             a11 a12 a13 a21 a22
+      4F16.12             a23 a31 a32 a33
 
-  and ``-99`` at the end (matrix to 1e-10, centre to 0.1 mm).
-- ``block.cam`` (camera): ``key value`` lines of the adjusted camera in the units of its names:
-  ``name``, ``model`` (brown or pinhole), ``focal_mm``, ``pixel_um``, ``width``, ``height`` (px),
-  ``ppx_mm``, ``ppy_mm`` (principal point from the image centre, photo frame), ``k1 k2 k3 p1 p2`` (Brown,
-  on normalised coordinates); ``-99`` at the end.
+  ``a``: the rotation camera -> object (``P - C = s a p``, photo frame x right, y up, z back; the matrix of
+  omega phi kappa, ``a = Rx(omega) Ry(phi) Rz(kappa)``, ``aerotri.geom.rotation``), which is what
+  Metashape's PAT-B export writes with "X right, Y up".
+- ``block.im`` (image coordinates; no field widths found in a primary source, so the ``.ori``'s 16-column
+  fields): per photo a record ``I16`` photo number, then ``I16, 2F16.6`` point number, x, y (mm, photo frame
+  x right, y up, origin at the principal point, distortion removed with the adjusted camera:
+  ``photo_coordinates_mm``), and ``-99`` (``I16``) closing the photo. Every measurement the adjustment
+  kept (tie and control points).
+- ``block.con`` (control): ``I16, 3F16.4`` point number, X, Y, Z (project CRS), ``-99`` at the end: the
+  full (XYZ) control points the adjustment used. The other kinds go to files of the same layout a PAT-B
+  reader would not take for XYZ control: ``block_horizontal.con`` (Z not used), ``block_height.con``
+  (X, Y not used), ``block_check.con`` (check points of control/points.csv).
 
-Import (any of the four; the CRS is the project's, or ``--crs``): ``.ori`` -> imported/eo.txt and gnss.txt;
-``.cam`` -> camera.toml; ``.con`` -> control/points.csv (sigmas: ``--sigma-xyz``, else the project's
-``[control]`` sigmas); ``.im`` -> control/image_points.csv: the measurements of the control points (of the
-``.con`` imported with it, else of control/points.csv), back in pixels through the camera (the ``.cam``
-imported with it, else camera.toml) and its distortion.
+Not PAT-B (aerotri's own, for the round trip): ``numbers.txt`` maps PAT-B's integer numbers to our ids
+(``photo <number> <image id>``, ``point <number> <point id> [<kind>]``; ids that are all plain integers
+keep their values, others are numbered 1, 2, ... in order); ``block.cam`` holds the adjusted camera
+(``key value`` lines of camera.toml's keys, ``-99`` at the end), which PAT-B keeps in its project file.
+
+Import (any of the files; the CRS is the project's, or ``--crs``): ``.ori`` -> imported/eo.txt
+(approximations; gnss.txt only with ``--as-gnss``); ``.cam`` -> camera.toml; ``.con`` files ->
+control/points.csv (kind from numbers.txt, else from the file name's ``_check``/``_horizontal``/``_height``,
+else full; sigmas: ``--sigma-xyz``, else the project's ``[control]`` sigmas); ``.im`` ->
+control/image_points.csv: the measurements of the control points (of the ``.con`` imported with it, else of
+control/points.csv), back in pixels through the camera (the ``.cam`` imported with it, else camera.toml)
+and its distortion. Records are read as blank-separated fields (a fixed-column file reads the same);
+``*`` starts a comment. Numbers map back to ids through ``numbers.txt`` when it is given.
 
 ISAT (Intergraph ImageStation Automatic Triangulation) orientation files are not read or written: no
 documented layout of them was found (the references that list an "ISAT EO file" do not give its fields).
@@ -42,13 +50,16 @@ from aerotri.core.errors import InputError
 from aerotri.core.project import Project
 from aerotri.core.textio import read_text
 from aerotri.exchange.adjusted import AdjustedBlock
-from aerotri.exchange.imported import ImportedBlock, ImportOptions, to_project_crs
+from aerotri.exchange.imported import ImportedBlock, ImportOptions, positions_as_gnss, to_project_crs
 from aerotri.exchange.poses import adjusted_orientations, number, orientations_to_project
 from aerotri.geom.camera import Camera
-from aerotri.geom.eo import GnssPositions
 from aerotri.geom.observations import CONTROL_KINDS, ControlPoints, ImageObservations
 
 END = "-99"
+FIELD = 16  # columns of every PAT-B field written here
+MAX_NUMBER = 10 ** 15  # I16 with a sign column to spare
+CON_FILES = {"full": "block.con", "horizontal": "block_horizontal.con", "height": "block_height.con",
+             "check": "block_check.con"}
 
 
 def photo_coordinates_mm(block: AdjustedBlock) -> tuple[np.ndarray, np.ndarray, float]:
@@ -63,42 +74,84 @@ def photo_coordinates_mm(block: AdjustedBlock) -> tuple[np.ndarray, np.ndarray, 
 
 # -- export ------------------------------------------------------------------------------------------
 
-def files(block: AdjustedBlock, project: Project | None = None) -> dict[str, str]:
-    """``patb/block.im``, ``block.con``; with ``project`` also ``block.ori`` and ``block.cam`` (the adjusted
-    orientations of at/eo.txt and the self-calibrated camera)."""
-    x_mm, y_mm, c_mm = photo_coordinates_mm(block)
-    im = [f"* PATB-style image coordinates (mm, photo frame, principal point origin, undistorted), c = {c_mm:.6f} mm"]
-    for i, iid in enumerate(block.image_id):
-        im.append(f"{iid}")
-        for k in np.flatnonzero(block.obs_image == i):
-            im.append(f"  {block.point_id[block.obs_point[k]]:>12} {x_mm[k]:12.4f} {y_mm[k]:12.4f}")
-        im.append(END)
-    con = [f"* control points (project CRS {block.crs}); kind in the comment"]
-    for pid, kind, (X, Y, Z) in zip(block.control_id, block.control_kind, block.control_xyz_m):
-        con.append(f"{pid:>12} {X:14.4f} {Y:14.4f} {Z:10.4f}  * {kind}")
-    con.append(END)
-    out = {"patb/block.im": "\n".join(im) + "\n", "patb/block.con": "\n".join(con) + "\n"}
-    if project is not None:
-        eo, camera = adjusted_orientations(project)
-        out["patb/block.ori"] = orientation_text(eo, camera, block.crs)
-        out["patb/block.cam"] = camera_text(camera)
-    return out
+def numbering(ids) -> dict[str, int]:
+    """id -> PAT-B number: the ids themselves when every one is a plain integer (no sign, no leading zero,
+    below 10^15), else 1, 2, ... in order."""
+    ids = [str(i) for i in dict.fromkeys(ids)]
+    if ids and all(i.isdigit() and str(int(i)) == i and int(i) < MAX_NUMBER for i in ids):
+        return {i: int(i) for i in ids}
+    return {i: n for n, i in enumerate(ids, start=1)}
 
 
-def orientation_text(eo, camera: Camera, crs: str) -> str:
-    lines = [f"* PATB-style orientations (project CRS {crs}): image_id c_mm / X0 Y0 Z0 / rotation matrix rows "
-             "(camera -> object, photo frame x right, y up, z back)"]
+def _i16(n: int) -> str:
+    return f"{n:{FIELD}d}"
+
+
+def orientation_text(eo, photo_no: dict) -> str:
+    """``block.ori``: three fixed-column records per photo (I16,16X,3F16.5 / 5F16.12 / 4F16.12)."""
+    lines = []
     R = eo.rotations()
     for i, iid in enumerate(eo.image_id):
-        lines.append(f"{iid} {camera.focal_mm:.6f}")
-        lines.append("  " + " ".join(f"{v:15.4f}" for v in eo.centre_m[i]))
-        lines += ["  " + " ".join(f"{v:15.10f}" for v in row) for row in R[i]]
-    lines.append(END)
+        a = R[i].reshape(9)
+        lines.append(_i16(photo_no[iid]) + " " * FIELD + "".join(f"{v:{FIELD}.5f}" for v in eo.centre_m[i]))
+        lines.append("".join(f"{v:{FIELD}.12f}" for v in a[:5]))
+        lines.append("".join(f"{v:{FIELD}.12f}" for v in a[5:]))
     return "\n".join(lines) + "\n"
 
 
+def control_text(ids, xyz, point_no: dict) -> str:
+    """A ``.con`` file: ``I16, 3F16.4`` point number X Y Z per point, ``-99`` at the end."""
+    rows = [_i16(point_no[p]) + "".join(f"{v:{FIELD}.4f}" for v in c) for p, c in zip(ids, xyz)]
+    return "\n".join(rows + [_i16(-99)]) + "\n"
+
+
+def files(block: AdjustedBlock, project: Project | None = None) -> dict[str, str]:
+    """``patb/block.im``, the ``.con`` files and ``numbers.txt``; with ``project`` also ``block.ori``,
+    ``block.cam`` (the adjusted orientations of at/eo.txt and the self-calibrated camera) and
+    ``block_check.con`` (the check points of control/points.csv)."""
+    x_mm, y_mm, _ = photo_coordinates_mm(block)
+    eo = camera = None
+    if project is not None:
+        eo, camera = adjusted_orientations(project)
+    check = None
+    if project is not None and project.control_points_path.is_file():
+        from aerotri.geom.observations import read_control_points
+
+        cp = read_control_points(project.control_points_path)
+        check = cp.subset(cp.kind == "check")
+    photo_no = numbering(list(block.image_id) + ([] if eo is None else list(eo.image_id)))
+    point_ids = [str(p) for p in block.point_id] + [str(p) for p in block.control_id]
+    point_ids += [] if check is None else [str(p) for p in check.id]
+    point_no = numbering(point_ids)
+    im = []
+    for i, iid in enumerate(block.image_id):
+        im.append(_i16(photo_no[iid]))
+        for k in np.flatnonzero(block.obs_image == i):
+            im.append(_i16(point_no[str(block.point_id[block.obs_point[k]])]) + f"{x_mm[k]:{FIELD}.6f}"
+                      + f"{y_mm[k]:{FIELD}.6f}")
+        im.append(_i16(-99))
+    out = {"patb/block.im": "\n".join(im) + "\n"}
+    kinds = {}
+    for kind in ("full", "horizontal", "height"):
+        m = block.control_kind == kind
+        if m.any() or kind == "full":
+            out[f"patb/{CON_FILES[kind]}"] = control_text(block.control_id[m].astype(str), block.control_xyz_m[m], point_no)
+        kinds.update({str(p): kind for p in block.control_id[m]})
+    if check is not None and len(check):
+        out[f"patb/{CON_FILES['check']}"] = control_text(check.id.astype(str), check.xyz_m, point_no)
+        kinds.update({str(p): "check" for p in check.id})
+    if eo is not None:
+        out["patb/block.ori"] = orientation_text(eo, photo_no)
+        out["patb/block.cam"] = camera_text(camera)
+    nums = ["# aerotri: PAT-B numbers of the files beside this one -> ids (photo|point number id [kind])"]
+    nums += [f"photo {n} {i}" for i, n in photo_no.items()]
+    nums += [f"point {n} {p}" + (f" {kinds[p]}" if p in kinds else "") for p, n in point_no.items()]
+    out["patb/numbers.txt"] = "\n".join(nums) + "\n"
+    return out
+
+
 def camera_text(camera: Camera) -> str:
-    lines = ["* PATB-style camera (aerotri): key value; mm, um, px as the names say; principal point from the image "
+    lines = ["* aerotri camera (not PAT-B): key value; mm, um, px as the names say; principal point from the image "
              "centre (photo frame, y up); Brown distortion on normalised coordinates"]
     for k, v in camera.to_dict().items():
         lines.append(f"{k} {v if isinstance(v, (str, int)) else repr(float(v))}")
@@ -109,47 +162,66 @@ def camera_text(camera: Camera) -> str:
 # -- import ------------------------------------------------------------------------------------------
 
 def _records(path: Path, what: str):
-    """(line number, fields) of the data lines of a PATB-style file, comments dropped."""
+    """(line number, fields, line) of the data lines of a PAT-B file, ``*`` comments dropped."""
     for n, line in enumerate(read_text(path, what).splitlines(), start=1):
         s = line.split("*", 1)[0].strip()
         if s:
             yield n, s.split(), line
 
 
+def read_numbers(path: Path) -> tuple[dict, dict, dict]:
+    """(photo number -> image id, point number -> point id, point id -> kind) of ``numbers.txt``."""
+    photos, points, kinds = {}, {}, {}
+    for n, f, _ in _records(path, "PAT-B number map (numbers.txt)"):
+        if f[0].startswith("#"):
+            continue
+        where = f"{path}:{n}"
+        if f[0] not in ("photo", "point") or len(f) not in (3, 4) or (f[0] == "photo" and len(f) != 3):
+            raise InputError(f"{where}: expected 'photo NUMBER ID' or 'point NUMBER ID [KIND]', got {' '.join(f)!r}")
+        table = photos if f[0] == "photo" else points
+        if f[1] in table:
+            raise InputError(f"{where}: {f[0]} number {f[1]} twice")
+        table[f[1]] = f[2]
+        if len(f) == 4:
+            if f[3] not in CONTROL_KINDS:
+                raise InputError(f"{where}: kind {f[3]!r} is not one of {', '.join(CONTROL_KINDS)}")
+            kinds[f[2]] = f[3]
+    return photos, points, kinds
+
+
 def read_ori(path: Path) -> tuple[list[str], np.ndarray, np.ndarray]:
-    """(image ids, centres (N, 3), rotations (N, 3, 3)) of ``block.ori``."""
-    recs = list(_records(path, "PATB-style orientations (.ori)"))
+    """(photo numbers, centres (N, 3), rotations (N, 3, 3)) of a PAT-B ``.ori``: per photo ``number [c] X0 Y0
+    Z0`` / ``a11 a12 a13 a21 a22`` / ``a23 a31 a32 a33``; an optional ``-99`` ends the file."""
+    recs = list(_records(path, "PAT-B orientations (.ori)"))
     ids, centres, rots, seen, k = [], [], [], {}, 0
     while k < len(recs):
         n, f, _ = recs[k]
         if f == [END]:
             break
-        if len(f) not in (1, 2):
-            raise InputError(f"{path}:{n}: expected 'image_id [c_mm]' opening a photo, got {' '.join(f)!r}")
+        if len(f) not in (4, 5):
+            raise InputError(f"{path}:{n}: expected 'photo_number [c] X0 Y0 Z0' opening a photo, got {len(f)} fields")
         iid = f[0]
         if iid in seen:
-            raise InputError(f"{path}:{n}: duplicate image {iid!r} (first on line {seen[iid]})")
+            raise InputError(f"{path}:{n}: duplicate photo {iid!r} (first on line {seen[iid]})")
         seen[iid] = n
-        if k + 4 >= len(recs):
-            raise InputError(f"{path}:{n}: photo {iid!r} needs 4 more records (X0 Y0 Z0 and 3 matrix rows)")
-        rows = []
-        for m in range(1, 5):
+        if k + 2 >= len(recs):
+            raise InputError(f"{path}:{n}: photo {iid!r} needs 2 more records (a11 a12 a13 a21 a22 / a23 a31 a32 a33)")
+        centre = [number(v, f"{path}:{n}", name) for name, v in zip(("X0", "Y0", "Z0"), f[-3:])]
+        a = []
+        for m, names in ((1, ("a11", "a12", "a13", "a21", "a22")), (2, ("a23", "a31", "a32", "a33"))):
             nm, fm, _ = recs[k + m]
-            if len(fm) != 3:
-                raise InputError(f"{path}:{nm}: expected 3 numbers ({'X0 Y0 Z0' if m == 1 else 'a matrix row'}) "
-                                 f"of photo {iid!r}, got {len(fm)}")
-            names = ("X0", "Y0", "Z0") if m == 1 else tuple(f"r{m - 1}{j}" for j in (1, 2, 3))
-            rows.append([number(v, f"{path}:{nm}", name) for name, v in zip(names, fm)])
-        R = np.array(rows[1:])
+            if len(fm) != len(names):
+                raise InputError(f"{path}:{nm}: expected {len(names)} numbers ({' '.join(names)}) of photo {iid!r}, "
+                                 f"got {len(fm)}")
+            a += [number(v, f"{path}:{nm}", name) for name, v in zip(names, fm)]
+        R = np.array(a).reshape(3, 3)
         if np.abs(R @ R.T - np.eye(3)).max() > 1e-6 or np.linalg.det(R) < 0:
-            raise InputError(f"{path}:{recs[k + 2][0]}-{recs[k + 4][0]}: the matrix of photo {iid!r} is not a rotation "
+            raise InputError(f"{path}:{recs[k + 1][0]}-{recs[k + 2][0]}: the matrix of photo {iid!r} is not a rotation "
                              f"(R R^T - I up to {np.abs(R @ R.T - np.eye(3)).max():.2g})")
         ids.append(iid)
-        centres.append(rows[0])
+        centres.append(centre)
         rots.append(R)
-        k += 5
-    else:
-        raise InputError(f"{path}: no -99 at the end (truncated file?)")
+        k += 3
     if not ids:
         raise InputError(f"{path}: no photos")
     return ids, np.array(centres), np.array(rots)
@@ -157,7 +229,7 @@ def read_ori(path: Path) -> tuple[list[str], np.ndarray, np.ndarray]:
 
 def read_cam(path: Path) -> Camera:
     d = {}
-    for n, f, _ in _records(path, "PATB-style camera (.cam)"):
+    for n, f, _ in _records(path, "aerotri camera (.cam)"):
         if f == [END]:
             break
         if len(f) < 2:
@@ -183,43 +255,48 @@ def _control_sigma(project: Project, options: ImportOptions, path: Path) -> np.n
                      f"sigma_xy_m, sigma_z_m in {project.config_path}")
 
 
-def read_con(path: Path, project: Project, options: ImportOptions) -> ControlPoints:
-    ids, kinds, xyz, seen = [], [], [], {}
-    for n, f, line in _records(path, "PATB-style control (.con)"):
+def read_con(path: Path) -> tuple[list, np.ndarray, list]:
+    """(point numbers, (M, 3) X Y Z, kinds a ``* kind`` comment gives (aerotri's earlier files) or None) of a
+    ``.con`` file (``-99`` at the end)."""
+    ids, xyz, kinds, seen = [], [], [], {}
+    for n, f, line in _records(path, "PAT-B control (.con)"):
         if f == [END]:
             break
         if len(f) != 4:
-            raise InputError(f"{path}:{n}: expected 'point_id X Y Z', got {len(f)} fields")
+            raise InputError(f"{path}:{n}: expected 'point_number X Y Z', got {len(f)} fields")
         if f[0] in seen:
             raise InputError(f"{path}:{n}: duplicate control point {f[0]!r} (first on line {seen[f[0]]})")
         seen[f[0]] = n
-        comment = line.split("*", 1)[1].strip().lower() if "*" in line else ""
-        kinds.append(comment if comment in CONTROL_KINDS else "full")
         ids.append(f[0])
         xyz.append([number(v, f"{path}:{n}", k) for k, v in zip("XYZ", f[1:])])
+        comment = line.split("*", 1)[1].strip().lower() if "*" in line else ""
+        kinds.append(comment if comment in CONTROL_KINDS else None)
+    else:
+        raise InputError(f"{path}: no -99 at the end (truncated file?)")
     if not ids:
         raise InputError(f"{path}: no control points")
-    xyz = np.array(xyz)
-    if options.crs:
-        xyz = to_project_crs(xyz, options.crs, project, "--crs")
-    sig = np.tile(_control_sigma(project, options, path), (len(ids), 1))
-    return ControlPoints(np.array(ids, object), np.array(kinds, object), xyz, sig)
+    return ids, np.array(xyz), kinds
+
+
+def _kind_of_file(path: Path) -> str:
+    stem = path.stem.lower()
+    return next((k for k in ("check", "horizontal", "height") if stem.endswith(f"_{k}")), "full")
 
 
 def read_im(path: Path) -> tuple[list, list, np.ndarray, list]:
-    """(point ids, image ids, photo coordinates (K, 2) mm, line numbers) of ``block.im``."""
+    """(point numbers, photo numbers, photo coordinates (K, 2) mm, line numbers) of a ``.im`` file."""
     pids, iids, xy, lines, photo, seen = [], [], [], [], None, {}
-    for n, f, _ in _records(path, "PATB-style image coordinates (.im)"):
+    for n, f, _ in _records(path, "PAT-B image coordinates (.im)"):
         if f == [END]:
             photo = None
             continue
         if photo is None:
-            if len(f) != 1:
-                raise InputError(f"{path}:{n}: expected an image id opening a photo, got {' '.join(f)!r}")
+            if len(f) not in (1, 2):
+                raise InputError(f"{path}:{n}: expected a photo number opening a photo, got {' '.join(f)!r}")
             photo = f[0]
             continue
         if len(f) != 3:
-            raise InputError(f"{path}:{n}: expected 'point_id x_mm y_mm' in photo {photo!r}, got {len(f)} fields")
+            raise InputError(f"{path}:{n}: expected 'point_number x_mm y_mm' in photo {photo!r}, got {len(f)} fields")
         if (f[0], photo) in seen:
             raise InputError(f"{path}:{n}: duplicate point {f[0]!r} in photo {photo!r} (first on line {seen[f[0], photo]})")
         seen[f[0], photo] = n
@@ -240,29 +317,60 @@ def pixels_of_photo_mm(camera: Camera, xy_mm: np.ndarray) -> np.ndarray:
 
 
 def read(files: list[Path], project: Project, options: ImportOptions) -> ImportedBlock:
-    """``.ori``, ``.cam``, ``.con`` and ``.im`` files (see the module docstring)."""
-    by = {}
+    """``.ori``, ``.cam``, ``.con``, ``.im`` files and ``numbers.txt`` (see the module docstring)."""
+    by, cons = {}, []
     for f in files:
         s = f.suffix.lower()
-        if s not in (".ori", ".cam", ".con", ".im"):
-            raise InputError(f"{f}: not a PATB-style file (expected .ori, .cam, .con or .im)")
+        if f.name == "numbers.txt":
+            s = "numbers"
+        elif s not in (".ori", ".cam", ".con", ".im"):
+            raise InputError(f"{f}: not a PAT-B file (expected .ori, .cam, .con, .im or numbers.txt)")
+        if s == ".con":
+            cons.append(f)
+            continue
         if s in by:
-            raise InputError(f"{f}: a second {s} file (import one of each)")
+            raise InputError(f"{f}: a second {s} file (import one of each; several .con files are fine)")
         by[s] = f
     block = ImportedBlock(source=[str(f) for f in files])
+    photos, points, kinds = read_numbers(by["numbers"]) if "numbers" in by else ({}, {}, {})
+    photo_id = lambda v: photos.get(v, v)  # noqa: E731
+    point_id = lambda v: points.get(v, v)  # noqa: E731
     crs = options.crs or project.crs
     if ".cam" in by:
         block.camera = read_cam(by[".cam"])
+        block.origin["camera"] = by[".cam"].name
     if ".ori" in by:
-        ids, centre, R = read_ori(by[".ori"])
+        nums, centre, R = read_ori(by[".ori"])
+        ids = [photo_id(v) for v in nums]
         block.eo = orientations_to_project(ids, centre, R, crs, project, "--crs" if options.crs else str(project.config_path))
-        sigma = np.tile(options.sigma_xyz_m, (len(ids), 1)) if options.sigma_xyz_m else None
-        block.gnss = GnssPositions(list(ids), block.eo.centre_m.copy(), sigma)
-    if ".con" in by:
-        block.control = read_con(by[".con"], project, options)
+        block.origin["eo"] = by[".ori"].name
+        block.crs_assumed = options.crs is None
+        if options.as_gnss:
+            block.gnss, block.gnss_holds = positions_as_gnss(ids, block.eo.centre_m, options, project,
+                                                             "projection centres of the PAT-B orientations")
+            block.origin["gnss"] = by[".ori"].name
+    if cons:
+        pid, kind, xyz = [], [], []
+        for f in cons:
+            nums, a, said = read_con(f)
+            for v, k in zip(nums, said):
+                p = point_id(v)
+                if p in pid:
+                    raise InputError(f"{f}: control point {p!r} is in another .con file too")
+                pid.append(p)
+                kind.append(kinds.get(p) or k or _kind_of_file(f))
+            xyz.append(a)
+        xyz = np.vstack(xyz)
+        if options.crs:
+            xyz = to_project_crs(xyz, options.crs, project, "--crs")
+        block.crs_assumed = options.crs is None
+        sig = np.tile(_control_sigma(project, options, cons[0]), (len(pid), 1))
+        block.control = ControlPoints(np.array(pid, object), np.array(kind, object), xyz, sig)
+        block.origin["control"] = ", ".join(f.name for f in cons)
     if ".im" in by:
         path = by[".im"]
-        pids, iids, xy_mm, lines = read_im(path)
+        pnums, inums, xy_mm, lines = read_im(path)
+        pids, iids = [point_id(v) for v in pnums], [photo_id(v) for v in inums]
         if block.control is not None:
             control_ids = set(block.control.id)
         elif project.control_points_path.is_file():
@@ -284,6 +392,7 @@ def read(files: list[Path], project: Project, options: ImportOptions) -> Importe
             raise InputError(f"{path}: no measurements of the control points ({len(control_ids)} points)")
         block.image_points = ImageObservations(np.array(pids, object)[keep], np.array(iids, object)[keep],
                                                pixels_of_photo_mm(camera, xy_mm[keep]), np.array(lines)[keep])
+        block.origin["image_points"] = path.name
         block.notes.append(f"{path}: {int(keep.sum())} measurements of control points imported, "
                            f"{int((~keep).sum())} of tie points left out")
     return block

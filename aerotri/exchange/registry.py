@@ -7,11 +7,11 @@ import logging
 from pathlib import Path
 from typing import Callable
 
-from aerotri.core.atomic import atomic_path, write_text_atomic
 from aerotri.core.errors import OptionError
 from aerotri.core.project import Project
-from aerotri.exchange import colmap, layers, metashape, micmac, odm, orthority, patb
+from aerotri.exchange import colmap, layers, metashape, micmac, odm_export, orthority, patb
 from aerotri.exchange.adjusted import AdjustedBlock, read_adjusted_block
+from aerotri.exchange.commit import write_together
 from aerotri.geom.images import find_images
 
 log = logging.getLogger(__name__)
@@ -30,8 +30,9 @@ class Exporter:
 
 
 EXPORT_FORMATS = {
-    "patb": Exporter("patb", "PATB-style image coordinates, control, orientations and camera (patb/block.im, .con, "
-                             ".ori, .cam)", patb.files),
+    "patb": Exporter("patb", "PAT-B orientations, control and image coordinates (patb/block.ori, .con, .im; check and "
+                             "partial control in their own .con files), the number map and aerotri's camera (patb/"
+                             "numbers.txt, block.cam)", patb.files),
     "colmap": Exporter("colmap", "COLMAP text model (colmap/cameras.txt, images.txt, points3D.txt)",
                        lambda block, project: colmap.files(
                            block, {k: p.name for k, p in find_images(project.images_dir).items()}
@@ -44,8 +45,10 @@ EXPORT_FORMATS = {
                           metashape.files),
     "micmac": Exporter("micmac", "MicMac ground control and image measurement XML (micmac/gcp.xml, check.xml, "
                                  "measures.xml)", micmac.files),
-    "odm": Exporter("odm", "OpenDroneMap/OpenSfM ground control (odm/gcp_list.txt, odm/ground_control_points.json)",
-                    lambda block, project: odm.files(block, project, _image_names(project))),
+    "odm": Exporter("odm", "OpenDroneMap/OpenSfM: orientations, camera and points (odm/opensfm/reconstruction.json, "
+                           "odm/cameras.json), ground control (odm/gcp_list.txt, odm/opensfm/ground_control_points.json), "
+                           "check points and rejected measurements (odm/gcp_list_check.txt, gcp_list_rejected.txt)",
+                    lambda block, project: odm_export.files(block, project, _image_names(project))),
     "gpkg": Exporter("gpkg", "GeoPackage map layers: control/check points with ground residuals, frame footprints, "
                              "projection centres (layers/block.gpkg, project CRS)",
                      lambda block, project: layers.files(block, project, "gpkg")),
@@ -57,7 +60,7 @@ DEFAULT_FORMATS = ("patb", "colmap")
 
 def export_project(root, formats=DEFAULT_FORMATS, out_dir=None) -> list[Path]:
     """Export the adjusted block of a project folder into ``out_dir`` (default ``at/``); every format's
-    files are produced first and written afterwards (each atomically). Returns the files written."""
+    files are produced first and written afterwards, all or none. Returns the files written."""
     unknown = [f for f in formats if f not in EXPORT_FORMATS]
     if unknown:
         raise OptionError(f"unknown export format(s) {', '.join(unknown)}; expected {', '.join(EXPORT_FORMATS)}",
@@ -68,13 +71,6 @@ def export_project(root, formats=DEFAULT_FORMATS, out_dir=None) -> list[Path]:
     for name in formats:
         texts.update(EXPORT_FORMATS[name].files(block, project))
     out = Path(out_dir) if out_dir is not None else project.at_dir
-    written = []
-    for rel, content in texts.items():
-        if isinstance(content, bytes):
-            with atomic_path(out / rel) as tmp:
-                tmp.write_bytes(content)
-        else:
-            write_text_atomic(out / rel, content)
-        written.append(out / rel)
+    written = write_together({out / rel: content for rel, content in texts.items()})
     log.info(f"exported {', '.join(formats)} of {project.root} -> {out}")
     return written

@@ -40,3 +40,33 @@ def fresh_project():
         return dst
 
     return make
+
+
+@pytest.fixture(scope="session")
+def adjusted_with_rejections(tmp_path_factory):
+    """(project root, the adjustment's result) of a tiny block whose control point gcp01 is shifted 3 m (the
+    adjustment rejects it) and one measurement of gcp03 is 40 px off (data snooping removes it)."""
+    block = geometric_block(2, 5, seed=7)
+    root = write_block_project(block, tmp_path_factory.mktemp("rej") / "blk")
+    write_truth_observations(root, tie_sigma_px=SIGMA_PX, n_control=6, points_per_image=80, n_check=4, seed=2,
+                             bad_control_shift_m=3.0)
+    path = root / "control" / "image_points.csv"
+    head, *rows = path.read_text().splitlines()
+    k = next(n for n, r in enumerate(rows) if r.startswith("gcp03,"))
+    f = rows[k].split(",")
+    f[2] = f"{float(f[2]) + 40.0:.3f}"
+    rows[k] = ",".join(f)
+    path.write_text("\n".join([head] + rows) + "\n")
+    ba, _ = run_adjustment(root, AdjustSettings(gnss_correction="shift", image_sigma_px=SIGMA_PX))
+    return root, ba
+
+
+@pytest.fixture(scope="session")
+def adjusted_without_control(tmp_path_factory):
+    """(project root, the adjustment's result) of a tiny block with GNSS and no control/ folder at all."""
+    block = geometric_block(2, 5, seed=7)
+    root = write_block_project(block, tmp_path_factory.mktemp("noctl") / "blk")
+    write_truth_observations(root, tie_sigma_px=SIGMA_PX, n_control=0, points_per_image=80, n_check=0, seed=2)
+    shutil.rmtree(root / "control")
+    ba, _ = run_adjustment(root, AdjustSettings(gnss_correction="none", image_sigma_px=SIGMA_PX))
+    return root, ba

@@ -39,8 +39,9 @@ def test_written_files_read_back(project, tiny_project):
     block = _block(tiny_project)
     written = write_imported(project, block, "test")
     p = Project.open(project)
-    assert set(written) == {p.camera_path, p.gnss_path, p.imported_eo_path, p.control_points_path,
-                            p.control_image_points_path, p.imported_record_path}
+    assert {project / w.path for w in written} == {p.camera_path, p.gnss_path, p.imported_eo_path,
+                                                   p.control_points_path, p.control_image_points_path,
+                                                   p.imported_record_path}
     assert read_camera(p.camera_path) == block.camera
     g = read_gnss(p.gnss_path)
     assert g.image_id == ["a", "b"] and np.allclose(g.position_m, block.gnss.position_m, atol=1e-4)

@@ -62,7 +62,7 @@ def test_ground_control_points_json_is_opensfm_s(adjusted_tiny, tmp_path):
 
     root, _ = adjusted_tiny
     export_project(root, ["odm"], tmp_path)
-    doc = json.loads((tmp_path / "odm" / "ground_control_points.json").read_text())
+    doc = json.loads((tmp_path / "odm" / "opensfm" / "ground_control_points.json").read_text())
     blk = read_adjusted_block(root)
     want = dict(zip(blk.control_id, blk.control_xyz_m))
     t = Transformer.from_crs(CRS("EPSG:4979"), CRS("EPSG:32649").to_3d(), always_xy=True)

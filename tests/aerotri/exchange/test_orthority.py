@@ -32,15 +32,20 @@ def test_round_trip_through_an_adjusted_project(adjusted_tiny, tmp_path, fresh_p
     export_project(root, ["orthority"], out)
     p = Project.open(root)
     eo, cam = read_eo(p.eo_path), adjusted_camera(p)[0]
-    for ext in ("ext_param.csv", "ext_param.geojson"):
+    for ext, as_gnss in (("ext_param.csv", False), ("ext_param.geojson", True)):
         dst = fresh_project(root, tmp_path / ext)
-        import_files(dst, "orthority", [out / "orthority" / "int_param.yaml", out / "orthority" / ext])
+        import_files(dst, "orthority", [out / "orthority" / "int_param.yaml", out / "orthority" / ext],
+                     ImportOptions(as_gnss=as_gnss, sigma_xyz_m=(0.1, 0.1, 0.2)))
         q = Project.open(dst)
         back = read_eo(q.imported_eo_path)
         assert back.image_id == eo.image_id
         assert np.abs(back.centre_m - eo.centre_m).max() < 1e-4  # the files keep 0.1 mm
         assert np.abs(back.opk_deg - eo.opk_deg).max() < 2e-7  # and 1e-7 degrees (GeoJSON: 1e-12 rad)
-        assert np.allclose(read_gnss(q.gnss_path).position_m, back.centre_m)
+        if as_gnss:  # the camera positions as GNSS only when asked, with the stated accuracies
+            g = read_gnss(q.gnss_path)
+            assert np.allclose(g.position_m, back.centre_m) and np.allclose(g.sigma_m, [0.1, 0.1, 0.2])
+        else:
+            assert not q.gnss_path.exists()
         got = read_camera(q.camera_path)
         assert got.MODEL == cam.MODEL and (got.width, got.height) == (cam.width, cam.height)
         for f in got.fields():

@@ -1,8 +1,9 @@
-"""PATB-style files: the round trip of orientations, camera, control and the control points' image
-coordinates through a fresh project; bad input."""
+"""PAT-B files: the round trip of orientations, camera, control and the control points' image coordinates through
+a fresh project; the files read back by a parser written from the layouts (fixed columns); bad input."""
 
 from __future__ import annotations
 
+import re
 import shutil
 
 import numpy as np
@@ -14,6 +15,7 @@ from aerotri.core.errors import InputError
 from aerotri.core.project import Project
 from aerotri.exchange import ImportOptions, export_project, import_files
 from aerotri.exchange.adjusted import read_adjusted_block
+from aerotri.exchange.patb import photo_coordinates_mm
 from aerotri.geom.camera import adjusted_camera, read_camera
 from aerotri.geom.eo import read_eo
 from aerotri.geom.observations import read_control_points, read_image_points
@@ -31,7 +33,7 @@ def test_round_trip(exported, tmp_path, fresh_project):
     root, patb = exported
     p = Project.open(root)
     dst = fresh_project(root, tmp_path / "p")
-    import_files(dst, "patb", [patb / f"block.{s}" for s in ("ori", "cam", "con", "im")])
+    import_files(dst, "patb", [patb / f"block.{s}" for s in ("ori", "cam", "con", "im")] + [patb / "numbers.txt"])
     eo, back = read_eo(p.eo_path), read_eo(dst / "imported" / "eo.txt")
     assert back.image_id == eo.image_id
     assert np.abs(back.centre_m - eo.centre_m).max() < 1e-4
@@ -58,24 +60,25 @@ def test_ori_alone_with_explicit_crs(exported, tmp_path, fresh_project):
     the same operation as orthority's, tested there)."""
     root, patb = exported
     dst = fresh_project(root, tmp_path / "p")
-    import_files(dst, "patb", [patb / "block.ori"], ImportOptions(crs=Project.open(root).crs))
+    import_files(dst, "patb", [patb / "block.ori", patb / "numbers.txt"], ImportOptions(crs=Project.open(root).crs))
     assert np.abs(read_eo(dst / "imported" / "eo.txt").centre_m - read_eo(Project.open(root).eo_path).centre_m).max() < 1e-4
 
 
-ORI_OK = "a 120.0\n 500000.0 4100000.0 1000.0\n 1 0 0\n 0 1 0\n 0 0 1\n"
+ORI_OK = "7 500000.0 4100000.0 1000.0\n 1 0 0 0 1\n 0.0 0 0 1.0\n"
 
 
 @pytest.mark.parametrize("name, text, match", [
-    ("b.ori", ORI_OK, "no -99 at the end"),
-    ("b.ori", ORI_OK.replace(" 0 0 1\n", " 0 0\n") + "-99\n", r"b.ori:5: expected 3 numbers \(a matrix row\)"),
-    ("b.ori", ORI_OK.replace("1000.0", "nan") + "-99\n", r"b.ori:2: Z0 is NaN"),
-    ("b.ori", ORI_OK.replace(" 1 0 0\n", " 2 0 0\n") + "-99\n", "is not a rotation"),
-    ("b.ori", ORI_OK + ORI_OK + "-99\n", r"b.ori:6: duplicate image 'a'"),
-    ("b.ori", "a 120.0\n 1 2 3\n-99\n", "needs 4 more records"),
+    ("b.ori", ORI_OK.replace(" 0.0 0 0 1.0\n", " 0.0 0 0\n"), r"b.ori:3: expected 4 numbers \(a23 a31 a32 a33\)"),
+    ("b.ori", ORI_OK.replace("1000.0", "nan"), r"b.ori:1: Z0 is NaN"),
+    ("b.ori", ORI_OK.replace(" 1 0 0 0 1\n", " 2 0 0 0 1\n"), "is not a rotation"),
+    ("b.ori", ORI_OK + ORI_OK, r"b.ori:4: duplicate photo '7'"),
+    ("b.ori", "7 1 2 3\n 1 0 0 0 1\n", "needs 2 more records"),
+    ("b.ori", "7 1 2\n 1 0 0 0 1\n 0.0 0 0 1.0\n", r"b.ori:1: expected 'photo_number \[c\] X0 Y0 Z0'"),
     ("b.cam", "name x\nfocal_mm 120\n-99\n", "missing pixel_um, width, height"),
-    ("b.con", "g1 1 2\n-99\n", r"b.con:1: expected 'point_id X Y Z'"),
+    ("b.con", "g1 1 2\n-99\n", r"b.con:1: expected 'point_number X Y Z'"),
+    ("b.con", "g1 500000 4100000 10\n", "b.con: no -99 at the end"),
     ("b.im", "a\n g1 1.0 2.0\n", "has no -99 at its end"),
-    ("b.txt", "x\n", "not a PATB-style file"),
+    ("b.txt", "x\n", "not a PAT-B file"),
 ])
 def test_bad_input(tiny_project, tmp_path, name, text, match, fresh_project):
     root = fresh_project(tiny_project, tmp_path / "p")
@@ -102,3 +105,82 @@ def test_control_needs_sigmas_and_cli_exit(tiny_project, tmp_path):
     assert r.exit_code == 0, r.output
     c = read_control_points(root / "control" / "points.csv")
     assert list(c.kind) == ["height"] and np.allclose(c.sigma_m, [[0.02, 0.02, 0.03]])
+
+
+def _fields(line: str, widths):
+    """Fortran fixed-column fields of a record (an ``nX`` field: width given as a negative number, skipped)."""
+    out, at = [], 0
+    for w in widths:
+        if w > 0:
+            out.append(line[at:at + w])
+        at += abs(w)
+    assert len(line) == at, (line, widths)
+    return out
+
+
+def _f(text: str, decimals: int) -> float:
+    """An Fw.d field: right-justified, exactly ``decimals`` digits after the point."""
+    assert re.fullmatch(rf" *-?\d+\.\d{{{decimals}}}", text), text
+    return float(text)
+
+
+def _i(text: str) -> int:
+    assert re.fullmatch(r" *-?\d+", text), text
+    return int(text)
+
+
+def test_files_in_the_documented_columns(exported):
+    """A reader written from the layouts in the module docstring and docs/exchange.md (fixed columns, not split on
+    blanks) reads the export back: .ori records I16,16X,3F16.5 / 5F16.12 / 4F16.12 equal at/eo.txt (centres to
+    0.01 mm, matrix to 1e-12); .im records I16 / I16,2F16.6 / -99 equal the undistorted photo coordinates
+    (1e-6 mm); .con records I16,3F16.4 and -99 equal the control coordinates (0.1 mm)."""
+    root, patb = exported
+    p = Project.open(root)
+    blk = read_adjusted_block(root)
+    photo, point = {}, {}
+    for line in (patb / "numbers.txt").read_text().splitlines()[1:]:
+        kind, n, ident, *_ = line.split()
+        (photo if kind == "photo" else point)[int(n)] = ident
+    # orientations
+    eo = read_eo(p.eo_path)
+    ori = (patb / "block.ori").read_text().splitlines()
+    assert len(ori) == 3 * len(eo.image_id)
+    for k, iid in enumerate(eo.image_id):
+        n, blank, *xyz = _fields(ori[3 * k], (16, 16, 16, 16, 16))
+        assert blank.strip() == "" and photo[_i(n)] == iid
+        a = [_f(v, 12) for v in _fields(ori[3 * k + 1], (16,) * 5) + _fields(ori[3 * k + 2], (16,) * 4)]
+        assert np.abs(np.array([_f(v, 5) for v in xyz]) - eo.centre_m[k]).max() < 1e-5
+        assert np.abs(np.array(a).reshape(3, 3) - eo.rotation(k)).max() < 1e-12
+    # image coordinates
+    x_mm, y_mm, _ = photo_coordinates_mm(blk)
+    want = {(blk.image_id[i], str(blk.point_id[j])): (x, y) for i, j, x, y in zip(blk.obs_image, blk.obs_point, x_mm, y_mm)}
+    got, current = {}, None
+    for line in (patb / "block.im").read_text().splitlines():
+        if current is None:
+            current = photo[_i(_fields(line, (16,))[0])]
+        elif len(line) == 16:
+            assert _i(line) == -99
+            current = None
+        else:
+            n, x, y = _fields(line, (16, 16, 16))
+            got[(current, point[_i(n)])] = (_f(x, 6), _f(y, 6))
+    assert current is None and got.keys() == want.keys()
+    assert max(np.abs(np.subtract(got[k], want[k])).max() for k in want) < 1e-6
+    # control: full control in block.con, the check points in block_check.con
+    cp = read_control_points(p.control_points_path)
+    for name, ids in (("block.con", blk.control_id[blk.control_kind == "full"]), ("block_check.con", cp.id[cp.kind == "check"])):
+        lines = (patb / name).read_text().splitlines()
+        assert _i(lines[-1]) == -99 and len(lines[-1]) == 16
+        rows = {point[_i(f[0])]: [_f(v, 4) for v in f[1:]] for f in (_fields(ln, (16,) * 4) for ln in lines[:-1])}
+        assert sorted(rows) == sorted(ids)
+        xyz = dict(zip(cp.id, cp.xyz_m))
+        assert max(np.abs(np.array(rows[q]) - xyz[q]).max() for q in rows) < 1e-4
+
+
+def test_numbering_keeps_integer_ids():
+    from aerotri.exchange.patb import numbering
+
+    assert numbering(["1001", "1002", "17"]) == {"1001": 1001, "1002": 1002, "17": 17}
+    # a leading zero, a letter, a sign: all numbered in order (one rule for the whole set keeps numbers unique)
+    assert numbering(["0018", "1002"]) == {"0018": 1, "1002": 2}
+    assert numbering(["s01_001", "s01_002", "7"]) == {"s01_001": 1, "s01_002": 2, "7": 3}

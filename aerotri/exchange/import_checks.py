@@ -1,0 +1,198 @@
+"""Checks of an imported block against the project, before anything is written (each failure an
+``InputError``/``CrsError``/``OptionError``: exit 2, nothing written).
+
+- **Project CRS**: a photo block needs a projected (or local engineering) CRS; a geographic or geocentric
+  project CRS is refused (``aerotri.geom.eo.check_block_crs``). A CRS in feet is accepted: the adjustment
+  works in a local metric frame and converts, positions are converted into the project's feet through the
+  coordinate-operation policy, accuracies stay in metres (the ``_m`` columns); the console says so. A file
+  that carries no CRS is read in the project CRS only when that CRS is in metres: in a project in feet
+  ``--crs`` must say whether the file is in metres or feet.
+- **Coordinates where the project is**: every imported position must lie in the area of use of the project
+  CRS (``aerotri.geom.crs.check_coordinates``: degrees, swapped axes, a far zone); and, where the project
+  already has positions (gnss.txt, imported/eo.txt, at/eo.txt, control/points.csv that this import does not
+  replace, else the GNSS tags of a few frames in images/), within ``max(50 km, 2 x their extent)`` of them:
+  UTM coordinates of a neighbouring zone read in the project's zone land 200-700 km away (6 degrees of
+  longitude), inside that zone's area of use, where only the block itself can tell. Files that state their
+  CRS are transformed rigorously (``aerotri.geom.transform``) before these checks.
+- **Ids**: when ``images/`` holds frames, every image id of the import must be one of them; every measured
+  point must be a control point (of the import, else of control/points.csv). Those that are not are named.
+"""
+
+from __future__ import annotations
+
+import logging
+
+import numpy as np
+
+from aerotri.core.errors import CrsError, InputError
+from aerotri.core.project import Project
+from aerotri.exchange.imported import ImportedBlock
+
+log = logging.getLogger(__name__)
+
+NEAR_M = 50_000.0  # imported positions this far (or twice the project's extent) from the project's: refused
+EXIF_FRAMES = 3  # frames whose GNSS tags stand for the project's position when it has no position file
+
+
+def _listing(ids, n: int = 10) -> str:
+    ids = list(ids)
+    return ", ".join(map(str, ids[:n])) + (f" and {len(ids) - n} more" if len(ids) > n else "")
+
+
+def check_project_crs(project: Project, block: ImportedBlock) -> list[str]:
+    """Refuse a project CRS a photo block cannot use; notes on a CRS in feet (see the module docstring)."""
+    from aerotri.geom.crs import crs_label, linear_unit_m, unit_long_name
+    from aerotri.geom.eo import check_block_crs
+
+    crs = check_block_crs(project.crs, f"{project.config_path} [project] crs")
+    notes = []
+    unit = linear_unit_m(crs)
+    if abs(unit - 1.0) > 1e-12:
+        if block.crs_assumed:
+            raise CrsError(f"{', '.join(block.source)}: the files carry no CRS and the project CRS {crs_label(crs)} is "
+                           f"in {unit_long_name(crs)}; give the files' CRS with --crs (the project's, {project.crs}, if "
+                           f"their coordinates are in {unit_long_name(crs)}; its metric counterpart if in metres)")
+        if block.gnss is not None or block.eo is not None or block.control is not None:
+            notes.append(f"project CRS {crs_label(crs)} is in {unit_long_name(crs)}: imported positions converted to "
+                         f"{unit_long_name(crs)} through the CRS policy; accuracies (the _m columns) stay in metres")
+    elif block.crs_assumed:
+        notes.append(f"{', '.join(block.source)}: no CRS in the files; coordinates taken in the project CRS "
+                     f"{crs_label(crs)} (give --crs if they are in another)")
+    return notes
+
+
+def _imported_positions(block: ImportedBlock) -> list[tuple[str, list, np.ndarray]]:
+    """(what, labels, (N, 3) positions) of everything with coordinates in the block."""
+    out = []
+    if block.eo is not None:
+        out.append((f"orientations ({block.source_of('eo')})", list(block.eo.image_id), block.eo.centre_m))
+    if block.gnss is not None:
+        out.append((f"positions ({block.source_of('gnss')})", list(block.gnss.image_id), block.gnss.position_m))
+    if block.control is not None:
+        out.append((f"control ({block.source_of('control')})", list(block.control.id), block.control.xyz_m))
+    return out
+
+
+def _project_positions(project: Project, replaced: set) -> tuple[str, np.ndarray] | None:
+    """(where from, (N, 2) map positions) the project already has, or None."""
+    from aerotri.geom.eo import read_eo, read_gnss
+    from aerotri.geom.observations import read_control_points
+
+    readers = ((project.gnss_path, lambda p: read_gnss(p).position_m),
+               (project.imported_eo_path, lambda p: read_eo(p).centre_m),
+               (project.eo_path, lambda p: read_eo(p).centre_m),
+               (project.control_points_path, lambda p: read_control_points(p).xyz_m))
+    for path, read in readers:
+        if path.is_file() and path not in replaced:
+            try:
+                return str(path), read(path)[:, :2]
+            except InputError:  # another stage's problem; this check has nothing to compare with there
+                continue
+    return _frame_positions(project)
+
+
+def _frame_positions(project: Project) -> tuple[str, np.ndarray] | None:
+    """The GNSS tags (EXIF/XMP) of the first frames in images/, in the project CRS, or None."""
+    import warnings
+
+    from rasterio.errors import NotGeoreferencedWarning
+
+    from aerotri.exchange.exif import read_frame_metadata
+    from aerotri.exchange.imported import to_project_crs
+    from aerotri.geom.images import IMAGE_SUFFIXES
+
+    if not project.images_dir.is_dir():
+        return None
+    frames = sorted(p for p in project.images_dir.iterdir() if p.suffix.lower() in IMAGE_SUFFIXES)[:EXIF_FRAMES]
+    lla = []
+    for f in frames:
+        try:
+            with warnings.catch_warnings():  # frames are not georeferenced rasters; rasterio says so for each
+                warnings.simplefilter("ignore", NotGeoreferencedWarning)
+                m = read_frame_metadata(f)
+        except InputError:
+            continue
+        if None not in (m.lat_deg, m.lon_deg, m.alt_m):
+            lla.append([m.lon_deg, m.lat_deg, m.alt_m])
+    if not lla:
+        return None
+    try:
+        xyz = to_project_crs(np.array(lla), "EPSG:4979", project, "frame GNSS tags")
+    except (InputError, CrsError):
+        return None
+    return f"the GNSS tags of {len(lla)} frame(s) in {project.images_dir}", xyz[:, :2]
+
+
+def check_positions(project: Project, block: ImportedBlock, replaced: set) -> None:
+    """Imported positions in the area of use of the project CRS and near the project's own positions."""
+    from aerotri.geom.crs import check_coordinates, crs_label, linear_unit_m, project_crs
+
+    crs = project_crs(project)
+    unit_m = linear_unit_m(crs) if not crs.is_engineering else 1.0
+    found = _imported_positions(block)
+    for what, labels, xyz in found:
+        check_coordinates(crs, xyz[:, 0], xyz[:, 1], f"{what} in {crs_label(crs)}", [f"{x}" for x in labels])
+    if not found:
+        return
+    ref = _project_positions(project, replaced)
+    if ref is None:
+        return
+    where, ref_xy = ref
+    extent = float(np.hypot(*(ref_xy.max(axis=0) - ref_xy.min(axis=0)))) * unit_m
+    limit = max(NEAR_M, 2.0 * extent)
+    for what, labels, xyz in found:
+        centre = np.median(xyz[:, :2], axis=0)
+        d = float(np.min(np.hypot(*(ref_xy - centre).T))) * unit_m
+        if d > limit:
+            raise InputError(f"{what}: {d / 1000:.0f} km from the project's positions ({where}; their extent "
+                             f"{extent / 1000:.1f} km) in {crs_label(crs)}: another zone or CRS? give the files' CRS "
+                             f"with --crs, or fix [project] crs")
+
+
+def check_image_ids(project: Project, block: ImportedBlock) -> None:
+    """Every image id of the import is a frame in images/ (when images/ holds frames)."""
+    from aerotri.geom.images import IMAGE_SUFFIXES, find_images
+
+    if not project.images_dir.is_dir() or not any(p.suffix.lower() in IMAGE_SUFFIXES
+                                                   for p in project.images_dir.iterdir()):
+        return
+    frames = find_images(project.images_dir)
+    for what, ids in (("orientations", None if block.eo is None else block.eo.image_id),
+                      ("positions", None if block.gnss is None else block.gnss.image_id),
+                      ("control measurements", None if block.image_points is None else block.image_points.image_id)):
+        if ids is None:
+            continue
+        missing = sorted({str(i) for i in ids} - set(frames))
+        if missing:
+            field = {"orientations": "eo", "positions": "gnss", "control measurements": "image_points"}[what]
+            raise InputError(f"{block.source_of(field)}: {what} of image(s) {_listing(missing)} that are not frames "
+                             f"in {project.images_dir} ({len(frames)} frames, e.g. {_listing(sorted(frames), 3)})")
+
+
+def check_point_ids(project: Project, block: ImportedBlock, replaced: set) -> None:
+    """Every measured point of the import is a control point: of the import, else of control/points.csv."""
+    from aerotri.geom.observations import read_control_points
+
+    if block.image_points is None:
+        return
+    if block.control is not None:
+        known, where = set(map(str, block.control.id)), block.source_of("control")
+    elif project.control_points_path.is_file() and project.control_points_path not in replaced:
+        known, where = set(map(str, read_control_points(project.control_points_path).id)), str(project.control_points_path)
+    else:
+        raise InputError(f"{block.source_of('image_points')}: image measurements of points no control file names "
+                         f"(import the control points with them, or have {project.control_points_path})")
+    missing = sorted({str(p) for p in block.image_points.point_id} - known)
+    if missing:
+        raise InputError(f"{block.source_of('image_points')}: measurements of point(s) {_listing(missing)} that are "
+                         f"not control points in {where}")
+
+
+def check_import(project: Project, block: ImportedBlock, replaced: set) -> list[str]:
+    """Every check of the module docstring; returns the notes to print (``replaced``: the project files
+    this import writes, which do not stand for the project's position)."""
+    notes = check_project_crs(project, block)
+    check_positions(project, block, replaced)
+    check_image_ids(project, block)
+    check_point_ids(project, block, replaced)
+    return notes

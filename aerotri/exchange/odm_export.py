@@ -1,0 +1,148 @@
+"""``aerotri export --format odm``: the adjusted block for OpenDroneMap and OpenSfM, in ODM's project layout.
+
+| file | holds |
+|---|---|
+| ``odm/opensfm/reconstruction.json`` | OpenSfM reconstruction (``aerotri.exchange.opensfm.reconstruction``): the adjusted orientations as shots (rotation/translation world -> camera in the topocentric frame), the self-calibrated camera (``brown``), the adjusted object points, ``reference_lla``; the shots' ``gps_position``/``gps_dop`` from gnss.txt when the project has one |
+| ``odm/opensfm/reference_lla.json`` | the reference point alone (what OpenSfM datasets older than ``reference_lla`` in the reconstruction read) |
+| ``odm/cameras.json`` | the camera, OpenSfM's ``camera_models.json`` layout (ODM's ``--cameras``) |
+| ``odm/gcp_list.txt`` | the control points the adjustment used and their measurements it kept (``aerotri.exchange.odm`` documents the layout); none for a block without control |
+| ``odm/opensfm/ground_control_points.json`` | the same control in OpenSfM's own GCP format (WGS84, normalised image coordinates) |
+| ``odm/gcp_list_check.txt`` | check points and their measurements, gcp_list.txt layout (ODM has no check points: in gcp_list.txt they would become control) |
+| ``odm/gcp_list_rejected.txt`` | measurements of control points the adjustment did not use: removed by data snooping (w), of a control point it rejected, or of a point it never had; gcp_list.txt layout, the reason in the extra fields; each also printed as a warning |
+
+The reference point is the adjustment's local-frame origin (``at/report.json``) in WGS84 through the
+toolkit's coordinate-operation policy. Shot ids are the frames' file names in ``images/`` (ODM's), else
+the image ids. Point colours are a neutral grey (the adjustment keeps none); no ``tracks.csv`` is written.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+
+import numpy as np
+
+from aerotri.core.project import Project
+from aerotri.core.textio import read_json
+from aerotri.exchange import opensfm
+from aerotri.exchange.adjusted import AdjustedBlock
+from aerotri.exchange.poses import adjusted_orientations
+from aerotri.geom.observations import ImageObservations, read_control_points, read_image_points
+
+log = logging.getLogger(__name__)
+
+
+def _crs_line(crs_text: str) -> str:
+    from aerotri.geom.crs import horizontal_crs, parse_crs
+
+    crs = horizontal_crs(parse_crs(crs_text))
+    code = crs.to_epsg(min_confidence=90)
+    return f"EPSG:{code}" if code else crs.to_proj4()
+
+
+def _gcp_rows(obs: ImageObservations, xyz: dict, names: dict, extras=None) -> list[str]:
+    rows = []
+    for n, (p, i, (x, y)) in enumerate(zip(obs.point_id.astype(str), obs.image_id.astype(str), obs.xy_px)):
+        X, Y, Z = xyz[p]
+        rows.append(f"{X:.4f}\t{Y:.4f}\t{Z:.4f}\t{x:.3f}\t{y:.3f}\t{names.get(i, i)}\t{p}"
+                    + (f"\t{extras[n]}" if extras is not None else ""))
+    return rows
+
+
+def _measurements(block: AdjustedBlock, project: Project):
+    """(control measurements kept, check measurements, rejected measurements, their reasons, all control
+    coordinates by id): the file's pixel coordinates (as measured)."""
+    empty = ImageObservations(np.zeros(0, object), np.zeros(0, object), np.zeros((0, 2)))
+    if not project.control_points_path.is_file():
+        return empty, empty, empty, [], {}
+    control = read_control_points(project.control_points_path)
+    xyz = {str(p): v for p, v in zip(control.id, control.xyz_m)}
+    if not project.control_image_points_path.is_file():
+        return empty, empty, empty, [], xyz
+    obs = read_image_points(project.control_image_points_path)
+    report = read_json(project.adjustment_report_path, "adjustment report")
+    removed = {(r["point_id"], r["image_id"]): r.get("w") for r in report.get("removed_observations", [])}
+    rejected_point = {str(r["id"]): r.get("w") for r in report.get("rejected_control", [])}
+    used = set(block.control_id.astype(str))
+    check = {str(p) for p, k in zip(control.id, control.kind) if k == "check"}
+    images = set(block.image_id)
+    pid, iid = obs.point_id.astype(str), obs.image_id.astype(str)
+    keep, is_check, reasons, rejected = [], [], [], []
+    for k, (p, i) in enumerate(zip(pid, iid)):
+        if p not in xyz:
+            continue  # a measurement of a point control/points.csv does not have: not control
+        if p in check:
+            is_check.append(k)
+        elif p in used and i in images and (p, i) not in removed:
+            keep.append(k)
+        else:
+            rejected.append(k)
+            if (p, i) in removed:
+                reasons.append(f"removed by data snooping (w = {removed[(p, i)]})")
+            elif p in rejected_point:
+                reasons.append(f"control point rejected by the adjustment (w = {rejected_point[p]})")
+            elif i not in images:
+                reasons.append("image not in the adjustment")
+            else:
+                reasons.append("point not in the adjustment")
+    pick = lambda ks: obs.subset(np.isin(np.arange(len(obs)), ks))  # noqa: E731
+    return pick(keep), pick(is_check), pick(rejected), reasons, xyz
+
+
+def _ground_control_points_json(obs: ImageObservations, ids, xyz: dict, project: Project, block: AdjustedBlock,
+                                names: dict) -> str:
+    """OpenSfM's ground_control_points.json: WGS84 positions through the CRS policy, projections normalised."""
+    from aerotri.geom.crs import parse_crs, project_heights
+    from aerotri.geom.transform import transform_points
+
+    if not ids:
+        return json.dumps({"points": []}, indent=2) + "\n"
+    lon, lat, h = transform_points(*np.array([xyz[p] for p in ids]).T, from_crs=parse_crs(block.crs),
+                                   to_crs=parse_crs("EPSG:4979"), heights=project_heights(project))
+    w, h_px = block.camera.width, block.camera.height
+    s = max(w, h_px)
+    points = []
+    for n, p in enumerate(ids):
+        m = obs.point_id.astype(str) == p
+        points.append({"id": p, "position": {"latitude": float(lat[n]), "longitude": float(lon[n]),
+                                             "altitude": float(h[n])},
+                       "observations": [{"shot_id": names.get(i, i),
+                                         "projection": [(x + 0.5 - w / 2) / s, (y + 0.5 - h_px / 2) / s]}
+                                        for i, (x, y) in zip(obs.image_id[m].astype(str), obs.xy_px[m])]})
+    return json.dumps({"points": points}, indent=2) + "\n"
+
+
+def files(block: AdjustedBlock, project: Project, image_names: dict | None = None) -> dict[str, str]:
+    """The ODM/OpenSfM files of an adjusted project (see the module docstring)."""
+    from aerotri.geom.eo import read_gnss
+
+    names = image_names or {}
+    eo, camera = adjusted_orientations(project)
+    reference = opensfm.reference_of(project, block.frame.origin_map)
+    gnss = read_gnss(project.gnss_path) if project.gnss_path.is_file() else None
+    g = project.section("gnss")
+    rec = opensfm.reconstruction(eo, camera, project, reference, names,
+                                 points=(block.point_id, block.frame.to_map(block.points_local)),
+                                 gnss=gnss, gnss_sigma_m=float(g.get("sigma_xy_m", 0.05)))
+    cam_id = opensfm.camera_id_of(camera)
+    out = {"odm/opensfm/reconstruction.json": json.dumps([rec], indent=2) + "\n",
+           "odm/opensfm/reference_lla.json": json.dumps(reference, indent=2) + "\n",
+           "odm/cameras.json": json.dumps({cam_id: rec["cameras"][cam_id]}, indent=2) + "\n"}
+    kept, check, rejected, reasons, xyz = _measurements(block, project)
+    head = _crs_line(block.crs)
+    ids = list(dict.fromkeys(kept.point_id.astype(str)))
+    if ids:
+        out["odm/gcp_list.txt"] = "\n".join([head] + _gcp_rows(kept, xyz, names)) + "\n"
+        out["odm/opensfm/ground_control_points.json"] = _ground_control_points_json(kept, ids, xyz, project, block,
+                                                                                    names)
+    else:
+        log.warning(f"{project.root}: no control point measurements the adjustment used; no odm/gcp_list.txt "
+                    "(the reconstruction is georeferenced by itself)")
+    if len(check):
+        out["odm/gcp_list_check.txt"] = "\n".join([head] + _gcp_rows(check, xyz, names)) + "\n"
+    if len(rejected):
+        out["odm/gcp_list_rejected.txt"] = "\n".join([head] + _gcp_rows(rejected, xyz, names, reasons)) + "\n"
+        for p, i, why in zip(rejected.point_id, rejected.image_id, reasons):
+            log.warning(f"odm export: measurement of {p} in {i} left out of gcp_list.txt: {why} "
+                        "(listed in odm/gcp_list_rejected.txt)")
+    return out

@@ -1,0 +1,160 @@
+"""Import checks: each refusal exits 2 with a message naming what is wrong and writes nothing; the accepted
+cases (a CRS in feet, a file in the neighbouring UTM zone near the project's) are converted rigorously."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from click.testing import CliRunner
+from pyproj import Transformer
+
+from aerotri.cli import main as aerotri_cli
+from aerotri.exchange.patb import orientation_text
+from aerotri.geom.eo import ExteriorOrientations, GnssPositions, format_gnss, read_eo
+
+OPK = np.array([[0.5, -0.3, 10.0], [0.2, 0.4, 12.0], [-0.1, 0.1, 8.0]])
+
+
+def _project(tmp_path, crs, name="p"):
+    root = tmp_path / name
+    root.mkdir()
+    (root / "project.toml").write_text(f'[project]\nname = "{name}"\ncrs = "{crs}"\n')
+    return root
+
+
+def _listing(root):
+    return sorted((str(p.relative_to(root)), p.stat().st_size) for p in root.rglob("*"))
+
+
+def _lonlat_block(lon, lat, h=1200.0):
+    """Three projection centres 200 m apart around lon, lat (WGS84), height h."""
+    d = np.array([[0.0, 0.0], [0.002, 0.0], [0.004, 0.0005]])
+    return np.column_stack([lon + d[:, 0], lat + d[:, 1], np.full(3, h)])
+
+
+def _to(crs, lonlat_h):
+    x, y = Transformer.from_crs("EPSG:4326", crs, always_xy=True).transform(lonlat_h[:, 0], lonlat_h[:, 1])
+    return np.column_stack([x, y, lonlat_h[:, 2]])
+
+
+def _opk_csv(tmp_path, xyz, prj_crs, ids=("a", "b", "c")):
+    from pyproj import CRS
+
+    f = tmp_path / "ext_param.csv"
+    f.write_text("filename,x,y,z,omega,phi,kappa\n" + "".join(
+        f"{i},{x:.4f},{y:.4f},{z:.4f},{o},{p},{k}\n" for i, (x, y, z), (o, p, k) in zip(ids, xyz, OPK)))
+    f.with_suffix(".prj").write_text(CRS(prj_crs).to_wkt())
+    return f
+
+
+def _ori(tmp_path, xyz, ids=("a", "b", "c")):
+    eo = ExteriorOrientations(list(ids), np.asarray(xyz, float), OPK.copy())
+    numbers = {i: n for n, i in enumerate(ids, start=1)}
+    (tmp_path / "block.ori").write_text(orientation_text(eo, numbers))
+    (tmp_path / "numbers.txt").write_text("".join(f"photo {n} {i}\n" for i, n in numbers.items()))
+    return [tmp_path / "block.ori", tmp_path / "numbers.txt"]
+
+
+def _import(root, fmt, files, *extra):
+    return CliRunner().invoke(aerotri_cli, ["import", str(root), "--format", fmt, *map(str, files), *extra])
+
+
+def _refused(root, fmt, files, message, *extra):
+    before = _listing(root)
+    r = _import(root, fmt, files, *extra)
+    assert r.exit_code == 2 and message in r.output and "Traceback" not in r.output, r.output
+    assert _listing(root) == before
+
+
+def test_geographic_project_crs_is_refused(tmp_path):
+    root = _project(tmp_path, "EPSG:4326")
+    f = _opk_csv(tmp_path, _to("EPSG:32610", _lonlat_block(-121.9, 37.4)), "EPSG:32610")
+    _refused(root, "orthority", [f], "is geographic")
+
+
+def test_project_in_feet(tmp_path):
+    """A State Plane project in US survey feet: a file with its CRS is converted (positions in feet, the console
+    says so); a file without a CRS needs --crs (metres or feet cannot be told), then it is taken as stated."""
+    ft = "EPSG:2227"  # NAD83 / California zone 3 (ftUS)
+    root = _project(tmp_path, ft)
+    lonlat = _lonlat_block(-121.9, 37.4)
+    utm = _to("EPSG:26910", lonlat)  # NAD83 / UTM 10N, metres
+    r = _import(root, "orthority", [_opk_csv(tmp_path, utm, "EPSG:26910")])
+    assert r.exit_code == 0, r.output
+    assert "is in US survey foot: imported positions converted to US survey foot" in r.output
+    eo = read_eo(root / "imported" / "eo.txt")
+    want = _to(ft, lonlat)
+    assert np.abs(eo.centre_m[:, :2] - want[:, :2]).max() < 1e-3
+    assert np.allclose(eo.centre_m[:, 2], utm[:, 2] * 3937 / 1200, atol=1e-3)  # heights in feet too
+    other = _project(tmp_path, ft, "q")
+    files = _ori(tmp_path, want)
+    _refused(other, "patb", files, "carry no CRS and the project CRS EPSG:2227 is in US survey foot")
+    r = _import(other, "patb", files, "--crs", ft)
+    assert r.exit_code == 0, r.output
+    assert np.abs(read_eo(other / "imported" / "eo.txt").centre_m - want).max() < 1e-3
+
+
+def test_declared_neighbouring_zone_is_transformed_rigorously(tmp_path):
+    """UTM 11N coordinates of a block 0.6 degrees east of zone 10's edge, with their CRS, into a UTM 10N project:
+    transformed through the CRS policy (pyproj's own result to 1 mm)."""
+    root = _project(tmp_path, "EPSG:32610")
+    lonlat = _lonlat_block(-119.4, 36.0)
+    r = _import(root, "orthority", [_opk_csv(tmp_path, _to("EPSG:32611", lonlat), "EPSG:32611")])
+    assert r.exit_code == 0, r.output
+    assert np.abs(read_eo(root / "imported" / "eo.txt").centre_m - _to("EPSG:32610", lonlat)).max() < 1e-3
+
+
+def test_block_far_in_another_zone_is_refused(tmp_path):
+    """The same with a block 3 degrees east of zone 10 (in the middle of zone 11): the project's CRS does not fit
+    the block."""
+    root = _project(tmp_path, "EPSG:32610")
+    f = _opk_csv(tmp_path, _to("EPSG:32611", _lonlat_block(-117.0, 36.0)), "EPSG:32611")
+    _refused(root, "orthority", [f], "lies outside the area of use of EPSG:32610")
+
+
+def test_undeclared_coordinates_of_another_zone_are_refused(tmp_path):
+    """PAT-B orientations carry no CRS: UTM 11N numbers read in a UTM 10N project land 5 degrees west, inside zone
+    10, where only the project's own positions (gnss.txt) can tell: refused, naming the distance."""
+    root = _project(tmp_path, "EPSG:32610")
+    lonlat = _lonlat_block(-119.3, 36.0)
+    (root / "gnss.txt").write_text(format_gnss(GnssPositions(["a", "b", "c"], _to("EPSG:32610", lonlat))))
+    files = _ori(tmp_path, _to("EPSG:32611", lonlat))
+    _refused(root, "patb", files, "km from the project's positions")
+    r = _import(root, "patb", files, "--crs", "EPSG:32611")  # stated: transformed, and near the project's
+    assert r.exit_code == 0, r.output
+    assert np.abs(read_eo(root / "imported" / "eo.txt").centre_m - _to("EPSG:32610", lonlat)).max() < 1e-3
+
+
+def test_image_ids_that_are_no_frames(tmp_path):
+    root = _project(tmp_path, "EPSG:32610")
+    (root / "images").mkdir()
+    for name in ("a.tif", "b.tif"):
+        (root / "images" / name).write_bytes(b"")
+    files = _ori(tmp_path, _to("EPSG:32610", _lonlat_block(-121.9, 37.4)), ids=("a", "b", "x9"))
+    _refused(root, "patb", files, "orientations of image(s) x9 that are not frames in")
+    files = _ori(tmp_path, _to("EPSG:32610", _lonlat_block(-121.9, 37.4)), ids=("a", "b", "b2"))[:1]
+    _refused(root, "patb", files, "orientations of image(s) 1, 2, 3 that are not frames")  # numbers without the map
+
+
+@pytest.mark.parametrize("crs", ["EPSG:4978", "EPSG:4979"])
+def test_geocentric_or_3d_geographic_project_is_refused(tmp_path, crs):
+    root = _project(tmp_path, crs)
+    f = _opk_csv(tmp_path, _to("EPSG:32610", _lonlat_block(-121.9, 37.4)), "EPSG:32610")
+    _refused(root, "orthority", [f], "the photo block needs a projected CRS")
+
+
+def test_measurements_of_points_that_are_no_control(tmp_path):
+    """MicMac measurements of a point that neither the imported control nor control/points.csv has: named, exit 2;
+    measurements alone without any control file: refused too."""
+    root = _project(tmp_path, "EPSG:32610")
+    x, y, _ = _to("EPSG:32610", _lonlat_block(-121.9, 37.4))[0]
+    gcp = tmp_path / "gcp.xml"
+    gcp.write_text(f"<Global><DicoAppuisFlottant><OneAppuisDAF><Pt>{x} {y} 10</Pt><NamePt>g1</NamePt>"
+                   "<Incertitude>0.02 0.02 0.03</Incertitude></OneAppuisDAF></DicoAppuisFlottant></Global>")
+    mes = tmp_path / "measures.xml"
+    mes.write_text("<SetOfMesureAppuisFlottants><MesureAppuiFlottant1Im><NameIm>a.tif</NameIm>"
+                   "<OneMesureAF1I><NamePt>g1</NamePt><PtIm>10 20</PtIm></OneMesureAF1I>"
+                   "<OneMesureAF1I><NamePt>g7</NamePt><PtIm>30 40</PtIm></OneMesureAF1I>"
+                   "</MesureAppuiFlottant1Im></SetOfMesureAppuisFlottants>")
+    _refused(root, "micmac", [gcp, mes], "measurements of point(s) g7 that are not control points in gcp.xml")
+    _refused(root, "micmac", [mes], "image measurements of points no control file names")

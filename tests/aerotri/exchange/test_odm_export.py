@@ -1,0 +1,225 @@
+"""``aerotri export --format odm``: the OpenSfM reconstruction (orientations, camera, points, reference_lla) against
+OpenSfM's documented formulas written out here, its round trip through ``aerotri import --format opensfm``, the
+ground control, check points and rejected measurements, a block without control, and the Tuniu reconstruction
+made by ODM imported and written again."""
+
+from __future__ import annotations
+
+import json
+import shutil
+
+import numpy as np
+import pytest
+from click.testing import CliRunner
+from scipy.spatial.transform import Rotation
+
+from aerotri.cli import main as aerotri_cli
+from aerotri.core.project import Project
+from aerotri.exchange import ImportOptions, export_project, import_files, opensfm
+from aerotri.exchange.adjusted import read_adjusted_block
+from aerotri.geom.camera import adjusted_camera, read_camera
+from aerotri.geom.eo import read_eo
+from aerotri.geom.observations import read_control_points, read_image_points
+
+
+def _topocentric(xyz_map, crs, ref):
+    """Map coordinates -> OpenSfM's topocentric frame (pyproj to ECEF, then the east/north/up rows at the
+    reference: opensfm/geo.py ecef_from_topocentric_transform, transposed)."""
+    from pyproj import CRS, Transformer
+
+    ecef = np.column_stack(Transformer.from_crs(CRS(crs).to_3d(), CRS("EPSG:4978"), always_xy=True).transform(*xyz_map.T))
+    ecef0 = np.array(Transformer.from_crs("EPSG:4979", "EPSG:4978", always_xy=True).transform(
+        ref["longitude"], ref["latitude"], ref["altitude"]))
+    la, lo = np.radians(ref["latitude"]), np.radians(ref["longitude"])
+    R = np.array([[-np.sin(lo), np.cos(lo), 0], [-np.sin(la) * np.cos(lo), -np.sin(la) * np.sin(lo), np.cos(la)],
+                  [np.cos(la) * np.cos(lo), np.cos(la) * np.sin(lo), np.sin(la)]])
+    return (ecef - ecef0) @ R.T
+
+
+def _opensfm_pixels(cam, shot, X_topo):
+    """OpenSfM's brown projection (doc/source/geometry.rst) to pixels (origin: centre of the top-left pixel)."""
+    R = Rotation.from_rotvec(shot["rotation"]).as_matrix()
+    p = X_topo @ R.T + np.array(shot["translation"])
+    xn, yn = p[:, 0] / p[:, 2], p[:, 1] / p[:, 2]
+    r2 = xn ** 2 + yn ** 2
+    rad = 1 + r2 * (cam["k1"] + r2 * (cam["k2"] + r2 * cam["k3"]))
+    xd = xn * rad + 2 * cam["p1"] * xn * yn + cam["p2"] * (r2 + 2 * xn ** 2)
+    yd = yn * rad + cam["p1"] * (r2 + 2 * yn ** 2) + 2 * cam["p2"] * xn * yn
+    w, h = cam["width"], cam["height"]
+    s = max(w, h)
+    return np.column_stack([(cam["focal_x"] * xd + cam["c_x"]) * s + (w - 1) / 2,
+                            (cam["focal_y"] * yd + cam["c_y"]) * s + (h - 1) / 2])
+
+
+def _rotation_deg(Ra, Rb):
+    """Angle (degrees) of the rotation between two stacks of rotation matrices."""
+    return np.degrees(Rotation.from_matrix(np.swapaxes(Ra, -1, -2) @ Rb).magnitude())  # not arccos(trace): exact near 0
+
+
+@pytest.fixture(scope="module")
+def exported(adjusted_tiny, tmp_path_factory):
+    root, ba = adjusted_tiny
+    out = tmp_path_factory.mktemp("odm_exp")
+    export_project(root, ["odm"], out)
+    return root, out / "odm", ba
+
+
+def test_reconstruction_is_opensfm_s(exported):
+    """Points: the adjusted object points in OpenSfM's topocentric frame (pyproj's ECEF, 1e-6 m); shots and camera:
+    OpenSfM's projection of the exported points reproduces the measurements the adjustment kept with its own
+    residuals (RMS within 20 % of the adjustment's)."""
+    import csv
+
+    root, odm, ba = exported
+    (rec,) = json.loads((odm / "opensfm" / "reconstruction.json").read_text())
+    blk = read_adjusted_block(root)
+    ref = rec["reference_lla"]
+    assert ref == json.loads((odm / "opensfm" / "reference_lla.json").read_text())
+    rows = list(csv.DictReader(open(root / "at" / "object_points.csv")))
+    want = _topocentric(np.array([[float(r[k]) for k in "xyz"] for r in rows]), blk.crs, ref)
+    got = np.array([rec["points"][r["id"]]["coordinates"] for r in rows])
+    assert len(rec["points"]) == len(rows) and np.abs(got - want).max() < 1e-6
+    (cam_id, cam), = rec["cameras"].items()
+    assert json.loads((odm / "cameras.json").read_text()) == {cam_id: cam} and cam["projection_type"] == "brown"
+    assert len(rec["shots"]) == len(blk.image_id)
+    topo = {r["id"]: p for r, p in zip(rows, want)}
+    res = []
+    for i, iid in enumerate(blk.image_id):
+        k = np.flatnonzero(blk.obs_image == i)
+        X = np.array([topo[str(blk.point_id[j])] for j in blk.obs_point[k]])
+        res.append(_opensfm_pixels(cam, rec["shots"][iid], X) - blk.obs_xy_px[k])
+        assert rec["shots"][iid]["camera"] == cam_id and "gps_position" in rec["shots"][iid]
+    rms = float(np.sqrt(np.mean(np.vstack(res) ** 2)))
+    rms_adj = float(np.sqrt(np.mean(ba.result.residual_px[ba.result.obs_active] ** 2)))
+    assert abs(rms - rms_adj) < 0.2 * rms_adj, (rms, rms_adj)
+
+
+def test_round_trip_through_the_opensfm_import(exported, tmp_path, fresh_project):
+    """Export -> import: the orientations back to 1e-6 m and 1e-6 degrees (in memory; the files keep 0.1 mm and
+    1e-7 degrees), the camera's pixel geometry to 1e-9; no gnss.txt without --as-gnss."""
+    root, odm, _ = exported
+    p = Project.open(root)
+    dst = fresh_project(root, tmp_path / "p")
+    block = opensfm.read([odm / "opensfm" / "reconstruction.json"], Project.open(dst), ImportOptions())
+    eo = read_eo(p.eo_path)
+    assert block.eo.image_id == eo.image_id
+    assert np.abs(block.eo.centre_m - eo.centre_m).max() < 1e-6
+    assert _rotation_deg(block.eo.rotations(), eo.rotations()).max() < 1e-6
+    cam, got = adjusted_camera(p)[0], block.camera
+    for k in ("focal_px", "cx_px", "cy_px", "k1", "k2", "k3", "p1", "p2"):
+        assert getattr(got, k) == pytest.approx(getattr(cam, k), rel=1e-9, abs=1e-12), k
+    r = CliRunner().invoke(aerotri_cli, ["import", str(dst), "--format", "opensfm",
+                                         str(odm / "opensfm" / "reconstruction.json")])
+    assert r.exit_code == 0, r.output
+    back = read_eo(dst / "imported" / "eo.txt")
+    assert np.abs(back.centre_m - eo.centre_m).max() < 1e-4 and _rotation_deg(back.rotations(), eo.rotations()).max() < 2e-7
+    assert not (dst / "gnss.txt").exists()
+
+
+def test_control_check_points_and_rejected_measurements(adjusted_with_rejections, tmp_path):
+    """gcp_list.txt holds the control the adjustment used and the measurements it kept; the check points go to
+    gcp_list_check.txt; the removed measurement (gcp03, 40 px) and those of the rejected point (gcp01, shifted 3 m)
+    go to gcp_list_rejected.txt with the reason, and the console names each. Every control and check measurement
+    is in exactly one of the three files."""
+    root, _ = adjusted_with_rejections
+    report = json.loads((root / "at" / "report.json").read_text())
+    removed = {(x["point_id"], x["image_id"]) for x in report["removed_observations"] if not x["point_id"].startswith("t")}
+    rejected_points = {x["id"] for x in report["rejected_control"]}
+    assert "gcp03" in {p for p, _ in removed} and "gcp01" in rejected_points
+    r = CliRunner().invoke(aerotri_cli, ["export", str(root), "--format", "odm", "--out", str(tmp_path)])
+    assert r.exit_code == 0, r.output
+
+    def rows(name):
+        lines = (tmp_path / "odm" / name).read_text().splitlines()
+        assert lines[0] == "EPSG:32649"
+        return [ln.split("\t") for ln in lines[1:]]
+
+    kept, check, rejected = rows("gcp_list.txt"), rows("gcp_list_check.txt"), rows("gcp_list_rejected.txt")
+    keys = lambda rs: {(x[6], x[5]) for x in rs}  # noqa: E731  (point, image)
+    assert not rejected_points & {x[6] for x in kept} and not keys(kept) & removed
+    assert removed <= keys(rejected) and {x[6] for x in rejected} == rejected_points | {p for p, _ in removed}
+    why = {(x[6], x[5]): x[7] for x in rejected}
+    assert all("data snooping" in why[k] for k in removed)
+    assert all("rejected by the adjustment" in w for k, w in why.items() if k[0] in rejected_points and k not in removed)
+    for p, i in why:
+        assert f"measurement of {p} in {i} left out of gcp_list.txt" in r.output
+    cp = read_control_points(root / "control" / "points.csv")
+    assert {x[6] for x in check} == set(cp.id[cp.kind == "check"])
+    obs = read_image_points(root / "control" / "image_points.csv")
+    all_obs = {(p, i) for p, i in zip(obs.point_id, obs.image_id) if p in set(cp.id)}
+    assert len(kept) + len(check) + len(rejected) == len(all_obs)
+    assert keys(kept) | keys(check) | keys(rejected) == all_obs
+
+
+def test_block_without_control(adjusted_without_control, tmp_path):
+    """No control/ at all: the reconstruction (with the shots' GNSS) and the camera, no gcp_list.txt, and the
+    console says why."""
+    root, _ = adjusted_without_control
+    r = CliRunner().invoke(aerotri_cli, ["export", str(root), "--format", "odm", "--out", str(tmp_path)])
+    assert r.exit_code == 0, r.output
+    assert "no odm/gcp_list.txt" in r.output
+    assert not (tmp_path / "odm" / "gcp_list.txt").exists()
+    (rec,) = json.loads((tmp_path / "odm" / "opensfm" / "reconstruction.json").read_text())
+    assert len(rec["shots"]) == 10 and all("gps_position" in s and s["gps_dop"] > 0 for s in rec["shots"].values())
+    assert len(rec["points"]) > 100
+
+
+@pytest.mark.realdata
+def test_tuniu_imported_and_written_again(shared_data, tmp_path):
+    """ODM's reconstruction of the Tuniu frames imported (camera.toml, imported/eo.txt; with --as-gnss the shots'
+    gps_position with gps_dop) and written again from the project files: the same camera, the same shots
+    (translation to 2e-4 m and rotation to 2e-7 degrees: the files keep 0.1 mm and 1e-7 degrees), the same GNSS
+    (2e-4 m), and OpenSfM's projection of the ODM surface model's points in the frames' field of view through both
+    within 0.001 px; from the import in memory the shots to 1e-6 m and 1e-6 degrees."""
+    import rasterio
+
+    from aerotri.geom.eo import read_gnss
+
+    data = shared_data / "tuniu_drone"
+    src = data / "opensfm" / "reconstruction.json"
+    (orig,) = json.loads(src.read_text())
+    root = tmp_path / "p"
+    root.mkdir()
+    (root / "project.toml").write_text('[project]\nname = "tuniu"\ncrs = "EPSG:32651"\n')
+    shutil.copytree(data / "images", root / "images")
+    r = CliRunner().invoke(aerotri_cli, ["import", str(root), "--format", "opensfm", str(src), "--as-gnss"])
+    assert r.exit_code == 0, r.output
+    project = Project.open(root)
+    eo, cam, gnss = read_eo(root / "imported" / "eo.txt"), read_camera(root / "camera.toml"), read_gnss(root / "gnss.txt")
+    assert np.allclose(gnss.sigma_m, [[s["gps_dop"]] * 3 for _, s in sorted(orig["shots"].items())], atol=5e-5)  # 0.1 mm
+    again = opensfm.reconstruction(eo, cam, project, orig["reference_lla"], gnss=gnss)
+    (cid, c0), = orig["cameras"].items()
+    (cid1, c1), = again["cameras"].items()
+    assert cid1 == cid and c1.keys() == c0.keys()
+    for k in c0:
+        assert c1[k] == (c0[k] if isinstance(c0[k], str) else pytest.approx(c0[k], rel=1e-12, abs=1e-15)), k
+    assert again["shots"].keys() == orig["shots"].keys()
+    xc, yc = cam.pixel_to_normalized(np.array([-0.5, cam.width - 0.5] * 2), np.repeat([-0.5, cam.height - 0.5], 2))
+    r_max = np.hypot(xc, yc).max()
+    with rasterio.open(data / "odm_dem" / "dsm.tif") as ds:
+        z = ds.read(1, masked=True)
+        rows, cols = np.mgrid[0:ds.height:9, 0:ds.width:9]
+        ok = ~np.ma.getmaskarray(z)[rows, cols]
+        xs, ys = rasterio.transform.xy(ds.transform, rows[ok], cols[ok])
+        ground = _topocentric(np.column_stack([xs, ys, z[rows, cols][ok].filled(np.nan)]), "EPSG:32651",
+                              orig["reference_lla"])
+    for sid, s0 in orig["shots"].items():
+        s1 = again["shots"][sid]
+        R0, R1 = (Rotation.from_rotvec(s["rotation"]).as_matrix()[None] for s in (s0, s1))
+        assert _rotation_deg(R0, R1)[0] < 2e-7
+        C0, C1 = (-R[0].T @ np.array(s["translation"]) for R, s in ((R0, s0), (R1, s1)))
+        assert np.abs(C1 - C0).max() < 2e-4
+        assert np.abs(np.array(s1["gps_position"]) - s0["gps_position"]).max() < 2e-4
+        u0, u1 = _opensfm_pixels(c0, s0, ground), _opensfm_pixels(c1, s1, ground)
+        d = (ground - C0) @ R0[0].T
+        # the field of view: rays within the undistorted image corners (beyond, the Brown polynomial folds back)
+        seen = (d[:, 2] > 0) & (np.hypot(d[:, 0], d[:, 1]) < r_max * d[:, 2])
+        assert seen.sum() > 500 and np.abs(u1 - u0)[seen].max() < 1e-3  # measured 0.0006 px
+    # in memory (before eo.txt rounds): 1e-6 m and 1e-6 degrees
+    block = opensfm.read([src], project, ImportOptions())
+    again = opensfm.reconstruction(block.eo, block.camera, project, orig["reference_lla"])
+    for sid, s0 in orig["shots"].items():
+        s1 = again["shots"][sid]
+        R0, R1 = (Rotation.from_rotvec(s["rotation"]).as_matrix()[None] for s in (s0, s1))
+        assert _rotation_deg(R0, R1)[0] < 1e-6  # measured 4e-8
+        assert np.abs(-R1[0].T @ np.array(s1["translation"]) + R0[0].T @ np.array(s0["translation"])).max() < 1e-6
