@@ -420,8 +420,9 @@ def smooth(dem_path, out_path, order, edge_m, iterations, step, window_px):
 @main.command()
 @click.argument("dem_path", type=click.Path(dir_okay=False))
 @click.argument("out_path", type=click.Path(dir_okay=False))
-@click.option("--interval", "interval_m", type=positive(), required=True,
-              help="Contour interval (m, also for DEMs in feet).")
+@click.option("--interval", "interval", type=positive(), required=True,
+              help="Contour interval in the DEM's height unit (its CRS's: feet for a DEM in feet); levels at its "
+                   "whole multiples.")
 @click.option("--index", "index_every", type=click.IntRange(min=0), default=5, show_default=True,
               help="Every N-th level is an index contour (0: none).")
 @click.option("--smooth", "smoothing", type=click.Choice(["none", "bspline", "tension"]), default="none",
@@ -432,13 +433,16 @@ def smooth(dem_path, out_path, order, edge_m, iterations, step, window_px):
 @click.option("--tension", type=click.FloatRange(min=0), default=1.0, show_default=True,
               help="Tension spline: 0 is a cubic spline, larger values tend to the traced polyline.")
 @click.option("--png/--no-png", default=True, show_default=True, help="A preview PNG beside OUT (over the hillshade).")
-def contours(dem_path, out_path, interval_m, index_every, smoothing, tolerance_px, tension, png):
+def contours(dem_path, out_path, interval, index_every, smoothing, tolerance_px, tension, png):
     """Contour lines of DEM_PATH (GeoTIFF) into OUT_PATH (.gpkg or .geojson, layer 'contours': elevation in the
-    DEM's unit, elevation_m, index, closed), traced on the cell centres and cut at nodata."""
+    DEM's unit, elevation_m, index, closed), traced on the cell centres and cut at nodata. An interval that
+    would put adjacent levels less than a cell apart on average is refused (exit 2)."""
     from lidarctl.contours import contours_from_file
 
-    s = contours_from_file(dem_path, out_path, interval_m, index_every, smoothing, tolerance_px, tension, png)
-    click.echo(f"{out_path}: {s['contours']} contours on {s['levels']} levels ({s['closed']} closed, "
+    s = contours_from_file(dem_path, out_path, interval, index_every, smoothing, tolerance_px, tension, png)
+    span = (f" from {s['lowest_level']:g} to {s['highest_level']:g} {s['unit']}" if s["levels"] else "")
+    click.echo(f"{out_path}: {s['contours']} contours on {s['levels']} levels every {s['interval']:g} {s['unit']} "
+               f"(the DEM's height unit){span} ({s['closed']} closed, "
                f"{s['index_contours']} index), smoothing {s['smoothing']} ({s['fell_back_to_traced']} kept traced "
                f"to avoid crossings), {s['crossings']} crossings")
 
