@@ -450,8 +450,10 @@ def contours(dem_path, out_path, interval, index_every, smoothing, tolerance_px,
 @main.command()
 @click.argument("dem_path", type=click.Path(dir_okay=False))
 @click.argument("outdir", type=click.Path(file_okay=False))
-@click.option("--min-area-m2", type=positive(), default=10_000.0, show_default=True,
-              help="Stream threshold: the upstream area (m2, also for DEMs in feet) from which a cell is a stream.")
+@click.option("--min-area-m2", type=positive(), default=None,
+              help="Stream threshold: the upstream area (m2, also for DEMs in feet) from which a cell is a stream. "
+                   "Default: from the DEM, 2 x the longer side of its valid data in cells x the cell area (more than "
+                   "a sheet of flow down a plane collects: converging flow); the value used is printed.")
 @click.option("--fill/--breach", "fill", default=True, show_default=True,
               help="Depressions: priority-flood fill with a float64 epsilon gradient, or breaching (the outflow path "
                    "carved down to the pit).")
@@ -470,8 +472,11 @@ def drainage(dem_path, outdir, min_area_m2, fill, simplify_px, png):
 
     r = run(dem_path, outdir, min_area_m2, "fill" if fill else "breach", simplify_px, png)
     click.echo(f"{r.outdir}: {r.valid_cells:,} of {r.cells:,} cells; {r.method}: {r.cells_changed:,} cells changed "
-               f"(raised up to {r.raised_max_m:.3f} m, cut up to {r.lowered_max_m:.3f} m); {r.segments} stream "
-               f"segments up to Strahler order {r.max_order}, {r.basins} basins")
+               f"(raised up to {r.raised_max_m:.3f} m, cut up to {r.lowered_max_m:.3f} m); stream threshold "
+               f"{r.min_area_m2:,.1f} m2 ({r.min_area_rule}); {r.segments} stream segments up to Strahler order "
+               f"{r.max_order}, {r.basins} basins")
+    if r.no_streams:
+        click.echo(r.no_streams)
 
 
 @main.command()
