@@ -189,7 +189,8 @@ def _check(quantity, values, where, key, limits) -> dict:
                     n=0, n_fail=0)
     v, w = (max if kind == "max" else min)(pairs, key=lambda p: p[0])
     bad = [p for p in pairs if _beyond(p[0], key, limits)]
-    verdict = None if limit is None else ("fail" if bad else "pass")
+    # measured but held to no limit (a UAS block): say so rather than leave the verdict empty
+    verdict = "not judged" if limit is None else ("fail" if bad else "pass")
     return dict(quantity=quantity, value=_r(v), limit=limit, unit=unit, verdict=verdict, where=w, key=key,
                 n=len(pairs), n_fail=len(bad))
 

@@ -298,9 +298,13 @@ def choose_table(cfg: QaConfig, block: BlockScale | None = None, *, scale: str |
     with a GSD under ``selection.toml`` [asprs] gsd_max_m, gets the ASPRS 2023 classes of its GSD; a coarser
     manned block the Chinese map-scale table of its GSD; a block of unknown GSD the 1:5000 table."""
     platform = cfg.platform or (block.platform if block is not None else None)
-    plat_why = (f"platform {cfg.platform} from {cfg.source}" if cfg.platform else
-                f"platform {platform} from the height above ground (< {low_altitude_height_m():g} m: UAS)"
-                if platform else "platform unknown (manned assumed)")
+    if cfg.platform:
+        plat_why = f"platform {cfg.platform} from {cfg.source}"
+    elif platform:
+        plat_why = (f"platform {platform}: {block.height_above_ground_m:.0f} m above ground (a UAS block flies below "
+                    f"{low_altitude_height_m():g} m)")
+    else:
+        plat_why = "platform unknown (manned assumed)"
     uas = platform == "uas"
     terrain = terrain or cfg.terrain or "flat"
     h_cm = horizontal_class_cm or cfg.horizontal_class_cm

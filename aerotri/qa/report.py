@@ -95,8 +95,10 @@ def flight_rows(fa: dict, tol: dict) -> list:
         n_fail = c["n_fail"] if limit == c["limit"] else None
         note = (f"worst at {c['where']}" + (f"; {n_fail} of {c['n']} beyond the limit" if n_fail else "")
                 + ("" if kind == "max" else "; a lower limit: the value must reach it"))
+        if value is not None and limit is None:
+            note = f"{note}; not judged: no flight limit applies to this block"
         rows.append(dict(section="Flight acceptance", quantity=c["quantity"], value=value, limit=limit, unit=c["unit"],
-                         note=note if value is not None else "not measured", verdict=verdict))
+                         note=note if value is not None else "not measured", verdict=verdict, limit_key=c["key"]))
     return rows
 
 
