@@ -245,7 +245,12 @@ class QaConfig:
     platform: str | None
     horizontal_class_cm: float | None
     vertical_class_cm: float | None
-    source: str  # "P/project.toml [qa]"
+    source: str  # "P/project.toml [qa]", for errors
+
+    @property
+    def named(self) -> str:
+        """Where a choice came from, as reports name it (the same for a copy of the project elsewhere)."""
+        return "project.toml [qa]"
 
 
 def _positive(cfg: dict, key: str, src: str) -> float | None:
@@ -299,7 +304,7 @@ def choose_table(cfg: QaConfig, block: BlockScale | None = None, *, scale: str |
     manned block the Chinese map-scale table of its GSD; a block of unknown GSD the 1:5000 table."""
     platform = cfg.platform or (block.platform if block is not None else None)
     if cfg.platform:
-        plat_why = f"platform {cfg.platform} from {cfg.source}"
+        plat_why = f"platform {cfg.platform} from {cfg.named}"
     elif platform:
         plat_why = (f"platform {platform}: {block.height_above_ground_m:.0f} m above ground (a UAS block flies below "
                     f"{low_altitude_height_m():g} m)")
@@ -317,20 +322,20 @@ def choose_table(cfg: QaConfig, block: BlockScale | None = None, *, scale: str |
         return load_table(key + (UAS_SUFFIX if uas else ""), terrain, None, f"{why}; {plat_why}")
 
     if file:
-        src = "--tolerances" if tolerance_file else f"{cfg.source} tolerances"
+        src = "--tolerances" if tolerance_file else f"{cfg.named} tolerances"
         # the key stays a built-in scale: stages that only pass the key on judge by the built-in table
         return load_table(DEFAULT_SCALE + (UAS_SUFFIX if uas else ""), terrain, file, f"your table ({src}); {plat_why}")
     if given_scale:
-        return cn(given_scale, f"map scale {given_scale} from {'--scale' if scale else cfg.source}")
+        return cn(given_scale, f"map scale {given_scale} from {'--scale' if scale else cfg.named}")
     gsd = block.gsd_m if block is not None else None
     if std == "cn":
         if gsd is None:
-            return cn(DEFAULT_SCALE, f"standard cn from {'--standard' if standard else cfg.source}; "
+            return cn(DEFAULT_SCALE, f"standard cn from {'--standard' if standard else cfg.named}; "
                                      f"{_block_text(block)}: default {DEFAULT_SCALE}")
         s, row = scale_for_gsd(gsd)
-        return cn(s, f"standard cn from {'--standard' if standard else cfg.source}; {_block_text(block)}; {row}")
+        return cn(s, f"standard cn from {'--standard' if standard else cfg.named}; {_block_text(block)}; {row}")
     if std == "asprs2023" or (std is None and gsd is not None and (uas or gsd < asprs_gsd_max_m())):
-        why = (f"standard asprs2023 from {'--standard' if standard else cfg.source}" if std else
+        why = (f"standard asprs2023 from {'--standard' if standard else cfg.named}" if std else
                f"{'a UAS block' if uas else f'GSD under {100 * asprs_gsd_max_m():g} cm'} (selection.toml)")
         if h_cm is None or v_cm is None:
             if gsd is None:
@@ -342,7 +347,7 @@ def choose_table(cfg: QaConfig, block: BlockScale | None = None, *, scale: str |
             why += f"; {_block_text(block)}; {row}"
             h_cm, v_cm = h_cm or gh, v_cm or gv
         else:
-            why += f"; classes from {cfg.source if not horizontal_class_cm else 'the command line'}"
+            why += f"; classes from {cfg.named if not horizontal_class_cm else 'the command line'}"
         return load_table(asprs_key(h_cm, v_cm, uas), terrain, None, f"{why}; {plat_why}")
     if gsd is None:
         return cn(DEFAULT_SCALE, f"{_block_text(block)}: the default {DEFAULT_SCALE} table (set [qa] map_scale or "
