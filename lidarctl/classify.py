@@ -68,6 +68,12 @@ Pipeline (``classify_points``):
    stands that clear almost everywhere (``bridge_min_clear_share``: a level deck, not a sloping shore).
    On the AHN3 Delft crop this finds 755 of the 1,365 civil-structure (26) points (two bridges over
    the canals) and takes 205 true ground points of an approach ramp (results/lidar_ahn3_errors.json).
+   A deck the ground filter left out (high over a river whose surface gave returns far below it) meets
+   the roof rules instead; ``spanning_decks`` takes it back from the buildings: a long, narrow building
+   segment (``BRIDGE_MIN_ASPECT``, at most ``bridge_max_width_m`` wide) with open-water dropout gaps on
+   both sides along most of its length (``BRIDGE_MIN_OVER_WATER``) that runs on into the terrain at an
+   end (the ground beyond it less than ``building_min_height_m`` below the deck; a roof ends in walls).
+   The Autzen footbridge (1,303 returns) was a building for want of this rule.
 """
 
 from __future__ import annotations
@@ -794,6 +800,101 @@ def bridge_decks(x, y, z, is_ground, is_building, spacing_m: float, p: ClassifyP
     return out
 
 
+# A deck is long and narrow (a roadway or path across the water, not a floor plan): its length at least
+# this many times its mean width.
+BRIDGE_MIN_ASPECT = 3.0
+# And it stands over water: at least this share of its cells has an open-water-sized dropout gap on both
+# sides across its axis (the approaches over land make up the rest).
+BRIDGE_MIN_OVER_WATER = 0.5
+
+
+def _walk_hits(mask: np.ndarray, rows: np.ndarray, cols: np.ndarray, step_rc: np.ndarray, n_steps: int) -> np.ndarray:
+    """Per start cell (rows, cols): True when ``mask`` is hit within ``n_steps`` half-cell steps along
+    ``step_rc`` (row, col per step, in cells)."""
+    hit = np.zeros(len(rows), bool)
+    for k in range(1, n_steps + 1):
+        r = np.floor(rows + 0.5 + k * step_rc[0]).astype(np.int64)
+        q = np.floor(cols + 0.5 + k * step_rc[1]).astype(np.int64)
+        ok = (r >= 0) & (r < mask.shape[0]) & (q >= 0) & (q < mask.shape[1])
+        hit[ok] |= mask[r[ok], q[ok]]
+    return hit
+
+
+def spanning_decks(x, y, z, is_building, is_ground, g: DropoutGrid, p: ClassifyParams) -> np.ndarray:
+    """Building points that are a bridge deck over water (mask): decks the ground filter left out (a deck
+    high over a river is no terrain), which then meet the roof rules (planar, high, single returns).
+
+    A roof and a deck both stand planar above the bare-earth DEM; what tells them apart is what lies
+    around them. A segment of building cells (8-connected, on the dropout grid ``g``) is a deck when
+    (a) it is long and narrow: mean width (area / length along its principal axis) at most
+    ``bridge_max_width_m`` and length at least ``BRIDGE_MIN_ASPECT`` times the width, and at least
+    ``bridge_min_deck_m2``; (b) it spans water: at least ``BRIDGE_MIN_OVER_WATER`` of its cells have an
+    open-water-sized dropout gap (``dropout_gaps``; the candidates' own cells do not make a gap an
+    occlusion shadow) on both sides across its axis, within its width plus three cells; and (c) it joins
+    the terrain at an end: the ground within three cells beyond one end of its axis stands less than
+    ``building_min_height_m`` below the deck's end (a bridge runs on into its approach; a roof ends in
+    walls at least that high). ``bridge_max_width_m`` 0 disables the rule, as it does ``bridge_decks``.
+    """
+    out = np.zeros(len(x), bool)
+    if p.bridge_max_width_m <= 0 or not np.any(is_building) or not np.any(is_ground) or g.nlab == 0:
+        return out
+    c = g.c
+    bcell = np.bincount(g.flat[is_building], minlength=g.nrows * g.ncols).reshape(g.nrows, g.ncols) > 0
+    seg, nseg = ndimage.label(bcell, np.ones((3, 3), int))
+    cands = []
+    for k, box in enumerate(ndimage.find_objects(seg), 1):
+        rr, cc = np.nonzero(seg[box] == k)
+        rr, cc = rr + box[0].start, cc + box[1].start
+        area = len(rr) * c * c
+        if area < p.bridge_min_deck_m2 or len(rr) < 3:
+            continue
+        rc = np.column_stack([rr, cc]).astype(float)
+        centre = rc.mean(axis=0)
+        evals, evecs = np.linalg.eigh(np.cov((rc - centre).T))
+        u, w = evecs[:, 1], evecs[:, 0]   # long and short axis, (row, col) unit vectors
+        s = (rc - centre) @ u
+        length = (np.ptp(s) + 1.0) * c
+        width = area / length
+        if width > p.bridge_max_width_m or length < BRIDGE_MIN_ASPECT * width:
+            continue
+        cands.append((k, rr, cc, centre, u, w, s, width))
+    if not cands:
+        return out
+    # Water-sized gaps; a gap beside a candidate is not its occlusion shadow for being next to it.
+    others = g.building_cell & ~np.isin(seg, [cd[0] for cd in cands])
+    labels = dropout_gaps(x, y, z, is_ground, dataclasses.replace(g, building_cell=others), p)[0]
+    gap = labels > 0
+    ground_z = g.ground_cell_z(x, y, z, is_ground)
+    b_idx = np.flatnonzero(is_building)
+    deck_cells = np.zeros(g.nrows * g.ncols, bool)
+    for k, rr, cc, centre, u, w, s, width in cands:
+        n_steps = int(np.ceil(2.0 * (width / c + 3.0)))
+        both = (_walk_hits(gap, rr, cc, 0.5 * w, n_steps) & _walk_hits(gap, rr, cc, -0.5 * w, n_steps))
+        if both.mean() < BRIDGE_MIN_OVER_WATER:
+            continue
+        joins = False
+        for sign, end in ((1.0, s.max()), (-1.0, s.min())):
+            at_end = np.abs(s - end) <= 1.0
+            # the deck's height at this end: the median building return of its end cells (railings above
+            # and walls below do not move it)
+            deck_z = np.median(z[b_idx[np.isin(g.flat[b_idx], rr[at_end] * g.ncols + cc[at_end])]])
+            # the ground just beyond this end, across the deck's width
+            beyond = []
+            for j in range(2, 7):   # 1 to 3 cells beyond, in half cells
+                for t in np.linspace(-0.5, 0.5, 5) * width / c:
+                    pos = centre + (end + sign * 0.5 * j) * u + t * w
+                    r, q = int(np.floor(pos[0] + 0.5)), int(np.floor(pos[1] + 0.5))
+                    if 0 <= r < g.nrows and 0 <= q < g.ncols and seg[r, q] != k:
+                        beyond.append(ground_z[r, q])
+            beyond = np.asarray(beyond, float)
+            if np.isfinite(beyond).any() and deck_z - np.nanmedian(beyond) < p.building_min_height_m:
+                joins = True
+        if joins:
+            deck_cells[rr * g.ncols + cc] = True
+    out[is_building] = deck_cells[g.flat[is_building]]
+    return out
+
+
 def classify_points(x, y, z, return_number=None, number_of_returns=None, intensity=None,
                     params: ClassifyParams | None = None, fusion=None) -> np.ndarray:
     """ASPRS class per point (uint8). Arrays are per point; heights in metres. ``fusion``
@@ -955,6 +1056,7 @@ def classify_points(x, y, z, return_number=None, number_of_returns=None, intensi
                          is_building, is_ground, spacing, p, solid=clean, dropout=gaps)
     cls[water] = WATER
     cls[bridge_decks(x, y, z, cls == GROUND, is_building, spacing, p, dropout=gaps)] = BRIDGE_DECK
+    cls[spanning_decks(x, y, z, cls == BUILDING, cls == GROUND, gaps, p)] = BRIDGE_DECK
     if fusion is not None:
         from lidarctl import fusion as fusion_mod
 

@@ -420,8 +420,9 @@ def smooth(dem_path, out_path, order, edge_m, iterations, step, window_px):
 @main.command()
 @click.argument("dem_path", type=click.Path(dir_okay=False))
 @click.argument("out_path", type=click.Path(dir_okay=False))
-@click.option("--interval", "interval_m", type=positive(), required=True,
-              help="Contour interval (m, also for DEMs in feet).")
+@click.option("--interval", "interval", type=positive(), required=True,
+              help="Contour interval in the DEM's height unit (its CRS's: feet for a DEM in feet); levels at its "
+                   "whole multiples.")
 @click.option("--index", "index_every", type=click.IntRange(min=0), default=5, show_default=True,
               help="Every N-th level is an index contour (0: none).")
 @click.option("--smooth", "smoothing", type=click.Choice(["none", "bspline", "tension"]), default="none",
@@ -432,13 +433,16 @@ def smooth(dem_path, out_path, order, edge_m, iterations, step, window_px):
 @click.option("--tension", type=click.FloatRange(min=0), default=1.0, show_default=True,
               help="Tension spline: 0 is a cubic spline, larger values tend to the traced polyline.")
 @click.option("--png/--no-png", default=True, show_default=True, help="A preview PNG beside OUT (over the hillshade).")
-def contours(dem_path, out_path, interval_m, index_every, smoothing, tolerance_px, tension, png):
+def contours(dem_path, out_path, interval, index_every, smoothing, tolerance_px, tension, png):
     """Contour lines of DEM_PATH (GeoTIFF) into OUT_PATH (.gpkg or .geojson, layer 'contours': elevation in the
-    DEM's unit, elevation_m, index, closed), traced on the cell centres and cut at nodata."""
+    DEM's unit, elevation_m, index, closed), traced on the cell centres and cut at nodata. An interval that
+    would put adjacent levels less than a cell apart on average is refused (exit 2)."""
     from lidarctl.contours import contours_from_file
 
-    s = contours_from_file(dem_path, out_path, interval_m, index_every, smoothing, tolerance_px, tension, png)
-    click.echo(f"{out_path}: {s['contours']} contours on {s['levels']} levels ({s['closed']} closed, "
+    s = contours_from_file(dem_path, out_path, interval, index_every, smoothing, tolerance_px, tension, png)
+    span = (f" from {s['lowest_level']:g} to {s['highest_level']:g} {s['unit']}" if s["levels"] else "")
+    click.echo(f"{out_path}: {s['contours']} contours on {s['levels']} levels every {s['interval']:g} {s['unit']} "
+               f"(the DEM's height unit){span} ({s['closed']} closed, "
                f"{s['index_contours']} index), smoothing {s['smoothing']} ({s['fell_back_to_traced']} kept traced "
                f"to avoid crossings), {s['crossings']} crossings")
 
@@ -446,8 +450,10 @@ def contours(dem_path, out_path, interval_m, index_every, smoothing, tolerance_p
 @main.command()
 @click.argument("dem_path", type=click.Path(dir_okay=False))
 @click.argument("outdir", type=click.Path(file_okay=False))
-@click.option("--min-area-m2", type=positive(), default=10_000.0, show_default=True,
-              help="Stream threshold: the upstream area (m2, also for DEMs in feet) from which a cell is a stream.")
+@click.option("--min-area-m2", type=positive(), default=None,
+              help="Stream threshold: the upstream area (m2, also for DEMs in feet) from which a cell is a stream. "
+                   "Default: from the DEM, 2 x the longer side of its valid data in cells x the cell area (more than "
+                   "a sheet of flow down a plane collects: converging flow); the value used is printed.")
 @click.option("--fill/--breach", "fill", default=True, show_default=True,
               help="Depressions: priority-flood fill with a float64 epsilon gradient, or breaching (the outflow path "
                    "carved down to the pit).")
@@ -466,8 +472,11 @@ def drainage(dem_path, outdir, min_area_m2, fill, simplify_px, png):
 
     r = run(dem_path, outdir, min_area_m2, "fill" if fill else "breach", simplify_px, png)
     click.echo(f"{r.outdir}: {r.valid_cells:,} of {r.cells:,} cells; {r.method}: {r.cells_changed:,} cells changed "
-               f"(raised up to {r.raised_max_m:.3f} m, cut up to {r.lowered_max_m:.3f} m); {r.segments} stream "
-               f"segments up to Strahler order {r.max_order}, {r.basins} basins")
+               f"(raised up to {r.raised_max_m:.3f} m, cut up to {r.lowered_max_m:.3f} m); stream threshold "
+               f"{r.min_area_m2:,.1f} m2 ({r.min_area_rule}); {r.segments} stream segments up to Strahler order "
+               f"{r.max_order}, {r.basins} basins")
+    if r.no_streams:
+        click.echo(r.no_streams)
 
 
 @main.command()

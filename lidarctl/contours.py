@@ -2,8 +2,13 @@
 
 Tracing: marching squares on the cell centres (contourpy, C++), linear interpolation along the cell
 edges, cut cleanly where the DEM has nodata (masked cells); a contour that comes back to its start is
-closed. Levels are multiples of ``interval_m`` (metres, converted to the DEM's height unit); every
-``index_every``-th level is an index contour.
+closed. Levels are whole multiples of the interval, which is in the DEM's height unit (the unit of its CRS:
+feet for a DEM in feet, so 1 gives levels at whole feet); every ``index_every``-th level is an index contour.
+The work is bounded by the data, not by the interval: before tracing, the number of vertices the levels
+would make is counted exactly from the DEM (each level crossing a cell edge is one vertex, so it is the
+sum over the edges of |dz| / interval); more than ``MAX_VERTICES_PER_CELL`` per valid cell (adjacent
+levels closer than a cell apart on average: not a readable map, and the work would grow without bound as
+the interval shrinks) is refused naming the option and the smallest interval that fits.
 
 Smoothing (fit) of each traced line:
 - ``bspline``: an approximating cubic B-spline (scipy ``splprep``; periodic for closed lines) whose
@@ -33,6 +38,7 @@ log = logging.getLogger(__name__)
 log.addHandler(logging.NullHandler())
 
 SMOOTHING = ("none", "bspline", "tension")
+MAX_VERTICES_PER_CELL = 2.0  # contour vertices per valid DEM cell above which an interval is refused
 
 
 @dataclasses.dataclass(frozen=True)
@@ -51,28 +57,86 @@ class ContourSet:
     fell_back: int  # smoothed lines replaced by the traced line (a crossing)
 
 
-def _levels(z, interval):
+def _level_multiples(z, interval) -> np.ndarray:
+    """The integers k of the levels k x interval within the DEM's range."""
     lo, hi = np.nanmin(z), np.nanmax(z)
-    first = np.ceil(lo / interval) * interval
-    return np.arange(first, hi + 0.5 * interval, interval)
+    return np.arange(np.ceil(lo / interval), np.floor(hi / interval) + 1.0)
 
 
-def trace(dem: np.ndarray, transform, interval: float, index_every: int = 5) -> list:
+def _level(k: float, interval: float) -> float:
+    """k x interval without the binary noise of the product (0.1 x 3 is 0.3, not 0.30000000000000004)."""
+    digits = max(0, 10 - int(np.floor(np.log10(interval))))
+    return float(round(k * interval, digits))
+
+
+def _nice_at_least(v: float) -> float:
+    """The smallest 1, 2 or 5 x 10^n not below ``v``."""
+    e = 10.0 ** np.floor(np.log10(v))
+    return float(next(m * e for m in (1.0, 2.0, 5.0, 10.0) if m * e >= v * (1 - 1e-12)))
+
+
+def vertex_count(dem: np.ndarray, interval: float) -> float:
+    """The number of contour vertices the levels k x ``interval`` make on ``dem`` (NaN = nodata): each level
+    crossing a cell edge between two valid cell centres is one vertex, so the count is the sum over those
+    edges of the number of multiples of the interval between their ends (exact, O(cells))."""
+    dem = np.asarray(dem, dtype=np.float64)
+    finite = np.isfinite(dem)
+    with np.errstate(over="ignore", invalid="ignore"):
+        z = dem / interval
+    if not np.all(np.isfinite(z[finite])):
+        return float("inf")  # heights / interval beyond the float range: unbounded
+    n = 0.0
+    for a, b in ((z[:, 1:], z[:, :-1]), (z[1:, :], z[:-1, :])):
+        ok = np.isfinite(a) & np.isfinite(b)
+        lo, hi = np.minimum(a[ok], b[ok]), np.maximum(a[ok], b[ok])
+        n += float(np.maximum(np.floor(hi) - np.ceil(lo) + 1.0, 0.0).sum())
+    return n if np.isfinite(n) else float("inf")
+
+
+def check_interval(dem: np.ndarray, interval: float, unit: str = "", option: str = "--interval") -> float:
+    """The vertex count of ``interval`` on ``dem``; ``OptionError`` naming ``option`` when it exceeds
+    ``MAX_VERTICES_PER_CELL`` per valid cell, with the smallest interval that fits."""
+    valid = int(np.isfinite(dem).sum())
+    n = vertex_count(dem, interval)
+    limit = MAX_VERTICES_PER_CELL * max(valid, 1)
+    if n > limit:
+        # the smallest 1-2-5 interval that fits: the count scales about as 1 / interval; start there (or, for
+        # an overflowing count, from the relief: the sum of |dz| over the edges per allowed vertex) and step up
+        if np.isfinite(n):
+            need = _nice_at_least(interval * n / limit)
+        else:
+            z = np.asarray(dem, dtype=np.float64)
+            relief = np.nansum(np.abs(np.diff(z, axis=0))) + np.nansum(np.abs(np.diff(z, axis=1)))
+            need = _nice_at_least(max(relief / limit, 1e-9))
+        while vertex_count(dem, need) > limit:
+            need = _nice_at_least(need * 1.5)
+        u = f" {unit}" if unit else ""
+        raise OptionError(f"a contour interval of {interval:g}{u} gives about {n:.3g} contour vertices on this DEM of "
+                          f"{valid:,} valid cells (more than {MAX_VERTICES_PER_CELL:g} per cell: adjacent levels less "
+                          f"than a cell apart); give an interval of at least {need:g}{u} (the DEM's height unit)",
+                          param=option)
+    return n
+
+
+def trace(dem: np.ndarray, transform, interval: float, index_every: int = 5, option: str = "--interval") -> list:
     """Contours of ``dem`` (2-D, NaN = nodata; heights in any unit, ``interval`` in the same) with map
-    coordinates from the affine ``transform`` (cell centres)."""
+    coordinates from the affine ``transform`` (cell centres); levels at whole multiples of ``interval``.
+    An interval that would make more than ``MAX_VERTICES_PER_CELL`` vertices per valid cell is refused
+    (``check_interval``; ``option`` names it) before any tracing."""
     import contourpy
 
     z = np.ma.masked_invalid(np.asarray(dem, dtype=np.float64))
     if z.count() == 0:
         return []
+    check_interval(z.filled(np.nan), interval, option=option)
     ny, nx = z.shape
     cols, rows = np.arange(nx) + 0.5, np.arange(ny) + 0.5
     gen = contourpy.contour_generator(cols, rows, z, name="serial", line_type=contourpy.LineType.Separate,
                                       corner_mask=True)
     a, b, c, d, e, f = transform.a, transform.b, transform.c, transform.d, transform.e, transform.f
     out = []
-    for level in _levels(z.filled(np.nan), interval):
-        k = int(round(level / interval))
+    for kf in _level_multiples(z.filled(np.nan), interval):
+        k, level = int(kf), _level(kf, interval)
         for line in gen.lines(level):
             if len(line) < 2:
                 continue
@@ -269,7 +333,8 @@ def preview_png(cs: ContourSet, dem: np.ndarray, transform, path, title: str = "
         ax.plot(c.xy[:, 0], c.xy[:, 1], color="#8b4513", lw=1.0 if c.index else 0.4)
     ax.set_aspect("equal")
     ax.ticklabel_format(useOffset=False, style="plain")
-    ax.set_title(title or f"contours every {cs.interval:g} (index every {5 * cs.interval:g}), {cs.smoothing}")
+    ax.set_title(title or f"contours every {cs.interval:g} (index every {5 * cs.interval:g}; DEM height unit), "
+                          f"{cs.smoothing}")
     ax.set_xlabel("easting")
     ax.set_ylabel("northing")
     fig.tight_layout()
@@ -279,15 +344,16 @@ def preview_png(cs: ContourSet, dem: np.ndarray, transform, path, title: str = "
     return Path(path)
 
 
-def contours_from_file(dem_path, out_path, interval_m: float, index_every: int = 5, smoothing: str = "none",
+def contours_from_file(dem_path, out_path, interval: float, index_every: int = 5, smoothing: str = "none",
                        tolerance_px: float = 0.5, tension: float = 1.0, png: bool = True) -> dict:
-    """Trace (and smooth) the contours of a DEM GeoTIFF into a GeoPackage/GeoJSON (+ a PNG preview beside it).
-    Returns the summary (counts, fall-backs, crossings)."""
-    from aerotri.geom.crs import unit_name
+    """Trace (and smooth) the contours of a DEM GeoTIFF into a GeoPackage/GeoJSON (+ a PNG preview beside it);
+    ``interval`` in the DEM's height unit (its CRS's: feet for a DEM in feet). Returns the summary (counts,
+    fall-backs, crossings, the interval and its unit)."""
+    from aerotri.geom.crs import length_unit_name, unit_name
     from lidarctl.dem_io import open_dem
 
-    if not (np.isfinite(interval_m) and interval_m > 0):
-        raise OptionError(f"the contour interval must be a positive number of metres, got {interval_m}",
+    if not (np.isfinite(interval) and interval > 0):
+        raise OptionError(f"the contour interval must be a positive number in the DEM's height unit, got {interval}",
                           param="--interval")
     dem_path, out_path = Path(dem_path), Path(out_path)
     src, z_m = open_dem(dem_path, out_path)
@@ -295,7 +361,8 @@ def contours_from_file(dem_path, out_path, interval_m: float, index_every: int =
         # contours are lines over the whole DEM: it is read whole (a 10 x 10 km DEM at 1 m is 400 MB in float32)
         dem = src.read(1, masked=True).astype(np.float64).filled(np.nan)
         transform, crs = src.transform, src.crs
-    interval = interval_m / z_m
+    z_unit = length_unit_name(z_m)
+    check_interval(dem, interval, z_unit)  # before any work: the interval fits the data
     traced = trace(dem, transform, interval, index_every)
     footprint = data_footprint(np.isfinite(dem), transform) if smoothing != "none" else None
     contours, fell_back = smooth_contours(traced, smoothing, abs(transform.a), tolerance_px, tension, footprint)
@@ -307,10 +374,13 @@ def contours_from_file(dem_path, out_path, interval_m: float, index_every: int =
     written = [str(out_path)]
     if png:
         written.append(str(preview_png(cs, dem, transform, out_path.with_suffix(".png"),
-                                       f"{dem_path.name}: every {interval:g} (index {index_every * interval:g}), "
-                                       f"smoothing {smoothing}")))
-    summary = {"contours": len(contours), "levels": len({c.level for c in contours}), "closed": sum(c.closed for c in contours),
+                                       f"{dem_path.name}: every {interval:g} {z_unit} (index {index_every * interval:g} "
+                                       f"{z_unit}), smoothing {smoothing}")))
+    levels = sorted({c.level for c in contours})
+    summary = {"contours": len(contours), "levels": len(levels), "closed": sum(c.closed for c in contours),
                "index_contours": sum(c.index for c in contours), "smoothing": smoothing, "fell_back_to_traced": fell_back,
-               "crossings": n_cross, "interval_dem_units": interval, "files": written}
+               "crossings": n_cross, "interval": interval, "unit": z_unit, "metres_per_unit": z_m,
+               "lowest_level": levels[0] if levels else None, "highest_level": levels[-1] if levels else None,
+               "files": written}
     log.debug(f"{dem_path} -> {out_path}: {summary}")
     return summary

@@ -19,7 +19,11 @@ Steps, each O(cells) in memory and global by nature (a cell's flow may depend on
    out, to the first missing neighbour in that order across a side (N, E, S, W), else across a corner.
 3. Flow accumulation (``accumulate``): the cells (itself included) draining through each cell, in
    topological order; times the cell area in m2 for the area.
-4. Streams: cells whose upstream area is at least ``min_area_m2``; Strahler order (a source is 1, two
+4. Streams: cells whose upstream area is at least ``min_area_m2`` (by default from the DEM,
+   ``default_min_area``: twice the cells of the longest straight path across its valid data, the most a
+   non-converging sheet of flow down a plane can collect, so a stream is where flow converges; the value
+   and the rule are printed, and 0 streams come with the largest upstream area found and a threshold that
+   would give streams); Strahler order (a source is 1, two
    or more tributaries of the highest order meeting give that order + 1); segments run from a source or
    a confluence to the next confluence or the outlet (ending on it, so the lines connect); lines through
    the cell centres simplified by Douglas-Peucker (tolerance ``simplify_px`` cells).
@@ -46,6 +50,8 @@ log = logging.getLogger(__name__)
 log.addHandler(logging.NullHandler())
 
 METHODS = ("fill", "breach")
+# default stream threshold: this many times the cells of the longest straight path across the data
+STREAM_PATH_FACTOR = 2.0
 BYTES_PER_CELL = 100  # peak RSS per cell, measured by bench/eval_drainage.py (96); for the log
 
 # neighbour k: row and column offset, ESRI code; the order is the tie-breaking order
@@ -446,6 +452,50 @@ def polygons(labels: np.ndarray, transform):
     return uniq, out
 
 
+def default_min_area(valid: np.ndarray, cell_area_m2: float) -> tuple[float, str]:
+    """(stream threshold m2, the rule with its numbers) of a DEM's valid cells: ``STREAM_PATH_FACTOR`` times
+    the longer side of the valid data's bounding box, in cells, times the cell area. A sheet of flow down a
+    plane collects one cell per cell of path, at most about that side; a cell collecting twice as much has
+    flow converging on it from more than one path: a channel, on a DEM of any size or resolution."""
+    rows, cols = np.nonzero(valid.any(axis=1))[0], np.nonzero(valid.any(axis=0))[0]
+    side = int(max(rows[-1] - rows[0] + 1, cols[-1] - cols[0] + 1)) if rows.size else 0
+    cells = STREAM_PATH_FACTOR * side
+    area = cells * cell_area_m2
+    return area, (f"from the DEM: {STREAM_PATH_FACTOR:g} x the longer side of its valid data ({side} cells) = "
+                  f"{cells:g} cells x {cell_area_m2:.4g} m2, more than a sheet of flow down a plane collects")
+
+
+def _m2(v: float) -> str:
+    return f"{v:,.0f}" if v >= 100 else f"{v:.3g}"
+
+
+def why_no_streams(acc_cells: np.ndarray, valid: np.ndarray, transform, cell_area_m2: float, min_area_m2: float,
+                   xy_unit: str) -> str:
+    """Why no cell reached ``min_area_m2`` and what to change: the largest upstream area, where, and a
+    threshold below it."""
+    a = np.where(valid, np.nan_to_num(acc_cells), 0.0)
+    k = int(np.argmax(a))
+    r, c = divmod(k, a.shape[1])
+    top = float(a.flat[k]) * cell_area_m2
+    x = transform.c + (c + 0.5) * transform.a
+    y = transform.f + (r + 0.5) * transform.e
+    edge = float(np.mean(_edge_mask(valid)[valid])) if valid.any() else 0.0
+    suggest = float(f"{0.5 * top:.2g}")
+    return (f"0 streams: no cell collects the {_m2(min_area_m2)} m2 threshold; the largest upstream area is {_m2(top)} m2 "
+            f"({int(a.flat[k])} cells) at x {x:.2f}, y {y:.2f} {xy_unit}; {100 * edge:.0f} % of the valid cells lie on "
+            f"the raster's edge or next to nodata (each an outlet). Flow converges nowhere on that scale (no channel "
+            f"this size, or nodata gaps cut the flow short); give --min-area-m2 below {_m2(top)} (e.g. {_m2(suggest)}) "
+            f"to trace the smaller flow lines")
+
+
+def _edge_mask(valid: np.ndarray) -> np.ndarray:
+    """Valid cells on the raster's edge or with a nodata neighbour (8-connected)."""
+    from scipy import ndimage
+
+    inner = ndimage.binary_erosion(valid, structure=np.ones((3, 3), bool), border_value=0)
+    return valid & ~inner
+
+
 # ---------------------------------------------------------------------------------------------------------
 # the command
 
@@ -464,6 +514,9 @@ class DrainageResult:
     max_order: int
     basins: int
     memory_estimate_mb: float
+    min_area_m2: float = float("nan")
+    min_area_rule: str = ""  # "given (--min-area-m2)" or the DEM's rule with its numbers
+    no_streams: str | None = None  # why 0 streams and what to change
 
 
 FILES = ("conditioned.tif", "flowdir.tif", "accum_cells.tif", "accum_m2.tif", "strahler.tif", "drainage.gpkg",
@@ -536,12 +589,13 @@ def preview_png(dem, transform, net: Network, path, title: str, dx_m: float) -> 
     plt.close(fig)
 
 
-def drainage(dem_path, outdir, min_area_m2: float = 10_000.0, method: str = "fill", simplify_px: float = 0.5,
+def drainage(dem_path, outdir, min_area_m2: float | None = None, method: str = "fill", simplify_px: float = 0.5,
              png: bool = True) -> DrainageResult:
     """All drainage products of a DEM GeoTIFF in OUTDIR (replaced as a whole, all files or none; FILES).
 
     Heights and cell sizes are taken to metres by the CRS (a DEM in feet works); the conditioned DEM is
-    written in the input's height unit (float64), accumulation in cells and in m2."""
+    written in the input's height unit (float64), accumulation in cells and in m2. ``min_area_m2`` None: the
+    stream threshold from the DEM (``default_min_area``)."""
     import json
 
     from aerotri.core.atomic import atomic_dir
@@ -550,7 +604,7 @@ def drainage(dem_path, outdir, min_area_m2: float = 10_000.0, method: str = "fil
 
     if method not in METHODS:
         raise OptionError(f"depression handling is one of {', '.join(METHODS)}, got {method!r}", param="--fill/--breach")
-    if not (np.isfinite(min_area_m2) and min_area_m2 > 0):
+    if min_area_m2 is not None and not (np.isfinite(min_area_m2) and min_area_m2 > 0):
         raise OptionError(f"the stream threshold must be a positive area in m2, got {min_area_m2}", param="--min-area-m2")
     if not (np.isfinite(simplify_px) and simplify_px >= 0):
         raise OptionError(f"the simplification tolerance is cells >= 0, got {simplify_px}", param="--simplify-px")
@@ -579,13 +633,21 @@ def drainage(dem_path, outdir, min_area_m2: float = 10_000.0, method: str = "fil
     cell_area_m2 = dx_m * dy_m
     mem_mb = dem.size * BYTES_PER_CELL / 1e6
     log.info(f"{dem_path}: {dem.shape[1]} x {dem.shape[0]} cells, about {mem_mb:,.0f} MB at the peak")
+    if min_area_m2 is None:
+        min_area_m2, rule = default_min_area(valid, cell_area_m2)
+    else:
+        rule = "given (--min-area-m2)"
+    log.debug(f"stream threshold {min_area_m2:.4g} m2: {rule}")
     cond = condition(dem * z_m, method)  # metres: the slopes compare heights with distances in metres
     codes = flow_directions(cond.dem, dx_m, dy_m)
     down, order, acc = accumulate(codes, valid)
     net = stream_network(acc, down, order, transform, cell_area_m2, min_area_m2, xy_m, simplify_px)
+    none = (why_no_streams(acc, valid, transform, cell_area_m2, min_area_m2, unit_long_name(crs))
+            if not len(net.lines) else None)
     sub_ids, sub_geoms = polygons(net.subcatchment, transform)
     basin_ids, basin_geoms = polygons(net.basin, transform)
-    summary = {"dem": str(dem_path), "method": method, "min_area_m2": min_area_m2, "cells": int(dem.size),
+    summary = {"dem": str(dem_path), "method": method, "min_area_m2": min_area_m2, "min_area_rule": rule,
+               "no_streams": none, "cells": int(dem.size),
                "valid_cells": int(valid.sum()), "cell_area_m2": cell_area_m2,
                "cells_changed": cond.cells_changed, "raised_max_m": cond.raised_max, "lowered_max_m": cond.lowered_max,
                "segments": int(len(net.lines)), "max_strahler_order": int(net.order.max(initial=0)),
@@ -614,4 +676,4 @@ def drainage(dem_path, outdir, min_area_m2: float = 10_000.0, method: str = "fil
     log.debug(f"{dem_path} -> {outdir}: {summary}")
     return DrainageResult(outdir, [outdir / f for f in files], method, int(dem.size), int(valid.sum()),
                           cond.cells_changed, cond.raised_max, cond.lowered_max, int(len(net.lines)),
-                          int(net.order.max(initial=0)), int(len(basin_ids)), mem_mb)
+                          int(net.order.max(initial=0)), int(len(basin_ids)), mem_mb, float(min_area_m2), rule, none)

@@ -9,10 +9,12 @@ mean terrain height when there is no DEM). Per strip: the curvature (the largest
 projection centre from the line joining the strip's first and last centres, in percent of that
 line's length) and the range of the flying heights.
 
-Limits (``LIMIT_KEYS`` in the tolerance tables' ``[general]`` sections): tilt 2 deg, kappa 7 deg,
-strip curvature 3 %, adjacent flying heights within 30 m, a strip's highest and lowest within 50 m,
-forward overlap at least 56 %, side overlap at least 13 % (the thesis's section 4.1 and the national
-aerial photography specifications it follows). Works from adjusted orientations (``at/eo.txt``) or,
+Limits (``LIMIT_KEYS``) by platform: a manned aerial block is held to the aerial photography flight
+specification (``aerotri/core/tolerance_tables/flight_cn_aerial.toml``: tilt 2 deg, kappa 7 deg, strip
+curvature 3 %, adjacent flying heights within 30 m, a strip's highest and lowest within 50 m, forward
+overlap at least 56 %, side overlap at least 13 %; the thesis's section 4.1), a low-altitude (UAS) block to
+none (its tolerance table says ``flight_limits_apply = False``): its values are reported, not judged, and
+``spec`` says why. Works from adjusted orientations (``at/eo.txt``) or,
 before the adjustment, from GNSS positions with a nominal attitude (level, image top looking forward:
 tilt and kappa are then not measured). Overlaps are areas: overlap / footprint area of the frame.
 """
@@ -26,6 +28,7 @@ from pathlib import Path
 import numpy as np
 
 from aerotri.core.errors import InputError
+from aerotri.core.tolerances import NO_FLIGHT_SPEC, manned_flight_limits
 from aerotri.geom.rotation import rotation_matrix_opk
 from aerotri.geom.strips import strips_from_track
 
@@ -39,9 +42,8 @@ LIMIT_KEYS = {
     "flight_forward_overlap_min_pct": ("forward overlap", "%", "min"),
     "flight_side_overlap_min_pct": ("side overlap", "%", "min"),
 }
-DEFAULT_LIMITS = {"flight_tilt_max_deg": 2.0, "flight_kappa_max_deg": 7.0, "flight_curvature_max_pct": 3.0,
-                  "flight_height_step_max_m": 30.0, "flight_height_range_max_m": 50.0,
-                  "flight_forward_overlap_min_pct": 56.0, "flight_side_overlap_min_pct": 13.0}
+DEFAULT_LIMITS = manned_flight_limits()  # the manned aerial photography specification
+DEFAULT_SPEC = "manned aerial photography flight specification (flight_cn_aerial.toml)"
 BORDER_SAMPLES = 8  # points per image side of a draped footprint
 
 
@@ -131,6 +133,7 @@ class FlightAcceptance:
     source: str  # "exterior orientations" or "GNSS positions, nominal attitude ..."
     terrain: str
     checks: list[dict]  # quantity, worst value, limit, unit, verdict, where
+    spec: str = DEFAULT_SPEC  # the flight specification the limits come from, or why none applies
 
     def as_dict(self) -> dict:
         return dataclasses.asdict(self)
@@ -186,7 +189,8 @@ def _check(quantity, values, where, key, limits) -> dict:
                     n=0, n_fail=0)
     v, w = (max if kind == "max" else min)(pairs, key=lambda p: p[0])
     bad = [p for p in pairs if _beyond(p[0], key, limits)]
-    verdict = None if limit is None else ("fail" if bad else "pass")
+    # measured but held to no limit (a UAS block): say so rather than leave the verdict empty
+    verdict = "not judged" if limit is None else ("fail" if bad else "pass")
     return dict(quantity=quantity, value=_r(v), limit=limit, unit=unit, verdict=verdict, where=w, key=key,
                 n=len(pairs), n_fail=len(bad))
 
@@ -202,7 +206,12 @@ def flight_acceptance(image_id, centre_m, opk_deg, camera, terrain: Terrain, str
     opk = np.asarray(opk_deg, float)
     n = len(c)
     strip = strips_from_track(c) + 1 if strip is None else np.asarray(strip)
-    lim = {**DEFAULT_LIMITS, **{k: v for k, v in (limits or {}).items() if k in LIMIT_KEYS}}
+    limits = limits or {}
+    if limits.get("flight_limits_apply", True):
+        lim = {**DEFAULT_LIMITS, **{k: v for k, v in limits.items() if k in LIMIT_KEYS}}
+        spec = limits.get("flight_spec") or DEFAULT_SPEC
+    else:  # a UAS block: no manned flight specification judges it
+        lim, spec = {}, limits.get("flight_spec") or NO_FLIGHT_SPEC
     R = rotation_matrix_opk(opk[:, 0], opk[:, 1], opk[:, 2])
     polys = [footprint(camera, c[i], R[i], terrain) for i in range(n)]
     ground = terrain.height(c[:, 0], c[:, 1])
@@ -288,7 +297,8 @@ def flight_acceptance(image_id, centre_m, opk_deg, camera, terrain: Terrain, str
                "flight_side_overlap_min_pct", lim),
     ]
     return FlightAcceptance(frames, strips, lim, "exterior orientations" if attitude_measured else
-                            "GNSS positions, nominal attitude (tilt and kappa not measured)", terrain.source, checks)
+                            "GNSS positions, nominal attitude (tilt and kappa not measured)", terrain.source, checks,
+                            spec)
 
 
 def project_terrain(project) -> Terrain | None:

@@ -621,10 +621,12 @@ def write_outputs(ba: BlockAdjustment, root, html: bool = True, out_dir=None) ->
     from aerotri.geom.eo import format_eo
     from aerotri.core.tolerances import qa_settings
     from aerotri.core.atomic import write_text_atomic
+    from aerotri.geom.block_scale import project_block_scale
 
     project = Project.open(root)
     at = Path(out_dir) if out_dir is not None else project.at_dir
-    qa = qa_settings(root)  # the limits of the project's map scale and terrain, as in reports/
+    # the limits of the project's table (by its GSD and platform unless [qa] names one), as in reports/
+    qa = qa_settings(root, project_block_scale(project, ba.points_map[:, 2]))
     rep = report.build_report(ba, qa["map_scale"], qa["terrain"], qa["tolerances"], project_terrain(project))
     files = {
         "report.txt": report.format_txt(rep),

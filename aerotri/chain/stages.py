@@ -303,6 +303,7 @@ class Chain:
 
     def run_vectors(self, root) -> dict:
         from aerotri.core.tolerances import qa_settings
+        from aerotri.geom.block_scale import project_block_scale
         from lidarctl.map_vectors import VectorParams, vectors_to_file
         from lidarctl.vector_check import CheckParams, check_files
 
@@ -315,7 +316,7 @@ class Chain:
             return out
         if ref == p.truth_buildings_path:
             ref = self.truth_outline_reference()
-        qa = qa_settings(root)
+        qa = qa_settings(root, project_block_scale(p))
         check = check_files(p.vectors_path, ref, CheckParams(layers=("buildings",), scale=qa["map_scale"],
                                                              terrain=qa["terrain"]), p.vectors_check_path)
         b = check["layers"].get("buildings", {})

@@ -26,7 +26,8 @@ PROJECT_SECTIONS = {
     "gnss": ("sigma_xy_m", "sigma_z_m", "lever_arm_m"),
     "control": ("sigma_xy_m", "sigma_z_m"),  # a-priori sigmas of control points the simulator writes
     "flight": ("mean_terrain_height_m", "speed_mps"),
-    "qa": ("map_scale", "terrain", "tolerances", "pdf"),
+    "qa": ("map_scale", "terrain", "tolerances", "pdf", "standard", "platform", "horizontal_class_cm",
+           "vertical_class_cm"),
 }
 # The stage sections (their keys are the fields of each stage's settings, checked by the stage and by
 # ``aerotri run``; aerotri.chain.options.STAGE_SECTIONS holds the same names).

@@ -1,14 +1,29 @@
-"""Tolerance tables by map scale and terrain class: the limits of the accuracy reports (a registry).
+"""Tolerance tables (the limits of the accuracy reports) and how a block's table is chosen.
 
-Each table is a TOML file (``tolerance_tables/cn_1to2000.toml``, ``cn_1to5000.toml``,
-``cn_1to10000.toml``: the Chinese national specification for photogrammetric office work at these
-scales) with sections ``flat``, ``hilly``, ``mountainous`` plus ``general`` for every class; a user
-gives the table of a contract with ``tolerances = "FILE"`` in ``[qa]`` of project.toml or
-``--tolerances FILE``. ``SCALE_TABLES`` is the registry of the built-in tables (the CLI's choices).
+Tables are TOML files in ``tolerance_tables/`` (docs/tolerances.md lists them with their sources):
+
+- ``cn_1to2000.toml``, ``cn_1to5000.toml``, ``cn_1to10000.toml``: Chinese map-scale tables for manned
+  aerial photography, sections ``flat``, ``hilly``, ``mountainous`` plus ``general``;
+- ``asprs2023.toml``: ASPRS Positional Accuracy Standards, Edition 2 (2023), limits as multiples of a
+  horizontal class H and a vertical class V (cm), classes by GSD in ``[[gsd_classes]]``;
+- ``flight_cn_aerial.toml``: the flight acceptance limits of manned aerial photography;
+- ``selection.toml``: the rules that choose a table from a block's GSD and platform.
+
+Every number carries a ``[provenance.KEY]`` (or ``[limits.KEY]``) ``source`` and ``confirmed``; an
+unconfirmed limit is shown as such in the reports. A user's own file (``[qa] tolerances = "FILE"`` or
+``--tolerances FILE``) in the map-scale layout replaces the built-in tables.
+
+A table is named by a key (``map_scale`` in the settings, kept as a string so the stages pass it through):
+``"1:5000"``, ``"ASPRS2023 H7.1cm V10cm"``, with `` UAS`` appended for a low-altitude block (no manned
+flight specification applies to it). ``choose_table`` makes the key from project.toml ``[qa]`` or, when
+``[qa]`` names no table, from the block's GSD and platform (a ``BlockScale``).
 """
 
 from __future__ import annotations
 
+import dataclasses
+import math
+import re
 import tomllib
 from pathlib import Path
 
@@ -18,50 +33,333 @@ from aerotri.core.textio import read_text
 
 TOLERANCE_DIR = Path(__file__).with_name("tolerance_tables")
 SCALE_TABLES = {"1:2000": "cn_1to2000.toml", "1:5000": "cn_1to5000.toml", "1:10000": "cn_1to10000.toml"}
+ASPRS_FILE = "asprs2023.toml"
+FLIGHT_FILE = "flight_cn_aerial.toml"
+SELECTION_FILE = "selection.toml"
 TERRAINS = ("flat", "hilly", "mountainous")
+STANDARDS = ("asprs2023", "cn")
+PLATFORMS = ("uas", "manned")
+DEFAULT_SCALE = "1:5000"  # when nothing tells the block's GSD (no camera or no terrain height)
+UAS_SUFFIX = " UAS"
+NO_FLIGHT_SPEC = ("none applies: a low-altitude (UAS) block is not held to the manned aerial photography "
+                  "flight limits, and no UAS flight specification is shipped; values reported, not judged")
+_ASPRS_KEY = re.compile(r"^ASPRS2023 H(?P<h>[0-9.]+)cm V(?P<v>[0-9.]+)cm$")
+
+
+@dataclasses.dataclass(frozen=True)
+class Provenance:
+    """Where a limit comes from; ``confirmed`` False: not checked against the document's own text."""
+
+    source: str
+    confirmed: bool
+
+
+@dataclasses.dataclass(frozen=True)
+class BlockScale:
+    """What decides a block's table: the median GSD (m) and height above ground (m) of its frames, the
+    platform ("uas" for a low-altitude block, "manned", None unknown) and how each was found."""
+
+    gsd_m: float | None
+    height_above_ground_m: float | None
+    platform: str | None
+    how: str  # e.g. "camera.toml (3.61 mm, 1.55 um); 18 frames of gnss.txt 41.0 m above lidar_out/dem.tif"
+
+    def as_dict(self) -> dict:
+        return dataclasses.asdict(self)
+
+
+@dataclasses.dataclass(frozen=True)
+class ToleranceTable:
+    """A resolved table: ``limits`` is what the checks read (key -> number; plus ``flight_spec`` and, for a
+    UAS block, ``flight_limits_apply`` False), ``provenance`` the source of each limit, ``reason`` why this
+    table judges the block."""
+
+    key: str
+    name: str
+    path: Path
+    terrain: str
+    limits: dict
+    provenance: dict  # limit key -> Provenance
+    reason: str
+    platform: str | None
+
+    @property
+    def unconfirmed(self) -> list[str]:
+        return [k for k, p in self.provenance.items() if not p.confirmed and k in self.limits]
+
+    def as_dict(self) -> dict:
+        return dict(key=self.key, name=self.name, file=self.path.name, terrain=self.terrain, reason=self.reason,
+                    platform=self.platform, flight_spec=self.limits.get("flight_spec"),
+                    unconfirmed=self.unconfirmed,
+                    provenance={k: dataclasses.asdict(p) for k, p in self.provenance.items()})
+
+
+def _toml(path: Path, what: str = "tolerance table (TOML)") -> dict:
+    try:
+        return tomllib.loads(read_text(path, what))
+    except tomllib.TOMLDecodeError as e:
+        raise InputError(f"{path}: not a valid TOML tolerance table ({e})") from None
+
+
+def _provenance(d: dict) -> dict:
+    return {k: Provenance(str(v.get("source", "")), bool(v.get("confirmed", False)))
+            for k, v in (d.get("provenance") or {}).items() if isinstance(v, dict)}
+
+
+def split_key(key: str) -> tuple[str, bool]:
+    """(table key, low-altitude block) of a settings key such as ``"1:5000"`` or ``"ASPRS2023 H7.1cm V10cm UAS"``."""
+    key = str(key).strip()
+    if key.endswith(UAS_SUFFIX):
+        return key[: -len(UAS_SUFFIX)].strip(), True
+    return key, False
+
+
+def asprs_key(h_cm: float, v_cm: float, uas: bool = False) -> str:
+    return f"ASPRS2023 H{h_cm:g}cm V{v_cm:g}cm" + (UAS_SUFFIX if uas else "")
+
+
+def _known(source: str, key: str) -> str:
+    return (f"{source} {key!r}: no built-in tolerance table (have {', '.join(SCALE_TABLES)} and "
+            f"'ASPRS2023 H<cm>cm V<cm>cm'); give your own with --tolerances FILE")
 
 
 def tolerance_path(scale: str | None = None, tolerance_file=None, source: str = "map scale") -> Path:
-    """The tolerance table of ``scale`` (or ``tolerance_file``); ``source`` names where the scale came from."""
+    """The file of the table ``scale`` (a table key) or ``tolerance_file``; ``source`` names where the key came from."""
     if tolerance_file:
         p = Path(tolerance_file)
         if not p.is_file():
             raise InputError(f"{p}: tolerance table not found")
         return p
-    scale = scale or "1:5000"
-    if scale not in SCALE_TABLES:
-        raise ConfigError(f"{source} {scale!r}: no built-in tolerance table (have {', '.join(SCALE_TABLES)}); "
-                          f"give your own with --tolerances FILE")
-    return TOLERANCE_DIR / SCALE_TABLES[scale]
+    table, _ = split_key(scale or DEFAULT_SCALE)
+    if table in SCALE_TABLES:
+        return TOLERANCE_DIR / SCALE_TABLES[table]
+    if _ASPRS_KEY.match(table):
+        return TOLERANCE_DIR / ASPRS_FILE
+    raise ConfigError(_known(source, table))
+
+
+def _flight_limits(uas: bool, own: dict) -> tuple[dict, dict]:
+    """The flight acceptance limits of the platform: none for a low-altitude block, else the manned aerial
+    specification (``flight_cn_aerial.toml``) under the table's own flight keys."""
+    if uas:
+        return {"flight_limits_apply": False, "flight_spec": NO_FLIGHT_SPEC}, {}
+    d = _toml(TOLERANCE_DIR / FLIGHT_FILE)
+    limits = {**d["general"], **{k: v for k, v in own.items() if k.startswith("flight_")}}
+    own_keys = [k for k in own if k.startswith("flight_")]
+    spec = d["table"]["name"] + (f" (with the table's own {', '.join(own_keys)})" if own_keys else "")
+    prov = {k: p for k, p in _provenance(d).items() if k not in own_keys}
+    return {**limits, "flight_spec": spec}, prov
+
+
+def manned_flight_limits() -> dict:
+    """The flight acceptance limits of manned aerial photography (``flight_cn_aerial.toml`` [general])."""
+    return dict(_toml(TOLERANCE_DIR / FLIGHT_FILE)["general"])
+
+
+def asprs_table(h_cm: float, v_cm: float) -> tuple[dict, dict, dict]:
+    """(limits, provenance, table metadata) of the ASPRS 2023 classes H (horizontal, cm) and V (vertical, cm)."""
+    d = _toml(TOLERANCE_DIR / ASPRS_FILE)
+    limits, prov = {}, {}
+    for k, e in d["limits"].items():
+        if "value" in e:
+            limits[k] = e["value"]
+        else:
+            cls = {"horizontal": h_cm, "vertical": v_cm}[e["of"]]
+            limits[k] = round(e["factor"] * cls / 100.0, 4)
+        prov[k] = Provenance(e["source"], bool(e["confirmed"]))
+    return limits, prov, d["table"]
+
+
+def asprs_classes_for_gsd(gsd_m: float) -> tuple[float, float, str]:
+    """(H cm, V cm, row text) of the ASPRS 2023 classes for a GSD (``[[gsd_classes]]``: the first row not exceeded)."""
+    rows = _toml(TOLERANCE_DIR / ASPRS_FILE)["gsd_classes"]
+    gsd_cm = 100.0 * gsd_m
+    row = next((r for r in rows if gsd_cm <= r["gsd_max_cm"]), rows[-1])
+    beyond = gsd_cm > row["gsd_max_cm"]
+    text = (f"GSD {gsd_cm:.2g} cm {'>' if beyond else '<='} {row['gsd_max_cm']:g} cm: H {row['horizontal_class_cm']:g} cm, "
+            f"V {row['vertical_class_cm']:g} cm (asprs2023.toml [[gsd_classes]], unconfirmed)")
+    return float(row["horizontal_class_cm"]), float(row["vertical_class_cm"]), text
+
+
+def scale_for_gsd(gsd_m: float) -> tuple[str, str]:
+    """(map scale, row text) of the Chinese table for a manned block's GSD (``selection.toml`` [[cn_scale]])."""
+    rows = _toml(TOLERANCE_DIR / SELECTION_FILE)["cn_scale"]
+    row = next((r for r in rows if gsd_m <= r["gsd_max_m"]), rows[-1])
+    beyond = gsd_m > row["gsd_max_m"]
+    return row["scale"], (f"GSD {100 * gsd_m:.3g} cm {'>' if beyond else '<='} {100 * row['gsd_max_m']:g} cm: "
+                          f"{row['scale']} (selection.toml [[cn_scale]], unconfirmed)"
+                          + ("; coarser than every shipped table" if beyond else ""))
+
+
+def low_altitude_height_m() -> float:
+    """Median height above ground below which a block is a low-altitude (UAS) block (``selection.toml``)."""
+    return float(_toml(TOLERANCE_DIR / SELECTION_FILE)["platform"]["low_altitude_height_max_m"])
+
+
+def asprs_gsd_max_m() -> float:
+    return float(_toml(TOLERANCE_DIR / SELECTION_FILE)["asprs"]["gsd_max_m"])
+
+
+def load_table(scale: str | None = None, terrain: str = "flat", tolerance_file=None, reason: str = "") -> ToleranceTable:
+    """The resolved table of a key (``scale``) or a user's file: limits for one terrain class (a map-scale
+    table's ``general`` section overlaid by the class's own; ASPRS classes have none), the flight limits of
+    the platform, and where each limit comes from."""
+    key = scale or DEFAULT_SCALE
+    table, uas = split_key(key)
+    path = tolerance_path(key, tolerance_file)
+    m = None if tolerance_file else _ASPRS_KEY.match(table)
+    if m:
+        h_cm, v_cm = float(m["h"]), float(m["v"])
+        limits, prov, meta = asprs_table(h_cm, v_cm)
+        name = f"{meta['name']}: {h_cm:g}-cm horizontal / {v_cm:g}-cm vertical accuracy class"
+        own = {}
+    else:
+        d = _toml(path)
+        if terrain not in d:
+            have = [k for k, v in d.items() if isinstance(v, dict) and k in TERRAINS]
+            raise InputError(f"{path}: no [{terrain}] section (terrain classes here: {', '.join(have) or 'none'})")
+        own = {**d.get("general", {}), **d[terrain]}
+        limits, prov = dict(own), _provenance(d)
+        name = (d.get("table") or {}).get("name") or f"{path.name} (user table)"
+        name = f"{name}, {terrain}"
+    flight, fprov = _flight_limits(uas, own)
+    limits = {**{k: v for k, v in limits.items() if not k.startswith("flight_")}, **flight}
+    return ToleranceTable(key=key, name=name, path=path, terrain=terrain, limits=limits, provenance={**prov, **fprov},
+                          reason=reason, platform="uas" if uas else None)
 
 
 def load_tolerances(scale: str | None = None, terrain: str = "flat", tolerance_file=None) -> dict:
-    """Limits for one terrain class: the ``general`` section overlaid by the class's own."""
-    path = tolerance_path(scale, tolerance_file)
-    try:
-        table = tomllib.loads(read_text(path, "tolerance table (TOML)"))
-    except tomllib.TOMLDecodeError as e:
-        raise InputError(f"{path}: not a valid TOML tolerance table ({e})") from None
-    if terrain not in table:
-        have = [k for k, v in table.items() if isinstance(v, dict) and k != "general"]
-        raise InputError(f"{path}: no [{terrain}] section (terrain classes here: {', '.join(have)})")
-    return {**table.get("general", {}), **table[terrain]}
+    """The limits of a table key (or a user's file) for one terrain class (``load_table(...).limits``)."""
+    return load_table(scale, terrain, tolerance_file).limits
 
 
-def qa_settings(root: Path) -> dict:
-    """``[qa]`` of project.toml (map_scale, terrain, tolerances, pdf), with defaults; checked."""
+@dataclasses.dataclass(frozen=True)
+class QaConfig:
+    """``[qa]`` of project.toml, checked; None where not given."""
+
+    map_scale: str | None
+    terrain: str | None
+    tolerances: str | None  # absolute path
+    pdf: bool
+    standard: str | None
+    platform: str | None
+    horizontal_class_cm: float | None
+    vertical_class_cm: float | None
+    source: str  # "P/project.toml [qa]", for errors
+
+    @property
+    def named(self) -> str:
+        """Where a choice came from, as reports name it (the same for a copy of the project elsewhere)."""
+        return "project.toml [qa]"
+
+
+def _positive(cfg: dict, key: str, src: str) -> float | None:
+    v = cfg.get(key)
+    if v is None:
+        return None
+    if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v) or v <= 0:
+        raise ConfigError(f"{src} {key} = {v!r}: expected a positive number of centimetres")
+    return float(v)
+
+
+def read_qa_config(root) -> QaConfig:
+    """``[qa]`` of the project at ``root``, each value checked (ConfigError naming the key)."""
     project = Project.open(root)
     cfg = project.section("qa")
     src = f"{project.config_path} [qa]"
-    out = dict(map_scale=cfg.get("map_scale", "1:5000"), terrain=cfg.get("terrain", "flat"),
-               tolerances=cfg.get("tolerances"), pdf=cfg.get("pdf", False))
-    if not out["tolerances"] and out["map_scale"] not in SCALE_TABLES:
-        raise ConfigError(f"{src} map_scale = {out['map_scale']!r}: no built-in tolerance table (have "
+    if "map_scale" in cfg and cfg["map_scale"] not in SCALE_TABLES:
+        raise ConfigError(f"{src} map_scale = {cfg['map_scale']!r}: no built-in tolerance table (have "
                           f"{', '.join(SCALE_TABLES)}); give your own with tolerances = \"FILE\"")
-    if out["terrain"] not in TERRAINS and not out["tolerances"]:
-        raise ConfigError(f"{src} terrain = {out['terrain']!r}: expected one of {', '.join(TERRAINS)}")
-    if not isinstance(out["pdf"], bool):
-        raise ConfigError(f"{src} pdf = {out['pdf']!r}: expected true or false")
-    if out["tolerances"]:
-        out["tolerances"] = str((Path(root) / out["tolerances"]).resolve())
-    return out
+    if "terrain" in cfg and cfg["terrain"] not in TERRAINS and not cfg.get("tolerances"):
+        raise ConfigError(f"{src} terrain = {cfg['terrain']!r}: expected one of {', '.join(TERRAINS)}")
+    if not isinstance(cfg.get("pdf", False), bool):
+        raise ConfigError(f"{src} pdf = {cfg['pdf']!r}: expected true or false")
+    for key, choices in (("standard", STANDARDS), ("platform", PLATFORMS)):
+        if key in cfg and cfg[key] not in choices:
+            raise ConfigError(f"{src} {key} = {cfg[key]!r}: expected one of {', '.join(choices)}")
+    if cfg.get("standard") == "asprs2023" and "map_scale" in cfg:
+        raise ConfigError(f"{src}: standard = \"asprs2023\" and map_scale = {cfg['map_scale']!r} contradict each other "
+                          f"(a map scale names a Chinese table); give one of them")
+    tol = cfg.get("tolerances")
+    return QaConfig(map_scale=cfg.get("map_scale"), terrain=cfg.get("terrain"),
+                    tolerances=str((Path(project.root) / tol).resolve()) if tol else None, pdf=cfg.get("pdf", False),
+                    standard=cfg.get("standard"), platform=cfg.get("platform"),
+                    horizontal_class_cm=_positive(cfg, "horizontal_class_cm", src),
+                    vertical_class_cm=_positive(cfg, "vertical_class_cm", src), source=src)
+
+
+def _block_text(block: BlockScale | None) -> str:
+    if block is None or block.gsd_m is None:
+        return f"GSD unknown ({block.how if block is not None else 'not estimated'})"
+    return (f"GSD {100 * block.gsd_m:.2g} cm at {block.height_above_ground_m:.0f} m above ground "
+            f"({block.how})")
+
+
+def choose_table(cfg: QaConfig, block: BlockScale | None = None, *, scale: str | None = None,
+                 standard: str | None = None, terrain: str | None = None, tolerance_file=None,
+                 horizontal_class_cm: float | None = None, vertical_class_cm: float | None = None) -> ToleranceTable:
+    """The table that judges a block, and why. The keyword arguments (the command line) override ``cfg``
+    (project.toml [qa]); what neither names is chosen from ``block``: a low-altitude (UAS) block, or any block
+    with a GSD under ``selection.toml`` [asprs] gsd_max_m, gets the ASPRS 2023 classes of its GSD; a coarser
+    manned block the Chinese map-scale table of its GSD; a block of unknown GSD the 1:5000 table."""
+    platform = cfg.platform or (block.platform if block is not None else None)
+    if cfg.platform:
+        plat_why = f"platform {cfg.platform} from {cfg.named}"
+    elif platform:
+        plat_why = (f"platform {platform}: {block.height_above_ground_m:.0f} m above ground (a UAS block flies below "
+                    f"{low_altitude_height_m():g} m)")
+    else:
+        plat_why = "platform unknown (manned assumed)"
+    uas = platform == "uas"
+    terrain = terrain or cfg.terrain or "flat"
+    h_cm = horizontal_class_cm or cfg.horizontal_class_cm
+    v_cm = vertical_class_cm or cfg.vertical_class_cm
+    std = standard or (None if scale else cfg.standard)
+    given_scale = scale or (None if standard else cfg.map_scale)
+    file = tolerance_file or (None if (scale or standard) else cfg.tolerances)
+
+    def cn(key, why):
+        return load_table(key + (UAS_SUFFIX if uas else ""), terrain, None, f"{why}; {plat_why}")
+
+    if file:
+        src = "--tolerances" if tolerance_file else f"{cfg.named} tolerances"
+        # the key stays a built-in scale: stages that only pass the key on judge by the built-in table
+        return load_table(DEFAULT_SCALE + (UAS_SUFFIX if uas else ""), terrain, file, f"your table ({src}); {plat_why}")
+    if given_scale:
+        return cn(given_scale, f"map scale {given_scale} from {'--scale' if scale else cfg.named}")
+    gsd = block.gsd_m if block is not None else None
+    if std == "cn":
+        if gsd is None:
+            return cn(DEFAULT_SCALE, f"standard cn from {'--standard' if standard else cfg.named}; "
+                                     f"{_block_text(block)}: default {DEFAULT_SCALE}")
+        s, row = scale_for_gsd(gsd)
+        return cn(s, f"standard cn from {'--standard' if standard else cfg.named}; {_block_text(block)}; {row}")
+    if std == "asprs2023" or (std is None and gsd is not None and (uas or gsd < asprs_gsd_max_m())):
+        why = (f"standard asprs2023 from {'--standard' if standard else cfg.named}" if std else
+               f"{'a UAS block' if uas else f'GSD under {100 * asprs_gsd_max_m():g} cm'} (selection.toml)")
+        if h_cm is None or v_cm is None:
+            if gsd is None:
+                raise ConfigError(f"{cfg.source}: standard asprs2023 needs the accuracy classes: give "
+                                  f"horizontal_class_cm and vertical_class_cm, or a camera.toml and a terrain height "
+                                  f"(lidar_out/dem.tif or [flight] mean_terrain_height_m) to choose them by GSD "
+                                  f"({_block_text(block)})")
+            gh, gv, row = asprs_classes_for_gsd(gsd)
+            why += f"; {_block_text(block)}; {row}"
+            h_cm, v_cm = h_cm or gh, v_cm or gv
+        else:
+            why += f"; classes from {cfg.named if not horizontal_class_cm else 'the command line'}"
+        return load_table(asprs_key(h_cm, v_cm, uas), terrain, None, f"{why}; {plat_why}")
+    if gsd is None:
+        return cn(DEFAULT_SCALE, f"{_block_text(block)}: the default {DEFAULT_SCALE} table (set [qa] map_scale or "
+                                 f"standard to choose)")
+    s, row = scale_for_gsd(gsd)
+    return cn(s, f"manned block, {_block_text(block)}; {row}")
+
+
+def qa_settings(root, block: BlockScale | None = None) -> dict:
+    """The report settings of a project: ``map_scale`` (the chosen table's key), ``terrain``, ``tolerances``
+    (a user's file or None), ``pdf`` and ``table`` (the ``ToleranceTable``, with why it was chosen).
+    ``block``: the block's GSD and platform (``aerotri.geom.block_scale``) for the choice."""
+    cfg = read_qa_config(root)
+    t = choose_table(cfg, block)
+    return dict(map_scale=t.key, terrain=t.terrain, tolerances=cfg.tolerances, pdf=cfg.pdf, table=t)

@@ -3,18 +3,20 @@ optionally, ``reports/report.pdf``.
 
 It gathers what the stages wrote - LiDAR strip consistency, classification and height checks, control-point quality,
 the adjustment's ISAT-style numbers, the DOM check with its seam misalignment - and marks every
-quantity that has a tolerance as pass or fail. Tolerances come from a TOML table per map scale
-(``aerotri.core.tolerances``: ``cn_1to2000.toml``, ``cn_1to5000.toml``, ``cn_1to10000.toml``; sections
-``flat``, ``hilly``, ``mountainous`` plus ``general`` for every class) or from the user's own file
-for their contract. Scale, terrain class and file come from the arguments, else from ``[qa]`` in
-``project.toml`` (``map_scale = "1:2000"``, ``terrain = "hilly"``, ``tolerances = "my.toml"``, ``pdf``),
-else 1:5000 flat.
+quantity that has a tolerance as pass or fail. The tolerance table (``aerotri.core.tolerances``; every
+table and its sources in docs/tolerances.md) comes from the arguments (``--standard``, ``--scale``,
+``--tolerances``), else from ``[qa]`` in ``project.toml`` (``standard``, ``map_scale``, ``terrain``,
+``tolerances``, ``platform``, ``horizontal_class_cm``, ``vertical_class_cm``), else from the block's GSD and
+platform (a UAS block or a GSD under 5 cm: ASPRS 2023 classes by GSD; a coarser manned block: the Chinese
+map-scale table of its GSD; unknown GSD: 1:5000). The report names the table, why it was chosen, and marks
+limits not confirmed in their source.
 """
 
 from __future__ import annotations
 
 import html
 import io
+import textwrap
 import json
 import math
 from pathlib import Path
@@ -26,7 +28,8 @@ from aerotri.core.atomic import atomic_path, write_text_atomic
 from aerotri.core.errors import InputError, StageOrderError
 from aerotri.core.textio import read_json
 from aerotri.core.project import Project
-from aerotri.core.tolerances import TERRAINS, load_tolerances, qa_settings, tolerance_path
+from aerotri.core.tolerances import TERRAINS, TOLERANCE_DIR, choose_table, read_qa_config, split_key
+from aerotri.geom.block_scale import project_block_scale
 
 def _json(path: Path) -> dict:
     """A stage's JSON report, {} when the stage did not run; a corrupt one names the file."""
@@ -43,8 +46,9 @@ def _failed(section: str, name: str, why: str) -> dict:
     return dict(section=section, quantity=name, value=None, limit=None, unit="", note=why, verdict="fail")
 
 
-def _check(section: str, name: str, value, limit, unit: str, note: str = "") -> dict:
-    row = dict(section=section, quantity=name, value=value, limit=limit, unit=unit, note=note)
+def _check(section: str, name: str, value, limit, unit: str, note: str = "", key: str | None = None) -> dict:
+    """A verdict row; ``key``: the tolerance-table key of ``limit`` (its source goes into the report)."""
+    row = dict(section=section, quantity=name, value=value, limit=limit, unit=unit, note=note, limit_key=key)
     if value is None or limit is None:
         row["verdict"] = None
     elif isinstance(limit, bool):
@@ -91,8 +95,10 @@ def flight_rows(fa: dict, tol: dict) -> list:
         n_fail = c["n_fail"] if limit == c["limit"] else None
         note = (f"worst at {c['where']}" + (f"; {n_fail} of {c['n']} beyond the limit" if n_fail else "")
                 + ("" if kind == "max" else "; a lower limit: the value must reach it"))
+        if value is not None and limit is None:
+            note = f"{note}; not judged: no flight limit applies to this block"
         rows.append(dict(section="Flight acceptance", quantity=c["quantity"], value=value, limit=limit, unit=c["unit"],
-                         note=note if value is not None else "not measured", verdict=verdict))
+                         note=note if value is not None else "not measured", verdict=verdict, limit_key=c["key"]))
     return rows
 
 
@@ -124,7 +130,7 @@ def strip_rows(project: Project, tol: dict) -> tuple[list, list | None]:
         before = _json(project.strips_adjust_path).get("check_before", {})
         if before.get("rms_m") is not None:
             note = f"after the strip adjustment (before: RMS {before['rms_m']:.3f} m); " + note
-    return [_check(sec, name, round(a["rms_m"], 4), tol.get("strip_rmsdz_m"), "m", note)], pairs
+    return [_check(sec, name, round(a["rms_m"], 4), tol.get("strip_rmsdz_m"), "m", note, key="strip_rmsdz_m")], pairs
 
 
 def line_map_rows(project: Project, tol: dict) -> list:
@@ -152,7 +158,7 @@ def line_map_rows(project: Project, tol: dict) -> list:
     note = (f"{b['n_matched_corners']} corners within {chk.get('match_m', 0):g} m of a reference corner; to the nearest "
             f"reference outline {b['rms_xy_to_line_m']:.3f} m RMS; buildings complete {b['completeness_pct']:.1f} %, "
             f"correct {b['correctness_pct']:.1f} %; reference {Path(str(chk.get('reference', '?'))).name}")
-    return [_check(sec, name, round(b["rms_xy_corner_m"], 4), tol.get("feature_rms_xy_m"), "m", note)]
+    return [_check(sec, name, round(b["rms_xy_corner_m"], 4), tol.get("feature_rms_xy_m"), "m", note, key="feature_rms_xy_m")]
 
 
 def stage_results(project: Project) -> list:
@@ -161,8 +167,12 @@ def stage_results(project: Project) -> list:
             project.height_check_path, project.classification_eval_path]
 
 
-def build_qa_report(root, tolerance_file=None, terrain: str | None = None, scale: str | None = None) -> dict:
-    """The report of a project folder (``StageOrderError`` when no stage has left results yet)."""
+def build_qa_report(root, tolerance_file=None, terrain: str | None = None, scale: str | None = None,
+                    standard: str | None = None, horizontal_class_cm: float | None = None,
+                    vertical_class_cm: float | None = None) -> dict:
+    """The report of a project folder (``StageOrderError`` when no stage has left results yet). The
+    tolerance table: the arguments (the command line), else ``[qa]`` of project.toml, else chosen by the
+    block's GSD and platform (``aerotri.core.tolerances.choose_table``); the report names it and why."""
     project = Project.open(root)  # a project folder: project.toml with [project] crs
     root = project.root
     if not any(p.is_file() for p in stage_results(project)):
@@ -171,14 +181,14 @@ def build_qa_report(root, tolerance_file=None, terrain: str | None = None, scale
             f"({', '.join(str(p.relative_to(root)) for p in stage_results(project))}); "
             f"run the adjustment first (aerotri match {root}, then aerotri adjust {root}) or the whole chain "
             f"(aerotri run {root})")
-    cfg = qa_settings(root)
-    terrain = terrain or cfg["terrain"]
-    if terrain not in TERRAINS and not (tolerance_file or cfg["tolerances"]):
+    cfg = read_qa_config(root)
+    if terrain and terrain not in TERRAINS and not (tolerance_file or cfg.tolerances):
         raise InputError(f"terrain class {terrain!r}: expected one of {', '.join(TERRAINS)}")
-    scale = scale or cfg["map_scale"]
-    tol_file = tolerance_file or cfg["tolerances"]
-    tol_path = tolerance_path(scale, tol_file)
-    tol = load_tolerances(scale, terrain, tol_file)
+    block = project_block_scale(project)
+    table = choose_table(cfg, block, scale=scale, standard=standard, terrain=terrain, tolerance_file=tolerance_file,
+                         horizontal_class_cm=horizontal_class_cm, vertical_class_cm=vertical_class_cm)
+    terrain, tol, tol_path = table.terrain, table.limits, table.path
+    tol_file = None if table.path.parent == TOLERANCE_DIR else table.path  # a user's own table
     at = _json(project.adjustment_report_path)
     ctl_all = _json(project.control_transfer_path)
     ctl = ctl_all.get("summary", {})
@@ -193,7 +203,7 @@ def build_qa_report(root, tolerance_file=None, terrain: str | None = None, scale
     sec = "LiDAR classification"
     if ce:
         rows.append(_check(sec, "ground filter total error against the reference classes", round(ce["total_error_pct"], 3),
-                           tol.get("filter_total_error_pct"), "%"))
+                           tol.get("filter_total_error_pct"), "%", key="filter_total_error_pct"))
         rows.append(_check(sec, "type I error (ground rejected)", round(ce["type_i_error_pct"], 3), None, "%"))
         rows.append(_check(sec, "type II error (objects accepted as ground)", round(ce["type_ii_error_pct"], 3), None, "%"))
         rows.append(_check(sec, "Cohen's kappa", round(ce["kappa_pct"], 2), None, "%"))
@@ -204,13 +214,14 @@ def build_qa_report(root, tolerance_file=None, terrain: str | None = None, scale
     elif hc.get("all"):
         a = hc["all"]
         rows.append(_check(sec, f"ground height RMSE at {a['n']} surveyed points", round(a["rmse_m"], 4),
-                           tol.get("dem_rmse_m"), "m"))
+                           tol.get("dem_rmse_m"), "m", key="dem_rmse_m"))
         dz = [p["dz_m"] for p in hc_all.get("points", []) if p.get("dz_m") is not None]
         if dz and tol.get("dem_rmse_m"):
             lim = 3.0 * tol["dem_rmse_m"]
             pct = 100.0 * sum(abs(d) > lim for d in dz) / len(dz)
             rows.append(_check(sec, f"surveyed points with |dz| > {lim:.2f} m (3 x the RMSE limit)", round(pct, 2),
-                               tol.get("height_check_max_outlier_pct"), "%"))
+                               tol.get("height_check_max_outlier_pct"), "%",
+                               key="height_check_max_outlier_pct"))
 
     rows += line_map_rows(project, tol)
 
@@ -236,8 +247,8 @@ def build_qa_report(root, tolerance_file=None, terrain: str | None = None, scale
         rows.append(_check(sec, "control points in the adjustment", 0, None, "", f"no LiDAR control: {why}"))
     ctrl = at.get("rms_control_ground_m")
     if ctrl and None not in ctrl:
-        rows.append(_check(sec, "control residuals, plan RMS", _hypot(ctrl[0], ctrl[1]), tol.get("rms_xy_m"), "m"))
-        rows.append(_check(sec, "control residuals, height RMS", ctrl[2], tol.get("rms_z_m"), "m"))
+        rows.append(_check(sec, "control residuals, plan RMS", _hypot(ctrl[0], ctrl[1]), tol.get("rms_xy_m"), "m", key="rms_xy_m"))
+        rows.append(_check(sec, "control residuals, height RMS", ctrl[2], tol.get("rms_z_m"), "m", key="rms_z_m"))
     if at:
         rej = at.get("rejected_control") or []
         rows.append(_check(sec, "control points rejected by the adjustment",
@@ -251,12 +262,21 @@ def build_qa_report(root, tolerance_file=None, terrain: str | None = None, scale
             s0_px = ks["sigma0"] * at.get("options", {}).get("image_sigma_px", float("nan"))
         if s0_px is not None and math.isfinite(s0_px):
             rows.append(_check(sec, "sigma naught", round(s0_px, 3), _sigma0_limit_px(tol, ks, s0_px), "px",
-                               f"{ks['sigma0_um']:.2f} um" if ks.get("sigma0_um") is not None else ""))
+                               f"{ks['sigma0_um']:.2f} um" if ks.get("sigma0_um") is not None else "",
+                               key="sigma0_max_px" if tol.get("sigma0_max_px") is not None else "sigma0_max_um"))
     chk = at.get("check_rms_m")
     if chk and None not in chk:
         n = len(at.get("check_points", []))
-        rows.append(_check(sec, "check points, plan RMS", _hypot(chk[0], chk[1]), tol.get("rms_xy_m"), "m", f"{n} points"))
-        rows.append(_check(sec, "check points, height RMS", chk[2], tol.get("rms_z_m"), "m", f"{n} points"))
+        need = tol.get("check_points_min")
+        npts = f"{n} points"
+        if need:
+            short = f"{need:g} required by {table.name.split(':')[0]}"
+            npts += f" ({short}: not testable as the standard asks)" if n < need else f" ({short})"
+            rows.append(_check(sec, "check points for the accuracy assessment", n, None, "",
+                               f"at least {need:g} required" + (": too few, the RMS rows below are indicative only"
+                                                                if n < need else ""), key="check_points_min"))
+        rows.append(_check(sec, "check points, plan RMS", _hypot(chk[0], chk[1]), tol.get("rms_xy_m"), "m", npts, key="rms_xy_m"))
+        rows.append(_check(sec, "check points, height RMS", chk[2], tol.get("rms_z_m"), "m", npts, key="rms_z_m"))
         d = [c["d_m"] for c in at.get("check_points", []) if c.get("d_m") and None not in c["d_m"]]
         # Gross errors: single residuals beyond the residual limit (2 x the RMS limit); a few percent
         # of them is tolerated (their share is limited, not their existence).
@@ -264,7 +284,8 @@ def build_qa_report(root, tolerance_file=None, terrain: str | None = None, scale
             if d and lim:
                 big = sum((math.hypot(a, b) if k == 0 else abs(c)) > lim for a, b, c in d)
                 rows.append(_check(sec, f"check points with a {name} residual beyond {lim:g} m", round(100.0 * big / len(d), 2),
-                                   tol.get("gross_error_max_pct"), "%", f"{big} of {len(d)}"))
+                                   tol.get("gross_error_max_pct"), "%", f"{big} of {len(d)}",
+                                   key="gross_error_max_pct"))
 
     # DOM
     sec = "DOM"
@@ -275,12 +296,13 @@ def build_qa_report(root, tolerance_file=None, terrain: str | None = None, scale
     if dom.get("rms_xy_m") is not None:
         rows.append(_check(sec, "displacement on ground patches, plan RMS", round(dom["rms_xy_m"], 4),
                            tol.get("feature_rms_xy_m"), "m",
-                           f"{dom.get('count')} patches, {dom.get('rms_xy_gsd', float('nan')):.2f} GSD"))
+                           f"{dom.get('count')} patches, {dom.get('rms_xy_gsd', float('nan')):.2f} GSD",
+                           key="feature_rms_xy_m"))
         if dom.get("p95_xy_m") is not None and tol.get("feature_rms_xy_m") and tol.get("gross_error_max_pct") == 5.0:
             # 95th percentile within 2 x the RMS limit <=> at most 5 % gross errors.
             rows.append(_check(sec, "95th percentile of the patch displacements", round(dom["p95_xy_m"], 4),
                                2 * tol["feature_rms_xy_m"], "m", f"largest {dom.get('max_xy_m', float('nan')):.3f} m; "
-                               "limit 2 x the RMS limit (at most 5 % gross errors)"))
+                               "limit 2 x the RMS limit (at most 5 % gross errors)", key="feature_rms_xy_m"))
     if project.frames_index_path.is_file() and (dom_all or project.mosaic_path.is_file()):
         from ortho.block import read_index, stale_frames
 
@@ -290,7 +312,8 @@ def build_qa_report(root, tolerance_file=None, terrain: str | None = None, scale
                                                                      "ortho check"))
     if seams.get("rms_px") is not None:
         rows.append(_check(sec, "misalignment across seamlines, RMS", round(seams["rms_px"], 3),
-                           tol.get("seam_misalignment_rms_px"), "px", f"{seams.get('patches')} patches"))
+                           tol.get("seam_misalignment_rms_px"), "px", f"{seams.get('patches')} patches",
+                           key="seam_misalignment_rms_px"))
 
     # Flight acceptance: from the adjustment's report when it has the section, else computed here (before
     # the adjustment: GNSS positions with the nominal attitude)
@@ -299,6 +322,9 @@ def build_qa_report(root, tolerance_file=None, terrain: str | None = None, scale
         got = project_flight_acceptance(root, tol)
         fa = got.as_dict() if got is not None else None
     if fa:
+        # judged by this report's table (its platform), whatever the adjustment's section was held to
+        fa = {**fa, "spec": tol.get("flight_spec") or fa.get("spec"),
+              "limits": {k: tol.get(k) for k in LIMIT_KEYS}}
         rows += flight_rows(fa, tol)
     elif project.eo_path.is_file() or project.gnss_path.is_file():
         rows.append(_check("Flight acceptance", "flight acceptance", None, None, "",
@@ -316,8 +342,13 @@ def build_qa_report(root, tolerance_file=None, terrain: str | None = None, scale
         lidar_classification=ce or None,
         dom=dom or None,
     )
-    return dict(project=at.get("project", root.name), map_scale=tol_path.stem if tol_file else scale,
-                tolerance_table=str(tol_path.name), terrain=terrain, tolerances=tol, checks=rows,
+    for r in rows:  # where each limit comes from; an unconfirmed one is marked
+        p = table.provenance.get(r.get("limit_key") or "")
+        r["limit_source"] = p.source if p is not None else None
+        r["limit_confirmed"] = p.confirmed if p is not None else None
+    return dict(project=at.get("project", root.name), map_scale=tol_path.stem if tol_file else split_key(table.key)[0],
+                tolerance_table=str(tol_path.name), terrain=terrain, tolerances=tol, table=table.as_dict(),
+                block=block.as_dict(), checks=rows,
                 overall=("fail" if "fail" in verdicts else "pass") if verdicts else None,
                 passed=verdicts.count("pass"), failed=verdicts.count("fail"), details=info, flight_acceptance=fa)
 
@@ -380,6 +411,29 @@ STAGE_IMAGES = (("../ortho/dom_report.png", "DOM displacement against the refere
                 ("../at/connectivity.png", "Tie-point connectivity"))
 
 
+def _mark(row: dict) -> str:
+    """A limit's mark in the verdict table: '*' when its source is not confirmed (title: the source)."""
+    if row.get("limit") is None or row.get("limit_confirmed") is not False:
+        return ""
+    return f"<span class='unconf' title='{html.escape(row.get('limit_source') or '')}'>*</span>"
+
+
+def table_html(rep: dict) -> str:
+    """The tolerance table that judged the block: name, file, why it was chosen, the flight specification,
+    and each limit with its source (unconfirmed ones marked)."""
+    t = rep.get("table") or {}
+    if not t:
+        return ""
+    prov = t.get("provenance") or {}
+    rows = [[k, _scalar(v), "yes" if prov.get(k, {}).get("confirmed") else ("no" if k in prov else ""),
+             prov.get(k, {}).get("source", "")]
+            for k, v in (rep.get("tolerances") or {}).items() if k not in ("flight_spec", "flight_limits_apply")]
+    return (f"<h2>Tolerance table</h2><p><b>{html.escape(t.get('name', ''))}</b> ({html.escape(t.get('file', ''))}): "
+            f"chosen because {html.escape(t.get('reason', ''))}.</p><p>Flight acceptance: "
+            f"{html.escape(str(t.get('flight_spec') or ''))}.</p>"
+            + RF.table(["limit", "value", "confirmed in the source", "source"], rows, 4))
+
+
 def format_html(rep: dict, figures: list | None = None, stage_images=STAGE_IMAGES) -> str:
     """index.html: the verdict table, links to the stage reports, the stage plots present, the figures
     (``report_figures``), the flight acceptance tables and the stages' numbers as tables."""
@@ -389,21 +443,24 @@ def format_html(rep: dict, figures: list | None = None, stage_images=STAGE_IMAGE
             section = r["section"]
             body.append(f"<tr><th colspan='6' class='sec'>{html.escape(section)}</th></tr>")
         body.append(f"<tr><td>{_cell(r['quantity'])}</td><td class='num'>{_cell(r['value'])}</td>"
-                    f"<td class='num'>{_cell(r['limit'])}</td>"
+                    f"<td class='num'>{_cell(r['limit'])}{_mark(r)}</td>"
                     f"<td>{_cell(r['unit'])}</td><td class='{r['verdict'] or ''}'>{_cell(r['verdict'])}</td>"
                     f"<td>{_cell(r['note'])}</td></tr>")
     details = "".join(f"<h3>{html.escape(k.replace('_', ' '))}</h3>{details_html(v)}"
                       for k, v in rep["details"].items() if v)
     fa = rep.get("flight_acceptance")
-    flight = f"<h2>Flight acceptance</h2>{RF.flight_tables(fa)}" if fa else ""
+    flight = (f"<h2>Flight acceptance</h2><p>Limits: {html.escape(str(fa.get('spec') or ''))}.</p>"
+              f"{RF.flight_tables(fa)}" if fa else "")
     figs = "".join(f.html() for f in (figures or []))
     stage_imgs = "".join(f'<img src="{src}" alt="{html.escape(alt)}">' for src, alt in stage_images)
     return f"""<!doctype html><html><head><meta charset="utf-8"><title>Accuracy report {html.escape(rep['project'])}</title>
 <style>{RF.STYLE}
-th.sec{{background:#dde}}table.verdicts td:first-child{{min-width:22em}}.stage img{{max-width:48%;margin:4px;border:1px solid #ddd}}</style></head><body>
+th.sec{{background:#dde}}.unconf{{color:#a60;font-weight:bold}}table.verdicts td:first-child{{min-width:22em}}.stage img{{max-width:48%;margin:4px;border:1px solid #ddd}}</style></head><body>
 <h1>Accuracy report: {html.escape(rep['project'])}</h1>
-<p>Map scale <b>{html.escape(str(rep['map_scale']))}</b>, terrain class <b>{html.escape(rep['terrain'])}</b>,
-tolerances from {html.escape(rep['tolerance_table'])}.
+<p>Tolerances: <b>{html.escape((rep.get('table') or {}).get('name') or str(rep['map_scale']))}</b>
+({html.escape(rep['tolerance_table'])}), terrain class <b>{html.escape(rep['terrain'])}</b>; chosen because
+{html.escape((rep.get('table') or {}).get('reason') or 'given')}. Limits marked * are not confirmed in their source
+(see "Tolerance table" below).
 Overall verdict: <b class="{rep['overall'] or ''}">{html.escape(rep['overall'] or 'none (no quantity with a tolerance)')}</b>
 ({rep['passed']} passed, {rep['failed']} failed).</p>
 <table class="verdicts"><tr><th>quantity</th><th>value</th><th>limit</th><th>unit</th><th>verdict</th><th>note</th></tr>{''.join(body)}</table>
@@ -415,6 +472,7 @@ Overall verdict: <b class="{rep['overall'] or ''}">{html.escape(rep['overall'] o
 <p class="stage">{stage_imgs}</p>
 <h2>Figures</h2>{figs}
 {flight}
+{table_html(rep)}
 <h2>Details</h2>{details}</body></html>
 """
 
@@ -458,12 +516,16 @@ def write_pdf(path: Path, rep: dict, project: Project, figures: list | None = No
                                                            "CreationDate": None}) as pdf:
         fig = plt.figure(figsize=(11.69, 8.27))
         fig.text(0.04, 0.95, f"Accuracy report: {rep['project']}", fontsize=16, weight="bold")
-        fig.text(0.04, 0.91, f"map scale {rep['map_scale']}, terrain {rep['terrain']}, tolerances "
-                             f"{rep['tolerance_table']}; overall verdict: {rep['overall'] or 'none'} "
+        t = rep.get("table") or {}
+        head = (f"tolerances: {t.get('name') or rep['map_scale']} ({rep['tolerance_table']}), terrain {rep['terrain']}; "
+                f"chosen because {t.get('reason', 'given')}")
+        fig.text(0.04, 0.905, "\n".join(textwrap.wrap(head, 190)[:3]), fontsize=6.5, va="bottom")
+        fig.text(0.04, 0.885, f"limits marked * are not confirmed in their source; overall verdict: {rep['overall'] or 'none'} "
                              f"({rep['passed']} passed, {rep['failed']} failed)", fontsize=10)
         cells, colours = [], []
         for r in rep["checks"]:
-            cells.append([r["section"], r["quantity"][:70], _cell(r["value"]), _cell(r["limit"]), r["unit"],
+            star = "*" if r.get("limit_confirmed") is False and r["limit"] is not None else ""
+            cells.append([r["section"], r["quantity"][:70], _cell(r["value"]), _cell(r["limit"]) + star, r["unit"],
                           r["verdict"] or ""])
             c = {"pass": "#ccffcc", "fail": "#ffcccc"}.get(r["verdict"], "white")
             colours.append(["white"] * 5 + [c])
@@ -485,7 +547,8 @@ def write_pdf(path: Path, rep: dict, project: Project, figures: list | None = No
                                                  if c["limit"] is not None else ""), c["unit"], c["where"],
                      f"{c['n_fail']} of {c['n']}", c["verdict"] or ""] for c in fa["checks"]]
             colours = [["white"] * 6 + [{"pass": "#ccffcc", "fail": "#ffcccc"}.get(r[-1], "white")] for r in rows]
-            _pdf_table(pdf, plt, f"Flight acceptance ({fa['source']}; footprints on {Path(str(fa['terrain'])).name})",
+            _pdf_table(pdf, plt, f"Flight acceptance ({fa['source']}; footprints on {Path(str(fa['terrain'])).name}; "
+                                 f"limits: {str(fa.get('spec') or '')[:80]})",
                        ["check", "worst", "limit", "unit", "at", "failing", "verdict"], rows,
                        [0.36, 0.08, 0.08, 0.05, 0.14, 0.08, 0.07], colours)
             _pdf_table(pdf, plt, "Flight acceptance per strip",
@@ -517,14 +580,16 @@ def write_pdf(path: Path, rep: dict, project: Project, figures: list | None = No
 
 
 def write_qa_report(root, tolerance_file=None, terrain: str | None = None, scale: str | None = None,
-                    pdf: bool | None = None) -> dict:
+                    pdf: bool | None = None, standard: str | None = None, horizontal_class_cm: float | None = None,
+                    vertical_class_cm: float | None = None) -> dict:
     project = Project.open(root)
-    rep = build_qa_report(project.root, tolerance_file, terrain, scale)
+    rep = build_qa_report(project.root, tolerance_file, terrain, scale, standard, horizontal_class_cm,
+                          vertical_class_cm)
     write_text_atomic(project.report_summary_path, json.dumps(rep, indent=1) + "\n")
     figures = report_figures(rep, project)
     present = [(src, alt) for src, alt in STAGE_IMAGES if (project.reports_dir / src).resolve().is_file()]
     write_text_atomic(project.report_index_path, format_html(rep, figures, present))
     rep["html"] = str(project.report_index_path)
-    if pdf if pdf is not None else qa_settings(root)["pdf"]:
+    if pdf if pdf is not None else read_qa_config(root).pdf:
         write_pdf(project.report_pdf_path, rep, project, figures)
     return rep

@@ -10,6 +10,7 @@ the raised strip between them (v 55-70 m, 1 m high) lies across both canals' axe
 from __future__ import annotations
 
 import numpy as np
+import pytest
 
 from lidarctl import classify
 
@@ -64,3 +65,72 @@ def test_classification_labels_the_deck_17_and_keeps_the_quays_ground():
     assert np.mean(cls[deck] == classify.BRIDGE_DECK) > 0.9
     assert np.mean(cls[~deck & ~strip] == classify.GROUND) > 0.98
     assert not np.any(cls[~deck] == classify.BRIDGE_DECK)
+
+
+def footbridge_scene(seed=3):
+    """A footbridge the ground filter leaves out (Autzen's case): a river along u (v 40-70 m) 5 m below the
+    banks, its surface giving a few returns (5 % of the land's density), the banks sloping into it; a 5 m wide
+    deck across it along v, arching from 0.3 m at the banks to 3 m mid-span, with sparse railing returns 1 m
+    above its edges. Beside it, what must stay building: a house (20 x 10 m, roof 6 m), a long shed on the
+    south bank along the river (4 x 25 m, roof 3 m: water on one side only) and a narrow building between
+    two ponds (16 x 4 m, roof 4 m: water on both sides, but it ends in walls)."""
+    rng = np.random.default_rng(seed)
+    n = 200 * 120 * 4
+    u, v = rng.uniform(0, 200, n), rng.uniform(0, 120, n)
+    z = rng.normal(0, 0.02, n)
+    river = (v > 40) & (v < 70)
+    deck = (np.abs(u - 100) < 2.5) & (v > 35) & (v < 75)
+    house = (u > 20) & (u < 40) & (v > 10) & (v < 20)
+    shed = (u > 130) & (u < 155) & (v > 33) & (v < 37)
+    ponds = (u > 60) & (u < 80) & (((v > 85) & (v < 95)) | ((v > 99) & (v < 109)))
+    between = (u > 62) & (u < 78) & (v >= 95) & (v <= 99)
+    d_bank = np.minimum(np.abs(v - 40), np.abs(v - 70))
+    z = np.where(river, -5.0 + rng.normal(0, 0.03, n), z - np.where(d_bank < 5, 5.0 * (1 - d_bank / 5), 0.0))
+    water = river & (rng.uniform(size=n) < 0.05)
+    z = np.where(deck, 0.3 + 2.7 * np.sin(np.pi * np.clip((v - 35) / 40, 0, 1)) + rng.normal(0, 0.02, n), z)
+    for m, h in ((house, 6.0), (shed, 3.0), (between, 4.0)):
+        z = np.where(m, h + rng.normal(0, 0.02, n), z)
+    z += np.where(deck & (np.abs(u - 100) > 2.3) & (np.arange(n) % 4 == 0), 1.0, 0.0)
+    keep = ~((river & ~deck & ~water) | (ponds & ~between))
+    lab = np.select([deck, house, shed, between], [1, 2, 3, 4], 0)[keep]
+    return u[keep] + X0, v[keep] + Y0, z[keep], lab
+
+
+def test_footbridge_left_out_by_the_ground_filter_is_a_deck_not_a_building():
+    x, y, z, lab = footbridge_scene()
+    cls = classify.classify_points(x, y, z)
+    deck = lab == 1
+    high = deck & (z > 1.5)   # where the deck stands a building's height above the water's banks
+    assert not np.any(cls[deck] == classify.BUILDING)
+    assert np.mean(cls[high] == classify.BRIDGE_DECK) > 0.9
+    for k in (2, 3, 4):   # the house, the shed along the bank, the building between the ponds
+        assert np.mean(cls[lab == k] == classify.BUILDING) > 0.95, k
+    # the rule alone: without it the deck is a building (the roof rules take it), with it the others stay
+    p = classify.ClassifyParams()
+    spacing = classify.grid.mean_spacing_m(x, y)
+    as_built = np.where(cls == classify.BRIDGE_DECK, classify.BUILDING, cls)
+    g = classify.dropout_grid(x, y, as_built == classify.BUILDING, spacing, p)
+    found = classify.spanning_decks(x, y, z, as_built == classify.BUILDING, as_built == classify.GROUND, g, p)
+    assert found[high].mean() > 0.9 and not found[lab > 1].any()
+    off = classify.ClassifyParams(bridge_max_width_m=0.0)
+    assert not classify.spanning_decks(x, y, z, as_built == classify.BUILDING, as_built == classify.GROUND, g, off).any()
+
+
+@pytest.mark.realdata
+def test_autzen_footbridge_is_not_a_building(shared_data):
+    """The footbridge over the Willamette in the Autzen crop (feet; seen on its 1 ft orthophoto running NNE
+    from the path's loop across the river): its 1,303 deck returns were a building; now bridge deck, and
+    the crop holds no building left (it has none)."""
+    from lidarctl import io
+
+    r = io.read_cloud(shared_data / "autzen" / "autzen_trim.laz")
+    cls = classify.classify_points(r.x, r.y, r.z, r.return_number, r.number_of_returns, r.intensity)
+    ft = 0.3048
+    # the deck's axis on the orthophoto: (636440, 849240) ft to (636525, 849445) ft
+    p0, p1 = np.array([636440.0, 849240.0]) * ft, np.array([636525.0, 849445.0]) * ft
+    u = (p1 - p0) / np.linalg.norm(p1 - p0)
+    d = np.column_stack([r.x, r.y]) - p0
+    along, across = d @ u, d @ np.array([-u[1], u[0]])
+    corridor = (np.abs(across) < 4.0) & (along > 0) & (along < np.linalg.norm(p1 - p0))
+    assert np.sum(cls == classify.BUILDING) == 0
+    assert np.sum(cls[corridor] == classify.BRIDGE_DECK) > 1000

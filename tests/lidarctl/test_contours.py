@@ -84,9 +84,13 @@ def test_command_geopackage_and_feet(tmp_path):
         info = read_info(tmp_path / f"c_{name}.gpkg", layer="contours")
         assert info["crs"].endswith(crs.split(":")[1]) and info["geometry_type"] == "LineString"
         meta, _, geom, fields = read(tmp_path / f"c_{name}.gpkg", layer="contours")
+        elev = fields[list(meta["fields"]).index("elevation")]
         elev_m = fields[list(meta["fields"]).index("elevation_m")]
-        # a 2 m interval in metres, also for the DEM in feet (levels 6.56 ft apart)
-        assert np.allclose(np.diff(np.unique(np.round(elev_m, 6))), 2.0)
+        # the interval is in the DEM's height unit: levels at whole multiples of 2 m, or of 2 ft for the DEM in
+        # feet; elevation_m converts with the CRS's unit
+        assert np.array_equal(elev, 2.0 * np.round(elev / 2.0)) and np.allclose(np.diff(np.unique(elev)), 2.0)
+        assert np.allclose(elev_m, elev * scale)
+        assert f"every 2 {name}" in r.output and "the DEM's height unit" in r.output
     r = CliRunner().invoke(main, ["contours", str(tmp_path / "dem_m.tif"), str(tmp_path / "c.shp"), "--interval", "1"])
     assert r.exit_code == 2 and ".gpkg" in r.output and not (tmp_path / "c.shp").exists()
     (tmp_path / "bad.tif").write_text("no raster")
@@ -128,3 +132,61 @@ def test_smoothed_lines_stay_inside_the_data(method):
     assert crossings(sm) == 0
     for c in sm:
         assert c.closed == bool(np.array_equal(c.xy[0], c.xy[-1]))
+
+
+def _feet_dem(path, z_ft, t):
+    with rasterio.open(path, "w", driver="GTiff", width=z_ft.shape[1], height=z_ft.shape[0], count=1,
+                       dtype="float32", crs="EPSG:2992", transform=t, nodata=-9999.0) as d:  # Oregon Lambert, ft
+        d.write(np.where(np.isfinite(z_ft), z_ft, -9999.0).astype("float32"), 1)
+    return path
+
+
+def test_feet_dem_levels_at_whole_feet(tmp_path):
+    """Autzen's case (a DEM in feet, 406-435 ft): --interval 1 gives levels at whole feet, not 1 m apart at
+    406.82, 410.10 ft; every traced vertex lies on its level."""
+    from pyogrio.raw import read
+
+    z, t = _dem(nodata_band=False)
+    z_ft = 406.3 + (z - np.nanmin(z)) * (434.9 - 406.3) / (np.nanmax(z) - np.nanmin(z))
+    dem = _feet_dem(tmp_path / "dem_ft.tif", z_ft, t)
+    r = CliRunner().invoke(main, ["contours", str(dem), str(tmp_path / "c.gpkg"), "--interval", "1", "--no-png"])
+    assert r.exit_code == 0, r.output
+    meta, _, _, fields = read(tmp_path / "c.gpkg", layer="contours")
+    elev = fields[list(meta["fields"]).index("elevation")]
+    assert set(np.unique(elev)) == set(np.arange(407.0, 435.0))  # 407 ... 434 ft, whole feet
+    assert "every 1 ft" in r.output and "from 407 to 434 ft" in r.output
+    # sub-unit intervals land on their own multiples too (no binary noise: 0.1 x 4071 is 407.1)
+    cs = trace(z_ft, t, 0.5, 5)
+    assert all(c.level * 2 == round(c.level * 2) for c in cs)
+
+
+def test_interval_too_fine_for_the_data_is_refused_fast(tmp_path):
+    """A millimetre interval would make millions of lines' vertices (the command hung): refused from the data
+    before any tracing, naming the option and the smallest interval that fits, exit 2, nothing written."""
+    import time
+
+    from lidarctl.contours import MAX_VERTICES_PER_CELL, check_interval, vertex_count
+
+    z, t = _dem()
+    dem = _feet_dem(tmp_path / "dem.tif", z / 0.3048, t)
+    t0 = time.perf_counter()
+    r = CliRunner().invoke(main, ["contours", str(dem), str(tmp_path / "c.gpkg"), "--interval", "0.001"])
+    assert time.perf_counter() - t0 < 10.0
+    assert r.exit_code == 2 and "--interval" in r.output and "ft" in r.output and "at least" in r.output
+    assert "Traceback" not in r.output and not (tmp_path / "c.gpkg").exists() and not (tmp_path / "c.png").exists()
+    # the count is exact: the vertices traced at an accepted interval
+    zz = z[:60, :80]
+    for interval in (1.0, 0.25):
+        n = vertex_count(zz, interval)
+        traced = sum(len(c.xy) - (1 if c.closed else 0) for c in trace(zz, t, interval, 5))
+        assert n == pytest.approx(traced, rel=0.01)
+    # the suggested interval is accepted
+    need = float(r.output.split("at least ")[1].split(" ft")[0])
+    valid = np.isfinite(z).sum()
+    assert check_interval(z / 0.3048, need) <= MAX_VERTICES_PER_CELL * valid
+    # absurd intervals (heights / interval beyond float range) are refused as well, not traced
+    from aerotri.core.errors import OptionError
+
+    with pytest.raises(OptionError, match="at least") as e:
+        trace(z, t, 1e-310, 5)
+    assert e.value.param == "--interval"

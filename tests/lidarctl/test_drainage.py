@@ -154,3 +154,48 @@ def test_bad_input_exit_2_nothing_written(tmp_path):
     assert r.exit_code == 2 and "--min-area-m2" in r.output and not (tmp_path / "o2").exists()
     r = CliRunner().invoke(main, ["drainage", str(tmp_path / "dem.tif"), str(tmp_path)])
     assert r.exit_code == 2 and "OUTDIR" in r.output and (tmp_path / "dem.tif").exists()
+
+
+def test_default_threshold_from_the_dem_finds_a_known_channel(tmp_path):
+    """At its defaults the command finds the Y of valleys (the old fixed 1 ha found none on this 1 ha DEM)
+    and only there; the threshold is 2 x the longer side in cells x the cell area, printed with its rule;
+    the same terrain in feet gives the same threshold in m2."""
+    from pyogrio.raw import read
+
+    z, d = _y_valleys()  # 100 x 100 cells of 1 m: 1 ha
+    for name, crs, unit in (("m", "EPSG:32633", 1.0), ("ft", "EPSG:2992", 0.3048)):
+        _write(tmp_path / f"y_{name}.tif", z / unit, crs, 1.0 / unit)
+        r = CliRunner().invoke(main, ["drainage", str(tmp_path / f"y_{name}.tif"), str(tmp_path / f"o_{name}")])
+        assert r.exit_code == 0, r.output
+        assert "stream threshold 200.0 m2 (from the DEM: 2 x the longer side of its valid data (100 cells)" in r.output
+        with rasterio.open(tmp_path / f"o_{name}" / "strahler.tif") as f:
+            s = f.read(1)
+        on = (s > 0) & (s < 255)
+        assert on.sum() > 80 and np.all(d[on] <= 1.5)  # streams on the valley floors only
+        assert on[-1, 50] and on[10:40].any(axis=1).sum() >= 25  # the trunk at the outlet; both branches' reaches
+        meta, _, _, fields = read(tmp_path / f"o_{name}" / "drainage.gpkg", layer="streams")
+        # branches meeting make the trunk of a higher order (here the heads' two sides meet first: order 3)
+        assert dict(zip(meta["fields"], fields))["strahler_order"].max() >= 2
+        assert "0 streams" not in r.output
+
+
+def test_zero_streams_say_why_and_what_to_change(tmp_path):
+    """A plane has no channel: 0 streams at the default, with the largest upstream area, where, and a
+    threshold that traces flow lines; a given threshold above every catchment says the same."""
+    import json
+
+    r_, c_ = np.mgrid[0:80, 0:120].astype(float)
+    _write(tmp_path / "plane.tif", 50.0 - 0.05 * c_ + 0.0 * r_, "EPSG:32633", 1.0)  # down to the east edge
+    r = CliRunner().invoke(main, ["drainage", str(tmp_path / "plane.tif"), str(tmp_path / "o")])
+    assert r.exit_code == 0, r.output
+    assert "0 stream segments" in r.output and "0 streams: no cell collects the 240 m2 threshold" in r.output
+    assert "largest upstream area" in r.output and "--min-area-m2 below" in r.output
+    summary = json.loads((tmp_path / "o" / "drainage.json").read_text())
+    assert summary["min_area_m2"] == 240.0 and summary["no_streams"].startswith("0 streams")
+    top = float(summary["no_streams"].split("largest upstream area is ")[1].split(" m2")[0].replace(",", ""))
+    assert top == 120.0  # on a plane no cell collects more than its flow path across the DEM (a row)
+    z, _ = _y_valleys()
+    _write(tmp_path / "y.tif", z, "EPSG:32633", 1.0)
+    r = CliRunner().invoke(main, ["drainage", str(tmp_path / "y.tif"), str(tmp_path / "o2"), "--min-area-m2", "20000"])
+    assert r.exit_code == 0 and "0 streams" in r.output and "largest upstream area is 10,000 m2" in r.output
+    assert "(given (--min-area-m2))" in r.output

@@ -77,14 +77,18 @@ def test_outputs_and_report(block_project):
 
 
 def test_report_limits_follow_the_project_map_scale(block_project, tmp_path):
-    """at/report.* takes its RMS and residual limits from the project's [qa] map scale and terrain."""
+    """at/report.* takes its RMS and residual limits from the project's [qa] map scale and terrain; without
+    [qa] from the table of the block's GSD and platform (aerotri.core.tolerances.choose_table)."""
     import shutil
 
     block, root = block_project
     ba = adjust_project(root, AdjustSettings(gnss_correction="shift", image_sigma_px=SIGMA_PX, point_covariances=False,
                                              snooping=False))
     rep = write_outputs(ba, root, html=False)
-    assert rep["parameters"]["rms_limits_m"][:3] == [0.35, 0.35, 1.0]  # default: 1:5000, flat
+    # no [qa]: a DMC at 1000 m, GSD 10 cm, manned (above 150 m) -> the Chinese table of its GSD, 1:2000 (flat)
+    assert rep["parameters"]["rms_limits_m"][:3] == [0.14, 0.14, 0.4]
+    assert "Tolerances : 1:2000 flat (cn_1to2000.toml)" in (root / "at" / "report.txt").read_text()
+    assert rep["flight_acceptance"] is None or rep["flight_acceptance"]["limits"]["flight_tilt_max_deg"] == 2.0
     copy = tmp_path / "blk"
     shutil.copytree(root, copy)
     with open(copy / "project.toml", "a") as f:

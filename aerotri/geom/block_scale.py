@@ -1,0 +1,91 @@
+"""The ground sample distance and platform of a photo block, from the project's own files: what chooses its
+tolerance table (``aerotri.core.tolerances.choose_table``).
+
+GSD = pixel size x height above ground / focal length (``Camera.gsd_m``), with the median height above
+ground of the frames: projection centres from ``at/eo.txt`` (else ``gnss.txt``) minus the ground under them
+from ``lidar_out/dem.tif``, else ``[flight] mean_terrain_height_m``, else the heights the caller gives (the
+adjustment's tie points), else ``at/object_points.csv``. A block flown lower than ``selection.toml``
+[platform] low_altitude_height_max_m (150 m) is a low-altitude (UAS) block. Heights in the project CRS's
+height unit are converted to metres.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from aerotri.core.tolerances import BlockScale, low_altitude_height_m
+
+
+def _dem_heights(path: Path, x, y) -> np.ndarray:
+    """DEM heights at map positions (nearest cell; NaN outside or on nodata)."""
+    import rasterio
+
+    with rasterio.open(path) as ds:
+        z = np.array([v[0] for v in ds.sample(zip(x, y), masked=True)], dtype=object)
+    return np.array([float("nan") if np.ma.is_masked(v) else float(v) for v in z])
+
+
+def _object_point_heights(path: Path) -> np.ndarray:
+    """The z column of ``at/object_points.csv`` (id,kind,x,y,z,...)."""
+    from aerotri.core.textio import read_text
+
+    rows = [r.split(",") for r in read_text(path, "object points (CSV)").splitlines()[1:] if r.strip()]
+    try:
+        return np.array([float(r[4]) for r in rows if len(r) > 4])
+    except ValueError:
+        return np.array([])
+
+
+def block_scale(camera, centre_z, ground_z, height_unit_m: float, how: str) -> BlockScale:
+    """The median height above ground (m), its GSD and the platform of frames at heights ``centre_z`` over
+    ground heights ``ground_z`` (arrays, or a scalar ground height; in the CRS's height unit)."""
+    h = (np.asarray(centre_z, float) - np.asarray(ground_z, float)) * height_unit_m
+    h = h[np.isfinite(h)]
+    if not len(h):
+        return BlockScale(None, None, None, f"{how}: no frame over the terrain")
+    hm = float(np.median(h))
+    if hm <= 0:
+        return BlockScale(None, hm, None, f"{how}: frames {hm:.1f} m below the terrain (heights in another system?)")
+    platform = "uas" if hm < low_altitude_height_m() else "manned"
+    return BlockScale(camera.gsd_m(hm), hm, platform, how)
+
+
+def project_block_scale(project, ground_heights=None, ground_source: str = "the adjusted tie points") -> BlockScale:
+    """The block's GSD and platform from the project folder (module docstring); ``ground_heights``: heights
+    of the ground in the CRS's height unit (e.g. the adjustment's tie points) when there is neither a DEM nor
+    a mean terrain height. A ``BlockScale`` without GSD says what was missing."""
+    from aerotri.geom.camera import adjusted_camera
+    from aerotri.geom.crs import height_unit_m, project_crs
+    from aerotri.geom.eo import read_eo, read_gnss
+
+    if not project.camera_path.is_file():
+        return BlockScale(None, None, None, "no camera.toml")
+    camera, cam_src = adjusted_camera(project)
+    cam = f"{Path(cam_src).name if 'self-calibrated' not in cam_src else 'self-calibrated camera'} " \
+          f"(f {camera.focal_mm:g} mm, pixel {camera.pixel_um:g} um)"
+    if project.eo_path.is_file():
+        pos, src = read_eo(project.eo_path).centre_m, "at/eo.txt"
+    elif project.gnss_path.is_file():
+        pos, src = read_gnss(project.gnss_path).position_m, "gnss.txt"
+    else:
+        return BlockScale(None, None, None, f"{cam}; no at/eo.txt or gnss.txt")
+    unit = height_unit_m(project_crs(project))
+    mean_h = project.section("flight").get("mean_terrain_height_m")
+    head = f"{cam}; {len(pos)} frames of {src}"
+    if project.dem_path.is_file():
+        return block_scale(camera, pos[:, 2], _dem_heights(project.dem_path, pos[:, 0], pos[:, 1]), unit,
+                           f"{head} over lidar_out/dem.tif")
+    if isinstance(mean_h, (int, float)) and not isinstance(mean_h, bool):
+        return block_scale(camera, pos[:, 2], float(mean_h), unit, f"{head} over [flight] mean_terrain_height_m")
+    if ground_heights is not None and len(ground_heights):
+        g = float(np.nanmedian(np.asarray(ground_heights, float)))
+        return block_scale(camera, pos[:, 2], g, unit, f"{head} over the median height of {ground_source}")
+    if project.object_points_path.is_file():
+        z = _object_point_heights(project.object_points_path)
+        if len(z):
+            return block_scale(camera, pos[:, 2], float(np.median(z)), unit,
+                               f"{head} over the median height of at/object_points.csv")
+    return BlockScale(None, None, None, f"{head}; no terrain height (no lidar_out/dem.tif, no [flight] "
+                                        f"mean_terrain_height_m, no adjusted tie points)")
