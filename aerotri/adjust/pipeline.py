@@ -31,6 +31,7 @@ from aerotri.adjust.surface import SurfaceControl, read_height_grid, read_roof_p
 from aerotri.geom.observations import (
     ControlPoints,
     ImageObservations,
+    read_control_image_points,
     read_control_points,
     read_image_points,
     validate_references,
@@ -74,6 +75,7 @@ class BlockAdjustment:
     check_obs: ImageObservations | None
     components: int = 1
     left_out: list = dataclasses.field(default_factory=list)  # LeftOutComponent
+    datum_notes: list = dataclasses.field(default_factory=list)  # what the datum rests on (no GNSS), for the report
 
 
 def _settings_from_project(project: Project, s: AdjustSettings) -> AdjustSettings:
@@ -123,7 +125,9 @@ def datum_shortfall(control: ControlPoints, gnss: bool, correction: str, surface
     n_xy = int(np.isin(control.kind, ["full", "horizontal"]).sum())
     n_z = int(np.isin(control.kind, ["full", "height"]).sum())
     if not gnss:
-        need = (2, 3)
+        # 2 plan points fix plan, scale and the rotation about the vertical; with fewer than 3 height points the
+        # heights and the tilt are held at those of the approximate orientations (``height_datum``)
+        need = (2, 0)
     elif correction == "shift":
         need = (1, 1)
     elif correction == "shift_drift":
@@ -165,7 +169,7 @@ def read_project_control(project: Project, st: AdjustSettings, crs=None) -> tupl
         raise InputError(f"{project.gnss_path}: without control the datum needs GNSS positions")
     if st.use_control and (ctrl_path.exists() or cobs_path.exists() or not gnss_datum):
         control = read_control_points(ctrl_path, crs, hint="run aerotri control first, or --no-control")
-        cobs = read_image_points(cobs_path, hint="run aerotri control first, or --no-control")
+        cobs = read_control_image_points(cobs_path, hint="run aerotri control first, or --no-control")
     else:
         # GNSS alone can carry the datum (no corrections per strip): the first adjustment of the
         # chain, before LiDAR control has been transferred. check_datum refuses the other cases.
@@ -211,6 +215,8 @@ class ProjectInputs:
     gnss: object | None  # GnssPositions
     initial_eo: ExteriorOrientations | None
     gnss_sigma_m: tuple  # (xy, z) default a-priori sigmas of project.toml [gnss]
+    datum_notes: list = dataclasses.field(default_factory=list)  # how the approximations got their datum
+    model_heights_map: dict = dataclasses.field(default_factory=dict)  # control id -> height in the image model
 
 
 @dataclasses.dataclass
@@ -232,6 +238,7 @@ class PreparedBlock:
     n_tie_points: int
     components: int = 1  # parts of the block no tie point connects, adjusted together (each with its datum)
     left_out: list = dataclasses.field(default_factory=list)  # LeftOutComponent: parts without a datum
+    datum_notes: list = dataclasses.field(default_factory=list)  # what the datum rests on (no GNSS)
 
 
 def read_inputs(project: Project, settings: AdjustSettings | None = None) -> ProjectInputs:
@@ -250,6 +257,7 @@ def read_inputs(project: Project, settings: AdjustSettings | None = None) -> Pro
     control, cobs = read_project_control(project, st, crs)
     # orientation source: GNSS (with given approximate EO, if any) or given approximate EO alone
     gnss = eo0 = None
+    notes, model_heights = [], {}
     if st.use_gnss and project.gnss_path.exists():
         gnss = read_gnss(project.gnss_path, crs)
         image_ids, approx_pos_map, block_path = list(gnss.image_id), gnss.position_m, project.gnss_path
@@ -259,8 +267,11 @@ def read_inputs(project: Project, settings: AdjustSettings | None = None) -> Pro
         eo0 = _initial_orientations(st.initial_eo, None, crs)
         image_ids, approx_pos_map, block_path = list(eo0.image_id), eo0.centre_m, st.initial_eo
     else:
-        raise InputError(f"{project.gnss_path}: missing; a block without GNSS needs approximate orientations "
-                         "(aerotri adjust --eo FILE) and control points for its datum")
+        # no GNSS, no given orientations: from the images (pycolmap on the tie points) and the control
+        ap, ties, control, cobs, note = _image_approximations(project, cam, ties, control, cobs, crs)
+        eo0, model_heights = ap.eo, ap.control_heights_map(control)
+        image_ids, approx_pos_map, block_path = list(eo0.image_id), eo0.centre_m, project.tiepoints_path
+        notes.append(note)
     validate_references(ties, control, cobs, image_ids, project.tiepoints_path, project.control_points_path,
                         project.control_image_points_path, camera=cam, block_path=block_path,
                         camera_path=project.camera_path)
@@ -270,7 +281,27 @@ def read_inputs(project: Project, settings: AdjustSettings | None = None) -> Pro
     cobs = ImageObservations(cobs.point_id, cobs.image_id, cam.calibration_observations(cobs.xy_px))
     return ProjectInputs(project=project, settings=st, camera=cam, ties=ties, control=control, control_obs=cobs,
                          image_ids=image_ids, approx_position_map=approx_pos_map, gnss=gnss, initial_eo=eo0,
-                         gnss_sigma_m=gnss_sigma)
+                         gnss_sigma_m=gnss_sigma, datum_notes=notes, model_heights_map=model_heights)
+
+
+def _image_approximations(project: Project, cam, ties: ImageObservations, control: ControlPoints,
+                          cobs: ImageObservations, crs):
+    """(``ImageApproximations``, ties, control points and control measurements of the oriented frames, datum
+    statement) of a block without GNSS from its images (``aerotri.adjust.relative``); frames the images cannot orient are left
+    out, named, and so are control points measured only in them."""
+    from aerotri.adjust.relative import image_approximations
+
+    frames = sorted(set(np.unique(ties.image_id).tolist()) | set(np.unique(cobs.image_id).tolist()))
+    ap = image_approximations(project.work_dir, project.tiepoints_path, ties, cam, frames, control, cobs, crs)
+    oriented = list(ap.eo.image_id)
+    ties = ties.subset(np.isin(ties.image_id, oriented))
+    cobs = cobs.subset(np.isin(cobs.image_id, oriented))
+    control = control.subset(np.isin(control.id, cobs.point_id))
+    note = ap.datum.statement()
+    if ap.relative.unregistered:
+        note += f" Frames the images could not orient (left out): {', '.join(ap.relative.unregistered)}."
+    (log.warning if ap.datum.kind == "plan" else log.info)(note)
+    return ap, ties, control, cobs, note
 
 
 @dataclasses.dataclass
@@ -474,14 +505,66 @@ def prepare_project(root, settings: AdjustSettings | None = None) -> tuple[Prepa
         self_calibration=tuple(st.self_calibration),
     )
     state0 = _approximations(inp, frame, block, ob.image_ids)
+    notes = list(inp.datum_notes)
+    model_z = {}
+    for c, pid in enumerate(ctrl_used.id):  # the image model's heights, in the local frame
+        if str(pid) in inp.model_heights_map:
+            xyz = ctrl_used.xyz_m[c].copy()
+            xyz[2] = inp.model_heights_map[str(pid)]
+            model_z[c] = float(frame.to_local(xyz[None])[0, 2])
+    level = height_datum(block, state0, frame.jacobian_local_from_map(ctrl_used.xyz_m) if len(ctrl_used) else None,
+                         ctrl_used.sigma_m, model_z)
+    if level:
+        log.warning(level)
+        notes.append(level)
     prepared = PreparedBlock(
         project=project, settings=st, frame=frame, camera=inp.camera, block=block, opts=opts, control_used=ctrl_used,
         check_points=chk, control_obs=inp.control_obs, image_ids=ob.image_ids,
         image_index={k: i for i, k in enumerate(ob.image_ids)},
         gnss_map=gnss.position_m[ob.order] if gnss is not None else None, n_tie_points=ob.n_tie,
-        components=ob.components, left_out=ob.left_out,
+        components=ob.components, left_out=ob.left_out, datum_notes=notes,
     )
     return prepared, state0
+
+
+HEIGHT_DATUM_SHARE = 0.1  # sigma of the level datum's pseudo heights, as a share of the flying height above them
+
+
+def height_datum(block: G.Block, state0: G.State, J_local_from_map, sigma_m, given_z: dict | None = None) -> str | None:
+    """Plan-only control without GNSS or DEM (fewer than 3 height control points): the heights and the tilt of
+    the block, which plan coordinates do not fix, are held at those of the approximate orientations.
+
+    Every horizontal control point gets a pseudo height: its height in the image model when ``given_z`` has it
+    (control index -> local height; the model's own camera, whose distortion the mapper refined), else intersected
+    from the approximations (with a single ray: the median of the others'), with a standard deviation of ``HEIGHT_DATUM_SHARE`` of the flying
+    height above it: loose against the block's own shape, firm against the tilt that metre-level plan control
+    errors would otherwise pull in (through the cosine of the tilt). The control point stays horizontal for the
+    report (no height residual). Changes ``block`` in place; returns the statement for the report, or None when
+    the datum has heights (GNSS, DEM, 3 height control points)."""
+    if block.gnss_local is not None or block.surface is not None or not len(block.control_point):
+        return None
+    rows = block.control_rows
+    plan = np.flatnonzero(rows == 2)
+    if int(np.sum(rows != 2)) >= 3 or len(plan) == 0:
+        return None
+    rays = np.bincount(block.obs_point, minlength=block.n_points)[block.control_point]
+    z = state0.points[block.control_point, 2].copy()
+    for c, zc in (given_z or {}).items():
+        z[c] = zc
+    multi = plan[(rays[plan] >= 2) & np.isfinite(z[plan])]
+    if len(multi) == 0:
+        return None
+    z_plan = np.where(np.isin(plan, multi), z[plan], np.median(z[multi]))
+    above_m = float(np.median(state0.centre[:, 2]) - np.median(z_plan))
+    sigma_z = HEIGHT_DATUM_SHARE * abs(above_m)
+    for c, zc in zip(plan, z_plan):
+        block.control_local[c, 2] = zc
+        sig = np.array([sigma_m[c][0], sigma_m[c][1], sigma_z])
+        block.control_cov_local[c] = J_local_from_map[c] @ np.diag(sig**2) @ J_local_from_map[c].T
+    return (f"heights not measured: {len(plan)} plan-only control points and no GNSS; the block's heights and tilt "
+            f"are held at those of the approximate orientations by pseudo heights at these points (sigma "
+            f"{sigma_z:.2f} m, {HEIGHT_DATUM_SHARE:g} of the {abs(above_m):.1f} m flying height above them); heights "
+            "are relative, not measured")
 
 
 def adjust_project(root, settings: AdjustSettings | None = None) -> BlockAdjustment:
@@ -584,7 +667,7 @@ def finish(prepared: PreparedBlock, result: AdjustmentResult) -> BlockAdjustment
         points_map=pts_map, points_sigma_map=psig, control=p.control_used,
         control_index_of_point={int(j): c for c, j in enumerate(block.control_point)}, check=check, gnss_map=gnss_map,
         gnss_residual_m=gres, n_tie_points=p.n_tie_points, check_obs=chk_obs, components=p.components,
-        left_out=p.left_out,
+        left_out=p.left_out, datum_notes=list(p.datum_notes),
     )
 
 

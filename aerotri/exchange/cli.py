@@ -40,10 +40,14 @@ def export(project, formats, out_dir):
 @click.option("--sigma-xyz", "sigma_xyz_m", type=positive(), nargs=3, default=None,
               help="Accuracy (m) of imported positions that come without one.")
 @click.option("--force", is_flag=True, help="Replace project files the import writes (camera.toml, gnss.txt, ...).")
-def import_(project, files, format_name, crs, sigma_xyz_m, force):
+@click.option("--heights-measured", is_flag=True,
+              help="Control heights that are all 0 (or all one number) were surveyed: keep them as height control "
+                   "(default: taken as not measured, the points become plan-only control).")
+def import_(project, files, format_name, crs, sigma_xyz_m, force, heights_measured):
     from aerotri.exchange.import_registry import import_files
     from aerotri.exchange.imported import ImportOptions
 
-    options = ImportOptions(crs=crs, sigma_xyz_m=tuple(sigma_xyz_m) if sigma_xyz_m else None)
+    options = ImportOptions(crs=crs, sigma_xyz_m=tuple(sigma_xyz_m) if sigma_xyz_m else None,
+                            heights_measured=heights_measured)
     for path in import_files(project, format_name, files, options, overwrite=force):
         click.echo(str(path))

@@ -60,6 +60,7 @@ class ImportOptions:
 
     crs: str | None = None
     sigma_xyz_m: tuple[float, float, float] | None = None
+    heights_measured: bool = False  # control heights that are all 0 (or all one number) are real, not placeholders
 
 
 def to_project_crs(xyz_m, from_crs, project: Project, source: str) -> np.ndarray:
