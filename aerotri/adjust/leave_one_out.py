@@ -15,6 +15,7 @@ adds no error of its own, the leave-one-out plan RMS is about that figure.
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import logging
 import math
@@ -126,6 +127,18 @@ def _finite(v) -> list:
     return [_f(x) for x in v]
 
 
+@contextlib.contextmanager
+def _quiet():
+    """Only errors from the adjustment's loggers while the block runs."""
+    logger = logging.getLogger("aerotri.adjust")
+    level = logger.level
+    logger.setLevel(logging.ERROR)
+    try:
+        yield
+    finally:
+        logger.setLevel(level)
+
+
 def control_scatter(ba: BlockAdjustment) -> ControlScatter:
     """Plan residuals (adjusted - given, project CRS) of the control points with plan coordinates that the
     adjustment used, measured in 2 or more frames."""
@@ -161,12 +174,13 @@ def leave_one_out(root, settings: AdjustSettings | None = None, full: BlockAdjus
             out.append(LeftOutPoint(pid, kind, int(rays[j]), given, (math.nan,) * 3, (math.nan,) * 3, 0.0))
             continue
         t1 = time.perf_counter()
-        ba = adjust_project(root, dataclasses.replace(st, check=tuple(st.check) + (pid,), point_covariances=False))
+        with _quiet():  # the full adjustment said it all; each run would repeat its warnings
+            ba = adjust_project(root, dataclasses.replace(st, check=tuple(st.check) + (pid,), point_covariances=False))
         chk = ba.check[pid]
         out.append(LeftOutPoint(pid, kind, int(chk["rays"]), given, tuple(chk["adjusted_m"]), tuple(chk["sigma_m"]),
                                 time.perf_counter() - t1))
         d = out[-1].d_m
-        log.info(f"leave-one-out {pid}: dX {d[0]:+.3f} dY {d[1]:+.3f} m ({chk['rays']} rays)")
+        log.debug(f"leave-one-out {pid}: dX {d[0]:+.3f} dY {d[1]:+.3f} m ({chk['rays']} rays)")
     return LeaveOneOut(tuple(out), control_scatter(full), time.perf_counter() - t0)
 
 

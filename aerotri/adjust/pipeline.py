@@ -36,6 +36,7 @@ from aerotri.geom.observations import (
     read_image_points,
     validate_references,
 )
+from aerotri.adjust.level_datum import height_datum, level_result
 from aerotri.adjust.solve import AdjustmentResult, adjust_block, check_point_errors
 from aerotri.adjust.variance_components import adjusted_gnss
 from aerotri.geom.strips import along_track_km, strips_from_track
@@ -239,6 +240,7 @@ class PreparedBlock:
     components: int = 1  # parts of the block no tie point connects, adjusted together (each with its datum)
     left_out: list = dataclasses.field(default_factory=list)  # LeftOutComponent: parts without a datum
     datum_notes: list = dataclasses.field(default_factory=list)  # what the datum rests on (no GNSS)
+    level: object | None = None  # level_datum.LevelDatum: plan-only control, heights and tilt by assumption
 
 
 def read_inputs(project: Project, settings: AdjustSettings | None = None) -> ProjectInputs:
@@ -514,57 +516,17 @@ def prepare_project(root, settings: AdjustSettings | None = None) -> tuple[Prepa
             model_z[c] = float(frame.to_local(xyz[None])[0, 2])
     level = height_datum(block, state0, frame.jacobian_local_from_map(ctrl_used.xyz_m) if len(ctrl_used) else None,
                          ctrl_used.sigma_m, model_z)
-    if level:
-        log.warning(level)
-        notes.append(level)
+    if level is not None:
+        log.warning(level.note)
+        notes.append(level.note)
     prepared = PreparedBlock(
         project=project, settings=st, frame=frame, camera=inp.camera, block=block, opts=opts, control_used=ctrl_used,
         check_points=chk, control_obs=inp.control_obs, image_ids=ob.image_ids,
         image_index={k: i for i, k in enumerate(ob.image_ids)},
         gnss_map=gnss.position_m[ob.order] if gnss is not None else None, n_tie_points=ob.n_tie,
-        components=ob.components, left_out=ob.left_out, datum_notes=notes,
+        components=ob.components, left_out=ob.left_out, datum_notes=notes, level=level,
     )
     return prepared, state0
-
-
-HEIGHT_DATUM_SHARE = 0.1  # sigma of the level datum's pseudo heights, as a share of the flying height above them
-
-
-def height_datum(block: G.Block, state0: G.State, J_local_from_map, sigma_m, given_z: dict | None = None) -> str | None:
-    """Plan-only control without GNSS or DEM (fewer than 3 height control points): the heights and the tilt of
-    the block, which plan coordinates do not fix, are held at those of the approximate orientations.
-
-    Every horizontal control point gets a pseudo height: its height in the image model when ``given_z`` has it
-    (control index -> local height; the model's own camera, whose distortion the mapper refined), else intersected
-    from the approximations (with a single ray: the median of the others'), with a standard deviation of ``HEIGHT_DATUM_SHARE`` of the flying
-    height above it: loose against the block's own shape, firm against the tilt that metre-level plan control
-    errors would otherwise pull in (through the cosine of the tilt). The control point stays horizontal for the
-    report (no height residual). Changes ``block`` in place; returns the statement for the report, or None when
-    the datum has heights (GNSS, DEM, 3 height control points)."""
-    if block.gnss_local is not None or block.surface is not None or not len(block.control_point):
-        return None
-    rows = block.control_rows
-    plan = np.flatnonzero(rows == 2)
-    if int(np.sum(rows != 2)) >= 3 or len(plan) == 0:
-        return None
-    rays = np.bincount(block.obs_point, minlength=block.n_points)[block.control_point]
-    z = state0.points[block.control_point, 2].copy()
-    for c, zc in (given_z or {}).items():
-        z[c] = zc
-    multi = plan[(rays[plan] >= 2) & np.isfinite(z[plan])]
-    if len(multi) == 0:
-        return None
-    z_plan = np.where(np.isin(plan, multi), z[plan], np.median(z[multi]))
-    above_m = float(np.median(state0.centre[:, 2]) - np.median(z_plan))
-    sigma_z = HEIGHT_DATUM_SHARE * abs(above_m)
-    for c, zc in zip(plan, z_plan):
-        block.control_local[c, 2] = zc
-        sig = np.array([sigma_m[c][0], sigma_m[c][1], sigma_z])
-        block.control_cov_local[c] = J_local_from_map[c] @ np.diag(sig**2) @ J_local_from_map[c].T
-    return (f"heights not measured: {len(plan)} plan-only control points and no GNSS; the block's heights and tilt "
-            f"are held at those of the approximate orientations by pseudo heights at these points (sigma "
-            f"{sigma_z:.2f} m, {HEIGHT_DATUM_SHARE:g} of the {abs(above_m):.1f} m flying height above them); heights "
-            "are relative, not measured")
 
 
 def adjust_project(root, settings: AdjustSettings | None = None) -> BlockAdjustment:
@@ -575,6 +537,8 @@ def adjust_project(root, settings: AdjustSettings | None = None) -> BlockAdjustm
                           point_covariances=st.point_covariances, variance_components=st.variance_components)
     if result.block is not prepared.block:  # reweighted by variance components: report the weights solved with
         prepared = dataclasses.replace(prepared, block=result.block, opts=result.opts)
+    if prepared.level is not None:  # plan-only control: the solution levelled (tie points' mean plane horizontal)
+        prepared.datum_notes.append(level_result(prepared.level, prepared.block, result))
     return finish(prepared, result)
 
 

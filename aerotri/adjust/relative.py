@@ -25,12 +25,15 @@ bundle adjustment (``aerotri.adjust.pipeline``), and a statement of the datum fo
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import hashlib
 import itertools
 import json
 import logging
 import math
+import os
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -47,10 +50,12 @@ from aerotri.geom.rotation import FLIP_YZ, opk_from_matrix
 
 log = logging.getLogger(__name__)
 
-RELATIVE_VERSION = 1  # part of the cache key: a new version of this code does not read older models
+RELATIVE_VERSION = 2  # part of the cache key: a new version of this code does not read older models
 MIN_PAIR_TIES = 15  # fewest common tie points that make a frame pair a match of the mapper
 INLIER_SIGMAS = 2.5  # control points within this many robust sigmas of the similarity are used
 MAX_MINIMAL_SETS = 20000  # minimal sets tried by the least median of squares (all of them when fewer)
+MODEL_PRECISION = 2e-3  # floor of the image model's precision at the control points, a share of the flying height
+MIN_IMAGES_DISTORTION = 5  # the mapper's model refines the lens distortion in a last bundle from this many frames
 
 
 class NoDatum(InputError):
@@ -104,7 +109,8 @@ class ImageDatum:
         rej = "; ".join(f"{p} ({r:.2f} m)" for p, r in self.rejected)
         head = (f"approximate orientations from the images (pycolmap), brought into the project CRS by "
                 f"{len(self.used)} control points ({'plan' if self.kind == 'plan' else '3D'} RMS {rms:.2f} m)"
-                + (f"; rejected as blunders: {rej}" if rej else ""))
+                + (f"; left out of that similarity as off by more than {INLIER_SIGMAS:g} robust sigmas: {rej} (the "
+                   "adjustment tests them again)" if rej else ""))
         if self.kind == "3d":
             return head + "."
         return (head + ". The control has no measured heights: plan, scale and rotation about the vertical come "
@@ -186,36 +192,36 @@ def relative_orientation(ties: ImageObservations, camera: Camera, image_ids: lis
     if not pairs:
         raise InputError(f"no two frames share {MIN_PAIR_TIES} tie points: the block cannot be oriented from its images "
                          "(run aerotri match; check the overlap)")
-    level = pycolmap.logging.minloglevel
-    pycolmap.logging.minloglevel = 2  # COLMAP's progress on stderr: errors only
-    try:
-        with scratch_dir(scratch_parent or tempfile.gettempdir(), "relative") as tmp:
-            db = pycolmap.Database.open(tmp / "database.db")
-            cid = db.write_camera(cam)
-            kps = [xy[img == i] + 0.5 for i in range(len(image_ids))]
-            for i, name in enumerate(image_ids):
-                iid = db.write_image(pycolmap.Image(name=name, camera_id=cid))
-                if iid != i + 1:
-                    raise RuntimeError(f"pycolmap numbered image {name} {iid}, expected {i + 1}")
-                db.write_keypoints(iid, kps[i].astype(np.float32))
-            tvo = pycolmap.TwoViewGeometryOptions()
-            tvo.ransac.random_seed = seed
-            tvo.ransac.num_threads = 1
-            for (i, j), m in pairs.items():
-                db.write_matches(i + 1, j + 1, m)
-                tvg = pycolmap.estimate_calibrated_two_view_geometry(cam, kps[i], cam, kps[j], m, tvo)
-                db.write_two_view_geometry(i + 1, j + 1, tvg)
-            db.close()
-            opts = _mapper_options(seed, len(image_ids))
-            pycolmap.set_random_seed(seed)
-            (tmp / "sparse").mkdir()
+    with scratch_dir(scratch_parent or tempfile.gettempdir(), "relative") as tmp, _colmap_log(tmp / "colmap.log"):
+        db = pycolmap.Database.open(tmp / "database.db")
+        cid = db.write_camera(cam)
+        kps = [xy[img == i] + 0.5 for i in range(len(image_ids))]
+        for i, name in enumerate(image_ids):
+            iid = db.write_image(pycolmap.Image(name=name, camera_id=cid))
+            if iid != i + 1:
+                raise RuntimeError(f"pycolmap numbered image {name} {iid}, expected {i + 1}")
+            db.write_keypoints(iid, kps[i].astype(np.float32))
+        tvo = pycolmap.TwoViewGeometryOptions()
+        tvo.ransac.random_seed = seed
+        tvo.ransac.num_threads = 1
+        for (i, j), m in pairs.items():
+            db.write_matches(i + 1, j + 1, m)
+            tvg = pycolmap.estimate_calibrated_two_view_geometry(cam, kps[i], cam, kps[j], m, tvo)
+            db.write_two_view_geometry(i + 1, j + 1, tvg)
+        db.close()
+        opts = _mapper_options(seed, len(image_ids))
+        pycolmap.set_random_seed(seed)
+        (tmp / "sparse").mkdir()
+        try:
             models = pycolmap.incremental_mapping(tmp / "database.db", tmp, tmp / "sparse", opts)
-    finally:
-        pycolmap.logging.minloglevel = level
-    if not models:
-        raise InputError(f"pycolmap could not orient any pair of the {len(image_ids)} frames from their tie points "
-                         "(too few ties, or too little base between the frames)")
-    rec = max(models.values(), key=lambda r: (r.num_reg_images(), r.num_points3D()))
+        except (RuntimeError, ValueError) as exc:  # COLMAP's own checks on a degenerate block
+            raise InputError(f"pycolmap could not orient the {len(image_ids)} frames from their tie points: {exc}") from None
+        if not models:
+            raise InputError(f"pycolmap could not orient any pair of the {len(image_ids)} frames from their tie "
+                             "points (too few ties, or too little base between the frames)")
+        rec = max(models.values(), key=lambda r: (r.num_reg_images(), r.num_points3D()))
+        if rec.num_reg_images() >= MIN_IMAGES_DISTORTION:
+            pycolmap.bundle_adjustment(rec, _distortion_options())
     images = sorted(rec.images.values(), key=lambda im: im.name)
     images = [im for im in images if im.has_pose]
     if len(images) < 2:
@@ -231,6 +237,23 @@ def relative_orientation(ties: ImageObservations, camera: Camera, image_ids: lis
                          float(rec.compute_mean_reprojection_error()))
 
 
+@contextlib.contextmanager
+def _colmap_log(path: Path):
+    """COLMAP's messages (glog, on the process's stderr) into ``path`` while the block runs, then to this module's
+    debug log: the console stays quiet."""
+    sys.stderr.flush()
+    saved = os.dup(2)
+    with open(path, "wb") as f:
+        os.dup2(f.fileno(), 2)
+        try:
+            yield
+        finally:
+            os.dup2(saved, 2)
+            os.close(saved)
+    for line in Path(path).read_text(errors="replace").splitlines():
+        log.debug(f"pycolmap: {line}")
+
+
 def _mapper_options(seed: int, n_images: int):
     import pycolmap
 
@@ -242,13 +265,30 @@ def _mapper_options(seed: int, n_images: int):
     o.extract_colors = False
     o.multiple_models = True
     o.min_model_size = min(3, n_images)
-    # the project's camera: focal length and principal point held (a flat block cannot tell them from the
-    # flying height and the attitudes); the distortion refined, so that an uncalibrated lens does not bend the model
+    # our ties are verified already and may be sparse (a few hundred per frame): lower limits than for raw SIFT
+    o.mapper.init_min_num_inliers = 50
+    o.mapper.abs_pose_min_num_inliers = 15
+    # the project's camera held while the frames are added (a flat block cannot tell focal length and principal
+    # point from the flying height and the attitudes; distortion from two frames is noise); the distortion is
+    # refined in one last bundle (``_distortion_options``), so that an uncalibrated lens does not bend the model
     o.ba_refine_focal_length = False
     o.ba_refine_principal_point = False
-    o.ba_refine_extra_params = True
+    o.ba_refine_extra_params = False
     o.mapper.abs_pose_refine_focal_length = False
     o.mapper.abs_pose_refine_extra_params = False
+    return o
+
+
+def _distortion_options():
+    import pycolmap
+
+    o = pycolmap.BundleAdjustmentOptions()
+    o.refine_focal_length = False
+    o.refine_principal_point = False
+    o.refine_extra_params = True
+    o.print_summary = False
+    o.ceres.loss_function_type = pycolmap.LossFunctionType.CAUCHY  # the mapper's outliers
+    o.ceres.solver_options.num_threads = 1
     return o
 
 
@@ -309,7 +349,7 @@ def level_normal(points: np.ndarray, centres: np.ndarray) -> np.ndarray:
     return n
 
 
-def _rotation_onto(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+def rotation_onto(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     """The rotation (3, 3) that turns unit vector ``a`` onto unit vector ``b`` (the shortest one)."""
     v = np.cross(a, b)
     c = float(a @ b)
@@ -331,10 +371,13 @@ class RobustSimilarity:
     sigma: float  # robust sigma of the residual lengths (0 without redundancy)
 
 
-def robust_similarity(src: np.ndarray, dst: np.ndarray, min_sigma: float = 0.0, seed: int = 0) -> RobustSimilarity:
+def robust_similarity(src: np.ndarray, dst: np.ndarray, min_sigma: float = 0.0, min_sigma_src: float = 0.0,
+                      seed: int = 0) -> RobustSimilarity:
     """``dst ~ s R src + t`` (2D or 3D) robust to blunders: least median of squares over the minimal sets (pairs
-    in 2D, triples in 3D; all of them, or ``MAX_MINIMAL_SETS`` drawn with ``seed``), then least squares on the
-    points within ``INLIER_SIGMAS`` robust sigmas (Rousseeuw's LMedS scale, at least ``min_sigma``)."""
+    in 2D, triples in 3D; all of them, or ``MAX_MINIMAL_SETS`` drawn with ``seed``), the median taken over the
+    points outside the set; then least squares on the points within ``INLIER_SIGMAS`` robust sigmas of that fit
+    (1.4826 x the median residual, at least ``min_sigma`` in ``dst`` units and ``min_sigma_src`` in ``src`` units:
+    the precision of the given points and of the model they are fitted to)."""
     src, dst = np.asarray(src, float), np.asarray(dst, float)
     n, dim = src.shape
     m = dim  # points of a minimal set: 2 in plan, 3 in space
@@ -353,14 +396,15 @@ def robust_similarity(src: np.ndarray, dst: np.ndarray, min_sigma: float = 0.0, 
         if not s > 0:
             continue
         r = np.linalg.norm(s * src @ R.T + t - dst, axis=1)
-        med = float(np.median(r**2))
+        out = np.delete(r, idx)  # the set's own residuals are ~0 whatever the fit
+        med = float(np.median(out**2)) if len(out) else 0.0
         if med < best_med:
             best, best_med = (s, R, t), med
     if best is None:
         raise NoDatum("the control points are coincident or on one line in the image model")
     if n > m:
-        sigma = max(1.4826 * (1.0 + 5.0 / (n - m)) * math.sqrt(best_med), min_sigma)
         s, R, t = best
+        sigma = max(1.4826 * math.sqrt(best_med), min_sigma, s * min_sigma_src)
         inlier = np.linalg.norm(s * src @ R.T + t - dst, axis=1) <= INLIER_SIGMAS * sigma
         if inlier.sum() >= m:
             s, R, t = umeyama(src[inlier], dst[inlier])
@@ -411,16 +455,20 @@ def georeference(rel: RelativeBlock, control: ControlPoints, control_obs: ImageO
     full = ok & (control.kind == "full")
     min_sigma = float(np.median(np.linalg.norm(control.sigma_m[:, :2], axis=1))) if len(control) else 0.0
     up = rel.up()
+    # the image model is approximate (its camera a nominal one): a floor of its precision, a share of the
+    # flying height, so that the robust limit does not take the model's own errors for blunders
+    height_model = float(np.median((rel.centre - np.median(rel.points, axis=0)) @ up)) if len(rel.points) else 0.0
+    min_model = MODEL_PRECISION * abs(height_model)
     if full.sum() >= 3 and not _collinear(given[full]):
-        rs = robust_similarity(X[full], given[full], min_sigma=min_sigma, seed=seed)
+        rs = robust_similarity(X[full], given[full], min_sigma=min_sigma, min_sigma_src=min_model, seed=seed)
         kind, scale, R, t = "3d", rs.scale, rs.R, rs.t
         ids = control.id[full]
         residual = dict(zip(ids.tolist(), rs.residual.tolist()))
         used, rejected = ids[rs.inlier], [(p, r) for p, r, k in zip(ids, rs.residual, rs.inlier) if not k]
     elif plan.sum() >= 2:
-        L = _rotation_onto(up, np.array([0.0, 0.0, 1.0]))
+        L = rotation_onto(up, np.array([0.0, 0.0, 1.0]))
         a = X @ L.T
-        rs = robust_similarity(a[plan, :2], given[plan, :2], min_sigma=min_sigma, seed=seed)
+        rs = robust_similarity(a[plan, :2], given[plan, :2], min_sigma=min_sigma, min_sigma_src=min_model, seed=seed)
         kind, scale = "plan", rs.scale
         R = np.eye(3)
         R[:2, :2] = rs.R
@@ -486,7 +534,7 @@ def image_approximations(work_dir: Path, ties_path: Path, ties: ImageObservation
 
 def _write_local(path: Path, rel: RelativeBlock) -> None:
     """The relative orientation in its local frame (levelled, in model units), as an EO file with a header."""
-    L = _rotation_onto(rel.up(), np.array([0.0, 0.0, 1.0]))
+    L = rotation_onto(rel.up(), np.array([0.0, 0.0, 1.0]))
     C = (rel.centre - np.median(rel.points, axis=0) if len(rel.points) else rel.centre) @ L.T
     opk = np.stack(opk_from_matrix(L @ rel.R_cv @ FLIP_YZ), axis=-1)
     lines = ["# image_id X Y Z omega phi kappa: a LOCAL frame (pycolmap relative orientation of the tie points):",
