@@ -297,8 +297,10 @@ def _image_approximations(project: Project, cam, ties: ImageObservations, contro
     ap = image_approximations(project.work_dir, project.tiepoints_path, ties, cam, frames, control, cobs, crs)
     oriented = list(ap.eo.image_id)
     ties = ties.subset(np.isin(ties.image_id, oriented))
-    cobs = cobs.subset(np.isin(cobs.image_id, oriented))
-    control = control.subset(np.isin(control.id, cobs.point_id))
+    kept = np.isin(cobs.image_id, oriented)
+    lost = set(cobs.point_id[~kept].tolist()) - set(cobs.point_id[kept].tolist())  # measured only in those frames
+    cobs = cobs.subset(kept)
+    control = control.subset(~np.isin(control.id, sorted(lost)))
     note = ap.datum.statement()
     if ap.relative.unregistered:
         note += f" Frames the images could not orient (left out): {', '.join(ap.relative.unregistered)}."
