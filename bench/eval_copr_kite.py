@@ -56,16 +56,21 @@ height = 2848
 WRONG_LINE = ("IMG_0031.jpg", "gcp04")  # gcp04 measured at gcp00's pixel of IMG_0031 (see main: the projection check)
 
 
-def run(cmd: list[str], expect: int = 0) -> tuple[float, str]:
-    """Run a documented command; (seconds, its output)."""
+def run(cmd: list[str], expect: int = 0) -> tuple[float, float, str]:
+    """Run a documented command; (wall seconds, CPU seconds, its output)."""
+    import resource
+
     t0 = time.perf_counter()
+    c0 = resource.getrusage(resource.RUSAGE_CHILDREN)
     p = subprocess.run([str(BIN / cmd[0])] + cmd[1:], capture_output=True, text=True)
     dt = time.perf_counter() - t0
+    c1 = resource.getrusage(resource.RUSAGE_CHILDREN)
+    cpu = (c1.ru_utime - c0.ru_utime) + (c1.ru_stime - c0.ru_stime)
     out = p.stdout + p.stderr
     if p.returncode != expect:
         sys.exit(f"{' '.join(cmd)}: exit {p.returncode}, expected {expect}:\n{out}")
-    print(f"{dt:7.1f} s  {' '.join(cmd)}", file=sys.stderr, flush=True)
-    return dt, out
+    print(f"{dt:7.1f} s ({cpu:.1f} s CPU)  {' '.join(cmd)}", file=sys.stderr, flush=True)
+    return dt, cpu, out
 
 
 def setup(data: Path, root: Path) -> Path:
@@ -112,7 +117,7 @@ def wrong_line_check(root: Path) -> dict:
     eo = read_eo(project.eo_path)
     cam, _ = block_camera(project)
     i = eo.index()["IMG_0031"]
-    z = float(np.median([float(r["z"]) for r in csv.DictReader(open(project.object_points_path)) if r["kind"] == "tie"]))
+    z = float(np.median([float(r["z"]) for r in csv.DictReader(project.object_points_path.read_text().splitlines()) if r["kind"] == "tie"]))
     out = {"measured_px": [3485.0, 728.6]}
     for pid, xy in (("gcp04", (235262.54, 3811203.5)), ("gcp00", (235277.61, 3811190.36))):
         x, y, _ = cam.project(np.array([[xy[0], xy[1], z]]), eo.centre_m[i], eo.rotation(i))
@@ -142,12 +147,15 @@ def main(argv=None):
     root = work / "copr_kite"
     fixed = setup(a.data, root)
     P = str(root)
-    res = {"commands": [], "seconds": {}}
+    import os
+
+    res = {"commands": [], "seconds": {}, "cpu_seconds": {}}
     t_all = time.perf_counter()
 
     def step(name, cmd, expect=0):
-        dt, out = run(cmd, expect)
+        dt, cpu, out = run(cmd, expect)
         res["seconds"][name] = round(dt, 1)
+        res["cpu_seconds"][name] = round(cpu, 1)
         res["commands"].append(" ".join(cmd).replace(P, "P").replace(str(a.data), "DATA").replace(str(fixed), "gcp_list_fixed.txt"))
         return out
 
@@ -163,6 +171,10 @@ def main(argv=None):
     step("mosaic", ["ortho", "mosaic", P])
     step("report", ["aerotri", "report", P])
     res["seconds"]["total"] = round(time.perf_counter() - t_all, 1)
+    res["cpu_seconds"]["total"] = round(sum(res["cpu_seconds"].values()), 1)
+    res["load_average_at_end"] = [round(v, 1) for v in os.getloadavg()]
+    res["machine_note"] = (f"{os.cpu_count()} cores shared with other jobs: wall seconds depend on the load (the load "
+                           "average at the end is given); CPU seconds are the commands' own")
 
     rep = json.loads((root / "at" / "report.json").read_text())
     loo = json.loads((root / "at" / "leave_one_out.json").read_text())
@@ -206,6 +218,13 @@ def main(argv=None):
     }
     res["ratio_loo_to_reference"] = round(loo["rms_xy_m"] / scatter["rms_xy_dof_corrected_m"], 3)
     res["wrong_measurement"] = wrong_line_check(root)
+    from aerotri.geom.eo import read_eo
+
+    eo = read_eo(root / "at" / "eo.txt")
+    tilt = np.degrees(np.arccos(np.cos(np.radians(eo.opk_deg[:, 0])) * np.cos(np.radians(eo.opk_deg[:, 1]))))
+    res["frames_tilt_deg"] = {"median": round(float(np.median(tilt)), 2), "min": round(float(tilt.min()), 2),
+                              "max": round(float(tilt.max()), 2),
+                              "note": "camera axis from the vertical of the levelled block (the kite rig's hang)"}
     res["dem"] = {key: dem[key] for key in ("res_m", "width", "height", "points", "outliers", "cells_measured",
                                             "cells_interpolated", "cells_extrapolated", "height_range_m")}
     res["report"] = {"overall": qa["overall"], "passed": qa["passed"], "failed": qa["failed"]}

@@ -29,6 +29,10 @@ def _errors(block, eo):
     return eo.centre_m - t.centre_m[idx], (eo.opk_deg - t.opk_deg[idx] + 180.0) % 360.0 - 180.0
 
 
+def _rows(path):
+    return list(csv.DictReader(path.read_text().splitlines()))
+
+
 def _rms(a, axis=0):
     return np.sqrt(np.mean(np.square(a), axis=axis))
 
@@ -106,7 +110,7 @@ def test_block_without_gnss_is_oriented_from_its_images(no_gnss_block, tmp_path)
 
 
 def _plan_only(root):
-    rows = list(csv.DictReader(open(root / "control" / "points.csv")))
+    rows = _rows(root / "control" / "points.csv")
     with open(root / "control" / "points.csv", "w", newline="") as f:
         w = csv.DictWriter(f, fieldnames=list(rows[0]))
         w.writeheader()
@@ -199,26 +203,26 @@ def test_a_degenerate_start_is_refused_by_name(no_gnss_block, tmp_path):
 
 
 def test_simulated_frames_without_gnss_end_to_end(tiny_project, tmp_path):
-    """The simulator's tiny block (rendered frames) without gnss.txt: matched, oriented from the images, its datum
-    from the surveyed targets; the adjusted EO against the truth."""
+    """The simulator's tiny block (rendered frames) without gnss.txt and LiDAR, its surveyed targets as control:
+    ``aerotri run`` matches, orients the frames from the images, adjusts (the preset's [adjust] self-calibration of
+    principal point and radial distortion), makes the DEM of the tie points and the orthophotos on it. The adjusted
+    EO against the truth."""
     import shutil
 
     root = tmp_path / "tiny"
     shutil.copytree(tiny_project, root, ignore=shutil.ignore_patterns("lidar", "work", "at"))
     (root / "gnss.txt").unlink()
     (root / "control").mkdir()
-    measured = {r["point_id"] for r in csv.DictReader(open(root / "truth" / "checkpoint_image_points.csv"))}
-    targets = [t for t in csv.DictReader(open(root / "truth" / "checkpoints.csv")) if t["id"] in measured]
+    measured = {r["point_id"] for r in _rows(root / "truth" / "checkpoint_image_points.csv")}
+    targets = [t for t in _rows(root / "truth" / "checkpoints.csv") if t["id"] in measured]
     (root / "control" / "points.csv").write_text(
         "id,kind,x,y,z,sx_m,sy_m,sz_m\n" + "".join(f"{t['id']},full,{t['x']},{t['y']},{t['z']},0.1,0.1,0.1\n" for t in targets))
     shutil.copy(root / "truth" / "checkpoint_image_points.csv", root / "control" / "image_points.csv")
-    run = CliRunner()
-    r = run.invoke(aerotri_cli, ["match", str(root)], catch_exceptions=False)
+    r = CliRunner().invoke(aerotri_cli, ["run", str(root)], catch_exceptions=False)
     assert r.exit_code == 0, r.output
-    # the preset's nominal camera is not the true one: principal point and radial distortion self-calibrated, as
-    # its project.toml [adjust] says
-    r = run.invoke(aerotri_cli, ["adjust", str(root), "--no-exports", "--self-cal", "pp,radial"], catch_exceptions=False)
-    assert r.exit_code == 0, r.output
+    for stage in ("match", "adjust_final", "dem", "rectify", "mosaic", "report"):
+        assert (root / "work" / "stages" / f"{stage}.json").is_file(), stage
+    assert "from the images (pycolmap)" in r.stdout and (root / "ortho" / "mosaic.tif").is_file()
     truth = read_eo(root / "truth" / "eo.txt")
     eo = read_eo(root / "at" / "eo.txt")
     k = truth.index()
@@ -230,3 +234,12 @@ def test_simulated_frames_without_gnss_end_to_end(tiny_project, tmp_path):
     assert np.all(_rms(d) < gsd) and np.all(_rms(dopk) < 0.1), (_rms(d), _rms(dopk))
     # the errors within what the adjustment says its precision is (measured: 0.2 to 0.9 of its sigmas)
     assert np.all(_rms(np.column_stack([d, dopk]) / eo.sigma) < 2.0)
+    # the DEM of the tie points against the true terrain (where the tie points are: open ground and roofs)
+    import rasterio
+
+    with rasterio.open(root / "at" / "dem.tif") as a, rasterio.open(root / "truth" / "dsm.tif") as b:
+        z = a.read(1, masked=True)
+        xs, ys = rasterio.transform.xy(a.transform, *np.nonzero(~np.ma.getmaskarray(z)))
+        true = np.array([v[0] for v in b.sample(list(zip(xs, ys)))])
+    dz = z.compressed() - true
+    assert abs(np.median(dz)) < 2.0 * gsd
