@@ -25,7 +25,7 @@ from pathlib import Path
 
 import numpy as np
 
-from aerotri.core.atomic import atomic_path, write_text_atomic
+from aerotri.core.atomic import atomic_path, refuse_input_as_output, write_text_atomic
 from aerotri.core.errors import InputError, OptionError
 from aerotri.core.project import Project
 from aerotri.geom.crs import project_crs
@@ -190,6 +190,8 @@ def write_points_dem(root, out=None, res_m: float | None = None, min_rays: int =
     bounds = _footprint_bounds(project.root, float(np.median(pts[:, 2])))
     dem = points_dem(pts, res, bounds)
     out = Path(out) if out is not None else project.at_dir / "dem.tif"
+    refuse_input_as_output(out, [project.object_points_path, project.eo_path, project.camera_path], option="--out")
+    refuse_input_as_output(out.with_suffix(".json"), [project.object_points_path, project.eo_path], option="--out")
     transform = from_origin(dem.x_left_m, dem.y_top_m, dem.res_m, dem.res_m)
     data = np.where(np.isfinite(dem.heights_m), dem.heights_m, NODATA).astype(np.float32)
     profile = dict(driver="GTiff", width=data.shape[1], height=data.shape[0], count=1, dtype="float32", crs=crs,

@@ -99,6 +99,7 @@ class ImageDatum:
     height_m: dict  # id -> height (local ENU, m) of every intersected control point in the transformed model
     not_intersected: tuple[str, ...]  # control points with fewer than 2 usable rays in registered frames
     view_off_vertical_deg: float  # the frames' mean viewing direction from the vertical, after the transform
+    height_points: int = 0  # "plan": control points with heights that gave the height offset (0: none)
 
     def apply(self, xyz_model: np.ndarray) -> np.ndarray:
         return self.scale * np.asarray(xyz_model) @ self.R.T + self.t_m
@@ -116,7 +117,9 @@ class ImageDatum:
         return (head + ". The control has no measured heights: plan, scale and rotation about the vertical come "
                 "from it; the vertical is the normal of the tie points' mean plane (the ground taken as level on "
                 f"average; the frames' mean viewing direction is {self.view_off_vertical_deg:.1f} deg from it) and "
-                "height 0 is the control points' median ground, so the heights are relative, not measured.")
+                + (f"the height offset the median of the {self.height_points} control points with heights, so the "
+                   "heights are measured at those points only." if self.height_points else
+                   "height 0 is the control points' median ground, so the heights are relative, not measured."))
 
 
 @dataclasses.dataclass(frozen=True)
@@ -495,8 +498,9 @@ def georeference(rel: RelativeBlock, control: ControlPoints, control_obs: ImageO
         off = rel.view_off_up_deg()
     z_local = (scale * X @ R.T + np.asarray(t, float))[:, 2]
     heights = {str(p): float(z) for p, z, k in zip(control.id, z_local, ok) if k}
+    n_height = int(hz.sum()) if kind == "plan" else 0
     return ImageDatum(kind, float(scale), R, np.asarray(t, float), tuple(used.tolist()),
-                      tuple((str(p), float(r)) for p, r in rejected), residual, heights, not_int, off)
+                      tuple((str(p), float(r)) for p, r in rejected), residual, heights, not_int, off, n_height)
 
 
 def exterior_orientations(rel: RelativeBlock, datum: ImageDatum, frame: LocalFrame) -> ExteriorOrientations:

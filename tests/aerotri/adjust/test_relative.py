@@ -157,13 +157,13 @@ def test_leave_one_out_against_the_known_control_noise(no_gnss_block, tmp_path):
     and against the control points' own scatter about the block."""
     block, src = no_gnss_block
     root = _copy(src, tmp_path / "p")
-    write_truth_observations(root, tie_sigma_px=SIGMA_PX, control_sigma_m=(0.5, 0.5, 0.5), n_control=8,
+    write_truth_observations(root, tie_sigma_px=SIGMA_PX, control_sigma_m=(0.5, 0.5, 0.5), n_control=6,
                              points_per_image=150, n_check=0, seed=6)
     _plan_only(root)
     st = AdjustSettings(image_sigma_px=SIGMA_PX, point_covariances=False)
     loo = leave_one_out(root, st)
     d = loo.as_dict()
-    assert d["checked"] >= 6
+    assert d["checked"] >= 5
     # each left-out point: its own 0.5 m noise plus the datum from the others: sqrt(2) x 0.5 m plan, a little more
     assert 0.4 < d["rms_xy_m"] < 1.2
     assert 0.6 < d["rms_xy_m"] / loo.scatter.rms_xy_dof_m < 1.6
