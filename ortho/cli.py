@@ -59,6 +59,25 @@ def rectify(project, dem, res_m, crs, params_path, heights_path, allow_ballpark,
 
 @main.command()
 @click.argument("project", type=click.Path(path_type=Path))
+@click.option("--res", "res_m", type=click.FloatRange(min=0.0, min_open=True), default=None,
+              help="cell size (m) [about 4 tie points per cell]")
+@click.option("--min-rays", type=click.IntRange(min=2), default=3, show_default=True,
+              help="tie points seen in at least this many frames")
+@click.option("--out", "out", type=click.Path(dir_okay=False, path_type=Path), help="output GeoTIFF [at/dem.tif]")
+def dem(project, res_m, min_rays, out):
+    """A DEM (COG, project CRS) from the adjusted tie points (at/object_points.csv), over the frames' footprints:
+    for blocks without a DEM from elsewhere (ortho rectify --dem at/dem.tif)."""
+    from ortho.points_dem import write_points_dem
+
+    s = write_points_dem(project, out, res_m, min_rays)
+    click.echo(f"DEM {s['width']} x {s['height']} cells at {s['res_m']} m from {s['points']} tie points "
+               f"({s['outliers']} outliers out; cells measured {s['cells_measured']}, interpolated "
+               f"{s['cells_interpolated']}, extended {s['cells_extrapolated']}), heights {s['height_range_m'][0]:.2f} to "
+               f"{s['height_range_m'][1]:.2f} -> {s['file']}")
+
+
+@main.command()
+@click.argument("project", type=click.Path(path_type=Path))
 @click_option(MosaicSettings, "seams", "--seams")
 @click_option(MosaicSettings, "ndsm", "--ndsm")
 @click_option(MosaicSettings, "feather_m", "--feather-m")

@@ -42,8 +42,9 @@ def _self_cal_groups(ctx, param, value):
 @click.option("--no-html", is_flag=True, help="Skip report.html.")
 @click.option("--no-exports", is_flag=True, help="Skip the PATB and COLMAP exports (aerotri export writes them later).")
 @click.option("--eo", "initial_eo", type=click.Path(dir_okay=False, exists=True, path_type=Path), default=None,
-              help="Approximate orientations (image_id X Y Z omega phi kappa): the start of a block without GNSS, "
-                   "whose datum then comes from the control points (at least 2 plan and 3 height).")
+              help="Approximate orientations (image_id X Y Z omega phi kappa) of a block without GNSS, whose datum "
+                   "then comes from the control points (at least 2 in plan); default for such a block: from the "
+                   "images (pycolmap on the tie points), brought into the project CRS by the control points.")
 @click_option(AdjustSettings, "dem", "--dem", type=click.Path(dir_okay=False, path_type=Path),
               help="DEM (GeoTIFF in the project CRS and heights) as surface control: tie points on the ground observe "
                    "its height; default project.toml [adjust] dem, else none.")
@@ -57,9 +58,10 @@ def _self_cal_groups(ctx, param, value):
               help="Roof planes: the lidarctl corners folder (roof_planes.geojson, project CRS) as surface control: tie "
                    "points on a roof face observe its plane (with --dem); default project.toml [adjust] planes, else none.")
 @click_option(AdjustSettings, "plane_sigma_m", "--plane-sigma-m")
+@click_option(AdjustSettings, "leave_one_out", "--leave-one-out/--no-leave-one-out")
 def adjust(project, gnss_correction, lever_arm, self_cal, image_sigma_px, check, control, no_snooping, no_control, alpha,
            no_html, no_exports, initial_eo, dem, surface_sigma_m, ndsm, max_ndsm_m, variance_components, planes,
-           plane_sigma_m):
+           plane_sigma_m, leave_one_out):
     """Adjust the block of PROJECT; writes at/eo.txt, at/object_points.csv, at/report.* and exports."""
     from aerotri.adjust.pipeline import run_adjustment
     from aerotri.exchange import export_project
@@ -76,9 +78,9 @@ def adjust(project, gnss_correction, lever_arm, self_cal, image_sigma_px, check,
         alpha=alpha,
         initial_eo=initial_eo,
         dem=dem, surface_sigma_m=surface_sigma_m, ndsm=ndsm, max_ndsm_m=max_ndsm_m, planes=planes,
-        plane_sigma_m=plane_sigma_m, variance_components=variance_components,
+        plane_sigma_m=plane_sigma_m, variance_components=variance_components, leave_one_out=leave_one_out,
     )
-    _, rep = run_adjustment(project, settings, html=not no_html)
+    ba, rep = run_adjustment(project, settings, html=not no_html)
     if not no_exports:
         export_project(project)
     k = rep["key_statistics"]
@@ -90,3 +92,7 @@ def adjust(project, gnss_correction, lever_arm, self_cal, image_sigma_px, check,
                        f"rms {c['rms_m']} m")
     if rep["check_rms_m"]:
         click.echo("check RMS X Y Z (m): " + " ".join(f"{v:.3f}" for v in rep["check_rms_m"]))
+    if leave_one_out:
+        from aerotri.adjust.leave_one_out import run_leave_one_out
+
+        click.echo(run_leave_one_out(project, settings, full=ba).table())

@@ -31,10 +31,12 @@ from aerotri.adjust.surface import SurfaceControl, read_height_grid, read_roof_p
 from aerotri.geom.observations import (
     ControlPoints,
     ImageObservations,
+    read_control_image_points,
     read_control_points,
     read_image_points,
     validate_references,
 )
+from aerotri.adjust.level_datum import height_datum, level_result
 from aerotri.adjust.solve import AdjustmentResult, adjust_block, check_point_errors
 from aerotri.adjust.variance_components import adjusted_gnss
 from aerotri.geom.strips import along_track_km, strips_from_track
@@ -74,6 +76,7 @@ class BlockAdjustment:
     check_obs: ImageObservations | None
     components: int = 1
     left_out: list = dataclasses.field(default_factory=list)  # LeftOutComponent
+    datum_notes: list = dataclasses.field(default_factory=list)  # what the datum rests on (no GNSS), for the report
 
 
 def _settings_from_project(project: Project, s: AdjustSettings) -> AdjustSettings:
@@ -123,7 +126,9 @@ def datum_shortfall(control: ControlPoints, gnss: bool, correction: str, surface
     n_xy = int(np.isin(control.kind, ["full", "horizontal"]).sum())
     n_z = int(np.isin(control.kind, ["full", "height"]).sum())
     if not gnss:
-        need = (2, 3)
+        # 2 plan points fix plan, scale and the rotation about the vertical; with fewer than 3 height points the
+        # heights and the tilt are held at those of the approximate orientations (``height_datum``)
+        need = (2, 0)
     elif correction == "shift":
         need = (1, 1)
     elif correction == "shift_drift":
@@ -165,7 +170,7 @@ def read_project_control(project: Project, st: AdjustSettings, crs=None) -> tupl
         raise InputError(f"{project.gnss_path}: without control the datum needs GNSS positions")
     if st.use_control and (ctrl_path.exists() or cobs_path.exists() or not gnss_datum):
         control = read_control_points(ctrl_path, crs, hint="run aerotri control first, or --no-control")
-        cobs = read_image_points(cobs_path, hint="run aerotri control first, or --no-control")
+        cobs = read_control_image_points(cobs_path, hint="run aerotri control first, or --no-control")
     else:
         # GNSS alone can carry the datum (no corrections per strip): the first adjustment of the
         # chain, before LiDAR control has been transferred. check_datum refuses the other cases.
@@ -211,6 +216,8 @@ class ProjectInputs:
     gnss: object | None  # GnssPositions
     initial_eo: ExteriorOrientations | None
     gnss_sigma_m: tuple  # (xy, z) default a-priori sigmas of project.toml [gnss]
+    datum_notes: list = dataclasses.field(default_factory=list)  # how the approximations got their datum
+    model_heights_map: dict = dataclasses.field(default_factory=dict)  # control id -> height in the image model
 
 
 @dataclasses.dataclass
@@ -232,6 +239,8 @@ class PreparedBlock:
     n_tie_points: int
     components: int = 1  # parts of the block no tie point connects, adjusted together (each with its datum)
     left_out: list = dataclasses.field(default_factory=list)  # LeftOutComponent: parts without a datum
+    datum_notes: list = dataclasses.field(default_factory=list)  # what the datum rests on (no GNSS)
+    level: object | None = None  # level_datum.LevelDatum: plan-only control, heights and tilt by assumption
 
 
 def read_inputs(project: Project, settings: AdjustSettings | None = None) -> ProjectInputs:
@@ -250,6 +259,7 @@ def read_inputs(project: Project, settings: AdjustSettings | None = None) -> Pro
     control, cobs = read_project_control(project, st, crs)
     # orientation source: GNSS (with given approximate EO, if any) or given approximate EO alone
     gnss = eo0 = None
+    notes, model_heights = [], {}
     if st.use_gnss and project.gnss_path.exists():
         gnss = read_gnss(project.gnss_path, crs)
         image_ids, approx_pos_map, block_path = list(gnss.image_id), gnss.position_m, project.gnss_path
@@ -259,8 +269,11 @@ def read_inputs(project: Project, settings: AdjustSettings | None = None) -> Pro
         eo0 = _initial_orientations(st.initial_eo, None, crs)
         image_ids, approx_pos_map, block_path = list(eo0.image_id), eo0.centre_m, st.initial_eo
     else:
-        raise InputError(f"{project.gnss_path}: missing; a block without GNSS needs approximate orientations "
-                         "(aerotri adjust --eo FILE) and control points for its datum")
+        # no GNSS, no given orientations: from the images (pycolmap on the tie points) and the control
+        ap, ties, control, cobs, note = _image_approximations(project, cam, ties, control, cobs, crs)
+        eo0, model_heights = ap.eo, ap.control_heights_map(control)
+        image_ids, approx_pos_map, block_path = list(eo0.image_id), eo0.centre_m, project.tiepoints_path
+        notes.append(note)
     validate_references(ties, control, cobs, image_ids, project.tiepoints_path, project.control_points_path,
                         project.control_image_points_path, camera=cam, block_path=block_path,
                         camera_path=project.camera_path)
@@ -270,7 +283,29 @@ def read_inputs(project: Project, settings: AdjustSettings | None = None) -> Pro
     cobs = ImageObservations(cobs.point_id, cobs.image_id, cam.calibration_observations(cobs.xy_px))
     return ProjectInputs(project=project, settings=st, camera=cam, ties=ties, control=control, control_obs=cobs,
                          image_ids=image_ids, approx_position_map=approx_pos_map, gnss=gnss, initial_eo=eo0,
-                         gnss_sigma_m=gnss_sigma)
+                         gnss_sigma_m=gnss_sigma, datum_notes=notes, model_heights_map=model_heights)
+
+
+def _image_approximations(project: Project, cam, ties: ImageObservations, control: ControlPoints,
+                          cobs: ImageObservations, crs):
+    """(``ImageApproximations``, ties, control points and control measurements of the oriented frames, datum
+    statement) of a block without GNSS from its images (``aerotri.adjust.relative``); frames the images cannot orient are left
+    out, named, and so are control points measured only in them."""
+    from aerotri.adjust.relative import image_approximations
+
+    frames = sorted(set(np.unique(ties.image_id).tolist()) | set(np.unique(cobs.image_id).tolist()))
+    ap = image_approximations(project.work_dir, project.tiepoints_path, ties, cam, frames, control, cobs, crs)
+    oriented = list(ap.eo.image_id)
+    ties = ties.subset(np.isin(ties.image_id, oriented))
+    kept = np.isin(cobs.image_id, oriented)
+    lost = set(cobs.point_id[~kept].tolist()) - set(cobs.point_id[kept].tolist())  # measured only in those frames
+    cobs = cobs.subset(kept)
+    control = control.subset(~np.isin(control.id, sorted(lost)))
+    note = ap.datum.statement()
+    if ap.relative.unregistered:
+        note += f" Frames the images could not orient (left out): {', '.join(ap.relative.unregistered)}."
+    (log.warning if ap.datum.kind == "plan" else log.info)(note)
+    return ap, ties, control, cobs, note
 
 
 @dataclasses.dataclass
@@ -474,12 +509,24 @@ def prepare_project(root, settings: AdjustSettings | None = None) -> tuple[Prepa
         self_calibration=tuple(st.self_calibration),
     )
     state0 = _approximations(inp, frame, block, ob.image_ids)
+    notes = list(inp.datum_notes)
+    model_z = {}
+    for c, pid in enumerate(ctrl_used.id):  # the image model's heights, in the local frame
+        if str(pid) in inp.model_heights_map:
+            xyz = ctrl_used.xyz_m[c].copy()
+            xyz[2] = inp.model_heights_map[str(pid)]
+            model_z[c] = float(frame.to_local(xyz[None])[0, 2])
+    level = height_datum(block, state0, frame.jacobian_local_from_map(ctrl_used.xyz_m) if len(ctrl_used) else None,
+                         ctrl_used.sigma_m, model_z)
+    if level is not None:
+        log.warning(level.note)
+        notes.append(level.note)
     prepared = PreparedBlock(
         project=project, settings=st, frame=frame, camera=inp.camera, block=block, opts=opts, control_used=ctrl_used,
         check_points=chk, control_obs=inp.control_obs, image_ids=ob.image_ids,
         image_index={k: i for i, k in enumerate(ob.image_ids)},
         gnss_map=gnss.position_m[ob.order] if gnss is not None else None, n_tie_points=ob.n_tie,
-        components=ob.components, left_out=ob.left_out,
+        components=ob.components, left_out=ob.left_out, datum_notes=notes, level=level,
     )
     return prepared, state0
 
@@ -492,6 +539,8 @@ def adjust_project(root, settings: AdjustSettings | None = None) -> BlockAdjustm
                           point_covariances=st.point_covariances, variance_components=st.variance_components)
     if result.block is not prepared.block:  # reweighted by variance components: report the weights solved with
         prepared = dataclasses.replace(prepared, block=result.block, opts=result.opts)
+    if prepared.level is not None:  # plan-only control: the solution levelled (tie points' mean plane horizontal)
+        prepared.datum_notes.append(level_result(prepared.level, prepared.block, result))
     return finish(prepared, result)
 
 
@@ -584,7 +633,7 @@ def finish(prepared: PreparedBlock, result: AdjustmentResult) -> BlockAdjustment
         points_map=pts_map, points_sigma_map=psig, control=p.control_used,
         control_index_of_point={int(j): c for c, j in enumerate(block.control_point)}, check=check, gnss_map=gnss_map,
         gnss_residual_m=gres, n_tie_points=p.n_tie_points, check_obs=chk_obs, components=p.components,
-        left_out=p.left_out,
+        left_out=p.left_out, datum_notes=list(p.datum_notes),
     )
 
 

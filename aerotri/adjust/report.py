@@ -9,6 +9,7 @@ from __future__ import annotations
 import dataclasses
 import html
 import math
+import warnings
 
 import numpy as np
 
@@ -20,7 +21,15 @@ def _rms(a, axis=0):
     a = np.asarray(a, dtype=float)
     if a.size == 0:
         return np.full(a.shape[1:] if a.ndim > 1 else (), np.nan)
-    return np.sqrt(np.nanmean(a**2, axis=axis))
+    with warnings.catch_warnings():  # a column of NaN (plan-only control has no height residual): NaN, quietly
+        warnings.simplefilter("ignore", RuntimeWarning)
+        return np.sqrt(np.nanmean(a**2, axis=axis))
+
+
+def _nanmax_abs(a, axis=0):
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)
+        return np.nanmax(np.abs(a), axis=axis)
 
 
 def _f(x, nd=3):
@@ -244,7 +253,7 @@ def _parameters(ba, rms_control, cres, dchk, mean_sd_obj, rms_lim, res_lim) -> d
         "rms_control_m": _lst(rms_control, 4) + [xy(rms_control)],
         "rms_check_m": (_lst(_rms(dchk), 4) + [xy(_rms(dchk))]) if len(dchk) else None,
         "rms_limits_m": _lst(rms_lim, 3) + [None],
-        "max_ground_residual_m": (_lst(np.nanmax(np.abs(cres), axis=0), 4) + [None]) if len(cres) else None,
+        "max_ground_residual_m": (_lst(_nanmax_abs(cres), 4) + [None]) if len(cres) else None,
         "residual_limits_m": _lst(res_lim, 3) + [None],
         "mean_std_dev_object_m": _lst(mean_sd_obj, 4) + [xy(mean_sd_obj)],
         "rms_photo_position_m": (_lst(_rms(ba.gnss_residual_m), 4) + [xy(_rms(ba.gnss_residual_m))]) if has_gnss else None,
@@ -395,6 +404,8 @@ def build_report(ba, map_scale: str = "1:5000", terrain: str = "flat", tolerance
         "parameters": _parameters(ba, rms_control, cres, dchk, mean_sd_obj, rms_lim, res_lim),
         "key_statistics": _key_statistics(ba, rms_lim[2]),
         "components": {"adjusted": int(ba.components), "left_out": [lo.as_dict() for lo in ba.left_out]},
+        # what the datum rests on when GNSS does not carry it (approximations from the images, unmeasured heights)
+        "datum": list(getattr(ba, "datum_notes", [])),
         "counts": {"images": b.n_images, "strips": b.n_strips, "tie_points": int(len(tie_pts)),
                    "control_points": int(len(used_ctrl)), "check_points": int(len(check_rows)),
                    "image_observations": int(res.active.sum()), "removed_observations": len(removed)},
@@ -496,6 +507,8 @@ def format_txt(rep: dict) -> str:
     sigma = "n/a" if k["sigma0_um"] is None else f"{k['sigma0_um']:.2f} um ({k['sigma0_px']:.3f} px of {k['pixel_um']:g} um)"
     L += ["", "Key Statistics", f"  Sigma: {sigma}", f"  Number of iterations: {k['iterations']}",
           f"  Degrees of Freedom: {k['degrees_of_freedom']}", f"  {k['message']}", ""]
+    if rep.get("datum"):
+        L += ["DATUM"] + [f"  {note}" for note in rep["datum"]] + [""]
     sc = rep.get("surface_control")
     if sc:
         L += _surface_txt(sc)
@@ -699,6 +712,8 @@ def format_html(rep: dict, ba=None) -> str:
     parts.append("<h2>Key Statistics</h2>" + T(["statistic", "value"], [
         ["Sigma", sigma], ["Number of iterations", k["iterations"]], ["Degrees of Freedom", k["degrees_of_freedom"]],
         ["Result", k["message"]]], num_from=9))
+    if rep.get("datum"):
+        parts.append("<h2>Datum</h2>" + "".join(f"<p>{esc(note)}</p>" for note in rep["datum"]))
     c = rep["counts"]
     parts.append(f"<p>Images {c['images']} in {c['strips']} strips, tie points {c['tie_points']}, control points "
                  f"{c['control_points']}, check points {c['check_points']}, image observations "

@@ -63,3 +63,5 @@ class AdjustSettings:
     point_covariances: bool = True
     use_control: bool = True  # False: ignore control/ (GNSS must carry the datum)
     refine_approximations: bool = True  # resection/intersection of the attitudes before the bundle (GNSS)
+    leave_one_out: bool = setting(False, help="After the adjustment, adjust again once per control point with that "
+                                              "point left out as a check point: at/leave_one_out.json.")

@@ -16,7 +16,12 @@ runs what its inputs allow and says what it left out and why:
 - no usable roof corner (or ``[adjust] use_control = false``): no control transfer, the final
   adjustment runs without LiDAR control;
 - GNSS corrections per strip (``[adjust] gnss_correction``) with too few control points for their
-  datum: the adjustment runs without them (GNSS carries the datum) and says so.
+  datum: the adjustment runs without them (GNSS carries the datum) and says so;
+- no GNSS (no gnss.txt, no ``[adjust] initial_eo``): the adjustment takes its approximate orientations from the
+  images (pycolmap on the tie points) and its datum from the project's control points
+  (``aerotri.adjust.relative``); without a DEM from elsewhere, a DEM of the adjusted tie points (``dem`` stage,
+  ``at/dem.tif``) carries the orthophotos. ``[adjust] leave_one_out = true`` adds the leave-one-out check of the
+  control points (``at/leave_one_out.json``).
 """
 
 from __future__ import annotations
@@ -95,12 +100,32 @@ class Chain:
         return self.options.adjust.use_gnss and self.project.gnss_path.is_file()
 
     def dem_path(self) -> Path | None:
-        """The DEM of the orthophotos: --dem, else [rectify] dem, else the LiDAR stages' DEM."""
+        """The DEM of the orthophotos: --dem, else [rectify] dem, else the LiDAR stages' DEM, else (a block without
+        GNSS) the DEM of the adjusted tie points."""
         if self.dem is not None:
             return Path(self.dem)
         if self.options.rectify.dem is not None:
             return Path(self.options.rectify.dem)
-        return self.project.dem_path if self.has_lidar else None
+        if self.has_lidar:
+            return self.project.dem_path
+        return self.tie_point_dem_path if self.tie_point_dem() else None
+
+    @property
+    def tie_point_dem_path(self) -> Path:
+        return self.project.at_dir / "dem.tif"
+
+    def tie_point_dem(self) -> bool:
+        """A DEM from the adjusted tie points carries the orthophotos: a block without GNSS (and no initial EO), no
+        LiDAR, no DEM given."""
+        return (self.dem is None and self.options.rectify.dem is None and not self.has_lidar and not self.has_gnss
+                and self.options.adjust.initial_eo is None)
+
+    def no_tie_point_dem(self, root=None) -> str | None:
+        if self.tie_point_dem():
+            return None
+        if self.has_gnss or self.options.adjust.initial_eo is not None:
+            return "a block with GNSS or given orientations: the DEM comes from LiDAR or from elsewhere"
+        return "a DEM is given or made from LiDAR"
 
     def no_lidar(self, root=None) -> str | None:
         if not self.has_lidar:
@@ -179,8 +204,11 @@ class Chain:
             Stage("control", self.control_inputs,
                   lambda r: [self.project.control_points_path, self.project.control_image_points_path], self.run_control,
                   options=to_table(o.control), skip=self.no_corners),
-            Stage("adjust_final", self.adjust_inputs, lambda r: [self.project.eo_path, self.project.adjustment_report_path],
+            Stage("adjust_final", self.adjust_inputs, self.adjust_final_outputs,
                   self.run_adjust_final, options=lambda r: to_table(self.final_settings()[0])),
+            # a block without GNSS, LiDAR or DEM: the DEM of its adjusted tie points
+            Stage("dem", lambda r: [self.project.object_points_path, self.project.eo_path],
+                  lambda r: [self.tie_point_dem_path], self.run_tie_point_dem, skip=self.no_tie_point_dem),
             # (the self-calibrated camera in at/report.json changes only with at/eo.txt)
             Stage("rectify", lambda r: [self.project.eo_path, self.dem_path()] + self.images(),
                   lambda r: [self.project.frames_index_path], self.run_rectify,
@@ -440,18 +468,39 @@ class Chain:
         return {k: getattr(sm, k) for k in ("corners_accepted", "control_full", "control_height", "check_points",
                                              "layout_targets", "layout_targets_unfilled")}
 
+    def adjust_final_outputs(self, root=None) -> list[Path]:
+        out = [self.project.eo_path, self.project.adjustment_report_path]
+        if self.options.adjust.leave_one_out:
+            out.append(self.project.at_dir / "leave_one_out.json")
+        return out
+
     def run_adjust_final(self, root) -> dict:
         from aerotri.adjust.pipeline import run_adjustment
 
         from aerotri.exchange import export_project
 
         settings, notes = self.final_settings()
-        _, rep = run_adjustment(root, settings)
+        ba, rep = run_adjustment(root, settings)
         export_project(root)  # PATB and COLMAP, read back from at/
         out = adjustment_numbers(rep)
+        notes = notes + list(rep.get("datum") or [])  # no GNSS: what the datum rests on
+        if settings.leave_one_out:
+            from aerotri.adjust.leave_one_out import run_leave_one_out
+
+            loo = run_leave_one_out(root, settings, full=ba)
+            out["loo_rms_xy_m"] = round(loo.rms_xy_m, 3)
+            out["control_scatter_xy_m"] = round(loo.scatter.rms_xy_dof_m, 3)
         if notes:
             out["notes"] = notes
         return out
+
+    def run_tie_point_dem(self, root) -> dict:
+        from ortho.points_dem import write_points_dem
+
+        s = write_points_dem(root, self.tie_point_dem_path)
+        return dict(res_m=s["res_m"], points=s["points"], cells_measured=s["cells_measured"],
+                    notes=["no GNSS, LiDAR or given DEM: the orthophotos on the DEM of the adjusted tie points "
+                           f"({self.tie_point_dem_path})"])
 
     # -- orthophotos ----------------------------------------------------------------------------
     def rectify_settings(self):

@@ -43,10 +43,14 @@ def export(project, formats, out_dir):
                                              "observations (accuracies: --sigma-xyz, else the format's own); without "
                                              "it a reconstruction's orientations go to imported/eo.txt only.")
 @click.option("--force", is_flag=True, help="Replace project files the import writes (camera.toml, gnss.txt, ...).")
-def import_(project, files, format_name, crs, sigma_xyz_m, as_gnss, force):
+@click.option("--heights-measured", is_flag=True,
+              help="Control heights that are all 0 (or all one number) were surveyed: keep them as height control "
+                   "(default: taken as not measured, the points become plan-only control).")
+def import_(project, files, format_name, crs, sigma_xyz_m, as_gnss, force, heights_measured):
     from aerotri.exchange.import_registry import import_files
     from aerotri.exchange.imported import ImportOptions
 
-    options = ImportOptions(crs=crs, sigma_xyz_m=tuple(sigma_xyz_m) if sigma_xyz_m else None, as_gnss=as_gnss)
+    options = ImportOptions(crs=crs, sigma_xyz_m=tuple(sigma_xyz_m) if sigma_xyz_m else None, as_gnss=as_gnss,
+                            heights_measured=heights_measured)
     for written in import_files(project, format_name, files, options, overwrite=force):
         click.echo(str(written))

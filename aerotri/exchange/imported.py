@@ -80,6 +80,7 @@ class ImportOptions:
     crs: str | None = None
     sigma_xyz_m: tuple[float, float, float] | None = None
     as_gnss: bool = False
+    heights_measured: bool = False  # control heights that are all 0 (or all one number) are real, not placeholders
 
 
 @dataclasses.dataclass(frozen=True)

@@ -14,6 +14,12 @@ its coordinates (OpenSfM groups measurements by (x, y, z)): ``gcp1``, ``gcp2``, 
 appearance. ``geo_z`` NaN (OpenSfM: no altitude) makes the point a horizontal control point. The file
 carries no accuracies: ``--sigma-xyz`` gives them (required).
 
+Control as measured: a file whose heights are all 0 (or all the same number) has heights nobody measured (ODM
+writes 0 where a survey gave none: the Coal Oil Point targets); its points are imported as horizontal control,
+with a warning, unless ``ImportOptions.heights_measured`` (``--heights-measured``) says the heights are real.
+Two different points measured within 2 px of each other in one frame are refused, naming both and their lines
+(``aerotri.geom.observations.check_distinct_points``): one of them is mislabelled.
+
 Export (``aerotri export --format odm``): ``aerotri.exchange.odm_export`` (this layout, in the project CRS:
 its EPSG code, else its PROJ string).
 """
@@ -30,7 +36,7 @@ from aerotri.core.errors import InputError, OptionError
 from aerotri.core.project import Project
 from aerotri.core.textio import read_text
 from aerotri.exchange.imported import ImportedBlock, ImportOptions, to_project_crs
-from aerotri.geom.observations import ControlPoints, ImageObservations
+from aerotri.geom.observations import ControlPoints, ImageObservations, check_distinct_points
 
 _UTM = re.compile(r"^WGS84\s+UTM\s+(\d{1,2})\s*([NS]?)$", re.IGNORECASE)
 
@@ -92,7 +98,22 @@ def read_gcp_list(path) -> tuple[str, list[tuple[str, np.ndarray]], list[tuple[s
             raise InputError(f"{path}:{lineno}: point {pid!r} measured twice in image {iid!r} (first on line "
                              f"{seen[(pid, iid)]})")
         seen[(pid, iid)] = lineno
+    check_distinct_points(ImageObservations(np.array([o[0] for o in obs], dtype=object), np.array([o[1] for o in obs], dtype=object),
+                                            np.array([[o[2], o[3]] for o in obs], float), np.array([o[4] for o in obs], int)), path)
     return crs, list(points.items()), obs
+
+
+def unmeasured_heights(z: np.ndarray) -> str | None:
+    """Why the finite heights ``z`` of a control file were not measured (all 0, or all one number), or None."""
+    z = np.asarray(z, float)
+    z = z[np.isfinite(z)]
+    if len(z) == 0:
+        return None
+    if np.all(z == 0.0):
+        return f"all {len(z)} heights are 0"
+    if len(z) >= 3 and np.all(z == z[0]):
+        return f"all {len(z)} heights are {z[0]:g}"
+    return None
 
 
 def read(files, project: Project, options: ImportOptions) -> ImportedBlock:
@@ -110,12 +131,19 @@ def read(files, project: Project, options: ImportOptions) -> ImportedBlock:
     ids = np.array([p for p, _ in points], dtype=object)
     xyz = np.array([v for _, v in points])
     no_z = ~np.isfinite(xyz[:, 2])
+    block = ImportedBlock(source=[str(path)])
+    why = unmeasured_heights(xyz[:, 2])
+    if why and not options.heights_measured:
+        # heights nobody measured are no control: the points give their plan position only
+        no_z[:] = True
+        xyz[:, 2] = np.nan
+        block.notes.append(f"{path}: {why}: taken as not measured; the {len(ids)} points are horizontal control "
+                           "(plan only). If the heights were surveyed, import again with --heights-measured")
     xyz_fill = xyz.copy()
     xyz_fill[no_z, 2] = 0.0
     xyz_map = to_project_crs(xyz_fill, crs, project, f"{path} (CRS {crs})")
     xyz_map[no_z, 2] = 0.0
     kinds = np.where(no_z, "horizontal", "full").astype(object)
-    block = ImportedBlock(source=[str(path)])
     block.control = ControlPoints(ids, kinds, xyz_map, np.tile(np.asarray(options.sigma_xyz_m, float), (len(ids), 1)))
     block.image_points = ImageObservations(np.array([o[0] for o in obs], dtype=object),
                                            np.array([o[1] for o in obs], dtype=object),

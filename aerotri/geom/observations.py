@@ -22,6 +22,7 @@ from aerotri.core.textio import read_text
 TIE_HEADER = ["point_id", "image_id", "x_px", "y_px"]
 CONTROL_HEADER = ["id", "kind", "x", "y", "z", "sx_m", "sy_m", "sz_m"]
 CONTROL_KINDS = ("full", "horizontal", "height", "check")
+COINCIDENT_PX = 2.0  # two different control points measured closer than this in one frame: one is mislabelled
 
 
 @dataclasses.dataclass
@@ -120,6 +121,38 @@ def read_image_points(path, hint: str = "") -> ImageObservations:
         iids.append(iid)
     return ImageObservations(np.array(pids, dtype=object), np.array(iids, dtype=object),
                              np.array(xy, dtype=float).reshape(-1, 2), np.array(list(seen.values()), dtype=int))
+
+
+def check_distinct_points(obs: ImageObservations, path, min_px: float = COINCIDENT_PX) -> None:
+    """Refuse (``InputError``) two different points measured within ``min_px`` of each other in one frame: a target
+    has one place, so at least one of the two is measured on the wrong target (or under the wrong name). The
+    message names both points, the frame and the lines of ``path`` (``obs.line``)."""
+    if len(obs) < 2:
+        return
+    from scipy.spatial import cKDTree
+
+    images = obs.image_id.astype(str)
+    for image in np.unique(images):
+        k = np.flatnonzero(images == image)
+        if len(k) < 2:
+            continue
+        for a, b in sorted(cKDTree(obs.xy_px[k]).query_pairs(min_px)):
+            ka, kb = sorted((k[a], k[b]), key=lambda q: (obs.line[q] if obs.line is not None else q))
+            if obs.point_id[ka] == obs.point_id[kb]:
+                continue
+            d = float(np.hypot(*(obs.xy_px[ka] - obs.xy_px[kb])))
+            where = f" (lines {int(obs.line[ka])} and {int(obs.line[kb])})" if obs.line is not None else ""
+            raise InputError(
+                f"{obs.where(kb, path)}: points {str(obs.point_id[ka])!r} and {str(obs.point_id[kb])!r} are measured "
+                f"{d:.1f} px apart in frame {str(image)!r}{where}; two targets cannot be at one place: one of the "
+                f"measurements is on the wrong target or under the wrong name. Correct or remove it")
+
+
+def read_control_image_points(path, hint: str = "") -> ImageObservations:
+    """``read_image_points`` of control measurements (``control/image_points.csv``), with ``check_distinct_points``."""
+    obs = read_image_points(path, hint)
+    check_distinct_points(obs, path)
+    return obs
 
 
 def read_control_points(path, crs=None, hint: str = "") -> ControlPoints:

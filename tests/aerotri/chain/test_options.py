@@ -213,9 +213,14 @@ def test_block_without_gnss_is_adjusted_from_approximate_orientations(tmp_path):
     root = write_block_project(block, tmp_path / "blk")
     write_truth_observations(root, tie_sigma_px=SIGMA_PX, n_control=5, points_per_image=100, n_check=8, seed=6)
     (root / "gnss.txt").unlink()
-    r = CliRunner().invoke(aerotri_cli, ["adjust", str(root)])
-    assert r.exit_code == 2 and "gnss.txt" in r.stderr and "--eo" in r.stderr
-    # approximate orientations: metres off in position, half a degree in attitude
+    # without --eo: approximate orientations from the images (pycolmap on the tie points), datum from the control
+    r = CliRunner().invoke(aerotri_cli, ["adjust", str(root), "--image-sigma", str(SIGMA_PX)], catch_exceptions=False)
+    assert r.exit_code == 0, r.output
+    rep = json.loads((root / "at" / "report.json").read_text())
+    assert any("from the images (pycolmap)" in note for note in rep["datum"])
+    d = _truth_centre_errors(block, read_eo(root / "at" / "eo.txt"))
+    assert np.sqrt(np.mean(d ** 2)) < 0.3
+    # approximate orientations given: metres off in position, half a degree in attitude
     t = block.eo_map()
     rng = np.random.default_rng(1)
     approx = ExteriorOrientations(t.image_id, t.centre_m + rng.normal(0, 5.0, t.centre_m.shape),

@@ -83,19 +83,53 @@ def test_ground_control_points_json_is_opensfm_s(adjusted_tiny, tmp_path):
 
 @pytest.mark.realdata
 def test_copr_kite_gcp_list_imported(shared_data, tmp_path):
-    """Coal Oil Point: 10 targets, 27 measurements, UTM 11N coordinates unchanged in an EPSG:32611 project."""
+    """Coal Oil Point: the file as published is refused (gcp04 and gcp00 measured at one pixel of IMG_0031, lines 6
+    and 25); without the mislabelled gcp04 line: 10 targets, 26 measurements, UTM 11N coordinates unchanged in an
+    EPSG:32611 project, plan-only (every height is 0: not measured) unless --heights-measured."""
     path = shared_data / "copr_kite" / "gcp_list.txt"
     root = _fresh(tmp_path, crs="EPSG:32611")
-    import_files(root, "odm", [path], ImportOptions(sigma_xyz_m=(0.3, 0.3, 5.0)))
-    rows = [ln.split("\t") for ln in path.read_text().splitlines()[1:] if ln.strip()]
+    with pytest.raises(InputError, match=r"gcp_list.txt:25: points 'gcp04' and 'gcp00' are measured 1.1 px apart in "
+                                         r"frame 'IMG_0031' \(lines 6 and 25\)"):
+        import_files(root, "odm", [path], ImportOptions(sigma_xyz_m=(0.3, 0.3, 5.0)))
+    assert not (root / "control").exists()
+    lines = path.read_text().splitlines()
+    fixed = tmp_path / "gcp_list.txt"
+    fixed.write_text("\n".join(ln for ln in lines if not ("IMG_0031.jpg" in ln and ln.rstrip().endswith("gcp04"))) + "\n")
+    import_files(root, "odm", [fixed], ImportOptions(sigma_xyz_m=(0.3, 0.3, 5.0)))
+    rows = [ln.split("\t") for ln in fixed.read_text().splitlines()[1:] if ln.strip()]
     c = read_control_points(root / "control" / "points.csv")
     o = read_image_points(root / "control" / "image_points.csv")
-    assert len(c) == 10 and len(o) == len(rows) == 27
+    assert len(c) == 10 and len(o) == len(rows) == 26
+    assert set(c.kind) == {"horizontal"}  # heights nobody measured are no control
     want = {r[6].strip(): [float(v) for v in r[:3]] for r in rows}
-    assert np.abs(np.array([want[p] for p in c.id]) - c.xyz_m).max() < 1e-4
+    assert np.abs(np.array([want[p][:2] for p in c.id]) - c.xyz_m[:, :2]).max() < 1e-4
     got = {(p, i): xy for p, i, xy in zip(o.point_id, o.image_id, o.xy_px)}
     for r in rows:
         assert np.allclose(got[(r[6].strip(), r[5].rsplit(".", 1)[0])], [float(r[3]), float(r[4])], atol=5e-4)
+    # the heights forced: full control with height 0
+    r = CliRunner().invoke(aerotri_cli, ["import", str(root), "--format", "odm", str(fixed), "--sigma-xyz", "0.3", "0.3",
+                                         "5", "--force", "--heights-measured"])
+    assert r.exit_code == 0, r.output
+    c = read_control_points(root / "control" / "points.csv")
+    assert set(c.kind) == {"full"} and np.all(c.xyz_m[:, 2] == 0.0)
+
+
+def test_heights_all_zero_or_equal_are_not_measured(tmp_path):
+    """All heights 0, or all one number: plan-only control with a warning naming the file; real heights stay."""
+    root = _fresh(tmp_path, crs="EPSG:32611")
+    cases = [("0 0 0", "horizontal"), ("12.5 12.5 12.5", "horizontal"), ("12.5 13.1 12.5", "full")]
+    for n, (heights, kind) in enumerate(cases):
+        z = heights.split()
+        f = tmp_path / f"gcp_{n}.txt"
+        f.write_text("EPSG:32611\n" + "".join(f"{235260 + 10 * k} {3811200 + 7 * k} {z[k]} {100 + 50 * k} 200 a.jpg p{k}\n"
+                                               f"{235260 + 10 * k} {3811200 + 7 * k} {z[k]} {120 + 50 * k} 900 b.jpg p{k}\n"
+                                               for k in range(3)))
+        r = CliRunner().invoke(aerotri_cli, ["import", str(root), "--format", "odm", str(f), "--sigma-xyz", "0.1", "0.1",
+                                             "0.2", "--force"])
+        assert r.exit_code == 0, r.output
+        c = read_control_points(root / "control" / "points.csv")
+        assert set(c.kind) == {kind}, heights
+        assert ("taken as not measured" in r.output) == (kind == "horizontal")
 
 
 def test_crs_lines_and_unnamed_points(tmp_path):
@@ -122,6 +156,8 @@ def test_crs_lines_and_unnamed_points(tmp_path):
     ("EPSG:32611\nnan 3811198 0 4 5 a.jpg p\n", InputError, ":2: NaN or infinite"),
     ("EPSG:32611\n235269 3811198 0 4 5 a.jpg p\n235270 3811198 0 4 5 b.jpg p\n", InputError, ":3: point 'p' has the coordinates"),
     ("EPSG:32611\n235269 3811198 0 4 5 a.jpg p\n235269 3811198 0 6 7 a.jpg p\n", InputError, ":3: point 'p' measured twice"),
+    ("EPSG:32611\n235269 3811198 0 4 5 a.jpg p\n235279 3811198 0 5.5 5.5 a.jpg q\n", InputError,
+     r":3: points 'p' and 'q' are measured 1.6 px apart in frame 'a' \(lines 2 and 3\)"),
     ("EPSG:32611\n", InputError, "no measurement lines"),
 ])
 def test_bad_gcp_lists_are_refused(tmp_path, text, error, message):

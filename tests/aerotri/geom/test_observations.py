@@ -4,6 +4,7 @@ import pytest
 from click.testing import CliRunner
 
 from aerotri.cli import main
+from aerotri.geom.observations import read_control_image_points
 from aerotri.sim.observations import geometric_block, write_block_project, write_truth_observations
 
 
@@ -114,3 +115,24 @@ def test_gnss_only_adjustment_without_control(project):
     # Strip shifts cannot be separated from the datum without control: refused.
     res = _run(project, "--no-control", "--gnss-correction", "shift")
     assert res.exit_code == 2 and "too few control points for the datum" in res.output
+
+
+def test_two_control_points_at_one_place_in_a_frame(project):
+    """A control measurement under the wrong name (at the pixel of another point of the same frame, within 2 px) is
+    refused by name: both points, the frame, the file and its lines."""
+    lines = (project / "control" / "image_points.csv").read_text().splitlines()
+    first = lines[1].split(",")
+    in_frame = {ln.split(",")[0] for ln in lines[1:] if ln.split(",")[1] == first[1]}
+    other = next(ln.split(",")[0] for ln in lines[1:] if ln.split(",")[0] not in in_frame)
+    x, y = float(first[2]) + 1.2, float(first[3]) - 0.9  # 1.5 px away
+    _edit(project / "control" / "image_points.csv", lambda L: L + [f"{other},{first[1]},{x:.3f},{y:.3f}"])
+    res = _run(project)
+    n = len(lines) + 1  # the added line
+    assert res.exit_code == 2 and "Traceback" not in res.output
+    assert f"image_points.csv:{n}: points '{first[0]}' and '{other}' are measured 1.5 px apart in frame '{first[1]}' " \
+           f"(lines 2 and {n})" in res.output
+    assert _no_output(project)
+    # 2.5 px apart: two targets side by side, accepted by the reader
+    (project / "control" / "image_points.csv").write_text(
+        "\n".join(lines + [f"{other},{first[1]},{float(first[2]) + 2.5:.3f},{first[3]}"]) + "\n")
+    assert len(read_control_image_points(project / "control" / "image_points.csv")) == len(lines)

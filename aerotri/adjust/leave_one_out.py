@@ -1,0 +1,196 @@
+"""Leave-one-out check of the control points: each in turn left out of the adjustment and compared with the
+position the block, held by the others, gives it.
+
+For every control point measured in at least 2 frames, the project is adjusted with that point as a check point
+(the same settings otherwise; a block without GNSS orients its images once, ``work/relative/``, and takes its
+datum from the remaining points), the point is intersected with the adjusted orientations and its position is
+compared with the given one: ``d = adjusted - given`` (project CRS, metres). Plan-only control points are
+compared in plan only (their heights were never measured).
+
+What such a check can show is bounded by the control points' own accuracy: the **scatter of the control points
+about the block** (``ControlScatter``) is the plan RMS of their residuals in the adjustment with all of them,
+scaled by ``sqrt(n / (n - 2))`` for the 4 plan parameters (shift, scale, rotation) they determine. When the block
+adds no error of its own, the leave-one-out plan RMS is about that figure.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import dataclasses
+import logging
+import math
+import time
+
+import numpy as np
+
+from aerotri.adjust.pipeline import AdjustSettings, BlockAdjustment, adjust_project
+
+log = logging.getLogger(__name__)
+
+
+@dataclasses.dataclass(frozen=True)
+class LeftOutPoint:
+    """One control point left out: given and adjusted positions (project CRS, m)."""
+
+    id: str
+    kind: str  # its kind as control: full, horizontal, height
+    rays: int  # rays the check intersected (0 or 1: not checked)
+    given_m: tuple[float, float, float]
+    adjusted_m: tuple[float, float, float]  # NaN when not checked
+    sigma_m: tuple[float, float, float]  # of the adjusted position (image noise and orientations)
+    seconds: float
+
+    @property
+    def d_m(self) -> np.ndarray:
+        return np.subtract(self.adjusted_m, self.given_m)
+
+    @property
+    def checked(self) -> bool:
+        return bool(np.all(np.isfinite(self.adjusted_m[:2])))
+
+    def as_dict(self) -> dict:
+        d = self.d_m
+        return {"id": self.id, "kind": self.kind, "rays": self.rays, "given_m": list(self.given_m),
+                "adjusted_m": _finite(self.adjusted_m), "dx_m": _f(d[0]), "dy_m": _f(d[1]),
+                "dz_m": _f(d[2]) if self.kind in ("full", "height") else None, "dxy_m": _f(math.hypot(d[0], d[1])),
+                "sigma_m": _finite(self.sigma_m), "seconds": round(self.seconds, 2)}
+
+
+@dataclasses.dataclass(frozen=True)
+class ControlScatter:
+    """The control points' plan residuals in the adjustment with all of them: their own accuracy as the block
+    sees it."""
+
+    n: int
+    rms_xy_m: float  # plan RMS of the residuals
+    rms_xy_dof_m: float  # ... scaled by sqrt(n / (n - 2)) for the 4 plan parameters the points determine
+    residual_xy_m: dict  # id -> (dx, dy) adjusted - given
+
+    def as_dict(self) -> dict:
+        return {"n": self.n, "rms_xy_m": _f(self.rms_xy_m), "rms_xy_dof_corrected_m": _f(self.rms_xy_dof_m),
+                "residual_xy_m": {k: [_f(v[0]), _f(v[1])] for k, v in self.residual_xy_m.items()}}
+
+
+@dataclasses.dataclass(frozen=True)
+class LeaveOneOut:
+    points: tuple[LeftOutPoint, ...]
+    scatter: ControlScatter
+    seconds: float
+
+    def _d(self, kinds) -> np.ndarray:
+        return np.array([p.d_m for p in self.points if p.checked and p.kind in kinds]).reshape(-1, 3)
+
+    @property
+    def rms_xy_m(self) -> float:
+        d = self._d(("full", "horizontal"))
+        return float(np.sqrt(np.mean(np.sum(d[:, :2] ** 2, axis=1)))) if len(d) else float("nan")
+
+    def as_dict(self) -> dict:
+        d = self._d(("full", "horizontal"))
+        dz = self._d(("full", "height"))[:, 2]
+        return {
+            "checked": int(len(d)), "not_checked": [p.id for p in self.points if not p.checked],
+            "rms_x_m": _f(np.sqrt(np.mean(d[:, 0] ** 2))) if len(d) else None,
+            "rms_y_m": _f(np.sqrt(np.mean(d[:, 1] ** 2))) if len(d) else None,
+            "rms_xy_m": _f(self.rms_xy_m) if len(d) else None,
+            "rms_z_m": _f(np.sqrt(np.mean(dz**2))) if len(dz) else None,
+            "control_scatter": self.scatter.as_dict(),
+            "points": [p.as_dict() for p in self.points], "seconds": round(self.seconds, 1),
+            "note": "each control point left out in turn; adjusted (intersected with the orientations the others "
+                    "hold) minus given, project CRS; plan-only points in plan only. control_scatter: the points' "
+                    "plan residuals with all of them in the adjustment, the reference for the plan RMS"}
+
+    def table(self) -> str:
+        """A console table, one line per point, and the RMS against the control points' scatter."""
+        lines = [f"{'id':>12} {'kind':>10} {'rays':>4} {'dX m':>8} {'dY m':>8} {'dXY m':>8} {'dZ m':>8}"]
+        for p in self.points:
+            d = p.d_m
+            if not p.checked:
+                lines.append(f"{p.id:>12} {p.kind:>10} {p.rays:4d}  not checked (fewer than 2 rays)")
+                continue
+            dz = f"{d[2]:8.3f}" if p.kind in ("full", "height") else f"{'-':>8}"
+            lines.append(f"{p.id:>12} {p.kind:>10} {p.rays:4d} {d[0]:8.3f} {d[1]:8.3f} {math.hypot(d[0], d[1]):8.3f} {dz}")
+        a = self.as_dict()
+        if a["rms_xy_m"] is not None:
+            lines.append(f"leave-one-out plan RMS {a['rms_xy_m']:.3f} m over {a['checked']} points (X {a['rms_x_m']:.3f}, "
+                         f"Y {a['rms_y_m']:.3f}); the control points' own plan scatter about the block "
+                         f"{self.scatter.rms_xy_dof_m:.3f} m ({self.scatter.n} points, all in the adjustment)")
+        return "\n".join(lines)
+
+
+def _f(v) -> float | None:
+    v = float(v)
+    return round(v, 4) if math.isfinite(v) else None
+
+
+def _finite(v) -> list:
+    return [_f(x) for x in v]
+
+
+@contextlib.contextmanager
+def _quiet():
+    """Only errors from the adjustment's loggers while the block runs."""
+    logger = logging.getLogger("aerotri.adjust")
+    level = logger.level
+    logger.setLevel(logging.ERROR)
+    try:
+        yield
+    finally:
+        logger.setLevel(level)
+
+
+def control_scatter(ba: BlockAdjustment) -> ControlScatter:
+    """Plan residuals (adjusted - given, project CRS) of the control points with plan coordinates that the
+    adjustment used, measured in 2 or more frames."""
+    b, r = ba.block, ba.result
+    rays = np.bincount(b.obs_point[r.obs_active], minlength=b.n_points)
+    res = {}
+    for c, j in enumerate(b.control_point):
+        if r.control_active[c] and ba.control.kind[c] in ("full", "horizontal") and rays[j] >= 2:
+            d = ba.points_map[j, :2] - ba.control.xyz_m[c, :2]
+            if np.all(np.isfinite(d)):
+                res[str(ba.control.id[c])] = (float(d[0]), float(d[1]))
+    v = np.array(list(res.values())).reshape(-1, 2)
+    n = len(v)
+    rms = float(np.sqrt(np.mean(np.sum(v**2, axis=1)))) if n else float("nan")
+    dof = rms * math.sqrt(n / (n - 2)) if n > 2 else float("nan")
+    return ControlScatter(n, rms, dof, res)
+
+
+def leave_one_out(root, settings: AdjustSettings | None = None, full: BlockAdjustment | None = None) -> LeaveOneOut:
+    """Adjust the project once per control point with that point as a check point (see the module docstring).
+    ``full``: the adjustment with every control point (made here when not given)."""
+    t0 = time.perf_counter()
+    st = settings or AdjustSettings()
+    if full is None:
+        full = adjust_project(root, st)
+    rays = np.bincount(full.block.obs_point[full.result.obs_active], minlength=full.block.n_points)
+    out = []
+    for c, pid in enumerate(full.control.id):
+        pid, kind = str(pid), str(full.control.kind[c])
+        j = full.block.control_point[c]
+        given = tuple(float(v) for v in full.control.xyz_m[c])
+        if rays[j] < 2:
+            out.append(LeftOutPoint(pid, kind, int(rays[j]), given, (math.nan,) * 3, (math.nan,) * 3, 0.0))
+            continue
+        t1 = time.perf_counter()
+        with _quiet():  # the full adjustment said it all; each run would repeat its warnings
+            ba = adjust_project(root, dataclasses.replace(st, check=tuple(st.check) + (pid,), point_covariances=False))
+        chk = ba.check[pid]
+        out.append(LeftOutPoint(pid, kind, int(chk["rays"]), given, tuple(chk["adjusted_m"]), tuple(chk["sigma_m"]),
+                                time.perf_counter() - t1))
+        d = out[-1].d_m
+        log.debug(f"leave-one-out {pid}: dX {d[0]:+.3f} dY {d[1]:+.3f} m ({chk['rays']} rays)")
+    return LeaveOneOut(tuple(out), control_scatter(full), time.perf_counter() - t0)
+
+
+def run_leave_one_out(root, settings: AdjustSettings | None = None, full: BlockAdjustment | None = None) -> LeaveOneOut:
+    """``leave_one_out`` and its record ``at/leave_one_out.json`` (the stage's output)."""
+    import json
+
+    from aerotri.core.atomic import write_text_atomic
+    from aerotri.core.project import Project
+
+    loo = leave_one_out(root, settings, full)
+    write_text_atomic(Project.open(root).at_dir / "leave_one_out.json", json.dumps(loo.as_dict(), indent=1) + "\n")
+    return loo

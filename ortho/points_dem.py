@@ -1,0 +1,217 @@
+"""A DEM from the adjusted tie points (``ortho dem PROJECT``), for blocks with no DEM from elsewhere (no LiDAR).
+
+The adjusted object points (``at/object_points.csv``, tie points seen in at least ``min_rays`` frames) are
+binned into a north-up grid in the project CRS:
+
+1. outliers out: a point whose height is more than 3 robust sigmas (at least ``min_tolerance_m``) from the
+   median of its 3 x 3 cell neighbourhood is dropped (wrong matches, moving objects, points on thin poles);
+2. each cell takes the median height of its points;
+3. empty cells inside the points' hull are interpolated linearly between the filled cells (Delaunay), and cells
+   outside it, up to the frames' footprints, take the height of the nearest filled cell: the frames' edges reach
+   beyond the tie points, and a flat continuation is the best guess there (the report counts these cells).
+
+The result is a surface of the visible tops (roofs, trees: a DSM where the tie points are on them), as dense as
+the tie points; its heights are those of the adjustment (relative ones when the control had no heights). Written
+as a Cloud-Optimized GeoTIFF (float32, nodata -9999) in the project CRS.
+"""
+
+from __future__ import annotations
+
+import csv
+import dataclasses
+import json
+import math
+from pathlib import Path
+
+import numpy as np
+
+from aerotri.core.atomic import atomic_path, refuse_input_as_output, write_text_atomic
+from aerotri.core.errors import InputError, OptionError
+from aerotri.core.project import Project
+from aerotri.geom.crs import project_crs
+
+NODATA = -9999.0
+
+
+@dataclasses.dataclass(frozen=True)
+class PointsDem:
+    """A height grid: ``heights_m`` (rows, cols) north up, NaN nodata, cell ``res_m``, top-left corner."""
+
+    heights_m: np.ndarray
+    x_left_m: float
+    y_top_m: float
+    res_m: float
+    n_points: int  # points used
+    n_outliers: int  # points dropped as outliers
+    cells_measured: int  # cells with points
+    cells_interpolated: int  # empty cells inside the points' hull
+    cells_extrapolated: int  # cells outside it, within the footprints
+
+
+def _cell_index(x, y, x0, y0, res, shape):
+    col = np.floor((x - x0) / res).astype(int)
+    row = np.floor((y0 - y) / res).astype(int)
+    return row, col
+
+
+def _neighbourhood_median(z_cell: np.ndarray) -> np.ndarray:
+    """Median of the finite cells of each 3 x 3 neighbourhood (NaN where none)."""
+    h, w = z_cell.shape
+    pad = np.pad(z_cell, 1, constant_values=np.nan)
+    stack = np.stack([pad[r:r + h, c:c + w] for r in range(3) for c in range(3)])
+    with np.errstate(all="ignore"):
+        out = np.full((h, w), np.nan)
+        has = np.isfinite(stack).any(axis=0)
+        out[has] = np.nanmedian(stack[:, has], axis=0)
+    return out
+
+
+def _cell_medians(row, col, z, shape) -> np.ndarray:
+    """Median of ``z`` per cell (NaN for empty cells)."""
+    flat = row * shape[1] + col
+    order = np.lexsort((z, flat))
+    f, zs = flat[order], z[order]
+    starts = np.r_[0, np.flatnonzero(np.diff(f)) + 1]
+    ends = np.r_[starts[1:], len(f)]
+    out = np.full(shape[0] * shape[1], np.nan)
+    lo, hi = zs[starts + (ends - starts - 1) // 2], zs[starts + (ends - starts) // 2]
+    out[f[starts]] = 0.5 * (lo + hi)
+    return out.reshape(shape)
+
+
+def points_dem(xyz_m: np.ndarray, res_m: float, bounds=None, min_tolerance_m: float = 0.1) -> PointsDem:
+    """The robust grid of ``xyz_m`` (N, 3) at ``res_m`` (see the module docstring) over ``bounds`` (x0, y0, x1, y1;
+    default: the points' extent), filled inside the points' hull and extended by the nearest filled cell outside."""
+    from scipy.interpolate import LinearNDInterpolator
+    from scipy.ndimage import distance_transform_edt
+    from scipy.spatial import QhullError
+
+    p = np.asarray(xyz_m, dtype=float)
+    p = p[np.all(np.isfinite(p), axis=1)]
+    if len(p) < 3:
+        raise InputError(f"{len(p)} adjusted tie points: too few for a DEM (need at least 3)")
+    if not (math.isfinite(res_m) and res_m > 0):
+        raise OptionError(f"DEM cell size {res_m!r}: expected a positive number of metres", param="--res")
+    x0, y0, x1, y1 = bounds if bounds is not None else (p[:, 0].min(), p[:, 1].min(), p[:, 0].max(), p[:, 1].max())
+    x0, y0 = min(x0, p[:, 0].min()), min(y0, p[:, 1].min())
+    x1, y1 = max(x1, p[:, 0].max()), max(y1, p[:, 1].max())
+    x0, y1 = math.floor(x0 / res_m) * res_m, math.ceil(y1 / res_m) * res_m  # cells on multiples of res_m
+    shape = (int(math.ceil((y1 - y0) / res_m)) + 1, int(math.ceil((x1 - x0) / res_m)) + 1)
+    if shape[0] * shape[1] > 200_000_000:
+        raise OptionError(f"DEM of {shape[1]} x {shape[0]} cells at {res_m} m: too large; give a larger cell size",
+                          param="--res")
+    row, col = _cell_index(p[:, 0], p[:, 1], x0, y1, res_m, shape)
+    z = p[:, 2]
+    # 1. outliers against the neighbourhood's median
+    first = _cell_medians(row, col, z, shape)
+    ref = _neighbourhood_median(first)[row, col]
+    dev = z - ref
+    mad = 1.4826 * np.median(np.abs(dev[np.isfinite(dev)])) if np.isfinite(dev).any() else 0.0
+    keep = np.abs(dev) <= max(3.0 * mad, min_tolerance_m)
+    # 2. cell medians of the kept points
+    grid = _cell_medians(row[keep], col[keep], z[keep], shape)
+    measured = np.isfinite(grid)
+    # 3. inside the hull: linear between the measured cells; outside: the nearest measured cell
+    rr, cc = np.nonzero(measured)
+    empty = ~measured
+    n_interp = 0
+    if empty.any() and len(rr) >= 3:
+        try:
+            lin = LinearNDInterpolator(np.column_stack([rr, cc]), grid[measured])
+            er, ec = np.nonzero(empty)
+            v = lin(np.column_stack([er, ec]))
+            ok = np.isfinite(v)
+            grid[er[ok], ec[ok]] = v[ok]
+            n_interp = int(ok.sum())
+        except QhullError:  # the points on one line: no hull, only the nearest cell
+            pass
+    still = ~np.isfinite(grid)
+    if still.any():
+        _, (ir, ic) = distance_transform_edt(still, return_indices=True)
+        grid[still] = grid[ir[still], ic[still]]
+    return PointsDem(grid.astype(np.float32), float(x0), float(y1), float(res_m), int(keep.sum()), int((~keep).sum()),
+                     int(measured.sum()), n_interp, int(still.sum()))
+
+
+def read_tie_points(path: Path, min_rays: int = 3) -> np.ndarray:
+    """(N, 3) project-CRS coordinates of the tie points in ``at/object_points.csv`` seen in ``min_rays`` frames."""
+    if not path.is_file():
+        raise InputError(f"{path}: not found (run aerotri adjust first)")
+    out = []
+    with open(path, newline="") as f:
+        for lineno, row in enumerate(csv.DictReader(f), start=2):
+            try:
+                if row["kind"] != "tie" or int(row["rays"]) < min_rays:
+                    continue
+                out.append((float(row["x"]), float(row["y"]), float(row["z"])))
+            except (KeyError, TypeError, ValueError):
+                raise InputError(f"{path}:{lineno}: expected id,kind,x,y,z,...,rays,... (aerotri adjust's "
+                                 f"object_points.csv), got {row}") from None
+    return np.array(out, dtype=float).reshape(-1, 3)
+
+
+def default_resolution(xyz_m: np.ndarray, points_per_cell: float = 4.0) -> float:
+    """A cell size holding about ``points_per_cell`` points where the points are (nice number, metres)."""
+    from scipy.spatial import ConvexHull
+
+    from ortho.grid import nice_resolution
+
+    try:
+        area = ConvexHull(xyz_m[:, :2]).volume  # in 2D, the area
+    except Exception:  # noqa: BLE001 - qhull on degenerate input: the bounding box
+        area = float(np.ptp(xyz_m[:, 0]) * np.ptp(xyz_m[:, 1]))
+    return nice_resolution(max(math.sqrt(points_per_cell * max(area, 1e-6) / len(xyz_m)), 1e-3))
+
+
+def _footprint_bounds(root: Path, z_m: float):
+    """Bounds (x0, y0, x1, y1) of the adjusted frames' footprints on the plane at ``z_m``."""
+    from ortho.block import _plane_footprint_bounds, load_block
+
+    block = load_block(root)
+    b = np.array([_plane_footprint_bounds(block.camera, block.eo.centre_m[i], block.eo.rotation(i), z_m, z_m, iid)
+                  for i, iid in enumerate(block.eo.image_id)])
+    return float(b[:, 0].min()), float(b[:, 1].min()), float(b[:, 2].max()), float(b[:, 3].max())
+
+
+def write_points_dem(root, out=None, res_m: float | None = None, min_rays: int = 3) -> dict:
+    """``ortho dem``: the DEM of the project's adjusted tie points as a COG (default ``at/dem.tif``) over the frames'
+    footprints, and its numbers (``<out>.json``); returns them."""
+    import rasterio
+    from rasterio.shutil import copy as rio_copy
+    from rasterio.transform import from_origin
+
+    project = Project.open(root)
+    crs = project_crs(project)
+    pts = read_tie_points(project.object_points_path, min_rays)
+    if len(pts) < 3:
+        raise InputError(f"{project.object_points_path}: {len(pts)} tie points seen in {min_rays} or more frames: too "
+                         "few for a DEM")
+    res = float(res_m) if res_m is not None else default_resolution(pts)
+    bounds = _footprint_bounds(project.root, float(np.median(pts[:, 2])))
+    dem = points_dem(pts, res, bounds)
+    out = Path(out) if out is not None else project.at_dir / "dem.tif"
+    refuse_input_as_output(out, [project.object_points_path, project.eo_path, project.camera_path], option="--out")
+    refuse_input_as_output(out.with_suffix(".json"), [project.object_points_path, project.eo_path], option="--out")
+    transform = from_origin(dem.x_left_m, dem.y_top_m, dem.res_m, dem.res_m)
+    data = np.where(np.isfinite(dem.heights_m), dem.heights_m, NODATA).astype(np.float32)
+    profile = dict(driver="GTiff", width=data.shape[1], height=data.shape[0], count=1, dtype="float32", crs=crs,
+                   transform=transform, nodata=NODATA)
+    stats = {"file": str(out), "crs": project.crs, "res_m": dem.res_m, "width": int(data.shape[1]),
+             "height": int(data.shape[0]), "points": dem.n_points, "outliers": dem.n_outliers, "min_rays": min_rays,
+             "cells_measured": dem.cells_measured, "cells_interpolated": dem.cells_interpolated,
+             "cells_extrapolated": dem.cells_extrapolated,
+             "height_range_m": [float(np.nanmin(dem.heights_m)), float(np.nanmax(dem.heights_m))],
+             "source": str(project.object_points_path),
+             "note": "median height of the adjusted tie points per cell (3-sigma neighbourhood outliers out), linear "
+                     "inside their hull, nearest cell outside it up to the frames' footprints"}
+    with rasterio.MemoryFile() as mem:
+        with mem.open(**profile) as ds:
+            ds.write(data, 1)
+            ds.set_band_description(1, "height of the adjusted tie points (median per cell)")
+            ds.update_tags(SOURCE="aerotri adjusted tie points (ortho dem)", CELLS_MEASURED=str(dem.cells_measured),
+                           CELLS_INTERPOLATED=str(dem.cells_interpolated),
+                           CELLS_EXTRAPOLATED=str(dem.cells_extrapolated))
+        with mem.open() as src, atomic_path(out) as tmp:
+            rio_copy(src, tmp, driver="COG", compress="DEFLATE", predictor=3, overview_resampling="average")
+    write_text_atomic(out.with_suffix(".json"), json.dumps(stats, indent=1) + "\n")
+    return stats
