@@ -63,3 +63,7 @@ class AdjustSettings:
     point_covariances: bool = True
     use_control: bool = True  # False: ignore control/ (GNSS must carry the datum)
     refine_approximations: bool = True  # resection/intersection of the attitudes before the bundle (GNSS)
+    check_dem: Path | None = setting(None, path=True, help="DEM (GeoTIFF, project CRS and heights) the adjusted tie "
+                                                           "points are checked against without holding them to it: "
+                                                           "count, median and spread of point - DEM; a median beyond "
+                                                           "3 sigma fails the solution.")
