@@ -20,7 +20,7 @@ import pytest
 import rasterio
 
 from aerotri.adjust.pipeline import AdjustSettings, adjust_project, run_adjustment
-from aerotri.adjust.report import build_report, format_txt
+from aerotri.adjust.report import build_report, format_html, format_txt
 from aerotri.core.errors import SolveError
 from aerotri.geom.camera import dmc_camera, read_camera
 from aerotri.sim.observations import geometric_block, write_block_project, write_truth_observations
@@ -192,6 +192,8 @@ def test_control_point_without_rays_is_not_used_and_the_report_is_quiet(dem_bloc
         warnings.simplefilter("error", RuntimeWarning)
         rep = build_report(ba)
         txt = format_txt(rep)
+        html = format_html(rep, ba)
+    assert "no rays" in html
     rows = {r["id"]: r for r in rep["control_points"]}
     assert rows["gcp01"]["rays"] == 0 and rows["gcp01"]["status"] == "no rays" and not rows["gcp01"]["used"]
     assert all(r["used"] and r["rays"] >= 2 for k, r in rows.items() if k != "gcp01")
