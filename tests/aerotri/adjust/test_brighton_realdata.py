@@ -1,8 +1,9 @@
 """Real data, issue 39: the Brighton Beach drone block self-calibrated without and with the DEM of its own point
 cloud (../shared/data/brighton_beach; the ODM cloud model.laz is a peer's product, the reference for the heights).
 
-A subset: 6 frames (2 strips of 3, flown both ways), downsampled 5 times (800 x 450 px), matched with the
-defaults; the DEM and nDSM made here from model.laz (cropped to the block) by lidarctl classify and rasters.
+A subset: 6 frames (2 strips of 3, flown both ways), downsampled 5 times (800 x 450 px), matched with 3000
+keypoints a frame and no densification; the DEM and nDSM made here from model.laz (cropped to the block, every
+8th point) by lidarctl classify and rasters.
 Without a DEM the focal length cannot be told from the flying height (flat beach, nadir frames, GNSS alone):
 the focal length is fixed with the reason and the verdict is not "Solution Successful" (on main the full
 block's focal went from 2121 to 2904 px and its tie points 11 m below the DEM, "Solution Successful"). With
@@ -27,10 +28,10 @@ def brighton6(shared_data, tmp_path_factory):
     import laspy
     from click.testing import CliRunner
 
+    from aerotri.cli import main as aerotri_cli
     from aerotri.exchange import import_files
     from aerotri.geom.camera import read_camera
     from aerotri.geom.eo import read_gnss
-    from aerotri.match.pipeline import match_project
     from lidarctl.cli import main as lidar_cli
 
     data = shared_data / "brighton_beach"
@@ -44,15 +45,18 @@ def brighton6(shared_data, tmp_path_factory):
     w, h = cam.width // SHRINK, cam.height // SHRINK
     (root / "images").mkdir()
     for i in FRAMES:
-        im = cv2.imread(str(data / "images" / f"{i}.JPG"))
+        im = cv2.imread(str(data / "images" / f"{i}.JPG"), cv2.IMREAD_REDUCED_COLOR_4)  # decoded at 1/4
         cv2.imwrite(str(root / "images" / f"{i}.jpg"), cv2.resize(im, (w, h), interpolation=cv2.INTER_AREA))
     (root / "camera.toml").write_text(cam.with_pixels(w, h).to_toml())
-    match_project(root)
-    # the DEM of the ODM cloud around the block
+    r = CliRunner().invoke(aerotri_cli, ["match", str(root), "--budget", "3000", "--no-densify", "-q"])
+    assert r.exit_code == 0, r.output
+    # the DEM of the ODM cloud under the block (its frames reach about 35 m from their centres), every 8th
+    # point (about 5 per square metre; the suite's time)
     g = read_gnss(root / "gnss.txt").position_m
-    lo, hi = g[:, :2].min(axis=0) - 60.0, g[:, :2].max(axis=0) + 60.0
+    lo, hi = g[:, :2].min(axis=0) - 40.0, g[:, :2].max(axis=0) + 40.0
     las = laspy.read(data / "model.laz")
     keep = (las.x >= lo[0]) & (las.x <= hi[0]) & (las.y >= lo[1]) & (las.y <= hi[1])
+    keep &= np.arange(len(keep)) % 8 == 0
     crop = laspy.LasData(las.header)
     crop.points = las.points[keep]
     crop.write(out / "cloud.laz")
@@ -87,7 +91,7 @@ def test_with_the_dem_the_tie_points_lie_on_it(brighton6):
     ba = adjust_project(root, AdjustSettings(self_calibration=("focal", "pp", "radial"), dem=lidar / "dem.tif",
                                              ndsm=lidar / "ndsm.tif"))
     (d,) = ba.dem_checks
-    assert d.role == "surface control" and d.n > 300 and not d.failed
+    assert d.role == "surface control" and d.n > 200 and not d.failed
     assert abs(d.median_m) < 0.3, d
     focal = {c.group: c for c in ba.calibration_checks}["focal"]
     assert focal.action == "estimated" and focal.ground_observed["height"]
