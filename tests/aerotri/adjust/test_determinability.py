@@ -95,6 +95,8 @@ def test_focal_of_a_flat_gnss_only_block_is_fixed_with_a_warning(flat, caplog):
     assert sd["u0_px"] > 0 and sd["k1"] > 0
     txt = format_txt(rep)
     assert "FIXED at its a-priori value" in txt and "refused estimate" in txt
+    html = format_html(rep, ba)
+    assert "Determinability" in html and "focal_height" in html
     assert "focal asked for but fixed" in rep["options"]["self_calibration"]
 
 
