@@ -1,4 +1,4 @@
-"""Weak geometry: how well the block's shape modes are determined, and by which observations.
+"""Weak geometry: how well the block's shape modes and its self-calibration are determined, and by which observations.
 
 A block's tie points can move together in ways the image rays hardly see: all up or down (the height
 datum; with fixed projection centres also the convergence of the images), tilted east or north, bent
@@ -13,6 +13,15 @@ Which observations determine it: with ``u = Q l``, group ``k`` contributes ``u' 
 mode's information (``H_k`` its normal-equation share; the shares add up to one: ``u' H u = l' u``).
 A mode held (almost) only by the GNSS positions or the a-priori values is a datum the images and the
 ground control cannot check: the report names it and its standard deviation.
+
+A functional may also take the orientations and the calibration (``l = (l_points, l_cameras)``):
+``u_cameras = Sigma (l_cameras - W' V^-1 l_points)``, ``u_points = V^-1 l_points - V^-1 W u_cameras``
+(``Sigma`` the reduced covariance). With self-calibration the calibration's own functionals (the mean
+focal length, the principal point) and two more of the tie points (their mean east and north: the plan
+datum) are formed too: their covariances with the modes are what ``determinability`` judges the
+self-calibration by (the focal length against the block height, the principal point against the plan
+datum), and the focal length, scaled to metres of height at the block's depth, is the ``focal_height``
+mode of the report.
 """
 
 from __future__ import annotations
@@ -23,20 +32,25 @@ import numpy as np
 
 from aerotri.adjust import graph as G
 from aerotri.adjust.covariance import PointRays, point_rays
+from aerotri.adjust.keys import K_KEY
 from aerotri.adjust.surface import whitened
 from aerotri.adjust.variance_components import gnss_rows
 
 MODES = ("height", "tilt_east", "tilt_north", "bending")
+PLAN_MODES = ("shift_east", "shift_north")  # the tie points' mean plan position (with self-calibration only)
+CAL_NAMES = ("fx_px", "fy_px", "skew_px", "u0_px", "v0_px", "k1", "k2", "p1", "p2")  # Cal3DS2 order
 PRIOR_SHARE = 0.9  # a mode this much determined by GNSS positions and priors is reported as held by them
 
 
 @dataclasses.dataclass
 class GeometryMode:
-    mode: str  # one of MODES
+    mode: str  # one of MODES, or "focal_height"
     sigma_m: float  # a-posteriori standard deviation (x sigma0): the mean height, or the height change at the edge
     radius_m: float  # the block's radius rho (tilts in degrees: atan(sigma / rho))
     shares: dict  # group -> share of the mode's information (image, gnss, control, surface, priors)
     held_by_priors: bool  # GNSS and priors hold >= PRIOR_SHARE of it
+    correlation_with_height: float | None = None  # focal_height: the focal length's correlation with the block height
+    note: str | None = None  # e.g. that the mode comes from an earlier solve (the focal length fixed since)
 
     @property
     def sigma_deg(self) -> float:
@@ -48,40 +62,81 @@ class GeometryMode:
         return d
 
 
-def geometry_modes(block: G.Block, opts: G.Options, state: G.State, obs_active, control_active, rc,
-                   sigma0: float, rays: PointRays | None = None) -> list[GeometryMode]:
-    """The four modes of the tie points' heights (see the module docstring) at the solution ``state``;
-    ``rc``: the reduced covariance (``covariance.ReducedCovariance``, unit weight); ``rays``: the points'
-    ``covariance.point_rays`` when already at hand."""
-    pr = rays if rays is not None else point_rays(block, state, obs_active, opts.image_sigma_px, rc,
-                                                  bool(opts.self_calibration))
+@dataclasses.dataclass(frozen=True)
+class CalibrationCovariance:
+    """The self-calibration's a-posteriori covariance and its coupling to the block's modes (unit weight
+    times sigma0^2: px^2, m^2, px m).
+
+    ``cal_cov`` (9, 9) in ``CAL_NAMES`` order; ``cross`` (len(MODES) + len(PLAN_MODES), 9): the covariance of
+    each mode (``MODES``, then ``PLAN_MODES``) with each calibration parameter; ``mode_var`` the modes'
+    variances; ``focal_shares``: which observation groups determine the mean focal length (as the modes'
+    shares); ``depth_m``: the median depth of the tie points below the cameras (the focal length's lever on
+    their heights)."""
+
+    cal_cov: np.ndarray
+    cross: np.ndarray
+    mode_var: np.ndarray
+    focal_shares: dict
+    depth_m: float
+
+    def correlation(self, mode: str, param: str | tuple) -> float:
+        """Correlation of a mode with a calibration parameter, or with the mean of two (``("fx_px", "fy_px")``)."""
+        names = (param,) if isinstance(param, str) else tuple(param)
+        w = np.zeros(9)
+        w[[CAL_NAMES.index(n) for n in names]] = 1.0 / len(names)
+        m = (MODES + PLAN_MODES).index(mode)
+        var_p = float(w @ self.cal_cov @ w)
+        den = np.sqrt(max(var_p, 0.0) * max(float(self.mode_var[m]), 0.0))
+        return float(self.cross[m] @ w / den) if den > 0 else float("nan")
+
+
+def _functionals(block: G.Block, state: G.State, pr: PointRays, plan: bool):
+    """(l_points (M, P, 3), block radius) of the modes (``MODES``, then ``PLAN_MODES`` if ``plan``), or
+    None with fewer than 10 tie points."""
     tie = pr.used.copy()
     tie[block.control_point] = False
     j = np.flatnonzero(tie)
     if len(j) < 10:
-        return []
+        return None
     xy = state.points[j, :2]
     centre = xy.mean(axis=0)
     rho = float(np.max(np.linalg.norm(xy - centre, axis=1)))
     xi, eta = ((xy - centre) / rho).T
     r2 = xi**2 + eta**2
     M = np.column_stack([np.ones(len(j)), xi, eta, r2 - r2.mean()])
-    L = np.zeros((4, block.n_points))
-    L[:, j] = np.linalg.pinv(M)  # (4, n_tie): the modes' coefficients from the heights (local up = z)
-    # u = Q l: camera part u_c = -Sigma a, a = sum over rays of G_ray' l_point; point part u_p = V^-1 l - G u_c
+    n_modes = len(MODES) + (len(PLAN_MODES) if plan else 0)
+    l_p = np.zeros((n_modes, block.n_points, 3))
+    l_p[: len(MODES), j, 2] = np.linalg.pinv(M)  # (4, n_tie): the modes' coefficients from the heights (local up = z)
+    if plan:
+        l_p[len(MODES), j, 0] = 1.0 / len(j)  # mean east
+        l_p[len(MODES) + 1, j, 1] = 1.0 / len(j)  # mean north
+    return l_p, rho
+
+
+def _apply_q(block: G.Block, pr: PointRays, rc, l_p: np.ndarray, l_c: np.ndarray | None = None):
+    """``u = Q l`` for functionals with a point part ``l_p`` (M, P, 3) and a camera part ``l_c`` (M, n) in the
+    reduced covariance's scalar order: (u_p (M, P, 3), u_c (M, n), l'Q l (M,)), unit weight."""
     n = rc.n
-    Gz = pr.G[:, 2, :]  # the height row of each ray's V^-1 W
-    a = np.array([np.bincount(pr.idx.ravel(), (Gz * L[m, pr.pt][:, None]).ravel(), n) for m in range(4)])
-    u_c = -rc.multiply(a.T).T  # (4, n)
-    l_p = np.zeros((4, block.n_points, 3))
-    l_p[:, :, 2] = L
+    m_count = len(l_p)
+    # a = W' V^-1 l_p, summed over the rays: G_ray' l_point per ray, scattered onto the ray's parameters
+    Gl = np.einsum("kij,mki->mkj", pr.G, l_p[:, pr.pt])  # (M, K, 6 or 15)
+    a = np.array([np.bincount(pr.idx.ravel(), Gl[m].ravel(), n) for m in range(m_count)])
+    rhs = (l_c - a) if l_c is not None else -a
+    u_c = rc.multiply(rhs.T).T  # (M, n)
     u_p = np.einsum("pij,mpj->mpi", np.nan_to_num(pr.Vinv), l_p)
     Gu = np.einsum("kij,mkj->mki", pr.G, u_c[:, pr.idx])
-    for m in range(4):
+    for m in range(m_count):
         for i in range(3):
             u_p[m, :, i] -= np.bincount(pr.pt, Gu[m, :, i], block.n_points)
     var = np.einsum("mpi,mpi->m", l_p, u_p)
-    # information shares
+    if l_c is not None:
+        var = var + np.einsum("mn,mn->m", l_c, u_c)
+    return u_p, u_c, var
+
+
+def _shares(block: G.Block, opts: G.Options, state: G.State, control_active, rc, pr: PointRays, u_p, u_c, var
+            ) -> dict:
+    """Group -> (M,) share of each functional's information ``u' H_k u / l'Q l`` (``priors``: the rest)."""
     share = {}
     d_ray = np.einsum("kai,mki->mka", pr.Jp, u_p[:, pr.pt]) + np.einsum("kaj,mkj->mka", pr.Jc, u_c[:, pr.idx])
     share["image"] = pr.weight * np.einsum("mka,mka->m", d_ray, d_ray)
@@ -97,12 +152,56 @@ def geometry_modes(block: G.Block, opts: G.Options, state: G.State, obs_active, 
         share["surface"] = np.sum(np.einsum("pi,mpi->mp", B, u_p) ** 2, axis=1)
     share = {k: v / var for k, v in share.items()}
     share["priors"] = 1.0 - sum(share.values())
+    return share
+
+
+def _held(sh: dict) -> bool:
+    return sh.get("gnss", 0.0) + max(sh["priors"], 0.0) >= PRIOR_SHARE
+
+
+def geometry_modes(block: G.Block, opts: G.Options, state: G.State, obs_active, control_active, rc,
+                   sigma0: float, rays: PointRays | None = None
+                   ) -> tuple[list[GeometryMode], CalibrationCovariance | None]:
+    """The four modes of the tie points' heights (see the module docstring) at the solution ``state``, and with
+    self-calibration its ``CalibrationCovariance`` and the ``focal_height`` mode (when the focal length is
+    estimated); ``rc``: the reduced covariance (``covariance.ReducedCovariance``, unit weight); ``rays``: the
+    points' ``covariance.point_rays`` when already at hand."""
+    self_cal = bool(opts.self_calibration)
+    pr = rays if rays is not None else point_rays(block, state, obs_active, opts.image_sigma_px, rc, self_cal)
+    fun = _functionals(block, state, pr, plan=self_cal)
+    if fun is None:
+        return [], None
+    l_p, rho = fun
+    n_modes = len(l_p)
+    l_c = None
+    if self_cal:  # the mean focal length as one more functional (camera part only)
+        l_p = np.concatenate([l_p, np.zeros((1,) + l_p.shape[1:])])
+        l_c = np.zeros((len(l_p), rc.n))
+        l_c[-1, rc.offset[K_KEY] + np.array([0, 1])] = 0.5
+    u_p, u_c, var = _apply_q(block, pr, rc, l_p, l_c)
+    share = _shares(block, opts, state, control_active, rc, pr, u_p, u_c, var)
     out = []
     for m, name in enumerate(MODES):
         sh = {k: float(v[m]) for k, v in share.items()}
-        held = sh.get("gnss", 0.0) + max(sh["priors"], 0.0) >= PRIOR_SHARE
-        out.append(GeometryMode(name, float(np.sqrt(var[m])) * sigma0, rho, sh, bool(held)))
-    return out
+        out.append(GeometryMode(name, float(np.sqrt(var[m])) * sigma0, rho, sh, _held(sh)))
+    if not self_cal:
+        return out, None
+    k0 = rc.offset[K_KEY]
+    s2 = sigma0**2
+    cal_cov = rc.entries((k0 + np.arange(9))[:, None], (k0 + np.arange(9))[None, :]) * s2
+    cross = u_c[:n_modes, k0:k0 + 9] * s2
+    # the tie points' depth below the cameras: a relative focal change moves their heights by this times it
+    k = np.flatnonzero(~np.isin(block.obs_point, block.control_point) & np.asarray(obs_active, bool))
+    depth = np.einsum("kji,kj->ki", state.R_cv[block.obs_image[k]],
+                      state.points[block.obs_point[k]] - state.centre[block.obs_image[k]])[:, 2]
+    cc = CalibrationCovariance(cal_cov, cross, var[:n_modes] * s2, {g: float(v[-1]) for g, v in share.items()},
+                               float(np.median(depth)) if len(depth) else float("nan"))
+    if any(g == "focal" for g in opts.self_calibration):
+        f = 0.5 * (state.cal[0] + state.cal[1])
+        sigma_f = float(np.sqrt(max(var[-1], 0.0))) * sigma0
+        out.append(GeometryMode("focal_height", sigma_f / f * cc.depth_m, rho, dict(cc.focal_shares),
+                                _held(cc.focal_shares), cc.correlation("height", ("fx_px", "fy_px"))))
+    return out, cc
 
 
 def _gnss_information(block: G.Block, opts: G.Options, state: G.State, rc, u_c: np.ndarray) -> np.ndarray:

@@ -44,6 +44,7 @@ import gtsam
 import numpy as np
 
 from aerotri.adjust import datum, schur
+from aerotri.adjust.cpp_output import gtsam_quiet
 from aerotri.adjust import surface as surface_mod
 from aerotri.adjust.surface import SurfaceControl
 from aerotri.adjust.check_points import intersect
@@ -244,14 +245,16 @@ class Graph:
     def linearize(self, values: gtsam.Values) -> gtsam.GaussianFactorGraph:
         """The linearised normal equations at ``values`` (tie points of ``tie`` at their own coordinates,
         already eliminated)."""
-        if self.tie is None:
-            return self.graph.linearize(values)
-        return self.linearize_reduced(values, self.tie.coords)[0]
+        with gtsam_quiet():
+            if self.tie is None:
+                return self.graph.linearize(values)
+            return self.linearize_reduced(values, self.tie.coords)[0]
 
     def reduced_cost(self, values: gtsam.Values, coords: np.ndarray) -> float:
         """gtsam's error (half the chi-square; robust graphs: the robust cost) with the tie points of ``tie``
         at ``coords``."""
-        return 0.5 * self.tie.sum_of_squares(values, self.n_images, coords) + self.graph.error(values)
+        with gtsam_quiet():
+            return 0.5 * self.tie.sum_of_squares(values, self.n_images, coords) + self.graph.error(values)
 
     def linearize_reduced(self, values: gtsam.Values, coords: np.ndarray, point_damping: float = 0.0
                           ) -> tuple[gtsam.GaussianFactorGraph, schur.ReducedSystem]:
@@ -595,6 +598,12 @@ def _schur_levenberg_marquardt(gr: Graph, opts: Options) -> tuple[gtsam.Values, 
 
 
 def optimize(gr: Graph, opts: Options) -> tuple[gtsam.Values, SolveInfo]:
+    """``_optimize`` with gtsam's console lines captured and counted (``cpp_output``)."""
+    with gtsam_quiet():
+        return _optimize(gr, opts)
+
+
+def _optimize(gr: Graph, opts: Options) -> tuple[gtsam.Values, SolveInfo]:
     """Least squares (robust graphs: Huber M-estimate, iteratively reweighted). With Schur-eliminated tie
     points (``gr.tie``): Levenberg-Marquardt on the reduced camera system, which is Gauss-Newton (the
     classical bundle iteration) while its steps lower the cost; the adjusted tie points are then in

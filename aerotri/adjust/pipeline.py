@@ -37,6 +37,8 @@ from aerotri.geom.observations import (
     validate_references,
 )
 from aerotri.adjust.level_datum import height_datum, level_result
+from aerotri.adjust.dem_check import tie_dem_check
+from aerotri.adjust.determinability import check_groups, ground_observations
 from aerotri.adjust.solve import AdjustmentResult, adjust_block, check_point_errors
 from aerotri.adjust.variance_components import adjusted_gnss
 from aerotri.geom.strips import along_track_km, strips_from_track
@@ -77,6 +79,9 @@ class BlockAdjustment:
     components: int = 1
     left_out: list = dataclasses.field(default_factory=list)  # LeftOutComponent
     datum_notes: list = dataclasses.field(default_factory=list)  # what the datum rests on (no GNSS), for the report
+    self_calibration_requested: tuple = ()  # the groups asked for (opts.self_calibration: those estimated)
+    calibration_checks: list = dataclasses.field(default_factory=list)  # determinability.GroupCheck, every group
+    dem_checks: list = dataclasses.field(default_factory=list)  # dem_check.DemCheck: surface control DEM, check DEM
 
 
 def _settings_from_project(project: Project, s: AdjustSettings) -> AdjustSettings:
@@ -94,7 +99,7 @@ def _settings_from_project(project: Project, s: AdjustSettings) -> AdjustSetting
         raise OptionError(f"lever arm {out.lever_arm_m!r}: expected 3 finite numbers (m)", param="--lever-arm")
     if not 0.0 < out.alpha < 1.0:
         raise OptionError(f"alpha {out.alpha!r}: the type I error must be in (0, 1)", param="--alpha")
-    for key in ("dem", "ndsm", "planes"):  # surface control: the option, else [adjust] (relative to the project)
+    for key in ("dem", "ndsm", "planes", "check_dem"):  # surface: the option, else [adjust] (relative to the project)
         if getattr(out, key) is None and project.section("adjust").get(key) is not None:
             value = project.section("adjust")[key]
             if not isinstance(value, str) or not value:
@@ -241,6 +246,7 @@ class PreparedBlock:
     left_out: list = dataclasses.field(default_factory=list)  # LeftOutComponent: parts without a datum
     datum_notes: list = dataclasses.field(default_factory=list)  # what the datum rests on (no GNSS)
     level: object | None = None  # level_datum.LevelDatum: plan-only control, heights and tilt by assumption
+    check_surface: SurfaceControl | None = None  # the check DEM (settings.check_dem): compared, not observed
 
 
 def read_inputs(project: Project, settings: AdjustSettings | None = None) -> ProjectInputs:
@@ -453,21 +459,24 @@ def _approximations(inp: ProjectInputs, frame: LocalFrame, block: G.Block, image
     return G.State(centre0, R0, pts0, cal0, np.zeros((block.n_strips, 3)), np.zeros((block.n_strips, 3)))
 
 
-def _surface_control(project: Project, st: AdjustSettings, frame: LocalFrame, positions_map: np.ndarray) -> SurfaceControl:
-    """The DEM (and nDSM) of the settings, read over the block: the projection centres' extent plus a
-    margin of their height (more than the frames can see)."""
+def _surface_control(project: Project, st: AdjustSettings, frame: LocalFrame, positions_map: np.ndarray,
+                     check: bool = False) -> SurfaceControl:
+    """The DEM (and nDSM, roof planes) of the settings, read over the block: the projection centres' extent plus
+    a margin of their height (more than the frames can see); ``check``: the check DEM (``check_dem``) with the
+    nDSM, without roof planes."""
     crs, heights = project_crs(project), project_heights(project)
     p = np.asarray(positions_map, dtype=float)
     # a frame sees less than its height above the ground around its nadir point; the centres' heights
     # above the datum bound that (a window of the DEM, not the DEM of a whole country)
     margin = float(np.clip(np.abs(p[:, 2]).max(), 500.0, 20_000.0))
     bounds = (p[:, 0].min() - margin, p[:, 1].min() - margin, p[:, 0].max() + margin, p[:, 1].max() + margin)
-    dem = read_height_grid(st.dem, crs, heights, "DEM", bounds)
+    path = st.check_dem if check else st.dem
+    dem = read_height_grid(path, crs, heights, "DEM", bounds)
     if not np.isfinite(dem.z).any():
-        raise InputError(f"{st.dem}: the DEM has no height under the block (extent {bounds[0]:.0f}..{bounds[2]:.0f}, "
+        raise InputError(f"{path}: the DEM has no height under the block (extent {bounds[0]:.0f}..{bounds[2]:.0f}, "
                          f"{bounds[1]:.0f}..{bounds[3]:.0f} in the project CRS)")
     ndsm = read_height_grid(st.ndsm, crs, None, "nDSM", bounds) if st.ndsm is not None else None
-    planes = read_roof_planes(st.planes, crs, heights, st.plane_sigma_m) if st.planes is not None else None
+    planes = read_roof_planes(st.planes, crs, heights, st.plane_sigma_m) if st.planes is not None and not check else None
     # the frame's map heights are in the horizontal CRS's height unit (geom.transform's convention)
     units = (linear_unit_m(crs), height_unit_m(horizontal_crs(crs)))
     return SurfaceControl(dem, frame, sigma_m=float(st.surface_sigma_m), ndsm=ndsm, max_ndsm_m=float(st.max_ndsm_m),
@@ -504,6 +513,7 @@ def prepare_project(root, settings: AdjustSettings | None = None) -> tuple[Prepa
     )
     if st.dem is not None:
         block.surface = _surface_control(project, st, frame, approx_pos_map)
+    check_surface = _surface_control(project, st, frame, approx_pos_map, check=True) if st.check_dem is not None else None
     opts = G.Options(
         image_sigma_px=float(st.image_sigma_px), gnss_correction=st.gnss_correction if gl is not None else "none",
         self_calibration=tuple(st.self_calibration),
@@ -527,6 +537,7 @@ def prepare_project(root, settings: AdjustSettings | None = None) -> tuple[Prepa
         image_index={k: i for i, k in enumerate(ob.image_ids)},
         gnss_map=gnss.position_m[ob.order] if gnss is not None else None, n_tie_points=ob.n_tie,
         components=ob.components, left_out=ob.left_out, datum_notes=notes, level=level,
+        check_surface=check_surface,
     )
     return prepared, state0
 
@@ -535,13 +546,42 @@ def adjust_project(root, settings: AdjustSettings | None = None) -> BlockAdjustm
     """Run the adjustment of a project folder (no files written; see write_outputs)."""
     prepared, state0 = prepare_project(root, settings)
     st = prepared.settings
-    result = adjust_block(prepared.block, prepared.opts, state0, snooping=st.snooping, alpha=st.alpha,
-                          point_covariances=st.point_covariances, variance_components=st.variance_components)
-    if result.block is not prepared.block:  # reweighted by variance components: report the weights solved with
-        prepared = dataclasses.replace(prepared, block=result.block, opts=result.opts)
+    requested = tuple(prepared.opts.self_calibration)
+    opts, checks, focal_mode = prepared.opts, {}, None
+    while True:
+        result = adjust_block(prepared.block, opts, state0, snooping=st.snooping, alpha=st.alpha,
+                              point_covariances=st.point_covariances, variance_components=st.variance_components)
+        if not opts.self_calibration or result.calibration is None:
+            break
+        # the determinability of each estimated group (determinability.py); the groups the block cannot
+        # determine are fixed at their a-priori values and the block solved again without them
+        solved = result.opts or opts
+        ground = ground_observations(result.block or prepared.block, result.control_active,
+                                     (result.block or prepared.block).surface_active)
+        now = check_groups(result.calibration, solved.self_calibration, result.state.cal,
+                           G.cal_from_camera(prepared.camera), prepared.camera.width, prepared.camera.height, ground)
+        checks.update({c.group: c for c in now})
+        focal_mode = next((g for g in result.geometry or [] if g.mode == "focal_height"), focal_mode)
+        fixed = [c.group for c in now if not c.determinable]
+        if not fixed:
+            break
+        for c in now:
+            if not c.determinable:
+                log.warning(f"self-calibration: {c.group} fixed at its a-priori value, not determinable by this block: "
+                            f"{c.reason}")
+        opts = dataclasses.replace(opts, self_calibration=tuple(g for g in opts.self_calibration if g not in fixed))
+    # the block and options as solved last (weights reweighted by variance components, calibration groups fixed)
+    prepared = dataclasses.replace(prepared, block=result.block or prepared.block, opts=result.opts or opts)
     if prepared.level is not None:  # plan-only control: the solution levelled (tie points' mean plane horizontal)
         prepared.datum_notes.append(level_result(prepared.level, prepared.block, result))
-    return finish(prepared, result)
+    if focal_mode is not None and not any(g.mode == "focal_height" for g in result.geometry or []):
+        # the focal length was fixed: its mode as the solve that estimated it found it
+        result.geometry = list(result.geometry or []) + [dataclasses.replace(
+            focal_mode, note="from the solve that estimated the focal length; fixed since")]
+    ba = finish(prepared, result)
+    ba.self_calibration_requested = requested
+    ba.calibration_checks = [checks[g] for g in requested if g in checks]
+    return ba
 
 
 def _flying_height_guess(centre, cam) -> float:
@@ -627,14 +667,33 @@ def finish(prepared: PreparedBlock, result: AdjustmentResult) -> BlockAdjustment
     gres = None
     if gnss_map is not None:
         gres = frame.to_map(adjusted_gnss(block, opts, state)) - gnss_map
+    dem_checks = _dem_checks(p, result)
     return BlockAdjustment(
         project_name=p.project.name, crs=p.project.crs, settings=st, frame=frame, camera_apriori=p.camera,
         camera_adjusted=G.camera_from_cal(state.cal, p.camera), block=block, opts=opts, result=result, eo_map=eo,
         points_map=pts_map, points_sigma_map=psig, control=p.control_used,
         control_index_of_point={int(j): c for c, j in enumerate(block.control_point)}, check=check, gnss_map=gnss_map,
         gnss_residual_m=gres, n_tie_points=p.n_tie_points, check_obs=chk_obs, components=p.components,
-        left_out=p.left_out, datum_notes=list(p.datum_notes),
+        left_out=p.left_out, datum_notes=list(p.datum_notes), dem_checks=dem_checks,
     )
+
+
+def _dem_checks(p: PreparedBlock, result: AdjustmentResult) -> list:
+    """``dem_check.DemCheck`` of the adjusted tie points on the ground against the surface control's DEM (its
+    candidates on the ground, gated or not) and against the check DEM (``check_dem``)."""
+    block, st = p.block, p.settings
+    rays = np.bincount(block.obs_point[result.obs_active], minlength=block.n_points)
+    tie = rays >= 2
+    tie[block.control_point] = False
+    height = next((g.sigma_m for g in result.geometry or [] if g.mode == "height"), None)
+    out = []
+    if block.surface is not None and result.surface_use is not None:
+        ground = tie & (result.surface_use > 0) & (block.surface.point_class(block.n_points) == 0)
+        out.append(tie_dem_check(block.surface, result.state.points, ground, str(st.dem), "surface control", height))
+    if p.check_surface is not None:
+        ground = tie & p.check_surface.candidates(result.state.points)
+        out.append(tie_dem_check(p.check_surface, result.state.points, ground, str(st.check_dem), "check", height))
+    return out
 
 
 def object_points_csv(ba: BlockAdjustment) -> str:

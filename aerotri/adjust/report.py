@@ -9,7 +9,6 @@ from __future__ import annotations
 import dataclasses
 import html
 import math
-import warnings
 
 import numpy as np
 
@@ -18,18 +17,30 @@ from aerotri.core.tolerances import load_tolerances, tolerance_path
 
 
 def _rms(a, axis=0):
+    """RMS over ``axis`` of the finite values (NaN where there are none; no numpy warning)."""
     a = np.asarray(a, dtype=float)
     if a.size == 0:
         return np.full(a.shape[1:] if a.ndim > 1 else (), np.nan)
-    with warnings.catch_warnings():  # a column of NaN (plan-only control has no height residual): NaN, quietly
-        warnings.simplefilter("ignore", RuntimeWarning)
-        return np.sqrt(np.nanmean(a**2, axis=axis))
+    ok = np.isfinite(a)
+    n = ok.sum(axis=axis)
+    ss = np.where(ok, a, 0.0) ** 2
+    with np.errstate(invalid="ignore", divide="ignore"):
+        return np.where(n > 0, np.sqrt(ss.sum(axis=axis) / np.maximum(n, 1)), np.nan)
 
 
-def _nanmax_abs(a, axis=0):
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore", RuntimeWarning)
-        return np.nanmax(np.abs(a), axis=axis)
+def _max_abs(a, axis=0):
+    """Largest absolute finite value over ``axis`` (NaN where there are none; no numpy warning)."""
+    a = np.abs(np.asarray(a, dtype=float))
+    ok = np.isfinite(a)
+    return np.where(ok.any(axis=axis), np.where(ok, a, -np.inf).max(axis=axis), np.nan)
+
+
+def _mean(a, axis=0):
+    """Mean over ``axis`` of the finite values (NaN where there are none; no numpy warning)."""
+    a = np.asarray(a, dtype=float)
+    ok = np.isfinite(a)
+    n = ok.sum(axis=axis)
+    return np.where(n > 0, np.where(ok, a, 0.0).sum(axis=axis) / np.maximum(n, 1), np.nan)
 
 
 def _f(x, nd=3):
@@ -88,8 +99,11 @@ def _control_rows(ba, res: _Residuals) -> list[dict]:
         d = np.where(np.array(comp, dtype=bool), d, np.nan)
         rejected = not r.control_active[c]
         active = res.active
+        rays = int(active[k].sum())
+        # a control point no active ray reaches is held only by its own prior: its residual says nothing
+        status = "rejected" if rejected else "used" if rays else "no rays"
         rows.append({
-            "id": pid, "kind": kind, "used": not rejected, "rays": int(active[k].sum()),
+            "id": pid, "kind": kind, "used": status == "used", "status": status, "rays": rays,
             "given_m": _lst(ba.control.xyz_m[c], 4), "adjusted_m": _lst(adj, 4), "residual_m": _lst(d, 4),
             "image_rms_um": _f(_rms(res.v_um[k][active[k]].ravel())) if active[k].any() else None,
         })
@@ -232,16 +246,41 @@ def _image_residual_summary(res: _Residuals) -> dict:
             "warning": warning}
 
 
+_CAL_NAMES = ["fx_px", "fy_px", "skew_px", "u0_px", "v0_px", "k1", "k2", "p1", "p2"]
+
+
 def _self_calibration(ba) -> dict | None:
+    """The calibration asked for: a-priori and adjusted values, standard deviations of the estimated parameters
+    only (the others are held at their a-priori values), and the determinability of every group asked for
+    (``determinability.GroupCheck``: a group the block cannot determine is fixed, its refused estimate kept)."""
     r, opts = ba.result, ba.opts
-    if not opts.self_calibration:
+    requested = tuple(getattr(ba, "self_calibration_requested", ()) or opts.self_calibration)
+    if not requested:
         return None
-    cal_sd = np.sqrt(np.diag(r.cal_cov)) if r.cal_cov is not None else None
-    names = ["fx_px", "fy_px", "skew_px", "u0_px", "v0_px", "k1", "k2", "p1", "p2"]
-    return {"groups": list(opts.self_calibration), "apriori": dict(zip(names, _lst(G.cal_from_camera(ba.camera_apriori), 8))),
-            "adjusted": dict(zip(names, _lst(r.state.cal, 8))),
-            "std_dev": dict(zip(names, _lst(cal_sd, 8))) if cal_sd is not None else None,
+    groups = ba.block.camera.SELF_CAL_GROUPS
+    free = sorted({i for g in opts.self_calibration for i in groups[g]})
+    cal_sd = np.sqrt(np.clip(np.diag(r.cal_cov), 0.0, None)) if r.cal_cov is not None else None
+    std = None
+    if cal_sd is not None:
+        std = {n: (_f(cal_sd[i], 8) if i in free else None) for i, n in enumerate(_CAL_NAMES)}
+    checks = list(getattr(ba, "calibration_checks", []) or [])
+    return {"groups": list(requested), "estimated": list(opts.self_calibration),
+            "fixed": [c.group for c in checks if c.action == "fixed"],
+            "apriori": dict(zip(_CAL_NAMES, _lst(G.cal_from_camera(ba.camera_apriori), 8))),
+            "adjusted": dict(zip(_CAL_NAMES, _lst(r.state.cal, 8))),
+            "std_dev": std,
+            "determinability": [_check_dict(c) for c in checks],
             "camera": ba.camera_adjusted.to_dict()}
+
+
+def _check_dict(c) -> dict:
+    d = c.as_dict()
+    for key in ("estimate", "apriori", "sigma"):
+        d[key] = {k: _f(v, 8) for k, v in d[key].items()}
+    d["correlations"] = {k: _f(v, 4) for k, v in d["correlations"].items()}
+    d["corner_sigma_px"] = _f(d["corner_sigma_px"], 3)
+    d["corner_sigma_fraction"] = _f(d["corner_sigma_fraction"], 6)
+    return d
 
 
 def _parameters(ba, rms_control, cres, dchk, mean_sd_obj, rms_lim, res_lim) -> dict:
@@ -253,7 +292,7 @@ def _parameters(ba, rms_control, cres, dchk, mean_sd_obj, rms_lim, res_lim) -> d
         "rms_control_m": _lst(rms_control, 4) + [xy(rms_control)],
         "rms_check_m": (_lst(_rms(dchk), 4) + [xy(_rms(dchk))]) if len(dchk) else None,
         "rms_limits_m": _lst(rms_lim, 3) + [None],
-        "max_ground_residual_m": (_lst(_nanmax_abs(cres), 4) + [None]) if len(cres) else None,
+        "max_ground_residual_m": (_lst(_max_abs(cres, axis=0), 4) + [None]) if len(cres) else None,
         "residual_limits_m": _lst(res_lim, 3) + [None],
         "mean_std_dev_object_m": _lst(mean_sd_obj, 4) + [xy(mean_sd_obj)],
         "rms_photo_position_m": (_lst(_rms(ba.gnss_residual_m), 4) + [xy(_rms(ba.gnss_residual_m))]) if has_gnss else None,
@@ -261,6 +300,16 @@ def _parameters(ba, rms_control, cres, dchk, mean_sd_obj, rms_lim, res_lim) -> d
         "mean_std_dev_photo_position_m": (_lst(np.mean(sig[:, :3], axis=0), 4) + [None]) if sig is not None else None,
         "mean_std_dev_photo_attitude_deg": (_lst(np.mean(sig[:, 3:], axis=0), 5) + [None]) if sig is not None else None,
     }
+
+
+def _self_calibration_option(ba) -> str:
+    """"Enabled (estimated groups)", naming the groups asked for but fixed as not determinable."""
+    est = list(ba.opts.self_calibration)
+    fixed = [c.group for c in getattr(ba, "calibration_checks", []) or [] if c.action == "fixed"]
+    if not est and not fixed:
+        return "Disabled"
+    return ("Enabled (" + ", ".join(est) + ")" if est else "Disabled") + (
+        f"; {', '.join(fixed)} asked for but fixed (not determinable by this block)" if fixed else "")
 
 
 def _options(ba, tolerances: str) -> dict:
@@ -273,7 +322,7 @@ def _options(ba, tolerances: str) -> dict:
         "precision_computation": "Enabled" if r.pose_cov is not None else "Disabled",
         "error_detection": "Enabled" if st.snooping else "Disabled",
         "camera_calibration": "Enabled",
-        "self_calibration": ("Enabled (" + ", ".join(opts.self_calibration) + ")") if opts.self_calibration else "Disabled",
+        "self_calibration": _self_calibration_option(ba),
         "given_eo_gps": "Enabled" if has_gnss else "Disabled",
         "antenna_offsets": ("Enabled (" + ", ".join(f"{v:.3f}" for v in b.lever_arm_m) + " m)") if has_gnss and np.any(b.lever_arm_m) else "Disabled",
         "gps_shift_drift_correction": gps_mode[opts.gnss_correction] if has_gnss else "Disabled",
@@ -289,6 +338,8 @@ def _weak_modes(ba, height_limit_m: float) -> list:
     determined that 3 sigma exceed the height RMS limit."""
     out = []
     for g in ba.result.geometry or []:
+        if g.mode not in _MODE_NAMES:  # focal_height: judged with the self-calibration (determinability)
+            continue
         if g.held_by_priors:
             out.append((g, f"{_MODE_NAMES[g.mode]} held only by {_holders(g)} (sigma {g.sigma_m:.3f} m)"))
         elif 3 * g.sigma_m > height_limit_m:
@@ -299,26 +350,54 @@ def _weak_modes(ba, height_limit_m: float) -> list:
 
 
 def _key_statistics(ba, height_limit_m: float) -> dict:
+    """Sigma naught, iterations, and the verdict: "Solution Successful." only when the solve converged and
+    nothing is weak or failed; otherwise "Solution weak." or "Solution failed." naming each finding."""
     r, opts = ba.result, ba.opts
     s0_um = r.sigma0 * opts.image_sigma_px * ba.camera_apriori.pixel_um
-    success = bool(r.info.converged and math.isfinite(r.sigma0))
+    converged = bool(r.info.converged and math.isfinite(r.sigma0))
     weak = _weak_modes(ba, height_limit_m)
-    message = ("Solution failed: the last solve did not converge." if not success else
-               "Solution Successful." if r.info.iterations < opts.max_iterations else
-               f"Solution Successful (iteration limit {opts.max_iterations} reached; the last step "
-               f"changed the error by less than 1e-6 relative).")
-    if success and weak:
-        message += " Weak geometry: " + "; ".join(why for _, why in weak) + "."
-    if success and ba.left_out:
+    failed, weaknesses = [], []
+    if not converged:
+        failed.append("the last solve did not converge.")
+    dem_failed = [d for d in getattr(ba, "dem_checks", []) or [] if d.failed]
+    for d in dem_failed:
+        failed.append(f"Tie points - DEM ({d.role}, {d.dem}): median {d.median_m:+.3f} m over {d.n} points, beyond "
+                      f"{d.limit_m / d.sigma_offset_m:g} sigma of the offset ({d.limit_m:.3f} m).")
+    if weak:
+        weaknesses.append("Weak geometry: " + "; ".join(why for _, why in weak) + ".")
+    fixed = [c for c in getattr(ba, "calibration_checks", []) or [] if c.action == "fixed"]
+    if fixed:
+        weaknesses.append("Self-calibration: " + "; ".join(
+            f"{c.group} fixed at its a-priori value (not determinable: {c.reason})" for c in fixed) + ".")
+    if ba.left_out:
         n = sum(len(lo.image_ids) for lo in ba.left_out)
-        message += (f" {n} images in {len(ba.left_out)} part(s) that no tie point connects to the block and that "
-                    f"have no datum of their own are not adjusted (components below).")
+        weaknesses.append(f"{n} images in {len(ba.left_out)} part(s) that no tie point connects to the block and "
+                          f"that have no datum of their own are not adjusted (components below).")
+    if failed:
+        verdict = "failed"
+        message = "Solution failed: " + " ".join(failed + weaknesses)
+    elif weaknesses:
+        verdict = "weak"
+        message = "Solution weak. " + " ".join(weaknesses)
+    else:
+        verdict = "successful"
+        message = ("Solution Successful." if r.info.iterations < opts.max_iterations else
+                   f"Solution Successful (iteration limit {opts.max_iterations} reached; the last step "
+                   f"changed the error by less than 1e-6 relative).")
+    lines, pairs = getattr(r, "behind_camera", (0, 0))
     return {
         "sigma0_um": _f(s0_um), "sigma0_px": _f(r.sigma0 * opts.image_sigma_px, 4), "sigma0": _f(r.sigma0, 4),
         "pixel_um": _f(ba.camera_apriori.pixel_um, 4),
         "iterations": int(r.iterations_total),
-        "degrees_of_freedom": int(r.info.dof), "success": success,
+        "degrees_of_freedom": int(r.info.dof), "converged": converged,
+        # the products are written only for a converged solve whose checks passed (write_outputs)
+        "success": converged and not dem_failed,
+        "verdict": verdict,
         "weak_geometry": [g.mode for g, _ in weak],
+        "calibration_fixed": [c.group for c in fixed],
+        "dem_check_failed": [d.role for d in dem_failed],
+        # gtsam's CheiralityException lines (a point behind a camera at some iterate), counted, not printed
+        "points_behind_camera": {"messages": int(lines), "point_camera_pairs": int(pairs)},
         "message": message,
     }
 
@@ -359,8 +438,12 @@ def _geometry_modes(ba, height_limit_m: float) -> list | None:
     if not ba.result.geometry:
         return None
     weak = {g.mode for g, _ in _weak_modes(ba, height_limit_m)}
+    focal = next((c for c in getattr(ba, "calibration_checks", []) or [] if c.group == "focal"), None)
+    if focal is not None and not focal.determinable:
+        weak.add("focal_height")
     return [{**g.as_dict(), "weak": g.mode in weak, "sigma_m": _f(g.sigma_m, 4), "radius_m": _f(g.radius_m, 1),
              "sigma_deg": _f(g.sigma_deg, 5) if g.mode.startswith("tilt") else None,
+             "correlation_with_height": _f(g.correlation_with_height, 4),
              "shares": {k: _f(v, 3) for k, v in g.shares.items()}} for g in ba.result.geometry]
 
 
@@ -393,7 +476,7 @@ def build_report(ba, map_scale: str = "1:5000", terrain: str = "flat", tolerance
     worst_points, removed, rejected = _point_lists(ba, res)
     tie_pts = np.setdiff1d(np.unique(b.obs_point[res.active]), b.control_point)
     sd_tie = ba.points_sigma_map[tie_pts]
-    mean_sd_obj = np.nanmean(sd_tie, axis=0) if len(tie_pts) and np.isfinite(sd_tie).any() else np.full(3, np.nan)
+    mean_sd_obj = _mean(sd_tie, axis=0) if len(tie_pts) else np.full(3, np.nan)
     tolerances = f"{map_scale} {terrain} ({tol_table})" if tolerance_file is None else f"{terrain} ({tol_table})"
     return {
         "project": ba.project_name,
@@ -425,11 +508,19 @@ def build_report(ba, map_scale: str = "1:5000", terrain: str = "flat", tolerance
         "gnss_strips": [{"strip": s + 1, "shift_m": _lst(r.state.shift[s], 4), "drift_m_per_km": _lst(r.state.drift[s], 4)}
                         for s in range(b.n_strips)] if opts.gnss_correction != "none" else None,
         "surface_control": _surface_control(ba),
+        "dem_checks": [_dem_check_dict(d) for d in getattr(ba, "dem_checks", []) or []],
         "variance_components": _variance_components(ba),
         "geometry_modes": _geometry_modes(ba, rms_lim[2]),
         "flight_acceptance": _flight(ba, ground, tol),
         "timings_s": {k: _f(v, 3) for k, v in r.timings_s.items()},
     }
+
+
+def _dem_check_dict(d) -> dict:
+    out = d.as_dict()
+    for k in ("median_m", "nmad_m", "dem_sigma_m", "height_sigma_m", "sigma_offset_m", "limit_m"):
+        out[k] = _f(out[k], 4)
+    return out
 
 
 def _surface_control(ba) -> dict | None:
@@ -488,6 +579,45 @@ ISAT_OPTIONS = {"adjustment_mode": "Adjustment Mode", "precision_computation": "
                 "ins_shift_drift_correction": "INS Shift/Drift Correction", "tolerances": "Tolerances"}
 
 
+def _dem_check_line(d: dict) -> str:
+    """The DemCheck numbers of report.json as one line (point - DEM, metres)."""
+    if not d["n"]:
+        return "no tie point on the ground inside the DEM"
+    s = f"{d['n']} tie points on the ground: median {d['median_m']:+.3f} m, NMAD {d['nmad_m']:.3f} m"
+    if d["limit_m"] is None:
+        return s + " (too few to test)"
+    return s + (f"; offset sigma {d['sigma_offset_m']:.3f} m (DEM {d['dem_sigma_m']:.3f} m, block height "
+                f"{d['height_sigma_m'] or 0.0:.3f} m, median {1.2533 * d['nmad_m'] / math.sqrt(d['n']):.3f} m), "
+                f"3 sigma {d['limit_m']:.3f} m: " + ("FAILED (a systematic offset)" if d["failed"] else "passed"))
+
+
+def _self_calibration_txt(sc: dict) -> list[str]:
+    """The self-calibration table (standard deviations only for the estimated parameters) and the
+    determinability of each group asked for."""
+    L = ["Self-calibration (asked: " + ", ".join(sc["groups"]) + "; estimated: "
+         + (", ".join(sc.get("estimated") or []) or "none") + ")",
+         f"{'param':>8} {'a priori':>14} {'adjusted':>14} {'std dev':>12}"]
+    for name in sc["adjusted"]:
+        sd = (sc["std_dev"] or {}).get(name)
+        L.append(f"{name:>8} {sc['apriori'][name]:14.6g} {sc['adjusted'][name]:14.6g} {'' if sd is None else f'{sd:12.3g}'}")
+    checks = sc.get("determinability") or []
+    if checks:
+        L += ["", "SELF-CALIBRATION DETERMINABILITY (partial correlation with the modes it can move, the other "
+              "estimated groups held; sigma as a displacement at the image corner)"]
+        for c in checks:
+            corr = ", ".join(f"{m} {v:.3f}" + ("" if c["ground_observed"][m] else " (not observed on the ground)")
+                             for m, v in c["correlations"].items() if v is not None)
+            est = ", ".join(f"{n} {c['estimate'][n]:.6g} +- {c['sigma'][n]:.3g} (a priori {c['apriori'][n]:.6g})"
+                            for n in c["estimate"])
+            L.append(f"  {c['group']:11} {'estimated' if c['action'] == 'estimated' else 'FIXED at its a-priori value'}"
+                     f": corner sigma {c['corner_sigma_px']:.2f} px ({100 * c['corner_sigma_fraction']:.3f} % of the "
+                     f"focal length); correlation {corr}")
+            L.append(f"  {'':11} {'estimate' if c['action'] == 'estimated' else 'refused estimate'}: {est}")
+            if c["reason"]:
+                L.append(f"  {'':11} not determinable: {c['reason']}")
+    return L
+
+
 def format_txt(rep: dict) -> str:
     o = rep["options"]
     L = [f"Photo-T Parameters and Results for Project {rep['project']}", "", "PhotoT Triangulation Options"]
@@ -506,9 +636,18 @@ def format_txt(rep: dict) -> str:
     k = rep["key_statistics"]
     sigma = "n/a" if k["sigma0_um"] is None else f"{k['sigma0_um']:.2f} um ({k['sigma0_px']:.3f} px of {k['pixel_um']:g} um)"
     L += ["", "Key Statistics", f"  Sigma: {sigma}", f"  Number of iterations: {k['iterations']}",
-          f"  Degrees of Freedom: {k['degrees_of_freedom']}", f"  {k['message']}", ""]
+          f"  Degrees of Freedom: {k['degrees_of_freedom']}", f"  {k['message']}"]
+    behind = (k.get("points_behind_camera") or {}).get("messages")
+    if behind:
+        L.append(f"  (gtsam found points behind a camera at some iterate: {behind} CheiralityException messages for "
+                 f"{k['points_behind_camera']['point_camera_pairs']} point/camera pairs, kept off the console)")
+    L.append("")
     if rep.get("datum"):
         L += ["DATUM"] + [f"  {note}" for note in rep["datum"]] + [""]
+    for d in rep.get("dem_checks") or []:
+        L.append("TIE POINTS VS DEM (" + d["role"] + f", {d['dem']})")
+        L.append("  " + _dem_check_line(d))
+        L.append("")
     sc = rep.get("surface_control")
     if sc:
         L += _surface_txt(sc)
@@ -528,12 +667,20 @@ def format_txt(rep: dict) -> str:
         L += ["BLOCK GEOMETRY (modes of the tie-point heights: sigma, and the share of each group in determining them)",
               f"  {'mode':12}{'sigma m':>9}{'deg':>9}" + "".join(f"{k:>9}" for k in groups) + "  weak"]
         for g in gm:
+            if g["mode"] == "focal_height":
+                weak = "  YES (not determinable)" if g["weak"] else "  no"
+            else:
+                weak = "  YES (held by priors)" if g["held_by_priors"] else "  YES" if g["weak"] else "  no"
             L.append(f"  {g['mode']:12}{_v(g['sigma_m'], 9, 3)}{_v(g['sigma_deg'], 9, 4)}"
-                     + "".join(_v(g["shares"].get(k), 9, 2) for k in groups)
-                     + ("  YES (held by priors)" if g["held_by_priors"] else "  YES" if g["weak"] else "  no"))
+                     + "".join(_v(g["shares"].get(k), 9, 2) for k in groups) + weak
+                     + (f"  (correlation with the height {g['correlation_with_height']:.3f})"
+                        if g.get("correlation_with_height") is not None else "")
+                     + (f"  [{g['note']}]" if g.get("note") else ""))
         L.append(f"  (height: the mean height; tilts and bending: the height change at the block's edge, "
                  f"{gm[0]['radius_m']:.0f} m from its centre; weak: held only by GNSS and priors, or 3 sigma above "
-                 f"the height RMS limit)")
+                 f"the height RMS limit"
+                 + ("; focal_height: the focal length's sigma as the height change it makes at the tie points' "
+                    "depth, judged in SELF-CALIBRATION" if any(g["mode"] == "focal_height" for g in gm) else "") + ")")
         L.append("")
     comp = rep.get("components") or {}
     if comp.get("adjusted", 1) > 1 or comp.get("left_out"):
@@ -566,8 +713,12 @@ def format_txt(rep: dict) -> str:
           f"{'id':>12} {'kind':>10} {'used':>5} {'rays':>4} {'dX':>9} {'dY':>9} {'dZ':>9} {'img um':>8}"]
     for r in rep["control_points"]:
         d = r["residual_m"]
-        L.append(f"{r['id']:>12} {r['kind']:>10} {'yes' if r['used'] else 'NO':>5} {r['rays']:4d}" + "".join(_v(x, 10, 4) for x in d)
+        used = {"used": "yes", "rejected": "NO", "no rays": "no"}[r.get("status", "used" if r["used"] else "rejected")]
+        L.append(f"{r['id']:>12} {r['kind']:>10} {used:>5} {r['rays']:4d}" + "".join(_v(x, 10, 4) for x in d)
                  + _v(r["image_rms_um"], 9, 2))
+    no_rays = [r["id"] for r in rep["control_points"] if r.get("status") == "no rays"]
+    if no_rays:
+        L.append(f"  not used (no active image ray; held only by its given coordinates): {', '.join(map(str, no_rays))}")
     if rep["rejected_control"]:
         L += ["", "Control points failing the test (excluded):"] + [f"  {x['id']}  w = {x['w']}" for x in rep["rejected_control"]]
     L += ["", "Check points (d = adjusted - measured, m)",
@@ -581,11 +732,7 @@ def format_txt(rep: dict) -> str:
         L.append(f"{'rms':>12}" + " " * 84 + "".join(_v(x, 9, 3) for x in rep["check_rms_m"]))
         L.append("  normalised check errors (d / sigma), RMS X Y Z: " + " ".join(f"{x:.2f}" for x in rep["check_normalised_rms"]))
     if rep["self_calibration"]:
-        sc = rep["self_calibration"]
-        L += ["", "Self-calibration (" + ", ".join(sc["groups"]) + ")", f"{'param':>8} {'a priori':>14} {'adjusted':>14} {'std dev':>12}"]
-        for name in sc["adjusted"]:
-            sd = (sc["std_dev"] or {}).get(name)
-            L.append(f"{name:>8} {sc['apriori'][name]:14.6g} {sc['adjusted'][name]:14.6g} {'' if sd is None else f'{sd:12.3g}'}")
+        L += [""] + _self_calibration_txt(rep["self_calibration"])
     if rep["gnss_strips"]:
         L += ["", "GNSS corrections per strip", f"{'strip':>6} {'shift X':>9} {'Y':>9} {'Z':>9} {'drift X':>9} {'Y':>9} {'Z':>9} (m, m/km)"]
         for s in rep["gnss_strips"]:
@@ -741,7 +888,7 @@ def format_html(rep: dict, ba=None) -> str:
     parts.append(fig("Control and check-point residual vectors"))
     parts.append("<h3>Control points (residual = adjusted - given)</h3>")
     parts.append(RF.long_table("control points", ["id", "kind", "used", "rays", "dX m", "dY m", "dZ m", "image rms um"],
-                   [[r["id"], r["kind"], r["used"], r["rays"], *r["residual_m"], r["image_rms_um"]]
+                   [[r["id"], r["kind"], r.get("status", r["used"]), r["rays"], *r["residual_m"], r["image_rms_um"]]
                     for r in rep["control_points"]], 4, num_from=3))
     if rep["rejected_control"]:
         parts.append("<p>Control points failing the test (excluded): "
@@ -773,9 +920,16 @@ def format_html(rep: dict, ba=None) -> str:
         parts.append(fig("Flight: footprints on the terrain"))
     sc = rep.get("self_calibration")
     if sc:
-        parts.append(f"<h2>Self-calibration ({esc(', '.join(sc['groups']))})</h2>")
+        parts.append(f"<h2>Self-calibration (asked: {esc(', '.join(sc['groups']))}; estimated: "
+                     f"{esc(', '.join(sc.get('estimated') or []) or 'none')})</h2>")
         parts.append(T(["parameter", "a priori", "adjusted", "std dev"],
                        [[n, sc["apriori"][n], sc["adjusted"][n], (sc["std_dev"] or {}).get(n)] for n in sc["adjusted"]], 6))
+        if sc.get("determinability"):
+            parts.append("<h3>Determinability</h3>" + T(
+                ["group", "action", "corner sigma px", "corner sigma / focal", "partial correlations", "reason"],
+                [[c["group"], c["action"], c["corner_sigma_px"], c["corner_sigma_fraction"],
+                  ", ".join(f"{m} {v}" for m, v in c["correlations"].items()), c["reason"] or ""]
+                 for c in sc["determinability"]], 4, num_from=2))
     vc = rep.get("variance_components")
     if vc:
         parts.append("<h2>Variance components</h2>" + T(
@@ -788,9 +942,14 @@ def format_html(rep: dict, ba=None) -> str:
         parts.append("<h2>Block geometry</h2>" + T(
             ["mode", "sigma m", "sigma deg"] + [f"share {x}" for x in groups] + ["weak"],
             [[g["mode"], g["sigma_m"], g["sigma_deg"], *[g["shares"].get(x) for x in groups],
+              ("YES (not determinable)" if g["weak"] else "no") if g["mode"] == "focal_height" else
               "YES (held by priors)" if g["held_by_priors"] else "YES" if g["weak"] else "no"] for g in gm], 4))
     if rep.get("surface_control"):
         parts.append("<h2>Surface control</h2>" + fig("Surface control"))
+    for d in rep.get("dem_checks") or []:
+        cls = " class='fail'" if d["failed"] else ""
+        parts.append(f"<h2>Tie points vs DEM ({esc(d['role'])})</h2><p{cls}>{esc(str(d['dem']))}: "
+                     f"{esc(_dem_check_line(d))}</p>")
     parts.append("<h2>Photos</h2>")
     parts.append(RF.long_table("photos", ["image", "strip", "obs", "rms x um", "rms y um", "GNSS res X m", "Y m", "Z m", "sX m", "sY m", "sZ m",
                     "tie obs per von Gruber area"],

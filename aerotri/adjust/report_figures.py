@@ -72,7 +72,20 @@ def _fmt(x: float) -> str:
 
 def _origin(xy: np.ndarray) -> tuple[float, float]:
     """A round origin (whole km) below the coordinates, so axes read in metres from it."""
-    return math.floor(np.nanmin(xy[:, 0]) / 1000.0) * 1000.0, math.floor(np.nanmin(xy[:, 1]) / 1000.0) * 1000.0
+    return math.floor(_finite_min(xy[:, 0]) / 1000.0) * 1000.0, math.floor(_finite_min(xy[:, 1]) / 1000.0) * 1000.0
+
+
+def _finite_min(a) -> float:
+    a = np.asarray(a, dtype=float)
+    a = a[np.isfinite(a)]
+    return float(a.min()) if len(a) else 0.0
+
+
+def _p95(a) -> float:
+    """95th percentile of the finite values, 0 without any (no numpy All-NaN warning)."""
+    a = np.asarray(a, dtype=float)
+    a = a[np.isfinite(a)]
+    return float(np.percentile(a, 95)) if len(a) else 0.0
 
 
 def scale_bar(ax, length: float, label: str, thickness: float):
@@ -116,12 +129,12 @@ def ground_residual_map(rep: dict) -> Figure | None:
     x, y = pos[:, 0] - o[0], pos[:, 1] - o[1]
     extent = max(np.ptp(x), np.ptp(y), 1.0)
     plan = np.hypot(d[:, 0], d[:, 1])
-    p95 = float(np.nanpercentile(plan, 95)) or 1e-3
+    p95 = _p95(plan) or 1e-3
     scale = p95 / (0.08 * extent)  # the 95th percentile residual draws 8 % of the block
     key_m = nice_length(p95)
     fig, ax = plt.subplots(figsize=(10, 8))
     dz = np.nan_to_num(d[:, 2])
-    lim = max(float(np.nanpercentile(np.abs(d[:, 2]), 95)) if np.isfinite(d[:, 2]).any() else 0.0, 0.01)
+    lim = max(_p95(np.abs(d[:, 2])), 0.01)
     sc = None
     for m, marker, label, size in ((~is_ctrl, "o", f"check points ({int((~is_ctrl).sum())})", 22),
                                    (is_ctrl, "^", f"control points ({int(is_ctrl.sum())})", 70)):
@@ -169,7 +182,7 @@ def image_residual_frames(rep: dict, pixel_um: float | None = None) -> Figure | 
     nx, ny = g0["nx"], g0["ny"]
     allv = np.concatenate([np.hypot(np.array(p["residual_grid"]["mean_vx_um"], float),
                                     np.array(p["residual_grid"]["mean_vy_um"], float)) for p in shown])
-    vmax = float(np.nanpercentile(allv, 95)) or 1e-3
+    vmax = _p95(allv) or 1e-3
     key_um = nice_length(vmax)
     cols = min(6, len(shown))
     rows = math.ceil(len(shown) / cols)

@@ -65,3 +65,7 @@ class AdjustSettings:
     refine_approximations: bool = True  # resection/intersection of the attitudes before the bundle (GNSS)
     leave_one_out: bool = setting(False, help="After the adjustment, adjust again once per control point with that "
                                               "point left out as a check point: at/leave_one_out.json.")
+    check_dem: Path | None = setting(None, path=True, help="DEM (GeoTIFF, project CRS and heights) the adjusted tie "
+                                                           "points are checked against without holding them to it: "
+                                                           "count, median and spread of point - DEM; a median beyond "
+                                                           "3 sigma fails the solution.")

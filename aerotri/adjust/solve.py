@@ -15,6 +15,7 @@ from aerotri.adjust import variance_components as vce
 from aerotri.adjust.surface import SurfaceStats, surface_stats
 from aerotri.core.errors import SolveError
 from aerotri.adjust.check_points import intersect_with_covariance
+from aerotri.adjust.cpp_output import counting
 from aerotri.adjust.collinearity import point_jacobian_cv, point_normals, project_cv
 from aerotri.adjust.covariance import ReducedCovariance, point_rays
 from aerotri.adjust.geometry_modes import geometry_modes
@@ -61,9 +62,24 @@ class AdjustmentResult:
     block: G.Block | None = None  # the block as solved last (its sigmas reweighted by the variance components)
     opts: G.Options | None = None
     geometry: list | None = None  # geometry_modes.GeometryMode: how well the block's height modes are determined
+    calibration: object | None = None  # geometry_modes.CalibrationCovariance (self-calibration only)
+    behind_camera: tuple[int, int] = (0, 0)  # gtsam's CheiralityException lines, (point, camera) pairs (cpp_output)
 
 
-def adjust_block(
+def adjust_block(block: G.Block, opts: G.Options, state0: G.State, **kwargs) -> AdjustmentResult:
+    """``_adjust_block`` (the same arguments: snooping, alpha, compute_marginals, point_covariances, max_rounds,
+    variance_components, max_vce_iterations), with gtsam's points-behind-a-camera lines counted into the
+    result's ``behind_camera`` instead of printed (``cpp_output``)."""
+    with counting() as seen:
+        result = _adjust_block(block, opts, state0, **kwargs)
+    result.behind_camera = (seen.lines, len(seen.pairs))
+    if seen.lines:
+        log.debug("gtsam found %d point(s) behind a camera during the solve (%d messages)", len(seen.pairs),
+                  seen.lines)
+    return result
+
+
+def _adjust_block(
     block: G.Block,
     opts: G.Options,
     state0: G.State,
@@ -172,7 +188,7 @@ def adjust_block(
     sigma0 = float(np.sqrt(info.chi2 / info.dof)) if info.dof > 0 else float("nan")
 
     pose_cov = point_cov = cal_cov = marg = None
-    components, factors, geometry = None, None, None
+    components, factors, geometry, calibration = None, None, None, None
     if compute_marginals:
         t0 = time.perf_counter()
         marg = _marginals(gr, values, block, obs_active)
@@ -218,7 +234,8 @@ def adjust_block(
             pose_cov = np.array([marg.marginalCovariance(G.X(i)) for i in range(block.n_images)]) * s2
             if point_unit is not None:
                 point_cov = point_unit * s2
-                geometry = geometry_modes(block, opts, state, obs_active, control_active, marg, sigma0, rays)
+                geometry, calibration = geometry_modes(block, opts, state, obs_active, control_active, marg, sigma0,
+                                                       rays)
             if values.exists(G.K_KEY):
                 cal_cov = marg.marginalCovariance(G.K_KEY) * s2
         timings["marginals_s"] += time.perf_counter() - t0
@@ -233,7 +250,7 @@ def adjust_block(
         log.info(f"surface control: {stats.used} points used, {stats.rejected} rejected, height - DEM RMS {rms}")
     return AdjustmentResult(
         state, info, sigma0, obs_active, control_active, removed, rejected, v, r, pose_cov, point_cov, cal_cov, marg,
-        iterations, timings, stats, use, components, factors, block, opts, geometry,
+        iterations, timings, stats, use, components, factors, block, opts, geometry, calibration,
     )
 
 

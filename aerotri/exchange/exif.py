@@ -20,9 +20,12 @@ GDAL-written TIFFs as ``EXIF_*`` items and the XMP packet as the ``xml:XMP`` dom
   OpenCV ``undistort``). Scaled to the image size on disk (downsampled frames keep the full size in
   EXIF): focal length and offsets in pixels scale, the coefficients do not. Our model has one focal
   length: f = (fx + fy) / 2 (a note gives the difference at the image edge). Without DewarpData the
-  nominal camera: EXIF focal length, principal point at the centre, no distortion. Pixel size: EXIF
-  focal plane resolution, else DJI's ``CalibratedFocalLength`` (px) for the EXIF focal length (mm), else
-  the 35 mm equivalent focal length (diagonal).
+  nominal camera: EXIF focal length, principal point at the centre, no distortion. Pixel size
+  (``pixel_size_mm``): EXIF ``FocalPlaneXResolution`` with its ``FocalPlaneResolutionUnit``, else DJI's
+  ``CalibratedFocalLength`` (px) for the EXIF focal length (mm), else the sensor width of the camera's
+  make and model (``data/sensor_widths.csv``, sources cited there) over the image's long side, else the
+  35 mm equivalent focal length (diagonal; a warning says so: a frame cropped from the sensor, such as the
+  16:9 frames of a 4:3 sensor, makes it wrong by the crop: 7 % on the Phantom 3's 4000 x 2250 frames).
 - attitude: DJI ``GimbalYawDegree``, ``GimbalPitchDegree``, ``GimbalRollDegree`` (the camera's attitude:
   yaw from true north clockwise, pitch -90 = nadir; Tait-Bryan z-y-x in north-east-down) -> imported/eo.txt
   as omega, phi, kappa (see :func:`opk_from_gimbal`). These are the drone's estimates, degrees off;
@@ -32,6 +35,7 @@ GDAL-written TIFFs as ``EXIF_*`` items and the XMP packet as the ``xml:XMP`` dom
 from __future__ import annotations
 
 import dataclasses
+import functools
 import logging
 import math
 import re
@@ -79,6 +83,7 @@ class FrameMetadata:
     focal_plane_px_per_mm: float | None = None
     calibrated_focal_px: float | None = None
     model: str = ""
+    make: str = ""
 
 
 # -- reading tags ---------------------------------------------------------------------------------------
@@ -160,7 +165,8 @@ def read_frame_metadata(path) -> FrameMetadata:
     path = Path(path)
     exif, xmp = read_tags(path)
     w, h = (int(v) for v in exif.pop("_size").split())
-    m = FrameMetadata(path=path, width=w, height=h, model=exif.get("EXIF_Model", xmp.get("tiff:Model", "")).strip())
+    m = FrameMetadata(path=path, width=w, height=h, model=exif.get("EXIF_Model", xmp.get("tiff:Model", "")).strip(),
+                      make=exif.get("EXIF_Make", xmp.get("tiff:Make", "")).strip())
     lat = _xmp_float(xmp, "drone-dji:GpsLatitude", path)
     lon = _xmp_float(xmp, "drone-dji:GpsLongtitude", path)
     if lon is None:
@@ -228,17 +234,51 @@ def opk_from_gimbal(ypr_deg, R_map_from_enu=None) -> np.ndarray:
     return np.array(opk_from_matrix(R))
 
 
+SENSOR_TABLE = Path(__file__).with_name("data") / "sensor_widths.csv"
+FROM_35MM = "35 mm equivalent focal length (diagonal)"
+
+
+def _make_key(make: str) -> str:
+    """The first word of an EXIF Make, lower case ("NIKON CORPORATION" -> "nikon")."""
+    return (make.strip().split() or [""])[0].lower()
+
+
+@functools.lru_cache(maxsize=1)
+def sensor_widths() -> dict[tuple[str, str], tuple[float, str]]:
+    """(make key, model lower case) -> (sensor width mm, source) of ``data/sensor_widths.csv``."""
+    import csv
+
+    out = {}
+    with open(SENSOR_TABLE, newline="") as f:
+        rows = csv.DictReader(line for line in f if not line.startswith("#"))
+        for r in rows:
+            out[_make_key(r["make"]), r["model"].strip().lower()] = (float(r["sensor_width_mm"]), r["source"])
+    return out
+
+
+def sensor_width_mm(make: str, model: str) -> tuple[float, str] | None:
+    """(sensor width mm, source) of a camera's EXIF Make and Model from the sensor table, or None."""
+    return sensor_widths().get((_make_key(make), model.strip().lower()))
+
+
 def pixel_size_mm(m: FrameMetadata, full_w: int, full_h: int) -> tuple[float, str]:
-    """Pixel size (mm) of the full sensor and where it came from."""
+    """Pixel size (mm) of the full sensor and where it came from (the module docstring's order)."""
     if m.focal_plane_px_per_mm:
         return 1.0 / m.focal_plane_px_per_mm, "EXIF focal plane resolution"
     if m.focal_mm and m.calibrated_focal_px:
         return m.focal_mm / m.calibrated_focal_px, "EXIF focal length / DJI CalibratedFocalLength"
+    sensor = sensor_width_mm(m.make, m.model)
+    if sensor is not None:
+        width_mm, source = sensor
+        # the sensor's long side is the frame's long side (frames are cropped across it, e.g. 16:9 from 4:3)
+        return width_mm / max(full_w, full_h), (f"sensor width {width_mm:g} mm of the {m.make} {m.model} "
+                                                f"(sensor table, {source}) over {max(full_w, full_h)} px")
     if m.focal_mm and m.focal_35mm:
         diag_mm = DIAGONAL_35MM_MM * m.focal_mm / m.focal_35mm
-        return diag_mm / math.hypot(full_w, full_h), "35 mm equivalent focal length (diagonal)"
-    raise InputError(f"{m.path}: no pixel size: EXIF has no focal plane resolution, and no focal length with "
-                     f"a 35 mm equivalent or DJI CalibratedFocalLength; write camera.toml yourself")
+        return diag_mm / math.hypot(full_w, full_h), FROM_35MM
+    raise InputError(f"{m.path}: no pixel size: EXIF has no focal plane resolution, the {m.make} {m.model} is not in "
+                     f"the sensor table ({SENSOR_TABLE.name}), and there is no focal length with a 35 mm equivalent "
+                     f"or DJI CalibratedFocalLength; write camera.toml yourself")
 
 
 def camera_from_metadata(m: FrameMetadata) -> tuple[BrownCamera, list[str]]:
@@ -267,8 +307,14 @@ def camera_from_metadata(m: FrameMetadata) -> tuple[BrownCamera, list[str]]:
             raise InputError(f"{m.path}: no EXIF FocalLength and no DJI DewarpData; write camera.toml yourself")
         cam = BrownCamera(focal_mm=m.focal_mm, pixel_um=pix_mm * 1000.0, width=m.width, height=m.height,
                           name=f"{m.model or 'camera'} (EXIF nominal)")
-        notes.append(f"camera: nominal from EXIF (focal length {m.focal_mm:g} mm, pixel size from {pix_source}); "
-                     f"principal point at the centre, no distortion: self-calibrate in the adjustment")
+        notes.append(f"camera: nominal from EXIF (focal length {m.focal_mm:g} mm = {cam.focal_px:.1f} px, pixel size "
+                     f"{pix_mm * 1000.0:.4g} um from {pix_source}); principal point at the centre, no distortion: "
+                     f"self-calibrate in the adjustment (with height control or a DEM for the focal length)")
+    if pix_source == FROM_35MM:
+        notes.append(f"camera: the pixel size comes from the 35 mm equivalent focal length ({m.focal_35mm:g} mm), "
+                     f"which assumes the frame spans the sensor's diagonal: a frame cropped from the sensor (16:9 from "
+                     f"4:3) has its focal length in pixels wrong by the crop; the {m.make} {m.model} is not in the "
+                     f"sensor table ({SENSOR_TABLE.name}) and the EXIF has no FocalPlaneXResolution")
     return cam, notes
 
 

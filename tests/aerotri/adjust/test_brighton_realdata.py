@@ -1,0 +1,101 @@
+"""Real data, issue 39: the Brighton Beach drone block self-calibrated without and with the DEM of its own point
+cloud (../shared/data/brighton_beach; the ODM cloud model.laz is a peer's product, the reference for the heights).
+
+A subset: 6 frames (2 strips of 3, flown both ways), downsampled 5 times (800 x 450 px), matched with 3000
+keypoints a frame and no densification; the DEM and nDSM made here from model.laz (cropped to the block, every
+8th point) by lidarctl classify and rasters.
+Without a DEM the focal length cannot be told from the flying height (flat beach, nadir frames, GNSS alone):
+the focal length is fixed with the reason and the verdict is not "Solution Successful" (on main the full
+block's focal went from 2121 to 2904 px and its tie points 11 m below the DEM, "Solution Successful"). With
+the DEM the focal length is estimated and the tie points lie on the DEM (median within 0.3 m). The whole block:
+bench/eval_brighton.py -> results/brighton.json.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+pytestmark = pytest.mark.realdata
+
+FRAMES = ("DJI_0019", "DJI_0020", "DJI_0021", "DJI_0025", "DJI_0026", "DJI_0027")
+SHRINK = 5  # 4000 x 2250 -> 800 x 450 px
+
+
+@pytest.fixture(scope="module")
+def brighton6(shared_data, tmp_path_factory):
+    import cv2
+    import laspy
+    from click.testing import CliRunner
+
+    from aerotri.cli import main as aerotri_cli
+    from aerotri.exchange import import_files
+    from aerotri.geom.camera import read_camera
+    from aerotri.geom.eo import read_gnss
+    from lidarctl.cli import main as lidar_cli
+
+    data = shared_data / "brighton_beach"
+    out = tmp_path_factory.mktemp("brighton6")
+    root = out / "p"
+    root.mkdir()
+    (root / "project.toml").write_text('[project]\nname = "brighton6"\ncrs = "EPSG:32615"\n\n'
+                                       "[flight]\nmean_terrain_height_m = 158.5\n")
+    import_files(root, "exif", [data / "images" / f"{i}.JPG" for i in FRAMES])
+    cam = read_camera(root / "camera.toml")
+    w, h = cam.width // SHRINK, cam.height // SHRINK
+    (root / "images").mkdir()
+    for i in FRAMES:
+        im = cv2.imread(str(data / "images" / f"{i}.JPG"), cv2.IMREAD_REDUCED_COLOR_4)  # decoded at 1/4
+        cv2.imwrite(str(root / "images" / f"{i}.jpg"), cv2.resize(im, (w, h), interpolation=cv2.INTER_AREA))
+    (root / "camera.toml").write_text(cam.with_pixels(w, h).to_toml())
+    r = CliRunner().invoke(aerotri_cli, ["match", str(root), "--budget", "3000", "--no-densify", "-q"])
+    assert r.exit_code == 0, r.output
+    # the DEM of the ODM cloud under the block (its frames reach about 35 m from their centres), every 8th
+    # point (about 5 per square metre; the suite's time)
+    g = read_gnss(root / "gnss.txt").position_m
+    lo, hi = g[:, :2].min(axis=0) - 40.0, g[:, :2].max(axis=0) + 40.0
+    las = laspy.read(data / "model.laz")
+    keep = (las.x >= lo[0]) & (las.x <= hi[0]) & (las.y >= lo[1]) & (las.y <= hi[1])
+    keep &= np.arange(len(keep)) % 8 == 0
+    crop = laspy.LasData(las.header)
+    crop.points = las.points[keep]
+    crop.write(out / "cloud.laz")
+    for args in (["classify", str(out / "cloud.laz"), str(out / "classified.laz"), "-q"],
+                 ["rasters", str(out / "classified.laz"), str(out / "lidar"), "--res", "0.5", "-q"]):
+        r = CliRunner().invoke(lidar_cli, args)
+        assert r.exit_code == 0, r.output
+    return root, out / "lidar", cam
+
+
+def test_without_a_dem_the_focal_length_is_fixed_and_the_solution_is_weak(brighton6):
+    from aerotri.adjust.pipeline import AdjustSettings, adjust_project
+    from aerotri.adjust.report import build_report
+
+    root, _, cam = brighton6
+    assert cam.focal_px == pytest.approx(2344.2, abs=0.5)  # the FC300S's 6.16 mm sensor over 4000 px
+    ba = adjust_project(root, AdjustSettings(self_calibration=("focal", "pp", "radial")))
+    focal = {c.group: c for c in ba.calibration_checks}["focal"]
+    assert focal.action == "fixed" and not focal.ground_observed["height"]
+    assert focal.correlations["height"] > 0.9 and "block height" in focal.reason
+    ks = build_report(ba)["key_statistics"]
+    assert ks["verdict"] != "successful" and "focal" in ks["calibration_fixed"]
+    assert "Solution Successful" not in ks["message"] and "focal fixed at its a-priori value" in ks["message"]
+    assert ba.camera_adjusted.focal_px == pytest.approx(ba.camera_apriori.focal_px, rel=1e-4)
+
+
+def test_with_the_dem_the_tie_points_lie_on_it(brighton6):
+    from aerotri.adjust.pipeline import AdjustSettings, adjust_project
+    from aerotri.adjust.report import build_report
+
+    root, lidar, cam = brighton6
+    ba = adjust_project(root, AdjustSettings(self_calibration=("focal", "pp", "radial"), dem=lidar / "dem.tif",
+                                             ndsm=lidar / "ndsm.tif"))
+    (d,) = ba.dem_checks
+    assert d.role == "surface control" and d.n > 200 and not d.failed
+    assert abs(d.median_m) < 0.3, d
+    focal = {c.group: c for c in ba.calibration_checks}["focal"]
+    assert focal.action == "estimated" and focal.ground_observed["height"]
+    f = np.mean(list(focal.estimate.values()))
+    # the sensor width's 2344 px is 3 % long for this lens: the estimate moves to about 2270 px (full size)
+    assert 0.95 * cam.focal_px / SHRINK < f < 0.995 * cam.focal_px / SHRINK
+    assert build_report(ba)["key_statistics"]["verdict"] == "successful"
