@@ -87,10 +87,16 @@ def load_block(root, eo_path=None, camera_path=None, frames=None) -> BlockInputs
     if not eo_path.exists():
         raise InputError(f"{eo_path}: exterior orientation not found (run the aerotri adjustment, or pass --eo FILE, "
                          f"e.g. --eo {project.truth_dir / 'eo.txt'})")
-    eo = read_eo(eo_path)
+    from aerotri.geom.eo import check_block_crs
+
+    # the projection centres checked against the project CRS (another zone's numbers, swapped X/Y)
+    eo = read_eo(eo_path, check_block_crs(project.crs, f"{project.config_path} [project] crs"))
     images = find_images(project.images_dir)
     idx = eo.index()
     if frames:
+        twice = sorted({f for f in frames if frames.count(f) > 1})
+        if twice:
+            raise OptionError(f"frame(s) {', '.join(twice)} given twice", param="--frames")
         unknown = [f for f in frames if f not in images]
         if unknown:
             raise InputError(f"{project.images_dir}: no image for frame(s) {', '.join(unknown)} given with --frames")

@@ -170,11 +170,20 @@ def read_project_control(project: Project, st: AdjustSettings, crs=None) -> tupl
         # GNSS alone can carry the datum (no corrections per strip): the first adjustment of the
         # chain, before LiDAR control has been transferred. check_datum refuses the other cases.
         control, cobs = _empty_control()
+    _refuse_check_and_control(st)
     kinds = {pid: "check" for pid in st.check}
     kinds.update({pid: "full" for pid in st.control})
     if kinds:
         control = control.with_kinds(kinds)
     return control, cobs
+
+
+def _refuse_check_and_control(st: AdjustSettings) -> None:
+    """An id given as a check point and as control (``--check P --control P``) is refused, not decided by order."""
+    both = sorted(set(st.check) & set(st.control))
+    if both:
+        raise OptionError(f"point(s) {', '.join(both)} given both as --check and as --control; give each once",
+                          param="--check")
 
 
 def project_datum_shortfall(root, settings: AdjustSettings | None = None) -> str | None:

@@ -9,6 +9,7 @@ gives the table of a contract with ``tolerances = "FILE"`` in ``[qa]`` of projec
 
 from __future__ import annotations
 
+import math
 import tomllib
 from pathlib import Path
 
@@ -45,7 +46,11 @@ def load_tolerances(scale: str | None = None, terrain: str = "flat", tolerance_f
     if terrain not in table:
         have = [k for k, v in table.items() if isinstance(v, dict) and k != "general"]
         raise InputError(f"{path}: no [{terrain}] section (terrain classes here: {', '.join(have)})")
-    return {**table.get("general", {}), **table[terrain]}
+    limits = {**table.get("general", {}), **table[terrain]}
+    for key, v in limits.items():  # a limit of inf or nan passes or fails everything: refused by name
+        if isinstance(v, (int, float)) and not isinstance(v, bool) and not (math.isfinite(v) and v >= 0):
+            raise ConfigError(f"{path}: {key} = {v!r}: expected a finite limit >= 0")
+    return limits
 
 
 def qa_settings(root: Path) -> dict:
