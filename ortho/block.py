@@ -624,11 +624,30 @@ def read_index(root) -> dict:
     if not isinstance(index, dict) or any(k not in index for k in _INDEX_KEYS) or not isinstance(index["frames"], list):
         raise InputError(f"{path}: not a frame index of ortho rectify (expected keys {', '.join(_INDEX_KEYS)}); "
                          "re-run `ortho rectify`")
+    _check_number(path, "res_m", index["res_m"], positive=True)
     for k, e in enumerate(index["frames"]):
         if not isinstance(e, dict) or any(f not in e for f in _FRAME_KEYS):
             raise InputError(f"{path}: frame record {k + 1} lacks {', '.join(f for f in _FRAME_KEYS if f not in e)}; "
                              "re-run `ortho rectify`")
+        where = f"frame record {k + 1} ({e['image_id']})"
+        for f in ("x_left_m", "y_top_m"):
+            _check_number(path, f"{where} {f}", e[f])
+        for f in ("width", "height"):
+            if not (isinstance(e[f], int) and not isinstance(e[f], bool) and e[f] >= 1):
+                raise InputError(f"{path}: {where} {f} = {e[f]!r}: expected a size in pixels; re-run `ortho rectify`")
+        if not (isinstance(e["nadir_xy_m"], list) and len(e["nadir_xy_m"]) == 2):
+            raise InputError(f"{path}: {where} nadir_xy_m = {e['nadir_xy_m']!r}: expected [x, y]; re-run `ortho rectify`")
+        for v in e["nadir_xy_m"]:
+            _check_number(path, f"{where} nadir_xy_m", v)
     return index
+
+
+def _check_number(path, what: str, v, positive: bool = False) -> None:
+    """InputError naming the index and the key unless ``v`` is a finite number (above 0 with ``positive``)."""
+    ok = isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v) and (v > 0 or not positive)
+    if not ok:
+        raise InputError(f"{path}: {what} = {v!r}: expected a finite{' positive' if positive else ''} number; "
+                         "re-run `ortho rectify`")
 
 
 def verify_index(frames_dir, index: dict) -> None:

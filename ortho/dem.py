@@ -79,7 +79,7 @@ def open_height_raster(path, project_crs: CRS | None, what: str = "DEM"):
     expected = f"; expected the project CRS {project_crs.to_string()}" if project_crs is not None else ""
     ds = open_north_up(path, what, no_crs_hint=expected, square=True, heights=True)
     if project_crs is not None and not same_horizontal(CRS(ds.crs), CRS(project_crs)):
-        got = CRS(ds.crs).to_string()
+        got = crs_label(CRS(ds.crs))
         ds.close()
         raise CrsError(
             f"{path}: CRS mismatch: {what} is in {got} but the project (project.toml [project] crs) is in "

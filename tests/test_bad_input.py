@@ -571,6 +571,19 @@ def table(rel, how):
     return f
 
 
+def json_set(rel, keys, value):
+    """Set ``value`` at ``keys`` (a path of keys and list indices) of a JSON file."""
+    def f(w):
+        q = w / rel
+        d = json.loads(_text(q))
+        o = d
+        for k in keys[:-1]:
+            o = o[k]
+        o[keys[-1]] = value
+        q.write_text(json.dumps(d))
+    return f
+
+
 def _fields(s: str) -> list:
     return s.split(",") if "," in s else s.split()
 
@@ -1380,6 +1393,29 @@ ISSUE39 = _raster_cases() + [
       for opt in opts
       for vid, val in [("nan", "nan"), ("inf", "inf"), ("minus_inf", "-inf")]
       if not (opt == "--blunder-fraction" and vid == "nan")],  # (sim_blunder_fraction: 2 is refused already)
+    # --- numbers in JSON products a later stage reads
+    C("rectify_report_camera_text", "ortho", "rectify {p}", ["report.json", "focal_mm"],
+      json_set("p/at/report.json", ["self_calibration", "camera", "focal_mm"], "abc")),
+    C("control_report_camera_inf", "aerotri", "control {p}", ["report.json", "focal_mm"],
+      json_set("p/at/report.json", ["self_calibration", "camera", "focal_mm"], float("inf"))),
+    C("mosaic_index_text", "ortho", "mosaic {p}", ["index.json", "x_left_m"],
+      json_set("p/ortho/frames/index.json", ["frames", 0, "x_left_m"], "abc")),
+    C("mosaic_index_nan", "ortho", "mosaic {p}", ["index.json", "res_m"],
+      json_set("p/ortho/frames/index.json", ["res_m"], float("nan"))),
+    C("export_report_local_frame_text", "aerotri", "export {p} --format colmap", ["report.json", "origin_map"],
+      json_set("p/at/report.json", ["local_frame", "origin_map"], "abc")),
+    # --- aerotri run: every input of a later stage is checked before the first stage runs
+    C("run_reference_1x1", "aerotri", "run {p} --reference {w}/p/truth/ortho.tif", ["ortho.tif", "2 x 2"],
+      raster("p/truth/ortho.tif", "1x1")),
+    C("run_reference_no_crs", "aerotri", "run {p} --reference {w}/p/truth/ortho.tif", ["ortho.tif", "CRS"],
+      raster("p/truth/ortho.tif", "no_crs")),
+    C("run_points_text", "aerotri", "run {p} --points {w}/pts.csv", ["pts.csv", "abc"],
+      write("pts.csv", "id,x,y,z\nA,452200.0,abc,310.0\n")),
+    C("run_points_header_only", "aerotri", "run {p} --points {w}/pts.csv", "pts.csv", write("pts.csv", "id,x,y,z\n")),
+    C("run_points_inf", "aerotri", "run {p} --points {w}/pts.csv", "pts.csv",
+      write("pts.csv", "id,x,y,z\nA,452200.0,3407300.0,inf\n")),
+    C("run_ndsm_inf", "aerotri", "run {p}", ["ndsm.tif", "inf"],
+      all_of(toml_set("p/project.toml", "mosaic", "ndsm", '"lidar_out/ndsm.tif"'), raster("p/lidar_out/ndsm.tif", "inf"))),
     # --- import (the checks of imports are another task of issue 39: EXCHANGE_CASES below)
     C("import_file_missing", "aerotri", "import {p} --format patb {w}/nope.ori", "nope.ori"),
     C("import_patb_ori_text", "aerotri", "import {p} --format patb {w}/p/at/patb/block.ori --force", "block.ori",

@@ -85,6 +85,11 @@ def read_adjusted_block(root) -> AdjustedBlock:
     if not isinstance(frame_info, dict) or "origin_map" not in frame_info:
         raise StageOrderError(f"{project.adjustment_report_path}: no local_frame (written by an older version); "
                               f"adjust the project again (aerotri adjust {project.root})")
+    origin = frame_info["origin_map"]
+    if not (isinstance(origin, list) and len(origin) == 3
+            and all(isinstance(v, (int, float)) and not isinstance(v, bool) and np.isfinite(v) for v in origin)):
+        raise InputError(f"{project.adjustment_report_path}: local_frame origin_map = {origin!r}: expected three finite "
+                         f"numbers (X, Y, Z); adjust the project again (aerotri adjust {project.root})")
     frame = LocalFrame(project.crs, frame_info["origin_map"])
     camera = project_camera(project)
     selfcal = report.get("self_calibration") or {}
