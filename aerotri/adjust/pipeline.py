@@ -186,6 +186,17 @@ def _refuse_check_and_control(st: AdjustSettings) -> None:
                           param="--check")
 
 
+def _check_control_near_block(control: ControlPoints, positions_map, path, block_path, crs) -> None:
+    """Control and check points where a frame of the block can see them (``aerotri.geom.inputs.check_near_block``):
+    points of another zone or place are refused by their record, not adjusted into "Solution Successful"."""
+    from aerotri.geom.crs import linear_unit_m
+    from aerotri.geom.inputs import check_near_block
+
+    if len(control):
+        check_near_block(control.xyz_m[:, 0], control.xyz_m[:, 1], [f"point {p}" for p in control.id], str(path),
+                         np.asarray(positions_map)[:, :2], str(block_path), linear_unit_m(crs))
+
+
 def project_datum_shortfall(root, settings: AdjustSettings | None = None) -> str | None:
     """``datum_shortfall`` of a project's control for these settings (None: the datum is fixed)."""
     project = Project.open(root)
@@ -270,6 +281,7 @@ def read_inputs(project: Project, settings: AdjustSettings | None = None) -> Pro
     else:
         raise InputError(f"{project.gnss_path}: missing; a block without GNSS needs approximate orientations "
                          "(aerotri adjust --eo FILE) and control points for its datum")
+    _check_control_near_block(control, approx_pos_map, project.control_points_path, block_path, crs)
     validate_references(ties, control, cobs, image_ids, project.tiepoints_path, project.control_points_path,
                         project.control_image_points_path, camera=cam, block_path=block_path,
                         camera_path=project.camera_path)

@@ -443,6 +443,12 @@ def run_control(root, corners_path=None, eo_path=None, camera_path=None, manual_
         raise InputError(f"{eo_path}: orientations not found (run the first aerotri adjust, tie points + GNSS, "
                          "or pass --eo FILE)")
     eo = read_eo(eo_path, crs)
+    from aerotri.geom.crs import linear_unit_m
+    from aerotri.geom.inputs import check_near_block
+
+    # LiDAR corners of another zone or place than the block's frames: refused by name, not "none measured"
+    check_near_block(corners.xyz_m[:, 0], corners.xyz_m[:, 1], [f"corner {c}" for c in corners.id], str(corners_path),
+                     eo.centre_m[:, :2], str(eo_path), linear_unit_m(crs) if crs is not None else 1.0)
     camera, _ = project_camera(paths.root, camera_path)
     manual = (read_manual(manual_path, corners.id, eo.image_id, camera, corners_path, eo_path)
               if manual_path else None)

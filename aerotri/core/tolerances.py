@@ -47,9 +47,9 @@ def load_tolerances(scale: str | None = None, terrain: str = "flat", tolerance_f
         have = [k for k, v in table.items() if isinstance(v, dict) and k != "general"]
         raise InputError(f"{path}: no [{terrain}] section (terrain classes here: {', '.join(have)})")
     limits = {**table.get("general", {}), **table[terrain]}
-    for key, v in limits.items():  # a limit of inf or nan passes or fails everything: refused by name
-        if isinstance(v, (int, float)) and not isinstance(v, bool) and not (math.isfinite(v) and v >= 0):
-            raise ConfigError(f"{path}: {key} = {v!r}: expected a finite limit >= 0")
+    for key, v in limits.items():  # a limit of inf, nan or text passes or fails everything: refused by name
+        if isinstance(v, bool) or not isinstance(v, (int, float)) or not (math.isfinite(v) and v >= 0):
+            raise ConfigError(f"{path}: [{terrain}]/[general] {key} = {v!r}: expected a finite limit >= 0")
     return limits
 
 

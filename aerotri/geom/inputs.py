@@ -88,8 +88,9 @@ def check_height_values(ds, path, what: str = "DEM", unit_m: float = 1.0, band: 
             vmin = min(vmin, float(data[ok].min()))
             vmax = max(vmax, float(data[ok].max()))
     if valid == 0:
-        raise InputError(f"{path}: the {what} has no valid height: all {ds.width * ds.height:,} cells are nodata "
-                         f"(nodata value {ds.nodatavals[band - 1]}) or NaN")
+        nodata = ds.nodatavals[band - 1]
+        raise InputError(f"{path}: the {what} has no valid height: all {ds.width * ds.height:,} cells are "
+                         + ("NaN" if nodata is None else f"nodata ({nodata:g}) or NaN"))
     out = HeightValues(valid, ds.width * ds.height, vmin, vmax)
     if key is not None:
         _scanned[key] = out
@@ -126,3 +127,27 @@ def check_distinct_files(paths, what: str = "file") -> None:
             raise InputError(f"{p}: a byte copy of {seen_print[fp]} (the same {what} given twice under two names); "
                              "give each once")
         seen_print[fp] = p
+
+
+MIN_REACH_M = 10_000.0  # beyond any footprint's reach from its projection centre
+
+
+def check_near_block(x, y, records, source: str, block_xy, block_source: str, unit_m: float = 1.0) -> None:
+    """``InputError`` naming the first record (``records[i]``, e.g. "line 5 (point RC12)") of ``source`` whose
+    x, y lie farther from the block than a frame can see: beyond the bounding box of the projection centres
+    ``block_xy`` (N, 2; from ``block_source``) widened by its diagonal, at least 10 km (``unit_m``: metres per
+    map unit). Coordinates of another zone or place that the CRS's area of use lets through (a zone's
+    neighbour sheet lies within it) would otherwise give "Solution Successful" 300 km off."""
+    x, y = np.asarray(x, float), np.asarray(y, float)
+    b = np.asarray(block_xy, float).reshape(-1, 2)
+    if not len(x) or not len(b):
+        return
+    lo, hi = b.min(axis=0), b.max(axis=0)
+    reach = max(float(np.hypot(*(hi - lo))), MIN_REACH_M / unit_m)
+    far = (x < lo[0] - reach) | (x > hi[0] + reach) | (y < lo[1] - reach) | (y > hi[1] + reach)
+    if far.any():
+        i = int(np.argmax(far))
+        d = float(np.hypot(max(lo[0] - x[i], 0.0, x[i] - hi[0]), max(lo[1] - y[i], 0.0, y[i] - hi[1]))) * unit_m
+        raise InputError(f"{source}: {records[i]}: ({x[i]:.3f}, {y[i]:.3f}) lies {d / 1000:.1f} km from the block "
+                         f"(projection centres of {block_source}: x {lo[0]:.1f} .. {hi[0]:.1f}, y {lo[1]:.1f} .. "
+                         f"{hi[1]:.1f}); coordinates of another zone, CRS or place?")

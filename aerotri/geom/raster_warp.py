@@ -182,6 +182,8 @@ def read_on_grid(ds, x_left: float, y_top: float, res: float, shape, operation=N
     # the destination cell in source pixels, through the mapping: the two CRSs' units may differ (a DOM grid in
     # metres over an nDSM in degrees, where res / t.a would be a 50000-pixel kernel)
     cell_px = _cell_in_source_px(AX, AY, s, abs(t.a)) if operation is not None else res / abs(t.a)
+    # (to 1 %: a projection's scale factor, 1.0004 between UTM and Gauss-Krueger grids, adds no pixel)
+    cell_px = float(np.ceil(cell_px - 0.01)) if operation is not None else cell_px
     win = source_window(ds, AX, AY, margin_px=4 + int(np.ceil(cell_px)))
     if win is None:
         return out, np.zeros(shape, bool)
