@@ -96,6 +96,7 @@ def main() -> int:
             tmp = Path(tempfile.mkdtemp(dir=tmp_root))
             t0 = time.perf_counter()
             outcome, detail = classify(tbi, case, ws, tmp, a.timeout, accepted)
+            detail = detail.replace(str(tmp / "w"), "W")  # the case's workspace copy, not this run's temporary path
             dt = time.perf_counter() - t0
             shutil.rmtree(tmp, ignore_errors=True)
             rows.append(dict(id=case.id, kind=kind, prog=case.prog, command=case.args[0], outcome=outcome,
