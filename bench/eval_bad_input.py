@@ -18,6 +18,13 @@ The accepted-input cases (``ACCEPTED``: unusual but valid inputs, e.g. a DEM in 
     .venv/bin/python bench/eval_bad_input.py [--workspace DIR] [--json results/bad_input_issue39.json] [-k WORD]
 
 ``--workspace``: reuse (or build once into) this folder instead of a temporary one.
+
+The same corpus on the code before the fixes (results/bad_input_issue39_before.json): a worktree of that
+commit with this script and tests/test_bad_input.py copied in, run with it first on the path:
+
+    git worktree add --detach /tmp/before b9c55f7
+    cp tests/test_bad_input.py /tmp/before/tests/; cp bench/eval_bad_input.py /tmp/before/bench/
+    cd /tmp/before && PYTHONPATH=$PWD /path/to/.venv/bin/python bench/eval_bad_input.py --json before.json
 """
 
 from __future__ import annotations

@@ -173,7 +173,7 @@ def _lidar_products(d: Path, las: Path) -> None:
     _ok("lidarctl", "rasters", las / "cloud.las", d / "r", "--res", "1")
     with rasterio.open(d / "r" / "dem.tif") as dem:
         prof = dict(dem.profile, count=3, dtype="uint8", nodata=None, width=dem.width * 2, height=dem.height * 2,
-                    transform=dem.transform * rasterio.transform.Affine.scale(0.5))
+                    transform=dem.transform @ rasterio.transform.Affine.scale(0.5))
     rgb = np.random.default_rng(1).integers(60, 200, (3, prof["height"], prof["width"]), dtype=np.uint8)
     with rasterio.open(d / "rgb.tif", "w", **prof) as dst:
         dst.write(rgb)
@@ -473,7 +473,7 @@ def raster(rel, how):
             r0 = a.shape[1] // 2 if rows == 1 else 0
             c0 = a.shape[2] // 2 if cols == 1 else 0
             a = np.ascontiguousarray(a[:, r0:r0 + rows, c0:c0 + cols])
-            prof["transform"] = t * rasterio.transform.Affine.translation(c0, r0)
+            prof["transform"] = t @ rasterio.transform.Affine.translation(c0, r0)
         elif how in ("inf", "-inf"):
             a[0, a.shape[1] // 3, a.shape[2] // 3] = float(how)
         elif how == "nodata":
