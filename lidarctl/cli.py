@@ -10,7 +10,7 @@ from __future__ import annotations
 import click
 
 from aerotri.core.atomic import refuse_input_as_output
-from aerotri.core.commands import Group, fraction, positive, scheduler_options
+from aerotri.core.commands import Group, at_least, fraction, positive, scheduler_options
 from aerotri.core.settings import click_option
 from lidarctl.classify import ClassifyParams
 from lidarctl.heights_check import GROUPINGS, DensityGroups
@@ -72,9 +72,14 @@ def _parse_map(text: str | None, option: str) -> dict:
     for item in text.split(","):
         try:
             a, b = item.split(":")
-            out[int(a)] = int(b)
+            a, b = int(a), int(b)
         except ValueError:
             raise click.BadParameter(f"{item!r}: expected FROM:TO class pairs, e.g. 3:1,4:1", param_hint=option) from None
+        if not (0 <= a <= 255 and 0 <= b <= 255):  # ASPRS codes are bytes (TO 255: leave out)
+            raise click.BadParameter(f"{item!r}: class codes are 0-255", param_hint=option)
+        if a in out:
+            raise click.BadParameter(f"{item!r}: class {a} mapped twice", param_hint=option)
+        out[a] = b
     return out
 
 
@@ -204,7 +209,7 @@ def classify(in_paths, out_path, preset, crs, ground_method, tile_size_m, buffer
               help="Tile size in raster cells (memory: about 160 bytes per cell of a tile with its buffer).")
 @click.option("--buffer-px", type=click.IntRange(min=0), default=DEFAULT_BUFFER_PX, show_default=True,
               help="Overlap buffer around each tile in cells: gaps up to about this size are filled as in one piece.")
-@click.option("--dem-fill-radius-px", type=click.FloatRange(min=0), default=DEFAULT_TIN_FILL_RADIUS_PX,
+@click.option("--dem-fill-radius-px", type=at_least(0), default=DEFAULT_TIN_FILL_RADIUS_PX,
               show_default=True,
               help="DEM cells without ground are interpolated in the TIN of the ground around them where the "
                    "triangle's circumradius is at most this many cells (buildings, sparse ground under canopy); "
@@ -250,10 +255,10 @@ def rasters(in_paths, outdir, res_m, crs, tile_px, buffer_px, dem_fill_radius_px
                    "grass, road, bare ground, water).")
 @click.option("--reference-class", default=None,
               help="--reference polygons: one class for every polygon (e.g. building for footprints).")
-@click.option("--min-overlap", type=click.FloatRange(0, 1, min_open=True), default=MapEvalParams.min_overlap,
+@click.option("--min-overlap", type=fraction(open_low=True, open_high=False), default=MapEvalParams.min_overlap,
               show_default=True, help="--reference: share of a building's area that must overlap to count it as "
                                       "found (reference) or correct (detected).")
-@click.option("--min-building-m2", type=click.FloatRange(min=0), default=MapEvalParams.min_building_m2,
+@click.option("--min-building-m2", type=at_least(0), default=MapEvalParams.min_building_m2,
               show_default=True, help="--reference: buildings smaller than this (m2) are not counted per building.")
 @click.option("--within", default=None,
               help="--reference: score only inside the polygons of this file, or 'hull': inside the convex hulls "
@@ -430,7 +435,7 @@ def smooth(dem_path, out_path, order, edge_m, iterations, step, window_px):
                                       "tension through the vertices; lines that would cross keep their traced form.")
 @click.option("--tolerance-px", type=positive(), default=0.5, show_default=True,
               help="B-spline: RMS distance (cells) the fitted line may keep from the traced one.")
-@click.option("--tension", type=click.FloatRange(min=0), default=1.0, show_default=True,
+@click.option("--tension", type=at_least(0), default=1.0, show_default=True,
               help="Tension spline: 0 is a cubic spline, larger values tend to the traced polyline.")
 @click.option("--png/--no-png", default=True, show_default=True, help="A preview PNG beside OUT (over the hillshade).")
 def contours(dem_path, out_path, interval, index_every, smoothing, tolerance_px, tension, png):
@@ -457,7 +462,7 @@ def contours(dem_path, out_path, interval, index_every, smoothing, tolerance_px,
 @click.option("--fill/--breach", "fill", default=True, show_default=True,
               help="Depressions: priority-flood fill with a float64 epsilon gradient, or breaching (the outflow path "
                    "carved down to the pit).")
-@click.option("--simplify-px", type=click.FloatRange(min=0), default=0.5, show_default=True,
+@click.option("--simplify-px", type=at_least(0), default=0.5, show_default=True,
               help="Douglas-Peucker tolerance of the stream lines in cells (0: the D8 path through the cell centres).")
 @click.option("--png/--no-png", default=True, show_default=True, help="drainage.png: streams over the hillshade.")
 def drainage(dem_path, outdir, min_area_m2, fill, simplify_px, png):

@@ -1127,6 +1127,9 @@ def corner_control(paths, outdir, settings: CornerSettings = CornerSettings(), c
     paths = [Path(p) for p in paths]
     outdir = Path(outdir)
     s = settings
+    from aerotri.geom.inputs import check_distinct_files
+
+    check_distinct_files(paths, "LAS/LAZ file")  # a strip given twice would count every point twice
     for name in ("corners.csv", "corners.geojson", "corners.json", "corners.png", ROOF_PLANES_FILE):
         refuse_input_as_output(outdir / name, paths, "OUTDIR")
     names = ", ".join(str(p) for p in paths)

@@ -5,30 +5,21 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from aerotri.core.errors import InputError
-
 
 def open_dem(in_path, out_path=None):
-    """(open rasterio dataset, metres per height unit) of a north-up, single-band DEM with a CRS; refuses
-    ``out_path`` equal to the input (``OptionError`` naming OUT; None: a check that writes no raster) and
-    anything else with an ``InputError`` naming the file. The caller closes the dataset."""
-    import rasterio
-
+    """(open rasterio dataset, metres per height unit) of a north-up DEM with a CRS, one band of finite,
+    plausible heights with at least one valid cell and at least 2 x 2 cells (``aerotri.geom.raster_warp.
+    open_north_up``); refuses ``out_path`` equal to the input (``OptionError`` naming OUT; None: a check that
+    writes no raster) and anything else with an ``InputError`` naming the file. The caller closes the dataset."""
     from aerotri.core.atomic import refuse_input_as_output
     from aerotri.geom.crs import height_unit_m
+    from aerotri.geom.raster_warp import open_north_up
 
     in_path = Path(in_path)
     if out_path is not None:
         refuse_input_as_output(Path(out_path), [in_path], option="OUT")
+    src = open_north_up(in_path, "DEM", heights=True)
     try:
-        src = rasterio.open(in_path)
-    except rasterio.errors.RasterioIOError as exc:
-        raise InputError(f"{in_path}: not a readable raster ({exc})") from None
-    try:
-        if src.count < 1 or src.crs is None:
-            raise InputError(f"{in_path}: a DEM needs one band and a CRS (got {src.count} band(s), CRS {src.crs})")
-        if abs(src.transform.b) > 1e-12 or abs(src.transform.d) > 1e-12:
-            raise InputError(f"{in_path}: rotated rasters are not supported (transform {tuple(src.transform)[:6]})")
         return src, height_unit_m(src.crs.to_wkt())
     except BaseException:
         src.close()

@@ -118,7 +118,10 @@ def open_image(path, nir=None, cloud_crs=None, xy_m: float = 1.0) -> ImageSource
         except rasterio.errors.RasterioIOError as exc:
             raise InputError(f"{p}: not a readable raster ({exc}) ({option})") from None
 
+    from aerotri.geom.inputs import check_raster_size
+
     with opened(path, "--image") as src:
+        check_raster_size(src, path, "orthophoto")
         if src.count < 3:
             raise InputError(f"{path}: the orthophoto needs R, G, B bands (got {src.count} band(s))")
         if abs(src.transform.b) > 1e-12 or abs(src.transform.d) > 1e-12 or src.transform.e >= 0:

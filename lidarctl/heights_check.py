@@ -310,6 +310,9 @@ def check_heights_file(cloud_paths, points_csv, radius_m: float = 5.0, exclude_m
     density.validate()
     paths = [] if cloud_paths is None else (
         [cloud_paths] if isinstance(cloud_paths, (str, Path)) else list(cloud_paths))
+    from aerotri.geom.inputs import check_distinct_files
+
+    check_distinct_files(paths, "LAS/LAZ file")  # a strip given twice would count every point twice
     if not paths and dem_path is None:
         raise OptionError("nothing to check: give the classified cloud(s) before POINTS_CSV, --dem DEM.tif, or both",
                           param="--dem")
@@ -322,6 +325,20 @@ def check_heights_file(cloud_paths, points_csv, radius_m: float = 5.0, exclude_m
         raise OptionError("--groups density: the vegetation density comes from the cloud's first returns; give the "
                           "classified cloud(s) before POINTS_CSV", param="--groups")
     with_density = grouping == "density"
+    if paths:
+        box, unit = [np.inf, np.inf, -np.inf, -np.inf], ""
+        for _, header, _, units in io.checked_headers(paths, crs):
+            box = [min(box[0], header.mins[0]), min(box[1], header.mins[1]), max(box[2], header.maxs[0]),
+                   max(box[3], header.maxs[1])]
+            unit = units.xy_name
+        _refuse_points_elsewhere(points, points_csv, box, ", ".join(map(str, paths)), unit)
+    elif dem_path is not None:
+        from lidarctl.dem_io import open_dem
+
+        src, _ = open_dem(dem_path)
+        with src:
+            b = src.bounds
+        _refuse_points_elsewhere(points, points_csv, [b.left, b.bottom, b.right, b.top], str(dem_path), "CRS units")
 
     cloud = _read_near(paths, points, radius_m, density.radius_m if with_density else None, crs) if paths else None
     if cloud is not None:
@@ -390,6 +407,17 @@ def check_heights_file(cloud_paths, points_csv, radius_m: float = 5.0, exclude_m
             p["z_dem"] = None if not np.isfinite(zd) else float(zd)
             p["dz_dem_m"] = None if not np.isfinite(d) else float(d)
     return result
+
+
+def _refuse_points_elsewhere(points, points_csv, box, what: str, unit: str) -> None:
+    """InputError when no surveyed point lies within ``box`` (xmin, ymin, xmax, ymax of the clouds or the DEM):
+    points of another zone, CRS or unit would otherwise be reported as "no ground" one by one."""
+    x, y = np.asarray(points["x"], float), np.asarray(points["y"], float)
+    inside = (x >= box[0]) & (x <= box[2]) & (y >= box[1]) & (y <= box[3])
+    if not inside.any():
+        raise InputError(f"{points_csv}: none of its {len(x)} points lies within the extent of {what} (x {box[0]:.1f} "
+                         f".. {box[2]:.1f}, y {box[1]:.1f} .. {box[3]:.1f} {unit}); the points must be in its CRS and "
+                         "units")
 
 
 def _read_near(paths, points, radius_m: float, density_radius_m: float | None, crs) -> dict:

@@ -507,7 +507,7 @@ def extract_vectors(paths, out_path, params: VectorParams = VectorParams(), crs=
     x0, y0, nrows, ncols = _grid(xy, p.cell_m)
     from lidarctl.grid import check_grid
 
-    check_grid(nrows, ncols, p.cell_m, 16, "road/water masks")
+    check_grid(nrows, ncols, p.cell_m, 16, "road/water masks", "--cell-m", "use a coarser --cell-m")
     shape = (nrows, ncols)
     # close over gaps of about two point spacings (a mask cell finer than the spacing leaves empty cells)
     spacing = point_spacing_m(xy)
@@ -591,6 +591,9 @@ def vectors_to_file(paths, out_path, params: VectorParams = VectorParams(), crs=
 
     out_path = Path(out_path)
     inputs = [Path(q) for q in paths] + [Path(q) for q in (dem, contours, image) if q is not None]
+    from aerotri.geom.inputs import check_distinct_files
+
+    check_distinct_files(paths, "LAS/LAZ file")  # a strip given twice would count every point twice
     refuse_input_as_output(out_path, inputs, option="OUT")
     for q in inputs:
         if not q.is_file():
@@ -610,10 +613,13 @@ def vectors_to_file(paths, out_path, params: VectorParams = VectorParams(), crs=
 def _check_raster(path: Path) -> None:
     import rasterio
 
+    from aerotri.geom.inputs import check_raster_size
+
     try:
         with rasterio.open(path) as src:
             if src.crs is None:
                 raise InputError(f"{path}: the image has no CRS")
+            check_raster_size(src, path, "image")
     except rasterio.errors.RasterioIOError as exc:
         raise InputError(f"{path}: not a readable raster ({exc})") from None
 

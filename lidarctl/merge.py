@@ -17,7 +17,7 @@ import laspy
 import numpy as np
 
 from aerotri.core.atomic import atomic_path, refuse_input_as_output
-from aerotri.core.errors import CrsError, InputError
+from aerotri.core.errors import CrsError, InputError, OptionError
 from aerotri.geom.crs import crs_label, horizontal_crs, parse_crs, same_horizontal, same_vertical, vertical_crs
 from aerotri.geom import las
 
@@ -27,8 +27,15 @@ def merge_las(paths, out_path, crs=None, chunk_points: int = 2_000_000) -> int:
     paths = [Path(p) for p in paths]
     if not paths:
         raise InputError("no LAS/LAZ files to merge")
+    from aerotri.geom.inputs import check_distinct_files
+
+    check_distinct_files(paths, "LAS/LAZ file")  # a strip given twice would count every point twice
     refuse_input_as_output(out_path, paths)
     project_crs = parse_crs(crs, "project CRS") if crs is not None else None
+    if project_crs is not None and not horizontal_crs(project_crs).is_projected:
+        # as every lidarctl command: the products of the merged cloud need lengths, not degrees
+        raise OptionError(f"{crs}: {project_crs.name} is not a projected CRS; LiDAR strips are merged in a "
+                          "projected CRS in metres or feet", param="--crs")
     headers = [las.read_header(p) for p in paths]
     first = headers[0]
     check_strips(paths, headers, project_crs)
@@ -61,6 +68,8 @@ def check_strips(paths, headers, project_crs=None):
     first = headers[0]
     reference, reference_name = project_crs, "the project CRS"
     for p, h in zip(paths, headers):
+        if h.point_count == 0:
+            raise InputError(f"{p}: the file holds no points (an empty strip, or the wrong file?)")
         if h.point_format.id != first.point_format.id or \
                 list(h.point_format.extra_dimension_names) != list(first.point_format.extra_dimension_names):
             raise InputError(f"{p}: point format {h.point_format.id} (extra bytes "

@@ -453,6 +453,9 @@ def write_rasters(cloud, outdir, res_m: float, crs=None, tile_px: int = DEFAULT_
     check_res(res_m)
     if not isinstance(cloud, PointCloud):
         paths = [cloud] if isinstance(cloud, (str, Path)) else list(cloud)
+        from aerotri.geom.inputs import check_distinct_files
+
+        check_distinct_files(paths, "LAS/LAZ file")  # a strip given twice would count every point twice
         return write_rasters_tiled(paths, outdir, res_m, crs=crs, tile_px=tile_px, buffer_px=buffer_px,
                                    chunk_points=chunk_points, dem_fill_radius_px=dem_fill_radius_px)
     crs, units = cloud.crs, cloud.units
@@ -557,6 +560,10 @@ def write_rasters_tiled(paths, outdir, res_m: float, crs=None, tile_px: int = DE
     units = inputs.units
     args = grid_for_bounds(*inputs.bounds_m, res_m)
     _, x0, y0, nrows, ncols = args
+    if nrows < 2 or ncols < 2:  # a DEM, its slopes and the hillshade need neighbouring cells
+        raise InputError(f"{inputs.names}: the points span {nrows} x {ncols} cells (rows x columns) of {res_m:g} m "
+                         "(header bounds); expected at least 2 x 2: a cloud of one point or one spot, or a --res "
+                         "coarser than the cloud", param="--res")
     win = min(tile_px + 2 * buffer_px, nrows), min(tile_px + 2 * buffer_px, ncols)
     check_grid(*win, res_m, RASTER_BYTES_PER_CELL, "rasters: one tile with its buffer", "--tile-px",
                "use a smaller --tile-px")

@@ -510,6 +510,9 @@ def classify_files(in_paths, out_dir, crs=None, params=None, *, suffix: str | No
     in_paths = [Path(q) for q in in_paths]
     if not in_paths:
         raise InputError("no LAS/LAZ strips to classify")
+    from aerotri.geom.inputs import check_distinct_files
+
+    check_distinct_files(in_paths, "LAS/LAZ file")  # a strip given twice would count every point twice
     out_dir = Path(out_dir)
     names = classified_names(in_paths, suffix)
     for q in in_paths:

@@ -191,10 +191,18 @@ def canopy_model(x, y, z, cls, return_number, settings: TreeSettings, name: str 
     ground = np.isin(cls, GROUND_CLASSES)
     if not ground.any():
         raise InputError(f"{name}: no ground points (class 2); run 'lidarctl classify' first")
+    veg = np.isin(cls, np.asarray(s.veg_classes))
+    if not veg.any():  # an unclassified cloud, or classes that exist nowhere: not "0 stands"
+        present = ", ".join(str(int(c)) for c in np.unique(cls))
+        raise OptionError(f"{name}: no point of the vegetation classes {','.join(map(str, s.veg_classes))} (the "
+                          f"cloud holds classes {present}); classify it first (lidarctl classify) or give the "
+                          "classes it uses", param="--classes")
     res, x0, y0, nrows, ncols = grid_for_bounds(x.min(), y.min(), x.max(), y.max(), s.res_m)
+    if nrows < 2 or ncols < 2:
+        raise InputError(f"{name}: the points span {nrows} x {ncols} cells of {res:g} m; expected at least 2 x 2 "
+                         "(one point or one spot, or a --res-m coarser than the cloud)", param="--res-m")
     check_grid(nrows, ncols, res, GRID_BYTES_PER_CELL, f"{name}: the CHM", "--res-m", "use a coarser --res-m")
     dem = fill_nodata(reduce_grid(x[ground], y[ground], z[ground], res, x0, y0, nrows, ncols, "mean"))
-    veg = np.isin(cls, np.asarray(s.veg_classes))
     first = (rn <= 1) & (veg | ground)
     if not (first & veg).any():
         log.info("%s: no first returns of the vegetation classes %s", name, s.veg_classes)
@@ -263,13 +271,22 @@ def tree_tops(chm: np.ndarray, grid: Grid, settings: TreeSettings, stand_label: 
     s = settings
     valid = np.isfinite(chm)
     raw = np.where(valid, chm, 0.0)
+    if s.smooth_px > max(chm.shape):  # its kernel would outgrow memory and flatten the whole CHM: no tops
+        raise OptionError(f"{s.smooth_px:g} cells: a Gaussian wider than the CHM ({chm.shape[0]} x {chm.shape[1]} "
+                          "cells) leaves no tree top", param="--smooth-px")
     surf = ndimage.gaussian_filter(raw, s.smooth_px) if s.smooth_px > 0 else raw
     radius_m = s.top_radius_m + s.top_radius_per_m * raw
-    r_px = np.maximum(np.rint(radius_m / grid.res_m).astype(np.int64), 1)
+    # a window that reaches across the CHM from any cell is the whole CHM: capped there, and its maximum is the
+    # CHM's (a huge --top-radius-m stays bounded work)
+    r_whole = int(np.ceil(np.hypot(*chm.shape)))
+    r_px = np.clip(np.rint(np.minimum(radius_m / grid.res_m, r_whole)).astype(np.int64), 1, r_whole)
     is_top = np.zeros(chm.shape, bool)
     for r in np.unique(r_px[valid]):
         # one maximum filter per window size present (a handful): vectorised, no per-cell loop
         here = valid & (r_px == r)
+        if r >= r_whole:
+            is_top |= here & (surf >= max(float(surf.max()), 0.0))
+            continue
         is_top |= here & (surf >= ndimage.maximum_filter(surf, footprint=_disk(int(r)), mode="constant", cval=0.0))
     # a flat top (equal cells) is one tree: one cell per 8-connected group, its highest raw cell
     lab, n = ndimage.label(is_top, np.ones((3, 3), bool))
@@ -456,6 +473,9 @@ def trees_from_files(in_paths, outdir, settings: TreeSettings | None = None, crs
     s = settings or TreeSettings()
     s.validate()
     paths = [Path(p) for p in ([in_paths] if isinstance(in_paths, (str, Path)) else in_paths)]
+    from aerotri.geom.inputs import check_distinct_files
+
+    check_distinct_files(paths, "LAS/LAZ file")  # a strip given twice would count every point twice
     outdir = Path(outdir)
     for f in FILES:
         refuse_input_as_output(outdir / f, paths, "OUTDIR")

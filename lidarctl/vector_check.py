@@ -61,6 +61,9 @@ def read_layers(path: Path) -> tuple[dict, object, float]:
         out, crs = {}, None
         for name in names:
             meta, _, wkb, _ = read(path, layer=name)
+            if wkb is None:  # a table without geometries (a CSV read by GDAL): not a vector map layer
+                raise InputError(f"{path}: layer {name!r} has no geometries; expected a vector map (.gpkg/.geojson) "
+                                 "with layers of the same names as the product's")
             if meta.get("crs") and crs is None:
                 crs = pyproj.CRS.from_user_input(meta["crs"])
             out[name] = [g for g in (shapely.from_wkb(b) for b in wkb if b is not None) if g is not None and not g.is_empty]

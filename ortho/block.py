@@ -87,10 +87,16 @@ def load_block(root, eo_path=None, camera_path=None, frames=None) -> BlockInputs
     if not eo_path.exists():
         raise InputError(f"{eo_path}: exterior orientation not found (run the aerotri adjustment, or pass --eo FILE, "
                          f"e.g. --eo {project.truth_dir / 'eo.txt'})")
-    eo = read_eo(eo_path)
+    from aerotri.geom.eo import check_block_crs
+
+    # the projection centres checked against the project CRS (another zone's numbers, swapped X/Y)
+    eo = read_eo(eo_path, check_block_crs(project.crs, f"{project.config_path} [project] crs"))
     images = find_images(project.images_dir)
     idx = eo.index()
     if frames:
+        twice = sorted({f for f in frames if frames.count(f) > 1})
+        if twice:
+            raise OptionError(f"frame(s) {', '.join(twice)} given twice", param="--frames")
         unknown = [f for f in frames if f not in images]
         if unknown:
             raise InputError(f"{project.images_dir}: no image for frame(s) {', '.join(unknown)} given with --frames")
@@ -618,11 +624,30 @@ def read_index(root) -> dict:
     if not isinstance(index, dict) or any(k not in index for k in _INDEX_KEYS) or not isinstance(index["frames"], list):
         raise InputError(f"{path}: not a frame index of ortho rectify (expected keys {', '.join(_INDEX_KEYS)}); "
                          "re-run `ortho rectify`")
+    _check_number(path, "res_m", index["res_m"], positive=True)
     for k, e in enumerate(index["frames"]):
         if not isinstance(e, dict) or any(f not in e for f in _FRAME_KEYS):
             raise InputError(f"{path}: frame record {k + 1} lacks {', '.join(f for f in _FRAME_KEYS if f not in e)}; "
                              "re-run `ortho rectify`")
+        where = f"frame record {k + 1} ({e['image_id']})"
+        for f in ("x_left_m", "y_top_m"):
+            _check_number(path, f"{where} {f}", e[f])
+        for f in ("width", "height"):
+            if not (isinstance(e[f], int) and not isinstance(e[f], bool) and e[f] >= 1):
+                raise InputError(f"{path}: {where} {f} = {e[f]!r}: expected a size in pixels; re-run `ortho rectify`")
+        if not (isinstance(e["nadir_xy_m"], list) and len(e["nadir_xy_m"]) == 2):
+            raise InputError(f"{path}: {where} nadir_xy_m = {e['nadir_xy_m']!r}: expected [x, y]; re-run `ortho rectify`")
+        for v in e["nadir_xy_m"]:
+            _check_number(path, f"{where} nadir_xy_m", v)
     return index
+
+
+def _check_number(path, what: str, v, positive: bool = False) -> None:
+    """InputError naming the index and the key unless ``v`` is a finite number (above 0 with ``positive``)."""
+    ok = isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v) and (v > 0 or not positive)
+    if not ok:
+        raise InputError(f"{path}: {what} = {v!r}: expected a finite{' positive' if positive else ''} number; "
+                         "re-run `ortho rectify`")
 
 
 def verify_index(frames_dir, index: dict) -> None:

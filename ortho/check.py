@@ -24,6 +24,8 @@ from aerotri.core.errors import InputError, OptionError
 from aerotri.core.atomic import refuse_input_as_output
 from aerotri.core.project import project_paths
 from aerotri.core.textio import read_text
+from aerotri.geom.crs import height_unit_m, parse_crs
+from aerotri.geom.inputs import check_raster_size
 from ortho.patches import MIN_PATCH_PX, PatchDisplacements, match_patches  # noqa: F401  (PatchDisplacements: the report API)
 
 
@@ -132,9 +134,15 @@ def _open(path, what):
     if not path.exists():
         raise InputError(f"{path}: {what} not found")
     try:
-        return rasterio.open(path)
+        ds = rasterio.open(path)
     except rasterio.errors.RasterioIOError as exc:
         raise InputError(f"{path}: cannot read {what} ({exc})") from None
+    try:
+        check_raster_size(ds, path, what)
+    except BaseException:
+        ds.close()
+        raise
+    return ds
 
 
 @contextlib.contextmanager
@@ -149,13 +157,14 @@ def _reading(path, what):
 
 
 def check_block_memory(patch_px: int, search_px: int, block_px: int = 2048) -> None:
-    """``ResourceError`` naming --patch-px when the blocks the check reads (``block_px`` plus a halo of a
-    patch and its search range, DOM and reference) cannot fit this machine's memory."""
+    """``ResourceError`` naming --patch-px or --search-px (the larger) when the blocks the check reads
+    (``block_px`` plus a halo of a patch and its search range, DOM and reference) cannot fit this machine's memory."""
     from aerotri.core.limits import check_allocation
 
     side = block_px + patch_px + search_px
+    option, value = ("--search-px", search_px) if search_px > patch_px else ("--patch-px", patch_px)
     check_allocation(float(side) * side * (3 * 4 + 3 * 4 + 4 * 4),
-                     f"--patch-px {patch_px}: DOM and reference blocks of {side:,} x {side:,} px", "--patch-px")
+                     f"{option} {value}: DOM and reference blocks of {side:,} x {side:,} px", option)
 
 
 def _on_grid(ds, window_transform, shape, crs, resampling, band_indexes=None, operation=None):
@@ -245,6 +254,8 @@ def check_against_reference(dom_path, reference_path, ndsm_path=None, max_ndsm_m
         if dom.crs is None or ref.crs is None:
             raise InputError(f"{dom_path if dom.crs is None else reference_path}: no CRS")
         ndsm = _open(ndsm_path, "nDSM") if ndsm_path else None
+        # heights above ground in the nDSM's own unit (its CRS says which); the threshold is in metres
+        ndsm_unit_m = height_unit_m(parse_crs(ndsm.crs.to_wkt(), f"{ndsm_path} CRS")) if ndsm is not None and ndsm.crs else 1.0
         res = abs(dom.transform.a)
         pieces = []
         halo = search_px + patch_px
@@ -269,7 +280,7 @@ def check_against_reference(dom_path, reference_path, ndsm_path=None, max_ndsm_m
                         with _reading(ndsm_path, "nDSM"):
                             nd, nvalid = _on_grid(ndsm, wt, shape, dom.crs, Resampling.max, [1],
                                                   operation=ndsm_operation)
-                        keep = nvalid & (nd[0] <= max_ndsm_m)
+                        keep = nvalid & (nd[0] * ndsm_unit_m <= max_ndsm_m)
                     p = match_patches(d, np.moveaxis(rimg, 0, -1), dmask, rvalid, res, patch_px, step_px, search_px,
                                       min_ncc, keep=keep)
                     # a patch belongs to the block whose core holds its centre (no duplicates from halos)
@@ -285,15 +296,39 @@ def check_against_reference(dom_path, reference_path, ndsm_path=None, max_ndsm_m
         return PatchDisplacements(cat("row_px"), cat("col_px"), cat("dx_px"), cat("dy_px"), cat("ncc"), res), (dom.width, dom.height)
 
 
-def check_points(points_path, res_m: float) -> tuple[dict, dict]:
-    """Statistics and per-point table for surveyed points measured in the DOM."""
+def check_points(points_path, res_m: float, dom_bounds=None) -> tuple[dict, dict]:
+    """Statistics and per-point table for surveyed points measured in the DOM (``dom_bounds``: left, bottom,
+    right, top of the DOM; a point measured outside it is refused by its line)."""
     pts = read_points_csv(points_path)
+    if dom_bounds is not None:
+        left, bottom, right, top = dom_bounds
+        for k, (xd, yd) in enumerate(zip(pts["x_dom"], pts["y_dom"])):
+            if not (left <= xd <= right and bottom <= yd <= top):
+                raise InputError(f"{points_path}:{k + 2}: point {pts['id'][k]} measured at ({xd:.3f}, {yd:.3f}), "
+                                 f"outside the DOM ({left:.1f} .. {right:.1f}, {bottom:.1f} .. {top:.1f}); coordinates "
+                                 "of another CRS, zone or place?")
     de = pts["x_dom"] - pts["x"]
     dn = pts["y_dom"] - pts["y"]
     stats = displacement_statistics(de, dn, res_m)
     table = [{"id": i, "x_m": float(x), "y_m": float(y), "x_dom_m": float(xd), "y_dom_m": float(yd), "de_m": float(a),
               "dn_m": float(b)} for i, x, y, xd, yd, a, b in zip(pts["id"], pts["x"], pts["y"], pts["x_dom"], pts["y_dom"], de, dn)]
     return stats, {"points": table, "_de": de, "_dn": dn}
+
+
+def _check_over_dom(reference_path, ndsm_path, dom_bounds, dom_crs) -> None:
+    """Before any work: the reference orthophoto and the nDSM (one band of finite heights) over the DOM."""
+    from aerotri.geom.raster_warp import open_north_up
+    from ortho.dem import require_overlap
+
+    if dom_crs is None:
+        return  # the readers name a DOM without CRS
+    if reference_path is not None:
+        with _open(reference_path, "reference orthophoto") as ref:
+            if ref.crs is not None:
+                require_overlap(ref, reference_path, "reference orthophoto", dom_bounds, dom_crs.to_wkt(), "the DOM")
+    if ndsm_path is not None:
+        with open_north_up(ndsm_path, "nDSM", heights=True) as nd:
+            require_overlap(nd, ndsm_path, "nDSM", dom_bounds, dom_crs.to_wkt(), "the DOM")
 
 
 def _same_file(a: Path, b: Path) -> bool:
@@ -330,7 +365,9 @@ def run_check(project_root, reference_path=None, points_path=None, dom_path=None
     with _open(dom_path, "DOM") as ds:
         res = abs(ds.transform.a)
         crs = ds.crs.to_string() if ds.crs else None
+        dom_bounds, dom_crs = tuple(ds.bounds), ds.crs
     report = {"dom": str(dom_path), "crs": crs, "gsd_m": res}
+    _check_over_dom(reference_path, ndsm_path, dom_bounds, dom_crs)
     if reference_path is not None:
         ref_op = _operation_to(dom_path, reference_path, params, allow_ballpark, "reference orthophoto")
         ndsm_op = _operation_to(dom_path, ndsm_path, params, allow_ballpark, "nDSM") if ndsm_path else None
@@ -349,7 +386,7 @@ def run_check(project_root, reference_path=None, points_path=None, dom_path=None
             plot_displacements(out_stem.with_suffix(".png"), patches, stats, f"DOM - reference ({Path(dom_path).name})",
                                extent_px=max(w, h))
     else:
-        stats, table = check_points(points_path, res)
+        stats, table = check_points(points_path, res, dom_bounds)
         report.update(method="surveyed_points", points_file=str(points_path), displacement=stats, points=table["points"])
 
         def plot():

@@ -79,13 +79,32 @@ def open_height_raster(path, project_crs: CRS | None, what: str = "DEM"):
     expected = f"; expected the project CRS {project_crs.to_string()}" if project_crs is not None else ""
     ds = open_north_up(path, what, no_crs_hint=expected, square=True, heights=True)
     if project_crs is not None and not same_horizontal(CRS(ds.crs), CRS(project_crs)):
-        got = CRS(ds.crs).to_string()
+        got = crs_label(CRS(ds.crs))
         ds.close()
         raise CrsError(
             f"{path}: CRS mismatch: {what} is in {got} but the project (project.toml [project] crs) is in "
             f"{crs_label(CRS(project_crs))}; reproject the {what} (aerotri crs warp) or fix project.toml"
         )
     return ds
+
+
+def require_overlap(ds, path, what: str, bounds, bounds_crs=None, area: str = "the block") -> None:
+    """``InputError`` naming ``path`` unless the open raster ``ds`` overlaps ``bounds`` (xmin, ymin, xmax, ymax in
+    ``bounds_crs``; None: the raster's CRS): a raster of another place (another zone's numbers under this
+    zone's CRS, a neighbouring sheet) would otherwise be read as all nodata and change nothing."""
+    from rasterio.warp import transform_bounds
+
+    b = tuple(float(v) for v in bounds)
+    if bounds_crs is not None and not same_horizontal(CRS(ds.crs), CRS(bounds_crs)):
+        try:
+            b = transform_bounds(rasterio.crs.CRS.from_wkt(CRS(bounds_crs).to_wkt()), ds.crs, *b, densify_pts=21)
+        except Exception:  # noqa: BLE001 - no transformation between the two: nothing to compare, the reader decides
+            return
+    r = ds.bounds
+    if not (b[0] < r.right and b[2] > r.left and b[1] < r.top and b[3] > r.bottom):
+        raise InputError(f"{path}: the {what} covers none of {area} ({what} bounds "
+                         f"{tuple(round(v, 1) for v in r)}, {area} {tuple(round(v, 1) for v in b)} in its CRS); "
+                         f"a raster of another place or zone?")
 
 
 def dem_height_operation(raster_crs, project_crs, project_heights=None, height_model=None,
@@ -167,6 +186,7 @@ def height_range(ds, max_cells: int = 1_000_000) -> tuple[float, float]:
     a = ds.read(1, out_shape=(max(1, ds.height // step), max(1, ds.width // step)), masked=True,
                 resampling=rasterio.enums.Resampling.nearest)
     v = a.compressed()
+    v = v[np.isfinite(v)]  # NaN is nodata whatever the raster's nodata value is
     if v.size == 0:
         raise InputError(f"{ds.name}: no valid heights")
     return float(v.min()), float(v.max())

@@ -154,7 +154,7 @@ def _read_ndsm_on(path, transform, shape, crs, operation=None):
     is mapped back through the index's coordinate operation (``operation``: mosaic CRS -> nDSM CRS)."""
     from rasterio.warp import reproject
 
-    from aerotri.geom.crs import same_horizontal
+    from aerotri.geom.crs import height_unit_m, parse_crs, same_horizontal
     from aerotri.geom.raster_warp import read_on_grid
     from aerotri.geom.transform import CrsTransformer
 
@@ -172,9 +172,23 @@ def _read_ndsm_on(path, transform, shape, crs, operation=None):
                 a, ok = read_on_grid(ds, transform.c, transform.f, transform.a, shape,
                                      operation or CrsTransformer(crs, ds.crs), bands=[1], maximum=True)
                 out = np.where(ok, a[0], np.nan).astype(np.float32)
+            # heights above ground in metres (the thresholds are), whatever unit the nDSM's CRS has
+            out *= np.float32(height_unit_m(parse_crs(ds.crs.to_wkt(), f"{path} CRS")))
     except (rasterio.errors.RasterioIOError, rasterio.errors.WarpOperationError) as exc:
         raise InputError(f"{path}: cannot read the nDSM (truncated or corrupt? {exc})") from None
     return out
+
+
+def _check_ndsm(path, index: dict, mosaic) -> None:
+    """The nDSM checked before any work: a height raster (``ortho.dem.open_height_raster``: 2 x 2 cells or more,
+    one band of finite heights) in the project CRS the frames were rectified from, over the mosaic."""
+    from ortho.dem import open_height_raster, require_overlap
+
+    project = index.get("project_crs")
+    with open_height_raster(path, CRS.from_user_input(project) if project else None, "nDSM") as ds:
+        require_overlap(ds, path, "nDSM", (mosaic.x_left_m, mosaic.y_top_m - mosaic.height * mosaic.res_m,
+                                           mosaic.x_left_m + mosaic.width * mosaic.res_m, mosaic.y_top_m),
+                        mosaic.crs, "the mosaic")
 
 
 def _write_labels(path, labels, transform, crs):
@@ -213,6 +227,10 @@ def mosaic_block(root, seams: str = "least-cost", ndsm_path=None, feather_m: flo
                      "--tile-px")
     if ndsm_path is not None and not Path(ndsm_path).is_file():
         raise InputError(f"{ndsm_path}: nDSM not found (--ndsm)")
+    if ndsm_path is None and (root / "lidar_out" / "ndsm.tif").exists():
+        ndsm_path = root / "lidar_out" / "ndsm.tif"
+    if ndsm_path is not None:
+        _check_ndsm(ndsm_path, index, mosaic)
     total_px = sum(g.width * g.height for g in grids.values())
     factor = max(2, int(math.ceil(math.sqrt(total_px / max_seam_cells))))
     red = reduce_frames(frames_dir, index, mosaic, factor)
@@ -221,8 +239,6 @@ def mosaic_block(root, seams: str = "least-cost", ndsm_path=None, feather_m: flo
     nadir_rc = np.stack([(mosaic.y_top_m - nadir[:, 1]) / (res * factor) - 0.5,
                          (nadir[:, 0] - mosaic.x_left_m) / (res * factor) - 0.5], axis=1)
     labels = voronoi_labels(red.valid, red.offsets, nadir_rc, red.shape)
-    if ndsm_path is None and (root / "lidar_out" / "ndsm.tif").exists():
-        ndsm_path = root / "lidar_out" / "ndsm.tif"
     objects = None
     if ndsm_path is not None:
         nd = _read_ndsm_on(ndsm_path, red.transform, red.shape, crs, index_operation(index))

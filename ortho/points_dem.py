@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import csv
 import dataclasses
+import io
 import json
 import math
 from pathlib import Path
@@ -28,6 +29,7 @@ import numpy as np
 from aerotri.core.atomic import atomic_path, refuse_input_as_output, write_text_atomic
 from aerotri.core.errors import InputError, OptionError
 from aerotri.core.project import Project
+from aerotri.core.textio import read_text
 from aerotri.geom.crs import project_crs
 
 NODATA = -9999.0
@@ -135,18 +137,16 @@ def points_dem(xyz_m: np.ndarray, res_m: float, bounds=None, min_tolerance_m: fl
 
 def read_tie_points(path: Path, min_rays: int = 3) -> np.ndarray:
     """(N, 3) project-CRS coordinates of the tie points in ``at/object_points.csv`` seen in ``min_rays`` frames."""
-    if not path.is_file():
-        raise InputError(f"{path}: not found (run aerotri adjust first)")
+    text = read_text(path, "table of adjusted object points (CSV)", "run aerotri adjust first")
     out = []
-    with open(path, newline="") as f:
-        for lineno, row in enumerate(csv.DictReader(f), start=2):
-            try:
-                if row["kind"] != "tie" or int(row["rays"]) < min_rays:
-                    continue
-                out.append((float(row["x"]), float(row["y"]), float(row["z"])))
-            except (KeyError, TypeError, ValueError):
-                raise InputError(f"{path}:{lineno}: expected id,kind,x,y,z,...,rays,... (aerotri adjust's "
-                                 f"object_points.csv), got {row}") from None
+    for lineno, row in enumerate(csv.DictReader(io.StringIO(text, newline="")), start=2):
+        try:
+            if row["kind"] != "tie" or int(row["rays"]) < min_rays:
+                continue
+            out.append((float(row["x"]), float(row["y"]), float(row["z"])))
+        except (KeyError, TypeError, ValueError):
+            raise InputError(f"{path}:{lineno}: expected id,kind,x,y,z,...,rays,... (aerotri adjust's "
+                             f"object_points.csv), got {row}") from None
     return np.array(out, dtype=float).reshape(-1, 3)
 
 

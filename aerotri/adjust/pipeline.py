@@ -180,11 +180,31 @@ def read_project_control(project: Project, st: AdjustSettings, crs=None) -> tupl
         # GNSS alone can carry the datum (no corrections per strip): the first adjustment of the
         # chain, before LiDAR control has been transferred. check_datum refuses the other cases.
         control, cobs = _empty_control()
+    _refuse_check_and_control(st)
     kinds = {pid: "check" for pid in st.check}
     kinds.update({pid: "full" for pid in st.control})
     if kinds:
         control = control.with_kinds(kinds)
     return control, cobs
+
+
+def _refuse_check_and_control(st: AdjustSettings) -> None:
+    """An id given as a check point and as control (``--check P --control P``) is refused, not decided by order."""
+    both = sorted(set(st.check) & set(st.control))
+    if both:
+        raise OptionError(f"point(s) {', '.join(both)} given both as --check and as --control; give each once",
+                          param="--check")
+
+
+def _check_control_near_block(control: ControlPoints, positions_map, path, block_path, crs) -> None:
+    """Control and check points where a frame of the block can see them (``aerotri.geom.inputs.check_near_block``):
+    points of another zone or place are refused by their record, not adjusted into "Solution Successful"."""
+    from aerotri.geom.crs import linear_unit_m
+    from aerotri.geom.inputs import check_near_block
+
+    if len(control):
+        check_near_block(control.xyz_m[:, 0], control.xyz_m[:, 1], [f"point {p}" for p in control.id], str(path),
+                         np.asarray(positions_map)[:, :2], str(block_path), linear_unit_m(crs))
 
 
 def project_datum_shortfall(root, settings: AdjustSettings | None = None) -> str | None:
@@ -280,6 +300,7 @@ def read_inputs(project: Project, settings: AdjustSettings | None = None) -> Pro
         eo0, model_heights = ap.eo, ap.control_heights_map(control)
         image_ids, approx_pos_map, block_path = list(eo0.image_id), eo0.centre_m, project.tiepoints_path
         notes.append(note)
+    _check_control_near_block(control, approx_pos_map, project.control_points_path, block_path, crs)
     validate_references(ties, control, cobs, image_ids, project.tiepoints_path, project.control_points_path,
                         project.control_image_points_path, camera=cam, block_path=block_path,
                         camera_path=project.camera_path)

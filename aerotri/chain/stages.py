@@ -171,6 +171,18 @@ class Chain:
             from ortho.dem import open_height_raster
 
             open_height_raster(given, project_crs(self.project)).close()
+        # so are the other rasters and the surveyed points a later stage reads (aerotri.geom.inputs' checks)
+        from aerotri.geom.raster_warp import open_north_up
+
+        for path, what in ((self.options.rectify.dsm, "DSM"), (self.options.mosaic.ndsm, "nDSM")):
+            if path is not None:
+                open_north_up(path, what, heights=True).close()
+        if self.reference_ortho is not None:
+            open_north_up(self.reference_ortho, "reference orthophoto").close()
+        if self.surveyed_points is not None:
+            from lidarctl.heights_check import read_points_csv
+
+            read_points_csv(self.surveyed_points)
 
     # -- stages ---------------------------------------------------------------------------------
     def stages(self) -> list[Stage]:

@@ -47,7 +47,9 @@ class LidarCorners:
         return np.stack([np.sin(b), np.cos(b), np.zeros_like(b)], axis=-1)
 
 
-def read_corners(path) -> LidarCorners:
+def read_corners(path, crs=None) -> LidarCorners:
+    """``corners.csv`` of lidarctl corners; with ``crs`` (the project's, pyproj) the corners' x, y are checked
+    against it (another zone's numbers, feet for metres, swapped columns: InputError naming the line)."""
     path = Path(path)
     text = read_text(path, "corners file", hint="run lidarctl corners CLASSIFIED.laz lidar_out")
     reader = csv.DictReader(text.splitlines())
@@ -86,6 +88,10 @@ def read_corners(path) -> LidarCorners:
     if not ids:
         raise InputError(f"{path}: no corners")
     a = np.array(num, dtype=float)
+    if crs is not None:
+        from aerotri.geom.crs import check_coordinates
+
+        check_coordinates(crs, a[:, 0], a[:, 1], str(path), [f"line {seen[i]} (corner {i})" for i in ids])
     return LidarCorners(
         np.array(ids, dtype=object), a[:, 0:3], a[:, 3:6], np.mod(a[:, 6:8], 180.0), a[:, 8], a[:, 9],
         np.array(usable, dtype=bool), np.array(roof, dtype=object),
@@ -100,6 +106,8 @@ def read_manual(path, corner_ids, image_ids, camera=None, corners_path="corners.
     from aerotri.geom.observations import read_image_points
 
     obs = read_image_points(path)
+    if len(obs) == 0:  # a file given to import measurements that holds none: the wrong file
+        raise InputError(f"{path}: no measurements (expected point_id,image_id,x_px,y_px records after the header)")
     known_c, known_i = set(corner_ids), set(image_ids)
     out = {}
     for k in range(len(obs)):

@@ -23,7 +23,7 @@ from aerotri.control.corners import LidarCorners, read_corners, read_manual
 from aerotri.control.layout import LayoutTarget, candidate_tiers, empty_target_text, select_control
 from aerotri.control.measure import Measurement, measure_in_image, predict
 from aerotri.control.settings import ControlSettings
-from aerotri.core.errors import InputError
+from aerotri.core.errors import InputError, OptionError
 from aerotri.core.log import track
 from aerotri.core.project import Project, project_paths
 from aerotri.geom.camera import FrameCamera, adjusted_camera
@@ -406,6 +406,16 @@ def review_page(res: TransferResult, images_dir) -> ReviewPage:
     return ReviewPage(line, corners, chips)
 
 
+def _block_crs(root):
+    """The project CRS the corners and orientations are checked against (None without a project.toml)."""
+    from aerotri.geom.eo import check_block_crs
+
+    if not (Path(root) / "project.toml").is_file():
+        return None
+    project = Project.open(root)
+    return check_block_crs(project.crs, f"{project.config_path} [project] crs")
+
+
 def run_control(root, corners_path=None, eo_path=None, camera_path=None, manual_path=None, *,
                 settings: ControlSettings | None = None, checks: bool = True) -> TransferSummary:
     """The stage: read, transfer, write all outputs atomically; returns the summary.
@@ -420,13 +430,25 @@ def run_control(root, corners_path=None, eo_path=None, camera_path=None, manual_
 
     paths = project_paths(root)
     s = settings or ControlSettings()
+    if s.measure.eo_sigma_px > s.measure.max_radius_px:
+        # the search window stops at max_radius_px: an orientation this uncertain is not measured in, it is refused
+        raise OptionError(f"{s.measure.eo_sigma_px:g} px: the orientations' uncertainty exceeds the largest search "
+                          f"radius ({s.measure.max_radius_px:g} px); adjust the block first (tie points + GNSS)",
+                          param="--eo-sigma-px")
     corners_path = corners_path or paths.corners_path
     eo_path = eo_path or paths.eo_path
-    corners = read_corners(corners_path)
+    crs = _block_crs(paths.root)
+    corners = read_corners(corners_path, crs)
     if not Path(eo_path).exists():
         raise InputError(f"{eo_path}: orientations not found (run the first aerotri adjust, tie points + GNSS, "
                          "or pass --eo FILE)")
-    eo = read_eo(eo_path)
+    eo = read_eo(eo_path, crs)
+    from aerotri.geom.crs import linear_unit_m
+    from aerotri.geom.inputs import check_near_block
+
+    # LiDAR corners of another zone or place than the block's frames: refused by name, not "none measured"
+    check_near_block(corners.xyz_m[:, 0], corners.xyz_m[:, 1], [f"corner {c}" for c in corners.id], str(corners_path),
+                     eo.centre_m[:, :2], str(eo_path), linear_unit_m(crs) if crs is not None else 1.0)
     camera, _ = project_camera(paths.root, camera_path)
     manual = (read_manual(manual_path, corners.id, eo.image_id, camera, corners_path, eo_path)
               if manual_path else None)

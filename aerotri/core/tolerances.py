@@ -219,6 +219,9 @@ def load_table(scale: str | None = None, terrain: str = "flat", tolerance_file=N
             have = [k for k, v in d.items() if isinstance(v, dict) and k in TERRAINS]
             raise InputError(f"{path}: no [{terrain}] section (terrain classes here: {', '.join(have) or 'none'})")
         own = {**d.get("general", {}), **d[terrain]}
+        for k, v in own.items():  # a limit of inf, nan or text passes or fails everything: refused by name
+            if isinstance(v, bool) or not isinstance(v, (int, float)) or not (math.isfinite(v) and v >= 0):
+                raise ConfigError(f"{path}: [{terrain}]/[general] {k} = {v!r}: expected a finite limit >= 0")
         limits, prov = dict(own), _provenance(d)
         name = (d.get("table") or {}).get("name") or f"{path.name} (user table)"
         name = f"{name}, {terrain}"

@@ -10,7 +10,7 @@ from pathlib import Path
 import click
 
 from aerotri.core.atomic import refuse_input_as_output
-from aerotri.core.commands import Group, at_least
+from aerotri.core.commands import Group, at_least, positive
 import numpy as np
 
 from aerotri.geom.crs import crs_label, parse_crs
@@ -115,7 +115,7 @@ def fit_heights_cmd(points, model, epsg, smoothing, output):
 @click.option("--heights", type=click.Path(dir_okay=False), help="height anomaly model from 'crs fit-heights' "
                                                                  "(ellipsoidal -> normal heights)")
 @click.option("--allow-ballpark", is_flag=True, help="accept PROJ's ballpark operation that ignores a datum shift")
-@click.option("--res", type=click.FloatRange(min=0, min_open=True),
+@click.option("--res", type=positive(),
               help="target cell size in the target CRS's units [the source cell size]")
 @click.option("--kind", type=click.Choice(KINDS), default="auto", show_default=True,
               help="height: cell values are heights and change with the datum (DEM, DSM); image: an orthophoto; "

@@ -87,6 +87,8 @@ def _read_table(path, require_header: bool) -> _Table:
         raise InputError(f"{path}: line {data[0][0]}: a header line naming the columns is required")
     header = first if has_header else None
     body = data[1:] if has_header else data
+    if not body:
+        raise InputError(f"{path}: a header line and no records (expected one point per line after it)")
     return _Table(path, header, [split(ln) for _, ln in body], [n for n, _ in body], delimiter, lines)
 
 
@@ -385,6 +387,8 @@ def transform_las(in_path, out_path, transformer: CrsTransformer, chunk_size: in
         cx = np.array([hdr.mins[0], hdr.maxs[0], hdr.mins[0], hdr.maxs[0]])
         cy = np.array([hdr.mins[1], hdr.mins[1], hdr.maxs[1], hdr.maxs[1]])
         cz = np.full(4, 0.5 * (hdr.mins[2] + hdr.maxs[2]))
+        if hdr.point_count == 0:
+            raise InputError(f"{in_path}: the file holds no points (nothing to transform)")
         check_coordinates(transformer.src, cx, cy, str(in_path), [f"header bounds corner {i + 1}" for i in range(4)])
         X, Y, Z = transformer.transform(cx, cy, cz)
         transformer.n_points -= 4  # corners are not points of the file

@@ -25,10 +25,11 @@ import rasterio.shutil
 from rasterio.windows import Window
 
 from aerotri.core.atomic import atomic_path, refuse_input_as_output, scratch_dir
-from aerotri.core.errors import CrsError, OptionError
+from aerotri.core.errors import CrsError, InputError, OptionError
 from aerotri.core.log import progress
 from aerotri.geom.crs import (check_stored_crs, crs_label, geotiff_crs, height_unit_m, horizontal_crs,
                                length_unit_name, linear_unit_m, parse_crs, same_horizontal, unit_long_name, unit_name)
+from aerotri.geom.inputs import check_height_values
 from aerotri.geom.raster_warp import RESAMPLING, anchor_grid, height_change, interpolate_anchors, open_north_up, read_on_grid
 from aerotri.geom.transform import CrsTransformer
 
@@ -84,10 +85,14 @@ def warp_raster(in_path, out_path, to_crs, *, from_crs=None, params=None, height
         dst_crs = parse_crs(to_crs, "--to")
         if not horizontal_crs(dst_crs).is_projected and res is None:
             raise OptionError(f"--to {crs_label(dst_crs)} is geographic: give --res in degrees", param="--res")
-        forward = CrsTransformer(src_crs, dst_crs, params=params, heights=heights, allow_ballpark=allow_ballpark)
-        inverse = forward.inverse()
         if kind == "auto":
             kind = "height" if ds.count == 1 and np.dtype(ds.dtypes[0]).kind == "f" else "image"
+        if kind == "height":  # before any work: finite, plausible heights in one band, not all nodata
+            if ds.count != 1:
+                raise InputError(f"{in_path}: --kind height needs one band of heights; the file has {ds.count}")
+            check_height_values(ds, in_path, "height raster", height_unit_m(parse_crs(src_crs, "--from")))
+        forward = CrsTransformer(src_crs, dst_crs, params=params, heights=heights, allow_ballpark=allow_ballpark)
+        inverse = forward.inverse()
         src_res = abs(ds.transform.a)
         if res is None:
             f_src, f_dst = linear_unit_m(horizontal_crs(src_crs)), linear_unit_m(horizontal_crs(dst_crs))

@@ -20,7 +20,7 @@ from aerotri.core.errors import InputError, StageOrderError
 from aerotri.core.project import Project
 from aerotri.core.textio import read_json, read_text
 from aerotri.geom.camera import Camera, project_camera
-from aerotri.geom.eo import read_eo
+from aerotri.geom.eo import check_block_crs, read_eo
 from aerotri.geom.local_frame import LocalFrame
 from aerotri.geom.observations import read_control_points, read_image_points
 from aerotri.geom.rotation import FLIP_YZ
@@ -62,9 +62,16 @@ def _object_points(path):
         raise InputError(f"{path}: expected the header id,kind,x,y,z,sx_m,sy_m,sz_m,rays,rms_px of aerotri adjust")
     ids = np.array([r["id"] for r in rows], dtype=object)
     kinds = np.array([r["kind"] for r in rows], dtype=object)
-    xyz = np.array([[float(r["x"]), float(r["y"]), float(r["z"])] for r in rows])
-    rms = np.array([float(r["rms_px"]) for r in rows])
-    return ids, kinds, xyz, rms
+    values = np.empty((len(rows), 4))
+    for k, r in enumerate(rows):  # line k + 2 (after the header): a value that is no finite number is named
+        for j, key in enumerate(("x", "y", "z", "rms_px")):
+            try:
+                values[k, j] = float(r[key])
+            except (TypeError, ValueError):
+                raise InputError(f"{path}:{k + 2}: {key} = {r[key]!r} of point {r['id']!r} is not a number") from None
+            if not np.isfinite(values[k, j]):
+                raise InputError(f"{path}:{k + 2}: {key} of point {r['id']!r} is NaN or infinite")
+    return ids, kinds, values[:, :3], values[:, 3]
 
 
 def read_adjusted_block(root) -> AdjustedBlock:
@@ -78,11 +85,17 @@ def read_adjusted_block(root) -> AdjustedBlock:
     if not isinstance(frame_info, dict) or "origin_map" not in frame_info:
         raise StageOrderError(f"{project.adjustment_report_path}: no local_frame (written by an older version); "
                               f"adjust the project again (aerotri adjust {project.root})")
+    origin = frame_info["origin_map"]
+    if not (isinstance(origin, list) and len(origin) == 3
+            and all(isinstance(v, (int, float)) and not isinstance(v, bool) and np.isfinite(v) for v in origin)):
+        raise InputError(f"{project.adjustment_report_path}: local_frame origin_map = {origin!r}: expected three finite "
+                         f"numbers (X, Y, Z); adjust the project again (aerotri adjust {project.root})")
     frame = LocalFrame(project.crs, frame_info["origin_map"])
     camera = project_camera(project)
     selfcal = report.get("self_calibration") or {}
     cal = np.array([selfcal["adjusted"][k] for k in CAL_NAMES], float) if selfcal.get("adjusted") else _cal_of(camera)
-    eo = read_eo(project.eo_path)
+    # the projection centres checked against the project CRS (another zone's numbers, swapped X/Y)
+    eo = read_eo(project.eo_path, check_block_crs(project.crs, f"{project.config_path} [project] crs"))
     centre_local = frame.to_local(eo.centre_m)
     R_cv = frame.rotation_local_from_map(eo.centre_m) @ eo.rotations() @ FLIP_YZ
     ids, kinds, xyz_map, rms = _object_points(project.object_points_path)
@@ -99,6 +112,7 @@ def read_adjusted_block(root) -> AdjustedBlock:
     keep = np.array([p in point_index and i in image_index and (p, i) not in removed for p, i in zip(pid, iid)], bool)
     # control: the points of control/points.csv the adjustment kept as control
     control = read_control_points(project.control_points_path) if project.control_points_path.is_file() else None
+    _refuse_unknown_control_ids(obs[1:], project, control, point_index)
     kind_of = dict(zip(ids.astype(str), kinds))
     if control is not None and len(control):
         used = np.array([kind_of.get(str(c), "") not in ("", "tie", "rejected_control") for c in control.id], bool)
@@ -113,3 +127,15 @@ def read_adjusted_block(root) -> AdjustedBlock:
         obs_image=np.array([image_index[i] for i in iid[keep]], int), obs_xy_px=xy[keep], control_id=control_id,
         control_kind=control_kind, control_xyz_m=control_xyz,
     )
+
+
+def _refuse_unknown_control_ids(obs, project: Project, control, point_index: dict) -> None:
+    """A control measurement of a point that is neither in control/points.csv nor among the adjusted points
+    refers to nothing (the file was edited after the adjustment): InputError naming its line, not a silent drop."""
+    known = set(point_index) | (set(control.id.astype(str)) if control is not None else set())
+    for o in obs:
+        for k, p in enumerate(o.point_id.astype(str)):
+            if p not in known:
+                raise InputError(f"{o.where(k, project.control_image_points_path)}: point '{p}' is neither in "
+                                 f"{project.control_points_path} nor among the adjusted points; re-run aerotri "
+                                 "control / aerotri adjust")

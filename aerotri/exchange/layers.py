@@ -73,12 +73,12 @@ def footprints(project: Project, block: AdjustedBlock) -> tuple[list[str], list[
     with contextlib.ExitStack() as stack:
         sampler = None
         if project.dem_path.is_file():
-            import rasterio
-
             from aerotri.geom.crs import parse_crs, same_horizontal
+            from aerotri.geom.raster_warp import open_north_up
 
-            ds = stack.enter_context(rasterio.open(project.dem_path))
-            if ds.crs is not None and not same_horizontal(parse_crs(ds.crs, str(project.dem_path)), parse_crs(block.crs)):
+            # checked as every DEM reader checks it (a CRS, 2 x 2 cells, one band of finite heights)
+            ds = stack.enter_context(open_north_up(project.dem_path, "DEM", heights=True))
+            if not same_horizontal(parse_crs(ds.crs, str(project.dem_path)), parse_crs(block.crs)):
                 raise InputError(f"{project.dem_path}: DEM in {ds.crs.to_string()}, the project in {block.crs}; "
                                  f"footprints need the DEM in the project CRS")
             sampler = _dem_sampler(ds)

@@ -141,6 +141,19 @@ def source_window(ds, AX: np.ndarray, AY: np.ndarray, margin_px: int = 4):
     return Window(c0, r0, c1 - c0, r1 - r0)
 
 
+def _cell_in_source_px(AX: np.ndarray, AY: np.ndarray, spacing_px: int, src_res: float) -> float:
+    """The larger side of a destination cell in source pixels, from the mapped anchors (every ``spacing_px``
+    destination pixels); 1 where the mapping gives nothing finite."""
+    sides = []
+    for axis in (0, 1):
+        if AX.shape[axis] > 1:
+            d = np.hypot(np.diff(AX, axis=axis), np.diff(AY, axis=axis)) / spacing_px
+            d = d[np.isfinite(d)]
+            if d.size:
+                sides.append(float(np.max(d)))
+    return max(sides) / src_res if sides else 1.0
+
+
 def read_on_grid(ds, x_left: float, y_top: float, res: float, shape, operation=None, resampling: str = "bilinear",
                  bands=None, maximum: bool = False, tolerance: float = 1e-3):
     """Read an open north-up dataset onto a destination grid (``shape`` rows, cols) whose pixel centres
@@ -166,14 +179,19 @@ def read_on_grid(ds, x_left: float, y_top: float, res: float, shape, operation=N
 
         AX, AY, s = anchor_grid(mapping, x_left, y_top, res, cols, rows, tolerance=tolerance)
     out = np.zeros((len(bands), rows, cols), np.float32)
-    win = source_window(ds, AX, AY, margin_px=4 + int(np.ceil(res / abs(t.a))))
+    # the destination cell in source pixels, through the mapping: the two CRSs' units may differ (a DOM grid in
+    # metres over an nDSM in degrees, where res / t.a would be a 50000-pixel kernel)
+    cell_px = _cell_in_source_px(AX, AY, s, abs(t.a)) if operation is not None else res / abs(t.a)
+    # (to 1 %: a projection's scale factor, 1.0004 between UTM and Gauss-Krueger grids, adds no pixel)
+    cell_px = float(np.ceil(cell_px - 0.01)) if operation is not None else cell_px
+    win = source_window(ds, AX, AY, margin_px=4 + int(np.ceil(cell_px)))
     if win is None:
         return out, np.zeros(shape, bool)
     src = ds.read(bands, window=win, masked=True)
     valid = ~np.ma.getmaskarray(src).any(axis=0)
     data = np.ma.filled(src.astype(np.float32), 0.0)
     if maximum:
-        k = max(1, int(np.ceil(res / abs(t.a))))
+        k = max(1, int(np.ceil(cell_px)))
         if k > 1:
             data = np.stack([cv2.dilate(np.where(valid, b, -np.inf).astype(np.float32), np.ones((k, k), np.uint8))
                              for b in data])
@@ -186,14 +204,16 @@ def read_on_grid(ds, x_left: float, y_top: float, res: float, shape, operation=N
 
 
 def open_north_up(path, what: str = "raster", *, no_crs_hint: str = "", square: bool = False, heights: bool = False):
-    """A rasterio dataset of a georeferenced, north-up raster (square pixels if ``square``; one band of
-    numbers if ``heights``); InputError naming the file and ``what`` it should be when it is missing,
-    unreadable, has no CRS, is rotated or (``heights``) holds anything but one band of numbers."""
+    """A rasterio dataset of a georeferenced, north-up raster of at least 2 x 2 cells (square pixels if
+    ``square``; one band of numbers if ``heights``); InputError naming the file and ``what`` it should be
+    when it is missing, unreadable, has no CRS, is rotated, smaller or (``heights``) holds anything but one
+    band of finite, plausible heights with at least one valid cell (``aerotri.geom.inputs``)."""
     from pathlib import Path
 
     import rasterio
 
     from aerotri.core.errors import InputError
+    from aerotri.geom.inputs import check_height_values, check_raster_size
 
     path = Path(path)
     if not path.is_file():
@@ -205,8 +225,8 @@ def open_north_up(path, what: str = "raster", *, no_crs_hint: str = "", square: 
     problem = None
     t = ds.transform
     if heights and (ds.count != 1 or np.dtype(ds.dtypes[0]).kind not in "iuf"):
-        problem = (f"a {what} has one band of heights; this file has {ds.count} band(s) of {ds.dtypes[0]} (an "
-                   f"orthophoto or a hillshade given as the {what}?)")
+        problem = (f"expected one band of heights for the {what}; this file has {ds.count} band(s) of {ds.dtypes[0]} "
+                   f"(an orthophoto or a hillshade given as the {what}?)")
     elif ds.crs is None:
         problem = f"the {what} has no CRS{no_crs_hint}"
     elif abs(t.b) > 0 or abs(t.d) > 0 or t.e >= 0 or (square and abs(abs(t.a) - abs(t.e)) > 1e-9 * abs(t.a)):
@@ -215,5 +235,17 @@ def open_north_up(path, what: str = "raster", *, no_crs_hint: str = "", square: 
     if problem:
         ds.close()
         raise InputError(f"{path}: {problem}")
+    try:
+        check_raster_size(ds, path, what)
+        if heights:
+            from aerotri.geom.crs import height_unit_m, parse_crs
+
+            check_height_values(ds, path, what, height_unit_m(parse_crs(ds.crs.to_wkt(), f"{path} CRS")))
+    except rasterio.errors.RasterioIOError as exc:
+        ds.close()
+        raise InputError(f"{path}: cannot read the {what} (truncated or corrupt? {exc})") from None
+    except BaseException:
+        ds.close()
+        raise
     return ds
 

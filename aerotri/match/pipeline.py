@@ -98,7 +98,9 @@ class _PhaseClock:
         self._wall, self._cpu = wall, cpu
 
 
-def _terrain_height(project: Project, s: MatchSettings) -> float:
+def _terrain_height(project: Project, s: MatchSettings, crs=None) -> float:
+    """The mean terrain height for the footprints: --terrain-height, [flight] mean_terrain_height_m, else the
+    mean of lidar_out/dem.tif (checked: in the project CRS ``crs``, finite heights, 2 x 2 cells or more)."""
     if s.terrain_height_m is not None:
         return float(s.terrain_height_m)
     h = config_number(project.section("flight"), "mean_terrain_height_m", None,
@@ -107,14 +109,23 @@ def _terrain_height(project: Project, s: MatchSettings) -> float:
         return h
     dem = project.lidar_out_dir / "dem.tif"
     if dem.exists():
+        from aerotri.geom.crs import crs_label, parse_crs, same_horizontal
+        from aerotri.geom.raster_warp import open_north_up
+
         try:
-            with rasterio.open(dem) as ds:
+            with open_north_up(dem, "DEM", heights=True) as ds:
+                dem_crs = parse_crs(ds.crs.to_wkt(), f"{dem} CRS")
+                if crs is not None and not same_horizontal(dem_crs, crs):
+                    raise InputError(f"{dem}: the DEM is in {crs_label(dem_crs)}, the project in "
+                                     f"{crs_label(crs)}; warp it first (aerotri crs warp) or give --terrain-height")
                 a = ds.read(1, masked=True, out_shape=(1, min(ds.height, 512), min(ds.width, 512)))
         except rasterio.errors.RasterioIOError as exc:
             raise InputError(f"{dem}: cannot read the DEM for the mean terrain height ({exc})") from None
-        if a.count() == 0:
+        v = np.ma.compressed(a)
+        v = v[np.isfinite(v)]
+        if v.size == 0:
             raise InputError(f"{dem}: the DEM has no valid heights")
-        return float(a.mean())
+        return float(v.mean())
     raise InputError(f"{project.root / 'project.toml'}: no terrain height for the footprints: set [flight] "
                      f"mean_terrain_height_m, give --terrain-height, or run lidarctl rasters first")
 
@@ -169,7 +180,7 @@ def _read_frames(project: Project, crs, camera: FrameCamera, s: MatchSettings) -
     if len(ids) < 2:
         raise InputError(f"{project.images_dir}: a block of {len(ids)} frame ({', '.join(ids)}); tie points need "
                          "at least 2 overlapping frames")
-    terrain_m = _terrain_height(project, s) if gnss is not None else None
+    terrain_m = _terrain_height(project, s, crs) if gnss is not None else None
     check_frames(images, camera, project.camera_path)
     plan = plan_block(ids, gnss.position_m, camera, lever, terrain_m, s.image_top_deg) if gnss is not None else None
     return _Frames(ids, images, plan)

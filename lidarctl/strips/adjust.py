@@ -195,10 +195,25 @@ def boresight_extra(trajs: list[tj.Trajectory]):
             bad = t[~tr.covers(t)]
             raise InputError(f"{source.path} (strip {source.name}): GPS times {bad.min():.3f} .. {bad.max():.3f} lie "
                              f"outside its trajectory {tr.source} ({tr.t[0]:.3f} .. {tr.t[-1]:.3f})")
+        _check_ranges(tr, t, x[use], y[use], z[use], f"{source.path} (strip {source.name})")
         out[use] = _sensor_jacobian(tr, t, x[use], y[use], z[use]).reshape(-1, 3 * N_SENSOR)
         return out
 
     return extra, chosen
+
+
+MAX_RANGE_M = 20_000.0  # beyond any airborne scanner's range (a few km): the trajectory is of another place
+
+
+def _check_ranges(tr: tj.Trajectory, t, x, y, z, what: str) -> None:
+    """InputError when the trajectory positions at the points' GPS times lie farther from the points than any
+    scanner reaches: a trajectory in another zone, CRS or unit than the strip."""
+    P, _ = tr.at(t)
+    rho = float(np.median(np.linalg.norm(np.column_stack([x, y, z]) - P, axis=1)))
+    if not rho <= MAX_RANGE_M:
+        raise InputError(f"{tr.source}: its positions lie {rho / 1000:.1f} km (median) from the points of {what} at "
+                         f"their GPS times, beyond any scanner's range ({MAX_RANGE_M / 1000:g} km); a trajectory in "
+                         "another zone, CRS or unit than the strip?")
 
 
 def _sensor_jacobian(tr: tj.Trajectory, t, x, y, z) -> np.ndarray:
@@ -521,6 +536,9 @@ def adjust_strips(paths, outdir, settings: AdjustSettings = AdjustSettings(),
     paths = [Path(p) for p in paths]
     outdir = Path(outdir)
     refuse_input_as_output(outdir, paths, "OUTDIR")
+    from aerotri.geom.inputs import check_distinct_files
+
+    check_distinct_files(paths, "LAS/LAZ file")  # a strip given twice would count every point twice
     for p in paths:
         refuse_input_as_output(outdir / p.name, paths, "OUTDIR")
     if len({p.name for p in paths}) < len(paths):

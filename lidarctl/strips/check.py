@@ -160,6 +160,9 @@ def check_strips(paths, outdir, params: SurfaceParams = SurfaceParams(), crs=Non
     paths = [Path(p) for p in paths]
     outdir = Path(outdir)
     refuse_input_as_output(outdir, paths, "OUTDIR")
+    from aerotri.geom.inputs import check_distinct_files
+
+    check_distinct_files(paths, "LAS/LAZ file")  # a strip given twice would count every point twice
     ss = read_strips(paths, params, crs)
     res = analyse(ss, params, paths)
     with atomic_dir(outdir) as tmp:

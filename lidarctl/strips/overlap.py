@@ -30,7 +30,7 @@ import numba
 import numpy as np
 import pyproj
 
-from aerotri.core.errors import InputError
+from aerotri.core.errors import InputError, OptionError
 from aerotri.core.settings import setting
 from aerotri.geom import las
 from lidarctl import io
@@ -190,14 +190,33 @@ def _default_cell_m(sources, units: LengthUnits) -> float:
     """About 12 points per cell at the density of the files' header boxes (the boxes overestimate the
     area of a strip that is not axis-aligned: the cell comes out a bit large, never too small; a file of
     several strips counts the points of its overlaps twice: a bit small there)."""
+    cell = np.sqrt(12.0 / max(_min_density(sources, units), 1e-9))
+    return float(max(1.0, np.ceil(cell * 2.0) / 2.0))
+
+
+def _min_density(sources, units: LengthUnits) -> float:
+    """The lowest point density (points per m2) of the files' header boxes."""
     dens = []
     for path in dict.fromkeys(s.path for s in sources):
         h = las.read_header(path)
         mins, maxs = np.asarray(h.mins, float), np.asarray(h.maxs, float)
         area = max((maxs[0] - mins[0]) * (maxs[1] - mins[1]) * units.xy_m ** 2, 1e-6)
         dens.append(h.point_count / area)
-    cell = np.sqrt(12.0 / max(min(dens), 1e-9))
-    return float(max(1.0, np.ceil(cell * 2.0) / 2.0))
+    return min(dens)
+
+
+def _check_cell(sources, units: LengthUnits, params) -> None:
+    """OptionError naming --cell-m when a given cell holds on average fewer points than a plane needs (at the
+    header boxes' density): every cell would be dropped and the strips reported as without a smooth surface."""
+    if params.cell_m is None:
+        return
+    dens = _min_density(sources, units)
+    # the header boxes may overstate a strip's area a few times (a diagonal strip): refused only beyond that
+    if 4.0 * dens * params.cell_m ** 2 < params.min_points:
+        raise OptionError(f"{params.cell_m:g} m: cells this small hold about {dens * params.cell_m ** 2:.2g} points at "
+                          f"the strips' density ({dens:.2f} points/m2), fewer than the {params.min_points} a plane "
+                          f"needs (--min-points); use at least {np.sqrt(params.min_points / dens):.2g} m",
+                          param="--cell-m")
 
 
 def _grid(sources, units: LengthUnits, cell_m: float) -> Grid:
@@ -290,6 +309,7 @@ def read_strips(paths, params: SurfaceParams = SurfaceParams(), crs=None, extra=
     sources = strip_sources(paths)
     crs_out, units = _check_crs(sources, crs)
     if grid is None:
+        _check_cell(sources, units, params)
         grid = _grid(sources, units, params.cell_m or _default_cell_m(sources, units))
     cell_m = grid.cell_m
     accs = {s.name: None for s in sources}
