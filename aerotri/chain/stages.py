@@ -129,7 +129,10 @@ class Chain:
         return None
 
     def check_files(self) -> None:
-        """Files named in project.toml must exist (found before the first stage, not hours into the run)."""
+        """The inputs of every stage that the project (or the command line) gives, read and checked as the
+        stage will before the first stage writes anything: a bad input of a late stage stops the run with
+        the project as it was, not hours into it with the early stages' outputs replaced. Files named in
+        project.toml must exist."""
         from aerotri.core.errors import ConfigError
 
         for section, key, path in (("rectify", "dem", self.options.rectify.dem),
@@ -146,6 +149,44 @@ class Chain:
             from ortho.dem import open_height_raster
 
             open_height_raster(given, project_crs(self.project)).close()
+        self._check_stage_inputs()
+
+    def _check_stage_inputs(self) -> None:
+        """(``check_files``) the project's own inputs of the stages, each with its stage's reader."""
+        from aerotri.geom.crs import project_crs
+        from aerotri.geom.eo import read_eo
+        from aerotri.geom.observations import read_control_points, read_image_points
+        from aerotri.match.pipeline import check_inputs as check_match_inputs
+        from ortho.dem import open_height_raster
+
+        p, o = self.project, self.options
+        if self.has_lidar:
+            from lidarctl.io import checked_headers
+
+            for _ in checked_headers(p.lidar_strips(), crs=p.crs):
+                pass
+            if o.strips.adjust and o.strips.use_trajectory:
+                from lidarctl.strips.trajectory import read_trajectory
+
+                for t in p.trajectories():
+                    read_trajectory(t)
+        if self.images():  # (a project without frames fails at its match stage, as before)
+            check_match_inputs(p.root, o.match)
+        if not self.has_lidar and o.adjust.use_control and p.control_points_path.is_file():
+            read_control_points(p.control_points_path, p.crs)
+            if p.control_image_points_path.is_file():
+                read_image_points(p.control_image_points_path)
+        if o.adjust.initial_eo is not None:
+            read_eo(o.adjust.initial_eo, p.crs)
+        for what, path in (("DSM", o.rectify.dsm), ("nDSM", o.mosaic.ndsm)):
+            if path is not None:
+                open_height_raster(path, project_crs(p), what).close()
+        if self.reference_ortho is not None:
+            _check_raster(self.reference_ortho, "reference orthophoto")
+        if self.surveyed_points is not None:
+            from lidarctl.heights_check import read_points_csv
+
+            read_points_csv(self.surveyed_points)
 
     # -- stages ---------------------------------------------------------------------------------
     def stages(self) -> list[Stage]:
@@ -499,6 +540,21 @@ class Chain:
 
         rep = write_qa_report(root)
         return dict(verdict=rep["overall"], passed=rep["passed"], failed=rep["failed"])
+
+
+def _check_raster(path, what: str) -> None:
+    """``InputError`` unless ``path`` is a raster GDAL reads, of at least 2 x 2 pixels."""
+    import rasterio
+
+    from aerotri.core.errors import InputError
+
+    try:
+        with rasterio.open(path) as ds:
+            size = (ds.width, ds.height)
+    except (rasterio.errors.RasterioIOError, OSError) as exc:
+        raise InputError(f"{path}: cannot read the {what} ({exc})") from None
+    if min(size) < 2:
+        raise InputError(f"{path}: the {what} is {size[0]} x {size[1]} px; expected a raster of at least 2 x 2")
 
 
 def chain_stages(root, options: ChainOptions | None = None, reference_ortho=None, surveyed_points=None, dem=None,

@@ -316,6 +316,22 @@ def commit_outputs(folder, join: bool = True, label: str = "aerotri"):
             c.commit()
 
 
+def committed(folder_of):
+    """Decorator: everything the function writes below ``folder_of(*args, **kwargs)`` is one commit
+    (``commit_outputs``; part of the caller's open commit when there is one)."""
+    import functools
+
+    def deco(f):
+        @functools.wraps(f)
+        def wrapper(*args, **kwargs):
+            with commit_outputs(folder_of(*args, **kwargs)):
+                return f(*args, **kwargs)
+
+        return wrapper
+
+    return deco
+
+
 def move_into(src, dst) -> None:
     """``os.replace(src, dst)`` as part of the open commit that covers ``dst`` (if any)."""
     with _LOCK:
