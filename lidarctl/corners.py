@@ -722,7 +722,7 @@ def _roof_keys(rec: np.ndarray, rc: _RoofClusters):
 def find_roof_corners_tiled(paths, crs=None, *, tile_m: float = DEFAULT_TILE_M, buffer_m: float = DEFAULT_BUFFER_M,
                             min_edge_m: float | None = None, roof: str = "flat", sigma_strip_xy_m: float = 0.03,
                             sigma_strip_z_m: float = 0.03, work_dir=None, chunk_points: int = las_io.CHUNK_POINTS,
-                            figure_cells: int = 0):
+                            figure_cells: int = 0, work_name: str = "corners"):
     """``find_roof_corners`` of classified LAS/LAZ files (strips in one CRS) by tiles of ``tile_m`` with a
     ``buffer_m`` border (metres), read straight from the files: memory is set by the tile size.
 
@@ -749,7 +749,7 @@ def find_roof_corners_tiled(paths, crs=None, *, tile_m: float = DEFAULT_TILE_M, 
     t_start = time.perf_counter()
     paths = [Path(p) for p in paths]
     names = ", ".join(str(p) for p in paths)
-    work = temporary_dir(Path(work_dir) if work_dir is not None else paths[0].parent, "corners")
+    work = temporary_dir(Path(work_dir) if work_dir is not None else paths[0].parent, work_name)
     try:
         tc = _bin_corner_points(paths, crs, work, tile_m, buffer_m, chunk_points)
         if tc.n_building == 0:
@@ -1142,7 +1142,7 @@ def corner_control(paths, outdir, settings: CornerSettings = CornerSettings(), c
         paths, crs=crs, tile_m=s.tile_m, buffer_m=s.buffer_m, min_edge_m=s.min_edge_m, roof=s.roof,
         sigma_strip_xy_m=s.sigma_strip_xy_m, sigma_strip_z_m=s.sigma_strip_z_m,
         work_dir=next(p for p in (outdir, *outdir.parents) if p.is_dir()),
-        figure_cells=FIGURE_CELLS if s.figure else 0)
+        figure_cells=FIGURE_CELLS if s.figure else 0, work_name=f"{outdir.name}.corners")
     st = result["stats"]
     head = {"source": names, "crs": crs_out.to_string() if crs_out is not None else None, **units.as_dict()}
     if st["n_usable"] == 0:

@@ -148,7 +148,8 @@ class Chain:
             from aerotri.geom.crs import project_crs
             from ortho.dem import open_height_raster
 
-            open_height_raster(given, project_crs(self.project)).close()
+            with open_height_raster(given, project_crs(self.project)) as ds:
+                _read_ends(ds, given, "DEM")
         self._check_stage_inputs()
 
     def _check_stage_inputs(self) -> None:
@@ -173,14 +174,15 @@ class Chain:
         if self.images():  # (a project without frames fails at its match stage, as before)
             check_match_inputs(p.root, o.match)
         if not self.has_lidar and o.adjust.use_control and p.control_points_path.is_file():
-            read_control_points(p.control_points_path, p.crs)
+            read_control_points(p.control_points_path, project_crs(p))
             if p.control_image_points_path.is_file():
                 read_image_points(p.control_image_points_path)
         if o.adjust.initial_eo is not None:
-            read_eo(o.adjust.initial_eo, p.crs)
+            read_eo(o.adjust.initial_eo, project_crs(p))
         for what, path in (("DSM", o.rectify.dsm), ("nDSM", o.mosaic.ndsm)):
             if path is not None:
-                open_height_raster(path, project_crs(p), what).close()
+                with open_height_raster(path, project_crs(p), what) as ds:
+                    _read_ends(ds, path, what)
         if self.reference_ortho is not None:
             _check_raster(self.reference_ortho, "reference orthophoto")
         if self.surveyed_points is not None:
@@ -543,7 +545,8 @@ class Chain:
 
 
 def _check_raster(path, what: str) -> None:
-    """``InputError`` unless ``path`` is a raster GDAL reads, of at least 2 x 2 pixels."""
+    """``InputError`` unless ``path`` is a raster GDAL reads, of at least 2 x 2 pixels, with its first and last
+    rows readable."""
     import rasterio
 
     from aerotri.core.errors import InputError
@@ -551,10 +554,27 @@ def _check_raster(path, what: str) -> None:
     try:
         with rasterio.open(path) as ds:
             size = (ds.width, ds.height)
+            if min(size) >= 2:
+                _read_ends(ds, path, what)
     except (rasterio.errors.RasterioIOError, OSError) as exc:
         raise InputError(f"{path}: cannot read the {what} ({exc})") from None
     if min(size) < 2:
         raise InputError(f"{path}: the {what} is {size[0]} x {size[1]} px; expected a raster of at least 2 x 2")
+
+
+def _read_ends(ds, path, what: str) -> None:
+    """Read a raster's first and last rows: a file cut short (a copy that stopped) has a valid header but no
+    end, found here rather than by the stage that reads it after earlier stages have written."""
+    import rasterio
+    from rasterio.windows import Window
+
+    from aerotri.core.errors import InputError
+
+    try:
+        for row in {0, ds.height - 1}:
+            ds.read(1, window=Window(0, row, ds.width, 1))
+    except (rasterio.errors.RasterioError, rasterio.errors.RasterioIOError) as exc:
+        raise InputError(f"{path}: the {what} cannot be read to its end ({exc}); a file cut short?") from None
 
 
 def chain_stages(root, options: ChainOptions | None = None, reference_ortho=None, surveyed_points=None, dem=None,

@@ -67,9 +67,17 @@ def _umask() -> int:
 
 
 def _annotate(exc: BaseException, path) -> None:
-    """Give an OSError of a failed write the output's path when it has none (a write() on an open file)."""
-    if isinstance(exc, OSError) and exc.errno in DISK_ERRNOS and exc.filename is None:
-        exc.filename = str(path)
+    """Name the output ``path`` in an error of a failed write: an OSError without a file name (a write() on an
+    open file) or with a temporary's name gets the output's; any other exception (GDAL's through rasterio)
+    carries it as ``aerotri_output`` (the command's handler names it when the error is a full disk)."""
+    if isinstance(exc, OSError) and exc.errno in DISK_ERRNOS:
+        if exc.filename is None or any(m in os.fspath(exc.filename) for m in (TEMP_MARKER, COMMIT_MARKER)):
+            exc.filename = str(path)
+    elif not isinstance(exc, OSError) and getattr(exc, "aerotri_output", None) is None:
+        try:
+            exc.aerotri_output = str(path)
+        except (AttributeError, TypeError):
+            pass
 
 
 # ------------------------------------------------------------------------------------------------
@@ -433,7 +441,7 @@ def atomic_path(path):
         # mkstemp creates 0600 files; give the output the permissions of an ordinary new file.
         os.chmod(tmp, 0o666 & ~_umask())
         move_into(tmp, path)
-    except OSError as exc:
+    except Exception as exc:
         _annotate(exc, path)
         raise
     finally:
@@ -469,7 +477,7 @@ def atomic_dir(path):
                 _replace_dir_alone(tmp, path)
             else:
                 os.replace(tmp, path)
-    except OSError as exc:
+    except Exception as exc:
         _annotate(exc, path)
         raise
     finally:
@@ -496,7 +504,7 @@ def scratch_dir(parent, name: str):
 def remove_leftovers(folder, names=None) -> list[Path]:
     """Delete the temporaries a killed process left in ``folder`` (not below it): files and folders named
     ``.<name>.part-*``, after rolling back its unfinished commits there (``recover_commits``). ``names``:
-    only the temporaries of these output names (``.<name>.part-*``, ``.<stem>.part-*``), for a folder that
+    only the temporaries of these output names (``.<name>.*part-*``, ``.<stem>.*part-*``), for a folder that
     other commands may write into at the same time. Returns what was removed. Only for folders (or names)
     no other process is writing to."""
     folder = Path(folder)
@@ -505,8 +513,8 @@ def remove_leftovers(folder, names=None) -> list[Path]:
     gone = [Path(p) for p in recover_commits(folder)] if names is None else []
     if names is None:
         found = folder.glob(f".*{TEMP_MARKER}*")
-    else:
-        prefixes = {f".{n}{TEMP_MARKER}" for name in names for n in (Path(name).name, Path(name).stem)}
+    else:  # .<name>.part-*, .<stem>.part-*, and the work folders named after them (.<stem>.tiles.part-*)
+        prefixes = {f".{n}." for name in names for n in (Path(name).name, Path(name).stem)}
         found = [q for q in folder.glob(f".*{TEMP_MARKER}*") if any(q.name.startswith(p) for p in prefixes)]
     for q in sorted(found):
         if q.is_dir():

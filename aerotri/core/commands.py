@@ -26,6 +26,7 @@ import contextlib
 import errno
 import logging
 import math
+import os
 import sys
 import time
 from pathlib import Path
@@ -95,11 +96,14 @@ class GroupedOption(click.Option):
 class Command(click.Command):
     """A command with the logging options, the error handler and the writing discipline (module docstring).
 
-    ``per_stage``: the command commits its outputs stage by stage itself (``aerotri run``), not as a whole."""
+    ``per_stage``: the command commits its outputs stage by stage itself (``aerotri run``), not as a whole.
+    ``outputs``: ``params -> [paths]``, the outputs of a command that names them otherwise than by a parameter
+    of ``OUTPUT_PARAMS`` (the last of several arguments, a default next to the input)."""
 
-    def __init__(self, *args, per_stage: bool = False, **kwargs):
+    def __init__(self, *args, per_stage: bool = False, outputs=None, **kwargs):
         super().__init__(*args, **kwargs)
         self.per_stage = per_stage
+        self.outputs = outputs
         self.params.extend(_logging_params())
 
     def format_options(self, ctx, formatter):
@@ -124,6 +128,7 @@ class Command(click.Command):
         # what the lock file records: the command line when run from one, else the command's name
         command = " ".join([Path(sys.argv[0]).name, *sys.argv[1:]]) \
             if sys.argv and Path(sys.argv[0]).name == ctx.find_root().info_name else ctx.command_path
+        self._writes_to = []  # what a fault without a file name is about (fault_message)
         with contextlib.ExitStack() as stack:
             locked = set()
 
@@ -140,16 +145,21 @@ class Command(click.Command):
             project = ctx.params.get("project")
             if project is not None and Path(project).is_dir():
                 root = Path(project)
+                self._writes_to.append(root)
                 lock_project(root)
                 if not self.per_stage:
                     stack.enter_context(commit_outputs(root))
             elif project is not None and not Path(project).exists():
                 self._lock_output(stack, Path(project), command, wait_s, lock_project)
-            for name in OUTPUT_PARAMS:
-                value = ctx.params.get(name)
-                if value is None or str(value) == "":
+            values = [ctx.params.get(name) for name in OUTPUT_PARAMS]
+            if self.outputs is not None:
+                values += list(self.outputs(ctx.params))
+            seen = set()
+            for value in values:
+                if value is None or str(value) == "" or Path(value).absolute() in seen:
                     continue
                 out = Path(value)
+                seen.add(out.absolute())
                 if project is not None and Path(project).is_dir() and _inside(out, Path(project)):
                     continue
                 self._lock_output(stack, out, command, wait_s, lock_project)
@@ -160,6 +170,7 @@ class Command(click.Command):
         from aerotri.core.atomic import commit_outputs, recover_commits, remove_leftovers, remove_leftovers_below
         from aerotri.core.lock import hold_lock
 
+        self._writes_to.append(out)
         home = _project_above(out)
         if home is not None:
             lock_project(home)
@@ -208,7 +219,9 @@ class Command(click.Command):
             click.echo("Interrupted.", err=True)
             sys.exit(130)
         except Exception as exc:
-            message = fault_message(exc, getattr(exc, "aerotri_doing", None) or ctx.command_path)
+            writes_to = getattr(self, "_writes_to", [])
+            message = fault_message(exc, getattr(exc, "aerotri_doing", None) or ctx.command_path,
+                                    ", ".join(map(str, writes_to)) or None, writes_to)
             if message is None:
                 raise
             click.echo(f"Error: {message}", err=True)
@@ -233,10 +246,13 @@ def _project_above(path: Path, levels: int = 4) -> Path | None:
     return None
 
 
+_IO_LIBRARIES = ("rasterio", "pyogrio", "fiona", "sqlite3", "laspy", "lazrs")  # their errors may be about the disk
+SHORT_WRITE = -1  # a write that wrote less than asked (numpy's tofile: "N requested and M written")
 _GDAL_FAULTS = (("No space left on device", errno.ENOSPC), ("Free disk space available is", errno.ENOSPC),
                 ("Disk quota exceeded", errno.EDQUOT), ("Read-only file system", errno.EROFS),
                 ("Permission denied", errno.EACCES), ("No such file or directory", errno.ENOENT),
-                ("File too large", errno.EFBIG))
+                ("File too large", errno.EFBIG), ("database or disk is full", errno.ENOSPC),
+                (" requested and ", SHORT_WRITE))
 
 
 def _fault(exc: BaseException) -> tuple[int, str | None] | None:
@@ -249,12 +265,13 @@ def _fault(exc: BaseException) -> tuple[int, str | None] | None:
         seen.add(id(exc))
         if isinstance(exc, OSError) and exc.errno is not None and (exc.errno in DISK_ERRNOS or exc.errno in (
                 errno.ENOENT, errno.ENOTDIR, errno.EISDIR)):
-            return exc.errno, exc.filename if exc.filename is None else str(exc.filename)
+            return exc.errno, None if exc.filename is None else str(exc.filename)
         text = str(exc)
-        if type(exc).__module__.startswith("rasterio") or isinstance(exc, OSError):
+        if type(exc).__module__.split(".")[0] in _IO_LIBRARIES or isinstance(exc, OSError):
             for needle, code in _GDAL_FAULTS:
                 if needle in text:
-                    return code, _path_in(text)
+                    output = getattr(exc, "aerotri_output", None) if code != errno.ENOENT else None
+                    return code, output or _path_in(text)
         exc = exc.__cause__ or exc.__context__
     return None
 
@@ -267,16 +284,49 @@ def _path_in(text: str) -> str | None:
     return m.group(1) if m else None
 
 
-def fault_message(exc: BaseException, doing: str) -> str | None:
+def _space_short(paths) -> tuple[str, str] | None:
+    """(path, cause) when the file system of one of ``paths`` is (nearly) full or the process may only write
+    small files (``ulimit -f``): the likely reason of a GDAL error on a file GDAL wrote itself (GDAL does not
+    report a write that the disk cut short; reading the file back fails)."""
+    import resource
+
+    soft, _ = resource.getrlimit(resource.RLIMIT_FSIZE)
+    for p in paths:
+        p = Path(p).absolute()
+        d = next((q for q in (p, *p.parents) if q.is_dir()), None)
+        if d is None:
+            continue
+        if soft != resource.RLIM_INFINITY:
+            return str(p), f"the process may write files of at most {soft} bytes (ulimit -f)"
+        try:
+            st = os.statvfs(d)
+        except OSError:
+            continue
+        if st.f_bavail * st.f_frsize < 1 << 20:
+            return str(p), "no space left on device"
+    return None
+
+
+def fault_message(exc: BaseException, doing: str, writes_to: str | None = None, outputs=()) -> str | None:
     """The one-line message of a file-system fault (disk full, read-only, permission, a vanished file) that
-    stopped ``doing`` (the command, or ``aerotri run``'s stage); None when ``exc`` is no such fault."""
+    stopped ``doing`` (the command, or ``aerotri run``'s stage); None when ``exc`` is no such fault.
+    ``writes_to``: what the command writes, named when the fault does not say which file it is about;
+    ``outputs``: its paths, whose file systems are looked at when GDAL failed on a file of its own."""
     from aerotri.core.atomic import DISK_ERRNOS
 
     fault = _fault(exc)
     if fault is None:
-        return None
+        short = _space_short(outputs) if (type(exc).__module__.split(".")[0] in _IO_LIBRARIES
+                                          or isinstance(exc, OSError)) else None
+        if short is None:
+            return None
+        first = (str(exc).splitlines() or [type(exc).__name__])[0]
+        return f"{short[0]}: {short[1]}; {doing} stopped and its outputs are as they were ({first})"
     code, path = fault
-    where = path or "a file"
+    if code == SHORT_WRITE:
+        return (f"{path or writes_to or 'an output'}: a write was cut short (no space left on the device, or a file "
+                f"size limit); {doing} stopped and its outputs are as they were")
+    where = path or (writes_to if code not in (errno.ENOENT, errno.ENOTDIR, errno.EISDIR) else None) or "a file"
     if code in (errno.ENOENT, errno.ENOTDIR):
         return (f"{where}: file not found while {doing} ran (an input removed or moved while it ran?); "
                 "its outputs are as they were")

@@ -95,12 +95,21 @@ def hold_lock(path, command: str | None = None, wait_s: float = 0.0, what: str |
     deadline = time.monotonic() + max(0.0, wait_s)
     said = False
     while True:
-        fd = os.open(path, os.O_RDWR | os.O_CREAT, 0o644)
+        try:
+            fd = os.open(path, os.O_RDWR | os.O_CREAT, 0o644)
+        except OSError as exc:
+            exc.filename = str(path.parent)  # the folder that cannot take it (read-only, full, no permission)
+            raise
         try:
             fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
         except BlockingIOError:
             os.close(fd)
             holder = _read(path)
+            for _ in range(20):  # the holder writes its record just after taking the lock
+                if holder is not None:
+                    break
+                time.sleep(0.025)
+                holder = _read(path)
             who = holder.describe() if holder else "another command"
             if time.monotonic() >= deadline:
                 hint = "; give --wait SECONDS to wait for it" if wait_s <= 0 else f" after waiting {wait_s:g} s"
