@@ -20,20 +20,15 @@ unprivileged user when the tests run as root) on real processes without injectio
 
 from __future__ import annotations
 
-import contextlib
 import dataclasses
 import errno
 import hashlib
 import importlib.util
-import io
-import json
 import os
 import shutil
 import signal
 import subprocess
 import sys
-import tempfile
-import time
 from pathlib import Path
 
 import numpy as np
@@ -341,12 +336,20 @@ def test_disk_full(wr, workspace, tmp_path):
     assert str(w) in line  # names the output
 
 
-@pytest.mark.parametrize("wr", [w for w in WRITERS if w.moves >= 2], ids=[w.id for w in WRITERS if w.moves >= 2])
+# aerotri import writes its files with os.replace (aerotri/exchange/imported.py, owned by the exchange stage), not
+# aerotri.core.atomic.move_into: a file replaced before the fault is not rolled back. Strict: once it moves them
+# with move_into these cases pass, and the marker must go.
+IMPORT_RENAMES = pytest.mark.xfail(strict=True, reason="aerotri/exchange/imported.py replaces files with os.replace, "
+                                                      "outside the command's commit")
+
+
+def _cases(writers):
+    return [pytest.param(w, id=w.id, marks=IMPORT_RENAMES if w.id == "import" else ()) for w in writers]
+
+
+@pytest.mark.parametrize("wr", _cases([w for w in WRITERS if w.moves >= 2]))
 def test_failure_between_two_files(wr, workspace, tmp_path):
     """The second output cannot be completed after the first was: every output stays as it was."""
-    if wr.id == "import":
-        pytest.xfail("aerotri/exchange/imported.py moves its files with os.replace, not aerotri.core.atomic.move_into "
-                     "(the exchange stage's owner wires it): the first file is replaced, not rolled back")
     w = prepare(wr, workspace, tmp_path)
     before = snapshot(w)
     with output_move_fails(w / wr.area, 2) as count:
@@ -444,13 +447,10 @@ def _command(wr: Writer):
     return cmd
 
 
-@pytest.mark.parametrize("wr", WRITERS, ids=WRITER_IDS)
+@pytest.mark.parametrize("wr", _cases(WRITERS))
 def test_kill_and_rerun(wr, workspace, forkserver, tmp_path):
     """SIGKILL in the middle of the command's outputs; the next run of the same command undoes what the killed one
     changed, sweeps its temporaries and (a full re-run) makes valid products."""
-    if wr.id == "import":
-        pytest.xfail("aerotri/exchange/imported.py moves its files with os.replace, not aerotri.core.atomic.move_into "
-                     "(the exchange stage's owner wires it): a file moved before the kill is not rolled back")
     w = prepare(wr, workspace, tmp_path)
     before = snapshot(w)
     code, said = _kill_child(forkserver, wr, w, min(2, wr.moves))

@@ -5,8 +5,6 @@ docs/project.md documents every project.toml and camera.toml key the code knows.
 from __future__ import annotations
 
 import dataclasses
-import os
-import re
 import shutil
 import tomllib
 from pathlib import Path
