@@ -124,9 +124,11 @@ def _dirs_below(base: str, depth: int) -> list[str]:
 class _Commit:
     """The undo journal of one commit over ``base`` (see the module docstring)."""
 
-    def __init__(self, base, label: str = "aerotri"):
+    def __init__(self, base, label: str = "aerotri", prune_below=None):
         self.base = _real(base)
         self.label = label
+        # where a roll-back may remove new empty folders the block made (not only those above its outputs)
+        self.prune_below = [os.path.relpath(_real(p), self.base) for p in (prune_below or [base])]
         self.dir: str | None = None  # made at the first journaled write
         self.fd: int | None = None
         self.journal = None
@@ -237,7 +239,8 @@ class _Commit:
             return []
         self.journal.close()
         try:
-            restored = _roll_back(self.dir, self.base, self.entries, self.dirs_before, self.base_existed, prune_new=True)
+            restored = _roll_back(self.dir, self.base, self.entries, self.dirs_before, self.base_existed,
+                                  prune_below=self.prune_below)
         except OSError as exc:
             import logging
 
@@ -250,9 +253,10 @@ class _Commit:
 
 
 def _roll_back(cdir: str, base: str, entries: list[dict], dirs_before: set, base_existed: bool,
-               prune_new: bool = False) -> list[str]:
+               prune_below=()) -> list[str]:
     """Undo ``entries`` (newest first), remove the folders the commit made when empty (above the entries;
-    ``prune_new``: also any new folder two levels below ``base``), then the journal."""
+    ``prune_below``: also any new folder up to two levels below ``base`` that is at or below one of these
+    relative names), then the journal."""
     done = []
     for e in reversed(entries):
         target = os.path.join(base, e["rel"])
@@ -266,7 +270,10 @@ def _roll_back(cdir: str, base: str, entries: list[dict], dirs_before: set, base
             _remove(target)
             done.append(e["rel"])
     # folders made since the commit began: above the entries, and any new empty one near the base
-    candidates = set(_dirs_below(base, 2)) - set(dirs_before) if prune_new else set()
+    def pruned(rel: str) -> bool:
+        return any(p == "." or rel == p or rel.startswith(p + os.sep) for p in prune_below)
+
+    candidates = {d for d in set(_dirs_below(base, 2)) - set(dirs_before) if pruned(d)} if prune_below else set()
     for e in entries:
         parts = e["rel"].split(os.sep)[:-1]
         for k in range(len(parts), 0, -1):
@@ -298,17 +305,20 @@ def _covering(path) -> tuple["_Commit", str] | tuple[None, None]:
 
 
 @contextlib.contextmanager
-def commit_outputs(folder, join: bool = True, label: str = "aerotri"):
+def commit_outputs(folder, join: bool = True, label: str = "aerotri", prune_below=None):
     """Commit everything written below ``folder`` in this block together (module docstring): all new
     when the block ends normally, all old when it raises or the process is killed. ``join``: inside an
-    open commit that covers ``folder``, be part of it (the default) instead of a separate commit."""
+    open commit that covers ``folder``, be part of it (the default) instead of a separate commit.
+    ``prune_below``: the paths below which a roll-back also removes new empty folders that hold no output
+    (default: all of ``folder``; a folder other processes write into too, the system's temporary folder or
+    the current one, gets the command's own outputs here)."""
     folder = Path(folder)
     if join:
         c, _ = _covering(folder / "x")
         if c is not None:
             yield c
             return
-    c = _Commit(folder, label)
+    c = _Commit(folder, label, prune_below)
     with _LOCK:
         _OPEN.append(c)
     try:

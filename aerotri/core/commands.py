@@ -183,7 +183,7 @@ class Command(click.Command):
         if out.is_dir():
             remove_leftovers_below(out)
         if not self.per_stage:
-            stack.enter_context(commit_outputs(parent))
+            stack.enter_context(commit_outputs(parent, prune_below=[out]))
 
     def invoke(self, ctx):
         verbose = ctx.params.pop("verbose", 0) or 0
