@@ -14,8 +14,9 @@ def main():
 
 
 from aerotri.sim.cli import sim  # noqa: E402
-from aerotri.chain.cli import demo, run  # noqa: E402
+from aerotri.chain.cli import demo, init, run  # noqa: E402
 
+main.add_command(init)
 main.add_command(sim)
 main.add_command(demo)
 main.add_command(run)

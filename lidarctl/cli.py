@@ -484,7 +484,7 @@ def drainage(dem_path, outdir, min_area_m2, fill, simplify_px, png):
         click.echo(r.no_streams)
 
 
-@main.command()
+@main.command(outputs=lambda params: params["paths"][-1:])  # OUT: the last argument
 @click.argument("paths", nargs=-1, required=True, type=click.Path(dir_okay=False))
 @click.option("--image", type=click.Path(dir_okay=False), default=None,
               help="Orthophoto (GeoTIFF): OUT.png shows the layers over it.")

@@ -49,7 +49,7 @@ import shapely
 from scipy import ndimage
 from scipy.spatial import cKDTree
 
-from aerotri.core.atomic import refuse_input_as_output, write_text_atomic
+from aerotri.core.atomic import committed, refuse_input_as_output, write_text_atomic
 from aerotri.core.errors import InputError, OptionError
 from aerotri.core.settings import setting
 from lidarctl import io as las_io
@@ -622,7 +622,12 @@ def _bin_corner_points(paths, crs, work: Path, tile_m: float, buffer_m: float, c
     units = first[2]
     if not (np.isfinite(lo).all() and np.isfinite(hi).all()) or (np.abs(np.r_[lo, hi]) > las_io.MAX_ABS_XY_M).any():
         raise InputError(f"{', '.join(map(str, paths))}: absurd bounds in the LAS headers ({lo.tolist()} .. {hi.tolist()})")
-    nc, nr = np.maximum(np.ceil((hi - lo) / tile_m), 1).astype(int)
+    from aerotri.core.limits import check_task_count
+
+    n_cr = np.maximum(np.ceil((hi - lo) / tile_m), 1)
+    check_task_count(float(n_cr[0] * n_cr[1]), f"{', '.join(map(str, paths))}: tiles of {tile_m:g} m", "--tile-m",
+                     "use a larger --tile-m")
+    nc, nr = n_cr.astype(int)
     grid = TileGrid(float(lo[0]), float(lo[1]), float(tile_m), float(buffer_m), int(nr), int(nc))
     used = np.zeros(grid.n_tiles, bool)
     index = n_bldg = 0
@@ -717,7 +722,7 @@ def _roof_keys(rec: np.ndarray, rc: _RoofClusters):
 def find_roof_corners_tiled(paths, crs=None, *, tile_m: float = DEFAULT_TILE_M, buffer_m: float = DEFAULT_BUFFER_M,
                             min_edge_m: float | None = None, roof: str = "flat", sigma_strip_xy_m: float = 0.03,
                             sigma_strip_z_m: float = 0.03, work_dir=None, chunk_points: int = las_io.CHUNK_POINTS,
-                            figure_cells: int = 0):
+                            figure_cells: int = 0, work_name: str = "corners"):
     """``find_roof_corners`` of classified LAS/LAZ files (strips in one CRS) by tiles of ``tile_m`` with a
     ``buffer_m`` border (metres), read straight from the files: memory is set by the tile size.
 
@@ -744,7 +749,7 @@ def find_roof_corners_tiled(paths, crs=None, *, tile_m: float = DEFAULT_TILE_M, 
     t_start = time.perf_counter()
     paths = [Path(p) for p in paths]
     names = ", ".join(str(p) for p in paths)
-    work = temporary_dir(Path(work_dir) if work_dir is not None else paths[0].parent, "corners")
+    work = temporary_dir(Path(work_dir) if work_dir is not None else paths[0].parent, work_name)
     try:
         tc = _bin_corner_points(paths, crs, work, tile_m, buffer_m, chunk_points)
         if tc.n_building == 0:
@@ -1109,6 +1114,7 @@ class CornerSettings:
                                                               "largest roof, at most the tile size.")
 
 
+@committed(lambda paths, outdir, *a, **k: Path(outdir))
 def corner_control(paths, outdir, settings: CornerSettings = CornerSettings(), crs=None,
                    record_none: bool = False) -> dict:
     """The stage: roof corners of classified LAS/LAZ file(s) (one or more strips in one CRS) as control
@@ -1139,7 +1145,7 @@ def corner_control(paths, outdir, settings: CornerSettings = CornerSettings(), c
         paths, crs=crs, tile_m=s.tile_m, buffer_m=s.buffer_m, min_edge_m=s.min_edge_m, roof=s.roof,
         sigma_strip_xy_m=s.sigma_strip_xy_m, sigma_strip_z_m=s.sigma_strip_z_m,
         work_dir=next(p for p in (outdir, *outdir.parents) if p.is_dir()),
-        figure_cells=FIGURE_CELLS if s.figure else 0)
+        figure_cells=FIGURE_CELLS if s.figure else 0, work_name=f"{outdir.name}.corners")
     st = result["stats"]
     head = {"source": names, "crs": crs_out.to_string() if crs_out is not None else None, **units.as_dict()}
     if st["n_usable"] == 0:
@@ -1150,8 +1156,10 @@ def corner_control(paths, outdir, settings: CornerSettings = CornerSettings(), c
         if not record_none:
             return summary
         outdir.mkdir(parents=True, exist_ok=True)
+        from aerotri.core.atomic import remove_output
+
         for name in ("corners.csv", "corners.geojson", "corners.png", ROOF_PLANES_FILE):
-            (outdir / name).unlink(missing_ok=True)
+            remove_output(outdir / name)  # with corners.json, one commit: all old on a failure
         write_text_atomic(outdir / "corners.json", json.dumps(summary, indent=2) + "\n")
         return summary
     if s.figure:

@@ -34,6 +34,7 @@ from lidarctl import io
 from aerotri.core.atomic import atomic_path, refuse_input_as_output, temporary_dir
 from aerotri.core.errors import InputError, OptionError
 from aerotri.core.settings import setting
+from aerotri.core.limits import check_task_count
 from lidarctl.grid import check_disk, check_grid
 from lidarctl.io import PointCloud
 from lidarctl.raster_ops import DEFAULT_TIN_FILL_RADIUS_PX, cell_extreme, fill_nodata, fill_nodata_tin, sample_bilinear
@@ -501,6 +502,8 @@ def _write_set(outdir, write, files=FILES, name: str = "rasters") -> list[Path]:
     import os
     import shutil
 
+    from aerotri.core.atomic import commit_outputs, move_into
+
     outdir = Path(outdir)
     # folders this call creates go again if it fails (a corrupt chunk may only show in a late tile)
     created = [d for d in (outdir, *outdir.parents) if not d.exists()]
@@ -509,9 +512,10 @@ def _write_set(outdir, write, files=FILES, name: str = "rasters") -> list[Path]:
     done = False
     try:
         write(tmp)
-        for f in files:
-            os.chmod(tmp / f, 0o644)
-            os.replace(tmp / f, outdir / f)
+        with commit_outputs(outdir):  # all new, or (a failure, a kill) all as before
+            for f in files:
+                os.chmod(tmp / f, 0o644)
+                move_into(tmp / f, outdir / f)
         done = True
     finally:
         shutil.rmtree(tmp, ignore_errors=True)
@@ -572,6 +576,9 @@ def write_rasters_tiled(paths, outdir, res_m: float, crs=None, tile_px: int = DE
     check_disk(2.0 * 4 * (len(RASTERS) + 1) * nrows * ncols, outdir,
                f"{inputs.names}: rasters over the header bounds, a grid of {nrows:,} x {ncols:,} cells of {res_m:g} m",
                "--res", "use a coarser --res (or are strips far apart?)")
+    check_task_count((-(-nrows // tile_px)) * (-(-ncols // tile_px)),
+                     f"{inputs.names}: a grid of {nrows:,} x {ncols:,} cells in tiles of {tile_px} cells", "--tile-px",
+                     "use a larger --tile-px")
     grid = TileGrid(0.0, 0.0, float(tile_px), float(buffer_px), -(-nrows // tile_px), -(-ncols // tile_px))
     transform_m = _from_origin(x0, y0 + nrows * res_m, res_m, res_m)
     transform = transform_m if units.is_metric else _transform_in_units(transform_m, units)

@@ -196,6 +196,11 @@ def smooth_dem(in_path, out_path, params: DiffusionParams = DiffusionParams(),
         sum_d2 = 0.0
         max_d = 0.0
         n_windows = 0
+        from aerotri.core.limits import check_task_count
+
+        check_task_count(math.ceil(src.height / window_px) * math.ceil(src.width / window_px),
+                         f"{in_path}: {src.width} x {src.height} cells in windows of {window_px}", "--window-px",
+                         "use a larger --window-px")
         try:
             work = tmpdir / "smoothed.tif"
             with rasterio.open(work, "w", **profile) as dst:

@@ -46,8 +46,8 @@ from rasterio.windows import Window
 
 from aerotri.core.errors import InputError, OptionError
 from aerotri.core.log import progress
-from aerotri.core.atomic import atomic_path, scratch_dir, write_text_atomic
-from aerotri.core.limits import check_allocation, check_grid
+from aerotri.core.atomic import atomic_path, commit_outputs, move_into, scratch_dir, write_text_atomic
+from aerotri.core.limits import check_allocation, check_grid, check_task_count
 from aerotri.core.textio import read_json
 from ortho.block import (index_grids, index_operation, operation_tags, read_index, require_current_frames,
                          verify_index)
@@ -260,8 +260,9 @@ def mosaic_block(root, seams: str = "least-cost", ndsm_path=None, feather_m: flo
     with scratch_dir(out_dir, "mosaic") as work:
         outputs = _mosaic_outputs(Path(work), root, index, frames_dir, red, labels, gains, mosaic, factor, nadir,
                                   feather_px, tile_px, seams, executor)
-        for name in ("seams.tif", "seamlines.geojson", "mosaic.tif", "mosaic.json"):
-            os.replace(Path(work) / name, out_dir / name)
+        with commit_outputs(out_dir):  # one commit: all four new, or (a failure, a kill) all as before
+            for name in ("seams.tif", "seamlines.geojson", "mosaic.tif", "mosaic.json"):
+                move_into(Path(work) / name, out_dir / name)
     return outputs
 
 
@@ -410,6 +411,9 @@ def _write_mosaic(path, frames_dir, index, mosaic: OrthoGrid, seams_path, factor
                    "feather_px": float(feather_px), "bands": int(bands), "dtype": dtype}
         context_path = (Path(tmp_dir) / "context.json").resolve()
         context_path.write_text(json.dumps(context))
+        check_task_count(math.ceil(mosaic.height / tile_px) * math.ceil(mosaic.width / tile_px),
+                         f"mosaic of {mosaic.width} x {mosaic.height} px in tiles of {tile_px} px", "--tile-px",
+                         "use a larger --tile-px")
         tiles = [MosaicTile(str(context_path), r0, c0, min(tile_px, mosaic.height - r0), min(tile_px, mosaic.width - c0))
                  for r0 in range(0, mosaic.height, tile_px) for c0 in range(0, mosaic.width, tile_px)]
         batch = max(2, 2 * executor.workers)

@@ -44,6 +44,7 @@ from aerotri.adjust.variance_components import adjusted_gnss
 from aerotri.geom.strips import along_track_km, strips_from_track
 from aerotri.geom.camera import FrameCamera, project_camera
 from aerotri.geom.eo import ExteriorOrientations, check_block_crs, read_eo, read_gnss
+from aerotri.core.atomic import commit_outputs, committed
 from aerotri.core.config import config_number, config_vector
 from aerotri.core.errors import ConfigError, InputError, OptionError, SolveError
 from aerotri.adjust.settings import AdjustSettings  # noqa: F401  (the stage's settings, imported from here too)
@@ -735,12 +736,13 @@ def object_points_csv(ba: BlockAdjustment) -> str:
     return "\n".join(lines) + "\n"
 
 
+@committed(lambda ba, root, html=True, out_dir=None: Path(out_dir) if out_dir is not None else Project(Path(root), {}).at_dir)
 def write_outputs(ba: BlockAdjustment, root, html: bool = True, out_dir=None) -> dict:
     """Write at/eo.txt, object_points.csv and report.txt/json/html; returns the report dict.
 
     ``out_dir``: another folder than the project's ``at/`` (the chain's first adjustment). All texts
-    are produced first and written afterwards (each atomically), so an error in any of them leaves
-    no partial output. A failed solve (not converged, or no finite sigma naught) writes only its
+    are produced first and written afterwards as one commit (``aerotri.core.atomic.commit_outputs``), so
+    an error in any of them (or a kill) leaves all the earlier outputs. A failed solve (not converged, or no finite sigma naught) writes only its
     report, into ``work/adjust_failed/``, and raises ``SolveError``: the earlier outputs stay.
     """
     import json
@@ -767,8 +769,9 @@ def write_outputs(ba: BlockAdjustment, root, html: bool = True, out_dir=None) ->
         # The orientations of a failed solve are no product: the outputs of an earlier solve stay, the
         # report of this one goes where the user can read why.
         failed = project.work_dir / "adjust_failed"
-        for rel, text in files.items():
-            write_text_atomic(failed / rel, text)
+        with commit_outputs(failed, join=False):  # kept although the command fails (a commit of its own)
+            for rel, text in files.items():
+                write_text_atomic(failed / rel, text)
         raise SolveError(f"{rep['key_statistics']['message']} sigma naught "
                          f"{rep['key_statistics']['sigma0']}; the report of the failed solve is in {failed} "
                          f"(the earlier outputs in {at} are unchanged)")

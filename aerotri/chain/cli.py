@@ -69,7 +69,7 @@ def _stale_simulation(project: Path, cfg: dict) -> str | None:
     return None
 
 
-@click.command(cls=Command, name="run")
+@click.command(cls=Command, name="run", per_stage=True)
 @click.argument("project", type=click.Path(file_okay=False, path_type=Path))
 @click.option("--reference", type=click.Path(dir_okay=False, exists=True, path_type=Path),
               help="Reference orthophoto for the DOM check.")
@@ -100,7 +100,7 @@ def run(project, reference, points, dem, force, keep_lidar_classes, scheduler, w
         log.warning(last)
 
 
-@click.command(cls=Command)
+@click.command(cls=Command, per_stage=True)
 @click.argument("outdir", type=click.Path(file_okay=False, path_type=Path), default=Path("out/demo"))
 @click.option("--preset", default="demo", show_default=True, help="Simulator preset for the embedded block.")
 @click.option("--force", is_flag=True, help="Re-run every stage even when it is up to date.")
@@ -130,3 +130,27 @@ def demo(outdir, preset, force, scheduler, workers):
     write_text_atomic(outdir / "summary.txt", table + "\n")
     write_text_atomic(outdir / "summary.json", json.dumps(rows, indent=1, default=str) + "\n")
     click.echo(table)
+
+
+@click.command(cls=Command, name="init")
+@click.argument("project", type=click.Path(path_type=Path))
+@click.option("--images", "images_dir", required=True, type=click.Path(file_okay=False, exists=True, path_type=Path),
+              help="Folder of the frames (TIFF/JPEG/PNG, one camera; the file name without suffix is the image id).")
+@click.option("--crs", required=True, help="The project CRS: a projected CRS in metres or feet, e.g. EPSG:32611 "
+                                           "(gnss.txt, control and every product are in it).")
+@click.option("--camera", "camera_path", type=click.Path(dir_okay=False, exists=True, path_type=Path), default=None,
+              help="camera.toml of the calibrated camera [default: from the first frame's EXIF].")
+@click.option("--copy", is_flag=True, help="Copy the frames into PROJECT/images [default: symbolic links].")
+def init(project, images_dir, crs, camera_path, copy):
+    """Make the project folder PROJECT (new, or an empty folder): images/ linking the frames, project.toml
+    with [project] crs and the other sections commented, camera.toml from --camera or the EXIF
+    (docs/project.md describes the folder and every file)."""
+    from aerotri.chain.setup import init_project
+
+    r = init_project(project, images_dir, crs, camera_path, copy=copy)
+    click.echo(f"{r.root}: {r.frames} frames {'linked' if r.linked else 'copied'} into images/, project.toml"
+               + (f", camera.toml from {r.camera_source}" if r.camera_source else ""))
+    if r.camera_missing:
+        log.warning(r.camera_missing)
+    click.echo("next: gnss.txt (image_id X Y Z [sX sY sZ] in the project CRS; drone frames with GNSS in EXIF: "
+               f"aerotri import {r.root} --format exif {r.root / 'images'}), then aerotri run {r.root}")

@@ -2,9 +2,10 @@
 
 A stage is skipped when its stamp (``work/stages/<stage>.json``) records the same input files (content
 hash; size and modification time for files over 64 MiB) and options as now and all its outputs exist;
-otherwise it runs and writes its outputs atomically, then its stamp. Killing a run leaves finished
-stages stamped and the interrupted stage without a stamp and without partial outputs, so a re-run
-continues there. A stage may also be left out for a reason decided when its turn comes (``skip``:
+otherwise it runs and writes its outputs and its stamp as one commit (``aerotri.core.atomic.commit_outputs``:
+a stage that fails leaves every output of its earlier run as it was). Killing a run leaves finished
+stages stamped and the interrupted stage without a stamp and without partial outputs (the next run rolls
+back what it had replaced), so a re-run continues there. A stage may also be left out for a reason decided when its turn comes (``skip``:
 no LiDAR, no usable corner, no DEM ...); the summary row says why. A stage that finds out only by
 running that it has nothing to do (the strip check of a single strip) returns ``{"why": reason}``: its
 row says skipped and why, and its stamp keeps that decision while its inputs stay the same.
@@ -24,7 +25,8 @@ import os
 from collections.abc import Callable
 from pathlib import Path
 
-from aerotri.core.atomic import remove_leftovers, write_text_atomic
+from aerotri.core.atomic import commit_outputs, remove_leftovers, write_text_atomic
+from aerotri.core.log import doing
 from aerotri.core.project import project_paths
 from aerotri.core.resources import measure
 
@@ -126,15 +128,18 @@ def run_stages(root, stages: list[Stage], force: bool = False, log: Callable[[st
         log(f"[{st.name}] running")
         _remove_stale_temporaries(st.outputs(root))
         options = _plain(st.options_now(root))  # before the run: the stage may change what they depend on
-        with measure() as usage:
-            result = st.run(root) or {}
-        dt = usage.wall_s
-        missing = [str(p) for p in st.outputs(root) if not p.exists()]
-        if missing:
-            raise RuntimeError(f"stage {st.name} finished without writing {', '.join(missing)}")
-        write_text_atomic(stamp_path(root, st.name), json.dumps(
-            dict(inputs=_signature(st.inputs(root), root), options=options, result=result, seconds=round(dt, 2),
-                 usage=usage.record()), indent=1, default=str) + "\n")
+        # the stage's outputs and its stamp are one commit: all new, or (an error, a kill) all as before;
+        # a separate commit, final when the stage ends, so that a killed run resumes after its last stage
+        with doing(st.name), commit_outputs(root, join=False):
+            with measure() as usage:
+                result = st.run(root) or {}
+            dt = usage.wall_s
+            missing = [str(p) for p in st.outputs(root) if not p.exists()]
+            if missing:
+                raise RuntimeError(f"stage {st.name} finished without writing {', '.join(missing)}")
+            write_text_atomic(stamp_path(root, st.name), json.dumps(
+                dict(inputs=_signature(st.inputs(root), root), options=options, result=result, seconds=round(dt, 2),
+                     usage=usage.record()), indent=1, default=str) + "\n")
         rows.append(dict(stage=st.name, status="skipped" if result.get("why") else "done", seconds=round(dt, 1),
                          **_usage_columns(usage.record()), **result))
         for note in result.get("notes", []):

@@ -154,7 +154,10 @@ class Chain:
         return None
 
     def check_files(self) -> None:
-        """Files named in project.toml must exist (found before the first stage, not hours into the run)."""
+        """The inputs of every stage that the project (or the command line) gives, read and checked as the
+        stage will before the first stage writes anything: a bad input of a late stage stops the run with
+        the project as it was, not hours into it with the early stages' outputs replaced. Files named in
+        project.toml must exist."""
         from aerotri.core.errors import ConfigError
 
         for section, key, path in (("rectify", "dem", self.options.rectify.dem),
@@ -170,15 +173,43 @@ class Chain:
             from aerotri.geom.crs import project_crs
             from ortho.dem import open_height_raster
 
-            open_height_raster(given, project_crs(self.project)).close()
-        # so are the other rasters and the surveyed points a later stage reads (aerotri.geom.inputs' checks)
-        from aerotri.geom.raster_warp import open_north_up
+            with open_height_raster(given, project_crs(self.project)) as ds:
+                _read_ends(ds, given, "DEM")
+        self._check_stage_inputs()
 
-        for path, what in ((self.options.rectify.dsm, "DSM"), (self.options.mosaic.ndsm, "nDSM")):
+    def _check_stage_inputs(self) -> None:
+        """(``check_files``) the project's own inputs of the stages, each with its stage's reader."""
+        from aerotri.geom.crs import project_crs
+        from aerotri.geom.eo import read_eo
+        from aerotri.geom.observations import read_control_points, read_image_points
+        from aerotri.match.pipeline import check_inputs as check_match_inputs
+        from ortho.dem import open_height_raster
+
+        p, o = self.project, self.options
+        if self.has_lidar:
+            from lidarctl.io import checked_headers
+
+            for _ in checked_headers(p.lidar_strips(), crs=p.crs):
+                pass
+            if o.strips.adjust and o.strips.use_trajectory:
+                from lidarctl.strips.trajectory import read_trajectory
+
+                for t in p.trajectories():
+                    read_trajectory(t)
+        if self.images():  # (a project without frames fails at its match stage, as before)
+            check_match_inputs(p.root, o.match)
+        if not self.has_lidar and o.adjust.use_control and p.control_points_path.is_file():
+            read_control_points(p.control_points_path, project_crs(p))
+            if p.control_image_points_path.is_file():
+                read_image_points(p.control_image_points_path)
+        if o.adjust.initial_eo is not None:
+            read_eo(o.adjust.initial_eo, project_crs(p))
+        for what, path in (("DSM", o.rectify.dsm), ("nDSM", o.mosaic.ndsm)):
             if path is not None:
-                open_north_up(path, what, heights=True).close()
+                with open_height_raster(path, project_crs(p), what) as ds:
+                    _read_ends(ds, path, what)
         if self.reference_ortho is not None:
-            open_north_up(self.reference_ortho, "reference orthophoto").close()
+            _check_raster(self.reference_ortho, "reference orthophoto")
         if self.surveyed_points is not None:
             from lidarctl.heights_check import read_points_csv
 
@@ -561,6 +592,39 @@ class Chain:
 
         rep = write_qa_report(root)
         return dict(verdict=rep["overall"], passed=rep["passed"], failed=rep["failed"])
+
+
+def _check_raster(path, what: str) -> None:
+    """``InputError`` unless ``path`` is a raster GDAL reads, of at least 2 x 2 pixels, with its first and last
+    rows readable."""
+    import rasterio
+
+    from aerotri.core.errors import InputError
+
+    try:
+        with rasterio.open(path) as ds:
+            size = (ds.width, ds.height)
+            if min(size) >= 2:
+                _read_ends(ds, path, what)
+    except (rasterio.errors.RasterioIOError, OSError) as exc:
+        raise InputError(f"{path}: cannot read the {what} ({exc})") from None
+    if min(size) < 2:
+        raise InputError(f"{path}: the {what} is {size[0]} x {size[1]} px; expected a raster of at least 2 x 2")
+
+
+def _read_ends(ds, path, what: str) -> None:
+    """Read a raster's first and last rows: a file cut short (a copy that stopped) has a valid header but no
+    end, found here rather than by the stage that reads it after earlier stages have written."""
+    import rasterio
+    from rasterio.windows import Window
+
+    from aerotri.core.errors import InputError
+
+    try:
+        for row in {0, ds.height - 1}:
+            ds.read(1, window=Window(0, row, ds.width, 1))
+    except (rasterio.errors.RasterioError, rasterio.errors.RasterioIOError) as exc:
+        raise InputError(f"{path}: the {what} cannot be read to its end ({exc}); a file cut short?") from None
 
 
 def chain_stages(root, options: ChainOptions | None = None, reference_ortho=None, surveyed_points=None, dem=None,

@@ -25,6 +25,7 @@ from aerotri.control.measure import Measurement, measure_in_image, predict
 from aerotri.control.settings import ControlSettings
 from aerotri.core.errors import InputError, OptionError
 from aerotri.core.log import track
+from aerotri.core.atomic import committed
 from aerotri.core.project import Project, project_paths
 from aerotri.geom.camera import FrameCamera, adjusted_camera
 from aerotri.geom.eo import ExteriorOrientations, read_eo
@@ -416,6 +417,7 @@ def _block_crs(root):
     return check_block_crs(project.crs, f"{project.config_path} [project] crs")
 
 
+@committed(lambda root, *a, **k: project_paths(root).control_dir)
 def run_control(root, corners_path=None, eo_path=None, camera_path=None, manual_path=None, *,
                 settings: ControlSettings | None = None, checks: bool = True) -> TransferSummary:
     """The stage: read, transfer, write all outputs atomically; returns the summary.

@@ -1,9 +1,18 @@
 """The click plumbing every command line shares (``aerotri``, ``lidarctl``, ``ortho``).
 
-- :class:`Group` / :class:`Command`: every command gets ``-v/--verbose``, ``-q/--quiet`` and
-  ``--log-file``, logging is configured before it runs (``aerotri.core.log``), and one handler maps
-  the error hierarchy (``aerotri.core.errors``) to a one-line message on stderr and exit code 2: no
-  traceback. A command that runs out of memory says so with the same exit code; Ctrl-C exits 130.
+- :class:`Group` / :class:`Command`: every command gets ``-v/--verbose``, ``-q/--quiet``, ``--log-file``
+  and ``--wait``, logging is configured before it runs (``aerotri.core.log``; third-party warnings and
+  notes go to the debug log, not the console), and one handler maps the error hierarchy
+  (``aerotri.core.errors``) to a one-line message on stderr and exit code 2: no traceback. A command that
+  runs out of memory, out of disk space, into a read-only folder, or whose input vanishes while it runs
+  says so in one line with the same exit code (:func:`fault_message`); Ctrl-C exits 130.
+- What a command writes (:meth:`Command.writing`): a command with a ``project`` argument holds the
+  project's lock (``aerotri.core.lock``: a second command stops, or waits with ``--wait SECONDS``), rolls
+  back what a killed command left there (unfinished commits) and sweeps its temporaries, then commits
+  everything it writes together (``aerotri.core.atomic.commit_outputs``: all new, or all old when it
+  fails). A command writing outputs named by its options (``OUTPUT_PARAMS``: OUT_PATH, OUTDIR, --json,
+  ...) does the same for each output (a lock per output, in its folder; the project's lock too when
+  the output is inside a project folder). ``aerotri run`` commits stage by stage (``per_stage``).
 - :func:`scheduler_options`: ``--scheduler``/``--workers`` for the commands that scale out.
 - :func:`positive`, :func:`at_least`, :func:`fraction`, :func:`finite`: click parameter types for
   ranges, so an out-of-range option stops before any work with click's message naming the option.
@@ -14,10 +23,13 @@
 from __future__ import annotations
 
 import contextlib
+import errno
 import logging
 import math
+import os
 import sys
 import time
+from pathlib import Path
 
 import click
 
@@ -26,6 +38,12 @@ from aerotri.core.errors import AerotriError
 
 _logger = logging.getLogger("aerotri")
 
+# parameters (click names) that hold a file or folder a command writes
+OUTPUT_PARAMS = ("out_path", "outdir", "output_path", "output", "json_path", "png_path", "out_dir", "out_stem")
+# the folders of a project that no command writes (its inputs): not searched for temporaries
+PROJECT_INPUT_DIRS = ("images", "lidar", "trajectory")
+MAX_WAIT_S = 7 * 24 * 3600.0
+
 
 def _logging_params() -> list[click.Option]:
     return [
@@ -33,6 +51,9 @@ def _logging_params() -> list[click.Option]:
         click.Option(["-q", "--quiet"], count=True, help="Warnings and errors only; no progress."),
         click.Option(["--log-file"], type=click.Path(dir_okay=False, writable=True),
                      help="Also write every message, with time stamps, to this file."),
+        click.Option(["--wait", "wait_s"], type=FiniteFloatRange(0, MAX_WAIT_S), default=0.0, metavar="SECONDS",
+                     help="When another command is writing the same project or output, wait up to SECONDS for it "
+                          "to finish [default: stop at once, naming it]."),
     ]
 
 
@@ -73,10 +94,16 @@ class GroupedOption(click.Option):
 
 
 class Command(click.Command):
-    """A command with the logging options and the error handler (see the module docstring)."""
+    """A command with the logging options, the error handler and the writing discipline (module docstring).
 
-    def __init__(self, *args, **kwargs):
+    ``per_stage``: the command commits its outputs stage by stage itself (``aerotri run``), not as a whole.
+    ``outputs``: ``params -> [paths]``, the outputs of a command that names them otherwise than by a parameter
+    of ``OUTPUT_PARAMS`` (the last of several arguments, a default next to the input)."""
+
+    def __init__(self, *args, per_stage: bool = False, outputs=None, **kwargs):
         super().__init__(*args, **kwargs)
+        self.per_stage = per_stage
+        self.outputs = outputs
         self.params.extend(_logging_params())
 
     def format_options(self, ctx, formatter):
@@ -92,10 +119,77 @@ class Command(click.Command):
                 with formatter.section(heading):
                     formatter.write_dl(records)
 
+    @contextlib.contextmanager
+    def writing(self, ctx, wait_s: float = 0.0):
+        """Locks, clean-up of a killed run's leftovers and the commit of the outputs (module docstring)."""
+        from aerotri.core.atomic import commit_outputs, remove_leftovers_below
+        from aerotri.core.lock import LOCK_NAME, hold_lock
+
+        # what the lock file records: the command line when run from one, else the command's name
+        command = " ".join([Path(sys.argv[0]).name, *sys.argv[1:]]) \
+            if sys.argv and Path(sys.argv[0]).name == ctx.find_root().info_name else ctx.command_path
+        self._writes_to = []  # what a fault without a file name is about (fault_message)
+        with contextlib.ExitStack() as stack:
+            locked = set()
+
+            def lock_project(root: Path) -> None:
+                if root.resolve() in locked:
+                    return
+                locked.add(root.resolve())
+                stack.enter_context(hold_lock(root / LOCK_NAME, command, wait_s, f"project {root}"))
+                gone = remove_leftovers_below(root, skip=PROJECT_INPUT_DIRS)
+                if gone:
+                    _logger.info(f"{root}: removed {len(gone)} temporaries and unfinished outputs of an "
+                                 "interrupted run")
+
+            project = ctx.params.get("project")
+            if project is not None and Path(project).is_dir():
+                root = Path(project)
+                self._writes_to.append(root)
+                lock_project(root)
+                if not self.per_stage:
+                    stack.enter_context(commit_outputs(root))
+            elif project is not None and not Path(project).exists():
+                self._lock_output(stack, Path(project), command, wait_s, lock_project)
+            values = [ctx.params.get(name) for name in OUTPUT_PARAMS]
+            if self.outputs is not None:
+                values += list(self.outputs(ctx.params))
+            seen = set()
+            for value in values:
+                if value is None or str(value) == "" or Path(value).absolute() in seen:
+                    continue
+                out = Path(value)
+                seen.add(out.absolute())
+                if project is not None and Path(project).is_dir() and _inside(out, Path(project)):
+                    continue
+                self._lock_output(stack, out, command, wait_s, lock_project)
+            yield
+
+    def _lock_output(self, stack, out: Path, command: str, wait_s: float, lock_project) -> None:
+        """The lock, clean-up and commit of one output outside a project argument: a file or folder ``out``."""
+        from aerotri.core.atomic import commit_outputs, recover_commits, remove_leftovers, remove_leftovers_below
+        from aerotri.core.lock import hold_lock
+
+        self._writes_to.append(out)
+        home = _project_above(out)
+        if home is not None:
+            lock_project(home)
+        parent = out.parent if str(out.parent) else Path(".")
+        existing = next((d for d in (parent, *parent.parents) if d.is_dir()), Path("."))
+        stack.enter_context(hold_lock(existing / f".{out.name}.lock", command, wait_s, str(out)))
+        if parent.is_dir():
+            recover_commits(parent)
+            remove_leftovers(parent, names=[out.name])
+        if out.is_dir():
+            remove_leftovers_below(out)
+        if not self.per_stage:
+            stack.enter_context(commit_outputs(parent, prune_below=[out]))
+
     def invoke(self, ctx):
         verbose = ctx.params.pop("verbose", 0) or 0
         quiet = ctx.params.pop("quiet", 0) or 0
         log_file = ctx.params.pop("log_file", None)
+        wait_s = ctx.params.pop("wait_s", 0.0) or 0.0
         if log_file and not log.is_log_file(log_file):
             click.echo(f"Error: --log-file {log_file}: the file exists and is not a log of this toolkit; "
                        "give a new file name (a log is only ever appended to, never an input overwritten)", err=True)
@@ -109,7 +203,8 @@ class Command(click.Command):
         _logger.debug("%s started with %s", ctx.command_path,
                       ", ".join(f"{k}={v!r}" for k, v in ctx.params.items()) or "no options")
         try:
-            with _exit_cleanly_on_sigterm():
+            with _exit_cleanly_on_sigterm(), log.third_party_quiet(), log.native_stderr_to_log(ctx.command_path), \
+                    log.doing(ctx.command_path), self.writing(ctx, wait_s):
                 result = super().invoke(ctx)
             _logger.debug("%s finished in %.1f s", ctx.command_path, time.perf_counter() - t0)
             return result
@@ -123,6 +218,121 @@ class Command(click.Command):
         except KeyboardInterrupt:
             click.echo("Interrupted.", err=True)
             sys.exit(130)
+        except Exception as exc:
+            writes_to = getattr(self, "_writes_to", [])
+            message = fault_message(exc, getattr(exc, "aerotri_doing", None) or ctx.command_path,
+                                    ", ".join(map(str, writes_to)) or None, writes_to)
+            if message is None:
+                raise
+            click.echo(f"Error: {message}", err=True)
+            _logger.debug("error details", exc_info=exc)
+            sys.exit(2)
+
+
+def _inside(path: Path, folder: Path) -> bool:
+    try:
+        Path(path).resolve().relative_to(Path(folder).resolve())
+        return True
+    except ValueError:
+        return False
+
+
+def _project_above(path: Path, levels: int = 4) -> Path | None:
+    """The project folder (with project.toml) that holds ``path``, looking up to ``levels`` folders up."""
+    p = Path(path).absolute().parent
+    for d in [p, *p.parents][:levels]:
+        if (d / "project.toml").is_file():
+            return d
+    return None
+
+
+_IO_LIBRARIES = ("rasterio", "pyogrio", "fiona", "sqlite3", "laspy", "lazrs")  # their errors may be about the disk
+SHORT_WRITE = -1  # a write that wrote less than asked (numpy's tofile: "N requested and M written")
+_GDAL_FAULTS = (("No space left on device", errno.ENOSPC), ("Free disk space available is", errno.ENOSPC),
+                ("Disk quota exceeded", errno.EDQUOT), ("Read-only file system", errno.EROFS),
+                ("Permission denied", errno.EACCES), ("No such file or directory", errno.ENOENT),
+                ("File too large", errno.EFBIG), ("database or disk is full", errno.ENOSPC),
+                (" requested and ", SHORT_WRITE))
+
+
+def _fault(exc: BaseException) -> tuple[int, str | None] | None:
+    """(errno, path) of an exception that is about the file system (a write that could not be made, a file
+    that is not there), looking through the causes of wrapped exceptions; None for anything else."""
+    from aerotri.core.atomic import DISK_ERRNOS
+
+    seen = set()
+    while exc is not None and id(exc) not in seen:
+        seen.add(id(exc))
+        if isinstance(exc, OSError) and exc.errno is not None and (exc.errno in DISK_ERRNOS or exc.errno in (
+                errno.ENOENT, errno.ENOTDIR, errno.EISDIR)):
+            return exc.errno, None if exc.filename is None else str(exc.filename)
+        text = str(exc)
+        if type(exc).__module__.split(".")[0] in _IO_LIBRARIES or isinstance(exc, OSError):
+            for needle, code in _GDAL_FAULTS:
+                if needle in text:
+                    output = getattr(exc, "aerotri_output", None) if code != errno.ENOENT else None
+                    return code, output or _path_in(text)
+        exc = exc.__cause__ or exc.__context__
+    return None
+
+
+def _path_in(text: str) -> str | None:
+    """The first word of a GDAL message that looks like a path ('/x/y.tif: No such file ...')."""
+    import re
+
+    m = re.search(r"(/[^\s:'\"]+)", text)
+    return m.group(1) if m else None
+
+
+def _space_short(paths) -> tuple[str, str] | None:
+    """(path, cause) when the file system of one of ``paths`` is (nearly) full or the process may only write
+    small files (``ulimit -f``): the likely reason of a GDAL error on a file GDAL wrote itself (GDAL does not
+    report a write that the disk cut short; reading the file back fails)."""
+    import resource
+
+    soft, _ = resource.getrlimit(resource.RLIMIT_FSIZE)
+    for p in paths:
+        p = Path(p).absolute()
+        d = next((q for q in (p, *p.parents) if q.is_dir()), None)
+        if d is None:
+            continue
+        if soft != resource.RLIM_INFINITY:
+            return str(p), f"the process may write files of at most {soft} bytes (ulimit -f)"
+        try:
+            st = os.statvfs(d)
+        except OSError:
+            continue
+        if st.f_bavail * st.f_frsize < 1 << 20:
+            return str(p), "no space left on device"
+    return None
+
+
+def fault_message(exc: BaseException, doing: str, writes_to: str | None = None, outputs=()) -> str | None:
+    """The one-line message of a file-system fault (disk full, read-only, permission, a vanished file) that
+    stopped ``doing`` (the command, or ``aerotri run``'s stage); None when ``exc`` is no such fault.
+    ``writes_to``: what the command writes, named when the fault does not say which file it is about;
+    ``outputs``: its paths, whose file systems are looked at when GDAL failed on a file of its own."""
+    from aerotri.core.atomic import DISK_ERRNOS
+
+    fault = _fault(exc)
+    if fault is None:
+        short = _space_short(outputs) if (type(exc).__module__.split(".")[0] in _IO_LIBRARIES
+                                          or isinstance(exc, OSError)) else None
+        if short is None:
+            return None
+        first = (str(exc).splitlines() or [type(exc).__name__])[0]
+        return f"{short[0]}: {short[1]}; {doing} stopped and its outputs are as they were ({first})"
+    code, path = fault
+    if code == SHORT_WRITE:
+        return (f"{path or writes_to or 'an output'}: a write was cut short (no space left on the device, or a file "
+                f"size limit); {doing} stopped and its outputs are as they were")
+    where = path or (writes_to if code not in (errno.ENOENT, errno.ENOTDIR, errno.EISDIR) else None) or "a file"
+    if code in (errno.ENOENT, errno.ENOTDIR):
+        return (f"{where}: file not found while {doing} ran (an input removed or moved while it ran?); "
+                "its outputs are as they were")
+    if code == errno.EISDIR:
+        return f"{where}: is a folder where {doing} expected a file; its outputs are as they were"
+    return f"{where}: {DISK_ERRNOS.get(code, 'cannot write')}; {doing} stopped and its outputs are as they were"
 
 
 class Group(click.Group):

@@ -38,7 +38,11 @@ class Executor:
     """Runs independent tasks locally or on a Dask distributed cluster; use as a context manager."""
 
     def __init__(self, scheduler: str | None = None, workers: int | None = None):
+        from aerotri.core.limits import check_workers
+
         self.scheduler = scheduler
+        if workers is not None:
+            check_workers(int(workers), False, "--workers")
         self.workers = workers or os.cpu_count() or 1
         self._client = None
         self._cluster = None
@@ -53,6 +57,8 @@ class Executor:
                 n = int(scheduler.split(":", 1)[1])
             except ValueError:
                 raise OptionError(f"--scheduler {scheduler}: expected local:N with N the number of workers", param="--scheduler") from None
+            # local:0 would start a cluster without workers and wait for them forever
+            check_workers(n, True, "--scheduler")
             self._cluster = LocalCluster(n_workers=n, threads_per_worker=1, processes=True,
                                          dashboard_address=None, silence_logs=50)
             self._client = Client(self._cluster)

@@ -14,6 +14,13 @@ from aerotri.core.errors import ResourceError
 
 # GeoTIFF and GDAL count rows and columns with signed 32-bit integers.
 MAX_GRID_SIDE_PX = 2**31 - 1
+# Pieces (tiles, windows, chunks) a command may cut its work into: each costs a task's overhead (about a
+# millisecond of scheduling, reading and writing its border), so far more than this is hours spent on
+# overhead: the work of a tile or chunk option must be bounded by the data, not by the option.
+MAX_TASKS = 1_000_000
+# Worker processes (``--scheduler local:N``) and threads (``--workers``) per core of this machine.
+MAX_PROCESSES_PER_CORE = 4
+MAX_THREADS_PER_CORE = 16
 
 
 def physical_memory_bytes() -> int:
@@ -41,6 +48,29 @@ def check_allocation(n_bytes: float, what: str, option: str | None = None, fract
         hint = f"; change {option}" if option else ""
         raise ResourceError(f"{what} would need {format_bytes(n_bytes)} of memory, more than this machine's "
                             f"{format_bytes(total)}{hint}", param=option)
+
+
+def check_task_count(n_tasks: float, what: str, option: str | None = None, hint: str = "") -> None:
+    """``ResourceError`` when ``what`` would be cut into more than ``MAX_TASKS`` pieces (a tile or chunk
+    option far too small for the data: the work would never end in practice)."""
+    if n_tasks > MAX_TASKS:
+        raise ResourceError(f"{what}: {n_tasks:,.0f} pieces, more than the {MAX_TASKS:,} this toolkit cuts work "
+                            f"into{f'; {hint}' if hint else ''}", param=option)
+
+
+def check_workers(n: int, processes: bool, option: str) -> None:
+    """``OptionError`` for a number of workers below 1 (nothing would ever run the tasks: a hang) or far above
+    the cores of this machine (``MAX_PROCESSES_PER_CORE`` processes, ``MAX_THREADS_PER_CORE`` threads)."""
+    from aerotri.core.errors import OptionError
+
+    cores = os.cpu_count() or 1
+    top = cores * (MAX_PROCESSES_PER_CORE if processes else MAX_THREADS_PER_CORE)
+    kind = "worker processes" if processes else "worker threads"
+    if n < 1:
+        raise OptionError(f"{option} {n}: at least 1 of the {kind} is needed (none would run the tasks)", param=option)
+    if n > top:
+        raise OptionError(f"{option} {n}: more {kind} than {top} ({MAX_PROCESSES_PER_CORE if processes else MAX_THREADS_PER_CORE} "
+                          f"per core of this machine's {cores})", param=option)
 
 
 def check_grid(width: float, height: float, what: str, option: str | None = None) -> None:

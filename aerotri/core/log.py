@@ -22,6 +22,10 @@ import sys
 import time
 
 PACKAGES = ("aerotri", "lidarctl", "ortho")
+# the loggers of the libraries underneath (and Python's warnings): their notes and warnings are details for
+# the debug log (-v, --log-file), not for the console; what matters to the user our code says itself
+THIRD_PARTY = ("py.warnings", "rasterio", "fiona", "pyogrio", "distributed", "dask", "numba", "matplotlib", "PIL",
+               "pyproj", "shapely", "urllib3", "asyncio", "tornado", "bokeh", "fsspec", "h5py")
 PROGRESS_INTERVAL_S = 30.0  # default; the environment variable AEROTRI_PROGRESS_INTERVAL_S overrides it
 
 _log = logging.getLogger("aerotri.progress")
@@ -52,16 +56,121 @@ def configure(verbosity: int = 0, log_file=None) -> None:
         fh.setLevel(logging.DEBUG)
         fh.setFormatter(logging.Formatter("%(asctime)s %(levelname)-7s %(name)s: %(message)s"))
         handlers.append(fh)
+    for x in handlers:
+        setattr(x, _HANDLER_TAG, True)
     for name in PACKAGES:
         lg = logging.getLogger(name)
         for old in [x for x in lg.handlers if getattr(x, _HANDLER_TAG, False)]:
             lg.removeHandler(old)
             old.close()
         for x in handlers:
-            setattr(x, _HANDLER_TAG, True)
             lg.addHandler(x)
         lg.setLevel(logging.DEBUG if log_file else level)
         lg.propagate = False
+    # third-party loggers: to the log file, and to stderr only with -v (as debug details)
+    debug_handlers = [x for x in handlers if isinstance(x, logging.FileHandler) or level <= logging.DEBUG]
+    for name in THIRD_PARTY:
+        lg = logging.getLogger(name)
+        for old in [x for x in lg.handlers if getattr(x, _HANDLER_TAG, False)]:
+            lg.removeHandler(old)
+        for x in debug_handlers:
+            lg.addHandler(x)
+        if not debug_handlers:
+            null = logging.NullHandler()
+            setattr(null, _HANDLER_TAG, True)
+            lg.addHandler(null)
+        # their INFO and above (their own DEBUG chatter, e.g. numba's compiler, is never worth the cost)
+        lg.setLevel(logging.INFO if debug_handlers else logging.WARNING)
+        lg.propagate = False
+
+
+@contextlib.contextmanager
+def third_party_quiet():
+    """For the block: Python warnings (numpy's RuntimeWarning, rasterio's NotGeoreferencedWarning, ...) go to
+    the ``py.warnings`` logger (the debug log, :func:`configure`) instead of stderr, every time they occur
+    (not once per place). The warnings machinery is as before afterwards."""
+    import warnings
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("always")
+        logging.captureWarnings(True)
+        try:
+            yield
+        finally:
+            logging.captureWarnings(False)
+
+
+@contextlib.contextmanager
+def native_stderr_to_log(what: str = "native"):
+    """For the block: what C/C++ code writes to the process's stderr (file descriptor 2: gtsam's exception
+    notes, GDAL's and PROJ's prints) goes to the debug log, one line per record, instead of the console.
+    Python's own ``sys.stderr`` (our messages, a traceback of a bug) stays on the console. Does nothing when
+    stderr is not the process's descriptor 2 (a test runner capturing it)."""
+    try:
+        is_fd2 = sys.stderr is not None and sys.stderr.fileno() == 2
+    except (AttributeError, OSError, ValueError):
+        is_fd2 = False
+    if not is_fd2:
+        yield
+        return
+    import tempfile
+
+    sys.stderr.flush()
+    saved = os.dup(2)
+    console = os.fdopen(os.dup(saved), "w", buffering=1, encoding=getattr(sys.stderr, "encoding", None) or "utf-8",
+                        errors="backslashreplace")
+    old_stderr = sys.stderr
+    with tempfile.TemporaryFile() as sink:
+        os.dup2(sink.fileno(), 2)
+        sys.stderr = console  # Python's writes (and our log handler's) still reach the console
+        _retarget_handlers(old_stderr, console)
+        try:
+            yield
+        finally:
+            try:
+                sys.stderr.flush()
+            finally:
+                os.dup2(saved, 2)
+                os.close(saved)
+                sys.stderr = old_stderr
+                _retarget_handlers(console, old_stderr)
+                console.close()
+                sink.seek(0)
+                lg = logging.getLogger("aerotri.native")
+                for line in sink.read().decode("utf-8", "replace").splitlines():
+                    if line.strip():
+                        lg.debug(f"{what}: {line}")
+
+
+def _retarget_handlers(old, new) -> None:
+    for name in PACKAGES:
+        for h in logging.getLogger(name).handlers:
+            if isinstance(h, logging.StreamHandler) and not isinstance(h, logging.FileHandler) and h.stream is old:
+                h.setStream(new)
+
+
+_DOING: list[str] = []
+
+
+@contextlib.contextmanager
+def doing(name: str):
+    """Name what runs now (a command, a stage of ``aerotri run``): an exception leaving the block carries
+    the innermost name (``aerotri_doing``), so that a message about a vanished file or a full disk says
+    where it happened."""
+    _DOING.append(name)
+    try:
+        yield
+    except BaseException as exc:
+        if getattr(exc, "aerotri_doing", None) is None:
+            with contextlib.suppress(AttributeError, TypeError):
+                exc.aerotri_doing = " ".join(_DOING[:1] + [f"[{n}]" for n in _DOING[1:]])
+        raise
+    finally:
+        _DOING.pop()
+
+
+def current_doing() -> str | None:
+    return " ".join(_DOING[:1] + [f"[{n}]" for n in _DOING[1:]]) if _DOING else None
 
 
 _LOG_LINE = re.compile(r"\d{4}-\d\d-\d\d \d\d:\d\d:\d\d,\d{3} [A-Z]+ ")

@@ -62,7 +62,12 @@ def format_fit_report(result, path) -> str:
     return "\n".join(lines)
 
 
-@crs.command("fit")
+def _default_output(input_param: str):
+    """The output of ``crs fit``/``fit-heights``: -o, else <input>.<model>.json (as the commands make it)."""
+    return lambda p: [p["output"] or Path(p[input_param]).with_suffix(f".{p['model']}.json")]
+
+
+@crs.command("fit", outputs=_default_output("common_points"))
 @click.argument("common_points", type=click.Path(dir_okay=False))
 @click.option("--model", type=click.Choice(MODELS), required=True, help="transformation model")
 @click.option("--from", "from_epsg", required=True, help="EPSG code of the source coordinates (x_from, y_from)")
@@ -78,7 +83,7 @@ def fit_cmd(common_points, model, from_epsg, to_epsg, output):
     click.echo(f"Parameters written to {out}")
 
 
-@crs.command("fit-heights")
+@crs.command("fit-heights", outputs=_default_output("points"))
 @click.argument("points", type=click.Path(dir_okay=False))
 @click.option("--model", type=click.Choice(HEIGHT_MODELS), default="plane", show_default=True)
 @click.option("--epsg", "epsg", help="EPSG code of the points' x, y (a metre grid); recorded in the model file. Without it, 'crs transform' evaluates the model on the output coordinates")

@@ -398,6 +398,10 @@ def transform_las(in_path, out_path, transformer: CrsTransformer, chunk_size: in
                                     math.floor(Z.min() / 100.0) * 100.0 if np.isfinite(Z).all() else 0.0])
         out_hdr.scales = np.array([sx, sx, sz])
         out_hdr.add_crs(dst)
+        from aerotri.core.limits import check_task_count
+
+        check_task_count(math.ceil(hdr.point_count / chunk_size), f"{in_path}: {hdr.point_count:,} points in chunks of "
+                         f"{chunk_size:,}", "--chunk-size", "use a larger --chunk-size")
         n = 0
         with atomic_path(out_path) as tmp:
             with laspy.open(tmp, mode="w", header=out_hdr, do_compress=out_path.suffix.lower() == ".laz") as writer:

@@ -14,7 +14,7 @@ from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
 
-from aerotri.core.atomic import write_text_atomic
+from aerotri.core.atomic import committed, write_text_atomic
 from aerotri.core.config import config_number, config_vector
 from aerotri.core.errors import InputError
 from aerotri.core.executor import Executor, local_executor
@@ -186,6 +186,14 @@ def _read_frames(project: Project, crs, camera: FrameCamera, s: MatchSettings) -
     return _Frames(ids, images, plan)
 
 
+def check_inputs(root, settings: MatchSettings | None = None) -> None:
+    """What ``match_project`` checks before any work (project CRS, camera, images against GNSS and the camera),
+    without doing it: ``aerotri run`` calls it before its first stage writes anything."""
+    project = Project.open(root)
+    crs = check_block_crs(project.crs, f"{project.config_path} [project] crs")
+    _read_frames(project, crs, project_camera(project), settings or MatchSettings())
+
+
 class _Matcher:
     """Features (one task per frame) and matches (one task per pair) of a block's frames on an executor,
     cached in ``work/features`` and ``work/matches``; counts the cache hits."""
@@ -301,6 +309,7 @@ def _write_tiepoints(path: Path, ids: list[str], ties: _Ties) -> None:
     write_text_atomic(path, "\n".join(lines) + "\n")
 
 
+@committed(lambda root, *a, **k: Project(Path(root), {}).at_dir)
 def match_project(root, settings: MatchSettings | None = None, executor: Executor | None = None) -> MatchReport:
     """Match the frames of a project; writes ``at/tiepoints.csv`` and the connectivity report.
 

@@ -82,3 +82,37 @@ def test_matching_on_a_two_worker_cluster_equals_the_default_run(tiny_project, t
     assert outputs["threads"][0] == outputs["cluster"][0]
     assert outputs["threads"][1] == outputs["cluster"][1]
     assert outputs["threads"][0].count(b"\n") > 1000
+
+
+@pytest.mark.parametrize("scheduler, workers, expect", [("local:0", None, "--scheduler"), ("local:-3", None, "--scheduler"),
+                                                       ("local:100000", None, "--scheduler"), (None, 100000, "--workers")])
+def test_worker_counts_that_would_hang_or_swamp_are_refused(scheduler, workers, expect):
+    """local:0 would start a cluster with no worker and wait for one forever; 100000 workers would swamp the
+    machine: refused at once, naming the option."""
+    import time
+
+    from aerotri.core.errors import OptionError
+
+    t0 = time.monotonic()
+    with pytest.raises(OptionError) as e:
+        Executor(scheduler, workers)
+    assert time.monotonic() - t0 < 5 and e.value.param == expect
+
+
+def test_scheduler_local_zero_on_the_command_line_exits_2(tmp_path):
+    from click.testing import CliRunner
+
+    from lidarctl.cli import main
+
+    r = CliRunner().invoke(main, ["classify", str(tmp_path / "in.las"), str(tmp_path / "out.las"), "--scheduler",
+                                  "local:0"])
+    assert r.exit_code == 2 and "--scheduler" in r.stderr and "Traceback" not in r.stderr
+
+
+def test_task_counts_are_bounded():
+    from aerotri.core.errors import ResourceError
+    from aerotri.core.limits import MAX_TASKS, check_task_count
+
+    check_task_count(MAX_TASKS, "a grid", "--tile-px")
+    with pytest.raises(ResourceError, match="--tile-px"):
+        check_task_count(MAX_TASKS + 1, "a grid", "--tile-px", "use a larger --tile-px")

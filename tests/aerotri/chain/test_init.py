@@ -1,0 +1,147 @@
+"""`aerotri init`: a valid project folder from a folder of frames (links or copies, project.toml with the CRS,
+camera.toml from --camera or EXIF, or what to write into it), refused when it could not be right; and
+docs/project.md documents every project.toml and camera.toml key the code knows."""
+
+from __future__ import annotations
+
+import dataclasses
+import shutil
+import tomllib
+from pathlib import Path
+
+import numpy as np
+import pytest
+from click.testing import CliRunner
+
+from aerotri.cli import main
+
+REPO = Path(__file__).resolve().parents[3]
+
+
+def run(*args):
+    return CliRunner().invoke(main, [str(a) for a in args])
+
+
+def snapshot(root: Path) -> dict:
+    return {str(p.relative_to(root)): (p.is_symlink(), p.stat().st_size if p.is_file() else None)
+            for p in root.rglob("*")}
+
+
+def test_init_makes_a_project_that_matches(tiny_project, tmp_path):
+    """init + gnss.txt is a project `aerotri match` runs on, frames linked, the input folder untouched."""
+    images = tiny_project / "images"
+    before = snapshot(images)
+    p = tmp_path / "blk"
+    r = run("init", p, "--images", images, "--crs", "EPSG:32649", "--camera", tiny_project / "camera.toml")
+    assert r.exit_code == 0, r.output
+    assert "6 frames linked" in r.output and "camera.toml from" in r.output
+    links = sorted((p / "images").iterdir())
+    assert len(links) == 6 and all(q.is_symlink() and q.resolve() == (images / q.name).resolve() for q in links)
+    cfg = tomllib.loads((p / "project.toml").read_text())
+    assert cfg == {"project": {"name": "blk", "crs": "EPSG:32649", "heights": "ellipsoidal"}}
+    assert (p / "camera.toml").read_text() == (tiny_project / "camera.toml").read_text()
+    assert not [q for q in tmp_path.rglob(".*")]
+    shutil.copy(tiny_project / "gnss.txt", p / "gnss.txt")
+    with open(p / "project.toml", "a") as f:  # the flight's terrain height, as the docs say to add it
+        f.write("\n[flight]\nmean_terrain_height_m = 310.0\n")
+    r = run("match", p)
+    assert r.exit_code == 0, r.output
+    assert (p / "at" / "tiepoints.csv").stat().st_size > 1000
+    assert snapshot(images) == before
+
+
+def test_init_copies_with_copy_and_says_what_camera_to_write(tiny_project, tmp_path):
+    """--copy: real files; frames without EXIF camera data: no camera.toml, the template with their size."""
+    p = tmp_path / "blk"
+    r = run("init", p, "--images", tiny_project / "images", "--crs", "EPSG:32649", "--copy")
+    assert r.exit_code == 0, r.output
+    files = sorted((p / "images").iterdir())
+    assert len(files) == 6 and not any(q.is_symlink() for q in files)
+    assert files[0].read_bytes() == (tiny_project / "images" / files[0].name).read_bytes()
+    assert not (p / "camera.toml").exists()
+    assert "write camera.toml" in r.stderr and "width = 432" in r.stderr and "height = 240" in r.stderr
+    assert "Traceback" not in r.stderr
+
+
+def _exif_jpeg(path: Path, size=(640, 480), focal_mm=8.8, px_per_cm=9090.9):
+    """A JPEG with EXIF FocalLength and FocalPlaneXResolution (per centimetre)."""
+    from PIL import Image
+
+    img = Image.fromarray((np.random.default_rng(1).random((size[1], size[0], 3)) * 255).astype(np.uint8))
+    exif = Image.Exif()
+    ifd = exif.get_ifd(0x8769)
+    ifd[0x920A] = focal_mm  # FocalLength
+    ifd[0xA20E] = px_per_cm  # FocalPlaneXResolution
+    ifd[0xA20F] = px_per_cm  # FocalPlaneYResolution
+    ifd[0xA210] = 3  # FocalPlaneResolutionUnit: centimetre
+    ifd[0xA002], ifd[0xA003] = size  # PixelX/YDimension
+    img.save(path, exif=exif)
+
+
+def test_init_camera_from_exif(tmp_path):
+    frames = tmp_path / "frames"
+    frames.mkdir()
+    for k in range(3):
+        _exif_jpeg(frames / f"DJI_{k:04d}.JPG")
+    p = tmp_path / "blk"
+    r = run("init", p, "--images", frames, "--crs", "EPSG:32611")
+    assert r.exit_code == 0, r.output
+    from aerotri.geom.camera import read_camera
+
+    cam = read_camera(p / "camera.toml")
+    assert (cam.width, cam.height) == (640, 480)
+    assert cam.focal_mm == pytest.approx(8.8)
+    assert cam.pixel_um == pytest.approx(10000.0 / 9090.9, rel=1e-4)  # 1 cm / px per cm, in micrometres
+    assert "From the EXIF of DJI_0000.JPG" in (p / "camera.toml").read_text()
+
+
+@pytest.mark.parametrize("case", ["exists", "geographic", "two_sizes", "no_images", "inside_images"])
+def test_init_refuses(case, tiny_project, tmp_path):
+    frames = tmp_path / "frames"
+    shutil.copytree(tiny_project / "images", frames)
+    p, crs, expect = tmp_path / "blk", "EPSG:32649", None
+    if case == "exists":
+        p.mkdir()
+        (p / "notes.txt").write_text("mine")
+        expect = "not an empty folder"
+    elif case == "geographic":
+        crs, expect = "EPSG:4326", "--crs"
+    elif case == "two_sizes":
+        _exif_jpeg(frames / "odd.jpg")
+        expect = "2 sizes"
+    elif case == "no_images":
+        for q in frames.iterdir():
+            q.unlink()
+        (frames / "readme.txt").write_text("no frames")
+        expect = "no images"
+    elif case == "inside_images":
+        p = frames / "blk"
+        expect = "inside the frames' folder"
+    before = snapshot(tmp_path)
+    r = run("init", p, "--images", frames, "--crs", crs, "--camera", tiny_project / "camera.toml")
+    assert r.exit_code == 2 and "Traceback" not in r.stderr, r.output
+    errors = [s for s in r.stderr.splitlines() if s.startswith("Error:")]
+    assert len(errors) == 1 and expect in errors[0], r.stderr
+    assert snapshot(tmp_path) == before
+
+
+def test_docs_name_every_project_and_camera_key():
+    """docs/project.md documents every section and key of project.toml the code knows, every stage section,
+    and every camera.toml key of every lens model."""
+    from aerotri.core.project import PROJECT_SECTIONS, STAGE_SECTION_NAMES
+    from aerotri.geom.camera import MODELS
+
+    doc = (REPO / "docs" / "project.md").read_text()
+    for section, keys in PROJECT_SECTIONS.items():
+        assert f"### `[{section}]`" in doc, section
+        for key in keys:
+            assert f"`{key}`" in doc, f"[{section}] {key}"
+    for section in STAGE_SECTION_NAMES:
+        assert f"`[{section}]`" in doc, section
+    for model, cls in MODELS.items():
+        assert f"`{model}`" in doc or f'"{model}"' in doc, model
+        for f in dataclasses.fields(cls):
+            assert f"`{f.name}`" in doc, f"camera.toml {f.name}"
+    assert "## `gnss.txt`" in doc and "image_id X Y Z [sX sY sZ]" in doc
+    for header in ("id,kind,x,y,z,sx_m,sy_m,sz_m", "point_id,image_id,x_px,y_px"):
+        assert header in doc
