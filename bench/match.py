@@ -76,7 +76,7 @@ def _overlapping(project: Path) -> tuple:
 
     pr = Project.open(project)
     gnss = read_gnss(pr.gnss_path, check_block_crs(pr.crs, "project.toml"))
-    terrain = float(pr.section("flight")["mean_terrain_height_m"])
+    terrain = float(pr.flight.mean_terrain_height_m)
     plan = plan_block(list(gnss.image_id), gnss.position_m, project_camera(pr), (0.0, 0.0, 0.0), terrain)
     pairs = [(q.i, q.j) for q in candidate_pairs(plan, MatchSettings().min_overlap)]
     dist = max(float(np.linalg.norm(gnss.position_m[i, :2] - gnss.position_m[j, :2])) for i, j in pairs)

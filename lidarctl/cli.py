@@ -16,7 +16,7 @@ from lidarctl.classify import ClassifyParams
 from lidarctl.heights_check import GROUPINGS, DensityGroups
 from lidarctl.map_accuracy import MapEvalParams
 from lidarctl.plan_check import PlanCheckParams
-from lidarctl.rasters import DEFAULT_BUFFER_PX, DEFAULT_TILE_PX, DEFAULT_TIN_FILL_RADIUS_PX
+from lidarctl.rasters import DEFAULT_BUFFER_PX, DEFAULT_TILE_PX, DEFAULT_TIN_FILL_RADIUS_PX, RasterSettings
 
 
 @click.group(cls=Group)
@@ -34,32 +34,6 @@ main.add_command(corners)
 main.add_command(merge)
 main.add_command(strips)
 main.add_command(trees)
-
-
-def renamed_option(old: str, new: str, dest: str, type_=None):
-    """The old spelling ``old`` of option ``new`` (parameter ``dest``), hidden from ``--help``: it still works,
-    with a deprecation note on stderr, so users' scripts keep running; giving both is an OptionError."""
-    import functools
-
-    hidden = "old__" + dest
-
-    def deco(f):
-        @functools.wraps(f)
-        def wrapper(*args, **kwargs):
-            value = kwargs.pop(hidden)
-            if value is not None:
-                from aerotri.core.errors import OptionError
-
-                ctx = click.get_current_context()
-                if ctx.get_parameter_source(dest) is not click.core.ParameterSource.DEFAULT:
-                    raise OptionError(f"{old} is the old name of {new}: give one of them", param=new)
-                click.echo(f"warning: {old} is deprecated, use {new}", err=True)
-                kwargs[dest] = value
-            return f(*args, **kwargs)
-
-        return click.option(old, hidden, type=type_, default=None, hidden=True)(wrapper)
-
-    return deco
 
 
 _DENSITY = DensityGroups()
@@ -124,8 +98,8 @@ def ground_filter_options(f):
                    "grid; greenness is then NDVI, else excess green.")
 @scheduler_options
 @ground_filter_options
-def classify(in_paths, out_path, preset, crs, ground_method, tile_size_m, buffer_m, work_dir, keep_classes, out_format,
-             image_path, nir, scheduler, workers, ground_params_file, **ground_opts):
+def classify(in_paths, out_path, crs, tile_size_m, buffer_m, work_dir, out_format, image_path, nir, scheduler, workers,
+             ground_params_file, **options):
     """Noise, ground, buildings, vegetation and water as ASPRS classes (LAS/LAZ in, LAS/LAZ out).
 
     One file: IN_PATH OUT_PATH (a .las/.laz file). Strips of a block: STRIP... OUT_DIR; they are
@@ -138,67 +112,25 @@ def classify(in_paths, out_path, preset, crs, ground_method, tile_size_m, buffer
     A cloud in feet is classified in metres; the output is the input with new classes (same CRS and
     units).
     """
-    from pathlib import Path
-
-    from lidarctl import classify as cl
-    from lidarctl import tiles
-    from aerotri.core.errors import OptionError
-    from aerotri.core.executor import executor_for
-
-    to_folder = len(in_paths) > 1 or Path(out_path).is_dir() or Path(out_path).suffix.lower() not in (".las", ".laz")
-    if not to_folder:
-        refuse_input_as_output(out_path, in_paths, "OUT_PATH")
-        if out_format is not None:
-            raise OptionError("--format: only for an output folder (OUT_PATH names the file and its format)",
-                              param="--format")
-    from click.core import ParameterSource
-
-    from lidarctl import ground
+    from aerotri.core.settings import option_given
+    from lidarctl.tiles import classify_command
 
     ctx = click.get_current_context()
-    given = {name: ctx.get_parameter_source(name) != ParameterSource.DEFAULT for name in ("ground_method", "preset")}
-    ground_method, preset, overrides = ground.resolve_options(
-        ground_method, preset, ground_params_file,
-        {tuple(k.split("__")[1:]): v for k, v in ground_opts.items()},
-        method_given=given["ground_method"], preset_given=given["preset"])
-    params = ClassifyParams(ground_method=ground_method, preset=preset, keep_classes=keep_classes,
-                            ground_params=overrides)
-    fusion = None
-    if nir is not None and image_path is None:
-        raise OptionError("--nir: only with --image", param="--nir")
-    if image_path is not None:
-        from aerotri.geom import las
-        from lidarctl import fusion as fu
-        from lidarctl import io
-
-        refuse_input_as_output(out_path, [image_path, None if nir is None or str(nir).isdigit() else nir], "OUT_PATH")
-        cloud_crs, units = io.resolve_crs_units(in_paths[0], las.read_header(in_paths[0]), crs)
-        fusion = fu.Fusion(fu.open_image(image_path, nir, cloud_crs, units.xy_m))
-    common = dict(crs=crs, params=params, tile_size_m=tile_size_m, buffer_m=buffer_m, work_dir=work_dir,
-                  fusion=fusion)
-    with executor_for(scheduler, workers) as executor:
-        if to_folder:
-            stats = tiles.classify_files(in_paths, out_path, executor=executor,
-                                         suffix=None if out_format is None else f".{out_format}", **common)
-        else:
-            stats = tiles.classify_file(in_paths[0], out_path, executor=executor, **common)
-    counts = {cl.CLASS_NAMES.get(c, str(c)): k for c, k in stats.run.class_counts.items()}
-    n, dt, u = stats.n_points, stats.seconds, stats.units
-    what = f"{out_path}: {n} points" + (f" of {stats.n_files} strips" if to_folder else "")
-    units = "" if u.xy_name == "m" and u.z_name == "m" else \
-        f"; coordinates in {u.xy_name}, heights in {u.z_name}, processed in metres"
-    if keep_classes:
-        click.echo(f"{what}, the delivered classes kept; {counts}")
-        return
-    click.echo(f"{what} in {dt:.1f} s ({n / dt:,.0f} points/s; {stats.run.n_tiles} tiles of "
-               f"{stats.grid.tile_m:g} m + {stats.grid.buffer_m:g} m buffer, {executor.describe()}{units}); {counts}")
+    ground = {tuple(k.split("__")[1:]): v for k, v in options.items() if k.startswith("gp__")}
+    click.echo(classify_command(
+        in_paths, out_path, options["keep_classes"], options["ground_method"], options["preset"], crs=crs,
+        tile_size_m=tile_size_m,
+        buffer_m=buffer_m, work_dir=work_dir, out_format=out_format, image_path=image_path, nir=nir,
+        ground_params_file=ground_params_file, ground_options=ground, method_given=option_given(ctx, "ground_method"),
+        preset_given=option_given(ctx, "preset"), scheduler=scheduler, workers=workers))
 
 
 @main.command()
 @click.argument("in_paths", nargs=-1, required=True, type=click.Path(dir_okay=False))
 @click.argument("outdir", type=click.Path(file_okay=False))
-@click.option("--res", "res_m", type=positive(), required=True,
-              help="Cell size in metres, also for clouds in feet (1 m = 3.2808 ft in the GeoTIFF).")
+@click_option(RasterSettings, "res_m", "--res", required=True, default=None, show_default=False,
+              help="Cell size in metres, also for clouds in feet (1 m = 3.2808 ft in the GeoTIFF) ([rasters] res_m of "
+                   "aerotri run).")
 @click.option("--crs", default=None, help="CRS (EPSG:code) of files that have none.")
 @click.option("--tile-px", type=click.IntRange(min=1), default=DEFAULT_TILE_PX, show_default=True,
               help="Tile size in raster cells (memory: about 160 bytes per cell of a tile with its buffer).")
@@ -364,7 +296,6 @@ _PLAN = PlanCheckParams()
 @click.option("--min-edge-m", "min_edge_m", type=positive(), default=None,
               help="LiDAR corners whose two roof edges are at least this long (m), as lidarctl corners "
                    "--min-edge-m. Default: max(2 m, 8 point spacings) of the measured spacing.")
-@renamed_option("--min-edge", "--min-edge-m", "min_edge_m", positive())
 @click.option("--scale", default=_PLAN.scale, show_default=True, help="Map scale of the tolerance table.")
 @click.option("--terrain", default=_PLAN.terrain, show_default=True, help="Terrain class of the tolerance table.")
 @click.option("--json", "json_path", type=click.Path(dir_okay=False), default=None,
@@ -489,11 +420,6 @@ def drainage(dem_path, outdir, min_area_m2, fill, simplify_px, png):
 @click.option("--spot-spacing-m", "spot_spacing_m", type=positive(), default=100.0, show_default=True,
               help="One spot height per square of this side (m).")
 @click.option("--crs", default=None, help="CRS (EPSG:code) when the files have none; never guessed.")
-@renamed_option("--contour-interval", "--contour-interval-m", "contour_interval_m", positive())
-@renamed_option("--cell", "--cell-m", "cell_m", positive())
-@renamed_option("--min-area", "--min-area-m2", "min_area_m2", positive())
-@renamed_option("--simplify", "--simplify-m", "simplify_m", positive())
-@renamed_option("--spot-spacing", "--spot-spacing-m", "spot_spacing_m", positive())
 def vectors(paths, image, dem, contours_path, contour_interval_m, cell_m, min_area_m2, simplify_m, spot_spacing_m,
             crs):
     """Line-map (DLG) layers of the classified clouds PATHS... into OUT (the last argument, .gpkg): buildings
@@ -529,8 +455,6 @@ def vectors(paths, image, dem, contours_path, contour_interval_m, cell_m, min_ar
               help="Buffer (m) around lines for their completeness and correctness.")
 @click.option("--scale", default="1:10000", show_default=True, help="Map scale of the tolerance table.")
 @click.option("--terrain", default="flat", show_default=True, help="Terrain class of the tolerance table.")
-@renamed_option("--match", "--match-m", "match_m", positive())
-@renamed_option("--buffer", "--buffer-m", "buffer_m", positive())
 def check_vectors(product_path, reference_path, layers, json_path, png_path, match_m, buffer_m, scale, terrain):
     """Line-map accuracy of PRODUCT_PATH (lidarctl vectors) against --reference: plan RMS of the building corners
     (to the nearest reference outline and to the matched reference corner), completeness and correctness of

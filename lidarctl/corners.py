@@ -39,6 +39,7 @@ from __future__ import annotations
 
 import csv
 import dataclasses
+from typing import ClassVar
 import io
 import json
 import time
@@ -1093,6 +1094,8 @@ def plot_corners(path, ndsm, extent, outlines, corners, truth_xy=None, reference
 @dataclasses.dataclass(frozen=True)
 class CornerSettings:
     """Options of the roof-corner stage (``lidarctl corners``, ``[corners]`` in project.toml)."""
+
+    SECTION: ClassVar[str] = "corners"
 
     min_edge_m: float | None = setting(None, min=0.5, help="Report corners whose two edges are at least this long "
                                                             "(m); default max(2 m, 8 point spacings) of the roofs' "

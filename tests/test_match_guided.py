@@ -42,7 +42,7 @@ def test_guided_matching_keeps_the_true_matches(tiny_project):
     project = Project.open(tiny_project)
     camera = project_camera(project)
     gnss = read_gnss(project.gnss_path, check_block_crs(project.crs, "project.toml"))
-    terrain = float(project.section("flight")["mean_terrain_height_m"])
+    terrain = float(project.flight.mean_terrain_height_m)
     plan = plan_block(list(gnss.image_id), gnss.position_m, camera, (0.0, 0.0, 0.0), terrain)
     p = MatchParams()
     for kind in ("along", "cross"):

@@ -8,6 +8,7 @@ the command line and project.toml read them from here.
 from __future__ import annotations
 
 import dataclasses
+from typing import ClassVar
 
 from aerotri.core.settings import setting
 
@@ -58,8 +59,10 @@ class LayoutRule:
 
 @dataclasses.dataclass(frozen=True)
 class ControlSettings:
-    """Options of the control stage (``aerotri control``, ``[control]`` in project.toml)."""
+    """Options of the control stage (``aerotri control``, ``[control]`` in project.toml; the section's sigma keys
+    are the control points' a-priori precision, ``aerotri.core.project.ControlPointSettings``)."""
 
+    SECTION: ClassVar[str] = "control"
     measure: MeasureSettings = MeasureSettings()
     layout: LayoutRule = LayoutRule()
     tol_px: float = setting(0.7, min=0.05, help="Multi-ray reprojection residual tolerance (px).")
@@ -71,3 +74,4 @@ class ControlSettings:
                            help="Type I error of the comparison with the LiDAR corner.")
     usable_only: bool = setting(True, help="Measure only corners marked usable (plus manually measured ones).")
     chips: bool = setting(True, help="Write control/review/ (HTML + chips).")
+    checks: bool = setting(True, help="Write accepted corners that are not control as check points.")

@@ -51,17 +51,14 @@ def load_tolerances(scale: str | None = None, terrain: str = "flat", tolerance_f
 def qa_settings(root: Path) -> dict:
     """``[qa]`` of project.toml (map_scale, terrain, tolerances, pdf), with defaults; checked."""
     project = Project.open(root)
-    cfg = project.section("qa")
+    qa = project.qa  # types checked when the project is opened
     src = f"{project.config_path} [qa]"
-    out = dict(map_scale=cfg.get("map_scale", "1:5000"), terrain=cfg.get("terrain", "flat"),
-               tolerances=cfg.get("tolerances"), pdf=cfg.get("pdf", False))
+    out = dict(map_scale=qa.map_scale, terrain=qa.terrain, tolerances=qa.tolerances, pdf=qa.pdf)
     if not out["tolerances"] and out["map_scale"] not in SCALE_TABLES:
         raise ConfigError(f"{src} map_scale = {out['map_scale']!r}: no built-in tolerance table (have "
                           f"{', '.join(SCALE_TABLES)}); give your own with tolerances = \"FILE\"")
     if out["terrain"] not in TERRAINS and not out["tolerances"]:
         raise ConfigError(f"{src} terrain = {out['terrain']!r}: expected one of {', '.join(TERRAINS)}")
-    if not isinstance(out["pdf"], bool):
-        raise ConfigError(f"{src} pdf = {out['pdf']!r}: expected true or false")
     if out["tolerances"]:
         out["tolerances"] = str((Path(root) / out["tolerances"]).resolve())
     return out

@@ -176,9 +176,9 @@ def read_cam(path: Path) -> Camera:
 def _control_sigma(project: Project, options: ImportOptions, path: Path) -> np.ndarray:
     if options.sigma_xyz_m:
         return np.asarray(options.sigma_xyz_m, float)
-    c = project.section("control")
-    if "sigma_xy_m" in c and "sigma_z_m" in c:
-        return np.array([c["sigma_xy_m"], c["sigma_xy_m"], c["sigma_z_m"]], float)
+    c = project.control_points
+    if c.sigma_xy_m is not None and c.sigma_z_m is not None:
+        return np.array([c.sigma_xy_m, c.sigma_xy_m, c.sigma_z_m], float)
     raise InputError(f"{path}: control points without accuracies; give --sigma-xyz SX SY SZ (m) or [control] "
                      f"sigma_xy_m, sigma_z_m in {project.config_path}")
 

@@ -15,10 +15,10 @@ from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
 
 from aerotri.core.atomic import write_text_atomic
-from aerotri.core.config import config_number, config_vector
 from aerotri.core.errors import InputError
 from aerotri.core.executor import Executor, local_executor
 from aerotri.core.project import Project
+from aerotri.core.settings import Resolved, settings_of
 from aerotri.geom.camera import FrameCamera, project_camera
 from aerotri.geom.eo import check_block_crs, read_gnss
 from aerotri.geom.images import check_frames, find_images
@@ -80,9 +80,15 @@ class MatchReport:
     phase_seconds: dict[str, list[float]]
     feature_cache_hits: int
     match_cache_hits: int
+    settings: dict = dataclasses.field(default_factory=dict)  # path -> value and source (core.settings.Resolved)
 
     def to_dict(self) -> dict:
         return dataclasses.asdict(self)
+
+    def summary_line(self) -> str:
+        return (f"frames {self.frames}  pairs {self.pairs}  tracks {self.tracks}  observations {self.observations}  "
+                f"3+ rays {100 * self.tracks_3plus_fraction:.1f} %  components {self.components}  weak models "
+                f"{len(self.weak_models)}")
 
 
 class _PhaseClock:
@@ -101,8 +107,7 @@ class _PhaseClock:
 def _terrain_height(project: Project, s: MatchSettings) -> float:
     if s.terrain_height_m is not None:
         return float(s.terrain_height_m)
-    h = config_number(project.section("flight"), "mean_terrain_height_m", None,
-                      f"{project.root / 'project.toml'} [flight]")
+    h = project.flight.mean_terrain_height_m
     if h is not None:
         return h
     dem = project.lidar_out_dir / "dem.tif"
@@ -149,7 +154,6 @@ class _Frames:
 
 def _read_frames(project: Project, crs, camera: FrameCamera, s: MatchSettings) -> _Frames:
     """Images and GNSS positions checked against each other and the camera; the flight plan from GNSS."""
-    toml = project.root / "project.toml"
     images = find_images(project.images_dir)
     gnss = None
     if project.gnss_path.exists():
@@ -163,7 +167,7 @@ def _read_frames(project: Project, crs, camera: FrameCamera, s: MatchSettings) -
             raise InputError(f"{project.images_dir}: no image file for GNSS record(s) {', '.join(no_image[:10])} "
                              f"of {project.gnss_path}")
         ids = list(gnss.image_id)
-        lever = config_vector(project.section("gnss"), "lever_arm_m", (0.0, 0.0, 0.0), 3, f"{toml} [gnss]")
+        lever = project.gnss.lever_arm_m
     else:
         ids = sorted(images)
     if len(ids) < 2:
@@ -290,15 +294,19 @@ def _write_tiepoints(path: Path, ids: list[str], ties: _Ties) -> None:
     write_text_atomic(path, "\n".join(lines) + "\n")
 
 
-def match_project(root, settings: MatchSettings | None = None, executor: Executor | None = None) -> MatchReport:
+def match_project(root, settings: MatchSettings | Resolved | None = None,
+                  executor: Executor | None = None) -> MatchReport:
     """Match the frames of a project; writes ``at/tiepoints.csv`` and the connectivity report.
 
-    Feature extraction (one task per frame) and matching (one task per pair) run on ``executor``
-    (default: local threads); the results are cached in ``work/features`` and ``work/matches``."""
-    s = settings or MatchSettings()
+    ``settings``: None reads [match] of project.toml; a ``Resolved`` (``aerotri match``, the chain) carries the
+    source of every setting into the report. Feature extraction (one task per frame) and matching (one task
+    per pair) run on ``executor`` (default: local threads); the results are cached in ``work/features`` and
+    ``work/matches``."""
     t0 = time.perf_counter()
     clock = _PhaseClock()
     project = Project.open(root)
+    resolved = settings_of(settings, MatchSettings, project)
+    s = resolved.settings
     crs = check_block_crs(project.crs, f"{project.config_path} [project] crs")
     camera = project_camera(project)
     frames = _read_frames(project, crs, camera, s)
@@ -349,7 +357,7 @@ def match_project(root, settings: MatchSettings | None = None, executor: Executo
         terrain_height_m=plan.terrain_height_m if plan is not None else None,
         image_top_deg=plan.image_top_deg if plan is not None else None,
         seconds=0.0, phase_seconds=clock.phases, feature_cache_hits=mt.feature_cache_hits,
-        match_cache_hits=mt.match_cache_hits,
+        match_cache_hits=mt.match_cache_hits, settings=resolved.record(),
     )
     if plan is not None:
         plot_block(at / "connectivity.png", plan, ties_per_pair, strength)

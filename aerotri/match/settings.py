@@ -11,6 +11,7 @@ from __future__ import annotations
 import dataclasses
 import hashlib
 import json
+from typing import ClassVar
 
 from aerotri.core.settings import setting
 
@@ -66,10 +67,11 @@ def _dense_features() -> FeatureParams:
     return FeatureParams(budget=10000, grid=(20, 12), max_dim_px=4500, contrast_threshold=0.004, name="dense")
 
 
-@dataclasses.dataclass
+@dataclasses.dataclass(frozen=True)
 class MatchSettings:
     """Options of the tie-point stage (``aerotri match``, ``[match]`` in project.toml)."""
 
+    SECTION: ClassVar[str] = "match"
     sparse: FeatureParams = dataclasses.field(default_factory=FeatureParams)
     dense: FeatureParams = dataclasses.field(default_factory=_dense_features)
     match: MatchParams = dataclasses.field(default_factory=MatchParams)

@@ -12,6 +12,7 @@ before classification, and the adjustment when asked for::
 from __future__ import annotations
 
 import dataclasses
+from typing import ClassVar
 
 from aerotri.core.settings import setting
 from lidarctl.strips.adjust import AdjustSettings
@@ -23,6 +24,8 @@ class StripsSettings:
     """The strip stage: check the overlaps (always), adjust the strips and classify the corrected ones
     (``adjust``); with ``use_trajectory`` and the project's trajectory/*.txt the sensor model (boresight,
     range offset, a shift per strip), else a shift and rotation per strip."""
+
+    SECTION: ClassVar[str] = "strips"
 
     adjust: bool = setting(False, help="Adjust the strips and classify the corrected ones (default: check only).")
     use_trajectory: bool = setting(True, help="Adjust with the sensor model when the project has trajectory/*.txt.")

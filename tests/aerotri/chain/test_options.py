@@ -97,7 +97,7 @@ def test_the_command_line_and_project_toml_refuse_the_same_values(tmp_path):
     assert r.exit_code == 2 and "0.2" in r.stderr and "--min-edge-m" in r.stderr
     r = CliRunner().invoke(lidarctl_cli, ["corners", str(tmp_path / "x.las"), str(tmp_path), "--roof", "pointy"])
     assert r.exit_code == 2 and "'pointy' is not one of 'flat', 'any'" in r.stderr
-    assert set(STAGE_SECTIONS) == {"strips", "classify", "rasters", "corners", "vectors", "match", "adjust", "control", "rectify", "mosaic"}
+    assert set(STAGE_SECTIONS) == {"strips", "classify", "rasters", "corners", "vectors", "match", "adjust", "control", "rectify", "mosaic", "dom_check"}
 
 
 @pytest.mark.parametrize("preset", ["tiny", "demo", "dmc"])
@@ -258,7 +258,7 @@ def test_camera_with_k3_is_adjusted_with_k3_held_fixed(tmp_path):
 
 
 def test_demo_simulates_again_when_the_project_lacks_the_preset_options(tmp_path):
-    from aerotri.chain.cli import _stale_simulation
+    from aerotri.chain.run import stale_simulation as _stale_simulation
     from aerotri.sim.config import stage_sections_toml
 
     cfg = load_preset("demo")

@@ -42,8 +42,8 @@ def test_round_trip(exported, tmp_path, fresh_project):
     con = read_control_points(dst / "control" / "points.csv")
     assert list(con.id) == list(blk.control_id) and list(con.kind) == list(blk.control_kind)
     assert np.abs(con.xyz_m - blk.control_xyz_m).max() < 1e-4
-    sig = Project.open(root).section("control")
-    assert np.allclose(con.sigma_m, [sig["sigma_xy_m"], sig["sigma_xy_m"], sig["sigma_z_m"]])
+    sig = Project.open(root).control_points
+    assert np.allclose(con.sigma_m, [sig.sigma_xy_m, sig.sigma_xy_m, sig.sigma_z_m])
     # the control points' measurements, back in pixels: the .im keeps 0.1 um = 0.008 px at 12 um
     obs = read_image_points(dst / "control" / "image_points.csv")
     mine = {(blk.point_id[j], blk.image_id[i]): blk.obs_xy_px[k]

@@ -1,0 +1,148 @@
+"""The README's stage-by-stage commands against ``aerotri run`` on the demo project (issue 39, item 9).
+
+Two fresh copies of the demo project (``aerotri demo``'s simulated block; default the reference copy
+/work/ref/demo_chain/project, whose LiDAR strip check and classification are done): one runs ``aerotri run P
+--reference P/truth/ortho.tif`` (the chain), the other runs the commands of the README's stage-by-stage block
+("The chain (what `aerotri run` and `make demo` do)"), read from README.md, one by one as a user types them
+(P the copy, REF.tif the true orthophoto, POINTS.csv the surveyed targets, lines of the block only). Both are
+measured the same way against the simulator's truth (``truth/`` is read by the measurement alone):
+
+- AT check against the surveyed targets: ``bench/eval_variants.py``'s ``target_check`` (each target seen by
+  two or more frames intersected with the final orientations and self-calibrated camera, RMS plan / height);
+- the final adjustment report's own check (``at/report.json`` check_rms_m: LiDAR corners not used as control);
+- attitudes: RMS of omega, phi, kappa of ``at/eo.txt`` against ``truth/eo.txt``;
+- DOM: ``ortho/dom_report.json`` displacement RMS against the true orthophoto (the chain's ``dom_check``
+  stage, the block's ``ortho check``);
+- the settings each final adjustment used, with their sources (``at/report.json`` settings): the values must
+  be the same, the sources say which came from project.toml and which from the command line.
+
+Writes ``results/stage_by_stage_demo.json``.
+
+    .venv/bin/python bench/eval_stage_by_stage.py [--demo /work/ref/demo_chain/project] [--work DIR]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import re
+import shlex
+import shutil
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+REPO = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(REPO))
+sys.path.insert(0, str(REPO / "bench"))
+
+from eval_variants import code_version, corner_check, target_check  # noqa: E402
+
+
+def readme_commands(readme: Path = REPO / "README.md") -> list[str]:
+    """The command lines of the README's stage-by-stage block (the first code block after its heading),
+    comments removed."""
+    text = readme.read_text()
+    at = text.index("### The chain (what `aerotri run` and `make demo` do)")
+    block = re.search(r"```\n(.*?)```", text[at:], re.S).group(1)
+    return [line.split("  #")[0].strip() for line in block.splitlines() if line.strip()]
+
+
+def _run(cmd: str, log, cwd: Path) -> float:
+    t0 = time.perf_counter()
+    log.write(f"$ {cmd}\n")
+    log.flush()
+    subprocess.run(cmd, shell=True, check=True, stdout=log, stderr=subprocess.STDOUT, cwd=cwd,
+                   executable="/bin/bash")
+    return time.perf_counter() - t0
+
+
+def _fresh_copy(src: Path, dst: Path) -> Path:
+    if dst.exists():
+        shutil.rmtree(dst)
+    shutil.copytree(src, dst, symlinks=True)
+    return dst
+
+
+def attitude_rms(root: Path) -> dict:
+    """RMS (deg) of omega, phi, kappa of at/eo.txt against truth/eo.txt, over the frames of both."""
+    from aerotri.geom.eo import read_eo
+
+    got, true = read_eo(root / "at" / "eo.txt"), read_eo(root / "truth" / "eo.txt")
+    k = true.index()
+    sel = [k[i] for i in got.image_id]
+    d = (got.opk_deg - true.opk_deg[sel] + 180.0) % 360.0 - 180.0
+    rms = np.sqrt(np.mean(d ** 2, axis=0))
+    return dict(n=len(sel), omega_deg=float(rms[0]), phi_deg=float(rms[1]), kappa_deg=float(rms[2]))
+
+
+def measure(root: Path) -> dict:
+    truth = json.loads((root / "truth" / "truth.json").read_text())
+    gsd = float(truth["gsd_m"])
+    at = json.loads((root / "at" / "report.json").read_text())
+    dom = json.loads((root / "ortho" / "dom_report.json").read_text())
+    d = dom.get("displacement", {})
+    return dict(
+        at_check_targets=target_check(root), report_check_rms_m=at.get("check_rms_m"),
+        lidar_corner_check=corner_check(root, gsd), attitudes=attitude_rms(root),
+        sigma0_px=at["key_statistics"].get("sigma0_px"), verdict=at["key_statistics"].get("message"),
+        options=at["options"], dom=dict(n=d.get("count"), rms_xy_m=d.get("rms_xy_m"), ndsm=dom.get("ndsm")),
+        adjust_settings=at.get("settings"), gsd_m=gsd)
+
+
+def differences(a: dict, b: dict) -> dict:
+    """Settings whose values differ between two settings records (path -> [a, b])."""
+    return {k: [a.get(k, {}).get("value"), b.get(k, {}).get("value")] for k in sorted(set(a) | set(b))
+            if a.get(k, {}).get("value") != b.get(k, {}).get("value")}
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--demo", type=Path, default=Path("/work/ref/demo_chain/project"))
+    ap.add_argument("--work", type=Path, default=Path("/work/tmp/stage_by_stage"))
+    ap.add_argument("--results", type=Path, default=REPO / "results" / "stage_by_stage_demo.json")
+    ap.add_argument("--keep", action="store_true", help="measure the copies of an earlier run without running")
+    a = ap.parse_args()
+    bin_ = Path(sys.executable).parent
+    chain, by_hand = a.work / "chain" / "project", a.work / "by_hand" / "project"
+    commands = readme_commands()
+    timing = {}
+    if not a.keep:
+        _fresh_copy(a.demo, chain)
+        _fresh_copy(a.demo, by_hand)
+        with open(a.work / "chain.log", "w") as log:
+            timing["chain_s"] = round(_run(f"{bin_}/aerotri run {chain} --reference {chain}/truth/ortho.tif", log,
+                                           REPO), 1)
+        steps = []
+        with open(a.work / "by_hand.log", "w") as log:
+            for cmd in commands:
+                line = (cmd.replace("REF.tif", f"{by_hand}/truth/ortho.tif")
+                        .replace("POINTS.csv", f"{by_hand}/truth/checkpoints.csv"))
+                line = re.sub(r"(?<![\w/])P(?=/|\s|$)", str(by_hand), line)
+                words = shlex.split(line)
+                words[0] = str(bin_ / words[0])
+                steps.append(dict(command=cmd, seconds=round(_run(" ".join(words), log, REPO), 1)))
+        timing["by_hand_steps"] = steps
+        timing["by_hand_s"] = round(sum(s["seconds"] for s in steps), 1)
+    out = dict(code=code_version(), demo=str(a.demo), readme_commands=commands, timing=timing,
+               chain=measure(chain), by_hand=measure(by_hand))
+    out["settings_differ"] = differences(out["chain"]["adjust_settings"], out["by_hand"]["adjust_settings"])
+    same_eo = (chain / "at" / "eo.txt").read_bytes() == (by_hand / "at" / "eo.txt").read_bytes()
+    out["same_at_eo_txt"] = same_eo
+    a.results.parent.mkdir(parents=True, exist_ok=True)
+    a.results.write_text(json.dumps(out, indent=1) + "\n")
+    for name in ("chain", "by_hand"):
+        m = out[name]
+        t, att = m["at_check_targets"], m["attitudes"]
+        print(f"{name:8} targets plan {t['rms_xy_m']:.3f} m height {t['rms_z_m']:.3f} m (n {t['n']}); report check "
+              f"{m['report_check_rms_m']}; attitudes {att['omega_deg']:.4f} {att['phi_deg']:.4f} {att['kappa_deg']:.4f} "
+              f"deg; DOM {m['dom']['rms_xy_m']} m")
+    print(f"settings that differ: {out['settings_differ'] or 'none'}; at/eo.txt identical: {same_eo}")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
