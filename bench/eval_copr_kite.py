@@ -70,9 +70,9 @@ def import_gcps(root: Path, path: Path, registered: set) -> list[str]:
     one image (at least one is mislabelled: both dropped). Targets left without measurements are dropped; the
     others are sorted by id.
     Returns the dropped ambiguous measurements."""
-    from aerotri.exchange import ImportOptions, import_files
+    from aerotri.exchange import ImportSettings, import_files
 
-    import_files(root, "odm", [path], ImportOptions(sigma_xyz_m=(SIGMA_XY_M, SIGMA_XY_M, SIGMA_Z_M)), overwrite=True)
+    import_files(root, "odm", [path], ImportSettings(sigma_xyz_m=(SIGMA_XY_M, SIGMA_XY_M, SIGMA_Z_M)), overwrite=True)
     obs = read_image_points(root / "control" / "image_points.csv")
     o = list(zip(obs.point_id, obs.image_id, obs.xy_px[:, 0], obs.xy_px[:, 1]))
     amb = {(a[0], a[1]) for a in o for b in o if a[1] == b[1] and a[0] != b[0] and np.hypot(a[2] - b[2], a[3] - b[3]) < 5.0}

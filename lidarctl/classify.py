@@ -94,7 +94,7 @@ CLASS_NAMES = {1: "unclassified", 2: "ground", 3: "low veg", 4: "medium veg", 5:
 
 
 @dataclasses.dataclass(frozen=True)
-class ClassifyParams:
+class ClassifySettings:
     """Options of the classification stage (``lidarctl classify``, ``[classify]`` in project.toml).
 
     ``ground_method`` and ``preset`` name a filter of the ground-filter registry
@@ -109,7 +109,7 @@ class ClassifyParams:
     preset: str | None = setting(None, choices=ground_mod.preset_names(), help="Ground filter parameters for "
                                  "the terrain type (default: the single all-round set).")
     ground_params: dict = setting(default_factory=dict, help="Ground-filter parameters that replace the "
-                                  "preset's (name -> value; lidarctl.ground.GroundParams / MorphParams fields).")
+                                  "preset's (name -> value; lidarctl.ground.GroundSettings / MorphSettings fields).")
     keep_classes: bool = setting(False, help="Keep the classes the LiDAR was delivered with (vendor-classified) "
                                              "after checking that ground and building classes are present and "
                                              "plausible (lidarctl.delivered_classes); no classification is run.")
@@ -217,7 +217,7 @@ class ClassifyParams:
     # (a facade splits pulses with the eave above it). False: single returns only.
     wall_multi_return: bool = setting(False, help="Walls: multi-return points below a roof's eave join the building "
                                                   "too (false: single returns only).")
-    noise: noise_mod.NoiseParams = dataclasses.field(default_factory=noise_mod.NoiseParams)
+    noise: noise_mod.NoiseSettings = dataclasses.field(default_factory=noise_mod.NoiseSettings)
 
     def __post_init__(self):
         ground_mod.check_method_preset(self.ground_method, self.preset)
@@ -467,7 +467,7 @@ def _near_mask(xa, ya, xb, yb, cell_m: float) -> np.ndarray:
     return np.isin(ia, keys)
 
 
-def roof_edge_completion(x, y, z, is_building, candidates, p: ClassifyParams) -> None:
+def roof_edge_completion(x, y, z, is_building, candidates, p: ClassifySettings) -> None:
     """Grow building points (in place) over roof edges and low roof parts the cell rules missed.
 
     Edge cells of a roof hold pulses split between the eave and the wall or ground below, so they
@@ -605,7 +605,7 @@ class DropoutGrid:
                            self.ncols, "mean")
 
 
-def dropout_grid(x, y, is_building, spacing_m: float, p: ClassifyParams) -> DropoutGrid:
+def dropout_grid(x, y, is_building, spacing_m: float, p: ClassifySettings) -> DropoutGrid:
     """The ``DropoutGrid`` of the cloud (cell ``water_cell_m``, default max(1 m, 2 point spacings))."""
     c = p.water_cell_m or max(1.0, 2.0 * spacing_m)
     flat, nrows, ncols, x0, y0 = grid.cell_ids(x, y, c)
@@ -620,7 +620,7 @@ def dropout_grid(x, y, is_building, spacing_m: float, p: ClassifyParams) -> Drop
 
 
 def detect_water(x, y, z, intensity, candidate, is_building, is_ground, spacing_m: float,
-                 p: ClassifyParams, solid=None, dropout: DropoutGrid | None = None) -> np.ndarray:
+                 p: ClassifySettings, solid=None, dropout: DropoutGrid | None = None) -> np.ndarray:
     """Water returns (mask) by pulse-dropout water detection; see the module docstring, step 5.
 
     ``candidate``: points that may be water returns (ground, unclassified, low vegetation);
@@ -738,7 +738,7 @@ def detect_water(x, y, z, intensity, candidate, is_building, is_ground, spacing_
     return water
 
 
-def dropout_gaps(x, y, z, is_ground, g: DropoutGrid, p: ClassifyParams):
+def dropout_gaps(x, y, z, is_ground, g: DropoutGrid, p: ClassifySettings):
     """Open-water-sized pulse-dropout gaps of ``g`` (step 5's dropout regions of at least
     ``water_min_area_m2`` that are not occlusion shadows, i.e. at most ``water_shadow_fraction`` of
     their rim cells hold building points).
@@ -772,7 +772,7 @@ def dropout_gaps(x, y, z, is_ground, g: DropoutGrid, p: ClassifyParams):
     return labels, bank, axis, flat, c
 
 
-def bridge_decks(x, y, z, is_ground, is_building, spacing_m: float, p: ClassifyParams,
+def bridge_decks(x, y, z, is_ground, is_building, spacing_m: float, p: ClassifySettings,
                  dropout: DropoutGrid | None = None) -> np.ndarray:
     """Ground points on bridge decks (mask): ground between two water gaps at most
     ``bridge_max_width_m`` apart along one of the four grid directions, running along a
@@ -835,10 +835,10 @@ def bridge_decks(x, y, z, is_ground, is_building, spacing_m: float, p: ClassifyP
 
 
 def classify_points(x, y, z, return_number=None, number_of_returns=None, intensity=None,
-                    params: ClassifyParams | None = None, fusion=None) -> np.ndarray:
+                    params: ClassifySettings | None = None, fusion=None) -> np.ndarray:
     """ASPRS class per point (uint8). Arrays are per point; heights in metres. ``fusion``
     (``lidarctl.fusion.Fusion``): the orthophoto's rules applied last (roads, grass/tree, building check)."""
-    p = params or ClassifyParams()
+    p = params or ClassifySettings()
     n = len(x)
     if n < 10:
         raise ValueError("classification needs at least 10 points")

@@ -12,10 +12,10 @@ import click
 from aerotri.core.atomic import refuse_input_as_output
 from aerotri.core.commands import Group, fraction, positive, scheduler_options
 from aerotri.core.settings import click_option
-from lidarctl.classify import ClassifyParams
+from lidarctl.classify import ClassifySettings
 from lidarctl.heights_check import GROUPINGS, DensityGroups
-from lidarctl.map_accuracy import MapEvalParams
-from lidarctl.plan_check import PlanCheckParams
+from lidarctl.map_accuracy import MapEvalSettings
+from lidarctl.plan_check import PlanCheckSettings
 from lidarctl.rasters import DEFAULT_BUFFER_PX, DEFAULT_TILE_PX, DEFAULT_TIN_FILL_RADIUS_PX, RasterSettings
 
 
@@ -76,9 +76,9 @@ def ground_filter_options(f):
 @main.command()
 @click.argument("in_paths", nargs=-1, required=True, type=click.Path(dir_okay=False))
 @click.argument("out_path", type=click.Path())
-@click_option(ClassifyParams, "preset", "--preset")
+@click_option(ClassifySettings, "preset", "--preset")
 @click.option("--crs", default=None, help="CRS (EPSG:code) when the file has none; never guessed.")
-@click_option(ClassifyParams, "ground_method", "--method")
+@click_option(ClassifySettings, "ground_method", "--method")
 @click.option("--tile-size", "tile_size_m", type=positive(), default=None,
               help="Tile size in metres, also for clouds in feet (default: about 4 M points per tile with its "
                    "buffer at the file's density).")
@@ -86,7 +86,7 @@ def ground_filter_options(f):
               help="Overlap buffer around each tile in metres (default: the ground filter's reach, 60 m).")
 @click.option("--work-dir", type=click.Path(file_okay=False), default=None,
               help="Folder for the temporary tile files (default: next to the output; removed afterwards).")
-@click_option(ClassifyParams, "keep_classes", "--keep-classes")
+@click_option(ClassifySettings, "keep_classes", "--keep-classes")
 @click.option("--format", "out_format", type=click.Choice(["las", "laz"]), default=None,
               help="Format of the classified strips in an output folder (default: each strip's own).")
 @click.option("--image", "image_path", type=click.Path(dir_okay=False), default=None,
@@ -177,15 +177,15 @@ def rasters(in_paths, outdir, res_m, crs, tile_px, buffer_px, dem_fill_radius_px
 @click.option("--res", "res_m", type=positive(), default=None,
               help="--reference: cell size in metres [0.5; with a raster: the raster's cells, or a raster sampled at "
                    "the centres of cells of this size, e.g. to match a sparse cloud].")
-@click.option("--class-field", default=MapEvalParams.class_field, show_default=True,
+@click.option("--class-field", default=MapEvalSettings.class_field, show_default=True,
               help="--reference polygons: the attribute holding the class (ASPRS code or name: building, tree, "
                    "grass, road, bare ground, water).")
 @click.option("--reference-class", default=None,
               help="--reference polygons: one class for every polygon (e.g. building for footprints).")
-@click.option("--min-overlap", type=click.FloatRange(0, 1, min_open=True), default=MapEvalParams.min_overlap,
+@click.option("--min-overlap", type=click.FloatRange(0, 1, min_open=True), default=MapEvalSettings.min_overlap,
               show_default=True, help="--reference: share of a building's area that must overlap to count it as "
                                       "found (reference) or correct (detected).")
-@click.option("--min-building-m2", type=click.FloatRange(min=0), default=MapEvalParams.min_building_m2,
+@click.option("--min-building-m2", type=click.FloatRange(min=0), default=MapEvalSettings.min_building_m2,
               show_default=True, help="--reference: buildings smaller than this (m2) are not counted per building.")
 @click.option("--within", default=None,
               help="--reference: score only inside the polygons of this file, or 'hull': inside the convex hulls "
@@ -218,7 +218,7 @@ def evaluate(pred_paths, truth_path, reference_path, json_path, map_pred, map_tr
     if reference_path is not None:
         from lidarctl import map_accuracy as ma
 
-        params = MapEvalParams(res_m=res_m, min_overlap=min_overlap, min_building_m2=min_building_m2,
+        params = MapEvalSettings(res_m=res_m, min_overlap=min_overlap, min_building_m2=min_building_m2,
                                class_field=class_field, reference_class=reference_class,
                                map_pred=_parse_map(map_pred, "--map-pred"), map_ref=_parse_map(map_truth, "--map-truth"),
                                crs=crs, within=within)
@@ -286,7 +286,7 @@ def check_heights(paths, dem_path, radius_m, exclude_m, grouping, cover_radius_m
         write_text_atomic(json_path, json.dumps(result, indent=2))
 
 
-_PLAN = PlanCheckParams()
+_PLAN = PlanCheckSettings()
 
 
 @main.command("check-plan")
@@ -314,7 +314,7 @@ def check_plan(paths, radius_m, min_edge_m, scale, terrain, json_path, png_path,
     from lidarctl import plan_check as pc
 
     *cloud_paths, points_csv = paths
-    params = PlanCheckParams(radius_m=radius_m, min_edge_m=min_edge_m, scale=scale, terrain=terrain)
+    params = PlanCheckSettings(radius_m=radius_m, min_edge_m=min_edge_m, scale=scale, terrain=terrain)
     result = pc.check_plan_files(cloud_paths, points_csv, params, crs=crs, points_crs=points_crs,
                                  json_path=json_path, png_path=png_path)
     click.echo(pc.format_report(result))
@@ -338,10 +338,10 @@ def check_plan(paths, radius_m, min_edge_m, scale, terrain, json_path, png_path,
 def smooth(dem_path, out_path, order, edge_m, iterations, step, window_px):
     """Edge-preserving smoothing of DEM_PATH (GeoTIFF) into OUT_PATH (COG): anisotropic diffusion, by
     windows (the same result as in one piece); nodata respected, CRS and units kept."""
-    from lidarctl.smooth import DiffusionParams, smooth_dem
+    from lidarctl.smooth import DiffusionSettings, smooth_dem
 
     order = int(order)
-    params = DiffusionParams(order=order, edge_m=edge_m or (1.0 if order == 4 else 0.5),
+    params = DiffusionSettings(order=order, edge_m=edge_m or (1.0 if order == 4 else 0.5),
                              iterations=iterations or (100 if order == 4 else 20), step=step)
     r = smooth_dem(dem_path, out_path, params, window_px)
     click.echo(f"{r.path}: {r.valid_cells:,} of {r.cells:,} cells smoothed ({r.windows} window(s)); "
@@ -426,14 +426,14 @@ def vectors(paths, image, dem, contours_path, contour_interval_m, cell_m, min_ar
     (regularised outlines, eave/ridge heights, area), roads (polygons of class 11) and road_centrelines
     (width), water (class 9), spot_heights, and contours (--contours or --dem)."""
     from aerotri.core.errors import OptionError
-    from lidarctl.map_vectors import VectorParams, vectors_to_file
+    from lidarctl.map_vectors import MapVectorSettings, vectors_to_file
 
     if len(paths) < 2:
         raise OptionError("give the classified cloud(s) and then OUT.gpkg", param="PATHS")
     *clouds, out_path = paths
     if dem and contours_path:
         raise OptionError("give --dem or --contours, not both", param="--contours")
-    params = VectorParams(cell_m=cell_m, min_area_m2=min_area_m2, simplify_m=simplify_m, spot_spacing_m=spot_spacing_m,
+    params = MapVectorSettings(cell_m=cell_m, min_area_m2=min_area_m2, simplify_m=simplify_m, spot_spacing_m=spot_spacing_m,
                           contour_interval_m=contour_interval_m)
     s = vectors_to_file(clouds, out_path, params, crs=crs, dem=dem, contours=contours_path, image=image)
     counts = ", ".join(f"{k} {s[k]}" for k in ("buildings", "roads", "road_centrelines", "water", "spot_heights",
@@ -461,6 +461,6 @@ def check_vectors(product_path, reference_path, layers, json_path, png_path, mat
     each layer by area (polygons) or buffer (lines), with the map scale's tolerance for well-defined features."""
     from lidarctl import vector_check as vc
 
-    params = vc.CheckParams(layers=tuple(layers), match_m=match_m, buffer_m=buffer_m, scale=scale, terrain=terrain)
+    params = vc.VectorCheckSettings(layers=tuple(layers), match_m=match_m, buffer_m=buffer_m, scale=scale, terrain=terrain)
     result = vc.check_files(product_path, reference_path, params, json_path, png_path)
     click.echo(vc.format_report(result))

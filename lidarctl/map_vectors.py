@@ -51,7 +51,7 @@ LAYERS = ("buildings", "roads", "road_centrelines", "water", "spot_heights", "co
 
 
 @dataclasses.dataclass(frozen=True)
-class VectorParams:
+class MapVectorSettings:
     """Cell size of the road/water masks, smallest polygon, simplification, spot-height spacing (metres)."""
 
     cell_m: float = 1.0
@@ -463,7 +463,7 @@ def _scale_geoms(geoms: list, f: float) -> list:
     return [shapely.transform(g, lambda a: a * f) for g in geoms]
 
 
-def extract_vectors(paths, out_path, params: VectorParams = VectorParams(), crs=None, dem=None,
+def extract_vectors(paths, out_path, params: MapVectorSettings = MapVectorSettings(), crs=None, dem=None,
                     contours=None) -> MapVectors:
     """The DLG layers of classified LAS/LAZ ``paths`` (one CRS); see the module doc. ``dem``/``contours``:
     a DEM GeoTIFF to contour or a contour layer to copy (same CRS as the cloud)."""
@@ -583,7 +583,7 @@ def write_vectors(mv: MapVectors, path) -> Path:
     return path
 
 
-def vectors_to_file(paths, out_path, params: VectorParams = VectorParams(), crs=None, dem=None, contours=None,
+def vectors_to_file(paths, out_path, params: MapVectorSettings = MapVectorSettings(), crs=None, dem=None, contours=None,
                     image=None) -> dict:
     """``extract_vectors`` + ``write_vectors`` (+ a PNG preview beside OUT over ``image`` when given).
     Returns the summary."""

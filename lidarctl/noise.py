@@ -39,7 +39,7 @@ ISOLATED, LOW, HIGH = 1, 2, 3
 
 
 @dataclasses.dataclass(frozen=True)
-class NoiseParams:
+class NoiseSettings:
     """Noise removal (``[classify.noise]``): isolated points, low and high outliers, low clusters."""
 
     voxel_m: float = setting(0.0, min=0.0, help="Voxel of the isolation test (m); 0: 2.5 x the mean point spacing, at "
@@ -273,13 +273,13 @@ def _near(x, y, fx, fy, dist_m: float) -> np.ndarray:
     return hit[i + 1, j + 1]
 
 
-def detect_noise(x, y, z, params: NoiseParams | None = None) -> np.ndarray:
+def detect_noise(x, y, z, params: NoiseSettings | None = None) -> np.ndarray:
     """Noise code per point: 0 clean, 1 isolated, 2 low outlier, 3 high outlier.
 
     Low outliers are tested twice: a first pass removes single blunders, the second catches
     pairs that only supported each other through a blunder.
     """
-    p = params or NoiseParams()
+    p = params or NoiseSettings()
     spacing = grid.mean_spacing_m(x, y)
     voxel = p.voxel_m or max(2.0, 2.5 * spacing)
     radius = p.radius_m or max(5.0, 5.0 * spacing)

@@ -9,21 +9,21 @@ import click
 
 from aerotri.core.commands import Group
 from aerotri.core.settings import click_option, click_type, default_of
-from lidarctl.strips.adjust import AdjustSettings
-from lidarctl.strips.overlap import SurfaceParams
+from lidarctl.strips.adjust import StripAdjustSettings
+from lidarctl.strips.overlap import SurfaceSettings
 
 
 def surface_options(f):
-    """The options of ``SurfaceParams`` (what counts as a smooth surface), in metres and degrees."""
+    """The options of ``SurfaceSettings`` (what counts as a smooth surface), in metres and degrees."""
     for name, decl in reversed([("cell_m", "--cell-m"), ("min_points", "--min-points"), ("max_rms_m", "--max-rms-m"),
                                 ("max_multi_fraction", "--max-multi-fraction"), ("edge_tol_m", "--edge-tol-m"),
                                 ("max_slope_deg", "--max-slope-deg")]):
-        f = click_option(SurfaceParams, name, decl)(f)
+        f = click_option(SurfaceSettings, name, decl)(f)
     return f
 
 
-def _params(kw: dict) -> SurfaceParams:
-    return SurfaceParams(**{k: kw.pop(k) for k in [f for f in SurfaceParams.__dataclass_fields__]})
+def _params(kw: dict) -> SurfaceSettings:
+    return SurfaceSettings(**{k: kw.pop(k) for k in [f for f in SurfaceSettings.__dataclass_fields__]})
 
 
 @click.group(cls=Group, name="strips")
@@ -69,11 +69,11 @@ def check(strip_paths, outdir, crs, png, **kw):
               help="Control points on smooth surfaces (CSV with a header id,x,y,z in the strips' CRS and units; a "
                    "control surface as several points on it): fix the block's datum (absolute height, and position "
                    "across sloped faces).")
-@click_option(AdjustSettings, "control_sigma_m", "--control-sigma-m")
-@click.option("--adjust-max-slope-deg", "adjust_max_slope_deg", type=click_type(AdjustSettings, "max_slope_deg"),
-              default=default_of(AdjustSettings, "max_slope_deg"), show_default=True,
+@click_option(StripAdjustSettings, "control_sigma_m", "--control-sigma-m")
+@click.option("--adjust-max-slope-deg", "adjust_max_slope_deg", type=click_type(StripAdjustSettings, "max_slope_deg"),
+              default=default_of(StripAdjustSettings, "max_slope_deg"), show_default=True,
               help="Steepest planar cells the adjustment uses (deg; sloped roofs carry the horizontal information).")
-@click_option(AdjustSettings, "shift_sigma_m", "--shift-sigma-m")
+@click_option(StripAdjustSettings, "shift_sigma_m", "--shift-sigma-m")
 @surface_options
 @click.option("--crs", default=None, help="CRS (EPSG:code) of files that have none; never guessed.")
 @click.option("--png/--no-png", default=True, show_default=True, help="Colour maps (PNG) of the differences.")
@@ -84,7 +84,7 @@ def adjust(strip_paths, outdir, trajectories, fixed, control, control_sigma_m, a
     check_after/) into OUTDIR."""
     from lidarctl.strips.adjust import adjust_strips
 
-    settings = AdjustSettings(max_slope_deg=adjust_max_slope_deg, fixed=fixed, shift_sigma_m=shift_sigma_m,
+    settings = StripAdjustSettings(max_slope_deg=adjust_max_slope_deg, fixed=fixed, shift_sigma_m=shift_sigma_m,
                               control_sigma_m=control_sigma_m)
     s = adjust_strips(strip_paths, outdir, settings, _params(kw), trajectories=trajectories, crs=crs, png=png,
                       control=control)

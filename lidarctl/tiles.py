@@ -188,7 +188,7 @@ class TileTask:
     classes_path: str
     core_index_path: str
     grid: TileGrid
-    params: object          # classify.ClassifyParams
+    params: object          # classify.ClassifySettings
     numba_threads: int = 0  # threads of numba's parallel loops in this task (0: numba's default)
     units: LengthUnits = METRE  # the input's units: tile files hold coordinates in them
     fusion: object = None   # lidarctl.fusion.Fusion: the orthophoto's rules after the LiDAR classes
@@ -461,7 +461,7 @@ def classify_file(in_path, out_path, crs=None, params=None, *, tile_size_m: floa
                   chunk_points: int = io.CHUNK_POINTS, fusion=None) -> ClassifyStats:
     """Classify a LAS/LAZ file of any size into ``out_path`` (LAS/LAZ by suffix), tile by tile.
 
-    ``crs``: used only when the file has none (never guessed). ``params``: classify.ClassifyParams.
+    ``crs``: used only when the file has none (never guessed). ``params``: classify.ClassifySettings.
     ``tile_size_m`` / ``buffer_m``: metres, default from ``plan_tiles``; a cloud in feet is classified
     in metres (its CRS's units) and written back unchanged but for the classes. ``executor``: an
     ``aerotri.core.executor.Executor`` (default: local threads). ``work_dir``: parent folder of the
@@ -541,7 +541,7 @@ def _classify(in_paths, out_paths, crs, params, *, tile_size_m, buffer_m, execut
     from lidarctl import classify as cl
 
     t0 = time.perf_counter()
-    params = params or cl.ClassifyParams()
+    params = params or cl.ClassifySettings()
     headers = [las.read_header(q) for q in in_paths]
     for q, h in zip(in_paths, headers):
         if h.point_count == 0:
@@ -713,7 +713,7 @@ def classify_command(in_paths, out_path, keep_classes: bool = False, method: str
     ground filter's parameter file and per-parameter options over ``params`` (``ground.resolve_options``:
     ``ground_options`` {(filter, name): value or None}; ``method_given``/``preset_given``: the command line named
     them, so the file's do not count), fused with an orthophoto (``image_path``, ``nir``); ``keep_classes``: the
-    delivered classes, checked. The other settings are ``ClassifyParams``' defaults. Returns the line the command
+    delivered classes, checked. The other settings are ``ClassifySettings``' defaults. Returns the line the command
     prints."""
     from aerotri.core.executor import executor_for
     from lidarctl import classify as cl
@@ -727,7 +727,7 @@ def classify_command(in_paths, out_path, keep_classes: bool = False, method: str
                               param="--format")
     method, preset, overrides = ground.resolve_options(method, preset, ground_params_file, ground_options,
                                                        method_given=method_given, preset_given=preset_given)
-    params = cl.ClassifyParams(ground_method=method, preset=preset, ground_params=overrides, keep_classes=keep_classes)
+    params = cl.ClassifySettings(ground_method=method, preset=preset, ground_params=overrides, keep_classes=keep_classes)
     if nir is not None and image_path is None:
         raise OptionError("--nir: only with --image", param="--nir")
     fusion = None

@@ -35,7 +35,7 @@ LINE_LAYERS = ("road_centrelines", "contours")
 
 
 @dataclasses.dataclass(frozen=True)
-class CheckParams:
+class VectorCheckSettings:
     layers: tuple = ()  # empty: every layer the two files share
     match_m: float = 3.0
     buffer_m: float = 2.0
@@ -138,7 +138,7 @@ def buffer_overlap(prod: list, ref: list, buffer: float) -> dict:
             "correctness_pct": 100 * matched_prod / lp if lp else None}
 
 
-def check_vectors(product_path, reference_path, params: CheckParams = CheckParams()) -> dict:
+def check_vectors(product_path, reference_path, params: VectorCheckSettings = VectorCheckSettings()) -> dict:
     """Accuracy of the DLG ``product_path`` against ``reference_path`` (see the module doc), as a JSON-ready
     dict (metres). Raises InputError / CrsError / OptionError naming the file or option."""
     from aerotri.core.tolerances import TERRAINS, load_tolerances
@@ -283,7 +283,7 @@ def format_report(result: dict) -> str:
     return "\n".join(lines)
 
 
-def check_files(product_path, reference_path, params: CheckParams = CheckParams(), json_path=None,
+def check_files(product_path, reference_path, params: VectorCheckSettings = VectorCheckSettings(), json_path=None,
                 png_path=None) -> dict:
     """``check_vectors`` + the JSON and the offset plot (atomic), refusing an input as output."""
     import json

@@ -48,7 +48,7 @@ class GeometryMode:
         return d
 
 
-def geometry_modes(block: G.Block, opts: G.Options, state: G.State, obs_active, control_active, rc,
+def geometry_modes(block: G.Block, opts: G.SolveSettings, state: G.State, obs_active, control_active, rc,
                    sigma0: float, rays: PointRays | None = None) -> list[GeometryMode]:
     """The four modes of the tie points' heights (see the module docstring) at the solution ``state``;
     ``rc``: the reduced covariance (``covariance.ReducedCovariance``, unit weight); ``rays``: the points'
@@ -105,7 +105,7 @@ def geometry_modes(block: G.Block, opts: G.Options, state: G.State, obs_active, 
     return out
 
 
-def _gnss_information(block: G.Block, opts: G.Options, state: G.State, rc, u_c: np.ndarray) -> np.ndarray:
+def _gnss_information(block: G.Block, opts: G.SolveSettings, state: G.State, rc, u_c: np.ndarray) -> np.ndarray:
     """``u' H_gnss u`` per mode: the GNSS positions' weighted change under each mode's ``u``."""
     w = 1.0 / block.gnss_sigma_m**2
     out = np.zeros(len(u_c))

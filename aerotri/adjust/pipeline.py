@@ -59,7 +59,7 @@ class BlockAdjustment:
     camera_apriori: FrameCamera
     camera_adjusted: FrameCamera
     block: G.Block
-    opts: G.Options
+    opts: G.SolveSettings
     result: AdjustmentResult
     eo_map: ExteriorOrientations
     points_map: np.ndarray  # (P, 3)
@@ -213,7 +213,7 @@ class PreparedBlock:
     frame: LocalFrame
     camera: FrameCamera
     block: G.Block
-    opts: G.Options
+    opts: G.SolveSettings
     control_used: ControlPoints  # control points in the adjustment (block.control_point order)
     check_points: ControlPoints
     control_obs: ImageObservations
@@ -454,7 +454,7 @@ def prepare_project(root, settings: AdjustSettings | None = None) -> tuple[Prepa
     )
     if st.dem is not None:
         block.surface = _surface_control(project, st, frame, approx_pos_map)
-    opts = G.Options(
+    opts = G.SolveSettings(
         image_sigma_px=float(st.image_sigma_px), gnss_correction=st.gnss_correction if gl is not None else "none",
         self_calibration=tuple(st.self_calibration),
     )

@@ -59,13 +59,13 @@ class AdjustmentResult:
     variance_components: list | None = None  # variance_components.VarianceComponent per group (final weights)
     weight_factors: dict | None = None  # group -> factor its a-priori sigmas were multiplied by (reweighting)
     block: G.Block | None = None  # the block as solved last (its sigmas reweighted by the variance components)
-    opts: G.Options | None = None
+    opts: G.SolveSettings | None = None
     geometry: list | None = None  # geometry_modes.GeometryMode: how well the block's height modes are determined
 
 
 def adjust_block(
     block: G.Block,
-    opts: G.Options,
+    opts: G.SolveSettings,
     state0: G.State,
     snooping: bool = True,
     alpha: float = 1e-4,
@@ -237,7 +237,7 @@ def adjust_block(
     )
 
 
-def _point_precision(block: G.Block, opts: G.Options, state: G.State, obs_active, control_active, marg, dof: int):
+def _point_precision(block: G.Block, opts: G.SolveSettings, state: G.State, obs_active, control_active, marg, dof: int):
     """(the rays' linearisation, the points' unit-weight covariances, the groups' variance components) at the
     solution ``state`` with its reduced covariance ``marg``."""
     self_cal = bool(opts.self_calibration)

@@ -7,7 +7,7 @@ from pathlib import Path
 
 import click
 
-from aerotri.chain.options import ChainOptions
+from aerotri.chain.options import ChainSettings
 from aerotri.core.commands import Command, scheduler_options
 from aerotri.core.settings import click_option
 
@@ -20,10 +20,10 @@ log = logging.getLogger(__name__)
               help="Reference orthophoto for the DOM check.")
 @click.option("--points", type=click.Path(dir_okay=False, exists=True, path_type=Path),
               help="Surveyed points (id,x,y,z[,group]) for the LiDAR height check.")
-@click_option(ChainOptions, "rectify.dem", "--dem", type=click.Path(dir_okay=False, exists=True, path_type=Path),
+@click_option(ChainSettings, "rectify.dem", "--dem", type=click.Path(dir_okay=False, exists=True, path_type=Path),
               help="DEM for the orthophotos (project.toml [rectify] dem; default: the DEM of the LiDAR stages).")
 @click.option("--force", is_flag=True, help="Re-run every stage even when it is up to date.")
-@click_option(ChainOptions, "classify.keep_classes", "--keep-lidar-classes", show_default=False,
+@click_option(ChainSettings, "classify.keep_classes", "--keep-lidar-classes", show_default=False,
               help="Keep the classes the LiDAR was delivered with (checked for plausible ground and buildings) "
                    "instead of classifying it (project.toml [classify] keep_classes).")
 @scheduler_options

@@ -33,7 +33,7 @@ from aerotri.control.settings import ControlSettings
 from aerotri.core.project import PROJECT_SECTIONS, STAGE_SECTION_NAMES, Project, check_sections
 from aerotri.core.settings import Resolved, resolve
 from aerotri.match.settings import MatchSettings
-from lidarctl.classify import ClassifyParams
+from lidarctl.classify import ClassifySettings
 from lidarctl.corners import CornerSettings
 from lidarctl.rasters import RasterSettings
 from lidarctl.strips.settings import StripsSettings
@@ -43,7 +43,7 @@ from ortho.settings import CheckSettings, MosaicSettings, RectifySettings
 # section -> the settings dataclass of the stage it configures (in chain order)
 STAGE_SECTIONS = {
     "strips": StripsSettings,
-    "classify": ClassifyParams,
+    "classify": ClassifySettings,
     "rasters": RasterSettings,
     "corners": CornerSettings,
     "vectors": VectorsSettings,
@@ -62,12 +62,12 @@ ALL_SECTIONS = [(name, cls) for name, cls in PROJECT_SECTIONS.items()] + list(ST
 
 
 @dataclasses.dataclass(frozen=True)
-class ChainOptions:
+class ChainSettings:
     """The settings of every stage, from project.toml (defaults where a section or key is absent)."""
 
     SECTION: ClassVar[str] = ""  # the whole file: one field per stage section
     strips: StripsSettings = dataclasses.field(default_factory=StripsSettings)
-    classify: ClassifyParams = dataclasses.field(default_factory=ClassifyParams)
+    classify: ClassifySettings = dataclasses.field(default_factory=ClassifySettings)
     rasters: RasterSettings = dataclasses.field(default_factory=RasterSettings)
     corners: CornerSettings = dataclasses.field(default_factory=CornerSettings)
     vectors: VectorsSettings = dataclasses.field(default_factory=VectorsSettings)
@@ -79,20 +79,20 @@ class ChainOptions:
     dom_check: CheckSettings = dataclasses.field(default_factory=CheckSettings)
 
 
-def read_stage_sections(config: dict, source: str, base_dir=None) -> ChainOptions:
+def read_stage_sections(config: dict, source: str, base_dir=None) -> ChainSettings:
     """Check every section of a project.toml table and build the stage settings.
 
     ``source`` names the file in messages; ``base_dir`` anchors relative file names (the project).
     """
     source = Path(source)
     project = Project(Path(base_dir) if base_dir is not None else source.parent, config, check_sections(config, source))
-    return resolve(ChainOptions, project).settings
+    return resolve(ChainSettings, project).settings
 
 
 def read_options(project: Project, ctx=None) -> Resolved:
     """The stage settings of a project (its project.toml, checked whole) with the options of ``aerotri run`` given on
     the command line (``ctx``), and the source of every setting (dotted paths ``adjust.gnss_correction``)."""
-    return resolve(ChainOptions, project, ctx)
+    return resolve(ChainSettings, project, ctx)
 
 
 # what reads each section (docs/settings.md)
@@ -120,7 +120,7 @@ def option_names(groups: list[tuple[str, object]]) -> dict:
             walk(f"{prefix} {name}", sub)
         for param in setting_options(command):
             cls, path = param.settings_cls, param.field
-            if cls is ChainOptions:  # aerotri run's options: [section] key
+            if cls is ChainSettings:  # aerotri run's options: [section] key
                 head, _, path = path.partition(".")
                 cls = STAGE_SECTIONS[head]
             out.setdefault((cls, path), []).append(f"{prefix} {param.opts[0]}")

@@ -26,7 +26,7 @@ import json
 import logging
 from pathlib import Path
 
-from aerotri.chain.options import ChainOptions, read_options
+from aerotri.chain.options import ChainSettings, read_options
 from aerotri.chain.runner import Stage
 from aerotri.core.atomic import write_text_atomic
 from aerotri.core.settings import COMMAND_LINE, Resolved, settings_of, to_table
@@ -59,19 +59,19 @@ class Chain:
     """The stages of one project; ``stages()`` lists them in order (see the module docstring)."""
 
     project: Project
-    settings: Resolved | ChainOptions  # every stage's settings (read_options: with their sources)
+    settings: Resolved | ChainSettings  # every stage's settings (read_options: with their sources)
     reference_ortho: Path | None = None  # DOM check against this orthophoto
     surveyed_points: Path | None = None  # LiDAR height check at these points
     dem: Path | None = None  # overrides [rectify] dem (as aerotri run --dem)
     truth_classes: bool = False  # simulated projects: classification against truth/lidar
 
     def __post_init__(self):
-        self.settings = settings_of(self.settings, ChainOptions)
+        self.settings = settings_of(self.settings, ChainSettings)
         if self.dem is not None:
             self.settings = self.settings.replace("rectify.dem", Path(self.dem), COMMAND_LINE)
 
     @property
-    def options(self) -> ChainOptions:
+    def options(self) -> ChainSettings:
         return self.settings.settings
 
     def stage_settings(self, section: str) -> Resolved:
@@ -318,11 +318,11 @@ class Chain:
 
     def run_vectors(self, root) -> dict:
         from aerotri.core.tolerances import qa_settings
-        from lidarctl.map_vectors import VectorParams, vectors_to_file
-        from lidarctl.vector_check import CheckParams, check_files
+        from lidarctl.map_vectors import MapVectorSettings, vectors_to_file
+        from lidarctl.vector_check import VectorCheckSettings, check_files
 
         p = self.project
-        s = vectors_to_file(self.classified(), p.vectors_path, VectorParams(), crs=p.crs)
+        s = vectors_to_file(self.classified(), p.vectors_path, MapVectorSettings(), crs=p.crs)
         out = {k: s[k] for k in ("buildings", "roads", "water", "spot_heights") if k in s}
         ref = self.vectors_reference()
         if ref is None:
@@ -331,7 +331,7 @@ class Chain:
         if ref == p.truth_buildings_path:
             ref = self.truth_outline_reference()
         qa = qa_settings(root)
-        check = check_files(p.vectors_path, ref, CheckParams(layers=("buildings",), scale=qa["map_scale"],
+        check = check_files(p.vectors_path, ref, VectorCheckSettings(layers=("buildings",), scale=qa["map_scale"],
                                                              terrain=qa["terrain"]), p.vectors_check_path)
         b = check["layers"].get("buildings", {})
         out.update(corner_rms_xy_m=b.get("rms_xy_corner_m"), corners=b.get("n_matched_corners"))
@@ -513,7 +513,7 @@ class Chain:
         return dict(verdict=rep["overall"], passed=rep["passed"], failed=rep["failed"])
 
 
-def chain_stages(root, options: ChainOptions | Resolved | None = None, reference_ortho=None, surveyed_points=None,
+def chain_stages(root, options: ChainSettings | Resolved | None = None, reference_ortho=None, surveyed_points=None,
                  dem=None, truth_classes: bool = False) -> list[Stage]:
     """The stages of the project in ``root`` (its project.toml gives the options unless ``options``)."""
     project = Project.open(root)

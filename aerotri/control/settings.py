@@ -1,5 +1,5 @@
 """Options of the control stage: ``ControlSettings`` (``aerotri control``, ``[control]`` in project.toml) with
-how a corner is measured in a frame (``MeasureSettings``) and where control goes (``LayoutRule``).
+how a corner is measured in a frame (``MeasureSettings``) and where control goes (``LayoutSettings``).
 
 Each dataclass is the one place of its options, defaults and allowed values (``aerotri.core.settings``);
 the command line and project.toml read them from here.
@@ -35,7 +35,7 @@ class MeasureSettings:
 
 
 @dataclasses.dataclass(frozen=True)
-class LayoutRule:
+class LayoutSettings:
     """Where control goes (the rule: ``aerotri.control.layout``): spacings in baselines, the weights of the
     choice of a target's corner."""
 
@@ -64,7 +64,7 @@ class ControlSettings:
 
     SECTION: ClassVar[str] = "control"
     measure: MeasureSettings = MeasureSettings()
-    layout: LayoutRule = LayoutRule()
+    layout: LayoutSettings = LayoutSettings()
     tol_px: float = setting(0.7, min=0.05, help="Multi-ray reprojection residual tolerance (px).")
     image_sigma_px: float = setting(0.3, min=0.0, min_open=True,
                                     help="Image measurement precision used for the LiDAR comparison (px).")

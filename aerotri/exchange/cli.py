@@ -42,8 +42,8 @@ def export(project, formats, out_dir):
 @click.option("--force", is_flag=True, help="Replace project files the import writes (camera.toml, gnss.txt, ...).")
 def import_(project, files, format_name, crs, sigma_xyz_m, force):
     from aerotri.exchange.import_registry import import_files
-    from aerotri.exchange.imported import ImportOptions
+    from aerotri.exchange.imported import ImportSettings
 
-    options = ImportOptions(crs=crs, sigma_xyz_m=tuple(sigma_xyz_m) if sigma_xyz_m else None)
+    options = ImportSettings(crs=crs, sigma_xyz_m=tuple(sigma_xyz_m) if sigma_xyz_m else None)
     for path in import_files(project, format_name, files, options, overwrite=force):
         click.echo(str(path))

@@ -13,14 +13,14 @@ from typing import Callable
 from aerotri.core.errors import InputError, OptionError
 from aerotri.core.project import Project
 from aerotri.exchange import colmap, exif, metashape, micmac, odm, opensfm, orthority, patb
-from aerotri.exchange.imported import ImportedBlock, ImportOptions, write_imported
+from aerotri.exchange.imported import ImportedBlock, ImportSettings, write_imported
 
 
 @dataclasses.dataclass(frozen=True)
 class Importer:
     name: str
     description: str
-    read: Callable[[list[Path], Project, ImportOptions], ImportedBlock]
+    read: Callable[[list[Path], Project, ImportSettings], ImportedBlock]
     files: str = "FILE..."  # what the format expects, for messages (e.g. "reconstruction.json")
 
 
@@ -45,7 +45,7 @@ IMPORT_FORMATS: dict[str, Importer] = {
 }
 
 
-def import_files(root, format_name: str, files, options: ImportOptions | None = None,
+def import_files(root, format_name: str, files, options: ImportSettings | None = None,
                  overwrite: bool = False) -> list[Path]:
     """Read ``files`` of format ``format_name`` and write what they hold into the project folder ``root``
     (``aerotri.exchange.imported.write_imported``). Returns the files written."""
@@ -59,5 +59,5 @@ def import_files(root, format_name: str, files, options: ImportOptions | None = 
         if not f.exists():
             raise InputError(f"{f}: not found ({format_name} expects {IMPORT_FORMATS[format_name].files})")
     project = Project.open(root)
-    block = IMPORT_FORMATS[format_name].read(files, project, options or ImportOptions())
+    block = IMPORT_FORMATS[format_name].read(files, project, options or ImportSettings())
     return write_imported(project.root, block, format_name, overwrite=overwrite)

@@ -54,7 +54,7 @@ class ImportedBlock:
 
 
 @dataclasses.dataclass(frozen=True, kw_only=True)
-class ImportOptions:
+class ImportSettings:
     """Choices a format may need. ``crs``: the CRS of the input when the file does not carry one;
     ``sigma_xyz_m``: accuracy of positions the source gives none for."""
 

@@ -36,7 +36,7 @@ from aerotri.core.errors import InputError, OptionError
 from aerotri.core.project import Project
 from aerotri.core.textio import read_text
 from aerotri.exchange.adjusted import AdjustedBlock
-from aerotri.exchange.imported import ImportedBlock, ImportOptions, to_project_crs
+from aerotri.exchange.imported import ImportedBlock, ImportSettings, to_project_crs
 from aerotri.geom.observations import ControlPoints, ImageObservations, read_image_points
 
 _UTM = re.compile(r"^WGS84\s+UTM\s+(\d{1,2})\s*([NS]?)$", re.IGNORECASE)
@@ -102,7 +102,7 @@ def read_gcp_list(path) -> tuple[str, list[tuple[str, np.ndarray]], list[tuple[s
     return crs, list(points.items()), obs
 
 
-def read(files, project: Project, options: ImportOptions) -> ImportedBlock:
+def read(files, project: Project, options: ImportSettings) -> ImportedBlock:
     """The ``odm`` importer: control points and their image measurements of a gcp_list.txt."""
     if len(files) != 1:
         raise InputError(f"odm expects one gcp_list.txt, got {len(files)} files")

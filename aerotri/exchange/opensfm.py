@@ -33,7 +33,7 @@ import numpy as np
 from aerotri.core.errors import InputError
 from aerotri.core.project import Project
 from aerotri.core.textio import read_json
-from aerotri.exchange.imported import ImportedBlock, ImportOptions, to_project_crs
+from aerotri.exchange.imported import ImportedBlock, ImportSettings, to_project_crs
 from aerotri.geom.camera import BrownCamera
 from aerotri.geom.eo import ExteriorOrientations, GnssPositions
 from aerotri.geom.rotation import FLIP_YZ, opk_from_matrix
@@ -159,7 +159,7 @@ def read_reconstruction(path) -> tuple[dict, dict]:
     return rec, ref
 
 
-def read(files, project: Project, options: ImportOptions) -> ImportedBlock:
+def read(files, project: Project, options: ImportSettings) -> ImportedBlock:
     """The ``opensfm`` importer (see the module docstring)."""
     from aerotri.geom.local_frame import LocalFrame
 

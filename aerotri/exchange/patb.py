@@ -42,7 +42,7 @@ from aerotri.core.errors import InputError
 from aerotri.core.project import Project
 from aerotri.core.textio import read_text
 from aerotri.exchange.adjusted import AdjustedBlock
-from aerotri.exchange.imported import ImportedBlock, ImportOptions, to_project_crs
+from aerotri.exchange.imported import ImportedBlock, ImportSettings, to_project_crs
 from aerotri.exchange.poses import adjusted_orientations, number, orientations_to_project
 from aerotri.geom.camera import Camera
 from aerotri.geom.eo import GnssPositions
@@ -173,7 +173,7 @@ def read_cam(path: Path) -> Camera:
     return Camera.from_dict(d, source=str(path))
 
 
-def _control_sigma(project: Project, options: ImportOptions, path: Path) -> np.ndarray:
+def _control_sigma(project: Project, options: ImportSettings, path: Path) -> np.ndarray:
     if options.sigma_xyz_m:
         return np.asarray(options.sigma_xyz_m, float)
     c = project.control_points
@@ -183,7 +183,7 @@ def _control_sigma(project: Project, options: ImportOptions, path: Path) -> np.n
                      f"sigma_xy_m, sigma_z_m in {project.config_path}")
 
 
-def read_con(path: Path, project: Project, options: ImportOptions) -> ControlPoints:
+def read_con(path: Path, project: Project, options: ImportSettings) -> ControlPoints:
     ids, kinds, xyz, seen = [], [], [], {}
     for n, f, line in _records(path, "PATB-style control (.con)"):
         if f == [END]:
@@ -239,7 +239,7 @@ def pixels_of_photo_mm(camera: Camera, xy_mm: np.ndarray) -> np.ndarray:
     return np.column_stack([x_px, y_px])
 
 
-def read(files: list[Path], project: Project, options: ImportOptions) -> ImportedBlock:
+def read(files: list[Path], project: Project, options: ImportSettings) -> ImportedBlock:
     """``.ori``, ``.cam``, ``.con`` and ``.im`` files (see the module docstring)."""
     by = {}
     for f in files:

@@ -191,21 +191,21 @@ class _Matcher:
         self.feature_cache_hits = 0
         self.match_cache_hits = 0
 
-    def _item(self, i: int, p: F.FeatureParams) -> tuple:
+    def _item(self, i: int, p: F.FeatureSettings) -> tuple:
         return (self.images[self.ids[i]], self.cache_f, p, (self.camera.width, self.camera.height))
 
-    def extract(self, frames, p: F.FeatureParams, desc: str) -> list:
+    def extract(self, frames, p: F.FeatureSettings, desc: str) -> list:
         """Extract (or find cached) the features of the given frames, one task per frame; their cache keys."""
         items = [self._item(i, p) for i in frames]
         self.feature_cache_hits += sum(self.ex.map(_features_task, items, desc=desc, unit="frame"))
         return items
 
-    def features(self, frames, p: F.FeatureParams, desc: str) -> dict:
+    def features(self, frames, p: F.FeatureSettings, desc: str) -> dict:
         """Features of the given frames (index -> Features), extracted as one task per frame."""
         frames = list(frames)
         return {i: F.cached_features(*item) for i, item in zip(frames, self.extract(frames, p, desc))}
 
-    def match(self, pairs_ij, fp: F.FeatureParams, p: M.MatchParams, desc: str) -> list:
+    def match(self, pairs_ij, fp: F.FeatureSettings, p: M.PairMatchSettings, desc: str) -> list:
         """Verified matches of the given frame pairs, one task per pair (features read from the cache)."""
         items = [(f"{self.ids[i]}__{self.ids[j]}", self._item(i, fp), self._item(j, fp), self.camera, p, self.cache_m,
                   self.plan.guide(i, j, p.guide_margin) if self.plan is not None else None)
@@ -218,7 +218,7 @@ class _Matcher:
 def _retrieved_pairs(mt: _Matcher, s: MatchSettings) -> list[Pair]:
     """Without GNSS (e.g. a kite block): the frame pairs whose thumbnails match."""
     n = len(mt.ids)
-    thumb = F.FeatureParams(budget=1500, grid=(6, 4), max_dim_px=1000, name="thumb")
+    thumb = F.FeatureSettings(budget=1500, grid=(6, 4), max_dim_px=1000, name="thumb")
     mt.extract(range(n), thumb, "thumbnails")  # the retrieval tasks read them from the cache
     all_pairs = [(i, j) for i in range(n) for j in range(i + 1, n)]
     return [Pair(i, j, "retrieved", float(len(m)))

@@ -38,7 +38,7 @@ def test_deck_between_two_gaps_along_the_canal_is_a_bridge_the_strip_between_can
     x, y, z, deck, strip = bridge_scene()
     ground = np.ones(len(x), bool)
     spacing = 1 / np.sqrt(3.0)
-    p = classify.ClassifyParams()
+    p = classify.ClassifySettings()
     found = classify.bridge_decks(x, y, z, ground, np.zeros(len(x), bool), spacing, p)
     assert found[deck].mean() > 0.9
     # nothing else: not the ramps, not the quays along the canals, not the raised strip between
@@ -47,7 +47,7 @@ def test_deck_between_two_gaps_along_the_canal_is_a_bridge_the_strip_between_can
     # only ground points are judged; 0 disables the rule
     half = np.arange(len(x)) % 2 == 0
     assert not classify.bridge_decks(x, y, z, half, np.zeros(len(x), bool), spacing, p)[~half].any()
-    off = classify.ClassifyParams(bridge_max_width_m=0.0)
+    off = classify.ClassifySettings(bridge_max_width_m=0.0)
     assert not classify.bridge_decks(x, y, z, ground, np.zeros(len(x), bool), spacing, off).any()
     # a deck at quay level (a dam between two basins) is not a bridge
     flat = np.where(deck, z - 1.2, z)

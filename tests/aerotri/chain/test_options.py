@@ -17,7 +17,7 @@ from click.testing import CliRunner
 
 from aerotri.adjust.pipeline import AdjustSettings, adjust_project
 from aerotri.geom.camera import FrameCamera
-from aerotri.chain.options import STAGE_SECTIONS, ChainOptions, read_stage_sections
+from aerotri.chain.options import STAGE_SECTIONS, ChainSettings, read_stage_sections
 from aerotri.cli import main as aerotri_cli
 from aerotri.core.errors import ConfigError, CrsError
 from aerotri.geom.eo import ExteriorOrientations, read_eo, write_eo
@@ -34,8 +34,8 @@ PROJECT = '[project]\nname = "t"\ncrs = "EPSG:32649"\n'
 
 # -- options ------------------------------------------------------------------------------------
 def test_defaults_are_the_stage_settings_and_values_are_read_with_their_types(tmp_path):
-    assert read_stage_sections(tomllib.loads(PROJECT), "project.toml") == ChainOptions()
-    assert ChainOptions().rasters == RasterSettings() and ChainOptions().corners == CornerSettings()
+    assert read_stage_sections(tomllib.loads(PROJECT), "project.toml") == ChainSettings()
+    assert ChainSettings().rasters == RasterSettings() and ChainSettings().corners == CornerSettings()
     cfg = tomllib.loads(PROJECT + """
 [corners]
 roof = "any"
@@ -62,7 +62,7 @@ res_m = 0.25
     assert o.control.tol_px == 0.9 and o.control.layout.min_frames == 2 and o.control.layout.height_every_strips == 3
     assert o.match.sparse.budget == 800 and o.match.sparse.max_dim_px == 3000 and o.match.dense.budget == 10000
     assert o.rectify.dem == tmp_path / "../dem.tif" and o.rectify.res_m == 0.25
-    assert o.mosaic == ChainOptions().mosaic
+    assert o.mosaic == ChainSettings().mosaic
 
 
 @pytest.mark.parametrize("extra, expected", [

@@ -12,7 +12,7 @@ from click.testing import CliRunner
 
 from aerotri.cli import main as aerotri_cli
 from aerotri.core.errors import CrsError, InputError, OptionError
-from aerotri.exchange import ImportOptions, export_project, import_files
+from aerotri.exchange import ImportSettings, export_project, import_files
 from aerotri.exchange.adjusted import read_adjusted_block
 from aerotri.geom.observations import read_control_points, read_image_points
 
@@ -86,7 +86,7 @@ def test_copr_kite_gcp_list_imported(shared_data, tmp_path):
     """Coal Oil Point: 10 targets, 27 measurements, UTM 11N coordinates unchanged in an EPSG:32611 project."""
     path = shared_data / "copr_kite" / "gcp_list.txt"
     root = _fresh(tmp_path, crs="EPSG:32611")
-    import_files(root, "odm", [path], ImportOptions(sigma_xyz_m=(0.3, 0.3, 5.0)))
+    import_files(root, "odm", [path], ImportSettings(sigma_xyz_m=(0.3, 0.3, 5.0)))
     rows = [ln.split("\t") for ln in path.read_text().splitlines()[1:] if ln.strip()]
     c = read_control_points(root / "control" / "points.csv")
     o = read_image_points(root / "control" / "image_points.csv")
@@ -105,7 +105,7 @@ def test_crs_lines_and_unnamed_points(tmp_path):
     f.write_text("# made by hand\nWGS84 UTM 11N\n235269.88 3811198.11 12.5 10 20 a.jpg\n"
                  "235269.88 3811198.11 12.5 30 40 b.jpg\n235262.54 3811203.5 NaN 50 60 a.jpg\n")
     root = _fresh(tmp_path, crs="EPSG:32611")
-    import_files(root, "odm", [f], ImportOptions(sigma_xyz_m=(0.1, 0.1, 0.2)))
+    import_files(root, "odm", [f], ImportSettings(sigma_xyz_m=(0.1, 0.1, 0.2)))
     c = read_control_points(root / "control" / "points.csv")
     assert list(c.id) == ["gcp1", "gcp2"] and list(c.kind) == ["full", "horizontal"]
     assert np.allclose(c.xyz_m[0], [235269.88, 3811198.11, 12.5])
@@ -129,7 +129,7 @@ def test_bad_gcp_lists_are_refused(tmp_path, text, error, message):
     f.write_text(text)
     root = _fresh(tmp_path, crs="EPSG:32611")
     with pytest.raises(error, match=message):
-        import_files(root, "odm", [f], ImportOptions(sigma_xyz_m=(0.1, 0.1, 0.2)))
+        import_files(root, "odm", [f], ImportSettings(sigma_xyz_m=(0.1, 0.1, 0.2)))
     assert not (root / "control").exists()
 
 

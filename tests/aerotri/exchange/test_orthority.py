@@ -16,7 +16,7 @@ from click.testing import CliRunner
 from aerotri.cli import main as aerotri_cli
 from aerotri.core.errors import CrsError, InputError
 from aerotri.core.project import Project
-from aerotri.exchange import ImportOptions, export_project, import_files
+from aerotri.exchange import ImportSettings, export_project, import_files
 from aerotri.geom.camera import adjusted_camera, read_camera
 from aerotri.geom.eo import read_eo, read_gnss
 
@@ -121,7 +121,7 @@ def test_crs_is_required_and_checked(tiny_project, tmp_path, fresh_project):
         import_files(root, "orthority", [f])
     (tmp_path / "ext.prj").unlink()
     # --crs instead of the sidecar; the project's CRS -> no change
-    import_files(root, "orthority", [f], options=ImportOptions(crs=Project.open(root).crs))
+    import_files(root, "orthority", [f], options=ImportSettings(crs=Project.open(root).crs))
     eo = read_eo(root / "imported" / "eo.txt")
     assert np.allclose(eo.centre_m, [[500100.0, 4100200.0, 900.0]]) and np.allclose(eo.opk_deg, [[0.5, -0.3, 90.0]])
 

@@ -12,7 +12,7 @@ from click.testing import CliRunner
 from aerotri.cli import main as aerotri_cli
 from aerotri.core.errors import InputError
 from aerotri.core.project import Project
-from aerotri.exchange import ImportOptions, export_project, import_files
+from aerotri.exchange import ImportSettings, export_project, import_files
 from aerotri.exchange.adjusted import read_adjusted_block
 from aerotri.geom.camera import adjusted_camera, read_camera
 from aerotri.geom.eo import read_eo
@@ -58,7 +58,7 @@ def test_ori_alone_with_explicit_crs(exported, tmp_path, fresh_project):
     the same operation as orthority's, tested there)."""
     root, patb = exported
     dst = fresh_project(root, tmp_path / "p")
-    import_files(dst, "patb", [patb / "block.ori"], ImportOptions(crs=Project.open(root).crs))
+    import_files(dst, "patb", [patb / "block.ori"], ImportSettings(crs=Project.open(root).crs))
     assert np.abs(read_eo(dst / "imported" / "eo.txt").centre_m - read_eo(Project.open(root).eo_path).centre_m).max() < 1e-4
 
 
@@ -86,7 +86,7 @@ def test_bad_input(tiny_project, tmp_path, name, text, match, fresh_project):
         (tmp_path / "c.con").write_text("g1 500000 4100000 10\n-99\n")
         extra = [tmp_path / "c.con"]
     with pytest.raises(InputError, match=match):
-        import_files(root, "patb", [f] + extra, ImportOptions(sigma_xyz_m=(0.02, 0.02, 0.03)))
+        import_files(root, "patb", [f] + extra, ImportSettings(sigma_xyz_m=(0.02, 0.02, 0.03)))
     assert not (root / "imported").exists() and not (root / "control").exists()
 
 
