@@ -1,10 +1,13 @@
 """The README's stage-by-stage commands against ``aerotri run`` on the demo project (issue 39, item 9).
 
-Two fresh copies of the demo project (``aerotri demo``'s simulated block; default the reference copy
-/work/ref/demo_chain/project, whose LiDAR strip check and classification are done): one runs ``aerotri run P
---reference P/truth/ortho.tif`` (the chain), the other runs the commands of the README's stage-by-stage block
-("The chain (what `aerotri run` and `make demo` do)"), read from README.md, one by one as a user types them
-(P the copy, REF.tif the true orthophoto, POINTS.csv the surveyed targets, lines of the block only). Both are
+Two copies of the demo project (``aerotri demo``'s simulated block; default the reference run
+/work/ref/demo_chain/project): the block's inputs alone (camera.toml, gnss.txt, images/, lidar/, project.toml,
+trajectory/, truth/) run the commands of the README's stage-by-stage block ("The chain (what `aerotri run` and
+`make demo` do)"), read from README.md, one by one as a user types them (P the copy, REF.tif the true
+orthophoto, POINTS.csv the surveyed targets, lines of the block only); the other runs ``aerotri run P
+--reference P/truth/ortho.tif`` (the chain) with the demo run's LiDAR stages (strip check, classification,
+rasters, corners: their products and stamps; ``--chain-from``) and every stage from the tie points on
+again. The LiDAR products of both are compared file by file (``lidar_products_identical``). Both are
 measured the same way against the simulator's truth (``truth/`` is read by the measurement alone):
 
 - AT check against the surveyed targets: ``bench/eval_variants.py``'s ``target_check`` (each target seen by
@@ -25,6 +28,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import re
 import shlex
 import shutil
@@ -60,11 +64,39 @@ def _run(cmd: str, log, cwd: Path) -> float:
     return time.perf_counter() - t0
 
 
-def _fresh_copy(src: Path, dst: Path) -> Path:
+INPUTS = ("README.txt", "camera.toml", "gnss.txt", "images", "lidar", "project.toml", "trajectory", "truth")
+LIDAR_STAGES = ("strips", "classify", "rasters", "corners")
+LIDAR_PRODUCTS = ("dem.tif", "dsm.tif", "ndsm.tif", "corners.csv", "roof_planes.geojson")
+
+
+def _inputs_copy(src: Path, dst: Path) -> Path:
+    """The demo project's inputs alone (no product of any stage)."""
     if dst.exists():
         shutil.rmtree(dst)
-    shutil.copytree(src, dst, symlinks=True)
+    dst.mkdir(parents=True)
+    for name in INPUTS:
+        if (src / name).is_dir():
+            shutil.copytree(src / name, dst / name, symlinks=True)
+        elif (src / name).is_file():
+            shutil.copy2(src / name, dst / name)
     return dst
+
+
+def _chain_copy(src: Path, dst: Path) -> Path:
+    """The inputs with the demo run's LiDAR stages (products in lidar_out/ and their stamps): the chain runs every
+    stage from the tie points on."""
+    _inputs_copy(src, dst)
+    shutil.copytree(src / "lidar_out", dst / "lidar_out", symlinks=True)
+    (dst / "work" / "stages").mkdir(parents=True)
+    for stage in LIDAR_STAGES:
+        shutil.copy2(src / "work" / "stages" / f"{stage}.json", dst / "work" / "stages" / f"{stage}.json")
+    for extra in ("classification_eval.json", "height_check.json"):  # made by checks the chain does not run here
+        (dst / "lidar_out" / extra).unlink(missing_ok=True)
+    return dst
+
+
+def _same_bytes(a: Path, b: Path) -> bool:
+    return a.is_file() and b.is_file() and a.read_bytes() == b.read_bytes()
 
 
 def attitude_rms(root: Path) -> dict:
@@ -111,8 +143,8 @@ def main() -> int:
     commands = readme_commands()
     timing = {}
     if not a.keep:
-        _fresh_copy(a.demo, chain)
-        _fresh_copy(a.demo, by_hand)
+        _chain_copy(a.demo, chain)
+        _inputs_copy(a.demo, by_hand)
         with open(a.work / "chain.log", "w") as log:
             timing["chain_s"] = round(_run(f"{bin_}/aerotri run {chain} --reference {chain}/truth/ortho.tif", log,
                                            REPO), 1)
@@ -127,11 +159,14 @@ def main() -> int:
                 steps.append(dict(command=cmd, seconds=round(_run(" ".join(words), log, REPO), 1)))
         timing["by_hand_steps"] = steps
         timing["by_hand_s"] = round(sum(s["seconds"] for s in steps), 1)
-    out = dict(code=code_version(), demo=str(a.demo), readme_commands=commands, timing=timing,
+    # a run from a snapshot of the code (git archive, PYTHONPATH) names its commit in AEROTRI_CODE_VERSION
+    out = dict(code=os.environ.get("AEROTRI_CODE_VERSION") or code_version(), demo=str(a.demo), readme_commands=commands, timing=timing,
                chain=measure(chain), by_hand=measure(by_hand))
     out["settings_differ"] = differences(out["chain"]["adjust_settings"], out["by_hand"]["adjust_settings"])
     same_eo = (chain / "at" / "eo.txt").read_bytes() == (by_hand / "at" / "eo.txt").read_bytes()
     out["same_at_eo_txt"] = same_eo
+    out["lidar_products_identical"] = {f: _same_bytes(chain / "lidar_out" / f, by_hand / "lidar_out" / f)
+                                       for f in LIDAR_PRODUCTS}
     a.results.parent.mkdir(parents=True, exist_ok=True)
     a.results.write_text(json.dumps(out, indent=1) + "\n")
     for name in ("chain", "by_hand"):

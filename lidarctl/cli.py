@@ -11,11 +11,13 @@ import click
 
 from aerotri.core.atomic import refuse_input_as_output
 from aerotri.core.commands import Group, fraction, positive, scheduler_options
-from aerotri.core.settings import click_option
+from aerotri.core.settings import click_option, resolve
 from lidarctl.classify import ClassifySettings
 from lidarctl.heights_check import GROUPINGS, DensityGroups
 from lidarctl.map_accuracy import MapEvalSettings
+from lidarctl.map_vectors import MapVectorSettings
 from lidarctl.plan_check import PlanCheckSettings
+from lidarctl.vector_check import VectorCheckSettings
 from lidarctl.rasters import DEFAULT_BUFFER_PX, DEFAULT_TILE_PX, DEFAULT_TIN_FILL_RADIUS_PX, RasterSettings
 
 
@@ -286,18 +288,12 @@ def check_heights(paths, dem_path, radius_m, exclude_m, grouping, cover_radius_m
         write_text_atomic(json_path, json.dumps(result, indent=2))
 
 
-_PLAN = PlanCheckSettings()
-
-
 @main.command("check-plan")
 @click.argument("paths", nargs=-1, required=True, type=click.Path(dir_okay=False), metavar="CLOUD... POINTS_CSV")
-@click.option("--radius", "radius_m", type=positive(), default=_PLAN.radius_m, show_default=True,
-              help="Largest distance (m) from a surveyed point to its LiDAR corner.")
-@click.option("--min-edge-m", "min_edge_m", type=positive(), default=None,
-              help="LiDAR corners whose two roof edges are at least this long (m), as lidarctl corners "
-                   "--min-edge-m. Default: max(2 m, 8 point spacings) of the measured spacing.")
-@click.option("--scale", default=_PLAN.scale, show_default=True, help="Map scale of the tolerance table.")
-@click.option("--terrain", default=_PLAN.terrain, show_default=True, help="Terrain class of the tolerance table.")
+@click_option(PlanCheckSettings, "radius_m", "--radius")
+@click_option(PlanCheckSettings, "min_edge_m", "--min-edge-m")
+@click_option(PlanCheckSettings, "scale", "--scale")
+@click_option(PlanCheckSettings, "terrain", "--terrain")
 @click.option("--json", "json_path", type=click.Path(dir_okay=False), default=None,
               help="Write the numbers as JSON (offsets in metres, _m keys; per-point coordinates in the cloud's "
                    "units).")
@@ -305,7 +301,7 @@ _PLAN = PlanCheckSettings()
               help="Offset vectors over the surveyed points and the histogram of the plan offsets.")
 @click.option("--crs", default=None, help="CRS (EPSG:code) of clouds that have none.")
 @click.option("--points-crs", default=None, help="CRS of POINTS_CSV, checked against the cloud's (never transformed).")
-def check_plan(paths, radius_m, min_edge_m, scale, terrain, json_path, png_path, crs, points_crs):
+def check_plan(paths, json_path, png_path, crs, points_crs, **_settings):
     """Plan check of classified CLOUD(s) (building class 6; strips in one CRS) against surveyed roof / building
     corners (POINTS_CSV id,x,y[,z] in the cloud's CRS and units): each point's nearest LiDAR roof corner (the
     eave corners of lidarctl corners) within --radius; dx, dy, plan offset (LiDAR - surveyed), RMS x / y /
@@ -314,7 +310,7 @@ def check_plan(paths, radius_m, min_edge_m, scale, terrain, json_path, png_path,
     from lidarctl import plan_check as pc
 
     *cloud_paths, points_csv = paths
-    params = PlanCheckSettings(radius_m=radius_m, min_edge_m=min_edge_m, scale=scale, terrain=terrain)
+    params = resolve(PlanCheckSettings, None, click.get_current_context()).settings
     result = pc.check_plan_files(cloud_paths, points_csv, params, crs=crs, points_crs=points_crs,
                                  json_path=json_path, png_path=png_path)
     click.echo(pc.format_report(result))
@@ -409,32 +405,25 @@ def drainage(dem_path, outdir, min_area_m2, fill, simplify_px, png):
               help="DEM GeoTIFF: its contours (--contour-interval-m) become the 'contours' layer.")
 @click.option("--contours", "contours_path", type=click.Path(dir_okay=False), default=None,
               help="Contour layer (.gpkg/.geojson, lidarctl contours) copied into OUT as 'contours'.")
-@click.option("--contour-interval-m", "contour_interval_m", type=positive(), default=1.0, show_default=True,
-              help="--dem: contour interval (m).")
-@click.option("--cell-m", "cell_m", type=positive(), default=1.0, show_default=True,
-              help="Cell of the road and water masks (m); about the point spacing or larger.")
-@click.option("--min-area-m2", "min_area_m2", type=positive(), default=50.0, show_default=True,
-              help="Road and water pieces (and holes in them) smaller than this (m2) are dropped (filled).")
-@click.option("--simplify-m", "simplify_m", type=positive(), default=0.5, show_default=True,
-              help="Douglas-Peucker tolerance of road/water polygons and centre lines (m).")
-@click.option("--spot-spacing-m", "spot_spacing_m", type=positive(), default=100.0, show_default=True,
-              help="One spot height per square of this side (m).")
+@click_option(MapVectorSettings, "contour_interval_m", "--contour-interval-m")
+@click_option(MapVectorSettings, "cell_m", "--cell-m")
+@click_option(MapVectorSettings, "min_area_m2", "--min-area-m2")
+@click_option(MapVectorSettings, "simplify_m", "--simplify-m")
+@click_option(MapVectorSettings, "spot_spacing_m", "--spot-spacing-m")
 @click.option("--crs", default=None, help="CRS (EPSG:code) when the files have none; never guessed.")
-def vectors(paths, image, dem, contours_path, contour_interval_m, cell_m, min_area_m2, simplify_m, spot_spacing_m,
-            crs):
+def vectors(paths, image, dem, contours_path, crs, **_settings):
     """Line-map (DLG) layers of the classified clouds PATHS... into OUT (the last argument, .gpkg): buildings
     (regularised outlines, eave/ridge heights, area), roads (polygons of class 11) and road_centrelines
     (width), water (class 9), spot_heights, and contours (--contours or --dem)."""
     from aerotri.core.errors import OptionError
-    from lidarctl.map_vectors import MapVectorSettings, vectors_to_file
+    from lidarctl.map_vectors import vectors_to_file
 
     if len(paths) < 2:
         raise OptionError("give the classified cloud(s) and then OUT.gpkg", param="PATHS")
     *clouds, out_path = paths
     if dem and contours_path:
         raise OptionError("give --dem or --contours, not both", param="--contours")
-    params = MapVectorSettings(cell_m=cell_m, min_area_m2=min_area_m2, simplify_m=simplify_m, spot_spacing_m=spot_spacing_m,
-                          contour_interval_m=contour_interval_m)
+    params = resolve(MapVectorSettings, None, click.get_current_context()).settings
     s = vectors_to_file(clouds, out_path, params, crs=crs, dem=dem, contours=contours_path, image=image)
     counts = ", ".join(f"{k} {s[k]}" for k in ("buildings", "roads", "road_centrelines", "water", "spot_heights",
                                                "contours") if k in s)
@@ -445,22 +434,21 @@ def vectors(paths, image, dem, contours_path, contour_interval_m, cell_m, min_ar
 @click.argument("product_path", type=click.Path(dir_okay=False))
 @click.option("--reference", "reference_path", type=click.Path(dir_okay=False), required=True,
               help="Reference vectors (.gpkg) with layers of the same names (buildings, roads, ...).")
-@click.option("--layer", "layers", multiple=True, help="Check only this layer (repeatable) [every shared layer].")
+@click_option(VectorCheckSettings, "layers", "--layer", multiple=True, show_default=False,
+              help="Check only this layer (repeatable) [every shared layer].")
 @click.option("--json", "json_path", type=click.Path(dir_okay=False), default=None, help="Write the numbers as JSON.")
 @click.option("--png", "png_path", type=click.Path(dir_okay=False), default=None,
               help="Plot of the building outlines and corner offset vectors.")
-@click.option("--match-m", "match_m", type=positive(), default=3.0, show_default=True,
-              help="Largest distance (m) of a produced corner from its reference corner to pair them.")
-@click.option("--buffer-m", "buffer_m", type=positive(), default=2.0, show_default=True,
-              help="Buffer (m) around lines for their completeness and correctness.")
-@click.option("--scale", default="1:10000", show_default=True, help="Map scale of the tolerance table.")
-@click.option("--terrain", default="flat", show_default=True, help="Terrain class of the tolerance table.")
-def check_vectors(product_path, reference_path, layers, json_path, png_path, match_m, buffer_m, scale, terrain):
+@click_option(VectorCheckSettings, "match_m", "--match-m")
+@click_option(VectorCheckSettings, "buffer_m", "--buffer-m")
+@click_option(VectorCheckSettings, "scale", "--scale")
+@click_option(VectorCheckSettings, "terrain", "--terrain")
+def check_vectors(product_path, reference_path, json_path, png_path, **_settings):
     """Line-map accuracy of PRODUCT_PATH (lidarctl vectors) against --reference: plan RMS of the building corners
     (to the nearest reference outline and to the matched reference corner), completeness and correctness of
     each layer by area (polygons) or buffer (lines), with the map scale's tolerance for well-defined features."""
     from lidarctl import vector_check as vc
 
-    params = vc.VectorCheckSettings(layers=tuple(layers), match_m=match_m, buffer_m=buffer_m, scale=scale, terrain=terrain)
+    params = resolve(VectorCheckSettings, None, click.get_current_context()).settings
     result = vc.check_files(product_path, reference_path, params, json_path, png_path)
     click.echo(vc.format_report(result))

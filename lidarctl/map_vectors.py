@@ -36,6 +36,7 @@ from pathlib import Path
 
 import numpy as np
 
+from aerotri.core.settings import setting
 from aerotri.core.errors import CrsError, InputError, OptionError
 
 log = logging.getLogger(__name__)
@@ -54,11 +55,14 @@ LAYERS = ("buildings", "roads", "road_centrelines", "water", "spot_heights", "co
 class MapVectorSettings:
     """Cell size of the road/water masks, smallest polygon, simplification, spot-height spacing (metres)."""
 
-    cell_m: float = 1.0
-    min_area_m2: float = 50.0
-    simplify_m: float = 0.5
-    spot_spacing_m: float = 100.0
-    contour_interval_m: float = 1.0
+    cell_m: float = setting(1.0, min=0.0, min_open=True, help="Cell of the road and water masks (m); about the point "
+                                                              "spacing or larger.")
+    min_area_m2: float = setting(50.0, min=0.0, min_open=True, help="Road and water pieces (and holes in them) smaller "
+                                                                    "than this (m2) are dropped (filled).")
+    simplify_m: float = setting(0.5, min=0.0, min_open=True, help="Douglas-Peucker tolerance of road/water polygons and "
+                                                                  "centre lines (m).")
+    spot_spacing_m: float = setting(100.0, min=0.0, min_open=True, help="One spot height per square of this side (m).")
+    contour_interval_m: float = setting(1.0, min=0.0, min_open=True, help="--dem: contour interval (m).")
 
 
 @dataclasses.dataclass

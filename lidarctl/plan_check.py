@@ -28,6 +28,7 @@ from pathlib import Path
 
 import numpy as np
 
+from aerotri.core.settings import setting
 from aerotri.core.errors import CrsError, InputError, OptionError
 
 log = logging.getLogger(__name__)
@@ -36,11 +37,15 @@ log.addHandler(logging.NullHandler())
 
 @dataclasses.dataclass(frozen=True)
 class PlanCheckSettings:
-    radius_m: float = 2.0
-    min_edge_m: float | None = None  # corners whose two edges are at least this long; None: lidarctl corners'
-    # density-adaptive default (``corners.default_min_edge_m`` of the measured point spacing)
-    scale: str = "1:10000"
-    terrain: str = "flat"
+    """``lidarctl check-plan``: how surveyed corners are paired with the LiDAR's and judged."""
+
+    radius_m: float = setting(2.0, min=0.0, min_open=True, help="Largest distance (m) from a surveyed point to its "
+                                                                "LiDAR corner.")
+    min_edge_m: float | None = setting(None, min=0.0, min_open=True, help="LiDAR corners whose two roof edges are at "
+                                       "least this long (m), as lidarctl corners --min-edge-m. Default: max(2 m, 8 point "
+                                       "spacings) of the measured spacing.")
+    scale: str = setting("1:10000", help="Map scale of the tolerance table.")
+    terrain: str = setting("flat", help="Terrain class of the tolerance table.")
 
     def validate(self) -> None:
         for name, opt in (("radius_m", "--radius"), ("min_edge_m", "--min-edge-m")):

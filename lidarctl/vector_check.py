@@ -24,6 +24,7 @@ from pathlib import Path
 
 import numpy as np
 
+from aerotri.core.settings import setting
 from aerotri.core.errors import CrsError, InputError, OptionError
 
 log = logging.getLogger(__name__)
@@ -36,11 +37,15 @@ LINE_LAYERS = ("road_centrelines", "contours")
 
 @dataclasses.dataclass(frozen=True)
 class VectorCheckSettings:
-    layers: tuple = ()  # empty: every layer the two files share
-    match_m: float = 3.0
-    buffer_m: float = 2.0
-    scale: str = "1:10000"
-    terrain: str = "flat"
+    """``lidarctl check-vectors``: the layers checked, how corners are paired, the tolerance table."""
+
+    layers: tuple = setting((), help="Check only these layers (empty: every layer the two files share).")
+    match_m: float = setting(3.0, min=0.0, min_open=True, help="Largest distance (m) of a produced corner from its "
+                                                               "reference corner to pair them.")
+    buffer_m: float = setting(2.0, min=0.0, min_open=True, help="Buffer (m) around lines for their completeness and "
+                                                                "correctness.")
+    scale: str = setting("1:10000", help="Map scale of the tolerance table.")
+    terrain: str = setting("flat", help="Terrain class of the tolerance table.")
 
 
 def read_layers(path: Path) -> tuple[dict, object, float]:

@@ -188,7 +188,7 @@ class Project:
         if name == "":
             return {n: t for n in STAGE_SECTION_NAMES if (t := self.stage_table(n))}
         table = dict(self.config.get(name, {}))
-        shared = PROJECT_SECTIONS.get(name)
+        shared = PROJECT_SECTIONS.get(name) if name in STAGE_SECTION_NAMES else None
         return {k: v for k, v in table.items() if k not in _keys(shared)} if shared else table
 
     def settings(self, cls, name: str | None = None):

@@ -221,3 +221,51 @@ def test_one_suffix_for_settings_and_no_signature_introspection():
                     "dataclass" in ast.unparse(d) for d in node.decorator_list):
                 offenders.append(f"{path.relative_to(REPO)}: {node.name}")
     assert introspection == [] and offenders == []
+
+
+def test_report_takes_qa_then_the_command_line(tmp_path, monkeypatch):
+    """aerotri report: an option not given leaves the value to [qa] (then the default)."""
+    import aerotri.qa.report as qa_report
+
+    seen = []
+    monkeypatch.setattr(qa_report, "write_qa_report", lambda *a: seen.append(a) or (_ for _ in ()).throw(_Captured(a)))
+    p = _project(tmp_path, '\n[qa]\nmap_scale = "1:2000"\nterrain = "hilly"\n')
+    CliRunner().invoke(aerotri_cli, ["report", str(p)])
+    CliRunner().invoke(aerotri_cli, ["report", str(p), "--scale", "1:10000"])
+    assert [a[2:4] for a in seen] == [(None, None), (None, "1:10000")]
+    from aerotri.core.tolerances import qa_settings
+
+    assert (qa_settings(p)["map_scale"], qa_settings(p)["terrain"]) == ("1:2000", "hilly")
+
+
+def test_adjust_without_options_takes_the_project_toml_settings_and_reports_their_sources(tmp_path):
+    """Issue 39, item 9: `aerotri adjust P` with [adjust] self_calibration and gnss_correction in project.toml
+    self-calibrates and corrects the GNSS (it used to report both disabled); report.json and report.txt list
+    every setting with its source, and an option given overrides only itself."""
+    from aerotri.sim.observations import geometric_block, write_block_project, write_truth_observations
+
+    block = geometric_block(2, 5, seed=5)
+    root = write_block_project(block, tmp_path / "blk")
+    write_truth_observations(root, tie_sigma_px=0.3, n_control=5, points_per_image=100, n_check=6, seed=6)
+    with open(root / "project.toml", "a") as f:
+        f.write('\n[adjust]\nself_calibration = ["pp", "radial"]\ngnss_correction = "shift"\nimage_sigma_px = 0.3\n')
+    r = CliRunner().invoke(aerotri_cli, ["adjust", str(root), "--no-exports", "--no-html"], catch_exceptions=False)
+    assert r.exit_code == 0, r.output
+    rep = json.loads((root / "at" / "report.json").read_text())
+    assert rep["options"]["self_calibration"] == "Enabled (pp, radial)"
+    assert rep["options"]["gps_shift_drift_correction"] == "Enabled (shift per strip)"
+    s = rep["settings"]
+    assert s["self_calibration"] == {"value": ["pp", "radial"], "source": PROJECT_TOML}
+    assert s["gnss_correction"] == {"value": "shift", "source": PROJECT_TOML}
+    assert s["snooping"] == {"value": True, "source": DEFAULT}
+    text = (root / "at" / "report.txt").read_text()
+    assert "self_calibration" in text and "pp, radial  [project.toml]" in text and "[default]" in text
+    # one option given: only it changes, the rest of [adjust] stays
+    r = CliRunner().invoke(aerotri_cli, ["adjust", str(root), "--no-exports", "--no-html", "--gnss-correction", "none"],
+                           catch_exceptions=False)
+    assert r.exit_code == 0, r.output
+    rep = json.loads((root / "at" / "report.json").read_text())
+    assert rep["settings"]["gnss_correction"] == {"value": "none", "source": COMMAND_LINE}
+    assert rep["options"]["gps_shift_drift_correction"] == "Disabled"
+    assert rep["settings"]["self_calibration"]["source"] == PROJECT_TOML
+    assert rep["options"]["self_calibration"] == "Enabled (pp, radial)"
