@@ -81,7 +81,7 @@ def write_area(geoms: list, out: Path) -> None:
 
 def score(pred: Path, ref: Path, within: str) -> dict:
     params = ma.MapEvalSettings(res_m=0.5, min_overlap=0.5, min_building_m2=10.0, reference_class="building",
-                              crs=CRS, within=within)
+                                crs=CRS, within=within)
     r = ma.evaluate_map(pred, ref, params)
     print(ma.format_map_report(r), "\n")
     return r.as_dict()

@@ -160,8 +160,8 @@ def main() -> int:
         timing["by_hand_steps"] = steps
         timing["by_hand_s"] = round(sum(s["seconds"] for s in steps), 1)
     # a run from a snapshot of the code (git archive, PYTHONPATH) names its commit in AEROTRI_CODE_VERSION
-    out = dict(code=os.environ.get("AEROTRI_CODE_VERSION") or code_version(), demo=str(a.demo), readme_commands=commands, timing=timing,
-               chain=measure(chain), by_hand=measure(by_hand))
+    out = dict(code=os.environ.get("AEROTRI_CODE_VERSION") or code_version(), demo=str(a.demo),
+               readme_commands=commands, timing=timing, chain=measure(chain), by_hand=measure(by_hand))
     out["settings_differ"] = differences(out["chain"]["adjust_settings"], out["by_hand"]["adjust_settings"])
     same_eo = (chain / "at" / "eo.txt").read_bytes() == (by_hand / "at" / "eo.txt").read_bytes()
     out["same_at_eo_txt"] = same_eo
@@ -173,8 +173,8 @@ def main() -> int:
         m = out[name]
         t, att = m["at_check_targets"], m["attitudes"]
         print(f"{name:8} targets plan {t['rms_xy_m']:.3f} m height {t['rms_z_m']:.3f} m (n {t['n']}); report check "
-              f"{m['report_check_rms_m']}; attitudes {att['omega_deg']:.4f} {att['phi_deg']:.4f} {att['kappa_deg']:.4f} "
-              f"deg; DOM {m['dom']['rms_xy_m']} m")
+              f"{m['report_check_rms_m']}; attitudes {att['omega_deg']:.4f} {att['phi_deg']:.4f} "
+              f"{att['kappa_deg']:.4f} deg; DOM {m['dom']['rms_xy_m']} m")
     print(f"settings that differ: {out['settings_differ'] or 'none'}; at/eo.txt identical: {same_eo}")
     return 0
 

@@ -221,9 +221,9 @@ def evaluate(pred_paths, truth_path, reference_path, json_path, map_pred, map_tr
         from lidarctl import map_accuracy as ma
 
         params = MapEvalSettings(res_m=res_m, min_overlap=min_overlap, min_building_m2=min_building_m2,
-                               class_field=class_field, reference_class=reference_class,
-                               map_pred=_parse_map(map_pred, "--map-pred"), map_ref=_parse_map(map_truth, "--map-truth"),
-                               crs=crs, within=within)
+                                 class_field=class_field, reference_class=reference_class,
+                                 map_pred=_parse_map(map_pred, "--map-pred"), map_ref=_parse_map(map_truth, "--map-truth"),
+                                 crs=crs, within=within)
         result = ma.evaluate_map(pred_paths, reference_path, params)
         click.echo(ma.format_map_report(result))
         if json_path:
@@ -338,7 +338,7 @@ def smooth(dem_path, out_path, order, edge_m, iterations, step, window_px):
 
     order = int(order)
     params = DiffusionSettings(order=order, edge_m=edge_m or (1.0 if order == 4 else 0.5),
-                             iterations=iterations or (100 if order == 4 else 20), step=step)
+                               iterations=iterations or (100 if order == 4 else 20), step=step)
     r = smooth_dem(dem_path, out_path, params, window_px)
     click.echo(f"{r.path}: {r.valid_cells:,} of {r.cells:,} cells smoothed ({r.windows} window(s)); "
                f"changes RMS {r.rms_change_m:.3f} m, max {r.max_change_m:.3f} m")

@@ -85,23 +85,30 @@ def adjust(strip_paths, outdir, trajectories, fixed, control, control_sigma_m, a
     from lidarctl.strips.adjust import adjust_strips
 
     settings = StripAdjustSettings(max_slope_deg=adjust_max_slope_deg, fixed=fixed, shift_sigma_m=shift_sigma_m,
-                              control_sigma_m=control_sigma_m)
+                                   control_sigma_m=control_sigma_m)
     s = adjust_strips(strip_paths, outdir, settings, _params(kw), trajectories=trajectories, crs=crs, png=png,
                       control=control)
+    click.echo(_adjust_summary(s, outdir))
+
+
+def _adjust_summary(s: dict, outdir) -> str:
+    """What ``lidarctl strips adjust`` prints: the parameters, the control, the strips left out, the check."""
+    lines = []
     for name, p in s["parameters"].items():
-        click.echo(f"{name:32s} {p['value']:+10.4f} +- {p['sigma']:.4f}")
+        lines.append(f"{name:32s} {p['value']:+10.4f} +- {p['sigma']:.4f}")
     if "control" in s:
         c = s["control"]
-        click.echo(f"control: {c['points_used']} of {c['points']} points on {c['observations']} strip planes, mean "
-                   f"distance {c['mean_before_m']:+.3f} -> {c['mean_after_m']:+.3f} m, RMS {c['rms_before_m']:.3f} -> "
-                   f"{c['rms_after_m']:.3f} m")
+        lines.append(f"control: {c['points_used']} of {c['points']} points on {c['observations']} strip planes, mean "
+                     f"distance {c['mean_before_m']:+.3f} -> {c['mean_after_m']:+.3f} m, RMS {c['rms_before_m']:.3f} -> "
+                     f"{c['rms_after_m']:.3f} m")
     if s["fixed_strip"]:
-        click.echo(f"fixed: {s['fixed_strip']} (the others are adjusted to it)")
+        lines.append(f"fixed: {s['fixed_strip']} (the others are adjusted to it)")
     if s["strips_without_observations"]:
         # their parameters above are the prior's (0 +- sigma): say so rather than let them pass as estimates
-        click.echo(f"warning: not adjusted, no planar cell shared with another strip: "
-                   f"{', '.join(s['strips_without_observations'])} (copied unchanged)")
+        lines.append(f"warning: not adjusted, no planar cell shared with another strip: "
+                     f"{', '.join(s['strips_without_observations'])} (copied unchanged)")
     b, a = s["check_before"], s["check_after"]
-    click.echo(f"{outdir}: {s['model']} model, {s['observations']} plane observations, sigma0 {s['sigma0']:.2f}; "
-               f"strip differences RMS {b['rms_m']:.3f} -> {a['rms_m']:.3f} m, NMAD {b['nmad_m']:.3f} -> "
-               f"{a['nmad_m']:.3f} m ({s['points']:,} points, {s['points_per_s']:,.0f} points/s)")
+    lines.append(f"{outdir}: {s['model']} model, {s['observations']} plane observations, sigma0 {s['sigma0']:.2f}; "
+                 f"strip differences RMS {b['rms_m']:.3f} -> {a['rms_m']:.3f} m, NMAD {b['nmad_m']:.3f} -> "
+                 f"{a['nmad_m']:.3f} m ({s['points']:,} points, {s['points_per_s']:,.0f} points/s)")
+    return "\n".join(lines)

@@ -54,6 +54,7 @@ from aerotri.core.textio import read_json
 from ortho.block import (index_grids, index_operation, operation_tags, read_index, require_current_frames,
                          verify_index)
 from ortho.grid import OrthoGrid
+from ortho.settings import MosaicSettings
 from ortho.seamlines import (keep_objects_whole, label_polygons, least_cost_seams, neighbour_pairs, seam_lines,
                              voronoi_labels)
 

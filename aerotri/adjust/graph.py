@@ -640,7 +640,8 @@ def orientations_from_values(values: gtsam.Values, n_images: int) -> tuple[np.nd
     return np.array([p.translation() for p in pose]), np.array([p.rotation().matrix() for p in pose])
 
 
-def state_from_values(values: gtsam.Values, block: Block, opts: SolveSettings, previous: State, tie: TiePoints | None = None) -> State:
+def state_from_values(values: gtsam.Values, block: Block, opts: SolveSettings, previous: State,
+                      tie: TiePoints | None = None) -> State:
     """The unknowns in ``values`` and, given the graph's Schur-eliminated ``tie`` points, their coordinates."""
     st = previous.copy()
     st.centre, st.R_cv = orientations_from_values(values, block.n_images)

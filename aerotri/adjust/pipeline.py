@@ -591,7 +591,8 @@ def object_points_csv(ba: BlockAdjustment) -> str:
     return "\n".join(lines) + "\n"
 
 
-def write_outputs(ba: BlockAdjustment, root, html: bool = True, out_dir=None, settings_record: dict | None = None) -> dict:
+def write_outputs(ba: BlockAdjustment, root, html: bool = True, out_dir=None,
+                  settings_record: dict | None = None) -> dict:
     """Write at/eo.txt, object_points.csv and report.txt/json/html; returns the report dict.
 
     ``out_dir``: another folder than the project's ``at/`` (the chain's first adjustment); ``settings_record``:
@@ -612,7 +613,9 @@ def write_outputs(ba: BlockAdjustment, root, html: bool = True, out_dir=None, se
     at = Path(out_dir) if out_dir is not None else project.at_dir
     qa = qa_settings(root)  # the limits of the project's map scale and terrain, as in reports/
     rep = report.build_report(ba, qa["map_scale"], qa["terrain"], qa["tolerances"], project_terrain(project))
-    rep["settings"] = settings_record if settings_record is not None else settings_of(ba.settings, AdjustSettings).record()
+    if settings_record is None:  # a library caller's own settings
+        settings_record = settings_of(ba.settings, AdjustSettings).record()
+    rep["settings"] = settings_record
     files = {
         "report.txt": report.format_txt(rep),
         "report.json": json.dumps(rep, indent=1, allow_nan=False, default=_json_default),

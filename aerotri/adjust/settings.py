@@ -105,8 +105,9 @@ def for_project(project, resolved: Resolved, *, first: bool = False, datum_short
 
     s = resolved.settings
     if s.lever_arm_m is None:
+        source = project.source_of("gnss", "lever_arm_m")
         resolved = resolved.replace("lever_arm_m", project.gnss.lever_arm_m,
-                                    project.source_of("gnss", "lever_arm_m").replace(PROJECT_TOML, f"{PROJECT_TOML} [gnss]"))
+                                    f"{PROJECT_TOML} [gnss]" if source == PROJECT_TOML else source)
     if first:
         for path, value in (("use_control", False), ("gnss_correction", "none"), ("check", ()), ("control", ())):
             resolved = resolved.replace(path, value, "aerotri run (first adjustment: tie points and GNSS)")

@@ -123,7 +123,8 @@ def _component(group: str, n: int, r: float, ss: float) -> VarianceComponent:
     return VarianceComponent(group, n, r, ss, float(np.sqrt(ss / r)) if r >= MIN_REDUNDANCY else None)
 
 
-def reweighted(block: G.Block, opts: G.SolveSettings, components: list[VarianceComponent]) -> tuple[G.Block, G.SolveSettings]:
+def reweighted(block: G.Block, opts: G.SolveSettings,
+               components: list[VarianceComponent]) -> tuple[G.Block, G.SolveSettings]:
     """The block and options with each estimable group's sigmas multiplied by its factor."""
     f = {c.group: c.factor for c in components if c.factor is not None}
     changes = {}

@@ -76,8 +76,9 @@ class TransferSummary:
 
     def command_line(self) -> str:
         """The line ``aerotri control`` prints."""
-        return (f"{self.corners_accepted} of {self.corners_measured} corners accepted ({self.measurements_accepted_in_image} "
-                f"of {self.measurements_attempted} image measurements); control {self.control_full} full + "
+        return (f"{self.corners_accepted} of {self.corners_measured} corners accepted "
+                f"({self.measurements_accepted_in_image} of {self.measurements_attempted} image measurements); "
+                f"control {self.control_full} full + "
                 f"{self.control_height} height, {self.check_points} check points; rejected corners "
                 f"{self.corners_rejected}")
 

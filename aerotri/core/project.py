@@ -55,9 +55,8 @@ class GnssSettings:
     sigma_xy_m: float = setting(0.05, min=0.0, min_open=True, help="A-priori standard deviation of a GNSS position "
                                                                     "in plan (records of gnss.txt without their own).")
     sigma_z_m: float = setting(0.1, min=0.0, min_open=True, help="A-priori standard deviation of a GNSS height.")
-    lever_arm_m: tuple[float, float, float] = setting((0.0, 0.0, 0.0), help="Antenna offset from the projection "
-                                                                            "centre in the camera frame (x right, y up, "
-                                                                            "z up).")
+    lever_arm_m: tuple[float, float, float] = setting(
+        (0.0, 0.0, 0.0), help="Antenna offset from the projection centre in the camera frame (x right, y up, z up).")
 
 
 @dataclasses.dataclass(frozen=True)
@@ -66,8 +65,9 @@ class ControlPointSettings:
     the section's other keys are the control stage's)."""
 
     SECTION: ClassVar[str] = "control"
-    sigma_xy_m: float | None = setting(None, min=0.0, min_open=True, help="A-priori standard deviation of a control "
-                                                                           "point in plan (imports without accuracies).")
+    sigma_xy_m: float | None = setting(None, min=0.0, min_open=True,
+                                       help="A-priori standard deviation of a control point in plan (imports without "
+                                            "accuracies).")
     sigma_z_m: float | None = setting(None, min=0.0, min_open=True, help="A-priori standard deviation of a control "
                                                                           "point's height.")
 

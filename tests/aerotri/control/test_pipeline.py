@@ -179,7 +179,7 @@ def test_an_empty_layout_target_measures_fallback_corners_and_says_why_when_it_s
     assert sum(t["empty_reason"] is not None for t in rep["layout_targets"]) == 1
 
     off = transfer_control(c, CAM, EO, frames, ControlSettings(layout=LayoutSettings(search_radius_baselines=2.0,
-                                                                                  fallback=False)))
+                                                                                     fallback=False)))
     assert sorted(off.rays) == [0] and all(t.corner is None for t in off.targets)
     assert off.targets[0].empty_reason == ("2 LiDAR corners within 12.0 m: 1 rejected by consistency (lidar "
                                            "mismatch); 1 not measured (not marked usable; fallback off)")
