@@ -3,6 +3,7 @@
 - ``runner``: ``Stage``, stamps (``work/stages/<stage>.json``), ``run_stages``, ``format_summary``;
 - ``options``: the stage sections of ``project.toml`` (``read_options``, ``ChainSettings``);
 - ``stages``: the chain built from a project and its options (``Chain``, ``chain_stages``);
+- ``run``: ``aerotri run`` and ``aerotri demo`` as library calls (``run_project``, ``run_demo``);
 - ``cli``: the ``aerotri run`` and ``aerotri demo`` commands.
 """
 
@@ -11,6 +12,7 @@ _WHERE = {
     "Stage": "runner", "format_summary": "runner", "is_current": "runner", "run_stages": "runner",
     "stamp_path": "runner",
     "Chain": "stages", "chain_stages": "stages",
+    "run_project": "run", "run_demo": "run",
 }
 __all__ = sorted(_WHERE)
 

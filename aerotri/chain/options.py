@@ -166,9 +166,15 @@ def project_settings_text(project: Project, ctx=None) -> str:
         typed = project.sections.get(name) or cls()
         sources = {f.name: project.source_of(name, f.name) for f in dataclasses.fields(cls)}
         lines += settings_lines(Resolved(typed, sources).record(), f"[{name}]")
-    stages = read_options(project, ctx)
+    from aerotri.adjust.pipeline import project_settings
+
+    stages = read_options(project, ctx).record()
     for name in STAGE_SECTIONS:
         head = name + "."
-        record = {p[len(head):]: row for p, row in stages.record().items() if p.startswith(head)}
-        lines += settings_lines(record, f"[{name}]")
+        record = {p[len(head):]: row for p, row in stages.items() if p.startswith(head)}
+        title = f"[{name}]"
+        if name == "adjust":  # as aerotri adjust P completes it from the project folder
+            adjust = project_settings(project, resolve(AdjustSettings, project, ctx))
+            record, title = adjust.record(), "[adjust] (as aerotri adjust PROJECT takes it)"
+        lines += settings_lines(record, title)
     return "\n".join(lines)

@@ -292,7 +292,7 @@ class Chain:
     def run_corners(self, root) -> dict:
         from lidarctl.corners import corner_control
 
-        st = corner_control(self.classified(), self.lo, self.options.corners, record_none=True)
+        st = corner_control(self.classified(), self.lo, self.stage_settings("corners"), record_none=True)
         out = dict(corners=st["n_corners"], usable=st["n_usable"])
         if st["no_usable"]:
             hint = "a smaller min_edge_m"

@@ -479,7 +479,7 @@ def settings_lines(record: dict | None, title: str = "Settings (value, and where
     lines = [title]
     for key, row in record.items():
         v = row["value"]
-        text = "-" if v is None else ", ".join(map(str, v)) if isinstance(v, list) else str(v)
+        text = "-" if v is None or v == [] else ", ".join(map(str, v)) if isinstance(v, list) else str(v)
         lines.append(f"  {key:<{width}} : {text}  [{row['source']}]" + (f" ({row['note']})" if row.get("note") else ""))
     return lines + [""]
 

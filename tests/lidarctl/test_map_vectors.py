@@ -256,4 +256,4 @@ def test_the_old_option_names_without_units_are_gone(made, tmp_path, command, ol
     target = tmp_path / "old.gpkg"
     args = [str(cloud), str(target)] if command == "vectors" else [str(out), "--reference", str(out)]
     r = CliRunner().invoke(main, [command, *args, old, "1"])
-    assert r.exit_code == 2 and f"No such option: {old}" in r.output and not target.exists()
+    assert r.exit_code == 2 and f"No such option '{old}'" in r.output and not target.exists()

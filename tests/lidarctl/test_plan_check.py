@@ -93,7 +93,7 @@ def test_min_edge_m_option_and_its_old_spelling_refused(scene):
     assert r.exit_code == 0, r.output
     assert json.loads(out.read_text())["min_edge_m"] == 3.0
     assert "edges >= 3.00 m" in r.output
-    for extra, msg in ((["--min-edge", "3"], "No such option: --min-edge"), (["--min-edge-m", "0"], "--min-edge-m")):
+    for extra, msg in ((["--min-edge", "3"], "No such option '--min-edge'"), (["--min-edge-m", "0"], "--min-edge-m")):
         bad = d / "plan_bad.json"
         r = CliRunner().invoke(main, ["check-plan", str(d / "classified.las"), str(d / "points.csv"), *extra,
                                       "--json", str(bad)])
