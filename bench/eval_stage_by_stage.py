@@ -67,6 +67,8 @@ def _run(cmd: str, log, cwd: Path) -> float:
 INPUTS = ("README.txt", "camera.toml", "gnss.txt", "images", "lidar", "project.toml", "trajectory", "truth")
 LIDAR_STAGES = ("strips", "classify", "rasters", "corners")
 LIDAR_PRODUCTS = ("dem.tif", "dsm.tif", "ndsm.tif", "corners.csv", "roof_planes.geojson")
+DEMO_PRODUCTS = ("at/tiepoints.csv", "work/at_first/eo.txt", "work/at_first/camera.toml", "control/points.csv",
+                 "control/image_points.csv", "at/eo.txt", "at/object_points.csv", "ortho/mosaic.tif")
 
 
 def _inputs_copy(src: Path, dst: Path) -> Path:
@@ -143,6 +145,8 @@ def main() -> int:
     chain, by_hand = a.work / "chain" / "project", a.work / "by_hand" / "project"
     commands = readme_commands()
     timing = {}
+    if a.keep and a.results.is_file():  # the timings of the run that made the copies
+        timing = json.loads(a.results.read_text()).get("timing", {})
     if not a.keep:
         _chain_copy(a.demo, chain)
         _inputs_copy(a.demo, by_hand)
@@ -182,6 +186,9 @@ def main() -> int:
     out["same_at_eo_txt"] = same_eo
     out["lidar_products_identical"] = {f: _same_bytes(chain / "lidar_out" / f, by_hand / "lidar_out" / f)
                                        for f in LIDAR_PRODUCTS}
+    # the chain against the demo run it started from (made by the code the demo was run with): the same products
+    out["chain_products_as_in_demo"] = {f: _same_bytes(chain / f, a.demo / f) for f in DEMO_PRODUCTS
+                                        if (a.demo / f).is_file()}
     a.results.parent.mkdir(parents=True, exist_ok=True)
     a.results.write_text(json.dumps(out, indent=1) + "\n")
     for name in ("chain", "by_hand"):

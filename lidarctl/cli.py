@@ -209,6 +209,22 @@ def evaluate(pred_paths, truth_path, reference_path, json_path, map_pred, map_tr
     import json
 
     from aerotri.core.atomic import write_text_atomic
+
+    _check_evaluate_paths(pred_paths, truth_path, reference_path, json_path, within)
+    maps = _parse_map(map_pred, "--map-pred"), _parse_map(map_truth, "--map-truth")
+    if reference_path is not None:
+        text, result = _evaluate_map(pred_paths, reference_path, MapEvalSettings(
+            res_m=res_m, min_overlap=min_overlap, min_building_m2=min_building_m2, class_field=class_field,
+            reference_class=reference_class, map_pred=maps[0], map_ref=maps[1], crs=crs, within=within))
+    else:
+        text, result = _evaluate_truth(pred_paths, truth_path, *maps)
+    click.echo(text)
+    if json_path:
+        write_text_atomic(json_path, json.dumps(result, indent=2))
+
+
+def _check_evaluate_paths(pred_paths, truth_path, reference_path, json_path, within) -> None:
+    """One of --truth and --reference; --json replaces no input."""
     from aerotri.core.errors import OptionError
 
     if (truth_path is None) == (reference_path is None):
@@ -217,29 +233,27 @@ def evaluate(pred_paths, truth_path, reference_path, json_path, map_pred, map_tr
     if json_path:
         refuse_input_as_output(json_path, [*pred_paths, truth_path, reference_path,
                                            None if within in (None, "hull") else within], "--json")
-    if reference_path is not None:
-        from lidarctl import map_accuracy as ma
 
-        params = MapEvalSettings(res_m=res_m, min_overlap=min_overlap, min_building_m2=min_building_m2,
-                                 class_field=class_field, reference_class=reference_class,
-                                 map_pred=_parse_map(map_pred, "--map-pred"), map_ref=_parse_map(map_truth, "--map-truth"),
-                                 crs=crs, within=within)
-        result = ma.evaluate_map(pred_paths, reference_path, params)
-        click.echo(ma.format_map_report(result))
-        if json_path:
-            write_text_atomic(json_path, json.dumps(result.as_dict(), indent=2))
-        return
+
+def _evaluate_map(pred_paths, reference_path, settings) -> tuple[str, dict]:
+    """``lidarctl evaluate --reference``: (the report, its numbers)."""
+    from lidarctl import map_accuracy as ma
+
+    result = ma.evaluate_map(pred_paths, reference_path, settings)
+    return ma.format_map_report(result), result.as_dict()
+
+
+def _evaluate_truth(pred_paths, truth_path, map_pred: dict, map_truth: dict) -> tuple[str, dict]:
+    """``lidarctl evaluate --truth``: (the report, its numbers)."""
+    from aerotri.core.errors import OptionError
     from lidarctl import evaluate as ev
 
     if len(pred_paths) != 1:
         raise OptionError(f"--truth: one classified file, not {len(pred_paths)}", param="--truth")
-    result = ev.evaluate_files(pred_paths[0], truth_path, _parse_map(map_pred, "--map-pred"),
-                               _parse_map(map_truth, "--map-truth"))
-    click.echo(ev.format_filter_table({"ground": result["filter_test"]}))
-    click.echo("")
-    click.echo(ev.format_confusion(result["confusion"]))
-    if json_path:
-        write_text_atomic(json_path, json.dumps(result, indent=2))
+    result = ev.evaluate_files(pred_paths[0], truth_path, map_pred, map_truth)
+    text = "\n".join([ev.format_filter_table({"ground": result["filter_test"]}), "",
+                      ev.format_confusion(result["confusion"])])
+    return text, result
 
 
 @main.command("check-heights")
