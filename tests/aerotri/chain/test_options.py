@@ -185,7 +185,8 @@ def test_control_and_rectify_after_an_adjustment_without_self_calibration(tiny_p
     p = tmp_path / "p"
     shutil.copytree(tiny_project, p, ignore=shutil.ignore_patterns("lidar"))
     run = CliRunner()
-    for args in (["match", str(p)], ["adjust", str(p), "--no-control"]):
+    # the tiny preset's [adjust] self-calibrates: the command line turns it off
+    for args in (["match", str(p)], ["adjust", str(p), "--no-control", "--self-cal", ""]):
         r = run.invoke(aerotri_cli, args, catch_exceptions=False)
         assert r.exit_code == 0, r.output
     assert json.loads((p / "at" / "report.json").read_text())["self_calibration"] is None
