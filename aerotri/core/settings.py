@@ -318,12 +318,9 @@ def _option_class():
     import click
 
     class _SettingOption(click.Option, SettingOption):
-        def __init__(self, *args, settings_cls, field: str, to_field=None, **kwargs):
+        def __init__(self, *args, settings_cls, field: str, **kwargs):
             super().__init__(*args, **kwargs)
-            self.settings_cls, self.field, self.to_field = settings_cls, field, to_field
-
-        def field_value(self, value):
-            return self.to_field(value) if self.to_field is not None else value
+            self.settings_cls, self.field = settings_cls, field
 
     return _SettingOption
 
@@ -331,7 +328,7 @@ def _option_class():
 _OPTION_CLASS = None
 
 
-def _comma_list(owner, name, option: str):
+def _comma_list(owner, name):
     """Callback of a tuple field given as comma-separated text (``--self-cal pp,radial``): the tuple, each
     element checked against the field's choices."""
     import click
@@ -351,14 +348,14 @@ def _comma_list(owner, name, option: str):
     return callback
 
 
-def click_option(cls, path: str, *decls: str, to_field=None, **kw):
+def click_option(cls, path: str, *decls: str, **kw):
     """A click option for the field at ``path`` (a dotted path for nested settings) of the settings dataclass
     ``cls``: its type (``click_type``), default and help from the field, the parameter named after the path
     (dots as ``__``). ``decls`` are the option's names (``"--tol-px"``; for a boolean field a flag pair
     ``"--chips/--no-chips"``, or a single flag that sets the field to the flag's ``flag_value``); a tuple
     field takes comma-separated text (each element checked against the choices) unless ``multiple`` or
-    ``nargs`` say otherwise; ``to_field`` converts the option's value to the field's; ``kw`` overrides or
-    adds click arguments. :func:`resolve` applies the option when it was given on the command line."""
+    ``nargs`` say otherwise; ``kw`` overrides or adds click arguments. :func:`resolve` applies the option when
+    it was given on the command line."""
     import click
 
     global _OPTION_CLASS
@@ -375,7 +372,7 @@ def click_option(cls, path: str, *decls: str, to_field=None, **kw):
             opts["is_flag"] = True
     elif typing.get_origin(tp) in (tuple, list) or tp in (tuple, list):
         if not kw.get("multiple") and not kw.get("nargs"):
-            opts.update(type=click.STRING, callback=_comma_list(owner, name, decls[0]))
+            opts.update(type=click.STRING, callback=_comma_list(owner, name))
             choices = constraints(field_named(owner, name))["choices"]
             if choices is not None:
                 opts["help"] = f"{opts['help']} Comma-separated: {', '.join(map(str, choices))}."
@@ -385,8 +382,7 @@ def click_option(cls, path: str, *decls: str, to_field=None, **kw):
     else:
         opts["type"] = click_type(owner, name)
     opts.update(kw)
-    return click.option(*decls, path.replace(".", "__"), cls=_OPTION_CLASS, settings_cls=cls, field=path,
-                        to_field=to_field, **opts)
+    return click.option(*decls, path.replace(".", "__"), cls=_OPTION_CLASS, settings_cls=cls, field=path, **opts)
 
 
 def option_given(ctx, name: str) -> bool:
@@ -464,7 +460,7 @@ def resolve(cls, project=None, ctx=None, *, section: str | None = None) -> Resol
     given = [p for p in (setting_options(ctx.command, cls) if ctx is not None else []) if option_given(ctx, p.name)]
     if given:
         try:
-            settings = replace_paths(settings, {p.field: p.field_value(ctx.params[p.name]) for p in given})
+            settings = replace_paths(settings, {p.field: ctx.params[p.name] for p in given})
         except (TypeError, ValueError) as exc:  # the dataclass's own checks (__post_init__)
             raise OptionError(str(exc), param=" / ".join(p.opts[0] for p in given)) from None
         sources.update({p.field: COMMAND_LINE for p in given})
