@@ -329,20 +329,28 @@ _OPTION_CLASS = None
 
 
 def _comma_list(owner, name):
-    """Callback of a tuple field given as comma-separated text (``--self-cal pp,radial``): the tuple, each
-    element checked against the field's choices."""
+    """Callback of a tuple field given as comma-separated text (``--self-cal pp,radial``, ``--classes 3,4,5``): the
+    tuple, each element of the field's element type (``tuple[int, ...]``: whole numbers) and checked against the
+    field's choices and range."""
     import click
 
     cons = constraints(field_named(owner, name))
+    args = [a for a in typing.get_args(_unwrap_optional(typing.get_type_hints(owner)[name])[0]) if a is not Ellipsis]
+    kind = args[0] if len(args) == 1 and args[0] in (int, float) else str
+    what = {int: "whole numbers", float: "numbers", str: "names"}[kind]
 
     def callback(ctx, param, value):
         if value is None or isinstance(value, tuple):
             return value
-        items = tuple(v.strip() for v in str(value).split(",") if v.strip())
-        bad = [v for v in items if cons["choices"] is not None and v not in cons["choices"]]
-        if bad:
-            raise click.BadParameter(f"{', '.join(bad)}: expected a comma-separated list of "
-                                     f"{', '.join(map(str, cons['choices']))}", ctx=ctx, param=param)
+        try:
+            items = tuple(kind(v.strip()) for v in str(value).split(",") if v.strip())
+        except ValueError:
+            raise click.BadParameter(f"{value!r}: expected comma-separated {what}", ctx=ctx, param=param) from None
+        for v in items:
+            try:
+                check_value(v, cons, repr(v))
+            except ConfigError as exc:
+                raise click.BadParameter(f"{exc} (a comma-separated list)", ctx=ctx, param=param) from None
         return items
 
     return callback
