@@ -127,10 +127,37 @@ def measure(root: Path) -> dict:
         adjust_settings=at.get("settings"), gsd_m=gsd)
 
 
-def differences(a: dict, b: dict) -> dict:
-    """Settings whose values differ between two settings records (path -> [a, b])."""
-    return {k: [a.get(k, {}).get("value"), b.get(k, {}).get("value")] for k in sorted(set(a) | set(b))
-            if a.get(k, {}).get("value") != b.get(k, {}).get("value")}
+def differences(a: dict, b: dict, root_a: Path, root_b: Path) -> dict:
+    """Settings whose values differ between two settings records (path -> [a, b]); file names relative to each
+    project folder (the two copies lie in different folders)."""
+    def value(rec, k, root):
+        v = rec.get(k, {}).get("value")
+        return v.replace(str(root), "P") if isinstance(v, str) else v
+
+    return {k: [value(a, k, root_a), value(b, k, root_b)] for k in sorted(set(a) | set(b))
+            if value(a, k, root_a) != value(b, k, root_b)}
+
+
+def old_code_run(a, commands: list[str], by_hand: Path, old: Path) -> dict:
+    """The block's aerotri and ortho commands (the lidarctl ones' products taken from ``by_hand``) run with the code
+    of ``a.old_code`` (PYTHONPATH), measured as the others; None-valued settings: that code records none."""
+    bin_ = Path(sys.executable).parent
+    if not (a.keep and (old / "ortho" / "dom_report.json").is_file()):
+        _inputs_copy(a.demo, old)
+        shutil.copytree(by_hand / "lidar_out", old / "lidar_out", symlinks=True)
+        env = f"PYTHONPATH={a.old_code}"
+        with open(a.work / "by_hand_old_code.log", "w") as log:
+            for cmd in commands:
+                if not cmd.startswith(("aerotri", "ortho")):
+                    continue
+                line = cmd.replace("REF.tif", f"{old}/truth/ortho.tif")
+                line = re.sub(r"(?<![\w/])P(?=/|\s|$)", str(old), line)
+                words = shlex.split(line)
+                words[0] = str(bin_ / words[0])
+                _run(f"{env} " + " ".join(words), log, REPO)
+    m = measure(old)
+    m["code"] = str(a.old_code)
+    return m
 
 
 def main() -> int:
@@ -140,6 +167,9 @@ def main() -> int:
     ap.add_argument("--results", type=Path, default=REPO / "results" / "stage_by_stage_demo.json")
     ap.add_argument("--keep", action="store_true", help="measure the copies of an earlier run without running")
     ap.add_argument("--parallel", action="store_true", help="run the chain while the commands run (two processes)")
+    ap.add_argument("--old-code", type=Path, default=None,
+                    help="a copy of the code before this change (git archive): the block's aerotri and ortho commands "
+                         "run with it on a copy with the LiDAR products of the commands run here (by_hand_old_code)")
     a = ap.parse_args()
     bin_ = Path(sys.executable).parent
     chain, by_hand = a.work / "chain" / "project", a.work / "by_hand" / "project"
@@ -147,6 +177,8 @@ def main() -> int:
     timing = {}
     if a.keep and a.results.is_file():  # the timings of the run that made the copies
         timing = json.loads(a.results.read_text()).get("timing", {})
+        if timing.get("parallel") and "chain_s" in timing:  # written by a version that timed both as the chain's
+            timing["both_s"] = timing.pop("chain_s")
     if not a.keep:
         _chain_copy(a.demo, chain)
         _inputs_copy(a.demo, by_hand)
@@ -174,14 +206,18 @@ def main() -> int:
         if a.parallel:
             if running.wait() != 0:
                 raise SystemExit(f"aerotri run failed: {a.work / 'chain.log'}")
-            timing["chain_s"] = round(time.perf_counter() - t_chain, 1)
+            timing["both_s"] = round(time.perf_counter() - t_chain, 1)
         chain_log.close()
         timing["parallel"] = a.parallel
         timing["load_avg_end"] = list(os.getloadavg())
     # a run from a snapshot of the code (git archive, PYTHONPATH) names its commit in AEROTRI_CODE_VERSION
     out = dict(code=os.environ.get("AEROTRI_CODE_VERSION") or code_version(), demo=str(a.demo),
                readme_commands=commands, timing=timing, chain=measure(chain), by_hand=measure(by_hand))
-    out["settings_differ"] = differences(out["chain"]["adjust_settings"], out["by_hand"]["adjust_settings"])
+    # the chain's own wall time, stage by stage (work/run_summary.json), also when it ran beside the commands
+    rows = json.loads((chain / "work" / "run_summary.json").read_text())["stages"]
+    out["timing"]["chain_stages_s"] = round(sum(r["seconds"] for r in rows), 1)
+    out["settings_differ"] = differences(out["chain"]["adjust_settings"], out["by_hand"]["adjust_settings"], chain,
+                                         by_hand)
     same_eo = (chain / "at" / "eo.txt").read_bytes() == (by_hand / "at" / "eo.txt").read_bytes()
     out["same_at_eo_txt"] = same_eo
     out["lidar_products_identical"] = {f: _same_bytes(chain / "lidar_out" / f, by_hand / "lidar_out" / f)
@@ -189,6 +225,8 @@ def main() -> int:
     # the chain against the demo run it started from (made by the code the demo was run with): the same products
     out["chain_products_as_in_demo"] = {f: _same_bytes(chain / f, a.demo / f) for f in DEMO_PRODUCTS
                                         if (a.demo / f).is_file()}
+    if a.old_code is not None:
+        out["by_hand_old_code"] = old_code_run(a, commands, by_hand, a.work / "by_hand_old_code" / "project")
     a.results.parent.mkdir(parents=True, exist_ok=True)
     a.results.write_text(json.dumps(out, indent=1) + "\n")
     for name in ("chain", "by_hand"):
