@@ -29,7 +29,7 @@ from lidar_common import DATA, REPO  # noqa: E402
 from lidarctl import classify, io  # noqa: E402
 
 # Every variant states all the rule knobs (the shipped defaults have the rules on): "default" is the
-# classification before these rules; "shipped" is ClassifyParams() as it is now.
+# classification before these rules; "shipped" is ClassifySettings() as it is now.
 RULES_OFF = {"rooftop_object_max_area_m2": 0.0, "roof_max_pitch_deg": 65.0, "small_building_plane_fit": False,
              "small_plane_rms_m": 0.1, "wall_multi_return": False, "small_building_max_multi_fraction": 0.2}
 RULES = {
@@ -55,7 +55,7 @@ RULES = {
                                                "wall_multi_return": True},
 }
 VARIANTS = {name: {**RULES_OFF, **rule} for name, rule in RULES.items()}
-VARIANTS["shipped"] = {k: getattr(classify.ClassifyParams(), k) for k in RULES_OFF}
+VARIANTS["shipped"] = {k: getattr(classify.ClassifySettings(), k) for k in RULES_OFF}
 
 
 CRITERIA = {  # what the choice on the other three quarters maximises
@@ -73,7 +73,7 @@ def main():
     for name in names:
         t0 = time.perf_counter()
         pred = classify.classify_points(c.x, c.y, c.z, c.return_number, c.number_of_returns, c.intensity,
-                                        dataclasses.replace(classify.ClassifyParams(), **VARIANTS[name]))
+                                        dataclasses.replace(classify.ClassifySettings(), **VARIANTS[name]))
         rows[name] = {"params": VARIANTS[name], "seconds": round(time.perf_counter() - t0, 1),
                       "parts": {p: scores(pred[part == k], truth[part == k]) for k, p in enumerate(PARTS)}}
         print(name, rows[name]["seconds"], "s; building PA/UA per quarter:",

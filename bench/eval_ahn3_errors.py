@@ -141,10 +141,10 @@ def main():
     part = part_of(c.x, c.y)
     nr = np.asarray(c.number_of_returns)
     unrefined = classify.classify_points(c.x, c.y, c.z, c.return_number, c.number_of_returns, c.intensity,
-                                         dataclasses.replace(classify.ClassifyParams(), ground_lift_sigma=0.0))
+                                         dataclasses.replace(classify.ClassifySettings(), ground_lift_sigma=0.0))
     nobridge = classify.classify_points(c.x, c.y, c.z, c.return_number, c.number_of_returns, c.intensity,
-                                        dataclasses.replace(classify.ClassifyParams(), bridge_max_width_m=0.0))
-    out = {"data": "ahn3_cropped_1.laz, shipped ClassifyParams defaults", "parts": {}}
+                                        dataclasses.replace(classify.ClassifySettings(), bridge_max_width_m=0.0))
+    out = {"data": "ahn3_cropped_1.laz, shipped ClassifySettings defaults", "parts": {}}
     for k, name in enumerate(PARTS):
         m = part == k
         before = breakdown(c.x, c.y, c.z, nr, truth, unrefined, m)
@@ -164,7 +164,7 @@ def main():
         print(name, json.dumps(out["parts"][name]))
     spacing = grid.mean_spacing_m(c.x, c.y)
     labels, _, _, _, cell = classify.dropout_gaps(c.x, c.y, c.z, pred == 2, pred == 6, spacing,
-                                                  classify.ClassifyParams())
+                                                  classify.ClassifySettings())
     se = part == PARTS.index("south-east")
     plot_ground_errors(REPO / "results" / "ahn3_ground_errors_se.png", c.x, c.y, truth,
                        {"south-east quarter, bridge rule off": nobridge, "bridge rule on (shipped)": pred},

@@ -79,7 +79,7 @@ def main():
     c = io.read_cloud(path, crs="EPSG:28992")
     truth = c.classification
     part = part_of(c.x, c.y)
-    defaults = classify.ClassifyParams()
+    defaults = classify.ClassifySettings()
     default_b = {k: getattr(defaults, k) for k in GRID}
     ground_only = "--ground-only" in sys.argv[1:]
     ablations = [a for a in ("--no-bridge", "--no-single") if a in sys.argv[1:]]
@@ -95,7 +95,7 @@ def main():
     def run(params: dict) -> list[dict]:
         """Scores on parts 0..3 and (index 4) the whole crop."""
         pred = classify.classify_points(c.x, c.y, c.z, c.return_number, c.number_of_returns, c.intensity,
-                                        dataclasses.replace(classify.ClassifyParams(), **params, **fixed))
+                                        dataclasses.replace(classify.ClassifySettings(), **params, **fixed))
         return [scores(pred[part == k], truth[part == k]) for k in range(4)] + [scores(pred, truth)]
 
     rows_b = []

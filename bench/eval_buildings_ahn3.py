@@ -55,7 +55,7 @@ from lidarctl import class_grid as cg
 from lidarctl.corners import find_roof_corners, read_classified_cloud
 from lidarctl import map_accuracy as ma
 from lidarctl import tiles
-from lidarctl.classify import ClassifyParams
+from lidarctl.classify import ClassifySettings
 
 REPO = Path(__file__).resolve().parents[1]
 SHARED = Path(os.environ.get("AEROTRI_SHARED_DATA", REPO.parent / "shared" / "data"))
@@ -80,8 +80,8 @@ def write_area(geoms: list, out: Path) -> None:
 
 
 def score(pred: Path, ref: Path, within: str) -> dict:
-    params = ma.MapEvalParams(res_m=0.5, min_overlap=0.5, min_building_m2=10.0, reference_class="building",
-                              crs=CRS, within=within)
+    params = ma.MapEvalSettings(res_m=0.5, min_overlap=0.5, min_building_m2=10.0, reference_class="building",
+                                crs=CRS, within=within)
     r = ma.evaluate_map(pred, ref, params)
     print(ma.format_map_report(r), "\n")
     return r.as_dict()
@@ -180,7 +180,7 @@ def main(argv=None) -> int:
         polys = write_bgt_gpkg(args.data / "bgt_pand.sqlite", bgt)
         classified = tmp / "classified.laz"
         t0 = time.perf_counter()
-        stats = tiles.classify_file(laz, classified, crs=CRS, params=ClassifyParams())
+        stats = tiles.classify_file(laz, classified, crs=CRS, params=ClassifySettings())
         classify_s = time.perf_counter() - t0
         hulls = cg.block_hulls(cg.read_class_polygons(bgt, all_class="building"))
         # Hold-out-style spread: west and east halves, split at the median x of the footprint centroids

@@ -29,7 +29,7 @@ from scipy.spatial.transform import Rotation
 
 from aerotri.adjust.pipeline import AdjustSettings, run_adjustment
 from aerotri.core.project import Project
-from aerotri.exchange import ImportOptions, export_project, import_files, opensfm
+from aerotri.exchange import ImportSettings, export_project, import_files, opensfm
 from aerotri.exchange.adjusted import read_adjusted_block
 from aerotri.geom.camera import read_camera
 from aerotri.geom.eo import read_eo
@@ -90,7 +90,7 @@ def simulated(seed: int, work: Path) -> dict:
         row[name] = {"files_centre_max_m": float(np.abs(back.centre_m - eo.centre_m).max()),
                      "files_rotation_max_deg": float(rotation_deg(back.rotations(), eo.rotations()).max())}
     block = opensfm.read([out / "odm/opensfm/reconstruction.json"], Project.open(work / f"imp{seed}_odm"),
-                         ImportOptions())
+                         ImportSettings())
     row["odm"]["memory_centre_max_m"] = float(np.abs(block.eo.centre_m - eo.centre_m).max())
     row["odm"]["memory_rotation_max_deg"] = float(rotation_deg(block.eo.rotations(), eo.rotations()).max())
     (rec,) = json.loads((out / "odm/opensfm/reconstruction.json").read_text())
@@ -128,7 +128,7 @@ def tuniu(data: Path, work: Path) -> dict:
     xc, yc = cam.pixel_to_normalized(np.array([-0.5, cam.width - 0.5] * 2), np.repeat([-0.5, cam.height - 0.5], 2))
     r_max = float(np.hypot(xc, yc).max())
     out = {}
-    block = opensfm.read([src], project, ImportOptions())
+    block = opensfm.read([src], project, ImportSettings())
     for label, again in (("files", opensfm.reconstruction(eo, cam, project, orig["reference_lla"])),
                          ("memory", opensfm.reconstruction(block.eo, block.camera, project, orig["reference_lla"]))):
         (c0,), (c1,) = orig["cameras"].values(), again["cameras"].values()

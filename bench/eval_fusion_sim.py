@@ -43,7 +43,7 @@ from lidarctl import class_grid as cg
 from lidarctl import fusion as fu
 from lidarctl import map_accuracy as ma
 from lidarctl import tiles
-from lidarctl.classify import ClassifyParams
+from lidarctl.classify import ClassifySettings
 
 REPO = Path(__file__).resolve().parents[1]
 PROJECTS = [("tiny", None, "development"), ("demo", None, "development"), ("demo", 7, "held-out")]
@@ -88,16 +88,16 @@ def run(proj: Path, work: Path, res_m: float) -> dict:
         "fused_rgb": fu.Fusion(rgb),
         "fused_rgb_nir": fu.Fusion(nir),
         # ablations of the building confirmation: without the straight-line count, without the FML rule
-        "fused_rgb_nir_no_lines": fu.Fusion(nir, fu.FusionParams(building_min_lines=0)),
-        "fused_rgb_nir_no_fml": fu.Fusion(nir, fu.FusionParams(building_max_fml_m=float("inf"))),
+        "fused_rgb_nir_no_lines": fu.Fusion(nir, fu.FusionSettings(building_min_lines=0)),
+        "fused_rgb_nir_no_fml": fu.Fusion(nir, fu.FusionSettings(building_max_fml_m=float("inf"))),
     }
     out = {}
     for name, fusion in variants.items():
         dst = work / f"{proj.name}_{name}"
         t0 = time.perf_counter()
-        tiles.classify_files(strips, dst, params=ClassifyParams(), fusion=fusion)
+        tiles.classify_files(strips, dst, params=ClassifySettings(), fusion=fusion)
         seconds = time.perf_counter() - t0
-        r = ma.evaluate_map(sorted(dst.glob("*.las")), truth, ma.MapEvalParams(res_m=res_m))
+        r = ma.evaluate_map(sorted(dst.glob("*.las")), truth, ma.MapEvalSettings(res_m=res_m))
         print(f"--- {proj.name} {name} ({seconds:.0f} s)\n{ma.format_map_report(r)}\n")
         d = r.as_dict()
         d["seed_classes"] = subset(r.confusion)

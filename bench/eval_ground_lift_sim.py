@@ -1,4 +1,4 @@
-"""Simulator: what the ground refinement (``ClassifyParams.ground_lift_sigma``) costs on a scene
+"""Simulator: what the ground refinement (``ClassifySettings.ground_lift_sigma``) costs on a scene
 whose truth is exact.
 
 Classifies a simulated project's strips together with the refinement off (0) and, at 4 and 6
@@ -60,7 +60,7 @@ def main():
 
         with mock.patch.object(classify, "lifted_ground", judged):
             pred = classify.classify_points(x, y, z, rn, nr, inten, dataclasses.replace(
-                classify.ClassifyParams(), ground_lift_sigma=lift, ground_lift_single=single))
+                classify.ClassifySettings(), ground_lift_sigma=lift, ground_lift_single=single))
         keep = ~np.isin(truth, (7, 18))
         err = evaluate.filter_errors(np.isin(pred[keep], (2, 9)), np.isin(truth[keep], (2, 9)))
         b, tb = pred == 6, truth == 6

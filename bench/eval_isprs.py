@@ -53,7 +53,7 @@ def main():
         "lidarctl_classify_pipeline": lambda c: classify.classify_points(c.x, c.y, c.z) == 2,
         "lidarctl_ptd": with_noise(lambda x, y, z: ground.ground_filter(x, y, z, method="ptd")),
         "lidarctl_ptd_angle25_all": with_noise(lambda x, y, z: ground.ptd_ground(
-            x, y, z, ground.GroundParams(max_angle_deg=25.0, points_per_triangle=0, max_distance_m=1.2))),
+            x, y, z, ground.GroundSettings(max_angle_deg=25.0, points_per_triangle=0, max_distance_m=1.2))),
     }
     try:
         import CSF  # noqa: F401

@@ -34,7 +34,7 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from aerotri.core.atomic import write_text_atomic
-from lidarctl.plan_check import PlanCheckParams, check_plan_files, plan_stats
+from lidarctl.plan_check import PlanCheckSettings, check_plan_files, plan_stats
 
 REPO = Path(__file__).resolve().parents[1]
 # ../shared/data beside the checkout (or beside ../main's, from a worktree under ../wt/)
@@ -64,7 +64,7 @@ def by_kind(result: dict, kinds: dict) -> dict:
     return out
 
 
-def simulator(project: Path, out: Path, params: PlanCheckParams) -> dict:
+def simulator(project: Path, out: Path, params: PlanCheckSettings) -> dict:
     if not (project / "truth" / "roof_corners.csv").exists():
         subprocess.run([str(Path(sys.executable).with_name("aerotri")), "sim", "--preset", "demo", "--force",
                         str(project)], check=True)
@@ -88,7 +88,7 @@ def simulator(project: Path, out: Path, params: PlanCheckParams) -> dict:
             "overall": res["overall"], "by_roof": by_kind(res, kinds), "runtime_s": runtime}
 
 
-def ahn3(out: Path, params: PlanCheckParams) -> dict:
+def ahn3(out: Path, params: PlanCheckSettings) -> dict:
     import laspy
 
     m = _ahn3_module()
@@ -125,7 +125,7 @@ def main():
     ap.add_argument("--out", type=Path, default=REPO / "results")
     args = ap.parse_args()
     args.out.mkdir(parents=True, exist_ok=True)
-    params = PlanCheckParams()
+    params = PlanCheckSettings()
     res = {"command": "lidarctl check-plan CLOUD... POINTS_CSV (defaults: radius 2 m, min edge 5 m, 1:10000 flat)",
            "simulator": simulator(args.project, args.out, params)}
     print(json.dumps(res["simulator"]["overall"], indent=1))

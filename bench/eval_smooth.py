@@ -39,7 +39,7 @@ sys.path.insert(0, str(REPO))
 from aerotri.sim import load_preset  # noqa: E402
 from aerotri.sim.flight import block_layout  # noqa: E402
 from aerotri.sim.scene import build_scene  # noqa: E402
-from lidarctl.smooth import DiffusionParams, anisotropic_diffusion  # noqa: E402
+from lidarctl.smooth import DiffusionSettings, anisotropic_diffusion  # noqa: E402
 
 RES_M = 0.5
 NOISE_M = 0.15
@@ -134,7 +134,7 @@ def main():
     noisy = true + np.random.default_rng(1).normal(0, NOISE_M, true.shape)
     grid = []
     for order, e, n in GRID:
-        sm = anisotropic_diffusion(noisy, DiffusionParams(order=order, edge_m=e, iterations=n))
+        sm = anisotropic_diffusion(noisy, DiffusionSettings(order=order, edge_m=e, iterations=n))
         grid.append({"order": order, "edge_m": e, "iterations": n, **derived(score(sm, true, noisy, near, 20))})
     ok = [g for g in grid if g["near_breaklines_growth_pct"] < 10.0]
     choices = {
@@ -147,8 +147,8 @@ def main():
     out["choice_seed"] = 1
     out["choice_grid"] = grid
     out["chosen"] = {k: {"order": g["order"], "edge_m": g["edge_m"], "iterations": g["iterations"]} for k, g in choices.items()}
-    params = {k: DiffusionParams(**v) for k, v in out["chosen"].items()}
-    params["default"] = DiffusionParams()
+    params = {k: DiffusionSettings(**v) for k, v in out["chosen"].items()}
+    params["default"] = DiffusionSettings()
     out["chosen"]["default"] = dataclasses.asdict(params["default"])
     out["scored"] = []
     for seed in (2, 3, 4):

@@ -138,7 +138,7 @@ def eval_seed(work: Path, seed: int) -> dict:
     truth = json.loads((err / "truth" / "truth.json").read_text())
     trajs = sorted((err / "trajectory").glob("*.txt"))
     t0 = time.perf_counter()
-    s = adj.adjust_strips(strips_of(err), work / f"seed{seed}_adjusted", adj.AdjustSettings(shift_sigma_m=0.03),
+    s = adj.adjust_strips(strips_of(err), work / f"seed{seed}_adjusted", adj.StripAdjustSettings(shift_sigma_m=0.03),
                           trajectories=trajs, png=seed == TUNING_SEED)
     assert s["settings"]["relinearise"] > 1
     dt = time.perf_counter() - t0
@@ -154,7 +154,7 @@ def eval_seed(work: Path, seed: int) -> dict:
                   "normalised_error": (p[n]["value"] - true[n]) / p[n]["sigma"]} for n in p}
     # strip model (no trajectory) on the preset's own strips: per-strip shifts only, one strip fixed
     ptruth = json.loads((plain / "truth" / "truth.json").read_text())["lidar_strip_offsets_m"]
-    sm = adj.adjust_strips(strips_of(plain), work / f"seed{seed}_strip_model", adj.AdjustSettings(), png=False)
+    sm = adj.adjust_strips(strips_of(plain), work / f"seed{seed}_strip_model", adj.StripAdjustSettings(), png=False)
     fixed = sm["fixed_strip"]
     kf = int(fixed.split("_")[1]) - 1
     rel = {}
@@ -234,7 +234,7 @@ def control_eval(work: Path, seed: int, err: Path, truth: dict) -> dict:
     strips, trajs = raised_copy(err, work / f"seed{seed}_raised", COMMON_DZ_M)
     h_true = float(np.mean([o[2] for o in offs])) + COMMON_DZ_M - RANGE_OFFSET_M
     for name, kw in (("without_control", {}), ("with_control", {"control": gcp})):
-        s = adj.adjust_strips(strips, work / f"seed{seed}_raised_{name}", adj.AdjustSettings(shift_sigma_m=0.03),
+        s = adj.adjust_strips(strips, work / f"seed{seed}_raised_{name}", adj.StripAdjustSettings(shift_sigma_m=0.03),
                               trajectories=trajs, png=False, **kw)
         z = {}
         for k, off in enumerate(offs):
@@ -255,7 +255,7 @@ def control_eval(work: Path, seed: int, err: Path, truth: dict) -> dict:
     ptruth = json.loads((plain / "truth" / "truth.json").read_text())["lidar_strip_offsets_m"]
     strips, _ = raised_copy(plain, work / f"seed{seed}_preset_raised", COMMON_DZ_M)
     for name, kw in (("strip_model_without_control", {}), ("strip_model_with_control", {"control": gcp})):
-        s = adj.adjust_strips(strips, work / f"seed{seed}_preset_raised_{name}", adj.AdjustSettings(), png=False, **kw)
+        s = adj.adjust_strips(strips, work / f"seed{seed}_preset_raised_{name}", adj.StripAdjustSettings(), png=False, **kw)
         z = {}
         for k, off in enumerate(ptruth):
             n = f"strip_{k + 1:02d}.shift_z_m"
@@ -325,7 +325,7 @@ def eval_ahn3(work: Path, results: Path) -> dict:
         return {"skipped": f"{AHN3} not found"}
     out = work / "ahn3_adjusted"
     t0 = time.perf_counter()
-    s = adj.adjust_strips([AHN3], out, adj.AdjustSettings(), crs="EPSG:28992")
+    s = adj.adjust_strips([AHN3], out, adj.StripAdjustSettings(), crs="EPSG:28992")
     dt = time.perf_counter() - t0
     before = json.loads((out / "check_before" / "strips.json").read_text())
     after = json.loads((out / "check_after" / "strips.json").read_text())
@@ -377,7 +377,7 @@ def eval_speed(work: Path, copies: int, seed_dir: Path) -> dict:
     t0 = time.perf_counter()
     c = check_strips(paths, work / "speed_check", png=False)
     t1 = time.perf_counter()
-    a = adj.adjust_strips(paths, work / "speed_adjust", adj.AdjustSettings(), png=False)
+    a = adj.adjust_strips(paths, work / "speed_adjust", adj.StripAdjustSettings(), png=False)
     t2 = time.perf_counter()
     return {"points": int(n), "strips": len(paths), "copies": copies, "cell_m": c["cell_m"],
             "check_seconds": t1 - t0, "check_points_per_s": n / (t1 - t0),

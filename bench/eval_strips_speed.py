@@ -38,7 +38,7 @@ if what == "check":
     s = check_strips(paths, out, png=False)
     res = {}
 else:
-    s = adj.adjust_strips(paths, out, adj.AdjustSettings(), png=False)
+    s = adj.adjust_strips(paths, out, adj.StripAdjustSettings(), png=False)
     res = {k: s[k] for k in ("reads", "observations", "sigma0", "parameters", "check_after", "seconds_read",
                              "seconds_solve", "seconds_write")}
 res.update(seconds=time.perf_counter() - t0, cpu_seconds=time.process_time() - c0,

@@ -43,8 +43,8 @@ from aerotri.sim.scene import build_scene
 from lidarctl import fusion as fu
 from lidarctl import tiles
 from lidarctl import vector_check as vc
-from lidarctl.classify import ClassifyParams
-from lidarctl.map_vectors import VectorParams, draw_layers, vectors_to_file
+from lidarctl.classify import ClassifySettings
+from lidarctl.map_vectors import MapVectorSettings, draw_layers, vectors_to_file
 
 REPO = Path(__file__).resolve().parents[1]
 ROLES = {"tiny": "development", "demo": "held-out"}
@@ -57,7 +57,7 @@ def project(name: str, root: Path) -> tuple[Path, list]:
     fused = root / f"{name}_fused"
     if not fused.is_dir() or not any(fused.glob("*.las")):
         fusion = fu.Fusion(fu.open_image(proj / "truth" / "ortho.tif", str(proj / "truth" / "ortho_nir.tif")))
-        tiles.classify_files(sorted((proj / "lidar").glob("*.las")), fused, params=ClassifyParams(), fusion=fusion)
+        tiles.classify_files(sorted((proj / "lidar").glob("*.las")), fused, params=ClassifySettings(), fusion=fusion)
     return proj, sorted(fused.glob("*.las"))
 
 
@@ -245,20 +245,20 @@ def main(argv=None) -> int:
     result = {"command": "lidarctl classify STRIPS OUT --image truth/ortho.tif --nir truth/ortho_nir.tif; "
                          "lidarctl vectors OUT/*.las DLG.gpkg --image truth/ortho.tif --dem truth/dem.tif; "
                          "lidarctl check-vectors DLG.gpkg --reference REF.gpkg",
-              "params": dataclasses.asdict(VectorParams()),
+              "params": dataclasses.asdict(MapVectorSettings()),
               "projects": {}}
     try:
         for name in args.presets:
             proj, strips = project(name, root)
             dlg, ref = tmp / f"{name}_dlg.gpkg", tmp / f"{name}_reference.gpkg"
             t0 = time.perf_counter()
-            summary = vectors_to_file(strips, dlg, VectorParams(), dem=proj / "truth" / "dem.tif",
+            summary = vectors_to_file(strips, dlg, MapVectorSettings(), dem=proj / "truth" / "dem.tif",
                                       image=proj / "truth" / "ortho.tif")
             seconds = time.perf_counter() - t0
             scene, origin, epsg = true_scene(name)
             n_ref = write_reference(scene, origin, epsg, ref)
             png = args.out / f"vectors_{name}_check.png" if name == "demo" else None
-            check = vc.check_files(dlg, ref, vc.CheckParams(), png_path=png)
+            check = vc.check_files(dlg, ref, vc.VectorCheckSettings(), png_path=png)
             print(f"--- {name} ({ROLES.get(name)}): vectors {seconds:.0f} s\n{vc.format_report(check)}")
             entry = {"role": ROLES.get(name), "vectors_seconds": seconds,
                      "vectors": {k: v for k, v in summary.items() if k != "files"},

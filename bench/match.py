@@ -35,7 +35,7 @@ REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
 
 from aerotri.match import MatchSettings, match_project  # noqa: E402
-from aerotri.match.features import FeatureParams, extract  # noqa: E402
+from aerotri.match.features import FeatureSettings, extract  # noqa: E402
 from aerotri.geom.images import read_gray  # noqa: E402
 from aerotri.sim import load_preset, simulate  # noqa: E402
 
@@ -76,7 +76,7 @@ def _overlapping(project: Path) -> tuple:
 
     pr = Project.open(project)
     gnss = read_gnss(pr.gnss_path, check_block_crs(pr.crs, "project.toml"))
-    terrain = float(pr.section("flight")["mean_terrain_height_m"])
+    terrain = float(pr.flight.mean_terrain_height_m)
     plan = plan_block(list(gnss.image_id), gnss.position_m, project_camera(pr), (0.0, 0.0, 0.0), terrain)
     pairs = [(q.i, q.j) for q in candidate_pairs(plan, MatchSettings().min_overlap)]
     dist = max(float(np.linalg.norm(gnss.position_m[i, :2] - gnss.position_m[j, :2])) for i, j in pairs)
@@ -160,7 +160,7 @@ def dmc_frame_extraction(out: Path) -> dict:
     img = read_gray(img_path)
     t_read = time.perf_counter() - t
     res = {}
-    for p in (FeatureParams(), FeatureParams(max_dim_px=7000, budget=20000, grid=(24, 16), name="full")):
+    for p in (FeatureSettings(), FeatureSettings(max_dim_px=7000, budget=20000, grid=(24, 16), name="full")):
         t = time.perf_counter()
         f = extract(img, p)
         res[p.name] = dict(seconds=round(time.perf_counter() - t, 2), keypoints=len(f.xy_px), pyramid_level=f.level)

@@ -190,12 +190,13 @@ def run_kind(kind: str, d: Path) -> dict:
         out["valid_px"] = int((mask > 0).sum())
     elif kind.startswith("ours_cli"):
         from ortho.block import rectify_block
+        from ortho.settings import RectifySettings
 
         compression = {"ours_cli": "zstd", "ours_cli_zstd_fast": "zstd-fast", "ours_cli_none": "none"}[kind]
-        rectify_block(d, res_m=5.0)  # JIT warm-up (cached compile) on a coarse grid
+        rectify_block(d, RectifySettings(res_m=5.0))  # JIT warm-up (cached compile) on a coarse grid
         t0_cpu = os.times()
         t = time.perf_counter()
-        index = rectify_block(d, res_m=RES_M, compression=compression)
+        index = rectify_block(d, RectifySettings(res_m=RES_M, compression=compression))
         out["seconds"] = time.perf_counter() - t
         e = index["frames"][0]
         out["output_px"] = e["width"] * e["height"]

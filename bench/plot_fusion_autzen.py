@@ -30,7 +30,7 @@ import numpy as np
 from lidarctl import class_grid as cg
 from lidarctl import fusion as fu
 from lidarctl import tiles
-from lidarctl.classify import ClassifyParams
+from lidarctl.classify import ClassifySettings
 
 REPO = Path(__file__).resolve().parents[1]
 DATA = Path("/work/shared/data/autzen")
@@ -134,7 +134,7 @@ def main(argv=None) -> int:
         img = fu.open_image(ORTHO, None, grid.crs, units.xy_m)
         for name, fusion in (("lidar_only", None), ("fused_rgb", fu.Fusion(img))):
             t0 = time.perf_counter()
-            tiles.classify_files([LAZ], tmp / name, params=ClassifyParams(), fusion=fusion)
+            tiles.classify_files([LAZ], tmp / name, params=ClassifySettings(), fusion=fusion)
             timings[name] = round(time.perf_counter() - t0, 1)
             maps[name] = classes_grid(tmp / name, grid)
             import laspy

@@ -44,8 +44,9 @@ def _summary(report: dict) -> dict:
 
 def _dom_check(run: Path, reference: Path, ndsm: Path, tmp: Path) -> dict:
     from ortho.check import run_check
+    from ortho.settings import CheckSettings
 
-    report = run_check(run, reference_path=reference, ndsm_path=ndsm, out_stem=tmp / "dom_report")
+    report = run_check(run, CheckSettings(ndsm=ndsm), reference_path=reference, out_stem=tmp / "dom_report")
     return dict(then=_summary(json.loads((run / "ortho" / "dom_report.json").read_text())), now=_summary(report))
 
 
@@ -54,7 +55,7 @@ def _options(run: Path):
     from aerotri.core.project import Project
 
     project = Project.open(run)
-    return project, read_options(project)
+    return project, read_options(project).settings
 
 
 def _rasters(run: Path, reference: Path, ndsm: Path, tmp: Path) -> dict:

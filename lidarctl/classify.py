@@ -79,6 +79,7 @@ Pipeline (``classify_points``):
 from __future__ import annotations
 
 import dataclasses
+from typing import ClassVar
 
 import numba
 import numpy as np
@@ -98,8 +99,8 @@ CLASS_NAMES = {1: "unclassified", 2: "ground", 3: "low veg", 4: "medium veg", 5:
                6: "building", 7: "low noise", 9: "water", 11: "road", 17: "bridge deck", 18: "high noise"}
 
 
-@dataclasses.dataclass
-class ClassifyParams:
+@dataclasses.dataclass(frozen=True)
+class ClassifySettings:
     """Options of the classification stage (``lidarctl classify``, ``[classify]`` in project.toml).
 
     ``ground_method`` and ``preset`` name a filter of the ground-filter registry
@@ -107,94 +108,133 @@ class ClassifyParams:
     registered when this module is imported, ``__post_init__`` checks against the registry as it is.
     """
 
+    SECTION: ClassVar[str] = "classify"
+
     ground_method: str = setting("morph", choices=tuple(ground_mod.GROUND_FILTERS), help="Ground filter: " + ", ".join(
         f"{name} ({f.help})" if f.help else name for name, f in ground_mod.GROUND_FILTERS.items()) + ".")
     preset: str | None = setting(None, choices=ground_mod.preset_names(), help="Ground filter parameters for "
                                  "the terrain type (default: the single all-round set).")
     ground_params: dict = setting(default_factory=dict, help="Ground-filter parameters that replace the "
-                                  "preset's (name -> value; lidarctl.ground.GroundParams / MorphParams fields).")
+                                  "preset's (name -> value; lidarctl.ground.GroundSettings / MorphSettings fields).")
     keep_classes: bool = setting(False, help="Keep the classes the LiDAR was delivered with (vendor-classified) "
                                              "after checking that ground and building classes are present and "
                                              "plausible (lidarctl.delivered_classes); no classification is run.")
-    cell_m: float = 0.0                 # 0: max(0.5 m, 2 x mean point spacing)
-    building_min_height_m: float = 2.0
+    cell_m: float = setting(0.0, min=0.0, help="Cell of the surface grids (DSM, local planes) in metres; 0: max(0.5 m, "
+                                               "2 x the mean point spacing).")
+    building_min_height_m: float = setting(2.0, min=0.0, help="Objects standing higher than this above the DEM may be "
+                                                              "buildings (m).")
     # roof_rms_m and building_min_area_m2: the best of bench/eval_ahn3_holdout.py's grid on the shared
     # AHN3 crop, scored on a second crop (bench/eval_ahn3_unseen.py). That grid point also had a
     # multi-return fraction of 0.45, which with the other two made a synthetic tree a building.
     # max_multi_return_fraction: the share of multi-return points a roof's plane-fit window must be
     # shown to stay below (95 % confidence, see classify_points), not one cell's observed share.
-    building_min_area_m2: float = 10.0
-    roof_rms_m: float = 0.25
-    roof_depth_m: float = 100.0
-    wall_min_height_m: float = 0.5
-    max_multi_return_fraction: float = 0.3
-    grow_multi_return_fraction: float = 0.7
-    low_veg_max_m: float = 2.0
-    medium_veg_max_m: float = 5.0
-    rough_rms_m: float = 0.3
-    water_cell_m: float = 0.0            # 0: max(1 m, 2 x mean point spacing)
-    water_density_ratio: float = 0.3
-    water_min_area_m2: float = 20.0
-    water_level_tol_m: float = 0.2
-    water_flat_fraction: float = 0.6
-    water_min_points: int = 5
-    water_max_slope: float = 0.01
-    water_intensity_ratio: float = 0.5
-    water_shadow_fraction: float = 0.2
-    water_shore_m: float = 4.0
+    building_min_area_m2: float = setting(10.0, min=0.0, help="Smallest roof segment (m2) classified as a building.")
+    roof_rms_m: float = setting(0.25, min=0.0, min_open=True, help="Largest RMS (m) of a roof cell's local plane (3 x 3 "
+                                                                   "cells of the DSM).")
+    roof_depth_m: float = setting(100.0, min=0.0, help="Building points lie at most this far below the DSM (m).")
+    wall_min_height_m: float = setting(0.5, min=0.0, help="Building points (roofs, walls) stand at least this high above "
+                                                          "the ground (m).")
+    max_multi_return_fraction: float = setting(0.3, min=0.0, max=1.0, help="A roof's plane-fit window must be shown "
+                                               "(95 % confidence) to hold fewer multi-return points than this share.")
+    grow_multi_return_fraction: float = setting(0.7, min=0.0, max=1.0, help="Cells with at most this share of "
+                                                "multi-return points may join a building segment.")
+    low_veg_max_m: float = setting(2.0, min=0.0, help="Vegetation up to this height above the ground is low (class 3) "
+                                                      "(m).")
+    medium_veg_max_m: float = setting(5.0, min=0.0, help="Vegetation up to this height above the ground is medium "
+                                                         "(class 4), higher is high (class 5) (m).")
+    rough_rms_m: float = setting(0.3, min=0.0, min_open=True, help="Local plane RMS (m) from which a surface is rough "
+                                                                   "(vegetation), not a roof.")
+    water_cell_m: float = setting(0.0, min=0.0, help="Cell of the water detection (m); 0: max(1 m, 2 x the mean point "
+                                                     "spacing).")
+    water_density_ratio: float = setting(0.3, min=0.0, max=1.0, help="A cell with fewer returns than this share of "
+                                                                     "the median cell is a dropout (water absorbs).")
+    water_min_area_m2: float = setting(20.0, min=0.0, help="Smallest water body (m2).")
+    water_level_tol_m: float = setting(0.2, min=0.0, min_open=True, help="Returns within this of a water body's level "
+                                                                         "lie on it (m).")
+    water_flat_fraction: float = setting(0.6, min=0.0, max=1.0, help="Share of a candidate's ground returns that must "
+                                                                     "lie on its level.")
+    water_min_points: int = setting(5, min=1, help="Fewest returns on a water body's level.")
+    water_max_slope: float = setting(0.01, min=0.0, help="Steepest water surface (gradient of its fitted plane, "
+                                                         "dimensionless).")
+    water_intensity_ratio: float = setting(0.5, min=0.0, help="Water returns are darker than this share of the "
+                                                              "ground's median intensity.")
+    water_shadow_fraction: float = setting(0.2, min=0.0, max=1.0, help="A dropout whose rim is more than this share "
+                                                                       "building is a roof's shadow, not water.")
+    water_shore_m: float = setting(4.0, min=0.0, help="Width of the shore examined around a dropout (m).")
     # A deck is at most this long along the watercourse it spans (the road's width, not the span
     # across the water): a two-lane road with pavements is ~15 m. 0 disables the bridge rule.
-    bridge_max_width_m: float = 20.0
+    bridge_max_width_m: float = setting(20.0, min=0.0, help="A bridge deck is at most this long along the water it "
+                                                            "spans (m); 0: no bridge rule.")
     # A deck clears the water and has depth: it stands at least this much above the lower quay.
-    bridge_min_clearance_m: float = 0.5
+    bridge_min_clearance_m: float = setting(0.5, min=0.0, help="A deck stands at least this high above the lower quay "
+                                                               "(m).")
     # A deck carries at least one traffic lane (3.5 m) over at least ~3 m of water: a span (the cells
     # between the two gaps) smaller than this is no deck. And a level deck stands clear almost
     # everywhere (only its ends may ramp down): at least ``bridge_min_clear_share`` of the span's
     # ground clears the quay, where a strip of land between two arms of a lake, sloping into the
     # water, clears it only along its crest. Seen on: AHN3's two bridges (spans of 97 and 25 m2,
     # shares 0.96 and 1.0) and three spans on lidr_topography's lake shore (26-78 m2, 0.20-0.31).
-    bridge_min_deck_m2: float = 10.0
-    bridge_min_clear_share: float = 0.9
+    bridge_min_deck_m2: float = setting(10.0, min=0.0, help="Smallest deck (m2).")
+    bridge_min_clear_share: float = setting(0.9, min=0.0, max=1.0, help="Share of a span's ground that must clear the "
+                                                                        "quay for a deck.")
     # Lift test (multi-return last returns only): 4 sigma of the measured range noise. On AHN3 the
     # false ground stands 0.13 m (median) above the true ground, whose own scatter is ~0.02 m.
-    ground_lift_sigma: float = 4.0
+    ground_lift_sigma: float = setting(4.0, min=0.0, help="Ground returns more than this many range-noise sigmas above "
+                                                          "their local ground plane, under something that split the "
+                                                          "pulse, are no ground (0: no lift test).")
     # Single returns judged too: they must also stand ground_lift_sigma times their neighbours'
     # robust spread (1.4826 MAD) about the plane above it.
-    ground_lift_single: bool = True
-    deep_cell_m: float = 5.0
-    deep_m: float = 5.0
-    small_building_min_area_m2: float = 6.0
-    small_building_max_multi_fraction: float = 0.2
+    ground_lift_single: bool = setting(True, help="Judge single returns by the lift test too (against their neighbours' "
+                                                  "spread).")
+    deep_cell_m: float = setting(5.0, min=0.0, min_open=True, help="Cell of the search for ground returns far below "
+                                                                   "the mean ground (m).")
+    deep_m: float = setting(5.0, min=0.0, min_open=True, help="Returns more than this (plus the local relief) below the "
+                                                              "ground are low noise (m).")
+    small_building_min_area_m2: float = setting(6.0, min=0.0, help="Smallest building segment below "
+                                                                   "building_min_area_m2 (m2), with the rules below.")
+    small_building_max_multi_fraction: float = setting(0.2, min=0.0, max=1.0, help="A small building's cells hold at "
+                                                       "most this share of multi-return points on average.")
     # Small segments may also show their planarity by one plane fitted to all their DSM cells (RMS
     # below small_plane_rms_m; 0.2 and 0.3 m let hedges and vans in, bench/eval_ahn3_bldg_rules.py).
-    small_building_plane_fit: bool = True
-    small_plane_rms_m: float = 0.1
-    edge_neighbours: int = 8
-    edge_radius_m: float = 1.0
-    edge_tolerance_m: float = 0.1
-    edge_iterations: int = 8
-    edge_zone_m: float = 3.0
+    small_building_plane_fit: bool = setting(True, help="A small segment may show its planarity by one plane through "
+                                                        "all its DSM cells.")
+    small_plane_rms_m: float = setting(0.1, min=0.0, min_open=True, help="Largest RMS of that plane (m).")
+    edge_neighbours: int = setting(8, min=3, help="Roof edge completion: building points of the local plane a "
+                                                  "candidate is tested against.")
+    edge_radius_m: float = setting(1.0, min=0.0, min_open=True, help="Roof edge completion: those neighbours lie "
+                                                                     "within this distance (m).")
+    edge_tolerance_m: float = setting(0.1, min=0.0, min_open=True, help="Roof edge completion: a candidate within this "
+                                                                        "of the plane, which fits its points as well, "
+                                                                        "joins the roof (m).")
+    edge_iterations: int = setting(8, min=0, help="Roof edge completion: region-growing passes.")
+    edge_zone_m: float = setting(3.0, min=0.0, help="Roof edge completion: candidates within this of a building (m).")
     # Rooftop objects (``rooftop_objects``): step-separated parts of a building smaller than this
     # (m2, from point count x spacing^2) that stand above the roof around them are not building
     # (AHN3 labels rooftop units, cables and crowns over roofs unclassified). 0: off. 20 m2 and 65 deg:
     # scored per AHN3 quarter by bench/eval_ahn3_bldg_rules.py (10/40 m2, 45/55 deg too; larger areas
     # or flatter pitches take dormers and roof steps from the buildings); chosen on the other three
     # quarters it is taken when SE, NW or NE is held out, not when SW is.
-    rooftop_object_max_area_m2: float = 20.0
+    rooftop_object_max_area_m2: float = setting(20.0, min=0.0, help="Parts of a roof smaller than this (m2) standing "
+                                                                    "above the roof around them are no building (0: off).")
     # Steepest rise (deg) between neighbouring returns that still counts as one surface.
-    roof_max_pitch_deg: float = 65.0
+    roof_max_pitch_deg: float = setting(65.0, min=0.0, max=90.0, help="Steepest rise between neighbouring returns of "
+                                                                      "one roof surface (deg).")
     # Walls: multi-return points in the ring around a roof that lie below its eave join too
     # (a facade splits pulses with the eave above it). False: single returns only.
-    wall_multi_return: bool = False
-    noise: noise_mod.NoiseParams = dataclasses.field(default_factory=noise_mod.NoiseParams)
+    wall_multi_return: bool = setting(False, help="Walls: multi-return points below a roof's eave join the building "
+                                                  "too (false: single returns only).")
+    noise: noise_mod.NoiseSettings = dataclasses.field(default_factory=noise_mod.NoiseSettings)
 
     def __post_init__(self):
         ground_mod.check_method_preset(self.ground_method, self.preset)
+        if self.medium_veg_max_m < self.low_veg_max_m:
+            raise ValueError(f"medium_veg_max_m {self.medium_veg_max_m:g} is below low_veg_max_m {self.low_veg_max_m:g}")
         try:
-            self.ground_params = ground_mod.checked_overrides(self.ground_method, self.ground_params or {},
-                                                              f"ground_params of the {self.ground_method!r} filter")
+            checked = ground_mod.checked_overrides(self.ground_method, self.ground_params or {},
+                                                   f"ground_params of the {self.ground_method!r} filter")
         except ConfigError as exc:  # from_table (project.toml [classify]) adds the file and section
             raise ValueError(str(exc)) from None
+        object.__setattr__(self, "ground_params", checked)  # frozen: the checked copy, set once
 
 
 def fewer_multi_returns(n_multi: np.ndarray, n: np.ndarray, fraction: float, z: float = 1.645) -> np.ndarray:
@@ -433,7 +473,7 @@ def _near_mask(xa, ya, xb, yb, cell_m: float) -> np.ndarray:
     return np.isin(ia, keys)
 
 
-def roof_edge_completion(x, y, z, is_building, candidates, p: ClassifyParams) -> None:
+def roof_edge_completion(x, y, z, is_building, candidates, p: ClassifySettings) -> None:
     """Grow building points (in place) over roof edges and low roof parts the cell rules missed.
 
     Edge cells of a roof hold pulses split between the eave and the wall or ground below, so they
@@ -571,7 +611,7 @@ class DropoutGrid:
                            self.ncols, "mean")
 
 
-def dropout_grid(x, y, is_building, spacing_m: float, p: ClassifyParams) -> DropoutGrid:
+def dropout_grid(x, y, is_building, spacing_m: float, p: ClassifySettings) -> DropoutGrid:
     """The ``DropoutGrid`` of the cloud (cell ``water_cell_m``, default max(1 m, 2 point spacings))."""
     c = p.water_cell_m or max(1.0, 2.0 * spacing_m)
     flat, nrows, ncols, x0, y0 = grid.cell_ids(x, y, c)
@@ -586,7 +626,7 @@ def dropout_grid(x, y, is_building, spacing_m: float, p: ClassifyParams) -> Drop
 
 
 def detect_water(x, y, z, intensity, candidate, is_building, is_ground, spacing_m: float,
-                 p: ClassifyParams, solid=None, dropout: DropoutGrid | None = None) -> np.ndarray:
+                 p: ClassifySettings, solid=None, dropout: DropoutGrid | None = None) -> np.ndarray:
     """Water returns (mask) by pulse-dropout water detection; see the module docstring, step 5.
 
     ``candidate``: points that may be water returns (ground, unclassified, low vegetation);
@@ -704,7 +744,7 @@ def detect_water(x, y, z, intensity, candidate, is_building, is_ground, spacing_
     return water
 
 
-def dropout_gaps(x, y, z, is_ground, g: DropoutGrid, p: ClassifyParams):
+def dropout_gaps(x, y, z, is_ground, g: DropoutGrid, p: ClassifySettings):
     """Open-water-sized pulse-dropout gaps of ``g`` (step 5's dropout regions of at least
     ``water_min_area_m2`` that are not occlusion shadows, i.e. at most ``water_shadow_fraction`` of
     their rim cells hold building points).
@@ -738,7 +778,7 @@ def dropout_gaps(x, y, z, is_ground, g: DropoutGrid, p: ClassifyParams):
     return labels, bank, axis, flat, c
 
 
-def bridge_decks(x, y, z, is_ground, is_building, spacing_m: float, p: ClassifyParams,
+def bridge_decks(x, y, z, is_ground, is_building, spacing_m: float, p: ClassifySettings,
                  dropout: DropoutGrid | None = None) -> np.ndarray:
     """Ground points on bridge decks (mask): ground between two water gaps at most
     ``bridge_max_width_m`` apart along one of the four grid directions, running along a
@@ -820,7 +860,7 @@ def _walk_hits(mask: np.ndarray, rows: np.ndarray, cols: np.ndarray, step_rc: np
     return hit
 
 
-def spanning_decks(x, y, z, is_building, is_ground, g: DropoutGrid, p: ClassifyParams) -> np.ndarray:
+def spanning_decks(x, y, z, is_building, is_ground, g: DropoutGrid, p: ClassifySettings) -> np.ndarray:
     """Building points that are a bridge deck over water (mask): decks the ground filter left out (a deck
     high over a river is no terrain), which then meet the roof rules (planar, high, single returns).
 
@@ -896,10 +936,10 @@ def spanning_decks(x, y, z, is_building, is_ground, g: DropoutGrid, p: ClassifyP
 
 
 def classify_points(x, y, z, return_number=None, number_of_returns=None, intensity=None,
-                    params: ClassifyParams | None = None, fusion=None) -> np.ndarray:
+                    params: ClassifySettings | None = None, fusion=None) -> np.ndarray:
     """ASPRS class per point (uint8). Arrays are per point; heights in metres. ``fusion``
     (``lidarctl.fusion.Fusion``): the orthophoto's rules applied last (roads, grass/tree, building check)."""
-    p = params or ClassifyParams()
+    p = params or ClassifySettings()
     n = len(x)
     if n < 10:
         raise ValueError("classification needs at least 10 points")

@@ -11,12 +11,14 @@ import click
 
 from aerotri.core.atomic import refuse_input_as_output
 from aerotri.core.commands import Group, at_least, fraction, positive, scheduler_options
-from aerotri.core.settings import click_option
-from lidarctl.classify import ClassifyParams
+from aerotri.core.settings import click_option, resolve
+from lidarctl.classify import ClassifySettings
 from lidarctl.heights_check import GROUPINGS, DensityGroups
-from lidarctl.map_accuracy import MapEvalParams
-from lidarctl.plan_check import PlanCheckParams
-from lidarctl.rasters import DEFAULT_BUFFER_PX, DEFAULT_TILE_PX, DEFAULT_TIN_FILL_RADIUS_PX
+from lidarctl.map_accuracy import MapEvalSettings
+from lidarctl.map_vectors import MapVectorSettings
+from lidarctl.plan_check import PlanCheckSettings
+from lidarctl.vector_check import VectorCheckSettings
+from lidarctl.rasters import DEFAULT_BUFFER_PX, DEFAULT_TILE_PX, DEFAULT_TIN_FILL_RADIUS_PX, RasterSettings
 
 
 @click.group(cls=Group)
@@ -34,32 +36,6 @@ main.add_command(corners)
 main.add_command(merge)
 main.add_command(strips)
 main.add_command(trees)
-
-
-def renamed_option(old: str, new: str, dest: str, type_=None):
-    """The old spelling ``old`` of option ``new`` (parameter ``dest``), hidden from ``--help``: it still works,
-    with a deprecation note on stderr, so users' scripts keep running; giving both is an OptionError."""
-    import functools
-
-    hidden = "old__" + dest
-
-    def deco(f):
-        @functools.wraps(f)
-        def wrapper(*args, **kwargs):
-            value = kwargs.pop(hidden)
-            if value is not None:
-                from aerotri.core.errors import OptionError
-
-                ctx = click.get_current_context()
-                if ctx.get_parameter_source(dest) is not click.core.ParameterSource.DEFAULT:
-                    raise OptionError(f"{old} is the old name of {new}: give one of them", param=new)
-                click.echo(f"warning: {old} is deprecated, use {new}", err=True)
-                kwargs[dest] = value
-            return f(*args, **kwargs)
-
-        return click.option(old, hidden, type=type_, default=None, hidden=True)(wrapper)
-
-    return deco
 
 
 _DENSITY = DensityGroups()
@@ -107,9 +83,9 @@ def ground_filter_options(f):
 @main.command()
 @click.argument("in_paths", nargs=-1, required=True, type=click.Path(dir_okay=False))
 @click.argument("out_path", type=click.Path())
-@click_option(ClassifyParams, "preset", "--preset")
+@click_option(ClassifySettings, "preset", "--preset")
 @click.option("--crs", default=None, help="CRS (EPSG:code) when the file has none; never guessed.")
-@click_option(ClassifyParams, "ground_method", "--method")
+@click_option(ClassifySettings, "ground_method", "--method")
 @click.option("--tile-size", "tile_size_m", type=positive(), default=None,
               help="Tile size in metres, also for clouds in feet (default: about 4 M points per tile with its "
                    "buffer at the file's density).")
@@ -117,7 +93,7 @@ def ground_filter_options(f):
               help="Overlap buffer around each tile in metres (default: the ground filter's reach, 60 m).")
 @click.option("--work-dir", type=click.Path(file_okay=False), default=None,
               help="Folder for the temporary tile files (default: next to the output; removed afterwards).")
-@click_option(ClassifyParams, "keep_classes", "--keep-classes")
+@click_option(ClassifySettings, "keep_classes", "--keep-classes")
 @click.option("--format", "out_format", type=click.Choice(["las", "laz"]), default=None,
               help="Format of the classified strips in an output folder (default: each strip's own).")
 @click.option("--image", "image_path", type=click.Path(dir_okay=False), default=None,
@@ -129,8 +105,8 @@ def ground_filter_options(f):
                    "grid; greenness is then NDVI, else excess green.")
 @scheduler_options
 @ground_filter_options
-def classify(in_paths, out_path, preset, crs, ground_method, tile_size_m, buffer_m, work_dir, keep_classes, out_format,
-             image_path, nir, scheduler, workers, ground_params_file, **ground_opts):
+def classify(in_paths, out_path, crs, tile_size_m, buffer_m, work_dir, out_format, image_path, nir, scheduler, workers,
+             ground_params_file, **options):
     """Noise, ground, buildings, vegetation and water as ASPRS classes (LAS/LAZ in, LAS/LAZ out).
 
     One file: IN_PATH OUT_PATH (a .las/.laz file). Strips of a block: STRIP... OUT_DIR; they are
@@ -143,67 +119,25 @@ def classify(in_paths, out_path, preset, crs, ground_method, tile_size_m, buffer
     A cloud in feet is classified in metres; the output is the input with new classes (same CRS and
     units).
     """
-    from pathlib import Path
-
-    from lidarctl import classify as cl
-    from lidarctl import tiles
-    from aerotri.core.errors import OptionError
-    from aerotri.core.executor import executor_for
-
-    to_folder = len(in_paths) > 1 or Path(out_path).is_dir() or Path(out_path).suffix.lower() not in (".las", ".laz")
-    if not to_folder:
-        refuse_input_as_output(out_path, in_paths, "OUT_PATH")
-        if out_format is not None:
-            raise OptionError("--format: only for an output folder (OUT_PATH names the file and its format)",
-                              param="--format")
-    from click.core import ParameterSource
-
-    from lidarctl import ground
+    from aerotri.core.settings import option_given
+    from lidarctl.tiles import classify_command
 
     ctx = click.get_current_context()
-    given = {name: ctx.get_parameter_source(name) != ParameterSource.DEFAULT for name in ("ground_method", "preset")}
-    ground_method, preset, overrides = ground.resolve_options(
-        ground_method, preset, ground_params_file,
-        {tuple(k.split("__")[1:]): v for k, v in ground_opts.items()},
-        method_given=given["ground_method"], preset_given=given["preset"])
-    params = ClassifyParams(ground_method=ground_method, preset=preset, keep_classes=keep_classes,
-                            ground_params=overrides)
-    fusion = None
-    if nir is not None and image_path is None:
-        raise OptionError("--nir: only with --image", param="--nir")
-    if image_path is not None:
-        from aerotri.geom import las
-        from lidarctl import fusion as fu
-        from lidarctl import io
-
-        refuse_input_as_output(out_path, [image_path, None if nir is None or str(nir).isdigit() else nir], "OUT_PATH")
-        cloud_crs, units = io.resolve_crs_units(in_paths[0], las.read_header(in_paths[0]), crs)
-        fusion = fu.Fusion(fu.open_image(image_path, nir, cloud_crs, units.xy_m))
-    common = dict(crs=crs, params=params, tile_size_m=tile_size_m, buffer_m=buffer_m, work_dir=work_dir,
-                  fusion=fusion)
-    with executor_for(scheduler, workers) as executor:
-        if to_folder:
-            stats = tiles.classify_files(in_paths, out_path, executor=executor,
-                                         suffix=None if out_format is None else f".{out_format}", **common)
-        else:
-            stats = tiles.classify_file(in_paths[0], out_path, executor=executor, **common)
-    counts = {cl.CLASS_NAMES.get(c, str(c)): k for c, k in stats.run.class_counts.items()}
-    n, dt, u = stats.n_points, stats.seconds, stats.units
-    what = f"{out_path}: {n} points" + (f" of {stats.n_files} strips" if to_folder else "")
-    units = "" if u.xy_name == "m" and u.z_name == "m" else \
-        f"; coordinates in {u.xy_name}, heights in {u.z_name}, processed in metres"
-    if keep_classes:
-        click.echo(f"{what}, the delivered classes kept; {counts}")
-        return
-    click.echo(f"{what} in {dt:.1f} s ({n / dt:,.0f} points/s; {stats.run.n_tiles} tiles of "
-               f"{stats.grid.tile_m:g} m + {stats.grid.buffer_m:g} m buffer, {executor.describe()}{units}); {counts}")
+    ground = {tuple(k.split("__")[1:]): v for k, v in options.items() if k.startswith("gp__")}
+    click.echo(classify_command(
+        in_paths, out_path, options["keep_classes"], options["ground_method"], options["preset"], crs=crs,
+        tile_size_m=tile_size_m,
+        buffer_m=buffer_m, work_dir=work_dir, out_format=out_format, image_path=image_path, nir=nir,
+        ground_params_file=ground_params_file, ground_options=ground, method_given=option_given(ctx, "ground_method"),
+        preset_given=option_given(ctx, "preset"), scheduler=scheduler, workers=workers))
 
 
 @main.command()
 @click.argument("in_paths", nargs=-1, required=True, type=click.Path(dir_okay=False))
 @click.argument("outdir", type=click.Path(file_okay=False))
-@click.option("--res", "res_m", type=positive(), required=True,
-              help="Cell size in metres, also for clouds in feet (1 m = 3.2808 ft in the GeoTIFF).")
+@click_option(RasterSettings, "res_m", "--res", required=True, default=None, show_default=False,
+              help="Cell size in metres, also for clouds in feet (1 m = 3.2808 ft in the GeoTIFF) ([rasters] res_m of "
+                   "aerotri run).")
 @click.option("--crs", default=None, help="CRS (EPSG:code) of files that have none.")
 @click.option("--tile-px", type=click.IntRange(min=1), default=DEFAULT_TILE_PX, show_default=True,
               help="Tile size in raster cells (memory: about 160 bytes per cell of a tile with its buffer).")
@@ -250,15 +184,15 @@ def rasters(in_paths, outdir, res_m, crs, tile_px, buffer_px, dem_fill_radius_px
 @click.option("--res", "res_m", type=positive(), default=None,
               help="--reference: cell size in metres [0.5; with a raster: the raster's cells, or a raster sampled at "
                    "the centres of cells of this size, e.g. to match a sparse cloud].")
-@click.option("--class-field", default=MapEvalParams.class_field, show_default=True,
+@click.option("--class-field", default=MapEvalSettings.class_field, show_default=True,
               help="--reference polygons: the attribute holding the class (ASPRS code or name: building, tree, "
                    "grass, road, bare ground, water).")
 @click.option("--reference-class", default=None,
               help="--reference polygons: one class for every polygon (e.g. building for footprints).")
-@click.option("--min-overlap", type=fraction(open_low=True, open_high=False), default=MapEvalParams.min_overlap,
+@click.option("--min-overlap", type=fraction(open_low=True, open_high=False), default=MapEvalSettings.min_overlap,
               show_default=True, help="--reference: share of a building's area that must overlap to count it as "
                                       "found (reference) or correct (detected).")
-@click.option("--min-building-m2", type=at_least(0), default=MapEvalParams.min_building_m2,
+@click.option("--min-building-m2", type=at_least(0), default=MapEvalSettings.min_building_m2,
               show_default=True, help="--reference: buildings smaller than this (m2) are not counted per building.")
 @click.option("--within", default=None,
               help="--reference: score only inside the polygons of this file, or 'hull': inside the convex hulls "
@@ -280,6 +214,22 @@ def evaluate(pred_paths, truth_path, reference_path, json_path, map_pred, map_tr
     import json
 
     from aerotri.core.atomic import write_text_atomic
+
+    _check_evaluate_paths(pred_paths, truth_path, reference_path, json_path, within)
+    maps = _parse_map(map_pred, "--map-pred"), _parse_map(map_truth, "--map-truth")
+    if reference_path is not None:
+        text, result = _evaluate_map(pred_paths, reference_path, MapEvalSettings(
+            res_m=res_m, min_overlap=min_overlap, min_building_m2=min_building_m2, class_field=class_field,
+            reference_class=reference_class, map_pred=maps[0], map_ref=maps[1], crs=crs, within=within))
+    else:
+        text, result = _evaluate_truth(pred_paths, truth_path, *maps)
+    click.echo(text)
+    if json_path:
+        write_text_atomic(json_path, json.dumps(result, indent=2))
+
+
+def _check_evaluate_paths(pred_paths, truth_path, reference_path, json_path, within) -> None:
+    """One of --truth and --reference; --json replaces no input."""
     from aerotri.core.errors import OptionError
 
     if (truth_path is None) == (reference_path is None):
@@ -288,29 +238,27 @@ def evaluate(pred_paths, truth_path, reference_path, json_path, map_pred, map_tr
     if json_path:
         refuse_input_as_output(json_path, [*pred_paths, truth_path, reference_path,
                                            None if within in (None, "hull") else within], "--json")
-    if reference_path is not None:
-        from lidarctl import map_accuracy as ma
 
-        params = MapEvalParams(res_m=res_m, min_overlap=min_overlap, min_building_m2=min_building_m2,
-                               class_field=class_field, reference_class=reference_class,
-                               map_pred=_parse_map(map_pred, "--map-pred"), map_ref=_parse_map(map_truth, "--map-truth"),
-                               crs=crs, within=within)
-        result = ma.evaluate_map(pred_paths, reference_path, params)
-        click.echo(ma.format_map_report(result))
-        if json_path:
-            write_text_atomic(json_path, json.dumps(result.as_dict(), indent=2))
-        return
+
+def _evaluate_map(pred_paths, reference_path, settings) -> tuple[str, dict]:
+    """``lidarctl evaluate --reference``: (the report, its numbers)."""
+    from lidarctl import map_accuracy as ma
+
+    result = ma.evaluate_map(pred_paths, reference_path, settings)
+    return ma.format_map_report(result), result.as_dict()
+
+
+def _evaluate_truth(pred_paths, truth_path, map_pred: dict, map_truth: dict) -> tuple[str, dict]:
+    """``lidarctl evaluate --truth``: (the report, its numbers)."""
+    from aerotri.core.errors import OptionError
     from lidarctl import evaluate as ev
 
     if len(pred_paths) != 1:
         raise OptionError(f"--truth: one classified file, not {len(pred_paths)}", param="--truth")
-    result = ev.evaluate_files(pred_paths[0], truth_path, _parse_map(map_pred, "--map-pred"),
-                               _parse_map(map_truth, "--map-truth"))
-    click.echo(ev.format_filter_table({"ground": result["filter_test"]}))
-    click.echo("")
-    click.echo(ev.format_confusion(result["confusion"]))
-    if json_path:
-        write_text_atomic(json_path, json.dumps(result, indent=2))
+    result = ev.evaluate_files(pred_paths[0], truth_path, map_pred, map_truth)
+    text = "\n".join([ev.format_filter_table({"ground": result["filter_test"]}), "",
+                      ev.format_confusion(result["confusion"])])
+    return text, result
 
 
 @main.command("check-heights")
@@ -359,19 +307,12 @@ def check_heights(paths, dem_path, radius_m, exclude_m, grouping, cover_radius_m
         write_text_atomic(json_path, json.dumps(result, indent=2))
 
 
-_PLAN = PlanCheckParams()
-
-
 @main.command("check-plan")
 @click.argument("paths", nargs=-1, required=True, type=click.Path(dir_okay=False), metavar="CLOUD... POINTS_CSV")
-@click.option("--radius", "radius_m", type=positive(), default=_PLAN.radius_m, show_default=True,
-              help="Largest distance (m) from a surveyed point to its LiDAR corner.")
-@click.option("--min-edge-m", "min_edge_m", type=positive(), default=None,
-              help="LiDAR corners whose two roof edges are at least this long (m), as lidarctl corners "
-                   "--min-edge-m. Default: max(2 m, 8 point spacings) of the measured spacing.")
-@renamed_option("--min-edge", "--min-edge-m", "min_edge_m", positive())
-@click.option("--scale", default=_PLAN.scale, show_default=True, help="Map scale of the tolerance table.")
-@click.option("--terrain", default=_PLAN.terrain, show_default=True, help="Terrain class of the tolerance table.")
+@click_option(PlanCheckSettings, "radius_m", "--radius")
+@click_option(PlanCheckSettings, "min_edge_m", "--min-edge-m")
+@click_option(PlanCheckSettings, "scale", "--scale")
+@click_option(PlanCheckSettings, "terrain", "--terrain")
 @click.option("--json", "json_path", type=click.Path(dir_okay=False), default=None,
               help="Write the numbers as JSON (offsets in metres, _m keys; per-point coordinates in the cloud's "
                    "units).")
@@ -379,7 +320,7 @@ _PLAN = PlanCheckParams()
               help="Offset vectors over the surveyed points and the histogram of the plan offsets.")
 @click.option("--crs", default=None, help="CRS (EPSG:code) of clouds that have none.")
 @click.option("--points-crs", default=None, help="CRS of POINTS_CSV, checked against the cloud's (never transformed).")
-def check_plan(paths, radius_m, min_edge_m, scale, terrain, json_path, png_path, crs, points_crs):
+def check_plan(paths, json_path, png_path, crs, points_crs, **_settings):
     """Plan check of classified CLOUD(s) (building class 6; strips in one CRS) against surveyed roof / building
     corners (POINTS_CSV id,x,y[,z] in the cloud's CRS and units): each point's nearest LiDAR roof corner (the
     eave corners of lidarctl corners) within --radius; dx, dy, plan offset (LiDAR - surveyed), RMS x / y /
@@ -388,7 +329,7 @@ def check_plan(paths, radius_m, min_edge_m, scale, terrain, json_path, png_path,
     from lidarctl import plan_check as pc
 
     *cloud_paths, points_csv = paths
-    params = PlanCheckParams(radius_m=radius_m, min_edge_m=min_edge_m, scale=scale, terrain=terrain)
+    params = resolve(PlanCheckSettings, None, click.get_current_context()).settings
     result = pc.check_plan_files(cloud_paths, points_csv, params, crs=crs, points_crs=points_crs,
                                  json_path=json_path, png_path=png_path)
     click.echo(pc.format_report(result))
@@ -412,11 +353,11 @@ def check_plan(paths, radius_m, min_edge_m, scale, terrain, json_path, png_path,
 def smooth(dem_path, out_path, order, edge_m, iterations, step, window_px):
     """Edge-preserving smoothing of DEM_PATH (GeoTIFF) into OUT_PATH (COG): anisotropic diffusion, by
     windows (the same result as in one piece); nodata respected, CRS and units kept."""
-    from lidarctl.smooth import DiffusionParams, smooth_dem
+    from lidarctl.smooth import DiffusionSettings, smooth_dem
 
     order = int(order)
-    params = DiffusionParams(order=order, edge_m=edge_m or (1.0 if order == 4 else 0.5),
-                             iterations=iterations or (100 if order == 4 else 20), step=step)
+    params = DiffusionSettings(order=order, edge_m=edge_m or (1.0 if order == 4 else 0.5),
+                               iterations=iterations or (100 if order == 4 else 20), step=step)
     r = smooth_dem(dem_path, out_path, params, window_px)
     click.echo(f"{r.path}: {r.valid_cells:,} of {r.cells:,} cells smoothed ({r.windows} window(s)); "
                f"changes RMS {r.rms_change_m:.3f} m, max {r.max_change_m:.3f} m")
@@ -492,37 +433,25 @@ def drainage(dem_path, outdir, min_area_m2, fill, simplify_px, png):
               help="DEM GeoTIFF: its contours (--contour-interval-m) become the 'contours' layer.")
 @click.option("--contours", "contours_path", type=click.Path(dir_okay=False), default=None,
               help="Contour layer (.gpkg/.geojson, lidarctl contours) copied into OUT as 'contours'.")
-@click.option("--contour-interval-m", "contour_interval_m", type=positive(), default=1.0, show_default=True,
-              help="--dem: contour interval (m).")
-@click.option("--cell-m", "cell_m", type=positive(), default=1.0, show_default=True,
-              help="Cell of the road and water masks (m); about the point spacing or larger.")
-@click.option("--min-area-m2", "min_area_m2", type=positive(), default=50.0, show_default=True,
-              help="Road and water pieces (and holes in them) smaller than this (m2) are dropped (filled).")
-@click.option("--simplify-m", "simplify_m", type=positive(), default=0.5, show_default=True,
-              help="Douglas-Peucker tolerance of road/water polygons and centre lines (m).")
-@click.option("--spot-spacing-m", "spot_spacing_m", type=positive(), default=100.0, show_default=True,
-              help="One spot height per square of this side (m).")
+@click_option(MapVectorSettings, "contour_interval_m", "--contour-interval-m")
+@click_option(MapVectorSettings, "cell_m", "--cell-m")
+@click_option(MapVectorSettings, "min_area_m2", "--min-area-m2")
+@click_option(MapVectorSettings, "simplify_m", "--simplify-m")
+@click_option(MapVectorSettings, "spot_spacing_m", "--spot-spacing-m")
 @click.option("--crs", default=None, help="CRS (EPSG:code) when the files have none; never guessed.")
-@renamed_option("--contour-interval", "--contour-interval-m", "contour_interval_m", positive())
-@renamed_option("--cell", "--cell-m", "cell_m", positive())
-@renamed_option("--min-area", "--min-area-m2", "min_area_m2", positive())
-@renamed_option("--simplify", "--simplify-m", "simplify_m", positive())
-@renamed_option("--spot-spacing", "--spot-spacing-m", "spot_spacing_m", positive())
-def vectors(paths, image, dem, contours_path, contour_interval_m, cell_m, min_area_m2, simplify_m, spot_spacing_m,
-            crs):
+def vectors(paths, image, dem, contours_path, crs, **_settings):
     """Line-map (DLG) layers of the classified clouds PATHS... into OUT (the last argument, .gpkg): buildings
     (regularised outlines, eave/ridge heights, area), roads (polygons of class 11) and road_centrelines
     (width), water (class 9), spot_heights, and contours (--contours or --dem)."""
     from aerotri.core.errors import OptionError
-    from lidarctl.map_vectors import VectorParams, vectors_to_file
+    from lidarctl.map_vectors import vectors_to_file
 
     if len(paths) < 2:
         raise OptionError("give the classified cloud(s) and then OUT.gpkg", param="PATHS")
     *clouds, out_path = paths
     if dem and contours_path:
         raise OptionError("give --dem or --contours, not both", param="--contours")
-    params = VectorParams(cell_m=cell_m, min_area_m2=min_area_m2, simplify_m=simplify_m, spot_spacing_m=spot_spacing_m,
-                          contour_interval_m=contour_interval_m)
+    params = resolve(MapVectorSettings, None, click.get_current_context()).settings
     s = vectors_to_file(clouds, out_path, params, crs=crs, dem=dem, contours=contours_path, image=image)
     counts = ", ".join(f"{k} {s[k]}" for k in ("buildings", "roads", "road_centrelines", "water", "spot_heights",
                                                "contours") if k in s)
@@ -533,24 +462,21 @@ def vectors(paths, image, dem, contours_path, contour_interval_m, cell_m, min_ar
 @click.argument("product_path", type=click.Path(dir_okay=False))
 @click.option("--reference", "reference_path", type=click.Path(dir_okay=False), required=True,
               help="Reference vectors (.gpkg) with layers of the same names (buildings, roads, ...).")
-@click.option("--layer", "layers", multiple=True, help="Check only this layer (repeatable) [every shared layer].")
+@click_option(VectorCheckSettings, "layers", "--layer", multiple=True, show_default=False,
+              help="Check only this layer (repeatable) [every shared layer].")
 @click.option("--json", "json_path", type=click.Path(dir_okay=False), default=None, help="Write the numbers as JSON.")
 @click.option("--png", "png_path", type=click.Path(dir_okay=False), default=None,
               help="Plot of the building outlines and corner offset vectors.")
-@click.option("--match-m", "match_m", type=positive(), default=3.0, show_default=True,
-              help="Largest distance (m) of a produced corner from its reference corner to pair them.")
-@click.option("--buffer-m", "buffer_m", type=positive(), default=2.0, show_default=True,
-              help="Buffer (m) around lines for their completeness and correctness.")
-@click.option("--scale", default="1:10000", show_default=True, help="Map scale of the tolerance table.")
-@click.option("--terrain", default="flat", show_default=True, help="Terrain class of the tolerance table.")
-@renamed_option("--match", "--match-m", "match_m", positive())
-@renamed_option("--buffer", "--buffer-m", "buffer_m", positive())
-def check_vectors(product_path, reference_path, layers, json_path, png_path, match_m, buffer_m, scale, terrain):
+@click_option(VectorCheckSettings, "match_m", "--match-m")
+@click_option(VectorCheckSettings, "buffer_m", "--buffer-m")
+@click_option(VectorCheckSettings, "scale", "--scale")
+@click_option(VectorCheckSettings, "terrain", "--terrain")
+def check_vectors(product_path, reference_path, json_path, png_path, **_settings):
     """Line-map accuracy of PRODUCT_PATH (lidarctl vectors) against --reference: plan RMS of the building corners
     (to the nearest reference outline and to the matched reference corner), completeness and correctness of
     each layer by area (polygons) or buffer (lines), with the map scale's tolerance for well-defined features."""
     from lidarctl import vector_check as vc
 
-    params = vc.CheckParams(layers=tuple(layers), match_m=match_m, buffer_m=buffer_m, scale=scale, terrain=terrain)
+    params = resolve(VectorCheckSettings, None, click.get_current_context()).settings
     result = vc.check_files(product_path, reference_path, params, json_path, png_path)
     click.echo(vc.format_report(result))

@@ -39,6 +39,7 @@ from __future__ import annotations
 
 import csv
 import dataclasses
+from typing import ClassVar
 import io
 import json
 import time
@@ -51,7 +52,7 @@ from scipy.spatial import cKDTree
 
 from aerotri.core.atomic import committed, refuse_input_as_output, write_text_atomic
 from aerotri.core.errors import InputError, OptionError
-from aerotri.core.settings import setting
+from aerotri.core.settings import Resolved, setting, settings_of
 from lidarctl import io as las_io
 from lidarctl.grid import check_grid
 from lidarctl.roof_outline import (
@@ -975,12 +976,14 @@ def to_crs_units(result: dict, units) -> dict:
             "stats": {**result["stats"], **units.as_dict()}}
 
 
-def write_corner_files(outdir, result: dict, crs=None, source: str | None = None, inputs=()) -> dict:
+def write_corner_files(outdir, result: dict, crs=None, source: str | None = None, inputs=(),
+                       settings_record: dict | None = None) -> dict:
     """Write corners.csv, corners.geojson, roof_planes.geojson and corners.json (summary) atomically; return
     the paths.
 
     ``result``: corners and faces in the CRS's units (``to_crs_units``; a result in metres without units
-    is written as metres). ``inputs``: the input files, which no output may replace."""
+    is written as metres). ``inputs``: the input files, which no output may replace. ``settings_record``: the
+    settings with their sources (``aerotri.core.settings.Resolved.record``), corners.json ``settings``."""
     outdir = Path(outdir)
     paths = {"csv": outdir / "corners.csv", "geojson": outdir / "corners.geojson",
              "planes": outdir / ROOF_PLANES_FILE, "summary": outdir / "corners.json"}
@@ -996,6 +999,8 @@ def write_corner_files(outdir, result: dict, crs=None, source: str | None = None
         faces = _faces_in_crs_units(faces, METRE)
     write_text_atomic(paths["planes"], json.dumps(roof_planes_geojson(faces, result["stats"], crs)))
     summary = {"source": source, "crs": (crs.to_string() if crs is not None else None), **result["stats"]}
+    if settings_record is not None:
+        summary["settings"] = settings_record
     write_text_atomic(paths["summary"], json.dumps(summary, indent=2) + "\n")
     return paths
 
@@ -1099,6 +1104,8 @@ def plot_corners(path, ndsm, extent, outlines, corners, truth_xy=None, reference
 class CornerSettings:
     """Options of the roof-corner stage (``lidarctl corners``, ``[corners]`` in project.toml)."""
 
+    SECTION: ClassVar[str] = "corners"
+
     min_edge_m: float | None = setting(None, min=0.5, help="Report corners whose two edges are at least this long "
                                                             "(m); default max(2 m, 8 point spacings) of the roofs' "
                                                             "measured spacing.")
@@ -1115,7 +1122,7 @@ class CornerSettings:
 
 
 @committed(lambda paths, outdir, *a, **k: Path(outdir))
-def corner_control(paths, outdir, settings: CornerSettings = CornerSettings(), crs=None,
+def corner_control(paths, outdir, settings: CornerSettings | Resolved = CornerSettings(), crs=None,
                    record_none: bool = False) -> dict:
     """The stage: roof corners of classified LAS/LAZ file(s) (one or more strips in one CRS) as control
     candidates. ``crs``: the CRS of files that have none (never guessed).
@@ -1132,7 +1139,8 @@ def corner_control(paths, outdir, settings: CornerSettings = CornerSettings(), c
     """
     paths = [Path(p) for p in paths]
     outdir = Path(outdir)
-    s = settings
+    resolved = settings_of(settings, CornerSettings)  # a Resolved (lidarctl corners, the chain): with sources
+    s = resolved.settings
     from aerotri.geom.inputs import check_distinct_files
 
     check_distinct_files(paths, "LAS/LAZ file")  # a strip given twice would count every point twice
@@ -1152,7 +1160,7 @@ def corner_control(paths, outdir, settings: CornerSettings = CornerSettings(), c
         reason = (f"{names}: no usable roof corner ({st['n_corners']} corners on {st['n_outlines']} roof outlines, "
                   f"none with score >= {st['usable_score']} and edges >= {st['min_edge_m']:.2f} m"
                   f"{' on a flat roof' if s.roof == 'flat' else ''}; point spacing {st['point_spacing_m']:.2f} m)")
-        summary = {**head, **st, "no_usable": reason}
+        summary = {**head, **st, "no_usable": reason, "settings": resolved.record()}
         if not record_none:
             return summary
         outdir.mkdir(parents=True, exist_ok=True)
@@ -1165,7 +1173,7 @@ def corner_control(paths, outdir, settings: CornerSettings = CornerSettings(), c
     if s.figure:
         ndsm, extent_m = figure
     out = to_crs_units(result, units)
-    files = write_corner_files(outdir, out, crs=crs_out, source=names, inputs=paths)
+    files = write_corner_files(outdir, out, crs=crs_out, source=names, inputs=paths, settings_record=resolved.record())
     if s.figure:
         extent = tuple(float(units.xy_from_m(v)) for v in extent_m)
         plot_corners(outdir / "corners.png", ndsm, extent, out["outlines"], out["corners"],

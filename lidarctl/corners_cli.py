@@ -8,7 +8,7 @@ import click
 
 from aerotri.core.commands import Command
 from aerotri.core.errors import InputError
-from aerotri.core.settings import click_option
+from aerotri.core.settings import click_option, resolve
 from lidarctl.corners import CornerSettings, corner_control
 
 
@@ -36,8 +36,7 @@ def corners(classified, outdir, min_edge_m, roof, sigma_strip_xy_m, sigma_strip_
     control it stops with exit code 2 and writes nothing. The files are read by tiles (--tile-m with a
     --buffer-m border larger than the largest roof), never merged: memory is set by the tile size.
     """
-    settings = CornerSettings(min_edge_m=min_edge_m, roof=roof, sigma_strip_xy_m=sigma_strip_xy_m,
-                              sigma_strip_z_m=sigma_strip_z_m, figure=figure, tile_m=tile_m, buffer_m=buffer_m)
+    settings = resolve(CornerSettings, None, click.get_current_context())  # the options, with their sources
     st = corner_control(classified, outdir, settings, crs=crs)
     if st["no_usable"]:
         hint = "try --roof any or a smaller --min-edge-m" if roof == "flat" else "try a smaller --min-edge-m"

@@ -6,7 +6,7 @@ by the window of the tile only (nearest pixel at each point).
 
 Spectral feature: greenness. With a near-infrared band, NDVI = (NIR - R) / (NIR + R); without one the
 excess green of the chromatic coordinates, ExG = 2g - r - b (r = R / (R + G + B), ...). A point is
-*green* above ``FusionParams.ndvi_min`` (``exg_min``).
+*green* above ``FusionSettings.ndvi_min`` (``exg_min``).
 
 Rules (ASPRS codes):
 1. Vegetation: vegetation points (3, 4, 5) and unclassified points (1) that are green split at
@@ -61,7 +61,7 @@ _EIGHT = np.ones((3, 3), bool)
 
 
 @dataclasses.dataclass(frozen=True)
-class FusionParams:
+class FusionSettings:
     """Thresholds of the fusion rules (module docstring); lengths in metres.
 
     ``ndvi_min`` / ``exg_min`` are for 8-bit (gamma-encoded) orthophotos, whose NDVI is lower than that of
@@ -187,7 +187,7 @@ def sample_image(img: ImageSource, x: np.ndarray, y: np.ndarray):
     return rgb, nir
 
 
-def greenness(rgb: np.ndarray, nir: np.ndarray | None, p: FusionParams = FusionParams()):
+def greenness(rgb: np.ndarray, nir: np.ndarray | None, p: FusionSettings = FusionSettings()):
     """(green bool, index): NDVI with a NIR band, else excess green of the chromatic coordinates; points
     without image values are not green."""
     rgb = np.asarray(rgb, np.float64)
@@ -205,7 +205,7 @@ def greenness(rgb: np.ndarray, nir: np.ndarray | None, p: FusionParams = FusionP
     return np.nan_to_num(index, nan=-np.inf) > threshold, index
 
 
-def road_shaped(mask: np.ndarray, cell_m: float, p: FusionParams = FusionParams()) -> np.ndarray:
+def road_shaped(mask: np.ndarray, cell_m: float, p: FusionSettings = FusionSettings()) -> np.ndarray:
     """Cells of the 8-connected regions of ``mask`` shaped like roads: mean width 2 A / P within
     [road_min_width_m, road_max_width_m] and elongation P^2 / (4 A) >= road_min_elongation."""
     labels, n = ndimage.label(mask, structure=_EIGHT)
@@ -257,7 +257,7 @@ def read_grey(img: ImageSource, xmin: float, ymin: float, xmax: float, ymax: flo
     return g, ((t.c + (c0 + 0.5) * t.a) * img.xy_m, (t.f + (r0 + 0.5) * t.e) * img.xy_m, px_m)
 
 
-def line_segments(grey: np.ndarray, px_m: float, p: FusionParams = FusionParams()) -> np.ndarray:
+def line_segments(grey: np.ndarray, px_m: float, p: FusionSettings = FusionSettings()) -> np.ndarray:
     """Straight segments (n, 4: u0 v0 u1 v1 in pixels, column/row) of the Canny edges of ``grey`` (uint8)
     at least ``building_min_line_m`` long (``px_m``: pixel size in metres); probabilistic Hough transform
     with a gap of up to a quarter of the minimum length bridged."""
@@ -296,7 +296,7 @@ def first_minus_last(z, row, col, shape, return_number=None, number_of_returns=N
 
 
 def lines_per_building(labels: np.ndarray, nb: int, x0: float, y0: float, cell_m: float, img: ImageSource,
-                       p: FusionParams = FusionParams()):
+                       p: FusionSettings = FusionSettings()):
     """(segments per candidate (nb + 1,), covered (nb + 1,) bool) for the candidates ``labels`` (grid rows
     northwards from ``y0``, columns from ``x0``, cells of ``cell_m``): one Canny/Hough pass over the
     orthophoto window of all candidates; a segment counts for the candidate nearest its midpoint within
@@ -340,10 +340,10 @@ class Fusion:
     """What ``classify_points`` needs to fuse: the image and the rule thresholds."""
 
     image: ImageSource
-    params: FusionParams = FusionParams()
+    params: FusionSettings = FusionSettings()
 
 
-def fuse(x, y, z, hag, cls, intensity, img: ImageSource, p: FusionParams = FusionParams(),
+def fuse(x, y, z, hag, cls, intensity, img: ImageSource, p: FusionSettings = FusionSettings(),
          return_number=None, number_of_returns=None) -> np.ndarray:
     """Classes after the fusion rules (module docstring) for one tile's points (x, y, z in metres; ``hag``:
     height above the ground DEM; ``cls``: the LiDAR-only classes; return numbers for the first-minus-last

@@ -49,13 +49,13 @@ roof (a low wide roof, or a roof filling a tile corner, that the opening window 
 
 Presets tune the parameters for urban, rural, forest and mountain terrain. The default filter
 (``ground_filter`` with no preset) is the morphological filter with its TIN refinement and one
-parameter set (``MorphParams()``) for all reference samples: 3.23 % mean total error on the shared
+parameter set (``MorphSettings()``) for all reference samples: 3.23 % mean total error on the shared
 ISPRS samples (3.82 % before the local-surface test and the angle criterion) against the PTD's 5.3 %;
 3.52 % leave-one-sample-out over an 81-point grid (3.72 % before), so 0.28 points of the 3.23 % are
 fit to these samples (results/lidar_isprs.json, lidar_isprs_loo*.json).
 
 Registry (``GROUND_FILTERS``): name -> ``GroundFilter`` (parameters dataclass, presets, reach,
-function). ``ground_filter``, the classifier's settings (``ClassifyParams``), the command line's
+function). ``ground_filter``, the classifier's settings (``ClassifySettings``), the command line's
 ``--method``/``--preset`` choices and the tile buffer (``lidarctl.tiles``) read it. Adding a filter:
 a module with its parameters dataclass and its function ``run(x, y, z, params) -> ground mask``, and
 one registry line, e.g. ``GROUND_FILTERS["csf"] = GroundFilter(CsfParams, csf_ground, reach_m=...)``.
@@ -79,7 +79,7 @@ from lidarctl import grid
 
 
 @dataclasses.dataclass
-class GroundParams:
+class GroundSettings:
     """Parameters of the progressive TIN densification (lengths in metres, angles in degrees)."""
 
     seed_cell_m: float = setting(20.0, min=1.0, help="Seeds: the lowest point per cell of this size (small "
@@ -107,14 +107,14 @@ class GroundParams:
 # The presets are starting points from the parameters' meaning, not measured: flat open land takes a
 # stricter angle, rough forest floor and mountains looser angles and distances.
 PTD_PRESETS = {
-    "urban": GroundParams(),
-    "rural": GroundParams(max_angle_deg=25.0),
-    "forest": GroundParams(max_angle_deg=36.0),
-    "mountain": GroundParams(max_distance_m=2.0, max_angle_deg=40.0),
+    "urban": GroundSettings(),
+    "rural": GroundSettings(max_angle_deg=25.0),
+    "forest": GroundSettings(max_angle_deg=36.0),
+    "mountain": GroundSettings(max_distance_m=2.0, max_angle_deg=40.0),
 }
 
 
-def ptd_reach_m(p: GroundParams) -> float:
+def ptd_reach_m(p: GroundSettings) -> float:
     """How far (m) the PTD looks: seeds are the lowest points of ``seed_cell_m`` cells (larger than the
     largest building) and are checked against the plane through the seeds within 1.5 seed cells."""
     return 1.5 * p.seed_cell_m
@@ -254,14 +254,14 @@ def delaunay_2d(x, y) -> np.ndarray:
     return Delaunay(np.column_stack([x - x.min(), y - y.min()])).simplices
 
 
-def ptd_ground(x, y, z, params: GroundParams | None = None, return_tin: bool = False,
+def ptd_ground(x, y, z, params: GroundSettings | None = None, return_tin: bool = False,
                seed_mask: np.ndarray | None = None):
     """Progressive TIN densification. Returns a boolean ground mask (and the final TIN if asked).
 
     ``seed_mask`` (optional) restricts the seeds to points already known as ground (e.g. from
     the morphological filter); the lowest such point per seed cell becomes a seed.
     """
-    p = params or GroundParams()
+    p = params or GroundSettings()
     n = len(x)
     if n < 3:
         raise ValueError("ground filtering needs at least 3 points")
@@ -322,7 +322,7 @@ def ptd_ground(x, y, z, params: GroundParams | None = None, return_tin: bool = F
 
 
 @dataclasses.dataclass
-class MorphParams:
+class MorphSettings:
     """Parameters of the morphological filter and its TIN refinement (lengths in metres)."""
 
     cell_m: float = setting(1.5, min=0.05, help="Minimum-surface cell size.")
@@ -364,12 +364,12 @@ class MorphParams:
                                          "roof area.")
 
 
-def ground_surface_morph(x, y, z, params: MorphParams | None = None):
+def ground_surface_morph(x, y, z, params: MorphSettings | None = None):
     """Provisional bare-earth DEM by progressive morphological opening of the minimum surface.
 
     Returns (dem, x0, y0, cell_m) with ``dem`` filled (no NaN), rows growing with y.
     """
-    p = params or MorphParams()
+    p = params or MorphSettings()
     c = p.cell_m
     x0, y0 = float(np.min(x)), float(np.min(y))
     ncols = int(np.floor((np.max(x) - x0) / c)) + 1
@@ -388,7 +388,7 @@ def ground_surface_morph(x, y, z, params: MorphParams | None = None):
     return fill_nodata(prov), x0, y0, c
 
 
-def morphological_ground(x, y, z, params: MorphParams | None = None, return_dem: bool = False):
+def morphological_ground(x, y, z, params: MorphSettings | None = None, return_dem: bool = False):
     """Ground mask from the opened DEM, cleaned by a local-surface test, refined against a TIN.
 
     Pass 1: ground = points within ``elevation_threshold_m + elevation_scaler * slope`` of the
@@ -408,7 +408,7 @@ def morphological_ground(x, y, z, params: MorphParams | None = None, return_dem:
     """
     from lidarctl.raster_ops import sample_bilinear, slope_tan
 
-    p = params or MorphParams()
+    p = params or MorphSettings()
     dem, x0, y0, c = ground_surface_morph(x, y, z, p)
     slope = sample_bilinear(slope_tan(dem, c), x, y, c, x0, y0)
     dz = z - sample_bilinear(dem, x, y, c, x0, y0)
@@ -545,14 +545,14 @@ def refine_tolerance_m(residuals_m, noise_factor: float, min_m: float, max_m: fl
 
 
 MORPH_PRESETS = {
-    "urban": MorphParams(),
-    "rural": MorphParams(max_window_m=18.0),
-    "forest": MorphParams(max_window_m=18.0, slope=0.4, elevation_scaler=1.5),
-    "mountain": MorphParams(max_window_m=18.0, slope=0.6, elevation_scaler=2.0, refine_scaler=1.5),
+    "urban": MorphSettings(),
+    "rural": MorphSettings(max_window_m=18.0),
+    "forest": MorphSettings(max_window_m=18.0, slope=0.4, elevation_scaler=1.5),
+    "mountain": MorphSettings(max_window_m=18.0, slope=0.6, elevation_scaler=2.0, refine_scaler=1.5),
 }
 
 
-def morph_reach_m(p: MorphParams) -> float:
+def morph_reach_m(p: MorphSettings) -> float:
     """How far (m) the morphological filter and the classifier around it look from a point.
 
     The opening with the largest window of radius r (``max_window_m``, 25 m) is an erosion then a
@@ -590,9 +590,9 @@ class GroundFilter:
 
 
 GROUND_FILTERS: dict[str, GroundFilter] = {
-    "morph": GroundFilter(MorphParams, morphological_ground, morph_reach_m, MORPH_PRESETS,
+    "morph": GroundFilter(MorphSettings, morphological_ground, morph_reach_m, MORPH_PRESETS,
                           help="morphological + TIN refinement"),
-    "ptd": GroundFilter(GroundParams, ptd_ground, ptd_reach_m, PTD_PRESETS, help="progressive TIN densification"),
+    "ptd": GroundFilter(GroundSettings, ptd_ground, ptd_reach_m, PTD_PRESETS, help="progressive TIN densification"),
 }
 
 

@@ -49,7 +49,7 @@ _EIGHT = np.ones((3, 3), bool)
 
 
 @dataclasses.dataclass(frozen=True)
-class MapEvalParams:
+class MapEvalSettings:
     """Options of ``lidarctl evaluate --reference``.
 
     ``res_m``: cell size (m; default 0.5 m when neither side is a raster, else the raster's; given with a
@@ -203,7 +203,7 @@ def _kind(path: Path, allowed: tuple, what: str) -> str:
                      f"{', .gpkg/.geojson' if 'polygons' in allowed else ''}), not {suffix or 'no suffix'}")
 
 
-def evaluate_map(pred_paths, ref_path, params: MapEvalParams = MapEvalParams()) -> MapAccuracy:
+def evaluate_map(pred_paths, ref_path, params: MapEvalSettings = MapEvalSettings()) -> MapAccuracy:
     """The stage (``lidarctl evaluate PRED... --reference REF``): the prediction (one class raster, or one or
     more classified clouds: strips) and the reference onto one grid, then ``score_maps``."""
     pred_paths = [Path(pred_paths)] if isinstance(pred_paths, (str, Path)) else [Path(q) for q in pred_paths]
@@ -271,7 +271,7 @@ def evaluate_map(pred_paths, ref_path, params: MapEvalParams = MapEvalParams()) 
 
 
 def _within_mask(within: str, polys, grid, ref_path) -> np.ndarray:
-    """The evaluation area of ``MapEvalParams.within`` on ``grid``."""
+    """The evaluation area of ``MapEvalSettings.within`` on ``grid``."""
     from aerotri.geom.crs import same_horizontal
 
     if within == "hull":

@@ -36,6 +36,7 @@ from pathlib import Path
 
 import numpy as np
 
+from aerotri.core.settings import setting
 from aerotri.core.errors import CrsError, InputError, OptionError
 
 log = logging.getLogger(__name__)
@@ -51,14 +52,17 @@ LAYERS = ("buildings", "roads", "road_centrelines", "water", "spot_heights", "co
 
 
 @dataclasses.dataclass(frozen=True)
-class VectorParams:
+class MapVectorSettings:
     """Cell size of the road/water masks, smallest polygon, simplification, spot-height spacing (metres)."""
 
-    cell_m: float = 1.0
-    min_area_m2: float = 50.0
-    simplify_m: float = 0.5
-    spot_spacing_m: float = 100.0
-    contour_interval_m: float = 1.0
+    cell_m: float = setting(1.0, min=0.0, min_open=True, help="Cell of the road and water masks (m); about the point "
+                                                              "spacing or larger.")
+    min_area_m2: float = setting(50.0, min=0.0, min_open=True, help="Road and water pieces (and holes in them) smaller "
+                                                                    "than this (m2) are dropped (filled).")
+    simplify_m: float = setting(0.5, min=0.0, min_open=True, help="Douglas-Peucker tolerance of road/water polygons and "
+                                                                  "centre lines (m).")
+    spot_spacing_m: float = setting(100.0, min=0.0, min_open=True, help="One spot height per square of this side (m).")
+    contour_interval_m: float = setting(1.0, min=0.0, min_open=True, help="--dem: contour interval (m).")
 
 
 @dataclasses.dataclass
@@ -463,7 +467,7 @@ def _scale_geoms(geoms: list, f: float) -> list:
     return [shapely.transform(g, lambda a: a * f) for g in geoms]
 
 
-def extract_vectors(paths, out_path, params: VectorParams = VectorParams(), crs=None, dem=None,
+def extract_vectors(paths, out_path, params: MapVectorSettings = MapVectorSettings(), crs=None, dem=None,
                     contours=None) -> MapVectors:
     """The DLG layers of classified LAS/LAZ ``paths`` (one CRS); see the module doc. ``dem``/``contours``:
     a DEM GeoTIFF to contour or a contour layer to copy (same CRS as the cloud)."""
@@ -583,7 +587,7 @@ def write_vectors(mv: MapVectors, path) -> Path:
     return path
 
 
-def vectors_to_file(paths, out_path, params: VectorParams = VectorParams(), crs=None, dem=None, contours=None,
+def vectors_to_file(paths, out_path, params: MapVectorSettings = MapVectorSettings(), crs=None, dem=None, contours=None,
                     image=None) -> dict:
     """``extract_vectors`` + ``write_vectors`` (+ a PNG preview beside OUT over ``image`` when given).
     Returns the summary."""

@@ -32,23 +32,30 @@ import numba
 import numpy as np
 from scipy.spatial import cKDTree
 
+from aerotri.core.settings import setting
 from lidarctl import grid
 
 ISOLATED, LOW, HIGH = 1, 2, 3
 
 
-@dataclasses.dataclass
-class NoiseParams:
-    voxel_m: float = 0.0            # 0: 2.5 x mean point spacing, at least 2 m
-    min_neighbours: int = 1
-    radius_m: float = 0.0           # 0: max(5 m, 5 x mean point spacing)
-    gap_m: float = 1.0
-    slope: float = 0.4              # tan of the terrain slope tolerated between neighbours (~22 deg)
-    high_gap_m: float = 10.0
-    candidates_per_cell: int = 3
-    cluster_cell_m: float = 0.0     # 0: max(2 m, 2 x mean point spacing)
-    cluster_max_cells: int = 400
-    cluster_passes: int = 3
+@dataclasses.dataclass(frozen=True)
+class NoiseSettings:
+    """Noise removal (``[classify.noise]``): isolated points, low and high outliers, low clusters."""
+
+    voxel_m: float = setting(0.0, min=0.0, help="Voxel of the isolation test (m); 0: 2.5 x the mean point spacing, at "
+                                                "least 2 m.")
+    min_neighbours: int = setting(1, min=0, help="A point with fewer other points in its 3 x 3 x 3 voxels is isolated.")
+    radius_m: float = setting(0.0, min=0.0, help="Search radius of the low and high outlier tests (m); 0: max(5 m, 5 x "
+                                                 "the mean point spacing).")
+    gap_m: float = setting(1.0, min=0.0, help="A low point needs another point within radius_m at most this (plus "
+                                              "slope x distance) above it (m).")
+    slope: float = setting(0.4, min=0.0, help="Terrain slope tolerated between neighbours (tan; 0.4 is about 22 deg).")
+    high_gap_m: float = setting(10.0, min=0.0, help="The high outlier test's gap (m).")
+    candidates_per_cell: int = setting(3, min=1, help="Lowest (highest) points per cell tested as outliers.")
+    cluster_cell_m: float = setting(0.0, min=0.0, help="Cell of the low cluster test (m); 0: max(2 m, 2 x the mean "
+                                                       "point spacing).")
+    cluster_max_cells: int = setting(400, min=1, help="Low clusters of at most this many cells are noise.")
+    cluster_passes: int = setting(3, min=0, help="Passes of the low cluster test.")
 
 
 @numba.njit(cache=True, parallel=True)
@@ -266,13 +273,13 @@ def _near(x, y, fx, fy, dist_m: float) -> np.ndarray:
     return hit[i + 1, j + 1]
 
 
-def detect_noise(x, y, z, params: NoiseParams | None = None) -> np.ndarray:
+def detect_noise(x, y, z, params: NoiseSettings | None = None) -> np.ndarray:
     """Noise code per point: 0 clean, 1 isolated, 2 low outlier, 3 high outlier.
 
     Low outliers are tested twice: a first pass removes single blunders, the second catches
     pairs that only supported each other through a blunder.
     """
-    p = params or NoiseParams()
+    p = params or NoiseSettings()
     spacing = grid.mean_spacing_m(x, y)
     voxel = p.voxel_m or max(2.0, 2.5 * spacing)
     radius = p.radius_m or max(5.0, 5.0 * spacing)

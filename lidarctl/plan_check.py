@@ -28,6 +28,7 @@ from pathlib import Path
 
 import numpy as np
 
+from aerotri.core.settings import setting
 from aerotri.core.errors import CrsError, InputError, OptionError
 
 log = logging.getLogger(__name__)
@@ -35,12 +36,16 @@ log.addHandler(logging.NullHandler())
 
 
 @dataclasses.dataclass(frozen=True)
-class PlanCheckParams:
-    radius_m: float = 2.0
-    min_edge_m: float | None = None  # corners whose two edges are at least this long; None: lidarctl corners'
-    # density-adaptive default (``corners.default_min_edge_m`` of the measured point spacing)
-    scale: str = "1:10000"
-    terrain: str = "flat"
+class PlanCheckSettings:
+    """``lidarctl check-plan``: how surveyed corners are paired with the LiDAR's and judged."""
+
+    radius_m: float = setting(2.0, min=0.0, min_open=True, help="Largest distance (m) from a surveyed point to its "
+                                                                "LiDAR corner.")
+    min_edge_m: float | None = setting(None, min=0.0, min_open=True, help="LiDAR corners whose two roof edges are at "
+                                       "least this long (m), as lidarctl corners --min-edge-m. Default: max(2 m, 8 point "
+                                       "spacings) of the measured spacing.")
+    scale: str = setting("1:10000", help="Map scale of the tolerance table.")
+    terrain: str = setting("flat", help="Terrain class of the tolerance table.")
 
     def validate(self) -> None:
         for name, opt in (("radius_m", "--radius"), ("min_edge_m", "--min-edge-m")):
@@ -83,7 +88,7 @@ def plan_stats(dxy_m: np.ndarray, dz_m: np.ndarray | None, n_points: int, tolera
     return out
 
 
-def check_plan(corners: list[dict], points_m: dict, params: PlanCheckParams, units, tolerance_m=None) -> dict:
+def check_plan(corners: list[dict], points_m: dict, params: PlanCheckSettings, units, tolerance_m=None) -> dict:
     """Match surveyed points (``points_m``: id, x, y[, z] in metres) to LiDAR corners (``find_roof_corners``
     dicts, metres); the result as a JSON-ready dict (module docstring)."""
     cxyz = np.array([[c["x"], c["y"], c["z"]] for c in corners], float).reshape(-1, 3)
@@ -133,7 +138,7 @@ def _cloud_extent(paths, crs, points_crs):
     return first[1], first[2], box
 
 
-def check_plan_file(cloud_paths, points_csv, params: PlanCheckParams = PlanCheckParams(), crs=None,
+def check_plan_file(cloud_paths, points_csv, params: PlanCheckSettings = PlanCheckSettings(), crs=None,
                     points_crs=None) -> tuple[dict, list[dict]]:
     """Plan check of surveyed corners (CSV id,x,y[,z] in the clouds' CRS and units) against the roof corners of
     classified LAS/LAZ file(s) (strips in one CRS). Returns (result, the LiDAR corners in the CRS's units).
@@ -245,7 +250,7 @@ def format_report(result: dict) -> str:
     return "\n".join(lines)
 
 
-def check_plan_files(cloud_paths, points_csv, params: PlanCheckParams = PlanCheckParams(), crs=None,
+def check_plan_files(cloud_paths, points_csv, params: PlanCheckSettings = PlanCheckSettings(), crs=None,
                      points_crs=None, json_path=None, png_path=None) -> dict:
     """``check_plan_file`` + the JSON and the PNG (atomic, written only after the check succeeded)."""
     import json

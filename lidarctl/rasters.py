@@ -20,6 +20,7 @@ The footprint is the set of cells within ``footprint_cells`` cells of a point.
 from __future__ import annotations
 
 import dataclasses
+from typing import ClassVar
 import logging
 from pathlib import Path
 
@@ -66,6 +67,8 @@ def check_res(res_m: float) -> None:
 @dataclasses.dataclass(frozen=True)
 class RasterSettings:
     """Options of the raster stage (``[rasters]`` in project.toml; ``lidarctl rasters --res``)."""
+
+    SECTION: ClassVar[str] = "rasters"
 
     res_m: float = setting(0.5, min=0.0, min_open=True, help="Cell size in metres.")
 

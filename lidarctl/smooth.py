@@ -46,7 +46,7 @@ MAX_STEP = {2: 0.25, 4: 1.0 / 32.0}
 
 
 @dataclasses.dataclass(frozen=True, kw_only=True)
-class DiffusionParams:
+class DiffusionSettings:
     """``order``: 4 (keeps planes and creases) or 2 (keeps steps); ``edge_m``: the height measure at which the
     conductance is 1/e, i.e. what counts as a breakline rather than noise: for order 4 the 4-neighbour
     Laplacian (m), for order 2 the height difference between neighbouring cells (m); ``iterations``:
@@ -138,7 +138,7 @@ def _diffuse4(z, valid, iterations, step, inv_edge2):
     return z
 
 
-def anisotropic_diffusion(dem_m: np.ndarray, params: DiffusionParams = DiffusionParams(), valid=None) -> np.ndarray:
+def anisotropic_diffusion(dem_m: np.ndarray, params: DiffusionSettings = DiffusionSettings(), valid=None) -> np.ndarray:
     """The DEM (2-D heights in metres; NaN or ``~valid`` = nodata) after Perona-Malik diffusion; nodata stays
     NaN. Returns float64."""
     params.validate()
@@ -150,7 +150,7 @@ def anisotropic_diffusion(dem_m: np.ndarray, params: DiffusionParams = Diffusion
     return np.where(ok, out, np.nan)
 
 
-def gaussian_equivalent_sigma_px(params: DiffusionParams) -> float:
+def gaussian_equivalent_sigma_px(params: DiffusionSettings) -> float:
     """Order 2: the Gaussian (in cells) that linear diffusion of the same steps gives, sqrt(2 * step *
     iterations) (the reach of the smoothing away from edges)."""
     if params.order != 2:
@@ -168,7 +168,7 @@ class SmoothResult:
     max_change_m: float
 
 
-def smooth_dem(in_path, out_path, params: DiffusionParams = DiffusionParams(),
+def smooth_dem(in_path, out_path, params: DiffusionSettings = DiffusionSettings(),
                window_px: int = DEFAULT_WINDOW_PX) -> SmoothResult:
     """Smooth a DEM GeoTIFF into a float32 COG by windows of ``window_px`` with a halo of the diffusion's reach
     (identical to smoothing it whole). Heights are converted to metres by the raster CRS's height unit for

@@ -9,21 +9,21 @@ import click
 
 from aerotri.core.commands import Group
 from aerotri.core.settings import click_option, click_type, default_of
-from lidarctl.strips.adjust import AdjustSettings
-from lidarctl.strips.overlap import SurfaceParams
+from lidarctl.strips.adjust import StripAdjustSettings
+from lidarctl.strips.overlap import SurfaceSettings
 
 
 def surface_options(f):
-    """The options of ``SurfaceParams`` (what counts as a smooth surface), in metres and degrees."""
+    """The options of ``SurfaceSettings`` (what counts as a smooth surface), in metres and degrees."""
     for name, decl in reversed([("cell_m", "--cell-m"), ("min_points", "--min-points"), ("max_rms_m", "--max-rms-m"),
                                 ("max_multi_fraction", "--max-multi-fraction"), ("edge_tol_m", "--edge-tol-m"),
                                 ("max_slope_deg", "--max-slope-deg")]):
-        f = click_option(SurfaceParams, name, decl)(f)
+        f = click_option(SurfaceSettings, name, decl)(f)
     return f
 
 
-def _params(kw: dict) -> SurfaceParams:
-    return SurfaceParams(**{k: kw.pop(k) for k in [f for f in SurfaceParams.__dataclass_fields__]})
+def _params(kw: dict) -> SurfaceSettings:
+    return SurfaceSettings(**{k: kw.pop(k) for k in [f for f in SurfaceSettings.__dataclass_fields__]})
 
 
 @click.group(cls=Group, name="strips")
@@ -69,11 +69,11 @@ def check(strip_paths, outdir, crs, png, **kw):
               help="Control points on smooth surfaces (CSV with a header id,x,y,z in the strips' CRS and units; a "
                    "control surface as several points on it): fix the block's datum (absolute height, and position "
                    "across sloped faces).")
-@click_option(AdjustSettings, "control_sigma_m", "--control-sigma-m")
-@click.option("--adjust-max-slope-deg", "adjust_max_slope_deg", type=click_type(AdjustSettings, "max_slope_deg"),
-              default=default_of(AdjustSettings, "max_slope_deg"), show_default=True,
+@click_option(StripAdjustSettings, "control_sigma_m", "--control-sigma-m")
+@click.option("--adjust-max-slope-deg", "adjust_max_slope_deg", type=click_type(StripAdjustSettings, "max_slope_deg"),
+              default=default_of(StripAdjustSettings, "max_slope_deg"), show_default=True,
               help="Steepest planar cells the adjustment uses (deg; sloped roofs carry the horizontal information).")
-@click_option(AdjustSettings, "shift_sigma_m", "--shift-sigma-m")
+@click_option(StripAdjustSettings, "shift_sigma_m", "--shift-sigma-m")
 @surface_options
 @click.option("--crs", default=None, help="CRS (EPSG:code) of files that have none; never guessed.")
 @click.option("--png/--no-png", default=True, show_default=True, help="Colour maps (PNG) of the differences.")
@@ -84,24 +84,31 @@ def adjust(strip_paths, outdir, trajectories, fixed, control, control_sigma_m, a
     check_after/) into OUTDIR."""
     from lidarctl.strips.adjust import adjust_strips
 
-    settings = AdjustSettings(max_slope_deg=adjust_max_slope_deg, fixed=fixed, shift_sigma_m=shift_sigma_m,
-                              control_sigma_m=control_sigma_m)
+    settings = StripAdjustSettings(max_slope_deg=adjust_max_slope_deg, fixed=fixed, shift_sigma_m=shift_sigma_m,
+                                   control_sigma_m=control_sigma_m)
     s = adjust_strips(strip_paths, outdir, settings, _params(kw), trajectories=trajectories, crs=crs, png=png,
                       control=control)
+    click.echo(_adjust_summary(s, outdir))
+
+
+def _adjust_summary(s: dict, outdir) -> str:
+    """What ``lidarctl strips adjust`` prints: the parameters, the control, the strips left out, the check."""
+    lines = []
     for name, p in s["parameters"].items():
-        click.echo(f"{name:32s} {p['value']:+10.4f} +- {p['sigma']:.4f}")
+        lines.append(f"{name:32s} {p['value']:+10.4f} +- {p['sigma']:.4f}")
     if "control" in s:
         c = s["control"]
-        click.echo(f"control: {c['points_used']} of {c['points']} points on {c['observations']} strip planes, mean "
-                   f"distance {c['mean_before_m']:+.3f} -> {c['mean_after_m']:+.3f} m, RMS {c['rms_before_m']:.3f} -> "
-                   f"{c['rms_after_m']:.3f} m")
+        lines.append(f"control: {c['points_used']} of {c['points']} points on {c['observations']} strip planes, mean "
+                     f"distance {c['mean_before_m']:+.3f} -> {c['mean_after_m']:+.3f} m, RMS {c['rms_before_m']:.3f} -> "
+                     f"{c['rms_after_m']:.3f} m")
     if s["fixed_strip"]:
-        click.echo(f"fixed: {s['fixed_strip']} (the others are adjusted to it)")
+        lines.append(f"fixed: {s['fixed_strip']} (the others are adjusted to it)")
     if s["strips_without_observations"]:
         # their parameters above are the prior's (0 +- sigma): say so rather than let them pass as estimates
-        click.echo(f"warning: not adjusted, no planar cell shared with another strip: "
-                   f"{', '.join(s['strips_without_observations'])} (copied unchanged)")
+        lines.append(f"warning: not adjusted, no planar cell shared with another strip: "
+                     f"{', '.join(s['strips_without_observations'])} (copied unchanged)")
     b, a = s["check_before"], s["check_after"]
-    click.echo(f"{outdir}: {s['model']} model, {s['observations']} plane observations, sigma0 {s['sigma0']:.2f}; "
-               f"strip differences RMS {b['rms_m']:.3f} -> {a['rms_m']:.3f} m, NMAD {b['nmad_m']:.3f} -> "
-               f"{a['nmad_m']:.3f} m ({s['points']:,} points, {s['points_per_s']:,.0f} points/s)")
+    lines.append(f"{outdir}: {s['model']} model, {s['observations']} plane observations, sigma0 {s['sigma0']:.2f}; "
+                 f"strip differences RMS {b['rms_m']:.3f} -> {a['rms_m']:.3f} m, NMAD {b['nmad_m']:.3f} -> "
+                 f"{a['nmad_m']:.3f} m ({s['points']:,} points, {s['points_per_s']:,.0f} points/s)")
+    return "\n".join(lines)

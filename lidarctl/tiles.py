@@ -188,7 +188,7 @@ class TileTask:
     classes_path: str
     core_index_path: str
     grid: TileGrid
-    params: object          # classify.ClassifyParams
+    params: object          # classify.ClassifySettings
     numba_threads: int = 0  # threads of numba's parallel loops in this task (0: numba's default)
     units: LengthUnits = METRE  # the input's units: tile files hold coordinates in them
     fusion: object = None   # lidarctl.fusion.Fusion: the orthophoto's rules after the LiDAR classes
@@ -461,7 +461,7 @@ def classify_file(in_path, out_path, crs=None, params=None, *, tile_size_m: floa
                   chunk_points: int = io.CHUNK_POINTS, fusion=None) -> ClassifyStats:
     """Classify a LAS/LAZ file of any size into ``out_path`` (LAS/LAZ by suffix), tile by tile.
 
-    ``crs``: used only when the file has none (never guessed). ``params``: classify.ClassifyParams.
+    ``crs``: used only when the file has none (never guessed). ``params``: classify.ClassifySettings.
     ``tile_size_m`` / ``buffer_m``: metres, default from ``plan_tiles``; a cloud in feet is classified
     in metres (its CRS's units) and written back unchanged but for the classes. ``executor``: an
     ``aerotri.core.executor.Executor`` (default: local threads). ``work_dir``: parent folder of the
@@ -544,7 +544,7 @@ def _classify(in_paths, out_paths, crs, params, *, tile_size_m, buffer_m, execut
     from lidarctl import classify as cl
 
     t0 = time.perf_counter()
-    params = params or cl.ClassifyParams()
+    params = params or cl.ClassifySettings()
     headers = [las.read_header(q) for q in in_paths]
     for q, h in zip(in_paths, headers):
         if h.point_count == 0:
@@ -705,3 +705,55 @@ class _CheckedClasses:
             raise RuntimeError(f"tiling left {int((part == 0).sum())} points without a class")
         self.counts += np.bincount(part, minlength=256)
         return part
+
+
+def classify_command(in_paths, out_path, keep_classes: bool = False, method: str = "morph", preset: str | None = None,
+                     *, crs=None, tile_size_m: float | None = None,
+                     buffer_m: float | None = None, work_dir=None, out_format: str | None = None, image_path=None,
+                     nir=None, ground_params_file=None, ground_options=None, method_given: bool = True,
+                     preset_given: bool = True, scheduler=None, workers=None) -> str:
+    """``lidarctl classify``: one file (IN_PATH OUT_PATH, a .las/.laz name) or strips into a folder, with the
+    ground filter's parameter file and per-parameter options over ``params`` (``ground.resolve_options``:
+    ``ground_options`` {(filter, name): value or None}; ``method_given``/``preset_given``: the command line named
+    them, so the file's do not count), fused with an orthophoto (``image_path``, ``nir``); ``keep_classes``: the
+    delivered classes, checked. The other settings are ``ClassifySettings``' defaults. Returns the line the command
+    prints."""
+    from aerotri.core.executor import executor_for
+    from lidarctl import classify as cl
+    from lidarctl import ground
+
+    to_folder = len(in_paths) > 1 or Path(out_path).is_dir() or Path(out_path).suffix.lower() not in (".las", ".laz")
+    if not to_folder:
+        refuse_input_as_output(out_path, in_paths, "OUT_PATH")
+        if out_format is not None:
+            raise OptionError("--format: only for an output folder (OUT_PATH names the file and its format)",
+                              param="--format")
+    method, preset, overrides = ground.resolve_options(method, preset, ground_params_file, ground_options,
+                                                       method_given=method_given, preset_given=preset_given)
+    params = cl.ClassifySettings(ground_method=method, preset=preset, ground_params=overrides, keep_classes=keep_classes)
+    if nir is not None and image_path is None:
+        raise OptionError("--nir: only with --image", param="--nir")
+    fusion = None
+    if image_path is not None:
+        from lidarctl import fusion as fu
+
+        refuse_input_as_output(out_path, [image_path, None if nir is None or str(nir).isdigit() else nir], "OUT_PATH")
+        cloud_crs, units = io.resolve_crs_units(in_paths[0], las.read_header(in_paths[0]), crs)
+        fusion = fu.Fusion(fu.open_image(image_path, nir, cloud_crs, units.xy_m))
+    common = dict(crs=crs, params=params, tile_size_m=tile_size_m, buffer_m=buffer_m, work_dir=work_dir, fusion=fusion)
+    with executor_for(scheduler, workers) as executor:
+        if to_folder:
+            stats = classify_files(in_paths, out_path, executor=executor,
+                                   suffix=None if out_format is None else f".{out_format}", **common)
+        else:
+            stats = classify_file(in_paths[0], out_path, executor=executor, **common)
+        described = executor.describe()
+    counts = {cl.CLASS_NAMES.get(c, str(c)): k for c, k in stats.run.class_counts.items()}
+    n, dt, u = stats.n_points, stats.seconds, stats.units
+    what = f"{out_path}: {n} points" + (f" of {stats.n_files} strips" if to_folder else "")
+    if params.keep_classes:
+        return f"{what}, the delivered classes kept; {counts}"
+    unit_text = "" if u.xy_name == "m" and u.z_name == "m" else \
+        f"; coordinates in {u.xy_name}, heights in {u.z_name}, processed in metres"
+    return (f"{what} in {dt:.1f} s ({n / dt:,.0f} points/s; {stats.run.n_tiles} tiles of {stats.grid.tile_m:g} m + "
+            f"{stats.grid.buffer_m:g} m buffer, {described}{unit_text}); {counts}")

@@ -21,7 +21,7 @@ from lidarctl.trees import TreeSettings
 @click_option(TreeSettings, "top_radius_m", "--top-radius-m")
 @click_option(TreeSettings, "top_radius_per_m", "--top-radius-per-m")
 @click_option(TreeSettings, "smooth_px", "--smooth-px")
-@click_option(TreeSettings, "veg_classes", "--classes", metavar="C1,C2,...", default="3,4,5", type=str)
+@click_option(TreeSettings, "veg_classes", "--classes", metavar="C1,C2,...")
 @click_option(TreeSettings, "pit_free", "--pit-free/--no-pit-free")
 @click.option("--crs", default=None, help="CRS (EPSG:code) of files that have none; never guessed.")
 def trees(classified, outdir, res_m, max_edge_m, min_height_m, min_stand_area_m2, top_radius_m, top_radius_per_m,
@@ -37,8 +37,6 @@ def trees(classified, outdir, res_m, max_edge_m, min_height_m, min_stand_area_m2
     """
     from lidarctl.trees import trees_from_files
 
-    if isinstance(veg_classes, str):
-        veg_classes = _classes(veg_classes)
     settings = TreeSettings(res_m=res_m, max_edge_m=max_edge_m, min_height_m=min_height_m,
                             min_stand_area_m2=min_stand_area_m2, top_radius_m=top_radius_m,
                             top_radius_per_m=top_radius_per_m, smooth_px=smooth_px, veg_classes=tuple(veg_classes),
@@ -50,12 +48,3 @@ def trees(classified, outdir, res_m, max_edge_m, min_height_m, min_stand_area_m2
     click.echo(f"{outdir}: {r['stands']} stands, forest {r['forest_area_m2'] / 1e4:.3f} ha of "
                f"{r['canopy_area_m2'] / 1e4:.3f} ha canopy; {heights}; {r['tree_tops']} tree tops")
 
-
-def _classes(text: str) -> tuple[int, ...]:
-    from aerotri.core.errors import OptionError
-
-    try:
-        return tuple(int(c) for c in text.split(",") if c.strip())
-    except ValueError:
-        raise OptionError(f"--classes {text!r}: expected comma-separated ASPRS class codes, e.g. 3,4,5",
-                          param="--classes") from None

@@ -24,6 +24,7 @@ from pathlib import Path
 
 import numpy as np
 
+from aerotri.core.settings import setting
 from aerotri.core.errors import CrsError, InputError, OptionError
 
 log = logging.getLogger(__name__)
@@ -35,12 +36,16 @@ LINE_LAYERS = ("road_centrelines", "contours")
 
 
 @dataclasses.dataclass(frozen=True)
-class CheckParams:
-    layers: tuple = ()  # empty: every layer the two files share
-    match_m: float = 3.0
-    buffer_m: float = 2.0
-    scale: str = "1:10000"
-    terrain: str = "flat"
+class VectorCheckSettings:
+    """``lidarctl check-vectors``: the layers checked, how corners are paired, the tolerance table."""
+
+    layers: tuple = setting((), help="Check only these layers (empty: every layer the two files share).")
+    match_m: float = setting(3.0, min=0.0, min_open=True, help="Largest distance (m) of a produced corner from its "
+                                                               "reference corner to pair them.")
+    buffer_m: float = setting(2.0, min=0.0, min_open=True, help="Buffer (m) around lines for their completeness and "
+                                                                "correctness.")
+    scale: str = setting("1:10000", help="Map scale of the tolerance table.")
+    terrain: str = setting("flat", help="Terrain class of the tolerance table.")
 
 
 def read_layers(path: Path) -> tuple[dict, object, float]:
@@ -141,7 +146,7 @@ def buffer_overlap(prod: list, ref: list, buffer: float) -> dict:
             "correctness_pct": 100 * matched_prod / lp if lp else None}
 
 
-def check_vectors(product_path, reference_path, params: CheckParams = CheckParams()) -> dict:
+def check_vectors(product_path, reference_path, params: VectorCheckSettings = VectorCheckSettings()) -> dict:
     """Accuracy of the DLG ``product_path`` against ``reference_path`` (see the module doc), as a JSON-ready
     dict (metres). Raises InputError / CrsError / OptionError naming the file or option."""
     from aerotri.core.tolerances import TERRAINS, load_tolerances
@@ -286,7 +291,7 @@ def format_report(result: dict) -> str:
     return "\n".join(lines)
 
 
-def check_files(product_path, reference_path, params: CheckParams = CheckParams(), json_path=None,
+def check_files(product_path, reference_path, params: VectorCheckSettings = VectorCheckSettings(), json_path=None,
                 png_path=None) -> dict:
     """``check_vectors`` + the JSON and the offset plot (atomic), refusing an input as output."""
     import json

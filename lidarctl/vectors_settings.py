@@ -14,6 +14,7 @@ class of ``[qa]``); the consolidated report turns the check into its "Line map (
 from __future__ import annotations
 
 import dataclasses
+from typing import ClassVar
 from pathlib import Path
 
 from aerotri.core.settings import setting
@@ -22,6 +23,8 @@ from aerotri.core.settings import setting
 @dataclasses.dataclass(frozen=True)
 class VectorsSettings:
     """The line-map stage: off unless ``enabled``; the reference of its check; or a check made elsewhere."""
+
+    SECTION: ClassVar[str] = "vectors"
 
     enabled: bool = setting(False, help="Write the line map (lidar_out/vectors.gpkg) and check it against the reference.")
     reference: Path | None = setting(None, path=True,

@@ -38,6 +38,7 @@ from aerotri.geom.eo import ExteriorOrientations, read_eo
 from aerotri.core.errors import InputError
 from aerotri.geom.images import check_frames, find_images, image_layout, read_native
 from aerotri.core.project import Project
+from aerotri.core.settings import Resolved, settings_of
 from aerotri.geom.rotation import rotation_matrix_opk
 from aerotri.core.atomic import atomic_dir, atomic_path, remove_leftovers, write_text_atomic
 from aerotri.core.errors import OptionError
@@ -49,6 +50,7 @@ from aerotri.geom.transform import CrsTransformer, OperationSpec
 from ortho.dem import dem_height_operation, height_range, open_height_raster, read_height_window
 from ortho.grid import GridToProject, OrthoGrid, nice_resolution, parse_crs, resolve_output_crs
 from ortho.rectify import border_pixels, frame_grid, rectify_frame
+from ortho.settings import FRAME_COMPRESSION, RectifySettings
 
 _log = logging.getLogger(__name__)
 
@@ -155,19 +157,7 @@ def default_resolution(camera: FrameCamera, eo: ExteriorOrientations, ground_hei
     return nice_resolution(camera.gsd_m(float(agl)))
 
 
-# per-frame ortho compression: intermediates for the mosaic, so write speed matters as much as size.
-# Measured on a 120 MP DMC frame (band interleaved; bench/ortho.py, results/ortho_bench.json, 2 cores):
-# zstd 102 MB, zstd-fast 172 MB, none 374 MB; the stage takes 3.1, 3.1 and 1.8 CPU-s (1.7, 1.7 and 1.1 s):
-# zstd-fast saves no CPU, none saves 40 % of it for 3.7 times the disk. zstd stays the default: on a
-# shared 2-core machine none does not bring the one-frame command to 100 MP/s either (interpreter,
-# imports and numba's set-up are about 0.7 s of it). The other GDAL codecs, writing alone (bench/ortho.py
-# write_profiles): DEFLATE 1 and PackBits cost as much CPU as ZSTD 1 for larger files, LZW and LERC
-# twice as much, JPEG (lossy, IJG libjpeg 9 in the wheel) nearly twice as much.
-FRAME_COMPRESSION = {
-    "zstd": dict(compress="zstd", zstd_level=1, predictor=2),
-    "zstd-fast": dict(compress="zstd", zstd_level=1),
-    "none": {},
-}
+# FRAME_COMPRESSION (ortho.settings): the per-frame GeoTIFF profiles, measured there
 
 
 def frame_profile(grid: OrthoGrid, bands: int, dtype: str, block_px: int = 512, compression: str = "zstd") -> dict:
@@ -306,13 +296,13 @@ def file_fingerprint(path) -> dict:
     return {"size": Path(path).stat().st_size, "sha1": h.hexdigest()}
 
 
-def rectify_block(root, dem_path=None, res_m: float | None = None, crs: str | None = None, eo_path=None,
-                  camera_path=None, interpolation: str = "bilinear", true_ortho: bool = False, dsm_path=None,
-                  frames=None, executor=None, compression: str = "zstd",
-                  params=None, heights=None, allow_ballpark: bool = False) -> dict:
+def rectify_block(root, settings: RectifySettings | Resolved | None = None, *, eo_path=None, camera_path=None,
+                  frames=None, executor=None, params=None, heights=None, allow_ballpark: bool = False) -> dict:
     """Rectify the frames of a project into ``ortho/frames/``; returns the index written to index.json.
 
-    The output CRS (``crs``; default the target CRS of ``params``, else the project CRS) is reached by the
+    ``settings``: None reads [rectify] of project.toml; a ``Resolved`` (``ortho rectify``, the chain) carries the
+    source of every setting into index.json (``settings``). The output CRS (``crs``; default the target CRS
+    of ``params``, else the project CRS) is reached by the
     toolkit's coordinate-operation policy: ``params`` is a parameter file of ``aerotri crs fit`` (needed
     for a datum change PROJ does not know rigorously), ``heights`` a height anomaly model (``aerotri crs
     fit-heights``) for a DEM in normal heights, ``allow_ballpark`` accepts PROJ's ballpark operation.
@@ -325,19 +315,26 @@ def rectify_block(root, dem_path=None, res_m: float | None = None, crs: str | No
     """
     from aerotri.core.executor import local_executor
 
+    resolved = settings_of(settings, RectifySettings, Project.open(root) if settings is None else None)
+    s = resolved.settings
+    dem_path, res_m, crs, interpolation, true_ortho, dsm_path, compression = (
+        s.dem, s.res_m, s.crs, s.interpolation, s.true_ortho, s.dsm, s.compression)
     if res_m is not None and not (math.isfinite(res_m) and res_m > 0):
         raise OptionError(f"{res_m!r}: expected a positive pixel size in metres", param="--res")
     block = load_block(root, eo_path, camera_path, frames)
     project = block.project
     project_crs = block.project_crs
-    dem_path = Path(dem_path) if dem_path else project.lidar_out_dir / "dem.tif"
+    if not dem_path:
+        dem_path = project.dem_path
+        resolved = resolved.replace("dem", dem_path, resolved.sources.get("dem", "default"), "the LiDAR stages' DEM")
+    dem_path = Path(dem_path)
     if true_ortho and not dsm_path:
         raise InputError("--true-ortho needs --dsm (the DSM, e.g. lidar_out/dsm.tif)")
     if compression not in FRAME_COMPRESSION:
         raise InputError(f"unknown frame compression {compression!r}; expected one of {sorted(FRAME_COMPRESSION)}")
     transformation = load_transformation(params) if params else None
     height_model = load_height_model(heights) if heights else None
-    project_heights = parse_heights(project.section("project").get("heights"),
+    project_heights = parse_heights(project.info.heights,
                                     f"{project.root / 'project.toml'}: [project] heights")
     dem_ds = open_height_raster(dem_path, project_crs, "DEM")
     if true_ortho:
@@ -396,6 +393,7 @@ def rectify_block(root, dem_path=None, res_m: float | None = None, crs: str | No
             for e in keep:
                 _link_or_copy(out_dir / e["file"], tmp_dir / e["file"])
             index["frames"] = sorted(keep + index["frames"], key=lambda e: e["image_id"])
+        index["settings"] = resolved.record()
         write_text_atomic(tmp_dir / "index.json", json.dumps(index, indent=1) + "\n")
     return index
 

@@ -22,11 +22,13 @@ import numpy as np
 
 from aerotri.core.errors import InputError, OptionError
 from aerotri.core.atomic import refuse_input_as_output
-from aerotri.core.project import project_paths
+from aerotri.core.project import Project, project_paths
+from aerotri.core.settings import Resolved, settings_of
 from aerotri.core.textio import read_text
 from aerotri.geom.crs import height_unit_m, parse_crs
 from aerotri.geom.inputs import check_raster_size
 from ortho.patches import MIN_PATCH_PX, PatchDisplacements, match_patches  # noqa: F401  (PatchDisplacements: the report API)
+from ortho.settings import CheckSettings
 
 
 def displacement_statistics(de_m, dn_m, res_m: float) -> dict:
@@ -335,14 +337,24 @@ def _same_file(a: Path, b: Path) -> bool:
     return a.exists() and b.exists() and os.path.samefile(a, b)
 
 
-def run_check(project_root, reference_path=None, points_path=None, dom_path=None, ndsm_path=None, max_ndsm_m=0.5,
-              patch_px=48, search_px=6, out_stem=None, seams: bool = True, params=None,
-              allow_ballpark: bool = False) -> dict:
+def run_check(project_root, settings: CheckSettings | Resolved | None = None, *, reference_path=None, points_path=None,
+              dom_path=None, out_stem=None, seams: bool = True, params=None, allow_ballpark: bool = False) -> dict:
     """The ``ortho check`` report: displacement statistics (+ per-seam misalignment when seamlines exist).
 
-    A reference (or nDSM) in another CRS than the DOM is mapped through the coordinate-operation policy:
-    ``params`` (a parameter file of ``aerotri crs fit``, either direction) for a datum change."""
+    ``settings``: None reads [dom_check] of project.toml (a folder without project.toml: the defaults); a
+    ``Resolved`` (``ortho check``, the chain) carries the source of every setting into the report (``settings``).
+    The nDSM defaults to lidar_out/ndsm.tif when present. A reference (or nDSM) in another CRS than the DOM is
+    mapped through the coordinate-operation policy: ``params`` (a parameter file of ``aerotri crs fit``, either
+    direction) for a datum change."""
     root = Path(project_root)
+    if settings is None and not (root / "project.toml").is_file():  # a DOM folder of its own
+        settings = CheckSettings()
+    resolved = settings_of(settings, CheckSettings, Project.open(root) if settings is None else None)
+    s = resolved.settings
+    ndsm_path, max_ndsm_m, patch_px, search_px = s.ndsm, s.max_ndsm_m, s.patch_px, s.search_px
+    if ndsm_path is None and reference_path is not None and project_paths(root).ndsm_path.is_file():
+        ndsm_path = project_paths(root).ndsm_path
+        resolved = resolved.replace("ndsm", ndsm_path, resolved.sources.get("ndsm", "default"), "the LiDAR stages' nDSM")
     if not (isinstance(patch_px, int) and patch_px >= MIN_PATCH_PX):
         raise OptionError(f"{patch_px!r}: expected a patch of at least {MIN_PATCH_PX} px", param="--patch-px")
     if not (isinstance(search_px, int) and search_px >= 1):
@@ -399,5 +411,6 @@ def run_check(project_root, reference_path=None, points_path=None, dom_path=None
     plot()  # the outputs only after every measurement succeeded
     report["json"] = str(out_stem.with_suffix(".json"))
     report["plot"] = str(out_stem.with_suffix(".png"))
+    report["settings"] = resolved.record()
     write_json(out_stem.with_suffix(".json"), report)
     return report

@@ -18,6 +18,14 @@ def main():
     """Orthorectification on the LiDAR DEM, seamlines, mosaics and DOM accuracy checks."""
 
 
+def _settings(cls, project):
+    """The settings of an ortho command over PROJECT: defaults < project.toml section < options given."""
+    from aerotri.core.project import Project
+    from aerotri.core.settings import resolve
+
+    return resolve(cls, Project.open(project), click.get_current_context())
+
+
 @main.command()
 @click.argument("project", type=click.Path(path_type=Path))
 @click_option(RectifySettings, "dem", "--dem")
@@ -39,19 +47,19 @@ def main():
 @click.option("--frames", help="comma-separated image ids (default: all images)")
 @click_option(RectifySettings, "compression", "--frame-compress")
 @scheduler_options
-def rectify(project, dem, res_m, crs, params_path, heights_path, allow_ballpark, eo_path, camera_path,
-            interpolation, true_ortho, dsm, frames, compression, scheduler, workers):
-    """One orthoimage per frame (ortho/frames/<image_id>.tif with a validity mask), one Dask task per frame."""
+def rectify(project, params_path, heights_path, allow_ballpark, eo_path, camera_path, frames, scheduler, workers,
+            **_settings_given):
+    """One orthoimage per frame (ortho/frames/<image_id>.tif with a validity mask), one Dask task per frame.
+
+    Settings: the defaults, then project.toml [rectify], then the options given here (ortho/frames/index.json
+    lists each with where it came from)."""
+    from aerotri.geom.crs import crs_label, parse_crs
     from ortho.block import rectify_block
 
-    settings = RectifySettings(dem=dem, res_m=res_m, crs=crs, interpolation=interpolation, true_ortho=true_ortho,
-                               dsm=dsm, compression=compression)
     with executor_for(scheduler, workers) as executor:
-        index = rectify_block(project, eo_path=eo_path, camera_path=camera_path,
+        index = rectify_block(project, _settings(RectifySettings, project), eo_path=eo_path, camera_path=camera_path,
                               frames=frames.split(",") if frames else None, executor=executor, params=params_path,
-                              heights=heights_path, allow_ballpark=allow_ballpark, **settings.kwargs())
-    from aerotri.geom.crs import crs_label, parse_crs
-
+                              heights=heights_path, allow_ballpark=allow_ballpark)
     op = index.get("coordinate_operation")
     click.echo(f"rectified {len(index['frames'])} frames at {index['res_m']} m in {crs_label(parse_crs(index['crs']))}"
                f"{' (' + op['description'] + ')' if op else ''} -> {Path(project) / 'ortho' / 'frames'}")
@@ -86,18 +94,19 @@ def dem(project, res_m, min_rays, out):
 @click.option("--crs", "crs", help="the product CRS the frames must be in (as given to ortho rectify); the mosaic never "
                                     "resamples twice, so frames in another CRS are refused [the frames' CRS]")
 @scheduler_options
-def mosaic(project, seams, ndsm, feather_m, balance, tile_px, crs, scheduler, workers):
+def mosaic(project, crs, scheduler, workers, **_settings_given):
     """Seamlines, blending and radiometric balancing into ortho/mosaic.tif (COG) and ortho/seamlines.geojson;
-    one Dask task per output tile."""
+    one Dask task per output tile.
+
+    Settings: the defaults, then project.toml [mosaic], then the options given here (ortho/mosaic.json lists
+    each with where it came from)."""
+    from ortho.block import require_frames_crs
     from ortho.mosaic import mosaic_block
 
     if crs is not None:
-        from ortho.block import require_frames_crs
-
         require_frames_crs(project, crs)
-    settings = MosaicSettings(seams=seams, ndsm=ndsm, feather_m=feather_m, balance=balance, tile_px=tile_px)
     with executor_for(scheduler, workers) as executor:
-        info = mosaic_block(project, executor=executor, **settings.kwargs())
+        info = mosaic_block(project, _settings(MosaicSettings, project), executor=executor)
     click.echo(f"mosaic {info['width']} x {info['height']} px of {info['frames']} frames -> {info['path']}")
 
 
@@ -107,7 +116,7 @@ def mosaic(project, seams, ndsm, feather_m, balance, tile_px, crs, scheduler, wo
 @click.option("--points", "points_path", type=click.Path(path_type=Path),
               help="CSV id,x,y,x_dom,y_dom: surveyed points and their positions measured in the DOM")
 @click.option("--dom", "dom_path", type=click.Path(path_type=Path), help="DOM to check [ortho/mosaic.tif]")
-@click.option("--ndsm", "ndsm_path", type=click.Path(path_type=Path), help="keep only ground patches (nDSM <= --max-ndsm-m)")
+@click_option(CheckSettings, "ndsm", "--ndsm")
 @click_option(CheckSettings, "max_ndsm_m", "--max-ndsm-m")
 @click_option(CheckSettings, "patch_px", "--patch-px")
 @click_option(CheckSettings, "search_px", "--search-px")
@@ -115,20 +124,25 @@ def mosaic(project, seams, ndsm, feather_m, balance, tile_px, crs, scheduler, wo
 @click.option("--params", "params_path", type=click.Path(dir_okay=False, path_type=Path),
               help="datum parameter file ('aerotri crs fit') relating the reference's CRS and the DOM's")
 @click.option("--allow-ballpark", is_flag=True, help="accept PROJ's ballpark operation between the two CRSs")
-def check(project, reference_path, points_path, dom_path, ndsm_path, max_ndsm_m, patch_px, search_px, out_stem,
-          params_path, allow_ballpark):
-    """DOM accuracy against a reference orthophoto (NCC patches) or surveyed points; JSON and a plot."""
+def check(project, reference_path, points_path, dom_path, out_stem, params_path, allow_ballpark, **_settings_given):
+    """DOM accuracy against a reference orthophoto (NCC patches) or surveyed points; JSON and a plot.
+
+    Settings: the defaults, then project.toml [dom_check] (a folder with one), then the options given here."""
+    from aerotri.core.settings import resolve
     from ortho.check import run_check
 
     if (reference_path is None) == (points_path is None):
         raise click.UsageError("give exactly one of --reference or --points")
-    settings = CheckSettings(max_ndsm_m=max_ndsm_m, patch_px=patch_px, search_px=search_px)
-    report = run_check(project, reference_path=reference_path, points_path=points_path, dom_path=dom_path,
-                       ndsm_path=ndsm_path, out_stem=out_stem, params=params_path, allow_ballpark=allow_ballpark,
-                       **settings.kwargs())
+    has_project = (Path(project) / "project.toml").is_file()
+    settings = _settings(CheckSettings, project) if has_project else resolve(CheckSettings, None, click.get_current_context())
+    report = run_check(project, settings, reference_path=reference_path, points_path=points_path, dom_path=dom_path,
+                       out_stem=out_stem, params=params_path, allow_ballpark=allow_ballpark)
+    click.echo(_check_line(report, "patches" if reference_path else "points"))
+
+
+def _check_line(report: dict, what: str) -> str:
     s = report["displacement"]
-    if s.get("count"):
-        click.echo(f"{s['count']} {'patches' if reference_path else 'points'}: RMS {s['rms_xy_m']:.3f} m "
-                   f"({s['rms_xy_gsd']:.2f} GSD), max {s['max_xy_m']:.3f} m -> {report['json']}")
-    else:
-        click.echo(f"no usable {'patches' if reference_path else 'points'} -> {report['json']}")
+    if not s.get("count"):
+        return f"no usable {what} -> {report['json']}"
+    return (f"{s['count']} {what}: RMS {s['rms_xy_m']:.3f} m ({s['rms_xy_gsd']:.2f} GSD), max {s['max_xy_m']:.3f} m "
+            f"-> {report['json']}")

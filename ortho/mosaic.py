@@ -32,7 +32,6 @@ import functools
 import json
 import logging
 import math
-import os
 from pathlib import Path
 
 import cv2
@@ -48,10 +47,13 @@ from aerotri.core.errors import InputError, OptionError
 from aerotri.core.log import progress
 from aerotri.core.atomic import atomic_path, commit_outputs, move_into, scratch_dir, write_text_atomic
 from aerotri.core.limits import check_allocation, check_grid, check_task_count
+from aerotri.core.project import Project
+from aerotri.core.settings import Resolved, settings_of
 from aerotri.core.textio import read_json
 from ortho.block import (index_grids, index_operation, operation_tags, read_index, require_current_frames,
                          verify_index)
 from ortho.grid import OrthoGrid
+from ortho.settings import MosaicSettings
 from ortho.seamlines import (keep_objects_whole, label_polygons, least_cost_seams, neighbour_pairs, seam_lines,
                              voronoi_labels)
 
@@ -198,14 +200,18 @@ def _write_labels(path, labels, transform, crs):
             dst.write(labels, 1)
 
 
-def mosaic_block(root, seams: str = "least-cost", ndsm_path=None, feather_m: float | None = None, balance: bool = True,
-                 tile_px: int = 1024, object_height_m: float = 2.5, max_seam_cells: float = 5e7, end_reach_m: float = 30.0,
-                 executor=None) -> dict:
+def mosaic_block(root, settings: MosaicSettings | Resolved | None = None, *, object_height_m: float = 2.5,
+                 max_seam_cells: float = 5e7, end_reach_m: float = 30.0, executor=None) -> dict:
     """``ortho mosaic``: see the module doc. Returns a summary dict.
 
-    The output tiles are blended as tasks on ``executor`` (``aerotri.core.executor.Executor``, default:
-    local threads); the COG does not depend on the scheduler."""
+    ``settings``: None reads [mosaic] of project.toml; a ``Resolved`` (``ortho mosaic``, the chain) carries the
+    source of every setting into mosaic.json (``settings``). The output tiles are blended as tasks on
+    ``executor`` (``aerotri.core.executor.Executor``, default: local threads); the COG does not depend on the
+    scheduler."""
     root = Path(root)
+    resolved = settings_of(settings, MosaicSettings, Project.open(root) if settings is None else None)
+    s = resolved.settings
+    seams, ndsm_path, feather_m, balance, tile_px = s.seams, s.ndsm, s.feather_m, s.balance, s.tile_px
     if not (isinstance(tile_px, int) and tile_px >= MIN_TILE_PX):
         raise OptionError(f"{tile_px!r}: expected a tile size of at least {MIN_TILE_PX} px", param="--tile-px")
     if feather_m is not None and not (math.isfinite(feather_m) and feather_m >= 0):
@@ -239,6 +245,9 @@ def mosaic_block(root, seams: str = "least-cost", ndsm_path=None, feather_m: flo
     nadir_rc = np.stack([(mosaic.y_top_m - nadir[:, 1]) / (res * factor) - 0.5,
                          (nadir[:, 0] - mosaic.x_left_m) / (res * factor) - 0.5], axis=1)
     labels = voronoi_labels(red.valid, red.offsets, nadir_rc, red.shape)
+    if ndsm_path is None and (root / "lidar_out" / "ndsm.tif").exists():
+        ndsm_path = root / "lidar_out" / "ndsm.tif"
+        resolved = resolved.replace("ndsm", ndsm_path, resolved.sources.get("ndsm", "default"), "the LiDAR stages' nDSM")
     objects = None
     if ndsm_path is not None:
         nd = _read_ndsm_on(ndsm_path, red.transform, red.shape, crs, index_operation(index))
@@ -259,7 +268,7 @@ def mosaic_block(root, seams: str = "least-cost", ndsm_path=None, feather_m: flo
     # a failed run leaves the previous seams, seamlines, mosaic and summary together
     with scratch_dir(out_dir, "mosaic") as work:
         outputs = _mosaic_outputs(Path(work), root, index, frames_dir, red, labels, gains, mosaic, factor, nadir,
-                                  feather_px, tile_px, seams, executor)
+                                  feather_px, tile_px, seams, executor, resolved.record())
         with commit_outputs(out_dir):  # one commit: all four new, or (a failure, a kill) all as before
             for name in ("seams.tif", "seamlines.geojson", "mosaic.tif", "mosaic.json"):
                 move_into(Path(work) / name, out_dir / name)
@@ -297,7 +306,7 @@ def _open_frame(path):
 
 
 def _mosaic_outputs(work: Path, root: Path, index, frames_dir, red, labels, gains, mosaic: OrthoGrid, factor, nadir,
-                    feather_px, tile_px, seams, executor) -> dict:
+                    feather_px, tile_px, seams, executor, settings_record: dict) -> dict:
     """seams.tif, seamlines.geojson, mosaic.tif and mosaic.json into ``work``; returns the summary."""
     crs, res = mosaic.crs, mosaic.res_m
     out_dir = root / "ortho"
@@ -318,7 +327,8 @@ def _mosaic_outputs(work: Path, root: Path, index, frames_dir, red, labels, gain
                "frames": len(red.names), "res_m": res, "seam_factor": factor, "seams": seams, "feather_px": feather_px,
                "index_sha1": index_sha1(root),
                "gains": {n: [float(v) for v in g] for n, g in zip(red.names, gains)},
-               "pairs": [[red.names[i], red.names[j]] for i, j in neighbour_pairs(labels)]}
+               "pairs": [[red.names[i], red.names[j]] for i, j in neighbour_pairs(labels)],
+               "settings": settings_record}
     write_text_atomic(work / "mosaic.json", json.dumps(summary, indent=1) + "\n")
     return summary
 

@@ -1,85 +1,78 @@
-"""Options of the ortho stages as settings dataclasses (``[rectify]`` and ``[mosaic]`` in project.toml, and
-the options of ``ortho rectify``, ``ortho mosaic`` and ``ortho check``).
-
-The defaults are those of the library functions (``rectify_block``, ``mosaic_block``, ``run_check``), read
-from their signatures, so the two cannot drift apart; the allowed values come from the stages' registries.
+"""Settings of the ortho stages (``[rectify]``, ``[mosaic]`` and ``[dom_check]`` in project.toml, and the options
+of ``ortho rectify``, ``ortho mosaic`` and ``ortho check``): the one declaration of each option's type, default,
+range and help; the library functions (``rectify_block``, ``mosaic_block``, ``run_check``) take these
+dataclasses. The allowed values come from the stages' registries.
 """
 
 from __future__ import annotations
 
 import dataclasses
-import inspect
 from pathlib import Path
+from typing import ClassVar
 
 from aerotri.core.settings import setting
-from ortho.block import FRAME_COMPRESSION, rectify_block
-from ortho.check import run_check
-from ortho.mosaic import mosaic_block
 from ortho.patches import MIN_PATCH_PX
 from ortho.rectify import INTERPOLATION
 
 SEAM_METHODS = ("least-cost", "voronoi")
 
-_R = inspect.signature(rectify_block).parameters
-_M = inspect.signature(mosaic_block).parameters
-_C = inspect.signature(run_check).parameters
+# per-frame ortho compression: intermediates for the mosaic, so write speed matters as much as size.
+# Measured on a 120 MP DMC frame (band interleaved; bench/ortho.py, results/ortho_bench.json, 2 cores):
+# zstd 102 MB, zstd-fast 172 MB, none 374 MB; the stage takes 3.1, 3.1 and 1.8 CPU-s (1.7, 1.7 and 1.1 s):
+# zstd-fast saves no CPU, none saves 40 % of it for 3.7 times the disk. zstd stays the default: on a
+# shared 2-core machine none does not bring the one-frame command to 100 MP/s either (interpreter,
+# imports and numba's set-up are about 0.7 s of it). The other GDAL codecs, writing alone (bench/ortho.py
+# write_profiles): DEFLATE 1 and PackBits cost as much CPU as ZSTD 1 for larger files, LZW and LERC
+# twice as much, JPEG (lossy, IJG libjpeg 9 in the wheel) nearly twice as much.
+FRAME_COMPRESSION = {
+    "zstd": dict(compress="zstd", zstd_level=1, predictor=2),
+    "zstd-fast": dict(compress="zstd", zstd_level=1),
+    "none": {},
+}
 
 
 @dataclasses.dataclass(frozen=True)
 class RectifySettings:
-    """``ortho rectify`` options: DEM, pixel size, output CRS, interpolation, true ortho, compression."""
+    """``ortho rectify``: DEM, pixel size, output CRS, interpolation, true ortho, compression."""
 
-    dem: Path | None = setting(_R["dem_path"].default, path=True,
-                               help="DEM GeoTIFF (default: lidar_out/dem.tif of the LiDAR stages).")
-    res_m: float | None = setting(_R["res_m"].default, min=0.0, min_open=True,
+    SECTION: ClassVar[str] = "rectify"
+    dem: Path | None = setting(None, path=True, help="DEM GeoTIFF (default: lidar_out/dem.tif of the LiDAR stages).")
+    res_m: float | None = setting(None, min=0.0, min_open=True,
                                   help="Output pixel size in metres (default: the median nadir GSD, rounded).")
-    crs: str | None = setting(_R["crs"].default,
-                              help="Output CRS: an EPSG code (e.g. EPSG:4546), or gk3:cgcs2000 / gk3:xian1980 for the "
-                                   "3-degree Gauss-Krueger zone nearest the block centre (default: the target CRS of "
-                                   "the datum parameters, else the project CRS).")
-    interpolation: str = setting(_R["interpolation"].default, choices=tuple(INTERPOLATION),
-                                 help="Resampling of the frames.")
-    true_ortho: bool = setting(_R["true_ortho"].default, help="Rectify on the DSM and mask pixels occluded by it.")
-    dsm: Path | None = setting(_R["dsm_path"].default, path=True, help="DSM GeoTIFF of the true ortho.")
-    compression: str = setting(_R["compression"].default, choices=tuple(FRAME_COMPRESSION),
+    crs: str | None = setting(None, help="Output CRS: an EPSG code (e.g. EPSG:4546), or gk3:cgcs2000 / gk3:xian1980 "
+                                         "for the 3-degree Gauss-Krueger zone nearest the block centre (default: the "
+                                         "target CRS of the datum parameters, else the project CRS).")
+    interpolation: str = setting("bilinear", choices=tuple(INTERPOLATION), help="Resampling of the frames.")
+    true_ortho: bool = setting(False, help="Rectify on the DSM and mask pixels occluded by it.")
+    dsm: Path | None = setting(None, path=True, help="DSM GeoTIFF of the true ortho.")
+    compression: str = setting("zstd", choices=tuple(FRAME_COMPRESSION),
                                help="Per-frame GeoTIFFs: zstd (level 1 + predictor), zstd-fast (no predictor, ~1.7x "
                                     "larger, no less CPU), none (~40 % less CPU per frame, ~3.7x larger).")
-
-    def kwargs(self) -> dict:
-        """Keyword arguments of ``rectify_block``."""
-        return dict(dem_path=self.dem, res_m=self.res_m, crs=self.crs, interpolation=self.interpolation,
-                    true_ortho=self.true_ortho, dsm_path=self.dsm, compression=self.compression)
 
 
 @dataclasses.dataclass(frozen=True)
 class MosaicSettings:
-    """``ortho mosaic`` options: seamlines, nDSM, feathering, balancing, tile size."""
+    """``ortho mosaic``: seamlines, nDSM, feathering, balancing, tile size."""
 
-    seams: str = setting(_M["seams"].default, choices=SEAM_METHODS,
+    SECTION: ClassVar[str] = "mosaic"
+    seams: str = setting("least-cost", choices=SEAM_METHODS,
                          help="Seamlines: least-cost paths around buildings and trees, or Voronoi cells of the nadir "
                               "points.")
-    ndsm: Path | None = setting(_M["ndsm_path"].default, path=True,
+    ndsm: Path | None = setting(None, path=True,
                                 help="nDSM for seam costs (buildings, trees) (default: lidar_out/ndsm.tif if present).")
-    feather_m: float | None = setting(_M["feather_m"].default, min=0.0,
+    feather_m: float | None = setting(None, min=0.0,
                                       help="Feather width across seams in metres, 0: one pixel (default: 8 GSD).")
-    balance: bool = setting(_M["balance"].default, help="Gain balancing between frames.")
-    tile_px: int = setting(_M["tile_px"].default, min=16, help="Mosaic processing tile size (px).")
-
-    def kwargs(self) -> dict:
-        """Keyword arguments of ``mosaic_block``."""
-        return dict(seams=self.seams, ndsm_path=self.ndsm, feather_m=self.feather_m, balance=self.balance,
-                    tile_px=self.tile_px)
+    balance: bool = setting(True, help="Gain balancing between frames.")
+    tile_px: int = setting(1024, min=16, help="Mosaic processing tile size (px).")
 
 
 @dataclasses.dataclass(frozen=True)
 class CheckSettings:
-    """``ortho check`` options: which patches count and how they are matched."""
+    """``ortho check``: which patches of the DOM count and how they are matched with the reference."""
 
-    max_ndsm_m: float = setting(_C["max_ndsm_m"].default, help="Highest nDSM value (m) of a ground patch (with an "
-                                                               "nDSM).")
-    patch_px: int = setting(_C["patch_px"].default, min=MIN_PATCH_PX, help="Patch size (px).")
-    search_px: int = setting(_C["search_px"].default, min=1, help="Search radius around each patch (px).")
-
-    def kwargs(self) -> dict:
-        """Keyword arguments of ``run_check``."""
-        return dict(max_ndsm_m=self.max_ndsm_m, patch_px=self.patch_px, search_px=self.search_px)
+    SECTION: ClassVar[str] = "dom_check"
+    ndsm: Path | None = setting(None, path=True, help="nDSM: only ground patches (nDSM <= max_ndsm_m) count (default: "
+                                                      "lidar_out/ndsm.tif if present).")
+    max_ndsm_m: float = setting(0.5, help="Highest nDSM value (m) of a ground patch (with an nDSM).")
+    patch_px: int = setting(48, min=MIN_PATCH_PX, help="Patch size (px).")
+    search_px: int = setting(6, min=1, help="Search radius around each patch (px).")

@@ -760,7 +760,8 @@ CASES = [
       field("p/at/tiepoints.csv", 5, 1, "s09_001")),
     C("adjust_tiepoints_header_only", "aerotri", "adjust {p}", "tiepoints.csv", keep_lines("p/at/tiepoints.csv", 1)),
     C("adjust_planes_missing", "aerotri", "adjust {p} --dem {w}/p/lidar_out/dem.tif --planes {w}/nope", "nope"),
-    C("adjust_planes_without_dem", "aerotri", "adjust {p} --planes {w}/p/lidar_out", ["--planes", "DEM"]),
+    # without a DEM: lidar_out/dem.tif is there, and aerotri adjust would take it (--no-lidar-surface)
+    C("adjust_planes_without_dem", "aerotri", "adjust {p} --no-lidar-surface --planes {w}/p/lidar_out", ["--planes", "DEM"]),
     C("adjust_planes_not_json", "aerotri", "adjust {p} --dem {w}/p/lidar_out/dem.tif --planes {w}/planes",
       ["roof_planes.geojson", "line 2"], write("planes/roof_planes.geojson", '{{"type":\n ,}}')),
     C("adjust_planes_toml_number", "aerotri", "adjust {p}", ["project.toml", "planes"],

@@ -7,10 +7,10 @@ import numpy as np
 from aerotri.core.project import Project
 from aerotri.geom.camera import project_camera
 from aerotri.geom.eo import check_block_crs, read_gnss
-from aerotri.match.features import FeatureParams, extract
+from aerotri.match.features import FeatureSettings, extract
 from aerotri.match.matching import guided_matches, match_pair, mutual_ratio_matches
 from aerotri.match.pairs import candidate_pairs, plan_block
-from aerotri.match.settings import MatchParams
+from aerotri.match.settings import PairMatchSettings
 from aerotri.geom.images import read_gray
 
 
@@ -42,12 +42,12 @@ def test_guided_matching_keeps_the_true_matches(tiny_project):
     project = Project.open(tiny_project)
     camera = project_camera(project)
     gnss = read_gnss(project.gnss_path, check_block_crs(project.crs, "project.toml"))
-    terrain = float(project.section("flight")["mean_terrain_height_m"])
+    terrain = float(project.flight.mean_terrain_height_m)
     plan = plan_block(list(gnss.image_id), gnss.position_m, camera, (0.0, 0.0, 0.0), terrain)
-    p = MatchParams()
+    p = PairMatchSettings()
     for kind in ("along", "cross"):
         pr = next(q for q in candidate_pairs(plan) if q.kind == kind)
-        fa, fb = (extract(read_gray(project.images_dir / f"{plan.image_id[k]}.tif"), FeatureParams())
+        fa, fb = (extract(read_gray(project.images_dir / f"{plan.image_id[k]}.tif"), FeatureSettings())
                   for k in (pr.i, pr.j))
         guide = plan.guide(pr.i, pr.j, p.guide_margin)
         in_a, in_b = guide.in_overlap(camera, fa.xy_px, fb.xy_px)

@@ -304,9 +304,7 @@ def flight_acceptance(image_id, centre_m, opk_deg, camera, terrain: Terrain, str
 def project_terrain(project) -> Terrain | None:
     """The project's terrain for the footprints: ``lidar_out/dem.tif``, else ``[flight]
     mean_terrain_height_m`` of project.toml, else None."""
-    mean_h = project.section("flight").get("mean_terrain_height_m")
-    if mean_h is not None and not isinstance(mean_h, (int, float)):
-        raise InputError(f"{project.config_path} [flight] mean_terrain_height_m = {mean_h!r}: expected metres")
+    mean_h = project.flight.mean_terrain_height_m
     # named relative to the project folder: the same project elsewhere reports the same
     if project.dem_path.is_file():
         return Terrain.from_dem(project.dem_path, mean_h, source=str(project.dem_path.relative_to(project.root)))

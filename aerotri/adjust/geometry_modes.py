@@ -134,7 +134,7 @@ def _apply_q(block: G.Block, pr: PointRays, rc, l_p: np.ndarray, l_c: np.ndarray
     return u_p, u_c, var
 
 
-def _shares(block: G.Block, opts: G.Options, state: G.State, control_active, rc, pr: PointRays, u_p, u_c, var
+def _shares(block: G.Block, opts: G.SolveSettings, state: G.State, control_active, rc, pr: PointRays, u_p, u_c, var
             ) -> dict:
     """Group -> (M,) share of each functional's information ``u' H_k u / l'Q l`` (``priors``: the rest)."""
     share = {}
@@ -159,7 +159,7 @@ def _held(sh: dict) -> bool:
     return sh.get("gnss", 0.0) + max(sh["priors"], 0.0) >= PRIOR_SHARE
 
 
-def geometry_modes(block: G.Block, opts: G.Options, state: G.State, obs_active, control_active, rc,
+def geometry_modes(block: G.Block, opts: G.SolveSettings, state: G.State, obs_active, control_active, rc,
                    sigma0: float, rays: PointRays | None = None
                    ) -> tuple[list[GeometryMode], CalibrationCovariance | None]:
     """The four modes of the tie points' heights (see the module docstring) at the solution ``state``, and with
@@ -204,7 +204,7 @@ def geometry_modes(block: G.Block, opts: G.Options, state: G.State, obs_active, 
     return out, cc
 
 
-def _gnss_information(block: G.Block, opts: G.Options, state: G.State, rc, u_c: np.ndarray) -> np.ndarray:
+def _gnss_information(block: G.Block, opts: G.SolveSettings, state: G.State, rc, u_c: np.ndarray) -> np.ndarray:
     """``u' H_gnss u`` per mode: the GNSS positions' weighted change under each mode's ``u``."""
     w = 1.0 / block.gnss_sigma_m**2
     out = np.zeros(len(u_c))

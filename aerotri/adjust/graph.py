@@ -15,7 +15,7 @@ Observation equations and their factors:
   linearisation of all other factors, and back-substitutes the point increments after gtsam's
   elimination; a self-calibration's Cal3DS2 unknown is part of that reduced system, and robust solves
   weigh the rays with Huber's kernel there (iteratively reweighted). Control points stay unknowns of the
-  graph (they carry priors), and so does every point with ``Options.eliminate_tie_points`` off;
+  graph (they carry priors), and so does every point with ``SolveSettings.eliminate_tie_points`` off;
 - GNSS, no correction: ``g = C + R l`` -> GPSFactorArm;
 - GNSS with shift/drift: ``a_i = C_i + R_i l`` (ReferenceFrameFactorPoint3Pose3 as a hard constraint)
   and the linear ``g_i = a_i + s_strip + t_i d_strip`` (t = along-track km) -> JacobianFactor in a
@@ -98,7 +98,7 @@ class Block:
 
 
 @dataclasses.dataclass
-class Options:
+class SolveSettings:
     image_sigma_px: float = 0.5
     gnss_correction: str = "none"  # none | shift | shift_drift
     self_calibration: tuple = ()  # subset of SELF_CAL_GROUPS
@@ -309,7 +309,7 @@ def _tie_ordering(gr: Graph) -> gtsam.Ordering:
     return gtsam.Ordering.MetisSymbolicFactorGraph(sg)
 
 
-def build_graph(block: Block, opts: Options, state: State, obs_active, control_active, robust: bool) -> Graph:
+def build_graph(block: Block, opts: SolveSettings, state: State, obs_active, control_active, robust: bool) -> Graph:
     """The factor graph for the active image observations and control points, initialised at ``state``."""
     obs_active = np.asarray(obs_active, dtype=bool)
     control_active = np.asarray(control_active, dtype=bool)
@@ -432,7 +432,7 @@ class SolveInfo:
     converged: bool
 
 
-def _ordered(params, ordering: gtsam.Ordering | None, opts: Options):
+def _ordered(params, ordering: gtsam.Ordering | None, opts: SolveSettings):
     params.setMaxIterations(opts.max_iterations)
     params.setRelativeErrorTol(opts.relative_tolerance)
     params.setAbsoluteErrorTol(0.0)
@@ -456,7 +456,7 @@ def _step_test(cost: float, new_cost: float, tol: float) -> tuple[bool, bool]:
     return True, cost - new_cost <= tol * cost
 
 
-def _gauss_newton(gr: Graph, opts: Options) -> tuple[gtsam.Values, int, bool]:
+def _gauss_newton(gr: Graph, opts: SolveSettings) -> tuple[gtsam.Values, int, bool]:
     """Gauss-Newton steps while each lowers the cost: (last good values, iterations, converged). Stops
     unconverged at the first step that does not, or at a system too ill-conditioned to solve undamped,
     for Levenberg-Marquardt to go on from the last good values."""
@@ -545,7 +545,7 @@ def _datum_step(gr: Graph, values: gtsam.Values, coords: np.ndarray, cost: float
     return (new, new_coords, new_cost) if new_cost < cost else (values, coords, cost)
 
 
-def _schur_levenberg_marquardt(gr: Graph, opts: Options) -> tuple[gtsam.Values, np.ndarray, int, bool, float]:
+def _schur_levenberg_marquardt(gr: Graph, opts: SolveSettings) -> tuple[gtsam.Values, np.ndarray, int, bool, float]:
     """Levenberg-Marquardt on the reduced camera system: (values, tie point coordinates, iterations,
     converged, chi-square).
 
@@ -597,13 +597,13 @@ def _schur_levenberg_marquardt(gr: Graph, opts: Options) -> tuple[gtsam.Values, 
     return values, coords, opts.max_iterations, False, 2.0 * cost
 
 
-def optimize(gr: Graph, opts: Options) -> tuple[gtsam.Values, SolveInfo]:
+def optimize(gr: Graph, opts: SolveSettings) -> tuple[gtsam.Values, SolveInfo]:
     """``_optimize`` with gtsam's console lines captured and counted (``cpp_output``)."""
     with gtsam_quiet():
         return _optimize(gr, opts)
 
 
-def _optimize(gr: Graph, opts: Options) -> tuple[gtsam.Values, SolveInfo]:
+def _optimize(gr: Graph, opts: SolveSettings) -> tuple[gtsam.Values, SolveInfo]:
     """Least squares (robust graphs: Huber M-estimate, iteratively reweighted). With Schur-eliminated tie
     points (``gr.tie``): Levenberg-Marquardt on the reduced camera system, which is Gauss-Newton (the
     classical bundle iteration) while its steps lower the cost; the adjusted tie points are then in
@@ -649,7 +649,8 @@ def orientations_from_values(values: gtsam.Values, n_images: int) -> tuple[np.nd
     return np.array([p.translation() for p in pose]), np.array([p.rotation().matrix() for p in pose])
 
 
-def state_from_values(values: gtsam.Values, block: Block, opts: Options, previous: State, tie: TiePoints | None = None) -> State:
+def state_from_values(values: gtsam.Values, block: Block, opts: SolveSettings, previous: State,
+                      tie: TiePoints | None = None) -> State:
     """The unknowns in ``values`` and, given the graph's Schur-eliminated ``tie`` points, their coordinates."""
     st = previous.copy()
     st.centre, st.R_cv = orientations_from_values(values, block.n_images)

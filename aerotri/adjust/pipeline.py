@@ -11,7 +11,6 @@ from __future__ import annotations
 
 import dataclasses
 import logging
-import math
 from pathlib import Path
 
 import numpy as np
@@ -45,10 +44,10 @@ from aerotri.geom.strips import along_track_km, strips_from_track
 from aerotri.geom.camera import FrameCamera, project_camera
 from aerotri.geom.eo import ExteriorOrientations, check_block_crs, read_eo, read_gnss
 from aerotri.core.atomic import commit_outputs, committed
-from aerotri.core.config import config_number, config_vector
-from aerotri.core.errors import ConfigError, InputError, OptionError, SolveError
-from aerotri.adjust.settings import AdjustSettings  # noqa: F401  (the stage's settings, imported from here too)
+from aerotri.core.errors import InputError, OptionError, SolveError
+from aerotri.adjust.settings import AdjustSettings, for_project
 from aerotri.core.project import Project
+from aerotri.core.settings import Resolved, resolve, settings_of
 from aerotri.geom.rotation import FLIP_YZ, opk_from_matrix
 
 
@@ -65,7 +64,7 @@ class BlockAdjustment:
     camera_apriori: FrameCamera
     camera_adjusted: FrameCamera
     block: G.Block
-    opts: G.Options
+    opts: G.SolveSettings
     result: AdjustmentResult
     eo_map: ExteriorOrientations
     points_map: np.ndarray  # (P, 3)
@@ -85,33 +84,25 @@ class BlockAdjustment:
     dem_checks: list = dataclasses.field(default_factory=list)  # dem_check.DemCheck: surface control DEM, check DEM
 
 
-def _settings_from_project(project: Project, s: AdjustSettings) -> AdjustSettings:
-    """Fill the settings left None from project.toml, every value checked (ConfigError naming the key)."""
-    toml = project.config_path
-    out = dataclasses.replace(s)
-    if out.image_sigma_px is None:
-        out.image_sigma_px = config_number(project.section("adjust"), "image_sigma_px", 0.5, f"{toml} [adjust]",
-                                           positive=True)
-    elif not (math.isfinite(out.image_sigma_px) and out.image_sigma_px > 0):
-        raise OptionError(f"image sigma {out.image_sigma_px!r} px: expected a positive number", param="--image-sigma")
-    if out.lever_arm_m is None:
-        out.lever_arm_m = config_vector(project.section("gnss"), "lever_arm_m", (0.0, 0.0, 0.0), 3, f"{toml} [gnss]")
-    elif len(out.lever_arm_m) != 3 or not all(math.isfinite(v) for v in out.lever_arm_m):
-        raise OptionError(f"lever arm {out.lever_arm_m!r}: expected 3 finite numbers (m)", param="--lever-arm")
-    if not 0.0 < out.alpha < 1.0:
-        raise OptionError(f"alpha {out.alpha!r}: the type I error must be in (0, 1)", param="--alpha")
-    for key in ("dem", "ndsm", "planes", "check_dem"):  # surface: the option, else [adjust] (relative to the project)
-        if getattr(out, key) is None and project.section("adjust").get(key) is not None:
-            value = project.section("adjust")[key]
-            if not isinstance(value, str) or not value:
-                what = "a lidarctl corners folder" if key == "planes" else "a GeoTIFF"
-                raise ConfigError(f"{toml} [adjust] {key}: expected the path of {what}, not {value!r}")
-            path = Path(value)
-            setattr(out, key, path if path.is_absolute() else project.root / path)
-    if out.planes is not None and out.dem is None:
-        raise OptionError(f"roof planes {out.planes} without a DEM: the planes hold the tie points on roofs, the DEM "
+def _settings_from_project(project: Project, s: AdjustSettings | None) -> AdjustSettings:
+    """The settings of an adjustment: ``s`` (None: the project's, ``project_settings``) with the lever arm of
+    project.toml [gnss] when ``s`` gives none; roof planes need a DEM."""
+    if s is None:
+        s = project_settings(project).settings
+    if s.lever_arm_m is None:
+        s = dataclasses.replace(s, lever_arm_m=project.gnss.lever_arm_m)
+    if s.planes is not None and s.dem is None:
+        raise OptionError(f"roof planes {s.planes} without a DEM: the planes hold the tie points on roofs, the DEM "
                           "those on the ground; give --dem (or [adjust] dem) too", param="--planes")
-    return out
+    return s
+
+
+def project_settings(project: Project, resolved: Resolved | None = None, *, first: bool = False) -> Resolved:
+    """The adjustment settings of a project with their sources: ``resolved`` (``aerotri adjust``: [adjust] and the
+    command line; None: [adjust] alone) completed from the project folder (``settings.for_project``; ``first``:
+    the chain's first adjustment). ``aerotri adjust P`` and ``aerotri run`` both take their settings from here."""
+    return for_project(project, resolved if resolved is not None else resolve(AdjustSettings, project), first=first,
+                       datum_shortfall=project_datum_shortfall)
 
 
 def connected_image_components(n_images, obs_point, obs_image) -> list[np.ndarray]:
@@ -255,7 +246,7 @@ class PreparedBlock:
     frame: LocalFrame
     camera: FrameCamera
     block: G.Block
-    opts: G.Options
+    opts: G.SolveSettings
     control_used: ControlPoints  # control points in the adjustment (block.control_point order)
     check_points: ControlPoints
     control_obs: ImageObservations
@@ -272,15 +263,9 @@ class PreparedBlock:
 
 def read_inputs(project: Project, settings: AdjustSettings | None = None) -> ProjectInputs:
     """Read and cross-check the adjustment's inputs (InputError/ConfigError naming file and record)."""
-    toml = project.config_path
-    crs = check_block_crs(project.crs, f"{toml} [project] crs")
-    st = _settings_from_project(project, settings or AdjustSettings())
-    gcfg = project.section("gnss")
-    gnss_sigma = (config_number(gcfg, "sigma_xy_m", 0.05, f"{toml} [gnss]", positive=True),
-                  config_number(gcfg, "sigma_z_m", 0.1, f"{toml} [gnss]", positive=True))
-    ccfg = project.section("control")
-    for key in ("sigma_xy_m", "sigma_z_m"):
-        config_number(ccfg, key, None, f"{toml} [control]", positive=True)
+    crs = check_block_crs(project.crs, f"{project.config_path} [project] crs")
+    st = _settings_from_project(project, settings)
+    gnss_sigma = (project.gnss.sigma_xy_m, project.gnss.sigma_z_m)  # checked when the project was opened
     cam = project_camera(project)
     ties = read_image_points(project.tiepoints_path, hint="run aerotri match first")
     control, cobs = read_project_control(project, st, crs)
@@ -536,7 +521,7 @@ def prepare_project(root, settings: AdjustSettings | None = None) -> tuple[Prepa
     if st.dem is not None:
         block.surface = _surface_control(project, st, frame, approx_pos_map)
     check_surface = _surface_control(project, st, frame, approx_pos_map, check=True) if st.check_dem is not None else None
-    opts = G.Options(
+    opts = G.SolveSettings(
         image_sigma_px=float(st.image_sigma_px), gnss_correction=st.gnss_correction if gl is not None else "none",
         self_calibration=tuple(st.self_calibration),
     )
@@ -736,11 +721,14 @@ def object_points_csv(ba: BlockAdjustment) -> str:
     return "\n".join(lines) + "\n"
 
 
-@committed(lambda ba, root, html=True, out_dir=None: Path(out_dir) if out_dir is not None else Project(Path(root), {}).at_dir)
-def write_outputs(ba: BlockAdjustment, root, html: bool = True, out_dir=None) -> dict:
+@committed(lambda ba, root, html=True, out_dir=None, settings_record=None:
+           Path(out_dir) if out_dir is not None else Project(Path(root), {}).at_dir)
+def write_outputs(ba: BlockAdjustment, root, html: bool = True, out_dir=None,
+                  settings_record: dict | None = None) -> dict:
     """Write at/eo.txt, object_points.csv and report.txt/json/html; returns the report dict.
 
-    ``out_dir``: another folder than the project's ``at/`` (the chain's first adjustment). All texts
+    ``out_dir``: another folder than the project's ``at/`` (the chain's first adjustment); ``settings_record``:
+    every setting with its source (``core.settings.Resolved.record``), report.json ``settings``. All texts
     are produced first and written afterwards as one commit (``aerotri.core.atomic.commit_outputs``), so
     an error in any of them (or a kill) leaves all the earlier outputs. A failed solve (not converged, or no finite sigma naught) writes only its
     report, into ``work/adjust_failed/``, and raises ``SolveError``: the earlier outputs stay.
@@ -759,6 +747,9 @@ def write_outputs(ba: BlockAdjustment, root, html: bool = True, out_dir=None) ->
     # the limits of the project's table (by its GSD and platform unless [qa] names one), as in reports/
     qa = qa_settings(root, project_block_scale(project, ba.points_map[:, 2]))
     rep = report.build_report(ba, qa["map_scale"], qa["terrain"], qa["tolerances"], project_terrain(project))
+    if settings_record is None:  # a library caller's own settings
+        settings_record = settings_of(ba.settings, AdjustSettings).record()
+    rep["settings"] = settings_record
     files = {
         "report.txt": report.format_txt(rep),
         "report.json": json.dumps(rep, indent=1, allow_nan=False, default=_json_default),
@@ -781,12 +772,15 @@ def write_outputs(ba: BlockAdjustment, root, html: bool = True, out_dir=None) ->
     return rep
 
 
-def run_adjustment(root, settings: AdjustSettings | None = None, out_dir=None,
+def run_adjustment(root, settings: AdjustSettings | Resolved | None = None, out_dir=None,
                    html: bool = True) -> tuple[BlockAdjustment, dict]:
     """The stage: adjust the project and write its outputs (``write_outputs``); returns the adjustment
-    and the report dict. ``aerotri adjust`` and the chain both run this."""
-    ba = adjust_project(root, settings)
-    return ba, write_outputs(ba, root, html=html, out_dir=out_dir)
+    and the report dict. ``aerotri adjust`` and the chain both run this. ``settings``: None, the project's
+    (``project_settings``, as ``aerotri adjust P`` without options); a ``Resolved`` carries every setting's source
+    into the report."""
+    resolved = project_settings(Project.open(root)) if settings is None else settings_of(settings, AdjustSettings)
+    ba = adjust_project(root, resolved.settings)
+    return ba, write_outputs(ba, root, html=html, out_dir=out_dir, settings_record=resolved.record())
 
 
 def _json_default(o):

@@ -13,6 +13,7 @@ import math
 import numpy as np
 
 from aerotri.adjust import graph as G
+from aerotri.core.settings import settings_lines
 from aerotri.core.tolerances import load_tolerances, tolerance_path
 
 
@@ -623,6 +624,7 @@ def format_txt(rep: dict) -> str:
     L = [f"Photo-T Parameters and Results for Project {rep['project']}", "", "PhotoT Triangulation Options"]
     for key, name in ISAT_OPTIONS.items():
         L.append(f"  {name} : {o[key]}")
+    L += [""] + settings_lines(rep.get("settings"), "Settings (value [where it came from])")[:-1]
     L += ["", "Parameters", f"{'':32}{'X/Omega':>10}{'Y/Phi':>10}{'Z/Kappa':>10}{'XY':>10}"]
     rows = [("RMS Control (m)", "rms_control_m", 3), ("RMS Check (m)", "rms_check_m", 3), ("RMS Limits (m)", "rms_limits_m", 3),
             ("Max Ground Residual (m)", "max_ground_residual_m", 3), ("Residual Limits (m)", "residual_limits_m", 3),

@@ -1,24 +1,28 @@
 """The settings of the adjustment stage (``aerotri adjust`` options, ``[adjust]`` in project.toml).
 
-A light module (no solver imports), so that the command line reads the options' types, choices and
-defaults from here without loading the adjustment.
+A light module (no solver imports at import time), so that the command line reads the options' types,
+choices and defaults from here without loading the adjustment. :func:`for_project` completes the settings
+with what the project folder holds, the same way for ``aerotri adjust P`` and for ``aerotri run``.
 """
 
 from __future__ import annotations
 
 import dataclasses
+import json
 from pathlib import Path
+from typing import ClassVar
 
-from aerotri.core.settings import setting
+from aerotri.core.settings import PROJECT_TOML, DEFAULT, Resolved, setting
 
 GNSS_CORRECTIONS = ("none", "shift", "shift_drift")
 SELF_CAL_GROUP_NAMES = ("focal", "pp", "radial", "tangential")  # aerotri.adjust.graph.SELF_CAL_GROUPS' keys
 
 
-@dataclasses.dataclass
+@dataclasses.dataclass(frozen=True)
 class AdjustSettings:
     """Options of the adjustment (``aerotri adjust``, ``[adjust]`` in project.toml for ``aerotri run``)."""
 
+    SECTION: ClassVar[str] = "adjust"
     gnss_correction: str = setting("none", choices=GNSS_CORRECTIONS,
                                    help="GNSS corrections per strip: none, shift, or shift and drift.")
     lever_arm_m: tuple[float, float, float] | None = setting(
@@ -26,46 +30,110 @@ class AdjustSettings:
                    "lever_arm_m, else zero.")
     self_calibration: tuple[str, ...] = setting((), choices=SELF_CAL_GROUP_NAMES,
                                                 help="Interior orientation groups to estimate.")
-    image_sigma_px: float | None = setting(None, min=0.0, min_open=True,
-                                           help="A-priori image standard deviation (px); default 0.5.")
+    image_sigma_px: float = setting(0.5, min=0.0, min_open=True, help="A-priori image standard deviation (px).")
     check: tuple[str, ...] = setting((), help="Control point ids to use as check points.")
     control: tuple[str, ...] = setting((), help="Point ids to use as full control even if marked check.")
     snooping: bool = setting(True, help="Blunder detection (data snooping).")
     alpha: float = setting(1e-4, min=0.0, max=1.0, min_open=True, max_open=True,
                            help="Type I error per coordinate for data snooping.")
-    rms_limit_xy_m: float | None = setting(None, min=0.0, min_open=True)
-    rms_limit_z_m: float | None = setting(None, min=0.0, min_open=True)
-    residual_limit_m: float | None = setting(None, min=0.0, min_open=True)
-    use_gnss: bool = True
-    initial_eo: Path | None = setting(None, path=True, help="Approximate orientations (EO file): the start of a block "
-                                                            "without GNSS, whose datum then comes from control.")
+    rms_limit_xy_m: float | None = setting(None, min=0.0, min_open=True, help="Plan RMS limit of the control and "
+                                           "check points (default: the tolerance table of [qa]).")
+    rms_limit_z_m: float | None = setting(None, min=0.0, min_open=True, help="Height RMS limit of the control and "
+                                          "check points (default: the tolerance table of [qa]).")
+    residual_limit_m: float | None = setting(None, min=0.0, min_open=True, help="Largest ground residual of a "
+                                             "control or check point (default: the tolerance table of [qa]).")
+    use_gnss: bool = setting(True, help="Use gnss.txt (false: a block adjusted from initial_eo and control alone).")
+    initial_eo: Path | None = setting(None, path=True, help="Approximate orientations (EO file: image_id X Y Z omega "
+                                                            "phi kappa) of a block without GNSS, whose datum then comes "
+                                                            "from control (at least 2 in plan); default for such a "
+                                                            "block: from the images (pycolmap on the tie points), "
+                                                            "brought into the project CRS by the control points.")
     dem: Path | None = setting(None, path=True, help="DEM (GeoTIFF, project CRS and heights) as surface control: tie "
-                                                     "points on the ground observe its height.")
+                                                     "points on the ground observe its height (default: "
+                                                     "lidar_out/dem.tif when there, see lidar_surface).")
     surface_sigma_m: float = setting(0.15, min=0.0, min_open=True,
                                      help="Stated precision of the DEM heights (m); the slope adds to it.")
     ndsm: Path | None = setting(None, path=True, help="nDSM (height above ground) that tells tie points on roofs and "
-                                                      "trees from those on the ground (default: none, robust only).")
+                                                      "trees from those on the ground (default: lidar_out/ndsm.tif "
+                                                      "with the LiDAR DEM, else none: robust only).")
     max_ndsm_m: float = setting(1.0, min=0.0, help="Tie points higher than this above the ground (nDSM) get no "
                                                    "surface observation (m).")
     planes: Path | None = setting(None, path=True, help="Roof planes (a lidarctl corners folder with roof_planes.geojson, "
                                                         "or the file) as surface control: tie points on a roof face "
-                                                        "observe its plane; needs a DEM.")
+                                                        "observe its plane; needs a DEM (default: "
+                                                        "lidar_out/roof_planes.geojson with the LiDAR DEM).")
     plane_sigma_m: float | None = setting(None, min=0.0, min_open=True,
                                           help="LiDAR strip sigma at the roof planes, plan and height (m), added to "
                                                "each plane's fit precision; default the strip sigmas lidarctl corners "
                                                "wrote with the planes ([corners] sigma_strip_xy_m, sigma_strip_z_m).")
-    lidar_surface: bool = setting(True, help="aerotri run: without [adjust] dem, hold the tie points to the LiDAR "
-                                             "stages' DEM (lidar_out/dem.tif, nDSM ndsm.tif) and roof planes "
-                                             "(lidar_out/roof_planes.geojson) in both adjustments.")
+    lidar_surface: bool = setting(True, help="Without a DEM given, hold the tie points to the LiDAR stages' DEM "
+                                             "(lidar_out/dem.tif, nDSM ndsm.tif) and roof planes "
+                                             "(lidar_out/roof_planes.geojson) when the project has them (aerotri "
+                                             "adjust and both adjustments of aerotri run).")
     variance_components: bool = setting(False, help="Reweight the observation groups (image, GNSS, control, surface) "
                                                     "by their estimated variance components and solve again; the "
                                                     "components are reported either way.")
-    point_covariances: bool = True
-    use_control: bool = True  # False: ignore control/ (GNSS must carry the datum)
-    refine_approximations: bool = True  # resection/intersection of the attitudes before the bundle (GNSS)
+    point_covariances: bool = setting(True, help="Standard deviations of every tie point (at/object_points.csv).")
+    use_control: bool = setting(True, help="Use control/ (false: tie points and GNSS only, GNSS carries the datum; "
+                                           "the first adjustment before the control transfer).")
+    refine_approximations: bool = setting(True, help="Refine the attitudes by resection and intersection before "
+                                                     "the bundle (with GNSS).")
     leave_one_out: bool = setting(False, help="After the adjustment, adjust again once per control point with that "
                                               "point left out as a check point: at/leave_one_out.json.")
     check_dem: Path | None = setting(None, path=True, help="DEM (GeoTIFF, project CRS and heights) the adjusted tie "
                                                            "points are checked against without holding them to it: "
                                                            "count, median and spread of point - DEM; a median beyond "
                                                            "3 sigma fails the solution.")
+
+
+def _usable_roof_planes(project) -> bool:
+    """lidarctl corners wrote roof planes with usable corners (corners.json ``n_usable`` > 0, when it says)."""
+    if not project.roof_planes_path.is_file():
+        return False
+    try:
+        summary = json.loads(project.corners_summary_path.read_text()) if project.corners_summary_path.is_file() else {}
+    except (OSError, json.JSONDecodeError):
+        return False
+    return summary.get("n_usable", 1) > 0
+
+
+def for_project(project, resolved: Resolved, *, first: bool = False, datum_shortfall=None) -> Resolved:
+    """The adjustment settings completed from the project folder, the same for ``aerotri adjust P`` and both
+    adjustments of ``aerotri run`` (so that a stage run by hand with no options gives what the chain gives):
+
+    - ``lever_arm_m`` not given: project.toml [gnss] lever_arm_m (else zero);
+    - no DEM given and ``lidar_surface``: the LiDAR stages' DEM, nDSM and roof planes when lidar_out/ has them
+      (the roof planes only with usable roof corners);
+    - ``first``: the chain's first adjustment, tie points and GNSS only (no control, no GNSS corrections);
+    - a GNSS correction not given on the command line that the control cannot carry (too few control points for
+      its datum) is not applied: GNSS alone carries the datum, and the note says why (``datum_shortfall(root,
+      settings)``: why the control cannot carry the datum, or None; ``aerotri.adjust.pipeline.project_settings``
+      passes its own).
+    """
+    from aerotri.core.settings import COMMAND_LINE
+
+    s = resolved.settings
+    if s.lever_arm_m is None:
+        source = project.source_of("gnss", "lever_arm_m")
+        resolved = resolved.replace("lever_arm_m", project.gnss.lever_arm_m,
+                                    f"{PROJECT_TOML} [gnss]" if source == PROJECT_TOML else source)
+    if first:
+        for path, value in (("use_control", False), ("gnss_correction", "none"), ("check", ()), ("control", ())):
+            resolved = resolved.replace(path, value, "aerotri run (first adjustment: tie points and GNSS)")
+    s = resolved.settings
+    if s.dem is None and s.lidar_surface and project.dem_path.is_file():
+        why = "the LiDAR stages' product ([adjust] lidar_surface)"
+        resolved = resolved.replace("dem", project.dem_path, DEFAULT, why)
+        if s.ndsm is None and project.ndsm_path.is_file():
+            resolved = resolved.replace("ndsm", project.ndsm_path, DEFAULT, why)
+        if s.planes is None and _usable_roof_planes(project):
+            resolved = resolved.replace("planes", project.roof_planes_path, DEFAULT, why)
+    s = resolved.settings
+    if (datum_shortfall is not None and s.gnss_correction != "none" and s.use_gnss
+            and resolved.sources.get("gnss_correction") != COMMAND_LINE
+            and project.gnss_path.is_file() and project.tiepoints_path.is_file()):
+        short = datum_shortfall(project.root, s)
+        if short:
+            resolved = resolved.replace("gnss_correction", "none", resolved.sources.get("gnss_correction", DEFAULT),
+                                        f"{s.gnss_correction} not applied: {short}; GNSS alone carries the datum")
+    return resolved

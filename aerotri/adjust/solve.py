@@ -60,13 +60,13 @@ class AdjustmentResult:
     variance_components: list | None = None  # variance_components.VarianceComponent per group (final weights)
     weight_factors: dict | None = None  # group -> factor its a-priori sigmas were multiplied by (reweighting)
     block: G.Block | None = None  # the block as solved last (its sigmas reweighted by the variance components)
-    opts: G.Options | None = None
+    opts: G.SolveSettings | None = None
     geometry: list | None = None  # geometry_modes.GeometryMode: how well the block's height modes are determined
     calibration: object | None = None  # geometry_modes.CalibrationCovariance (self-calibration only)
     behind_camera: tuple[int, int] = (0, 0)  # gtsam's CheiralityException lines, (point, camera) pairs (cpp_output)
 
 
-def adjust_block(block: G.Block, opts: G.Options, state0: G.State, **kwargs) -> AdjustmentResult:
+def adjust_block(block: G.Block, opts: G.SolveSettings, state0: G.State, **kwargs) -> AdjustmentResult:
     """``_adjust_block`` (the same arguments: snooping, alpha, compute_marginals, point_covariances, max_rounds,
     variance_components, max_vce_iterations), with gtsam's points-behind-a-camera lines counted into the
     result's ``behind_camera`` instead of printed (``cpp_output``)."""
@@ -81,7 +81,7 @@ def adjust_block(block: G.Block, opts: G.Options, state0: G.State, **kwargs) -> 
 
 def _adjust_block(
     block: G.Block,
-    opts: G.Options,
+    opts: G.SolveSettings,
     state0: G.State,
     snooping: bool = True,
     alpha: float = 1e-4,
@@ -254,7 +254,7 @@ def _adjust_block(
     )
 
 
-def _point_precision(block: G.Block, opts: G.Options, state: G.State, obs_active, control_active, marg, dof: int):
+def _point_precision(block: G.Block, opts: G.SolveSettings, state: G.State, obs_active, control_active, marg, dof: int):
     """(the rays' linearisation, the points' unit-weight covariances, the groups' variance components) at the
     solution ``state`` with its reduced covariance ``marg``."""
     self_cal = bool(opts.self_calibration)

@@ -41,7 +41,7 @@ class VarianceComponent:
         return dataclasses.asdict(self)
 
 
-def adjusted_gnss(block: G.Block, opts: G.Options, state: G.State) -> np.ndarray:
+def adjusted_gnss(block: G.Block, opts: G.SolveSettings, state: G.State) -> np.ndarray:
     """The GNSS positions the solution predicts (N, 3, local frame): antenna ``C + R l``, plus the strip's
     shift (and drift times the along-track km) when the solve corrects them."""
     pred = state.centre + state.R_cv @ (FLIP_YZ @ block.lever_arm_m)
@@ -51,7 +51,7 @@ def adjusted_gnss(block: G.Block, opts: G.Options, state: G.State) -> np.ndarray
     return pred + state.shift[s] + (t[:, None] * state.drift[s] if opts.gnss_correction == "shift_drift" else 0.0)
 
 
-def gnss_rows(block: G.Block, opts: G.Options, state: G.State) -> tuple[np.ndarray, list]:
+def gnss_rows(block: G.Block, opts: G.SolveSettings, state: G.State) -> tuple[np.ndarray, list]:
     """The adjusted GNSS positions (``adjusted_gnss``) and, per image, their Jacobian as ``[(key, J), ...]``
     (J: 3 x the key's dimension): ``g = C + R l`` (no correction; pose tangent [omega, v], right perturbation:
     d g / d omega = -R [l]x, d g / d v = R) or ``g = a + s + t d`` (per-strip shift/drift)."""
@@ -71,7 +71,7 @@ def gnss_rows(block: G.Block, opts: G.Options, state: G.State) -> tuple[np.ndarr
     return pred, rows
 
 
-def estimate(block: G.Block, opts: G.Options, state: G.State, obs_active, control_active, rc, point_cov_unit,
+def estimate(block: G.Block, opts: G.SolveSettings, state: G.State, obs_active, control_active, rc, point_cov_unit,
              dof: int) -> list[VarianceComponent]:
     """The variance components of the groups present in the block at the solution ``state`` (final,
     non-robust weights). ``point_cov_unit``: (P, 3, 3) unit-weight point covariances; ``dof``: the solve's
@@ -123,7 +123,8 @@ def _component(group: str, n: int, r: float, ss: float) -> VarianceComponent:
     return VarianceComponent(group, n, r, ss, float(np.sqrt(ss / r)) if r >= MIN_REDUNDANCY else None)
 
 
-def reweighted(block: G.Block, opts: G.Options, components: list[VarianceComponent]) -> tuple[G.Block, G.Options]:
+def reweighted(block: G.Block, opts: G.SolveSettings,
+               components: list[VarianceComponent]) -> tuple[G.Block, G.SolveSettings]:
     """The block and options with each estimable group's sigmas multiplied by its factor."""
     f = {c.group: c.factor for c in components if c.factor is not None}
     changes = {}

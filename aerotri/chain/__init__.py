@@ -1,16 +1,18 @@
 """The production chain: every stage over one project folder, resumable, with a summary at the end.
 
 - ``runner``: ``Stage``, stamps (``work/stages/<stage>.json``), ``run_stages``, ``format_summary``;
-- ``options``: the stage sections of ``project.toml`` (``read_options``, ``ChainOptions``);
+- ``options``: the stage sections of ``project.toml`` (``read_options``, ``ChainSettings``);
 - ``stages``: the chain built from a project and its options (``Chain``, ``chain_stages``);
+- ``run``: ``aerotri run`` and ``aerotri demo`` as library calls (``run_project``, ``run_demo``);
 - ``cli``: the ``aerotri run`` and ``aerotri demo`` commands.
 """
 
 _WHERE = {
-    "ChainOptions": "options", "read_options": "options",
+    "ChainSettings": "options", "read_options": "options",
     "Stage": "runner", "format_summary": "runner", "is_current": "runner", "run_stages": "runner",
     "stamp_path": "runner",
     "Chain": "stages", "chain_stages": "stages",
+    "run_project": "run", "run_demo": "run",
 }
 __all__ = sorted(_WHERE)
 

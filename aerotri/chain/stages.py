@@ -31,10 +31,10 @@ import json
 import logging
 from pathlib import Path
 
-from aerotri.chain.options import ChainOptions, read_options
+from aerotri.chain.options import ChainSettings, read_options
 from aerotri.chain.runner import Stage
 from aerotri.core.atomic import write_text_atomic
-from aerotri.core.settings import to_table
+from aerotri.core.settings import COMMAND_LINE, Resolved, settings_of, to_table
 from aerotri.core.project import Project
 
 _log = logging.getLogger(__name__)
@@ -64,11 +64,27 @@ class Chain:
     """The stages of one project; ``stages()`` lists them in order (see the module docstring)."""
 
     project: Project
-    options: ChainOptions
+    settings: Resolved | ChainSettings  # every stage's settings (read_options: with their sources)
     reference_ortho: Path | None = None  # DOM check against this orthophoto
     surveyed_points: Path | None = None  # LiDAR height check at these points
-    dem: Path | None = None  # overrides [rectify] dem
+    dem: Path | None = None  # overrides [rectify] dem (as aerotri run --dem)
     truth_classes: bool = False  # simulated projects: classification against truth/lidar
+
+    def __post_init__(self):
+        self.settings = settings_of(self.settings, ChainSettings)
+        if self.dem is not None:
+            self.settings = self.settings.replace("rectify.dem", Path(self.dem), COMMAND_LINE)
+
+    @property
+    def options(self) -> ChainSettings:
+        return self.settings.settings
+
+    def stage_settings(self, section: str) -> Resolved:
+        """The settings of one stage with their sources (for its report)."""
+        head = section + "."
+        return Resolved(getattr(self.options, section),
+                        {p[len(head):]: s for p, s in self.settings.sources.items() if p.startswith(head)},
+                        {p[len(head):]: n for p, n in self.settings.notes.items() if p.startswith(head)})
 
     # -- paths ------------------------------------------------------------------------------------
     @property
@@ -168,7 +184,7 @@ class Chain:
                 raise ConfigError(f"{self.project.config_path} [{section}] {key}: {path} not found")
         # a given DEM is read before the first stage: one band of heights, north up, in the project's CRS
         # (a wrong one would otherwise stop the chain at the orthophotos, after the adjustment)
-        given = self.dem if self.dem is not None else self.options.rectify.dem
+        given = self.options.rectify.dem
         if given is not None:
             from aerotri.geom.crs import project_crs
             from ortho.dem import open_height_raster
@@ -233,35 +249,36 @@ class Chain:
         if o.vectors.enabled:
             # optional ([vectors] enabled): the line map of the classified strips and its check
             stages.append(Stage("vectors", self.vectors_inputs, self.vectors_outputs, self.run_vectors,
-                                options=dict(to_table(o.vectors), qa=self.project.section("qa")), skip=self.no_lidar))
+                                options=dict(to_table(o.vectors), qa=to_table(self.project.qa)), skip=self.no_lidar))
         stages += [
             Stage("match", lambda r: self.images() + [self.project.gnss_path, self.project.camera_path],
                   lambda r: [self.project.tiepoints_path], self.run_match,
                   # [flight] terrain height and [gnss] lever arm place the footprints of the pairs
-                  options=dict(to_table(o.match), flight=self.project.section("flight"),
-                               gnss=self.project.section("gnss"))),
+                  options=dict(to_table(o.match), flight=to_table(self.project.flight),
+                               gnss=to_table(self.project.gnss))),
             # project.toml carries the [gnss] sigmas, [adjust] options and the [qa] limits of the report
             Stage("adjust_first", lambda r: self.adjust_inputs(r, control=False),
                   lambda r: [first / "eo.txt", first / "camera.toml"], self.run_adjust_first,
-                  options=lambda r: to_table(self.first_settings()), skip=self.no_first_adjustment),
+                  options=lambda r: to_table(self.first_settings().settings), skip=self.no_first_adjustment),
             Stage("control", self.control_inputs,
                   lambda r: [self.project.control_points_path, self.project.control_image_points_path], self.run_control,
                   options=to_table(o.control), skip=self.no_corners),
             Stage("adjust_final", self.adjust_inputs, self.adjust_final_outputs,
-                  self.run_adjust_final, options=lambda r: to_table(self.final_settings()[0])),
+                  self.run_adjust_final, options=lambda r: to_table(self.final_settings().settings)),
             # a block without GNSS, LiDAR or DEM: the DEM of its adjusted tie points
             Stage("dem", lambda r: [self.project.object_points_path, self.project.eo_path],
                   lambda r: [self.tie_point_dem_path], self.run_tie_point_dem, skip=self.no_tie_point_dem),
             # (the self-calibrated camera in at/report.json changes only with at/eo.txt)
             Stage("rectify", lambda r: [self.project.eo_path, self.dem_path()] + self.images(),
                   lambda r: [self.project.frames_index_path], self.run_rectify,
-                  options=lambda r: to_table(self.rectify_settings()), skip=self.no_dem),
+                  options=lambda r: to_table(self.rectify_settings().settings), skip=self.no_dem),
             Stage("mosaic", lambda r: [self.project.frames_index_path], lambda r: [self.project.mosaic_path],
                   self.run_mosaic, options=to_table(o.mosaic), skip=self.no_dem),
         ]
         if self.reference_ortho is not None:
             stages.append(Stage("dom_check", lambda r: [self.project.mosaic_path, Path(self.reference_ortho)],
-                                lambda r: [self.project.dom_report_path], self.run_dom_check, skip=self.no_dem))
+                                lambda r: [self.project.dom_report_path], self.run_dom_check,
+                                options=to_table(o.dom_check), skip=self.no_dem))
         if self.surveyed_points is not None:
             stages.append(Stage("height_check", lambda r: self.classified() + [Path(self.surveyed_points)],
                                 lambda r: [self.project.height_check_path], self.run_height_check, skip=self.no_lidar))
@@ -348,7 +365,7 @@ class Chain:
     def run_corners(self, root) -> dict:
         from lidarctl.corners import corner_control
 
-        st = corner_control(self.classified(), self.lo, self.options.corners, record_none=True)
+        st = corner_control(self.classified(), self.lo, self.stage_settings("corners"), record_none=True)
         out = dict(corners=st["n_corners"], usable=st["n_usable"])
         if st["no_usable"]:
             hint = "a smaller min_edge_m"
@@ -375,11 +392,11 @@ class Chain:
     def run_vectors(self, root) -> dict:
         from aerotri.core.tolerances import qa_settings
         from aerotri.geom.block_scale import project_block_scale
-        from lidarctl.map_vectors import VectorParams, vectors_to_file
-        from lidarctl.vector_check import CheckParams, check_files
+        from lidarctl.map_vectors import MapVectorSettings, vectors_to_file
+        from lidarctl.vector_check import VectorCheckSettings, check_files
 
         p = self.project
-        s = vectors_to_file(self.classified(), p.vectors_path, VectorParams(), crs=p.crs)
+        s = vectors_to_file(self.classified(), p.vectors_path, MapVectorSettings(), crs=p.crs)
         out = {k: s[k] for k in ("buildings", "roads", "water", "spot_heights") if k in s}
         ref = self.vectors_reference()
         if ref is None:
@@ -388,7 +405,7 @@ class Chain:
         if ref == p.truth_buildings_path:
             ref = self.truth_outline_reference()
         qa = qa_settings(root, project_block_scale(p))
-        check = check_files(p.vectors_path, ref, CheckParams(layers=("buildings",), scale=qa["map_scale"],
+        check = check_files(p.vectors_path, ref, VectorCheckSettings(layers=("buildings",), scale=qa["map_scale"],
                                                              terrain=qa["terrain"]), p.vectors_check_path)
         b = check["layers"].get("buildings", {})
         out.update(corner_rms_xy_m=b.get("rms_xy_corner_m"), corners=b.get("n_matched_corners"))
@@ -421,31 +438,20 @@ class Chain:
     def run_match(self, root) -> dict:
         from aerotri.match import match_project
 
-        rep = match_project(root, self.options.match)
+        rep = match_project(root, self.stage_settings("match"))
         return dict(tracks=rep.tracks, observations=rep.observations, components=rep.components)
 
     def adjust_inputs(self, root, control: bool = True) -> list[Path]:
         files = [self.project.tiepoints_path, self.project.gnss_path, self.project.camera_path, self.project.config_path]
         if control:
             files += [self.project.control_points_path, self.project.control_image_points_path]
-        if self.options.adjust.initial_eo is not None:
-            files.append(Path(self.options.adjust.initial_eo))
-        s = self.with_surface(self.options.adjust)
+        s = self.first_settings().settings if not control else self.final_settings().settings
+        if s.initial_eo is not None:
+            files.append(Path(s.initial_eo))
         files += [Path(p) for p in (s.dem, s.ndsm) if p is not None]
         if s.planes is not None:  # a corners folder or the file itself
             files.append(Path(s.planes) / "roof_planes.geojson" if Path(s.planes).is_dir() else Path(s.planes))
         return files
-
-    def with_surface(self, s):
-        """The adjustment settings with the surface control of the chain: [adjust] dem (and planes) when given,
-        else the LiDAR stages' DEM, nDSM and roof planes (``[adjust] lidar_surface``, default true; the planes
-        when the corners stage found usable corners) when the project has LiDAR."""
-        if s.dem is not None or not s.lidar_surface or not self.has_lidar:
-            return s
-        # the roof planes come with usable corners (lidarctl corners writes nothing without, README)
-        usable = _json(self.project.corners_summary_path).get("n_usable", 0) > 0
-        return dataclasses.replace(s, dem=self.project.dem_path, ndsm=self.project.ndsm_path,
-                                   planes=self.project.roof_planes_path if usable else None)
 
     def no_first_adjustment(self, root=None) -> str | None:
         why = self.no_corners()
@@ -455,10 +461,12 @@ class Chain:
             return "no GNSS (gnss.txt): the control transfer starts from [adjust] initial_eo"
         return None
 
-    def first_settings(self):
-        """The first adjustment: tie points and GNSS only (the datum from GNSS, no corrections per strip)."""
-        return dataclasses.replace(self.with_surface(self.options.adjust), use_control=False, gnss_correction="none",
-                                   check=(), control=())
+    def first_settings(self) -> Resolved:
+        """The first adjustment: tie points and GNSS only (the datum from GNSS, no corrections per strip), with the
+        LiDAR surface control (``aerotri.adjust.pipeline.project_settings``, as ``aerotri adjust P --no-control``)."""
+        from aerotri.adjust.pipeline import project_settings
+
+        return project_settings(self.project, self.stage_settings("adjust"), first=True)
 
     def run_adjust_first(self, root) -> dict:
         from aerotri.adjust.pipeline import run_adjustment
@@ -468,30 +476,33 @@ class Chain:
         write_text_atomic(self.first / "camera.toml", ba.camera_adjusted.to_toml())
         return adjustment_numbers(rep)
 
-    def final_settings(self):
-        """(settings, notes) of the final adjustment: [adjust] with LiDAR control when it was transferred."""
-        from aerotri.adjust.pipeline import project_datum_shortfall
+    def final_settings(self) -> Resolved:
+        """The final adjustment: [adjust] with LiDAR control when it was transferred, completed from the project
+        folder as ``aerotri adjust P`` completes it (``aerotri.adjust.pipeline.project_settings``)."""
+        from aerotri.adjust.pipeline import project_settings
 
-        s, notes = self.with_surface(self.options.adjust), []
+        r = self.stage_settings("adjust")
+        if self.has_lidar:
+            why = self.no_corners()
+            if why and r.settings.use_control:
+                r = r.replace("use_control", False, "aerotri run", f"without LiDAR control: {why}")
+        return project_settings(self.project, r)
+
+    def final_notes(self, r: Resolved) -> list[str]:
+        """The summary's notes on the final adjustment's settings."""
+        s, notes = r.settings, []
         if s.dem is not None:
             notes.append(f"surface control: tie points on the ground held to {s.dem}"
                          + (f", on roofs to the roof planes of {s.planes}" if s.planes is not None else ""))
-        if self.has_lidar:
-            why = self.no_corners()
-            if why:
-                s = dataclasses.replace(s, use_control=False)
-                notes.append(f"without LiDAR control: {why}")
-        elif s.use_control and self.project.control_points_path.is_file():
+        if "use_control" in r.notes:
+            notes.append(r.notes["use_control"])
+        elif not self.has_lidar and s.use_control and self.project.control_points_path.is_file():
             notes.append(f"with the control points of {self.project.control_dir / 'points.csv'} (no LiDAR)")
-        else:
+        elif not self.has_lidar:
             notes.append("no LiDAR and no control/points.csv: the datum comes from GNSS alone")
-        if s.gnss_correction != "none" and self.has_gnss and self.project.tiepoints_path.is_file():
-            short = project_datum_shortfall(self.root, s)
-            if short:
-                notes.append(f"[adjust] gnss_correction = \"{s.gnss_correction}\" not applied: {short}; GNSS alone "
-                             "carries the datum")
-                s = dataclasses.replace(s, gnss_correction="none")
-        return s, notes
+        if "gnss_correction" in r.notes:
+            notes.append(f"[adjust] gnss_correction: {r.notes['gnss_correction']}")
+        return notes
 
     def control_inputs(self, root) -> list[Path]:
         eo, camera = self.control_orientations()
@@ -507,7 +518,7 @@ class Chain:
         from aerotri.control.pipeline import run_control
 
         eo, camera = self.control_orientations()
-        sm = run_control(root, self.project.corners_path, eo, camera, settings=self.options.control)
+        sm = run_control(root, self.project.corners_path, eo, camera, settings=self.stage_settings("control"))
         return {k: getattr(sm, k) for k in ("corners_accepted", "control_full", "control_height", "check_points",
                                              "layout_targets", "layout_targets_unfilled")}
 
@@ -522,7 +533,8 @@ class Chain:
 
         from aerotri.exchange import export_project
 
-        settings, notes = self.final_settings()
+        settings = self.final_settings()
+        notes = self.final_notes(settings)
         ba, rep = run_adjustment(root, settings)
         export_project(root)  # PATB and COLMAP, read back from at/
         out = adjustment_numbers(rep)
@@ -546,27 +558,29 @@ class Chain:
                            f"({self.tie_point_dem_path})"])
 
     # -- orthophotos ----------------------------------------------------------------------------
-    def rectify_settings(self):
-        return dataclasses.replace(self.options.rectify, dem=self.dem_path())
+    def rectify_settings(self) -> Resolved:
+        r = self.stage_settings("rectify")
+        if r.settings.dem is None and self.dem_path() is not None:
+            r = r.replace("dem", self.dem_path(), r.sources.get("dem", "default"), "the LiDAR stages' DEM")
+        return r
 
     def run_rectify(self, root) -> dict:
         from ortho.block import rectify_block
 
-        index = rectify_block(root, **self.rectify_settings().kwargs())
+        index = rectify_block(root, self.rectify_settings())
         return dict(frames=len(index["frames"]), res_m=index["res_m"])
 
     def run_mosaic(self, root) -> dict:
         from ortho.mosaic import mosaic_block
 
-        info = mosaic_block(root, **self.options.mosaic.kwargs())
+        info = mosaic_block(root, self.stage_settings("mosaic"))
         return dict(width_px=info["width"], height_px=info["height"])
 
     # -- checks and report ----------------------------------------------------------------------
     def run_dom_check(self, root) -> dict:
         from ortho.check import run_check
 
-        ndsm = self.project.ndsm_path
-        rep = run_check(root, reference_path=self.reference_ortho, ndsm_path=ndsm if ndsm.is_file() else None)
+        rep = run_check(root, self.stage_settings("dom_check"), reference_path=self.reference_ortho)
         d = rep.get("displacement", {})
         return {k: d[k] for k in ("rms_xy_m", "rms_xy_gsd", "count") if k in d}
 
@@ -627,8 +641,8 @@ def _read_ends(ds, path, what: str) -> None:
         raise InputError(f"{path}: the {what} cannot be read to its end ({exc}); a file cut short?") from None
 
 
-def chain_stages(root, options: ChainOptions | None = None, reference_ortho=None, surveyed_points=None, dem=None,
-                 truth_classes: bool = False) -> list[Stage]:
+def chain_stages(root, options: ChainSettings | Resolved | None = None, reference_ortho=None, surveyed_points=None,
+                 dem=None, truth_classes: bool = False) -> list[Stage]:
     """The stages of the project in ``root`` (its project.toml gives the options unless ``options``)."""
     project = Project.open(root)
     def path(p):

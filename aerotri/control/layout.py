@@ -25,7 +25,7 @@ import dataclasses
 
 import numpy as np
 
-from aerotri.control.settings import LayoutRule
+from aerotri.control.settings import LayoutSettings
 from aerotri.geom.strips import strips_from_track
 
 
@@ -107,7 +107,7 @@ def strips_of_block(camera, centres_m, Rs, ground_z_m: float, strip=None):
     return out, origin, u, w
 
 
-def layout_targets(strips, rule: LayoutRule):
+def layout_targets(strips, rule: LayoutSettings):
     """Target positions (list of (kind, along_m, across_m)) on the common block axes."""
     targets = []
     n = len(strips)
@@ -162,7 +162,7 @@ def candidate_tiers(n_frames, primary, roof, min_frames: int) -> np.ndarray:
     return tier
 
 
-def select_control(xy_m, score, n_frames, camera, centres_m, Rs, ground_z_m, *, rule: LayoutRule | None = None,
+def select_control(xy_m, score, n_frames, camera, centres_m, Rs, ground_z_m, *, rule: LayoutSettings | None = None,
                    strip=None, residual_ratio=None, tier=None,
                    check=None) -> tuple[np.ndarray, list[LayoutTarget], float]:
     """Kind per corner ("full", "height", "check", or "candidate": a fallback corner not chosen), the
@@ -173,7 +173,7 @@ def select_control(xy_m, score, n_frames, camera, centres_m, Rs, ground_z_m, *, 
     candidate set of each corner (``candidate_tiers``; None: tier 0 for every corner in ``min_frames``
     frames, none for the others); check (N,): corners that are check points when not chosen (None: all).
     """
-    rule = rule or LayoutRule()
+    rule = rule or LayoutSettings()
     strips, origin, u, w = strips_of_block(camera, centres_m, Rs, ground_z_m, strip)
     base = float(np.median([st.base_m for st in strips]))
     radius = rule.search_radius_baselines * base

@@ -27,6 +27,7 @@ from aerotri.core.errors import InputError, OptionError
 from aerotri.core.log import track
 from aerotri.core.atomic import committed
 from aerotri.core.project import Project, project_paths
+from aerotri.core.settings import Resolved, settings_of
 from aerotri.geom.camera import FrameCamera, adjusted_camera
 from aerotri.geom.eo import ExteriorOrientations, read_eo
 from aerotri.geom.images import find_image, read_rgb8
@@ -73,6 +74,14 @@ class TransferSummary:
     selected_rays_mean: float
     manual_measurements: int
     base_m: float
+
+    def command_line(self) -> str:
+        """The line ``aerotri control`` prints."""
+        return (f"{self.corners_accepted} of {self.corners_measured} corners accepted "
+                f"({self.measurements_accepted_in_image} of {self.measurements_attempted} image measurements); "
+                f"control {self.control_full} full + "
+                f"{self.control_height} height, {self.check_points} check points; rejected corners "
+                f"{self.corners_rejected}")
 
     def to_dict(self) -> dict:
         return dataclasses.asdict(self)
@@ -307,7 +316,7 @@ def summary(res: TransferResult) -> TransferSummary:
     )
 
 
-def output_texts(res: TransferResult, checks: bool = True) -> dict[str, str]:
+def output_texts(res: TransferResult, checks: bool = True, settings_record: dict | None = None) -> dict[str, str]:
     """control/points.csv, control/image_points.csv and control/transfer.json as texts."""
     c = res.corners
     pts = ["id,kind,x,y,z,sx_m,sy_m,sz_m"]
@@ -352,7 +361,8 @@ def output_texts(res: TransferResult, checks: bool = True) -> dict[str, str]:
                 m = res.measurements[(k, i)]
                 obs.append(f"{c.id[k]},{res.image_ids[i]},{m.x_px:.3f},{m.y_px:.3f}")
     targets = [{**t.to_dict(), "corner": None if t.corner is None else str(c.id[t.corner])} for t in res.targets]
-    rep = {"summary": summary(res).to_dict(), "layout_targets": targets, "corners": per_corner}
+    rep = {"summary": summary(res).to_dict(), "layout_targets": targets, "corners": per_corner,
+           "settings": settings_record}
     return {"points.csv": "\n".join(pts) + "\n", "image_points.csv": "\n".join(obs) + "\n",
             "transfer.json": json.dumps(rep, indent=1, allow_nan=False, default=float)}
 
@@ -419,19 +429,23 @@ def _block_crs(root):
 
 @committed(lambda root, *a, **k: project_paths(root).control_dir)
 def run_control(root, corners_path=None, eo_path=None, camera_path=None, manual_path=None, *,
-                settings: ControlSettings | None = None, checks: bool = True) -> TransferSummary:
+                settings: ControlSettings | Resolved | None = None) -> TransferSummary:
     """The stage: read, transfer, write all outputs atomically; returns the summary.
 
     Defaults: the corners ``lidar_out/corners.csv``, the orientations ``at/eo.txt``, the camera of
-    ``project_camera``; ``manual_path``: manual measurements (``read_manual``); ``checks``: write the
-    accepted corners that are not control as check points.
+    ``project_camera``; ``manual_path``: manual measurements (``read_manual``). ``settings``: None reads
+    [control] of project.toml (a folder without one: the defaults); a ``Resolved`` (``aerotri control``, the
+    chain) carries every setting's source into control/transfer.json (``settings``).
     """
     from aerotri.core.atomic import atomic_dir, write_text_atomic
 
     from aerotri.control.chips import write_review
 
     paths = project_paths(root)
-    s = settings or ControlSettings()
+    if settings is None and not paths.config_path.is_file():
+        settings = ControlSettings()
+    resolved = settings_of(settings, ControlSettings, Project.open(root) if settings is None else None)
+    s = resolved.settings
     if s.measure.eo_sigma_px > s.measure.max_radius_px:
         # the search window stops at max_radius_px: an orientation this uncertain is not measured in, it is refused
         raise OptionError(f"{s.measure.eo_sigma_px:g} px: the orientations' uncertainty exceeds the largest search "
@@ -459,7 +473,7 @@ def run_control(root, corners_path=None, eo_path=None, camera_path=None, manual_
     if sm.corners_accepted == 0:
         raise InputError(f"no corner could be measured consistently in two or more frames ({sm.corners_measured} "
                          f"tried; rejected: {sm.corners_rejected}) - check {eo_path} and the camera")
-    texts = output_texts(res, checks)
+    texts = output_texts(res, s.checks, resolved.record())
     review = review_page(res, paths.images_dir) if s.chips else None
     if review is not None:
         with atomic_dir(paths.control_dir / "review") as tmp:

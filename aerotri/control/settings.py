@@ -1,5 +1,5 @@
 """Options of the control stage: ``ControlSettings`` (``aerotri control``, ``[control]`` in project.toml) with
-how a corner is measured in a frame (``MeasureSettings``) and where control goes (``LayoutRule``).
+how a corner is measured in a frame (``MeasureSettings``) and where control goes (``LayoutSettings``).
 
 Each dataclass is the one place of its options, defaults and allowed values (``aerotri.core.settings``);
 the command line and project.toml read them from here.
@@ -8,6 +8,7 @@ the command line and project.toml read them from here.
 from __future__ import annotations
 
 import dataclasses
+from typing import ClassVar
 
 from aerotri.core.settings import setting
 
@@ -34,7 +35,7 @@ class MeasureSettings:
 
 
 @dataclasses.dataclass(frozen=True)
-class LayoutRule:
+class LayoutSettings:
     """Where control goes (the rule: ``aerotri.control.layout``): spacings in baselines, the weights of the
     choice of a target's corner."""
 
@@ -58,10 +59,12 @@ class LayoutRule:
 
 @dataclasses.dataclass(frozen=True)
 class ControlSettings:
-    """Options of the control stage (``aerotri control``, ``[control]`` in project.toml)."""
+    """Options of the control stage (``aerotri control``, ``[control]`` in project.toml; the section's sigma keys
+    are the control points' a-priori precision, ``aerotri.core.project.ControlPointSettings``)."""
 
+    SECTION: ClassVar[str] = "control"
     measure: MeasureSettings = MeasureSettings()
-    layout: LayoutRule = LayoutRule()
+    layout: LayoutSettings = LayoutSettings()
     tol_px: float = setting(0.7, min=0.05, help="Multi-ray reprojection residual tolerance (px).")
     image_sigma_px: float = setting(0.3, min=0.0, min_open=True,
                                     help="Image measurement precision used for the LiDAR comparison (px).")
@@ -71,3 +74,4 @@ class ControlSettings:
                            help="Type I error of the comparison with the LiDAR corner.")
     usable_only: bool = setting(True, help="Measure only corners marked usable (plus manually measured ones).")
     chips: bool = setting(True, help="Write control/review/ (HTML + chips).")
+    checks: bool = setting(True, help="Write accepted corners that are not control as check points.")

@@ -1,11 +1,17 @@
 """A project folder (architecture doc) and its ``project.toml``.
 
 ```
-project.toml   [project] name, crs; [gnss] sigmas and lever arm; [control] sigmas; stage options
+project.toml   [project] name, crs; [gnss] sigmas and lever arm; [control] sigmas; stage sections
 camera.toml    frame camera (aerotri.geom.camera)
 gnss.txt       image_id X Y Z [sX sY sZ]
 lidar/ images/ lidar_out/ control/ work/ at/ ortho/
 ```
+
+The project sections ([project], [camera], [gnss], [control] sigmas, [flight], [qa]) are the settings
+dataclasses below, read and checked when the project is opened (``Project.info``, ``.gnss``, ...); the
+stage sections ([adjust], [match], ...) belong to the stages' settings (``aerotri.chain.options``), which
+read them through ``Project.stage_table`` (``aerotri.core.settings.resolve``). Nothing else reads
+project.toml. The reference of every key: docs/settings.md (``aerotri settings --markdown``).
 """
 
 from __future__ import annotations
@@ -13,47 +19,134 @@ from __future__ import annotations
 import dataclasses
 import tomllib
 from pathlib import Path
+from typing import ClassVar
 
 from aerotri.core.errors import ConfigError, InputError
+from aerotri.core.settings import from_table, setting
 from aerotri.core.textio import read_text
 
 
-# The sections every project may have and their keys; ``aerotri run`` adds one section per stage with
-# the keys of the stage's settings dataclass (aerotri.chain.options) and refuses anything else.
-PROJECT_SECTIONS = {
-    "project": ("name", "crs", "heights"),
-    "camera": ("file",),
-    "gnss": ("sigma_xy_m", "sigma_z_m", "lever_arm_m"),
-    "control": ("sigma_xy_m", "sigma_z_m"),  # a-priori sigmas of control points the simulator writes
-    "flight": ("mean_terrain_height_m", "speed_mps"),
-    "qa": ("map_scale", "terrain", "tolerances", "pdf", "standard", "platform", "horizontal_class_cm",
-           "vertical_class_cm"),
-}
+@dataclasses.dataclass(frozen=True)
+class ProjectSettings:
+    """The project: its name, coordinate reference system and height system."""
+
+    SECTION: ClassVar[str] = "project"
+    crs: str | None = setting(None, help="Projected CRS of every coordinate of the project (EPSG:code, WKT or PROJ "
+                                         "text), a metre grid; required.")
+    name: str | None = setting(None, help="Project name in reports (default: the folder's name).")
+    heights: str = setting("ellipsoidal", help="Heights of the EO, GNSS and DEMs: ellipsoidal, or a vertical CRS "
+                                               "such as EPSG:3855 (EGM2008).")
+
+
+@dataclasses.dataclass(frozen=True)
+class CameraSettings:
+    """The nominal frame camera."""
+
+    SECTION: ClassVar[str] = "camera"
+    file: Path = setting(Path("camera.toml"), path=True, help="Camera file (aerotri.geom.camera TOML), relative to "
+                                                              "the project folder.")
+
+
+@dataclasses.dataclass(frozen=True)
+class GnssSettings:
+    """The GNSS antenna positions of gnss.txt: their a-priori precision and the antenna's lever arm."""
+
+    SECTION: ClassVar[str] = "gnss"
+    sigma_xy_m: float = setting(0.05, min=0.0, min_open=True, help="A-priori standard deviation of a GNSS position "
+                                                                    "in plan (records of gnss.txt without their own).")
+    sigma_z_m: float = setting(0.1, min=0.0, min_open=True, help="A-priori standard deviation of a GNSS height.")
+    lever_arm_m: tuple[float, float, float] = setting(
+        (0.0, 0.0, 0.0), help="Antenna offset from the projection centre in the camera frame (x right, y up, z up).")
+
+
+@dataclasses.dataclass(frozen=True)
+class ControlPointSettings:
+    """The a-priori precision of control points that come without their own (the sigma keys of [control];
+    the section's other keys are the control stage's)."""
+
+    SECTION: ClassVar[str] = "control"
+    sigma_xy_m: float | None = setting(None, min=0.0, min_open=True,
+                                       help="A-priori standard deviation of a control point in plan (imports without "
+                                            "accuracies).")
+    sigma_z_m: float | None = setting(None, min=0.0, min_open=True, help="A-priori standard deviation of a control "
+                                                                          "point's height.")
+
+
+@dataclasses.dataclass(frozen=True)
+class FlightSettings:
+    """The flight plan: the terrain height the footprints of the frames are placed on, the speed."""
+
+    SECTION: ClassVar[str] = "flight"
+    mean_terrain_height_m: float | None = setting(None, help="Mean terrain height (project heights) for the frame "
+                                                             "footprints (default: lidar_out/dem.tif's mean).")
+    speed_mps: float | None = setting(None, min=0.0, min_open=True, help="Ground speed of the aircraft.")
+
+
+@dataclasses.dataclass(frozen=True)
+class QaSettings:
+    """The accuracy report's tolerance table. Nothing given: chosen by the block's GSD and platform
+    (aerotri.core.tolerances.choose_table; docs/tolerances.md)."""
+
+    SECTION: ClassVar[str] = "qa"
+    map_scale: str | None = setting(None, help="Chinese map-scale table: 1:2000, 1:5000, 1:10000 (default: by the "
+                                               "block's GSD and platform).")
+    terrain: str | None = setting(None, help="Terrain class of a map-scale table: flat, hilly, mountainous (or a "
+                                             "section of your own table); default flat.")
+    tolerances: Path | None = setting(None, path=True, help="Your own tolerance table (TOML, the layout of "
+                                                            "aerotri/core/tolerance_tables/cn_*.toml).")
+    pdf: bool = setting(False, help="Also write reports/report.pdf.")
+    standard: str | None = setting(None, choices=("asprs2023", "cn"),
+                                   help="Standard of the tolerance table: asprs2023 (classes by GSD unless given) or "
+                                        "cn (map-scale tables); default by the block's GSD and platform.")
+    platform: str | None = setting(None, choices=("manned", "uas"),
+                                   help="manned or uas (default: from the flying height above ground).")
+    horizontal_class_cm: float | None = setting(None, min=0.0, min_open=True,
+                                                help="ASPRS 2023 horizontal accuracy class (RMSE_H, cm).")
+    vertical_class_cm: float | None = setting(None, min=0.0, min_open=True,
+                                              help="ASPRS 2023 vertical accuracy class (RMSE_V, cm).")
+
+
+# The project sections: read when the project is opened. [control] is shared with the control stage.
+PROJECT_SECTIONS = {c.SECTION: c for c in (ProjectSettings, CameraSettings, GnssSettings, ControlPointSettings,
+                                           FlightSettings, QaSettings)}
 # The stage sections (their keys are the fields of each stage's settings, checked by the stage and by
 # ``aerotri run``; aerotri.chain.options.STAGE_SECTIONS holds the same names).
-STAGE_SECTION_NAMES = ("strips", "classify", "rasters", "corners", "vectors", "match", "adjust", "control", "rectify", "mosaic")
+STAGE_SECTION_NAMES = ("strips", "classify", "rasters", "corners", "vectors", "match", "adjust", "control", "rectify",
+                       "mosaic", "dom_check")
 
 
-def check_sections(config: dict, source) -> None:
-    """Refuse an unknown section, an unknown key of a project section, and a section given as a value,
-    naming ``source`` (project.toml), the section and the key."""
+def _keys(cls) -> tuple[str, ...]:
+    return tuple(f.name for f in dataclasses.fields(cls))
+
+
+def check_sections(config: dict, source) -> dict:
+    """Refuse an unknown section, an unknown key of a project section, a bad value of one, and a section given
+    as a value, naming ``source`` (project.toml), the section and the key; returns the project sections'
+    settings (section -> dataclass)."""
+    out = {}
     for section, table in config.items():
         if section not in PROJECT_SECTIONS and section not in STAGE_SECTION_NAMES:
             raise ConfigError(f"{source}: unknown section [{section}] (project sections: "
                               f"{', '.join(PROJECT_SECTIONS)}; stage sections: {', '.join(STAGE_SECTION_NAMES)})")
         if not isinstance(table, dict):
             raise ConfigError(f"{source}: {section} must be a section [{section}], not a single value")
-        if section in PROJECT_SECTIONS and section not in STAGE_SECTION_NAMES:
-            known = PROJECT_SECTIONS[section]
-            for key in table:
-                if key not in known:
-                    raise ConfigError(f"{source} [{section}]: unknown key {key!r} (known: {', '.join(known)})")
+    for section, cls in PROJECT_SECTIONS.items():
+        table = config.get(section, {})
+        if section in STAGE_SECTION_NAMES:  # shared with a stage: the stage checks its own keys
+            table = {k: v for k, v in table.items() if k in _keys(cls)}
+        # file names stay as written (relative to the project folder, which the folder's paths anchor)
+        out[section] = from_table(cls, table, f"{source} [{section}]")
+    return out
 
 
 @dataclasses.dataclass
 class Project:
+    """A project folder and its ``project.toml`` (``config``: the parsed file; read it through the typed
+    sections, never by key)."""
+
     root: Path
     config: dict
+    sections: dict = dataclasses.field(default_factory=dict, repr=False)  # section -> project section settings
 
     @classmethod
     def open(cls, root) -> "Project":
@@ -67,10 +160,21 @@ class Project:
             config = tomllib.loads(read_text(cfg_path, "project file (TOML)"))
         except tomllib.TOMLDecodeError as exc:
             raise ConfigError(f"{cfg_path}: not valid TOML ({exc})") from None
-        check_sections(config, cfg_path)
-        if "crs" not in config.get("project", {}):
+        sections = check_sections(config, cfg_path)
+        if sections["project"].crs is None:
             raise ConfigError(f"{cfg_path}: [project] crs is missing (e.g. crs = \"EPSG:32649\")")
-        return cls(root, config)
+        return cls(root, config, sections)
+
+    def _section(self, cls):
+        got = self.sections.get(cls.SECTION)
+        return got if got is not None else cls()
+
+    info = property(lambda self: self._section(ProjectSettings), doc="[project]")
+    camera = property(lambda self: self._section(CameraSettings), doc="[camera]")
+    gnss = property(lambda self: self._section(GnssSettings), doc="[gnss]")
+    control_points = property(lambda self: self._section(ControlPointSettings), doc="[control] sigmas")
+    flight = property(lambda self: self._section(FlightSettings), doc="[flight]")
+    qa = property(lambda self: self._section(QaSettings), doc="[qa]")
 
     @property
     def config_path(self) -> Path:
@@ -78,17 +182,33 @@ class Project:
 
     @property
     def name(self) -> str:
-        return str(self.config.get("project", {}).get("name", self.root.name))
+        return self.info.name or self.root.name
 
     @property
     def crs(self) -> str:
-        return str(self.config["project"]["crs"])
+        return str(self.info.crs)
 
-    def section(self, name: str) -> dict:
-        return dict(self.config.get(name, {}))
+    def source_of(self, section: str, key: str) -> str:
+        """Where a project section's setting came from: ``project.toml`` when the file gives it, else ``default``."""
+        return "project.toml" if key in self.config.get(section, {}) else "default"
+
+    def stage_table(self, name: str) -> dict:
+        """The raw table of a stage section (for ``aerotri.core.settings.resolve``, which checks it); the keys
+        of a project section of the same name ([control] sigmas) left out. ``""``: every stage section, by name."""
+        if name == "":
+            return {n: t for n in STAGE_SECTION_NAMES if (t := self.stage_table(n))}
+        table = dict(self.config.get(name, {}))
+        shared = PROJECT_SECTIONS.get(name) if name in STAGE_SECTION_NAMES else None
+        return {k: v for k, v in table.items() if k not in _keys(shared)} if shared else table
+
+    def settings(self, cls, name: str | None = None):
+        """The stage section ``name`` (default ``cls.SECTION``) as ``cls``, checked (no command line)."""
+        from aerotri.core.settings import resolve
+
+        return resolve(cls, self, section=name).settings
 
     # The folder layout (architecture doc); nothing else spells these paths.
-    camera_path = property(lambda self: self.root / "camera.toml")
+    camera_path = property(lambda self: self.root / self.camera.file)  # [camera] file
     gnss_path = property(lambda self: self.root / "gnss.txt")
     images_dir = property(lambda self: self.root / "images")
     lidar_dir = property(lambda self: self.root / "lidar")

@@ -256,39 +256,25 @@ class QaConfig:
         return "project.toml [qa]"
 
 
-def _positive(cfg: dict, key: str, src: str) -> float | None:
-    v = cfg.get(key)
-    if v is None:
-        return None
-    if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v) or v <= 0:
-        raise ConfigError(f"{src} {key} = {v!r}: expected a positive number of centimetres")
-    return float(v)
-
-
 def read_qa_config(root) -> QaConfig:
-    """``[qa]`` of the project at ``root``, each value checked (ConfigError naming the key)."""
+    """``[qa]`` of the project at ``root`` (types and ranges checked when the project is opened; here the
+    table names and the combinations: ConfigError naming the key)."""
     project = Project.open(root)
-    cfg = project.section("qa")
+    qa = project.qa
     src = f"{project.config_path} [qa]"
-    if "map_scale" in cfg and cfg["map_scale"] not in SCALE_TABLES:
-        raise ConfigError(f"{src} map_scale = {cfg['map_scale']!r}: no built-in tolerance table (have "
+    if qa.map_scale is not None and qa.map_scale not in SCALE_TABLES:
+        raise ConfigError(f"{src} map_scale = {qa.map_scale!r}: no built-in tolerance table (have "
                           f"{', '.join(SCALE_TABLES)}); give your own with tolerances = \"FILE\"")
-    if "terrain" in cfg and cfg["terrain"] not in TERRAINS and not cfg.get("tolerances"):
-        raise ConfigError(f"{src} terrain = {cfg['terrain']!r}: expected one of {', '.join(TERRAINS)}")
-    if not isinstance(cfg.get("pdf", False), bool):
-        raise ConfigError(f"{src} pdf = {cfg['pdf']!r}: expected true or false")
-    for key, choices in (("standard", STANDARDS), ("platform", PLATFORMS)):
-        if key in cfg and cfg[key] not in choices:
-            raise ConfigError(f"{src} {key} = {cfg[key]!r}: expected one of {', '.join(choices)}")
-    if cfg.get("standard") == "asprs2023" and "map_scale" in cfg:
-        raise ConfigError(f"{src}: standard = \"asprs2023\" and map_scale = {cfg['map_scale']!r} contradict each other "
+    if qa.terrain is not None and qa.terrain not in TERRAINS and not qa.tolerances:
+        raise ConfigError(f"{src} terrain = {qa.terrain!r}: expected one of {', '.join(TERRAINS)}")
+    if qa.standard == "asprs2023" and qa.map_scale is not None:
+        raise ConfigError(f"{src}: standard = \"asprs2023\" and map_scale = {qa.map_scale!r} contradict each other "
                           f"(a map scale names a Chinese table); give one of them")
-    tol = cfg.get("tolerances")
-    return QaConfig(map_scale=cfg.get("map_scale"), terrain=cfg.get("terrain"),
-                    tolerances=str((Path(project.root) / tol).resolve()) if tol else None, pdf=cfg.get("pdf", False),
-                    standard=cfg.get("standard"), platform=cfg.get("platform"),
-                    horizontal_class_cm=_positive(cfg, "horizontal_class_cm", src),
-                    vertical_class_cm=_positive(cfg, "vertical_class_cm", src), source=src)
+    tol = qa.tolerances
+    return QaConfig(map_scale=qa.map_scale, terrain=qa.terrain,
+                    tolerances=str((Path(project.root) / tol).resolve()) if tol else None, pdf=bool(qa.pdf),
+                    standard=qa.standard, platform=qa.platform, horizontal_class_cm=qa.horizontal_class_cm,
+                    vertical_class_cm=qa.vertical_class_cm, source=src)
 
 
 def _block_text(block: BlockScale | None) -> str:

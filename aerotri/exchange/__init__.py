@@ -9,8 +9,8 @@ into the project's own files.
 """
 
 from aerotri.exchange.import_registry import IMPORT_FORMATS, Importer, import_files
-from aerotri.exchange.imported import ImportedBlock, ImportOptions, write_imported
+from aerotri.exchange.imported import ImportedBlock, ImportSettings, write_imported
 from aerotri.exchange.registry import EXPORT_FORMATS, Exporter, export_project
 
 __all__ = ["EXPORT_FORMATS", "Exporter", "export_project", "IMPORT_FORMATS", "Importer", "import_files",
-           "ImportedBlock", "ImportOptions", "write_imported"]
+           "ImportedBlock", "ImportSettings", "write_imported"]

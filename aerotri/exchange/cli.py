@@ -48,9 +48,9 @@ def export(project, formats, out_dir):
                    "(default: taken as not measured, the points become plan-only control).")
 def import_(project, files, format_name, crs, sigma_xyz_m, as_gnss, force, heights_measured):
     from aerotri.exchange.import_registry import import_files
-    from aerotri.exchange.imported import ImportOptions
+    from aerotri.exchange.imported import ImportSettings
 
-    options = ImportOptions(crs=crs, sigma_xyz_m=tuple(sigma_xyz_m) if sigma_xyz_m else None, as_gnss=as_gnss,
+    options = ImportSettings(crs=crs, sigma_xyz_m=tuple(sigma_xyz_m) if sigma_xyz_m else None, as_gnss=as_gnss,
                             heights_measured=heights_measured)
     for written in import_files(project, format_name, files, options, overwrite=force):
         click.echo(str(written))

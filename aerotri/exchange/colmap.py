@@ -38,7 +38,7 @@ from aerotri.core.errors import CrsError, InputError
 from aerotri.core.project import Project
 from aerotri.core.textio import read_text
 from aerotri.exchange.adjusted import AdjustedBlock
-from aerotri.exchange.imported import ImportedBlock, ImportOptions, positions_as_gnss
+from aerotri.exchange.imported import ImportedBlock, ImportSettings, positions_as_gnss
 from aerotri.exchange.poses import image_id_of, number, orientations_to_project
 from aerotri.geom.camera import BrownCamera, PinholeCamera
 from aerotri.geom.local_frame import LocalFrame
@@ -334,7 +334,7 @@ def _folder_of(files: list[Path]) -> Path:
     return folders.pop()
 
 
-def read(files: list[Path], project: Project, options: ImportOptions) -> ImportedBlock:
+def read(files: list[Path], project: Project, options: ImportSettings) -> ImportedBlock:
     """A COLMAP model (text or binary; see the module docstring) -> camera, orientations and positions."""
     folder = _folder_of(files)
     block = ImportedBlock(source=[str(folder)])

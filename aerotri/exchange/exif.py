@@ -45,7 +45,7 @@ import numpy as np
 
 from aerotri.core.errors import InputError
 from aerotri.core.project import Project
-from aerotri.exchange.imported import ImportedBlock, ImportOptions, to_project_crs
+from aerotri.exchange.imported import ImportedBlock, ImportSettings, to_project_crs
 from aerotri.geom.camera import BrownCamera
 from aerotri.geom.eo import ExteriorOrientations, GnssPositions
 from aerotri.geom.images import IMAGE_SUFFIXES
@@ -338,7 +338,7 @@ def image_files(files) -> list[Path]:
     return list(seen.values())
 
 
-def read(files, project: Project, options: ImportOptions) -> ImportedBlock:
+def read(files, project: Project, options: ImportSettings) -> ImportedBlock:
     """The ``exif`` importer: GNSS positions (with RTK accuracies), the camera and the gimbal attitudes of
     image files or folders."""
     paths = image_files(files)

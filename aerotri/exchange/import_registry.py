@@ -16,14 +16,14 @@ from typing import Callable
 from aerotri.core.errors import InputError, OptionError
 from aerotri.core.project import Project
 from aerotri.exchange import colmap, exif, metashape, micmac, odm, opensfm, orthority, patb
-from aerotri.exchange.imported import ImportedBlock, ImportOptions, WrittenFile, write_imported
+from aerotri.exchange.imported import ImportedBlock, ImportSettings, WrittenFile, write_imported
 
 
 @dataclasses.dataclass(frozen=True)
 class Importer:
     name: str
     description: str
-    read: Callable[[list[Path], Project, ImportOptions], ImportedBlock]
+    read: Callable[[list[Path], Project, ImportSettings], ImportedBlock]
     files: str = "FILE..."  # what the format expects, for messages (e.g. "reconstruction.json")
     positions: str | None = "reconstruction"  # "reconstruction", "gnss" or None (see the module docstring)
 
@@ -49,7 +49,7 @@ IMPORT_FORMATS: dict[str, Importer] = {
 }
 
 
-def import_files(root, format_name: str, files, options: ImportOptions | None = None,
+def import_files(root, format_name: str, files, options: ImportSettings | None = None,
                  overwrite: bool = False) -> list[WrittenFile]:
     """Read ``files`` of format ``format_name``, check them against the project
     (``aerotri.exchange.import_checks``) and write what they hold into the project folder ``root``
@@ -61,7 +61,7 @@ def import_files(root, format_name: str, files, options: ImportOptions | None = 
         raise OptionError(f"unknown import format {format_name!r}; expected one of {', '.join(IMPORT_FORMATS)}",
                           param="--format")
     importer = IMPORT_FORMATS[format_name]
-    options = options or ImportOptions()
+    options = options or ImportSettings()
     files = [Path(f) for f in files]
     if not files:
         raise OptionError(f"no input file; {format_name} expects {importer.files}", param="FILE")

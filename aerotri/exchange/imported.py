@@ -72,7 +72,7 @@ class ImportedBlock:
 
 
 @dataclasses.dataclass(frozen=True, kw_only=True)
-class ImportOptions:
+class ImportSettings:
     """Choices a format may need. ``crs``: the CRS of the input when the file does not carry one;
     ``sigma_xyz_m``: accuracy of positions the source gives none for; ``as_gnss``: write the imported
     positions to gnss.txt as GNSS observations (see :func:`positions_as_gnss`)."""
@@ -116,7 +116,7 @@ def to_project_crs(xyz_m, from_crs, project: Project, source: str) -> np.ndarray
     return np.column_stack([x, y, z])
 
 
-def positions_as_gnss(ids, position_m, options: ImportOptions, project: Project, what: str,
+def positions_as_gnss(ids, position_m, options: ImportSettings, project: Project, what: str,
                       own_sigma_m=None, own_sigma_name: str = "") -> tuple[GnssPositions, str]:
     """(GNSS positions, what gnss.txt holds in words) of imported positions the user declared GNSS
     (``--as-gnss``). Accuracies: ``--sigma-xyz`` (the user's), else ``own_sigma_m`` (N, 3; the format's,
@@ -132,11 +132,12 @@ def positions_as_gnss(ids, position_m, options: ImportOptions, project: Project,
         sigma = np.asarray(own_sigma_m, float).reshape(-1, 3)
         said = f"accuracies from {own_sigma_name} ({sigma.min():.3g}..{sigma.max():.3g} m)"
     else:
-        g = project.section("gnss")
-        if "sigma_xy_m" not in g or "sigma_z_m" not in g:
+        # the defaults of [gnss] are an aerial GNSS/IMU's: another program's centres need their accuracy stated
+        if any(project.source_of("gnss", k) != "project.toml" for k in ("sigma_xy_m", "sigma_z_m")):
             raise OptionError(f"--as-gnss: the {what} come without accuracies; state them with --sigma-xyz SX SY SZ "
                               f"(m) or [gnss] sigma_xy_m and sigma_z_m in {project.config_path}", param="--sigma-xyz")
-        sigma, said = None, (f"accuracies {g['sigma_xy_m']:g} / {g['sigma_z_m']:g} m from {project.config_path.name} "
+        g = project.gnss
+        sigma, said = None, (f"accuracies {g.sigma_xy_m:g} / {g.sigma_z_m:g} m from {project.config_path.name} "
                              "[gnss]")
     return GnssPositions(ids, pos.copy(), sigma), f"GNSS positions ({what}, --as-gnss; {said})"
 

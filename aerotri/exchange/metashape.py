@@ -51,7 +51,7 @@ from aerotri.core.errors import CrsError, InputError
 from aerotri.core.project import Project
 from aerotri.core.textio import read_text
 from aerotri.exchange.adjusted import AdjustedBlock
-from aerotri.exchange.imported import ImportedBlock, ImportOptions, positions_as_gnss
+from aerotri.exchange.imported import ImportedBlock, ImportSettings, positions_as_gnss
 from aerotri.exchange.poses import adjusted_orientations, image_id_of, number, orientations_to_project
 from aerotri.geom.camera import BrownCamera, Camera
 from aerotri.geom.local_frame import LocalFrame
@@ -182,7 +182,7 @@ def read_camera_xml(sensor, where: str) -> Camera:
         raise InputError(f"{where}: {exc}") from None
 
 
-def read(files: list[Path], project: Project, options: ImportOptions) -> ImportedBlock:
+def read(files: list[Path], project: Project, options: ImportSettings) -> ImportedBlock:
     if len(files) != 1 or files[0].suffix.lower() != ".xml":
         raise InputError(f"{', '.join(map(str, files))}: expected one Metashape cameras .xml file")
     path = files[0]

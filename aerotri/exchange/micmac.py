@@ -39,7 +39,7 @@ from aerotri.core.errors import InputError
 from aerotri.core.project import Project
 from aerotri.core.textio import read_text
 from aerotri.exchange.adjusted import AdjustedBlock
-from aerotri.exchange.imported import ImportedBlock, ImportOptions, to_project_crs
+from aerotri.exchange.imported import ImportedBlock, ImportSettings, to_project_crs
 from aerotri.exchange.poses import image_id_of, number
 from aerotri.geom.images import find_images
 from aerotri.geom.observations import ControlPoints, ImageObservations, read_control_points, read_image_points
@@ -117,7 +117,7 @@ def _vector(el, tag: str, n: int, where: str) -> list[float]:
     return [number(p, where, tag) for p in parts]
 
 
-def read_gcp(path: Path, root, project: Project, options: ImportOptions) -> ControlPoints:
+def read_gcp(path: Path, root, project: Project, options: ImportSettings) -> ControlPoints:
     dico = root if root.tag == "DicoAppuisFlottant" else root.find("DicoAppuisFlottant")
     ids, kinds, xyz, sig = [], [], [], []
     check = "check" in path.stem.lower()
@@ -174,7 +174,7 @@ def read_measures(path: Path, root) -> ImageObservations:
     return ImageObservations(np.array(pids, object), np.array(iids, object), np.array(xy, float))
 
 
-def read(files: list[Path], project: Project, options: ImportOptions) -> ImportedBlock:
+def read(files: list[Path], project: Project, options: ImportSettings) -> ImportedBlock:
     block = ImportedBlock(source=[str(f) for f in files])
     controls = []
     for f in files:

@@ -16,7 +16,7 @@ carries no accuracies: ``--sigma-xyz`` gives them (required).
 
 Control as measured: a file whose heights are all 0 (or all the same number) has heights nobody measured (ODM
 writes 0 where a survey gave none: the Coal Oil Point targets); its points are imported as horizontal control,
-with a warning, unless ``ImportOptions.heights_measured`` (``--heights-measured``) says the heights are real.
+with a warning, unless ``ImportSettings.heights_measured`` (``--heights-measured``) says the heights are real.
 Two different points measured within 2 px of each other in one frame are refused, naming both and their lines
 (``aerotri.geom.observations.check_distinct_points``): one of them is mislabelled.
 
@@ -35,7 +35,7 @@ import numpy as np
 from aerotri.core.errors import InputError, OptionError
 from aerotri.core.project import Project
 from aerotri.core.textio import read_text
-from aerotri.exchange.imported import ImportedBlock, ImportOptions, to_project_crs
+from aerotri.exchange.imported import ImportedBlock, ImportSettings, to_project_crs
 from aerotri.geom.observations import ControlPoints, ImageObservations, check_distinct_points
 
 _UTM = re.compile(r"^WGS84\s+UTM\s+(\d{1,2})\s*([NS]?)$", re.IGNORECASE)
@@ -116,7 +116,7 @@ def unmeasured_heights(z: np.ndarray) -> str | None:
     return None
 
 
-def read(files, project: Project, options: ImportOptions) -> ImportedBlock:
+def read(files, project: Project, options: ImportSettings) -> ImportedBlock:
     """The ``odm`` importer: control points and their image measurements of a gcp_list.txt."""
     if len(files) != 1:
         raise InputError(f"odm expects one gcp_list.txt, got {len(files)} files")

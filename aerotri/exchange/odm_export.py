@@ -120,10 +120,9 @@ def files(block: AdjustedBlock, project: Project, image_names: dict | None = Non
     eo, camera = adjusted_orientations(project)
     reference = opensfm.reference_of(project, block.frame.origin_map)
     gnss = read_gnss(project.gnss_path) if project.gnss_path.is_file() else None
-    g = project.section("gnss")
     rec = opensfm.reconstruction(eo, camera, project, reference, names,
                                  points=(block.point_id, block.frame.to_map(block.points_local)),
-                                 gnss=gnss, gnss_sigma_m=float(g.get("sigma_xy_m", 0.05)))
+                                 gnss=gnss, gnss_sigma_m=float(project.gnss.sigma_xy_m))
     cam_id = opensfm.camera_id_of(camera)
     out = {"odm/opensfm/reconstruction.json": json.dumps([rec], indent=2) + "\n",
            "odm/opensfm/reference_lla.json": json.dumps(reference, indent=2) + "\n",

@@ -43,7 +43,7 @@ import numpy as np
 from aerotri.core.errors import InputError
 from aerotri.core.project import Project
 from aerotri.core.textio import read_json
-from aerotri.exchange.imported import ImportedBlock, ImportOptions, positions_as_gnss, to_project_crs
+from aerotri.exchange.imported import ImportedBlock, ImportSettings, positions_as_gnss, to_project_crs
 from aerotri.geom.camera import BrownCamera, Camera
 from aerotri.geom.eo import ExteriorOrientations, GnssPositions
 from aerotri.geom.rotation import FLIP_YZ, opk_from_matrix
@@ -271,7 +271,7 @@ def _pixel_size_um(project: Project, block: ImportedBlock, image, path: Path) ->
     return size, pixel_um
 
 
-def read(files, project: Project, options: ImportOptions) -> ImportedBlock:
+def read(files, project: Project, options: ImportSettings) -> ImportedBlock:
     """The ``opensfm`` importer (see the module docstring)."""
     if len(files) != 1:
         raise InputError(f"opensfm expects one reconstruction.json, got {len(files)} files")

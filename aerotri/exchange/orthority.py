@@ -40,7 +40,7 @@ from aerotri.core.errors import CrsError, InputError
 from aerotri.core.project import Project
 from aerotri.core.textio import read_text
 from aerotri.exchange.adjusted import AdjustedBlock
-from aerotri.exchange.imported import ImportedBlock, ImportOptions, positions_as_gnss
+from aerotri.exchange.imported import ImportedBlock, ImportSettings, positions_as_gnss
 from aerotri.exchange.poses import (adjusted_orientations, horizontal_wkt, image_id_of, number,
                                     opk_orientations_to_project)
 from aerotri.geom.camera import BrownCamera, Camera, PinholeCamera
@@ -150,7 +150,7 @@ def int_param_of(camera: Camera) -> dict:
 
 # -- exterior parameters -----------------------------------------------------------------------------
 
-def _prj_crs(csv_path: Path, options: ImportOptions) -> tuple[str, str]:
+def _prj_crs(csv_path: Path, options: ImportSettings) -> tuple[str, str]:
     """(CRS text, where it came from) of an OPK CSV: its ``.prj`` sidecar, else ``--crs``."""
     prj = csv_path.with_suffix(".prj")
     if prj.is_file():
@@ -244,7 +244,7 @@ def read_ext_geojson(path: Path) -> tuple[str, list[str], np.ndarray, np.ndarray
 
 # -- the importer and the exporter ------------------------------------------------------------------
 
-def read(files: list[Path], project: Project, options: ImportOptions) -> ImportedBlock:
+def read(files: list[Path], project: Project, options: ImportSettings) -> ImportedBlock:
     """Interior YAML and/or one exterior file (OPK CSV + .prj, or GeoJSON) -> camera, orientations and
     positions in the project CRS."""
     block = ImportedBlock(source=[str(f) for f in files])

@@ -50,7 +50,7 @@ from aerotri.core.errors import InputError
 from aerotri.core.project import Project
 from aerotri.core.textio import read_text
 from aerotri.exchange.adjusted import AdjustedBlock
-from aerotri.exchange.imported import ImportedBlock, ImportOptions, positions_as_gnss, to_project_crs
+from aerotri.exchange.imported import ImportedBlock, ImportSettings, positions_as_gnss, to_project_crs
 from aerotri.exchange.poses import adjusted_orientations, number, orientations_to_project
 from aerotri.geom.camera import Camera
 from aerotri.geom.observations import CONTROL_KINDS, ControlPoints, ImageObservations
@@ -245,12 +245,12 @@ def read_cam(path: Path) -> Camera:
     return Camera.from_dict(d, source=str(path))
 
 
-def _control_sigma(project: Project, options: ImportOptions, path: Path) -> np.ndarray:
+def _control_sigma(project: Project, options: ImportSettings, path: Path) -> np.ndarray:
     if options.sigma_xyz_m:
         return np.asarray(options.sigma_xyz_m, float)
-    c = project.section("control")
-    if "sigma_xy_m" in c and "sigma_z_m" in c:
-        return np.array([c["sigma_xy_m"], c["sigma_xy_m"], c["sigma_z_m"]], float)
+    c = project.control_points
+    if c.sigma_xy_m is not None and c.sigma_z_m is not None:
+        return np.array([c.sigma_xy_m, c.sigma_xy_m, c.sigma_z_m], float)
     raise InputError(f"{path}: control points without accuracies; give --sigma-xyz SX SY SZ (m) or [control] "
                      f"sigma_xy_m, sigma_z_m in {project.config_path}")
 
@@ -316,7 +316,7 @@ def pixels_of_photo_mm(camera: Camera, xy_mm: np.ndarray) -> np.ndarray:
     return np.column_stack([x_px, y_px])
 
 
-def read(files: list[Path], project: Project, options: ImportOptions) -> ImportedBlock:
+def read(files: list[Path], project: Project, options: ImportSettings) -> ImportedBlock:
     """``.ori``, ``.cam``, ``.con``, ``.im`` files and ``numbers.txt`` (see the module docstring)."""
     by, cons = {}, []
     for f in files:

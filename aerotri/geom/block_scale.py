@@ -72,7 +72,7 @@ def project_block_scale(project, ground_heights=None, ground_source: str = "the 
     else:
         return BlockScale(None, None, None, f"{cam}; no at/eo.txt or gnss.txt")
     unit = height_unit_m(project_crs(project))
-    mean_h = project.section("flight").get("mean_terrain_height_m")
+    mean_h = project.flight.mean_terrain_height_m
     head = f"{cam}; {len(pos)} frames of {src}"
     if project.dem_path.is_file():
         return block_scale(camera, pos[:, 2], _dem_heights(project.dem_path, pos[:, 0], pos[:, 1]), unit,

@@ -323,4 +323,4 @@ def project_crs(project) -> pyproj.CRS:
 
 def project_heights(project) -> pyproj.CRS | None:
     """The height system of a project folder (``[project] heights``; None: ellipsoidal), checked."""
-    return parse_heights(project.section("project").get("heights"), f"{project.config_path} [project] heights")
+    return parse_heights(project.info.heights, f"{project.config_path} [project] heights")

@@ -18,7 +18,7 @@ import numpy as np
 
 from aerotri.core.errors import InputError
 from aerotri.geom.images import downsample, level_to_full, pyramid_level, read_gray
-from aerotri.match.settings import FeatureParams
+from aerotri.match.settings import FeatureSettings
 from aerotri.core.atomic import atomic_path
 
 
@@ -29,7 +29,7 @@ class Features:
     level: int
 
 
-def extract(img: np.ndarray, p: FeatureParams) -> Features:
+def extract(img: np.ndarray, p: FeatureSettings) -> Features:
     level = pyramid_level(img.shape[1], img.shape[0], p.max_dim_px)
     small = downsample(img, level)
     # precise upscale: OpenCV's default doubling of the image for the first octave puts every keypoint
@@ -61,11 +61,11 @@ def extract(img: np.ndarray, p: FeatureParams) -> Features:
     return Features(xy, desc, level)
 
 
-def features_cache_path(image_path: Path, cache_dir: Path, p: FeatureParams) -> Path:
+def features_cache_path(image_path: Path, cache_dir: Path, p: FeatureSettings) -> Path:
     return cache_dir / f"{image_path.stem}.{p.name}.{p.key()}.npz"
 
 
-def cached_features(image_path: Path, cache_dir: Path, p: FeatureParams, expect_size=None) -> Features:
+def cached_features(image_path: Path, cache_dir: Path, p: FeatureSettings, expect_size=None) -> Features:
     """Features of one frame, from the cache when the image file and parameters are unchanged."""
     st = image_path.stat()
     meta = {"size": st.st_size, "mtime_ns": st.st_mtime_ns}

@@ -12,7 +12,7 @@ from scipy.spatial import cKDTree
 from aerotri.geom.camera import FrameCamera
 from aerotri.match.features import Features
 from aerotri.match.pairs import PairGuide
-from aerotri.match.settings import MatchParams
+from aerotri.match.settings import PairMatchSettings
 from aerotri.core.atomic import atomic_path
 
 
@@ -70,7 +70,7 @@ def mutual_ratio_matches(da: np.ndarray, db: np.ndarray, ratio: float, chunk: in
     return np.column_stack([a[keep], b[keep]]).astype(int).reshape(-1, 2)
 
 
-def verify(xa: np.ndarray, xb: np.ndarray, camera: FrameCamera, p: MatchParams) -> np.ndarray:
+def verify(xa: np.ndarray, xb: np.ndarray, camera: FrameCamera, p: PairMatchSettings) -> np.ndarray:
     """Inlier mask of putative correspondences under an essential matrix (RANSAC)."""
     if len(xa) < max(8, p.min_inliers):
         return np.zeros(len(xa), bool)
@@ -118,7 +118,7 @@ def guided_matches(fa: Features, fb: Features, camera: FrameCamera, ratio: float
     return np.column_stack([ia[m[:, 0]], ib[m[:, 1]]]).reshape(-1, 2)
 
 
-def match_pair(fa: Features, fb: Features, camera: FrameCamera, p: MatchParams, guide: PairGuide | None = None
+def match_pair(fa: Features, fb: Features, camera: FrameCamera, p: PairMatchSettings, guide: PairGuide | None = None
                ) -> np.ndarray:
     """Verified matches of a frame pair: (M, 2) keypoint indices; ``guide``: see ``guided_matches``."""
     m = guided_matches(fa, fb, camera, p.ratio, guide)
@@ -132,11 +132,11 @@ def match_pair(fa: Features, fb: Features, camera: FrameCamera, p: MatchParams, 
     return m if len(m) >= p.min_inliers else np.zeros((0, 2), int)
 
 
-def match_cache_path(tag: str, cache_dir: Path, p: MatchParams, feature_key: str, guided: bool = False) -> Path:
+def match_cache_path(tag: str, cache_dir: Path, p: PairMatchSettings, feature_key: str, guided: bool = False) -> Path:
     return cache_dir / f"{tag}.{feature_key}.{p.key()}{'.guided' if guided else ''}.npy"
 
 
-def cached_match(tag: str, fa: Features, fb: Features, camera: FrameCamera, p: MatchParams, *, cache_dir: Path,
+def cached_match(tag: str, fa: Features, fb: Features, camera: FrameCamera, p: PairMatchSettings, *, cache_dir: Path,
                  feature_key: str, guide: PairGuide | None = None) -> np.ndarray:
     """Verified matches of a frame pair, from ``cache_dir`` when matched before with the same parameters and
     features (``feature_key``)."""

@@ -15,10 +15,10 @@ from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
 
 from aerotri.core.atomic import committed, write_text_atomic
-from aerotri.core.config import config_number, config_vector
 from aerotri.core.errors import InputError
 from aerotri.core.executor import Executor, local_executor
 from aerotri.core.project import Project
+from aerotri.core.settings import Resolved, settings_of
 from aerotri.geom.camera import FrameCamera, project_camera
 from aerotri.geom.eo import check_block_crs, read_gnss
 from aerotri.geom.images import check_frames, find_images
@@ -80,9 +80,15 @@ class MatchReport:
     phase_seconds: dict[str, list[float]]
     feature_cache_hits: int
     match_cache_hits: int
+    settings: dict = dataclasses.field(default_factory=dict)  # path -> value and source (core.settings.Resolved)
 
     def to_dict(self) -> dict:
         return dataclasses.asdict(self)
+
+    def summary_line(self) -> str:
+        return (f"frames {self.frames}  pairs {self.pairs}  tracks {self.tracks}  observations {self.observations}  "
+                f"3+ rays {100 * self.tracks_3plus_fraction:.1f} %  components {self.components}  weak models "
+                f"{len(self.weak_models)}")
 
 
 class _PhaseClock:
@@ -103,8 +109,7 @@ def _terrain_height(project: Project, s: MatchSettings, crs=None) -> float:
     mean of lidar_out/dem.tif (checked: in the project CRS ``crs``, finite heights, 2 x 2 cells or more)."""
     if s.terrain_height_m is not None:
         return float(s.terrain_height_m)
-    h = config_number(project.section("flight"), "mean_terrain_height_m", None,
-                      f"{project.root / 'project.toml'} [flight]")
+    h = project.flight.mean_terrain_height_m
     if h is not None:
         return h
     dem = project.lidar_out_dir / "dem.tif"
@@ -160,7 +165,6 @@ class _Frames:
 
 def _read_frames(project: Project, crs, camera: FrameCamera, s: MatchSettings) -> _Frames:
     """Images and GNSS positions checked against each other and the camera; the flight plan from GNSS."""
-    toml = project.root / "project.toml"
     images = find_images(project.images_dir)
     gnss = None
     if project.gnss_path.exists():
@@ -174,7 +178,7 @@ def _read_frames(project: Project, crs, camera: FrameCamera, s: MatchSettings) -
             raise InputError(f"{project.images_dir}: no image file for GNSS record(s) {', '.join(no_image[:10])} "
                              f"of {project.gnss_path}")
         ids = list(gnss.image_id)
-        lever = config_vector(project.section("gnss"), "lever_arm_m", (0.0, 0.0, 0.0), 3, f"{toml} [gnss]")
+        lever = project.gnss.lever_arm_m
     else:
         ids = sorted(images)
     if len(ids) < 2:
@@ -206,21 +210,21 @@ class _Matcher:
         self.feature_cache_hits = 0
         self.match_cache_hits = 0
 
-    def _item(self, i: int, p: F.FeatureParams) -> tuple:
+    def _item(self, i: int, p: F.FeatureSettings) -> tuple:
         return (self.images[self.ids[i]], self.cache_f, p, (self.camera.width, self.camera.height))
 
-    def extract(self, frames, p: F.FeatureParams, desc: str) -> list:
+    def extract(self, frames, p: F.FeatureSettings, desc: str) -> list:
         """Extract (or find cached) the features of the given frames, one task per frame; their cache keys."""
         items = [self._item(i, p) for i in frames]
         self.feature_cache_hits += sum(self.ex.map(_features_task, items, desc=desc, unit="frame"))
         return items
 
-    def features(self, frames, p: F.FeatureParams, desc: str) -> dict:
+    def features(self, frames, p: F.FeatureSettings, desc: str) -> dict:
         """Features of the given frames (index -> Features), extracted as one task per frame."""
         frames = list(frames)
         return {i: F.cached_features(*item) for i, item in zip(frames, self.extract(frames, p, desc))}
 
-    def match(self, pairs_ij, fp: F.FeatureParams, p: M.MatchParams, desc: str) -> list:
+    def match(self, pairs_ij, fp: F.FeatureSettings, p: M.PairMatchSettings, desc: str) -> list:
         """Verified matches of the given frame pairs, one task per pair (features read from the cache)."""
         items = [(f"{self.ids[i]}__{self.ids[j]}", self._item(i, fp), self._item(j, fp), self.camera, p, self.cache_m,
                   self.plan.guide(i, j, p.guide_margin) if self.plan is not None else None)
@@ -233,7 +237,7 @@ class _Matcher:
 def _retrieved_pairs(mt: _Matcher, s: MatchSettings) -> list[Pair]:
     """Without GNSS (e.g. a kite block): the frame pairs whose thumbnails match."""
     n = len(mt.ids)
-    thumb = F.FeatureParams(budget=1500, grid=(6, 4), max_dim_px=1000, name="thumb")
+    thumb = F.FeatureSettings(budget=1500, grid=(6, 4), max_dim_px=1000, name="thumb")
     mt.extract(range(n), thumb, "thumbnails")  # the retrieval tasks read them from the cache
     all_pairs = [(i, j) for i in range(n) for j in range(i + 1, n)]
     return [Pair(i, j, "retrieved", float(len(m)))
@@ -310,15 +314,19 @@ def _write_tiepoints(path: Path, ids: list[str], ties: _Ties) -> None:
 
 
 @committed(lambda root, *a, **k: Project(Path(root), {}).at_dir)
-def match_project(root, settings: MatchSettings | None = None, executor: Executor | None = None) -> MatchReport:
+def match_project(root, settings: MatchSettings | Resolved | None = None,
+                  executor: Executor | None = None) -> MatchReport:
     """Match the frames of a project; writes ``at/tiepoints.csv`` and the connectivity report.
 
-    Feature extraction (one task per frame) and matching (one task per pair) run on ``executor``
-    (default: local threads); the results are cached in ``work/features`` and ``work/matches``."""
-    s = settings or MatchSettings()
+    ``settings``: None reads [match] of project.toml; a ``Resolved`` (``aerotri match``, the chain) carries the
+    source of every setting into the report. Feature extraction (one task per frame) and matching (one task
+    per pair) run on ``executor`` (default: local threads); the results are cached in ``work/features`` and
+    ``work/matches``."""
     t0 = time.perf_counter()
     clock = _PhaseClock()
     project = Project.open(root)
+    resolved = settings_of(settings, MatchSettings, project)
+    s = resolved.settings
     crs = check_block_crs(project.crs, f"{project.config_path} [project] crs")
     camera = project_camera(project)
     frames = _read_frames(project, crs, camera, s)
@@ -369,7 +377,7 @@ def match_project(root, settings: MatchSettings | None = None, executor: Executo
         terrain_height_m=plan.terrain_height_m if plan is not None else None,
         image_top_deg=plan.image_top_deg if plan is not None else None,
         seconds=0.0, phase_seconds=clock.phases, feature_cache_hits=mt.feature_cache_hits,
-        match_cache_hits=mt.match_cache_hits,
+        match_cache_hits=mt.match_cache_hits, settings=resolved.record(),
     )
     if plan is not None:
         plot_block(at / "connectivity.png", plan, ties_per_pair, strength)

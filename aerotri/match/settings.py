@@ -1,8 +1,8 @@
 """Options of the tie-point stage: ``MatchSettings`` (``aerotri match``, ``[match]`` in project.toml) with
-the feature extraction (``FeatureParams``, sparse and dense) and pair matching (``MatchParams``) it uses.
+the feature extraction (``FeatureSettings``, sparse and dense) and pair matching (``PairMatchSettings``) it uses.
 
 Each dataclass is the one place of its options, defaults and allowed values (``aerotri.core.settings``);
-``FeatureParams.key()`` and ``MatchParams.key()`` name the cache files, so that changed options never
+``FeatureSettings.key()`` and ``PairMatchSettings.key()`` name the cache files, so that changed options never
 reuse results of other ones.
 """
 
@@ -11,6 +11,7 @@ from __future__ import annotations
 import dataclasses
 import hashlib
 import json
+from typing import ClassVar
 
 from aerotri.core.settings import setting
 
@@ -25,7 +26,7 @@ def _key(params, version: int | None = None) -> str:
 
 
 @dataclasses.dataclass(frozen=True)
-class FeatureParams:
+class FeatureSettings:
     """Feature extraction of one kind (``name``: the cache files' tag); the key of the cache."""
 
     budget: int = setting(6000, min=100, help="Keypoints per frame (spatially spread).")
@@ -43,7 +44,7 @@ class FeatureParams:
 
 
 @dataclasses.dataclass(frozen=True)
-class MatchParams:
+class PairMatchSettings:
     """Matching of one frame pair; the key of the cache."""
 
     ratio: float = setting(0.8, min=0.0, max=1.0, min_open=True, help="Lowe ratio test threshold.")
@@ -62,17 +63,18 @@ class MatchParams:
         return _key(self)
 
 
-def _dense_features() -> FeatureParams:
-    return FeatureParams(budget=10000, grid=(20, 12), max_dim_px=4500, contrast_threshold=0.004, name="dense")
+def _dense_features() -> FeatureSettings:
+    return FeatureSettings(budget=10000, grid=(20, 12), max_dim_px=4500, contrast_threshold=0.004, name="dense")
 
 
-@dataclasses.dataclass
+@dataclasses.dataclass(frozen=True)
 class MatchSettings:
     """Options of the tie-point stage (``aerotri match``, ``[match]`` in project.toml)."""
 
-    sparse: FeatureParams = dataclasses.field(default_factory=FeatureParams)
-    dense: FeatureParams = dataclasses.field(default_factory=_dense_features)
-    match: MatchParams = dataclasses.field(default_factory=MatchParams)
+    SECTION: ClassVar[str] = "match"
+    sparse: FeatureSettings = dataclasses.field(default_factory=FeatureSettings)
+    dense: FeatureSettings = dataclasses.field(default_factory=_dense_features)
+    match: PairMatchSettings = dataclasses.field(default_factory=PairMatchSettings)
     dense_ratio: float = setting(0.9, min=0.0, max=1.0, min_open=True,
                                  help="Lowe ratio test threshold of the densification.")
     min_overlap: float = setting(0.15, min=0.0, max=1.0, max_open=True,

@@ -30,6 +30,7 @@ from aerotri.core.textio import read_json
 from aerotri.core.project import Project
 from aerotri.core.tolerances import TERRAINS, TOLERANCE_DIR, choose_table, read_qa_config, split_key
 from aerotri.geom.block_scale import project_block_scale
+from lidarctl.vectors_settings import VectorsSettings
 
 def _json(path: Path) -> dict:
     """A stage's JSON report, {} when the stage did not run; a corrupt one names the file."""
@@ -142,10 +143,9 @@ def line_map_rows(project: Project, tol: dict) -> list:
     of the map scale and terrain class), not the one the check was made with."""
     path = project.vectors_check_path
     if not path.is_file():
-        given = project.section("vectors").get("check_json")
-        if not given:
+        path = project.settings(VectorsSettings).check_json  # relative names anchored at the project
+        if path is None:
             return []
-        path = Path(given) if Path(given).is_absolute() else project.root / given
         if not path.is_file():
             raise InputError(f"{project.config_path} [vectors] check_json: {path} not found")
     chk = _json(path)

@@ -71,7 +71,7 @@ N_SENSOR = 5  # boresight roll, pitch, heading, range offset, scan-angle scale
 
 
 @dataclasses.dataclass(frozen=True)
-class AdjustSettings:
+class StripAdjustSettings:
     """Options of ``lidarctl strips adjust`` (lengths in metres, angles in degrees)."""
 
     max_slope_deg: float = setting(60.0, min=0.0, max=85.0,
@@ -457,7 +457,7 @@ def keep_region(ss: ov.StripSet, reach_m: float, times: bool = False) -> ov.Keep
     return ov.KeepRegion(d, cn, ids, times)
 
 
-def estimate(paths, ss: ov.StripSet, model: Model, settings: AdjustSettings, read_params, crs, extra,
+def estimate(paths, ss: ov.StripSet, model: Model, settings: StripAdjustSettings, read_params, crs, extra,
              control: ctl.ControlPoints | None = None):
     """Least squares on the planes of ``ss``, then again on the strips re-read with the correction so far,
     until a step is below ``STEP_TOL_SIGMA`` standard deviations in every parameter (at most
@@ -527,8 +527,8 @@ def control_summary(cps: ctl.ControlPoints, ss: ov.StripSet, first: Observations
             "residuals": rows}
 
 
-def adjust_strips(paths, outdir, settings: AdjustSettings = AdjustSettings(),
-                  surface: ov.SurfaceParams = ov.SurfaceParams(), trajectories=(), crs=None, png: bool = True,
+def adjust_strips(paths, outdir, settings: StripAdjustSettings = StripAdjustSettings(),
+                  surface: ov.SurfaceSettings = ov.SurfaceSettings(), trajectories=(), crs=None, png: bool = True,
                   control=None) -> dict:
     """The stage: estimate, write the corrected strips and the check before and after into OUTDIR
     (``<strip files>``, ``adjust.json``, ``check_before/``, ``check_after/``). Returns the summary."""

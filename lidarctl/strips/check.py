@@ -25,7 +25,7 @@ from pathlib import Path
 import numpy as np
 
 from aerotri.core.atomic import atomic_dir, refuse_input_as_output
-from lidarctl.strips.overlap import PairDiff, StripSet, SurfaceParams, overlapping_pairs_or_error, read_strips
+from lidarctl.strips.overlap import PairDiff, StripSet, SurfaceSettings, overlapping_pairs_or_error, read_strips
 
 log = logging.getLogger(__name__)
 log.addHandler(logging.NullHandler())
@@ -120,7 +120,7 @@ class CheckResult:
     strip_set: StripSet
 
 
-def analyse(ss: StripSet, params: SurfaceParams, paths, min_cells: int = 20) -> CheckResult:
+def analyse(ss: StripSet, params: SurfaceSettings, paths, min_cells: int = 20) -> CheckResult:
     """Statistics of every overlapping pair and every strip (InputError: one strip, no overlap, no smooth
     surface)."""
     pairs, skipped = overlapping_pairs_or_error(ss, params, paths, min_cells)
@@ -152,7 +152,7 @@ def analyse(ss: StripSet, params: SurfaceParams, paths, min_cells: int = 20) -> 
     return CheckResult(summary, pairs, ss)
 
 
-def check_strips(paths, outdir, params: SurfaceParams = SurfaceParams(), crs=None, title: str = "Strip differences",
+def check_strips(paths, outdir, params: SurfaceSettings = SurfaceSettings(), crs=None, title: str = "Strip differences",
                  vmax_m: float | None = None, png: bool = True) -> dict:
     """The stage: read the strips, analyse the overlaps and write OUTDIR (see the module docstring). Returns
     the summary (with ``seconds`` and ``points_per_s``)."""

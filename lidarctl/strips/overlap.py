@@ -51,7 +51,7 @@ class NothingToCompare(InputError):
 
 
 @dataclasses.dataclass(frozen=True)
-class SurfaceParams:
+class SurfaceSettings:
     """What counts as a smooth surface (``lidarctl strips check``/``adjust`` options; lengths in metres)."""
 
     cell_m: float | None = setting(None, min=0.0, min_open=True,
@@ -294,7 +294,7 @@ class KeptPoints:
         return units.xy_to_m(c[:, 0]), units.xy_to_m(c[:, 1]), units.z_to_m(c[:, 2])
 
 
-def read_strips(paths, params: SurfaceParams = SurfaceParams(), crs=None, extra=None, correct=None,
+def read_strips(paths, params: SurfaceSettings = SurfaceSettings(), crs=None, extra=None, correct=None,
                 grid: Grid | None = None, keep: KeepRegion | None = None, z_ref: float | None = None) -> StripSet:
     """Planar cells of every strip of ``paths`` (see the module docstring).
 
@@ -476,7 +476,7 @@ def _accumulate(accs, s, chunk, x, y, z, sel, multi, ang, t, grid, z_ref, extra)
     return n
 
 
-def regrid(ss: StripSet, params: SurfaceParams, extra=None, correct=None,
+def regrid(ss: StripSet, params: SurfaceSettings, extra=None, correct=None,
            chunk_points: int = io.CHUNK_POINTS) -> StripSet:
     """The planar cells of the points ``ss.kept`` (a read with ``keep``), moved by ``correct``, on the grid and
     height reference of ``ss``: what ``read_strips`` with that correction gives at every cell whose points and
@@ -508,7 +508,7 @@ class _KeptChunk:
     gps_time: np.ndarray | None
 
 
-def _planes(source: StripSource, acc: _Accumulator, grid: Grid, params: SurfaceParams, z_ref: float) -> CellPlanes:
+def _planes(source: StripSource, acc: _Accumulator, grid: Grid, params: SurfaceSettings, z_ref: float) -> CellPlanes:
     (ids, S), (ids_all, A) = acc.reduce()
     n = S[:, 0]
     with np.errstate(invalid="ignore", divide="ignore"):
@@ -579,7 +579,7 @@ def _across_track(centroid, w, t):
     return e, c, d @ right
 
 
-def pair_diffs(ss: StripSet, params: SurfaceParams, min_cells: int = 20):
+def pair_diffs(ss: StripSet, params: SurfaceSettings, min_cells: int = 20):
     """(differences of every pair with at least ``min_cells`` common smooth cells of slope at most
     ``max_slope_deg``, {pair: reason} of the pairs left out, number of pairs that overlap at all)."""
     out, skipped, n_overlap = [], {}, 0
@@ -602,7 +602,7 @@ def pair_diffs(ss: StripSet, params: SurfaceParams, min_cells: int = 20):
     return out, skipped, n_overlap
 
 
-def overlapping_pairs_or_error(ss: StripSet, params: SurfaceParams, paths, min_cells: int = 20):
+def overlapping_pairs_or_error(ss: StripSet, params: SurfaceSettings, paths, min_cells: int = 20):
     """``pair_diffs`` with the InputErrors a check needs: fewer than two strips, no two strips overlapping,
     no smooth surface in any overlap."""
     names = ", ".join(str(p) for p in dict.fromkeys(str(p) for p in paths))

@@ -39,7 +39,7 @@ def test_deck_between_two_gaps_along_the_canal_is_a_bridge_the_strip_between_can
     x, y, z, deck, strip = bridge_scene()
     ground = np.ones(len(x), bool)
     spacing = 1 / np.sqrt(3.0)
-    p = classify.ClassifyParams()
+    p = classify.ClassifySettings()
     found = classify.bridge_decks(x, y, z, ground, np.zeros(len(x), bool), spacing, p)
     assert found[deck].mean() > 0.9
     # nothing else: not the ramps, not the quays along the canals, not the raised strip between
@@ -48,7 +48,7 @@ def test_deck_between_two_gaps_along_the_canal_is_a_bridge_the_strip_between_can
     # only ground points are judged; 0 disables the rule
     half = np.arange(len(x)) % 2 == 0
     assert not classify.bridge_decks(x, y, z, half, np.zeros(len(x), bool), spacing, p)[~half].any()
-    off = classify.ClassifyParams(bridge_max_width_m=0.0)
+    off = classify.ClassifySettings(bridge_max_width_m=0.0)
     assert not classify.bridge_decks(x, y, z, ground, np.zeros(len(x), bool), spacing, off).any()
     # a deck at quay level (a dam between two basins) is not a bridge
     flat = np.where(deck, z - 1.2, z)
@@ -106,13 +106,13 @@ def test_footbridge_left_out_by_the_ground_filter_is_a_deck_not_a_building():
     for k in (2, 3, 4):   # the house, the shed along the bank, the building between the ponds
         assert np.mean(cls[lab == k] == classify.BUILDING) > 0.95, k
     # the rule alone: without it the deck is a building (the roof rules take it), with it the others stay
-    p = classify.ClassifyParams()
+    p = classify.ClassifySettings()
     spacing = classify.grid.mean_spacing_m(x, y)
     as_built = np.where(cls == classify.BRIDGE_DECK, classify.BUILDING, cls)
     g = classify.dropout_grid(x, y, as_built == classify.BUILDING, spacing, p)
     found = classify.spanning_decks(x, y, z, as_built == classify.BUILDING, as_built == classify.GROUND, g, p)
     assert found[high].mean() > 0.9 and not found[lab > 1].any()
-    off = classify.ClassifyParams(bridge_max_width_m=0.0)
+    off = classify.ClassifySettings(bridge_max_width_m=0.0)
     assert not classify.spanning_decks(x, y, z, as_built == classify.BUILDING, as_built == classify.GROUND, g, off).any()
 
 

@@ -41,7 +41,7 @@ def test_the_registry_names_the_filters_their_presets_and_reach():
     assert ground.reach_m() == 60.0 and ground.reach_m("morph", "rural") == 50.0
     assert ground.reach_m("ptd") == 30.0 and ground.reach_m("ptd", "rural", seed_cell_m=40.0) == 60.0
     with pytest.raises(OptionError, match="expected one of morph, ptd") as e:
-        classify.ClassifyParams(ground_method="csf")
+        classify.ClassifySettings(ground_method="csf")
     assert e.value.param == "--method"
 
 
@@ -54,7 +54,7 @@ def test_a_registered_filter_runs_through_classify_file(tmp_path, monkeypatch):
                                          n_high_outliers=0)
     synthetic.write_las(tmp_path / "in.las", cloud, crs="EPSG:32632")
     stats = tiles.classify_file(tmp_path / "in.las", tmp_path / "out.las",
-                                params=classify.ClassifyParams(ground_method="lowest"))
+                                params=classify.ClassifySettings(ground_method="lowest"))
     assert stats.run.n_tiles == 1 and stats.grid.buffer_m == 5.0       # the filter's reach sets the buffer
     out = io.read_cloud(tmp_path / "out.las")
     cls = out.classification
@@ -68,20 +68,20 @@ def test_a_registered_filter_runs_through_classify_file(tmp_path, monkeypatch):
     assert set(g) <= set(lowest) and len(g) >= 0.95 * len(lowest)
     # Its preset, tiled: the buffer is the preset's reach (10 m), at most one ground point per 10 m cell.
     stats = tiles.classify_file(tmp_path / "in.las", tmp_path / "tiled.las", tile_size_m=40.0,
-                                params=classify.ClassifyParams(ground_method="lowest", preset="coarse"))
+                                params=classify.ClassifySettings(ground_method="lowest", preset="coarse"))
     assert stats.run.n_tiles == 9 and stats.grid.buffer_m == 10.0
     tiled = io.read_cloud(tmp_path / "tiled.las")
     cell10 = _cells(tiled.x, tiled.y, 10.0)[tiled.classification == 2]
     assert len(np.unique(cell10)) == len(cell10) >= 0.95 * len(np.unique(_cells(tiled.x, tiled.y, 10.0)))
     # A preset of another filter, or an unregistered filter, is refused naming the option or the key.
     with pytest.raises(OptionError, match="'lowest' ground filter has the presets coarse") as e:
-        classify.ClassifyParams(ground_method="lowest", preset="urban")
+        classify.ClassifySettings(ground_method="lowest", preset="urban")
     assert e.value.param == "--preset"
     monkeypatch.delitem(ground.GROUND_FILTERS, "lowest")
     with pytest.raises(OptionError, match="'lowest': expected one of morph, ptd"):
-        classify.ClassifyParams(ground_method="lowest")
+        classify.ClassifySettings(ground_method="lowest")
     with pytest.raises(ConfigError, match=r"\[classify\] ground_method = 'lowest': expected one of morph, ptd"):
-        from_table(classify.ClassifyParams, {"ground_method": "lowest"}, "p.toml [classify]")
+        from_table(classify.ClassifySettings, {"ground_method": "lowest"}, "p.toml [classify]")
 
 
 def _flat_terrain(rng, width_m, density, sigma_m):
@@ -172,6 +172,6 @@ def test_roof_edge_completion_follows_the_roof_plane_not_the_tree():
     x, y, z = np.r_[u, tu], np.r_[v, tv], np.r_[zr, tz]
     is_building = np.r_[u < 6.0, np.zeros(m, bool)]
     candidates = ~is_building
-    classify.roof_edge_completion(x, y, z, is_building, candidates, classify.ClassifyParams(edge_iterations=40))
+    classify.roof_edge_completion(x, y, z, is_building, candidates, classify.ClassifySettings(edge_iterations=40))
     assert np.mean(is_building[:n]) > 0.97
     assert np.mean(is_building[n:]) < 0.02

@@ -9,7 +9,7 @@ from click.testing import CliRunner
 from aerotri.core.errors import ConfigError
 from aerotri.core.settings import from_table
 from lidarctl import ground, synthetic
-from lidarctl.classify import ClassifyParams
+from lidarctl.classify import ClassifySettings
 from lidarctl.cli import main
 
 
@@ -47,11 +47,11 @@ def test_options_file_and_project_table_give_the_same_classes(cloud_file, tmp_pa
                                   str(tmp_path / "p.toml"), "--ptd-seed-cell-m", "40"])
     assert r.exit_code == 0 and "+ 60 m buffer" in r.output, r.output
     # project.toml [classify] takes the same table
-    p = from_table(ClassifyParams, {"ground_method": "ptd", "ground_params": {"seed_cell_m": 25, "max_angle_deg": 20}},
+    p = from_table(ClassifySettings, {"ground_method": "ptd", "ground_params": {"seed_cell_m": 25, "max_angle_deg": 20}},
                    "P/project.toml [classify]")
     assert p.ground_params == {"seed_cell_m": 25.0, "max_angle_deg": 20.0}
     with pytest.raises(ConfigError, match=r"project.toml \[classify\].*unknown key 'seed_cel_m'"):
-        from_table(ClassifyParams, {"ground_method": "ptd", "ground_params": {"seed_cel_m": 25}},
+        from_table(ClassifySettings, {"ground_method": "ptd", "ground_params": {"seed_cel_m": 25}},
                    "P/project.toml [classify]")
 
 

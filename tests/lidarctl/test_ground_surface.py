@@ -38,7 +38,7 @@ def test_shrubs_on_a_sparse_slope_are_not_ground():
     x, y = _jittered_grid(rng, 2.4, 160.0, 0.3)
     z = 0.4 * x + 2.0 * np.sin(y / 25.0) + rng.normal(0.0, 0.05, x.size)
     z, truth = _raise_shrubs(rng, z, 200)
-    without = ground.morphological_ground(x, y, z, ground.MorphParams(surface_neighbours=0))
+    without = ground.morphological_ground(x, y, z, ground.MorphSettings(surface_neighbours=0))
     with_test = ground.morphological_ground(x, y, z)
     shrubs_without, shrubs_with = (without & ~truth).sum(), (with_test & ~truth).sum()
     assert shrubs_without >= 50                         # the failure the test fixes (75 of 200)

@@ -83,23 +83,22 @@ def test_check_plan_recovers_the_bias_and_counts(scene):
     assert f"edges >= {res['min_edge_m']:.2f} m" in r.output
 
 
-def test_min_edge_m_option_and_its_old_spelling(scene):
-    """--min-edge-m (as lidarctl corners spells it) sets the edge in metres on a cloud in feet; the old
-    --min-edge still works with a deprecation note; both at once, or 0, stop with exit 2."""
+def test_min_edge_m_option_and_its_old_spelling_refused(scene):
+    """--min-edge-m (as lidarctl corners spells it) sets the edge in metres on a cloud in feet; the old --min-edge
+    is gone (issue 40: no compatibility layer before 1.0); it, or 0, stops with exit 2 and nothing written."""
     d, _ = scene
-    out = d / "plan_old.json"
-    r = CliRunner().invoke(main, ["check-plan", str(d / "classified.las"), str(d / "points.csv"), "--min-edge", "3",
+    out = d / "plan_m.json"
+    r = CliRunner().invoke(main, ["check-plan", str(d / "classified.las"), str(d / "points.csv"), "--min-edge-m", "3",
                                   "--json", str(out)])
     assert r.exit_code == 0, r.output
-    assert "--min-edge is deprecated, use --min-edge-m" in r.output
     assert json.loads(out.read_text())["min_edge_m"] == 3.0
     assert "edges >= 3.00 m" in r.output
-    for extra, msg in ((["--min-edge", "3", "--min-edge-m", "4"], "give one of them"), (["--min-edge-m", "0"], "0")):
+    for extra, msg in ((["--min-edge", "3"], "No such option '--min-edge'"), (["--min-edge-m", "0"], "--min-edge-m")):
         bad = d / "plan_bad.json"
         r = CliRunner().invoke(main, ["check-plan", str(d / "classified.las"), str(d / "points.csv"), *extra,
                                       "--json", str(bad)])
         assert r.exit_code == 2, r.output
-        assert "--min-edge-m" in r.output and msg in r.output
+        assert msg in r.output
         assert not bad.exists()
 
 

@@ -11,7 +11,7 @@ from rasterio.transform import from_origin
 from scipy import ndimage
 
 from lidarctl.cli import main
-from lidarctl.smooth import DiffusionParams, anisotropic_diffusion, gaussian_equivalent_sigma_px
+from lidarctl.smooth import DiffusionSettings, anisotropic_diffusion, gaussian_equivalent_sigma_px
 
 NODATA = -9999.0
 
@@ -35,7 +35,7 @@ def test_noise_removed_and_step_kept_where_a_gaussian_blurs_it():
     away[60:100] = False  # more than 20 cells from it
     away[:10] = away[-10:] = False
     away[:, :10] = away[:, -10:] = False  # and from the raster's border, where a Gaussian reflects
-    out = anisotropic_diffusion(noisy, DiffusionParams(order=2, edge_m=0.5, iterations=20))
+    out = anisotropic_diffusion(noisy, DiffusionSettings(order=2, edge_m=0.5, iterations=20))
     before, after = _rms((noisy - true)[away]), _rms((out - true)[away])
     assert after < 0.4 * before  # at least 60 % of the noise gone away from the step
     assert _rms((out - true)[near]) < 1.1 * _rms((noisy - true)[near])  # the step is not smeared
@@ -56,14 +56,14 @@ def test_fourth_order_keeps_planes_and_creases():
     crease = (np.abs(d - 12.0) <= 3) | (np.abs(d - 19.5) <= 3)
     inner = np.zeros(true.shape, bool)
     inner[10:-10, 10:-10] = True
-    four = anisotropic_diffusion(noisy, DiffusionParams())
-    two = anisotropic_diffusion(noisy, DiffusionParams(order=2, edge_m=0.5, iterations=20))
+    four = anisotropic_diffusion(noisy, DiffusionSettings())
+    two = anisotropic_diffusion(noisy, DiffusionSettings(order=2, edge_m=0.5, iterations=20))
     assert _rms((four - true)[inner]) < 0.3 * _rms((noisy - true)[inner])
     assert _rms((four - true)[inner & crease]) < 0.75 * _rms((two - true)[inner & crease])
     # a tilted plane is a steady state, up to the border and around nodata
     plane = 0.4 * x - 0.3 * y
     plane[50:60, 50:70] = np.nan
-    for p in (DiffusionParams(iterations=50), DiffusionParams(order=2, edge_m=0.5, iterations=50)):
+    for p in (DiffusionSettings(iterations=50), DiffusionSettings(order=2, edge_m=0.5, iterations=50)):
         out = anisotropic_diffusion(plane, p)
         ok = ~np.isnan(plane)
         assert np.allclose(out[ok], plane[ok], atol=1e-9)
@@ -73,7 +73,7 @@ def test_linear_limit_is_a_gaussian():
     # far below the edge height the conductance is 1: the heat equation, a Gaussian of sqrt(2 t) cells
     z = np.zeros((81, 81))
     z[40, 40] = 1e-3
-    p = DiffusionParams(order=2, edge_m=1e3, iterations=40, step=0.2)
+    p = DiffusionSettings(order=2, edge_m=1e3, iterations=40, step=0.2)
     out = anisotropic_diffusion(z, p)
     yy, xx = np.mgrid[0:81, 0:81] - 40
     var = float((out * (xx ** 2)).sum() / out.sum())
@@ -85,7 +85,7 @@ def test_nodata_is_kept_and_not_diffused_into():
     true, noisy = _scene()
     noisy[20:30, 20:30] = np.nan
     for order in (2, 4):
-        out = anisotropic_diffusion(noisy, DiffusionParams(order=order))
+        out = anisotropic_diffusion(noisy, DiffusionSettings(order=order))
         assert np.isnan(out[20:30, 20:30]).all() and np.isfinite(out[~np.isnan(noisy)]).all()
 
 

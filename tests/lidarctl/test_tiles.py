@@ -136,7 +136,7 @@ def test_one_tile_split_equals_direct_path(big, tmp_path):
     header = las_format.read_header(d / "plain.las")
     grid = tiles.plan_tiles(header, tile_size_m=1000.0)
     assert grid.n_tiles == 1
-    params = cl.ClassifyParams()
+    params = cl.ClassifySettings()
     (task,) = tiles.split_into_tiles(d / "plain.las", grid, tmp_path, params, chunk_points=50_000)
     info = tiles.classify_tile(task)
     assert info.n_points == info.n_core == len(cloud)

@@ -18,6 +18,7 @@ from aerotri.geom.images import read_native
 from ortho.block import rectify_block
 from ortho.cli import main
 from ortho.mosaic import mosaic_block
+from ortho.settings import MosaicSettings, RectifySettings
 from ortho.synthetic import write_synthetic_project
 
 
@@ -47,7 +48,7 @@ def test_outputs_identical_on_every_scheduler(small_block, tmp_path):
         with Executor(scheduler, 2) as ex:
             index = rectify_block(root, executor=ex)
             # small tiles: several mosaic tiles and batches even on this small block
-            mosaic_block(root, tile_px=256, executor=ex)
+            mosaic_block(root, MosaicSettings(tile_px=256), executor=ex)
         assert len(index["frames"]) == 4
         digests[scheduler] = _digests(root)
     assert len(digests["synchronous"]) == 7
@@ -144,10 +145,10 @@ def test_a_resolution_far_finer_than_the_gsd_is_warned_about(small_block, tmp_pa
     handler = Collect(logging.WARNING)
     logging.getLogger("ortho").addHandler(handler)  # the CLIs' logging set-up may stop propagation
     try:
-        rectify_block(root, frames=["s01_001"], res_m=0.2 * gsd)
+        rectify_block(root, RectifySettings(res_m=0.2 * gsd), frames=["s01_001"])
         assert any("finer than half the block's ground sample distance" in m for m in messages), messages
         messages.clear()
-        rectify_block(root, frames=["s01_001"], res_m=0.8 * gsd)
+        rectify_block(root, RectifySettings(res_m=0.8 * gsd), frames=["s01_001"])
         assert not any("ground sample distance" in m for m in messages)
     finally:
         logging.getLogger("ortho").removeHandler(handler)
@@ -193,7 +194,7 @@ def test_frame_files_hold_the_library_ortho(small_block, tmp_path, compression):
     shutil.copytree(small_block, root)
     gsd = rectify_block(root, frames=["s01_002"])["res_m"]
     # finer than the GSD: a grid of several 512 px blocks and 1024 px compute tiles
-    index = rectify_block(root, frames=["s01_002"], res_m=0.55 * gsd, compression=compression)
+    index = rectify_block(root, RectifySettings(res_m=0.55 * gsd, compression=compression), frames=["s01_002"])
     grid = index_grids(index)["s01_002"]
     assert grid.width > 1024 and grid.height > 512
     cam = FrameCamera.read(root / "camera.toml")

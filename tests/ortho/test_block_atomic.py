@@ -150,7 +150,7 @@ def test_mosaic_outputs_are_committed_together(project, monkeypatch):
 
     monkeypatch.setattr(M, "_write_mosaic", broken)
     with pytest.raises(M.InputError):
-        M.mosaic_block(project, seams="voronoi")
+        M.mosaic_block(project, M.MosaicSettings(seams="voronoi"))
     assert tree(project / "ortho") == before
     assert leftovers(project / "ortho") == []
 

@@ -17,7 +17,7 @@ from click.testing import CliRunner
 
 from aerotri.adjust.pipeline import AdjustSettings, adjust_project
 from aerotri.geom.camera import FrameCamera
-from aerotri.chain.options import STAGE_SECTIONS, ChainOptions, read_stage_sections
+from aerotri.chain.options import STAGE_SECTIONS, ChainSettings, read_stage_sections
 from aerotri.cli import main as aerotri_cli
 from aerotri.core.errors import ConfigError, CrsError
 from aerotri.geom.eo import ExteriorOrientations, read_eo, write_eo
@@ -34,8 +34,8 @@ PROJECT = '[project]\nname = "t"\ncrs = "EPSG:32649"\n'
 
 # -- options ------------------------------------------------------------------------------------
 def test_defaults_are_the_stage_settings_and_values_are_read_with_their_types(tmp_path):
-    assert read_stage_sections(tomllib.loads(PROJECT), "project.toml") == ChainOptions()
-    assert ChainOptions().rasters == RasterSettings() and ChainOptions().corners == CornerSettings()
+    assert read_stage_sections(tomllib.loads(PROJECT), "project.toml") == ChainSettings()
+    assert ChainSettings().rasters == RasterSettings() and ChainSettings().corners == CornerSettings()
     cfg = tomllib.loads(PROJECT + """
 [corners]
 roof = "any"
@@ -62,7 +62,7 @@ res_m = 0.25
     assert o.control.tol_px == 0.9 and o.control.layout.min_frames == 2 and o.control.layout.height_every_strips == 3
     assert o.match.sparse.budget == 800 and o.match.sparse.max_dim_px == 3000 and o.match.dense.budget == 10000
     assert o.rectify.dem == tmp_path / "../dem.tif" and o.rectify.res_m == 0.25
-    assert o.mosaic == ChainOptions().mosaic
+    assert o.mosaic == ChainSettings().mosaic
 
 
 @pytest.mark.parametrize("extra, expected", [
@@ -97,7 +97,7 @@ def test_the_command_line_and_project_toml_refuse_the_same_values(tmp_path):
     assert r.exit_code == 2 and "0.2" in r.stderr and "--min-edge-m" in r.stderr
     r = CliRunner().invoke(lidarctl_cli, ["corners", str(tmp_path / "x.las"), str(tmp_path), "--roof", "pointy"])
     assert r.exit_code == 2 and "'pointy' is not one of 'flat', 'any'" in r.stderr
-    assert set(STAGE_SECTIONS) == {"strips", "classify", "rasters", "corners", "vectors", "match", "adjust", "control", "rectify", "mosaic"}
+    assert set(STAGE_SECTIONS) == {"strips", "classify", "rasters", "corners", "vectors", "match", "adjust", "control", "rectify", "mosaic", "dom_check"}
 
 
 @pytest.mark.parametrize("preset", ["tiny", "demo", "dmc"])
@@ -185,7 +185,8 @@ def test_control_and_rectify_after_an_adjustment_without_self_calibration(tiny_p
     p = tmp_path / "p"
     shutil.copytree(tiny_project, p, ignore=shutil.ignore_patterns("lidar"))
     run = CliRunner()
-    for args in (["match", str(p)], ["adjust", str(p), "--no-control"]):
+    # the tiny preset's [adjust] self-calibrates: the command line turns it off
+    for args in (["match", str(p)], ["adjust", str(p), "--no-control", "--self-cal", ""]):
         r = run.invoke(aerotri_cli, args, catch_exceptions=False)
         assert r.exit_code == 0, r.output
     assert json.loads((p / "at" / "report.json").read_text())["self_calibration"] is None
@@ -263,7 +264,7 @@ def test_camera_with_k3_is_adjusted_with_k3_held_fixed(tmp_path):
 
 
 def test_demo_simulates_again_when_the_project_lacks_the_preset_options(tmp_path):
-    from aerotri.chain.cli import _stale_simulation
+    from aerotri.chain.run import stale_simulation as _stale_simulation
     from aerotri.sim.config import stage_sections_toml
 
     cfg = load_preset("demo")

@@ -51,9 +51,8 @@ def run_readme_chain(p: Path, self_cal: bool, start: str | None = None, stop: st
         commands = commands[[" ".join(a[:2]) for a in commands].index(start):]
         no_control = not (p / "lidar_out" / "corners.csv").is_file()  # what lidarctl corners said before
     for args in commands:
-        if not self_cal and "--self-cal" in args:
-            i = args.index("--self-cal")
-            args = args[:i] + args[i + 2:]
+        if not self_cal and args[:2] == ["aerotri", "adjust"]:
+            args = args + ["--self-cal", ""]  # project.toml [adjust] self-calibrates; the command line turns it off
         if no_control and args[:2] == ["aerotri", "control"]:
             continue
         if no_control and "--gnss-correction" in args:

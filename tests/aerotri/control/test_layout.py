@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 
 from aerotri.geom.camera import FrameCamera
-from aerotri.control.layout import LayoutRule, candidate_tiers, select_control, strips_of_block
+from aerotri.control.layout import LayoutSettings, candidate_tiers, select_control, strips_of_block
 from aerotri.geom.rotation import rotation_matrix_opk
 
 CAM = FrameCamera(focal_mm=120.0, pixel_um=96.0, width=1728, height=960)  # long side across track
@@ -51,7 +51,7 @@ def test_full_points_at_strip_edges_every_five_baselines_and_height_points_in_th
     n = frames_seeing(xy, 310.0, centres, Rs)
     keep = n >= 2
     xy, score, n = xy[keep], score[keep], n[keep]
-    kind, targets, base = select_control(xy, score, n, CAM, centres, Rs, 310.0, rule=LayoutRule(), strip=strip)
+    kind, targets, base = select_control(xy, score, n, CAM, centres, Rs, 310.0, rule=LayoutSettings(), strip=strip)
     # strip length 9 baselines, triple overlap from frame 2 to 9 = 7 baselines -> 2 positions per line;
     # 4 lines (2 outer edges, 2 side overlaps) -> 8 full points; 1 group of 3 strips -> 1 height point
     assert sum(t.kind == "full" for t in targets) == 8
@@ -103,7 +103,7 @@ def test_a_target_without_a_usable_corner_falls_back_in_order_and_keeps_the_othe
         tier = candidate_tiers(n, primary, roof, 3)
         tier[~keep] = -1
         return select_control(xy, score, n, CAM, centres, Rs, 310.0, strip=strip, tier=tier, check=primary,
-                              rule=LayoutRule(fallback=fallback))
+                              rule=LayoutSettings(fallback=fallback))
 
     keep = np.ones(len(xy), bool)
     kind_off, t_off, _ = select(keep, fallback=False)

@@ -14,7 +14,7 @@ import pytest
 
 from aerotri.control.corners import LidarCorners
 from aerotri.control.pipeline import output_texts, run_control, summary, transfer_control
-from aerotri.control.settings import ControlSettings, LayoutRule
+from aerotri.control.settings import ControlSettings, LayoutSettings
 from aerotri.core.errors import InputError
 from aerotri.geom.camera import FrameCamera
 from aerotri.geom.eo import ExteriorOrientations, write_eo
@@ -161,7 +161,7 @@ def test_an_empty_layout_target_measures_fallback_corners_and_says_why_when_it_s
     c = corners(z_error_m=1.5, far=True)
     c.usable[:] = False
     c.usable[0] = True
-    res = transfer_control(c, CAM, EO, frames, ControlSettings(layout=LayoutRule(search_radius_baselines=2.0)))
+    res = transfer_control(c, CAM, EO, frames, ControlSettings(layout=LayoutSettings(search_radius_baselines=2.0)))
     sm = summary(res)
     # C1 fails the LiDAR check, so every target was empty: C2-C4 (not usable) were measured and fill three
     assert res.rays[0].reason == "lidar_mismatch"
@@ -178,13 +178,13 @@ def test_an_empty_layout_target_measures_fallback_corners_and_says_why_when_it_s
     assert [c["fallback"] for c in rep["corners"]] == [False, True, True, True]
     assert sum(t["empty_reason"] is not None for t in rep["layout_targets"]) == 1
 
-    off = transfer_control(c, CAM, EO, frames, ControlSettings(layout=LayoutRule(search_radius_baselines=2.0,
-                                                                                  fallback=False)))
+    off = transfer_control(c, CAM, EO, frames, ControlSettings(layout=LayoutSettings(search_radius_baselines=2.0,
+                                                                                     fallback=False)))
     assert sorted(off.rays) == [0] and all(t.corner is None for t in off.targets)
     assert off.targets[0].empty_reason == ("2 LiDAR corners within 12.0 m: 1 rejected by consistency (lidar "
                                            "mismatch); 1 not measured (not marked usable; fallback off)")
     # out of reach: the nearest corner is named
-    near = transfer_control(c, CAM, EO, frames, ControlSettings(layout=LayoutRule(search_radius_baselines=0.2)))
+    near = transfer_control(c, CAM, EO, frames, ControlSettings(layout=LayoutSettings(search_radius_baselines=0.2)))
     assert re.fullmatch(r"no LiDAR roof corner within 1\.2 m of the target \(nearest \d+\.\d m away\)",
                         near.targets[0].empty_reason)
 

@@ -12,7 +12,7 @@ from click.testing import CliRunner
 from aerotri.cli import main as aerotri_cli
 from aerotri.core.errors import CrsError, InputError
 from aerotri.core.project import Project
-from aerotri.exchange import ImportOptions, export_project, import_files
+from aerotri.exchange import ImportSettings, export_project, import_files
 from aerotri.exchange.adjusted import read_adjusted_block
 from aerotri.exchange.colmap import _quat_wxyz
 from aerotri.geom.camera import adjusted_camera, read_camera
@@ -103,7 +103,7 @@ def test_foreign_model_in_map_coordinates(tiny_project, tmp_path, fresh_project)
     _foreign_model(tmp_path / "m", centre, opk)
     with pytest.raises(CrsError, match="world frame is unknown"):
         import_files(root, "colmap", [tmp_path / "m"])
-    import_files(root, "colmap", [tmp_path / "m"], ImportOptions(crs=Project.open(root).crs))
+    import_files(root, "colmap", [tmp_path / "m"], ImportSettings(crs=Project.open(root).crs))
     eo = read_eo(root / "imported" / "eo.txt")
     assert eo.image_id == ["IMG_0007"]
     assert np.abs(eo.centre_m[0] - centre).max() < 1e-4 and np.abs(eo.opk_deg[0] - opk).max() < 1e-6
@@ -133,7 +133,7 @@ def test_bad_text_model(tiny_project, tmp_path, cameras, images, match, fresh_pr
     (m / "cameras.txt").write_text(cameras or "1 PINHOLE 10 10 100 100 5 5\n")
     (m / "images.txt").write_text(images or "1 1 0 0 0 0 0 0 1 a.jpg\n\n")
     with pytest.raises(InputError, match=match):
-        import_files(root, "colmap", [m], ImportOptions(crs=Project.open(root).crs))
+        import_files(root, "colmap", [m], ImportSettings(crs=Project.open(root).crs))
     assert not (root / "imported").exists()
 
 
@@ -173,7 +173,7 @@ def test_foreign_model_in_geocentric_coordinates(adjusted_tiny, tmp_path, fresh_
         lines += [f"{i + 1} {' '.join(f'{v:.15f}' for v in q)} {' '.join(f'{v:.6f}' for v in t)} 1 {iid}.tif", ""]
     (m / "images.txt").write_text("\n".join(lines) + "\n")
     dst = fresh_project(root, tmp_path / "p")
-    import_files(dst, "colmap", [m], ImportOptions(crs="EPSG:4978"))
+    import_files(dst, "colmap", [m], ImportSettings(crs="EPSG:4978"))
     back = read_eo(dst / "imported" / "eo.txt")
     assert back.image_id == eo.image_id
     assert np.abs(back.centre_m - eo.centre_m).max() < 1e-3

@@ -13,7 +13,7 @@ from click.testing import CliRunner
 
 from aerotri.cli import main as aerotri_cli
 from aerotri.core.errors import InputError
-from aerotri.exchange import ImportOptions, import_files
+from aerotri.exchange import ImportSettings, import_files
 from aerotri.exchange.exif import opk_from_gimbal, read_frame_metadata
 from aerotri.geom.camera import read_camera
 from aerotri.geom.eo import read_eo, read_gnss
@@ -119,7 +119,7 @@ def test_brighton_exif_positions_and_nominal_camera(shared_data, tmp_path):
 
     data = shared_data / "brighton_beach"
     root = _project(tmp_path, "EPSG:32615")
-    import_files(root, "exif", [data / "images"], ImportOptions(sigma_xyz_m=(3.0, 3.0, 5.0)))
+    import_files(root, "exif", [data / "images"], ImportSettings(sigma_xyz_m=(3.0, 3.0, 5.0)))
     g = read_gnss(root / "gnss.txt")
     rows = {r["image"].rsplit(".", 1)[0]: r for r in csv.DictReader(open(data / "exif_positions.csv"))}
     assert g.image_id == sorted(rows)

@@ -12,7 +12,7 @@ from click.testing import CliRunner
 
 from aerotri.cli import main as aerotri_cli
 from aerotri.core.errors import CrsError, InputError, OptionError
-from aerotri.exchange import ImportOptions, export_project, import_files
+from aerotri.exchange import ImportSettings, export_project, import_files
 from aerotri.exchange.adjusted import read_adjusted_block
 from aerotri.geom.observations import read_control_points, read_image_points
 
@@ -90,12 +90,12 @@ def test_copr_kite_gcp_list_imported(shared_data, tmp_path):
     root = _fresh(tmp_path, crs="EPSG:32611")
     with pytest.raises(InputError, match=r"gcp_list.txt:25: points 'gcp04' and 'gcp00' are measured 1.1 px apart in "
                                          r"frame 'IMG_0031' \(lines 6 and 25\)"):
-        import_files(root, "odm", [path], ImportOptions(sigma_xyz_m=(0.3, 0.3, 5.0)))
+        import_files(root, "odm", [path], ImportSettings(sigma_xyz_m=(0.3, 0.3, 5.0)))
     assert not (root / "control").exists()
     lines = path.read_text().splitlines()
     fixed = tmp_path / "gcp_list.txt"
     fixed.write_text("\n".join(ln for ln in lines if not ("IMG_0031.jpg" in ln and ln.rstrip().endswith("gcp04"))) + "\n")
-    import_files(root, "odm", [fixed], ImportOptions(sigma_xyz_m=(0.3, 0.3, 5.0)))
+    import_files(root, "odm", [fixed], ImportSettings(sigma_xyz_m=(0.3, 0.3, 5.0)))
     rows = [ln.split("\t") for ln in fixed.read_text().splitlines()[1:] if ln.strip()]
     c = read_control_points(root / "control" / "points.csv")
     o = read_image_points(root / "control" / "image_points.csv")
@@ -139,7 +139,7 @@ def test_crs_lines_and_unnamed_points(tmp_path):
     f.write_text("# made by hand\nWGS84 UTM 11N\n235269.88 3811198.11 12.5 10 20 a.jpg\n"
                  "235269.88 3811198.11 12.5 30 40 b.jpg\n235262.54 3811203.5 NaN 50 60 a.jpg\n")
     root = _fresh(tmp_path, crs="EPSG:32611")
-    import_files(root, "odm", [f], ImportOptions(sigma_xyz_m=(0.1, 0.1, 0.2)))
+    import_files(root, "odm", [f], ImportSettings(sigma_xyz_m=(0.1, 0.1, 0.2)))
     c = read_control_points(root / "control" / "points.csv")
     assert list(c.id) == ["gcp1", "gcp2"] and list(c.kind) == ["full", "horizontal"]
     assert np.allclose(c.xyz_m[0], [235269.88, 3811198.11, 12.5])
@@ -165,7 +165,7 @@ def test_bad_gcp_lists_are_refused(tmp_path, text, error, message):
     f.write_text(text)
     root = _fresh(tmp_path, crs="EPSG:32611")
     with pytest.raises(error, match=message):
-        import_files(root, "odm", [f], ImportOptions(sigma_xyz_m=(0.1, 0.1, 0.2)))
+        import_files(root, "odm", [f], ImportSettings(sigma_xyz_m=(0.1, 0.1, 0.2)))
     assert not (root / "control").exists()
 
 

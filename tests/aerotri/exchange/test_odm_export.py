@@ -15,7 +15,7 @@ from scipy.spatial.transform import Rotation
 
 from aerotri.cli import main as aerotri_cli
 from aerotri.core.project import Project
-from aerotri.exchange import ImportOptions, export_project, import_files, opensfm
+from aerotri.exchange import ImportSettings, export_project, import_files, opensfm
 from aerotri.exchange.adjusted import read_adjusted_block
 from aerotri.geom.camera import adjusted_camera, read_camera
 from aerotri.geom.eo import read_eo
@@ -100,7 +100,7 @@ def test_round_trip_through_the_opensfm_import(exported, tmp_path, fresh_project
     root, odm, _ = exported
     p = Project.open(root)
     dst = fresh_project(root, tmp_path / "p")
-    block = opensfm.read([odm / "opensfm" / "reconstruction.json"], Project.open(dst), ImportOptions())
+    block = opensfm.read([odm / "opensfm" / "reconstruction.json"], Project.open(dst), ImportSettings())
     eo = read_eo(p.eo_path)
     assert block.eo.image_id == eo.image_id
     assert np.abs(block.eo.centre_m - eo.centre_m).max() < 1e-6
@@ -216,7 +216,7 @@ def test_tuniu_imported_and_written_again(shared_data, tmp_path):
         seen = (d[:, 2] > 0) & (np.hypot(d[:, 0], d[:, 1]) < r_max * d[:, 2])
         assert seen.sum() > 500 and np.abs(u1 - u0)[seen].max() < 1e-3  # measured 0.0006 px
     # in memory (before eo.txt rounds): 1e-6 m and 1e-6 degrees
-    block = opensfm.read([src], project, ImportOptions())
+    block = opensfm.read([src], project, ImportSettings())
     again = opensfm.reconstruction(block.eo, block.camera, project, orig["reference_lla"])
     for sid, s0 in orig["shots"].items():
         s1 = again["shots"][sid]

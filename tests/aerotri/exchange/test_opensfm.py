@@ -151,8 +151,8 @@ def test_bad_reconstructions_are_refused(tmp_path, change, message):
 
 
 def test_unknown_reference_crs_is_refused(tmp_path):
-    from aerotri.exchange import ImportOptions
+    from aerotri.exchange import ImportSettings
 
     root = _project(tmp_path)
     with pytest.raises(InputError):
-        import_files(root, "opensfm", [_recon(tmp_path)], ImportOptions(crs="EPSG:99999"))
+        import_files(root, "opensfm", [_recon(tmp_path)], ImportSettings(crs="EPSG:99999"))

@@ -16,7 +16,7 @@ from click.testing import CliRunner
 from aerotri.cli import main as aerotri_cli
 from aerotri.core.errors import CrsError, InputError
 from aerotri.core.project import Project
-from aerotri.exchange import ImportOptions, export_project, import_files
+from aerotri.exchange import ImportSettings, export_project, import_files
 from aerotri.geom.camera import adjusted_camera, read_camera
 from aerotri.geom.eo import read_eo, read_gnss
 
@@ -35,7 +35,7 @@ def test_round_trip_through_an_adjusted_project(adjusted_tiny, tmp_path, fresh_p
     for ext, as_gnss in (("ext_param.csv", False), ("ext_param.geojson", True)):
         dst = fresh_project(root, tmp_path / ext)
         import_files(dst, "orthority", [out / "orthority" / "int_param.yaml", out / "orthority" / ext],
-                     ImportOptions(as_gnss=as_gnss, sigma_xyz_m=(0.1, 0.1, 0.2)))
+                     ImportSettings(as_gnss=as_gnss, sigma_xyz_m=(0.1, 0.1, 0.2)))
         q = Project.open(dst)
         back = read_eo(q.imported_eo_path)
         assert back.image_id == eo.image_id
@@ -126,7 +126,7 @@ def test_crs_is_required_and_checked(tiny_project, tmp_path, fresh_project):
         import_files(root, "orthority", [f])
     (tmp_path / "ext.prj").unlink()
     # --crs instead of the sidecar; the project's CRS -> no change
-    import_files(root, "orthority", [f], options=ImportOptions(crs=Project.open(root).crs))
+    import_files(root, "orthority", [f], options=ImportSettings(crs=Project.open(root).crs))
     eo = read_eo(root / "imported" / "eo.txt")
     assert np.allclose(eo.centre_m, [[500100.0, 4100200.0, 900.0]]) and np.allclose(eo.opk_deg, [[0.5, -0.3, 90.0]])
 

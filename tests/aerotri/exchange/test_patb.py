@@ -13,7 +13,7 @@ from click.testing import CliRunner
 from aerotri.cli import main as aerotri_cli
 from aerotri.core.errors import InputError
 from aerotri.core.project import Project
-from aerotri.exchange import ImportOptions, export_project, import_files
+from aerotri.exchange import ImportSettings, export_project, import_files
 from aerotri.exchange.adjusted import read_adjusted_block
 from aerotri.exchange.patb import photo_coordinates_mm
 from aerotri.geom.camera import adjusted_camera, read_camera
@@ -44,8 +44,8 @@ def test_round_trip(exported, tmp_path, fresh_project):
     con = read_control_points(dst / "control" / "points.csv")
     assert list(con.id) == list(blk.control_id) and list(con.kind) == list(blk.control_kind)
     assert np.abs(con.xyz_m - blk.control_xyz_m).max() < 1e-4
-    sig = Project.open(root).section("control")
-    assert np.allclose(con.sigma_m, [sig["sigma_xy_m"], sig["sigma_xy_m"], sig["sigma_z_m"]])
+    sig = Project.open(root).control_points
+    assert np.allclose(con.sigma_m, [sig.sigma_xy_m, sig.sigma_xy_m, sig.sigma_z_m])
     # the control points' measurements, back in pixels: the .im keeps 0.1 um = 0.008 px at 12 um
     obs = read_image_points(dst / "control" / "image_points.csv")
     mine = {(blk.point_id[j], blk.image_id[i]): blk.obs_xy_px[k]
@@ -60,7 +60,7 @@ def test_ori_alone_with_explicit_crs(exported, tmp_path, fresh_project):
     the same operation as orthority's, tested there)."""
     root, patb = exported
     dst = fresh_project(root, tmp_path / "p")
-    import_files(dst, "patb", [patb / "block.ori", patb / "numbers.txt"], ImportOptions(crs=Project.open(root).crs))
+    import_files(dst, "patb", [patb / "block.ori", patb / "numbers.txt"], ImportSettings(crs=Project.open(root).crs))
     assert np.abs(read_eo(dst / "imported" / "eo.txt").centre_m - read_eo(Project.open(root).eo_path).centre_m).max() < 1e-4
 
 
@@ -89,7 +89,7 @@ def test_bad_input(tiny_project, tmp_path, name, text, match, fresh_project):
         (tmp_path / "c.con").write_text("g1 500000 4100000 10\n-99\n")
         extra = [tmp_path / "c.con"]
     with pytest.raises(InputError, match=match):
-        import_files(root, "patb", [f] + extra, ImportOptions(sigma_xyz_m=(0.02, 0.02, 0.03)))
+        import_files(root, "patb", [f] + extra, ImportSettings(sigma_xyz_m=(0.02, 0.02, 0.03)))
     assert not (root / "imported").exists() and not (root / "control").exists()
 
 

@@ -12,7 +12,7 @@ from scipy.spatial import cKDTree
 
 from aerotri.core.errors import InputError
 from aerotri.match.features import cached_features, extract, features_cache_path
-from aerotri.match.settings import FeatureParams
+from aerotri.match.settings import FeatureSettings
 
 
 def texture(h: int, w: int, seed: int = 1) -> np.ndarray:
@@ -27,7 +27,7 @@ def test_budget_is_spread_over_the_grid():
     """The left half is strongly textured, the right half weakly: every cell still gets its share."""
     img = texture(240, 320)
     img[:, 160:] = (128 + (img[:, 160:].astype(int) - 128) // 6).astype(np.uint8)
-    p = FeatureParams(budget=192, grid=(4, 3), max_dim_px=1000)
+    p = FeatureSettings(budget=192, grid=(4, 3), max_dim_px=1000)
     f = extract(img, p)
     assert f.level == 0 and len(f.xy_px) <= p.budget
     col = np.minimum((f.xy_px[:, 0] * 4 / 320).astype(int), 3)
@@ -39,7 +39,7 @@ def test_budget_is_spread_over_the_grid():
 
 
 def test_rootsift_descriptors_are_unit_vectors():
-    f = extract(texture(160, 200), FeatureParams(budget=300, grid=(2, 2)))
+    f = extract(texture(160, 200), FeatureSettings(budget=300, grid=(2, 2)))
     assert f.descriptors.dtype == np.float32 and f.descriptors.shape == (len(f.xy_px), 128)
     assert np.all(f.descriptors >= 0)
     np.testing.assert_allclose(np.linalg.norm(f.descriptors, axis=1), 1.0, atol=1e-3)
@@ -52,7 +52,7 @@ def test_pyramid_level_keypoints_are_in_full_resolution_pixels():
     shift = (40, 24)  # multiples of 4: the same pixels on level 2
     moved = np.zeros_like(img)
     moved[shift[1]:, shift[0]:] = img[:-shift[1], :-shift[0]]
-    p = FeatureParams(budget=400, grid=(2, 2), max_dim_px=200)
+    p = FeatureSettings(budget=400, grid=(2, 2), max_dim_px=200)
     fa, fb = extract(img, p), extract(moved, p)
     assert fa.level == fb.level == 2
     assert fa.xy_px[:, 0].max() > 600 and fa.xy_px[:, 1].max() > 450  # full-resolution coordinates
@@ -67,7 +67,7 @@ def test_pyramid_level_keypoints_are_in_full_resolution_pixels():
 def test_cache_is_reused_until_the_image_changes(tmp_path):
     path = tmp_path / "f.png"
     cv2.imwrite(str(path), texture(120, 160))
-    p = FeatureParams(budget=200, grid=(2, 2))
+    p = FeatureSettings(budget=200, grid=(2, 2))
     first = cached_features(path, tmp_path / "cache", p, (160, 120))
     cache = features_cache_path(path, tmp_path / "cache", p)
     assert cache.is_file()
@@ -75,7 +75,7 @@ def test_cache_is_reused_until_the_image_changes(tmp_path):
     again = cached_features(path, tmp_path / "cache", p, (160, 120))
     assert cache.stat().st_mtime_ns == stamp and np.array_equal(again.xy_px, first.xy_px)
     # other parameters: another cache file
-    assert features_cache_path(path, tmp_path / "cache", FeatureParams(budget=300)) != cache
+    assert features_cache_path(path, tmp_path / "cache", FeatureSettings(budget=300)) != cache
     # a changed image is extracted again
     cv2.imwrite(str(path), texture(120, 160, seed=9))
     os.utime(path, ns=(stamp + 10**9, stamp + 10**9))
@@ -87,7 +87,7 @@ def test_a_blank_frame_is_refused_by_name(tmp_path):
     path = tmp_path / "blank.png"
     cv2.imwrite(str(path), np.full((120, 160), 90, np.uint8))
     with pytest.raises(InputError, match="blank.png: no image features"):
-        cached_features(path, tmp_path / "cache", FeatureParams(), (160, 120))
+        cached_features(path, tmp_path / "cache", FeatureSettings(), (160, 120))
     assert not (tmp_path / "cache").exists() or not any((tmp_path / "cache").iterdir())  # nothing cached
 
 
@@ -98,7 +98,7 @@ def test_keypoints_sit_on_the_image_content(max_dim_px, level):
     control (measured without it) would then show as plan errors flipping with the flight direction.
     801 x 601 px: the pyramid levels (up to 3) of the turned copy sample the same pixels."""
     img = cv2.resize(texture(150, 200, seed=5), (801, 601), interpolation=cv2.INTER_CUBIC)
-    p = FeatureParams(budget=600, grid=(3, 3), max_dim_px=max_dim_px)
+    p = FeatureSettings(budget=600, grid=(3, 3), max_dim_px=max_dim_px)
     fa, fb = extract(img, p), extract(img[::-1, ::-1].copy(), p)
     assert fa.level == fb.level == level
     back = np.array([800.0, 600.0]) - fb.xy_px  # the turned copy's keypoints in the image's pixels

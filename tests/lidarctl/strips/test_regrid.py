@@ -10,7 +10,7 @@ from lidarctl.strips import adjust as adj
 from lidarctl.strips import overlap as ov
 from lidarctl.strips import trajectory as tj
 
-PARAMS = ov.SurfaceParams(max_slope_deg=60.0)
+PARAMS = ov.SurfaceSettings(max_slope_deg=60.0)
 
 
 def _shared(ss: ov.StripSet) -> dict:
