@@ -318,7 +318,7 @@ def cached_relative_orientation(work_dir: Path, ties_path: Path, ties: ImageObse
         except (OSError, KeyError, ValueError) as exc:  # a damaged cache is made again
             log.debug(f"{path}: not read ({exc}); orienting again")
     rel = relative_orientation(ties, camera, image_ids, seed, scratch_parent=path.parent)
-    with atomic_path(path) as tmp:
+    with _outliving_the_command(path), atomic_path(path) as tmp:
         with open(tmp, "wb") as f:
             np.savez(f, key=np.array(key), all_images=np.array(sorted(image_ids)), image_id=np.array(rel.image_id),
                      centre=rel.centre, R_cv=rel.R_cv, cal=rel.cal, points=rel.points,
@@ -530,10 +530,20 @@ def image_approximations(work_dir: Path, ties_path: Path, ties: ImageObservation
         datum = georeference(rel, control, control_obs, camera, frame, seed)
     except NoDatum as exc:
         path = Path(work_dir) / "relative" / "eo_local.txt"
-        _write_local(path, rel)
+        with _outliving_the_command(path):
+            _write_local(path, rel)
         raise NoDatum(f"{exc}. The images alone are oriented in a local frame (arbitrary origin, scale and "
                       f"orientation; z along the tie points' mean plane normal): {path}") from None
     return ImageApproximations(exterior_orientations(rel, datum, frame), datum, rel, frame)
+
+
+def _outliving_the_command(path: Path):
+    """A commit of its own for a file of ``work/relative/`` (the cache, the local-frame orientations): kept when
+    the command that writes it fails afterwards, where the command's other outputs are rolled back."""
+    from aerotri.core.atomic import commit_outputs
+
+    path.parent.mkdir(parents=True, exist_ok=True)
+    return commit_outputs(path.parent, join=False)
 
 
 def _write_local(path: Path, rel: RelativeBlock) -> None:

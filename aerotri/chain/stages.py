@@ -539,10 +539,10 @@ class Chain:
         export_project(root)  # PATB and COLMAP, read back from at/
         out = adjustment_numbers(rep)
         notes = notes + list(rep.get("datum") or [])  # no GNSS: what the datum rests on
-        if settings.leave_one_out:
+        if settings.settings.leave_one_out:
             from aerotri.adjust.leave_one_out import run_leave_one_out
 
-            loo = run_leave_one_out(root, settings, full=ba)
+            loo = run_leave_one_out(root, settings.settings, full=ba)
             out["loo_rms_xy_m"] = round(loo.rms_xy_m, 3)
             out["control_scatter_xy_m"] = round(loo.scatter.rms_xy_dof_m, 3)
         if notes:
