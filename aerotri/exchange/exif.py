@@ -340,14 +340,15 @@ def image_files(files) -> list[Path]:
 
 def read(files, project: Project, options: ImportSettings) -> ImportedBlock:
     """The ``exif`` importer: GNSS positions (with RTK accuracies), the camera and the gimbal attitudes of
-    image files or folders."""
+    image files or folders; frames of which none has a position give the camera alone."""
     paths = image_files(files)
     metas = [read_frame_metadata(p) for p in paths]
     block = ImportedBlock(source=[str(p) for p in paths])
     without = [m.path.name for m in metas if None in (m.lat_deg, m.lon_deg, m.alt_m)]
-    if without:
+    if without and len(without) < len(metas):  # some with, some without: which frames is the user's to decide
         raise InputError(f"{metas[0].path.parent}: no GNSS position (EXIF GPS or DJI XMP) in {', '.join(without[:5])}"
-                         + (f" and {len(without) - 5} more" if len(without) > 5 else ""))
+                         + (f" and {len(without) - 5} more" if len(without) > 5 else "")
+                         + f" of {len(metas)} frames; import the frames with positions, or none of them")
     # one camera: the first frame's; every frame must be of its size and calibration
     cam, notes = camera_from_metadata(metas[0])
     for m in metas[1:]:
@@ -357,6 +358,10 @@ def read(files, project: Project, options: ImportSettings) -> ImportedBlock:
                              f"each camera's frames into their own project")
     block.camera = cam
     block.notes += notes
+    if without:  # a kite, balloon or old camera block: the camera alone (docs/blocks-without-gnss.md)
+        block.notes.append(f"positions: none of the {len(metas)} frames has a GNSS position (EXIF GPS or DJI XMP): "
+                           "the camera only; the block is oriented from its images and control points")
+        return block
     crs = options.crs or DEFAULT_CRS
     lla = np.array([[m.lon_deg, m.lat_deg, m.alt_m] for m in metas])
     xyz = to_project_crs(lla, crs, project, f"{metas[0].path.parent} (positions, {crs})")

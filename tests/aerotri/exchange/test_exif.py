@@ -190,7 +190,6 @@ def test_synthetic_frames_read_back(tmp_path):
     (dict(GOOD, GpsLatitude="north"), "GpsLatitude = 'north' is not a number"),
     (dict(GOOD, GpsLatitude="95.0"), "latitude 95.0 is outside"),
     (dict(GOOD, RtkStdHgt="0"), "must be positive"),
-    ({k: v for k, v in GOOD.items() if not k.startswith(("Gps", "Abs"))}, "no GNSS position"),
 ])
 def test_bad_tags_are_refused_naming_file_and_tag(tmp_path, change, message):
     root = _project(tmp_path, "EPSG:32651")
@@ -199,6 +198,26 @@ def test_bad_tags_are_refused_naming_file_and_tag(tmp_path, change, message):
     with pytest.raises(InputError, match=message) as e:
         import_files(root, "exif", [f])
     assert "x.tif" in str(e.value)
+    assert sorted(p.name for p in root.rglob("*")) == before
+
+
+NO_GNSS = {k: v for k, v in GOOD.items() if not k.startswith(("Gps", "Abs"))}
+
+
+def test_frames_without_gnss_give_the_camera_alone(tmp_path):
+    """A kite block (no frame has a position): camera.toml and nothing else, and the import says so; frames
+    with and without positions mixed are refused naming those without."""
+    root = _project(tmp_path, "EPSG:32651")
+    a, b = _frame(tmp_path / "a.tif", EXIF, NO_GNSS), _frame(tmp_path / "b.tif", EXIF, NO_GNSS)
+    r = CliRunner().invoke(aerotri_cli, ["import", str(root), "--format", "exif", str(a), str(b)])
+    assert r.exit_code == 0, r.output
+    assert "none of the 2 frames has a GNSS position" in r.output
+    assert (root / "camera.toml").is_file()
+    assert not (root / "gnss.txt").exists() and not (root / "imported" / "eo.txt").exists()
+    c = _frame(tmp_path / "c.tif", EXIF, GOOD)
+    before = sorted(p.name for p in root.rglob("*"))
+    with pytest.raises(InputError, match=r"no GNSS position \(EXIF GPS or DJI XMP\) in a.tif, b.tif of 3 frames"):
+        import_files(root, "exif", [a, b, c], overwrite=True)
     assert sorted(p.name for p in root.rglob("*")) == before
 
 
