@@ -85,5 +85,10 @@ def init(project, images_dir, crs, camera_path, copy):
                + (f", camera.toml from {r.camera_source}" if r.camera_source else ""))
     if r.camera_missing:
         log.warning(r.camera_missing)
-    click.echo("next: gnss.txt (image_id X Y Z [sX sY sZ] in the project CRS; drone frames with GNSS in EXIF: "
-               f"aerotri import {r.root} --format exif {r.root / 'images'}), then aerotri run {r.root}")
+    if r.exif_gnss:
+        click.echo(f"next: aerotri import {r.root} --format exif {r.root / 'images'} (the frames' GNSS positions into "
+                   f"gnss.txt), then aerotri run {r.root}")
+    else:
+        click.echo("next: gnss.txt (image_id X Y Z [sX sY sZ] in the project CRS), or, for a block without GNSS, "
+                   f"control points (aerotri import {r.root} --format odm gcp_list.txt; docs/blocks-without-gnss.md); "
+                   f"then aerotri run {r.root}")

@@ -86,6 +86,17 @@ class InitResult:
     camera_source: str | None  # where camera.toml came from; None: not written
     camera_missing: str | None  # what to write into camera.toml when it was not written
     notes: tuple[str, ...] = ()
+    exif_gnss: bool = False  # the first frame's EXIF/XMP carries a GNSS position (aerotri import --format exif)
+
+
+def _exif_gnss(path: Path) -> bool:
+    from aerotri.exchange.exif import read_frame_metadata
+
+    try:
+        m = read_frame_metadata(path)
+    except InputError:
+        return False
+    return None not in (m.lat_deg, m.lon_deg, m.alt_m)
 
 
 def _frames(images_dir: Path) -> dict[str, Path]:
@@ -171,7 +182,8 @@ def init_project(root, images_dir, crs: str, camera_path=None, copy: bool = Fals
         (tmp / "project.toml").write_text(toml, encoding="utf-8")
         if camera_text is not None:
             (tmp / "camera.toml").write_text(camera_text, encoding="utf-8")
-    return InitResult(root, len(frames), not copy, camera_source, camera_missing, tuple(notes))
+    return InitResult(root, len(frames), not copy, camera_source, camera_missing, tuple(notes),
+                      _exif_gnss(next(iter(frames.values()))))
 
 
 def _inside(path: Path, folder: Path) -> bool:
