@@ -26,20 +26,9 @@ from aerotri.core.tolerances import SCALE_TABLES, STANDARDS, TERRAINS
 def report(project, standard, map_scale, horizontal_class_cm, vertical_class_cm, terrain, tolerances, pdf):
     """LiDAR, control, adjustment and DOM accuracy against the block's tolerance table (named with why it
     was chosen; docs/tolerances.md): reports/index.html, reports/summary.json (and reports/report.pdf)."""
-    from aerotri.qa.report import write_qa_report
+    from aerotri.qa.report import console_summary, write_qa_report
 
     # an option not given is None: [qa] of project.toml decides, else the block's GSD and platform
     rep = write_qa_report(project, tolerances, terrain, map_scale, pdf, standard, horizontal_class_cm,
                           vertical_class_cm)
-    t = rep["table"]
-    click.echo(f"tolerances: {t['name']} ({t['file']}); chosen because {t['reason']}")
-    if t["unconfirmed"]:
-        click.echo(f"  limits not confirmed in their source (marked *): {', '.join(t['unconfirmed'])}")
-    for r in rep["checks"]:
-        if r["verdict"]:
-            star = "*" if r.get("limit_confirmed") is False and r["limit"] is not None else ""
-            click.echo(f"  {r['verdict']:<5} {r['section']}: {r['quantity']} = {r['value']} {r['unit']} "
-                       f"(limit {r['limit']}{star})")
-    verdict = rep["overall"] or "no verdict (no quantity with a tolerance yet)"
-    click.echo(f"{rep['html']}: {verdict} ({rep['passed']} passed, {rep['failed']} failed; "
-               f"{rep['map_scale']} {rep['terrain']})")
+    click.echo(console_summary(rep))
