@@ -658,6 +658,21 @@ def C(id, prog, args, expect, setup=None, caches=()):
 
 
 CASES = [
+    # --- aerotri init and settings
+    C("init_images_missing", "aerotri", "init {w}/new --images {w}/nope --crs EPSG:32649", "nope"),
+    C("init_images_empty", "aerotri", "init {w}/new --images {w}/empty --crs EPSG:32649", ["empty", "no images"],
+      lambda w: (w / "empty").mkdir()),
+    C("init_crs_geographic", "aerotri", "init {w}/new --images {p}/images --crs EPSG:4326", "--crs"),
+    C("init_crs_unknown", "aerotri", "init {w}/new --images {p}/images --crs EPSG:999999", "--crs"),
+    C("init_into_a_project", "aerotri", "init {p} --images {p}/images --crs EPSG:32649", ["exists", "not an empty"]),
+    C("init_camera_wrong_size", "aerotri", "init {w}/new --images {p}/images --crs EPSG:32649 --camera {w}/cam.toml",
+      "cam.toml", lambda w: (w / "cam.toml").write_text(_text(w / "p/camera.toml").replace("width = 432", "width = 400"))),
+    C("settings_not_a_project", "aerotri", "settings {w}/nope", "nope"),
+    C("settings_unknown_key", "aerotri", "settings {p}", ["project.toml", "nosuch"],
+      toml_set("p/project.toml", "adjust", "nosuch", "1")),
+    C("settings_bad_value", "aerotri", "settings {p}", ["project.toml", "image_sigma_px"],
+      toml_set("p/project.toml", "adjust", "image_sigma_px", '"abc"')),
+
     # --- aerotri sim
     C("sim_unknown_preset", "aerotri", "sim --preset nosuch {w}/out", "nosuch"),
     C("sim_preset_bad_toml", "aerotri", "sim --preset {w}/bad.toml {w}/out", "bad.toml", write("bad.toml", "[preset\n")),
