@@ -28,15 +28,14 @@ import logging
 import math
 import os
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 import rasterio
 from pyproj import CRS
 
-from aerotri.geom.camera import FrameCamera, adjusted_camera, project_camera
 from aerotri.geom.eo import ExteriorOrientations, read_eo
 from aerotri.core.errors import InputError
-from aerotri.geom.images import check_frames, find_images, image_layout, read_native
 from aerotri.core.project import Project
 from aerotri.core.settings import Resolved, settings_of
 from aerotri.geom.rotation import rotation_matrix_opk
@@ -51,6 +50,11 @@ from ortho.dem import dem_height_operation, height_range, open_height_raster, re
 from ortho.grid import GridToProject, OrthoGrid, nice_resolution, parse_crs, resolve_output_crs
 from ortho.rectify import border_pixels, frame_grid, rectify_frame
 from ortho.settings import FRAME_COMPRESSION, RectifySettings
+
+# the camera and image readers (aerotri.geom.camera compiles its lens model with numba: 0.3 CPU-s to import)
+# are imported by the functions that need them: ``ortho mosaic`` and ``ortho check`` read the index here
+if TYPE_CHECKING:
+    from aerotri.geom.camera import FrameCamera
 
 _log = logging.getLogger(__name__)
 
@@ -82,6 +86,8 @@ class BlockInputs:
 
 def load_block(root, eo_path=None, camera_path=None, frames=None) -> BlockInputs:
     """Open a project and check that every selected image has an EO (InputError naming what is missing)."""
+    from aerotri.geom.images import check_frames, find_images
+
     project = Project.open(root)
     camera, camera_source = block_camera(project, eo_path, camera_path)
     eo_given = eo_path is not None
@@ -142,6 +148,8 @@ def block_camera(project: Project, eo_path=None, camera_path=None) -> tuple[Fram
     """(camera, source) the frames are rectified with: ``camera_path`` when given, else the self-calibrated
     camera of the last adjustment for the project's own at/eo.txt (its orientations belong to it), else
     (an EO file given with --eo) the nominal camera.toml."""
+    from aerotri.geom.camera import FrameCamera, adjusted_camera, project_camera
+
     if camera_path:
         return FrameCamera.read(camera_path), str(camera_path)
     if eo_path is None:
@@ -267,6 +275,8 @@ def rectify_frame_task(task: FrameTask) -> dict:
         with open_height_raster(task.dsm_path, project_crs, "DSM") as dsm_ds, _raster_read(task.dsm_path, "DSM"):
             heights = read_height_window(dsm_ds, ground_bounds, margin_m=4 * dsm_ds.transform.a, what="DSM",
                                          frame=task.image_id, height_operation=height_op)
+    from aerotri.geom.images import read_native
+
     image, band_order = read_native(task.image_path, (task.camera.width, task.camera.height))
     valid_fraction = rectify_frame_to_file(task.out_path, image, band_order, task.camera, C, R, heights, grid,
                                            task.interpolation, to_project,
@@ -404,6 +414,8 @@ def check_frame_sizes(block: BlockInputs, eo_idx: dict, zlo: float, zhi: float, 
     grid (footprint between the lowest and highest DEM height; ``operation``: project -> output CRS)
     beyond a GeoTIFF's size, or the ortho and its validity mask beyond the memory (``concurrent``
     frames at a time)."""
+    from aerotri.geom.images import image_layout
+
     bands, itemsize = image_layout(next(iter(block.images.values())))
     to_output = operation.spec().build() if operation is not None else None
     worst = (0.0, "", 0.0, 0.0)
