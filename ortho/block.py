@@ -48,7 +48,7 @@ from aerotri.geom.datum import load_height_model, load_transformation
 from aerotri.geom.transform import CrsTransformer, OperationSpec
 from ortho.dem import dem_height_operation, height_range, open_height_raster, read_height_window
 from ortho.grid import GridToProject, OrthoGrid, nice_resolution, parse_crs, resolve_output_crs
-from ortho.rectify import border_pixels, frame_grid, rectify_frame
+from ortho.rectify import WINDOWED_FRAME_BYTES, FrameFile, border_pixels, frame_grid, rectify_frame
 from ortho.settings import FRAME_COMPRESSION, RectifySettings
 
 # the camera and image readers (aerotri.geom.camera compiles its lens model with numba: 0.3 CPU-s to import)
@@ -216,19 +216,23 @@ def rectify_frame_to_file(path, image, band_order, camera, C, R, heights, grid, 
     from rasterio.windows import Window
 
     bands = 1 if image.ndim == 2 else image.shape[2]
-    with atomic_path(path) as tmp, rasterio.Env(GDAL_TIFF_INTERNAL_MASK=True):
+    # GDAL's block cache bounded: a frame read by windows (``FrameFile``) decodes its blocks into it
+    with atomic_path(path) as tmp, rasterio.Env(GDAL_TIFF_INTERNAL_MASK=True, GDAL_CACHEMAX=256):
         with rasterio.open(tmp, "w", **frame_profile(grid, bands, image.dtype.name, compression=compression)) as dst:
             if tags:
                 dst.update_tags(**tags)
+
+            valid = [0]
 
             def sink(r0, c0, o, m):
                 w = Window(c0, r0, m.shape[1], m.shape[0])
                 dst.write(o, window=w, indexes=band_order)
                 dst.write_mask(m, window=w)
+                valid[0] += int(np.count_nonzero(m))
 
-            _, mask = rectify_frame(image, camera, C, R, heights, grid, interpolation, to_project,
-                                    occlusion_dsm=occlusion_dsm, sink=sink, sink_bands_first=True, threads=threads)
-    return np.count_nonzero(mask) / float(mask.size)
+            rectify_frame(image, camera, C, R, heights, grid, interpolation, to_project, occlusion_dsm=occlusion_dsm,
+                          sink=sink, sink_bands_first=True, threads=threads)
+    return valid[0] / float(grid.width * grid.height)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -255,6 +259,21 @@ class FrameTask:
     height_operation: OperationSpec | None = None  # DEM/DSM heights -> the project's height system
 
 
+def _frame_image(path, expect_size):
+    """The frame and the band (1-based, R, G, B order) of each of its channels: decoded or mapped in memory
+    (``read_native``), or, decoded larger than ``WINDOWED_FRAME_BYTES``, a ``FrameFile`` the tiles read by
+    windows (a full-size DMC frame: memory set by the tiles, not by its 637 MB)."""
+    from aerotri.geom.images import read_native
+
+    with rasterio.open(path) as ds:
+        decoded = ds.width * ds.height * ds.count * np.dtype(ds.dtypes[0]).itemsize
+        size = (ds.width, ds.height)
+    if decoded > WINDOWED_FRAME_BYTES and size == tuple(expect_size):
+        frame = FrameFile(path)
+        return frame, frame.band_order
+    return read_native(path, expect_size)
+
+
 def rectify_frame_task(task: FrameTask) -> dict:
     """Rectify one frame into ``task.out_path`` (atomic); returns its index.json entry."""
     project_crs = CRS.from_wkt(task.project_crs_wkt)
@@ -275,15 +294,15 @@ def rectify_frame_task(task: FrameTask) -> dict:
         with open_height_raster(task.dsm_path, project_crs, "DSM") as dsm_ds, _raster_read(task.dsm_path, "DSM"):
             heights = read_height_window(dsm_ds, ground_bounds, margin_m=4 * dsm_ds.transform.a, what="DSM",
                                          frame=task.image_id, height_operation=height_op)
-    from aerotri.geom.images import read_native
-
-    image, band_order = read_native(task.image_path, (task.camera.width, task.camera.height))
+    image, band_order = _frame_image(task.image_path, (task.camera.width, task.camera.height))
     valid_fraction = rectify_frame_to_file(task.out_path, image, band_order, task.camera, C, R, heights, grid,
                                            task.interpolation, to_project,
                                            occlusion_dsm=heights if task.dsm_path else None,
                                            compression=task.compression, threads=task.threads,
                                            tags=operation_tags(to_project.record(),
                                                                height_op.record() if height_op else None))
+    if isinstance(image, FrameFile):
+        image.close()
     del image
     nadir_x, nadir_y = to_project.to_output(np.array([C[0]]), np.array([C[1]]))
     return {

@@ -255,19 +255,74 @@ def ordered_thread_map(fn, items, threads: int, ahead: int | None = None):
                 f.cancel()
 
 
+# frames decoded larger than this are read by windows, tile by tile (a 13,824 x 7,680 px DMC frame of 16-bit
+# samples holds 637 MB in RGB, 850 MB in RGBN; two frames at a time on two workers)
+WINDOWED_FRAME_BYTES = 256 * 2 ** 20
+# source pixels read beyond the positions a tile samples: the interpolation kernel's reach, and one more
+_KERNEL_PAD_PX = {"nearest": 1, "bilinear": 2, "cubic": 3, "lanczos": 5}
+
+
+class FrameFile:
+    """A frame read by windows from its file (GDAL, every thread its own handle), for ``rectify_frame``:
+    memory follows the tiles, not the frame. Channels in the file's band order; ``shape`` and ``dtype``
+    as the decoded frame would have them (rows, cols[, bands])."""
+
+    def __init__(self, path):
+        import rasterio
+
+        self.path = str(path)
+        with rasterio.open(self.path) as ds:
+            self.shape = (ds.height, ds.width) + ((ds.count,) if ds.count > 1 else ())
+            self.dtype = np.dtype(ds.dtypes[0])
+        self.ndim = len(self.shape)
+        self._local = threading.local()
+        self._open = []
+        self._lock = threading.Lock()
+
+    @property
+    def band_order(self) -> list[int]:
+        return list(range(1, (self.shape[2] if self.ndim == 3 else 1) + 1))
+
+    def read(self, x0: int, x1: int, y0: int, y1: int) -> np.ndarray:
+        """Columns x0..x1, rows y0..y1 (end exclusive, inside the frame) as (rows, cols[, bands])."""
+        import rasterio
+        from rasterio.windows import Window
+
+        ds = getattr(self._local, "ds", None)
+        if ds is None:
+            try:
+                ds = self._local.ds = rasterio.open(self.path)
+            except rasterio.errors.RasterioIOError as exc:
+                raise InputError(f"{self.path}: cannot read the frame ({exc})") from None
+            with self._lock:
+                self._open.append(ds)
+        try:
+            a = ds.read(window=Window(x0, y0, x1 - x0, y1 - y0))
+        except rasterio.errors.RasterioIOError as exc:
+            raise InputError(f"{self.path}: cannot read the frame (truncated or corrupt? {exc})") from None
+        return np.ascontiguousarray(np.moveaxis(a, 0, -1)) if self.ndim == 3 else a[0]
+
+    def close(self) -> None:
+        with self._lock:
+            for ds in self._open:
+                ds.close()
+            self._open.clear()
+
+
 def rectify_frame(image: np.ndarray, camera: Camera, centre_m, R, dem_dataset: HeightRaster, grid: OrthoGrid,
                   interpolation: str = "bilinear", to_project: GridToProject | None = None,
                   occlusion_dsm: HeightRaster | None = None, tile_px: int = 1024, sink=None, threads: int | None = None,
                   sink_bands_first: bool = False):
     """Orthorectify one frame onto ``grid``; returns (ortho (H, W[, bands]) of image dtype, mask uint8 255/0).
 
-    ``image`` is (rows, cols[, bands]) in the camera's pixel convention; ``centre_m`` and ``R``
+    ``image`` is (rows, cols[, bands]) in the camera's pixel convention, in memory, or a ``FrameFile``
+    read by windows as the tiles need them (the same ortho, memory set by the tiles); ``centre_m`` and ``R``
     (camera -> object, omega-phi-kappa) are in the project CRS, as is ``dem_dataset`` (a
     HeightRaster; the DSM for a true ortho). ``to_project`` maps the grid CRS to the project CRS
     (default: identical). With ``occlusion_dsm`` pixels hidden by the DSM are masked (true ortho).
     With ``sink(row0, col0, ortho_tile, mask_tile)`` the tiles are handed over in row-major order as
     they are made (e.g. written to a file, overlapping with the computation of the next tiles)
-    instead of assembled: the returned ortho is then None. With ``sink_bands_first`` the sink gets
+    instead of assembled: the returned ortho and mask are then None. With ``sink_bands_first`` the sink gets
     (bands, rows, cols) C-contiguous tiles, the layout rasterio writes without another copy (made
     here by the tile threads, not by the writer). The tiles given to the sink are reused once it
     returns: copy them if they must outlive the call.
@@ -282,12 +337,14 @@ def rectify_frame(image: np.ndarray, camera: Camera, centre_m, R, dem_dataset: H
     to_project = to_project or GridToProject(grid.crs, grid.crs)
     bands = () if image.ndim == 2 else (image.shape[2],)
     ortho = None if sink is not None else np.zeros((grid.height, grid.width) + bands, dtype=image.dtype)
-    mask = np.zeros((grid.height, grid.width), dtype=np.uint8)
+    mask = None if sink is not None else np.zeros((grid.height, grid.width), dtype=np.uint8)
+    windowed = isinstance(image, FrameFile)
+    pad_px = _KERNEL_PAD_PX.get(interpolation, 5)
     wide_kernel = interpolation in ("cubic", "lanczos")
     border = cv2.BORDER_REPLICATE if wide_kernel else cv2.BORDER_CONSTANT
     nb = bands[0] if bands else 1
     # only where cv2.remap has a vectorised path that such rows miss (the others gain nothing from a copy)
-    compact_source = (flag == cv2.INTER_LINEAR and image.dtype == np.uint8 and nb <= 4
+    compact_source = (not windowed and flag == cv2.INTER_LINEAR and image.dtype == np.uint8 and nb <= 4
                       and image.strides[0] >= _REMAP_VECTOR_MAX_STEP)
     local = threading.local()
     # tile outputs handed to the consumer come from a pool and go back to it once consumed: fresh
@@ -321,10 +378,18 @@ def rectify_frame(image: np.ndarray, camera: Camera, centre_m, R, dem_dataset: H
         if not m.any():
             o[...] = 0
             return r0, c0, handle, o, m
-        src = local.window.source(image, map_int, local.bounds) if compact_source else image
+        if windowed:  # the part of the frame this tile samples, read now; the maps shifted to it
+            h_img, w_img = image.shape[:2]
+            b = local.bounds
+            x0, x1 = max(0, int(b[0]) - pad_px), min(w_img, int(b[1]) + 2 + pad_px)
+            y0, y1 = max(0, int(b[2]) - pad_px), min(h_img, int(b[3]) + 2 + pad_px)
+            src = image.read(x0, x1, y0, y1)
+            cv2.subtract(map_int, (x0, y0, 0, 0), dst=map_int)
+        else:
+            src = local.window.source(image, map_int, local.bounds) if compact_source else image
         if nb > 4:  # cv2.remap takes at most 4 channels
-            o[...] = np.moveaxis(_remap_bands(image, map_int, map_frac, flag, border), -1, 0) if sink_bands_first else \
-                _remap_bands(image, map_int, map_frac, flag, border)
+            o[...] = np.moveaxis(_remap_bands(src, map_int, map_frac, flag, border), -1, 0) if sink_bands_first else \
+                _remap_bands(src, map_int, map_frac, flag, border)
         elif sink_bands_first and nb > 1:
             pix = local.interleaved[:nb * tile.height * tile.width].reshape(tile.height, tile.width, nb)
             cv2.remap(src, map_int, map_frac, flag, dst=pix, borderMode=border, borderValue=0)
@@ -341,11 +406,11 @@ def rectify_frame(image: np.ndarray, camera: Camera, centre_m, R, dem_dataset: H
 
     tiles = [(r0, c0) for r0 in range(0, grid.height, tile_px) for c0 in range(0, grid.width, tile_px)]
     for r0, c0, handle, o, m in ordered_thread_map(tile_task, tiles, threads or default_threads()):
-        mask[r0:r0 + m.shape[0], c0:c0 + m.shape[1]] = m
         if sink is not None:
             sink(r0, c0, o, m)
         else:
             ortho[r0:r0 + m.shape[0], c0:c0 + m.shape[1]] = o
+            mask[r0:r0 + m.shape[0], c0:c0 + m.shape[1]] = m
         free.put(handle)
     return ortho, mask
 
