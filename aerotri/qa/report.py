@@ -256,7 +256,10 @@ def build_qa_report(root, tolerance_file=None, terrain: str | None = None, scale
     sec = "Aerotriangulation"
     ks = at.get("key_statistics", {})
     if ks:
-        rows.append(_check(sec, "solution successful", bool(ks.get("success")), True, "", ks.get("message", "")))
+        # the adjustment's verdict, not only "products written": a weak solution (geometry held by GNSS and priors
+        # alone, a calibration group fixed, frames left out) is not "Solution Successful" here either
+        successful = bool(ks.get("success")) and ks.get("verdict", "successful") == "successful"
+        rows.append(_check(sec, "solution successful", successful, True, "", ks.get("message", "")))
         s0_px = ks.get("sigma0_px")
         if s0_px is None and ks.get("sigma0") is not None:  # reports written before sigma0_px
             s0_px = ks["sigma0"] * at.get("options", {}).get("image_sigma_px", float("nan"))

@@ -170,3 +170,21 @@ def test_line_map_row_from_the_check_vectors_result(tmp_path):
     (p / "dlg_check.json").unlink()
     with pytest.raises(InputError, match="dlg_check.json"):
         write_qa_report(p)
+
+
+def test_a_weak_adjustment_is_not_a_successful_solution(tmp_path):
+    """The NGI block with its DEM as surface control: `aerotri adjust` said "Solution weak. Weak geometry: bending
+    sigma 0.376 m ..." and products written (success = True); the consolidated report passed "solution successful
+    = True". The row follows the adjustment's verdict."""
+    p = _project(tmp_path, [0.1, 0.1, 0.5], 0.18)
+    rep = json.loads((p / "at" / "report.json").read_text())
+    rep["key_statistics"].update(verdict="weak", message="Solution weak. Weak geometry: bending sigma 0.376 m, 3 sigma "
+                                 "above the 1.00 m height limit (determined by surface 62%, image 38%).")
+    (p / "at" / "report.json").write_text(json.dumps(rep))
+    out = write_qa_report(p)
+    row = {r["quantity"]: r for r in out["checks"]}["solution successful"]
+    assert row["value"] is False and row["verdict"] == "fail" and row["note"].startswith("Solution weak.")
+    assert out["overall"] == "fail"
+    rep["key_statistics"].update(verdict="successful", message="Solution Successful.")
+    (p / "at" / "report.json").write_text(json.dumps(rep))
+    assert write_qa_report(p)["overall"] == "pass"
