@@ -246,8 +246,10 @@ def build_qa_report(root, tolerance_file=None, terrain: str | None = None, scale
         why = "the datum comes from GNSS alone" if gnss else "no datum from control"
         rows.append(_check(sec, "control points in the adjustment", 0, None, "", f"no LiDAR control: {why}"))
     ctrl = at.get("rms_control_ground_m")
-    if ctrl and None not in ctrl:
+    # plan and height each when there is one: plan-only control (the kite block's targets) has no height RMS
+    if ctrl and None not in ctrl[:2]:
         rows.append(_check(sec, "control residuals, plan RMS", _hypot(ctrl[0], ctrl[1]), tol.get("rms_xy_m"), "m", key="rms_xy_m"))
+    if ctrl and len(ctrl) > 2 and ctrl[2] is not None:
         rows.append(_check(sec, "control residuals, height RMS", ctrl[2], tol.get("rms_z_m"), "m", key="rms_z_m"))
     if at:
         rej = at.get("rejected_control") or []

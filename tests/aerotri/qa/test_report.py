@@ -188,3 +188,16 @@ def test_a_weak_adjustment_is_not_a_successful_solution(tmp_path):
     rep["key_statistics"].update(verdict="successful", message="Solution Successful.")
     (p / "at" / "report.json").write_text(json.dumps(rep))
     assert write_qa_report(p)["overall"] == "pass"
+
+
+def test_plan_only_control_is_reported_in_plan(tmp_path):
+    """The kite block's targets are plan-only control (heights nobody measured): at/report.json has a control RMS of
+    [1.34, 0.87, None]; the report gave no control row at all. The plan row is there, no height row."""
+    p = _project(tmp_path, None, 0.18)
+    rep = json.loads((p / "at" / "report.json").read_text())
+    rep["rms_control_ground_m"] = [1.3386, 0.8739, None]
+    (p / "at" / "report.json").write_text(json.dumps(rep))
+    by = {r["quantity"]: r for r in write_qa_report(p)["checks"]}
+    plan = by["control residuals, plan RMS"]
+    assert abs(plan["value"] - (1.3386**2 + 0.8739**2) ** 0.5) < 1e-3 and plan["verdict"] == "fail"  # 1.60 m > 0.35 m
+    assert "control residuals, height RMS" not in by
