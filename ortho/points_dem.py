@@ -163,14 +163,16 @@ def default_resolution(xyz_m: np.ndarray, points_per_cell: float = 4.0) -> float
     return nice_resolution(max(math.sqrt(points_per_cell * max(area, 1e-6) / len(xyz_m)), 1e-3))
 
 
-def _footprint_bounds(root: Path, z_m: float):
-    """Bounds (x0, y0, x1, y1) of the adjusted frames' footprints on the plane at ``z_m``."""
+def _footprint_bounds(root: Path, z_lo_m: float, z_hi_m: float, margin_m: float = 0.0):
+    """Bounds (x0, y0, x1, y1) of the adjusted frames' footprints between the planes at ``z_lo_m`` and ``z_hi_m``,
+    widened by ``margin_m``."""
     from ortho.block import _plane_footprint_bounds, load_block
 
     block = load_block(root)
-    b = np.array([_plane_footprint_bounds(block.camera, block.eo.centre_m[i], block.eo.rotation(i), z_m, z_m, iid)
+    b = np.array([_plane_footprint_bounds(block.camera, block.eo.centre_m[i], block.eo.rotation(i), z_lo_m, z_hi_m, iid)
                   for i, iid in enumerate(block.eo.image_id)])
-    return float(b[:, 0].min()), float(b[:, 1].min()), float(b[:, 2].max()), float(b[:, 3].max())
+    return (float(b[:, 0].min()) - margin_m, float(b[:, 1].min()) - margin_m, float(b[:, 2].max()) + margin_m,
+            float(b[:, 3].max()) + margin_m)
 
 
 def write_points_dem(root, out=None, res_m: float | None = None, min_rays: int = 3) -> dict:
@@ -187,8 +189,12 @@ def write_points_dem(root, out=None, res_m: float | None = None, min_rays: int =
         raise InputError(f"{project.object_points_path}: {len(pts)} tie points seen in {min_rays} or more frames: too "
                          "few for a DEM")
     res = float(res_m) if res_m is not None else default_resolution(pts)
-    bounds = _footprint_bounds(project.root, float(np.median(pts[:, 2])))
-    dem = points_dem(pts, res, bounds)
+    z = float(np.median(pts[:, 2]))
+    dem = points_dem(pts, res, _footprint_bounds(project.root, z, z))
+    # Again over the footprints between the lowest and highest heights of that DEM: a frame's edge ray meets a
+    # lower ground farther out than on the median plane (Brighton: 1.2 m beyond it, where ortho rectify found no DEM)
+    lo, hi = float(np.nanmin(dem.heights_m)), float(np.nanmax(dem.heights_m))
+    dem = points_dem(pts, res, _footprint_bounds(project.root, lo, hi, margin_m=2.0 * res))
     out = Path(out) if out is not None else project.at_dir / "dem.tif"
     refuse_input_as_output(out, [project.object_points_path, project.eo_path, project.camera_path], option="--out")
     refuse_input_as_output(out.with_suffix(".json"), [project.object_points_path, project.eo_path], option="--out")

@@ -641,13 +641,16 @@ def finish(prepared: PreparedBlock, result: AdjustmentResult) -> BlockAdjustment
     state = result.state
     centre_map, opk, eo_sigma = pose_to_map(frame, state, result.pose_cov)
     eo = ExteriorOrientations(list(p.image_ids), centre_map, opk, eo_sigma)
-    pts_map = frame.to_map(state.points)
     used = np.zeros(block.n_points, dtype=bool)
     used[block.obs_point[result.obs_active]] = True
-    pts_map[~used] = np.nan
+    # only the points still observed: one whose rays were all rejected may have drifted anywhere (thousands of
+    # km, where no map projection reaches), and is not written
+    pts_map = np.full((block.n_points, 3), np.nan)
+    pts_map[used] = frame.to_map(state.points[used])
     psig = np.full((block.n_points, 3), np.nan)
     if result.point_cov is not None:
-        Jinv = np.linalg.inv(frame.jacobian_local_from_map(frame.to_map(state.points[:1]))[0])
+        ref = pts_map[used][:1] if used.any() else frame.to_map(state.centre[:1])
+        Jinv = np.linalg.inv(frame.jacobian_local_from_map(ref)[0])
         psig = np.sqrt(np.abs(np.einsum("ij,pjk,ik->pi", Jinv, result.point_cov, Jinv)))
     # check points
     check = {}

@@ -276,9 +276,14 @@ def pixel_size_mm(m: FrameMetadata, full_w: int, full_h: int) -> tuple[float, st
     if m.focal_mm and m.focal_35mm:
         diag_mm = DIAGONAL_35MM_MM * m.focal_mm / m.focal_35mm
         return diag_mm / math.hypot(full_w, full_h), FROM_35MM
-    raise InputError(f"{m.path}: no pixel size: EXIF has no focal plane resolution, the {m.make} {m.model} is not in "
-                     f"the sensor table ({SENSOR_TABLE.name}), and there is no focal length with a 35 mm equivalent "
-                     f"or DJI CalibratedFocalLength; write camera.toml yourself")
+    if not (m.make or m.model or m.focal_mm):
+        raise InputError(f"{m.path}: no camera in the EXIF (no focal length, make or model); write camera.toml "
+                         "yourself")
+    which = (f"the {m.make} {m.model} is not in the sensor table" if (m.make or m.model)
+             else "no make or model for the sensor table")
+    raise InputError(f"{m.path}: no pixel size: EXIF has no focal plane resolution, {which} ({SENSOR_TABLE.name}), "
+                     f"and there is no focal length with a 35 mm equivalent or DJI CalibratedFocalLength; write "
+                     f"camera.toml yourself")
 
 
 def camera_from_metadata(m: FrameMetadata) -> tuple[BrownCamera, list[str]]:

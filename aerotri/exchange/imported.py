@@ -176,11 +176,25 @@ def _files(project: Project, block: ImportedBlock) -> list[tuple[Path, str, Writ
     return out
 
 
+def _holds_camera(path: Path, camera: Camera | None) -> bool:
+    """True when the camera file ``path`` exists and holds ``camera`` (model and every value; the name aside)."""
+    if camera is None or not path.is_file():
+        return False
+    try:
+        there = Camera.read(path).to_dict()
+    except InputError:
+        return False
+    here = camera.to_dict()
+    there.pop("name"), here.pop("name")
+    return there == here
+
+
 def write_imported(root, block: ImportedBlock, format_name: str, overwrite: bool = False) -> list[WrittenFile]:
     """Write an imported block into a project folder (see the module docstring); returns what was written
     (the record file ``imported/imports.json`` last).
 
-    Refuses (``InputError``) to replace an existing file unless ``overwrite``, and to write onto a file the
+    Refuses (``InputError``) to replace an existing file unless ``overwrite`` (a camera.toml that holds the
+    imported camera already is kept: aerotri init wrote it from the same EXIF), and to write onto a file the
     import read. All files are written or none (an error leaves the project as it was)."""
     project = Project.open(root)
     if not block.contents():
@@ -188,6 +202,9 @@ def write_imported(root, block: ImportedBlock, format_name: str, overwrite: bool
     files = _files(project, block)
     for path, _, _ in files:
         refuse_input_as_output(path, block.source, option="FILE")
+    # camera.toml already holding this camera (aerotri init wrote it from the same EXIF) is kept, not replaced
+    kept = [p for p, _, _ in files if p == project.camera_path and _holds_camera(p, block.camera)]
+    files = [f for f in files if f[0] not in kept]
     existing = [p for p, _, _ in files if p.exists()]
     if existing and not overwrite:
         raise InputError(f"{', '.join(str(p) for p in existing)}: exists; the import would replace it "
@@ -208,6 +225,8 @@ def write_imported(root, block: ImportedBlock, format_name: str, overwrite: bool
     contents = {p: text for p, text, _ in files}
     contents[record_path] = json.dumps(record, indent=2) + "\n"
     write_together(contents)
+    for path in kept:
+        log.info(f"{path.relative_to(project.root)}: holds this camera already, kept")
     for note in block.notes:
         log.warning(note)
     log.debug(f"imported {', '.join(block.contents())} ({format_name}) from {', '.join(block.source)} into {project.root}")

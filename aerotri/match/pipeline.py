@@ -104,9 +104,10 @@ class _PhaseClock:
         self._wall, self._cpu = wall, cpu
 
 
-def _terrain_height(project: Project, s: MatchSettings, crs=None) -> float:
+def _terrain_height(project: Project, s: MatchSettings, crs=None) -> float | None:
     """The mean terrain height for the footprints: --terrain-height, [flight] mean_terrain_height_m, else the
-    mean of lidar_out/dem.tif (checked: in the project CRS ``crs``, finite heights, 2 x 2 cells or more)."""
+    mean of lidar_out/dem.tif (checked: in the project CRS ``crs``, finite heights, 2 x 2 cells or more);
+    None when none of these is there."""
     if s.terrain_height_m is not None:
         return float(s.terrain_height_m)
     h = project.flight.mean_terrain_height_m
@@ -131,8 +132,7 @@ def _terrain_height(project: Project, s: MatchSettings, crs=None) -> float:
         if v.size == 0:
             raise InputError(f"{dem}: the DEM has no valid heights")
         return float(v.mean())
-    raise InputError(f"{project.root / 'project.toml'}: no terrain height for the footprints: set [flight] "
-                     f"mean_terrain_height_m, give --terrain-height, or run lidarctl rasters first")
+    return None
 
 
 def _features_task(item) -> bool:
@@ -186,7 +186,9 @@ def _read_frames(project: Project, crs, camera: FrameCamera, s: MatchSettings) -
                          "at least 2 overlapping frames")
     terrain_m = _terrain_height(project, s, crs) if gnss is not None else None
     check_frames(images, camera, project.camera_path)
-    plan = plan_block(ids, gnss.position_m, camera, lever, terrain_m, s.image_top_deg) if gnss is not None else None
+    # GNSS without a terrain height (a drone block's EXIF import): no footprints, pairs by thumbnail retrieval
+    plan = (plan_block(ids, gnss.position_m, camera, lever, terrain_m, s.image_top_deg)
+            if gnss is not None and terrain_m is not None else None)
     return _Frames(ids, images, plan)
 
 
@@ -333,6 +335,11 @@ def match_project(root, settings: MatchSettings | Resolved | None = None,
     ids, plan = frames.ids, frames.plan
     if plan is not None:
         pairs = candidate_pairs(plan, s.min_overlap)
+    elif project.gnss_path.exists():
+        n = len(ids)
+        log.warning(f"{project.config_path}: no terrain height for the GNSS footprints ([flight] mean_terrain_height_m, "
+                    f"--terrain-height or lidar_out/dem.tif): pairs by thumbnail retrieval of all {n * (n - 1) // 2} "
+                    "pairs, no weak-model analysis or densification")
     else:
         log.info(f"{project.gnss_path} not found: pairs by thumbnail retrieval")
     mt = _Matcher(project, frames, camera, executor or local_executor())

@@ -246,8 +246,10 @@ def build_qa_report(root, tolerance_file=None, terrain: str | None = None, scale
         why = "the datum comes from GNSS alone" if gnss else "no datum from control"
         rows.append(_check(sec, "control points in the adjustment", 0, None, "", f"no LiDAR control: {why}"))
     ctrl = at.get("rms_control_ground_m")
-    if ctrl and None not in ctrl:
+    # plan and height each when there is one: plan-only control (the kite block's targets) has no height RMS
+    if ctrl and None not in ctrl[:2]:
         rows.append(_check(sec, "control residuals, plan RMS", _hypot(ctrl[0], ctrl[1]), tol.get("rms_xy_m"), "m", key="rms_xy_m"))
+    if ctrl and len(ctrl) > 2 and ctrl[2] is not None:
         rows.append(_check(sec, "control residuals, height RMS", ctrl[2], tol.get("rms_z_m"), "m", key="rms_z_m"))
     if at:
         rej = at.get("rejected_control") or []
@@ -256,7 +258,10 @@ def build_qa_report(root, tolerance_file=None, terrain: str | None = None, scale
     sec = "Aerotriangulation"
     ks = at.get("key_statistics", {})
     if ks:
-        rows.append(_check(sec, "solution successful", bool(ks.get("success")), True, "", ks.get("message", "")))
+        # the adjustment's verdict, not only "products written": a weak solution (geometry held by GNSS and priors
+        # alone, a calibration group fixed, frames left out) is not "Solution Successful" here either
+        successful = bool(ks.get("success")) and ks.get("verdict", "successful") == "successful"
+        rows.append(_check(sec, "solution successful", successful, True, "", ks.get("message", "")))
         s0_px = ks.get("sigma0_px")
         if s0_px is None and ks.get("sigma0") is not None:  # reports written before sigma0_px
             s0_px = ks["sigma0"] * at.get("options", {}).get("image_sigma_px", float("nan"))

@@ -40,3 +40,34 @@ def test_points_dem_refuses_what_it_cannot_grid():
         points_dem(np.zeros((2, 3)), 1.0)
     with pytest.raises(OptionError, match="positive"):
         points_dem(np.random.default_rng(1).uniform(0, 10, (50, 3)), 0.0)
+
+
+def test_the_dem_covers_every_frame_where_the_ground_falls_away(tiny_project, tmp_path):
+    """`ortho dem` extends the tie points' DEM to the frames' footprints so that `ortho rectify --dem at/dem.tif`
+    finds ground under every pixel. Footprints taken on the median height's plane fall short where the ground at
+    the edges lies lower (Brighton Beach: 'the DEM does not cover frame DJI_0023', 1.2 m short); here the tie points
+    cover the middle of the block and the ground falls 150 m towards its edges."""
+    import shutil
+
+    from click.testing import CliRunner
+
+    from aerotri.geom.eo import read_eo
+    from ortho.cli import main as ortho_main
+
+    p = shutil.copytree(tiny_project, tmp_path / "p", ignore=shutil.ignore_patterns("lidar", "work", "at"))
+    (p / "at").mkdir()
+    shutil.copy(p / "truth" / "eo.txt", p / "at" / "eo.txt")
+    eo = read_eo(p / "at" / "eo.txt")
+    c = eo.centre_m[:, :2].mean(axis=0)
+    half = 0.3 * np.ptp(eo.centre_m[:, :2], axis=0)
+    gx, gy = np.meshgrid(np.linspace(-1, 1, 30), np.linspace(-1, 1, 30))
+    x, y = c[0] + gx.ravel() * half[0], c[1] + gy.ravel() * half[1]
+    z = 310.0 - 150.0 * np.hypot(gx.ravel(), gy.ravel()) / np.sqrt(2.0)
+    rows = ["id,kind,x,y,z,sx_m,sy_m,sz_m,rays,rms_px"]
+    rows += [f"T{k:07d},tie,{x[k]:.3f},{y[k]:.3f},{z[k]:.3f},0.1,0.1,0.1,3,0.1" for k in range(len(x))]
+    (p / "at" / "object_points.csv").write_text("\n".join(rows) + "\n")
+    r = CliRunner().invoke(ortho_main, ["dem", str(p)])
+    assert r.exit_code == 0, r.output
+    r = CliRunner().invoke(ortho_main, ["rectify", str(p), "--dem", str(p / "at" / "dem.tif")])
+    assert r.exit_code == 0, r.output
+    assert len(list((p / "ortho" / "frames").glob("*.tif"))) == len(eo.image_id)

@@ -13,6 +13,7 @@ about the same (0.030 deg, -11.1 m).
 from __future__ import annotations
 
 import importlib.util
+import json
 import sys
 from pathlib import Path
 
@@ -145,3 +146,59 @@ def test_the_dem_as_surface_control_brings_the_orientation_to_the_national_solut
     _, xyz = ngi.read_object_points(root / "at" / "object_points.csv", "tie")
     h = ngi.height_stats(xyz[:, 2], ngi.sample_dem_bilinear(ngi_data / ngi.DEM_FILE, xyz[:, 0], xyz[:, 1]))
     assert abs(h["median_m"]) < 1.0  # within the DEM's precision (the reference orientation's: -1.5 m)
+
+
+def test_the_commands_of_a_dmc_block_with_a_dem(ngi_data, tmp_path):
+    """End to end with the commands of docs/your-own-block.md, as a user runs them on the NGI frames: init (the data
+    folder also holds dem.tif, so the frames are linked from a folder of their own; project.toml gets the heights
+    and the DEM's mean height, 411 m), the orthority import of the
+    camera and the national AT's projection centres as GNSS (--as-gnss, 0.05 m: the positions a DMC flight's
+    GNSS/IMU gives), match, adjust with the 24 m SUDEM as surface control, report. The attitudes come from the
+    images (imported/eo.txt is not read), and are checked against the national AT: measured 0.0086 deg RMS
+    (bench/eval_real_blocks.py; omega 0.004, phi 0.013, kappa 0.005), tie points 0.01 m from the DEM (median)."""
+    from click.testing import CliRunner
+
+    from aerotri.cli import main as aerotri_main
+    from aerotri.geom.eo import read_eo
+
+    def run(*args):
+        r = CliRunner().invoke(aerotri_main, [str(a) for a in args])
+        assert "Traceback" not in r.output
+        return r
+
+    frames = tmp_path / "frames"
+    frames.mkdir()
+    for f in sorted(ngi_data.glob("*_RGB.tif")):
+        (frames / f.name).symlink_to(f)
+    p = tmp_path / "ngi"
+    prj = (ngi_data / "formats" / "ngi_xyz_opk.prj").read_text().strip()
+    r = run("init", p, "--images", ngi_data, "--crs", prj)
+    assert r.exit_code == 2 and "frames of 2 sizes" in r.output and "dem" in r.output  # dem.tif is no frame
+    r = run("init", p, "--images", frames, "--crs", prj)
+    assert r.exit_code == 0, r.output
+    assert "no camera in the EXIF" in r.output and not (p / "camera.toml").exists()
+    # the DEM's heights (EGM2008) and its mean height for the footprints of the match (without it the pairs come
+    # from thumbnail retrieval, which finds neither cross-strip pair of these frames: 2 parts, OPK 0.023 deg off)
+    toml = (p / "project.toml").read_text().replace('heights = "ellipsoidal"', f'heights = "{ngi.HEIGHTS}"', 1)
+    (p / "project.toml").write_text(toml + "\n[flight]\nmean_terrain_height_m = 411.0\n")
+    r = run("import", p, "--format", "orthority", ngi_data / "formats" / "ngi_int_param.yaml",
+            ngi_data / "formats" / "ngi_xyz_opk.csv", "--as-gnss", "--sigma-xyz", "0.05", "0.05", "0.05")
+    assert r.exit_code == 0, r.output
+    assert "gnss.txt: 4 GNSS positions" in r.output and "camera.toml: 1 camera (pinhole, 640 x 1152 px)" in r.output
+    r = run("match", p)
+    assert r.exit_code == 0, r.output
+    r = run("adjust", p, "--dem", ngi_data / ngi.DEM_FILE)
+    assert r.exit_code == 0, r.output
+    ks = json.loads((p / "at" / "report.json").read_text())["key_statistics"]
+    assert ks["success"] and "height" not in ks["weak_geometry"]
+    eo = read_eo(p / "at" / "eo.txt")
+    d = ngi.opk_differences(list(eo.image_id), eo.opk_deg, eo.centre_m, ngi.read_reference(ngi_data))
+    assert d["opk_rms_diff_deg"] < 0.02  # measured 0.0086 deg
+    assert d["opk_max_abs_diff_deg"] < 0.04  # measured 0.021 deg
+    _, xyz = ngi.read_object_points(p / "at" / "object_points.csv", "tie")
+    h = ngi.height_stats(xyz[:, 2], ngi.sample_dem_bilinear(ngi_data / ngi.DEM_FILE, xyz[:, 0], xyz[:, 1]))
+    assert h["n"] > 300 and abs(h["median_m"]) < 1.0  # measured -0.01 m
+    r = run("report", p)
+    assert r.exit_code == 0, r.output
+    row = {c["quantity"]: c for c in json.loads((p / "reports" / "summary.json").read_text())["checks"]}
+    assert row["solution successful"]["value"] == (ks["verdict"] == "successful")

@@ -97,3 +97,35 @@ def test_report_limits_follow_the_project_map_scale(block_project, tmp_path):
     assert rep["parameters"]["rms_limits_m"][:3] == [0.14, 0.14, 0.8]
     assert rep["parameters"]["residual_limits_m"][:3] == [0.28, 0.28, 1.6]
     assert "Tolerances : 1:2000 hilly (cn_1to2000.toml)" in (copy / "at" / "report.txt").read_text()
+
+
+def test_a_point_without_rays_may_lie_anywhere(block_project, monkeypatch):
+    """A tie point whose every ray was rejected keeps whatever value the last solve left it, which on a weak real
+    block (Tuniu's 4 oblique frames) was thousands of kilometres away, where no map projection reaches: the
+    adjustment stopped with 'EPSG:4328 -> EPSG:32651: point 99 ... could not be transformed'. Such a point is
+    left out of the outputs (NaN), and the point precisions are still computed."""
+    import dataclasses
+
+    from aerotri.adjust import pipeline
+
+    _, root = block_project
+    seen = {}
+
+    def drifted(prepared, result):
+        block = prepared.block
+        k = next(j for j in range(block.n_points) if j not in set(block.control_point.tolist()))
+        points = result.state.points.copy()
+        points[k] = [6.4e6, 0.0, -6.4e6]  # local metres: on the far side of the earth, where UTM gives inf
+        seen["k"] = k
+        state = dataclasses.replace(result.state, points=points)
+        return finish(prepared, dataclasses.replace(result, state=state,
+                                                    obs_active=result.obs_active & (block.obs_point != k)))
+
+    finish = pipeline.finish
+    monkeypatch.setattr(pipeline, "finish", drifted)
+    ba = adjust_project(root, AdjustSettings(gnss_correction="shift", image_sigma_px=SIGMA_PX))
+    k = seen["k"]
+    assert np.isnan(ba.points_map[k]).all()
+    others = np.delete(np.arange(len(ba.points_map)), k)
+    assert np.isfinite(ba.points_map[others]).all()
+    assert np.isfinite(ba.points_sigma_map[others]).all()

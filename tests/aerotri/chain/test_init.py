@@ -60,6 +60,8 @@ def test_init_copies_with_copy_and_says_what_camera_to_write(tiny_project, tmp_p
     assert files[0].read_bytes() == (tiny_project / "images" / files[0].name).read_bytes()
     assert not (p / "camera.toml").exists()
     assert "write camera.toml" in r.stderr and "width = 432" in r.stderr and "height = 240" in r.stderr
+    # what the EXIF lacks, in words (the NGI frames said "the   is not in the sensor table": no make, no model)
+    assert "no camera in the EXIF (no focal length, make or model)" in r.stderr and "the   is" not in r.stderr
     assert "Traceback" not in r.stderr
 
 

@@ -232,3 +232,30 @@ def test_bad_input_through_the_command(tmp_path):
     assert r.exit_code == 2 and "another camera" in r.output
     r = CliRunner().invoke(aerotri_cli, ["import", str(root), "--format", "exif", str(a), "--crs", "EPSG:99999"])
     assert r.exit_code == 2 and "Traceback" not in r.output
+
+
+def test_init_then_import_as_the_init_says(tmp_path):
+    """`aerotri init` writes camera.toml from the EXIF and says to run `aerotri import --format exif` next: that
+    import keeps the same camera.toml (it is not a replacement) and writes gnss.txt; a camera.toml that differs
+    is still refused without --force."""
+    frames = tmp_path / "frames"
+    frames.mkdir()
+    for k in range(2):
+        _frame(frames / f"f{k}.tif", EXIF, dict(GOOD, GpsLatitude=f"24.68{k}"))
+    p = tmp_path / "blk"
+    r = CliRunner().invoke(aerotri_cli, ["init", str(p), "--images", str(frames), "--crs", "EPSG:32651"])
+    assert r.exit_code == 0, r.output
+    assert f"aerotri import {p} --format exif" in r.output
+    init_camera = (p / "camera.toml").read_text()
+    r = CliRunner().invoke(aerotri_cli, ["import", str(p), "--format", "exif", str(p / "images")])
+    assert r.exit_code == 0, r.output
+    assert "camera.toml: holds this camera already, kept" in r.output
+    assert (p / "camera.toml").read_text() == init_camera  # the init's file, with its comment, untouched
+    assert read_gnss(p / "gnss.txt").image_id == ["f0", "f1"]
+    # another camera in camera.toml: the import would replace it
+    (p / "camera.toml").write_text(re.sub(r"(?m)^k1 = .*$", "k1 = 0.01", init_camera))
+    (p / "gnss.txt").unlink()
+    shutil.rmtree(p / "imported")
+    r = CliRunner().invoke(aerotri_cli, ["import", str(p), "--format", "exif", str(p / "images")])
+    assert r.exit_code == 2 and r.output.startswith(f"Error: {p / 'camera.toml'}: exists; the import would replace")
+    assert not (p / "gnss.txt").exists()

@@ -169,3 +169,21 @@ def test_bad_inputs_name_the_culprit(tiny_project, tmp_path, case):
     assert res.exit_code == 2, res.output
     assert expect in res.output
     assert not (p / "at" / "tiepoints.csv").exists()
+
+
+def test_gnss_without_a_terrain_height_pairs_by_retrieval(tiny_project, tmp_path):
+    """A drone block as `aerotri import --format exif` leaves it: gnss.txt but no terrain height ([flight], a DEM):
+    the footprints cannot be placed, so the pairs come from thumbnail retrieval (as for a block without GNSS),
+    with a warning saying so and how to pair by footprints; the tie points are as true as with the footprints."""
+    import re
+
+    p = shutil.copytree(tiny_project, tmp_path / "p", ignore=shutil.ignore_patterns("at", "work"))
+    toml = (p / "project.toml").read_text()
+    (p / "project.toml").write_text(re.sub(r"(?m)^mean_terrain_height_m = .*$", "", toml))
+    assert not (p / "lidar_out" / "dem.tif").exists()
+    res = CliRunner().invoke(aerotri_main, ["match", str(p)])
+    assert res.exit_code == 0, res.output
+    assert "no terrain height for the GNSS footprints" in res.output and "thumbnail retrieval of all 15 pairs" in res.output
+    err = tie_point_errors(p)
+    assert err["observations"] > 1500
+    assert err["off_fraction"] < 0.01 and err["median_residual_px"] < 0.25

@@ -170,3 +170,34 @@ def test_line_map_row_from_the_check_vectors_result(tmp_path):
     (p / "dlg_check.json").unlink()
     with pytest.raises(InputError, match="dlg_check.json"):
         write_qa_report(p)
+
+
+def test_a_weak_adjustment_is_not_a_successful_solution(tmp_path):
+    """The NGI block with its DEM as surface control: `aerotri adjust` said "Solution weak. Weak geometry: bending
+    sigma 0.376 m ..." and products written (success = True); the consolidated report passed "solution successful
+    = True". The row follows the adjustment's verdict."""
+    p = _project(tmp_path, [0.1, 0.1, 0.5], 0.18)
+    rep = json.loads((p / "at" / "report.json").read_text())
+    rep["key_statistics"].update(verdict="weak", message="Solution weak. Weak geometry: bending sigma 0.376 m, 3 sigma "
+                                 "above the 1.00 m height limit (determined by surface 62%, image 38%).")
+    (p / "at" / "report.json").write_text(json.dumps(rep))
+    out = write_qa_report(p)
+    row = {r["quantity"]: r for r in out["checks"]}["solution successful"]
+    assert row["value"] is False and row["verdict"] == "fail" and row["note"].startswith("Solution weak.")
+    assert out["overall"] == "fail"
+    rep["key_statistics"].update(verdict="successful", message="Solution Successful.")
+    (p / "at" / "report.json").write_text(json.dumps(rep))
+    assert write_qa_report(p)["overall"] == "pass"
+
+
+def test_plan_only_control_is_reported_in_plan(tmp_path):
+    """The kite block's targets are plan-only control (heights nobody measured): at/report.json has a control RMS of
+    [1.34, 0.87, None]; the report gave no control row at all. The plan row is there, no height row."""
+    p = _project(tmp_path, None, 0.18)
+    rep = json.loads((p / "at" / "report.json").read_text())
+    rep["rms_control_ground_m"] = [1.3386, 0.8739, None]
+    (p / "at" / "report.json").write_text(json.dumps(rep))
+    by = {r["quantity"]: r for r in write_qa_report(p)["checks"]}
+    plan = by["control residuals, plan RMS"]
+    assert abs(plan["value"] - (1.3386**2 + 0.8739**2) ** 0.5) < 1e-3 and plan["verdict"] == "fail"  # 1.60 m > 0.35 m
+    assert "control residuals, height RMS" not in by
