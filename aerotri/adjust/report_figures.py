@@ -295,10 +295,13 @@ def von_gruber_map(rep: dict, min_per_area: int = 3) -> Figure | None:
         m = len(q) // 4
         corners[p["image_id"]] = q[[0, m, 2 * m, 3 * m]]
     size = np.median([np.ptp(c, axis=0).max() for c in corners.values()])
-    if len(xy) > 1:
-        d = np.hypot(*(xy[:, None, :] - xy[None, :, :]).transpose(2, 0, 1))
-        d[d == 0] = np.inf
-        shrink = min(0.85 * float(np.min(d)) / size, 1.0)
+    distinct = np.unique(xy, axis=0)
+    if len(distinct) > 1:
+        from scipy.spatial import cKDTree
+
+        # the closest pair of distinct centres (by a k-d tree: all pairwise distances grow with the frames squared)
+        d, _ = cKDTree(distinct).query(distinct, k=2)
+        shrink = min(0.85 * float(np.min(d[:, 1])) / size, 1.0)
     else:
         shrink = 1.0
     rects, vals, weak = [], [], []
@@ -348,7 +351,7 @@ def flight_map(fa: dict) -> Figure | None:
     if not frames:
         return None
     plt = _plt()
-    from matplotlib.patches import Polygon as MplPolygon
+    from matplotlib.collections import PolyCollection
 
     fp = [np.array(f["footprint"], float) for f in frames]
     o = _origin(np.vstack(fp))
@@ -356,15 +359,22 @@ def flight_map(fa: dict) -> Figure | None:
     fig, ax = plt.subplots(figsize=(10, 8))
     cmap = plt.get_cmap("tab10")
     strips = sorted({f["strip"] for f in frames})
-    for f, p in zip(frames, fp):
-        c = cmap(strips.index(f["strip"]) % 10)
-        failing = bool(f.get("fails"))
-        ax.add_patch(MplPolygon(p - o, closed=True, fill=failing, facecolor=(1, 0, 0, 0.12), edgecolor=c,
-                                lw=2.0 if f["strip"] in bad_strips else 0.9, hatch="//" if failing else None))
-        ax.plot(f["x_m"] - o[0], f["y_m"] - o[1], "+", color=c, ms=6)
-        if len(frames) <= 60:
-            ax.annotate(f["image_id"], (f["x_m"] - o[0], f["y_m"] - o[1]), fontsize=6, xytext=(3, 3),
-                        textcoords="offset points")
+    # one collection per kind of footprint and one marker layer (an artist per frame costs seconds per
+    # thousand frames)
+    colour = [cmap(strips.index(f["strip"]) % 10) for f in frames]
+    failing = np.array([bool(f.get("fails")) for f in frames])
+    for fails in (False, True):
+        sel = np.flatnonzero(failing == fails)
+        if not len(sel):
+            continue
+        ax.add_collection(PolyCollection([fp[k] - o for k in sel], closed=True, facecolors=(1, 0, 0, 0.12) if fails
+                                         else "none", edgecolors=[colour[k] for k in sel], hatch="//" if fails else None,
+                                         linewidths=[2.0 if frames[k]["strip"] in bad_strips else 0.9 for k in sel]))
+    centres = np.array([[f["x_m"], f["y_m"]] for f in frames], float) - o[:2]
+    ax.scatter(centres[:, 0], centres[:, 1], marker="+", c=colour, s=36, linewidths=1.0)
+    for f in frames if len(frames) <= 60 else []:
+        ax.annotate(f["image_id"], (f["x_m"] - o[0], f["y_m"] - o[1]), fontsize=6, xytext=(3, 3),
+                    textcoords="offset points")
     allp = np.vstack(fp) - o
     ax.set_xlim(allp[:, 0].min(), allp[:, 0].max())
     ax.set_ylim(allp[:, 1].min(), allp[:, 1].max())
