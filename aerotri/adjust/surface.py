@@ -53,7 +53,7 @@ log = logging.getLogger(__name__)
 
 @dataclasses.dataclass
 class HeightGrid:
-    """A north-up height raster in memory: ``z[row, col]`` (NaN = no height), pixel centres at
+    """A north-up height raster in memory: ``z[row, col]`` (float32 or float64, NaN = no height), pixel centres at
     ``x0 + (col + 0.5) res``, ``y0 - (row + 0.5) res``."""
 
     z: np.ndarray
@@ -69,7 +69,8 @@ class HeightGrid:
         x, y = np.asarray(x, dtype=float), np.asarray(y, dtype=float)
         shape = np.broadcast(x, y).shape
         xb, yb = np.broadcast_to(x, shape).ravel(), np.broadcast_to(y, shape).ravel()
-        z = self.z if self.z.dtype == np.float64 and self.z.flags.c_contiguous else np.ascontiguousarray(self.z, float)
+        z = self.z if self.z.dtype in (np.float32, np.float64) else self.z.astype(float)
+        z = np.ascontiguousarray(z)
         h, hx, hy = _sample_cubic(z, float(self.x0), float(self.y0), float(self.res), xb, yb)
         return h.reshape(shape), hx.reshape(shape), hy.reshape(shape)
 
@@ -143,9 +144,30 @@ def read_height_grid(path, project_crs, project_heights=None, what: str = "DEM",
             win = win.intersection(rasterio.windows.Window(0, 0, ds.width, ds.height))
         else:
             win = rasterio.windows.Window(0, 0, ds.width, ds.height)
-        a = ds.read(1, window=win, masked=True).astype(float).filled(np.nan)
-        wt = ds.window_transform(win)
-    return HeightGrid(a, float(wt.c), float(wt.f), float(t.a))
+        # heights of a float32 (or 8/16-bit) raster stay float32 (half the memory, nothing lost); a window of more
+        # than MAX_GRID_CELLS is read averaged over f x f cells, so memory stays bounded whatever the DEM
+        dtype = np.float32 if ds.dtypes[0] in ("float32", "uint8", "int8", "uint16", "int16") else np.float64
+        f = max(1, int(np.ceil(np.sqrt(win.width * win.height / MAX_GRID_CELLS))))
+        if f > 1:
+            from rasterio.enums import Resampling
+
+            shape = (max(1, int(win.height) // f), max(1, int(win.width) // f))
+            win = rasterio.windows.Window(win.col_off, win.row_off, shape[1] * f, shape[0] * f)  # whole f x f cells
+            log.warning(f"{path}: the {what} window under the block has {int(win.width)} x {int(win.height)} cells; "
+                        f"read averaged over {f} x {f} cells ({abs(t.a) * f:g} map units) to stay within "
+                        f"{MAX_GRID_CELLS // 1_000_000} M cells")
+            a = ds.read(1, window=win, masked=True, out_shape=shape, resampling=Resampling.average)
+            res = float(t.a) * f
+            wt = ds.window_transform(win)
+        else:
+            a = ds.read(1, window=win, masked=True)
+            res = float(t.a)
+            wt = ds.window_transform(win)
+        a = (a if a.dtype == dtype else a.astype(dtype)).filled(np.nan)
+    return HeightGrid(a, float(wt.c), float(wt.f), res)
+
+
+MAX_GRID_CELLS = 400_000_000  # a height raster in memory: 1.6 GB as float32
 
 
 ROOF_PLANES_FILE = "roof_planes.geojson"  # what lidarctl corners writes next to corners.csv
