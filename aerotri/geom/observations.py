@@ -222,7 +222,8 @@ def validate_references(
     for obs, path in ((ties, tie_path), (control_obs, control_obs_path)):
         if obs is None or len(obs) == 0:
             continue
-        unknown = ~np.isin(obs.image_id, list(known))
+        # a set lookup per measurement (np.isin of object arrays compares every measurement with every image)
+        unknown = ~np.fromiter(map(known.__contains__, obs.image_id.tolist()), dtype=bool, count=len(obs))
         if unknown.any():
             k = int(np.argmax(unknown))
             bad = [i for i in np.unique(obs.image_id) if i not in known]
