@@ -11,6 +11,7 @@ import json
 import logging
 import math
 import time
+import warnings
 from pathlib import Path
 
 import cv2
@@ -23,7 +24,7 @@ from rasterio.transform import from_origin
 from aerotri.geom.eo import ExteriorOrientations, GnssPositions, format_eo, write_gnss
 from aerotri.core.errors import InputError
 from aerotri.geom.rotation import rotation_matrix_opk
-from aerotri.sim import landcover, raycast, render
+from aerotri.sim import landcover, raster, raycast, render
 from aerotri.sim.config import stage_sections_toml
 from aerotri.sim.flight import block_layout, cameras_from_config, lidar_lines, plan_frames
 from aerotri.sim.lidar import las_header, las_record, pulse_chunks, scan_strip, strip_pulses, trajectory
@@ -35,17 +36,34 @@ from aerotri.core.log import track
 log = logging.getLogger(__name__)
 
 
+# Truth rasters: rows rendered and written at a time (about this many pixels, at most 512 rows).
+_BLOCK_PX = 4_000_000
+
+
+def _block_rows(width: int) -> int:
+    return int(max(16, min(512, _BLOCK_PX // max(width, 1))))
+
+
+def _compression(name: str) -> dict:
+    """GDAL creation options of a compression (``zstd`` at level 1 with the horizontal predictor: fast enough for
+    gigapixel truth rasters; ``deflate`` as before)."""
+    if name == "zstd":
+        return dict(compress="zstd", zstd_level=1, predictor=2, num_threads="ALL_CPUS")
+    return dict(compress=name)
+
+
 def _write_geotiff(path: Path, width: int, height: int, bands: int, dtype, transform, epsg: int, rows, nodata=None,
-                   block_rows: int = 512):
-    """Tiled, deflate-compressed GeoTIFF with overviews-friendly 256 px blocks, written ``block_rows`` rows at a
-    time: ``rows(r0, r1)`` gives rows r0..r1 as (r1 - r0, width[, bands]), so a raster of any size is made
-    in bounded memory."""
+                   block_rows: int | None = None, compress: str = "deflate"):
+    """Tiled, compressed GeoTIFF with overviews-friendly 256 px blocks, written ``block_rows`` rows at a time:
+    ``rows(r0, r1)`` gives rows r0..r1 as (r1 - r0, width[, bands]), so a raster of any size is made in
+    bounded memory."""
+    block_rows = block_rows or _block_rows(width)
     profile = dict(driver="GTiff", width=width, height=height, count=bands, dtype=np.dtype(dtype).name,
                    crs=f"EPSG:{epsg}", transform=transform, tiled=True, blockxsize=256, blockysize=256,
-                   compress="deflate", nodata=nodata)
+                   nodata=nodata, bigtiff="IF_SAFER", **_compression(compress))
     if bands == 3 and np.dtype(dtype) == np.uint8:
         profile["photometric"] = "RGB"
-    with rasterio.open(path, "w", **profile) as dst:
+    with rasterio.Env(GDAL_CACHEMAX=256), rasterio.open(path, "w", **profile) as dst:
         for r0 in range(0, height, block_rows):
             r1 = min(height, r0 + block_rows)
             data = rows(r0, r1)
@@ -53,11 +71,12 @@ def _write_geotiff(path: Path, width: int, height: int, bands: int, dtype, trans
             dst.write(arr.astype(dtype, copy=False), window=rasterio.windows.Window(0, r0, width, r1 - r0))
 
 
-def _open_geotiff(path: Path, width: int, height: int, dtype, transform, epsg: int, nodata=None):
+def _open_geotiff(path: Path, width: int, height: int, dtype, transform, epsg: int, nodata=None,
+                  compress: str = "deflate"):
     """A single-band GeoTIFF open for writing by windows, with ``_write_geotiff``'s layout."""
     return rasterio.open(path, "w", driver="GTiff", width=width, height=height, count=1, dtype=np.dtype(dtype).name,
                          crs=f"EPSG:{epsg}", transform=transform, tiled=True, blockxsize=256, blockysize=256,
-                         compress="deflate", nodata=nodata)
+                         nodata=nodata, bigtiff="IF_SAFER", **_compression(compress))
 
 
 def _csv(path: Path, header: list[str], rows) -> None:
@@ -140,13 +159,14 @@ def simulate(cfg: dict, outdir, force: bool = False) -> SimTruth:
     plan = plan_frames(cfg, layout, np.random.default_rng(s_flight))
     cam_true, cam_nominal = cameras_from_config(cfg["camera"])
     _check_plan(plan, scene, cfg)
+    look = raster.SceneLook(scene, texture_fine_m(cfg, cam_true))
     log.info(f"scene {layout.width_m:.0f} x {layout.height_m:.0f} m: {len(scene.buildings)} buildings, "
              f"{len(scene.tree_c)} trees, {len(scene.roads)} roads, {len(scene.ponds)} ponds, {len(scene.targets)} targets")
 
     with atomic_dir(outdir) as tmp:
         for sub in ("images", "lidar", "trajectory", "truth", "truth/lidar"):
             (tmp / sub).mkdir(parents=True, exist_ok=True)
-        gains = _render_frames(tmp / "images", cfg, scene, accel, plan, cam_true, s_frames)
+        gains = _render_frames(tmp / "images", cfg, look, plan, cam_true, s_frames)
         t_frames = time.perf_counter()
         log.info(f"rendered {len(plan.image_id)} frames of {cam_true.width} x {cam_true.height} px "
                  f"in {t_frames - t_start:.1f} s")
@@ -157,7 +177,7 @@ def simulate(cfg: dict, outdir, force: bool = False) -> SimTruth:
         corners = scene.roof_corners()
         _write_truth_corners(tmp / "truth", scene, corners, origin)
         targets = _write_check_targets(tmp / "truth", scene, accel, plan, cam_true, origin)
-        _write_truth_rasters(tmp / "truth", cfg, layout, scene, accel, origin, epsg)
+        _write_truth_rasters(tmp / "truth", cfg, layout, look, origin, epsg)
         _write_flight_acceptance(tmp / "truth", cfg, plan, cam_true, origin)
         truth = SimTruth(
             preset=cfg["preset"]["name"], seed=seed, crs=f"EPSG:{epsg}", origin_m=origin.tolist(),
@@ -185,22 +205,66 @@ def simulate(cfg: dict, outdir, force: bool = False) -> SimTruth:
     return truth
 
 
-def _render_frames(images_dir: Path, cfg: dict, scene, accel, plan, cam_true, s_frames) -> list[float]:
-    """Render, expose and write every frame (``images_dir/<image_id>.tif``); the exposure gain of each."""
+def texture_fine_m(cfg: dict, cam_true) -> float:
+    """Finest texture scale of the scene (``[render] texture_fine_m``, default the nominal GSD): the scene's
+    texture has structure down to this size, so a finer GSD sees finer ground texture."""
+    v = cfg["render"].get("texture_fine_m")
+    return float(v) if v else float(cam_true.gsd_m(cfg["flight"]["height_above_ground_m"]))
+
+
+def frame_layout(cfg: dict) -> dict:
+    """How frames are written: sample depth and TIFF layout from ``[render]`` (``bits`` 8 or 12, ``tile_px``,
+    ``compress``)."""
+    r = cfg["render"]
+    bits = int(r.get("bits", 8))
+    tile = int(r.get("tile_px", 0))
+    return dict(bits=bits, dtype="uint8" if bits == 8 else "uint16", tile_px=tile,
+                compress=str(r.get("compress", "none")) if tile else "lzw (OpenCV)")
+
+
+def _render_frames(images_dir: Path, cfg: dict, look, plan, cam_true, s_frames) -> list[float]:
+    """Render, expose and write every frame (``images_dir/<image_id>.tif``); the exposure gain of each.
+
+    Frames with ``[render] tile_px`` are written as tiled TIFFs (pixel-interleaved RGB, ``compress``) a tile row
+    at a time, so a frame of any size is made in bounded memory; others whole, by OpenCV, as before.
+    """
     rcfg = cfg["render"]
-    samples = int(rcfg["samples"])
-    pixel_rays = render.PixelRays(cam_true, samples)
+    fl = frame_layout(cfg)
+    renderer = raster.FrameRenderer(look.scene, cam_true, look.fine_m, int(rcfg["samples"]), fl["bits"], look=look)
     frame_seeds = s_frames.spawn(len(plan.image_id))
     gains = []
     for i in track(range(len(plan.image_id)), "frames"):
         frng = np.random.default_rng(frame_seeds[i])
-        R = rotation_matrix_opk(*plan.opk_deg[i])
-        rad, _ = render.render_frame(scene, accel, cam_true, plan.centre_m[i], R, samples, pixel_rays=pixel_rays)
         gain = float(np.exp(frng.normal(0.0, rcfg["exposure_sigma"])))
         gains.append(gain)
-        img = render.expose(rad, cam_true, gain, rcfg["vignetting"], rcfg["noise_dn"], frng)
-        cv2.imwrite(str(images_dir / f"{plan.image_id[i]}.tif"), img[:, :, ::-1])
+        expo = dict(gain=gain, vignetting=rcfg["vignetting"], noise_dn=rcfg["noise_dn"],
+                    noise_seed=int(frng.integers(0, 2**32)))
+        frame = renderer.setup(plan.centre_m[i], rotation_matrix_opk(*plan.opk_deg[i]))
+        path = images_dir / f"{plan.image_id[i]}.tif"
+        if fl["tile_px"]:
+            _write_tiled_frame(path, renderer, frame, expo, fl)
+        else:
+            img, _ = renderer.render_rows(frame, 0, cam_true.height, **expo)
+            cv2.imwrite(str(path), img[:, :, ::-1])
     return gains
+
+
+def _write_tiled_frame(path: Path, renderer, frame, expo: dict, fl: dict) -> None:
+    """One frame as a tiled, pixel-interleaved RGB TIFF (no georeferencing, as cameras deliver), rendered and
+    written one row of tiles at a time."""
+    cam = renderer.camera
+    tile = fl["tile_px"]
+    profile = dict(driver="GTiff", width=cam.width, height=cam.height, count=3, dtype=fl["dtype"], tiled=True,
+                   blockxsize=tile, blockysize=tile, photometric="RGB", interleave="pixel", bigtiff="IF_SAFER")
+    if fl["compress"] != "none":
+        profile.update(_compression(fl["compress"]))
+    with warnings.catch_warnings():
+        warnings.filterwarnings("ignore", category=rasterio.errors.NotGeoreferencedWarning)
+        with rasterio.Env(GDAL_CACHEMAX=256), rasterio.open(path, "w", **profile) as dst:
+            for r0 in range(0, cam.height, tile):
+                r1 = min(cam.height, r0 + tile)
+                rows, _ = renderer.render_rows(frame, r0, r1, **expo)
+                dst.write(np.moveaxis(rows, 2, 0), window=rasterio.windows.Window(0, r0, cam.width, r1 - r0))
 
 
 def lidar_plan(cfg: dict) -> dict:
@@ -327,10 +391,14 @@ def _write_check_targets(truth_dir: Path, scene, accel, plan, cam_true, origin) 
     return _CheckTargets(tgt, len(img_rows))
 
 
-def _write_truth_rasters(truth_dir: Path, cfg: dict, layout, scene, accel, origin, epsg: int) -> None:
+def _write_truth_rasters(truth_dir: Path, cfg: dict, layout, look, origin, epsg: int) -> None:
     """truth/dem.tif and truth/dsm.tif (``[truth] raster_res_m``), truth/ortho.tif (``ortho_res_m``) and on its
     grid the land-cover truth (``aerotri.sim.landcover``): truth/ortho_nir.tif (near-infrared band) and
-    truth/classes.tif (ASPRS classes building, tree, grass, road, bare ground, water; nodata 255)."""
+    truth/classes.tif (ASPRS classes building, tree, grass, road, bare ground, water; nodata 255). The surface,
+    ortho and classes are the straight-down view of the scene (``raster.ortho_render``) at pixel centres;
+    ``[truth] compress`` (default deflate)."""
+    scene = look.scene
+    compress = str(cfg["truth"].get("compress", "deflate"))
     res = cfg["truth"]["raster_res_m"]
     nx, ny = int(math.floor(layout.width_m / res)), int(math.floor(layout.height_m / res))
     xs = (np.arange(nx) + 0.5) * res
@@ -344,33 +412,34 @@ def _write_truth_rasters(truth_dir: Path, cfg: dict, layout, scene, accel, origi
         return scene.terrain_height(X, Y) + origin[2]
 
     def dsm_rows(r0, r1):
-        X, Y = grid(res, xs, r0, r1)
-        dsm, _, _ = render.vertical_render(scene, accel, X.ravel(), Y.ravel())
-        return np.nan_to_num(dsm.reshape(X.shape) + origin[2], nan=-9999.0)
+        z, _, _ = raster.ortho_render(look, 0.0, layout.height_m, res, r0, r1, nx, shade=False)
+        return z + origin[2]
 
-    _write_geotiff(truth_dir / "dem.tif", nx, ny, 1, np.float32, transform, epsg, dem_rows, nodata=-9999.0)
-    _write_geotiff(truth_dir / "dsm.tif", nx, ny, 1, np.float32, transform, epsg, dsm_rows, nodata=-9999.0)
+    _write_geotiff(truth_dir / "dem.tif", nx, ny, 1, np.float32, transform, epsg, dem_rows, nodata=-9999.0,
+                   compress=compress)
+    _write_geotiff(truth_dir / "dsm.tif", nx, ny, 1, np.float32, transform, epsg, dsm_rows, nodata=-9999.0,
+                   compress=compress)
     ores = cfg["truth"]["ortho_res_m"]
     onx, ony = int(math.floor(layout.width_m / ores)), int(math.floor(layout.height_m / ores))
     oxs = (np.arange(onx) + 0.5) * ores
 
     otransform = from_origin(origin[0], origin[1] + layout.height_m, ores, ores)
-    # The land-cover truth (extra files beside ortho.tif, from the same rays: ortho.tif is unchanged).
-    with _open_geotiff(truth_dir / "ortho_nir.tif", onx, ony, np.uint8, otransform, epsg) as nir_dst, \
-            _open_geotiff(truth_dir / "classes.tif", onx, ony, np.uint8, otransform, epsg,
-                          nodata=landcover.NODATA) as cls_dst:
+    # The land-cover truth (extra files beside ortho.tif, from the same view).
+    with rasterio.Env(GDAL_CACHEMAX=256), \
+            _open_geotiff(truth_dir / "ortho_nir.tif", onx, ony, np.uint8, otransform, epsg, compress=compress) as nir_dst, \
+            _open_geotiff(truth_dir / "classes.tif", onx, ony, np.uint8, otransform, epsg, nodata=landcover.NODATA,
+                          compress=compress) as cls_dst:
 
         def ortho_rows(r0, r1):
             OX, OY = grid(ores, oxs, r0, r1)
-            _, rad, ids = render.vertical_render(scene, accel, OX.ravel(), OY.ravel())
-            classes, nir = landcover.classes_and_nir(ids, rad, OX.ravel(), OY.ravel(), scene)
+            _, rad, ids = raster.ortho_render(look, 0.0, layout.height_m, ores, r0, r1, onx)
+            classes, nir = landcover.classes_and_nir(ids.ravel(), rad.reshape(-1, 3), OX.ravel(), OY.ravel(), scene)
             window = rasterio.windows.Window(0, r0, onx, r1 - r0)
-            nir_dst.write(np.clip(np.rint(render.tone_map(nir)), 0, 255).astype(np.uint8).reshape(OX.shape), 1,
-                          window=window)
+            nir_dst.write(raster.tone8(nir.reshape(OX.shape)[..., None])[..., 0], 1, window=window)
             cls_dst.write(classes.reshape(OX.shape), 1, window=window)
-            return np.clip(np.rint(render.tone_map(rad.reshape(OX.shape + (3,)))), 0, 255).astype(np.uint8)
+            return raster.tone8(rad)
 
-        _write_geotiff(truth_dir / "ortho.tif", onx, ony, 3, np.uint8, otransform, epsg, ortho_rows)
+        _write_geotiff(truth_dir / "ortho.tif", onx, ony, 3, np.uint8, otransform, epsg, ortho_rows, compress=compress)
 
 
 def _mean_spacing(L):
