@@ -25,7 +25,7 @@ from aerotri.geom.eo import ExteriorOrientations, GnssPositions, format_eo, writ
 from aerotri.core.errors import InputError
 from aerotri.geom.rotation import rotation_matrix_opk
 from aerotri.sim import landcover, raster, raycast, render
-from aerotri.sim.config import stage_sections_toml
+from aerotri.sim.config import optional, stage_sections_toml
 from aerotri.sim.flight import block_layout, cameras_from_config, lidar_lines, plan_frames
 from aerotri.sim.lidar import las_header, las_record, pulse_chunks, scan_strip, strip_pulses, trajectory
 from lidarctl.strips.trajectory import format_trajectory
@@ -213,12 +213,13 @@ def texture_fine_m(cfg: dict, cam_true) -> float:
 
 
 def frame_layout(cfg: dict) -> dict:
-    """How frames are written: sample depth and TIFF layout from ``[render]`` (``bits`` 8 or 12, ``tile_px``,
-    ``compress``)."""
+    """How frames are written: sample depth, bands and TIFF layout from ``[render]`` (``bits`` 8 or 12, ``bands``
+    rgb or pan, ``tile_px``, ``compress``)."""
     r = cfg["render"]
     bits = int(r.get("bits", 8))
     tile = int(r.get("tile_px", 0))
     return dict(bits=bits, dtype="uint8" if bits == 8 else "uint16", tile_px=tile,
+                bands=1 if r.get("bands", "rgb") == "pan" else 3,
                 compress=str(r.get("compress", "none")) if tile else "lzw (OpenCV)")
 
 
@@ -230,7 +231,8 @@ def _render_frames(images_dir: Path, cfg: dict, look, plan, cam_true, s_frames) 
     """
     rcfg = cfg["render"]
     fl = frame_layout(cfg)
-    renderer = raster.FrameRenderer(look.scene, cam_true, look.fine_m, int(rcfg["samples"]), fl["bits"], look=look)
+    renderer = raster.FrameRenderer(look.scene, cam_true, look.fine_m, int(rcfg["samples"]), fl["bits"], look=look,
+                                    bands=fl["bands"])
     frame_seeds = s_frames.spawn(len(plan.image_id))
     gains = []
     for i in track(range(len(plan.image_id)), "frames"):
@@ -245,17 +247,18 @@ def _render_frames(images_dir: Path, cfg: dict, look, plan, cam_true, s_frames) 
             _write_tiled_frame(path, renderer, frame, expo, fl)
         else:
             img, _ = renderer.render_rows(frame, 0, cam_true.height, **expo)
-            cv2.imwrite(str(path), img[:, :, ::-1])
+            cv2.imwrite(str(path), img[:, :, ::-1] if img.shape[2] == 3 else img[:, :, 0])
     return gains
 
 
 def _write_tiled_frame(path: Path, renderer, frame, expo: dict, fl: dict) -> None:
-    """One frame as a tiled, pixel-interleaved RGB TIFF (no georeferencing, as cameras deliver), rendered and
-    written one row of tiles at a time."""
+    """One frame as a tiled TIFF (pixel-interleaved R, G, B, or one panchromatic band; no georeferencing, as
+    cameras deliver), rendered and written one row of tiles at a time."""
     cam = renderer.camera
     tile = fl["tile_px"]
-    profile = dict(driver="GTiff", width=cam.width, height=cam.height, count=3, dtype=fl["dtype"], tiled=True,
-                   blockxsize=tile, blockysize=tile, photometric="RGB", interleave="pixel", bigtiff="IF_SAFER")
+    profile = dict(driver="GTiff", width=cam.width, height=cam.height, count=fl["bands"], dtype=fl["dtype"], tiled=True,
+                   blockxsize=tile, blockysize=tile, photometric="RGB" if fl["bands"] == 3 else "MINISBLACK",
+                   interleave="pixel", bigtiff="IF_SAFER")
     if fl["compress"] != "none":
         profile.update(_compression(fl["compress"]))
     with warnings.catch_warnings():
@@ -454,15 +457,17 @@ def _max_slope_deg(scene) -> float:
     return round(float(np.degrees(np.arctan(np.hypot(gx, gy))).max()), 1)
 
 
-def _write_flight_acceptance(truth_dir: Path, cfg: dict, plan, cam_true, origin) -> None:
+def _write_flight_acceptance(truth_dir: Path, cfg: dict, plan, cam_true, origin, dem: Path | None = None) -> None:
     """truth/flight_acceptance.json: the flown block's acceptance checks (the same library the reports
-    use) on the true orientations and the true DEM, held to the preset's tilt and kappa limits."""
+    use) on the true orientations and the true DEM (``dem``, default truth/dem.tif), held to the preset's
+    tilt and kappa limits."""
     from aerotri.adjust.flight_acceptance import Terrain, flight_acceptance
 
     f = cfg["flight"]
     limits = {"flight_tilt_max_deg": f["max_tilt_deg"], "flight_kappa_max_deg": f["max_kappa_dev_deg"]}
+    dem = dem or truth_dir / "dem.tif"
     fa = flight_acceptance(plan.image_id, plan.centre_m + origin, plan.opk_deg, cam_true,
-                           Terrain.from_dem(truth_dir / "dem.tif", float(origin[2]), source="truth/dem.tif"),
+                           Terrain.from_dem(dem, float(origin[2]), source=f"{dem.parent.name}/{dem.name}"),
                            plan.strip, limits)
     for c in fa.failed:
         log.warning(f"flight acceptance: {c['quantity']} {c['value']} {c['unit']} at {c['where']} "
@@ -506,4 +511,134 @@ truth/                              the truth: eo.txt, camera.toml (true interio
                                     roof_corners.csv, buildings.geojson, checkpoints.csv,
                                     checkpoint_image_points.csv, gnss_truth.toml, frames.csv, truth.json,
                                     flight_acceptance.json
+"""
+
+
+# ----------------------------------------------------------------------------------------------
+# Observations only: the block's geometry and its observations, no images, no LiDAR
+
+# Terrain nodes of an observations-only block at most: a larger block gets a coarser truth terrain (a 10,000
+# frame demo block, 24 x 22 km, is made at 4.6 m instead of 1 m).
+OBS_MAX_TERRAIN_NODES = 25_000_000
+
+
+@dataclasses.dataclass
+class ObservationsBlock:
+    """What ``simulate_observations`` made: the block, the observations and where the DEM is."""
+
+    frames: int
+    strips: int
+    scene_width_m: float
+    scene_height_m: float
+    terrain_res_m: float
+    dem_path: str
+    tie_points: int
+    tie_observations: int
+    control_points: int
+    check_points: int
+    control_observations: int
+
+    def to_dict(self) -> dict:
+        return dataclasses.asdict(self)
+
+
+def observations_terrain(cfg: dict, layout, seed: int):
+    """The truth terrain of an observations-only block (terrain and ponds of ``build_scene``, same random
+    stream; no roads, buildings or trees), at ``terrain_res_m`` or coarser so that it has at most
+    ``OBS_MAX_TERRAIN_NODES`` nodes. Returns a ``Scene`` holding the terrain only."""
+    from aerotri.sim.scene import Scene, _ponds, build_terrain, scene_counts
+
+    sc = scene_counts(cfg["scene"], layout.width_m, layout.height_m)
+    res = max(float(sc["terrain_res_m"]), math.sqrt(layout.width_m * layout.height_m / OBS_MAX_TERRAIN_NODES))
+    sc = dict(sc, terrain_res_m=res)
+    rng = np.random.default_rng(seed)
+    z, steep = build_terrain(sc, layout.width_m, layout.height_m, rng)
+    ponds, z, _ = _ponds(sc, z, res, layout.width_m, steep, rng)
+    return Scene(layout.width_m, layout.height_m, np.zeros(3), res, z, np.zeros((0, 3, 3)), np.zeros(0, np.int32),
+                 np.zeros(0, np.int32), np.zeros((0, 3)), np.zeros((0, 2)), np.zeros((0, 5)), ponds, np.zeros((0, 3)),
+                 np.zeros(0), [], np.zeros((0, 3)), seed, steep)
+
+
+def simulate_observations(cfg: dict, outdir, force: bool = False, *, tie_sigma_px: float | None = None,
+                          tie_points_per_frame: int | None = None, n_control: int = 4, blunder_fraction: float = 0.0,
+                          bad_control_shift_m: float = 0.0) -> ObservationsBlock:
+    """A block of any size with its tie, control and GNSS observations and a DEM of the truth terrain, from the
+    truth geometry alone (no rendering, no LiDAR): project.toml, camera.toml, gnss.txt, dem.tif (the truth
+    terrain sampled at its node spacing: the DEM to give ``aerotri adjust --dem``), at/tiepoints.csv,
+    control/points.csv, control/image_points.csv and truth/ (eo.txt, camera.toml, gnss_truth.toml,
+    frames.csv, truth.json, flight_acceptance.json, observation_blunders.json).
+
+    The flight and the terrain are those of the preset (``simulate`` makes the same terrain for a block of
+    at most ``OBS_MAX_TERRAIN_NODES`` terrain nodes); image observations by the collinearity equations of the
+    true camera (``observations.write_truth_observations``) with Gaussian noise ``tie_sigma_px``, tie points on
+    the truth terrain (about ``tie_points_per_frame`` per frame, each seen in >= 3 frames); both default to
+    the preset's ``[observations]`` (``config.OPTIONAL``).
+    """
+    from aerotri.sim.observations import write_truth_observations
+
+    outdir = Path(outdir)
+    if outdir.exists() and any(outdir.iterdir()) and not force:
+        raise InputError(f"{outdir}: output folder exists and is not empty (use --force to replace it)")
+    t_start = time.perf_counter()
+    tie_sigma_px = optional(cfg, "observations", "tie_sigma_px") if tie_sigma_px is None else tie_sigma_px
+    tie_points_per_frame = (optional(cfg, "observations", "tie_points_per_frame") if tie_points_per_frame is None
+                            else tie_points_per_frame)
+    seed = int(cfg["preset"]["seed"])
+    s_scene, s_flight, _, _ = np.random.SeedSequence(seed).spawn(4)
+    epsg = int(cfg["crs"]["epsg"])
+    origin = np.array([cfg["crs"]["origin_e_m"], cfg["crs"]["origin_n_m"], cfg["crs"]["base_height_m"]])
+    layout = block_layout(cfg)
+    scene_seed = int(np.random.default_rng(s_scene).integers(0, 2**31 - 1))
+    terrain = observations_terrain(cfg, layout, scene_seed)
+    plan = plan_frames(cfg, layout, np.random.default_rng(s_flight))
+    cam_true, cam_nominal = cameras_from_config(cfg["camera"])
+    _check_plan(plan, terrain, cfg)
+    log.info(f"block of {len(plan.image_id)} frames over {layout.width_m / 1000:.1f} x {layout.height_m / 1000:.1f} km, "
+             f"truth terrain at {terrain.terrain_res_m:.2f} m")
+    with atomic_dir(outdir) as tmp:
+        (tmp / "truth").mkdir(parents=True, exist_ok=True)
+        _write_project_files(tmp, cfg, plan, cam_true, cam_nominal, origin, epsg, [1.0] * len(plan.image_id))
+        res = terrain.terrain_res_m
+        nx, ny = int(math.floor(layout.width_m / res)), int(math.floor(layout.height_m / res))
+        xs = (np.arange(nx) + 0.5) * res
+
+        def dem_rows(r0, r1):
+            X, Y = np.meshgrid(xs, layout.height_m - (np.arange(r0, r1) + 0.5) * res)
+            return terrain.terrain_height(X, Y) + origin[2]
+
+        _write_geotiff(tmp / "dem.tif", nx, ny, 1, np.float32, from_origin(origin[0], origin[1] + layout.height_m, res, res),
+                       epsg, dem_rows, nodata=-9999.0, compress=str(cfg["truth"].get("compress", "deflate")))
+        _write_flight_acceptance(tmp / "truth", cfg, plan, cam_true, origin, dem=tmp / "dem.tif")
+        summary = write_truth_observations(tmp, tie_sigma_px=tie_sigma_px, n_control=n_control,
+                                           blunder_fraction=blunder_fraction, bad_control_shift_m=bad_control_shift_m,
+                                           seed=seed, tie_points_per_frame=tie_points_per_frame,
+                                           dem=tmp / "dem.tif", interpolation="bilinear")
+        block = ObservationsBlock(
+            frames=len(plan.image_id), strips=int(cfg["flight"]["strips"]), scene_width_m=layout.width_m,
+            scene_height_m=layout.height_m, terrain_res_m=res, dem_path=str(outdir / "dem.tif"),
+            tie_points=summary["n_tie_points"], tie_observations=summary["n_tie_observations"],
+            control_points=summary["n_control"], check_points=summary["n_check"],
+            control_observations=summary["n_control_observations"])
+        truth = dict(preset=cfg["preset"]["name"], seed=seed, crs=f"EPSG:{epsg}", origin_m=origin.tolist(),
+                     observations_only=True, gsd_m=cam_true.gsd_m(cfg["flight"]["height_above_ground_m"]),
+                     flying_height_above_ground_m=cfg["flight"]["height_above_ground_m"],
+                     frames_per_strip=int(cfg["flight"]["frames_per_strip"]), image_width_px=cam_true.width,
+                     image_height_px=cam_true.height, pixel_um=cam_true.pixel_um, base_m=layout.base_m,
+                     strip_spacing_m=layout.strip_spacing_m, **block.to_dict())
+        (tmp / "truth" / "truth.json").write_text(json.dumps(truth, indent=2, sort_keys=True) + "\n")
+        (tmp / "README.txt").write_text(_README_OBS.format(**truth))
+    log.info(f"wrote {outdir} in {time.perf_counter() - t_start:.1f} s")
+    return block
+
+
+_README_OBS = """Simulated block "{preset}" (aerotri sim --observations-only, seed {seed}), CRS {crs}, ellipsoidal heights.
+No images and no LiDAR: the observations come straight from the truth geometry.
+
+project.toml camera.toml gnss.txt   project settings, nominal camera, GNSS antenna positions (with errors)
+dem.tif                             the truth terrain at {terrain_res_m:.2f} m (aerotri adjust --dem dem.tif)
+at/tiepoints.csv                    {tie_observations} image observations of {tie_points} tie points
+control/                            points.csv ({control_points} control, {check_points} check points), image_points.csv
+truth/                              eo.txt, camera.toml (true interior orientation), gnss_truth.toml, frames.csv,
+                                    truth.json, flight_acceptance.json, observation_blunders.json
+{frames} frames of {image_width_px} x {image_height_px} px in {strips} strips, GSD {gsd_m:.3f} m.
 """

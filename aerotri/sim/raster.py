@@ -23,6 +23,9 @@ the lens distortion of the true camera are exact, as they were with a ray per pi
 ``ortho_render`` renders the scene straight down (true orthophoto, DSM, land-cover ids): the terrain
 height at each pixel centre, then building triangles and crown tops rasterised over it, the highest
 surface winning (what a vertical ray meets first).
+
+Note numba's cache checks only the source file of a cached function: after editing ``shading`` (or
+``lens_kernels``), clear ``aerotri/sim/__pycache__/*.nbi|*.nbc``.
 """
 
 from __future__ import annotations
@@ -590,7 +593,8 @@ def _expose_row(rad, r, W, H, gain, vignetting, noise_dn, noise_seed, bits, lut,
     """Exposure of image row ``r``: radiance (W, 3) x gain x radial vignetting (the fraction ``vignetting``
     lost at the corners), the tone curve (8-bit: ``lut``; 12-bit: linear 0..4095 for 1.25 x radiance 0..1),
     sensor noise (the sum of two 10-bit uniforms from a hash of seed, pixel and band: triangular, zero
-    mean, sigma ``noise_dn``), rounding, clipping -> ``out`` (W, 3)."""
+    mean, sigma ``noise_dn``), rounding, clipping -> ``out`` (W, 3), or (W, 1): panchromatic, the mean of R, G
+    and B."""
     cw = (W - 1) / 2.0
     ch = (H - 1) / 2.0
     rnorm = 1.0 / (cw * cw + ch * ch)
@@ -614,11 +618,16 @@ def _expose_row(rad, r, W, H, gain, vignetting, noise_dn, noise_seed, bits, lut,
         h = _mix32(numba.uint32(noise_seed ^ numba.uint32(base + numba.uint32(c))))
         h1[c] = h
         h2[c] = _mix32(numba.uint32(h ^ numba.uint32(0x9E3779B9)))
-    for band in range(3):
+    nb = out.shape[1]
+    third = numba.float32(1.0 / 3.0)
+    for band in range(nb):
         sh = numba.uint32(10 * band)
+        if nb == 1:  # panchromatic: the mean of the R, G, B radiance
+            for c in range(W):
+                fac[c] *= (numba.float32(rad[c, 0]) + numba.float32(rad[c, 1]) + numba.float32(rad[c, 2])) * third
         if bits == 8:
             for c in range(W):
-                x = min(max(numba.float32(rad[c, band]) * fac[c], zero), one)
+                x = min(max((numba.float32(rad[c, band]) if nb > 1 else one) * fac[c], zero), one)
                 fi = x * nlut
                 i = numba.int32(fi)
                 dn = lut[i] + (lut[i + 1] - lut[i]) * (fi - numba.float32(i))
@@ -627,7 +636,7 @@ def _expose_row(rad, r, W, H, gain, vignetting, noise_dn, noise_seed, bits, lut,
                 out[c, band] = numba.int32(min(max(dn + (u - numba.float32(1023.0)) * scale + half, zero), out_max + half))
         else:
             for c in range(W):
-                dn = out_max * min(max(numba.float32(rad[c, band]) * fac[c], zero), one)
+                dn = out_max * min(max((numba.float32(rad[c, band]) if nb > 1 else one) * fac[c], zero), one)
                 u = numba.float32((h1[c] >> sh) & numba.uint32(1023)) + numba.float32((h2[c] >> sh) & numba.uint32(1023))
                 out[c, band] = numba.int32(min(max(dn + (u - numba.float32(1023.0)) * scale + half, zero), out_max + half))
 
@@ -640,13 +649,17 @@ class FrameRenderer:
     """Renders the frames of a block: ``render_rows`` gives any range of rows of a frame as output samples.
 
     ``bits`` 8: uint8 through the gamma tone curve of ``render.tone_map``; 12: uint16 in 0..4095, linear.
-    ``samples``: sub-pixel samples per axis (anti-aliasing), averaged before exposure.
+    ``samples``: sub-pixel samples per axis (anti-aliasing), averaged before exposure. ``bands`` 3: R, G, B;
+    1: panchromatic (the mean of the R, G, B radiance).
     """
 
     def __init__(self, scene: Scene, camera: Camera, fine_m: float, samples: int = 1, bits: int = 8,
-                 look: SceneLook | None = None):
+                 look: SceneLook | None = None, bands: int = 3):
         if bits not in (8, 12):
             raise ValueError(f"bits must be 8 or 12, got {bits}")
+        if bands not in (1, 3):
+            raise ValueError(f"bands must be 1 or 3, got {bands}")
+        self.bands = int(bands)
         self.look = look or SceneLook(scene, fine_m)
         self.camera = camera
         self.bits = int(bits)
@@ -664,14 +677,14 @@ class FrameRenderer:
 
     def render_rows(self, frame: FrameSetup, r0: int, r1: int, gain: float = 1.0, vignetting: float = 0.0,
                     noise_dn: float = 0.0, noise_seed: int = 0, with_ids: bool = False):
-        """Rows r0..r1-1 (r0 a multiple of ``BAND_ROWS``) as (rows, width, 3) samples, and optionally the
+        """Rows r0..r1-1 (r0 a multiple of ``BAND_ROWS``) as (rows, width, bands) samples, and optionally the
         surface id of each pixel centre (kind * 1_000_000 + object, 0 where the ray leaves the scene)."""
         cam = self.camera
         br = frame.band_rows
         if r0 % br:
             raise ValueError(f"row {r0} is not at a band boundary ({br} rows)")
         r1 = min(r1, cam.height)
-        out = np.empty((r1 - r0, cam.width, 3), self.dtype)
+        out = np.empty((r1 - r0, cam.width, self.bands), self.dtype)
         ids = np.empty((r1 - r0, cam.width) if with_ids else (1, 1), np.int64)
         L = self.look
         _render_bands(r0 // br, (r1 + br - 1) // br, r0, cam.width, cam.height, br, float(self.step), self.XN, self.YN,

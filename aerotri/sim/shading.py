@@ -297,6 +297,10 @@ def _cell_hash(x, y, size_m, seed):
 
 
 MAX_OCTAVES = 8
+# The amplitude falls by 0.55 an octave over the first four octaves (each surface's look at the demo's GSD)
+# and stays at that level below: a finer GSD sees texture of the same contrast at its own pixel scale
+# (grass, gravel, roofing at 0.1-0.2 m), as real ground has, not a fading copy of the coarse texture.
+DECAY_OCTAVES = 3
 # coarsest lattice spacing of each surface's texture (m): ground, roof, wall, crown
 SCALE_GROUND_M, SCALE_ROOF_M, SCALE_WALL_M, SCALE_CROWN_M = 4.0, 3.0, 2.0, 1.2
 
@@ -328,7 +332,8 @@ def shade_points(X, Y, Z, kind, obj, NX, NY, NZ, G, roof_albedo, fine_m, sun, ra
 
     Albedo x (0.45 + 0.55 max(0, normal . sun)). Texture: fractal value noise, octaves from the surface's
     coarsest spacing (ground 4 m, roof 3 m, wall 2 m, crown 1.2 m) halving down to 0.9 ``fine_m``,
-    amplitude x 0.55 per octave; ground markings and targets are plain.
+    amplitude x 0.55 per octave over the first four (``DECAY_OCTAVES``); ground markings and targets are
+    plain.
     """
     n = X.shape[0]
     tu = np.empty(n, np.float32)
@@ -396,7 +401,8 @@ def shade_points(X, Y, Z, kind, obj, NX, NY, NZ, G, roof_albedo, fine_m, sun, ra
     fo = numba.float32(1.0)
     for o in range(max_oct):
         _octave(acc, tu, tv, f0, sd, noct, o, amp, fo)
-        amp *= numba.float32(0.55)
+        if o < DECAY_OCTAVES:
+            amp *= numba.float32(0.55)
         fo *= numba.float32(2.0)
     for p in range(n):
         k = kind[p]
@@ -409,7 +415,8 @@ def shade_points(X, Y, Z, kind, obj, NX, NY, NZ, G, roof_albedo, fine_m, sun, ra
         a = 0.5
         for o in range(noct[p]):
             norm += a
-            a *= 0.55
+            if o < DECAY_OCTAVES:
+                a *= 0.55
         t = acc[p] / norm if norm > 0.0 else 0.5
         L = lam[p]
         if k == KIND_TERRAIN:
