@@ -1,6 +1,6 @@
 """Land-cover truth of the true orthophoto: the class of every ortho pixel and a near-infrared band.
 
-From the same vertical rays as ``truth/ortho.tif`` (``render.vertical_render``: radiance and surface id
+From the same straight-down view as ``truth/ortho.tif`` (``raster.ortho_render``: radiance and surface id
 per pixel), so the class raster, the NIR band and the RGB ortho agree pixel for pixel.
 
 Classes (ASPRS codes, as ``lidarctl.class_grid`` scores them): roof and wall -> building 6, tree crown
@@ -9,7 +9,7 @@ and road markings -> road 11, pond -> water 9; no hit -> 255 (nodata).
 
 NIR: the pixel's visible radiance (mean of R, G, B, so shading, shadows and texture carry over) times
 the ratio of a near-infrared to the visible albedo of its material (``NIR_ALBEDO`` over the mean of
-the RGB albedo ``raycast.surface_albedo`` gives it): vegetation is bright in the NIR (chlorophyll's
+the RGB albedo of ``shading.shade_points`` gives it): vegetation is bright in the NIR (chlorophyll's
 red edge), roofs, roads and water are dark; tone-mapped like the RGB bands.
 """
 
@@ -17,7 +17,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from aerotri.sim import raycast
+from aerotri.sim import shading
 from aerotri.sim.scene import (GRASS, KIND_NONE, KIND_ROOF, KIND_TERRAIN, KIND_TREE, KIND_WALL, MARKING, ROAD, SOIL,
                                TARGET, TARGET_RING, WATER)
 
@@ -25,7 +25,7 @@ NODATA = 255
 BUILDING, TREE, GRASS_CLASS, ROAD_CLASS, BARE, WATER_CLASS = 6, 5, 3, 11, 2, 9
 GROUND_CLASS = {GRASS: GRASS_CLASS, SOIL: BARE, ROAD: ROAD_CLASS, MARKING: ROAD_CLASS, WATER: WATER_CLASS,
                 TARGET: BARE, TARGET_RING: BARE}
-# (visible albedo = mean of the RGB albedo in raycast.surface_albedo, NIR albedo): typical spectra of
+# (visible albedo = mean of the base RGB albedo in shading.shade_points, NIR albedo): typical spectra of
 # grass and broadleaf crowns (NIR 0.45-0.5), dry soil, asphalt, water, roofing and plaster.
 GROUND_ALBEDO = {GRASS: ((0.16 + 0.32 + 0.11) / 3, 0.45), SOIL: ((0.42 + 0.33 + 0.22) / 3, 0.30),
                  ROAD: ((0.23 + 0.23 + 0.24) / 3, 0.16), MARKING: (0.84, 0.60), WATER: ((0.05 + 0.09 + 0.12) / 3, 0.02),
@@ -52,8 +52,8 @@ def classes_and_nir(ids: np.ndarray, rad: np.ndarray, x_m: np.ndarray, y_m: np.n
         ratio[roof] = ROOF_NIR_ALBEDO / np.maximum(vis[obj[roof]], 1e-3)
     terrain = kind == KIND_TERRAIN
     if terrain.any():
-        m = raycast.ground_materials(np.ascontiguousarray(x_m[terrain], float), np.ascontiguousarray(y_m[terrain], float),
-                                     scene.roads, scene.ponds, scene.targets, scene.seed)
+        m = shading.ground_materials(np.ascontiguousarray(x_m[terrain], float), np.ascontiguousarray(y_m[terrain], float),
+                                     shading.ground_index(scene))
         cls_lut = np.full(max(GROUND_CLASS) + 1, NODATA, np.uint8)
         ratio_lut = np.zeros(max(GROUND_CLASS) + 1, np.float32)
         for mat, c in GROUND_CLASS.items():
