@@ -7,6 +7,11 @@ y down) and in metres (dE east, dN north).
 
 Surveyed points: a CSV ``id,x,y,x_dom,y_dom`` with the surveyed coordinates and the coordinates of
 the same point measured in the DOM (both in the DOM's CRS); the displacement is DOM minus survey.
+
+Streaming: the DOM is read in blocks of 2048 px (with a halo of a patch and its search range), the reference
+and the nDSM resampled onto each block, GDAL's block cache bounded (``GDAL_CACHE_MB``); only five numbers per
+patch are kept. The statistics take every patch; the report lists, and its plot draws, at most
+``MAX_LISTED`` of them, evenly spread, so that the report of a gigapixel DOM stays the size of a demo's.
 """
 
 from __future__ import annotations

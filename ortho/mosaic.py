@@ -86,6 +86,7 @@ STAGE_PROFILE = dict(driver="GTiff", tiled=True, blockxsize=512, blockysize=512,
 # and without predictor) and DEFLATE on the demo mosaic (results/mosaic_speed.json, "codecs")
 COG_OPTIONS = dict(driver="COG", COMPRESS="ZSTD", LEVEL=1, PREDICTOR="YES", BLOCKSIZE=512,
                    OVERVIEWS="FORCE_USE_EXISTING", BIGTIFF="IF_SAFER", NUM_THREADS="ALL_CPUS")
+STAGE_RAW_MAX_BYTES = 2 ** 30  # stages up to this size stay uncompressed (no compression to undo for the COG)
 _OPEN_FRAMES = 32  # frame datasets kept open per thread (tiles in row order need a few at a time)
 
 
@@ -781,8 +782,8 @@ def _write_mosaic(path, frames_dir, index, mosaic: OrthoGrid, seams_path, factor
         stage = tmp_dir / "stage.tif"
         pyramid = _Pyramid(tmp_dir, mosaic, bands, dtype, levels, per_tile=tile_px % 2 == 0)
         readers = _FrameReaders()
-        profile = dict(STAGE_PROFILE, width=mosaic.width, height=mosaic.height, count=bands, dtype=dtype,
-                       crs=mosaic.crs, transform=mosaic.transform)
+        profile = dict(_stage_profile(mosaic, bands, dtype), width=mosaic.width, height=mosaic.height, count=bands,
+                       dtype=dtype, crs=mosaic.crs, transform=mosaic.transform)
         try:
             if executor.distributed:
                 batch = max(2, 2 * executor.workers)
@@ -817,6 +818,15 @@ def _write_mosaic(path, frames_dir, index, mosaic: OrthoGrid, seams_path, factor
         timer.done("COG")
 
 
+def _stage_profile(mosaic: OrthoGrid, bands: int, dtype) -> dict:
+    """The stage's GeoTIFF profile: uncompressed while it is small (``STAGE_RAW_MAX_BYTES``), else ZSTD level 1
+    with the predictor (a third of the disk for a few ns per pixel)."""
+    raw = mosaic.width * mosaic.height * bands * np.dtype(dtype).itemsize
+    if raw > STAGE_RAW_MAX_BYTES:
+        return dict(STAGE_PROFILE)
+    return {k: v for k, v in STAGE_PROFILE.items() if k not in ("compress", "zstd_level", "predictor", "num_threads")}
+
+
 def overview_factors(width: int, height: int, block_px: int = 512) -> list[int]:
     """Overview decimation factors 2, 4, ... until the coarsest fits one block (GDAL's COG default)."""
     out, f = [], 2
@@ -827,8 +837,8 @@ def overview_factors(width: int, height: int, block_px: int = 512) -> list[int]:
 
 
 def halve(img: np.ndarray, valid: np.ndarray):
-    """2 x 2 average of the valid samples (bands, h, w) -> (bands, ceil(h/2), ceil(w/2)) in their type, and
-    the validity (any of the four valid); an odd last row or column averages what it has."""
+    """2 x 2 average of the valid samples (bands, h, w; 0 where not valid) -> (bands, ceil(h/2), ceil(w/2)) in
+    their type, and the validity (any of the four valid); an odd last row or column averages what it has."""
     b, h, w = img.shape
     h2, w2 = -(-h // 2), -(-w // 2)
     if (h2 * 2, w2 * 2) != (h, w):
@@ -839,8 +849,10 @@ def halve(img: np.ndarray, valid: np.ndarray):
     inv = np.where(ok, 1.0 / np.maximum(count, 1e-6), 0.0).astype(np.float32)
     out = np.empty((b, h2, w2), img.dtype)
     for k in range(b):
-        band = np.where(valid, img[k], 0).astype(np.float32)  # invalid samples are 0 in the stage already
-        out[k] = _to_type(cv2.resize(band, (w2, h2), interpolation=cv2.INTER_AREA) * inv, img.dtype)
+        # invalid samples are 0 (the blended tiles and every level are written so)
+        mean = cv2.resize(img[k].astype(np.float32), (w2, h2), interpolation=cv2.INTER_AREA)
+        cv2.multiply(mean, inv, dst=mean)
+        out[k] = cv2.convertScaleAbs(mean) if img.dtype == np.uint8 else _to_type(mean, img.dtype)
     return out, ok
 
 
@@ -855,13 +867,14 @@ class _Pyramid:
         self.folder, self.mosaic, self.bands, self.dtype = folder, mosaic, bands, dtype
         self.factors = factors
         self.paths = [folder / f"ovr_{f}.tif" for f in factors]
+        self.base = _stage_profile(mosaic, bands, dtype)
         self.first = None
         if factors and per_tile:
             self.first = rasterio.open(self.paths[0], "w", **self._profile(factors[0]))
 
     def _profile(self, f: int) -> dict:
         m = self.mosaic
-        return dict(STAGE_PROFILE, width=-(-m.width // f), height=-(-m.height // f), count=self.bands, dtype=self.dtype,
+        return dict(self.base, width=-(-m.width // f), height=-(-m.height // f), count=self.bands, dtype=self.dtype,
                     crs=m.crs, transform=Affine(m.res_m * f, 0.0, m.x_left_m, 0.0, -m.res_m * f, m.y_top_m))
 
     def add_tile(self, r0: int, c0: int, out: np.ndarray, valid: np.ndarray) -> None:

@@ -189,3 +189,23 @@ def test_mosaic_away_from_seams_is_the_frame_through_its_gain(block):
     full = n == 4
     mean = s_[:, full] / 4.0
     assert np.abs(ov[:, :h2 // 2, :w2 // 2][:, full] - mean).max() <= 1.0
+
+
+def test_overview_halving_is_the_mean_of_the_valid_samples():
+    from ortho.mosaic import halve, overview_factors
+
+    rng = np.random.default_rng(1)
+    for dtype, top in ((np.uint8, 255), (np.uint16, 4095)):
+        img = rng.integers(0, top + 1, (3, 7, 9)).astype(dtype)
+        valid = rng.random((7, 9)) > 0.3
+        img[:, ~valid] = 0
+        got, ok = halve(img, valid)
+        padded = np.pad(img, ((0, 0), (0, 1), (0, 1))).astype(float)
+        n = np.pad(valid, ((0, 1), (0, 1))).reshape(4, 2, 5, 2).sum(axis=(1, 3))
+        want = np.where(n > 0, np.rint(padded.reshape(3, 4, 2, 5, 2).sum(axis=(2, 4)) / np.maximum(n, 1)), 0)
+        assert got.dtype == dtype and got.shape == (3, 4, 5)
+        np.testing.assert_array_equal(got, want)
+        np.testing.assert_array_equal(ok, n > 0)
+    # levels until the coarsest fits one 512 px block, as GDAL's COG driver makes them
+    assert overview_factors(2505, 3661) == [2, 4, 8]
+    assert overview_factors(512, 300) == [] and overview_factors(513, 10) == [2]
