@@ -247,7 +247,10 @@ def _water_and_outliers(scene: Scene, sw: _Sweep, T, K, O, L: dict, rng) -> _Ret
     if k_rest > 0 and len(cand_any):
         picks.append(rng.choice(cand_any, k_rest, replace=False))
     low = np.unique(np.concatenate(picks)) if picks else np.zeros(0, int)
-    high = rng.choice(np.setdiff1d(cand_any, low), min(n_high, len(cand_any)), replace=False) if n_high else np.zeros(0, int)
+    # (both sorted and unique: numpy 2.4's np.unique of millions of distinct integers, which setdiff1d would
+    # call, takes seconds)
+    rest = np.setdiff1d(cand_any, low, assume_unique=True)
+    high = rng.choice(rest, min(n_high, len(cand_any)), replace=False) if n_high else np.zeros(0, int)
 
     keep_water = rng.random(n) < L["water_return_fraction"]
     drop = on_water & ~keep_water

@@ -32,12 +32,14 @@ from lidarctl.strips.trajectory import format_trajectory
 from aerotri.sim.scene import build_scene
 from aerotri.core.atomic import atomic_dir
 from aerotri.core.log import track
+from aerotri.core.resources import measure
 
 log = logging.getLogger(__name__)
 
 
-# Truth rasters: rows rendered and written at a time (about this many pixels, at most 512 rows).
+# Truth rasters: rows rendered at a time (about this many pixels, at most 512 rows), in 256 px tiles.
 _BLOCK_PX = 4_000_000
+_TILE_PX = 256
 
 
 def _block_rows(width: int) -> int:
@@ -56,26 +58,60 @@ def _write_geotiff(path: Path, width: int, height: int, bands: int, dtype, trans
                    block_rows: int | None = None, compress: str = "deflate"):
     """Tiled, compressed GeoTIFF with overviews-friendly 256 px blocks, written ``block_rows`` rows at a time:
     ``rows(r0, r1)`` gives rows r0..r1 as (r1 - r0, width[, bands]), so a raster of any size is made in
-    bounded memory."""
+    bounded memory (progress with ETA for rasters of more than ``_BLOCK_PX`` x 64 pixels)."""
     block_rows = block_rows or _block_rows(width)
     profile = dict(driver="GTiff", width=width, height=height, count=bands, dtype=np.dtype(dtype).name,
-                   crs=f"EPSG:{epsg}", transform=transform, tiled=True, blockxsize=256, blockysize=256,
+                   crs=f"EPSG:{epsg}", transform=transform, tiled=True, blockxsize=_TILE_PX, blockysize=_TILE_PX,
                    nodata=nodata, bigtiff="IF_SAFER", **_compression(compress))
     if bands == 3 and np.dtype(dtype) == np.uint8:
         profile["photometric"] = "RGB"
     with rasterio.Env(GDAL_CACHEMAX=256), rasterio.open(path, "w", **profile) as dst:
-        for r0 in range(0, height, block_rows):
-            r1 = min(height, r0 + block_rows)
-            data = rows(r0, r1)
-            arr = data[None] if data.ndim == 2 else np.moveaxis(data, 2, 0)
-            dst.write(arr.astype(dtype, copy=False), window=rasterio.windows.Window(0, r0, width, r1 - r0))
+        out = _TileRowWriter(dst, dtype)
+        starts = range(0, height, block_rows)
+        for r0 in track(starts, f"{path.parent.name}/{path.name}", "row blocks") if width * height > 64 * _BLOCK_PX else starts:
+            out.write(rows(r0, min(height, r0 + block_rows)))
+        out.close()
+
+
+class _TileRowWriter:
+    """Rows of a tiled raster open for writing (``dst``), written a whole row of tiles at a time: rows given in
+    smaller blocks are held until their row of tiles is complete. (A row of tiles written in parts is
+    compressed and written again for each part, the earlier copies left in the file: 70 % larger.)"""
+
+    def __init__(self, dst, dtype, band: int | None = None):
+        self.dst, self.dtype, self.band = dst, dtype, band
+        self.tile_rows = dst.block_shapes[0][0]
+        self.pending: list[np.ndarray] = []
+        self.row = 0  # first row not written yet
+
+    def write(self, data: np.ndarray) -> None:
+        """The next rows, (rows, cols[, bands])."""
+        self.pending.append(data)
+        held = sum(len(a) for a in self.pending)
+        if (self.row + held) % self.tile_rows == 0 or self.row + held >= self.dst.height:
+            self._flush()
+
+    def close(self) -> None:
+        if self.pending:
+            self._flush()
+
+    def _flush(self) -> None:
+        data = self.pending[0] if len(self.pending) == 1 else np.concatenate(self.pending)
+        self.pending = []
+        arr = data.astype(self.dtype, copy=False)
+        window = rasterio.windows.Window(0, self.row, self.dst.width, len(arr))
+        if self.band is not None:
+            self.dst.write(arr, self.band, window=window)
+        else:
+            self.dst.write(arr[None] if arr.ndim == 2 else np.moveaxis(arr, 2, 0), window=window)
+        self.row += len(arr)
 
 
 def _open_geotiff(path: Path, width: int, height: int, dtype, transform, epsg: int, nodata=None,
                   compress: str = "deflate"):
     """A single-band GeoTIFF open for writing by windows, with ``_write_geotiff``'s layout."""
     return rasterio.open(path, "w", driver="GTiff", width=width, height=height, count=1, dtype=np.dtype(dtype).name,
-                         crs=f"EPSG:{epsg}", transform=transform, tiled=True, blockxsize=256, blockysize=256,
+                         crs=f"EPSG:{epsg}", transform=transform, tiled=True, blockxsize=_TILE_PX, blockysize=_TILE_PX,
                          nodata=nodata, bigtiff="IF_SAFER", **_compression(compress))
 
 
@@ -126,6 +162,20 @@ class SimTruth:
         return dataclasses.asdict(self)
 
 
+@dataclasses.dataclass(frozen=True)
+class PhaseCost:
+    """What one phase of ``simulate`` cost (``aerotri.core.resources.measure``) and what it made."""
+
+    phase: str  # scene, frames, lidar, truth_rasters, other
+    wall_s: float
+    cpu_s: float
+    peak_rss_mb: float | None  # this process during the phase
+    frames: int = 0
+    megapixels: float = 0.0  # frame pixels (frames) or raster pixels (truth_rasters)
+    points: int = 0  # LiDAR points (one copy: lidar/ and truth/lidar/ hold the same points)
+    pulses: int = 0
+
+
 @dataclasses.dataclass
 class _LidarSummary:
     lines: int
@@ -140,8 +190,11 @@ class _CheckTargets:
     image_points: int  # observations of the targets in the frames
 
 
-def simulate(cfg: dict, outdir, force: bool = False) -> SimTruth:
-    """Generate the project described by preset ``cfg`` into ``outdir``; returns the truth summary."""
+def simulate(cfg: dict, outdir, force: bool = False, on_phase=None) -> SimTruth:
+    """Generate the project described by preset ``cfg`` into ``outdir``; returns the truth summary.
+
+    ``on_phase``: called with a ``PhaseCost`` after each phase (scene, frames, lidar, truth_rasters, other).
+    """
     outdir = Path(outdir)
     if outdir.exists() and any(outdir.iterdir()) and not force:
         raise InputError(f"{outdir}: output folder exists and is not empty (use --force to replace it)")
@@ -152,33 +205,50 @@ def simulate(cfg: dict, outdir, force: bool = False) -> SimTruth:
     epsg = int(cfg["crs"]["epsg"])
     origin = np.array([cfg["crs"]["origin_e_m"], cfg["crs"]["origin_n_m"], cfg["crs"]["base_height_m"]])
 
+    on_phase = on_phase or (lambda cost: None)
+
+    def done(phase, usage, **made):
+        on_phase(PhaseCost(phase, round(usage.wall_s, 2), round(usage.cpu_s, 2),
+                           None if usage.peak_rss_mb is None else round(usage.peak_rss_mb, 1), **made))
+
     layout = block_layout(cfg)
-    scene_seed = int(np.random.default_rng(s_scene).integers(0, 2**31 - 1))
-    scene = build_scene(cfg["scene"], layout.width_m, layout.height_m, origin, scene_seed)
-    accel = raycast.build_accel(scene)
-    plan = plan_frames(cfg, layout, np.random.default_rng(s_flight))
-    cam_true, cam_nominal = cameras_from_config(cfg["camera"])
-    _check_plan(plan, scene, cfg)
-    look = raster.SceneLook(scene, texture_fine_m(cfg, cam_true))
+    with measure() as usage:
+        scene_seed = int(np.random.default_rng(s_scene).integers(0, 2**31 - 1))
+        scene = build_scene(cfg["scene"], layout.width_m, layout.height_m, origin, scene_seed)
+        accel = raycast.build_accel(scene)
+        plan = plan_frames(cfg, layout, np.random.default_rng(s_flight))
+        cam_true, cam_nominal = cameras_from_config(cfg["camera"])
+        _check_plan(plan, scene, cfg)
+        look = raster.SceneLook(scene, texture_fine_m(cfg, cam_true))
+    done("scene", usage)
     log.info(f"scene {layout.width_m:.0f} x {layout.height_m:.0f} m: {len(scene.buildings)} buildings, "
-             f"{len(scene.tree_c)} trees, {len(scene.roads)} roads, {len(scene.ponds)} ponds, {len(scene.targets)} targets")
+             f"{len(scene.tree_c)} trees, {len(scene.roads)} roads, {len(scene.ponds)} ponds, {len(scene.targets)} targets "
+             f"({usage.wall_s:.1f} s)")
 
     with atomic_dir(outdir) as tmp:
         for sub in ("images", "lidar", "trajectory", "truth", "truth/lidar"):
             (tmp / sub).mkdir(parents=True, exist_ok=True)
-        gains = _render_frames(tmp / "images", cfg, look, plan, cam_true, s_frames)
-        t_frames = time.perf_counter()
-        log.info(f"rendered {len(plan.image_id)} frames of {cam_true.width} x {cam_true.height} px "
-                 f"in {t_frames - t_start:.1f} s")
-        log.info("LiDAR planned: {strips} strips, {pulses} pulses over {scene_km2} km2".format(**lidar_plan(cfg)))
-        lidar = _scan_lidar(tmp, cfg, layout, scene, accel, origin, epsg, s_lidar)
-        log.info(f"scanned {lidar.lines} LiDAR strips, {lidar.points} points in {time.perf_counter() - t_frames:.1f} s")
-        _write_project_files(tmp, cfg, plan, cam_true, cam_nominal, origin, epsg, gains)
-        corners = scene.roof_corners()
-        _write_truth_corners(tmp / "truth", scene, corners, origin)
-        targets = _write_check_targets(tmp / "truth", scene, accel, plan, cam_true, origin)
-        _write_truth_rasters(tmp / "truth", cfg, layout, look, origin, epsg)
-        _write_flight_acceptance(tmp / "truth", cfg, plan, cam_true, origin)
+        n_frames = len(plan.image_id)
+        with measure() as usage:
+            gains = _render_frames(tmp / "images", cfg, look, plan, cam_true, s_frames)
+        done("frames", usage, frames=n_frames, megapixels=n_frames * cam_true.width * cam_true.height / 1e6)
+        log.info(f"rendered {n_frames} frames of {cam_true.width} x {cam_true.height} px in {usage.wall_s:.1f} s")
+        planned = lidar_plan(cfg)
+        log.info("LiDAR planned: {strips} strips, {pulses} pulses over {scene_km2} km2".format(**planned))
+        with measure() as usage:
+            lidar = _scan_lidar(tmp, cfg, layout, scene, accel, origin, epsg, s_lidar)
+        done("lidar", usage, points=int(lidar.points), pulses=int(planned["pulses"]))
+        log.info(f"scanned {lidar.lines} LiDAR strips, {lidar.points} points in {usage.wall_s:.1f} s")
+        with measure() as usage:
+            megapixels = _write_truth_rasters(tmp / "truth", cfg, layout, look, origin, epsg)
+        done("truth_rasters", usage, megapixels=megapixels)
+        with measure() as usage:
+            _write_project_files(tmp, cfg, plan, cam_true, cam_nominal, origin, epsg, gains)
+            corners = scene.roof_corners()
+            _write_truth_corners(tmp / "truth", scene, corners, origin)
+            targets = _write_check_targets(tmp / "truth", scene, accel, plan, cam_true, origin)
+            _write_flight_acceptance(tmp / "truth", cfg, plan, cam_true, origin)
+        done("other", usage)
         truth = SimTruth(
             preset=cfg["preset"]["name"], seed=seed, crs=f"EPSG:{epsg}", origin_m=origin.tolist(),
             scene_width_m=layout.width_m, scene_height_m=layout.height_m,
@@ -394,12 +464,13 @@ def _write_check_targets(truth_dir: Path, scene, accel, plan, cam_true, origin) 
     return _CheckTargets(tgt, len(img_rows))
 
 
-def _write_truth_rasters(truth_dir: Path, cfg: dict, layout, look, origin, epsg: int) -> None:
-    """truth/dem.tif and truth/dsm.tif (``[truth] raster_res_m``), truth/ortho.tif (``ortho_res_m``) and on its
-    grid the land-cover truth (``aerotri.sim.landcover``): truth/ortho_nir.tif (near-infrared band) and
-    truth/classes.tif (ASPRS classes building, tree, grass, road, bare ground, water; nodata 255). The surface,
-    ortho and classes are the straight-down view of the scene (``raster.ortho_render``) at pixel centres;
-    ``[truth] compress`` (default deflate)."""
+def _write_truth_rasters(truth_dir: Path, cfg: dict, layout, look, origin, epsg: int) -> float:
+    """truth/dem.tif and truth/dsm.tif (``[truth] raster_res_m``), truth/ortho.tif (``ortho_res_m``; R, G, B,
+    or one band, the mean of R, G and B, for panchromatic frames) and on its grid the land-cover truth
+    (``aerotri.sim.landcover``): truth/ortho_nir.tif (near-infrared band) and truth/classes.tif (ASPRS classes
+    building, tree, grass, road, bare ground, water; nodata 255). The surface, ortho and classes are the
+    straight-down view of the scene (``raster.ortho_render``) at pixel centres; ``[truth] compress`` (default
+    deflate). Returns the megapixels of the DEM, DSM and ortho grids."""
     scene = look.scene
     compress = str(cfg["truth"].get("compress", "deflate"))
     res = cfg["truth"]["raster_res_m"]
@@ -432,17 +503,24 @@ def _write_truth_rasters(truth_dir: Path, cfg: dict, layout, look, origin, epsg:
             _open_geotiff(truth_dir / "ortho_nir.tif", onx, ony, np.uint8, otransform, epsg, compress=compress) as nir_dst, \
             _open_geotiff(truth_dir / "classes.tif", onx, ony, np.uint8, otransform, epsg, nodata=landcover.NODATA,
                           compress=compress) as cls_dst:
+        nir_out, cls_out = _TileRowWriter(nir_dst, np.uint8, band=1), _TileRowWriter(cls_dst, np.uint8, band=1)
 
         def ortho_rows(r0, r1):
             OX, OY = grid(ores, oxs, r0, r1)
             _, rad, ids = raster.ortho_render(look, 0.0, layout.height_m, ores, r0, r1, onx)
             classes, nir = landcover.classes_and_nir(ids.ravel(), rad.reshape(-1, 3), OX.ravel(), OY.ravel(), scene)
-            window = rasterio.windows.Window(0, r0, onx, r1 - r0)
-            nir_dst.write(raster.tone8(nir.reshape(OX.shape)[..., None])[..., 0], 1, window=window)
-            cls_dst.write(classes.reshape(OX.shape), 1, window=window)
+            nir_out.write(raster.tone8(nir.reshape(OX.shape)[..., None])[..., 0])
+            cls_out.write(classes.reshape(OX.shape))
+            if ortho_bands == 1:  # as the frames' panchromatic band: the mean of the radiance
+                return raster.tone8(((rad[..., 0] + rad[..., 1]) + rad[..., 2]) / np.float32(3.0))
             return raster.tone8(rad)
 
-        _write_geotiff(truth_dir / "ortho.tif", onx, ony, 3, np.uint8, otransform, epsg, ortho_rows, compress=compress)
+        ortho_bands = frame_layout(cfg)["bands"]
+        _write_geotiff(truth_dir / "ortho.tif", onx, ony, ortho_bands, np.uint8, otransform, epsg, ortho_rows,
+                       compress=compress)
+        nir_out.close()
+        cls_out.close()
+    return (2 * nx * ny + onx * ony) / 1e6
 
 
 def _mean_spacing(L):
