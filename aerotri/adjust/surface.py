@@ -160,9 +160,18 @@ def read_height_grid(path, project_crs, project_heights=None, what: str = "DEM",
             res = float(t.a) * f
             wt = ds.window_transform(win)
         else:
-            a = ds.read(1, window=win, masked=True)
             res = float(t.a)
             wt = ds.window_transform(win)
+            from rasterio.enums import MaskFlags
+
+            flags = set(ds.mask_flag_enums[0])
+            if flags <= {MaskFlags.nodata, MaskFlags.all_valid}:
+                # no-data by value (or none): one array, the no-data cells set to NaN in place
+                z = ds.read(1, window=win, out_dtype=dtype)
+                if ds.nodata is not None and MaskFlags.nodata in flags:
+                    z[z == ds.nodata if np.isfinite(ds.nodata) else ~np.isfinite(z)] = np.nan
+                return HeightGrid(z, float(wt.c), float(wt.f), res)
+            a = ds.read(1, window=win, masked=True)
         a = (a if a.dtype == dtype else a.astype(dtype)).filled(np.nan)
     return HeightGrid(a, float(wt.c), float(wt.f), res)
 
