@@ -147,6 +147,7 @@ def run_adjust(root: Path, pythonpath: str | None = None) -> dict:
     files ``aerotri adjust`` writes without --no-exports), each timed on its own."""
     res = _aerotri(["adjust", str(root), "--dem", str(root / "dem.tif"), "--no-exports"], pythonpath)
     res["export"] = _aerotri(["export", str(root)], pythonpath)
+    res["export"]["stdout"] = f"{len(res['export']['stdout'])} files written"
     return res
 
 
