@@ -313,7 +313,7 @@ def _image_approximations(project: Project, cam, ties: ImageObservations, contro
     out, named, and so are control points measured only in them."""
     from aerotri.adjust.relative import image_approximations
 
-    frames = sorted(set(np.unique(ties.image_id).tolist()) | set(np.unique(cobs.image_id).tolist()))
+    frames = sorted(set(ties.image_id.tolist()) | set(cobs.image_id.tolist()))
     ap = image_approximations(project.work_dir, project.tiepoints_path, ties, cam, frames, control, cobs, crs)
     oriented = list(ap.eo.image_id)
     ties = ties.subset(_is_in(ties.image_id, oriented))

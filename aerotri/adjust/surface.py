@@ -160,9 +160,18 @@ def read_height_grid(path, project_crs, project_heights=None, what: str = "DEM",
             res = float(t.a) * f
             wt = ds.window_transform(win)
         else:
-            a = ds.read(1, window=win, masked=True)
             res = float(t.a)
             wt = ds.window_transform(win)
+            from rasterio.enums import MaskFlags
+
+            flags = set(ds.mask_flag_enums[0])
+            if flags <= {MaskFlags.nodata, MaskFlags.all_valid}:
+                # no-data by value (or none): one array, the no-data cells set to NaN in place
+                z = ds.read(1, window=win, out_dtype=dtype)
+                if ds.nodata is not None and MaskFlags.nodata in flags:
+                    z[z == ds.nodata if np.isfinite(ds.nodata) else ~np.isfinite(z)] = np.nan
+                return HeightGrid(z, float(wt.c), float(wt.f), res)
+            a = ds.read(1, window=win, masked=True)
         a = (a if a.dtype == dtype else a.astype(dtype)).filled(np.nan)
     return HeightGrid(a, float(wt.c), float(wt.f), res)
 
@@ -342,10 +351,10 @@ class SurfaceControl:
         if self.anchors is None:
             self.anchors = MapAnchors(self.frame)
 
-    def _map(self, coords_local: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """(map coordinates, d map / d local) of points of the block (``MapAnchors.to_map``)."""
+    def _map(self, coords_local: np.ndarray, jacobian: bool = True) -> tuple[np.ndarray, np.ndarray | None]:
+        """(map coordinates, d map / d local or None) of points of the block (``MapAnchors.to_map``)."""
         index = self.index if self.index is not None and len(self.index) == len(coords_local) else None
-        return self.anchors.to_map(coords_local, index)
+        return self.anchors.to_map(coords_local, index, jacobian)
 
     def of_points(self, index: np.ndarray) -> "SurfaceControl":
         """This surface control for the block's points ``index`` (in that order): the roof faces ``candidates``
@@ -369,7 +378,7 @@ class SurfaceControl:
         the DEM has none), for points on a roof face (``face``) the distance above its plane along the normal;
         its Jacobian (M, 3) with respect to the local coordinates (None unless ``jacobian``), its sigma (M,)."""
         p = np.asarray(coords_local, dtype=float)
-        m, J_ml = self._map(p)
+        m, J_ml = self._map(p, jacobian)
         h, hx, hy = self.dem.sample(m[:, 0], m[:, 1])
         z_u = self.map_unit_m[1]  # heights and their residuals in metres, whatever the map's unit
         e = (m[:, 2] - h) * z_u
@@ -403,7 +412,7 @@ class SurfaceControl:
         face (inside its footprint, whatever the nDSM says). Decides (and keeps, in ``face``) which face each
         point lies on."""
         p = np.asarray(coords_local, dtype=float)
-        m, _ = self._map(p)
+        m, _ = self._map(p, jacobian=False)
         ok = np.isfinite(self.dem.sample(m[:, 0], m[:, 1])[0])
         if self.ndsm is not None:
             nd = self.ndsm.sample(m[:, 0], m[:, 1])[0]

@@ -121,9 +121,9 @@ class MapAnchors:
         self.m0 = np.concatenate([self.m0, np.full((extra, 3), np.nan)])
         self.J0 = np.concatenate([self.J0, np.full((extra, 3, 3), np.nan)])
 
-    def to_map(self, coords_local, index=None) -> tuple[np.ndarray, np.ndarray]:
-        """(map coordinates (M, 3), d map / d local (M, 3, 3)) of local points (M, 3); NaN for non-finite points.
-        ``index``: the slot of each point (M,), distinct (default 0..M-1)."""
+    def to_map(self, coords_local, index=None, jacobian: bool = True) -> tuple[np.ndarray, np.ndarray | None]:
+        """(map coordinates (M, 3), d map / d local (M, 3, 3), None unless ``jacobian``) of local points (M, 3); NaN
+        for non-finite points. ``index``: the slot of each point (M,), distinct (default 0..M-1)."""
         p = np.atleast_2d(np.asarray(coords_local, dtype=float))
         idx = np.arange(len(p)) if index is None else np.asarray(index, dtype=np.int64)
         if len(idx):
@@ -137,5 +137,8 @@ class MapAnchors:
             self.J0[slot] = self.frame.jacobian_map_from_local(p[k])
             d[k] = 0.0
             self.anchored += len(k)
-        J = self.J0[idx]
-        return self.m0[idx] + np.einsum("nij,nj->ni", J, d), J
+        J0 = self.J0
+        m = self.m0[idx]
+        for r in range(3):  # m + J0 d, row by row: no (M, 3, 3) gather unless the Jacobian is asked for
+            m[:, r] += J0[idx, r, 0] * d[:, 0] + J0[idx, r, 1] * d[:, 1] + J0[idx, r, 2] * d[:, 2]
+        return m, (J0[idx] if jacobian else None)

@@ -248,6 +248,6 @@ def validate_references(
         orphan = sorted(set(measured) - set(control.id.tolist()))
         if orphan:
             raise InputError(f"{control_obs_path}: point ids {orphan[:5]} are not in {control_path}")
-    clash = sorted(set(control.id.tolist()) & set(np.unique(ties.point_id).tolist()))
+    clash = sorted(set(control.id.tolist()) & set(ties.point_id.tolist()))  # a set: no sort of every measurement
     if clash:
         raise InputError(f"{tie_path}: point ids {clash[:5]} are also control point ids in {control_path}")
