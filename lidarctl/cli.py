@@ -257,8 +257,27 @@ def _evaluate_truth(pred_paths, truth_path, map_pred: dict, map_truth: dict) -> 
         raise OptionError(f"--truth: one classified file, not {len(pred_paths)}", param="--truth")
     result = ev.evaluate_files(pred_paths[0], truth_path, map_pred, map_truth)
     text = "\n".join([ev.format_filter_table({"ground": result["filter_test"]}), "",
-                      ev.format_confusion(result["confusion"])])
+                      ev.format_confusion(result["confusion"])] + _truth_notes(result["confusion"]))
     return text, result
+
+
+def _truth_notes(conf: dict) -> list[str]:
+    """What the numbers against a truth cloud do not say: its class 1 may hold ground (a production classification:
+    Autzen, lidR's topography), and a truth of ground and one other class makes the matrix compare classes it has
+    no label for (the ISPRS filter test's 0 / 2)."""
+    truth = [c for c, row in zip(conf["classes"], conf["matrix"]) if sum(row) > 0]
+    pred = [c for c, col in zip(conf["classes"], zip(*conf["matrix"])) if sum(col) > 0]
+    notes = []
+    if 1 in truth:
+        notes.append("note: the truth's class 1 (unclassified) counts as object: where it also holds ground (a "
+                     "production classification), type II and total overstate the errors; type I does not")
+    other = [c for c in truth if c not in (2, 9)]
+    if len(other) == 1 and len(set(pred) - {2, 9, other[0]}) > 0:
+        notes.append(f"note: the truth labels ground and class {other[0]} only: the overall accuracy and kappa above "
+                     f"count every other predicted class as wrong; --map-pred "
+                     + ",".join(f"{c}:{other[0]}" for c in sorted(set(pred) - {2, 9, other[0]}))
+                     + " gives the two-class matrix")
+    return notes
 
 
 @main.command("check-heights")

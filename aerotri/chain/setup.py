@@ -151,6 +151,7 @@ def _camera_text(frames: dict[str, Path], size: tuple[int, int], camera_path: Pa
 def init_project(root, images_dir, crs: str, camera_path=None, copy: bool = False, name: str | None = None) -> InitResult:
     """Make the project folder ``root`` (module docstring); ``root`` must not exist or be an empty folder.
     Returns what was made."""
+    from aerotri.geom.crs import crs_label
     from aerotri.geom.eo import check_block_crs
 
     root, images_dir = Path(root), Path(images_dir)
@@ -170,7 +171,9 @@ def init_project(root, images_dir, crs: str, camera_path=None, copy: bool = Fals
     size = next(iter(sizes))
     camera_text, camera_source, camera_missing, notes = _camera_text(frames, size, camera_path)
     name = name or root.name
-    toml = PROJECT_TOML.format(name=name.replace('"', "'"), crs=crs, crs_name=c.name)
+    # a CRS given as a PROJ string has no name ("unknown"): its projection and datum instead
+    crs_name = c.name if c.name not in ("", "unknown") else crs_label(c)
+    toml = PROJECT_TOML.format(name=name.replace('"', "'"), crs=crs, crs_name=crs_name)
     with atomic_dir(root) as tmp:
         (tmp / "images").mkdir()
         for image_id, path in frames.items():

@@ -82,6 +82,7 @@ class FrameMetadata:
     focal_35mm: float | None = None
     focal_plane_px_per_mm: float | None = None
     calibrated_focal_px: float | None = None
+    relative_alt_m: float | None = None  # DJI RelativeAltitude: height above the take-off point
     model: str = ""
     make: str = ""
 
@@ -210,6 +211,7 @@ def read_frame_metadata(path) -> FrameMetadata:
         unit = exif.get("EXIF_FocalPlaneResolutionUnit", "2").strip()
         m.focal_plane_px_per_mm = per_unit / {"2": 25.4, "3": 10.0, "4": 1.0}.get(unit, 25.4) or None
     m.calibrated_focal_px = _xmp_float(xmp, "drone-dji:CalibratedFocalLength", path)
+    m.relative_alt_m = _xmp_float(xmp, "drone-dji:RelativeAltitude", path)
     return m
 
 
@@ -382,6 +384,18 @@ def read(files, project: Project, options: ImportSettings) -> ImportedBlock:
         sigma = np.tile(np.asarray(options.sigma_xyz_m, float), (len(metas), 1))
     else:
         sigma = None
+    if sigma is None and any(project.source_of("gnss", k) != "project.toml" for k in ("sigma_xy_m", "sigma_z_m")):
+        g = project.gnss
+        block.notes.append(f"positions: the EXIF states no accuracy (no DJI RTK): the adjustment takes [gnss] "
+                           f"sigma_xy_m / sigma_z_m ({g.sigma_xy_m:g} / {g.sigma_z_m:g} m); give --sigma-xyz or set them "
+                           "for a consumer drone's GNSS, metres off")
+    if all(m.relative_alt_m is not None for m in metas):
+        # the ground at the take-off point, in the project's heights: a terrain height for the frames' footprints
+        takeoff_m = float(np.median(xyz[:, 2] - np.array([m.relative_alt_m for m in metas])))
+        block.notes.append(f"flight: the frames' heights above the take-off point (DJI RelativeAltitude) put the ground "
+                           f"there at {takeoff_m:.1f} m: with [flight] mean_terrain_height_m = {takeoff_m:.1f} in "
+                           f"{project.config_path.name}, aerotri match pairs the frames by their footprints instead of "
+                           "matching thumbnails of every pair")
     block.gnss = GnssPositions(ids, xyz, sigma)
     if all(m.gimbal_ypr_deg is not None for m in metas):
         from aerotri.geom.local_frame import LocalFrame

@@ -68,7 +68,11 @@ class ImportedBlock:
         return [name for name in ("camera", "gnss", "eo", "control", "image_points") if getattr(self, name) is not None]
 
     def source_of(self, field: str) -> str:
-        return self.origin.get(field) or ", ".join(Path(s).name for s in self.source)
+        if self.origin.get(field):
+            return self.origin[field]
+        names = [Path(s).name for s in self.source]
+        # a folder of frames: the first and the last, not hundreds of names on one line
+        return ", ".join(names) if len(names) <= 4 else f"{len(names)} files, {names[0]} ... {names[-1]}"
 
 
 @dataclasses.dataclass(frozen=True, kw_only=True)

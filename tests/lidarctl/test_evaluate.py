@@ -66,3 +66,20 @@ def test_height_check_csv_errors_name_the_line(tmp_path):
     f.write_text("id,x,y\nA,1,2\n")
     with pytest.raises(InputError, match="no 'z' column"):
         heights_check.read_points_csv(f)
+
+
+def test_evaluate_says_what_a_ground_only_truth_cannot_measure():
+    """`lidarctl evaluate --truth` against the ISPRS filter test (labels 2 / 0) printed "overall accuracy 53 %" over
+    classes the truth does not label, and against Autzen (class 1 "unclassified", which holds ground too) a total
+    error of 55 %, with no word; the notes say so and give the mapping to the two-class matrix."""
+    from lidarctl.cli import _truth_notes
+
+    isprs = evaluate.confusion(np.array([2, 2, 3, 5, 6, 2]), np.array([2, 2, 0, 0, 0, 0]))
+    notes = _truth_notes(isprs)
+    assert len(notes) == 1 and "ground and class 0 only" in notes[0] and "--map-pred 3:0,5:0,6:0 " in notes[0]
+    autzen = evaluate.confusion(np.array([2, 2, 2, 5]), np.array([2, 1, 1, 1]))
+    notes = _truth_notes(autzen)
+    assert any("class 1 (unclassified) counts as object" in n for n in notes)
+    assert any("--map-pred 5:1 " in n for n in notes)
+    full = evaluate.confusion(np.array([2, 6, 5, 3]), np.array([2, 6, 5, 4]))  # a truth of several classes
+    assert _truth_notes(full) == []

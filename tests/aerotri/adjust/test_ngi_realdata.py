@@ -177,6 +177,8 @@ def test_the_commands_of_a_dmc_block_with_a_dem(ngi_data, tmp_path):
     r = run("init", p, "--images", frames, "--crs", prj)
     assert r.exit_code == 0, r.output
     assert "no camera in the EXIF" in r.output and not (p / "camera.toml").exists()
+    # the CRS given as a PROJ string has no name: project.toml's comment says what it is instead of "unknown"
+    assert "# Transverse Mercator (Longitude of natural origin 25" in (p / "project.toml").read_text()
     # the DEM's heights (EGM2008) and its mean height for the footprints of the match (without it the pairs come
     # from thumbnail retrieval, which finds neither cross-strip pair of these frames: 2 parts, OPK 0.023 deg off)
     toml = (p / "project.toml").read_text().replace('heights = "ellipsoidal"', f'heights = "{ngi.HEIGHTS}"', 1)

@@ -259,3 +259,29 @@ def test_init_then_import_as_the_init_says(tmp_path):
     r = CliRunner().invoke(aerotri_cli, ["import", str(p), "--format", "exif", str(p / "images")])
     assert r.exit_code == 2 and r.output.startswith(f"Error: {p / 'camera.toml'}: exists; the import would replace")
     assert not (p / "gnss.txt").exists()
+
+
+@pytest.mark.realdata
+def test_brighton_import_says_the_take_off_height_and_the_missing_accuracy(shared_data, tmp_path):
+    """What the import cannot write but the user needs next: the ground at the take-off point from DJI's
+    RelativeAltitude (for [flight] mean_terrain_height_m: exif_positions.csv gives abs_alt_m - rel_alt_m = 158.5 m
+    for every frame), and that positions without RTK accuracies get [gnss]'s aerial defaults."""
+    import csv
+
+    data = shared_data / "brighton_beach"
+    rows = list(csv.DictReader(open(data / "exif_positions.csv")))
+    takeoff = np.median([float(r["abs_alt_m"]) - float(r["rel_alt_m"]) for r in rows])
+    assert takeoff == pytest.approx(158.5, abs=0.05)
+    root = _project(tmp_path, "EPSG:32615")
+    r = CliRunner().invoke(aerotri_cli, ["import", str(root), "--format", "exif", str(data / "images")])
+    assert r.exit_code == 0, r.output
+    assert f"[flight] mean_terrain_height_m = {takeoff:.1f}" in r.output
+    assert "states no accuracy (no DJI RTK): the adjustment takes [gnss] sigma_xy_m / sigma_z_m (0.05 / 0.1 m)" in r.output
+    # the sources of a folder of frames in a few words, not 18 file names
+    assert "(from 18 files, DJI_0018.JPG ... DJI_0035.JPG)" in r.output
+    # stated in project.toml: no note
+    (tmp_path / "q").mkdir()
+    (tmp_path / "q" / "project.toml").write_text('[project]\ncrs = "EPSG:32615"\n[gnss]\nsigma_xy_m = 3.0\nsigma_z_m = 5.0\n')
+    r = CliRunner().invoke(aerotri_cli, ["import", str(tmp_path / "q"), "--format", "exif", str(data / "images")])
+    assert r.exit_code == 0, r.output
+    assert "states no accuracy" not in r.output
