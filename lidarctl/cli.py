@@ -10,7 +10,7 @@ from __future__ import annotations
 import click
 
 from aerotri.core.atomic import refuse_input_as_output
-from aerotri.core.commands import Group, at_least, fraction, positive, scheduler_options
+from aerotri.core.commands import FiniteFloatRange, Group, at_least, fraction, positive, scheduler_options
 from aerotri.core.settings import click_option, resolve
 from lidarctl.classify import ClassifySettings
 from lidarctl.heights_check import GROUPINGS, DensityGroups
@@ -365,7 +365,7 @@ def check_plan(paths, json_path, png_path, crs, points_crs, **_settings):
                    "4-neighbour Laplacian [1.0]; order 2, the height difference between neighbouring cells [0.5].")
 @click.option("--iterations", type=click.IntRange(min=1, max=100000), default=None,
               help="Diffusion steps [order 4: 100; order 2: 20].")
-@click.option("--step", type=click.FloatRange(min=0, max=0.25, min_open=True), default=None,
+@click.option("--step", type=FiniteFloatRange(min=0, max=0.25, min_open=True), default=None,
               help="Diffusion time step [order 4: 0.03, at most 1/32; order 2: 0.2, at most 0.25].")
 @click.option("--window-px", type=click.IntRange(min=16), default=2048, show_default=True,
               help="Processing window in cells (memory about 40 bytes per cell of a window with its halo).")

@@ -6,7 +6,7 @@ from pathlib import Path
 
 import click
 
-from aerotri.core.commands import Group, scheduler_options
+from aerotri.core.commands import FiniteFloatRange, Group, scheduler_options
 from aerotri.core.executor import executor_for
 from aerotri.core.settings import click_option
 from ortho.settings import CheckSettings, MosaicSettings, RectifySettings
@@ -67,7 +67,7 @@ def rectify(project, params_path, heights_path, allow_ballpark, eo_path, camera_
 
 @main.command()
 @click.argument("project", type=click.Path(path_type=Path))
-@click.option("--res", "res_m", type=click.FloatRange(min=0.0, min_open=True), default=None,
+@click.option("--res", "res_m", type=FiniteFloatRange(min=0.0, min_open=True), default=None,
               help="cell size (m) [about 4 tie points per cell]")
 @click.option("--min-rays", type=click.IntRange(min=2), default=3, show_default=True,
               help="tie points seen in at least this many frames")

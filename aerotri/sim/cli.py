@@ -7,7 +7,7 @@ from pathlib import Path
 import click
 
 from aerotri.core.errors import InputError
-from aerotri.core.commands import Command, finite, fraction
+from aerotri.core.commands import Command, FiniteFloatRange, finite, fraction
 
 
 @click.command(cls=Command)
@@ -28,7 +28,7 @@ from aerotri.core.commands import Command, finite, fraction
               help="Tie points (each seen in >= 3 frames) per frame on average; default: the preset's "
                    "observations.tie_points_per_frame (130) with --observations-only, 150 candidates a frame with "
                    "--observations.")
-@click.option("--tie-sigma-px", type=click.FloatRange(0.0, 10.0), default=None,
+@click.option("--tie-sigma-px", type=FiniteFloatRange(0.0, 10.0), default=None,
               help="Image noise of those observations (default: the preset's observations.tie_sigma_px, 0.3).")
 @click.option("--n-control", type=click.IntRange(min=0), default=4, show_default=True, help="Number of full control points.")
 @click.option("--blunder-fraction", type=fraction(), default=0.0, show_default=True,
