@@ -1,0 +1,125 @@
+"""Per-cell statistics of a tile's points for the rasters (``rasters._CellSums``), one pass per chunk.
+
+The sums are the ones ``np.bincount`` makes, bit for bit: every chunk's points are summed in their
+order into a chunk total starting at 0, which is then added to the running sum (so a cell's mean
+does not depend on whether these loops or the array version made it); counts and maxima do not
+depend on the order. Cells are in a window of a larger grid: (row, col) = floor((y - y0) / res,
+(x - x0) / res) minus the window's first cell (``row0``, ``col0``).
+"""
+
+from __future__ import annotations
+
+import numba
+import numpy as np
+
+NOT_VALID = (7, 18)      # noise classes: not in the occupancy, the DSM or the intensity
+GROUND = (2, 9)          # ground and water: the DEM
+VEGETATION = (4, 5)      # medium and high vegetation: the CHM
+
+
+@numba.njit(cache=True, nogil=True)
+def _accumulate(x, y, z, cls, rn, inten, res_m, x0, y0, row0, col0, nrows, ncols,
+                valid_n, ground_sum, ground_n, dsm, inten_sum, inten_n, stamp_of, stamp,
+                ground_chunk, inten_chunk, touched):
+    """One chunk into the window's arrays (flat cells). Returns the index of the first point off
+    the window, or -1."""
+    nt = 0
+    for k in range(len(x)):
+        j = np.int64(np.floor((x[k] - x0) / res_m)) - col0
+        i = np.int64(np.floor((y[k] - y0) / res_m)) - row0
+        if i < 0 or i >= nrows or j < 0 or j >= ncols:
+            return k
+        c = i * ncols + j
+        cl = cls[k]
+        ground = cl == 2 or cl == 9
+        first = rn[k] == 1
+        if cl == 7 or cl == 18:
+            continue
+        if stamp_of[c] != stamp and (ground or first):
+            stamp_of[c] = stamp
+            ground_chunk[c] = 0.0
+            inten_chunk[c] = 0.0
+            touched[nt] = c
+            nt += 1
+        valid_n[c] += 1
+        if ground:
+            ground_chunk[c] += z[k]
+            ground_n[c] += 1
+        if first:
+            if np.isnan(dsm[c]) or z[k] > dsm[c]:
+                dsm[c] = z[k]
+            inten_chunk[c] += float(inten[k])
+            inten_n[c] += 1
+    for t in range(nt):
+        c = touched[t]
+        ground_sum[c] += ground_chunk[c]
+        inten_sum[c] += inten_chunk[c]
+    return -1
+
+
+@numba.njit(cache=True, nogil=True)
+def _chm_max(x, y, z, cls, dem, res_m, x0, y0, row0, col0, chm):
+    """Highest height of vegetation points above the bilinear DEM per cell of the window (``chm``
+    flat, NaN where none), the DEM sampled as ``raster_ops.sample_bilinear`` samples it (the same
+    arithmetic). Returns the index of the first point off the window, or -1."""
+    nrows, ncols = dem.shape
+    r0, c0 = float(row0), float(col0)
+    for k in range(len(x)):
+        cl = cls[k]
+        if cl != 4 and cl != 5:
+            continue
+        r = min(max((y[k] - y0) / res_m - 0.5 - r0, 0.0), nrows - 1.0)
+        c = min(max((x[k] - x0) / res_m - 0.5 - c0, 0.0), ncols - 1.0)
+        i = min(int(r), nrows - 2) if nrows > 1 else 0
+        j = min(int(c), ncols - 2) if ncols > 1 else 0
+        fr, fc = r - i, c - j
+        i1, j1 = min(i + 1, nrows - 1), min(j + 1, ncols - 1)
+        ground = ((1.0 - fr) * ((1.0 - fc) * dem[i, j] + fc * dem[i, j1])
+                  + fr * ((1.0 - fc) * dem[i1, j] + fc * dem[i1, j1]))
+        hag = z[k] - ground
+        jj = np.int64(np.floor((x[k] - x0) / res_m)) - col0
+        ii = np.int64(np.floor((y[k] - y0) / res_m)) - row0
+        if ii < 0 or ii >= nrows or jj < 0 or jj >= ncols:
+            return k
+        cell = ii * ncols + jj
+        if np.isnan(chm[cell]) or hag > chm[cell]:
+            chm[cell] = hag
+    return -1
+
+
+class CellStats:
+    """Running per-cell statistics of a window of ``nrows`` x ``ncols`` cells (flat arrays): points
+    not noise per cell, the sum and count of ground heights, the highest first return, the sum and
+    count of first-return intensities, the highest vegetation above the DEM."""
+
+    def __init__(self, res_m: float, x0: float, y0: float, nrows: int, ncols: int, row0: int = 0, col0: int = 0):
+        self.res_m, self.x0, self.y0 = float(res_m), float(x0), float(y0)
+        self.nrows, self.ncols, self.row0, self.col0 = int(nrows), int(ncols), int(row0), int(col0)
+        n = self.nrows * self.ncols
+        self.valid_n = np.zeros(n, np.int64)
+        self.ground_sum = np.zeros(n)
+        self.ground_n = np.zeros(n, np.int64)
+        self.dsm = np.full(n, np.nan)
+        self.inten_sum = np.zeros(n)
+        self.inten_n = np.zeros(n, np.int64)
+        self.chm = np.full(n, np.nan)
+        self._stamp_of = np.zeros(n, np.int64)
+        self._stamp = 0
+        self._ground_chunk = np.empty(n)
+        self._inten_chunk = np.empty(n)
+
+    def add(self, x, y, z, cls, return_number, intensity) -> None:
+        """A chunk of points (x, y, z in metres, class, return number, intensity)."""
+        self._stamp += 1
+        bad = _accumulate(x, y, z, cls, return_number, intensity, self.res_m, self.x0, self.y0, self.row0,
+                          self.col0, self.nrows, self.ncols, self.valid_n, self.ground_sum, self.ground_n,
+                          self.dsm, self.inten_sum, self.inten_n, self._stamp_of, self._stamp,
+                          self._ground_chunk, self._inten_chunk, np.empty(len(x), np.int64))
+        if bad >= 0:
+            raise RuntimeError("a point lies outside the raster grid")   # a tiling bug, not an input error
+
+    def add_chm(self, x, y, z, cls, dem: np.ndarray) -> None:
+        """A chunk of points again, once the window's DEM (filled, rows south to north) is known."""
+        if _chm_max(x, y, z, cls, np.ascontiguousarray(dem, float), self.res_m, self.x0, self.y0, self.row0,
+                    self.col0, self.chm) >= 0:
+            raise RuntimeError("a point lies outside the raster grid")
