@@ -17,12 +17,15 @@ GROUND = (2, 9)          # ground and water: the DEM
 VEGETATION = (4, 5)      # medium and high vegetation: the CHM
 
 
+# columns of the per-cell records (one record per cell: a point touches one or two cache lines, not seven)
+_STAMP, _VALID_N, _GROUND_N, _INTEN_N = 0, 1, 2, 3                     # int64
+_GROUND_CHUNK, _INTEN_CHUNK, _DSM, _GROUND_SUM, _INTEN_SUM = 0, 1, 2, 3, 4   # float64
+
+
 @numba.njit(cache=True, nogil=True)
-def _accumulate(x, y, z, cls, rn, inten, res_m, x0, y0, row0, col0, nrows, ncols,
-                valid_n, ground_sum, ground_n, dsm, inten_sum, inten_n, stamp_of, stamp,
-                ground_chunk, inten_chunk, touched):
-    """One chunk into the window's arrays (flat cells). Returns the index of the first point off
-    the window, or -1."""
+def _accumulate(x, y, z, cls, rn, inten, res_m, x0, y0, row0, col0, nrows, ncols, counts, sums, stamp, touched):
+    """One chunk into the window's records (``counts``, ``sums``: one row per flat cell). Returns the
+    index of the first point off the window, or -1."""
     nt = 0
     for k in range(len(x)):
         j = np.int64(np.floor((x[k] - x0) / res_m)) - col0
@@ -35,25 +38,25 @@ def _accumulate(x, y, z, cls, rn, inten, res_m, x0, y0, row0, col0, nrows, ncols
         first = rn[k] == 1
         if cl == 7 or cl == 18:
             continue
-        if stamp_of[c] != stamp and (ground or first):
-            stamp_of[c] = stamp
-            ground_chunk[c] = 0.0
-            inten_chunk[c] = 0.0
+        if counts[c, _STAMP] != stamp and (ground or first):
+            counts[c, _STAMP] = stamp            # the chunk's sums of this cell start at 0
+            sums[c, _GROUND_CHUNK] = 0.0
+            sums[c, _INTEN_CHUNK] = 0.0
             touched[nt] = c
             nt += 1
-        valid_n[c] += 1
+        counts[c, _VALID_N] += 1
         if ground:
-            ground_chunk[c] += z[k]
-            ground_n[c] += 1
+            sums[c, _GROUND_CHUNK] += z[k]
+            counts[c, _GROUND_N] += 1
         if first:
-            if np.isnan(dsm[c]) or z[k] > dsm[c]:
-                dsm[c] = z[k]
-            inten_chunk[c] += float(inten[k])
-            inten_n[c] += 1
+            if np.isnan(sums[c, _DSM]) or z[k] > sums[c, _DSM]:
+                sums[c, _DSM] = z[k]
+            sums[c, _INTEN_CHUNK] += float(inten[k])
+            counts[c, _INTEN_N] += 1
     for t in range(nt):
         c = touched[t]
-        ground_sum[c] += ground_chunk[c]
-        inten_sum[c] += inten_chunk[c]
+        sums[c, _GROUND_SUM] += sums[c, _GROUND_CHUNK]
+        sums[c, _INTEN_SUM] += sums[c, _INTEN_CHUNK]
     return -1
 
 
@@ -89,32 +92,34 @@ def _chm_max(x, y, z, cls, dem, res_m, x0, y0, row0, col0, chm):
 
 class CellStats:
     """Running per-cell statistics of a window of ``nrows`` x ``ncols`` cells (flat arrays): points
-    not noise per cell, the sum and count of ground heights, the highest first return, the sum and
-    count of first-return intensities, the highest vegetation above the DEM."""
+    not noise per cell (``valid_n``), the sum and count of ground heights (``ground_sum``,
+    ``ground_n``), the highest first return (``dsm``, NaN where none), the sum and count of
+    first-return intensities (``inten_sum``, ``inten_n``), the highest vegetation above the DEM
+    (``chm``, NaN where none)."""
 
     def __init__(self, res_m: float, x0: float, y0: float, nrows: int, ncols: int, row0: int = 0, col0: int = 0):
         self.res_m, self.x0, self.y0 = float(res_m), float(x0), float(y0)
         self.nrows, self.ncols, self.row0, self.col0 = int(nrows), int(ncols), int(row0), int(col0)
         n = self.nrows * self.ncols
-        self.valid_n = np.zeros(n, np.int64)
-        self.ground_sum = np.zeros(n)
-        self.ground_n = np.zeros(n, np.int64)
-        self.dsm = np.full(n, np.nan)
-        self.inten_sum = np.zeros(n)
-        self.inten_n = np.zeros(n, np.int64)
-        self.chm = np.full(n, np.nan)
-        self._stamp_of = np.zeros(n, np.int64)
+        self._counts = np.zeros((n, 4), np.int64)
+        self._sums = np.zeros((n, 5))
+        self._sums[:, _DSM] = np.nan
         self._stamp = 0
-        self._ground_chunk = np.empty(n)
-        self._inten_chunk = np.empty(n)
+        self.chm = np.full(n, np.nan)
+
+    valid_n = property(lambda self: self._counts[:, _VALID_N])
+    ground_n = property(lambda self: self._counts[:, _GROUND_N])
+    inten_n = property(lambda self: self._counts[:, _INTEN_N])
+    ground_sum = property(lambda self: self._sums[:, _GROUND_SUM])
+    inten_sum = property(lambda self: self._sums[:, _INTEN_SUM])
+    dsm = property(lambda self: self._sums[:, _DSM])
 
     def add(self, x, y, z, cls, return_number, intensity) -> None:
         """A chunk of points (x, y, z in metres, class, return number, intensity)."""
         self._stamp += 1
         bad = _accumulate(x, y, z, cls, return_number, intensity, self.res_m, self.x0, self.y0, self.row0,
-                          self.col0, self.nrows, self.ncols, self.valid_n, self.ground_sum, self.ground_n,
-                          self.dsm, self.inten_sum, self.inten_n, self._stamp_of, self._stamp,
-                          self._ground_chunk, self._inten_chunk, np.empty(len(x), np.int64))
+                          self.col0, self.nrows, self.ncols, self._counts, self._sums, self._stamp,
+                          np.empty(len(x), np.int64))
         if bad >= 0:
             raise RuntimeError("a point lies outside the raster grid")   # a tiling bug, not an input error
 

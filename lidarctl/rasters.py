@@ -299,15 +299,13 @@ def hillshade_rgba(hs: np.ndarray) -> np.ndarray:
     return mappable.to_rgba(np.where(np.isfinite(hs), hs, 0.0), bytes=True)
 
 
-_GREY_LUT = None
+# matplotlib's grey colour map as bytes (its table of 256 entries, linspace(0, 1) x 255 truncated)
+_GREY_LUT = (np.linspace(0.0, 1.0, 256) * 255).astype(np.uint8)
 
 
 def hillshade_grey(hs: np.ndarray) -> np.ndarray:
-    """The grey level (uint8) of ``hillshade_rgba`` (whose R, G and B are equal and alpha 255) from a
-    table of its 256 colours, indexed as matplotlib indexes a colour map: int(value x 256), 1.0 -> 255."""
-    global _GREY_LUT
-    if _GREY_LUT is None:
-        _GREY_LUT = np.ascontiguousarray(hillshade_rgba((np.arange(256) + 0.5) / 256.0)[:, 0])
+    """The grey level (uint8) of ``hillshade_rgba`` (whose R, G and B are equal and alpha 255), indexed
+    as matplotlib indexes a colour map: int(value x 256), 1.0 -> 255 (without importing matplotlib)."""
     x = np.where(np.isfinite(hs), hs, 0.0) * 256.0
     return _GREY_LUT[np.minimum(x.astype(np.int64), 255)]
 
