@@ -272,7 +272,7 @@ def _fill_triangles(filled, gaps, pts, z, simplices, max_radius_px, row0, col0):
 
 
 def fill_nodata_tin(a: np.ndarray, max_radius_px: float = DEFAULT_TIN_FILL_RADIUS_PX,
-                    offset: tuple[int, int] = (0, 0)) -> np.ndarray:
+                    offset: tuple[int, int] = (0, 0), needed=None) -> np.ndarray:
     """Fill NaN cells by linear interpolation in the Delaunay TIN of the valid cells around the gaps
     (as production DEMs interpolate ground under buildings and sparse canopy ground); cells whose
     triangle has a circumradius above ``max_radius_px`` cells, or that lie outside the TIN, keep the
@@ -280,7 +280,9 @@ def fill_nodata_tin(a: np.ndarray, max_radius_px: float = DEFAULT_TIN_FILL_RADIU
 
     Local by construction: a cell's value depends only on valid cells within ``2 * max_radius_px + 2``
     cells, so a window of a larger grid (``offset``: its first cell's (row, col) there) gets the same
-    values as the whole grid wherever it has that margin.
+    values as the whole grid wherever it has that margin. ``needed``: (row slice, col slice) of the
+    cells whose values the caller uses; only the cells within that distance of them are triangulated
+    (the others keep the pull-push fill).
     """
     from scipy.spatial import Delaunay, QhullError
 
@@ -292,6 +294,11 @@ def fill_nodata_tin(a: np.ndarray, max_radius_px: float = DEFAULT_TIN_FILL_RADIU
     gaps = ~valid
     # the vertices of a gap's triangles are the valid cells at its rim
     rim = valid & ndimage.maximum_filter(gaps, size=5, mode="constant", cval=False)   # 3 x 3, twice
+    if needed is not None:
+        m = int(np.ceil(2 * max_radius_px)) + 3
+        keep = np.zeros_like(rim)
+        keep[max(needed[0].start - m, 0):needed[0].stop + m, max(needed[1].start - m, 0):needed[1].stop + m] = True
+        rim &= keep
     vr, vc = np.nonzero(rim)
     if len(vr) < 3:
         return filled

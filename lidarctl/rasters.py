@@ -110,14 +110,19 @@ class _CellSums:
         """Pass 2 (after the DEM): highest vegetation height above the DEM per cell."""
         self._stats.add_chm(x, y, z, cls, dem)
 
-    def dem(self, require_ground: bool = True, fill_radius_px: float = DEFAULT_TIN_FILL_RADIUS_PX) -> np.ndarray:
+    def dem(self, require_ground: bool = True, fill_radius_px: float = DEFAULT_TIN_FILL_RADIUS_PX,
+            needed=None) -> np.ndarray:
         """Mean ground height per cell; cells without ground (under buildings, sparse ground under
-        canopy) from the TIN of the surrounding cells (``fill_nodata_tin``)."""
+        canopy) from the TIN of the surrounding cells (``fill_nodata_tin``). ``needed``: (row slice,
+        col slice) of the cells whose values are used (a tile's core and one cell around it, which the
+        CHM's bilinear samples reach); the TIN is then made only within the distance that decides
+        them, and the other cells keep the pull-push fill."""
         if require_ground and not self.ground_n.any():
             raise ValueError("the cloud has no ground points (class 2): classify it first")
         shape = self.args[3], self.args[4]
         with np.errstate(invalid="ignore"):
-            return fill_nodata_tin((self.ground_sum / self.ground_n).reshape(shape), fill_radius_px, self.offset)
+            return fill_nodata_tin((self.ground_sum / self.ground_n).reshape(shape), fill_radius_px, self.offset,
+                                   needed=needed)
 
     def grids_south_up(self, dem: np.ndarray, footprint_cells: int) -> dict:
         """float32 grids, rows south to north (row 0 = the grid's first row)."""
@@ -191,8 +196,13 @@ def _file_points(path, units: LengthUnits, chunk_points: int, validate: bool = T
     """Chunks of a LAS/LAZ file as (x, y, z in metres, class, return number, intensity); with
     ``validate`` every chunk is checked (``io.validate_xyz``, and points outside the header bounds,
     which the grids are made from, are an InputError naming the record)."""
+    import laspy
+
     mins, maxs = _header_bounds(path, las.read_header(path))
-    for first, chunk in las.iter_file_chunks(path, chunk_points):
+    # only the fields read here (LAZ 1.4 point formats 6-10 store the others in layers left compressed)
+    fields = (laspy.DecompressionSelection.XY_RETURNS_CHANNEL | laspy.DecompressionSelection.Z
+              | laspy.DecompressionSelection.CLASSIFICATION | laspy.DecompressionSelection.INTENSITY)
+    for first, chunk in las.iter_file_chunks(path, chunk_points, fields):
         x, y, z = np.asarray(chunk.x), np.asarray(chunk.y), np.asarray(chunk.z)
         if validate:
             io.validate_xyz(path, x, y, z, first, units)
@@ -676,7 +686,8 @@ def _tiles_to_gtiffs(inputs: _Inputs, args, grid, used, work: Path, tmp: Path, t
                 sums = _CellSums((res_m, x0, y0, rows, cols), (row0, col0))
                 for rec in _bin_chunks(bin_path, chunk_points):
                     sums.add(rec["x"], rec["y"], rec["z"], rec["cls"], rec["rn"], rec["intensity"])
-                dem = sums.dem(require_ground=False, fill_radius_px=dem_fill_radius_px)
+                grown = tuple(slice(max(c.start - 1, 0), c.stop + 1) for c in core)   # the CHM's samples
+                dem = sums.dem(require_ground=False, fill_radius_px=dem_fill_radius_px, needed=grown)
                 for rec in _bin_chunks(bin_path, chunk_points):
                     sums.add_chm(rec["x"], rec["y"], rec["z"], rec["cls"], dem)
                 os.remove(bin_path)
