@@ -123,8 +123,47 @@ class CellStats:
         if bad >= 0:
             raise RuntimeError("a point lies outside the raster grid")   # a tiling bug, not an input error
 
+    def core_grids(self, footprint: np.ndarray, dem: np.ndarray, dsm_filled: np.ndarray, core, z_m: float,
+                   metric: bool, nodata: float) -> np.ndarray:
+        """``_core_grids`` of the window's core (row slice, col slice): (6, rows, cols) float32."""
+        return _core_grids(footprint, np.ascontiguousarray(dem, float), np.ascontiguousarray(dsm_filled, float),
+                           self.chm, self._counts, self._sums, core[0].start, core[0].stop, core[1].start,
+                           core[1].stop, float(z_m), bool(metric), float(nodata))
+
     def add_chm(self, x, y, z, cls, dem: np.ndarray) -> None:
         """A chunk of points again, once the window's DEM (filled, rows south to north) is known."""
         if _chm_max(x, y, z, cls, np.ascontiguousarray(dem, float), self.res_m, self.x0, self.y0, self.row0,
                     self.col0, self.chm) >= 0:
             raise RuntimeError("a point lies outside the raster grid")
+
+
+@numba.njit(cache=True, nogil=True, error_model="numpy")
+def _core_grids(footprint, dem, dsm_filled, chm, counts, sums, r_lo, r_hi, c_lo, c_hi, z_m, metric, nodata):
+    """The float32 grids of a tile's core (window rows r_lo..r_hi, cols c_lo..c_hi), rows north to
+    south: DEM in metres with NaN, then DEM, DSM, nDSM, CHM (heights divided by ``z_m`` unless
+    ``metric``) and intensity with ``nodata`` for no value. The arithmetic of the array version:
+    heights in float64, cast to float32, then scaled in float64 and cast again."""
+    ncols = dem.shape[1]
+    h, w = r_hi - r_lo, c_hi - c_lo
+    out = np.empty((6, h, w), np.float32)
+    for i in range(r_lo, r_hi):
+        o = h - 1 - (i - r_lo)
+        for j in range(c_lo, c_hi):
+            c = i * ncols + j
+            fp = footprint[i, j]
+            d = dem[i, j] if fp else np.nan
+            a, b = dsm_filled[i, j], dem[i, j]
+            s = np.nan if (np.isnan(a) or np.isnan(b)) else max(a, b)
+            if not fp:
+                s = np.nan
+            v = chm[c]
+            heights = (np.float32(d), np.float32(s), np.float32(s - d), np.float32(v if v > 0 else np.nan))
+            out[0, o, j - c_lo] = heights[0]
+            for k in range(4):
+                x = heights[k]
+                if not metric:
+                    x = np.float32(np.float64(x) / z_m)
+                out[1 + k, o, j - c_lo] = x if np.isfinite(x) else nodata
+            x = np.float32(sums[c, _INTEN_SUM] / counts[c, _INTEN_N])
+            out[5, o, j - c_lo] = x if np.isfinite(x) else nodata
+    return out

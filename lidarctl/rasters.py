@@ -25,6 +25,7 @@ from typing import ClassVar
 import logging
 from pathlib import Path
 
+import numba
 import numpy as np
 from rasterio.io import MemoryFile
 from rasterio.shutil import copy as rio_copy
@@ -125,15 +126,28 @@ class _CellSums:
             return fill_nodata_tin((self.ground_sum / self.ground_n).reshape(shape), fill_radius_px, self.offset,
                                    needed=needed)
 
-    def grids_south_up(self, dem: np.ndarray, footprint_cells: int) -> dict:
-        """float32 grids, rows south to north (row 0 = the grid's first row)."""
-        res_m, x0, y0, nrows, ncols = self.args
-        occupied = (self.valid_n > 0).reshape(nrows, ncols)
+    def footprint(self, footprint_cells: int) -> np.ndarray:
+        """Cells within ``footprint_cells`` cells of a point that is not noise, and the gaps they enclose."""
+        occupied = (self.valid_n > 0).reshape(self.args[3], self.args[4])
         # within footprint_cells cells (a 3 x 3 dilation that many times)
         footprint = ndimage.maximum_filter(occupied, size=2 * footprint_cells + 1, mode="constant", cval=False)
         # Gaps enclosed by data (ponds without returns, shadows behind tall buildings) are
         # interpolated, as production DEMs are: only the outside of the survey stays nodata.
-        footprint = _fill_holes(footprint)
+        return _fill_holes(footprint)
+
+    def core_grids(self, dem: np.ndarray, footprint_cells: int, core, units: LengthUnits):
+        """The rasters of a tile's core (row slice, col slice of the window), north-up float32 with
+        NODATA, in the CRS's units (``to_crs_units`` of ``grids_south_up``'s core, in one loop), and
+        the metric DEM with NaN (the hillshade's)."""
+        dsm_filled = fill_nodata(self.dsm.reshape(self.args[3], self.args[4]))
+        out = self._stats.core_grids(self.footprint(footprint_cells), dem, dsm_filled, core, units.z_m,
+                                     units.is_metric, NODATA)
+        return dict(zip(("dem_m", *RASTERS), out))
+
+    def grids_south_up(self, dem: np.ndarray, footprint_cells: int) -> dict:
+        """float32 grids, rows south to north (row 0 = the grid's first row)."""
+        res_m, x0, y0, nrows, ncols = self.args
+        footprint = self.footprint(footprint_cells)
         dsm = np.maximum(fill_nodata(self.dsm.reshape(nrows, ncols)), dem)
         chm = self.chm.reshape(nrows, ncols)
         with np.errstate(invalid="ignore"):
@@ -424,22 +438,36 @@ def _bin_points(inputs: _Inputs, args, grid, work: Path, chunk_points: int) -> n
     with progress(inputs.n_points, "rasters: bin points into tiles", "pt", unit_scale=True) as bar:
         for path in inputs.paths:
             for x, y, z, cls, rn, inten in _file_points(path, inputs.units, chunk_points):
-                n_ground += int(np.count_nonzero(np.isin(cls, (2, 9))))
                 col = np.floor((x - x0) / res_m)
                 row = np.floor((y - y0) / res_m)
                 ids, pos = grid.assign(col, row)
-                rec = np.empty(len(x), _BIN_DTYPE)
-                rec["x"], rec["y"], rec["z"], rec["cls"], rec["rn"], rec["intensity"] = x, y, z, cls, rn, inten
+                rec = np.empty(len(pos), _BIN_DTYPE)     # the memberships' records, by tile
+                n_ground += _gather_records(rec, pos, x, y, z, cls, rn, inten)
                 cuts = np.flatnonzero(np.diff(ids)) + 1
-                for sel_ids, sel_pos in zip(np.split(ids, cuts), np.split(pos, cuts)):
-                    tid = int(sel_ids[0])
+                for lo, hi in zip(np.concatenate(([0], cuts)), np.concatenate((cuts, [len(ids)]))):
+                    tid = int(ids[lo])
                     used[tid] = True
                     with open(work / f"tile_{tid}.bin", "ab") as fh:
-                        rec[sel_pos].tofile(fh)
+                        rec[lo:hi].tofile(fh)
                 bar.update(len(x))
     if n_ground == 0:
         raise InputError(f"{inputs.names}: no ground points (class 2); run 'lidarctl classify' first")
     return used
+
+
+@numba.njit(cache=True, nogil=True)
+def _gather_records(rec, pos, x, y, z, cls, rn, inten):
+    """rec[k] = point pos[k] (``_BIN_DTYPE``); returns the number of ground (2) and water (9) points
+    among the memberships' distinct points (each point once: ``pos`` restarts in every tile)."""
+    for k in range(len(pos)):
+        i = pos[k]
+        rec[k].x, rec[k].y, rec[k].z = x[i], y[i], z[i]
+        rec[k].cls, rec[k].rn, rec[k].intensity = cls[i], rn[i], inten[i]
+    n = 0
+    for i in range(len(x)):
+        if cls[i] == 2 or cls[i] == 9:
+            n += 1
+    return n
 
 
 def _bin_chunks(path: Path, chunk_points: int):
@@ -700,15 +728,11 @@ def _tile_grids(inputs: _Inputs, args, tile, work: Path, chunk_points: int, foot
     for rec in _bin_chunks(bin_path, chunk_points):
         sums.add_chm(rec["x"], rec["y"], rec["z"], rec["cls"], dem)
     os.remove(bin_path)
-    grids = {k: v[core][::-1] for k, v in sums.grids_south_up(dem, footprint_cells).items()}
+    out = sums.core_grids(dem, footprint_cells, core, inputs.units)
     del sums, dem
-    finite = np.isfinite(grids["dem"])
-    dem_sum, dem_n = float(grids["dem"][finite].sum(dtype=np.float64)), int(finite.sum())
-    out = {"dem_m": np.where(finite, grids["dem"], NODATA).astype(np.float32)}
-    grids = to_crs_units(grids, inputs.units)
-    for name in RASTERS:
-        a = grids[name]
-        out[name] = np.where(np.isfinite(a), a, NODATA).astype(np.float32)
+    finite = np.isfinite(out["dem_m"])
+    dem_sum, dem_n = float(out["dem_m"][finite].sum(dtype=np.float64)), int(finite.sum())
+    out["dem_m"][~finite] = NODATA
     return out, dem_sum, dem_n
 
 
