@@ -18,7 +18,7 @@ VEGETATION = (4, 5)      # medium and high vegetation: the CHM
 
 
 # columns of the per-cell records (one record per cell: a point touches one or two cache lines, not seven)
-_STAMP, _VALID_N, _GROUND_N, _INTEN_N = 0, 1, 2, 3                     # int64
+_STAMP, _VALID_N, _GROUND_N, _INTEN_N = 0, 1, 2, 3                     # int32 (2^31 points a cell)
 _GROUND_CHUNK, _INTEN_CHUNK, _DSM, _GROUND_SUM, _INTEN_SUM = 0, 1, 2, 3, 4   # float64
 
 
@@ -101,7 +101,7 @@ class CellStats:
         self.res_m, self.x0, self.y0 = float(res_m), float(x0), float(y0)
         self.nrows, self.ncols, self.row0, self.col0 = int(nrows), int(ncols), int(row0), int(col0)
         n = self.nrows * self.ncols
-        self._counts = np.zeros((n, 4), np.int64)
+        self._counts = np.zeros((n, 4), np.int32)
         self._sums = np.zeros((n, 5))
         self._sums[:, _DSM] = np.nan
         self._stamp = 0
