@@ -442,21 +442,21 @@ def _bin_points(inputs: _Inputs, args, grid, work: Path, chunk_points: int) -> n
     res_m, x0, y0 = args[:3]
     used = np.zeros(grid.n_tiles, bool)
     n_ground = 0
+    chunks = (c for path in inputs.paths for c in _file_points(path, inputs.units, chunk_points))
     with progress(inputs.n_points, "rasters: bin points into tiles", "pt", unit_scale=True) as bar:
-        for path in inputs.paths:
-            for x, y, z, cls, rn, inten in _file_points(path, inputs.units, chunk_points):
-                col = np.floor((x - x0) / res_m)
-                row = np.floor((y - y0) / res_m)
-                ids, pos = grid.assign(col, row)
-                rec = np.empty(len(pos), _BIN_DTYPE)     # the memberships' records, by tile
-                n_ground += _gather_records(rec, pos, x, y, z, cls, rn, inten)
-                cuts = np.flatnonzero(np.diff(ids)) + 1
-                for lo, hi in zip(np.concatenate(([0], cuts)), np.concatenate((cuts, [len(ids)]))):
-                    tid = int(ids[lo])
-                    used[tid] = True
-                    with open(work / f"tile_{tid}.bin", "ab") as fh:
-                        rec[lo:hi].tofile(fh)
-                bar.update(len(x))
+        for x, y, z, cls, rn, inten in _read_ahead(chunks):
+            col = np.floor((x - x0) / res_m)
+            row = np.floor((y - y0) / res_m)
+            ids, pos = grid.assign(col, row)
+            rec = np.empty(len(pos), _BIN_DTYPE)     # the memberships' records, by tile
+            n_ground += _gather_records(rec, pos, x, y, z, cls, rn, inten)
+            cuts = np.flatnonzero(np.diff(ids)) + 1
+            for lo, hi in zip(np.concatenate(([0], cuts)), np.concatenate((cuts, [len(ids)]))):
+                tid = int(ids[lo])
+                used[tid] = True
+                with open(work / f"tile_{tid}.bin", "ab") as fh:
+                    rec[lo:hi].tofile(fh)
+            bar.update(len(x))
     if n_ground == 0:
         raise InputError(f"{inputs.names}: no ground points (class 2); run 'lidarctl classify' first")
     return used
@@ -475,6 +475,52 @@ def _gather_records(rec, pos, x, y, z, cls, rn, inten):
         if cls[i] == 2 or cls[i] == 9:
             n += 1
     return n
+
+
+def _read_ahead(chunks, depth: int = 1):
+    """The items of an iterator, the next one made in a thread while the caller works on the current
+    one (LAZ decompression, which releases the GIL, beside the binning); errors are raised in the
+    caller, in order. Memory: ``depth`` + 2 chunks."""
+    import queue
+    import threading
+
+    q: queue.Queue = queue.Queue(maxsize=depth)
+    stop = threading.Event()
+    done = object()
+
+    def produce():
+        try:
+            for item in chunks:
+                while not stop.is_set():
+                    try:
+                        q.put((item, None), timeout=0.1)
+                        break
+                    except queue.Full:
+                        continue
+                if stop.is_set():
+                    return
+            q.put((done, None))
+        except BaseException as exc:   # handed to the caller
+            q.put((done, exc))
+
+    thread = threading.Thread(target=produce, name="rasters-read", daemon=True)
+    thread.start()
+    try:
+        while True:
+            item, exc = q.get()
+            if item is done:
+                if exc is not None:
+                    raise exc
+                return
+            yield item
+    finally:
+        stop.set()
+        while thread.is_alive():     # unblock a producer waiting on a full queue
+            try:
+                q.get_nowait()
+            except queue.Empty:
+                pass
+            thread.join(timeout=0.1)
 
 
 def _bin_chunks(path: Path, chunk_points: int):
