@@ -140,7 +140,8 @@ def classify(in_paths, out_path, crs, tile_size_m, buffer_m, work_dir, out_forma
                    "aerotri run).")
 @click.option("--crs", default=None, help="CRS (EPSG:code) of files that have none.")
 @click.option("--tile-px", type=click.IntRange(min=1), default=DEFAULT_TILE_PX, show_default=True,
-              help="Tile size in raster cells (memory: about 160 bytes per cell of a tile with its buffer).")
+              help="Tile size in raster cells (memory: about 160 bytes per cell of a tile with its buffer, two tiles at "
+                   "a time).")
 @click.option("--buffer-px", type=click.IntRange(min=0), default=DEFAULT_BUFFER_PX, show_default=True,
               help="Overlap buffer around each tile in cells: gaps up to about this size are filled as in one piece.")
 @click.option("--dem-fill-radius-px", type=at_least(0), default=DEFAULT_TIN_FILL_RADIUS_PX,

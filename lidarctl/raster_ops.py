@@ -88,6 +88,48 @@ def reduce_grid(x, y, values, cell_m, x0, y0, nrows, ncols, how: str = "min") ->
     return out.reshape(nrows, ncols)
 
 
+@numba.njit(cache=True, nogil=True)
+def _pull(v, w):
+    """One level up the pull-push pyramid: the mean of the valid cells of each 2 x 2 block (a grid of
+    odd size padded with empty cells), summed as numpy's ``reshape(h, 2, w, 2).sum(axis=(1, 3))``
+    does, ``(a00 + a01) + (a10 + a11)``, so the result is bit-identical to the array version."""
+    h, wd = v.shape
+    hh, ww = (h + 1) // 2, (wd + 1) // 2
+    vs = np.empty((hh, ww))
+    ws = np.empty((hh, ww))
+    for i in range(hh):
+        i1 = 2 * i + 1
+        for j in range(ww):
+            j1 = 2 * j + 1
+            a00, a01, a10, a11 = v[2 * i, 2 * j] * w[2 * i, 2 * j], 0.0, 0.0, 0.0
+            w00, w01, w10, w11 = w[2 * i, 2 * j], 0.0, 0.0, 0.0
+            if j1 < wd:
+                a01, w01 = v[2 * i, j1] * w[2 * i, j1], w[2 * i, j1]
+            if i1 < h:
+                a10, w10 = v[i1, 2 * j] * w[i1, 2 * j], w[i1, 2 * j]
+                if j1 < wd:
+                    a11, w11 = v[i1, j1] * w[i1, j1], w[i1, j1]
+            n = (w00 + w01) + (w10 + w11)
+            if n > 0:
+                vs[i, j] = ((a00 + a01) + (a10 + a11)) / max(n, 1e-12)
+                ws[i, j] = 1.0
+            else:
+                vs[i, j] = 0.0
+                ws[i, j] = 0.0
+    return vs, ws
+
+
+@numba.njit(cache=True, nogil=True)
+def _push(coarse, v, w):
+    """One level down: the level's own value where it has one, else its parent's."""
+    h, wd = v.shape
+    out = np.empty((h, wd))
+    for i in range(h):
+        for j in range(wd):
+            out[i, j] = v[i, j] if w[i, j] > 0 else coarse[i // 2, j // 2]
+    return out
+
+
 def fill_nodata(a: np.ndarray) -> np.ndarray:
     """Fill NaN cells by pull-push (pyramid averaging, then coarse-to-fine fill); smooth and O(n)."""
     a = np.asarray(a, float)
@@ -99,20 +141,12 @@ def fill_nodata(a: np.ndarray) -> np.ndarray:
         v, w = levels[-1]
         if (w > 0).all() or min(v.shape) == 1:
             break
-        h, wd = (v.shape[0] + 1) // 2 * 2, (v.shape[1] + 1) // 2 * 2
-        vp = np.zeros((h, wd)); wp = np.zeros((h, wd))
-        vp[:v.shape[0], :v.shape[1]] = v * w
-        wp[:v.shape[0], :v.shape[1]] = w
-        ws = wp.reshape(h // 2, 2, wd // 2, 2).sum(axis=(1, 3))
-        vs = vp.reshape(h // 2, 2, wd // 2, 2).sum(axis=(1, 3))
-        with np.errstate(invalid="ignore", divide="ignore"):
-            levels.append((np.where(ws > 0, vs / np.maximum(ws, 1e-12), 0.0), (ws > 0).astype(float)))
+        levels.append(_pull(v, w))
     filled, _ = levels[-1]
     if not (levels[-1][1] > 0).all():
         filled = np.where(levels[-1][1] > 0, filled, np.sum(filled * levels[-1][1]) / levels[-1][1].sum())
     for v, w in reversed(levels[:-1]):
-        up = np.repeat(np.repeat(filled, 2, axis=0), 2, axis=1)[:v.shape[0], :v.shape[1]]
-        filled = np.where(w > 0, v, up)
+        filled = _push(filled, v, w)
     return filled
 
 
@@ -166,47 +200,64 @@ DEFAULT_TIN_FILL_RADIUS_PX = 64
 (open water, survey edges) keep the pull-push fill."""
 
 
-def _lattice_jitter(rows: np.ndarray, cols: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """A fixed sub-cell offset per global cell (at most 0.01 cell): cell centres of a regular grid are
+@numba.njit(cache=True, nogil=True)
+def _jittered_cells(rows, cols):
+    """(n, 2) (column, row) of the centres of global cells (``rows``, ``cols``), each moved by a fixed
+    sub-cell offset (at most 0.005 cell) hashed from its index: cell centres of a regular grid are
     cocircular, so their Delaunay triangulation is not unique; a jitter that depends only on the cell's
-    global index makes it unique, and a tile triangulates its part of the grid as the whole grid does."""
-    h = (rows.astype(np.uint64) * np.uint64(73856093)) ^ (cols.astype(np.uint64) * np.uint64(19349663))
-    h = (h * np.uint64(2654435761)) % np.uint64(1 << 32)
-    u = h.astype(float) / float(1 << 32)
-    return 0.01 * (u - 0.5), 0.01 * (np.modf(u * 1024.0)[0] - 0.5)
+    global index makes it unique, and a tile triangulates its part of the grid as the whole grid does.
+    (The arithmetic of the array version this replaced, bit for bit.)"""
+    out = np.empty((len(rows), 2))
+    for k in range(len(rows)):
+        h = (np.uint64(rows[k]) * np.uint64(73856093)) ^ (np.uint64(cols[k]) * np.uint64(19349663))
+        h = (h * np.uint64(2654435761)) % np.uint64(1 << 32)
+        u = float(h) / float(1 << 32)
+        v = u * 1024.0
+        out[k, 0] = cols[k] + 0.01 * ((v - np.floor(v)) - 0.5)
+        out[k, 1] = rows[k] + 0.01 * (u - 0.5)
+    return out
 
 
-
-@numba.njit(cache=True)
+@numba.njit(cache=True, nogil=True)
 def _fill_triangles(filled, gaps, pts, z, simplices, max_radius_px, row0, col0):
     """Linear interpolation of the gap cells of ``filled`` inside each triangle of circumradius at most
     ``max_radius_px``: every triangle visits the cell centres of its bounding box (scan conversion),
-    instead of a point location per gap cell (Qhull's walk degenerates on a near-regular lattice and
-    falls back to a search over all triangles). ``pts`` are (col, row) in global cells, the window's
-    first cell at (``row0``, ``col0``). A cell on an edge shared by two triangles takes the first."""
+    instead of a point location per gap cell. ``pts`` are (col, row) in global cells, the window's
+    first cell at (``row0``, ``col0``); a triangle's vertices are taken in increasing index order
+    (by global cell), so that a tile computes bit-identical weights. A cell on an edge shared by two
+    triangles takes the first."""
     nrows, ncols = gaps.shape
     done = np.zeros_like(gaps)
     eps = 1e-12
     for t in range(simplices.shape[0]):
         i0, i1, i2 = simplices[t, 0], simplices[t, 1], simplices[t, 2]
+        if i0 > i1:
+            i0, i1 = i1, i0
+        if i1 > i2:
+            i1, i2 = i2, i1
+        if i0 > i1:
+            i0, i1 = i1, i0
         x0, y0 = pts[i0, 0], pts[i0, 1]
+        cmin = max(int(np.ceil(min(x0, pts[i1, 0], pts[i2, 0]))) - col0, 0)
+        cmax = min(int(np.floor(max(x0, pts[i1, 0], pts[i2, 0]))) - col0, ncols - 1)
+        rmin = max(int(np.ceil(min(y0, pts[i1, 1], pts[i2, 1]))) - row0, 0)
+        rmax = min(int(np.floor(max(y0, pts[i1, 1], pts[i2, 1]))) - row0, nrows - 1)
         e1x, e1y = pts[i1, 0] - x0, pts[i1, 1] - y0
         e2x, e2y = pts[i2, 0] - x0, pts[i2, 1] - y0
         det = e1x * e2y - e1y * e2x
-        # circumradius R = abc / (4 area)
-        a_len = np.hypot(pts[i1, 0] - pts[i2, 0], pts[i1, 1] - pts[i2, 1])
-        b_len = np.hypot(e2x, e2y)
-        c_len = np.hypot(e1x, e1y)
-        if a_len * b_len * c_len / max(2.0 * abs(det), 1e-12) > max_radius_px:
-            continue
-        cmin = int(np.ceil(min(x0, pts[i1, 0], pts[i2, 0]))) - col0
-        cmax = int(np.floor(max(x0, pts[i1, 0], pts[i2, 0]))) - col0
-        rmin = int(np.ceil(min(y0, pts[i1, 1], pts[i2, 1]))) - row0
-        rmax = int(np.floor(max(y0, pts[i1, 1], pts[i2, 1]))) - row0
-        for r in range(max(rmin, 0), min(rmax, nrows - 1) + 1):
-            for c in range(max(cmin, 0), min(cmax, ncols - 1) + 1):
+        checked = False          # the circumradius, computed for triangles that hold a gap cell
+        for r in range(rmin, rmax + 1):
+            for c in range(cmin, cmax + 1):
                 if not gaps[r, c] or done[r, c]:
                     continue
+                if not checked:
+                    # circumradius R = abc / (4 area)
+                    a_len = np.hypot(pts[i1, 0] - pts[i2, 0], pts[i1, 1] - pts[i2, 1])
+                    b_len = np.hypot(e2x, e2y)
+                    c_len = np.hypot(e1x, e1y)
+                    if a_len * b_len * c_len / max(2.0 * abs(det), 1e-12) > max_radius_px:
+                        break
+                    checked = True
                 dx, dy = (c + col0) - x0, (r + row0) - y0
                 l1 = (dx * e2y - dy * e2x) / det
                 l2 = (e1x * dy - e1y * dx) / det
@@ -215,10 +266,13 @@ def _fill_triangles(filled, gaps, pts, z, simplices, max_radius_px, row0, col0):
                     continue
                 filled[r, c] = l0 * z[i0] + l1 * z[i1] + l2 * z[i2]
                 done[r, c] = True
+            else:
+                continue
+            break
 
 
 def fill_nodata_tin(a: np.ndarray, max_radius_px: float = DEFAULT_TIN_FILL_RADIUS_PX,
-                    offset: tuple[int, int] = (0, 0)) -> np.ndarray:
+                    offset: tuple[int, int] = (0, 0), needed=None) -> np.ndarray:
     """Fill NaN cells by linear interpolation in the Delaunay TIN of the valid cells around the gaps
     (as production DEMs interpolate ground under buildings and sparse canopy ground); cells whose
     triangle has a circumradius above ``max_radius_px`` cells, or that lie outside the TIN, keep the
@@ -226,7 +280,9 @@ def fill_nodata_tin(a: np.ndarray, max_radius_px: float = DEFAULT_TIN_FILL_RADIU
 
     Local by construction: a cell's value depends only on valid cells within ``2 * max_radius_px + 2``
     cells, so a window of a larger grid (``offset``: its first cell's (row, col) there) gets the same
-    values as the whole grid wherever it has that margin.
+    values as the whole grid wherever it has that margin. ``needed``: (row slice, col slice) of the
+    cells whose values the caller uses; only the cells within that distance of them are triangulated
+    (the others keep the pull-push fill).
     """
     from scipy.spatial import Delaunay, QhullError
 
@@ -237,13 +293,17 @@ def fill_nodata_tin(a: np.ndarray, max_radius_px: float = DEFAULT_TIN_FILL_RADIU
         return filled
     gaps = ~valid
     # the vertices of a gap's triangles are the valid cells at its rim
-    rim = valid & ndimage.binary_dilation(gaps, np.ones((3, 3), bool), iterations=2)
+    rim = valid & ndimage.maximum_filter(gaps, size=5, mode="constant", cval=False)   # 3 x 3, twice
+    if needed is not None:
+        m = int(np.ceil(2 * max_radius_px)) + 3
+        keep = np.zeros_like(rim)
+        keep[max(needed[0].start - m, 0):needed[0].stop + m, max(needed[1].start - m, 0):needed[1].stop + m] = True
+        rim &= keep
     vr, vc = np.nonzero(rim)
     if len(vr) < 3:
         return filled
     gr, gc = vr + offset[0], vc + offset[1]
-    jr, jc = _lattice_jitter(gr, gc)
-    pts = np.column_stack([gc + jc, gr + jr]).astype(float)
+    pts = _jittered_cells(gr, gc)
     simplices, status = delaunay_lattice(pts, gr, gc)
     if status == COLLINEAR:     # all rim cells on one line
         return filled
@@ -253,7 +313,5 @@ def fill_nodata_tin(a: np.ndarray, max_radius_px: float = DEFAULT_TIN_FILL_RADIU
             simplices = Delaunay(pts).simplices
         except QhullError:
             return filled
-    # vertices in a canonical order (by global cell), so that a tile computes bit-identical weights
-    simplices = np.sort(simplices, axis=1)
     _fill_triangles(filled, gaps, pts, a[vr, vc], simplices, float(max_radius_px), offset[0], offset[1])
     return filled

@@ -20,10 +20,12 @@ The footprint is the set of cells within ``footprint_cells`` cells of a point.
 from __future__ import annotations
 
 import dataclasses
+import functools
 from typing import ClassVar
 import logging
 from pathlib import Path
 
+import numba
 import numpy as np
 from rasterio.io import MemoryFile
 from rasterio.shutil import copy as rio_copy
@@ -38,7 +40,8 @@ from aerotri.core.settings import setting
 from aerotri.core.limits import check_task_count
 from lidarctl.grid import check_disk, check_grid
 from lidarctl.io import PointCloud
-from lidarctl.raster_ops import DEFAULT_TIN_FILL_RADIUS_PX, cell_extreme, fill_nodata, fill_nodata_tin, sample_bilinear
+from lidarctl.raster_cells import CellStats
+from lidarctl.raster_ops import DEFAULT_TIN_FILL_RADIUS_PX, fill_nodata, fill_nodata_tin
 from lidarctl.units import METRE, LengthUnits, long_name
 
 log = logging.getLogger(__name__)
@@ -49,8 +52,10 @@ HEIGHT_GRIDS = ("dem", "dsm", "ndsm", "chm")
 DESCRIPTIONS = {"dem": "DEM: mean height of ground and water points", "dsm": "DSM: highest first return",
                 "ndsm": "nDSM: DSM - DEM", "chm": "CHM: highest vegetation above the DEM",
                 "intensity": "mean intensity of first returns (sensor units)"}
-# Memory of the grids per cell at the peak of ``_CellSums`` and ``grids`` (sums, counts, maxima,
-# the filled DEM/DSM, the float32 outputs).
+# Memory of a tile per cell of its window at the peak of ``_CellSums`` and the TIN fill (per-cell
+# records, the pull-push pyramid, the triangulation; measured: 1.07 GB peak RSS with one tile of
+# 2304 x 2224 cells at a time, 1.65 GB with two, of which 0.25 GB the process itself). Two tiles are
+# computed at once when they fit in half of the RAM.
 RASTER_BYTES_PER_CELL = 160
 # Tiles of the rasters of LAS/LAZ files (cells): a 2048 + 2 x 256 cell window needs about 1 GB
 # (RASTER_BYTES_PER_CELL); both multiples of 256, so the gap filling's pyramid blocks up to 256
@@ -89,69 +94,67 @@ class _CellSums:
     ``args``: (res_m, x0, y0, nrows, ncols) of the grid; ``offset``: (row, col) of its first cell in
     a larger grid whose origin is (x0, y0) (a tile window, which may reach beyond that grid). Cell
     indices are always computed from the large grid's origin, so a point falls into the same global
-    cell in a tile as in the whole grid."""
+    cell in a tile as in the whole grid. The loops are ``raster_cells``' (numba, one pass a chunk)."""
 
     def __init__(self, args, offset: tuple[int, int] = (0, 0)):
         self.args = args
         self.offset = offset
-        ncells = args[3] * args[4]
-        self.valid_n = np.zeros(ncells, np.int64)
-        self.ground_sum = np.zeros(ncells)
-        self.ground_n = np.zeros(ncells, np.int64)
-        self.dsm = np.full(ncells, np.nan)
-        self.inten_sum = np.zeros(ncells)
-        self.inten_n = np.zeros(ncells, np.int64)
-        self.chm = np.full(ncells, np.nan)
+        self._stats = CellStats(args[0], args[1], args[2], args[3], args[4], offset[0], offset[1])
 
-    def _flat(self, x, y):
-        res_m, x0, y0, nrows, ncols = self.args
-        j = np.floor((x - x0) / res_m).astype(np.int64) - self.offset[1]
-        i = np.floor((y - y0) / res_m).astype(np.int64) - self.offset[0]
-        if len(i) and (i.min() < 0 or i.max() >= nrows or j.min() < 0 or j.max() >= ncols):
-            raise RuntimeError("a point lies outside the raster grid")   # a tiling bug, not an input error
-        return i * ncols + j
+    # per-cell arrays (flat): points not noise, sum and count of ground heights, highest first return,
+    # sum and count of first-return intensities, highest vegetation above the DEM
+    valid_n = property(lambda self: self._stats.valid_n)
+    ground_sum = property(lambda self: self._stats.ground_sum)
+    ground_n = property(lambda self: self._stats.ground_n)
+    dsm = property(lambda self: self._stats.dsm)
+    inten_sum = property(lambda self: self._stats.inten_sum)
+    inten_n = property(lambda self: self._stats.inten_n)
+    chm = property(lambda self: self._stats.chm)
 
     def add(self, x, y, z, cls, return_number, intensity) -> None:
         """Pass 1: occupancy, ground mean, first-return DSM maximum and mean intensity."""
-        ncells = len(self.valid_n)
-        valid = ~np.isin(cls, (7, 18))
-        flat = self._flat(x, y)
-        self.valid_n += np.bincount(flat[valid], minlength=ncells)
-        g = np.isin(cls, (2, 9))
-        self.ground_sum += np.bincount(flat[g], z[g], minlength=ncells)
-        self.ground_n += np.bincount(flat[g], minlength=ncells)
-        first = valid & (return_number == 1)
-        self.dsm = np.fmax(self.dsm, cell_extreme(flat[first], z[first], ncells, "max"))
-        self.inten_sum += np.bincount(flat[first], np.asarray(intensity, float)[first], minlength=ncells)
-        self.inten_n += np.bincount(flat[first], minlength=ncells)
+        self._stats.add(x, y, z, cls, return_number, intensity)
 
     def add_chm(self, x, y, z, cls, dem) -> None:
         """Pass 2 (after the DEM): highest vegetation height above the DEM per cell."""
-        veg = np.isin(cls, (4, 5))
-        if veg.any():
-            res_m, x0, y0 = self.args[:3]
-            row0, col0 = self.offset
-            # sample_bilinear on the global grid, shifted to this window
-            hag = z[veg] - sample_bilinear(dem, x[veg], y[veg], res_m, x0, y0, row0, col0)
-            self.chm = np.fmax(self.chm, cell_extreme(self._flat(x[veg], y[veg]), hag, len(self.chm), "max"))
+        self._stats.add_chm(x, y, z, cls, dem)
 
-    def dem(self, require_ground: bool = True, fill_radius_px: float = DEFAULT_TIN_FILL_RADIUS_PX) -> np.ndarray:
+    def dem(self, require_ground: bool = True, fill_radius_px: float = DEFAULT_TIN_FILL_RADIUS_PX,
+            needed=None) -> np.ndarray:
         """Mean ground height per cell; cells without ground (under buildings, sparse ground under
-        canopy) from the TIN of the surrounding cells (``fill_nodata_tin``)."""
+        canopy) from the TIN of the surrounding cells (``fill_nodata_tin``). ``needed``: (row slice,
+        col slice) of the cells whose values are used (a tile's core and one cell around it, which the
+        CHM's bilinear samples reach); the TIN is then made only within the distance that decides
+        them, and the other cells keep the pull-push fill."""
         if require_ground and not self.ground_n.any():
             raise ValueError("the cloud has no ground points (class 2): classify it first")
         shape = self.args[3], self.args[4]
         with np.errstate(invalid="ignore"):
-            return fill_nodata_tin((self.ground_sum / self.ground_n).reshape(shape), fill_radius_px, self.offset)
+            return fill_nodata_tin((self.ground_sum / self.ground_n).reshape(shape), fill_radius_px, self.offset,
+                                   needed=needed)
+
+    def footprint(self, footprint_cells: int) -> np.ndarray:
+        """Cells within ``footprint_cells`` cells of a point that is not noise, and the gaps they enclose."""
+        occupied = (self.valid_n > 0).reshape(self.args[3], self.args[4])
+        # within footprint_cells cells (a 3 x 3 dilation that many times)
+        footprint = ndimage.maximum_filter(occupied, size=2 * footprint_cells + 1, mode="constant", cval=False)
+        # Gaps enclosed by data (ponds without returns, shadows behind tall buildings) are
+        # interpolated, as production DEMs are: only the outside of the survey stays nodata.
+        return _fill_holes(footprint)
+
+    def core_grids(self, dem: np.ndarray, footprint_cells: int, core, units: LengthUnits):
+        """The rasters of a tile's core (row slice, col slice of the window), north-up float32 with
+        NODATA, in the CRS's units (``to_crs_units`` of ``grids_south_up``'s core, in one loop), and
+        the metric DEM with NaN (the hillshade's)."""
+        dsm_filled = fill_nodata(self.dsm.reshape(self.args[3], self.args[4]))
+        out = self._stats.core_grids(self.footprint(footprint_cells), dem, dsm_filled, core, units.z_m,
+                                     units.is_metric, NODATA)
+        return dict(zip(("dem_m", *RASTERS), out))
 
     def grids_south_up(self, dem: np.ndarray, footprint_cells: int) -> dict:
         """float32 grids, rows south to north (row 0 = the grid's first row)."""
         res_m, x0, y0, nrows, ncols = self.args
-        occupied = (self.valid_n > 0).reshape(nrows, ncols)
-        footprint = ndimage.binary_dilation(occupied, np.ones((3, 3), bool), iterations=footprint_cells)
-        # Gaps enclosed by data (ponds without returns, shadows behind tall buildings) are
-        # interpolated, as production DEMs are: only the outside of the survey stays nodata.
-        footprint = ndimage.binary_fill_holes(footprint)
+        footprint = self.footprint(footprint_cells)
         dsm = np.maximum(fill_nodata(self.dsm.reshape(nrows, ncols)), dem)
         chm = self.chm.reshape(nrows, ncols)
         with np.errstate(invalid="ignore"):
@@ -170,6 +173,19 @@ class _CellSums:
         out = {k: v[::-1] for k, v in self.grids_south_up(dem, footprint_cells).items()}   # north-up rows
         out["transform"] = from_origin(x0, y0 + nrows * res_m, res_m, res_m)
         return out
+
+
+def _fill_holes(mask: np.ndarray) -> np.ndarray:
+    """``ndimage.binary_fill_holes``: the background not 4-connected to the array's edge becomes
+    foreground (one labelling, instead of a dilation repeated until nothing changes)."""
+    labels, n = ndimage.label(~mask)
+    if n == 0:
+        return mask.copy()
+    edge = np.zeros(n + 1, bool)
+    for side in (labels[0], labels[-1], labels[:, 0], labels[:, -1]):
+        edge[side] = True
+    edge[0] = True                      # label 0: the foreground itself
+    return mask | ~edge[labels]
 
 
 def make_grids(cloud: PointCloud, res_m: float, footprint_cells: int = 3,
@@ -202,8 +218,13 @@ def _file_points(path, units: LengthUnits, chunk_points: int, validate: bool = T
     """Chunks of a LAS/LAZ file as (x, y, z in metres, class, return number, intensity); with
     ``validate`` every chunk is checked (``io.validate_xyz``, and points outside the header bounds,
     which the grids are made from, are an InputError naming the record)."""
+    import laspy
+
     mins, maxs = _header_bounds(path, las.read_header(path))
-    for first, chunk in las.iter_file_chunks(path, chunk_points):
+    # only the fields read here (LAZ 1.4 point formats 6-10 store the others in layers left compressed)
+    fields = (laspy.DecompressionSelection.XY_RETURNS_CHANNEL | laspy.DecompressionSelection.Z
+              | laspy.DecompressionSelection.CLASSIFICATION | laspy.DecompressionSelection.INTENSITY)
+    for first, chunk in las.iter_file_chunks(path, chunk_points, fields):
         x, y, z = np.asarray(chunk.x), np.asarray(chunk.y), np.asarray(chunk.z)
         if validate:
             io.validate_xyz(path, x, y, z, first, units)
@@ -310,6 +331,46 @@ def hillshade_rgba(hs: np.ndarray) -> np.ndarray:
     return mappable.to_rgba(np.where(np.isfinite(hs), hs, 0.0), bytes=True)
 
 
+# matplotlib's grey colour map as bytes (its table of 256 entries, linspace(0, 1) x 255 truncated)
+_GREY_LUT = (np.linspace(0.0, 1.0, 256) * 255).astype(np.uint8)
+
+
+def hillshade_grey(hs: np.ndarray) -> np.ndarray:
+    """The grey level (uint8) of ``hillshade_rgba`` (whose R, G and B are equal and alpha 255), indexed
+    as matplotlib indexes a colour map: int(value x 256), 1.0 -> 255 (without importing matplotlib)."""
+    x = np.where(np.isfinite(hs), hs, 0.0) * 256.0
+    return _GREY_LUT[np.minimum(x.astype(np.int64), 255)]
+
+
+def _write_png_grey_as_rgba(path, read_rows, nrows: int, ncols: int, rows_per_read: int = 256) -> None:
+    """An RGBA PNG (8 bit, no filter, zlib level 1) of a grey image, streamed: ``read_rows(r0, r1)``
+    gives rows r0..r1 (north to south) as uint8, written as (g, g, g, 255). A tenth of the CPU of GDAL's
+    PNG copy, which tries five filters on every line (3.4 of 17 CPU-s of the demo's rasters), for
+    a file 2 % larger."""
+    import struct
+    import zlib
+
+    def chunk(tag: bytes, data: bytes) -> bytes:
+        return struct.pack(">I", len(data)) + tag + data + struct.pack(">I", zlib.crc32(tag + data) & 0xFFFFFFFF)
+
+    comp = zlib.compressobj(1)
+    with open(path, "wb") as f:
+        f.write(b"\x89PNG\r\n\x1a\n")
+        f.write(chunk(b"IHDR", struct.pack(">IIBBBBB", ncols, nrows, 8, 6, 0, 0, 0)))
+        for r0 in range(0, nrows, rows_per_read):
+            grey = read_rows(r0, min(r0 + rows_per_read, nrows))
+            lines = np.empty((grey.shape[0], 1 + 4 * ncols), np.uint8)
+            lines[:, 0] = 0                                   # filter type: none
+            rgba = lines[:, 1:].reshape(grey.shape[0], ncols, 4)
+            rgba[..., :3] = grey[..., None]
+            rgba[..., 3] = 255
+            data = comp.compress(lines.tobytes())
+            if data:
+                f.write(chunk(b"IDAT", data))
+        f.write(chunk(b"IDAT", comp.flush()))
+        f.write(chunk(b"IEND", b""))
+
+
 def _check_fill_radius(dem_fill_radius_px: float) -> None:
     if not dem_fill_radius_px >= 0:
         raise OptionError(f"--dem-fill-radius-px {dem_fill_radius_px:g}: must be 0 or more cells",
@@ -369,8 +430,6 @@ def _inputs(paths, crs_arg) -> _Inputs:
 
 _BIN_DTYPE = np.dtype([("x", "f8"), ("y", "f8"), ("z", "f8"), ("cls", "u1"), ("rn", "u1"), ("intensity", "u2")])
 _BLOCK_PX = 512
-# GDAL's block cache while windows are written and COGs copied (MB): bounded, not 5 % of the RAM.
-_GDAL_CACHE_MB = 256
 
 
 def _bin_points(inputs: _Inputs, args, grid, work: Path, chunk_points: int) -> np.ndarray:
@@ -383,25 +442,85 @@ def _bin_points(inputs: _Inputs, args, grid, work: Path, chunk_points: int) -> n
     res_m, x0, y0 = args[:3]
     used = np.zeros(grid.n_tiles, bool)
     n_ground = 0
+    chunks = (c for path in inputs.paths for c in _file_points(path, inputs.units, chunk_points))
     with progress(inputs.n_points, "rasters: bin points into tiles", "pt", unit_scale=True) as bar:
-        for path in inputs.paths:
-            for x, y, z, cls, rn, inten in _file_points(path, inputs.units, chunk_points):
-                n_ground += int(np.count_nonzero(np.isin(cls, (2, 9))))
-                col = np.floor((x - x0) / res_m)
-                row = np.floor((y - y0) / res_m)
-                ids, pos = grid.assign(col, row)
-                rec = np.empty(len(x), _BIN_DTYPE)
-                rec["x"], rec["y"], rec["z"], rec["cls"], rec["rn"], rec["intensity"] = x, y, z, cls, rn, inten
-                cuts = np.flatnonzero(np.diff(ids)) + 1
-                for sel_ids, sel_pos in zip(np.split(ids, cuts), np.split(pos, cuts)):
-                    tid = int(sel_ids[0])
-                    used[tid] = True
-                    with open(work / f"tile_{tid}.bin", "ab") as fh:
-                        rec[sel_pos].tofile(fh)
-                bar.update(len(x))
+        for x, y, z, cls, rn, inten in _read_ahead(chunks):
+            col = np.floor((x - x0) / res_m)
+            row = np.floor((y - y0) / res_m)
+            ids, pos = grid.assign(col, row)
+            rec = np.empty(len(pos), _BIN_DTYPE)     # the memberships' records, by tile
+            n_ground += _gather_records(rec, pos, x, y, z, cls, rn, inten)
+            cuts = np.flatnonzero(np.diff(ids)) + 1
+            for lo, hi in zip(np.concatenate(([0], cuts)), np.concatenate((cuts, [len(ids)]))):
+                tid = int(ids[lo])
+                used[tid] = True
+                with open(work / f"tile_{tid}.bin", "ab") as fh:
+                    rec[lo:hi].tofile(fh)
+            bar.update(len(x))
     if n_ground == 0:
         raise InputError(f"{inputs.names}: no ground points (class 2); run 'lidarctl classify' first")
     return used
+
+
+@numba.njit(cache=True, nogil=True)
+def _gather_records(rec, pos, x, y, z, cls, rn, inten):
+    """rec[k] = point pos[k] (``_BIN_DTYPE``); returns the number of ground (2) and water (9) points
+    among the memberships' distinct points (each point once: ``pos`` restarts in every tile)."""
+    for k in range(len(pos)):
+        i = pos[k]
+        rec[k].x, rec[k].y, rec[k].z = x[i], y[i], z[i]
+        rec[k].cls, rec[k].rn, rec[k].intensity = cls[i], rn[i], inten[i]
+    n = 0
+    for i in range(len(x)):
+        if cls[i] == 2 or cls[i] == 9:
+            n += 1
+    return n
+
+
+def _read_ahead(chunks, depth: int = 1):
+    """The items of an iterator, the next one made in a thread while the caller works on the current
+    one (LAZ decompression, which releases the GIL, beside the binning); errors are raised in the
+    caller, in order. Memory: ``depth`` + 2 chunks."""
+    import queue
+    import threading
+
+    q: queue.Queue = queue.Queue(maxsize=depth)
+    stop = threading.Event()
+    done = object()
+
+    def produce():
+        try:
+            for item in chunks:
+                while not stop.is_set():
+                    try:
+                        q.put((item, None), timeout=0.1)
+                        break
+                    except queue.Full:
+                        continue
+                if stop.is_set():
+                    return
+            q.put((done, None))
+        except BaseException as exc:   # handed to the caller
+            q.put((done, exc))
+
+    thread = threading.Thread(target=produce, name="rasters-read", daemon=True)
+    thread.start()
+    try:
+        while True:
+            item, exc = q.get()
+            if item is done:
+                if exc is not None:
+                    raise exc
+                return
+            yield item
+    finally:
+        stop.set()
+        while thread.is_alive():     # unblock a producer waiting on a full queue
+            try:
+                q.get_nowait()
+            except queue.Empty:
+                pass
+            thread.join(timeout=0.1)
 
 
 def _bin_chunks(path: Path, chunk_points: int):
@@ -414,12 +533,14 @@ def _bin_chunks(path: Path, chunk_points: int):
 
 
 def _tiled_gtiff(path, shape, transform, crs, count: int = 1, dtype: str = "float32", nodata=NODATA):
+    """A working GeoTIFF, uncompressed: written once by windows and read once by the COG copy, so
+    compressing it cost 2.3 CPU-s of the demo's rasters and saved only temporary disk space (which
+    ``check_disk`` asks for uncompressed anyway)."""
     import rasterio
 
     return rasterio.open(path, "w", driver="GTiff", width=shape[1], height=shape[0], count=count, dtype=dtype,
                          crs=crs, transform=transform, nodata=nodata, tiled=True, blockxsize=_BLOCK_PX,
-                         blockysize=_BLOCK_PX, compress="DEFLATE", predictor=3 if dtype == "float32" else 2,
-                         zlevel=1, bigtiff="IF_SAFER")
+                         blockysize=_BLOCK_PX, bigtiff="IF_SAFER")
 
 
 def _tile_windows(grid, nrows: int, ncols: int):
@@ -574,6 +695,7 @@ def write_rasters_tiled(paths, outdir, res_m: float, crs=None, tile_px: int = DE
     win = min(tile_px + 2 * buffer_px, nrows), min(tile_px + 2 * buffer_px, ncols)
     check_grid(*win, res_m, RASTER_BYTES_PER_CELL, "rasters: one tile with its buffer", "--tile-px",
                "use a smaller --tile-px")
+    threads = _tile_threads(win[0] * win[1])
     # the working GeoTIFFs and the COGs, uncompressed float32 at worst (a grid over strips far apart
     # is mostly nodata, but the tiles are still visited and written)
     check_disk(2.0 * 4 * (len(RASTERS) + 1) * nrows * ncols, outdir,
@@ -591,30 +713,103 @@ def write_rasters_tiled(paths, outdir, res_m: float, crs=None, tile_px: int = DE
         work = tmp / "work"
         work.mkdir()
         used = _bin_points(inputs, args, grid, work, chunk_points)
-        with rasterio.Env(GDAL_CACHEMAX=_GDAL_CACHE_MB, GDAL_PAM_ENABLED="NO"):
+        with rasterio.Env(**_GDAL_ENV):
             dem_sum, dem_n = _tiles_to_gtiffs(inputs, args, grid, used, work, tmp, transform, tags,
-                                              chunk_points, footprint_cells, dem_fill_radius_px)
-            fill = np.float32(dem_sum / dem_n) if dem_n else np.float32(np.nan)
+                                              chunk_points, footprint_cells, dem_fill_radius_px, threads)
+        fill = np.float32(dem_sum / dem_n) if dem_n else np.float32(np.nan)
+
+        def hillshade_png() -> None:
             _hillshade_by_windows(work / "dem_m.tif", work / "hillshade.tif", res_m, fill, grid, nrows, ncols,
                                   transform, inputs.crs)
-            for name in RASTERS:
-                with rasterio.open(work / f"{name}.tif") as src, atomic_path(tmp / f"{name}.tif") as dst:
-                    rio_copy(src, dst, driver="COG", compress="DEFLATE", predictor=3, overview_resampling="average",
-                             num_threads="ALL_CPUS")
-            with rasterio.open(work / "hillshade.tif") as src:
-                # a preview: zlib level 1 is half the CPU of the default 6 for a 4 % larger file
-                rio_copy(src, tmp / "hillshade.png", driver="PNG", zlevel=1)
+            _hillshade_png(work / "hillshade.tif", tmp / "hillshade.png")
+
+        def cog(name: str) -> None:
+            with rasterio.open(work / f"{name}.tif") as src, atomic_path(tmp / f"{name}.tif") as dst:
+                # DEFLATE level 1: 30 % less CPU than the default 6 (5.1 -> 3.6 s for the demo's five
+                # rasters) for files 1.3 % larger
+                rio_copy(src, dst, driver="COG", compress="DEFLATE", predictor=3, level=1,
+                         overview_resampling="average", num_threads="ALL_CPUS")
+
+        _run_threads([hillshade_png] + [functools.partial(cog, name) for name in RASTERS])
 
     return _write_set(outdir, write)
 
 
-def _tiles_to_gtiffs(inputs: _Inputs, args, grid, used, work: Path, tmp: Path, transform, tags,
-                     chunk_points: int, footprint_cells: int, dem_fill_radius_px: float):
-    """Pass 2: each tile's grids from its binned points, the core written by window into tiled
-    GeoTIFFs (``work/<name>.tif`` in the CRS's units, ``work/dem_m.tif`` the DEM in metres for the
-    hillshade). Returns the sum and count of the DEM's cells (metres) for the hillshade's fill."""
-    import contextlib
+# Threads of the tiled rasters: tiles are computed two at a time (numba and numpy release the GIL;
+# memory: two tiles, when they take at most half of the RAM), the COGs and the hillshade written two
+# at a time (GDAL releases it).
+_THREADS = 2
+
+
+def _tile_threads(window_cells: int) -> int:
+    from lidarctl.grid import machine_ram_bytes
+
+    return _THREADS if _THREADS * window_cells * RASTER_BYTES_PER_CELL <= 0.5 * machine_ram_bytes() else 1
+
+
+# GDAL's configuration in every thread (rasterio's Env is per thread): a bounded block cache while
+# windows are written and COGs copied, not 5 % of the RAM; no .aux.xml files; ZSTD level 1 for the
+# temporary file in which the COG driver computes the overviews (default 9; the COGs are the same
+# bytes, and 1 of 4 CPU-s of the demo's five COGs less).
+_GDAL_ENV = dict(GDAL_CACHEMAX=256, GDAL_PAM_ENABLED="NO", ZSTD_LEVEL_OVERVIEW="1")
+
+
+def _run_threads(tasks) -> None:
+    """Call every task, ``_THREADS`` at a time, each in its own rasterio Env; the first error is raised
+    after the others have stopped."""
+    import rasterio
+    from concurrent.futures import ThreadPoolExecutor
+
+    def run(task):
+        with rasterio.Env(**_GDAL_ENV):
+            task()
+
+    with ThreadPoolExecutor(_THREADS) as pool:
+        futures = [pool.submit(run, t) for t in tasks]
+        try:
+            for f in futures:
+                f.result()
+        except BaseException:
+            for f in futures:
+                f.cancel()
+            raise
+
+
+def _tile_grids(inputs: _Inputs, args, tile, work: Path, chunk_points: int, footprint_cells: int,
+                dem_fill_radius_px: float):
+    """The grids of one tile's core from its binned points (``_bin_points``): float32 arrays north-up,
+    NODATA for no value, in the CRS's units, the DEM also in metres (``dem_m``); and the sum (float64)
+    and count of the core's DEM cells. Runs in a worker thread."""
     import os
+
+    res_m, x0, y0 = args[:3]
+    tid, (row0, col0, rows, cols), core, _ = tile
+    bin_path = work / f"tile_{tid}.bin"
+    sums = _CellSums((res_m, x0, y0, rows, cols), (row0, col0))
+    for rec in _bin_chunks(bin_path, chunk_points):
+        sums.add(rec["x"], rec["y"], rec["z"], rec["cls"], rec["rn"], rec["intensity"])
+    grown = tuple(slice(max(c.start - 1, 0), c.stop + 1) for c in core)   # the CHM's bilinear samples
+    dem = sums.dem(require_ground=False, fill_radius_px=dem_fill_radius_px, needed=grown)
+    for rec in _bin_chunks(bin_path, chunk_points):
+        sums.add_chm(rec["x"], rec["y"], rec["z"], rec["cls"], dem)
+    os.remove(bin_path)
+    out = sums.core_grids(dem, footprint_cells, core, inputs.units)
+    del sums, dem
+    finite = np.isfinite(out["dem_m"])
+    dem_sum, dem_n = float(out["dem_m"][finite].sum(dtype=np.float64)), int(finite.sum())
+    out["dem_m"][~finite] = NODATA
+    return out, dem_sum, dem_n
+
+
+def _tiles_to_gtiffs(inputs: _Inputs, args, grid, used, work: Path, tmp: Path, transform, tags,
+                     chunk_points: int, footprint_cells: int, dem_fill_radius_px: float, threads: int = 1):
+    """Pass 2: each tile's grids from its binned points (``_tile_grids``, ``threads`` tiles at a time,
+    at most one more waiting), the core written by window into tiled GeoTIFFs (``work/<name>.tif`` in
+    the CRS's units, ``work/dem_m.tif`` the DEM in metres for the hillshade) in tile order. Returns
+    the sum and count of the DEM's cells (metres) for the hillshade's fill."""
+    import collections
+    import contextlib
+    from concurrent.futures import ThreadPoolExecutor
 
     from aerotri.core.log import progress
 
@@ -631,50 +826,53 @@ def _tiles_to_gtiffs(inputs: _Inputs, args, grid, used, work: Path, tmp: Path, t
             ds.set_band_description(1, _description(name, units))
             ds.update_tags(**tags)
             out[name] = ds
-        dem_m = stack.enter_context(_tiled_gtiff(work / "dem_m.tif", (nrows, ncols), transform, inputs.crs))
+        out["dem_m"] = stack.enter_context(_tiled_gtiff(work / "dem_m.tif", (nrows, ncols), transform, inputs.crs))
+        pool = stack.enter_context(ThreadPoolExecutor(threads))
+        pending = collections.deque()
+
+        def drain_one() -> None:
+            nonlocal dem_sum, dem_n
+            window, future = pending.popleft()
+            if future is None:
+                grids = {name: np.full((window.height, window.width), NODATA, np.float32) for name in out}
+            else:
+                grids, s, n = future.result()
+                dem_sum += s
+                dem_n += n
+            for name, ds in out.items():
+                ds.write(grids[name], 1, window=window)
+            bar.update(1)
+
         with progress(grid.n_tiles, "rasters: tiles", "tile") as bar:
-            for tid, (row0, col0, rows, cols), core, window in _tile_windows(grid, nrows, ncols):
-                shape = (window.height, window.width)
-                bin_path = work / f"tile_{tid}.bin"
-                if not used[tid]:
-                    empty = np.full(shape, NODATA, np.float32)
-                    for ds in (*out.values(), dem_m):
-                        ds.write(empty, 1, window=window)
-                    bar.update(1)
-                    continue
-                sums = _CellSums((res_m, x0, y0, rows, cols), (row0, col0))
-                for rec in _bin_chunks(bin_path, chunk_points):
-                    sums.add(rec["x"], rec["y"], rec["z"], rec["cls"], rec["rn"], rec["intensity"])
-                dem = sums.dem(require_ground=False, fill_radius_px=dem_fill_radius_px)
-                for rec in _bin_chunks(bin_path, chunk_points):
-                    sums.add_chm(rec["x"], rec["y"], rec["z"], rec["cls"], dem)
-                os.remove(bin_path)
-                grids = {k: v[core][::-1] for k, v in sums.grids_south_up(dem, footprint_cells).items()}
-                del sums, dem
-                finite = np.isfinite(grids["dem"])
-                dem_sum += float(grids["dem"][finite].sum(dtype=np.float64))
-                dem_n += int(finite.sum())
-                dem_m.write(np.where(finite, grids["dem"], NODATA).astype(np.float32), 1, window=window)
-                grids = to_crs_units(grids, units)
-                for name, ds in out.items():
-                    a = grids[name]
-                    ds.write(np.where(np.isfinite(a), a, NODATA).astype(np.float32), 1, window=window)
-                bar.update(1)
+            try:
+                for tile in _tile_windows(grid, nrows, ncols):
+                    tid, window = tile[0], tile[3]
+                    future = pool.submit(_tile_grids, inputs, args, tile, work, chunk_points, footprint_cells,
+                                         dem_fill_radius_px) if used[tid] else None
+                    pending.append((window, future))
+                    while len(pending) > threads:
+                        drain_one()
+                while pending:
+                    drain_one()
+            except BaseException:
+                for _, f in pending:
+                    if f is not None:
+                        f.cancel()
+                raise
     return dem_sum, dem_n
 
 
 def _hillshade_by_windows(dem_path: Path, out_path: Path, res_m: float, fill, grid, nrows: int, ncols: int,
                           transform, crs) -> None:
-    """Pass 3: the hillshade (RGBA) of the metric DEM by the tiles' windows, each read with a one-cell
-    border (clipped to the raster, as ``np.gradient`` treats the raster's edges)."""
+    """Pass 3: the hillshade (grey levels) of the metric DEM by the tiles' windows, each read with a
+    one-cell border (clipped to the raster, as ``np.gradient`` treats the raster's edges), into an
+    uncompressed single-band GeoTIFF of strips (rewritten in place as the windows arrive, then read
+    row by row for the PNG)."""
     import rasterio
     from rasterio.windows import Window
 
-    # uncompressed strips, not compressed tiles: the PNG copy reads it line by line, and GDAL decodes a
-    # pixel-interleaved tile again for every line that crosses it (57 of 101 CPU-s of the whole stage on
-    # a 3437 x 3502 grid); uncompressed strips are rewritten in place as the windows arrive
     with rasterio.open(dem_path) as src, rasterio.open(out_path, "w", driver="GTiff", width=ncols, height=nrows,
-                                                       count=4, dtype="uint8", crs=crs, transform=transform,
+                                                       count=1, dtype="uint8", crs=crs, transform=transform,
                                                        tiled=False, blockysize=_BLOCK_PX, bigtiff="IF_SAFER") as dst:
         for _, _, _, w in _tile_windows(grid, nrows, ncols):
             r0, c0 = max(w.row_off - 1, 0), max(w.col_off - 1, 0)
@@ -682,4 +880,13 @@ def _hillshade_by_windows(dem_path: Path, out_path: Path, res_m: float, fill, gr
             dem = src.read(1, window=Window(c0, r0, c1 - c0, r1 - r0), masked=True).filled(np.nan)
             hs = hillshade(dem, res_m, fill_value=fill)
             core = hs[w.row_off - r0: w.row_off - r0 + w.height, w.col_off - c0: w.col_off - c0 + w.width]
-            dst.write(np.moveaxis(hillshade_rgba(core), 2, 0), window=w)
+            dst.write(hillshade_grey(core), 1, window=w)
+
+
+def _hillshade_png(grey_path: Path, png_path: Path) -> None:
+    import rasterio
+    from rasterio.windows import Window
+
+    with rasterio.open(grey_path) as src:
+        _write_png_grey_as_rgba(png_path, lambda r0, r1: src.read(1, window=Window(0, r0, src.width, r1 - r0)),
+                                src.height, src.width)

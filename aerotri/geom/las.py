@@ -44,9 +44,11 @@ def one_line(exc: Exception) -> str:
 
 
 # ------------------------------------------------------------------------------------------- opening
-def open_las(path):
+def open_las(path, decompression_selection=None):
     """A laspy reader for a LAS/LAZ file whose header passed ``check_header`` (use it as a context
-    manager); ``InputError`` naming the file for a missing, empty or non-LAS file or a broken header."""
+    manager); ``InputError`` naming the file for a missing, empty or non-LAS file or a broken header.
+    ``decompression_selection``: the LAZ fields to decompress (laspy's ``DecompressionSelection``;
+    default all; the others read as zeros in the layered point formats 6 to 10)."""
     path = Path(path)
     if not path.is_file():
         raise InputError(f"{path}: is a folder, expected a LAS/LAZ file" if path.is_dir() else f"{path}: file not found")
@@ -57,7 +59,8 @@ def open_las(path):
     if signature != b"LASF":
         raise InputError(f"{path}: not a LAS/LAZ file (signature {signature!r}, expected b'LASF')")
     try:
-        reader = laspy.open(path)
+        reader = laspy.open(path) if decompression_selection is None else \
+            laspy.open(path, decompression_selection=decompression_selection)
     except Exception as exc:  # laspy raises several types (LaspyException, ValueError, EOFError) for broken headers
         raise InputError(f"{path}: unreadable LAS header ({one_line(exc)})") from exc
     try:
@@ -204,9 +207,9 @@ def iter_chunks(reader, path, chunk_points: int):
         raise InputError(f"{path}: truncated file: header says {n} points, read {done}")
 
 
-def iter_file_chunks(path, chunk_points: int):
+def iter_file_chunks(path, chunk_points: int, decompression_selection=None):
     """``iter_chunks`` of a file, opened (and checked) by ``open_las`` and closed at the end."""
-    with open_las(path) as reader:
+    with open_las(path, decompression_selection) as reader:
         yield from iter_chunks(reader, path, chunk_points)
 
 

@@ -1,0 +1,169 @@
+"""Per-cell statistics of a tile's points for the rasters (``rasters._CellSums``), one pass per chunk.
+
+The sums are the ones ``np.bincount`` makes, bit for bit: every chunk's points are summed in their
+order into a chunk total starting at 0, which is then added to the running sum (so a cell's mean
+does not depend on whether these loops or the array version made it); counts and maxima do not
+depend on the order. Cells are in a window of a larger grid: (row, col) = floor((y - y0) / res,
+(x - x0) / res) minus the window's first cell (``row0``, ``col0``).
+"""
+
+from __future__ import annotations
+
+import numba
+import numpy as np
+
+NOT_VALID = (7, 18)      # noise classes: not in the occupancy, the DSM or the intensity
+GROUND = (2, 9)          # ground and water: the DEM
+VEGETATION = (4, 5)      # medium and high vegetation: the CHM
+
+
+# columns of the per-cell records (one record per cell: a point touches one or two cache lines, not seven)
+_STAMP, _VALID_N, _GROUND_N, _INTEN_N = 0, 1, 2, 3                     # int32 (2^31 points a cell)
+_GROUND_CHUNK, _INTEN_CHUNK, _DSM, _GROUND_SUM, _INTEN_SUM = 0, 1, 2, 3, 4   # float64
+
+
+@numba.njit(cache=True, nogil=True)
+def _accumulate(x, y, z, cls, rn, inten, res_m, x0, y0, row0, col0, nrows, ncols, counts, sums, stamp, touched):
+    """One chunk into the window's records (``counts``, ``sums``: one row per flat cell). Returns the
+    index of the first point off the window, or -1."""
+    nt = 0
+    for k in range(len(x)):
+        j = np.int64(np.floor((x[k] - x0) / res_m)) - col0
+        i = np.int64(np.floor((y[k] - y0) / res_m)) - row0
+        if i < 0 or i >= nrows or j < 0 or j >= ncols:
+            return k
+        c = i * ncols + j
+        cl = cls[k]
+        ground = cl == 2 or cl == 9
+        first = rn[k] == 1
+        if cl == 7 or cl == 18:
+            continue
+        if counts[c, _STAMP] != stamp and (ground or first):
+            counts[c, _STAMP] = stamp            # the chunk's sums of this cell start at 0
+            sums[c, _GROUND_CHUNK] = 0.0
+            sums[c, _INTEN_CHUNK] = 0.0
+            touched[nt] = c
+            nt += 1
+        counts[c, _VALID_N] += 1
+        if ground:
+            sums[c, _GROUND_CHUNK] += z[k]
+            counts[c, _GROUND_N] += 1
+        if first:
+            if np.isnan(sums[c, _DSM]) or z[k] > sums[c, _DSM]:
+                sums[c, _DSM] = z[k]
+            sums[c, _INTEN_CHUNK] += float(inten[k])
+            counts[c, _INTEN_N] += 1
+    for t in range(nt):
+        c = touched[t]
+        sums[c, _GROUND_SUM] += sums[c, _GROUND_CHUNK]
+        sums[c, _INTEN_SUM] += sums[c, _INTEN_CHUNK]
+    return -1
+
+
+@numba.njit(cache=True, nogil=True)
+def _chm_max(x, y, z, cls, dem, res_m, x0, y0, row0, col0, chm):
+    """Highest height of vegetation points above the bilinear DEM per cell of the window (``chm``
+    flat, NaN where none), the DEM sampled as ``raster_ops.sample_bilinear`` samples it (the same
+    arithmetic). Returns the index of the first point off the window, or -1."""
+    nrows, ncols = dem.shape
+    r0, c0 = float(row0), float(col0)
+    for k in range(len(x)):
+        cl = cls[k]
+        if cl != 4 and cl != 5:
+            continue
+        r = min(max((y[k] - y0) / res_m - 0.5 - r0, 0.0), nrows - 1.0)
+        c = min(max((x[k] - x0) / res_m - 0.5 - c0, 0.0), ncols - 1.0)
+        i = min(int(r), nrows - 2) if nrows > 1 else 0
+        j = min(int(c), ncols - 2) if ncols > 1 else 0
+        fr, fc = r - i, c - j
+        i1, j1 = min(i + 1, nrows - 1), min(j + 1, ncols - 1)
+        ground = ((1.0 - fr) * ((1.0 - fc) * dem[i, j] + fc * dem[i, j1])
+                  + fr * ((1.0 - fc) * dem[i1, j] + fc * dem[i1, j1]))
+        hag = z[k] - ground
+        jj = np.int64(np.floor((x[k] - x0) / res_m)) - col0
+        ii = np.int64(np.floor((y[k] - y0) / res_m)) - row0
+        if ii < 0 or ii >= nrows or jj < 0 or jj >= ncols:
+            return k
+        cell = ii * ncols + jj
+        if np.isnan(chm[cell]) or hag > chm[cell]:
+            chm[cell] = hag
+    return -1
+
+
+class CellStats:
+    """Running per-cell statistics of a window of ``nrows`` x ``ncols`` cells (flat arrays): points
+    not noise per cell (``valid_n``), the sum and count of ground heights (``ground_sum``,
+    ``ground_n``), the highest first return (``dsm``, NaN where none), the sum and count of
+    first-return intensities (``inten_sum``, ``inten_n``), the highest vegetation above the DEM
+    (``chm``, NaN where none)."""
+
+    def __init__(self, res_m: float, x0: float, y0: float, nrows: int, ncols: int, row0: int = 0, col0: int = 0):
+        self.res_m, self.x0, self.y0 = float(res_m), float(x0), float(y0)
+        self.nrows, self.ncols, self.row0, self.col0 = int(nrows), int(ncols), int(row0), int(col0)
+        n = self.nrows * self.ncols
+        self._counts = np.zeros((n, 4), np.int32)
+        self._sums = np.zeros((n, 5))
+        self._sums[:, _DSM] = np.nan
+        self._stamp = 0
+        self.chm = np.full(n, np.nan)
+
+    valid_n = property(lambda self: self._counts[:, _VALID_N])
+    ground_n = property(lambda self: self._counts[:, _GROUND_N])
+    inten_n = property(lambda self: self._counts[:, _INTEN_N])
+    ground_sum = property(lambda self: self._sums[:, _GROUND_SUM])
+    inten_sum = property(lambda self: self._sums[:, _INTEN_SUM])
+    dsm = property(lambda self: self._sums[:, _DSM])
+
+    def add(self, x, y, z, cls, return_number, intensity) -> None:
+        """A chunk of points (x, y, z in metres, class, return number, intensity)."""
+        self._stamp += 1
+        bad = _accumulate(x, y, z, cls, return_number, intensity, self.res_m, self.x0, self.y0, self.row0,
+                          self.col0, self.nrows, self.ncols, self._counts, self._sums, self._stamp,
+                          np.empty(len(x), np.int64))
+        if bad >= 0:
+            raise RuntimeError("a point lies outside the raster grid")   # a tiling bug, not an input error
+
+    def core_grids(self, footprint: np.ndarray, dem: np.ndarray, dsm_filled: np.ndarray, core, z_m: float,
+                   metric: bool, nodata: float) -> np.ndarray:
+        """``_core_grids`` of the window's core (row slice, col slice): (6, rows, cols) float32."""
+        return _core_grids(footprint, np.ascontiguousarray(dem, float), np.ascontiguousarray(dsm_filled, float),
+                           self.chm, self._counts, self._sums, core[0].start, core[0].stop, core[1].start,
+                           core[1].stop, float(z_m), bool(metric), float(nodata))
+
+    def add_chm(self, x, y, z, cls, dem: np.ndarray) -> None:
+        """A chunk of points again, once the window's DEM (filled, rows south to north) is known."""
+        if _chm_max(x, y, z, cls, np.ascontiguousarray(dem, float), self.res_m, self.x0, self.y0, self.row0,
+                    self.col0, self.chm) >= 0:
+            raise RuntimeError("a point lies outside the raster grid")
+
+
+@numba.njit(cache=True, nogil=True, error_model="numpy")
+def _core_grids(footprint, dem, dsm_filled, chm, counts, sums, r_lo, r_hi, c_lo, c_hi, z_m, metric, nodata):
+    """The float32 grids of a tile's core (window rows r_lo..r_hi, cols c_lo..c_hi), rows north to
+    south: DEM in metres with NaN, then DEM, DSM, nDSM, CHM (heights divided by ``z_m`` unless
+    ``metric``) and intensity with ``nodata`` for no value. The arithmetic of the array version:
+    heights in float64, cast to float32, then scaled in float64 and cast again."""
+    ncols = dem.shape[1]
+    h, w = r_hi - r_lo, c_hi - c_lo
+    out = np.empty((6, h, w), np.float32)
+    for i in range(r_lo, r_hi):
+        o = h - 1 - (i - r_lo)
+        for j in range(c_lo, c_hi):
+            c = i * ncols + j
+            fp = footprint[i, j]
+            d = dem[i, j] if fp else np.nan
+            a, b = dsm_filled[i, j], dem[i, j]
+            s = np.nan if (np.isnan(a) or np.isnan(b)) else max(a, b)
+            if not fp:
+                s = np.nan
+            v = chm[c]
+            heights = (np.float32(d), np.float32(s), np.float32(s - d), np.float32(v if v > 0 else np.nan))
+            out[0, o, j - c_lo] = heights[0]
+            for k in range(4):
+                x = heights[k]
+                if not metric:
+                    x = np.float32(np.float64(x) / z_m)
+                out[1 + k, o, j - c_lo] = x if np.isfinite(x) else nodata
+            x = np.float32(sums[c, _INTEN_SUM] / counts[c, _INTEN_N])
+            out[5, o, j - c_lo] = x if np.isfinite(x) else nodata
+    return out

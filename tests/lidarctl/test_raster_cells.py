@@ -1,0 +1,132 @@
+"""The loops of the tiled rasters give the array versions they replaced, bit for bit: per-cell sums chunk by chunk
+(np.bincount), maxima, the CHM's bilinear DEM samples, the pull-push fill, the footprint's hole filling; the
+hillshade's grey levels and PNG are matplotlib's colours."""
+
+import numpy as np
+import pytest
+from scipy import ndimage
+
+from lidarctl.raster_cells import CellStats
+from lidarctl.raster_ops import fill_nodata, sample_bilinear
+
+
+def _points(n, seed, res_m, x0, y0, nrows, ncols):
+    rng = np.random.default_rng(seed)
+    x = x0 + rng.uniform(0, ncols * res_m, n)
+    y = y0 + rng.uniform(0, nrows * res_m, n)
+    z = rng.normal(300, 20, n)
+    cls = rng.choice(np.array([1, 2, 4, 5, 6, 7, 9, 18], np.uint8), n)
+    rn = rng.integers(1, 4, n).astype(np.uint8)
+    inten = rng.integers(0, 65535, n).astype(np.uint16)
+    return x, y, z, cls, rn, inten
+
+
+def _reference(chunks, res_m, x0, y0, nrows, ncols, row0, col0):
+    """The array version (np.isin, np.bincount, np.fmax) the loops replaced."""
+    n = nrows * ncols
+    valid_n, ground_n, inten_n = (np.zeros(n, np.int64) for _ in range(3))
+    ground_sum, inten_sum, dsm = np.zeros(n), np.zeros(n), np.full(n, np.nan)
+    for x, y, z, cls, rn, inten in chunks:
+        flat = (np.floor((y - y0) / res_m).astype(np.int64) - row0) * ncols + np.floor((x - x0) / res_m).astype(np.int64) - col0
+        valid = ~np.isin(cls, (7, 18))
+        valid_n += np.bincount(flat[valid], minlength=n)
+        g = np.isin(cls, (2, 9))
+        ground_sum += np.bincount(flat[g], z[g], minlength=n)
+        ground_n += np.bincount(flat[g], minlength=n)
+        first = valid & (rn == 1)
+        top = np.full(n, np.nan)
+        np.fmax.at(top, flat[first], z[first])
+        dsm = np.fmax(dsm, top)
+        inten_sum += np.bincount(flat[first], inten[first].astype(float), minlength=n)
+        inten_n += np.bincount(flat[first], minlength=n)
+    return valid_n, ground_sum, ground_n, dsm, inten_sum, inten_n
+
+
+def test_cell_stats_equal_bincount_chunk_by_chunk():
+    res_m, x0, y0, nrows, ncols, row0, col0 = 0.5, 1000.0, 5000.0, 40, 60, 3, 7
+    wx0, wy0 = x0 + col0 * res_m, y0 + row0 * res_m          # the window of a larger grid
+    chunks = [_points(n, seed, res_m, wx0, wy0, nrows, ncols) for seed, n in ((1, 9000), (2, 5000), (3, 1))]
+    stats = CellStats(res_m, x0, y0, nrows, ncols, row0, col0)
+    for c in chunks:
+        stats.add(*c)
+    ref = _reference(chunks, res_m, x0, y0, nrows, ncols, row0, col0)
+    for got, want in zip((stats.valid_n, stats.ground_sum, stats.ground_n, stats.dsm, stats.inten_sum, stats.inten_n), ref):
+        np.testing.assert_array_equal(got, want)
+    # the CHM: highest vegetation above the bilinear DEM
+    dem = np.random.default_rng(4).normal(300, 5, (nrows, ncols))
+    for c in chunks:
+        stats.add_chm(c[0], c[1], c[2], c[3], dem)
+    want = np.full(nrows * ncols, np.nan)
+    for x, y, z, cls, _, _ in chunks:
+        veg = np.isin(cls, (4, 5))
+        hag = z[veg] - sample_bilinear(dem, x[veg], y[veg], res_m, x0, y0, row0, col0)
+        flat = (np.floor((y[veg] - y0) / res_m).astype(np.int64) - row0) * ncols + np.floor((x[veg] - x0) / res_m).astype(np.int64) - col0
+        np.fmax.at(want, flat, hag)
+    np.testing.assert_array_equal(stats.chm, want)
+    with pytest.raises(RuntimeError, match="outside the raster grid"):
+        stats.add(np.array([x0]), np.array([y0]), np.array([1.0]), np.array([2], np.uint8), np.array([1], np.uint8),
+                  np.array([0], np.uint16))
+
+
+def _fill_nodata_arrays(a):
+    """The array version of the pull-push fill."""
+    valid = np.isfinite(a)
+    if valid.all() or not valid.any():
+        return a.copy()
+    levels = [(np.where(valid, a, 0.0), valid.astype(float))]
+    while True:
+        v, w = levels[-1]
+        if (w > 0).all() or min(v.shape) == 1:
+            break
+        h, wd = (v.shape[0] + 1) // 2 * 2, (v.shape[1] + 1) // 2 * 2
+        vp, wp = np.zeros((h, wd)), np.zeros((h, wd))
+        vp[:v.shape[0], :v.shape[1]] = v * w
+        wp[:v.shape[0], :v.shape[1]] = w
+        ws = wp.reshape(h // 2, 2, wd // 2, 2).sum(axis=(1, 3))
+        vs = vp.reshape(h // 2, 2, wd // 2, 2).sum(axis=(1, 3))
+        with np.errstate(invalid="ignore", divide="ignore"):
+            levels.append((np.where(ws > 0, vs / np.maximum(ws, 1e-12), 0.0), (ws > 0).astype(float)))
+    filled, w = levels[-1]
+    if not (w > 0).all():
+        filled = np.where(w > 0, filled, np.sum(filled * w) / w.sum())
+    for v, w in reversed(levels[:-1]):
+        filled = np.where(w > 0, v, np.repeat(np.repeat(filled, 2, axis=0), 2, axis=1)[:v.shape[0], :v.shape[1]])
+    return filled
+
+
+@pytest.mark.parametrize("shape, share", [((97, 131), 0.5), ((64, 64), 0.95), ((1, 40), 0.5), ((33, 1), 0.3),
+                                          ((50, 70), 0.0)])
+def test_pull_push_equals_the_array_version(shape, share):
+    rng = np.random.default_rng(sum(shape))
+    a = rng.normal(300, 30, shape)
+    a[rng.random(shape) < share] = np.nan
+    np.testing.assert_array_equal(fill_nodata(a), _fill_nodata_arrays(a))
+
+
+def test_footprint_holes_as_binary_fill_holes():
+    from lidarctl.rasters import _fill_holes
+
+    rng = np.random.default_rng(7)
+    for _ in range(10):
+        m = ndimage.binary_dilation(rng.random((120, 90)) < 0.02, iterations=int(rng.integers(1, 5)))
+        np.testing.assert_array_equal(_fill_holes(m), ndimage.binary_fill_holes(m))
+        f = ndimage.binary_dilation(m, np.ones((3, 3), bool), iterations=3)
+        np.testing.assert_array_equal(f, ndimage.maximum_filter(m, size=7, mode="constant", cval=False))
+
+
+def test_hillshade_grey_and_png_are_matplotlibs(tmp_path):
+    import matplotlib.image as mpimg
+
+    from lidarctl.rasters import _write_png_grey_as_rgba, hillshade_grey, hillshade_rgba
+
+    rng = np.random.default_rng(8)
+    hs = rng.random((301, 203))
+    hs[rng.random(hs.shape) < 0.1] = np.nan
+    hs[0, :3] = (0.0, 1.0, np.nextafter(1.0, 0.0))
+    rgba = hillshade_rgba(hs)
+    grey = hillshade_grey(hs)
+    np.testing.assert_array_equal(rgba[..., :3], np.repeat(grey[..., None], 3, axis=2))
+    assert (rgba[..., 3] == 255).all()
+    _write_png_grey_as_rgba(tmp_path / "h.png", lambda r0, r1: grey[r0:r1], *grey.shape, rows_per_read=64)
+    back = mpimg.imread(tmp_path / "h.png")
+    np.testing.assert_array_equal(np.round(back * 255).astype(np.uint8), rgba)

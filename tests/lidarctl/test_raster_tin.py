@@ -1,0 +1,95 @@
+"""lidarctl.raster_tin: the Delaunay triangulation of the TIN gap fill is a valid triangulation of the convex hull
+whose every edge is Delaunay by exact predicates (hence the Delaunay triangulation), Qhull's on points in general
+position, and handles the grid's first row and column, whose jitter makes their cells collinear to the last bit."""
+
+import numpy as np
+import pytest
+from scipy.spatial import ConvexHull, Delaunay
+
+from lidarctl.raster_ops import _jittered_cells
+from lidarctl.raster_tin import COLLINEAR, OK, _incircle, _orient, delaunay_lattice
+
+
+def _check_delaunay(pts: np.ndarray, tri: np.ndarray) -> None:
+    """Counter-clockwise triangles, two per interior edge, covering the hull (area), every interior edge
+    locally Delaunay (exact in-circle test of the opposite vertex): then it is the Delaunay triangulation."""
+    assert len(tri) and tri.min() >= 0 and tri.max() < len(pts)
+    assert len(np.unique(tri)) == len(pts)                               # every point is a vertex
+    a, b, c = pts[tri[:, 0]], pts[tri[:, 1]], pts[tri[:, 2]]
+    assert all(_orient(*a[k], *b[k], *c[k]) > 0 for k in range(len(tri)))
+    area = 0.5 * ((b[:, 0] - a[:, 0]) * (c[:, 1] - a[:, 1]) - (b[:, 1] - a[:, 1]) * (c[:, 0] - a[:, 0]))
+    assert area.sum() == pytest.approx(ConvexHull(pts).volume, rel=1e-9)
+    opposite = {}
+    for t, (i, j, k) in enumerate(tri):
+        for u, v, w in ((i, j, k), (j, k, i), (k, i, j)):
+            assert (u, v) not in opposite                                # each directed edge once
+            opposite[(u, v)] = w
+    for (u, v), w in opposite.items():
+        x = opposite.get((v, u))
+        if x is not None:    # interior edge u-v between triangles (u, v, w) and (v, u, x)
+            assert _incircle(*pts[u], *pts[v], *pts[w], *pts[x]) <= 0
+
+
+def _lattice(shape, density, seed, row0=0, col0=0):
+    rng = np.random.default_rng(seed)
+    r, c = np.nonzero(rng.random(shape) < density)
+    r, c = r + row0, c + col0
+    return _jittered_cells(r, c), r, c
+
+
+@pytest.mark.parametrize("row0, col0", [(0, 0), (37, 1000)])
+def test_lattice_triangulation_is_exactly_delaunay(row0, col0):
+    # (0, 0): the grid's first row and column, collinear to the last bit, on the hull
+    pts, r, c = _lattice((70, 90), 0.45, 1, row0, col0)
+    tri, status = delaunay_lattice(pts, r, c)
+    assert status == OK
+    _check_delaunay(pts, tri)
+
+
+def test_equals_qhull_in_general_position():
+    rng = np.random.default_rng(5)
+    pts = rng.random((3000, 2)) * 100
+    cells = np.floor(pts).astype(np.int64)
+    tri, status = delaunay_lattice(pts, cells[:, 1], cells[:, 0])
+    assert status == OK
+
+    def canon(s):
+        s = np.sort(s, axis=1)
+        return s[np.lexsort(s.T[::-1])]
+
+    np.testing.assert_array_equal(canon(tri), canon(Delaunay(pts).simplices))
+
+
+def test_degenerate_inputs():
+    line = np.column_stack([np.arange(10.0), 2.0 * np.arange(10.0)])
+    assert delaunay_lattice(line, np.arange(10), np.arange(10))[1] == COLLINEAR
+    assert delaunay_lattice(line[:2], np.arange(2), np.arange(2))[1] == COLLINEAR
+    three = np.array([[0.0, 0.0], [1.0, 0.0], [0.0, 1.0]])
+    tri, status = delaunay_lattice(three, np.array([0, 0, 1]), np.array([0, 1, 0]))
+    assert status == OK and sorted(tri[0]) == [0, 1, 2]
+    # a row of the grid's first row (collinear) and one point above it
+    pts, r, c = _lattice((1, 40), 1.0, 0)
+    pts = np.vstack([pts, _jittered_cells(np.array([3]), np.array([17]))])
+    tri, status = delaunay_lattice(pts, np.append(r, 3), np.append(c, 17))
+    assert status == OK
+    _check_delaunay(pts, tri)
+
+
+def test_tin_fill_only_near_the_needed_cells_is_the_same_there():
+    from lidarctl.raster_ops import fill_nodata, fill_nodata_tin
+
+    rng = np.random.default_rng(9)
+    rows, cols = np.mgrid[0:150, 0:160]
+    a = 300.0 + 0.2 * cols - 0.1 * rows + rng.normal(0, 0.3, rows.shape)
+    gaps = rng.random(a.shape) < 0.5
+    gaps[60:90, 70:100] = True                     # a building
+    a[gaps] = np.nan
+    r = 8
+    whole = fill_nodata_tin(a, max_radius_px=r, offset=(5, 9))
+    needed = (slice(50, 100), slice(60, 110))
+    part = fill_nodata_tin(a, max_radius_px=r, offset=(5, 9), needed=needed)
+    np.testing.assert_array_equal(part[needed], whole[needed])
+    far = np.zeros_like(gaps)
+    far[:10, :10] = True                           # beyond 2 r + 3 cells: the pull-push fill
+    np.testing.assert_array_equal(part[far], fill_nodata(a)[far])
+    assert not np.array_equal(whole[far & gaps], fill_nodata(a)[far & gaps])
