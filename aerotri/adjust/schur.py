@@ -91,6 +91,7 @@ def ray_pairs(obs: np.ndarray, obs_point: np.ndarray, obs_image: np.ndarray, n_i
 
 
 PARTS = 2  # runs of points linearised in parallel (the machine's 2 cores); fixed, so results do not depend on threads
+PARALLEL_MIN_RAYS = 400_000  # below: one serial run (thread start-up and wake-ups cost more than they save)
 
 
 @dataclasses.dataclass
@@ -310,7 +311,6 @@ def _points_range(j0, j1, xy, obs_image, start, pair_row, pair_a, pair_b, pair_b
 
 
 
-@numba.njit(cache=True, parallel=True)
 def reduced_camera_system(xy, obs_image, row, start, pair_a, pair_b, pair_block, n_blocks, n_images, centre, R_cv, points,
                           cal, inv_sigma, with_cal, huber_k, point_r, point_B, point_damping):
     """Linearise the tie-point rays at (orientations, points) and eliminate the points.
@@ -336,37 +336,32 @@ def reduced_camera_system(xy, obs_image, row, start, pair_a, pair_b, pair_block,
     block ``U_cal`` (9, 9), right-hand side ``s_cal`` (9,), the couplings ``U_image_cal`` (N, 6, 9) and,
     for the back-substitution, ``Z`` (M, 9, 3) = sum over each point's rays of C_k'B_k (else empty).
 
-    The points are taken in ``PARTS`` runs of about equal numbers of rays, each summed into its own copy of the
-    image blocks (on as many cores), the copies added in a fixed order: the result does not depend on the number
-    of threads.
+    Blocks of ``PARALLEL_MIN_RAYS`` rays or more: the points are taken in ``PARTS`` runs of about equal numbers of
+    rays, in parallel, each summed into its own copy of the image blocks, the copies added in a fixed order (the
+    result does not depend on the number of threads); smaller blocks in one run, serially (no thread start-up).
     """
+    parallel = len(row) >= PARALLEL_MIN_RAYS
+    parts = PARTS if parallel else 1
     K, M = len(row), len(start) - 1
     n_cal_img = n_images if with_cal else 0
-    U = np.zeros((PARTS, n_images, 6, 6))
-    S_pair = np.zeros((PARTS, n_blocks, 6, 6))
-    s = np.zeros((PARTS, n_images, 6))
-    U_cal = np.zeros((PARTS, 9, 9))
-    s_cal = np.zeros((PARTS, 9))
-    U_ic = np.zeros((PARTS, n_cal_img, 6, 9))
+    U = np.zeros((parts, n_images, 6, 6))
+    S_pair = np.zeros((parts, n_blocks, 6, 6))
+    s = np.zeros((parts, n_images, 6))
+    U_cal = np.zeros((parts, 9, 9))
+    s_cal = np.zeros((parts, 9))
+    U_ic = np.zeros((parts, n_cal_img, 6, 9))
     Vinv = np.zeros((M, 3, 3))
     bp = np.zeros((M, 3))
     W = np.zeros((K, 6, 3))
     Z = np.zeros((M if with_cal else 0, 9, 3))
-    pair_row = np.empty(len(pair_a), dtype=np.int64)
-    for n in range(len(pair_a)):
-        pair_row[n] = row[pair_a[n]]
-    bounds = np.empty(PARTS + 1, dtype=np.int64)
-    for t in range(PARTS + 1):  # point runs of about K / PARTS rays
-        bounds[t] = min(M, np.searchsorted(start, (K * t) // PARTS))
-    bounds[PARTS] = M
-    f_part = np.zeros(PARTS)
-    rr_part = np.zeros(PARTS)
-    for t in numba.prange(PARTS):
-        f_part[t], rr_part[t] = _points_range(
-            bounds[t], bounds[t + 1], xy, obs_image, start, pair_row, pair_a, pair_b, pair_block, centre, R_cv, points,
-            cal, inv_sigma, with_cal, huber_k, point_r, point_B, point_damping, U[t], S_pair[t], s[t], U_cal[t],
-            s_cal[t], U_ic[t], Vinv, bp, W, Z)
-    for t in range(1, PARTS):
+    pair_row = np.asarray(row)[pair_a].astype(np.int64)
+    bounds = np.minimum(M, np.searchsorted(start, (K * np.arange(parts + 1)) // parts)).astype(np.int64)
+    bounds[parts] = M
+    f_part, rr_part = np.zeros(parts), np.zeros(parts)
+    (_runs_parallel if parallel else _runs_serial)(
+        bounds, xy, obs_image, start, pair_row, pair_a, pair_b, pair_block, centre, R_cv, points, cal, inv_sigma, with_cal,
+        huber_k, point_r, point_B, point_damping, U, S_pair, s, U_cal, s_cal, U_ic, Vinv, bp, W, Z, f_part, rr_part)
+    for t in range(1, parts):  # in a fixed order
         U[0] += U[t]
         S_pair[0] += S_pair[t]
         s[0] += s[t]
@@ -374,16 +369,30 @@ def reduced_camera_system(xy, obs_image, row, start, pair_a, pair_b, pair_block,
         s_cal[0] += s_cal[t]
         U_ic[0] += U_ic[t]
     Ut = U[0]
-    for i in range(n_images):
-        for p in range(6):
-            for q in range(p):
-                Ut[i, p, q] = Ut[i, q, p]
-    f = 0.0
-    rr = 0.0
-    for t in range(PARTS):
+    iu = np.triu_indices(6, 1)
+    Ut[:, iu[1], iu[0]] = Ut[:, iu[0], iu[1]]  # the lower triangle from the upper
+    f = rr = 0.0
+    for t in range(parts):
         f += f_part[t]
         rr += rr_part[t]
     return Ut, S_pair[0], s[0], f, rr, Vinv, bp, W, U_cal[0], s_cal[0], U_ic[0], Z
+
+
+def _runs(bounds, xy, obs_image, start, pair_row, pair_a, pair_b, pair_block, centre, R_cv, points, cal, inv_sigma,
+          with_cal, huber_k, point_r, point_B, point_damping, U, S_pair, s, U_cal, s_cal, U_ic, Vinv, bp, W, Z, f_part,
+          rr_part):
+    """``_points_range`` over the runs of points ``bounds[t] .. bounds[t + 1] - 1``, each into its own copies."""
+    for t in numba.prange(len(bounds) - 1):
+        f_part[t], rr_part[t] = _points_range(
+            bounds[t], bounds[t + 1], xy, obs_image, start, pair_row, pair_a, pair_b, pair_block, centre, R_cv, points,
+            cal, inv_sigma, with_cal, huber_k, point_r, point_B, point_damping, U[t], S_pair[t], s[t], U_cal[t],
+            s_cal[t], U_ic[t], Vinv, bp, W, Z)
+
+
+# the parallel variants are compiled in each process that needs them (seconds, for blocks that take minutes): numba's
+# cache keeps one compilation per function, the serial one
+_runs_serial = numba.njit(cache=True)(_runs)
+_runs_parallel = numba.njit(parallel=True)(_runs)
 
 
 @numba.njit(cache=True, inline="always")
@@ -408,8 +417,7 @@ def _pair_block(n, pair_a, pair_b, pair_block, k0, W, VW, obs_image, S_pair, U):
                     U[i, q, p] -= v
 
 
-@numba.njit(cache=True, parallel=True)
-def point_increments(Vinv, bp, W, Z, obs_image, start, d_pose, d_cal):
+def _point_increments(Vinv, bp, W, Z, obs_image, start, d_pose, d_cal):
     """Back-substitution: ``d_point_j = V_j^-1 (b_point_j - sum_k W_k' d_pose[image_k] - Z_j' d_cal)`` (M, 3)
     (``Z`` empty without calibration unknowns); the points in parallel (each its own)."""
     M = len(start) - 1
@@ -430,20 +438,20 @@ def point_increments(Vinv, bp, W, Z, obs_image, start, d_pose, d_cal):
     return d
 
 
-@numba.njit(cache=True, parallel=True)
-def sum_of_squares(xy, obs_image, row, centre, R_cv, points, cal, inv_sigma, huber_k):
+def _sum_of_squares(xy, obs_image, row, centre, R_cv, points, cal, inv_sigma, huber_k, parts):
     """Sum of the squared whitened residuals of the rays (behind the camera: infinite); ``huber_k`` > 0:
     twice Huber's robust cost instead (``x^2`` per ray up to ``k``, ``2 k x - k^2`` beyond). The rays in ``PARTS``
-    runs in parallel, their sums added in order (the result does not depend on the number of threads)."""
+    runs (in parallel when compiled so), their sums added in order (the result does not depend on the number of
+    threads)."""
     K = len(row)
-    part = np.zeros(PARTS)
-    for t in numba.prange(PARTS):
+    part = np.zeros(parts)
+    for t in numba.prange(parts):
         A = np.empty((2, 6))
         B = np.empty((2, 3))
         C = np.empty((2, 9))
         r = np.empty(2)
         total = 0.0
-        for k in range((K * t) // PARTS, (K * (t + 1)) // PARTS):
+        for k in range((K * t) // parts, (K * (t + 1)) // parts):
             i = obs_image[k]
             if not _ray(xy[k], centre[i], R_cv[i], points[row[k]], cal, inv_sigma, A, B, r, C, False):
                 total = np.inf
@@ -455,9 +463,29 @@ def sum_of_squares(xy, obs_image, row, centre, R_cv, points, cal, inv_sigma, hub
                 total += x2
         part[t] = total
     total = 0.0
-    for t in range(PARTS):
+    for t in range(parts):
         total += part[t]
     return total
+
+
+_point_increments_serial = numba.njit(cache=True)(_point_increments)
+_point_increments_parallel = numba.njit(parallel=True)(_point_increments)
+_sum_of_squares_serial = numba.njit(cache=True)(_sum_of_squares)
+_sum_of_squares_parallel = numba.njit(parallel=True)(_sum_of_squares)
+
+
+def point_increments(Vinv, bp, W, Z, obs_image, start, d_pose, d_cal):
+    """``_point_increments``, in parallel for blocks of ``PARALLEL_MIN_RAYS`` rays or more."""
+    f = _point_increments_parallel if len(obs_image) >= PARALLEL_MIN_RAYS else _point_increments_serial
+    return f(Vinv, bp, W, Z, obs_image, start, d_pose, d_cal)
+
+
+def sum_of_squares(xy, obs_image, row, centre, R_cv, points, cal, inv_sigma, huber_k):
+    """``_sum_of_squares``: blocks of ``PARALLEL_MIN_RAYS`` rays or more in ``PARTS`` runs in parallel, smaller ones
+    in one."""
+    if len(row) >= PARALLEL_MIN_RAYS:
+        return _sum_of_squares_parallel(xy, obs_image, row, centre, R_cv, points, cal, inv_sigma, huber_k, PARTS)
+    return _sum_of_squares_serial(xy, obs_image, row, centre, R_cv, points, cal, inv_sigma, huber_k, 1)
 
 
 def hessian_factors(keys, rs: ReducedSystem, pair_images, cal_key=None) -> gtsam.GaussianFactorGraph:
