@@ -90,6 +90,10 @@ def ray_pairs(obs: np.ndarray, obs_point: np.ndarray, obs_image: np.ndarray, n_i
     return RayPairs(obs, row, start, a.astype(np.int64), b.astype(np.int64), pair_block.astype(np.int64), images)
 
 
+PARTS = 2  # runs of points linearised in parallel (the machine's 2 cores); fixed, so results do not depend on threads
+PARALLEL_MIN_RAYS = 400_000  # below: one serial run (thread start-up and wake-ups cost more than they save)
+
+
 @dataclasses.dataclass
 class ReducedSystem:
     """What ``reduced_camera_system`` returns, by name."""
@@ -197,61 +201,30 @@ def _inverse_sym3(V, Vi):
 
 
 @numba.njit(cache=True)
-def reduced_camera_system(xy, obs_image, row, start, pair_a, pair_b, pair_block, n_blocks, n_images, centre, R_cv, points,
-                          cal, inv_sigma, with_cal, huber_k, point_r, point_B, point_damping):
-    """Linearise the tie-point rays at (orientations, points) and eliminate the points.
-
-    Returns the reduced system ``S`` as diagonal blocks ``U`` (N, 6, 6) and pair blocks ``S_pair``
-    (n_blocks, 6, 6) (image i < j of each pair), its right-hand side ``s`` (N, 6), the reduced constant
-    ``f = r'r - b_point' V^-1 b_point``, the sum of squared whitened residuals ``r'r``, and what the
-    back-substitution needs: ``V^-1`` (M, 3, 3), ``b_point`` (M, 3), ``W`` (K, 6, 3). Rays behind their
-    camera contribute nothing; a point whose normal matrix is singular stays where it is (``V^-1`` zero)
-    and adds only its residuals (a constant) to the cost.
-
-    ``huber_k`` > 0: each ray weighted by Huber's kernel (iteratively reweighted least squares).
-
-    ``point_r`` (M,), ``point_B`` (M, 3): one more whitened observation per point that involves the point
-    alone (a surface height, ``aerotri.adjust.surface``; zeros for none), added to its normal block
-    before the elimination.
-
-    ``point_damping`` (Levenberg-Marquardt's lambda, 0 for Gauss-Newton): each point's normal block gets
-    ``lambda diag(V_j)`` before the elimination, so that a damped step also damps the points' back-substitution
-    (a surface observation makes the points' own problem nonlinear).
-
-    With ``with_cal`` the calibration (Cal3DS2, 9 parameters shared by all rays) is an unknown too: its
-    block ``U_cal`` (9, 9), right-hand side ``s_cal`` (9,), the couplings ``U_image_cal`` (N, 6, 9) and,
-    for the back-substitution, ``Z`` (M, 9, 3) = sum over each point's rays of C_k'B_k (else empty).
-    """
-    K, M = len(row), len(start) - 1
-    U = np.zeros((n_images, 6, 6))
-    S_pair = np.zeros((n_blocks, 6, 6))
-    s = np.zeros((n_images, 6))
-    Vinv = np.zeros((M, 3, 3))
-    bp = np.zeros((M, 3))
-    W = np.zeros((K, 6, 3))
-    ok = np.ones(M, dtype=np.bool_)
-    m_max = 0
-    for j in range(M):
+def _points_range(j0, j1, xy, obs_image, start, pair_row, pair_a, pair_b, pair_block, centre, R_cv, points, cal, inv_sigma,
+                  with_cal, huber_k, point_r, point_B, point_damping, U, S_pair, s, U_cal, s_cal, U_ic, Vinv, bp, W, Z):
+    """``reduced_camera_system`` over the points ``j0 .. j1 - 1``: their rays' contributions added into ``U``,
+    ``S_pair``, ``s``, ``U_cal``, ``s_cal``, ``U_ic`` (the upper triangle of ``U``), their own ``Vinv``, ``bp``,
+    ``W``, ``Z`` written; returns (their part of ``f``, of ``r'r``)."""
+    m_max = 1
+    for j in range(j0, j1):
         m_max = max(m_max, start[j + 1] - start[j])
     A = np.empty((m_max, 2, 6))  # this point's rays
     B = np.empty((m_max, 2, 3))
     r = np.empty((m_max, 2))
     front = np.empty(m_max, dtype=np.bool_)
     Cr = np.zeros((m_max, 2, 9))
-    U_cal = np.zeros((9, 9))
-    s_cal = np.zeros(9)
-    U_ic = np.zeros((n_images if with_cal else 0, 6, 9))
-    Z = np.zeros((M if with_cal else 0, 9, 3))
     VZ = np.empty((3, 9))
     VW = np.zeros((m_max, 3, 6))  # V^-1 W_k' of this point's rays
     n_pairs = len(pair_a)
-    nxt = 0  # the next pair: pairs are sorted by their first ray, so a point's pairs are consecutive
+    # the next pair: pairs are sorted by their first ray, so a point's pairs are consecutive
+    nxt = np.searchsorted(pair_row, j0)
     rr = 0.0
     f = 0.0
     V = np.empty((3, 3))
     Vi = np.empty((3, 3))
     vb = np.empty(3)
-    for j in range(M):
+    for j in range(j0, j1):
         V[:] = 0.0
         k0 = start[j]
         for k in range(k0, start[j + 1]):
@@ -275,11 +248,10 @@ def reduced_camera_system(xy, obs_image, row, start, pair_a, pair_b, pair_block,
         if point_damping > 0.0:
             for p in range(3):
                 V[p, p] *= 1.0 + point_damping
-        while nxt < n_pairs and row[pair_a[nxt]] < j:  # the pairs of points before (singular ones)
+        while nxt < n_pairs and pair_row[nxt] < j:  # the pairs of points before (singular ones)
             nxt += 1
         if not _inverse_sym3(V, Vi):
             # an indeterminate point contributes nothing (its rays stay in the cost, constant)
-            ok[j] = False
             continue
         for k in range(k0, start[j + 1]):
             i, n = obs_image[k], k - k0
@@ -331,15 +303,96 @@ def reduced_camera_system(xy, obs_image, row, start, pair_a, pair_b, pair_block,
                     for q in range(9):
                         U_ic[i, p, q] -= Wk[p, 0] * VZ[0, q] + Wk[p, 1] * VZ[1, q] + Wk[p, 2] * VZ[2, q]
         # the off-diagonal blocks, pair by pair of this point's rays
-        while nxt < n_pairs and row[pair_a[nxt]] == j:
+        while nxt < n_pairs and pair_row[nxt] == j:
             _pair_block(nxt, pair_a, pair_b, pair_block, k0, W, VW, obs_image, S_pair, U)
             nxt += 1
-    for i in range(n_images):
-        for p in range(6):
-            for q in range(p):
-                U[i, p, q] = U[i, q, p]
-    f += rr
-    return U, S_pair, s, f, rr, Vinv, bp, W, U_cal, s_cal, U_ic, Z
+    return f + rr, rr
+
+
+
+
+def reduced_camera_system(xy, obs_image, row, start, pair_a, pair_b, pair_block, n_blocks, n_images, centre, R_cv, points,
+                          cal, inv_sigma, with_cal, huber_k, point_r, point_B, point_damping):
+    """Linearise the tie-point rays at (orientations, points) and eliminate the points.
+
+    Returns the reduced system ``S`` as diagonal blocks ``U`` (N, 6, 6) and pair blocks ``S_pair``
+    (n_blocks, 6, 6) (image i < j of each pair), its right-hand side ``s`` (N, 6), the reduced constant
+    ``f = r'r - b_point' V^-1 b_point``, the sum of squared whitened residuals ``r'r``, and what the
+    back-substitution needs: ``V^-1`` (M, 3, 3), ``b_point`` (M, 3), ``W`` (K, 6, 3). Rays behind their
+    camera contribute nothing; a point whose normal matrix is singular stays where it is (``V^-1`` zero)
+    and adds only its residuals (a constant) to the cost.
+
+    ``huber_k`` > 0: each ray weighted by Huber's kernel (iteratively reweighted least squares).
+
+    ``point_r`` (M,), ``point_B`` (M, 3): one more whitened observation per point that involves the point
+    alone (a surface height, ``aerotri.adjust.surface``; zeros for none), added to its normal block
+    before the elimination.
+
+    ``point_damping`` (Levenberg-Marquardt's lambda, 0 for Gauss-Newton): each point's normal block gets
+    ``lambda diag(V_j)`` before the elimination, so that a damped step also damps the points' back-substitution
+    (a surface observation makes the points' own problem nonlinear).
+
+    With ``with_cal`` the calibration (Cal3DS2, 9 parameters shared by all rays) is an unknown too: its
+    block ``U_cal`` (9, 9), right-hand side ``s_cal`` (9,), the couplings ``U_image_cal`` (N, 6, 9) and,
+    for the back-substitution, ``Z`` (M, 9, 3) = sum over each point's rays of C_k'B_k (else empty).
+
+    Blocks of ``PARALLEL_MIN_RAYS`` rays or more: the points are taken in ``PARTS`` runs of about equal numbers of
+    rays, in parallel, each summed into its own copy of the image blocks, the copies added in a fixed order (the
+    result does not depend on the number of threads); smaller blocks in one run, serially (no thread start-up).
+    """
+    parallel = len(row) >= PARALLEL_MIN_RAYS
+    parts = PARTS if parallel else 1
+    K, M = len(row), len(start) - 1
+    n_cal_img = n_images if with_cal else 0
+    U = np.zeros((parts, n_images, 6, 6))
+    S_pair = np.zeros((parts, n_blocks, 6, 6))
+    s = np.zeros((parts, n_images, 6))
+    U_cal = np.zeros((parts, 9, 9))
+    s_cal = np.zeros((parts, 9))
+    U_ic = np.zeros((parts, n_cal_img, 6, 9))
+    Vinv = np.zeros((M, 3, 3))
+    bp = np.zeros((M, 3))
+    W = np.zeros((K, 6, 3))
+    Z = np.zeros((M if with_cal else 0, 9, 3))
+    pair_row = np.asarray(row)[pair_a].astype(np.int64)
+    bounds = np.minimum(M, np.searchsorted(start, (K * np.arange(parts + 1)) // parts)).astype(np.int64)
+    bounds[parts] = M
+    f_part, rr_part = np.zeros(parts), np.zeros(parts)
+    (_runs_parallel if parallel else _runs_serial)(
+        bounds, xy, obs_image, start, pair_row, pair_a, pair_b, pair_block, centre, R_cv, points, cal, inv_sigma, with_cal,
+        huber_k, point_r, point_B, point_damping, U, S_pair, s, U_cal, s_cal, U_ic, Vinv, bp, W, Z, f_part, rr_part)
+    for t in range(1, parts):  # in a fixed order
+        U[0] += U[t]
+        S_pair[0] += S_pair[t]
+        s[0] += s[t]
+        U_cal[0] += U_cal[t]
+        s_cal[0] += s_cal[t]
+        U_ic[0] += U_ic[t]
+    Ut = U[0]
+    iu = np.triu_indices(6, 1)
+    Ut[:, iu[1], iu[0]] = Ut[:, iu[0], iu[1]]  # the lower triangle from the upper
+    f = rr = 0.0
+    for t in range(parts):
+        f += f_part[t]
+        rr += rr_part[t]
+    return Ut, S_pair[0], s[0], f, rr, Vinv, bp, W, U_cal[0], s_cal[0], U_ic[0], Z
+
+
+def _runs(bounds, xy, obs_image, start, pair_row, pair_a, pair_b, pair_block, centre, R_cv, points, cal, inv_sigma,
+          with_cal, huber_k, point_r, point_B, point_damping, U, S_pair, s, U_cal, s_cal, U_ic, Vinv, bp, W, Z, f_part,
+          rr_part):
+    """``_points_range`` over the runs of points ``bounds[t] .. bounds[t + 1] - 1``, each into its own copies."""
+    for t in numba.prange(len(bounds) - 1):
+        f_part[t], rr_part[t] = _points_range(
+            bounds[t], bounds[t + 1], xy, obs_image, start, pair_row, pair_a, pair_b, pair_block, centre, R_cv, points,
+            cal, inv_sigma, with_cal, huber_k, point_r, point_B, point_damping, U[t], S_pair[t], s[t], U_cal[t],
+            s_cal[t], U_ic[t], Vinv, bp, W, Z)
+
+
+# the parallel variants are compiled in each process that needs them (seconds, for blocks that take minutes): numba's
+# cache keeps one compilation per function, the serial one
+_runs_serial = numba.njit(cache=True)(_runs)
+_runs_parallel = numba.njit(parallel=True)(_runs)
 
 
 @numba.njit(cache=True, inline="always")
@@ -364,15 +417,13 @@ def _pair_block(n, pair_a, pair_b, pair_block, k0, W, VW, obs_image, S_pair, U):
                     U[i, q, p] -= v
 
 
-@numba.njit(cache=True)
-def point_increments(Vinv, bp, W, Z, obs_image, start, d_pose, d_cal):
+def _point_increments(Vinv, bp, W, Z, obs_image, start, d_pose, d_cal):
     """Back-substitution: ``d_point_j = V_j^-1 (b_point_j - sum_k W_k' d_pose[image_k] - Z_j' d_cal)`` (M, 3)
-    (``Z`` empty without calibration unknowns)."""
+    (``Z`` empty without calibration unknowns); the points in parallel (each its own)."""
     M = len(start) - 1
     d = np.zeros((M, 3))
-    c = np.empty(3)
-    for j in range(M):
-        c[:] = bp[j]
+    for j in numba.prange(M):
+        c = bp[j].copy()
         for k in range(start[j], start[j + 1]):
             dp = d_pose[obs_image[k]]
             for q in range(3):
@@ -382,29 +433,59 @@ def point_increments(Vinv, bp, W, Z, obs_image, start, d_pose, d_cal):
             for q in range(3):
                 for p in range(9):
                     c[q] -= Z[j, p, q] * d_cal[p]
-        d[j] = Vinv[j] @ c
+        for q in range(3):
+            d[j, q] = Vinv[j, q, 0] * c[0] + Vinv[j, q, 1] * c[1] + Vinv[j, q, 2] * c[2]
     return d
 
 
-@numba.njit(cache=True)
-def sum_of_squares(xy, obs_image, row, centre, R_cv, points, cal, inv_sigma, huber_k):
+def _sum_of_squares(xy, obs_image, row, centre, R_cv, points, cal, inv_sigma, huber_k, parts):
     """Sum of the squared whitened residuals of the rays (behind the camera: infinite); ``huber_k`` > 0:
-    twice Huber's robust cost instead (``x^2`` per ray up to ``k``, ``2 k x - k^2`` beyond)."""
-    A = np.empty((2, 6))
-    B = np.empty((2, 3))
-    C = np.empty((2, 9))
-    r = np.empty(2)
+    twice Huber's robust cost instead (``x^2`` per ray up to ``k``, ``2 k x - k^2`` beyond). The rays in ``PARTS``
+    runs (in parallel when compiled so), their sums added in order (the result does not depend on the number of
+    threads)."""
+    K = len(row)
+    part = np.zeros(parts)
+    for t in numba.prange(parts):
+        A = np.empty((2, 6))
+        B = np.empty((2, 3))
+        C = np.empty((2, 9))
+        r = np.empty(2)
+        total = 0.0
+        for k in range((K * t) // parts, (K * (t + 1)) // parts):
+            i = obs_image[k]
+            if not _ray(xy[k], centre[i], R_cv[i], points[row[k]], cal, inv_sigma, A, B, r, C, False):
+                total = np.inf
+                break
+            x2 = r[0] * r[0] + r[1] * r[1]
+            if huber_k > 0.0 and x2 > huber_k * huber_k:
+                total += 2.0 * huber_k * np.sqrt(x2) - huber_k * huber_k
+            else:
+                total += x2
+        part[t] = total
     total = 0.0
-    for k in range(len(row)):
-        i = obs_image[k]
-        if not _ray(xy[k], centre[i], R_cv[i], points[row[k]], cal, inv_sigma, A, B, r, C, False):
-            return np.inf
-        x2 = r[0] * r[0] + r[1] * r[1]
-        if huber_k > 0.0 and x2 > huber_k * huber_k:
-            total += 2.0 * huber_k * np.sqrt(x2) - huber_k * huber_k
-        else:
-            total += x2
+    for t in range(parts):
+        total += part[t]
     return total
+
+
+_point_increments_serial = numba.njit(cache=True)(_point_increments)
+_point_increments_parallel = numba.njit(parallel=True)(_point_increments)
+_sum_of_squares_serial = numba.njit(cache=True)(_sum_of_squares)
+_sum_of_squares_parallel = numba.njit(parallel=True)(_sum_of_squares)
+
+
+def point_increments(Vinv, bp, W, Z, obs_image, start, d_pose, d_cal):
+    """``_point_increments``, in parallel for blocks of ``PARALLEL_MIN_RAYS`` rays or more."""
+    f = _point_increments_parallel if len(obs_image) >= PARALLEL_MIN_RAYS else _point_increments_serial
+    return f(Vinv, bp, W, Z, obs_image, start, d_pose, d_cal)
+
+
+def sum_of_squares(xy, obs_image, row, centre, R_cv, points, cal, inv_sigma, huber_k):
+    """``_sum_of_squares``: blocks of ``PARALLEL_MIN_RAYS`` rays or more in ``PARTS`` runs in parallel, smaller ones
+    in one."""
+    if len(row) >= PARALLEL_MIN_RAYS:
+        return _sum_of_squares_parallel(xy, obs_image, row, centre, R_cv, points, cal, inv_sigma, huber_k, PARTS)
+    return _sum_of_squares_serial(xy, obs_image, row, centre, R_cv, points, cal, inv_sigma, huber_k, 1)
 
 
 def hessian_factors(keys, rs: ReducedSystem, pair_images, cal_key=None) -> gtsam.GaussianFactorGraph:

@@ -10,7 +10,10 @@ the residual ``e = h - DEM(x, y)`` (metres, along the vertical) with the standar
 (the DEM's stated precision and what interpolation loses on a slope over half a cell). Its
 Jacobian with respect to the point is ``de/dP = (dh/dP) - DEM_x (dx/dP) - DEM_y (dy/dP)``, the rows of
 ``d map / d local`` at the point. The observation joins each point's 3 x 3 normal block before the
-Schur elimination (``schur.reduced_camera_system``), so it costs nothing per image.
+Schur elimination (``schur.reduced_camera_system``), so it costs nothing per image. The map positions and
+``d map / d local`` come from per-point anchors (``local_frame.MapAnchors``: the exact conversion where a point
+was last more than a metre away, a first-order step from there, < 0.2 um), not from a CRS transformation per
+point and iteration.
 
 Which tie point lies on the ground: points where the nDSM (when given) is above ``max_ndsm_m`` are
 not candidates (roofs, trees); robust solves weigh the observations with Huber's kernel, and after

@@ -16,6 +16,7 @@ does not bend the bundles. So no geoid grid is needed for the adjustment.
 
 from __future__ import annotations
 
+import numba
 import numpy as np
 
 from aerotri.geom.crs import horizontal_crs, parse_crs
@@ -128,17 +129,29 @@ class MapAnchors:
         idx = np.arange(len(p)) if index is None else np.asarray(index, dtype=np.int64)
         if len(idx):
             self._grow(int(idx.max()) + 1)
-        d = p - self.p0[idx]
-        stale = ~(np.abs(d).max(axis=1, initial=0.0) <= self.tol_m) & np.isfinite(p).all(axis=1)
+        m = np.empty_like(p)
+        stale = np.zeros(len(p), dtype=bool)
+        _taylor(self.p0, self.m0, self.J0, idx, p, self.tol_m, m, stale)
         if stale.any():
             k = np.flatnonzero(stale)
             slot = idx[k]
             self.p0[slot], self.m0[slot] = p[k], self.frame.to_map(p[k])
             self.J0[slot] = self.frame.jacobian_map_from_local(p[k])
-            d[k] = 0.0
+            m[k] = self.m0[slot]
             self.anchored += len(k)
-        J0 = self.J0
-        m = self.m0[idx]
-        for r in range(3):  # m + J0 d, row by row: no (M, 3, 3) gather unless the Jacobian is asked for
-            m[:, r] += J0[idx, r, 0] * d[:, 0] + J0[idx, r, 1] * d[:, 1] + J0[idx, r, 2] * d[:, 2]
-        return m, (J0[idx] if jacobian else None)
+        return m, (self.J0[idx] if jacobian else None)
+
+
+@numba.njit(cache=True)
+def _taylor(p0, m0, J0, idx, p, tol, m, stale):
+    """``m = m0 + J0 (p - p0)`` at each point's slot, or ``stale`` (a finite point farther than ``tol`` from its
+    anchor, or without one); NaN for a non-finite point."""
+    for n in range(len(idx)):
+        q = idx[n]
+        d0, d1, d2 = p[n, 0] - p0[q, 0], p[n, 1] - p0[q, 1], p[n, 2] - p0[q, 2]
+        if not (abs(d0) <= tol and abs(d1) <= tol and abs(d2) <= tol):
+            m[n, 0] = m[n, 1] = m[n, 2] = np.nan
+            stale[n] = np.isfinite(p[n, 0]) and np.isfinite(p[n, 1]) and np.isfinite(p[n, 2])
+            continue
+        for r in range(3):
+            m[n, r] = m0[q, r] + J0[q, r, 0] * d0 + J0[q, r, 1] * d1 + J0[q, r, 2] * d2

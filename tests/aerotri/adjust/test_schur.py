@@ -118,3 +118,33 @@ def test_reduced_system_equals_gtsam_elimination_of_the_points(tmp_path, self_ca
     H_ref, g_ref = reduced.hessian(keys)
     assert np.allclose(H_ours, H_ref, rtol=1e-8, atol=1e-8 * np.abs(H_ref).max())
     assert np.allclose(g_ours, g_ref, rtol=1e-8, atol=1e-8 * np.abs(g_ref).max())
+
+
+def test_the_parallel_kernels_equal_the_serial_ones(tmp_path, monkeypatch):
+    """Large blocks take the Schur kernel, the back-substitution and the ray cost in PARTS runs in parallel: the
+    same reduced system, increments and cost as the serial run (to rounding), robust and with self-calibration."""
+    block = geometric_block(2, 6, seed=51)
+    root = write_block_project(block, tmp_path / "blk")
+    write_truth_observations(root, tie_sigma_px=0.3, n_control=4, points_per_image=60, n_check=2, seed=52,
+                             blunder_fraction=0.04)
+    b, opts, st0 = _project(root, self_calibration=("pp", "radial"))
+    gr = G.build_graph(b, opts, st0, np.ones(len(b.obs_point), bool), np.ones(len(b.control_point), bool), robust=True)
+    tp = gr.tie
+    d_pose = np.random.default_rng(3).normal(0, 1e-4, (gr.n_images, 6))
+    d_cal = np.full(9, 1e-3)
+
+    def run():
+        rs = tp.reduced_system(gr.values, gr.n_images, tp.coords)
+        inc = schur.point_increments(rs.Vinv, rs.b_point, rs.W, rs.Z, tp.image, tp.pairs.start, d_pose, d_cal)
+        return rs, inc, tp.sum_of_squares(gr.values, gr.n_images, tp.coords)
+
+    serial = run()
+    monkeypatch.setattr(schur, "PARALLEL_MIN_RAYS", 0)
+    parallel = run()
+    for name in ("U", "S_pair", "s", "Vinv", "b_point", "W", "U_cal", "s_cal", "U_image_cal", "Z"):
+        a, c = getattr(serial[0], name), getattr(parallel[0], name)
+        np.testing.assert_allclose(c, a, rtol=1e-10, atol=1e-10 * max(np.abs(a).max(), 1e-300), err_msg=name)
+    assert parallel[0].f == pytest.approx(serial[0].f, rel=1e-12)
+    assert parallel[0].rr == pytest.approx(serial[0].rr, rel=1e-12)
+    np.testing.assert_allclose(parallel[1], serial[1], rtol=1e-12, atol=1e-15)
+    assert parallel[2] == pytest.approx(serial[2], rel=1e-12)
