@@ -68,7 +68,9 @@ def _write_geotiff(path: Path, width: int, height: int, bands: int, dtype, trans
     with rasterio.Env(GDAL_CACHEMAX=256), rasterio.open(path, "w", **profile) as dst:
         out = _TileRowWriter(dst, dtype)
         starts = range(0, height, block_rows)
-        for r0 in track(starts, f"{path.parent.name}/{path.name}", "row blocks") if width * height > 64 * _BLOCK_PX else starts:
+        if width * height > 64 * _BLOCK_PX:
+            starts = track(starts, f"{path.parent.name}/{path.name}", "row blocks")
+        for r0 in starts:
             out.write(rows(r0, min(height, r0 + block_rows)))
         out.close()
 
