@@ -118,6 +118,26 @@ def full_block_numbers(points_per_pulse: float) -> dict:
                 truth_megapixels=raster_mp + ortho_mp)
 
 
+# Bytes on disk per unit, measured on the 2 x 5 subset: 12-bit frames with ZSTD (noise and texture: 0.59 of
+# the raw 16-bit samples), LAZ points (written twice: lidar/ and truth/lidar/), truth raster pixels (8-bit
+# ortho, NIR and classes at the GSD, float32 DEM and DSM at 0.5 m).
+BYTES_PER_SAMPLE, BYTES_PER_POINT, BYTES_PER_TRUTH_PX = 1.18, 2 * 5.2, 1.0
+DISK_MARGIN_GB = 10.0  # left free for the other work on the machine
+
+
+def estimated_gb(overrides: list[str]) -> float:
+    """The block's size on disk before it is made (``BYTES_PER_*``; 0.8 points a pulse)."""
+    from aerotri.sim import lidar_plan, load_preset
+
+    cfg = load_preset(PRESET, overrides)
+    c, f = cfg["camera"], cfg["flight"]
+    bands = 1 if cfg["render"].get("bands", "rgb") == "pan" else 3
+    frames = f["strips"] * f["frames_per_strip"] * c["width"] * c["height"] * bands * BYTES_PER_SAMPLE
+    plan = lidar_plan(cfg)
+    truth = plan["scene_km2"] * 1e6 / cfg["truth"]["ortho_res_m"] ** 2 * BYTES_PER_TRUTH_PX
+    return (frames + 0.8 * plan["pulses"] * BYTES_PER_POINT + truth) / 1e9
+
+
 def make_block(out: Path, overrides: list[str]) -> dict:
     from aerotri.core.log import configure
     from aerotri.core.resources import measure
@@ -129,6 +149,11 @@ def make_block(out: Path, overrides: list[str]) -> dict:
     if out.exists():
         shutil.rmtree(out)
     out.parent.mkdir(parents=True, exist_ok=True)
+    need, free = estimated_gb(overrides), shutil.disk_usage(out.parent).free / 1e9
+    if free < need + DISK_MARGIN_GB:
+        sys.exit(f"{out}: the block needs about {need:.0f} GB and {out.parent} has {free:.0f} GB free; making it would "
+                 f"leave less than {DISK_MARGIN_GB:.0f} GB for other work (measure a smaller block: --set "
+                 f"flight.strips=2 --set flight.frames_per_strip=5)")
     phases = {}
     load0 = _load()
     with measure() as total:

@@ -68,7 +68,9 @@ def _write_geotiff(path: Path, width: int, height: int, bands: int, dtype, trans
     with rasterio.Env(GDAL_CACHEMAX=256), rasterio.open(path, "w", **profile) as dst:
         out = _TileRowWriter(dst, dtype)
         starts = range(0, height, block_rows)
-        for r0 in track(starts, f"{path.parent.name}/{path.name}", "row blocks") if width * height > 64 * _BLOCK_PX else starts:
+        if width * height > 64 * _BLOCK_PX:
+            starts = track(starts, f"{path.parent.name}/{path.name}", "row blocks")
+        for r0 in starts:
             out.write(rows(r0, min(height, r0 + block_rows)))
         out.close()
 
@@ -87,18 +89,20 @@ class _TileRowWriter:
     def write(self, data: np.ndarray) -> None:
         """The next rows, (rows, cols[, bands])."""
         self.pending.append(data)
-        held = sum(len(a) for a in self.pending)
-        if (self.row + held) % self.tile_rows == 0 or self.row + held >= self.dst.height:
-            self._flush()
+        end = self.row + sum(len(a) for a in self.pending)
+        if end >= self.dst.height:
+            self._flush(end - self.row)
+        elif end // self.tile_rows > self.row // self.tile_rows:  # up to the last whole row of tiles held
+            self._flush((end // self.tile_rows) * self.tile_rows - self.row)
 
     def close(self) -> None:
         if self.pending:
-            self._flush()
+            self._flush(sum(len(a) for a in self.pending))
 
-    def _flush(self) -> None:
+    def _flush(self, n: int) -> None:
         data = self.pending[0] if len(self.pending) == 1 else np.concatenate(self.pending)
-        self.pending = []
-        arr = data.astype(self.dtype, copy=False)
+        self.pending = [data[n:]] if n < len(data) else []
+        arr = data[:n].astype(self.dtype, copy=False)
         window = rasterio.windows.Window(0, self.row, self.dst.width, len(arr))
         if self.band is not None:
             self.dst.write(arr, self.band, window=window)

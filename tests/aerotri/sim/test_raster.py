@@ -165,3 +165,17 @@ def test_tiled_16_bit_frames_same_seed_same_bytes(tmp_path):
         p = ds.read(1).astype(float)
     # the panchromatic band is the mean of R, G and B (the same noise-free radiance, its own noise)
     assert abs(p.mean() - img.astype(float).mean()) < 5.0
+
+
+def test_simulate_reports_the_cost_of_each_phase(tmp_path):
+    """``simulate(on_phase=...)``: wall, CPU and peak RSS of each phase and what it made (the bench of the
+    full-size block reads them)."""
+    costs = []
+    truth = simulate(load_preset("tiny", TILED), tmp_path / "p", on_phase=costs.append)
+    by = {c.phase: c for c in costs}
+    assert list(by) == ["scene", "frames", "lidar", "truth_rasters", "other"]
+    assert by["frames"].frames == 2 and by["frames"].megapixels == pytest.approx(2 * 432 * 240 / 1e6)
+    assert by["lidar"].points == truth.lidar_points > 0 and by["lidar"].pulses > by["lidar"].points / 3
+    assert by["truth_rasters"].megapixels > 0
+    for c in costs:
+        assert c.wall_s >= 0 and c.cpu_s >= 0 and (c.peak_rss_mb is None or c.peak_rss_mb > 50)
