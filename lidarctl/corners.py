@@ -610,6 +610,7 @@ def _bin_corner_points(paths, crs, work: Path, tile_m: float, buffer_m: float, c
     headers = [las.read_header(p) for p in paths]
     first = None
     lo, hi = np.full(2, np.inf), np.full(2, -np.inf)
+    n_occupied = 0.0  # tiles the files can touch, each over its own extent (work goes where the points are)
     for p, h in zip(paths, headers):
         c, u = las_io.resolve_crs_units(p, h, crs)
         if first is None:
@@ -618,16 +619,18 @@ def _bin_corner_points(paths, crs, work: Path, tile_m: float, buffer_m: float, c
             las_io.require_same_crs(p, c, u, first)
         if h.point_count == 0:
             raise InputError(f"{p}: the file holds no points")
-        lo = np.minimum(lo, u.xy_to_m(np.asarray(h.mins[:2], float)))
-        hi = np.maximum(hi, u.xy_to_m(np.asarray(h.maxs[:2], float)))
+        f_lo, f_hi = u.xy_to_m(np.asarray(h.mins[:2], float)), u.xy_to_m(np.asarray(h.maxs[:2], float))
+        lo, hi = np.minimum(lo, f_lo), np.maximum(hi, f_hi)
+        if np.isfinite(f_lo).all() and np.isfinite(f_hi).all():
+            n_occupied += float(np.prod(np.floor(np.maximum(f_hi - f_lo, 0.0) / tile_m) + 2))
     units = first[2]
     if not (np.isfinite(lo).all() and np.isfinite(hi).all()) or (np.abs(np.r_[lo, hi]) > las_io.MAX_ABS_XY_M).any():
         raise InputError(f"{', '.join(map(str, paths))}: absurd bounds in the LAS headers ({lo.tolist()} .. {hi.tolist()})")
     from aerotri.core.limits import check_task_count
 
     n_cr = np.maximum(np.ceil((hi - lo) / tile_m), 1)
-    check_task_count(float(n_cr[0] * n_cr[1]), f"{', '.join(map(str, paths))}: tiles of {tile_m:g} m", "--tile-m",
-                     "use a larger --tile-m")
+    check_task_count(min(float(n_cr[0] * n_cr[1]), n_occupied), f"{', '.join(map(str, paths))}: tiles of {tile_m:g} m",
+                     "--tile-m", "use a larger --tile-m")
     nc, nr = n_cr.astype(int)
     grid = TileGrid(float(lo[0]), float(lo[1]), float(tile_m), float(buffer_m), int(nr), int(nc))
     used = np.zeros(grid.n_tiles, bool)

@@ -7,11 +7,16 @@ Writers flip rows to the north-up GeoTIFF convention.
 
 from __future__ import annotations
 
+import logging
+
 import numba
 import numpy as np
 from scipy import ndimage
 
 from lidarctl.grid import GRID_BYTES_PER_CELL, check_grid
+from lidarctl.raster_tin import COLLINEAR, OK, delaunay_lattice
+
+log = logging.getLogger(__name__)
 
 
 @numba.njit(cache=True)
@@ -239,11 +244,16 @@ def fill_nodata_tin(a: np.ndarray, max_radius_px: float = DEFAULT_TIN_FILL_RADIU
     gr, gc = vr + offset[0], vc + offset[1]
     jr, jc = _lattice_jitter(gr, gc)
     pts = np.column_stack([gc + jc, gr + jr]).astype(float)
-    try:
-        tri = Delaunay(pts)
-    except QhullError:          # all rim cells on one line
+    simplices, status = delaunay_lattice(pts, gr, gc)
+    if status == COLLINEAR:     # all rim cells on one line
         return filled
+    if status != OK:            # cannot happen with exact predicates; Qhull gives the same triangles
+        log.warning("TIN fill: the Delaunay insertion failed on %d cells; using Qhull", len(pts))
+        try:
+            simplices = Delaunay(pts).simplices
+        except QhullError:
+            return filled
     # vertices in a canonical order (by global cell), so that a tile computes bit-identical weights
-    simplices = np.sort(tri.simplices, axis=1)
+    simplices = np.sort(simplices, axis=1)
     _fill_triangles(filled, gaps, pts, a[vr, vc], simplices, float(max_radius_px), offset[0], offset[1])
     return filled

@@ -658,6 +658,21 @@ def C(id, prog, args, expect, setup=None, caches=()):
 
 
 CASES = [
+    # --- aerotri init and settings
+    C("init_images_missing", "aerotri", "init {w}/new --images {w}/nope --crs EPSG:32649", "nope"),
+    C("init_images_empty", "aerotri", "init {w}/new --images {w}/empty --crs EPSG:32649", ["empty", "no images"],
+      lambda w: (w / "empty").mkdir()),
+    C("init_crs_geographic", "aerotri", "init {w}/new --images {p}/images --crs EPSG:4326", "--crs"),
+    C("init_crs_unknown", "aerotri", "init {w}/new --images {p}/images --crs EPSG:999999", "--crs"),
+    C("init_into_a_project", "aerotri", "init {p} --images {p}/images --crs EPSG:32649", ["exists", "not an empty"]),
+    C("init_camera_wrong_size", "aerotri", "init {w}/new --images {p}/images --crs EPSG:32649 --camera {w}/cam.toml",
+      "cam.toml", lambda w: (w / "cam.toml").write_text(_text(w / "p/camera.toml").replace("width = 432", "width = 400"))),
+    C("settings_not_a_project", "aerotri", "settings {w}/nope", "nope"),
+    C("settings_unknown_key", "aerotri", "settings {p}", ["project.toml", "nosuch"],
+      toml_set("p/project.toml", "adjust", "nosuch", "1")),
+    C("settings_bad_value", "aerotri", "settings {p}", ["project.toml", "image_sigma_px"],
+      toml_set("p/project.toml", "adjust", "image_sigma_px", '"abc"')),
+
     # --- aerotri sim
     C("sim_unknown_preset", "aerotri", "sim --preset nosuch {w}/out", "nosuch"),
     C("sim_preset_bad_toml", "aerotri", "sim --preset {w}/bad.toml {w}/out", "bad.toml", write("bad.toml", "[preset\n")),
@@ -972,6 +987,7 @@ CASES = [
     C("rectify_camera_size_mismatch", "ortho", "rectify {p} --camera {w}/cam.toml", "cam.toml",
       lambda w: (w / "cam.toml").write_text(_text(w / "p/camera.toml").replace("width = 432", "width = 400"))),
     C("rectify_crs_unknown", "ortho", "rectify {p} --crs EPSG:999999", "--crs"),
+    C("rectify_workers_huge", "ortho", "rectify {p} --workers 1000000", "--workers"),
     C("rectify_crs_bad_gk", "ortho", "rectify {p} --crs gk3:nosuch", "--crs"),
     C("rectify_true_ortho_without_dsm", "ortho", "rectify {p} --true-ortho", "--dsm"),
     C("rectify_project_crs_geographic", "ortho", "rectify {p}", ["project.toml", "crs"],
@@ -1544,7 +1560,6 @@ ACCEPTED = [
       "--patch-px 24 --search-px 4", [], raster("p/lidar_out/ndsm.tif", "degrees")),
     C("warp_rgb_image", "aerotri", "crs warp {w}/p/truth/ortho.tif {w}/out.tif --to EPSG:32650", []),
     C("opt_vectors_spot_spacing_tiny", "lidarctl", "vectors {w}/lid/bldg.las {w}/out.gpkg --spot-spacing-m 1e-7", []),
-    C("opt_rectify_workers_huge", "ortho", "rectify {p} --workers 1000000", []),
     # a window wider than the CHM is the whole CHM: bounded work, one top per stand
     C("opt_trees_top_radius_huge", "lidarctl", "trees {w}/las/cloud.las {w}/out --top-radius-m 1e12", []),
 

@@ -22,7 +22,7 @@ import scipy.sparse.csgraph
 from threadpoolctl import threadpool_limits
 
 from aerotri.adjust import graph as G
-from aerotri.adjust.collinearity import jacobians_cv, point_normals, project_cv
+from aerotri.adjust.collinearity import jacobians_cv, point_jacobian_cv, point_normals, project_cv
 from aerotri.adjust.keys import K_KEY, X
 from aerotri.adjust.surface import whitened
 
@@ -394,24 +394,50 @@ class ReducedCovariance:
         return x * d
 
 
+RAY_CHUNK = 200_000  # rays linearised at a time: the per-ray Jacobians of a 10,000-frame block would take gigabytes
+
+
 @dataclasses.dataclass
 class PointRays:
-    """The active rays' linearisation around the points, for the points' covariances: point index ``pt``
-    and image ``im`` of each ray (K,), d pixel / d point ``Jp`` (K, 2, 3), d pixel / d orientation (and
-    calibration) ``Jc`` (K, 2, 6 or 15), the points' normal blocks ``V`` (P, 3, 3, rays + control + surface,
-    unit weight) and their inverses ``Vinv`` (NaN for unused points), ``G = V^-1 W`` per ray (K, 3, 6 or 15),
-    ``idx`` the ray's orientation (and calibration) parameters in the reduced covariance (K, 6 or 15)."""
+    """The active rays' linearisation around the points, for the points' covariances: point index ``pt`` and
+    image ``im`` of each ray (K,), the points' normal blocks ``V`` (P, 3, 3, rays + control + surface, unit
+    weight) and their inverses ``Vinv`` (NaN for unused points). Per ray, chunk by chunk (``rays``): d pixel /
+    d point ``Jp`` (k, 2, 3), d pixel / d orientation (and calibration) ``Jc`` (k, 2, 6 or 15), ``G = V^-1 W``
+    (k, 3, 6 or 15) and ``idx`` the ray's orientation (and calibration) parameters in the reduced covariance
+    (k, 6 or 15): recomputed from the solution where they are used, never held for all rays at once."""
 
     pt: np.ndarray
     im: np.ndarray
-    Jp: np.ndarray
-    Jc: np.ndarray
     V: np.ndarray
     Vinv: np.ndarray
     used: np.ndarray
-    G: np.ndarray
-    idx: np.ndarray
     weight: float  # 1 / sigma_px^2
+    state: "G.State"
+    self_cal: bool
+    pose_offset: np.ndarray  # (N,) first scalar of each image's pose in the reduced covariance
+    cal_offset: int  # first scalar of the calibration (self_cal)
+
+    def chunks(self, size: int | None = None):
+        """Slices of at most ``size`` (``RAY_CHUNK``) rays covering them all."""
+        size = size or RAY_CHUNK
+        return [slice(a, min(a + size, len(self.pt))) for a in range(0, len(self.pt), size)]
+
+    def rays(self, sl: slice = slice(None)) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """(Jp, Jc, G, idx) of the rays ``sl``."""
+        st, pt, im = self.state, self.pt[sl], self.im[sl]
+        Jp, Jc = _ray_jacobians(st, pt, im, self.self_cal)
+        G = np.einsum("kij,kaj,kab->kib", self.Vinv[pt], Jp, Jc) * self.weight  # V^-1 W_k (3 x 6 or 3 x 15)
+        idx = self.pose_offset[im][:, None] + np.arange(6)[None]
+        if self.self_cal:
+            idx = np.concatenate([idx, np.broadcast_to(self.cal_offset + np.arange(9), (len(pt), 9))], axis=1)
+        return Jp, Jc, G, idx
+
+
+def _ray_jacobians(state: "G.State", pt: np.ndarray, im: np.ndarray, self_cal: bool) -> tuple[np.ndarray, np.ndarray]:
+    """d pixel / d point (k, 2, 3) and d pixel / d orientation (and calibration) (k, 2, 6 or 15) of rays."""
+    _, pc = project_cv(state.points[pt], state.centre[im], state.R_cv[im], state.cal)
+    out = jacobians_cv(pc, state.R_cv[im], state.cal, with_cal=self_cal)
+    return out[0], (np.concatenate([out[1], out[2]], axis=2) if self_cal else out[1])
 
 
 def point_rays(block: "G.Block", state: "G.State", obs_active, sigma_px: float, rc: ReducedCovariance,
@@ -419,64 +445,81 @@ def point_rays(block: "G.Block", state: "G.State", obs_active, sigma_px: float, 
     """``PointRays`` of the active observations at ``state``."""
     k = np.flatnonzero(obs_active)
     pt, im = block.obs_point[k], block.obs_image[k]
-    _, pc = project_cv(state.points[pt], state.centre[im], state.R_cv[im], state.cal)
-    out = jacobians_cv(pc, state.R_cv[im], state.cal, with_cal=self_cal)
-    Jp, Jc = out[0], out[1]
-    if self_cal:
-        Jc = np.concatenate([Jc, out[2]], axis=2)
     w = 1.0 / sigma_px**2
-    V = w * point_normals(Jp, pt, block.n_points)
+    V = np.zeros((block.n_points, 3, 3))
+    for sl in [slice(a, a + RAY_CHUNK) for a in range(0, len(k), RAY_CHUNK)]:
+        _, pc = project_cv(state.points[pt[sl]], state.centre[im[sl]], state.R_cv[im[sl]], state.cal)
+        V += w * point_normals(point_jacobian_cv(pc, state.R_cv[im[sl]], state.cal), pt[sl], block.n_points)
+    used = np.zeros(block.n_points, dtype=bool)
+    used[pt] = True
     for c, j in enumerate(block.control_point):
-        if np.any(pt == j):
+        if used[j]:
             V[j] += np.linalg.inv(block.control_cov_local[c])
     if block.surface is not None and block.surface_active is not None:
         # a surface observation (height above the DEM) joins its point's normal block, as in the solve
         _, B, _ = whitened(block.surface, state.points, block.surface_active)
         V += np.einsum("pi,pj->pij", B, B)
-    used = np.zeros(block.n_points, dtype=bool)
-    used[pt] = True
     Vinv = np.full_like(V, np.nan)
     Vinv[used] = np.linalg.inv(V[used])
-    # G_k = V^-1 W_k for each ray (3 x 6 or 3 x 15)
-    Gk = np.einsum("kij,kaj,kab->kib", Vinv[pt], Jp, Jc) * w
     pose_off = np.array([rc.offset[X(i)] for i in range(block.n_images)])
-    idx = pose_off[im][:, None] + np.arange(6)[None]
-    if self_cal:
-        idx = np.concatenate([idx, np.broadcast_to(rc.offset[K_KEY] + np.arange(9), (len(k), 9))], axis=1)
-    return PointRays(pt, im, Jp, Jc, V, Vinv, used, Gk, idx, w)
+    return PointRays(pt, im, V, Vinv, used, w, state, self_cal, pose_off, rc.offset[K_KEY] if self_cal else -1)
 
 
 def point_covariances(block: "G.Block", state: "G.State", obs_active, sigma_px: float, rc: ReducedCovariance,
-                      self_cal: bool, chunk: int = 100_000, rays: PointRays | None = None) -> np.ndarray:
+                      self_cal: bool, chunk: int = 25_000, rays: PointRays | None = None) -> np.ndarray:
     """Unit-weight covariances (P, 3, 3) of all object points in the local frame (NaN for unused); ``rays``:
-    their ``point_rays`` when already at hand."""
+    their ``point_rays`` when already at hand. ``Cov(X_j) = V_j^-1 + sum_ab G_a Sigma(a, b) G_b'`` over the
+    pairs of rays (a, b) of the point, the orientations' covariance blocks gathered once per image pair; the
+    rays are linearised in chunks of whole points (about ``chunk`` rays: some 5 x as many pairs)."""
     pr = rays if rays is not None else point_rays(block, state, obs_active, sigma_px, rc, self_cal)
-    pt, Gk, idx, Vinv, used = pr.pt, pr.G, pr.idx, pr.Vinv, pr.used
-    # all ray pairs (a, b) of the same point
-    order = np.argsort(pt, kind="stable")
+    pt, Vinv, used = pr.pt, pr.Vinv, pr.used
+    order = np.argsort(pt, kind="stable")  # rays point by point
     pts_sorted = pt[order]
     starts = np.r_[0, np.flatnonzero(np.diff(pts_sorted)) + 1]
     counts = np.diff(np.r_[starts, len(order)])
-    rep = np.repeat(counts, counts)  # per ray in sorted order: its point's ray count
-    first = np.repeat(starts, counts)
-    a_idx = np.repeat(np.arange(len(order)), rep)
-    b_idx = np.repeat(first, rep) + (np.arange(len(a_idx)) - np.repeat(np.cumsum(rep) - rep, rep))
-    # the covariance blocks of the image pairs that share points, gathered once; rays of one image share
-    # their parameters' indices
     n_img = block.n_images
     im_sorted = pr.im[order].astype(np.int64)
-    pairs, pair_of = np.unique(im_sorted[a_idx] * n_img + im_sorted[b_idx], return_inverse=True)
-    ray_of_image = np.zeros(n_img, dtype=np.int64)
-    ray_of_image[pr.im] = np.arange(len(pr.im))  # any ray of the image
-    ia, ib = idx[ray_of_image[pairs // n_img]], idx[ray_of_image[pairs % n_img]]
-    table = rc.entries(ia[:, :, None], ib[:, None, :])  # (pairs, 6 or 15, 6 or 15)
+
+    def pairs_of(lo: int, hi: int):
+        """Every ordered pair (a, b) of rays of the same point among the sorted rays of points lo..hi-1
+        (positions in ``order``)."""
+        st, cn = starts[lo:hi], counts[lo:hi]
+        rep = np.repeat(cn, cn)  # per ray: its point's ray count
+        first = np.repeat(st, cn)
+        a_idx = np.repeat(np.arange(st[0], st[0] + cn.sum()) if len(st) else np.zeros(0, np.int64), rep)
+        b_idx = np.repeat(first, rep) + (np.arange(len(a_idx)) - np.repeat(np.cumsum(rep) - rep, rep))
+        return a_idx, b_idx
+
+    # chunks of whole points of about ``chunk`` rays
+    bounds = np.searchsorted(np.cumsum(counts), np.arange(chunk, len(order) + chunk, chunk), side="left") + 1
+    bounds = np.unique(np.r_[0, np.minimum(bounds, len(counts))])
+    # the covariance blocks of the image pairs that share points, gathered once; rays of one image share their
+    # parameters' indices
+    keys = np.unique(np.concatenate([im_sorted[a] * n_img + im_sorted[b] for a, b in
+                                     (pairs_of(lo, hi) for lo, hi in zip(bounds[:-1], bounds[1:]))] or [np.zeros(0, np.int64)]))
+    d = 6 + (9 if pr.self_cal else 0)
+    img_idx = pr.pose_offset[:, None] + np.arange(6)[None]  # (N, 6)
+    if pr.self_cal:
+        img_idx = np.concatenate([img_idx, np.broadcast_to(pr.cal_offset + np.arange(9), (n_img, 9))], axis=1)
+    table = np.empty((len(keys), d, d))
+    for s in range(0, len(keys), 20_000):
+        ka = keys[s:s + 20_000]
+        table[s:s + 20_000] = rc.entries(img_idx[ka // n_img][:, :, None], img_idx[ka % n_img][:, None, :])
     extra = np.zeros((block.n_points, 3, 3))
     with threadpool_limits(1, user_api="blas"):  # numpy's stacked matmul calls BLAS per 3 x 6 matrix
-        for s in range(0, len(a_idx), chunk):
-            a = order[a_idx[s : s + chunk]]
-            b = order[b_idx[s : s + chunk]]
-            S = table[pair_of[s : s + chunk]]
-            np.add.at(extra, pt[a], Gk[a] @ S @ Gk[b].transpose(0, 2, 1))
+        for lo, hi in zip(bounds[:-1], bounds[1:]):
+            a_idx, b_idx = pairs_of(lo, hi)
+            r0, r1 = starts[lo], starts[hi] if hi < len(starts) else len(order)
+            rays_c = order[r0:r1]
+            _, _, Gk, _ = pr.rays(rays_c)  # G of this chunk's rays, in sorted order
+            S = table[np.searchsorted(keys, im_sorted[a_idx] * n_img + im_sorted[b_idx])]
+            Ga, Gb = Gk[a_idx - r0], Gk[b_idx - r0]
+            M = Ga @ S @ Gb.transpose(0, 2, 1)
+            p0 = pts_sorted[r0]  # the chunk's points are a run of the sorted point indices
+            p1 = pts_sorted[r1 - 1] + 1
+            for i in range(3):
+                for j in range(3):
+                    extra[p0:p1, i, j] += np.bincount(pts_sorted[a_idx] - p0, M[:, i, j], minlength=p1 - p0)
     cov = Vinv + extra
     cov[~used] = np.nan
     return cov

@@ -118,16 +118,23 @@ def _apply_q(block: G.Block, pr: PointRays, rc, l_p: np.ndarray, l_c: np.ndarray
     reduced covariance's scalar order: (u_p (M, P, 3), u_c (M, n), l'Q l (M,)), unit weight."""
     n = rc.n
     m_count = len(l_p)
-    # a = W' V^-1 l_p, summed over the rays: G_ray' l_point per ray, scattered onto the ray's parameters
-    Gl = np.einsum("kij,mki->mkj", pr.G, l_p[:, pr.pt])  # (M, K, 6 or 15)
-    a = np.array([np.bincount(pr.idx.ravel(), Gl[m].ravel(), n) for m in range(m_count)])
+    # a = W' V^-1 l_p, summed over the rays: G_ray' l_point per ray, scattered onto the ray's parameters (the
+    # rays chunk by chunk: their Jacobians are not held for all rays at once)
+    a = np.zeros((m_count, n))
+    for sl in pr.chunks():
+        _, _, G, idx = pr.rays(sl)
+        Gl = np.einsum("kij,mki->mkj", G, l_p[:, pr.pt[sl]])  # (M, k, 6 or 15)
+        for m in range(m_count):
+            a[m] += np.bincount(idx.ravel(), Gl[m].ravel(), n)
     rhs = (l_c - a) if l_c is not None else -a
     u_c = rc.multiply(rhs.T).T  # (M, n)
     u_p = np.einsum("pij,mpj->mpi", np.nan_to_num(pr.Vinv), l_p)
-    Gu = np.einsum("kij,mkj->mki", pr.G, u_c[:, pr.idx])
-    for m in range(m_count):
-        for i in range(3):
-            u_p[m, :, i] -= np.bincount(pr.pt, Gu[m, :, i], block.n_points)
+    for sl in pr.chunks():
+        _, _, G, idx = pr.rays(sl)
+        Gu = np.einsum("kij,mkj->mki", G, u_c[:, idx])
+        for m in range(m_count):
+            for i in range(3):
+                u_p[m, :, i] -= np.bincount(pr.pt[sl], Gu[m, :, i], block.n_points)
     var = np.einsum("mpi,mpi->m", l_p, u_p)
     if l_c is not None:
         var = var + np.einsum("mn,mn->m", l_c, u_c)
@@ -138,8 +145,11 @@ def _shares(block: G.Block, opts: G.SolveSettings, state: G.State, control_activ
             ) -> dict:
     """Group -> (M,) share of each functional's information ``u' H_k u / l'Q l`` (``priors``: the rest)."""
     share = {}
-    d_ray = np.einsum("kai,mki->mka", pr.Jp, u_p[:, pr.pt]) + np.einsum("kaj,mkj->mka", pr.Jc, u_c[:, pr.idx])
-    share["image"] = pr.weight * np.einsum("mka,mka->m", d_ray, d_ray)
+    share["image"] = np.zeros(len(u_c))
+    for sl in pr.chunks():
+        Jp, Jc, _, idx = pr.rays(sl)
+        d_ray = np.einsum("kai,mki->mka", Jp, u_p[:, pr.pt[sl]]) + np.einsum("kaj,mkj->mka", Jc, u_c[:, idx])
+        share["image"] += pr.weight * np.einsum("mka,mka->m", d_ray, d_ray)
     if block.gnss_local is not None:
         share["gnss"] = _gnss_information(block, opts, state, rc, u_c)
     ctrl = [c for c in np.flatnonzero(control_active) if pr.used[block.control_point[c]]]

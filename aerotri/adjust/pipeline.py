@@ -143,6 +143,13 @@ def datum_shortfall(control: ControlPoints, gnss: bool, correction: str, surface
     return None
 
 
+def _is_in(ids: np.ndarray, allowed) -> np.ndarray:
+    """``np.isin`` of an object array of ids by a set lookup per element (np.isin compares object arrays element by
+    element with every allowed id: measurements x frames)."""
+    allowed = set(allowed)
+    return np.fromiter(map(allowed.__contains__, np.asarray(ids).tolist()), dtype=bool, count=len(ids))
+
+
 def check_datum(control: ControlPoints, gnss: bool, correction: str, surface: bool = False) -> None:
     msg = datum_shortfall(control, gnss, correction, surface)
     if msg:
@@ -306,11 +313,11 @@ def _image_approximations(project: Project, cam, ties: ImageObservations, contro
     out, named, and so are control points measured only in them."""
     from aerotri.adjust.relative import image_approximations
 
-    frames = sorted(set(np.unique(ties.image_id).tolist()) | set(np.unique(cobs.image_id).tolist()))
+    frames = sorted(set(ties.image_id.tolist()) | set(cobs.image_id.tolist()))
     ap = image_approximations(project.work_dir, project.tiepoints_path, ties, cam, frames, control, cobs, crs)
     oriented = list(ap.eo.image_id)
-    ties = ties.subset(np.isin(ties.image_id, oriented))
-    kept = np.isin(cobs.image_id, oriented)
+    ties = ties.subset(_is_in(ties.image_id, oriented))
+    kept = _is_in(cobs.image_id, oriented)
     lost = set(cobs.point_id[~kept].tolist()) - set(cobs.point_id[kept].tolist())  # measured only in those frames
     cobs = cobs.subset(kept)
     control = control.subset(~np.isin(control.id, sorted(lost)))
@@ -350,7 +357,7 @@ def _component_datum_gap(inp: ProjectInputs, ctrl_used: ControlPoints, ids: list
     """Why the images ``ids`` (a component of the block) have no datum of their own, or None: the test the
     whole block gets (``datum_shortfall``) with the control points measured in them."""
     cobs, st = inp.control_obs, inp.settings
-    measured = np.unique(cobs.point_id[np.isin(cobs.image_id, ids)])
+    measured = np.unique(cobs.point_id[_is_in(cobs.image_id, ids)])
     ctrl = ctrl_used.subset(np.isin(ctrl_used.id, measured))
     return datum_shortfall(ctrl, inp.gnss is not None, st.gnss_correction, st.dem is not None)
 
@@ -361,7 +368,7 @@ def _observations(inp: ProjectInputs, ctrl_used: ControlPoints) -> _Observations
     is adjusted in its components that have a datum (GNSS, control, DEM); the others are left out, named."""
     ties, cobs, image_ids = inp.ties, inp.control_obs, inp.image_ids
     order = np.argsort(np.array(image_ids, dtype=object), kind="stable")
-    measured = set(np.unique(ties.image_id).tolist()) | set(np.unique(cobs.image_id).tolist())
+    measured = set(ties.image_id.tolist()) | set(cobs.image_id.tolist())
     order = np.array([i for i in order if image_ids[i] in measured], dtype=int)
     image_ids = [image_ids[i] for i in order]
     img_index = {k: i for i, k in enumerate(image_ids)}
@@ -370,7 +377,8 @@ def _observations(inp: ProjectInputs, ctrl_used: ControlPoints) -> _Observations
     ctrl_pos = {pid: len(tie_ids) + c for c, pid in enumerate(ctrl_used.id)}
     cmask = np.isin(cobs.point_id, ctrl_used.id)
     obs_point = np.concatenate([tie_inv, np.array([ctrl_pos[p] for p in cobs.point_id[cmask]], dtype=int)])
-    obs_image = np.array([img_index[i] for i in np.concatenate([ties.image_id, cobs.image_id[cmask]])], dtype=int)
+    obs_image = np.fromiter(map(img_index.__getitem__, np.concatenate([ties.image_id, cobs.image_id[cmask]]).tolist()),
+                            dtype=int, count=len(ties) + int(cmask.sum()))
     obs_xy = np.vstack([ties.xy_px, cobs.xy_px[cmask]])
     tie_path = inp.project.tiepoints_path
     comps = connected_image_components(len(image_ids), obs_point, obs_image)
@@ -395,8 +403,8 @@ def _observations(inp: ProjectInputs, ctrl_used: ControlPoints) -> _Observations
                 log.warning(f"{tie_path}: {len(lo.image_ids)} images no tie point connects to the rest are left out "
                             f"({', '.join(lo.image_ids[:8])}{' ...' if len(lo.image_ids) > 8 else ''}): {lo.reason}")
             drop = [k for lo in left for k in lo.image_ids]
-            kept = dataclasses.replace(inp, ties=inp.ties.subset(~np.isin(inp.ties.image_id, drop)),
-                                       control_obs=inp.control_obs.subset(~np.isin(inp.control_obs.image_id, drop)))
+            kept = dataclasses.replace(inp, ties=inp.ties.subset(~_is_in(inp.ties.image_id, drop)),
+                                       control_obs=inp.control_obs.subset(~_is_in(inp.control_obs.image_id, drop)))
             ob = _observations(kept, ctrl_used.subset(np.isin(ctrl_used.id, kept.control_obs.point_id)))
             return dataclasses.replace(ob, left_out=left + ob.left_out)
         log.warning(f"{tie_path}: the block falls apart into {len(comps)} components that no tie point connects; "

@@ -136,13 +136,13 @@ def _image_cells(xy_px, width: int, height: int, nx: int, ny: int) -> np.ndarray
     return cy * nx + cx
 
 
-def _frame_grids(ba, res: _Residuals, i: int) -> dict:
-    """Per frame: tie observations in the nine von Gruber areas (3 x 3, row-major from the top left) and
-    the mean image residual (um) in the cells of a ``GRID_CELLS`` grid: the systematic part a reviewer
-    looks for (the random part averages out)."""
+def _frame_grids(ba, res: _Residuals, obs: np.ndarray) -> dict:
+    """Per frame (its observations ``obs``, indices): tie observations in the nine von Gruber areas (3 x 3,
+    row-major from the top left) and the mean image residual (um) in the cells of a ``GRID_CELLS`` grid: the
+    systematic part a reviewer looks for (the random part averages out)."""
     b, cam = ba.block, ba.camera_apriori
-    k = res.active & (b.obs_image == i)
-    tie = res.tie & (b.obs_image == i)
+    k = obs[res.active[obs]]
+    tie = obs[res.tie[obs]]
     gruber = np.bincount(_image_cells(b.obs_xy_px[tie], cam.width, cam.height, 3, 3), minlength=9)
     nx, ny = GRID_CELLS if cam.width >= cam.height else GRID_CELLS[::-1]
     cell = _image_cells(b.obs_xy_px[k], cam.width, cam.height, nx, ny)
@@ -163,9 +163,13 @@ def _photo_rows(ba, res: _Residuals) -> list[dict]:
         s, t = b.strip.astype(int), np.asarray(b.along_km, dtype=float)
         st = ba.result.state
         corr = st.shift[s] + (t[:, None] * st.drift[s] if ba.opts.gnss_correction == "shift_drift" else 0.0)
+    # each frame's observations at once (a mask over all observations per frame would cost frames x observations)
+    by_image = np.argsort(b.obs_image, kind="stable")
+    bounds = np.searchsorted(b.obs_image[by_image], np.arange(b.n_images + 1))
     for i, iid in enumerate(b.image_id):
-        k = res.active & (b.obs_image == i)
-        row = {"image_id": iid, "strip": int(b.strip[i]) + 1, "obs": int(k.sum()),
+        obs = by_image[bounds[i]:bounds[i + 1]]
+        k = obs[res.active[obs]]
+        row = {"image_id": iid, "strip": int(b.strip[i]) + 1, "obs": len(k),
                "rms_x_um": _f(_rms(res.v_um[k, 0])), "rms_y_um": _f(_rms(res.v_um[k, 1])),
                "along_km": _f(b.along_km[i], 4)}
         if ba.gnss_residual_m is not None:
@@ -175,7 +179,7 @@ def _photo_rows(ba, res: _Residuals) -> list[dict]:
             c = corr[i] if corr is not None else np.zeros(3)
             row["gnss_offset_m"] = _lst(c - ba.gnss_residual_m[i], 4)
             row["gnss_correction_m"] = _lst(c, 4)
-        row.update(_frame_grids(ba, res, i))
+        row.update(_frame_grids(ba, res, obs))
         if sig is not None:
             row["sigma_position_m"] = _lst(sig[i, :3], 4)
             row["sigma_attitude_deg"] = _lst(sig[i, 3:], 5)

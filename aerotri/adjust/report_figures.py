@@ -279,8 +279,7 @@ def von_gruber_map(rep: dict, min_per_area: int = 3) -> Figure | None:
     if not photos:
         return None
     plt = _plt()
-    from matplotlib.collections import PatchCollection
-    from matplotlib.patches import Polygon as MplPolygon
+    from matplotlib.collections import PolyCollection
 
     fp = {f["image_id"]: np.array(f["footprint"], float) for f in fa.get("frames", [])}
     xy = np.array([pos[p["image_id"]] for p in photos], float)
@@ -295,35 +294,37 @@ def von_gruber_map(rep: dict, min_per_area: int = 3) -> Figure | None:
         m = len(q) // 4
         corners[p["image_id"]] = q[[0, m, 2 * m, 3 * m]]
     size = np.median([np.ptp(c, axis=0).max() for c in corners.values()])
-    if len(xy) > 1:
-        d = np.hypot(*(xy[:, None, :] - xy[None, :, :]).transpose(2, 0, 1))
-        d[d == 0] = np.inf
-        shrink = min(0.85 * float(np.min(d)) / size, 1.0)
+    distinct = np.unique(xy, axis=0)
+    if len(distinct) > 1:
+        from scipy.spatial import cKDTree
+
+        # the closest pair of distinct centres (by a k-d tree: all pairwise distances grow with the frames squared)
+        d, _ = cKDTree(distinct).query(distinct, k=2)
+        shrink = min(0.85 * float(np.min(d[:, 1])) / size, 1.0)
     else:
         shrink = 1.0
-    rects, vals, weak = [], [], []
-    for p, c0 in zip(photos, xy):
-        tl, tr, br, bl = corners[p["image_id"]]
-        centre = (tl + tr + br + bl) / 4.0
-
-        def at(u, v):  # image fractions (u right, v down) -> shrunk ground position
-            g = (1 - v) * ((1 - u) * tl + u * tr) + v * ((1 - u) * bl + u * br)
-            return centre + shrink * (g - centre)
-
-        for k, n in enumerate(p["von_gruber_tie_obs"]):
-            r, c = divmod(k, 3)  # row 0 = image top
-            u0, v0 = c / 3.0, r / 3.0
-            rects.append(MplPolygon([at(u0, v0), at(u0 + 1 / 3, v0), at(u0 + 1 / 3, v0 + 1 / 3), at(u0, v0 + 1 / 3)]))
-            vals.append(n)
-            weak.append(n < min_per_area)
+    # the nine areas of every frame at once: bilinear in the frame's corners (u right, v down), shrunk about the
+    # frame's centre; one PolyCollection (a Polygon patch per area costs seconds per thousand frames)
+    C = np.array([corners[p["image_id"]] for p in photos])  # (N, 4, 2) tl tr br bl
+    centre = C.mean(axis=1)[:, None, None]
+    k = np.arange(9)
+    u0, v0 = (k % 3) / 3.0, (k // 3) / 3.0  # row 0 = image top
+    du = np.array([0.0, 1.0, 1.0, 0.0]) / 3.0
+    dv = np.array([0.0, 0.0, 1.0, 1.0]) / 3.0
+    u = (u0[:, None] + du[None])[None, :, :, None]  # (1, 9, 4, 1)
+    v = (v0[:, None] + dv[None])[None, :, :, None]
+    tl, tr, br, bl = (C[:, q][:, None, None, :] for q in range(4))
+    g = (1 - v) * ((1 - u) * tl + u * tr) + v * ((1 - u) * bl + u * br)  # (N, 9, 4, 2)
+    verts = (centre + shrink * (g - centre)).reshape(-1, 4, 2)
+    vals = np.array([p["von_gruber_tie_obs"] for p in photos], float).reshape(-1)
+    weak = vals < min_per_area
     cell = shrink * size / 3.0
     fig, ax = plt.subplots(figsize=(10, 8))
-    pc = PatchCollection(rects, cmap="viridis", edgecolor="white", linewidth=0.4)
-    pc.set_array(np.array(vals, float))
+    pc = PolyCollection(verts, cmap="viridis", edgecolor="white", linewidth=0.4 if len(photos) <= 500 else 0.0)
+    pc.set_array(vals)
     ax.add_collection(pc)
-    bad = [MplPolygon(r.get_xy()) for r, w in zip(rects, weak) if w]
-    if bad:
-        ax.add_collection(PatchCollection(bad, facecolor="none", edgecolor="red", linewidth=1.5))
+    if weak.any():
+        ax.add_collection(PolyCollection(verts[weak], facecolor="none", edgecolor="red", linewidth=1.5))
     if len(photos) <= 40:
         for p, (x0, y0) in zip(photos, xy):
             ax.annotate(p["image_id"], (x0, y0 + 1.7 * cell), fontsize=6, ha="center")
@@ -333,7 +334,7 @@ def von_gruber_map(rep: dict, min_per_area: int = 3) -> Figure | None:
     extent = max(np.ptp(xy[:, 0]), np.ptp(xy[:, 1]), 1.0)
     bar = _map_axes(ax, o, extent)
     fig.colorbar(pc, ax=ax, shrink=0.8, label="tie observations per von Gruber area")
-    n_weak = int(sum(weak))
+    n_weak = int(weak.sum())
     ax.set_title(f"Von Gruber areas: tie observations per ninth of each frame ({n_weak} areas below {min_per_area})")
     return Figure("Von Gruber tie-point distribution",
                   "Each frame's nine areas where they lie on the ground, the frame shrunk about its centre so that "
@@ -348,7 +349,7 @@ def flight_map(fa: dict) -> Figure | None:
     if not frames:
         return None
     plt = _plt()
-    from matplotlib.patches import Polygon as MplPolygon
+    from matplotlib.collections import PolyCollection
 
     fp = [np.array(f["footprint"], float) for f in frames]
     o = _origin(np.vstack(fp))
@@ -356,15 +357,22 @@ def flight_map(fa: dict) -> Figure | None:
     fig, ax = plt.subplots(figsize=(10, 8))
     cmap = plt.get_cmap("tab10")
     strips = sorted({f["strip"] for f in frames})
-    for f, p in zip(frames, fp):
-        c = cmap(strips.index(f["strip"]) % 10)
-        failing = bool(f.get("fails"))
-        ax.add_patch(MplPolygon(p - o, closed=True, fill=failing, facecolor=(1, 0, 0, 0.12), edgecolor=c,
-                                lw=2.0 if f["strip"] in bad_strips else 0.9, hatch="//" if failing else None))
-        ax.plot(f["x_m"] - o[0], f["y_m"] - o[1], "+", color=c, ms=6)
-        if len(frames) <= 60:
-            ax.annotate(f["image_id"], (f["x_m"] - o[0], f["y_m"] - o[1]), fontsize=6, xytext=(3, 3),
-                        textcoords="offset points")
+    # one collection per kind of footprint and one marker layer (an artist per frame costs seconds per
+    # thousand frames)
+    colour = [cmap(strips.index(f["strip"]) % 10) for f in frames]
+    failing = np.array([bool(f.get("fails")) for f in frames])
+    for fails in (False, True):
+        sel = np.flatnonzero(failing == fails)
+        if not len(sel):
+            continue
+        ax.add_collection(PolyCollection([fp[k] - o for k in sel], closed=True, facecolors=(1, 0, 0, 0.12) if fails
+                                         else "none", edgecolors=[colour[k] for k in sel], hatch="//" if fails else None,
+                                         linewidths=[2.0 if frames[k]["strip"] in bad_strips else 0.9 for k in sel]))
+    centres = np.array([[f["x_m"], f["y_m"]] for f in frames], float) - o[:2]
+    ax.scatter(centres[:, 0], centres[:, 1], marker="+", c=colour, s=36, linewidths=1.0)
+    for f in frames if len(frames) <= 60 else []:
+        ax.annotate(f["image_id"], (f["x_m"] - o[0], f["y_m"] - o[1]), fontsize=6, xytext=(3, 3),
+                    textcoords="offset points")
     allp = np.vstack(fp) - o
     ax.set_xlim(allp[:, 0].min(), allp[:, 0].max())
     ax.set_ylim(allp[:, 1].min(), allp[:, 1].max())

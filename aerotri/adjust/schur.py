@@ -243,7 +243,9 @@ def reduced_camera_system(xy, obs_image, row, start, pair_a, pair_b, pair_block,
     U_ic = np.zeros((n_images if with_cal else 0, 6, 9))
     Z = np.zeros((M if with_cal else 0, 9, 3))
     VZ = np.empty((3, 9))
-    VW = np.zeros((K, 3, 6))  # V^-1 W_k' per ray
+    VW = np.zeros((m_max, 3, 6))  # V^-1 W_k' of this point's rays
+    n_pairs = len(pair_a)
+    nxt = 0  # the next pair: pairs are sorted by their first ray, so a point's pairs are consecutive
     rr = 0.0
     f = 0.0
     V = np.empty((3, 3))
@@ -273,6 +275,8 @@ def reduced_camera_system(xy, obs_image, row, start, pair_a, pair_b, pair_block,
         if point_damping > 0.0:
             for p in range(3):
                 V[p, p] *= 1.0 + point_damping
+        while nxt < n_pairs and row[pair_a[nxt]] < j:  # the pairs of points before (singular ones)
+            nxt += 1
         if not _inverse_sym3(V, Vi):
             # an indeterminate point contributes nothing (its rays stay in the cost, constant)
             ok[j] = False
@@ -314,7 +318,7 @@ def reduced_camera_system(xy, obs_image, row, start, pair_a, pair_b, pair_block,
                     U_cal[p, q] -= Zj[p, 0] * VZ[0, q] + Zj[p, 1] * VZ[1, q] + Zj[p, 2] * VZ[2, q]
         for k in range(start[j], start[j + 1]):
             i = obs_image[k]
-            Wk, VWk = W[k], VW[k]
+            Wk, VWk = W[k], VW[k - k0]
             for p in range(3):
                 for q in range(6):
                     VWk[p, q] = Vi[p, 0] * Wk[q, 0] + Vi[p, 1] * Wk[q, 1] + Vi[p, 2] * Wk[q, 2]
@@ -326,33 +330,38 @@ def reduced_camera_system(xy, obs_image, row, start, pair_a, pair_b, pair_block,
                 if with_cal:
                     for q in range(9):
                         U_ic[i, p, q] -= Wk[p, 0] * VZ[0, q] + Wk[p, 1] * VZ[1, q] + Wk[p, 2] * VZ[2, q]
-    # the off-diagonal blocks, pair by pair of rays
-    for n in range(len(pair_a)):
-        ka, kb = pair_a[n], pair_b[n]
-        j = row[ka]
-        if not ok[j]:
-            continue
-        Wa, VWb = W[ka], VW[kb]
-        blk = pair_block[n]
-        if blk >= 0:
-            for p in range(6):
-                for q in range(6):
-                    S_pair[blk, p, q] -= Wa[p, 0] * VWb[0, q] + Wa[p, 1] * VWb[1, q] + Wa[p, 2] * VWb[2, q]
-        else:  # both rays in one image: W_a V^-1 W_b' + its transpose on the diagonal block
-            i = obs_image[ka]
-            for p in range(6):
-                for q in range(6):
-                    v = Wa[p, 0] * VWb[0, q] + Wa[p, 1] * VWb[1, q] + Wa[p, 2] * VWb[2, q]
-                    if q >= p:
-                        U[i, p, q] -= v
-                    if p >= q:
-                        U[i, q, p] -= v
+        # the off-diagonal blocks, pair by pair of this point's rays
+        while nxt < n_pairs and row[pair_a[nxt]] == j:
+            _pair_block(nxt, pair_a, pair_b, pair_block, k0, W, VW, obs_image, S_pair, U)
+            nxt += 1
     for i in range(n_images):
         for p in range(6):
             for q in range(p):
                 U[i, p, q] = U[i, q, p]
     f += rr
     return U, S_pair, s, f, rr, Vinv, bp, W, U_cal, s_cal, U_ic, Z
+
+
+@numba.njit(cache=True, inline="always")
+def _pair_block(n, pair_a, pair_b, pair_block, k0, W, VW, obs_image, S_pair, U):
+    """The coupling ``- W_a V^-1 W_b'`` of the rays of pair ``n`` (of one point, its first ray ``k0``) into their
+    images' pair block, or into the image's own block when both rays are in one image."""
+    ka, kb = pair_a[n], pair_b[n]
+    Wa, VWb = W[ka], VW[kb - k0]
+    blk = pair_block[n]
+    if blk >= 0:
+        for p in range(6):
+            for q in range(6):
+                S_pair[blk, p, q] -= Wa[p, 0] * VWb[0, q] + Wa[p, 1] * VWb[1, q] + Wa[p, 2] * VWb[2, q]
+    else:  # both rays in one image: W_a V^-1 W_b' + its transpose on the diagonal block
+        i = obs_image[ka]
+        for p in range(6):
+            for q in range(6):
+                v = Wa[p, 0] * VWb[0, q] + Wa[p, 1] * VWb[1, q] + Wa[p, 2] * VWb[2, q]
+                if q >= p:
+                    U[i, p, q] -= v
+                if p >= q:
+                    U[i, q, p] -= v
 
 
 @numba.njit(cache=True)

@@ -42,17 +42,18 @@ import dataclasses
 import logging
 from pathlib import Path
 
+import numba
 import numpy as np
 
 from aerotri.core.errors import CrsError
-from aerotri.geom.local_frame import LocalFrame
+from aerotri.geom.local_frame import LocalFrame, MapAnchors
 
 log = logging.getLogger(__name__)
 
 
 @dataclasses.dataclass
 class HeightGrid:
-    """A north-up height raster in memory: ``z[row, col]`` (NaN = no height), pixel centres at
+    """A north-up height raster in memory: ``z[row, col]`` (float32 or float64, NaN = no height), pixel centres at
     ``x0 + (col + 0.5) res``, ``y0 - (row + 0.5) res``."""
 
     z: np.ndarray
@@ -66,36 +67,51 @@ class HeightGrid:
         stall on the kinks a bilinear surface has at every cell edge. Exact for planes. NaN outside the
         grid or where one of the 16 cells has no height."""
         x, y = np.asarray(x, dtype=float), np.asarray(y, dtype=float)
-        u = (x - self.x0) / self.res - 0.5
-        v = (self.y0 - y) / self.res - 0.5
+        shape = np.broadcast(x, y).shape
+        xb, yb = np.broadcast_to(x, shape).ravel(), np.broadcast_to(y, shape).ravel()
+        z = self.z if self.z.dtype in (np.float32, np.float64) else self.z.astype(float)
+        z = np.ascontiguousarray(z)
+        h, hx, hy = _sample_cubic(z, float(self.x0), float(self.y0), float(self.res), xb, yb)
+        return h.reshape(shape), hx.reshape(shape), hy.reshape(shape)
+
+
+@numba.njit(cache=True)
+def _sample_cubic(z, x0, y0, res, x, y):
+    """``HeightGrid.sample`` point by point: Catmull-Rom weights of the 4 x 4 cells around each position."""
+    n = len(x)
+    H, W = z.shape
+    h = np.full(n, np.nan)
+    hx = np.full(n, np.nan)
+    hy = np.full(n, np.nan)
+    wu, du, wv, dv = np.empty(4), np.empty(4), np.empty(4), np.empty(4)
+    for k in range(n):
+        u = (x[k] - x0) / res - 0.5
+        v = (y0 - y[k]) / res - 0.5
+        if not (np.isfinite(u) and np.isfinite(v)):
+            continue
         c0, r0 = np.floor(u), np.floor(v)
-        tu, tv = u - c0, v - r0
-        H, W = self.z.shape
-        inside = (c0 >= 1) & (r0 >= 1) & (c0 < W - 2) & (r0 < H - 2)
-        c = np.where(inside, c0, 1).astype(np.int64)
-        r = np.where(inside, r0, 1).astype(np.int64)
-        wu, du = _catmull_rom(tu)
-        wv, dv = _catmull_rom(tv)
-        h = np.zeros(x.shape)
-        hu = np.zeros(x.shape)
-        hv = np.zeros(x.shape)
+        if not (c0 >= 1 and r0 >= 1 and c0 < W - 2 and r0 < H - 2):
+            continue
+        _catmull_rom_taps(u - c0, wu, du)
+        _catmull_rom_taps(v - r0, wv, dv)
+        c, r = int(c0), int(r0)
+        s = su = sv = 0.0
         for i in range(4):
             for j in range(4):
-                z = self.z[r - 1 + i, c - 1 + j]
-                h += wv[i] * wu[j] * z
-                hu += wv[i] * du[j] * z
-                hv += dv[i] * wu[j] * z
-        nan = np.full(x.shape, np.nan)
-        ok = inside & np.isfinite(h)
-        return np.where(ok, h, nan), np.where(ok, hu / self.res, nan), np.where(ok, -hv / self.res, nan)  # rows run south
+                zz = z[r - 1 + i, c - 1 + j]
+                s += wv[i] * wu[j] * zz
+                su += wv[i] * du[j] * zz
+                sv += dv[i] * wu[j] * zz
+        if np.isfinite(s):
+            h[k], hx[k], hy[k] = s, su / res, -sv / res  # rows run south
+    return h, hx, hy
 
 
-def _catmull_rom(t: np.ndarray) -> tuple[list, list]:
-    """Weights of the 4 taps (-1, 0, 1, 2) of cubic convolution at fraction ``t`` and their derivatives."""
+@numba.njit(cache=True, inline="always")
+def _catmull_rom_taps(t, w, d):
     t2, t3 = t * t, t * t * t
-    w = [(-t3 + 2 * t2 - t) / 2, (3 * t3 - 5 * t2 + 2) / 2, (-3 * t3 + 4 * t2 + t) / 2, (t3 - t2) / 2]
-    d = [(-3 * t2 + 4 * t - 1) / 2, (9 * t2 - 10 * t) / 2, (-9 * t2 + 8 * t + 1) / 2, (3 * t2 - 2 * t) / 2]
-    return w, d
+    w[0], w[1], w[2], w[3] = (-t3 + 2 * t2 - t) / 2, (3 * t3 - 5 * t2 + 2) / 2, (-3 * t3 + 4 * t2 + t) / 2, (t3 - t2) / 2
+    d[0], d[1], d[2], d[3] = (-3 * t2 + 4 * t - 1) / 2, (9 * t2 - 10 * t) / 2, (-9 * t2 + 8 * t + 1) / 2, (3 * t2 - 2 * t) / 2
 
 
 def read_height_grid(path, project_crs, project_heights=None, what: str = "DEM", bounds=None) -> HeightGrid:
@@ -128,9 +144,39 @@ def read_height_grid(path, project_crs, project_heights=None, what: str = "DEM",
             win = win.intersection(rasterio.windows.Window(0, 0, ds.width, ds.height))
         else:
             win = rasterio.windows.Window(0, 0, ds.width, ds.height)
-        a = ds.read(1, window=win, masked=True).astype(float).filled(np.nan)
-        wt = ds.window_transform(win)
-    return HeightGrid(a, float(wt.c), float(wt.f), float(t.a))
+        # heights of a float32 (or 8/16-bit) raster stay float32 (half the memory, nothing lost); a window of more
+        # than MAX_GRID_CELLS is read averaged over f x f cells, so memory stays bounded whatever the DEM
+        dtype = np.float32 if ds.dtypes[0] in ("float32", "uint8", "int8", "uint16", "int16") else np.float64
+        f = max(1, int(np.ceil(np.sqrt(win.width * win.height / MAX_GRID_CELLS))))
+        if f > 1:
+            from rasterio.enums import Resampling
+
+            shape = (max(1, int(win.height) // f), max(1, int(win.width) // f))
+            win = rasterio.windows.Window(win.col_off, win.row_off, shape[1] * f, shape[0] * f)  # whole f x f cells
+            log.warning(f"{path}: the {what} window under the block has {int(win.width)} x {int(win.height)} cells; "
+                        f"read averaged over {f} x {f} cells ({abs(t.a) * f:g} map units) to stay within "
+                        f"{MAX_GRID_CELLS // 1_000_000} M cells")
+            a = ds.read(1, window=win, masked=True, out_shape=shape, resampling=Resampling.average)
+            res = float(t.a) * f
+            wt = ds.window_transform(win)
+        else:
+            res = float(t.a)
+            wt = ds.window_transform(win)
+            from rasterio.enums import MaskFlags
+
+            flags = set(ds.mask_flag_enums[0])
+            if flags <= {MaskFlags.nodata, MaskFlags.all_valid}:
+                # no-data by value (or none): one array, the no-data cells set to NaN in place
+                z = ds.read(1, window=win, out_dtype=dtype)
+                if ds.nodata is not None and MaskFlags.nodata in flags:
+                    z[z == ds.nodata if np.isfinite(ds.nodata) else ~np.isfinite(z)] = np.nan
+                return HeightGrid(z, float(wt.c), float(wt.f), res)
+            a = ds.read(1, window=win, masked=True)
+        a = (a if a.dtype == dtype else a.astype(dtype)).filled(np.nan)
+    return HeightGrid(a, float(wt.c), float(wt.f), res)
+
+
+MAX_GRID_CELLS = 400_000_000  # a height raster in memory: 1.6 GB as float32
 
 
 ROOF_PLANES_FILE = "roof_planes.geojson"  # what lidarctl corners writes next to corners.csv
@@ -295,12 +341,28 @@ class SurfaceControl:
     planes: RoofPlanes | None = None
     map_unit_m: tuple[float, float] = (1.0, 1.0)  # metres per unit of the map's x, y and of its heights
     face: np.ndarray | None = None  # roof face per point (-1: ground), decided by ``candidates``
+    # the map positions of the points as the iterations move them, without a CRS transformation per point and
+    # iteration (``MapAnchors``, shared by every copy ``of_points`` makes); ``index``: the block's points the
+    # coordinates given are (``of_points``), None: all of them in order
+    anchors: MapAnchors | None = None
+    index: np.ndarray | None = None
+
+    def __post_init__(self):
+        if self.anchors is None:
+            self.anchors = MapAnchors(self.frame)
+
+    def _map(self, coords_local: np.ndarray, jacobian: bool = True) -> tuple[np.ndarray, np.ndarray | None]:
+        """(map coordinates, d map / d local or None) of points of the block (``MapAnchors.to_map``)."""
+        index = self.index if self.index is not None and len(self.index) == len(coords_local) else None
+        return self.anchors.to_map(coords_local, index, jacobian)
 
     def of_points(self, index: np.ndarray) -> "SurfaceControl":
         """This surface control for the block's points ``index`` (in that order): the roof faces ``candidates``
         decided for them. Whoever observes a subset of the points (the solve's tie points with two rays or more)
         takes this, so that each point keeps its face while it moves."""
-        return dataclasses.replace(self, face=None if self.face is None else self.face[np.asarray(index)])
+        index = np.asarray(index)
+        return dataclasses.replace(self, face=None if self.face is None else self.face[index],
+                                   index=index if self.index is None else self.index[index])
 
     def _faces(self, m: np.ndarray) -> np.ndarray:
         """The roof face of each point: as ``candidates`` decided (for the same points, ``of_points``), else
@@ -314,10 +376,9 @@ class SurfaceControl:
     def observe(self, coords_local: np.ndarray, jacobian: bool = True) -> tuple[np.ndarray, np.ndarray | None, np.ndarray]:
         """(e_m, J, sigma_m) for points (M, 3) in the local frame: residual height above the DEM (NaN where
         the DEM has none), for points on a roof face (``face``) the distance above its plane along the normal;
-        its Jacobian (M, 3) with respect to the local coordinates (None unless ``jacobian``: it costs six more
-        coordinate conversions per point), its sigma (M,)."""
+        its Jacobian (M, 3) with respect to the local coordinates (None unless ``jacobian``), its sigma (M,)."""
         p = np.asarray(coords_local, dtype=float)
-        m = self.frame.to_map(p)
+        m, J_ml = self._map(p, jacobian)
         h, hx, hy = self.dem.sample(m[:, 0], m[:, 1])
         z_u = self.map_unit_m[1]  # heights and their residuals in metres, whatever the map's unit
         e = (m[:, 2] - h) * z_u
@@ -340,8 +401,7 @@ class SurfaceControl:
             hx[roof], hy[roof] = a * xy_m / z_m, b * xy_m / z_m
         if not jacobian:
             return e, None, sigma
-        # d map / d local: the inverse of the frame's Jacobian at the point
-        J_ml = np.linalg.inv(self.frame.jacobian_local_from_map(m))
+        # d map / d local (J_ml): the inverse of the frame's Jacobian at the point's anchor
         J = (J_ml[:, 2, :] - hx[:, None] * J_ml[:, 0, :] - hy[:, None] * J_ml[:, 1, :]) * z_u  # metres per metre
         if len(roof):  # metres along the plane's normal: the unit normal in the local frame
             J[roof] /= s[:, None]
@@ -352,7 +412,7 @@ class SurfaceControl:
         face (inside its footprint, whatever the nDSM says). Decides (and keeps, in ``face``) which face each
         point lies on."""
         p = np.asarray(coords_local, dtype=float)
-        m = self.frame.to_map(p)
+        m, _ = self._map(p, jacobian=False)
         ok = np.isfinite(self.dem.sample(m[:, 0], m[:, 1])[0])
         if self.ndsm is not None:
             nd = self.ndsm.sample(m[:, 0], m[:, 1])[0]

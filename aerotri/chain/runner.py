@@ -87,9 +87,26 @@ def _signature(paths: list[Path], root: Path, hash_limit_bytes: int = 64 << 20) 
     return sig
 
 
-def _plain(options: dict) -> dict:
-    """Options as they read back from the JSON stamp (tuples become lists, paths text)."""
-    return json.loads(json.dumps(options, default=str))
+def _plain(options: dict, root: Path | None = None) -> dict:
+    """Options as they read back from the JSON stamp (tuples become lists, paths text); paths inside the project
+    folder ``root`` relative to it, so a copied or moved project keeps its stages up to date."""
+    out = json.loads(json.dumps(options, default=str))
+    if root is None:
+        return out
+    prefixes = {str(Path(root)) + os.sep, str(Path(root).resolve()) + os.sep, os.path.abspath(root) + os.sep}
+
+    def rel(v):
+        if isinstance(v, dict):
+            return {k: rel(x) for k, x in v.items()}
+        if isinstance(v, list):
+            return [rel(x) for x in v]
+        if isinstance(v, str):
+            for prefix in prefixes:
+                if v.startswith(prefix):
+                    return v[len(prefix):]
+        return v
+
+    return rel(out)
 
 
 def stamp_path(root: Path, stage: str) -> Path:
@@ -106,7 +123,7 @@ def is_current(root: Path, st: Stage) -> bool:
         return False
     if not all(p.exists() for p in st.outputs(root)):
         return False
-    return stamp.get("inputs") == _signature(st.inputs(root), root) and stamp.get("options") == _plain(st.options_now(root))
+    return stamp.get("inputs") == _signature(st.inputs(root), root) and stamp.get("options") == _plain(st.options_now(root), root)
 
 
 def run_stages(root, stages: list[Stage], force: bool = False, log: Callable[[str], None] = _log.info) -> list[dict]:
@@ -127,7 +144,7 @@ def run_stages(root, stages: list[Stage], force: bool = False, log: Callable[[st
             continue
         log(f"[{st.name}] running")
         _remove_stale_temporaries(st.outputs(root))
-        options = _plain(st.options_now(root))  # before the run: the stage may change what they depend on
+        options = _plain(st.options_now(root), root)  # before the run: the stage may change what they depend on
         # the stage's outputs and its stamp are one commit: all new, or (an error, a kill) all as before;
         # a separate commit, final when the stage ends, so that a killed run resumes after its last stage
         with doing(st.name), commit_outputs(root, join=False):

@@ -225,7 +225,10 @@ class Chain:
                 with open_height_raster(path, project_crs(p), what) as ds:
                     _read_ends(ds, path, what)
         if self.reference_ortho is not None:
+            from aerotri.geom.raster_warp import open_north_up
+
             _check_raster(self.reference_ortho, "reference orthophoto")
+            open_north_up(self.reference_ortho, "reference orthophoto").close()  # georeferenced, with a CRS
         if self.surveyed_points is not None:
             from lidarctl.heights_check import read_points_csv
 

@@ -15,20 +15,17 @@ import numpy as np
 
 from aerotri.geom.crs import crs_label, parse_crs
 from aerotri.crs.files import (
-    LAS_SUFFIXES,
     fit_common_points,
-    las_crs,
     load_height_model,
     load_transformation,
     read_height_points,
-    transform_file,
+    transform_points_file,
     write_json,
 )
 from aerotri.geom.datum import HEIGHT_MODELS, MODELS, PARAMETER_NAMES
 from aerotri.crs.heights import fit_height_anomaly
 from aerotri.crs.raster import KINDS, warp_raster
 from aerotri.geom.raster_warp import RESAMPLING
-from aerotri.geom.transform import CrsTransformer
 from aerotri.core.errors import InputError
 
 log = logging.getLogger(__name__)
@@ -101,14 +98,18 @@ def fit_heights_cmd(points, model, epsg, smoothing, output):
     except InputError as exc:
         raise InputError(f"{points}: {exc}") from None
     write_json(out, res.to_dict())
-    click.echo(f"Height anomaly model {model} from {len(ids)} points ({points}); H = h - zeta")
-    click.echo(f"{'id':<12}{'zeta m':>10}{'resid m':>10}{'loo m':>10}")
-    for pid, z, r, lr in zip(ids, res.zeta_m, res.residuals_m, res.loo_residuals_m):
-        click.echo(f"{pid:<12}{z:10.4f}{r:10.4f}{lr:10.4f}")
-    click.echo(f"RMS {res.rms_m:.4f} m   leave-one-out RMS {res.loo_rms_m:.4f} m")
-    for w in res.warnings:
-        click.echo(f"Warning: {w}")
+    click.echo(_height_fit_table(model, points, ids, res))
     click.echo(f"Model written to {out}")
+
+
+def _height_fit_table(model, points, ids, res) -> str:
+    lines = [f"Height anomaly model {model} from {len(ids)} points ({points}); H = h - zeta",
+             f"{'id':<12}{'zeta m':>10}{'resid m':>10}{'loo m':>10}"]
+    lines += [f"{pid:<12}{z:10.4f}{r:10.4f}{lr:10.4f}"
+              for pid, z, r, lr in zip(ids, res.zeta_m, res.residuals_m, res.loo_residuals_m)]
+    lines.append(f"RMS {res.rms_m:.4f} m   leave-one-out RMS {res.loo_rms_m:.4f} m")
+    lines += [f"Warning: {w}" for w in res.warnings]
+    return "\n".join(lines)
 
 
 @crs.command("warp")
@@ -149,26 +150,9 @@ def warp_cmd(input_path, output_path, to_epsg, from_epsg, params, heights, allow
               help="LAS/LAZ points per chunk")
 def transform_cmd(input_path, output_path, from_epsg, to_epsg, params, heights, allow_ballpark, chunk_size):
     """Transform a CSV/TXT point list or a LAS/LAZ file (chunked, all point dimensions kept)."""
-    refuse_input_as_output(output_path, [input_path, params, heights], "OUT")
-    if not Path(input_path).exists():
-        raise InputError(f"{input_path}: file not found")
-    if from_epsg is None:
-        if Path(input_path).suffix.lower() not in LAS_SUFFIXES:
-            raise InputError("--from is required for point lists")
-        src = las_crs(input_path)
-        if src is None:
-            raise InputError(f"{input_path}: no CRS record in the file; give --from")
-    else:
-        src = parse_crs(from_epsg, "--from")
-    t = CrsTransformer(
-        src,
-        to_epsg,
-        params=load_transformation(params) if params else None,
-        heights=load_height_model(heights) if heights else None,
-        allow_ballpark=allow_ballpark,
-    )
     t0 = time.perf_counter()
-    n = transform_file(input_path, output_path, t, chunk_size)
+    n, t = transform_points_file(input_path, output_path, from_epsg, to_epsg, params, heights, allow_ballpark,
+                                 chunk_size)
     dt = time.perf_counter() - t0
     for w in t.warnings:
         log.warning(w)

@@ -432,3 +432,27 @@ def transform_file(in_path, out_path, transformer: CrsTransformer, chunk_size: i
             raise InputError(f"{out_path}: a LAS/LAZ input needs a .las or .laz output")
         return transform_las(in_path, out_path, transformer, chunk_size)
     return transform_point_list(in_path, out_path, transformer)
+
+
+def transform_points_file(in_path, out_path, from_crs=None, to_crs=None, params=None, heights=None,
+                          allow_ballpark: bool = False, chunk_size: int = 1_000_000) -> tuple[int, CrsTransformer]:
+    """``aerotri crs transform``: a CSV/TXT point list or a LAS/LAZ file from ``from_crs`` (a LAS file's own CRS
+    record when None) to ``to_crs``, with an optional fitted transformation (``params`` JSON) and height anomaly
+    model (``heights`` JSON). Returns (points written, the transformer: its description and warnings)."""
+    from aerotri.core.atomic import refuse_input_as_output
+    from aerotri.geom.crs import parse_crs
+
+    refuse_input_as_output(out_path, [in_path, params, heights], "OUT")
+    if not Path(in_path).exists():
+        raise InputError(f"{in_path}: file not found")
+    if from_crs is None:
+        if Path(in_path).suffix.lower() not in LAS_SUFFIXES:
+            raise InputError("--from is required for point lists")
+        src = las_crs(in_path)
+        if src is None:
+            raise InputError(f"{in_path}: no CRS record in the file; give --from")
+    else:
+        src = parse_crs(from_crs, "--from")
+    t = CrsTransformer(src, to_crs, params=load_transformation(params) if params else None,
+                       heights=load_height_model(heights) if heights else None, allow_ballpark=allow_ballpark)
+    return transform_file(in_path, out_path, t, chunk_size), t

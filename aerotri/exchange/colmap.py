@@ -104,6 +104,8 @@ def files(block: AdjustedBlock, image_names: dict | None = None) -> dict[str, st
     imgs = [head, "# IMAGE_ID, QW, QX, QY, QZ, TX, TY, TZ, CAMERA_ID, NAME", "#   POINTS2D[] as (X, Y, POINT3D_ID)"]
     track = {j: [] for j in pid3}
     names = image_names or {}
+    by_image = np.argsort(block.obs_image, kind="stable")  # each image's observations in file order, at once
+    bounds = np.searchsorted(block.obs_image[by_image], np.arange(len(block.image_id) + 1))
     for i, iid in enumerate(block.image_id):
         Rwc = block.R_cv[i].T
         t = -Rwc @ block.centre_local[i]
@@ -111,7 +113,7 @@ def files(block: AdjustedBlock, image_names: dict | None = None) -> dict[str, st
         imgs.append(f"{i + 1} " + " ".join(f"{v:.12f}" for v in q) + " " + " ".join(f"{v:.6f}" for v in t)
                     + f" 1 {names.get(iid, iid)}")
         pts = []
-        for n, k in enumerate(np.flatnonzero(block.obs_image == i)):
+        for n, k in enumerate(by_image[bounds[i]:bounds[i + 1]].tolist()):
             j = int(block.obs_point[k])
             pts.append(f"{block.obs_xy_px[k, 0] + 0.5:.3f} {block.obs_xy_px[k, 1] + 0.5:.3f} {pid3[j]}")
             track[j].append(f"{i + 1} {n}")

@@ -196,3 +196,40 @@ def check_import(project: Project, block: ImportedBlock, replaced: set) -> list[
     check_image_ids(project, block)
     check_point_ids(project, block, replaced)
     return notes
+
+
+def unmeasured_heights(z: np.ndarray) -> str | None:
+    """Why the finite heights ``z`` of a control file were not measured (all 0, or all one number), or None."""
+    z = np.asarray(z, float)
+    z = z[np.isfinite(z)]
+    if len(z) == 0:
+        return None
+    if np.all(z == 0.0):
+        return f"all {len(z)} heights are 0"
+    if len(z) >= 3 and np.all(z == z[0]):
+        return f"all {len(z)} heights are {z[0]:g}"
+    return None
+
+
+def plan_only_when_unmeasured(block, heights_measured: bool, source: str) -> None:
+    """Control of any format whose heights nobody measured (all 0, or all one number) becomes plan-only: full
+    points horizontal, height points dropped, with a note; ``heights_measured`` (``--heights-measured``) keeps
+    them."""
+    c = block.control
+    if c is None or heights_measured or not len(c):
+        return
+    has_z = np.isin(c.kind, ["full", "height"])
+    why = unmeasured_heights(c.xyz_m[has_z, 2]) if has_z.any() else None
+    if why is None:
+        return
+    from aerotri.geom.observations import ControlPoints
+
+    keep = c.kind != "height"
+    kind = np.where(c.kind == "full", "horizontal", c.kind).astype(object)
+    xyz = c.xyz_m.copy()
+    xyz[has_z, 2] = 0.0
+    block.control = ControlPoints(c.id[keep], kind[keep], xyz[keep], c.sigma_m[keep])
+    dropped = int((~keep).sum())
+    block.notes.append(f"{source}: control {why}: taken as not measured; full points are horizontal control (plan "
+                       f"only)" + (f", {dropped} height-only points dropped" if dropped else "")
+                       + ". If the heights were surveyed, import again with --heights-measured")

@@ -54,7 +54,7 @@ def import_files(root, format_name: str, files, options: ImportSettings | None =
     """Read ``files`` of format ``format_name``, check them against the project
     (``aerotri.exchange.import_checks``) and write what they hold into the project folder ``root``
     (``aerotri.exchange.imported.write_imported``). Returns what was written, one record per file."""
-    from aerotri.exchange.import_checks import check_import
+    from aerotri.exchange.import_checks import check_import, plan_only_when_unmeasured
     from aerotri.geom.eo import check_block_crs
 
     if format_name not in IMPORT_FORMATS:
@@ -84,4 +84,5 @@ def import_files(root, format_name: str, files, options: ImportSettings | None =
                                   (project.control_image_points_path, "image_points"))
                 if getattr(block, name) is not None}
     block.notes += check_import(project, block, replaced)
+    plan_only_when_unmeasured(block, options.heights_measured, format_name)
     return write_imported(project.root, block, format_name, overwrite=overwrite)

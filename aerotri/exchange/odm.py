@@ -35,6 +35,7 @@ import numpy as np
 from aerotri.core.errors import InputError, OptionError
 from aerotri.core.project import Project
 from aerotri.core.textio import read_text
+from aerotri.exchange.import_checks import unmeasured_heights
 from aerotri.exchange.imported import ImportedBlock, ImportSettings, to_project_crs
 from aerotri.geom.observations import ControlPoints, ImageObservations, check_distinct_points
 
@@ -101,19 +102,6 @@ def read_gcp_list(path) -> tuple[str, list[tuple[str, np.ndarray]], list[tuple[s
     check_distinct_points(ImageObservations(np.array([o[0] for o in obs], dtype=object), np.array([o[1] for o in obs], dtype=object),
                                             np.array([[o[2], o[3]] for o in obs], float), np.array([o[4] for o in obs], int)), path)
     return crs, list(points.items()), obs
-
-
-def unmeasured_heights(z: np.ndarray) -> str | None:
-    """Why the finite heights ``z`` of a control file were not measured (all 0, or all one number), or None."""
-    z = np.asarray(z, float)
-    z = z[np.isfinite(z)]
-    if len(z) == 0:
-        return None
-    if np.all(z == 0.0):
-        return f"all {len(z)} heights are 0"
-    if len(z) >= 3 and np.all(z == z[0]):
-        return f"all {len(z)} heights are {z[0]:g}"
-    return None
 
 
 def read(files, project: Project, options: ImportSettings) -> ImportedBlock:

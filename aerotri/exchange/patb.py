@@ -124,9 +124,11 @@ def files(block: AdjustedBlock, project: Project | None = None) -> dict[str, str
     point_ids += [] if check is None else [str(p) for p in check.id]
     point_no = numbering(point_ids)
     im = []
+    by_image = np.argsort(block.obs_image, kind="stable")  # each image's observations in file order, at once
+    bounds = np.searchsorted(block.obs_image[by_image], np.arange(len(block.image_id) + 1))
     for i, iid in enumerate(block.image_id):
         im.append(_i16(photo_no[iid]))
-        for k in np.flatnonzero(block.obs_image == i):
+        for k in by_image[bounds[i]:bounds[i + 1]].tolist():
             im.append(_i16(point_no[str(block.point_id[block.obs_point[k]])]) + f"{x_mm[k]:{FIELD}.6f}"
                       + f"{y_mm[k]:{FIELD}.6f}")
         im.append(_i16(-99))

@@ -222,7 +222,8 @@ def validate_references(
     for obs, path in ((ties, tie_path), (control_obs, control_obs_path)):
         if obs is None or len(obs) == 0:
             continue
-        unknown = ~np.isin(obs.image_id, list(known))
+        # a set lookup per measurement (np.isin of object arrays compares every measurement with every image)
+        unknown = ~np.fromiter(map(known.__contains__, obs.image_id.tolist()), dtype=bool, count=len(obs))
         if unknown.any():
             k = int(np.argmax(unknown))
             bad = [i for i in np.unique(obs.image_id) if i not in known]
@@ -247,6 +248,6 @@ def validate_references(
         orphan = sorted(set(measured) - set(control.id.tolist()))
         if orphan:
             raise InputError(f"{control_obs_path}: point ids {orphan[:5]} are not in {control_path}")
-    clash = sorted(set(control.id.tolist()) & set(np.unique(ties.point_id).tolist()))
+    clash = sorted(set(control.id.tolist()) & set(ties.point_id.tolist()))  # a set: no sort of every measurement
     if clash:
         raise InputError(f"{tie_path}: point ids {clash[:5]} are also control point ids in {control_path}")

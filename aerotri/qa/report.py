@@ -598,3 +598,20 @@ def write_qa_report(root, tolerance_file=None, terrain: str | None = None, scale
     if pdf if pdf is not None else read_qa_config(root).pdf:
         write_pdf(project.report_pdf_path, rep, project, figures)
     return rep
+
+
+def console_summary(rep: dict) -> str:
+    """The lines ``aerotri report`` prints: the table and why it was chosen, every judged row, the verdict."""
+    t = rep["table"]
+    lines = [f"tolerances: {t['name']} ({t['file']}); chosen because {t['reason']}"]
+    if t["unconfirmed"]:
+        lines.append(f"  limits not confirmed in their source (marked *): {', '.join(t['unconfirmed'])}")
+    for r in rep["checks"]:
+        if r["verdict"]:
+            star = "*" if r.get("limit_confirmed") is False and r["limit"] is not None else ""
+            lines.append(f"  {r['verdict']:<5} {r['section']}: {r['quantity']} = {r['value']} {r['unit']} "
+                         f"(limit {r['limit']}{star})")
+    verdict = rep["overall"] or "no verdict (no quantity with a tolerance yet)"
+    lines.append(f"{rep['html']}: {verdict} ({rep['passed']} passed, {rep['failed']} failed; "
+                 f"{rep['map_scale']} {rep['terrain']})")
+    return "\n".join(lines)

@@ -7,12 +7,12 @@ from pathlib import Path
 import click
 
 from aerotri.core.errors import InputError
-from aerotri.core.commands import Command, at_least, finite, fraction
+from aerotri.core.commands import Command, finite, fraction
 
 
 @click.command(cls=Command)
 @click.option("--preset", "preset", default="demo", show_default=True,
-              help="Preset name (tiny, demo, dmc) or path to a preset .toml file.")
+              help="Preset name (tiny, demo, dmc, dmc_block, scale) or path to a preset .toml file.")
 @click.option("--seed", type=click.IntRange(min=0), default=None, help="Override the preset's random seed.")
 @click.option("--set", "overrides", multiple=True, metavar="SECTION.KEY=VALUE",
               help="Override one preset parameter, e.g. --set flight.side_overlap=0.35 (repeatable).")
@@ -20,15 +20,24 @@ from aerotri.core.commands import Command, at_least, finite, fraction
 @click.option("--observations", is_flag=True,
               help="Also write tie and control observations straight from the truth geometry (at/tiepoints.csv, "
                    "control/*.csv), to test the adjustment without matching or rendering.")
-@click.option("--tie-sigma-px", type=at_least(0), default=0.3, show_default=True, help="Image noise of those observations.")
+@click.option("--observations-only", is_flag=True,
+              help="Write only the block's geometry and observations (tie, control, GNSS) and a DEM of the truth "
+                   "terrain (OUTDIR/dem.tif): no images, no LiDAR, so that a block of thousands of frames is made in "
+                   "minutes.")
+@click.option("--tie-points-per-frame", type=click.IntRange(1, 10000), default=None,
+              help="Tie points (each seen in >= 3 frames) per frame on average; default: the preset's "
+                   "observations.tie_points_per_frame (130) with --observations-only, 150 candidates a frame with "
+                   "--observations.")
+@click.option("--tie-sigma-px", type=click.FloatRange(0.0, 10.0), default=None,
+              help="Image noise of those observations (default: the preset's observations.tie_sigma_px, 0.3).")
 @click.option("--n-control", type=click.IntRange(min=0), default=4, show_default=True, help="Number of full control points.")
 @click.option("--blunder-fraction", type=fraction(), default=0.0, show_default=True,
               help="Fraction of tie observations displaced by 5-50 px.")
 @click.option("--bad-control-shift-m", type=finite(), default=0.0, show_default=True,
               help="Move the first control point horizontally by this much.")
 @click.argument("outdir", type=click.Path(file_okay=False, path_type=Path))
-def sim(preset, seed, overrides, force, observations, tie_sigma_px, n_control, blunder_fraction,
-        bad_control_shift_m, outdir):
+def sim(preset, seed, overrides, force, observations, observations_only, tie_points_per_frame, tie_sigma_px,
+        n_control, blunder_fraction, bad_control_shift_m, outdir):
     """Simulate a complete project with known truth into OUTDIR."""
     from aerotri.sim import load_preset, simulate
 
@@ -37,11 +46,24 @@ def sim(preset, seed, overrides, force, observations, tie_sigma_px, n_control, b
         cfg["preset"]["seed"] = seed
     if not 0.0 <= blunder_fraction < 1.0:
         raise InputError(f"--blunder-fraction {blunder_fraction}: must be in [0, 1)")
+    if observations_only:
+        from aerotri.sim.project import simulate_observations
+
+        block = simulate_observations(cfg, outdir, force=force, tie_sigma_px=tie_sigma_px,
+                                      tie_points_per_frame=tie_points_per_frame, n_control=n_control,
+                                      blunder_fraction=blunder_fraction, bad_control_shift_m=bad_control_shift_m)
+        click.echo(f"{block.frames} frames, {block.tie_points} tie points, {block.tie_observations} tie observations, "
+                   f"{block.control_points} control and {block.check_points} check points; "
+                   f"DEM of the truth terrain: {block.dem_path} ({block.terrain_res_m:.2f} m)")
+        return
     simulate(cfg, outdir, force=force)
     if observations:
+        from aerotri.sim.config import optional
         from aerotri.sim.observations import write_truth_observations
 
-        summary = write_truth_observations(outdir, tie_sigma_px=tie_sigma_px, n_control=n_control,
+        sigma = optional(cfg, "observations", "tie_sigma_px") if tie_sigma_px is None else tie_sigma_px
+        summary = write_truth_observations(outdir, tie_sigma_px=sigma, n_control=n_control,
                                            blunder_fraction=blunder_fraction,
-                                           bad_control_shift_m=bad_control_shift_m, seed=cfg["preset"]["seed"])
+                                           bad_control_shift_m=bad_control_shift_m, seed=cfg["preset"]["seed"],
+                                           tie_points_per_frame=tie_points_per_frame)
         click.echo(f"truth observations: {', '.join(f'{k} {v}' for k, v in summary.items() if isinstance(v, (int, float)))}")

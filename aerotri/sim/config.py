@@ -2,7 +2,7 @@
 ``<prefix>/share/aerotri/presets``) and their validation.
 
 A preset is a nested table: ``[preset] [crs] [camera] [flight] [gnss] [lidar] [scene] [render]
-[truth]``, and ``[chain.<stage>]``: the stage options the simulated project's project.toml gets. ``--set section.key=value`` overrides single values (TOML syntax for the value).
+[truth]``, optionally ``[observations]`` (``OPTIONAL``), and ``[chain.<stage>]``: the stage options the simulated project's project.toml gets. ``--set section.key=value`` overrides single values (TOML syntax for the value).
 Every invalid value is refused with an ``InputError`` that names the key and what was expected.
 """
 
@@ -58,6 +58,19 @@ def load_preset(name_or_path: str, overrides: list[str] | tuple[str, ...] = ()) 
     return cfg
 
 
+# Parameters a preset may leave out (their defaults: 8-bit RGB frames written whole by OpenCV, deflate truth
+# rasters, texture down to the GSD, counts as given; the observations of ``aerotri sim --observations-only``):
+# ``--set`` may still set them.
+OPTIONAL = {"render": {"bits": 8, "bands": "rgb", "tile_px": 0, "compress": "none", "texture_fine_m": 0.0},
+            "truth": {"compress": "deflate"}, "scene": {"counts_for_m": [1.0, 1.0]},
+            "observations": {"tie_sigma_px": 0.3, "tie_points_per_frame": 130}}
+
+
+def optional(cfg: dict, section: str, key: str):
+    """A parameter of ``OPTIONAL``: the preset's value, else its default."""
+    return cfg.get(section, {}).get(key, OPTIONAL[section][key])
+
+
 def apply_overrides(cfg: dict, overrides) -> dict:
     cfg = copy.deepcopy(cfg)
     for item in overrides:
@@ -65,13 +78,15 @@ def apply_overrides(cfg: dict, overrides) -> dict:
             raise InputError(f"--set {item!r}: expected section.key=value, e.g. flight.side_overlap=0.3")
         key, value = item.split("=", 1)
         section, name = key.strip().split(".", 1)
-        if section not in cfg or name not in cfg[section]:
+        if section not in cfg and section in OPTIONAL:
+            cfg[section] = {}
+        if section not in cfg or (name not in cfg[section] and name not in OPTIONAL.get(section, {})):
             raise InputError(f"--set {item!r}: unknown parameter {key!r}")
         try:
             parsed = tomllib.loads(f"v = {value.strip()}")["v"]
         except tomllib.TOMLDecodeError:
             parsed = value.strip()
-        old = cfg[section][name]
+        old = cfg[section].get(name, OPTIONAL.get(section, {}).get(name))
         if isinstance(old, (int, float)) and not isinstance(old, bool) and not isinstance(parsed, (int, float)):
             raise InputError(f"--set {item!r}: {key} must be a number")
         cfg[section][name] = float(parsed) if isinstance(old, float) and isinstance(parsed, int) else parsed
@@ -137,6 +152,29 @@ def validate(cfg: dict, source: str = "preset") -> None:
     _need(cfg, source, "render", "samples", 1, 8, integer=True)
     _need(cfg, source, "truth", "raster_res_m", 0.05, 50.0)
     _need(cfg, source, "truth", "ortho_res_m", 0.02, 50.0)
+    ref = cfg["scene"].get("counts_for_m")
+    if ref is not None and not (isinstance(ref, (list, tuple)) and len(ref) == 2 and all(
+            isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v) and v > 0 for v in ref)):
+        raise InputError(f"{source}: scene.counts_for_m must be [width, height] in metres (both > 0), got {ref!r}")
+    r = cfg["render"]
+    if r.get("bands", "rgb") not in ("rgb", "pan"):
+        raise InputError(f"{source}: render.bands must be 'rgb' or 'pan', got {r.get('bands')!r}")
+    if r.get("bits", 8) not in (8, 12):
+        raise InputError(f"{source}: render.bits must be 8 or 12, got {r.get('bits')!r}")
+    if "tile_px" in r:
+        t = _need(cfg, source, "render", "tile_px", 0, 4096, integer=True)
+        if t % 32:
+            raise InputError(f"{source}: render.tile_px must be a multiple of 32 (or 0: untiled), got {t}")
+    for section in ("render", "truth"):
+        if cfg[section].get("compress", "deflate") not in ("none", "deflate", "lzw", "zstd"):
+            raise InputError(f"{source}: {section}.compress must be one of none, deflate, lzw, zstd, got "
+                             f"{cfg[section].get('compress')!r}")
+    if "texture_fine_m" in cfg["render"]:
+        _need(cfg, source, "render", "texture_fine_m", 0.01, 10.0)
+    if "tie_sigma_px" in cfg.get("observations", {}):
+        _need(cfg, source, "observations", "tie_sigma_px", 0.0, 10.0)
+    if "tie_points_per_frame" in cfg.get("observations", {}):
+        _need(cfg, source, "observations", "tie_points_per_frame", 1, 10000, integer=True)
     lo, hi = cfg["scene"]["building_height_m"]
     if not (0 < lo <= hi):
         raise InputError(f"{source}: scene.building_height_m must be [min, max] with 0 < min <= max")

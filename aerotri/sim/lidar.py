@@ -31,7 +31,7 @@ import numba
 import numpy as np
 import pyproj
 
-from aerotri.sim import raycast
+from aerotri.sim import raycast, shading
 from aerotri.sim.flight import LidarLine
 from aerotri.sim.scene import KIND_NONE, KIND_ROOF, KIND_TERRAIN, KIND_TREE, KIND_WALL, WATER, Scene
 
@@ -229,7 +229,7 @@ def _water_and_outliers(scene: Scene, sw: _Sweep, T, K, O, L: dict, rng) -> _Ret
     first_hit = np.where(valid[:, 0], T[:, 0], 0.0)
     px = sw.origins[:, 0] + sw.dirs[:, 0] * first_hit
     py = sw.origins[:, 1] + sw.dirs[:, 1] * first_hit
-    mat = raycast.ground_materials(px, py, scene.roads, scene.ponds, scene.targets, scene.seed)
+    mat = shading.ground_materials(np.ascontiguousarray(px), np.ascontiguousarray(py), shading.ground_index(scene))
     on_water = valid[:, 0] & (K[:, 0] == KIND_TERRAIN) & (mat == WATER)
 
     # Outliers: low (below the surface along the beam) and high (birds).
@@ -247,7 +247,10 @@ def _water_and_outliers(scene: Scene, sw: _Sweep, T, K, O, L: dict, rng) -> _Ret
     if k_rest > 0 and len(cand_any):
         picks.append(rng.choice(cand_any, k_rest, replace=False))
     low = np.unique(np.concatenate(picks)) if picks else np.zeros(0, int)
-    high = rng.choice(np.setdiff1d(cand_any, low), min(n_high, len(cand_any)), replace=False) if n_high else np.zeros(0, int)
+    # (both sorted and unique: numpy 2.4's np.unique of millions of distinct integers, which setdiff1d would
+    # call, takes seconds)
+    rest = np.setdiff1d(cand_any, low, assume_unique=True)
+    high = rng.choice(rest, min(n_high, len(cand_any)), replace=False) if n_high else np.zeros(0, int)
 
     keep_water = rng.random(n) < L["water_return_fraction"]
     drop = on_water & ~keep_water
@@ -319,7 +322,7 @@ def scan_strip(scene: Scene, accel, line: LidarLine, L: dict, rng, width_m: floa
         P = sw.origins[pulse] + nominal[pulse] * (rng_m + offset)[:, None]
     kind = rt.kinds[pulse, ret]
     obj = rt.objs[pulse, ret]
-    gm = raycast.ground_materials(P[:, 0].copy(), P[:, 1].copy(), scene.roads, scene.ponds, scene.targets, scene.seed)
+    gm = shading.ground_materials(P[:, 0].copy(), P[:, 1].copy(), shading.ground_index(scene))
     cls = _truth_classes(scene, P, kind, gm, rt.cls_override[pulse])
     # Intensity from a reflectance per surface (1064 nm), incidence and range.
     refl = np.select([kind == KIND_TREE, kind == KIND_ROOF, kind == KIND_WALL, gm == WATER, gm == 2, gm == 3,

@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import math
 import tomllib
 from pathlib import Path
 
@@ -275,7 +276,10 @@ def block_control(
 # -- files ------------------------------------------------------------------------------------
 def write_image_points(path, obs: ImageObservations) -> None:
     lines = ["point_id,image_id,x_px,y_px"]
-    lines += [f"{p},{i},{x:.3f},{y:.3f}" for p, i, (x, y) in zip(obs.point_id, obs.image_id, obs.xy_px)]
+    # Python floats format several times faster than numpy scalars (millions of lines in a large block)
+    xy = np.asarray(obs.xy_px, dtype=float)
+    ids = zip(np.asarray(obs.point_id).tolist(), np.asarray(obs.image_id).tolist())
+    lines += [f"{p},{i},{x:.3f},{y:.3f}" for (p, i), x, y in zip(ids, xy[:, 0].tolist(), xy[:, 1].tolist())]
     write_text_atomic(path, "\n".join(lines) + "\n")
 
 
@@ -338,11 +342,17 @@ def write_truth_observations(
     n_check: int = 10,
     min_rays: int = 3,
     check_sigma_m: float = 0.005,
+    dem=None,
+    interpolation: str = "nearest",
+    tie_points_per_frame: int | None = None,
 ) -> dict:
     """Write at/tiepoints.csv, control/points.csv, control/image_points.csv from a project's truth/.
 
-    Needs truth/eo.txt, truth/camera.toml and either truth/dem.tif (simulator projects) or
-    truth/terrain.json (geometric blocks) for the ground heights; control and check points come from
+    Needs truth/eo.txt, truth/camera.toml and either a DEM (``dem``, default truth/dem.tif: simulator
+    projects; sampled ``interpolation`` nearest or bilinear) or truth/terrain.json (geometric blocks) for the
+    ground heights. Tie points: random ground points seen in at least ``min_rays`` frames, from
+    ``points_per_image`` x frames / 1.5 candidates, or (``tie_points_per_frame``) as many as to give that many
+    tie points per frame on average. Control and check points come from
     truth/checkpoints.csv when present, else from the terrain. The first control point is moved by
     ``bad_control_shift_m`` horizontally; check points get ``check_sigma_m`` noise. ``control_sigma_m`` None: project.toml [control] sigma_xy_m,
     sigma_z_m. Returns a summary with the blunder ids (for evaluations).
@@ -359,7 +369,7 @@ def write_truth_observations(
     frame = LocalFrame.at_centre(crs, eo.centre_m)
     C = frame.to_local(eo.centre_m)
     R = frame.rotation_local_from_map(eo.centre_m) @ eo.rotations()
-    height_fn, extent, H_above = _ground_model(root, frame, C, cam)
+    height_fn, extent, H_above = _ground_model(root, frame, C, cam, dem, interpolation)
     rng = np.random.default_rng(seed)
 
     def ground(n):
@@ -367,9 +377,12 @@ def write_truth_observations(
         xy = np.column_stack([rng.uniform(x0, x1, n), rng.uniform(y0, y1, n)])
         return np.column_stack([xy, height_fn(xy)])
 
-    P = ground(int(points_per_image * len(C) / 1.5))
-    proj = project_points(P, C, R, cam, H_above)
-    ties, _, blunder = make_observations(
+    if tie_points_per_frame is None:
+        P = ground(int(points_per_image * len(C) / 1.5))
+        proj = project_points(P, C, R, cam, H_above)
+    else:
+        P, proj = _draw_tie_points(ground, C, R, cam, H_above, int(tie_points_per_frame) * len(C), min_rays)
+    ties, P_tie, blunder = make_observations(
         P, proj, eo.image_id, cam, "t", sigma_px=tie_sigma_px, min_rays=min_rays, blunder_fraction=blunder_fraction,
         blunder_px_range=blunder_px_range, rng=rng,
     )
@@ -416,7 +429,37 @@ def write_truth_observations(
         root / "truth" / "observation_blunders.json",
         json.dumps({"tie_blunders": blunders, "bad_control": bad_ids}, indent=0),
     )
-    return {"n_tie_observations": len(ties), "n_tie_points": len(np.unique(ties.point_id)), "tie_blunders": blunders, "bad_control": bad_ids}
+    return {"n_tie_observations": len(ties), "n_tie_points": len(P_tie), "n_control": len(sel),
+            "n_check": len(chk), "n_control_observations": len(cobs), "tie_blunders": blunders, "bad_control": bad_ids}
+
+
+def _draw_tie_points(ground, C, R, cam, H_above, n_points: int, min_rays: int):
+    """Random ground points (``ground(n)``), drawn in batches until ``n_points`` of them are seen in at least
+    ``min_rays`` frames: the points up to that one and their projections (``project_points``). The points
+    are independent and uniform, so the first ``n_points`` kept are a uniform sample too."""
+    points, pis, iis, xys = [], [], [], []
+    drawn = kept = 0
+    while kept < n_points:
+        # the fraction kept so far (a quarter to start with) sets the next batch: about 10 % more than needed
+        frac = kept / drawn if drawn else 0.25
+        n = int(math.ceil((n_points - kept) / max(frac, 0.01) * 1.1)) + 100
+        P = ground(n)
+        pi, ii, xy = project_points(P, C, R, cam, H_above)
+        ok = np.bincount(pi, minlength=n) >= min_rays
+        if drawn == 0 and not ok.any():
+            raise InputError(f"no ground point of the block is seen in {min_rays} frames: the flight needs more "
+                             f"frames or overlap for tie points (flight.frames_per_strip, flight.forward_overlap)")
+        if kept + int(ok.sum()) >= n_points:  # stop at the point that completes the count
+            n = int(np.flatnonzero(ok)[n_points - kept - 1]) + 1
+            m = pi < n
+            P, pi, ii, xy, ok = P[:n], pi[m], ii[m], xy[m], ok[:n]
+        points.append(P)
+        pis.append(pi + drawn)
+        iis.append(ii)
+        xys.append(xy)
+        drawn += n
+        kept += int(ok.sum())
+    return np.concatenate(points), (np.concatenate(pis), np.concatenate(iis), np.concatenate(xys))
 
 
 def _spread(P, n):
@@ -430,9 +473,9 @@ def _spread(P, n):
     return np.array(chosen, dtype=int)
 
 
-def _ground_model(root: Path, frame: LocalFrame, C, cam):
+def _ground_model(root: Path, frame: LocalFrame, C, cam, dem=None, interpolation: str = "nearest"):
     """(height function of local xy, extent, typical height above ground)."""
-    dem = root / "truth" / "dem.tif"
+    dem = Path(dem) if dem is not None else root / "truth" / "dem.tif"
     terrain = root / "truth" / "terrain.json"
     if terrain.exists():
         t = json.loads(terrain.read_text())
@@ -455,21 +498,32 @@ def _ground_model(root: Path, frame: LocalFrame, C, cam):
         import rasterio
 
         with rasterio.open(dem) as src:
-            band = src.read(1, masked=True)
+            z_map = src.read(1, masked=True).astype(float).filled(np.nan)
             inv = ~src.transform
+        fill = float(np.nanmean(z_map))
 
-            def height(xy):
-                m = frame.to_map(np.column_stack([xy, np.zeros(len(xy))]))
-                z0 = np.zeros(len(xy))
-                for _ in range(2):
-                    m = frame.to_map(np.column_stack([xy, z0]))
-                    col, row = inv * (m[:, 0], m[:, 1])
-                    r = np.clip(np.round(row).astype(int), 0, band.shape[0] - 1)
-                    c = np.clip(np.round(col).astype(int), 0, band.shape[1] - 1)
-                    h = np.asarray(band.filled(np.nan)[r, c], dtype=float)
-                    h = np.where(np.isfinite(h), h, np.nanmean(band.filled(np.nan)))
-                    z0 = frame.to_local(np.column_stack([m[:, :2], h]))[:, 2]
-                return z0
+        def sample(col, row):
+            if interpolation == "bilinear":  # pixel centres at integer + 0.5
+                u, v = col - 0.5, row - 0.5
+                c0 = np.clip(np.floor(u).astype(int), 0, z_map.shape[1] - 2)
+                r0 = np.clip(np.floor(v).astype(int), 0, z_map.shape[0] - 2)
+                fu, fv = np.clip(u - c0, 0.0, 1.0), np.clip(v - r0, 0.0, 1.0)
+                h = ((z_map[r0, c0] * (1 - fu) + z_map[r0, c0 + 1] * fu) * (1 - fv)
+                     + (z_map[r0 + 1, c0] * (1 - fu) + z_map[r0 + 1, c0 + 1] * fu) * fv)
+            else:
+                r = np.clip(np.round(row).astype(int), 0, z_map.shape[0] - 1)
+                c = np.clip(np.round(col).astype(int), 0, z_map.shape[1] - 1)
+                h = z_map[r, c]
+            return np.where(np.isfinite(h), h, fill)
+
+        def height(xy):
+            z0 = np.zeros(len(xy))
+            for _ in range(2):
+                m = frame.to_map(np.column_stack([xy, z0]))
+                col, row = inv * (m[:, 0], m[:, 1])
+                h = sample(np.asarray(col), np.asarray(row))
+                z0 = frame.to_local(np.column_stack([m[:, :2], h]))[:, 2]
+            return z0
 
         ground_z = float(np.mean(height(C[:, :2])))
     else:

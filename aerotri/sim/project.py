@@ -11,6 +11,7 @@ import json
 import logging
 import math
 import time
+import warnings
 from pathlib import Path
 
 import cv2
@@ -23,41 +24,95 @@ from rasterio.transform import from_origin
 from aerotri.geom.eo import ExteriorOrientations, GnssPositions, format_eo, write_gnss
 from aerotri.core.errors import InputError
 from aerotri.geom.rotation import rotation_matrix_opk
-from aerotri.sim import landcover, raycast, render
-from aerotri.sim.config import stage_sections_toml
+from aerotri.sim import landcover, raster, raycast, render
+from aerotri.sim.config import optional, stage_sections_toml
 from aerotri.sim.flight import block_layout, cameras_from_config, lidar_lines, plan_frames
 from aerotri.sim.lidar import las_header, las_record, pulse_chunks, scan_strip, strip_pulses, trajectory
 from lidarctl.strips.trajectory import format_trajectory
 from aerotri.sim.scene import build_scene
 from aerotri.core.atomic import atomic_dir
 from aerotri.core.log import track
+from aerotri.core.resources import measure
 
 log = logging.getLogger(__name__)
 
 
+# Truth rasters: rows rendered at a time (about this many pixels, at most 512 rows), in 256 px tiles.
+_BLOCK_PX = 4_000_000
+_TILE_PX = 256
+
+
+def _block_rows(width: int) -> int:
+    return int(max(16, min(512, _BLOCK_PX // max(width, 1))))
+
+
+def _compression(name: str) -> dict:
+    """GDAL creation options of a compression (``zstd`` at level 1 with the horizontal predictor: fast enough for
+    gigapixel truth rasters; ``deflate`` as before)."""
+    if name == "zstd":
+        return dict(compress="zstd", zstd_level=1, predictor=2, num_threads="ALL_CPUS")
+    return dict(compress=name)
+
+
 def _write_geotiff(path: Path, width: int, height: int, bands: int, dtype, transform, epsg: int, rows, nodata=None,
-                   block_rows: int = 512):
-    """Tiled, deflate-compressed GeoTIFF with overviews-friendly 256 px blocks, written ``block_rows`` rows at a
-    time: ``rows(r0, r1)`` gives rows r0..r1 as (r1 - r0, width[, bands]), so a raster of any size is made
-    in bounded memory."""
+                   block_rows: int | None = None, compress: str = "deflate"):
+    """Tiled, compressed GeoTIFF with overviews-friendly 256 px blocks, written ``block_rows`` rows at a time:
+    ``rows(r0, r1)`` gives rows r0..r1 as (r1 - r0, width[, bands]), so a raster of any size is made in
+    bounded memory (progress with ETA for rasters of more than ``_BLOCK_PX`` x 64 pixels)."""
+    block_rows = block_rows or _block_rows(width)
     profile = dict(driver="GTiff", width=width, height=height, count=bands, dtype=np.dtype(dtype).name,
-                   crs=f"EPSG:{epsg}", transform=transform, tiled=True, blockxsize=256, blockysize=256,
-                   compress="deflate", nodata=nodata)
+                   crs=f"EPSG:{epsg}", transform=transform, tiled=True, blockxsize=_TILE_PX, blockysize=_TILE_PX,
+                   nodata=nodata, bigtiff="IF_SAFER", **_compression(compress))
     if bands == 3 and np.dtype(dtype) == np.uint8:
         profile["photometric"] = "RGB"
-    with rasterio.open(path, "w", **profile) as dst:
-        for r0 in range(0, height, block_rows):
-            r1 = min(height, r0 + block_rows)
-            data = rows(r0, r1)
-            arr = data[None] if data.ndim == 2 else np.moveaxis(data, 2, 0)
-            dst.write(arr.astype(dtype, copy=False), window=rasterio.windows.Window(0, r0, width, r1 - r0))
+    with rasterio.Env(GDAL_CACHEMAX=256), rasterio.open(path, "w", **profile) as dst:
+        out = _TileRowWriter(dst, dtype)
+        starts = range(0, height, block_rows)
+        for r0 in track(starts, f"{path.parent.name}/{path.name}", "row blocks") if width * height > 64 * _BLOCK_PX else starts:
+            out.write(rows(r0, min(height, r0 + block_rows)))
+        out.close()
 
 
-def _open_geotiff(path: Path, width: int, height: int, dtype, transform, epsg: int, nodata=None):
+class _TileRowWriter:
+    """Rows of a tiled raster open for writing (``dst``), written a whole row of tiles at a time: rows given in
+    smaller blocks are held until their row of tiles is complete. (A row of tiles written in parts is
+    compressed and written again for each part, the earlier copies left in the file: 70 % larger.)"""
+
+    def __init__(self, dst, dtype, band: int | None = None):
+        self.dst, self.dtype, self.band = dst, dtype, band
+        self.tile_rows = dst.block_shapes[0][0]
+        self.pending: list[np.ndarray] = []
+        self.row = 0  # first row not written yet
+
+    def write(self, data: np.ndarray) -> None:
+        """The next rows, (rows, cols[, bands])."""
+        self.pending.append(data)
+        held = sum(len(a) for a in self.pending)
+        if (self.row + held) % self.tile_rows == 0 or self.row + held >= self.dst.height:
+            self._flush()
+
+    def close(self) -> None:
+        if self.pending:
+            self._flush()
+
+    def _flush(self) -> None:
+        data = self.pending[0] if len(self.pending) == 1 else np.concatenate(self.pending)
+        self.pending = []
+        arr = data.astype(self.dtype, copy=False)
+        window = rasterio.windows.Window(0, self.row, self.dst.width, len(arr))
+        if self.band is not None:
+            self.dst.write(arr, self.band, window=window)
+        else:
+            self.dst.write(arr[None] if arr.ndim == 2 else np.moveaxis(arr, 2, 0), window=window)
+        self.row += len(arr)
+
+
+def _open_geotiff(path: Path, width: int, height: int, dtype, transform, epsg: int, nodata=None,
+                  compress: str = "deflate"):
     """A single-band GeoTIFF open for writing by windows, with ``_write_geotiff``'s layout."""
     return rasterio.open(path, "w", driver="GTiff", width=width, height=height, count=1, dtype=np.dtype(dtype).name,
-                         crs=f"EPSG:{epsg}", transform=transform, tiled=True, blockxsize=256, blockysize=256,
-                         compress="deflate", nodata=nodata)
+                         crs=f"EPSG:{epsg}", transform=transform, tiled=True, blockxsize=_TILE_PX, blockysize=_TILE_PX,
+                         nodata=nodata, bigtiff="IF_SAFER", **_compression(compress))
 
 
 def _csv(path: Path, header: list[str], rows) -> None:
@@ -107,6 +162,20 @@ class SimTruth:
         return dataclasses.asdict(self)
 
 
+@dataclasses.dataclass(frozen=True)
+class PhaseCost:
+    """What one phase of ``simulate`` cost (``aerotri.core.resources.measure``) and what it made."""
+
+    phase: str  # scene, frames, lidar, truth_rasters, other
+    wall_s: float
+    cpu_s: float
+    peak_rss_mb: float | None  # this process during the phase
+    frames: int = 0
+    megapixels: float = 0.0  # frame pixels (frames) or raster pixels (truth_rasters)
+    points: int = 0  # LiDAR points (one copy: lidar/ and truth/lidar/ hold the same points)
+    pulses: int = 0
+
+
 @dataclasses.dataclass
 class _LidarSummary:
     lines: int
@@ -121,8 +190,11 @@ class _CheckTargets:
     image_points: int  # observations of the targets in the frames
 
 
-def simulate(cfg: dict, outdir, force: bool = False) -> SimTruth:
-    """Generate the project described by preset ``cfg`` into ``outdir``; returns the truth summary."""
+def simulate(cfg: dict, outdir, force: bool = False, on_phase=None) -> SimTruth:
+    """Generate the project described by preset ``cfg`` into ``outdir``; returns the truth summary.
+
+    ``on_phase``: called with a ``PhaseCost`` after each phase (scene, frames, lidar, truth_rasters, other).
+    """
     outdir = Path(outdir)
     if outdir.exists() and any(outdir.iterdir()) and not force:
         raise InputError(f"{outdir}: output folder exists and is not empty (use --force to replace it)")
@@ -133,32 +205,50 @@ def simulate(cfg: dict, outdir, force: bool = False) -> SimTruth:
     epsg = int(cfg["crs"]["epsg"])
     origin = np.array([cfg["crs"]["origin_e_m"], cfg["crs"]["origin_n_m"], cfg["crs"]["base_height_m"]])
 
+    on_phase = on_phase or (lambda cost: None)
+
+    def done(phase, usage, **made):
+        on_phase(PhaseCost(phase, round(usage.wall_s, 2), round(usage.cpu_s, 2),
+                           None if usage.peak_rss_mb is None else round(usage.peak_rss_mb, 1), **made))
+
     layout = block_layout(cfg)
-    scene_seed = int(np.random.default_rng(s_scene).integers(0, 2**31 - 1))
-    scene = build_scene(cfg["scene"], layout.width_m, layout.height_m, origin, scene_seed)
-    accel = raycast.build_accel(scene)
-    plan = plan_frames(cfg, layout, np.random.default_rng(s_flight))
-    cam_true, cam_nominal = cameras_from_config(cfg["camera"])
-    _check_plan(plan, scene, cfg)
+    with measure() as usage:
+        scene_seed = int(np.random.default_rng(s_scene).integers(0, 2**31 - 1))
+        scene = build_scene(cfg["scene"], layout.width_m, layout.height_m, origin, scene_seed)
+        accel = raycast.build_accel(scene)
+        plan = plan_frames(cfg, layout, np.random.default_rng(s_flight))
+        cam_true, cam_nominal = cameras_from_config(cfg["camera"])
+        _check_plan(plan, scene, cfg)
+        look = raster.SceneLook(scene, texture_fine_m(cfg, cam_true))
+    done("scene", usage)
     log.info(f"scene {layout.width_m:.0f} x {layout.height_m:.0f} m: {len(scene.buildings)} buildings, "
-             f"{len(scene.tree_c)} trees, {len(scene.roads)} roads, {len(scene.ponds)} ponds, {len(scene.targets)} targets")
+             f"{len(scene.tree_c)} trees, {len(scene.roads)} roads, {len(scene.ponds)} ponds, {len(scene.targets)} targets "
+             f"({usage.wall_s:.1f} s)")
 
     with atomic_dir(outdir) as tmp:
         for sub in ("images", "lidar", "trajectory", "truth", "truth/lidar"):
             (tmp / sub).mkdir(parents=True, exist_ok=True)
-        gains = _render_frames(tmp / "images", cfg, scene, accel, plan, cam_true, s_frames)
-        t_frames = time.perf_counter()
-        log.info(f"rendered {len(plan.image_id)} frames of {cam_true.width} x {cam_true.height} px "
-                 f"in {t_frames - t_start:.1f} s")
-        log.info("LiDAR planned: {strips} strips, {pulses} pulses over {scene_km2} km2".format(**lidar_plan(cfg)))
-        lidar = _scan_lidar(tmp, cfg, layout, scene, accel, origin, epsg, s_lidar)
-        log.info(f"scanned {lidar.lines} LiDAR strips, {lidar.points} points in {time.perf_counter() - t_frames:.1f} s")
-        _write_project_files(tmp, cfg, plan, cam_true, cam_nominal, origin, epsg, gains)
-        corners = scene.roof_corners()
-        _write_truth_corners(tmp / "truth", scene, corners, origin)
-        targets = _write_check_targets(tmp / "truth", scene, accel, plan, cam_true, origin)
-        _write_truth_rasters(tmp / "truth", cfg, layout, scene, accel, origin, epsg)
-        _write_flight_acceptance(tmp / "truth", cfg, plan, cam_true, origin)
+        n_frames = len(plan.image_id)
+        with measure() as usage:
+            gains = _render_frames(tmp / "images", cfg, look, plan, cam_true, s_frames)
+        done("frames", usage, frames=n_frames, megapixels=n_frames * cam_true.width * cam_true.height / 1e6)
+        log.info(f"rendered {n_frames} frames of {cam_true.width} x {cam_true.height} px in {usage.wall_s:.1f} s")
+        planned = lidar_plan(cfg)
+        log.info("LiDAR planned: {strips} strips, {pulses} pulses over {scene_km2} km2".format(**planned))
+        with measure() as usage:
+            lidar = _scan_lidar(tmp, cfg, layout, scene, accel, origin, epsg, s_lidar)
+        done("lidar", usage, points=int(lidar.points), pulses=int(planned["pulses"]))
+        log.info(f"scanned {lidar.lines} LiDAR strips, {lidar.points} points in {usage.wall_s:.1f} s")
+        with measure() as usage:
+            megapixels = _write_truth_rasters(tmp / "truth", cfg, layout, look, origin, epsg)
+        done("truth_rasters", usage, megapixels=megapixels)
+        with measure() as usage:
+            _write_project_files(tmp, cfg, plan, cam_true, cam_nominal, origin, epsg, gains)
+            corners = scene.roof_corners()
+            _write_truth_corners(tmp / "truth", scene, corners, origin)
+            targets = _write_check_targets(tmp / "truth", scene, accel, plan, cam_true, origin)
+            _write_flight_acceptance(tmp / "truth", cfg, plan, cam_true, origin)
+        done("other", usage)
         truth = SimTruth(
             preset=cfg["preset"]["name"], seed=seed, crs=f"EPSG:{epsg}", origin_m=origin.tolist(),
             scene_width_m=layout.width_m, scene_height_m=layout.height_m,
@@ -185,22 +275,69 @@ def simulate(cfg: dict, outdir, force: bool = False) -> SimTruth:
     return truth
 
 
-def _render_frames(images_dir: Path, cfg: dict, scene, accel, plan, cam_true, s_frames) -> list[float]:
-    """Render, expose and write every frame (``images_dir/<image_id>.tif``); the exposure gain of each."""
+def texture_fine_m(cfg: dict, cam_true) -> float:
+    """Finest texture scale of the scene (``[render] texture_fine_m``, default the nominal GSD): the scene's
+    texture has structure down to this size, so a finer GSD sees finer ground texture."""
+    v = cfg["render"].get("texture_fine_m")
+    return float(v) if v else float(cam_true.gsd_m(cfg["flight"]["height_above_ground_m"]))
+
+
+def frame_layout(cfg: dict) -> dict:
+    """How frames are written: sample depth, bands and TIFF layout from ``[render]`` (``bits`` 8 or 12, ``bands``
+    rgb or pan, ``tile_px``, ``compress``)."""
+    r = cfg["render"]
+    bits = int(r.get("bits", 8))
+    tile = int(r.get("tile_px", 0))
+    return dict(bits=bits, dtype="uint8" if bits == 8 else "uint16", tile_px=tile,
+                bands=1 if r.get("bands", "rgb") == "pan" else 3,
+                compress=str(r.get("compress", "none")) if tile else "lzw (OpenCV)")
+
+
+def _render_frames(images_dir: Path, cfg: dict, look, plan, cam_true, s_frames) -> list[float]:
+    """Render, expose and write every frame (``images_dir/<image_id>.tif``); the exposure gain of each.
+
+    Frames with ``[render] tile_px`` are written as tiled TIFFs (pixel-interleaved RGB, ``compress``) a tile row
+    at a time, so a frame of any size is made in bounded memory; others whole, by OpenCV, as before.
+    """
     rcfg = cfg["render"]
-    samples = int(rcfg["samples"])
-    pixel_rays = render.PixelRays(cam_true, samples)
+    fl = frame_layout(cfg)
+    renderer = raster.FrameRenderer(look.scene, cam_true, look.fine_m, int(rcfg["samples"]), fl["bits"], look=look,
+                                    bands=fl["bands"])
     frame_seeds = s_frames.spawn(len(plan.image_id))
     gains = []
     for i in track(range(len(plan.image_id)), "frames"):
         frng = np.random.default_rng(frame_seeds[i])
-        R = rotation_matrix_opk(*plan.opk_deg[i])
-        rad, _ = render.render_frame(scene, accel, cam_true, plan.centre_m[i], R, samples, pixel_rays=pixel_rays)
         gain = float(np.exp(frng.normal(0.0, rcfg["exposure_sigma"])))
         gains.append(gain)
-        img = render.expose(rad, cam_true, gain, rcfg["vignetting"], rcfg["noise_dn"], frng)
-        cv2.imwrite(str(images_dir / f"{plan.image_id[i]}.tif"), img[:, :, ::-1])
+        expo = dict(gain=gain, vignetting=rcfg["vignetting"], noise_dn=rcfg["noise_dn"],
+                    noise_seed=int(frng.integers(0, 2**32)))
+        frame = renderer.setup(plan.centre_m[i], rotation_matrix_opk(*plan.opk_deg[i]))
+        path = images_dir / f"{plan.image_id[i]}.tif"
+        if fl["tile_px"]:
+            _write_tiled_frame(path, renderer, frame, expo, fl)
+        else:
+            img, _ = renderer.render_rows(frame, 0, cam_true.height, **expo)
+            cv2.imwrite(str(path), img[:, :, ::-1] if img.shape[2] == 3 else img[:, :, 0])
     return gains
+
+
+def _write_tiled_frame(path: Path, renderer, frame, expo: dict, fl: dict) -> None:
+    """One frame as a tiled TIFF (pixel-interleaved R, G, B, or one panchromatic band; no georeferencing, as
+    cameras deliver), rendered and written one row of tiles at a time."""
+    cam = renderer.camera
+    tile = fl["tile_px"]
+    profile = dict(driver="GTiff", width=cam.width, height=cam.height, count=fl["bands"], dtype=fl["dtype"], tiled=True,
+                   blockxsize=tile, blockysize=tile, photometric="RGB" if fl["bands"] == 3 else "MINISBLACK",
+                   interleave="pixel", bigtiff="IF_SAFER")
+    if fl["compress"] != "none":
+        profile.update(_compression(fl["compress"]))
+    with warnings.catch_warnings():
+        warnings.filterwarnings("ignore", category=rasterio.errors.NotGeoreferencedWarning)
+        with rasterio.Env(GDAL_CACHEMAX=256), rasterio.open(path, "w", **profile) as dst:
+            for r0 in range(0, cam.height, tile):
+                r1 = min(cam.height, r0 + tile)
+                rows, _ = renderer.render_rows(frame, r0, r1, **expo)
+                dst.write(np.moveaxis(rows, 2, 0), window=rasterio.windows.Window(0, r0, cam.width, r1 - r0))
 
 
 def lidar_plan(cfg: dict) -> dict:
@@ -327,10 +464,15 @@ def _write_check_targets(truth_dir: Path, scene, accel, plan, cam_true, origin) 
     return _CheckTargets(tgt, len(img_rows))
 
 
-def _write_truth_rasters(truth_dir: Path, cfg: dict, layout, scene, accel, origin, epsg: int) -> None:
-    """truth/dem.tif and truth/dsm.tif (``[truth] raster_res_m``), truth/ortho.tif (``ortho_res_m``) and on its
-    grid the land-cover truth (``aerotri.sim.landcover``): truth/ortho_nir.tif (near-infrared band) and
-    truth/classes.tif (ASPRS classes building, tree, grass, road, bare ground, water; nodata 255)."""
+def _write_truth_rasters(truth_dir: Path, cfg: dict, layout, look, origin, epsg: int) -> float:
+    """truth/dem.tif and truth/dsm.tif (``[truth] raster_res_m``), truth/ortho.tif (``ortho_res_m``; R, G, B,
+    or one band, the mean of R, G and B, for panchromatic frames) and on its grid the land-cover truth
+    (``aerotri.sim.landcover``): truth/ortho_nir.tif (near-infrared band) and truth/classes.tif (ASPRS classes
+    building, tree, grass, road, bare ground, water; nodata 255). The surface, ortho and classes are the
+    straight-down view of the scene (``raster.ortho_render``) at pixel centres; ``[truth] compress`` (default
+    deflate). Returns the megapixels of the DEM, DSM and ortho grids."""
+    scene = look.scene
+    compress = str(cfg["truth"].get("compress", "deflate"))
     res = cfg["truth"]["raster_res_m"]
     nx, ny = int(math.floor(layout.width_m / res)), int(math.floor(layout.height_m / res))
     xs = (np.arange(nx) + 0.5) * res
@@ -344,33 +486,41 @@ def _write_truth_rasters(truth_dir: Path, cfg: dict, layout, scene, accel, origi
         return scene.terrain_height(X, Y) + origin[2]
 
     def dsm_rows(r0, r1):
-        X, Y = grid(res, xs, r0, r1)
-        dsm, _, _ = render.vertical_render(scene, accel, X.ravel(), Y.ravel())
-        return np.nan_to_num(dsm.reshape(X.shape) + origin[2], nan=-9999.0)
+        z, _, _ = raster.ortho_render(look, 0.0, layout.height_m, res, r0, r1, nx, shade=False)
+        return z + origin[2]
 
-    _write_geotiff(truth_dir / "dem.tif", nx, ny, 1, np.float32, transform, epsg, dem_rows, nodata=-9999.0)
-    _write_geotiff(truth_dir / "dsm.tif", nx, ny, 1, np.float32, transform, epsg, dsm_rows, nodata=-9999.0)
+    _write_geotiff(truth_dir / "dem.tif", nx, ny, 1, np.float32, transform, epsg, dem_rows, nodata=-9999.0,
+                   compress=compress)
+    _write_geotiff(truth_dir / "dsm.tif", nx, ny, 1, np.float32, transform, epsg, dsm_rows, nodata=-9999.0,
+                   compress=compress)
     ores = cfg["truth"]["ortho_res_m"]
     onx, ony = int(math.floor(layout.width_m / ores)), int(math.floor(layout.height_m / ores))
     oxs = (np.arange(onx) + 0.5) * ores
 
     otransform = from_origin(origin[0], origin[1] + layout.height_m, ores, ores)
-    # The land-cover truth (extra files beside ortho.tif, from the same rays: ortho.tif is unchanged).
-    with _open_geotiff(truth_dir / "ortho_nir.tif", onx, ony, np.uint8, otransform, epsg) as nir_dst, \
-            _open_geotiff(truth_dir / "classes.tif", onx, ony, np.uint8, otransform, epsg,
-                          nodata=landcover.NODATA) as cls_dst:
+    # The land-cover truth (extra files beside ortho.tif, from the same view).
+    with rasterio.Env(GDAL_CACHEMAX=256), \
+            _open_geotiff(truth_dir / "ortho_nir.tif", onx, ony, np.uint8, otransform, epsg, compress=compress) as nir_dst, \
+            _open_geotiff(truth_dir / "classes.tif", onx, ony, np.uint8, otransform, epsg, nodata=landcover.NODATA,
+                          compress=compress) as cls_dst:
+        nir_out, cls_out = _TileRowWriter(nir_dst, np.uint8, band=1), _TileRowWriter(cls_dst, np.uint8, band=1)
 
         def ortho_rows(r0, r1):
             OX, OY = grid(ores, oxs, r0, r1)
-            _, rad, ids = render.vertical_render(scene, accel, OX.ravel(), OY.ravel())
-            classes, nir = landcover.classes_and_nir(ids, rad, OX.ravel(), OY.ravel(), scene)
-            window = rasterio.windows.Window(0, r0, onx, r1 - r0)
-            nir_dst.write(np.clip(np.rint(render.tone_map(nir)), 0, 255).astype(np.uint8).reshape(OX.shape), 1,
-                          window=window)
-            cls_dst.write(classes.reshape(OX.shape), 1, window=window)
-            return np.clip(np.rint(render.tone_map(rad.reshape(OX.shape + (3,)))), 0, 255).astype(np.uint8)
+            _, rad, ids = raster.ortho_render(look, 0.0, layout.height_m, ores, r0, r1, onx)
+            classes, nir = landcover.classes_and_nir(ids.ravel(), rad.reshape(-1, 3), OX.ravel(), OY.ravel(), scene)
+            nir_out.write(raster.tone8(nir.reshape(OX.shape)[..., None])[..., 0])
+            cls_out.write(classes.reshape(OX.shape))
+            if ortho_bands == 1:  # as the frames' panchromatic band: the mean of the radiance
+                return raster.tone8(((rad[..., 0] + rad[..., 1]) + rad[..., 2]) / np.float32(3.0))
+            return raster.tone8(rad)
 
-        _write_geotiff(truth_dir / "ortho.tif", onx, ony, 3, np.uint8, otransform, epsg, ortho_rows)
+        ortho_bands = frame_layout(cfg)["bands"]
+        _write_geotiff(truth_dir / "ortho.tif", onx, ony, ortho_bands, np.uint8, otransform, epsg, ortho_rows,
+                       compress=compress)
+        nir_out.close()
+        cls_out.close()
+    return (2 * nx * ny + onx * ony) / 1e6
 
 
 def _mean_spacing(L):
@@ -385,15 +535,17 @@ def _max_slope_deg(scene) -> float:
     return round(float(np.degrees(np.arctan(np.hypot(gx, gy))).max()), 1)
 
 
-def _write_flight_acceptance(truth_dir: Path, cfg: dict, plan, cam_true, origin) -> None:
+def _write_flight_acceptance(truth_dir: Path, cfg: dict, plan, cam_true, origin, dem: Path | None = None) -> None:
     """truth/flight_acceptance.json: the flown block's acceptance checks (the same library the reports
-    use) on the true orientations and the true DEM, held to the preset's tilt and kappa limits."""
+    use) on the true orientations and the true DEM (``dem``, default truth/dem.tif), held to the preset's
+    tilt and kappa limits."""
     from aerotri.adjust.flight_acceptance import Terrain, flight_acceptance
 
     f = cfg["flight"]
     limits = {"flight_tilt_max_deg": f["max_tilt_deg"], "flight_kappa_max_deg": f["max_kappa_dev_deg"]}
+    dem = dem or truth_dir / "dem.tif"
     fa = flight_acceptance(plan.image_id, plan.centre_m + origin, plan.opk_deg, cam_true,
-                           Terrain.from_dem(truth_dir / "dem.tif", float(origin[2]), source="truth/dem.tif"),
+                           Terrain.from_dem(dem, float(origin[2]), source=f"{dem.parent.name}/{dem.name}"),
                            plan.strip, limits)
     for c in fa.failed:
         log.warning(f"flight acceptance: {c['quantity']} {c['value']} {c['unit']} at {c['where']} "
@@ -437,4 +589,134 @@ truth/                              the truth: eo.txt, camera.toml (true interio
                                     roof_corners.csv, buildings.geojson, checkpoints.csv,
                                     checkpoint_image_points.csv, gnss_truth.toml, frames.csv, truth.json,
                                     flight_acceptance.json
+"""
+
+
+# ----------------------------------------------------------------------------------------------
+# Observations only: the block's geometry and its observations, no images, no LiDAR
+
+# Terrain nodes of an observations-only block at most: a larger block gets a coarser truth terrain (a 10,000
+# frame demo block, 24 x 22 km, is made at 4.6 m instead of 1 m).
+OBS_MAX_TERRAIN_NODES = 25_000_000
+
+
+@dataclasses.dataclass
+class ObservationsBlock:
+    """What ``simulate_observations`` made: the block, the observations and where the DEM is."""
+
+    frames: int
+    strips: int
+    scene_width_m: float
+    scene_height_m: float
+    terrain_res_m: float
+    dem_path: str
+    tie_points: int
+    tie_observations: int
+    control_points: int
+    check_points: int
+    control_observations: int
+
+    def to_dict(self) -> dict:
+        return dataclasses.asdict(self)
+
+
+def observations_terrain(cfg: dict, layout, seed: int):
+    """The truth terrain of an observations-only block (terrain and ponds of ``build_scene``, same random
+    stream; no roads, buildings or trees), at ``terrain_res_m`` or coarser so that it has at most
+    ``OBS_MAX_TERRAIN_NODES`` nodes. Returns a ``Scene`` holding the terrain only."""
+    from aerotri.sim.scene import Scene, _ponds, build_terrain, scene_counts
+
+    sc = scene_counts(cfg["scene"], layout.width_m, layout.height_m)
+    res = max(float(sc["terrain_res_m"]), math.sqrt(layout.width_m * layout.height_m / OBS_MAX_TERRAIN_NODES))
+    sc = dict(sc, terrain_res_m=res)
+    rng = np.random.default_rng(seed)
+    z, steep = build_terrain(sc, layout.width_m, layout.height_m, rng)
+    ponds, z, _ = _ponds(sc, z, res, layout.width_m, steep, rng)
+    return Scene(layout.width_m, layout.height_m, np.zeros(3), res, z, np.zeros((0, 3, 3)), np.zeros(0, np.int32),
+                 np.zeros(0, np.int32), np.zeros((0, 3)), np.zeros((0, 2)), np.zeros((0, 5)), ponds, np.zeros((0, 3)),
+                 np.zeros(0), [], np.zeros((0, 3)), seed, steep)
+
+
+def simulate_observations(cfg: dict, outdir, force: bool = False, *, tie_sigma_px: float | None = None,
+                          tie_points_per_frame: int | None = None, n_control: int = 4, blunder_fraction: float = 0.0,
+                          bad_control_shift_m: float = 0.0) -> ObservationsBlock:
+    """A block of any size with its tie, control and GNSS observations and a DEM of the truth terrain, from the
+    truth geometry alone (no rendering, no LiDAR): project.toml, camera.toml, gnss.txt, dem.tif (the truth
+    terrain sampled at its node spacing: the DEM to give ``aerotri adjust --dem``), at/tiepoints.csv,
+    control/points.csv, control/image_points.csv and truth/ (eo.txt, camera.toml, gnss_truth.toml,
+    frames.csv, truth.json, flight_acceptance.json, observation_blunders.json).
+
+    The flight and the terrain are those of the preset (``simulate`` makes the same terrain for a block of
+    at most ``OBS_MAX_TERRAIN_NODES`` terrain nodes); image observations by the collinearity equations of the
+    true camera (``observations.write_truth_observations``) with Gaussian noise ``tie_sigma_px``, tie points on
+    the truth terrain (about ``tie_points_per_frame`` per frame, each seen in >= 3 frames); both default to
+    the preset's ``[observations]`` (``config.OPTIONAL``).
+    """
+    from aerotri.sim.observations import write_truth_observations
+
+    outdir = Path(outdir)
+    if outdir.exists() and any(outdir.iterdir()) and not force:
+        raise InputError(f"{outdir}: output folder exists and is not empty (use --force to replace it)")
+    t_start = time.perf_counter()
+    tie_sigma_px = optional(cfg, "observations", "tie_sigma_px") if tie_sigma_px is None else tie_sigma_px
+    tie_points_per_frame = (optional(cfg, "observations", "tie_points_per_frame") if tie_points_per_frame is None
+                            else tie_points_per_frame)
+    seed = int(cfg["preset"]["seed"])
+    s_scene, s_flight, _, _ = np.random.SeedSequence(seed).spawn(4)
+    epsg = int(cfg["crs"]["epsg"])
+    origin = np.array([cfg["crs"]["origin_e_m"], cfg["crs"]["origin_n_m"], cfg["crs"]["base_height_m"]])
+    layout = block_layout(cfg)
+    scene_seed = int(np.random.default_rng(s_scene).integers(0, 2**31 - 1))
+    terrain = observations_terrain(cfg, layout, scene_seed)
+    plan = plan_frames(cfg, layout, np.random.default_rng(s_flight))
+    cam_true, cam_nominal = cameras_from_config(cfg["camera"])
+    _check_plan(plan, terrain, cfg)
+    log.info(f"block of {len(plan.image_id)} frames over {layout.width_m / 1000:.1f} x {layout.height_m / 1000:.1f} km, "
+             f"truth terrain at {terrain.terrain_res_m:.2f} m")
+    with atomic_dir(outdir) as tmp:
+        (tmp / "truth").mkdir(parents=True, exist_ok=True)
+        _write_project_files(tmp, cfg, plan, cam_true, cam_nominal, origin, epsg, [1.0] * len(plan.image_id))
+        res = terrain.terrain_res_m
+        nx, ny = int(math.floor(layout.width_m / res)), int(math.floor(layout.height_m / res))
+        xs = (np.arange(nx) + 0.5) * res
+
+        def dem_rows(r0, r1):
+            X, Y = np.meshgrid(xs, layout.height_m - (np.arange(r0, r1) + 0.5) * res)
+            return terrain.terrain_height(X, Y) + origin[2]
+
+        _write_geotiff(tmp / "dem.tif", nx, ny, 1, np.float32, from_origin(origin[0], origin[1] + layout.height_m, res, res),
+                       epsg, dem_rows, nodata=-9999.0, compress=str(cfg["truth"].get("compress", "deflate")))
+        _write_flight_acceptance(tmp / "truth", cfg, plan, cam_true, origin, dem=tmp / "dem.tif")
+        summary = write_truth_observations(tmp, tie_sigma_px=tie_sigma_px, n_control=n_control,
+                                           blunder_fraction=blunder_fraction, bad_control_shift_m=bad_control_shift_m,
+                                           seed=seed, tie_points_per_frame=tie_points_per_frame,
+                                           dem=tmp / "dem.tif", interpolation="bilinear")
+        block = ObservationsBlock(
+            frames=len(plan.image_id), strips=int(cfg["flight"]["strips"]), scene_width_m=layout.width_m,
+            scene_height_m=layout.height_m, terrain_res_m=res, dem_path=str(outdir / "dem.tif"),
+            tie_points=summary["n_tie_points"], tie_observations=summary["n_tie_observations"],
+            control_points=summary["n_control"], check_points=summary["n_check"],
+            control_observations=summary["n_control_observations"])
+        truth = dict(preset=cfg["preset"]["name"], seed=seed, crs=f"EPSG:{epsg}", origin_m=origin.tolist(),
+                     observations_only=True, gsd_m=cam_true.gsd_m(cfg["flight"]["height_above_ground_m"]),
+                     flying_height_above_ground_m=cfg["flight"]["height_above_ground_m"],
+                     frames_per_strip=int(cfg["flight"]["frames_per_strip"]), image_width_px=cam_true.width,
+                     image_height_px=cam_true.height, pixel_um=cam_true.pixel_um, base_m=layout.base_m,
+                     strip_spacing_m=layout.strip_spacing_m, **block.to_dict())
+        (tmp / "truth" / "truth.json").write_text(json.dumps(truth, indent=2, sort_keys=True) + "\n")
+        (tmp / "README.txt").write_text(_README_OBS.format(**truth))
+    log.info(f"wrote {outdir} in {time.perf_counter() - t_start:.1f} s")
+    return block
+
+
+_README_OBS = """Simulated block "{preset}" (aerotri sim --observations-only, seed {seed}), CRS {crs}, ellipsoidal heights.
+No images and no LiDAR: the observations come straight from the truth geometry.
+
+project.toml camera.toml gnss.txt   project settings, nominal camera, GNSS antenna positions (with errors)
+dem.tif                             the truth terrain at {terrain_res_m:.2f} m (aerotri adjust --dem dem.tif)
+at/tiepoints.csv                    {tie_observations} image observations of {tie_points} tie points
+control/                            points.csv ({control_points} control, {check_points} check points), image_points.csv
+truth/                              eo.txt, camera.toml (true interior orientation), gnss_truth.toml, frames.csv,
+                                    truth.json, flight_acceptance.json, observation_blunders.json
+{frames} frames of {image_width_px} x {image_height_px} px in {strips} strips, GSD {gsd_m:.3f} m.
 """

@@ -274,7 +274,7 @@ def _building_height(cfg, rng) -> float:
 
 def _ponds(cfg: dict, z: np.ndarray, res: float, width_m: float, steep: tuple[float, float], rng):
     """Flat water surfaces set into the terrain of the urban/rural flats: (P, 6) ponds, the terrain with the
-    ponds and their banks, the pond outlines."""
+    ponds and their banks (``z`` changed in place), the pond outlines."""
     margin = cfg["urban_margin_m"]
     ponds = []
     for _ in range(cfg["ponds"]):
@@ -285,19 +285,27 @@ def _ponds(cfg: dict, z: np.ndarray, res: float, width_m: float, steep: tuple[fl
         ponds.append([cx, cy, a, b, ang, 0.0])
     ponds = np.array(ponds, dtype=float).reshape(-1, 6)
     ny, nx = z.shape
-    yy, xx = np.mgrid[0:ny, 0:nx] * res
     for p in ponds:
         cx, cy, a, b, ang = p[:5]
+        # Only nodes within the banks change: work on the box that holds the ellipse grown by the 8 m bank.
+        # (The whole-grid blend this replaces also rounded far nodes by at most an ulp, min(z, level + (z -
+        # level)); leaving them alone gives byte-identical demo and tiny projects and costs nothing per pond.)
+        reach = max(a, b) * (1.0 + 8.0 / min(a, b)) + 2.0 * res
+        i0, i1 = max(0, int((cy - reach) / res)), min(ny, int((cy + reach) / res) + 2)
+        j0, j1 = max(0, int((cx - reach) / res)), min(nx, int((cx + reach) / res) + 2)
+        yy, xx = np.mgrid[i0:i1, j0:j1] * res
+        zz = z[i0:i1, j0:j1]
         dx, dy = xx - cx, yy - cy
         u = (dx * math.cos(ang) + dy * math.sin(ang)) / a
         v = (-dx * math.sin(ang) + dy * math.cos(ang)) / b
         inside = u * u + v * v <= 1.0
-        level = np.percentile(z[inside], 20) - 0.3
+        level = np.percentile(zz[inside], 20) - 0.3
         p[5] = level
         # Banks: blend the terrain down to the water level over 8 m outside the shore.
         d = np.sqrt(u * u + v * v)
         shore = np.clip((d - 1.0) * min(a, b) / 8.0, 0.0, 1.0)
-        z = np.where(inside, level, np.minimum(z, level + shore * (z - level) + 0.0))
+        box = np.where(inside, level, np.minimum(zz, level + shore * (zz - level) + 0.0))
+        z[i0:i1, j0:j1] = box
     pond_polys = [
         shapely.affinity.rotate(shapely.affinity.scale(Point(p[0], p[1]).buffer(1.0, 32), p[2], p[3]),
                                 p[4], origin=(p[0], p[1]), use_radians=True)
@@ -323,6 +331,20 @@ def _place_buildings(cfg: dict, ground: Scene, urban: Polygon, blocked, rng) -> 
     attempts = 0
     n_target = cfg["buildings"]
     shapes = ("rectangle", "L", "courtyard")
+    shapely.prepare(blocked)
+    # placed footprints by 100 m cell: the gap test looks at the footprints whose box meets the candidate's
+    # (the same decisions as testing every footprint)
+    cells: dict[tuple[int, int], list[int]] = {}
+    cell = 100.0
+
+    def near(bounds):
+        seen = set()
+        for i in range(int(bounds[1] // cell), int(bounds[3] // cell) + 1):
+            for j in range(int(bounds[0] // cell), int(bounds[2] // cell) + 1):
+                for k in cells.get((i, j), ()):
+                    if k not in seen:
+                        seen.add(k)
+                        yield k
     while len(out.buildings) < n_target and attempts < n_target * 60:
         attempts += 1
         shape = shapes[rng.choice(3, p=cfg["shape_weights"])]
@@ -339,7 +361,8 @@ def _place_buildings(cfg: dict, ground: Scene, urban: Polygon, blocked, rng) -> 
         fp = _place(fp0, rot, cx, cy)
         if not urban.contains(fp.buffer(3.0)) or fp.buffer(2.0).intersects(blocked):
             continue
-        if any(fp.buffer(cfg["building_gap_m"]).intersects(o) for o in out.footprints):
+        grown = fp.buffer(cfg["building_gap_m"])
+        if any(grown.intersects(out.footprints[k]) for k in sorted(near(grown.bounds))):
             continue
         roof = "flat"
         if shape == "rectangle" and rng.random() < cfg["pitched_fraction"]:
@@ -358,6 +381,10 @@ def _place_buildings(cfg: dict, ground: Scene, urban: Polygon, blocked, rng) -> 
         b = Building(len(out.buildings) + 1, fp, outline, shape, roof, base, eave_z, ridge_z, eave, (L, W))
         t, k = _building_triangles(b, rot, (cx, cy), pitch)
         out.buildings.append(b)
+        x0, y0, x1, y1 = fp.bounds
+        for i in range(int(y0 // cell), int(y1 // cell) + 1):
+            for j in range(int(x0 // cell), int(x1 // cell) + 1):
+                cells.setdefault((i, j), []).append(len(out.footprints))
         out.footprints.append(fp)
         out.tris.extend(t)
         out.kinds.extend(k)
@@ -370,6 +397,7 @@ def _plant_trees(cfg: dict, ground: Scene, no_tree, steep: tuple[float, float], 
     roads, water): crown centres (K, 3) and semi-axes (K, 2)."""
     width_m, height_m = ground.width_m, ground.height_m
     centres, axes = [], []
+    shapely.prepare(no_tree)
 
     def try_tree(x, y, crown_r, height):
         if not (2 <= x <= width_m - 2 and 2 <= y <= height_m - 2):
@@ -404,6 +432,7 @@ def _place_targets(cfg: dict, ground: Scene, clutter, rng) -> tuple[np.ndarray, 
     width_m, height_m = ground.width_m, ground.height_m
     targets, tz = [], []
     radius = cfg["target_radius_m"]
+    shapely.prepare(clutter)
     tries = 0
     while len(targets) < cfg["check_targets"] and tries < 20000:
         tries += 1
@@ -422,12 +451,38 @@ def _place_targets(cfg: dict, ground: Scene, clutter, rng) -> tuple[np.ndarray, 
     return np.array(targets, dtype=float).reshape(-1, 3), np.array(tz)
 
 
+COUNT_KEYS = ("ponds", "buildings", "single_trees", "tree_clusters", "bushes", "check_targets")
+
+
+def scene_counts(cfg: dict, width_m: float, height_m: float) -> dict:
+    """The ``[scene]`` table with its object counts for a scene of this size.
+
+    With ``counts_for_m = [width, height]`` the counts (ponds, buildings, trees, bushes, targets) are those of
+    a scene of that size and scale with the area of this one, the slope trees with its width (the valley
+    side runs across the scene): a flight made larger with ``--set`` flies over a larger town, not over the
+    same town spread thin. Without it (or for that very size) the counts are used as they are.
+    """
+    ref = cfg.get("counts_for_m")
+    if not ref:
+        return cfg
+    area = (width_m * height_m) / (float(ref[0]) * float(ref[1]))
+    width = width_m / float(ref[0])
+    if abs(area - 1.0) < 1e-9 and abs(width - 1.0) < 1e-9:
+        return cfg
+    out = dict(cfg)
+    for key in COUNT_KEYS:
+        out[key] = int(round(cfg[key] * area))
+    out["slope_trees"] = int(round(cfg["slope_trees"] * width))
+    return out
+
+
 def build_scene(cfg: dict, width_m: float, height_m: float, origin_m, seed: int) -> Scene:
-    """Generate the whole scene from the ``[scene]`` preset table.
+    """Generate the whole scene from the ``[scene]`` preset table (counts by ``scene_counts``).
 
     One random stream, drawn in a fixed order (terrain, ponds, roads, buildings, trees, targets, roof
     colours): the same seed gives the same scene.
     """
+    cfg = scene_counts(cfg, width_m, height_m)
     rng = np.random.default_rng(seed)
     res = cfg["terrain_res_m"]
     z, steep = build_terrain(cfg, width_m, height_m, rng)

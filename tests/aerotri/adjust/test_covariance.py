@@ -13,7 +13,7 @@ from aerotri.adjust.pipeline import AdjustSettings, prepare_project
 from aerotri.sim.observations import geometric_block, write_block_project, write_truth_observations
 
 
-def test_reduced_covariance_matches_gtsam_marginals(tmp_path):
+def test_reduced_covariance_matches_gtsam_marginals(tmp_path, monkeypatch):
     block = geometric_block(2, 5, seed=41)
     root = write_block_project(block, tmp_path / "blk")
     write_truth_observations(root, tie_sigma_px=0.3, n_control=4, points_per_image=50, n_check=2, seed=42)
@@ -33,9 +33,23 @@ def test_reduced_covariance_matches_gtsam_marginals(tmp_path):
         assert np.allclose(rc.marginalCovariance(G.X(i)), marg.marginalCovariance(G.X(i)), rtol=1e-5, atol=1e-12)
     assert np.allclose(rc.marginalCovariance(G.K_KEY), marg.marginalCovariance(G.K_KEY), rtol=1e-5, atol=1e-14)
     cov = point_covariances(b, st, act, opts.image_sigma_px, rc, self_cal=True)
+    # linearised in chunks of whole points (a 10,000-frame block's rays do not fit at once): the same covariances
+    np.testing.assert_allclose(point_covariances(b, st, act, opts.image_sigma_px, rc, self_cal=True, chunk=37), cov,
+                               rtol=1e-9, atol=1e-15)
     for j in list(range(0, b.n_points, max(1, b.n_points // 15))) + list(b.control_point):
         ref = marg.marginalCovariance(G.P(j))
         assert np.allclose(cov[j], ref, rtol=2e-3, atol=1e-9 * np.abs(ref).max()), j
+    # the modes of the heights, the rays taken in chunks or at once
+    from aerotri.adjust import covariance
+    from aerotri.adjust.geometry_modes import geometry_modes
+
+    ctrl = np.ones(len(b.control_point), bool)
+    whole, _ = geometry_modes(b, opts, st, act, ctrl, rc, 1.0)
+    monkeypatch.setattr(covariance, "RAY_CHUNK", 53)
+    chunked, _ = geometry_modes(b, opts, st, act, ctrl, rc, 1.0)
+    for m0, m1 in zip(whole, chunked):
+        assert m0.mode == m1.mode and np.isclose(m0.sigma_m, m1.sigma_m, rtol=1e-9)
+        assert all(np.isclose(m0.shares[k], m1.shares[k], rtol=1e-7, atol=1e-12) for k in m0.shares)
 
 
 @pytest.mark.parametrize("single_thread", [False, True])

@@ -344,3 +344,27 @@ def test_surface_residuals_are_metres_in_a_foot_crs():
     assert e[0] == pytest.approx(10.0 * ft, rel=1e-6) and sigma[0] == pytest.approx(0.15)
     assert J[0] @ np.array([0.0, 0.0, 1.0]) == pytest.approx(1.0, abs=1e-3)  # a metre up is a metre of residual
     assert sc.candidates(p)[0]  # 0.61 m above the ground: below the 1 m limit
+
+
+def test_a_dem_larger_than_the_memory_budget_is_read_averaged(tmp_path, monkeypatch):
+    """A DEM window of more cells than MAX_GRID_CELLS is read averaged over whole f x f cells (square cells, the
+    window's corner kept), float32 as in the file: memory bounded by the budget, not by the DEM."""
+    from rasterio.transform import from_origin
+
+    from aerotri.adjust import surface
+    from aerotri.geom.crs import parse_crs
+
+    z = (np.arange(300)[:, None] * 0.1 + np.arange(200)[None, :] * 0.05).astype(np.float32)  # a plane
+    path = tmp_path / "dem.tif"
+    with rasterio.open(path, "w", driver="GTiff", width=200, height=300, count=1, dtype="float32", crs="EPSG:32649",
+                       transform=from_origin(420000.0, 3380000.0, 1.0, 1.0), nodata=-9999.0) as ds:
+        ds.write(z, 1)
+    full = surface.read_height_grid(path, parse_crs("EPSG:32649", "crs"))
+    assert full.z.dtype == np.float32 and full.z.shape == (300, 200) and full.res == 1.0
+    monkeypatch.setattr(surface, "MAX_GRID_CELLS", 10_000)
+    coarse = surface.read_height_grid(path, parse_crs("EPSG:32649", "crs"))
+    assert coarse.res == 3.0 and coarse.z.shape == (100, 66)  # f = ceil(sqrt(60000 / 10000)) = 3
+    assert (coarse.x0, coarse.y0) == (full.x0, full.y0)
+    x, y = 420000.0 + np.array([50.2, 120.7]), 3380000.0 - np.array([80.4, 200.9])
+    # a plane averaged is the same plane: the coarse grid samples it as the full one does
+    np.testing.assert_allclose(coarse.sample(x, y)[0], full.sample(x, y)[0], atol=1e-4)

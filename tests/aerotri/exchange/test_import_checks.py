@@ -158,3 +158,35 @@ def test_measurements_of_points_that_are_no_control(tmp_path):
                    "</MesureAppuiFlottant1Im></SetOfMesureAppuisFlottants>")
     _refused(root, "micmac", [gcp, mes], "measurements of point(s) g7 that are not control points in gcp.xml")
     _refused(root, "micmac", [mes], "image measurements of points no control file names")
+
+
+def test_control_of_any_format_with_unmeasured_heights_is_plan_only():
+    """All heights 0 (or one number for 3 or more points) in any importer's control: full points horizontal,
+    height-only points dropped, a note; --heights-measured keeps them; surveyed heights stay as they are."""
+    import numpy as np
+
+    from aerotri.exchange.import_checks import plan_only_when_unmeasured
+    from aerotri.exchange.imported import ImportedBlock
+    from aerotri.geom.observations import ControlPoints
+
+    def block(z):
+        ids = np.array(["a", "b", "c", "d"], dtype=object)
+        kind = np.array(["full", "full", "height", "horizontal"], dtype=object)
+        xyz = np.column_stack([[1.0, 2.0, 3.0, 4.0], [5.0, 6.0, 7.0, 8.0], z])
+        b = ImportedBlock(source=["x.con"])
+        b.control = ControlPoints(ids, kind, xyz, np.ones((4, 3)))
+        return b
+
+    b = block([0.0, 0.0, 0.0, 0.0])
+    plan_only_when_unmeasured(b, False, "patb")
+    assert list(b.control.id) == ["a", "b", "d"] and set(b.control.kind) == {"horizontal"}
+    assert "all 3 heights are 0" in b.notes[-1] and "--heights-measured" in b.notes[-1]
+    b = block([12.5, 12.5, 12.5, 0.0])
+    plan_only_when_unmeasured(b, False, "patb")
+    assert "all 3 heights are 12.5" in b.notes[-1]
+    b = block([0.0, 0.0, 0.0, 0.0])
+    plan_only_when_unmeasured(b, True, "patb")
+    assert list(b.control.kind) == ["full", "full", "height", "horizontal"] and not b.notes
+    b = block([10.1, 12.4, 9.8, 0.0])
+    plan_only_when_unmeasured(b, False, "patb")
+    assert list(b.control.kind) == ["full", "full", "height", "horizontal"] and not b.notes
