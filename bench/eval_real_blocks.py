@@ -508,6 +508,7 @@ def main(argv=None) -> int:
         work.mkdir(parents=True, exist_ok=True)
     res = json.loads(a.out.read_text()) if a.out.is_file() else {}
     res.setdefault("data_sets", {})
+    res.pop("code", None)  # each data set records the commit it ran at
     runs = {"ngi": eval_ngi, "tuniu": eval_tuniu, "brighton": eval_brighton, "kite": eval_kite, "lidar": eval_lidar}
     for name in only:
         w = work / name
@@ -517,14 +518,14 @@ def main(argv=None) -> int:
         load0 = os.getloadavg()
         got = runs[name](a.data.resolve(), w)
         entries = got if name == "lidar" else {got.pop("data"): got}
+        code = subprocess.run(["git", "-C", str(REPO), "rev-parse", "--short", "HEAD"], capture_output=True, text=True)
         for key, entry in entries.items():
+            entry["code"] = code.stdout.strip() or None
             entry["figure"] = figure(key, entry)
             entry["load_average_before_after"] = [[round(v, 1) for v in load0], [round(v, 1) for v in os.getloadavg()]]
             res["data_sets"][key] = entry
         a.out.parent.mkdir(parents=True, exist_ok=True)
         a.out.write_text(json.dumps(res, indent=1) + "\n")  # after each set: a long run keeps what it finished
-    commit = subprocess.run(["git", "-C", str(REPO), "rev-parse", "--short", "HEAD"], capture_output=True, text=True)
-    res["code"] = commit.stdout.strip() or None
     for key, e in res["data_sets"].items():
         e["figure"] = figure(key, e)
     res["machine_note"] = (f"{os.cpu_count()} cores shared with other jobs: wall seconds depend on the load (given per "

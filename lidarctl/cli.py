@@ -406,7 +406,8 @@ def contours(dem_path, out_path, interval, index_every, smoothing, tolerance_px,
     from lidarctl.contours import contours_from_file
 
     s = contours_from_file(dem_path, out_path, interval, index_every, smoothing, tolerance_px, tension, png)
-    span = (f" from {s['lowest_level']:g} to {s['highest_level']:g} {s['unit']}" if s["levels"] else "")
+    # + 0.0: a level of -0.0 (a multiple of the interval reached from below) is written 0, not -0
+    span = (f" from {s['lowest_level'] + 0.0:g} to {s['highest_level'] + 0.0:g} {s['unit']}" if s["levels"] else "")
     click.echo(f"{out_path}: {s['contours']} contours on {s['levels']} levels every {s['interval']:g} {s['unit']} "
                f"(the DEM's height unit){span} ({s['closed']} closed, "
                f"{s['index_contours']} index), smoothing {s['smoothing']} ({s['fell_back_to_traced']} kept traced "

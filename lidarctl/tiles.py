@@ -748,7 +748,7 @@ def classify_command(in_paths, out_path, keep_classes: bool = False, method: str
         else:
             stats = classify_file(in_paths[0], out_path, executor=executor, **common)
         described = executor.describe()
-    counts = {cl.CLASS_NAMES.get(c, str(c)): k for c, k in stats.run.class_counts.items()}
+    counts = ", ".join(f"{cl.CLASS_NAMES.get(c, str(c))} {k:,}" for c, k in stats.run.class_counts.items())
     n, dt, u = stats.n_points, stats.seconds, stats.units
     what = f"{out_path}: {n} points" + (f" of {stats.n_files} strips" if to_folder else "")
     if params.keep_classes:

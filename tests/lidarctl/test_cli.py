@@ -27,6 +27,8 @@ def test_classify_evaluate_rasters_round_trip(scene):
     d, cloud, truth = scene
     r = CliRunner().invoke(main, ["classify", str(d / "in.laz"), str(d / "out.laz")])
     assert r.exit_code == 0, r.output
+    # the class counts in words and numbers, not a Python dict
+    assert "{'" not in r.output and f"ground {int(np.sum(laspy.read(d / 'out.laz').classification == 2)):,}" in r.output
     out = laspy.read(d / "out.laz")
     assert len(out.points) == len(cloud)
     assert out.header.parse_crs().to_epsg() == 32632

@@ -190,3 +190,13 @@ def test_interval_too_fine_for_the_data_is_refused_fast(tmp_path):
     with pytest.raises(OptionError, match="at least") as e:
         trace(z, t, 1e-310, 5)
     assert e.value.param == "--interval"
+
+
+def test_a_zero_level_reached_from_below_is_written_0(tmp_path):
+    """AHN3 Delft (heights NAP, -0.6 to 3.4 m): the command said "from -0 to 3 m"."""
+    z, t = _dem(nodata_band=False)
+    z_ft = -0.6 + (z - np.nanmin(z)) * 4.0 / (np.nanmax(z) - np.nanmin(z))
+    dem = _feet_dem(tmp_path / "dem_ft.tif", z_ft, t)
+    r = CliRunner().invoke(main, ["contours", str(dem), str(tmp_path / "c.gpkg"), "--interval", "1", "--no-png"])
+    assert r.exit_code == 0, r.output
+    assert "from 0 to 3 ft" in r.output and "-0" not in r.output
