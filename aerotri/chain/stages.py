@@ -116,8 +116,8 @@ class Chain:
         return self.options.adjust.use_gnss and self.project.gnss_path.is_file()
 
     def dem_path(self) -> Path | None:
-        """The DEM of the orthophotos: --dem, else [rectify] dem, else the LiDAR stages' DEM, else (a block without
-        GNSS) the DEM of the adjusted tie points."""
+        """The DEM of the orthophotos: --dem, else [rectify] dem, else the LiDAR stages' DEM, else the DEM of the
+        adjusted tie points."""
         if self.dem is not None:
             return Path(self.dem)
         if self.options.rectify.dem is not None:
@@ -131,16 +131,13 @@ class Chain:
         return self.project.at_dir / "dem.tif"
 
     def tie_point_dem(self) -> bool:
-        """A DEM from the adjusted tie points carries the orthophotos: a block without GNSS (and no initial EO), no
-        LiDAR, no DEM given."""
-        return (self.dem is None and self.options.rectify.dem is None and not self.has_lidar and not self.has_gnss
-                and self.options.adjust.initial_eo is None)
+        """A DEM from the adjusted tie points carries the orthophotos when the project has no LiDAR and no DEM is
+        given (a drone block with EXIF GNSS, a kite block)."""
+        return self.dem is None and self.options.rectify.dem is None and not self.has_lidar
 
     def no_tie_point_dem(self, root=None) -> str | None:
         if self.tie_point_dem():
             return None
-        if self.has_gnss or self.options.adjust.initial_eo is not None:
-            return "a block with GNSS or given orientations: the DEM comes from LiDAR or from elsewhere"
         return "a DEM is given or made from LiDAR"
 
     def no_lidar(self, root=None) -> str | None:
@@ -557,7 +554,7 @@ class Chain:
 
         s = write_points_dem(root, self.tie_point_dem_path)
         return dict(res_m=s["res_m"], points=s["points"], cells_measured=s["cells_measured"],
-                    notes=["no GNSS, LiDAR or given DEM: the orthophotos on the DEM of the adjusted tie points "
+                    notes=["no LiDAR or given DEM: the orthophotos on the DEM of the adjusted tie points "
                            f"({self.tie_point_dem_path})"])
 
     # -- orthophotos ----------------------------------------------------------------------------

@@ -12,6 +12,8 @@ import sys
 from pathlib import Path
 
 import numpy as np
+import rasterio
+import rasterio.transform
 import pytest
 from click.testing import CliRunner
 
@@ -151,30 +153,38 @@ def test_run_goes_to_the_end_and_equals_the_chain_by_hand(by_hand, tiny_project,
     assert r.exit_code == 0 and " done " not in r.stdout
 
 
-def test_run_without_lidar_stops_after_the_adjustment_or_uses_a_dem_from_elsewhere(tiny_project, tmp_path):
+def test_run_without_lidar_makes_the_tie_point_dem_or_uses_a_dem_from_elsewhere(tiny_project, tmp_path):
     p = tmp_path / "p"
     shutil.copytree(tiny_project, p, ignore=shutil.ignore_patterns("lidar"))
     (tmp_path / "elsewhere").mkdir()
     shutil.copy(tiny_project / "truth" / "dem.tif", tmp_path / "elsewhere" / "dem.tif")  # a DEM from another source
     r = CliRunner().invoke(aerotri_cli, ["run", str(p)], catch_exceptions=False)
     assert r.exit_code == 0, r.output
-    assert "stopped after the adjustment: no DEM" in r.stderr and "[rectify] dem" in r.stderr
     for stage in ("strips", "classify", "rasters", "corners", "adjust_first", "control"):
         assert f"{stage:<18} skipped" in r.stdout, stage
-    assert "no LiDAR strips" in r.stdout
-    assert (p / "at" / "eo.txt").is_file() and not (p / "ortho").exists()
+    assert "no LiDAR strips" in r.stdout and "stopped after" not in r.stderr
     eo, truth = read_eo(p / "at" / "eo.txt"), read_eo(p / "truth" / "eo.txt")
     assert np.abs(eo.centre_m - truth.centre_m).max() < 2.0  # GNSS alone carries the datum
-    # the DEM given in project.toml: the orthophotos follow, nothing before them runs again
+    # a GNSS block without LiDAR or a DEM: the orthophotos on the DEM of the adjusted tie points
+    index = json.loads((p / "ortho" / "frames" / "index.json").read_text())
+    assert Path(index["dem"]).resolve() == (p / "at" / "dem.tif").resolve()
+    assert (p / "ortho" / "mosaic.tif").is_file()
+    with rasterio.open(p / "at" / "dem.tif") as tie, rasterio.open(p / "truth" / "dem.tif") as true:
+        z_tie = tie.read(1, masked=True)
+        rows, cols = np.nonzero(~np.ma.getmaskarray(z_tie))
+        x, y = rasterio.transform.xy(tie.transform, rows, cols)
+        z_true = np.array([v[0] for v in true.sample(zip(x, y))])
+    # the tie points lie on the surface (roofs, trees) the truth DEM leaves out: the median, not every cell
+    assert rows.size > 100 and abs(np.median(z_tie.compressed() - z_true)) < 1.0
+    # the DEM given in project.toml: the orthophotos follow on it, nothing before them runs again
     with open(p / "project.toml", "a") as f:
         f.write('\n[rectify]\ndem = "../elsewhere/dem.tif"\n')
     r = CliRunner().invoke(aerotri_cli, ["run", str(p)], catch_exceptions=False)
     assert r.exit_code == 0, r.output
     assert "match              skipped (up to date)" in r.stdout
-    assert (p / "ortho" / "mosaic.tif").is_file()
+    assert "dem                skipped" in r.stdout
     index = json.loads((p / "ortho" / "frames" / "index.json").read_text())
     assert Path(index["dem"]).resolve() == (tmp_path / "elsewhere" / "dem.tif").resolve()
-    assert "stopped after" not in r.stderr
 
 
 def test_strip_stage_skips_a_single_strip_and_adjusts_when_asked(tiny_project, tmp_path):
