@@ -30,6 +30,8 @@ def test_wheel_file_list(wheel):
         assert any(n.endswith(f"data/share/aerotri/presets/{preset}.toml") for n in names), preset
     for scale in ("1to2000", "1to5000", "1to10000"):
         assert f"aerotri/core/tolerance_tables/cn_{scale}.toml" in names
+    for std in ("asprs2023", "usgs_lbs", "cn_at"):  # the standards of the compliance section
+        assert f"aerotri/qa/standards/{std}.toml" in names
     assert any(n.endswith("dist-info/licenses/LICENSE") for n in names)
     for pkg in ("aerotri/core/errors.py", "aerotri/geom/transform.py", "lidarctl/cli.py", "ortho/cli.py"):
         assert pkg in names
