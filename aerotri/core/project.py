@@ -95,15 +95,24 @@ class QaSettings:
     tolerances: Path | None = setting(None, path=True, help="Your own tolerance table (TOML, the layout of "
                                                             "aerotri/core/tolerance_tables/cn_*.toml).")
     pdf: bool = setting(False, help="Also write reports/report.pdf.")
-    standard: str | None = setting(None, choices=("asprs2023", "cn"),
-                                   help="Standard of the tolerance table: asprs2023 (classes by GSD unless given) or "
-                                        "cn (map-scale tables); default by the block's GSD and platform.")
+    standard: str | None = setting(None, choices=("asprs2023", "usgs-lbs", "cn-at", "thesis", "cn"),
+                                   help="Standard of the report: asprs2023 (classes by GSD unless given), usgs-lbs "
+                                        "(LiDAR quality levels), cn-at (Chinese AT specifications by map scale), thesis "
+                                        "(the map-scale tables; cn is its old name); default by the block's GSD and "
+                                        "platform (docs/standards.md).")
     platform: str | None = setting(None, choices=("manned", "uas"),
                                    help="manned or uas (default: from the flying height above ground).")
     horizontal_class_cm: float | None = setting(None, min=0.0, min_open=True,
                                                 help="ASPRS 2023 horizontal accuracy class (RMSE_H, cm).")
     vertical_class_cm: float | None = setting(None, min=0.0, min_open=True,
                                               help="ASPRS 2023 vertical accuracy class (RMSE_V, cm).")
+    accuracy_class: str | None = setting(None, help="Class tested by the compliance section: 'H7.1 V10' (asprs2023, "
+                                                    "cm), QL0-QL3 (usgs-lbs), a map scale 1:500-1:10000 (cn-at, thesis).")
+    survey_sigma_xy_m: float | None = setting(None, min=0.0, min_open=True,
+                                              help="Survey accuracy (per-axis sigma) of the check points of the DOM, line "
+                                                   "map and LiDAR checks (ASPRS 2023 includes it in the product figure).")
+    survey_sigma_z_m: float | None = setting(None, min=0.0, min_open=True,
+                                             help="Survey accuracy (sigma) of the heights of those check points.")
 
 
 # The project sections: read when the project is opened. [control] is shared with the control stage.

@@ -304,6 +304,9 @@ def choose_table(cfg: QaConfig, block: BlockScale | None = None, *, scale: str |
     h_cm = horizontal_class_cm or cfg.horizontal_class_cm
     v_cm = vertical_class_cm or cfg.vertical_class_cm
     std = standard or (None if scale else cfg.standard)
+    # the report's compliance standards (aerotri/qa/compliance.py) map onto the table families: the Chinese ones
+    # onto the map-scale tables, the LiDAR specification onto none (chosen by the block)
+    std = {"cn-at": "cn", "thesis": "cn", "usgs-lbs": None}.get(std, std)
     given_scale = scale or (None if standard else cfg.map_scale)
     file = tolerance_file or (None if (scale or standard) else cfg.tolerances)
 

@@ -9,13 +9,15 @@ import click
 from aerotri.core.commands import Command
 from aerotri.core.project import QaSettings
 from aerotri.core.settings import click_option
-from aerotri.core.tolerances import SCALE_TABLES, STANDARDS, TERRAINS
+from aerotri.core.tolerances import SCALE_TABLES, TERRAINS
+from aerotri.qa.standards import STANDARD_KEYS
 
 
 @click.command(cls=Command, name="report")
 @click.argument("project", type=click.Path(file_okay=False, exists=True, path_type=Path))
-@click_option(QaSettings, "standard", "--standard", type=click.Choice(list(STANDARDS)), default=None,
+@click_option(QaSettings, "standard", "--standard", type=click.Choice([*STANDARD_KEYS, "cn"]), default=None,
               show_default=False)
+@click_option(QaSettings, "accuracy_class", "--class", default=None, show_default=False)
 @click_option(QaSettings, "map_scale", "--scale", type=click.Choice(list(SCALE_TABLES)), default=None,
               show_default=False)
 @click_option(QaSettings, "horizontal_class_cm", "--horizontal-class-cm", default=None, show_default=False)
@@ -23,12 +25,13 @@ from aerotri.core.tolerances import SCALE_TABLES, STANDARDS, TERRAINS
 @click_option(QaSettings, "terrain", "--terrain", type=click.Choice(list(TERRAINS)), default=None, show_default=False)
 @click_option(QaSettings, "tolerances", "--tolerances", type=click.Path(dir_okay=False, exists=True, path_type=Path))
 @click_option(QaSettings, "pdf", "--pdf/--no-pdf", default=None, show_default=False)
-def report(project, standard, map_scale, horizontal_class_cm, vertical_class_cm, terrain, tolerances, pdf):
+def report(project, standard, accuracy_class, map_scale, horizontal_class_cm, vertical_class_cm, terrain, tolerances, pdf):
     """LiDAR, control, adjustment and DOM accuracy against the block's tolerance table (named with why it
-    was chosen; docs/tolerances.md): reports/index.html, reports/summary.json (and reports/report.pdf)."""
+    was chosen; docs/tolerances.md), and each product's compliance with a standard and class (--standard,
+    --class; docs/standards.md): reports/index.html, reports/summary.json (and reports/report.pdf)."""
     from aerotri.qa.report import console_summary, write_qa_report
 
     # an option not given is None: [qa] of project.toml decides, else the block's GSD and platform
     rep = write_qa_report(project, tolerances, terrain, map_scale, pdf, standard, horizontal_class_cm,
-                          vertical_class_cm)
+                          vertical_class_cm, accuracy_class)
     click.echo(console_summary(rep))

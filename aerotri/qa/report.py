@@ -30,6 +30,7 @@ from aerotri.core.textio import read_json
 from aerotri.core.project import Project
 from aerotri.core.tolerances import TERRAINS, TOLERANCE_DIR, choose_table, read_qa_config, split_key
 from aerotri.geom.block_scale import project_block_scale
+from aerotri.qa.compliance import asprs_class_cm, project_compliance
 from lidarctl.vectors_settings import VectorsSettings
 
 def _json(path: Path) -> dict:
@@ -169,7 +170,7 @@ def stage_results(project: Project) -> list:
 
 def build_qa_report(root, tolerance_file=None, terrain: str | None = None, scale: str | None = None,
                     standard: str | None = None, horizontal_class_cm: float | None = None,
-                    vertical_class_cm: float | None = None) -> dict:
+                    vertical_class_cm: float | None = None, accuracy_class: str | None = None) -> dict:
     """The report of a project folder (``StageOrderError`` when no stage has left results yet). The
     tolerance table: the arguments (the command line), else ``[qa]`` of project.toml, else chosen by the
     block's GSD and platform (``aerotri.core.tolerances.choose_table``); the report names it and why."""
@@ -185,8 +186,12 @@ def build_qa_report(root, tolerance_file=None, terrain: str | None = None, scale
     if terrain and terrain not in TERRAINS and not (tolerance_file or cfg.tolerances):
         raise InputError(f"terrain class {terrain!r}: expected one of {', '.join(TERRAINS)}")
     block = project_block_scale(project)
+    if (standard or cfg.standard) == "asprs2023" and (hv := asprs_class_cm(accuracy_class or project.qa.accuracy_class)):
+        # the class of the compliance section is the class of the verdict table too
+        horizontal_class_cm, vertical_class_cm = horizontal_class_cm or hv[0], vertical_class_cm or hv[1]
     table = choose_table(cfg, block, scale=scale, standard=standard, terrain=terrain, tolerance_file=tolerance_file,
                          horizontal_class_cm=horizontal_class_cm, vertical_class_cm=vertical_class_cm)
+    compliance = project_compliance(project, table, block, standard, accuracy_class, terrain)
     terrain, tol, tol_path = table.terrain, table.limits, table.path
     tol_file = None if table.path.parent == TOLERANCE_DIR else table.path  # a user's own table
     at = _json(project.adjustment_report_path)
@@ -355,7 +360,8 @@ def build_qa_report(root, tolerance_file=None, terrain: str | None = None, scale
                 tolerance_table=str(tol_path.name), terrain=terrain, tolerances=tol, table=table.as_dict(),
                 block=block.as_dict(), checks=rows,
                 overall=("fail" if "fail" in verdicts else "pass") if verdicts else None,
-                passed=verdicts.count("pass"), failed=verdicts.count("fail"), details=info, flight_acceptance=fa)
+                passed=verdicts.count("pass"), failed=verdicts.count("fail"), details=info, flight_acceptance=fa,
+                compliance=compliance.as_dict())
 
 
 def _cell(v) -> str:
@@ -439,6 +445,69 @@ def table_html(rep: dict) -> str:
             + RF.table(["limit", "value", "confirmed in the source", "source"], rows, 4))
 
 
+VERDICT_COLOURS = {"pass": "#ccffcc", "fail": "#ffcccc", "not testable": "#eeeeee", "reported": "#ddeeff"}
+COMPLIANCE_HEADER = ["product", "quantity", "class", "measured", "figure", "limit", "check points", "accurate",
+                     "verdict", "finest class met"]
+
+
+def _num(v, star: bool = False) -> str:
+    return "" if v is None else f"{v:.4g}" + ("*" if star else "")
+
+
+def compliance_row(c: dict) -> list:
+    """A compliance check as table cells: figure and limit in the check's unit, the limit marked * when its
+    number is not confirmed in the standard's text."""
+    need = f"{c['n_points']}" + (f" of {c['n_required']}" if c["n_required"] else "") if c["n_points"] is not None else ""
+    acc = {True: "yes", False: "no", None: "unknown"}[c["checkpoints_accurate"]] if c["n_points"] is not None else ""
+    verdict = c["verdict"] + (f": {c['why']}" if c["why"] else "")
+    return [c["product"], c["quantity"], c["class_tested"], _num(c["measured"]), _num(c["figure"]),
+            _num(c["limit"], c["limit_confirmed"] is False) + (f" {c['unit']}" if c["limit"] is not None else ""),
+            need, acc, verdict, c["finest_class"] or ""]
+
+
+def compliance_html(comp: dict | None) -> str:
+    """The compliance section: standard, class and why; per product the verdict and the finest class met; every
+    check with its figure, limit (source in the title, * unconfirmed), check points and verdict."""
+    if not comp:
+        return ""
+    prod = "".join(f"<tr><td>{html.escape(p['product'])}</td><td class='{html.escape(p['verdict'].split()[0])}'>"
+                   f"{html.escape(p['verdict'])}</td><td>{html.escape(p['finest_class'])}</td></tr>"
+                   for p in comp["products"])
+    rows = []
+    for c in comp["checks"]:
+        cells = compliance_row(c)
+        title = html.escape(c["limit_source"] or "")
+        note = html.escape(c["checkpoints_note"] or "")
+        rows.append("<tr>" + "".join(f"<td>{html.escape(str(x))}</td>" for x in cells[:5])
+                    + f"<td class='num' title='{title}'>{html.escape(cells[5])}</td>"
+                    + f"<td title='{note}'>{html.escape(cells[6])}</td><td title='{note}'>{html.escape(cells[7])}</td>"
+                    + f"<td class='{html.escape(c['verdict'].split()[0])}'>{html.escape(cells[8])}</td>"
+                    + f"<td>{html.escape(cells[9])}</td></tr>")
+    unconf = ("<p>Limits marked * are not confirmed in the standard's own text (docs/standards.md): "
+              + html.escape("; ".join(comp["unconfirmed"])) + ".</p>") if comp["unconfirmed"] else ""
+    return (f"<h2>Compliance: {html.escape(comp['name'])}, class {html.escape(comp['class_tested'])}</h2>"
+            f"<p>Chosen because: {html.escape(comp['reason'])}.</p>"
+            f"<table><tr><th>product</th><th>verdict</th><th>finest class met</th></tr>{prod}</table>"
+            f"<table class='verdicts'><tr>{''.join(f'<th>{h}</th>' for h in COMPLIANCE_HEADER)}</tr>{''.join(rows)}</table>"
+            f"{unconf}")
+
+
+def compliance_lines(comp: dict | None) -> list[str]:
+    """The console lines of the compliance section."""
+    if not comp:
+        return []
+    lines = [f"compliance: {comp['name']}, class {comp['class_tested']} ({comp['reason']})"]
+    for p in comp["products"]:
+        lines.append(f"  {p['verdict']:<12} {p['product']}: finest class met {p['finest_class']}")
+    for c in comp["checks"]:
+        star = "*" if c["limit_confirmed"] is False else ""
+        pts = f", {c['n_points']}" + (f" of {c['n_required']}" if c["n_required"] else "") + " points" \
+            if c["n_points"] is not None else ""
+        lines.append(f"    {c['verdict']:<12} {c['product']}: {c['quantity']} = {_num(c['figure'])} "
+                     f"(limit {_num(c['limit'])}{star}{pts})" + (f"; {c['why']}" if c["why"] else ""))
+    return lines
+
+
 def format_html(rep: dict, figures: list | None = None, stage_images=STAGE_IMAGES) -> str:
     """index.html: the verdict table, links to the stage reports, the stage plots present, the figures
     (``report_figures``), the flight acceptance tables and the stages' numbers as tables."""
@@ -469,6 +538,7 @@ th.sec{{background:#dde}}.unconf{{color:#a60;font-weight:bold}}table.verdicts td
 Overall verdict: <b class="{rep['overall'] or ''}">{html.escape(rep['overall'] or 'none (no quantity with a tolerance)')}</b>
 ({rep['passed']} passed, {rep['failed']} failed).</p>
 <table class="verdicts"><tr><th>quantity</th><th>value</th><th>limit</th><th>unit</th><th>verdict</th><th>note</th></tr>{''.join(body)}</table>
+{compliance_html(rep.get("compliance"))}
 <h2>Stage reports</h2>
 <p><a href="../at/report.html">adjustment (ISAT layout)</a>, <a href="../at/report.txt">report.txt</a>,
 <a href="../control/review/review.html">control transfer review</a>, <a href="../ortho/dom_report.json">DOM check</a>,
@@ -545,6 +615,15 @@ def write_pdf(path: Path, rep: dict, project: Project, figures: list | None = No
             t.scale(1, 1.25)
         pdf.savefig(fig)
         plt.close(fig)
+        comp = rep.get("compliance")
+        if comp:
+            rows = [compliance_row(c) for c in comp["checks"]]
+            colours = [["white"] * 8 + [VERDICT_COLOURS.get(c["verdict"], "white"), "white"] for c in comp["checks"]]
+            _pdf_table(pdf, plt, f"Compliance: {comp['name']}, class {comp['class_tested']}"[:110],
+                       COMPLIANCE_HEADER, rows, [0.1, 0.2, 0.06, 0.07, 0.07, 0.06, 0.09, 0.07, 0.08, 0.2], colours)
+            _pdf_table(pdf, plt, "Compliance per product (why the standard and class: " + comp["reason"][:60] + "...)",
+                       ["product", "verdict", "finest class met"],
+                       [[p["product"], p["verdict"], p["finest_class"]] for p in comp["products"]], [0.3, 0.2, 0.4])
         fa = rep.get("flight_acceptance")
         if fa:
             ops = {"max": "<=", "min": ">="}
@@ -586,10 +665,10 @@ def write_pdf(path: Path, rep: dict, project: Project, figures: list | None = No
 
 def write_qa_report(root, tolerance_file=None, terrain: str | None = None, scale: str | None = None,
                     pdf: bool | None = None, standard: str | None = None, horizontal_class_cm: float | None = None,
-                    vertical_class_cm: float | None = None) -> dict:
+                    vertical_class_cm: float | None = None, accuracy_class: str | None = None) -> dict:
     project = Project.open(root)
     rep = build_qa_report(project.root, tolerance_file, terrain, scale, standard, horizontal_class_cm,
-                          vertical_class_cm)
+                          vertical_class_cm, accuracy_class)
     write_text_atomic(project.report_summary_path, json.dumps(rep, indent=1) + "\n")
     figures = report_figures(rep, project)
     present = [(src, alt) for src, alt in STAGE_IMAGES if (project.reports_dir / src).resolve().is_file()]
@@ -611,6 +690,7 @@ def console_summary(rep: dict) -> str:
             star = "*" if r.get("limit_confirmed") is False and r["limit"] is not None else ""
             lines.append(f"  {r['verdict']:<5} {r['section']}: {r['quantity']} = {r['value']} {r['unit']} "
                          f"(limit {r['limit']}{star})")
+    lines += compliance_lines(rep.get("compliance"))
     verdict = rep["overall"] or "no verdict (no quantity with a tolerance yet)"
     lines.append(f"{rep['html']}: {verdict} ({rep['passed']} passed, {rep['failed']} failed; "
                  f"{rep['map_scale']} {rep['terrain']})")

@@ -1,0 +1,676 @@
+"""Compliance of a project's products with a named standard and class (the "Compliance" section of
+``aerotri report``; docs/standards.md).
+
+Per product present (aerotriangulation, DOM, line map, LiDAR DEM, LiDAR swath overlaps, LiDAR density): the
+class tested, the measured figure (under ASPRS 2023 with the check points' own accuracy included), the limit
+and its source (unconfirmed limits flagged), the check points counted against those required, whether the
+check points are accurate enough for the class, pass / fail / not testable (why), and the finest class met.
+
+Standards (tables in aerotri/qa/standards/): ``asprs2023`` (classes H and V in cm; the multiples of H and V
+are the project's ASPRS tolerance table, aerotri/core/tolerance_tables/asprs2023.toml), ``usgs-lbs``
+(quality levels QL0-QL3), ``cn-at`` (map scale 1:500-1:10000 and terrain; limits in mm on the map),
+``thesis`` (the project's map-scale tolerance tables 1:2000-1:10000). When neither the command line nor
+``[qa]`` names one, the standard follows the report's tolerance table (an ASPRS table: asprs2023 with its
+classes; a map-scale table: cn-at at that scale and terrain), so the choice by platform and GSD is made once.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import re
+from pathlib import Path
+
+import numpy as np
+
+from aerotri.core.errors import ConfigError, OptionError
+from aerotri.core.project import ControlPointSettings, Project
+from aerotri.core.textio import read_json
+from aerotri.core.tolerances import (SCALE_TABLES, ToleranceTable, asprs_classes_for_gsd, asprs_table, load_table,
+                                     scale_for_gsd, split_key)
+from aerotri.qa.standards import STANDARD_KEYS, load_standard
+from aerotri.qa.standards import formulas as F
+
+NOT_TESTABLE = "not testable"
+PRODUCTS = ("Aerotriangulation", "DOM", "Line map (DLG)", "LiDAR DEM", "LiDAR swath overlaps", "LiDAR density")
+CN_TERRAINS = ("flat", "hilly", "mountainous", "high_mountain")
+_ASPRS_CLASS = re.compile(r"^\s*H\s*([0-9.]+)\s*(?:cm)?\s*[, ]\s*V\s*([0-9.]+)\s*(?:cm)?\s*$", re.I)
+_VEGETATED = ("veg", "forest", "tree", "shrub", "grass", "crop", "sparse", "dense", "wood", "canopy")
+
+
+@dataclasses.dataclass(frozen=True)
+class CheckSet:
+    """What a product was measured with: RMSEs (m) at ``n_h`` / ``n_v`` check points, the check points' own
+    radial / vertical RMSE (m, None unknown) and where that comes from."""
+
+    rmse_h_m: float | None = None
+    rmse_v_m: float | None = None
+    n_h: int = 0
+    n_v: int = 0
+    cp_rmse_h_m: float | None = None
+    cp_rmse_v_m: float | None = None
+    cp_source: str = "not stated"
+    note: str = ""
+
+
+@dataclasses.dataclass(frozen=True)
+class LidarFigures:
+    """The LiDAR figures: NVA RMSE and VVA (95th percentile of |dz|, and RMSE) at surveyed points, swath
+    overlap RMSDz on smooth surfaces, first-return density."""
+
+    nva_rmse_m: float | None = None
+    n_nva: int = 0
+    vva_p95_m: float | None = None
+    vva_rmse_m: float | None = None
+    n_vva: int = 0
+    grouping_note: str = ""
+    cp_rmse_v_m: float | None = None
+    cp_source: str = "not stated"
+    swath_rmsdz_m: float | None = None
+    swath_p95_m: float | None = None
+    swath_note: str = ""
+    anpd_per_m2: float | None = None
+    density_note: str = ""
+
+
+@dataclasses.dataclass(frozen=True)
+class Figures:
+    """Every product's measurements (None: the product is not in the project)."""
+
+    at: CheckSet | None = None
+    dom: CheckSet | None = None
+    line_map: CheckSet | None = None
+    lidar: LidarFigures | None = None
+
+
+@dataclasses.dataclass(frozen=True)
+class ComplianceCheck:
+    """One test of a product against the class: ``measured`` as the product's check gave it, ``figure`` the
+    one judged (with the check points' accuracy included where the standard says so), ``verdict`` pass, fail,
+    "not testable" or "reported" (a figure the standard asks for without a pass/fail), ``why`` the reason."""
+
+    product: str
+    quantity: str
+    class_tested: str
+    measured: float | None
+    figure: float | None
+    limit: float | None
+    unit: str
+    n_points: int | None
+    n_required: int | None
+    checkpoints_accurate: bool | None
+    checkpoints_note: str
+    verdict: str
+    why: str
+    limit_confirmed: bool | None
+    limit_source: str
+    finest_class: str | None
+    dimension: str = ""  # "H" / "V" for ASPRS classes: the finest class is stated per dimension
+    finest_rank: float | None = None  # lower = finer, to combine a product's checks
+
+
+@dataclasses.dataclass(frozen=True)
+class ProductCompliance:
+    product: str
+    verdict: str
+    finest_class: str
+
+
+@dataclasses.dataclass(frozen=True)
+class Compliance:
+    """The compliance section: the standard (``key``, ``name``), the class tested and why both were chosen,
+    the checks and per product the overall verdict and the finest class met."""
+
+    key: str
+    name: str
+    class_tested: str
+    reason: str
+    checks: tuple[ComplianceCheck, ...]
+    products: tuple[ProductCompliance, ...]
+    unconfirmed: tuple[str, ...]
+
+    def as_dict(self) -> dict:
+        return dataclasses.asdict(self)
+
+
+# ---------------------------------------------------------------------------------------------- measurements
+def _json(path: Path) -> dict:
+    if not path.is_file():
+        return {}
+    d = read_json(path, "stage report (JSON)")
+    return d if isinstance(d, dict) else {}
+
+
+def at_checks(at: dict, control: ControlPointSettings) -> CheckSet | None:
+    """The adjustment's check points (at/report.json): radial and height RMSE; their own accuracy from
+    ``[control]`` sigma_xy_m / sigma_z_m (the a-priori accuracy of the control and check points)."""
+    if not at:
+        return None
+    d = [c["d_m"] for c in at.get("check_points", []) if c.get("d_m") and None not in c["d_m"]]
+    if not d:
+        return CheckSet(note="no check points in the adjustment")
+    d = np.asarray(d, dtype=float)
+    src = ("[control] sigma_xy_m, sigma_z_m (a-priori accuracy of the control/check points)"
+           if control.sigma_xy_m is not None or control.sigma_z_m is not None else "not stated ([control] sigma_*)")
+    return CheckSet(rmse_h_m=F.rmse_h_of_points(d[:, 0], d[:, 1]), rmse_v_m=F.rmse(d[:, 2]), n_h=len(d), n_v=len(d),
+                    cp_rmse_h_m=F.checkpoint_rmse_h(control.sigma_xy_m), cp_rmse_v_m=control.sigma_z_m, cp_source=src)
+
+
+def _survey_accuracy(qa) -> tuple[float | None, float | None, str]:
+    h = F.checkpoint_rmse_h(qa.survey_sigma_xy_m)
+    src = "[qa] survey_sigma_xy_m / survey_sigma_z_m" if (h is not None or qa.survey_sigma_z_m is not None) \
+        else "not stated ([qa] survey_sigma_xy_m / survey_sigma_z_m)"
+    return h, qa.survey_sigma_z_m, src
+
+
+def dom_checks(dom_all: dict, qa) -> CheckSet | None:
+    d = dom_all.get("displacement") or {}
+    if not dom_all:
+        return None
+    if d.get("rms_xy_m") is None:
+        return CheckSet(note="the DOM check measured no patch")
+    h, _, src = _survey_accuracy(qa)
+    return CheckSet(rmse_h_m=float(d["rms_xy_m"]), n_h=int(d.get("count") or 0), cp_rmse_h_m=h, cp_source=src,
+                    note="ground patches against the reference orthophoto")
+
+
+def line_map_checks(chk: dict, qa) -> CheckSet | None:
+    if not chk:
+        return None
+    b = (chk.get("layers") or {}).get("buildings") or {}
+    if not b.get("n_matched_corners"):
+        return CheckSet(note="no building corner matched a reference corner")
+    h, _, src = _survey_accuracy(qa)
+    return CheckSet(rmse_h_m=float(b["rms_xy_corner_m"]), n_h=int(b["n_matched_corners"]), cp_rmse_h_m=h,
+                    cp_source=src, note="building corners against the reference outlines' corners")
+
+
+def vegetated(group: str | None) -> bool | None:
+    """A height-check group's land cover: True vegetated, False not, None without a group."""
+    if not group:
+        return None
+    g = group.lower()
+    if g in ("unknown",):
+        return None
+    return any(w in g for w in _VEGETATED)
+
+
+def lidar_figures(hc: dict, strips: dict, density: tuple[float | None, str], qa, adjusted_note: str = "") -> \
+        LidarFigures | None:
+    """NVA / VVA from the height check's points and groups (``lidarctl check-heights --groups``: groups whose
+    name says vegetation - sparse, dense, forest, shrub ... - are vegetated, the others open ground); without
+    groups every point counts as non-vegetated (said in the note). Swath RMSDz from the strip check."""
+    if not hc and not strips and density[0] is None:
+        return None
+    _, v, src = _survey_accuracy(qa)
+    kw = dict(cp_rmse_v_m=v, cp_source=src, anpd_per_m2=density[0], density_note=density[1])
+    pts = [p for p in hc.get("points", []) if p.get("dz_m") is not None]
+    if pts:
+        veg = [vegetated(p.get("group")) for p in pts]
+        dz = np.asarray([p["dz_m"] for p in pts], dtype=float)
+        if any(x is not None for x in veg):
+            nv = np.array([x is False for x in veg])
+            vg = np.array([x is True for x in veg])
+            names = sorted({p.get("group") for p, x in zip(pts, veg) if x})
+            note = (f"groups {', '.join(sorted({str(p.get('group')) for p in pts}))}; vegetated: "
+                    f"{', '.join(names) or 'none'}; points without a group left out")
+        else:
+            nv, vg = np.ones(len(dz), bool), np.zeros(len(dz), bool)
+            note = "no land-cover groups (check-heights --groups): every point taken as non-vegetated"
+        kw.update(nva_rmse_m=F.rmse(dz[nv]) if nv.any() else None, n_nva=int(nv.sum()),
+                  vva_p95_m=F.vva_p95(dz[vg]) if vg.any() else None, vva_rmse_m=F.rmse(dz[vg]) if vg.any() else None,
+                  n_vva=int(vg.sum()), grouping_note=note)
+    a = strips.get("all_pairs") or {}
+    if a.get("rms_m") is not None:
+        kw.update(swath_rmsdz_m=float(a["rms_m"]), swath_p95_m=a.get("p95_abs_m"),
+                  swath_note=(f"{len(strips.get('pairs', []))} pairs, {a.get('n_cells')} smooth cells of "
+                              f"{strips.get('cell_m', 0):g} m" + adjusted_note))
+    return LidarFigures(**kw)
+
+
+def lidar_density(project: Project) -> tuple[float | None, str]:
+    """First returns per m2 (ANPD) of the project's strips: first-return counts from the LAS headers over the
+    area of lidar_out/dem.tif's valid cells (overlaps counted, as the aggregate density does)."""
+    strips = project.lidar_strips() if project.lidar_dir.is_dir() else []
+    if not strips or not project.dem_path.is_file():
+        return None, "not measured: no lidar/ strips or no lidar_out/dem.tif for the area"
+    import laspy
+    import rasterio
+
+    first = 0
+    for p in strips:
+        with laspy.open(p) as f:
+            h = f.header
+            first += int(h.number_of_points_by_return[0]) if h.number_of_points_by_return[0] else int(h.point_count)
+    with rasterio.open(project.dem_path) as ds:
+        valid = ds.read_masks(1) > 0
+        unit = ds.crs.linear_units_factor[1] if ds.crs is not None else 1.0
+        area = float(valid.sum()) * abs(ds.transform.a * ds.transform.e) * unit * unit
+    return F.anpd(first, area), (f"{first} first returns of {len(strips)} strips over {area / 1e6:.3f} km2 "
+                                 f"(valid cells of lidar_out/dem.tif)")
+
+
+def project_figures(project: Project) -> Figures:
+    """The measurements of every product present in the project folder."""
+    qa = project.qa
+    at = _json(project.adjustment_report_path)
+    adjusted = project.strips_adjust_path.is_file()
+    strips = _json(project.strips_check_after_path if adjusted else project.strips_check_path)
+    lidar = lidar_figures(_json(project.height_check_path), strips,
+                          lidar_density(project) if (strips or project.dem_path.is_file()) else (None, ""), qa,
+                          " (after the strip adjustment)" if adjusted else "")
+    vec = project.vectors_check_path
+    return Figures(at=at_checks(at, project.control_points),
+                   dom=dom_checks(_json(project.dom_report_path), qa),
+                   line_map=line_map_checks(_json(vec) if vec.is_file() else {}, qa), lidar=lidar)
+
+
+# ---------------------------------------------------------------------------------------------- judging
+def _verdict(figure, limit, n, need, cp_ok) -> tuple[str, str]:
+    if limit is None:
+        return NOT_TESTABLE, "the standard sets no limit for this quantity (or none is shipped: docs/standards.md)"
+    if figure is None or (isinstance(figure, float) and math.isnan(figure)):
+        return NOT_TESTABLE, "not measured"
+    would = "pass" if figure <= limit else "fail"
+    if need and n is not None and n < need:
+        return NOT_TESTABLE, f"{n} check points, {need} required (the figure would {would})"
+    if cp_ok is False:
+        return NOT_TESTABLE, f"the check points are not accurate enough for the class (the figure would {would})"
+    return would, ""
+
+
+def _check(product, quantity, cls, measured, figure, limit, unit, n, need, cp_ok, cp_note, confirmed, source,
+           finest=None, rank=None, dimension="", verdict=None, why=None) -> ComplianceCheck:
+    if verdict is None:
+        verdict, why = _verdict(figure, limit, n, need, cp_ok)
+    r = (lambda x: None if x is None or (isinstance(x, float) and math.isnan(x)) else round(float(x), 4))
+    return ComplianceCheck(product=product, quantity=quantity, class_tested=cls, measured=r(measured), figure=r(figure),
+                           limit=r(limit), unit=unit, n_points=n, n_required=need, checkpoints_accurate=cp_ok,
+                           checkpoints_note=cp_note, verdict=verdict, why=why or "", limit_confirmed=confirmed,
+                           limit_source=source, finest_class=finest, finest_rank=rank, dimension=dimension)
+
+
+def _cp_note(cp_rmse, need_m, src, factor_text) -> tuple[bool | None, str]:
+    if cp_rmse is None:
+        return None, f"check points' accuracy {src}: not judged"
+    ok = cp_rmse <= need_m + 1e-12
+    return ok, f"check points {cp_rmse:.3f} m ({src}); {factor_text} {need_m:.3f} m"
+
+
+@dataclasses.dataclass(frozen=True)
+class Choice:
+    key: str
+    class_tested: str
+    reason: str
+    h_cm: float | None = None
+    v_cm: float | None = None
+    level: str | None = None
+    scale: str | None = None
+    terrain: str = "flat"
+
+
+def asprs_class_cm(text: str | None) -> tuple[float, float] | None:
+    """(H cm, V cm) of an ASPRS class text such as 'H7.1 V10' or 'H7.1cm,V10cm'; None for other text."""
+    m = _ASPRS_CLASS.match(text or "")
+    return (float(m[1]), float(m[2])) if m else None
+
+
+def choose(standard: str | None, class_text: str | None, table: ToleranceTable, block, qa, terrain: str | None) -> Choice:
+    """The standard and class to test, and why: the arguments (command line), else ``[qa]`` standard /
+    accuracy_class (and horizontal_class_cm, vertical_class_cm, map_scale, terrain), else the report's
+    tolerance table (chosen by platform and GSD)."""
+    std_src = "--standard" if standard else "project.toml [qa] standard"
+    std = standard or qa.standard
+    std = {"cn": "cn-at"}.get(std, std)
+    table_key, _ = split_key(table.key)
+    if std is None:
+        std = "asprs2023" if table_key.startswith("ASPRS2023") else "cn-at"
+        std_src = f"the report's tolerance table {table.name!r} ({table.reason})"
+    if std not in STANDARD_KEYS:
+        raise ConfigError(f"standard {std!r}: expected one of {', '.join(STANDARD_KEYS)}")
+    cls_src = "--class" if class_text else "project.toml [qa] accuracy_class"
+    cls = class_text or qa.accuracy_class
+    terrain = terrain or qa.terrain or table.terrain or "flat"
+    gsd = getattr(block, "gsd_m", None)
+    why = f"standard {std} from {std_src}"
+    if std == "asprs2023":
+        if cls:
+            m = _ASPRS_CLASS.match(cls)
+            if not m:
+                raise OptionError(f"--class {cls!r}: expected ASPRS classes as 'H<cm> V<cm>', e.g. 'H7.1 V10'",
+                                  param="--class")
+            h, v = float(m[1]), float(m[2])
+            why += f"; classes H{h:g} V{v:g} cm from {cls_src}"
+        elif qa.horizontal_class_cm and qa.vertical_class_cm:
+            h, v = qa.horizontal_class_cm, qa.vertical_class_cm
+            why += "; classes from project.toml [qa] horizontal_class_cm, vertical_class_cm"
+        elif table_key.startswith("ASPRS2023"):
+            m = re.match(r"ASPRS2023 H([0-9.]+)cm V([0-9.]+)cm", table_key)
+            h, v = float(m[1]), float(m[2])
+            # the table's reason without its own "standard ... from ..." head (said above)
+            r = table.reason.split("; ", 1)[1] if table.reason.startswith("standard ") else table.reason
+            why += f"; classes of the report's tolerance table: {r}"
+        elif gsd is not None:
+            h, v, row = asprs_classes_for_gsd(gsd)
+            why += f"; classes by the block's GSD: {row}"
+        else:
+            return Choice("asprs2023", "no class", why + "; no class given and the block's GSD unknown: only the "
+                                                         "finest class met is stated")
+        return Choice("asprs2023", f"H{h:g}cm V{v:g}cm", why, h_cm=h, v_cm=v)
+    if std == "usgs-lbs":
+        d = load_standard("usgs-lbs")
+        if cls:
+            lvl = cls.strip().upper()
+            if lvl not in d["levels"]:
+                raise OptionError(f"--class {cls!r}: expected a quality level {', '.join(d['levels'])}",
+                                  param="--class")
+            why += f"; {lvl} from {cls_src}"
+        else:
+            lvl = d["standard"]["default_class"]
+            why += f"; {d['standard']['default_class_reason']}"
+        return Choice("usgs-lbs", lvl, why, level=lvl)
+    scales = load_standard("cn-at")["standard"]["scales"] if std == "cn-at" else list(SCALE_TABLES)
+    if cls:
+        scale = cls.strip().replace(" ", "")
+        if scale not in scales:
+            raise OptionError(f"--class {cls!r}: expected a map scale {', '.join(scales)}", param="--class")
+        why += f"; map scale {scale} from {cls_src}"
+    elif qa.map_scale:
+        scale = qa.map_scale
+        why += "; map scale from project.toml [qa] map_scale"
+    elif table_key in SCALE_TABLES:
+        scale = table_key
+        why += f"; map scale of the tolerance table ({table.reason})"
+    elif gsd is not None:
+        scale, row = scale_for_gsd(gsd)
+        why += f"; map scale by the block's GSD: {row}"
+    else:
+        scale = "1:5000"
+        why += "; GSD unknown: 1:5000"
+    if std == "thesis" and scale not in SCALE_TABLES:
+        raise OptionError(f"--class {scale}: the thesis tables are {', '.join(SCALE_TABLES)}", param="--class")
+    if terrain not in CN_TERRAINS:
+        raise OptionError(f"terrain {terrain!r}: expected one of {', '.join(CN_TERRAINS)}", param="--terrain")
+    if std == "thesis" and terrain == "high_mountain":
+        terrain = "mountainous"
+    return Choice(std, f"{scale} {terrain}", why + f"; terrain {terrain}", scale=scale, terrain=terrain)
+
+
+def _asprs(figs: Figures, c: Choice) -> list[ComplianceCheck]:
+    d = load_standard("asprs2023")
+    L = d["limits"]
+    need = int(L["check_points_min"]["value"])
+    factor = float(L["checkpoint_accuracy_factor"]["value"])
+    fac_ok = L["checkpoint_accuracy_factor"]["confirmed"]
+    src = f"{d['standard']['name']}"
+    lad_h = [x / 100 for x in d["ladders"]["horizontal_cm"]]
+    lad_v = [x / 100 for x in d["ladders"]["vertical_cm"]]
+    if c.h_cm is not None:
+        limits, prov, _ = asprs_table(c.h_cm, c.v_cm)
+    else:
+        limits, prov = {}, {}
+
+    def lim(key):
+        p = prov.get(key)
+        return limits.get(key), (p.confirmed if p else None), (f"{src}; {p.source}" if p else "no class given")
+
+    def finest(fig, lad, at_factor=1.0, dim="H"):
+        if fig is None:
+            return None, None
+        f = F.finest_class(fig / at_factor, lad)
+        return (f"{dim}{100 * f:g}cm" if f is not None else "none of the ladder"), (f if f is not None else math.inf)
+
+    out = []
+
+    def point_checks(product, cs: CheckSet, rows):
+        """rows: (class dimension, table key, quantity, plan?, the limit as a multiple of the class)."""
+        if cs is None:
+            return
+        for dim, key, quantity, plan, multiple in rows:
+            meas, n, cp = (cs.rmse_h_m, cs.n_h, cs.cp_rmse_h_m) if plan else (cs.rmse_v_m, cs.n_v, cs.cp_rmse_v_m)
+            if meas is None and not plan:
+                continue
+            limit, conf, source = lim(key)
+            fig = F.with_checkpoint_accuracy(meas, cp) if meas is not None else None
+            if limit is None:
+                cp_ok, cp_note = None, "no class"
+            else:
+                cp_ok, cp_note = _cp_note(cp, limit / factor, cs.cp_source,
+                                          f"{factor:g} x finer than the limit ({'' if fac_ok else 'unconfirmed '}"
+                                          f"Edition 2 rule) needs <=")
+            if cp is not None and meas is not None:
+                cp_note += f"; measured {meas:.3f} m combined with the check points' {cp:.3f} m"
+            # the finest class: the limit is ``multiple`` x the class (the AT twice as accurate as the product)
+            fin, rank = finest(fig, lad_h if dim == "H" else lad_v, multiple, dim)
+            ch = _check(product, f"check points, {quantity}", c.class_tested, meas, fig, limit, "m", n, need, cp_ok,
+                        cp_note, conf, source, fin, rank, dim)
+            if meas is None:
+                ch = dataclasses.replace(ch, verdict=NOT_TESTABLE, why=cs.note or "not measured")
+            out.append(ch)
+
+    # AT: twice as accurate as the product (0.5 H plan), its height limited by H for orthoimagery (core table)
+    point_checks("Aerotriangulation", figs.at, (("H", "rms_xy_m", "RMSE_H (radial)", True, 0.5),
+                                                ("H", "rms_z_m", "RMSE_V (AT for orthoimagery: limit from H)", False,
+                                                 1.0)))
+    point_checks("DOM", figs.dom, (("H", "feature_rms_xy_m", "RMSE_H (radial)", True, 1.0),))
+    point_checks("Line map (DLG)", figs.line_map, (("H", "feature_rms_xy_m", "RMSE_H (radial)", True, 1.0),))
+    lf = figs.lidar
+    if lf is not None:
+        if lf.nva_rmse_m is not None or lf.n_nva:
+            limit, conf, source = lim("dem_rmse_m")
+            fig = F.with_checkpoint_accuracy(lf.nva_rmse_m, lf.cp_rmse_v_m)
+            cp_ok, cp_note = (None, "no class") if limit is None else _cp_note(
+                lf.cp_rmse_v_m, limit / factor, lf.cp_source, f"{factor:g} x finer than the class needs <=")
+            fin, rank = finest(fig, lad_v, 1.0, "V")
+            out.append(_check("LiDAR DEM", "NVA: RMSE_V at non-vegetated check points", c.class_tested, lf.nva_rmse_m,
+                              fig, limit, "m", lf.n_nva, need, cp_ok, f"{cp_note}; {lf.grouping_note}", conf, source,
+                              fin, rank, "V"))
+            vva = L["vertical_vva"]
+            out.append(_check("LiDAR DEM", "VVA: RMSE_V at vegetated check points", c.class_tested, lf.vva_rmse_m,
+                              F.with_checkpoint_accuracy(lf.vva_rmse_m, lf.cp_rmse_v_m) if lf.vva_rmse_m is not None
+                              else None, None, "m", lf.n_vva, None, None, lf.grouping_note, vva["confirmed"],
+                              f"{src}; {vva['evidence']}", verdict="reported",
+                              why="no pass/fail in Edition 2" + ("" if lf.n_vva else "; no vegetated check points")))
+        if lf.swath_rmsdz_m is not None:
+            limit, conf, source = lim("strip_rmsdz_m")
+            fin, rank = finest(lf.swath_rmsdz_m, lad_v, 0.8, "V")
+            out.append(_check("LiDAR swath overlaps", "swath-to-swath RMSDz on smooth surfaces", c.class_tested,
+                              lf.swath_rmsdz_m, lf.swath_rmsdz_m, limit, "m", None, None, None, lf.swath_note, conf,
+                              source, fin, rank, "V"))
+    return out
+
+
+def _lbs(figs: Figures, c: Choice) -> list[ComplianceCheck]:
+    d = load_standard("usgs-lbs")
+    levels = d["levels"]
+    order = list(levels)
+    src = d["standard"]["name"]
+    need = int(d["check_points"]["nva_min"])
+    factor = float(load_standard("asprs2023")["limits"]["checkpoint_accuracy_factor"]["value"])
+    lf = figs.lidar
+    out = []
+    if lf is None:
+        return out
+
+    def row(key, quantity, fig, n, n_need, cp, cp_src, note, lower_is_better=True):
+        lv = levels[c.level]
+        limit = lv[key]
+        conf = key in lv["provenance"]["confirmed"]
+        source = f"{src} {c.level} {key}; {lv['provenance']['evidence']}"
+        cp_ok, cp_note = (None, note) if cp_src is None else _cp_note(cp, limit / factor, cp_src,
+                                                                     f"{factor:g} x finer (ASPRS, unconfirmed) needs <=")
+        if cp_src is not None and note:
+            cp_note = f"{cp_note}; {note}"
+        fin, rank = None, None
+        if fig is not None:
+            met = [i for i, q in enumerate(order) if (fig <= levels[q][key] if lower_is_better else fig >= levels[q][key])]
+            fin, rank = (order[met[0]], float(met[0])) if met else ("none (coarser than QL3)", math.inf)
+        if lower_is_better:
+            ch = _check("LiDAR DEM" if key in ("nva_rmse_m", "vva_p95_m") else
+                        ("LiDAR swath overlaps" if key.startswith("interswath") else "LiDAR density"),
+                        quantity, c.class_tested, fig, fig, limit, "m", n, n_need, cp_ok, cp_note, conf, source, fin, rank)
+        else:  # a lower limit (density): pass when the figure reaches it
+            ok = None if fig is None else fig >= limit
+            ch = _check("LiDAR density", quantity, c.class_tested, fig, fig, limit, "per m2", None, None, None, note,
+                        conf, source, fin, rank, verdict=NOT_TESTABLE if ok is None else ("pass" if ok else "fail"),
+                        why="not measured" if ok is None else "a lower limit: the density must reach it")
+        out.append(ch)
+
+    if lf.nva_rmse_m is not None or lf.n_nva:
+        row("nva_rmse_m", "NVA: RMSEz at non-vegetated check points", lf.nva_rmse_m, lf.n_nva, need, lf.cp_rmse_v_m,
+            lf.cp_source, lf.grouping_note)
+        row("vva_p95_m", "VVA: 95th percentile of |dz| at vegetated check points", lf.vva_p95_m, lf.n_vva, None, None,
+            None, lf.grouping_note)
+    if lf.swath_rmsdz_m is not None:
+        row("interswath_rmsdz_m", "interswath (swath overlap) RMSDz on smooth surfaces", lf.swath_rmsdz_m, None, None,
+            None, None, lf.swath_note)
+    row("anpd_min", "aggregate nominal pulse density (first returns)", lf.anpd_per_m2, None, None, None, None,
+        lf.density_note, lower_is_better=False)
+    return out
+
+
+def _cn(figs: Figures, c: Choice) -> list[ComplianceCheck]:
+    d = load_standard("cn-at")
+    L = d["limits"]
+    scales = d["standard"]["scales"]
+    src = d["standard"]["name"]
+    acc = d["check_point_accuracy"]
+
+    def limit_m(key_names, scale, terrain):
+        for k in key_names:
+            e = L[k]
+            if scale in e["scales"] and terrain in e:
+                return F.map_mm_to_ground_m(e[terrain], scale), e["confirmed"], f"{src}: {e['what']}, {e['clause']}; {e['evidence']}"
+        return None, None, f"{src}: no limit shipped for {scale} {terrain}"
+
+    def finest(fig, key_names, terrain):
+        met = [s for s in scales if (lm := limit_m(key_names, s, terrain)[0]) is not None and fig <= lm]
+        return (met[0], float(F.scale_denominator(met[0]))) if met else ("none (coarser than 1:10000)", math.inf)
+
+    feat = ("feature_plan_mm", "feature_plan_mm_small")
+    out = []
+    for product, cs, keys in (("Aerotriangulation", figs.at, ("check_plan_mm",)), ("DOM", figs.dom, feat),
+                              ("Line map (DLG)", figs.line_map, feat)):
+        if cs is None:
+            continue
+        limit, conf, source = limit_m(keys, c.scale, c.terrain)
+        f_lim = limit_m(feat, c.scale, c.terrain)[0]
+        cp_ok, cp_note = (_cp_note(cs.cp_rmse_h_m, acc["plan_fraction_of_feature"] * f_lim, cs.cp_source,
+                                   "1/5 of the feature limit (GB/T 7931-2008 6.1) needs <=") if f_lim else
+                          (None, "no feature limit to judge the check points by"))
+        fin, rank = finest(cs.rmse_h_m, keys, c.terrain) if cs.rmse_h_m is not None else (None, None)
+        ch = _check(product, "check points, plan RMS (radial)", c.class_tested, cs.rmse_h_m, cs.rmse_h_m, limit, "m",
+                    cs.n_h, None, cp_ok, cp_note + "; the specifications set no minimum number of check points",
+                    conf, source, fin, rank)
+        if cs.rmse_h_m is None:
+            ch = dataclasses.replace(ch, verdict=NOT_TESTABLE, why=cs.note or "not measured")
+        out.append(ch)
+        if product == "Aerotriangulation" and cs.rmse_v_m is not None:
+            out.append(_check(product, "check points, height RMS", c.class_tested, cs.rmse_v_m, cs.rmse_v_m, None, "m",
+                              cs.n_v, None, None, "", None, f"{src}: heights of AT points not shipped (not read in any "
+                              f"copy; docs/standards.md)"))
+    lf = figs.lidar
+    if lf is not None and (lf.nva_rmse_m is not None or lf.swath_rmsdz_m is not None):
+        e = L["spot_height_m"]
+        lim = e.get(c.terrain, {}).get(c.scale) if isinstance(e.get(c.terrain), dict) else None
+        if lf.nva_rmse_m is not None:
+            met = [s for s in e["scales"] if (x := e.get(c.terrain, {}).get(s)) is not None and lf.nva_rmse_m <= x]
+            out.append(_check("LiDAR DEM", "height RMS at non-vegetated check points (against the spot-height limit)",
+                              c.class_tested, lf.nva_rmse_m, lf.nva_rmse_m, lim, "m", lf.n_nva, None, None,
+                              lf.grouping_note, e["confirmed"] if lim is not None else None,
+                              f"{src}: {e['what']}, {e['clause']}; {e['evidence']}",
+                              met[0] if met else ("none of 1:500-1:2000" if e.get(c.terrain) else None),
+                              float(F.scale_denominator(met[0])) if met else None))
+        if lf.swath_rmsdz_m is not None:
+            out.append(_check("LiDAR swath overlaps", "swath-to-swath RMSDz on smooth surfaces", c.class_tested,
+                              lf.swath_rmsdz_m, lf.swath_rmsdz_m, None, "m", None, None, None, lf.swath_note, None,
+                              f"{src}: the AT specifications set no LiDAR limit"))
+    return out
+
+
+def _thesis(figs: Figures, c: Choice) -> list[ComplianceCheck]:
+    def table(scale):
+        return load_table(scale, c.terrain)
+
+    t = table(c.scale)
+
+    def lim(key):
+        p = t.provenance.get(key)
+        return t.limits.get(key), (p.confirmed if p else None), f"{t.name}; {p.source if p else 'no source given'}"
+
+    def finest(fig, key):
+        met = [s for s in SCALE_TABLES if (x := table(s).limits.get(key)) is not None and fig <= x]
+        return (met[0], float(F.scale_denominator(met[0]))) if met else ("none (coarser than 1:10000)", math.inf)
+
+    out = []
+    for product, cs, hkey, vkey in (("Aerotriangulation", figs.at, "rms_xy_m", "rms_z_m"),
+                                    ("DOM", figs.dom, "feature_rms_xy_m", None),
+                                    ("Line map (DLG)", figs.line_map, "feature_rms_xy_m", None)):
+        if cs is None:
+            continue
+        for key, meas, n, q in ((hkey, cs.rmse_h_m, cs.n_h, "plan RMS (radial)"), (vkey, cs.rmse_v_m, cs.n_v, "height RMS")):
+            if key is None or (meas is None and q == "height RMS"):
+                continue
+            limit, conf, source = lim(key)
+            fin, rank = finest(meas, key) if meas is not None else (None, None)
+            ch = _check(product, f"check points, {q}", c.class_tested, meas, meas, limit, "m", n, None, None,
+                        "the thesis tables set no minimum number or accuracy of check points", conf, source, fin, rank)
+            if meas is None:
+                ch = dataclasses.replace(ch, verdict=NOT_TESTABLE, why=cs.note or "not measured")
+            out.append(ch)
+    lf = figs.lidar
+    if lf is not None:
+        for key, meas, n, q, note in (("dem_rmse_m", lf.nva_rmse_m, lf.n_nva, "ground height RMSE at non-vegetated check "
+                                       "points", lf.grouping_note),
+                                      ("strip_rmsdz_m", lf.swath_rmsdz_m, None, "swath-to-swath RMSDz on smooth surfaces",
+                                       lf.swath_note)):
+            if meas is None:
+                continue
+            limit, conf, source = lim(key)
+            fin, rank = finest(meas, key)
+            out.append(_check("LiDAR DEM" if key == "dem_rmse_m" else "LiDAR swath overlaps", q, c.class_tested, meas,
+                              meas, limit, "m", n, None, None, note, conf, source, fin, rank))
+    return out
+
+
+JUDGES = {"asprs2023": _asprs, "usgs-lbs": _lbs, "cn-at": _cn, "thesis": _thesis}
+
+
+def summarise(checks) -> tuple[ProductCompliance, ...]:
+    """Per product: fail if any check fails, else not testable if any class test is, else pass (checks that are
+    only reported do not count); the finest class met by all its checks (per dimension for ASPRS)."""
+    out = []
+    for product in PRODUCTS:
+        cs = [c for c in checks if c.product == product]
+        if not cs:
+            continue
+        vs = [c.verdict for c in cs if c.verdict != "reported"]
+        verdict = "fail" if "fail" in vs else (NOT_TESTABLE if NOT_TESTABLE in vs or not vs else "pass")
+        parts = []
+        for dim in dict.fromkeys(c.dimension for c in cs):
+            ranked = [c for c in cs if c.dimension == dim and c.finest_rank is not None and c.verdict != "reported"]
+            if ranked:
+                worst = max(ranked, key=lambda c: c.finest_rank)
+                parts.append(worst.finest_class)
+        out.append(ProductCompliance(product, verdict, " ".join(parts) if parts else "not measured"))
+    return tuple(out)
+
+
+def judge(figs: Figures, choice: Choice) -> Compliance:
+    """The checks of ``figs`` against ``choice`` and their summary per product."""
+    checks = tuple(JUDGES[choice.key](figs, choice))
+    names = {"asprs2023": load_standard("asprs2023")["standard"]["name"],
+             "usgs-lbs": load_standard("usgs-lbs")["standard"]["name"],
+             "cn-at": load_standard("cn-at")["standard"]["name"],
+             "thesis": "the thesis' map-scale tolerance tables (aerotri/core/tolerance_tables/cn_1to*.toml)"}
+    unconf = tuple(dict.fromkeys(f"{c.product}: {c.quantity}" for c in checks if c.limit_confirmed is False))
+    return Compliance(key=choice.key, name=names[choice.key], class_tested=choice.class_tested, reason=choice.reason,
+                      checks=checks, products=summarise(checks), unconfirmed=unconf)
+
+
+def project_compliance(project: Project, table: ToleranceTable, block, standard: str | None = None,
+                       class_text: str | None = None, terrain: str | None = None) -> Compliance:
+    """The compliance section of a project's report (``table``: the report's tolerance table, ``block``: its
+    BlockScale)."""
+    choice = choose(standard, class_text, table, block, project.qa, terrain)
+    return judge(project_figures(project), choice)

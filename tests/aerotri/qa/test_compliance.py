@@ -1,0 +1,152 @@
+"""The compliance section: each product against the class of a standard, with the check points counted,
+their accuracy judged, pass / fail / not testable with the reason, and the finest class met (hand-computed
+figures on made-up measurements; the report and its CLI on a tiny project folder)."""
+
+from __future__ import annotations
+
+import json
+import math
+
+import pytest
+from click.testing import CliRunner
+
+from aerotri.core.errors import OptionError
+from aerotri.qa.compliance import CheckSet, Choice, Figures, LidarFigures, choose, judge, vegetated
+from aerotri.qa.report import write_qa_report
+
+
+def _by(comp, product, start=""):
+    return [c for c in comp.checks if c.product == product and c.quantity.startswith(start)]
+
+
+def test_asprs_counts_check_points_and_includes_their_accuracy():
+    # H 10 cm class: DOM RMSE_H 8 cm at 40 points surveyed to sigma 1 cm per axis (radial 1.41 cm)
+    dom = CheckSet(rmse_h_m=0.08, n_h=40, cp_rmse_h_m=math.sqrt(2) * 0.01, cp_source="test")
+    comp = judge(Figures(dom=dom), Choice("asprs2023", "H10cm V10cm", "test", h_cm=10.0, v_cm=10.0))
+    (c,) = _by(comp, "DOM")
+    assert c.figure == pytest.approx(math.hypot(0.08, math.sqrt(2) * 0.01), abs=1e-4)  # 0.0812
+    assert c.limit == 0.10 and c.verdict == "pass" and c.n_required == 30
+    assert c.checkpoints_accurate is True  # 1.41 cm <= 10 cm / 2
+    assert c.finest_class == "H10cm" and c.limit_confirmed is False
+    # 29 points: the figure would pass, but the test is not the standard's
+    comp = judge(Figures(dom=CheckSet(rmse_h_m=0.08, n_h=29)), Choice("asprs2023", "H10 V10", "t", h_cm=10, v_cm=10))
+    (c,) = _by(comp, "DOM")
+    assert c.verdict == "not testable" and "29 check points, 30 required (the figure would pass)" in c.why
+    # check points of 6 cm radial are not twice as accurate as a 10 cm class
+    comp = judge(Figures(dom=CheckSet(rmse_h_m=0.05, n_h=50, cp_rmse_h_m=0.06, cp_source="t")),
+                 Choice("asprs2023", "H10 V10", "t", h_cm=10, v_cm=10))
+    (c,) = _by(comp, "DOM")
+    assert c.checkpoints_accurate is False and c.verdict == "not testable"
+    assert comp.products[0].verdict == "not testable"
+
+
+def test_asprs_at_is_held_to_half_the_class_and_vva_is_only_reported():
+    at = CheckSet(rmse_h_m=0.06, rmse_v_m=0.09, n_h=35, n_v=35)
+    lidar = LidarFigures(nva_rmse_m=0.12, n_nva=30, vva_p95_m=0.3, vva_rmse_m=0.2, n_vva=12, swath_rmsdz_m=0.05)
+    comp = judge(Figures(at=at, lidar=lidar), Choice("asprs2023", "H10cm V10cm", "t", h_cm=10, v_cm=10))
+    plan, height = _by(comp, "Aerotriangulation")
+    assert plan.limit == 0.05 and plan.verdict == "fail" and plan.finest_class == "H12.5cm"  # 0.06 / 0.5 = 12 cm
+    assert height.limit == 0.10 and height.verdict == "pass"
+    nva, vva = _by(comp, "LiDAR DEM")
+    assert nva.verdict == "fail" and nva.finest_class == "V15cm"  # 12 cm > V10
+    assert vva.verdict == "reported" and vva.limit is None
+    (sw,) = _by(comp, "LiDAR swath overlaps")
+    assert sw.limit == 0.08 and sw.verdict == "pass" and sw.finest_class == "V10cm"  # 0.8 V
+    prods = {p.product: p for p in comp.products}
+    assert prods["Aerotriangulation"].verdict == "fail" and prods["Aerotriangulation"].finest_class == "H12.5cm"
+    assert prods["LiDAR DEM"].finest_class == "V15cm"  # the reported VVA does not count
+
+
+def test_lbs_quality_levels_nva_vva_swath_density():
+    lidar = LidarFigures(nva_rmse_m=0.07, n_nva=31, vva_p95_m=0.35, n_vva=10, swath_rmsdz_m=0.05,
+                         anpd_per_m2=1.5, density_note="t")
+    comp = judge(Figures(lidar=lidar), Choice("usgs-lbs", "QL2", "t", level="QL2"))
+    by = {c.quantity.split(":")[0]: c for c in comp.checks}
+    assert by["NVA"].verdict == "pass" and by["NVA"].finest_class == "QL1" and by["NVA"].limit_confirmed is False
+    assert by["VVA"].verdict == "fail" and by["VVA"].finest_class == "QL3"  # 0.35 > 0.30, <= 0.60
+    sw = by["interswath (swath overlap) RMSDz on smooth surfaces"]
+    assert sw.limit == 0.08 and sw.limit_confirmed is False and sw.finest_class == "QL1"
+    dens = by["aggregate nominal pulse density (first returns)"]
+    assert dens.verdict == "fail" and dens.finest_class == "QL3" and dens.limit_confirmed is True  # 1.5 < 2 per m2
+    prods = {p.product: p for p in comp.products}
+    assert prods["LiDAR DEM"].finest_class == "QL3" and prods["LiDAR density"].verdict == "fail"
+
+
+def test_cn_at_limits_in_map_millimetres_by_scale_and_terrain():
+    dom = CheckSet(rmse_h_m=0.9, n_h=12, cp_rmse_h_m=0.2, cp_source="t")
+    at = CheckSet(rmse_h_m=0.5, rmse_v_m=0.4, n_h=20, n_v=20)
+    comp = judge(Figures(at=at, dom=dom), Choice("cn-at", "1:2000 flat", "t", scale="1:2000", terrain="flat"))
+    (d,) = _by(comp, "DOM")
+    assert d.limit == pytest.approx(1.2) and d.verdict == "pass" and d.limit_confirmed is True  # 0.6 mm x 2000
+    assert d.finest_class == "1:2000"  # 0.9 m > 0.6 m of 1:1000
+    assert d.checkpoints_accurate is True  # 0.2 m <= 1/5 of 1.2 m
+    plan, height = _by(comp, "Aerotriangulation")
+    assert plan.limit == pytest.approx(0.7) and plan.verdict == "pass" and plan.limit_confirmed is False
+    assert plan.finest_class == "1:2000"  # 0.35 mm: 0.35 m at 1:1000
+    assert height.verdict == "not testable" and height.limit is None
+    # mountainous: 0.8 mm and 0.5 mm
+    comp = judge(Figures(dom=dom), Choice("cn-at", "1:2000 mountainous", "t", scale="1:2000", terrain="mountainous"))
+    assert _by(comp, "DOM")[0].limit == pytest.approx(1.6)
+
+
+def test_land_cover_groups():
+    assert vegetated("dense") is True and vegetated("Forest") is True and vegetated("open") is False
+    assert vegetated("road") is False and vegetated(None) is None and vegetated("unknown") is None
+
+
+class _Qa:
+    standard = accuracy_class = map_scale = terrain = None
+    horizontal_class_cm = vertical_class_cm = None
+
+
+class _Table:
+    key, name, reason, terrain = "1:5000", "Chinese 1:5000", "map scale 1:5000 from project.toml [qa]", "flat"
+
+
+def test_choice_names_the_standard_class_and_why():
+    c = choose(None, None, _Table(), None, _Qa(), None)
+    assert c.key == "cn-at" and c.class_tested == "1:5000 flat" and "tolerance table" in c.reason
+    c = choose("asprs2023", "H7.1 V10", _Table(), None, _Qa(), None)
+    assert (c.h_cm, c.v_cm) == (7.1, 10.0) and "--class" in c.reason
+    c = choose("usgs-lbs", None, _Table(), None, _Qa(), None)
+    assert c.level == "QL2" and "QL2" in c.reason
+    with pytest.raises(OptionError, match="--class 'QL9'"):
+        choose("usgs-lbs", "QL9", _Table(), None, _Qa(), None)
+    with pytest.raises(OptionError, match="'H<cm> V<cm>'"):
+        choose("asprs2023", "10cm", _Table(), None, _Qa(), None)
+
+
+PROJECT = '[project]\nname = "t"\ncrs = "EPSG:32649"\n'
+
+
+def _project(tmp_path, n_check):
+    (tmp_path / "project.toml").write_text(PROJECT + '[control]\nsigma_xy_m = 0.01\nsigma_z_m = 0.02\n')
+    (tmp_path / "at").mkdir()
+    pts = [dict(id=f"C{i}", d_m=[0.03 * (-1) ** i, 0.04, 0.05 * (-1) ** i]) for i in range(n_check)]
+    (tmp_path / "at" / "report.json").write_text(json.dumps(dict(
+        project="t", check_rms_m=[0.03, 0.04, 0.05], check_points=pts, rms_control_ground_m=[0.02, 0.02, 0.03],
+        key_statistics=dict(sigma0_um=5.1, sigma0_px=0.425, success=True, message="Solution Successful."))))
+    return tmp_path
+
+
+def test_report_summary_html_and_cli_carry_the_compliance_section(tmp_path):
+    p = _project(tmp_path, 32)
+    rep = write_qa_report(p, standard="asprs2023", accuracy_class="H10 V10")
+    comp = json.loads((p / "reports" / "summary.json").read_text())["compliance"]
+    assert comp["key"] == "asprs2023" and comp["class_tested"] == "H10cm V10cm"
+    plan = comp["checks"][0]
+    # RMSE_H 5 cm with the check points' sqrt(2) x 1 cm included: 5.20 cm <= 0.5 H = 5 cm? no: fail
+    assert plan["figure"] == pytest.approx(math.hypot(0.05, math.sqrt(2) * 0.01), abs=1e-4)
+    assert plan["limit"] == 0.05 and plan["verdict"] == "fail" and plan["n_points"] == 32
+    assert plan["checkpoints_accurate"] is True  # 1.41 cm <= 5 cm / 2
+    assert rep["compliance"]["products"][0]["finest_class"] == "H12.5cm"
+    html = (p / "reports" / "index.html").read_text()
+    assert "Compliance: ASPRS Positional Accuracy Standards, Edition 2 (2023), class H10cm V10cm" in html
+    from aerotri.cli import main
+
+    res = CliRunner().invoke(main, ["report", str(p), "--standard", "cn-at", "--class", "1:1000"])
+    assert res.exit_code == 0, res.output
+    assert "compliance: Chinese specifications for digital aerial triangulation" in res.output
+    assert "class 1:1000 flat" in res.output
+    res = CliRunner().invoke(main, ["report", str(p), "--standard", "usgs-lbs", "--class", "QL7"])
+    assert res.exit_code == 2 and "--class 'QL7'" in res.output
