@@ -309,6 +309,12 @@ class Choice:
     terrain: str = "flat"
 
 
+def _table_reason(table) -> str:
+    """The tolerance table's reason without its own "standard ... from ..." head (the compliance reason says it)."""
+    return table.reason.split("; ", 1)[1] if table.reason.startswith("standard ") and "; " in table.reason \
+        else table.reason
+
+
 def asprs_class_cm(text: str | None) -> tuple[float, float] | None:
     """(H cm, V cm) of an ASPRS class text such as 'H7.1 V10' or 'H7.1cm,V10cm'; None for other text."""
     m = _ASPRS_CLASS.match(text or "")
@@ -347,9 +353,7 @@ def choose(standard: str | None, class_text: str | None, table: ToleranceTable, 
         elif table_key.startswith("ASPRS2023"):
             m = re.match(r"ASPRS2023 H([0-9.]+)cm V([0-9.]+)cm", table_key)
             h, v = float(m[1]), float(m[2])
-            # the table's reason without its own "standard ... from ..." head (said above)
-            r = table.reason.split("; ", 1)[1] if table.reason.startswith("standard ") else table.reason
-            why += f"; classes of the report's tolerance table: {r}"
+            why += f"; classes of the report's tolerance table: {_table_reason(table)}"
         elif gsd is not None:
             h, v, row = asprs_classes_for_gsd(gsd)
             why += f"; classes by the block's GSD: {row}"
@@ -380,7 +384,7 @@ def choose(standard: str | None, class_text: str | None, table: ToleranceTable, 
         why += "; map scale from project.toml [qa] map_scale"
     elif table_key in SCALE_TABLES:
         scale = table_key
-        why += f"; map scale of the tolerance table ({table.reason})"
+        why += f"; map scale of the report's tolerance table: {_table_reason(table)}"
     elif gsd is not None:
         scale, row = scale_for_gsd(gsd)
         why += f"; map scale by the block's GSD: {row}"
@@ -456,21 +460,26 @@ def _asprs(figs: Figures, c: Choice) -> list[ComplianceCheck]:
     point_checks("Line map (DLG)", figs.line_map, (("H", "feature_rms_xy_m", "RMSE_H (radial)", True, 1.0),))
     lf = figs.lidar
     if lf is not None:
-        if lf.nva_rmse_m is not None or lf.n_nva:
-            limit, conf, source = lim("dem_rmse_m")
-            fig = F.with_checkpoint_accuracy(lf.nva_rmse_m, lf.cp_rmse_v_m)
-            cp_ok, cp_note = (None, "no class") if limit is None else _cp_note(
-                lf.cp_rmse_v_m, limit / factor, lf.cp_source, f"{factor:g} x finer than the class needs <=")
-            fin, rank = finest(fig, lad_v, 1.0, "V")
-            out.append(_check("LiDAR DEM", "NVA: RMSE_V at non-vegetated check points", c.class_tested, lf.nva_rmse_m,
-                              fig, limit, "m", lf.n_nva, need, cp_ok, f"{cp_note}; {lf.grouping_note}", conf, source,
-                              fin, rank, "V"))
-            vva = L["vertical_vva"]
-            out.append(_check("LiDAR DEM", "VVA: RMSE_V at vegetated check points", c.class_tested, lf.vva_rmse_m,
-                              F.with_checkpoint_accuracy(lf.vva_rmse_m, lf.cp_rmse_v_m) if lf.vva_rmse_m is not None
-                              else None, None, "m", lf.n_vva, None, None, lf.grouping_note, vva["confirmed"],
-                              f"{src}; {vva['evidence']}", verdict="reported",
-                              why="no pass/fail in Edition 2" + ("" if lf.n_vva else "; no vegetated check points")))
+        # the DEM rows always: without surveyed points they say so
+        limit, conf, source = lim("dem_rmse_m")
+        fig = (F.with_checkpoint_accuracy(lf.nva_rmse_m, lf.cp_rmse_v_m) if lf.nva_rmse_m is not None
+               else None)
+        cp_ok, cp_note = (None, "no class") if limit is None else _cp_note(
+            lf.cp_rmse_v_m, limit / factor, lf.cp_source, f"{factor:g} x finer than the class needs <=")
+        fin, rank = finest(fig, lad_v, 1.0, "V")
+        ch = _check("LiDAR DEM", "NVA: RMSE_V at non-vegetated check points", c.class_tested, lf.nva_rmse_m,
+                    fig, limit, "m", lf.n_nva, need, cp_ok, f"{cp_note}; {lf.grouping_note}", conf, source,
+                    fin, rank, "V")
+        if fig is None:
+            ch = dataclasses.replace(ch, verdict=NOT_TESTABLE,
+                                     why="not measured: no surveyed check points (lidarctl check-heights)")
+        out.append(ch)
+        vva = L["vertical_vva"]
+        out.append(_check("LiDAR DEM", "VVA: RMSE_V at vegetated check points", c.class_tested, lf.vva_rmse_m,
+                          F.with_checkpoint_accuracy(lf.vva_rmse_m, lf.cp_rmse_v_m) if lf.vva_rmse_m is not None
+                          else None, None, "m", lf.n_vva, None, None, lf.grouping_note, vva["confirmed"],
+                          f"{src}; {vva['evidence']}", verdict="reported",
+                          why="no pass/fail in Edition 2" + ("" if lf.n_vva else "; no vegetated check points")))
         if lf.swath_rmsdz_m is not None:
             limit, conf, source = lim("strip_rmsdz_m")
             fin, rank = finest(lf.swath_rmsdz_m, lad_v, 0.8, "V")
@@ -493,6 +502,7 @@ def _lbs(figs: Figures, c: Choice) -> list[ComplianceCheck]:
         return out
 
     def row(key, quantity, fig, n, n_need, cp, cp_src, note, lower_is_better=True):
+        """One quality-level row; the finest level is the first of QL0..QL3 whose limit the figure meets."""
         lv = levels[c.level]
         limit = lv[key]
         conf = key in lv["provenance"]["confirmed"]
@@ -509,6 +519,8 @@ def _lbs(figs: Figures, c: Choice) -> list[ComplianceCheck]:
             ch = _check("LiDAR DEM" if key in ("nva_rmse_m", "vva_p95_m") else
                         ("LiDAR swath overlaps" if key.startswith("interswath") else "LiDAR density"),
                         quantity, c.class_tested, fig, fig, limit, "m", n, n_need, cp_ok, cp_note, conf, source, fin, rank)
+            if fig is None:
+                ch = dataclasses.replace(ch, why=f"not measured: {note}" if note else "not measured")
         else:  # a lower limit (density): pass when the figure reaches it
             ok = None if fig is None else fig >= limit
             ch = _check("LiDAR density", quantity, c.class_tested, fig, fig, limit, "per m2", None, None, None, note,
@@ -516,11 +528,12 @@ def _lbs(figs: Figures, c: Choice) -> list[ComplianceCheck]:
                         why="not measured" if ok is None else "a lower limit: the density must reach it")
         out.append(ch)
 
-    if lf.nva_rmse_m is not None or lf.n_nva:
-        row("nva_rmse_m", "NVA: RMSEz at non-vegetated check points", lf.nva_rmse_m, lf.n_nva, need, lf.cp_rmse_v_m,
-            lf.cp_source, lf.grouping_note)
-        row("vva_p95_m", "VVA: 95th percentile of |dz| at vegetated check points", lf.vva_p95_m, lf.n_vva, None, None,
-            None, lf.grouping_note)
+    # the DEM rows always: without surveyed points they say so (not testable)
+    nopts = "" if lf.grouping_note else "no surveyed check points (lidarctl check-heights)"
+    row("nva_rmse_m", "NVA: RMSEz at non-vegetated check points", lf.nva_rmse_m, lf.n_nva, need, lf.cp_rmse_v_m,
+        lf.cp_source, lf.grouping_note or nopts)
+    row("vva_p95_m", "VVA: 95th percentile of |dz| at vegetated check points", lf.vva_p95_m, lf.n_vva, None, None,
+        None, lf.grouping_note or nopts)
     if lf.swath_rmsdz_m is not None:
         row("interswath_rmsdz_m", "interswath (swath overlap) RMSDz on smooth surfaces", lf.swath_rmsdz_m, None, None,
             None, None, lf.swath_note)

@@ -620,10 +620,12 @@ def write_pdf(path: Path, rep: dict, project: Project, figures: list | None = No
             rows = [compliance_row(c) for c in comp["checks"]]
             colours = [["white"] * 8 + [VERDICT_COLOURS.get(c["verdict"], "white"), "white"] for c in comp["checks"]]
             _pdf_table(pdf, plt, f"Compliance: {comp['name']}, class {comp['class_tested']}"[:110],
-                       COMPLIANCE_HEADER, rows, [0.1, 0.2, 0.06, 0.07, 0.07, 0.06, 0.09, 0.07, 0.08, 0.2], colours)
-            _pdf_table(pdf, plt, "Compliance per product (why the standard and class: " + comp["reason"][:60] + "...)",
+                       COMPLIANCE_HEADER, rows, [0.09, 0.26, 0.08, 0.05, 0.05, 0.06, 0.06, 0.05, 0.2, 0.06], colours)
+            why = textwrap.wrap(f"Chosen because: {comp['reason']}", 150)
+            _pdf_table(pdf, plt, "Compliance per product",
                        ["product", "verdict", "finest class met"],
-                       [[p["product"], p["verdict"], p["finest_class"]] for p in comp["products"]], [0.3, 0.2, 0.4])
+                       [[p["product"], p["verdict"], p["finest_class"]] for p in comp["products"]]
+                       + [["", "", ""]] + [[line, "", ""] for line in why], [0.7, 0.1, 0.15])
         fa = rep.get("flight_acceptance")
         if fa:
             ops = {"max": "<=", "min": ">="}
