@@ -501,7 +501,8 @@ def compliance_lines(comp: dict | None) -> list[str]:
         lines.append(f"  {p['verdict']:<12} {p['product']}: finest class met {p['finest_class']}")
     for c in comp["checks"]:
         star = "*" if c["limit_confirmed"] is False else ""
-        pts = f", {c['n_points']}" + (f" of {c['n_required']}" if c["n_required"] else "") + " points" \
+        acc = {True: "accurate enough", False: "not accurate enough", None: "accuracy unknown"}[c["checkpoints_accurate"]]
+        pts = f", {c['n_points']}" + (f" of {c['n_required']}" if c["n_required"] else "") + f" points, {acc}" \
             if c["n_points"] is not None else ""
         lines.append(f"    {c['verdict']:<12} {c['product']}: {c['quantity']} = {_num(c['figure'])} "
                      f"(limit {_num(c['limit'])}{star}{pts})" + (f"; {c['why']}" if c["why"] else ""))
