@@ -444,6 +444,8 @@ def _asprs(figs: Figures, c: Choice) -> list[ComplianceCheck]:
                                           f"Edition 2 rule) needs <=")
             if cp is not None and meas is not None:
                 cp_note += f"; measured {meas:.3f} m combined with the check points' {cp:.3f} m"
+            if cs.note:
+                cp_note += f"; {cs.note}"
             # the finest class: the limit is ``multiple`` x the class (the AT twice as accurate as the product)
             fin, rank = finest(fig, lad_h if dim == "H" else lad_v, multiple, dim)
             ch = _check(product, f"check points, {quantity}", c.class_tested, meas, fig, limit, "m", n, need, cp_ok,
@@ -573,7 +575,8 @@ def _cn(figs: Figures, c: Choice) -> list[ComplianceCheck]:
                           (None, "no feature limit to judge the check points by"))
         fin, rank = finest(cs.rmse_h_m, keys, c.terrain) if cs.rmse_h_m is not None else (None, None)
         ch = _check(product, "check points, plan RMS (radial)", c.class_tested, cs.rmse_h_m, cs.rmse_h_m, limit, "m",
-                    cs.n_h, None, cp_ok, cp_note + "; the specifications set no minimum number of check points",
+                    cs.n_h, None, cp_ok, cp_note + "; the specifications set no minimum number of check points"
+                    + (f"; {cs.note}" if cs.note else ""),
                     conf, source, fin, rank)
         if cs.rmse_h_m is None:
             ch = dataclasses.replace(ch, verdict=NOT_TESTABLE, why=cs.note or "not measured")
