@@ -300,7 +300,9 @@ class Chain:
     # -- LiDAR ----------------------------------------------------------------------------------
     def adjusting(self) -> bool:
         """The strips are adjusted: [strips] adjust, unless the check found nothing to compare."""
-        return self.options.strips.adjust and not _json(self.project.strips_check_path).get("why")
+        from lidarctl.strips.check import nothing_compared
+
+        return self.options.strips.adjust and not nothing_compared(self.project.strips_check_path)
 
     def strip_trajectories(self) -> list[Path]:
         return self.project.trajectories() if self.options.strips.use_trajectory else []
@@ -320,7 +322,7 @@ class Chain:
     def run_strips(self, root) -> dict:
         from aerotri.core.atomic import atomic_dir
         from lidarctl.strips.adjust import adjust_strips
-        from lidarctl.strips.check import check_strips
+        from lidarctl.strips.check import check_strips, record_nothing_compared
         from lidarctl.strips.overlap import NothingToCompare
 
         s, p = self.options.strips, self.project
@@ -328,17 +330,17 @@ class Chain:
             if s.adjust:
                 a = adjust_strips(p.lidar_strips(), p.strips_dir, s.adjustment, s.surface,
                                   trajectories=self.strip_trajectories(), crs=p.crs, png=s.maps)
-                return dict(model=a["model"], rms_before_m=round(a["check_before"]["rms_m"], 4),
-                            rms_after_m=round(a["check_after"]["rms_m"], 4), sigma0=round(a["sigma0"], 3))
+                return dict(model=a.model, rms_before_m=round(a.check_before.rms_m, 4),
+                            rms_after_m=round(a.check_after.rms_m, 4), sigma0=round(a.sigma0, 3))
             c = check_strips(p.lidar_strips(), p.strips_dir, s.surface, crs=p.crs, png=s.maps)
         except NothingToCompare as e:
             # recorded, so that the report and a re-run know (the folder holds nothing else)
             why = f"nothing to compare: {e}"
             with atomic_dir(p.strips_dir) as tmp:
-                (tmp / "strips.json").write_text(json.dumps({"why": why}, indent=2) + "\n")
+                record_nothing_compared(tmp, why)
             return dict(why=why)
-        a = c["all_pairs"]
-        return dict(pairs=len(c["pairs"]), rms_m=round(a["rms_m"], 4), nmad_m=round(a["nmad_m"], 4))
+        a = c.all_pairs
+        return dict(pairs=len(c.pairs), rms_m=round(a.rms_m, 4), nmad_m=round(a.nmad_m, 4))
 
     def run_classify(self, root) -> dict:
         from aerotri.core.atomic import remove_leftovers
