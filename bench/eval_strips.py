@@ -111,8 +111,8 @@ def corner_error(project: Path, strips: list[Path], match_m: float = 1.0) -> dic
     from lidarctl.corners import find_roof_corners, read_classified_cloud
 
     clouds = [read_classified_cloud(p) for p in strips]
-    cls = [read_classified_cloud(project / "truth" / "lidar" / p.name)["classification"] for p in strips]
-    cat = {k: np.concatenate([c[k] for c in clouds]) for k in ("x", "y", "z", "point_source_id")}
+    cls = [read_classified_cloud(project / "truth" / "lidar" / p.name).classification for p in strips]
+    cat = {k: np.concatenate([getattr(c, k) for c in clouds]) for k in ("x", "y", "z", "point_source_id")}
     res = find_roof_corners(cat["x"], cat["y"], cat["z"], np.concatenate(cls), cat["point_source_id"], roof="flat")
     rows = list(csv.DictReader(open(project / "truth" / "roof_corners.csv")))
     txyz = np.array([[float(r["x"]), float(r["y"]), float(r["z"])] for r in rows])

@@ -152,8 +152,10 @@ class Chain:
             return why
         if not self.options.adjust.use_control:
             return f"{self.project.config_path}: [adjust] use_control = false"
-        summary = _json(self.project.corners_summary_path)
-        if summary.get("no_usable"):
+        from lidarctl.corners import read_corner_summary
+
+        path = self.project.corners_summary_path
+        if path.is_file() and read_corner_summary(path).no_usable:
             return f"no usable roof corner ({self.lo / 'corners.json'})"
         if not self.has_gnss and self.options.adjust.initial_eo is None:
             return ("no orientations to measure the corners with: no GNSS (gnss.txt) for a first adjustment and "
@@ -359,21 +361,23 @@ class Chain:
         return dict(res_m=self.options.rasters.res_m)
 
     def corner_outputs(self, root) -> list[Path]:
-        summary = _json(self.project.corners_summary_path)
-        usable = summary.get("n_usable", 1) > 0 if summary else True
+        from lidarctl.corners import read_corner_summary
+
+        path = self.project.corners_summary_path
+        usable = read_corner_summary(path).stats.n_usable > 0 if path.is_file() else True
         return [self.project.corners_summary_path] + (
             [self.project.corners_path, self.project.roof_planes_path] if usable else [])
 
     def run_corners(self, root) -> dict:
         from lidarctl.corners import corner_control
 
-        st = corner_control(self.classified(), self.lo, self.stage_settings("corners"), record_none=True)
-        out = dict(corners=st["n_corners"], usable=st["n_usable"])
-        if st["no_usable"]:
+        res = corner_control(self.classified(), self.lo, self.stage_settings("corners"), record_none=True)
+        out = dict(corners=res.stats.n_corners, usable=res.stats.n_usable)
+        if res.no_usable:
             hint = "a smaller min_edge_m"
             if self.options.corners.roof == "flat":
                 hint = "roof = \"any\" or " + hint
-            out["notes"] = [f"{st['no_usable']}; the chain goes on without LiDAR control (or try [corners] {hint} "
+            out["notes"] = [f"{res.no_usable}; the chain goes on without LiDAR control (or try [corners] {hint} "
                             "in project.toml)"]
         return out
 
