@@ -241,7 +241,7 @@ class Model:
         J[:, :, cols] = Jl
         return J
 
-    def displacement(self, name, x, y, z, t, theta: np.ndarray, block: int = 200_000) -> np.ndarray:
+    def displacement(self, name, x, y, z, t, theta: np.ndarray, *, block: int = 200_000) -> np.ndarray:
         """(n, 3) e(p) = J(p) theta of points of strip ``name`` (only the strip's own columns are formed)."""
         if self.displace is not None:
             return self.displace(name, x, y, z, t, theta)
@@ -591,7 +591,7 @@ def keep_region(ss: ov.StripSet, reach_m: float, times: bool = False) -> ov.Keep
     return ov.KeepRegion(d, cn, ids, times)
 
 
-def estimate(paths, ss: ov.StripSet, model: Model, settings: StripAdjustSettings, read_params, crs, extra,
+def estimate(paths, ss: ov.StripSet, model: Model, settings: StripAdjustSettings, read_params, *, crs, extra,
              control: ctl.ControlPoints | None = None):
     """Least squares on the planes of ``ss``, then again on the strips re-read with the correction so far,
     until a step is below ``STEP_TOL_SIGMA`` standard deviations in every parameter (at most
@@ -661,7 +661,7 @@ def control_summary(cps: ctl.ControlPoints, ss: ov.StripSet, first: Observations
 
 
 def adjust_strips(paths, outdir, settings: StripAdjustSettings = StripAdjustSettings(),
-                  surface: ov.SurfaceSettings = ov.SurfaceSettings(), trajectories=(), crs=None, png: bool = True,
+                  surface: ov.SurfaceSettings = ov.SurfaceSettings(), *, trajectories=(), crs=None, png: bool = True,
                   control=None) -> StripAdjustResult:
     """The stage: estimate, write the corrected strips and the check before and after into OUTDIR
     (``<strip files>``, ``adjust.json``, ``check_before/``, ``check_after/``). Returns what adjust.json holds."""
@@ -689,7 +689,7 @@ def adjust_strips(paths, outdir, settings: StripAdjustSettings = StripAdjustSett
     t_read = time.perf_counter()
     model = boresight_model(ss, chosen, settings.shift_sigma_m) if trajectories else \
         strip_model(ss, settings.fixed, controlled=cps is not None)
-    sol, first, obs, passes = estimate(paths, ss, model, settings, read_params, crs, extra, cps)
+    sol, first, obs, passes = estimate(paths, ss, model, settings, read_params, crs=crs, extra=extra, control=cps)
     model.jac = {}  # the cells' Jacobians are not needed any more
     t_solve = time.perf_counter()
     with atomic_dir(outdir) as tmp:

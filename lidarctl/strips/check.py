@@ -363,8 +363,8 @@ def analyse(ss: StripSet, params: SurfaceSettings, paths, min_cells: int = 20) -
     return CheckResult(summary, pairs, ss)
 
 
-def check_strips(paths, outdir, params: SurfaceSettings = SurfaceSettings(), crs=None, title: str = "Strip differences",
-                 vmax_m: float | None = None, png: bool = True) -> StripCheckResult:
+def check_strips(paths, outdir, params: SurfaceSettings = SurfaceSettings(), *, crs=None,
+                 title: str = "Strip differences", vmax_m: float | None = None, png: bool = True) -> StripCheckResult:
     """The stage: read the strips, analyse the overlaps and write OUTDIR (see the module docstring). Returns
     what strips.json holds (with ``seconds`` and ``points_per_s``)."""
     t0 = time.perf_counter()
