@@ -94,7 +94,7 @@ def outline_plan_offsets(classified: Path, polys: list, hulls: list) -> dict:
     the footprints (eave overhang). Vertices within MATCH_M count; RMS, mean (the systematic overhang)
     and the RMS about the mean."""
     cloud = read_classified_cloud(classified, crs=CRS)
-    res = find_roof_corners(cloud["x"], cloud["y"], cloud["z"], cloud["classification"], cloud["point_source_id"],
+    res = find_roof_corners(cloud.x, cloud.y, cloud.z, cloud.classification, cloud.point_source_id,
                             roof="any")
     union = shapely.union_all([p.buffer(0) for p in polys])
     union = union.buffer(0.05, join_style="mitre").buffer(-0.05, join_style="mitre")

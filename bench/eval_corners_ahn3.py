@@ -312,7 +312,7 @@ def outline_but_no_corner(ref: np.ndarray, res: dict, res_short: dict, min_edge_
     return {"counts": {k: len(v) for k, v in sorted(kinds.items())}, "vertices_xy": dict(sorted(kinds.items()))}
 
 
-def plot_misses(path: Path, cloud: dict, res: dict, polys, detail: dict, half_m: float = 9.0) -> None:
+def plot_misses(path: Path, cloud, res: dict, polys, detail: dict, half_m: float = 9.0) -> None:
     """Zoomed panels (nDSM, BGT footprints cyan, roof outlines orange, corners as in ``plot_corners``) around
     the ``outline_but_no_corner`` vertices (green +), titled with what the tracing did there."""
     import matplotlib
@@ -325,8 +325,8 @@ def plot_misses(path: Path, cloud: dict, res: dict, polys, detail: dict, half_m:
     items = [(kind, xy) for kind, v in detail["vertices_xy"].items() for xy in v][:20]
     if not items:
         return
-    xyz = np.column_stack([cloud["x"], cloud["y"], cloud["z"]])
-    ndsm, ext = simple_ndsm(xyz, cloud["classification"], cell_m=0.5)
+    xyz = np.column_stack([cloud.x, cloud.y, cloud.z])
+    ndsm, ext = simple_ndsm(xyz, cloud.classification, cell_m=0.5)
     cols = 5
     rows = (len(items) + cols - 1) // cols
     fig, axs = plt.subplots(rows, cols, figsize=(3.0 * cols + 1.0, 3.2 * rows + 0.6), squeeze=False,
@@ -363,9 +363,9 @@ def plot_misses(path: Path, cloud: dict, res: dict, polys, detail: dict, half_m:
     plt.close(fig)
 
 
-def detect(cloud: dict, min_edge_m: float | None) -> tuple[dict, float]:
+def detect(cloud, min_edge_m: float | None) -> tuple[dict, float]:
     t0 = time.perf_counter()
-    res = find_roof_corners(cloud["x"], cloud["y"], cloud["z"], cloud["classification"], cloud["point_source_id"],
+    res = find_roof_corners(cloud.x, cloud.y, cloud.z, cloud.classification, cloud.point_source_id,
                             min_edge_m=min_edge_m, roof="any")
     return res, time.perf_counter() - t0
 
@@ -383,7 +383,7 @@ def evaluate(laz: Path, polys: list, min_edge_m: float, corner_dir: Path, datase
     write_corner_files(corner_dir, res, crs=crs, source=str(laz))
 
     blocks = footprint_blocks(polys)
-    vxy, sets = reference_sets(blocks, np.column_stack([cloud["x"], cloud["y"]]))
+    vxy, sets = reference_sets(blocks, np.column_stack([cloud.x, cloud.y]))
     # the split of the earlier figures (median x of the ``all`` vertices), kept so both are comparable
     x_split = float(np.median(vxy[sets["all"], 0]))
     halves = {"whole": np.ones(len(vxy), bool), "west": vxy[:, 0] < x_split, "east": vxy[:, 0] >= x_split}
@@ -546,8 +546,8 @@ def main():
     write_text_atomic(json_path, json.dumps(result, indent=2) + "\n")
 
     cloud = fig["cloud"]
-    xyz = np.column_stack([cloud["x"], cloud["y"], cloud["z"]])
-    ndsm, extent = simple_ndsm(xyz, cloud["classification"], cell_m=0.5)
+    xyz = np.column_stack([cloud.x, cloud.y, cloud.z])
+    ndsm, extent = simple_ndsm(xyz, cloud.classification, cell_m=0.5)
     h = summary["headline"]
     place = "AHN3 Delft" if key is None else f"AHN3 Delft, unseen {laz.name}"
     plot_corners(

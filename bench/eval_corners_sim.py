@@ -62,15 +62,15 @@ def main():
     files = sorted((args.project / "truth" / "lidar").glob("strip_*.la[sz]")) if args.classified == "truth" \
         else [Path(args.classified)]
     clouds = [read_classified_cloud(p) for p in files]
-    cat = {k: np.concatenate([c[k] for c in clouds]) for k in ("x", "y", "z", "classification", "point_source_id")}
+    cat = {k: np.concatenate([getattr(c, k) for c in clouds]) for k in ("x", "y", "z", "classification", "point_source_id")}
     if len(clouds) > 1 and len(np.unique(cat["point_source_id"])) < len(clouds):
-        cat["point_source_id"] = np.concatenate([np.full(len(c["x"]), i + 1) for i, c in enumerate(clouds)])
+        cat["point_source_id"] = np.concatenate([np.full(len(c.x), i + 1) for i, c in enumerate(clouds)])
 
     t0 = time.perf_counter()
     res = find_roof_corners(cat["x"], cat["y"], cat["z"], cat["classification"], cat["point_source_id"],
                             min_edge_m=args.min_edge_m, roof=args.roof)
     runtime = time.perf_counter() - t0
-    write_corner_files(REPO / "out" / "corners_sim", res, crs=clouds[0]["crs"], source=", ".join(map(str, files)))
+    write_corner_files(REPO / "out" / "corners_sim", res, crs=clouds[0].crs, source=", ".join(map(str, files)))
 
     truth = read_truth(args.project / "truth" / "roof_corners.csv")
     txy = np.column_stack([truth["x"], truth["y"]])

@@ -126,9 +126,9 @@ def projection_check(eo, camera, project, out: Path) -> dict:
     res = {}
     for name, cam in (("ngi_pinhole", camera), ("brown_with_pp", brown)):
         d = out / name
-        for rel, text in texts(eo, cam, project).items():
-            (d / rel).parent.mkdir(parents=True, exist_ok=True)
-            (d / rel).write_text(text)
+        for f in texts(eo, cam, project):
+            (d / f.path).parent.mkdir(parents=True, exist_ok=True)
+            (d / f.path).write_text(f.content)
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
             cams = oty.FrameCameras(d / "orthority" / "int_param.yaml", d / "orthority" / "ext_param.csv")
@@ -207,9 +207,9 @@ def evaluate(data: Path, out: Path, res_m: float, png: Path) -> dict:
     res["ours_vs_orthority_max_offset_px"] = float(offs.max())
     # 4. orthority on our export
     exp = out / "export"
-    for rel, text in texts(eo, camera, project).items():
-        (exp / rel).parent.mkdir(parents=True, exist_ok=True)
-        (exp / rel).write_text(text)
+    for f in texts(eo, camera, project):
+        (exp / f.path).parent.mkdir(parents=True, exist_ok=True)
+        (exp / f.path).write_text(f.content)
     from_ours = orthority_orthos(exp / "orthority" / "int_param.yaml", exp / "orthority" / "ext_param.csv", images,
                                  data / ngi.DEM_FILE, res_m, out / "orthority_from_our_export")
     res["orthority_from_our_export_vs_orthority_own"] = {iid: ortho_offset(from_ours[iid], theirs[iid])

@@ -53,14 +53,14 @@ def _ahn3_module():
     return mod
 
 
-def by_kind(result: dict, kinds: dict) -> dict:
+def by_kind(result, kinds: dict) -> dict:
     out = {}
     for kind in sorted(set(kinds.values())):
-        rows = [p for p in result["points"] if kinds.get(p["id"]) == kind]
-        f = [p for p in rows if p["found"]]
-        d = np.array([[p["dx_m"], p["dy_m"]] for p in f]).reshape(-1, 2)
-        dz = np.array([p["dz_m"] for p in f]) if result["has_z"] else None
-        out[kind] = plan_stats(d, dz, len(rows), result["overall"]["tolerance_rms_plan_m"])
+        rows = [p for p in result.points if kinds.get(p.id) == kind]
+        f = [p for p in rows if p.found]
+        d = np.array([[p.dx_m, p.dy_m] for p in f]).reshape(-1, 2)
+        dz = np.array([p.dz_m for p in f]) if result.has_z else None
+        out[kind] = plan_stats(d, dz, len(rows), result.overall.tolerance_rms_plan_m).as_dict()
     return out
 
 
@@ -80,12 +80,11 @@ def simulator(project: Path, out: Path, params: PlanCheckSettings) -> dict:
     res = check_plan_files(clouds, truth_csv, params, json_path=None, png_path=out / "plan_check_sim.png")
     runtime = time.perf_counter() - t0
     truth_info = json.loads((project / "truth" / "truth.json").read_text())
-    res.pop("points_csv")
     return {"dataset": f"simulator preset {truth_info.get('preset')} seed {truth_info.get('seed')} ({project}), "
                        f"classes from {source}; surveyed points = truth/roof_corners.csv (true eave corners)",
             "hold_out": "none needed: no parameter is chosen here (command defaults)",
-            "n_lidar_corners": res["n_lidar_corners"], "radius_m": res["radius_m"], "min_edge_m": res["min_edge_m"],
-            "overall": res["overall"], "by_roof": by_kind(res, kinds), "runtime_s": runtime}
+            "n_lidar_corners": res.n_lidar_corners, "radius_m": res.radius_m, "min_edge_m": res.min_edge_m,
+            "overall": res.overall.as_dict(), "by_roof": by_kind(res, kinds), "runtime_s": runtime}
 
 
 def ahn3(out: Path, params: PlanCheckSettings) -> dict:
@@ -107,15 +106,15 @@ def ahn3(out: Path, params: PlanCheckSettings) -> dict:
         t0 = time.perf_counter()
         res = check_plan_files([laz], csv_path, params, crs="EPSG:28992", png_path=out / "plan_check_ahn3.png")
         runtime = time.perf_counter() - t0
-    long_edges = v_short[keep] >= res["min_edge_m"]
-    f = [p for p, le in zip(res["points"], long_edges) if le and p["found"]]
-    d = np.array([[p["dx_m"], p["dy_m"]] for p in f]).reshape(-1, 2)
+    long_edges = v_short[keep] >= res.min_edge_m
+    f = [p for p, le in zip(res.points, long_edges) if le and p.found]
+    d = np.array([[p.dx_m, p.dy_m] for p in f]).reshape(-1, 2)
     return {"dataset": "AHN3 Delft crop (ahn3_cropped_1.laz, EPSG:28992) vs BGT footprint vertices (bgt_pand.sqlite)",
             "note": "BGT footprints are wall lines, LiDAR corners eave corners: offsets include the roof overhang "
                     "(not the LiDAR's error); a smoke run of the command on real data",
-            "n_lidar_corners": res["n_lidar_corners"], "radius_m": res["radius_m"], "overall": res["overall"],
+            "n_lidar_corners": res.n_lidar_corners, "radius_m": res.radius_m, "overall": res.overall.as_dict(),
             "vertices_with_edges_ge_min_edge": plan_stats(d, None, int(long_edges.sum()),
-                                                          res["overall"]["tolerance_rms_plan_m"]),
+                                                          res.overall.tolerance_rms_plan_m).as_dict(),
             "runtime_s": runtime}
 
 

@@ -24,6 +24,7 @@ Run: .venv/bin/python bench/eval_strips.py [--seeds 1 2 3 4 5] [--copies 70] [--
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import os
 import shutil
@@ -40,7 +41,7 @@ sys.path.insert(0, str(REPO))
 from aerotri.sim import load_preset, simulate  # noqa: E402
 from aerotri.sim.config import apply_overrides  # noqa: E402
 from lidarctl.strips import adjust as adj  # noqa: E402
-from lidarctl.strips.check import check_strips  # noqa: E402
+from lidarctl.strips.check import check_strips, read_strip_check  # noqa: E402
 
 BORESIGHT_DEG = (0.03, -0.02, 0.04)
 RANGE_OFFSET_M = 0.05
@@ -110,8 +111,8 @@ def corner_error(project: Path, strips: list[Path], match_m: float = 1.0) -> dic
     from lidarctl.corners import find_roof_corners, read_classified_cloud
 
     clouds = [read_classified_cloud(p) for p in strips]
-    cls = [read_classified_cloud(project / "truth" / "lidar" / p.name)["classification"] for p in strips]
-    cat = {k: np.concatenate([c[k] for c in clouds]) for k in ("x", "y", "z", "point_source_id")}
+    cls = [read_classified_cloud(project / "truth" / "lidar" / p.name).classification for p in strips]
+    cat = {k: np.concatenate([getattr(c, k) for c in clouds]) for k in ("x", "y", "z", "point_source_id")}
     res = find_roof_corners(cat["x"], cat["y"], cat["z"], np.concatenate(cls), cat["point_source_id"], roof="flat")
     rows = list(csv.DictReader(open(project / "truth" / "roof_corners.csv")))
     txyz = np.array([[float(r["x"]), float(r["y"]), float(r["z"])] for r in rows])
@@ -140,42 +141,42 @@ def eval_seed(work: Path, seed: int) -> dict:
     t0 = time.perf_counter()
     s = adj.adjust_strips(strips_of(err), work / f"seed{seed}_adjusted", adj.StripAdjustSettings(shift_sigma_m=0.03),
                           trajectories=trajs, png=seed == TUNING_SEED)
-    assert s["settings"]["relinearise"] > 1
+    assert s.settings.relinearise > 1
     dt = time.perf_counter() - t0
     noise = check_strips(strips_of(clean), work / f"seed{seed}_noise_check", png=False)
-    p = s["parameters"]
+    p = s.parameters
     true = {"boresight_roll_deg": BORESIGHT_DEG[0], "boresight_pitch_deg": BORESIGHT_DEG[1],
             "boresight_heading_deg": BORESIGHT_DEG[2], "range_offset_m": RANGE_OFFSET_M,
             "scan_angle_scale": SCAN_ANGLE_SCALE}
     for k, off in enumerate(truth["lidar_strip_offsets_m"]):
         for a, v in zip("xyz", off):
             true[f"strip_{k + 1:02d}.shift_{a}_m"] = v
-    params = {n: {"estimate": p[n]["value"], "sigma": p[n]["sigma"], "truth": true[n],
-                  "normalised_error": (p[n]["value"] - true[n]) / p[n]["sigma"]} for n in p}
+    params = {n: {"estimate": p[n].value, "sigma": p[n].sigma, "truth": true[n],
+                  "normalised_error": (p[n].value - true[n]) / p[n].sigma} for n in p}
     # strip model (no trajectory) on the preset's own strips: per-strip shifts only, one strip fixed
     ptruth = json.loads((plain / "truth" / "truth.json").read_text())["lidar_strip_offsets_m"]
     sm = adj.adjust_strips(strips_of(plain), work / f"seed{seed}_strip_model", adj.StripAdjustSettings(), png=False)
-    fixed = sm["fixed_strip"]
+    fixed = sm.fixed_strip
     kf = int(fixed.split("_")[1]) - 1
     rel = {}
-    for n, v in sm["parameters"].items():
+    for n, v in sm.parameters.items():
         if ".shift_" in n:
             k = int(n.split(".")[0].split("_")[1]) - 1
             a = "xyz".index(n.split("shift_")[1][0])
             t = ptruth[k][a] - ptruth[kf][a]
-            rel[n] = {"estimate": v["value"], "sigma": v["sigma"], "truth_minus_fixed": t,
-                      "normalised_error": (v["value"] - t) / v["sigma"]}
+            rel[n] = {"estimate": v.value, "sigma": v.sigma, "truth_minus_fixed": t,
+                      "normalised_error": (v.value - t) / v.sigma}
         elif n.endswith("_deg"):
-            rel[n] = {"estimate": v["value"], "sigma": v["sigma"], "truth": 0.0,
-                      "normalised_error": v["value"] / v["sigma"]}
+            rel[n] = {"estimate": v.value, "sigma": v.sigma, "truth": 0.0,
+                      "normalised_error": v.value / v.sigma}
     return {
         "seed": seed, "role": "development" if seed in DEV_SEEDS else "hold-out",
-        "points": s["points"], "observations": s["observations"], "sigma0": s["sigma0"], "reads": s["reads"],
+        "points": s.points, "observations": s.observations, "sigma0": s.sigma0, "reads": s.reads,
         "parameters": params,
-        "strip_differences": {"before": s["check_before"], "after": s["check_after"],
-                              "noise_only": noise["all_pairs"],
-                              "after_over_noise_only_rms": s["check_after"]["rms_m"] / noise["all_pairs"]["rms_m"]},
-        "strong_correlations": s["strong_correlations"][:6],
+        "strip_differences": {"before": s.check_before.as_dict(), "after": s.check_after.as_dict(),
+                              "noise_only": noise.all_pairs.as_dict(),
+                              "after_over_noise_only_rms": s.check_after.rms_m / noise.all_pairs.rms_m},
+        "strong_correlations": [dataclasses.asdict(c) for c in s.strong_correlations[:6]],
         "adjust_seconds": dt,
         "dem_error_vs_truth": {"before": dem_error(err, strips_of(err)),
                                "after": dem_error(err, sorted((work / f"seed{seed}_adjusted").glob("*.las"))),
@@ -186,8 +187,8 @@ def eval_seed(work: Path, seed: int) -> dict:
             "before": corner_error(err, strips_of(err)),
             "after": corner_error(err, sorted((work / f"seed{seed}_adjusted").glob("*.las"))),
             "noise_only": corner_error(clean, strips_of(clean))},
-        "strip_model_on_preset": {"fixed": fixed, "parameters": rel, "sigma0": sm["sigma0"],
-                                  "before": sm["check_before"], "after": sm["check_after"]},
+        "strip_model_on_preset": {"fixed": fixed, "parameters": rel, "sigma0": sm.sigma0,
+                                  "before": sm.check_before.as_dict(), "after": sm.check_after.as_dict()},
         "control": control_eval(work, seed, err, truth),
     }
 
@@ -208,14 +209,21 @@ def raised_copy(project: Path, folder: Path, dz_m: float):
     return sorted(folder.glob("*.las")), sorted(folder.glob("*.txt"))
 
 
-def _combination(s: dict, weights: dict) -> tuple[float, float]:
+def _combination(s: adj.StripAdjustResult, weights: dict) -> tuple[float, float]:
     """Value and sigma of sum(w * parameter) from an adjust summary (sigmas and correlation matrix)."""
-    names = list(s["parameters"])
+    names = list(s.parameters)
     g = np.array([weights.get(n, 0.0) for n in names])
-    sd = np.array([s["parameters"][n]["sigma"] for n in names])
-    cov = np.asarray(s["correlation_matrix"]) * np.outer(sd, sd)
-    value = float(sum(w * s["parameters"][n]["value"] for n, w in weights.items()))
+    sd = np.array([s.parameters[n].sigma for n in names])
+    cov = np.asarray(s.correlation_matrix) * np.outer(sd, sd)
+    value = float(sum(w * s.parameters[n].value for n, w in weights.items()))
     return value, float(np.sqrt(g @ cov @ g))
+
+
+def _control_without_residuals(s: adj.StripAdjustResult) -> dict:
+    """The control summary of an adjustment for results/strips.json (no per-point rows; {} without control)."""
+    if s.control is None:
+        return {}
+    return {k: v for k, v in dataclasses.asdict(s.control).items() if k != "residuals"}
 
 
 def control_eval(work: Path, seed: int, err: Path, truth: dict) -> dict:
@@ -239,18 +247,18 @@ def control_eval(work: Path, seed: int, err: Path, truth: dict) -> dict:
         z = {}
         for k, off in enumerate(offs):
             n = f"strip_{k + 1:02d}.shift_z_m"
-            p = s["parameters"][n]
-            z[n] = {"estimate": p["value"], "sigma": p["sigma"], "truth": off[2] + COMMON_DZ_M,
-                    "normalised_error": (p["value"] - off[2] - COMMON_DZ_M) / p["sigma"]}
+            p = s.parameters[n]
+            z[n] = {"estimate": p.value, "sigma": p.sigma, "truth": off[2] + COMMON_DZ_M,
+                    "normalised_error": (p.value - off[2] - COMMON_DZ_M) / p.sigma}
         w = {f"strip_{k + 1:02d}.shift_z_m": 1.0 / len(offs) for k in range(len(offs))}
         w["range_offset_m"] = -1.0
         h, h_sd = _combination(s, w)
-        ro = s["parameters"]["range_offset_m"]
+        ro = s.parameters["range_offset_m"]
         out[name] = {"block_height_at_nadir_m": {"estimate": h, "sigma": h_sd, "truth": h_true,
                                                  "normalised_error": (h - h_true) / h_sd},
                      "z_shifts": z, "within_3_sigma": int(sum(abs(v["normalised_error"]) <= 3 for v in z.values())),
-                     "range_offset_m": {"estimate": ro["value"], "sigma": ro["sigma"], "truth": RANGE_OFFSET_M},
-                     "control": {k: v for k, v in s.get("control", {}).items() if k != "residuals"}}
+                     "range_offset_m": {"estimate": ro.value, "sigma": ro.sigma, "truth": RANGE_OFFSET_M},
+                     "control": _control_without_residuals(s)}
     plain = work / f"seed{seed}_preset"
     ptruth = json.loads((plain / "truth" / "truth.json").read_text())["lidar_strip_offsets_m"]
     strips, _ = raised_copy(plain, work / f"seed{seed}_preset_raised", COMMON_DZ_M)
@@ -259,13 +267,13 @@ def control_eval(work: Path, seed: int, err: Path, truth: dict) -> dict:
         z = {}
         for k, off in enumerate(ptruth):
             n = f"strip_{k + 1:02d}.shift_z_m"
-            if n in s["parameters"]:  # the fixed strip has none
-                p = s["parameters"][n]
-                z[n] = {"estimate": p["value"], "sigma": p["sigma"], "truth": off[2] + COMMON_DZ_M,
-                        "normalised_error": (p["value"] - off[2] - COMMON_DZ_M) / p["sigma"]}
-        out[name] = {"fixed_strip": s["fixed_strip"], "z_shifts": z,
+            if n in s.parameters:  # the fixed strip has none
+                p = s.parameters[n]
+                z[n] = {"estimate": p.value, "sigma": p.sigma, "truth": off[2] + COMMON_DZ_M,
+                        "normalised_error": (p.value - off[2] - COMMON_DZ_M) / p.sigma}
+        out[name] = {"fixed_strip": s.fixed_strip, "z_shifts": z,
                      "within_3_sigma": int(sum(abs(v["normalised_error"]) <= 3 for v in z.values())),
-                     "parameters": len(z), "control": {k: v for k, v in s.get("control", {}).items() if k != "residuals"}}
+                     "parameters": len(z), "control": _control_without_residuals(s)}
     return out
 
 
@@ -327,24 +335,26 @@ def eval_ahn3(work: Path, results: Path) -> dict:
     t0 = time.perf_counter()
     s = adj.adjust_strips([AHN3], out, adj.StripAdjustSettings(), crs="EPSG:28992")
     dt = time.perf_counter() - t0
-    before = json.loads((out / "check_before" / "strips.json").read_text())
-    after = json.loads((out / "check_after" / "strips.json").read_text())
+    before = read_strip_check(out / "check_before" / "strips.json")
+    after = read_strip_check(out / "check_after" / "strips.json")
     pairs = []
-    for b, a in zip(before["pairs"], after["pairs"]):
-        pairs.append({"pair": f"{b['a']}-{b['b']}", "cells": b["n_cells"],
-                      "before": {k: b[k] for k in ("mean_m", "rms_m", "nmad_m")},
-                      "after": {k: a[k] for k in ("mean_m", "rms_m", "nmad_m")},
-                      "relative_roll_before_deg": b["vs_scan_angle_a"]["fit"].get("relative_roll_deg"),
-                      "relative_roll_after_deg": a["vs_scan_angle_a"]["fit"].get("relative_roll_deg")})
+    for b, a in zip(before.pairs, after.pairs):
+        fits = [p.vs_scan_angle_a.fit for p in (b, a)]
+        pairs.append({"pair": f"{b.a}-{b.b}", "cells": b.diff.n_cells,
+                      "before": {k: getattr(b.diff, k) for k in ("mean_m", "rms_m", "nmad_m")},
+                      "after": {k: getattr(a.diff, k) for k in ("mean_m", "rms_m", "nmad_m")},
+                      "relative_roll_before_deg": fits[0].relative_roll_deg if fits[0] else None,
+                      "relative_roll_after_deg": fits[1].relative_roll_deg if fits[1] else None})
         for when, d in (("before", b), ("after", a)):
-            shutil.copy(out / f"check_{when}" / d["png"], results / f"strips_ahn3_{when}_{d['a']}_{d['b']}.png")
+            shutil.copy(out / f"check_{when}" / d.png, results / f"strips_ahn3_{when}_{d.a}_{d.b}.png")
     for when in ("before", "after"):
         shutil.copy(out / f"check_{when}" / "overview.png", results / f"strips_ahn3_{when}_overview.png")
-    return {"file": str(AHN3.name), "crs": "EPSG:28992", "cell_m": s["cell_m"], "points": s["points"],
-            "fixed_strip": s["fixed_strip"], "skipped_pairs": before["skipped_pairs"], "pairs": pairs,
-            "all_pairs_before": before["all_pairs"], "all_pairs_after": after["all_pairs"],
-            "parameters": s["parameters"], "sigma0": s["sigma0"], "observations": s["observations"],
-            "strong_correlations": s["strong_correlations"][:6], "adjust_seconds": dt}
+    return {"file": str(AHN3.name), "crs": "EPSG:28992", "cell_m": s.cell_m, "points": s.points,
+            "fixed_strip": s.fixed_strip, "skipped_pairs": dict(before.skipped_pairs), "pairs": pairs,
+            "all_pairs_before": before.all_pairs.as_dict(), "all_pairs_after": after.all_pairs.as_dict(),
+            "parameters": {n: dataclasses.asdict(e) for n, e in s.parameters.items()}, "sigma0": s.sigma0,
+            "observations": s.observations,
+            "strong_correlations": [dataclasses.asdict(c) for c in s.strong_correlations[:6]], "adjust_seconds": dt}
 
 
 def tiled_block(work: Path, src: list[Path], copies: int) -> list[Path]:
@@ -379,10 +389,10 @@ def eval_speed(work: Path, copies: int, seed_dir: Path) -> dict:
     t1 = time.perf_counter()
     a = adj.adjust_strips(paths, work / "speed_adjust", adj.StripAdjustSettings(), png=False)
     t2 = time.perf_counter()
-    return {"points": int(n), "strips": len(paths), "copies": copies, "cell_m": c["cell_m"],
+    return {"points": int(n), "strips": len(paths), "copies": copies, "cell_m": c.cell_m,
             "check_seconds": t1 - t0, "check_points_per_s": n / (t1 - t0),
             "adjust_seconds": t2 - t1, "adjust_points_per_s": n / (t2 - t1),
-            "adjust_seconds_read_solve_write": [a["seconds_read"], a["seconds_solve"], a["seconds_write"]],
+            "adjust_seconds_read_solve_write": [a.seconds_read, a.seconds_solve, a.seconds_write],
             "adjust_note": "adjust reads the strips, solves, writes the corrected strips and checks them again "
                            "(two reads, one write, two checks)",
             "load_average_before_after": [load0[0], os.getloadavg()[0]], "machine_cores": os.cpu_count()}

@@ -39,6 +39,8 @@ if what == "check":
     res = {}
 else:
     s = adj.adjust_strips(paths, out, adj.StripAdjustSettings(), png=False)
+    # this checkout returns a StripAdjustResult, a baseline revision before issue 40 a dict of adjust.json
+    s = json.loads(s.to_json()) if hasattr(s, "to_json") else s
     res = {k: s[k] for k in ("reads", "observations", "sigma0", "parameters", "check_after", "seconds_read",
                              "seconds_solve", "seconds_write")}
 res.update(seconds=time.perf_counter() - t0, cpu_seconds=time.process_time() - c0,

@@ -82,7 +82,7 @@ def _corners(run: Path, reference: Path, ndsm: Path, tmp: Path) -> dict:
     st = corner_control(project.classified_strips(), tmp / "lidar_out", options.corners,
                         record_none=True)
     same = (tmp / "lidar_out" / "corners.csv").read_bytes() == (run / "lidar_out" / "corners.csv").read_bytes()
-    return dict(then={}, now=dict(corners=st.get("n_corners"), usable=st.get("n_usable"),
+    return dict(then={}, now=dict(corners=st.stats.n_corners, usable=st.stats.n_usable,
                                   corners_csv_same_as_the_run=same))
 
 

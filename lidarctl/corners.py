@@ -29,7 +29,8 @@ Units: ``find_roof_corners`` works in metres (every length above, the sigmas and
 ``read_strips`` scales clouds in feet to metres and ``to_crs_units`` writes the corner and outline
 coordinates (x, y, z) back in the clouds' CRS units, so corners.csv holds coordinates in the input's
 CRS (x, y in its horizontal unit, z in its vertical unit) and sigmas in metres (``_m`` columns);
-corners.json names the units (``xy_unit``, ``z_unit``).
+corners.json names the units (``xy_unit``, ``z_unit``); ``read_corner_summary`` reads it back into the
+``CornerControlResult`` ``corner_control`` returns.
 
 Edge directions edge1_deg/edge2_deg are grid bearings (clockwise from grid north) of the incoming and
 outgoing edge lines in [0, 180); angle_deg is the interior angle of the roof polygon at the corner.
@@ -39,7 +40,7 @@ from __future__ import annotations
 
 import csv
 import dataclasses
-from typing import ClassVar
+from typing import ClassVar, Mapping
 import io
 import json
 import time
@@ -66,6 +67,7 @@ from lidarctl.roof_outline import (
     trace_rings,
 )
 from lidarctl.roof_segments import cluster_roofs, point_spacing_m, segment_planes
+from lidarctl.units import LengthUnits
 from aerotri.core.log import track
 
 BUILDING = 6
@@ -129,14 +131,115 @@ FIGURE_CELLS = 4000
 MARGIN_BYTES_PER_CELL = 40
 NDSM_BYTES_PER_CELL = 96
 MARGIN_CELL_M = 2.0
+SCHEMA_VERSION = 1  # corners.json: the layout of ``CornerControlResult.to_json``
 
 
-def read_classified_cloud(path, crs=None, require_crs: bool = False) -> dict:
-    """x, y, z (metres when the file's CRS is known, see ``lidarctl.io``), classification,
-    point_source_id, the CRS (pyproj or None) and the units of a LAS/LAZ file (read by lidarctl.io)."""
+@dataclasses.dataclass(frozen=True)
+class CornerStats:
+    """The numbers of a corner search (``find_roof_corners``' ``stats``; lengths and sigmas in metres): points,
+    roofs, outlines, corners traced, reported and usable, the resolved minimum edge and how it was chosen,
+    the strip sigmas, the median horizontal sigma of the usable corners, the run time (s) and, by tiles,
+    the tiles, tile size and buffer."""
+
+    n_points: int
+    n_building_points: int
+    point_spacing_m: float
+    n_roofs: int
+    n_outlines: int
+    n_corners_traced: int
+    n_corners: int
+    n_usable: int
+    n_roof_planes: int
+    min_edge_m: float
+    min_edge_rule: str
+    roof: str
+    sigma_strip_xy_m: float
+    sigma_strip_z_m: float
+    usable_score: float
+    median_sxy_usable_m: float | None
+    runtime_s: float
+    tiles: int | None = None
+    tile_m: float | None = None
+    buffer_m: float | None = None
+
+    @classmethod
+    def of_record(cls, d: Mapping) -> "CornerStats":
+        """From a record holding its keys (``find_roof_corners``' stats, corners.json)."""
+        return cls(**{f.name: d[f.name] for f in dataclasses.fields(cls) if f.name in d})
+
+
+@dataclasses.dataclass(frozen=True)
+class CornerControlResult:
+    """What the corner stage found (corners.json): the files read (``source``), their CRS and units (None: a
+    result written in metres without them), the numbers, the settings with their sources and, when no
+    corner is usable as control, why (``no_usable``, one line; else None)."""
+
+    source: str | None
+    crs: str | None
+    units: LengthUnits | None
+    stats: CornerStats
+    settings: Mapping | None = None  # ``aerotri.core.settings.Resolved.record()``
+    no_usable: str | None = None
+    schema_version: int = SCHEMA_VERSION
+
+    @property
+    def units_text(self) -> str:
+        return self.units.describe() if self.units is not None else "x, y, z in metre"
+
+    def to_json(self) -> str:
+        """corners.json's text (the units ahead of the numbers when no corner is usable, after them else)."""
+        stats = {k: v for k, v in dataclasses.asdict(self.stats).items()
+                 if v is not None or k not in ("tiles", "tile_m", "buffer_m")}
+        units = self.units.as_dict() if self.units is not None else {}
+        out = {"schema_version": self.schema_version, "source": self.source, "crs": self.crs}
+        if self.no_usable is None:
+            out.update(**stats, **units)
+        else:
+            out.update(**units, **stats, no_usable=self.no_usable)
+        if self.settings is not None:
+            out["settings"] = self.settings
+        return json.dumps(out, indent=2) + "\n"
+
+
+def _units_of(d: Mapping) -> LengthUnits | None:
+    """The units a record names (``LengthUnits.as_dict``' keys), None when it names none."""
+    if "xy_unit_m" not in d:
+        return None
+    return LengthUnits(d["xy_unit_m"], d["z_unit_m"], known=d["xy_unit"] != "file units")
+
+
+def read_corner_summary(path) -> CornerControlResult:
+    """corners.json as the corner stage wrote it (InputError naming the file when it is not one)."""
+    path = Path(path)
+    try:
+        d = json.loads(path.read_text())
+    except (OSError, ValueError) as exc:
+        raise InputError(f"{path}: cannot read a corner summary (corners.json): {exc}") from None
+    try:
+        if d.get("schema_version", SCHEMA_VERSION) > SCHEMA_VERSION:
+            raise ValueError(f"schema version {d['schema_version']} (this version reads {SCHEMA_VERSION})")
+        return CornerControlResult(d["source"], d["crs"], _units_of(d), CornerStats.of_record(d), d.get("settings"),
+                                   d.get("no_usable"), d.get("schema_version", SCHEMA_VERSION))
+    except (AttributeError, KeyError, TypeError, ValueError) as exc:
+        raise InputError(f"{path}: not a corner summary (corners.json): {type(exc).__name__} {exc}") from None
+
+
+@dataclasses.dataclass(frozen=True)
+class CornerFiles:
+    """The files ``write_corner_files`` wrote and the summary corners.json holds."""
+
+    csv: Path
+    geojson: Path
+    planes: Path
+    summary_json: Path
+    summary: CornerControlResult | None
+
+
+def read_classified_cloud(path, crs=None, require_crs: bool = False) -> las_io.PointCloud:
+    """A LAS/LAZ file read by lidarctl.io: x, y, z (metres when the file's CRS is known), classification,
+    point_source_id (int64), the CRS (pyproj or None) and the units."""
     c = las_io.read_cloud(path, crs=crs, require_crs=require_crs, point_source_id=True)
-    return {"x": c.x, "y": c.y, "z": c.z, "classification": c.classification,
-            "point_source_id": c.point_source_id.astype(np.int64), "crs": c.crs, "units": c.units}
+    return dataclasses.replace(c, point_source_id=c.point_source_id.astype(np.int64))
 
 
 def read_strips(paths, crs=None) -> dict:
@@ -148,12 +251,13 @@ def read_strips(paths, crs=None) -> dict:
     clouds = [read_classified_cloud(p, crs=crs, require_crs=True) for p in paths]
     first = clouds[0]
     for p, c in zip(paths[1:], clouds[1:]):
-        las_io.require_same_crs(p, c["crs"], c["units"], (paths[0], first["crs"], first["units"]))
-    cat = {k: np.concatenate([c[k] for c in clouds]) for k in ("x", "y", "z", "classification", "point_source_id")}
-    if len(clouds) > 1 and all(len(np.unique(c["point_source_id"])) == 1 for c in clouds):
+        las_io.require_same_crs(p, c.crs, c.units, (paths[0], first.crs, first.units))
+    cat = {k: np.concatenate([getattr(c, k) for c in clouds]) for k in ("x", "y", "z", "classification",
+                                                                         "point_source_id")}
+    if len(clouds) > 1 and all(len(np.unique(c.point_source_id)) == 1 for c in clouds):
         # one file per strip without strip ids: the file is the strip
-        cat["point_source_id"] = np.concatenate([np.full(len(c["x"]), i + 1) for i, c in enumerate(clouds)])
-    cat.update(crs=first["crs"], units=first["units"])
+        cat["point_source_id"] = np.concatenate([np.full(len(c.x), i + 1) for i, c in enumerate(clouds)])
+    cat.update(crs=first.crs, units=first.units)
     return cat
 
 
@@ -225,7 +329,7 @@ def default_min_edge_m(spacing_m: float) -> float:
     return float(max(MIN_EDGE_FLOOR_M, MIN_EDGE_SPACINGS * spacing_m))
 
 
-def _roof_clusters(x, y, z, classification, point_source_id, spacing_m: float | None = None,
+def _roof_clusters(x, y, z, classification, point_source_id, *, spacing_m: float | None = None,
                    margin_anchor=None, min_edge_m: float | None = None) -> _RoofClusters:
     """Drop noise, refuse a cloud without building points, cluster the building points into roofs of at
     least ``min_roof_m2(min_edge_m)`` (and 30 points; ``min_edge_m`` None: ``default_min_edge_m`` of the
@@ -980,32 +1084,31 @@ def to_crs_units(result: dict, units) -> dict:
 
 
 def write_corner_files(outdir, result: dict, crs=None, source: str | None = None, inputs=(),
-                       settings_record: dict | None = None) -> dict:
+                       settings_record: dict | None = None) -> CornerFiles:
     """Write corners.csv, corners.geojson, roof_planes.geojson and corners.json (summary) atomically; return
-    the paths.
+    the paths and the summary.
 
     ``result``: corners and faces in the CRS's units (``to_crs_units``; a result in metres without units
     is written as metres). ``inputs``: the input files, which no output may replace. ``settings_record``: the
     settings with their sources (``aerotri.core.settings.Resolved.record``), corners.json ``settings``."""
     outdir = Path(outdir)
-    paths = {"csv": outdir / "corners.csv", "geojson": outdir / "corners.geojson",
-             "planes": outdir / ROOF_PLANES_FILE, "summary": outdir / "corners.json"}
-    for p in paths.values():
+    files = CornerFiles(outdir / "corners.csv", outdir / "corners.geojson", outdir / ROOF_PLANES_FILE,
+                        outdir / "corners.json", None)
+    for p in (files.csv, files.geojson, files.planes, files.summary_json):
         refuse_input_as_output(p, inputs, "OUTDIR")
     outdir.mkdir(parents=True, exist_ok=True)
-    write_text_atomic(paths["csv"], corners_csv_text(result["corners"]))
-    write_text_atomic(paths["geojson"], json.dumps(corners_geojson(result["corners"], result["outlines"], crs)))
+    write_text_atomic(files.csv, corners_csv_text(result["corners"]))
+    write_text_atomic(files.geojson, json.dumps(corners_geojson(result["corners"], result["outlines"], crs)))
     faces = result.get("faces", [])
     if faces and "plane" in faces[0]:  # still in metres (find_roof_corners' result as it is)
         from lidarctl.units import METRE
 
         faces = _faces_in_crs_units(faces, METRE)
-    write_text_atomic(paths["planes"], json.dumps(roof_planes_geojson(faces, result["stats"], crs)))
-    summary = {"source": source, "crs": (crs.to_string() if crs is not None else None), **result["stats"]}
-    if settings_record is not None:
-        summary["settings"] = settings_record
-    write_text_atomic(paths["summary"], json.dumps(summary, indent=2) + "\n")
-    return paths
+    write_text_atomic(files.planes, json.dumps(roof_planes_geojson(faces, result["stats"], crs)))
+    summary = CornerControlResult(source, crs.to_string() if crs is not None else None, _units_of(result["stats"]),
+                                  CornerStats.of_record(result["stats"]), settings_record)
+    write_text_atomic(files.summary_json, summary.to_json())
+    return dataclasses.replace(files, summary=summary)
 
 
 # ------------------------------------------------------------------------------------------------ figure
@@ -1045,7 +1148,7 @@ def _fill_small_gaps(ndsm: np.ndarray, max_cells: float = 2.0) -> np.ndarray:
     return np.where(empty & (dist <= max_cells), ndsm[near[0], near[1]], ndsm)
 
 
-def plot_corners(path, ndsm, extent, outlines, corners, truth_xy=None, reference_polygons=None, title="",
+def plot_corners(path, ndsm, extent, outlines, corners, *, truth_xy=None, reference_polygons=None, title="",
                  window=None, marker_size=4.0, xy_unit: str = "m", vlines=()):
     """Outlines and corners over the nDSM (PNG, matplotlib Agg); truth corners / reference polygons optional.
     ``vlines``: x of vertical lines to draw (e.g. the split of a spatial hold-out).
@@ -1126,7 +1229,7 @@ class CornerSettings:
 
 @committed(lambda paths, outdir, *a, **k: Path(outdir))
 def corner_control(paths, outdir, settings: CornerSettings | Resolved = CornerSettings(), crs=None,
-                   record_none: bool = False) -> dict:
+                   record_none: bool = False) -> CornerControlResult:
     """The stage: roof corners of classified LAS/LAZ file(s) (one or more strips in one CRS) as control
     candidates. ``crs``: the CRS of files that have none (never guessed).
 
@@ -1137,8 +1240,8 @@ def corner_control(paths, outdir, settings: CornerSettings | Resolved = CornerSe
     ``record_none`` (the chain, which goes on without LiDAR control), only corners.json saying why
     (``n_usable`` 0), and removes the corner files (and roof planes) of an earlier run, so that nothing
     downstream takes stale corners; the chain then adjusts as ``lidarctl corners``' exit code 2 tells a
-    user to (README), without roof planes. Returns the summary, with
-    ``no_usable`` the one-line reason when no corner is usable (else None).
+    user to (README), without roof planes. Returns what corners.json holds, with ``no_usable`` the one-line
+    reason when no corner is usable (else None).
     """
     paths = [Path(p) for p in paths]
     outdir = Path(outdir)
@@ -1157,13 +1260,13 @@ def corner_control(paths, outdir, settings: CornerSettings | Resolved = CornerSe
         sigma_strip_xy_m=s.sigma_strip_xy_m, sigma_strip_z_m=s.sigma_strip_z_m,
         work_dir=next(p for p in (outdir, *outdir.parents) if p.is_dir()),
         figure_cells=FIGURE_CELLS if s.figure else 0, work_name=f"{outdir.name}.corners")
-    st = result["stats"]
-    head = {"source": names, "crs": crs_out.to_string() if crs_out is not None else None, **units.as_dict()}
-    if st["n_usable"] == 0:
-        reason = (f"{names}: no usable roof corner ({st['n_corners']} corners on {st['n_outlines']} roof outlines, "
-                  f"none with score >= {st['usable_score']} and edges >= {st['min_edge_m']:.2f} m"
-                  f"{' on a flat roof' if s.roof == 'flat' else ''}; point spacing {st['point_spacing_m']:.2f} m)")
-        summary = {**head, **st, "no_usable": reason, "settings": resolved.record()}
+    st = CornerStats.of_record(result["stats"])
+    crs_text = crs_out.to_string() if crs_out is not None else None
+    if st.n_usable == 0:
+        reason = (f"{names}: no usable roof corner ({st.n_corners} corners on {st.n_outlines} roof outlines, "
+                  f"none with score >= {st.usable_score} and edges >= {st.min_edge_m:.2f} m"
+                  f"{' on a flat roof' if s.roof == 'flat' else ''}; point spacing {st.point_spacing_m:.2f} m)")
+        summary = CornerControlResult(names, crs_text, units, st, resolved.record(), no_usable=reason)
         if not record_none:
             return summary
         outdir.mkdir(parents=True, exist_ok=True)
@@ -1171,7 +1274,7 @@ def corner_control(paths, outdir, settings: CornerSettings | Resolved = CornerSe
 
         for name in ("corners.csv", "corners.geojson", "corners.png", ROOF_PLANES_FILE):
             remove_output(outdir / name)  # with corners.json, one commit: all old on a failure
-        write_text_atomic(outdir / "corners.json", json.dumps(summary, indent=2) + "\n")
+        write_text_atomic(outdir / "corners.json", summary.to_json())
         return summary
     if s.figure:
         ndsm, extent_m = figure
@@ -1180,6 +1283,6 @@ def corner_control(paths, outdir, settings: CornerSettings | Resolved = CornerSe
     if s.figure:
         extent = tuple(float(units.xy_from_m(v)) for v in extent_m)
         plot_corners(outdir / "corners.png", ndsm, extent, out["outlines"], out["corners"],
-                     title=f"roof corners: {st['n_usable']} usable of {st['n_corners']} (edges >= {st['min_edge_m']:.2f} m)",
+                     title=f"roof corners: {st.n_usable} usable of {st.n_corners} (edges >= {st.min_edge_m:.2f} m)",
                      xy_unit=units.xy_name)
-    return {**head, **st, "no_usable": None, "csv": str(files["csv"]), "units_text": units.describe()}
+    return files.summary

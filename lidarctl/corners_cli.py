@@ -37,12 +37,13 @@ def corners(classified, outdir, min_edge_m, roof, sigma_strip_xy_m, sigma_strip_
     --buffer-m border larger than the largest roof), never merged: memory is set by the tile size.
     """
     settings = resolve(CornerSettings, None, click.get_current_context())  # the options, with their sources
-    st = corner_control(classified, outdir, settings, crs=crs)
-    if st["no_usable"]:
+    res = corner_control(classified, outdir, settings, crs=crs)
+    if res.no_usable:
         hint = "try --roof any or a smaller --min-edge-m" if roof == "flat" else "try a smaller --min-edge-m"
-        raise InputError(f"{st['no_usable']}; {hint}")
+        raise InputError(f"{res.no_usable}; {hint}")
+    st = res.stats
     click.echo(
-        f"{st['n_corners']} corners ({st['n_usable']} usable) on {st['n_outlines']} roofs, "
-        f"point spacing {st['point_spacing_m']:.2f} m, edges >= {st['min_edge_m']:.2f} m; "
-        f"{st['units_text']} -> {st['csv']}"
+        f"{st.n_corners} corners ({st.n_usable} usable) on {st.n_outlines} roofs, "
+        f"point spacing {st.point_spacing_m:.2f} m, edges >= {st.min_edge_m:.2f} m; "
+        f"{res.units_text} -> {outdir / 'corners.csv'}"
     )

@@ -9,7 +9,7 @@ import click
 
 from aerotri.core.commands import Group
 from aerotri.core.settings import click_option, click_type, default_of
-from lidarctl.strips.adjust import StripAdjustSettings
+from lidarctl.strips.adjust import StripAdjustResult, StripAdjustSettings
 from lidarctl.strips.overlap import SurfaceSettings
 
 
@@ -48,12 +48,13 @@ def check(strip_paths, outdir, crs, png, **kw):
     from lidarctl.strips.check import check_strips
 
     s = check_strips(strip_paths, outdir, _params(kw), crs=crs, png=png)
-    for p in s["pairs"]:
-        click.echo(f"{p['b']} - {p['a']}: {p['n_cells']} cells, mean {p['mean_m']:+.3f} m, RMS {p['rms_m']:.3f} m, "
-                   f"NMAD {p['nmad_m']:.3f} m")
-    a = s["all_pairs"]
-    click.echo(f"{outdir}: {len(s['pairs'])} pairs of {len(s['strips'])} strips, RMS {a['rms_m']:.3f} m, "
-               f"NMAD {a['nmad_m']:.3f} m ({s['points']:,} points, {s['points_per_s']:,.0f} points/s)")
+    for p in s.pairs:
+        d = p.diff
+        click.echo(f"{p.b} - {p.a}: {d.n_cells} cells, mean {d.mean_m:+.3f} m, RMS {d.rms_m:.3f} m, "
+                   f"NMAD {d.nmad_m:.3f} m")
+    a = s.all_pairs
+    click.echo(f"{outdir}: {len(s.pairs)} pairs of {len(s.strips)} strips, RMS {a.rms_m:.3f} m, "
+               f"NMAD {a.nmad_m:.3f} m ({s.points:,} points, {s.points_per_s:,.0f} points/s)")
 
 
 @strips.command()
@@ -91,24 +92,24 @@ def adjust(strip_paths, outdir, trajectories, fixed, control, control_sigma_m, a
     click.echo(_adjust_summary(s, outdir))
 
 
-def _adjust_summary(s: dict, outdir) -> str:
+def _adjust_summary(s: StripAdjustResult, outdir) -> str:
     """What ``lidarctl strips adjust`` prints: the parameters, the control, the strips left out, the check."""
     lines = []
-    for name, p in s["parameters"].items():
-        lines.append(f"{name:32s} {p['value']:+10.4f} +- {p['sigma']:.4f}")
-    if "control" in s:
-        c = s["control"]
-        lines.append(f"control: {c['points_used']} of {c['points']} points on {c['observations']} strip planes, mean "
-                     f"distance {c['mean_before_m']:+.3f} -> {c['mean_after_m']:+.3f} m, RMS {c['rms_before_m']:.3f} -> "
-                     f"{c['rms_after_m']:.3f} m")
-    if s["fixed_strip"]:
-        lines.append(f"fixed: {s['fixed_strip']} (the others are adjusted to it)")
-    if s["strips_without_observations"]:
+    for name, p in s.parameters.items():
+        lines.append(f"{name:32s} {p.value:+10.4f} +- {p.sigma:.4f}")
+    if s.control is not None:
+        c = s.control
+        lines.append(f"control: {c.points_used} of {c.points} points on {c.observations} strip planes, mean "
+                     f"distance {c.mean_before_m:+.3f} -> {c.mean_after_m:+.3f} m, RMS {c.rms_before_m:.3f} -> "
+                     f"{c.rms_after_m:.3f} m")
+    if s.fixed_strip:
+        lines.append(f"fixed: {s.fixed_strip} (the others are adjusted to it)")
+    if s.strips_without_observations:
         # their parameters above are the prior's (0 +- sigma): say so rather than let them pass as estimates
         lines.append(f"warning: not adjusted, no planar cell shared with another strip: "
-                     f"{', '.join(s['strips_without_observations'])} (copied unchanged)")
-    b, a = s["check_before"], s["check_after"]
-    lines.append(f"{outdir}: {s['model']} model, {s['observations']} plane observations, sigma0 {s['sigma0']:.2f}; "
-                 f"strip differences RMS {b['rms_m']:.3f} -> {a['rms_m']:.3f} m, NMAD {b['nmad_m']:.3f} -> "
-                 f"{a['nmad_m']:.3f} m ({s['points']:,} points, {s['points_per_s']:,.0f} points/s)")
+                     f"{', '.join(s.strips_without_observations)} (copied unchanged)")
+    b, a = s.check_before, s.check_after
+    lines.append(f"{outdir}: {s.model} model, {s.observations} plane observations, sigma0 {s.sigma0:.2f}; "
+                 f"strip differences RMS {b.rms_m:.3f} -> {a.rms_m:.3f} m, NMAD {b.nmad_m:.3f} -> "
+                 f"{a.nmad_m:.3f} m ({s.points:,} points, {s.points_per_s:,.0f} points/s)")
     return "\n".join(lines)

@@ -152,8 +152,10 @@ class Chain:
             return why
         if not self.options.adjust.use_control:
             return f"{self.project.config_path}: [adjust] use_control = false"
-        summary = _json(self.project.corners_summary_path)
-        if summary.get("no_usable"):
+        from lidarctl.corners import read_corner_summary
+
+        path = self.project.corners_summary_path
+        if path.is_file() and read_corner_summary(path).no_usable:
             return f"no usable roof corner ({self.lo / 'corners.json'})"
         if not self.has_gnss and self.options.adjust.initial_eo is None:
             return ("no orientations to measure the corners with: no GNSS (gnss.txt) for a first adjustment and "
@@ -300,7 +302,9 @@ class Chain:
     # -- LiDAR ----------------------------------------------------------------------------------
     def adjusting(self) -> bool:
         """The strips are adjusted: [strips] adjust, unless the check found nothing to compare."""
-        return self.options.strips.adjust and not _json(self.project.strips_check_path).get("why")
+        from lidarctl.strips.check import nothing_compared
+
+        return self.options.strips.adjust and not nothing_compared(self.project.strips_check_path)
 
     def strip_trajectories(self) -> list[Path]:
         return self.project.trajectories() if self.options.strips.use_trajectory else []
@@ -320,7 +324,7 @@ class Chain:
     def run_strips(self, root) -> dict:
         from aerotri.core.atomic import atomic_dir
         from lidarctl.strips.adjust import adjust_strips
-        from lidarctl.strips.check import check_strips
+        from lidarctl.strips.check import check_strips, record_nothing_compared
         from lidarctl.strips.overlap import NothingToCompare
 
         s, p = self.options.strips, self.project
@@ -328,17 +332,17 @@ class Chain:
             if s.adjust:
                 a = adjust_strips(p.lidar_strips(), p.strips_dir, s.adjustment, s.surface,
                                   trajectories=self.strip_trajectories(), crs=p.crs, png=s.maps)
-                return dict(model=a["model"], rms_before_m=round(a["check_before"]["rms_m"], 4),
-                            rms_after_m=round(a["check_after"]["rms_m"], 4), sigma0=round(a["sigma0"], 3))
+                return dict(model=a.model, rms_before_m=round(a.check_before.rms_m, 4),
+                            rms_after_m=round(a.check_after.rms_m, 4), sigma0=round(a.sigma0, 3))
             c = check_strips(p.lidar_strips(), p.strips_dir, s.surface, crs=p.crs, png=s.maps)
         except NothingToCompare as e:
             # recorded, so that the report and a re-run know (the folder holds nothing else)
             why = f"nothing to compare: {e}"
             with atomic_dir(p.strips_dir) as tmp:
-                (tmp / "strips.json").write_text(json.dumps({"why": why}, indent=2) + "\n")
+                record_nothing_compared(tmp, why)
             return dict(why=why)
-        a = c["all_pairs"]
-        return dict(pairs=len(c["pairs"]), rms_m=round(a["rms_m"], 4), nmad_m=round(a["nmad_m"], 4))
+        a = c.all_pairs
+        return dict(pairs=len(c.pairs), rms_m=round(a.rms_m, 4), nmad_m=round(a.nmad_m, 4))
 
     def run_classify(self, root) -> dict:
         from aerotri.core.atomic import remove_leftovers
@@ -357,21 +361,23 @@ class Chain:
         return dict(res_m=self.options.rasters.res_m)
 
     def corner_outputs(self, root) -> list[Path]:
-        summary = _json(self.project.corners_summary_path)
-        usable = summary.get("n_usable", 1) > 0 if summary else True
+        from lidarctl.corners import read_corner_summary
+
+        path = self.project.corners_summary_path
+        usable = read_corner_summary(path).stats.n_usable > 0 if path.is_file() else True
         return [self.project.corners_summary_path] + (
             [self.project.corners_path, self.project.roof_planes_path] if usable else [])
 
     def run_corners(self, root) -> dict:
         from lidarctl.corners import corner_control
 
-        st = corner_control(self.classified(), self.lo, self.stage_settings("corners"), record_none=True)
-        out = dict(corners=st["n_corners"], usable=st["n_usable"])
-        if st["no_usable"]:
+        res = corner_control(self.classified(), self.lo, self.stage_settings("corners"), record_none=True)
+        out = dict(corners=res.stats.n_corners, usable=res.stats.n_usable)
+        if res.no_usable:
             hint = "a smaller min_edge_m"
             if self.options.corners.roof == "flat":
                 hint = "roof = \"any\" or " + hint
-            out["notes"] = [f"{st['no_usable']}; the chain goes on without LiDAR control (or try [corners] {hint} "
+            out["notes"] = [f"{res.no_usable}; the chain goes on without LiDAR control (or try [corners] {hint} "
                             "in project.toml)"]
         return out
 

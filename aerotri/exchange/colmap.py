@@ -28,6 +28,7 @@ are read here (errors name the file and line); binary files through pycolmap.
 
 from __future__ import annotations
 
+import dataclasses
 import re
 import tempfile
 from pathlib import Path
@@ -38,6 +39,7 @@ from aerotri.core.errors import CrsError, InputError
 from aerotri.core.project import Project
 from aerotri.core.textio import read_text
 from aerotri.exchange.adjusted import AdjustedBlock
+from aerotri.exchange.commit import ExportFile
 from aerotri.exchange.imported import ImportedBlock, ImportSettings, positions_as_gnss
 from aerotri.exchange.poses import image_id_of, number, orientations_to_project
 from aerotri.geom.camera import BrownCamera, PinholeCamera
@@ -87,7 +89,7 @@ def georef_text(block: AdjustedBlock) -> str:
             f"pixel_um {block.camera.pixel_um!r}\n")
 
 
-def files(block: AdjustedBlock, image_names: dict | None = None) -> dict[str, str]:
+def files(block: AdjustedBlock, image_names: dict | None = None) -> list[ExportFile]:
     """The text model ``colmap/``; ``image_names``: image id -> file name (default: the id)."""
     fx, fy, _, u0, v0 = block.cal[:5]
     cam = block.camera
@@ -122,27 +124,27 @@ def files(block: AdjustedBlock, image_names: dict | None = None) -> dict[str, st
     for j, n in pid3.items():
         X, Y, Z = block.points_local[j]
         p3.append(f"{n} {X:.4f} {Y:.4f} {Z:.4f} 128 128 128 {block.point_rms_px[j]:.4f} " + " ".join(track[j]))
-    return {"colmap/cameras.txt": "\n".join(cams) + "\n", "colmap/images.txt": "\n".join(imgs) + "\n",
-            "colmap/points3D.txt": "\n".join(p3) + "\n", f"colmap/{GEOREF}": georef_text(block)}
+    return [ExportFile("colmap/cameras.txt", "\n".join(cams) + "\n"), ExportFile("colmap/images.txt", "\n".join(imgs) + "\n"),
+            ExportFile("colmap/points3D.txt", "\n".join(p3) + "\n"), ExportFile(f"colmap/{GEOREF}", georef_text(block))]
 
 
-def binary_files(block: AdjustedBlock, image_names: dict | None = None) -> dict[str, bytes | str]:
+def binary_files(block: AdjustedBlock, image_names: dict | None = None) -> list[ExportFile]:
     """The binary model ``colmap_bin/`` (the text model written by pycolmap) and its georef.txt."""
     import pycolmap
 
-    out = {}
+    out = []
     with tempfile.TemporaryDirectory(prefix="aerotri-colmap-") as tmp:
         txt, bin_ = Path(tmp) / "txt", Path(tmp) / "bin"
         txt.mkdir()
         bin_.mkdir()
-        for rel, text in files(block, image_names).items():
-            (txt / Path(rel).name).write_text(text)
+        for f in files(block, image_names):
+            (txt / Path(f.path).name).write_text(f.content)
         rec = pycolmap.Reconstruction()
         rec.read_text(str(txt))
         rec.write_binary(str(bin_))
         for f in sorted(bin_.iterdir()):
-            out[f"colmap_bin/{f.name}"] = f.read_bytes()
-    out[f"colmap_bin/{GEOREF}"] = georef_text(block)
+            out.append(ExportFile(f"colmap_bin/{f.name}", f.read_bytes()))
+    out.append(ExportFile(f"colmap_bin/{GEOREF}", georef_text(block)))
     return out
 
 
@@ -243,11 +245,28 @@ def _read_binary(folder: Path):
     return cams, images
 
 
-def read_georef(folder: Path) -> dict:
-    """The keys of ``georef.txt`` (frame, crs, origin_map, pixel_um) or {} when there is none."""
+@dataclasses.dataclass(frozen=True)
+class ColmapGeoref:
+    """The world frame of a COLMAP model (``georef.txt``): ``frame`` local_enu (about ``origin_map`` in
+    ``crs``, metres) or crs (the model in ``crs`` itself); the sensor's pixel size (um) when known. None:
+    not given."""
+
+    frame: str | None = None
+    crs: str | None = None
+    origin_map: tuple[float, float, float] | None = None
+    pixel_um: float | None = None
+
+    @property
+    def local_enu(self) -> bool:
+        """The model is in a local ENU frame about ``origin_map`` (the default frame)."""
+        return (self.frame or "local_enu") == "local_enu" and self.origin_map is not None
+
+
+def read_georef(folder: Path) -> ColmapGeoref | None:
+    """``georef.txt`` of a model folder (frame, crs, origin_map, pixel_um), None when there is none."""
     path = folder / GEOREF
     if not path.is_file():
-        return {}
+        return None
     out = {}
     for n, line in enumerate(read_text(path, "COLMAP georeference").splitlines(), start=1):
         s = line.split("#", 1)[0].strip()  # WKT and PROJ strings hold no '#'
@@ -267,7 +286,7 @@ def read_georef(folder: Path) -> dict:
             v = value.split()
             if len(v) != 3:
                 raise InputError(f"{where}: origin_map needs 3 numbers X Y Z, got {len(v)}")
-            out["origin_map"] = [number(x, where, "origin_map") for x in v]
+            out["origin_map"] = tuple(number(x, where, "origin_map") for x in v)
         elif key == "pixel_um":
             out["pixel_um"] = number(value, where, "pixel_um")
         else:
@@ -276,20 +295,19 @@ def read_georef(folder: Path) -> dict:
         raise InputError(f"{path}: frame local_enu needs crs and origin_map")
     if out.get("frame") == "crs" and "crs" not in out:
         raise InputError(f"{path}: frame crs needs crs")
-    return out
+    return ColmapGeoref(**out)
 
 
-def _header_georef(folder: Path) -> dict:
-    """The frame of our older text exports' header comment, or {}."""
+def _header_georef(folder: Path) -> ColmapGeoref | None:
+    """The frame of our older text exports' header comment, or None."""
     for name in ("cameras.txt", "images.txt"):
         p = folder / name
         if p.is_file():
             for line in read_text(p, "COLMAP text model").splitlines()[:3]:
                 m = _HEADER.match(line.strip())
                 if m:
-                    return {"frame": "local_enu", "crs": m.group(4).strip(),
-                            "origin_map": [float(m.group(k)) for k in (1, 2, 3)]}
-    return {}
+                    return ColmapGeoref("local_enu", m.group(4).strip(), tuple(float(m.group(k)) for k in (1, 2, 3)))
+    return None
 
 
 def camera_of(cams: dict, images: list, pixel_um: float, where: str):
@@ -350,8 +368,8 @@ def read(files: list[Path], project: Project, options: ImportSettings) -> Import
         raise InputError(f"{folder}: no COLMAP model (expected cameras.txt + images.txt or cameras.bin + images.bin)")
     georef = read_georef(folder) or _header_georef(folder)
     # pixel size: georef.txt, else the project's camera, else nominal
-    if "pixel_um" in georef:
-        pixel_um = georef["pixel_um"]
+    if georef is not None and georef.pixel_um is not None:
+        pixel_um = georef.pixel_um
     elif project.camera_path.is_file():
         from aerotri.geom.camera import read_camera
 
@@ -372,14 +390,14 @@ def read(files: list[Path], project: Project, options: ImportSettings) -> Import
     dup = {i for i in ids if ids.count(i) > 1}
     if dup:
         raise InputError(f"{where}: image names {sorted(dup)} give the same image id twice")
-    if georef.get("frame", "local_enu") == "local_enu" and "origin_map" in georef:
-        frame = LocalFrame(georef["crs"], georef["origin_map"])
+    if georef is not None and georef.local_enu:
+        frame = LocalFrame(georef.crs, list(georef.origin_map))
         centre_map = frame.to_map(centre)
         R_map = np.transpose(frame.rotation_local_from_map(centre_map), (0, 2, 1)) @ R_photo
-        block.eo = orientations_to_project(ids, centre_map, R_map, georef["crs"], project, f"{folder}/{GEOREF} crs")
-    elif georef.get("crs") or options.crs:
-        crs = georef.get("crs") or options.crs
-        block.eo = orientations_to_project(ids, centre, R_photo, crs, project, "--crs" if not georef else GEOREF)
+        block.eo = orientations_to_project(ids, centre_map, R_map, georef.crs, project, f"{folder}/{GEOREF} crs")
+    elif (georef is not None and georef.crs) or options.crs:
+        crs = (georef.crs if georef is not None else None) or options.crs
+        block.eo = orientations_to_project(ids, centre, R_photo, crs, project, "--crs" if georef is None else GEOREF)
     else:
         raise CrsError(f"{folder}: the model's world frame is unknown; a foreign COLMAP model must be georeferenced "
                        f"(colmap model_aligner) and its CRS given with --crs, or described in {GEOREF}")

@@ -8,11 +8,20 @@ set, never a mix, and a killed run's leftovers are rolled back by the next comma
 
 from __future__ import annotations
 
+import dataclasses
 import os
 from pathlib import Path
 
 from aerotri.core.atomic import atomic_path, commit_outputs
 from aerotri.core.errors import InputError
+
+
+@dataclasses.dataclass(frozen=True)
+class ExportFile:
+    """One file of an export: its path relative to the output folder and its content (text or bytes)."""
+
+    path: str
+    content: str | bytes
 
 
 def _existing_folder(paths: list[Path]) -> Path:

@@ -30,6 +30,7 @@ from aerotri.core.errors import InputError
 from aerotri.core.project import Project
 from aerotri.core.textio import read_json
 from aerotri.exchange.adjusted import AdjustedBlock
+from aerotri.exchange.commit import ExportFile
 
 log = logging.getLogger(__name__)
 
@@ -173,7 +174,7 @@ def _write(path: Path, layers, crs: str, driver: str) -> None:
               geometry_type=gtype, append=n > 0)
 
 
-def files(block: AdjustedBlock, project: Project, fmt: str) -> dict[str, bytes | str]:
+def files(block: AdjustedBlock, project: Project, fmt: str) -> list[ExportFile]:
     """``layers/block.gpkg`` (``fmt`` gpkg, bytes) or ``layers/block.kml`` (kml, text)."""
     layers, surface = _layers(block, project)
     log.info(f"footprints on the {surface}")
@@ -185,10 +186,10 @@ def files(block: AdjustedBlock, project: Project, fmt: str) -> dict[str, bytes |
             crs = parse_crs(block.crs)
             label = crs_label(horizontal_crs(crs))
             _write(path, layers, label if label.startswith("EPSG:") else horizontal_crs(crs).to_wkt(), "GPKG")
-            return {"layers/block.gpkg": path.read_bytes()}
+            return [ExportFile("layers/block.gpkg", path.read_bytes())]
         path = Path(tmp) / "block.kml"
         # KML shows a placemark's "Name": the point's or frame's id
         wgs = [(n, g, _to_wgs84(geoms, block, project), {"Name": f.get("point_id", f.get("image_id"))} | f)
                for n, g, geoms, f in layers]
         _write(path, wgs, "EPSG:4326", "KML")
-        return {"layers/block.kml": path.read_text()}
+        return [ExportFile("layers/block.kml", path.read_text())]

@@ -51,6 +51,7 @@ from aerotri.core.errors import CrsError, InputError
 from aerotri.core.project import Project
 from aerotri.core.textio import read_text
 from aerotri.exchange.adjusted import AdjustedBlock
+from aerotri.exchange.commit import ExportFile
 from aerotri.exchange.imported import ImportedBlock, ImportSettings, positions_as_gnss
 from aerotri.exchange.poses import adjusted_orientations, image_id_of, number, orientations_to_project
 from aerotri.geom.camera import BrownCamera, Camera
@@ -70,7 +71,7 @@ def _chunk_frame(frame: LocalFrame) -> tuple[np.ndarray, np.ndarray]:
 
 # -- export ------------------------------------------------------------------------------------------
 
-def files(block: AdjustedBlock, project: Project) -> dict[str, str]:
+def files(block: AdjustedBlock, project: Project) -> list[ExportFile]:
     eo, camera = adjusted_orientations(project)
     frame = block.frame
     doc = ET.Element("document", version="1.5.0")
@@ -129,7 +130,8 @@ def files(block: AdjustedBlock, project: Project) -> dict[str, str]:
     ET.SubElement(tr, "translation", locked="true").text = " ".join(_fmt(v) for v in T)
     ET.SubElement(tr, "scale", locked="true").text = "1"
     ET.indent(doc)
-    return {"metashape/cameras.xml": '<?xml version="1.0" encoding="UTF-8"?>\n' + ET.tostring(doc, encoding="unicode") + "\n"}
+    return [ExportFile("metashape/cameras.xml",
+                       '<?xml version="1.0" encoding="UTF-8"?>\n' + ET.tostring(doc, encoding="unicode") + "\n")]
 
 
 # -- import ------------------------------------------------------------------------------------------

@@ -39,6 +39,7 @@ from aerotri.core.errors import InputError
 from aerotri.core.project import Project
 from aerotri.core.textio import read_text
 from aerotri.exchange.adjusted import AdjustedBlock
+from aerotri.exchange.commit import ExportFile
 from aerotri.exchange.imported import ImportedBlock, ImportSettings, to_project_crs
 from aerotri.exchange.poses import image_id_of, number
 from aerotri.geom.images import find_images
@@ -68,16 +69,16 @@ def _gcp_xml(cp: ControlPoints) -> str:
     return '<?xml version="1.0" ?>\n' + ET.tostring(root, encoding="unicode") + "\n"
 
 
-def files(block: AdjustedBlock, project: Project) -> dict[str, str]:
+def files(block: AdjustedBlock, project: Project) -> list[ExportFile]:
     if not project.control_points_path.is_file():
-        return {}
+        return []
     cp = read_control_points(project.control_points_path)
-    out = {}
+    out = []
     check = np.array([k == "check" for k in cp.kind], bool)
     if (~check).any():
-        out["micmac/gcp.xml"] = _gcp_xml(cp.subset(~check))
+        out.append(ExportFile("micmac/gcp.xml", _gcp_xml(cp.subset(~check))))
     if check.any():
-        out["micmac/check.xml"] = _gcp_xml(cp.subset(check))
+        out.append(ExportFile("micmac/check.xml", _gcp_xml(cp.subset(check))))
     if project.control_image_points_path.is_file():
         obs = read_image_points(project.control_image_points_path)
         names = {k: p.name for k, p in find_images(project.images_dir).items()} if project.images_dir.is_dir() else {}
@@ -90,7 +91,8 @@ def files(block: AdjustedBlock, project: Project) -> dict[str, str]:
                 ET.SubElement(one, "NamePt").text = str(obs.point_id[k])
                 ET.SubElement(one, "PtIm").text = f"{obs.xy_px[k, 0]:.3f} {obs.xy_px[k, 1]:.3f}"
         ET.indent(root)
-        out["micmac/measures.xml"] = '<?xml version="1.0" ?>\n' + ET.tostring(root, encoding="unicode") + "\n"
+        out.append(ExportFile("micmac/measures.xml",
+                              '<?xml version="1.0" ?>\n' + ET.tostring(root, encoding="unicode") + "\n"))
     return out
 
 

@@ -26,6 +26,7 @@ from aerotri.core.project import Project
 from aerotri.core.textio import read_json
 from aerotri.exchange import opensfm
 from aerotri.exchange.adjusted import AdjustedBlock
+from aerotri.exchange.commit import ExportFile
 from aerotri.exchange.poses import adjusted_orientations
 from aerotri.geom.observations import ImageObservations, read_control_points, read_image_points
 
@@ -112,7 +113,7 @@ def _ground_control_points_json(obs: ImageObservations, ids, xyz: dict, project:
     return json.dumps({"points": points}, indent=2) + "\n"
 
 
-def files(block: AdjustedBlock, project: Project, image_names: dict | None = None) -> dict[str, str]:
+def files(block: AdjustedBlock, project: Project, image_names: dict | None = None) -> list[ExportFile]:
     """The ODM/OpenSfM files of an adjusted project (see the module docstring)."""
     from aerotri.geom.eo import read_gnss
 
@@ -124,23 +125,24 @@ def files(block: AdjustedBlock, project: Project, image_names: dict | None = Non
                                  points=(block.point_id, block.frame.to_map(block.points_local)),
                                  gnss=gnss, gnss_sigma_m=float(project.gnss.sigma_xy_m))
     cam_id = opensfm.camera_id_of(camera)
-    out = {"odm/opensfm/reconstruction.json": json.dumps([rec], indent=2) + "\n",
-           "odm/opensfm/reference_lla.json": json.dumps(reference, indent=2) + "\n",
-           "odm/cameras.json": json.dumps({cam_id: rec["cameras"][cam_id]}, indent=2) + "\n"}
+    out = [ExportFile("odm/opensfm/reconstruction.json", json.dumps([rec], indent=2) + "\n"),
+           ExportFile("odm/opensfm/reference_lla.json", json.dumps(reference, indent=2) + "\n"),
+           ExportFile("odm/cameras.json", json.dumps({cam_id: rec["cameras"][cam_id]}, indent=2) + "\n")]
     kept, check, rejected, reasons, xyz = _measurements(block, project)
     head = _crs_line(block.crs)
     ids = list(dict.fromkeys(kept.point_id.astype(str)))
     if ids:
-        out["odm/gcp_list.txt"] = "\n".join([head] + _gcp_rows(kept, xyz, names)) + "\n"
-        out["odm/opensfm/ground_control_points.json"] = _ground_control_points_json(kept, ids, xyz, project, block,
-                                                                                    names)
+        out.append(ExportFile("odm/gcp_list.txt", "\n".join([head] + _gcp_rows(kept, xyz, names)) + "\n"))
+        out.append(ExportFile("odm/opensfm/ground_control_points.json",
+                              _ground_control_points_json(kept, ids, xyz, project, block, names)))
     else:
         log.warning(f"{project.root}: no control point measurements the adjustment used; no odm/gcp_list.txt "
                     "(the reconstruction is georeferenced by itself)")
     if len(check):
-        out["odm/gcp_list_check.txt"] = "\n".join([head] + _gcp_rows(check, xyz, names)) + "\n"
+        out.append(ExportFile("odm/gcp_list_check.txt", "\n".join([head] + _gcp_rows(check, xyz, names)) + "\n"))
     if len(rejected):
-        out["odm/gcp_list_rejected.txt"] = "\n".join([head] + _gcp_rows(rejected, xyz, names, reasons)) + "\n"
+        out.append(ExportFile("odm/gcp_list_rejected.txt",
+                              "\n".join([head] + _gcp_rows(rejected, xyz, names, reasons)) + "\n"))
         for p, i, why in zip(rejected.point_id, rejected.image_id, reasons):
             log.warning(f"odm export: measurement of {p} in {i} left out of gcp_list.txt: {why} "
                         "(listed in odm/gcp_list_rejected.txt)")

@@ -349,7 +349,7 @@ def camera_id_of(camera: Camera) -> str:
 
 
 def reconstruction(eo: ExteriorOrientations, camera: Camera, project: Project, reference: dict,
-                   shot_names: dict | None = None, points=None, gnss: GnssPositions | None = None,
+                   shot_names: dict | None = None, *, points=None, gnss: GnssPositions | None = None,
                    gnss_sigma_m: float | None = None) -> dict:
     """One OpenSfM reconstruction (a JSON object): shots of ``eo`` (project CRS), ``camera``, topocentric
     frame at ``reference`` (reference_lla); ``shot_names``: image id -> shot id (the frames' file names);

@@ -40,6 +40,7 @@ from aerotri.core.errors import CrsError, InputError
 from aerotri.core.project import Project
 from aerotri.core.textio import read_text
 from aerotri.exchange.adjusted import AdjustedBlock
+from aerotri.exchange.commit import ExportFile
 from aerotri.exchange.imported import ImportedBlock, ImportSettings, positions_as_gnss
 from aerotri.exchange.poses import (adjusted_orientations, horizontal_wkt, image_id_of, number,
                                     opk_orientations_to_project)
@@ -292,15 +293,16 @@ def read(files: list[Path], project: Project, options: ImportSettings) -> Import
     return block
 
 
-def files(block: AdjustedBlock, project: Project) -> dict[str, str]:
+def files(block: AdjustedBlock, project: Project) -> list[ExportFile]:
     """``orthority/int_param.yaml``, ``ext_param.csv`` + ``.prj``, ``ext_param.geojson`` of the adjusted
     orientations (``at/eo.txt``) and camera."""
     eo, camera = adjusted_orientations(project)
     return texts(eo, camera, project)
 
 
-def texts(eo: ExteriorOrientations, camera: Camera, project: Project, folder: str = "orthority") -> dict[str, str]:
-    """The orthority files of orientations in the project CRS and their camera: {relative path: text}."""
+def texts(eo: ExteriorOrientations, camera: Camera, project: Project, folder: str = "orthority") -> list[ExportFile]:
+    """The orthority files of orientations in the project CRS and their camera (paths relative to the output
+    folder)."""
     import yaml
 
     from aerotri.geom.crs import horizontal_crs, parse_crs, project_crs
@@ -320,6 +322,6 @@ def texts(eo: ExteriorOrientations, camera: Camera, project: Project, folder: st
               "geometry": {"type": "Point", "coordinates": [float(lon[i]), float(lat[i]), float(eo.centre_m[i, 2])]}}
              for i, iid in enumerate(eo.image_id)]
     geojson = {"type": "FeatureCollection", "world_crs": horizontal_wkt(project), "features": feats}
-    return {f"{folder}/int_param.yaml": int_text, f"{folder}/ext_param.csv": "\n".join(rows) + "\n",
-            f"{folder}/ext_param.prj": horizontal_wkt(project) + "\n",
-            f"{folder}/ext_param.geojson": json.dumps(geojson, indent=2) + "\n"}
+    return [ExportFile(f"{folder}/int_param.yaml", int_text), ExportFile(f"{folder}/ext_param.csv", "\n".join(rows) + "\n"),
+            ExportFile(f"{folder}/ext_param.prj", horizontal_wkt(project) + "\n"),
+            ExportFile(f"{folder}/ext_param.geojson", json.dumps(geojson, indent=2) + "\n")]

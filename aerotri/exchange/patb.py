@@ -50,6 +50,7 @@ from aerotri.core.errors import InputError
 from aerotri.core.project import Project
 from aerotri.core.textio import read_text
 from aerotri.exchange.adjusted import AdjustedBlock
+from aerotri.exchange.commit import ExportFile
 from aerotri.exchange.imported import ImportedBlock, ImportSettings, positions_as_gnss, to_project_crs
 from aerotri.exchange.poses import adjusted_orientations, number, orientations_to_project
 from aerotri.geom.camera import Camera
@@ -105,7 +106,7 @@ def control_text(ids, xyz, point_no: dict) -> str:
     return "\n".join(rows + [_i16(-99)]) + "\n"
 
 
-def files(block: AdjustedBlock, project: Project | None = None) -> dict[str, str]:
+def files(block: AdjustedBlock, project: Project | None = None) -> list[ExportFile]:
     """``patb/block.im``, the ``.con`` files and ``numbers.txt``; with ``project`` also ``block.ori``,
     ``block.cam`` (the adjusted orientations of at/eo.txt and the self-calibrated camera) and
     ``block_check.con`` (the check points of control/points.csv)."""
@@ -132,23 +133,24 @@ def files(block: AdjustedBlock, project: Project | None = None) -> dict[str, str
             im.append(_i16(point_no[str(block.point_id[block.obs_point[k]])]) + f"{x_mm[k]:{FIELD}.6f}"
                       + f"{y_mm[k]:{FIELD}.6f}")
         im.append(_i16(-99))
-    out = {"patb/block.im": "\n".join(im) + "\n"}
+    out = [ExportFile("patb/block.im", "\n".join(im) + "\n")]
     kinds = {}
     for kind in ("full", "horizontal", "height"):
         m = block.control_kind == kind
         if m.any() or kind == "full":
-            out[f"patb/{CON_FILES[kind]}"] = control_text(block.control_id[m].astype(str), block.control_xyz_m[m], point_no)
+            out.append(ExportFile(f"patb/{CON_FILES[kind]}",
+                                  control_text(block.control_id[m].astype(str), block.control_xyz_m[m], point_no)))
         kinds.update({str(p): kind for p in block.control_id[m]})
     if check is not None and len(check):
-        out[f"patb/{CON_FILES['check']}"] = control_text(check.id.astype(str), check.xyz_m, point_no)
+        out.append(ExportFile(f"patb/{CON_FILES['check']}", control_text(check.id.astype(str), check.xyz_m, point_no)))
         kinds.update({str(p): "check" for p in check.id})
     if eo is not None:
-        out["patb/block.ori"] = orientation_text(eo, photo_no)
-        out["patb/block.cam"] = camera_text(camera)
+        out.append(ExportFile("patb/block.ori", orientation_text(eo, photo_no)))
+        out.append(ExportFile("patb/block.cam", camera_text(camera)))
     nums = ["# aerotri: PAT-B numbers of the files beside this one -> ids (photo|point number id [kind])"]
     nums += [f"photo {n} {i}" for i, n in photo_no.items()]
     nums += [f"point {n} {p}" + (f" {kinds[p]}" if p in kinds else "") for p, n in point_no.items()]
-    out["patb/numbers.txt"] = "\n".join(nums) + "\n"
+    out.append(ExportFile("patb/numbers.txt", "\n".join(nums) + "\n"))
     return out
 
 

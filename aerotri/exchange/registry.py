@@ -11,7 +11,7 @@ from aerotri.core.errors import OptionError
 from aerotri.core.project import Project
 from aerotri.exchange import colmap, layers, metashape, micmac, odm_export, orthority, patb
 from aerotri.exchange.adjusted import AdjustedBlock, read_adjusted_block
-from aerotri.exchange.commit import write_together
+from aerotri.exchange.commit import ExportFile, write_together
 from aerotri.geom.images import find_images
 
 log = logging.getLogger(__name__)
@@ -26,7 +26,7 @@ def _image_names(project: Project) -> dict | None:
 class Exporter:
     name: str
     description: str
-    files: Callable[[AdjustedBlock, Project], dict]  # relative path -> text (str) or binary content (bytes)
+    files: Callable[[AdjustedBlock, Project], list[ExportFile]]  # paths relative to the output folder
 
 
 EXPORT_FORMATS = {
@@ -67,10 +67,10 @@ def export_project(root, formats=DEFAULT_FORMATS, out_dir=None) -> list[Path]:
                           param="--format")
     project = Project.open(root)
     block = read_adjusted_block(project.root)
-    texts = {}
-    for name in formats:
-        texts.update(EXPORT_FORMATS[name].files(block, project))
     out = Path(out_dir) if out_dir is not None else project.at_dir
-    written = write_together({out / rel: content for rel, content in texts.items()})
+    contents = {}  # (a later format's file of the same name replaces the earlier one's)
+    for name in formats:
+        contents.update({out / f.path: f.content for f in EXPORT_FORMATS[name].files(block, project)})
+    written = write_together(contents)
     log.info(f"exported {', '.join(formats)} of {project.root} -> {out}")
     return written

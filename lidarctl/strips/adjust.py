@@ -31,6 +31,8 @@ Models (``theta`` and J, all in metres and radians; reported in metres and degre
   its GPS time, b = R^T (p - P), scan angle theta = atan2(b_right, b_down):
   e = R (b x w) + dr R b/|b| - k theta |b| R (0, cos theta, -sin theta) + t, i.e. the beam left rotated by
   the boresight error w, at theta (1 + k) where theta was read, and the range was measured dr too long.
+
+``adjust_strips`` returns a ``StripAdjustResult``, what adjust.json holds (``read_strip_adjustment`` reads it back).
 """
 
 from __future__ import annotations
@@ -40,6 +42,7 @@ import json
 import logging
 import time
 from pathlib import Path
+from typing import Mapping
 
 import laspy
 import numpy as np
@@ -87,6 +90,138 @@ class StripAdjustSettings:
                                               "correction so far, until a step is below 0.1 sigma.")
 
 
+@dataclasses.dataclass(frozen=True)
+class Estimate:
+    """A parameter's value and standard deviation, in the unit its name ends in (degrees for ``_deg``)."""
+
+    value: float
+    sigma: float
+
+
+@dataclasses.dataclass(frozen=True)
+class Correlation:
+    """The correlation coefficient ``r`` of the parameters ``a`` and ``b``."""
+
+    a: str
+    b: str
+    r: float
+
+
+@dataclasses.dataclass(frozen=True)
+class ParameterReport:
+    """The parameters with their sigmas (by name, ``Model.names`` order), the correlation matrix (rounded to 4
+    digits) and the correlations of |r| >= 0.5 between different parameters, strongest first."""
+
+    parameters: Mapping[str, Estimate]
+    correlation_matrix: tuple[tuple[float, ...], ...]
+    strong_correlations: tuple[Correlation, ...]
+
+
+@dataclasses.dataclass(frozen=True)
+class ControlResidual:
+    """A control point's distance above the plane of a strip before and after the correction (metres)."""
+
+    id: str
+    strip: str
+    before_m: float
+    after_m: float
+
+
+@dataclasses.dataclass(frozen=True)
+class ControlSummary:
+    """The control points' distances to their strips' planes before and after the correction (metres)."""
+
+    file: str
+    points: int
+    points_used: int
+    observations: int
+    mean_before_m: float
+    mean_after_m: float
+    rms_before_m: float
+    rms_after_m: float
+    residuals: tuple[ControlResidual, ...]
+
+
+@dataclasses.dataclass(frozen=True)
+class StripAdjustResult:
+    """What ``lidarctl strips adjust`` did (adjust.json): the model (``strip`` or ``boresight``), the strip held
+    fixed, the observations, sigma0, the parameters with sigmas and correlations, the strip differences before
+    and after (``check_before``/``check_after``: all pairs, metres), the corrected files' names, the times (s)
+    and, with control points, their distances before and after."""
+
+    model: str
+    fixed_strip: str | None
+    settings: StripAdjustSettings
+    cell_m: float
+    points: int
+    strips: tuple[str, ...]
+    observations: int
+    reads: int
+    observations_per_pair: Mapping[str, int]  # "a-b" (or "strip-control") -> plane observations
+    downweighted: int
+    sigma0: float
+    strips_without_observations: tuple[str, ...]  # their parameters stay at the prior (not corrected)
+    plane_distance_rms_before_m: float
+    plane_distance_rms_after_m: float
+    parameters: Mapping[str, Estimate]
+    correlation_matrix: tuple[tuple[float, ...], ...]
+    strong_correlations: tuple[Correlation, ...]
+    check_before: chk.DiffStats
+    check_after: chk.DiffStats
+    files: tuple[str, ...]
+    seconds: float
+    points_per_s: float
+    seconds_read: float
+    seconds_solve: float
+    seconds_write: float
+    control: ControlSummary | None = None
+    schema_version: int = chk.SCHEMA_VERSION
+
+    def to_json(self) -> str:
+        """adjust.json's text."""
+        out = {"schema_version": self.schema_version}
+        for f in dataclasses.fields(self):
+            v = getattr(self, f.name)
+            if f.name in ("schema_version", "control"):
+                continue
+            if f.name == "settings":
+                v = dataclasses.asdict(v)
+            elif f.name == "parameters":
+                v = {n: dataclasses.asdict(e) for n, e in v.items()}
+            elif f.name in ("check_before", "check_after"):
+                v = v.as_dict()
+            elif isinstance(v, tuple):
+                v = [dataclasses.asdict(x) if dataclasses.is_dataclass(x) else
+                     (list(x) if isinstance(x, tuple) else x) for x in v]
+            out[f.name] = v
+        if self.control is not None:
+            out["control"] = dataclasses.asdict(self.control)
+        return json.dumps(out, indent=2) + "\n"
+
+
+def read_strip_adjustment(path) -> StripAdjustResult:
+    """adjust.json as ``adjust_strips`` wrote it (InputError naming the file when it is not one)."""
+    path = Path(path)
+    d = chk.load_record(path, "a strip adjustment (adjust.json)")
+    try:
+        c = d.get("control")
+        control = None if c is None else ControlSummary(**{**c, "residuals": tuple(
+            ControlResidual(**r) for r in c["residuals"])})
+        fields = {f.name for f in dataclasses.fields(StripAdjustResult)}
+        return StripAdjustResult(**{**{k: v for k, v in d.items() if k in fields},
+                                    "settings": StripAdjustSettings(**d["settings"]),
+                                    "strips": tuple(d["strips"]),
+                                    "strips_without_observations": tuple(d["strips_without_observations"]),
+                                    "parameters": {n: Estimate(**e) for n, e in d["parameters"].items()},
+                                    "correlation_matrix": tuple(tuple(r) for r in d["correlation_matrix"]),
+                                    "strong_correlations": tuple(Correlation(**c) for c in d["strong_correlations"]),
+                                    "check_before": chk.DiffStats.of_record(d["check_before"]),
+                                    "check_after": chk.DiffStats.of_record(d["check_after"]),
+                                    "files": tuple(d["files"]), "control": control})
+    except (KeyError, TypeError, ValueError) as exc:
+        raise InputError(f"{path}: not a strip adjustment (adjust.json): {type(exc).__name__} {exc}") from None
+
+
 @dataclasses.dataclass
 class Model:
     """Parameter names, the strips' effect Jacobians at their planar cells, and the prior sigmas."""
@@ -106,7 +241,7 @@ class Model:
         J[:, :, cols] = Jl
         return J
 
-    def displacement(self, name, x, y, z, t, theta: np.ndarray, block: int = 200_000) -> np.ndarray:
+    def displacement(self, name, x, y, z, t, theta: np.ndarray, *, block: int = 200_000) -> np.ndarray:
         """(n, 3) e(p) = J(p) theta of points of strip ``name`` (only the strip's own columns are formed)."""
         if self.displace is not None:
             return self.displace(name, x, y, z, t, theta)
@@ -380,19 +515,18 @@ def _report_value(name: str, v: float) -> float:
     return float(np.degrees(v)) if name.endswith("_deg") else float(v)
 
 
-def parameters_dict(model: Model, sol: Solution) -> dict:
+def parameter_report(model: Model, sol: Solution) -> ParameterReport:
     sd = np.sqrt(np.diag(sol.cov))
     corr = sol.cov / np.outer(sd, sd)
-    params = {n: {"value": _report_value(n, v), "sigma": _report_value(n, s)}
-              for n, v, s in zip(model.names, sol.theta, sd)}
+    params = {n: Estimate(_report_value(n, v), _report_value(n, s)) for n, v, s in zip(model.names, sol.theta, sd)}
     # the strongest correlations (|r| >= 0.5) between different parameters
     strong = []
     iu = np.triu_indices(len(sd), 1)
     for i, j in zip(*iu):
         if abs(corr[i, j]) >= 0.5:
-            strong.append({"a": model.names[i], "b": model.names[j], "r": float(corr[i, j])})
-    strong.sort(key=lambda d: -abs(d["r"]))
-    return {"parameters": params, "correlation_matrix": np.round(corr, 4).tolist(), "strong_correlations": strong}
+            strong.append(Correlation(model.names[i], model.names[j], float(corr[i, j])))
+    strong.sort(key=lambda c: -abs(c.r))
+    return ParameterReport(params, tuple(tuple(r) for r in np.round(corr, 4).tolist()), tuple(strong))
 
 
 def write_corrected(ss: ov.StripSet, model: Model, theta: np.ndarray, folder: Path,
@@ -457,7 +591,7 @@ def keep_region(ss: ov.StripSet, reach_m: float, times: bool = False) -> ov.Keep
     return ov.KeepRegion(d, cn, ids, times)
 
 
-def estimate(paths, ss: ov.StripSet, model: Model, settings: StripAdjustSettings, read_params, crs, extra,
+def estimate(paths, ss: ov.StripSet, model: Model, settings: StripAdjustSettings, read_params, *, crs, extra,
              control: ctl.ControlPoints | None = None):
     """Least squares on the planes of ``ss``, then again on the strips re-read with the correction so far,
     until a step is below ``STEP_TOL_SIGMA`` standard deviations in every parameter (at most
@@ -513,25 +647,24 @@ def estimate(paths, ss: ov.StripSet, model: Model, settings: StripAdjustSettings
     return sol, first, obs, passes
 
 
-def control_summary(cps: ctl.ControlPoints, ss: ov.StripSet, first: Observations, theta: np.ndarray) -> dict:
+def control_summary(cps: ctl.ControlPoints, ss: ov.StripSet, first: Observations, theta: np.ndarray) -> ControlSummary:
     """The control points' distances above their strips' planes before and after the correction (the
     first read's observations and the linear model; metres)."""
     co = first.control
     k0 = len(first.y) - len(co.y)
     after = co.y - first.G[k0:] @ theta
-    rows = [{"id": cps.ids[p], "strip": ss.strips[s].name, "before_m": float(b), "after_m": float(a)}
-            for p, s, b, a in zip(co.point, co.strip, co.y, after)]
-    return {"file": str(cps.path), "points": len(cps.ids), "points_used": int(len(np.unique(co.point))),
-            "observations": int(len(co.y)), "mean_before_m": float(co.y.mean()), "mean_after_m": float(after.mean()),
-            "rms_before_m": float(np.sqrt(np.mean(co.y ** 2))), "rms_after_m": float(np.sqrt(np.mean(after ** 2))),
-            "residuals": rows}
+    rows = tuple(ControlResidual(cps.ids[p], ss.strips[s].name, float(b), float(a))
+                 for p, s, b, a in zip(co.point, co.strip, co.y, after))
+    return ControlSummary(str(cps.path), len(cps.ids), int(len(np.unique(co.point))), int(len(co.y)),
+                          float(co.y.mean()), float(after.mean()), float(np.sqrt(np.mean(co.y ** 2))),
+                          float(np.sqrt(np.mean(after ** 2))), rows)
 
 
 def adjust_strips(paths, outdir, settings: StripAdjustSettings = StripAdjustSettings(),
-                  surface: ov.SurfaceSettings = ov.SurfaceSettings(), trajectories=(), crs=None, png: bool = True,
-                  control=None) -> dict:
+                  surface: ov.SurfaceSettings = ov.SurfaceSettings(), *, trajectories=(), crs=None, png: bool = True,
+                  control=None) -> StripAdjustResult:
     """The stage: estimate, write the corrected strips and the check before and after into OUTDIR
-    (``<strip files>``, ``adjust.json``, ``check_before/``, ``check_after/``). Returns the summary."""
+    (``<strip files>``, ``adjust.json``, ``check_before/``, ``check_after/``). Returns what adjust.json holds."""
     t0 = time.perf_counter()
     paths = [Path(p) for p in paths]
     outdir = Path(outdir)
@@ -556,7 +689,7 @@ def adjust_strips(paths, outdir, settings: StripAdjustSettings = StripAdjustSett
     t_read = time.perf_counter()
     model = boresight_model(ss, chosen, settings.shift_sigma_m) if trajectories else \
         strip_model(ss, settings.fixed, controlled=cps is not None)
-    sol, first, obs, passes = estimate(paths, ss, model, settings, read_params, crs, extra, cps)
+    sol, first, obs, passes = estimate(paths, ss, model, settings, read_params, crs=crs, extra=extra, control=cps)
     model.jac = {}  # the cells' Jacobians are not needed any more
     t_solve = time.perf_counter()
     with atomic_dir(outdir) as tmp:
@@ -568,29 +701,27 @@ def adjust_strips(paths, outdir, settings: StripAdjustSettings = StripAdjustSett
         for name, res in (("check_before", before), ("check_after", after)):
             (tmp / name).mkdir()
             chk.write_outputs(res, tmp / name, f"Strip differences {name.split('_')[1]} adjustment", vmax, png)
-            (tmp / name / "strips.json").write_text(json.dumps(res.summary, indent=2) + "\n")
+            (tmp / name / "strips.json").write_text(res.summary.to_json())
         dt = time.perf_counter() - t0
-        summary = {
-            "model": model.kind, "fixed_strip": settings.fixed if model.kind == "strip" else None,
-            "settings": dataclasses.asdict(settings), "cell_m": ss.grid.cell_m, "points": ss.n_points,
-            "strips": [s.name for s in ss.strips], "observations": int(len(obs.y)), "reads": passes,
-            "observations_per_pair": {f"{a}-{b}": int(np.sum(obs.pair == i)) for i, (a, b) in enumerate(obs.pairs)},
-            "downweighted": sol.downweighted, "sigma0": sol.sigma0,
-            # strips that share no planar cell with another: their parameters stay at the prior (not corrected)
-            "strips_without_observations": [s.name for s in ss.strips
-                                            if not any(s.name in pair for pair in obs.pairs)],
-            "plane_distance_rms_before_m": sol.residual_before_rms_m,
-            "plane_distance_rms_after_m": sol.residual_after_rms_m,
-            **parameters_dict(model, sol),
-            "check_before": before.summary["all_pairs"], "check_after": after.summary["all_pairs"],
-            "files": [p.name for p in corrected],
-            "seconds": dt, "points_per_s": ss.n_points / dt,
-            "seconds_read": t_read - t0, "seconds_solve": t_solve - t_read, "seconds_write": t_write - t_solve,
-        }
+        report = parameter_report(model, sol)
+        fixed = settings.fixed if model.kind == "strip" else None
         if model.kind == "strip" and settings.fixed is None:
-            summary["fixed_strip"] = next((s.name for s in ss.strips if not any(
-                n.startswith(f"{s.name}.") for n in model.names)), None)
-        if cps is not None:
-            summary["control"] = control_summary(cps, ss, first, sol.theta)
-        (tmp / "adjust.json").write_text(json.dumps(summary, indent=2) + "\n")
+            fixed = next((s.name for s in ss.strips if not any(n.startswith(f"{s.name}.") for n in model.names)), None)
+        summary = StripAdjustResult(
+            model=model.kind, fixed_strip=fixed, settings=settings, cell_m=ss.grid.cell_m, points=ss.n_points,
+            strips=tuple(s.name for s in ss.strips), observations=int(len(obs.y)), reads=passes,
+            observations_per_pair={f"{a}-{b}": int(np.sum(obs.pair == i)) for i, (a, b) in enumerate(obs.pairs)},
+            downweighted=sol.downweighted, sigma0=sol.sigma0,
+            # strips that share no planar cell with another: their parameters stay at the prior (not corrected)
+            strips_without_observations=tuple(s.name for s in ss.strips
+                                              if not any(s.name in pair for pair in obs.pairs)),
+            plane_distance_rms_before_m=sol.residual_before_rms_m,
+            plane_distance_rms_after_m=sol.residual_after_rms_m,
+            **{f.name: getattr(report, f.name) for f in dataclasses.fields(ParameterReport)},
+            check_before=before.summary.all_pairs, check_after=after.summary.all_pairs,
+            files=tuple(p.name for p in corrected),
+            seconds=dt, points_per_s=ss.n_points / dt,
+            seconds_read=t_read - t0, seconds_solve=t_solve - t_read, seconds_write=t_write - t_solve,
+            control=control_summary(cps, ss, first, sol.theta) if cps is not None else None)
+        (tmp / "adjust.json").write_text(summary.to_json())
     return summary

@@ -11,7 +11,7 @@ across its track), q (1/m) its torsion-like bending; s is also given in degrees.
 Outputs (OUTDIR, written as a whole or not at all): ``diff_<A>_<B>.tif`` (COG, dz in the CRS's height
 unit, nodata outside the common smooth cells), ``diff_<A>_<B>.png`` (map with a diverging colour key in
 metres, and dz against A's scan angle), ``strips.json`` (every number; lengths in metres) and
-``index.html``.
+``index.html``. ``read_strip_check`` reads strips.json back into a ``StripCheckResult``.
 """
 
 from __future__ import annotations
@@ -21,11 +21,14 @@ import json
 import logging
 import time
 from pathlib import Path
+from typing import Mapping
 
 import numpy as np
 
 from aerotri.core.atomic import atomic_dir, refuse_input_as_output
+from aerotri.core.errors import InputError
 from lidarctl.strips.overlap import PairDiff, StripSet, SurfaceSettings, overlapping_pairs_or_error, read_strips
+from lidarctl.units import LengthUnits
 
 log = logging.getLogger(__name__)
 log.addHandler(logging.NullHandler())
@@ -35,18 +38,232 @@ SCAN_BIN_DEG = 2.0
 FILES = ("strips.json", "index.html")
 
 
-def stats(dz: np.ndarray) -> dict:
+SCHEMA_VERSION = 1  # strips.json: the layout of ``StripCheckResult.to_json``
+
+
+@dataclasses.dataclass(frozen=True)
+class DiffStats:
+    """Statistics of height differences (metres): n, mean, RMS, standard deviation, median, NMAD and the
+    95th percentile of |dz|; only ``n_cells`` (0) when there are none."""
+
+    n_cells: int
+    mean_m: float | None = None
+    rms_m: float | None = None
+    std_m: float | None = None
+    median_m: float | None = None
+    nmad_m: float | None = None
+    p95_abs_m: float | None = None
+
+    def as_dict(self) -> dict:
+        """As strips.json writes it (``{"n_cells": 0}`` without differences)."""
+        return dataclasses.asdict(self) if self.n_cells else {"n_cells": 0}
+
+    @classmethod
+    def of_record(cls, d: dict) -> "DiffStats":
+        """From ``as_dict``'s record (or a record holding its keys, as a pair's in strips.json)."""
+        return cls(**{f.name: d[f.name] for f in dataclasses.fields(cls) if f.name in d})
+
+
+@dataclasses.dataclass(frozen=True)
+class ScanBin:
+    """dz in one bin of strip A's scan angle (degrees; metres)."""
+
+    scan_angle_deg: float
+    n: int
+    mean_m: float
+    nmad_m: float
+
+
+@dataclasses.dataclass(frozen=True)
+class RollFit:
+    """The robust fit dz = c + s u + q u^2 over the across-track position u (m) about ``u_ref_m``."""
+
+    u_ref_m: float
+    offset_m: float
+    slope_m_per_m: float
+    relative_roll_deg: float
+    curvature_per_m: float
+    slope_m_per_scan_deg: float
+    u_span_m: float
+
+
+@dataclasses.dataclass(frozen=True)
+class ScanProfile:
+    """dz against strip A's scan angle: the bins and the fit (None: fewer than 5 cells or no spread)."""
+
+    bins: tuple[ScanBin, ...]
+    fit: RollFit | None
+
+
+@dataclasses.dataclass(frozen=True)
+class Offset3d:
+    """The 3D offset of strip B against strip A (B - A, metres) with its sigmas, from ``cells`` planar cells
+    (``sloped_cells`` steeper than 10 deg) up to ``max_slope_deg``."""
+
+    dx_m: float
+    dy_m: float
+    dz_m: float
+    sigma_dx_m: float
+    sigma_dy_m: float
+    sigma_dz_m: float
+    cells: int
+    sloped_cells: int
+    max_slope_deg: float
+
+
+@dataclasses.dataclass(frozen=True)
+class PairCheck:
+    """One overlapping pair: dz = z_b - z_a on the common smooth cells, against a's scan angle, the 3D
+    offset (None: fewer than 10 shared planar cells) and the files written for it (names in OUTDIR)."""
+
+    a: str
+    b: str
+    common_planar_cells: int
+    diff: DiffStats
+    area_m2: float
+    vs_scan_angle_a: ScanProfile
+    offset_3d_b_minus_a: Offset3d | None
+    raster: str | None = None
+    png: str | None = None
+
+
+@dataclasses.dataclass(frozen=True)
+class StripCheck:
+    """One strip: its source, points, planar cells, pairs, and the differences "this strip minus the others"."""
+
+    name: str
+    file: str
+    point_source_id: int | None
+    points: int
+    planar_cells: int
+    pairs: int
+    minus_others: DiffStats
+
+
+@dataclasses.dataclass(frozen=True)
+class StripCheckResult:
+    """What ``lidarctl strips check`` found (strips.json; ``read_strip_check`` reads it back): the pairs, the
+    strips and all pairs together (metres), the cell size and surface settings, the CRS and its units."""
+
+    convention: str
+    cell_m: float
+    crs: str | None
+    units: LengthUnits
+    points: int
+    strips: tuple[StripCheck, ...]
+    pairs: tuple[PairCheck, ...]
+    skipped_pairs: Mapping[str, str]  # "a-b" -> why the pair was left out
+    all_pairs: DiffStats
+    surface: SurfaceSettings
+    map_colour_limit_m: float | None = None
+    overview_png: str | None = None
+    seconds: float | None = None
+    points_per_s: float | None = None
+    schema_version: int = SCHEMA_VERSION
+
+    def to_json(self) -> str:
+        """strips.json's text."""
+        return json.dumps(_check_record(self), indent=2) + "\n"
+
+
+def _pair_record(p: PairCheck) -> dict:
+    fit = p.vs_scan_angle_a.fit
+    out = {"a": p.a, "b": p.b, "common_planar_cells": p.common_planar_cells, **p.diff.as_dict(), "area_m2": p.area_m2,
+           "vs_scan_angle_a": {"bins": [dataclasses.asdict(b) for b in p.vs_scan_angle_a.bins],
+                               "fit": dataclasses.asdict(fit) if fit is not None else {}},
+           "offset_3d_b_minus_a": dataclasses.asdict(p.offset_3d_b_minus_a) if p.offset_3d_b_minus_a else {}}
+    for k in ("raster", "png"):
+        if getattr(p, k) is not None:
+            out[k] = getattr(p, k)
+    return out
+
+
+def _check_record(r: StripCheckResult) -> dict:
+    out = {"schema_version": r.schema_version, "convention": r.convention, "cell_m": r.cell_m, "crs": r.crs,
+           **r.units.as_dict(), "points": r.points,
+           "strips": [{**{f.name: getattr(t, f.name) for f in dataclasses.fields(t)},
+                       "minus_others": t.minus_others.as_dict()} for t in r.strips],
+           "pairs": [_pair_record(p) for p in r.pairs], "skipped_pairs": dict(r.skipped_pairs),
+           "all_pairs": r.all_pairs.as_dict(), "surface": dataclasses.asdict(r.surface)}
+    for k in ("map_colour_limit_m", "overview_png"):
+        if getattr(r, k) is not None:
+            out[k] = getattr(r, k)
+    if r.seconds is not None:
+        out.update(seconds=r.seconds, points_per_s=r.points_per_s)
+    return out
+
+
+def _pair_of(d: dict) -> PairCheck:
+    v = d["vs_scan_angle_a"]
+    o = d["offset_3d_b_minus_a"]
+    return PairCheck(d["a"], d["b"], d["common_planar_cells"], DiffStats.of_record(d), d["area_m2"],
+                     ScanProfile(tuple(ScanBin(**b) for b in v["bins"]), RollFit(**v["fit"]) if v["fit"] else None),
+                     Offset3d(**o) if o else None, d.get("raster"), d.get("png"))
+
+
+def _check_of(d: dict) -> StripCheckResult:
+    """The ``StripCheckResult`` of a strips.json record (``read_strip_check``)."""
+    strips = tuple(StripCheck(**{**t, "minus_others": DiffStats.of_record(t["minus_others"])}) for t in d["strips"])
+    units = LengthUnits(d["xy_unit_m"], d["z_unit_m"], known=d["xy_unit"] != "file units")
+    return StripCheckResult(d["convention"], d["cell_m"], d["crs"], units, d["points"], strips,
+                            tuple(_pair_of(p) for p in d["pairs"]), d["skipped_pairs"], DiffStats.of_record(d["all_pairs"]),
+                            SurfaceSettings(**d["surface"]), d.get("map_colour_limit_m"), d.get("overview_png"),
+                            d.get("seconds"), d.get("points_per_s"), d.get("schema_version", SCHEMA_VERSION))
+
+
+def read_strip_check(path) -> StripCheckResult | None:
+    """strips.json as written by ``check_strips`` (or the check before/after of ``adjust_strips``); None when it
+    records that there was nothing to compare (``nothing_compared``). InputError naming the file when it is
+    not one."""
+    path = Path(path)
+    d = load_record(path, "a strip check (strips.json)")
+    if "why" in d:
+        return None
+    try:
+        return _check_of(d)
+    except (KeyError, TypeError, ValueError) as exc:
+        raise InputError(f"{path}: not a strip check (strips.json): {type(exc).__name__} {exc}") from None
+
+
+def load_record(path: Path, what: str):
+    """The JSON record of a report of this package (strips.json, adjust.json), its schema version checked
+    (InputError naming the file and ``what`` it should be)."""
+    try:
+        d = json.loads(Path(path).read_text())
+    except (OSError, ValueError) as exc:
+        raise InputError(f"{path}: cannot read {what}: {exc}") from None
+    if not isinstance(d, dict) or not isinstance(d.get("schema_version", SCHEMA_VERSION), int) \
+            or d.get("schema_version", SCHEMA_VERSION) > SCHEMA_VERSION:
+        raise InputError(f"{path}: not {what} of schema version {SCHEMA_VERSION} or older")
+    return d
+
+
+def record_nothing_compared(folder: Path, why: str) -> None:
+    """strips.json saying why there is no check (the chain goes on without one; ``nothing_compared``)."""
+    (Path(folder) / "strips.json").write_text(json.dumps({"schema_version": SCHEMA_VERSION, "why": why}, indent=2) + "\n")
+
+
+def nothing_compared(path) -> str | None:
+    """Why the strip check at ``path`` (strips.json) compared nothing, None when it did or there is none."""
+    path = Path(path)
+    if not path.is_file():
+        return None
+    return load_record(path, "a strip check (strips.json)").get("why")
+
+
+def stats(dz: np.ndarray) -> DiffStats:
     """n, mean, RMS, standard deviation, median, NMAD and 95th percentile of |dz| (metres)."""
     dz = np.asarray(dz, float)
     if len(dz) == 0:
-        return {"n_cells": 0}
+        return DiffStats(0)
     med = float(np.median(dz))
-    return {"n_cells": int(len(dz)), "mean_m": float(dz.mean()), "rms_m": float(np.sqrt(np.mean(dz ** 2))),
-            "std_m": float(dz.std(ddof=1)) if len(dz) > 1 else 0.0, "median_m": med,
-            "nmad_m": float(NMAD_K * np.median(np.abs(dz - med))), "p95_abs_m": float(np.percentile(np.abs(dz), 95))}
+    return DiffStats(int(len(dz)), mean_m=float(dz.mean()), rms_m=float(np.sqrt(np.mean(dz ** 2))),
+                     std_m=float(dz.std(ddof=1)) if len(dz) > 1 else 0.0, median_m=med,
+                     nmad_m=float(NMAD_K * np.median(np.abs(dz - med))),
+                     p95_abs_m=float(np.percentile(np.abs(dz), 95)))
 
 
-def scan_profile(dz: np.ndarray, angle_deg: np.ndarray, u_m: np.ndarray, bin_deg: float = SCAN_BIN_DEG) -> dict:
+def scan_profile(dz: np.ndarray, angle_deg: np.ndarray, u_m: np.ndarray, bin_deg: float = SCAN_BIN_DEG) -> ScanProfile:
     """dz binned by scan angle (mean, NMAD, n per bin) and the robust fit dz = c + s u + q u^2 over the
     across-track position (Huber-weighted; u in metres)."""
     edges = np.arange(np.floor(angle_deg.min() / bin_deg) * bin_deg, angle_deg.max() + bin_deg, bin_deg)
@@ -54,19 +271,19 @@ def scan_profile(dz: np.ndarray, angle_deg: np.ndarray, u_m: np.ndarray, bin_deg
     bins = []
     for b in np.unique(k):
         d = dz[k == b]
-        bins.append({"scan_angle_deg": float(edges[b] + bin_deg / 2), "n": int(len(d)), "mean_m": float(d.mean()),
-                     "nmad_m": float(NMAD_K * np.median(np.abs(d - np.median(d))))})
-    fit = {}
+        bins.append(ScanBin(float(edges[b] + bin_deg / 2), int(len(d)), float(d.mean()),
+                            float(NMAD_K * np.median(np.abs(d - np.median(d))))))
+    fit = None
     if len(dz) >= 5 and np.ptp(u_m) > 0:
         u0 = float(np.mean(u_m))
         uu = u_m - u0
         G = np.column_stack([np.ones_like(uu), uu, uu ** 2])
         x = _huber_lsq(G, dz)
         s_deg = np.polyfit(angle_deg, dz, 1)[0] if np.ptp(angle_deg) > 0 else np.nan
-        fit = {"u_ref_m": u0, "offset_m": float(x[0]), "slope_m_per_m": float(x[1]),
-               "relative_roll_deg": float(np.degrees(np.arctan(x[1]))), "curvature_per_m": float(x[2]),
-               "slope_m_per_scan_deg": float(s_deg), "u_span_m": float(np.ptp(u_m))}
-    return {"bins": bins, "fit": fit}
+        fit = RollFit(u_ref_m=u0, offset_m=float(x[0]), slope_m_per_m=float(x[1]),
+                      relative_roll_deg=float(np.degrees(np.arctan(x[1]))), curvature_per_m=float(x[2]),
+                      slope_m_per_scan_deg=float(s_deg), u_span_m=float(np.ptp(u_m)))
+    return ScanProfile(tuple(bins), fit)
 
 
 def _huber_lsq(G: np.ndarray, y: np.ndarray, k: float = 1.5, iterations: int = 10, return_weights: bool = False):
@@ -83,16 +300,16 @@ def _huber_lsq(G: np.ndarray, y: np.ndarray, k: float = 1.5, iterations: int = 1
     return (x, w) if return_weights else x
 
 
-def pair_offset_3d(A, B, max_slope_deg: float = 60.0) -> dict:
+def pair_offset_3d(A, B, max_slope_deg: float = 60.0) -> Offset3d | None:
     """The 3D offset t of strip B against strip A (B - A, metres) from every planar cell they share up to
     ``max_slope_deg``: n . (c_B - c_A) = n . t (n the mean normal, c the centroids), Huber-weighted least
     squares with sigmas (sigma0 a posteriori). Horizontal components come from sloped surfaces (roofs,
-    embankments): their sigmas say how well the overlap determines them."""
+    embankments): their sigmas say how well the overlap determines them. None: fewer than 10 such cells."""
     common, ka, kb = np.intersect1d(A.ids, B.ids, assume_unique=True, return_indices=True)
     ok = (A.slope_deg[ka] <= max_slope_deg) & (B.slope_deg[kb] <= max_slope_deg)
     ka, kb = ka[ok], kb[ok]
     if len(ka) < 10:
-        return {}
+        return None
     n = A.normals()[ka] + B.normals()[kb]
     n /= np.linalg.norm(n, axis=1, keepdims=True)
     y = np.einsum("ij,ij->i", n, B.centroid[kb] - A.centroid[ka])
@@ -106,16 +323,16 @@ def pair_offset_3d(A, B, max_slope_deg: float = 60.0) -> dict:
     except np.linalg.LinAlgError:
         sd = np.full(3, np.inf)
     sloped = int(np.sum(np.maximum(A.slope_deg[ka], B.slope_deg[kb]) > 10.0))
-    return {"dx_m": float(t[0]), "dy_m": float(t[1]), "dz_m": float(t[2]), "sigma_dx_m": float(sd[0]),
-            "sigma_dy_m": float(sd[1]), "sigma_dz_m": float(sd[2]), "cells": int(len(y)), "sloped_cells": sloped,
-            "max_slope_deg": max_slope_deg}
+    return Offset3d(float(t[0]), float(t[1]), float(t[2]), float(sd[0]), float(sd[1]), float(sd[2]), int(len(y)),
+                    sloped, max_slope_deg)
 
 
 @dataclasses.dataclass
 class CheckResult:
-    """The numbers of a check (``summary`` is what strips.json holds) and the pair differences."""
+    """The numbers of a check (``summary``: what strips.json holds; ``write_outputs`` adds the files) and the
+    pair differences."""
 
-    summary: dict
+    summary: StripCheckResult
     pairs: list[PairDiff]
     strip_set: StripSet
 
@@ -130,32 +347,26 @@ def analyse(ss: StripSet, params: SurfaceSettings, paths, min_cells: int = 20) -
     for p in pairs:
         per_strip[p.a].append(-p.dz_m)
         per_strip[p.b].append(p.dz_m)
-        pair_out.append({"a": p.a, "b": p.b, "common_planar_cells": p.common_cells, **stats(p.dz_m),
-                         "area_m2": float(len(p.dz_m) * ss.grid.cell_m ** 2),
-                         "vs_scan_angle_a": scan_profile(p.dz_m, p.scan_angle_a_deg, p.u_a_m),
-                         "offset_3d_b_minus_a": pair_offset_3d(by_name[p.a], by_name[p.b])})
+        pair_out.append(PairCheck(p.a, p.b, p.common_cells, stats(p.dz_m), float(len(p.dz_m) * ss.grid.cell_m ** 2),
+                                  scan_profile(p.dz_m, p.scan_angle_a_deg, p.u_a_m),
+                                  pair_offset_3d(by_name[p.a], by_name[p.b])))
     strip_out = []
     for s in ss.strips:
         d = np.concatenate(per_strip[s.name]) if per_strip[s.name] else np.zeros(0)
-        strip_out.append({"name": s.name, "file": str(s.source.path), "point_source_id": s.source.point_source_id,
-                          "points": s.n_points, "planar_cells": int(len(s.ids)),
-                          "pairs": sum(1 for p in pairs if s.name in (p.a, p.b)),
-                          "minus_others": stats(d)})
+        strip_out.append(StripCheck(s.name, str(s.source.path), s.source.point_source_id, s.n_points,
+                                    int(len(s.ids)), sum(1 for p in pairs if s.name in (p.a, p.b)), stats(d)))
     all_dz = np.concatenate([p.dz_m for p in pairs])
-    summary = {
-        "convention": "dz = z_b - z_a per pair at the cell centres (metres); per strip: this strip minus the others",
-        "cell_m": ss.grid.cell_m, "crs": ss.crs.to_string() if ss.crs is not None else None, **ss.units.as_dict(),
-        "points": ss.n_points, "strips": strip_out, "pairs": pair_out, "skipped_pairs": skipped,
-        "all_pairs": stats(all_dz),
-        "surface": dataclasses.asdict(dataclasses.replace(params, cell_m=ss.grid.cell_m)),
-    }
+    summary = StripCheckResult(
+        "dz = z_b - z_a per pair at the cell centres (metres); per strip: this strip minus the others",
+        ss.grid.cell_m, ss.crs.to_string() if ss.crs is not None else None, ss.units, ss.n_points, tuple(strip_out),
+        tuple(pair_out), skipped, stats(all_dz), dataclasses.replace(params, cell_m=ss.grid.cell_m))
     return CheckResult(summary, pairs, ss)
 
 
-def check_strips(paths, outdir, params: SurfaceSettings = SurfaceSettings(), crs=None, title: str = "Strip differences",
-                 vmax_m: float | None = None, png: bool = True) -> dict:
+def check_strips(paths, outdir, params: SurfaceSettings = SurfaceSettings(), *, crs=None,
+                 title: str = "Strip differences", vmax_m: float | None = None, png: bool = True) -> StripCheckResult:
     """The stage: read the strips, analyse the overlaps and write OUTDIR (see the module docstring). Returns
-    the summary (with ``seconds`` and ``points_per_s``)."""
+    what strips.json holds (with ``seconds`` and ``points_per_s``)."""
     t0 = time.perf_counter()
     paths = [Path(p) for p in paths]
     outdir = Path(outdir)
@@ -167,16 +378,10 @@ def check_strips(paths, outdir, params: SurfaceSettings = SurfaceSettings(), crs
     res = analyse(ss, params, paths)
     with atomic_dir(outdir) as tmp:
         write_outputs(res, tmp, title, vmax_m, png)
-        summary = _finish(res, t0)
-        (tmp / "strips.json").write_text(json.dumps(summary, indent=2) + "\n")
+        dt = time.perf_counter() - t0
+        summary = dataclasses.replace(res.summary, seconds=dt, points_per_s=res.summary.points / dt if dt > 0 else None)
+        (tmp / "strips.json").write_text(summary.to_json())
     return summary
-
-
-def _finish(res: CheckResult, t0: float) -> dict:
-    dt = time.perf_counter() - t0
-    res.summary["seconds"] = dt
-    res.summary["points_per_s"] = res.summary["points"] / dt if dt > 0 else None
-    return res.summary
 
 
 def colour_limit_m(pairs: list[PairDiff]) -> float:
@@ -198,33 +403,34 @@ def pair_raster(p: PairDiff, ss: StripSet):
 
 
 def write_outputs(res: CheckResult, folder: Path, title: str, vmax_m: float | None, png: bool = True) -> None:
-    """Rasters, PNGs and the HTML page of a check into ``folder`` (strips.json is written by the caller)."""
+    """Rasters, PNGs and the HTML page of a check into ``folder`` (strips.json is written by the caller);
+    ``res.summary`` gets the colour limit and the files' names."""
     from lidarctl.rasters import _transform_in_units, write_cog
     from lidarctl.units import long_name
 
     ss = res.strip_set
     units = ss.units
     vmax = vmax_m or colour_limit_m(res.pairs)
-    res.summary["map_colour_limit_m"] = vmax
-    images = []
-    for p, ps in zip(res.pairs, res.summary["pairs"]):
+    rows = []
+    for p, ps in zip(res.pairs, res.summary.pairs):
         stem = f"diff_{p.a}_{p.b}"
         a, transform = pair_raster(p, ss)
         write_cog(folder / f"{stem}.tif", units.z_from_m(a), _transform_in_units(transform, units), ss.crs,
                   unit=long_name(units.z_m), description=f"dz = z({p.b}) - z({p.a}) on smooth single-return surfaces",
                   tags={"LINEAR_UNITS": units.xy_name, "VERTICAL_UNITS": units.z_name, "CELL_SIZE_M": ss.grid.cell_m})
-        ps["raster"] = f"{stem}.tif"
+        ps = dataclasses.replace(ps, raster=f"{stem}.tif")
         if png:
             _pair_png(folder / f"{stem}.png", p, ps, a, transform, vmax, title)
-            ps["png"] = f"{stem}.png"
-            images.append(ps["png"])
+            ps = dataclasses.replace(ps, png=f"{stem}.png")
+        rows.append(ps)
+    res.summary = dataclasses.replace(res.summary, pairs=tuple(rows), map_colour_limit_m=vmax)
     if png:
         _overview_png(folder / "overview.png", res, vmax, title)
-        res.summary["overview_png"] = "overview.png"
+        res.summary = dataclasses.replace(res.summary, overview_png="overview.png")
     _html(folder / "index.html", res.summary, title)
 
 
-def _pair_png(path, p: PairDiff, ps: dict, a, transform, vmax: float, title: str) -> None:
+def _pair_png(path, p: PairDiff, ps: PairCheck, a, transform, vmax: float, title: str) -> None:
     import matplotlib
 
     matplotlib.use("Agg")
@@ -242,16 +448,17 @@ def _pair_png(path, p: PairDiff, ps: dict, a, transform, vmax: float, title: str
     ax.set_ylabel("northing")
     cb = fig.colorbar(im, ax=ax, shrink=0.85)
     cb.set_label(f"dz = z({p.b}) - z({p.a})  [m]")
-    ax.set_title(f"{p.b} - {p.a}\nmean {ps['mean_m']:+.3f} m, RMS {ps['rms_m']:.3f} m, NMAD {ps['nmad_m']:.3f} m "
-                 f"({ps['n_cells']} cells)", fontsize=9)
+    d = ps.diff
+    ax.set_title(f"{p.b} - {p.a}\nmean {d.mean_m:+.3f} m, RMS {d.rms_m:.3f} m, NMAD {d.nmad_m:.3f} m "
+                 f"({d.n_cells} cells)", fontsize=9)
     ax2.scatter(p.scan_angle_a_deg, p.dz_m, s=2, color="0.6", alpha=0.5, rasterized=True)
-    bins = ps["vs_scan_angle_a"]["bins"]
-    ax2.errorbar([b["scan_angle_deg"] for b in bins], [b["mean_m"] for b in bins],
-                 yerr=[b["nmad_m"] for b in bins], fmt="o-", color="C3", ms=4, label="bin mean +- NMAD")
-    fit = ps["vs_scan_angle_a"]["fit"]
+    bins = ps.vs_scan_angle_a.bins
+    ax2.errorbar([b.scan_angle_deg for b in bins], [b.mean_m for b in bins],
+                 yerr=[b.nmad_m for b in bins], fmt="o-", color="C3", ms=4, label="bin mean +- NMAD")
+    fit = ps.vs_scan_angle_a.fit
     if fit:
-        ax2.set_title(f"relative roll {fit['relative_roll_deg'] * 1000:+.1f} mdeg "
-                      f"({fit['slope_m_per_scan_deg'] * 1000:+.2f} mm per scan degree)", fontsize=9)
+        ax2.set_title(f"relative roll {fit.relative_roll_deg * 1000:+.1f} mdeg "
+                      f"({fit.slope_m_per_scan_deg * 1000:+.2f} mm per scan degree)", fontsize=9)
     ax2.axhline(0, color="k", lw=0.6)
     ax2.set_ylim(-1.5 * vmax, 1.5 * vmax)
     ax2.set_xlabel(f"scan angle of {p.a} [deg]")
@@ -285,7 +492,7 @@ def _overview_png(path, res: CheckResult, vmax: float, title: str) -> None:
     if im is not None:
         fig.colorbar(im, ax=ax, shrink=0.8).set_label("dz of each pair (z_b - z_a) [m]")
     ax.legend(fontsize=7, markerscale=8, loc="upper right")
-    ax.set_title(f"{title}: all pairs, RMS {res.summary['all_pairs']['rms_m']:.3f} m", fontsize=10)
+    ax.set_title(f"{title}: all pairs, RMS {res.summary.all_pairs.rms_m:.3f} m", fontsize=10)
     fig.tight_layout()
     fig.savefig(path, dpi=100)
     plt.close(fig)
@@ -327,8 +534,9 @@ padding:3px 8px;text-align:right} th{background:#eee} img{max-width:100%}</style
 """
 
 
-def _html(path: Path, summary: dict, title: str) -> None:
+def _html(path: Path, summary: StripCheckResult, title: str) -> None:
     import jinja2
 
     env = jinja2.Environment(autoescape=True)
-    path.write_text(env.from_string(_TEMPLATE).render(s=summary, title=title))
+    # the page shows strips.json's numbers, under its names
+    path.write_text(env.from_string(_TEMPLATE).render(s=_check_record(summary), title=title))

@@ -294,7 +294,7 @@ class KeptPoints:
         return units.xy_to_m(c[:, 0]), units.xy_to_m(c[:, 1]), units.z_to_m(c[:, 2])
 
 
-def read_strips(paths, params: SurfaceSettings = SurfaceSettings(), crs=None, extra=None, correct=None,
+def read_strips(paths, params: SurfaceSettings = SurfaceSettings(), crs=None, *, extra=None, correct=None,
                 grid: Grid | None = None, keep: KeepRegion | None = None, z_ref: float | None = None) -> StripSet:
     """Planar cells of every strip of ``paths`` (see the module docstring).
 

@@ -24,8 +24,8 @@ def test_ahn3_window_corners_near_bgt_footprint_vertices(shared_data):
     d = shared_data / "ahn3_delft"
     c = read_classified_cloud(d / "ahn3_cropped_1.laz")
     x0, x1, y0, y1 = WINDOW
-    w = (c["x"] >= x0) & (c["x"] < x1) & (c["y"] >= y0) & (c["y"] < y1)
-    res = find_roof_corners(c["x"][w], c["y"][w], c["z"][w], c["classification"][w], c["point_source_id"][w],
+    w = (c.x >= x0) & (c.x < x1) & (c.y >= y0) & (c.y < y1)
+    res = find_roof_corners(c.x[w], c.y[w], c.z[w], c.classification[w], c.point_source_id[w],
                             roof="any")
     con = sqlite3.connect(f"file:{d / 'bgt_pand.sqlite'}?mode=ro", uri=True)
     polys = [shapely.wkb.loads(bytes(b)) for (b,) in con.execute("SELECT GEOMETRY FROM buildingpart")]
@@ -43,9 +43,9 @@ def test_ahn3_window_corners_near_bgt_footprint_vertices(shared_data):
     # minimum edge, 3.1 m here, also outlines garden sheds: eaves 0.8-1.6 m above the ground), and the
     # usable ones on the houses, 5-20 m above NAP ground
     z = np.array([q["z"] for q in res["corners"]])
-    g = c["classification"] == 2
-    _, nn = cKDTree(np.column_stack([c["x"][g], c["y"][g]])).query(cxy)
-    assert np.all(z - c["z"][g][nn] > 0.5)
+    g = c.classification == 2
+    _, nn = cKDTree(np.column_stack([c.x[g], c.y[g]])).query(cxy)
+    assert np.all(z - c.z[g][nn] > 0.5)
     use = np.array([q["usable"] for q in res["corners"]], bool)
     assert use.sum() >= 10 and np.all((z[use] > 2.0) & (z[use] < 30.0))
 
@@ -58,7 +58,7 @@ def test_ahn3_tree_crowns_hide_corners_only_where_they_rise_above_the_view_rays(
     most 0.5 m from it in the median (eave overhang included)."""
     d = shared_data / "ahn3_delft"
     c = read_classified_cloud(d / "ahn3_cropped_1.laz")
-    res = find_roof_corners(c["x"], c["y"], c["z"], c["classification"], c["point_source_id"], roof="any")
+    res = find_roof_corners(c.x, c.y, c.z, c.classification, c.point_source_id, roof="any")
     corners = res["corners"]
     under = [q for q in corners if np.hypot(q["x"] - 84842.0, q["y"] - 447563.0) < 1.0]
     assert len(under) >= 1 and all(q["score_view_openness"] == 0.0 and not q["usable"] for q in under)

@@ -13,6 +13,7 @@ import pyproj
 from click.testing import CliRunner
 
 from lidarctl.cli import main
+from lidarctl.corners import read_corner_summary
 
 _spec = importlib.util.spec_from_file_location("corners_synth", Path(__file__).with_name("corners_synth.py"))
 cs = importlib.util.module_from_spec(_spec)
@@ -56,11 +57,15 @@ def test_corners_command_writes_csv_geojson_summary_and_figure(tmp_path):
     assert kinds.count("roof_corner") == len(rows)
     assert kinds.count("roof_outline") >= 6
     assert "32649" in gj["crs"]["properties"]["name"]
-    summary = json.loads((out / "corners.json").read_text())
-    assert summary["n_corners"] == len(rows) and summary["n_usable"] == int(usable.sum())
+    summary = read_corner_summary(out / "corners.json")
+    st = summary.stats
+    assert st.n_corners == len(rows) and st.n_usable == int(usable.sum()) and summary.no_usable is None
+    assert summary.crs == "EPSG:32649" and summary.settings["roof"] == {"value": "flat", "source": "command line"}
+    # the reader gives back what was written, to the byte
+    assert summary.to_json() == (out / "corners.json").read_text()
     assert (out / "corners.png").stat().st_size > 10000
     # the printed summary names the resolved minimum edge (the same as the JSON's) and the units
-    assert f"edges >= {summary['min_edge_m']:.2f} m; x, y, z in metre" in r.output
+    assert f"edges >= {st.min_edge_m:.2f} m; x, y, z in metre" in r.output
 
 
 def test_figure_draws_cells_without_height_apart_from_the_tallest(tmp_path):

@@ -19,7 +19,7 @@ def test_tiny_project_corners_match_truth_with_honest_sigmas(tiny_project):
     files = sorted((tiny_project / "truth" / "lidar").glob("strip_*.la[sz]"))
     assert files
     clouds = [read_classified_cloud(p) for p in files]
-    cat = {k: np.concatenate([c[k] for c in clouds]) for k in ("x", "y", "z", "classification", "point_source_id")}
+    cat = {k: np.concatenate([getattr(c, k) for c in clouds]) for k in ("x", "y", "z", "classification", "point_source_id")}
     res = find_roof_corners(cat["x"], cat["y"], cat["z"], cat["classification"], cat["point_source_id"], roof="any")
     truth = list(csv.DictReader(open(tiny_project / "truth" / "roof_corners.csv")))
     txyz = np.array([[float(r["x"]), float(r["y"]), float(r["z"])] for r in truth])

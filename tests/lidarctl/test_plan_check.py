@@ -16,6 +16,7 @@ import pytest
 from click.testing import CliRunner
 
 from lidarctl.cli import main
+from lidarctl.plan_check import read_plan_check
 
 _spec = importlib.util.spec_from_file_location("corners_synth", Path(__file__).with_name("corners_synth.py"))
 cs = importlib.util.module_from_spec(_spec)
@@ -54,33 +55,36 @@ def test_check_plan_recovers_the_bias_and_counts(scene):
     r = CliRunner().invoke(main, ["check-plan", str(d / "classified.las"), str(d / "points.csv"), "--radius", "1.5",
                                   "--json", str(d / "plan.json"), "--png", str(d / "plan.png")])
     assert r.exit_code == 0, r.output
-    res = json.loads((d / "plan.json").read_text())
-    s = res["overall"]
-    assert s["n_points"] == n_true + 2
-    far = {p["id"]: p["found"] for p in res["points"] if p["id"].startswith("FAR")}
+    res = read_plan_check(d / "plan.json")
+    # the reader gives back what was written, to the byte
+    assert res.to_json() == (d / "plan.json").read_text()
+    assert json.loads((d / "plan.json").read_text())["schema_version"] == 1
+    s = res.overall
+    assert s.n_points == n_true + 2
+    far = {p.id: p.found for p in res.points if p.id.startswith("FAR")}
     assert far == {"FAR1": False, "FAR2": False}
-    assert res["xy_unit"] == "US survey foot" or "ft" in res["xy_unit"]
-    p0 = res["points"][0]  # per-point coordinates stay in the CRS's feet
-    assert abs(p0["x"] - E0) < 200.0 / FT and p0["x"] > E0
-    assert s["n_found"] >= 0.8 * n_true  # the detector finds most eave corners (issue 4: >= 80 %)
+    assert res.units.xy_name == "us-ft" and res.units.xy_m == pytest.approx(FT)
+    p0 = res.points[0]  # per-point coordinates stay in the CRS's feet
+    assert abs(p0.x - E0) < 200.0 / FT and p0.x > E0
+    assert s.n_found >= 0.8 * n_true  # the detector finds most eave corners (issue 4: >= 80 %)
     # the bias is the known shift; the spread is the detector's (< 0.2 m RMS on this scene)
-    assert s["mean_dx_m"] == pytest.approx(SHIFT[0], abs=0.08)
-    assert s["mean_dy_m"] == pytest.approx(SHIFT[1], abs=0.08)
-    found = [p for p in res["points"] if p["found"]]
-    dx = np.array([p["dx_m"] for p in found]) - SHIFT[0]
-    dy = np.array([p["dy_m"] for p in found]) - SHIFT[1]
+    assert s.mean_dx_m == pytest.approx(SHIFT[0], abs=0.08)
+    assert s.mean_dy_m == pytest.approx(SHIFT[1], abs=0.08)
+    found = [p for p in res.points if p.found]
+    dx = np.array([p.dx_m for p in found]) - SHIFT[0]
+    dy = np.array([p.dy_m for p in found]) - SHIFT[1]
     assert np.sqrt(np.mean(dx**2 + dy**2)) < 0.25
-    assert s["rms_plan_m"] == pytest.approx(np.sqrt(np.mean([p["plan_m"] ** 2 for p in found])))
-    assert s["rms_x_m"] ** 2 + s["rms_y_m"] ** 2 == pytest.approx(s["rms_plan_m"] ** 2)
+    assert s.rms_plan_m == pytest.approx(np.sqrt(np.mean([p.plan_m ** 2 for p in found])))
+    assert s.rms_x_m ** 2 + s.rms_y_m ** 2 == pytest.approx(s.rms_plan_m ** 2)
     # flat and gable eaves: the corner's height is the eave's
-    assert res["has_z"] and abs(s["mean_dz_m"]) < 0.15
-    assert s["tolerance_rms_plan_m"] == 0.5 and s["within_tolerance"] is True
+    assert res.has_z and abs(s.mean_dz_m) < 0.15
+    assert s.tolerance_rms_plan_m == 0.5 and s.within_tolerance is True
     assert (d / "plan.png").stat().st_size > 20000
     # the minimum edge is lidarctl corners' default, resolved from the measured spacing, in metres
-    assert res["min_edge_m"] >= 2.0 and res["min_edge_m"] < 20.0
+    assert res.min_edge_m >= 2.0 and res.min_edge_m < 20.0
     assert "RMS x" in r.output and "within tolerance" in r.output
     # the printed summary names the resolved minimum edge (metres, also for this cloud in feet)
-    assert f"edges >= {res['min_edge_m']:.2f} m" in r.output
+    assert f"edges >= {res.min_edge_m:.2f} m" in r.output
 
 
 def test_min_edge_m_option_and_its_old_spelling_refused(scene):
@@ -91,7 +95,7 @@ def test_min_edge_m_option_and_its_old_spelling_refused(scene):
     r = CliRunner().invoke(main, ["check-plan", str(d / "classified.las"), str(d / "points.csv"), "--min-edge-m", "3",
                                   "--json", str(out)])
     assert r.exit_code == 0, r.output
-    assert json.loads(out.read_text())["min_edge_m"] == 3.0
+    assert read_plan_check(out).min_edge_m == 3.0
     assert "edges >= 3.00 m" in r.output
     for extra, msg in ((["--min-edge", "3"], "No such option '--min-edge'"), (["--min-edge-m", "0"], "--min-edge-m")):
         bad = d / "plan_bad.json"

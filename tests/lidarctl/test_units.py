@@ -19,6 +19,7 @@ from click.testing import CliRunner
 from aerotri.core.errors import CrsError
 from lidarctl import io, synthetic
 from lidarctl.cli import main
+from lidarctl.corners import read_corner_summary
 from lidarctl.units import FOOT_M, US_SURVEY_FOOT_M, units_of
 
 _spec = importlib.util.spec_from_file_location("corners_synth", Path(__file__).with_name("corners_synth.py"))
@@ -205,11 +206,12 @@ def test_corners_in_feet_match_the_metric_copy(tmp_path):
     xy_m = np.array([[float(q["x"]) * FOOT_M - X0_M, float(q["y"]) * FOOT_M - Y0_M] for q in rf])
     j, dist = cs.match_corners(xy_m, truth_xyz[:, :2], max_dist_m=1.0)
     assert np.all(j >= 0)
-    summary = json.loads((tmp_path / "out_ft" / "corners.json").read_text())
-    assert summary["xy_unit"] == "ft" and summary["z_unit"] == "ft"
+    summary = read_corner_summary(tmp_path / "out_ft" / "corners.json")
+    assert summary.units.xy_name == "ft" and summary.units.z_name == "ft"
     # the default edge length follows the spacing, both in metres (0.7 m nominal: 2.3 ft if it were feet)
-    assert 0.5 < summary["point_spacing_m"] < 1.0
-    assert summary["min_edge_m"] == pytest.approx(max(2.0, 8.0 * summary["point_spacing_m"]))
+    st = summary.stats
+    assert 0.5 < st.point_spacing_m < 1.0
+    assert st.min_edge_m == pytest.approx(max(2.0, 8.0 * st.point_spacing_m))
     gj = json.loads((tmp_path / "out_ft" / "corners.geojson").read_text())
     pt = next(f for f in gj["features"] if f["properties"]["kind"] == "roof_corner")
     assert pt["geometry"]["coordinates"][0] == pytest.approx(float(rf[0]["x"]), abs=1e-3)

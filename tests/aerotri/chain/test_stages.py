@@ -19,6 +19,7 @@ from click.testing import CliRunner
 
 from aerotri.cli import main as aerotri_cli
 from aerotri.geom.eo import read_eo
+from lidarctl.strips.check import read_strip_check
 
 REPO = Path(__file__).resolve().parents[3]
 BIN = Path(sys.executable).parent  # the venv's aerotri, lidarctl, ortho
@@ -99,7 +100,7 @@ def test_readme_chain_runs_stage_by_stage(by_hand):
     with_cal, runs, without, runs_without = by_hand
     # the strips checked first, then classified together (no merged file)
     assert [a[:2] for a in readme_chain()][:2] == [["lidarctl", "strips"], ["lidarctl", "classify"]]
-    assert json.loads((with_cal / "lidar_out" / "strips" / "strips.json").read_text())["all_pairs"]["n_cells"] > 0
+    assert read_strip_check(with_cal / "lidar_out" / "strips" / "strips.json").all_pairs.n_cells > 0
     # tiny's LiDAR (1.2 m spacing) gives no usable roof corner: the README's rule applies
     assert runs["lidarctl corners"].returncode == 2 and "aerotri control" not in runs
     assert json.loads((with_cal / "lidar_out" / "height_check.json").read_text())["overall"]["all"]["n"] > 0
@@ -139,12 +140,12 @@ def test_run_goes_to_the_end_and_equals_the_chain_by_hand(by_hand, tiny_project,
     summary = json.loads((p / "reports" / "summary.json").read_text())
     assert summary == json.loads((with_cal / "reports" / "summary.json").read_text())
     # the strips checked before classification (only read: classify took lidar/), judged in the report
-    strips = json.loads((p / "lidar_out" / "strips" / "strips.json").read_text())
-    assert len(strips["pairs"]) == 3 and (p / "lidar_out" / "strips" / "index.html").is_file()
+    strips = read_strip_check(p / "lidar_out" / "strips" / "strips.json")
+    assert len(strips.pairs) == 3 and (p / "lidar_out" / "strips" / "index.html").is_file()
     classify = json.loads((p / "work" / "stages" / "classify.json").read_text())
     assert sorted(classify["inputs"]) == [f"lidar/strip_0{k}.las" for k in range(1, 5)]
     row = next(r for r in summary["checks"] if r["section"] == "LiDAR strip consistency")
-    assert row["value"] == round(strips["all_pairs"]["rms_m"], 4) and row["limit"] == 0.08
+    assert row["value"] == round(strips.all_pairs.rms_m, 4) and row["limit"] == 0.08
     assert row["verdict"] == ("pass" if row["value"] <= 0.08 else "fail") and "3 pairs" in row["note"]
     assert summary["details"]["lidar_strips"][0]["a"] == "strip_01"
     # a second run is up to date throughout

@@ -2,14 +2,14 @@
 
 from __future__ import annotations
 
-import json
-
 import laspy
 import numpy as np
 import pytest
 from click.testing import CliRunner
 
 from lidarctl.cli import main
+from lidarctl.strips.adjust import read_strip_adjustment
+from lidarctl.strips.check import read_strip_check
 
 
 def _adjust(paths, out, *args):
@@ -30,22 +30,26 @@ def strip_adjusted(shift_only_block, tmp_path_factory):
     r = _adjust(shift_only_block.paths, out, "--fixed", "strip_1")
     assert r.exit_code == 0, r.output
     assert "fixed: strip_1" in r.output and "not adjusted" not in r.output
-    return out, json.loads((out / "adjust.json").read_text())
+    return out, read_strip_adjustment(out / "adjust.json")
 
 
 def test_strip_model_brings_the_differences_to_the_noise_level(strip_adjusted, clean_block, tmp_path):
     out, s = strip_adjusted
-    assert s["check_before"]["rms_m"] > 0.1
+    assert s.check_before.rms_m > 0.1 and s.fixed_strip == "strip_1" and s.model == "strip"
     r = CliRunner().invoke(main, ["strips", "check", *map(str, clean_block.paths), str(tmp_path / "clean")])
-    clean = json.loads((tmp_path / "clean" / "strips.json").read_text())["all_pairs"]
+    clean = read_strip_check(tmp_path / "clean" / "strips.json").all_pairs
     # the error-free strips show what the range noise alone leaves
-    assert s["check_after"]["rms_m"] <= 1.2 * clean["rms_m"]
-    p = s["parameters"]
+    assert s.check_after.rms_m <= 1.2 * clean.rms_m
+    p = s.parameters
     # strip 2 was shifted 0.15 m up against strip 1 (fixed), strip 3 0.05 m down; no rotation
     for name, truth in (("strip_2.shift_z_m", 0.15), ("strip_3.shift_z_m", -0.05), ("strip_2.roll_deg", 0.0),
                         ("strip_3.roll_deg", 0.0), ("strip_2.heading_deg", 0.0)):
-        assert abs(p[name]["value"] - truth) < 3 * p[name]["sigma"] + 0.01, name
-    assert 0.7 < s["sigma0"] < 1.5
+        assert abs(p[name].value - truth) < 3 * p[name].sigma + 0.01, name
+    assert 0.7 < s.sigma0 < 1.5
+    # the check after the adjustment, as its strips.json says, is the one adjust.json quotes
+    assert read_strip_check(out / "check_after" / "strips.json").all_pairs == s.check_after
+    # the reader gives back what was written, to the byte
+    assert s.to_json() == (out / "adjust.json").read_text()
     for name in ("check_before/strips.json", "check_after/strips.json", "check_after/index.html",
                  "check_after/diff_strip_1_strip_2.tif"):
         assert (out / name).is_file()
@@ -72,15 +76,15 @@ def test_trajectory_model_recovers_boresight_and_relative_shifts(shifted_block, 
     traj = [a for t in shifted_block.trajectories for a in ("--trajectory", str(t))]
     r = _adjust(shifted_block.paths, tmp_path / "out", *traj, "--no-png")
     assert r.exit_code == 0, r.output
-    s = json.loads((tmp_path / "out" / "adjust.json").read_text())
-    p = s["parameters"]
-    assert abs(p["boresight_roll_deg"]["value"] - 0.05) < 3 * p["boresight_roll_deg"]["sigma"]
-    assert p["boresight_roll_deg"]["sigma"] < 0.01
+    s = read_strip_adjustment(tmp_path / "out" / "adjust.json")
+    p = s.parameters
+    assert abs(p["boresight_roll_deg"].value - 0.05) < 3 * p["boresight_roll_deg"].sigma
+    assert p["boresight_roll_deg"].sigma < 0.01
     shifts = shifted_block.errors.shifts_m
     for k in (2, 3):  # the common shift of all strips is held by the prior only: compare differences to strip 1
-        d = p[f"strip_{k}.shift_z_m"]["value"] - p["strip_1.shift_z_m"]["value"]
+        d = p[f"strip_{k}.shift_z_m"].value - p["strip_1.shift_z_m"].value
         assert d == pytest.approx(shifts[k - 1, 2] - shifts[0, 2], abs=0.02)
-    assert s["check_after"]["rms_m"] < 0.015
+    assert s.check_after.rms_m < 0.015
 
 
 def test_trajectory_not_covering_a_strip_is_refused(shifted_block, tmp_path):
@@ -105,8 +109,8 @@ def test_trajectory_model_recovers_the_scan_angle_scale(make_strips, tmp_path):
     traj = [a for t in block.trajectories for a in ("--trajectory", str(t))]
     r = _adjust(block.paths, tmp_path / "out", *traj, "--no-png")
     assert r.exit_code == 0, r.output
-    p = json.loads((tmp_path / "out" / "adjust.json").read_text())["parameters"]
+    p = read_strip_adjustment(tmp_path / "out" / "adjust.json").parameters
     k = p["scan_angle_scale"]
     # 3e-3 moves the swath edges (+-20 deg at 120 m) by 13 cm; recovered within 3 sigma, and told from zero
-    assert abs(k["value"] - 3e-3) < 3 * k["sigma"] and k["sigma"] < 1e-3
-    assert abs(p["boresight_roll_deg"]["value"] - 0.03) < 3 * p["boresight_roll_deg"]["sigma"]
+    assert abs(k.value - 3e-3) < 3 * k.sigma and k.sigma < 1e-3
+    assert abs(p["boresight_roll_deg"].value - 0.03) < 3 * p["boresight_roll_deg"].sigma

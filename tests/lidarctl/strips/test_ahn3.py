@@ -14,14 +14,14 @@ def test_ahn3_strip_differences_close_around_the_triangle(shared_data):
     params = SurfaceSettings()
     res = analyse(read_strips([path], params, crs="EPSG:28992"), params, [path])
     s = res.summary
-    assert s["cell_m"] == 1.0  # ~15 points per m^2
-    pairs = {(p["a"], p["b"]): p for p in s["pairs"]}
+    assert s.cell_m == 1.0  # ~15 points per m^2
+    pairs = {(p.a, p.b): p.diff for p in s.pairs}
     # psid57140 holds 50 points at the crop's edge: no smooth cell in common with anyone
     assert set(pairs) == {("psid44266", "psid57138"), ("psid44266", "psid57139"), ("psid57138", "psid57139")}
     for p in pairs.values():
-        assert p["n_cells"] > 300 and p["nmad_m"] < 0.015 and abs(p["mean_m"]) < 0.05
+        assert p.n_cells > 300 and p.nmad_m < 0.015 and abs(p.mean_m) < 0.05
     # differences of three strips must add up: (c - a) = (b - a) + (c - b), up to the cells they are measured on
-    ab = pairs[("psid44266", "psid57138")]["median_m"]
-    bc = pairs[("psid57138", "psid57139")]["median_m"]
-    ac = pairs[("psid44266", "psid57139")]["median_m"]
+    ab = pairs[("psid44266", "psid57138")].median_m
+    bc = pairs[("psid57138", "psid57139")].median_m
+    ac = pairs[("psid44266", "psid57139")].median_m
     assert ac == pytest.approx(ab + bc, abs=0.01)

@@ -11,6 +11,7 @@ import rasterio
 from click.testing import CliRunner
 
 from lidarctl.cli import main
+from lidarctl.strips.check import nothing_compared, read_strip_check
 
 
 def _check(paths, out, *args):
@@ -20,40 +21,58 @@ def _check(paths, out, *args):
 def test_clean_strips_agree_at_the_noise_level(clean_block, tmp_path):
     r = _check(clean_block.paths, tmp_path / "out")
     assert r.exit_code == 0, r.output
-    s = json.loads((tmp_path / "out" / "strips.json").read_text())
-    assert len(s["pairs"]) == 2  # strips 1-3 do not overlap
-    for p in s["pairs"]:
-        assert p["n_cells"] >= 50
-        assert abs(p["mean_m"]) < 0.005
+    s = read_strip_check(tmp_path / "out" / "strips.json")
+    assert s.schema_version == 1 and json.loads((tmp_path / "out" / "strips.json").read_text())["schema_version"] == 1
+    assert len(s.pairs) == 2  # strips 1-3 do not overlap
+    for p in s.pairs:
+        assert p.diff.n_cells >= 50
+        assert abs(p.diff.mean_m) < 0.005
         # two planes from ~13 returns of 2 cm noise each: about 1 cm
-        assert p["nmad_m"] < 0.015
+        assert p.diff.nmad_m < 0.015
     for name in ("index.html", "overview.png", "diff_strip_1_strip_2.tif", "diff_strip_1_strip_2.png"):
         assert (tmp_path / "out" / name).is_file()
+    # the reader gives back what was written, to the byte
+    assert s.to_json() == (tmp_path / "out" / "strips.json").read_text()
+
+
+def test_reading_what_is_not_a_strip_check_names_the_file(tmp_path):
+    from aerotri.core.errors import InputError
+
+    bad = tmp_path / "strips.json"
+    for text, words in (("{not json", "cannot read a strip check"), ('{"schema_version": 99}', "schema version 1"),
+                        ('{"schema_version": 1, "pairs": []}', "not a strip check")):
+        bad.write_text(text)
+        with pytest.raises(InputError, match=words) as e:
+            read_strip_check(bad)
+        assert str(bad) in str(e.value)
+    bad.write_text('{"schema_version": 1, "why": "nothing to compare: one strip only"}')
+    assert read_strip_check(bad) is None and nothing_compared(bad).startswith("nothing to compare")
 
 
 def test_shifted_strips_show_their_height_offsets_and_relative_roll(shifted_block, tmp_path):
     r = _check(shifted_block.paths, tmp_path / "out")
     assert r.exit_code == 0, r.output
-    s = json.loads((tmp_path / "out" / "strips.json").read_text())
+    s = read_strip_check(tmp_path / "out" / "strips.json")
     dz_true = {("strip_1", "strip_2"): 0.15, ("strip_2", "strip_3"): -0.20}
-    for p in s["pairs"]:
+    for p in s.pairs:
         # on surfaces up to 20 deg the horizontal shifts add a few cm at most: the median is the z offset
-        assert p["median_m"] == pytest.approx(dz_true[(p["a"], p["b"])], abs=0.02)
+        assert p.diff.median_m == pytest.approx(dz_true[(p.a, p.b)], abs=0.02)
         # a boresight roll of 0.05 deg tilts strips flown in opposite directions 0.1 deg against each other
-        assert p["vs_scan_angle_a"]["fit"]["relative_roll_deg"] == pytest.approx(-0.10, abs=0.03)
+        assert p.vs_scan_angle_a.fit.relative_roll_deg == pytest.approx(-0.10, abs=0.03)
         # the 3D offset from every shared plane (roofs up to 60 deg): dx is the shift difference (no heading or
         # pitch error; the roll moves the strips across the track, in y)
-        o = p["offset_3d_b_minus_a"]
-        dx_true = {("strip_1", "strip_2"): 0.05, ("strip_2", "strip_3"): -0.11}[(p["a"], p["b"])]
-        assert o["sloped_cells"] >= 10 and o["sigma_dx_m"] < 0.05
-        assert abs(o["dx_m"] - dx_true) < 3 * o["sigma_dx_m"] + 0.01
-    strip2 = next(t for t in s["strips"] if t["name"] == "strip_2")
-    assert strip2["minus_others"]["median_m"] == pytest.approx(0.175, abs=0.03)  # strip 2 is high against both
-    with rasterio.open(tmp_path / "out" / "diff_strip_1_strip_2.tif") as ds:
+        o = p.offset_3d_b_minus_a
+        dx_true = {("strip_1", "strip_2"): 0.05, ("strip_2", "strip_3"): -0.11}[(p.a, p.b)]
+        assert o.sloped_cells >= 10 and o.sigma_dx_m < 0.05
+        assert abs(o.dx_m - dx_true) < 3 * o.sigma_dx_m + 0.01
+    strip2 = next(t for t in s.strips if t.name == "strip_2")
+    assert strip2.minus_others.median_m == pytest.approx(0.175, abs=0.03)  # strip 2 is high against both
+    with rasterio.open(tmp_path / "out" / s.pairs[0].raster) as ds:
         a = ds.read(1, masked=True)
-        assert ds.crs.to_epsg() == 32632 and ds.res == (s["cell_m"], s["cell_m"])
-        assert a.count() == s["pairs"][0]["n_cells"]
-        assert float(np.ma.median(a)) == pytest.approx(s["pairs"][0]["median_m"], abs=1e-4)
+        assert s.pairs[0].raster == "diff_strip_1_strip_2.tif"
+        assert ds.crs.to_epsg() == 32632 and ds.res == (s.cell_m, s.cell_m)
+        assert a.count() == s.pairs[0].diff.n_cells
+        assert float(np.ma.median(a)) == pytest.approx(s.pairs[0].diff.median_m, abs=1e-4)
 
 
 def test_one_file_split_by_point_source_id(shifted_block, tmp_path):
@@ -65,9 +84,10 @@ def test_one_file_split_by_point_source_id(shifted_block, tmp_path):
     merged.write(tmp_path / "block.las")
     r = _check([tmp_path / "block.las"], tmp_path / "out")
     assert r.exit_code == 0, r.output
-    s = json.loads((tmp_path / "out" / "strips.json").read_text())
-    assert [t["name"] for t in s["strips"]] == ["psid101", "psid102", "psid103"]
-    assert s["pairs"][0]["median_m"] == pytest.approx(0.15, abs=0.02)
+    s = read_strip_check(tmp_path / "out" / "strips.json")
+    assert [t.name for t in s.strips] == ["psid101", "psid102", "psid103"]
+    assert [t.point_source_id for t in s.strips] == [101, 102, 103]
+    assert s.pairs[0].diff.median_m == pytest.approx(0.15, abs=0.02)
 
 
 def _assert_refused(r, out, *words):

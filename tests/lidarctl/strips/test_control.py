@@ -2,13 +2,12 @@
 
 from __future__ import annotations
 
-import json
-
 import numpy as np
 import pytest
 from click.testing import CliRunner
 
 from lidarctl.cli import main
+from lidarctl.strips.adjust import read_strip_adjustment
 
 # every strip 0.17-0.25 m high (a common GNSS height error) plus small horizontal shifts
 SHIFTS = np.array([[0.02, -0.01, 0.20], [-0.03, 0.02, 0.25], [0.01, 0.03, 0.17]])
@@ -23,7 +22,7 @@ def _run(block, out, *args, trajectory=False):
     traj = [a for t in block.trajectories for a in ("--trajectory", str(t))] if trajectory else []
     r = CliRunner().invoke(main, ["strips", "adjust", *map(str, block.paths), str(out), *traj, "--no-png", *args])
     assert r.exit_code == 0, r.output
-    return json.loads((out / "adjust.json").read_text())
+    return read_strip_adjustment(out / "adjust.json")
 
 
 def test_control_recovers_the_common_height_shift_the_overlaps_cannot(high_block, control_csv, tmp_path):
@@ -31,25 +30,27 @@ def test_control_recovers_the_common_height_shift_the_overlaps_cannot(high_block
     # strip model: without control one strip is held fixed, the others come out relative to it
     free = _run(high_block, tmp_path / "free")
     ctl = _run(high_block, tmp_path / "ctl", "--control", gcp)
-    assert ctl["fixed_strip"] is None
+    assert ctl.fixed_strip is None
     for k in range(3):
         name = f"strip_{k + 1}.shift_z_m"
-        q = ctl["parameters"][name]
-        assert abs(q["value"] - SHIFTS[k, 2]) < 3 * q["sigma"] and q["sigma"] < 0.02, name
-        if name in free["parameters"]:
-            p = free["parameters"][name]
-            assert abs(p["value"] - SHIFTS[k, 2]) > 3 * p["sigma"], name  # the common 0.2 m is not seen
-    c = ctl["control"]
-    assert c["points_used"] >= 10 and c["mean_before_m"] == pytest.approx(0.2, abs=0.05)
-    assert abs(c["mean_after_m"]) < 0.01 and c["rms_after_m"] < 0.03
-    assert ctl["check_after"]["rms_m"] < 0.015  # and the strips still agree with each other
+        q = ctl.parameters[name]
+        assert abs(q.value - SHIFTS[k, 2]) < 3 * q.sigma and q.sigma < 0.02, name
+        if name in free.parameters:
+            p = free.parameters[name]
+            assert abs(p.value - SHIFTS[k, 2]) > 3 * p.sigma, name  # the common 0.2 m is not seen
+    c = ctl.control
+    assert c.points_used >= 10 and c.mean_before_m == pytest.approx(0.2, abs=0.05)
+    assert abs(c.mean_after_m) < 0.01 and c.rms_after_m < 0.03
+    assert len(c.residuals) == c.observations
+    assert ctl.to_json() == (tmp_path / "ctl" / "adjust.json").read_text()
+    assert ctl.check_after.rms_m < 0.015  # and the strips still agree with each other
     # sensor model: the shifts' prior holds the block's height (0 m) unless control points move it; a common
     # height shift and the range offset are hardly told apart over flat ground (nadir +-20 deg), so the test
     # is the corrected block's height at the control points
     free = _run(high_block, tmp_path / "free_t", "--control", gcp, "--control-sigma-m", "1000", trajectory=True)
     ctl = _run(high_block, tmp_path / "ctl_t", "--control", gcp, trajectory=True)
-    assert free["control"]["mean_after_m"] > 0.1
-    assert abs(ctl["control"]["mean_after_m"]) < 0.01 and ctl["control"]["rms_after_m"] < 0.03
+    assert free.control.mean_after_m > 0.1
+    assert abs(ctl.control.mean_after_m) < 0.01 and ctl.control.rms_after_m < 0.03
 
 
 @pytest.mark.parametrize("text, message", [
