@@ -289,24 +289,37 @@ def _add_projection_factors(g: gtsam.NonlinearFactorGraph, xy_px, image, point, 
         g.add(gtsam.GenericProjectionFactorCal3DS2(uv, noise, X(i), P(j), K))
 
 
+# keys of one image or point; every other key (the calibration, the lever arm, a strip's GNSS shift and drift)
+# couples to many images
+_LOCAL_KEY_CHARS = frozenset(b"xap")
+
+
 def _tie_ordering(gr: Graph) -> gtsam.Ordering:
-    """METIS ordering of the reduced system: the orientation adjacency (image pairs sharing a tie point)
-    plus the keys of every other factor."""
+    """Elimination ordering of the reduced system: METIS on the orientation adjacency (image pairs sharing a tie
+    point) and the keys of every other factor, without the keys that couple to many images (calibration, lever
+    arm, GNSS shift and drift per strip), which come last. With those hubs in its graph METIS cut the block
+    into poorer parts: on 3,000 frames the elimination took 1.14 s instead of 0.40 s (increments equal to 3e-12)."""
+    def local(key):
+        return gtsam.Symbol(key).chr() in _LOCAL_KEY_CHARS
+
     sg = gtsam.SymbolicFactorGraph()
     for i in range(gr.n_images):
         sg.push_factor(X(i))
     for i, j in gr.tie.pairs.images.tolist():
         sg.push_factor(X(i), X(j))
-    if gr.tie.self_cal:
-        for i in range(gr.n_images):
-            sg.push_factor(X(i), K_KEY)
+    hubs = {K_KEY} if gr.tie.self_cal else set()
     for n in range(gr.graph.size()):
         keys = list(gr.graph.at(n).keys())
+        hubs.update(k for k in keys if not local(k))
+        keys = [k for k in keys if local(k)]
         if len(keys) == 1:
             sg.push_factor(keys[0])
         for a, c in itertools.combinations(keys, 2):
             sg.push_factor(a, c)
-    return gtsam.Ordering.MetisSymbolicFactorGraph(sg)
+    ordering = gtsam.Ordering.MetisSymbolicFactorGraph(sg)
+    for k in sorted(hubs):
+        ordering.push_back(k)
+    return ordering
 
 
 def build_graph(block: Block, opts: SolveSettings, state: State, obs_active, control_active, robust: bool) -> Graph:

@@ -32,6 +32,7 @@ Pose increments follow gtsam's Pose3 retraction (right perturbation): ``R -> R E
 from __future__ import annotations
 
 import dataclasses
+import types
 
 import gtsam
 import numba
@@ -389,10 +390,19 @@ def _runs(bounds, xy, obs_image, start, pair_row, pair_a, pair_b, pair_block, ce
             s_cal[t], U_ic[t], Vinv, bp, W, Z)
 
 
-# the parallel variants are compiled in each process that needs them (seconds, for blocks that take minutes): numba's
-# cache keeps one compilation per function, the serial one
+def _variant(func, suffix: str):
+    """A copy of ``func`` under its own name: numba's cache keeps one compilation per function name (and source
+    line), so the serial and the parallel compilation of one body each need a name to be cached under (the
+    parallel ones, compiled in every process, took 30 s of CPU of each large adjustment)."""
+    copy = types.FunctionType(func.__code__, func.__globals__, f"{func.__name__}{suffix}", func.__defaults__,
+                              func.__closure__)
+    copy.__qualname__ = f"{func.__qualname__}{suffix}"
+    copy.__doc__, copy.__module__ = func.__doc__, func.__module__
+    return copy
+
+
 _runs_serial = numba.njit(cache=True)(_runs)
-_runs_parallel = numba.njit(parallel=True)(_runs)
+_runs_parallel = numba.njit(parallel=True, cache=True)(_variant(_runs, "_parallel"))
 
 
 @numba.njit(cache=True, inline="always")
@@ -469,9 +479,9 @@ def _sum_of_squares(xy, obs_image, row, centre, R_cv, points, cal, inv_sigma, hu
 
 
 _point_increments_serial = numba.njit(cache=True)(_point_increments)
-_point_increments_parallel = numba.njit(parallel=True)(_point_increments)
+_point_increments_parallel = numba.njit(parallel=True, cache=True)(_variant(_point_increments, "_parallel"))
 _sum_of_squares_serial = numba.njit(cache=True)(_sum_of_squares)
-_sum_of_squares_parallel = numba.njit(parallel=True)(_sum_of_squares)
+_sum_of_squares_parallel = numba.njit(parallel=True, cache=True)(_variant(_sum_of_squares, "_parallel"))
 
 
 def point_increments(Vinv, bp, W, Z, obs_image, start, d_pose, d_cal):

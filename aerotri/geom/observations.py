@@ -101,10 +101,55 @@ def _number(path, lineno, row, field, text) -> float:
     return v
 
 
+def _plain_image_points(text: str) -> ImageObservations | None:
+    """The observations of a ``point_id,image_id,x_px,y_px`` text that is plain (the header, then four fields a
+    line: no quotes, blanks, empty lines, empty ids, NaN or duplicate pairs), read by whole-text splits and
+    one float conversion per column (5 M lines in seconds, not minutes); None for any other text, which
+    ``read_image_points`` then reads line by line and refuses with the line of the first problem."""
+    header = ",".join(TIE_HEADER) + "\n"
+    if not text.startswith(header) or '"' in text or " " in text or "\t" in text or "\r" in text:
+        return None
+    body = text[len(header):]
+    if body and not body.endswith("\n"):
+        body += "\n"
+    # every line three commas and its newline, in that order (a line of 3 fields and one of 5 would
+    # otherwise split into the right number of fields)
+    raw = np.frombuffer(body.encode(), dtype=np.uint8)
+    sep = raw[(raw == 44) | (raw == 10)]
+    if len(sep) % 4 or not (sep.reshape(-1, 4) == (44, 44, 44, 10)).all():
+        return None
+    n = len(sep) // 4
+    fields = body[:-1].replace("\n", ",").split(",") if n else []
+    pids, iids = fields[0::4], fields[1::4]
+    if "" in pids or "" in iids or _has_duplicate_pair(pids, iids):
+        return None
+    try:
+        xy = np.column_stack([np.array(fields[2::4], dtype=float), np.array(fields[3::4], dtype=float)]).reshape(-1, 2)
+    except ValueError:
+        return None
+    if not np.isfinite(xy).all():
+        return None
+    return ImageObservations(np.array(pids, dtype=object), np.array(iids, dtype=object), xy, np.arange(2, n + 2))
+
+
+def _has_duplicate_pair(pids: list, iids: list) -> bool:
+    """Whether a (point, image) pair occurs twice: by the strings' hashes (sorted), exactly only when two hashes
+    agree."""
+    key = np.fromiter(map(hash, pids), np.int64, len(pids)) * np.int64(1_000_003) ^ np.fromiter(
+        map(hash, iids), np.int64, len(iids))
+    key.sort()
+    if not (key[1:] == key[:-1]).any():
+        return False
+    return len(set(zip(pids, iids))) != len(pids)
+
+
 def read_image_points(path, hint: str = "") -> ImageObservations:
     """Read a ``point_id,image_id,x_px,y_px`` file; rejects NaN and duplicate (point, image) pairs.
     ``hint``: added to the message when the file does not exist (the stage that writes it)."""
     path = Path(path)
+    plain = _plain_image_points(read_text(path, f"CSV table ({','.join(TIE_HEADER)})", hint))
+    if plain is not None:
+        return plain
     pids, iids, xy, seen = [], [], [], {}
     for lineno, row in _rows(path, TIE_HEADER, hint):
         pid, iid = row[0], row[1]

@@ -23,7 +23,8 @@ from aerotri.core.commands import Command, FiniteFloatRange, finite, fraction
 @click.option("--observations-only", is_flag=True,
               help="Write only the block's geometry and observations (tie, control, GNSS) and a DEM of the truth "
                    "terrain (OUTDIR/dem.tif): no images, no LiDAR, so that a block of thousands of frames is made in "
-                   "minutes.")
+                   "minutes. Its project.toml [adjust] sets the self-calibration and GNSS correction the block's "
+                   "errors need: aerotri adjust OUTDIR --dem OUTDIR/dem.tif.")
 @click.option("--tie-points-per-frame", type=click.IntRange(1, 10000), default=None,
               help="Tie points (each seen in >= 3 frames) per frame on average; default: the preset's "
                    "observations.tie_points_per_frame (130) with --observations-only, 150 candidates a frame with "

@@ -393,9 +393,10 @@ def _scan_lidar(tmp: Path, cfg: dict, layout, scene, accel, origin, epsg: int, s
     return _LidarSummary(len(lines), n_points, strip_offsets, class_counts)
 
 
-def _write_project_files(tmp: Path, cfg: dict, plan, cam_true, cam_nominal, origin, epsg: int, gains) -> None:
+def _write_project_files(tmp: Path, cfg: dict, plan, cam_true, cam_nominal, origin, epsg: int, gains,
+                         chain: dict | None = None) -> None:
     """project.toml, camera.toml, gnss.txt and the flight truth (truth/eo.txt, camera.toml, gnss_truth.toml,
-    frames.csv)."""
+    frames.csv). ``chain``: the stage sections of project.toml (default: the preset's ``[chain]``)."""
     g = cfg["gnss"]
     (tmp / "camera.toml").write_text(cam_nominal.to_toml())
     (tmp / "truth" / "camera.toml").write_text(cam_true.to_toml())
@@ -415,7 +416,7 @@ def _write_project_files(tmp: Path, cfg: dict, plan, cam_true, cam_nominal, orig
         f"mean_terrain_height_m = {origin[2]}\nspeed_mps = {cfg['flight']['speed_mps']}\n\n"
         f"[qa]\n# tolerance table of the accuracy report (aerotri report): map scale, terrain class, PDF copy\n"
         f'map_scale = "1:5000"\nterrain = "flat"\npdf = true\n'
-        + stage_sections_toml(cfg.get("chain", {}))
+        + stage_sections_toml(cfg.get("chain", {}) if chain is None else chain)
     )
     (tmp / "truth" / "gnss_truth.toml").write_text(
         f"lever_arm_m = [{lever}]\n"
@@ -641,6 +642,30 @@ def observations_terrain(cfg: dict, layout, seed: int):
                  np.zeros(0), [], np.zeros((0, 3)), seed, steep)
 
 
+def truth_adjust_settings(cfg: dict, cam_true, cam_nominal) -> dict:
+    """The [adjust] settings the truth of a simulated block needs: the self-calibration groups in which the
+    true camera differs from the nominal camera.toml (``FrameCamera.SELF_CAL_GROUPS``: pp, radial k1 k2, ...),
+    and the GNSS correction per strip that models the antenna errors the preset draws (a drift per strip:
+    ``shift_drift``; a shift alone: ``shift``; neither: ``none``)."""
+    true, nominal = cam_true.calibration_vector(), cam_nominal.calibration_vector()
+    groups = [g for g, idx in cam_true.SELF_CAL_GROUPS.items()
+              if not np.allclose(true[list(idx)], nominal[list(idx)], rtol=0.0, atol=1e-12)]
+    g = cfg["gnss"]
+    correction = ("shift_drift" if float(g.get("drift_sigma_m_per_s", 0.0)) > 0.0
+                  else "shift" if float(g.get("strip_shift_sigma_m", 0.0)) > 0.0 else "none")
+    return {"self_calibration": groups, "gnss_correction": correction}
+
+
+def observations_chain(cfg: dict, cam_true, cam_nominal) -> dict:
+    """The preset's stage sections with [adjust] set to what the block's observations need
+    (``truth_adjust_settings``): ``aerotri adjust OUT --dem OUT/dem.tif`` without options models the
+    errors the block was made with. (The preset's own [chain.adjust] is that of the rendered chain, whose
+    first adjustment runs before any control exists.)"""
+    chain = {k: dict(v) for k, v in cfg.get("chain", {}).items()}
+    chain["adjust"] = {**chain.get("adjust", {}), **truth_adjust_settings(cfg, cam_true, cam_nominal)}
+    return chain
+
+
 def simulate_observations(cfg: dict, outdir, force: bool = False, *, tie_sigma_px: float | None = None,
                           tie_points_per_frame: int | None = None, n_control: int = 4, blunder_fraction: float = 0.0,
                           bad_control_shift_m: float = 0.0) -> ObservationsBlock:
@@ -679,7 +704,8 @@ def simulate_observations(cfg: dict, outdir, force: bool = False, *, tie_sigma_p
              f"truth terrain at {terrain.terrain_res_m:.2f} m")
     with atomic_dir(outdir) as tmp:
         (tmp / "truth").mkdir(parents=True, exist_ok=True)
-        _write_project_files(tmp, cfg, plan, cam_true, cam_nominal, origin, epsg, [1.0] * len(plan.image_id))
+        _write_project_files(tmp, cfg, plan, cam_true, cam_nominal, origin, epsg, [1.0] * len(plan.image_id),
+                             chain=observations_chain(cfg, cam_true, cam_nominal))
         res = terrain.terrain_res_m
         nx, ny = int(math.floor(layout.width_m / res)), int(math.floor(layout.height_m / res))
         xs = (np.arange(nx) + 0.5) * res
