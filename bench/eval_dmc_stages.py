@@ -3,7 +3,10 @@
 stage records whose peak includes what the process still holds of earlier stages).
 
 Stages (``--stages``, in this order): ``match`` (``aerotri match``: pairs from GNSS), ``adjust`` (``aerotri adjust
---no-exports``: tie points and GNSS, no LiDAR control), ``rectify`` (``ortho rectify --dem DEM``), ``mosaic``
+--no-exports``: tie points and GNSS, no LiDAR control), ``control`` (``aerotri control --corners``: the roof corners
+measured in the frames at full resolution; the corners are the simulator's true roof corners with LiDAR-like
+noise, 0.10 m in plan and 0.05 m in height, ``aerotri.sim.evaluate.write_truth_corners_csv``, standing in for
+``lidarctl corners``), ``adjust_final`` (``aerotri adjust --dem DEM``: with that control and the DEM), ``rectify`` (``ortho rectify --dem DEM``), ``mosaic``
 (``ortho mosaic``), ``check`` (``ortho check --reference truth/ortho.tif``). The DEM is the simulator's
 truth/dem.tif unless ``--dem`` names another (the chain uses lidar_out/dem.tif of its LiDAR stages; this bench
 leaves the LiDAR stages out to measure the image stages alone). The block's inputs (project.toml, camera.toml,
@@ -38,7 +41,7 @@ sys.path.insert(0, str(ROOT))
 
 RESULT = ROOT / "results" / "dmc_stages.json"
 BLOCKS = Path(os.environ.get("AEROTRI_BENCH_BLOCKS", "/work/bench_blocks"))
-STAGES = ("match", "adjust", "rectify", "mosaic", "check")
+STAGES = ("match", "adjust", "control", "adjust_final", "rectify", "mosaic", "check")
 
 
 def _time_v(stderr: str) -> dict:
@@ -56,6 +59,8 @@ def _time_v(stderr: str) -> dict:
 def command(stage: str, work: Path, block: Path, dem: Path) -> list[str]:
     return {"match": ["aerotri", "match", str(work)],
             "adjust": ["aerotri", "adjust", str(work), "--no-exports"],
+            "control": ["aerotri", "control", str(work), "--corners", str(work / "truth_corners.csv")],
+            "adjust_final": ["aerotri", "adjust", str(work), "--no-exports", "--dem", str(dem)],
             "rectify": ["ortho", "rectify", str(work), "--dem", str(dem)],
             "mosaic": ["ortho", "mosaic", str(work)],
             "check": ["ortho", "check", str(work), "--reference", str(block / "truth" / "ortho.tif")]}[stage]
@@ -100,6 +105,10 @@ def main() -> int:
     entry["dem"] = str(dem)
     for stage in stages:
         cmd = command(stage, args.work, args.block, dem)
+        if stage == "control" and not (args.work / "truth_corners.csv").exists():
+            from aerotri.sim.evaluate import write_truth_corners_csv
+
+            write_truth_corners_csv(args.block, args.work / "truth_corners.csv", noise=True, seed=41)
         load0 = [round(v, 2) for v in os.getloadavg()]
         print(f"[{stage}] {' '.join(cmd)}", flush=True)
         p = subprocess.run(["/usr/bin/time", "-v", str(BIN / cmd[0]), *cmd[1:]], capture_output=True, text=True)
@@ -108,7 +117,7 @@ def main() -> int:
         rec = dict(command=" ".join(cmd), **_time_v(p.stderr), load_avg_before=load0,
                    load_avg_after=[round(v, 2) for v in os.getloadavg()],
                    measured_utc=time.strftime("%Y-%m-%d %H:%M", time.gmtime()))
-        if stage == "adjust":
+        if stage in ("adjust", "adjust_final"):
             rec["orientations_vs_truth"] = orientations_vs_truth(args.work, args.block, truth["gsd_m"])
         if stage == "mosaic":
             import rasterio
@@ -116,6 +125,13 @@ def main() -> int:
             with rasterio.open(args.work / "ortho" / "mosaic.tif") as ds:
                 rec["dom_gp"] = round(ds.width * ds.height / 1e9, 3)
                 rec["dom_mp_per_s"] = round(ds.width * ds.height / 1e6 / rec["wall_s"], 2)
+        if stage == "adjust_final":
+            chk = json.loads((args.work / "at" / "report.json").read_text()).get("check_rms_m")
+            if chk and None not in chk:
+                xy = float(np.hypot(chk[0], chk[1]))
+                rec["check_points"] = dict(rms_xy_m=round(xy, 4), rms_z_m=chk[2],
+                                           rms_xy_gsd=round(xy / truth["gsd_m"], 2),
+                                           rms_z_gsd=round(chk[2] / truth["gsd_m"], 2))
         if stage == "check":
             rep = args.work / "ortho" / "dom_report.json"
             if rep.exists():
