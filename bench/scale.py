@@ -391,7 +391,7 @@ def dmc_lines(e: dict) -> list[str]:
         lines.append(f"  {st:<14} {c['wall_s']:>10.3f} {c['cpu_s']:>10.3f}  s per {c['unit']}")
     p = e["projection"]
     lines.append(f"projected to {p['frames']} frames, {p['lidar_points'] / 1e9:.0f} G points, {p['dom_gp']} GP of DOM: "
-                 f"{p['wall_h']} h wall, {p['cpu_h']} h CPU ({p['assumes']})")
+                 f"{p['wall_h']} h wall, {p['cpu_h']} h CPU, of the stages {', '.join(p['stages'])} ({p['assumes']})")
     a = e["accuracy"]
     if "orientations" in a:
         o = a["orientations"]

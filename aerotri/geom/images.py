@@ -150,8 +150,14 @@ def map_uncompressed_tiff(path):
     return img if dtype.isnative or dtype.itemsize == 1 else None
 
 
+# TIFF compressions OpenCV's bundled libtiff does not decode: it prints three ERROR lines per frame (outside the
+# toolkit's logging) and returns nothing; such frames (ZSTD tiles: the DMC block's) go straight to GDAL
+_OPENCV_CANNOT_DECODE = {"zstd", "lerc", "lerc_deflate", "lerc_zstd", "webp", "jxl", "lzma"}
+
+
 def _opencv_reads(path) -> bool:
-    """Whether OpenCV reads this frame as stored. It does not for multi-band TIFFs that are band-interleaved
+    """Whether OpenCV reads this frame as stored. It does not for TIFFs compressed as it cannot decode
+    (``_OPENCV_CANNOT_DECODE``), nor for multi-band TIFFs that are band-interleaved
     (16-bit planar RGB comes out garbled: band means of 67-120 DN for 112-152) or not tagged RGB (3 or 4
     MINISBLACK samples come out as one grey band); those are read through GDAL."""
     import rasterio
@@ -160,6 +166,8 @@ def _opencv_reads(path) -> bool:
         return True
     try:
         with _open_raster(path) as ds:
+            if ds.compression is not None and ds.compression.name.lower() in _OPENCV_CANNOT_DECODE:
+                return False
             if ds.count == 1:
                 return True
             rgb = tuple(ds.colorinterp[:3]) == (rasterio.enums.ColorInterp.red, rasterio.enums.ColorInterp.green,
