@@ -19,6 +19,13 @@ for the LiDAR stages (the block's points, whatever the stage read), MP/s of inpu
 mosaic pixels for mosaic. Load averages are recorded before and after: other work on the machine slows the
 wall times; CPU seconds are steadier.
 
+Full-size Z/I DMC frames (issue 41): ``--size dmc`` (the ``dmc_block`` preset: 120 frames of 13824 x 7680 px,
+12-bit in ZSTD tiles, about 250 M points; made by bench/sim_dmc.py into $AEROTRI_BENCH_BLOCKS/dmc_block) and
+``--size dmc_3x8`` (its 3 strips x 8 frames subset, dmc_block_subset_3x8) write results/scale_dmc.json with, beside
+the table, each stage's per-unit costs (s per frame, per GP of frames, per GP of DOM, per M points), their
+projection to 3,000 frames and 2 billion points, the AT and DOM accuracy against the simulator's truth in GSD,
+and, once both sizes ran, the ratio of their per-unit CPU costs (limits: 3 h, 12 GB).
+
 Writes results/scale.json (one entry per block size, kept across runs of the other size).
 
 Usage:
@@ -27,6 +34,8 @@ Usage:
   python bench/scale.py --size quarter --generate      # a smaller block (generated unless it exists), run
   python bench/scale.py --size eighth --table-only     # the table of the last run of that size, run nothing
   python bench/scale.py --size full --print-command    # the generation command, to run it elsewhere
+  python bench/scale.py --size dmc_3x8                 # the chain on the DMC subset -> results/scale_dmc.json
+  python bench/scale.py --size dmc_3x8 --table-only --run-dir DIR  # tabulate a run made by hand (aerotri run DIR)
 """
 
 from __future__ import annotations
@@ -45,11 +54,19 @@ BIN = Path(sys.executable).parent
 sys.path.insert(0, str(ROOT))
 
 from aerotri.core.resources import measure  # noqa: E402
+import numpy as np  # noqa: E402
 
 BLOCKS = Path(os.environ.get("AEROTRI_BENCH_BLOCKS", "/work/bench_blocks"))
 # --size: the simulator preset and the flight of each block (the scene's object counts follow its area)
 SIZES = {"full": ("scale", []), "quarter": ("scale", ["flight.strips=5", "flight.frames_per_strip=15"]),
-         "eighth": ("scale", ["flight.strips=3", "flight.frames_per_strip=10"]), "tiny": ("tiny", [])}
+         "eighth": ("scale", ["flight.strips=3", "flight.frames_per_strip=10"]), "tiny": ("tiny", []),
+         # full-size Z/I DMC frames (13824 x 7680 px, 12-bit, ZSTD tiles; issue 41): the whole block and the 3 x 8
+         # subset bench/sim_dmc.py makes (the dmc_block preset shrinks its scene, objects and LiDAR with the flight)
+         "dmc": ("dmc_block", []), "dmc_3x8": ("dmc_block", ["flight.strips=3", "flight.frames_per_strip=8"])}
+DMC_SIZES = ("dmc", "dmc_3x8")
+DMC_BLOCKS = {"dmc": "dmc_block", "dmc_3x8": "dmc_block_subset_3x8"}  # folder names of bench/sim_dmc.py
+DMC_LIMIT_WALL_MIN, DMC_LIMIT_PEAK_GB = 180.0, 12.0  # issue 41: the whole chain under 3 hours and 12 GB
+PROJECT_FRAMES, PROJECT_POINTS = 3000, 2e9  # the production block the per-unit costs are projected to
 SCENE_COUNTS = ("buildings", "single_trees", "tree_clusters", "slope_trees", "bushes", "ponds")
 LIMIT_WALL_MIN = 60.0
 LIMIT_PEAK_GB = 6.0
@@ -59,7 +76,7 @@ LIMIT_PEAK_GB = 6.0
 # the mosaic for mosaic.
 FRAMES, POINTS, MP = "frames/min", "points/s", "MP/s"
 UNITS = {
-    "classify": [POINTS], "rasters": [POINTS], "corners": [POINTS], "height_check": [POINTS],
+    "strips": [POINTS], "classify": [POINTS], "rasters": [POINTS], "corners": [POINTS], "height_check": [POINTS],
     "lidar_eval": [POINTS],
     "match": [FRAMES], "adjust_first": [FRAMES], "control": [FRAMES], "adjust_final": [FRAMES],
     "rectify": [FRAMES, MP], "mosaic": [MP],
@@ -98,7 +115,7 @@ def size_overrides(size: str) -> tuple[str, list[str]]:
     from aerotri.sim import lidar_plan, load_preset
 
     preset, flight = SIZES[size]
-    if not flight:
+    if not flight or size in DMC_SIZES:
         return preset, []
     full = load_preset(preset)
     ratio = lidar_plan(load_preset(preset, flight))["scene_km2"] / lidar_plan(full)["scene_km2"]
@@ -219,8 +236,9 @@ def format_table(rows: list[dict]) -> str:
     return "\n".join(lines)
 
 
-def verdict(rows: list[dict], run: dict | None) -> dict:
-    """The whole chain against the issue's limits (60 min, 6 GB peak) and what bounds it."""
+def verdict(rows: list[dict], run: dict | None, limit_wall_min: float = LIMIT_WALL_MIN,
+            limit_peak_gb: float = LIMIT_PEAK_GB, finished: bool = True) -> dict:
+    """The whole chain against the issue's limits (60 min, 6 GB peak; DMC blocks 3 h, 12 GB) and what bounds it."""
     done = [r for r in rows if r["status"] == "done"]
     stages_s = sum(r["wall_s"] for r in done)
     wall_min = (run["wall_s"] if run else stages_s) / 60.0  # the run's own wall time includes start-up
@@ -229,7 +247,7 @@ def verdict(rows: list[dict], run: dict | None) -> dict:
     slow = max(done, key=lambda r: r["wall_s"]) if done else None
     lidar = [r for r in peaks if r["lidar"]]
     lidar_top = max(lidar, key=lambda r: r["peak_rss_mb"]) if lidar else None
-    complete = run is None or run["returncode"] == 0
+    complete = run["returncode"] == 0 if run else finished  # a table of a run still going: not complete
     return dict(
         wall_min=round(wall_min, 1), stages_wall_min=round(stages_s / 60.0, 1),
         cpu_min=round(sum(r["cpu_s"] or 0.0 for r in done) / 60.0, 1),
@@ -238,22 +256,155 @@ def verdict(rows: list[dict], run: dict | None) -> dict:
         slowest_stage_share=round(slow["wall_s"] / stages_s, 2) if slow and stages_s > 0 else None,
         lidar_peak_rss_mb=lidar_top["peak_rss_mb"] if lidar_top else None,
         lidar_peak_stage=lidar_top["stage"] if lidar_top else None,
-        complete=complete, limit_wall_min=LIMIT_WALL_MIN, limit_peak_gb=LIMIT_PEAK_GB,
-        under_60_min=complete and wall_min < LIMIT_WALL_MIN,
-        under_6_gb=complete and top is not None and top["peak_rss_mb"] / 1024.0 < LIMIT_PEAK_GB)
+        complete=complete, limit_wall_min=limit_wall_min, limit_peak_gb=limit_peak_gb,
+        **{f"under_{limit_wall_min:.0f}_min": complete and wall_min < limit_wall_min,
+           f"under_{limit_peak_gb:.0f}_gb": complete and top is not None and top["peak_rss_mb"] / 1024.0 < limit_peak_gb})
 
 
 def verdict_line(size: str, v: dict) -> str:
     """The limits, stated plainly: within or not, and what bounds the run."""
     if not v["complete"]:
         return f"{size} block: the chain did NOT complete: no verdict on the limits"
-    ok = v["under_60_min"] and v["under_6_gb"]
+    lw, lg = v["limit_wall_min"], v["limit_peak_gb"]
+    in_wall, in_peak = v[f"under_{lw:.0f}_min"], v[f"under_{lg:.0f}_gb"]
     share = "-" if v["slowest_stage_share"] is None else f"{v['slowest_stage_share']:.0%}"
-    return (f"{size} block: whole chain {v['wall_min']} min (limit {LIMIT_WALL_MIN:.0f} min: "
-            f"{'within' if v['under_60_min'] else 'NOT within'}; slowest stage {v['slowest_stage']}, "
+    return (f"{size} block: whole chain {v['wall_min']} min (limit {lw:.0f} min: "
+            f"{'within' if in_wall else 'NOT within'}; slowest stage {v['slowest_stage']}, "
             f"{share} of the stages' time), CPU {v['cpu_min']} min, peak RSS {v['peak_rss_gb']} GB "
-            f"in {v['peak_stage']} (limit {LIMIT_PEAK_GB:.0f} GB: {'within' if v['under_6_gb'] else 'NOT within'})"
-            f" -> {'within both limits' if ok else 'NOT within the limits'}")
+            f"in {v['peak_stage']} (limit {lg:.0f} GB: {'within' if in_peak else 'NOT within'})"
+            f" -> {'within both limits' if in_wall and in_peak else 'NOT within the limits'}")
+
+
+# -- full-size DMC blocks: per-unit costs, their projection, accuracy against the simulator's truth -------------
+FRAME_STAGES = ("match", "adjust_first", "control", "adjust_final")
+
+
+def unit_costs(rows: list[dict], blk: dict, dom_gp: float | None) -> dict:
+    """Per stage, wall and CPU seconds per unit of what it works on: per frame (tie points, adjustments,
+    control), per GP of frames (rectify), per GP of DOM (mosaic, DOM check), per million LiDAR points (the
+    LiDAR stages and their checks); None for stages without one (the report)."""
+    frames_gp = blk["frames"] * blk["image_width_px"] * blk["image_height_px"] / 1e9
+    out = {}
+    for r in rows:
+        if r["status"] != "done":
+            continue
+        st = r["stage"]
+        if st in FRAME_STAGES:
+            unit, n = "frame", blk["frames"]
+        elif st == "rectify":
+            unit, n = "GP of frames", frames_gp
+        elif st in ("mosaic", "dom_check") and dom_gp:
+            unit, n = "GP of DOM", dom_gp
+        elif r["lidar"] or st in ("height_check", "lidar_eval"):
+            unit, n = "M points", blk["lidar_points"] / 1e6
+        else:
+            continue
+        out[st] = dict(unit=unit, units=round(n, 4), wall_s=round(r["wall_s"] / n, 3),
+                       cpu_s=round((r["cpu_s"] or 0.0) / n, 3), peak_rss_mb=r["peak_rss_mb"])
+    return out
+
+
+def projection(costs: dict, blk: dict, dom_gp: float | None) -> dict:
+    """The chain on a 3,000-frame block with 2 billion points: every stage's units (frames, frame GP, DOM GP at
+    this block's DOM per frame, points) times its per-unit cost. Linear in the units: the adjustment's solver
+    grows faster than linearly with the block (measured apart: bench/adjust_scale.py, 10,000 frames)."""
+    per_frame_gp = blk["image_width_px"] * blk["image_height_px"] / 1e9
+    units = {"frame": PROJECT_FRAMES, "GP of frames": PROJECT_FRAMES * per_frame_gp,
+             "GP of DOM": PROJECT_FRAMES * (dom_gp or 0.0) / blk["frames"], "M points": PROJECT_POINTS / 1e6}
+    stages = {st: dict(units=round(units[c["unit"]], 1), wall_h=round(c["wall_s"] * units[c["unit"]] / 3600, 2),
+                       cpu_h=round(c["cpu_s"] * units[c["unit"]] / 3600, 2)) for st, c in costs.items()}
+    return dict(frames=PROJECT_FRAMES, lidar_points=PROJECT_POINTS, dom_gp=round(units["GP of DOM"], 1),
+                stages=stages, wall_h=round(sum(v["wall_h"] for v in stages.values()), 1),
+                cpu_h=round(sum(v["cpu_h"] for v in stages.values()), 1),
+                assumes="each stage's per-unit cost of this run, at its load, linear in frames, frame GP, DOM GP "
+                        "(this block's DOM per frame) and LiDAR points")
+
+
+def _angle_diff_deg(a, b):
+    return (np.asarray(a) - np.asarray(b) + 180.0) % 360.0 - 180.0
+
+
+def accuracy(block: Path, run_dir: Path, rows: list[dict]) -> dict:
+    """AT and DOM against the simulator's truth, in metres and in GSD: projection centres and attitudes of
+    at/eo.txt against truth/eo.txt (and normalised by their reported sigmas), the check points of the final
+    adjustment (at/report.json), the DOM check (the dom_check stage against truth/ortho.tif)."""
+    from aerotri.geom.eo import read_eo
+
+    gsd = json.loads((block / "truth" / "truth.json").read_text())["gsd_m"]
+    out: dict = {"gsd_m": gsd}
+    eo_path = run_dir / "at" / "eo.txt"
+    if eo_path.exists():
+        eo, truth = read_eo(eo_path), read_eo(block / "truth" / "eo.txt")
+        k = truth.index()
+        sel = np.array([k[i] for i in eo.image_id])
+        d = np.column_stack([eo.centre_m - truth.centre_m[sel], _angle_diff_deg(eo.opk_deg, truth.opk_deg[sel])])
+        xy = float(np.sqrt(np.mean(d[:, 0] ** 2 + d[:, 1] ** 2) / 2))
+        z = float(np.sqrt(np.mean(d[:, 2] ** 2)))
+        out["orientations"] = dict(
+            frames=len(eo.image_id), centre_rms_xy_m=round(xy, 4), centre_rms_z_m=round(z, 4),
+            centre_rms_xy_gsd=round(xy / gsd, 2), centre_rms_z_gsd=round(z / gsd, 2),
+            attitude_rms_deg=round(float(np.sqrt(np.mean(d[:, 3:] ** 2))), 5),
+            normalised_rms=dict(zip(("X", "Y", "Z", "omega", "phi", "kappa"),
+                                    (round(float(v), 2) for v in np.sqrt(np.mean((d / eo.sigma) ** 2, axis=0))))))
+    rep_path = run_dir / "at" / "report.json"
+    if rep_path.exists():
+        chk = json.loads(rep_path.read_text()).get("check_rms_m")
+        if chk and None not in chk:
+            xy = float(np.hypot(chk[0], chk[1]))
+            out["check_points"] = dict(rms_xy_m=round(xy, 4), rms_z_m=chk[2], rms_xy_gsd=round(xy / gsd, 2),
+                                       rms_z_gsd=round(chk[2] / gsd, 2))
+    dom = next((r for r in rows if r["stage"] == "dom_check" and r["status"] == "done"), None)
+    summary = run_dir / "work" / "run_summary.json"
+    rec = ({r["stage"]: r for r in json.loads(summary.read_text())["stages"]} if summary.exists() else {})
+    if dom and "rms_xy_m" in rec.get("dom_check", {}):
+        m = rec["dom_check"]["rms_xy_m"]
+        out["dom"] = dict(rms_xy_m=round(m, 4), rms_xy_gsd=round(m / gsd, 2), patches=rec["dom_check"].get("count"))
+    return out
+
+
+def dmc_entry(block: Path, run_dir: Path, blk: dict, rows: list[dict]) -> dict:
+    """Per-unit costs, the 3,000-frame projection and the accuracy of a DMC block's run."""
+    summary = run_dir / "work" / "run_summary.json"
+    rec = ({r["stage"]: r for r in json.loads(summary.read_text())["stages"]} if summary.exists() else {})
+    mos = rec.get("mosaic", {})
+    dom_gp = mos["width_px"] * mos["height_px"] / 1e9 if "width_px" in mos else None
+    costs = unit_costs(rows, blk, dom_gp)
+    return dict(frames_gp=round(blk["frames"] * blk["image_width_px"] * blk["image_height_px"] / 1e9, 3),
+                dom_gp=None if dom_gp is None else round(dom_gp, 3), unit_costs=costs,
+                projection=projection(costs, blk, dom_gp), accuracy=accuracy(block, run_dir, rows))
+
+
+def constancy(results: dict) -> dict | None:
+    """The per-unit CPU costs of the two DMC block sizes side by side: the larger over the smaller, per stage
+    (within 25 %: 0.75-1.25)."""
+    if not all(s in results and "unit_costs" in results[s] for s in DMC_SIZES):
+        return None
+    big, small = results["dmc"]["unit_costs"], results["dmc_3x8"]["unit_costs"]
+    ratio = {st: round(big[st]["cpu_s"] / small[st]["cpu_s"], 2) for st in big
+             if st in small and small[st]["cpu_s"] > 0}
+    return dict(cpu_ratio_full_over_3x8=ratio, within_25_pct={st: 0.75 <= r <= 1.25 for st, r in ratio.items()})
+
+
+def dmc_lines(e: dict) -> list[str]:
+    lines = [f"frames {e['frames_gp']} GP, DOM {e['dom_gp']} GP; per-unit costs (wall / CPU s):"]
+    for st, c in e["unit_costs"].items():
+        lines.append(f"  {st:<14} {c['wall_s']:>10.3f} {c['cpu_s']:>10.3f}  s per {c['unit']}")
+    p = e["projection"]
+    lines.append(f"projected to {p['frames']} frames, {p['lidar_points'] / 1e9:.0f} G points, {p['dom_gp']} GP of DOM: "
+                 f"{p['wall_h']} h wall, {p['cpu_h']} h CPU, of the stages {', '.join(p['stages'])} ({p['assumes']})")
+    a = e["accuracy"]
+    if "orientations" in a:
+        o = a["orientations"]
+        lines.append(f"AT against truth ({o['frames']} frames, GSD {a['gsd_m']} m): centres RMS XY {o['centre_rms_xy_m']} m "
+                     f"({o['centre_rms_xy_gsd']} GSD), Z {o['centre_rms_z_m']} m ({o['centre_rms_z_gsd']} GSD), attitude "
+                     f"{o['attitude_rms_deg']} deg; normalised by their sigmas {o['normalised_rms']}")
+    if "check_points" in a:
+        c = a["check_points"]
+        lines.append(f"check points: RMS XY {c['rms_xy_m']} m ({c['rms_xy_gsd']} GSD), Z {c['rms_z_m']} m ({c['rms_z_gsd']} GSD)")
+    if "dom" in a:
+        lines.append(f"DOM against truth/ortho.tif: RMS XY {a['dom']['rms_xy_m']} m ({a['dom']['rms_xy_gsd']} GSD), "
+                     f"{a['dom']['patches']} patches")
+    return lines
 
 
 def main(argv=None) -> int:
@@ -266,14 +417,18 @@ def main(argv=None) -> int:
     ap.add_argument("--table-only", action="store_true", help="tabulate the last run of this size, run nothing")
     ap.add_argument("--scheduler", help="passed to aerotri run (default: its own)")
     ap.add_argument("--workers", type=int, help="passed to aerotri run")
-    ap.add_argument("--out", type=Path, default=ROOT / "results" / "scale.json")
+    ap.add_argument("--run-dir", type=Path, help="the run folder (default: the block's folder name + _run beside it)")
+    ap.add_argument("--out", type=Path, help="results file (default results/scale.json; DMC sizes results/scale_dmc.json)")
     args = ap.parse_args(argv)
+    dmc = args.size in DMC_SIZES
+    args.out = args.out or ROOT / "results" / ("scale_dmc.json" if dmc else "scale.json")
 
-    block = args.block or BLOCKS / ("scale" if args.size == "full" else f"scale_{args.size}")
+    block = args.block or BLOCKS / (DMC_BLOCKS[args.size] if dmc else
+                                    "scale" if args.size == "full" else f"scale_{args.size}")
     if args.print_command:
         print(" ".join(generate_command(block, args.size)))
         return 0
-    run_dir = block.parent / f"{block.name}_run"
+    run_dir = args.run_dir or block.parent / f"{block.name}_run"
     results = json.loads(args.out.read_text()) if args.out.exists() else {}
     entry = dict(results.get(args.size, {})) if args.table_only else {}
     if args.generate or args.generate_only:
@@ -300,8 +455,11 @@ def main(argv=None) -> int:
     chain_load = ({k: v for k, v in json.loads(summary.read_text()).items() if k.startswith("load_avg")}
                   if summary.exists() else {})
     run = run or entry.get("run")
-    entry.update(block=str(block), block_numbers=blk, stages=rows, verdict=verdict(rows, run),
-                 chain_load_avg=chain_load, cpu_count=os.cpu_count())
+    limits = (DMC_LIMIT_WALL_MIN, DMC_LIMIT_PEAK_GB) if dmc else (LIMIT_WALL_MIN, LIMIT_PEAK_GB)
+    entry.update(block=str(block), run_dir=str(run_dir), block_numbers=blk, stages=rows,
+                 verdict=verdict(rows, run, *limits, finished=summary.exists()), chain_load_avg=chain_load, cpu_count=os.cpu_count())
+    if dmc:
+        entry.update(dmc_entry(block, run_dir, blk, rows))
     if run:
         entry["run"] = run
     if not args.table_only:
@@ -314,10 +472,16 @@ def main(argv=None) -> int:
           f"{blk['lidar_points'] / 1e6:.2f} M LiDAR points in {blk['lidar_strips']} strips, {blk['scene_km2']} km2")
     print(format_table(rows))
     print(verdict_line(args.size, entry["verdict"]))
+    if dmc:
+        print("\n".join(dmc_lines(entry)))
+        results["constancy"] = constancy(results)
+        args.out.write_text(json.dumps(results, indent=1) + "\n")
+        if results["constancy"]:
+            print(f"per-unit CPU costs, full block over the 3 x 8 subset: {results['constancy']['cpu_ratio_full_over_3x8']}")
     if run:
         print(f"load average (1, 5, 15 min) {run['load_avg_before']} before, {run['load_avg_after']} after "
               f"on {os.cpu_count()} cores; aerotri run exit code {run['returncode']}")
-    lidar = {s: e["verdict"] for s, e in results.items() if e.get("verdict", {}).get("lidar_peak_rss_mb")}
+    lidar = {s: e["verdict"] for s, e in results.items() if (e or {}).get("verdict", {}).get("lidar_peak_rss_mb")}
     if len(lidar) > 1:
         print("LiDAR stages' peak RSS by block size: " + ", ".join(
             f"{s} {v['lidar_peak_rss_mb']:.0f} MB ({v['lidar_peak_stage']}, {results[s]['block_numbers']['lidar_points'] / 1e6:.1f} M points)"

@@ -276,20 +276,20 @@ def junction_visible(grad, X, legs, near_px=(1.5, 6.0), far_px=(6.0, 15.0), min_
 
 def measure_in_image(image, x0, y0, dirs, radius_px, *, settings: MeasureSettings | None = None,
                      convex: bool = True) -> Measurement:
-    """Measure one corner predicted at (x0, y0) with image edge directions dirs (2, 2) in an image (H, W[, C]).
+    """Measure one corner predicted at (x0, y0) with image edge directions dirs (2, 2) in an image (H, W[, C]): an
+    array, or anything with its ``shape`` whose 2-d slices give arrays (a frame read by windows).
 
     ``convex``: the roof's interior angle at the corner is below 180 deg (else re-entrant).
     """
     s = settings or MeasureSettings()
-    image = np.atleast_3d(image)
-    H, W = image.shape[:2]
+    H, W = image.shape[:2]  # an array or a frame read by windows (geom.images.FrameWindows): only the chip is read
     h = int(np.ceil(radius_px + s.edge_len_px + 4))
     nan = float("nan")
     margin = radius_px + 3
     if not (np.isfinite(x0) and np.isfinite(y0)) or x0 < margin or y0 < margin or x0 > W - 1 - margin or y0 > H - 1 - margin:
         return Measurement(nan, nan, False, "outside_frame")
     cs, rs = max(int(round(x0)) - h, 0), max(int(round(y0)) - h, 0)
-    chip = image[rs : int(round(y0)) + h + 1, cs : int(round(x0)) + h + 1]
+    chip = np.atleast_3d(image[rs : int(round(y0)) + h + 1, cs : int(round(x0)) + h + 1])
     off = np.array([cs, rs], float)
     pred = np.array([x0, y0]) - off
     grad = gradients(chip)

@@ -30,7 +30,7 @@ from aerotri.core.project import Project, project_paths
 from aerotri.core.settings import Resolved, settings_of
 from aerotri.geom.camera import FrameCamera, adjusted_camera
 from aerotri.geom.eo import ExteriorOrientations, read_eo
-from aerotri.geom.images import find_image, read_rgb8
+from aerotri.geom.images import FrameWindows, find_image
 
 log = logging.getLogger(__name__)
 
@@ -118,12 +118,13 @@ def _measure_frames(corners: LidarCorners, camera: FrameCamera, eo: ExteriorOrie
         has_manual = any(i == j for _, j in manual_k)
         if not inside.any() and not has_manual:
             continue
-        image = read_rgb8(find_image(images_dir, iid), (camera.width, camera.height))
-        for q in np.flatnonzero(inside):
-            k = int(idx[q])
-            pred[(k, i)] = (float(x[q]), float(y[q]))
-            meas[(k, i)] = measure_in_image(image, x[q], y[q], d[q], radius[q], settings=s.measure,
-                                            convex=bool(corners.angle_deg[k] < 180.0))
+        # windows on demand: the chips of a 106 MP frame, not the frame
+        with FrameWindows(find_image(images_dir, iid), (camera.width, camera.height)) as image:
+            for q in np.flatnonzero(inside):
+                k = int(idx[q])
+                pred[(k, i)] = (float(x[q]), float(y[q]))
+                meas[(k, i)] = measure_in_image(image, x[q], y[q], d[q], radius[q], settings=s.measure,
+                                                convex=bool(corners.angle_deg[k] < 180.0))
     for (k, i), xy in manual_k.items():
         meas[(k, i)] = Measurement(float(xy[0]), float(xy[1]), True, "manual")
         pred.setdefault((k, i), (float(xy[0]), float(xy[1])))
@@ -378,9 +379,21 @@ def layout_line(res: TransferResult) -> str:
     return line + (("; empty: " + "; ".join(empty)) if empty else "") + "."
 
 
+def _chips(res: TransferResult, image, i: int, klist) -> dict:
+    """The review chips of the corners ``klist`` in frame ``i`` (PNG bytes by file name)."""
+    from aerotri.control.chips import chip_png
+
+    out = {}
+    for k in klist:
+        m, r = res.measurements[(k, i)], res.rays[k]
+        j = r.images.index(i) if i in r.images else None
+        ok = bool(j is not None and r.ok and r.kept[j])
+        out[f"{res.corners.id[k]}_{res.image_ids[i]}.png"] = chip_png(image, res.predicted[(k, i)], (m.x_px, m.y_px), ok)
+    return out
+
+
 def review_page(res: TransferResult, images_dir) -> ReviewPage:
     """The review page: selected corners first, then checks, rejected ones."""
-    from aerotri.control.chips import chip_png
 
     order = {"full": 0, "height": 1, "check": 2, "candidate": 3, "rejected": 4}
     ks = sorted(res.rays, key=lambda k: (order.get(res.kind[k], 4), str(res.corners.id[k])))
@@ -389,13 +402,13 @@ def review_page(res: TransferResult, images_dir) -> ReviewPage:
         by_image.setdefault(i, []).append(k)
     chips, rows = {}, {k: [] for k in ks}
     for i, klist in by_image.items():
-        image = read_rgb8(find_image(images_dir, res.image_ids[i]))
+        with FrameWindows(find_image(images_dir, res.image_ids[i])) as image:
+            chips.update(_chips(res, image, i, klist))
         for k in klist:
             m, r = res.measurements[(k, i)], res.rays[k]
             j = r.images.index(i) if i in r.images else None
             ok = bool(j is not None and r.ok and r.kept[j])
             name = f"{res.corners.id[k]}_{res.image_ids[i]}.png"
-            chips[name] = chip_png(image, res.predicted[(k, i)], (m.x_px, m.y_px), ok)
             res_txt = f", {r.residual_px[j]:.2f} px" if j is not None and np.isfinite(r.residual_px[j]) else ""
             cap = f"{res.image_ids[i]}: " + (f"{m.x_px:.1f}, {m.y_px:.1f}{res_txt}" if np.isfinite(m.x_px) else "-")
             if not ok:

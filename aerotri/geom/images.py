@@ -150,8 +150,14 @@ def map_uncompressed_tiff(path):
     return img if dtype.isnative or dtype.itemsize == 1 else None
 
 
+# TIFF compressions OpenCV's bundled libtiff does not decode: it prints three ERROR lines per frame (outside the
+# toolkit's logging) and returns nothing; such frames (ZSTD tiles: the DMC block's) go straight to GDAL
+_OPENCV_CANNOT_DECODE = {"zstd", "lerc", "lerc_deflate", "lerc_zstd", "webp", "jxl", "lzma"}
+
+
 def _opencv_reads(path) -> bool:
-    """Whether OpenCV reads this frame as stored. It does not for multi-band TIFFs that are band-interleaved
+    """Whether OpenCV reads this frame as stored. It does not for TIFFs compressed as it cannot decode
+    (``_OPENCV_CANNOT_DECODE``), nor for multi-band TIFFs that are band-interleaved
     (16-bit planar RGB comes out garbled: band means of 67-120 DN for 112-152) or not tagged RGB (3 or 4
     MINISBLACK samples come out as one grey band); those are read through GDAL."""
     import rasterio
@@ -160,6 +166,8 @@ def _opencv_reads(path) -> bool:
         return True
     try:
         with _open_raster(path) as ds:
+            if ds.compression is not None and ds.compression.name.lower() in _OPENCV_CANNOT_DECODE:
+                return False
             if ds.count == 1:
                 return True
             rgb = tuple(ds.colorinterp[:3]) == (rasterio.enums.ColorInterp.red, rasterio.enums.ColorInterp.green,
@@ -285,6 +293,136 @@ def level_to_full(xy_level: np.ndarray, level: int) -> np.ndarray:
     cv2.pyrDown keeps the even pixels of the smoothed image: pixel i of a level is pixel 2^level i of the
     frame (an area-averaging pyramid would need + (2^level - 1) / 2)."""
     return xy_level * 2.0**level
+
+
+# -- a pyramid level read by windows ---------------------------------------------------------------
+_LUMA = np.array([0.299, 0.587, 0.114], np.float32)  # BT.601, as _gray8 (in floating point for deep samples)
+
+
+def _significant_bits(ds, peak: float) -> int:
+    """Bits of a deep frame's samples: the TIFF's NBITS tag (12-bit data in 16-bit files, as DMC frames come),
+    else those its largest sample needs (at least 8)."""
+    nbits = ds.tags(1, "IMAGE_STRUCTURE").get("NBITS")
+    if nbits:
+        return int(nbits)
+    return max(8, int(math.ceil(math.log2(float(peak) + 1.0))))
+
+
+def read_gray_level(path, level: int, expect_size: tuple[int, int] | None = None,
+                    band_rows: int = 1024) -> np.ndarray:
+    """8-bit grey of pyramid level ``level`` of a frame (``downsample``), read in bands of rows so that memory
+    follows the band, not the frame: a 13824 x 7680 px 16-bit DMC frame costs about 60 MB a band, not 1 GB.
+
+    TIFFs are read through GDAL by windows (any compression: ZSTD tiles too, which OpenCV's libtiff does not
+    decode); other files are decoded whole by OpenCV. Each band is read with a margin of ``4 * 2^level`` rows, so
+    its level rows equal those of the whole frame's pyramid (bands and margins are multiples of ``2^level``;
+    cv2.pyrDown's 5-tap kernel reaches less than ``2 * 2^level`` rows through ``level`` levels). 8-bit frames:
+    the same pixels as ``downsample(read_gray(path), level)``. Deeper samples are smoothed in floating point and
+    scaled to 8 bits by their significant bits (``_significant_bits``): 12-bit data spans 0..255, not the
+    0..15 a shift by 8 bits would leave of it."""
+    if Path(path).suffix.lower() not in (".tif", ".tiff"):
+        return downsample(read_gray(path, expect_size), level)
+    import rasterio
+    from rasterio.windows import Window
+
+    try:
+        ds = _open_raster(path)
+    except (rasterio.errors.RasterioIOError, OSError) as exc:
+        raise InputError(f"{path}: cannot read the image ({exc})") from None
+    with ds:
+        width, height = ds.width, ds.height
+        if expect_size is not None and (width, height) != tuple(expect_size):
+            raise InputError(f"{path}: image is {width} x {height} px but the camera says "
+                             f"{expect_size[0]} x {expect_size[1]} px")
+        f = 2**level
+        deep = np.dtype(ds.dtypes[0]).itemsize > 1 or np.dtype(ds.dtypes[0]).kind not in "u"
+        bands = [1, 2, 3] if ds.count >= 3 else [1]
+        margin = 4 * f
+        step = max(f, band_rows // f * f)
+        parts = []
+        for r0 in range(0, height, step):
+            r1 = min(height, r0 + step)
+            a, b = max(0, r0 - margin), min(height, r1 + margin)
+            try:
+                block = ds.read(bands, window=Window(0, a, width, b - a))
+            except rasterio.errors.RasterioIOError as exc:
+                raise InputError(f"{path}: cannot read the image ({exc})") from None
+            if deep:
+                g = (block[0].astype(np.float32) if len(bands) == 1
+                     else np.tensordot(_LUMA, block.astype(np.float32), axes=1))
+            else:
+                g = _gray8(np.moveaxis(block, 0, -1)) if len(bands) == 3 else block[0]
+            del block
+            small = downsample(g, level)
+            k0 = (r0 - a) // f
+            parts.append(small[k0:k0 + (-(-(r1 - r0) // f) if r1 == height else (r1 - r0) // f)])
+        small = np.vstack(parts)
+        if deep:
+            scale = 255.0 / (2.0 ** _significant_bits(ds, small.max(initial=0.0)) - 1.0)
+            small = np.clip(np.rint(small * scale), 0, 255).astype(np.uint8)
+    return np.ascontiguousarray(small)
+
+
+class FrameWindows:
+    """A frame as ``read_rgb8`` gives it, read by windows on demand: ``shape`` and ``frame[r0:r1, c0:c1]`` (the
+    slices numpy takes) read only the tiles under the window, so measuring chips in a 106 MP frame holds a
+    few tiles, not the frame. Deep samples (12/16-bit) are scaled by their significant bits
+    (``_significant_bits``; the largest sample from a 1/16 decimated read when the file has no NBITS tag) instead
+    of ``read_rgb8``'s min-max stretch of the whole frame. Non-TIFF files are decoded whole (``read_rgb8``).
+    Not thread-safe (one GDAL dataset); a context manager."""
+
+    def __init__(self, path, expect_size: tuple[int, int] | None = None):
+        self.path = Path(path)
+        self._ds = self._image = None
+        if self.path.suffix.lower() not in (".tif", ".tiff"):
+            self._image = read_rgb8(path, expect_size)
+            self.shape = self._image.shape
+            return
+        import rasterio
+
+        try:
+            self._ds = ds = _open_raster(path)
+        except (rasterio.errors.RasterioIOError, OSError) as exc:
+            raise InputError(f"{path}: cannot read the image ({exc})") from None
+        if expect_size is not None and (ds.width, ds.height) != tuple(expect_size):
+            ds.close()
+            raise InputError(f"{path}: image is {ds.width} x {ds.height} px but the camera says "
+                             f"{expect_size[0]} x {expect_size[1]} px")
+        self._bands = [1, 2, 3] if ds.count >= 3 else [1]
+        self.shape = (ds.height, ds.width) + ((3,) if ds.count >= 3 else ())
+        dtype = np.dtype(ds.dtypes[0])
+        self._scale = None
+        if dtype != np.uint8:
+            peak = ds.read(self._bands, out_shape=(len(self._bands), max(1, ds.height // 16), max(1, ds.width // 16))).max()
+            self._scale = 255.0 / (2.0 ** _significant_bits(ds, peak) - 1.0)
+
+    def __getitem__(self, key):
+        if self._image is not None:
+            return self._image[key]
+        from rasterio.windows import Window
+
+        key = key if isinstance(key, tuple) else (key,)
+        r0, r1, rstep = key[0].indices(self.shape[0])
+        c0, c1, cstep = (key[1] if len(key) > 1 else slice(None)).indices(self.shape[1])
+        h, w = max(0, r1 - r0), max(0, c1 - c0)
+        if h == 0 or w == 0:
+            block = np.zeros((len(self._bands), h, w), np.uint8)
+        else:
+            block = self._ds.read(self._bands, window=Window(c0, r0, w, h))
+        if self._scale is not None:
+            block = np.clip(np.rint(block.astype(np.float32) * self._scale), 0, 255).astype(np.uint8)
+        img = np.moveaxis(block, 0, -1) if len(self._bands) == 3 else block[0]
+        return img[::rstep, ::cstep][(slice(None), slice(None)) + key[2:]]
+
+    def close(self) -> None:
+        if self._ds is not None:
+            self._ds.close()
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        self.close()
 
 
 # -- cameras from EXIF ------------------------------------------------------------------------------

@@ -15,9 +15,10 @@ from pathlib import Path
 
 import cv2
 import numpy as np
+import rasterio
 
 from aerotri.core.errors import InputError
-from aerotri.geom.images import downsample, level_to_full, pyramid_level, read_gray
+from aerotri.geom.images import downsample, level_to_full, pyramid_level, read_gray_level
 from aerotri.match.settings import FeatureSettings
 from aerotri.core.atomic import atomic_path
 
@@ -31,7 +32,11 @@ class Features:
 
 def extract(img: np.ndarray, p: FeatureSettings) -> Features:
     level = pyramid_level(img.shape[1], img.shape[0], p.max_dim_px)
-    small = downsample(img, level)
+    return extract_level(downsample(img, level), level, p)
+
+
+def extract_level(small: np.ndarray, level: int, p: FeatureSettings) -> Features:
+    """Features of pyramid level ``level`` of a frame (8-bit grey ``small``), in full-resolution pixels."""
     # precise upscale: OpenCV's default doubling of the image for the first octave puts every keypoint
     # 0.25 px right of and below the image content (x and y); the adjustment takes such an offset of the tie
     # points for a principal-point shift, which LiDAR control and check points, measured without it, then
@@ -74,7 +79,15 @@ def cached_features(image_path: Path, cache_dir: Path, p: FeatureSettings, expec
         with np.load(f) as z:
             if json.loads(str(z["meta"])) == meta:
                 return Features(z["xy_px"], z["descriptors"], int(z["level"]))
-    feats = extract(read_gray(image_path, expect_size), p)
+    # the detection level read by windows (memory follows a band of rows, not the 106 MP frame)
+    if expect_size is None:
+        try:
+            with rasterio.open(image_path) as ds:
+                expect_size = (ds.width, ds.height)
+        except rasterio.errors.RasterioIOError as exc:
+            raise InputError(f"{image_path}: cannot read the image ({exc})") from None
+    level = pyramid_level(expect_size[0], expect_size[1], p.max_dim_px)
+    feats = extract_level(read_gray_level(image_path, level, expect_size), level, p)
     if len(feats.xy_px) == 0:
         raise InputError(f"{image_path}: no image features at all (a blank, uniform or all-black frame?); "
                          "remove the frame from the block (images/ and gnss.txt) or replace it")

@@ -16,7 +16,8 @@ from typing import ClassVar
 from aerotri.core.settings import setting
 
 
-FEATURES_VERSION = 2  # 2: keypoints on the image content (SIFT precise upscale, pyramid levels without offset)
+FEATURES_VERSION = 3  # 2: keypoints on the image content (SIFT precise upscale, pyramid levels without offset);
+# 3: frames read by windows, deep (12/16-bit) samples scaled by their significant bits
 
 
 def _key(params, version: int | None = None) -> str:

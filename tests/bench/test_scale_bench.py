@@ -123,3 +123,39 @@ def test_table_only_reads_the_last_run_and_keeps_other_sizes(scale, tmp_path, ca
     with pytest.raises(SystemExit, match="no run of the quarter block"):
         scale.main(["--size", "quarter", "--block", str(other), "--table-only", "--out", str(out)])
     assert json.loads(out.read_text()) == results
+
+
+def test_dmc_unit_costs_projection_and_constancy(scale):
+    """Full-size DMC blocks: per-unit costs per stage, their projection to 3,000 frames / 2 G points, the ratio of
+    two block sizes' costs."""
+    blk = dict(frames=24, image_width_px=13824, image_height_px=7680, lidar_points=69_000_000)
+    records = [
+        dict(stage="classify", status="done", seconds=690.0, cpu_s=1380.0, peak_rss_mb=4000.0, points=69_000_000),
+        dict(stage="match", status="done", seconds=240.0, cpu_s=60.0, peak_rss_mb=1300.0),
+        dict(stage="rectify", status="done", seconds=254.8, cpu_s=127.4, peak_rss_mb=1500.0, frames=24),
+        dict(stage="mosaic", status="done", seconds=100.0, cpu_s=50.0, peak_rss_mb=2000.0, width_px=40000,
+             height_px=25000),
+        dict(stage="report", status="done", seconds=5.0, cpu_s=5.0, peak_rss_mb=900.0),
+    ]
+    rows = scale.stage_rows(records, dict(blk, scene_km2=10.0))
+    costs = scale.unit_costs(rows, blk, dom_gp=1.0)
+    assert costs["classify"]["unit"] == "M points" and costs["classify"]["cpu_s"] == 20.0
+    assert costs["match"]["unit"] == "frame" and costs["match"]["cpu_s"] == 2.5
+    assert costs["rectify"]["unit"] == "GP of frames" and costs["rectify"]["cpu_s"] == pytest.approx(50.0, rel=1e-3)
+    assert costs["mosaic"]["unit"] == "GP of DOM" and costs["mosaic"]["wall_s"] == 100.0
+    assert "report" not in costs
+    p = scale.projection(costs, blk, dom_gp=1.0)
+    assert p["dom_gp"] == 125.0  # 1 GP for 24 frames, 3,000 frames
+    assert p["stages"]["classify"]["cpu_h"] == pytest.approx(20.0 * 2000 / 3600, abs=0.01)
+    assert p["stages"]["match"]["cpu_h"] == pytest.approx(2.5 * 3000 / 3600, abs=0.01)
+    assert p["cpu_h"] == pytest.approx(sum(s["cpu_h"] for s in p["stages"].values()), abs=0.1)
+    # two sizes: the larger block's CPU per unit over the smaller's, within 25 % or not
+    big = {k: dict(v, cpu_s=v["cpu_s"] * (1.1 if k != "mosaic" else 1.5)) for k, v in costs.items()}
+    c = scale.constancy({"dmc": {"unit_costs": big}, "dmc_3x8": {"unit_costs": costs}})
+    assert c["cpu_ratio_full_over_3x8"]["match"] == 1.1 and c["within_25_pct"]["match"]
+    assert not c["within_25_pct"]["mosaic"]
+    assert scale.constancy({"dmc_3x8": {"unit_costs": costs}}) is None
+    # the DMC limits: 3 hours, 12 GB
+    v = scale.verdict(rows, dict(returncode=0, wall_s=3600.0), scale.DMC_LIMIT_WALL_MIN, scale.DMC_LIMIT_PEAK_GB)
+    assert v["under_180_min"] and v["under_12_gb"]
+    assert "limit 180 min: within" in scale.verdict_line("dmc_3x8", v)
