@@ -20,8 +20,9 @@ over the footprints whose centroid has LiDAR points within 2 m (the crop covers 
 
 The classification runs with the shipped defaults; with ``--params FILE`` (JSON of ClassifySettings
 overrides per quarter, e.g. the ones chosen on the other three quarters by
-bench/eval_classify_nested.py --ahn3) each quarter is scored on its own classification.
-Writes results/buildings_bgt.json. Run: nice .venv/bin/python bench/eval_buildings_bgt.py
+bench/eval_classify_nested.py --ahn3) each quarter is scored on its own classification; ``--nested`` takes
+them from results/classify_nested.json (the nested folds' choices).
+Writes results/buildings_bgt.json. Run: nice .venv/bin/python bench/eval_buildings_bgt.py --nested
 """
 
 from __future__ import annotations
@@ -137,16 +138,22 @@ def main(argv=None) -> int:
     c = io.read_cloud(laz, crs=CRS)
     x_split, y_split = float(np.median(c.x)), float(np.median(c.y))
     per_part = json.loads(Path(argv[argv.index("--params") + 1]).read_text()) if "--params" in argv else {}
+    if "--nested" in argv:   # the configurations chosen without each quarter (bench/eval_classify_nested.py --ahn3)
+        folds = json.loads((REPO / "results" / "classify_nested.json").read_text())["ahn3"]["nested"]["folds"]
+        per_part = {name: f["chosen"] for name, f in folds.items()}
     t0 = time.perf_counter()
     with tempfile.TemporaryDirectory(prefix="eval_buildings_bgt_") as tmp:
         tmp = Path(tmp)
         default = tmp / "default.laz"
         tiles.classify_file(laz, default, crs=CRS, params=ClassifySettings())
-        classified = {}
+        classified, done = {}, {}
         for name, overrides in per_part.items():
-            f = tmp / f"{name}.laz"
-            tiles.classify_file(laz, f, crs=CRS, params=dataclasses.replace(ClassifySettings(), **overrides))
-            classified[name] = f
+            key = json.dumps(overrides, sort_keys=True)
+            if key not in done:
+                done[key] = tmp / f"{name}.laz"
+                tiles.classify_file(laz, done[key], crs=CRS,
+                                    params=dataclasses.replace(ClassifySettings(), **overrides))
+            classified[name] = done[key]
         result = {
             "data": "ahn3_cropped_1.laz (AHN3 Delft crop) vs the 160 BGT footprints (bgt_pand.sqlite)",
             "cell_m": CELL_M, "tolerance_band_m": BAND_M,
