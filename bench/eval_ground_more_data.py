@@ -64,6 +64,18 @@ def one(path: Path, bare: tuple) -> dict:
         out["ground_filter_type_ii_height_above_labelled_ground_m"] = dict(
             zip(("p25", "median", "p75"), np.percentile(dz, [25, 50, 75]).round(3).tolist()))
         out["ground_filter_type_ii_within_0_15_m_pct"] = 100.0 * float(np.mean(np.abs(dz) <= 0.15))
+    if tw.any() and np.any(pw & (truth == 2)):
+        # Truth ground called water: how far from the labelled water and how far above its level (the
+        # median height of the labelled water within 30 m) -- shore returns at the water level, or not.
+        fw = np.flatnonzero(pw & (truth == 2))
+        wtree = cKDTree(np.column_stack([c.x[tw], c.y[tw]]))
+        d_m, _ = wtree.query(np.column_stack([c.x[fw], c.y[fw]]))
+        lvl = np.array([np.median(c.z[tw][nb]) if nb else np.nan
+                        for nb in wtree.query_ball_point(np.column_stack([c.x[fw], c.y[fw]]), 30.0)])
+        out["truth_ground_called_water_distance_to_water_m"] = dict(
+            zip(("median", "p90", "max"), np.round([np.median(d_m), np.percentile(d_m, 90), d_m.max()], 2).tolist()))
+        out["truth_ground_called_water_height_above_level_m"] = dict(
+            zip(("median", "p90", "max"), np.round(np.nanpercentile(np.abs(c.z[fw] - lvl), [50, 90, 100]), 3).tolist()))
     if tw.any():
         out["water_pa_pct"] = 100.0 * float(np.mean(pw[tw]))
         out["water_ua_pct"] = 100.0 * float(np.mean(tw[pw])) if pw.any() else None
