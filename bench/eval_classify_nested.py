@@ -21,8 +21,8 @@ over j is the nested estimate of the error on a new sample. Reported beside it: 
 AHN3 (``--ahn3``): the same on the four quarters of the Delft crop, criterion 100 - mean of building
 and ground PA and UA (%), grid of bench/eval_ahn3_holdout.py (building and ground knobs).
 
-Per-sample errors of every grid point are cached (``--cache DIR``, default
-/work/tmp/i44-classify/nested_cache or $NESTED_CACHE) so that a rerun does not reclassify.
+Per-sample errors of every grid point are cached in $NESTED_CACHE (default <tmp>/aerotri_nested_cache)
+so that a rerun does not reclassify.
 Writes results/classify_nested.json (both parts kept: a run of one part keeps the other's entry).
 Run: nice .venv/bin/python bench/eval_classify_nested.py [--isprs] [--ahn3]
 """
@@ -32,6 +32,7 @@ from __future__ import annotations
 import json
 import os
 import sys
+import tempfile
 import time
 from pathlib import Path
 
@@ -42,7 +43,7 @@ from lidar_common import DATA, REPO, SAMPLES, grid_points  # noqa: E402
 
 from lidarctl import evaluate, grid, ground, io, noise  # noqa: E402
 
-CACHE = Path(os.environ.get("NESTED_CACHE", "/work/tmp/i44-classify/nested_cache"))
+CACHE = Path(os.environ.get("NESTED_CACHE", Path(tempfile.gettempdir()) / "aerotri_nested_cache"))
 RESULT = REPO / "results" / "classify_nested.json"
 
 # Knobs of the morphological filter (physical meaning in lidarctl.ground.MorphSettings) and rule
