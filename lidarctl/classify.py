@@ -60,6 +60,10 @@ Pipeline (``classify_points``):
    to [1/4, 1] ``water_level_tol_m``) of the level become water; so do returns within
    ``water_shore_m`` of the gap at that level that are as dark as the body (on clouds without
    intensity: in a dropout cell), which the 3x3 window misses along the shore.
+   *Level water* (``level_water``): a calm lake that returned the pulse shows no dropout; it is a
+   surface level to ``level_water_tol_m`` over at least ``level_water_min_area_m2``, in a bed (the
+   ground on its rim stands above the level), under open sky, of single returns; its shore is
+   where the returns leave the level.
 6. Bridge decks (17, ``bridge_decks``): ground between two open-water-sized dropout gaps (not
    occlusion shadows) at most ``bridge_max_width_m`` apart along a grid direction within 30 degrees
    of a gap's long axis (a watercourse runs on under the deck), standing more than
@@ -161,6 +165,13 @@ class ClassifySettings:
     water_shadow_fraction: float = setting(0.2, min=0.0, max=1.0, help="A dropout whose rim is more than this share "
                                                                        "building is a roof's shadow, not water.")
     water_shore_m: float = setting(4.0, min=0.0, help="Width of the shore examined around a dropout (m).")
+    # Level water (``level_water``): calm water that returned the pulse. 5 cm: a few sigma of the
+    # range noise of airborne scanners (1-3 cm); terrain that drains slopes by more over a few cells.
+    level_water_tol_m: float = setting(0.05, min=0.0, min_open=True, help="Level water: returns within this of the "
+                                                                          "level lie on it (m).")
+    level_water_min_area_m2: float = setting(200.0, min=0.0, help="Level water: smallest body (m2); 0: off.")
+    level_water_bank_fraction: float = setting(0.8, min=0.0, max=1.0, help="Level water: share of the ground cells on "
+                                                                           "its rim standing above the level (a bed).")
     # A deck is at most this long along the watercourse it spans (the road's width, not the span
     # across the water): a two-lane road with pavements is ~15 m. 0 disables the bridge rule.
     bridge_max_width_m: float = setting(20.0, min=0.0, help="A bridge deck is at most this long along the water it "
@@ -744,6 +755,124 @@ def detect_water(x, y, z, intensity, candidate, is_building, is_ground, spacing_
     return water
 
 
+# Level water (``level_water``): a calm lake that returns the pulse is a surface level to centimetres
+# over a large area; terrain is not (it drains, so it slopes), and a level floor (a car park, a
+# square) ends at a curb or a street below it, where water stands in a bed whose banks rise above it.
+def level_water(x, y, z, candidate, is_ground, spacing_m: float, p: ClassifySettings, solid=None,
+                number_of_returns=None) -> np.ndarray:
+    """Water returns (mask) of calm water bodies that returned the pulse (no dropout needed).
+
+    On the water grid (``water_cell_m``, default max(1 m, 2 point spacings)) a cell is level when its
+    ``candidate`` returns span at most 2 ``level_water_tol_m``. Level cells whose medians differ by at
+    most ``level_water_tol_m`` are joined (8-connected); each region is cut to the cells within
+    ``level_water_tol_m`` of its level (median of the cell medians) and relabelled. A region is a water
+    body when (a) its area is at least ``level_water_min_area_m2``; (b) it lies in a bed: at least
+    ``level_water_bank_fraction`` of the ground cells on its rim (two cells wide) stand more than
+    ``level_water_tol_m`` above the level (a floor's rim is a curb down or more floor at its level);
+    (c) open sky: no return more than ``low_veg_max_m`` above the level within one cell (ground seen
+    through crowns is never water); (d) where the cloud records returns per pulse, at most 5 % of its
+    returns are from split pulses (nothing beneath a water surface). Shore: candidate returns within
+    ``water_shore_m`` of the body at its level (within ``level_water_tol_m``) are water, those above
+    it are the bank -- the level decides, not the distance.
+    """
+    n = len(x)
+    water = np.zeros(n, bool)
+    tol = p.level_water_tol_m
+    if p.level_water_min_area_m2 <= 0 or not candidate.any():
+        return water
+    c = p.water_cell_m or max(1.0, 2.0 * spacing_m)
+    flat, nrows, ncols, x0, y0 = grid.cell_ids(x, y, c)
+    ci = np.flatnonzero(candidate)
+    order = ci[np.lexsort((z[ci], flat[ci]))]
+    cell = flat[order]
+    start = np.flatnonzero(np.r_[True, cell[1:] != cell[:-1]])
+    cnt = np.diff(np.r_[start, len(cell)])
+    zs = z[order]
+    zmin, zmax = zs[start], zs[start + cnt - 1]
+    zmed = 0.5 * (zs[start + (cnt - 1) // 2] + zs[start + cnt // 2])
+    med = np.full(nrows * ncols, np.nan)
+    level_cell = (zmax - zmin) <= 2.0 * tol
+    med[cell[start[level_cell]]] = zmed[level_cell]
+    med = med.reshape(nrows, ncols)
+    ok = np.isfinite(med)
+    if ok.sum() * c * c < p.level_water_min_area_m2:
+        return water
+    # 8-connected joins of level cells at the same height: union-find over the grid edges.
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+
+    idx = np.arange(nrows * ncols).reshape(nrows, ncols)
+    rows, cols = [], []
+    for dr, dc in ((0, 1), (1, 0), (1, 1), (1, -1)):
+        a = (slice(0, nrows - dr), slice(max(0, -dc), ncols - max(0, dc)))
+        b = (slice(dr, nrows), slice(max(0, dc), ncols - max(0, -dc)))
+        e = ok[a] & ok[b] & (np.abs(med[a] - med[b]) <= tol)
+        rows.append(idx[a][e])
+        cols.append(idx[b][e])
+    rows, cols = np.concatenate(rows), np.concatenate(cols)
+    m = coo_matrix((np.ones(len(rows)), (rows, cols)), shape=(nrows * ncols,) * 2)
+    _, lab = connected_components(m, directed=False)
+    lab = np.where(ok.ravel(), lab + 1, 0)
+    size = np.bincount(lab)
+    big = size * c * c >= p.level_water_min_area_m2
+    big[0] = False
+    if not big.any():
+        return water
+    # Cut each large region to its level and relabel (a region may have crept along gentle slopes).
+    level_of = np.full(len(size), np.nan)
+    keep = big[lab]
+    for k in np.flatnonzero(big):
+        level_of[k] = np.median(med.ravel()[lab == k])
+    at_level = keep & (np.abs(med.ravel() - np.nan_to_num(level_of[lab], nan=np.inf)) <= tol)
+    labels, nlab = ndimage.label(at_level.reshape(nrows, ncols), np.ones((3, 3), int))
+    if nlab == 0:
+        return water
+    area = np.bincount(labels.ravel(), minlength=nlab + 1) * c * c
+    ground_cell_z = reduce_grid(x[is_ground], y[is_ground], z[is_ground], c, x0, y0, nrows, ncols, "mean")
+    tall = np.ones(n, bool) if solid is None else np.asarray(solid, bool).copy()
+    tall_idx = np.flatnonzero(tall)
+    tree = None
+    multi = None if number_of_returns is None else np.asarray(number_of_returns) > 1
+    if multi is not None and not multi.any():
+        multi = None
+    shore_cells = max(1, int(np.ceil(p.water_shore_m / c)))
+    boxes = ndimage.find_objects(labels)
+    lab_pt = labels.ravel()[flat]
+    for k in np.flatnonzero(area[1:] >= p.level_water_min_area_m2) + 1:
+        pad = shore_cells + 2
+        r0, c0 = max(boxes[k - 1][0].start - pad, 0), max(boxes[k - 1][1].start - pad, 0)
+        win = (slice(r0, boxes[k - 1][0].stop + pad), slice(c0, boxes[k - 1][1].stop + pad))
+        region = labels[win] == k
+        level = float(np.median(med[win][region]))
+        rim = ndimage.binary_dilation(region, np.ones((3, 3), bool), 2) & ~region
+        bank = ground_cell_z[win][rim]
+        bank = bank[np.isfinite(bank)]
+        if len(bank) == 0 or np.mean(bank > level + tol) < p.level_water_bank_fraction:
+            continue
+        members = np.flatnonzero(candidate & (lab_pt == k))
+        members = members[np.abs(z[members] - level) <= tol]
+        if multi is not None and np.mean(multi[members]) > 0.05:
+            continue
+        if tree is None:
+            tree = cKDTree(np.column_stack([x[tall_idx], y[tall_idx]]))
+        # Shore: candidates near the body at its level.
+        shore = ndimage.binary_dilation(region, np.ones((3, 3), bool), shore_cells)
+        rr, cc = np.divmod(flat[candidate], ncols)
+        ii, jj = rr - r0, cc - c0
+        inside = (ii >= 0) & (ii < shore.shape[0]) & (jj >= 0) & (jj < shore.shape[1])
+        inside[inside] = shore[ii[inside], jj[inside]]
+        near = np.flatnonzero(candidate)[inside]
+        near = near[np.abs(z[near] - level) <= tol]
+        # Open sky over the body: a return well above the level within a cell is a crown.
+        hits = tree.query_ball_point(np.column_stack([x[near], y[near]]), c)
+        covered = np.fromiter((bool(len(h)) and float(np.max(z[tall_idx[h]])) > level + p.low_veg_max_m
+                               for h in hits), bool, len(near))
+        if np.mean(covered[np.isin(near, members)]) > 0.05:
+            continue   # a level floor under crowns is forest floor
+        water[near[~covered]] = True
+    return water
+
+
 def dropout_gaps(x, y, z, is_ground, g: DropoutGrid, p: ClassifySettings):
     """Open-water-sized pulse-dropout gaps of ``g`` (step 5's dropout regions of at least
     ``water_min_area_m2`` that are not occlusion shadows, i.e. at most ``water_shadow_fraction`` of
@@ -1095,6 +1224,8 @@ def classify_points(x, y, z, return_number=None, number_of_returns=None, intensi
     water = detect_water(x, y, z, intensity, is_ground | (cls == UNCLASSIFIED) | (cls == LOW_VEG),
                          is_building, is_ground, spacing, p, solid=clean, dropout=gaps)
     cls[water] = WATER
+    cls[level_water(x, y, z, is_ground | (cls == UNCLASSIFIED) | (cls == LOW_VEG), is_ground, spacing, p,
+                    solid=clean, number_of_returns=number_of_returns)] = WATER
     cls[bridge_decks(x, y, z, cls == GROUND, is_building, spacing, p, dropout=gaps)] = BRIDGE_DECK
     cls[spanning_decks(x, y, z, cls == BUILDING, cls == GROUND, gaps, p)] = BRIDGE_DECK
     if fusion is not None:

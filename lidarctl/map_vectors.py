@@ -9,6 +9,9 @@ heights in CRS units, the ``_m`` attributes in metres):
   without corners the most frequent height (``EAVE_BIN_M`` bins) of the roof points within
   ``max(1.5 m, 2 spacings)`` inside the outline; ``ridge_z``: the ``RIDGE_PERCENTILE`` of all roof points inside it; ``ground_z``: the median of
   the ground points up to 5 m outside it; ``height_m`` = ridge - ground; ``area_m2``, ``roof``.
+  Building cells no regularised outline covers (roofs below the outliner's 25 m2, outlines that failed)
+  are outlined from their cells (roof ``cells``; pieces of at least ``CELL_BUILDING_MIN_M2``, slivers
+  along the regularised outlines removed by an opening of one cell).
 * ``roads`` (Polygon): cells of ``cell_m`` holding road points (class 11, e.g. from ``classify --image``),
   closed over gaps of one cell, holes below ``min_area_m2`` filled, pieces below it dropped; the polygon
   edges are the road edges; ``width_m`` is the median width along its centre line.
@@ -48,6 +51,9 @@ OPEN_GROUND = (GROUND, 3, ROAD)
 EAVE_BIN_M = 0.25
 RIDGE_PERCENTILE = 99.0
 BREAKLINE_CLEAR_M = 3.0
+# Building cells outlined when no regularised outline covers them: pieces from this area (m2; a garden shed
+# is 5-8 m2 in the BGT of Delft).
+CELL_BUILDING_MIN_M2 = 4.0
 LAYERS = ("buildings", "roads", "road_centrelines", "water", "spot_heights", "contours")
 
 
@@ -317,6 +323,7 @@ def building_outlines(pts: dict, spacing_m: float | None = None) -> tuple[list, 
         corner_z.setdefault(int(c["building_id"]), []).append(float(c["z"]))
     gtree = cKDTree(gxy) if len(gxy) else None
     polys, rows = [], []
+    candidates = []
     for o in res["outlines"]:
         rings = [r for r in o["rings"] if len(r) >= 3]
         if not rings:
@@ -329,6 +336,29 @@ def building_outlines(pts: dict, spacing_m: float | None = None) -> tuple[list, 
             poly = max(getattr(poly, "geoms", [poly]), key=lambda g: g.area if g.geom_type == "Polygon" else -1)
         if poly.geom_type != "Polygon" or poly.area <= 0:
             continue
+        candidates.append((poly, int(o["building_id"]), o["roof"], o["spacing_m"]))
+    # Building points no regularised outline covers (roofs below the outliner's smallest, 25 m2, and
+    # roofs whose outline failed): the outline of their cells, so that every classified building is on
+    # the map (roof "cells": not regularised).
+    spacing = float(np.median([cand[3] for cand in candidates])) if candidates else (spacing_m or 1.0)
+    cell = max(0.5, spacing)
+    x0, y0, nrows, ncols = _grid(bxy, cell)
+    bmask = class_mask(bxy, x0, y0, cell, (nrows, ncols), CELL_BUILDING_MIN_M2, 1)
+    covered = shapely.union_all([cand[0] for cand in candidates]) if candidates else None
+    next_id = max([cand[1] for cand in candidates], default=0) + 1
+    pieces = mask_polygons(bmask, x0, y0, cell, cell)
+    if covered is not None and pieces:
+        # what the outlines leave of the building cells, without the slivers along their edges (an opening
+        # of one cell)
+        rest = shapely.make_valid(shapely.union_all(pieces).difference(covered))
+        rest = rest.buffer(-cell, join_style="mitre").buffer(cell, join_style="mitre").intersection(rest)
+        pieces = [g for g in getattr(rest, "geoms", [rest]) if g.geom_type == "Polygon"]
+    for q in pieces:
+        if q.is_empty or q.area < CELL_BUILDING_MIN_M2:
+            continue
+        candidates.append((q, next_id, "cells", spacing))
+        next_id += 1
+    for poly, building_id, roof, spacing_o in candidates:
         # roof points inside the outline: those within the circumscribed circle, then tested
         c = np.asarray(poly.centroid.coords[0])
         rad = float(np.max(np.hypot(*(np.asarray(poly.exterior.coords) - c).T))) + 0.1
@@ -336,13 +366,13 @@ def building_outlines(pts: dict, spacing_m: float | None = None) -> tuple[list, 
         idx = idx[shapely.contains_xy(poly, bxy[idx, 0], bxy[idx, 1])] if len(idx) else idx
         if len(idx) < 3:
             continue
-        cz = corner_z.get(int(o["building_id"]))
+        cz = corner_z.get(building_id) if roof != "cells" else None
         if cz is not None:
             eave = float(np.median(cz))
         else:
             # no fitted corner: the most frequent height of the roof points near the outline (the eave rim is
             # level; wall points under it spread over the wall's height, gable ends over the gable's)
-            band = max(1.5, 2.0 * o["spacing_m"])
+            band = max(1.5, 2.0 * spacing_o)
             near = idx[shapely.distance(poly.boundary, shapely.points(bxy[idx])) < band]
             zb = bz[near if len(near) >= 3 else idx]
             bins = np.floor((zb - zb.min()) / EAVE_BIN_M).astype(np.int64)
@@ -358,7 +388,7 @@ def building_outlines(pts: dict, spacing_m: float | None = None) -> tuple[list, 
                 if len(gi):
                     ground = float(np.median(gz[gi]))
         polys.append(poly)
-        rows.append(dict(building_id=int(o["building_id"]), roof=o["roof"], eave_z=eave, ridge_z=ridge,
+        rows.append(dict(building_id=building_id, roof=roof, eave_z=eave, ridge_z=ridge,
                          ground_z=ground, height_m=ridge - ground, area_m2=float(poly.area),
                          n_points=int(len(idx))))
     return polys, rows, res["stats"]

@@ -1,0 +1,190 @@
+"""Buildings of lidarctl classify on the AHN3 Delft crop against the BGT footprints, per area and per
+object, per quarter of the crop; and the ``lidarctl vectors`` building layer against the footprints.
+
+The BGT (an independent survey of the building walls) is the target reference (issue 44); AHN3's own
+class 6 is scored per point elsewhere (bench/eval_ahn3_holdout.py).
+
+Per area: our building class rasterised at 0.5 m (a cell takes the class of its highest non-noise
+point, as ``lidarctl evaluate --reference``; a cell without points takes the class of the nearest cell
+with points), the footprints rasterised on the same grid (cell centre inside). Cells whose centre lies
+within 0.5 m of a footprint outline are ignored (the tolerance band: wall line vs eave, one cell of
+rasterisation). Scored inside the convex hulls of the BGT blocks (footprints less than 1 m apart; the
+BGT maps every building there), split into the quarters of bench/eval_ahn3_holdout.py (median x / y
+of the points). Completeness = building cells found / footprint cells; correctness = building cells
+on footprints / building cells.
+Per object: a footprint is found when at least half of its cells are building (its quarter: the one
+holding its centroid).
+Vectors: ``lidarctl vectors`` (library ``map_vectors.extract_vectors``) of the classified crop; a
+footprint is found on the map when its centroid lies inside a polygon of the buildings layer. Counted
+over the footprints whose centroid has LiDAR points within 2 m (the crop covers them).
+
+The classification runs with the shipped defaults; with ``--params FILE`` (JSON of ClassifySettings
+overrides per quarter, e.g. the ones chosen on the other three quarters by
+bench/eval_classify_nested.py --ahn3) each quarter is scored on its own classification; ``--nested`` takes
+them from results/classify_nested.json (the nested folds' choices).
+Writes results/buildings_bgt.json. Run: nice .venv/bin/python bench/eval_buildings_bgt.py --nested
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import os
+import sqlite3
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+import shapely
+import shapely.wkb
+from scipy import ndimage
+
+from lidarctl import class_grid as cg
+from lidarctl import io, map_vectors, tiles
+from lidarctl.classify import BUILDING, ClassifySettings
+
+REPO = Path(__file__).resolve().parents[1]
+SHARED = Path(os.environ.get("AEROTRI_SHARED_DATA", REPO.parent / "shared" / "data"))
+CRS = "EPSG:28992"
+CELL_M = 0.5
+BAND_M = 0.5
+PARTS = ("south-west", "south-east", "north-west", "north-east")
+
+
+def read_bgt(sqlite_path: Path) -> list:
+    con = sqlite3.connect(f"file:{sqlite_path}?mode=ro", uri=True)
+    rows = con.execute("SELECT GEOMETRY FROM buildingpart").fetchall()
+    con.close()
+    return [shapely.wkb.loads(bytes(b)) for (b,) in rows]
+
+
+def building_raster(classified: Path, grid: cg.ClassGrid) -> tuple[np.ndarray, np.ndarray]:
+    """(building mask, has points) on ``grid``: the highest point's class per cell, empty cells filled from
+    the nearest cell with points."""
+    top = cg.cloud_classes(classified, grid)
+    empty = top == cg.IGNORE
+    idx = ndimage.distance_transform_edt(empty, return_distances=False, return_indices=True)
+    filled = top[tuple(idx)]
+    return filled == BUILDING, ~empty
+
+
+def score_area(bld: np.ndarray, ref: np.ndarray, scored: np.ndarray) -> dict:
+    tp = int(np.sum(bld & ref & scored))
+    fn = int(np.sum(~bld & ref & scored))
+    fp = int(np.sum(bld & ~ref & scored))
+    a = CELL_M * CELL_M
+    return {"completeness_pct": 100.0 * tp / max(tp + fn, 1), "correctness_pct": 100.0 * tp / max(tp + fp, 1),
+            "footprint_area_m2": (tp + fn) * a, "building_area_m2": (tp + fp) * a, "missed_m2": fn * a,
+            "false_m2": fp * a}
+
+
+def evaluate_quarters(classified_by_part: dict, polys: list, x_split: float, y_split: float) -> dict:
+    first = next(iter(classified_by_part.values()))
+    grid, _ = cg.cloud_grid(first, CELL_M, CRS)
+    ref_polys = cg.ClassPolygons(polys, np.full(len(polys), BUILDING, np.uint8), None, Path("bgt"))
+    ref, ids = cg.rasterize_polygons(ref_polys, grid)
+    ref = ref == BUILDING
+    band = cg.rasterize_mask([shapely.union_all([p.boundary for p in polys]).buffer(BAND_M)], grid)
+    hulls = cg.block_hulls(ref_polys)
+    in_blocks = cg.rasterize_mask(hulls, grid)
+    xc, yc = grid.centres()
+    part_cell = (xc[None, :] >= x_split).astype(int) + 2 * (yc[:, None] >= y_split).astype(int)
+    cent = np.array([[p.centroid.x, p.centroid.y] for p in polys])
+    part_poly = (cent[:, 0] >= x_split).astype(int) + 2 * (cent[:, 1] >= y_split).astype(int)
+    out = {}
+    rasters = {}
+    for k, name in enumerate(PARTS):
+        path = classified_by_part.get(name, first)
+        if path not in rasters:
+            rasters[path] = building_raster(path, grid)
+        bld, _ = rasters[path]
+        scored = in_blocks & ~band & (part_cell == k)
+        area = score_area(bld, ref, scored)
+        # per object: share of each footprint's cells that are building
+        n_cells = np.bincount(ids.ravel(), minlength=len(polys) + 1)[1:]
+        n_bld = np.bincount(ids.ravel(), weights=bld.ravel(), minlength=len(polys) + 1)[1:]
+        mine = (part_poly == k) & (n_cells > 0)
+        found = mine & (n_bld >= 0.5 * n_cells)
+        out[name] = {"area": area, "footprints": int(mine.sum()), "footprints_found": int(found.sum()),
+                     "footprints_found_pct": 100.0 * found.sum() / max(mine.sum(), 1),
+                     "missed_footprints_m2": sorted(float(polys[i].area) for i in np.flatnonzero(mine & ~found)),
+                     "classified_with": str(path.name)}
+    return out
+
+
+def vector_centroids(classified: Path, polys: list, out_gpkg: Path) -> dict:
+    mv = map_vectors.extract_vectors([classified], out_gpkg, crs=CRS)
+    layer = next(lay for lay in mv.layers if lay.name == "buildings")
+    union = shapely.union_all(layer.geometries) if layer.geometries else shapely.Polygon()
+    c = io.read_cloud(classified, crs=CRS)
+    from scipy.spatial import cKDTree
+
+    tree = cKDTree(np.column_stack([c.x[::4], c.y[::4]]))
+    cent = np.array([[p.centroid.x, p.centroid.y] for p in polys])
+    covered = np.array([len(h) > 0 for h in tree.query_ball_point(cent, 2.0)])
+    inside = shapely.contains_xy(union, cent[:, 0], cent[:, 1])
+    return {"footprints_covered_by_the_crop": int(covered.sum()), "centroid_in_building_layer": int((inside & covered).sum()),
+            "centroid_in_building_layer_pct": 100.0 * float((inside & covered).sum()) / max(int(covered.sum()), 1),
+            "building_polygons": len(layer.geometries),
+            "missed_footprint_areas_m2": sorted(float(polys[i].area) for i in np.flatnonzero(covered & ~inside))}
+
+
+def main(argv=None) -> int:
+    argv = sys.argv[1:] if argv is None else argv
+    laz = SHARED / "ahn3_delft" / "ahn3_cropped_1.laz"
+    polys = read_bgt(SHARED / "ahn3_delft" / "bgt_pand.sqlite")
+    c = io.read_cloud(laz, crs=CRS)
+    x_split, y_split = float(np.median(c.x)), float(np.median(c.y))
+    per_part = json.loads(Path(argv[argv.index("--params") + 1]).read_text()) if "--params" in argv else {}
+    if "--nested" in argv:   # the configurations chosen without each quarter (bench/eval_classify_nested.py --ahn3)
+        folds = json.loads((REPO / "results" / "classify_nested.json").read_text())["ahn3"]["nested"]["folds"]
+        per_part = {name: f["chosen"] for name, f in folds.items()}
+    t0 = time.perf_counter()
+    with tempfile.TemporaryDirectory(prefix="eval_buildings_bgt_") as tmp:
+        tmp = Path(tmp)
+        default = tmp / "default.laz"
+        tiles.classify_file(laz, default, crs=CRS, params=ClassifySettings())
+        classified, done = {}, {}
+        for name, overrides in per_part.items():
+            key = json.dumps(overrides, sort_keys=True)
+            if key not in done:
+                done[key] = tmp / f"{name}.laz"
+                tiles.classify_file(laz, done[key], crs=CRS,
+                                    params=dataclasses.replace(ClassifySettings(), **overrides))
+            classified[name] = done[key]
+        result = {
+            "data": "ahn3_cropped_1.laz (AHN3 Delft crop) vs the 160 BGT footprints (bgt_pand.sqlite)",
+            "cell_m": CELL_M, "tolerance_band_m": BAND_M,
+            "scored_area": "convex hulls of the BGT footprint blocks, cells within 0.5 m of an outline ignored",
+            "quarters_split_at_m": [x_split, y_split],
+            "defaults": evaluate_quarters({"default": default}, polys, x_split, y_split),
+            "vectors_defaults": vector_centroids(default, polys, tmp / "vectors.gpkg"),
+        }
+        if classified:
+            result["held_out_params"] = per_part
+            result["held_out"] = evaluate_quarters(classified, polys, x_split, y_split)
+    result["targets"] = {"completeness_pct": 95.0, "correctness_pct": 95.0, "vector_centroids_pct": 95.0}
+    key = "held_out" if "held_out" in result else "defaults"
+    q = result[key]
+    result["worst_quarter"] = {m: min(v["area"][m] for v in q.values() if v["area"]["footprint_area_m2"] > 0)
+                               for m in ("completeness_pct", "correctness_pct")}
+    result["targets_met"] = {"area": bool(min(result["worst_quarter"].values()) >= 95.0),
+                             "vectors": bool(result["vectors_defaults"]["centroid_in_building_layer_pct"] >= 95.0)}
+    result["seconds"] = time.perf_counter() - t0
+    for name, v in q.items():
+        a = v["area"]
+        print(f"{name}: completeness {a['completeness_pct']:.1f} %, correctness {a['correctness_pct']:.1f} % "
+              f"({a['footprint_area_m2']:.0f} m2 of footprint); footprints found {v['footprints_found']}/{v['footprints']}")
+    vd = result["vectors_defaults"]
+    print(f"vectors: centroid in the building layer {vd['centroid_in_building_layer']}/"
+          f"{vd['footprints_covered_by_the_crop']} ({vd['centroid_in_building_layer_pct']:.1f} %)")
+    out = REPO / "results" / "buildings_bgt.json"
+    out.write_text(json.dumps(result, indent=2))
+    print(f"wrote {out}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
