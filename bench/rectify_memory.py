@@ -48,6 +48,7 @@ def child(way: str, frame: Path, out: Path) -> None:
     from aerotri.geom.camera import FrameCamera
     from aerotri.geom.rotation import rotation_matrix_opk
     from ortho.block import rectify_frame_to_file
+    from ortho.gdal_cache import RECTIFY_CACHE_BYTES, stage_block_cache
     from ortho.grid import GridToProject, parse_crs
     from ortho.rectify import FrameFile, frame_grid
     from ortho.synthetic import smooth_dem
@@ -66,8 +67,9 @@ def child(way: str, frame: Path, out: Path) -> None:
             image = np.ascontiguousarray(np.moveaxis(ds.read(), 0, -1))
     else:
         image = FrameFile(frame)
-    valid = rectify_frame_to_file(out, image, [1, 2, 3], cam, C, R, dem, grid, "bilinear",
-                                  GridToProject(crs, crs))
+    with stage_block_cache(RECTIFY_CACHE_BYTES):  # as ``ortho rectify`` sets it for the stage
+        valid = rectify_frame_to_file(out, image, [1, 2, 3], cam, C, R, dem, grid, "bilinear",
+                                      GridToProject(crs, crs))
     import resource
 
     print(json.dumps({"wall_s": round(time.perf_counter() - t0, 2), "cpu_s": round(time.process_time() - c0, 2),

@@ -47,6 +47,7 @@ from aerotri.geom.crs import linear_unit_m, parse_heights
 from aerotri.geom.datum import load_height_model, load_transformation
 from aerotri.geom.transform import CrsTransformer, OperationSpec
 from ortho.dem import dem_height_operation, height_range, open_height_raster, read_height_window
+from ortho.gdal_cache import RECTIFY_CACHE_BYTES, stage_block_cache
 from ortho.grid import GridToProject, OrthoGrid, nice_resolution, parse_crs, resolve_output_crs
 from ortho.rectify import WINDOWED_FRAME_BYTES, FrameFile, border_pixels, frame_grid, rectify_frame
 from ortho.settings import FRAME_COMPRESSION, RectifySettings
@@ -216,8 +217,9 @@ def rectify_frame_to_file(path, image, band_order, camera, C, R, heights, grid, 
     from rasterio.windows import Window
 
     bands = 1 if image.ndim == 2 else image.shape[2]
-    # GDAL's block cache bounded: a frame read by windows (``FrameFile``) decodes its blocks into it
-    with atomic_path(path) as tmp, rasterio.Env(GDAL_TIFF_INTERNAL_MASK=True, GDAL_CACHEMAX=256):
+    # GDAL's block cache is the stage's (``rectify_block``, ``ortho.gdal_cache``): never set here, in a task
+    # that runs on a worker thread beside other frames' tasks
+    with atomic_path(path) as tmp, rasterio.Env(GDAL_TIFF_INTERNAL_MASK=True):
         with rasterio.open(tmp, "w", **frame_profile(grid, bands, image.dtype.name, compression=compression)) as dst:
             if tags:
                 dst.update_tags(**tags)
@@ -413,7 +415,8 @@ def rectify_block(root, settings: RectifySettings | Resolved | None = None, *, e
     old_index = _compatible_old_index(out_dir, res, out_crs, inputs) if frames else None
     # all frames or none: the frames are written into a temporary folder next to ortho/frames, which
     # replaces it only when every frame and the index are written (a failed run leaves the old output)
-    with atomic_dir(out_dir) as tmp_dir:
+    # GDAL's block cache bounded for the whole stage, set here before the frame tasks start on their threads
+    with atomic_dir(out_dir) as tmp_dir, stage_block_cache(RECTIFY_CACHE_BYTES):
         index = _rectify_into(tmp_dir, block, eo_idx, res, out_crs, project_crs, dem_path, zlo, zhi, interpolation,
                               true_ortho, dsm_path, compression, threads, operation, height_op, executor, inputs)
         if old_index is not None:  # re-run of a subset: the other frames of the earlier run come along

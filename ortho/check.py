@@ -9,7 +9,7 @@ Surveyed points: a CSV ``id,x,y,x_dom,y_dom`` with the surveyed coordinates and 
 the same point measured in the DOM (both in the DOM's CRS); the displacement is DOM minus survey.
 
 Streaming: the DOM is read in blocks of 2048 px (with a halo of a patch and its search range), the reference
-and the nDSM resampled onto each block, GDAL's block cache bounded (``GDAL_CACHE_MB``); only five numbers per
+and the nDSM resampled onto each block, GDAL's block cache bounded (``CHECK_CACHE_BYTES``); only five numbers per
 patch are kept. The statistics take every patch; the report lists, and its plot draws, at most
 ``MAX_LISTED`` of them, evenly spread, so that the report of a gigapixel DOM stays the size of a demo's.
 """
@@ -32,6 +32,7 @@ from aerotri.core.settings import Resolved, settings_of
 from aerotri.core.textio import read_text
 from aerotri.geom.crs import height_unit_m, parse_crs
 from aerotri.geom.inputs import check_raster_size
+from ortho.gdal_cache import CHECK_CACHE_BYTES, stage_block_cache
 from ortho.patches import MIN_PATCH_PX, PatchDisplacements, match_patches  # noqa: F401  (PatchDisplacements: the report API)
 from ortho.settings import CheckSettings
 
@@ -246,7 +247,7 @@ def check_against_reference(dom_path, reference_path, ndsm_path=None, max_ndsm_m
                             patch_px: int = 48, step_px: int = 48, search_px: int = 6, min_ncc: float = 0.7,
                             reference_operation=None, ndsm_operation=None):
     """Patch displacements of a DOM against a reference orthophoto, block by block (bounded memory: a block
-    of the DOM, the reference and nDSM resampled onto it, GDAL's cache at ``GDAL_CACHE_MB``; only the
+    of the DOM, the reference and nDSM resampled onto it, GDAL's cache at ``CHECK_CACHE_BYTES``; only the
     patches' numbers are kept, five per patch).
 
     The reference (and the nDSM used to keep only ground patches, height above ground <= max_ndsm_m)
@@ -260,7 +261,7 @@ def check_against_reference(dom_path, reference_path, ndsm_path=None, max_ndsm_m
     from rasterio.windows import Window
     from rasterio.windows import transform as wtransform
 
-    with rasterio.Env(GDAL_CACHEMAX=GDAL_CACHE_MB), _open(dom_path, "DOM") as dom, \
+    with stage_block_cache(CHECK_CACHE_BYTES), _open(dom_path, "DOM") as dom, \
             _open(reference_path, "reference orthophoto") as ref:
         if dom.crs is None or ref.crs is None:
             raise InputError(f"{dom_path if dom.crs is None else reference_path}: no CRS")
@@ -343,7 +344,6 @@ def _check_over_dom(reference_path, ndsm_path, dom_bounds, dom_crs) -> None:
 
 
 MAX_LISTED = 20000  # patches listed in the report and drawn in its plot
-GDAL_CACHE_MB = 256  # GDAL's block cache while the check reads (its default, 5 % of the RAM, grows with the DOM)
 
 
 def _spread(n: int, at_most: int) -> np.ndarray:
@@ -434,9 +434,7 @@ def run_check(project_root, settings: CheckSettings | Resolved | None = None, *,
     if seams:
         from ortho.mosaic import seam_misalignment
 
-        import rasterio
-
-        with rasterio.Env(GDAL_CACHEMAX=GDAL_CACHE_MB):
+        with stage_block_cache(CHECK_CACHE_BYTES):
             report["seams"] = seam_misalignment(root, ndsm_path=ndsm_path, max_ndsm_m=max_ndsm_m)
     plot()  # the outputs only after every measurement succeeded
     report["json"] = str(out_stem.with_suffix(".json"))

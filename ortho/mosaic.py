@@ -69,6 +69,7 @@ from aerotri.core.settings import Resolved, settings_of
 from aerotri.core.textio import read_json
 from ortho.block import (index_grids, index_operation, operation_tags, read_index, require_current_frames,
                          verify_index)
+from ortho.gdal_cache import MOSAIC_CACHE_BYTES, stage_block_cache
 from ortho.grid import OrthoGrid
 from ortho.settings import MosaicSettings
 from ortho.seamlines import (keep_objects_whole, label_polygons, least_cost_seams, neighbour_pairs, seam_lines,
@@ -76,10 +77,6 @@ from ortho.seamlines import (keep_objects_whole, label_polygons, least_cost_seam
 
 logger = logging.getLogger(__name__)
 
-# GDAL's block cache while the mosaic is made: the frame blocks a row of tiles reads (frame blocks are not
-# aligned with the mosaic tiles, so the next row of tiles reads some again) and the stage blocks being
-# filled; bounded so that the peak memory does not grow with the mosaic (GDAL's default is 5 % of the RAM)
-GDAL_CACHE_MB = 512
 STAGE_PROFILE = dict(driver="GTiff", tiled=True, blockxsize=512, blockysize=512, compress="zstd", zstd_level=1,
                      predictor=2, interleave="pixel", BIGTIFF="IF_SAFER", num_threads="ALL_CPUS")
 # the COG: ZSTD level 1 with the horizontal predictor was the fastest and the smallest of ZSTD 1/3/6/9 (with
@@ -185,12 +182,13 @@ def reduce_frames(frames_dir: Path, index: dict, mosaic: OrthoGrid, factor: int,
 
     names, rgbs, valids, offsets = [], [], [], []
     with progress(len(entries), "seam grid", "frames") as bar:
-        for e, (rgb, valid, off) in zip(entries, ordered_thread_map(one, entries, threads or os.cpu_count() or 1)):
-            names.append(e["image_id"])
-            rgbs.append(rgb)
-            valids.append(valid)
-            offsets.append(off)
-            bar.update(1)
+        with contextlib.closing(ordered_thread_map(one, entries, threads or os.cpu_count() or 1)) as made:
+            for e, (rgb, valid, off) in zip(entries, made):
+                names.append(e["image_id"])
+                rgbs.append(rgb)
+                valids.append(valid)
+                offsets.append(off)
+                bar.update(1)
     shape = (-(-mosaic.height // factor), -(-mosaic.width // factor))
     t = Affine(mosaic.res_m * factor, 0, mosaic.x_left_m, 0, -mosaic.res_m * factor, mosaic.y_top_m)
     return ReducedFrames(names, rgbs, valids, offsets, factor, t, shape)
@@ -304,7 +302,14 @@ def mosaic_block(root, settings: MosaicSettings | Resolved | None = None, *, obj
     ``settings``: None reads [mosaic] of project.toml; a ``Resolved`` (``ortho mosaic``, the chain) carries the
     source of every setting into mosaic.json (``settings``). The output tiles are blended as tasks on
     ``executor`` (``aerotri.core.executor.Executor``, default: local threads); the COG does not depend on the
-    scheduler."""
+    scheduler. GDAL's block cache is ``MOSAIC_CACHE_BYTES`` for the whole stage (set here, before any thread
+    of the stage starts: ``ortho.gdal_cache``)."""
+    with stage_block_cache(MOSAIC_CACHE_BYTES):
+        return _mosaic_block(root, settings, object_height_m=object_height_m, max_seam_cells=max_seam_cells,
+                             end_reach_m=end_reach_m, seam_cell_m=seam_cell_m, executor=executor)
+
+
+def _mosaic_block(root, settings, *, object_height_m, max_seam_cells, end_reach_m, seam_cell_m, executor) -> dict:
     root = Path(root)
     timer = _PhaseTimer()
     resolved = settings_of(settings, MosaicSettings, Project.open(root) if settings is None else None)
@@ -755,7 +760,7 @@ def _write_mosaic(path, frames_dir, index, mosaic: OrthoGrid, seams_path, factor
     levels = overview_factors(mosaic.width, mosaic.height)
     timer = _PhaseTimer()
     with scratch_dir(path.parent, "mosaic") as tmp_dir, \
-            rasterio.Env(GDAL_TIFF_INTERNAL_MASK=True, GDAL_CACHEMAX=GDAL_CACHE_MB):
+            rasterio.Env(GDAL_TIFF_INTERNAL_MASK=True):  # the block cache is the stage's (mosaic_block)
         tmp_dir = Path(tmp_dir)
         if executor.distributed:
             context = {"index": index, "frames_dir": str(Path(frames_dir).resolve()),
@@ -782,6 +787,7 @@ def _write_mosaic(path, frames_dir, index, mosaic: OrthoGrid, seams_path, factor
         stage = tmp_dir / "stage.tif"
         pyramid = _Pyramid(tmp_dir, mosaic, bands, dtype, levels, per_tile=tile_px % 2 == 0)
         readers = _FrameReaders()
+        made = None
         profile = dict(_stage_profile(mosaic, bands, dtype), width=mosaic.width, height=mosaic.height, count=bands,
                        dtype=dtype, crs=mosaic.crs, transform=mosaic.transform)
         try:
@@ -806,6 +812,8 @@ def _write_mosaic(path, frames_dir, index, mosaic: OrthoGrid, seams_path, factor
                     pyramid.add_tile(r0, c0, out, valid)
                     bar.update(1)
         finally:
+            if made is not None:  # the tile threads end before their frame datasets are closed
+                made.close()
             readers.close()
         timer.done("tiles")
         pyramid.finish(stage)

@@ -28,6 +28,7 @@ fills them from other frames.
 from __future__ import annotations
 
 import collections
+import contextlib
 import dataclasses
 import os
 import queue
@@ -230,7 +231,11 @@ def default_threads() -> int:
 
 def ordered_thread_map(fn, items, threads: int, ahead: int | None = None):
     """Yield ``fn(item)`` in the order of ``items``, computed by ``threads`` threads at most ``ahead`` items
-    in advance (bounded memory: results wait for the consumer, e.g. a GeoTIFF writer)."""
+    in advance (bounded memory: results wait for the consumer, e.g. a GeoTIFF writer).
+
+    A consumer that may stop early (an error while it writes) closes the generator (``contextlib.closing``)
+    so that the threads end there, in its thread, before what they use is closed; left to the garbage
+    collector the generator would end them at an arbitrary point of any thread."""
     items = list(items)
     if threads <= 1 or len(items) <= 1:
         yield from map(fn, items)
@@ -346,6 +351,9 @@ def rectify_frame(image: np.ndarray, camera: Camera, centre_m, R, dem_dataset: H
     # only where cv2.remap has a vectorised path that such rows miss (the others gain nothing from a copy)
     compact_source = (not windowed and flag == cv2.INTER_LINEAR and image.dtype == np.uint8 and nb <= 4
                       and image.strides[0] >= _REMAP_VECTOR_MAX_STEP)
+    # the compiled kernels loaded here, in the calling thread, before the tile threads call them
+    from ortho import rectify_kernels  # noqa: F401  (``import ortho.…`` would rebind the local name ortho)
+
     local = threading.local()
     # tile outputs handed to the consumer come from a pool and go back to it once consumed: fresh
     # arrays for every tile cost a page fault per 4 KiB (as much CPU as the GeoTIFF compression)
@@ -405,13 +413,14 @@ def rectify_frame(image: np.ndarray, camera: Camera, centre_m, R, dem_dataset: H
         return r0, c0, handle, o, m
 
     tiles = [(r0, c0) for r0 in range(0, grid.height, tile_px) for c0 in range(0, grid.width, tile_px)]
-    for r0, c0, handle, o, m in ordered_thread_map(tile_task, tiles, threads or default_threads()):
-        if sink is not None:
-            sink(r0, c0, o, m)
-        else:
-            ortho[r0:r0 + m.shape[0], c0:c0 + m.shape[1]] = o
-            mask[r0:r0 + m.shape[0], c0:c0 + m.shape[1]] = m
-        free.put(handle)
+    with contextlib.closing(ordered_thread_map(tile_task, tiles, threads or default_threads())) as made:
+        for r0, c0, handle, o, m in made:
+            if sink is not None:
+                sink(r0, c0, o, m)
+            else:
+                ortho[r0:r0 + m.shape[0], c0:c0 + m.shape[1]] = o
+                mask[r0:r0 + m.shape[0], c0:c0 + m.shape[1]] = m
+            free.put(handle)
     return ortho, mask
 
 
