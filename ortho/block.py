@@ -49,7 +49,7 @@ from aerotri.geom.transform import CrsTransformer, OperationSpec
 from ortho.dem import dem_height_operation, height_range, open_height_raster, read_height_window
 from ortho.gdal_cache import RECTIFY_CACHE_BYTES, stage_block_cache
 from ortho.grid import GridToProject, OrthoGrid, nice_resolution, parse_crs, resolve_output_crs
-from ortho.rectify import WINDOWED_FRAME_BYTES, FrameFile, border_pixels, frame_grid, rectify_frame
+from ortho.rectify import WINDOWED_FRAME_BYTES, FrameFile, border_pixels, covered_share, frame_grid, rectify_frame
 from ortho.settings import FRAME_COMPRESSION, RectifySettings
 
 # the camera and image readers (aerotri.geom.camera compiles its lens model with numba: 0.3 CPU-s to import)
@@ -276,6 +276,21 @@ def _frame_image(path, expect_size):
     return read_native(path, expect_size)
 
 
+def _require_coverage(task: FrameTask, C, R, heights, what: str, path, extent) -> float:
+    """Share of the frame whose ground the height raster covers (``covered_share``): a warning naming the frame
+    and the share left as nodata when it is partial, an InputError naming the raster's extent when it is none."""
+    share = covered_share(task.camera, C, R, heights)
+    b = extent
+    where = f"its extent: X {b[0]:.1f} .. {b[2]:.1f}, Y {b[1]:.1f} .. {b[3]:.1f} in the project CRS"
+    if share == 0.0:
+        raise InputError(f"{path}: the {what} covers none of frame {task.image_id} ({where}); give a {what} that "
+                         f"covers the frame, or leave it out with --frames")
+    if share < 1.0:
+        _log.warning(f"frame {task.image_id}: the {what} {path} covers {100 * share:.1f} % of it ({where}); "
+                     f"the other {100 * (1 - share):.1f} % is nodata in its ortho")
+    return share
+
+
 def rectify_frame_task(task: FrameTask) -> dict:
     """Rectify one frame into ``task.out_path`` (atomic); returns its index.json entry."""
     project_crs = CRS.from_wkt(task.project_crs_wkt)
@@ -290,12 +305,15 @@ def rectify_frame_task(task: FrameTask) -> dict:
     with open_height_raster(task.dem_path, project_crs, "DEM") as dem_ds, _raster_read(task.dem_path, "DEM"):
         dem = read_height_window(dem_ds, ground_bounds, margin_m=4 * dem_ds.transform.a, what="DEM", frame=task.image_id,
                                  height_operation=height_op)
-    grid = frame_grid(task.camera, C, R, dem, task.res_m, out_crs, to_project, image_id=task.image_id)
-    heights = dem
+        extent = tuple(dem_ds.bounds)
+    heights, what, path = dem, "DEM", task.dem_path
     if task.dsm_path:
         with open_height_raster(task.dsm_path, project_crs, "DSM") as dsm_ds, _raster_read(task.dsm_path, "DSM"):
             heights = read_height_window(dsm_ds, ground_bounds, margin_m=4 * dsm_ds.transform.a, what="DSM",
                                          frame=task.image_id, height_operation=height_op)
+            extent, what, path = tuple(dsm_ds.bounds), "DSM", task.dsm_path
+    covered = _require_coverage(task, C, R, heights, what, path, extent)
+    grid = frame_grid(task.camera, C, R, dem, task.res_m, out_crs, to_project, image_id=task.image_id, partial=True)
     image, band_order = _frame_image(task.image_path, (task.camera.width, task.camera.height))
     valid_fraction = rectify_frame_to_file(task.out_path, image, band_order, task.camera, C, R, heights, grid,
                                            task.interpolation, to_project,
@@ -311,6 +329,7 @@ def rectify_frame_task(task: FrameTask) -> dict:
         "image_id": task.image_id, "file": Path(task.out_path).name, "x_left_m": grid.x_left_m, "y_top_m": grid.y_top_m,
         "width": grid.width, "height": grid.height, "centre_m": [float(v) for v in C],
         "nadir_xy_m": [float(nadir_x[0]), float(nadir_y[0])], "valid_fraction": valid_fraction,
+        "height_covered_share": round(covered, 4),
         **file_fingerprint(task.out_path),
     }
 

@@ -435,45 +435,80 @@ def border_pixels(camera: Camera, per_side: int = 64) -> tuple[np.ndarray, np.nd
     return x, y
 
 
+def _extent_text(heights: HeightRaster, extent_m) -> str:
+    """The raster's extent for an error: the whole file's (``extent_m``, xmin, ymin, xmax, ymax) when known,
+    not the window read of it."""
+    b = extent_m if extent_m is not None else heights.bounds
+    return f"(its extent: X {b[0]:.1f} .. {b[2]:.1f}, Y {b[1]:.1f} .. {b[3]:.1f})"
+
+
 def intersect_rays_with_heights(camera: Camera, centre_m, R, x_px, y_px, heights: HeightRaster, z_start_m: float,
-                                iterations: int = 30, image_id: str = "frame"):
+                                iterations: int = 30, image_id: str = "frame", uncovered: str = "raise",
+                                extent_m=None):
     """Ground points (N, 3) where the rays of pixels meet the height raster (fixed-point iteration on Z).
 
-    Raises InputError naming the frame when a ray leaves the raster or meets nodata (the DEM does not
-    cover the frame) or does not point downwards.
+    A ray that leaves the raster or meets nodata: ``uncovered="raise"`` raises InputError naming the frame
+    and the raster's extent (``extent_m``: the whole file's, xmin, ymin, xmax, ymax; default the window in
+    ``heights``); ``uncovered="plane"`` returns it on the plane Z = ``z_start_m`` and, as a second result,
+    which rays met the raster (bool (N,)). Rays that do not point downwards always raise.
     """
     C = np.asarray(centre_m, float)
     d = camera.rays(x_px, y_px, R)
     if np.any(d[:, 2] >= -1e-6):
         raise InputError(f"{image_id}: some rays of the frame do not point downwards (check omega/phi/kappa)")
     Z = np.full(len(d), float(z_start_m))
+    covered = np.ones(len(d), bool)
     for _ in range(iterations):
         t = (Z - C[2]) / d[:, 2]
         X = C[0] + t * d[:, 0]
         Y = C[1] + t * d[:, 1]
         Zn = heights.sample(X, Y)
-        if np.any(~np.isfinite(Zn)):
-            bad = int(np.argmax(~np.isfinite(Zn)))
-            raise InputError(
-                f"{heights.source}: the DEM does not cover frame {image_id}: its ray through pixel "
-                f"({x_px[bad]:.0f}, {y_px[bad]:.0f}) meets the ground near X={X[bad]:.1f} Y={Y[bad]:.1f}, outside the "
-                f"DEM or on nodata (DEM bounds {tuple(round(b, 1) for b in heights.bounds)})"
-            )
+        lost = ~np.isfinite(Zn)
+        if np.any(lost & covered):
+            if uncovered == "raise":
+                bad = int(np.argmax(lost))
+                raise InputError(
+                    f"{heights.source}: the DEM does not cover frame {image_id}: its ray through pixel "
+                    f"({x_px[bad]:.0f}, {y_px[bad]:.0f}) meets the ground near X={X[bad]:.1f} Y={Y[bad]:.1f}, outside the "
+                    f"DEM or on nodata {_extent_text(heights, extent_m)}")
+            covered &= ~lost  # from here on on the plane: a ray that left the raster is not brought back
+        Zn = np.where(covered, Zn, float(z_start_m))
         # damped update: converges also where the terrain slope approaches the ray slope
         if np.max(np.abs(Zn - Z)) < 1e-3:
             Z = Zn
             break
-        Z = 0.5 * (Z + Zn)
+        Z = np.where(covered, 0.5 * (Z + Zn), float(z_start_m))
     t = (Z - C[2]) / d[:, 2]
-    return np.stack([C[0] + t * d[:, 0], C[1] + t * d[:, 1], Z], axis=-1)
+    ground = np.stack([C[0] + t * d[:, 0], C[1] + t * d[:, 1], Z], axis=-1)
+    return (ground, covered) if uncovered == "plane" else ground
+
+
+def covered_share(camera: Camera, centre_m, R, heights: HeightRaster, per_side: int = 33) -> float:
+    """Share of the frame (a ``per_side`` x ``per_side`` lattice of its pixels) whose rays meet the height
+    raster on valid heights (1.0: all of it; 0.0: none)."""
+    if not np.isfinite(heights.heights_m).any():
+        return 0.0
+    zlo, zhi = heights.finite_range()
+    u = np.linspace(0.0, camera.width - 1.0, per_side)
+    v = np.linspace(0.0, camera.height - 1.0, per_side)
+    x, y = (a.ravel() for a in np.meshgrid(u, v))
+    _, covered = intersect_rays_with_heights(camera, centre_m, R, x, y, heights, 0.5 * (zlo + zhi), uncovered="plane")
+    return float(np.mean(covered))
 
 
 def frame_grid(camera: Camera, centre_m, R, heights: HeightRaster, res_m: float, output_crs, to_project: GridToProject,
-               image_id: str = "frame") -> OrthoGrid:
-    """The snapped output grid covering the ground footprint of a frame on the height raster."""
+               image_id: str = "frame", partial: bool = False) -> OrthoGrid:
+    """The snapped output grid covering the ground footprint of a frame on the height raster.
+
+    ``partial``: border rays that miss the raster (a DEM covering part of the frame) count with their
+    point on the plane of the raster's mid height, so the grid holds the whole frame and the uncovered
+    part becomes nodata in the ortho; otherwise such a ray is an InputError."""
     x, y = border_pixels(camera)
     zlo, zhi = heights.finite_range()
-    ground = intersect_rays_with_heights(camera, centre_m, R, x, y, heights, 0.5 * (zlo + zhi), image_id=image_id)
+    ground = intersect_rays_with_heights(camera, centre_m, R, x, y, heights, 0.5 * (zlo + zhi), image_id=image_id,
+                                         uncovered="plane" if partial else "raise")
+    if partial:
+        ground = ground[0]
     ox, oy = to_project.to_output(ground[:, 0], ground[:, 1])
     pad = 2 * res_m
     return OrthoGrid.snapped(output_crs, (np.min(ox) - pad, np.min(oy) - pad, np.max(ox) + pad, np.max(oy) + pad), res_m)
