@@ -470,9 +470,31 @@ def _mosaic_outputs(work: Path, root: Path, index, frames_dir, red, labels, gain
                "index_sha1": index_sha1(root),
                "gains": {n: [float(v) for v in g] for n, g in zip(red.names, gains)},
                "pairs": [[red.names[i], red.names[j]] for i, j in neighbour_pairs(labels)],
+               **_interior_nodata(work / "mosaic.tif", res),
                "settings": settings_record}
+    if summary["cells_seen_by_no_frame"]:
+        logger.warning("%d cells (%.2f %% of the block) are seen by no frame (occluded in every frame of a true ortho, "
+                       "or over DEM nodata): nodata in the mosaic", summary["cells_seen_by_no_frame"],
+                       100 * summary["share_seen_by_no_frame"])
     write_text_atomic(work / "mosaic.json", json.dumps(summary, indent=1) + "\n")
     return summary
+
+
+def _interior_nodata(path: Path, res_m: float, max_cells: float = 4e6) -> dict:
+    """Cells of the mosaic without a value that lie inside the block (not connected to its outer edge): no
+    frame sees them. Counted on the mask read at most ``max_cells`` large (an overview of a large mosaic),
+    scaled to mosaic cells."""
+    with rasterio.open(path) as ds:
+        step = max(1, int(math.ceil(math.sqrt(ds.width * ds.height / max_cells))))
+        shape = (max(1, ds.height // step), max(1, ds.width // step))
+        ok = ds.read_masks(1, out_shape=shape, resampling=Resampling.nearest) > 0
+        sy, sx = ds.height / shape[0], ds.width / shape[1]
+    empty = np.pad(~ok, 1, constant_values=True).view(np.uint8).copy()
+    cv2.floodFill(empty, None, (0, 0), 2)  # the outside: every empty cell reached from the edge
+    holes = int(np.count_nonzero(empty[1:-1, 1:-1] == 1))
+    block = holes + int(np.count_nonzero(ok))
+    return {"cells_seen_by_no_frame": int(round(holes * sx * sy)), "share_seen_by_no_frame": holes / max(1, block),
+            "area_seen_by_no_frame_m2": round(holes * sx * sy * res_m * res_m, 1)}
 
 
 def _write_seamlines(path: Path, labels, transform, names, crs) -> None:

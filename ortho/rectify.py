@@ -30,6 +30,7 @@ from __future__ import annotations
 import collections
 import contextlib
 import dataclasses
+import math
 import os
 import queue
 import threading
@@ -162,8 +163,9 @@ def fixed_point_maps(geometry: FrameGeometry, dem: HeightRaster, grid: OrthoGrid
 
 
 def occlusion_mask(geometry: FrameGeometry, dsm: HeightRaster, grid: OrthoGrid, heights_m: np.ndarray, anchors,
-                   tolerance_m: float = 0.3) -> np.ndarray:
-    """True where the ground point (grid pixel at ``heights_m``) is hidden from the camera by the DSM."""
+                   tolerance_m: float = 0.3, candidates: np.ndarray | None = None) -> np.ndarray:
+    """True where the ground point (grid pixel at ``heights_m``) is hidden from the camera by the DSM (a march
+    along its ray; only where ``candidates``, e.g. the points the z-buffer puts behind a nearer surface)."""
     AX, AY, s = anchors
     occ = np.zeros((grid.height, grid.width), dtype=np.bool_)
     zmax = float(np.nanmax(dsm.heights_m))
@@ -171,7 +173,68 @@ def occlusion_mask(geometry: FrameGeometry, dsm: HeightRaster, grid: OrthoGrid, 
 
     _occlusion_kernel(AX, AY, float(s), grid.height, grid.width, heights_m.astype(np.float32), dsm.heights_m,
                       dsm.x_left_m, dsm.y_top_m, dsm.res_m, zmax, np.asarray(geometry.centre_m, np.float64),
-                      float(tolerance_m), occ)
+                      float(tolerance_m), occ, np.ones(occ.shape, np.bool_) if candidates is None else candidates)
+    return occ
+
+
+@dataclasses.dataclass(frozen=True)
+class ZBuffer:
+    """The nearest surface of a frame by cells of ``cell_px`` image pixels: depth along the optical axis (m,
+    float32 (rows, cols), +inf where nothing was seen), and the depth by which a point must lie behind it
+    to be occluded (``tolerance_m``: the depth a visible surface spans within one cell, and a margin)."""
+
+    depth_m: np.ndarray
+    cell_px: int
+    tolerance_m: float
+
+
+def frame_zbuffer(geometry: FrameGeometry, dsm: HeightRaster, grid: OrthoGrid, to_project: GridToProject | None = None,
+                  tile_px: int = 1024, margin_m: float = 0.5) -> ZBuffer:
+    """Z-buffer of the surface ``dsm`` over ``grid`` seen from the frame (every grid pixel at its DSM height
+    projected into the image; tile by tile, memory set by the tiles and the buffer).
+
+    Cells: the image pixels an output pixel spans at the frame's mean distance, times 1.5, rounded up (so
+    that every cell holds a surface sample where the surface is seen); tolerance: ``margin_m`` plus the
+    ground size of a cell (a roof of 45 degrees spans that much depth within a cell)."""
+    from ortho.rectify_kernels import _zbuffer_kernel
+
+    to_project = to_project or GridToProject(grid.crs, grid.crs)
+    centre, M, params = geometry.kernel_args()
+    cam = geometry.camera
+    finite = dsm.heights_m[np.isfinite(dsm.heights_m)]
+    distance_m = max(1.0, float(centre[2]) - (float(np.median(finite)) if finite.size else 0.0))
+    gsd_m = distance_m / float(params[0])  # ground size of an image pixel at that distance (f in pixels)
+    cell_px = max(1, int(math.ceil(1.5 * grid.res_m / gsd_m)))
+    depth = np.full((-(-cam.height // cell_px), -(-cam.width // cell_px)), np.inf, np.float32)
+    buffers = MapBuffers(tile_px)
+    mask = np.empty(tile_px * tile_px, np.uint8)
+    none = np.zeros((1, 1), np.bool_)
+    for r0 in range(0, grid.height, tile_px):
+        for c0 in range(0, grid.width, tile_px):
+            tile = grid.window(c0, r0, min(tile_px, grid.width - c0), min(tile_px, grid.height - r0))
+            if to_project.identity:  # the heights alone (no maps needed here)
+                z = heights_on_grid(dsm, tile, out=buffers.views(tile.height, tile.width)[2])
+                AX, AY, s = to_project.anchors(tile)
+            else:
+                m = mask[:tile.height * tile.width].reshape(tile.height, tile.width)
+                _, _, _, z, (AX, AY, s) = fixed_point_maps(geometry, dsm, tile, to_project, buffers=buffers, mask_out=m)
+            _zbuffer_kernel(AX, AY, float(s), z, centre, M, params, cam.width, cam.height, float(cell_px), depth, 0.0,
+                            none, True)
+    return ZBuffer(depth, cell_px, margin_m + cell_px * gsd_m)
+
+
+def zbuffer_occlusion(geometry: FrameGeometry, zbuffer: ZBuffer, heights_m: np.ndarray, anchors,
+                      out: np.ndarray | None = None) -> np.ndarray:
+    """True where the point of a tile pixel (at ``heights_m``) lies behind the frame's nearest surface."""
+    from ortho.rectify_kernels import _zbuffer_kernel
+
+    AX, AY, s = anchors
+    centre, M, params = geometry.kernel_args()
+    occ = np.zeros(heights_m.shape, np.bool_) if out is None else out
+    if out is not None:
+        occ[...] = False
+    _zbuffer_kernel(AX, AY, float(s), heights_m, centre, M, params, geometry.camera.width, geometry.camera.height,
+                    float(zbuffer.cell_px), zbuffer.depth_m, float(zbuffer.tolerance_m), occ, False)
     return occ
 
 
@@ -354,6 +417,9 @@ def rectify_frame(image: np.ndarray, camera: Camera, centre_m, R, dem_dataset: H
     # the compiled kernels loaded here, in the calling thread, before the tile threads call them
     from ortho import rectify_kernels  # noqa: F401  (``import ortho.…`` would rebind the local name ortho)
 
+    # true ortho: the frame's z-buffer of the DSM first (the occluders of a tile can lie in any other tile)
+    zbuffer = frame_zbuffer(geometry, occlusion_dsm, grid, to_project, tile_px) if occlusion_dsm is not None else None
+
     local = threading.local()
     # tile outputs handed to the consumer come from a pool and go back to it once consumed: fresh
     # arrays for every tile cost a page fault per 4 KiB (as much CPU as the GeoTIFF compression)
@@ -376,13 +442,19 @@ def rectify_frame(image: np.ndarray, camera: Camera, centre_m, R, dem_dataset: H
             local.interleaved = np.empty(nb * tile_px * tile_px, image.dtype)
             local.bounds = np.empty(4, np.int32)
             local.window = SourceWindow()
+            local.occluded = np.empty(tile_px * tile_px, np.bool_)
         handle, o, m = take_out_buffers(tile.height, tile.width)
         map_int, map_frac, _, z, anchors = fixed_point_maps(geometry, dem_dataset, tile, to_project,
                                                             buffers=local.buffers, mask_out=m, bounds_out=local.bounds)
-        if occlusion_dsm is not None:
-            occluded = occlusion_mask(geometry, occlusion_dsm, tile, z, anchors)
-            m[occluded] = 0
-            map_int[occluded] = -32768
+        if zbuffer is not None:
+            # the z-buffer is fast but coarse (where a wall spans few DSM cells it puts visible points behind the
+            # roof edge above them): the points it puts behind a nearer surface are decided by the march
+            behind = zbuffer_occlusion(geometry, zbuffer, z, anchors,
+                                       out=local.occluded[:tile.height * tile.width].reshape(tile.height, tile.width))
+            if behind.any():
+                occluded = occlusion_mask(geometry, occlusion_dsm, tile, z, anchors, candidates=behind)
+                m[occluded] = 0
+                map_int[occluded] = -32768
         if not m.any():
             o[...] = 0
             return r0, c0, handle, o, m

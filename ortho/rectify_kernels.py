@@ -169,11 +169,12 @@ def _fixed_point_kernel(anchor_x, anchor_y, spacing, rows, cols, dem, dem_x0, de
 
 @numba.njit(cache=True, nogil=True)
 def _occlusion_kernel(anchor_x, anchor_y, spacing, rows, cols, height_tile, dsm, dsm_x0, dsm_y0, dsm_res,
-                      dsm_max, centre, tolerance_m, occluded):
+                      dsm_max, centre, tolerance_m, occluded, candidates):
     """Mark ground points whose ray to the projection centre passes below the DSM surface.
 
     March from the ground point towards the centre in steps of one DSM cell (horizontally), stop when
     the ray is above the highest DSM value; occluded if the DSM exceeds the ray by ``tolerance_m``.
+    Only the points where ``candidates`` is True are marched (the others are left as they are).
     """
     dh, dw = dsm.shape
     inv_s = 1.0 / spacing
@@ -183,7 +184,7 @@ def _occlusion_kernel(anchor_x, anchor_y, spacing, rows, cols, height_tile, dsm,
         fr = ar - i0
         for c in range(cols):
             Z = height_tile[r, c]
-            if Z != Z:
+            if Z != Z or not candidates[r, c]:
                 continue
             ac = c * inv_s
             j0 = min(int(ac), anchor_x.shape[1] - 2)
@@ -259,3 +260,50 @@ def _fixed_point_kernel_affine(heights, x0, y0, res, centre, M, cam, width, heig
             x, y = to_pixel(cam, xn, yn)
             ix_row[c], iy_row[c], mask_row[c] = _fixed_point_entry(x, y, zc > 0.0, x_lo, x_hi, y_lo, y_hi, far)
         _pack_fixed_point(ix_row, iy_row, map_int[r], map_frac[r], bounds)
+
+
+@numba.njit(cache=True, nogil=True, fastmath=_FASTMATH, error_model="numpy")
+def _zbuffer_kernel(anchor_x, anchor_y, spacing, heights, centre, M, cam, width, height, cell_px, zbuf, tolerance_m,
+                    occluded, scatter):
+    """Z-buffer occlusion of a true ortho: the surface points of a tile (its pixels at their DSM ``heights``)
+    projected into the frame, their depth along the optical axis (zc, m) compared by cells of ``cell_px``
+    image pixels. ``scatter``: keep the nearest depth per cell in ``zbuf`` (first pass, over every tile of
+    the frame); else mark ``occluded`` the points more than ``tolerance_m`` behind the nearest surface of
+    their cell (points outside the frame or on nodata are left as they are)."""
+    inv_s = 1.0 / spacing
+    rows, cols = heights.shape
+    zh, zw = zbuf.shape
+    inv_cell = 1.0 / cell_px
+    na = anchor_x.shape[1]
+    for r in range(rows):
+        ar = r * inv_s
+        i0 = min(int(ar), anchor_x.shape[0] - 2)
+        fr = ar - i0
+        ax0, ax1, ay0, ay1 = anchor_x[i0], anchor_x[i0 + 1], anchor_y[i0], anchor_y[i0 + 1]
+        for c in range(cols):
+            Z = np.float64(heights[r, c])
+            if Z != Z:
+                continue
+            ac = c * inv_s
+            j0 = min(int(ac), na - 2)
+            fc = ac - j0
+            X = (1.0 - fr) * ((1.0 - fc) * ax0[j0] + fc * ax0[j0 + 1]) + fr * ((1.0 - fc) * ax1[j0] + fc * ax1[j0 + 1])
+            Y = (1.0 - fr) * ((1.0 - fc) * ay0[j0] + fc * ay0[j0 + 1]) + fr * ((1.0 - fc) * ay1[j0] + fc * ay1[j0 + 1])
+            dx = X - centre[0]
+            dy = Y - centre[1]
+            dz = Z - centre[2]
+            zc = M[2, 0] * dx + M[2, 1] * dy + M[2, 2] * dz
+            if zc <= 0.0:
+                continue
+            xn = (M[0, 0] * dx + M[0, 1] * dy + M[0, 2] * dz) / zc
+            yn = (M[1, 0] * dx + M[1, 1] * dy + M[1, 2] * dz) / zc
+            x, y = to_pixel(cam, xn, yn)
+            if not (x >= 0.0 and y >= 0.0 and x < width and y < height):
+                continue
+            i = min(int(y * inv_cell), zh - 1)
+            j = min(int(x * inv_cell), zw - 1)
+            if scatter:
+                if zc < zbuf[i, j]:
+                    zbuf[i, j] = zc
+            elif zc > zbuf[i, j] + tolerance_m:
+                occluded[r, c] = True
