@@ -138,6 +138,9 @@ class ReducedFrames:
 
 
 _RESIZABLE = (np.uint8, np.uint16, np.int16, np.float32, np.float64)
+_HISTOGRAM_TYPES = (np.dtype(np.uint8), np.dtype(np.uint16))
+# the share of a frame's samples a gain may newly saturate (on top of those saturated in the frame itself)
+SATURATION_ALLOWANCE = 0.001
 
 
 def _reduce_frame(path, g: OrthoGrid, mosaic: OrthoGrid, factor: int, strip_px: int = 1024):
@@ -155,9 +158,20 @@ def _reduce_frame(path, g: OrthoGrid, mosaic: OrthoGrid, factor: int, strip_px: 
         valid = np.empty((h, w), bool)
         step = max(1, strip_px // factor)
         n_px = float(factor * factor)
+        # per band, the histogram of the valid samples (8- and 16-bit frames: at most 1024 bins, and the count
+        # of samples at the type's maximum): what a gain would saturate
+        bits = 8 * dtype.itemsize
+        shift = max(0, bits - 10)
+        hist = np.zeros((ds.count, (1 << bits) >> shift), np.int64) if dtype in _HISTOGRAM_TYPES else None
+        top_count = np.zeros(ds.count, np.int64)
         for s in range(0, h, step):
             n = min(step, h - s)
             img, ok = read_planar(ds, cc0 * factor - c0, (rc0 + s) * factor - r0, w * factor, n * factor)
+            if hist is not None:
+                for b in range(img.shape[0]):
+                    v = img[b][ok]
+                    hist[b] += np.bincount(v >> shift if shift else v, minlength=hist.shape[1])
+                    top_count[b] += np.count_nonzero(v == (1 << bits) - 1)
             for b in range(img.shape[0]):
                 band = img[b] if img.dtype == keep else img[b].astype(keep)
                 rgb[s:s + n, :, b] = cv2.resize(band, (w, n), interpolation=cv2.INTER_AREA)
@@ -165,7 +179,7 @@ def _reduce_frame(path, g: OrthoGrid, mosaic: OrthoGrid, factor: int, strip_px: 
             # invalid pixel gives at least 1 / factor^2)
             bad = cv2.resize((~ok).view(np.uint8).astype(np.float32), (w, n), interpolation=cv2.INTER_AREA)
             valid[s:s + n] = bad < 0.5 / n_px
-    return rgb, valid, (rc0, cc0)
+    return rgb, valid, (rc0, cc0), (None if hist is None else SampleHistogram(hist, top_count, bits))
 
 
 def reduce_frames(frames_dir: Path, index: dict, mosaic: OrthoGrid, factor: int,
@@ -180,18 +194,63 @@ def reduce_frames(frames_dir: Path, index: dict, mosaic: OrthoGrid, factor: int,
     def one(e):
         return _reduce_frame(frames_dir / e["file"], grids[e["image_id"]], mosaic, factor)
 
-    names, rgbs, valids, offsets = [], [], [], []
+    names, rgbs, valids, offsets, hists = [], [], [], [], []
     with progress(len(entries), "seam grid", "frames") as bar:
         with contextlib.closing(ordered_thread_map(one, entries, threads or os.cpu_count() or 1)) as made:
-            for e, (rgb, valid, off) in zip(entries, made):
+            for e, (rgb, valid, off, hist) in zip(entries, made):
                 names.append(e["image_id"])
                 rgbs.append(rgb)
                 valids.append(valid)
                 offsets.append(off)
+                hists.append(hist)
                 bar.update(1)
     shape = (-(-mosaic.height // factor), -(-mosaic.width // factor))
     t = Affine(mosaic.res_m * factor, 0, mosaic.x_left_m, 0, -mosaic.res_m * factor, mosaic.y_top_m)
-    return ReducedFrames(names, rgbs, valids, offsets, factor, t, shape)
+    red = ReducedFrames(names, rgbs, valids, offsets, factor, t, shape)
+    red.histograms = hists
+    return red
+
+
+@dataclasses.dataclass(frozen=True)
+class SampleHistogram:
+    """A frame's valid samples per band: ``counts`` (bands, bins) of value >> (bits - log2 bins), ``top`` (bands,)
+    the samples at the type's maximum, ``bits`` the type's."""
+
+    counts: np.ndarray
+    top: np.ndarray
+    bits: int
+
+
+def limit_gains(gains: np.ndarray, histograms, allowance: float = SATURATION_ALLOWANCE):
+    """Gains (n_frames, bands) lowered where they would saturate more of a frame's samples than the frame itself
+    has saturated, plus ``allowance`` (a share): from the frame's ``SampleHistogram`` (None for types without
+    one) the largest gain that keeps the share of samples reaching the type's maximum within that. Returns
+    (gains, [(frame index, band, gain before, after, saturated share of the frame, share the gain before
+    would have saturated)])."""
+    out = np.array(gains, float)
+    limited = []
+    for k, hist in enumerate(histograms):
+        if hist is None:
+            continue
+        top = (1 << hist.bits) - 1
+        width = (1 << hist.bits) // hist.counts.shape[1]  # sample values per bin
+        for b in range(hist.counts.shape[0]):
+            g = out[k, b]
+            total = hist.counts[b].sum()
+            if g <= 1.0 or total == 0:
+                continue
+            above = np.cumsum(hist.counts[b][::-1])[::-1] / total  # share of samples >= bin start
+            own = hist.top[b] / total
+            # the first bin whose samples and those above it are within the allowance: the gain top / (its
+            # start) saturates those only (a sample below the start stays below top - top / start < top)
+            within = above <= own + allowance
+            t = int(np.argmax(within)) * width if within.any() else top
+            g_max = top / max(t, 1)
+            if g > g_max:
+                would = float(above[min(len(above) - 1, int(np.ceil((top - 0.5) / g)) // width)])
+                out[k, b] = g_max
+                limited.append((k, b, float(g), float(g_max), float(own), would))
+    return out, limited
 
 
 def _masked_mean(a: np.ndarray, mask: np.ndarray) -> np.ndarray:
@@ -365,6 +424,12 @@ def _mosaic_block(root, settings, *, object_height_m, max_seam_cells, end_reach_
             labels = keep_objects_whole(labels, objects, red.valid, red.offsets)
     timer.done("seams")
     gains = balance_gains(red) if balance else np.ones((len(red.names), red.rgb[0].shape[2]))
+    # colour that does not clip: no gain saturates more of a frame than the frame has saturated itself
+    gains, limited = limit_gains(gains, red.histograms)
+    for k, b, g0, g1, own, would in limited:
+        logger.warning("frame %s band %d: gain %.2f lowered to %.2f so that it saturates no more of the frame than "
+                       "the frame itself (%.2f %%; the gain would have saturated %.2f %%)", red.names[k], b + 1, g0, g1,
+                       100 * own, 100 * would)
     timer.done("gains")
     for name, g in zip(red.names, gains):
         if np.any(np.abs(np.log(g)) > math.log(1.3)):  # beyond exposure differences between frames of one flight
