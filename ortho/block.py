@@ -28,15 +28,14 @@ import logging
 import math
 import os
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 import rasterio
 from pyproj import CRS
 
-from aerotri.geom.camera import FrameCamera, adjusted_camera, project_camera
 from aerotri.geom.eo import ExteriorOrientations, read_eo
 from aerotri.core.errors import InputError
-from aerotri.geom.images import check_frames, find_images, image_layout, read_native
 from aerotri.core.project import Project
 from aerotri.core.settings import Resolved, settings_of
 from aerotri.geom.rotation import rotation_matrix_opk
@@ -48,9 +47,15 @@ from aerotri.geom.crs import linear_unit_m, parse_heights
 from aerotri.geom.datum import load_height_model, load_transformation
 from aerotri.geom.transform import CrsTransformer, OperationSpec
 from ortho.dem import dem_height_operation, height_range, open_height_raster, read_height_window
+from ortho.gdal_cache import RECTIFY_CACHE_BYTES, stage_block_cache
 from ortho.grid import GridToProject, OrthoGrid, nice_resolution, parse_crs, resolve_output_crs
-from ortho.rectify import border_pixels, frame_grid, rectify_frame
+from ortho.rectify import WINDOWED_FRAME_BYTES, FrameFile, border_pixels, covered_share, frame_grid, rectify_frame
 from ortho.settings import FRAME_COMPRESSION, RectifySettings
+
+# the camera and image readers (aerotri.geom.camera compiles its lens model with numba: 0.3 CPU-s to import)
+# are imported by the functions that need them: ``ortho mosaic`` and ``ortho check`` read the index here
+if TYPE_CHECKING:
+    from aerotri.geom.camera import FrameCamera
 
 _log = logging.getLogger(__name__)
 
@@ -82,6 +87,8 @@ class BlockInputs:
 
 def load_block(root, eo_path=None, camera_path=None, frames=None) -> BlockInputs:
     """Open a project and check that every selected image has an EO (InputError naming what is missing)."""
+    from aerotri.geom.images import check_frames, find_images
+
     project = Project.open(root)
     camera, camera_source = block_camera(project, eo_path, camera_path)
     eo_given = eo_path is not None
@@ -142,6 +149,8 @@ def block_camera(project: Project, eo_path=None, camera_path=None) -> tuple[Fram
     """(camera, source) the frames are rectified with: ``camera_path`` when given, else the self-calibrated
     camera of the last adjustment for the project's own at/eo.txt (its orientations belong to it), else
     (an EO file given with --eo) the nominal camera.toml."""
+    from aerotri.geom.camera import FrameCamera, adjusted_camera, project_camera
+
     if camera_path:
         return FrameCamera.read(camera_path), str(camera_path)
     if eo_path is None:
@@ -208,19 +217,24 @@ def rectify_frame_to_file(path, image, band_order, camera, C, R, heights, grid, 
     from rasterio.windows import Window
 
     bands = 1 if image.ndim == 2 else image.shape[2]
+    # GDAL's block cache is the stage's (``rectify_block``, ``ortho.gdal_cache``): never set here, in a task
+    # that runs on a worker thread beside other frames' tasks
     with atomic_path(path) as tmp, rasterio.Env(GDAL_TIFF_INTERNAL_MASK=True):
         with rasterio.open(tmp, "w", **frame_profile(grid, bands, image.dtype.name, compression=compression)) as dst:
             if tags:
                 dst.update_tags(**tags)
 
+            valid = [0]
+
             def sink(r0, c0, o, m):
                 w = Window(c0, r0, m.shape[1], m.shape[0])
                 dst.write(o, window=w, indexes=band_order)
                 dst.write_mask(m, window=w)
+                valid[0] += int(np.count_nonzero(m))
 
-            _, mask = rectify_frame(image, camera, C, R, heights, grid, interpolation, to_project,
-                                    occlusion_dsm=occlusion_dsm, sink=sink, sink_bands_first=True, threads=threads)
-    return np.count_nonzero(mask) / float(mask.size)
+            rectify_frame(image, camera, C, R, heights, grid, interpolation, to_project, occlusion_dsm=occlusion_dsm,
+                          sink=sink, sink_bands_first=True, threads=threads)
+    return valid[0] / float(grid.width * grid.height)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -247,6 +261,36 @@ class FrameTask:
     height_operation: OperationSpec | None = None  # DEM/DSM heights -> the project's height system
 
 
+def _frame_image(path, expect_size):
+    """The frame and the band (1-based, R, G, B order) of each of its channels: decoded or mapped in memory
+    (``read_native``), or, decoded larger than ``WINDOWED_FRAME_BYTES``, a ``FrameFile`` the tiles read by
+    windows (a full-size DMC frame: memory set by the tiles, not by its 637 MB)."""
+    from aerotri.geom.images import read_native
+
+    with rasterio.open(path) as ds:
+        decoded = ds.width * ds.height * ds.count * np.dtype(ds.dtypes[0]).itemsize
+        size = (ds.width, ds.height)
+    if decoded > WINDOWED_FRAME_BYTES and size == tuple(expect_size):
+        frame = FrameFile(path)
+        return frame, frame.band_order
+    return read_native(path, expect_size)
+
+
+def _require_coverage(task: FrameTask, C, R, heights, what: str, path, extent) -> float:
+    """Share of the frame whose ground the height raster covers (``covered_share``): a warning naming the frame
+    and the share left as nodata when it is partial, an InputError naming the raster's extent when it is none."""
+    share = covered_share(task.camera, C, R, heights)
+    b = extent
+    where = f"its extent: X {b[0]:.1f} .. {b[2]:.1f}, Y {b[1]:.1f} .. {b[3]:.1f} in the project CRS"
+    if share == 0.0:
+        raise InputError(f"{path}: the {what} covers none of frame {task.image_id} ({where}); give a {what} that "
+                         f"covers the frame, or leave it out with --frames")
+    if share < 1.0:
+        _log.warning(f"frame {task.image_id}: the {what} {path} covers {100 * share:.1f} % of it ({where}); "
+                     f"the other {100 * (1 - share):.1f} % is nodata in its ortho")
+    return share
+
+
 def rectify_frame_task(task: FrameTask) -> dict:
     """Rectify one frame into ``task.out_path`` (atomic); returns its index.json entry."""
     project_crs = CRS.from_wkt(task.project_crs_wkt)
@@ -261,25 +305,31 @@ def rectify_frame_task(task: FrameTask) -> dict:
     with open_height_raster(task.dem_path, project_crs, "DEM") as dem_ds, _raster_read(task.dem_path, "DEM"):
         dem = read_height_window(dem_ds, ground_bounds, margin_m=4 * dem_ds.transform.a, what="DEM", frame=task.image_id,
                                  height_operation=height_op)
-    grid = frame_grid(task.camera, C, R, dem, task.res_m, out_crs, to_project, image_id=task.image_id)
-    heights = dem
+        extent = tuple(dem_ds.bounds)
+    heights, what, path = dem, "DEM", task.dem_path
     if task.dsm_path:
         with open_height_raster(task.dsm_path, project_crs, "DSM") as dsm_ds, _raster_read(task.dsm_path, "DSM"):
             heights = read_height_window(dsm_ds, ground_bounds, margin_m=4 * dsm_ds.transform.a, what="DSM",
                                          frame=task.image_id, height_operation=height_op)
-    image, band_order = read_native(task.image_path, (task.camera.width, task.camera.height))
+            extent, what, path = tuple(dsm_ds.bounds), "DSM", task.dsm_path
+    covered = _require_coverage(task, C, R, heights, what, path, extent)
+    grid = frame_grid(task.camera, C, R, dem, task.res_m, out_crs, to_project, image_id=task.image_id, partial=True)
+    image, band_order = _frame_image(task.image_path, (task.camera.width, task.camera.height))
     valid_fraction = rectify_frame_to_file(task.out_path, image, band_order, task.camera, C, R, heights, grid,
                                            task.interpolation, to_project,
                                            occlusion_dsm=heights if task.dsm_path else None,
                                            compression=task.compression, threads=task.threads,
                                            tags=operation_tags(to_project.record(),
                                                                height_op.record() if height_op else None))
+    if isinstance(image, FrameFile):
+        image.close()
     del image
     nadir_x, nadir_y = to_project.to_output(np.array([C[0]]), np.array([C[1]]))
     return {
         "image_id": task.image_id, "file": Path(task.out_path).name, "x_left_m": grid.x_left_m, "y_top_m": grid.y_top_m,
         "width": grid.width, "height": grid.height, "centre_m": [float(v) for v in C],
         "nadir_xy_m": [float(nadir_x[0]), float(nadir_y[0])], "valid_fraction": valid_fraction,
+        "height_covered_share": round(covered, 4),
         **file_fingerprint(task.out_path),
     }
 
@@ -384,7 +434,8 @@ def rectify_block(root, settings: RectifySettings | Resolved | None = None, *, e
     old_index = _compatible_old_index(out_dir, res, out_crs, inputs) if frames else None
     # all frames or none: the frames are written into a temporary folder next to ortho/frames, which
     # replaces it only when every frame and the index are written (a failed run leaves the old output)
-    with atomic_dir(out_dir) as tmp_dir:
+    # GDAL's block cache bounded for the whole stage, set here before the frame tasks start on their threads
+    with atomic_dir(out_dir) as tmp_dir, stage_block_cache(RECTIFY_CACHE_BYTES):
         index = _rectify_into(tmp_dir, block, eo_idx, res, out_crs, project_crs, dem_path, zlo, zhi, interpolation,
                               true_ortho, dsm_path, compression, threads, operation, height_op, executor, inputs)
         if old_index is not None:  # re-run of a subset: the other frames of the earlier run come along
@@ -404,6 +455,8 @@ def check_frame_sizes(block: BlockInputs, eo_idx: dict, zlo: float, zhi: float, 
     grid (footprint between the lowest and highest DEM height; ``operation``: project -> output CRS)
     beyond a GeoTIFF's size, or the ortho and its validity mask beyond the memory (``concurrent``
     frames at a time)."""
+    from aerotri.geom.images import image_layout
+
     bands, itemsize = image_layout(next(iter(block.images.values())))
     to_output = operation.spec().build() if operation is not None else None
     worst = (0.0, "", 0.0, 0.0)

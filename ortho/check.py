@@ -7,6 +7,11 @@ y down) and in metres (dE east, dN north).
 
 Surveyed points: a CSV ``id,x,y,x_dom,y_dom`` with the surveyed coordinates and the coordinates of
 the same point measured in the DOM (both in the DOM's CRS); the displacement is DOM minus survey.
+
+Streaming: the DOM is read in blocks of 2048 px (with a halo of a patch and its search range), the reference
+and the nDSM resampled onto each block, GDAL's block cache bounded (``CHECK_CACHE_BYTES``); only five numbers per
+patch are kept. The statistics take every patch; the report lists, and its plot draws, at most
+``MAX_LISTED`` of them, evenly spread, so that the report of a gigapixel DOM stays the size of a demo's.
 """
 
 from __future__ import annotations
@@ -27,6 +32,7 @@ from aerotri.core.settings import Resolved, settings_of
 from aerotri.core.textio import read_text
 from aerotri.geom.crs import height_unit_m, parse_crs
 from aerotri.geom.inputs import check_raster_size
+from ortho.gdal_cache import CHECK_CACHE_BYTES, stage_block_cache
 from ortho.patches import MIN_PATCH_PX, PatchDisplacements, match_patches  # noqa: F401  (PatchDisplacements: the report API)
 from ortho.settings import CheckSettings
 
@@ -240,7 +246,9 @@ def _operation_to(dom_path, other_path, params, allow_ballpark: bool, what: str)
 def check_against_reference(dom_path, reference_path, ndsm_path=None, max_ndsm_m: float = 0.5, block_px: int = 2048,
                             patch_px: int = 48, step_px: int = 48, search_px: int = 6, min_ncc: float = 0.7,
                             reference_operation=None, ndsm_operation=None):
-    """Patch displacements of a DOM against a reference orthophoto, block by block (bounded memory).
+    """Patch displacements of a DOM against a reference orthophoto, block by block (bounded memory: a block
+    of the DOM, the reference and nDSM resampled onto it, GDAL's cache at ``CHECK_CACHE_BYTES``; only the
+    patches' numbers are kept, five per patch).
 
     The reference (and the nDSM used to keep only ground patches, height above ground <= max_ndsm_m)
     is resampled onto each DOM block (bilinear; nDSM by maximum so that patches touching objects drop).
@@ -248,11 +256,13 @@ def check_against_reference(dom_path, reference_path, ndsm_path=None, max_ndsm_m
     (DOM CRS -> its CRS; ``aerotri.geom.transform.CrsTransformer``), by default PROJ's operation when
     it is rigorous (a ballpark one is refused).
     """
+    import rasterio
     from rasterio.enums import Resampling
     from rasterio.windows import Window
     from rasterio.windows import transform as wtransform
 
-    with _open(dom_path, "DOM") as dom, _open(reference_path, "reference orthophoto") as ref:
+    with stage_block_cache(CHECK_CACHE_BYTES), _open(dom_path, "DOM") as dom, \
+            _open(reference_path, "reference orthophoto") as ref:
         if dom.crs is None or ref.crs is None:
             raise InputError(f"{dom_path if dom.crs is None else reference_path}: no CRS")
         ndsm = _open(ndsm_path, "nDSM") if ndsm_path else None
@@ -333,6 +343,16 @@ def _check_over_dom(reference_path, ndsm_path, dom_bounds, dom_crs) -> None:
             require_overlap(nd, ndsm_path, "nDSM", dom_bounds, dom_crs.to_wkt(), "the DOM")
 
 
+MAX_LISTED = 20000  # patches listed in the report and drawn in its plot
+
+
+def _spread(n: int, at_most: int) -> np.ndarray:
+    """Boolean selection of at most ``at_most`` of ``n`` items, evenly spread (all when n <= at_most)."""
+    keep = np.zeros(n, bool)
+    keep[np.unique(np.linspace(0, n - 1, min(n, at_most)).round().astype(np.int64))] = True
+    return keep
+
+
 def _same_file(a: Path, b: Path) -> bool:
     return a.exists() and b.exists() and os.path.samefile(a, b)
 
@@ -391,11 +411,18 @@ def run_check(project_root, settings: CheckSettings | Resolved | None = None, *,
             report["reference_operation"] = ref_op.record()
         report.update(method="ncc_patches", reference=str(reference_path), ndsm=str(ndsm_path) if ndsm_path else None,
                       max_ndsm_m=max_ndsm_m if ndsm_path else None, patch_px=patch_px, search_px=search_px,
-                      displacement=stats,
-                      patches=[{"row_px": float(r), "col_px": float(c), "de_m": float(a), "dn_m": float(b), "ncc": float(n)}
-                               for r, c, a, b, n in zip(patches.row_px, patches.col_px, patches.de_m, patches.dn_m, patches.ncc)])
+                      displacement=stats)
+        # the statistics take every patch; the report lists and the plot draws at most MAX_LISTED of them,
+        # evenly spread (a gigapixel DOM has millions: the JSON and the plot stay the size of a demo's)
+        listed = patches.select(_spread(len(patches), MAX_LISTED))
+        report.update(patches_total=len(patches), patches_listed=len(listed),
+                      patches=[{"row_px": float(r), "col_px": float(c), "de_m": float(a), "dn_m": float(b),
+                                "ncc": float(n)}
+                               for r, c, a, b, n in zip(listed.row_px, listed.col_px, listed.de_m, listed.dn_m,
+                                                        listed.ncc)])
+
         def plot():
-            plot_displacements(out_stem.with_suffix(".png"), patches, stats, f"DOM - reference ({Path(dom_path).name})",
+            plot_displacements(out_stem.with_suffix(".png"), listed, stats, f"DOM - reference ({Path(dom_path).name})",
                                extent_px=max(w, h))
     else:
         stats, table = check_points(points_path, res, dom_bounds)
@@ -407,7 +434,8 @@ def run_check(project_root, settings: CheckSettings | Resolved | None = None, *,
     if seams:
         from ortho.mosaic import seam_misalignment
 
-        report["seams"] = seam_misalignment(root, ndsm_path=ndsm_path, max_ndsm_m=max_ndsm_m)
+        with stage_block_cache(CHECK_CACHE_BYTES):
+            report["seams"] = seam_misalignment(root, ndsm_path=ndsm_path, max_ndsm_m=max_ndsm_m)
     plot()  # the outputs only after every measurement succeeded
     report["json"] = str(out_stem.with_suffix(".json"))
     report["plot"] = str(out_stem.with_suffix(".png"))

@@ -142,10 +142,12 @@ def read_height_window(ds, bounds, margin_m: float = 0.0, what: str = "DEM", fra
     c1 = min(ds.width, int(math.ceil(win.col_off + win.width)) + 1)
     r1 = min(ds.height, int(math.ceil(win.row_off + win.height)) + 1)
     if c1 <= c0 or r1 <= r0:
+        b = ds.bounds
         raise InputError(
             f"{ds.name}: the {what} does not cover "
-            f"{'frame ' + frame + ', footprint ' if frame else 'the area '}{tuple(round(b, 1) for b in bounds)} "
-            f"({what} bounds {tuple(round(b, 1) for b in ds.bounds)})"
+            f"{'frame ' + frame + ', footprint ' if frame else 'the area '}{tuple(round(v, 1) for v in bounds)} "
+            f"(the {what}'s extent: X {b.left:.1f} .. {b.right:.1f}, Y {b.bottom:.1f} .. {b.top:.1f})"
+            + (f"; give a {what} that covers the frame, or leave it out with --frames" if frame else "")
         )
     w = Window(c0, r0, c1 - c0, r1 - r0)
     a = ds.read(1, window=w, masked=True).astype(np.float32).filled(np.nan)

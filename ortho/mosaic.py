@@ -3,35 +3,52 @@
 Steps (``mosaic_block``):
 
 1. Every frame ortho (``ortho/frames``) is reduced by block averaging to the seam grid (``factor``
-   mosaic pixels per cell, chosen so that all reduced frames together stay small).
+   mosaic pixels per cell, chosen so that all reduced frames together stay small), read by strips of
+   rows on all cores (memory set by the strip, not the frame).
 2. Seamlines on the seam grid (``ortho.seamlines``): nearest-nadir Voronoi, then least-cost seams
    avoiding objects of the nDSM and image differences. Written as ``seamlines.geojson`` (one polygon
    per frame plus the seam lines between neighbours) and the label raster ``seams.tif``.
 3. Gain balancing: per band, log-gains g_k minimising sum over overlapping pairs of
    n_ij (log m_i + g_i - log m_j - g_j)^2 + lambda sum g_k^2, with m_i the mean of frame i over the
-   common overlap (linear least squares).
-4. Blending, tile by tile: frame weights are the label masks blurred across the seam (feather width),
-   times the frame's validity; where the chosen frame is invalid (outside it, or occluded in a true
-   ortho) the nearest-nadir valid frame fills in. Only the frames touching a tile are read.
-5. The tiles go into a tiled GeoTIFF with an internal mask, copied to a COG (deflate, 512 px blocks,
-   overviews) - memory is bounded by the tile size, not the mosaic size.
+   common overlap (linear least squares, normal equations: n frames, not n^2 pairs, in memory).
+4. Blending, tile by tile (``_blend_tile``): a tile whose seam cells, with the feather's reach around it,
+   all belong to one frame is that frame's window through its gains (a lookup table for 8- and 16-bit
+   samples); elsewhere the frame weights are the label masks blurred across the seam (feather width),
+   times the frame's validity, and where no frame is labelled (at the edge of the block) the
+   nearest-nadir valid frame fills in. Only the frames labelled around a tile are read.
+5. The tiles go into a tiled stage GeoTIFF (ZSTD level 1) with an internal mask, and their 2 x 2 averages
+   of the valid pixels into the first overview; the coarser overviews are halved from the finer ones by
+   strips of rows. A VRT joins the stage and its overviews, and GDAL's COG driver copies it into the COG
+   (ZSTD level 1 with the horizontal predictor, 512 px blocks, BigTIFF when it may pass 4 GB, the
+   overviews as made here): the full resolution is compressed once for the COG, no overview is made
+   from it again, and memory is bounded by the tiles, not by the mosaic.
+
+Speed (``bench/mosaic_speed.py``, ``results/mosaic_speed.json``): seams and blending in compiled or
+vectorised code (OpenCV, a numba Dijkstra; no scipy in this command), the tiles on all cores while this
+thread writes, no float64 intermediates. The tile order, the tile results and so the files do not depend
+on the scheduler or the number of threads.
 
 The frames are checked against ``ortho/frames/index.json`` first (sizes and hashes), the tile size
 against the memory; seams.tif, seamlines.geojson, mosaic.tif and mosaic.json (which records the index
 it was made from) are made in a work folder and moved into ``ortho/`` together at the end.
 
-Step 4 runs as Dask tasks, one per output tile (``blend_tile_task`` on a small ``MosaicTile``: a
-context file with frames, gains and nadir points, and the tile window; labels are read from
-``seams.tif``), in batches of a few tiles per worker whose results this process writes in tile order.
+Step 4 runs on local threads (``executor`` None, local threads, synchronous) or, on a Dask cluster, as
+Dask tasks, one per output tile (``blend_tile_task`` on a small ``MosaicTile``: a context file with
+frames, gains and nadir points, and the tile window; labels are read from ``seams.tif``), in batches of a
+few tiles per worker whose results this process writes in tile order.
 """
 
 from __future__ import annotations
 
+import collections
+import contextlib
 import dataclasses
 import functools
 import json
 import logging
 import math
+import os
+import threading
 from pathlib import Path
 
 import cv2
@@ -52,6 +69,7 @@ from aerotri.core.settings import Resolved, settings_of
 from aerotri.core.textio import read_json
 from ortho.block import (index_grids, index_operation, operation_tags, read_index, require_current_frames,
                          verify_index)
+from ortho.gdal_cache import MOSAIC_CACHE_BYTES, stage_block_cache
 from ortho.grid import OrthoGrid
 from ortho.settings import MosaicSettings
 from ortho.seamlines import (keep_objects_whole, label_polygons, least_cost_seams, neighbour_pairs, seam_lines,
@@ -59,58 +77,188 @@ from ortho.seamlines import (keep_objects_whole, label_polygons, least_cost_seam
 
 logger = logging.getLogger(__name__)
 
+STAGE_PROFILE = dict(driver="GTiff", tiled=True, blockxsize=512, blockysize=512, compress="zstd", zstd_level=1,
+                     predictor=2, interleave="pixel", BIGTIFF="IF_SAFER", num_threads="ALL_CPUS")
+# the COG: ZSTD level 1 with the horizontal predictor was the fastest and the smallest of ZSTD 1/3/6/9 (with
+# and without predictor) and DEFLATE on the demo mosaic (results/mosaic_speed.json, "codecs")
+COG_OPTIONS = dict(driver="COG", COMPRESS="ZSTD", LEVEL=1, PREDICTOR="YES", BLOCKSIZE=512,
+                   OVERVIEWS="FORCE_USE_EXISTING", BIGTIFF="IF_SAFER", NUM_THREADS="ALL_CPUS")
+STAGE_RAW_MAX_BYTES = 2 ** 30  # stages up to this size stay uncompressed (no compression to undo for the COG)
+_OPEN_FRAMES = 32  # frame datasets kept open per thread (tiles in row order need a few at a time)
+
 
 def read_window(ds, col_off: int, row_off: int, width: int, height: int):
     """Bands (height, width, bands) float32 and validity (bool) of a window that may extend past the raster (zeros)."""
-    img = np.zeros((height, width, ds.count), np.float32)
-    valid = np.zeros((height, width), bool)
+    img, valid = read_planar(ds, col_off, row_off, width, height)
+    return np.moveaxis(img, 0, -1).astype(np.float32), valid
+
+
+def read_planar(ds, col_off: int, row_off: int, width: int, height: int):
+    """Bands (bands, height, width) in the raster's own type and validity (bool) of a window that may
+    extend past the raster (zeros, invalid there)."""
     c0, r0 = max(0, col_off), max(0, row_off)
     c1, r1 = min(ds.width, col_off + width), min(ds.height, row_off + height)
-    if c1 > c0 and r1 > r0:
-        w = Window(c0, r0, c1 - c0, r1 - r0)
-        try:
-            img[r0 - row_off:r1 - row_off, c0 - col_off:c1 - col_off] = np.moveaxis(ds.read(window=w), 0, -1)
+    try:
+        if c0 == col_off and r0 == row_off and c1 == col_off + width and r1 == row_off + height:
+            w = Window(c0, r0, width, height)
+            return ds.read(window=w), ds.read_masks(1, window=w) > 0
+        img = np.zeros((ds.count, height, width), ds.dtypes[0])
+        valid = np.zeros((height, width), bool)
+        if c1 > c0 and r1 > r0:
+            w = Window(c0, r0, c1 - c0, r1 - r0)
+            img[:, r0 - row_off:r1 - row_off, c0 - col_off:c1 - col_off] = ds.read(window=w)
             valid[r0 - row_off:r1 - row_off, c0 - col_off:c1 - col_off] = ds.read_masks(1, window=w) > 0
-        except rasterio.errors.RasterioIOError as exc:
-            raise InputError(f"{ds.name}: cannot read the raster (truncated or corrupt? {exc})") from None
-    return img, valid
+        return img, valid
+    except rasterio.errors.RasterioIOError as exc:
+        raise InputError(f"{ds.name}: cannot read the raster (truncated or corrupt? {exc})") from None
 
 
 class ReducedFrames:
-    """Frames block-averaged onto the seam grid: rgb (float32, h, w, bands), valid (bool), offsets (row, col)."""
+    """Frames block-averaged onto the seam grid: rgb (h, w, bands; the frames' sample type, float32 for types
+    OpenCV does not resize), valid (bool: every pixel of the cell valid), offsets (row, col)."""
 
     def __init__(self, names, rgb, valid, offsets, factor, seam_transform, shape):
         self.names, self.rgb, self.valid, self.offsets = names, rgb, valid, offsets
         self.factor, self.transform, self.shape = factor, seam_transform, shape
+        self._gray = {}
+
+    def gray_of(self, k: int) -> np.ndarray:
+        """Grey values (float32, mean of the first three bands) of frame ``k`` on the seam grid (kept: every
+        seam of the frame asks for them)."""
+        if k not in self._gray:
+            a = self.rgb[k]
+            g = a[:, :, 0].astype(np.float32)
+            for b in range(1, min(3, a.shape[2])):
+                g += a[:, :, b]
+            self._gray[k] = g / np.float32(min(3, a.shape[2]))
+        return self._gray[k]
 
     def gray(self):
-        return [a[:, :, :3].mean(axis=2) for a in self.rgb]
+        return [self.gray_of(k) for k in range(len(self.rgb))]
 
 
-def _reduce(a: np.ndarray, f: int, how: str) -> np.ndarray:
-    h, w = a.shape[:2]
-    a = a.reshape((h // f, f, w // f, f) + a.shape[2:])
-    return a.mean(axis=(1, 3)) if how == "mean" else a.min(axis=(1, 3))
+_RESIZABLE = (np.uint8, np.uint16, np.int16, np.float32, np.float64)
+_HISTOGRAM_TYPES = (np.dtype(np.uint8), np.dtype(np.uint16))
+# the share of a frame's samples a gain may newly saturate (on top of those saturated in the frame itself)
+SATURATION_ALLOWANCE = 0.001
 
 
-def reduce_frames(frames_dir: Path, index: dict, mosaic: OrthoGrid, factor: int) -> ReducedFrames:
+def _reduce_frame(path, g: OrthoGrid, mosaic: OrthoGrid, factor: int, strip_px: int = 1024):
+    """One frame on the seam grid: (rgb (h, w, bands), valid (h, w), (row, col) of its first cell), read by
+    strips of whole cells (memory set by ``strip_px`` rows, not by the frame)."""
+    c0, r0 = g.offset_in(mosaic)
+    # align the frame's window to whole seam-grid cells
+    rc0, cc0 = r0 // factor, c0 // factor
+    rc1, cc1 = -(-(r0 + g.height) // factor), -(-(c0 + g.width) // factor)
+    h, w = rc1 - rc0, cc1 - cc0
+    with _open_frame(path) as ds:
+        dtype = np.dtype(ds.dtypes[0])
+        keep = dtype if dtype.type in _RESIZABLE else np.dtype(np.float32)
+        rgb = np.empty((h, w, ds.count), keep)
+        valid = np.empty((h, w), bool)
+        step = max(1, strip_px // factor)
+        n_px = float(factor * factor)
+        # per band, the histogram of the valid samples (8- and 16-bit frames: at most 1024 bins, and the count
+        # of samples at the type's maximum): what a gain would saturate
+        bits = 8 * dtype.itemsize
+        shift = max(0, bits - 10)
+        hist = np.zeros((ds.count, (1 << bits) >> shift), np.int64) if dtype in _HISTOGRAM_TYPES else None
+        top_count = np.zeros(ds.count, np.int64)
+        for s in range(0, h, step):
+            n = min(step, h - s)
+            img, ok = read_planar(ds, cc0 * factor - c0, (rc0 + s) * factor - r0, w * factor, n * factor)
+            if hist is not None:
+                for b in range(img.shape[0]):
+                    v = img[b][ok]
+                    hist[b] += np.bincount(v >> shift if shift else v, minlength=hist.shape[1])
+                    top_count[b] += np.count_nonzero(v == (1 << bits) - 1)
+            for b in range(img.shape[0]):
+                band = img[b] if img.dtype == keep else img[b].astype(keep)
+                rgb[s:s + n, :, b] = cv2.resize(band, (w, n), interpolation=cv2.INTER_AREA)
+            # a cell is valid when all its pixels are: the mean of the invalid indicator is 0 (exactly; any
+            # invalid pixel gives at least 1 / factor^2)
+            bad = cv2.resize((~ok).view(np.uint8).astype(np.float32), (w, n), interpolation=cv2.INTER_AREA)
+            valid[s:s + n] = bad < 0.5 / n_px
+    return rgb, valid, (rc0, cc0), (None if hist is None else SampleHistogram(hist, top_count, bits))
+
+
+def reduce_frames(frames_dir: Path, index: dict, mosaic: OrthoGrid, factor: int,
+                  threads: int | None = None) -> ReducedFrames:
+    """Every frame of ``index`` on the seam grid of ``factor`` mosaic pixels per cell (frames on ``threads``
+    threads, default all cores; GDAL's decoding and OpenCV's averaging release the GIL)."""
+    from ortho.rectify import ordered_thread_map
+
     grids = index_grids(index)
-    names, rgbs, valids, offsets = [], [], [], []
-    for e in index["frames"]:
-        g = grids[e["image_id"]]
-        c0, r0 = g.offset_in(mosaic)
-        # align the frame's window to whole seam-grid cells
-        rc0, cc0 = r0 // factor, c0 // factor
-        rc1, cc1 = -(-(r0 + g.height) // factor), -(-(c0 + g.width) // factor)
-        with _open_frame(frames_dir / e["file"]) as ds:
-            a, m = read_window(ds, cc0 * factor - c0, rc0 * factor - r0, (cc1 - cc0) * factor, (rc1 - rc0) * factor)
-        names.append(e["image_id"])
-        rgbs.append(_reduce(a, factor, "mean"))
-        valids.append(_reduce(m, factor, "min").astype(bool))
-        offsets.append((rc0, cc0))
+    entries = index["frames"]
+
+    def one(e):
+        return _reduce_frame(frames_dir / e["file"], grids[e["image_id"]], mosaic, factor)
+
+    names, rgbs, valids, offsets, hists = [], [], [], [], []
+    with progress(len(entries), "seam grid", "frames") as bar:
+        with contextlib.closing(ordered_thread_map(one, entries, threads or os.cpu_count() or 1)) as made:
+            for e, (rgb, valid, off, hist) in zip(entries, made):
+                names.append(e["image_id"])
+                rgbs.append(rgb)
+                valids.append(valid)
+                offsets.append(off)
+                hists.append(hist)
+                bar.update(1)
     shape = (-(-mosaic.height // factor), -(-mosaic.width // factor))
     t = Affine(mosaic.res_m * factor, 0, mosaic.x_left_m, 0, -mosaic.res_m * factor, mosaic.y_top_m)
-    return ReducedFrames(names, rgbs, valids, offsets, factor, t, shape)
+    red = ReducedFrames(names, rgbs, valids, offsets, factor, t, shape)
+    red.histograms = hists
+    return red
+
+
+@dataclasses.dataclass(frozen=True)
+class SampleHistogram:
+    """A frame's valid samples per band: ``counts`` (bands, bins) of value >> (bits - log2 bins), ``top`` (bands,)
+    the samples at the type's maximum, ``bits`` the type's."""
+
+    counts: np.ndarray
+    top: np.ndarray
+    bits: int
+
+
+def limit_gains(gains: np.ndarray, histograms, allowance: float = SATURATION_ALLOWANCE):
+    """Gains (n_frames, bands) lowered where they would saturate more of a frame's samples than the frame itself
+    has saturated, plus ``allowance`` (a share): from the frame's ``SampleHistogram`` (None for types without
+    one) the largest gain that keeps the share of samples reaching the type's maximum within that. Returns
+    (gains, [(frame index, band, gain before, after, saturated share of the frame, share the gain before
+    would have saturated)])."""
+    out = np.array(gains, float)
+    limited = []
+    for k, hist in enumerate(histograms):
+        if hist is None:
+            continue
+        top = (1 << hist.bits) - 1
+        width = (1 << hist.bits) // hist.counts.shape[1]  # sample values per bin
+        for b in range(hist.counts.shape[0]):
+            g = out[k, b]
+            total = hist.counts[b].sum()
+            if g <= 1.0 or total == 0:
+                continue
+            above = np.cumsum(hist.counts[b][::-1])[::-1] / total  # share of samples >= bin start
+            own = hist.top[b] / total
+            # the first bin whose samples and those above it are within the allowance: the gain top / (its
+            # start) saturates those only (a sample below the start stays below top - top / start < top)
+            within = above <= own + allowance
+            t = int(np.argmax(within)) * width if within.any() else top
+            g_max = top / max(t, 1)
+            if g > g_max:
+                would = float(above[min(len(above) - 1, int(np.ceil((top - 0.5) / g)) // width)])
+                out[k, b] = g_max
+                limited.append((k, b, float(g), float(g_max), float(own), would))
+    return out, limited
+
+
+def _masked_mean(a: np.ndarray, mask: np.ndarray) -> np.ndarray:
+    """Mean per band of ``a`` (h, w, bands) where ``mask``."""
+    m = np.ascontiguousarray(mask).view(np.uint8)
+    if a.dtype.type in _RESIZABLE:  # OpenCV's masked mean: one pass, no gathered copy
+        return np.array([cv2.mean(np.ascontiguousarray(a[:, :, b]), mask=m)[0] for b in range(a.shape[2])])
+    return a[mask].mean(axis=0)
 
 
 def balance_gains(red: ReducedFrames, labels: np.ndarray | None = None, prior_weight: float = 0.1,
@@ -118,39 +266,44 @@ def balance_gains(red: ReducedFrames, labels: np.ndarray | None = None, prior_we
     """Per-frame, per-band multiplicative gains (n_frames, bands) from the means of the pairwise overlaps."""
     n = len(red.names)
     bands = red.rgb[0].shape[2]
-    rows, rhs, wts = [], [], []
-    for i in range(n):
-        for j in range(i + 1, n):
-            (ri, ci), (rj, cj) = red.offsets[i], red.offsets[j]
-            r0, c0 = max(ri, rj), max(ci, cj)
-            r1 = min(ri + red.valid[i].shape[0], rj + red.valid[j].shape[0])
-            c1 = min(ci + red.valid[i].shape[1], cj + red.valid[j].shape[1])
-            if r1 <= r0 or c1 <= c0:
-                continue
-            vi = red.valid[i][r0 - ri:r1 - ri, c0 - ci:c1 - ci]
-            vj = red.valid[j][r0 - rj:r1 - rj, c0 - cj:c1 - cj]
-            both = vi & vj
-            cnt = int(both.sum())
-            if cnt < min_cells:
-                continue
-            mi = red.rgb[i][r0 - ri:r1 - ri, c0 - ci:c1 - ci][both].mean(axis=0)
-            mj = red.rgb[j][r0 - rj:r1 - rj, c0 - cj:c1 - cj][both].mean(axis=0)
-            row = np.zeros(n)
-            row[i], row[j] = 1.0, -1.0
-            rows.append(row)
-            rhs.append(np.log(np.maximum(mj, 1.0)) - np.log(np.maximum(mi, 1.0)))
-            wts.append(math.sqrt(cnt))
-    if not rows:
+    off = np.array(red.offsets, np.int64).reshape(n, 2)
+    size = np.array([v.shape for v in red.valid], np.int64).reshape(n, 2)
+    # candidate pairs by their boxes on the seam grid (no n^2 loop in Python for large blocks)
+    lo, hi = off, off + size
+    cand = np.argwhere(np.triu(np.all((np.maximum(lo[:, None], lo[None]) < np.minimum(hi[:, None], hi[None])), -1), 1))
+    pairs, rhs, wts = [], [], []
+    for i, j in cand:
+        (ri, ci), (rj, cj) = red.offsets[i], red.offsets[j]
+        r0, c0 = max(ri, rj), max(ci, cj)
+        r1 = min(ri + red.valid[i].shape[0], rj + red.valid[j].shape[0])
+        c1 = min(ci + red.valid[i].shape[1], cj + red.valid[j].shape[1])
+        vi = red.valid[i][r0 - ri:r1 - ri, c0 - ci:c1 - ci]
+        vj = red.valid[j][r0 - rj:r1 - rj, c0 - cj:c1 - cj]
+        both = vi & vj
+        cnt = int(np.count_nonzero(both))
+        if cnt < min_cells:
+            continue
+        mi = _masked_mean(red.rgb[i][r0 - ri:r1 - ri, c0 - ci:c1 - ci], both)
+        mj = _masked_mean(red.rgb[j][r0 - rj:r1 - rj, c0 - cj:c1 - cj], both)
+        pairs.append((i, j))
+        rhs.append(np.log(np.maximum(mj, 1.0)) - np.log(np.maximum(mi, 1.0)))
+        wts.append(math.sqrt(cnt))
+    if not pairs:
         return np.ones((n, bands))
-    A = np.array(rows) * np.array(wts)[:, None]
-    b = np.array(rhs) * np.array(wts)[:, None]
-    lam = prior_weight * math.sqrt(float(np.mean(np.array(wts) ** 2)))
-    A = np.vstack([A, lam * np.eye(n)])
-    b = np.vstack([b, np.zeros((n, bands))])
-    g, *_ = np.linalg.lstsq(A, b, rcond=None)
-    return np.exp(g)
-
-
+    pairs = np.array(pairs)
+    w2 = np.array(wts) ** 2
+    b = np.array(rhs)
+    lam = prior_weight * math.sqrt(float(np.mean(w2)))
+    # normal equations of rows w (e_i - e_j) . g = w rhs and the prior lam * g = 0
+    N = lam * lam * np.eye(n)
+    np.add.at(N, (pairs[:, 0], pairs[:, 0]), w2)
+    np.add.at(N, (pairs[:, 1], pairs[:, 1]), w2)
+    np.add.at(N, (pairs[:, 0], pairs[:, 1]), -w2)
+    np.add.at(N, (pairs[:, 1], pairs[:, 0]), -w2)
+    u = np.zeros((n, bands))
+    np.add.at(u, pairs[:, 0], w2[:, None] * b)
+    np.add.at(u, pairs[:, 1], -w2[:, None] * b)
+    return np.exp(np.linalg.solve(N, u))
 def _read_ndsm_on(path, transform, shape, crs, operation=None):
     """The nDSM (project CRS) on the mosaic grid, by maximum; a mosaic in another CRS than the nDSM's
     is mapped back through the index's coordinate operation (``operation``: mosaic CRS -> nDSM CRS)."""
@@ -201,14 +354,23 @@ def _write_labels(path, labels, transform, crs):
 
 
 def mosaic_block(root, settings: MosaicSettings | Resolved | None = None, *, object_height_m: float = 2.5,
-                 max_seam_cells: float = 5e7, end_reach_m: float = 30.0, executor=None) -> dict:
+                 max_seam_cells: float = 5e7, end_reach_m: float = 30.0, seam_cell_m: float = 1.5,
+                 executor=None) -> dict:
     """``ortho mosaic``: see the module doc. Returns a summary dict.
 
     ``settings``: None reads [mosaic] of project.toml; a ``Resolved`` (``ortho mosaic``, the chain) carries the
     source of every setting into mosaic.json (``settings``). The output tiles are blended as tasks on
     ``executor`` (``aerotri.core.executor.Executor``, default: local threads); the COG does not depend on the
-    scheduler."""
+    scheduler. GDAL's block cache is ``MOSAIC_CACHE_BYTES`` for the whole stage (set here, before any thread
+    of the stage starts: ``ortho.gdal_cache``)."""
+    with stage_block_cache(MOSAIC_CACHE_BYTES):
+        return _mosaic_block(root, settings, object_height_m=object_height_m, max_seam_cells=max_seam_cells,
+                             end_reach_m=end_reach_m, seam_cell_m=seam_cell_m, executor=executor)
+
+
+def _mosaic_block(root, settings, *, object_height_m, max_seam_cells, end_reach_m, seam_cell_m, executor) -> dict:
     root = Path(root)
+    timer = _PhaseTimer()
     resolved = settings_of(settings, MosaicSettings, Project.open(root) if settings is None else None)
     s = resolved.settings
     seams, ndsm_path, feather_m, balance, tile_px = s.seams, s.ndsm, s.feather_m, s.balance, s.tile_px
@@ -235,30 +397,40 @@ def mosaic_block(root, settings: MosaicSettings | Resolved | None = None, *, obj
         raise InputError(f"{ndsm_path}: nDSM not found (--ndsm)")
     if ndsm_path is None and (root / "lidar_out" / "ndsm.tif").exists():
         ndsm_path = root / "lidar_out" / "ndsm.tif"
-    if ndsm_path is not None:
-        _check_ndsm(ndsm_path, index, mosaic)
+        resolved = resolved.replace("ndsm", ndsm_path, resolved.sources.get("ndsm", "default"), "the LiDAR stages' nDSM")
     total_px = sum(g.width * g.height for g in grids.values())
-    factor = max(2, int(math.ceil(math.sqrt(total_px / max_seam_cells))))
-    red = reduce_frames(frames_dir, index, mosaic, factor)
-    crs = mosaic.crs
+    # seam cells of about seam_cell_m (buildings and roads are metres wide; finer cells only cost time: the
+    # seams took 2.5 of the demo's 6 CPU-s on 0.8 m cells), more where the frames would not fit max_seam_cells
+    factor = max(2, int(round(seam_cell_m / res)), int(math.ceil(math.sqrt(total_px / max_seam_cells))))
+    seam_transform = Affine(res * factor, 0, mosaic.x_left_m, 0, -res * factor, mosaic.y_top_m)
+    seam_shape = (-(-mosaic.height // factor), -(-mosaic.width // factor))
+    timer.done("checks")
+    # the nDSM is checked and read onto the seam grid on a thread while the frames are reduced (both before
+    # any output is written; its error is raised before the seams are made)
+    with _background(_ndsm_objects, ndsm_path, index, mosaic, seam_transform, seam_shape, object_height_m) as objects_of:
+        red = reduce_frames(frames_dir, index, mosaic, factor)
+        timer.done("seam grid")
+        objects = objects_of()
+        timer.done("nDSM")
     nadir = np.array([e["nadir_xy_m"] for e in index["frames"]])
     nadir_rc = np.stack([(mosaic.y_top_m - nadir[:, 1]) / (res * factor) - 0.5,
                          (nadir[:, 0] - mosaic.x_left_m) / (res * factor) - 0.5], axis=1)
     labels = voronoi_labels(red.valid, red.offsets, nadir_rc, red.shape)
-    if ndsm_path is None and (root / "lidar_out" / "ndsm.tif").exists():
-        ndsm_path = root / "lidar_out" / "ndsm.tif"
-        resolved = resolved.replace("ndsm", ndsm_path, resolved.sources.get("ndsm", "default"), "the LiDAR stages' nDSM")
-    objects = None
-    if ndsm_path is not None:
-        nd = _read_ndsm_on(ndsm_path, red.transform, red.shape, crs, index_operation(index))
-        objects = np.nan_to_num(nd, nan=0.0) > object_height_m
     if seams == "least-cost":
         # a seam end may slide along the overlap border by up to end_reach_m to get round a building
-        labels = least_cost_seams(labels, red.valid, red.offsets, red.gray(), objects,
+        labels = least_cost_seams(labels, red.valid, red.offsets, red.gray_of, objects,
                                   end_reach_cells=end_reach_m / (res * factor))
         if objects is not None:
             labels = keep_objects_whole(labels, objects, red.valid, red.offsets)
+    timer.done("seams")
     gains = balance_gains(red) if balance else np.ones((len(red.names), red.rgb[0].shape[2]))
+    # colour that does not clip: no gain saturates more of a frame than the frame has saturated itself
+    gains, limited = limit_gains(gains, red.histograms)
+    for k, b, g0, g1, own, would in limited:
+        logger.warning("frame %s band %d: gain %.2f lowered to %.2f so that it saturates no more of the frame than "
+                       "the frame itself (%.2f %%; the gain would have saturated %.2f %%)", red.names[k], b + 1, g0, g1,
+                       100 * own, 100 * would)
+    timer.done("gains")
     for name, g in zip(red.names, gains):
         if np.any(np.abs(np.log(g)) > math.log(1.3)):  # beyond exposure differences between frames of one flight
             logger.warning("frame %s needs gains %s to match its neighbours: check its exposure, or how its image "
@@ -269,6 +441,7 @@ def mosaic_block(root, settings: MosaicSettings | Resolved | None = None, *, obj
     with scratch_dir(out_dir, "mosaic") as work:
         outputs = _mosaic_outputs(Path(work), root, index, frames_dir, red, labels, gains, mosaic, factor, nadir,
                                   feather_px, tile_px, seams, executor, resolved.record())
+        timer.done("blend and COG")
         with commit_outputs(out_dir):  # one commit: all four new, or (a failure, a kill) all as before
             for name in ("seams.tif", "seamlines.geojson", "mosaic.tif", "mosaic.json"):
                 move_into(Path(work) / name, out_dir / name)
@@ -278,20 +451,61 @@ def mosaic_block(root, settings: MosaicSettings | Resolved | None = None, *, obj
 MIN_TILE_PX = 16
 
 
+class _PhaseTimer:
+    """Wall and CPU time of the phases of a run, logged at debug level (``-v``)."""
+
+    def __init__(self):
+        import time
+
+        self._clock = time
+        self._t, self._c = time.perf_counter(), time.process_time()
+
+    def done(self, phase: str) -> None:
+        t, c = self._clock.perf_counter(), self._clock.process_time()
+        logger.debug("mosaic: %s %.2f s (CPU %.2f s)", phase, t - self._t, c - self._c)
+        self._t, self._c = t, c
+
+
+@contextlib.contextmanager
+def _background(fn, *args):
+    """Run ``fn(*args)`` on a thread; yields a function that waits for its result (raising its error)."""
+    from concurrent.futures import ThreadPoolExecutor
+
+    with ThreadPoolExecutor(1, thread_name_prefix="mosaic-bg") as pool:
+        future = pool.submit(fn, *args)
+        try:
+            yield future.result
+        finally:
+            future.cancel()
+
+
+def _ndsm_objects(ndsm_path, index, mosaic: OrthoGrid, transform, shape, object_height_m: float):
+    """Objects (buildings, trees: nDSM above ``object_height_m``) on the seam grid, None without an nDSM; the
+    nDSM checked first (``_check_ndsm``)."""
+    if ndsm_path is None:
+        return None
+    _check_ndsm(ndsm_path, index, mosaic)
+    nd = _read_ndsm_on(ndsm_path, transform, shape, mosaic.crs, index_operation(index))
+    return np.nan_to_num(nd, nan=0.0) > object_height_m
+
+
 def _frame_layout(path) -> tuple[int, int]:
     with _open_frame(path) as ds:
         return ds.count, np.dtype(ds.dtypes[0]).itemsize
 
 
 def _tile_bytes(tile_px: int, feather_px: float, bands: int, itemsize: int) -> float:
-    """Memory of one blended tile with its halo: per pixel the accumulator, fallback and frame window
-    (float32 per band), weights, labels and distances (``_blend_tile``), and the output samples."""
+    """Memory of one blended tile (``_blend_tile``): over the tile and its halo the labels, a label mask and
+    its blur (4 bytes each); over the tile the accumulator and a frame's samples as float32 (per band),
+    weights, weight sum and distances, four frame windows with their masks, and the output samples."""
     side = tile_px + 2 * (math.ceil(2.0 * feather_px) + 64)
-    return side * side * (3 * 4 * bands + 6 * 4) + tile_px * tile_px * (bands * itemsize + 1)
+    return side * side * 3 * 4 + tile_px * tile_px * (2 * 4 * bands + 3 * 4 + 4 * (bands * itemsize + 1)
+                                                         + bands * itemsize + 1)
 
 
 def _tiles_in_flight(executor) -> int:
-    """Tiles held at once: the batch ``_write_mosaic`` hands to the executor."""
+    """Tiles held at once: the batch ``_write_mosaic`` hands to the executor (on local threads, the tiles
+    computed ahead of the writer: as many)."""
     from aerotri.core.executor import local_executor
 
     return max(2, 2 * (executor or local_executor()).workers)
@@ -311,26 +525,55 @@ def _mosaic_outputs(work: Path, root: Path, index, frames_dir, red, labels, gain
     crs, res = mosaic.crs, mosaic.res_m
     out_dir = root / "ortho"
     _write_labels(work / "seams.tif", labels, red.transform, crs)
-    features = label_polygons(labels, red.transform, red.names)
-    for f in features:
-        f["properties"]["kind"] = "frame_region"
-    lines = seam_lines(labels, red.transform, red.names)
-    for f in lines:
-        f["properties"]["kind"] = "seamline"
-    geo = {"type": "FeatureCollection", "name": "seamlines", "crs_wkt": crs.to_wkt(),
-           "crs": {"type": "name", "properties": {"name": f"urn:ogc:def:crs:EPSG::{crs.to_epsg()}"}} if crs.to_epsg() else None,
-           "features": features + lines}
-    write_text_atomic(work / "seamlines.geojson", json.dumps(geo) + "\n")
-    _write_mosaic(work / "mosaic.tif", frames_dir, index, mosaic, work / "seams.tif", factor, gains, nadir, feather_px,
-                  tile_px, executor=executor)
+    # the seamlines' polygons and lines on a thread while the tiles are blended and written
+    with _background(_write_seamlines, work / "seamlines.geojson", labels, red.transform, red.names, crs) as vectors:
+        _write_mosaic(work / "mosaic.tif", frames_dir, index, mosaic, work / "seams.tif", factor, gains, nadir,
+                      feather_px, tile_px, executor=executor, labels=labels)
+        vectors()
     summary = {"path": str(out_dir / "mosaic.tif"), "width": mosaic.width, "height": mosaic.height,
                "frames": len(red.names), "res_m": res, "seam_factor": factor, "seams": seams, "feather_px": feather_px,
                "index_sha1": index_sha1(root),
                "gains": {n: [float(v) for v in g] for n, g in zip(red.names, gains)},
                "pairs": [[red.names[i], red.names[j]] for i, j in neighbour_pairs(labels)],
+               **_interior_nodata(work / "mosaic.tif", res),
                "settings": settings_record}
+    if summary["cells_seen_by_no_frame"]:
+        logger.warning("%d cells (%.2f %% of the block) are seen by no frame (occluded in every frame of a true ortho, "
+                       "or over DEM nodata): nodata in the mosaic", summary["cells_seen_by_no_frame"],
+                       100 * summary["share_seen_by_no_frame"])
     write_text_atomic(work / "mosaic.json", json.dumps(summary, indent=1) + "\n")
     return summary
+
+
+def _interior_nodata(path: Path, res_m: float, max_cells: float = 4e6) -> dict:
+    """Cells of the mosaic without a value that lie inside the block (not connected to its outer edge): no
+    frame sees them. Counted on the mask read at most ``max_cells`` large (an overview of a large mosaic),
+    scaled to mosaic cells."""
+    with rasterio.open(path) as ds:
+        step = max(1, int(math.ceil(math.sqrt(ds.width * ds.height / max_cells))))
+        shape = (max(1, ds.height // step), max(1, ds.width // step))
+        ok = ds.read_masks(1, out_shape=shape, resampling=Resampling.nearest) > 0
+        sy, sx = ds.height / shape[0], ds.width / shape[1]
+    empty = np.pad(~ok, 1, constant_values=True).view(np.uint8).copy()
+    cv2.floodFill(empty, None, (0, 0), 2)  # the outside: every empty cell reached from the edge
+    holes = int(np.count_nonzero(empty[1:-1, 1:-1] == 1))
+    block = holes + int(np.count_nonzero(ok))
+    return {"cells_seen_by_no_frame": int(round(holes * sx * sy)), "share_seen_by_no_frame": holes / max(1, block),
+            "area_seen_by_no_frame_m2": round(holes * sx * sy * res_m * res_m, 1)}
+
+
+def _write_seamlines(path: Path, labels, transform, names, crs) -> None:
+    """seamlines.geojson: one polygon per frame (``frame_region``) and the seam lines between neighbours."""
+    features = label_polygons(labels, transform, names)
+    for f in features:
+        f["properties"]["kind"] = "frame_region"
+    lines = seam_lines(labels, transform, names)
+    for f in lines:
+        f["properties"]["kind"] = "seamline"
+    geo = {"type": "FeatureCollection", "name": "seamlines", "crs_wkt": crs.to_wkt(),
+           "crs": {"type": "name", "properties": {"name": f"urn:ogc:def:crs:EPSG::{crs.to_epsg()}"}} if crs.to_epsg() else None,
+           "features": features + lines}
+    write_text_atomic(path, json.dumps(geo) + "\n")
 
 
 def index_sha1(root) -> str:
@@ -351,135 +594,445 @@ class MosaicTile:
     width: int
 
 
+@dataclasses.dataclass
+class _BlendContext:
+    """What every tile needs: the frames (files, offsets (col, row) and sizes (width, height) in the mosaic,
+    gains (frames, bands), nadir points in the output CRS), the mosaic grid, the seam grid (``factor``,
+    ``read_cells(row, col, h, w)`` of its label raster of ``seam_shape``), the feather and the sample layout."""
+
+    names: list
+    files: list
+    offsets: np.ndarray
+    sizes: np.ndarray
+    gains: np.ndarray
+    nadir: np.ndarray
+    mosaic: OrthoGrid
+    factor: int
+    halo: int
+    feather_px: float
+    bands: int
+    dtype: str
+    read_cells: object
+    seam_shape: tuple
+
+    @functools.cached_property
+    def luts(self):
+        """Per frame and band the gain as a lookup table for 8- and 16-bit samples (None for other types)."""
+        dt = np.dtype(self.dtype)
+        if dt not in (np.dtype(np.uint8), np.dtype(np.uint16)):
+            return None
+        top = np.iinfo(dt).max
+        x = np.arange(top + 1, dtype=np.float32)
+        return [[np.clip(np.rint(x * np.float32(g)), 0, top).astype(dt) for g in row] for row in self.gains]
+
+
+def _context(index, frames_dir, mosaic: OrthoGrid, factor, halo, gains, nadir, feather_px, bands, dtype, read_cells,
+             seam_shape) -> _BlendContext:
+    grids = index_grids(index)
+    names = [e["image_id"] for e in index["frames"]]
+    offsets = np.array([grids[n].offset_in(mosaic) for n in names], np.int64).reshape(-1, 2)
+    sizes = np.array([(grids[n].width, grids[n].height) for n in names], np.int64).reshape(-1, 2)
+    files = [str(Path(frames_dir) / e["file"]) for e in index["frames"]]
+    return _BlendContext(names, files, offsets, sizes, np.asarray(gains, np.float64), np.asarray(nadir, np.float64),
+                         mosaic, int(factor), int(halo), float(feather_px), int(bands), str(dtype), read_cells,
+                         tuple(seam_shape))
+
+
 @functools.lru_cache(maxsize=4)
-def _load_context(path: str, mtime_ns: int) -> dict:
+def _load_context(path: str, mtime_ns: int) -> _BlendContext:
     """The mosaic context (frames, grids, gains, seam raster path), parsed once per worker process."""
     ctx = json.loads(Path(path).read_text())
     index = ctx["index"]
-    ctx["grids"] = index_grids(index)
-    ctx["names"] = [e["image_id"] for e in index["frames"]]
-    ctx["files"] = {e["image_id"]: Path(ctx["frames_dir"]) / e["file"] for e in index["frames"]}
     m = ctx["mosaic"]
-    ctx["mosaic_grid"] = OrthoGrid(CRS.from_wkt(index["crs"]), m["x_left_m"], m["y_top_m"], m["res_m"], m["width"],
-                                   m["height"])
-    ctx["offsets"] = [ctx["grids"][n].offset_in(ctx["mosaic_grid"]) for n in ctx["names"]]
-    ctx["gains"] = np.asarray(ctx["gains"], float)
-    ctx["nadir"] = np.asarray(ctx["nadir"], float)
-    return ctx
+    mosaic = OrthoGrid(CRS.from_wkt(index["crs"]), m["x_left_m"], m["y_top_m"], m["res_m"], m["width"], m["height"])
+    seams_path = ctx["seams_path"]
+    with rasterio.open(seams_path) as sds:
+        seam_shape = (sds.height, sds.width)
+
+    def read_cells(r, c, h, w):
+        with rasterio.open(seams_path) as sds:
+            return sds.read(1, window=Window(c, r, w, h))
+
+    return _context(index, ctx["frames_dir"], mosaic, ctx["factor"], ctx["halo"], ctx["gains"], ctx["nadir"],
+                    ctx["feather_px"], ctx["bands"], ctx["dtype"], read_cells, seam_shape)
 
 
-def _labels_at_full_resolution(read_cells, R0, C0, H, W, factor, shape):
-    """Seam labels (nearest) of the mosaic pixels R0..R0+H, C0..C0+W; ``read_cells(row, col, h, w)`` reads
-    a window of the seam grid of ``shape`` (cells of ``factor`` mosaic pixels)."""
-    lr = np.clip(np.arange(R0, R0 + H) // factor, 0, shape[0] - 1)
-    lc = np.clip(np.arange(C0, C0 + W) // factor, 0, shape[1] - 1)
-    r_lo, c_lo = int(lr.min()), int(lc.min())
-    cells = read_cells(r_lo, c_lo, int(lr.max()) + 1 - r_lo, int(lc.max()) + 1 - c_lo)
-    return cells[np.ix_(lr - r_lo, lc - c_lo)]
+class _FrameReaders:
+    """Open frame datasets per thread (GDAL handles are not shared between threads), the last
+    ``_OPEN_FRAMES`` of each thread kept open; ``close`` closes them all (a later run may find other files
+    under the same names)."""
+
+    def __init__(self):
+        self._local = threading.local()
+        self._all = []
+        self._lock = threading.Lock()
+
+    def get(self, path: str):
+        cache = getattr(self._local, "open", None)
+        if cache is None:
+            cache = self._local.open = collections.OrderedDict()
+        ds = cache.get(path)
+        if ds is not None:
+            cache.move_to_end(path)
+            return ds
+        ds = _open_frame(path)
+        cache[path] = ds
+        with self._lock:
+            self._all.append(ds)
+        if len(cache) > _OPEN_FRAMES:
+            cache.popitem(last=False)[1].close()
+        return ds
+
+    def close(self):
+        with self._lock:
+            for ds in self._all:
+                ds.close()
+            self._all.clear()
 
 
 def blend_tile_task(tile: MosaicTile):
-    """Blend one output tile from the frame orthos; returns (pixels (h, w, bands) of the frames' dtype,
-    validity bool (h, w)). Reads only the seam labels and frame windows it needs."""
+    """Blend one tile on a Dask worker; returns (pixels (bands, h, w) of the frames' type, validity bool (h, w))."""
     ctx = _load_context(tile.context_path, Path(tile.context_path).stat().st_mtime_ns)
-    halo, factor = ctx["halo"], ctx["factor"]
-    with rasterio.open(ctx["seams_path"]) as sds:
-        def read_cells(r, c, h, w):
-            return sds.read(1, window=Window(c, r, w, h))
+    readers = _FrameReaders()
+    try:
+        return _blend_tile(ctx, readers, tile.row0, tile.col0, tile.height, tile.width)
+    finally:
+        readers.close()
 
-        lab = _labels_at_full_resolution(read_cells, tile.row0 - halo, tile.col0 - halo, tile.height + 2 * halo,
-                                         tile.width + 2 * halo, factor, (sds.height, sds.width))
-    out, valid = _blend_tile(tile.row0, tile.col0, tile.height, tile.width, halo, ctx["names"], ctx["files"],
-                             ctx["offsets"], ctx["grids"], ctx["mosaic_grid"], lab, ctx["gains"], ctx["nadir"],
-                             ctx["feather_px"], ctx["bands"], ctx["dtype"])
-    return out.astype(ctx["dtype"]), valid
+
+def _apply_gain(ctx: _BlendContext, k: int, img: np.ndarray) -> np.ndarray:
+    """Frame ``k``'s samples (bands, h, w) through its gains, in the frames' type."""
+    luts = ctx.luts
+    out = np.empty(img.shape, ctx.dtype)
+    for b in range(img.shape[0]):
+        if luts is None:
+            out[b] = _to_type(img[b] * np.float32(ctx.gains[k, b]), ctx.dtype)
+        elif img.dtype == np.uint8:
+            cv2.LUT(img[b], luts[k][b], dst=out[b])
+        else:
+            np.take(luts[k][b], img[b], out=out[b])
+    return out
+
+
+def _to_type(a: np.ndarray, dtype) -> np.ndarray:
+    """float32 samples rounded and clipped into an integer type (as they are for floats)."""
+    dt = np.dtype(dtype)
+    if dt.kind in "ui":
+        info = np.iinfo(dt)
+        return np.clip(np.rint(a), info.min, info.max).astype(dt)
+    return a.astype(dt)
+
+
+def _blend_tile(ctx: _BlendContext, readers, r0: int, c0: int, th: int, tw: int):
+    """Blend one tile: (samples (bands, th, tw) of the frames' type, validity bool (th, tw)).
+
+    The seam cells of the tile and ``halo`` pixels around it decide: one frame labelled all over them
+    (away from every seam) gives its window through its gains; otherwise every labelled frame's weight
+    is its label mask at full resolution blurred by the feather (sigma = feather / 2), times its validity,
+    and pixels no weight reaches (no frame labelled there: the edge of the block) take the valid frame of
+    the nearest nadir point."""
+    f, halo = ctx.factor, ctx.halo
+    sh, sw = ctx.seam_shape
+    lr = np.clip(np.arange(r0 - halo, r0 + th + halo) // f, 0, sh - 1)
+    lc = np.clip(np.arange(c0 - halo, c0 + tw + halo) // f, 0, sw - 1)
+    rl, cl = int(lr[0]), int(lc[0])
+    cells = np.asarray(ctx.read_cells(rl, cl, int(lr[-1]) + 1 - rl, int(lc[-1]) + 1 - cl))
+    present = np.unique(cells)
+    labelled = present[present >= 0]
+    fc, fr = ctx.offsets[:, 0], ctx.offsets[:, 1]
+    reads = {}
+
+    def frame(k):
+        if k not in reads:
+            reads[k] = read_planar(readers.get(ctx.files[k]), c0 - int(fc[k]), r0 - int(fr[k]), tw, th)
+        return reads[k]
+
+    if len(labelled) == 1 and present[0] >= 0:
+        k = int(labelled[0])
+        img, m = frame(k)
+        if m.all():  # labelled cells are valid all over (seam grid validity is the minimum over the cell)
+            return _apply_gain(ctx, k, img), m
+    bands = ctx.bands
+    sigma = max(0.5, ctx.feather_px / 2.0)
+    ks = labelled.tolist()
+    # every labelled frame's weight over the tile: its label mask blurred by the feather. With a feather of
+    # a seam cell or more the blur runs on the seam grid and is interpolated (bilinear) to the pixels (the
+    # mask is constant over each cell; a factor^2 smaller blur); a narrower feather is blurred per pixel.
+    if ctx.feather_px >= f:
+        up = (cells.shape[1] * f, cells.shape[0] * f)
+        dr, dc = r0 - rl * f, c0 - cl * f
+        weights = [np.ascontiguousarray(cv2.resize(
+            cv2.GaussianBlur((cells == k).view(np.uint8).astype(np.float32), (0, 0), sigma / f), up,
+            interpolation=cv2.INTER_LINEAR)[dr:dr + th, dc:dc + tw]) for k in ks]
+    else:
+        lab = cells[np.ix_(lr - rl, lc - cl)]
+        weights = [np.ascontiguousarray(cv2.GaussianBlur((lab == k).view(np.uint8).astype(np.float32), (0, 0),
+                                                         sigma)[halo:halo + th, halo:halo + tw]) for k in ks]
+    out = np.zeros((bands, th, tw), np.dtype(ctx.dtype))
+    valid = np.zeros((th, tw), bool)
+    one = np.float32(1.0 - 1e-4)
+    for n, k in enumerate(ks):
+        # the weights sum to at most 1 (blurred masks of disjoint labels): where one frame holds all but 1e-4
+        # of it the pixel is that frame's sample through its gain, as away from the seams; the blend
+        # below only runs in the feather zone
+        sel = weights[n] >= one
+        rows = np.flatnonzero(sel.any(axis=1))
+        if not len(rows):
+            continue
+        ra, rb = int(rows[0]), int(rows[-1]) + 1
+        img, m = frame(k)
+        sel = sel[ra:rb] & m[ra:rb]
+        np.copyto(out[:, ra:rb], _apply_gain(ctx, k, img[:, ra:rb]), where=sel[None])
+        valid[ra:rb] |= sel
+    mixed = np.flatnonzero(~valid)
+    if len(mixed):
+        acc = np.zeros((bands, len(mixed)), np.float32)
+        wsum = np.zeros(len(mixed), np.float32)
+        for n, k in enumerate(ks):
+            wk = weights[n].ravel()[mixed]
+            if not wk.any():
+                continue
+            img, m = frame(k)
+            wk *= m.ravel()[mixed]
+            wsum += wk
+            acc += img.reshape(bands, -1)[:, mixed] * (wk[None] * ctx.gains[k].astype(np.float32)[:, None])
+        have = wsum > 1e-3
+        acc /= np.maximum(wsum, 1e-6)
+        flat_out = out.reshape(bands, -1)
+        flat_out[:, mixed[have]] = _to_type(acc[:, have], ctx.dtype)
+        valid.ravel()[mixed[have]] = True
+        need = mixed[~have]
+        if len(need):
+            # the valid frame of the nearest nadir point fills pixels no labelled frame reaches
+            rows, cols = np.divmod(need, tw)
+            ys = ctx.mosaic.y_top_m - (r0 + rows + 0.5) * ctx.mosaic.res_m
+            xs = ctx.mosaic.x_left_m + (c0 + cols + 0.5) * ctx.mosaic.res_m
+            best = np.full(len(need), np.inf)
+            fill = np.zeros((bands, len(need)), np.float32)
+            over = np.flatnonzero((fc < c0 + tw) & (fc + ctx.sizes[:, 0] > c0) & (fr < r0 + th)
+                                  & (fr + ctx.sizes[:, 1] > r0))
+            for k in over.tolist():
+                img, m = frame(k)
+                cand = m.ravel()[need]
+                if not cand.any():
+                    continue
+                d = np.hypot(xs - ctx.nadir[k, 0], ys - ctx.nadir[k, 1])
+                better = cand & (d < best)
+                best[better] = d[better]
+                fill[:, better] = img.reshape(bands, -1)[:, need[better]] * ctx.gains[k].astype(np.float32)[:, None]
+            got = np.isfinite(best)
+            flat_out[:, need[got]] = _to_type(fill[:, got], ctx.dtype)
+            valid.ravel()[need[got]] = True
+    return out, valid
 
 
 def _write_mosaic(path, frames_dir, index, mosaic: OrthoGrid, seams_path, factor, gains, nadir, feather_px, tile_px,
-                  executor=None):
-    """Blend the output tiles as tasks on ``executor`` (batches of a few tiles per worker, written in
-    tile order as they come back: memory is bounded by the batch, not the mosaic) into a tiled
-    GeoTIFF, then copy that to the COG. ``seams_path``: the label raster already written (the tasks
-    read their windows from it)."""
+                  executor=None, labels=None):
+    """Blend the output tiles into a tiled stage GeoTIFF and its overviews, then copy those to the COG
+    (module doc, step 5). On local threads (or synchronous) the tiles are computed ahead of this thread,
+    which writes them in tile order (``labels``: the seam labels in memory, else read from ``seams_path``);
+    on a Dask cluster in batches of a few tiles per worker (the tasks read their windows of
+    ``seams_path``). Memory is bounded by the tiles in flight, not by the mosaic."""
     from aerotri.core.executor import local_executor
+    from ortho.rectify import ordered_thread_map
 
     executor = executor or local_executor()
-    names = [e["image_id"] for e in index["frames"]]
-    files = {e["image_id"]: frames_dir / e["file"] for e in index["frames"]}
-    with rasterio.open(files[names[0]]) as ds:
+    with rasterio.open(Path(frames_dir) / index["frames"][0]["file"]) as ds:
         bands, dtype = ds.count, ds.dtypes[0]
+        colorinterp = ds.colorinterp
     halo = int(math.ceil(2.0 * feather_px)) + factor
-    profile = dict(driver="GTiff", width=mosaic.width, height=mosaic.height, count=bands, dtype=dtype, crs=mosaic.crs,
-                   transform=mosaic.transform, tiled=True, blockxsize=512, blockysize=512, compress="deflate",
-                   predictor=2, zlevel=1, interleave="pixel", BIGTIFF="IF_SAFER")
-    with scratch_dir(path.parent, "mosaic") as tmp_dir, rasterio.Env(GDAL_TIFF_INTERNAL_MASK=True):
-        context = {"index": index, "frames_dir": str(Path(frames_dir).resolve()),
-                   "mosaic": {"x_left_m": mosaic.x_left_m, "y_top_m": mosaic.y_top_m, "res_m": mosaic.res_m,
-                              "width": mosaic.width, "height": mosaic.height},
-                   "seams_path": str(Path(seams_path).resolve()), "factor": int(factor), "halo": halo,
-                   "gains": np.asarray(gains, float).tolist(), "nadir": np.asarray(nadir, float).tolist(),
-                   "feather_px": float(feather_px), "bands": int(bands), "dtype": dtype}
-        context_path = (Path(tmp_dir) / "context.json").resolve()
-        context_path.write_text(json.dumps(context))
-        check_task_count(math.ceil(mosaic.height / tile_px) * math.ceil(mosaic.width / tile_px),
-                         f"mosaic of {mosaic.width} x {mosaic.height} px in tiles of {tile_px} px", "--tile-px",
-                         "use a larger --tile-px")
-        tiles = [MosaicTile(str(context_path), r0, c0, min(tile_px, mosaic.height - r0), min(tile_px, mosaic.width - c0))
+    check_task_count(math.ceil(mosaic.height / tile_px) * math.ceil(mosaic.width / tile_px),
+                     f"mosaic of {mosaic.width} x {mosaic.height} px in tiles of {tile_px} px", "--tile-px",
+                     "use a larger --tile-px")
+    levels = overview_factors(mosaic.width, mosaic.height)
+    timer = _PhaseTimer()
+    with scratch_dir(path.parent, "mosaic") as tmp_dir, \
+            rasterio.Env(GDAL_TIFF_INTERNAL_MASK=True):  # the block cache is the stage's (mosaic_block)
+        tmp_dir = Path(tmp_dir)
+        if executor.distributed:
+            context = {"index": index, "frames_dir": str(Path(frames_dir).resolve()),
+                       "mosaic": {"x_left_m": mosaic.x_left_m, "y_top_m": mosaic.y_top_m, "res_m": mosaic.res_m,
+                                  "width": mosaic.width, "height": mosaic.height},
+                       "seams_path": str(Path(seams_path).resolve()), "factor": int(factor), "halo": halo,
+                       "gains": np.asarray(gains, float).tolist(), "nadir": np.asarray(nadir, float).tolist(),
+                       "feather_px": float(feather_px), "bands": int(bands), "dtype": dtype}
+            context_path = (tmp_dir / "context.json").resolve()
+            context_path.write_text(json.dumps(context))
+        else:
+            if labels is None:
+                with rasterio.open(seams_path) as sds:
+                    labels = sds.read(1)
+            cells = labels
+
+            def read_cells(r, c, h, w):
+                return cells[r:r + h, c:c + w]
+
+            ctx = _context(index, frames_dir, mosaic, factor, halo, gains, nadir, feather_px, bands, dtype,
+                           read_cells, labels.shape)
+        tiles = [(r0, c0, min(tile_px, mosaic.height - r0), min(tile_px, mosaic.width - c0))
                  for r0 in range(0, mosaic.height, tile_px) for c0 in range(0, mosaic.width, tile_px)]
-        batch = max(2, 2 * executor.workers)
-        stage = Path(tmp_dir) / "stage.tif"
-        with rasterio.open(stage, "w", **profile) as dst, \
-                progress(len(tiles), "mosaic", "tiles") as bar:
-            for i in range(0, len(tiles), batch):
-                results = executor.map(blend_tile_task, tiles[i:i + batch], desc="mosaic tiles", unit="tile")
-                for t, (out, valid) in zip(tiles[i:i + batch], results):
-                    w = Window(t.col0, t.row0, t.width, t.height)
-                    dst.write(np.moveaxis(out, -1, 0), window=w)
-                    dst.write_mask(np.where(valid, 255, 0).astype(np.uint8), window=w)
+        stage = tmp_dir / "stage.tif"
+        pyramid = _Pyramid(tmp_dir, mosaic, bands, dtype, levels, per_tile=tile_px % 2 == 0)
+        readers = _FrameReaders()
+        made = None
+        profile = dict(_stage_profile(mosaic, bands, dtype), width=mosaic.width, height=mosaic.height, count=bands,
+                       dtype=dtype, crs=mosaic.crs, transform=mosaic.transform)
+        try:
+            if executor.distributed:
+                batch = max(2, 2 * executor.workers)
+
+                def results():
+                    for i in range(0, len(tiles), batch):
+                        yield from executor.map(blend_tile_task, [MosaicTile(str(context_path), *t)
+                                                                  for t in tiles[i:i + batch]],
+                                                desc="mosaic tiles", unit="tile")
+                made = results()
+            else:
+                threads = 1 if executor.scheduler == "synchronous" else max(1, executor.workers)
+                made = ordered_thread_map(lambda t: _blend_tile(ctx, readers, *t), tiles, threads)
+            with rasterio.open(stage, "w", **profile) as dst, progress(len(tiles), "mosaic", "tiles") as bar:
+                dst.colorinterp = colorinterp
+                for (r0, c0, th, tw), (out, valid) in zip(tiles, made):
+                    w = Window(c0, r0, tw, th)
+                    dst.write(out, window=w)
+                    dst.write_mask(valid.view(np.uint8) * np.uint8(255), window=w)
+                    pyramid.add_tile(r0, c0, out, valid)
                     bar.update(1)
-        with rasterio.open(stage, "r+") as dst:  # the COG copy keeps the tags
-            dst.update_tags(**operation_tags(index.get("coordinate_operation"), index.get("height_operation")))
+        finally:
+            if made is not None:  # the tile threads end before their frame datasets are closed
+                made.close()
+            readers.close()
+        timer.done("tiles")
+        pyramid.finish(stage)
+        timer.done("overviews")
+        vrt = tmp_dir / "mosaic.vrt"
+        write_vrt(vrt, stage, pyramid.paths, mosaic, bands, dtype, colorinterp,
+                  operation_tags(index.get("coordinate_operation"), index.get("height_operation")))
         with atomic_path(path) as tmp:
-            rasterio.shutil.copy(stage, tmp, driver="COG", COMPRESS="DEFLATE", BLOCKSIZE=512, OVERVIEWS="AUTO",
-                                 OVERVIEW_RESAMPLING="AVERAGE", BIGTIFF="IF_SAFER", NUM_THREADS="ALL_CPUS")
+            rasterio.shutil.copy(vrt, tmp, **COG_OPTIONS)
+        timer.done("COG")
 
 
-def _blend_tile(r0, c0, th, tw, halo, names, files, offsets, grids, mosaic, lab, gains, nadir, feather_px,
-                bands, dtype):
-    """Blend one tile; ``lab``: seam labels of the tile and ``halo`` pixels around it, at full resolution."""
-    acc = np.zeros((th, tw, bands), np.float32)
-    wsum = np.zeros((th, tw), np.float32)
-    fallback_best = np.full((th, tw), np.inf, np.float32)
-    fallback = np.zeros((th, tw, bands), np.float32)
-    ys = mosaic.y_top_m - (np.arange(r0, r0 + th) + 0.5) * mosaic.res_m
-    xs = mosaic.x_left_m + (np.arange(c0, c0 + tw) + 0.5) * mosaic.res_m
-    sigma = max(0.5, feather_px / 2.0)
-    for k, name in enumerate(names):
-        fc, fr = offsets[k]
-        g = grids[name]
-        if fr >= r0 + th or fr + g.height <= r0 or fc >= c0 + tw or fc + g.width <= c0:
-            continue
-        with _open_frame(files[name]) as ds:
-            img, m = read_window(ds, c0 - fc, r0 - fr, tw, th)
-        if not m.any():
-            continue
-        img *= gains[k][None, None, :]
-        own = (lab == k).astype(np.float32)
-        if own.any():
-            wk = cv2.GaussianBlur(own, (0, 0), sigma)[halo:halo + th, halo:halo + tw] * m
-            acc += img * wk[:, :, None]
-            wsum += wk
-        # nearest-nadir valid frame: fills pixels where the labelled frame is invalid
-        d = np.hypot(xs[None, :] - nadir[k, 0], ys[:, None] - nadir[k, 1]).astype(np.float32)
-        better = m & (d < fallback_best)
-        fallback_best[better] = d[better]
-        fallback[better] = img[better]
-    valid = np.isfinite(fallback_best)
-    out = np.where((wsum > 1e-3)[:, :, None], acc / np.maximum(wsum, 1e-6)[:, :, None], fallback)
-    top = float(np.iinfo(dtype).max) if np.issubdtype(np.dtype(dtype), np.integer) else np.inf
-    out = np.clip(np.rint(out) if np.isfinite(top) else out, 0, top)
-    out[~valid] = 0
-    return out, valid
+def _stage_profile(mosaic: OrthoGrid, bands: int, dtype) -> dict:
+    """The stage's GeoTIFF profile: uncompressed while it is small (``STAGE_RAW_MAX_BYTES``), else ZSTD level 1
+    with the predictor (a third of the disk for a few ns per pixel)."""
+    raw = mosaic.width * mosaic.height * bands * np.dtype(dtype).itemsize
+    if raw > STAGE_RAW_MAX_BYTES:
+        return dict(STAGE_PROFILE)
+    return {k: v for k, v in STAGE_PROFILE.items() if k not in ("compress", "zstd_level", "predictor", "num_threads")}
+
+
+def overview_factors(width: int, height: int, block_px: int = 512) -> list[int]:
+    """Overview decimation factors 2, 4, ... until the coarsest fits one block (GDAL's COG default)."""
+    out, f = [], 2
+    while -(-max(width, height) // (f // 2)) > block_px:
+        out.append(f)
+        f *= 2
+    return out
+
+
+def halve(img: np.ndarray, valid: np.ndarray):
+    """2 x 2 average of the valid samples (bands, h, w; 0 where not valid) -> (bands, ceil(h/2), ceil(w/2)) in
+    their type, and the validity (any of the four valid); an odd last row or column averages what it has."""
+    b, h, w = img.shape
+    h2, w2 = -(-h // 2), -(-w // 2)
+    if (h2 * 2, w2 * 2) != (h, w):
+        img = np.pad(img, ((0, 0), (0, h2 * 2 - h), (0, w2 * 2 - w)))
+        valid = np.pad(valid, ((0, h2 * 2 - h), (0, w2 * 2 - w)))
+    count = cv2.resize(valid.view(np.uint8).astype(np.float32), (w2, h2), interpolation=cv2.INTER_AREA)
+    ok = count > 0
+    inv = np.where(ok, 1.0 / np.maximum(count, 1e-6), 0.0).astype(np.float32)
+    out = np.empty((b, h2, w2), img.dtype)
+    for k in range(b):
+        # invalid samples are 0 (the blended tiles and every level are written so)
+        mean = cv2.resize(img[k].astype(np.float32), (w2, h2), interpolation=cv2.INTER_AREA)
+        cv2.multiply(mean, inv, dst=mean)
+        out[k] = cv2.convertScaleAbs(mean) if img.dtype == np.uint8 else _to_type(mean, img.dtype)
+    return out, ok
+
+
+class _Pyramid:
+    """The overviews of the stage, as files ``ovr_<factor>.tif`` (same profile as the stage): the first
+    from each tile as it is written (``per_tile``: even tile sizes, whose halves align), the others by
+    halving the previous level by strips of rows in ``finish``."""
+
+    STRIP_PX = 512
+
+    def __init__(self, folder: Path, mosaic: OrthoGrid, bands: int, dtype: str, factors: list[int], per_tile: bool):
+        self.folder, self.mosaic, self.bands, self.dtype = folder, mosaic, bands, dtype
+        self.factors = factors
+        self.paths = [folder / f"ovr_{f}.tif" for f in factors]
+        self.base = _stage_profile(mosaic, bands, dtype)
+        self.first = None
+        if factors and per_tile:
+            self.first = rasterio.open(self.paths[0], "w", **self._profile(factors[0]))
+
+    def _profile(self, f: int) -> dict:
+        m = self.mosaic
+        return dict(self.base, width=-(-m.width // f), height=-(-m.height // f), count=self.bands, dtype=self.dtype,
+                    crs=m.crs, transform=Affine(m.res_m * f, 0.0, m.x_left_m, 0.0, -m.res_m * f, m.y_top_m))
+
+    def add_tile(self, r0: int, c0: int, out: np.ndarray, valid: np.ndarray) -> None:
+        if self.first is None:
+            return
+        h, v = halve(out, valid)
+        w = Window(c0 // 2, r0 // 2, h.shape[2], h.shape[1])
+        self.first.write(h, window=w)
+        self.first.write_mask(v.view(np.uint8) * np.uint8(255), window=w)
+
+    def finish(self, stage: Path) -> None:
+        start = 0
+        if self.first is not None:
+            self.first.close()
+            start = 1
+        for i in range(start, len(self.factors)):
+            src = stage if i == 0 else self.paths[i - 1]
+            with rasterio.open(src) as s, rasterio.open(self.paths[i], "w", **self._profile(self.factors[i])) as d:
+                for r0 in range(0, s.height, self.STRIP_PX):
+                    win = Window(0, r0, s.width, min(self.STRIP_PX, s.height - r0))
+                    h, v = halve(s.read(window=win), s.read_masks(1, window=win) > 0)
+                    w = Window(0, r0 // 2, h.shape[2], h.shape[1])
+                    d.write(h, window=w)
+                    d.write_mask(v.view(np.uint8) * np.uint8(255), window=w)
+
+
+_GDAL_TYPES = {"uint8": "Byte", "int8": "Int8", "uint16": "UInt16", "int16": "Int16", "uint32": "UInt32",
+               "int32": "Int32", "float32": "Float32", "float64": "Float64"}
+
+
+def write_vrt(path: Path, full: Path, overviews: list, grid: OrthoGrid, bands: int, dtype: str, colorinterp,
+              tags: dict) -> None:
+    """A VRT of ``full`` (a GeoTIFF with an internal mask) declaring ``overviews`` (files of the same bands
+    and mask, finest first) as its overviews and its mask's, with the metadata ``tags``: the source the
+    COG driver copies with its overviews as they are (``OVERVIEWS=FORCE_USE_EXISTING``)."""
+    from xml.sax.saxutils import escape, quoteattr
+
+    t = grid.transform
+    gdal_type = _GDAL_TYPES[str(dtype)]
+
+    def source(name, band, kind="SimpleSource"):
+        return (f'<{kind}><SourceFilename relativeToVRT="1">{escape(name)}</SourceFilename>'
+                f'<SourceBand>{band}</SourceBand></{kind}>')
+
+    def overview_list(band):
+        return "".join(f'<Overview><SourceFilename relativeToVRT="1">{escape(Path(o).name)}</SourceFilename>'
+                       f'<SourceBand>{band}</SourceBand></Overview>' for o in overviews)
+
+    parts = [f'<VRTDataset rasterXSize="{grid.width}" rasterYSize="{grid.height}">',
+             f"<SRS>{escape(grid.crs.to_wkt())}</SRS>",
+             f"<GeoTransform>{t.c!r}, {t.a!r}, 0.0, {t.f!r}, 0.0, {t.e!r}</GeoTransform>"]
+    if tags:
+        parts.append("<Metadata>" + "".join(f"<MDI key={quoteattr(k)}>{escape(str(v))}</MDI>" for k, v in tags.items())
+                     + "</Metadata>")
+    for b in range(1, bands + 1):
+        ci = colorinterp[b - 1].name.capitalize() if colorinterp else "Undefined"
+        ci = {"Gray": "Gray", "Undefined": "Undefined"}.get(ci, ci)
+        parts.append(f'<VRTRasterBand dataType="{gdal_type}" band="{b}"><ColorInterp>{ci}</ColorInterp>'
+                     + source(Path(full).name, b) + overview_list(b) + "</VRTRasterBand>")
+    parts.append('<MaskBand><VRTRasterBand dataType="Byte">' + source(Path(full).name, "mask,1")
+                 + overview_list("mask,1") + "</VRTRasterBand></MaskBand>")
+    parts.append("</VRTDataset>")
+    Path(path).write_text("\n".join(parts) + "\n")
 
 
 _SEAM_GROUP_PX = 2048  # mosaic pixels: the patches of a seam are read in windows of about this size

@@ -28,238 +28,29 @@ fills them from other frames.
 from __future__ import annotations
 
 import collections
+import contextlib
 import dataclasses
 import math
 import os
 import queue
 import threading
 from concurrent.futures import ThreadPoolExecutor
+from typing import TYPE_CHECKING
 
 import cv2
-import numba
 import numpy as np
 
 from aerotri.core.errors import InputError
-from aerotri.geom.camera import Camera
-from aerotri.geom.lens_kernels import to_pixel
 from aerotri.geom.rotation import FLIP_YZ
-from ortho.dem import HeightRaster
 from ortho.grid import GridToProject, OrthoGrid
 
+# the compiled kernels (numba) live in ortho.rectify_kernels, imported by the functions that run them; the
+# camera (whose lens model is compiled too) and height rasters are arguments here, not imports
+if TYPE_CHECKING:
+    from aerotri.geom.camera import Camera
+    from ortho.dem import HeightRaster
+
 INTERPOLATION = {"nearest": cv2.INTER_NEAREST, "bilinear": cv2.INTER_LINEAR, "cubic": cv2.INTER_CUBIC, "lanczos": cv2.INTER_LANCZOS4}
-
-_INVALID = -1.0e5  # image coordinate written for invalid pixels (far outside any frame)
-
-
-INTER_BITS = 5  # cv2.remap fixed-point maps: 1/32 px sub-pixel positions (what it uses internally anyway)
-INTER_TAB_SIZE = 1 << INTER_BITS
-
-
-# fast-math without "nnan"/"ninf": the NaN test for DEM nodata must survive
-_FASTMATH = {"contract", "arcp", "reassoc", "nsz", "afn"}
-
-
-@numba.njit(cache=True, inline="always", fastmath=_FASTMATH)
-def _dem_height(dem, X, Y, dem_x0, dem_y0, dem_res):
-    """Bilinear DEM height at (X, Y), clamped half a pixel beyond the outer cell centres; NaN outside
-    the DEM or on nodata. Computed without an early return so that loops over it stay branch-free."""
-    dh, dw = dem.shape
-    u = (X - dem_x0) / dem_res - 0.5
-    v = (dem_y0 - Y) / dem_res - 0.5
-    inside = u >= -0.5 and u <= dw - 0.5 and v >= -0.5 and v <= dh - 0.5
-    u = min(max(u, 0.0), dw - 1.0)
-    v = min(max(v, 0.0), dh - 1.0)
-    di = min(int(v), max(dh - 2, 0))
-    dj = min(int(u), max(dw - 2, 0))
-    fv = v - di
-    fu = u - dj
-    di1 = min(di + 1, dh - 1)
-    dj1 = min(dj + 1, dw - 1)
-    Z = (dem[di, dj] * (1.0 - fu) * (1.0 - fv) + dem[di, dj1] * fu * (1.0 - fv)
-         + dem[di1, dj] * (1.0 - fu) * fv + dem[di1, dj1] * fu * fv)
-    return Z if inside else np.nan
-
-
-@numba.njit(cache=True, inline="always", fastmath=_FASTMATH)
-def _fixed_point_entry(x, y, in_front, x_lo, x_hi, y_lo, y_hi, far):
-    """cv2.remap 1/32 px fixed-point x, y and mask (255/0) of one output pixel. Where imaged x, y >= 0,
-    so truncation rounds; not imaged: ``far`` outside the image, branch-free (a select, vectorisable)."""
-    ok = in_front & (x >= x_lo) & (x <= x_hi) & (y >= y_lo) & (y <= y_hi)
-    return (np.int32(x * INTER_TAB_SIZE + 0.5) if ok else far, np.int32(y * INTER_TAB_SIZE + 0.5) if ok else far,
-            np.uint8(255) if ok else np.uint8(0))
-
-
-@numba.njit(cache=True, inline="always", fastmath=_FASTMATH)
-def _ground_to_image(r, c, inv_s, anchor_x, anchor_y, dem, dem_x0, dem_y0, dem_res, centre, M, cam, width, height,
-                     margin):
-    """Ground point of output pixel (r, c), its height and image position; ok False if not imaged."""
-    ar = r * inv_s
-    i0 = min(int(ar), anchor_x.shape[0] - 2)
-    fr = ar - i0
-    ac = c * inv_s
-    j0 = min(int(ac), anchor_x.shape[1] - 2)
-    fc = ac - j0
-    w00 = (1.0 - fr) * (1.0 - fc)
-    w01 = (1.0 - fr) * fc
-    w10 = fr * (1.0 - fc)
-    w11 = fr * fc
-    X = anchor_x[i0, j0] * w00 + anchor_x[i0, j0 + 1] * w01 + anchor_x[i0 + 1, j0] * w10 + anchor_x[i0 + 1, j0 + 1] * w11
-    Y = anchor_y[i0, j0] * w00 + anchor_y[i0, j0 + 1] * w01 + anchor_y[i0 + 1, j0] * w10 + anchor_y[i0 + 1, j0 + 1] * w11
-    Z = _dem_height(dem, X, Y, dem_x0, dem_y0, dem_res)
-    if Z != Z:  # outside the DEM or on its nodata
-        return Z, 0.0, 0.0, False
-    dx = X - centre[0]
-    dy = Y - centre[1]
-    dz = Z - centre[2]
-    zc = M[2, 0] * dx + M[2, 1] * dy + M[2, 2] * dz
-    if zc <= 0.0:  # behind the camera
-        return Z, 0.0, 0.0, False
-    xn = (M[0, 0] * dx + M[0, 1] * dy + M[0, 2] * dz) / zc
-    yn = (M[1, 0] * dx + M[1, 1] * dy + M[1, 2] * dz) / zc
-    x, y = to_pixel(cam, xn, yn)
-    ok = x >= margin and x <= width - 1 - margin and y >= margin and y <= height - 1 - margin
-    return Z, x, y, ok
-
-
-@numba.njit(parallel=True, cache=True, fastmath=_FASTMATH)
-def _backproject_kernel(anchor_x, anchor_y, spacing, rows, cols, dem, dem_x0, dem_y0, dem_res,
-                        centre, M, cam, width, height, margin, map_x, map_y, height_out):
-    """Float image coordinates (map_x, map_y; -1e5 where not imaged) and heights of a rows x cols tile.
-
-    cam: the camera's kernel parameters (``Camera.kernel_params()``, any model of
-    ``aerotri.geom.lens_kernels``); M = (R @ FLIP_YZ).T maps object offsets to the computer-vision camera
-    frame.
-    """
-    inv_s = 1.0 / spacing
-    for r in numba.prange(rows):
-        for c in range(cols):
-            Z, x, y, ok = _ground_to_image(r, c, inv_s, anchor_x, anchor_y, dem, dem_x0, dem_y0, dem_res, centre, M,
-                                           cam, width, height, margin)
-            map_x[r, c] = x if ok else _INVALID
-            map_y[r, c] = y if ok else _INVALID
-            height_out[r, c] = Z
-
-
-@numba.njit(cache=True, nogil=True)
-def _pack_fixed_point(ix_row, iy_row, int_row, frac_row, bounds):
-    """1/32 px fixed-point positions -> cv2.remap's CV_16SC2 integer part + CV_16UC1 table index (one row).
-
-    ``bounds`` (int32 x_min, x_max, y_min, y_max of the integer parts of the imaged pixels, which are
-    >= 0; not-imaged ones are far negative) is widened by this row."""
-    x_min, x_max, y_min, y_max = bounds[0], bounds[1], bounds[2], bounds[3]
-    for c in range(ix_row.shape[0]):
-        ix = ix_row[c]
-        iy = iy_row[c]
-        xi = ix >> INTER_BITS
-        yi = iy >> INTER_BITS
-        int_row[c, 0] = np.int16(xi)
-        int_row[c, 1] = np.int16(yi)
-        frac_row[c] = np.uint16(((iy & (INTER_TAB_SIZE - 1)) << INTER_BITS) | (ix & (INTER_TAB_SIZE - 1)))
-        x_min = min(x_min, xi if xi >= 0 else x_min)
-        x_max = max(x_max, xi)
-        y_min = min(y_min, yi if yi >= 0 else y_min)
-        y_max = max(y_max, yi)
-    bounds[0], bounds[1], bounds[2], bounds[3] = x_min, x_max, y_min, y_max
-
-
-@numba.njit(cache=True, nogil=True, fastmath=_FASTMATH, error_model="numpy")
-def _fixed_point_kernel(anchor_x, anchor_y, spacing, rows, cols, dem, dem_x0, dem_y0, dem_res,
-                        centre, M, cam, width, height, margin, map_int, map_frac, mask, height_out, bounds):
-    """As _backproject_kernel, but writes cv2.remap's fixed-point maps directly (CV_16SC2 integer
-    positions + CV_16UC1 1/32 px fractions, as cv2.convertMaps would), the validity mask (255/0) and
-    the integer bounds of the imaged positions (``bounds``, see _pack_fixed_point).
-    Not-imaged pixels point far outside the image, so cv2.remap with a constant border gives 0.
-    Loop invariants are hoisted by hand (LLVM cannot prove the output arrays do not alias them)."""
-    inv_s = 1.0 / spacing
-    m00, m01, m02, m10, m11, m12, m20, m21, m22 = (M[0, 0], M[0, 1], M[0, 2], M[1, 0], M[1, 1], M[1, 2],
-                                                   M[2, 0], M[2, 1], M[2, 2])
-    c0, c1, c2 = centre[0], centre[1], centre[2]
-    x_lo, x_hi, y_lo, y_hi = margin, width - 1 - margin, margin, height - 1 - margin
-    na = anchor_x.shape[1]
-    far = np.int32(-32768 * INTER_TAB_SIZE)
-    ix_row = np.empty(cols, np.int32)
-    iy_row = np.empty(cols, np.int32)
-    for r in range(rows):
-        ar = r * inv_s
-        i0 = min(int(ar), anchor_x.shape[0] - 2)
-        fr = ar - i0
-        ax0, ax1, ay0, ay1 = anchor_x[i0], anchor_x[i0 + 1], anchor_y[i0], anchor_y[i0 + 1]
-        mask_row, z_row = mask[r], height_out[r]
-        for c in range(cols):
-            ac = c * inv_s
-            j0 = min(int(ac), na - 2)
-            fc = ac - j0
-            X = (1.0 - fr) * ((1.0 - fc) * ax0[j0] + fc * ax0[j0 + 1]) + fr * ((1.0 - fc) * ax1[j0] + fc * ax1[j0 + 1])
-            Y = (1.0 - fr) * ((1.0 - fc) * ay0[j0] + fc * ay0[j0 + 1]) + fr * ((1.0 - fc) * ay1[j0] + fc * ay1[j0 + 1])
-            Z = _dem_height(dem, X, Y, dem_x0, dem_y0, dem_res)
-            z_row[c] = Z
-            dx = X - c0
-            dy = Y - c1
-            dz = Z - c2
-            zc = m20 * dx + m21 * dy + m22 * dz
-            inv_zc = 1.0 / zc
-            xn = (m00 * dx + m01 * dy + m02 * dz) * inv_zc
-            yn = (m10 * dx + m11 * dy + m12 * dz) * inv_zc
-            x, y = to_pixel(cam, xn, yn)
-            ix_row[c], iy_row[c], mask_row[c] = _fixed_point_entry(x, y, zc > 0.0, x_lo, x_hi, y_lo, y_hi, far)
-        _pack_fixed_point(ix_row, iy_row, map_int[r], map_frac[r], bounds)
-
-
-@numba.njit(cache=True, nogil=True)
-def _occlusion_kernel(anchor_x, anchor_y, spacing, rows, cols, height_tile, dsm, dsm_x0, dsm_y0, dsm_res,
-                      dsm_max, centre, tolerance_m, occluded):
-    """Mark ground points whose ray to the projection centre passes below the DSM surface.
-
-    March from the ground point towards the centre in steps of one DSM cell (horizontally), stop when
-    the ray is above the highest DSM value; occluded if the DSM exceeds the ray by ``tolerance_m``.
-    """
-    dh, dw = dsm.shape
-    inv_s = 1.0 / spacing
-    for r in range(rows):
-        ar = r * inv_s
-        i0 = min(int(ar), anchor_x.shape[0] - 2)
-        fr = ar - i0
-        for c in range(cols):
-            Z = height_tile[r, c]
-            if Z != Z:
-                continue
-            ac = c * inv_s
-            j0 = min(int(ac), anchor_x.shape[1] - 2)
-            fc = ac - j0
-            X = ((1 - fr) * (1 - fc) * anchor_x[i0, j0] + (1 - fr) * fc * anchor_x[i0, j0 + 1]
-                 + fr * (1 - fc) * anchor_x[i0 + 1, j0] + fr * fc * anchor_x[i0 + 1, j0 + 1])
-            Y = ((1 - fr) * (1 - fc) * anchor_y[i0, j0] + (1 - fr) * fc * anchor_y[i0, j0 + 1]
-                 + fr * (1 - fc) * anchor_y[i0 + 1, j0] + fr * fc * anchor_y[i0 + 1, j0 + 1])
-            vx = centre[0] - X
-            vy = centre[1] - Y
-            vz = centre[2] - Z
-            hd = math.sqrt(vx * vx + vy * vy)
-            if hd < 1e-9 or vz <= 0:
-                continue
-            rise = vz / hd  # metres of ray height per metre horizontally
-            ux = vx / hd
-            uy = vy / hd
-            t = dsm_res
-            while True:
-                zr = Z + rise * t
-                if zr > dsm_max:
-                    break
-                px = X + ux * t
-                py = Y + uy * t
-                u = (px - dsm_x0) / dsm_res - 0.5
-                v = (dsm_y0 - py) / dsm_res - 0.5
-                if u < 0 or v < 0 or u > dw - 1 or v > dh - 1:
-                    break
-                di = min(int(v), dh - 2)
-                dj = min(int(u), dw - 2)
-                fv = v - di
-                fu = u - dj
-                zs = (dsm[di, dj] * (1 - fu) * (1 - fv) + dsm[di, dj + 1] * fu * (1 - fv)
-                      + dsm[di + 1, dj] * (1 - fu) * fv + dsm[di + 1, dj + 1] * fu * fv)
-                if zs > zr + tolerance_m:
-                    occluded[r, c] = True
-                    break
-                t += dsm_res
 
 
 @dataclasses.dataclass
@@ -274,43 +65,6 @@ class FrameGeometry:
         cam = self.camera
         M = np.ascontiguousarray((np.asarray(self.R, float) @ FLIP_YZ).T)
         return np.asarray(self.centre_m, dtype=np.float64), M, cam.kernel_params()
-
-
-@numba.njit(cache=True, nogil=True, fastmath=_FASTMATH, error_model="numpy")
-def _fixed_point_kernel_affine(heights, x0, y0, res, centre, M, cam, width, height, margin, map_int, map_frac, mask,
-                               bounds):
-    """Fast path of _fixed_point_kernel when the output grid is in the project CRS: ground X, Y are
-    affine in (row, col) and the heights on the grid are given (bilinear DEM, see heights_on_grid).
-
-    Branch-free inner loop with everything loop-invariant hoisted and plain int32 row outputs, so
-    LLVM vectorises it (AVX-512: ~5x faster than a branching loop storing the interleaved int16 map);
-    the packing into cv2's layout is a second, cheap pass. NaN heights (DEM nodata) make x, y NaN and
-    fail the range test.
-    """
-    rows, cols = heights.shape
-    x_lo, x_hi, y_lo, y_hi = margin, width - 1 - margin, margin, height - 1 - margin
-    m02, m12, m22 = M[0, 2], M[1, 2], M[2, 2]
-    sx, sy, sz = M[0, 0] * res, M[1, 0] * res, M[2, 0] * res
-    far = np.int32(-32768 * INTER_TAB_SIZE)
-    ix_row = np.empty(cols, np.int32)
-    iy_row = np.empty(cols, np.int32)
-    for r in range(rows):
-        dx0 = x0 - centre[0]
-        dy = y0 - r * res - centre[1]
-        # camera-frame coordinates are affine along the row: start + c * step + dz * column of M
-        bx = M[0, 1] * dy + M[0, 0] * dx0
-        by = M[1, 1] * dy + M[1, 0] * dx0
-        bz = M[2, 1] * dy + M[2, 0] * dx0
-        z_row, mask_row = heights[r], mask[r]
-        for c in range(cols):
-            dz = np.float64(z_row[c]) - centre[2]
-            zc = bz + c * sz + m22 * dz
-            inv_zc = 1.0 / zc
-            xn = (bx + c * sx + m02 * dz) * inv_zc
-            yn = (by + c * sy + m12 * dz) * inv_zc
-            x, y = to_pixel(cam, xn, yn)
-            ix_row[c], iy_row[c], mask_row[c] = _fixed_point_entry(x, y, zc > 0.0, x_lo, x_hi, y_lo, y_hi, far)
-        _pack_fixed_point(ix_row, iy_row, map_int[r], map_frac[r], bounds)
 
 
 def heights_on_grid(dem: HeightRaster, grid: OrthoGrid, out: np.ndarray | None = None) -> np.ndarray:
@@ -344,6 +98,8 @@ def image_coordinates(geometry: FrameGeometry, dem: HeightRaster, grid: OrthoGri
     map_x = np.empty(shape, np.float32)
     map_y = np.empty(shape, np.float32)
     z = np.empty(shape, np.float32)
+    from ortho.rectify_kernels import _backproject_kernel
+
     _backproject_kernel(AX, AY, float(s), grid.height, grid.width, dem.heights_m, dem.x_left_m, dem.y_top_m, dem.res_m,
                         centre, M, params, geometry.camera.width, geometry.camera.height, float(margin_px),
                         map_x, map_y, z)
@@ -392,6 +148,8 @@ def fixed_point_maps(geometry: FrameGeometry, dem: HeightRaster, grid: OrthoGrid
     mask = np.empty(shape, np.uint8) if mask_out is None else mask_out
     bounds = np.empty(4, np.int32) if bounds_out is None else bounds_out
     bounds[:] = (32767, -32768, 32767, -32768)
+    from ortho.rectify_kernels import _fixed_point_kernel, _fixed_point_kernel_affine
+
     if to_project.identity:
         z = heights_on_grid(dem, grid, out=z)
         _fixed_point_kernel_affine(z, grid.x_left_m + 0.5 * grid.res_m, grid.y_top_m - 0.5 * grid.res_m, grid.res_m,
@@ -405,14 +163,78 @@ def fixed_point_maps(geometry: FrameGeometry, dem: HeightRaster, grid: OrthoGrid
 
 
 def occlusion_mask(geometry: FrameGeometry, dsm: HeightRaster, grid: OrthoGrid, heights_m: np.ndarray, anchors,
-                   tolerance_m: float = 0.3) -> np.ndarray:
-    """True where the ground point (grid pixel at ``heights_m``) is hidden from the camera by the DSM."""
+                   tolerance_m: float = 0.3, candidates: np.ndarray | None = None) -> np.ndarray:
+    """True where the ground point (grid pixel at ``heights_m``) is hidden from the camera by the DSM (a march
+    along its ray; only where ``candidates``, e.g. the points the z-buffer puts behind a nearer surface)."""
     AX, AY, s = anchors
     occ = np.zeros((grid.height, grid.width), dtype=np.bool_)
     zmax = float(np.nanmax(dsm.heights_m))
+    from ortho.rectify_kernels import _occlusion_kernel
+
     _occlusion_kernel(AX, AY, float(s), grid.height, grid.width, heights_m.astype(np.float32), dsm.heights_m,
                       dsm.x_left_m, dsm.y_top_m, dsm.res_m, zmax, np.asarray(geometry.centre_m, np.float64),
-                      float(tolerance_m), occ)
+                      float(tolerance_m), occ, np.ones(occ.shape, np.bool_) if candidates is None else candidates)
+    return occ
+
+
+@dataclasses.dataclass(frozen=True)
+class ZBuffer:
+    """The nearest surface of a frame by cells of ``cell_px`` image pixels: depth along the optical axis (m,
+    float32 (rows, cols), +inf where nothing was seen), and the depth by which a point must lie behind it
+    to be occluded (``tolerance_m``: the depth a visible surface spans within one cell, and a margin)."""
+
+    depth_m: np.ndarray
+    cell_px: int
+    tolerance_m: float
+
+
+def frame_zbuffer(geometry: FrameGeometry, dsm: HeightRaster, grid: OrthoGrid, to_project: GridToProject | None = None,
+                  tile_px: int = 1024, margin_m: float = 0.5) -> ZBuffer:
+    """Z-buffer of the surface ``dsm`` over ``grid`` seen from the frame (every grid pixel at its DSM height
+    projected into the image; tile by tile, memory set by the tiles and the buffer).
+
+    Cells: the image pixels an output pixel spans at the frame's mean distance, times 1.5, rounded up (so
+    that every cell holds a surface sample where the surface is seen); tolerance: ``margin_m`` plus the
+    ground size of a cell (a roof of 45 degrees spans that much depth within a cell)."""
+    from ortho.rectify_kernels import _zbuffer_kernel
+
+    to_project = to_project or GridToProject(grid.crs, grid.crs)
+    centre, M, params = geometry.kernel_args()
+    cam = geometry.camera
+    finite = dsm.heights_m[np.isfinite(dsm.heights_m)]
+    distance_m = max(1.0, float(centre[2]) - (float(np.median(finite)) if finite.size else 0.0))
+    gsd_m = distance_m / float(params[0])  # ground size of an image pixel at that distance (f in pixels)
+    cell_px = max(1, int(math.ceil(1.5 * grid.res_m / gsd_m)))
+    depth = np.full((-(-cam.height // cell_px), -(-cam.width // cell_px)), np.inf, np.float32)
+    buffers = MapBuffers(tile_px)
+    mask = np.empty(tile_px * tile_px, np.uint8)
+    none = np.zeros((1, 1), np.bool_)
+    for r0 in range(0, grid.height, tile_px):
+        for c0 in range(0, grid.width, tile_px):
+            tile = grid.window(c0, r0, min(tile_px, grid.width - c0), min(tile_px, grid.height - r0))
+            if to_project.identity:  # the heights alone (no maps needed here)
+                z = heights_on_grid(dsm, tile, out=buffers.views(tile.height, tile.width)[2])
+                AX, AY, s = to_project.anchors(tile)
+            else:
+                m = mask[:tile.height * tile.width].reshape(tile.height, tile.width)
+                _, _, _, z, (AX, AY, s) = fixed_point_maps(geometry, dsm, tile, to_project, buffers=buffers, mask_out=m)
+            _zbuffer_kernel(AX, AY, float(s), z, centre, M, params, cam.width, cam.height, float(cell_px), depth, 0.0,
+                            none, True)
+    return ZBuffer(depth, cell_px, margin_m + cell_px * gsd_m)
+
+
+def zbuffer_occlusion(geometry: FrameGeometry, zbuffer: ZBuffer, heights_m: np.ndarray, anchors,
+                      out: np.ndarray | None = None) -> np.ndarray:
+    """True where the point of a tile pixel (at ``heights_m``) lies behind the frame's nearest surface."""
+    from ortho.rectify_kernels import _zbuffer_kernel
+
+    AX, AY, s = anchors
+    centre, M, params = geometry.kernel_args()
+    occ = np.zeros(heights_m.shape, np.bool_) if out is None else out
+    if out is not None:
+        occ[...] = False
+    _zbuffer_kernel(AX, AY, float(s), heights_m, centre, M, params, geometry.camera.width, geometry.camera.height,
+                    float(zbuffer.cell_px), zbuffer.depth_m, float(zbuffer.tolerance_m), occ, False)
     return occ
 
 
@@ -472,7 +294,11 @@ def default_threads() -> int:
 
 def ordered_thread_map(fn, items, threads: int, ahead: int | None = None):
     """Yield ``fn(item)`` in the order of ``items``, computed by ``threads`` threads at most ``ahead`` items
-    in advance (bounded memory: results wait for the consumer, e.g. a GeoTIFF writer)."""
+    in advance (bounded memory: results wait for the consumer, e.g. a GeoTIFF writer).
+
+    A consumer that may stop early (an error while it writes) closes the generator (``contextlib.closing``)
+    so that the threads end there, in its thread, before what they use is closed; left to the garbage
+    collector the generator would end them at an arbitrary point of any thread."""
     items = list(items)
     if threads <= 1 or len(items) <= 1:
         yield from map(fn, items)
@@ -497,19 +323,74 @@ def ordered_thread_map(fn, items, threads: int, ahead: int | None = None):
                 f.cancel()
 
 
+# frames decoded larger than this are read by windows, tile by tile (a 13,824 x 7,680 px DMC frame of 16-bit
+# samples holds 637 MB in RGB, 850 MB in RGBN; two frames at a time on two workers)
+WINDOWED_FRAME_BYTES = 256 * 2 ** 20
+# source pixels read beyond the positions a tile samples: the interpolation kernel's reach, and one more
+_KERNEL_PAD_PX = {"nearest": 1, "bilinear": 2, "cubic": 3, "lanczos": 5}
+
+
+class FrameFile:
+    """A frame read by windows from its file (GDAL, every thread its own handle), for ``rectify_frame``:
+    memory follows the tiles, not the frame. Channels in the file's band order; ``shape`` and ``dtype``
+    as the decoded frame would have them (rows, cols[, bands])."""
+
+    def __init__(self, path):
+        import rasterio
+
+        self.path = str(path)
+        with rasterio.open(self.path) as ds:
+            self.shape = (ds.height, ds.width) + ((ds.count,) if ds.count > 1 else ())
+            self.dtype = np.dtype(ds.dtypes[0])
+        self.ndim = len(self.shape)
+        self._local = threading.local()
+        self._open = []
+        self._lock = threading.Lock()
+
+    @property
+    def band_order(self) -> list[int]:
+        return list(range(1, (self.shape[2] if self.ndim == 3 else 1) + 1))
+
+    def read(self, x0: int, x1: int, y0: int, y1: int) -> np.ndarray:
+        """Columns x0..x1, rows y0..y1 (end exclusive, inside the frame) as (rows, cols[, bands])."""
+        import rasterio
+        from rasterio.windows import Window
+
+        ds = getattr(self._local, "ds", None)
+        if ds is None:
+            try:
+                ds = self._local.ds = rasterio.open(self.path)
+            except rasterio.errors.RasterioIOError as exc:
+                raise InputError(f"{self.path}: cannot read the frame ({exc})") from None
+            with self._lock:
+                self._open.append(ds)
+        try:
+            a = ds.read(window=Window(x0, y0, x1 - x0, y1 - y0))
+        except rasterio.errors.RasterioIOError as exc:
+            raise InputError(f"{self.path}: cannot read the frame (truncated or corrupt? {exc})") from None
+        return np.ascontiguousarray(np.moveaxis(a, 0, -1)) if self.ndim == 3 else a[0]
+
+    def close(self) -> None:
+        with self._lock:
+            for ds in self._open:
+                ds.close()
+            self._open.clear()
+
+
 def rectify_frame(image: np.ndarray, camera: Camera, centre_m, R, dem_dataset: HeightRaster, grid: OrthoGrid,
                   interpolation: str = "bilinear", to_project: GridToProject | None = None,
                   occlusion_dsm: HeightRaster | None = None, tile_px: int = 1024, sink=None, threads: int | None = None,
                   sink_bands_first: bool = False):
     """Orthorectify one frame onto ``grid``; returns (ortho (H, W[, bands]) of image dtype, mask uint8 255/0).
 
-    ``image`` is (rows, cols[, bands]) in the camera's pixel convention; ``centre_m`` and ``R``
+    ``image`` is (rows, cols[, bands]) in the camera's pixel convention, in memory, or a ``FrameFile``
+    read by windows as the tiles need them (the same ortho, memory set by the tiles); ``centre_m`` and ``R``
     (camera -> object, omega-phi-kappa) are in the project CRS, as is ``dem_dataset`` (a
     HeightRaster; the DSM for a true ortho). ``to_project`` maps the grid CRS to the project CRS
     (default: identical). With ``occlusion_dsm`` pixels hidden by the DSM are masked (true ortho).
     With ``sink(row0, col0, ortho_tile, mask_tile)`` the tiles are handed over in row-major order as
     they are made (e.g. written to a file, overlapping with the computation of the next tiles)
-    instead of assembled: the returned ortho is then None. With ``sink_bands_first`` the sink gets
+    instead of assembled: the returned ortho and mask are then None. With ``sink_bands_first`` the sink gets
     (bands, rows, cols) C-contiguous tiles, the layout rasterio writes without another copy (made
     here by the tile threads, not by the writer). The tiles given to the sink are reused once it
     returns: copy them if they must outlive the call.
@@ -524,13 +405,21 @@ def rectify_frame(image: np.ndarray, camera: Camera, centre_m, R, dem_dataset: H
     to_project = to_project or GridToProject(grid.crs, grid.crs)
     bands = () if image.ndim == 2 else (image.shape[2],)
     ortho = None if sink is not None else np.zeros((grid.height, grid.width) + bands, dtype=image.dtype)
-    mask = np.zeros((grid.height, grid.width), dtype=np.uint8)
+    mask = None if sink is not None else np.zeros((grid.height, grid.width), dtype=np.uint8)
+    windowed = isinstance(image, FrameFile)
+    pad_px = _KERNEL_PAD_PX.get(interpolation, 5)
     wide_kernel = interpolation in ("cubic", "lanczos")
     border = cv2.BORDER_REPLICATE if wide_kernel else cv2.BORDER_CONSTANT
     nb = bands[0] if bands else 1
     # only where cv2.remap has a vectorised path that such rows miss (the others gain nothing from a copy)
-    compact_source = (flag == cv2.INTER_LINEAR and image.dtype == np.uint8 and nb <= 4
+    compact_source = (not windowed and flag == cv2.INTER_LINEAR and image.dtype == np.uint8 and nb <= 4
                       and image.strides[0] >= _REMAP_VECTOR_MAX_STEP)
+    # the compiled kernels loaded here, in the calling thread, before the tile threads call them
+    from ortho import rectify_kernels  # noqa: F401  (``import ortho.…`` would rebind the local name ortho)
+
+    # true ortho: the frame's z-buffer of the DSM first (the occluders of a tile can lie in any other tile)
+    zbuffer = frame_zbuffer(geometry, occlusion_dsm, grid, to_project, tile_px) if occlusion_dsm is not None else None
+
     local = threading.local()
     # tile outputs handed to the consumer come from a pool and go back to it once consumed: fresh
     # arrays for every tile cost a page fault per 4 KiB (as much CPU as the GeoTIFF compression)
@@ -553,20 +442,34 @@ def rectify_frame(image: np.ndarray, camera: Camera, centre_m, R, dem_dataset: H
             local.interleaved = np.empty(nb * tile_px * tile_px, image.dtype)
             local.bounds = np.empty(4, np.int32)
             local.window = SourceWindow()
+            local.occluded = np.empty(tile_px * tile_px, np.bool_)
         handle, o, m = take_out_buffers(tile.height, tile.width)
         map_int, map_frac, _, z, anchors = fixed_point_maps(geometry, dem_dataset, tile, to_project,
                                                             buffers=local.buffers, mask_out=m, bounds_out=local.bounds)
-        if occlusion_dsm is not None:
-            occluded = occlusion_mask(geometry, occlusion_dsm, tile, z, anchors)
-            m[occluded] = 0
-            map_int[occluded] = -32768
+        if zbuffer is not None:
+            # the z-buffer is fast but coarse (where a wall spans few DSM cells it puts visible points behind the
+            # roof edge above them): the points it puts behind a nearer surface are decided by the march
+            behind = zbuffer_occlusion(geometry, zbuffer, z, anchors,
+                                       out=local.occluded[:tile.height * tile.width].reshape(tile.height, tile.width))
+            if behind.any():
+                occluded = occlusion_mask(geometry, occlusion_dsm, tile, z, anchors, candidates=behind)
+                m[occluded] = 0
+                map_int[occluded] = -32768
         if not m.any():
             o[...] = 0
             return r0, c0, handle, o, m
-        src = local.window.source(image, map_int, local.bounds) if compact_source else image
+        if windowed:  # the part of the frame this tile samples, read now; the maps shifted to it
+            h_img, w_img = image.shape[:2]
+            b = local.bounds
+            x0, x1 = max(0, int(b[0]) - pad_px), min(w_img, int(b[1]) + 2 + pad_px)
+            y0, y1 = max(0, int(b[2]) - pad_px), min(h_img, int(b[3]) + 2 + pad_px)
+            src = image.read(x0, x1, y0, y1)
+            cv2.subtract(map_int, (x0, y0, 0, 0), dst=map_int)
+        else:
+            src = local.window.source(image, map_int, local.bounds) if compact_source else image
         if nb > 4:  # cv2.remap takes at most 4 channels
-            o[...] = np.moveaxis(_remap_bands(image, map_int, map_frac, flag, border), -1, 0) if sink_bands_first else \
-                _remap_bands(image, map_int, map_frac, flag, border)
+            o[...] = np.moveaxis(_remap_bands(src, map_int, map_frac, flag, border), -1, 0) if sink_bands_first else \
+                _remap_bands(src, map_int, map_frac, flag, border)
         elif sink_bands_first and nb > 1:
             pix = local.interleaved[:nb * tile.height * tile.width].reshape(tile.height, tile.width, nb)
             cv2.remap(src, map_int, map_frac, flag, dst=pix, borderMode=border, borderValue=0)
@@ -582,13 +485,14 @@ def rectify_frame(image: np.ndarray, camera: Camera, centre_m, R, dem_dataset: H
         return r0, c0, handle, o, m
 
     tiles = [(r0, c0) for r0 in range(0, grid.height, tile_px) for c0 in range(0, grid.width, tile_px)]
-    for r0, c0, handle, o, m in ordered_thread_map(tile_task, tiles, threads or default_threads()):
-        mask[r0:r0 + m.shape[0], c0:c0 + m.shape[1]] = m
-        if sink is not None:
-            sink(r0, c0, o, m)
-        else:
-            ortho[r0:r0 + m.shape[0], c0:c0 + m.shape[1]] = o
-        free.put(handle)
+    with contextlib.closing(ordered_thread_map(tile_task, tiles, threads or default_threads())) as made:
+        for r0, c0, handle, o, m in made:
+            if sink is not None:
+                sink(r0, c0, o, m)
+            else:
+                ortho[r0:r0 + m.shape[0], c0:c0 + m.shape[1]] = o
+                mask[r0:r0 + m.shape[0], c0:c0 + m.shape[1]] = m
+            free.put(handle)
     return ortho, mask
 
 
@@ -603,45 +507,80 @@ def border_pixels(camera: Camera, per_side: int = 64) -> tuple[np.ndarray, np.nd
     return x, y
 
 
+def _extent_text(heights: HeightRaster, extent_m) -> str:
+    """The raster's extent for an error: the whole file's (``extent_m``, xmin, ymin, xmax, ymax) when known,
+    not the window read of it."""
+    b = extent_m if extent_m is not None else heights.bounds
+    return f"(its extent: X {b[0]:.1f} .. {b[2]:.1f}, Y {b[1]:.1f} .. {b[3]:.1f})"
+
+
 def intersect_rays_with_heights(camera: Camera, centre_m, R, x_px, y_px, heights: HeightRaster, z_start_m: float,
-                                iterations: int = 30, image_id: str = "frame"):
+                                iterations: int = 30, image_id: str = "frame", uncovered: str = "raise",
+                                extent_m=None):
     """Ground points (N, 3) where the rays of pixels meet the height raster (fixed-point iteration on Z).
 
-    Raises InputError naming the frame when a ray leaves the raster or meets nodata (the DEM does not
-    cover the frame) or does not point downwards.
+    A ray that leaves the raster or meets nodata: ``uncovered="raise"`` raises InputError naming the frame
+    and the raster's extent (``extent_m``: the whole file's, xmin, ymin, xmax, ymax; default the window in
+    ``heights``); ``uncovered="plane"`` returns it on the plane Z = ``z_start_m`` and, as a second result,
+    which rays met the raster (bool (N,)). Rays that do not point downwards always raise.
     """
     C = np.asarray(centre_m, float)
     d = camera.rays(x_px, y_px, R)
     if np.any(d[:, 2] >= -1e-6):
         raise InputError(f"{image_id}: some rays of the frame do not point downwards (check omega/phi/kappa)")
     Z = np.full(len(d), float(z_start_m))
+    covered = np.ones(len(d), bool)
     for _ in range(iterations):
         t = (Z - C[2]) / d[:, 2]
         X = C[0] + t * d[:, 0]
         Y = C[1] + t * d[:, 1]
         Zn = heights.sample(X, Y)
-        if np.any(~np.isfinite(Zn)):
-            bad = int(np.argmax(~np.isfinite(Zn)))
-            raise InputError(
-                f"{heights.source}: the DEM does not cover frame {image_id}: its ray through pixel "
-                f"({x_px[bad]:.0f}, {y_px[bad]:.0f}) meets the ground near X={X[bad]:.1f} Y={Y[bad]:.1f}, outside the "
-                f"DEM or on nodata (DEM bounds {tuple(round(b, 1) for b in heights.bounds)})"
-            )
+        lost = ~np.isfinite(Zn)
+        if np.any(lost & covered):
+            if uncovered == "raise":
+                bad = int(np.argmax(lost))
+                raise InputError(
+                    f"{heights.source}: the DEM does not cover frame {image_id}: its ray through pixel "
+                    f"({x_px[bad]:.0f}, {y_px[bad]:.0f}) meets the ground near X={X[bad]:.1f} Y={Y[bad]:.1f}, outside the "
+                    f"DEM or on nodata {_extent_text(heights, extent_m)}")
+            covered &= ~lost  # from here on on the plane: a ray that left the raster is not brought back
+        Zn = np.where(covered, Zn, float(z_start_m))
         # damped update: converges also where the terrain slope approaches the ray slope
         if np.max(np.abs(Zn - Z)) < 1e-3:
             Z = Zn
             break
-        Z = 0.5 * (Z + Zn)
+        Z = np.where(covered, 0.5 * (Z + Zn), float(z_start_m))
     t = (Z - C[2]) / d[:, 2]
-    return np.stack([C[0] + t * d[:, 0], C[1] + t * d[:, 1], Z], axis=-1)
+    ground = np.stack([C[0] + t * d[:, 0], C[1] + t * d[:, 1], Z], axis=-1)
+    return (ground, covered) if uncovered == "plane" else ground
+
+
+def covered_share(camera: Camera, centre_m, R, heights: HeightRaster, per_side: int = 33) -> float:
+    """Share of the frame (a ``per_side`` x ``per_side`` lattice of its pixels) whose rays meet the height
+    raster on valid heights (1.0: all of it; 0.0: none)."""
+    if not np.isfinite(heights.heights_m).any():
+        return 0.0
+    zlo, zhi = heights.finite_range()
+    u = np.linspace(0.0, camera.width - 1.0, per_side)
+    v = np.linspace(0.0, camera.height - 1.0, per_side)
+    x, y = (a.ravel() for a in np.meshgrid(u, v))
+    _, covered = intersect_rays_with_heights(camera, centre_m, R, x, y, heights, 0.5 * (zlo + zhi), uncovered="plane")
+    return float(np.mean(covered))
 
 
 def frame_grid(camera: Camera, centre_m, R, heights: HeightRaster, res_m: float, output_crs, to_project: GridToProject,
-               image_id: str = "frame") -> OrthoGrid:
-    """The snapped output grid covering the ground footprint of a frame on the height raster."""
+               image_id: str = "frame", partial: bool = False) -> OrthoGrid:
+    """The snapped output grid covering the ground footprint of a frame on the height raster.
+
+    ``partial``: border rays that miss the raster (a DEM covering part of the frame) count with their
+    point on the plane of the raster's mid height, so the grid holds the whole frame and the uncovered
+    part becomes nodata in the ortho; otherwise such a ray is an InputError."""
     x, y = border_pixels(camera)
     zlo, zhi = heights.finite_range()
-    ground = intersect_rays_with_heights(camera, centre_m, R, x, y, heights, 0.5 * (zlo + zhi), image_id=image_id)
+    ground = intersect_rays_with_heights(camera, centre_m, R, x, y, heights, 0.5 * (zlo + zhi), image_id=image_id,
+                                         uncovered="plane" if partial else "raise")
+    if partial:
+        ground = ground[0]
     ox, oy = to_project.to_output(ground[:, 0], ground[:, 1])
     pad = 2 * res_m
     return OrthoGrid.snapped(output_crs, (np.min(ox) - pad, np.min(oy) - pad, np.max(ox) + pad, np.max(oy) + pad), res_m)

@@ -20,8 +20,9 @@ from __future__ import annotations
 
 import numpy as np
 
-# scipy (ndimage, sparse, csgraph: about 0.3 s to import) is imported by the functions that need it: this
-# module comes with ortho.settings into every ``ortho`` command, also ``ortho rectify``, which has no seams.
+# OpenCV (morphology, connected parts) and scipy.sparse (the path search) are imported by the functions that
+# need them: this module comes with ortho.settings into every ``ortho`` command. No scipy.ndimage (0.2 CPU-s
+# to import) and no numba (a compiled path search: 0.6 CPU-s to import and load, a fifth of a demo mosaic).
 
 
 def voronoi_labels(valid: list, offsets: list, nadir_rc: np.ndarray, shape) -> np.ndarray:
@@ -48,37 +49,66 @@ def voronoi_labels(valid: list, offsets: list, nadir_rc: np.ndarray, shape) -> n
 
 def neighbour_pairs(labels: np.ndarray) -> list[tuple[int, int]]:
     """Pairs (i < j) of labels that touch (4-neighbourhood)."""
-    pairs = set()
+    keys = []
+    n = int(labels.max()) + 1 if labels.size else 0
     for a, b in ((labels[:, :-1], labels[:, 1:]), (labels[:-1, :], labels[1:, :])):
         m = (a != b) & (a >= 0) & (b >= 0)
-        for i, j in zip(a[m].ravel(), b[m].ravel()):
-            pairs.add((int(min(i, j)), int(max(i, j))))
-    return sorted(pairs)
+        lo, hi = np.minimum(a[m], b[m]).astype(np.int64), np.maximum(a[m], b[m]).astype(np.int64)
+        keys.append(np.unique(lo * n + hi))
+    keys = np.unique(np.concatenate(keys)) if keys else np.zeros(0, np.int64)
+    return [(int(k // n), int(k % n)) for k in keys]
+
+
+# the 8 neighbours of a cell in row-major order (so that each row of the graph lists its columns in order)
+_NEIGHBOURS = ((-1, -1), (-1, 0), (-1, 1), (0, -1), (0, 1), (1, -1), (1, 0), (1, 1))
 
 
 def _grid_graph(cost: np.ndarray, nodes: np.ndarray):
-    """Sparse 8-connected graph over cells where ``nodes``; edge weight = mean cost x step length."""
-    from scipy.sparse import coo_matrix
+    """Sparse 8-connected graph over cells where ``nodes``; edge weight = mean cost x step length. Returns
+    the graph (CSR, built row by row without sorting) and the node index of every cell (-1: not a node)."""
+    from scipy.sparse import csr_matrix
 
     h, w = cost.shape
-    idx = np.full((h, w), -1, np.int64)
-    idx[nodes] = np.arange(int(nodes.sum()))
-    rows, cols, wts = [], [], []
-    for dr, dc, length in ((0, 1, 1.0), (1, 0, 1.0), (1, 1, 2 ** 0.5), (1, -1, 2 ** 0.5)):
-        # cell (r, c) and its neighbour (r + dr, c + dc)
-        sa = (slice(0, h - dr), slice(max(0, -dc), w - max(0, dc)))
-        sb = (slice(dr, h), slice(max(0, dc), w - max(0, -dc)))
-        a, b, ca, cb = idx[sa], idx[sb], cost[sa], cost[sb]
-        m = (a >= 0) & (b >= 0)
-        rows.append(a[m])
-        cols.append(b[m])
-        wts.append(0.5 * (ca[m] + cb[m]) * length)
-    n = int(nodes.sum())
-    r = np.concatenate(rows)
-    c = np.concatenate(cols)
-    wv = np.concatenate(wts)
-    g = coo_matrix((np.concatenate([wv, wv]), (np.concatenate([r, c]), np.concatenate([c, r]))), shape=(n, n)).tocsr()
-    return g, idx
+    idx = np.full((h + 2, w + 2), -1, np.int32)  # a frame of non-nodes: every cell has 8 neighbour slots
+    n = int(np.count_nonzero(nodes))
+    core = idx[1:-1, 1:-1]
+    core[nodes] = np.arange(n, dtype=np.int32)
+    cpad = np.zeros((h + 2, w + 2), np.float64)
+    cpad[1:-1, 1:-1] = cost
+    W = w + 2
+    flat_idx, flat_cost = idx.ravel(), cpad.ravel()
+    here = np.flatnonzero(np.pad(nodes, 1))  # the nodes' positions in the framed grid, in node order
+    nbr = np.empty((n, 8), np.int32)
+    wts = np.empty((n, 8), np.float64)
+    c_here = flat_cost[here]
+    for k, (dr, dc) in enumerate(_NEIGHBOURS):
+        there = here + (dr * W + dc)
+        np.take(flat_idx, there, out=nbr[:, k])
+        wts[:, k] = (c_here + np.take(flat_cost, there)) * (0.5 * (2 ** 0.5 if dr and dc else 1.0))
+    ok = nbr >= 0
+    indptr = np.zeros(n + 1, np.int64)
+    np.cumsum(np.count_nonzero(ok, axis=1), out=indptr[1:])
+    g = csr_matrix((wts[ok], nbr[ok], indptr), shape=(n, n))
+    g.has_sorted_indices = True
+    return g, core
+
+
+_CROSS = np.array([[0, 1, 0], [1, 1, 1], [0, 1, 0]], np.uint8)
+_SQUARE = np.ones((3, 3), np.uint8)
+
+
+def _dilate(mask: np.ndarray, kernel: np.ndarray) -> np.ndarray:
+    """Binary dilation (cells beyond the array count as unset)."""
+    import cv2
+
+    return cv2.dilate(mask.view(np.uint8), kernel, borderType=cv2.BORDER_CONSTANT, borderValue=0).view(bool)
+
+
+def _erode(mask: np.ndarray, kernel: np.ndarray) -> np.ndarray:
+    """Binary erosion (cells beyond the array count as unset)."""
+    import cv2
+
+    return cv2.erode(mask.view(np.uint8), kernel, borderType=cv2.BORDER_CONSTANT, borderValue=0).view(bool)
 
 
 def _seam_ends(boundary: np.ndarray):
@@ -92,87 +122,87 @@ def _seam_ends(boundary: np.ndarray):
     return tuple(rc[np.argmin(s)].astype(int)), tuple(rc[np.argmax(s)].astype(int))
 
 
-def _near(mask, rc, radius, idx, at_least_one: bool = True):
-    """Graph nodes of the cells of ``mask`` within ``radius`` cells of ``rc`` (optionally the nearest one at least)."""
+def _near(mask, rc, radius, at_least_one: bool = True):
+    """Flat indices of the cells of ``mask`` within ``radius`` cells of ``rc`` (optionally the nearest one at least)."""
     cells = np.argwhere(mask)
     if len(cells) == 0:
         return np.zeros(0, np.int64)
     d = np.hypot(cells[:, 0] - rc[0], cells[:, 1] - rc[1])
     sel = cells[d <= radius] if np.any(d <= radius) or not at_least_one else cells[[int(np.argmin(d))]]
-    return idx[sel[:, 0], sel[:, 1]] if len(sel) else np.zeros(0, np.int64)
+    return (sel[:, 0] * mask.shape[1] + sel[:, 1]).astype(np.int64)
 
 
 def least_cost_seams(labels: np.ndarray, valid: list, offsets: list, gray: list | None = None,
                      object_mask: np.ndarray | None = None, object_cost: float = 50.0,
                      difference_cost: float = 5.0, min_overlap_cells: int = 16, end_reach: float = 0.1,
                      end_reach_cells: float = 0.0, passes: int = 2) -> np.ndarray:
-    """Re-route every Voronoi seam along a least-cost path through the pair's overlap (module doc)."""
-    from scipy import ndimage
+    """Re-route every Voronoi seam along a least-cost path through the pair's overlap (module doc).
 
-    obj = None
-    if object_mask is not None:
-        obj = ndimage.binary_dilation(object_mask, structure=np.ones((3, 3), bool))
+    ``gray``: per frame, its grey values on the seam grid (an array, or a function of the frame index
+    returning one, so that the caller need not hold all of them)."""
+    obj = _dilate(np.ascontiguousarray(object_mask, bool), _SQUARE) if object_mask is not None else None
     done = set()
+    labels = labels.copy()
     for _ in range(passes):
         todo = [p for p in neighbour_pairs(labels) if p not in done]
         for i, j in todo:
             done.add((i, j))
-            labels = _reroute_pair(labels, i, j, valid, offsets, gray, obj, object_cost, difference_cost,
-                                   min_overlap_cells, end_reach, end_reach_cells)
+            _reroute_pair(labels, i, j, valid, offsets, gray, obj, object_cost, difference_cost, min_overlap_cells,
+                          end_reach, end_reach_cells)
     return labels
 
 
 def _reroute_pair(labels, i, j, valid, offsets, gray, obj, object_cost, difference_cost, min_overlap_cells, end_reach,
-                  end_reach_cells):
-    """One seam (frames i, j) along its least-cost path; returns the updated labels."""
-    from scipy import ndimage
-    from scipy.sparse.csgraph import dijkstra
+                  end_reach_cells) -> None:
+    """One seam (frames i, j) along its least-cost path; updates ``labels`` in place."""
+    import cv2
 
     # window covering both frames
     (ri, ci), (rj, cj) = offsets[i], offsets[j]
     r0, c0 = max(ri, rj), max(ci, cj)
-    r1 = min(ri + valid[i].shape[0], rj + valid[j].shape[0])
-    c1 = min(ci + valid[i].shape[1], cj + valid[j].shape[1])
+    r1 = min(ri + valid[i].shape[0], rj + valid[j].shape[0], labels.shape[0])
+    c1 = min(ci + valid[i].shape[1], cj + valid[j].shape[1], labels.shape[1])
     if r1 - r0 < 3 or c1 - c0 < 3:
-        return labels
-    vi = valid[i][r0 - ri:r1 - ri, c0 - ci:c1 - ci]
-    vj = valid[j][r0 - rj:r1 - rj, c0 - cj:c1 - cj]
+        return
     lab = labels[r0:r1, c0:c1]
-    corridor = vi & vj & ((lab == i) | (lab == j))
-    if corridor.sum() < min_overlap_cells:
-        return labels
+    is_i, is_j = lab == i, lab == j
+    corridor = valid[i][r0 - ri:r1 - ri, c0 - ci:c1 - ci] & valid[j][r0 - rj:r1 - rj, c0 - cj:c1 - cj] & (is_i | is_j)
+    if np.count_nonzero(corridor) < min_overlap_cells:
+        return
     # the current seam inside the corridor: i cells with a j neighbour
-    li = (lab == i) & corridor
-    lj = (lab == j) & corridor
-    seam = li & ndimage.binary_dilation(lj, structure=ndimage.generate_binary_structure(2, 1))
+    seam = is_i & corridor & _dilate(is_j & corridor, _CROSS)
     ends = _seam_ends(seam)
     if ends is None:
-        return labels
+        return
     cost = np.ones(corridor.shape, np.float64)
     if gray is not None:
-        gi = gray[i][r0 - ri:r1 - ri, c0 - ci:c1 - ci]
-        gj = gray[j][r0 - rj:r1 - rj, c0 - cj:c1 - cj]
-        diff = np.abs(gi - gj)
+        gi_all = gray(i) if callable(gray) else gray[i]
+        gj_all = gray(j) if callable(gray) else gray[j]
+        diff = np.abs(gi_all[r0 - ri:r1 - ri, c0 - ci:c1 - ci].astype(np.float32)
+                      - gj_all[r0 - rj:r1 - rj, c0 - cj:c1 - cj].astype(np.float32))
         scale = np.percentile(diff[corridor], 90) + 1e-6
         cost += difference_cost * np.clip(diff / scale, 0, 3)
     if obj is not None:
         cost += object_cost * obj[r0:r1, c0:c1]
-    graph, idx = _grid_graph(cost, corridor)
     # the seam may leave the overlap anywhere on the overlap's border near its Voronoi ends, so that an end
     # does not pin it onto a building: within end_reach x seam length, and within end_reach_cells where
     # the border is the edge of the block (no frame beyond it, so no other seam is disturbed)
-    border = corridor & ~ndimage.binary_erosion(corridor, structure=np.ones((3, 3), bool), border_value=0)
+    border = corridor & ~_erode(corridor, _SQUARE)
     outside = np.pad(labels < 0, 1, constant_values=True)[r0:r1 + 2, c0:c1 + 2]
-    block_edge = border & ndimage.binary_dilation(outside, structure=np.ones((3, 3), bool))[1:-1, 1:-1]
+    block_edge = border & _dilate(np.ascontiguousarray(outside), _SQUARE)[1:-1, 1:-1]
     reach = max(3.0, end_reach * float(np.hypot(ends[0][0] - ends[1][0], ends[0][1] - ends[1][1])))
-    starts = np.union1d(_near(border, ends[0], reach, idx), _near(block_edge, ends[0], end_reach_cells, idx, False))
-    goals = np.union1d(_near(border, ends[1], reach, idx), _near(block_edge, ends[1], end_reach_cells, idx, False))
+    starts = np.union1d(_near(border, ends[0], reach), _near(block_edge, ends[0], end_reach_cells, False))
+    goals = np.union1d(_near(border, ends[1], reach), _near(block_edge, ends[1], end_reach_cells, False))
     if len(starts) == 0 or len(goals) == 0:
-        return labels
-    dist, pred, src = dijkstra(graph, indices=starts, return_predecessors=True, min_only=True)
+        return
+    from scipy.sparse.csgraph import dijkstra
+
+    graph, idx = _grid_graph(cost, corridor)
+    starts, goals = idx.flat[starts], idx.flat[goals]
+    dist, pred, _ = dijkstra(graph, indices=starts, return_predecessors=True, min_only=True)
     b = int(goals[np.argmin(dist[goals])])
     if not np.isfinite(dist[b]):
-        return labels
+        return
     path_nodes = [b]
     while pred[path_nodes[-1]] >= 0:
         path_nodes.append(int(pred[path_nodes[-1]]))
@@ -181,42 +211,45 @@ def _reroute_pair(labels, i, j, valid, offsets, gray, obj, object_cost, differen
     pr = node_rc[path_nodes]
     path[pr[:, 0], pr[:, 1]] = True
     # sides of the path: 4-connected parts of the corridor (an 8-connected path separates them)
-    parts, n_parts = ndimage.label(corridor & ~path)
-    # exclusive areas: cells of i (or j) outside the corridor
-    excl_i = (lab == i) & ~corridor
-    excl_j = (lab == j) & ~corridor
-    grow = ndimage.generate_binary_structure(2, 1)
-    new = lab.copy()
-    side = {}
-    for p in range(1, n_parts + 1):
-        part = parts == p
-        ring = ndimage.binary_dilation(part, structure=grow) & ~part
-        side[p] = (bool((ring & excl_i).any()), bool((ring & excl_j).any()))
-    pure_i = [p for p, t in side.items() if t == (True, False)]
-    pure_j = [p for p, t in side.items() if t == (False, True)]
+    n_parts, parts = cv2.connectedComponents((corridor & ~path).view(np.uint8), connectivity=4, ltype=cv2.CV_32S)
+    # which parts touch the exclusive areas (cells of i, or j, outside the corridor)
+    inside = parts > 0
+    touch_i = np.zeros(n_parts, bool)
+    touch_j = np.zeros(n_parts, bool)
+    touch_i[parts[_dilate(is_i & ~corridor, _CROSS) & inside]] = True
+    touch_j[parts[_dilate(is_j & ~corridor, _CROSS) & inside]] = True
+    ids = np.arange(1, n_parts)
+    pure_i = bool(np.any(touch_i[1:] & ~touch_j[1:]))
+    pure_j = bool(np.any(touch_j[1:] & ~touch_i[1:]))
     # side of each part by the majority of its Voronoi labels, for parts the path does not cut off cleanly
-    major = {p: (i if (lab[parts == p] == i).sum() >= (lab[parts == p] == j).sum() else j) for p in side}
-    majors_differ = len(set(major.values())) == 2
-    for p, (touch_i, touch_j) in side.items():
-        if touch_i and not touch_j:
-            new[parts == p] = i
-        elif touch_j and not touch_i:
-            new[parts == p] = j
+    count_i = np.bincount(parts[is_i], minlength=n_parts)
+    count_j = np.bincount(parts[is_j], minlength=n_parts)
+    major = np.where(count_i >= count_j, i, j)
+    majors_differ = len(set(major[1:].tolist())) == 2
+    side = np.full(n_parts, -2, np.int64)  # -2: unchanged
+    for p in ids:
+        ti, tj = touch_i[p], touch_j[p]
+        if ti and not tj:
+            side[p] = i
+        elif tj and not ti:
+            side[p] = j
         # the path does not fully separate this part from one side (it leaks around a seam end):
         # it is the opposite side of the pure part(s); otherwise the side where most of it lay
         elif pure_i and not pure_j:
-            new[parts == p] = j
+            side[p] = j
         elif pure_j and not pure_i:
-            new[parts == p] = i
+            side[p] = i
         elif majors_differ:
-            new[parts == p] = major[p]
+            side[p] = major[p]
+    to = side[parts]
+    change = inside & (to >= -1)
+    new = lab.copy()
+    new[change] = to[change]
     # path cells join the side of their original label's neighbourhood: give them to i or j by majority nearby
-    near_i = ndimage.uniform_filter((new == i).astype(float), 3)
-    near_j = ndimage.uniform_filter((new == j).astype(float), 3)
+    near_i = cv2.blur((new == i).astype(np.float32), (3, 3))
+    near_j = cv2.blur((new == j).astype(np.float32), (3, 3))
     new[path] = np.where(near_i[path] >= near_j[path], i, j)
-    labels = labels.copy()
-    labels[r0:r1, c0:c1] = new
-    return labels
+    lab[...] = new
 
 
 def keep_objects_whole(labels: np.ndarray, object_mask: np.ndarray, valid: list, offsets: list,
@@ -226,21 +259,18 @@ def keep_objects_whole(labels: np.ndarray, object_mask: np.ndarray, valid: list,
 
     The seams then run round the object along its outline; objects no single frame covers stay split.
     """
-    from scipy import ndimage
+    import cv2
 
     labels = labels.copy()
-    parts, n = ndimage.label(object_mask)
-    if n == 0:
-        return labels
-    boxes = ndimage.find_objects(parts)
-    for k, sl in enumerate(boxes, start=1):
-        if sl is None:
-            continue
+    n, parts, stats, _ = cv2.connectedComponentsWithStats(np.ascontiguousarray(object_mask, bool).view(np.uint8),
+                                                          connectivity=4, ltype=cv2.CV_32S)
+    for k in range(1, n):
+        x, y, w, h = (int(v) for v in stats[k, :4])
         # one cell of margin so the seam does not run along the wall
-        r0, r1 = max(sl[0].start - 1, 0), min(sl[0].stop + 1, labels.shape[0])
-        c0, c1 = max(sl[1].start - 1, 0), min(sl[1].stop + 1, labels.shape[1])
-        obj = ndimage.binary_dilation(parts[r0:r1, c0:c1] == k, structure=np.ones((3, 3), bool))
-        if obj.sum() > max_cells:
+        r0, r1 = max(y - 1, 0), min(y + h + 1, labels.shape[0])
+        c0, c1 = max(x - 1, 0), min(x + w + 1, labels.shape[1])
+        obj = _dilate(parts[r0:r1, c0:c1] == k, _SQUARE)
+        if np.count_nonzero(obj) > max_cells:
             continue
         lab = labels[r0:r1, c0:c1]
         present, counts = np.unique(lab[obj], return_counts=True)
@@ -248,10 +278,10 @@ def keep_objects_whole(labels: np.ndarray, object_mask: np.ndarray, valid: list,
         present, counts = present[keep], counts[keep]
         if len(present) < 2:
             continue
-        for f in present[np.argsort(-counts)]:
+        rr0, cc0 = np.nonzero(obj)
+        for f in present[np.argsort(-counts, kind="stable")]:
             (fr, fc), v = offsets[f], valid[f]
-            rr, cc = np.nonzero(obj)
-            rr, cc = rr + r0 - fr, cc + c0 - fc
+            rr, cc = rr0 + r0 - fr, cc0 + c0 - fc
             inside = (rr >= 0) & (rr < v.shape[0]) & (cc >= 0) & (cc < v.shape[1])
             if inside.all() and v[rr, cc].all():
                 lab[obj] = f

@@ -39,8 +39,20 @@ from typing import ClassVar
 import numpy as np
 
 from aerotri.core.errors import InputError
-from aerotri.geom import lens_kernels
 from aerotri.geom.rotation import FLIP_YZ
+
+
+class _LensKernels:
+    """``aerotri.geom.lens_kernels``, imported on first use: numba takes 0.3 CPU-s to import, which commands
+    that only read a camera (``ortho mosaic`` checking its frames against the orientation) need not pay."""
+
+    def __getattr__(self, name):
+        from aerotri.geom import lens_kernels as module
+
+        return getattr(module, name)
+
+
+lens_kernels = _LensKernels()
 
 _GEOMETRY = ("focal_mm", "pixel_um", "width", "height", "ppx_mm", "ppy_mm")
 CAL3DS2 = ("fx", "fy", "s", "u0", "v0", "k1", "k2", "p1", "p2")  # the adjustment's calibration vector

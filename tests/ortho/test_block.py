@@ -216,3 +216,35 @@ def test_frame_files_hold_the_library_ortho(small_block, tmp_path, compression):
     assert 0.3 < (want_mask > 0).mean() < 1.0
     assert np.array_equal(got_mask, want_mask)
     assert np.array_equal(np.moveaxis(got, 0, -1), want)
+
+
+def test_frames_read_by_windows_give_the_same_ortho(small_block, tmp_path, monkeypatch):
+    """A frame decoded larger than WINDOWED_FRAME_BYTES (a full-size 16-bit DMC frame: 637 MB) is read by
+    windows as the tiles sample it, so memory follows the tiles: the same frame orthos as from the frames
+    decoded whole, bilinear and cubic (the kernel's reach read around every tile)."""
+    import ortho.block as B
+
+    opened = []
+
+    class CountingFrameFile(B.FrameFile):
+        def __init__(self, path):
+            opened.append(path)
+            super().__init__(path)
+
+    for interpolation in ("bilinear", "cubic"):
+        whole, windows = tmp_path / f"whole_{interpolation}", tmp_path / f"windows_{interpolation}"
+        shutil.copytree(small_block, whole)
+        shutil.copytree(small_block, windows)
+        rectify_block(whole, RectifySettings(interpolation=interpolation))
+        with monkeypatch.context() as m:
+            m.setattr(B, "WINDOWED_FRAME_BYTES", 0)
+            m.setattr(B, "FrameFile", CountingFrameFile)
+            rectify_block(windows, RectifySettings(interpolation=interpolation))
+        names = sorted(p.name for p in (whole / "ortho" / "frames").glob("*.tif"))
+        assert len(names) == 4
+        for name in names:
+            with rasterio.open(whole / "ortho" / "frames" / name) as a, \
+                    rasterio.open(windows / "ortho" / "frames" / name) as b:
+                assert np.array_equal(a.read(), b.read()) and np.array_equal(a.read_masks(1), b.read_masks(1))
+                assert 0.3 < (a.read_masks(1) > 0).mean() < 1.0
+    assert len(opened) == 8

@@ -75,10 +75,11 @@ def test_failed_rerun_leaves_the_previous_frames(project, breakage):
         p = project / "images" / "s02_002.tif"
         p.write_bytes(p.read_bytes()[: p.stat().st_size // 3])
         culprit = "s02_002.tif"
-    else:  # a DEM covering the first strip only: the second strip's frames fail
+    else:  # a DEM covering part of the first strip only: its frames are rectified (partly nodata, issue 42),
+        # then the second strip's frames, none of whose ground it covers, fail
         with rasterio.open(project / "lidar_out/dem.tif") as ds:
             a, prof, t = ds.read(1), ds.profile, ds.transform
-        keep = a[:, : a.shape[1] // 2]
+        keep = a[:, : int(a.shape[1] * 0.35)]
         prof.update(width=keep.shape[1])
         with rasterio.open(project / "lidar_out/dem.tif", "w", **prof) as dst:
             dst.write(keep, 1)

@@ -146,3 +146,66 @@ def test_true_ortho_removes_building_lean(block, tmp_path):
                                    search_px=4)
     st = displacement_statistics(p.de_m, p.dn_m, info["res_m"])
     assert st["rms_xy_gsd"] < 0.2  # every patch, roofs included
+
+
+def test_mosaic_away_from_seams_is_the_frame_through_its_gain(block):
+    """Where one frame is labelled all around a pixel (beyond the feather's reach), the mosaic is that
+    frame's sample times its gain; the first overview is the 2 x 2 mean of the valid pixels."""
+    root, _ = block
+    if not (root / "ortho" / "mosaic.json").exists():  # when run alone
+        assert CliRunner().invoke(main, ["mosaic", str(root)]).exit_code == 0
+    summary = json.loads((root / "ortho" / "mosaic.json").read_text())
+    index = json.loads((root / "ortho" / "frames" / "index.json").read_text())
+    f = summary["seam_factor"]
+    reach = int(np.ceil(2 * summary["feather_px"] / f)) + 2  # cells
+    with rasterio.open(root / "ortho" / "mosaic.tif") as ds, rasterio.open(root / "ortho" / "seams.tif") as s:
+        m = ds.read().astype(np.int32)
+        valid = ds.read_masks(1) > 0
+        x0, y0, res = ds.transform.c, ds.transform.f, ds.transform.a
+        cells = s.read(1)
+        ov = ds.read(out_shape=(ds.count, (ds.height + 1) // 2, (ds.width + 1) // 2)).astype(np.int32)
+    compared = 0
+    for k, e in enumerate(index["frames"]):
+        own = (cells == k).astype(np.uint8)
+        deep = cv2.erode(own, np.ones((2 * reach + 1, 2 * reach + 1), np.uint8)) > 0
+        deep_px = np.repeat(np.repeat(deep, f, 0), f, 1)[:m.shape[1], :m.shape[2]]
+        with rasterio.open(root / "ortho" / "frames" / e["file"]) as fr:
+            c0, r0 = round((fr.transform.c - x0) / res), round((y0 - fr.transform.f) / res)
+            img = fr.read().astype(np.float64)
+        sub = deep_px[r0:r0 + img.shape[1], c0:c0 + img.shape[2]]
+        if not sub.any():
+            continue
+        want = np.clip(np.rint(img * np.array(summary["gains"][e["image_id"]])[:, None, None]), 0, 255)
+        got = m[:, r0:r0 + img.shape[1], c0:c0 + img.shape[2]]
+        d = np.abs(got - want)[:, sub[:got.shape[1], :got.shape[2]]]
+        assert d.max() <= 1 and (d == 0).mean() > 0.99
+        compared += d.shape[1]
+    assert compared > 0.3 * valid.sum()
+    # the first overview: 2 x 2 means of the valid full-resolution pixels
+    h2, w2 = m.shape[1] // 2 * 2, m.shape[2] // 2 * 2
+    v = valid[:h2, :w2].reshape(h2 // 2, 2, w2 // 2, 2)
+    s_ = (m[:, :h2, :w2] * valid[None, :h2, :w2]).reshape(m.shape[0], h2 // 2, 2, w2 // 2, 2).sum(axis=(2, 4))
+    n = v.sum(axis=(1, 3))
+    full = n == 4
+    mean = s_[:, full] / 4.0
+    assert np.abs(ov[:, :h2 // 2, :w2 // 2][:, full] - mean).max() <= 1.0
+
+
+def test_overview_halving_is_the_mean_of_the_valid_samples():
+    from ortho.mosaic import halve, overview_factors
+
+    rng = np.random.default_rng(1)
+    for dtype, top in ((np.uint8, 255), (np.uint16, 4095)):
+        img = rng.integers(0, top + 1, (3, 7, 9)).astype(dtype)
+        valid = rng.random((7, 9)) > 0.3
+        img[:, ~valid] = 0
+        got, ok = halve(img, valid)
+        padded = np.pad(img, ((0, 0), (0, 1), (0, 1))).astype(float)
+        n = np.pad(valid, ((0, 1), (0, 1))).reshape(4, 2, 5, 2).sum(axis=(1, 3))
+        want = np.where(n > 0, np.rint(padded.reshape(3, 4, 2, 5, 2).sum(axis=(2, 4)) / np.maximum(n, 1)), 0)
+        assert got.dtype == dtype and got.shape == (3, 4, 5)
+        np.testing.assert_array_equal(got, want)
+        np.testing.assert_array_equal(ok, n > 0)
+    # levels until the coarsest fits one 512 px block, as GDAL's COG driver makes them
+    assert overview_factors(2505, 3661) == [2, 4, 8]
+    assert overview_factors(512, 300) == [] and overview_factors(513, 10) == [2]

@@ -1,0 +1,387 @@
+"""Benchmark ``ortho mosaic`` against ``gdalwarp -of COG`` on the same frame orthos in the same run (issue 41).
+
+Two sets of frame orthos (``ortho/frames`` + ``index.json`` as ``ortho rectify`` writes them):
+
+- ``demo``: the 18 frame orthos of a demo project (``aerotri demo``; ``--demo DIR``, its ``project``
+  folder or the project itself), copied with what ``ortho mosaic`` reads (project.toml, camera.toml,
+  at/, lidar_out/dem.tif and ndsm.tif, truth/ortho.tif) into the work folder; the inputs are never changed.
+- ``large``: synthetic frame orthos for a DOM of at least ``--gp`` gigapixels (default 4.2): DMC-sized
+  frames (7,700 x 13,900 px at 0.1 m, 8-bit RGB, tiled ZSTD-1 + predictor with an internal mask, as
+  ``ortho rectify`` writes them) in strips with 20 % forward and 10 % side overlap, each a slightly
+  rotated footprint (kappa within +-1.5 deg, the corners outside it masked) with its own exposure gain
+  (0.93 .. 1.07). Their content is one ground image: the demo's truth orthophoto (0.25 m) mirrored
+  across the block and interpolated to 0.1 m, so that overlapping frames agree (no sensor noise: the
+  files stay small enough for this machine's shared disk; smooth content compresses better than real
+  imagery, for both programs). No nDSM (the seams follow image differences only). The frames are made
+  once per work folder and kept (``--keep-large``) or removed at the end.
+
+For each set, in one run, alternating (``--repeats``, default 3 for the demo and 1 for the large set):
+
+- ``ours``: ``ortho mosaic WORK`` (seamlines, gain balancing, feathering, COG with internal overviews);
+- ``peer``: ``gdalwarp -q -overwrite -of COG -co COMPRESS=ZSTD -co NUM_THREADS=2 -wo NUM_THREADS=2 -multi``
+  of the same frame files (no seamlines, no balancing; the frames' masks are its source validity).
+  gdalwarp comes from Debian's gdal-bin (``make bench`` installs it); rasterio's own GDAL has no command
+  line tools. Without gdalwarp the run stops and says so.
+
+Each command runs in its own process: wall time, CPU seconds (user + system of that process, from
+``os.wait4``; they depend much less on the load of this shared machine than the wall time), peak RSS,
+output megapixels per second of wall time and the output file's size; the 1-minute load average before
+each run. ``ratio`` = peer wall / ours wall of the same repetition (the median is reported).
+
+With ``--large-check``, after the first large mosaic (which is then removed, for the disk), ``ortho check`` of that DOM against a reference orthophoto of the same ground
+image at 0.5 m: its wall, CPU and peak RSS (the check reads the DOM by blocks), and the accuracy it finds.
+On the demo, the DOM check against the truth orthophoto (accuracy before and after this mosaic, from the
+demo's own ``ortho/dom_report.json``).
+
+Writes results/mosaic_speed.json.
+
+Usage: python bench/mosaic_speed.py [--demo DIR] [--work DIR] [--gp 4.2] [--repeats N] [--large-repeats N]
+       [--skip-large] [--keep-large] [--large-check]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import os
+import shutil
+import statistics
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+REPO = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(REPO))
+PEER = ["gdalwarp", "-q", "-overwrite", "-of", "COG", "-co", "COMPRESS=ZSTD", "-co", "NUM_THREADS=2", "-wo",
+        "NUM_THREADS=2", "-multi"]
+RES_M = 0.1
+FRAME_W, FRAME_H = 7700, 13900  # a DMC frame (13,824 x 7,680 px across x along track) flown east, on the ground
+FORWARD, SIDE = 0.20, 0.10  # overlaps
+REF_RES_M = 0.5
+ORIGIN = (452000.0, 3420000.0)  # top-left corner of the large block (UTM 49N, as the demo)
+
+
+def tool(name: str) -> str:
+    """A console script of this project (next to the interpreter), else from PATH."""
+    here = Path(sys.executable).parent / name
+    return str(here) if here.exists() else (shutil.which(name) or name)
+
+
+def measured(cmd: list[str], cwd=None) -> dict:
+    """Run ``cmd`` in its own process: wall s, CPU s (user + system), peak RSS MB, exit code."""
+    load = os.getloadavg()[0]
+    t0 = time.perf_counter()
+    p = subprocess.Popen(cmd, cwd=cwd, stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+    out_chunks = []
+    # wait4 gives this child's own resource use (RUSAGE_CHILDREN would mix all children so far)
+    _, status, ru = os.wait4(p.pid, 0)
+    wall = time.perf_counter() - t0
+    out, err = p.stdout.read().decode(errors="replace"), p.stderr.read().decode(errors="replace")
+    out_chunks.append(out)
+    code = os.waitstatus_to_exitcode(status)
+    if code != 0:
+        raise SystemExit(f"{' '.join(map(str, cmd))} failed ({code}):\n{err[-3000:]}")
+    return {"wall_s": round(wall, 3), "cpu_s": round(ru.ru_utime + ru.ru_stime, 3),
+            "peak_rss_mb": round(ru.ru_maxrss / 1024.0, 1), "load_1min_before": round(load, 2),
+            "stdout": out.strip()[-500:]}
+
+
+# --- the demo's frames -----------------------------------------------------------------------------------
+
+def demo_project(demo: Path) -> Path:
+    for p in (demo, demo / "project"):
+        if (p / "ortho" / "frames" / "index.json").is_file():
+            return p
+    raise SystemExit(f"{demo}: no demo project with ortho/frames/index.json (run `aerotri demo {demo}` first)")
+
+
+def copy_demo(src: Path, work: Path) -> Path:
+    """The parts of the demo project that ``ortho mosaic`` and ``ortho check`` read, in ``work``."""
+    if work.exists():
+        shutil.rmtree(work)
+    work.mkdir(parents=True)
+    for name in ("project.toml", "camera.toml"):
+        shutil.copy2(src / name, work / name)
+    shutil.copytree(src / "at", work / "at")
+    shutil.copytree(src / "ortho" / "frames", work / "ortho" / "frames")
+    for rel in ("lidar_out/dem.tif", "lidar_out/ndsm.tif", "truth/ortho.tif", "ortho/dom_report.json"):
+        if (src / rel).exists():
+            (work / rel).parent.mkdir(parents=True, exist_ok=True)
+            shutil.copy2(src / rel, work / rel)
+    # the index names the DEM it was rectified on by its path inside the project: the copy has it too
+    return work
+
+
+# --- the large synthetic block ---------------------------------------------------------------------------
+
+def large_layout(gp: float):
+    """Frame origins (col, row of the top-left pixel in the block grid), block width and height (px)."""
+    step_x, step_y = round(FRAME_W * (1 - FORWARD)), round(FRAME_H * (1 - SIDE))
+    side = math.sqrt(gp * 1e9)
+    n_x = max(1, math.ceil((side - FRAME_W) / step_x) + 1)
+    n_y = max(1, math.ceil((side - FRAME_H) / step_y) + 1)
+    while (FRAME_W + (n_x - 1) * step_x) * (FRAME_H + (n_y - 1) * step_y) < gp * 1e9:
+        n_x += 1
+    frames = [(i * step_x, j * step_y) for j in range(n_y) for i in range(n_x)]
+    return frames, FRAME_W + (n_x - 1) * step_x, FRAME_H + (n_y - 1) * step_y, n_x
+
+
+class Ground:
+    """The ground image of the large block: the demo's truth orthophoto mirrored across the block, sampled
+    at any resolution (bilinear); RGB uint8."""
+
+    def __init__(self, truth: Path):
+        import rasterio
+
+        with rasterio.open(truth) as ds:
+            self.img = np.ascontiguousarray(np.moveaxis(ds.read([1, 2, 3]), 0, -1))
+            self.res = abs(ds.transform.a)
+
+    def window(self, x0_m: float, y0_m: float, width: int, height: int, res_m: float) -> np.ndarray:
+        """(height, width, 3) uint8 of the block area whose top-left corner is (x0_m, y0_m) metres from the
+        block's top-left corner (x east, y south), pixels of res_m."""
+        import cv2
+
+        h, w = self.img.shape[:2]
+        s = res_m / self.res  # source pixels per output pixel
+        c0, r0 = x0_m / self.res, y0_m / self.res
+        cc = np.floor(c0 + (np.arange(int(width * s) + 3) - 1)).astype(np.int64)
+        rr = np.floor(r0 + (np.arange(int(height * s) + 3) - 1)).astype(np.int64)
+        period_c, period_r = 2 * w, 2 * h
+        mc, mr = cc % period_c, rr % period_r
+        mc = np.where(mc < w, mc, period_c - 1 - mc)
+        mr = np.where(mr < h, mr, period_r - 1 - mr)
+        src = self.img[np.ix_(mr, mc)]
+        # output pixel centre (i + 0.5) * s source px from c0 -> index in src: that - (floor(c0) - 1) - 0.5
+        ox, oy = c0 - (np.floor(c0) - 1), r0 - (np.floor(r0) - 1)
+        M = np.array([[s, 0.0, ox + 0.5 * s - 0.5], [0.0, s, oy + 0.5 * s - 0.5]])
+        return cv2.warpAffine(src, M, (width, height), flags=cv2.INTER_LINEAR | cv2.WARP_INVERSE_MAP,
+                              borderMode=cv2.BORDER_REFLECT)
+
+
+def make_large(work: Path, demo_src: Path, gp: float, seed: int = 41) -> dict:
+    """Write the synthetic frame orthos, index.json and the minimal project around them; returns the layout."""
+    import cv2
+    import rasterio
+    from pyproj import CRS
+    from rasterio.transform import Affine
+    from rasterio.windows import Window
+
+    from aerotri.core.project import Project
+    from ortho.block import _camera_sha256, _sha256, block_camera, file_fingerprint, frame_profile
+    from ortho.grid import OrthoGrid
+
+    frames, width, height, per_strip = large_layout(gp)
+    marker = work / "large_done.json"
+    if marker.is_file():
+        done = json.loads(marker.read_text())
+        if done.get("gp") == gp and done.get("frames") == len(frames):
+            return done
+    if work.exists():
+        shutil.rmtree(work)
+    (work / "ortho" / "frames").mkdir(parents=True)
+    for name in ("project.toml", "camera.toml"):
+        shutil.copy2(demo_src / name, work / name)
+    shutil.copytree(demo_src / "at", work / "at")
+    (work / "lidar_out").mkdir()
+    shutil.copy2(demo_src / "lidar_out" / "dem.tif", work / "lidar_out" / "dem.tif")
+    ground = Ground(demo_src / "truth" / "ortho.tif")
+    crs = CRS.from_epsg(32649)
+    rng = np.random.default_rng(seed)
+    entries = []
+    t0 = time.perf_counter()
+    with rasterio.Env(GDAL_TIFF_INTERNAL_MASK=True):
+        for k, (c0, r0) in enumerate(frames):
+            image_id = f"s{k // per_strip + 1:02d}_{k % per_strip + 1:03d}"
+            grid = OrthoGrid(crs, ORIGIN[0] + c0 * RES_M, ORIGIN[1] - r0 * RES_M, RES_M, FRAME_W, FRAME_H)
+            kappa = np.deg2rad(rng.uniform(-1.5, 1.5))
+            gain = rng.uniform(0.93, 1.07)
+            inset = 0.02 * min(FRAME_W, FRAME_H)
+            # the footprint: the frame rectangle shrunk by 2 % and turned by kappa about its centre
+            cx, cy = FRAME_W / 2, FRAME_H / 2
+            hw, hh = cx - inset, cy - inset
+            corners = np.array([[-hw, -hh], [hw, -hh], [hw, hh], [-hw, hh]])
+            rot = np.array([[np.cos(kappa), -np.sin(kappa)], [np.sin(kappa), np.cos(kappa)]])
+            poly = (corners @ rot.T + [cx, cy]).astype(np.float32)
+            path = work / "ortho" / "frames" / f"{image_id}.tif"
+            prof = frame_profile(grid, 3, "uint8")
+            lut = np.clip(np.rint(np.arange(256) * gain), 0, 255).astype(np.uint8)
+            valid_px = 0
+            with rasterio.open(path, "w", **prof) as dst:
+                for y in range(0, FRAME_H, 1024):
+                    h = min(1024, FRAME_H - y)
+                    img = cv2.LUT(ground.window(c0 * RES_M, (r0 + y) * RES_M, FRAME_W, h, RES_M), lut)
+                    mask = np.zeros((h, FRAME_W), np.uint8)
+                    cv2.fillPoly(mask, [np.rint((poly - [0, y]) * 16).astype(np.int32)], 255, shift=4)
+                    img = cv2.bitwise_and(img, img, mask=mask)
+                    valid_px += int(np.count_nonzero(mask))
+                    w = Window(0, y, FRAME_W, h)
+                    dst.write(np.ascontiguousarray(np.moveaxis(img, -1, 0)), window=w)
+                    dst.write_mask(mask, window=w)
+            centre = (grid.x_left_m + cx * RES_M, grid.y_top_m - cy * RES_M)
+            entries.append({"image_id": image_id, "file": path.name, "x_left_m": grid.x_left_m, "y_top_m": grid.y_top_m,
+                            "width": FRAME_W, "height": FRAME_H, "centre_m": [centre[0], centre[1], 1300.0],
+                            "nadir_xy_m": [centre[0], centre[1]], "valid_fraction": valid_px / (FRAME_W * FRAME_H),
+                            **file_fingerprint(path)})
+            print(f"  frame {k + 1}/{len(frames)} {image_id} ({time.perf_counter() - t0:.0f} s)", flush=True)
+    project = Project.open(work)
+    dem = work / "lidar_out" / "dem.tif"
+    st = dem.stat()
+    index = {"crs": crs.to_wkt(), "crs_name": crs.name, "epsg": 32649, "res_m": RES_M, "project_crs": "EPSG:32649",
+             "dem": str(dem), "eo": str(work / "at" / "eo.txt"), "true_ortho": False, "dsm": None,
+             "interpolation": "bilinear", "coordinate_operation": None, "operation": None, "height_operation": None,
+             "inputs": {"eo": {"file": "at/eo.txt", "given": False, "sha256": _sha256(work / "at" / "eo.txt")},
+                        "camera": {"file": None, "sha256": _camera_sha256(block_camera(project)[0])},
+                        "dem": {"file": "lidar_out/dem.tif", "size": st.st_size, "mtime_ns": st.st_mtime_ns,
+                                "sha256": _sha256(dem)}},
+             "frames": entries}
+    (work / "ortho" / "frames" / "index.json").write_text(json.dumps(index, indent=1) + "\n")
+    # the reference orthophoto of the check: the same ground at 0.5 m
+    ref_w, ref_h = math.ceil(width * RES_M / REF_RES_M), math.ceil(height * RES_M / REF_RES_M)
+    ref = work / "reference.tif"
+    with rasterio.open(ref, "w", driver="GTiff", width=ref_w, height=ref_h, count=3, dtype="uint8", crs=crs,
+                       transform=Affine(REF_RES_M, 0, ORIGIN[0], 0, -REF_RES_M, ORIGIN[1]), tiled=True,
+                       blockxsize=512, blockysize=512, compress="zstd", predictor=2) as dst:
+        for y in range(0, ref_h, 1024):
+            h = min(1024, ref_h - y)
+            img = ground.window(0.0, y * REF_RES_M, ref_w, h, REF_RES_M)
+            dst.write(np.ascontiguousarray(np.moveaxis(img, -1, 0)), window=Window(0, y, ref_w, h))
+    done = {"gp": gp, "frames": len(frames), "frame_px": [FRAME_W, FRAME_H], "block_px": [width, height],
+            "block_gp": width * height / 1e9, "frames_gp": len(frames) * FRAME_W * FRAME_H / 1e9,
+            "frames_bytes": sum(e["size"] for e in entries), "make_s": round(time.perf_counter() - t0, 1)}
+    marker.write_text(json.dumps(done) + "\n")
+    return done
+
+
+# --- runs ------------------------------------------------------------------------------------------------
+
+def mosaic_px(path: Path) -> int:
+    import rasterio
+
+    with rasterio.open(path) as ds:
+        return ds.width * ds.height
+
+
+def compare(work: Path, repeats: int, label: str, between=None) -> dict:
+    """Ours and the peer alternately ``repeats`` times on ``work``'s frames; ``between()`` runs after the
+    first of ours (e.g. the DOM check), before our DOM is removed for the peer (``between`` set: disk)."""
+    frames = sorted((work / "ortho" / "frames").glob("*.tif"))
+    listing = work / "peer_inputs.txt"
+    listing.write_text("\n".join(str(f) for f in frames) + "\n")
+    peer_out = work / "peer_mosaic.tif"
+    runs = []
+    for k in range(repeats):
+        print(f"{label}: run {k + 1}/{repeats}: ortho mosaic", flush=True)
+        ours = measured([tool("ortho"), "mosaic", "-q", str(work)])
+        ours["file_mb"] = round((work / "ortho" / "mosaic.tif").stat().st_size / 1e6, 1)
+        print(f"  {ours['wall_s']} s wall, {ours['cpu_s']} CPU-s, {ours['peak_rss_mb']} MB", flush=True)
+        if k == 0:
+            px = mosaic_px(work / "ortho" / "mosaic.tif")
+            if between is not None:
+                between()
+                (work / "ortho" / "mosaic.tif").unlink()
+        print(f"{label}: run {k + 1}/{repeats}: gdalwarp", flush=True)
+        peer = measured(PEER + ["--optfile", str(listing), str(peer_out)])
+        peer["file_mb"] = round(peer_out.stat().st_size / 1e6, 1)
+        print(f"  {peer['wall_s']} s wall, {peer['cpu_s']} CPU-s, {peer['peak_rss_mb']} MB", flush=True)
+        runs.append({"ours": ours, "peer": peer, "ratio": round(peer["wall_s"] / ours["wall_s"], 3)})
+        peer_px = mosaic_px(peer_out)
+        peer_out.unlink()
+    for r in runs:
+        r["ours"]["mp_per_s"] = round(px / 1e6 / r["ours"]["wall_s"], 2)
+        r["peer"]["mp_per_s"] = round(peer_px / 1e6 / r["peer"]["wall_s"], 2)
+    med = lambda key, who: statistics.median(r[who][key] for r in runs)  # noqa: E731
+    return {"mosaic_px": px, "mosaic_gp": round(px / 1e9, 4), "peer_px": peer_px, "runs": runs,
+            "median": {"ours_wall_s": med("wall_s", "ours"), "peer_wall_s": med("wall_s", "peer"),
+                       "ours_cpu_s": med("cpu_s", "ours"), "peer_cpu_s": med("cpu_s", "peer"),
+                       "ours_peak_rss_mb": max(r["ours"]["peak_rss_mb"] for r in runs),
+                       "peer_peak_rss_mb": max(r["peer"]["peak_rss_mb"] for r in runs),
+                       "ours_mp_per_s": med("mp_per_s", "ours"), "peer_mp_per_s": med("mp_per_s", "peer"),
+                       "ratio_peer_over_ours_wall": statistics.median(r["ratio"] for r in runs)}}
+
+
+def check(work: Path, reference: Path, out_stem: str) -> dict:
+    r = measured([tool("ortho"), "check", "-q", str(work), "--reference", str(reference), "--out",
+                  str(work / out_stem)])
+    rep = json.loads((work / f"{out_stem}.json").read_text())
+    d = rep["displacement"]
+    r.pop("stdout", None)
+    r.update(patches=d.get("count"), rms_xy_m=d.get("rms_xy_m"), rms_xy_gsd=d.get("rms_xy_gsd"),
+             max_xy_m=d.get("max_xy_m"), seam_patches=(rep.get("seams") or {}).get("patches"),
+             seam_rms_px=(rep.get("seams") or {}).get("rms_px"))
+    return r
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("--demo", type=Path, default=REPO / "out" / "demo")
+    ap.add_argument("--work", type=Path, default=REPO / "out" / "mosaic_speed")
+    ap.add_argument("--gp", type=float, default=4.2)
+    ap.add_argument("--repeats", type=int, default=3)
+    ap.add_argument("--large-repeats", type=int, default=1)
+    ap.add_argument("--skip-large", action="store_true")
+    ap.add_argument("--keep-large", action="store_true")
+    ap.add_argument("--large-check", action="store_true", help="also ortho check the large DOM (long)")
+    ap.add_argument("--out", type=Path, default=REPO / "results" / "mosaic_speed.json")
+    a = ap.parse_args()
+    if shutil.which("gdalwarp") is None:
+        raise SystemExit("gdalwarp not found: the peer of this benchmark is GDAL's command line gdalwarp (Debian "
+                         "package gdal-bin, installed by `make bench`); rasterio's bundled GDAL has no command line "
+                         "tools")
+    peer_version = subprocess.run(["gdalwarp", "--version"], capture_output=True, text=True).stdout.strip()
+    import rasterio
+
+    src = demo_project(a.demo)
+    result = {"machine": {"cpus": os.cpu_count(), "gdal_peer": peer_version, "gdal_ours": rasterio.__gdal_version__},
+              "peer_command": " ".join(PEER) + " --optfile <frames> <out.tif>",
+              "ours_command": "ortho mosaic <project>"}
+    demo = copy_demo(src, a.work / "demo")
+    print(f"demo: {len(list((demo / 'ortho' / 'frames').glob('*.tif')))} frames from {src}", flush=True)
+    result["demo"] = compare(demo, a.repeats, "demo")
+    if (demo / "truth" / "ortho.tif").exists():
+        before = json.loads((demo / "ortho" / "dom_report.json").read_text())["displacement"] \
+            if (demo / "ortho" / "dom_report.json").exists() else None
+        after = check(demo, demo / "truth" / "ortho.tif", "dom_report_bench")
+        result["demo"]["dom_check"] = {
+            "after": after,
+            "before": None if before is None else {"patches": before["count"], "rms_xy_m": before["rms_xy_m"],
+                                                   "rms_xy_gsd": before["rms_xy_gsd"], "max_xy_m": before["max_xy_m"],
+                                                   "source": "the demo's ortho/dom_report.json"}}
+    a.out.parent.mkdir(parents=True, exist_ok=True)
+    a.out.write_text(json.dumps(result, indent=1) + "\n")
+    if not a.skip_large:
+        large = a.work / "large"
+        print(f"large: making the synthetic frame orthos for {a.gp} GP", flush=True)
+        layout = make_large(large, src, a.gp)
+        print(f"large: {layout['frames']} frames, {layout['frames_gp']:.2f} GP of frames, "
+              f"{layout['frames_bytes'] / 1e9:.2f} GB", flush=True)
+        result["large"] = {"layout": layout}
+
+        def large_check():
+            result["large"]["first_ours"] = "measured"
+            a.out.write_text(json.dumps(result, indent=1) + "\n")
+            if a.large_check:
+                print("large: ortho check", flush=True)
+                result["large"]["dom_check"] = check(large, large / "reference.tif", "dom_report_bench")
+                result["large"]["dom_check"]["reference"] = f"the ground image at {REF_RES_M} m"
+                a.out.write_text(json.dumps(result, indent=1) + "\n")
+
+        result["large"].update(compare(large, a.large_repeats, "large", between=large_check))
+        if not a.keep_large:
+            shutil.rmtree(large)
+    a.out.write_text(json.dumps(result, indent=1) + "\n")
+    d = result["demo"]["median"]
+    print(f"demo: ours {d['ours_wall_s']} s, gdalwarp {d['peer_wall_s']} s: {d['ratio_peer_over_ours_wall']}x")
+    if "large" in result:
+        m = result["large"]["median"]
+        print(f"large ({result['large']['mosaic_gp']} GP): ours {m['ours_wall_s']} s ({m['ours_peak_rss_mb']} MB), "
+              f"gdalwarp {m['peer_wall_s']} s: {m['ratio_peer_over_ours_wall']}x")
+    print(f"-> {a.out}")
+
+
+if __name__ == "__main__":
+    main()

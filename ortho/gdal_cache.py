@@ -1,0 +1,41 @@
+"""GDAL's block cache for the ortho stages: one size per process, set by the stage's calling thread.
+
+GDAL has one block cache per process. ``rasterio.Env(GDAL_CACHEMAX=n)`` sets it with ``GDALSetCacheMax64(n)``
+(n in bytes, whatever GDAL's config option would mean by a small number: ``GDAL_CACHEMAX=256`` is 256
+bytes, not 256 MB), which flushes the blocks of every open dataset down to the new size, and sets it back
+on exit. Entered inside tasks that run on threads (``ortho rectify``'s frame tasks did), that is unsafe
+twice over: the exits of overlapping tasks restore each other's values, so the process keeps the 256 bytes
+for good (every later read and write of any dataset then evicts other datasets' blocks), and one thread
+flushes the dirty blocks of a GeoTIFF another thread is writing, which GDAL does not support (corrupt
+blocks, OSGeo/gdal#2011; threads waiting on each other for good, OSGeo/gdal#3848). The suite hung in
+tests/ortho/test_block_atomic.py that way (every thread in a futex wait, rectify temporaries open).
+
+So the ortho stages set the cache once, in bytes, from the thread that calls them, around the whole
+stage (before its worker threads start, after they have ended), never inside a task.
+"""
+
+from __future__ import annotations
+
+import contextlib
+
+MiB = 2 ** 20
+# rectify: the frame blocks the tiles of the frames in flight read (a 13,824 px DMC frame read by windows) and
+# the output blocks being compressed; bounded so that memory does not grow with the frame
+RECTIFY_CACHE_BYTES = 256 * MiB
+# mosaic: the frame blocks a row of tiles reads (frame blocks are not aligned with the mosaic tiles, so the next
+# row reads some again) and the stage blocks being filled; GDAL's default is 5 % of the RAM
+MOSAIC_CACHE_BYTES = 512 * MiB
+# check: the DOM, reference and nDSM blocks of the blocks being compared
+CHECK_CACHE_BYTES = 256 * MiB
+
+
+@contextlib.contextmanager
+def stage_block_cache(max_bytes: int):
+    """GDAL's block cache at ``max_bytes`` (bytes) while the block runs, the previous size after it. Enter it
+    in the thread that calls a stage, around the stage, never in a task on a worker thread (module doc)."""
+    import rasterio
+
+    if max_bytes < MiB:  # a size in MB passed by mistake would leave the cache useless (module doc)
+        raise ValueError(f"GDAL block cache of {max_bytes} bytes: expected bytes (at least 1 MiB)")
+    with rasterio.Env(GDAL_CACHEMAX=int(max_bytes)):
+        yield

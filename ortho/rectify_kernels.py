@@ -1,0 +1,309 @@
+"""The compiled kernels of ``ortho.rectify`` (numba): back-projection of output pixels through the DEM and
+the camera into cv2.remap's fixed-point maps, and the occlusion test of a true ortho. A module of their own
+so that the commands without rectification (``ortho mosaic``, ``ortho check``) do not import numba (about
+0.3 CPU-s) nor load compiled code; ``ortho.rectify`` imports it when it first maps a tile.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numba
+import numpy as np
+
+from aerotri.geom.lens_kernels import to_pixel
+
+_INVALID = -1.0e5  # image coordinate written for invalid pixels (far outside any frame)
+INTER_BITS = 5  # cv2.remap fixed-point maps: 1/32 px sub-pixel positions (what it uses internally anyway)
+INTER_TAB_SIZE = 1 << INTER_BITS
+
+# fast-math without "nnan"/"ninf": the NaN test for DEM nodata must survive
+_FASTMATH = {"contract", "arcp", "reassoc", "nsz", "afn"}
+
+
+@numba.njit(cache=True, inline="always", fastmath=_FASTMATH)
+def _dem_height(dem, X, Y, dem_x0, dem_y0, dem_res):
+    """Bilinear DEM height at (X, Y), clamped half a pixel beyond the outer cell centres; NaN outside
+    the DEM or on nodata. Computed without an early return so that loops over it stay branch-free."""
+    dh, dw = dem.shape
+    u = (X - dem_x0) / dem_res - 0.5
+    v = (dem_y0 - Y) / dem_res - 0.5
+    inside = u >= -0.5 and u <= dw - 0.5 and v >= -0.5 and v <= dh - 0.5
+    u = min(max(u, 0.0), dw - 1.0)
+    v = min(max(v, 0.0), dh - 1.0)
+    di = min(int(v), max(dh - 2, 0))
+    dj = min(int(u), max(dw - 2, 0))
+    fv = v - di
+    fu = u - dj
+    di1 = min(di + 1, dh - 1)
+    dj1 = min(dj + 1, dw - 1)
+    Z = (dem[di, dj] * (1.0 - fu) * (1.0 - fv) + dem[di, dj1] * fu * (1.0 - fv)
+         + dem[di1, dj] * (1.0 - fu) * fv + dem[di1, dj1] * fu * fv)
+    return Z if inside else np.nan
+
+
+@numba.njit(cache=True, inline="always", fastmath=_FASTMATH)
+def _fixed_point_entry(x, y, in_front, x_lo, x_hi, y_lo, y_hi, far):
+    """cv2.remap 1/32 px fixed-point x, y and mask (255/0) of one output pixel. Where imaged x, y >= 0,
+    so truncation rounds; not imaged: ``far`` outside the image, branch-free (a select, vectorisable)."""
+    ok = in_front & (x >= x_lo) & (x <= x_hi) & (y >= y_lo) & (y <= y_hi)
+    return (np.int32(x * INTER_TAB_SIZE + 0.5) if ok else far, np.int32(y * INTER_TAB_SIZE + 0.5) if ok else far,
+            np.uint8(255) if ok else np.uint8(0))
+
+
+@numba.njit(cache=True, inline="always", fastmath=_FASTMATH)
+def _ground_to_image(r, c, inv_s, anchor_x, anchor_y, dem, dem_x0, dem_y0, dem_res, centre, M, cam, width, height,
+                     margin):
+    """Ground point of output pixel (r, c), its height and image position; ok False if not imaged."""
+    ar = r * inv_s
+    i0 = min(int(ar), anchor_x.shape[0] - 2)
+    fr = ar - i0
+    ac = c * inv_s
+    j0 = min(int(ac), anchor_x.shape[1] - 2)
+    fc = ac - j0
+    w00 = (1.0 - fr) * (1.0 - fc)
+    w01 = (1.0 - fr) * fc
+    w10 = fr * (1.0 - fc)
+    w11 = fr * fc
+    X = anchor_x[i0, j0] * w00 + anchor_x[i0, j0 + 1] * w01 + anchor_x[i0 + 1, j0] * w10 + anchor_x[i0 + 1, j0 + 1] * w11
+    Y = anchor_y[i0, j0] * w00 + anchor_y[i0, j0 + 1] * w01 + anchor_y[i0 + 1, j0] * w10 + anchor_y[i0 + 1, j0 + 1] * w11
+    Z = _dem_height(dem, X, Y, dem_x0, dem_y0, dem_res)
+    if Z != Z:  # outside the DEM or on its nodata
+        return Z, 0.0, 0.0, False
+    dx = X - centre[0]
+    dy = Y - centre[1]
+    dz = Z - centre[2]
+    zc = M[2, 0] * dx + M[2, 1] * dy + M[2, 2] * dz
+    if zc <= 0.0:  # behind the camera
+        return Z, 0.0, 0.0, False
+    xn = (M[0, 0] * dx + M[0, 1] * dy + M[0, 2] * dz) / zc
+    yn = (M[1, 0] * dx + M[1, 1] * dy + M[1, 2] * dz) / zc
+    x, y = to_pixel(cam, xn, yn)
+    ok = x >= margin and x <= width - 1 - margin and y >= margin and y <= height - 1 - margin
+    return Z, x, y, ok
+
+
+@numba.njit(parallel=True, cache=True, fastmath=_FASTMATH)
+def _backproject_kernel(anchor_x, anchor_y, spacing, rows, cols, dem, dem_x0, dem_y0, dem_res,
+                        centre, M, cam, width, height, margin, map_x, map_y, height_out):
+    """Float image coordinates (map_x, map_y; -1e5 where not imaged) and heights of a rows x cols tile.
+
+    cam: the camera's kernel parameters (``Camera.kernel_params()``, any model of
+    ``aerotri.geom.lens_kernels``); M = (R @ FLIP_YZ).T maps object offsets to the computer-vision camera
+    frame.
+    """
+    inv_s = 1.0 / spacing
+    for r in numba.prange(rows):
+        for c in range(cols):
+            Z, x, y, ok = _ground_to_image(r, c, inv_s, anchor_x, anchor_y, dem, dem_x0, dem_y0, dem_res, centre, M,
+                                           cam, width, height, margin)
+            map_x[r, c] = x if ok else _INVALID
+            map_y[r, c] = y if ok else _INVALID
+            height_out[r, c] = Z
+
+
+@numba.njit(cache=True, nogil=True)
+def _pack_fixed_point(ix_row, iy_row, int_row, frac_row, bounds):
+    """1/32 px fixed-point positions -> cv2.remap's CV_16SC2 integer part + CV_16UC1 table index (one row).
+
+    ``bounds`` (int32 x_min, x_max, y_min, y_max of the integer parts of the imaged pixels, which are
+    >= 0; not-imaged ones are far negative) is widened by this row."""
+    x_min, x_max, y_min, y_max = bounds[0], bounds[1], bounds[2], bounds[3]
+    for c in range(ix_row.shape[0]):
+        ix = ix_row[c]
+        iy = iy_row[c]
+        xi = ix >> INTER_BITS
+        yi = iy >> INTER_BITS
+        int_row[c, 0] = np.int16(xi)
+        int_row[c, 1] = np.int16(yi)
+        frac_row[c] = np.uint16(((iy & (INTER_TAB_SIZE - 1)) << INTER_BITS) | (ix & (INTER_TAB_SIZE - 1)))
+        x_min = min(x_min, xi if xi >= 0 else x_min)
+        x_max = max(x_max, xi)
+        y_min = min(y_min, yi if yi >= 0 else y_min)
+        y_max = max(y_max, yi)
+    bounds[0], bounds[1], bounds[2], bounds[3] = x_min, x_max, y_min, y_max
+
+
+@numba.njit(cache=True, nogil=True, fastmath=_FASTMATH, error_model="numpy")
+def _fixed_point_kernel(anchor_x, anchor_y, spacing, rows, cols, dem, dem_x0, dem_y0, dem_res,
+                        centre, M, cam, width, height, margin, map_int, map_frac, mask, height_out, bounds):
+    """As _backproject_kernel, but writes cv2.remap's fixed-point maps directly (CV_16SC2 integer
+    positions + CV_16UC1 1/32 px fractions, as cv2.convertMaps would), the validity mask (255/0) and
+    the integer bounds of the imaged positions (``bounds``, see _pack_fixed_point).
+    Not-imaged pixels point far outside the image, so cv2.remap with a constant border gives 0.
+    Loop invariants are hoisted by hand (LLVM cannot prove the output arrays do not alias them)."""
+    inv_s = 1.0 / spacing
+    m00, m01, m02, m10, m11, m12, m20, m21, m22 = (M[0, 0], M[0, 1], M[0, 2], M[1, 0], M[1, 1], M[1, 2],
+                                                   M[2, 0], M[2, 1], M[2, 2])
+    c0, c1, c2 = centre[0], centre[1], centre[2]
+    x_lo, x_hi, y_lo, y_hi = margin, width - 1 - margin, margin, height - 1 - margin
+    na = anchor_x.shape[1]
+    far = np.int32(-32768 * INTER_TAB_SIZE)
+    ix_row = np.empty(cols, np.int32)
+    iy_row = np.empty(cols, np.int32)
+    for r in range(rows):
+        ar = r * inv_s
+        i0 = min(int(ar), anchor_x.shape[0] - 2)
+        fr = ar - i0
+        ax0, ax1, ay0, ay1 = anchor_x[i0], anchor_x[i0 + 1], anchor_y[i0], anchor_y[i0 + 1]
+        mask_row, z_row = mask[r], height_out[r]
+        for c in range(cols):
+            ac = c * inv_s
+            j0 = min(int(ac), na - 2)
+            fc = ac - j0
+            X = (1.0 - fr) * ((1.0 - fc) * ax0[j0] + fc * ax0[j0 + 1]) + fr * ((1.0 - fc) * ax1[j0] + fc * ax1[j0 + 1])
+            Y = (1.0 - fr) * ((1.0 - fc) * ay0[j0] + fc * ay0[j0 + 1]) + fr * ((1.0 - fc) * ay1[j0] + fc * ay1[j0 + 1])
+            Z = _dem_height(dem, X, Y, dem_x0, dem_y0, dem_res)
+            z_row[c] = Z
+            dx = X - c0
+            dy = Y - c1
+            dz = Z - c2
+            zc = m20 * dx + m21 * dy + m22 * dz
+            inv_zc = 1.0 / zc
+            xn = (m00 * dx + m01 * dy + m02 * dz) * inv_zc
+            yn = (m10 * dx + m11 * dy + m12 * dz) * inv_zc
+            x, y = to_pixel(cam, xn, yn)
+            ix_row[c], iy_row[c], mask_row[c] = _fixed_point_entry(x, y, zc > 0.0, x_lo, x_hi, y_lo, y_hi, far)
+        _pack_fixed_point(ix_row, iy_row, map_int[r], map_frac[r], bounds)
+
+
+@numba.njit(cache=True, nogil=True)
+def _occlusion_kernel(anchor_x, anchor_y, spacing, rows, cols, height_tile, dsm, dsm_x0, dsm_y0, dsm_res,
+                      dsm_max, centre, tolerance_m, occluded, candidates):
+    """Mark ground points whose ray to the projection centre passes below the DSM surface.
+
+    March from the ground point towards the centre in steps of one DSM cell (horizontally), stop when
+    the ray is above the highest DSM value; occluded if the DSM exceeds the ray by ``tolerance_m``.
+    Only the points where ``candidates`` is True are marched (the others are left as they are).
+    """
+    dh, dw = dsm.shape
+    inv_s = 1.0 / spacing
+    for r in range(rows):
+        ar = r * inv_s
+        i0 = min(int(ar), anchor_x.shape[0] - 2)
+        fr = ar - i0
+        for c in range(cols):
+            Z = height_tile[r, c]
+            if Z != Z or not candidates[r, c]:
+                continue
+            ac = c * inv_s
+            j0 = min(int(ac), anchor_x.shape[1] - 2)
+            fc = ac - j0
+            X = ((1 - fr) * (1 - fc) * anchor_x[i0, j0] + (1 - fr) * fc * anchor_x[i0, j0 + 1]
+                 + fr * (1 - fc) * anchor_x[i0 + 1, j0] + fr * fc * anchor_x[i0 + 1, j0 + 1])
+            Y = ((1 - fr) * (1 - fc) * anchor_y[i0, j0] + (1 - fr) * fc * anchor_y[i0, j0 + 1]
+                 + fr * (1 - fc) * anchor_y[i0 + 1, j0] + fr * fc * anchor_y[i0 + 1, j0 + 1])
+            vx = centre[0] - X
+            vy = centre[1] - Y
+            vz = centre[2] - Z
+            hd = math.sqrt(vx * vx + vy * vy)
+            if hd < 1e-9 or vz <= 0:
+                continue
+            rise = vz / hd  # metres of ray height per metre horizontally
+            ux = vx / hd
+            uy = vy / hd
+            t = dsm_res
+            while True:
+                zr = Z + rise * t
+                if zr > dsm_max:
+                    break
+                px = X + ux * t
+                py = Y + uy * t
+                u = (px - dsm_x0) / dsm_res - 0.5
+                v = (dsm_y0 - py) / dsm_res - 0.5
+                if u < 0 or v < 0 or u > dw - 1 or v > dh - 1:
+                    break
+                di = min(int(v), dh - 2)
+                dj = min(int(u), dw - 2)
+                fv = v - di
+                fu = u - dj
+                zs = (dsm[di, dj] * (1 - fu) * (1 - fv) + dsm[di, dj + 1] * fu * (1 - fv)
+                      + dsm[di + 1, dj] * (1 - fu) * fv + dsm[di + 1, dj + 1] * fu * fv)
+                if zs > zr + tolerance_m:
+                    occluded[r, c] = True
+                    break
+                t += dsm_res
+
+
+@numba.njit(cache=True, nogil=True, fastmath=_FASTMATH, error_model="numpy")
+def _fixed_point_kernel_affine(heights, x0, y0, res, centre, M, cam, width, height, margin, map_int, map_frac, mask,
+                               bounds):
+    """Fast path of _fixed_point_kernel when the output grid is in the project CRS: ground X, Y are
+    affine in (row, col) and the heights on the grid are given (bilinear DEM, see heights_on_grid).
+
+    Branch-free inner loop with everything loop-invariant hoisted and plain int32 row outputs, so
+    LLVM vectorises it (AVX-512: ~5x faster than a branching loop storing the interleaved int16 map);
+    the packing into cv2's layout is a second, cheap pass. NaN heights (DEM nodata) make x, y NaN and
+    fail the range test.
+    """
+    rows, cols = heights.shape
+    x_lo, x_hi, y_lo, y_hi = margin, width - 1 - margin, margin, height - 1 - margin
+    m02, m12, m22 = M[0, 2], M[1, 2], M[2, 2]
+    sx, sy, sz = M[0, 0] * res, M[1, 0] * res, M[2, 0] * res
+    far = np.int32(-32768 * INTER_TAB_SIZE)
+    ix_row = np.empty(cols, np.int32)
+    iy_row = np.empty(cols, np.int32)
+    for r in range(rows):
+        dx0 = x0 - centre[0]
+        dy = y0 - r * res - centre[1]
+        # camera-frame coordinates are affine along the row: start + c * step + dz * column of M
+        bx = M[0, 1] * dy + M[0, 0] * dx0
+        by = M[1, 1] * dy + M[1, 0] * dx0
+        bz = M[2, 1] * dy + M[2, 0] * dx0
+        z_row, mask_row = heights[r], mask[r]
+        for c in range(cols):
+            dz = np.float64(z_row[c]) - centre[2]
+            zc = bz + c * sz + m22 * dz
+            inv_zc = 1.0 / zc
+            xn = (bx + c * sx + m02 * dz) * inv_zc
+            yn = (by + c * sy + m12 * dz) * inv_zc
+            x, y = to_pixel(cam, xn, yn)
+            ix_row[c], iy_row[c], mask_row[c] = _fixed_point_entry(x, y, zc > 0.0, x_lo, x_hi, y_lo, y_hi, far)
+        _pack_fixed_point(ix_row, iy_row, map_int[r], map_frac[r], bounds)
+
+
+@numba.njit(cache=True, nogil=True, fastmath=_FASTMATH, error_model="numpy")
+def _zbuffer_kernel(anchor_x, anchor_y, spacing, heights, centre, M, cam, width, height, cell_px, zbuf, tolerance_m,
+                    occluded, scatter):
+    """Z-buffer occlusion of a true ortho: the surface points of a tile (its pixels at their DSM ``heights``)
+    projected into the frame, their depth along the optical axis (zc, m) compared by cells of ``cell_px``
+    image pixels. ``scatter``: keep the nearest depth per cell in ``zbuf`` (first pass, over every tile of
+    the frame); else mark ``occluded`` the points more than ``tolerance_m`` behind the nearest surface of
+    their cell (points outside the frame or on nodata are left as they are)."""
+    inv_s = 1.0 / spacing
+    rows, cols = heights.shape
+    zh, zw = zbuf.shape
+    inv_cell = 1.0 / cell_px
+    na = anchor_x.shape[1]
+    for r in range(rows):
+        ar = r * inv_s
+        i0 = min(int(ar), anchor_x.shape[0] - 2)
+        fr = ar - i0
+        ax0, ax1, ay0, ay1 = anchor_x[i0], anchor_x[i0 + 1], anchor_y[i0], anchor_y[i0 + 1]
+        for c in range(cols):
+            Z = np.float64(heights[r, c])
+            if Z != Z:
+                continue
+            ac = c * inv_s
+            j0 = min(int(ac), na - 2)
+            fc = ac - j0
+            X = (1.0 - fr) * ((1.0 - fc) * ax0[j0] + fc * ax0[j0 + 1]) + fr * ((1.0 - fc) * ax1[j0] + fc * ax1[j0 + 1])
+            Y = (1.0 - fr) * ((1.0 - fc) * ay0[j0] + fc * ay0[j0 + 1]) + fr * ((1.0 - fc) * ay1[j0] + fc * ay1[j0 + 1])
+            dx = X - centre[0]
+            dy = Y - centre[1]
+            dz = Z - centre[2]
+            zc = M[2, 0] * dx + M[2, 1] * dy + M[2, 2] * dz
+            if zc <= 0.0:
+                continue
+            xn = (M[0, 0] * dx + M[0, 1] * dy + M[0, 2] * dz) / zc
+            yn = (M[1, 0] * dx + M[1, 1] * dy + M[1, 2] * dz) / zc
+            x, y = to_pixel(cam, xn, yn)
+            if not (x >= 0.0 and y >= 0.0 and x < width and y < height):
+                continue
+            i = min(int(y * inv_cell), zh - 1)
+            j = min(int(x * inv_cell), zw - 1)
+            if scatter:
+                if zc < zbuf[i, j]:
+                    zbuf[i, j] = zc
+            elif zc > zbuf[i, j] + tolerance_m:
+                occluded[r, c] = True
