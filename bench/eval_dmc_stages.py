@@ -86,6 +86,7 @@ def main() -> int:
     ap.add_argument("--work", type=Path, default=Path("/work/tmp/dmc_stages"))
     ap.add_argument("--dem", type=Path, help="DEM of the orthophotos (default: the block's truth/dem.tif)")
     ap.add_argument("--stages", default=",".join(STAGES), help=f"comma-separated, of {', '.join(STAGES)}")
+    ap.add_argument("--out", type=Path, default=RESULT, help="results file (another one for stages run side by side)")
     args = ap.parse_args()
     stages = [s for s in args.stages.split(",") if s]
     if bad := [s for s in stages if s not in STAGES]:
@@ -97,7 +98,7 @@ def main() -> int:
         for name in ("project.toml", "camera.toml", "gnss.txt"):
             os.link(args.block / name, args.work / name)
         shutil.copytree(args.block / "images", args.work / "images", copy_function=os.link)
-    results = json.loads(RESULT.read_text()) if RESULT.exists() else {}
+    results = json.loads(args.out.read_text()) if args.out.exists() else {}
     entry = results.setdefault(args.block.name, dict(block=str(args.block), frames=truth["frames"],
                                                       image_width_px=truth["image_width_px"],
                                                       image_height_px=truth["image_height_px"], gsd_m=truth["gsd_m"],
@@ -139,8 +140,8 @@ def main() -> int:
                 rec["dom_report"] = {k: v for k, v in r.items() if isinstance(v, (int, float, str))}
         entry["stages"][stage] = rec
         print(f"[{stage}] {rec['wall_s']} s wall, {rec['cpu_s']} s CPU, peak RSS {rec['peak_rss_mb']:.0f} MB", flush=True)
-        RESULT.parent.mkdir(exist_ok=True)
-        RESULT.write_text(json.dumps(results, indent=1) + "\n")
+        args.out.parent.mkdir(exist_ok=True)
+        args.out.write_text(json.dumps(results, indent=1) + "\n")
     return 0
 
 
