@@ -6,7 +6,9 @@ Stages (``--stages``, in this order): ``match`` (``aerotri match``: pairs from G
 --no-exports``: tie points and GNSS, no LiDAR control), ``control`` (``aerotri control --corners``: the roof corners
 measured in the frames at full resolution; the corners are the simulator's true roof corners with LiDAR-like
 noise, 0.10 m in plan and 0.05 m in height, ``aerotri.sim.evaluate.write_truth_corners_csv``, standing in for
-``lidarctl corners``), ``adjust_final`` (``aerotri adjust --dem DEM``: with that control and the DEM), ``rectify`` (``ortho rectify --dem DEM``), ``mosaic``
+``lidarctl corners``), ``adjust_final`` (``aerotri adjust --dem DEM --ndsm``: with that control and the DEM as
+surface control, the truth nDSM telling ground tie points from roofs and trees; standing in for the LiDAR's),
+``rectify`` (``ortho rectify --dem DEM``), ``mosaic``
 (``ortho mosaic``), ``check`` (``ortho check --reference truth/ortho.tif``). The DEM is the simulator's
 truth/dem.tif unless ``--dem`` names another (the chain uses lidar_out/dem.tif of its LiDAR stages; this bench
 leaves the LiDAR stages out to measure the image stages alone). The block's inputs (project.toml, camera.toml,
@@ -60,10 +62,24 @@ def command(stage: str, work: Path, block: Path, dem: Path) -> list[str]:
     return {"match": ["aerotri", "match", str(work)],
             "adjust": ["aerotri", "adjust", str(work), "--no-exports"],
             "control": ["aerotri", "control", str(work), "--corners", str(work / "truth_corners.csv")],
-            "adjust_final": ["aerotri", "adjust", str(work), "--no-exports", "--dem", str(dem)],
+            "adjust_final": ["aerotri", "adjust", str(work), "--no-exports", "--dem", str(dem), "--ndsm",
+                             str(work / "truth_ndsm.tif")],
             "rectify": ["ortho", "rectify", str(work), "--dem", str(dem)],
             "mosaic": ["ortho", "mosaic", str(work)],
             "check": ["ortho", "check", str(work), "--reference", str(block / "truth" / "ortho.tif")]}[stage]
+
+
+def write_truth_ndsm(block: Path, out: Path) -> None:
+    """The truth nDSM (truth/dsm.tif - truth/dem.tif, one grid), standing in for lidar_out/ndsm.tif: without it
+    ``aerotri adjust --dem`` holds roof and tree tie points to the ground too (robust rounds only; on this
+    built-up block: check points 5.2 GSD in plan, 25 GSD in height, results/dmc_stages_control.json)."""
+    import rasterio
+
+    with rasterio.open(block / "truth" / "dem.tif") as a, rasterio.open(block / "truth" / "dsm.tif") as b:
+        ndsm, prof = (b.read(1) - a.read(1)).astype(np.float32), a.profile
+    prof.update(compress="deflate", predictor=3, tiled=True, blockxsize=512, blockysize=512)
+    with rasterio.open(out, "w", **prof) as dst:
+        dst.write(ndsm, 1)
 
 
 def orientations_vs_truth(work: Path, block: Path, gsd_m: float) -> dict:
@@ -86,6 +102,7 @@ def main() -> int:
     ap.add_argument("--work", type=Path, default=Path("/work/tmp/dmc_stages"))
     ap.add_argument("--dem", type=Path, help="DEM of the orthophotos (default: the block's truth/dem.tif)")
     ap.add_argument("--stages", default=",".join(STAGES), help=f"comma-separated, of {', '.join(STAGES)}")
+    ap.add_argument("--out", type=Path, default=RESULT, help="results file (another one for stages run side by side)")
     args = ap.parse_args()
     stages = [s for s in args.stages.split(",") if s]
     if bad := [s for s in stages if s not in STAGES]:
@@ -97,7 +114,7 @@ def main() -> int:
         for name in ("project.toml", "camera.toml", "gnss.txt"):
             os.link(args.block / name, args.work / name)
         shutil.copytree(args.block / "images", args.work / "images", copy_function=os.link)
-    results = json.loads(RESULT.read_text()) if RESULT.exists() else {}
+    results = json.loads(args.out.read_text()) if args.out.exists() else {}
     entry = results.setdefault(args.block.name, dict(block=str(args.block), frames=truth["frames"],
                                                       image_width_px=truth["image_width_px"],
                                                       image_height_px=truth["image_height_px"], gsd_m=truth["gsd_m"],
@@ -105,6 +122,8 @@ def main() -> int:
     entry["dem"] = str(dem)
     for stage in stages:
         cmd = command(stage, args.work, args.block, dem)
+        if stage == "adjust_final" and not (args.work / "truth_ndsm.tif").exists():
+            write_truth_ndsm(args.block, args.work / "truth_ndsm.tif")
         if stage == "control" and not (args.work / "truth_corners.csv").exists():
             from aerotri.sim.evaluate import write_truth_corners_csv
 
@@ -139,8 +158,8 @@ def main() -> int:
                 rec["dom_report"] = {k: v for k, v in r.items() if isinstance(v, (int, float, str))}
         entry["stages"][stage] = rec
         print(f"[{stage}] {rec['wall_s']} s wall, {rec['cpu_s']} s CPU, peak RSS {rec['peak_rss_mb']:.0f} MB", flush=True)
-        RESULT.parent.mkdir(exist_ok=True)
-        RESULT.write_text(json.dumps(results, indent=1) + "\n")
+        args.out.parent.mkdir(exist_ok=True)
+        args.out.write_text(json.dumps(results, indent=1) + "\n")
     return 0
 
 
