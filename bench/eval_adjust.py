@@ -28,7 +28,7 @@ from pathlib import Path
 import numpy as np
 
 from aerotri.adjust.pipeline import AdjustSettings, adjust_project, write_outputs
-from aerotri.geom.camera import FrameCamera
+from aerotri.geom.camera import BrownCamera
 from aerotri.sim.observations import geometric_block, write_block_project, write_truth_observations
 
 NOISE_PX = 0.3
@@ -44,7 +44,7 @@ def evaluate(root: Path, gsd_m: float, blunders: bool, n_control: int, seed: int
     t_adj = time.perf_counter() - t0
     rep = write_outputs(ba, root)
     r, b = ba.result, ba.block
-    cam_true = FrameCamera.read(root / "truth" / "camera.toml")
+    cam_true = BrownCamera.read(root / "truth" / "camera.toml")
     sd = np.sqrt(np.diag(r.cal_cov))
     truth_cal = np.array([cam_true.cx_px, cam_true.cy_px, cam_true.k1, cam_true.k2])
     est = r.state.cal[[3, 4, 5, 6]]

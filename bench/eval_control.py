@@ -34,7 +34,7 @@ sys.path.insert(0, str(REPO))
 
 from aerotri.adjust import pipeline as adjust_pipeline  # noqa: E402
 from aerotri.geom.observations import ControlPoints  # noqa: E402
-from aerotri.geom.camera import FrameCamera  # noqa: E402
+from aerotri.geom.camera import BrownCamera  # noqa: E402
 from aerotri.geom.eo import read_eo  # noqa: E402
 from aerotri.sim.evaluate import truth_roof_corners  # noqa: E402
 from aerotri.core.atomic import write_text_atomic  # noqa: E402
@@ -69,7 +69,7 @@ def adjust_without_control(root: Path) -> dict:
 
 def truth_projection_errors(root: Path, image_points: Path, points: Path) -> dict:
     """Measured - true image position of every transferred corner observation (px), by kind."""
-    cam = FrameCamera.read(root / "truth" / "camera.toml")
+    cam = BrownCamera.read(root / "truth" / "camera.toml")
     eo = read_eo(root / "truth" / "eo.txt")
     t = truth_roof_corners(root)
     kind = {r["id"]: r["kind"] for r in csv.DictReader(open(points))}
@@ -91,7 +91,7 @@ def truth_projection_errors(root: Path, image_points: Path, points: Path) -> dic
 
 def rejected_vs_truth(root: Path, transfer: dict, corners_csv: Path) -> dict:
     """Of the measurements rejected in the image / dropped as inconsistent: how many were really wrong."""
-    cam = FrameCamera.read(root / "truth" / "camera.toml")
+    cam = BrownCamera.read(root / "truth" / "camera.toml")
     eo = read_eo(root / "truth" / "eo.txt")
     ix = eo.index()
     t = truth_roof_corners(root)

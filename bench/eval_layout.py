@@ -36,7 +36,7 @@ from aerotri.control.corners import read_corners  # noqa: E402
 from aerotri.control.pipeline import summary, transfer_control  # noqa: E402
 from aerotri.control.settings import ControlSettings  # noqa: E402
 from aerotri.core.atomic import write_text_atomic  # noqa: E402
-from aerotri.geom.camera import FrameCamera  # noqa: E402
+from aerotri.geom.camera import BrownCamera  # noqa: E402
 from aerotri.geom.eo import read_eo  # noqa: E402
 
 
@@ -58,7 +58,7 @@ def truth_visibility(root: Path, res) -> dict:
     scene = build_scene(cfg["scene"], layout.width_m, layout.height_m, origin,
                         int(np.random.default_rng(s_scene).integers(0, 2**31 - 1)))
     accel = raycast.build_accel(scene)
-    cam = FrameCamera.read(root / "truth" / "camera.toml")
+    cam = BrownCamera.read(root / "truth" / "camera.toml")
     eo = read_eo(root / "truth" / "eo.txt")
     t = truth_roof_corners(root)
     frames = Counter(k for k, _ in res.predicted)
@@ -132,7 +132,7 @@ def main(argv=None):
         truth = json.loads((root / "truth" / "truth.json").read_text())
         corners = read_corners(root / "lidar_out" / "corners.csv")
         eo = read_eo(root / "work" / "at_first" / "eo.txt")
-        camera = FrameCamera.read(root / "work" / "at_first" / "camera.toml")
+        camera = BrownCamera.read(root / "work" / "at_first" / "camera.toml")
         s = ControlSettings(chips=False)
         rec = {"project": str(root), "preset": truth["preset"], "seed": truth["seed"], "gsd_m": truth["gsd_m"],
                "buildings": truth["buildings"], "true_roof_corners": truth["roof_corners"]}

@@ -129,7 +129,7 @@ def prepare(d: Path) -> dict:
 def _setup(d: Path):
     import cv2  # noqa: F401
 
-    from aerotri.geom.camera import FrameCamera
+    from aerotri.geom.camera import BrownCamera
     from aerotri.geom.eo import read_eo
     from aerotri.geom.images import read_rgb
     from ortho.dem import open_height_raster, read_height_window
@@ -137,7 +137,7 @@ def _setup(d: Path):
     from ortho.rectify import frame_grid
 
     crs = parse_crs("EPSG:32649")
-    cam = FrameCamera.read(d / "camera.toml")
+    cam = BrownCamera.read(d / "camera.toml")
     eo = read_eo(d / "at" / "eo.txt")
     C, R = eo.centre_m[0], eo.rotation(0)
     with open_height_raster(d / "lidar_out" / "dem.tif", crs) as ds:
@@ -294,10 +294,10 @@ def run_kind(kind: str, d: Path) -> dict:
         import orthority as oty
         from orthority.camera import OpenCVCamera
 
-        from aerotri.geom.camera import FrameCamera
+        from aerotri.geom.camera import BrownCamera
         from aerotri.geom.eo import read_eo
 
-        cam = FrameCamera.read(d / "camera.toml")
+        cam = BrownCamera.read(d / "camera.toml")
         eo = read_eo(d / "at" / "eo.txt")
         scale = max(cam.width, cam.height)
         # orthority: principal point in normalised image coordinates (x right, y down, / max(w, h));

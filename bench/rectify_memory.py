@@ -45,7 +45,7 @@ def make_frame(path: Path) -> None:
 
 
 def child(way: str, frame: Path, out: Path) -> None:
-    from aerotri.geom.camera import FrameCamera
+    from aerotri.geom.camera import BrownCamera
     from aerotri.geom.rotation import rotation_matrix_opk
     from ortho.block import rectify_frame_to_file
     from ortho.gdal_cache import RECTIFY_CACHE_BYTES, stage_block_cache
@@ -54,7 +54,7 @@ def child(way: str, frame: Path, out: Path) -> None:
     from ortho.synthetic import smooth_dem
 
     crs = parse_crs("EPSG:32649")
-    cam = FrameCamera(focal_mm=120.0, pixel_um=12.0, width=W, height=H)
+    cam = BrownCamera(focal_mm=120.0, pixel_um=12.0, width=W, height=H)
     C = np.array([500000.0, 3000000.0, 1100.0])
     R = rotation_matrix_opk(0.8, -0.5, 2.0)
     dem = smooth_dem((C[0] - 900, C[1] - 600, C[0] + 900, C[1] + 600), 1.0)

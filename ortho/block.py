@@ -55,7 +55,7 @@ from ortho.settings import FRAME_COMPRESSION, RectifySettings
 # the camera and image readers (aerotri.geom.camera compiles its lens model with numba: 0.3 CPU-s to import)
 # are imported by the functions that need them: ``ortho mosaic`` and ``ortho check`` read the index here
 if TYPE_CHECKING:
-    from aerotri.geom.camera import FrameCamera
+    from aerotri.geom.camera import BrownCamera
 
 _log = logging.getLogger(__name__)
 
@@ -73,7 +73,7 @@ def _raster_read(path, what: str):
 @dataclasses.dataclass
 class BlockInputs:
     project: Project
-    camera: FrameCamera
+    camera: BrownCamera
     eo: ExteriorOrientations
     eo_path: Path
     images: dict[str, Path]  # image_id -> file, only frames that will be rectified
@@ -145,20 +145,20 @@ def _left_out_by_adjustment(project: Project) -> dict:
     return {k: lo.get("reason", "") for lo in comp.get("left_out", []) for k in lo.get("images", [])}
 
 
-def block_camera(project: Project, eo_path=None, camera_path=None) -> tuple[FrameCamera, str]:
+def block_camera(project: Project, eo_path=None, camera_path=None) -> tuple[BrownCamera, str]:
     """(camera, source) the frames are rectified with: ``camera_path`` when given, else the self-calibrated
     camera of the last adjustment for the project's own at/eo.txt (its orientations belong to it), else
     (an EO file given with --eo) the nominal camera.toml."""
-    from aerotri.geom.camera import FrameCamera, adjusted_camera, project_camera
+    from aerotri.geom.camera import BrownCamera, adjusted_camera, project_camera
 
     if camera_path:
-        return FrameCamera.read(camera_path), str(camera_path)
+        return BrownCamera.read(camera_path), str(camera_path)
     if eo_path is None:
         return adjusted_camera(project)
     return project_camera(project), str(project.camera_path)
 
 
-def default_resolution(camera: FrameCamera, eo: ExteriorOrientations, ground_height_m) -> float:
+def default_resolution(camera: BrownCamera, eo: ExteriorOrientations, ground_height_m) -> float:
     """The median nadir GSD of the block (ground heights under the nadir points), rounded to a nice value."""
     agl = float(np.median(eo.centre_m[:, 2] - ground_height_m))
     if agl <= 0:
@@ -245,7 +245,7 @@ class FrameTask:
     image_id: str
     image_path: str
     out_path: str
-    camera: FrameCamera
+    camera: BrownCamera
     centre_m: tuple
     opk_deg: tuple
     dem_path: str

@@ -14,7 +14,7 @@ import cv2
 import numba
 import numpy as np
 
-from aerotri.geom.camera import Camera, FrameCamera
+from aerotri.geom.camera import Camera, BrownCamera
 from aerotri.geom.lens_kernels import to_normalised
 from aerotri.geom.rotation import FLIP_YZ
 from ortho.dem import HeightRaster
@@ -241,7 +241,7 @@ def write_synthetic_project(root, strips: int = 2, frames_per_strip: int = 3, bu
     dsm, boxes = add_box_buildings(inner, buildings, size_m=(8.0, 16.0), height_m=(8.0, 15.0), seed=seed,
                                    bounds=(e0 + 30, n0 + 30, e0 + width_m - 30, n0 + height_m - 30)) if buildings \
         else (dem, [])
-    camera = FrameCamera(focal_mm=24.0, pixel_um=12.0, width=600, height=400, ppx_mm=0.03, ppy_mm=-0.02, k1=-0.02,
+    camera = BrownCamera(focal_mm=24.0, pixel_um=12.0, width=600, height=400, ppx_mm=0.03, ppy_mm=-0.02, k1=-0.02,
                          k2=0.004, name="synthetic")
     agl = camera.focal_mm * 1e-3 * res_m / (camera.pixel_um * 1e-6)
     ids, centres, opks = [], [], []

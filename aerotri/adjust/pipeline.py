@@ -41,7 +41,7 @@ from aerotri.adjust.determinability import check_groups, ground_observations
 from aerotri.adjust.solve import AdjustmentResult, adjust_block, check_point_errors
 from aerotri.adjust.variance_components import adjusted_gnss
 from aerotri.geom.strips import along_track_km, strips_from_track
-from aerotri.geom.camera import FrameCamera, project_camera
+from aerotri.geom.camera import BrownCamera, project_camera
 from aerotri.geom.eo import ExteriorOrientations, check_block_crs, read_eo, read_gnss
 from aerotri.core.atomic import commit_outputs, committed
 from aerotri.core.errors import InputError, OptionError, SolveError
@@ -61,8 +61,8 @@ class BlockAdjustment:
     crs: str
     settings: AdjustSettings
     frame: LocalFrame
-    camera_apriori: FrameCamera
-    camera_adjusted: FrameCamera
+    camera_apriori: BrownCamera
+    camera_adjusted: BrownCamera
     block: G.Block
     opts: G.SolveSettings
     result: AdjustmentResult
@@ -231,7 +231,7 @@ class ProjectInputs:
 
     project: Project
     settings: AdjustSettings
-    camera: FrameCamera
+    camera: BrownCamera
     ties: ImageObservations  # measured, a known k3 taken off
     control: ControlPoints  # every control and check point
     control_obs: ImageObservations  # their measurements, a known k3 taken off
@@ -251,7 +251,7 @@ class PreparedBlock:
     project: Project
     settings: AdjustSettings
     frame: LocalFrame
-    camera: FrameCamera
+    camera: BrownCamera
     block: G.Block
     opts: G.SolveSettings
     control_used: ControlPoints  # control points in the adjustment (block.control_point order)

@@ -28,7 +28,7 @@ from aerotri.core.log import track
 from aerotri.core.atomic import committed
 from aerotri.core.project import Project, project_paths
 from aerotri.core.settings import Resolved, settings_of
-from aerotri.geom.camera import FrameCamera, adjusted_camera
+from aerotri.geom.camera import BrownCamera, adjusted_camera
 from aerotri.geom.eo import ExteriorOrientations, read_eo
 from aerotri.geom.images import FrameWindows, find_image
 
@@ -96,14 +96,14 @@ class ReviewPage:
     chips: dict[str, bytes]
 
 
-def project_camera(root: Path, camera_path=None) -> tuple[FrameCamera, str]:
+def project_camera(root: Path, camera_path=None) -> tuple[BrownCamera, str]:
     """The camera to project with: explicit file, else self-calibrated from at/report.json, else camera.toml."""
     if camera_path is not None:
-        return FrameCamera.read(camera_path), str(camera_path)
+        return BrownCamera.read(camera_path), str(camera_path)
     return adjusted_camera(Project.open(root))
 
 
-def _measure_frames(corners: LidarCorners, camera: FrameCamera, eo: ExteriorOrientations, images_dir: Path,
+def _measure_frames(corners: LidarCorners, camera: BrownCamera, eo: ExteriorOrientations, images_dir: Path,
                     idx: np.ndarray, manual_k: dict, s: ControlSettings) -> tuple[dict, dict]:
     """Measurements and predictions {(corner index, image index): ...} of the corners ``idx`` in every frame
     they are predicted in, then the manual measurements in place of the automatic ones."""
@@ -131,7 +131,7 @@ def _measure_frames(corners: LidarCorners, camera: FrameCamera, eo: ExteriorOrie
     return meas, pred
 
 
-def _check_corners(corners: LidarCorners, camera: FrameCamera, eo: ExteriorOrientations, idx: np.ndarray,
+def _check_corners(corners: LidarCorners, camera: BrownCamera, eo: ExteriorOrientations, idx: np.ndarray,
                    meas: dict, s: ControlSettings) -> dict:
     """Multi-ray check of every corner in ``idx`` over its accepted image measurements: {corner index: RayCheck}."""
     Rs = eo.rotations()
@@ -150,7 +150,7 @@ def _check_corners(corners: LidarCorners, camera: FrameCamera, eo: ExteriorOrien
     return rays
 
 
-def _select(corners: LidarCorners, camera: FrameCamera, eo: ExteriorOrientations, primary: np.ndarray, rays: dict,
+def _select(corners: LidarCorners, camera: BrownCamera, eo: ExteriorOrientations, primary: np.ndarray, rays: dict,
             s: ControlSettings) -> tuple[np.ndarray, list[LayoutTarget], float]:
     """Kind of every corner (full / height / check among the accepted ones of the ``primary`` set,
     candidate for accepted fallback corners not chosen, rejected, not_measured), the layout targets
@@ -247,7 +247,7 @@ def why_empty(res: "TransferResult", t: LayoutTarget, s: ControlSettings) -> str
     return f"{_plural(len(near), 'LiDAR corner')} within {r:.1f} m: " + "; ".join(parts)
 
 
-def transfer_control(corners: LidarCorners, camera: FrameCamera, eo: ExteriorOrientations, images_dir,
+def transfer_control(corners: LidarCorners, camera: BrownCamera, eo: ExteriorOrientations, images_dir,
                      settings: ControlSettings | None = None, manual: dict | None = None) -> TransferResult:
     """Measure the corners in every frame, check them across frames, select control by the layout rule.
 

@@ -3,7 +3,7 @@
 One base class (``Camera``: the frame geometry every model shares) and one subclass per lens model,
 registered by name in ``MODELS`` (the ``model`` key of a camera file; absent = ``brown``):
 
-- ``BrownCamera`` (``model = "brown"``, also known as ``FrameCamera``): radial k1 k2 k3 and tangential
+- ``BrownCamera`` (``model = "brown"``): radial k1 k2 k3 and tangential
   p1 p2 distortion;
 - ``PinholeCamera`` (``model = "pinhole"``): no distortion.
 
@@ -421,9 +421,6 @@ class PinholeCamera(Camera):
 # model name (the ``model`` key of camera files) -> class
 MODELS: dict[str, type[Camera]] = {"brown": BrownCamera, "pinhole": PinholeCamera}
 DEFAULT_MODEL = "brown"  # camera files without a ``model`` key
-
-# the name users and camera files know: a Brown camera (with zero coefficients, a pinhole)
-FrameCamera = BrownCamera
 
 # every self-calibration group some model offers (choices of the adjustment's ``--self-cal``)
 SELF_CALIBRATION_GROUPS: tuple[str, ...] = tuple(dict.fromkeys(g for m in MODELS.values() for g in m.SELF_CAL_GROUPS))

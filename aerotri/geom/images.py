@@ -27,7 +27,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from aerotri.geom.camera import FrameCamera
+from aerotri.geom.camera import BrownCamera
 from aerotri.core.errors import InputError
 
 # OpenCV's libtiff does not know the GeoTIFF tags (33550, 33922, 34735-34737, 42112, 42113) and warns on
@@ -80,7 +80,7 @@ def _open_raster(path):
     return rasterio.open(path)
 
 
-def check_frames(images: dict, camera: FrameCamera, camera_source="camera.toml") -> None:
+def check_frames(images: dict, camera: BrownCamera, camera_source="camera.toml") -> None:
     """Every frame is a readable image file of the camera's size, checked from the file headers before
     any work (a folder, an unreadable file or a frame of another size stops here, naming it)."""
     import rasterio
@@ -426,7 +426,7 @@ class FrameWindows:
 
 
 # -- cameras from EXIF ------------------------------------------------------------------------------
-def camera_from_exif(path, sensor_width_mm: float | None = None) -> FrameCamera:
+def camera_from_exif(path, sensor_width_mm: float | None = None) -> BrownCamera:
     """A frame camera from an image's EXIF: focal length (mm) and sensor width (from the focal plane
     resolution tags, or given). Principal point at the centre, no distortion."""
     from PIL import Image
@@ -445,5 +445,5 @@ def camera_from_exif(path, sensor_width_mm: float | None = None) -> FrameCamera:
             raise InputError(f"{path}: EXIF has no focal plane resolution; give the sensor width in mm")
         per_mm = float(fpx) / {2: 25.4, 3: 10.0, 4: 1.0}.get(int(unit), 25.4)
         sensor_width_mm = width / per_mm
-    return FrameCamera(focal_mm=focal_mm, pixel_um=sensor_width_mm * 1000.0 / width, width=width, height=height,
+    return BrownCamera(focal_mm=focal_mm, pixel_um=sensor_width_mm * 1000.0 / width, width=width, height=height,
                        name=f"EXIF {Path(path).name}")

@@ -9,7 +9,7 @@ import cv2
 import numpy as np
 from scipy.spatial import cKDTree
 
-from aerotri.geom.camera import FrameCamera
+from aerotri.geom.camera import BrownCamera
 from aerotri.match.features import Features
 from aerotri.match.pairs import PairGuide
 from aerotri.match.settings import PairMatchSettings
@@ -70,7 +70,7 @@ def mutual_ratio_matches(da: np.ndarray, db: np.ndarray, ratio: float, chunk: in
     return np.column_stack([a[keep], b[keep]]).astype(int).reshape(-1, 2)
 
 
-def verify(xa: np.ndarray, xb: np.ndarray, camera: FrameCamera, p: PairMatchSettings) -> np.ndarray:
+def verify(xa: np.ndarray, xb: np.ndarray, camera: BrownCamera, p: PairMatchSettings) -> np.ndarray:
     """Inlier mask of putative correspondences under an essential matrix (RANSAC)."""
     if len(xa) < max(8, p.min_inliers):
         return np.zeros(len(xa), bool)
@@ -105,7 +105,7 @@ def locally_consistent(xa: np.ndarray, xb: np.ndarray, tol_px: float, k: int) ->
     return np.hypot(*(r - med).T) <= tol_px
 
 
-def guided_matches(fa: Features, fb: Features, camera: FrameCamera, ratio: float, guide: PairGuide | None
+def guided_matches(fa: Features, fb: Features, camera: BrownCamera, ratio: float, guide: PairGuide | None
                    ) -> np.ndarray:
     """Mutual ratio-test matches (indices into ``fa``, ``fb``); with a ``guide`` only between the keypoints
     that the flight plan puts in the other frame's (grown) footprint, so that a cross-strip pair with 30 %
@@ -118,7 +118,7 @@ def guided_matches(fa: Features, fb: Features, camera: FrameCamera, ratio: float
     return np.column_stack([ia[m[:, 0]], ib[m[:, 1]]]).reshape(-1, 2)
 
 
-def match_pair(fa: Features, fb: Features, camera: FrameCamera, p: PairMatchSettings, guide: PairGuide | None = None
+def match_pair(fa: Features, fb: Features, camera: BrownCamera, p: PairMatchSettings, guide: PairGuide | None = None
                ) -> np.ndarray:
     """Verified matches of a frame pair: (M, 2) keypoint indices; ``guide``: see ``guided_matches``."""
     m = guided_matches(fa, fb, camera, p.ratio, guide)
@@ -136,7 +136,7 @@ def match_cache_path(tag: str, cache_dir: Path, p: PairMatchSettings, feature_ke
     return cache_dir / f"{tag}.{feature_key}.{p.key()}{'.guided' if guided else ''}.npy"
 
 
-def cached_match(tag: str, fa: Features, fb: Features, camera: FrameCamera, p: PairMatchSettings, *, cache_dir: Path,
+def cached_match(tag: str, fa: Features, fb: Features, camera: BrownCamera, p: PairMatchSettings, *, cache_dir: Path,
                  feature_key: str, guide: PairGuide | None = None) -> np.ndarray:
     """Verified matches of a frame pair, from ``cache_dir`` when matched before with the same parameters and
     features (``feature_key``)."""

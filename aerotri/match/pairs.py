@@ -17,12 +17,12 @@ import shapely
 from shapely.geometry import Polygon
 
 from aerotri.geom.strips import strips_from_track
-from aerotri.geom.camera import FrameCamera
+from aerotri.geom.camera import BrownCamera
 from aerotri.core.errors import InputError
 from aerotri.geom.rotation import rotation_matrix_opk
 
 
-def flat_ground_xy(centre_m: np.ndarray, kappa_deg: float, terrain_height_m: float, camera: FrameCamera,
+def flat_ground_xy(centre_m: np.ndarray, kappa_deg: float, terrain_height_m: float, camera: BrownCamera,
                    xy_px: np.ndarray) -> np.ndarray:
     """Ground (x, y) in metres of image points of a frame at ``centre_m`` with nominal attitude
     (omega = phi = 0, ``kappa_deg``) over flat terrain at ``terrain_height_m``."""
@@ -44,7 +44,7 @@ class BlockPlan:
     def rotation(self, i: int) -> np.ndarray:
         return rotation_matrix_opk(0.0, 0.0, self.kappa_deg[i])
 
-    def ground_xy(self, i: int, camera: FrameCamera, xy_px: np.ndarray) -> np.ndarray:
+    def ground_xy(self, i: int, camera: BrownCamera, xy_px: np.ndarray) -> np.ndarray:
         """Approximate ground coordinates of image points of frame i (flat terrain)."""
         return flat_ground_xy(self.centre_m[i], self.kappa_deg[i], self.terrain_height_m, camera, xy_px)
 
@@ -67,10 +67,10 @@ class PairGuide:
     footprint_a: Polygon  # grown
     footprint_b: Polygon
 
-    def _ground_xy(self, k: int, camera: FrameCamera, xy_px: np.ndarray) -> np.ndarray:
+    def _ground_xy(self, k: int, camera: BrownCamera, xy_px: np.ndarray) -> np.ndarray:
         return flat_ground_xy(self.centre_m[k], self.kappa_deg[k], self.terrain_height_m, camera, xy_px)
 
-    def in_overlap(self, camera: FrameCamera, xy_a_px: np.ndarray, xy_b_px: np.ndarray
+    def in_overlap(self, camera: BrownCamera, xy_a_px: np.ndarray, xy_b_px: np.ndarray
                    ) -> tuple[np.ndarray, np.ndarray]:
         """Masks of the keypoints of frame a (b) predicted inside the grown footprint of frame b (a)."""
         ga = self._ground_xy(0, camera, xy_a_px)
@@ -79,14 +79,14 @@ class PairGuide:
                 shapely.contains_xy(self.footprint_a, gb[:, 0], gb[:, 1]))
 
 
-def image_top_from_sensor(camera: FrameCamera) -> float:
+def image_top_from_sensor(camera: BrownCamera) -> float:
     """The image top's direction from the flight direction (degrees) that puts the sensor's long side across
     track, as large-format frame cameras fly (DMC, UltraCam): 0 for a landscape frame, 90 for a portrait one
     (a frame turned by +-90 degrees has the same footprint either way)."""
     return 90.0 if camera.height > camera.width else 0.0
 
 
-def plan_block(image_id, antenna_m, camera: FrameCamera, lever_arm_m, terrain_height_m: float,
+def plan_block(image_id, antenna_m, camera: BrownCamera, lever_arm_m, terrain_height_m: float,
                image_top_deg: float | None = None) -> BlockPlan:
     """The flight plan of GNSS-positioned frames; ``image_top_deg`` None: ``image_top_from_sensor``."""
     if image_top_deg is None:

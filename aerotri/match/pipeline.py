@@ -19,7 +19,7 @@ from aerotri.core.errors import InputError
 from aerotri.core.executor import Executor, local_executor
 from aerotri.core.project import Project
 from aerotri.core.settings import Resolved, settings_of
-from aerotri.geom.camera import FrameCamera, project_camera
+from aerotri.geom.camera import BrownCamera, project_camera
 from aerotri.geom.eo import check_block_crs, read_gnss
 from aerotri.geom.images import check_frames, find_images
 from aerotri.match import features as F
@@ -163,7 +163,7 @@ class _Frames:
     plan: BlockPlan | None
 
 
-def _read_frames(project: Project, crs, camera: FrameCamera, s: MatchSettings) -> _Frames:
+def _read_frames(project: Project, crs, camera: BrownCamera, s: MatchSettings) -> _Frames:
     """Images and GNSS positions checked against each other and the camera; the flight plan from GNSS."""
     images = find_images(project.images_dir)
     gnss = None
@@ -204,7 +204,7 @@ class _Matcher:
     """Features (one task per frame) and matches (one task per pair) of a block's frames on an executor,
     cached in ``work/features`` and ``work/matches``; counts the cache hits."""
 
-    def __init__(self, project: Project, frames: _Frames, camera: FrameCamera, executor: Executor):
+    def __init__(self, project: Project, frames: _Frames, camera: BrownCamera, executor: Executor):
         self.ids, self.images, self.camera, self.ex = frames.ids, frames.images, camera, executor
         self.plan = frames.plan
         self.cache_f = project.work_dir / "features"
@@ -259,7 +259,7 @@ class _Ties:
     strength: BlockStrength
 
 
-def _ties(plan: BlockPlan | None, camera: FrameCamera, sparse: list, dense: dict, matches: dict,
+def _ties(plan: BlockPlan | None, camera: BrownCamera, sparse: list, dense: dict, matches: dict,
           s: MatchSettings) -> _Ties:
     complete_px = s.complete_px * 2.0 ** max(f.level for f in sparse) if s.complete_px > 0 else None
     track, image, xy, n_bad = _tracks(sparse, dense, matches, complete_px, (camera.width, camera.height))

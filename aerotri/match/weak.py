@@ -13,11 +13,11 @@ import dataclasses
 
 import numpy as np
 
-from aerotri.geom.camera import FrameCamera
+from aerotri.geom.camera import BrownCamera
 from aerotri.match.pairs import BlockPlan
 
 
-def model_regions(plan: BlockPlan, camera: FrameCamera, i: int, j: int, xy_i: np.ndarray) -> np.ndarray:
+def model_regions(plan: BlockPlan, camera: BrownCamera, i: int, j: int, xy_i: np.ndarray) -> np.ndarray:
     """Counts (3, 3) of tie points in the von Gruber regions of model (i, j); rows across, columns along."""
     ov = plan.footprints[i].intersection(plan.footprints[j])
     counts = np.zeros((3, 3), int)
@@ -74,7 +74,7 @@ class BlockStrength:
     cross_strip: list[StripTies]
 
 
-def analyse(plan: BlockPlan, camera: FrameCamera, track, image, xy_px, *, min_per_region: int = 3,
+def analyse(plan: BlockPlan, camera: BrownCamera, track, image, xy_px, *, min_per_region: int = 3,
             min_strip_ties: int = 20) -> BlockStrength:
     """Per-model region counts, weak models, cross-strip tie counts and weak strip pairs."""
     n_img = len(plan.image_id)

@@ -9,7 +9,7 @@ import rasterio
 from scipy.ndimage import maximum_filter, minimum_filter
 
 from aerotri.adjust.check_points import intersect_rays
-from aerotri.geom.camera import FrameCamera
+from aerotri.geom.camera import BrownCamera
 from aerotri.geom.eo import read_eo
 
 
@@ -34,7 +34,7 @@ def tie_point_errors(project, tiepoints_csv=None, tol_px: float = 1.0) -> dict:
     project = Path(project)
     pid, iid, xy = read_tiepoints(tiepoints_csv or project / "at" / "tiepoints.csv")
     eo = read_eo(project / "truth" / "eo.txt")
-    cam = FrameCamera.read(project / "truth" / "camera.toml")
+    cam = BrownCamera.read(project / "truth" / "camera.toml")
     idx = eo.index()
     img = np.array([idx[i] for i in iid])
     _, track = np.unique(pid, return_inverse=True)

@@ -12,7 +12,7 @@ import math
 
 import numpy as np
 
-from aerotri.geom.camera import FrameCamera
+from aerotri.geom.camera import BrownCamera
 from aerotri.geom.rotation import rotation_matrix_opk
 
 
@@ -30,15 +30,15 @@ class FramePlan:
     strip_t0_s: np.ndarray  # (S,) reference time of each strip's drift
 
 
-def cameras_from_config(cam: dict) -> tuple[FrameCamera, FrameCamera]:
+def cameras_from_config(cam: dict) -> tuple[BrownCamera, BrownCamera]:
     """(true camera, nominal camera) from the ``[camera]`` table."""
     pixel_um = cam["sensor_width_mm"] * 1000.0 / cam["width"]
-    true = FrameCamera(
+    true = BrownCamera(
         focal_mm=float(cam["focal_mm"]), pixel_um=pixel_um, width=int(cam["width"]), height=int(cam["height"]),
         ppx_mm=float(cam["ppx_mm"]), ppy_mm=float(cam["ppy_mm"]), k1=float(cam["k1"]), k2=float(cam["k2"]),
         k3=float(cam["k3"]), p1=float(cam["p1"]), p2=float(cam["p2"]), name="DMC-like (true)",
     )
-    nominal = FrameCamera(focal_mm=true.focal_mm, pixel_um=pixel_um, width=true.width, height=true.height,
+    nominal = BrownCamera(focal_mm=true.focal_mm, pixel_um=pixel_um, width=true.width, height=true.height,
                           name="DMC-like")
     return true, nominal
 

@@ -21,14 +21,14 @@ from scipy.spatial import cKDTree
 
 from aerotri.geom.local_frame import LocalFrame
 from aerotri.geom.observations import ControlPoints, ImageObservations
-from aerotri.geom.camera import FrameCamera, dmc_camera
+from aerotri.geom.camera import BrownCamera, dmc_camera
 from aerotri.geom.eo import ExteriorOrientations, GnssPositions, read_eo, write_eo, write_gnss
 from aerotri.core.errors import InputError
 from aerotri.geom.rotation import opk_from_matrix, rotation_matrix_opk
 from aerotri.core.atomic import write_text_atomic
 
 
-def true_dmc_camera() -> FrameCamera:
+def true_dmc_camera() -> BrownCamera:
     """The DMC-like camera with a principal-point offset and radial distortion to be recovered."""
     import dataclasses as dc
 
@@ -41,8 +41,8 @@ class GeometricBlock:
 
     crs: str
     frame: LocalFrame
-    camera_true: FrameCamera
-    camera_nominal: FrameCamera
+    camera_true: BrownCamera
+    camera_nominal: BrownCamera
     image_id: list[str]
     strip: np.ndarray  # (N,) 0-based
     centre_local: np.ndarray  # (N, 3)
@@ -79,7 +79,7 @@ class GeometricBlock:
         return z
 
     # -- observations -------------------------------------------------------------------------
-    def project(self, points_local, camera: FrameCamera | None = None):
+    def project(self, points_local, camera: BrownCamera | None = None):
         """Observations of ENU points in all frames where they fall inside: (point_index, image_index, xy_px)."""
         return project_points(points_local, self.centre_local, self.R_local, camera or self.camera_true, self.flying_height_m)
 
@@ -110,7 +110,7 @@ class GeometricBlock:
         )
 
 
-def project_points(points_local, centre_local, R_local, camera: FrameCamera, flying_height_m: float, margin_px=20.0):
+def project_points(points_local, centre_local, R_local, camera: BrownCamera, flying_height_m: float, margin_px=20.0):
     """All observations of points (M, 3) in frames (N): arrays point_index, image_index, xy_px (K, 2)."""
     P = np.asarray(points_local, dtype=float)
     tree = cKDTree(P[:, :2])
@@ -165,7 +165,7 @@ def geometric_block(
     n_strips: int = 3,
     n_frames: int = 6,
     *,
-    camera_true: FrameCamera | None = None,
+    camera_true: BrownCamera | None = None,
     flying_height_m: float = 1000.0,
     forward_overlap: float = 0.6,
     side_overlap: float = 0.3,
@@ -365,7 +365,7 @@ def write_truth_observations(
         control_sigma_m = (float(cc.get("sigma_xy_m", 0.03)),) * 2 + (float(cc.get("sigma_z_m", 0.05)),)
     crs = cfg["project"]["crs"]
     eo = read_eo(root / "truth" / "eo.txt")
-    cam = FrameCamera.read(root / "truth" / "camera.toml")
+    cam = BrownCamera.read(root / "truth" / "camera.toml")
     frame = LocalFrame.at_centre(crs, eo.centre_m)
     C = frame.to_local(eo.centre_m)
     R = frame.rotation_local_from_map(eo.centre_m) @ eo.rotations()

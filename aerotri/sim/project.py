@@ -644,7 +644,7 @@ def observations_terrain(cfg: dict, layout, seed: int):
 
 def truth_adjust_settings(cfg: dict, cam_true, cam_nominal) -> dict:
     """The [adjust] settings the truth of a simulated block needs: the self-calibration groups in which the
-    true camera differs from the nominal camera.toml (``FrameCamera.SELF_CAL_GROUPS``: pp, radial k1 k2, ...),
+    true camera differs from the nominal camera.toml (``BrownCamera.SELF_CAL_GROUPS``: pp, radial k1 k2, ...),
     and the GNSS correction per strip that models the antenna errors the preset draws (a drift per strip:
     ``shift_drift``; a shift alone: ``shift``; neither: ``none``)."""
     true, nominal = cam_true.calibration_vector(), cam_nominal.calibration_vector()

@@ -78,14 +78,14 @@ def test_cli_scheduler_option(small_block, tmp_path):
 
 
 def test_tile_threads_and_sink_do_not_change_the_ortho(small_block):
-    from aerotri.geom.camera import FrameCamera
+    from aerotri.geom.camera import BrownCamera
     from aerotri.geom.eo import read_eo
     from ortho.dem import read_height_raster
     from ortho.grid import GridToProject, parse_crs
     from ortho.rectify import frame_grid, rectify_frame
 
     crs = parse_crs("EPSG:32649")
-    cam = FrameCamera.read(small_block / "camera.toml")
+    cam = BrownCamera.read(small_block / "camera.toml")
     eo = read_eo(small_block / "at" / "eo.txt")
     dem = read_height_raster(small_block / "lidar_out" / "dem.tif", crs)
     img, _ = read_native(small_block / "images" / "s01_001.tif", (cam.width, cam.height))
@@ -113,9 +113,9 @@ def test_tile_threads_and_sink_do_not_change_the_ortho(small_block):
 
 def test_mapped_and_decoded_frames_give_the_same_ortho(small_block, tmp_path):
     """A frame stored uncompressed (mapped, R, G, B) and LZW (decoded by cv2, B, G, R) rectify alike."""
-    from aerotri.geom.camera import FrameCamera
+    from aerotri.geom.camera import BrownCamera
 
-    cam = FrameCamera.read(small_block / "camera.toml")
+    cam = BrownCamera.read(small_block / "camera.toml")
     img, order = read_native(small_block / "images" / "s01_001.tif", (cam.width, cam.height))
     assert order == [3, 2, 1] and not isinstance(img, np.memmap)
     root = tmp_path / "raw"
@@ -182,7 +182,7 @@ def test_frame_files_hold_the_library_ortho(small_block, tmp_path, compression):
     """Every --frame-compress choice stores exactly the ortho and mask of ``rectify_frame`` in memory (R, G,
     B bands; mask 255 where valid), whatever the writer does to be fast (tiles written while the next
     are computed, compression threads)."""
-    from aerotri.geom.camera import FrameCamera
+    from aerotri.geom.camera import BrownCamera
     from aerotri.geom.eo import read_eo
     from aerotri.geom.images import read_rgb
     from ortho.block import _plane_footprint_bounds, index_grids
@@ -197,7 +197,7 @@ def test_frame_files_hold_the_library_ortho(small_block, tmp_path, compression):
     index = rectify_block(root, RectifySettings(res_m=0.55 * gsd, compression=compression), frames=["s01_002"])
     grid = index_grids(index)["s01_002"]
     assert grid.width > 1024 and grid.height > 512
-    cam = FrameCamera.read(root / "camera.toml")
+    cam = BrownCamera.read(root / "camera.toml")
     eo = read_eo(root / "at" / "eo.txt")
     k = eo.index()["s01_002"]
     C, R = eo.centre_m[k], eo.rotation(k)

@@ -9,7 +9,7 @@ import rasterio
 from click.testing import CliRunner
 from pyproj import CRS
 
-from aerotri.geom.camera import FrameCamera
+from aerotri.geom.camera import BrownCamera
 from aerotri.geom.rotation import rotation_matrix_opk
 from ortho.check import check_against_reference, displacement_statistics, match_patches
 from ortho.cli import main
@@ -28,7 +28,7 @@ def scene():
     b = grid.bounds
     dem = smooth_dem((b[0] - 50, b[1] - 50, b[2] + 50, b[3] + 50), 1.0, amplitude_m=15.0)
     # distortion, principal-point offset and tilt exercise every term of the collinearity
-    cam = FrameCamera(focal_mm=14.4, pixel_um=12.0, width=600, height=400, ppx_mm=0.05, ppy_mm=-0.03, k1=-0.04,
+    cam = BrownCamera(focal_mm=14.4, pixel_um=12.0, width=600, height=400, ppx_mm=0.05, ppy_mm=-0.03, k1=-0.04,
                       k2=0.01, p1=1e-4, p2=-5e-5)
     C = np.array([b[0] + 150, b[1] + 120, 400.0])
     R = rotation_matrix_opk(2.0, -1.5, 30.0)
@@ -245,7 +245,7 @@ def test_wide_frame_resampled_from_compact_windows_gives_the_same_pixels(monkeyp
     as from the whole frame, at the frame's edges too; a tile reading wider than that uses the frame."""
     import ortho.rectify as rectify
 
-    cam = FrameCamera(focal_mm=120.0, pixel_um=12.0, width=11264, height=256, ppx_mm=0.1, ppy_mm=-0.06, k1=-4e-3,
+    cam = BrownCamera(focal_mm=120.0, pixel_um=12.0, width=11264, height=256, ppx_mm=0.1, ppy_mm=-0.06, k1=-4e-3,
                       k2=1e-3, p1=1e-5, p2=-5e-6)
     rng = np.random.default_rng(5)
     img = rng.integers(0, 256, (cam.height, cam.width, 3), dtype=np.uint8)

@@ -16,7 +16,7 @@ import pytest
 from click.testing import CliRunner
 
 from aerotri.adjust.pipeline import AdjustSettings, adjust_project
-from aerotri.geom.camera import FrameCamera
+from aerotri.geom.camera import BrownCamera
 from aerotri.chain.options import STAGE_SECTIONS, ChainSettings, read_stage_sections
 from aerotri.cli import main as aerotri_cli
 from aerotri.core.errors import ConfigError, CrsError
@@ -167,14 +167,14 @@ def test_report_refuses_a_folder_without_project_or_results(tmp_path):
 
 def test_adjusted_camera_of_an_adjustment_without_self_calibration(tmp_path):
     (tmp_path / "project.toml").write_text(PROJECT)
-    cam = FrameCamera(focal_mm=120.0, pixel_um=12.0, width=1000, height=800, k1=-1e-3)
+    cam = BrownCamera(focal_mm=120.0, pixel_um=12.0, width=1000, height=800, k1=-1e-3)
     (tmp_path / "camera.toml").write_text(cam.to_toml())
     (tmp_path / "at").mkdir()
     (tmp_path / "at" / "report.json").write_text(json.dumps({"self_calibration": None}))
     from aerotri.geom.camera import adjusted_camera
 
     got, source = adjusted_camera(Project.open(tmp_path))
-    assert got == FrameCamera.read(tmp_path / "camera.toml") and source.endswith("camera.toml")
+    assert got == BrownCamera.read(tmp_path / "camera.toml") and source.endswith("camera.toml")
 
 
 def test_control_and_rectify_after_an_adjustment_without_self_calibration(tiny_project, tmp_path):

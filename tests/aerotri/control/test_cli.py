@@ -9,7 +9,7 @@ import shutil
 import numpy as np
 from click.testing import CliRunner
 
-from aerotri.geom.camera import FrameCamera
+from aerotri.geom.camera import BrownCamera
 from aerotri.cli import main
 from aerotri.geom.eo import read_eo
 from aerotri.sim.evaluate import truth_roof_corners, write_truth_corners_csv
@@ -33,7 +33,7 @@ def run(root, *extra):
 
 
 def truth_errors(root):
-    cam = FrameCamera.read(root / "truth" / "camera.toml")
+    cam = BrownCamera.read(root / "truth" / "camera.toml")
     eo = read_eo(root / "truth" / "eo.txt")
     t = truth_roof_corners(root)
     pos = {p: k for k, p in enumerate(t["id"])}
@@ -65,7 +65,7 @@ def test_control_transfer_on_tiny(tiny_project, tmp_path):
 
     # manual import: a corner that was not accepted, measured by hand at its true position in two frames
     accepted = {p["id"] for p in pts}
-    cam = FrameCamera.read(root / "truth" / "camera.toml")
+    cam = BrownCamera.read(root / "truth" / "camera.toml")
     eo = read_eo(root / "truth" / "eo.txt")
     t = truth_roof_corners(root)
     pick = None

@@ -4,11 +4,11 @@ from __future__ import annotations
 
 import numpy as np
 
-from aerotri.geom.camera import FrameCamera
+from aerotri.geom.camera import BrownCamera
 from aerotri.control.consistency import check_rays
 from aerotri.geom.rotation import rotation_matrix_opk
 
-CAM = FrameCamera(focal_mm=120.0, pixel_um=96.0, width=1728, height=960)
+CAM = BrownCamera(focal_mm=120.0, pixel_um=96.0, width=1728, height=960)
 
 
 def frames(n=4):

@@ -4,11 +4,11 @@ from __future__ import annotations
 
 import numpy as np
 
-from aerotri.geom.camera import FrameCamera
+from aerotri.geom.camera import BrownCamera
 from aerotri.control.layout import LayoutSettings, candidate_tiers, select_control, strips_of_block
 from aerotri.geom.rotation import rotation_matrix_opk
 
-CAM = FrameCamera(focal_mm=120.0, pixel_um=96.0, width=1728, height=960)  # long side across track
+CAM = BrownCamera(focal_mm=120.0, pixel_um=96.0, width=1728, height=960)  # long side across track
 
 
 def block(n_strips=3, n_frames=10):

@@ -16,10 +16,10 @@ from aerotri.control.corners import LidarCorners
 from aerotri.control.pipeline import output_texts, run_control, summary, transfer_control
 from aerotri.control.settings import ControlSettings, LayoutSettings
 from aerotri.core.errors import InputError
-from aerotri.geom.camera import FrameCamera
+from aerotri.geom.camera import BrownCamera
 from aerotri.geom.eo import ExteriorOrientations, write_eo
 
-CAM = FrameCamera(focal_mm=10.0, pixel_um=10.0, width=400, height=300, name="test")
+CAM = BrownCamera(focal_mm=10.0, pixel_um=10.0, width=400, height=300, name="test")
 ROOF = (1000.0, 1996.0, 1012.0, 2004.0)  # x0 y0 x1 y1 of the eave outline (m)
 EAVE_Z = 10.0
 CORNERS = np.array([[ROOF[0], ROOF[1]], [ROOF[2], ROOF[1]], [ROOF[2], ROOF[3]], [ROOF[0], ROOF[3]]])

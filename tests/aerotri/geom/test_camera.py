@@ -8,7 +8,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from aerotri.geom.camera import (MODELS, SELF_CALIBRATION_GROUPS, BrownCamera, Camera, FrameCamera, PinholeCamera,
+from aerotri.geom.camera import (MODELS, SELF_CALIBRATION_GROUPS, BrownCamera, Camera, PinholeCamera,
                                  dmc_camera, read_camera)
 from aerotri.core.errors import InputError
 from aerotri.geom.rotation import opk_from_matrix, rotation_matrix_opk
@@ -38,7 +38,7 @@ def test_opk_round_trip(omega, phi, kappa):
 
 
 def test_project_and_rays_are_inverse_with_distortion():
-    cam = FrameCamera(focal_mm=120, pixel_um=12, width=13824, height=7680, ppx_mm=0.02, ppy_mm=-0.01,
+    cam = BrownCamera(focal_mm=120, pixel_um=12, width=13824, height=7680, ppx_mm=0.02, ppy_mm=-0.01,
                       k1=-4e-3, k2=1e-3, p1=1e-5, p2=-2e-5)
     rng = np.random.default_rng(0)
     C = np.array([0.0, 0.0, 800.0])
@@ -54,16 +54,16 @@ def test_project_and_rays_are_inverse_with_distortion():
 
 
 def test_camera_file_round_trip_and_unit_errors(tmp_path):
-    cam = FrameCamera(focal_mm=120, pixel_um=12, width=13824, height=7680, ppx_mm=0.1, k1=-4e-3)
+    cam = BrownCamera(focal_mm=120, pixel_um=12, width=13824, height=7680, ppx_mm=0.1, k1=-4e-3)
     p = tmp_path / "camera.toml"
     p.write_text(cam.to_toml())
-    assert FrameCamera.read(p) == cam
+    assert BrownCamera.read(p) == cam
     p.write_text('focal_mm = 10000.0\npixel_um = 12.0\nwidth = 13824\nheight = 7680\n')
     with pytest.raises(InputError, match="focal length in millimetres"):
-        FrameCamera.read(p)
+        BrownCamera.read(p)
     p.write_text('focal_mm = 120.0\nwidth = 13824\nheight = 7680\n')
     with pytest.raises(InputError, match="missing pixel_um"):
-        FrameCamera.read(p)
+        BrownCamera.read(p)
 
 
 # -- the model hierarchy -------------------------------------------------------------------------------
@@ -72,8 +72,11 @@ BROWN = BrownCamera(focal_mm=120, pixel_um=12, width=13824, height=7680, ppx_mm=
 PINHOLE = PinholeCamera(focal_mm=24, pixel_um=4.5, width=6000, height=4000, ppx_mm=0.05, ppy_mm=0.03, name="pin")
 
 
-def test_frame_camera_is_the_brown_model():
-    assert FrameCamera is BrownCamera and MODELS == {"brown": BrownCamera, "pinhole": PinholeCamera}
+def test_the_models_and_their_names():
+    import aerotri.geom.camera as camera_module
+
+    assert not hasattr(camera_module, "FrameCamera")  # no alias: orthority's FrameCamera is a base class
+    assert MODELS == {"brown": BrownCamera, "pinhole": PinholeCamera}
     assert issubclass(BrownCamera, Camera) and issubclass(PinholeCamera, Camera)
     assert dmc_camera().MODEL == "brown" and PINHOLE.coefficients == ()
     assert set(SELF_CALIBRATION_GROUPS) == {"focal", "pp", "radial", "tangential"}
@@ -118,7 +121,7 @@ def test_camera_files_name_their_model(cam, tmp_path):
     assert f'model = "{cam.MODEL}"' in p.read_text()
     back = Camera.read(p)
     assert type(back) is type(cam) and back == cam
-    assert FrameCamera.read(p) == cam  # the file's model decides, whatever class reads it
+    assert BrownCamera.read(p) == cam  # the file's model decides, whatever class reads it
     assert read_camera(p) == cam and Camera.from_dict(cam.to_dict()) == cam
     with pytest.raises(InputError, match="model = 'fisheye' is not one of"):
         Camera.from_dict({**cam.to_dict(), "model": "fisheye"}, source="cam.toml")
@@ -128,7 +131,7 @@ def test_camera_files_without_model_are_brown(tmp_path):
     """Camera files written before the model key existed."""
     p = tmp_path / "camera.toml"
     p.write_text('name = "old"\nfocal_mm = 120.0\npixel_um = 12.0\nwidth = 13824\nheight = 7680\nk1 = -0.004\nk3 = 1e-4\n')
-    cam = FrameCamera.read(p)
+    cam = BrownCamera.read(p)
     assert type(cam) is BrownCamera and cam.k1 == -0.004 and cam.k3 == 1e-4 and cam.p1 == 0.0
     p.write_text('model = "pinhole"\nfocal_mm = 24.0\npixel_um = 4.5\nwidth = 6000\nheight = 4000\nk1 = -0.004\n')
     with pytest.raises(InputError, match=r"unknown keys \['k1'\] for model 'pinhole'"):

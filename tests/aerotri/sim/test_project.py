@@ -15,7 +15,7 @@ import rasterio
 from click.testing import CliRunner
 from shapely.geometry import Point
 
-from aerotri.geom.camera import FrameCamera
+from aerotri.geom.camera import BrownCamera
 from aerotri.cli import main as aerotri_main
 from aerotri.geom.eo import read_eo, read_gnss
 from aerotri.sim import load_preset, simulate
@@ -43,8 +43,8 @@ def test_project_layout_and_truth_summary(tiny_project):
     cfg = tomllib.loads((p / "project.toml").read_text())
     assert cfg["project"]["crs"] == "EPSG:32649"
     # Nominal camera has no principal-point offset or distortion; the true one has both.
-    nominal = FrameCamera.read(p / "camera.toml")
-    true = FrameCamera.read(p / "truth/camera.toml")
+    nominal = BrownCamera.read(p / "camera.toml")
+    true = BrownCamera.read(p / "truth/camera.toml")
     assert nominal.ppx_mm == 0 and nominal.k1 == 0 and true.ppx_mm != 0 and true.k1 != 0
     assert nominal.focal_mm == 120.0 and nominal.sensor_mm[0] == pytest.approx(165.888)
     # Attitudes within the specification: tilt < 2 deg, kappa within 7 deg of the strip direction.
@@ -66,7 +66,7 @@ def test_checkpoint_truth_matches_rendered_targets(tiny_project):
     rows = _rows(p / "truth/checkpoint_image_points.csv")
     assert len(rows) >= 8
     errors = []
-    true = FrameCamera.read(p / "truth/camera.toml")
+    true = BrownCamera.read(p / "truth/camera.toml")
     gsd = json.loads((p / "truth/truth.json").read_text())["gsd_m"]
     cfg = load_preset("tiny")
     r_px = cfg["scene"]["target_radius_m"] / gsd
@@ -103,7 +103,7 @@ def test_truth_corners_lie_on_rendered_roofs(tiny_project):
     assert len(corners) == sum(len(b.outline.exterior.coords) - 1 + sum(len(r.coords) - 1 for r in b.outline.interiors)
                                for b in scene.buildings)
     eo = read_eo(tiny_project / "truth/eo.txt")
-    cam = FrameCamera.read(tiny_project / "truth/camera.toml")
+    cam = BrownCamera.read(tiny_project / "truth/camera.toml")
     by_id = {b.building_id: b for b in scene.buildings}
     checked = 0
     for i in range(len(eo)):
@@ -142,7 +142,7 @@ def test_rendered_id_buffer_shows_roofs_at_projected_corners(tiny_project):
                         int(np.random.default_rng(ss[0]).integers(0, 2**31 - 1)))
     accel = raycast.build_accel(scene)
     eo = read_eo(tiny_project / "truth/eo.txt")
-    cam = FrameCamera.read(tiny_project / "truth/camera.toml")
+    cam = BrownCamera.read(tiny_project / "truth/camera.toml")
     C, R = eo.centre_m[0] - origin, eo.rotation(0)
     _, ids = render.render_frame(scene, accel, cam, C, R, samples=1, with_ids=True)
     hits = total = 0

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 import rasterio
 
-from aerotri.geom.camera import FrameCamera
+from aerotri.geom.camera import BrownCamera
 from aerotri.geom.eo import read_eo
 from aerotri.sim import load_preset, raster, raycast, render, shading, simulate
 from aerotri.sim.flight import block_layout
@@ -30,7 +30,7 @@ def tiny_truth(tiny_project):
     cfg, scene = _scene()
     origin = np.array(json.loads((tiny_project / "truth/truth.json").read_text())["origin_m"])
     return dict(cfg=cfg, scene=scene, accel=raycast.build_accel(scene), origin=origin,
-                eo=read_eo(tiny_project / "truth/eo.txt"), cam=FrameCamera.read(tiny_project / "truth/camera.toml"))
+                eo=read_eo(tiny_project / "truth/eo.txt"), cam=BrownCamera.read(tiny_project / "truth/camera.toml"))
 
 
 def test_rasteriser_shows_what_the_ray_caster_hits(tiny_truth):
