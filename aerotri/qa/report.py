@@ -457,7 +457,7 @@ def _num(v, star: bool = False) -> str:
 def compliance_row(c: dict) -> list:
     """A compliance check as table cells: figure and limit in the check's unit, the limit marked * when its
     number is not confirmed in the standard's text."""
-    need = f"{c['n_points']}" + (f" of {c['n_required']}" if c["n_required"] else "") if c["n_points"] is not None else ""
+    need = f"{c['n_points']}" + (f" ({c['n_required']} required)" if c["n_required"] else "") if c["n_points"] is not None else ""
     acc = {True: "yes", False: "no", None: "unknown"}[c["checkpoints_accurate"]] if c["n_points"] is not None else ""
     verdict = c["verdict"] + (f": {c['why']}" if c["why"] else "")
     return [c["product"], c["quantity"], c["class_tested"], _num(c["measured"]), _num(c["figure"]),
@@ -502,10 +502,13 @@ def compliance_lines(comp: dict | None) -> list[str]:
     for c in comp["checks"]:
         star = "*" if c["limit_confirmed"] is False else ""
         acc = {True: "accurate enough", False: "not accurate enough", None: "accuracy unknown"}[c["checkpoints_accurate"]]
-        pts = f", {c['n_points']}" + (f" of {c['n_required']}" if c["n_required"] else "") + f" points, {acc}" \
+        pts = f"{c['n_points']} points" + (f", {c['n_required']} required" if c["n_required"] else "") + f", {acc}" \
             if c["n_points"] is not None else ""
-        lines.append(f"    {c['verdict']:<12} {c['product']}: {c['quantity']} = {_num(c['figure'])} "
-                     f"(limit {_num(c['limit'])}{star}{pts})" + (f"; {c['why']}" if c["why"] else ""))
+        unit = f" {c['unit']}" if c.get("unit") else ""
+        figure = f"{_num(c['figure'])}{unit}" if c["figure"] is not None else "not measured"
+        limit = f"limit {_num(c['limit'])}{unit}{star}" if c["limit"] is not None else "no limit"
+        lines.append(f"    {c['verdict']:<12} {c['product']}: {c['quantity']} = {figure} "
+                     f"({'; '.join(x for x in (limit, pts) if x)})" + (f"; {c['why']}" if c["why"] else ""))
     return lines
 
 
