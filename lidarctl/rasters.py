@@ -747,11 +747,12 @@ def _tile_threads(window_cells: int) -> int:
     return _THREADS if _THREADS * window_cells * RASTER_BYTES_PER_CELL <= 0.5 * machine_ram_bytes() else 1
 
 
-# GDAL's configuration in every thread (rasterio's Env is per thread): a bounded block cache while
+# GDAL's configuration in every thread (rasterio's Env is per thread): a bounded block cache (in bytes:
+# rasterio hands the number to GDALSetCacheMax64, so 256 would be 256 bytes; ortho/gdal_cache.py) while
 # windows are written and COGs copied, not 5 % of the RAM; no .aux.xml files; ZSTD level 1 for the
 # temporary file in which the COG driver computes the overviews (default 9; the COGs are the same
 # bytes, and 1 of 4 CPU-s of the demo's five COGs less).
-_GDAL_ENV = dict(GDAL_CACHEMAX=256, GDAL_PAM_ENABLED="NO", ZSTD_LEVEL_OVERVIEW="1")
+_GDAL_ENV = dict(GDAL_CACHEMAX=256 * 2 ** 20, GDAL_PAM_ENABLED="NO", ZSTD_LEVEL_OVERVIEW="1")
 
 
 def _run_threads(tasks) -> None:

@@ -65,7 +65,7 @@ def _write_geotiff(path: Path, width: int, height: int, bands: int, dtype, trans
                    nodata=nodata, bigtiff="IF_SAFER", **_compression(compress))
     if bands == 3 and np.dtype(dtype) == np.uint8:
         profile["photometric"] = "RGB"
-    with rasterio.Env(GDAL_CACHEMAX=256), rasterio.open(path, "w", **profile) as dst:
+    with rasterio.Env(GDAL_CACHEMAX=256 * 2 ** 20), rasterio.open(path, "w", **profile) as dst:
         out = _TileRowWriter(dst, dtype)
         starts = range(0, height, block_rows)
         if width * height > 64 * _BLOCK_PX:
@@ -337,7 +337,7 @@ def _write_tiled_frame(path: Path, renderer, frame, expo: dict, fl: dict) -> Non
         profile.update(_compression(fl["compress"]))
     with warnings.catch_warnings():
         warnings.filterwarnings("ignore", category=rasterio.errors.NotGeoreferencedWarning)
-        with rasterio.Env(GDAL_CACHEMAX=256), rasterio.open(path, "w", **profile) as dst:
+        with rasterio.Env(GDAL_CACHEMAX=256 * 2 ** 20), rasterio.open(path, "w", **profile) as dst:
             for r0 in range(0, cam.height, tile):
                 r1 = min(cam.height, r0 + tile)
                 rows, _ = renderer.render_rows(frame, r0, r1, **expo)
@@ -504,7 +504,7 @@ def _write_truth_rasters(truth_dir: Path, cfg: dict, layout, look, origin, epsg:
 
     otransform = from_origin(origin[0], origin[1] + layout.height_m, ores, ores)
     # The land-cover truth (extra files beside ortho.tif, from the same view).
-    with rasterio.Env(GDAL_CACHEMAX=256), \
+    with rasterio.Env(GDAL_CACHEMAX=256 * 2 ** 20), \
             _open_geotiff(truth_dir / "ortho_nir.tif", onx, ony, np.uint8, otransform, epsg, compress=compress) as nir_dst, \
             _open_geotiff(truth_dir / "classes.tif", onx, ony, np.uint8, otransform, epsg, nodata=landcover.NODATA,
                           compress=compress) as cls_dst:
