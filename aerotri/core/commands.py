@@ -252,7 +252,9 @@ _GDAL_FAULTS = (("No space left on device", errno.ENOSPC), ("Free disk space ava
                 ("Disk quota exceeded", errno.EDQUOT), ("Read-only file system", errno.EROFS),
                 ("Permission denied", errno.EACCES), ("No such file or directory", errno.ENOENT),
                 ("File too large", errno.EFBIG), ("database or disk is full", errno.ENOSPC),
-                (" requested and ", SHORT_WRITE))
+                (" requested and ", SHORT_WRITE),
+                # rasterio's write of a window whose GDAL error was not chained (a full disk under a 1 GP mosaic)
+                ("Write failed. See previous exception", SHORT_WRITE))
 
 
 def _fault(exc: BaseException) -> tuple[int, str | None] | None:

@@ -37,3 +37,16 @@ def test_sigterm_leaves_no_partial_output(tmp_path):
     _, err = p.communicate(timeout=30)
     assert time.time() - t0 < 30 and p.returncode == 130 and "Interrupted." in err and "Traceback" not in err
     assert list(tmp_path.iterdir()) == []  # neither the output nor its temporary
+
+
+def test_unchained_gdal_write_failure_is_a_one_line_disk_error():
+    """rasterio's 'Write failed' of a window (a full disk under a 1 GP mosaic, GDAL's cause not chained) is a
+    file-system fault with the output named, not a traceback."""
+    import rasterio.errors
+
+    from aerotri.core.commands import fault_message
+
+    exc = rasterio.errors.RasterioIOError("Write failed. See previous exception for details.")
+    msg = fault_message(exc, "ortho mosaic", "P/ortho/mosaic.tif")
+    assert msg.startswith("P/ortho/mosaic.tif: a write was cut short") and "outputs are as they were" in msg
+    assert fault_message(ValueError("Write failed. See previous exception"), "ortho mosaic") is None
