@@ -136,3 +136,35 @@ def test_two_control_points_at_one_place_in_a_frame(project):
     (project / "control" / "image_points.csv").write_text(
         "\n".join(lines + [f"{other},{first[1]},{float(first[2]) + 2.5:.3f},{first[3]}"]) + "\n")
     assert len(read_control_image_points(project / "control" / "image_points.csv")) == len(lines)
+
+
+def test_plain_tie_file_reads_as_line_by_line(tmp_path, monkeypatch):
+    """A plain tiepoints.csv is read by whole-text splits: the same ids, pixels and line numbers as the line-by-line
+    reader; a file with a problem the fast path cannot name (a line of 3 fields and one of 5, a duplicate pair, NaN,
+    blanks) is refused with its line, as before."""
+    import numpy as np
+
+    from aerotri.core.errors import InputError
+    from aerotri.geom import observations as O
+
+    rows = [f"p{j},img{i},{100.25 + 3 * j},{200.5 - i}" for j in range(50) for i in range(3)]
+    path = tmp_path / "tiepoints.csv"
+    path.write_text("point_id,image_id,x_px,y_px\n" + "\n".join(rows) + "\n")
+    fast = O.read_image_points(path)
+    monkeypatch.setattr(O, "_plain_image_points", lambda text: None)
+    slow = O.read_image_points(path)
+    monkeypatch.undo()
+    assert list(fast.point_id) == list(slow.point_id) and list(fast.image_id) == list(slow.image_id)
+    assert np.array_equal(fast.xy_px, slow.xy_px) and np.array_equal(fast.line, slow.line)
+    bad = {"fields": rows[:3] + ["p9,img9,1.0", "p8,img8,1.0,2.0,3.0"] + rows[3:],
+           "duplicate": rows + [rows[7]], "nan": rows[:5] + ["p99,img1,nan,2.0"],
+           "blank": rows[:5] + ["p99, img1,1.0,2.0"]}
+    expected = {"fields": ":5: expected 4 fields", "duplicate": f":{len(rows) + 2}: duplicate measurement",
+                "nan": ":7: x_px is NaN", "blank": None}
+    for name, lines in bad.items():
+        path.write_text("point_id,image_id,x_px,y_px\n" + "\n".join(lines) + "\n")
+        if expected[name] is None:  # blanks around a field are stripped, as by the line-by-line reader
+            assert "img1" in set(O.read_image_points(path).image_id)
+            continue
+        with pytest.raises(InputError, match=expected[name]):
+            O.read_image_points(path)
