@@ -199,4 +199,4 @@ def test_a_zero_level_reached_from_below_is_written_0(tmp_path):
     dem = _feet_dem(tmp_path / "dem_ft.tif", z_ft, t)
     r = CliRunner().invoke(main, ["contours", str(dem), str(tmp_path / "c.gpkg"), "--interval", "1", "--no-png"])
     assert r.exit_code == 0, r.output
-    assert "from 0 to 3 ft" in r.output and "-0" not in r.output
+    assert "from 0 to 3 ft" in r.output and "from -0" not in r.output and " -0 " not in r.output
