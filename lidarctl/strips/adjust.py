@@ -699,6 +699,9 @@ def adjust_strips(paths, outdir, settings: StripAdjustSettings = StripAdjustSett
         t_write = time.perf_counter()
         ss_after = ov.read_strips(corrected, surface, crs)
         after = chk.analyse(ss_after, surface, corrected)
+        # the corrected strips as they are found after the commit: in OUTDIR, not in the temporary folder
+        after.summary = dataclasses.replace(after.summary, strips=tuple(
+            dataclasses.replace(t, file=str(outdir / Path(t.file).name)) for t in after.summary.strips))
         vmax = chk.colour_limit_m(before.pairs)
         for name, res in (("check_before", before), ("check_after", after)):
             (tmp / name).mkdir()
