@@ -26,15 +26,19 @@ from pathlib import Path
 import numpy as np
 
 from aerotri.core.errors import InputError, OptionError
+from aerotri.core.gdal_cache import MiB, stage_block_cache
 from aerotri.core.atomic import refuse_input_as_output
 from aerotri.core.project import Project, project_paths
 from aerotri.core.settings import Resolved, settings_of
 from aerotri.core.textio import read_text
 from aerotri.geom.crs import height_unit_m, parse_crs
 from aerotri.geom.inputs import check_raster_size
-from ortho.gdal_cache import CHECK_CACHE_BYTES, stage_block_cache
 from ortho.patches import MIN_PATCH_PX, PatchDisplacements, match_patches  # noqa: F401  (PatchDisplacements: the report API)
 from ortho.settings import CheckSettings
+
+# GDAL's block cache during check (``aerotri.core.gdal_cache``): the DOM, reference and nDSM blocks of the blocks
+# being compared
+CHECK_CACHE_BYTES = 256 * MiB
 
 
 def displacement_statistics(de_m, dn_m, res_m: float) -> dict:
