@@ -1,4 +1,5 @@
-"""The report records of lidarctl (strips.json, adjust.json, corners.json, the check-plan --json file) read
+"""The report records of lidarctl (strips.json, adjust.json, corners.json, the check-plan --json file,
+classification_eval.json) read
 by one reader: what is not one is one InputError of one form naming the file and the record expected."""
 
 from __future__ import annotations
@@ -7,6 +8,7 @@ import pytest
 
 from aerotri.core.errors import InputError
 from lidarctl.corners import read_corner_summary
+from lidarctl.evaluate import read_filter_test
 from lidarctl.plan_check import read_plan_check
 from lidarctl.strips.adjust import read_strip_adjustment
 from lidarctl.strips.check import read_strip_check
@@ -14,7 +16,8 @@ from lidarctl.strips.check import read_strip_check
 READERS = [(read_strip_check, "strips.json", r"strip check \(strips.json\)"),
            (read_strip_adjustment, "adjust.json", r"strip adjustment \(adjust.json\)"),
            (read_corner_summary, "corners.json", r"corner summary \(corners.json\)"),
-           (read_plan_check, "plan.json", r"plan check \(check-plan --json\)")]
+           (read_plan_check, "plan.json", r"plan check \(check-plan --json\)"),
+           (read_filter_test, "classification_eval.json", r"classification evaluation \(classification_eval.json\)")]
 
 
 @pytest.mark.parametrize("read, name, what", READERS, ids=[r[1] for r in READERS])
