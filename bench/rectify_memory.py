@@ -47,8 +47,8 @@ def make_frame(path: Path) -> None:
 def child(way: str, frame: Path, out: Path) -> None:
     from aerotri.geom.camera import BrownCamera
     from aerotri.geom.rotation import rotation_matrix_opk
-    from ortho.block import rectify_frame_to_file
-    from ortho.gdal_cache import RECTIFY_CACHE_BYTES, stage_block_cache
+    from aerotri.core.gdal_cache import stage_block_cache
+    from ortho.block import RECTIFY_CACHE_BYTES, rectify_frame_to_file
     from ortho.grid import GridToProject, parse_crs
     from ortho.rectify import FrameFile, frame_grid
     from ortho.synthetic import smooth_dem

@@ -54,6 +54,7 @@ from scipy.spatial import cKDTree
 from aerotri.core.atomic import committed, refuse_input_as_output, write_text_atomic
 from aerotri.core.errors import InputError, OptionError
 from aerotri.core.settings import Resolved, setting, settings_of
+from aerotri.core.textio import read_record, record_error
 from lidarctl import io as las_io
 from lidarctl.grid import check_grid
 from lidarctl.roof_outline import (
@@ -210,18 +211,13 @@ def _units_of(d: Mapping) -> LengthUnits | None:
 
 def read_corner_summary(path) -> CornerControlResult:
     """corners.json as the corner stage wrote it (InputError naming the file when it is not one)."""
-    path = Path(path)
+    what = "corner summary (corners.json)"
+    d = read_record(path, what, SCHEMA_VERSION)
     try:
-        d = json.loads(path.read_text())
-    except (OSError, ValueError) as exc:
-        raise InputError(f"{path}: cannot read a corner summary (corners.json): {exc}") from None
-    try:
-        if d.get("schema_version", SCHEMA_VERSION) > SCHEMA_VERSION:
-            raise ValueError(f"schema version {d['schema_version']} (this version reads {SCHEMA_VERSION})")
         return CornerControlResult(d["source"], d["crs"], _units_of(d), CornerStats.of_record(d), d.get("settings"),
                                    d.get("no_usable"), d.get("schema_version", SCHEMA_VERSION))
     except (AttributeError, KeyError, TypeError, ValueError) as exc:
-        raise InputError(f"{path}: not a corner summary (corners.json): {type(exc).__name__} {exc}") from None
+        raise record_error(path, what, exc) from None
 
 
 @dataclasses.dataclass(frozen=True)

@@ -19,9 +19,12 @@ are compared as stored, within 1.1 coordinate steps.
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 
 from aerotri.core.errors import InputError
+from aerotri.core.textio import read_record, record_error
 from aerotri.geom import las
 from lidarctl import io
 
@@ -52,6 +55,40 @@ def read_same_points(pred_path, truth_path):
                 f"{pred_path}: point record {k}: {axis} differs from {truth_path} by {d[k]:.4g} {unit} "
                 f"(tolerance {tol:.4g} {unit}; same points, same order needed)")
     return pred, truth
+
+
+SCHEMA_VERSION = 1  # classification_eval.json (``evaluate_strips``; written without a version so far)
+CLASSIFICATION_EVAL = "classification evaluation (classification_eval.json)"  # the record's name in messages
+
+
+@dataclasses.dataclass(frozen=True)
+class FilterTest:
+    """The filter test of a classification (``filter_errors``; module doc): points, true ground and object
+    points, type I and II counts, type I, type II and total error and Cohen's kappa (percent)."""
+
+    n_points: int
+    n_ground: int
+    n_object: int
+    type_i_count: int
+    type_ii_count: int
+    type_i_error_pct: float
+    type_ii_error_pct: float
+    total_error_pct: float
+    kappa_pct: float
+
+    def as_dict(self) -> dict:
+        """As ``filter_errors`` returns it and classification_eval.json holds it ("filter_test")."""
+        return dataclasses.asdict(self)
+
+
+def read_filter_test(path) -> FilterTest:
+    """The filter test of a classification evaluation (``evaluate_strips``'s result as JSON, e.g. the chain's
+    lidar_out/classification_eval.json); InputError naming the file when it is not one."""
+    d = read_record(path, CLASSIFICATION_EVAL, SCHEMA_VERSION)
+    try:
+        return FilterTest(**d["filter_test"])
+    except (AttributeError, KeyError, TypeError, ValueError) as exc:
+        raise record_error(path, CLASSIFICATION_EVAL, exc) from None
 
 
 def filter_errors(pred_ground: np.ndarray, true_ground: np.ndarray) -> dict:

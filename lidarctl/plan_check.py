@@ -34,6 +34,7 @@ import numpy as np
 
 from aerotri.core.settings import setting
 from aerotri.core.errors import CrsError, InputError, OptionError
+from aerotri.core.textio import read_record, record_error
 from lidarctl.units import LengthUnits
 
 log = logging.getLogger(__name__)
@@ -196,14 +197,9 @@ def _point_record(p: PlanPoint, has_z: bool) -> dict:
 
 def read_plan_check(path) -> PlanCheckResult:
     """The --json file of ``lidarctl check-plan`` (InputError naming the file when it is not one)."""
-    path = Path(path)
+    what = "plan check (check-plan --json)"
+    d = read_record(path, what, SCHEMA_VERSION)
     try:
-        d = json.loads(path.read_text())
-    except (OSError, ValueError) as exc:
-        raise InputError(f"{path}: cannot read a plan check (check-plan --json): {exc}") from None
-    try:
-        if d.get("schema_version", SCHEMA_VERSION) > SCHEMA_VERSION:
-            raise ValueError(f"schema version {d['schema_version']} (this version reads {SCHEMA_VERSION})")
         o = dict(d["overall"])
         stats = PlanStats(**o, with_heights=d["has_z"])
         units = LengthUnits(d["xy_unit_m"], d["z_unit_m"], known=d["xy_unit"] != "file units")
@@ -212,7 +208,7 @@ def read_plan_check(path) -> PlanCheckResult:
                                tuple(d["clouds"]) if "clouds" in d else None, d.get("points_csv"), d.get("crs"),
                                d.get("n_outside_cloud"), d.get("schema_version", SCHEMA_VERSION))
     except (AttributeError, KeyError, TypeError, ValueError) as exc:
-        raise InputError(f"{path}: not a plan check (check-plan --json): {type(exc).__name__} {exc}") from None
+        raise record_error(path, what, exc) from None
 
 
 def check_plan(corners: list[dict], points_m: dict, params: PlanCheckSettings, units, tolerance_m=None) -> PlanCheckResult:

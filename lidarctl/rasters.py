@@ -36,6 +36,7 @@ from aerotri.geom import las
 from lidarctl import io
 from aerotri.core.atomic import atomic_path, refuse_input_as_output, temporary_dir
 from aerotri.core.errors import InputError, OptionError
+from aerotri.core.gdal_cache import MiB, stage_block_cache
 from aerotri.core.settings import setting
 from aerotri.core.limits import check_task_count
 from lidarctl.grid import check_disk, check_grid
@@ -713,7 +714,7 @@ def write_rasters_tiled(paths, outdir, res_m: float, crs=None, tile_px: int = DE
         work = tmp / "work"
         work.mkdir()
         used = _bin_points(inputs, args, grid, work, chunk_points)
-        with rasterio.Env(**_GDAL_ENV):
+        with rasterio.Env(**_GDAL_THREAD_ENV):
             dem_sum, dem_n = _tiles_to_gtiffs(inputs, args, grid, used, work, tmp, transform, tags,
                                               chunk_points, footprint_cells, dem_fill_radius_px, threads)
         fill = np.float32(dem_sum / dem_n) if dem_n else np.float32(np.nan)
@@ -732,7 +733,8 @@ def write_rasters_tiled(paths, outdir, res_m: float, crs=None, tile_px: int = DE
 
         _run_threads([hillshade_png] + [functools.partial(cog, name) for name in RASTERS])
 
-    return _write_set(outdir, write)
+    with stage_block_cache(RASTERS_CACHE_BYTES):
+        return _write_set(outdir, write)
 
 
 # Threads of the tiled rasters: tiles are computed two at a time (numba and numpy release the GIL;
@@ -747,12 +749,14 @@ def _tile_threads(window_cells: int) -> int:
     return _THREADS if _THREADS * window_cells * RASTER_BYTES_PER_CELL <= 0.5 * machine_ram_bytes() else 1
 
 
-# GDAL's configuration in every thread (rasterio's Env is per thread): a bounded block cache (in bytes:
-# rasterio hands the number to GDALSetCacheMax64, so 256 would be 256 bytes; ortho/gdal_cache.py) while
-# windows are written and COGs copied, not 5 % of the RAM; no .aux.xml files; ZSTD level 1 for the
-# temporary file in which the COG driver computes the overviews (default 9; the COGs are the same
-# bytes, and 1 of 4 CPU-s of the demo's five COGs less).
-_GDAL_ENV = dict(GDAL_CACHEMAX=256 * 2 ** 20, GDAL_PAM_ENABLED="NO", ZSTD_LEVEL_OVERVIEW="1")
+# GDAL's block cache while the tiled rasters are written (windows written, COGs copied): bounded, not 5 % of
+# the RAM; one size for the process, set once around the stage from its calling thread
+# (``aerotri.core.gdal_cache``), never per thread.
+RASTERS_CACHE_BYTES = 256 * MiB
+# GDAL's configuration in every thread (these options are per thread in rasterio): no .aux.xml files; ZSTD
+# level 1 for the temporary file in which the COG driver computes the overviews (default 9; the COGs are the
+# same bytes, and 1 of 4 CPU-s of the demo's five COGs less).
+_GDAL_THREAD_ENV = dict(GDAL_PAM_ENABLED="NO", ZSTD_LEVEL_OVERVIEW="1")
 
 
 def _run_threads(tasks) -> None:
@@ -762,7 +766,7 @@ def _run_threads(tasks) -> None:
     from concurrent.futures import ThreadPoolExecutor
 
     def run(task):
-        with rasterio.Env(**_GDAL_ENV):
+        with rasterio.Env(**_GDAL_THREAD_ENV):
             task()
 
     with ThreadPoolExecutor(_THREADS) as pool:

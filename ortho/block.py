@@ -47,7 +47,7 @@ from aerotri.geom.crs import linear_unit_m, parse_heights
 from aerotri.geom.datum import load_height_model, load_transformation
 from aerotri.geom.transform import CrsTransformer, OperationSpec
 from ortho.dem import dem_height_operation, height_range, open_height_raster, read_height_window
-from ortho.gdal_cache import RECTIFY_CACHE_BYTES, stage_block_cache
+from aerotri.core.gdal_cache import MiB, stage_block_cache
 from ortho.grid import GridToProject, OrthoGrid, nice_resolution, parse_crs, resolve_output_crs
 from ortho.rectify import WINDOWED_FRAME_BYTES, FrameFile, border_pixels, covered_share, frame_grid, rectify_frame
 from ortho.settings import FRAME_COMPRESSION, RectifySettings
@@ -58,6 +58,11 @@ if TYPE_CHECKING:
     from aerotri.geom.camera import BrownCamera
 
 _log = logging.getLogger(__name__)
+
+# GDAL's block cache during rectify (``aerotri.core.gdal_cache``): the frame blocks the tiles of the frames in
+# flight read (a 13,824 px DMC frame read by windows) and the output blocks being compressed; bounded so that
+# memory does not grow with the frame
+RECTIFY_CACHE_BYTES = 256 * MiB
 
 
 
@@ -217,7 +222,7 @@ def rectify_frame_to_file(path, image, band_order, camera, C, R, heights, grid, 
     from rasterio.windows import Window
 
     bands = 1 if image.ndim == 2 else image.shape[2]
-    # GDAL's block cache is the stage's (``rectify_block``, ``ortho.gdal_cache``): never set here, in a task
+    # GDAL's block cache is the stage's (``rectify_block``, ``aerotri.core.gdal_cache``): never set here, in a task
     # that runs on a worker thread beside other frames' tasks
     with atomic_path(path) as tmp, rasterio.Env(GDAL_TIFF_INTERNAL_MASK=True):
         with rasterio.open(tmp, "w", **frame_profile(grid, bands, image.dtype.name, compression=compression)) as dst:

@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import contextlib
 import csv
+import dataclasses
 import json
 import math
 import os
@@ -26,15 +27,86 @@ from pathlib import Path
 import numpy as np
 
 from aerotri.core.errors import InputError, OptionError
+from aerotri.core.gdal_cache import MiB, stage_block_cache
 from aerotri.core.atomic import refuse_input_as_output
 from aerotri.core.project import Project, project_paths
 from aerotri.core.settings import Resolved, settings_of
-from aerotri.core.textio import read_text
+from aerotri.core.textio import read_record, read_text, record_error
 from aerotri.geom.crs import height_unit_m, parse_crs
 from aerotri.geom.inputs import check_raster_size
-from ortho.gdal_cache import CHECK_CACHE_BYTES, stage_block_cache
 from ortho.patches import MIN_PATCH_PX, PatchDisplacements, match_patches  # noqa: F401  (PatchDisplacements: the report API)
 from ortho.settings import CheckSettings
+
+# GDAL's block cache during check (``aerotri.core.gdal_cache``): the DOM, reference and nDSM blocks of the blocks
+# being compared
+CHECK_CACHE_BYTES = 256 * MiB
+
+
+SCHEMA_VERSION = 1  # dom_report.json (``run_check``; written without a version so far)
+DOM_CHECK = "DOM check (dom_report.json)"  # the record's name in messages
+
+
+@dataclasses.dataclass(frozen=True)
+class GsdBin:
+    """Displacements from ``from_gsd`` to ``to_gsd`` GSD (None: no upper end): their count and share (%)."""
+
+    from_gsd: float
+    to_gsd: float | None
+    count: int
+    pct: float
+
+
+@dataclasses.dataclass(frozen=True)
+class Displacement:
+    """Planimetric displacements of the DOM (``displacement_statistics``): how many, the GSD (m), RMS east, north
+    and plan (m; plan also in GSD), mean east and north, largest, median and 95th percentile (m), the
+    distribution in GSD bins; only ``count`` (0) when nothing was measured (None: not in the record)."""
+
+    count: int | None = None
+    gsd_m: float | None = None
+    rms_e_m: float | None = None
+    rms_n_m: float | None = None
+    rms_xy_m: float | None = None
+    rms_xy_gsd: float | None = None
+    mean_e_m: float | None = None
+    mean_n_m: float | None = None
+    max_xy_m: float | None = None
+    max_xy_gsd: float | None = None
+    median_xy_m: float | None = None
+    p95_xy_m: float | None = None
+    distribution_gsd: tuple[GsdBin, ...] | None = None
+
+    @classmethod
+    def of_record(cls, d: dict) -> "Displacement":
+        bins = d.get("distribution_gsd")
+        return cls(**{**d, "distribution_gsd": None if bins is None else tuple(GsdBin(**b) for b in bins)})
+
+    def as_dict(self) -> dict:
+        """As dom_report.json holds it ("displacement"; the bins a list, as JSON reads back)."""
+        d = {k: v for k, v in dataclasses.asdict(self).items() if v is not None}
+        if self.distribution_gsd is not None:
+            d["distribution_gsd"] = list(d["distribution_gsd"])
+        return d
+
+
+@dataclasses.dataclass(frozen=True)
+class DomCheck:
+    """What the report and the chain read of dom_report.json (``read_dom_check``): the displacements and, when the
+    seamlines were checked, the RMS misalignment across them (px) and the patches measured."""
+
+    displacement: Displacement
+    seams_rms_px: float | None = None
+    seam_patches: int | None = None
+
+
+def read_dom_check(path) -> DomCheck:
+    """dom_report.json as ``run_check`` wrote it; InputError naming the file when it is not one."""
+    d = read_record(path, DOM_CHECK, SCHEMA_VERSION)
+    try:
+        seams = d.get("seams") or {}
+        return DomCheck(Displacement.of_record(d["displacement"]), seams.get("rms_px"), seams.get("patches"))
+    except (AttributeError, KeyError, TypeError, ValueError) as exc:
+        raise record_error(path, DOM_CHECK, exc) from None
 
 
 def displacement_statistics(de_m, dn_m, res_m: float) -> dict:

@@ -61,6 +61,7 @@ from rasterio.transform import Affine
 from rasterio.windows import Window
 
 from aerotri.core.errors import InputError, OptionError
+from aerotri.core.gdal_cache import MiB, stage_block_cache
 from aerotri.core.log import progress
 from aerotri.core.atomic import atomic_path, commit_outputs, move_into, scratch_dir, write_text_atomic
 from aerotri.core.limits import check_allocation, check_grid, check_task_count
@@ -69,13 +70,17 @@ from aerotri.core.settings import Resolved, settings_of
 from aerotri.core.textio import read_json
 from ortho.block import (index_grids, index_operation, operation_tags, read_index, require_current_frames,
                          verify_index)
-from ortho.gdal_cache import MOSAIC_CACHE_BYTES, stage_block_cache
 from ortho.grid import OrthoGrid
 from ortho.settings import MosaicSettings
 from ortho.seamlines import (keep_objects_whole, label_polygons, least_cost_seams, neighbour_pairs, seam_lines,
                              voronoi_labels)
 
 logger = logging.getLogger(__name__)
+
+# GDAL's block cache during mosaic (``aerotri.core.gdal_cache``): the frame blocks a row of tiles reads (frame
+# blocks are not aligned with the mosaic tiles, so the next row reads some again) and the stage blocks being
+# filled; GDAL's default is 5 % of the RAM
+MOSAIC_CACHE_BYTES = 512 * MiB
 
 STAGE_PROFILE = dict(driver="GTiff", tiled=True, blockxsize=512, blockysize=512, compress="zstd", zstd_level=1,
                      predictor=2, interleave="pixel", BIGTIFF="IF_SAFER", num_threads="ALL_CPUS")
@@ -362,7 +367,7 @@ def mosaic_block(root, settings: MosaicSettings | Resolved | None = None, *, obj
     source of every setting into mosaic.json (``settings``). The output tiles are blended as tasks on
     ``executor`` (``aerotri.core.executor.Executor``, default: local threads); the COG does not depend on the
     scheduler. GDAL's block cache is ``MOSAIC_CACHE_BYTES`` for the whole stage (set here, before any thread
-    of the stage starts: ``ortho.gdal_cache``)."""
+    of the stage starts: ``aerotri.core.gdal_cache``)."""
     with stage_block_cache(MOSAIC_CACHE_BYTES):
         return _mosaic_block(root, settings, object_height_m=object_height_m, max_seam_cells=max_seam_cells,
                              end_reach_m=end_reach_m, seam_cell_m=seam_cell_m, executor=executor)

@@ -1,5 +1,6 @@
 """The production chain: every stage over one project folder, resumable, with a summary at the end.
 
+- ``results``: the record each stage returns (``StageResult`` and one subclass per stage);
 - ``runner``: ``Stage``, stamps (``work/stages/<stage>.json``), ``run_stages``, ``format_summary``;
 - ``options``: the stage sections of ``project.toml`` (``read_options``, ``ChainSettings``);
 - ``stages``: the chain built from a project and its options (``Chain``, ``chain_stages``);
@@ -10,7 +11,7 @@
 _WHERE = {
     "ChainSettings": "options", "read_options": "options",
     "Stage": "runner", "format_summary": "runner", "is_current": "runner", "run_stages": "runner",
-    "stamp_path": "runner",
+    "stamp_path": "runner", "StageResult": "results",
     "Chain": "stages", "chain_stages": "stages",
     "run_project": "run", "run_demo": "run",
 }

@@ -7,8 +7,8 @@ a stage that fails leaves every output of its earlier run as it was). Killing a 
 stages stamped and the interrupted stage without a stamp and without partial outputs (the next run rolls
 back what it had replaced), so a re-run continues there. A stage may also be left out for a reason decided when its turn comes (``skip``:
 no LiDAR, no usable corner, no DEM ...); the summary row says why. A stage that finds out only by
-running that it has nothing to do (the strip check of a single strip) returns ``{"why": reason}``: its
-row says skipped and why, and its stamp keeps that decision while its inputs stay the same.
+running that it has nothing to do (the strip check of a single strip) returns a result with ``why`` (its
+``aerotri.chain.results.StageResult``): its row says skipped and why, and its stamp keeps that decision while its inputs stay the same.
 
 What a stage cost (``aerotri.core.resources.measure``: wall and CPU seconds, peak RSS of the process and
 of its Dask workers) goes into its stamp (``usage``) and its summary row; every run writes its rows and
@@ -25,6 +25,7 @@ import os
 from collections.abc import Callable
 from pathlib import Path
 
+from aerotri.chain.results import StageResult
 from aerotri.core.atomic import commit_outputs, remove_leftovers, write_text_atomic
 from aerotri.core.log import doing
 from aerotri.core.project import project_paths
@@ -38,7 +39,7 @@ class Stage:
     name: str
     inputs: Callable[[Path], list[Path]]  # files whose change re-runs the stage
     outputs: Callable[[Path], list[Path]]  # files the stage must leave behind
-    run: Callable[[Path], dict]  # does the work, returns key numbers for the summary
+    run: Callable[[Path], StageResult]  # does the work, returns its key numbers for the summary
     options: dict | Callable[[Path], dict] = dataclasses.field(default_factory=dict)  # settings that re-run it
     skip: Callable[[Path], str | None] | None = None  # a reason to leave the stage out, asked when its turn comes
 
@@ -149,7 +150,8 @@ def run_stages(root, stages: list[Stage], force: bool = False, log: Callable[[st
         # a separate commit, final when the stage ends, so that a killed run resumes after its last stage
         with doing(st.name), commit_outputs(root, join=False):
             with measure() as usage:
-                result = st.run(root) or {}
+                done = st.run(root)
+            result = done.record()
             dt = usage.wall_s
             missing = [str(p) for p in st.outputs(root) if not p.exists()]
             if missing:
@@ -157,12 +159,12 @@ def run_stages(root, stages: list[Stage], force: bool = False, log: Callable[[st
             write_text_atomic(stamp_path(root, st.name), json.dumps(
                 dict(inputs=_signature(st.inputs(root), root), options=options, result=result, seconds=round(dt, 2),
                      usage=usage.record()), indent=1, default=str) + "\n")
-        rows.append(dict(stage=st.name, status="skipped" if result.get("why") else "done", seconds=round(dt, 1),
+        rows.append(dict(stage=st.name, status="skipped" if done.why else "done", seconds=round(dt, 1),
                          **_usage_columns(usage.record()), **result))
-        for note in result.get("notes", []):
+        for note in done.notes:
             log(f"[{st.name}] note: {note}")
-        if result.get("why"):
-            log(f"[{st.name}] skipped: {result['why']}")
+        if done.why:
+            log(f"[{st.name}] skipped: {done.why}")
         log(f"[{st.name}] done in {dt:.1f} s")
     write_text_atomic(project_paths(root).run_summary_path, json.dumps(
         dict(stages=rows, load_avg_start=load_start, load_avg_end=_load_avg()), indent=1, default=str) + "\n")

@@ -6,7 +6,9 @@ copy per strip in lidar_out/classified/) -> rasters -> roof corners; images -> t
 adjustment (tie points + GNSS) -> control transfer of the LiDAR corners -> final adjustment ->
 rectification on the DEM -> mosaic -> optional checks -> accuracy report.
 
-Every stage calls its library function and keeps the numbers it returns for the summary. The chain
+Every stage calls its library function and returns its key numbers for the summary as a frozen record
+(``aerotri.chain.results``: one ``StageResult`` per stage), read from what the library returned or from the
+stage's own report file through the reader of the stage that writes it. The chain
 runs what its inputs allow and says what it left out and why:
 
 - one strip, or strips without a smooth overlap: no strip check (nor adjustment), the rest goes on;
@@ -31,6 +33,7 @@ import json
 import logging
 from pathlib import Path
 
+from aerotri.chain import results as R
 from aerotri.chain.options import ChainSettings, read_options
 from aerotri.chain.runner import Stage
 from aerotri.core.atomic import write_text_atomic
@@ -43,20 +46,15 @@ def _json(path: Path) -> dict:
     return json.loads(path.read_text()) if path.is_file() else {}
 
 
-def adjustment_numbers(rep: dict) -> dict:
-    """Key numbers of an adjustment report for the summary."""
-    out = {}
-    ks = rep.get("key_statistics", {})
-    if "sigma0_um" in ks:
-        out["sigma0_um"] = ks["sigma0_um"]
-    counts = rep.get("counts", {})
-    if "control_points" in counts:
-        out["control_points"] = counts["control_points"]
+def adjustment_result(rep: dict, **more) -> R.AdjustResult:
+    """Key numbers of an adjustment report (the dict ``run_adjustment`` returns, as at/report.json) for the
+    summary; ``more``: the leave-one-out numbers and notes."""
     chk = rep.get("check_rms_m")
-    if chk and len(chk) == 3 and None not in chk:
-        out["rms_check_xy_m"] = round(float((chk[0] ** 2 + chk[1] ** 2) ** 0.5), 4)
-        out["rms_check_z_m"] = chk[2]
-    return out
+    checked = bool(chk) and len(chk) == 3 and None not in chk
+    return R.AdjustResult(sigma0_um=rep.get("key_statistics", {}).get("sigma0_um"),
+                          control_points=rep.get("counts", {}).get("control_points"),
+                          rms_check_xy_m=round(float((chk[0] ** 2 + chk[1] ** 2) ** 0.5), 4) if checked else None,
+                          rms_check_z_m=chk[2] if checked else None, **more)
 
 
 @dataclasses.dataclass
@@ -321,7 +319,7 @@ class Chain:
         """The strips the classification reads: the corrected ones when the strips were adjusted."""
         return self.project.adjusted_strips() if self.adjusting() else self.project.lidar_strips()
 
-    def run_strips(self, root) -> dict:
+    def run_strips(self, root) -> R.StripsResult:
         from aerotri.core.atomic import atomic_dir
         from lidarctl.strips.adjust import adjust_strips
         from lidarctl.strips.check import check_strips, record_nothing_compared
@@ -332,19 +330,19 @@ class Chain:
             if s.adjust:
                 a = adjust_strips(p.lidar_strips(), p.strips_dir, s.adjustment, s.surface,
                                   trajectories=self.strip_trajectories(), crs=p.crs, png=s.maps)
-                return dict(model=a.model, rms_before_m=round(a.check_before.rms_m, 4),
-                            rms_after_m=round(a.check_after.rms_m, 4), sigma0=round(a.sigma0, 3))
+                return R.StripsResult(model=a.model, rms_before_m=round(a.check_before.rms_m, 4),
+                                      rms_after_m=round(a.check_after.rms_m, 4), sigma0=round(a.sigma0, 3))
             c = check_strips(p.lidar_strips(), p.strips_dir, s.surface, crs=p.crs, png=s.maps)
         except NothingToCompare as e:
             # recorded, so that the report and a re-run know (the folder holds nothing else)
             why = f"nothing to compare: {e}"
             with atomic_dir(p.strips_dir) as tmp:
                 record_nothing_compared(tmp, why)
-            return dict(why=why)
+            return R.StripsResult(why=why)
         a = c.all_pairs
-        return dict(pairs=len(c.pairs), rms_m=round(a.rms_m, 4), nmad_m=round(a.nmad_m, 4))
+        return R.StripsResult(pairs=len(c.pairs), rms_m=round(a.rms_m, 4), nmad_m=round(a.nmad_m, 4))
 
-    def run_classify(self, root) -> dict:
+    def run_classify(self, root) -> R.ClassifyResult:
         from aerotri.core.atomic import remove_leftovers
         from lidarctl.tiles import classify_files
 
@@ -352,13 +350,13 @@ class Chain:
         remove_leftovers(self.lo)
         st = classify_files(self.classify_inputs(), self.project.classified_dir, crs=self.project.crs,
                             params=self.options.classify, suffix=".laz")
-        return dict(points=st.n_points, strips=st.n_files, tiles=st.run.n_tiles)
+        return R.ClassifyResult(points=st.n_points, strips=st.n_files, tiles=st.run.n_tiles)
 
-    def run_rasters(self, root) -> dict:
+    def run_rasters(self, root) -> R.RastersResult:
         from lidarctl.rasters import write_rasters
 
         write_rasters(self.classified(), self.lo, self.options.rasters.res_m, crs=self.project.crs)
-        return dict(res_m=self.options.rasters.res_m)
+        return R.RastersResult(res_m=self.options.rasters.res_m)
 
     def corner_outputs(self, root) -> list[Path]:
         from lidarctl.corners import read_corner_summary
@@ -368,18 +366,18 @@ class Chain:
         return [self.project.corners_summary_path] + (
             [self.project.corners_path, self.project.roof_planes_path] if usable else [])
 
-    def run_corners(self, root) -> dict:
+    def run_corners(self, root) -> R.CornersResult:
         from lidarctl.corners import corner_control
 
         res = corner_control(self.classified(), self.lo, self.stage_settings("corners"), record_none=True)
-        out = dict(corners=res.stats.n_corners, usable=res.stats.n_usable)
+        notes = ()
         if res.no_usable:
             hint = "a smaller min_edge_m"
             if self.options.corners.roof == "flat":
                 hint = "roof = \"any\" or " + hint
-            out["notes"] = [f"{res.no_usable}; the chain goes on without LiDAR control (or try [corners] {hint} "
-                            "in project.toml)"]
-        return out
+            notes = (f"{res.no_usable}; the chain goes on without LiDAR control (or try [corners] {hint} "
+                     "in project.toml)",)
+        return R.CornersResult(corners=res.stats.n_corners, usable=res.stats.n_usable, notes=notes)
 
     def vectors_reference(self) -> Path | None:
         """[vectors] reference, else the simulator's true building outlines when present."""
@@ -395,7 +393,7 @@ class Chain:
     def vectors_outputs(self, root=None) -> list[Path]:
         return [self.project.vectors_path] + ([self.project.vectors_check_path] if self.vectors_reference() else [])
 
-    def run_vectors(self, root) -> dict:
+    def run_vectors(self, root) -> R.VectorsResult:
         from aerotri.core.tolerances import qa_settings
         from aerotri.geom.block_scale import project_block_scale
         from lidarctl.map_vectors import MapVectorSettings, vectors_to_file
@@ -403,19 +401,19 @@ class Chain:
 
         p = self.project
         s = vectors_to_file(self.classified(), p.vectors_path, MapVectorSettings(), crs=p.crs)
-        out = {k: s[k] for k in ("buildings", "roads", "water", "spot_heights") if k in s}
+        counts = {k: s[k] for k in ("buildings", "roads", "water", "spot_heights") if k in s}
         ref = self.vectors_reference()
         if ref is None:
-            out["notes"] = ["no reference vectors ([vectors] reference): the line map is not checked"]
-            return out
+            return R.VectorsResult(**counts, notes=("no reference vectors ([vectors] reference): the line map is "
+                                                    "not checked",))
         if ref == p.truth_buildings_path:
             ref = self.truth_outline_reference()
         qa = qa_settings(root, project_block_scale(p))
         check = check_files(p.vectors_path, ref, VectorCheckSettings(layers=("buildings",), scale=qa["map_scale"],
                                                              terrain=qa["terrain"]), p.vectors_check_path)
         b = check["layers"].get("buildings", {})
-        out.update(corner_rms_xy_m=b.get("rms_xy_corner_m"), corners=b.get("n_matched_corners"))
-        return out
+        return R.VectorsResult(**counts, checked=True, corner_rms_xy_m=b.get("rms_xy_corner_m"),
+                               corners=b.get("n_matched_corners"))
 
     def truth_outline_reference(self) -> Path:
         """The simulator's roof outlines (truth/buildings.geojson, part "roof_outline": what the LiDAR sees;
@@ -441,11 +439,11 @@ class Chain:
         return out
 
     # -- tie points and adjustments -------------------------------------------------------------
-    def run_match(self, root) -> dict:
+    def run_match(self, root) -> R.MatchResult:
         from aerotri.match import match_project
 
         rep = match_project(root, self.stage_settings("match"))
-        return dict(tracks=rep.tracks, observations=rep.observations, components=rep.components)
+        return R.MatchResult(tracks=rep.tracks, observations=rep.observations, components=rep.components)
 
     def adjust_inputs(self, root, control: bool = True) -> list[Path]:
         files = [self.project.tiepoints_path, self.project.gnss_path, self.project.camera_path, self.project.config_path]
@@ -474,13 +472,13 @@ class Chain:
 
         return project_settings(self.project, self.stage_settings("adjust"), first=True)
 
-    def run_adjust_first(self, root) -> dict:
+    def run_adjust_first(self, root) -> R.AdjustResult:
         from aerotri.adjust.pipeline import run_adjustment
 
         ba, rep = run_adjustment(root, self.first_settings(), out_dir=self.first, html=False)
         # the orientations belong to this camera (self-calibrated, or the nominal one)
         write_text_atomic(self.first / "camera.toml", ba.camera_adjusted.to_toml())
-        return adjustment_numbers(rep)
+        return adjustment_result(rep)
 
     def final_settings(self) -> Resolved:
         """The final adjustment: [adjust] with LiDAR control when it was transferred, completed from the project
@@ -520,13 +518,14 @@ class Chain:
             return self.first / "eo.txt", self.first / "camera.toml"
         return Path(self.options.adjust.initial_eo), self.project.camera_path
 
-    def run_control(self, root) -> dict:
+    def run_control(self, root) -> R.ControlResult:
         from aerotri.control.pipeline import run_control
 
         eo, camera = self.control_orientations()
         sm = run_control(root, self.project.corners_path, eo, camera, settings=self.stage_settings("control"))
-        return {k: getattr(sm, k) for k in ("corners_accepted", "control_full", "control_height", "check_points",
-                                             "layout_targets", "layout_targets_unfilled")}
+        return R.ControlResult(corners_accepted=sm.corners_accepted, control_full=sm.control_full,
+                               control_height=sm.control_height, check_points=sm.check_points,
+                               layout_targets=sm.layout_targets, layout_targets_unfilled=sm.layout_targets_unfilled)
 
     def adjust_final_outputs(self, root=None) -> list[Path]:
         out = [self.project.eo_path, self.project.adjustment_report_path]
@@ -534,7 +533,7 @@ class Chain:
             out.append(self.project.at_dir / "leave_one_out.json")
         return out
 
-    def run_adjust_final(self, root) -> dict:
+    def run_adjust_final(self, root) -> R.AdjustResult:
         from aerotri.adjust.pipeline import run_adjustment
 
         from aerotri.exchange import export_project
@@ -543,25 +542,22 @@ class Chain:
         notes = self.final_notes(settings)
         ba, rep = run_adjustment(root, settings)
         export_project(root)  # PATB and COLMAP, read back from at/
-        out = adjustment_numbers(rep)
         notes = notes + list(rep.get("datum") or [])  # no GNSS: what the datum rests on
+        loo = {}
         if settings.settings.leave_one_out:
             from aerotri.adjust.leave_one_out import run_leave_one_out
 
-            loo = run_leave_one_out(root, settings.settings, full=ba)
-            out["loo_rms_xy_m"] = round(loo.rms_xy_m, 3)
-            out["control_scatter_xy_m"] = round(loo.scatter.rms_xy_dof_m, 3)
-        if notes:
-            out["notes"] = notes
-        return out
+            run = run_leave_one_out(root, settings.settings, full=ba)
+            loo = dict(loo_rms_xy_m=round(run.rms_xy_m, 3), control_scatter_xy_m=round(run.scatter.rms_xy_dof_m, 3))
+        return adjustment_result(rep, **loo, notes=tuple(notes))
 
-    def run_tie_point_dem(self, root) -> dict:
+    def run_tie_point_dem(self, root) -> R.TiePointDemResult:
         from ortho.points_dem import write_points_dem
 
         s = write_points_dem(root, self.tie_point_dem_path)
-        return dict(res_m=s["res_m"], points=s["points"], cells_measured=s["cells_measured"],
-                    notes=["no LiDAR or given DEM: the orthophotos on the DEM of the adjusted tie points "
-                           f"({self.tie_point_dem_path})"])
+        return R.TiePointDemResult(res_m=s["res_m"], points=s["points"], cells_measured=s["cells_measured"],
+                                   notes=("no LiDAR or given DEM: the orthophotos on the DEM of the adjusted tie "
+                                          f"points ({self.tie_point_dem_path})",))
 
     # -- orthophotos ----------------------------------------------------------------------------
     def rectify_settings(self) -> Resolved:
@@ -570,48 +566,49 @@ class Chain:
             r = r.replace("dem", self.dem_path(), r.sources.get("dem", "default"), "the LiDAR stages' DEM")
         return r
 
-    def run_rectify(self, root) -> dict:
+    def run_rectify(self, root) -> R.RectifyResult:
         from ortho.block import rectify_block
 
         index = rectify_block(root, self.rectify_settings())
-        return dict(frames=len(index["frames"]), res_m=index["res_m"])
+        return R.RectifyResult(frames=len(index["frames"]), res_m=index["res_m"])
 
-    def run_mosaic(self, root) -> dict:
+    def run_mosaic(self, root) -> R.MosaicResult:
         from ortho.mosaic import mosaic_block
 
         info = mosaic_block(root, self.stage_settings("mosaic"))
-        return dict(width_px=info["width"], height_px=info["height"])
+        return R.MosaicResult(width_px=info["width"], height_px=info["height"])
 
     # -- checks and report ----------------------------------------------------------------------
-    def run_dom_check(self, root) -> dict:
-        from ortho.check import run_check
+    def run_dom_check(self, root) -> R.DomCheckResult:
+        from ortho.check import read_dom_check, run_check
 
-        rep = run_check(root, self.stage_settings("dom_check"), reference_path=self.reference_ortho)
-        d = rep.get("displacement", {})
-        return {k: d[k] for k in ("rms_xy_m", "rms_xy_gsd", "count") if k in d}
+        run_check(root, self.stage_settings("dom_check"), reference_path=self.reference_ortho)
+        d = read_dom_check(self.project.dom_report_path).displacement
+        return R.DomCheckResult(rms_xy_m=d.rms_xy_m, rms_xy_gsd=d.rms_xy_gsd, count=d.count)
 
-    def run_height_check(self, root) -> dict:
+    def run_height_check(self, root) -> R.HeightCheckResult:
         from lidarctl.heights_check import check_heights_file
 
         result = check_heights_file(self.classified(), self.surveyed_points)
         write_text_atomic(self.project.height_check_path, json.dumps(result, indent=2))
         a = result.get("overall", {}).get("all", {})
-        return {k: a[k] for k in ("rmse_m", "mean_abs_dz_m", "n") if k in a}
+        return R.HeightCheckResult(rmse_m=a.get("rmse_m"), mean_abs_dz_m=a.get("mean_abs_dz_m"), n=a.get("n"))
 
-    def run_lidar_eval(self, root) -> dict:
-        from lidarctl.evaluate import evaluate_strips
+    def run_lidar_eval(self, root) -> R.LidarEvalResult:
+        from lidarctl.evaluate import evaluate_strips, read_filter_test
 
         # each classified strip against its truth strip (truth/lidar/, same name, same points)
         result = evaluate_strips(self.classified(), self.project.truth_strips())
         write_text_atomic(self.project.classification_eval_path, json.dumps(result, indent=2))
-        g = result["filter_test"]
-        return {k: g[k] for k in ("type_i_error_pct", "type_ii_error_pct", "kappa_pct") if k in g}
+        g = read_filter_test(self.project.classification_eval_path)
+        return R.LidarEvalResult(type_i_error_pct=g.type_i_error_pct, type_ii_error_pct=g.type_ii_error_pct,
+                                 kappa_pct=g.kappa_pct)
 
-    def run_report(self, root) -> dict:
+    def run_report(self, root) -> R.ReportResult:
         from aerotri.qa.report import write_qa_report
 
         rep = write_qa_report(root)
-        return dict(verdict=rep["overall"], passed=rep["passed"], failed=rep["failed"])
+        return R.ReportResult(verdict=rep["overall"], passed=rep["passed"], failed=rep["failed"])
 
 
 def _check_raster(path, what: str) -> None:

@@ -58,3 +58,26 @@ def read_json(path, what: str = "JSON file", hint: str = ""):
     except json.JSONDecodeError as exc:
         raise InputError(f"{path}:{exc.lineno}: not valid JSON ({exc.msg}, column {exc.colno}); "
                          f"the {what} is corrupt or truncated") from None
+
+
+def read_record(path, what: str, schema_version: int) -> dict:
+    """A versioned report record (a stage's JSON file): a JSON object whose ``schema_version`` (absent: taken
+    as ``schema_version``, the records written before versions were numbered) is an integer no newer than
+    ``schema_version``, the newest this version reads. ``what`` names the record without article, e.g.
+    ``"strip check (strips.json)"``; every error is an InputError naming the file and the record expected
+    (``record_error`` for the caller's own field checks)."""
+    path = Path(path)
+    d = read_json(path, what)
+    if not isinstance(d, dict):
+        kind = {list: "array", str: "string", bool: "boolean", int: "number", float: "number"}.get(type(d), "null")
+        raise InputError(f"{path}: not a {what}: a JSON {kind}, expected an object")
+    v = d.get("schema_version", schema_version)
+    if not isinstance(v, int) or isinstance(v, bool) or v > schema_version:
+        raise InputError(f"{path}: not a {what} of schema version {schema_version} or older "
+                         f"(schema_version {json.dumps(v)})")
+    return d
+
+
+def record_error(path, what: str, exc: Exception) -> InputError:
+    """The InputError for a record (``read_record``) lacking a field or holding one of the wrong type."""
+    return InputError(f"{path}: not a {what}: {type(exc).__name__} {exc}")

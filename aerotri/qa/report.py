@@ -115,24 +115,29 @@ def strip_rows(project: Project, tol: dict) -> tuple[list, list | None]:
     The RMS, not the NMAD: the systematic part (a strip too high, tilted by a roll error) is what
     the check is there to find, and the NMAD, spread about each pair's median, does not see a constant
     offset between two strips; blunders are kept out by the choice of cells, not by the statistic."""
+    from lidarctl.strips.adjust import read_strip_adjustment
+    from lidarctl.strips.check import nothing_compared, read_strip_check
+
     adjusted = project.strips_adjust_path.is_file()
-    chk = _json(project.strips_check_after_path if adjusted else project.strips_check_path)
-    if not chk:
+    path = project.strips_check_after_path if adjusted else project.strips_check_path
+    if not path.is_file():
         return [], None
     sec = "LiDAR strip consistency"
     name = "strip-to-strip height differences on smooth surfaces, RMS over all pairs"
-    if chk.get("why"):
-        return [_check(sec, name, None, None, "m", f"not checked: {chk['why']}")], None
-    a = chk["all_pairs"]
-    pairs = [{k: p.get(k) for k in ("a", "b", "n_cells", "mean_m", "rms_m", "nmad_m")} for p in chk["pairs"]]
-    worst = max(pairs, key=lambda p: p["rms_m"])
-    note = (f"{len(pairs)} pairs, {a['n_cells']} cells of {chk['cell_m']:g} m; NMAD {a['nmad_m']:.3f} m; worst pair "
-            f"{worst['b']} - {worst['a']}: mean {worst['mean_m']:+.3f} m, RMS {worst['rms_m']:.3f} m")
+    chk = read_strip_check(path)
+    if chk is None:
+        return [_check(sec, name, None, None, "m", f"not checked: {nothing_compared(path)}")], None
+    a = chk.all_pairs
+    pairs = [dict(a=p.a, b=p.b, n_cells=p.diff.n_cells, mean_m=p.diff.mean_m, rms_m=p.diff.rms_m, nmad_m=p.diff.nmad_m)
+             for p in chk.pairs]
+    worst = max(chk.pairs, key=lambda p: p.diff.rms_m)
+    note = (f"{len(pairs)} pairs, {a.n_cells} cells of {chk.cell_m:g} m; NMAD {a.nmad_m:.3f} m; worst pair "
+            f"{worst.b} - {worst.a}: mean {worst.diff.mean_m:+.3f} m, RMS {worst.diff.rms_m:.3f} m")
     if adjusted:
-        before = _json(project.strips_adjust_path).get("check_before", {})
-        if before.get("rms_m") is not None:
-            note = f"after the strip adjustment (before: RMS {before['rms_m']:.3f} m); " + note
-    return [_check(sec, name, round(a["rms_m"], 4), tol.get("strip_rmsdz_m"), "m", note, key="strip_rmsdz_m")], pairs
+        before = read_strip_adjustment(project.strips_adjust_path).check_before
+        if before.rms_m is not None:
+            note = f"after the strip adjustment (before: RMS {before.rms_m:.3f} m); " + note
+    return [_check(sec, name, round(a.rms_m, 4), tol.get("strip_rmsdz_m"), "m", note, key="strip_rmsdz_m")], pairs
 
 
 def line_map_rows(project: Project, tol: dict) -> list:
@@ -174,6 +179,9 @@ def build_qa_report(root, tolerance_file=None, terrain: str | None = None, scale
     """The report of a project folder (``StageOrderError`` when no stage has left results yet). The
     tolerance table: the arguments (the command line), else ``[qa]`` of project.toml, else chosen by the
     block's GSD and platform (``aerotri.core.tolerances.choose_table``); the report names it and why."""
+    from lidarctl.evaluate import read_filter_test
+    from ortho.check import read_dom_check
+
     project = Project.open(root)  # a project folder: project.toml with [project] crs
     root = project.root
     if not any(p.is_file() for p in stage_results(project)):
@@ -197,21 +205,21 @@ def build_qa_report(root, tolerance_file=None, terrain: str | None = None, scale
     at = _json(project.adjustment_report_path)
     ctl_all = _json(project.control_transfer_path)
     ctl = ctl_all.get("summary", {})
-    dom_all = _json(project.dom_report_path)
-    dom, seams = dom_all.get("displacement", {}), dom_all.get("seams", {})
+    dom_check = read_dom_check(project.dom_report_path) if project.dom_report_path.exists() else None
+    dom = dom_check.displacement if dom_check else None
     hc_all = _json(project.height_check_path)
     hc = hc_all.get("overall", {})
-    ce = _json(project.classification_eval_path).get("filter_test", {})
+    ce = read_filter_test(project.classification_eval_path) if project.classification_eval_path.exists() else None
     rows, strips = strip_rows(project, tol)
 
     # LiDAR
     sec = "LiDAR classification"
     if ce:
-        rows.append(_check(sec, "ground filter total error against the reference classes", round(ce["total_error_pct"], 3),
+        rows.append(_check(sec, "ground filter total error against the reference classes", round(ce.total_error_pct, 3),
                            tol.get("filter_total_error_pct"), "%", key="filter_total_error_pct"))
-        rows.append(_check(sec, "type I error (ground rejected)", round(ce["type_i_error_pct"], 3), None, "%"))
-        rows.append(_check(sec, "type II error (objects accepted as ground)", round(ce["type_ii_error_pct"], 3), None, "%"))
-        rows.append(_check(sec, "Cohen's kappa", round(ce["kappa_pct"], 2), None, "%"))
+        rows.append(_check(sec, "type I error (ground rejected)", round(ce.type_i_error_pct, 3), None, "%"))
+        rows.append(_check(sec, "type II error (objects accepted as ground)", round(ce.type_ii_error_pct, 3), None, "%"))
+        rows.append(_check(sec, "Cohen's kappa", round(ce.kappa_pct, 2), None, "%"))
     sec = "LiDAR height check"
     if hc.get("all") and not hc["all"].get("n"):
         rows.append(_failed(sec, "ground height check", "no surveyed point has ground points within the search radius "
@@ -299,30 +307,31 @@ def build_qa_report(root, tolerance_file=None, terrain: str | None = None, scale
 
     # DOM
     sec = "DOM"
-    if dom.get("count") == 0:
+    if dom and dom.count == 0:
         rows.append(_failed(sec, "displacement of the DOM", "the check found no usable patch or point (no texture, "
                                                             "no ground under --max-ndsm-m, or the reference misses the "
                                                             "DOM)"))
-    if dom.get("rms_xy_m") is not None:
-        rows.append(_check(sec, "displacement on ground patches, plan RMS", round(dom["rms_xy_m"], 4),
-                           tol.get("feature_rms_xy_m"), "m",
-                           f"{dom.get('count')} patches, {dom.get('rms_xy_gsd', float('nan')):.2f} GSD",
+    if dom and dom.rms_xy_m is not None:
+        gsd = dom.rms_xy_gsd if dom.rms_xy_gsd is not None else float("nan")
+        rows.append(_check(sec, "displacement on ground patches, plan RMS", round(dom.rms_xy_m, 4),
+                           tol.get("feature_rms_xy_m"), "m", f"{dom.count} patches, {gsd:.2f} GSD",
                            key="feature_rms_xy_m"))
-        if dom.get("p95_xy_m") is not None and tol.get("feature_rms_xy_m") and tol.get("gross_error_max_pct") == 5.0:
+        if dom.p95_xy_m is not None and tol.get("feature_rms_xy_m") and tol.get("gross_error_max_pct") == 5.0:
             # 95th percentile within 2 x the RMS limit <=> at most 5 % gross errors.
-            rows.append(_check(sec, "95th percentile of the patch displacements", round(dom["p95_xy_m"], 4),
-                               2 * tol["feature_rms_xy_m"], "m", f"largest {dom.get('max_xy_m', float('nan')):.3f} m; "
+            largest = dom.max_xy_m if dom.max_xy_m is not None else float("nan")
+            rows.append(_check(sec, "95th percentile of the patch displacements", round(dom.p95_xy_m, 4),
+                               2 * tol["feature_rms_xy_m"], "m", f"largest {largest:.3f} m; "
                                "limit 2 x the RMS limit (at most 5 % gross errors)", key="feature_rms_xy_m"))
-    if project.frames_index_path.is_file() and (dom_all or project.mosaic_path.is_file()):
+    if project.frames_index_path.is_file() and (dom_check or project.mosaic_path.is_file()):
         from ortho.block import read_index, stale_frames
 
         why = stale_frames(root, read_index(root))
         if why:
             rows.append(_failed(sec, "DOM from an older adjustment", f"{why}; re-run ortho rectify, ortho mosaic and "
                                                                      "ortho check"))
-    if seams.get("rms_px") is not None:
-        rows.append(_check(sec, "misalignment across seamlines, RMS", round(seams["rms_px"], 3),
-                           tol.get("seam_misalignment_rms_px"), "px", f"{seams.get('patches')} patches",
+    if dom_check and dom_check.seams_rms_px is not None:
+        rows.append(_check(sec, "misalignment across seamlines, RMS", round(dom_check.seams_rms_px, 3),
+                           tol.get("seam_misalignment_rms_px"), "px", f"{dom_check.seam_patches} patches",
                            key="seam_misalignment_rms_px"))
 
     # Flight acceptance: from the adjustment's report when it has the section, else computed here (before
@@ -349,8 +358,8 @@ def build_qa_report(root, tolerance_file=None, terrain: str | None = None, scale
         lidar_strips=strips,
         lidar_height_bins=hc.get("bins"),
         lidar_height_groups=hc_all.get("groups") or None,
-        lidar_classification=ce or None,
-        dom=dom or None,
+        lidar_classification=ce.as_dict() if ce else None,
+        dom=dom.as_dict() if dom else None,
     )
     for r in rows:  # where each limit comes from; an unconfirmed one is marked
         p = table.provenance.get(r.get("limit_key") or "")

@@ -31,6 +31,7 @@ from aerotri.sim.lidar import las_header, las_record, pulse_chunks, scan_strip, 
 from lidarctl.strips.trajectory import format_trajectory
 from aerotri.sim.scene import build_scene
 from aerotri.core.atomic import atomic_dir
+from aerotri.core.gdal_cache import MiB, stage_block_cache
 from aerotri.core.log import track
 from aerotri.core.resources import measure
 
@@ -40,6 +41,9 @@ log = logging.getLogger(__name__)
 # Truth rasters: rows rendered at a time (about this many pixels, at most 512 rows), in 256 px tiles.
 _BLOCK_PX = 4_000_000
 _TILE_PX = 256
+# GDAL's block cache while the project is written (frames and truth rasters written by rows of tiles): bounded,
+# not 5 % of the RAM; set once around ``simulate`` from its calling thread (``aerotri.core.gdal_cache``)
+SIM_CACHE_BYTES = 256 * MiB
 
 
 def _block_rows(width: int) -> int:
@@ -65,7 +69,7 @@ def _write_geotiff(path: Path, width: int, height: int, bands: int, dtype, trans
                    nodata=nodata, bigtiff="IF_SAFER", **_compression(compress))
     if bands == 3 and np.dtype(dtype) == np.uint8:
         profile["photometric"] = "RGB"
-    with rasterio.Env(GDAL_CACHEMAX=256 * 2 ** 20), rasterio.open(path, "w", **profile) as dst:
+    with rasterio.open(path, "w", **profile) as dst:
         out = _TileRowWriter(dst, dtype)
         starts = range(0, height, block_rows)
         if width * height > 64 * _BLOCK_PX:
@@ -229,7 +233,7 @@ def simulate(cfg: dict, outdir, force: bool = False, on_phase=None) -> SimTruth:
              f"{len(scene.tree_c)} trees, {len(scene.roads)} roads, {len(scene.ponds)} ponds, {len(scene.targets)} targets "
              f"({usage.wall_s:.1f} s)")
 
-    with atomic_dir(outdir) as tmp:
+    with atomic_dir(outdir) as tmp, stage_block_cache(SIM_CACHE_BYTES):
         for sub in ("images", "lidar", "trajectory", "truth", "truth/lidar"):
             (tmp / sub).mkdir(parents=True, exist_ok=True)
         n_frames = len(plan.image_id)
@@ -337,7 +341,7 @@ def _write_tiled_frame(path: Path, renderer, frame, expo: dict, fl: dict) -> Non
         profile.update(_compression(fl["compress"]))
     with warnings.catch_warnings():
         warnings.filterwarnings("ignore", category=rasterio.errors.NotGeoreferencedWarning)
-        with rasterio.Env(GDAL_CACHEMAX=256 * 2 ** 20), rasterio.open(path, "w", **profile) as dst:
+        with rasterio.open(path, "w", **profile) as dst:
             for r0 in range(0, cam.height, tile):
                 r1 = min(cam.height, r0 + tile)
                 rows, _ = renderer.render_rows(frame, r0, r1, **expo)
@@ -504,8 +508,7 @@ def _write_truth_rasters(truth_dir: Path, cfg: dict, layout, look, origin, epsg:
 
     otransform = from_origin(origin[0], origin[1] + layout.height_m, ores, ores)
     # The land-cover truth (extra files beside ortho.tif, from the same view).
-    with rasterio.Env(GDAL_CACHEMAX=256 * 2 ** 20), \
-            _open_geotiff(truth_dir / "ortho_nir.tif", onx, ony, np.uint8, otransform, epsg, compress=compress) as nir_dst, \
+    with _open_geotiff(truth_dir / "ortho_nir.tif", onx, ony, np.uint8, otransform, epsg, compress=compress) as nir_dst, \
             _open_geotiff(truth_dir / "classes.tif", onx, ony, np.uint8, otransform, epsg, nodata=landcover.NODATA,
                           compress=compress) as cls_dst:
         nir_out, cls_out = _TileRowWriter(nir_dst, np.uint8, band=1), _TileRowWriter(cls_dst, np.uint8, band=1)
@@ -702,7 +705,7 @@ def simulate_observations(cfg: dict, outdir, force: bool = False, *, tie_sigma_p
     _check_plan(plan, terrain, cfg)
     log.info(f"block of {len(plan.image_id)} frames over {layout.width_m / 1000:.1f} x {layout.height_m / 1000:.1f} km, "
              f"truth terrain at {terrain.terrain_res_m:.2f} m")
-    with atomic_dir(outdir) as tmp:
+    with atomic_dir(outdir) as tmp, stage_block_cache(SIM_CACHE_BYTES):
         (tmp / "truth").mkdir(parents=True, exist_ok=True)
         _write_project_files(tmp, cfg, plan, cam_true, cam_nominal, origin, epsg, [1.0] * len(plan.image_id),
                              chain=observations_chain(cfg, cam_true, cam_nominal))

@@ -360,6 +360,46 @@ def _raster_tri(ax, ay, az, bx, by, bz, cx, cy, cz, c0, c1, r0, r1, rb0, xnb, yn
                     code[rr, c] = code_val
 
 
+@numba.njit(cache=True, inline="always")
+def _hit_normal(typ, idx, x, y, z, dx, dy, dz, gi0, gj0, ncj, hz, res, tn, tkind, tobj, tc, ta):
+    """The unit surface normal (nx, ny, nz), facing against the viewing direction (dx, dy, dz), and the kind
+    and object id of a z-buffer hit at (x, y, z) (local metres): ``typ`` terrain triangle A or B of terrain
+    cell ``idx`` (row ``idx // ncj``, column ``idx % ncj`` of the cells from node (gi0, gj0) of ``hz``, nodes
+    ``res`` apart), ``_T_TRI`` mesh triangle ``idx`` (normal ``tn``, kind ``tkind``, object ``tobj``), or
+    else the crown of tree ``idx`` (an ellipsoid: centre ``tc``, semi-axes ``ta``)."""
+    if typ == _T_TERRAIN_A or typ == _T_TERRAIN_B:
+        ca = idx // ncj
+        gi = gi0 + ca
+        gj = gj0 + idx - ca * ncj
+        h00 = hz[gi, gj]
+        h10 = hz[gi, gj + 1]
+        h01 = hz[gi + 1, gj]
+        h11 = hz[gi + 1, gj + 1]
+        if typ == _T_TERRAIN_A:
+            nx = -(h10 - h00) * res
+            ny = -(h11 - h10) * res
+        else:
+            nx = -(h11 - h01) * res
+            ny = -(h01 - h00) * res
+        nz = res * res
+        k = KIND_TERRAIN
+        o = 0
+    elif typ == _T_TRI:
+        nx, ny, nz = tn[idx, 0], tn[idx, 1], tn[idx, 2]
+        k = tkind[idx]
+        o = tobj[idx]
+    else:
+        nx = (x - tc[idx, 0]) / (ta[idx, 0] * ta[idx, 0])
+        ny = (y - tc[idx, 1]) / (ta[idx, 0] * ta[idx, 0])
+        nz = (z - tc[idx, 2]) / (ta[idx, 1] * ta[idx, 1])
+        k = KIND_TREE
+        o = idx
+    nn = math.sqrt(nx * nx + ny * ny + nz * nz)
+    if nx * dx + ny * dy + nz * dz > 0.0:
+        nn = -nn
+    return nx / nn, ny / nn, nz / nn, k, o
+
+
 @numba.njit(cache=True, parallel=True)
 def _render_bands(band0, band1, row_out0, W, H, band_rows, step, XN, YN, C, M,
                   V, ti0, tj0, cell_start, cell_list, cell_box,
@@ -537,39 +577,8 @@ def _render_bands(band0, band1, row_out0, W, H, band_rows, step, XN, YN, C, M,
                     X[c] = C[0] + t * dx
                     Y[c] = C[1] + t * dy
                     Z[c] = C[2] + t * dz
-                    if typ == _T_TERRAIN_A or typ == _T_TERRAIN_B:
-                        ca = idx // ncj
-                        gi = ti0 + ca
-                        gj = tj0 + idx - ca * ncj
-                        h00 = hz[gi, gj]
-                        h10 = hz[gi, gj + 1]
-                        h01 = hz[gi + 1, gj]
-                        h11 = hz[gi + 1, gj + 1]
-                        if typ == _T_TERRAIN_A:
-                            nx = -(h10 - h00) * res
-                            ny = -(h11 - h10) * res
-                        else:
-                            nx = -(h11 - h01) * res
-                            ny = -(h01 - h00) * res
-                        nz = res * res
-                        kind[c] = KIND_TERRAIN
-                        obj[c] = 0
-                    elif typ == _T_TRI:
-                        nx, ny, nz = tn[idx, 0], tn[idx, 1], tn[idx, 2]
-                        kind[c] = tkind[idx]
-                        obj[c] = tobj[idx]
-                    else:
-                        nx = (X[c] - tc[idx, 0]) / (ta[idx, 0] * ta[idx, 0])
-                        ny = (Y[c] - tc[idx, 1]) / (ta[idx, 0] * ta[idx, 0])
-                        nz = (Z[c] - tc[idx, 2]) / (ta[idx, 1] * ta[idx, 1])
-                        kind[c] = KIND_TREE
-                        obj[c] = idx
-                    nn = math.sqrt(nx * nx + ny * ny + nz * nz)
-                    if nx * dx + ny * dy + nz * dz > 0.0:
-                        nn = -nn
-                    NX[c] = nx / nn
-                    NY[c] = ny / nn
-                    NZ[c] = nz / nn
+                    NX[c], NY[c], NZ[c], kind[c], obj[c] = _hit_normal(
+                        typ, idx, X[c], Y[c], Z[c], dx, dy, dz, ti0, tj0, ncj, hz, res, tn, tkind, tobj, tc, ta)
                 shading.shade_points(X, Y, Z, kind, obj, NX, NY, NZ, G, roof_albedo, fine_m, sun, rad)
                 if want_ids and s == 0:
                     for c in range(W):
@@ -816,38 +825,9 @@ def _ortho_shade(x0, ytop, step_m, r0, zin, code, hz, res, tn, tkind, tobj, tc, 
             cv = code[a, c]
             typ = cv >> _SHIFT
             idx = cv & _MASK
-            if typ == _T_TERRAIN_A or typ == _T_TERRAIN_B:
-                i = idx // nxc
-                j = idx - i * nxc
-                h00 = hz[i, j]
-                h10 = hz[i, j + 1]
-                h01 = hz[i + 1, j]
-                h11 = hz[i + 1, j + 1]
-                if typ == _T_TERRAIN_A:
-                    nx = -(h10 - h00) * res
-                    ny = -(h11 - h10) * res
-                else:
-                    nx = -(h11 - h01) * res
-                    ny = -(h01 - h00) * res
-                nz = res * res
-                kind[c] = KIND_TERRAIN
-                obj[c] = 0
-            elif typ == _T_TRI:
-                nx, ny, nz = tn[idx, 0], tn[idx, 1], tn[idx, 2]
-                kind[c] = tkind[idx]
-                obj[c] = tobj[idx]
-            else:
-                nx = (x - tc[idx, 0]) / (ta[idx, 0] * ta[idx, 0])
-                ny = (y - tc[idx, 1]) / (ta[idx, 0] * ta[idx, 0])
-                nz = (z - tc[idx, 2]) / (ta[idx, 1] * ta[idx, 1])
-                kind[c] = KIND_TREE
-                obj[c] = idx
-            nn = math.sqrt(nx * nx + ny * ny + nz * nz)
-            if nz < 0.0:  # facing the vertical ray
-                nn = -nn
-            NX[c] = nx / nn
-            NY[c] = ny / nn
-            NZ[c] = nz / nn
+            # seen straight down: facing up (the ray's direction is (0, 0, -1))
+            NX[c], NY[c], NZ[c], kind[c], obj[c] = _hit_normal(
+                typ, idx, X[c], Y[c], Z[c], 0.0, 0.0, -1.0, 0, 0, nxc, hz, res, tn, tkind, tobj, tc, ta)
             ids[a, c] = kind[c] * 1000000 + obj[c]
         shading.shade_points(X, Y, Z, kind, obj, NX, NY, NZ, G, roof_albedo, fine_m, sun, rad[a])
 

@@ -50,6 +50,7 @@ from threadpoolctl import threadpool_limits
 
 from aerotri.core.atomic import atomic_dir, refuse_input_as_output
 from aerotri.core.errors import InputError, OptionError, SolveError
+from aerotri.core.textio import read_record, record_error
 from aerotri.core.settings import setting
 from aerotri.geom import las
 from lidarctl import io
@@ -202,7 +203,8 @@ class StripAdjustResult:
 def read_strip_adjustment(path) -> StripAdjustResult:
     """adjust.json as ``adjust_strips`` wrote it (InputError naming the file when it is not one)."""
     path = Path(path)
-    d = chk.load_record(path, "a strip adjustment (adjust.json)")
+    what = "strip adjustment (adjust.json)"
+    d = read_record(path, what, chk.SCHEMA_VERSION)
     try:
         c = d.get("control")
         control = None if c is None else ControlSummary(**{**c, "residuals": tuple(
@@ -218,8 +220,8 @@ def read_strip_adjustment(path) -> StripAdjustResult:
                                     "check_before": chk.DiffStats.of_record(d["check_before"]),
                                     "check_after": chk.DiffStats.of_record(d["check_after"]),
                                     "files": tuple(d["files"]), "control": control})
-    except (KeyError, TypeError, ValueError) as exc:
-        raise InputError(f"{path}: not a strip adjustment (adjust.json): {type(exc).__name__} {exc}") from None
+    except (AttributeError, KeyError, TypeError, ValueError) as exc:
+        raise record_error(path, what, exc) from None
 
 
 @dataclasses.dataclass
@@ -697,6 +699,9 @@ def adjust_strips(paths, outdir, settings: StripAdjustSettings = StripAdjustSett
         t_write = time.perf_counter()
         ss_after = ov.read_strips(corrected, surface, crs)
         after = chk.analyse(ss_after, surface, corrected)
+        # the corrected strips as they are found after the commit: in OUTDIR, not in the temporary folder
+        after.summary = dataclasses.replace(after.summary, strips=tuple(
+            dataclasses.replace(t, file=str(outdir / Path(t.file).name)) for t in after.summary.strips))
         vmax = chk.colour_limit_m(before.pairs)
         for name, res in (("check_before", before), ("check_after", after)):
             (tmp / name).mkdir()

@@ -26,7 +26,7 @@ from typing import Mapping
 import numpy as np
 
 from aerotri.core.atomic import atomic_dir, refuse_input_as_output
-from aerotri.core.errors import InputError
+from aerotri.core.textio import read_record, record_error
 from lidarctl.strips.overlap import PairDiff, StripSet, SurfaceSettings, overlapping_pairs_or_error, read_strips
 from lidarctl.units import LengthUnits
 
@@ -39,6 +39,7 @@ FILES = ("strips.json", "index.html")
 
 
 SCHEMA_VERSION = 1  # strips.json: the layout of ``StripCheckResult.to_json``
+STRIP_CHECK = "strip check (strips.json)"  # the record's name in messages
 
 
 @dataclasses.dataclass(frozen=True)
@@ -216,26 +217,13 @@ def read_strip_check(path) -> StripCheckResult | None:
     records that there was nothing to compare (``nothing_compared``). InputError naming the file when it is
     not one."""
     path = Path(path)
-    d = load_record(path, "a strip check (strips.json)")
+    d = read_record(path, STRIP_CHECK, SCHEMA_VERSION)
     if "why" in d:
         return None
     try:
         return _check_of(d)
-    except (KeyError, TypeError, ValueError) as exc:
-        raise InputError(f"{path}: not a strip check (strips.json): {type(exc).__name__} {exc}") from None
-
-
-def load_record(path: Path, what: str):
-    """The JSON record of a report of this package (strips.json, adjust.json), its schema version checked
-    (InputError naming the file and ``what`` it should be)."""
-    try:
-        d = json.loads(Path(path).read_text())
-    except (OSError, ValueError) as exc:
-        raise InputError(f"{path}: cannot read {what}: {exc}") from None
-    if not isinstance(d, dict) or not isinstance(d.get("schema_version", SCHEMA_VERSION), int) \
-            or d.get("schema_version", SCHEMA_VERSION) > SCHEMA_VERSION:
-        raise InputError(f"{path}: not {what} of schema version {SCHEMA_VERSION} or older")
-    return d
+    except (AttributeError, KeyError, TypeError, ValueError) as exc:
+        raise record_error(path, STRIP_CHECK, exc) from None
 
 
 def record_nothing_compared(folder: Path, why: str) -> None:
@@ -248,7 +236,7 @@ def nothing_compared(path) -> str | None:
     path = Path(path)
     if not path.is_file():
         return None
-    return load_record(path, "a strip check (strips.json)").get("why")
+    return read_record(path, STRIP_CHECK, SCHEMA_VERSION).get("why")
 
 
 def stats(dz: np.ndarray) -> DiffStats:

@@ -4,13 +4,20 @@ issue's limits and results/scale.json keyed by size. (The whole benchmark on the
 
 from __future__ import annotations
 
+import dataclasses
 import importlib.util
 import json
 from pathlib import Path
 
 import pytest
 
+from aerotri.chain.results import StageResult
 from aerotri.chain.runner import Stage, run_stages
+
+
+@dataclasses.dataclass(frozen=True, kw_only=True)
+class Points(StageResult):
+    points: int
 
 ROOT = Path(__file__).resolve().parents[2]
 
@@ -98,10 +105,10 @@ def test_table_only_reads_the_last_run_and_keeps_other_sizes(scale, tmp_path, ca
     def lidar(r):
         a = np.ones(100 * 1024 * 1024 // 8)
         (r / "l.txt").write_text(str(a.sum()))
-        return dict(points=6_000_000)
+        return Points(points=6_000_000)
 
     stages = [Stage("classify", lambda r: [], lambda r: [r / "l.txt"], lidar),
-              Stage("match", lambda r: [], lambda r: [r / "m.txt"], lambda r: (r / "m.txt").write_text("m") and {})]
+              Stage("match", lambda r: [], lambda r: [r / "m.txt"], lambda r: (r / "m.txt").write_text("m") and StageResult())]
     run_stages(run_dir, stages, log=lambda m: None)
     out = tmp_path / "scale.json"
     out.write_text(json.dumps({"quarter": {"verdict": {"lidar_peak_rss_mb": 2000.0, "lidar_peak_stage": "classify"},

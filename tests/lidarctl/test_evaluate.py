@@ -83,3 +83,18 @@ def test_evaluate_says_what_a_ground_only_truth_cannot_measure():
     assert any("--map-pred 5:1 " in n for n in notes)
     full = evaluate.confusion(np.array([2, 6, 5, 3]), np.array([2, 6, 5, 4]))  # a truth of several classes
     assert _truth_notes(full) == []
+
+
+def test_filter_test_read_back_from_its_json_file_as_written(tmp_path):
+    """classification_eval.json's filter test as a typed record: the numbers as ``filter_errors`` gave them, the
+    same record (keys, order, values) when turned back into a dict."""
+    import json
+
+    truth = np.array([1, 1, 1, 1, 0, 0, 0, 0, 0, 0], bool)
+    pred = np.array([1, 1, 1, 0, 1, 0, 0, 0, 0, 0], bool)
+    errors = evaluate.filter_errors(pred, truth)
+    path = tmp_path / "classification_eval.json"
+    path.write_text(json.dumps({"filter_test": errors, "confusion": {}}, indent=2))
+    ft = evaluate.read_filter_test(path)
+    assert ft.type_i_count == 1 and ft.type_ii_count == 1 and ft.type_i_error_pct == 25.0
+    assert json.dumps(ft.as_dict()) == json.dumps(errors)

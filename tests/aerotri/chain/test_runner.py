@@ -2,11 +2,22 @@
 
 from __future__ import annotations
 
+import dataclasses
 import json
 
 import pytest
 
-from aerotri.chain import Stage, format_summary, run_stages, stamp_path
+from aerotri.chain import Stage, StageResult, format_summary, run_stages, stamp_path
+
+
+@dataclasses.dataclass(frozen=True, kw_only=True)
+class Value(StageResult):
+    value: int
+
+
+@dataclasses.dataclass(frozen=True, kw_only=True)
+class Points(StageResult):
+    points: int
 
 
 def _stages(calls):
@@ -14,7 +25,7 @@ def _stages(calls):
         calls.append("double")
         v = int((r / "in.txt").read_text())
         (r / "mid.txt").write_text(str(2 * v))
-        return dict(value=2 * v)
+        return Value(value=2 * v)
 
     def add(r):
         calls.append("add")
@@ -22,7 +33,7 @@ def _stages(calls):
         if v < 0:
             raise RuntimeError("negative")
         (r / "out.txt").write_text(str(v + 1))
-        return dict(value=v + 1)
+        return Value(value=v + 1)
 
     return [
         Stage("double", lambda r: [r / "in.txt"], lambda r: [r / "mid.txt"], double),
@@ -155,7 +166,7 @@ def test_a_comment_in_a_toml_input_does_not_rerun_a_stage(tmp_path):
     (tmp_path / "p.toml").write_text("[a]\nx = 1\n")
     calls = []
     stages = [Stage("s", lambda r: [r / "in.txt", r / "p.toml"], lambda r: [r / "mid.txt"],
-                    lambda r: calls.append("s") or (r / "mid.txt").write_text("x") and {})]
+                    lambda r: calls.append("s") or (r / "mid.txt").write_text("x") and StageResult())]
     run_stages(tmp_path, stages, log=lambda m: None)
     (tmp_path / "p.toml").write_text("# a comment\n[a]\nx = 1  # the same value\n")
     run_stages(tmp_path, stages, log=lambda m: None)
@@ -176,7 +187,7 @@ def test_stage_cost_in_stamp_summary_and_table(tmp_path):
         while __import__("time").process_time() - t < 0.3:
             pass
         (r / "heavy.txt").write_text(str(a.sum()))
-        return dict(points=int(a.size))
+        return Points(points=int(a.size))
 
     stages = [Stage("heavy", lambda r: [], lambda r: [r / "heavy.txt"], heavy)]
     rows = run_stages(tmp_path, stages, log=lambda m: None)
@@ -209,7 +220,7 @@ def test_stage_cost_without_memory_figures(tmp_path, monkeypatch):
     monkeypatch.setattr(resources, "resource", None)
     monkeypatch.setattr(resources, "_reset_hwm", lambda pid="self": False)
     monkeypatch.setattr(resources, "_hwm_mb", lambda pid="self": None)
-    stages = [Stage("s", lambda r: [], lambda r: [r / "s.txt"], lambda r: (r / "s.txt").write_text("x") and {})]
+    stages = [Stage("s", lambda r: [], lambda r: [r / "s.txt"], lambda r: (r / "s.txt").write_text("x") and StageResult())]
     rows = run_stages(tmp_path, stages, log=lambda m: None)
     stamp = json.loads(stamp_path(tmp_path, "s").read_text())
     assert set(stamp["usage"]) == {"wall_s", "cpu_s"}

@@ -244,7 +244,7 @@ def test_optional_vectors_stage_checks_the_line_map_for_the_report(by_hand, tmp_
     assert names.index("vectors") == names.index("corners") + 1
     project = Project.open(p)
     out = Chain(project, read_options(project)).run_vectors(p)
-    assert out["buildings"] > 10 and project.vectors_path.is_file()
+    assert out.buildings > 10 and out.checked and project.vectors_path.is_file()
     check = json.loads(project.vectors_check_path.read_text())
     b = check["layers"]["buildings"]
     assert b["n_matched_corners"] > 20 and b["rms_xy_corner_m"] < 1.0   # LiDAR at ~1.5 m spacing

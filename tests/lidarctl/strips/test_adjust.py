@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import laspy
 import numpy as np
 import pytest
@@ -47,7 +49,11 @@ def test_strip_model_brings_the_differences_to_the_noise_level(strip_adjusted, c
         assert abs(p[name].value - truth) < 3 * p[name].sigma + 0.01, name
     assert 0.7 < s.sigma0 < 1.5
     # the check after the adjustment, as its strips.json says, is the one adjust.json quotes
-    assert read_strip_check(out / "check_after" / "strips.json").all_pairs == s.check_after
+    after = read_strip_check(out / "check_after" / "strips.json")
+    assert after.all_pairs == s.check_after
+    # its strips are the corrected files where they are, not in the temporary folder they were written to
+    assert [t.file for t in after.strips] == [str(out / f) for f in s.files] and all(Path(t.file).is_file()
+                                                                                   for t in after.strips)
     # the reader gives back what was written, to the byte
     assert s.to_json() == (out / "adjust.json").read_text()
     for name in ("check_before/strips.json", "check_after/strips.json", "check_after/index.html",

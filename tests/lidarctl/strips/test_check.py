@@ -39,8 +39,9 @@ def test_reading_what_is_not_a_strip_check_names_the_file(tmp_path):
     from aerotri.core.errors import InputError
 
     bad = tmp_path / "strips.json"
-    for text, words in (("{not json", "cannot read a strip check"), ('{"schema_version": 99}', "schema version 1"),
-                        ('{"schema_version": 1, "pairs": []}', "not a strip check")):
+    for text, words in (("{not json", r"strips.json:1: not valid JSON .*the strip check \(strips.json\) is corrupt"),
+                        ('{"schema_version": 99}', r"not a strip check \(strips.json\) of schema version 1 or older"),
+                        ('{"schema_version": 1, "pairs": []}', r"not a strip check \(strips.json\): KeyError")):
         bad.write_text(text)
         with pytest.raises(InputError, match=words) as e:
             read_strip_check(bad)

@@ -1,4 +1,5 @@
-"""GDAL's block cache during the ortho stages (``ortho.gdal_cache``).
+"""GDAL's block cache during the stages that write rasters (``aerotri.core.gdal_cache``): ortho rectify, mosaic
+and check, the simulator, lidarctl rasters.
 
 The clean-checkout suite hung in tests/ortho/test_block_atomic.py (every thread in a futex wait, rectify
 temporaries open): each frame task of ``ortho rectify`` entered ``rasterio.Env(GDAL_CACHEMAX=256)`` on its worker
@@ -6,7 +7,9 @@ thread. That is 256 bytes, not MB, and GDAL's cache is one per process: overlapp
 values, leaving the process at 256 bytes for good, and every block access then made one thread flush the dirty
 blocks of GeoTIFFs other threads were writing (GDAL does not support that: corrupt blocks, threads waiting on
 each other). These tests pin the cache down, and run the concurrent stages in a child process under a timeout,
-so that a deadlock fails the test instead of hanging the suite.
+so that a deadlock fails the test instead of hanging the suite. The simulator and ``lidarctl rasters`` entered
+the same kind of Env per writer and per worker thread (the rasters' COG copies, two threads at a time); they set
+it once per stage now, and the tests below check it there too.
 """
 
 from __future__ import annotations
@@ -21,14 +24,22 @@ import pytest
 import rasterio
 from rasterio.env import get_gdal_config
 
+import aerotri.sim.project
+import aerotri.sim.raster
+import lidarctl.rasters
 import ortho.block
 import ortho.mosaic
 from aerotri.core.executor import Executor
-from ortho.gdal_cache import MOSAIC_CACHE_BYTES, RECTIFY_CACHE_BYTES, stage_block_cache
+from aerotri.core.gdal_cache import stage_block_cache
+from aerotri.sim import load_preset, simulate
+from lidarctl import synthetic
+from lidarctl.io import PointCloud
+from ortho.block import RECTIFY_CACHE_BYTES
+from ortho.mosaic import MOSAIC_CACHE_BYTES
 from ortho.settings import MosaicSettings
 from ortho.synthetic import write_synthetic_project
 
-REPO = Path(__file__).resolve().parents[2]
+REPO = Path(__file__).resolve().parents[1]
 
 
 def cache_max_bytes() -> int:
@@ -118,3 +129,60 @@ def test_concurrent_rectify_and_mosaic_finish_and_agree(block, tmp_path):
         ortho.mosaic.mosaic_block(root, MosaicSettings(seams="voronoi", tile_px=128), executor=ex)
     with rasterio.open(root / "ortho/mosaic.tif") as ds:
         assert str(int(ds.read().astype(np.int64).sum())) in sums
+
+
+TILED_FRAMES = ["flight.strips=1", "flight.frames_per_strip=2", "render.tile_px=64", "lidar.pulse_rate_hz=2000.0"]
+
+
+def test_the_simulator_sets_the_cache_once_for_all_its_writers(tmp_path, monkeypatch):
+    """Every frame row rendered into its tiled TIFF and every row of tiles of the truth rasters is written with
+    the simulator's cache in bytes; after ``simulate`` the cache is what it was before (set here to a size of
+    its own, so that a writer leaving GDAL's default behind shows)."""
+    seen_frames, seen_truth = [], []
+    render_rows = aerotri.sim.raster.FrameRenderer.render_rows
+    write_rows = aerotri.sim.project._TileRowWriter.write
+
+    def recording_render_rows(self, *args, **kwargs):
+        seen_frames.append(cache_max_bytes())
+        return render_rows(self, *args, **kwargs)
+
+    def recording_write_rows(self, *args, **kwargs):
+        seen_truth.append(cache_max_bytes())
+        return write_rows(self, *args, **kwargs)
+
+    monkeypatch.setattr(aerotri.sim.raster.FrameRenderer, "render_rows", recording_render_rows)
+    monkeypatch.setattr(aerotri.sim.project._TileRowWriter, "write", recording_write_rows)
+    with stage_block_cache(300 * 2 ** 20):
+        simulate(load_preset("tiny", TILED_FRAMES), tmp_path / "sim")
+        assert cache_max_bytes() == 300 * 2 ** 20
+    assert len(seen_frames) >= 2 * 4 and set(seen_frames) == {aerotri.sim.project.SIM_CACHE_BYTES}
+    # dem, dsm, ortho_nir, classes, ortho: at least one row of tiles each
+    assert len(seen_truth) >= 5 and set(seen_truth) == {aerotri.sim.project.SIM_CACHE_BYTES}
+
+
+def test_lidarctl_rasters_set_the_cache_once_not_per_thread(tmp_path, monkeypatch):
+    """The tiled rasters: the windows written on the calling thread and the COG copies and the hillshade on two
+    worker threads all see the stage's cache in bytes, and the cache set before the stage is there after it
+    (each worker thread entered its own Env with the size before)."""
+    cloud, truth = synthetic.synthetic_scene(width_m=120.0, density_per_m2=3.0, seed=3, n_buildings=3, n_trees=20)
+    las = tmp_path / "c.las"
+    synthetic.write_las(las, PointCloud(cloud.x, cloud.y, cloud.z, cloud.intensity, cloud.return_number,
+                                        cloud.number_of_returns, truth), crs="EPSG:32632")
+    seen = []
+
+    def recording(name, fn):
+        def call(*args, **kwargs):
+            seen.append((name, cache_max_bytes()))
+            out = fn(*args, **kwargs)
+            seen.append((name, cache_max_bytes()))
+            return out
+        monkeypatch.setattr(lidarctl.rasters, name, call)
+
+    for name in ("_tiles_to_gtiffs", "_hillshade_by_windows", "rio_copy"):
+        recording(name, getattr(lidarctl.rasters, name))
+    with stage_block_cache(300 * 2 ** 20):
+        lidarctl.rasters.write_rasters([las], tmp_path / "out", 1.0, tile_px=48, buffer_px=16)
+        assert cache_max_bytes() == 300 * 2 ** 20
+    assert {n for n, _ in seen} == {"_tiles_to_gtiffs", "_hillshade_by_windows", "rio_copy"}
+    assert len([n for n, _ in seen if n == "rio_copy"]) == 2 * len(lidarctl.rasters.RASTERS)
+    assert {v for _, v in seen} == {lidarctl.rasters.RASTERS_CACHE_BYTES}

@@ -1,4 +1,4 @@
-"""GDAL's block cache for the ortho stages: one size per process, set by the stage's calling thread.
+"""GDAL's block cache of a stage: one size per process, set by the stage's calling thread.
 
 GDAL has one block cache per process. ``rasterio.Env(GDAL_CACHEMAX=n)`` sets it with ``GDALSetCacheMax64(n)``
 (n in bytes, whatever GDAL's config option would mean by a small number: ``GDAL_CACHEMAX=256`` is 256
@@ -10,8 +10,11 @@ flushes the dirty blocks of a GeoTIFF another thread is writing, which GDAL does
 blocks, OSGeo/gdal#2011; threads waiting on each other for good, OSGeo/gdal#3848). The suite hung in
 tests/ortho/test_block_atomic.py that way (every thread in a futex wait, rectify temporaries open).
 
-So the ortho stages set the cache once, in bytes, from the thread that calls them, around the whole
-stage (before its worker threads start, after they have ended), never inside a task.
+So every stage that writes rasters (the ortho stages, the simulator, ``lidarctl rasters``) sets the cache
+once, in bytes, from the thread that calls it, around the whole stage (before its worker threads start,
+after they have ended), with ``stage_block_cache``, never inside a task or per writer. Other GDAL options
+(``GDAL_PAM_ENABLED``, ...) are per thread in rasterio (a worker thread's ``rasterio.Env`` sets thread-local
+options) and may still be set by a task.
 """
 
 from __future__ import annotations
@@ -19,14 +22,6 @@ from __future__ import annotations
 import contextlib
 
 MiB = 2 ** 20
-# rectify: the frame blocks the tiles of the frames in flight read (a 13,824 px DMC frame read by windows) and
-# the output blocks being compressed; bounded so that memory does not grow with the frame
-RECTIFY_CACHE_BYTES = 256 * MiB
-# mosaic: the frame blocks a row of tiles reads (frame blocks are not aligned with the mosaic tiles, so the next
-# row reads some again) and the stage blocks being filled; GDAL's default is 5 % of the RAM
-MOSAIC_CACHE_BYTES = 512 * MiB
-# check: the DOM, reference and nDSM blocks of the blocks being compared
-CHECK_CACHE_BYTES = 256 * MiB
 
 
 @contextlib.contextmanager
