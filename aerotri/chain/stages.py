@@ -4,7 +4,8 @@ LiDAR strips (lidar/) -> strip check (how overlapping strips disagree in height,
 ``[strips] adjust = true`` the strip adjustment, and the corrected strips go on) -> classify (the strips together, by tiles, no merged file; one classified
 copy per strip in lidar_out/classified/) -> rasters -> roof corners; images -> tie points -> first
 adjustment (tie points + GNSS) -> control transfer of the LiDAR corners -> final adjustment ->
-rectification on the DEM -> mosaic -> optional checks -> accuracy report.
+rectification (a true ortho on the DSM whenever there is one: lidar_out/dsm.tif or [rectify] dsm, unless
+``[rectify] true_ortho = false``; else on the DEM) -> mosaic -> optional checks -> accuracy report.
 
 Every stage calls its library function and keeps the numbers it returns for the summary. The chain
 runs what its inputs allow and says what it left out and why:
@@ -34,7 +35,7 @@ from pathlib import Path
 from aerotri.chain.options import ChainSettings, read_options
 from aerotri.chain.runner import Stage
 from aerotri.core.atomic import write_text_atomic
-from aerotri.core.settings import COMMAND_LINE, Resolved, settings_of, to_table
+from aerotri.core.settings import COMMAND_LINE, DEFAULT, PROJECT_TOML, Resolved, settings_of, to_table
 from aerotri.core.project import Project
 
 _log = logging.getLogger(__name__)
@@ -162,6 +163,11 @@ class Chain:
                     "no [adjust] initial_eo")
         return None
 
+    def true_ortho_dsm(self) -> list[Path]:
+        """The DSM the rectify stage reads (none for a conventional ortho)."""
+        s = self.rectify_settings().settings
+        return [Path(s.dsm)] if s.true_ortho and s.dsm is not None else []
+
     def no_dem(self, root=None) -> str | None:
         if self.dem_path() is None:
             return ("no DEM for the orthophotos: no LiDAR strips to make one; give one in project.toml "
@@ -190,6 +196,10 @@ class Chain:
 
             with open_height_raster(given, project_crs(self.project)) as ds:
                 _read_ends(ds, given, "DEM")
+        if self.options.rectify.true_ortho and self.dsm_path() is None:
+            raise ConfigError(f"{self.project.config_path} [rectify] true_ortho = true: no DSM for it (no LiDAR strips "
+                              "to make lidar_out/dsm.tif); give one with [rectify] dsm = \"DSM.tif\" or set "
+                              "true_ortho = false")
         self._check_stage_inputs()
 
     def _check_stage_inputs(self) -> None:
@@ -271,7 +281,7 @@ class Chain:
             Stage("dem", lambda r: [self.project.object_points_path, self.project.eo_path],
                   lambda r: [self.tie_point_dem_path], self.run_tie_point_dem, skip=self.no_tie_point_dem),
             # (the self-calibrated camera in at/report.json changes only with at/eo.txt)
-            Stage("rectify", lambda r: [self.project.eo_path, self.dem_path()] + self.images(),
+            Stage("rectify", lambda r: [self.project.eo_path, self.dem_path()] + self.true_ortho_dsm() + self.images(),
                   lambda r: [self.project.frames_index_path], self.run_rectify,
                   options=lambda r: to_table(self.rectify_settings().settings), skip=self.no_dem),
             Stage("mosaic", lambda r: [self.project.frames_index_path], lambda r: [self.project.mosaic_path],
@@ -564,17 +574,52 @@ class Chain:
                            f"({self.tie_point_dem_path})"])
 
     # -- orthophotos ----------------------------------------------------------------------------
+    def dsm_path(self) -> Path | None:
+        """The DSM of the true ortho: [rectify] dsm, else the LiDAR stages' DSM (lidar_out/dsm.tif, written by the
+        rasters stage), else none."""
+        if self.options.rectify.dsm is not None:
+            return Path(self.options.rectify.dsm)
+        if self.has_lidar:
+            return self.project.dsm_path
+        return None
+
     def rectify_settings(self) -> Resolved:
+        """[rectify] with the chain's defaults: the DEM of ``dem_path``; a true ortho on the DSM whenever there is
+        one (``dsm_path``) and [rectify] true_ortho is not set (``true_ortho = false``: the conventional ortho)."""
         r = self.stage_settings("rectify")
         if r.settings.dem is None and self.dem_path() is not None:
             r = r.replace("dem", self.dem_path(), r.sources.get("dem", "default"), "the LiDAR stages' DEM")
+        dsm = self.dsm_path()
+        if dsm is not None and r.sources.get("true_ortho", DEFAULT) == DEFAULT:
+            r = r.replace("true_ortho", True, "aerotri run", "a DSM exists: the chain makes the true ortho")
+        if r.settings.true_ortho and r.settings.dsm is None and dsm is not None:
+            r = r.replace("dsm", dsm, r.sources.get("dsm", DEFAULT), "the LiDAR stages' DSM")
         return r
 
     def run_rectify(self, root) -> dict:
         from ortho.block import rectify_block
 
-        index = rectify_block(root, self.rectify_settings())
-        return dict(frames=len(index["frames"]), res_m=index["res_m"])
+        settings = self.rectify_settings()
+        index = rectify_block(root, settings)
+        out = dict(frames=len(index["frames"]), res_m=index["res_m"],
+                   ortho="true (DSM)" if settings.settings.true_ortho else "conventional (DEM)")
+        note = self.true_ortho_note(settings)
+        if note:
+            out["notes"] = [note]
+        return out
+
+    def true_ortho_note(self, settings: Resolved) -> str | None:
+        """What the summary and the console say of the true ortho: on (and why) or off with a DSM at hand."""
+        s, source = settings.settings, settings.sources.get("true_ortho", DEFAULT)
+        if s.true_ortho:
+            why = ("the chain's default with a DSM" if source == "aerotri run"
+                   else f"[rectify] true_ortho = true in {self.project.config_path.name}" if source == PROJECT_TOML
+                   else f"true_ortho from the {source}")
+            return (f"true ortho on the DSM {_rel(s.dsm, self.root)} ({why}; occluded cells filled from the frames "
+                    f"that see them; [rectify] true_ortho = false for the conventional ortho on the DEM)")
+        if self.dsm_path() is not None:
+            return f"conventional ortho on the DEM: [rectify] true_ortho = false (the DSM {_rel(self.dsm_path(), self.root)} is not used)"
+        return None
 
     def run_mosaic(self, root) -> dict:
         from ortho.mosaic import mosaic_block
@@ -587,8 +632,10 @@ class Chain:
         from ortho.check import run_check
 
         rep = run_check(root, self.stage_settings("dom_check"), reference_path=self.reference_ortho)
-        d = rep.get("displacement", {})
-        return {k: d[k] for k in ("rms_xy_m", "rms_xy_gsd", "count") if k in d}
+        d, roofs = rep.get("displacement", {}), rep.get("roofs", {})
+        out = {k: d[k] for k in ("rms_xy_m", "rms_xy_gsd", "count") if k in d}
+        out.update({f"roofs_{k}": roofs[k] for k in ("rms_xy_m", "rms_xy_gsd", "count") if k in roofs})
+        return out
 
     def run_height_check(self, root) -> dict:
         from lidarctl.heights_check import check_heights_file
@@ -612,6 +659,14 @@ class Chain:
 
         rep = write_qa_report(root)
         return dict(verdict=rep["overall"], passed=rep["passed"], failed=rep["failed"])
+
+
+def _rel(path, root: Path) -> str:
+    """A path as the project names it: relative to the project folder when inside it."""
+    try:
+        return Path(path).absolute().relative_to(Path(root).absolute()).as_posix()
+    except ValueError:
+        return str(path)
 
 
 def _check_raster(path, what: str) -> None:
