@@ -91,12 +91,16 @@ def dem(project, res_m, min_rays, out):
 @click_option(MosaicSettings, "feather_m", "--feather-m")
 @click_option(MosaicSettings, "balance", "--balance/--no-balance")
 @click_option(MosaicSettings, "tile_px", "--tile-px")
+@click.option("--seamlines", "seamlines", type=click.Path(path_type=Path),
+              help="edited seamlines: a GeoPackage of one polygon per frame (field 'frame'), as ortho/seamlines.gpkg; "
+                   "its polygons are the seams (checked for gaps, overlaps and frames that do not cover them)")
 @click.option("--crs", "crs", help="the product CRS the frames must be in (as given to ortho rectify); the mosaic never "
                                     "resamples twice, so frames in another CRS are refused [the frames' CRS]")
 @scheduler_options
-def mosaic(project, crs, scheduler, workers, **_settings_given):
-    """Seamlines, blending and radiometric balancing into ortho/mosaic.tif (COG) and ortho/seamlines.geojson;
-    one Dask task per output tile.
+def mosaic(project, crs, seamlines, scheduler, workers, **_settings_given):
+    """Seamlines, blending and radiometric balancing into ortho/mosaic.tif (COG), ortho/seamlines.geojson and
+    ortho/seamlines.gpkg (one polygon per frame, to edit and give back with --seamlines); one Dask task per output
+    tile.
 
     Settings: the defaults, then project.toml [mosaic], then the options given here (ortho/mosaic.json lists
     each with where it came from)."""
@@ -106,7 +110,7 @@ def mosaic(project, crs, scheduler, workers, **_settings_given):
     if crs is not None:
         require_frames_crs(project, crs)
     with executor_for(scheduler, workers) as executor:
-        info = mosaic_block(project, _settings(MosaicSettings, project), executor=executor)
+        info = mosaic_block(project, _settings(MosaicSettings, project), executor=executor, seamlines=seamlines)
     click.echo(f"mosaic {info['width']} x {info['height']} px of {info['frames']} frames -> {info['path']}")
 
 

@@ -7,7 +7,9 @@ Steps (``mosaic_block``):
    rows on all cores (memory set by the strip, not the frame).
 2. Seamlines on the seam grid (``ortho.seamlines``): nearest-nadir Voronoi, then least-cost seams
    avoiding objects of the nDSM and image differences. Written as ``seamlines.geojson`` (one polygon
-   per frame plus the seam lines between neighbours) and the label raster ``seams.tif``.
+   per frame plus the seam lines between neighbours), ``seamlines.gpkg`` (one polygon per frame with its ``frame``
+   name, for editing in QGIS: ``ortho.seamlines_gpkg``) and the label raster ``seams.tif``. With edited seamlines
+   (``seamlines=``, ``ortho mosaic --seamlines EDITED.gpkg``) their polygons, checked, are the seams.
 3. Gain balancing: per band, log-gains g_k minimising sum over overlapping pairs of
    n_ij (log m_i + g_i - log m_j - g_j)^2 + lambda sum g_k^2, with m_i the mean of frame i over the
    common overlap (linear least squares, normal equations: n frames, not n^2 pairs, in memory).
@@ -29,7 +31,7 @@ thread writes, no float64 intermediates. The tile order, the tile results and so
 on the scheduler or the number of threads.
 
 The frames are checked against ``ortho/frames/index.json`` first (sizes and hashes), the tile size
-against the memory; seams.tif, seamlines.geojson, mosaic.tif and mosaic.json (which records the index
+against the memory; seams.tif, seamlines.geojson, seamlines.gpkg, mosaic.tif and mosaic.json (which records the index
 it was made from) are made in a work folder and moved into ``ortho/`` together at the end.
 
 Step 4 runs on local threads (``executor`` None, local threads, synchronous) or, on a Dask cluster, as
@@ -72,6 +74,7 @@ from ortho.block import (index_grids, index_operation, operation_tags, read_inde
 from ortho.gdal_cache import MOSAIC_CACHE_BYTES, stage_block_cache
 from ortho.grid import OrthoGrid
 from ortho.settings import MosaicSettings
+from ortho.seamlines_gpkg import write_seamlines_gpkg
 from ortho.seamlines import (keep_objects_whole, label_polygons, least_cost_seams, neighbour_pairs, seam_lines,
                              voronoi_labels)
 
@@ -355,8 +358,11 @@ def _write_labels(path, labels, transform, crs):
 
 def mosaic_block(root, settings: MosaicSettings | Resolved | None = None, *, object_height_m: float = 2.5,
                  max_seam_cells: float = 5e7, end_reach_m: float = 30.0, seam_cell_m: float = 1.5,
-                 executor=None) -> dict:
+                 executor=None, seamlines=None) -> dict:
     """``ortho mosaic``: see the module doc. Returns a summary dict.
+
+    ``seamlines``: an edited seamlines GeoPackage (``ortho/seamlines.gpkg`` as a run writes it, edited in QGIS) whose
+    polygons replace the seams the run would route (checked first: ``ortho.seamlines_gpkg``).
 
     ``settings``: None reads [mosaic] of project.toml; a ``Resolved`` (``ortho mosaic``, the chain) carries the
     source of every setting into mosaic.json (``settings``). The output tiles are blended as tasks on
@@ -365,10 +371,11 @@ def mosaic_block(root, settings: MosaicSettings | Resolved | None = None, *, obj
     of the stage starts: ``ortho.gdal_cache``)."""
     with stage_block_cache(MOSAIC_CACHE_BYTES):
         return _mosaic_block(root, settings, object_height_m=object_height_m, max_seam_cells=max_seam_cells,
-                             end_reach_m=end_reach_m, seam_cell_m=seam_cell_m, executor=executor)
+                             end_reach_m=end_reach_m, seam_cell_m=seam_cell_m, executor=executor, seamlines=seamlines)
 
 
-def _mosaic_block(root, settings, *, object_height_m, max_seam_cells, end_reach_m, seam_cell_m, executor) -> dict:
+def _mosaic_block(root, settings, *, object_height_m, max_seam_cells, end_reach_m, seam_cell_m, executor,
+                  seamlines=None) -> dict:
     root = Path(root)
     timer = _PhaseTimer()
     resolved = settings_of(settings, MosaicSettings, Project.open(root) if settings is None else None)
@@ -378,6 +385,15 @@ def _mosaic_block(root, settings, *, object_height_m, max_seam_cells, end_reach_
         raise OptionError(f"{tile_px!r}: expected a tile size of at least {MIN_TILE_PX} px", param="--tile-px")
     if feather_m is not None and not (math.isfinite(feather_m) and feather_m >= 0):
         raise OptionError(f"{feather_m!r}: expected a feather width >= 0 m", param="--feather-m")
+    if seamlines is not None:
+        if not Path(seamlines).is_file():
+            raise InputError(f"{seamlines}: edited seamlines not found (--seamlines)")
+        # the run rewrites ortho/seamlines.gpkg: an edited copy, never the file itself, is its input
+        out = root / "ortho" / "seamlines.gpkg"
+        if out.exists() and os.path.samefile(out, seamlines):
+            raise OptionError(f"{seamlines}: this is the file the mosaic writes (inputs are never modified); edit a "
+                              f"copy of it (e.g. {out.with_name('seamlines_edited.gpkg')}) and give that",
+                              param="--seamlines")
     index = read_index(root)
     frames_dir = root / "ortho" / "frames"
     if not index["frames"]:
@@ -415,13 +431,23 @@ def _mosaic_block(root, settings, *, object_height_m, max_seam_cells, end_reach_
     nadir = np.array([e["nadir_xy_m"] for e in index["frames"]])
     nadir_rc = np.stack([(mosaic.y_top_m - nadir[:, 1]) / (res * factor) - 0.5,
                          (nadir[:, 0] - mosaic.x_left_m) / (res * factor) - 0.5], axis=1)
-    labels = voronoi_labels(red.valid, red.offsets, nadir_rc, red.shape)
-    if seams == "least-cost":
+    edited = None
+    if seamlines is not None:  # the user's polygons, checked whole before anything is written
+        from ortho.seamlines_gpkg import read_edited_seamlines
+
+        edited = read_edited_seamlines(seamlines, red.names, mosaic.crs, red.shape, red.transform, red.valid,
+                                       red.offsets)
+        labels = edited.labels
+    else:
+        labels = voronoi_labels(red.valid, red.offsets, nadir_rc, red.shape)
+    if seams == "least-cost" and edited is None:
         # a seam end may slide along the overlap border by up to end_reach_m to get round a building
         labels = least_cost_seams(labels, red.valid, red.offsets, red.gray_of, objects,
                                   end_reach_cells=end_reach_m / (res * factor))
         if objects is not None:
             labels = keep_objects_whole(labels, objects, red.valid, red.offsets)
+    if edited is not None:
+        seams = f"edited ({edited.path})"
     timer.done("seams")
     gains = balance_gains(red) if balance else np.ones((len(red.names), red.rgb[0].shape[2]))
     # colour that does not clip: no gain saturates more of a frame than the frame has saturated itself
@@ -443,7 +469,7 @@ def _mosaic_block(root, settings, *, object_height_m, max_seam_cells, end_reach_
                                   feather_px, tile_px, seams, executor, resolved.record())
         timer.done("blend and COG")
         with commit_outputs(out_dir):  # one commit: all four new, or (a failure, a kill) all as before
-            for name in ("seams.tif", "seamlines.geojson", "mosaic.tif", "mosaic.json"):
+            for name in ("seams.tif", "seamlines.geojson", "seamlines.gpkg", "mosaic.tif", "mosaic.json"):
                 move_into(Path(work) / name, out_dir / name)
     return outputs
 
@@ -526,10 +552,12 @@ def _mosaic_outputs(work: Path, root: Path, index, frames_dir, red, labels, gain
     out_dir = root / "ortho"
     _write_labels(work / "seams.tif", labels, red.transform, crs)
     # the seamlines' polygons and lines on a thread while the tiles are blended and written
-    with _background(_write_seamlines, work / "seamlines.geojson", labels, red.transform, red.names, crs) as vectors:
+    with _background(_write_seamlines, work / "seamlines.geojson", labels, red.transform, red.names, crs) as vectors, \
+            _background(write_seamlines_gpkg, work / "seamlines.gpkg", labels, red.transform, red.names, crs) as gpkg:
         _write_mosaic(work / "mosaic.tif", frames_dir, index, mosaic, work / "seams.tif", factor, gains, nadir,
                       feather_px, tile_px, executor=executor, labels=labels)
         vectors()
+        gpkg()
     summary = {"path": str(out_dir / "mosaic.tif"), "width": mosaic.width, "height": mosaic.height,
                "frames": len(red.names), "res_m": res, "seam_factor": factor, "seams": seams, "feather_px": feather_px,
                "index_sha1": index_sha1(root),
