@@ -457,6 +457,9 @@ def _mosaic_block(root, settings, *, object_height_m, max_seam_cells, end_reach_
                        "the frame itself (%.2f %%; the gain would have saturated %.2f %%)", red.names[k], b + 1, g0, g1,
                        100 * own, 100 * would)
     timer.done("gains")
+    # edited seamlines: the tiles their change does not reach are taken from the mosaic they were edited on
+    previous = previous_mosaic(root, index, red.names, labels, gains, feather_px, factor, mosaic) \
+        if edited is not None else None
     for name, g in zip(red.names, gains):
         if np.any(np.abs(np.log(g)) > math.log(1.3)):  # beyond exposure differences between frames of one flight
             logger.warning("frame %s needs gains %s to match its neighbours: check its exposure, or how its image "
@@ -466,7 +469,7 @@ def _mosaic_block(root, settings, *, object_height_m, max_seam_cells, end_reach_
     # a failed run leaves the previous seams, seamlines, mosaic and summary together
     with scratch_dir(out_dir, "mosaic") as work:
         outputs = _mosaic_outputs(Path(work), root, index, frames_dir, red, labels, gains, mosaic, factor, nadir,
-                                  feather_px, tile_px, seams, executor, resolved.record())
+                                  feather_px, tile_px, seams, executor, resolved.record(), previous)
         timer.done("blend and COG")
         with commit_outputs(out_dir):  # one commit: all four new, or (a failure, a kill) all as before
             for name in ("seams.tif", "seamlines.geojson", "seamlines.gpkg", "mosaic.tif", "mosaic.json"):
@@ -546,16 +549,17 @@ def _open_frame(path):
 
 
 def _mosaic_outputs(work: Path, root: Path, index, frames_dir, red, labels, gains, mosaic: OrthoGrid, factor, nadir,
-                    feather_px, tile_px, seams, executor, settings_record: dict) -> dict:
-    """seams.tif, seamlines.geojson, mosaic.tif and mosaic.json into ``work``; returns the summary."""
+                    feather_px, tile_px, seams, executor, settings_record: dict, previous=None) -> dict:
+    """seams.tif, seamlines.geojson, mosaic.tif and mosaic.json into ``work``; returns the summary. ``previous``
+    (``PreviousMosaic``): the mosaic whose tiles away from changed seams are taken over."""
     crs, res = mosaic.crs, mosaic.res_m
     out_dir = root / "ortho"
     _write_labels(work / "seams.tif", labels, red.transform, crs)
     # the seamlines' polygons and lines on a thread while the tiles are blended and written
     with _background(_write_seamlines, work / "seamlines.geojson", labels, red.transform, red.names, crs) as vectors, \
             _background(write_seamlines_gpkg, work / "seamlines.gpkg", labels, red.transform, red.names, crs) as gpkg:
-        _write_mosaic(work / "mosaic.tif", frames_dir, index, mosaic, work / "seams.tif", factor, gains, nadir,
-                      feather_px, tile_px, executor=executor, labels=labels)
+        tiles = _write_mosaic(work / "mosaic.tif", frames_dir, index, mosaic, work / "seams.tif", factor, gains, nadir,
+                              feather_px, tile_px, executor=executor, labels=labels, previous=previous)
         vectors()
         gpkg()
     summary = {"path": str(out_dir / "mosaic.tif"), "width": mosaic.width, "height": mosaic.height,
@@ -565,6 +569,10 @@ def _mosaic_outputs(work: Path, root: Path, index, frames_dir, red, labels, gain
                "pairs": [[red.names[i], red.names[j]] for i, j in neighbour_pairs(labels)],
                **_interior_nodata(work / "mosaic.tif", res),
                "settings": settings_record}
+    if previous is not None:
+        summary["tiles"] = tiles
+        logger.info("edited seamlines: %d of %d tiles blended, %d taken over from the earlier mosaic%s", tiles["blended"],
+                    tiles["total"], tiles["taken_over"], f" ({previous.why_all})" if previous.why_all else "")
     if summary["cells_seen_by_no_frame"]:
         logger.warning("%d cells (%.2f %% of the block) are seen by no frame (occluded in every frame of a true ortho, "
                        "or over DEM nodata): nodata in the mosaic", summary["cells_seen_by_no_frame"],
@@ -855,12 +863,14 @@ def _blend_tile(ctx: _BlendContext, readers, r0: int, c0: int, th: int, tw: int)
 
 
 def _write_mosaic(path, frames_dir, index, mosaic: OrthoGrid, seams_path, factor, gains, nadir, feather_px, tile_px,
-                  executor=None, labels=None):
+                  executor=None, labels=None, previous=None) -> dict:
     """Blend the output tiles into a tiled stage GeoTIFF and its overviews, then copy those to the COG
     (module doc, step 5). On local threads (or synchronous) the tiles are computed ahead of this thread,
     which writes them in tile order (``labels``: the seam labels in memory, else read from ``seams_path``);
     on a Dask cluster in batches of a few tiles per worker (the tasks read their windows of
-    ``seams_path``). Memory is bounded by the tiles in flight, not by the mosaic."""
+    ``seams_path``). Memory is bounded by the tiles in flight, not by the mosaic. ``previous``
+    (``PreviousMosaic``, local threads only): tiles whose seam cells and halo did not change are read from it
+    instead of blended. Returns the counts of tiles blended and taken over."""
     from aerotri.core.executor import local_executor
     from ortho.rectify import ordered_thread_map
 
@@ -900,6 +910,8 @@ def _write_mosaic(path, frames_dir, index, mosaic: OrthoGrid, seams_path, factor
         tiles = [(r0, c0, min(tile_px, mosaic.height - r0), min(tile_px, mosaic.width - c0))
                  for r0 in range(0, mosaic.height, tile_px) for c0 in range(0, mosaic.width, tile_px)]
         stage = tmp_dir / "stage.tif"
+        counts = {"taken_over": 0}
+        stack = contextlib.ExitStack()
         pyramid = _Pyramid(tmp_dir, mosaic, bands, dtype, levels, per_tile=tile_px % 2 == 0)
         readers = _FrameReaders()
         made = None
@@ -917,7 +929,21 @@ def _write_mosaic(path, frames_dir, index, mosaic: OrthoGrid, seams_path, factor
                 made = results()
             else:
                 threads = 1 if executor.scheduler == "synchronous" else max(1, executor.workers)
-                made = ordered_thread_map(lambda t: _blend_tile(ctx, readers, *t), tiles, threads)
+                if previous is not None and not previous.why_all:
+                    old = stack.enter_context(rasterio.open(previous.mosaic_path))
+                    lock = threading.Lock()
+
+                    def tile(t):
+                        if previous.touched(*t, halo, factor):
+                            return _blend_tile(ctx, readers, *t)
+                        w = Window(t[1], t[0], t[3], t[2])
+                        with lock:  # one dataset, read by the tile threads in turn
+                            counts["taken_over"] += 1
+                            return old.read(window=w), old.read_masks(1, window=w) > 0
+                else:
+                    def tile(t):
+                        return _blend_tile(ctx, readers, *t)
+                made = ordered_thread_map(tile, tiles, threads)
             with rasterio.open(stage, "w", **profile) as dst, progress(len(tiles), "mosaic", "tiles") as bar:
                 dst.colorinterp = colorinterp
                 for (r0, c0, th, tw), (out, valid) in zip(tiles, made):
@@ -930,6 +956,7 @@ def _write_mosaic(path, frames_dir, index, mosaic: OrthoGrid, seams_path, factor
             if made is not None:  # the tile threads end before their frame datasets are closed
                 made.close()
             readers.close()
+            stack.close()
         timer.done("tiles")
         pyramid.finish(stage)
         timer.done("overviews")
@@ -939,6 +966,51 @@ def _write_mosaic(path, frames_dir, index, mosaic: OrthoGrid, seams_path, factor
         with atomic_path(path) as tmp:
             rasterio.shutil.copy(vrt, tmp, **COG_OPTIONS)
         timer.done("COG")
+    if previous is not None and executor.distributed:
+        previous.why_all = "the tiles run as Dask tasks: every tile blended"
+    return {"total": len(tiles), "blended": len(tiles) - counts["taken_over"], "taken_over": counts["taken_over"],
+            **({"why_all_blended": previous.why_all} if previous is not None and previous.why_all else {})}
+
+
+@dataclasses.dataclass
+class PreviousMosaic:
+    """The mosaic an edited run starts from (``ortho/mosaic.tif`` of the same frames, gains, feather and seam grid) and
+    the seam cells whose label the edit changed; ``why_all``: why every tile is blended all the same."""
+
+    mosaic_path: Path
+    changed: np.ndarray  # bool, seam grid
+    why_all: str | None = None
+
+    def touched(self, r0: int, c0: int, th: int, tw: int, halo: int, factor: int) -> bool:
+        """Whether the tile's seam cells with its halo (those ``_blend_tile`` reads) hold a changed cell."""
+        if self.why_all:
+            return True
+        sh, sw = self.changed.shape
+        lr0, lr1 = min(max((r0 - halo) // factor, 0), sh - 1), min(max((r0 + th + halo - 1) // factor, 0), sh - 1)
+        lc0, lc1 = min(max((c0 - halo) // factor, 0), sw - 1), min(max((c0 + tw + halo - 1) // factor, 0), sw - 1)
+        return bool(self.changed[lr0:lr1 + 1, lc0:lc1 + 1].any())
+
+
+def previous_mosaic(root: Path, index, names, labels, gains, feather_px, factor, mosaic: OrthoGrid) -> PreviousMosaic:
+    """The mosaic in ``ortho/`` when the edited run would blend its tiles the same away from the edit: made from the
+    same frames (index.json sha1), with the same gains, feather and seam grid; else every tile is blended
+    (``why_all`` says why)."""
+    out = root / "ortho"
+    old_path, seams_path, summary_path = out / "mosaic.tif", out / "seams.tif", out / "mosaic.json"
+    none = np.ones(labels.shape, bool)
+    if not (old_path.is_file() and seams_path.is_file() and summary_path.is_file()):
+        return PreviousMosaic(old_path, none, "no earlier mosaic in ortho/")
+    old = read_json(summary_path)
+    same = (old.get("index_sha1") == index_sha1(root) and old.get("seam_factor") == factor
+            and old.get("feather_px") == feather_px and (old.get("width"), old.get("height")) == (mosaic.width, mosaic.height)
+            and old.get("gains") == {n: [float(v) for v in g] for n, g in zip(names, gains)})
+    if not same:
+        return PreviousMosaic(old_path, none, "the earlier mosaic was made from other frames, gains, feather or seam grid")
+    with rasterio.open(seams_path) as sds:
+        old_labels = sds.read(1)
+    if old_labels.shape != labels.shape:
+        return PreviousMosaic(old_path, none, "the earlier seam grid differs")
+    return PreviousMosaic(old_path, old_labels != labels)
 
 
 def _stage_profile(mosaic: OrthoGrid, bands: int, dtype) -> dict:

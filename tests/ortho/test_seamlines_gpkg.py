@@ -1,7 +1,7 @@
 """Seamlines a user can edit (issue 42): ``ortho mosaic`` writes ortho/seamlines.gpkg (one polygon per frame, its
 frame name, the mosaic's CRS); ``ortho mosaic --seamlines EDITED.gpkg`` takes the edited polygons after checking
 them (gaps, overlaps, a frame that does not cover its polygon, unknown frames: one line naming the feature, exit 2,
-nothing written) and changes only the tiles around the moved edge."""
+nothing written) and blends only the tiles the moved edge reaches (the others from the earlier mosaic)."""
 
 from __future__ import annotations
 
@@ -100,6 +100,8 @@ def test_an_edited_edge_changes_only_the_tiles_around_it(mosaicked, tmp_path):
     r = CliRunner().invoke(main, ["mosaic", str(root), "--tile-px", str(TILE_PX), "--seamlines", str(same)])
     assert r.exit_code == 0, r.output
     assert _tile_sums(root / "ortho" / "mosaic.tif") == before
+    tiles = json.loads((root / "ortho" / "mosaic.json").read_text())["tiles"]
+    assert tiles["blended"] == 0 and tiles["taken_over"] == tiles["total"] == len(before)  # nothing changed
     # one edge moved by up to 5 m: only the tiles within the feather's reach of the moved square change
     footprints = {}
     with rasterio.open(root / "ortho" / "seams.tif") as ds:
@@ -132,6 +134,16 @@ def test_an_edited_edge_changes_only_the_tiles_around_it(mosaicked, tmp_path):
     near = {k for k in before if k[0] < r1 and k[0] + TILE_PX > r0 and k[1] < c1 and k[1] + TILE_PX > c0}
     assert changed and changed <= near, (changed, near)
     assert len(changed) < len(before) / 3
+    # only the tiles the moved edge reaches were blended (with its halo: the feather); the others taken over
+    assert 0 < summary["tiles"]["blended"] <= len(near) and summary["tiles"]["taken_over"] == len(before) - summary["tiles"]["blended"]
+    # and the result is the mosaic of blending every tile anew
+    full = tmp_path / "full"
+    shutil.copytree(mosaicked, full)
+    (full / "ortho" / "mosaic.json").unlink()  # no earlier mosaic to take tiles from
+    r = CliRunner().invoke(main, ["mosaic", str(full), "--tile-px", str(TILE_PX), "--seamlines", str(edited)])
+    assert r.exit_code == 0, r.output
+    assert json.loads((full / "ortho" / "mosaic.json").read_text())["tiles"]["taken_over"] == 0
+    assert _tile_sums(full / "ortho" / "mosaic.tif") == after
     # the new seamlines.gpkg has the moved edge (to a seam cell)
     _, _, names2, geoms2 = _read(root / "ortho" / "seamlines.gpkg")
     for n, g in zip(names2, geoms2):
