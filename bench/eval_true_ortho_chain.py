@@ -8,7 +8,8 @@
    truth/roof_corners.csv`` (the simulator's own roof corners).
 2. Seamlines: the true DOM's ortho/seamlines.gpkg given back unedited (the mosaic must not change) and with one edge
    moved (frame b takes a 10 x 10 m square of its neighbour a's polygon on their shared edge): mosaic tiles (512 px)
-   changed by checksum, against the tiles within the feather's reach of the square; five bad edits (unknown frame,
+   changed by checksum, against the tiles within the feather's reach of the square, and the processing tiles the
+   run blended / took over from the earlier mosaic (mosaic.json tiles; the first mosaic's time for comparison); five bad edits (unknown frame,
    overlap, gap, polygon beyond its frame, a frame twice) must exit 2 naming the feature and write nothing.
 
 Usage: python bench/eval_true_ortho_chain.py [--project /work/ref/demo_chain/project] [--work DIR]
@@ -118,9 +119,9 @@ def seamline_round_trip(project: Path, work: Path) -> dict:
     shutil.copy(project / "ortho" / "seamlines.gpkg", same)
     r, dt = mosaic(project, "--seamlines", same)
     assert r.returncode == 0, r.stderr
-    out["unedited"] = {"tiles_changed": sum(before[k] != v for k, v in tile_sums(project / "ortho" / "mosaic.tif").items()),
-                       "wall_s": round(dt, 1)}
     summary = json.loads((project / "ortho" / "mosaic.json").read_text())
+    out["unedited"] = {"tiles_changed": sum(before[k] != v for k, v in tile_sums(project / "ortho" / "mosaic.tif").items()),
+                       "mosaic_tiles": summary.get("tiles"), "wall_s": round(dt, 1)}
     res = summary["res_m"]
     footprints = {}
 
@@ -162,7 +163,8 @@ def seamline_round_trip(project: Path, work: Path) -> dict:
         c1, r1 = ~ds.transform @ (x1, y0)
     near = {k for k in before if k[0] < r1 and k[0] + TILE_PX > r0 and k[1] < c1 and k[1] + TILE_PX > c0}
     out["edited"] = {"tiles_changed": len(changed), "tiles_within_reach": len(near),
-                     "changed_outside_reach": len(changed - near), "wall_s": round(dt, 1)}
+                     "changed_outside_reach": len(changed - near), "mosaic_tiles": summary.get("tiles"),
+                     "wall_s": round(dt, 1)}
     bad = {}
     for edit in ("unknown", "overlap", "gap", "beyond", "twice"):
         n, g = list(names), list(geoms)
