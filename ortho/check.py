@@ -5,6 +5,10 @@ textured patch is located in the reference orthophoto (resampled onto the DOM gr
 cross-correlation. The displacement is DOM position minus reference position, in pixels (x right,
 y down) and in metres (dE east, dN north).
 
+Roofs (against a true orthophoto as the reference): a patch centred on every roof corner (``--roof-corners`` CSV,
+else the outline corners of the nDSM's buildings) phase-correlated with the reference (``measure_roof_patches``): the
+report's ``roofs`` row, beside the open ground's ``displacement``.
+
 Surveyed points: a CSV ``id,x,y,x_dom,y_dom`` with the surveyed coordinates and the coordinates of
 the same point measured in the DOM (both in the DOM's CRS); the displacement is DOM minus survey.
 
