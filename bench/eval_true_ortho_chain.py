@@ -9,8 +9,8 @@
 2. Seamlines: the true DOM's ortho/seamlines.gpkg given back unedited (the mosaic must not change) and with one edge
    moved (frame b takes a 10 x 10 m square of its neighbour a's polygon on their shared edge): mosaic tiles (512 px)
    changed by checksum, against the tiles within the feather's reach of the square, and the processing tiles the
-   run blended / took over from the earlier mosaic (mosaic.json tiles; the first mosaic's time for comparison); five bad edits (unknown frame,
-   overlap, gap, polygon beyond its frame, a frame twice) must exit 2 naming the feature and write nothing.
+   run blended / took over from the earlier mosaic (mosaic.json tiles); five bad edits (unknown frame, overlap, gap,
+   polygon beyond its frame, a frame twice) must exit 2 naming the feature and write nothing.
 
 Usage: python bench/eval_true_ortho_chain.py [--project /work/ref/demo_chain/project] [--work DIR]
 Writes results/true_ortho_chain.json.

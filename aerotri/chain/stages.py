@@ -618,7 +618,8 @@ class Chain:
             return (f"true ortho on the DSM {_rel(s.dsm, self.root)} ({why}; occluded cells filled from the frames "
                     f"that see them; [rectify] true_ortho = false for the conventional ortho on the DEM)")
         if self.dsm_path() is not None:
-            return f"conventional ortho on the DEM: [rectify] true_ortho = false (the DSM {_rel(self.dsm_path(), self.root)} is not used)"
+            return (f"conventional ortho on the DEM: [rectify] true_ortho = false (the DSM "
+                    f"{_rel(self.dsm_path(), self.root)} is not used)")
         return None
 
     def run_mosaic(self, root) -> dict:
