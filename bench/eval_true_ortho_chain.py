@@ -129,7 +129,7 @@ def seamline_round_trip(project: Path, work: Path) -> dict:
         if k not in footprints:
             with rasterio.open(project / "ortho" / "frames" / f"{names[k]}.tif") as f:
                 m = f.read_masks(1, out_shape=(f.height // 4, f.width // 4))
-                t = f.transform * f.transform.scale(f.width / m.shape[1], f.height / m.shape[0])
+                t = f.transform @ f.transform.scale(f.width / m.shape[1], f.height / m.shape[0])
                 shapes = [shapely.geometry.shape(g) for g, v in features.shapes(m, mask=m > 0, transform=t)]
             footprints[k] = shapely.union_all(shapes).buffer(-8 * res)
         return footprints[k]

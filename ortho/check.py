@@ -421,7 +421,7 @@ def roof_corners_from_ndsm(ndsm_path, dom_bounds, dom_crs, min_height_m: float =
         with _reading(ndsm_path, "nDSM"):
             z = nd.read(1, window=w, out_shape=shape, masked=True, resampling=Resampling.average)
         unit = height_unit_m(parse_crs(nd.crs.to_wkt(), f"{ndsm_path} CRS")) if nd.crs else 1.0
-        t = nd.window_transform(w) * Affine.scale(w.width / shape[1], w.height / shape[0])
+        t = nd.window_transform(w) @ Affine.scale(w.width / shape[1], w.height / shape[0])
     cell_m = abs(t.a)
     high = (np.ma.filled(z.astype(np.float32), 0.0) * unit > min_height_m).astype(np.uint8)
     high = cv2.morphologyEx(high, cv2.MORPH_OPEN, np.ones((3, 3), np.uint8))
