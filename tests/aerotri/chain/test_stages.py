@@ -162,8 +162,8 @@ def test_run_goes_to_the_end_and_equals_the_chain_by_hand(by_hand, run_to_end):
 
 def test_run_makes_the_true_ortho_on_the_lidar_dsm_unless_told_not_to(run_to_end, tmp_path):
     """Issue 42: with LiDAR (lidar_out/dsm.tif of the rasters stage) the chain's DOM is a true ortho, said in the
-    console and the summary; ``[rectify] true_ortho = false`` re-runs only the orthophoto stages, on the DEM, and
-    against the simulator's true orthophoto the roofs of the true ortho are closer (same frames, same orientation)."""
+    console and the summary; ``[rectify] true_ortho = false`` re-runs the orthophotos on the DEM (no LiDAR stage, the
+    same orientation), and against the simulator's true orthophoto the roofs of the true ortho are closer."""
     from ortho.cli import main as ortho_cli
 
     p0, table = run_to_end
@@ -179,8 +179,10 @@ def test_run_makes_the_true_ortho_on_the_lidar_dsm_unless_told_not_to(run_to_end
                                          "--points", str(p / "truth" / "checkpoints.csv")], catch_exceptions=False)
     assert r.exit_code == 0, r.output
     rows = {line.split()[0]: line for line in r.stdout.splitlines() if line.strip()}
-    for stage in ("classify", "rasters", "match", "adjust_final"):
+    for stage in ("classify", "rasters", "match"):
         assert "up to date" in rows[stage], rows[stage]
+    # (the adjustment reads project.toml, so it runs again) the same orientation: the same frames rectified both ways
+    assert (p / "at" / "eo.txt").read_bytes() == (p0 / "at" / "eo.txt").read_bytes()
     assert " done " in rows["rectify"] and "ortho=conventional (DEM)" in rows["rectify"]
     assert "[rectify] true_ortho = false (the DSM lidar_out/dsm.tif is not used)" in r.stdout
     assert json.loads((p / "ortho" / "frames" / "index.json").read_text())["true_ortho"] is False
