@@ -5,6 +5,10 @@ textured patch is located in the reference orthophoto (resampled onto the DOM gr
 cross-correlation. The displacement is DOM position minus reference position, in pixels (x right,
 y down) and in metres (dE east, dN north).
 
+Roofs (against a true orthophoto as the reference): a patch centred on every roof corner (``--roof-corners`` CSV,
+else the outline corners of the nDSM's buildings) phase-correlated with the reference (``measure_roof_patches``): the
+report's ``roofs`` row, beside the open ground's ``displacement``.
+
 Surveyed points: a CSV ``id,x,y,x_dom,y_dom`` with the surveyed coordinates and the coordinates of
 the same point measured in the DOM (both in the DOM's CRS); the displacement is DOM minus survey.
 
@@ -97,6 +101,10 @@ class DomCheck:
     displacement: Displacement
     seams_rms_px: float | None = None
     seam_patches: int | None = None
+    roofs: Displacement | None = None  # the roofs row (its displacement figures), when roofs were measured
+
+
+_DISPLACEMENT_FIELDS = frozenset(f.name for f in dataclasses.fields(Displacement))
 
 
 def read_dom_check(path) -> DomCheck:
@@ -104,7 +112,10 @@ def read_dom_check(path) -> DomCheck:
     d = read_record(path, DOM_CHECK, SCHEMA_VERSION)
     try:
         seams = d.get("seams") or {}
-        return DomCheck(Displacement.of_record(d["displacement"]), seams.get("rms_px"), seams.get("patches"))
+        roofs = d.get("roofs")
+        if roofs is not None:
+            roofs = Displacement.of_record({k: v for k, v in roofs.items() if k in _DISPLACEMENT_FIELDS})
+        return DomCheck(Displacement.of_record(d["displacement"]), seams.get("rms_px"), seams.get("patches"), roofs)
     except (AttributeError, KeyError, TypeError, ValueError) as exc:
         raise record_error(path, DOM_CHECK, exc) from None
 
@@ -415,6 +426,165 @@ def _check_over_dom(reference_path, ndsm_path, dom_bounds, dom_crs) -> None:
             require_overlap(nd, ndsm_path, "nDSM", dom_bounds, dom_crs.to_wkt(), "the DOM")
 
 
+# roofs: a square patch centred on every roof corner, at least ROOF_PATCH_M and ROOF_PATCH_PX DOM pixels wide (a
+# roof displaced by relief must stay inside it), phase-correlated with the reference (bench/eval_true_ortho.py)
+ROOF_PATCH_M = 24.0
+ROOF_PATCH_PX = 48
+ROOF_MIN_VALID = 0.8  # share of the patch's DOM cells with a value (nodata is set to the patch mean)
+ROOF_MIN_RESPONSE = 0.1  # phase-correlation peak below which the patch is not measured
+ROOF_HEIGHT_M = 2.5  # nDSM above which a cell is a roof (buildings found in the nDSM)
+ROOF_MIN_AREA_M2 = 50.0  # smaller nDSM objects (bushes, cars) are not buildings
+
+
+@dataclasses.dataclass(frozen=True)
+class RoofDisplacements:
+    """Displacements (DOM minus reference, metres east and north) of the patches centred on roof corners that
+    could be measured, and why the others were not."""
+
+    x_m: np.ndarray
+    y_m: np.ndarray
+    de_m: np.ndarray
+    dn_m: np.ndarray
+    corners: int  # roof corners given or found
+    outside_or_invalid: int  # patch not whole inside the DOM, or less than ROOF_MIN_VALID of it valid
+    weak: int  # phase-correlation response below ROOF_MIN_RESPONSE
+    patch_m: float
+
+
+def read_roof_corners(path) -> tuple[np.ndarray, np.ndarray]:
+    """x, y (DOM CRS) of the roof corners of a CSV with a header naming columns ``x`` and ``y`` (e.g. the
+    simulator's truth/roof_corners.csv); InputError naming the file and line of a bad row."""
+    path = Path(path)
+    text = read_text(path, "roof-corner file (x,y columns)")
+    reader = csv.DictReader(text.splitlines())
+    if reader.fieldnames is None or not {"x", "y"} <= set(reader.fieldnames):
+        raise InputError(f"{path}: header must name the columns x and y of the roof corners (got {reader.fieldnames})")
+    xy = []
+    for lineno, row in enumerate(reader, start=2):
+        try:
+            xy.append((float(row["x"]), float(row["y"])))
+        except (TypeError, ValueError):
+            raise InputError(f"{path}:{lineno}: non-numeric x or y in {row}") from None
+        if not all(math.isfinite(v) for v in xy[-1]):
+            raise InputError(f"{path}:{lineno}: NaN or infinite x or y in {row}")
+    if not xy:
+        raise InputError(f"{path}: no roof corners")
+    a = np.array(xy)
+    return a[:, 0], a[:, 1]
+
+
+def roof_corners_from_ndsm(ndsm_path, dom_bounds, dom_crs, min_height_m: float = ROOF_HEIGHT_M,
+                           min_area_m2: float = ROOF_MIN_AREA_M2, max_cells: float = 16e6):
+    """x, y (DOM CRS) of the outline corners of the buildings of an nDSM over the DOM: cells above
+    ``min_height_m`` (opened by one cell: no walls of single cells), objects of at least ``min_area_m2``, their
+    outlines simplified (Douglas-Peucker, 1.5 cells). Trees are found too where the nDSM has no classes; a
+    patch on a crown measures the crown, which stands where the roofs do in a true ortho. The nDSM is read
+    over the DOM only, at most ``max_cells`` cells (coarser for a large block)."""
+    import cv2
+    import rasterio
+    from rasterio.enums import Resampling
+    from rasterio.transform import Affine
+
+    from aerotri.geom.crs import same_horizontal
+
+    with _open(ndsm_path, "nDSM") as nd:
+        if nd.crs is not None and dom_crs is not None and not same_horizontal(nd.crs, dom_crs):
+            raise InputError(f"{ndsm_path}: the nDSM is in another CRS than the DOM; roofs are found only in an nDSM "
+                             "of the DOM's CRS (give the roof corners with --roof-corners)")
+        left, bottom, right, top = dom_bounds
+        w = rasterio.windows.from_bounds(left, bottom, right, top, nd.transform).round_offsets().round_lengths()
+        w = w.intersection(rasterio.windows.Window(0, 0, nd.width, nd.height))
+        step = max(1, int(math.ceil(math.sqrt(w.width * w.height / max_cells))))
+        shape = (max(1, int(w.height) // step), max(1, int(w.width) // step))
+        with _reading(ndsm_path, "nDSM"):
+            z = nd.read(1, window=w, out_shape=shape, masked=True, resampling=Resampling.average)
+        unit = height_unit_m(parse_crs(nd.crs.to_wkt(), f"{ndsm_path} CRS")) if nd.crs else 1.0
+        t = nd.window_transform(w) @ Affine.scale(w.width / shape[1], w.height / shape[0])
+    cell_m = abs(t.a)
+    high = (np.ma.filled(z.astype(np.float32), 0.0) * unit > min_height_m).astype(np.uint8)
+    high = cv2.morphologyEx(high, cv2.MORPH_OPEN, np.ones((3, 3), np.uint8))
+    contours, _ = cv2.findContours(high, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_SIMPLE)
+    xs, ys = [], []
+    for c in contours:
+        if cv2.contourArea(c) * cell_m * cell_m < min_area_m2:
+            continue
+        for col, row in cv2.approxPolyDP(c, 1.5, True)[:, 0, :]:
+            x, y = t @ (col + 0.5, row + 0.5)
+            xs.append(x)
+            ys.append(y)
+    return np.array(xs, float), np.array(ys, float)
+
+
+def measure_roof_patches(dom_path, reference_path, x_m, y_m, patch_m: float | None = None,
+                         reference_operation=None, block_px: int = 1024) -> RoofDisplacements:
+    """The displacement of the DOM against a reference true orthophoto at every roof corner ``x_m, y_m``: a
+    square patch of ``patch_m`` (default ``max(ROOF_PATCH_M, ROOF_PATCH_PX DOM pixels)``) centred on the corner,
+    the reference averaged onto the DOM's grid, grey values (the mean of the first three bands) phase-correlated
+    with a Hanning window (``cv2.phaseCorrelate``). DOM cells without a value are set to the patch mean; patches
+    less than ``ROOF_MIN_VALID`` valid or past the DOM's edge, and peaks below ``ROOF_MIN_RESPONSE``, are counted,
+    not measured. The DOM is read by blocks of ``block_px`` (with a patch's halo) that hold corners, the
+    reference resampled once per block."""
+    import cv2
+    from rasterio.enums import Resampling
+    from rasterio.windows import Window
+
+    x_m, y_m = np.atleast_1d(np.asarray(x_m, float)), np.atleast_1d(np.asarray(y_m, float))
+    with stage_block_cache(CHECK_CACHE_BYTES), _open(dom_path, "DOM") as dom, \
+            _open(reference_path, "reference orthophoto") as ref:
+        res = abs(dom.transform.a)
+        patch_m = float(patch_m) if patch_m else max(ROOF_PATCH_M, ROOF_PATCH_PX * res)
+        n = max(16, int(round(patch_m / res)))
+        win = np.outer(np.hanning(n), np.hanning(n))
+        bands = list(range(1, min(dom.count, 3) + 1))
+        inv = ~dom.transform
+        cols, rows = inv @ (x_m, y_m)
+        r0s, c0s = np.floor(rows).astype(np.int64) - n // 2, np.floor(cols).astype(np.int64) - n // 2
+        inside = (r0s >= 0) & (c0s >= 0) & (r0s + n <= dom.height) & (c0s + n <= dom.width)
+        outside, weak = int(np.count_nonzero(~inside)), 0
+        kept = []
+        block_of = (r0s // block_px) * (dom.width // block_px + 1) + c0s // block_px
+        for b in np.unique(block_of[inside]):
+            sel = np.flatnonzero(inside & (block_of == b))
+            br0, bc0 = int(r0s[sel].min()), int(c0s[sel].min())
+            w = Window(bc0, br0, int(c0s[sel].max()) + n - bc0, int(r0s[sel].max()) + n - br0)
+            shape = (int(w.height), int(w.width))
+            with _reading(dom_path, "DOM"):
+                ok = dom.read_masks(1, window=w) > 0
+                grey = dom.read(bands, window=w).astype(np.float32).mean(axis=0)
+            with _reading(reference_path, "reference orthophoto"):
+                refimg, refok = _on_grid(ref, dom.window_transform(w), shape, dom.crs, Resampling.average,
+                                         operation=reference_operation)
+            ref_grey = refimg.mean(axis=0)
+            for i in sel:
+                r, c = int(r0s[i]) - br0, int(c0s[i]) - bc0
+                pv, rv = ok[r:r + n, c:c + n], refok[r:r + n, c:c + n]
+                if pv.mean() < ROOF_MIN_VALID or rv.mean() < ROOF_MIN_VALID:
+                    outside += 1
+                    continue
+                a = grey[r:r + n, c:c + n].astype(np.float64)
+                a[~pv] = a[pv].mean()  # nodata (cells no frame sees) neutral
+                g = ref_grey[r:r + n, c:c + n].astype(np.float64)
+                g[~rv] = g[rv].mean()
+                (dx, dy), response = cv2.phaseCorrelate(g, a, win)
+                if response < ROOF_MIN_RESPONSE:
+                    weak += 1
+                    continue
+                kept.append((x_m[i], y_m[i], dx * res, -dy * res))  # DOM minus reference: east, north
+    k = np.array(kept, float).reshape(-1, 4)
+    return RoofDisplacements(k[:, 0], k[:, 1], k[:, 2], k[:, 3], len(x_m), outside, weak, patch_m)
+
+
+def roof_statistics(roofs: RoofDisplacements, res_m: float, source: str) -> dict:
+    """The report's ``roofs`` row: ``displacement_statistics`` of the measured patches (RMS and median in metres
+    and GSD, count), with where the corners came from and how many were not measured."""
+    stats = displacement_statistics(roofs.de_m, roofs.dn_m, res_m)
+    if stats["count"]:
+        stats["median_xy_gsd"] = stats["median_xy_m"] / res_m
+    stats.update(corners=roofs.corners, corners_from=source, patch_m=roofs.patch_m,
+                 not_measured={"outside_or_invalid": roofs.outside_or_invalid, "weak": roofs.weak})
+    return stats
+
+
 MAX_LISTED = 20000  # patches listed in the report and drawn in its plot
 
 
@@ -430,8 +600,15 @@ def _same_file(a: Path, b: Path) -> bool:
 
 
 def run_check(project_root, settings: CheckSettings | Resolved | None = None, *, reference_path=None, points_path=None,
-              dom_path=None, out_stem=None, seams: bool = True, params=None, allow_ballpark: bool = False) -> dict:
+              dom_path=None, out_stem=None, seams: bool = True, params=None, allow_ballpark: bool = False,
+              roof_corners_path=None) -> dict:
     """The ``ortho check`` report: displacement statistics (+ per-seam misalignment when seamlines exist).
+
+    With a reference orthophoto, open ground (``displacement``: NCC patches, nDSM <= max_ndsm_m with an nDSM) and,
+    when roofs can be located, roofs (``roofs``: a patch on every roof corner, ``measure_roof_patches``): the corners
+    of ``roof_corners_path`` (a CSV with x, y columns, e.g. truth/roof_corners.csv), else the outline corners of
+    the buildings of the nDSM (``roof_corners_from_ndsm``). The roofs row means "roofs in place" only against a
+    true orthophoto as the reference (roofs where they stand, as the simulator's truth/ortho.tif).
 
     ``settings``: None reads [dom_check] of project.toml (a folder without project.toml: the defaults); a
     ``Resolved`` (``ortho check``, the chain) carries the source of every setting into the report (``settings``).
@@ -458,7 +635,11 @@ def run_check(project_root, settings: CheckSettings | Resolved | None = None, *,
     out_stem = Path(out_stem) if out_stem else root / "ortho" / "dom_report"
     for suffix in (".json", ".png"):
         refuse_input_as_output(out_stem.with_suffix(suffix), [dom_path, reference_path, points_path, ndsm_path,
-                                                              root / "ortho" / "mosaic.json"], "--out")
+                                                              roof_corners_path, root / "ortho" / "mosaic.json"], "--out")
+    if roof_corners_path is not None and reference_path is None:
+        raise OptionError("the roofs are measured against a reference orthophoto: give --reference with --roof-corners",
+                          param="--roof-corners")
+    corners = read_roof_corners(roof_corners_path) if roof_corners_path is not None else None
     paths = project_paths(root)
     seams = seams and paths.seamlines_path.exists() and paths.frames_index_path.exists()
     # a DOM made from frames of an older adjustment is refused (the mosaic, and the seams measured on the frames)
@@ -493,6 +674,11 @@ def run_check(project_root, settings: CheckSettings | Resolved | None = None, *,
                                for r, c, a, b, n in zip(listed.row_px, listed.col_px, listed.de_m, listed.dn_m,
                                                         listed.ncc)])
 
+        roofs = _roofs_row(dom_path, reference_path, ref_op, corners, roof_corners_path, ndsm_path, ndsm_op, res,
+                           dom_bounds, dom_crs)
+        if roofs is not None:
+            report["roofs"] = roofs
+
         def plot():
             plot_displacements(out_stem.with_suffix(".png"), listed, stats, f"DOM - reference ({Path(dom_path).name})",
                                extent_px=max(w, h))
@@ -514,3 +700,23 @@ def run_check(project_root, settings: CheckSettings | Resolved | None = None, *,
     report["settings"] = resolved.record()
     write_json(out_stem.with_suffix(".json"), report)
     return report
+
+
+def _roofs_row(dom_path, reference_path, ref_op, corners, corners_path, ndsm_path, ndsm_op, res_m, dom_bounds,
+               dom_crs) -> dict | None:
+    """(``run_check``) the report's ``roofs`` row: at the given roof corners, else at those of the nDSM's buildings;
+    None when neither is at hand."""
+    if corners is not None:
+        xs, ys = corners
+        source = str(corners_path)
+    elif ndsm_path is not None:
+        if ndsm_op is not None:
+            return {"count": 0, "why": f"the nDSM {ndsm_path} is in another CRS than the DOM: roofs are found only in an "
+                                       "nDSM of the DOM's CRS (give the roof corners with --roof-corners)"}
+        xs, ys = roof_corners_from_ndsm(ndsm_path, dom_bounds, dom_crs)
+        source = (f"nDSM {ndsm_path}: outline corners of objects above {ROOF_HEIGHT_M:g} m and of at least "
+                  f"{ROOF_MIN_AREA_M2:g} m2")
+    else:
+        return None
+    measured = measure_roof_patches(dom_path, reference_path, xs, ys, reference_operation=ref_op)
+    return roof_statistics(measured, res_m, source)

@@ -91,12 +91,16 @@ def dem(project, res_m, min_rays, out):
 @click_option(MosaicSettings, "feather_m", "--feather-m")
 @click_option(MosaicSettings, "balance", "--balance/--no-balance")
 @click_option(MosaicSettings, "tile_px", "--tile-px")
+@click.option("--seamlines", "seamlines", type=click.Path(path_type=Path),
+              help="edited seamlines: a GeoPackage of one polygon per frame (field 'frame'), as ortho/seamlines.gpkg; "
+                   "its polygons are the seams (checked for gaps, overlaps and frames that do not cover them)")
 @click.option("--crs", "crs", help="the product CRS the frames must be in (as given to ortho rectify); the mosaic never "
                                     "resamples twice, so frames in another CRS are refused [the frames' CRS]")
 @scheduler_options
-def mosaic(project, crs, scheduler, workers, **_settings_given):
-    """Seamlines, blending and radiometric balancing into ortho/mosaic.tif (COG) and ortho/seamlines.geojson;
-    one Dask task per output tile.
+def mosaic(project, crs, seamlines, scheduler, workers, **_settings_given):
+    """Seamlines, blending and radiometric balancing into ortho/mosaic.tif (COG), ortho/seamlines.geojson and
+    ortho/seamlines.gpkg (one polygon per frame, to edit and give back with --seamlines); one Dask task per output
+    tile.
 
     Settings: the defaults, then project.toml [mosaic], then the options given here (ortho/mosaic.json lists
     each with where it came from)."""
@@ -106,7 +110,7 @@ def mosaic(project, crs, scheduler, workers, **_settings_given):
     if crs is not None:
         require_frames_crs(project, crs)
     with executor_for(scheduler, workers) as executor:
-        info = mosaic_block(project, _settings(MosaicSettings, project), executor=executor)
+        info = mosaic_block(project, _settings(MosaicSettings, project), executor=executor, seamlines=seamlines)
     click.echo(f"mosaic {info['width']} x {info['height']} px of {info['frames']} frames -> {info['path']}")
 
 
@@ -116,6 +120,9 @@ def mosaic(project, crs, scheduler, workers, **_settings_given):
 @click.option("--points", "points_path", type=click.Path(path_type=Path),
               help="CSV id,x,y,x_dom,y_dom: surveyed points and their positions measured in the DOM")
 @click.option("--dom", "dom_path", type=click.Path(path_type=Path), help="DOM to check [ortho/mosaic.tif]")
+@click.option("--roof-corners", "roof_corners_path", type=click.Path(path_type=Path),
+              help="CSV with x,y columns: roof corners where the roofs are measured against a true-ortho --reference "
+                   "[the outline corners of the nDSM's buildings]")
 @click_option(CheckSettings, "ndsm", "--ndsm")
 @click_option(CheckSettings, "max_ndsm_m", "--max-ndsm-m")
 @click_option(CheckSettings, "patch_px", "--patch-px")
@@ -124,7 +131,8 @@ def mosaic(project, crs, scheduler, workers, **_settings_given):
 @click.option("--params", "params_path", type=click.Path(dir_okay=False, path_type=Path),
               help="datum parameter file ('aerotri crs fit') relating the reference's CRS and the DOM's")
 @click.option("--allow-ballpark", is_flag=True, help="accept PROJ's ballpark operation between the two CRSs")
-def check(project, reference_path, points_path, dom_path, out_stem, params_path, allow_ballpark, **_settings_given):
+def check(project, reference_path, points_path, dom_path, roof_corners_path, out_stem, params_path, allow_ballpark,
+          **_settings_given):
     """DOM accuracy against a reference orthophoto (NCC patches) or surveyed points; JSON and a plot.
 
     Settings: the defaults, then project.toml [dom_check] (a folder with one), then the options given here."""
@@ -136,8 +144,11 @@ def check(project, reference_path, points_path, dom_path, out_stem, params_path,
     has_project = (Path(project) / "project.toml").is_file()
     settings = _settings(CheckSettings, project) if has_project else resolve(CheckSettings, None, click.get_current_context())
     report = run_check(project, settings, reference_path=reference_path, points_path=points_path, dom_path=dom_path,
-                       out_stem=out_stem, params=params_path, allow_ballpark=allow_ballpark)
+                       out_stem=out_stem, params=params_path, allow_ballpark=allow_ballpark,
+                       roof_corners_path=roof_corners_path)
     click.echo(_check_line(report, "patches" if reference_path else "points"))
+    if "roofs" in report:
+        click.echo(_roofs_line(report["roofs"]))
 
 
 def _check_line(report: dict, what: str) -> str:
@@ -146,3 +157,11 @@ def _check_line(report: dict, what: str) -> str:
         return f"no usable {what} -> {report['json']}"
     return (f"{s['count']} {what}: RMS {s['rms_xy_m']:.3f} m ({s['rms_xy_gsd']:.2f} GSD), max {s['max_xy_m']:.3f} m "
             f"-> {report['json']}")
+
+
+def _roofs_line(r: dict) -> str:
+    if not r.get("count"):
+        why = r.get("why") or f"{r.get('corners', 0)} roof corners, none measurable"
+        return f"roofs: none measured ({why})"
+    return (f"roofs: {r['count']} of {r['corners']} corners: RMS {r['rms_xy_m']:.3f} m ({r['rms_xy_gsd']:.2f} GSD), "
+            f"median {r['median_xy_m']:.3f} m ({r['median_xy_gsd']:.2f} GSD)")

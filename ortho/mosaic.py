@@ -7,7 +7,9 @@ Steps (``mosaic_block``):
    rows on all cores (memory set by the strip, not the frame).
 2. Seamlines on the seam grid (``ortho.seamlines``): nearest-nadir Voronoi, then least-cost seams
    avoiding objects of the nDSM and image differences. Written as ``seamlines.geojson`` (one polygon
-   per frame plus the seam lines between neighbours) and the label raster ``seams.tif``.
+   per frame plus the seam lines between neighbours), ``seamlines.gpkg`` (one polygon per frame with its ``frame``
+   name, for editing in QGIS: ``ortho.seamlines_gpkg``) and the label raster ``seams.tif``. With edited seamlines
+   (``seamlines=``, ``ortho mosaic --seamlines EDITED.gpkg``) their polygons, checked, are the seams.
 3. Gain balancing: per band, log-gains g_k minimising sum over overlapping pairs of
    n_ij (log m_i + g_i - log m_j - g_j)^2 + lambda sum g_k^2, with m_i the mean of frame i over the
    common overlap (linear least squares, normal equations: n frames, not n^2 pairs, in memory).
@@ -29,7 +31,7 @@ thread writes, no float64 intermediates. The tile order, the tile results and so
 on the scheduler or the number of threads.
 
 The frames are checked against ``ortho/frames/index.json`` first (sizes and hashes), the tile size
-against the memory; seams.tif, seamlines.geojson, mosaic.tif and mosaic.json (which records the index
+against the memory; seams.tif, seamlines.geojson, seamlines.gpkg, mosaic.tif and mosaic.json (which records the index
 it was made from) are made in a work folder and moved into ``ortho/`` together at the end.
 
 Step 4 runs on local threads (``executor`` None, local threads, synchronous) or, on a Dask cluster, as
@@ -72,6 +74,7 @@ from ortho.block import (index_grids, index_operation, operation_tags, read_inde
                          verify_index)
 from ortho.grid import OrthoGrid
 from ortho.settings import MosaicSettings
+from ortho.seamlines_gpkg import write_seamlines_gpkg
 from ortho.seamlines import (keep_objects_whole, label_polygons, least_cost_seams, neighbour_pairs, seam_lines,
                              voronoi_labels)
 
@@ -360,8 +363,11 @@ def _write_labels(path, labels, transform, crs):
 
 def mosaic_block(root, settings: MosaicSettings | Resolved | None = None, *, object_height_m: float = 2.5,
                  max_seam_cells: float = 5e7, end_reach_m: float = 30.0, seam_cell_m: float = 1.5,
-                 executor=None) -> dict:
+                 executor=None, seamlines=None) -> dict:
     """``ortho mosaic``: see the module doc. Returns a summary dict.
+
+    ``seamlines``: an edited seamlines GeoPackage (``ortho/seamlines.gpkg`` as a run writes it, edited in QGIS) whose
+    polygons replace the seams the run would route (checked first: ``ortho.seamlines_gpkg``).
 
     ``settings``: None reads [mosaic] of project.toml; a ``Resolved`` (``ortho mosaic``, the chain) carries the
     source of every setting into mosaic.json (``settings``). The output tiles are blended as tasks on
@@ -370,10 +376,11 @@ def mosaic_block(root, settings: MosaicSettings | Resolved | None = None, *, obj
     of the stage starts: ``aerotri.core.gdal_cache``)."""
     with stage_block_cache(MOSAIC_CACHE_BYTES):
         return _mosaic_block(root, settings, object_height_m=object_height_m, max_seam_cells=max_seam_cells,
-                             end_reach_m=end_reach_m, seam_cell_m=seam_cell_m, executor=executor)
+                             end_reach_m=end_reach_m, seam_cell_m=seam_cell_m, executor=executor, seamlines=seamlines)
 
 
-def _mosaic_block(root, settings, *, object_height_m, max_seam_cells, end_reach_m, seam_cell_m, executor) -> dict:
+def _mosaic_block(root, settings, *, object_height_m, max_seam_cells, end_reach_m, seam_cell_m, executor,
+                  seamlines=None) -> dict:
     root = Path(root)
     timer = _PhaseTimer()
     resolved = settings_of(settings, MosaicSettings, Project.open(root) if settings is None else None)
@@ -383,6 +390,15 @@ def _mosaic_block(root, settings, *, object_height_m, max_seam_cells, end_reach_
         raise OptionError(f"{tile_px!r}: expected a tile size of at least {MIN_TILE_PX} px", param="--tile-px")
     if feather_m is not None and not (math.isfinite(feather_m) and feather_m >= 0):
         raise OptionError(f"{feather_m!r}: expected a feather width >= 0 m", param="--feather-m")
+    if seamlines is not None:
+        if not Path(seamlines).is_file():
+            raise InputError(f"{seamlines}: edited seamlines not found (--seamlines)")
+        # the run rewrites ortho/seamlines.gpkg: an edited copy, never the file itself, is its input
+        out = root / "ortho" / "seamlines.gpkg"
+        if out.exists() and os.path.samefile(out, seamlines):
+            raise OptionError(f"{seamlines}: this is the file the mosaic writes (inputs are never modified); edit a "
+                              f"copy of it (e.g. {out.with_name('seamlines_edited.gpkg')}) and give that",
+                              param="--seamlines")
     index = read_index(root)
     frames_dir = root / "ortho" / "frames"
     if not index["frames"]:
@@ -420,13 +436,23 @@ def _mosaic_block(root, settings, *, object_height_m, max_seam_cells, end_reach_
     nadir = np.array([e["nadir_xy_m"] for e in index["frames"]])
     nadir_rc = np.stack([(mosaic.y_top_m - nadir[:, 1]) / (res * factor) - 0.5,
                          (nadir[:, 0] - mosaic.x_left_m) / (res * factor) - 0.5], axis=1)
-    labels = voronoi_labels(red.valid, red.offsets, nadir_rc, red.shape)
-    if seams == "least-cost":
+    edited = None
+    if seamlines is not None:  # the user's polygons, checked whole before anything is written
+        from ortho.seamlines_gpkg import read_edited_seamlines
+
+        edited = read_edited_seamlines(seamlines, red.names, mosaic.crs, red.shape, red.transform, red.valid,
+                                       red.offsets)
+        labels = edited.labels
+    else:
+        labels = voronoi_labels(red.valid, red.offsets, nadir_rc, red.shape)
+    if seams == "least-cost" and edited is None:
         # a seam end may slide along the overlap border by up to end_reach_m to get round a building
         labels = least_cost_seams(labels, red.valid, red.offsets, red.gray_of, objects,
                                   end_reach_cells=end_reach_m / (res * factor))
         if objects is not None:
             labels = keep_objects_whole(labels, objects, red.valid, red.offsets)
+    if edited is not None:
+        seams = f"edited ({edited.path})"
     timer.done("seams")
     gains = balance_gains(red) if balance else np.ones((len(red.names), red.rgb[0].shape[2]))
     # colour that does not clip: no gain saturates more of a frame than the frame has saturated itself
@@ -436,6 +462,9 @@ def _mosaic_block(root, settings, *, object_height_m, max_seam_cells, end_reach_
                        "the frame itself (%.2f %%; the gain would have saturated %.2f %%)", red.names[k], b + 1, g0, g1,
                        100 * own, 100 * would)
     timer.done("gains")
+    # edited seamlines: the tiles their change does not reach are taken from the mosaic they were edited on
+    previous = previous_mosaic(root, index, red.names, labels, gains, feather_px, factor, mosaic) \
+        if edited is not None else None
     for name, g in zip(red.names, gains):
         if np.any(np.abs(np.log(g)) > math.log(1.3)):  # beyond exposure differences between frames of one flight
             logger.warning("frame %s needs gains %s to match its neighbours: check its exposure, or how its image "
@@ -445,10 +474,10 @@ def _mosaic_block(root, settings, *, object_height_m, max_seam_cells, end_reach_
     # a failed run leaves the previous seams, seamlines, mosaic and summary together
     with scratch_dir(out_dir, "mosaic") as work:
         outputs = _mosaic_outputs(Path(work), root, index, frames_dir, red, labels, gains, mosaic, factor, nadir,
-                                  feather_px, tile_px, seams, executor, resolved.record())
+                                  feather_px, tile_px, seams, executor, resolved.record(), previous)
         timer.done("blend and COG")
         with commit_outputs(out_dir):  # one commit: all four new, or (a failure, a kill) all as before
-            for name in ("seams.tif", "seamlines.geojson", "mosaic.tif", "mosaic.json"):
+            for name in ("seams.tif", "seamlines.geojson", "seamlines.gpkg", "mosaic.tif", "mosaic.json"):
                 move_into(Path(work) / name, out_dir / name)
     return outputs
 
@@ -525,16 +554,19 @@ def _open_frame(path):
 
 
 def _mosaic_outputs(work: Path, root: Path, index, frames_dir, red, labels, gains, mosaic: OrthoGrid, factor, nadir,
-                    feather_px, tile_px, seams, executor, settings_record: dict) -> dict:
-    """seams.tif, seamlines.geojson, mosaic.tif and mosaic.json into ``work``; returns the summary."""
+                    feather_px, tile_px, seams, executor, settings_record: dict, previous=None) -> dict:
+    """seams.tif, seamlines.geojson, mosaic.tif and mosaic.json into ``work``; returns the summary. ``previous``
+    (``PreviousMosaic``): the mosaic whose tiles away from changed seams are taken over."""
     crs, res = mosaic.crs, mosaic.res_m
     out_dir = root / "ortho"
     _write_labels(work / "seams.tif", labels, red.transform, crs)
     # the seamlines' polygons and lines on a thread while the tiles are blended and written
-    with _background(_write_seamlines, work / "seamlines.geojson", labels, red.transform, red.names, crs) as vectors:
-        _write_mosaic(work / "mosaic.tif", frames_dir, index, mosaic, work / "seams.tif", factor, gains, nadir,
-                      feather_px, tile_px, executor=executor, labels=labels)
+    with _background(_write_seamlines, work / "seamlines.geojson", labels, red.transform, red.names, crs) as vectors, \
+            _background(write_seamlines_gpkg, work / "seamlines.gpkg", labels, red.transform, red.names, crs) as gpkg:
+        tiles = _write_mosaic(work / "mosaic.tif", frames_dir, index, mosaic, work / "seams.tif", factor, gains, nadir,
+                              feather_px, tile_px, executor=executor, labels=labels, previous=previous)
         vectors()
+        gpkg()
     summary = {"path": str(out_dir / "mosaic.tif"), "width": mosaic.width, "height": mosaic.height,
                "frames": len(red.names), "res_m": res, "seam_factor": factor, "seams": seams, "feather_px": feather_px,
                "index_sha1": index_sha1(root),
@@ -542,6 +574,10 @@ def _mosaic_outputs(work: Path, root: Path, index, frames_dir, red, labels, gain
                "pairs": [[red.names[i], red.names[j]] for i, j in neighbour_pairs(labels)],
                **_interior_nodata(work / "mosaic.tif", res),
                "settings": settings_record}
+    if previous is not None:
+        summary["tiles"] = tiles
+        logger.info("edited seamlines: %d of %d tiles blended, %d taken over from the earlier mosaic%s", tiles["blended"],
+                    tiles["total"], tiles["taken_over"], f" ({previous.why_all})" if previous.why_all else "")
     if summary["cells_seen_by_no_frame"]:
         logger.warning("%d cells (%.2f %% of the block) are seen by no frame (occluded in every frame of a true ortho, "
                        "or over DEM nodata): nodata in the mosaic", summary["cells_seen_by_no_frame"],
@@ -832,12 +868,14 @@ def _blend_tile(ctx: _BlendContext, readers, r0: int, c0: int, th: int, tw: int)
 
 
 def _write_mosaic(path, frames_dir, index, mosaic: OrthoGrid, seams_path, factor, gains, nadir, feather_px, tile_px,
-                  executor=None, labels=None):
+                  executor=None, labels=None, previous=None) -> dict:
     """Blend the output tiles into a tiled stage GeoTIFF and its overviews, then copy those to the COG
     (module doc, step 5). On local threads (or synchronous) the tiles are computed ahead of this thread,
     which writes them in tile order (``labels``: the seam labels in memory, else read from ``seams_path``);
     on a Dask cluster in batches of a few tiles per worker (the tasks read their windows of
-    ``seams_path``). Memory is bounded by the tiles in flight, not by the mosaic."""
+    ``seams_path``). Memory is bounded by the tiles in flight, not by the mosaic. ``previous``
+    (``PreviousMosaic``, local threads only): tiles whose seam cells and halo did not change are read from it
+    instead of blended. Returns the counts of tiles blended and taken over."""
     from aerotri.core.executor import local_executor
     from ortho.rectify import ordered_thread_map
 
@@ -877,6 +915,8 @@ def _write_mosaic(path, frames_dir, index, mosaic: OrthoGrid, seams_path, factor
         tiles = [(r0, c0, min(tile_px, mosaic.height - r0), min(tile_px, mosaic.width - c0))
                  for r0 in range(0, mosaic.height, tile_px) for c0 in range(0, mosaic.width, tile_px)]
         stage = tmp_dir / "stage.tif"
+        counts = {"taken_over": 0}
+        stack = contextlib.ExitStack()
         pyramid = _Pyramid(tmp_dir, mosaic, bands, dtype, levels, per_tile=tile_px % 2 == 0)
         readers = _FrameReaders()
         made = None
@@ -894,7 +934,21 @@ def _write_mosaic(path, frames_dir, index, mosaic: OrthoGrid, seams_path, factor
                 made = results()
             else:
                 threads = 1 if executor.scheduler == "synchronous" else max(1, executor.workers)
-                made = ordered_thread_map(lambda t: _blend_tile(ctx, readers, *t), tiles, threads)
+                if previous is not None and not previous.why_all:
+                    old = stack.enter_context(rasterio.open(previous.mosaic_path))
+                    lock = threading.Lock()
+
+                    def tile(t):
+                        if previous.touched(*t, halo, factor):
+                            return _blend_tile(ctx, readers, *t)
+                        w = Window(t[1], t[0], t[3], t[2])
+                        with lock:  # one dataset, read by the tile threads in turn
+                            counts["taken_over"] += 1
+                            return old.read(window=w), old.read_masks(1, window=w) > 0
+                else:
+                    def tile(t):
+                        return _blend_tile(ctx, readers, *t)
+                made = ordered_thread_map(tile, tiles, threads)
             with rasterio.open(stage, "w", **profile) as dst, progress(len(tiles), "mosaic", "tiles") as bar:
                 dst.colorinterp = colorinterp
                 for (r0, c0, th, tw), (out, valid) in zip(tiles, made):
@@ -907,6 +961,7 @@ def _write_mosaic(path, frames_dir, index, mosaic: OrthoGrid, seams_path, factor
             if made is not None:  # the tile threads end before their frame datasets are closed
                 made.close()
             readers.close()
+            stack.close()
         timer.done("tiles")
         pyramid.finish(stage)
         timer.done("overviews")
@@ -916,6 +971,51 @@ def _write_mosaic(path, frames_dir, index, mosaic: OrthoGrid, seams_path, factor
         with atomic_path(path) as tmp:
             rasterio.shutil.copy(vrt, tmp, **COG_OPTIONS)
         timer.done("COG")
+    if previous is not None and executor.distributed:
+        previous.why_all = "the tiles run as Dask tasks: every tile blended"
+    return {"total": len(tiles), "blended": len(tiles) - counts["taken_over"], "taken_over": counts["taken_over"],
+            **({"why_all_blended": previous.why_all} if previous is not None and previous.why_all else {})}
+
+
+@dataclasses.dataclass
+class PreviousMosaic:
+    """The mosaic an edited run starts from (``ortho/mosaic.tif`` of the same frames, gains, feather and seam grid) and
+    the seam cells whose label the edit changed; ``why_all``: why every tile is blended all the same."""
+
+    mosaic_path: Path
+    changed: np.ndarray  # bool, seam grid
+    why_all: str | None = None
+
+    def touched(self, r0: int, c0: int, th: int, tw: int, halo: int, factor: int) -> bool:
+        """Whether the tile's seam cells with its halo (those ``_blend_tile`` reads) hold a changed cell."""
+        if self.why_all:
+            return True
+        sh, sw = self.changed.shape
+        lr0, lr1 = min(max((r0 - halo) // factor, 0), sh - 1), min(max((r0 + th + halo - 1) // factor, 0), sh - 1)
+        lc0, lc1 = min(max((c0 - halo) // factor, 0), sw - 1), min(max((c0 + tw + halo - 1) // factor, 0), sw - 1)
+        return bool(self.changed[lr0:lr1 + 1, lc0:lc1 + 1].any())
+
+
+def previous_mosaic(root: Path, index, names, labels, gains, feather_px, factor, mosaic: OrthoGrid) -> PreviousMosaic:
+    """The mosaic in ``ortho/`` when the edited run would blend its tiles the same away from the edit: made from the
+    same frames (index.json sha1), with the same gains, feather and seam grid; else every tile is blended
+    (``why_all`` says why)."""
+    out = root / "ortho"
+    old_path, seams_path, summary_path = out / "mosaic.tif", out / "seams.tif", out / "mosaic.json"
+    none = np.ones(labels.shape, bool)
+    if not (old_path.is_file() and seams_path.is_file() and summary_path.is_file()):
+        return PreviousMosaic(old_path, none, "no earlier mosaic in ortho/")
+    old = read_json(summary_path)
+    same = (old.get("index_sha1") == index_sha1(root) and old.get("seam_factor") == factor
+            and old.get("feather_px") == feather_px and (old.get("width"), old.get("height")) == (mosaic.width, mosaic.height)
+            and old.get("gains") == {n: [float(v) for v in g] for n, g in zip(names, gains)})
+    if not same:
+        return PreviousMosaic(old_path, none, "the earlier mosaic was made from other frames, gains, feather or seam grid")
+    with rasterio.open(seams_path) as sds:
+        old_labels = sds.read(1)
+    if old_labels.shape != labels.shape:
+        return PreviousMosaic(old_path, none, "the earlier seam grid differs")
+    return PreviousMosaic(old_path, old_labels != labels)
 
 
 def _stage_profile(mosaic: OrthoGrid, bands: int, dtype) -> dict:

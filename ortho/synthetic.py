@@ -220,7 +220,7 @@ def write_synthetic_project(root, strips: int = 2, frames_per_strip: int = 3, bu
     north-south (image rows along track), 60 % forward and about 33 % side overlap. Frames are rendered
     from the truth orthophoto on the DSM (buildings lean in the images). Writes project.toml,
     camera.toml, at/eo.txt (= truth), images/, lidar_out/dem.tif + ndsm.tif, truth/{eo.txt, dem.tif,
-    dsm.tif, ortho.tif}. Returns a dict of paths and the truth (buildings, grid).
+    dsm.tif, ortho.tif, roof_corners.csv}. Returns a dict of paths and the truth (buildings, grid).
     """
     from pathlib import Path
 
@@ -269,4 +269,8 @@ def write_synthetic_project(root, strips: int = 2, frames_per_strip: int = 3, bu
     write_geotiff(root / "lidar_out" / "ndsm.tif", dsm.heights_m - dem.heights_m, dem.x_left_m, dem.y_top_m, dem.res_m, crs)
     write_geotiff(root / "truth" / "ndsm.tif", dsm.heights_m - dem.heights_m, dem.x_left_m, dem.y_top_m, dem.res_m, crs)
     write_geotiff(root / "truth" / "ortho.tif", ortho_truth, grid.x_left_m, grid.y_top_m, res_m, crs)
+    # the roof corners (as the simulator's truth/roof_corners.csv): where the DOM check measures the roofs
+    write_text_atomic(root / "truth" / "roof_corners.csv", "id,x,y,z\n" + "".join(
+        f"B{k + 1:03d}_{j + 1},{x:.3f},{y:.3f},{z:.3f}\n" for k, (x0, y0, x1, y1, z) in enumerate(boxes)
+        for j, (x, y) in enumerate(((x0, y0), (x1, y0), (x1, y1), (x0, y1)))))
     return {"root": root, "camera": camera, "eo": eo, "buildings": boxes, "res_m": res_m, "truth_grid": grid}

@@ -133,6 +133,7 @@ class TiePointDemResult(StageResult):
 class RectifyResult(StageResult):
     frames: int
     res_m: float
+    ortho: str  # "true (DSM)" or "conventional (DEM)"
 
 
 @dataclasses.dataclass(frozen=True, kw_only=True)
@@ -143,11 +144,15 @@ class MosaicResult(StageResult):
 
 @dataclasses.dataclass(frozen=True, kw_only=True)
 class DomCheckResult(StageResult):
-    """The DOM check: plan RMS of the patch displacements (metres, GSD) and the patches measured."""
+    """The DOM check: plan RMS of the patch displacements (metres, GSD) and the patches measured, on open ground
+    and, when measured, on roofs."""
 
     rms_xy_m: float | None = None
     rms_xy_gsd: float | None = None
     count: int | None = None
+    roofs_rms_xy_m: float | None = None  # the roofs row, when the check measured roofs
+    roofs_rms_xy_gsd: float | None = None
+    roofs_count: int | None = None
 
 
 @dataclasses.dataclass(frozen=True, kw_only=True)

@@ -4,7 +4,8 @@ LiDAR strips (lidar/) -> strip check (how overlapping strips disagree in height,
 ``[strips] adjust = true`` the strip adjustment, and the corrected strips go on) -> classify (the strips together, by tiles, no merged file; one classified
 copy per strip in lidar_out/classified/) -> rasters -> roof corners; images -> tie points -> first
 adjustment (tie points + GNSS) -> control transfer of the LiDAR corners -> final adjustment ->
-rectification on the DEM -> mosaic -> optional checks -> accuracy report.
+rectification (a true ortho on the DSM whenever there is one: lidar_out/dsm.tif or [rectify] dsm, unless
+``[rectify] true_ortho = false``; else on the DEM) -> mosaic -> optional checks -> accuracy report.
 
 Every stage calls its library function and returns its key numbers for the summary as a frozen record
 (``aerotri.chain.results``: one ``StageResult`` per stage), read from what the library returned or from the
@@ -37,7 +38,7 @@ from aerotri.chain import results as R
 from aerotri.chain.options import ChainSettings, read_options
 from aerotri.chain.runner import Stage
 from aerotri.core.atomic import write_text_atomic
-from aerotri.core.settings import COMMAND_LINE, Resolved, settings_of, to_table
+from aerotri.core.settings import COMMAND_LINE, DEFAULT, PROJECT_TOML, Resolved, settings_of, to_table
 from aerotri.core.project import Project
 
 _log = logging.getLogger(__name__)
@@ -160,6 +161,11 @@ class Chain:
                     "no [adjust] initial_eo")
         return None
 
+    def true_ortho_dsm(self) -> list[Path]:
+        """The DSM the rectify stage reads (none for a conventional ortho)."""
+        s = self.rectify_settings().settings
+        return [Path(s.dsm)] if s.true_ortho and s.dsm is not None else []
+
     def no_dem(self, root=None) -> str | None:
         if self.dem_path() is None:
             return ("no DEM for the orthophotos: no LiDAR strips to make one; give one in project.toml "
@@ -188,6 +194,10 @@ class Chain:
 
             with open_height_raster(given, project_crs(self.project)) as ds:
                 _read_ends(ds, given, "DEM")
+        if self.options.rectify.true_ortho and self.dsm_path() is None:
+            raise ConfigError(f"{self.project.config_path} [rectify] true_ortho = true: no DSM for it (no LiDAR strips "
+                              "to make lidar_out/dsm.tif); give one with [rectify] dsm = \"DSM.tif\" or set "
+                              "true_ortho = false")
         self._check_stage_inputs()
 
     def _check_stage_inputs(self) -> None:
@@ -269,7 +279,7 @@ class Chain:
             Stage("dem", lambda r: [self.project.object_points_path, self.project.eo_path],
                   lambda r: [self.tie_point_dem_path], self.run_tie_point_dem, skip=self.no_tie_point_dem),
             # (the self-calibrated camera in at/report.json changes only with at/eo.txt)
-            Stage("rectify", lambda r: [self.project.eo_path, self.dem_path()] + self.images(),
+            Stage("rectify", lambda r: [self.project.eo_path, self.dem_path()] + self.true_ortho_dsm() + self.images(),
                   lambda r: [self.project.frames_index_path], self.run_rectify,
                   options=lambda r: to_table(self.rectify_settings().settings), skip=self.no_dem),
             Stage("mosaic", lambda r: [self.project.frames_index_path], lambda r: [self.project.mosaic_path],
@@ -560,17 +570,51 @@ class Chain:
                                           f"points ({self.tie_point_dem_path})",))
 
     # -- orthophotos ----------------------------------------------------------------------------
+    def dsm_path(self) -> Path | None:
+        """The DSM of the true ortho: [rectify] dsm, else the LiDAR stages' DSM (lidar_out/dsm.tif, written by the
+        rasters stage), else none."""
+        if self.options.rectify.dsm is not None:
+            return Path(self.options.rectify.dsm)
+        if self.has_lidar:
+            return self.project.dsm_path
+        return None
+
     def rectify_settings(self) -> Resolved:
+        """[rectify] with the chain's defaults: the DEM of ``dem_path``; a true ortho on the DSM whenever there is
+        one (``dsm_path``) and [rectify] true_ortho is not set (``true_ortho = false``: the conventional ortho)."""
         r = self.stage_settings("rectify")
         if r.settings.dem is None and self.dem_path() is not None:
             r = r.replace("dem", self.dem_path(), r.sources.get("dem", "default"), "the LiDAR stages' DEM")
+        dsm = self.dsm_path()
+        if dsm is not None and r.sources.get("true_ortho", DEFAULT) == DEFAULT:
+            r = r.replace("true_ortho", True, "aerotri run", "a DSM exists: the chain makes the true ortho")
+        if r.settings.true_ortho and r.settings.dsm is None and dsm is not None:
+            r = r.replace("dsm", dsm, r.sources.get("dsm", DEFAULT), "the LiDAR stages' DSM")
         return r
 
     def run_rectify(self, root) -> R.RectifyResult:
         from ortho.block import rectify_block
 
-        index = rectify_block(root, self.rectify_settings())
-        return R.RectifyResult(frames=len(index["frames"]), res_m=index["res_m"])
+        settings = self.rectify_settings()
+        index = rectify_block(root, settings)
+        note = self.true_ortho_note(settings)
+        return R.RectifyResult(frames=len(index["frames"]), res_m=index["res_m"],
+                               ortho="true (DSM)" if settings.settings.true_ortho else "conventional (DEM)",
+                               notes=(note,) if note else ())
+
+    def true_ortho_note(self, settings: Resolved) -> str | None:
+        """What the summary and the console say of the true ortho: on (and why) or off with a DSM at hand."""
+        s, source = settings.settings, settings.sources.get("true_ortho", DEFAULT)
+        if s.true_ortho:
+            why = ("the chain's default with a DSM" if source == "aerotri run"
+                   else f"[rectify] true_ortho = true in {self.project.config_path.name}" if source == PROJECT_TOML
+                   else f"true_ortho from the {source}")
+            return (f"true ortho on the DSM {_rel(s.dsm, self.root)} ({why}; occluded cells filled from the frames "
+                    f"that see them; [rectify] true_ortho = false for the conventional ortho on the DEM)")
+        if self.dsm_path() is not None:
+            return (f"conventional ortho on the DEM: [rectify] true_ortho = false (the DSM "
+                    f"{_rel(self.dsm_path(), self.root)} is not used)")
+        return None
 
     def run_mosaic(self, root) -> R.MosaicResult:
         from ortho.mosaic import mosaic_block
@@ -583,8 +627,12 @@ class Chain:
         from ortho.check import read_dom_check, run_check
 
         run_check(root, self.stage_settings("dom_check"), reference_path=self.reference_ortho)
-        d = read_dom_check(self.project.dom_report_path).displacement
-        return R.DomCheckResult(rms_xy_m=d.rms_xy_m, rms_xy_gsd=d.rms_xy_gsd, count=d.count)
+        rep = read_dom_check(self.project.dom_report_path)
+        d, roofs = rep.displacement, rep.roofs
+        return R.DomCheckResult(rms_xy_m=d.rms_xy_m, rms_xy_gsd=d.rms_xy_gsd, count=d.count,
+                                roofs_rms_xy_m=roofs.rms_xy_m if roofs else None,
+                                roofs_rms_xy_gsd=roofs.rms_xy_gsd if roofs else None,
+                                roofs_count=roofs.count if roofs else None)
 
     def run_height_check(self, root) -> R.HeightCheckResult:
         from lidarctl.heights_check import check_heights_file
@@ -609,6 +657,14 @@ class Chain:
 
         rep = write_qa_report(root)
         return R.ReportResult(verdict=rep["overall"], passed=rep["passed"], failed=rep["failed"])
+
+
+def _rel(path, root: Path) -> str:
+    """A path as the project names it: relative to the project folder when inside it."""
+    try:
+        return Path(path).absolute().relative_to(Path(root).absolute()).as_posix()
+    except ValueError:
+        return str(path)
 
 
 def _check_raster(path, what: str) -> None:

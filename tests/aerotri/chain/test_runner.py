@@ -227,3 +227,37 @@ def test_stage_cost_without_memory_figures(tmp_path, monkeypatch):
     assert "cpu_s" in rows[0] and "peak_rss_mb" not in rows[0]
     line = format_summary(rows).splitlines()[1].split()
     assert line[0] == "s" and line[3] == f"{rows[0]['cpu_s']:.1f}" and line[4] == "-"
+
+
+def test_the_rectify_stage_reads_the_dsm_of_the_true_ortho(tmp_path):
+    """Issue 42: with LiDAR strips the rectify stage makes the true ortho on lidar_out/dsm.tif (an input: a new DSM
+    re-runs it) unless [rectify] true_ortho = false; true_ortho = true without any DSM is refused before any stage."""
+    from aerotri.chain.options import read_options
+    from aerotri.chain.stages import Chain
+    from aerotri.core.errors import ConfigError
+    from aerotri.core.project import Project
+
+    toml = '[project]\ncrs = "EPSG:32649"\n'
+    (tmp_path / "project.toml").write_text(toml)
+    (tmp_path / "lidar").mkdir()
+    (tmp_path / "lidar" / "strip_01.las").write_bytes(b"")
+
+    def rectify(extra=""):
+        (tmp_path / "project.toml").write_text(toml + extra)
+        p = Project.open(tmp_path)
+        chain = Chain(p, read_options(p))
+        st = next(s for s in chain.stages() if s.name == "rectify")
+        return chain, set(st.inputs(tmp_path)), st.options_now(tmp_path)
+
+    chain, inputs, options = rectify()
+    assert tmp_path / "lidar_out" / "dsm.tif" in inputs and options["true_ortho"] is True
+    assert chain.rectify_settings().sources["true_ortho"] == "aerotri run"
+    chain, inputs, options = rectify("[rectify]\ntrue_ortho = false\n")
+    assert tmp_path / "lidar_out" / "dsm.tif" not in inputs and options["true_ortho"] is False
+    # no LiDAR: conventional; asked for without a DSM: refused naming project.toml and the key
+    (tmp_path / "lidar" / "strip_01.las").unlink()
+    chain, inputs, options = rectify("[rectify]\ndem = \"dem.tif\"\n")
+    assert options["true_ortho"] is False and options["dsm"] is None
+    chain, _, _ = rectify("[rectify]\ntrue_ortho = true\n")
+    with pytest.raises(ConfigError, match=r"project.toml \[rectify\] true_ortho = true: no DSM"):
+        chain.check_files()

@@ -119,14 +119,20 @@ def test_readme_chain_runs_stage_by_stage(by_hand):
     assert list(runs_without) == ["aerotri adjust"]
 
 
-def test_run_goes_to_the_end_and_equals_the_chain_by_hand(by_hand, tiny_project, tmp_path):
-    with_cal = by_hand[0]
-    p = tmp_path / "p"
+@pytest.fixture(scope="module")
+def run_to_end(tiny_project, tmp_path_factory):
+    """``aerotri run`` over a copy of the tiny project with the DOM and height checks; (project, its table)."""
+    p = tmp_path_factory.mktemp("run") / "p"
     shutil.copytree(tiny_project, p)
     r = CliRunner().invoke(aerotri_cli, ["run", str(p), "--reference", str(p / "truth" / "ortho.tif"),
                                          "--points", str(p / "truth" / "checkpoints.csv")], catch_exceptions=False)
     assert r.exit_code == 0, r.output
-    table = r.stdout
+    return p, r.stdout
+
+
+def test_run_goes_to_the_end_and_equals_the_chain_by_hand(by_hand, run_to_end):
+    with_cal = by_hand[0]
+    p, table = run_to_end
     for stage in ("strips", "classify", "rasters", "corners", "match", "adjust_final", "rectify", "mosaic",
                   "dom_check", "height_check", "report"):
         assert (p / "work" / "stages" / f"{stage}.json").is_file(), stage
@@ -152,6 +158,54 @@ def test_run_goes_to_the_end_and_equals_the_chain_by_hand(by_hand, tiny_project,
     r = CliRunner().invoke(aerotri_cli, ["run", str(p), "--reference", str(p / "truth" / "ortho.tif"),
                                          "--points", str(p / "truth" / "checkpoints.csv")], catch_exceptions=False)
     assert r.exit_code == 0 and " done " not in r.stdout
+
+
+def test_run_makes_the_true_ortho_on_the_lidar_dsm_unless_told_not_to(run_to_end, tmp_path):
+    """Issue 42: with LiDAR (lidar_out/dsm.tif of the rasters stage) the chain's DOM is a true ortho, said in the
+    console and the summary; ``[rectify] true_ortho = false`` re-runs the orthophotos on the DEM (no LiDAR stage, the
+    same orientation), and against the simulator's true orthophoto the roofs of the true ortho are closer."""
+    from ortho.cli import main as ortho_cli
+
+    p0, table = run_to_end
+    index = json.loads((p0 / "ortho" / "frames" / "index.json").read_text())
+    assert index["true_ortho"] and Path(index["dsm"]).resolve() == (p0 / "lidar_out" / "dsm.tif").resolve()
+    assert index["settings"]["true_ortho"]["value"] is True and index["settings"]["true_ortho"]["source"] == "aerotri run"
+    assert "ortho=true (DSM)" in table and "rectify: true ortho on the DSM lidar_out/dsm.tif" in table
+    p = tmp_path / "p"
+    shutil.copytree(p0, p)
+    with open(p / "project.toml", "a") as f:
+        f.write("\n[rectify]\ntrue_ortho = false\n")
+    r = CliRunner().invoke(aerotri_cli, ["run", str(p), "--reference", str(p / "truth" / "ortho.tif"),
+                                         "--points", str(p / "truth" / "checkpoints.csv")], catch_exceptions=False)
+    assert r.exit_code == 0, r.output
+    rows = {line.split()[0]: line for line in r.stdout.splitlines() if line.strip()}
+    for stage in ("classify", "rasters", "match"):
+        assert "up to date" in rows[stage], rows[stage]
+    # (the adjustment reads project.toml, so it runs again) the same orientation: the same frames rectified both ways
+    assert (p / "at" / "eo.txt").read_bytes() == (p0 / "at" / "eo.txt").read_bytes()
+    assert " done " in rows["rectify"] and "ortho=conventional (DEM)" in rows["rectify"]
+    assert "[rectify] true_ortho = false (the DSM lidar_out/dsm.tif is not used)" in r.stdout
+    assert json.loads((p / "ortho" / "frames" / "index.json").read_text())["true_ortho"] is False
+    # the DOM check's roofs row (corners of the nDSM's buildings) against the simulator's true orthophoto
+    tables = {"true": table, "conventional": r.stdout}
+    roofs = {way: json.loads((q / "ortho" / "dom_report.json").read_text())["roofs"]
+             for way, q in (("true", p0), ("conventional", p))}
+    for way, rf in roofs.items():
+        assert rf["count"] >= 0.5 * rf["corners"], (way, rf["not_measured"])
+        assert f"roofs_count={rf['count']}" in tables[way]
+    # measured: 0.60 against 4.74 GSD RMS
+    assert roofs["true"]["rms_xy_gsd"] < 0.3 * roofs["conventional"]["rms_xy_gsd"], roofs
+    # at the simulator's own roof corners (ortho check --roof-corners), same frames: measured 0.96 against 4.87 GSD
+    rms = {}
+    for way, q in (("true", p0), ("conventional", p)):
+        r = CliRunner().invoke(ortho_cli, ["check", str(q), "--reference", str(q / "truth" / "ortho.tif"), "--roof-corners",
+                                           str(q / "truth" / "roof_corners.csv"), "--out", str(tmp_path / way)])
+        assert r.exit_code == 0, r.output
+        rep = json.loads((tmp_path / f"{way}.json").read_text())["roofs"]
+        assert r.stdout.splitlines()[1].startswith(f"roofs: {rep['count']} of {rep['corners']} corners: RMS ")
+        assert rep["count"] >= 0.5 * rep["corners"]
+        rms[way] = rep["rms_xy_gsd"]
+    assert rms["true"] < 1.5 and rms["true"] < 0.3 * rms["conventional"], rms
 
 
 def test_run_without_lidar_makes_the_tie_point_dem_or_uses_a_dem_from_elsewhere(tiny_project, tmp_path):

@@ -1,0 +1,166 @@
+"""Seamlines a user can edit: ``ortho/seamlines.gpkg`` (one polygon per frame, its ``frame`` name, the mosaic's CRS;
+layer ``seamlines``, openable and editable in QGIS), and the edited polygons read back and checked for
+``ortho mosaic --seamlines EDITED.gpkg``.
+
+An edited file is checked whole before the mosaic writes anything (``InputError`` naming the file, the feature and
+the frame; exit 2): every feature names a frame of ``ortho/frames/index.json`` (field ``frame``, or ``image_id``
+as in seamlines.geojson) once, holds a valid polygon in the mosaic's CRS; no two polygons overlap (by more than
+``OVERLAP_TOLERANCE_CELLS`` seam cells); every seam cell some frame sees is inside a polygon (no gap); and every
+polygon lies inside its frame's footprint (the cells its ortho covers, holes of occlusion included, widened by one
+seam cell for the rounding of edited vertices).
+
+The polygons are rasterised onto the mosaic's seam grid (a cell belongs to the polygon holding its centre): the
+seams follow the edited edges to within a seam cell (``seam_factor`` mosaic pixels, about 1.5 m).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from aerotri.core.errors import InputError
+
+LAYER = "seamlines"
+OVERLAP_TOLERANCE_CELLS = 0.5  # overlaps smaller than half a seam cell are rounding of shared vertices
+
+
+@dataclasses.dataclass(frozen=True)
+class EditedSeamlines:
+    """The edited polygons as seam labels: ``labels`` (seam grid, frame index or -1), per frame the feature id it
+    came from, and the changed cells against an earlier labelling (set by the caller)."""
+
+    path: Path
+    labels: np.ndarray
+    feature_of_frame: dict
+
+
+def write_seamlines_gpkg(path, labels: np.ndarray, transform, names: list[str], crs) -> None:
+    """``path`` (a GeoPackage, written whole): layer ``seamlines``, one MultiPolygon per labelled frame with the
+    fields ``frame`` (its image id) and ``area_m2``, in ``crs`` (the mosaic's)."""
+    import pyogrio.raw
+    import shapely
+    from shapely.geometry import shape
+
+    from ortho.seamlines import label_polygons
+
+    features = label_polygons(labels, transform, names)
+    geoms = [shapely.geometry.MultiPolygon([g]) if g.geom_type == "Polygon" else g
+             for g in (shape(f["geometry"]) for f in features)]
+    frames = np.array([f["properties"]["image_id"] for f in features], dtype=object)
+    areas = np.array([f["properties"]["area_m2"] for f in features], dtype=np.float64)
+    pyogrio.raw.write(str(path), shapely.to_wkb(np.array(geoms, dtype=object)), [frames, areas], ["frame", "area_m2"],
+                      layer=LAYER, driver="GPKG", geometry_type="MultiPolygon", crs=crs.to_wkt())
+
+
+def read_edited_seamlines(path, names: list[str], crs, labels_shape, transform, valid: list, offsets: list
+                          ) -> EditedSeamlines:
+    """The polygons of an edited seamlines GeoPackage (or any OGR vector file) as labels on the seam grid
+    (``labels_shape``, ``transform``), checked against the frames (``names``; ``valid``/``offsets``: each frame's
+    valid seam cells and the (row, col) of its first cell) as the module doc says."""
+    import pyogrio
+    import shapely
+    from pyproj import CRS
+    from rasterio import features
+
+    path = Path(path)
+    if not path.is_file():
+        raise InputError(f"{path}: edited seamlines not found (--seamlines)")
+    try:
+        layers = [name for name, _ in pyogrio.list_layers(path)]
+        layer = LAYER if LAYER in layers else layers[0]
+        meta, fids, wkb, fields = pyogrio.raw.read(path, layer=layer, return_fids=True)
+    except Exception as exc:  # pyogrio's errors (DataSourceError, DataLayerError ...) and GDAL's
+        raise InputError(f"{path}: cannot read the edited seamlines ({exc}); expected a GeoPackage as ortho mosaic "
+                         "writes (ortho/seamlines.gpkg)") from None
+    columns = list(meta["fields"])
+    name_field = "frame" if "frame" in columns else "image_id" if "image_id" in columns else None
+    if name_field is None:
+        raise InputError(f"{path}: layer {layer!r} has no field 'frame' naming the frame of each polygon "
+                         f"(fields: {', '.join(columns) or 'none'})")
+    if meta.get("crs") is None:
+        raise InputError(f"{path}: layer {layer!r} has no CRS; expected the mosaic's ({crs.name})")
+    if not CRS.from_user_input(meta["crs"]).equals(crs, ignore_axis_order=True):
+        raise InputError(f"{path}: layer {layer!r} is in {CRS.from_user_input(meta['crs']).name}; expected the "
+                         f"mosaic's CRS ({crs.name}): save the edited layer in it")
+    frame_names = fields[columns.index(name_field)]
+    known = {n: k for k, n in enumerate(names)}
+    geoms = shapely.from_wkb(wkb)
+    feature_of_frame: dict[int, int] = {}
+    polygons = []
+    for fid, name, g in zip(fids, frame_names, geoms):
+        where = f"{path}: feature {fid}"
+        if name is None or name not in known:
+            raise InputError(f"{where}: frame {name!r} is not a frame of the mosaic (ortho/frames/index.json: "
+                             f"{len(names)} frames, e.g. {', '.join(names[:3])})")
+        k = known[name]
+        if k in feature_of_frame:
+            raise InputError(f"{where}: frame {name} has a polygon already (feature {feature_of_frame[k]}); one "
+                             "(multi)polygon per frame: merge them")
+        if g is None or g.is_empty or g.geom_type not in ("Polygon", "MultiPolygon"):
+            raise InputError(f"{where} (frame {name}): expected a polygon, got {'nothing' if g is None else g.geom_type}")
+        if not g.is_valid:
+            raise InputError(f"{where} (frame {name}): invalid polygon ({shapely.is_valid_reason(g)})")
+        feature_of_frame[k] = int(fid)
+        polygons.append((k, g))
+    if not polygons:
+        raise InputError(f"{path}: no polygons in layer {layer!r}")
+    cell_m2 = abs(transform.a * transform.e)
+    tree = shapely.STRtree([g for _, g in polygons])
+    for a, b in zip(*tree.query([g for _, g in polygons], predicate="intersects")):
+        if a < b:
+            area = polygons[a][1].intersection(polygons[b][1]).area
+            if area > OVERLAP_TOLERANCE_CELLS * cell_m2:
+                c = polygons[a][1].intersection(polygons[b][1]).representative_point()
+                raise InputError(f"{path}: the polygons of frames {names[polygons[a][0]]} (feature "
+                                 f"{feature_of_frame[polygons[a][0]]}) and {names[polygons[b][0]]} (feature "
+                                 f"{feature_of_frame[polygons[b][0]]}) overlap by {area:.1f} m2 around "
+                                 f"({c.x:.1f}, {c.y:.1f}); a cell belongs to one frame")
+    labels = features.rasterize(((g, k) for k, g in polygons), out_shape=labels_shape, transform=transform,
+                                fill=-1, dtype="int32")
+    _check_coverage(path, labels, names, feature_of_frame, transform, valid, offsets)
+    return EditedSeamlines(path, labels, {names[k]: fid for k, fid in feature_of_frame.items()})
+
+
+def footprint(valid: np.ndarray) -> np.ndarray:
+    """The cells a frame's ortho covers: its valid seam cells with the holes inside them (occlusion of a true
+    ortho, DEM nodata) filled, widened by one cell (the rounding of edited vertices onto the seam grid)."""
+    outside = np.pad(~valid, 1, constant_values=True).view(np.uint8).copy()
+    cv2.floodFill(outside, None, (0, 0), 2)
+    inside = outside[1:-1, 1:-1] != 2
+    return cv2.dilate(inside.view(np.uint8), np.ones((3, 3), np.uint8)) > 0
+
+
+def _place(a: np.ndarray, off, shape) -> np.ndarray:
+    """A frame's array on the whole seam grid (False outside it)."""
+    out = np.zeros(shape, bool)
+    r0, c0 = off
+    r1, c1 = min(shape[0], r0 + a.shape[0]), min(shape[1], c0 + a.shape[1])
+    out[max(r0, 0):r1, max(c0, 0):c1] = a[max(0, -r0):r1 - r0, max(0, -c0):c1 - c0]
+    return out
+
+
+def _check_coverage(path, labels, names, feature_of_frame, transform, valid, offsets) -> None:
+    """No gap (a cell some frame sees outside every polygon), no polygon beyond its frame's footprint."""
+    seen = np.zeros(labels.shape, bool)
+    for v, off in zip(valid, offsets):
+        seen |= _place(v, off, labels.shape)
+    gap = seen & (labels < 0)
+    if gap.any():
+        n, lab = cv2.connectedComponents(gap.view(np.uint8), connectivity=4)
+        sizes = np.bincount(lab.ravel())[1:]
+        r, c = np.argwhere(lab == 1 + int(np.argmax(sizes)))[0]
+        x, y = transform @ (c + 0.5, r + 0.5)
+        raise InputError(f"{path}: a gap between the polygons: {int(gap.sum())} seam cells "
+                         f"({gap.sum() * abs(transform.a * transform.e):.0f} m2, {n - 1} area(s); the largest around "
+                         f"({x:.1f}, {y:.1f})) that frames see are in no polygon; extend a neighbouring polygon over it")
+    for k, fid in sorted(feature_of_frame.items(), key=lambda kv: kv[1]):
+        beyond = (labels == k) & ~_place(footprint(valid[k]), offsets[k], labels.shape)
+        if beyond.any():
+            r, c = np.argwhere(beyond)[0]
+            x, y = transform @ (c + 0.5, r + 0.5)
+            raise InputError(f"{path}: feature {fid}: frame {names[k]} does not cover its polygon: "
+                             f"{beyond.sum() * abs(transform.a * transform.e):.0f} m2 of it lie outside the frame's "
+                             f"ortho (e.g. at ({x:.1f}, {y:.1f})); move the edge back inside the frame")

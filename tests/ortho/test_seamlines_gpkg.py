@@ -1,0 +1,188 @@
+"""Seamlines a user can edit (issue 42): ``ortho mosaic`` writes ortho/seamlines.gpkg (one polygon per frame, its
+frame name, the mosaic's CRS); ``ortho mosaic --seamlines EDITED.gpkg`` takes the edited polygons after checking
+them (gaps, overlaps, a frame that does not cover its polygon, unknown frames: one line naming the feature, exit 2,
+nothing written) and blends only the tiles the moved edge reaches (the others from the earlier mosaic)."""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import shutil
+
+import numpy as np
+import pyogrio
+import pytest
+import rasterio
+import shapely
+from click.testing import CliRunner
+from rasterio.windows import Window
+
+from ortho.cli import main
+from ortho.synthetic import write_synthetic_project
+
+TILE_PX = 128
+
+
+@pytest.fixture(scope="module")
+def mosaicked(tmp_path_factory):
+    root = tmp_path_factory.mktemp("seamlines") / "p"
+    write_synthetic_project(root, strips=2, frames_per_strip=3, buildings=6, seed=3)
+    for args in (["rectify", str(root)], ["mosaic", str(root), "--tile-px", str(TILE_PX)]):
+        r = CliRunner().invoke(main, args)
+        assert r.exit_code == 0, r.output
+    return root
+
+
+def _read(path):
+    meta, fids, wkb, fields = pyogrio.raw.read(path, return_fids=True)
+    return meta, list(fids), list(fields[list(meta["fields"]).index("frame")]), list(shapely.from_wkb(wkb))
+
+
+def _write(path, names, geoms, crs):
+    geoms = [shapely.MultiPolygon([g]) if g.geom_type == "Polygon" else g for g in geoms]
+    pyogrio.raw.write(str(path), shapely.to_wkb(np.array(geoms, dtype=object)), [np.array(names, dtype=object)],
+                      ["frame"], layer="seamlines", driver="GPKG", geometry_type="MultiPolygon", crs=crs)
+
+
+def _tile_sums(path) -> dict:
+    out = {}
+    with rasterio.open(path) as ds:
+        for r0 in range(0, ds.height, TILE_PX):
+            for c0 in range(0, ds.width, TILE_PX):
+                w = Window(c0, r0, min(TILE_PX, ds.width - c0), min(TILE_PX, ds.height - r0))
+                out[r0, c0] = hashlib.sha1(ds.read(window=w).tobytes() + ds.read_masks(1, window=w).tobytes()).hexdigest()
+    return out
+
+
+def _moved_edge(names, geoms, valid_of):
+    """Frame b takes a 10 x 10 m square of its neighbour a's polygon on their shared edge (inside both frames)."""
+    for i in range(len(geoms)):
+        for j in range(len(geoms)):
+            if i == j:
+                continue
+            shared = geoms[i].boundary.intersection(geoms[j].boundary)
+            if shared.length < 30:
+                continue
+            p = shared.interpolate(0.5, normalized=True)
+            square = shapely.box(p.x - 5, p.y - 5, p.x + 5, p.y + 5)
+            if valid_of(j).contains(square) and valid_of(i).contains(square):
+                moved = list(geoms)
+                moved[i] = geoms[i].difference(square)
+                moved[j] = geoms[j].union(square.intersection(geoms[i].buffer(0)))
+                return moved, square
+    raise AssertionError("no shared edge of 30 m between two frames")
+
+
+def test_mosaic_writes_a_geopackage_of_one_polygon_per_frame(mosaicked):
+    info = pyogrio.read_info(mosaicked / "ortho" / "seamlines.gpkg")
+    index = json.loads((mosaicked / "ortho" / "frames" / "index.json").read_text())
+    assert info["layer_name"] == "seamlines" and info["geometry_type"] == "MultiPolygon" and info["crs"] == "EPSG:32649"
+    meta, fids, names, geoms = _read(mosaicked / "ortho" / "seamlines.gpkg")
+    assert sorted(names) == sorted(e["image_id"] for e in index["frames"])
+    # the polygons tile the block: no overlap, and the same regions as seamlines.geojson
+    total = shapely.union_all(geoms).area
+    assert abs(sum(g.area for g in geoms) - total) < 1e-6 * total
+    gj = json.loads((mosaicked / "ortho" / "seamlines.geojson").read_text())
+    regions = {f["properties"]["image_id"]: shapely.geometry.shape(f["geometry"]) for f in gj["features"]
+               if f["properties"]["kind"] == "frame_region"}
+    for n, g in zip(names, geoms):
+        assert g.symmetric_difference(regions[n]).area < 1e-6 * g.area, n
+
+
+def test_an_edited_edge_changes_only_the_tiles_around_it(mosaicked, tmp_path):
+    root = tmp_path / "p"
+    shutil.copytree(mosaicked, root)
+    before = _tile_sums(root / "ortho" / "mosaic.tif")
+    meta, fids, names, geoms = _read(root / "ortho" / "seamlines.gpkg")
+    # given back unedited: the same mosaic
+    same = tmp_path / "same.gpkg"
+    shutil.copy(root / "ortho" / "seamlines.gpkg", same)
+    r = CliRunner().invoke(main, ["mosaic", str(root), "--tile-px", str(TILE_PX), "--seamlines", str(same)])
+    assert r.exit_code == 0, r.output
+    assert _tile_sums(root / "ortho" / "mosaic.tif") == before
+    tiles = json.loads((root / "ortho" / "mosaic.json").read_text())["tiles"]
+    assert tiles["blended"] == 0 and tiles["taken_over"] == tiles["total"] == len(before)  # nothing changed
+    # one edge moved by up to 5 m: only the tiles within the feather's reach of the moved square change
+    footprints = {}
+    with rasterio.open(root / "ortho" / "seams.tif") as ds:
+        res = ds.res[0]
+
+    def valid_of(k):  # the frame's ortho footprint (its valid cells)
+        if k not in footprints:
+            from rasterio import features
+            with rasterio.open(root / "ortho" / "frames" / f"{names[k]}.tif") as f:
+                m = f.read_masks(1)
+                shapes = [shapely.geometry.shape(g) for g, v in features.shapes(m, mask=m > 0, transform=f.transform)]
+            footprints[k] = shapely.union_all(shapes).buffer(-2 * res)
+        return footprints[k]
+
+    moved, square = _moved_edge(names, geoms, valid_of)
+    edited = tmp_path / "edited.gpkg"
+    _write(edited, names, moved, meta["crs"])
+    r = CliRunner().invoke(main, ["mosaic", str(root), "--tile-px", str(TILE_PX), "--seamlines", str(edited)])
+    assert r.exit_code == 0, r.output
+    after = _tile_sums(root / "ortho" / "mosaic.tif")
+    changed = {k for k in before if before[k] != after[k]}
+    summary = json.loads((root / "ortho" / "mosaic.json").read_text())
+    assert summary["seams"].startswith("edited (")
+    with rasterio.open(root / "ortho" / "mosaic.tif") as ds:
+        t = ds.transform
+        reach = (summary["feather_px"] * 2 + summary["seam_factor"] + 2) * res
+        x0, y0, x1, y1 = square.buffer(reach).bounds
+        c0, r0 = ~t @ (x0, y1)
+        c1, r1 = ~t @ (x1, y0)
+    near = {k for k in before if k[0] < r1 and k[0] + TILE_PX > r0 and k[1] < c1 and k[1] + TILE_PX > c0}
+    assert changed and changed <= near, (changed, near)
+    assert len(changed) < len(before) / 3
+    # only the tiles the moved edge reaches were blended (with its halo: the feather); the others taken over
+    assert 0 < summary["tiles"]["blended"] <= len(near) and summary["tiles"]["taken_over"] == len(before) - summary["tiles"]["blended"]
+    # and the result is the mosaic of blending every tile anew
+    full = tmp_path / "full"
+    shutil.copytree(mosaicked, full)
+    (full / "ortho" / "mosaic.json").unlink()  # no earlier mosaic to take tiles from
+    r = CliRunner().invoke(main, ["mosaic", str(full), "--tile-px", str(TILE_PX), "--seamlines", str(edited)])
+    assert r.exit_code == 0, r.output
+    assert json.loads((full / "ortho" / "mosaic.json").read_text())["tiles"]["taken_over"] == 0
+    assert _tile_sums(full / "ortho" / "mosaic.tif") == after
+    # the new seamlines.gpkg has the moved edge (to a seam cell)
+    _, _, names2, geoms2 = _read(root / "ortho" / "seamlines.gpkg")
+    for n, g in zip(names2, geoms2):
+        k = names.index(n)
+        assert g.symmetric_difference(moved[k]).area < 0.2 * square.area, n
+
+
+@pytest.mark.parametrize("edit, message", [
+    ("unknown", "feature {fid}: frame 'no_such_frame' is not a frame of the mosaic"),
+    ("overlap", "overlap by"),
+    ("gap", "a gap between the polygons"),
+    ("beyond", "feature {fid}: frame {name} does not cover its polygon"),
+    ("twice", "has a polygon already"),
+])
+def test_bad_edits_are_refused_naming_the_feature_and_nothing_is_written(mosaicked, tmp_path, edit, message):
+    root = tmp_path / "p"
+    shutil.copytree(mosaicked, root)
+    meta, fids, names, geoms = _read(root / "ortho" / "seamlines.gpkg")
+    names, geoms = list(names), list(geoms)
+    k = 0
+    fid = fids[k] if edit != "twice" else None
+    if edit == "unknown":
+        names[k] = "no_such_frame"
+    elif edit == "overlap":
+        other = next(i for i in range(len(geoms)) if i != k and geoms[i].touches(geoms[k]))
+        geoms[k] = geoms[k].union(geoms[other].buffer(-1.0).intersection(geoms[k].buffer(8.0)))
+    elif edit == "gap":
+        c = geoms[k].representative_point()
+        geoms[k] = geoms[k].difference(shapely.box(c.x - 4, c.y - 4, c.x + 4, c.y + 4))
+    elif edit == "beyond":
+        geoms[k] = geoms[k].union(geoms[k].envelope.buffer(60.0).difference(shapely.union_all(geoms[1:])))
+    elif edit == "twice":
+        names, geoms = names + [names[k]], geoms + [shapely.box(0, 0, 1, 1)]
+    edited = tmp_path / "edited.gpkg"
+    _write(edited, names, geoms, meta["crs"])
+    stamp = {p.name: p.stat().st_mtime_ns for p in (root / "ortho").iterdir()}
+    r = CliRunner().invoke(main, ["mosaic", str(root), "--seamlines", str(edited)])
+    assert r.exit_code == 2, r.output
+    line = r.output.strip().splitlines()[-1]
+    assert str(edited) in line and message.format(fid=fid, name=names[k]) in line, line
+    assert "Traceback" not in r.output
+    assert {p.name: p.stat().st_mtime_ns for p in (root / "ortho").iterdir()} == stamp
