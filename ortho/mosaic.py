@@ -168,10 +168,7 @@ def _reduce_frame(path, g: OrthoGrid, mosaic: OrthoGrid, factor: int, strip_px: 
             n = min(step, h - s)
             img, ok = read_planar(ds, cc0 * factor - c0, (rc0 + s) * factor - r0, w * factor, n * factor)
             if hist is not None:
-                for b in range(img.shape[0]):
-                    v = img[b][ok]
-                    hist[b] += np.bincount(v >> shift if shift else v, minlength=hist.shape[1])
-                    top_count[b] += np.count_nonzero(v == (1 << bits) - 1)
+                _add_histogram(hist, top_count, img, ok, bits, shift)
             for b in range(img.shape[0]):
                 band = img[b] if img.dtype == keep else img[b].astype(keep)
                 rgb[s:s + n, :, b] = cv2.resize(band, (w, n), interpolation=cv2.INTER_AREA)
@@ -180,6 +177,26 @@ def _reduce_frame(path, g: OrthoGrid, mosaic: OrthoGrid, factor: int, strip_px: 
             bad = cv2.resize((~ok).view(np.uint8).astype(np.float32), (w, n), interpolation=cv2.INTER_AREA)
             valid[s:s + n] = bad < 0.5 / n_px
     return rgb, valid, (rc0, cc0), (None if hist is None else SampleHistogram(hist, top_count, bits))
+
+
+def _add_histogram(hist: np.ndarray, top_count: np.ndarray, img: np.ndarray, ok: np.ndarray, bits: int,
+                   shift: int) -> None:
+    """Add the valid samples of ``img`` (bands, h, w; 8- or 16-bit) to ``hist`` (bands, bins: value >> shift) and
+    those at the type's maximum to ``top_count`` (bands,). OpenCV's masked histogram (one pass, no gathered copy;
+    its float32 counts are exact below 2^24 samples, more go through numpy)."""
+    top = (1 << bits) - 1
+    if ok.size >= 1 << 24:
+        for b in range(img.shape[0]):
+            v = img[b][ok]
+            hist[b] += np.bincount(v >> shift if shift else v, minlength=hist.shape[1])
+            top_count[b] += np.count_nonzero(v == top)
+        return
+    mask = np.ascontiguousarray(ok).view(np.uint8)
+    for b in range(img.shape[0]):
+        h = cv2.calcHist([np.ascontiguousarray(img[b])], [0], mask, [top + 1], [0, top + 1]).ravel()
+        counts = h.astype(np.int64)
+        hist[b] += counts.reshape(hist.shape[1], -1).sum(axis=1) if shift else counts
+        top_count[b] += counts[top]
 
 
 def reduce_frames(frames_dir: Path, index: dict, mosaic: OrthoGrid, factor: int,
@@ -730,7 +747,11 @@ def _blend_tile(ctx: _BlendContext, readers, r0: int, c0: int, th: int, tw: int)
     (away from every seam) gives its window through its gains; otherwise every labelled frame's weight
     is its label mask at full resolution blurred by the feather (sigma = feather / 2), times its validity,
     and pixels no weight reaches (no frame labelled there: the edge of the block) take the valid frame of
-    the nearest nadir point."""
+    the nearest nadir point.
+
+    A frame is read, and its weight computed, only over the box of the tile its weight reaches (the blur's
+    support): the tile's other frames are not decoded there (``_weight_boxes``; the same samples as over the
+    whole tile)."""
     f, halo = ctx.factor, ctx.halo
     sh, sw = ctx.seam_shape
     lr = np.clip(np.arange(r0 - halo, r0 + th + halo) // f, 0, sh - 1)
@@ -742,10 +763,13 @@ def _blend_tile(ctx: _BlendContext, readers, r0: int, c0: int, th: int, tw: int)
     fc, fr = ctx.offsets[:, 0], ctx.offsets[:, 1]
     reads = {}
 
-    def frame(k):
-        if k not in reads:
-            reads[k] = read_planar(readers.get(ctx.files[k]), c0 - int(fc[k]), r0 - int(fr[k]), tw, th)
-        return reads[k]
+    def frame(k, y0=0, y1=th, x0=0, x1=tw):
+        """Frame k's samples and validity over rows y0:y1, columns x0:x1 of the tile."""
+        key = (k, y0, y1, x0, x1)
+        if key not in reads:
+            reads[key] = read_planar(readers.get(ctx.files[k]), c0 + x0 - int(fc[k]), r0 + y0 - int(fr[k]),
+                                     x1 - x0, y1 - y0)
+        return reads[key]
 
     if len(labelled) == 1 and present[0] >= 0:
         k = int(labelled[0])
@@ -753,49 +777,47 @@ def _blend_tile(ctx: _BlendContext, readers, r0: int, c0: int, th: int, tw: int)
         if m.all():  # labelled cells are valid all over (seam grid validity is the minimum over the cell)
             return _apply_gain(ctx, k, img), m
     bands = ctx.bands
-    sigma = max(0.5, ctx.feather_px / 2.0)
     ks = labelled.tolist()
-    # every labelled frame's weight over the tile: its label mask blurred by the feather. With a feather of
-    # a seam cell or more the blur runs on the seam grid and is interpolated (bilinear) to the pixels (the
-    # mask is constant over each cell; a factor^2 smaller blur); a narrower feather is blurred per pixel.
-    if ctx.feather_px >= f:
-        up = (cells.shape[1] * f, cells.shape[0] * f)
-        dr, dc = r0 - rl * f, c0 - cl * f
-        weights = [np.ascontiguousarray(cv2.resize(
-            cv2.GaussianBlur((cells == k).view(np.uint8).astype(np.float32), (0, 0), sigma / f), up,
-            interpolation=cv2.INTER_LINEAR)[dr:dr + th, dc:dc + tw]) for k in ks]
-    else:
-        lab = cells[np.ix_(lr - rl, lc - cl)]
-        weights = [np.ascontiguousarray(cv2.GaussianBlur((lab == k).view(np.uint8).astype(np.float32), (0, 0),
-                                                         sigma)[halo:halo + th, halo:halo + tw]) for k in ks]
+    boxes = _weight_boxes(ctx, cells, ks, r0 - rl * f, c0 - cl * f, lr - rl, lc - cl, th, tw)
     out = np.zeros((bands, th, tw), np.dtype(ctx.dtype))
     valid = np.zeros((th, tw), bool)
     one = np.float32(1.0 - 1e-4)
-    for n, k in enumerate(ks):
+    for k, (y0, y1, x0, x1, wt) in zip(ks, boxes):
         # the weights sum to at most 1 (blurred masks of disjoint labels): where one frame holds all but 1e-4
         # of it the pixel is that frame's sample through its gain, as away from the seams; the blend
         # below only runs in the feather zone
-        sel = weights[n] >= one
+        if wt is None:
+            continue
+        sel = wt >= one
         rows = np.flatnonzero(sel.any(axis=1))
         if not len(rows):
             continue
         ra, rb = int(rows[0]), int(rows[-1]) + 1
-        img, m = frame(k)
+        img, m = frame(k, y0, y1, x0, x1)
         sel = sel[ra:rb] & m[ra:rb]
-        np.copyto(out[:, ra:rb], _apply_gain(ctx, k, img[:, ra:rb]), where=sel[None])
-        valid[ra:rb] |= sel
+        np.copyto(out[:, y0 + ra:y0 + rb, x0:x1], _apply_gain(ctx, k, img[:, ra:rb]), where=sel[None])
+        valid[y0 + ra:y0 + rb, x0:x1] |= sel
     mixed = np.flatnonzero(~valid)
     if len(mixed):
         acc = np.zeros((bands, len(mixed)), np.float32)
         wsum = np.zeros(len(mixed), np.float32)
-        for n, k in enumerate(ks):
-            wk = weights[n].ravel()[mixed]
-            if not wk.any():
+        # position of every mixed pixel in acc and wsum (-1: not mixed)
+        at = np.full(th * tw, -1, np.int32)
+        at[mixed] = np.arange(len(mixed), dtype=np.int32)
+        at = at.reshape(th, tw)
+        for k, (y0, y1, x0, x1, wt) in zip(ks, boxes):
+            if wt is None:
                 continue
-            img, m = frame(k)
-            wk *= m.ravel()[mixed]
-            wsum += wk
-            acc += img.reshape(bands, -1)[:, mixed] * (wk[None] * ctx.gains[k].astype(np.float32)[:, None])
+            pos = at[y0:y1, x0:x1]
+            here = (pos >= 0) & (wt > 0)  # outside the box and where it is 0, the weight adds nothing
+            if not here.any():
+                continue
+            img, m = frame(k, y0, y1, x0, x1)
+            idx = pos[here]
+            wk = wt[here]
+            wk *= m[here]
+            wsum[idx] += wk
+            acc[:, idx] += img[:, here] * (wk[None] * ctx.gains[k].astype(np.float32)[:, None])
         have = wsum > 1e-3
         acc /= np.maximum(wsum, 1e-6)
         flat_out = out.reshape(bands, -1)
@@ -803,8 +825,11 @@ def _blend_tile(ctx: _BlendContext, readers, r0: int, c0: int, th: int, tw: int)
         valid.ravel()[mixed[have]] = True
         need = mixed[~have]
         if len(need):
-            # the valid frame of the nearest nadir point fills pixels no labelled frame reaches
+            # the valid frame of the nearest nadir point fills pixels no labelled frame reaches (read over the
+            # box of those pixels)
             rows, cols = np.divmod(need, tw)
+            ya, yb, xa, xb = int(rows.min()), int(rows.max()) + 1, int(cols.min()), int(cols.max()) + 1
+            inner = (rows - ya) * (xb - xa) + (cols - xa)
             ys = ctx.mosaic.y_top_m - (r0 + rows + 0.5) * ctx.mosaic.res_m
             xs = ctx.mosaic.x_left_m + (c0 + cols + 0.5) * ctx.mosaic.res_m
             best = np.full(len(need), np.inf)
@@ -812,18 +837,68 @@ def _blend_tile(ctx: _BlendContext, readers, r0: int, c0: int, th: int, tw: int)
             over = np.flatnonzero((fc < c0 + tw) & (fc + ctx.sizes[:, 0] > c0) & (fr < r0 + th)
                                   & (fr + ctx.sizes[:, 1] > r0))
             for k in over.tolist():
-                img, m = frame(k)
-                cand = m.ravel()[need]
+                img, m = frame(k, ya, yb, xa, xb)
+                cand = m.ravel()[inner]
                 if not cand.any():
                     continue
                 d = np.hypot(xs - ctx.nadir[k, 0], ys - ctx.nadir[k, 1])
                 better = cand & (d < best)
                 best[better] = d[better]
-                fill[:, better] = img.reshape(bands, -1)[:, need[better]] * ctx.gains[k].astype(np.float32)[:, None]
+                fill[:, better] = img.reshape(bands, -1)[:, inner[better]] * ctx.gains[k].astype(np.float32)[:, None]
             got = np.isfinite(best)
             flat_out[:, need[got]] = _to_type(fill[:, got], ctx.dtype)
             valid.ravel()[need[got]] = True
     return out, valid
+
+
+def _weight_boxes(ctx: _BlendContext, cells: np.ndarray, ks: list, dr: int, dc: int, lr: np.ndarray, lc: np.ndarray,
+                  th: int, tw: int) -> list:
+    """Per labelled frame of ``ks``: (y0, y1, x0, x1, weight (y1 - y0, x1 - x0) float32) over the box of the tile
+    where its weight (its label mask in ``cells`` blurred by the feather) is not 0, or (0, 0, 0, 0, None) where it
+    is 0 all over the tile. ``dr``, ``dc``: the tile's first pixel in the cells' pixel grid; ``lr``, ``lc``: the cell
+    of each pixel of the tile and its halo (row, column of ``cells``).
+
+    With a feather of a seam cell or more the blur runs on the seam grid and is interpolated (bilinear) to the
+    pixels (the mask is constant over each cell; a factor^2 smaller blur); a narrower feather is blurred per pixel.
+    The bilinear interpolation of a cell box is cut from the interpolation of the cells one cell wider than the box
+    on each side (or to the edge of ``cells``): the same values as that of all the cells (a pixel's value depends on
+    its two nearest cells per axis)."""
+    f = ctx.factor
+    sigma = max(0.5, ctx.feather_px / 2.0)
+    nothing = (0, 0, 0, 0, None)
+    out = []
+    if ctx.feather_px >= f:
+        n_r, n_c = cells.shape
+        for k in ks:
+            blur = cv2.GaussianBlur((cells == k).view(np.uint8).astype(np.float32), (0, 0), sigma / f)
+            rows, cols = np.flatnonzero(blur.any(axis=1)), np.flatnonzero(blur.any(axis=0))
+            if not len(rows):
+                out.append(nothing)
+                continue
+            # pixels (of the cells' pixel grid) whose two nearest cells per axis may be in the support
+            a0, a1, b0, b1 = int(rows[0]), int(rows[-1]) + 1, int(cols[0]), int(cols[-1]) + 1
+            y0, y1 = max(dr, (a0 - 1) * f), min(dr + th, (a1 + 1) * f)
+            x0, x1 = max(dc, (b0 - 1) * f), min(dc + tw, (b1 + 1) * f)
+            if y1 <= y0 or x1 <= x0:
+                out.append(nothing)
+                continue
+            s0, s1, t0, t1 = max(0, a0 - 2), min(n_r, a1 + 2), max(0, b0 - 2), min(n_c, b1 + 2)
+            up = cv2.resize(np.ascontiguousarray(blur[s0:s1, t0:t1]), ((t1 - t0) * f, (s1 - s0) * f),
+                            interpolation=cv2.INTER_LINEAR)
+            wt = np.ascontiguousarray(up[y0 - s0 * f:y1 - s0 * f, x0 - t0 * f:x1 - t0 * f])
+            out.append((y0 - dr, y1 - dr, x0 - dc, x1 - dc, wt))
+        return out
+    halo = ctx.halo
+    lab = cells[np.ix_(lr, lc)]
+    for k in ks:
+        w = cv2.GaussianBlur((lab == k).view(np.uint8).astype(np.float32), (0, 0), sigma)[halo:halo + th, halo:halo + tw]
+        rows, cols = np.flatnonzero(w.any(axis=1)), np.flatnonzero(w.any(axis=0))
+        if not len(rows):
+            out.append(nothing)
+            continue
+        y0, y1, x0, x1 = int(rows[0]), int(rows[-1]) + 1, int(cols[0]), int(cols[-1]) + 1
+        out.append((y0, y1, x0, x1, np.ascontiguousarray(w[y0:y1, x0:x1])))
+    return out
 
 
 def _write_mosaic(path, frames_dir, index, mosaic: OrthoGrid, seams_path, factor, gains, nadir, feather_px, tile_px,
