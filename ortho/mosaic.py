@@ -113,6 +113,33 @@ def read_planar(ds, col_off: int, row_off: int, width: int, height: int):
         raise InputError(f"{ds.name}: cannot read the raster (truncated or corrupt? {exc})") from None
 
 
+def window_of(img: np.ndarray, valid: np.ndarray, col_off: int, row_off: int, width: int, height: int):
+    """``read_planar`` of a frame decoded in memory (``img`` (bands, h, w), ``valid`` (h, w)): copies of the window,
+    zeros and invalid beyond the frame."""
+    h, w = valid.shape
+    c0, r0 = max(0, col_off), max(0, row_off)
+    c1, r1 = min(w, col_off + width), min(h, row_off + height)
+    if c0 == col_off and r0 == row_off and c1 == col_off + width and r1 == row_off + height:
+        return img[:, r0:r1, c0:c1].copy(), valid[r0:r1, c0:c1].copy()
+    out = np.zeros((img.shape[0], height, width), img.dtype)
+    ok = np.zeros((height, width), bool)
+    if c1 > c0 and r1 > r0:
+        out[:, r0 - row_off:r1 - row_off, c0 - col_off:c1 - col_off] = img[:, r0:r1, c0:c1]
+        ok[r0 - row_off:r1 - row_off, c0 - col_off:c1 - col_off] = valid[r0:r1, c0:c1]
+    return out, ok
+
+
+# frames are kept decoded from the seam grid's reading to the blending when all of them (samples and validity)
+# take at most this much (a drone or demo block: the blend then decodes no frame again); larger blocks are
+# read again by windows, memory set by the tiles
+DECODED_FRAMES_MAX_BYTES = 256 * 2 ** 20
+
+
+def decoded_bytes(index: dict, bands: int, itemsize: int) -> int:
+    """Memory of all frames of ``index`` decoded (samples and a validity byte per pixel)."""
+    return sum(int(e["width"]) * int(e["height"]) * (bands * itemsize + 1) for e in index["frames"])
+
+
 class ReducedFrames:
     """Frames block-averaged onto the seam grid: rgb (h, w, bands; the frames' sample type, float32 for types
     OpenCV does not resize), valid (bool: every pixel of the cell valid), offsets (row, col)."""
@@ -143,9 +170,11 @@ _HISTOGRAM_TYPES = (np.dtype(np.uint8), np.dtype(np.uint16))
 SATURATION_ALLOWANCE = 0.001
 
 
-def _reduce_frame(path, g: OrthoGrid, mosaic: OrthoGrid, factor: int, strip_px: int = 1024):
-    """One frame on the seam grid: (rgb (h, w, bands), valid (h, w), (row, col) of its first cell), read by
-    strips of whole cells (memory set by ``strip_px`` rows, not by the frame)."""
+def _reduce_frame(path, g: OrthoGrid, mosaic: OrthoGrid, factor: int, strip_px: int = 1024, keep_decoded=False):
+    """One frame on the seam grid: (rgb (h, w, bands), valid (h, w), (row, col) of its first cell, histogram,
+    decoded), read by strips of whole cells (memory set by ``strip_px`` rows, not by the frame); with
+    ``keep_decoded`` the frame is read whole and returned as ``decoded`` (samples (bands, h, w), validity), else
+    that is None."""
     c0, r0 = g.offset_in(mosaic)
     # align the frame's window to whole seam-grid cells
     rc0, cc0 = r0 // factor, c0 // factor
@@ -164,9 +193,11 @@ def _reduce_frame(path, g: OrthoGrid, mosaic: OrthoGrid, factor: int, strip_px: 
         shift = max(0, bits - 10)
         hist = np.zeros((ds.count, (1 << bits) >> shift), np.int64) if dtype in _HISTOGRAM_TYPES else None
         top_count = np.zeros(ds.count, np.int64)
+        decoded = read_planar(ds, 0, 0, ds.width, ds.height) if keep_decoded else None
         for s in range(0, h, step):
             n = min(step, h - s)
-            img, ok = read_planar(ds, cc0 * factor - c0, (rc0 + s) * factor - r0, w * factor, n * factor)
+            win = (cc0 * factor - c0, (rc0 + s) * factor - r0, w * factor, n * factor)
+            img, ok = read_planar(ds, *win) if decoded is None else window_of(*decoded, *win)
             if hist is not None:
                 _add_histogram(hist, top_count, img, ok, bits, shift)
             for b in range(img.shape[0]):
@@ -176,7 +207,7 @@ def _reduce_frame(path, g: OrthoGrid, mosaic: OrthoGrid, factor: int, strip_px: 
             # invalid pixel gives at least 1 / factor^2)
             bad = cv2.resize((~ok).view(np.uint8).astype(np.float32), (w, n), interpolation=cv2.INTER_AREA)
             valid[s:s + n] = bad < 0.5 / n_px
-    return rgb, valid, (rc0, cc0), (None if hist is None else SampleHistogram(hist, top_count, bits))
+    return rgb, valid, (rc0, cc0), (None if hist is None else SampleHistogram(hist, top_count, bits)), decoded
 
 
 def _add_histogram(hist: np.ndarray, top_count: np.ndarray, img: np.ndarray, ok: np.ndarray, bits: int,
@@ -200,31 +231,35 @@ def _add_histogram(hist: np.ndarray, top_count: np.ndarray, img: np.ndarray, ok:
 
 
 def reduce_frames(frames_dir: Path, index: dict, mosaic: OrthoGrid, factor: int,
-                  threads: int | None = None) -> ReducedFrames:
+                  threads: int | None = None, keep_decoded: bool = False) -> ReducedFrames:
     """Every frame of ``index`` on the seam grid of ``factor`` mosaic pixels per cell (frames on ``threads``
-    threads, default all cores; GDAL's decoding and OpenCV's averaging release the GIL)."""
+    threads, default all cores; GDAL's decoding and OpenCV's averaging release the GIL). With ``keep_decoded``
+    the frames read whole are kept in ``decoded`` (frame file path -> (samples, validity)) for the blending."""
     from ortho.rectify import ordered_thread_map
 
     grids = index_grids(index)
     entries = index["frames"]
 
     def one(e):
-        return _reduce_frame(frames_dir / e["file"], grids[e["image_id"]], mosaic, factor)
+        return _reduce_frame(frames_dir / e["file"], grids[e["image_id"]], mosaic, factor, keep_decoded=keep_decoded)
 
-    names, rgbs, valids, offsets, hists = [], [], [], [], []
+    names, rgbs, valids, offsets, hists, decoded = [], [], [], [], [], {}
     with progress(len(entries), "seam grid", "frames") as bar:
         with contextlib.closing(ordered_thread_map(one, entries, threads or os.cpu_count() or 1)) as made:
-            for e, (rgb, valid, off, hist) in zip(entries, made):
+            for e, (rgb, valid, off, hist, frame) in zip(entries, made):
                 names.append(e["image_id"])
                 rgbs.append(rgb)
                 valids.append(valid)
                 offsets.append(off)
                 hists.append(hist)
+                if frame is not None:
+                    decoded[str(Path(frames_dir) / e["file"])] = frame
                 bar.update(1)
     shape = (-(-mosaic.height // factor), -(-mosaic.width // factor))
     t = Affine(mosaic.res_m * factor, 0, mosaic.x_left_m, 0, -mosaic.res_m * factor, mosaic.y_top_m)
     red = ReducedFrames(names, rgbs, valids, offsets, factor, t, shape)
     red.histograms = hists
+    red.decoded = decoded
     return red
 
 
@@ -425,7 +460,10 @@ def _mosaic_block(root, settings, *, object_height_m, max_seam_cells, end_reach_
     # the nDSM is checked and read onto the seam grid on a thread while the frames are reduced (both before
     # any output is written; its error is raised before the seams are made)
     with _background(_ndsm_objects, ndsm_path, index, mosaic, seam_transform, seam_shape, object_height_m) as objects_of:
-        red = reduce_frames(frames_dir, index, mosaic, factor)
+        # blending on local threads reads the frames kept decoded by the seam grid when they are small
+        keep = (executor is None or not executor.distributed) and \
+            decoded_bytes(index, bands, itemsize) <= DECODED_FRAMES_MAX_BYTES
+        red = reduce_frames(frames_dir, index, mosaic, factor, keep_decoded=keep)
         timer.done("seam grid")
         objects = objects_of()
         timer.done("nDSM")
@@ -545,7 +583,7 @@ def _mosaic_outputs(work: Path, root: Path, index, frames_dir, red, labels, gain
     # the seamlines' polygons and lines on a thread while the tiles are blended and written
     with _background(_write_seamlines, work / "seamlines.geojson", labels, red.transform, red.names, crs) as vectors:
         _write_mosaic(work / "mosaic.tif", frames_dir, index, mosaic, work / "seams.tif", factor, gains, nadir,
-                      feather_px, tile_px, executor=executor, labels=labels)
+                      feather_px, tile_px, executor=executor, labels=labels, decoded=red.decoded)
         vectors()
     summary = {"path": str(out_dir / "mosaic.tif"), "width": mosaic.width, "height": mosaic.height,
                "frames": len(red.names), "res_m": res, "seam_factor": factor, "seams": seams, "feather_px": feather_px,
@@ -679,10 +717,18 @@ class _FrameReaders:
     ``_OPEN_FRAMES`` of each thread kept open; ``close`` closes them all (a later run may find other files
     under the same names)."""
 
-    def __init__(self):
+    def __init__(self, decoded: dict | None = None):
         self._local = threading.local()
         self._all = []
         self._lock = threading.Lock()
+        self._decoded = decoded or {}
+
+    def window(self, path: str, col_off: int, row_off: int, width: int, height: int):
+        """``read_planar`` of frame ``path``: from memory when the frame is kept decoded, else from its file."""
+        frame = self._decoded.get(path)
+        if frame is not None:
+            return window_of(*frame, col_off, row_off, width, height)
+        return read_planar(self.get(path), col_off, row_off, width, height)
 
     def get(self, path: str):
         cache = getattr(self._local, "open", None)
@@ -767,8 +813,7 @@ def _blend_tile(ctx: _BlendContext, readers, r0: int, c0: int, th: int, tw: int)
         """Frame k's samples and validity over rows y0:y1, columns x0:x1 of the tile."""
         key = (k, y0, y1, x0, x1)
         if key not in reads:
-            reads[key] = read_planar(readers.get(ctx.files[k]), c0 + x0 - int(fc[k]), r0 + y0 - int(fr[k]),
-                                     x1 - x0, y1 - y0)
+            reads[key] = readers.window(ctx.files[k], c0 + x0 - int(fc[k]), r0 + y0 - int(fr[k]), x1 - x0, y1 - y0)
         return reads[key]
 
     if len(labelled) == 1 and present[0] >= 0:
@@ -902,12 +947,13 @@ def _weight_boxes(ctx: _BlendContext, cells: np.ndarray, ks: list, dr: int, dc: 
 
 
 def _write_mosaic(path, frames_dir, index, mosaic: OrthoGrid, seams_path, factor, gains, nadir, feather_px, tile_px,
-                  executor=None, labels=None):
+                  executor=None, labels=None, decoded=None):
     """Blend the output tiles into a tiled stage GeoTIFF and its overviews, then copy those to the COG
     (module doc, step 5). On local threads (or synchronous) the tiles are computed ahead of this thread,
     which writes them in tile order (``labels``: the seam labels in memory, else read from ``seams_path``);
     on a Dask cluster in batches of a few tiles per worker (the tasks read their windows of
-    ``seams_path``). Memory is bounded by the tiles in flight, not by the mosaic."""
+    ``seams_path``). Memory is bounded by the tiles in flight, not by the mosaic. ``decoded``: frames already
+    decoded in memory (file path -> (samples, validity); local threads only), read instead of their files."""
     from aerotri.core.executor import local_executor
     from ortho.rectify import ordered_thread_map
 
@@ -948,7 +994,7 @@ def _write_mosaic(path, frames_dir, index, mosaic: OrthoGrid, seams_path, factor
                  for r0 in range(0, mosaic.height, tile_px) for c0 in range(0, mosaic.width, tile_px)]
         stage = tmp_dir / "stage.tif"
         pyramid = _Pyramid(tmp_dir, mosaic, bands, dtype, levels, per_tile=tile_px % 2 == 0)
-        readers = _FrameReaders()
+        readers = _FrameReaders(None if executor.distributed else decoded)
         made = None
         profile = dict(_stage_profile(mosaic, bands, dtype), width=mosaic.width, height=mosaic.height, count=bands,
                        dtype=dtype, crs=mosaic.crs, transform=mosaic.transform)
