@@ -23,9 +23,11 @@ Steps (``mosaic_block``):
    overviews as made here): the full resolution is compressed once for the COG, no overview is made
    from it again, and memory is bounded by the tiles, not by the mosaic.
 
-Speed (``bench/mosaic_speed.py``, ``results/mosaic_speed.json``): seams and blending in compiled or
-vectorised code (OpenCV, a numba Dijkstra; no scipy in this command), the tiles on all cores while this
-thread writes, no float64 intermediates. The tile order, the tile results and so the files do not depend
+Speed (``bench/mosaic_speed.py``, ``results/mosaic_speed*.json``, ``docs/performance.md``): seams and
+blending in compiled or vectorised code (OpenCV; scipy's Dijkstra for the seam paths), the tiles on all
+cores while this thread writes, no float64 intermediates; a seam tile reads each frame only over the box
+its weight reaches, and the frames of a small block (``DECODED_FRAMES_MAX_BYTES``) are decoded once, by
+the seam grid, and blended from memory. The tile order, the tile results and so the files do not depend
 on the scheduler or the number of threads.
 
 The frames are checked against ``ortho/frames/index.json`` first (sizes and hashes), the tile size
