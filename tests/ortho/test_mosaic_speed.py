@@ -4,6 +4,7 @@ OpenCV histograms (issue 41: mosaic at the speed of the machine)."""
 from __future__ import annotations
 
 import hashlib
+import os
 
 import cv2
 import numpy as np
@@ -138,3 +139,25 @@ def test_frames_blended_from_memory_give_the_mosaic_read_from_files(tmp_path, mo
     assert shas[0] == shas[1]
     # the tile size changes which tiles are read whole, not the full-resolution pixels
     assert shas[2][0] == shas[0][0]
+
+
+def _rss_bytes() -> int:
+    with open("/proc/self/statm") as f:
+        return int(f.read().split()[1]) * os.sysconf("SC_PAGE_SIZE")
+
+
+@pytest.mark.skipif(mosaic_mod._malloc_trim() is None or not os.path.exists("/proc/self/statm"),
+                    reason="needs glibc's malloc_trim and /proc")
+def test_freed_heap_memory_goes_back_to_the_system():
+    """Memory freed below a block still in use stays in the process until release_freed_memory (the mosaic's
+    phases end with it)."""
+    chunks = [bytearray(64 * 1024) for _ in range(3000)]  # 196 MB of heap chunks, below glibc's mmap threshold
+    for c in chunks:
+        c[::4096] = b"\x01" * len(c[::4096])  # touched: resident
+    last = chunks[-1]  # the top of the heap stays in use, so free() cannot shrink the heap by itself
+    del chunks
+    before = _rss_bytes()
+    mosaic_mod.release_freed_memory()
+    after = _rss_bytes()
+    assert before - after > 100e6, (before, after)
+    assert last[0] == 1
