@@ -33,10 +33,15 @@ image at 0.5 m: its wall, CPU and peak RSS (the check reads the DOM by blocks), 
 On the demo, the DOM check against the truth orthophoto (accuracy before and after this mosaic, from the
 demo's own ``ortho/dom_report.json``).
 
-Writes results/mosaic_speed.json.
+With ``--subset S,F`` (repeatable) the large set is measured on parts of its frames instead: the first F
+frames of the first S strips (a project of links to the frames), smallest first, so that time and peak memory
+per gigapixel can be compared across DOM sizes; ``--subset all`` is the whole set.
+
+Writes results/mosaic_speed.json (``--out``); ``--skip-demo`` leaves the demo out (a large-set run on its own,
+e.g. ``--out results/mosaic_speed_large.json``).
 
 Usage: python bench/mosaic_speed.py [--demo DIR] [--work DIR] [--gp 4.2] [--repeats N] [--large-repeats N]
-       [--skip-large] [--keep-large] [--large-check]
+       [--skip-demo] [--skip-large] [--keep-large] [--large-check] [--subset S,F ...] [--out FILE]
 """
 
 from __future__ import annotations
@@ -266,6 +271,34 @@ def mosaic_px(path: Path) -> int:
         return ds.width * ds.height
 
 
+def subset_project(large: Path, work: Path, strips: int, per_strip: int) -> Path:
+    """A project in ``work`` of the first ``per_strip`` frames of the first ``strips`` strips of the large set
+    (links to its frames and inputs; the large set is not changed)."""
+    if work.exists():
+        shutil.rmtree(work)
+    (work / "ortho" / "frames").mkdir(parents=True)
+    for name in ("project.toml", "camera.toml", "reference.tif", "at"):
+        os.symlink((large / name).resolve(), work / name)
+    (work / "lidar_out").mkdir()
+    os.symlink((large / "lidar_out" / "dem.tif").resolve(), work / "lidar_out" / "dem.tif")
+    index = json.loads((large / "ortho" / "frames" / "index.json").read_text())
+    # image ids are s<strip>_<frame> (make_large)
+    index["frames"] = [e for e in index["frames"]
+                       if int(e["image_id"][1:3]) <= strips and int(e["image_id"][4:7]) <= per_strip]
+    for e in index["frames"]:
+        os.symlink((large / "ortho" / "frames" / e["file"]).resolve(), work / "ortho" / "frames" / e["file"])
+    (work / "ortho" / "frames" / "index.json").write_text(json.dumps(index, indent=1) + "\n")
+    return work
+
+
+def per_gp(result: dict) -> dict:
+    """Wall and CPU seconds per gigapixel of DOM of the medians (ours and the peer)."""
+    gp, m = result["mosaic_px"] / 1e9, result["median"]
+    return {"ours_wall_s_per_gp": round(m["ours_wall_s"] / gp, 1), "ours_cpu_s_per_gp": round(m["ours_cpu_s"] / gp, 1),
+            "peer_wall_s_per_gp": round(m["peer_wall_s"] / gp, 1), "peer_cpu_s_per_gp": round(m["peer_cpu_s"] / gp, 1),
+            "ratio_peer_over_ours_cpu": round(m["peer_cpu_s"] / m["ours_cpu_s"], 3)}
+
+
 def compare(work: Path, repeats: int, label: str, between=None) -> dict:
     """Ours and the peer alternately ``repeats`` times on ``work``'s frames; ``between()`` runs after the
     first of ours (e.g. the DOM check), before our DOM is removed for the peer (``between`` set: disk)."""
@@ -323,7 +356,10 @@ def main() -> None:
     ap.add_argument("--gp", type=float, default=4.2)
     ap.add_argument("--repeats", type=int, default=3)
     ap.add_argument("--large-repeats", type=int, default=1)
+    ap.add_argument("--skip-demo", action="store_true")
     ap.add_argument("--skip-large", action="store_true")
+    ap.add_argument("--subset", action="append", default=[],
+                    help="S,F: the first F frames of the first S strips of the large set ('all': every frame)")
     ap.add_argument("--keep-large", action="store_true")
     ap.add_argument("--large-check", action="store_true", help="also ortho check the large DOM (long)")
     ap.add_argument("--out", type=Path, default=REPO / "results" / "mosaic_speed.json")
@@ -340,9 +376,11 @@ def main() -> None:
               "peer_command": " ".join(PEER) + " --optfile <frames> <out.tif>",
               "ours_command": "ortho mosaic <project>"}
     demo = copy_demo(src, a.work / "demo")
-    print(f"demo: {len(list((demo / 'ortho' / 'frames').glob('*.tif')))} frames from {src}", flush=True)
-    result["demo"] = compare(demo, a.repeats, "demo")
-    if (demo / "truth" / "ortho.tif").exists():
+    if not a.skip_demo:
+        print(f"demo: {len(list((demo / 'ortho' / 'frames').glob('*.tif')))} frames from {src}", flush=True)
+        result["demo"] = compare(demo, a.repeats, "demo")
+        result["demo"]["per_gp"] = per_gp(result["demo"])
+    if not a.skip_demo and (demo / "truth" / "ortho.tif").exists():
         before = json.loads((demo / "ortho" / "dom_report.json").read_text())["displacement"] \
             if (demo / "ortho" / "dom_report.json").exists() else None
         after = check(demo, demo / "truth" / "ortho.tif", "dom_report_bench")
@@ -360,26 +398,42 @@ def main() -> None:
         print(f"large: {layout['frames']} frames, {layout['frames_gp']:.2f} GP of frames, "
               f"{layout['frames_bytes'] / 1e9:.2f} GB", flush=True)
         result["large"] = {"layout": layout}
+        subsets = a.subset or ["all"]
+        for sub in subsets:
+            if sub == "all":
+                key, proj = "large", large
+            else:
+                strips, per_strip = (int(v) for v in sub.split(","))
+                key, proj = f"large_{strips}x{per_strip}", subset_project(large, a.work / f"sub_{strips}x{per_strip}",
+                                                                          strips, per_strip)
+            part = result["large"] if key == "large" else result.setdefault(key, {})
+            part["frames"] = len(json.loads((proj / "ortho" / "frames" / "index.json").read_text())["frames"])
 
-        def large_check():
-            result["large"]["first_ours"] = "measured"
-            a.out.write_text(json.dumps(result, indent=1) + "\n")
-            if a.large_check:
-                print("large: ortho check", flush=True)
-                result["large"]["dom_check"] = check(large, large / "reference.tif", "dom_report_bench")
-                result["large"]["dom_check"]["reference"] = f"the ground image at {REF_RES_M} m"
+            def large_check(part=part, proj=proj):
+                part["first_ours"] = "measured"
                 a.out.write_text(json.dumps(result, indent=1) + "\n")
+                if a.large_check:
+                    print(f"{key}: ortho check", flush=True)
+                    part["dom_check"] = check(proj, proj / "reference.tif", "dom_report_bench")
+                    part["dom_check"]["reference"] = f"the ground image at {REF_RES_M} m"
+                    a.out.write_text(json.dumps(result, indent=1) + "\n")
 
-        result["large"].update(compare(large, a.large_repeats, "large", between=large_check))
+            part.update(compare(proj, a.large_repeats, key, between=large_check))
+            part["per_gp"] = per_gp(part)
+            a.out.write_text(json.dumps(result, indent=1) + "\n")
+            if proj != large:
+                shutil.rmtree(proj)
         if not a.keep_large:
             shutil.rmtree(large)
     a.out.write_text(json.dumps(result, indent=1) + "\n")
-    d = result["demo"]["median"]
-    print(f"demo: ours {d['ours_wall_s']} s, gdalwarp {d['peer_wall_s']} s: {d['ratio_peer_over_ours_wall']}x")
-    if "large" in result:
-        m = result["large"]["median"]
-        print(f"large ({result['large']['mosaic_gp']} GP): ours {m['ours_wall_s']} s ({m['ours_peak_rss_mb']} MB), "
-              f"gdalwarp {m['peer_wall_s']} s: {m['ratio_peer_over_ours_wall']}x")
+    if "demo" in result:
+        d = result["demo"]["median"]
+        print(f"demo: ours {d['ours_wall_s']} s, gdalwarp {d['peer_wall_s']} s: {d['ratio_peer_over_ours_wall']}x")
+    for key, part in result.items():
+        if key.startswith("large") and "median" in part:
+            m = part["median"]
+            print(f"{key} ({part['mosaic_gp']} GP): ours {m['ours_wall_s']} s ({m['ours_peak_rss_mb']} MB), "
+                  f"gdalwarp {m['peer_wall_s']} s: {m['ratio_peer_over_ours_wall']}x")
     print(f"-> {a.out}")
 
 

@@ -25,9 +25,11 @@ Steps (``mosaic_block``):
    overviews as made here): the full resolution is compressed once for the COG, no overview is made
    from it again, and memory is bounded by the tiles, not by the mosaic.
 
-Speed (``bench/mosaic_speed.py``, ``results/mosaic_speed.json``): seams and blending in compiled or
-vectorised code (OpenCV, a numba Dijkstra; no scipy in this command), the tiles on all cores while this
-thread writes, no float64 intermediates. The tile order, the tile results and so the files do not depend
+Speed (``bench/mosaic_speed.py``, ``results/mosaic_speed*.json``, ``docs/performance.md``): seams and
+blending in compiled or vectorised code (OpenCV; scipy's Dijkstra for the seam paths), the tiles on all
+cores while this thread writes, no float64 intermediates; a seam tile reads each frame only over the box
+its weight reaches, and the frames of a small block (``DECODED_FRAMES_MAX_BYTES``) are decoded once, by
+the seam grid, and blended from memory. The tile order, the tile results and so the files do not depend
 on the scheduler or the number of threads.
 
 The frames are checked against ``ortho/frames/index.json`` first (sizes and hashes), the tile size
@@ -121,6 +123,33 @@ def read_planar(ds, col_off: int, row_off: int, width: int, height: int):
         raise InputError(f"{ds.name}: cannot read the raster (truncated or corrupt? {exc})") from None
 
 
+def window_of(img: np.ndarray, valid: np.ndarray, col_off: int, row_off: int, width: int, height: int):
+    """``read_planar`` of a frame decoded in memory (``img`` (bands, h, w), ``valid`` (h, w)): copies of the window,
+    zeros and invalid beyond the frame."""
+    h, w = valid.shape
+    c0, r0 = max(0, col_off), max(0, row_off)
+    c1, r1 = min(w, col_off + width), min(h, row_off + height)
+    if c0 == col_off and r0 == row_off and c1 == col_off + width and r1 == row_off + height:
+        return img[:, r0:r1, c0:c1].copy(), valid[r0:r1, c0:c1].copy()
+    out = np.zeros((img.shape[0], height, width), img.dtype)
+    ok = np.zeros((height, width), bool)
+    if c1 > c0 and r1 > r0:
+        out[:, r0 - row_off:r1 - row_off, c0 - col_off:c1 - col_off] = img[:, r0:r1, c0:c1]
+        ok[r0 - row_off:r1 - row_off, c0 - col_off:c1 - col_off] = valid[r0:r1, c0:c1]
+    return out, ok
+
+
+# frames are kept decoded from the seam grid's reading to the blending when all of them (samples and validity)
+# take at most this much (a drone or demo block: the blend then decodes no frame again); larger blocks are
+# read again by windows, memory set by the tiles
+DECODED_FRAMES_MAX_BYTES = 256 * 2 ** 20
+
+
+def decoded_bytes(index: dict, bands: int, itemsize: int) -> int:
+    """Memory of all frames of ``index`` decoded (samples and a validity byte per pixel)."""
+    return sum(int(e["width"]) * int(e["height"]) * (bands * itemsize + 1) for e in index["frames"])
+
+
 class ReducedFrames:
     """Frames block-averaged onto the seam grid: rgb (h, w, bands; the frames' sample type, float32 for types
     OpenCV does not resize), valid (bool: every pixel of the cell valid), offsets (row, col)."""
@@ -151,9 +180,11 @@ _HISTOGRAM_TYPES = (np.dtype(np.uint8), np.dtype(np.uint16))
 SATURATION_ALLOWANCE = 0.001
 
 
-def _reduce_frame(path, g: OrthoGrid, mosaic: OrthoGrid, factor: int, strip_px: int = 1024):
-    """One frame on the seam grid: (rgb (h, w, bands), valid (h, w), (row, col) of its first cell), read by
-    strips of whole cells (memory set by ``strip_px`` rows, not by the frame)."""
+def _reduce_frame(path, g: OrthoGrid, mosaic: OrthoGrid, factor: int, strip_px: int = 1024, keep_decoded=False):
+    """One frame on the seam grid: (rgb (h, w, bands), valid (h, w), (row, col) of its first cell, histogram,
+    decoded), read by strips of whole cells (memory set by ``strip_px`` rows, not by the frame); with
+    ``keep_decoded`` the frame is read whole and returned as ``decoded`` (samples (bands, h, w), validity), else
+    that is None."""
     c0, r0 = g.offset_in(mosaic)
     # align the frame's window to whole seam-grid cells
     rc0, cc0 = r0 // factor, c0 // factor
@@ -172,14 +203,13 @@ def _reduce_frame(path, g: OrthoGrid, mosaic: OrthoGrid, factor: int, strip_px: 
         shift = max(0, bits - 10)
         hist = np.zeros((ds.count, (1 << bits) >> shift), np.int64) if dtype in _HISTOGRAM_TYPES else None
         top_count = np.zeros(ds.count, np.int64)
+        decoded = read_planar(ds, 0, 0, ds.width, ds.height) if keep_decoded else None
         for s in range(0, h, step):
             n = min(step, h - s)
-            img, ok = read_planar(ds, cc0 * factor - c0, (rc0 + s) * factor - r0, w * factor, n * factor)
+            win = (cc0 * factor - c0, (rc0 + s) * factor - r0, w * factor, n * factor)
+            img, ok = read_planar(ds, *win) if decoded is None else window_of(*decoded, *win)
             if hist is not None:
-                for b in range(img.shape[0]):
-                    v = img[b][ok]
-                    hist[b] += np.bincount(v >> shift if shift else v, minlength=hist.shape[1])
-                    top_count[b] += np.count_nonzero(v == (1 << bits) - 1)
+                _add_histogram(hist, top_count, img, ok, bits, shift)
             for b in range(img.shape[0]):
                 band = img[b] if img.dtype == keep else img[b].astype(keep)
                 rgb[s:s + n, :, b] = cv2.resize(band, (w, n), interpolation=cv2.INTER_AREA)
@@ -187,35 +217,59 @@ def _reduce_frame(path, g: OrthoGrid, mosaic: OrthoGrid, factor: int, strip_px: 
             # invalid pixel gives at least 1 / factor^2)
             bad = cv2.resize((~ok).view(np.uint8).astype(np.float32), (w, n), interpolation=cv2.INTER_AREA)
             valid[s:s + n] = bad < 0.5 / n_px
-    return rgb, valid, (rc0, cc0), (None if hist is None else SampleHistogram(hist, top_count, bits))
+    return rgb, valid, (rc0, cc0), (None if hist is None else SampleHistogram(hist, top_count, bits)), decoded
+
+
+def _add_histogram(hist: np.ndarray, top_count: np.ndarray, img: np.ndarray, ok: np.ndarray, bits: int,
+                   shift: int) -> None:
+    """Add the valid samples of ``img`` (bands, h, w; 8- or 16-bit) to ``hist`` (bands, bins: value >> shift) and
+    those at the type's maximum to ``top_count`` (bands,). OpenCV's masked histogram (one pass, no gathered copy;
+    its float32 counts are exact below 2^24 samples, more go through numpy)."""
+    top = (1 << bits) - 1
+    if ok.size >= 1 << 24:
+        for b in range(img.shape[0]):
+            v = img[b][ok]
+            hist[b] += np.bincount(v >> shift if shift else v, minlength=hist.shape[1])
+            top_count[b] += np.count_nonzero(v == top)
+        return
+    mask = np.ascontiguousarray(ok).view(np.uint8)
+    for b in range(img.shape[0]):
+        h = cv2.calcHist([np.ascontiguousarray(img[b])], [0], mask, [top + 1], [0, top + 1]).ravel()
+        counts = h.astype(np.int64)
+        hist[b] += counts.reshape(hist.shape[1], -1).sum(axis=1) if shift else counts
+        top_count[b] += counts[top]
 
 
 def reduce_frames(frames_dir: Path, index: dict, mosaic: OrthoGrid, factor: int,
-                  threads: int | None = None) -> ReducedFrames:
+                  threads: int | None = None, keep_decoded: bool = False) -> ReducedFrames:
     """Every frame of ``index`` on the seam grid of ``factor`` mosaic pixels per cell (frames on ``threads``
-    threads, default all cores; GDAL's decoding and OpenCV's averaging release the GIL)."""
+    threads, default all cores; GDAL's decoding and OpenCV's averaging release the GIL). With ``keep_decoded``
+    the frames read whole are kept in ``decoded`` (frame file path -> (samples, validity)) for the blending."""
     from ortho.rectify import ordered_thread_map
 
     grids = index_grids(index)
     entries = index["frames"]
 
     def one(e):
-        return _reduce_frame(frames_dir / e["file"], grids[e["image_id"]], mosaic, factor)
+        return _reduce_frame(frames_dir / e["file"], grids[e["image_id"]], mosaic, factor, keep_decoded=keep_decoded)
 
-    names, rgbs, valids, offsets, hists = [], [], [], [], []
+    names, rgbs, valids, offsets, hists, decoded = [], [], [], [], [], {}
     with progress(len(entries), "seam grid", "frames") as bar:
         with contextlib.closing(ordered_thread_map(one, entries, threads or os.cpu_count() or 1)) as made:
-            for e, (rgb, valid, off, hist) in zip(entries, made):
+            for e, (rgb, valid, off, hist, frame) in zip(entries, made):
                 names.append(e["image_id"])
                 rgbs.append(rgb)
                 valids.append(valid)
                 offsets.append(off)
                 hists.append(hist)
+                if frame is not None:
+                    decoded[str(Path(frames_dir) / e["file"])] = frame
                 bar.update(1)
     shape = (-(-mosaic.height // factor), -(-mosaic.width // factor))
     t = Affine(mosaic.res_m * factor, 0, mosaic.x_left_m, 0, -mosaic.res_m * factor, mosaic.y_top_m)
     red = ReducedFrames(names, rgbs, valids, offsets, factor, t, shape)
     red.histograms = hists
+    red.decoded = decoded
     return red
 
 
@@ -429,7 +483,10 @@ def _mosaic_block(root, settings, *, object_height_m, max_seam_cells, end_reach_
     # the nDSM is checked and read onto the seam grid on a thread while the frames are reduced (both before
     # any output is written; its error is raised before the seams are made)
     with _background(_ndsm_objects, ndsm_path, index, mosaic, seam_transform, seam_shape, object_height_m) as objects_of:
-        red = reduce_frames(frames_dir, index, mosaic, factor)
+        # blending on local threads reads the frames kept decoded by the seam grid when they are small
+        keep = (executor is None or not executor.distributed) and \
+            decoded_bytes(index, bands, itemsize) <= DECODED_FRAMES_MAX_BYTES
+        red = reduce_frames(frames_dir, index, mosaic, factor, keep_decoded=keep)
         timer.done("seam grid")
         objects = objects_of()
         timer.done("nDSM")
@@ -485,8 +542,31 @@ def _mosaic_block(root, settings, *, object_height_m, max_seam_cells, end_reach_
 MIN_TILE_PX = 16
 
 
+@functools.lru_cache(maxsize=1)
+def _malloc_trim():
+    """glibc's ``malloc_trim``, None where the C library has none."""
+    import ctypes
+
+    try:
+        return ctypes.CDLL("libc.so.6").malloc_trim
+    except (OSError, AttributeError):
+        return None
+
+
+def release_freed_memory() -> None:
+    """Hand the memory freed so far back to the system (glibc's ``malloc_trim(0)``; nothing without glibc).
+
+    glibc keeps the freed heap memory of every thread's arena for reuse; the phases of a mosaic allocate
+    differently sized buffers on several threads, so what one phase freed stayed in the process through the
+    next ones: 0.6 GB of a 0.53 GP mosaic's 1.6 GB peak (``results/mosaic_speed_large.json``, "malloc_trim")."""
+    trim = _malloc_trim()
+    if trim is not None:
+        trim(0)
+
+
 class _PhaseTimer:
-    """Wall and CPU time of the phases of a run, logged at debug level (``-v``)."""
+    """Wall and CPU time of the phases of a run, logged at debug level (``-v``); the end of every phase also
+    hands the memory it freed back to the system (``release_freed_memory``)."""
 
     def __init__(self):
         import time
@@ -495,6 +575,7 @@ class _PhaseTimer:
         self._t, self._c = time.perf_counter(), time.process_time()
 
     def done(self, phase: str) -> None:
+        release_freed_memory()
         t, c = self._clock.perf_counter(), self._clock.process_time()
         logger.debug("mosaic: %s %.2f s (CPU %.2f s)", phase, t - self._t, c - self._c)
         self._t, self._c = t, c
@@ -564,7 +645,8 @@ def _mosaic_outputs(work: Path, root: Path, index, frames_dir, red, labels, gain
     with _background(_write_seamlines, work / "seamlines.geojson", labels, red.transform, red.names, crs) as vectors, \
             _background(write_seamlines_gpkg, work / "seamlines.gpkg", labels, red.transform, red.names, crs) as gpkg:
         tiles = _write_mosaic(work / "mosaic.tif", frames_dir, index, mosaic, work / "seams.tif", factor, gains, nadir,
-                              feather_px, tile_px, executor=executor, labels=labels, previous=previous)
+                              feather_px, tile_px, executor=executor, labels=labels, previous=previous,
+                              decoded=red.decoded)
         vectors()
         gpkg()
     summary = {"path": str(out_dir / "mosaic.tif"), "width": mosaic.width, "height": mosaic.height,
@@ -703,10 +785,18 @@ class _FrameReaders:
     ``_OPEN_FRAMES`` of each thread kept open; ``close`` closes them all (a later run may find other files
     under the same names)."""
 
-    def __init__(self):
+    def __init__(self, decoded: dict | None = None):
         self._local = threading.local()
         self._all = []
         self._lock = threading.Lock()
+        self._decoded = decoded or {}
+
+    def window(self, path: str, col_off: int, row_off: int, width: int, height: int):
+        """``read_planar`` of frame ``path``: from memory when the frame is kept decoded, else from its file."""
+        frame = self._decoded.get(path)
+        if frame is not None:
+            return window_of(*frame, col_off, row_off, width, height)
+        return read_planar(self.get(path), col_off, row_off, width, height)
 
     def get(self, path: str):
         cache = getattr(self._local, "open", None)
@@ -771,7 +861,11 @@ def _blend_tile(ctx: _BlendContext, readers, r0: int, c0: int, th: int, tw: int)
     (away from every seam) gives its window through its gains; otherwise every labelled frame's weight
     is its label mask at full resolution blurred by the feather (sigma = feather / 2), times its validity,
     and pixels no weight reaches (no frame labelled there: the edge of the block) take the valid frame of
-    the nearest nadir point."""
+    the nearest nadir point.
+
+    A frame is read, and its weight computed, only over the box of the tile its weight reaches (the blur's
+    support): the tile's other frames are not decoded there (``_weight_boxes``; the same samples as over the
+    whole tile)."""
     f, halo = ctx.factor, ctx.halo
     sh, sw = ctx.seam_shape
     lr = np.clip(np.arange(r0 - halo, r0 + th + halo) // f, 0, sh - 1)
@@ -783,10 +877,12 @@ def _blend_tile(ctx: _BlendContext, readers, r0: int, c0: int, th: int, tw: int)
     fc, fr = ctx.offsets[:, 0], ctx.offsets[:, 1]
     reads = {}
 
-    def frame(k):
-        if k not in reads:
-            reads[k] = read_planar(readers.get(ctx.files[k]), c0 - int(fc[k]), r0 - int(fr[k]), tw, th)
-        return reads[k]
+    def frame(k, y0=0, y1=th, x0=0, x1=tw):
+        """Frame k's samples and validity over rows y0:y1, columns x0:x1 of the tile."""
+        key = (k, y0, y1, x0, x1)
+        if key not in reads:
+            reads[key] = readers.window(ctx.files[k], c0 + x0 - int(fc[k]), r0 + y0 - int(fr[k]), x1 - x0, y1 - y0)
+        return reads[key]
 
     if len(labelled) == 1 and present[0] >= 0:
         k = int(labelled[0])
@@ -794,49 +890,47 @@ def _blend_tile(ctx: _BlendContext, readers, r0: int, c0: int, th: int, tw: int)
         if m.all():  # labelled cells are valid all over (seam grid validity is the minimum over the cell)
             return _apply_gain(ctx, k, img), m
     bands = ctx.bands
-    sigma = max(0.5, ctx.feather_px / 2.0)
     ks = labelled.tolist()
-    # every labelled frame's weight over the tile: its label mask blurred by the feather. With a feather of
-    # a seam cell or more the blur runs on the seam grid and is interpolated (bilinear) to the pixels (the
-    # mask is constant over each cell; a factor^2 smaller blur); a narrower feather is blurred per pixel.
-    if ctx.feather_px >= f:
-        up = (cells.shape[1] * f, cells.shape[0] * f)
-        dr, dc = r0 - rl * f, c0 - cl * f
-        weights = [np.ascontiguousarray(cv2.resize(
-            cv2.GaussianBlur((cells == k).view(np.uint8).astype(np.float32), (0, 0), sigma / f), up,
-            interpolation=cv2.INTER_LINEAR)[dr:dr + th, dc:dc + tw]) for k in ks]
-    else:
-        lab = cells[np.ix_(lr - rl, lc - cl)]
-        weights = [np.ascontiguousarray(cv2.GaussianBlur((lab == k).view(np.uint8).astype(np.float32), (0, 0),
-                                                         sigma)[halo:halo + th, halo:halo + tw]) for k in ks]
+    boxes = _weight_boxes(ctx, cells, ks, r0 - rl * f, c0 - cl * f, lr - rl, lc - cl, th, tw)
     out = np.zeros((bands, th, tw), np.dtype(ctx.dtype))
     valid = np.zeros((th, tw), bool)
     one = np.float32(1.0 - 1e-4)
-    for n, k in enumerate(ks):
+    for k, (y0, y1, x0, x1, wt) in zip(ks, boxes):
         # the weights sum to at most 1 (blurred masks of disjoint labels): where one frame holds all but 1e-4
         # of it the pixel is that frame's sample through its gain, as away from the seams; the blend
         # below only runs in the feather zone
-        sel = weights[n] >= one
+        if wt is None:
+            continue
+        sel = wt >= one
         rows = np.flatnonzero(sel.any(axis=1))
         if not len(rows):
             continue
         ra, rb = int(rows[0]), int(rows[-1]) + 1
-        img, m = frame(k)
+        img, m = frame(k, y0, y1, x0, x1)
         sel = sel[ra:rb] & m[ra:rb]
-        np.copyto(out[:, ra:rb], _apply_gain(ctx, k, img[:, ra:rb]), where=sel[None])
-        valid[ra:rb] |= sel
+        np.copyto(out[:, y0 + ra:y0 + rb, x0:x1], _apply_gain(ctx, k, img[:, ra:rb]), where=sel[None])
+        valid[y0 + ra:y0 + rb, x0:x1] |= sel
     mixed = np.flatnonzero(~valid)
     if len(mixed):
         acc = np.zeros((bands, len(mixed)), np.float32)
         wsum = np.zeros(len(mixed), np.float32)
-        for n, k in enumerate(ks):
-            wk = weights[n].ravel()[mixed]
-            if not wk.any():
+        # position of every mixed pixel in acc and wsum (-1: not mixed)
+        at = np.full(th * tw, -1, np.int32)
+        at[mixed] = np.arange(len(mixed), dtype=np.int32)
+        at = at.reshape(th, tw)
+        for k, (y0, y1, x0, x1, wt) in zip(ks, boxes):
+            if wt is None:
                 continue
-            img, m = frame(k)
-            wk *= m.ravel()[mixed]
-            wsum += wk
-            acc += img.reshape(bands, -1)[:, mixed] * (wk[None] * ctx.gains[k].astype(np.float32)[:, None])
+            pos = at[y0:y1, x0:x1]
+            here = (pos >= 0) & (wt > 0)  # outside the box and where it is 0, the weight adds nothing
+            if not here.any():
+                continue
+            img, m = frame(k, y0, y1, x0, x1)
+            idx = pos[here]
+            wk = wt[here]
+            wk *= m[here]
+            wsum[idx] += wk
+            acc[:, idx] += img[:, here] * (wk[None] * ctx.gains[k].astype(np.float32)[:, None])
         have = wsum > 1e-3
         acc /= np.maximum(wsum, 1e-6)
         flat_out = out.reshape(bands, -1)
@@ -844,8 +938,11 @@ def _blend_tile(ctx: _BlendContext, readers, r0: int, c0: int, th: int, tw: int)
         valid.ravel()[mixed[have]] = True
         need = mixed[~have]
         if len(need):
-            # the valid frame of the nearest nadir point fills pixels no labelled frame reaches
+            # the valid frame of the nearest nadir point fills pixels no labelled frame reaches (read over the
+            # box of those pixels)
             rows, cols = np.divmod(need, tw)
+            ya, yb, xa, xb = int(rows.min()), int(rows.max()) + 1, int(cols.min()), int(cols.max()) + 1
+            inner = (rows - ya) * (xb - xa) + (cols - xa)
             ys = ctx.mosaic.y_top_m - (r0 + rows + 0.5) * ctx.mosaic.res_m
             xs = ctx.mosaic.x_left_m + (c0 + cols + 0.5) * ctx.mosaic.res_m
             best = np.full(len(need), np.inf)
@@ -853,29 +950,80 @@ def _blend_tile(ctx: _BlendContext, readers, r0: int, c0: int, th: int, tw: int)
             over = np.flatnonzero((fc < c0 + tw) & (fc + ctx.sizes[:, 0] > c0) & (fr < r0 + th)
                                   & (fr + ctx.sizes[:, 1] > r0))
             for k in over.tolist():
-                img, m = frame(k)
-                cand = m.ravel()[need]
+                img, m = frame(k, ya, yb, xa, xb)
+                cand = m.ravel()[inner]
                 if not cand.any():
                     continue
                 d = np.hypot(xs - ctx.nadir[k, 0], ys - ctx.nadir[k, 1])
                 better = cand & (d < best)
                 best[better] = d[better]
-                fill[:, better] = img.reshape(bands, -1)[:, need[better]] * ctx.gains[k].astype(np.float32)[:, None]
+                fill[:, better] = img.reshape(bands, -1)[:, inner[better]] * ctx.gains[k].astype(np.float32)[:, None]
             got = np.isfinite(best)
             flat_out[:, need[got]] = _to_type(fill[:, got], ctx.dtype)
             valid.ravel()[need[got]] = True
     return out, valid
 
 
+def _weight_boxes(ctx: _BlendContext, cells: np.ndarray, ks: list, dr: int, dc: int, lr: np.ndarray, lc: np.ndarray,
+                  th: int, tw: int) -> list:
+    """Per labelled frame of ``ks``: (y0, y1, x0, x1, weight (y1 - y0, x1 - x0) float32) over the box of the tile
+    where its weight (its label mask in ``cells`` blurred by the feather) is not 0, or (0, 0, 0, 0, None) where it
+    is 0 all over the tile. ``dr``, ``dc``: the tile's first pixel in the cells' pixel grid; ``lr``, ``lc``: the cell
+    of each pixel of the tile and its halo (row, column of ``cells``).
+
+    With a feather of a seam cell or more the blur runs on the seam grid and is interpolated (bilinear) to the
+    pixels (the mask is constant over each cell; a factor^2 smaller blur); a narrower feather is blurred per pixel.
+    The bilinear interpolation of a cell box is cut from the interpolation of the cells one cell wider than the box
+    on each side (or to the edge of ``cells``): the same values as that of all the cells (a pixel's value depends on
+    its two nearest cells per axis)."""
+    f = ctx.factor
+    sigma = max(0.5, ctx.feather_px / 2.0)
+    nothing = (0, 0, 0, 0, None)
+    out = []
+    if ctx.feather_px >= f:
+        n_r, n_c = cells.shape
+        for k in ks:
+            blur = cv2.GaussianBlur((cells == k).view(np.uint8).astype(np.float32), (0, 0), sigma / f)
+            rows, cols = np.flatnonzero(blur.any(axis=1)), np.flatnonzero(blur.any(axis=0))
+            if not len(rows):
+                out.append(nothing)
+                continue
+            # pixels (of the cells' pixel grid) whose two nearest cells per axis may be in the support
+            a0, a1, b0, b1 = int(rows[0]), int(rows[-1]) + 1, int(cols[0]), int(cols[-1]) + 1
+            y0, y1 = max(dr, (a0 - 1) * f), min(dr + th, (a1 + 1) * f)
+            x0, x1 = max(dc, (b0 - 1) * f), min(dc + tw, (b1 + 1) * f)
+            if y1 <= y0 or x1 <= x0:
+                out.append(nothing)
+                continue
+            s0, s1, t0, t1 = max(0, a0 - 2), min(n_r, a1 + 2), max(0, b0 - 2), min(n_c, b1 + 2)
+            up = cv2.resize(np.ascontiguousarray(blur[s0:s1, t0:t1]), ((t1 - t0) * f, (s1 - s0) * f),
+                            interpolation=cv2.INTER_LINEAR)
+            wt = np.ascontiguousarray(up[y0 - s0 * f:y1 - s0 * f, x0 - t0 * f:x1 - t0 * f])
+            out.append((y0 - dr, y1 - dr, x0 - dc, x1 - dc, wt))
+        return out
+    halo = ctx.halo
+    lab = cells[np.ix_(lr, lc)]
+    for k in ks:
+        w = cv2.GaussianBlur((lab == k).view(np.uint8).astype(np.float32), (0, 0), sigma)[halo:halo + th, halo:halo + tw]
+        rows, cols = np.flatnonzero(w.any(axis=1)), np.flatnonzero(w.any(axis=0))
+        if not len(rows):
+            out.append(nothing)
+            continue
+        y0, y1, x0, x1 = int(rows[0]), int(rows[-1]) + 1, int(cols[0]), int(cols[-1]) + 1
+        out.append((y0, y1, x0, x1, np.ascontiguousarray(w[y0:y1, x0:x1])))
+    return out
+
+
 def _write_mosaic(path, frames_dir, index, mosaic: OrthoGrid, seams_path, factor, gains, nadir, feather_px, tile_px,
-                  executor=None, labels=None, previous=None) -> dict:
+                  executor=None, labels=None, previous=None, decoded=None) -> dict:
     """Blend the output tiles into a tiled stage GeoTIFF and its overviews, then copy those to the COG
     (module doc, step 5). On local threads (or synchronous) the tiles are computed ahead of this thread,
     which writes them in tile order (``labels``: the seam labels in memory, else read from ``seams_path``);
     on a Dask cluster in batches of a few tiles per worker (the tasks read their windows of
     ``seams_path``). Memory is bounded by the tiles in flight, not by the mosaic. ``previous``
     (``PreviousMosaic``, local threads only): tiles whose seam cells and halo did not change are read from it
-    instead of blended. Returns the counts of tiles blended and taken over."""
+    instead of blended. ``decoded``: frames already decoded in memory (file path -> (samples, validity); local
+    threads only), read instead of their files. Returns the counts of tiles blended and taken over."""
     from aerotri.core.executor import local_executor
     from ortho.rectify import ordered_thread_map
 
@@ -918,7 +1066,7 @@ def _write_mosaic(path, frames_dir, index, mosaic: OrthoGrid, seams_path, factor
         counts = {"taken_over": 0}
         stack = contextlib.ExitStack()
         pyramid = _Pyramid(tmp_dir, mosaic, bands, dtype, levels, per_tile=tile_px % 2 == 0)
-        readers = _FrameReaders()
+        readers = _FrameReaders(None if executor.distributed else decoded)
         made = None
         profile = dict(_stage_profile(mosaic, bands, dtype), width=mosaic.width, height=mosaic.height, count=bands,
                        dtype=dtype, crs=mosaic.crs, transform=mosaic.transform)

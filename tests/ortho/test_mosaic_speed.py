@@ -1,0 +1,163 @@
+"""The mosaic's shortcuts give what the plain computation gives: weights over boxes, frames blended from memory,
+OpenCV histograms (issue 41: mosaic at the speed of the machine)."""
+
+from __future__ import annotations
+
+import hashlib
+import os
+
+import cv2
+import numpy as np
+import pytest
+import rasterio
+from click.testing import CliRunner
+from rasterio.transform import Affine
+
+import ortho.mosaic as mosaic_mod
+from ortho.cli import main
+from ortho.grid import OrthoGrid
+from ortho.synthetic import write_synthetic_project
+
+
+def _context(factor: int, feather_px: float) -> mosaic_mod._BlendContext:
+    grid = OrthoGrid(rasterio.crs.CRS.from_epsg(32649), 0.0, 0.0, 0.5, 10, 10)
+    return mosaic_mod._BlendContext([], [], np.zeros((0, 2), np.int64), np.zeros((0, 2), np.int64), np.ones((0, 3)),
+                                    np.zeros((0, 2)), grid, factor, int(np.ceil(2 * feather_px)) + factor, feather_px, 3,
+                                    "uint8", None, (0, 0))
+
+
+@pytest.mark.parametrize("factor, feather_px", [(3, 8.0), (4, 8.0), (15, 15.0), (4, 2.0)])
+def test_weight_boxes_are_the_whole_tile_weights_cut_to_their_support(factor, feather_px):
+    """Every labelled frame's weight over its box, put back into the tile, equals the weight computed over the whole
+    tile as the blend did before (label mask blurred, interpolated, cut to the tile); zero outside the box."""
+    rng = np.random.default_rng(factor)
+    ctx = _context(factor, feather_px)
+    th, tw = 200, 170
+    r0, c0 = 5 * factor + 2, 7 * factor + 1  # a tile off the cell grid
+    halo = ctx.halo
+    lr = np.arange(r0 - halo, r0 + th + halo) // factor
+    lc = np.arange(c0 - halo, c0 + tw + halo) // factor
+    rl, cl = int(lr[0]), int(lc[0])
+    shape = (int(lr[-1]) + 1 - rl, int(lc[-1]) + 1 - cl)
+    # Voronoi-like labels of a few frames, one of them only in the halo's corner, and unlabelled cells
+    seeds = rng.uniform(0, 1, (5, 2)) * shape
+    rr, cc = np.mgrid[0:shape[0], 0:shape[1]]
+    cells = np.argmin([(rr - y) ** 2 + (cc - x) ** 2 for y, x in seeds], axis=0).astype(np.int32)
+    cells[:2, :2] = 7
+    cells[-3:, :] = -1
+    ks = [int(k) for k in np.unique(cells) if k >= 0]
+    boxes = mosaic_mod._weight_boxes(ctx, cells, ks, r0 - rl * factor, c0 - cl * factor, lr - rl, lc - cl, th, tw)
+    sigma = max(0.5, feather_px / 2.0)
+    checked = smaller = 0
+    for k, (y0, y1, x0, x1, wt) in zip(ks, boxes):
+        if feather_px >= factor:
+            up = (cells.shape[1] * factor, cells.shape[0] * factor)
+            dr, dc = r0 - rl * factor, c0 - cl * factor
+            whole = cv2.resize(cv2.GaussianBlur((cells == k).view(np.uint8).astype(np.float32), (0, 0), sigma / factor),
+                               up, interpolation=cv2.INTER_LINEAR)[dr:dr + th, dc:dc + tw]
+        else:
+            lab = cells[np.ix_(lr - rl, lc - cl)]
+            whole = cv2.GaussianBlur((lab == k).view(np.uint8).astype(np.float32), (0, 0),
+                                     sigma)[halo:halo + th, halo:halo + tw]
+        placed = np.zeros((th, tw), np.float32)
+        if wt is not None:
+            placed[y0:y1, x0:x1] = wt
+            checked += 1
+            smaller += (y1 - y0) * (x1 - x0) < th * tw
+        else:
+            assert not whole.any()
+        np.testing.assert_array_equal(placed, whole)
+    assert checked >= 3 and smaller >= 2  # boxes smaller than the tile: the reads they save
+
+
+def test_window_of_a_decoded_frame_is_the_file_window(tmp_path):
+    """Windows inside, across the edge of and beyond a frame read from memory equal those read from its file."""
+    rng = np.random.default_rng(3)
+    img = rng.integers(0, 256, (3, 300, 260)).astype(np.uint8)
+    mask = np.zeros((300, 260), np.uint8)
+    cv2.circle(mask, (130, 150), 120, 255, -1)
+    path = tmp_path / "frame.tif"
+    with rasterio.Env(GDAL_TIFF_INTERNAL_MASK=True):
+        with rasterio.open(path, "w", driver="GTiff", width=260, height=300, count=3, dtype="uint8", tiled=True,
+                           blockxsize=128, blockysize=128, compress="zstd",
+                           crs="EPSG:32649", transform=Affine(0.5, 0, 0, 0, -0.5, 0)) as dst:
+            dst.write(img * (mask > 0))
+            dst.write_mask(mask)
+    with rasterio.open(path) as ds:
+        decoded = mosaic_mod.read_planar(ds, 0, 0, ds.width, ds.height)
+        for win in ((10, 20, 100, 50), (-30, -5, 80, 90), (200, 250, 120, 100), (300, 10, 20, 20), (0, 0, 260, 300)):
+            a_img, a_ok = mosaic_mod.window_of(*decoded, *win)
+            b_img, b_ok = mosaic_mod.read_planar(ds, *win)
+            np.testing.assert_array_equal(a_img, b_img)
+            np.testing.assert_array_equal(a_ok, b_ok)
+            a_img[:] = 1  # a copy: the decoded frame is not changed through it
+        np.testing.assert_array_equal(decoded[0], ds.read())
+
+
+@pytest.mark.parametrize("dtype", [np.uint8, np.uint16])
+def test_histograms_count_the_valid_samples_as_numpy_does(dtype, monkeypatch):
+    rng = np.random.default_rng(5)
+    top = np.iinfo(dtype).max
+    img = rng.integers(0, top + 1, (3, 240, 310)).astype(dtype)
+    img[:, :7] = top
+    ok = rng.random((240, 310)) > 0.4
+    bits = 8 * np.dtype(dtype).itemsize
+    shift = max(0, bits - 10)
+    hist = np.zeros((3, (1 << bits) >> shift), np.int64)
+    tops = np.zeros(3, np.int64)
+    mosaic_mod._add_histogram(hist, tops, img, ok, bits, shift)
+    for b in range(3):
+        v = img[b][ok]
+        np.testing.assert_array_equal(hist[b], np.bincount(v >> shift, minlength=hist.shape[1]))
+        assert tops[b] == np.count_nonzero(v == top)
+
+
+def _pixels_sha(path) -> str:
+    with rasterio.open(path) as ds:
+        return hashlib.sha256(ds.read().tobytes() + ds.read_masks(1).tobytes()).hexdigest()
+
+
+def test_frames_blended_from_memory_give_the_mosaic_read_from_files(tmp_path, monkeypatch):
+    """A small block (frames kept decoded after the seam grid) gives the same mosaic, overviews included, as the
+    same block read again from the files by windows; so do other tile sizes."""
+    root = tmp_path / "block"
+    write_synthetic_project(root, strips=2, frames_per_strip=2, buildings=6, seed=11)
+    r = CliRunner().invoke(main, ["rectify", str(root)])
+    assert r.exit_code == 0, r.output
+    shas = []
+    for limit, tile in ((mosaic_mod.DECODED_FRAMES_MAX_BYTES, 1024), (0, 1024), (0, 256)):
+        monkeypatch.setattr(mosaic_mod, "DECODED_FRAMES_MAX_BYTES", limit)
+        r = CliRunner().invoke(main, ["mosaic", str(root), "--tile-px", str(tile)])
+        assert r.exit_code == 0, r.output
+        with rasterio.open(root / "ortho" / "mosaic.tif") as ds:
+            levels = [_pixels_sha(root / "ortho" / "mosaic.tif")]
+            for k in range(len(ds.overviews(1))):
+                with rasterio.open(root / "ortho" / "mosaic.tif", overview_level=k) as ov:
+                    levels.append(hashlib.sha256(ov.read().tobytes()).hexdigest())
+        shas.append(levels)
+    assert len(shas[0]) >= 2
+    assert shas[0] == shas[1]
+    # the tile size changes which tiles are read whole, not the full-resolution pixels
+    assert shas[2][0] == shas[0][0]
+
+
+def _rss_bytes() -> int:
+    with open("/proc/self/statm") as f:
+        return int(f.read().split()[1]) * os.sysconf("SC_PAGE_SIZE")
+
+
+@pytest.mark.skipif(mosaic_mod._malloc_trim() is None or not os.path.exists("/proc/self/statm"),
+                    reason="needs glibc's malloc_trim and /proc")
+def test_freed_heap_memory_goes_back_to_the_system():
+    """Memory freed below a block still in use stays in the process until release_freed_memory (the mosaic's
+    phases end with it)."""
+    chunks = [bytearray(64 * 1024) for _ in range(3000)]  # 196 MB of heap chunks, below glibc's mmap threshold
+    for c in chunks:
+        c[::4096] = b"\x01" * len(c[::4096])  # touched: resident
+    last = chunks[-1]  # the top of the heap stays in use, so free() cannot shrink the heap by itself
+    del chunks
+    before = _rss_bytes()
+    mosaic_mod.release_freed_memory()
+    after = _rss_bytes()
+    assert before - after > 100e6, (before, after)
+    assert last[0] == 1
