@@ -82,7 +82,7 @@ def make_block(out: Path, frames: int, *, points_per_image: int = POINTS_PER_IMA
 
 
 def _time_v(stderr: str) -> dict:
-    """Wall, CPU and peak RSS from ``/usr/bin/time -v``."""
+    """Wall, CPU (user + system) and peak RSS from ``/usr/bin/time -v``, and the minor page faults."""
     def field(name):
         m = re.search(rf"{re.escape(name)}: (.+)", stderr)
         return m.group(1).strip() if m else None
@@ -90,7 +90,9 @@ def _time_v(stderr: str) -> dict:
     wall = field("Elapsed (wall clock) time (h:mm:ss or m:ss)")
     parts = [float(p) for p in wall.split(":")]
     wall_s = sum(p * 60 ** k for k, p in enumerate(reversed(parts)))
-    return {"wall_s": round(wall_s, 1), "cpu_s": round(float(field("User time (seconds)")) + float(field("System time (seconds)")), 1),
+    user, system = float(field("User time (seconds)")), float(field("System time (seconds)"))
+    return {"wall_s": round(wall_s, 1), "cpu_s": round(user + system, 1), "user_s": round(user, 1),
+            "system_s": round(system, 1), "minor_page_faults": int(field("Minor (reclaiming a frame) page faults")),
             "peak_rss_mb": round(int(field("Maximum resident set size (kbytes)")) / 1024, 0)}
 
 

@@ -9,12 +9,15 @@ orientations (and calibration) that observe it: ``Cov = N^-1 s0^2 + G Cov_eo G^T
 
 from __future__ import annotations
 
+import numba
 import numpy as np
 
+from aerotri.geom.lens_kernels import brown_distort, brown_distort_jacobian
 from aerotri.adjust.collinearity import jacobians_cv, pixel_rays, point_jacobian_cv, point_normals, project_cv
 from aerotri.adjust.keys import K_KEY, X
 
-__all__ = ["intersect", "intersect_rays", "intersect_with_covariance", "pixel_rays", "refine_points", "sum_by_index"]
+__all__ = ["intersect", "intersect_rays", "intersect_with_covariance", "pixel_rays", "ray_leverages", "refine_points",
+           "refined_normals", "sum_by_index"]
 
 
 def intersect_rays(centres, directions, point_index, n_points):
@@ -52,6 +55,136 @@ def refine_points(xy_px, point_index, image_index, centre, R_cv, cal, points, it
         step = np.linalg.solve(N[good] + 1e-12 * np.eye(3), b[good][..., None])[..., 0]
         pts[good] += step
     return pts
+
+
+def refined_normals(xy_px, point_index, image_index, centre, R_cv, cal, points, iterations: int = 5):
+    """``refine_points`` ray by ray in compiled code, and the points' normal matrices ``sum J'J`` (n, 3, 3) at the
+    refined points (``point_normals``, unit weights): (points, normals). The same arithmetic as the numpy
+    functions (to rounding), without their (K, 3, 3) arrays of rotations and Jacobians per ray (the surface gate
+    of a 6.5 M-ray block: GBs of temporaries per robust round)."""
+    pts = np.array(points, dtype=float, copy=True)
+    N = np.empty((len(pts), 3, 3))
+    b = np.empty((len(pts), 3))
+    cal = np.asarray(cal, dtype=float)
+    _refine_kernel(np.ascontiguousarray(xy_px, dtype=float), np.asarray(point_index, dtype=np.int64),
+                   np.asarray(image_index, dtype=np.int64), np.ascontiguousarray(centre, dtype=float),
+                   np.ascontiguousarray(R_cv, dtype=float), cal, pts, N, b, int(iterations))
+    return pts, N
+
+
+@numba.njit(cache=True, inline="always")
+def _ray_point_jacobian(xy, centre, R, point, cal, J):
+    """d pixel / d point (2, 3) of one ray into ``J`` (``collinearity.point_jacobian_cv``, no weights); returns its
+    residual observed - computed (pixels)."""
+    fx, fy, sk, u0, v0, k1, k2, p1, p2 = cal[0], cal[1], cal[2], cal[3], cal[4], cal[5], cal[6], cal[7], cal[8]
+    d0, d1, d2 = point[0] - centre[0], point[1] - centre[1], point[2] - centre[2]
+    x = R[0, 0] * d0 + R[1, 0] * d1 + R[2, 0] * d2  # R^T (P - C)
+    y = R[0, 1] * d0 + R[1, 1] * d1 + R[2, 1] * d2
+    z = R[0, 2] * d0 + R[1, 2] * d1 + R[2, 2] * d2
+    xn, yn = x / z, y / z
+    xd, yd = brown_distort(xn, yn, k1, k2, 0.0, p1, p2)
+    a00, a01, a10, a11 = brown_distort_jacobian(xn, yn, k1, k2, 0.0, p1, p2)
+    m00, m01 = fx * a00 + sk * a10, fx * a01 + sk * a11
+    m10, m11 = fy * a10, fy * a11
+    iz, ux, uy = 1.0 / z, -xn / z, -yn / z  # d(xn, yn) / d pc as in ``collinearity._dpixel_dpc``
+    j00, j01, j02 = m00 * iz, m01 * iz, m00 * ux + m01 * uy
+    j10, j11, j12 = m10 * iz, m11 * iz, m10 * ux + m11 * uy
+    for c in range(3):
+        J[0, c] = j00 * R[c, 0] + j01 * R[c, 1] + j02 * R[c, 2]
+        J[1, c] = j10 * R[c, 0] + j11 * R[c, 1] + j12 * R[c, 2]
+    return xy[0] - (fx * xd + sk * yd + u0), xy[1] - (fy * yd + v0)
+
+
+@numba.njit(cache=True)
+def _normals_kernel(xy, point, image, centre, R_cv, cal, pts, N, b):
+    """``point_normals(point_jacobian_cv(...), ..., residual)`` at ``pts``: the upper triangle of ``N`` and ``b``."""
+    N[:] = 0.0
+    b[:] = 0.0
+    J = np.empty((2, 3))
+    for k in range(len(point)):
+        j, i = point[k], image[k]
+        r0, r1 = _ray_point_jacobian(xy[k], centre[i], R_cv[i], pts[j], cal, J)
+        for p in range(3):
+            b[j, p] += J[0, p] * r0 + J[1, p] * r1
+            for q in range(p, 3):
+                N[j, p, q] += J[0, p] * J[0, q] + J[1, p] * J[1, q]
+
+
+def ray_leverages(point_index, image_index, centre, R_cv, cal, points, N_inv) -> np.ndarray:
+    """``J N^-1 J'`` per image coordinate (K, 2) of rays with their points' inverse normal matrices ``N_inv``
+    (n, 3, 3): the diagonal of each point's hat matrix (``snooping.redundancy_numbers``), ray by ray."""
+    H = np.empty((len(point_index), 2))
+    _leverage_kernel(np.asarray(point_index, dtype=np.int64), np.asarray(image_index, dtype=np.int64),
+                     np.ascontiguousarray(centre, dtype=float), np.ascontiguousarray(R_cv, dtype=float),
+                     np.asarray(cal, dtype=float), np.ascontiguousarray(points, dtype=float),
+                     np.ascontiguousarray(N_inv, dtype=float), H)
+    return H
+
+
+@numba.njit(cache=True)
+def _leverage_kernel(point, image, centre, R_cv, cal, pts, N_inv, H):
+    J = np.empty((2, 3))
+    xy = np.zeros(2)
+    for k in range(len(point)):
+        j, i = point[k], image[k]
+        _ray_point_jacobian(xy, centre[i], R_cv[i], pts[j], cal, J)
+        Q = N_inv[j]
+        for a in range(2):
+            h = 0.0
+            for p in range(3):
+                h += J[a, p] * (Q[p, 0] * J[a, 0] + Q[p, 1] * J[a, 1] + Q[p, 2] * J[a, 2])
+            H[k, a] = h
+
+
+@numba.njit(cache=True)
+def _refine_kernel(xy, point, image, centre, R_cv, cal, pts, N, b, iterations):
+    """Gauss-Newton steps ``(N + 1e-12 I) step = b`` of every point whose ``b`` and coordinates are finite
+    (``refine_points``), then ``N`` (full) at the refined points."""
+    A = np.empty((3, 4))
+    for _ in range(iterations):
+        _normals_kernel(xy, point, image, centre, R_cv, cal, pts, N, b)
+        for j in range(len(pts)):
+            good = True
+            for p in range(3):
+                good = good and np.isfinite(b[j, p]) and np.isfinite(pts[j, p])
+            if not good:
+                continue
+            for p in range(3):
+                for q in range(3):
+                    A[p, q] = N[j, min(p, q), max(p, q)] + (1e-12 if p == q else 0.0)
+                A[p, 3] = b[j, p]
+            if _solve3(A):
+                for p in range(3):
+                    pts[j, p] += A[p, 3]
+    _normals_kernel(xy, point, image, centre, R_cv, cal, pts, N, b)
+    for j in range(len(pts)):
+        N[j, 1, 0], N[j, 2, 0], N[j, 2, 1] = N[j, 0, 1], N[j, 0, 2], N[j, 1, 2]
+
+
+@numba.njit(cache=True, inline="always")
+def _solve3(A):
+    """Gaussian elimination with partial pivoting of the 3 x 4 system ``A`` in place: the solution in ``A[:, 3]``;
+    False when singular (LAPACK's gesv, as ``np.linalg.solve``)."""
+    for c in range(3):
+        piv = c
+        for r in range(c + 1, 3):
+            if abs(A[r, c]) > abs(A[piv, c]):
+                piv = r
+        if A[piv, c] == 0.0:
+            return False
+        if piv != c:
+            for q in range(4):
+                A[c, q], A[piv, q] = A[piv, q], A[c, q]
+        for r in range(c + 1, 3):
+            f = A[r, c] / A[c, c]
+            for q in range(c, 4):
+                A[r, q] -= f * A[c, q]
+    for c in range(2, -1, -1):
+        v = A[c, 3]
+        for q in range(c + 1, 3):
+            v -= A[c, q] * A[q, 3]
+        A[c, 3] = v / A[c, c]
+    return True
 
 
 def intersect(xy_px, point_index, image_index, centre, R_cv, cal, n_points, iterations: int = 5):

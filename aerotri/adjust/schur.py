@@ -113,6 +113,40 @@ class ReducedSystem:
     Z: np.ndarray
 
 
+@dataclasses.dataclass
+class Workspace:
+    """The arrays ``reduced_camera_system`` fills, kept from one linearisation of a set of rays to the next (one
+    workspace per set of rays: ``pair_row`` is theirs)."""
+
+    U: np.ndarray  # (parts, N, 6, 6)
+    S_pair: np.ndarray  # (parts, n_blocks, 6, 6)
+    s: np.ndarray  # (parts, N, 6)
+    U_cal: np.ndarray  # (parts, 9, 9)
+    s_cal: np.ndarray  # (parts, 9)
+    U_ic: np.ndarray  # (parts, N or 0, 6, 9)
+    Vinv: np.ndarray  # (M, 3, 3)
+    bp: np.ndarray  # (M, 3)
+    W: np.ndarray  # (K, 6, 3)
+    Z: np.ndarray  # (M or 0, 9, 3)
+    pair_row: np.ndarray | None = None  # the point row of each pair's first ray
+
+    @classmethod
+    def for_rays(cls, K: int, M: int, n_images: int, n_blocks: int, with_cal: bool) -> "Workspace":
+        """Arrays (not initialised) for ``K`` rays of ``M`` points, in the runs ``reduced_camera_system`` takes."""
+        return cls.empty(PARTS if K >= PARALLEL_MIN_RAYS else 1, K, M, n_images, n_blocks, with_cal)
+
+    @classmethod
+    def empty(cls, parts: int, K: int, M: int, n_images: int, n_blocks: int, with_cal: bool) -> "Workspace":
+        return cls(np.empty((parts, n_images, 6, 6)), np.empty((parts, n_blocks, 6, 6)), np.empty((parts, n_images, 6)),
+                   np.empty((parts, 9, 9)), np.empty((parts, 9)), np.empty((parts, n_images if with_cal else 0, 6, 9)),
+                   np.empty((M, 3, 3)), np.empty((M, 3)), np.empty((K, 6, 3)), np.empty((M if with_cal else 0, 9, 3)))
+
+    def fits(self, parts: int, K: int, M: int, n_images: int, n_blocks: int, with_cal: bool) -> bool:
+        return (self.U.shape[:2] == (parts, n_images) and self.S_pair.shape[1] == n_blocks and len(self.W) == K
+                and len(self.Vinv) == M and len(self.Z) == (M if with_cal else 0)
+                and self.U_ic.shape[1] == (n_images if with_cal else 0))
+
+
 @numba.njit(cache=True, inline="always")
 def _ray(xy, centre, R, point, cal, inv_sigma, A, B, r, C, with_cal):
     """Whitened residual r (2,) and Jacobians of the prediction A (2, 6) wrt the pose tangent, B (2, 3) wrt
@@ -226,12 +260,18 @@ def _points_range(j0, j1, xy, obs_image, start, pair_row, pair_a, pair_b, pair_b
     Vi = np.empty((3, 3))
     vb = np.empty(3)
     for j in range(j0, j1):
+        # ``Vinv``, ``bp``, ``W``, ``Z`` may hold the previous linearisation's values (``Workspace``): every entry of
+        # this point's is written here, zeros where nothing is added (behind the camera, a singular point)
         V[:] = 0.0
+        bp[j, :] = 0.0
+        if with_cal:
+            Z[j, :, :] = 0.0
         k0 = start[j]
         for k in range(k0, start[j + 1]):
             i, n = obs_image[k], k - k0
             front[n] = _ray(xy[k], centre[i], R_cv[i], points[j], cal, inv_sigma, A[n], B[n], r[n], Cr[n], with_cal)
             if not front[n]:
+                W[k, :, :] = 0.0
                 continue
             _huber(r[n], A[n], B[n], Cr[n], huber_k, with_cal)
             rr += r[n, 0] * r[n, 0] + r[n, 1] * r[n, 1]
@@ -253,6 +293,9 @@ def _points_range(j0, j1, xy, obs_image, start, pair_row, pair_a, pair_b, pair_b
             nxt += 1
         if not _inverse_sym3(V, Vi):
             # an indeterminate point contributes nothing (its rays stay in the cost, constant)
+            Vinv[j, :, :] = 0.0
+            for k in range(k0, start[j + 1]):
+                W[k, :, :] = 0.0
             continue
         for k in range(k0, start[j + 1]):
             i, n = obs_image[k], k - k0
@@ -313,7 +356,7 @@ def _points_range(j0, j1, xy, obs_image, start, pair_row, pair_a, pair_b, pair_b
 
 
 def reduced_camera_system(xy, obs_image, row, start, pair_a, pair_b, pair_block, n_blocks, n_images, centre, R_cv, points,
-                          cal, inv_sigma, with_cal, huber_k, point_r, point_B, point_damping):
+                          cal, inv_sigma, with_cal, huber_k, point_r, point_B, point_damping, work: Workspace | None = None):
     """Linearise the tie-point rays at (orientations, points) and eliminate the points.
 
     Returns the reduced system ``S`` as diagonal blocks ``U`` (N, 6, 6) and pair blocks ``S_pair``
@@ -333,6 +376,10 @@ def reduced_camera_system(xy, obs_image, row, start, pair_a, pair_b, pair_block,
     ``lambda diag(V_j)`` before the elimination, so that a damped step also damps the points' back-substitution
     (a surface observation makes the points' own problem nonlinear).
 
+    ``work``: the arrays of a previous call on the same rays (``Workspace``), overwritten and returned again: the
+    caller must be done with that call's results (a linearisation replaces the last one). Fresh arrays of a
+    large block cost their page faults on every linearisation (W alone is 144 bytes per ray: 0.9 GB at 6.5 M rays).
+
     With ``with_cal`` the calibration (Cal3DS2, 9 parameters shared by all rays) is an unknown too: its
     block ``U_cal`` (9, 9), right-hand side ``s_cal`` (9,), the couplings ``U_image_cal`` (N, 6, 9) and,
     for the back-substitution, ``Z`` (M, 9, 3) = sum over each point's rays of C_k'B_k (else empty).
@@ -344,18 +391,15 @@ def reduced_camera_system(xy, obs_image, row, start, pair_a, pair_b, pair_block,
     parallel = len(row) >= PARALLEL_MIN_RAYS
     parts = PARTS if parallel else 1
     K, M = len(row), len(start) - 1
-    n_cal_img = n_images if with_cal else 0
-    U = np.zeros((parts, n_images, 6, 6))
-    S_pair = np.zeros((parts, n_blocks, 6, 6))
-    s = np.zeros((parts, n_images, 6))
-    U_cal = np.zeros((parts, 9, 9))
-    s_cal = np.zeros((parts, 9))
-    U_ic = np.zeros((parts, n_cal_img, 6, 9))
-    Vinv = np.zeros((M, 3, 3))
-    bp = np.zeros((M, 3))
-    W = np.zeros((K, 6, 3))
-    Z = np.zeros((M if with_cal else 0, 9, 3))
-    pair_row = np.asarray(row)[pair_a].astype(np.int64)
+    if work is None or not work.fits(parts, K, M, n_images, n_blocks, with_cal):
+        work = Workspace.for_rays(K, M, n_images, n_blocks, with_cal)
+    U, S_pair, s, U_cal, s_cal, U_ic = work.U, work.S_pair, work.s, work.U_cal, work.s_cal, work.U_ic
+    for a in (U, S_pair, s, U_cal, s_cal, U_ic):  # sums (image blocks: a few MB); the per-point arrays are overwritten
+        a.fill(0.0)
+    Vinv, bp, W, Z = work.Vinv, work.bp, work.W, work.Z
+    if work.pair_row is None:
+        work.pair_row = np.asarray(row)[pair_a].astype(np.int64)
+    pair_row = work.pair_row
     bounds = np.minimum(M, np.searchsorted(start, (K * np.arange(parts + 1)) // parts)).astype(np.int64)
     bounds[parts] = M
     f_part, rr_part = np.zeros(parts), np.zeros(parts)

@@ -16,7 +16,6 @@ from aerotri.adjust.surface import SurfaceStats, surface_stats
 from aerotri.core.errors import SolveError
 from aerotri.adjust.check_points import intersect_with_covariance
 from aerotri.adjust.cpp_output import counting
-from aerotri.adjust.collinearity import point_jacobian_cv, point_normals, project_cv
 from aerotri.adjust.covariance import ReducedCovariance, point_rays
 from aerotri.adjust.geometry_modes import geometry_modes
 from aerotri.adjust.covariance import point_covariances as point_covariances_rcs
@@ -270,14 +269,11 @@ def _surface_gate(block: G.Block, state: G.State, obs_active, sigma_px: float) -
     sigma (the surface's and the intersection's height sigma): a point on a car, a hedge or a roof edge is
     judged by where the images put it, not by where the surface pulled it (judged by its pulled position, a
     point at the edge of a roof face or of an object in the nDSM would go in and out, round after round)."""
-    from aerotri.adjust.check_points import refine_points
+    from aerotri.adjust.check_points import refined_normals
 
     k = np.flatnonzero(obs_active)
-    pts = refine_points(block.obs_xy_px[k], block.obs_point[k], block.obs_image[k], state.centre, state.R_cv, state.cal,
-                        state.points, iterations=3)
-    _, pc = project_cv(pts[block.obs_point[k]], state.centre[block.obs_image[k]], state.R_cv[block.obs_image[k]],
-                        state.cal)
-    N = point_normals(point_jacobian_cv(pc, state.R_cv[block.obs_image[k]], state.cal), block.obs_point[k], block.n_points)
+    pts, N = refined_normals(block.obs_xy_px[k], block.obs_point[k], block.obs_image[k], state.centre, state.R_cv,
+                             state.cal, state.points, iterations=3)
     # only points the solve holds (two rays or more, not parallel) are candidates: a point without rays has no
     # height of its own, and with an infinite sigma it would pass the gate and count as used
     rays = np.bincount(block.obs_point[k], minlength=block.n_points)
@@ -302,9 +298,11 @@ def _drop_weak_points(block: G.Block, obs_active, state: G.State | None = None, 
     rays = np.bincount(block.obs_point[obs_active], minlength=block.n_points)
     weak = (rays < 2) & ~is_control
     if state is not None:
+        from aerotri.adjust.check_points import refined_normals
+
         k = np.flatnonzero(obs_active)
-        _, pc = project_cv(state.points[block.obs_point[k]], state.centre[block.obs_image[k]], state.R_cv[block.obs_image[k]], state.cal)
-        N = point_normals(point_jacobian_cv(pc, state.R_cv[block.obs_image[k]], state.cal), block.obs_point[k], block.n_points)
+        _, N = refined_normals(block.obs_xy_px[k], block.obs_point[k], block.obs_image[k], state.centre, state.R_cv,
+                               state.cal, state.points, iterations=0)
         used = rays >= 2
         ev = np.zeros((block.n_points, 3))
         ev[used] = np.linalg.eigvalsh(N[used])

@@ -148,3 +148,33 @@ def test_the_parallel_kernels_equal_the_serial_ones(tmp_path, monkeypatch):
     assert parallel[0].rr == pytest.approx(serial[0].rr, rel=1e-12)
     np.testing.assert_allclose(parallel[1], serial[1], rtol=1e-12, atol=1e-15)
     assert parallel[2] == pytest.approx(serial[2], rel=1e-12)
+
+
+def test_a_reused_workspace_is_overwritten_entry_by_entry(tmp_path):
+    """Linearisations reuse the reduced system's arrays (``schur.Workspace``): every entry is written again, also
+    those of rays behind their camera and of singular points (zeros), so a workspace full of NaN gives exactly
+    what zeroed arrays give."""
+    block = geometric_block(2, 6, seed=51)
+    root = write_block_project(block, tmp_path / "blk")
+    write_truth_observations(root, tie_sigma_px=0.3, n_control=4, points_per_image=60, n_check=2, seed=52,
+                             blunder_fraction=0.04)
+    b, opts, st0 = _project(root, self_calibration=("pp", "radial"))
+    gr = G.build_graph(b, opts, st0, np.ones(len(b.obs_point), bool), np.ones(len(b.control_point), bool), robust=True)
+    tp, pr = gr.tie, gr.tie.pairs
+    coords = tp.coords.copy()
+    coords[0, 2] += 1e4  # above the cameras: every ray of point 0 behind its camera, the point singular
+    rays0 = slice(pr.start[0], pr.start[1])
+
+    def linearised(fill):
+        w = schur.Workspace.for_rays(len(pr.row), len(pr.start) - 1, gr.n_images, len(pr.images), tp.self_cal)
+        for f in dataclasses.fields(w):
+            if getattr(w, f.name) is not None:
+                getattr(w, f.name).fill(fill)
+        tp.work = w
+        rs = tp.reduced_system(gr.values, gr.n_images, coords)
+        return {f.name: np.array(getattr(rs, f.name), copy=True) for f in dataclasses.fields(rs)}
+
+    zeroed, reused = linearised(0.0), linearised(np.nan)
+    assert not zeroed["Vinv"][0].any() and not zeroed["W"][rays0].any()
+    for name, a in zeroed.items():
+        np.testing.assert_array_equal(reused[name], a, err_msg=name)

@@ -28,3 +28,52 @@ def test_blunders_removed(tmp_path):
     d = np.array([np.subtract(c["adjusted_m"], c["measured_m"]) for c in ba.check.values()])
     assert np.sqrt(np.mean(d[:, :2] ** 2)) < 0.1 and np.sqrt(np.mean(d[:, 2] ** 2)) < 0.25
     assert json.loads((root / "truth" / "observation_blunders.json").read_text())["bad_control"] == ["gcp01"]
+
+
+def test_compiled_normals_and_leverages_equal_numpys():
+    """``check_points.refined_normals`` (the surface gate's and the weak-point test's normal matrices) and the
+    redundancy numbers from ``check_points.ray_leverages`` equal the numpy computation ray by ray (points of two
+    rays or more; those of a single ray have a singular normal matrix and no redundancy)."""
+    from aerotri.adjust.check_points import refine_points, refined_normals
+    from aerotri.adjust.collinearity import point_jacobian_cv, point_normals, project_cv
+    from aerotri.adjust.snooping import redundancy_numbers
+
+    rng = np.random.default_rng(1)
+    n_img, n_pts = 30, 1500
+    centre = np.column_stack([rng.uniform(0, 3000, n_img), rng.uniform(0, 3000, n_img), np.full(n_img, 1000.0)])
+    a = rng.normal(0, 0.02, (n_img, 3))
+    R = np.array([_rot(*t) for t in a]) @ np.diag([1.0, -1.0, -1.0])
+    cal = np.array([13000.0, 13000.0, 0.0, 6912.0, 3840.0, -1e-2, 3e-3, 1e-5, -2e-5])
+    truth = np.column_stack([rng.uniform(0, 3000, n_pts), rng.uniform(0, 3000, n_pts), rng.normal(0, 20, n_pts)])
+    pt, im = [], []
+    for j in range(n_pts):
+        near = np.argsort(np.hypot(*(centre[:, :2] - truth[j, :2]).T))[: rng.integers(1, 6)]
+        pt += [j] * len(near)
+        im += list(near)
+    pt, im = np.array(pt), np.array(im)
+    uv = project_cv(truth[pt], centre[im], R[im], cal)[0] + rng.normal(0, 0.3, (len(pt), 2))
+    start = truth + rng.normal(0, 2.0, truth.shape)
+    multi = np.bincount(pt, minlength=n_pts) >= 2
+    ref = refine_points(uv, pt, im, centre, R, cal, start, iterations=3)
+    got, N = refined_normals(uv, pt, im, centre, R, cal, start, iterations=3)
+    assert np.abs(got - ref)[multi].max() < 1e-9  # m
+    N_ref = point_normals(point_jacobian_cv(project_cv(ref[pt], centre[im], R[im], cal)[1], R[im], cal), pt, n_pts)
+    assert np.abs(N - N_ref)[multi].max() < 1e-9 * np.abs(N_ref).max()
+    active = rng.random(len(pt)) > 0.1
+    r = redundancy_numbers(pt, im, truth, centre, R, cal, active)
+    _, pc = project_cv(truth[pt], centre[im], R[im], cal)
+    J = point_jacobian_cv(pc, R[im], cal)
+    Nk = point_normals(J[active], pt[active], n_pts)
+    ok = np.bincount(pt[active], minlength=n_pts) >= 2
+    Q = np.zeros_like(Nk)
+    Q[ok] = np.linalg.inv(Nk[ok])
+    r_ref = np.clip(1.0 - np.einsum("kai,kij,kaj->ka", J, Q[pt], J), 0.0, 1.0)
+    check = active & ok[pt]
+    assert np.isnan(r[~active]).all()
+    assert np.abs(r - r_ref)[check].max() < 1e-10
+
+
+def _rot(a, b, c):
+    ca, sa, cb, sb, cc, sc = np.cos(a), np.sin(a), np.cos(b), np.sin(b), np.cos(c), np.sin(c)
+    return (np.array([[1, 0, 0], [0, ca, -sa], [0, sa, ca]]) @ np.array([[cb, 0, sb], [0, 1, 0], [-sb, 0, cb]])
+            @ np.array([[cc, -sc, 0], [sc, cc, 0], [0, 0, 1]]))
