@@ -9,7 +9,9 @@ noise, 0.10 m in plan and 0.05 m in height, ``aerotri.sim.evaluate.write_truth_c
 ``lidarctl corners``), ``adjust_final`` (``aerotri adjust --dem DEM --ndsm``: with that control and the DEM as
 surface control, the truth nDSM telling ground tie points from roofs and trees; standing in for the LiDAR's),
 ``rectify`` (``ortho rectify --dem DEM``), ``mosaic``
-(``ortho mosaic``), ``check`` (``ortho check --reference truth/ortho.tif``). The DEM is the simulator's
+(``ortho mosaic``), ``peer_mosaic`` (the peer of the mosaic on the same frame orthos, right after it: ``gdalwarp -of COG
+-co COMPRESS=ZSTD -co NUM_THREADS=2 -wo NUM_THREADS=2 -multi``, no seamlines or balancing; its DOM is removed after,
+for the disk; needs Debian's gdal-bin), ``check`` (``ortho check --reference truth/ortho.tif``). The DEM is the simulator's
 truth/dem.tif unless ``--dem`` names another (the chain uses lidar_out/dem.tif of its LiDAR stages; this bench
 leaves the LiDAR stages out to measure the image stages alone). The block's inputs (project.toml, camera.toml,
 gnss.txt, images/) are hard-linked into ``--work`` (kept when it exists, so later stages can run on earlier ones'
@@ -43,7 +45,9 @@ sys.path.insert(0, str(ROOT))
 
 RESULT = ROOT / "results" / "dmc_stages.json"
 BLOCKS = Path(os.environ.get("AEROTRI_BENCH_BLOCKS", "/work/bench_blocks"))
-STAGES = ("match", "adjust", "control", "adjust_final", "rectify", "mosaic", "check")
+STAGES = ("match", "adjust", "control", "adjust_final", "rectify", "mosaic", "peer_mosaic", "check")
+PEER = ["gdalwarp", "-q", "-overwrite", "-of", "COG", "-co", "COMPRESS=ZSTD", "-co", "NUM_THREADS=2", "-wo",
+        "NUM_THREADS=2", "-multi"]  # as bench/mosaic_speed.py
 
 
 def _time_v(stderr: str) -> dict:
@@ -66,6 +70,7 @@ def command(stage: str, work: Path, block: Path, dem: Path) -> list[str]:
                              str(work / "truth_ndsm.tif")],
             "rectify": ["ortho", "rectify", str(work), "--dem", str(dem)],
             "mosaic": ["ortho", "mosaic", str(work)],
+            "peer_mosaic": PEER + ["--optfile", str(work / "peer_inputs.txt"), str(work / "peer_mosaic.tif")],
             "check": ["ortho", "check", str(work), "--reference", str(block / "truth" / "ortho.tif")]}[stage]
 
 
@@ -128,9 +133,15 @@ def main() -> int:
             from aerotri.sim.evaluate import write_truth_corners_csv
 
             write_truth_corners_csv(args.block, args.work / "truth_corners.csv", noise=True, seed=41)
+        if stage == "peer_mosaic":
+            frames = sorted((args.work / "ortho" / "frames").glob("*.tif"))
+            (args.work / "peer_inputs.txt").write_text("\n".join(str(f) for f in frames) + "\n")
         load0 = [round(v, 2) for v in os.getloadavg()]
         print(f"[{stage}] {' '.join(cmd)}", flush=True)
-        p = subprocess.run(["/usr/bin/time", "-v", str(BIN / cmd[0]), *cmd[1:]], capture_output=True, text=True)
+        exe = shutil.which(cmd[0]) if stage == "peer_mosaic" else str(BIN / cmd[0])
+        if exe is None:
+            sys.exit("gdalwarp not found: the peer of the mosaic is Debian's gdal-bin (make bench installs it)")
+        p = subprocess.run(["/usr/bin/time", "-v", exe, *cmd[1:]], capture_output=True, text=True)
         if p.returncode != 0:
             sys.exit(f"{' '.join(cmd)} failed ({p.returncode}):\n{p.stderr[-3000:]}")
         rec = dict(command=" ".join(cmd), **_time_v(p.stderr), load_avg_before=load0,
@@ -144,6 +155,18 @@ def main() -> int:
             with rasterio.open(args.work / "ortho" / "mosaic.tif") as ds:
                 rec["dom_gp"] = round(ds.width * ds.height / 1e9, 3)
                 rec["dom_mp_per_s"] = round(ds.width * ds.height / 1e6 / rec["wall_s"], 2)
+        if stage == "peer_mosaic":
+            import rasterio
+
+            peer = args.work / "peer_mosaic.tif"
+            with rasterio.open(peer) as ds:
+                rec["dom_gp"] = round(ds.width * ds.height / 1e9, 3)
+                rec["file_gb"] = round(peer.stat().st_size / 1e9, 2)
+            peer.unlink()
+            ours = entry["stages"].get("mosaic")
+            if ours:
+                rec["ratio_peer_over_ours_wall"] = round(rec["wall_s"] / ours["wall_s"], 2)
+                rec["ratio_peer_over_ours_cpu"] = round(rec["cpu_s"] / ours["cpu_s"], 2)
         if stage == "adjust_final":
             chk = json.loads((args.work / "at" / "report.json").read_text()).get("check_rms_m")
             if chk and None not in chk:

@@ -178,6 +178,8 @@ def make_block(out: Path, overrides: list[str]) -> dict:
 
 
 def table(name: str, r: dict) -> str:
+    if "block" not in r:  # a run stopped before the block was written: its note only
+        return f"{name}: {r.get('command', '')}: stopped, not made ({r.get('note', r.get('wall_s', ''))})"
     b, u = r["block"], r["unit_costs"]
     lines = [f"{name}: {b['frames']} frames of {b['image_width_px']} x {b['image_height_px']} px ({b['bands']}, "
              f"{b['bits']}-bit, {b['tile_px']} px tiles, {b['compression']}), {b['lidar_points'] / 1e6:.1f} M points in "

@@ -21,6 +21,7 @@ import csv
 import dataclasses
 import io
 import json
+import logging
 import math
 from pathlib import Path
 
@@ -28,6 +29,11 @@ import numpy as np
 
 from aerotri.core.atomic import atomic_path, refuse_input_as_output, write_text_atomic
 from aerotri.core.errors import InputError, OptionError
+
+_log = logging.getLogger(__name__)
+# Fewer tie points a frame than this and the DEM shows the plane through them, not the ground's relief
+# (Tuniu with --min-rays 3: 3 points for a block of frames).
+MIN_POINTS_PER_FRAME = 10
 from aerotri.core.project import Project
 from aerotri.core.textio import read_text
 from aerotri.geom.crs import project_crs
@@ -175,6 +181,17 @@ def _footprint_bounds(root: Path, z_lo_m: float, z_hi_m: float, margin_m: float 
             float(b[:, 3].max()) + margin_m)
 
 
+def _warn_if_sparse(project, n_points: int, min_rays: int) -> None:
+    from aerotri.geom.eo import read_eo
+
+    n_frames = len(read_eo(project.eo_path).image_id)
+    if n_points < MIN_POINTS_PER_FRAME * n_frames:
+        _log.warning(f"{project.object_points_path}: {n_points} tie points seen in {min_rays} or more frames for "
+                     f"{n_frames} frames ({n_points / n_frames:.1f} a frame, fewer than {MIN_POINTS_PER_FRAME}): the "
+                     f"DEM follows the plane through them, not the ground's relief; a lower --min-rays or a DEM from "
+                     f"LiDAR would show more")
+
+
 def write_points_dem(root, out=None, res_m: float | None = None, min_rays: int = 3) -> dict:
     """``ortho dem``: the DEM of the project's adjusted tie points as a COG (default ``at/dem.tif``) over the frames'
     footprints, and its numbers (``<out>.json``); returns them."""
@@ -188,6 +205,7 @@ def write_points_dem(root, out=None, res_m: float | None = None, min_rays: int =
     if len(pts) < 3:
         raise InputError(f"{project.object_points_path}: {len(pts)} tie points seen in {min_rays} or more frames: too "
                          "few for a DEM")
+    _warn_if_sparse(project, len(pts), min_rays)
     res = float(res_m) if res_m is not None else default_resolution(pts)
     z = float(np.median(pts[:, 2]))
     dem = points_dem(pts, res, _footprint_bounds(project.root, z, z))

@@ -71,3 +71,50 @@ def test_the_dem_covers_every_frame_where_the_ground_falls_away(tiny_project, tm
     r = CliRunner().invoke(ortho_main, ["rectify", str(p), "--dem", str(p / "at" / "dem.tif")])
     assert r.exit_code == 0, r.output
     assert len(list((p / "ortho" / "frames").glob("*.tif"))) == len(eo.image_id)
+
+
+def test_a_dem_from_a_handful_of_tie_points_is_warned_of(tiny_project, tmp_path, caplog):
+    """Tuniu with --min-rays 3 kept 3 tie points for its whole block: the DEM was made without a word. A DEM from
+    fewer than 10 tie points a frame is a plane through them; the command says so (and still makes it)."""
+    import shutil
+
+    from aerotri.geom.eo import read_eo
+    from ortho.points_dem import write_points_dem
+
+    p = shutil.copytree(tiny_project, tmp_path / "p", ignore=shutil.ignore_patterns("lidar", "work", "at"))
+    (p / "at").mkdir()
+    shutil.copy(p / "truth" / "eo.txt", p / "at" / "eo.txt")
+    n_frames = len(read_eo(p / "at" / "eo.txt").image_id)
+    c = read_eo(p / "at" / "eo.txt").centre_m[:, :2].mean(axis=0)
+    rows = ["id,kind,x,y,z,sx_m,sy_m,sz_m,rays,rms_px"]
+    rows += [f"T{k:07d},tie,{c[0] + 30 * k:.3f},{c[1] + 17 * (k % 3):.3f},{310 + k % 2:.3f},0.1,0.1,0.1,3,0.1"
+             for k in range(5)]
+    rows += ["T9999999,tie,0,0,0,0.1,0.1,0.1,2,0.1"]  # seen in 2 frames: not counted with min_rays 3
+    (p / "at" / "object_points.csv").write_text("\n".join(rows) + "\n")
+    with caplog.at_level("WARNING"):
+        s = write_points_dem(p, min_rays=3)
+    assert s["points"] <= 5 and (p / "at" / "dem.tif").is_file()
+    msgs = [m for m in caplog.messages if "tie points seen in 3 or more frames" in m]
+    assert len(msgs) == 1 and f"for {n_frames} frames" in msgs[0] and "fewer than 10" in msgs[0], caplog.messages
+
+
+def test_a_dem_from_enough_tie_points_is_not_warned_of(tiny_project, tmp_path, caplog):
+    import shutil
+
+    from aerotri.geom.eo import read_eo
+    from ortho.points_dem import write_points_dem
+
+    p = shutil.copytree(tiny_project, tmp_path / "p", ignore=shutil.ignore_patterns("lidar", "work", "at"))
+    (p / "at").mkdir()
+    shutil.copy(p / "truth" / "eo.txt", p / "at" / "eo.txt")
+    eo = read_eo(p / "at" / "eo.txt")
+    c, half = eo.centre_m[:, :2].mean(axis=0), 0.4 * np.ptp(eo.centre_m[:, :2], axis=0)
+    gx, gy = np.meshgrid(np.linspace(-1, 1, 40), np.linspace(-1, 1, 40))
+    rows = ["id,kind,x,y,z,sx_m,sy_m,sz_m,rays,rms_px"]
+    rows += [f"T{k:07d},tie,{c[0] + a * half[0]:.3f},{c[1] + b * half[1]:.3f},310.0,0.1,0.1,0.1,3,0.1"
+             for k, (a, b) in enumerate(zip(gx.ravel(), gy.ravel()))]
+    (p / "at" / "object_points.csv").write_text("\n".join(rows) + "\n")
+    assert 1600 >= 10 * len(eo.image_id)
+    with caplog.at_level("WARNING"):
+        write_points_dem(p, min_rays=3)
+    assert not [m for m in caplog.messages if "tie points seen in" in m], caplog.messages
