@@ -581,10 +581,24 @@ class _PhaseTimer:
         self._t, self._c = t, c
 
 
+def _import_vector_modules() -> None:
+    """Import what the seamline writers import (``_write_seamlines``, ``write_seamlines_gpkg``), in this thread."""
+    import pyogrio  # noqa: F401
+    import pyogrio.raw  # noqa: F401
+    import shapely  # noqa: F401
+    import shapely.geometry  # noqa: F401
+    import shapely.ops  # noqa: F401
+
+
 @contextlib.contextmanager
 def _background(fn, *args):
     """Run ``fn(*args)`` on a thread; yields a function that waits for its result (raising its error)."""
     from concurrent.futures import ThreadPoolExecutor
+
+    # the modules the background writers import are loaded in this thread first: two threads importing shapely at
+    # once can meet it half-initialised (ImportError 'partially initialized module shapely.geometry.base' on the
+    # 120-frame DMC block)
+    _import_vector_modules()
 
     with ThreadPoolExecutor(1, thread_name_prefix="mosaic-bg") as pool:
         future = pool.submit(fn, *args)

@@ -186,3 +186,41 @@ def test_bad_edits_are_refused_naming_the_feature_and_nothing_is_written(mosaick
     assert str(edited) in line and message.format(fid=fid, name=names[k]) in line, line
     assert "Traceback" not in r.output
     assert {p.name: p.stat().st_mtime_ns for p in (root / "ortho").iterdir()} == stamp
+
+
+def test_the_seamline_writers_threads_find_shapely_imported(tmp_path):
+    """The mosaic writes seamlines.geojson and seamlines.gpkg on two background threads; both import shapely.
+    Two threads importing it at once met it half-initialised on the 120-frame DMC block ("cannot import name
+    'BaseGeometry' from partially initialized module"): the modules are imported before the threads start. Checked
+    in a fresh interpreter, where nothing has imported shapely yet."""
+    import subprocess
+    import sys
+
+    root = tmp_path / "p"
+    write_synthetic_project(root, strips=1, frames_per_strip=2, buildings=2, seed=5)
+    r = CliRunner().invoke(main, ["rectify", str(root)])
+    assert r.exit_code == 0, r.output
+    script = f"""
+import sys
+import ortho.mosaic as m
+seen = []
+background = m._background
+def spy(fn, *args):
+    def on_thread(*a):
+        # what the thread finds loaded when it starts
+        seen.append([name for name in ("shapely.geometry", "shapely.ops", "pyogrio.raw") if name not in sys.modules])
+        return fn(*a)
+    return background(on_thread, *args)
+m._background = spy
+from ortho.cli import main
+try:
+    main(["mosaic", {str(root)!r}], standalone_mode=False)
+except SystemExit as exc:
+    assert not exc.code, exc.code
+assert seen and all(not missing for missing in seen), seen
+print("ok", len(seen))
+"""
+    p = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True)
+    last = (p.stdout.strip().splitlines() or [""])[-1]
+    assert p.returncode == 0 and last.startswith("ok "), p.stdout + p.stderr[-2000:]
+    assert int(last.split()[1]) >= 2  # at least the two seamline writers ran on threads
