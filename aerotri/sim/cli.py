@@ -6,7 +6,6 @@ from pathlib import Path
 
 import click
 
-from aerotri.core.errors import InputError
 from aerotri.core.commands import Command, FiniteFloatRange, finite, fraction
 
 
@@ -40,31 +39,11 @@ from aerotri.core.commands import Command, FiniteFloatRange, finite, fraction
 def sim(preset, seed, overrides, force, observations, observations_only, tie_points_per_frame, tie_sigma_px,
         n_control, blunder_fraction, bad_control_shift_m, outdir):
     """Simulate a complete project with known truth into OUTDIR."""
-    from aerotri.sim import load_preset, simulate
+    from aerotri.sim.command import simulate_command
 
-    cfg = load_preset(preset, overrides)
-    if seed is not None:
-        cfg["preset"]["seed"] = seed
-    if not 0.0 <= blunder_fraction < 1.0:
-        raise InputError(f"--blunder-fraction {blunder_fraction}: must be in [0, 1)")
-    if observations_only:
-        from aerotri.sim.project import simulate_observations
-
-        block = simulate_observations(cfg, outdir, force=force, tie_sigma_px=tie_sigma_px,
-                                      tie_points_per_frame=tie_points_per_frame, n_control=n_control,
-                                      blunder_fraction=blunder_fraction, bad_control_shift_m=bad_control_shift_m)
-        click.echo(f"{block.frames} frames, {block.tie_points} tie points, {block.tie_observations} tie observations, "
-                   f"{block.control_points} control and {block.check_points} check points; "
-                   f"DEM of the truth terrain: {block.dem_path} ({block.terrain_res_m:.2f} m)")
-        return
-    simulate(cfg, outdir, force=force)
-    if observations:
-        from aerotri.sim.config import optional
-        from aerotri.sim.observations import write_truth_observations
-
-        sigma = optional(cfg, "observations", "tie_sigma_px") if tie_sigma_px is None else tie_sigma_px
-        summary = write_truth_observations(outdir, tie_sigma_px=sigma, n_control=n_control,
-                                           blunder_fraction=blunder_fraction,
-                                           bad_control_shift_m=bad_control_shift_m, seed=cfg["preset"]["seed"],
-                                           tie_points_per_frame=tie_points_per_frame)
-        click.echo(f"truth observations: {', '.join(f'{k} {v}' for k, v in summary.items() if isinstance(v, (int, float)))}")
+    line = simulate_command(preset, outdir, seed=seed, overrides=overrides, force=force, observations=observations,
+                            observations_only=observations_only, tie_points_per_frame=tie_points_per_frame,
+                            tie_sigma_px=tie_sigma_px, n_control=n_control, blunder_fraction=blunder_fraction,
+                            bad_control_shift_m=bad_control_shift_m)
+    if line:
+        click.echo(line)
