@@ -120,15 +120,21 @@ def test_reduced_system_equals_gtsam_elimination_of_the_points(tmp_path, self_ca
     assert np.allclose(g_ours, g_ref, rtol=1e-8, atol=1e-8 * np.abs(g_ref).max())
 
 
-def test_the_parallel_kernels_equal_the_serial_ones(tmp_path, monkeypatch):
-    """Large blocks take the Schur kernel, the back-substitution and the ray cost in PARTS runs in parallel: the
-    same reduced system, increments and cost as the serial run (to rounding), robust and with self-calibration."""
+def _robust_self_calibrating_graph(tmp_path):
+    """The robust graph, with self-calibration (pp, radial), of a 2 x 6 block with 4 % blunders."""
     block = geometric_block(2, 6, seed=51)
     root = write_block_project(block, tmp_path / "blk")
     write_truth_observations(root, tie_sigma_px=0.3, n_control=4, points_per_image=60, n_check=2, seed=52,
                              blunder_fraction=0.04)
     b, opts, st0 = _project(root, self_calibration=("pp", "radial"))
-    gr = G.build_graph(b, opts, st0, np.ones(len(b.obs_point), bool), np.ones(len(b.control_point), bool), robust=True)
+    return G.build_graph(b, opts, st0, np.ones(len(b.obs_point), bool), np.ones(len(b.control_point), bool),
+                         robust=True)
+
+
+def test_the_parallel_kernels_equal_the_serial_ones(tmp_path, monkeypatch):
+    """Large blocks take the Schur kernel, the back-substitution and the ray cost in PARTS runs in parallel: the
+    same reduced system, increments and cost as the serial run (to rounding), robust and with self-calibration."""
+    gr = _robust_self_calibrating_graph(tmp_path)
     tp = gr.tie
     d_pose = np.random.default_rng(3).normal(0, 1e-4, (gr.n_images, 6))
     d_cal = np.full(9, 1e-3)
@@ -154,12 +160,7 @@ def test_a_reused_workspace_is_overwritten_entry_by_entry(tmp_path):
     """Linearisations reuse the reduced system's arrays (``schur.Workspace``): every entry is written again, also
     those of rays behind their camera and of singular points (zeros), so a workspace full of NaN gives exactly
     what zeroed arrays give."""
-    block = geometric_block(2, 6, seed=51)
-    root = write_block_project(block, tmp_path / "blk")
-    write_truth_observations(root, tie_sigma_px=0.3, n_control=4, points_per_image=60, n_check=2, seed=52,
-                             blunder_fraction=0.04)
-    b, opts, st0 = _project(root, self_calibration=("pp", "radial"))
-    gr = G.build_graph(b, opts, st0, np.ones(len(b.obs_point), bool), np.ones(len(b.control_point), bool), robust=True)
+    gr = _robust_self_calibrating_graph(tmp_path)
     tp, pr = gr.tie, gr.tie.pairs
     coords = tp.coords.copy()
     coords[0, 2] += 1e4  # above the cameras: every ray of point 0 behind its camera, the point singular
