@@ -46,8 +46,7 @@ sys.path.insert(0, str(ROOT))
 RESULT = ROOT / "results" / "dmc_stages.json"
 BLOCKS = Path(os.environ.get("AEROTRI_BENCH_BLOCKS", "/work/bench_blocks"))
 STAGES = ("match", "adjust", "control", "adjust_final", "rectify", "mosaic", "peer_mosaic", "check")
-PEER = ["gdalwarp", "-q", "-overwrite", "-of", "COG", "-co", "COMPRESS=ZSTD", "-co", "NUM_THREADS=2", "-wo",
-        "NUM_THREADS=2", "-multi"]  # as bench/mosaic_speed.py
+from mosaic_speed import PEER  # noqa: E402 - the mosaic's peer command, one definition (bench/ is sys.path[0])
 
 
 def _time_v(stderr: str) -> dict:
