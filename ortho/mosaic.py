@@ -33,8 +33,9 @@ the seam grid, and blended from memory. The tile order, the tile results and so 
 on the scheduler or the number of threads.
 
 The frames are checked against ``ortho/frames/index.json`` first (sizes and hashes), the tile size
-against the memory; seams.tif, seamlines.geojson, seamlines.gpkg, mosaic.tif and mosaic.json (which records the index
-it was made from) are made in a work folder and moved into ``ortho/`` together at the end.
+against the memory; seams.tif, seamlines.geojson, seamlines.gpkg, seamlines_preview.png (the seams over the DOM:
+``ortho.seamlines_preview``), mosaic.tif and mosaic.json (which records the index it was made from) are made in a
+work folder and moved into ``ortho/`` together at the end.
 
 Step 4 runs on local threads (``executor`` None, local threads, synchronous) or, on a Dask cluster, as
 Dask tasks, one per output tile (``blend_tile_task`` on a small ``MosaicTile``: a context file with
@@ -77,6 +78,7 @@ from ortho.block import (index_grids, index_operation, operation_tags, read_inde
 from ortho.grid import OrthoGrid
 from ortho.settings import MosaicSettings
 from ortho.seamlines_gpkg import write_seamlines_gpkg
+from ortho.seamlines_preview import write_seamlines_preview
 from ortho.seamlines import (keep_objects_whole, label_polygons, least_cost_seams, neighbour_pairs, seam_lines,
                              voronoi_labels)
 
@@ -533,8 +535,9 @@ def _mosaic_block(root, settings, *, object_height_m, max_seam_cells, end_reach_
         outputs = _mosaic_outputs(Path(work), root, index, frames_dir, red, labels, gains, mosaic, factor, nadir,
                                   feather_px, tile_px, seams, executor, resolved.record(), previous)
         timer.done("blend and COG")
-        with commit_outputs(out_dir):  # one commit: all four new, or (a failure, a kill) all as before
-            for name in ("seams.tif", "seamlines.geojson", "seamlines.gpkg", "mosaic.tif", "mosaic.json"):
+        with commit_outputs(out_dir):  # one commit: all new, or (a failure, a kill) all as before
+            for name in ("seams.tif", "seamlines.geojson", "seamlines.gpkg", "seamlines_preview.png", "mosaic.tif",
+                         "mosaic.json"):
                 move_into(Path(work) / name, out_dir / name)
     return outputs
 
@@ -650,7 +653,8 @@ def _open_frame(path):
 
 def _mosaic_outputs(work: Path, root: Path, index, frames_dir, red, labels, gains, mosaic: OrthoGrid, factor, nadir,
                     feather_px, tile_px, seams, executor, settings_record: dict, previous=None) -> dict:
-    """seams.tif, seamlines.geojson, mosaic.tif and mosaic.json into ``work``; returns the summary. ``previous``
+    """seams.tif, seamlines.geojson, seamlines.gpkg, mosaic.tif, seamlines_preview.png and mosaic.json into ``work``;
+    returns the summary. ``previous``
     (``PreviousMosaic``): the mosaic whose tiles away from changed seams are taken over."""
     crs, res = mosaic.crs, mosaic.res_m
     out_dir = root / "ortho"
@@ -661,6 +665,8 @@ def _mosaic_outputs(work: Path, root: Path, index, frames_dir, red, labels, gain
         tiles = _write_mosaic(work / "mosaic.tif", frames_dir, index, mosaic, work / "seams.tif", factor, gains, nadir,
                               feather_px, tile_px, executor=executor, labels=labels, previous=previous,
                               decoded=red.decoded)
+        # the seamlines over the DOM, reduced to at most 2000 px, for a look before opening the GeoPackage
+        write_seamlines_preview(work / "seamlines_preview.png", work / "mosaic.tif", labels, factor)
         vectors()
         gpkg()
     summary = {"path": str(out_dir / "mosaic.tif"), "width": mosaic.width, "height": mosaic.height,
