@@ -76,6 +76,7 @@ from scipy.spatial import Delaunay, cKDTree
 from aerotri.core.errors import OptionError
 from aerotri.core.settings import setting
 from lidarctl import grid
+from lidarctl.knn import knn_2d
 
 
 @dataclasses.dataclass
@@ -516,8 +517,8 @@ def surface_outliers(x, y, z, neighbours: int = 16, height_m: float = 0.5, break
         keep = np.flatnonzero(~is_out)
         if len(keep) <= neighbours or len(check) == 0:
             break
-        dist, nb = cKDTree(np.column_stack([x[keep], y[keep]])).query(np.column_stack([x[check], y[check]]),
-                                                                      k=neighbours + 1)
+        # cKDTree's answer from the bucket grid (lidarctl.knn): the same neighbours, a fraction of the CPU.
+        dist, nb, _ = knn_2d(x[keep], y[keep], x[check], y[check], neighbours + 1)
         nb = np.where(nb < len(keep), keep[np.minimum(nb, len(keep) - 1)], n)  # indices into x (n: none)
         full, side = _plane_residuals(x, y, z, check, nb, dist)
         bad = (full > height_m) & (side > breakline_m)
