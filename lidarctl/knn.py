@@ -27,6 +27,9 @@ from scipy.spatial import cKDTree
 # Cell edge as a share of the radius holding k + 1 points at the mean density: 0.5 makes a query
 # scan 2-3 rings (about 25-49 cells of ~k/12 points each) instead of 1-2 rings of crowded cells.
 CELL_SHARE_OF_RADIUS = 0.5
+# Queries per call in the callers' chunked loops: the (m, k) distance and index arrays of a chunk
+# take about k x 16 MB at k = 17 (272 MB), whatever the tile's size.
+QUERY_CHUNK = 1_000_000
 
 
 @numba.njit(cache=True, inline="always")
@@ -114,40 +117,57 @@ def _knn_kernel(sx, sy, order, cell_start, nrows, ncols, x0, y0, cell_m, qx, qy,
     return out_d, out_i, tied
 
 
-def knn_2d(px, py, qx, qy, k: int, upper_m: float = np.inf, tree: cKDTree | None = None):
+class BucketGrid:
+    """The points (px, py) bucketed for ``query``; cKDTree's tree of them built only when a query ties."""
+
+    def __init__(self, px, py, k_hint: int = 16):
+        self.px = np.ascontiguousarray(px, np.float64)
+        self.py = np.ascontiguousarray(py, np.float64)
+        n = self.n = len(self.px)
+        if n == 0:
+            raise ValueError("BucketGrid needs points")
+        self.x0, self.y0 = float(self.px.min()), float(self.py.min())
+        w = max(float(self.px.max()) - self.x0, 1e-6)
+        h = max(float(self.py.max()) - self.y0, 1e-6)
+        # Cell edge from the mean density of the points' box; never more cells than points.
+        radius_m = math.sqrt((k_hint + 1) * w * h / (math.pi * n))
+        self.cell_m = max(CELL_SHARE_OF_RADIUS * radius_m, math.sqrt(w * h / n), 1e-6)
+        self.ncols, self.nrows = int(w // self.cell_m) + 1, int(h // self.cell_m) + 1
+        cid = self._cells(self.px, self.py)
+        self.order = np.argsort(cid, kind="stable")
+        self.cell_start = np.searchsorted(cid[self.order], np.arange(self.nrows * self.ncols + 1)).astype(np.int64)
+        del cid
+        self.sx, self.sy = self.px[self.order], self.py[self.order]
+        self._tree = None
+
+    def _cells(self, x, y):
+        j = np.clip(np.floor((x - self.x0) / self.cell_m), 0, self.ncols - 1).astype(np.int64)
+        i = np.clip(np.floor((y - self.y0) / self.cell_m), 0, self.nrows - 1).astype(np.int64)
+        return i * self.ncols + j
+
+    def query(self, qx, qy, k: int, upper_m: float = np.inf):
+        """(dist (m, k), idx (m, k), n_tied) as ``cKDTree.query(..., k, distance_upper_bound=upper_m)``
+        of the points; ``n_tied``: queries with equal distances among their k + 1 nearest, answered by
+        cKDTree."""
+        qx, qy = np.ascontiguousarray(qx, np.float64), np.ascontiguousarray(qy, np.float64)
+        if k < 1:
+            raise ValueError("knn needs k >= 1")
+        qorder = np.argsort(self._cells(qx, qy), kind="stable")
+        ub2 = float(upper_m) * float(upper_m) if np.isfinite(upper_m) else np.inf
+        dist, nb, tied = _knn_kernel(self.sx, self.sy, self.order, self.cell_start, self.nrows, self.ncols,
+                                     self.x0, self.y0, self.cell_m, qx, qy, qorder, k, min(k + 1, self.n), ub2)
+        t = np.flatnonzero(tied)
+        if len(t):
+            if self._tree is None:
+                self._tree = cKDTree(np.column_stack([self.px, self.py]))
+            dt, it = self._tree.query(np.column_stack([qx[t], qy[t]]), k=k, distance_upper_bound=upper_m)
+            dist[t], nb[t] = dt.reshape(len(t), k), it.reshape(len(t), k)
+        return dist, nb, len(t)
+
+
+def knn_2d(px, py, qx, qy, k: int, upper_m: float = np.inf):
     """k nearest of the points (px, py) to each query (qx, qy), horizontally: (dist (m, k), idx (m, k),
     n_tied), identical to ``cKDTree(column_stack([px, py])).query(column_stack([qx, qy]), k=k,
-    distance_upper_bound=upper_m)`` (``tree``: that tree if the caller holds it). Coordinates in metres,
-    best relative to a near origin (as the caller would give them to cKDTree). ``n_tied``: queries with
-    equal distances among their k + 1 nearest, answered by cKDTree."""
-    px, py = np.ascontiguousarray(px, np.float64), np.ascontiguousarray(py, np.float64)
-    qx, qy = np.ascontiguousarray(qx, np.float64), np.ascontiguousarray(qy, np.float64)
-    n, m = len(px), len(qx)
-    if n == 0 or m == 0 or k < 1:
-        raise ValueError("knn_2d needs points, queries and k >= 1")
-    x0, y0 = float(min(px.min(), qx.min())), float(min(py.min(), qy.min()))
-    w = max(float(max(px.max(), qx.max())) - x0, 1e-6)
-    h = max(float(max(py.max(), qy.max())) - y0, 1e-6)
-    # Cell edge from the mean density of the points' box; never more cells than points.
-    radius_m = math.sqrt((k + 1) * w * h / (math.pi * n))
-    cell_m = max(CELL_SHARE_OF_RADIUS * radius_m, math.sqrt(w * h / n), 1e-6)
-    ncols, nrows = int(w // cell_m) + 1, int(h // cell_m) + 1
-    pj = np.minimum(np.floor((px - x0) / cell_m).astype(np.int64), ncols - 1)
-    pi = np.minimum(np.floor((py - y0) / cell_m).astype(np.int64), nrows - 1)
-    pc = pi * ncols + pj
-    order = np.argsort(pc, kind="stable")
-    cell_start = np.searchsorted(pc[order], np.arange(nrows * ncols + 1)).astype(np.int64)
-    qj = np.clip(np.floor((qx - x0) / cell_m).astype(np.int64), 0, ncols - 1)
-    qi = np.clip(np.floor((qy - y0) / cell_m).astype(np.int64), 0, nrows - 1)
-    qorder = np.argsort(qi * ncols + qj, kind="stable")
-    ub2 = float(upper_m) * float(upper_m) if np.isfinite(upper_m) else np.inf
-    kk = min(k + 1, n)
-    dist, nb, tied = _knn_kernel(px[order], py[order], order, cell_start, nrows, ncols, x0, y0, cell_m, qx, qy,
-                                 qorder, k, kk, ub2)
-    t = np.flatnonzero(tied)
-    if len(t):
-        if tree is None:
-            tree = cKDTree(np.column_stack([px, py]))
-        dt, it = tree.query(np.column_stack([qx[t], qy[t]]), k=k, distance_upper_bound=upper_m)
-        dist[t], nb[t] = dt.reshape(len(t), k), it.reshape(len(t), k)
-    return dist, nb, len(t)
+    distance_upper_bound=upper_m)``. Coordinates in metres. ``n_tied``: queries with equal distances
+    among their k + 1 nearest, answered by cKDTree."""
+    return BucketGrid(px, py, k).query(qx, qy, k, upper_m)
