@@ -62,6 +62,8 @@ def test_init_copies_with_copy_and_says_what_camera_to_write(tiny_project, tmp_p
     assert "write camera.toml" in r.stderr and "width = 432" in r.stderr and "height = 240" in r.stderr
     # what the EXIF lacks, in words (the NGI frames said "the   is not in the sensor table": no make, no model)
     assert "no camera in the EXIF (no focal length, make or model)" in r.stderr and "the   is" not in r.stderr
+    # said once, with the other way to get a camera (an import that carries it, as NGI's orthority files)
+    assert r.stderr.count("write camera.toml") == 1 and "--format orthority" in r.stderr
     assert "Traceback" not in r.stderr
 
 
