@@ -32,7 +32,7 @@ heights = "ellipsoidal"  # or a vertical CRS, e.g. "EPSG:3855" (EGM2008 height) 
 
 # [gnss]                 # gnss.txt: image_id X Y Z [sX sY sZ], antenna positions in the project CRS
 # sigma_xy_m = 0.05      # a-priori accuracy of positions without their own sX sY sZ (m)
-# sigma_z_m = 0.08
+# sigma_z_m = 0.1
 # lever_arm_m = [0.0, 0.0, 0.0]   # antenna offset from the projection centre, camera frame (x right, y up, z up), m
 
 # [control]              # control/points.csv: id,kind,x,y,z,sx_m,sy_m,sz_m and control/image_points.csv

@@ -149,3 +149,17 @@ def test_docs_name_every_project_and_camera_key():
     assert "## `gnss.txt`" in doc and "image_id X Y Z [sX sY sZ]" in doc
     for header in ("id,kind,x,y,z,sx_m,sy_m,sz_m", "point_id,image_id,x_px,y_px"):
         assert header in doc
+
+
+def test_project_toml_template_shows_the_gnss_defaults(tmp_path):
+    """project.toml's commented [gnss] lines are what the adjustment takes when they stay commented (the template
+    said sigma_z_m = 0.08 while the default, which the EXIF import and `aerotri settings` state, is 0.1)."""
+    from aerotri.chain.setup import PROJECT_TOML
+    from aerotri.core.project import GnssSettings
+
+    text = PROJECT_TOML.format(name="t", crs="EPSG:32615", crs_name="UTM")
+    gnss = text.split("# [gnss]", 1)[1].split("\n\n", 1)[0]
+    shown = tomllib.loads("\n".join(line.removeprefix("# ").split("#")[0] for line in gnss.splitlines()[1:]))
+    defaults = GnssSettings()
+    assert shown == {"sigma_xy_m": defaults.sigma_xy_m, "sigma_z_m": defaults.sigma_z_m,
+                     "lever_arm_m": list(defaults.lever_arm_m)}
