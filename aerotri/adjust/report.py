@@ -349,7 +349,7 @@ def _weak_modes(ba, height_limit_m: float) -> list:
             out.append((g, f"{_MODE_NAMES[g.mode]} held only by {_holders(g)} (sigma {g.sigma_m:.3f} m)"))
         elif 3 * g.sigma_m > height_limit_m:
             by = ", ".join(f"{k} {v:.0%}" for k, v in sorted(g.shares.items(), key=lambda kv: -kv[1]) if v >= 0.05)
-            out.append((g, f"{_MODE_NAMES[g.mode]} sigma {g.sigma_m:.3f} m, 3 sigma above the {height_limit_m:.2f} m "
+            out.append((g, f"{_MODE_NAMES[g.mode]} sigma {g.sigma_m:.3f} m, 3 sigma ({3 * g.sigma_m:.2f} m) above the {height_limit_m:.2f} m "
                            f"height limit (determined by {by})"))
     return out
 

@@ -73,6 +73,9 @@ def test_manned_blocks_by_gsd(tmp_path):
     t = _choose(_project(tmp_path / "fine", DMC, 300.0))
     assert t.key == "ASPRS2023 H14.1cm V20cm" and t.limits["flight_tilt_max_deg"] == 2.0
     assert "GSD under 5 cm" in t.reason
+    # a GSD of a metre and more in whole centimetres (the NGI frames' report said "GSD 5.8e+02 cm")
+    t = _choose(_project(tmp_path / "very_high", DMC, 12000.0))
+    assert "GSD 120 cm at 12000 m above ground" in t.reason and "e+" not in t.reason
 
 
 def test_qa_settings_override_the_choice_and_are_checked(tmp_path):
