@@ -430,7 +430,7 @@ def _write_project_files(tmp: Path, cfg: dict, plan, cam_true, cam_nominal, orig
         f"mean_terrain_height_m = {origin[2]}\nspeed_mps = {cfg['flight']['speed_mps']}\n\n"
         f"[qa]\n# tolerance table of the accuracy report (aerotri report): map scale, terrain class, PDF copy\n"
         f'map_scale = "1:5000"\nterrain = "flat"\npdf = true\n'
-        + stage_sections_toml(cfg.get("chain", {}) if chain is None else chain)
+        + stage_sections_toml(_with_gnss_prior(cfg) if chain is None else chain)
     )
     (tmp / "truth" / "gnss_truth.toml").write_text(
         f"lever_arm_m = [{lever}]\n"
@@ -444,6 +444,16 @@ def _write_project_files(tmp: Path, cfg: dict, plan, cam_true, cam_nominal, orig
     flight_rows = [(iid, int(plan.strip[i]), float(plan.time_s[i]), round(gains[i], 5))
                    for i, iid in enumerate(plan.image_id)]
     _csv(tmp / "truth" / "frames.csv", ["image_id", "strip", "gps_time_s", "exposure_gain"], flight_rows)
+
+
+def _with_gnss_prior(cfg: dict) -> dict:
+    """The preset's stage sections with the a-priori sigma of its GNSS corrections in [adjust]
+    (``gnss_shift_sigma_m``), when its GNSS has shifts or drifts."""
+    chain = {k: dict(v) for k, v in cfg.get("chain", {}).items()}
+    g = cfg["gnss"]
+    if float(g.get("strip_shift_sigma_m", 0.0)) > 0.0 or float(g.get("drift_sigma_m_per_s", 0.0)) > 0.0:
+        chain["adjust"] = {**chain.get("adjust", {}), "gnss_shift_sigma_m": gnss_shift_sigma_m(cfg)}
+    return chain
 
 
 def _write_truth_corners(truth_dir: Path, scene, corners: list[dict], origin) -> None:
@@ -666,7 +676,19 @@ def truth_adjust_settings(cfg: dict, cam_true, cam_nominal) -> dict:
     g = cfg["gnss"]
     correction = ("shift_drift" if float(g.get("drift_sigma_m_per_s", 0.0)) > 0.0
                   else "shift" if float(g.get("strip_shift_sigma_m", 0.0)) > 0.0 else "none")
-    return {"self_calibration": groups, "gnss_correction": correction}
+    out = {"self_calibration": groups, "gnss_correction": correction}
+    if correction != "none":
+        out["gnss_shift_sigma_m"] = gnss_shift_sigma_m(cfg)
+    return out
+
+
+def gnss_shift_sigma_m(cfg: dict) -> float:
+    """The a-priori sigma of a strip's GNSS shift and of its drift's displacement at the strip ends (``[adjust]
+    gnss_shift_sigma_m``) that the preset's GNSS errors are drawn with: the larger of the shift sigma and the
+    drift sigma times half a strip's flying time (the drift runs from the strip's middle)."""
+    g, f = cfg["gnss"], cfg["flight"]
+    half_s = 0.5 * (int(f["frames_per_strip"]) - 1) * block_layout(cfg).base_m / float(f["speed_mps"])
+    return round(max(float(g.get("strip_shift_sigma_m", 0.0)), float(g.get("drift_sigma_m_per_s", 0.0)) * half_s), 3)
 
 
 def observations_chain(cfg: dict, cam_true, cam_nominal) -> dict:
