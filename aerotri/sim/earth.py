@@ -151,16 +151,16 @@ def to_camera_nb(A, q, dx, dy, dz):
 
 @numba.njit(cache=True, inline="always")
 def to_map_nb(A_inv, q, vx, vy, vz):
-    """``FrameEarth.to_map`` of one camera-frame point (numba)."""
+    """``FrameEarth.to_map`` of one camera-frame point (numba), one fixed-point step: the linear inverse is off by
+    the quadratic terms (< 0.2 m at 1.5 km), which the step reduces to 2 q d x 0.2 m (< 0.1 mm): enough for the
+    texture and shading of a surface point."""
     dx = A_inv[0, 0] * vx + A_inv[0, 1] * vy + A_inv[0, 2] * vz
     dy = A_inv[1, 0] * vx + A_inv[1, 1] * vy + A_inv[1, 2] * vz
     dz = A_inv[2, 0] * vx + A_inv[2, 1] * vy + A_inv[2, 2] * vz
-    for _ in range(2):
-        p0, p1, p2, p3, p4, p5 = dx * dx, dy * dy, dz * dz, dx * dy, dx * dz, dy * dz
-        wx = vx - (q[0, 0] * p0 + q[0, 1] * p1 + q[0, 2] * p2 + q[0, 3] * p3 + q[0, 4] * p4 + q[0, 5] * p5)
-        wy = vy - (q[1, 0] * p0 + q[1, 1] * p1 + q[1, 2] * p2 + q[1, 3] * p3 + q[1, 4] * p4 + q[1, 5] * p5)
-        wz = vz - (q[2, 0] * p0 + q[2, 1] * p1 + q[2, 2] * p2 + q[2, 3] * p3 + q[2, 4] * p4 + q[2, 5] * p5)
-        dx = A_inv[0, 0] * wx + A_inv[0, 1] * wy + A_inv[0, 2] * wz
-        dy = A_inv[1, 0] * wx + A_inv[1, 1] * wy + A_inv[1, 2] * wz
-        dz = A_inv[2, 0] * wx + A_inv[2, 1] * wy + A_inv[2, 2] * wz
-    return dx, dy, dz
+    p0, p1, p2, p3, p4, p5 = dx * dx, dy * dy, dz * dz, dx * dy, dx * dz, dy * dz
+    wx = q[0, 0] * p0 + q[0, 1] * p1 + q[0, 2] * p2 + q[0, 3] * p3 + q[0, 4] * p4 + q[0, 5] * p5
+    wy = q[1, 0] * p0 + q[1, 1] * p1 + q[1, 2] * p2 + q[1, 3] * p3 + q[1, 4] * p4 + q[1, 5] * p5
+    wz = q[2, 0] * p0 + q[2, 1] * p1 + q[2, 2] * p2 + q[2, 3] * p3 + q[2, 4] * p4 + q[2, 5] * p5
+    return (dx - (A_inv[0, 0] * wx + A_inv[0, 1] * wy + A_inv[0, 2] * wz),
+            dy - (A_inv[1, 0] * wx + A_inv[1, 1] * wy + A_inv[1, 2] * wz),
+            dz - (A_inv[2, 0] * wx + A_inv[2, 1] * wy + A_inv[2, 2] * wz))

@@ -13,6 +13,11 @@ the lens distortion of the true camera are exact, as they were with a ray per pi
   camera-frame vertices A, B, C when d . (A x B), d . (B x C), d . (C x A) have one sign (zero included:
   neighbouring triangles leave no crack). Depth along the optical axis: (n . A) / (n . d), n the plane
   normal. Crowns: the ray-spheroid equation per pixel.
+- The earth (``aerotri.sim.earth``): the scene is in map coordinates; a frame's camera-frame vertices are
+  its map offsets through the frame's second-order map -> ENU -> camera transformation (``FrameEarth``:
+  scale factor, convergence, (R + h) / R and the earth's curvature), each crown a spheroid linearised at its
+  centre, and a pixel's surface point goes back to the map by the inverse. ``FrameEarth.flat`` (the default
+  of ``FrameSetup``) is the flat world of the ray caster.
 - Work: the terrain nodes, building triangles and crowns in view are projected once per frame and
   binned into bands of ``BAND_ROWS`` rows; bands are rendered in parallel (numba prange), each with its
   own depth buffer, so a frame of any size needs memory for a few bands only.
@@ -24,7 +29,7 @@ the lens distortion of the true camera are exact, as they were with a ray per pi
 height at each pixel centre, then building triangles and crown tops rasterised over it, the highest
 surface winning (what a vertical ray meets first).
 
-Note numba's cache checks only the source file of a cached function: after editing ``shading`` (or
+Note numba's cache checks only the source file of a cached function: after editing ``shading``, ``earth`` (or
 ``lens_kernels``), clear ``aerotri/sim/__pycache__/*.nbi|*.nbc``.
 """
 
@@ -416,7 +421,7 @@ def _hit_normal(typ, idx, x, y, z, dx, dy, dz, gi0, gj0, ncj, hz, res, tn, tkind
 
 
 @numba.njit(cache=True, parallel=True)
-def _render_bands(band0, band1, row_out0, W, H, band_rows, step, XN, YN, C, A_inv, quad,
+def _render_bands(band0, band1, row_out0, W, H, band_rows, step, XN, YN, C, A_inv, quad, curved,
                   V, ti0, tj0, cell_start, cell_list, cell_box,
                   TV, tri_ids, tri_start, tri_list, tri_box,
                   tree_ids, tree_start, tree_list, tree_box, tree_G, tree_s,
@@ -585,10 +590,15 @@ def _render_bands(band0, band1, row_out0, W, H, band_rows, step, XN, YN, C, A_in
                     dy = A_inv[1, 0] * xn + A_inv[1, 1] * yn + A_inv[1, 2]
                     dz = A_inv[2, 0] * xn + A_inv[2, 1] * yn + A_inv[2, 2]
                     t = 1.0 / wb[rr, c]
-                    ox, oy, oz = to_map_nb(A_inv, quad, t * xn, t * yn, t)
-                    X[c] = C[0] + ox
-                    Y[c] = C[1] + oy
-                    Z[c] = C[2] + oz
+                    if curved:
+                        ox, oy, oz = to_map_nb(A_inv, quad, t * xn, t * yn, t)
+                        X[c] = C[0] + ox
+                        Y[c] = C[1] + oy
+                        Z[c] = C[2] + oz
+                    else:
+                        X[c] = C[0] + t * dx
+                        Y[c] = C[1] + t * dy
+                        Z[c] = C[2] + t * dz
                     NX[c], NY[c], NZ[c], kind[c], obj[c] = _hit_normal(
                         typ, idx, X[c], Y[c], Z[c], dx, dy, dz, ti0, tj0, ncj, hz, res, tn, tkind, tobj, tc, ta)
                 shading.shade_points(X, Y, Z, kind, obj, NX, NY, NZ, G, roof_albedo, fine_m, sun, rad)
@@ -711,7 +721,7 @@ class FrameRenderer:
         ids = np.empty((r1 - r0, cam.width) if with_ids else (1, 1), np.int64)
         L = self.look
         _render_bands(r0 // br, (r1 + br - 1) // br, r0, cam.width, cam.height, br, float(self.step), self.XN, self.YN,
-                      frame.C, frame.earth.A_inv, frame.earth.q, frame.V, frame.ti0, frame.tj0, frame.cell_start,
+                      frame.C, frame.earth.A_inv, frame.earth.q, bool(frame.earth.q.any()), frame.V, frame.ti0, frame.tj0, frame.cell_start,
                       frame.cell_list, frame.cell_box, frame.TV, frame.tri_ids, frame.tri_start, frame.tri_list,
                       frame.tri_box, frame.tree_ids, frame.tree_start, frame.tree_list, frame.tree_box, frame.tree_G,
                       frame.tree_s,
