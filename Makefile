@@ -21,8 +21,9 @@ install: $(STAMP)
 demo: $(STAMP)
 	$(BIN)/aerotri demo $(OUT)
 
+# One pytest-xdist worker per core (at most 4), see docs/testing.md; `make test PYTEST_ARGS=tests/ortho` runs a subset.
 test: $(STAMP)
-	$(BIN)/python -m pytest -q
+	$(BIN)/python -m pytest -q -n auto --maxprocesses 4 --dist worksteal $(PYTEST_ARGS)
 
 bench: $(STAMP)
 	# headless Chromium and pdftoppm for bench/render_reports.py (what a reviewer sees), gdal_contour for

@@ -70,8 +70,9 @@ def _ok(prog, *args):
 
 
 @pytest.fixture(scope="module")
-def workspace(tiny_project, tmp_path_factory) -> Path:
-    return build_workspace(tiny_project, tmp_path_factory.mktemp("badinput") / "w")
+def workspace(tiny_project, build_once) -> Path:
+    # read-only (every case copies what it needs): built once per run, shared by the xdist workers
+    return build_once("badinput", lambda w: build_workspace(tiny_project, w))
 
 
 def build_workspace(tiny_project: Path, w: Path) -> Path:

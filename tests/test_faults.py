@@ -175,13 +175,14 @@ def _roofs(las: Path) -> None:
 def workspace(request, tmp_path_factory) -> Path:
     """The workspace (module docstring); AEROTRI_FAULTS_WORKSPACE names one built before (by ``build_workspace``,
     for working on these tests: it is copied, never changed)."""
-    w = tmp_path_factory.mktemp("faults") / "w"
     given = os.environ.get("AEROTRI_FAULTS_WORKSPACE")
     if given:
+        w = tmp_path_factory.mktemp("faults") / "w"
         shutil.copytree(given, w, symlinks=True)
         return w
-    build_workspace(request.getfixturevalue("tiny_project"), w)
-    return w
+    # every case copies it (prepare): built once per run, shared by the xdist workers
+    tiny = request.getfixturevalue("tiny_project")
+    return request.getfixturevalue("build_once")("faults", lambda w: build_workspace(tiny, w))
 
 
 def build_workspace(tiny_project: Path, w: Path) -> None:

@@ -16,10 +16,10 @@ REPO = Path(__file__).resolve().parents[1]
 
 
 @pytest.fixture(scope="module")
-def wheel(tmp_path_factory) -> Path:
-    out = tmp_path_factory.mktemp("wheel")
-    subprocess.run([sys.executable, "-m", "pip", "wheel", "--no-deps", "-q", "-w", str(out),
-                    str(REPO)], check=True, capture_output=True)
+def wheel(build_once) -> Path:
+    # built once per run: pip builds in the source tree (build/, *.egg-info), which two xdist workers must not share
+    out = build_once("wheel", lambda out: subprocess.run([sys.executable, "-m", "pip", "wheel", "--no-deps", "-q", "-w",
+                                                          str(out), str(REPO)], check=True, capture_output=True))
     (whl,) = out.glob("aerotri-*.whl")
     return whl
 
