@@ -167,14 +167,27 @@ def _fixed_point_kernel(anchor_x, anchor_y, spacing, rows, cols, dem, dem_x0, de
         _pack_fixed_point(ix_row, iy_row, map_int[r], map_frac[r], bounds)
 
 
+@numba.njit(cache=True, inline="always")
+def _steps_in_block(u, v, du, dv, bi, bj, block):
+    """Steps of (du, dv) DSM cells from (u, v) that stay in block (bi, bj) of ``block`` cells, at least 1: the
+    march's jump over a block its ray passes above (the position after the jump is the first one past it)."""
+    su = ((bj + 1) * block - u) / du if du > 1e-12 else ((u - bj * block) / -du if du < -1e-12 else 1e30)
+    sv = ((bi + 1) * block - v) / dv if dv > 1e-12 else ((v - bi * block) / -dv if dv < -1e-12 else 1e30)
+    return max(1, int(min(su, sv, 1e9)))
+
+
 @numba.njit(cache=True, nogil=True)
 def _occlusion_kernel(anchor_x, anchor_y, spacing, rows, cols, height_tile, dsm, dsm_x0, dsm_y0, dsm_res,
-                      dsm_max, centre, tolerance_m, occluded, candidates):
+                      dsm_max, centre, tolerance_m, occluded, candidates, block_max, block, coarse_max, coarse):
     """Mark ground points whose ray to the projection centre passes below the DSM surface.
 
     March from the ground point towards the centre in steps of one DSM cell (horizontally), stop when
     the ray is above the highest DSM value; occluded if the DSM exceeds the ray by ``tolerance_m``.
     Only the points where ``candidates`` is True are marched (the others are left as they are).
+    ``block_max`` (``_block_max`` of the DSM by ``block`` cells) and ``coarse_max`` (by ``coarse`` cells): where
+    the ray is above the highest height a sample in the current block reads, plus the tolerance, no step in that
+    block can find the ray occluded (the ray rises), so the march jumps to the first step past the block (the
+    coarse block first); the steps taken are at the same positions as one by one, so the result is the same.
     """
     dh, dw = dsm.shape
     inv_s = 1.0 / spacing
@@ -202,8 +215,12 @@ def _occlusion_kernel(anchor_x, anchor_y, spacing, rows, cols, height_tile, dsm,
             rise = vz / hd  # metres of ray height per metre horizontally
             ux = vx / hd
             uy = vy / hd
-            t = dsm_res
+            # u, v (DSM cell coordinates) change by du, dv per step of one cell
+            du = ux
+            dv = -uy
+            k = 1
             while True:
+                t = k * dsm_res
                 zr = Z + rise * t
                 if zr > dsm_max:
                     break
@@ -215,6 +232,12 @@ def _occlusion_kernel(anchor_x, anchor_y, spacing, rows, cols, height_tile, dsm,
                     break
                 di = min(int(v), dh - 2)
                 dj = min(int(u), dw - 2)
+                if coarse_max[di // coarse, dj // coarse] <= zr + tolerance_m:
+                    k += _steps_in_block(u, v, du, dv, di // coarse, dj // coarse, coarse)
+                    continue
+                if block_max[di // block, dj // block] <= zr + tolerance_m:
+                    k += _steps_in_block(u, v, du, dv, di // block, dj // block, block)
+                    continue
                 fv = v - di
                 fu = u - dj
                 zs = (dsm[di, dj] * (1 - fu) * (1 - fv) + dsm[di, dj + 1] * fu * (1 - fv)
@@ -222,7 +245,7 @@ def _occlusion_kernel(anchor_x, anchor_y, spacing, rows, cols, height_tile, dsm,
                 if zs > zr + tolerance_m:
                     occluded[r, c] = True
                     break
-                t += dsm_res
+                k += 1
 
 
 @numba.njit(cache=True, nogil=True, fastmath=_FASTMATH, error_model="numpy")
@@ -307,3 +330,93 @@ def _zbuffer_kernel(anchor_x, anchor_y, spacing, heights, centre, M, cam, width,
                     zbuf[i, j] = zc
             elif zc > zbuf[i, j] + tolerance_m:
                 occluded[r, c] = True
+
+
+@numba.njit(cache=True, nogil=True, fastmath=_FASTMATH, error_model="numpy")
+def _zbuffer_scatter_affine(heights, x0, y0, res, centre, M, cam, width, height, cell_px, zbuf):
+    """The scatter pass of ``_zbuffer_kernel`` when the output grid is in the project CRS (ground X, Y affine in
+    (row, col), heights given on the grid): the projection is branch-free and vectorised as in
+    ``_fixed_point_kernel_affine``, the cell index and depth go to row arrays, and a second, scalar loop keeps
+    the nearest depth per cell. NaN heights fail the range test."""
+    rows, cols = heights.shape
+    zh, zw = zbuf.shape
+    inv_cell = 1.0 / cell_px
+    m02, m12, m22 = M[0, 2], M[1, 2], M[2, 2]
+    sx, sy, sz = M[0, 0] * res, M[1, 0] * res, M[2, 0] * res
+    cell_row = np.empty(cols, np.int64)
+    zc_row = np.empty(cols, np.float32)
+    for r in range(rows):
+        dx0 = x0 - centre[0]
+        dy = y0 - r * res - centre[1]
+        bx = M[0, 1] * dy + M[0, 0] * dx0
+        by = M[1, 1] * dy + M[1, 0] * dx0
+        bz = M[2, 1] * dy + M[2, 0] * dx0
+        z_row = heights[r]
+        for c in range(cols):
+            dz = np.float64(z_row[c]) - centre[2]
+            zc = bz + c * sz + m22 * dz
+            inv_zc = 1.0 / zc
+            xn = (bx + c * sx + m02 * dz) * inv_zc
+            yn = (by + c * sy + m12 * dz) * inv_zc
+            x, y = to_pixel(cam, xn, yn)
+            ok = (zc > 0.0) & (x >= 0.0) & (y >= 0.0) & (x < width) & (y < height)
+            i = min(np.int64(y * inv_cell) if ok else 0, zh - 1)
+            j = min(np.int64(x * inv_cell) if ok else 0, zw - 1)
+            cell_row[c] = i * zw + j if ok else -1
+            zc_row[c] = zc
+        for c in range(cols):
+            k = cell_row[c]
+            if k >= 0:
+                i = k // zw
+                j = k - i * zw
+                if zc_row[c] < zbuf[i, j]:
+                    zbuf[i, j] = zc_row[c]
+
+
+@numba.njit(cache=True, nogil=True, fastmath=_FASTMATH, error_model="numpy")
+def _zbuffer_test_maps(map_int, mask, heights, x0, y0, res, centre, M, cell_px, zbuf, tolerance_m, occluded):
+    """The test pass of ``_zbuffer_kernel`` reusing the tile's cv2.remap maps (the image position of every
+    imaged pixel at the same heights, ``_fixed_point_kernel_affine``): the cell from the integer position, the
+    depth along the optical axis affine in (row, col) and height; ``occluded`` where the imaged pixel
+    (``mask`` != 0) lies more than ``tolerance_m`` behind its cell's nearest surface (set, never cleared)."""
+    rows, cols = heights.shape
+    zh, zw = zbuf.shape
+    sz = M[2, 0] * res
+    m22 = M[2, 2]
+    for r in range(rows):
+        dx0 = x0 - centre[0]
+        dy = y0 - r * res - centre[1]
+        bz = M[2, 1] * dy + M[2, 0] * dx0
+        z_row, mask_row, occ_row, int_row = heights[r], mask[r], occluded[r], map_int[r]
+        for c in range(cols):
+            if mask_row[c] == 0:
+                continue
+            zc = bz + c * sz + m22 * (np.float64(z_row[c]) - centre[2])
+            i = min(np.int64(int_row[c, 1]) // cell_px, zh - 1)
+            j = min(np.int64(int_row[c, 0]) // cell_px, zw - 1)
+            if zc > zbuf[i, j] + tolerance_m:
+                occ_row[c] = True
+
+
+@numba.njit(cache=True)
+def _block_max(dsm, block):
+    """Highest DSM height over blocks of ``block`` x ``block`` cells and the row and column after them (the
+    cells a bilinear sample in the block reads), NaN left out (-inf where all are NaN): the march's bound."""
+    dh, dw = dsm.shape
+    bh = (dh + block - 1) // block
+    bw = (dw + block - 1) // block
+    out = np.full((bh, bw), -np.inf, np.float32)
+    for i in range(dh):
+        for j in range(dw):
+            v = dsm[i, j]
+            if v != v:
+                continue
+            bi = i // block
+            bj = j // block
+            # cell (i, j) is read by samples in its own block and, on the block's first row/column, by the
+            # block before it
+            for ii in range(max(bi - (1 if i % block == 0 else 0), 0), bi + 1):
+                for jj in range(max(bj - (1 if j % block == 0 else 0), 0), bj + 1):
+                    if v > out[ii, jj]:
+                        out[ii, jj] = v
+    return out
