@@ -191,9 +191,10 @@ def march_bound(dsm: HeightRaster, blocks: tuple[int, int] = MARCH_BLOCK_CELLS) 
 
 def occlusion_mask(geometry: FrameGeometry, dsm: HeightRaster, grid: OrthoGrid, heights_m: np.ndarray, anchors,
                    tolerance_m: float = 0.3, candidates: np.ndarray | None = None,
-                   bound: MarchBound | None = None) -> np.ndarray:
+                   bound: MarchBound | None = None, near_share: np.ndarray | None = None) -> np.ndarray:
     """True where the ground point (grid pixel at ``heights_m``) is hidden from the camera by the DSM (a march
-    along its ray; only where ``candidates``, e.g. the points the z-buffer puts behind a nearer surface)."""
+    along its ray; only where ``candidates``, e.g. the points the z-buffer puts behind a nearer surface).
+    ``near_share`` (``zbuffer_occlusion_from_maps``): where the march looks first; the result is the same."""
     AX, AY, s = anchors
     occ = np.zeros((grid.height, grid.width), dtype=np.bool_)
     bound = bound or march_bound(dsm)
@@ -202,7 +203,8 @@ def occlusion_mask(geometry: FrameGeometry, dsm: HeightRaster, grid: OrthoGrid, 
     _occlusion_kernel(AX, AY, float(s), grid.height, grid.width, heights_m.astype(np.float32), dsm.heights_m,
                       dsm.x_left_m, dsm.y_top_m, dsm.res_m, bound.max_m, np.asarray(geometry.centre_m, np.float64),
                       float(tolerance_m), occ, np.ones(occ.shape, np.bool_) if candidates is None else candidates,
-                      bound.block_max_m, bound.block, bound.coarse_max_m, bound.coarse)
+                      bound.block_max_m, bound.block, bound.coarse_max_m, bound.coarse,
+                      np.zeros((1, 1), np.float32) if near_share is None else near_share)
     return occ
 
 
@@ -270,15 +272,19 @@ def zbuffer_occlusion(geometry: FrameGeometry, zbuffer: ZBuffer, heights_m: np.n
 
 
 def zbuffer_occlusion_from_maps(geometry: FrameGeometry, zbuffer: ZBuffer, tile: OrthoGrid, map_int: np.ndarray,
-                                mask: np.ndarray, heights_m: np.ndarray, out: np.ndarray) -> np.ndarray:
+                                mask: np.ndarray, heights_m: np.ndarray, out: np.ndarray,
+                                near_share: np.ndarray | None = None) -> np.ndarray:
     """``zbuffer_occlusion`` of a tile in the project CRS from its cv2.remap maps (``fixed_point_maps`` at the same
-    ``heights_m``): the image positions are not computed again; only imaged pixels (``mask``) are tested."""
+    ``heights_m``): the image positions are not computed again; only imaged pixels (``mask``) are tested.
+    ``near_share`` (float32 like the tile): set where ``out`` is, to the nearer surface's depth / the point's
+    (for ``occlusion_mask``)."""
     from ortho.rectify_kernels import _zbuffer_test_maps
 
     centre, M, _ = geometry.kernel_args()
     out[...] = False
+    near = np.empty(heights_m.shape, np.float32) if near_share is None else near_share
     _zbuffer_test_maps(map_int, mask, heights_m, tile.x_left_m + 0.5 * tile.res_m, tile.y_top_m - 0.5 * tile.res_m,
-                       tile.res_m, centre, M, zbuffer.cell_px, zbuffer.depth_m, float(zbuffer.tolerance_m), out)
+                       tile.res_m, centre, M, zbuffer.cell_px, zbuffer.depth_m, float(zbuffer.tolerance_m), out, near)
     return out
 
 
@@ -491,6 +497,7 @@ def rectify_frame(image: np.ndarray, camera: Camera, centre_m, R, dem_dataset: H
             local.bounds = np.empty(4, np.int32)
             local.window = SourceWindow()
             local.occluded = np.empty(tile_px * tile_px, np.bool_)
+            local.near_share = np.empty(tile_px * tile_px, np.float32)
         handle, o, m = take_out_buffers(tile.height, tile.width)
         map_int, map_frac, _, z, anchors = fixed_point_maps(geometry, dem_dataset, tile, to_project,
                                                             buffers=local.buffers, mask_out=m, bounds_out=local.bounds)
@@ -498,10 +505,12 @@ def rectify_frame(image: np.ndarray, camera: Camera, centre_m, R, dem_dataset: H
             # the z-buffer is fast but coarse (where a wall spans few DSM cells it puts visible points behind the
             # roof edge above them): the points it puts behind a nearer surface are decided by the march
             occ_out = local.occluded[:tile.height * tile.width].reshape(tile.height, tile.width)
-            behind = zbuffer_occlusion_from_maps(geometry, zbuffer, tile, map_int, m, z, occ_out) if maps_at_dsm else \
-                zbuffer_occlusion(geometry, zbuffer, z, anchors, out=occ_out)
+            near = local.near_share[:tile.height * tile.width].reshape(tile.height, tile.width) if maps_at_dsm else None
+            behind = zbuffer_occlusion_from_maps(geometry, zbuffer, tile, map_int, m, z, occ_out, near) \
+                if maps_at_dsm else zbuffer_occlusion(geometry, zbuffer, z, anchors, out=occ_out)
             if behind.any():
-                occluded = occlusion_mask(geometry, occlusion_dsm, tile, z, anchors, candidates=behind, bound=bound)
+                occluded = occlusion_mask(geometry, occlusion_dsm, tile, z, anchors, candidates=behind, bound=bound,
+                                          near_share=near)
                 m[occluded] = 0
                 map_int[occluded] = -32768
         if not m.any():

@@ -178,7 +178,8 @@ def _steps_in_block(u, v, du, dv, bi, bj, block):
 
 @numba.njit(cache=True, nogil=True)
 def _occlusion_kernel(anchor_x, anchor_y, spacing, rows, cols, height_tile, dsm, dsm_x0, dsm_y0, dsm_res,
-                      dsm_max, centre, tolerance_m, occluded, candidates, block_max, block, coarse_max, coarse):
+                      dsm_max, centre, tolerance_m, occluded, candidates, block_max, block, coarse_max, coarse,
+                      near_share):
     """Mark ground points whose ray to the projection centre passes below the DSM surface.
 
     March from the ground point towards the centre in steps of one DSM cell (horizontally), stop when
@@ -188,7 +189,12 @@ def _occlusion_kernel(anchor_x, anchor_y, spacing, rows, cols, height_tile, dsm,
     the ray is above the highest height a sample in the current block reads, plus the tolerance, no step in that
     block can find the ray occluded (the ray rises), so the march jumps to the first step past the block (the
     coarse block first); the steps taken are at the same positions as one by one, so the result is the same.
+    ``near_share`` (float32 like the tile, or (1, 1) for none): where positive, the depth of the surface the
+    z-buffer puts in front of the point as a share of the point's depth; the steps around where the ray meets
+    that depth are tried first, and a hit there decides (the march would find the same or an earlier hit;
+    "occluded" is whether any step hits), else the march runs from the start.
     """
+    hinted = near_share.shape[0] == rows and near_share.shape[1] == cols
     dh, dw = dsm.shape
     inv_s = 1.0 / spacing
     for r in range(rows):
@@ -218,6 +224,30 @@ def _occlusion_kernel(anchor_x, anchor_y, spacing, rows, cols, height_tile, dsm,
             # u, v (DSM cell coordinates) change by du, dv per step of one cell
             du = ux
             dv = -uy
+            if hinted and near_share[r, c] > 0.0:
+                # the ray's depth falls linearly to 0 at the centre: it reaches the near surface's depth after
+                # a horizontal distance hd * (1 - share)
+                k0 = int(hd * (1.0 - near_share[r, c]) / dsm_res + 0.5)
+                hit = False
+                for k in range(max(1, k0 - 2), k0 + 3):
+                    t = k * dsm_res
+                    zr = Z + rise * t
+                    u = (X + ux * t - dsm_x0) / dsm_res - 0.5
+                    v = (dsm_y0 - (Y + uy * t)) / dsm_res - 0.5
+                    if zr > dsm_max or u < 0 or v < 0 or u > dw - 1 or v > dh - 1:
+                        continue
+                    di = min(int(v), dh - 2)
+                    dj = min(int(u), dw - 2)
+                    fv = v - di
+                    fu = u - dj
+                    zs = (dsm[di, dj] * (1 - fu) * (1 - fv) + dsm[di, dj + 1] * fu * (1 - fv)
+                          + dsm[di + 1, dj] * (1 - fu) * fv + dsm[di + 1, dj + 1] * fu * fv)
+                    if zs > zr + tolerance_m:
+                        hit = True
+                        break
+                if hit:
+                    occluded[r, c] = True
+                    continue
             k = 1
             while True:
                 t = k * dsm_res
@@ -343,7 +373,8 @@ def _zbuffer_scatter_affine(heights, x0, y0, res, centre, M, cam, width, height,
     inv_cell = 1.0 / cell_px
     m02, m12, m22 = M[0, 2], M[1, 2], M[2, 2]
     sx, sy, sz = M[0, 0] * res, M[1, 0] * res, M[2, 0] * res
-    cell_row = np.empty(cols, np.int64)
+    i_row = np.empty(cols, np.int32)
+    j_row = np.empty(cols, np.int32)
     zc_row = np.empty(cols, np.float32)
     for r in range(rows):
         dx0 = x0 - centre[0]
@@ -360,42 +391,46 @@ def _zbuffer_scatter_affine(heights, x0, y0, res, centre, M, cam, width, height,
             yn = (by + c * sy + m12 * dz) * inv_zc
             x, y = to_pixel(cam, xn, yn)
             ok = (zc > 0.0) & (x >= 0.0) & (y >= 0.0) & (x < width) & (y < height)
-            i = min(np.int64(y * inv_cell) if ok else 0, zh - 1)
-            j = min(np.int64(x * inv_cell) if ok else 0, zw - 1)
-            cell_row[c] = i * zw + j if ok else -1
+            i_row[c] = min(np.int32(y * inv_cell) if ok else -1, zh - 1)
+            j_row[c] = min(np.int32(x * inv_cell) if ok else 0, zw - 1)
             zc_row[c] = zc
         for c in range(cols):
-            k = cell_row[c]
-            if k >= 0:
-                i = k // zw
-                j = k - i * zw
+            i = i_row[c]
+            if i >= 0:
+                j = j_row[c]
                 if zc_row[c] < zbuf[i, j]:
                     zbuf[i, j] = zc_row[c]
 
 
 @numba.njit(cache=True, nogil=True, fastmath=_FASTMATH, error_model="numpy")
-def _zbuffer_test_maps(map_int, mask, heights, x0, y0, res, centre, M, cell_px, zbuf, tolerance_m, occluded):
+def _zbuffer_test_maps(map_int, mask, heights, x0, y0, res, centre, M, cell_px, zbuf, tolerance_m, occluded,
+                       near_share):
     """The test pass of ``_zbuffer_kernel`` reusing the tile's cv2.remap maps (the image position of every
     imaged pixel at the same heights, ``_fixed_point_kernel_affine``): the cell from the integer position, the
     depth along the optical axis affine in (row, col) and height; ``occluded`` where the imaged pixel
-    (``mask`` != 0) lies more than ``tolerance_m`` behind its cell's nearest surface (set, never cleared)."""
+    (``mask`` != 0) lies more than ``tolerance_m`` behind its cell's nearest surface (set, never cleared), and
+    there ``near_share`` = that surface's depth / the pixel's (where the march looks first)."""
     rows, cols = heights.shape
     zh, zw = zbuf.shape
     sz = M[2, 0] * res
     m22 = M[2, 2]
+    # cell of an integer position p >= 0: (p + 0.5) / cell_px lies strictly inside (p // cell_px, + 1), so the
+    # float product truncates to the integer division (which would cost tens of cycles per pixel)
+    inv_cell = 1.0 / cell_px
     for r in range(rows):
         dx0 = x0 - centre[0]
         dy = y0 - r * res - centre[1]
         bz = M[2, 1] * dy + M[2, 0] * dx0
-        z_row, mask_row, occ_row, int_row = heights[r], mask[r], occluded[r], map_int[r]
+        z_row, mask_row, occ_row, int_row, near_row = heights[r], mask[r], occluded[r], map_int[r], near_share[r]
         for c in range(cols):
             if mask_row[c] == 0:
                 continue
             zc = bz + c * sz + m22 * (np.float64(z_row[c]) - centre[2])
-            i = min(np.int64(int_row[c, 1]) // cell_px, zh - 1)
-            j = min(np.int64(int_row[c, 0]) // cell_px, zw - 1)
+            i = min(np.int32((int_row[c, 1] + 0.5) * inv_cell), zh - 1)
+            j = min(np.int32((int_row[c, 0] + 0.5) * inv_cell), zw - 1)
             if zc > zbuf[i, j] + tolerance_m:
                 occ_row[c] = True
+                near_row[c] = zbuf[i, j] / zc
 
 
 @numba.njit(cache=True)
