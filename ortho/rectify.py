@@ -240,11 +240,15 @@ def frame_zbuffer(geometry: FrameGeometry, dsm: HeightRaster, grid: OrthoGrid, t
     buffers = MapBuffers(tile_px)
     mask = np.empty(tile_px * tile_px, np.uint8)
     none = np.zeros((1, 1), np.bool_)
+    over = MapBuffers(tile_px + 1)
     for r0 in range(0, grid.height, tile_px):
         for c0 in range(0, grid.width, tile_px):
             tile = grid.window(c0, r0, min(tile_px, grid.width - c0), min(tile_px, grid.height - r0))
             if to_project.identity:  # the heights alone (no maps needed here), ground X, Y affine in (row, col)
-                z = heights_on_grid(dsm, tile, out=buffers.views(tile.height, tile.width)[2])
+                # the tile and the row above and column left of it: the gaps across its edges are filled too
+                r1, c1 = max(r0 - 1, 0), max(c0 - 1, 0)
+                tile = grid.window(c1, r1, c0 + tile.width - c1, r0 + tile.height - r1)
+                z = heights_on_grid(dsm, tile, out=over.views(tile.height, tile.width)[2])
                 _zbuffer_scatter_affine(z, tile.x_left_m + 0.5 * tile.res_m, tile.y_top_m - 0.5 * tile.res_m,
                                         tile.res_m, centre, M, params, cam.width, cam.height, cell_px, depth)
                 continue

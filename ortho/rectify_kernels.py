@@ -362,21 +362,57 @@ def _zbuffer_kernel(anchor_x, anchor_y, spacing, heights, centre, M, cam, width,
                 occluded[r, c] = True
 
 
+@numba.njit(cache=True, inline="always", fastmath=_FASTMATH, error_model="numpy")
+def _fill_gap(x0, y0, z0, x1, y1, z1, flat_x, flat_y, cell_px, inv_cell, zbuf):
+    """Where two neighbouring surface points of the output grid land more than a cell apart in the image (a wall:
+    the DSM's ramp between roof edge and ground spans a DSM cell on the ground but many pixels in the image), the
+    surface between them, sampled along the image segment at less than a cell's spacing, depth perspective-correct
+    (1 / depth linear in the image), into the z-buffer: without it the ground seen through the wall's image has
+    no nearer surface in its cell and is not a candidate. ``flat_x, flat_y``: the image direction of the same
+    ground step on flat ground; a gap against it is a fold (a wall facing away, whose image the roof in front of
+    it covers): not filled."""
+    dx = x1 - x0
+    dy = y1 - y0
+    span = max(abs(dx), abs(dy))
+    if not span > cell_px or dx * flat_x + dy * flat_y <= 0.0:
+        return
+    zh, zw = zbuf.shape
+    n = int(span * inv_cell) + 1
+    inv0 = 1.0 / z0
+    inv1 = 1.0 / z1
+    for k in range(1, n):
+        t = k / n
+        x = x0 + t * dx
+        y = y0 + t * dy
+        i = min(int(y * inv_cell), zh - 1)
+        j = min(int(x * inv_cell), zw - 1)
+        z = 1.0 / ((1.0 - t) * inv0 + t * inv1)
+        if z < zbuf[i, j]:
+            zbuf[i, j] = z
+
+
 @numba.njit(cache=True, nogil=True, fastmath=_FASTMATH, error_model="numpy")
 def _zbuffer_scatter_affine(heights, x0, y0, res, centre, M, cam, width, height, cell_px, zbuf):
     """The scatter pass of ``_zbuffer_kernel`` when the output grid is in the project CRS (ground X, Y affine in
     (row, col), heights given on the grid): the projection is branch-free and vectorised as in
-    ``_fixed_point_kernel_affine``, the cell index and depth go to row arrays, and a second, scalar loop keeps
-    the nearest depth per cell. NaN heights fail the range test."""
+    ``_fixed_point_kernel_affine``, positions and depth go to row arrays, and a second, scalar loop keeps the
+    nearest depth per cell and fills the gaps between neighbours (left and above) that land more than a cell apart
+    (``_fill_gap``). NaN heights fail the range test. Tiles must overlap by a row and a column for the gaps
+    across their edges."""
     rows, cols = heights.shape
     zh, zw = zbuf.shape
     inv_cell = 1.0 / cell_px
     m02, m12, m22 = M[0, 2], M[1, 2], M[2, 2]
+    m01, m11, m21 = M[0, 1], M[1, 1], M[2, 1]
     sx, sy, sz = M[0, 0] * res, M[1, 0] * res, M[2, 0] * res
-    i_row = np.empty(cols, np.int32)
-    j_row = np.empty(cols, np.int32)
-    zc_row = np.empty(cols, np.float32)
+    xs = np.empty((2, cols), np.float32)
+    ys = np.empty((2, cols), np.float32)
+    zcs = np.empty((2, cols), np.float32)
+    oks = np.zeros((2, cols), np.bool_)
     for r in range(rows):
+        cur = r & 1
+        x_row, y_row, zc_row, ok_row = xs[cur], ys[cur], zcs[cur], oks[cur]
+        x_up, y_up, zc_up, ok_up = xs[1 - cur], ys[1 - cur], zcs[1 - cur], oks[1 - cur]
         dx0 = x0 - centre[0]
         dy = y0 - r * res - centre[1]
         bx = M[0, 1] * dy + M[0, 0] * dx0
@@ -390,16 +426,30 @@ def _zbuffer_scatter_affine(heights, x0, y0, res, centre, M, cam, width, height,
             xn = (bx + c * sx + m02 * dz) * inv_zc
             yn = (by + c * sy + m12 * dz) * inv_zc
             x, y = to_pixel(cam, xn, yn)
-            ok = (zc > 0.0) & (x >= 0.0) & (y >= 0.0) & (x < width) & (y < height)
-            i_row[c] = min(np.int32(y * inv_cell) if ok else -1, zh - 1)
-            j_row[c] = min(np.int32(x * inv_cell) if ok else 0, zw - 1)
+            ok_row[c] = (zc > 0.0) & (x >= 0.0) & (y >= 0.0) & (x < width) & (y < height)
+            x_row[c] = x
+            y_row[c] = y
             zc_row[c] = zc
         for c in range(cols):
-            i = i_row[c]
-            if i >= 0:
-                j = j_row[c]
-                if zc_row[c] < zbuf[i, j]:
-                    zbuf[i, j] = zc_row[c]
+            if not ok_row[c]:
+                continue
+            x, y, zc = x_row[c], y_row[c], zc_row[c]
+            i = min(int(y * inv_cell), zh - 1)
+            j = min(int(x * inv_cell), zw - 1)
+            if zc < zbuf[i, j]:
+                zbuf[i, j] = zc
+            # the image direction of a step of one column (one row) on flat ground is that of the normalised
+            # position's change (the sign of the dot product is all that is used: the lens model is left out)
+            if c > 0 and ok_row[c - 1] and max(abs(x - x_row[c - 1]), abs(y - y_row[c - 1])) > cell_px:
+                xn = (x - cam.cx) / cam.f
+                yn = (y - cam.cy) / cam.f
+                _fill_gap(x_row[c - 1], y_row[c - 1], zc_row[c - 1], x, y, zc, sx - xn * sz, sy - yn * sz, cell_px,
+                          inv_cell, zbuf)
+            if r > 0 and ok_up[c] and max(abs(x - x_up[c]), abs(y - y_up[c])) > cell_px:
+                xn = (x - cam.cx) / cam.f
+                yn = (y - cam.cy) / cam.f
+                _fill_gap(x_up[c], y_up[c], zc_up[c], x, y, zc, xn * m21 - m01, yn * m21 - m11, cell_px, inv_cell,
+                          zbuf)
 
 
 @numba.njit(cache=True, nogil=True, fastmath=_FASTMATH, error_model="numpy")
