@@ -166,6 +166,7 @@ def fixed_point_maps(geometry: FrameGeometry, dem: HeightRaster, grid: OrthoGrid
 # crosses it in one jump): the fine blocks keep the bound tight between buildings, the coarse ones let a ray
 # that has risen above the roofs around it leave in a few jumps
 MARCH_BLOCK_CELLS = (16, 128)
+CELL_FACTOR = 1.25
 
 
 @dataclasses.dataclass(frozen=True)
@@ -235,12 +236,18 @@ def frame_zbuffer(geometry: FrameGeometry, dsm: HeightRaster, grid: OrthoGrid, t
     finite = dsm.heights_m[np.isfinite(dsm.heights_m)]
     distance_m = max(1.0, float(centre[2]) - (float(np.median(finite)) if finite.size else 0.0))
     gsd_m = distance_m / float(params[0])  # ground size of an image pixel at that distance (f in pixels)
-    cell_px = max(1, int(math.ceil(1.5 * grid.res_m / gsd_m)))
+    # the surface sampled at the output pixels, or (project CRS) every ``step``-th of them while that still samples
+    # the DSM at most half a DSM cell apart: the z-buffer's cells grow with the step, its cost falls with its square
+    step = max(1, int(0.5 * dsm.res_m / grid.res_m)) if to_project.identity else 1
+    cell_px = max(1, int(math.ceil(CELL_FACTOR * step * grid.res_m / gsd_m)))
     depth = np.full((-(-cam.height // cell_px), -(-cam.width // cell_px)), np.inf, np.float32)
     buffers = MapBuffers(tile_px)
     mask = np.empty(tile_px * tile_px, np.uint8)
     none = np.zeros((1, 1), np.bool_)
     over = MapBuffers(tile_px + 1)
+    if step > 1:  # the same extent, pixels ``step`` times the size (centres every ``step`` output pixels)
+        grid = OrthoGrid(grid.crs, grid.x_left_m, grid.y_top_m, grid.res_m * step, -(-grid.width // step),
+                         -(-grid.height // step))
     for r0 in range(0, grid.height, tile_px):
         for c0 in range(0, grid.width, tile_px):
             tile = grid.window(c0, r0, min(tile_px, grid.width - c0), min(tile_px, grid.height - r0))
