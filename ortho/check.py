@@ -603,6 +603,16 @@ def _same_file(a: Path, b: Path) -> bool:
     return a.exists() and b.exists() and os.path.samefile(a, b)
 
 
+def simulator_roof_corners(reference_path) -> Path | None:
+    """The simulator's roof corners when ``reference_path`` is its true orthophoto (truth/ortho.tif with
+    truth/roof_corners.csv beside it), else None."""
+    if reference_path is None:
+        return None
+    ref = Path(reference_path)
+    corners = ref.parent / "roof_corners.csv"
+    return corners if ref.name == "ortho.tif" and ref.parent.name == "truth" and corners.is_file() else None
+
+
 def run_check(project_root, settings: CheckSettings | Resolved | None = None, *, reference_path=None, points_path=None,
               dom_path=None, out_stem=None, seams: bool = True, params=None, allow_ballpark: bool = False,
               roof_corners_path=None) -> dict:
@@ -610,8 +620,9 @@ def run_check(project_root, settings: CheckSettings | Resolved | None = None, *,
 
     With a reference orthophoto, open ground (``displacement``: NCC patches, nDSM <= max_ndsm_m with an nDSM) and,
     when roofs can be located, roofs (``roofs``: a patch on every roof corner, ``measure_roof_patches``): the corners
-    of ``roof_corners_path`` (a CSV with x, y columns, e.g. truth/roof_corners.csv), else the outline corners of
-    the buildings of the nDSM (``roof_corners_from_ndsm``). The roofs row means "roofs in place" only against a
+    of ``roof_corners_path`` (a CSV with x, y columns), else of the setting ``roof_corners``, else the simulator's
+    truth/roof_corners.csv when the reference is its truth/ortho.tif (``simulator_roof_corners``), else the outline
+    corners of the buildings of the nDSM (``roof_corners_from_ndsm``). The roofs row means "roofs in place" only against a
     true orthophoto as the reference (roofs where they stand, as the simulator's truth/ortho.tif).
 
     ``settings``: None reads [dom_check] of project.toml (a folder without project.toml: the defaults); a
@@ -630,6 +641,11 @@ def run_check(project_root, settings: CheckSettings | Resolved | None = None, *,
         # not stand in the way of a check against surveyed points (no roofs are measured there)
         if reference_path is not None or resolved.sources.get("roof_corners") == COMMAND_LINE:
             roof_corners_path = s.roof_corners
+    if roof_corners_path is None and simulator_roof_corners(reference_path) is not None:
+        # against the simulator's true orthophoto: the roof corners that belong to it
+        roof_corners_path = simulator_roof_corners(reference_path)
+        resolved = resolved.replace("roof_corners", roof_corners_path, resolved.sources.get("roof_corners", "default"),
+                                    "the simulator's roof corners beside its true orthophoto, the reference")
     if ndsm_path is None and reference_path is not None and project_paths(root).ndsm_path.is_file():
         ndsm_path = project_paths(root).ndsm_path
         resolved = resolved.replace("ndsm", ndsm_path, resolved.sources.get("ndsm", "default"), "the LiDAR stages' nDSM")

@@ -78,6 +78,6 @@ class CheckSettings:
     search_px: int = setting(6, min=1, help="Search radius around each patch (px).")
     roof_corners: Path | None = setting(None, path=True,
                                         help="CSV with x,y columns: roof corners where the roofs are measured against a "
-                                             "true-ortho reference (default: the outline corners of the nDSM's "
-                                             "buildings; `aerotri run` with the simulator's truth/ortho.tif as the "
-                                             "reference: truth/roof_corners.csv beside it).")
+                                             "true-ortho reference (default: with the simulator's truth/ortho.tif "
+                                             "as the reference the truth/roof_corners.csv beside it, else the outline "
+                                             "corners of the nDSM's buildings).")

@@ -293,7 +293,7 @@ class Chain:
             stages.append(Stage("dom_check", lambda r: [self.project.mosaic_path, Path(self.reference_ortho)]
                                 + ([self.roof_corners_path()] if self.roof_corners_path() else []),
                                 lambda r: [self.project.dom_report_path], self.run_dom_check,
-                                options=lambda r: to_table(self.dom_check_settings().settings), skip=self.no_dem))
+                                options=to_table(o.dom_check), skip=self.no_dem))
         if self.surveyed_points is not None:
             stages.append(Stage("height_check", lambda r: self.classified() + [Path(self.surveyed_points)],
                                 lambda r: [self.project.height_check_path], self.run_height_check, skip=self.no_lidar))
@@ -628,33 +628,18 @@ class Chain:
         return R.MosaicResult(width_px=info["width"], height_px=info["height"])
 
     # -- checks and report ----------------------------------------------------------------------
-    def simulator_roof_corners(self) -> Path | None:
-        """The simulator's roof corners when the reference orthophoto is its true orthophoto (truth/ortho.tif with
-        truth/roof_corners.csv beside it): the corners that belong to that reference (the demo's DOM check)."""
-        ref = Path(self.reference_ortho) if self.reference_ortho is not None else None
-        if ref is None or ref.name != "ortho.tif" or ref.parent.name != "truth":
-            return None
-        corners = ref.parent / "roof_corners.csv"
-        return corners if corners.is_file() else None
-
     def roof_corners_path(self) -> Path | None:
-        """The roof corners of the DOM check: [dom_check] roof_corners, else the simulator's (``simulator_roof_corners``),
-        else None (the check finds the roofs in the nDSM)."""
-        given = self.options.dom_check.roof_corners
-        return Path(given) if given is not None else self.simulator_roof_corners()
+        """The roof corners of the DOM check (``ortho.check.run_check``'s choice): [dom_check] roof_corners, else the
+        simulator's beside its true orthophoto as the reference, else None (the check finds roofs in the nDSM)."""
+        from ortho.check import simulator_roof_corners
 
-    def dom_check_settings(self) -> Resolved:
-        """[dom_check] with the roof corners the stage uses (the simulator's, noted, when none are configured)."""
-        s = self.stage_settings("dom_check")
-        if s.settings.roof_corners is None and self.simulator_roof_corners() is not None:
-            s = s.replace("roof_corners", self.simulator_roof_corners(), s.sources.get("roof_corners", "default"),
-                          "the simulator's roof corners beside its true orthophoto, the reference")
-        return s
+        given = self.options.dom_check.roof_corners
+        return Path(given) if given is not None else simulator_roof_corners(self.reference_ortho)
 
     def run_dom_check(self, root) -> R.DomCheckResult:
         from ortho.check import read_dom_check, run_check
 
-        run_check(root, self.dom_check_settings(), reference_path=self.reference_ortho)
+        run_check(root, self.stage_settings("dom_check"), reference_path=self.reference_ortho)
         rep = read_dom_check(self.project.dom_report_path)
         d, roofs = rep.displacement, rep.roofs
         return R.DomCheckResult(rms_xy_m=d.rms_xy_m, rms_xy_gsd=d.rms_xy_gsd, count=d.count,

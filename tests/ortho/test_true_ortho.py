@@ -83,8 +83,10 @@ def test_the_dom_check_measures_roofs_against_the_true_orthophoto(block, tmp_pat
         for args in (["rectify", str(root)] + extra, ["mosaic", str(root)]):
             r = CliRunner().invoke(main, args)
             assert r.exit_code == 0, r.output
+        # the truth's true orthophoto as a reference of its own (no roof_corners.csv beside it): the nDSM's corners
+        shutil.copy(root / "truth" / "ortho.tif", root / "reference.tif")
         for corners in ("truth", "nDSM"):
-            args = ["check", str(root), "--reference", str(root / "truth" / "ortho.tif")]
+            args = ["check", str(root), "--reference", str(root / ("truth/ortho.tif" if corners == "truth" else "reference.tif"))]
             if corners == "truth":
                 args += ["--roof-corners", str(root / "truth" / "roof_corners.csv")]
             r = CliRunner().invoke(main, args)
@@ -101,6 +103,14 @@ def test_the_dom_check_measures_roofs_against_the_true_orthophoto(block, tmp_pat
     assert 60 <= reports["true", "nDSM"]["roofs"]["corners"] <= 100  # found in the nDSM (80 on this block)
     assert "roof_corners.csv" in reports["true", "truth"]["roofs"]["corners_from"]
     assert reports["true", "nDSM"]["roofs"]["corners_from"].startswith("nDSM ")
+    # the simulator's true orthophoto as the reference without --roof-corners: the truth's corners beside it, said so
+    root = tmp_path / "true"
+    r = CliRunner().invoke(main, ["check", str(root), "--reference", str(root / "truth" / "ortho.tif"), "--out",
+                                  str(tmp_path / "default")])
+    assert r.exit_code == 0, r.output
+    rep = json.loads((tmp_path / "default.json").read_text())
+    assert rep["roofs"] == reports["true", "truth"]["roofs"] | {"corners_from": str(root / "truth" / "roof_corners.csv")}
+    assert "simulator's roof corners" in rep["settings"]["roof_corners"]["note"]
     for corners in ("truth", "nDSM"):
         true, conv = reports["true", corners]["roofs"], reports["conventional", corners]["roofs"]
         # the synthetic roofs carry the ground's texture (no roof-like contrast), so the patches see mostly texture:
