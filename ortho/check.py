@@ -605,12 +605,17 @@ def _same_file(a: Path, b: Path) -> bool:
 
 def simulator_roof_corners(reference_path) -> Path | None:
     """The simulator's roof corners when ``reference_path`` is its true orthophoto (truth/ortho.tif with
-    truth/roof_corners.csv beside it), else None."""
+    truth/roof_corners.csv beside it, holding at least one corner: a block without buildings has a header only),
+    else None."""
     if reference_path is None:
         return None
     ref = Path(reference_path)
     corners = ref.parent / "roof_corners.csv"
-    return corners if ref.name == "ortho.tif" and ref.parent.name == "truth" and corners.is_file() else None
+    if ref.name != "ortho.tif" or ref.parent.name != "truth" or not corners.is_file():
+        return None
+    with open(corners, errors="replace") as f:
+        rows = sum(1 for line in f if line.strip())
+    return corners if rows > 1 else None
 
 
 def run_check(project_root, settings: CheckSettings | Resolved | None = None, *, reference_path=None, points_path=None,
