@@ -121,7 +121,7 @@ def demo(work: Path, results: Path) -> dict:
            "standards": {}}
     for std in (None, "asprs2023", "cn-at", "usgs-lbs", "thesis"):  # None: the project's default, named
         rep = write_qa_report(root, standard=std, pdf=(std == "asprs2023"))
-        out["standards"][std or "default"] = _compact(rep["compliance"])
+        out["standards"][std or "default"] = _compact(rep.compliance)
         shutil.copytree(root / "reports", work / f"demo_reports_{std or 'default'}", dirs_exist_ok=True)
     return out
 
@@ -164,7 +164,7 @@ def ngi(work: Path, results: Path) -> dict:
     block = project_block_scale(project)
     for std in ("asprs2023", "cn-at"):
         rep = write_qa_report(root, standard=std, pdf=False)
-        out["standards"][std] = _compact(rep["compliance"])
+        out["standards"][std] = _compact(rep.compliance)
         table = choose_table(read_qa_config(root), block, standard=std)
         choice = C.choose(std, None, table, block, project.qa, None)
         out["against_national_at"][std] = _compact(C.judge(C.Figures(at=cs), choice).as_dict())

@@ -95,6 +95,7 @@ from aerotri.core.settings import setting
 from lidarctl import grid
 from lidarctl import ground as ground_mod
 from lidarctl import noise as noise_mod
+from lidarctl.knn import QUERY_CHUNK, BucketGrid
 from lidarctl.raster_ops import fill_nodata, plane_rms, reduce_grid, sample_bilinear, slope_tan
 
 UNCLASSIFIED, GROUND, LOW_VEG, MED_VEG, HIGH_VEG, BUILDING, LOW_NOISE, WATER, HIGH_NOISE = 1, 2, 3, 4, 5, 6, 7, 9, 18
@@ -328,12 +329,18 @@ def lifted_ground(x, y, z, is_ground, spacing_m: float, lift_sigma: float, inter
         return out
     radius_m = max(1.0, 6.0 * spacing_m)
     gx, gy = x[gi] - x[gi].min(), y[gi] - y[gi].min()
-    dist, nb = cKDTree(np.column_stack([gx, gy])).query(np.column_stack([gx, gy]), k=k + 1,
-                                                         distance_upper_bound=radius_m)
-    # the first neighbour is the point itself
-    dist, nb = dist[:, 1:], gi[np.minimum(nb[:, 1:], len(gi) - 1)]
-    dz, spread = _plane_offsets(np.asarray(x, float), np.asarray(y, float), np.asarray(z, float), gi, nb,
-                                dist, 5, True)
+    # cKDTree's neighbours from a bucket grid (lidarctl.knn), a fraction of its CPU; in chunks of
+    # queries, so the neighbour arrays (k x 16 bytes a point) stay bounded on large tiles.
+    nbrs = BucketGrid(gx, gy, k + 1)
+    xf, yf, zf = np.asarray(x, float), np.asarray(y, float), np.asarray(z, float)
+    dz, spread = np.empty(len(gi)), np.empty(len(gi))
+    for a in range(0, len(gi), QUERY_CHUNK):
+        b = min(a + QUERY_CHUNK, len(gi))
+        dist, nb, _ = nbrs.query(gx[a:b], gy[a:b], k + 1, radius_m)
+        # the first neighbour is the point itself
+        dist, nb = dist[:, 1:], gi[np.minimum(nb[:, 1:], len(gi) - 1)]
+        dz[a:b], spread[a:b] = _plane_offsets(xf, yf, zf, gi[a:b], nb, dist, 5, True)
+    del nbrs, dist, nb
     ok = np.isfinite(dz)
     if ok.sum() < 4 * k:
         return out

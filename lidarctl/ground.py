@@ -76,6 +76,7 @@ from scipy.spatial import Delaunay, cKDTree
 from aerotri.core.errors import OptionError
 from aerotri.core.settings import setting
 from lidarctl import grid
+from lidarctl.knn import QUERY_CHUNK, BucketGrid
 
 
 @dataclasses.dataclass
@@ -516,15 +517,24 @@ def surface_outliers(x, y, z, neighbours: int = 16, height_m: float = 0.5, break
         keep = np.flatnonzero(~is_out)
         if len(keep) <= neighbours or len(check) == 0:
             break
-        dist, nb = cKDTree(np.column_stack([x[keep], y[keep]])).query(np.column_stack([x[check], y[check]]),
-                                                                      k=neighbours + 1)
-        nb = np.where(nb < len(keep), keep[np.minimum(nb, len(keep) - 1)], n)  # indices into x (n: none)
-        full, side = _plane_residuals(x, y, z, check, nb, dist)
-        bad = (full > height_m) & (side > breakline_m)
+        # cKDTree's neighbours from a bucket grid (lidarctl.knn), a fraction of its CPU; in chunks of
+        # queries (bounded memory), keeping only the neighbour indices (int32 when they fit) for ``lost``.
+        nbrs = BucketGrid(x[keep], y[keep], neighbours + 1)
+        bad = np.empty(len(check), bool)
+        nb_all = np.empty((len(check), neighbours + 1), np.int32 if n < 2 ** 31 - 1 else np.int64)
+        for a in range(0, len(check), QUERY_CHUNK):
+            b = min(a + QUERY_CHUNK, len(check))
+            dist, nb, _ = nbrs.query(x[check[a:b]], y[check[a:b]], neighbours + 1)
+            nb = np.where(nb < len(keep), keep[np.minimum(nb, len(keep) - 1)], n)  # indices into x (n: none)
+            full, side = _plane_residuals(x, y, z, check[a:b], nb, dist)
+            bad[a:b] = (full > height_m) & (side > breakline_m)
+            nb_all[a:b] = nb
+        del nbrs, dist, nb
         if not bad.any():
             break
         is_out[check[bad]] = True
-        lost = np.append(is_out, False)[nb].any(axis=1)
+        lost = np.append(is_out, False)[nb_all].any(axis=1)
+        del nb_all
         check = check[lost & ~bad]
     return np.flatnonzero(is_out)
 

@@ -536,3 +536,33 @@ def format_report(result: dict) -> str:
             line += f"{'-' if p['dz_dem_m'] is None else format(p['dz_dem_m'], '+.3f'):>12}"
         lines.append(line)
     return "\n".join(lines)
+
+
+HEIGHT_CHECK = "LiDAR height check (height_check.json)"
+
+
+@dataclasses.dataclass(frozen=True)
+class HeightCheckRecord:
+    """What ``height_check.json`` tells the accuracy report (metres)."""
+
+    n_checked: int | None  # surveyed points with ground in reach (None: the cloud was not checked)
+    rmse_m: float | None
+    dz_m: tuple[float, ...]  # Z_lidar - Z_surveyed per point with ground in reach
+    bins: list | None  # counts per dz bin as written (``stats``)
+    groups: dict  # group -> statistics as written
+
+
+def read_height_check(path) -> HeightCheckRecord:
+    """``height_check.json`` as ``check_heights_file`` wrote it; InputError naming the file when it is not one."""
+    from aerotri.core.textio import read_record, record_error
+
+    d = read_record(path, HEIGHT_CHECK, 1)
+    try:
+        overall = d.get("overall") or {}
+        every = overall.get("all") or {}
+        dz = tuple(float(p["dz_m"]) for p in d.get("points") or [] if p.get("dz_m") is not None)
+        return HeightCheckRecord(None if "n" not in every else int(every["n"]),
+                                 None if every.get("rmse_m") is None else float(every["rmse_m"]), dz,
+                                 overall.get("bins"), dict(d.get("groups") or {}))
+    except (AttributeError, KeyError, TypeError, ValueError) as exc:
+        raise record_error(path, HEIGHT_CHECK, exc) from None

@@ -310,3 +310,41 @@ def check_files(product_path, reference_path, params: VectorCheckSettings = Vect
     if json_path is not None:
         write_text_atomic(json_path, json.dumps(result, indent=2))
     return result
+
+
+VECTOR_CHECK = "vector check (check-vectors JSON)"
+
+
+@dataclasses.dataclass(frozen=True)
+class BuildingCornerCheck:
+    """The buildings layer of a vector check: corners against their reference (metres, per cent)."""
+
+    n_matched_corners: int
+    rms_xy_corner_m: float | None
+    rms_xy_to_line_m: float | None
+    completeness_pct: float | None
+    correctness_pct: float | None
+
+
+@dataclasses.dataclass(frozen=True)
+class VectorCheckRecord:
+    """What a check-vectors JSON tells the accuracy report."""
+
+    reference: str
+    match_m: float
+    buildings: BuildingCornerCheck | None  # None: no buildings layer checked
+
+
+def read_vector_check(path) -> VectorCheckRecord:
+    """A check-vectors JSON as ``check_files`` wrote it; InputError naming the file when it is not one."""
+    from aerotri.core.textio import read_record, record_error
+
+    d = read_record(path, VECTOR_CHECK, 1)
+    try:
+        b = (d.get("layers") or {}).get("buildings")
+        opt = {k: (None if b.get(k) is None else float(b[k]))
+               for k in ("rms_xy_corner_m", "rms_xy_to_line_m", "completeness_pct", "correctness_pct")} if b else {}
+        buildings = BuildingCornerCheck(int(b.get("n_matched_corners") or 0), **opt) if b else None
+        return VectorCheckRecord(str(d.get("reference", "?")), float(d.get("match_m", 0.0)), buildings)
+    except (AttributeError, KeyError, TypeError, ValueError) as exc:
+        raise record_error(path, VECTOR_CHECK, exc) from None

@@ -98,9 +98,9 @@ def dem(project, res_m, min_rays, out):
                                     "resamples twice, so frames in another CRS are refused [the frames' CRS]")
 @scheduler_options
 def mosaic(project, crs, seamlines, scheduler, workers, **_settings_given):
-    """Seamlines, blending and radiometric balancing into ortho/mosaic.tif (COG), ortho/seamlines.geojson and
-    ortho/seamlines.gpkg (one polygon per frame, to edit and give back with --seamlines); one Dask task per output
-    tile.
+    """Seamlines, blending and radiometric balancing into ortho/mosaic.tif (COG), ortho/seamlines.geojson,
+    ortho/seamlines.gpkg (one polygon per frame, to edit and give back with --seamlines) and
+    ortho/seamlines_preview.png (the seams over the DOM, nodata hatched); one Dask task per output tile.
 
     Settings: the defaults, then project.toml [mosaic], then the options given here (ortho/mosaic.json lists
     each with where it came from)."""

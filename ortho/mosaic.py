@@ -33,8 +33,9 @@ the seam grid, and blended from memory. The tile order, the tile results and so 
 on the scheduler or the number of threads.
 
 The frames are checked against ``ortho/frames/index.json`` first (sizes and hashes), the tile size
-against the memory; seams.tif, seamlines.geojson, seamlines.gpkg, mosaic.tif and mosaic.json (which records the index
-it was made from) are made in a work folder and moved into ``ortho/`` together at the end.
+against the memory; seams.tif, seamlines.geojson, seamlines.gpkg, seamlines_preview.png (the seams over the DOM:
+``ortho.seamlines_preview``), mosaic.tif and mosaic.json (which records the index it was made from) are made in a
+work folder and moved into ``ortho/`` together at the end.
 
 Step 4 runs on local threads (``executor`` None, local threads, synchronous) or, on a Dask cluster, as
 Dask tasks, one per output tile (``blend_tile_task`` on a small ``MosaicTile``: a context file with
@@ -77,7 +78,8 @@ from ortho.block import (index_grids, index_operation, operation_tags, read_inde
 from ortho.grid import OrthoGrid
 from ortho.settings import MosaicSettings
 from ortho.seamlines_gpkg import write_seamlines_gpkg
-from ortho.seamlines import (keep_objects_whole, label_polygons, least_cost_seams, neighbour_pairs, seam_lines,
+from ortho.seamlines_preview import write_seamlines_preview
+from ortho.seamlines import (covered, keep_objects_whole, label_polygons, least_cost_seams, neighbour_pairs, seam_lines,
                              voronoi_labels)
 
 logger = logging.getLogger(__name__)
@@ -501,13 +503,18 @@ def _mosaic_block(root, settings, *, object_height_m, max_seam_cells, end_reach_
                                        red.offsets)
         labels = edited.labels
     else:
-        labels = voronoi_labels(red.valid, red.offsets, nadir_rc, red.shape)
+        # the seams are routed on the cells each frame covers, the holes of what it does not see (a true ortho's
+        # occlusion) included: one region per frame whose holes the blending fills from the frame of the nearest
+        # nadir point that sees them (on the frames' valid cells, every hole became an island of another frame
+        # whose outline, along the walls and across the roofs between the streets, was a seam)
+        covers = [covered(v) for v in red.valid]
+        labels = voronoi_labels(covers, red.offsets, nadir_rc, red.shape)
     if seams == "least-cost" and edited is None:
         # a seam end may slide along the overlap border by up to end_reach_m to get round a building
-        labels = least_cost_seams(labels, red.valid, red.offsets, red.gray_of, objects,
-                                  end_reach_cells=end_reach_m / (res * factor))
+        labels = least_cost_seams(labels, covers, red.offsets, red.gray_of, objects,
+                                  end_reach_cells=end_reach_m / (res * factor), seen=red.valid)
         if objects is not None:
-            labels = keep_objects_whole(labels, objects, red.valid, red.offsets)
+            labels = keep_objects_whole(labels, objects, covers, red.offsets)
     if edited is not None:
         seams = f"edited ({edited.path})"
     timer.done("seams")
@@ -533,8 +540,9 @@ def _mosaic_block(root, settings, *, object_height_m, max_seam_cells, end_reach_
         outputs = _mosaic_outputs(Path(work), root, index, frames_dir, red, labels, gains, mosaic, factor, nadir,
                                   feather_px, tile_px, seams, executor, resolved.record(), previous)
         timer.done("blend and COG")
-        with commit_outputs(out_dir):  # one commit: all four new, or (a failure, a kill) all as before
-            for name in ("seams.tif", "seamlines.geojson", "seamlines.gpkg", "mosaic.tif", "mosaic.json"):
+        with commit_outputs(out_dir):  # one commit: all new, or (a failure, a kill) all as before
+            for name in ("seams.tif", "seamlines.geojson", "seamlines.gpkg", "seamlines_preview.png", "mosaic.tif",
+                         "mosaic.json"):
                 move_into(Path(work) / name, out_dir / name)
     return outputs
 
@@ -650,7 +658,8 @@ def _open_frame(path):
 
 def _mosaic_outputs(work: Path, root: Path, index, frames_dir, red, labels, gains, mosaic: OrthoGrid, factor, nadir,
                     feather_px, tile_px, seams, executor, settings_record: dict, previous=None) -> dict:
-    """seams.tif, seamlines.geojson, mosaic.tif and mosaic.json into ``work``; returns the summary. ``previous``
+    """seams.tif, seamlines.geojson, seamlines.gpkg, mosaic.tif, seamlines_preview.png and mosaic.json into ``work``;
+    returns the summary. ``previous``
     (``PreviousMosaic``): the mosaic whose tiles away from changed seams are taken over."""
     crs, res = mosaic.crs, mosaic.res_m
     out_dir = root / "ortho"
@@ -660,7 +669,9 @@ def _mosaic_outputs(work: Path, root: Path, index, frames_dir, red, labels, gain
             _background(write_seamlines_gpkg, work / "seamlines.gpkg", labels, red.transform, red.names, crs) as gpkg:
         tiles = _write_mosaic(work / "mosaic.tif", frames_dir, index, mosaic, work / "seams.tif", factor, gains, nadir,
                               feather_px, tile_px, executor=executor, labels=labels, previous=previous,
-                              decoded=red.decoded)
+                              decoded=red.decoded, holes=frame_holes(red))
+        # the seamlines over the DOM, reduced to at most 2000 px, for a look before opening the GeoPackage
+        write_seamlines_preview(work / "seamlines_preview.png", work / "mosaic.tif", labels, factor)
         vectors()
         gpkg()
     summary = {"path": str(out_dir / "mosaic.tif"), "width": mosaic.width, "height": mosaic.height,
@@ -751,6 +762,11 @@ class _BlendContext:
     dtype: str
     read_cells: object
     seam_shape: tuple
+    # per frame: None, or (the seam cells it covers (bool), (row, col) of its first seam cell) for a frame whose
+    # ortho has holes (a true ortho's occlusion); its pixels within hole_margin_px of a hole are taken only where
+    # no other frame has the pixel away from its holes (``_hole_margin``)
+    holes: list | None = None
+    hole_margin_px: int = 0
 
     @functools.cached_property
     def luts(self):
@@ -764,7 +780,7 @@ class _BlendContext:
 
 
 def _context(index, frames_dir, mosaic: OrthoGrid, factor, halo, gains, nadir, feather_px, bands, dtype, read_cells,
-             seam_shape) -> _BlendContext:
+             seam_shape, holes=None) -> _BlendContext:
     grids = index_grids(index)
     names = [e["image_id"] for e in index["frames"]]
     offsets = np.array([grids[n].offset_in(mosaic) for n in names], np.int64).reshape(-1, 2)
@@ -772,7 +788,8 @@ def _context(index, frames_dir, mosaic: OrthoGrid, factor, halo, gains, nadir, f
     files = [str(Path(frames_dir) / e["file"]) for e in index["frames"]]
     return _BlendContext(names, files, offsets, sizes, np.asarray(gains, np.float64), np.asarray(nadir, np.float64),
                          mosaic, int(factor), int(halo), float(feather_px), int(bands), str(dtype), read_cells,
-                         tuple(seam_shape))
+                         tuple(seam_shape), holes if hole_margin_px(mosaic.res_m) else None,
+                         hole_margin_px(mosaic.res_m) if holes else 0)
 
 
 @functools.lru_cache(maxsize=4)
@@ -790,8 +807,13 @@ def _load_context(path: str, mtime_ns: int) -> _BlendContext:
         with rasterio.open(seams_path) as sds:
             return sds.read(1, window=Window(c, r, w, h))
 
+    holes = None
+    if ctx.get("holes_path"):
+        with np.load(ctx["holes_path"]) as z:
+            holes = [(z[f"covered_{k}"], tuple(int(v) for v in z[f"offset_{k}"])) if f"covered_{k}" in z else None
+                     for k in range(len(index["frames"]))]
     return _context(index, ctx["frames_dir"], mosaic, ctx["factor"], ctx["halo"], ctx["gains"], ctx["nadir"],
-                    ctx["feather_px"], ctx["bands"], ctx["dtype"], read_cells, seam_shape)
+                    ctx["feather_px"], ctx["bands"], ctx["dtype"], read_cells, seam_shape, holes)
 
 
 class _FrameReaders:
@@ -891,11 +913,18 @@ def _blend_tile(ctx: _BlendContext, readers, r0: int, c0: int, th: int, tw: int)
     fc, fr = ctx.offsets[:, 0], ctx.offsets[:, 1]
     reads = {}
 
+    raw = {}
+
     def frame(k, y0=0, y1=th, x0=0, x1=tw):
-        """Frame k's samples and validity over rows y0:y1, columns x0:x1 of the tile."""
+        """Frame k's samples and validity over rows y0:y1, columns x0:x1 of the tile (a frame with holes: valid
+        away from them; its validity itself in ``raw``)."""
         key = (k, y0, y1, x0, x1)
         if key not in reads:
-            reads[key] = readers.window(ctx.files[k], c0 + x0 - int(fc[k]), r0 + y0 - int(fr[k]), x1 - x0, y1 - y0)
+            if ctx.holes is not None and ctx.holes[k] is not None:
+                reads[key], raw[key] = _hole_margin(ctx, readers, k, r0 + y0, c0 + x0, y1 - y0, x1 - x0)
+            else:
+                reads[key] = readers.window(ctx.files[k], c0 + x0 - int(fc[k]), r0 + y0 - int(fr[k]), x1 - x0,
+                                            y1 - y0)
         return reads[key]
 
     if len(labelled) == 1 and present[0] >= 0:
@@ -973,9 +1002,70 @@ def _blend_tile(ctx: _BlendContext, readers, r0: int, c0: int, th: int, tw: int)
                 best[better] = d[better]
                 fill[:, better] = img.reshape(bands, -1)[:, inner[better]] * ctx.gains[k].astype(np.float32)[:, None]
             got = np.isfinite(best)
+            if raw and not got.all():
+                # pixels every frame has only near its holes: the valid frame of the nearest nadir point after all
+                for k in over.tolist():
+                    key = (k, ya, yb, xa, xb)
+                    if key not in raw:
+                        continue
+                    img = reads[key][0]
+                    cand = raw[key].ravel()[inner] & ~got
+                    if not cand.any():
+                        continue
+                    d = np.hypot(xs - ctx.nadir[k, 0], ys - ctx.nadir[k, 1])
+                    better = cand & (d < best)
+                    best[better] = d[better]
+                    fill[:, better] = img.reshape(bands, -1)[:, inner[better]] * ctx.gains[k].astype(np.float32)[:, None]
+                got = np.isfinite(best)
             flat_out[:, need[got]] = _to_type(fill[:, got], ctx.dtype)
             valid.ravel()[need[got]] = True
     return out, valid
+
+
+# a true ortho's frame is taken this far from its holes only where no other frame has the pixel away from its own:
+# the DSM places a roof edge to within about a cell (on its grid, interpolated), so the ground just beyond the
+# occluded area of a frame may still show the wall or roof (on the demo, with the LiDAR DSM, most of the ghost pixels
+# lay within one cell of what the frame sees: results/true_ortho_occlusion.json)
+HOLE_MARGIN_M = 0.8
+
+
+def hole_margin_px(res_m: float) -> int:
+    """``HOLE_MARGIN_M`` in mosaic pixels (at least 1; 0 when it is 0: no margin)."""
+    return max(1, int(round(HOLE_MARGIN_M / res_m))) if HOLE_MARGIN_M > 0 else 0
+
+
+def frame_holes(red: ReducedFrames) -> list | None:
+    """Per frame None, or (its covered seam cells, their offset) when its ortho has holes inside it; None when no
+    frame has any (a conventional ortho: the blending is as before)."""
+    holes = []
+    for v, off in zip(red.valid, red.offsets):
+        c = covered(v)
+        holes.append((c, tuple(int(x) for x in off)) if (c & ~v).any() else None)
+    return holes if any(h is not None for h in holes) else None
+
+
+def _hole_margin(ctx: _BlendContext, readers, k: int, row: int, col: int, h: int, w: int):
+    """Frame k's (samples, validity away from its holes) and its validity over the mosaic window (row, col, h, w):
+    hole pixels are invalid pixels of seam cells the frame covers; the validity is cleared within
+    ``ctx.hole_margin_px`` of them (read with that halo, so that the result does not depend on the window)."""
+    m_px = ctx.hole_margin_px
+    fc, fr = int(ctx.offsets[k, 0]), int(ctx.offsets[k, 1])
+    img, ok = readers.window(ctx.files[k], col - m_px - fc, row - m_px - fr, w + 2 * m_px, h + 2 * m_px)
+    covered_cells, (sr, sc) = ctx.holes[k]
+    f = ctx.factor
+    rr = (np.arange(row - m_px, row + h + m_px) // f) - sr
+    cc = (np.arange(col - m_px, col + w + m_px) // f) - sc
+    in_r = (rr >= 0) & (rr < covered_cells.shape[0])
+    in_c = (cc >= 0) & (cc < covered_cells.shape[1])
+    cov = covered_cells[np.ix_(np.clip(rr, 0, covered_cells.shape[0] - 1), np.clip(cc, 0, covered_cells.shape[1] - 1))]
+    cov &= in_r[:, None] & in_c[None, :]
+    hole = ~ok & cov
+    inner = (slice(m_px, m_px + h), slice(m_px, m_px + w))
+    valid = ok[inner]
+    if not hole.any():
+        return (img[:, inner[0], inner[1]], valid), valid
+    near = cv2.dilate(hole.view(np.uint8), cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * m_px + 1,) * 2))
+    return (img[:, inner[0], inner[1]], valid & (near[inner] == 0)), valid
 
 
 def _weight_boxes(ctx: _BlendContext, cells: np.ndarray, ks: list, dr: int, dc: int, lr: np.ndarray, lc: np.ndarray,
@@ -1029,7 +1119,7 @@ def _weight_boxes(ctx: _BlendContext, cells: np.ndarray, ks: list, dr: int, dc: 
 
 
 def _write_mosaic(path, frames_dir, index, mosaic: OrthoGrid, seams_path, factor, gains, nadir, feather_px, tile_px,
-                  executor=None, labels=None, previous=None, decoded=None) -> dict:
+                  executor=None, labels=None, previous=None, decoded=None, holes=None) -> dict:
     """Blend the output tiles into a tiled stage GeoTIFF and its overviews, then copy those to the COG
     (module doc, step 5). On local threads (or synchronous) the tiles are computed ahead of this thread,
     which writes them in tile order (``labels``: the seam labels in memory, else read from ``seams_path``);
@@ -1037,7 +1127,8 @@ def _write_mosaic(path, frames_dir, index, mosaic: OrthoGrid, seams_path, factor
     ``seams_path``). Memory is bounded by the tiles in flight, not by the mosaic. ``previous``
     (``PreviousMosaic``, local threads only): tiles whose seam cells and halo did not change are read from it
     instead of blended. ``decoded``: frames already decoded in memory (file path -> (samples, validity); local
-    threads only), read instead of their files. Returns the counts of tiles blended and taken over."""
+    threads only), read instead of their files. ``holes``: per frame None or its covered seam cells and their
+    offset (``_BlendContext.holes``). Returns the counts of tiles blended and taken over."""
     from aerotri.core.executor import local_executor
     from ortho.rectify import ordered_thread_map
 
@@ -1062,6 +1153,11 @@ def _write_mosaic(path, frames_dir, index, mosaic: OrthoGrid, seams_path, factor
                        "gains": np.asarray(gains, float).tolist(), "nadir": np.asarray(nadir, float).tolist(),
                        "feather_px": float(feather_px), "bands": int(bands), "dtype": dtype}
             context_path = (tmp_dir / "context.json").resolve()
+            if holes and any(h is not None for h in holes):
+                holes_path = (tmp_dir / "context_holes.npz").resolve()
+                np.savez(holes_path, **{f"{key}_{k}": v for k, h in enumerate(holes) if h is not None
+                                        for key, v in (("covered", h[0]), ("offset", np.asarray(h[1])))})
+                context["holes_path"] = str(holes_path)
             context_path.write_text(json.dumps(context))
         else:
             if labels is None:
@@ -1073,7 +1169,7 @@ def _write_mosaic(path, frames_dir, index, mosaic: OrthoGrid, seams_path, factor
                 return cells[r:r + h, c:c + w]
 
             ctx = _context(index, frames_dir, mosaic, factor, halo, gains, nadir, feather_px, bands, dtype,
-                           read_cells, labels.shape)
+                           read_cells, labels.shape, holes)
         tiles = [(r0, c0, min(tile_px, mosaic.height - r0), min(tile_px, mosaic.width - c0))
                  for r0 in range(0, mosaic.height, tile_px) for c0 in range(0, mosaic.width, tile_px)]
         stage = tmp_dir / "stage.tif"

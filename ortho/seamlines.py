@@ -47,6 +47,18 @@ def voronoi_labels(valid: list, offsets: list, nadir_rc: np.ndarray, shape) -> n
     return labels
 
 
+def covered(valid: np.ndarray) -> np.ndarray:
+    """The seam cells a frame's ortho covers: its valid cells with the holes inside them filled (the ground a true
+    ortho's frame does not see behind buildings, DEM nodata inside the frame). The seams are routed on these: a
+    frame's region keeps the cells it does not see, which the mosaic fills from the frame of the nearest nadir
+    point that sees them, instead of breaking into an island of another frame round every hole."""
+    import cv2
+
+    outside = np.pad(~valid, 1, constant_values=True).view(np.uint8).copy()
+    cv2.floodFill(outside, None, (0, 0), 2)
+    return outside[1:-1, 1:-1] != 2
+
+
 def neighbour_pairs(labels: np.ndarray) -> list[tuple[int, int]]:
     """Pairs (i < j) of labels that touch (4-neighbourhood)."""
     keys = []
@@ -135,11 +147,14 @@ def _near(mask, rc, radius, at_least_one: bool = True):
 def least_cost_seams(labels: np.ndarray, valid: list, offsets: list, gray: list | None = None,
                      object_mask: np.ndarray | None = None, object_cost: float = 50.0,
                      difference_cost: float = 5.0, min_overlap_cells: int = 16, end_reach: float = 0.1,
-                     end_reach_cells: float = 0.0, passes: int = 2) -> np.ndarray:
+                     end_reach_cells: float = 0.0, passes: int = 2, seen: list | None = None) -> np.ndarray:
     """Re-route every Voronoi seam along a least-cost path through the pair's overlap (module doc).
 
     ``gray``: per frame, its grey values on the seam grid (an array, or a function of the frame index
-    returning one, so that the caller need not hold all of them)."""
+    returning one, so that the caller need not hold all of them). ``seen``: per frame, the cells it sees when
+    ``valid`` are the cells it covers (``covered``: a true ortho's occlusion holes filled); a cell one of the two
+    frames does not see has the highest grey-value difference cost (its difference is unknown), still far below a
+    building's."""
     obj = _dilate(np.ascontiguousarray(object_mask, bool), _SQUARE) if object_mask is not None else None
     done = set()
     labels = labels.copy()
@@ -148,12 +163,12 @@ def least_cost_seams(labels: np.ndarray, valid: list, offsets: list, gray: list 
         for i, j in todo:
             done.add((i, j))
             _reroute_pair(labels, i, j, valid, offsets, gray, obj, object_cost, difference_cost, min_overlap_cells,
-                          end_reach, end_reach_cells)
+                          end_reach, end_reach_cells, seen)
     return labels
 
 
 def _reroute_pair(labels, i, j, valid, offsets, gray, obj, object_cost, difference_cost, min_overlap_cells, end_reach,
-                  end_reach_cells) -> None:
+                  end_reach_cells, seen=None) -> None:
     """One seam (frames i, j) along its least-cost path; updates ``labels`` in place."""
     import cv2
 
@@ -180,8 +195,13 @@ def _reroute_pair(labels, i, j, valid, offsets, gray, obj, object_cost, differen
         gj_all = gray(j) if callable(gray) else gray[j]
         diff = np.abs(gi_all[r0 - ri:r1 - ri, c0 - ci:c1 - ci].astype(np.float32)
                       - gj_all[r0 - rj:r1 - rj, c0 - cj:c1 - cj].astype(np.float32))
-        scale = np.percentile(diff[corridor], 90) + 1e-6
-        cost += difference_cost * np.clip(diff / scale, 0, 3)
+        both = corridor
+        if seen is not None:
+            both = corridor & seen[i][r0 - ri:r1 - ri, c0 - ci:c1 - ci] & seen[j][r0 - rj:r1 - rj, c0 - cj:c1 - cj]
+        scale = np.percentile(diff[both if both.any() else corridor], 90) + 1e-6
+        d = np.clip(diff / scale, 0, 3)
+        d[corridor & ~both] = 3.0  # a frame does not see the cell: its difference is unknown
+        cost += difference_cost * d
     if obj is not None:
         cost += object_cost * obj[r0:r1, c0:c1]
     # the seam may leave the overlap anywhere on the overlap's border near its Voronoi ends, so that an end

@@ -349,9 +349,52 @@ def _weak_modes(ba, height_limit_m: float) -> list:
             out.append((g, f"{_MODE_NAMES[g.mode]} held only by {_holders(g)} (sigma {g.sigma_m:.3f} m)"))
         elif 3 * g.sigma_m > height_limit_m:
             by = ", ".join(f"{k} {v:.0%}" for k, v in sorted(g.shares.items(), key=lambda kv: -kv[1]) if v >= 0.05)
-            out.append((g, f"{_MODE_NAMES[g.mode]} sigma {g.sigma_m:.3f} m, 3 sigma above the {height_limit_m:.2f} m "
+            out.append((g, f"{_MODE_NAMES[g.mode]} sigma {g.sigma_m:.3f} m, 3 sigma ({3 * g.sigma_m:.2f} m) above the {height_limit_m:.2f} m "
                            f"height limit (determined by {by})"))
     return out
+
+
+# Family-wise false-alarm rate of the GNSS correction check: the share of sound blocks (every shift and drift
+# displacement drawn from its a-priori sigma) in which some estimate is reported as suspect.
+GNSS_CORRECTION_ALPHA = 0.01
+
+
+@dataclasses.dataclass(frozen=True)
+class GnssCorrectionCheck:
+    """The per-strip GNSS corrections against their a-priori sigma (``gnss_shift_sigma_m``): each shift component,
+    and each drift component times the strip's half-length (the displacement at its ends), is suspect beyond
+    ``k`` sigmas, ``k`` the two-sided normal quantile of ``GNSS_CORRECTION_ALPHA`` / ``n`` (Bonferroni over the
+    block's ``n`` estimated components): a sound block is flagged in at most 1 % of cases however many strips it
+    has, and an error the corrections absorb is flagged once it reaches k sigmas (3.6 for 6 strips with drift)."""
+
+    sigma_m: float
+    k: float
+    n: int
+    suspect: tuple  # of (strip 1-based, "shift" | "drift", axis "E" | "N" | "U", displacement m)
+
+    def reasons(self) -> list[str]:
+        return [f"strip {s} {term} {axis} {v:+.3f} m{' at the strip end' if term == 'drift' else ''} "
+                f"({abs(v) / self.sigma_m:.1f} sigma)" for s, term, axis, v in self.suspect]
+
+
+def gnss_correction_check(ba) -> GnssCorrectionCheck | None:
+    """``GnssCorrectionCheck`` of an adjustment that estimated GNSS corrections, else None."""
+    from scipy.stats import norm
+
+    mode = ba.opts.gnss_correction
+    if mode == "none" or ba.block.gnss_local is None:
+        return None
+    st, b = ba.result.state, ba.block
+    sigma = float(ba.settings.gnss_shift_sigma_m)
+    terms = [("shift", np.asarray(st.shift, dtype=float))]
+    if mode == "shift_drift":
+        half_km = np.array([np.abs(b.along_km[b.strip == s]).max(initial=0.0) for s in range(b.n_strips)])
+        terms.append(("drift", np.asarray(st.drift, dtype=float) * half_km[:, None]))
+    n = sum(v.size for _, v in terms)
+    k = float(norm.isf(GNSS_CORRECTION_ALPHA / (2 * n)))
+    suspect = tuple((s + 1, term, "ENU"[a], float(v[s, a])) for term, v in terms
+                    for s in range(v.shape[0]) for a in range(3) if abs(v[s, a]) > k * sigma)
+    return GnssCorrectionCheck(sigma, round(k, 2), n, suspect)
 
 
 def _key_statistics(ba, height_limit_m: float) -> dict:
@@ -374,6 +417,11 @@ def _key_statistics(ba, height_limit_m: float) -> dict:
     if fixed:
         weaknesses.append("Self-calibration: " + "; ".join(
             f"{c.group} fixed at its a-priori value (not determinable: {c.reason})" for c in fixed) + ".")
+    gcc = gnss_correction_check(ba)
+    if gcc is not None and gcc.suspect:
+        weaknesses.append(f"GNSS corrections suspect, beyond {gcc.k:g} a-priori sigmas of {gcc.sigma_m:g} m "
+                          f"(gnss_shift_sigma_m; 1 % false alarms over the block's {gcc.n} estimates): "
+                          + "; ".join(gcc.reasons()) + ". An error of the block's datum or of the GNSS may be absorbed.")
     if ba.left_out:
         n = sum(len(lo.image_ids) for lo in ba.left_out)
         weaknesses.append(f"{n} images in {len(ba.left_out)} part(s) that no tie point connects to the block and "
@@ -400,6 +448,8 @@ def _key_statistics(ba, height_limit_m: float) -> dict:
         "verdict": verdict,
         "weak_geometry": [g.mode for g, _ in weak],
         "calibration_fixed": [c.group for c in fixed],
+        "gnss_corrections_suspect": [] if gcc is None else [
+            {"strip": s, "term": term, "axis": axis, "displacement_m": _f(v, 4)} for s, term, axis, v in gcc.suspect],
         "dem_check_failed": [d.role for d in dem_failed],
         # gtsam's CheiralityException lines (a point behind a camera at some iterate), counted, not printed
         "points_behind_camera": {"messages": int(lines), "point_camera_pairs": int(pairs)},
@@ -743,6 +793,10 @@ def format_txt(rep: dict) -> str:
         L += ["", "GNSS corrections per strip", f"{'strip':>6} {'shift X':>9} {'Y':>9} {'Z':>9} {'drift X':>9} {'Y':>9} {'Z':>9} (m, m/km)"]
         for s in rep["gnss_strips"]:
             L.append(f"{s['strip']:6d}" + "".join(_v(x, 10, 3) for x in s["shift_m"] + s["drift_m_per_km"]))
+        sus = rep["key_statistics"].get("gnss_corrections_suspect") or []
+        if sus:
+            L.append("  suspect (beyond the a-priori limit, key statistics): " + ", ".join(
+                f"strip {x['strip']} {x['term']} {x['axis']} {x['displacement_m']:+.3f} m" for x in sus))
     fa = rep.get("flight_acceptance")
     if fa:
         from aerotri.adjust.flight_acceptance import LIMIT_KEYS

@@ -25,6 +25,11 @@ class AdjustSettings:
     SECTION: ClassVar[str] = "adjust"
     gnss_correction: str = setting("none", choices=GNSS_CORRECTIONS,
                                    help="GNSS corrections per strip: none, shift, or shift and drift.")
+    gnss_shift_sigma_m: float = setting(0.10, min=0.0, min_open=True,
+                                        help="A-priori standard deviation of a strip's GNSS shift, each axis, and of "
+                                             "the displacement its drift makes at the strip's ends (m): estimates "
+                                             "beyond the limit of 1 % false alarms per block are reported as suspect "
+                                             "and the solution as weak.")
     lever_arm_m: tuple[float, float, float] | None = setting(
         None, help="Antenna offset from the projection centre in the camera frame (m); default project.toml [gnss] "
                    "lever_arm_m, else zero.")

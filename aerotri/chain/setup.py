@@ -32,7 +32,7 @@ heights = "ellipsoidal"  # or a vertical CRS, e.g. "EPSG:3855" (EGM2008 height) 
 
 # [gnss]                 # gnss.txt: image_id X Y Z [sX sY sZ], antenna positions in the project CRS
 # sigma_xy_m = 0.05      # a-priori accuracy of positions without their own sX sY sZ (m)
-# sigma_z_m = 0.08
+# sigma_z_m = 0.1
 # lever_arm_m = [0.0, 0.0, 0.0]   # antenna offset from the projection centre, camera frame (x right, y up, z up), m
 
 # [control]              # control/points.csv: id,kind,x,y,z,sx_m,sy_m,sz_m and control/image_points.csv
@@ -140,8 +140,12 @@ def _camera_text(frames: dict[str, Path], size: tuple[int, int], camera_path: Pa
     try:
         cam, notes = camera_from_metadata(read_frame_metadata(first))
     except InputError as exc:
-        hint = (f"no camera from the EXIF of {first.name} ({exc}); write camera.toml with the calibrated camera "
-                f"(docs/project.md#cameratoml):\n" + CAMERA_TEMPLATE.format(width=size[0], height=size[1]))
+        # the EXIF reader's own "write camera.toml yourself" would say it twice
+        reason = str(exc).removesuffix("; write camera.toml yourself")
+        hint = (f"no camera from the EXIF of {first.name} ({reason}); write camera.toml with the calibrated camera "
+                f"(docs/project.md#cameratoml), or let aerotri import bring it with the orientations "
+                f"(--format orthority|patb|colmap|opensfm|metashape; docs/exchange.md):\n"
+                + CAMERA_TEMPLATE.format(width=size[0], height=size[1]))
         return None, None, hint, []
     header = (f"# From the EXIF of {first.name} (aerotri init): a nominal or factory camera, not a calibration.\n"
               + "".join(f"# {n}\n" for n in notes))

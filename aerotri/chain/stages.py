@@ -50,10 +50,13 @@ def _json(path: Path) -> dict:
 def adjustment_result(rep: dict, **more) -> R.AdjustResult:
     """Key numbers of an adjustment report (the dict ``run_adjustment`` returns, as at/report.json) for the
     summary; ``more``: the leave-one-out numbers and notes."""
-    chk = rep.get("check_rms_m")
+    from aerotri.adjust.report_record import adjustment_record
+
+    rec = adjustment_record(rep)
+    chk = rec.check_rms_m
     checked = bool(chk) and len(chk) == 3 and None not in chk
-    return R.AdjustResult(sigma0_um=rep.get("key_statistics", {}).get("sigma0_um"),
-                          control_points=rep.get("counts", {}).get("control_points"),
+    return R.AdjustResult(sigma0_um=rec.key_statistics.sigma0_um if rec.key_statistics else None,
+                          control_points=rec.counts.get("control_points"),
                           rms_check_xy_m=round(float((chk[0] ** 2 + chk[1] ** 2) ** 0.5), 4) if checked else None,
                           rms_check_z_m=chk[2] if checked else None, **more)
 
@@ -669,7 +672,7 @@ class Chain:
         from aerotri.qa.report import write_qa_report
 
         rep = write_qa_report(root)
-        return R.ReportResult(verdict=rep["overall"], passed=rep["passed"], failed=rep["failed"])
+        return R.ReportResult(verdict=rep.overall, passed=rep.passed, failed=rep.failed)
 
 
 def _rel(path, root: Path) -> str:

@@ -368,6 +368,36 @@ def output_texts(res: TransferResult, checks: bool = True, settings_record: dict
             "transfer.json": json.dumps(rep, indent=1, allow_nan=False, default=float)}
 
 
+CONTROL_TRANSFER = "control transfer report (control/transfer.json)"
+
+
+@dataclasses.dataclass(frozen=True)
+class ControlTransferRecord:
+    """What ``control/transfer.json`` tells the stages after the control transfer."""
+
+    control_full: int  # accepted as full (X, Y, Z) control points
+    control_height: int  # accepted as height control points
+    check_points: int
+    layout_targets: tuple[LayoutTarget, ...]  # ``corner``: the chosen corner's id (None: empty target)
+    summary: dict  # every count of ``TransferSummary`` as written (numbers and reason -> count tables)
+
+
+def read_control_transfer(path) -> ControlTransferRecord:
+    """``control/transfer.json`` as ``run_control`` wrote it; InputError naming the file when it is not one."""
+    from aerotri.core.textio import read_record, record_error
+
+    d = read_record(path, CONTROL_TRANSFER, 1)
+    try:
+        sm = dict(d.get("summary") or {})
+        fields = {f.name for f in dataclasses.fields(LayoutTarget)}
+        targets = tuple(LayoutTarget(**{k: v for k, v in t.items() if k in fields})
+                        for t in d.get("layout_targets") or [])
+        return ControlTransferRecord(int(sm.get("control_full", 0)), int(sm.get("control_height", 0)),
+                                     int(sm.get("check_points", 0)), targets, sm)
+    except (AttributeError, KeyError, TypeError, ValueError) as exc:
+        raise record_error(path, CONTROL_TRANSFER, exc) from None
+
+
 def layout_line(res: TransferResult) -> str:
     """The layout targets in one sentence: how many filled, by fallbacks, and why each empty one is empty."""
     n, filled = len(res.targets), [t for t in res.targets if t.corner is not None]

@@ -170,13 +170,18 @@ def asprs_table(h_cm: float, v_cm: float) -> tuple[dict, dict, dict]:
     return limits, prov, d["table"]
 
 
+def _cm_text(v_cm: float) -> str:
+    """Two significant figures, but whole centimetres from 100 cm on (581, not 5.8e+02)."""
+    return f"{v_cm:.0f}" if abs(v_cm) >= 100 else f"{v_cm:.2g}"
+
+
 def asprs_classes_for_gsd(gsd_m: float) -> tuple[float, float, str]:
     """(H cm, V cm, row text) of the ASPRS 2023 classes for a GSD (``[[gsd_classes]]``: the first row not exceeded)."""
     rows = _toml(TOLERANCE_DIR / ASPRS_FILE)["gsd_classes"]
     gsd_cm = 100.0 * gsd_m
     row = next((r for r in rows if gsd_cm <= r["gsd_max_cm"]), rows[-1])
     beyond = gsd_cm > row["gsd_max_cm"]
-    text = (f"GSD {gsd_cm:.2g} cm {'>' if beyond else '<='} {row['gsd_max_cm']:g} cm: H {row['horizontal_class_cm']:g} cm, "
+    text = (f"GSD {_cm_text(gsd_cm)} cm {'>' if beyond else '<='} {row['gsd_max_cm']:g} cm: H {row['horizontal_class_cm']:g} cm, "
             f"V {row['vertical_class_cm']:g} cm (asprs2023.toml [[gsd_classes]], unconfirmed)")
     return float(row["horizontal_class_cm"]), float(row["vertical_class_cm"]), text
 
@@ -280,7 +285,7 @@ def read_qa_config(root) -> QaConfig:
 def _block_text(block: BlockScale | None) -> str:
     if block is None or block.gsd_m is None:
         return f"GSD unknown ({block.how if block is not None else 'not estimated'})"
-    return (f"GSD {100 * block.gsd_m:.2g} cm at {block.height_above_ground_m:.0f} m above ground "
+    return (f"GSD {_cm_text(100 * block.gsd_m)} cm at {block.height_above_ground_m:.0f} m above ground "
             f"({block.how})")
 
 

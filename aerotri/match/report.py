@@ -40,6 +40,8 @@ def plot_block(path, plan, pairs_ties: list[tuple[int, int, int]], strength) -> 
     ax.set_xlabel("X (m)")
     ax.set_ylabel("Y (m)")
     ax.ticklabel_format(useOffset=False, style="plain")
+    # full map coordinates (e.g. -59000 on NGI's Lo25) run into each other on a tall block's narrow x axis
+    ax.tick_params(axis="x", labelrotation=90)
     with atomic_path(path) as tmp:
         fig.savefig(tmp, dpi=120, bbox_inches="tight", format="png")
     plt.close(fig)

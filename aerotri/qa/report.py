@@ -14,53 +14,106 @@ limits not confirmed in their source.
 
 from __future__ import annotations
 
+import dataclasses
 import html
 import io
 import textwrap
 import json
 import math
+from dataclasses import dataclass
 from pathlib import Path
 
 from aerotri.adjust import report_figures as RF
 from aerotri.adjust.flight_acceptance import LIMIT_KEYS, project_flight_acceptance
+from aerotri.adjust.report_record import ADJUSTMENT_REPORT, SCHEMA_VERSION, KeyStatistics, read_adjustment_report
 from aerotri.control.layout import empty_target_text
+from aerotri.control.pipeline import read_control_transfer
 from aerotri.core.atomic import atomic_path, write_text_atomic
 from aerotri.core.errors import InputError, StageOrderError
-from aerotri.core.textio import read_json
+from aerotri.core.textio import read_record
 from aerotri.core.project import Project
 from aerotri.core.tolerances import TERRAINS, TOLERANCE_DIR, choose_table, read_qa_config, split_key
 from aerotri.geom.block_scale import project_block_scale
 from aerotri.qa.compliance import asprs_class_cm, project_compliance
+from lidarctl.heights_check import read_height_check
+from lidarctl.vector_check import read_vector_check
 from lidarctl.vectors_settings import VectorsSettings
 
-def _json(path: Path) -> dict:
-    """A stage's JSON report, {} when the stage did not run; a corrupt one names the file."""
-    if not path.exists():
-        return {}
-    d = read_json(path, "stage report (JSON)")
-    if not isinstance(d, dict):
-        raise InputError(f"{path}: expected a JSON object (a stage report), got {type(d).__name__}")
-    return d
+@dataclass(frozen=True)
+class QaCheck:
+    """One row of the verdict table. ``id``: stable (scripts and tests find rows by it, not by the English
+    quantity); ``limit_key``: the tolerance-table key of ``limit`` (its source goes into the report)."""
+
+    id: str
+    section: str
+    quantity: str
+    value: object  # a number, a bool, a text ("6 full + 1 height / 370 check") or None (not measured)
+    limit: object
+    unit: str
+    note: str
+    verdict: str | None  # "pass", "fail" or None (nothing to judge)
+    limit_key: str | None = None
+    limit_source: str | None = None
+    limit_confirmed: bool | None = None
+
+    def as_dict(self) -> dict:
+        return dataclasses.asdict(self)
 
 
-def _failed(section: str, name: str, why: str) -> dict:
+@dataclass(frozen=True)
+class QaReport:
+    """The consolidated accuracy report (``reports/summary.json`` is ``as_dict()``)."""
+
+    project: str
+    map_scale: str
+    tolerance_table: str
+    terrain: str
+    tolerances: dict
+    table: dict
+    block: dict
+    checks: tuple[QaCheck, ...]
+    overall: str | None  # "pass", "fail", None (no row with a tolerance)
+    passed: int
+    failed: int
+    details: dict
+    flight_acceptance: dict | None
+    compliance: dict
+    html: str | None = None  # reports/index.html once written
+
+    def check(self, check_id: str) -> QaCheck:
+        """The row with this id (KeyError naming the ids there are)."""
+        for c in self.checks:
+            if c.id == check_id:
+                return c
+        raise KeyError(f"no check {check_id!r} in the report; there are: {', '.join(c.id for c in self.checks)}")
+
+    def has(self, check_id: str) -> bool:
+        return any(c.id == check_id for c in self.checks)
+
+    def as_dict(self) -> dict:
+        d = {f.name: getattr(self, f.name) for f in dataclasses.fields(self) if f.name != "html"}
+        d["checks"] = [c.as_dict() for c in self.checks]
+        return d
+
+
+def _failed(check_id: str, section: str, name: str, why: str) -> QaCheck:
     """A check that ran but measured nothing: it cannot pass."""
-    return dict(section=section, quantity=name, value=None, limit=None, unit="", note=why, verdict="fail")
+    return QaCheck(check_id, section, name, None, None, "", why, "fail")
 
 
-def _check(section: str, name: str, value, limit, unit: str, note: str = "", key: str | None = None) -> dict:
+def _check(check_id: str, section: str, name: str, value, limit, unit: str, note: str = "",
+           key: str | None = None) -> QaCheck:
     """A verdict row; ``key``: the tolerance-table key of ``limit`` (its source goes into the report)."""
-    row = dict(section=section, quantity=name, value=value, limit=limit, unit=unit, note=note, limit_key=key)
     if value is None or limit is None:
-        row["verdict"] = None
+        verdict = None
     elif isinstance(limit, bool):
-        row["verdict"] = "pass" if value == limit else "fail"
+        verdict = "pass" if value == limit else "fail"
     else:
-        row["verdict"] = "pass" if value <= limit else "fail"
-    return row
+        verdict = "pass" if value <= limit else "fail"
+    return QaCheck(check_id, section, name, value, limit, unit, note, verdict, key)
 
 
-def _roofs_row(section: str, dom_check, project: Project) -> dict:
+def _roofs_row(section: str, dom_check, project: Project) -> QaCheck:
     """The DOM check's roofs row (``ortho.check.DomCheck``): RMS of the displacements at roof corners, not judged
     against the table (roofs stand in place only in a true ortho checked against a true orthophoto; in a conventional
     ortho they lean by their relief displacement), with how many corners were measured, where they came from and
@@ -74,27 +127,30 @@ def _roofs_row(section: str, dom_check, project: Project) -> dict:
         source = str(path.relative_to(project.root)) if path.is_relative_to(project.root) else str(path)
     kind = ""
     if project.frames_index_path.is_file():
-        index = _json(project.frames_index_path)
-        kind = "; true ortho on the DSM" if index.get("true_ortho") else "; conventional ortho (roofs lean)"
+        from ortho.block import read_index
+
+        true_ortho = read_index(project.root).get("true_ortho")
+        kind = "; true ortho on the DSM" if true_ortho else "; conventional ortho (roofs lean)"
     if not r.count:
         why = dom_check.roofs_why or f"{dom_check.roof_corners or 0} roof corners, none measurable"
-        return _check(section, "displacement at roof corners, plan RMS", None, None, "m", f"none measured ({why})")
+        return _check("dom_roofs_rms_xy_m", section, "displacement at roof corners, plan RMS", None, None, "m",
+                      f"none measured ({why})")
     gsd = r.rms_xy_gsd if r.rms_xy_gsd is not None else float("nan")
     median_gsd = r.median_xy_m / r.gsd_m if r.median_xy_m is not None and r.gsd_m else float("nan")
-    return _check(section, "displacement at roof corners, plan RMS", round(r.rms_xy_m, 4), None, "m",
-                  f"{r.count} of {dom_check.roof_corners} corners, {gsd:.2f} GSD, median {median_gsd:.2f} GSD; "
+    return _check("dom_roofs_rms_xy_m", section, "displacement at roof corners, plan RMS", round(r.rms_xy_m, 4), None,
+                  "m", f"{r.count} of {dom_check.roof_corners} corners, {gsd:.2f} GSD, median {median_gsd:.2f} GSD; "
                   f"corners: {source}{kind}; not judged")
 
 
-def _sigma0_limit_px(tol: dict, ks: dict, s0_px: float) -> float | None:
+def _sigma0_limit_px(tol: dict, ks: KeyStatistics, s0_px: float) -> float | None:
     """The self-check limit of sigma naught in the camera's pixels: ``sigma0_max_px`` (digital cameras: a
     fraction of a pixel, whatever its size), or a contract's ``sigma0_max_um`` on the image over the pixel
     size (``key_statistics`` pixel_um, or sigma0_um / sigma0_px of older reports)."""
     if tol.get("sigma0_max_px") is not None:
         return tol["sigma0_max_px"]
-    pixel_um = ks.get("pixel_um")
-    if pixel_um is None and ks.get("sigma0_um") and s0_px:
-        pixel_um = ks["sigma0_um"] / s0_px
+    pixel_um = ks.pixel_um
+    if pixel_um is None and ks.sigma0_um and s0_px:
+        pixel_um = ks.sigma0_um / s0_px
     if tol.get("sigma0_max_um") is not None and pixel_um:
         return round(float(tol["sigma0_max_um"]) / float(pixel_um), 3)
     return None
@@ -106,7 +162,7 @@ def _hypot(a, b):
 
 
 
-def flight_rows(fa: dict, tol: dict) -> list:
+def flight_rows(fa: dict, tol: dict) -> list[QaCheck]:
     """The flight acceptance checks as verdict rows; the limits are those of this report's table (a
     section computed by the adjustment with another table is judged again)."""
     rows = []
@@ -125,12 +181,12 @@ def flight_rows(fa: dict, tol: dict) -> list:
                 + ("" if kind == "max" else "; a lower limit: the value must reach it"))
         if value is not None and limit is None:
             note = f"{note}; not judged: no flight limit applies to this block"
-        rows.append(dict(section="Flight acceptance", quantity=c["quantity"], value=value, limit=limit, unit=c["unit"],
-                         note=note if value is not None else "not measured", verdict=verdict, limit_key=c["key"]))
+        rows.append(QaCheck(c["key"], "Flight acceptance", c["quantity"], value, limit, c["unit"],
+                            note if value is not None else "not measured", verdict, c["key"]))
     return rows
 
 
-def strip_rows(project: Project, tol: dict) -> tuple[list, list | None]:
+def strip_rows(project: Project, tol: dict) -> tuple[list[QaCheck], list | None]:
     """(the strip-consistency row, the pairs for the details) from lidar_out/strips/: the check, or after a
     strip adjustment its check after (the note gives the value before).
 
@@ -152,7 +208,7 @@ def strip_rows(project: Project, tol: dict) -> tuple[list, list | None]:
     name = "strip-to-strip height differences on smooth surfaces, RMS over all pairs"
     chk = read_strip_check(path)
     if chk is None:
-        return [_check(sec, name, None, None, "m", f"not checked: {nothing_compared(path)}")], None
+        return [_check("strip_rmsdz_m", sec, name, None, None, "m", f"not checked: {nothing_compared(path)}")], None
     a = chk.all_pairs
     pairs = [dict(a=p.a, b=p.b, n_cells=p.diff.n_cells, mean_m=p.diff.mean_m, rms_m=p.diff.rms_m, nmad_m=p.diff.nmad_m)
              for p in chk.pairs]
@@ -163,10 +219,11 @@ def strip_rows(project: Project, tol: dict) -> tuple[list, list | None]:
         before = read_strip_adjustment(project.strips_adjust_path).check_before
         if before.rms_m is not None:
             note = f"after the strip adjustment (before: RMS {before.rms_m:.3f} m); " + note
-    return [_check(sec, name, round(a.rms_m, 4), tol.get("strip_rmsdz_m"), "m", note, key="strip_rmsdz_m")], pairs
+    return [_check("strip_rmsdz_m", sec, name, round(a.rms_m, 4), tol.get("strip_rmsdz_m"), "m", note,
+                   key="strip_rmsdz_m")], pairs
 
 
-def line_map_rows(project: Project, tol: dict) -> list:
+def line_map_rows(project: Project, tol: dict) -> list[QaCheck]:
     """The "Line map (DLG) plan accuracy" row from a check-vectors result: the chain's (lidar_out/
     vectors_check.json, ``[vectors] enabled``), else ``[vectors] check_json`` of project.toml; none without.
 
@@ -180,17 +237,18 @@ def line_map_rows(project: Project, tol: dict) -> list:
             return []
         if not path.is_file():
             raise InputError(f"{project.config_path} [vectors] check_json: {path} not found")
-    chk = _json(path)
-    sec, name = "Line map (DLG)", "Line map (DLG) plan accuracy: building corners, plan RMS"
-    b = (chk.get("layers") or {}).get("buildings")
+    chk = read_vector_check(path)
+    sec, name, cid = "Line map (DLG)", "Line map (DLG) plan accuracy: building corners, plan RMS", "line_map_rms_xy_m"
+    b = chk.buildings
     if not b:
-        return [_failed(sec, name, f"{path.name}: no buildings layer checked")]
-    if not b.get("n_matched_corners"):
-        return [_failed(sec, name, f"{path.name}: no building corner matched a reference corner")]
-    note = (f"{b['n_matched_corners']} corners within {chk.get('match_m', 0):g} m of a reference corner; to the nearest "
-            f"reference outline {b['rms_xy_to_line_m']:.3f} m RMS; buildings complete {b['completeness_pct']:.1f} %, "
-            f"correct {b['correctness_pct']:.1f} %; reference {Path(str(chk.get('reference', '?'))).name}")
-    return [_check(sec, name, round(b["rms_xy_corner_m"], 4), tol.get("feature_rms_xy_m"), "m", note, key="feature_rms_xy_m")]
+        return [_failed(cid, sec, name, f"{path.name}: no buildings layer checked")]
+    if not b.n_matched_corners:
+        return [_failed(cid, sec, name, f"{path.name}: no building corner matched a reference corner")]
+    note = (f"{b.n_matched_corners} corners within {chk.match_m:g} m of a reference corner; to the nearest "
+            f"reference outline {b.rms_xy_to_line_m:.3f} m RMS; buildings complete {b.completeness_pct:.1f} %, "
+            f"correct {b.correctness_pct:.1f} %; reference {Path(chk.reference).name}")
+    return [_check(cid, sec, name, round(b.rms_xy_corner_m, 4), tol.get("feature_rms_xy_m"), "m", note,
+                   key="feature_rms_xy_m")]
 
 
 def stage_results(project: Project) -> list:
@@ -228,124 +286,125 @@ def build_qa_report(root, tolerance_file=None, terrain: str | None = None, scale
     compliance = project_compliance(project, table, block, standard, accuracy_class, terrain)
     terrain, tol, tol_path = table.terrain, table.limits, table.path
     tol_file = None if table.path.parent == TOLERANCE_DIR else table.path  # a user's own table
-    at = _json(project.adjustment_report_path)
-    ctl_all = _json(project.control_transfer_path)
-    ctl = ctl_all.get("summary", {})
+    at = (read_adjustment_report(project.adjustment_report_path)
+          if project.adjustment_report_path.is_file() else None)
+    ctl = (read_control_transfer(project.control_transfer_path)
+           if project.control_transfer_path.is_file() else None)
     dom_check = read_dom_check(project.dom_report_path) if project.dom_report_path.exists() else None
     dom = dom_check.displacement if dom_check else None
-    hc_all = _json(project.height_check_path)
-    hc = hc_all.get("overall", {})
+    hc = read_height_check(project.height_check_path) if project.height_check_path.is_file() else None
     ce = read_filter_test(project.classification_eval_path) if project.classification_eval_path.exists() else None
     rows, strips = strip_rows(project, tol)
 
     # LiDAR
     sec = "LiDAR classification"
     if ce:
-        rows.append(_check(sec, "ground filter total error against the reference classes", round(ce.total_error_pct, 3),
-                           tol.get("filter_total_error_pct"), "%", key="filter_total_error_pct"))
-        rows.append(_check(sec, "type I error (ground rejected)", round(ce.type_i_error_pct, 3), None, "%"))
-        rows.append(_check(sec, "type II error (objects accepted as ground)", round(ce.type_ii_error_pct, 3), None, "%"))
-        rows.append(_check(sec, "Cohen's kappa", round(ce.kappa_pct, 2), None, "%"))
+        rows.append(_check("filter_total_error_pct", sec, "ground filter total error against the reference classes",
+                           round(ce.total_error_pct, 3), tol.get("filter_total_error_pct"), "%",
+                           key="filter_total_error_pct"))
+        rows.append(_check("filter_type_i_error_pct", sec, "type I error (ground rejected)",
+                           round(ce.type_i_error_pct, 3), None, "%"))
+        rows.append(_check("filter_type_ii_error_pct", sec, "type II error (objects accepted as ground)",
+                           round(ce.type_ii_error_pct, 3), None, "%"))
+        rows.append(_check("filter_kappa_pct", sec, "Cohen's kappa", round(ce.kappa_pct, 2), None, "%"))
     sec = "LiDAR height check"
-    if hc.get("all") and not hc["all"].get("n"):
-        rows.append(_failed(sec, "ground height check", "no surveyed point has ground points within the search radius "
-                                                        "(points in another CRS, or x and y swapped?)"))
-    elif hc.get("all"):
-        a = hc["all"]
-        rows.append(_check(sec, f"ground height RMSE at {a['n']} surveyed points", round(a["rmse_m"], 4),
-                           tol.get("dem_rmse_m"), "m", key="dem_rmse_m"))
-        dz = [p["dz_m"] for p in hc_all.get("points", []) if p.get("dz_m") is not None]
-        if dz and tol.get("dem_rmse_m"):
+    if hc is not None and hc.n_checked == 0:
+        rows.append(_failed("dem_rmse_m", sec, "ground height check", "no surveyed point has ground points within the "
+                                                                      "search radius (points in another CRS, or x and "
+                                                                      "y swapped?)"))
+    elif hc is not None and hc.n_checked:
+        rows.append(_check("dem_rmse_m", sec, f"ground height RMSE at {hc.n_checked} surveyed points",
+                           round(hc.rmse_m, 4), tol.get("dem_rmse_m"), "m", key="dem_rmse_m"))
+        if hc.dz_m and tol.get("dem_rmse_m"):
             lim = 3.0 * tol["dem_rmse_m"]
-            pct = 100.0 * sum(abs(d) > lim for d in dz) / len(dz)
-            rows.append(_check(sec, f"surveyed points with |dz| > {lim:.2f} m (3 x the RMSE limit)", round(pct, 2),
-                               tol.get("height_check_max_outlier_pct"), "%",
-                               key="height_check_max_outlier_pct"))
+            pct = 100.0 * sum(abs(d) > lim for d in hc.dz_m) / len(hc.dz_m)
+            rows.append(_check("height_check_outlier_pct", sec,
+                               f"surveyed points with |dz| > {lim:.2f} m (3 x the RMSE limit)", round(pct, 2),
+                               tol.get("height_check_max_outlier_pct"), "%", key="height_check_max_outlier_pct"))
 
     rows += line_map_rows(project, tol)
 
     # Control and adjustment
     sec = "Control points"
-    if ctl:
-        rows.append(_check(sec, "LiDAR corners accepted as control / check points",
-                           f"{ctl.get('control_full', 0)} full + {ctl.get('control_height', 0)} height / "
-                           f"{ctl.get('check_points', 0)} check", None, ""))
-        targets = ctl_all.get("layout_targets") or []
-        if targets:
-            empty = [t for t in targets if t.get("corner") is None]
-            fb = sum(t.get("tier") not in (None, "usable") for t in targets)
-            note = "; ".join(empty_target_text(t) for t in empty)
+    if ctl and ctl.summary:
+        rows.append(_check("control_accepted", sec, "LiDAR corners accepted as control / check points",
+                           f"{ctl.control_full} full + {ctl.control_height} height / {ctl.check_points} check",
+                           None, ""))
+        if ctl.layout_targets:
+            empty = [t for t in ctl.layout_targets if t.corner is None]
+            fb = sum(t.tier not in (None, "usable") for t in ctl.layout_targets)
+            note = "; ".join(empty_target_text(t.to_dict()) for t in empty)
             if fb:
                 note = f"{fb} filled by fallbacks" + (f"; {note}" if note else "")
-            rows.append(_check(sec, "layout targets with a control point", f"{len(targets) - len(empty)} of {len(targets)}",
-                               None, "", note))
-    counts = at.get("counts", {})
-    if at and counts.get("control_points") == 0:
-        gnss = at.get("options", {}).get("given_eo_gps") == "Enabled"
-        why = "the datum comes from GNSS alone" if gnss else "no datum from control"
-        rows.append(_check(sec, "control points in the adjustment", 0, None, "", f"no LiDAR control: {why}"))
-    ctrl = at.get("rms_control_ground_m")
+            rows.append(_check("layout_targets_filled", sec, "layout targets with a control point",
+                               f"{len(ctl.layout_targets) - len(empty)} of {len(ctl.layout_targets)}", None, "", note))
+    if at and at.counts.get("control_points") == 0:
+        why = "the datum comes from GNSS alone" if at.gnss_given else "no datum from control"
+        rows.append(_check("control_points_used", sec, "control points in the adjustment", 0, None, "",
+                           f"no LiDAR control: {why}"))
+    ctrl = at.control_rms_m if at else None
     # plan and height each when there is one: plan-only control (the kite block's targets) has no height RMS
     if ctrl and None not in ctrl[:2]:
-        rows.append(_check(sec, "control residuals, plan RMS", _hypot(ctrl[0], ctrl[1]), tol.get("rms_xy_m"), "m", key="rms_xy_m"))
+        rows.append(_check("control_rms_xy_m", sec, "control residuals, plan RMS", _hypot(ctrl[0], ctrl[1]),
+                           tol.get("rms_xy_m"), "m", key="rms_xy_m"))
     if ctrl and len(ctrl) > 2 and ctrl[2] is not None:
-        rows.append(_check(sec, "control residuals, height RMS", ctrl[2], tol.get("rms_z_m"), "m", key="rms_z_m"))
+        rows.append(_check("control_rms_z_m", sec, "control residuals, height RMS", ctrl[2], tol.get("rms_z_m"), "m",
+                           key="rms_z_m"))
     if at:
-        rej = at.get("rejected_control") or []
-        rows.append(_check(sec, "control points rejected by the adjustment",
-                           len(rej), None, "", ", ".join(str(r.get("id", r) if isinstance(r, dict) else r) for r in rej)))
+        rows.append(_check("control_rejected", sec, "control points rejected by the adjustment",
+                           len(at.rejected_control), None, "", ", ".join(at.rejected_control)))
     sec = "Aerotriangulation"
-    ks = at.get("key_statistics", {})
+    ks = at.key_statistics if at else None
     if ks:
         # the adjustment's verdict, not only "products written": a weak solution (geometry held by GNSS and priors
         # alone, a calibration group fixed, frames left out) is not "Solution Successful" here either
-        successful = bool(ks.get("success")) and ks.get("verdict", "successful") == "successful"
-        rows.append(_check(sec, "solution successful", successful, True, "", ks.get("message", "")))
-        s0_px = ks.get("sigma0_px")
-        if s0_px is None and ks.get("sigma0") is not None:  # reports written before sigma0_px
-            s0_px = ks["sigma0"] * at.get("options", {}).get("image_sigma_px", float("nan"))
+        rows.append(_check("solution_successful", sec, "solution successful", ks.successful, True, "", ks.message))
+        s0_px = at.sigma0_in_px
         if s0_px is not None and math.isfinite(s0_px):
-            rows.append(_check(sec, "sigma naught", round(s0_px, 3), _sigma0_limit_px(tol, ks, s0_px), "px",
-                               f"{ks['sigma0_um']:.2f} um" if ks.get("sigma0_um") is not None else "",
+            rows.append(_check("sigma0_px", sec, "sigma naught", round(s0_px, 3), _sigma0_limit_px(tol, ks, s0_px), "px",
+                               f"{ks.sigma0_um:.2f} um" if ks.sigma0_um is not None else "",
                                key="sigma0_max_px" if tol.get("sigma0_max_px") is not None else "sigma0_max_um"))
-    chk = at.get("check_rms_m")
+    chk = at.check_rms_m if at else None
     if chk and None not in chk:
-        n = len(at.get("check_points", []))
+        n = at.check_points
         need = tol.get("check_points_min")
         npts = f"{n} points"
         if need:
             short = f"{need:g} required by {table.name.split(':')[0]}"
             npts += f" ({short}: not testable as the standard asks)" if n < need else f" ({short})"
-            rows.append(_check(sec, "check points for the accuracy assessment", n, None, "",
+            rows.append(_check("check_points_count", sec, "check points for the accuracy assessment", n, None, "",
                                f"at least {need:g} required" + (": too few, the RMS rows below are indicative only"
                                                                 if n < need else ""), key="check_points_min"))
-        rows.append(_check(sec, "check points, plan RMS", _hypot(chk[0], chk[1]), tol.get("rms_xy_m"), "m", npts, key="rms_xy_m"))
-        rows.append(_check(sec, "check points, height RMS", chk[2], tol.get("rms_z_m"), "m", npts, key="rms_z_m"))
-        d = [c["d_m"] for c in at.get("check_points", []) if c.get("d_m") and None not in c["d_m"]]
+        rows.append(_check("check_rms_xy_m", sec, "check points, plan RMS", _hypot(chk[0], chk[1]), tol.get("rms_xy_m"),
+                           "m", npts, key="rms_xy_m"))
+        rows.append(_check("check_rms_z_m", sec, "check points, height RMS", chk[2], tol.get("rms_z_m"), "m", npts,
+                           key="rms_z_m"))
+        d = at.check_residuals_m
         # Gross errors: single residuals beyond the residual limit (2 x the RMS limit); a few percent
         # of them is tolerated (their share is limited, not their existence).
         for k, (name, lim) in enumerate((("plan", tol.get("residual_xy_m")), ("height", tol.get("residual_z_m")))):
             if d and lim:
                 big = sum((math.hypot(a, b) if k == 0 else abs(c)) > lim for a, b, c in d)
-                rows.append(_check(sec, f"check points with a {name} residual beyond {lim:g} m", round(100.0 * big / len(d), 2),
+                rows.append(_check(f"check_gross_{'xy' if k == 0 else 'z'}_pct", sec,
+                                   f"check points with a {name} residual beyond {lim:g} m", round(100.0 * big / len(d), 2),
                                    tol.get("gross_error_max_pct"), "%", f"{big} of {len(d)}",
                                    key="gross_error_max_pct"))
 
     # DOM
     sec = "DOM"
     if dom and dom.count == 0:
-        rows.append(_failed(sec, "displacement of the DOM", "the check found no usable patch or point (no texture, "
-                                                            "no ground under --max-ndsm-m, or the reference misses the "
-                                                            "DOM)"))
+        rows.append(_failed("dom_rms_xy_m", sec, "displacement of the DOM",
+                            "the check found no usable patch or point (no texture, no ground under --max-ndsm-m, or "
+                            "the reference misses the DOM)"))
     if dom and dom.rms_xy_m is not None:
         gsd = dom.rms_xy_gsd if dom.rms_xy_gsd is not None else float("nan")
-        rows.append(_check(sec, "displacement on ground patches, plan RMS", round(dom.rms_xy_m, 4),
+        rows.append(_check("dom_rms_xy_m", sec, "displacement on ground patches, plan RMS", round(dom.rms_xy_m, 4),
                            tol.get("feature_rms_xy_m"), "m", f"{dom.count} patches, {gsd:.2f} GSD",
                            key="feature_rms_xy_m"))
         if dom.p95_xy_m is not None and tol.get("feature_rms_xy_m") and tol.get("gross_error_max_pct") == 5.0:
             # 95th percentile within 2 x the RMS limit <=> at most 5 % gross errors.
             largest = dom.max_xy_m if dom.max_xy_m is not None else float("nan")
-            rows.append(_check(sec, "95th percentile of the patch displacements", round(dom.p95_xy_m, 4),
+            rows.append(_check("dom_p95_xy_m", sec, "95th percentile of the patch displacements", round(dom.p95_xy_m, 4),
                                2 * tol["feature_rms_xy_m"], "m", f"largest {largest:.3f} m; "
                                "limit 2 x the RMS limit (at most 5 % gross errors)", key="feature_rms_xy_m"))
     if dom_check and dom_check.roofs is not None:
@@ -355,16 +414,16 @@ def build_qa_report(root, tolerance_file=None, terrain: str | None = None, scale
 
         why = stale_frames(root, read_index(root))
         if why:
-            rows.append(_failed(sec, "DOM from an older adjustment", f"{why}; re-run ortho rectify, ortho mosaic and "
-                                                                     "ortho check"))
+            rows.append(_failed("dom_stale", sec, "DOM from an older adjustment",
+                                f"{why}; re-run ortho rectify, ortho mosaic and ortho check"))
     if dom_check and dom_check.seams_rms_px is not None:
-        rows.append(_check(sec, "misalignment across seamlines, RMS", round(dom_check.seams_rms_px, 3),
-                           tol.get("seam_misalignment_rms_px"), "px", f"{dom_check.seam_patches} patches",
-                           key="seam_misalignment_rms_px"))
+        rows.append(_check("seam_misalignment_rms_px", sec, "misalignment across seamlines, RMS",
+                           round(dom_check.seams_rms_px, 3), tol.get("seam_misalignment_rms_px"), "px",
+                           f"{dom_check.seam_patches} patches", key="seam_misalignment_rms_px"))
 
     # Flight acceptance: from the adjustment's report when it has the section, else computed here (before
     # the adjustment: GNSS positions with the nominal attitude)
-    fa = at.get("flight_acceptance") if at.get("flight_acceptance") else None
+    fa = at.flight_acceptance if at else None
     if fa is None and (project.eo_path.is_file() or project.gnss_path.is_file()) and project.camera_path.is_file():
         got = project_flight_acceptance(root, tol)
         fa = got.as_dict() if got is not None else None
@@ -374,31 +433,35 @@ def build_qa_report(root, tolerance_file=None, terrain: str | None = None, scale
               "limits": {k: tol.get(k) for k in LIMIT_KEYS}}
         rows += flight_rows(fa, tol)
     elif project.eo_path.is_file() or project.gnss_path.is_file():
-        rows.append(_check("Flight acceptance", "flight acceptance", None, None, "",
+        rows.append(_check("flight_acceptance", "Flight acceptance", "flight acceptance", None, None, "",
                            "not measured: no camera.toml, or no DEM (lidar_out/dem.tif) and no [flight] "
                            "mean_terrain_height_m to put the footprints on"))
 
-    verdicts = [r["verdict"] for r in rows if r["verdict"]]
+    verdicts = [r.verdict for r in rows if r.verdict]
+    ks_info = dict(sigma0_um=ks.sigma0_um, iterations=ks.iterations) if ks else dict(sigma0_um=None, iterations=None)
     info = dict(
-        adjustment=dict(sigma0_um=ks.get("sigma0_um"), iterations=ks.get("iterations"), counts=at.get("counts"),
-                        check_normalised_rms=at.get("check_normalised_rms")) if at else None,
-        control_transfer=ctl or None,
+        adjustment=dict(**ks_info, counts=at.counts or None,
+                        check_normalised_rms=list(at.check_normalised_rms) if at.check_normalised_rms else None)
+        if at else None,
+        control_transfer=(ctl.summary or None) if ctl else None,
         lidar_strips=strips,
-        lidar_height_bins=hc.get("bins"),
-        lidar_height_groups=hc_all.get("groups") or None,
+        lidar_height_bins=hc.bins if hc else None,
+        lidar_height_groups=(hc.groups or None) if hc else None,
         lidar_classification=ce.as_dict() if ce else None,
         dom=dom.as_dict() if dom else None,
     )
-    for r in rows:  # where each limit comes from; an unconfirmed one is marked
-        p = table.provenance.get(r.get("limit_key") or "")
-        r["limit_source"] = p.source if p is not None else None
-        r["limit_confirmed"] = p.confirmed if p is not None else None
-    return dict(project=at.get("project", root.name), map_scale=tol_path.stem if tol_file else split_key(table.key)[0],
-                tolerance_table=str(tol_path.name), terrain=terrain, tolerances=tol, table=table.as_dict(),
-                block=block.as_dict(), checks=rows,
-                overall=("fail" if "fail" in verdicts else "pass") if verdicts else None,
-                passed=verdicts.count("pass"), failed=verdicts.count("fail"), details=info, flight_acceptance=fa,
-                compliance=compliance.as_dict())
+    # where each limit comes from; an unconfirmed one is marked
+    prov = [table.provenance.get(r.limit_key or "") for r in rows]
+    rows = tuple(dataclasses.replace(r, limit_source=p.source if p is not None else None,
+                                     limit_confirmed=p.confirmed if p is not None else None)
+                 for r, p in zip(rows, prov))
+    return QaReport(project=(at.project if at and at.project else root.name),
+                    map_scale=tol_path.stem if tol_file else split_key(table.key)[0],
+                    tolerance_table=str(tol_path.name), terrain=terrain, tolerances=tol, table=table.as_dict(),
+                    block=block.as_dict(), checks=rows,
+                    overall=("fail" if "fail" in verdicts else "pass") if verdicts else None,
+                    passed=verdicts.count("pass"), failed=verdicts.count("fail"), details=info,
+                    flight_acceptance=fa, compliance=compliance.as_dict())
 
 
 def _cell(v) -> str:
@@ -443,15 +506,16 @@ def _scalar(v):
     return v
 
 
-def report_figures(rep: dict, project: Project) -> list:
+def report_figures(rep: QaReport, project: Project) -> list:
     """The adjustment's figures (drawn from at/report.json, as in at/report.html) and the flight map."""
-    at = _json(project.adjustment_report_path)
-    if at:
+    if project.adjustment_report_path.is_file():
         from aerotri.adjust.report import report_figures as at_figures
 
-        at = {**at, "flight_acceptance": rep.get("flight_acceptance") or at.get("flight_acceptance")}
+        # the figures draw from the whole report, not only the fields the record types
+        at = read_record(project.adjustment_report_path, ADJUSTMENT_REPORT, SCHEMA_VERSION)
+        at = {**at, "flight_acceptance": rep.flight_acceptance or at.get("flight_acceptance")}
         return at_figures(at)
-    fig = RF.flight_map(rep.get("flight_acceptance") or {})
+    fig = RF.flight_map(rep.flight_acceptance or {})
     return [fig] if fig is not None else []
 
 
@@ -708,22 +772,25 @@ def write_pdf(path: Path, rep: dict, project: Project, figures: list | None = No
 
 def write_qa_report(root, tolerance_file=None, terrain: str | None = None, scale: str | None = None,
                     pdf: bool | None = None, standard: str | None = None, horizontal_class_cm: float | None = None,
-                    vertical_class_cm: float | None = None, accuracy_class: str | None = None) -> dict:
+                    vertical_class_cm: float | None = None, accuracy_class: str | None = None) -> QaReport:
+    """``build_qa_report``, written: reports/summary.json (``QaReport.as_dict``), reports/index.html and, with ``pdf``
+    (else ``[qa] pdf``), reports/report.pdf."""
     project = Project.open(root)
     rep = build_qa_report(project.root, tolerance_file, terrain, scale, standard, horizontal_class_cm,
                           vertical_class_cm, accuracy_class)
-    write_text_atomic(project.report_summary_path, json.dumps(rep, indent=1) + "\n")
+    summary = rep.as_dict()
+    write_text_atomic(project.report_summary_path, json.dumps(summary, indent=1) + "\n")
     figures = report_figures(rep, project)
     present = [(src, alt) for src, alt in STAGE_IMAGES if (project.reports_dir / src).resolve().is_file()]
-    write_text_atomic(project.report_index_path, format_html(rep, figures, present))
-    rep["html"] = str(project.report_index_path)
+    write_text_atomic(project.report_index_path, format_html(summary, figures, present))
     if pdf if pdf is not None else read_qa_config(root).pdf:
-        write_pdf(project.report_pdf_path, rep, project, figures)
-    return rep
+        write_pdf(project.report_pdf_path, summary, project, figures)
+    return dataclasses.replace(rep, html=str(project.report_index_path))
 
 
-def console_summary(rep: dict) -> str:
+def console_summary(report: QaReport) -> str:
     """The lines ``aerotri report`` prints: the table and why it was chosen, every judged row, the verdict."""
+    rep = report.as_dict()
     t = rep["table"]
     lines = [f"tolerances: {t['name']} ({t['file']}); chosen because {t['reason']}"]
     if t["unconfirmed"]:
@@ -735,6 +802,6 @@ def console_summary(rep: dict) -> str:
                          f"(limit {r['limit']}{star})")
     lines += compliance_lines(rep.get("compliance"))
     verdict = rep["overall"] or "no verdict (no quantity with a tolerance yet)"
-    lines.append(f"{rep['html']}: {verdict} ({rep['passed']} passed, {rep['failed']} failed; "
+    lines.append(f"{report.html}: {verdict} ({rep['passed']} passed, {rep['failed']} failed; "
                  f"{rep['map_scale']} {rep['terrain']})")
     return "\n".join(lines)

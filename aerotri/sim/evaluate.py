@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import csv
+import tomllib
 
 import numpy as np
 import rasterio
@@ -11,6 +12,7 @@ from scipy.ndimage import maximum_filter, minimum_filter
 from aerotri.adjust.check_points import intersect_rays
 from aerotri.geom.camera import BrownCamera
 from aerotri.geom.eo import read_eo
+from aerotri.geom.local_frame import LocalFrame
 
 
 def read_tiepoints(path):
@@ -23,7 +25,8 @@ def read_tiepoints(path):
 def tie_point_errors(project, tiepoints_csv=None, tol_px: float = 1.0) -> dict:
     """Which tie observations are off by more than ``tol_px`` from their true image positions.
 
-    Each track is intersected with the true orientations and the true camera; an observation is off
+    Each track is intersected with the true orientations and the true camera (in the ENU frame of
+    ``aerotri.geom.local_frame``, where the simulator's rays are straight); an observation is off
     when its reprojection residual exceeds ``tol_px``. Two-ray tracks cannot show errors along the
     epipolar line in their residuals, so their intersected point must also lie on the true DSM
     within the height error that ``tol_px`` of parallax would cause (tested against the DSM's local
@@ -35,22 +38,26 @@ def tie_point_errors(project, tiepoints_csv=None, tol_px: float = 1.0) -> dict:
     pid, iid, xy = read_tiepoints(tiepoints_csv or project / "at" / "tiepoints.csv")
     eo = read_eo(project / "truth" / "eo.txt")
     cam = BrownCamera.read(project / "truth" / "camera.toml")
+    with open(project / "project.toml", "rb") as f:
+        frame = LocalFrame.at_centre(tomllib.load(f)["project"]["crs"], eo.centre_m)
+    centre = frame.to_local(eo.centre_m)
     idx = eo.index()
     img = np.array([idx[i] for i in iid])
     _, track = np.unique(pid, return_inverse=True)
     n = int(track.max()) + 1 if len(track) else 0
-    R = eo.rotations()
+    R = frame.rotation_local_from_map(eo.centre_m) @ eo.rotations()
     d = np.empty((len(xy), 3))
     for k in np.unique(img):
         sel = img == k
         d[sel] = cam.rays(xy[sel, 0], xy[sel, 1], R[k])
-    C = eo.centre_m[img]
+    C = centre[img]
     X, ok = intersect_rays(C, d, track, n)
     res = np.empty(len(xy))
     for k in np.unique(img):
         sel = img == k
-        px, py, _ = cam.project(X[track[sel]], eo.centre_m[k], R[k])
+        px, py, _ = cam.project(X[track[sel]], centre[k], R[k])
         res[sel] = np.hypot(px - xy[sel, 0], py - xy[sel, 1])
+    Xm = np.where(np.isfinite(X), frame.to_map(np.nan_to_num(X)), np.nan)  # for the DSM (map grid)
     off = (res > tol_px) | ~ok[track]  # a track whose rays do not intersect counts as wrong
     length = np.bincount(track, minlength=n)
     two = length[track] == 2
@@ -58,8 +65,8 @@ def tie_point_errors(project, tiepoints_csv=None, tol_px: float = 1.0) -> dict:
         dsm = ds.read(1)
         hi, lo = maximum_filter(dsm, 5), minimum_filter(dsm, 5)
         T = ds.transform  # north-up grid: x = c + a col, y = f + e row
-        rows = np.clip(np.floor((X[:, 1] - T.f) / T.e).astype(int), 0, ds.height - 1)
-        cols = np.clip(np.floor((X[:, 0] - T.c) / T.a).astype(int), 0, ds.width - 1)
+        rows = np.clip(np.floor((Xm[:, 1] - T.f) / T.e).astype(int), 0, ds.height - 1)
+        cols = np.clip(np.floor((Xm[:, 0] - T.c) / T.a).astype(int), 0, ds.width - 1)
     # Height error caused by tol_px of x-parallax in each two-ray track: dZ = tol * GSD * H / B.
     first = np.full(n, -1)
     second = np.full(n, -1)
@@ -70,10 +77,10 @@ def tie_point_errors(project, tiepoints_csv=None, tol_px: float = 1.0) -> dict:
         elif second[t] < 0:
             second[t] = img[k]
     ok2 = second >= 0
-    B = np.where(ok2, np.linalg.norm(eo.centre_m[first] - eo.centre_m[np.maximum(second, 0)], axis=1), np.inf)
-    Hh = eo.centre_m[np.maximum(first, 0), 2] - X[:, 2]
+    B = np.where(ok2, np.linalg.norm(centre[first] - centre[np.maximum(second, 0)], axis=1), np.inf)
+    Hh = centre[np.maximum(first, 0), 2] - X[:, 2]
     dz_tol = tol_px * cam.pixel_um * 1e-6 / (cam.focal_mm * 1e-3) * Hh ** 2 / np.maximum(B, 1e-6) + 0.3
-    bad_height = (X[:, 2] > hi[rows, cols] + dz_tol) | (X[:, 2] < lo[rows, cols] - dz_tol)
+    bad_height = (Xm[:, 2] > hi[rows, cols] + dz_tol) | (Xm[:, 2] < lo[rows, cols] - dz_tol)
     off |= two & bad_height[track]
     return dict(observations=int(len(xy)), tracks=n, off_by_more_than_px=float(tol_px), off_count=int(off.sum()),
                 off_fraction=float(off.mean()) if len(off) else 0.0,

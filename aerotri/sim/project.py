@@ -26,6 +26,7 @@ from aerotri.core.errors import InputError
 from aerotri.geom.rotation import rotation_matrix_opk
 from aerotri.sim import landcover, raster, raycast, render
 from aerotri.sim.config import optional, stage_sections_toml
+from aerotri.sim.earth import SimEarth
 from aerotri.sim.flight import block_layout, cameras_from_config, lidar_lines, plan_frames
 from aerotri.sim.lidar import las_header, las_record, pulse_chunks, scan_strip, strip_pulses, trajectory
 from lidarctl.strips.trajectory import format_trajectory
@@ -228,6 +229,7 @@ def simulate(cfg: dict, outdir, force: bool = False, on_phase=None) -> SimTruth:
         cam_true, cam_nominal = cameras_from_config(cfg["camera"])
         _check_plan(plan, scene, cfg)
         look = raster.SceneLook(scene, texture_fine_m(cfg, cam_true))
+        earth = sim_earth(cfg, layout)
     done("scene", usage)
     log.info(f"scene {layout.width_m:.0f} x {layout.height_m:.0f} m: {len(scene.buildings)} buildings, "
              f"{len(scene.tree_c)} trees, {len(scene.roads)} roads, {len(scene.ponds)} ponds, {len(scene.targets)} targets "
@@ -238,7 +240,7 @@ def simulate(cfg: dict, outdir, force: bool = False, on_phase=None) -> SimTruth:
             (tmp / sub).mkdir(parents=True, exist_ok=True)
         n_frames = len(plan.image_id)
         with measure() as usage:
-            gains = _render_frames(tmp / "images", cfg, look, plan, cam_true, s_frames)
+            gains = _render_frames(tmp / "images", cfg, look, plan, cam_true, s_frames, earth)
         done("frames", usage, frames=n_frames, megapixels=n_frames * cam_true.width * cam_true.height / 1e6)
         log.info(f"rendered {n_frames} frames of {cam_true.width} x {cam_true.height} px in {usage.wall_s:.1f} s")
         planned = lidar_plan(cfg)
@@ -254,7 +256,7 @@ def simulate(cfg: dict, outdir, force: bool = False, on_phase=None) -> SimTruth:
             _write_project_files(tmp, cfg, plan, cam_true, cam_nominal, origin, epsg, gains)
             corners = scene.roof_corners()
             _write_truth_corners(tmp / "truth", scene, corners, origin)
-            targets = _write_check_targets(tmp / "truth", scene, accel, plan, cam_true, origin)
+            targets = _write_check_targets(tmp / "truth", scene, accel, plan, cam_true, origin, earth)
             _write_flight_acceptance(tmp / "truth", cfg, plan, cam_true, origin)
         done("other", usage)
         truth = SimTruth(
@@ -283,6 +285,12 @@ def simulate(cfg: dict, outdir, force: bool = False, on_phase=None) -> SimTruth:
     return truth
 
 
+def sim_earth(cfg: dict, layout) -> SimEarth:
+    """The earth of a preset's world: its CRS, with the ENU frame at the scene's centre (``aerotri.sim.earth``)."""
+    origin = np.array([cfg["crs"]["origin_e_m"], cfg["crs"]["origin_n_m"], cfg["crs"]["base_height_m"]])
+    return SimEarth(f"EPSG:{int(cfg['crs']['epsg'])}", origin, [layout.width_m / 2, layout.height_m / 2, 0.0])
+
+
 def texture_fine_m(cfg: dict, cam_true) -> float:
     """Finest texture scale of the scene (``[render] texture_fine_m``, default the nominal GSD): the scene's
     texture has structure down to this size, so a finer GSD sees finer ground texture."""
@@ -301,8 +309,9 @@ def frame_layout(cfg: dict) -> dict:
                 compress=str(r.get("compress", "none")) if tile else "lzw (OpenCV)")
 
 
-def _render_frames(images_dir: Path, cfg: dict, look, plan, cam_true, s_frames) -> list[float]:
-    """Render, expose and write every frame (``images_dir/<image_id>.tif``); the exposure gain of each.
+def _render_frames(images_dir: Path, cfg: dict, look, plan, cam_true, s_frames, earth: SimEarth) -> list[float]:
+    """Render, expose and write every frame (``images_dir/<image_id>.tif``) as seen on ``earth``; the exposure
+    gain of each.
 
     Frames with ``[render] tile_px`` are written as tiled TIFFs (pixel-interleaved RGB, ``compress``) a tile row
     at a time, so a frame of any size is made in bounded memory; others whole, by OpenCV, as before.
@@ -319,7 +328,8 @@ def _render_frames(images_dir: Path, cfg: dict, look, plan, cam_true, s_frames) 
         gains.append(gain)
         expo = dict(gain=gain, vignetting=rcfg["vignetting"], noise_dn=rcfg["noise_dn"],
                     noise_seed=int(frng.integers(0, 2**32)))
-        frame = renderer.setup(plan.centre_m[i], rotation_matrix_opk(*plan.opk_deg[i]))
+        R = rotation_matrix_opk(*plan.opk_deg[i])
+        frame = renderer.setup(plan.centre_m[i], R, earth.frame_earth(plan.centre_m[i], R))
         path = images_dir / f"{plan.image_id[i]}.tif"
         if fl["tile_px"]:
             _write_tiled_frame(path, renderer, frame, expo, fl)
@@ -420,7 +430,7 @@ def _write_project_files(tmp: Path, cfg: dict, plan, cam_true, cam_nominal, orig
         f"mean_terrain_height_m = {origin[2]}\nspeed_mps = {cfg['flight']['speed_mps']}\n\n"
         f"[qa]\n# tolerance table of the accuracy report (aerotri report): map scale, terrain class, PDF copy\n"
         f'map_scale = "1:5000"\nterrain = "flat"\npdf = true\n'
-        + stage_sections_toml(cfg.get("chain", {}) if chain is None else chain)
+        + stage_sections_toml(_with_gnss_prior(cfg) if chain is None else chain)
     )
     (tmp / "truth" / "gnss_truth.toml").write_text(
         f"lever_arm_m = [{lever}]\n"
@@ -436,6 +446,16 @@ def _write_project_files(tmp: Path, cfg: dict, plan, cam_true, cam_nominal, orig
     _csv(tmp / "truth" / "frames.csv", ["image_id", "strip", "gps_time_s", "exposure_gain"], flight_rows)
 
 
+def _with_gnss_prior(cfg: dict) -> dict:
+    """The preset's stage sections with the a-priori sigma of its GNSS corrections in [adjust]
+    (``gnss_shift_sigma_m``), when its GNSS has shifts or drifts."""
+    chain = {k: dict(v) for k, v in cfg.get("chain", {}).items()}
+    g = cfg["gnss"]
+    if float(g.get("strip_shift_sigma_m", 0.0)) > 0.0 or float(g.get("drift_sigma_m_per_s", 0.0)) > 0.0:
+        chain["adjust"] = {**chain.get("adjust", {}), "gnss_shift_sigma_m": gnss_shift_sigma_m(cfg)}
+    return chain
+
+
 def _write_truth_corners(truth_dir: Path, scene, corners: list[dict], origin) -> None:
     """truth/roof_corners.csv (every eave outline corner) and truth/buildings.geojson."""
     _csv(truth_dir / "roof_corners.csv",
@@ -446,9 +466,9 @@ def _write_truth_corners(truth_dir: Path, scene, corners: list[dict], origin) ->
     _write_buildings_geojson(truth_dir / "buildings.geojson", scene, origin)
 
 
-def _write_check_targets(truth_dir: Path, scene, accel, plan, cam_true, origin) -> _CheckTargets:
+def _write_check_targets(truth_dir: Path, scene, accel, plan, cam_true, origin, earth: SimEarth) -> _CheckTargets:
     """truth/checkpoints.csv (the painted targets) and truth/checkpoint_image_points.csv (their true image
-    positions in every frame that sees the whole target)."""
+    positions, on ``earth``, in every frame that sees the whole target)."""
     tgt = np.column_stack([scene.targets[:, :2], scene.target_z]) if len(scene.targets) else np.zeros((0, 3))
     _csv(truth_dir / "checkpoints.csv", ["id", "x", "y", "z", "kind"],
          [(f"CP{k + 1:03d}", p[0] + origin[0], p[1] + origin[1], p[2] + origin[2], "target") for k, p in enumerate(tgt)])
@@ -457,7 +477,7 @@ def _write_check_targets(truth_dir: Path, scene, accel, plan, cam_true, origin) 
         if not len(tgt):
             break
         R = rotation_matrix_opk(*plan.opk_deg[i])
-        x, y, depth = cam_true.project(tgt, plan.centre_m[i], R)
+        x, y, depth = earth.project(cam_true, tgt, plan.centre_m[i], R)
         ok = cam_true.inside(x, y, margin_px=2.0) & (depth > 0)
         # A target counts as seen only when all of it, out to its black ring, is unoccluded.
         for a in np.linspace(0.0, 2.0 * np.pi, 12, endpoint=False):
@@ -656,7 +676,19 @@ def truth_adjust_settings(cfg: dict, cam_true, cam_nominal) -> dict:
     g = cfg["gnss"]
     correction = ("shift_drift" if float(g.get("drift_sigma_m_per_s", 0.0)) > 0.0
                   else "shift" if float(g.get("strip_shift_sigma_m", 0.0)) > 0.0 else "none")
-    return {"self_calibration": groups, "gnss_correction": correction}
+    out = {"self_calibration": groups, "gnss_correction": correction}
+    if correction != "none":
+        out["gnss_shift_sigma_m"] = gnss_shift_sigma_m(cfg)
+    return out
+
+
+def gnss_shift_sigma_m(cfg: dict) -> float:
+    """The a-priori sigma of a strip's GNSS shift and of its drift's displacement at the strip ends (``[adjust]
+    gnss_shift_sigma_m``) that the preset's GNSS errors are drawn with: the larger of the shift sigma and the
+    drift sigma times half a strip's flying time (the drift runs from the strip's middle)."""
+    g, f = cfg["gnss"], cfg["flight"]
+    half_s = 0.5 * (int(f["frames_per_strip"]) - 1) * block_layout(cfg).base_m / float(f["speed_mps"])
+    return round(max(float(g.get("strip_shift_sigma_m", 0.0)), float(g.get("drift_sigma_m_per_s", 0.0)) * half_s), 3)
 
 
 def observations_chain(cfg: dict, cam_true, cam_nominal) -> dict:

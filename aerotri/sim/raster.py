@@ -13,6 +13,11 @@ the lens distortion of the true camera are exact, as they were with a ray per pi
   camera-frame vertices A, B, C when d . (A x B), d . (B x C), d . (C x A) have one sign (zero included:
   neighbouring triangles leave no crack). Depth along the optical axis: (n . A) / (n . d), n the plane
   normal. Crowns: the ray-spheroid equation per pixel.
+- The earth (``aerotri.sim.earth``): the scene is in map coordinates; a frame's camera-frame vertices are
+  its map offsets through the frame's second-order map -> ENU -> camera transformation (``FrameEarth``:
+  scale factor, convergence, (R + h) / R and the earth's curvature), each crown a spheroid linearised at its
+  centre, and a pixel's surface point goes back to the map by the inverse. ``FrameEarth.flat`` (the default
+  of ``FrameSetup``) is the flat world of the ray caster.
 - Work: the terrain nodes, building triangles and crowns in view are projected once per frame and
   binned into bands of ``BAND_ROWS`` rows; bands are rendered in parallel (numba prange), each with its
   own depth buffer, so a frame of any size needs memory for a few bands only.
@@ -24,7 +29,7 @@ the lens distortion of the true camera are exact, as they were with a ray per pi
 height at each pixel centre, then building triangles and crown tops rasterised over it, the highest
 surface winning (what a vertical ray meets first).
 
-Note numba's cache checks only the source file of a cached function: after editing ``shading`` (or
+Note numba's cache checks only the source file of a cached function: after editing ``shading``, ``earth`` (or
 ``lens_kernels``), clear ``aerotri/sim/__pycache__/*.nbi|*.nbc``.
 """
 
@@ -39,6 +44,7 @@ from aerotri.geom import lens_kernels
 from aerotri.geom.camera import Camera
 from aerotri.geom.rotation import FLIP_YZ
 from aerotri.sim import shading
+from aerotri.sim.earth import FrameEarth, to_camera_nb, to_map_nb
 from aerotri.sim.scene import KIND_NONE, KIND_TERRAIN, KIND_TREE, Scene
 
 BAND_ROWS = 32
@@ -117,10 +123,14 @@ class FrameSetup:
     """The primitives of one frame, projected into it and binned into bands of rows."""
 
     def __init__(self, look: SceneLook, camera: Camera, centre_m, R, band_rows: int = BAND_ROWS,
-                 sample_reach_px: float = 0.0):
+                 sample_reach_px: float = 0.0, earth: FrameEarth | None = None):
+        """``earth``: the frame's map -> camera-frame transformation (``aerotri.sim.earth``); default the flat
+        world (scene coordinates taken as a Cartesian frame)."""
         self.camera = camera
         self.C = np.ascontiguousarray(centre_m, dtype=np.float64)
-        self.M = np.ascontiguousarray(np.asarray(R, dtype=np.float64) @ FLIP_YZ)  # camera (cv) -> object
+        self.M = np.ascontiguousarray(np.asarray(R, dtype=np.float64) @ FLIP_YZ)  # camera (cv) -> object (flat)
+        self.earth = earth if earth is not None else FrameEarth.flat(R)
+        e = self.earth
         self.band_rows = int(band_rows)
         W, H = camera.width, camera.height
         self.nbands = (H + band_rows - 1) // band_rows
@@ -133,7 +143,7 @@ class FrameSetup:
         ti1 = int(np.clip(math.ceil(ymax / res) + 1, self.ti0 + 1, ny - 1))
         self.tj0 = int(np.clip(math.floor(xmin / res) - 1, 0, nx - 2))
         tj1 = int(np.clip(math.ceil(xmax / res) + 1, self.tj0 + 1, nx - 1))
-        self.V, PX, PY = _project_nodes(look.hz, res, self.ti0, ti1, self.tj0, tj1, self.C, self.M.T.copy(), params)
+        self.V, PX, PY = _project_nodes(look.hz, res, self.ti0, ti1, self.tj0, tj1, self.C, e.A, e.q, params)
         # sub-pixel samples sit up to sample_reach_px from the pixel centres
         margin = CELL_MARGIN_PX + float(sample_reach_px)
         rmin, rmax = _cell_rows(PX, PY, W, H, margin)
@@ -146,7 +156,7 @@ class FrameSetup:
         else:
             sel = np.zeros(0, np.int64)
         self.tri_ids = sel.astype(np.int64)
-        TV = np.ascontiguousarray(((look.tv[sel] - self.C) @ self.M).reshape(-1, 3, 3))  # camera-frame vertices
+        TV = np.ascontiguousarray(e.to_camera(look.tv[sel] - self.C).reshape(-1, 3, 3))  # camera-frame vertices
         self.TV = TV
         self.tri_box = _vertex_boxes(TV.reshape(-1, 3), 3, params, W, H)
         self.tri_start, self.tri_list = _bin(self.tri_box[:, 2], self.tri_box[:, 3], self.band_rows, self.nbands)
@@ -163,8 +173,16 @@ class FrameSetup:
             corners[:, k, 0] = look.tc[selk, 0] + sx * look.ta[selk, 0]
             corners[:, k, 1] = look.tc[selk, 1] + sy * look.ta[selk, 0]
             corners[:, k, 2] = look.tc[selk, 2] + sz * look.ta[selk, 1]
-        KV = np.ascontiguousarray(((corners - self.C) @ self.M).reshape(-1, 3))
+        KV = np.ascontiguousarray(e.to_camera(corners - self.C).reshape(-1, 3))
         self.tree_box = _vertex_boxes(KV, 8, params, W, H)
+        # each crown in the camera frame: unit-sphere coordinates u = G v + s of camera-frame points v (the
+        # map -> camera transformation linearised at the crown's centre: exact to ~(crown radius)^2 / R)
+        D_inv = np.zeros((len(selk), 3, 3))
+        D_inv[:, 0, 0] = D_inv[:, 1, 1] = 1.0 / look.ta[selk, 0]
+        D_inv[:, 2, 2] = 1.0 / look.ta[selk, 1]
+        d_c = look.tc[selk] - self.C
+        self.tree_G = np.ascontiguousarray(D_inv @ np.linalg.inv(e.jacobian(d_c)))
+        self.tree_s = np.ascontiguousarray(-np.einsum("kij,kj->ki", self.tree_G, e.to_camera(d_c)))
         self.tree_start, self.tree_list = _bin(self.tree_box[:, 2], self.tree_box[:, 3], self.band_rows, self.nbands)
 
     def _ground_region(self, look: SceneLook):
@@ -177,18 +195,22 @@ class FrameSetup:
         xs = np.concatenate([t * (W - 1), np.full(n, W - 1.0), t * (W - 1), np.zeros(n)])
         ys = np.concatenate([np.zeros(n), t * (H - 1), np.full(n, H - 1.0), t * (H - 1)])
         xn, yn = cam.pixel_to_normalized(xs, ys)
-        d = np.stack([xn, yn, np.ones_like(xn)], axis=1) @ self.M.T
+        d = np.stack([xn, yn, np.ones_like(xn)], axis=1) @ self.earth.A_inv.T
         pts = []
         for z in (look.zlo, look.zhi):
             s = (z - self.C[2]) / d[:, 2]
             pts.append(self.C[None, :2] + s[:, None] * d[:, :2])
         p = np.concatenate(pts)
-        return float(p[:, 0].min()), float(p[:, 0].max()), float(p[:, 1].min()), float(p[:, 1].max())
+        # on the earth the rays are straight in ENU, not in map coordinates: they meet the ground up to
+        # (distance)^2 / 2R (0.1 m at 1.1 km) off the linear cut; 1 m of margin holds that
+        m = 1.0 if self.earth.q.any() else 0.0
+        return float(p[:, 0].min()) - m, float(p[:, 0].max()) + m, float(p[:, 1].min()) - m, float(p[:, 1].max()) + m
 
 
 @numba.njit(cache=True, parallel=True)
-def _project_nodes(hz, res, i0, i1, j0, j1, C, Mt, params):
-    """Camera-frame coordinates (ni, nj, 3) and pixel positions of the terrain nodes i0..i1 x j0..j1."""
+def _project_nodes(hz, res, i0, i1, j0, j1, C, A, q, params):
+    """Camera-frame coordinates (ni, nj, 3) and pixel positions of the terrain nodes i0..i1 x j0..j1 (map offsets
+    from ``C`` -> camera frame: ``earth.FrameEarth`` ``A``, ``q``)."""
     ni = i1 - i0 + 1
     nj = j1 - j0 + 1
     V = np.empty((ni, nj, 3))
@@ -201,9 +223,7 @@ def _project_nodes(hz, res, i0, i1, j0, j1, C, Mt, params):
             j = j0 + b
             X = j * res - C[0]
             Z = hz[i, j] - C[2]
-            vx = Mt[0, 0] * X + Mt[0, 1] * Y + Mt[0, 2] * Z
-            vy = Mt[1, 0] * X + Mt[1, 1] * Y + Mt[1, 2] * Z
-            vz = Mt[2, 0] * X + Mt[2, 1] * Y + Mt[2, 2] * Z
+            vx, vy, vz = to_camera_nb(A, q, X, Y, Z)
             V[a, b, 0] = vx
             V[a, b, 1] = vy
             V[a, b, 2] = vz
@@ -401,10 +421,10 @@ def _hit_normal(typ, idx, x, y, z, dx, dy, dz, gi0, gj0, ncj, hz, res, tn, tkind
 
 
 @numba.njit(cache=True, parallel=True)
-def _render_bands(band0, band1, row_out0, W, H, band_rows, step, XN, YN, C, M,
+def _render_bands(band0, band1, row_out0, W, H, band_rows, step, XN, YN, C, A_inv, quad, curved,
                   V, ti0, tj0, cell_start, cell_list, cell_box,
                   TV, tri_ids, tri_start, tri_list, tri_box,
-                  tree_ids, tree_start, tree_list, tree_box,
+                  tree_ids, tree_start, tree_list, tree_box, tree_G, tree_s,
                   hz, res, tn, tkind, tobj, tc, ta,
                   G, roof_albedo, fine_m, sun,
                   gain, vignetting, noise_dn, noise_seed, bits, lut,
@@ -526,11 +546,8 @@ def _render_bands(band0, band1, row_out0, W, H, band_rows, step, XN, YN, C, M,
                 r1 = min(rb1 - 1, tree_box[k, 3])
                 if r0 > r1:
                     continue
-                a = ta[m, 0]
-                cz = ta[m, 1]
-                sx = (C[0] - tc[m, 0]) / a
-                sy = (C[1] - tc[m, 1]) / a
-                sz = (C[2] - tc[m, 2]) / cz
+                Gk = tree_G[k]
+                sx, sy, sz = tree_s[k, 0], tree_s[k, 1], tree_s[k, 2]
                 Cq = sx * sx + sy * sy + sz * sz - 1.0
                 tcode = (numba.int64(_T_TREE) << _SHIFT) | m
                 for r in range(r0, r1 + 1):
@@ -538,12 +555,9 @@ def _render_bands(band0, band1, row_out0, W, H, band_rows, step, XN, YN, C, M,
                     for c in range(tree_box[k, 0], tree_box[k, 1] + 1):
                         xn = xnb[rr, c]
                         yn = ynb[rr, c]
-                        dx = M[0, 0] * xn + M[0, 1] * yn + M[0, 2]
-                        dy = M[1, 0] * xn + M[1, 1] * yn + M[1, 2]
-                        dz = M[2, 0] * xn + M[2, 1] * yn + M[2, 2]
-                        ux = dx / a
-                        uy = dy / a
-                        uz = dz / cz
+                        ux = Gk[0, 0] * xn + Gk[0, 1] * yn + Gk[0, 2]
+                        uy = Gk[1, 0] * xn + Gk[1, 1] * yn + Gk[1, 2]
+                        uz = Gk[2, 0] * xn + Gk[2, 1] * yn + Gk[2, 2]
                         A = ux * ux + uy * uy + uz * uz
                         B = 2.0 * (sx * ux + sy * uy + sz * uz)
                         disc = B * B - 4.0 * A * Cq
@@ -570,13 +584,21 @@ def _render_bands(band0, band1, row_out0, W, H, band_rows, step, XN, YN, C, M,
                         continue
                     xn = xnb[rr, c]
                     yn = ynb[rr, c]
-                    dx = M[0, 0] * xn + M[0, 1] * yn + M[0, 2]
-                    dy = M[1, 0] * xn + M[1, 1] * yn + M[1, 2]
-                    dz = M[2, 0] * xn + M[2, 1] * yn + M[2, 2]
+                    # the viewing direction in map axes (its sign turns the normal) and the hit point: the
+                    # camera-frame point at depth t back to the map
+                    dx = A_inv[0, 0] * xn + A_inv[0, 1] * yn + A_inv[0, 2]
+                    dy = A_inv[1, 0] * xn + A_inv[1, 1] * yn + A_inv[1, 2]
+                    dz = A_inv[2, 0] * xn + A_inv[2, 1] * yn + A_inv[2, 2]
                     t = 1.0 / wb[rr, c]
-                    X[c] = C[0] + t * dx
-                    Y[c] = C[1] + t * dy
-                    Z[c] = C[2] + t * dz
+                    if curved:
+                        ox, oy, oz = to_map_nb(A_inv, quad, t * xn, t * yn, t)
+                        X[c] = C[0] + ox
+                        Y[c] = C[1] + oy
+                        Z[c] = C[2] + oz
+                    else:
+                        X[c] = C[0] + t * dx
+                        Y[c] = C[1] + t * dy
+                        Z[c] = C[2] + t * dz
                     NX[c], NY[c], NZ[c], kind[c], obj[c] = _hit_normal(
                         typ, idx, X[c], Y[c], Z[c], dx, dy, dz, ti0, tj0, ncj, hz, res, tn, tkind, tobj, tc, ta)
                 shading.shade_points(X, Y, Z, kind, obj, NX, NY, NZ, G, roof_albedo, fine_m, sun, rad)
@@ -681,8 +703,10 @@ class FrameRenderer:
         self.lut = tone_lut()
         self.dtype = np.uint8 if bits == 8 else np.uint16
 
-    def setup(self, centre_m, R) -> FrameSetup:
-        return FrameSetup(self.look, self.camera, centre_m, R, sample_reach_px=self.sample_reach_px)
+    def setup(self, centre_m, R, earth: FrameEarth | None = None) -> FrameSetup:
+        """A frame at scene-local ``centre_m`` with attitude ``R`` (grid axes at the centre); ``earth``: its
+        ``aerotri.sim.earth.FrameEarth`` (default: the flat world)."""
+        return FrameSetup(self.look, self.camera, centre_m, R, sample_reach_px=self.sample_reach_px, earth=earth)
 
     def render_rows(self, frame: FrameSetup, r0: int, r1: int, gain: float = 1.0, vignetting: float = 0.0,
                     noise_dn: float = 0.0, noise_seed: int = 0, with_ids: bool = False):
@@ -697,9 +721,10 @@ class FrameRenderer:
         ids = np.empty((r1 - r0, cam.width) if with_ids else (1, 1), np.int64)
         L = self.look
         _render_bands(r0 // br, (r1 + br - 1) // br, r0, cam.width, cam.height, br, float(self.step), self.XN, self.YN,
-                      frame.C, frame.M, frame.V, frame.ti0, frame.tj0, frame.cell_start, frame.cell_list,
-                      frame.cell_box, frame.TV, frame.tri_ids, frame.tri_start, frame.tri_list, frame.tri_box,
-                      frame.tree_ids, frame.tree_start, frame.tree_list, frame.tree_box,
+                      frame.C, frame.earth.A_inv, frame.earth.q, bool(frame.earth.q.any()), frame.V, frame.ti0, frame.tj0, frame.cell_start,
+                      frame.cell_list, frame.cell_box, frame.TV, frame.tri_ids, frame.tri_start, frame.tri_list,
+                      frame.tri_box, frame.tree_ids, frame.tree_start, frame.tree_list, frame.tree_box, frame.tree_G,
+                      frame.tree_s,
                       L.hz, L.res, L.tn, L.tkind, L.tobj, L.tc, L.ta, L.G, L.roof_albedo, L.fine_m, L.sun,
                       float(gain), float(vignetting), float(noise_dn), np.uint32(noise_seed & 0xFFFFFFFF), self.bits, self.lut,
                       out, ids, with_ids)

@@ -52,7 +52,9 @@ class PixelRays:
 
 def render_frame(scene: Scene, accel, camera: Camera, centre_m, R, samples: int = 2,
                  rows_per_block: int = 256, with_ids: bool = False, pixel_rays: PixelRays | None = None):
-    """Radiance image (H, W, 3) float32 of one frame, and optionally the surface id of each pixel centre."""
+    """Radiance image (H, W, 3) float32 of one frame, and optionally the surface id of each pixel centre: a ray per
+    pixel sample in the flat world (scene coordinates as a Cartesian frame; the reference of the rasteriser's
+    flat mode in the tests; the simulated projects' frames are rendered on the earth, ``aerotri.sim.earth``)."""
     W, H = camera.width, camera.height
     pr = pixel_rays if pixel_rays is not None else PixelRays(camera, samples)
     M = (np.asarray(R, dtype=np.float64) @ FLIP_YZ).T  # camera (cv) -> object, applied to row vectors

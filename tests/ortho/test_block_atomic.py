@@ -257,8 +257,7 @@ def test_frames_of_an_older_adjustment_are_refused(project):
 
     r = run("check", project, "--reference", project / "truth/ortho.tif", "--patch-px", "24", "--search-px", "4")
     assert r.exit_code == 0, r.output
-    rows = build_qa_report(project)["checks"]
-    assert not any(row["quantity"] == "DOM from an older adjustment" for row in rows)
+    assert not build_qa_report(project).has("dom_stale")
     _readjusted(project)
     before = tree(project)
     r = run("mosaic", project, "--seams", "voronoi")
@@ -268,9 +267,9 @@ def test_frames_of_an_older_adjustment_are_refused(project):
     assert r.exit_code == 2 and "eo.txt" in r.stderr and "ortho rectify" in r.stderr, r.output
     assert tree(project) == before  # nothing written
     rep = build_qa_report(project)
-    stale = [row for row in rep["checks"] if row["quantity"] == "DOM from an older adjustment"]
-    assert len(stale) == 1 and stale[0]["verdict"] == "fail" and "eo.txt" in stale[0]["note"]
-    assert rep["overall"] == "fail"
+    stale = rep.check("dom_stale")
+    assert stale.quantity == "DOM from an older adjustment" and stale.verdict == "fail" and "eo.txt" in stale.note
+    assert rep.overall == "fail"
     # after a new rectify the chain goes on
     assert run("rectify", project).exit_code == 0
     r = run("mosaic", project, "--seams", "voronoi")

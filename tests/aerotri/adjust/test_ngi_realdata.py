@@ -202,5 +202,5 @@ def test_the_commands_of_a_dmc_block_with_a_dem(ngi_data, tmp_path):
     assert h["n"] > 300 and abs(h["median_m"]) < 1.0  # measured -0.01 m
     r = run("report", p)
     assert r.exit_code == 0, r.output
-    row = {c["quantity"]: c for c in json.loads((p / "reports" / "summary.json").read_text())["checks"]}
-    assert row["solution successful"]["value"] == (ks["verdict"] == "successful")
+    row = {c["id"]: c for c in json.loads((p / "reports" / "summary.json").read_text())["checks"]}
+    assert row["solution_successful"]["value"] == (ks["verdict"] == "successful")

@@ -90,3 +90,19 @@ def test_image_pairs_count_shared_points_and_their_residuals(ba):
     counts = [x["tie_points"] for x in rep["image_pairs"]]
     assert counts == sorted(counts)  # weakest first
     assert "Image pairs (" in report.format_txt(rep)
+
+
+def test_weak_mode_names_its_three_sigma_figure():
+    """A mode loosely determined is weak when 3 sigma exceed the height limit; the text gives the 3-sigma
+    figure (NGI: 'bending sigma 0.342 m, 3 sigma (1.03 m) above the 1.00 m height limit'), which the bare
+    'sigma 0.342 m, 3 sigma above the 1.00 m limit' read as the sigma being three times over the limit."""
+    from types import SimpleNamespace
+
+    from aerotri.adjust.report import _weak_modes
+
+    g = SimpleNamespace(mode="bending", sigma_m=0.342, held_by_priors=False, shares={"surface": 0.59, "image": 0.41})
+    ok = SimpleNamespace(mode="height", sigma_m=0.2, held_by_priors=False, shares={"surface": 1.0})
+    weak = _weak_modes(SimpleNamespace(result=SimpleNamespace(geometry=[g, ok])), 1.0)
+    assert [w[0].mode for w in weak] == ["bending"]
+    assert weak[0][1] == ("bending sigma 0.342 m, 3 sigma (1.03 m) above the 1.00 m height limit "
+                          "(determined by surface 59%, image 41%)")

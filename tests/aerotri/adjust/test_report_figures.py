@@ -117,12 +117,12 @@ def test_consolidated_report_has_flight_rows_and_no_json_dumps(adjusted):
         f.write(f"\n[flight]\nmean_terrain_height_m = {GROUND_M}\n\n[qa]\npdf = true\n")
     write_outputs(ba, root)
     rep = write_qa_report(root)
-    rows = [r for r in rep["checks"] if r["section"] == "Flight acceptance"]
-    assert len(rows) == 7 and all(r["limit"] is not None for r in rows)
-    by = {r["quantity"]: r for r in rows}
-    worst = max(f["tilt_deg"] for f in rep["flight_acceptance"]["frames"])
-    assert by["tilt of the camera axis"]["value"] == pytest.approx(worst, abs=0.005)
-    assert by["tilt of the camera axis"]["verdict"] == ("fail" if worst > 2.0 else "pass")  # 1 deg sigma tilts
+    rows = [r for r in rep.checks if r.section == "Flight acceptance"]
+    assert len(rows) == 7 and all(r.limit is not None for r in rows)
+    worst = max(f["tilt_deg"] for f in rep.flight_acceptance["frames"])
+    tilt = rep.check("flight_tilt_max_deg")
+    assert tilt.quantity == "tilt of the camera axis" and tilt.value == pytest.approx(worst, abs=0.005)
+    assert tilt.verdict == ("fail" if worst > 2.0 else "pass")  # 1 deg sigma tilts
     html = (root / "reports" / "index.html").read_text()
     assert "<pre" not in html and "Flight acceptance" in html
     alts = re.findall(r"alt='([^']*)'", html)

@@ -62,6 +62,8 @@ def test_init_copies_with_copy_and_says_what_camera_to_write(tiny_project, tmp_p
     assert "write camera.toml" in r.stderr and "width = 432" in r.stderr and "height = 240" in r.stderr
     # what the EXIF lacks, in words (the NGI frames said "the   is not in the sensor table": no make, no model)
     assert "no camera in the EXIF (no focal length, make or model)" in r.stderr and "the   is" not in r.stderr
+    # said once, with the other way to get a camera (an import that carries it, as NGI's orthority files)
+    assert r.stderr.count("write camera.toml") == 1 and "--format orthority" in r.stderr
     assert "Traceback" not in r.stderr
 
 
@@ -147,3 +149,17 @@ def test_docs_name_every_project_and_camera_key():
     assert "## `gnss.txt`" in doc and "image_id X Y Z [sX sY sZ]" in doc
     for header in ("id,kind,x,y,z,sx_m,sy_m,sz_m", "point_id,image_id,x_px,y_px"):
         assert header in doc
+
+
+def test_project_toml_template_shows_the_gnss_defaults(tmp_path):
+    """project.toml's commented [gnss] lines are what the adjustment takes when they stay commented (the template
+    said sigma_z_m = 0.08 while the default, which the EXIF import and `aerotri settings` state, is 0.1)."""
+    from aerotri.chain.setup import PROJECT_TOML
+    from aerotri.core.project import GnssSettings
+
+    text = PROJECT_TOML.format(name="t", crs="EPSG:32615", crs_name="UTM")
+    gnss = text.split("# [gnss]", 1)[1].split("\n\n", 1)[0]
+    shown = tomllib.loads("\n".join(line.removeprefix("# ").split("#")[0] for line in gnss.splitlines()[1:]))
+    defaults = GnssSettings()
+    assert shown == {"sigma_xy_m": defaults.sigma_xy_m, "sigma_z_m": defaults.sigma_z_m,
+                     "lever_arm_m": list(defaults.lever_arm_m)}

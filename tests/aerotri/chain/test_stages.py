@@ -114,8 +114,8 @@ def test_readme_chain_runs_stage_by_stage(by_hand):
     assert dom["count"] > 10 and dom["rms_xy_m"] < 3.0  # GSD about 1 m
     summary = json.loads((with_cal / "reports" / "summary.json").read_text())
     assert summary["overall"] in ("pass", "fail")
-    rows = {r["quantity"]: r for r in summary["checks"]}
-    assert "no LiDAR control" in rows["control points in the adjustment"]["note"]
+    rows = {r["id"]: r for r in summary["checks"]}
+    assert "no LiDAR control" in rows["control_points_used"]["note"]
     assert list(runs_without) == ["aerotri adjust"]
 
 
@@ -150,7 +150,7 @@ def test_run_goes_to_the_end_and_equals_the_chain_by_hand(by_hand, run_to_end):
     assert len(strips.pairs) == 3 and (p / "lidar_out" / "strips" / "index.html").is_file()
     classify = json.loads((p / "work" / "stages" / "classify.json").read_text())
     assert sorted(classify["inputs"]) == [f"lidar/strip_0{k}.las" for k in range(1, 5)]
-    row = next(r for r in summary["checks"] if r["section"] == "LiDAR strip consistency")
+    row = {r["id"]: r for r in summary["checks"]}["strip_rmsdz_m"]
     assert row["value"] == round(strips.all_pairs.rms_m, 4) and row["limit"] == 0.08
     assert row["verdict"] == ("pass" if row["value"] <= 0.08 else "fail") and "3 pairs" in row["note"]
     assert summary["details"]["lidar_strips"][0]["a"] == "strip_01"
@@ -316,7 +316,7 @@ def test_strip_stage_skips_a_single_strip_and_adjusts_when_asked(tiny_project, t
     assert chain.classify_inputs() == project.lidar_strips()
     assert run_stages(one, stages, log=lambda m: None)[0]["status"] == "skipped (up to date)"
     (row,), _ = strip_rows(project, load_tolerances())
-    assert row["value"] is None and row["verdict"] is None and "one strip only" in row["note"]
+    assert row.id == "strip_rmsdz_m" and row.value is None and row.verdict is None and "one strip only" in row.note
 
     p = tmp_path / "adjusted"
     shutil.copytree(tiny_project, p, ignore=shutil.ignore_patterns("images", "truth"))
@@ -329,7 +329,7 @@ def test_strip_stage_skips_a_single_strip_and_adjusts_when_asked(tiny_project, t
     assert r["rms_after_m"] < 0.6 * r["rms_before_m"]
     assert chain.classify_inputs() == project.adjusted_strips() and all(f.is_file() for f in project.adjusted_strips())
     (row,), pairs = strip_rows(project, load_tolerances())
-    assert row["value"] == r["rms_after_m"] and f"before: RMS {r['rms_before_m']:.3f} m" in row["note"]
+    assert row.value == r["rms_after_m"] and f"before: RMS {r['rms_before_m']:.3f} m" in row.note
     assert len(pairs) == 3
 
 
@@ -356,6 +356,7 @@ def test_optional_vectors_stage_checks_the_line_map_for_the_report(by_hand, tmp_
     assert b["n_matched_corners"] > 20 and b["rms_xy_corner_m"] < 1.0   # LiDAR at ~1.5 m spacing
     assert check["reference"].endswith("work/vectors_reference.gpkg")   # truth/buildings.geojson roof outlines, CRS
     rep = write_qa_report(p)
-    row = next(r for r in rep["checks"] if r["section"] == "Line map (DLG)")
-    assert row["value"] == round(b["rms_xy_corner_m"], 4) and row["limit"] == rep["tolerances"]["feature_rms_xy_m"]
-    assert row["verdict"] == ("pass" if row["value"] <= row["limit"] else "fail")
+    row = rep.check("line_map_rms_xy_m")
+    assert row.section == "Line map (DLG)"
+    assert row.value == round(b["rms_xy_corner_m"], 4) and row.limit == rep.tolerances["feature_rms_xy_m"]
+    assert row.verdict == ("pass" if row.value <= row.limit else "fail")

@@ -73,6 +73,9 @@ def test_manned_blocks_by_gsd(tmp_path):
     t = _choose(_project(tmp_path / "fine", DMC, 300.0))
     assert t.key == "ASPRS2023 H14.1cm V20cm" and t.limits["flight_tilt_max_deg"] == 2.0
     assert "GSD under 5 cm" in t.reason
+    # a GSD of a metre and more in whole centimetres (the NGI frames' report said "GSD 5.8e+02 cm")
+    t = _choose(_project(tmp_path / "very_high", DMC, 12000.0))
+    assert "GSD 120 cm at 12000 m above ground" in t.reason and "e+" not in t.reason
 
 
 def test_qa_settings_override_the_choice_and_are_checked(tmp_path):
@@ -146,13 +149,12 @@ def test_qa_report_names_the_table_and_marks_unconfirmed_limits(tmp_path):
         project="t", check_rms_m=[0.02, 0.02, 0.05], check_points=[{"d_m": [0.02, 0.02, 0.05]}] * 12,
         key_statistics=dict(sigma0_px=0.5, success=True, message="Solution Successful."))))
     rep = write_qa_report(root)
-    assert rep["table"]["key"] == "ASPRS2023 H7.1cm V10cm UAS" and "UAS" in rep["table"]["reason"]
-    by = {r["quantity"]: r for r in rep["checks"]}
-    plan = by["check points, plan RMS"]  # 0.028 m against 1/2 x 7.1 cm: pass
-    assert plan["limit"] == pytest.approx(0.0355) and plan["verdict"] == "pass" and plan["limit_confirmed"] is False
-    assert by["check points, height RMS"]["verdict"] == "pass"  # 0.05 m <= 7.1 cm
-    n = by["check points for the accuracy assessment"]
-    assert n["value"] == 12 and "at least 30" in n["note"] and "indicative" in n["note"]
+    assert rep.table["key"] == "ASPRS2023 H7.1cm V10cm UAS" and "UAS" in rep.table["reason"]
+    plan = rep.check("check_rms_xy_m")  # 0.028 m against 1/2 x 7.1 cm: pass
+    assert plan.limit == pytest.approx(0.0355) and plan.verdict == "pass" and plan.limit_confirmed is False
+    assert rep.check("check_rms_z_m").verdict == "pass"  # 0.05 m <= 7.1 cm
+    n = rep.check("check_points_count")
+    assert n.value == 12 and "at least 30" in n.note and "indicative" in n.note
     html = (root / "reports" / "index.html").read_text()
     assert "ASPRS Positional Accuracy Standards, Edition 2 (2023)" in html and "chosen because" in html
     assert "class='unconf'" in html and "Tolerance table" in html
@@ -160,7 +162,7 @@ def test_qa_report_names_the_table_and_marks_unconfirmed_limits(tmp_path):
     assert summary["table"]["file"] == "asprs2023.toml" and summary["block"]["platform"] == "uas"
     # the command line overrides: --scale
     rep = write_qa_report(root, scale="1:2000")
-    assert rep["table"]["key"] == "1:2000 UAS" and "--scale" in rep["table"]["reason"]
+    assert rep.table["key"] == "1:2000 UAS" and "--scale" in rep.table["reason"]
 
 
 _spec = importlib.util.spec_from_file_location("realdata_ngi", Path(__file__).parents[2] / "realdata_ngi.py")

@@ -139,7 +139,7 @@ def test_report_summary_html_and_cli_carry_the_compliance_section(tmp_path):
     assert plan["figure"] == pytest.approx(math.hypot(0.05, math.sqrt(2) * 0.01), abs=1e-4)
     assert plan["limit"] == 0.05 and plan["verdict"] == "fail" and plan["n_points"] == 32
     assert plan["checkpoints_accurate"] is True  # 1.41 cm <= 5 cm / 2
-    assert rep["compliance"]["products"][0]["finest_class"] == "H12.5cm"
+    assert rep.compliance["products"][0]["finest_class"] == "H12.5cm"
     html = (p / "reports" / "index.html").read_text()
     assert "Compliance: ASPRS Positional Accuracy Standards, Edition 2 (2023), class H10cm V10cm" in html
     from aerotri.cli import main

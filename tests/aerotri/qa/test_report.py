@@ -25,36 +25,36 @@ def _project(tmp_path, check_rms, dom_rms):
 def test_verdicts_match_numbers_and_terrain_class(tmp_path):
     p = _project(tmp_path, [0.3, 0.2, 1.5], 0.45)
     rep = write_qa_report(p)
-    by = {r["quantity"]: r for r in rep["checks"]}
-    plan = by["check points, plan RMS"]
-    assert abs(plan["value"] - (0.3**2 + 0.2**2) ** 0.5) < 1e-4 and plan["limit"] == 0.35 and plan["verdict"] == "fail"
-    assert by["check points, height RMS"]["verdict"] == "fail"  # 1.5 m > 1.0 m (flat)
-    assert by["displacement on ground patches, plan RMS"]["verdict"] == "pass"
-    s0 = by["sigma naught"]  # from at/report.json alone: no camera file in this project
-    assert s0["value"] == 0.425 and s0["limit"] == 0.67 and s0["verdict"] == "pass"  # 2/3 px of any camera
-    assert rep["overall"] == "fail"
+    by = rep.check
+    plan = by("check_rms_xy_m")
+    assert abs(plan.value - (0.3**2 + 0.2**2) ** 0.5) < 1e-4 and plan.limit == 0.35 and plan.verdict == "fail"
+    assert by("check_rms_z_m").verdict == "fail"  # 1.5 m > 1.0 m (flat)
+    assert by("dom_rms_xy_m").verdict == "pass"
+    s0 = by("sigma0_px")  # from at/report.json alone: no camera file in this project
+    assert s0.value == 0.425 and s0.limit == 0.67 and s0.verdict == "pass"  # 2/3 px of any camera
+    assert rep.overall == "fail"
     assert (p / "reports" / "index.html").read_text().count("class='fail'") == 2
     # The same numbers pass the mountainous limits (0.50 m plan, 3.0 m height).
     rep = write_qa_report(p, terrain="mountainous")
-    assert rep["overall"] == "pass"
+    assert rep.overall == "pass"
     assert json.loads((p / "reports" / "summary.json").read_text())["overall"] == "pass"
 
 
 def test_map_scale_tables_and_project_settings(tmp_path):
     p = _project(tmp_path, [0.1, 0.1, 0.5], 0.18)
-    assert write_qa_report(p)["overall"] == "pass"  # 1:5000 flat: 0.35 m / 1.0 m / 0.50 m
+    assert write_qa_report(p).overall == "pass"  # 1:5000 flat: 0.35 m / 1.0 m / 0.50 m
     rep = write_qa_report(p, scale="1:2000")  # the same limits on the map: 0.14 m / 0.4 m / 0.20 m
-    by = {r["quantity"]: r for r in rep["checks"]}
-    assert by["check points, plan RMS"]["limit"] == 0.14
-    assert by["check points, plan RMS"]["verdict"] == "fail"  # 0.141 m > 0.14 m
-    assert by["check points, height RMS"]["verdict"] == "fail"  # 0.5 m > 0.4 m
-    assert rep["overall"] == "fail" and rep["failed"] == 2
+    by = rep.check
+    assert by("check_rms_xy_m").limit == 0.14
+    assert by("check_rms_xy_m").verdict == "fail"  # 0.141 m > 0.14 m
+    assert by("check_rms_z_m").verdict == "fail"  # 0.5 m > 0.4 m
+    assert rep.overall == "fail" and rep.failed == 2
     # Hilly at 1:2000 allows 0.8 m in height; settings from project.toml, PDF on request.
     (p / "project.toml").write_text(PROJECT + '[qa]\nmap_scale = "1:2000"\nterrain = "hilly"\npdf = true\n')
     rep = write_qa_report(p)
-    by = {r["quantity"]: r for r in rep["checks"]}
-    assert rep["map_scale"] == "1:2000" and rep["terrain"] == "hilly"
-    assert by["check points, height RMS"]["verdict"] == "pass"
+    by = rep.check
+    assert rep.map_scale == "1:2000" and rep.terrain == "hilly"
+    assert by("check_rms_z_m").verdict == "pass"
     pdf = (p / "reports" / "report.pdf").read_bytes()
     assert pdf.startswith(b"%PDF") and pdf.count(b"/Type /Page\n") + pdf.count(b"/Type /Page ") >= 1
 
@@ -66,10 +66,10 @@ def test_gross_error_share_of_check_points(tmp_path):
     # 1 of 10 check points beyond the 0.70 m plan residual limit: 10 % > 5 % tolerated.
     rep["check_points"] = [dict(id=f"C{k}", d_m=[0.05, -0.05, 0.1]) for k in range(9)] + [dict(id="C9", d_m=[0.6, 0.5, 0.1])]
     rep_path.write_text(json.dumps(rep))
-    by = {r["quantity"]: r for r in write_qa_report(p)["checks"]}
-    row = by["check points with a plan residual beyond 0.7 m"]
-    assert row["value"] == 10.0 and row["verdict"] == "fail" and row["note"] == "1 of 10"
-    assert by["check points with a height residual beyond 2 m"]["verdict"] == "pass"
+    by = write_qa_report(p).check
+    row = by("check_gross_xy_pct")
+    assert row.value == 10.0 and row.verdict == "fail" and row.note == "1 of 10"
+    assert by("check_gross_z_pct").verdict == "pass"
 
 
 def test_bad_tolerance_settings_are_clear_errors(tmp_path):
@@ -91,8 +91,8 @@ def test_a_check_that_measured_nothing_fails(tmp_path):
     p = _project(tmp_path, [0.1, 0.1, 0.2], None)
     (p / "ortho" / "dom_report.json").write_text(json.dumps(dict(displacement=dict(count=0, rms_xy_m=None))))
     rep = write_qa_report(p)
-    by = {r["quantity"]: r for r in rep["checks"]}
-    assert by["displacement of the DOM"]["verdict"] == "fail" and rep["overall"] == "fail"
+    by = rep.check
+    assert by("dom_rms_xy_m").verdict == "fail" and rep.overall == "fail"
 
 
 def test_sigma_naught_limit_follows_the_pixel_size(tmp_path):
@@ -102,13 +102,13 @@ def test_sigma_naught_limit_follows_the_pixel_size(tmp_path):
     rep = json.loads((p / "at" / "report.json").read_text())
     rep["key_statistics"].update(sigma0_um=4.5, sigma0_px=1.0, pixel_um=4.5)
     (p / "at" / "report.json").write_text(json.dumps(rep))
-    s0 = {r["quantity"]: r for r in write_qa_report(p)["checks"]}["sigma naught"]
-    assert s0["limit"] == 0.67 and s0["verdict"] == "fail"  # 1 px
+    s0 = write_qa_report(p).check("sigma0_px")
+    assert s0.limit == 0.67 and s0.verdict == "fail"  # 1 px
     table = (Path(__file__).parents[3] / "aerotri" / "core" / "tolerance_tables" / "cn_1to5000.toml").read_text()
     contract = tmp_path / "contract.toml"
     contract.write_text(table.replace("sigma0_max_px = 0.67", "sigma0_max_um = 8.0"))
-    s0 = {r["quantity"]: r for r in write_qa_report(p, tolerance_file=contract)["checks"]}["sigma naught"]
-    assert s0["limit"] == 1.778 and s0["verdict"] == "pass"
+    s0 = write_qa_report(p, tolerance_file=contract).check("sigma0_px")
+    assert s0.limit == 1.778 and s0.verdict == "pass"
 
 
 def test_layout_targets_row_names_the_empty_ones(tmp_path):
@@ -121,10 +121,10 @@ def test_layout_targets_row_names_the_empty_ones(tmp_path):
                     empty_reason=empty)]
     (p / "control" / "transfer.json").write_text(json.dumps(dict(
         summary=dict(control_full=2, control_height=0, check_points=5), layout_targets=targets)))
-    by = {r["quantity"]: r for r in write_qa_report(p)["checks"]}
-    row = by["layout targets with a control point"]
-    assert row["value"] == "2 of 3" and row["verdict"] is None
-    assert row["note"] == f"1 filled by fallbacks; height target at 452392 3408498: {empty}"
+    by = write_qa_report(p).check
+    row = by("layout_targets_filled")
+    assert row.value == "2 of 3" and row.verdict is None
+    assert row.note == f"1 filled by fallbacks; height target at 452392 3408498: {empty}"
 
 
 def _dlg(path, shift_m):
@@ -152,21 +152,20 @@ def test_line_map_row_from_the_check_vectors_result(tmp_path):
 
     (tmp_path / "p").mkdir()
     p = _project(tmp_path / "p", [0.1, 0.1, 0.5], 0.18)
-    name = "Line map (DLG) plan accuracy: building corners, plan RMS"
-    assert name not in {r["quantity"] for r in write_qa_report(p)["checks"]}
+    assert not write_qa_report(p).has("line_map_rms_xy_m")
     prod, ref = _dlg(tmp_path / "dlg.gpkg", 0.0), _dlg(tmp_path / "ref.gpkg", 0.3)
     (p / "lidar_out").mkdir()
     check_files(prod, ref, json_path=p / "lidar_out" / "vectors_check.json")
-    row = {r["quantity"]: r for r in write_qa_report(p)["checks"]}[name]
-    assert row["value"] == pytest.approx(0.3, abs=1e-3) and row["limit"] == 0.5 and row["verdict"] == "pass"
-    assert "8 corners" in row["note"] and "ref.gpkg" in row["note"]
+    row = write_qa_report(p).check("line_map_rms_xy_m")
+    assert row.value == pytest.approx(0.3, abs=1e-3) and row.limit == 0.5 and row.verdict == "pass"
+    assert "8 corners" in row.note and "ref.gpkg" in row.note
     # 1:2000: 0.20 m for well-defined features, whatever scale the check was made with (its default 1:10000)
-    row = {r["quantity"]: r for r in write_qa_report(p, scale="1:2000")["checks"]}[name]
-    assert row["limit"] == 0.2 and row["verdict"] == "fail"
+    row = write_qa_report(p, scale="1:2000").check("line_map_rms_xy_m")
+    assert row.limit == 0.2 and row.verdict == "fail"
     # a check made elsewhere, named in project.toml
     (p / "lidar_out" / "vectors_check.json").rename(p / "dlg_check.json")
     (p / "project.toml").write_text(PROJECT + '[vectors]\ncheck_json = "dlg_check.json"\n')
-    assert {r["quantity"]: r for r in write_qa_report(p)["checks"]}[name]["verdict"] == "pass"
+    assert write_qa_report(p).check("line_map_rms_xy_m").verdict == "pass"
     (p / "dlg_check.json").unlink()
     with pytest.raises(InputError, match="dlg_check.json"):
         write_qa_report(p)
@@ -182,12 +181,12 @@ def test_a_weak_adjustment_is_not_a_successful_solution(tmp_path):
                                  "above the 1.00 m height limit (determined by surface 62%, image 38%).")
     (p / "at" / "report.json").write_text(json.dumps(rep))
     out = write_qa_report(p)
-    row = {r["quantity"]: r for r in out["checks"]}["solution successful"]
-    assert row["value"] is False and row["verdict"] == "fail" and row["note"].startswith("Solution weak.")
-    assert out["overall"] == "fail"
+    row = out.check("solution_successful")
+    assert row.value is False and row.verdict == "fail" and row.note.startswith("Solution weak.")
+    assert out.overall == "fail"
     rep["key_statistics"].update(verdict="successful", message="Solution Successful.")
     (p / "at" / "report.json").write_text(json.dumps(rep))
-    assert write_qa_report(p)["overall"] == "pass"
+    assert write_qa_report(p).overall == "pass"
 
 
 def test_plan_only_control_is_reported_in_plan(tmp_path):
@@ -197,10 +196,42 @@ def test_plan_only_control_is_reported_in_plan(tmp_path):
     rep = json.loads((p / "at" / "report.json").read_text())
     rep["rms_control_ground_m"] = [1.3386, 0.8739, None]
     (p / "at" / "report.json").write_text(json.dumps(rep))
-    by = {r["quantity"]: r for r in write_qa_report(p)["checks"]}
-    plan = by["control residuals, plan RMS"]
-    assert abs(plan["value"] - (1.3386**2 + 0.8739**2) ** 0.5) < 1e-3 and plan["verdict"] == "fail"  # 1.60 m > 0.35 m
-    assert "control residuals, height RMS" not in by
+    by = write_qa_report(p).check
+    plan = by("control_rms_xy_m")
+    assert abs(plan.value - (1.3386**2 + 0.8739**2) ** 0.5) < 1e-3 and plan.verdict == "fail"  # 1.60 m > 0.35 m
+    assert not write_qa_report(p).has("control_rms_z_m")
+
+
+def test_rows_have_stable_unique_ids_in_summary_json(tmp_path):
+    """Scripts find rows by id (the English quantity may be reworded): every row of summary.json has one, unique."""
+    p = _project(tmp_path, [0.3, 0.2, 1.5], 0.45)
+    rep = write_qa_report(p)
+    rows = json.loads((p / "reports" / "summary.json").read_text())["checks"]
+    ids = [r["id"] for r in rows]
+    assert len(ids) == len(set(ids)) and ids == [c.id for c in rep.checks]
+    assert {"check_rms_xy_m", "check_rms_z_m", "sigma0_px", "solution_successful", "dom_rms_xy_m",
+            "control_rms_xy_m", "control_rms_z_m", "control_rejected"} <= set(ids)
+    assert rows[ids.index("check_rms_z_m")]["value"] == 1.5 and rep.check("check_rms_z_m").value == 1.5
+
+
+def test_a_stage_report_that_is_not_one_is_named(tmp_path):
+    """A corrupt or foreign stage file read by the report: one InputError naming the file and the record."""
+    import pytest
+
+    from aerotri.core.errors import InputError
+
+    p = _project(tmp_path, [0.1, 0.1, 0.2], 0.2)
+    (p / "control").mkdir()
+    (p / "control" / "transfer.json").write_text(json.dumps(dict(summary=dict(control_full="six"))))
+    with pytest.raises(InputError, match=r"transfer\.json.*control transfer report"):
+        write_qa_report(p)
+    (p / "control" / "transfer.json").unlink()
+    (p / "at" / "report.json").write_text(json.dumps(dict(check_rms_m=[0.1, "a", 0.2], check_points=[])))
+    with pytest.raises(InputError, match=r"report\.json: not a bundle adjustment report .*ValueError"):
+        write_qa_report(p)
+    (p / "at" / "report.json").write_text("[1, 2]")
+    with pytest.raises(InputError, match=r"report\.json: not a bundle adjustment report .*a JSON array"):
+        write_qa_report(p)
 
 
 def test_the_dom_checks_roofs_row_is_shown_not_judged(tmp_path):
@@ -214,15 +245,17 @@ def test_the_dom_checks_roofs_row_is_shown_not_judged(tmp_path):
                         not_measured=dict(outside_or_invalid=82, weak=54))
     (p / "ortho" / "dom_report.json").write_text(json.dumps(dom))
     (p / "ortho" / "frames").mkdir()
-    (p / "ortho" / "frames" / "index.json").write_text(json.dumps(dict(crs="EPSG:32649", res_m=0.4, true_ortho=False, frames=[])))
+    (p / "ortho" / "frames" / "index.json").write_text(json.dumps(dict(crs="EPSG:32649", res_m=0.4, true_ortho=False,
+                                                                       frames=[])))
     rep = write_qa_report(p)
-    row = {r["quantity"]: r for r in rep["checks"]}["displacement at roof corners, plan RMS"]
-    assert row["value"] == 3.2563 and row["limit"] is None and row["verdict"] is None and row["unit"] == "m"
-    assert row["note"] == ("412 of 1156 corners, 8.14 GSD, median 4.45 GSD; corners: truth/roof_corners.csv; "
-                           "conventional ortho (roofs lean); not judged")
-    assert rep["overall"] == "pass"
+    row = rep.check("dom_roofs_rms_xy_m")
+    assert row.quantity == "displacement at roof corners, plan RMS"
+    assert row.value == 3.2563 and row.limit is None and row.verdict is None and row.unit == "m"
+    assert row.note == ("412 of 1156 corners, 8.14 GSD, median 4.45 GSD; corners: truth/roof_corners.csv; "
+                        "conventional ortho (roofs lean); not judged")
+    assert json.loads((p / "reports" / "summary.json").read_text())["overall"] == "pass"
     assert "displacement at roof corners" in (p / "reports" / "index.html").read_text()
     dom["roofs"] = dict(count=0, why="the nDSM is in another CRS than the DOM")
     (p / "ortho" / "dom_report.json").write_text(json.dumps(dom))
-    row = {r["quantity"]: r for r in write_qa_report(p)["checks"]}["displacement at roof corners, plan RMS"]
-    assert row["value"] is None and row["note"] == "none measured (the nDSM is in another CRS than the DOM)"
+    row = write_qa_report(p).check("dom_roofs_rms_xy_m")
+    assert row.value is None and row.note == "none measured (the nDSM is in another CRS than the DOM)"

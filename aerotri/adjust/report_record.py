@@ -1,0 +1,111 @@
+"""The adjustment report ``at/report.json`` read back as a typed record: what the stages after the
+adjustment (the accuracy report, the chain) take from it.
+
+The adjustment stage owns the file (``aerotri.adjust.report`` writes it); this module owns its reader. Only
+the fields other stages use are typed here; the figures of ``at/report.html`` draw from the whole file.
+Lengths in metres of the project CRS, image quantities in micrometres (``_um``) or pixels (``_px``).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from pathlib import Path
+
+from aerotri.core.textio import read_record, record_error
+
+ADJUSTMENT_REPORT = "bundle adjustment report (at/report.json)"
+SCHEMA_VERSION = 1
+
+
+def _xyz(v) -> tuple[float | None, ...] | None:
+    """A list of numbers (or nulls) as a tuple, None when absent."""
+    if v is None:
+        return None
+    return tuple(None if x is None else float(x) for x in v)
+
+
+@dataclass(frozen=True)
+class KeyStatistics:
+    """The ISAT "key statistics" of the solution: sigma naught, iterations and the verdict."""
+
+    success: bool
+    verdict: str  # "successful", "weak" or "failed"
+    message: str
+    iterations: int | None
+    sigma0_um: float | None
+    sigma0_px: float | None  # None in reports written before sigma0_px: see ``sigma0_in_px``
+    sigma0: float | None  # unit-free: sigma naught over the a-priori image sigma
+    pixel_um: float | None
+
+    @property
+    def successful(self) -> bool:
+        """"Solution Successful": products written and nothing weak."""
+        return self.success and self.verdict == "successful"
+
+
+@dataclass(frozen=True)
+class AdjustmentRecord:
+    """What ``at/report.json`` tells the stages after the adjustment."""
+
+    path: Path
+    project: str | None
+    counts: dict  # images, strips, tie_points, control_points, check_points, ... (numbers only)
+    gnss_given: bool  # GNSS camera positions observed ("given EO GPS" in the ISAT options)
+    image_sigma_px: float | None  # a-priori sigma of an image coordinate
+    key_statistics: KeyStatistics | None
+    control_rms_m: tuple[float | None, ...] | None  # X, Y, Z RMS of the control residuals on the ground
+    rejected_control: tuple[str, ...]  # ids of control points the adjustment rejected
+    check_rms_m: tuple[float | None, ...] | None  # X, Y, Z RMS at the check points
+    check_residuals_m: tuple[tuple[float, float, float], ...]  # dX, dY, dZ per check point with all three
+    check_points: int  # check points in the report (with or without residuals)
+    check_normalised_rms: tuple[float | None, ...] | None
+    flight_acceptance: dict | None  # the flight acceptance section as written (``FlightAcceptance.as_dict``)
+
+    @property
+    def sigma0_in_px(self) -> float | None:
+        """Sigma naught in pixels (from the unit-free sigma naught in reports written before ``sigma0_px``)."""
+        ks = self.key_statistics
+        if ks is None:
+            return None
+        if ks.sigma0_px is not None:
+            return ks.sigma0_px
+        if ks.sigma0 is not None:
+            return ks.sigma0 * (self.image_sigma_px if self.image_sigma_px is not None else math.nan)
+        return None
+
+
+def _key_statistics(ks: dict) -> KeyStatistics | None:
+    if not ks:
+        return None
+    f = {k: (None if ks.get(k) is None else float(ks[k])) for k in ("sigma0_um", "sigma0_px", "sigma0", "pixel_um")}
+    return KeyStatistics(success=bool(ks.get("success")), verdict=str(ks.get("verdict", "successful")),
+                         message=str(ks.get("message", "")),
+                         iterations=None if ks.get("iterations") is None else int(ks["iterations"]), **f)
+
+
+def adjustment_record(d: dict, path="at/report.json") -> AdjustmentRecord:
+    """The record of an adjustment report as a dict (what ``run_adjustment`` returns and writes; ``path``: where
+    it was read from); KeyError, TypeError or ValueError when a field is not what the adjustment writes."""
+    options = d.get("options") or {}
+    rejected = tuple(str(r.get("id", r) if isinstance(r, dict) else r) for r in d.get("rejected_control") or [])
+    checks = d.get("check_points") or []
+    residuals = tuple(tuple(float(x) for x in c["d_m"]) for c in checks if c.get("d_m") and None not in c["d_m"])
+    sigma = options.get("image_sigma_px")
+    return AdjustmentRecord(
+        path=Path(path), project=d.get("project"), counts=dict(d.get("counts") or {}),
+        gnss_given=options.get("given_eo_gps") == "Enabled", image_sigma_px=None if sigma is None else float(sigma),
+        key_statistics=_key_statistics(d.get("key_statistics") or {}),
+        control_rms_m=_xyz(d.get("rms_control_ground_m")), rejected_control=rejected,
+        check_rms_m=_xyz(d.get("check_rms_m")), check_residuals_m=residuals, check_points=len(checks),
+        check_normalised_rms=_xyz(d.get("check_normalised_rms")), flight_acceptance=d.get("flight_acceptance") or None)
+
+
+def read_adjustment_report(path) -> AdjustmentRecord:
+    """``at/report.json`` as the adjustment wrote it; InputError naming the file when it is not one."""
+    path = Path(path)
+    d = read_record(path, ADJUSTMENT_REPORT, SCHEMA_VERSION)
+    try:
+        return adjustment_record(d, path)
+    except (AttributeError, KeyError, TypeError, ValueError) as exc:
+        raise record_error(path, ADJUSTMENT_REPORT, exc) from None

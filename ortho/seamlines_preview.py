@@ -1,0 +1,112 @@
+"""A preview of the seamlines over the DOM (``ortho/seamlines_preview.png``, written by ``ortho mosaic`` with its
+other outputs): the mosaic reduced to at most ``PREVIEW_MAX_PX`` on its longer side (its overviews, averaged), the
+seams between the frames' regions in magenta, the cells no frame sees (nodata inside the block: occluded in every
+frame of a true ortho, or over DEM nodata) hatched orange and black, the outside of the block white, and a legend
+strip below the image.
+
+Colours: 8-bit frames as they are, 16-bit frames divided by 257 (their full range onto 0-255), one band as grey.
+"""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import cv2
+import numpy as np
+import rasterio
+from rasterio.enums import Resampling
+
+PREVIEW_MAX_PX = 2000
+SEAM_RGB = (255, 0, 255)
+HATCH_RGB = ((255, 140, 0), (0, 0, 0))
+OUTSIDE_RGB = (255, 255, 255)
+LEGEND_PX = 28
+
+
+def preview_shape(width: int, height: int, max_px: int = PREVIEW_MAX_PX) -> tuple[int, int, int]:
+    """(rows, cols, step): the mosaic reduced by an integer ``step`` so that its longer side is at most max_px."""
+    step = max(1, math.ceil(max(width, height) / max_px))
+    return -(-height // step), -(-width // step), step
+
+
+def seam_pixels(labels: np.ndarray) -> np.ndarray:
+    """Cells whose label (frame index, -1 none) differs from that of the cell to the right or below, both labelled."""
+    seam = np.zeros(labels.shape, bool)
+    a, b = labels[:, :-1], labels[:, 1:]
+    seam[:, :-1] |= (a != b) & (a >= 0) & (b >= 0)
+    a, b = labels[:-1, :], labels[1:, :]
+    seam[:-1, :] |= (a != b) & (a >= 0) & (b >= 0)
+    return seam
+
+
+def _to_rgb8(img: np.ndarray) -> np.ndarray:
+    """(bands, h, w) samples -> (h, w, 3) uint8."""
+    if img.dtype == np.uint16:
+        img = (img.astype(np.uint32) // 257).astype(np.uint8)
+    elif img.dtype != np.uint8:
+        img = np.clip(img, 0, 255).astype(np.uint8)
+    rgb = img[:3] if img.shape[0] >= 3 else np.repeat(img[:1], 3, axis=0)
+    return np.ascontiguousarray(rgb.transpose(1, 2, 0))
+
+
+def _legend(width: int) -> np.ndarray:
+    """A white strip with the three swatches and their names (RGB)."""
+    strip = np.full((LEGEND_PX, width, 3), 255, np.uint8)
+    x = 6
+    for label, kind in (("seamline", "seam"), ("nodata: no frame sees it", "hatch"), ("outside the block", "outside")):
+        y0, y1 = 7, LEGEND_PX - 7
+        if kind == "seam":
+            strip[LEGEND_PX // 2 - 1:LEGEND_PX // 2 + 2, x:x + 16] = SEAM_RGB
+        elif kind == "hatch":
+            rr, cc = np.mgrid[y0:y1, x:x + 16]
+            strip[y0:y1, x:x + 16] = np.where((((rr + cc) // 3) % 2 == 0)[..., None], HATCH_RGB[0], HATCH_RGB[1])
+        else:
+            strip[y0:y1, x:x + 16] = OUTSIDE_RGB
+            cv2.rectangle(strip, (x, y0), (x + 15, y1 - 1), (0, 0, 0), 1)
+        cv2.putText(strip, label, (x + 22, LEGEND_PX - 9), cv2.FONT_HERSHEY_SIMPLEX, 0.4, (0, 0, 0), 1, cv2.LINE_AA)
+        x += 22 + cv2.getTextSize(label, cv2.FONT_HERSHEY_SIMPLEX, 0.4, 1)[0][0] + 18
+    return strip
+
+
+def legend_width() -> int:
+    return 6 + sum(22 + cv2.getTextSize(s, cv2.FONT_HERSHEY_SIMPLEX, 0.4, 1)[0][0] + 18
+                   for s in ("seamline", "nodata: no frame sees it", "outside the block"))
+
+
+def render_preview(mosaic_path, labels: np.ndarray, factor: int, max_px: int = PREVIEW_MAX_PX) -> np.ndarray:
+    """The preview image (rows, cols, 3) RGB uint8: ``labels`` is the seam grid (``factor`` mosaic pixels a cell,
+    its origin the mosaic's), ``mosaic_path`` the finished mosaic."""
+    with rasterio.open(mosaic_path) as ds:
+        h, w, step = preview_shape(ds.width, ds.height, max_px)
+        img = ds.read(out_shape=(ds.count, h, w), resampling=Resampling.average)
+        ok = ds.read_masks(1, out_shape=(h, w), resampling=Resampling.nearest) > 0
+    rgb = _to_rgb8(img)
+    # nodata: inside the block (not reached from the edge through nodata) or outside it
+    empty = np.pad(~ok, 1, constant_values=True).view(np.uint8).copy()
+    cv2.floodFill(empty, None, (0, 0), 2)
+    inside = empty[1:-1, 1:-1] == 1
+    rgb[~ok] = OUTSIDE_RGB
+    rr, cc = np.nonzero(inside)
+    rgb[rr, cc] = np.where((((rr + cc) // 3) % 2 == 0)[:, None], HATCH_RGB[0], HATCH_RGB[1])
+    # the label of every preview pixel: the seam cell holding its centre
+    rows = np.minimum(((np.arange(h) + 0.5) * step // factor).astype(np.int64), labels.shape[0] - 1)
+    cols = np.minimum(((np.arange(w) + 0.5) * step // factor).astype(np.int64), labels.shape[1] - 1)
+    seam = seam_pixels(labels[np.ix_(rows, cols)])
+    seam = cv2.dilate(seam.view(np.uint8), np.ones((2, 2), np.uint8)).view(bool) & ok
+    rgb[seam] = SEAM_RGB
+    width = max(w, legend_width())
+    out = np.full((h + LEGEND_PX, width, 3), 255, np.uint8)
+    out[:h, :w] = rgb
+    out[h:] = _legend(width)
+    return out
+
+
+def write_seamlines_preview(path, mosaic_path, labels: np.ndarray, factor: int, max_px: int = PREVIEW_MAX_PX) -> None:
+    """Write the preview PNG to ``path`` (a work folder's file: the caller moves it into place with the other
+    outputs)."""
+    rgb = render_preview(mosaic_path, labels, factor, max_px)
+    ok, buf = cv2.imencode(".png", np.ascontiguousarray(rgb[..., ::-1]))
+    if not ok:  # cv2 returns False only for an unknown extension or an empty image
+        raise RuntimeError(f"{path}: PNG encoding failed")
+    Path(path).write_bytes(buf.tobytes())

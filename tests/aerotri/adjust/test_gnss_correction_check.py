@@ -1,0 +1,79 @@
+"""GNSS shift and drift estimates far beyond their a-priori sigma (``gnss_shift_sigma_m``) are reported as suspect
+and the solution as weak, not "Solution Successful" (issue 41: a datum error the per-strip shifts absorbed went
+unflagged)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from scipy.stats import norm
+
+from aerotri.adjust.pipeline import AdjustSettings, adjust_project
+from aerotri.adjust.report import GNSS_CORRECTION_ALPHA, build_report, gnss_correction_check
+from aerotri.geom.camera import dmc_camera
+from aerotri.geom.eo import read_gnss, write_gnss
+from aerotri.sim.observations import geometric_block, write_block_project, write_truth_observations
+
+SIGMA_PX = 0.3
+SHIFT_SIGMA_M = 0.05  # the block's GNSS shifts are drawn with this sigma (each axis)
+
+
+@pytest.fixture(scope="module")
+def sound(tmp_path_factory):
+    # the nominal camera is the true one: no interior-orientation error for the shifts to absorb
+    block = geometric_block(3, 6, seed=3, gnss_shift_sigma_m=SHIFT_SIGMA_M, gnss_drift_sigma_m_per_km=0.0,
+                            camera_true=dmc_camera())
+    root = write_block_project(block, tmp_path_factory.mktemp("gcc") / "blk")
+    write_truth_observations(root, tie_sigma_px=SIGMA_PX, n_control=5, points_per_image=120, n_check=12, seed=4)
+    return block, root
+
+
+def _settings(**kw):
+    return AdjustSettings(gnss_correction="shift", image_sigma_px=SIGMA_PX, point_covariances=False, **kw)
+
+
+def test_limit_is_the_bonferroni_quantile():
+    """k: two-sided normal quantile of 1 % over the block's estimates (9 for 3 strips with shifts: 3.26; 36 for 6
+    strips with shifts and drifts: 3.63)."""
+    assert GNSS_CORRECTION_ALPHA == 0.01
+    assert norm.isf(0.01 / 18) == pytest.approx(3.26, abs=0.01)
+    assert norm.isf(0.01 / 72) == pytest.approx(3.63, abs=0.01)
+
+
+def test_sound_block_is_successful(sound):
+    """Shifts within their a-priori sigma (0.10 m default; drawn with 0.05 m): nothing suspect, Solution
+    Successful."""
+    _, root = sound
+    ba = adjust_project(root, _settings())
+    gcc = gnss_correction_check(ba)
+    assert gcc.n == 9 and gcc.k == pytest.approx(3.26, abs=0.01) and gcc.suspect == ()
+    ks = build_report(ba)["key_statistics"]
+    assert ks["verdict"] == "successful" and ks["gnss_corrections_suspect"] == []
+
+
+def test_absorbed_height_error_is_flagged(sound, tmp_path):
+    """The GNSS heights of one strip 0.8 m too high (16 a-priori sigmas): the adjustment absorbs it into that
+    strip's shift, the check names that strip's up shift alone, and the verdict is weak with the reason."""
+    import shutil
+
+    block, root = sound
+    p = shutil.copytree(root, tmp_path / "blk")
+    g = read_gnss(p / "gnss.txt")
+    strip2 = np.array([i.startswith("s02") for i in g.image_id])
+    pos = g.position_m.copy()
+    pos[strip2, 2] += 0.8
+    write_gnss(p / "gnss.txt", type(g)(g.image_id, pos, g.sigma_m))
+    ba = adjust_project(p, _settings())
+    gcc = gnss_correction_check(ba)
+    assert len(gcc.suspect) == 1
+    s, term, axis, v = gcc.suspect[0]
+    assert term == "shift" and axis == "U" and 0.8 - 0.15 < v < 0.8 + 0.15
+    # the strip the check names is the one whose frames were moved
+    assert all(ba.block.strip[ba.block.image_id.index(i)] == s - 1 for i in np.asarray(g.image_id)[strip2])
+    ks = build_report(ba)["key_statistics"]
+    assert ks["verdict"] == "weak" and "Solution Successful" not in ks["message"]
+    assert "GNSS corrections suspect" in ks["message"] and f"strip {s} shift U" in ks["message"]
+    assert ks["gnss_corrections_suspect"] == [{"strip": s, "term": "shift", "axis": "U",
+                                               "displacement_m": pytest.approx(v, abs=1e-3)}]
+    # stated a-priori sigma large enough for such shifts: not suspect
+    assert gnss_correction_check(adjust_project(p, _settings(gnss_shift_sigma_m=0.3))).suspect == ()

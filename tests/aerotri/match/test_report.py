@@ -1,0 +1,35 @@
+"""The connectivity plot of a block."""
+
+from __future__ import annotations
+
+from types import SimpleNamespace
+
+import numpy as np
+from shapely.geometry import box
+
+from aerotri.match.report import plot_block
+
+
+def test_connectivity_plot_x_labels_do_not_overlap(tmp_path, monkeypatch):
+    """NGI's 2 x 2 block (frames 3.8 x 6.7 km, centres at x -57700..-55100 on Lo25): the x tick labels of full
+    map coordinates ran into each other ("-59000-58000-57000") on the tall block's narrow axis."""
+    import matplotlib.pyplot as plt
+
+    centres = np.array([[-55094.5, -3727407.0, 5258.3], [-57710.4, -3727433.9, 5256.8],
+                        [-57682.7, -3731579.6, 5229.2], [-55081.8, -3731564.4, 5243.5]])
+    plan = SimpleNamespace(centre_m=centres, image_id=["a", "b", "c", "d"],
+                           footprints=[box(x - 1900, y - 3350, x + 1900, y + 3350) for x, y, _ in centres])
+    strength = SimpleNamespace(models=[SimpleNamespace(weak=False, i=0, j=1)])
+    shown = []
+    monkeypatch.setattr(plt, "close", lambda fig: shown.append(fig))
+    plot_block(tmp_path / "c.png", plan, [(0, 1, 280), (2, 3, 200), (0, 3, 40), (1, 2, 120)], strength)
+    assert (tmp_path / "c.png").stat().st_size > 0
+    fig = shown[0]
+    fig.canvas.draw()
+    ax = fig.axes[0]
+    r = fig.canvas.get_renderer()
+    boxes = [t.get_window_extent(r) for t in ax.get_xticklabels() if t.get_visible() and t.get_text()]
+    assert len(boxes) >= 3
+    for a, b in zip(boxes, boxes[1:]):
+        assert b.x0 - a.x1 > 0.3 * a.height, (a, b)  # a gap of a third of the text height at least
+    plt.close(fig)

@@ -1,0 +1,86 @@
+"""The preview of the seamlines over the DOM (``ortho/seamlines_preview.png``, issue 42): written by ``ortho mosaic``
+with its other outputs, at most 2000 px, seams in magenta where seams.tif has them, nodata inside the block hatched,
+outside white, a legend strip below."""
+
+from __future__ import annotations
+
+import cv2
+import numpy as np
+import rasterio
+from click.testing import CliRunner
+from rasterio.transform import Affine
+
+from ortho.cli import main
+from ortho.seamlines_preview import (HATCH_RGB, LEGEND_PX, OUTSIDE_RGB, SEAM_RGB, preview_shape, render_preview,
+                                     seam_pixels)
+from ortho.synthetic import write_synthetic_project
+
+
+def _read_png(path):
+    return cv2.imread(str(path), cv2.IMREAD_COLOR)[..., ::-1]
+
+
+def _is(rgb, colour):
+    return np.all(rgb == np.array(colour, np.uint8), axis=-1)
+
+
+def test_ortho_mosaic_writes_the_preview_with_the_seams_where_seams_tif_has_them(tmp_path):
+    root = tmp_path / "p"
+    write_synthetic_project(root, strips=2, frames_per_strip=2, buildings=6, seed=5)
+    for args in (["rectify", str(root)], ["mosaic", str(root)]):
+        r = CliRunner().invoke(main, args)
+        assert r.exit_code == 0, r.output
+    png = _read_png(root / "ortho" / "seamlines_preview.png")
+    with rasterio.open(root / "ortho" / "mosaic.tif") as ds, rasterio.open(root / "ortho" / "seams.tif") as s:
+        h, w, step = preview_shape(ds.width, ds.height)
+        ok = ds.read_masks(1, out_shape=(h, w)) > 0
+        labels = s.read(1)
+        factor = int(round(s.transform.a / ds.res[0]))
+    assert png.shape[0] == h + LEGEND_PX and png.shape[1] >= w and max(h, w) <= 2000
+    img = png[:h, :w]
+    # the seams of seams.tif on the preview grid (the seam cell holding each pixel's centre)
+    rows = np.minimum(((np.arange(h) + 0.5) * step // factor).astype(int), labels.shape[0] - 1)
+    cols = np.minimum(((np.arange(w) + 0.5) * step // factor).astype(int), labels.shape[1] - 1)
+    expected = seam_pixels(labels[np.ix_(rows, cols)]) & ok
+    drawn = _is(img, SEAM_RGB)
+    assert expected.sum() > 50  # 4 frames: several seams
+    assert drawn[expected].all()
+    # magenta only on the seams (drawn 2 px wide: the expected pixel or its neighbour up or left)
+    near = cv2.dilate(expected.view(np.uint8), np.ones((3, 3), np.uint8)).view(bool)
+    assert not (drawn & ~near).any()
+    # outside the block white; away from the seams the DOM's own samples
+    assert _is(img, OUTSIDE_RGB)[~ok].all()
+    assert not _is(png[h:], SEAM_RGB).all()  # the legend strip has text and swatches
+
+
+def _write_mosaic(path, valid):
+    h, w = valid.shape
+    rng = np.random.default_rng(0)
+    img = rng.integers(40, 200, (3, h, w), dtype=np.uint8)
+    with rasterio.open(path, "w", driver="GTiff", width=w, height=h, count=3, dtype="uint8", crs="EPSG:32649",
+                       transform=Affine(0.5, 0.0, 452000.0, 0.0, -0.5, 3407000.0)) as ds:
+        ds.write(img)
+        ds.write_mask(valid.astype(np.uint8) * 255)
+
+
+def test_preview_is_reduced_hatches_nodata_inside_and_marks_the_seam(tmp_path):
+    # 4400 x 600 px: reduced by 3 to 1467 x 200; a hole inside the block, the left edge outside it
+    h, w = 600, 4400
+    valid = np.ones((h, w), bool)
+    valid[:, :300] = False  # outside the block (reaches the edge)
+    valid[240:360, 2900:3300] = False  # no frame sees it (inside)
+    _write_mosaic(tmp_path / "m.tif", valid)
+    labels = np.zeros((h // 4, w // 4), np.int32)  # seam grid of 4 px cells: frame 0 west, 1 east of x = 2000 px
+    labels[:, 500:] = 1
+    labels[:, :75] = -1
+    rgb = render_preview(tmp_path / "m.tif", labels, 4)
+    ph, pw, step = preview_shape(w, h)
+    assert (step, ph, pw) == (3, 200, 1467) and rgb.shape == (ph + LEGEND_PX, pw, 3)
+    img = rgb[:ph]
+    seam_cols = np.flatnonzero(_is(img, SEAM_RGB).all(axis=0))
+    assert set(seam_cols) <= {666, 667} and len(seam_cols) >= 1  # x = 2000 px / 3
+    hole = img[85:115, 970:1095]
+    assert (_is(hole, HATCH_RGB[0]) | _is(hole, HATCH_RGB[1])).all()
+    assert _is(hole, HATCH_RGB[0]).mean() > 0.3 and _is(hole, HATCH_RGB[1]).mean() > 0.3
+    assert _is(img[:, :95], OUTSIDE_RGB).all()
+    assert not _is(img[:, 110:600], SEAM_RGB).any() and not _is(img[:, 110:600], OUTSIDE_RGB).all()
