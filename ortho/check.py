@@ -34,7 +34,7 @@ from aerotri.core.errors import InputError, OptionError
 from aerotri.core.gdal_cache import MiB, stage_block_cache
 from aerotri.core.atomic import refuse_input_as_output
 from aerotri.core.project import Project, project_paths
-from aerotri.core.settings import Resolved, settings_of
+from aerotri.core.settings import COMMAND_LINE, Resolved, settings_of
 from aerotri.core.textio import read_record, read_text, record_error
 from aerotri.geom.crs import height_unit_m, parse_crs
 from aerotri.geom.inputs import check_raster_size
@@ -102,6 +102,9 @@ class DomCheck:
     seams_rms_px: float | None = None
     seam_patches: int | None = None
     roofs: Displacement | None = None  # the roofs row (its displacement figures), when roofs were measured
+    roof_corners: int | None = None  # the roofs row: roof corners given or found (``count`` of them measured)
+    roof_corners_from: str | None = None  # the roofs row: where the corners came from (a file, the nDSM)
+    roofs_why: str | None = None  # the roofs row: why none were measured, when it says
 
 
 _DISPLACEMENT_FIELDS = frozenset(f.name for f in dataclasses.fields(Displacement))
@@ -112,10 +115,11 @@ def read_dom_check(path) -> DomCheck:
     d = read_record(path, DOM_CHECK, SCHEMA_VERSION)
     try:
         seams = d.get("seams") or {}
-        roofs = d.get("roofs")
-        if roofs is not None:
-            roofs = Displacement.of_record({k: v for k, v in roofs.items() if k in _DISPLACEMENT_FIELDS})
-        return DomCheck(Displacement.of_record(d["displacement"]), seams.get("rms_px"), seams.get("patches"), roofs)
+        row = d.get("roofs")
+        roofs = None if row is None else Displacement.of_record({k: v for k, v in row.items() if k in _DISPLACEMENT_FIELDS})
+        row = row or {}
+        return DomCheck(Displacement.of_record(d["displacement"]), seams.get("rms_px"), seams.get("patches"), roofs,
+                        row.get("corners"), row.get("corners_from"), row.get("why"))
     except (AttributeError, KeyError, TypeError, ValueError) as exc:
         raise record_error(path, DOM_CHECK, exc) from None
 
@@ -599,6 +603,21 @@ def _same_file(a: Path, b: Path) -> bool:
     return a.exists() and b.exists() and os.path.samefile(a, b)
 
 
+def simulator_roof_corners(reference_path) -> Path | None:
+    """The simulator's roof corners when ``reference_path`` is its true orthophoto (truth/ortho.tif with
+    truth/roof_corners.csv beside it, holding at least one corner: a block without buildings has a header only),
+    else None."""
+    if reference_path is None:
+        return None
+    ref = Path(reference_path)
+    corners = ref.parent / "roof_corners.csv"
+    if ref.name != "ortho.tif" or ref.parent.name != "truth" or not corners.is_file():
+        return None
+    with open(corners, errors="replace") as f:
+        rows = sum(1 for line in f if line.strip())
+    return corners if rows > 1 else None
+
+
 def run_check(project_root, settings: CheckSettings | Resolved | None = None, *, reference_path=None, points_path=None,
               dom_path=None, out_stem=None, seams: bool = True, params=None, allow_ballpark: bool = False,
               roof_corners_path=None) -> dict:
@@ -606,8 +625,9 @@ def run_check(project_root, settings: CheckSettings | Resolved | None = None, *,
 
     With a reference orthophoto, open ground (``displacement``: NCC patches, nDSM <= max_ndsm_m with an nDSM) and,
     when roofs can be located, roofs (``roofs``: a patch on every roof corner, ``measure_roof_patches``): the corners
-    of ``roof_corners_path`` (a CSV with x, y columns, e.g. truth/roof_corners.csv), else the outline corners of
-    the buildings of the nDSM (``roof_corners_from_ndsm``). The roofs row means "roofs in place" only against a
+    of ``roof_corners_path`` (a CSV with x, y columns), else of the setting ``roof_corners``, else the simulator's
+    truth/roof_corners.csv when the reference is its truth/ortho.tif (``simulator_roof_corners``), else the outline
+    corners of the buildings of the nDSM (``roof_corners_from_ndsm``). The roofs row means "roofs in place" only against a
     true orthophoto as the reference (roofs where they stand, as the simulator's truth/ortho.tif).
 
     ``settings``: None reads [dom_check] of project.toml (a folder without project.toml: the defaults); a
@@ -621,6 +641,16 @@ def run_check(project_root, settings: CheckSettings | Resolved | None = None, *,
     resolved = settings_of(settings, CheckSettings, Project.open(root) if settings is None else None)
     s = resolved.settings
     ndsm_path, max_ndsm_m, patch_px, search_px = s.ndsm, s.max_ndsm_m, s.patch_px, s.search_px
+    if roof_corners_path is None and s.roof_corners is not None:
+        # the argument, else the setting (--roof-corners, [dom_check] roof_corners); the project's own setting does
+        # not stand in the way of a check against surveyed points (no roofs are measured there)
+        if reference_path is not None or resolved.sources.get("roof_corners") == COMMAND_LINE:
+            roof_corners_path = s.roof_corners
+    if roof_corners_path is None and simulator_roof_corners(reference_path) is not None:
+        # against the simulator's true orthophoto: the roof corners that belong to it
+        roof_corners_path = simulator_roof_corners(reference_path)
+        resolved = resolved.replace("roof_corners", roof_corners_path, resolved.sources.get("roof_corners", "default"),
+                                    "the simulator's roof corners beside its true orthophoto, the reference")
     if ndsm_path is None and reference_path is not None and project_paths(root).ndsm_path.is_file():
         ndsm_path = project_paths(root).ndsm_path
         resolved = resolved.replace("ndsm", ndsm_path, resolved.sources.get("ndsm", "default"), "the LiDAR stages' nDSM")

@@ -120,9 +120,7 @@ def mosaic(project, crs, seamlines, scheduler, workers, **_settings_given):
 @click.option("--points", "points_path", type=click.Path(path_type=Path),
               help="CSV id,x,y,x_dom,y_dom: surveyed points and their positions measured in the DOM")
 @click.option("--dom", "dom_path", type=click.Path(path_type=Path), help="DOM to check [ortho/mosaic.tif]")
-@click.option("--roof-corners", "roof_corners_path", type=click.Path(path_type=Path),
-              help="CSV with x,y columns: roof corners where the roofs are measured against a true-ortho --reference "
-                   "[the outline corners of the nDSM's buildings]")
+@click_option(CheckSettings, "roof_corners", "--roof-corners")
 @click_option(CheckSettings, "ndsm", "--ndsm")
 @click_option(CheckSettings, "max_ndsm_m", "--max-ndsm-m")
 @click_option(CheckSettings, "patch_px", "--patch-px")
@@ -131,8 +129,7 @@ def mosaic(project, crs, seamlines, scheduler, workers, **_settings_given):
 @click.option("--params", "params_path", type=click.Path(dir_okay=False, path_type=Path),
               help="datum parameter file ('aerotri crs fit') relating the reference's CRS and the DOM's")
 @click.option("--allow-ballpark", is_flag=True, help="accept PROJ's ballpark operation between the two CRSs")
-def check(project, reference_path, points_path, dom_path, roof_corners_path, out_stem, params_path, allow_ballpark,
-          **_settings_given):
+def check(project, reference_path, points_path, dom_path, out_stem, params_path, allow_ballpark, **_settings_given):
     """DOM accuracy against a reference orthophoto (NCC patches) or surveyed points; JSON and a plot.
 
     Settings: the defaults, then project.toml [dom_check] (a folder with one), then the options given here."""
@@ -144,8 +141,7 @@ def check(project, reference_path, points_path, dom_path, roof_corners_path, out
     has_project = (Path(project) / "project.toml").is_file()
     settings = _settings(CheckSettings, project) if has_project else resolve(CheckSettings, None, click.get_current_context())
     report = run_check(project, settings, reference_path=reference_path, points_path=points_path, dom_path=dom_path,
-                       out_stem=out_stem, params=params_path, allow_ballpark=allow_ballpark,
-                       roof_corners_path=roof_corners_path)
+                       out_stem=out_stem, params=params_path, allow_ballpark=allow_ballpark)
     click.echo(_check_line(report, "patches" if reference_path else "points"))
     if "roofs" in report:
         click.echo(_roofs_line(report["roofs"]))

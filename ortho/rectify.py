@@ -162,18 +162,50 @@ def fixed_point_maps(geometry: FrameGeometry, dem: HeightRaster, grid: OrthoGrid
     return map_int, map_frac, mask, z, (AX, AY, s)
 
 
+# the march's bounds: the highest DSM height by blocks of 16 and of 128 cells (a ray above a block's highest height
+# crosses it in one jump): the fine blocks keep the bound tight between buildings, the coarse ones let a ray
+# that has risen above the roofs around it leave in a few jumps
+MARCH_BLOCK_CELLS = (16, 128)
+CELL_FACTOR = 1.25
+
+
+@dataclasses.dataclass(frozen=True)
+class MarchBound:
+    """The highest height of a DSM (m) and its highest heights by blocks of ``block`` and of ``coarse`` cells
+    (``_block_max``), which let the march of ``occlusion_mask`` jump over the blocks a ray passes above."""
+
+    max_m: float
+    block_max_m: np.ndarray
+    block: int
+    coarse_max_m: np.ndarray
+    coarse: int
+
+
+def march_bound(dsm: HeightRaster, blocks: tuple[int, int] = MARCH_BLOCK_CELLS) -> MarchBound:
+    """The bounds of the march over ``dsm`` (once per frame; ``occlusion_mask`` makes them if not given)."""
+    from ortho.rectify_kernels import _block_max
+
+    fine, coarse = (int(b) for b in blocks)
+    return MarchBound(float(np.nanmax(dsm.heights_m)), _block_max(dsm.heights_m, fine), fine,
+                      _block_max(dsm.heights_m, coarse), coarse)
+
+
 def occlusion_mask(geometry: FrameGeometry, dsm: HeightRaster, grid: OrthoGrid, heights_m: np.ndarray, anchors,
-                   tolerance_m: float = 0.3, candidates: np.ndarray | None = None) -> np.ndarray:
+                   tolerance_m: float = 0.3, candidates: np.ndarray | None = None,
+                   bound: MarchBound | None = None, near_share: np.ndarray | None = None) -> np.ndarray:
     """True where the ground point (grid pixel at ``heights_m``) is hidden from the camera by the DSM (a march
-    along its ray; only where ``candidates``, e.g. the points the z-buffer puts behind a nearer surface)."""
+    along its ray; only where ``candidates``, e.g. the points the z-buffer puts behind a nearer surface).
+    ``near_share`` (``zbuffer_occlusion_from_maps``): where the march looks first; the result is the same."""
     AX, AY, s = anchors
     occ = np.zeros((grid.height, grid.width), dtype=np.bool_)
-    zmax = float(np.nanmax(dsm.heights_m))
+    bound = bound or march_bound(dsm)
     from ortho.rectify_kernels import _occlusion_kernel
 
     _occlusion_kernel(AX, AY, float(s), grid.height, grid.width, heights_m.astype(np.float32), dsm.heights_m,
-                      dsm.x_left_m, dsm.y_top_m, dsm.res_m, zmax, np.asarray(geometry.centre_m, np.float64),
-                      float(tolerance_m), occ, np.ones(occ.shape, np.bool_) if candidates is None else candidates)
+                      dsm.x_left_m, dsm.y_top_m, dsm.res_m, bound.max_m, np.asarray(geometry.centre_m, np.float64),
+                      float(tolerance_m), occ, np.ones(occ.shape, np.bool_) if candidates is None else candidates,
+                      bound.block_max_m, bound.block, bound.coarse_max_m, bound.coarse,
+                      np.zeros((1, 1), np.float32) if near_share is None else near_share)
     return occ
 
 
@@ -196,7 +228,7 @@ def frame_zbuffer(geometry: FrameGeometry, dsm: HeightRaster, grid: OrthoGrid, t
     Cells: the image pixels an output pixel spans at the frame's mean distance, times 1.5, rounded up (so
     that every cell holds a surface sample where the surface is seen); tolerance: ``margin_m`` plus the
     ground size of a cell (a roof of 45 degrees spans that much depth within a cell)."""
-    from ortho.rectify_kernels import _zbuffer_kernel
+    from ortho.rectify_kernels import _zbuffer_kernel, _zbuffer_scatter_affine
 
     to_project = to_project or GridToProject(grid.crs, grid.crs)
     centre, M, params = geometry.kernel_args()
@@ -204,17 +236,29 @@ def frame_zbuffer(geometry: FrameGeometry, dsm: HeightRaster, grid: OrthoGrid, t
     finite = dsm.heights_m[np.isfinite(dsm.heights_m)]
     distance_m = max(1.0, float(centre[2]) - (float(np.median(finite)) if finite.size else 0.0))
     gsd_m = distance_m / float(params[0])  # ground size of an image pixel at that distance (f in pixels)
-    cell_px = max(1, int(math.ceil(1.5 * grid.res_m / gsd_m)))
+    # the surface sampled at the output pixels, or (project CRS) every ``step``-th of them while that still samples
+    # the DSM at most half a DSM cell apart: the z-buffer's cells grow with the step, its cost falls with its square
+    step = max(1, int(0.5 * dsm.res_m / grid.res_m)) if to_project.identity else 1
+    cell_px = max(1, int(math.ceil(CELL_FACTOR * step * grid.res_m / gsd_m)))
     depth = np.full((-(-cam.height // cell_px), -(-cam.width // cell_px)), np.inf, np.float32)
     buffers = MapBuffers(tile_px)
     mask = np.empty(tile_px * tile_px, np.uint8)
     none = np.zeros((1, 1), np.bool_)
+    over = MapBuffers(tile_px + 1)
+    if step > 1:  # the same extent, pixels ``step`` times the size (centres every ``step`` output pixels)
+        grid = OrthoGrid(grid.crs, grid.x_left_m, grid.y_top_m, grid.res_m * step, -(-grid.width // step),
+                         -(-grid.height // step))
     for r0 in range(0, grid.height, tile_px):
         for c0 in range(0, grid.width, tile_px):
             tile = grid.window(c0, r0, min(tile_px, grid.width - c0), min(tile_px, grid.height - r0))
-            if to_project.identity:  # the heights alone (no maps needed here)
-                z = heights_on_grid(dsm, tile, out=buffers.views(tile.height, tile.width)[2])
-                AX, AY, s = to_project.anchors(tile)
+            if to_project.identity:  # the heights alone (no maps needed here), ground X, Y affine in (row, col)
+                # the tile and the row above and column left of it: the gaps across its edges are filled too
+                r1, c1 = max(r0 - 1, 0), max(c0 - 1, 0)
+                tile = grid.window(c1, r1, c0 + tile.width - c1, r0 + tile.height - r1)
+                z = heights_on_grid(dsm, tile, out=over.views(tile.height, tile.width)[2])
+                _zbuffer_scatter_affine(z, tile.x_left_m + 0.5 * tile.res_m, tile.y_top_m - 0.5 * tile.res_m,
+                                        tile.res_m, centre, M, params, cam.width, cam.height, cell_px, depth)
+                continue
             else:
                 m = mask[:tile.height * tile.width].reshape(tile.height, tile.width)
                 _, _, _, z, (AX, AY, s) = fixed_point_maps(geometry, dsm, tile, to_project, buffers=buffers, mask_out=m)
@@ -236,6 +280,23 @@ def zbuffer_occlusion(geometry: FrameGeometry, zbuffer: ZBuffer, heights_m: np.n
     _zbuffer_kernel(AX, AY, float(s), heights_m, centre, M, params, geometry.camera.width, geometry.camera.height,
                     float(zbuffer.cell_px), zbuffer.depth_m, float(zbuffer.tolerance_m), occ, False)
     return occ
+
+
+def zbuffer_occlusion_from_maps(geometry: FrameGeometry, zbuffer: ZBuffer, tile: OrthoGrid, map_int: np.ndarray,
+                                mask: np.ndarray, heights_m: np.ndarray, out: np.ndarray,
+                                near_share: np.ndarray | None = None) -> np.ndarray:
+    """``zbuffer_occlusion`` of a tile in the project CRS from its cv2.remap maps (``fixed_point_maps`` at the same
+    ``heights_m``): the image positions are not computed again; only imaged pixels (``mask``) are tested.
+    ``near_share`` (float32 like the tile): set where ``out`` is, to the nearer surface's depth / the point's
+    (for ``occlusion_mask``)."""
+    from ortho.rectify_kernels import _zbuffer_test_maps
+
+    centre, M, _ = geometry.kernel_args()
+    out[...] = False
+    near = np.empty(heights_m.shape, np.float32) if near_share is None else near_share
+    _zbuffer_test_maps(map_int, mask, heights_m, tile.x_left_m + 0.5 * tile.res_m, tile.y_top_m - 0.5 * tile.res_m,
+                       tile.res_m, centre, M, zbuffer.cell_px, zbuffer.depth_m, float(zbuffer.tolerance_m), out, near)
+    return out
 
 
 def _interpolation_flag(interpolation: str) -> int:
@@ -419,6 +480,10 @@ def rectify_frame(image: np.ndarray, camera: Camera, centre_m, R, dem_dataset: H
 
     # true ortho: the frame's z-buffer of the DSM first (the occluders of a tile can lie in any other tile)
     zbuffer = frame_zbuffer(geometry, occlusion_dsm, grid, to_project, tile_px) if occlusion_dsm is not None else None
+    bound = march_bound(occlusion_dsm) if occlusion_dsm is not None else None
+    # the maps are the image positions at the DSM's heights when the ortho is rectified on the DSM itself (as
+    # ``ortho rectify --true-ortho`` does) in the project CRS: the z-buffer test reads them instead of projecting again
+    maps_at_dsm = occlusion_dsm is not None and dem_dataset is occlusion_dsm and to_project.identity
 
     local = threading.local()
     # tile outputs handed to the consumer come from a pool and go back to it once consumed: fresh
@@ -443,16 +508,20 @@ def rectify_frame(image: np.ndarray, camera: Camera, centre_m, R, dem_dataset: H
             local.bounds = np.empty(4, np.int32)
             local.window = SourceWindow()
             local.occluded = np.empty(tile_px * tile_px, np.bool_)
+            local.near_share = np.empty(tile_px * tile_px, np.float32)
         handle, o, m = take_out_buffers(tile.height, tile.width)
         map_int, map_frac, _, z, anchors = fixed_point_maps(geometry, dem_dataset, tile, to_project,
                                                             buffers=local.buffers, mask_out=m, bounds_out=local.bounds)
         if zbuffer is not None:
             # the z-buffer is fast but coarse (where a wall spans few DSM cells it puts visible points behind the
             # roof edge above them): the points it puts behind a nearer surface are decided by the march
-            behind = zbuffer_occlusion(geometry, zbuffer, z, anchors,
-                                       out=local.occluded[:tile.height * tile.width].reshape(tile.height, tile.width))
+            occ_out = local.occluded[:tile.height * tile.width].reshape(tile.height, tile.width)
+            near = local.near_share[:tile.height * tile.width].reshape(tile.height, tile.width) if maps_at_dsm else None
+            behind = zbuffer_occlusion_from_maps(geometry, zbuffer, tile, map_int, m, z, occ_out, near) \
+                if maps_at_dsm else zbuffer_occlusion(geometry, zbuffer, z, anchors, out=occ_out)
             if behind.any():
-                occluded = occlusion_mask(geometry, occlusion_dsm, tile, z, anchors, candidates=behind)
+                occluded = occlusion_mask(geometry, occlusion_dsm, tile, z, anchors, candidates=behind, bound=bound,
+                                          near_share=near)
                 m[occluded] = 0
                 map_int[occluded] = -32768
         if not m.any():

@@ -167,15 +167,34 @@ def _fixed_point_kernel(anchor_x, anchor_y, spacing, rows, cols, dem, dem_x0, de
         _pack_fixed_point(ix_row, iy_row, map_int[r], map_frac[r], bounds)
 
 
+@numba.njit(cache=True, inline="always")
+def _steps_in_block(u, v, du, dv, bi, bj, block):
+    """Steps of (du, dv) DSM cells from (u, v) that stay in block (bi, bj) of ``block`` cells, at least 1: the
+    march's jump over a block its ray passes above (the position after the jump is the first one past it)."""
+    su = ((bj + 1) * block - u) / du if du > 1e-12 else ((u - bj * block) / -du if du < -1e-12 else 1e30)
+    sv = ((bi + 1) * block - v) / dv if dv > 1e-12 else ((v - bi * block) / -dv if dv < -1e-12 else 1e30)
+    return max(1, int(min(su, sv, 1e9)))
+
+
 @numba.njit(cache=True, nogil=True)
 def _occlusion_kernel(anchor_x, anchor_y, spacing, rows, cols, height_tile, dsm, dsm_x0, dsm_y0, dsm_res,
-                      dsm_max, centre, tolerance_m, occluded, candidates):
+                      dsm_max, centre, tolerance_m, occluded, candidates, block_max, block, coarse_max, coarse,
+                      near_share):
     """Mark ground points whose ray to the projection centre passes below the DSM surface.
 
     March from the ground point towards the centre in steps of one DSM cell (horizontally), stop when
     the ray is above the highest DSM value; occluded if the DSM exceeds the ray by ``tolerance_m``.
     Only the points where ``candidates`` is True are marched (the others are left as they are).
+    ``block_max`` (``_block_max`` of the DSM by ``block`` cells) and ``coarse_max`` (by ``coarse`` cells): where
+    the ray is above the highest height a sample in the current block reads, plus the tolerance, no step in that
+    block can find the ray occluded (the ray rises), so the march jumps to the first step past the block (the
+    coarse block first); the steps taken are at the same positions as one by one, so the result is the same.
+    ``near_share`` (float32 like the tile, or (1, 1) for none): where positive, the depth of the surface the
+    z-buffer puts in front of the point as a share of the point's depth; the steps around where the ray meets
+    that depth are tried first, and a hit there decides (the march would find the same or an earlier hit;
+    "occluded" is whether any step hits), else the march runs from the start.
     """
+    hinted = near_share.shape[0] == rows and near_share.shape[1] == cols
     dh, dw = dsm.shape
     inv_s = 1.0 / spacing
     for r in range(rows):
@@ -202,8 +221,36 @@ def _occlusion_kernel(anchor_x, anchor_y, spacing, rows, cols, height_tile, dsm,
             rise = vz / hd  # metres of ray height per metre horizontally
             ux = vx / hd
             uy = vy / hd
-            t = dsm_res
+            # u, v (DSM cell coordinates) change by du, dv per step of one cell
+            du = ux
+            dv = -uy
+            if hinted and near_share[r, c] > 0.0:
+                # the ray's depth falls linearly to 0 at the centre: it reaches the near surface's depth after
+                # a horizontal distance hd * (1 - share)
+                k0 = int(hd * (1.0 - near_share[r, c]) / dsm_res + 0.5)
+                hit = False
+                for k in range(max(1, k0 - 2), k0 + 3):
+                    t = k * dsm_res
+                    zr = Z + rise * t
+                    u = (X + ux * t - dsm_x0) / dsm_res - 0.5
+                    v = (dsm_y0 - (Y + uy * t)) / dsm_res - 0.5
+                    if zr > dsm_max or u < 0 or v < 0 or u > dw - 1 or v > dh - 1:
+                        continue
+                    di = min(int(v), dh - 2)
+                    dj = min(int(u), dw - 2)
+                    fv = v - di
+                    fu = u - dj
+                    zs = (dsm[di, dj] * (1 - fu) * (1 - fv) + dsm[di, dj + 1] * fu * (1 - fv)
+                          + dsm[di + 1, dj] * (1 - fu) * fv + dsm[di + 1, dj + 1] * fu * fv)
+                    if zs > zr + tolerance_m:
+                        hit = True
+                        break
+                if hit:
+                    occluded[r, c] = True
+                    continue
+            k = 1
             while True:
+                t = k * dsm_res
                 zr = Z + rise * t
                 if zr > dsm_max:
                     break
@@ -215,6 +262,12 @@ def _occlusion_kernel(anchor_x, anchor_y, spacing, rows, cols, height_tile, dsm,
                     break
                 di = min(int(v), dh - 2)
                 dj = min(int(u), dw - 2)
+                if coarse_max[di // coarse, dj // coarse] <= zr + tolerance_m:
+                    k += _steps_in_block(u, v, du, dv, di // coarse, dj // coarse, coarse)
+                    continue
+                if block_max[di // block, dj // block] <= zr + tolerance_m:
+                    k += _steps_in_block(u, v, du, dv, di // block, dj // block, block)
+                    continue
                 fv = v - di
                 fu = u - dj
                 zs = (dsm[di, dj] * (1 - fu) * (1 - fv) + dsm[di, dj + 1] * fu * (1 - fv)
@@ -222,7 +275,7 @@ def _occlusion_kernel(anchor_x, anchor_y, spacing, rows, cols, height_tile, dsm,
                 if zs > zr + tolerance_m:
                     occluded[r, c] = True
                     break
-                t += dsm_res
+                k += 1
 
 
 @numba.njit(cache=True, nogil=True, fastmath=_FASTMATH, error_model="numpy")
@@ -307,3 +360,148 @@ def _zbuffer_kernel(anchor_x, anchor_y, spacing, heights, centre, M, cam, width,
                     zbuf[i, j] = zc
             elif zc > zbuf[i, j] + tolerance_m:
                 occluded[r, c] = True
+
+
+@numba.njit(cache=True, inline="always", fastmath=_FASTMATH, error_model="numpy")
+def _fill_gap(x0, y0, z0, x1, y1, z1, flat_x, flat_y, cell_px, inv_cell, zbuf):
+    """Where two neighbouring surface points of the output grid land more than a cell apart in the image (a wall:
+    the DSM's ramp between roof edge and ground spans a DSM cell on the ground but many pixels in the image), the
+    surface between them, sampled along the image segment at less than a cell's spacing, depth perspective-correct
+    (1 / depth linear in the image), into the z-buffer: without it the ground seen through the wall's image has
+    no nearer surface in its cell and is not a candidate. ``flat_x, flat_y``: the image direction of the same
+    ground step on flat ground; a gap against it is a fold (a wall facing away, whose image the roof in front of
+    it covers): not filled."""
+    dx = x1 - x0
+    dy = y1 - y0
+    span = max(abs(dx), abs(dy))
+    if not span > cell_px or dx * flat_x + dy * flat_y <= 0.0:
+        return
+    zh, zw = zbuf.shape
+    n = int(span * inv_cell) + 1
+    inv0 = 1.0 / z0
+    inv1 = 1.0 / z1
+    for k in range(1, n):
+        t = k / n
+        x = x0 + t * dx
+        y = y0 + t * dy
+        i = min(int(y * inv_cell), zh - 1)
+        j = min(int(x * inv_cell), zw - 1)
+        z = 1.0 / ((1.0 - t) * inv0 + t * inv1)
+        if z < zbuf[i, j]:
+            zbuf[i, j] = z
+
+
+@numba.njit(cache=True, nogil=True, fastmath=_FASTMATH, error_model="numpy")
+def _zbuffer_scatter_affine(heights, x0, y0, res, centre, M, cam, width, height, cell_px, zbuf):
+    """The scatter pass of ``_zbuffer_kernel`` when the output grid is in the project CRS (ground X, Y affine in
+    (row, col), heights given on the grid): the projection is branch-free and vectorised as in
+    ``_fixed_point_kernel_affine``, positions and depth go to row arrays, and a second, scalar loop keeps the
+    nearest depth per cell and fills the gaps between neighbours (left and above) that land more than a cell apart
+    (``_fill_gap``). NaN heights fail the range test. Tiles must overlap by a row and a column for the gaps
+    across their edges."""
+    rows, cols = heights.shape
+    zh, zw = zbuf.shape
+    inv_cell = 1.0 / cell_px
+    m02, m12, m22 = M[0, 2], M[1, 2], M[2, 2]
+    m01, m11, m21 = M[0, 1], M[1, 1], M[2, 1]
+    sx, sy, sz = M[0, 0] * res, M[1, 0] * res, M[2, 0] * res
+    xs = np.empty((2, cols), np.float32)
+    ys = np.empty((2, cols), np.float32)
+    zcs = np.empty((2, cols), np.float32)
+    oks = np.zeros((2, cols), np.bool_)
+    for r in range(rows):
+        cur = r & 1
+        x_row, y_row, zc_row, ok_row = xs[cur], ys[cur], zcs[cur], oks[cur]
+        x_up, y_up, zc_up, ok_up = xs[1 - cur], ys[1 - cur], zcs[1 - cur], oks[1 - cur]
+        dx0 = x0 - centre[0]
+        dy = y0 - r * res - centre[1]
+        bx = M[0, 1] * dy + M[0, 0] * dx0
+        by = M[1, 1] * dy + M[1, 0] * dx0
+        bz = M[2, 1] * dy + M[2, 0] * dx0
+        z_row = heights[r]
+        for c in range(cols):
+            dz = np.float64(z_row[c]) - centre[2]
+            zc = bz + c * sz + m22 * dz
+            inv_zc = 1.0 / zc
+            xn = (bx + c * sx + m02 * dz) * inv_zc
+            yn = (by + c * sy + m12 * dz) * inv_zc
+            x, y = to_pixel(cam, xn, yn)
+            ok_row[c] = (zc > 0.0) & (x >= 0.0) & (y >= 0.0) & (x < width) & (y < height)
+            x_row[c] = x
+            y_row[c] = y
+            zc_row[c] = zc
+        for c in range(cols):
+            if not ok_row[c]:
+                continue
+            x, y, zc = x_row[c], y_row[c], zc_row[c]
+            i = min(int(y * inv_cell), zh - 1)
+            j = min(int(x * inv_cell), zw - 1)
+            if zc < zbuf[i, j]:
+                zbuf[i, j] = zc
+            # the image direction of a step of one column (one row) on flat ground is that of the normalised
+            # position's change (the sign of the dot product is all that is used: the lens model is left out)
+            if c > 0 and ok_row[c - 1] and max(abs(x - x_row[c - 1]), abs(y - y_row[c - 1])) > cell_px:
+                xn = (x - cam.cx) / cam.f
+                yn = (y - cam.cy) / cam.f
+                _fill_gap(x_row[c - 1], y_row[c - 1], zc_row[c - 1], x, y, zc, sx - xn * sz, sy - yn * sz, cell_px,
+                          inv_cell, zbuf)
+            if r > 0 and ok_up[c] and max(abs(x - x_up[c]), abs(y - y_up[c])) > cell_px:
+                xn = (x - cam.cx) / cam.f
+                yn = (y - cam.cy) / cam.f
+                _fill_gap(x_up[c], y_up[c], zc_up[c], x, y, zc, xn * m21 - m01, yn * m21 - m11, cell_px, inv_cell,
+                          zbuf)
+
+
+@numba.njit(cache=True, nogil=True, fastmath=_FASTMATH, error_model="numpy")
+def _zbuffer_test_maps(map_int, mask, heights, x0, y0, res, centre, M, cell_px, zbuf, tolerance_m, occluded,
+                       near_share):
+    """The test pass of ``_zbuffer_kernel`` reusing the tile's cv2.remap maps (the image position of every
+    imaged pixel at the same heights, ``_fixed_point_kernel_affine``): the cell from the integer position, the
+    depth along the optical axis affine in (row, col) and height; ``occluded`` where the imaged pixel
+    (``mask`` != 0) lies more than ``tolerance_m`` behind its cell's nearest surface (set, never cleared), and
+    there ``near_share`` = that surface's depth / the pixel's (where the march looks first)."""
+    rows, cols = heights.shape
+    zh, zw = zbuf.shape
+    sz = M[2, 0] * res
+    m22 = M[2, 2]
+    # cell of an integer position p >= 0: (p + 0.5) / cell_px lies strictly inside (p // cell_px, + 1), so the
+    # float product truncates to the integer division (which would cost tens of cycles per pixel)
+    inv_cell = 1.0 / cell_px
+    for r in range(rows):
+        dx0 = x0 - centre[0]
+        dy = y0 - r * res - centre[1]
+        bz = M[2, 1] * dy + M[2, 0] * dx0
+        z_row, mask_row, occ_row, int_row, near_row = heights[r], mask[r], occluded[r], map_int[r], near_share[r]
+        for c in range(cols):
+            if mask_row[c] == 0:
+                continue
+            zc = bz + c * sz + m22 * (np.float64(z_row[c]) - centre[2])
+            i = min(np.int32((int_row[c, 1] + 0.5) * inv_cell), zh - 1)
+            j = min(np.int32((int_row[c, 0] + 0.5) * inv_cell), zw - 1)
+            if zc > zbuf[i, j] + tolerance_m:
+                occ_row[c] = True
+                near_row[c] = zbuf[i, j] / zc
+
+
+@numba.njit(cache=True)
+def _block_max(dsm, block):
+    """Highest DSM height over blocks of ``block`` x ``block`` cells and the row and column after them (the
+    cells a bilinear sample in the block reads), NaN left out (-inf where all are NaN): the march's bound."""
+    dh, dw = dsm.shape
+    bh = (dh + block - 1) // block
+    bw = (dw + block - 1) // block
+    out = np.full((bh, bw), -np.inf, np.float32)
+    for i in range(dh):
+        for j in range(dw):
+            v = dsm[i, j]
+            if v != v:
+                continue
+            bi = i // block
+            bj = j // block
+            # cell (i, j) is read by samples in its own block and, on the block's first row/column, by the
+            # block before it
+            for ii in range(max(bi - (1 if i % block == 0 else 0), 0), bi + 1):
+                for jj in range(max(bj - (1 if j % block == 0 else 0), 0), bj + 1):
+                    if v > out[ii, jj]:
+                        out[ii, jj] = v
+    return out

@@ -76,3 +76,8 @@ class CheckSettings:
     max_ndsm_m: float = setting(0.5, help="Highest nDSM value (m) of a ground patch (with an nDSM).")
     patch_px: int = setting(48, min=MIN_PATCH_PX, help="Patch size (px).")
     search_px: int = setting(6, min=1, help="Search radius around each patch (px).")
+    roof_corners: Path | None = setting(None, path=True,
+                                        help="CSV with x,y columns: roof corners where the roofs are measured against a "
+                                             "true-ortho reference (default: with the simulator's truth/ortho.tif "
+                                             "as the reference the truth/roof_corners.csv beside it, else the outline "
+                                             "corners of the nDSM's buildings).")

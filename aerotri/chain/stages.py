@@ -239,6 +239,10 @@ class Chain:
 
             _check_raster(self.reference_ortho, "reference orthophoto")
             open_north_up(self.reference_ortho, "reference orthophoto").close()  # georeferenced, with a CRS
+            if self.roof_corners_path() is not None:
+                from ortho.check import read_roof_corners
+
+                read_roof_corners(self.roof_corners_path())
         if self.surveyed_points is not None:
             from lidarctl.heights_check import read_points_csv
 
@@ -289,7 +293,8 @@ class Chain:
                   self.run_mosaic, options=to_table(o.mosaic), skip=self.no_dem),
         ]
         if self.reference_ortho is not None:
-            stages.append(Stage("dom_check", lambda r: [self.project.mosaic_path, Path(self.reference_ortho)],
+            stages.append(Stage("dom_check", lambda r: [self.project.mosaic_path, Path(self.reference_ortho)]
+                                + ([self.roof_corners_path()] if self.roof_corners_path() else []),
                                 lambda r: [self.project.dom_report_path], self.run_dom_check,
                                 options=to_table(o.dom_check), skip=self.no_dem))
         if self.surveyed_points is not None:
@@ -626,6 +631,14 @@ class Chain:
         return R.MosaicResult(width_px=info["width"], height_px=info["height"])
 
     # -- checks and report ----------------------------------------------------------------------
+    def roof_corners_path(self) -> Path | None:
+        """The roof corners of the DOM check (``ortho.check.run_check``'s choice): [dom_check] roof_corners, else the
+        simulator's beside its true orthophoto as the reference, else None (the check finds roofs in the nDSM)."""
+        from ortho.check import simulator_roof_corners
+
+        given = self.options.dom_check.roof_corners
+        return Path(given) if given is not None else simulator_roof_corners(self.reference_ortho)
+
     def run_dom_check(self, root) -> R.DomCheckResult:
         from ortho.check import read_dom_check, run_check
 

@@ -113,6 +113,35 @@ def _check(check_id: str, section: str, name: str, value, limit, unit: str, note
     return QaCheck(check_id, section, name, value, limit, unit, note, verdict, key)
 
 
+def _roofs_row(section: str, dom_check, project: Project) -> QaCheck:
+    """The DOM check's roofs row (``ortho.check.DomCheck``): RMS of the displacements at roof corners, not judged
+    against the table (roofs stand in place only in a true ortho checked against a true orthophoto; in a conventional
+    ortho they lean by their relief displacement), with how many corners were measured, where they came from and
+    whether the frames are a true ortho."""
+    r = dom_check.roofs
+    source = dom_check.roof_corners_from or ""
+    if source.startswith("nDSM "):
+        source = "the outline corners of the nDSM's buildings"
+    elif source:
+        path = Path(source)
+        source = str(path.relative_to(project.root)) if path.is_relative_to(project.root) else str(path)
+    kind = ""
+    if project.frames_index_path.is_file():
+        from ortho.block import read_index
+
+        true_ortho = read_index(project.root).get("true_ortho")
+        kind = "; true ortho on the DSM" if true_ortho else "; conventional ortho (roofs lean)"
+    if not r.count:
+        why = dom_check.roofs_why or f"{dom_check.roof_corners or 0} roof corners, none measurable"
+        return _check("dom_roofs_rms_xy_m", section, "displacement at roof corners, plan RMS", None, None, "m",
+                      f"none measured ({why})")
+    gsd = r.rms_xy_gsd if r.rms_xy_gsd is not None else float("nan")
+    median_gsd = r.median_xy_m / r.gsd_m if r.median_xy_m is not None and r.gsd_m else float("nan")
+    return _check("dom_roofs_rms_xy_m", section, "displacement at roof corners, plan RMS", round(r.rms_xy_m, 4), None,
+                  "m", f"{r.count} of {dom_check.roof_corners} corners, {gsd:.2f} GSD, median {median_gsd:.2f} GSD; "
+                  f"corners: {source}{kind}; not judged")
+
+
 def _sigma0_limit_px(tol: dict, ks: KeyStatistics, s0_px: float) -> float | None:
     """The self-check limit of sigma naught in the camera's pixels: ``sigma0_max_px`` (digital cameras: a
     fraction of a pixel, whatever its size), or a contract's ``sigma0_max_um`` on the image over the pixel
@@ -378,6 +407,8 @@ def build_qa_report(root, tolerance_file=None, terrain: str | None = None, scale
             rows.append(_check("dom_p95_xy_m", sec, "95th percentile of the patch displacements", round(dom.p95_xy_m, 4),
                                2 * tol["feature_rms_xy_m"], "m", f"largest {largest:.3f} m; "
                                "limit 2 x the RMS limit (at most 5 % gross errors)", key="feature_rms_xy_m"))
+    if dom_check and dom_check.roofs is not None:
+        rows.append(_roofs_row(sec, dom_check, project))
     if project.frames_index_path.is_file() and (dom_check or project.mosaic_path.is_file()):
         from ortho.block import read_index, stale_frames
 

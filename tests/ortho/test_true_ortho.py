@@ -83,8 +83,10 @@ def test_the_dom_check_measures_roofs_against_the_true_orthophoto(block, tmp_pat
         for args in (["rectify", str(root)] + extra, ["mosaic", str(root)]):
             r = CliRunner().invoke(main, args)
             assert r.exit_code == 0, r.output
+        # the truth's true orthophoto as a reference of its own (no roof_corners.csv beside it): the nDSM's corners
+        shutil.copy(root / "truth" / "ortho.tif", root / "reference.tif")
         for corners in ("truth", "nDSM"):
-            args = ["check", str(root), "--reference", str(root / "truth" / "ortho.tif")]
+            args = ["check", str(root), "--reference", str(root / ("truth/ortho.tif" if corners == "truth" else "reference.tif"))]
             if corners == "truth":
                 args += ["--roof-corners", str(root / "truth" / "roof_corners.csv")]
             r = CliRunner().invoke(main, args)
@@ -101,12 +103,44 @@ def test_the_dom_check_measures_roofs_against_the_true_orthophoto(block, tmp_pat
     assert 60 <= reports["true", "nDSM"]["roofs"]["corners"] <= 100  # found in the nDSM (80 on this block)
     assert "roof_corners.csv" in reports["true", "truth"]["roofs"]["corners_from"]
     assert reports["true", "nDSM"]["roofs"]["corners_from"].startswith("nDSM ")
+    # the simulator's true orthophoto as the reference without --roof-corners: the truth's corners beside it, said so
+    root = tmp_path / "true"
+    r = CliRunner().invoke(main, ["check", str(root), "--reference", str(root / "truth" / "ortho.tif"), "--out",
+                                  str(tmp_path / "default")])
+    assert r.exit_code == 0, r.output
+    rep = json.loads((tmp_path / "default.json").read_text())
+    assert rep["roofs"] == reports["true", "truth"]["roofs"] | {"corners_from": str(root / "truth" / "roof_corners.csv")}
+    assert "simulator's roof corners" in rep["settings"]["roof_corners"]["note"]
     for corners in ("truth", "nDSM"):
         true, conv = reports["true", corners]["roofs"], reports["conventional", corners]["roofs"]
         # the synthetic roofs carry the ground's texture (no roof-like contrast), so the patches see mostly texture:
         # medians measured (seeds 7 and 11) 0.06 / 0.21 and 0.06 / 0.17 GSD; RMS is carried by single patches
         assert true["median_xy_gsd"] < 0.15, (corners, true)
         assert conv["median_xy_gsd"] > 2 * true["median_xy_gsd"], (corners, conv["median_xy_gsd"], true["median_xy_gsd"])
+
+
+def test_the_march_jumping_over_dsm_blocks_gives_the_step_by_step_result(block):
+    """The march jumps over the DSM blocks its ray passes above (``march_bound``) and tries first where the z-buffer's
+    nearer surface is: the same sample positions, so the same occlusion as stepping cell by cell, on every pixel."""
+    from ortho.rectify import MarchBound, march_bound
+
+    b = load_block(block)
+    i = b.eo.index()["s02_002"]
+    C, R = b.eo.centre_m[i], rotation_matrix_opk(*b.eo.opk_deg[i])
+    dsm = read_height_raster(block / "truth" / "dsm.tif", b.project_crs, "DSM")
+    to_project = GridToProject(b.project_crs, b.project_crs)
+    grid = frame_grid(b.camera, C, R, dsm, 0.2, b.project_crs, to_project)
+    geometry = FrameGeometry(b.camera, C, R)
+    _, _, mask, z, anchors = fixed_point_maps(geometry, dsm, grid, to_project)
+    bound = march_bound(dsm)
+    stepwise = MarchBound(bound.max_m, np.full_like(bound.block_max_m, np.inf), bound.block,
+                          np.full_like(bound.coarse_max_m, np.inf), bound.coarse)
+    jumping = occlusion_mask(geometry, dsm, grid, z, anchors, bound=bound)
+    assert (jumping & (mask > 0)).mean() > 0.002
+    assert np.array_equal(jumping, occlusion_mask(geometry, dsm, grid, z, anchors, bound=stepwise))
+    # a wrong hint (every point told its nearer surface is half way) changes nothing either
+    half = np.full(z.shape, 0.5, np.float32)
+    assert np.array_equal(jumping, occlusion_mask(geometry, dsm, grid, z, anchors, bound=bound, near_share=half))
 
 
 def test_true_ortho_seams_give_each_frame_one_region_and_the_mosaic_fills_what_its_frame_does_not_see(block, tmp_path):

@@ -186,14 +186,15 @@ def test_run_makes_the_true_ortho_on_the_lidar_dsm_unless_told_not_to(run_to_end
     assert " done " in rows["rectify"] and "ortho=conventional (DEM)" in rows["rectify"]
     assert "[rectify] true_ortho = false (the DSM lidar_out/dsm.tif is not used)" in r.stdout
     assert json.loads((p / "ortho" / "frames" / "index.json").read_text())["true_ortho"] is False
-    # the DOM check's roofs row (corners of the nDSM's buildings) against the simulator's true orthophoto
+    # the DOM check's roofs row against the simulator's true orthophoto, at the simulator's roof corners beside it
+    # (the chain's default for that reference since the roof corners were configurable; before, the nDSM's buildings
+    # were measured here: 0.60 against 4.74 GSD RMS)
     tables = {"true": table, "conventional": r.stdout}
     roofs = {way: json.loads((q / "ortho" / "dom_report.json").read_text())["roofs"]
              for way, q in (("true", p0), ("conventional", p))}
     for way, rf in roofs.items():
         assert rf["count"] >= 0.5 * rf["corners"], (way, rf["not_measured"])
         assert f"roofs_count={rf['count']}" in tables[way]
-    # measured: 0.60 against 4.74 GSD RMS
     assert roofs["true"]["rms_xy_gsd"] < 0.3 * roofs["conventional"]["rms_xy_gsd"], roofs
     # at the simulator's own roof corners (ortho check --roof-corners), same frames: measured 0.96 against 4.87 GSD
     rms = {}
@@ -205,7 +206,58 @@ def test_run_makes_the_true_ortho_on_the_lidar_dsm_unless_told_not_to(run_to_end
         assert r.stdout.splitlines()[1].startswith(f"roofs: {rep['count']} of {rep['corners']} corners: RMS ")
         assert rep["count"] >= 0.5 * rep["corners"]
         rms[way] = rep["rms_xy_gsd"]
+        # the chain's stage measured the same corners on the same DOM: the same figures
+        assert (roofs[way]["count"], roofs[way]["rms_xy_m"]) == (rep["count"], rep["rms_xy_m"]), way
     assert rms["true"] < 1.5 and rms["true"] < 0.3 * rms["conventional"], rms
+
+
+def test_the_chain_dom_check_measures_roofs_at_the_configured_or_the_simulator_corners(run_to_end, tmp_path):
+    """Issue 42: the chain's DOM check measures the roofs at ``[dom_check] roof_corners`` when configured, else at the
+    simulator's truth/roof_corners.csv when the reference is the simulator's truth/ortho.tif beside it (else the nDSM's
+    buildings); a bad corner file is refused before the first stage; ``aerotri report`` shows the roofs row."""
+    import csv
+
+    p0, _ = run_to_end
+    rep = json.loads((p0 / "ortho" / "dom_report.json").read_text())
+    assert rep["roofs"]["corners_from"] == str(p0 / "truth" / "roof_corners.csv")
+    assert rep["settings"]["roof_corners"]["source"] == "default"
+    assert "simulator's roof corners" in rep["settings"]["roof_corners"]["note"]
+    truth_rows = list(csv.DictReader(open(p0 / "truth" / "roof_corners.csv")))
+    assert rep["roofs"]["corners"] == len(truth_rows)
+    # the report's roofs row, not judged (no limit), with its corners and the kind of ortho
+    summary = json.loads((p0 / "reports" / "summary.json").read_text())
+    row = next(r for r in summary["checks"] if r["quantity"] == "displacement at roof corners, plan RMS")
+    assert row["value"] == round(rep["roofs"]["rms_xy_m"], 4) and row["limit"] is None and row["verdict"] is None
+    assert row["note"].startswith(f"{rep['roofs']['count']} of {len(truth_rows)} corners, ")
+    assert "corners: truth/roof_corners.csv; true ortho on the DSM" in row["note"]
+
+    p = tmp_path / "p"
+    shutil.copytree(p0, p)
+    mine = p / "my_corners.csv"  # every other corner of the truth's
+    with open(mine, "w", newline="") as f:
+        w = csv.writer(f)
+        w.writerow(["x", "y"])
+        w.writerows([(r["x"], r["y"]) for r in truth_rows[::2]])
+    with open(p / "project.toml", "a") as f:
+        f.write('\n[dom_check]\nroof_corners = "my_corners.csv"\n')
+    args = ["run", str(p), "--reference", str(p / "truth" / "ortho.tif"), "--points", str(p / "truth" / "checkpoints.csv")]
+    r = CliRunner().invoke(aerotri_cli, args, catch_exceptions=False)
+    assert r.exit_code == 0, r.output
+    rows = {line.split()[0]: line for line in r.stdout.splitlines() if line.strip()}
+    assert " done " in rows["dom_check"] and "up to date" in rows["mosaic"], (rows["dom_check"], rows["mosaic"])
+    rep = json.loads((p / "ortho" / "dom_report.json").read_text())
+    assert rep["roofs"]["corners"] == len(truth_rows[::2]) and rep["roofs"]["corners_from"] == str(mine)
+    assert rep["settings"]["roof_corners"]["source"] == "project.toml"
+    row = next(r for r in json.loads((p / "reports" / "summary.json").read_text())["checks"]
+               if r["quantity"] == "displacement at roof corners, plan RMS")
+    assert row["value"] == round(rep["roofs"]["rms_xy_m"], 4) and "corners: my_corners.csv;" in row["note"]
+    # a corner file without numbers: exit 2 naming its line, before any stage runs
+    mine.write_text("x,y\n452000.0,3407000.0\nabc,3407001.0\n")
+    before = sorted((p / "work" / "stages").glob("*.json"), key=lambda q: q.name)
+    stamps = [q.stat().st_mtime_ns for q in before]
+    r = CliRunner().invoke(aerotri_cli, args)
+    assert r.exit_code == 2 and f"{mine}:3: non-numeric x or y" in r.output, r.output
+    assert [q.stat().st_mtime_ns for q in before] == stamps
 
 
 def test_run_without_lidar_makes_the_tie_point_dem_or_uses_a_dem_from_elsewhere(tiny_project, tmp_path):

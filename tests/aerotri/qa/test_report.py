@@ -232,3 +232,30 @@ def test_a_stage_report_that_is_not_one_is_named(tmp_path):
     (p / "at" / "report.json").write_text("[1, 2]")
     with pytest.raises(InputError, match=r"report\.json: not a bundle adjustment report .*a JSON array"):
         write_qa_report(p)
+
+
+def test_the_dom_checks_roofs_row_is_shown_not_judged(tmp_path):
+    """Issue 42: the DOM check's roofs row (ortho check's ``roofs``, read through ``read_dom_check``) is a row of the
+    report with its corners, where they came from and the kind of ortho; no verdict (roofs lean in a conventional
+    ortho by design), so it never changes the overall verdict; a row without measured roofs says why."""
+    p = _project(tmp_path, [0.1, 0.1, 0.5], 0.18)
+    dom = json.loads((p / "ortho" / "dom_report.json").read_text())
+    dom["roofs"] = dict(count=412, gsd_m=0.4, rms_xy_m=3.2563, rms_xy_gsd=8.14, median_xy_m=1.78, corners=1156,
+                        corners_from=str(p / "truth" / "roof_corners.csv"), patch_m=24.0,
+                        not_measured=dict(outside_or_invalid=82, weak=54))
+    (p / "ortho" / "dom_report.json").write_text(json.dumps(dom))
+    (p / "ortho" / "frames").mkdir()
+    (p / "ortho" / "frames" / "index.json").write_text(json.dumps(dict(crs="EPSG:32649", res_m=0.4, true_ortho=False,
+                                                                       frames=[])))
+    rep = write_qa_report(p)
+    row = rep.check("dom_roofs_rms_xy_m")
+    assert row.quantity == "displacement at roof corners, plan RMS"
+    assert row.value == 3.2563 and row.limit is None and row.verdict is None and row.unit == "m"
+    assert row.note == ("412 of 1156 corners, 8.14 GSD, median 4.45 GSD; corners: truth/roof_corners.csv; "
+                        "conventional ortho (roofs lean); not judged")
+    assert json.loads((p / "reports" / "summary.json").read_text())["overall"] == "pass"
+    assert "displacement at roof corners" in (p / "reports" / "index.html").read_text()
+    dom["roofs"] = dict(count=0, why="the nDSM is in another CRS than the DOM")
+    (p / "ortho" / "dom_report.json").write_text(json.dumps(dom))
+    row = write_qa_report(p).check("dom_roofs_rms_xy_m")
+    assert row.value is None and row.note == "none measured (the nDSM is in another CRS than the DOM)"
