@@ -11,7 +11,7 @@ solved by gtsam's multifrontal Cholesky with a METIS ordering of the orientation
 solve with every tie point an explicit unknown of the gtsam graph (the form robust and self-calibrating
 solves use) runs too. Reported: wall time of each solve, their ratio,
 final reprojection RMS (px), RMS of projection centres and check points against the truth, and the time
-for the marginal covariances (poses, and all object points). Writes results/adjust_bench.json.
+for the marginal covariances (poses, and all object points). Writes bench/results/adjust_bench.json.
 
 ``--surface``: the same block with LiDAR surface control instead of pycolmap: a DEM (HeightGrid of the
 block's truth terrain at 2 m cells, sigma 0.15 m, in the block's CRS, SurfaceControl) observed by every
@@ -19,7 +19,7 @@ tie point; the production solve without and with the surface observations (same 
 their ratio and accuracy (centres, check points, tie points' height - DEM), the cost of one
 ``solve._surface_gate`` (the rays-only gate after every robust round) and, with ``--robust``, the robust
 adjust_block (Huber rounds, gate, data snooping; no covariances) without and with the DEM.
-Writes results/adjust_bench_surface.json.
+Writes bench/results/adjust_bench_surface.json.
 """
 
 from __future__ import annotations
@@ -186,7 +186,7 @@ def main(argv=None):
     a = ap.parse_args(argv)
     if a.surface:
         return surface_bench(a)
-    a.out = a.out or Path("results/adjust_bench.json")
+    a.out = a.out or Path("bench/results/adjust_bench.json")
     res = {}
     with tempfile.TemporaryDirectory() as tmp:
         tmp = Path(tmp)
@@ -340,7 +340,7 @@ def surface_bench(a):
     from aerotri.adjust.surface import SurfaceControl, surface_cost, whitened
     from aerotri.sim.clutter import terrain_grid
 
-    out = a.out or Path("results/adjust_bench_surface.json")
+    out = a.out or Path("bench/results/adjust_bench_surface.json")
     res = {}
     with tempfile.TemporaryDirectory() as tmp:
         block_t, ctx, state0, times = _bench_project(a, Path(tmp))

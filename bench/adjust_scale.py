@@ -17,12 +17,12 @@ projection centre and attitude difference to truth/eo.txt in the sigma eo.txt re
 normalised differences is about 1 when the sigmas are right; share within 3 sigma), and the check points.
 
     python bench/adjust_scale.py make OUT/b300 --frames 300
-    python bench/adjust_scale.py run OUT/b300 --label after [--pythonpath OLD_TREE] [--out results/adjust_scale.json]
+    python bench/adjust_scale.py run OUT/b300 --label after [--pythonpath OLD_TREE] [--out bench/results/adjust_scale.json]
     python bench/adjust_scale.py all OUT --sizes 300 1000 3000 10000
 
 Blocks by size (strips x frames per strip): 300 = 10 x 30, 1,000 = 20 x 50, 3,000 = 30 x 100,
 10,000 = 50 x 200. ``--pythonpath``: run another source tree's aerotri with this interpreter (the
-"before" column). Results go into ``results/adjust_scale.json`` under size and label.
+"before" column). Results go into ``bench/results/adjust_scale.json`` under size and label.
 """
 
 from __future__ import annotations
@@ -176,13 +176,13 @@ def main(argv=None):
     r.add_argument("root", type=Path)
     r.add_argument("--label", default="after")
     r.add_argument("--pythonpath", default=None)
-    r.add_argument("--out", type=Path, default=Path("results/adjust_scale.json"))
+    r.add_argument("--out", type=Path, default=Path("bench/results/adjust_scale.json"))
     a_ = sub.add_parser("all")
     a_.add_argument("root", type=Path)
     a_.add_argument("--sizes", type=int, nargs="+", default=[300, 1000, 3000, 10000])
     a_.add_argument("--label", default="after")
     a_.add_argument("--pythonpath", default=None)
-    a_.add_argument("--out", type=Path, default=Path("results/adjust_scale.json"))
+    a_.add_argument("--out", type=Path, default=Path("bench/results/adjust_scale.json"))
     a = ap.parse_args(argv)
     if a.cmd == "make":
         print(json.dumps(make_block(a.root, a.frames, points_per_image=a.points_per_image,

@@ -1,5 +1,5 @@
 """LiDAR classification (``classify_points``) before/after: CPU seconds per M points, peak RSS and the
-equality of the classes (issue 41) -> results/classify_speed.json.
+equality of the classes (issue 41) -> bench/results/classify_speed.json.
 
 "Before" is another source tree of the package (main's code), e.g.
     git -C /work/main archive main aerotri lidarctl | tar -x -C /work/tmp/main_src
@@ -124,7 +124,7 @@ def main() -> None:
     ap.add_argument("--work", required=True, help="scratch folder (inputs as .npz, classes)")
     ap.add_argument("--dmc", default="/work/bench_blocks/dmc_block_subset_3x8/lidar")
     ap.add_argument("--demo", default="/work/ref/demo_chain/project/lidar")
-    ap.add_argument("--out", default=str(ROOT / "results" / "classify_speed.json"))
+    ap.add_argument("--out", default=str(ROOT / "bench" / "results" / "classify_speed.json"))
     ap.add_argument("--only", nargs="*", help="inputs to run (demo, dmc_tile, dmc_10m, small)")
     args = ap.parse_args()
     inputs = prepare(args)

@@ -1,4 +1,4 @@
-"""Evaluate the block adjustment on simulated blocks with known truth -> results/adjust.json.
+"""Evaluate the block adjustment on simulated blocks with known truth -> bench/results/adjust.json.
 
 Cases (each: observations straight from the truth geometry, ``aerotri.sim.observations``):
 
@@ -102,7 +102,7 @@ def evaluate(root: Path, gsd_m: float, blunders: bool, n_control: int, seed: int
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--demo", type=Path, help="an existing simulator demo project (copied); default: simulate one")
-    ap.add_argument("--out", type=Path, default=Path("results/adjust.json"))
+    ap.add_argument("--out", type=Path, default=Path("bench/results/adjust.json"))
     a = ap.parse_args(argv)
     res = {"noise_px": NOISE_PX, "cases": {}}
     with tempfile.TemporaryDirectory() as tmp:

@@ -3,7 +3,7 @@
 Our classes are mapped onto the AHN3 scheme: 2 -> 2, 6 -> 6, 9 -> 9, everything else -> 1
 (AHN3 class 1 holds vegetation and street furniture; 26 civil structures has no counterpart).
 The file has no CRS record; EPSG:28992 is given explicitly (as `--crs EPSG:28992`).
-Writes results/lidar_ahn3.json. Run: .venv/bin/python bench/eval_ahn3.py
+Writes bench/results/lidar_ahn3.json. Run: .venv/bin/python bench/eval_ahn3.py
 """
 
 from __future__ import annotations
@@ -56,7 +56,7 @@ def main():
           f"water PA/UA {pa['9']:.2f} / {ua['9'] or 0.0:.2f} %")
     print(f"classify_points {seconds:.2f} s ({cpu_seconds:.2f} CPU s) on {len(c):,} points after a "
           f"{warm_s:.1f} s warm-up (JIT), load {load0[0]:.2f}")
-    out = REPO / "results" / "lidar_ahn3.json"
+    out = REPO / "bench" / "results" / "lidar_ahn3.json"
     out.write_text(json.dumps(res, indent=2))
     print(f"wrote {out}")
 

@@ -9,7 +9,7 @@ target asks). Rules:
 - ``rooftop_object_max_area_m2`` (``classify.rooftop_objects``): step-separated parts of a roof
   smaller than the area that stand above their surroundings are not building;
 - ``wall_multi_return``: multi-return points in the ring around a roof below its eave are walls.
-Writes results/lidar_ahn3_bldg_rules.json. Run: .venv/bin/python bench/eval_ahn3_bldg_rules.py
+Writes bench/results/lidar_ahn3_bldg_rules.json. Run: .venv/bin/python bench/eval_ahn3_bldg_rules.py
 """
 
 from __future__ import annotations
@@ -96,7 +96,7 @@ def main():
            "criteria": {"mean": "mean of building PA and UA (%) over the other three quarters",
                         "worst": "the lowest building PA or UA (%) over the other three quarters"},
            "variants": rows, "held_out": held_out}
-    dest = REPO / "results" / "lidar_ahn3_bldg_rules.json"
+    dest = REPO / "bench" / "results" / "lidar_ahn3_bldg_rules.json"
     dest.write_text(json.dumps(out, indent=2))
     print(f"wrote {dest}")
 

@@ -12,10 +12,10 @@ and by where the points lie:
 Quarters as bench/eval_ahn3_holdout.py (split at the median x and y). The false ground is also
 given without the ground refinement (``ground_lift_sigma`` 0: what the ground filter hands over).
 The bridge-deck rule (``classify.bridge_decks``: ground between two water gaps along a watercourse,
-above the quays -> 17) is shown by its own picture, results/ahn3_ground_errors_se.png: the
+above the quays -> 17) is shown by its own picture, bench/results/ahn3_ground_errors_se.png: the
 south-east quarter's false ground by truth class with the rule off and on, the deck points it finds
 and the dropout gaps (water without returns) it reads; per quarter the false ground without it.
-Writes results/lidar_ahn3_errors.json and results/ahn3_errors_<quarter>.png (errors over the
+Writes bench/results/lidar_ahn3_errors.json and bench/results/ahn3_errors_<quarter>.png (errors over the
 quarter: grey correct building, light grey correct ground; the legend counts each error kind).
 Run: .venv/bin/python bench/eval_ahn3_errors.py
 """
@@ -159,17 +159,17 @@ def main():
                                       "false_ground_by_truth"]},
                               "bridge_deck_points_by_truth": {str(int(t)): int(k) for t, k in zip(
                                   *np.unique(truth[m & (pred == classify.BRIDGE_DECK)], return_counts=True))}}
-        png = REPO / "results" / f"ahn3_errors_{name}.png"
+        png = REPO / "bench" / "results" / f"ahn3_errors_{name}.png"
         plot(png, name, c.x, c.y, truth, mapped, m)
         print(name, json.dumps(out["parts"][name]))
     spacing = grid.mean_spacing_m(c.x, c.y)
     labels, _, _, _, cell = classify.dropout_gaps(c.x, c.y, c.z, pred == 2, pred == 6, spacing,
                                                   classify.ClassifySettings())
     se = part == PARTS.index("south-east")
-    plot_ground_errors(REPO / "results" / "ahn3_ground_errors_se.png", c.x, c.y, truth,
+    plot_ground_errors(REPO / "bench" / "results" / "ahn3_ground_errors_se.png", c.x, c.y, truth,
                        {"south-east quarter, bridge rule off": nobridge, "bridge rule on (shipped)": pred},
                        (labels > 0, cell, float(c.x.min()), float(c.y.min())), se)
-    dest = REPO / "results" / "lidar_ahn3_errors.json"
+    dest = REPO / "bench" / "results" / "lidar_ahn3_errors.json"
     dest.write_text(json.dumps(out, indent=2))
     print(f"wrote {dest}")
 

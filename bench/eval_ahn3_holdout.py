@@ -8,14 +8,14 @@ quarter: building, ground and water PA/UA with parameters chosen elsewhere, next
 defaults and the grid point best on the whole crop (in-sample). The gap between the held-out and the
 in-sample figures is the over-fitting the habit exposes. Classes are mapped as in
 ``bench/eval_ahn3.py`` (2, 6, 9 kept; everything else 1).
-Writes results/lidar_ahn3_holdout.json. Run: .venv/bin/python bench/eval_ahn3_holdout.py
+Writes bench/results/lidar_ahn3_holdout.json. Run: .venv/bin/python bench/eval_ahn3_holdout.py
 ``--ground-only``: the building knobs stay at their defaults (one building grid point). The criterion
 is a sum of a building and a ground term and the factors are independent, so the ground parameters
 chosen per quarter and their held-out ground scores are those of the full run; the building
-figures are the defaults'. Writes results/lidar_ahn3_holdout_ground.json.
+figures are the defaults'. Writes bench/results/lidar_ahn3_holdout_ground.json.
 Ablations of the ground rules (with --ground-only): ``--no-bridge`` (bridge-deck rule off),
 ``--no-single`` (ground_lift_single fixed False: only multi-return last returns judged); they write
-results/lidar_ahn3_holdout_ground_<flags>.json.
+bench/results/lidar_ahn3_holdout_ground_<flags>.json.
 """
 
 from __future__ import annotations
@@ -165,7 +165,7 @@ def main():
     print(f"worst held-out: {worst}; target 95 % met: {out['target_met']}")
     name = "lidar_ahn3_holdout_ground" + "".join("_" + a[2:].replace("-", "") for a in ablations) if ground_only \
         else "lidar_ahn3_holdout"
-    dest = REPO / "results" / f"{name}.json"
+    dest = REPO / "bench" / "results" / f"{name}.json"
     dest.write_text(json.dumps(out, indent=2))
     print(f"wrote {dest}")
 

@@ -3,10 +3,10 @@
 ``ahn3_cropped_2.laz`` (208,432 points, east of the shared crop) is not in ../shared/data; it is
 in the tudelft3d/3dfier repository (example_data/ahn3/ahn3_cropped_2.laz, GPL-3), give its path.
 Scored: the shipped defaults and the grid point ``bench/eval_ahn3_holdout.py`` found best on the
-whole shared crop (read from results/lidar_ahn3_holdout.json): building, ground and water PA/UA in
+whole shared crop (read from bench/results/lidar_ahn3_holdout.json): building, ground and water PA/UA in
 the AHN3 scheme, over the whole crop and without bands of 5, 10 and 20 m along the crop's edges
 (the crop is 72 m wide and cuts buildings; production runs classify tiles with buffers).
-Writes results/lidar_ahn3_unseen.json.
+Writes bench/results/lidar_ahn3_unseen.json.
 Run: .venv/bin/python bench/eval_ahn3_unseen.py PATH/TO/ahn3_cropped_2.laz
 """
 
@@ -40,7 +40,7 @@ def main():
     c = io.read_cloud(args.laz, crs="EPSG:28992")
     truth = c.classification
     edge_m = np.minimum.reduce([c.x - c.x.min(), c.x.max() - c.x, c.y - c.y.min(), c.y.max() - c.y])
-    holdout = json.loads((REPO / "results" / "lidar_ahn3_holdout.json").read_text())
+    holdout = json.loads((REPO / "bench" / "results" / "lidar_ahn3_holdout.json").read_text())
     runs = {"default": {}, "best_on_shared_crop": holdout["best_on_whole_crop_params"]}
     out = {"data": f"{args.laz.name}: {len(c):,} points, {np.ptp(c.x):.0f} x {np.ptp(c.y):.0f} m, EPSG:28992",
            "source": "tudelft3d/3dfier example_data/ahn3/ahn3_cropped_2.laz (not in ../shared/data)",
@@ -62,7 +62,7 @@ def main():
     out["target_pct"] = 95.0
     out["target_met_whole_crop"] = bool(min(whole["building_pa_pct"], whole["building_ua_pct"],
                                             whole["ground_pa_pct"], whole["ground_ua_pct"]) >= 95.0)
-    path = REPO / "results" / "lidar_ahn3_unseen.json"
+    path = REPO / "bench" / "results" / "lidar_ahn3_unseen.json"
     path.write_text(json.dumps(out, indent=2))
     print(f"wrote {path}")
 

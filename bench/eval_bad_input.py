@@ -15,11 +15,11 @@ small LAS/LAZ files, strips, rasters, a line map), breaks one input, runs the co
 The accepted-input cases (``ACCEPTED``: unusual but valid inputs, e.g. a DEM in US feet) pass with exit 0.
 ``EXCHANGE_CASES`` (imports, whose checks another task of issue 39 owns) are run and reported, kind "exchange".
 
-    .venv/bin/python bench/eval_bad_input.py [--workspace DIR] [--json results/bad_input_issue39.json] [-k WORD]
+    .venv/bin/python bench/eval_bad_input.py [--workspace DIR] [--json bench/results/bad_input_issue39.json] [-k WORD]
 
 ``--workspace``: reuse (or build once into) this folder instead of a temporary one.
 
-The same corpus on the code before the fixes (results/bad_input_issue39_before.json): a worktree of that
+The same corpus on the code before the fixes (bench/results/bad_input_issue39_before.json): a worktree of that
 commit with this script and tests/test_bad_input.py copied in, run with it first on the path:
 
     git worktree add --detach /tmp/before b9c55f7

@@ -1,5 +1,5 @@
 """Real data: the Brighton Beach drone block (../shared/data/brighton_beach, 18 DJI FC300S frames, EXIF GNSS,
-no control) self-calibrated with and without the DEM of its own point cloud -> results/brighton.json.
+no control) self-calibrated with and without the DEM of its own point cloud -> bench/results/brighton.json.
 
 Issue 39: ``aerotri adjust P --self-cal focal,pp,radial`` took the focal length from 2121 to 2841 px (+34 %,
 reported sigma 14 px), put the tie points 10.5 m below the DEM of the block's ODM point cloud and said
@@ -26,7 +26,7 @@ length with the flying height; this script shows what the adjustment says now. S
 ``--before FILE``: the same numbers measured on main before this change (recorded, not reproduced here).
 
 Usage: python bench/eval_brighton.py [--data $AEROTRI_SHARED_DATA/brighton_beach, default ../shared/data/...] [--out /tmp/brighton]
-       [--results results/brighton.json] [--reuse]
+       [--results bench/results/brighton.json] [--reuse]
 """
 
 from __future__ import annotations
@@ -135,7 +135,7 @@ def main():
     shared = Path(os.environ.get("AEROTRI_SHARED_DATA", REPO.parent / "shared" / "data"))
     ap.add_argument("--data", type=Path, default=shared / "brighton_beach")
     ap.add_argument("--out", type=Path, default=Path("/tmp/eval_brighton"))
-    ap.add_argument("--results", type=Path, default=REPO / "results" / "brighton.json")
+    ap.add_argument("--results", type=Path, default=REPO / "bench" / "results" / "brighton.json")
     ap.add_argument("--before", type=Path, default=None, help="JSON of the numbers measured on main before")
     ap.add_argument("--reuse", action="store_true", help="keep the matched project and the DEM of an earlier run")
     args = ap.parse_args()

@@ -1,5 +1,5 @@
 """Brighton Beach orthos (issue 42): the mosaic's saturated share against its frames' after the gain limit, and the
-frame orthos with a DEM that covers part of the block -> results/brighton_ortho.json.
+frame orthos with a DEM that covers part of the block -> bench/results/brighton_ortho.json.
 
 Data: ../shared/data/brighton_beach (18 DJI FC300S frames, EXIF GNSS, ODM point cloud ``model.laz``; read only).
 The commands a user runs (``bench/eval_real_blocks.py``'s Brighton chain, through the same ``Runner``):
@@ -132,7 +132,7 @@ def main() -> None:
     default = Path(os.environ.get("AEROTRI_SHARED_DATA", "/work/shared/data"))
     ap.add_argument("--data", type=Path, default=default)
     ap.add_argument("--work", type=Path, default=REPO / "out" / "brighton_ortho")
-    ap.add_argument("--out", type=Path, default=REPO / "results" / "brighton_ortho.json")
+    ap.add_argument("--out", type=Path, default=REPO / "bench" / "results" / "brighton_ortho.json")
     ap.add_argument("--reuse", action="store_true", help="keep the adjusted project of an earlier run in --work (the "
                                                           "orthos only; its commands are not recorded again)")
     args = ap.parse_args()

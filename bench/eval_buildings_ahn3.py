@@ -30,7 +30,7 @@ Outline plan accuracy: the vertices of our regularised roof outlines (``lidarctl
 blocks: signed distance (positive: outside the footprint, the eave), RMS, mean and RMS about the
 mean of the vertices within 2 m (``outline_plan_offsets``).
 
-Writes results/buildings_ahn3.json and results/buildings_ahn3.png (agreement map: found, missed,
+Writes bench/results/buildings_ahn3.json and bench/results/buildings_ahn3.png (agreement map: found, missed,
 false building cells, footprints outlined).
 """
 
@@ -167,7 +167,7 @@ def picture(pred: Path, ref: Path, hulls: list, out: Path, title: str) -> None:
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--data", type=Path, default=SHARED / "ahn3_delft")
-    ap.add_argument("--out", type=Path, default=REPO / "results")
+    ap.add_argument("--out", type=Path, default=REPO / "bench" / "results")
     args = ap.parse_args(argv)
     laz = args.data / "ahn3_cropped_1.laz"
     if not laz.is_file():

@@ -21,8 +21,8 @@ over the footprints whose centroid has LiDAR points within 2 m (the crop covers 
 The classification runs with the shipped defaults; with ``--params FILE`` (JSON of ClassifySettings
 overrides per quarter, e.g. the ones chosen on the other three quarters by
 bench/eval_classify_nested.py --ahn3) each quarter is scored on its own classification; ``--nested`` takes
-them from results/classify_nested.json (the nested folds' choices).
-Writes results/buildings_bgt.json. Run: nice .venv/bin/python bench/eval_buildings_bgt.py --nested
+them from bench/results/classify_nested.json (the nested folds' choices).
+Writes bench/results/buildings_bgt.json. Run: nice .venv/bin/python bench/eval_buildings_bgt.py --nested
 """
 
 from __future__ import annotations
@@ -139,7 +139,7 @@ def main(argv=None) -> int:
     x_split, y_split = float(np.median(c.x)), float(np.median(c.y))
     per_part = json.loads(Path(argv[argv.index("--params") + 1]).read_text()) if "--params" in argv else {}
     if "--nested" in argv:   # the configurations chosen without each quarter (bench/eval_classify_nested.py --ahn3)
-        folds = json.loads((REPO / "results" / "classify_nested.json").read_text())["ahn3"]["nested"]["folds"]
+        folds = json.loads((REPO / "bench" / "results" / "classify_nested.json").read_text())["ahn3"]["nested"]["folds"]
         per_part = {name: f["chosen"] for name, f in folds.items()}
     t0 = time.perf_counter()
     with tempfile.TemporaryDirectory(prefix="eval_buildings_bgt_") as tmp:
@@ -180,7 +180,7 @@ def main(argv=None) -> int:
     vd = result["vectors_defaults"]
     print(f"vectors: centroid in the building layer {vd['centroid_in_building_layer']}/"
           f"{vd['footprints_covered_by_the_crop']} ({vd['centroid_in_building_layer_pct']:.1f} %)")
-    out = REPO / "results" / "buildings_bgt.json"
+    out = REPO / "bench" / "results" / "buildings_bgt.json"
     out.write_text(json.dumps(result, indent=2))
     print(f"wrote {out}")
     return 0

@@ -23,7 +23,7 @@ and ground PA and UA (%), grid of bench/eval_ahn3_holdout.py (building and groun
 
 Per-sample errors of every grid point are cached in $NESTED_CACHE (default <tmp>/aerotri_nested_cache)
 so that a rerun does not reclassify.
-Writes results/classify_nested.json (both parts kept: a run of one part keeps the other's entry).
+Writes bench/results/classify_nested.json (both parts kept: a run of one part keeps the other's entry).
 Run: nice .venv/bin/python bench/eval_classify_nested.py [--isprs] [--ahn3]
 """
 
@@ -44,7 +44,7 @@ from lidar_common import DATA, REPO, SAMPLES, grid_points  # noqa: E402
 from lidarctl import evaluate, grid, ground, io, noise  # noqa: E402
 
 CACHE = Path(os.environ.get("NESTED_CACHE", Path(tempfile.gettempdir()) / "aerotri_nested_cache"))
-RESULT = REPO / "results" / "classify_nested.json"
+RESULT = REPO / "bench" / "results" / "classify_nested.json"
 
 # Knobs of the morphological filter (physical meaning in lidarctl.ground.MorphSettings) and rule
 # switches: surface_height_m None = local-surface test off; refine_angle_deg 0 = TIN angle criterion

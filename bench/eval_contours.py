@@ -10,7 +10,7 @@ side) sampled at the centres of 1 m cells over 800 x 1200 m, as a GeoTIFF in UTM
 - the vertical error of the vertices (traced, B-spline, tension) against the true terrain;
 - crossings after each smoothing (shapely; must be 0);
 - both commands timed in fresh processes, same run: the speed ratio (wall and CPU).
-Writes results/contours.json and results/contours_sim.png (our B-spline contours over the hillshade).
+Writes bench/results/contours.json and bench/results/contours_sim.png (our B-spline contours over the hillshade).
 Run: .venv/bin/python bench/eval_contours.py
 """
 
@@ -157,7 +157,7 @@ def main():
                 row["vertical_error"][method] = vertical_error(scene, lines, lev) | {
                     "crossings": crossings(cs), "message": r.stdout.strip()}
                 if seed == 2 and method == "bspline":
-                    shutil.copy(out.with_suffix(".png"), REPO / "results" / "contours_sim.png")
+                    shutil.copy(out.with_suffix(".png"), REPO / "bench" / "results" / "contours_sim.png")
             res["seeds"][str(seed)] = row
             print(seed, json.dumps(row["vs_gdal"]), json.dumps(row["timing"]), flush=True)
     finally:
@@ -170,7 +170,7 @@ def main():
                                          for m in ("bspline", "tension")),
         "speed_ratio_gdal_over_ours_wall": min(r["speed_ratio_gdal_over_ours_wall"] for r in res["seeds"].values()),
     }
-    (REPO / "results" / "contours.json").write_text(json.dumps(res, indent=2) + "\n")
+    (REPO / "bench" / "results" / "contours.json").write_text(json.dumps(res, indent=2) + "\n")
     print(json.dumps(res["summary"]))
 
 

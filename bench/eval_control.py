@@ -1,4 +1,4 @@
-"""Control transfer on the simulator ``demo`` preset -> results/control.json.
+"""Control transfer on the simulator ``demo`` preset -> bench/results/control.json.
 
 Chain (no truth used for control): copy of a simulated demo project with matched tie points
 (/tmp/simdemo, or simulated + matched here) -> adjust with tie points + GNSS only -> lidarctl corners on
@@ -133,7 +133,7 @@ def main(argv=None):
     ap = argparse.ArgumentParser()
     ap.add_argument("--demo", default="/tmp/simdemo", help="simulated demo project with at/tiepoints.csv (read only)")
     ap.add_argument("--work", default="/tmp/eval_control")
-    ap.add_argument("--out", default=str(REPO / "results" / "control.json"))
+    ap.add_argument("--out", default=str(REPO / "bench" / "results" / "control.json"))
     a = ap.parse_args(argv)
     demo, work = Path(a.demo), Path(a.work)
     if work.exists():

@@ -1,6 +1,6 @@
 """Real data: the Coal Oil Point kite block (../shared/data/copr_kite: 22 Canon frames, no GNSS, 10 painted targets
 surveyed with averaged handheld GNSS) end to end with the documented commands (docs/blocks-without-gnss.md) ->
-results/copr_kite.json.
+bench/results/copr_kite.json.
 
 The commands, run as a user runs them (each timed):
 
@@ -131,7 +131,7 @@ def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--data", type=Path, default=REPO.parent / "shared" / "data" / "copr_kite")
     ap.add_argument("--work", type=Path, default=None, help="keep the project here (default: a temporary folder)")
-    ap.add_argument("--out", type=Path, default=REPO / "results" / "copr_kite.json")
+    ap.add_argument("--out", type=Path, default=REPO / "bench" / "results" / "copr_kite.json")
     a = ap.parse_args(argv)
     if not a.data.is_dir():
         sys.exit(f"copr_kite data not found at {a.data}")

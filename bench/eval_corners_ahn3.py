@@ -3,16 +3,16 @@
     .venv/bin/python bench/eval_corners_ahn3.py [--data ../shared/data/ahn3_delft] [--out results]
     .venv/bin/python bench/eval_corners_ahn3.py --laz PATH/ahn3_cropped_2.laz --name crop2
 
-Writes results/corners_ahn3.json, results/corners_ahn3.png (outlines, corners and footprints over
-the nDSM), results/corners_ahn3_misses.png (zoomed on the reference vertices with an outline but no corner:
+Writes bench/results/corners_ahn3.json, bench/results/corners_ahn3.png (outlines, corners and footprints over
+the nDSM), bench/results/corners_ahn3_misses.png (zoomed on the reference vertices with an outline but no corner:
 ``outline_but_no_corner_detail`` says what the tracing did there) and the corner files themselves under out/corners_ahn3/.
 
 Unseen crop (``--laz PATH --name NAME``): another crop of the same survey that no parameter was ever
 chosen on, e.g. ``ahn3_cropped_2.laz`` (tudelft3d/3dfier example_data/ahn3, GPL-3, directly east of
 the shared crop; not in ../shared/data, so no test needs it). The same extraction and scoring against
-the BGT footprint vertices inside that crop; its figures go into results/corners_ahn3.json under
+the BGT footprint vertices inside that crop; its figures go into bench/results/corners_ahn3.json under
 ``unseen_NAME`` (the shared crop's stay as they are; a rerun of the shared crop keeps them) and the
-picture into results/corners_ahn3_NAME.png. ``whole_crop_by_reference_set`` sums up each crop with
+picture into bench/results/corners_ahn3_NAME.png. ``whole_crop_by_reference_set`` sums up each crop with
 exact 95 % intervals of the completeness: the reference sets hold a few dozen vertices (crop 2: six
 with both edges >= 5 m), so one vertex moves a completeness by 4-17 points.
 
@@ -372,7 +372,7 @@ def detect(cloud, min_edge_m: float | None) -> tuple[dict, float]:
 
 def evaluate(laz: Path, polys: list, min_edge_m: float, corner_dir: Path, dataset: str) -> tuple[dict, dict]:
     """Corners of one AHN3 crop scored against the BGT footprint vertices inside it: (summary for
-    results/corners_ahn3.json, what the figure needs)."""
+    bench/results/corners_ahn3.json, what the figure needs)."""
     import pyproj
 
     cloud = read_classified_cloud(laz)
@@ -504,7 +504,7 @@ def _num(v, digits: int) -> str:
 def main():
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--data", type=Path, default=SHARED / "ahn3_delft")
-    ap.add_argument("--out", type=Path, default=REPO / "results")
+    ap.add_argument("--out", type=Path, default=REPO / "bench" / "results")
     ap.add_argument("--min-edge-m", type=float, default=None,
                     help="the detector's min_edge_m (default: the stage's default, density-adaptive)")
     ap.add_argument("--laz", type=Path, default=None,

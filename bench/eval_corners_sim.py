@@ -5,7 +5,7 @@
 Simulates the demo project into --project if it does not exist (``aerotri sim --preset demo``), runs the
 corner detector on the truth-classified strips ``truth/lidar/strip_*.las`` (the classifier's output
 can be given instead with --classified), matches the reported corners to ``truth/roof_corners.csv``
-(nearest true corner within 1 m) and writes results/corners_sim.json and results/corners_sim.png.
+(nearest true corner within 1 m) and writes bench/results/corners_sim.json and bench/results/corners_sim.png.
 
 Issue 4 targets: usable corners within 0.20 m RMS horizontally and 0.15 m vertically; >= 80 % of the
 true corners of flat-roof buildings of at least 10 x 10 m found; <= 2 % of the reported corners match
@@ -49,7 +49,7 @@ def rms(a) -> float | None:
 def main():
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--project", type=Path, default=REPO / "out" / "sim_demo")
-    ap.add_argument("--out", type=Path, default=REPO / "results")
+    ap.add_argument("--out", type=Path, default=REPO / "bench" / "results")
     ap.add_argument("--classified", default="truth", help="'truth' (truth/lidar/*.las) or a classified LAS/LAZ file")
     ap.add_argument("--roof", default="flat", choices=["flat", "any"])
     ap.add_argument("--min-edge-m", type=float, default=None,

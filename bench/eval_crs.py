@@ -1,6 +1,6 @@
 """Evaluate aerotri.crs: Gauss-Krueger against PROJ, parameter recovery, zone straddling, LAS throughput.
 
-Writes ``results/crs.json``. Run: ``.venv/bin/python bench/eval_crs.py`` (about a minute).
+Writes ``bench/results/crs.json``. Run: ``.venv/bin/python bench/eval_crs.py`` (about a minute).
 """
 
 from __future__ import annotations
@@ -224,7 +224,7 @@ def main():
     results["zone_36_37_straddle"] = zone_straddle()
     results["las_transform"] = las_throughput()
     results["runtime_s"] = time.perf_counter() - t0
-    out = REPO / "results" / "crs.json"
+    out = REPO / "bench" / "results" / "crs.json"
     out.parent.mkdir(exist_ok=True)
     out.write_text(json.dumps(results, indent=2) + "\n")
     print(json.dumps({k: v for k, v in results.items() if k != "gauss_kruger_vs_proj"}, indent=1)[:6000])

@@ -16,7 +16,7 @@ Needs the adjusted demo project of ``make demo``. For each datum the script, as 
 5. compares the fitted set with the true set where it is used (what the user cannot see): positions of
    a grid over the block transformed both ways (single parameters are highly correlated over a
    block-sized area and say little on their own).
-Writes ``results/crs_dom.json``.
+Writes ``bench/results/crs_dom.json``.
 """
 
 from __future__ import annotations
@@ -94,7 +94,7 @@ def pixel_centre_errors(project: Path, params: Path, to_epsg: int, tmp: Path, st
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--project", type=Path, default=REPO / "out" / "demo" / "project")
-    ap.add_argument("--out", type=Path, default=REPO / "results")
+    ap.add_argument("--out", type=Path, default=REPO / "bench" / "results")
     args = ap.parse_args(argv)
     if not (args.project / "at" / "eo.txt").is_file() or not (args.project / "ortho" / "mosaic.tif").is_file():
         raise SystemExit(f"{args.project}: run `make demo` first (needs the adjusted demo project and its mosaic)")

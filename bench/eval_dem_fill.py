@@ -12,7 +12,7 @@ scene's true terrain at every cell centre inside the survey (20 m in from the ed
 without any ground point (under buildings, under crowns), where the fill decides.
 
 No parameter is chosen here: the fill radius is the default (64 cells), fixed before this run.
-Writes results/dem_fill.json. Run: .venv/bin/python bench/eval_dem_fill.py
+Writes bench/results/dem_fill.json. Run: .venv/bin/python bench/eval_dem_fill.py
 """
 
 from __future__ import annotations
@@ -134,7 +134,7 @@ def main():
                         if isinstance(v, dict) and "rmse_m" in v}, flush=True)
     res["simulator_demo_seed2_1m_truth_classes"] = sim()
     res["seconds"] = time.perf_counter() - t0
-    out = REPO / "results" / "dem_fill.json"
+    out = REPO / "bench" / "results" / "dem_fill.json"
     out.write_text(json.dumps(res, indent=1) + "\n")
     print(out)
 

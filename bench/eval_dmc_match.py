@@ -8,7 +8,7 @@ come from GNSS. The target of issue 41: peak memory under 3 GB whatever the fram
 ``aerotri.geom.images.read_gray_level``). Tie points: ``aerotri.sim.evaluate.tie_point_errors`` (each track
 intersected with the true orientations; residuals in full-resolution pixels).
 
-Writes results/dmc_match.json (one entry per block folder name).
+Writes bench/results/dmc_match.json (one entry per block folder name).
 
 Usage:
   python bench/eval_dmc_match.py
@@ -31,7 +31,7 @@ ROOT = Path(__file__).resolve().parents[1]
 BIN = Path(sys.executable).parent
 sys.path.insert(0, str(ROOT))
 
-RESULT = ROOT / "results" / "dmc_match.json"
+RESULT = ROOT / "bench" / "results" / "dmc_match.json"
 BLOCKS = Path(os.environ.get("AEROTRI_BENCH_BLOCKS", "/work/bench_blocks"))
 LIMIT_PEAK_GB = 3.0
 

@@ -18,7 +18,7 @@ gnss.txt, images/) are hard-linked into ``--work`` (kept when it exists, so late
 outputs). After the adjustment the orientations against truth/eo.txt (in GSD); after the check, the DOM's RMS
 against the truth orthophoto in GSD.
 
-Writes results/dmc_stages.json (entry per block folder name; stages kept across runs).
+Writes bench/results/dmc_stages.json (entry per block folder name; stages kept across runs).
 
 Usage:
   python bench/eval_dmc_stages.py                                   # all stages on dmc_block_subset_3x8
@@ -43,7 +43,7 @@ ROOT = Path(__file__).resolve().parents[1]
 BIN = Path(sys.executable).parent
 sys.path.insert(0, str(ROOT))
 
-RESULT = ROOT / "results" / "dmc_stages.json"
+RESULT = ROOT / "bench" / "results" / "dmc_stages.json"
 BLOCKS = Path(os.environ.get("AEROTRI_BENCH_BLOCKS", "/work/bench_blocks"))
 STAGES = ("match", "adjust", "control", "adjust_final", "rectify", "mosaic", "peer_mosaic", "check")
 from mosaic_speed import PEER  # noqa: E402 - the mosaic's peer command, one definition (bench/ is sys.path[0])
@@ -76,7 +76,7 @@ def command(stage: str, work: Path, block: Path, dem: Path) -> list[str]:
 def write_truth_ndsm(block: Path, out: Path) -> None:
     """The truth nDSM (truth/dsm.tif - truth/dem.tif, one grid), standing in for lidar_out/ndsm.tif: without it
     ``aerotri adjust --dem`` holds roof and tree tie points to the ground too (robust rounds only; on this
-    built-up block: check points 5.2 GSD in plan, 25 GSD in height, results/dmc_stages_control.json)."""
+    built-up block: check points 5.2 GSD in plan, 25 GSD in height, bench/results/dmc_stages_control.json)."""
     import rasterio
 
     with rasterio.open(block / "truth" / "dem.tif") as a, rasterio.open(block / "truth" / "dsm.tif") as b:

@@ -24,11 +24,11 @@ Measured:
   seed 2 and scored on seed 3;
 - memory: the peak RSS of ``drainage()`` on a 2000 x 2000 DEM in a fresh process, less the same process
   before the call, per cell;
-- pictures: results/drainage_sim.png (seed 3 through the whole command, streams from its GeoPackage over
-  the hillshade, the true thalweg under them in gold) and results/drainage_lidr.png (the command's preview on the DEM
+- pictures: bench/results/drainage_sim.png (seed 3 through the whole command, streams from its GeoPackage over
+  the hillshade, the true thalweg under them in gold) and bench/results/drainage_lidr.png (the command's preview on the DEM
   that ``lidarctl rasters`` makes of ../shared/data/lidr_topography, 2 m cells: 8,159 ground points over
   288 x 288 m leave most 1 m cells to the gap filling).
-Writes results/drainage.json. Run: .venv/bin/python bench/eval_drainage.py (with the bench extra installed).
+Writes bench/results/drainage.json. Run: .venv/bin/python bench/eval_drainage.py (with the bench extra installed).
 """
 
 from __future__ import annotations
@@ -361,7 +361,7 @@ def lidr(work, results, method):
 
 
 def main():
-    results = REPO / "results"
+    results = REPO / "bench" / "results"
     work = Path(tempfile.mkdtemp(prefix="bench_drainage_"))
     res = {"res_m": RES_M, "area_m": [W_M, H_M], "noise_m": NOISE_M, "min_area_m2": MIN_AREA_M2,
            "load_average_1min_start": os.getloadavg()[0], "seeds": {}}

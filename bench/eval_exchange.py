@@ -1,4 +1,4 @@
-"""Round trips of the exchange formats -> results/exchange_roundtrip.json.
+"""Round trips of the exchange formats -> bench/results/exchange_roundtrip.json.
 
 - ``simulated``: small geometric blocks (2 strips x 5 frames, seeds 7 and 11) adjusted with self-calibration,
   exported (odm, patb, colmap, orthority, metashape) and imported into fresh projects. Reported per format: the
@@ -11,7 +11,7 @@
   difference of OpenSfM's projection of the ODM surface model's points (inside each frame's field of view)
   through the original and the written reconstruction.
 
-Usage: python bench/eval_exchange.py [--data ../shared/data] [--out results/exchange_roundtrip.json]
+Usage: python bench/eval_exchange.py [--data ../shared/data] [--out bench/results/exchange_roundtrip.json]
 """
 
 from __future__ import annotations
@@ -152,7 +152,7 @@ def tuniu(data: Path, work: Path) -> dict:
 def main():
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--data", type=Path, default=Path(os.environ.get("AEROTRI_SHARED_DATA", "../shared/data")))
-    ap.add_argument("--out", type=Path, default=Path("results/exchange_roundtrip.json"))
+    ap.add_argument("--out", type=Path, default=Path("bench/results/exchange_roundtrip.json"))
     a = ap.parse_args()
     with tempfile.TemporaryDirectory(prefix="eval-exchange-") as tmp:
         work = Path(tmp)

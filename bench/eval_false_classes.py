@@ -12,7 +12,7 @@ Their own classes are incomplete, so only what the truth can judge is counted:
   inside it missed ones (the crop has no building).
 - ``laspy_nebraska`` (a 18 x 12 m single-return tile, classes 2-7): vegetation (3/4/5) classified
   building, building producer's and user's accuracy.
-Writes results/lidar_false_classes.json. Run: .venv/bin/python bench/eval_false_classes.py
+Writes bench/results/lidar_false_classes.json. Run: .venv/bin/python bench/eval_false_classes.py
 """
 
 from __future__ import annotations
@@ -121,7 +121,7 @@ def main():
     out["bridge_deck_target_met"] = all(out[k]["bridge_deck"] == 0 for k in ("lidr_topography", "autzen", "laspy_nebraska"))
     out["footbridge_target_met"] = out["autzen"]["building_on_the_bridge"] == 0
     print(json.dumps(out, indent=2))
-    path = REPO / "results" / "lidar_false_classes.json"
+    path = REPO / "bench" / "results" / "lidar_false_classes.json"
     path.write_text(json.dumps(out, indent=2))
     print(f"wrote {path}")
 

@@ -1,11 +1,11 @@
-"""Flight acceptance of a simulated project (default: make demo's out/demo/project) -> results/flight_demo.json.
+"""Flight acceptance of a simulated project (default: make demo's out/demo/project) -> bench/results/flight_demo.json.
 
 Two rows per check: from the project as the reports see it (at/eo.txt with the adjusted camera, footprints
 on lidar_out/dem.tif; ``aerotri.adjust.flight_acceptance.project_flight_acceptance``) and from the
 simulator's truth (truth/eo.txt, truth/camera.toml, truth/dem.tif): the adjustment should not change the
 verdicts. Limits: the project's tolerance table.
 
-Usage: python bench/eval_flight_demo.py [PROJECT] [--results results/flight_demo.json]
+Usage: python bench/eval_flight_demo.py [PROJECT] [--results bench/results/flight_demo.json]
 """
 
 from __future__ import annotations
@@ -30,7 +30,7 @@ from aerotri.geom.eo import read_eo  # noqa: E402
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("project", type=Path, nargs="?", default=REPO / "out" / "demo" / "project")
-    ap.add_argument("--results", type=Path, default=REPO / "results" / "flight_demo.json")
+    ap.add_argument("--results", type=Path, default=REPO / "bench" / "results" / "flight_demo.json")
     a = ap.parse_args(argv)
     if not (a.project / "project.toml").is_file():
         print(f"skip: {a.project} is no project folder (run make demo first)")

@@ -1,4 +1,4 @@
-"""Flight acceptance of the NGI block (4 real Z/I DMC frames, 2 strips) -> results/flight_ngi.json.
+"""Flight acceptance of the NGI block (4 real Z/I DMC frames, 2 strips) -> bench/results/flight_ngi.json.
 
 Reads ../shared/data/ngi_dmc directly: the national AT's orientations (``camera_pos_ori.txt``, and the
 same in ``formats/ngi_xyz_opk.csv`` as a cross-check), the interior orientation
@@ -8,7 +8,7 @@ same in ``formats/ngi_xyz_opk.csv`` as a cross-check), the interior orientation
 table. The frames are a subset of the flight (``..._05_0182`` and ``_0184``: every second exposure), so
 the forward overlap between them is not the flight's.
 
-Usage: python bench/eval_flight_ngi.py [--data ../shared/data/ngi_dmc] [--results results/flight_ngi.json]
+Usage: python bench/eval_flight_ngi.py [--data ../shared/data/ngi_dmc] [--results bench/results/flight_ngi.json]
 """
 
 from __future__ import annotations
@@ -57,7 +57,7 @@ def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--data", type=Path, default=Path(os.environ.get("AEROTRI_SHARED_DATA", REPO.parent / "shared" / "data"))
                     / "ngi_dmc")
-    ap.add_argument("--results", type=Path, default=REPO / "results" / "flight_ngi.json")
+    ap.add_argument("--results", type=Path, default=REPO / "bench" / "results" / "flight_ngi.json")
     a = ap.parse_args(argv)
     if not (a.data / "camera_pos_ori.txt").is_file():
         print(f"skip: {a.data} not found")

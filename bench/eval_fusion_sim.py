@@ -22,7 +22,7 @@ Caveat: the simulator draws the LiDAR intensity and the NIR from the same materi
 classes come from (roads dark at 1064 nm, vegetation bright in the NIR), and the true orthophoto has no
 relief displacement or seamlines: these are upper bounds for a real block (see the AHN3/Autzen runs).
 
-Writes results/fusion_sim.json and results/fusion_sim.png (a crop of demo seed 7: ortho, LiDAR-only,
+Writes bench/results/fusion_sim.json and bench/results/fusion_sim.png (a crop of demo seed 7: ortho, LiDAR-only,
 fused, truth).
 """
 
@@ -166,7 +166,7 @@ def picture(proj: Path, work: Path, out: Path, res_m: float) -> None:
 
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    ap.add_argument("--out", type=Path, default=REPO / "results")
+    ap.add_argument("--out", type=Path, default=REPO / "bench" / "results")
     ap.add_argument("--keep", type=Path, default=None, help="Keep (and reuse) the simulated projects here.")
     ap.add_argument("--only", default=None, help="Run only this project (tiny, demo, demo_seed7); no JSON written.")
     args = ap.parse_args(argv)

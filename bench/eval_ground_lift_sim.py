@@ -7,7 +7,7 @@ larger of sigma and their neighbours' robust spread (``ground_lift_single``, the
 every ground point against sigma alone: ground-filter type I / II errors (ground and water against the
 rest, outliers left out), building PA/UA and water. The simulator's strips are unadjusted (height
 offsets of a few cm between strips), which is what made the all-points variant lift ground.
-Writes results/lidar_ground_lift_sim.json.
+Writes bench/results/lidar_ground_lift_sim.json.
 Run: .venv/bin/python bench/eval_ground_lift_sim.py [--project DIR]   (default: simulates `tiny`)
 """
 
@@ -74,7 +74,7 @@ def main():
                       "water_points_pred": int((pred == 9).sum()), "water_points_truth": int((truth == 9).sum())}
         print(name, json.dumps(runs[name]))
     out = {"project": str(project), "points": int(len(x)), "runs": runs}
-    dest = REPO / "results" / "lidar_ground_lift_sim.json"
+    dest = REPO / "bench" / "results" / "lidar_ground_lift_sim.json"
     dest.write_text(json.dumps(out, indent=2))
     print(f"wrote {dest}")
 

@@ -9,7 +9,7 @@ for a DTM); water producer's / user's accuracy (Topography); returns called wate
 no water: every one is false; the forest floor under dense crowns is the case). Both sets' ground labels
 look thinned (lidR's own classification): most accepted 'objects' lie within centimetres of the labelled
 ground, so the type II figure is an upper bound; the share within 0.15 m is reported.
-Writes results/ground_more_data.json. Run: nice .venv/bin/python bench/eval_ground_more_data.py
+Writes bench/results/ground_more_data.json. Run: nice .venv/bin/python bench/eval_ground_more_data.py
 """
 
 from __future__ import annotations
@@ -100,7 +100,7 @@ def main():
               f"(truth {r['water_truth']}, PA {r.get('water_pa_pct')}, UA {r.get('water_ua_pct')})")
     out["seconds"] = time.perf_counter() - t0
     out["load_average_before_after"] = [list(load0), list(os.getloadavg())]
-    dest = REPO / "results" / "ground_more_data.json"
+    dest = REPO / "bench" / "results" / "ground_more_data.json"
     dest.write_text(json.dumps(out, indent=2))
     print(f"wrote {dest}")
 

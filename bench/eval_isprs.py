@@ -1,6 +1,6 @@
 """ISPRS filter test (7 samples): lidarctl ground filters with one parameter set vs CSF.
 
-Writes results/lidar_isprs.json and prints the per-sample table beside the published CSF numbers.
+Writes bench/results/lidar_isprs.json and prints the per-sample table beside the published CSF numbers.
 Run: .venv/bin/python bench/eval_isprs.py
 """
 
@@ -82,7 +82,7 @@ def main():
     out["target_mean_total_error_pct"] = 3.8  # issue 20
     out["target_met"] = bool(d <= 3.8)
     print(f"\npublished CSF mean total over these 7: {out['csf_published_mean_total_error_pct']:.2f} %")
-    path = REPO / "results" / "lidar_isprs.json"
+    path = REPO / "bench" / "results" / "lidar_isprs.json"
     path.parent.mkdir(exist_ok=True)
     path.write_text(json.dumps(out, indent=2))
     print(f"wrote {path}")

@@ -9,10 +9,10 @@ and the shipped default) is the over-fitting the habit exposes.
 
 Same path as ``bench/eval_isprs.py`` "lidarctl_default_morph_tin": noise flags first, then
 ``lidarctl.ground.ground_filter`` (morph + TIN refinement + raised plateaus) on the rest.
-Writes results/lidar_isprs_loo.json. Run: .venv/bin/python bench/eval_isprs_loo.py
+Writes bench/results/lidar_isprs_loo.json. Run: .venv/bin/python bench/eval_isprs_loo.py
 
 ``--method ptd``: the same for the progressive TIN densification (``ground_filter(method='ptd')``, with
-the raised-plateau test) over its own grid; writes results/lidar_isprs_loo_ptd.json.
+the raised-plateau test) over its own grid; writes bench/results/lidar_isprs_loo_ptd.json.
 """
 
 from __future__ import annotations
@@ -123,7 +123,7 @@ def main(method: str = "morph"):
           f"best on all 7, {out['loo_gap_vs_default_points']:+.2f} to the default)")
     for s, i, sc in zip(SAMPLES, chosen, loo_scores):
         print(f"  {s}: chosen {combos[i]} -> {sc:.2f} % (default {err[i_default, SAMPLES.index(s)]:.2f} %)")
-    path = REPO / "results" / RESULTS[method]
+    path = REPO / "bench" / "results" / RESULTS[method]
     path.write_text(json.dumps(out, indent=2))
     print(f"wrote {path}")
 

@@ -1,5 +1,5 @@
 """Control layout on simulated blocks (issue 21): layout targets filled without and with the fallbacks,
-why the empty ones are empty, and why corners end as "too few rays" -> results/control_layout.json.
+why the empty ones are empty, and why corners end as "too few rays" -> bench/results/control_layout.json.
 
     .venv/bin/python bench/eval_layout.py [PROJECT ...] [--before BASE_PROJECT ...] [--out FILE]
 
@@ -117,7 +117,7 @@ def main(argv=None):
     ap = argparse.ArgumentParser()
     ap.add_argument("projects", nargs="*", type=Path, help="default: the project of `make demo` (out/demo/project)")
     ap.add_argument("--before", nargs="*", type=Path, default=[])
-    ap.add_argument("--out", type=Path, default=REPO / "results" / "control_layout.json")
+    ap.add_argument("--out", type=Path, default=REPO / "bench" / "results" / "control_layout.json")
     a = ap.parse_args(argv)
     if not a.projects:
         demo = REPO / "out" / "demo" / "project"

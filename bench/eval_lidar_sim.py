@@ -5,7 +5,7 @@ All strips are classified together (as `lidarctl classify` would a merged file);
 from truth/lidar/*.las (same point order), the true DEM from truth/dem.tif.
 DEM RMSE is computed at the centres of our DEM cells, split into open ground (no truth object point
 within the cell and its neighbours) and under canopy (a truth vegetation point above the cell).
-Writes results/lidar_sim.json. Run: .venv/bin/python bench/eval_lidar_sim.py [--project DIR]
+Writes bench/results/lidar_sim.json. Run: .venv/bin/python bench/eval_lidar_sim.py [--project DIR]
 """
 
 from __future__ import annotations
@@ -107,7 +107,7 @@ def main():
               "dem_rmse_canopy_m", "dem_rmse_all_m", "dem_p99_abs_error_open_m", "water_points_truth",
               "water_points_pred", "water_producers_accuracy_pct", "water_users_accuracy_pct"):
         print(f"{k}: {res[k]}")
-    path = REPO / "results" / "lidar_sim.json"
+    path = REPO / "bench" / "results" / "lidar_sim.json"
     path.write_text(json.dumps(res, indent=2))
     print(f"wrote {path}")
 

@@ -2,7 +2,7 @@
 
     python bench/eval_match.py [--demo-project DIR] [--skip-real]
 
-Writes ``results/match.json`` (``--skip-real`` keeps the real blocks' entries of the last run that made them).
+Writes ``bench/results/match.json`` (``--skip-real`` keeps the real blocks' entries of the last run that made them).
 The demo project is simulated into out/eval/match_demo unless given.
 Real blocks are set up as project folders under out/eval/ with the images linked, never copied.
 """
@@ -106,8 +106,8 @@ def main():
     if not args.skip_real and SHARED.is_dir():
         results["brighton_beach"] = brighton()
         results["copr_kite"] = copr()
-    (REPO / "results").mkdir(exist_ok=True)
-    path = REPO / "results" / "match.json"
+    (REPO / "bench" / "results").mkdir(exist_ok=True)
+    path = REPO / "bench" / "results" / "match.json"
     if args.skip_real and path.exists():
         results = json.loads(path.read_text()) | results
     path.write_text(json.dumps(results, indent=1) + "\n")

@@ -1,4 +1,4 @@
-"""The orthority exchange on real DMC frames (issue 22) -> results/ngi_orthority.json + results/ngi_orthority_mosaic.jpg.
+"""The orthority exchange on real DMC frames (issue 22) -> bench/results/ngi_orthority.json + bench/results/ngi_orthority_mosaic.jpg.
 
 Data: ../shared/data/ngi_dmc (4 Z/I DMC frames, the national AT's orientation in orthority's own files
 ``formats/ngi_int_param.yaml`` + ``ngi_ext_param.geojson`` / ``ngi_xyz_opk.csv`` + ``.prj``, a 24 m SUDEM).
@@ -231,8 +231,8 @@ def main(argv=None) -> int:
     ap.add_argument("--data", type=Path, default=shared / "ngi_dmc")
     ap.add_argument("--out", type=Path, default=REPO / "out" / "ngi_orthority")
     ap.add_argument("--res", type=float, default=5.0, help="ortho cell size (m); orthority's config for this block: 5")
-    ap.add_argument("--results", type=Path, default=REPO / "results" / "ngi_orthority.json")
-    ap.add_argument("--png", type=Path, default=REPO / "results" / "ngi_orthority_mosaic.jpg")
+    ap.add_argument("--results", type=Path, default=REPO / "bench" / "results" / "ngi_orthority.json")
+    ap.add_argument("--png", type=Path, default=REPO / "bench" / "results" / "ngi_orthority_mosaic.jpg")
     a = ap.parse_args(argv)
     if not a.data.is_dir():
         print(f"skip: {a.data} not found")

@@ -1,4 +1,4 @@
-"""The block adjustment on real DMC frames against the national AT (issue 19) -> results/ngi_surface.json.
+"""The block adjustment on real DMC frames against the national AT (issue 19) -> bench/results/ngi_surface.json.
 
 Data: ../shared/data/ngi_dmc (4 Z/I DMC frames of NGI South Africa, 2 strips x 2, the national aerial
 triangulation's orientations, a 24 m SUDEM in Lo25 + EGM2008 heights; its README.md). The project is
@@ -19,7 +19,7 @@ The data's README: tie points intersected with the reference lie within a few me
 issue reports 1.6 m below it, and 15.1 m below with our orientation).
 
 Usage: python bench/eval_ngi_surface.py [--data ../shared/data/ngi_dmc] [--out out/ngi] [--ortho]
-       [--adjust-option dem=PATH ...] [--variant NAME] [--results results/ngi_surface.json]
+       [--adjust-option dem=PATH ...] [--variant NAME] [--results bench/results/ngi_surface.json]
 """
 
 from __future__ import annotations
@@ -226,7 +226,7 @@ def main(argv=None) -> int:
     ap.add_argument("--variant", default=None, help="name of this run in the results (default: no_surface_control "
                                                    "without --adjust-option, else the options)")
     ap.add_argument("--results", type=Path, default=None,
-                    help="results file (default results/ngi_surface.json, results/ngi_surface_<variant>.json with "
+                    help="results file (default bench/results/ngi_surface.json, bench/results/ngi_surface_<variant>.json with "
                          "--adjust-option)")
     ap.add_argument("--ortho", action="store_true", help="also rectify and measure the overlap shifts")
     a = ap.parse_args(argv)
@@ -235,7 +235,7 @@ def main(argv=None) -> int:
     options = parse_adjust_options(a.adjust_option, Path.cwd())
     variant = a.variant or ("no_surface_control" if not options else
                             "_".join(f"{k}" for k in options))
-    results = a.results or (REPO / "results" / ("ngi_surface.json" if not options else f"ngi_surface_{variant}.json"))
+    results = a.results or (REPO / "bench" / "results" / ("ngi_surface.json" if not options else f"ngi_surface_{variant}.json"))
     res = {"variant": variant, "data": a.data.name} | evaluate(a.data.resolve(), a.out, options, a.ortho)
     results.parent.mkdir(parents=True, exist_ok=True)
     results.write_text(json.dumps(res, indent=1, default=str) + "\n")

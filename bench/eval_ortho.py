@@ -1,4 +1,4 @@
-"""Evaluate ``ortho`` on the simulator ``demo`` preset -> results/ortho.json.
+"""Evaluate ``ortho`` on the simulator ``demo`` preset -> bench/results/ortho.json.
 
 Scenarios (each in its own folder under <project>/work/eval_ortho/, inputs linked from the project):
 
@@ -15,7 +15,7 @@ truth/ortho.tif on ground patches (nDSM <= 0.5 m), seam misalignment between nei
 ground, and buildings (truth/buildings.geojson footprints) cut by a seamline, with the Voronoi seams
 for comparison. GSD = the image GSD from truth/truth.json.
 
-Usage: python bench/eval_ortho.py [--project DEMO_DIR] [--out results/ortho.json]
+Usage: python bench/eval_ortho.py [--project DEMO_DIR] [--out bench/results/ortho.json]
 (without --project the demo is simulated into a temporary folder first, about 4 minutes).
 """
 
@@ -180,7 +180,7 @@ def evaluate_scenario(name, project: Path, work: Path, eo: str, camera: str, dem
 def main():
     ap = argparse.ArgumentParser()
     ap.add_argument("--project", type=Path, help="an existing `aerotri sim --preset demo` folder")
-    ap.add_argument("--out", type=Path, default=REPO / "results/ortho.json")
+    ap.add_argument("--out", type=Path, default=REPO / "bench/results/ortho.json")
     args = ap.parse_args()
     tmp = None
     if args.project is None:

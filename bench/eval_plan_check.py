@@ -15,7 +15,7 @@ the BGT footprints (bgt_pand.sqlite, blocks of >= 10 x 10 m, vertices where the 
 inside the crop; as bench/eval_corners_ahn3.py). BGT footprints are WALL lines, the LiDAR's corners EAVE
 corners: the offsets include the roof overhang (a few decimetres outward), so they are not the LiDAR's error.
 
-Writes results/plan_check.json, results/plan_check_sim.png, results/plan_check_ahn3.png.
+Writes bench/results/plan_check.json, bench/results/plan_check_sim.png, bench/results/plan_check_ahn3.png.
 """
 
 from __future__ import annotations
@@ -121,7 +121,7 @@ def ahn3(out: Path, params: PlanCheckSettings) -> dict:
 def main():
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--project", type=Path, default=next((d for d in DEMOS if d.is_dir()), REPO / "out" / "sim_demo"))
-    ap.add_argument("--out", type=Path, default=REPO / "results")
+    ap.add_argument("--out", type=Path, default=REPO / "bench" / "results")
     args = ap.parse_args()
     args.out.mkdir(parents=True, exist_ok=True)
     params = PlanCheckSettings()

@@ -1,5 +1,5 @@
 """Every real data set of ../shared/data run as a user runs it, with the commands of docs/your-own-block.md ->
-results/real_blocks.json (docs/real-blocks.md tabulates it).
+bench/results/real_blocks.json (docs/real-blocks.md tabulates it).
 
 Each command runs as a console command (the project's .venv), timed (wall and CPU seconds), with its exit code and
 last output line kept; a command that exits otherwise than expected is recorded and the data set goes on where it
@@ -29,7 +29,7 @@ can. Then the accuracy against the set's reference:
   total errors are recorded but only type I (ground points kept as ground) is a measure there.
 
 Usage: python bench/eval_real_blocks.py [--data DIR] [--work DIR] [--only ngi,tuniu,brighton,kite,lidar]
-       [--out results/real_blocks.json]
+       [--out bench/results/real_blocks.json]
 A run with --only replaces those data sets in the JSON and keeps the others.
 """
 
@@ -462,7 +462,7 @@ ORDER = ("ngi_dmc", "tuniu_drone", "brighton_beach", "copr_kite", "isprs_filtert
 
 
 def markdown_table(res: dict) -> str:
-    """The table of docs/real-blocks.md from results/real_blocks.json."""
+    """The table of docs/real-blocks.md from bench/results/real_blocks.json."""
     rows = ["| data set | kind | commands (exit as expected / run) | wall s (CPU s) | adjustments' verdicts, in order; report | accuracy against the reference |",
             "|---|---|---|---|---|---|"]
     for key in [k for k in ORDER if k in res["data_sets"]] + sorted(set(res["data_sets"]) - set(ORDER)):
@@ -488,7 +488,7 @@ def main(argv=None) -> int:
                     default=Path(os.environ.get("AEROTRI_SHARED_DATA", REPO.parent / "shared" / "data")))
     ap.add_argument("--work", type=Path, default=None, help="keep the projects here (default: a temporary folder)")
     ap.add_argument("--only", default=",".join(SETS), help=f"comma-separated: {', '.join(SETS)}")
-    ap.add_argument("--out", type=Path, default=REPO / "results" / "real_blocks.json")
+    ap.add_argument("--out", type=Path, default=REPO / "bench" / "results" / "real_blocks.json")
     ap.add_argument("--table", action="store_true", help="print the markdown table of --out and stop (no runs)")
     a = ap.parse_args(argv)
     if a.table:

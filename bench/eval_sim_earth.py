@@ -1,4 +1,4 @@
-"""Evaluate the simulator's earth (issue 41) -> results/sim_earth.json.
+"""Evaluate the simulator's earth (issue 41) -> bench/results/sim_earth.json.
 
 Two small rendered blocks with check targets; each is simulated, its targets measured in the rendered frames
 (centroid of the white disc inside the black ring), tie points matched (``aerotri match``), and adjusted with the
@@ -163,10 +163,10 @@ def run_case(name: str, work: Path) -> dict:
 def main(argv=None) -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--code-root", type=Path, help="import aerotri from this tree (the flat-world simulator)")
-    ap.add_argument("--tag", default="earth", help="key of this run in results/sim_earth.json (earth | flat)")
+    ap.add_argument("--tag", default="earth", help="key of this run in bench/results/sim_earth.json (earth | flat)")
     ap.add_argument("--cases", nargs="*", default=list(CASES))
     ap.add_argument("--work", type=Path, help="keep the simulated blocks here (default: a temporary folder)")
-    ap.add_argument("--out", type=Path, default=ROOT / "results" / "sim_earth.json")
+    ap.add_argument("--out", type=Path, default=ROOT / "bench" / "results" / "sim_earth.json")
     a = ap.parse_args(argv)
     sys.path.insert(0, str(a.code_root or ROOT))
     with tempfile.TemporaryDirectory(dir=a.work) as tmp:

@@ -16,9 +16,9 @@ Breakline cells are the embankment's crown edges and toes and the terrace's top 
 - ``balanced``: the smallest RMS of the overall and the near-breakline RMSE (both weighed alike);
 plus the command's defaults (``default``). For comparison on each scored seed, Gaussians of sigma
 0.25-4 cells: the one of the smallest overall RMSE, and the smallest that reaches the balanced choice's
-overall RMSE (equal noise reduction; null when none does). Picture: results/smooth_profile.png.
+overall RMSE (equal noise reduction; null when none does). Picture: bench/results/smooth_profile.png.
 
-Writes results/smooth.json. Run: .venv/bin/python bench/eval_smooth.py
+Writes bench/results/smooth.json. Run: .venv/bin/python bench/eval_smooth.py
 """
 
 from __future__ import annotations
@@ -95,7 +95,7 @@ def derived(s):
 
 
 def profile(true, noisy, diffused, second, gaussian, info):
-    """results/smooth_profile.png: a north-south profile across the embankment (errors against the truth)."""
+    """bench/results/smooth_profile.png: a north-south profile across the embankment (errors against the truth)."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -122,7 +122,7 @@ def profile(true, noisy, diffused, second, gaussian, info):
     ax2.set_xlabel("northing in the scene (m)")
     ax2.legend(fontsize=8)
     fig.tight_layout()
-    fig.savefig(REPO / "results" / "smooth_profile.png", dpi=110)
+    fig.savefig(REPO / "bench" / "results" / "smooth_profile.png", dpi=110)
     plt.close(fig)
 
 
@@ -183,7 +183,7 @@ def main():
                                 "met": bool(worst >= 40.0 and worst_growth < 10.0)}
     out["summary"]["targets"] = {"rmse_reduction_pct": 40.0, "near_breaklines_growth_pct_below": 10.0}
     out["seconds"] = time.perf_counter() - t0
-    path = REPO / "results" / "smooth.json"
+    path = REPO / "bench" / "results" / "smooth.json"
     path.write_text(json.dumps(out, indent=2) + "\n")
     print(json.dumps(out["summary"]), out["chosen"])
 

@@ -19,7 +19,7 @@ measured the same way against the simulator's truth (``truth/`` is read by the m
 - the settings each final adjustment used, with their sources (``at/report.json`` settings): the values must
   be the same, the sources say which came from project.toml and which from the command line.
 
-Writes ``results/stage_by_stage_demo.json``.
+Writes ``bench/results/stage_by_stage_demo.json``.
 
     .venv/bin/python bench/eval_stage_by_stage.py [--demo /work/ref/demo_chain/project] [--work DIR]
 """
@@ -164,7 +164,7 @@ def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--demo", type=Path, default=Path("/work/ref/demo_chain/project"))
     ap.add_argument("--work", type=Path, default=Path("/work/tmp/stage_by_stage"))
-    ap.add_argument("--results", type=Path, default=REPO / "results" / "stage_by_stage_demo.json")
+    ap.add_argument("--results", type=Path, default=REPO / "bench" / "results" / "stage_by_stage_demo.json")
     ap.add_argument("--keep", action="store_true", help="measure the copies of an earlier run without running")
     ap.add_argument("--parallel", action="store_true", help="run the chain while the commands run (two processes)")
     ap.add_argument("--old-code", type=Path, default=None,

@@ -1,4 +1,4 @@
-"""Compliance reports against the standards (issue 43) -> results/standards_{demo,ngi,ahn3}.json.
+"""Compliance reports against the standards (issue 43) -> bench/results/standards_{demo,ngi,ahn3}.json.
 
 1. Demo (a copy of the reference chain run, /work/ref/demo_chain, in ``--work``): the LiDAR height check is
    run again with land-cover groups (``lidarctl check-heights --groups column`` on the classified strips,
@@ -211,7 +211,7 @@ class _NoSurvey:
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--work", type=Path, default=Path("/work/tmp/i43-standards"))
-    ap.add_argument("--results", type=Path, default=REPO / "results")
+    ap.add_argument("--results", type=Path, default=REPO / "bench" / "results")
     ap.add_argument("--skip-demo", action="store_true")
     ap.add_argument("--skip-ngi", action="store_true")
     ap.add_argument("--skip-ahn3", action="store_true")
@@ -222,7 +222,7 @@ def main(argv=None) -> int:
             continue
         res = fn(a.work, a.results)
         (a.results / f"standards_{name}.json").write_text(json.dumps(res, indent=1) + "\n")
-        print(f"results/standards_{name}.json written", flush=True)
+        print(f"bench/results/standards_{name}.json written", flush=True)
     return 0
 
 

@@ -13,11 +13,11 @@
    height error), adjusted without and with --control truth/checkpoints.csv (the ground targets): the z
    shifts against the truth (the overlaps cannot see the common part; the control points can).
 2. AHN3 Delft (4 strips by point_source_id, one of them 50 points): check before and after the strip model;
-   per-pair numbers; maps results/strips_ahn3_{before,after}_*.png.
+   per-pair numbers; maps bench/results/strips_ahn3_{before,after}_*.png.
 3. Speed: a block of >= 20 M points (the seed-1 strips tiled 70 times along the flight lines, 4 strips of
    ~5 M points), points per second of `check` and `adjust` (strip model), wall time (with --skip-speed the
    previous run's, and bench/eval_strips_speed.py's comparison against an earlier revision when present).
-Writes results/strips.json.
+Writes bench/results/strips.json.
 Run: .venv/bin/python bench/eval_strips.py [--seeds 1 2 3 4 5] [--copies 70] [--work /tmp/eval_strips]
 """
 
@@ -220,7 +220,7 @@ def _combination(s: adj.StripAdjustResult, weights: dict) -> tuple[float, float]
 
 
 def _control_without_residuals(s: adj.StripAdjustResult) -> dict:
-    """The control summary of an adjustment for results/strips.json (no per-point rows; {} without control)."""
+    """The control summary of an adjustment for bench/results/strips.json (no per-point rows; {} without control)."""
     if s.control is None:
         return {}
     return {k: v for k, v in dataclasses.asdict(s.control).items() if k != "residuals"}
@@ -406,7 +406,7 @@ def main():
     ap.add_argument("--skip-speed", action="store_true")
     args = ap.parse_args()
     args.work.mkdir(parents=True, exist_ok=True)
-    results = REPO / "results"
+    results = REPO / "bench" / "results"
     out = {"what": "lidarctl strips check/adjust: simulator (tiny) with injected boresight, range offset and "
                    "per-strip shifts over several seeds; AHN3 Delft before/after; speed",
            "injected": {"boresight_error_deg": BORESIGHT_DEG, "range_offset_m": RANGE_OFFSET_M,
@@ -430,7 +430,7 @@ def main():
     if "speed" in out and (results / "strips_speed.json").is_file():  # bench/eval_strips_speed.py: before/after
         sp = json.loads((results / "strips_speed.json").read_text())
         out["speed"]["baseline_against_now"] = {
-            "see": "results/strips_speed.json (bench/eval_strips_speed.py)", "baseline_rev": sp["baseline_rev"],
+            "see": "bench/results/strips_speed.json (bench/eval_strips_speed.py)", "baseline_rev": sp["baseline_rev"],
             **{k: sp[k] for k in ("points", "adjust_points_per_s_baseline_ours", "adjust_speed_ratio_wall",
                                   "adjust_speed_ratio_cpu", "adjust_peak_rss_mb_baseline_ours",
                                   "check_points_per_s_baseline_ours", "parameters_max_abs_difference_in_sigma")}}

@@ -7,7 +7,7 @@ flight lines; made by that script's ``tiled_block`` if missing). Each run is a f
 so that its peak RSS, resource.getrusage's ru_maxrss, is its own): the baseline from ``git archive <rev>``
 unpacked into the work folder, ours from this checkout. Adjust: the strip model with the default settings
 (up to 5 reads, until a step is below 0.1 sigma), as bench/eval_strips.py's speed section.
-Writes results/strips_speed.json.
+Writes bench/results/strips_speed.json.
 Run: .venv/bin/python bench/eval_strips_speed.py [--baseline-rev 8557c60] [--copies 70] [--work /tmp/eval_strips]
 """
 
@@ -115,7 +115,7 @@ def main():
         "runs": {k: {kk: vv for kk, vv in v.items() if kk != "parameters"} for k, v in runs.items()},
     }
     print(json.dumps({k: v for k, v in out.items() if k != "runs"}, indent=1))
-    (REPO / "results" / "strips_speed.json").write_text(json.dumps(out, indent=2) + "\n")
+    (REPO / "bench" / "results" / "strips_speed.json").write_text(json.dumps(out, indent=2) + "\n")
 
 
 if __name__ == "__main__":

@@ -6,7 +6,7 @@ Runs on a project that ``make demo`` (``aerotri run``) has taken through the con
 nDSM, roof planes, transferred corners). Each variant adjusts a copy of the project (GNSS with shift corrections per
 strip when corners are used, no corrections for surface only); the check points are the simulator's
 surveyed targets (``truth/checkpoints.csv`` and their image points, added to the copy as check points, never
-control). Writes ``results/surface_demo.json``.
+control). Writes ``bench/results/surface_demo.json``.
 
     .venv/bin/python bench/eval_surface_demo.py [--project out/demo/project]
 """
@@ -70,7 +70,7 @@ def _target_errors(ba, root: Path) -> dict:
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--project", type=Path, default=REPO / "out" / "demo" / "project")
-    ap.add_argument("--results", type=Path, default=REPO / "results" / "surface_demo.json")
+    ap.add_argument("--results", type=Path, default=REPO / "bench" / "results" / "surface_demo.json")
     ap.add_argument("--vce", action="store_true", help="also each variant with variance-component reweighting")
     a = ap.parse_args()
     src = a.project

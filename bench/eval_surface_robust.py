@@ -18,7 +18,7 @@ candidates (nDSM), share of observations removed by data snooping, share of poin
 adjustment (fewer than two rays left). Results: check points (surveyed, not in the adjustment) height
 mean / RMS and plan RMS, the ground tie points against their truth, camera centres against the truth,
 and the dirty runs against the clean one (same ground observations: what the clutter moved).
-Writes results/surface_robust.json.
+Writes bench/results/surface_robust.json.
 """
 
 from __future__ import annotations
@@ -217,7 +217,7 @@ def main(argv=None):
     ap.add_argument("--strips", type=int, default=4)
     ap.add_argument("--frames", type=int, default=8)
     ap.add_argument("--points-per-image", type=int, default=200)
-    ap.add_argument("--out", type=Path, default=Path("results/surface_robust.json"))
+    ap.add_argument("--out", type=Path, default=Path("bench/results/surface_robust.json"))
     a = ap.parse_args(argv)
     seeds = []
     with tempfile.TemporaryDirectory() as tmp:

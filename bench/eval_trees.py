@@ -31,7 +31,7 @@ own interpolation, 5 m radius), grouped by the canopy cover from all first retur
 (class 1 holds the vegetation in this set). The check points are LiDAR ground returns, not surveyed
 points: their own noise (a few cm) is part of the error.
 
-Writes results/trees.json and results/trees_sim.png. Run: .venv/bin/python bench/eval_trees.py
+Writes bench/results/trees.json and bench/results/trees_sim.png. Run: .venv/bin/python bench/eval_trees.py
 """
 
 from __future__ import annotations
@@ -63,7 +63,7 @@ TUNE_SEED, SCORE_SEED = 1, 2
 GRID = [dict(top_radius_m=a, top_radius_per_m=b, smooth_px=s)
         for a in (0.6, 1.0, 1.5, 2.0) for b in (0.05, 0.1, 0.15) for s in (0.5, 1.0)]
 LIDR = Path("/work/shared/data/lidr_topography/Topography.laz")
-RESULTS = REPO / "results"
+RESULTS = REPO / "bench" / "results"
 
 
 def simulate(seed: int, forested: bool = False):
@@ -443,7 +443,7 @@ def main():
     out = {"trees_sim": trees, "dem_by_density_sim": sim_tab, "dem_by_density_lidr_topography": lidr_tab,
            "density_groups": dataclasses.asdict(hc.DensityGroups()), "seconds": time.perf_counter() - t0}
     (RESULTS / "trees.json").write_text(json.dumps(out, indent=1, default=float) + "\n")
-    print(f"results/trees.json, results/trees_sim.png ({out['seconds']:.0f} s)")
+    print(f"bench/results/trees.json, bench/results/trees_sim.png ({out['seconds']:.0f} s)")
 
 
 if __name__ == "__main__":

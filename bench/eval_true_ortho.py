@@ -12,7 +12,7 @@ simulator's true orthophoto (truth/ortho.tif, roofs in place):
 - the mosaic's report of cells no frame sees (mosaic.json cells_seen_by_no_frame).
 
 Usage: python bench/eval_true_ortho.py [--project /work/ref/demo_chain/project] [--work DIR]
-Writes results/true_ortho.json.
+Writes bench/results/true_ortho.json.
 """
 
 from __future__ import annotations
@@ -131,7 +131,7 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--project", type=Path, default=Path("/work/ref/demo_chain/project"))
     ap.add_argument("--work", type=Path, default=REPO / "out" / "true_ortho")
-    ap.add_argument("--out", type=Path, default=REPO / "results" / "true_ortho.json")
+    ap.add_argument("--out", type=Path, default=REPO / "bench" / "results" / "true_ortho.json")
     args = ap.parse_args()
     out = {"project": str(args.project), "patch_m": PATCH_M, "min_response": MIN_RESPONSE, "min_valid": MIN_VALID,
            "ways": {}}

@@ -13,7 +13,7 @@
    polygon beyond its frame, a frame twice) must exit 2 naming the feature and write nothing.
 
 Usage: python bench/eval_true_ortho_chain.py [--project /work/ref/demo_chain/project] [--work DIR]
-Writes results/true_ortho_chain.json.
+Writes bench/results/true_ortho_chain.json.
 """
 
 from __future__ import annotations
@@ -195,7 +195,7 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--project", type=Path, default=Path("/work/ref/demo_chain/project"))
     ap.add_argument("--work", type=Path, default=REPO / "out" / "true_ortho_chain")
-    ap.add_argument("--out", type=Path, default=REPO / "results" / "true_ortho_chain.json")
+    ap.add_argument("--out", type=Path, default=REPO / "bench" / "results" / "true_ortho_chain.json")
     args = ap.parse_args()
     args.work.mkdir(parents=True, exist_ok=True)
     out = {"project": str(args.project), "ways": {}}

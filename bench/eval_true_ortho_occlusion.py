@@ -37,7 +37,7 @@ The tall block: ``DIR`` made by ``aerotri sim DIR --preset tall`` (simulated whe
 with the true orientation and camera (``truth/eo.txt``, ``truth/camera.toml``) on the simulator's DEM and DSM
 (``truth/dem.tif``, ``truth/dsm.tif``, nDSM their difference): it has no chain run. The demo uses the chain's
 adjusted orientation and LiDAR rasters (``/work/ref/demo_chain``) as ``bench/eval_true_ortho.py``.
-Writes results/true_ortho_occlusion.json.
+Writes bench/results/true_ortho_occlusion.json.
 """
 
 from __future__ import annotations
@@ -562,7 +562,7 @@ def main() -> None:
     ap.add_argument("--tall", type=Path, default=REPO / "out" / "tall_sim")
     ap.add_argument("--blocks", default="demo,tall")
     ap.add_argument("--work", type=Path, default=REPO / "out" / "true_ortho_occlusion")
-    ap.add_argument("--out", type=Path, default=REPO / "results" / "true_ortho_occlusion.json")
+    ap.add_argument("--out", type=Path, default=REPO / "bench" / "results" / "true_ortho_occlusion.json")
     ap.add_argument("--reuse", action="store_true", help="measure the DOMs an earlier run left in --work")
     ap.add_argument("--remosaic", action="store_true",
                     help="mosaic the frame orthos an earlier run left in --work again, then measure")

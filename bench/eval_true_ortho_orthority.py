@@ -1,5 +1,5 @@
 """Our true ortho on the LiDAR DSM against orthority's conventional ortho of the same frames (issue 42)
--> results/true_ortho_orthority.json.
+-> bench/results/true_ortho_orthority.json.
 
 orthority (the peer, a bench extra: ``make bench`` installs it) rectifies on one surface and has no occlusion handling.
 On a copy of the demo (``/work/ref/demo_chain/project``), every frame, the same orientation (at/eo.txt) and camera
@@ -152,7 +152,7 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--project", type=Path, default=Path("/work/ref/demo_chain/project"))
     ap.add_argument("--work", type=Path, default=REPO / "out" / "true_ortho_orthority")
-    ap.add_argument("--out", type=Path, default=REPO / "results" / "true_ortho_orthority.json")
+    ap.add_argument("--out", type=Path, default=REPO / "bench" / "results" / "true_ortho_orthority.json")
     args = ap.parse_args()
     try:
         import orthority  # noqa: F401

@@ -16,7 +16,7 @@ truth/ is read by the checks alone. Per variant, from the chain's own outputs:
 - GSD: ``truth/truth.json`` gsd_m (pixel size x flying height above the base height / focal length).
 
 Targets (issue 21): AT plan RMS <= 0.4 GSD, height RMS <= 0.7 GSD, DOM RMS <= 0.5 GSD. Writes
-``results/variants.json`` with each variant, the worst and the spread (min / median / max). Runs are
+``bench/results/variants.json`` with each variant, the worst and the spread (min / median / max). Runs are
 sequential (each ~10 min on 2 shared cores); a variant whose chain finished with the same simulator settings
 is not re-run. Projects live under /work/bench_blocks/variants/ (outside the repository).
 
@@ -229,7 +229,7 @@ def spread(rows: dict) -> dict:
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--base", type=Path, default=Path("/work/bench_blocks/variants"))
-    ap.add_argument("--results", type=Path, default=REPO / "results" / "variants.json")
+    ap.add_argument("--results", type=Path, default=REPO / "bench" / "results" / "variants.json")
     ap.add_argument("--only", default="", help="comma-separated variant names (default: all)")
     ap.add_argument("--table-only", action="store_true", help="rebuild the JSON and table from existing runs")
     ap.add_argument("--force", action="store_true", help="simulate and run again even when up to date")

@@ -15,9 +15,9 @@ the true width of the nearest road axis.
 The demo's GeoPackage is opened a second time without pyogrio (geopandas and fiona are not installed):
 ``sqlite3`` on the GeoPackage tables (gpkg_contents, gpkg_geometry_columns, gpkg_spatial_ref_sys and the
 feature tables, GeoPackage binary geometry headers parsed by hand), the layers and CRS compared with
-pyogrio's, and drawn from the sqlite reading to results/vectors_demo.png.
+pyogrio's, and drawn from the sqlite reading to bench/results/vectors_demo.png.
 
-Writes results/vectors_demo.json, results/vectors_demo.png (the DLG), results/vectors_demo_check.png
+Writes bench/results/vectors_demo.json, bench/results/vectors_demo.png (the DLG), bench/results/vectors_demo_check.png
 (offset vectors of the demo's building corners).
 """
 
@@ -235,7 +235,7 @@ def draw_from_sqlite(path: Path, image: Path, png: Path, title: str) -> None:
 
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    ap.add_argument("--out", type=Path, default=REPO / "results")
+    ap.add_argument("--out", type=Path, default=REPO / "bench" / "results")
     ap.add_argument("--keep", type=Path, default=None, help="Keep (and reuse) the simulated projects here.")
     ap.add_argument("--presets", nargs="+", default=["tiny", "demo"])
     args = ap.parse_args(argv)

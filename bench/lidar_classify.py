@@ -13,7 +13,7 @@ Measures (same run, so that the shared 2-core machine's load affects all of them
   ground type I / II / total error and outlier flags of the tiled output against the simulator truth;
 * CSF (pip cloth-simulation-filter, one parameter set) on the same points: speed ratio and errors;
 * both filters on the 7 ISPRS samples (error tables beside the published CSF numbers).
-Writes results/lidar_classify_bench.json.
+Writes bench/results/lidar_classify_bench.json.
 Run: .venv/bin/python bench/lidar_classify.py [--tiles 25 --big-tiles 50] [--skip-csf-tile] [--skip-isprs]
 """
 
@@ -200,7 +200,7 @@ def main():
           f"dask local {result['speedup_dask_local_2_over_1_workers']:.2f}; identical outputs {identical}; "
           f"tiled vs whole cloud differ {result['tiled_vs_whole_cloud_class_differ_pct']:.3f} %")
     print(evaluate.format_filter_table({"ours": ours}))
-    path = REPO / "results" / "lidar_classify_bench.json"
+    path = REPO / "bench" / "results" / "lidar_classify_bench.json"
     old = json.loads(path.read_text()) if path.exists() else {}
 
     if not args.skip_csf_tile:

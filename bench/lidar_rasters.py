@@ -15,7 +15,7 @@ every timing and CPU seconds are given):
   ``truth/lidar/*.las``): rasters whole vs by tiles (default tile size; per raster the largest
   difference, the cells that differ, nodata mismatches) and corners whole vs by tiles (default tile
   and buffer: the corners CSV, the roof planes, the strip margins).
-Writes results/lidar_rasters_bench.json (after every step).
+Writes bench/results/lidar_rasters_bench.json (after every step).
 Run: .venv/bin/python bench/lidar_rasters.py --demo /path/to/demo/truth/lidar [--work /tmp/rasters_bench]
 """
 
@@ -183,7 +183,7 @@ def main() -> None:
         worker(args.worker, args.paths[:-1], args.paths[-1])
         return
     args.work.mkdir(parents=True, exist_ok=True)
-    out_json = REPO / "results" / "lidar_rasters_bench.json"
+    out_json = REPO / "bench" / "results" / "lidar_rasters_bench.json"
     result = {"machine": {"cores": os.cpu_count(), "ram_gib": psutil.virtual_memory().total / 2 ** 30},
               "blocks": []}
 

@@ -13,7 +13,7 @@ that the shared 2-core machine's load affects all alike; load averages recorded)
   against the simulator truth;
 * the smaller block once more with the default tile size (what a user runs: one tile here, no
   buffer classified twice), with its own ratios to CSF.
-Writes results/lidar_strips_bench.json.
+Writes bench/results/lidar_strips_bench.json.
 Run: .venv/bin/python bench/lidar_strips.py [--small 6 --large 18 --tile-size 200]
 """
 
@@ -135,7 +135,7 @@ def main():
           f"{result['speed_ratio_default_tiles_over_csf_filter_only_cpu']:.2f}x CPU); peak RSS "
           f"{runs['large']['peak_rss_mb']:.0f} / {small['peak_rss_mb']:.0f} MB for "
           f"{result['points_ratio_large_over_small']:.1f}x the points")
-    path = REPO / "results" / "lidar_strips_bench.json"
+    path = REPO / "bench" / "results" / "lidar_strips_bench.json"
     path.write_text(json.dumps(result, indent=2) + "\n")
     print(f"wrote {path}")
 

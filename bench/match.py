@@ -5,14 +5,14 @@ positions as pose priors) on the demo block, same session, same number of thread
 
 Prints pairs matched, wall times and their ratio, and the connectivity (connected components of the
 verified image graph) of both; then the feature-extraction time of one full-size DMC frame
-(13824 x 7680 px) rendered by the simulator. Writes results/bench_match.json.
+(13824 x 7680 px) rendered by the simulator. Writes bench/results/bench_match.json.
 
 ``--per-frame``: time per frame of ``aerotri match`` (a process of its own, fresh cache) on each block
 given (project folders, e.g. the 30- and 300-frame blocks of ``bench/scale.py``; their inputs are linked
 into out/bench, never written): wall and CPU seconds of the process and of each phase of the stage
 (``phase_seconds`` of at/connectivity.json), per frame and per pair; the fixed cost is what does not grow
 with the block: the process start (imports) and the plan and output phases. Kept in
-results/bench_match.json under ``per_frame`` (``--per-frame-only``: the rest of the file is kept).
+bench/results/bench_match.json under ``per_frame`` (``--per-frame-only``: the rest of the file is kept).
 ``--skip-dmc`` and a run without ``--per-frame`` keep those entries of the last run that made them.
 """
 
@@ -239,7 +239,7 @@ def main():
     args = ap.parse_args()
     out = REPO / "out" / "bench"
     out.mkdir(parents=True, exist_ok=True)
-    result = REPO / "results" / "bench_match.json"
+    result = REPO / "bench" / "results" / "bench_match.json"
     if args.per_frame_only:
         res = json.loads(result.read_text()) if result.exists() else {}
         res["per_frame"] = per_frame(args.per_frame, out)
@@ -276,7 +276,7 @@ def main():
     for key in ("dmc_frame_features", "per_frame"):
         if key not in res and key in old:
             res[key] = old[key]
-    (REPO / "results").mkdir(exist_ok=True)
+    (REPO / "bench" / "results").mkdir(exist_ok=True)
     result.write_text(json.dumps(res, indent=1) + "\n")
 
 

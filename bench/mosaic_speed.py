@@ -37,8 +37,8 @@ With ``--subset S,F`` (repeatable) the large set is measured on parts of its fra
 frames of the first S strips (a project of links to the frames), smallest first, so that time and peak memory
 per gigapixel can be compared across DOM sizes; ``--subset all`` is the whole set.
 
-Writes results/mosaic_speed.json (``--out``); ``--skip-demo`` leaves the demo out (a large-set run on its own,
-e.g. ``--out results/mosaic_speed_large.json``).
+Writes bench/results/mosaic_speed.json (``--out``); ``--skip-demo`` leaves the demo out (a large-set run on its own,
+e.g. ``--out bench/results/mosaic_speed_large.json``).
 
 Usage: python bench/mosaic_speed.py [--demo DIR] [--work DIR] [--gp 4.2] [--repeats N] [--large-repeats N]
        [--skip-demo] [--skip-large] [--keep-large] [--large-check] [--subset S,F ...] [--out FILE]
@@ -362,7 +362,7 @@ def main() -> None:
                     help="S,F: the first F frames of the first S strips of the large set ('all': every frame)")
     ap.add_argument("--keep-large", action="store_true")
     ap.add_argument("--large-check", action="store_true", help="also ortho check the large DOM (long)")
-    ap.add_argument("--out", type=Path, default=REPO / "results" / "mosaic_speed.json")
+    ap.add_argument("--out", type=Path, default=REPO / "bench" / "results" / "mosaic_speed.json")
     a = ap.parse_args()
     if shutil.which("gdalwarp") is None:
         raise SystemExit("gdalwarp not found: the peer of this benchmark is GDAL's command line gdalwarp (Debian "

@@ -33,7 +33,7 @@ fills numba's cache.
 
 Output megapixels = output grid pixels (the frame's bounding grid). Both DOMs are checked against the
 truth orthophoto with ``ortho.check`` (NCC patches). The machine may be shared: the 1-minute load
-average is recorded before every kind. Writes results/ortho_bench.json.
+average is recorded before every kind. Writes bench/results/ortho_bench.json.
 
 Usage: python bench/ortho_speed.py [--workdir DIR] [--keep]
 """
@@ -343,7 +343,7 @@ def main():
     ap.add_argument("--workdir", type=Path)
     ap.add_argument("--keep", action="store_true")
     ap.add_argument("--run", nargs=2, metavar=("KIND", "DIR"), help=argparse.SUPPRESS)
-    ap.add_argument("--out", type=Path, default=REPO / "results" / "ortho_bench.json")
+    ap.add_argument("--out", type=Path, default=REPO / "bench" / "results" / "ortho_bench.json")
     ap.add_argument("--kinds", default="remap_ceiling,remap_ceiling_windows,ours_library,ours_cli,ours_command,"
                                        "ours_command_block,ours_cli_zstd_fast,ours_cli_none,ours_command_zstd_fast,"
                                        "ours_command_none,write_profiles,ours_command,ours_command_none,remap_ceiling,"

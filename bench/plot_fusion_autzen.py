@@ -12,7 +12,7 @@ Overlay check: the LiDAR points carry RGB; their grey values rasterised on the c
 the orthophoto's (phase correlation of the two grey images) to measure a shift between the ortho and the
 cloud, in feet and metres.
 
-Writes results/fusion_autzen.png and results/fusion_autzen.json (class counts, overlay shift).
+Writes bench/results/fusion_autzen.png and bench/results/fusion_autzen.json (class counts, overlay shift).
 """
 
 from __future__ import annotations
@@ -38,7 +38,7 @@ LAZ, ORTHO = DATA / "autzen_trim.laz", DATA / "autzen_ortho_1ft.jpg"
 CELL_M = 1.0
 NAMES = {1: "unclassified", 2: "bare ground", 3: "grass / low veg", 4: "medium veg", 5: "tree", 6: "building",
          7: "low noise", 9: "water", 11: "road", 18: "high noise"}
-# Written by hand after looking at results/fusion_autzen.png (default thresholds, set on the simulator)
+# Written by hand after looking at bench/results/fusion_autzen.png (default thresholds, set on the simulator)
 OBSERVATIONS = [
     "Overlay: the ortho (its .aux.xml geotransform, same CRS as the cloud, read by rasterio) lies on the LiDAR: "
     "the phase correlation of the points' RGB grey with the ortho's finds a shift of about 0.1 ft (response "
@@ -114,7 +114,7 @@ def overlay_shift(a: np.ndarray, b: np.ndarray) -> tuple[float, float, float]:
 
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    ap.add_argument("--out", type=Path, default=REPO / "results")
+    ap.add_argument("--out", type=Path, default=REPO / "bench" / "results")
     args = ap.parse_args(argv)
     import matplotlib
 

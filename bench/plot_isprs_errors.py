@@ -2,7 +2,7 @@
 
 Points grey by height; type I errors (bare earth rejected) red, type II (objects accepted as ground)
 blue; the same path as ``bench/eval_isprs.py`` "lidarctl_default_morph_tin" (noise flags, then
-``lidarctl.ground.ground_filter``). Writes results/lidar_isprs_errors.png.
+``lidarctl.ground.ground_filter``). Writes bench/results/lidar_isprs_errors.png.
 Run: .venv/bin/python bench/plot_isprs_errors.py
 """
 
@@ -46,7 +46,7 @@ def main():
     axes.ravel()[-1].axis("off")
     fig.suptitle("Default ground filter (morph + local-surface test + TIN refinement) on the ISPRS samples")
     fig.tight_layout()
-    path = REPO / "results" / "lidar_isprs_errors.png"
+    path = REPO / "bench" / "results" / "lidar_isprs_errors.png"
     fig.savefig(path, dpi=70)
     print(f"wrote {path}")
 

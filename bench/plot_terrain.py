@@ -15,7 +15,7 @@ order, a scale bar and a legend.
 - lidr: ../shared/data/lidr_topography/Topography.laz (lidR's example, 288 x 288 m, EPSG:26917 NAD83 / UTM 17N),
   classified here, 2 m cells (8,159 ground points leave most 1 m cells to the gap filling).
 
-Writes results/terrain_demo.png, results/terrain_lidr.png and results/terrain.json (the commands' outputs).
+Writes bench/results/terrain_demo.png, bench/results/terrain_lidr.png and bench/results/terrain.json (the commands' outputs).
 """
 
 from __future__ import annotations
@@ -235,7 +235,7 @@ def main():
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--which", nargs="+", default=["demo", "lidr"], choices=["demo", "lidr"])
     ap.add_argument("--work", type=Path, default=REPO / "out" / "plot_terrain")
-    ap.add_argument("--out", type=Path, default=REPO / "results")
+    ap.add_argument("--out", type=Path, default=REPO / "bench" / "results")
     ap.add_argument("--reuse", action="store_true", help="Redraw from the products already in --work.")
     args = ap.parse_args()
     global REUSE

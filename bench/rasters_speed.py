@@ -13,7 +13,7 @@ Throughput = points of the strips / wall seconds of the call.
 
 Comparison of the last outputs, per raster: cells that differ (nodata in one only counted), largest
 absolute difference; the hillshade PNG's pixels that differ.
-Writes results/rasters_speed.json.
+Writes bench/results/rasters_speed.json.
 Run: .venv/bin/python bench/rasters_speed.py [--project /work/ref/demo_chain/project] [--baseline-rev a17e529]
      [--repeat 2] [--work /tmp/rasters_speed]
 """
@@ -161,7 +161,7 @@ def main():
         "runs": runs,
     }
     print(json.dumps({k: v for k, v in out.items() if k != "runs"}, indent=1))
-    (REPO / "results" / "rasters_speed.json").write_text(json.dumps(out, indent=2) + "\n")
+    (REPO / "bench" / "results" / "rasters_speed.json").write_text(json.dumps(out, indent=2) + "\n")
 
 
 if __name__ == "__main__":

@@ -6,7 +6,7 @@ A 13,824 x 7,680 px RGB frame of 16-bit samples (12-bit range; a smooth pattern 
 ZSTD as vendors deliver it; f 120 mm, 12 um pixels, 1,000 m above a smooth DEM, slight tilt; output 0.1 m
 (``ortho.block.rectify_frame_to_file``: tiled ZSTD-1 + predictor GeoTIFF with its mask). Each way in its
 own process: wall, CPU seconds, peak RSS (ru_maxrss). The two frame orthos are compared pixel for pixel.
-Writes results/rectify_memory.json.
+Writes bench/results/rectify_memory.json.
 
 Usage: python bench/rectify_memory.py [--work DIR]
 """
@@ -80,7 +80,7 @@ def child(way: str, frame: Path, out: Path) -> None:
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--work", type=Path, default=REPO / "out" / "rectify_memory")
-    ap.add_argument("--out", type=Path, default=REPO / "results" / "rectify_memory.json")
+    ap.add_argument("--out", type=Path, default=REPO / "bench" / "results" / "rectify_memory.json")
     ap.add_argument("--child", nargs=3)
     a = ap.parse_args()
     if a.child:

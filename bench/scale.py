@@ -21,12 +21,12 @@ wall times; CPU seconds are steadier.
 
 Full-size Z/I DMC frames (issue 41): ``--size dmc`` (the ``dmc_block`` preset: 120 frames of 13824 x 7680 px,
 12-bit in ZSTD tiles, about 250 M points; made by bench/sim_dmc.py into $AEROTRI_BENCH_BLOCKS/dmc_block) and
-``--size dmc_3x8`` (its 3 strips x 8 frames subset, dmc_block_subset_3x8) write results/scale_dmc.json with, beside
+``--size dmc_3x8`` (its 3 strips x 8 frames subset, dmc_block_subset_3x8) write bench/results/scale_dmc.json with, beside
 the table, each stage's per-unit costs (s per frame, per GP of frames, per GP of DOM, per M points), their
 projection to 3,000 frames and 2 billion points, the AT and DOM accuracy against the simulator's truth in GSD,
 and, once both sizes ran, the ratio of their per-unit CPU costs (limits: 3 h, 12 GB).
 
-Writes results/scale.json (one entry per block size, kept across runs of the other size).
+Writes bench/results/scale.json (one entry per block size, kept across runs of the other size).
 
 Usage:
   python bench/scale.py --generate-only                # once: simulate the block into /work/bench_blocks/scale
@@ -34,7 +34,7 @@ Usage:
   python bench/scale.py --size quarter --generate      # a smaller block (generated unless it exists), run
   python bench/scale.py --size eighth --table-only     # the table of the last run of that size, run nothing
   python bench/scale.py --size full --print-command    # the generation command, to run it elsewhere
-  python bench/scale.py --size dmc_3x8                 # the chain on the DMC subset -> results/scale_dmc.json
+  python bench/scale.py --size dmc_3x8                 # the chain on the DMC subset -> bench/results/scale_dmc.json
   python bench/scale.py --size dmc_3x8 --table-only --run-dir DIR  # tabulate a run made by hand (aerotri run DIR)
 """
 
@@ -418,10 +418,10 @@ def main(argv=None) -> int:
     ap.add_argument("--scheduler", help="passed to aerotri run (default: its own)")
     ap.add_argument("--workers", type=int, help="passed to aerotri run")
     ap.add_argument("--run-dir", type=Path, help="the run folder (default: the block's folder name + _run beside it)")
-    ap.add_argument("--out", type=Path, help="results file (default results/scale.json; DMC sizes results/scale_dmc.json)")
+    ap.add_argument("--out", type=Path, help="results file (default bench/results/scale.json; DMC sizes bench/results/scale_dmc.json)")
     args = ap.parse_args(argv)
     dmc = args.size in DMC_SIZES
-    args.out = args.out or ROOT / "results" / ("scale_dmc.json" if dmc else "scale.json")
+    args.out = args.out or ROOT / "bench" / "results" / ("scale_dmc.json" if dmc else "scale.json")
 
     block = args.block or BLOCKS / (DMC_BLOCKS[args.size] if dmc else
                                     "scale" if args.size == "full" else f"scale_{args.size}")

@@ -5,7 +5,7 @@ Runs the stages that are split into Dask tasks - LiDAR classification (tiles wit
 tile) - on the embedded demo block, each with ``--scheduler local:1`` and ``--scheduler local:2`` (a
 local Dask distributed cluster of 1 or 2 single-threaded worker processes; cluster start-up is
 included in the times). Every run starts from the same inputs in a fresh folder; the outputs of the two
-runs are compared byte for byte. Writes results/scaleout_bench.json.
+runs are compared byte for byte. Writes bench/results/scaleout_bench.json.
 
 Usage: python bench/scaleout.py [--project out/demo/project]   (default: runs `aerotri demo` first
 when that project has not been through the chain yet).
@@ -75,7 +75,7 @@ def stages(project: Path):
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--project", type=Path, default=ROOT / "out" / "demo" / "project")
-    ap.add_argument("--out", type=Path, default=ROOT / "results" / "scaleout_bench.json")
+    ap.add_argument("--out", type=Path, default=ROOT / "bench" / "results" / "scaleout_bench.json")
     ap.add_argument("--only", nargs="*", default=None, help="stage names to run")
     a = ap.parse_args()
     if not (a.project / "ortho" / "frames" / "index.json").exists():

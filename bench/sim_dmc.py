@@ -16,7 +16,7 @@ and truth pixels of the full block times the subset's unit costs, plus the subse
 area) is written beside the measurement, marked as such. Load averages before and after are recorded: on a
 shared machine wall times follow the load, CPU seconds much less.
 
-Writes results/sim_dmc.json (one entry per run name: ``full`` or ``subset_<strips>x<frames>``, kept across
+Writes bench/results/sim_dmc.json (one entry per run name: ``full`` or ``subset_<strips>x<frames>``, kept across
 runs of the other).
 
 Usage:
@@ -38,7 +38,7 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-RESULT = ROOT / "results" / "sim_dmc.json"
+RESULT = ROOT / "bench" / "results" / "sim_dmc.json"
 BLOCKS = Path(os.environ.get("AEROTRI_BENCH_BLOCKS", "/work/bench_blocks"))
 PRESET = "dmc_block"
 LIMIT_WALL_MIN = 45.0  # issue 41: rendered and scanned in under 45 min

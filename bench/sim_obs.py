@@ -8,7 +8,7 @@ OUT/dem.tif --self-cal pp,radial --gnss-correction shift_drift`` follows (the mo
 and GNSS errors), timed likewise, and its orientations are compared with the truth in units of the sigmas it
 reports (RMS and largest per parameter).
 
-Writes results/sim_obs.json (one entry per block size, ``<strips>x<frames>``).
+Writes bench/results/sim_obs.json (one entry per block size, ``<strips>x<frames>``).
 
 Usage:
   python bench/sim_obs.py                                  # the 10,000-frame block (about 3 min)
@@ -31,7 +31,7 @@ sys.path.insert(0, str(ROOT))
 
 from aerotri.core.resources import measure  # noqa: E402
 
-RESULT = ROOT / "results" / "sim_obs.json"
+RESULT = ROOT / "bench" / "results" / "sim_obs.json"
 BLOCKS = Path(os.environ.get("AEROTRI_BENCH_BLOCKS", "/work/bench_blocks"))
 ADJUST_OPTIONS = ["--self-cal", "pp,radial", "--gnss-correction", "shift_drift", "--no-html", "--no-exports"]
 

@@ -1,4 +1,4 @@
-"""Benchmark: one stage of the chain again on a finished ``bench/scale.py`` run -> results/stage_rerun.json.
+"""Benchmark: one stage of the chain again on a finished ``bench/scale.py`` run -> bench/results/stage_rerun.json.
 
 After a change to one stage, the whole chain need not run again to see what the stage costs now. The stage
 runs on the run folder's own inputs with the project's options, its outputs written into a temporary folder
@@ -112,7 +112,7 @@ def main(argv=None) -> int:
     ap.add_argument("--run", type=Path, help="the chain's run folder (default: $AEROTRI_BENCH_BLOCKS/scale[_SIZE]_run)")
     ap.add_argument("--reference", type=Path, help="true orthophoto (default: the block's truth/ortho.tif)")
     ap.add_argument("--stage", choices=(*STAGES, "all"), default="all", help="default: all of them, one after the other")
-    ap.add_argument("--out", type=Path, default=ROOT / "results" / "stage_rerun.json")
+    ap.add_argument("--out", type=Path, default=ROOT / "bench" / "results" / "stage_rerun.json")
     a = ap.parse_args(argv)
     run = a.run or BLOCKS / f"scale{SUFFIX[a.size]}_run"
     reference = a.reference or BLOCKS / f"scale{SUFFIX[a.size]}" / "truth" / "ortho.tif"

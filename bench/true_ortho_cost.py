@@ -1,5 +1,5 @@
 """The cost of the true ortho against the conventional one, per MP of frame ortho, on the demo and on full-size
-DMC frames (issue 42) -> results/true_ortho_cost.json.
+DMC frames (issue 42) -> bench/results/true_ortho_cost.json.
 
 Both ways in the same process and run, frame by frame, alternating (conventional, true, conventional, ...), so
 that the load of the shared machine falls on both alike:
@@ -198,7 +198,7 @@ def main() -> None:
     ap.add_argument("--dmc", type=Path, default=Path("/work/bench_blocks/dmc_block_subset_3x8_run"))
     ap.add_argument("--dmc-frames", default="s02_004,s02_005,s02_006")
     ap.add_argument("--work", type=Path, default=REPO / "out" / "true_ortho_cost")
-    ap.add_argument("--out", type=Path, default=REPO / "results" / "true_ortho_cost.json")
+    ap.add_argument("--out", type=Path, default=REPO / "bench" / "results" / "true_ortho_cost.json")
     ap.add_argument("--skip-dmc", action="store_true")
     args = ap.parse_args()
     args.work.mkdir(parents=True, exist_ok=True)

@@ -71,7 +71,7 @@ Pipeline (``classify_points``):
    on spans (the connected cells between the two gaps) of at least ``bridge_min_deck_m2`` whose ground
    stands that clear almost everywhere (``bridge_min_clear_share``: a level deck, not a sloping shore).
    On the AHN3 Delft crop this finds 755 of the 1,365 civil-structure (26) points (two bridges over
-   the canals) and takes 205 true ground points of an approach ramp (results/lidar_ahn3_errors.json).
+   the canals) and takes 205 true ground points of an approach ramp (bench/results/lidar_ahn3_errors.json).
    A deck the ground filter left out (high over a river whose surface gave returns far below it) meets
    the roof rules instead; ``spanning_decks`` takes it back from the buildings: a long, narrow building
    segment (``BRIDGE_MIN_ASPECT``, at most ``bridge_max_width_m`` wide) with open-water dropout gaps on

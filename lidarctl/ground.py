@@ -52,7 +52,7 @@ Presets tune the parameters for urban, rural, forest and mountain terrain. The d
 parameter set (``MorphSettings()``) for all reference samples: 3.23 % mean total error on the shared
 ISPRS samples (3.82 % before the local-surface test and the angle criterion) against the PTD's 5.3 %;
 3.52 % leave-one-sample-out over an 81-point grid (3.72 % before), so 0.28 points of the 3.23 % are
-fit to these samples (results/lidar_isprs.json, lidar_isprs_loo*.json).
+fit to these samples (bench/results/lidar_isprs.json, lidar_isprs_loo*.json).
 
 Registry (``GROUND_FILTERS``): name -> ``GroundFilter`` (parameters dataclass, presets, reach,
 function). ``ground_filter``, the classifier's settings (``ClassifySettings``), the command line's
@@ -104,7 +104,7 @@ class GroundSettings:
 
 # The default set: the best of a first grid on the 7 shared ISPRS samples (so its 5.27 % mean total error
 # there is in-sample); bench/eval_isprs_loo.py --method ptd scores each sample with the grid point chosen
-# on the other six: 5.74 % (results/lidar_isprs_loo_ptd.json).
+# on the other six: 5.74 % (bench/results/lidar_isprs_loo_ptd.json).
 # The presets are starting points from the parameters' meaning, not measured: flat open land takes a
 # stricter angle, rough forest floor and mountains looser angles and distances.
 PTD_PRESETS = {

@@ -25,7 +25,7 @@ Steps (``mosaic_block``):
    overviews as made here): the full resolution is compressed once for the COG, no overview is made
    from it again, and memory is bounded by the tiles, not by the mosaic.
 
-Speed (``bench/mosaic_speed.py``, ``results/mosaic_speed*.json``, ``docs/performance.md``): seams and
+Speed (``bench/mosaic_speed.py``, ``bench/results/mosaic_speed*.json``, ``docs/performance.md``): seams and
 blending in compiled or vectorised code (OpenCV; scipy's Dijkstra for the seam paths), the tiles on all
 cores while this thread writes, no float64 intermediates; a seam tile reads each frame only over the box
 its weight reaches, and the frames of a small block (``DECODED_FRAMES_MAX_BYTES``) are decoded once, by
@@ -92,7 +92,7 @@ MOSAIC_CACHE_BYTES = 512 * MiB
 STAGE_PROFILE = dict(driver="GTiff", tiled=True, blockxsize=512, blockysize=512, compress="zstd", zstd_level=1,
                      predictor=2, interleave="pixel", BIGTIFF="IF_SAFER", num_threads="ALL_CPUS")
 # the COG: ZSTD level 1 with the horizontal predictor was the fastest and the smallest of ZSTD 1/3/6/9 (with
-# and without predictor) and DEFLATE on the demo mosaic (results/mosaic_speed.json, "codecs")
+# and without predictor) and DEFLATE on the demo mosaic (bench/results/mosaic_speed.json, "codecs")
 COG_OPTIONS = dict(driver="COG", COMPRESS="ZSTD", LEVEL=1, PREDICTOR="YES", BLOCKSIZE=512,
                    OVERVIEWS="FORCE_USE_EXISTING", BIGTIFF="IF_SAFER", NUM_THREADS="ALL_CPUS")
 STAGE_RAW_MAX_BYTES = 2 ** 30  # stages up to this size stay uncompressed (no compression to undo for the COG)
@@ -566,7 +566,7 @@ def release_freed_memory() -> None:
 
     glibc keeps the freed heap memory of every thread's arena for reuse; the phases of a mosaic allocate
     differently sized buffers on several threads, so what one phase freed stayed in the process through the
-    next ones: 0.6 GB of a 0.53 GP mosaic's 1.6 GB peak (``results/mosaic_speed_large.json``, "malloc_trim")."""
+    next ones: 0.6 GB of a 0.53 GP mosaic's 1.6 GB peak (``bench/results/mosaic_speed_large.json``, "malloc_trim")."""
     trim = _malloc_trim()
     if trim is not None:
         trim(0)
@@ -1025,7 +1025,7 @@ def _blend_tile(ctx: _BlendContext, readers, r0: int, c0: int, th: int, tw: int)
 # a true ortho's frame is taken this far from its holes only where no other frame has the pixel away from its own:
 # the DSM places a roof edge to within about a cell (on its grid, interpolated), so the ground just beyond the
 # occluded area of a frame may still show the wall or roof (on the demo, with the LiDAR DSM, most of the ghost pixels
-# lay within one cell of what the frame sees: results/true_ortho_occlusion.json)
+# lay within one cell of what the frame sees: bench/results/true_ortho_occlusion.json)
 HOLE_MARGIN_M = 0.8
 
 

@@ -17,7 +17,7 @@ from ortho.rectify import INTERPOLATION
 SEAM_METHODS = ("least-cost", "voronoi")
 
 # per-frame ortho compression: intermediates for the mosaic, so write speed matters as much as size.
-# Measured on a 120 MP DMC frame (band interleaved; bench/ortho.py, results/ortho_bench.json, 2 cores):
+# Measured on a 120 MP DMC frame (band interleaved; bench/ortho.py, bench/results/ortho_bench.json, 2 cores):
 # zstd 102 MB, zstd-fast 172 MB, none 374 MB; the stage takes 3.1, 3.1 and 1.8 CPU-s (1.7, 1.7 and 1.1 s):
 # zstd-fast saves no CPU, none saves 40 % of it for 3.7 times the disk. zstd stays the default: on a
 # shared 2-core machine none does not bring the one-frame command to 100 MP/s either (interpreter,

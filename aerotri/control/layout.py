@@ -150,7 +150,7 @@ def candidate_tiers(n_frames, primary, roof, min_frames: int) -> np.ndarray:
     stage measures anyway (lidarctl's usable corners and manual ones; every corner with --all-corners);
     roof (N,): "flat" | "pitched". Two frames suffice only for height control (no third ray to expose a
     wrong measurement) and only on flat roofs, whose LiDAR height is the best known (about 0.03 m
-    against 0.07 m on pitched eaves, results/corners_sim.json).
+    against 0.07 m on pitched eaves, bench/results/corners_sim.json).
     """
     n_frames, primary, flat = np.asarray(n_frames), np.asarray(primary, bool), np.asarray(roof) == "flat"
     tier = np.full(len(n_frames), -1)

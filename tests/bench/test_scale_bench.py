@@ -1,5 +1,5 @@
 """bench/scale.py without the chain: block sizes, the stage table from a run's records, the verdict on the
-issue's limits and results/scale.json keyed by size. (The whole benchmark on the ``tiny`` preset:
+issue's limits and bench/results/scale.json keyed by size. (The whole benchmark on the ``tiny`` preset:
 ``bench/scale.py --size tiny --generate``, about 2 minutes.)"""
 
 from __future__ import annotations

@@ -23,7 +23,7 @@ def test_isprs_mean_total_error_one_parameter_set(shared_data):
         assert not np.any((code > 0) & (c.classification == 2)), s
         totals.append(e["total_error_pct"])
     # 3.23 % with the local-surface test and the TIN angle criterion (issue 21; 3.82 % before;
-    # results/lidar_isprs_loo.json: 3.52 % leave-one-sample-out)
+    # bench/results/lidar_isprs_loo.json: 3.52 % leave-one-sample-out)
     assert np.mean(totals) <= 3.3, totals
 
 
@@ -37,7 +37,7 @@ def test_ahn3_has_no_crs_and_ground_is_found(shared_data):
     cls = classify.classify_points(c.x, c.y, c.z, c.return_number, c.number_of_returns, c.intensity)
     conf = evaluate.confusion(np.where(np.isin(cls, (2, 6)), cls, 1), c.classification, classes=[1, 2, 6, 9, 26])
     # Target of issue 3: building and ground producer's and user's accuracy at least 95 %
-    # (measured 95.4 / 95.1 % building, 98.4 / 96.6 % ground; results/lidar_ahn3_holdout.json).
+    # (measured 95.4 / 95.1 % building, 98.4 / 96.6 % ground; bench/results/lidar_ahn3_holdout.json).
     for cls_ in ("2", "6"):
         assert conf["producers_accuracy_pct"][cls_] >= 95.0, conf
         assert conf["users_accuracy_pct"][cls_] >= 95.0, conf
@@ -69,7 +69,7 @@ def test_no_water_under_canopy_on_forested_hills(shared_data):
     # The lakes' own returns are still found.
     assert np.sum((c.classification == 9) & (cls == classify.WATER)) > 100
     # Issue 44: the lakes return the pulse (no dropout); found as level water, PA and UA >= 90 %
-    # (measured 91.7 / 95.9 %; results/ground_more_data.json; 5.6 / 61.5 % by the dropout rule alone).
+    # (measured 91.7 / 95.9 %; bench/results/ground_more_data.json; 5.6 / 61.5 % by the dropout rule alone).
     water, found = c.classification == 9, cls == classify.WATER
     assert np.mean(found[water]) >= 0.90
     assert np.mean(water[found]) >= 0.90

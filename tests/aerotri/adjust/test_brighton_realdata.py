@@ -8,7 +8,7 @@ Without a DEM the focal length cannot be told from the flying height (flat beach
 the focal length is fixed with the reason and the verdict is not "Solution Successful" (on main the full
 block's focal went from 2121 to 2904 px and its tie points 11 m below the DEM, "Solution Successful"). With
 the DEM the focal length is estimated and the tie points lie on the DEM (median within 0.3 m). The whole block:
-bench/eval_brighton.py -> results/brighton.json.
+bench/eval_brighton.py -> bench/results/brighton.json.
 """
 
 from __future__ import annotations

@@ -16,7 +16,7 @@ from aerotri.geom.observations import read_control_points
 
 FRAMES = ("IMG_0037", "IMG_0043", "IMG_0046", "IMG_0049", "IMG_0052", "IMG_0055", "IMG_0064", "IMG_0067")
 FACTOR = 4  # downsampling: 1068 x 712 px
-# Measured on the whole block (22 frames, 9 targets in 2 or more frames; results/copr_kite.json, bench/
+# Measured on the whole block (22 frames, 9 targets in 2 or more frames; bench/results/copr_kite.json, bench/
 # eval_copr_kite.py): the targets' own plan scatter about the block, i.e. the accuracy of their averaged handheld
 # GNSS, which no check can beat (reference.targets_scatter_about_block_xy_m), and the frames' median tilt from the
 # vertical of the levelled block (frames_tilt_deg.median: the kite rig's hang). There the leave-one-out plan RMS

@@ -2,7 +2,7 @@
 
 The project is built by tests/realdata_ngi.py (Lo25 + EGM2008 heights, pinhole camera, the reference
 projection centres as GNSS with 0.05 m). The adjustment runs without control: GNSS carries the datum.
-Measured on this data (bench/eval_ngi_surface.py, results/ngi_surface.json, with densification):
+Measured on this data (bench/eval_ngi_surface.py, bench/results/ngi_surface.json, with densification):
 omega/phi/kappa 0.035 deg RMS from the reference (0.058 max), tie points 11 m below the DEM (median)
 where the same ties intersected with the reference orientation lie 1.5 m below it: the relative phi of
 the frames of a strip (30 % forward overlap) is weakly determined by tie points alone, which the DEM

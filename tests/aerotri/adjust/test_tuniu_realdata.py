@@ -5,7 +5,7 @@ against the OpenSfM reconstruction OpenDroneMap made of the same frames (tests/r
 The four frames look 30 degrees off nadir in four directions and share mostly two-ray tie points (5 % with three
 or more rays): from the images and the RTK positions alone the frames of a pair may turn together about their
 baseline, and the adjustment says so (weak geometry: tilts and bending of half a metre). Measured
-(bench/eval_real_blocks.py, results/real_blocks.json; pairs by the footprints on the take-off height the import
+(bench/eval_real_blocks.py, bench/results/real_blocks.json; pairs by the footprints on the take-off height the import
 states): without a surface, attitudes 1.46 deg RMS from OpenSfM's after the similarity between the two blocks'
 centres, relative rotations 0.69 deg RMS (the gimbal angles: 1.19 and 0.83); with ODM's surface model as surface
 control (``--dem dsm.tif``) 0.16 and 0.18 deg, "Solution Successful".
