@@ -519,6 +519,10 @@ def report_figures(rep: QaReport, project: Project) -> list:
     return [fig] if fig is not None else []
 
 
+STAGE_LINKS = (("../at/report.html", "adjustment (ISAT layout)"), ("../at/report.txt", "report.txt"),
+               ("../control/review/review.html", "control transfer review"), ("../ortho/dom_report.json", "DOM check"),
+               ("../lidar_out/height_check.json", "LiDAR height check"),
+               ("../lidar_out/strips/index.html", "LiDAR strip differences"))
 STAGE_IMAGES = (("../ortho/dom_report.png", "DOM displacement against the reference"),
                 ("../at/connectivity.png", "Tie-point connectivity"))
 
@@ -613,7 +617,7 @@ def compliance_lines(comp: dict | None) -> list[str]:
     return lines
 
 
-def format_html(rep: dict, figures: list | None = None, stage_images=STAGE_IMAGES) -> str:
+def format_html(rep: dict, figures: list | None = None, stage_images=STAGE_IMAGES, stage_links=STAGE_LINKS) -> str:
     """index.html: the verdict table, links to the stage reports, the stage plots present, the figures
     (``report_figures``), the flight acceptance tables and the stages' numbers as tables."""
     body, section = [], None
@@ -632,6 +636,8 @@ def format_html(rep: dict, figures: list | None = None, stage_images=STAGE_IMAGE
               f"{RF.flight_tables(fa)}" if fa else "")
     figs = "".join(f.html() for f in (figures or []))
     stage_imgs = "".join(f'<img src="{src}" alt="{html.escape(alt)}">' for src, alt in stage_images)
+    links = (", ".join(f'<a href="{src}">{html.escape(text)}</a>' for src, text in stage_links) + "."
+             if stage_links else "none of the stages has written a report page yet.")
     return f"""<!doctype html><html><head><meta charset="utf-8"><title>Accuracy report {html.escape(rep['project'])}</title>
 <style>{RF.STYLE}
 th.sec{{background:#dde}}.unconf{{color:#a60;font-weight:bold}}table.verdicts td:first-child{{min-width:22em}}.stage img{{max-width:48%;margin:4px;border:1px solid #ddd}}</style></head><body>
@@ -645,10 +651,7 @@ Overall verdict: <b class="{rep['overall'] or ''}">{html.escape(rep['overall'] o
 <table class="verdicts"><tr><th>quantity</th><th>value</th><th>limit</th><th>unit</th><th>verdict</th><th>note</th></tr>{''.join(body)}</table>
 {compliance_html(rep.get("compliance"))}
 <h2>Stage reports</h2>
-<p><a href="../at/report.html">adjustment (ISAT layout)</a>, <a href="../at/report.txt">report.txt</a>,
-<a href="../control/review/review.html">control transfer review</a>, <a href="../ortho/dom_report.json">DOM check</a>,
-<a href="../lidar_out/height_check.json">LiDAR height check</a>,
-<a href="../lidar_out/strips/index.html">LiDAR strip differences</a>.</p>
+<p>{links}</p>
 <p class="stage">{stage_imgs}</p>
 <h2>Figures</h2>{figs}
 {flight}
@@ -782,7 +785,9 @@ def write_qa_report(root, tolerance_file=None, terrain: str | None = None, scale
     write_text_atomic(project.report_summary_path, json.dumps(summary, indent=1) + "\n")
     figures = report_figures(rep, project)
     present = [(src, alt) for src, alt in STAGE_IMAGES if (project.reports_dir / src).resolve().is_file()]
-    write_text_atomic(project.report_index_path, format_html(summary, figures, present))
+    # only the stage pages this project has: a block without LiDAR has no height check or strip page
+    links = [(src, text) for src, text in STAGE_LINKS if (project.reports_dir / src).resolve().is_file()]
+    write_text_atomic(project.report_index_path, format_html(summary, figures, present, links))
     if pdf if pdf is not None else read_qa_config(root).pdf:
         write_pdf(project.report_pdf_path, summary, project, figures)
     return dataclasses.replace(rep, html=str(project.report_index_path))

@@ -259,3 +259,17 @@ def test_the_dom_checks_roofs_row_is_shown_not_judged(tmp_path):
     (p / "ortho" / "dom_report.json").write_text(json.dumps(dom))
     row = write_qa_report(p).check("dom_roofs_rms_xy_m")
     assert row.value is None and row.note == "none measured (the nDSM is in another CRS than the DOM)"
+
+
+def test_index_links_only_the_stage_pages_the_project_has(tmp_path):
+    """A block without LiDAR (the NGI trial): index.html linked the control review, height check and strip pages that
+    do not exist. Now every link resolves to a file."""
+    import re
+
+    p = _project(tmp_path, [0.1, 0.1, 0.2], 0.2)
+    (p / "at" / "report.txt").write_text("report\n")
+    write_qa_report(p)
+    page = (p / "reports" / "index.html").read_text()
+    links = re.findall(r'<a href="(\.\./[^"]+)"', page)
+    assert links == ["../at/report.txt", "../ortho/dom_report.json"]
+    assert all((p / "reports" / link).resolve().is_file() for link in links)
