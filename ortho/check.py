@@ -646,9 +646,9 @@ def run_check(project_root, settings: CheckSettings | Resolved | None = None, *,
         # not stand in the way of a check against surveyed points (no roofs are measured there)
         if reference_path is not None or resolved.sources.get("roof_corners") == COMMAND_LINE:
             roof_corners_path = s.roof_corners
-    if roof_corners_path is None and simulator_roof_corners(reference_path) is not None:
+    if roof_corners_path is None and (simulated := simulator_roof_corners(reference_path)) is not None:
         # against the simulator's true orthophoto: the roof corners that belong to it
-        roof_corners_path = simulator_roof_corners(reference_path)
+        roof_corners_path = simulated
         resolved = resolved.replace("roof_corners", roof_corners_path, resolved.sources.get("roof_corners", "default"),
                                     "the simulator's roof corners beside its true orthophoto, the reference")
     if ndsm_path is None and reference_path is not None and project_paths(root).ndsm_path.is_file():

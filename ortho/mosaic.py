@@ -992,30 +992,26 @@ def _blend_tile(ctx: _BlendContext, readers, r0: int, c0: int, th: int, tw: int)
             fill = np.zeros((bands, len(need)), np.float32)
             over = np.flatnonzero((fc < c0 + tw) & (fc + ctx.sizes[:, 0] > c0) & (fr < r0 + th)
                                   & (fr + ctx.sizes[:, 1] > r0))
-            for k in over.tolist():
-                img, m = frame(k, ya, yb, xa, xb)
-                cand = m.ravel()[inner]
+
+            def take_nearer(k, img, cand):
+                """Frame k's samples where it is a candidate and its nadir point nearer than the best so far."""
                 if not cand.any():
-                    continue
+                    return
                 d = np.hypot(xs - ctx.nadir[k, 0], ys - ctx.nadir[k, 1])
                 better = cand & (d < best)
                 best[better] = d[better]
                 fill[:, better] = img.reshape(bands, -1)[:, inner[better]] * ctx.gains[k].astype(np.float32)[:, None]
+
+            for k in over.tolist():
+                img, m = frame(k, ya, yb, xa, xb)
+                take_nearer(k, img, m.ravel()[inner])
             got = np.isfinite(best)
             if raw and not got.all():
                 # pixels every frame has only near its holes: the valid frame of the nearest nadir point after all
                 for k in over.tolist():
                     key = (k, ya, yb, xa, xb)
-                    if key not in raw:
-                        continue
-                    img = reads[key][0]
-                    cand = raw[key].ravel()[inner] & ~got
-                    if not cand.any():
-                        continue
-                    d = np.hypot(xs - ctx.nadir[k, 0], ys - ctx.nadir[k, 1])
-                    better = cand & (d < best)
-                    best[better] = d[better]
-                    fill[:, better] = img.reshape(bands, -1)[:, inner[better]] * ctx.gains[k].astype(np.float32)[:, None]
+                    if key in raw:
+                        take_nearer(k, reads[key][0], raw[key].ravel()[inner] & ~got)
                 got = np.isfinite(best)
             flat_out[:, need[got]] = _to_type(fill[:, got], ctx.dtype)
             valid.ravel()[need[got]] = True
