@@ -953,33 +953,35 @@ def _blend_tile(ctx: _BlendContext, readers, r0: int, c0: int, th: int, tw: int)
         sel = sel[ra:rb] & m[ra:rb]
         np.copyto(out[:, y0 + ra:y0 + rb, x0:x1], _apply_gain(ctx, k, img[:, ra:rb]), where=sel[None])
         valid[y0 + ra:y0 + rb, x0:x1] |= sel
-    mixed = np.flatnonzero(~valid)
-    if len(mixed):
-        acc = np.zeros((bands, len(mixed)), np.float32)
-        wsum = np.zeros(len(mixed), np.float32)
-        # position of every mixed pixel in acc and wsum (-1: not mixed)
-        at = np.full(th * tw, -1, np.int32)
-        at[mixed] = np.arange(len(mixed), dtype=np.int32)
-        at = at.reshape(th, tw)
-        for k, (y0, y1, x0, x1, wt) in zip(ks, boxes):
-            if wt is None:
-                continue
-            pos = at[y0:y1, x0:x1]
-            here = (pos >= 0) & (wt > 0)  # outside the box and where it is 0, the weight adds nothing
-            if not here.any():
-                continue
-            img, m = frame(k, y0, y1, x0, x1)
-            idx = pos[here]
-            wk = wt[here]
-            wk *= m[here]
-            wsum[idx] += wk
-            acc[:, idx] += img[:, here] * (wk[None] * ctx.gains[k].astype(np.float32)[:, None])
-        have = wsum > 1e-3
-        acc /= np.maximum(wsum, 1e-6)
+    mixed = ~valid
+    if mixed.any():
+        # the feather zone, box by box (``_mixed_boxes``: a few dense windows round the seams instead of a gather and
+        # scatter of every pixel): per pixel the same sums in the same frame order as over the pixels one by one
+        wsum = np.zeros((th, tw), np.float32)
+        for ya, yb, xa, xb in _mixed_boxes(mixed):
+            acc = np.zeros((bands, yb - ya, xb - xa), np.float32)
+            for k, (y0, y1, x0, x1, wt) in zip(ks, boxes):
+                iy0, iy1, ix0, ix1 = max(y0, ya), min(y1, yb), max(x0, xa), min(x1, xb)
+                if wt is None or iy1 <= iy0 or ix1 <= ix0:
+                    continue
+                w = wt[iy0 - y0:iy1 - y0, ix0 - x0:ix1 - x0]
+                if not w.any():  # the weight adds nothing here
+                    continue
+                img, m = frame(k, y0, y1, x0, x1)
+                wk = w * m[iy0 - y0:iy1 - y0, ix0 - x0:ix1 - x0]
+                wsum[iy0:iy1, ix0:ix1] += wk
+                g = ctx.gains[k].astype(np.float32)
+                for b in range(bands):
+                    acc[b, iy0 - ya:iy1 - ya, ix0 - xa:ix1 - xa] += \
+                        img[b, iy0 - y0:iy1 - y0, ix0 - x0:ix1 - x0] * (wk * g[b])
+            ws = wsum[ya:yb, xa:xb]
+            put = mixed[ya:yb, xa:xb] & (ws > 1e-3)
+            acc /= np.maximum(ws, 1e-6)
+            np.copyto(out[:, ya:yb, xa:xb], _to_type(acc, ctx.dtype), where=put[None])
+            valid[ya:yb, xa:xb] |= put
         flat_out = out.reshape(bands, -1)
-        flat_out[:, mixed[have]] = _to_type(acc[:, have], ctx.dtype)
-        valid.ravel()[mixed[have]] = True
-        need = mixed[~have]
+        # pixels of the feather zone no weight reaches (no frame labelled there: the edge of the block)
+        need = np.flatnonzero(mixed & ~(wsum > 1e-3))
         if len(need):
             # the valid frame of the nearest nadir point fills pixels no labelled frame reaches (read over the
             # box of those pixels)
@@ -1062,6 +1064,23 @@ def _hole_margin(ctx: _BlendContext, readers, k: int, row: int, col: int, h: int
         return (img[:, inner[0], inner[1]], valid), valid
     near = cv2.dilate(hole.view(np.uint8), cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * m_px + 1,) * 2))
     return (img[:, inner[0], inner[1]], valid & (near[inner] == 0)), valid
+
+
+def _mixed_boxes(mask: np.ndarray, strip_px: int = 64, gap_px: int = 32) -> list:
+    """Disjoint boxes (y0, y1, x0, x1) that hold every set pixel of ``mask`` (h, w): per strip of ``strip_px`` rows, the
+    runs of columns with a set pixel (runs closer than ``gap_px`` joined), cut to their rows with one."""
+    out = []
+    h = mask.shape[0]
+    for ya in range(0, h, strip_px):
+        yb = min(h, ya + strip_px)
+        cols = np.flatnonzero(mask[ya:yb].any(axis=0))
+        if not len(cols):
+            continue
+        cut = np.flatnonzero(np.diff(cols) > gap_px)
+        for xa, xb in zip(np.r_[cols[0], cols[cut + 1]].tolist(), (np.r_[cols[cut], cols[-1]] + 1).tolist()):
+            rows = np.flatnonzero(mask[ya:yb, xa:xb].any(axis=1))
+            out.append((ya + int(rows[0]), ya + int(rows[-1]) + 1, xa, xb))
+    return out
 
 
 def _weight_boxes(ctx: _BlendContext, cells: np.ndarray, ks: list, dr: int, dc: int, lr: np.ndarray, lc: np.ndarray,
