@@ -38,10 +38,11 @@ frames of the first S strips (a project of links to the frames), smallest first,
 per gigapixel can be compared across DOM sizes; ``--subset all`` is the whole set.
 
 Writes bench/results/mosaic_speed.json (``--out``); ``--skip-demo`` leaves the demo out (a large-set run on its own,
-e.g. ``--out bench/results/mosaic_speed_large.json``).
+e.g. ``--out bench/results/mosaic_speed_large.json``). With ``--label KEY`` the run goes under KEY of the ``--out`` file,
+whose other keys (earlier rounds) are kept. The commit of the code measured is recorded (``commit``).
 
 Usage: python bench/mosaic_speed.py [--demo DIR] [--work DIR] [--gp 4.2] [--repeats N] [--large-repeats N]
-       [--skip-demo] [--skip-large] [--keep-large] [--large-check] [--subset S,F ...] [--out FILE]
+       [--skip-demo] [--skip-large] [--keep-large] [--large-check] [--subset S,F ...] [--out FILE] [--label KEY]
 """
 
 from __future__ import annotations
@@ -363,6 +364,7 @@ def main() -> None:
     ap.add_argument("--keep-large", action="store_true")
     ap.add_argument("--large-check", action="store_true", help="also ortho check the large DOM (long)")
     ap.add_argument("--out", type=Path, default=REPO / "bench" / "results" / "mosaic_speed.json")
+    ap.add_argument("--label", help="write this run under this key of --out, keeping the file's other keys")
     a = ap.parse_args()
     if shutil.which("gdalwarp") is None:
         raise SystemExit("gdalwarp not found: the peer of this benchmark is GDAL's command line gdalwarp (Debian "
@@ -372,9 +374,20 @@ def main() -> None:
     import rasterio
 
     src = demo_project(a.demo)
-    result = {"machine": {"cpus": os.cpu_count(), "gdal_peer": peer_version, "gdal_ours": rasterio.__gdal_version__},
+    commit = subprocess.run(["git", "-C", str(REPO), "rev-parse", "--short", "HEAD"], capture_output=True, text=True)
+    dirty = subprocess.run(["git", "-C", str(REPO), "status", "--porcelain", "--", "ortho", "aerotri"], capture_output=True,
+                           text=True).stdout.strip()
+    result = {"commit": commit.stdout.strip() + (" (with uncommitted changes)" if dirty else ""),
+              "machine": {"cpus": os.cpu_count(), "gdal_peer": peer_version, "gdal_ours": rasterio.__gdal_version__},
               "peer_command": " ".join(PEER) + " --optfile <frames> <out.tif>",
               "ours_command": "ortho mosaic <project>"}
+    earlier = json.loads(a.out.read_text()) if a.label and a.out.is_file() else {}
+
+    def save():
+        """The results so far into --out (under --label, beside the file's other keys)."""
+        a.out.parent.mkdir(parents=True, exist_ok=True)
+        a.out.write_text(json.dumps({**earlier, a.label: result} if a.label else result, indent=1) + "\n")
+
     demo = copy_demo(src, a.work / "demo")
     if not a.skip_demo:
         print(f"demo: {len(list((demo / 'ortho' / 'frames').glob('*.tif')))} frames from {src}", flush=True)
@@ -389,8 +402,7 @@ def main() -> None:
             "before": None if before is None else {"patches": before["count"], "rms_xy_m": before["rms_xy_m"],
                                                    "rms_xy_gsd": before["rms_xy_gsd"], "max_xy_m": before["max_xy_m"],
                                                    "source": "the demo's ortho/dom_report.json"}}
-    a.out.parent.mkdir(parents=True, exist_ok=True)
-    a.out.write_text(json.dumps(result, indent=1) + "\n")
+    save()
     if not a.skip_large:
         large = a.work / "large"
         print(f"large: making the synthetic frame orthos for {a.gp} GP", flush=True)
@@ -411,21 +423,21 @@ def main() -> None:
 
             def large_check(part=part, proj=proj):
                 part["first_ours"] = "measured"
-                a.out.write_text(json.dumps(result, indent=1) + "\n")
+                save()
                 if a.large_check:
                     print(f"{key}: ortho check", flush=True)
                     part["dom_check"] = check(proj, proj / "reference.tif", "dom_report_bench")
                     part["dom_check"]["reference"] = f"the ground image at {REF_RES_M} m"
-                    a.out.write_text(json.dumps(result, indent=1) + "\n")
+                    save()
 
             part.update(compare(proj, a.large_repeats, key, between=large_check))
             part["per_gp"] = per_gp(part)
-            a.out.write_text(json.dumps(result, indent=1) + "\n")
+            save()
             if proj != large:
                 shutil.rmtree(proj)
         if not a.keep_large:
             shutil.rmtree(large)
-    a.out.write_text(json.dumps(result, indent=1) + "\n")
+    save()
     if "demo" in result:
         d = result["demo"]["median"]
         print(f"demo: ours {d['ours_wall_s']} s, gdalwarp {d['peer_wall_s']} s: {d['ratio_peer_over_ours_wall']}x")
