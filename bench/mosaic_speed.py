@@ -375,8 +375,8 @@ def compare(work: Path, repeats: int, label: str, between=None, before_src: Path
                        "peer_peak_rss_mb": max(r["peer"]["peak_rss_mb"] for r in runs),
                        "ours_mp_per_s": med("mp_per_s", "ours"), "peer_mp_per_s": med("mp_per_s", "peer"),
                        "ratio_peer_over_ours_wall": statistics.median(r["ratio"] for r in runs),
-                       "ratio_peer_over_ours_cpu": statistics.median(r["peer"]["cpu_s"] / r["ours"]["cpu_s"]
-                                                                     for r in runs)}}
+                       "ratio_peer_over_ours_cpu": round(statistics.median(r["peer"]["cpu_s"] / r["ours"]["cpu_s"]
+                                                                           for r in runs), 3)}}
 
 
 def check(work: Path, reference: Path, out_stem: str) -> dict:
