@@ -38,8 +38,8 @@ frames of the first S strips (a project of links to the frames), smallest first,
 per gigapixel can be compared across DOM sizes; ``--subset all`` is the whole set.
 
 Writes bench/results/mosaic_speed.json (``--out``); ``--skip-demo`` leaves the demo out (a large-set run on its own,
-e.g. ``--out bench/results/mosaic_speed_large.json``). With ``--label KEY`` the run goes under KEY of the ``--out`` file,
-whose other keys (earlier rounds) are kept. The commit of the code measured is recorded (``commit``). With
+e.g. ``--out bench/results/mosaic_speed_large.json``). With ``--label KEY`` the run goes under KEY of the ``--out``
+file, whose other keys (earlier rounds) are kept. The commit of the code measured is recorded (``commit``). With
 ``--before-src DIR`` (a source tree of the code before a change, e.g. ``git archive main``) the demo runs that code's
 ``ortho mosaic`` too, first in every repetition, and records whether the two mosaics have the same sha256.
 
@@ -418,8 +418,8 @@ def main() -> None:
 
     src = demo_project(a.demo)
     commit = subprocess.run(["git", "-C", str(REPO), "rev-parse", "--short", "HEAD"], capture_output=True, text=True)
-    dirty = subprocess.run(["git", "-C", str(REPO), "status", "--porcelain", "--", "ortho", "aerotri"], capture_output=True,
-                           text=True).stdout.strip()
+    dirty = subprocess.run(["git", "-C", str(REPO), "status", "--porcelain", "--", "ortho", "aerotri"],
+                           capture_output=True, text=True).stdout.strip()
     result = {"commit": commit.stdout.strip() + (" (with uncommitted changes)" if dirty else ""),
               "machine": {"cpus": os.cpu_count(), "gdal_peer": peer_version, "gdal_ours": rasterio.__gdal_version__},
               "peer_command": " ".join(PEER) + " --optfile <frames> <out.tif>",

@@ -28,8 +28,9 @@ Steps (``mosaic_block``):
 Speed (``bench/mosaic_speed.py``, ``bench/results/mosaic_speed*.json``, ``docs/performance.md``): seams and
 blending in compiled or vectorised code (OpenCV; scipy's Dijkstra for the seam paths), the tiles on all
 cores while this thread writes, no float64 intermediates; a seam tile reads each frame only over the box
-its weight reaches, and the frames of a small block (``DECODED_FRAMES_MAX_BYTES``) are decoded once, by
-the seam grid, and blended from memory. The tile order, the tile results and so the files do not depend
+its weight reaches and blends its feather zone in dense windows round the seams (``_mixed_boxes``), and the
+frames of a small block (``DECODED_FRAMES_MAX_BYTES``) are decoded once, by the seam grid, and blended from
+memory. The tile order, the tile results and so the files do not depend
 on the scheduler or the number of threads.
 
 The frames are checked against ``ortho/frames/index.json`` first (sizes and hashes), the tile size
