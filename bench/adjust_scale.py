@@ -140,6 +140,7 @@ def _aerotri(args: list, pythonpath: str | None = None) -> dict:
         raise RuntimeError(f"aerotri {' '.join(args)} failed ({p.returncode}):\n{p.stdout}\n{p.stderr[-4000:]}")
     res = _time_v(p.stderr)
     res["stdout"] = p.stdout.strip().splitlines()
+    res["robust_rounds"] = [ln for ln in p.stderr.splitlines() if ln.startswith("robust round")]
     res["load_average_1min"] = [round(load, 2), round(os.getloadavg()[0], 2)]  # before, after: the machine is shared
     return res
 
