@@ -15,6 +15,16 @@ change of the gate starts another round, as before):
     python bench/eval_adjust_rounds.py adjust PROJECT [--old] [--dem DEM]
 
 runs ``aerotri adjust PROJECT --no-exports`` in this process with the rule on, or off with ``--old``.
+
+    python bench/eval_adjust_rounds.py pair A B [--pythonpath-a MAIN_SRC] [--dem-name dem.tif] [--label L] [--out J]
+
+runs ``aerotri adjust`` on two copies of one project at the same time under ``/usr/bin/time -v`` (the same load
+for both): A with another source tree (``--pythonpath-a``, e.g. main's), B with this one; records their CPU,
+wall and peak memory and the comparison of their outputs under ``L`` in ``J``.
+
+    python bench/eval_adjust_rounds.py timings LOG [LOG ...]
+
+prints wall, CPU and peak memory of ``/usr/bin/time -v`` logs (runs made by hand).
 """
 
 from __future__ import annotations
@@ -94,6 +104,42 @@ def record(out: Path, label: str, entry: dict) -> None:
     tmp.replace(out)
 
 
+def _time_v(log_text: str) -> dict:
+    sys.path.insert(0, str(Path(__file__).parent))
+    from adjust_scale import _time_v as parse
+
+    return parse(log_text)
+
+
+def pair(a: Path, b: Path, pythonpath_a: str | None, dem_name: str | None, logs: list | None = None) -> dict:
+    """``aerotri adjust`` on ``a`` (source tree ``pythonpath_a``) and ``b`` (this tree) at the same time; ``logs``:
+    the ``/usr/bin/time -v`` logs of two such runs made already (their outputs in ``a`` and ``b``), read instead."""
+    import threading
+
+    sys.path.insert(0, str(Path(__file__).parent))
+    from adjust_scale import _aerotri
+
+    if logs:
+        res = {k: _time_v(Path(log).read_text()) for k, log in zip(("a", "b"), logs)}
+        res["compare"] = compare(a / "at", b / "at")
+        return res
+    out = {}
+
+    def run(key, root, pp):
+        args = ["adjust", str(root), "--no-exports"] + (["--dem", str(root / dem_name)] if dem_name else [])
+        out[key] = _aerotri(args, pp)
+
+    threads = [threading.Thread(target=run, args=("a", a, pythonpath_a)), threading.Thread(target=run, args=("b", b, None))]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join()
+    res = {k: {f: out[k][f] for f in ("wall_s", "cpu_s", "user_s", "system_s", "peak_rss_mb", "load_average_1min")}
+           for k in ("a", "b")}
+    res["compare"] = compare(a / "at", b / "at")
+    return res
+
+
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     sub = ap.add_subparsers(dest="cmd", required=True)
@@ -106,7 +152,30 @@ def main(argv=None):
     r.add_argument("project", type=Path)
     r.add_argument("--old", action="store_true")
     r.add_argument("--dem", default=None)
+    pa = sub.add_parser("pair")
+    pa.add_argument("a", type=Path)
+    pa.add_argument("b", type=Path)
+    pa.add_argument("--pythonpath-a", default=None)
+    pa.add_argument("--dem-name", default=None)
+    pa.add_argument("--label", default="pair")
+    pa.add_argument("--out", type=Path, default=None)
+    pa.add_argument("--from-logs", type=Path, nargs=2, default=None, help="time -v logs of runs of A and B made already")
+    pa.add_argument("--note", default=None, help="what A and B are (recorded with the result)")
+    tv = sub.add_parser("timings")
+    tv.add_argument("logs", type=Path, nargs="+")
     a = ap.parse_args(argv)
+    if a.cmd == "timings":
+        for log in a.logs:
+            print(log, json.dumps(_time_v(log.read_text())))
+        return None
+    if a.cmd == "pair":
+        res = pair(a.a, a.b, a.pythonpath_a, a.dem_name, a.from_logs)
+        if a.note:
+            res = {"what": a.note, **res}
+        print(json.dumps(res, indent=1))
+        if a.out:
+            record(a.out, a.label, res)
+        return None
     if a.cmd == "adjust":
         import aerotri.adjust.solve as solve
         from aerotri.cli import main as cli
