@@ -152,6 +152,7 @@ def _adjust_block(
             rnd += 1
             t0 = time.perf_counter()
             before = state
+            tested.clear()  # a new solution follows: the last test's arrays (170 MB at 5 M rays) are not kept through it
             gr = G.build_graph(block, opts, state, obs_active, control_active, robust=True)
             # robust rounds only need to be close: the next round starts from here, the final one polishes.
             # Huber weights make LM converge linearly (iteratively reweighted), so a tight tolerance would
@@ -195,6 +196,7 @@ def _adjust_block(
     if surface_candidates is not None:
         surface_candidates, block.surface_active = _surface_gate(block, state, obs_active, opts.image_sigma_px)
     for _ in range(3):
+        tested.clear()
         t0 = time.perf_counter()
         gr = G.build_graph(block, opts, state, obs_active, control_active, robust=False)
         values, info = G.optimize(gr, opts)
