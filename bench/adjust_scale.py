@@ -136,7 +136,9 @@ def _aerotri(args: list, pythonpath: str | None = None, log: Path | None = None)
         env["PYTHONPATH"] = pythonpath
     code = "import sys; from aerotri.cli import main; sys.argv[0] = 'aerotri'; sys.exit(main())"
     load = os.getloadavg()[0]
-    cmd = ["/usr/bin/time", "-v", sys.executable, "-c", code, *args]
+    # -P: without it ``python -c`` puts the working directory first on sys.path, ahead of PYTHONPATH, and a run from a
+    # checkout's root imports that checkout's aerotri instead of the other tree's
+    cmd = ["/usr/bin/time", "-v", sys.executable, *(["-P"] if pythonpath else []), "-c", code, *args]
     if log is None:
         p = subprocess.run(cmd, capture_output=True, text=True, env=env)
         stderr = p.stderr
