@@ -389,8 +389,18 @@ def deep_ground_outliers(x, y, z, ground, cell_m: float = 5.0, deep_m: float = 5
     return out
 
 
+def _plane_offsets(x, y, z, query, nb, dist, min_points: int, robust: bool = False):
+    """``_plane_offsets_kernel`` with its arguments in one set of types (contiguous arrays, ``robust``
+    given): numba compiles a function once per set of argument types, and this one (parallel,
+    ``np.linalg.solve``, ``np.median``) takes about 10 CPU-s each time on a fresh clone; sliced
+    neighbour arrays and an omitted ``robust`` had made two."""
+    c = np.ascontiguousarray
+    return _plane_offsets_kernel(c(x, np.float64), c(y, np.float64), c(z, np.float64), c(query, np.int64),
+                                 c(nb, np.int64), c(dist, np.float64), int(min_points), bool(robust))
+
+
 @numba.njit(cache=True, parallel=True)
-def _plane_offsets(x, y, z, query, nb, dist, min_points, robust=False):
+def _plane_offsets_kernel(x, y, z, query, nb, dist, min_points, robust):
     """Per query point: height above the LSQ plane z = a dx + b dy + c through its valid
     neighbours ``nb`` (point indices; dx, dy relative to the query point, so c is the plane
     height there), and the neighbours' spread about the plane: their RMS residual, or with ``robust``
