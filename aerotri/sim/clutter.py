@@ -159,13 +159,13 @@ def clutter_ties(block: GeometricBlock, *, points_per_image: int = 150, vegetati
     P = block.ground_points(n_cand, rng)
     P = P[trees.canopy_m(P[:, 0], P[:, 1]) == 0]  # hidden under the crowns
     g_obs, g_ids, g_P = _noisy(block, P, *block.project(P), prefix=PREFIX["ground"], sigma_px=sigma_px, min_rays=3,
-                                rng=rng)
+                               rng=rng)
     n_g = len(g_ids)
     n_total = n_g / (1 - vegetation_share - moving_share)
     n_veg, n_mov = round(vegetation_share * n_total), round(moving_share * n_total)
     V = trees.sample(block, 2 * n_veg + 100, rng)
-    v_obs, v_ids, _ = _noisy(block, V, *block.project(V), prefix=PREFIX["vegetation"], sigma_px=sigma_px,
-                            min_rays=3, rng=rng)
+    v_obs, v_ids, _ = _noisy(block, V, *block.project(V), prefix=PREFIX["vegetation"], sigma_px=sigma_px, min_rays=3,
+                             rng=rng)
     v_obs, keep = _subset_points(v_obs, v_ids, n_veg, rng)
     v_ids = v_ids[keep]
     m_obs, m_ids, _ = moving_points(block, n_mov, rng, sigma_px=sigma_px)

@@ -323,8 +323,7 @@ def _render_frames(images_dir: Path, cfg: dict, *, look, plan, cam_true, s_frame
     rcfg = cfg["render"]
     fl = frame_layout(cfg)
     renderer = raster.FrameRenderer(look.scene, cam_true, look.fine_m, samples=int(rcfg["samples"]), bits=fl["bits"],
-                                    look=look,
-                                    bands=fl["bands"])
+                                    look=look, bands=fl["bands"])
     frame_seeds = s_frames.spawn(len(plan.image_id))
     gains = []
     for i in track(range(len(plan.image_id)), "frames"):
@@ -524,11 +523,9 @@ def _write_truth_rasters(truth_dir: Path, cfg: dict, layout, look, origin, epsg:
         return z + origin[2]
 
     _write_geotiff(truth_dir / "dem.tif", nx, ny, bands=1, dtype=np.float32, transform=transform, epsg=epsg,
-                   rows=dem_rows, nodata=-9999.0,
-                   compress=compress)
+                   rows=dem_rows, nodata=-9999.0, compress=compress)
     _write_geotiff(truth_dir / "dsm.tif", nx, ny, bands=1, dtype=np.float32, transform=transform, epsg=epsg,
-                   rows=dsm_rows, nodata=-9999.0,
-                   compress=compress)
+                   rows=dsm_rows, nodata=-9999.0, compress=compress)
     ores = cfg["truth"]["ortho_res_m"]
     onx, ony = int(math.floor(layout.width_m / ores)), int(math.floor(layout.height_m / ores))
     oxs = (np.arange(onx) + 0.5) * ores
@@ -554,8 +551,7 @@ def _write_truth_rasters(truth_dir: Path, cfg: dict, layout, look, origin, epsg:
 
         ortho_bands = frame_layout(cfg)["bands"]
         _write_geotiff(truth_dir / "ortho.tif", onx, ony, bands=ortho_bands, dtype=np.uint8, transform=otransform,
-                       epsg=epsg, rows=ortho_rows,
-                       compress=compress)
+                       epsg=epsg, rows=ortho_rows, compress=compress)
         nir_out.close()
         cls_out.close()
     return (2 * nx * ny + onx * ony) / 1e6
@@ -750,8 +746,7 @@ def simulate_observations(cfg: dict, outdir, force: bool = False, *, tie_sigma_p
     with atomic_dir(outdir) as tmp, stage_block_cache(SIM_CACHE_BYTES):
         (tmp / "truth").mkdir(parents=True, exist_ok=True)
         _write_project_files(tmp, cfg, plan=plan, cam_true=cam_true, cam_nominal=cam_nominal, origin=origin, epsg=epsg,
-                             gains=[1.0] * len(plan.image_id),
-                             chain=observations_chain(cfg, cam_true, cam_nominal))
+                             gains=[1.0] * len(plan.image_id), chain=observations_chain(cfg, cam_true, cam_nominal))
         res = terrain.terrain_res_m
         nx, ny = int(math.floor(layout.width_m / res)), int(math.floor(layout.height_m / res))
         xs = (np.arange(nx) + 0.5) * res
@@ -761,8 +756,8 @@ def simulate_observations(cfg: dict, outdir, force: bool = False, *, tie_sigma_p
             return terrain.terrain_height(X, Y) + origin[2]
 
         _write_geotiff(tmp / "dem.tif", nx, ny, bands=1, dtype=np.float32,
-                       transform=from_origin(origin[0], origin[1] + layout.height_m, res, res),
-                       epsg=epsg, rows=dem_rows, nodata=-9999.0, compress=str(cfg["truth"].get("compress", "deflate")))
+                       transform=from_origin(origin[0], origin[1] + layout.height_m, res, res), epsg=epsg,
+                       rows=dem_rows, nodata=-9999.0, compress=str(cfg["truth"].get("compress", "deflate")))
         _write_flight_acceptance(tmp / "truth", cfg, plan, cam_true, origin, dem=tmp / "dem.tif")
         summary = write_truth_observations(tmp, tie_sigma_px=tie_sigma_px, n_control=n_control,
                                            blunder_fraction=blunder_fraction, bad_control_shift_m=bad_control_shift_m,

@@ -722,19 +722,16 @@ class FrameRenderer:
         ids = np.empty((r1 - r0, cam.width) if with_ids else (1, 1), np.int64)
         L = self.look
         _render_bands(r0 // br, (r1 + br - 1) // br, r0, W=cam.width, H=cam.height, band_rows=br, step=float(self.step),
-                      XN=self.XN, YN=self.YN,
-                      C=frame.C, A_inv=frame.earth.A_inv, quad=frame.earth.q, curved=bool(frame.earth.q.any()),
-                      V=frame.V, ti0=frame.ti0, tj0=frame.tj0, cell_start=frame.cell_start,
-                      cell_list=frame.cell_list, cell_box=frame.cell_box, TV=frame.TV, tri_ids=frame.tri_ids,
-                      tri_start=frame.tri_start, tri_list=frame.tri_list,
-                      tri_box=frame.tri_box, tree_ids=frame.tree_ids, tree_start=frame.tree_start,
-                      tree_list=frame.tree_list, tree_box=frame.tree_box, tree_G=frame.tree_G,
-                      tree_s=frame.tree_s,
-                      hz=L.hz, res=L.res, tn=L.tn, tkind=L.tkind, tobj=L.tobj, tc=L.tc, ta=L.ta, G=L.G,
-                      roof_albedo=L.roof_albedo, fine_m=L.fine_m, sun=L.sun,
-                      gain=float(gain), vignetting=float(vignetting), noise_dn=float(noise_dn),
-                      noise_seed=np.uint32(noise_seed & 0xFFFFFFFF), bits=self.bits, lut=self.lut,
-                      out=out, ids_out=ids, want_ids=with_ids)
+                      XN=self.XN, YN=self.YN, C=frame.C, A_inv=frame.earth.A_inv, quad=frame.earth.q,
+                      curved=bool(frame.earth.q.any()), V=frame.V, ti0=frame.ti0, tj0=frame.tj0,
+                      cell_start=frame.cell_start, cell_list=frame.cell_list, cell_box=frame.cell_box, TV=frame.TV,
+                      tri_ids=frame.tri_ids, tri_start=frame.tri_start, tri_list=frame.tri_list, tri_box=frame.tri_box,
+                      tree_ids=frame.tree_ids, tree_start=frame.tree_start, tree_list=frame.tree_list,
+                      tree_box=frame.tree_box, tree_G=frame.tree_G, tree_s=frame.tree_s, hz=L.hz, res=L.res, tn=L.tn,
+                      tkind=L.tkind, tobj=L.tobj, tc=L.tc, ta=L.ta, G=L.G, roof_albedo=L.roof_albedo, fine_m=L.fine_m,
+                      sun=L.sun, gain=float(gain), vignetting=float(vignetting), noise_dn=float(noise_dn),
+                      noise_seed=np.uint32(noise_seed & 0xFFFFFFFF), bits=self.bits, lut=self.lut, out=out, ids_out=ids,
+                      want_ids=with_ids)
         return out, (ids if with_ids else None)
 
     def render(self, centre_m, R, **kw):
@@ -887,16 +884,15 @@ def ortho_render(look: SceneLook, x0_m: float, ytop_m: float, step_m: float, *, 
     z = np.empty((nrows, ncols))
     code = np.empty((nrows, ncols), np.int64)
     _ortho_rows(float(x0_m), float(ytop_m), float(step_m), int(r0), nrows=nrows, ncols=int(ncols), hz=look.hz,
-                res=look.res, tv=look.tv,
-                tri_ids=tri, tree_ids=trees, tc=look.tc, ta=look.ta, sub_rows=16, zout=z, code=code)
+                res=look.res, tv=look.tv, tri_ids=tri, tree_ids=trees, tc=look.tc, ta=look.ta, sub_rows=16, zout=z,
+                code=code)
     if not shade:
         return z, None, None
     rad = np.empty((nrows, ncols, 3), np.float32)
     ids = np.empty((nrows, ncols), np.int64)
     _ortho_shade(float(x0_m), float(ytop_m), float(step_m), int(r0), zin=z, code=code, hz=look.hz, res=look.res,
-                 tn=look.tn, tkind=look.tkind,
-                 tobj=look.tobj, tc=look.tc, ta=look.ta, G=look.G, roof_albedo=look.roof_albedo, fine_m=look.fine_m,
-                 sun=look.sun, rad=rad, ids=ids)
+                 tn=look.tn, tkind=look.tkind, tobj=look.tobj, tc=look.tc, ta=look.ta, G=look.G,
+                 roof_albedo=look.roof_albedo, fine_m=look.fine_m, sun=look.sun, rad=rad, ids=ids)
     return z, rad, ids
 
 
