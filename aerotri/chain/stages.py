@@ -418,7 +418,7 @@ class Chain:
         from lidarctl.vector_check import VectorCheckSettings, check_files
 
         p = self.project
-        s = vectors_to_file(self.classified(), p.vectors_path, MapVectorSettings(), crs=p.crs)
+        s = vectors_to_file(self.classified(), p.vectors_path, params=MapVectorSettings(), crs=p.crs)
         counts = {k: s[k] for k in ("buildings", "roads", "water", "spot_heights") if k in s}
         ref = self.vectors_reference()
         if ref is None:
