@@ -245,11 +245,11 @@ def simulate(cfg: dict, outdir, force: bool = False, on_phase=None) -> SimTruth:
         done("frames", usage, frames=n_frames, megapixels=n_frames * cam_true.width * cam_true.height / 1e6)
         log.info(f"rendered {n_frames} frames of {cam_true.width} x {cam_true.height} px in {usage.wall_s:.1f} s")
         planned = lidar_plan(cfg)
-        log.info("LiDAR planned: {strips} strips, {pulses} pulses over {scene_km2} km2".format(**planned))
+        log.info(f"LiDAR planned: {planned.strips} strips, {planned.pulses} pulses over {planned.scene_km2} km2")
         with measure() as usage:
             lidar = _scan_lidar(tmp, cfg, layout=layout, scene=scene, accel=accel, origin=origin, epsg=epsg,
                                 s_lidar=s_lidar)
-        done("lidar", usage, points=int(lidar.points), pulses=int(planned["pulses"]))
+        done("lidar", usage, points=int(lidar.points), pulses=int(planned.pulses))
         log.info(f"scanned {lidar.lines} LiDAR strips, {lidar.points} points in {usage.wall_s:.1f} s")
         with measure() as usage:
             megapixels = _write_truth_rasters(tmp / "truth", cfg, layout, look, origin, epsg)
@@ -302,15 +302,25 @@ def texture_fine_m(cfg: dict, cam_true) -> float:
     return float(v) if v else float(cam_true.gsd_m(cfg["flight"]["height_above_ground_m"]))
 
 
-def frame_layout(cfg: dict) -> dict:
-    """How frames are written: sample depth, bands and TIFF layout from ``[render]`` (``bits`` 8 or 12, ``bands``
-    rgb or pan, ``tile_px``, ``compress``)."""
+@dataclasses.dataclass(frozen=True)
+class FrameLayout:
+    """How frames are written: sample depth, bands and TIFF layout."""
+
+    bits: int  # 8 or 12
+    dtype: str  # "uint8" or "uint16"
+    tile_px: int  # 0: strips written by OpenCV
+    bands: int  # 3 (RGB) or 1 (pan)
+    compress: str
+
+
+def frame_layout(cfg: dict) -> FrameLayout:
+    """The frame layout from ``[render]`` (``bits`` 8 or 12, ``bands`` rgb or pan, ``tile_px``, ``compress``)."""
     r = cfg["render"]
     bits = int(r.get("bits", 8))
     tile = int(r.get("tile_px", 0))
-    return dict(bits=bits, dtype="uint8" if bits == 8 else "uint16", tile_px=tile,
-                bands=1 if r.get("bands", "rgb") == "pan" else 3,
-                compress=str(r.get("compress", "none")) if tile else "lzw (OpenCV)")
+    return FrameLayout(bits=bits, dtype="uint8" if bits == 8 else "uint16", tile_px=tile,
+                       bands=1 if r.get("bands", "rgb") == "pan" else 3,
+                       compress=str(r.get("compress", "none")) if tile else "lzw (OpenCV)")
 
 
 def _render_frames(images_dir: Path, cfg: dict, *, look, plan, cam_true, s_frames, earth: SimEarth) -> list[float]:
@@ -322,8 +332,8 @@ def _render_frames(images_dir: Path, cfg: dict, *, look, plan, cam_true, s_frame
     """
     rcfg = cfg["render"]
     fl = frame_layout(cfg)
-    renderer = raster.FrameRenderer(look.scene, cam_true, look.fine_m, samples=int(rcfg["samples"]), bits=fl["bits"],
-                                    look=look, bands=fl["bands"])
+    renderer = raster.FrameRenderer(look.scene, cam_true, look.fine_m, samples=int(rcfg["samples"]), bits=fl.bits,
+                                    look=look, bands=fl.bands)
     frame_seeds = s_frames.spawn(len(plan.image_id))
     gains = []
     for i in track(range(len(plan.image_id)), "frames"):
@@ -335,7 +345,7 @@ def _render_frames(images_dir: Path, cfg: dict, *, look, plan, cam_true, s_frame
         R = rotation_matrix_opk(*plan.opk_deg[i])
         frame = renderer.setup(plan.centre_m[i], R, earth.frame_earth(plan.centre_m[i], R))
         path = images_dir / f"{plan.image_id[i]}.tif"
-        if fl["tile_px"]:
+        if fl.tile_px:
             _write_tiled_frame(path, renderer, frame, expo, fl)
         else:
             img, _ = renderer.render_rows(frame, 0, cam_true.height, **expo)
@@ -347,12 +357,12 @@ def _write_tiled_frame(path: Path, renderer, frame, expo: dict, fl: dict) -> Non
     """One frame as a tiled TIFF (pixel-interleaved R, G, B, or one panchromatic band; no georeferencing, as
     cameras deliver), rendered and written one row of tiles at a time."""
     cam = renderer.camera
-    tile = fl["tile_px"]
-    profile = dict(driver="GTiff", width=cam.width, height=cam.height, count=fl["bands"], dtype=fl["dtype"], tiled=True,
-                   blockxsize=tile, blockysize=tile, photometric="RGB" if fl["bands"] == 3 else "MINISBLACK",
+    tile = fl.tile_px
+    profile = dict(driver="GTiff", width=cam.width, height=cam.height, count=fl.bands, dtype=fl.dtype, tiled=True,
+                   blockxsize=tile, blockysize=tile, photometric="RGB" if fl.bands == 3 else "MINISBLACK",
                    interleave="pixel", bigtiff="IF_SAFER")
-    if fl["compress"] != "none":
-        profile.update(_compression(fl["compress"]))
+    if fl.compress != "none":
+        profile.update(_compression(fl.compress))
     with warnings.catch_warnings():
         warnings.filterwarnings("ignore", category=rasterio.errors.NotGeoreferencedWarning)
         with rasterio.open(path, "w", **profile) as dst:
@@ -362,14 +372,22 @@ def _write_tiled_frame(path: Path, renderer, frame, expo: dict, fl: dict) -> Non
                 dst.write(np.moveaxis(rows, 2, 0), window=rasterio.windows.Window(0, r0, cam.width, r1 - r0))
 
 
-def lidar_plan(cfg: dict) -> dict:
-    """What the preset's LiDAR will be, before any scanning: strips, pulses (each gives 0 to 3 points:
-    none off the scene or on most water, several in trees: 0.5 points a pulse on tiny, 0.6 on demo)
-    and the scene area."""
+@dataclasses.dataclass(frozen=True)
+class LidarPlan:
+    """What the preset's LiDAR will be, before any scanning: strips, pulses (each gives 0 to 3 points: none
+    off the scene or on most water, several in trees: 0.5 points a pulse on tiny, 0.6 on demo), scene area."""
+
+    strips: int
+    pulses: int
+    scene_km2: float
+
+
+def lidar_plan(cfg: dict) -> LidarPlan:
+    """The preset's ``LidarPlan``."""
     layout = block_layout(cfg)
     lines = lidar_lines(cfg, layout)
-    return dict(strips=len(lines), pulses=sum(strip_pulses(line, cfg["lidar"], layout.width_m) for line in lines),
-                scene_km2=round(layout.width_m * layout.height_m / 1e6, 3))
+    return LidarPlan(strips=len(lines), pulses=sum(strip_pulses(line, cfg["lidar"], layout.width_m) for line in lines),
+                     scene_km2=round(layout.width_m * layout.height_m / 1e6, 3))
 
 
 def _scan_lidar(tmp: Path, cfg: dict, *, layout, scene, accel, origin, epsg: int, s_lidar) -> _LidarSummary:
@@ -549,7 +567,7 @@ def _write_truth_rasters(truth_dir: Path, cfg: dict, layout, look, origin, epsg:
                 return raster.tone8(((rad[..., 0] + rad[..., 1]) + rad[..., 2]) / np.float32(3.0))
             return raster.tone8(rad)
 
-        ortho_bands = frame_layout(cfg)["bands"]
+        ortho_bands = frame_layout(cfg).bands
         _write_geotiff(truth_dir / "ortho.tif", onx, ony, bands=ortho_bands, dtype=np.uint8, transform=otransform,
                        epsg=epsg, rows=ortho_rows, compress=compress)
         nir_out.close()
