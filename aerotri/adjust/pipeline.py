@@ -758,7 +758,7 @@ def write_outputs(ba: BlockAdjustment, root, html: bool = True, out_dir=None,
     at = Path(out_dir) if out_dir is not None else project.at_dir
     # the limits of the project's table (by its GSD and platform unless [qa] names one), as in reports/
     qa = qa_settings(root, project_block_scale(project, ba.points_map[:, 2]))
-    rep = report.build_report(ba, qa["map_scale"], qa["terrain"], qa["tolerances"], project_terrain(project))
+    rep = report.build_report(ba, qa.map_scale, qa.terrain, qa.tolerances, project_terrain(project))
     if settings_record is None:  # a library caller's own settings
         settings_record = settings_of(ba.settings, AdjustSettings).record()
     rep["settings"] = settings_record

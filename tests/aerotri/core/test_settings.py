@@ -235,7 +235,7 @@ def test_report_takes_qa_then_the_command_line(tmp_path, monkeypatch):
     assert [a[2:4] for a in seen] == [(None, None), (None, "1:10000")]
     from aerotri.core.tolerances import qa_settings
 
-    assert (qa_settings(p)["map_scale"], qa_settings(p)["terrain"]) == ("1:2000", "hilly")
+    assert (qa_settings(p).map_scale, qa_settings(p).terrain) == ("1:2000", "hilly")
 
 
 def test_adjust_without_options_takes_the_project_toml_settings_and_reports_their_sources(tmp_path):
