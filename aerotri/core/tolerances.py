@@ -354,9 +354,10 @@ def choose_table(cfg: QaConfig, block: BlockScale | None = None, *, scale: str |
 
 
 @dataclasses.dataclass(frozen=True)
-class QaSettings:
-    """The report settings of a project: the chosen table's key and terrain class, a user's tolerance file
-    (absolute path) or None, whether to write the PDF, and the ``ToleranceTable`` with why it was chosen."""
+class QaChoice:
+    """The report settings of a project resolved (``[qa]``, else the block's GSD and platform): the chosen table's
+    key and terrain class, a user's tolerance file (absolute path) or None, whether to write the PDF, and the
+    ``ToleranceTable`` with why it was chosen."""
 
     map_scale: str
     terrain: str
@@ -365,9 +366,9 @@ class QaSettings:
     table: ToleranceTable
 
 
-def qa_settings(root, block: BlockScale | None = None) -> QaSettings:
+def qa_settings(root, block: BlockScale | None = None) -> QaChoice:
     """The report settings of a project; ``block``: the block's GSD and platform (``aerotri.geom.block_scale``)
     for the choice of table."""
     cfg = read_qa_config(root)
     t = choose_table(cfg, block)
-    return QaSettings(map_scale=t.key, terrain=t.terrain, tolerances=cfg.tolerances, pdf=cfg.pdf, table=t)
+    return QaChoice(map_scale=t.key, terrain=t.terrain, tolerances=cfg.tolerances, pdf=cfg.pdf, table=t)
