@@ -37,3 +37,18 @@ def report(*, project, standard, accuracy_class, map_scale, horizontal_class_cm,
                           standard=standard, horizontal_class_cm=horizontal_class_cm,
                           vertical_class_cm=vertical_class_cm, accuracy_class=accuracy_class)
     click.echo(console_summary(rep))
+
+
+@click.command(cls=Command, name="compare")
+@click.argument("project", type=click.Path(file_okay=False, exists=True, path_type=Path))
+@click.argument("files", nargs=-1, required=True, type=click.Path(path_type=Path))
+@click.option("--format", "format_name", required=True, help="Import format of the reference (aerotri import's "
+              "--format: orthority, patb, colmap, opensfm, metashape, ...).")
+@click.option("--crs", default=None, help="CRS of FILES when they carry none (as aerotri import --crs).")
+def compare(project, files, format_name, crs):
+    """The adjusted orientations (at/eo.txt) against a reference AT of the same frames, read as aerotri import
+    reads it (nothing written into the project): centre and omega/phi/kappa differences per frame, RMS, largest,
+    in the adjustment's sigmas; reports/eo_comparison.json."""
+    from aerotri.qa.eo_comparison import compare_with_reference, summary_lines
+
+    click.echo("\n".join(summary_lines(compare_with_reference(project, format_name, files, crs))))

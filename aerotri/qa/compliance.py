@@ -331,7 +331,8 @@ def choose(standard: str | None, class_text: str | None, table: ToleranceTable, 
     table_key, _ = split_key(table.key)
     if std is None:
         std = "asprs2023" if table_key.startswith("ASPRS2023") else "cn-at"
-        std_src = f"the report's tolerance table {table.name!r} ({table.reason})"
+        # the table's own reason follows once, where its class or map scale is taken (not twice)
+        std_src = f"the report's tolerance table {table.name!r}"
     if std not in STANDARD_KEYS:
         raise ConfigError(f"standard {std!r}: expected one of {', '.join(STANDARD_KEYS)}")
     cls_src = "--class" if class_text else "project.toml [qa] accuracy_class"
