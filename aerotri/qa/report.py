@@ -370,10 +370,10 @@ def build_qa_report(root, *, tolerance_file=None, terrain: str | None = None, sc
         # the PATB-table rule of thumb (docs/reports.md): not a contract limit, so reported, not judged
         ratio = at.control_to_tie_ratio
         rows.append(_check("control_to_tie_residual_ratio", sec, "control / tie image residuals, RMS ratio",
-                           round(ratio, 2), None, "", ("above 10: a systematic error (camera, GNSS, datum or control "
-                                                       "coordinates) is worth compensating" if ratio > 10.0 else
-                                                       "about 4 is normal, around 10 points at a systematic error")
-                           + "; not judged"))
+                           round(ratio, 2), None, "", note=("above 10: a systematic error (camera, GNSS, datum or "
+                                                            "control coordinates) is worth compensating" if ratio > 10.0
+                                                            else "about 4 is normal, around 10 points at a systematic "
+                                                            "error") + "; not judged"))
     chk = at.check_rms_m if at else None
     if chk and None not in chk:
         n = at.check_points
