@@ -63,7 +63,10 @@ Pipeline (``classify_points``):
    *Level water* (``level_water``): a calm lake that returned the pulse shows no dropout; it is a
    surface level to ``level_water_tol_m`` over at least ``level_water_min_area_m2``, in a bed (the
    ground on its rim stands above the level), under open sky, of single returns; its shore is
-   where the returns leave the level.
+   where the returns leave the level. A lake that mirrored the pulse away over its middle returns it
+   only in patches along its shores; level patches at one level (within ``level_water_tol_m``) that
+   border the same dropout gap (cells without any return) are one body
+   (``level_water_across_dropouts``; the lidR Topography lakes, bench/results/water.json).
 6. Bridge decks (17, ``bridge_decks``): ground between two open-water-sized dropout gaps (not
    occlusion shadows) at most ``bridge_max_width_m`` apart along a grid direction within 30 degrees
    of a gap's long axis (a watercourse runs on under the deck), standing more than
@@ -171,6 +174,9 @@ class ClassifySettings:
     level_water_tol_m: float = setting(0.05, min=0.0, min_open=True, help="Level water: returns within this of the "
                                                                           "level lie on it (m).")
     level_water_min_area_m2: float = setting(200.0, min=0.0, help="Level water: smallest body (m2); 0: off.")
+    level_water_across_dropouts: bool = setting(True, help="Level water: level patches around one pulse-dropout "
+                                                "gap at the same level are one body (water returns pulses only "
+                                                "along its shores).")
     level_water_bank_fraction: float = setting(0.8, min=0.0, max=1.0, help="Level water: share of the ground cells on "
                                                                            "its rim standing above the level (a bed).")
     # A deck is at most this long along the watercourse it spans (the road's width, not the span
@@ -820,6 +826,8 @@ def level_water(x, y, z, candidate, is_ground, spacing_m: float, p: ClassifySett
     m = coo_matrix((np.ones(len(rows)), (rows, cols)), shape=(nrows * ncols,) * 2)
     _, lab = connected_components(m, directed=False)
     lab = np.where(ok.ravel(), lab + 1, 0)
+    if p.level_water_across_dropouts:
+        lab = _join_across_dropouts(lab, med, np.bincount(flat, minlength=nrows * ncols) == 0, tol)
     size = np.bincount(lab)
     big = size * c * c >= p.level_water_min_area_m2
     big[0] = False
@@ -831,7 +839,13 @@ def level_water(x, y, z, candidate, is_ground, spacing_m: float, p: ClassifySett
     for k in np.flatnonzero(big):
         level_of[k] = np.median(med.ravel()[lab == k])
     at_level = keep & (np.abs(med.ravel() - np.nan_to_num(level_of[lab], nan=np.inf)) <= tol)
-    labels, nlab = ndimage.label(at_level.reshape(nrows, ncols), np.ones((3, 3), int))
+    if p.level_water_across_dropouts:
+        # A body joined across a gap is one body even where its level cells do not touch.
+        ids, inv = np.unique(np.where(at_level, lab, 0), return_inverse=True)
+        labels = (inv.reshape(nrows, ncols) if ids[0] == 0 else inv.reshape(nrows, ncols) + 1).astype(np.int64)
+        nlab = int(labels.max())
+    else:
+        labels, nlab = ndimage.label(at_level.reshape(nrows, ncols), np.ones((3, 3), int))
     if nlab == 0:
         return water
     area = np.bincount(labels.ravel(), minlength=nlab + 1) * c * c
@@ -878,6 +892,51 @@ def level_water(x, y, z, candidate, is_ground, spacing_m: float, p: ClassifySett
             continue   # a level floor under crowns is forest floor
         water[near[~covered]] = True
     return water
+
+
+def _join_across_dropouts(lab: np.ndarray, med: np.ndarray, void: np.ndarray, tol: float) -> np.ndarray:
+    """Level regions (``lab``: region id per cell of the grid ``med``, 0: not level) joined across the
+    pulse-dropout gaps of a water body: two regions that border the same 8-connected group of empty
+    cells (``void``: no return at all) and whose levels (median of their cells' ``med``) differ by at most
+    ``tol`` are one body. Water that returned the pulse only along its shores, around a gap where
+    it mirrored the pulse away, is a ring of level patches, each smaller than a body; joined
+    through the gap they are one surface at one level. Returns the joined region id per cell."""
+    nrows, ncols = med.shape
+    void = void.reshape(nrows, ncols)
+    nreg = int(lab.max())
+    if nreg < 2 or not void.any():
+        return lab
+    vlab, nv = ndimage.label(void, np.ones((3, 3), int))
+    lab2 = lab.reshape(nrows, ncols)
+    pairs = []
+    for dr in (-1, 0, 1):
+        for dc in (-1, 0, 1):
+            if dr == dc == 0:
+                continue
+            a = (slice(max(0, -dr), nrows - max(0, dr)), slice(max(0, -dc), ncols - max(0, dc)))
+            b = (slice(max(0, dr), nrows - max(0, -dr)), slice(max(0, dc), ncols - max(0, -dc)))
+            e = (lab2[a] > 0) & (vlab[b] > 0)
+            pairs.append(np.column_stack([vlab[b][e], lab2[a][e]]))
+    pairs = np.unique(np.concatenate(pairs), axis=0)
+    if len(pairs) < 2:
+        return lab
+    ok = lab > 0
+    level = np.zeros(nreg + 1)
+    level[1:] = ndimage.median(med.ravel()[ok], lab[ok], np.arange(1, nreg + 1))
+    # Per gap, its bordering regions in order of level; neighbours in that order within tol join.
+    order = np.lexsort((level[pairs[:, 1]], pairs[:, 0]))
+    v, r = pairs[order, 0], pairs[order, 1]
+    link = (v[1:] == v[:-1]) & (np.abs(level[r[1:]] - level[r[:-1]]) <= tol)
+    if not link.any():
+        return lab
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+
+    g = coo_matrix((np.ones(int(link.sum())), (r[:-1][link], r[1:][link])), shape=(nreg + 1,) * 2)
+    _, comp = connected_components(g, directed=False)
+    # Relabel 1..k with 0 kept for the cells that are not level.
+    ids = np.unique(comp[1:], return_inverse=True)[1] + 1
+    return np.where(ok, np.r_[0, ids][lab], 0)
 
 
 def dropout_gaps(x, y, z, is_ground, g: DropoutGrid, p: ClassifySettings):
