@@ -826,71 +826,87 @@ def level_water(x, y, z, candidate, is_ground, spacing_m: float, p: ClassifySett
     m = coo_matrix((np.ones(len(rows)), (rows, cols)), shape=(nrows * ncols,) * 2)
     _, lab = connected_components(m, directed=False)
     lab = np.where(ok.ravel(), lab + 1, 0)
-    if p.level_water_across_dropouts:
-        lab = _join_across_dropouts(lab, med, np.bincount(flat, minlength=nrows * ncols) == 0, tol)
-    size = np.bincount(lab)
-    big = size * c * c >= p.level_water_min_area_m2
-    big[0] = False
-    if not big.any():
-        return water
-    # Cut each large region to its level and relabel (a region may have crept along gentle slopes).
-    level_of = np.full(len(size), np.nan)
-    keep = big[lab]
-    for k in np.flatnonzero(big):
-        level_of[k] = np.median(med.ravel()[lab == k])
-    at_level = keep & (np.abs(med.ravel() - np.nan_to_num(level_of[lab], nan=np.inf)) <= tol)
-    if p.level_water_across_dropouts:
-        # A body joined across a gap is one body even where its level cells do not touch.
-        ids, inv = np.unique(np.where(at_level, lab, 0), return_inverse=True)
-        labels = (inv.reshape(nrows, ncols) if ids[0] == 0 else inv.reshape(nrows, ncols) + 1).astype(np.int64)
-        nlab = int(labels.max())
-    else:
-        labels, nlab = ndimage.label(at_level.reshape(nrows, ncols), np.ones((3, 3), int))
-    if nlab == 0:
-        return water
-    area = np.bincount(labels.ravel(), minlength=nlab + 1) * c * c
     ground_cell_z = reduce_grid(x[is_ground], y[is_ground], z[is_ground], c, x0, y0, nrows, ncols, "mean")
     tall = np.ones(n, bool) if solid is None else np.asarray(solid, bool).copy()
     tall_idx = np.flatnonzero(tall)
-    tree = None
+    tree = []
     multi = None if number_of_returns is None else np.asarray(number_of_returns) > 1
     if multi is not None and not multi.any():
         multi = None
     shore_cells = max(1, int(np.ceil(p.water_shore_m / c)))
-    boxes = ndimage.find_objects(labels)
-    lab_pt = labels.ravel()[flat]
-    for k in np.flatnonzero(area[1:] >= p.level_water_min_area_m2) + 1:
-        pad = shore_cells + 2
-        r0, c0 = max(boxes[k - 1][0].start - pad, 0), max(boxes[k - 1][1].start - pad, 0)
-        win = (slice(r0, boxes[k - 1][0].stop + pad), slice(c0, boxes[k - 1][1].stop + pad))
-        region = labels[win] == k
-        level = float(np.median(med[win][region]))
-        rim = ndimage.binary_dilation(region, np.ones((3, 3), bool), 2) & ~region
-        bank = ground_cell_z[win][rim]
-        bank = bank[np.isfinite(bank)]
-        if len(bank) == 0 or np.mean(bank > level + tol) < p.level_water_bank_fraction:
-            continue
-        members = np.flatnonzero(candidate & (lab_pt == k))
-        members = members[np.abs(z[members] - level) <= tol]
-        if multi is not None and np.mean(multi[members]) > 0.05:
-            continue
-        if tree is None:
-            tree = cKDTree(np.column_stack([x[tall_idx], y[tall_idx]]))
-        # Shore: candidates near the body at its level.
-        shore = ndimage.binary_dilation(region, np.ones((3, 3), bool), shore_cells)
-        rr, cc = np.divmod(flat[candidate], ncols)
-        ii, jj = rr - r0, cc - c0
-        inside = (ii >= 0) & (ii < shore.shape[0]) & (jj >= 0) & (jj < shore.shape[1])
-        inside[inside] = shore[ii[inside], jj[inside]]
-        near = np.flatnonzero(candidate)[inside]
-        near = near[np.abs(z[near] - level) <= tol]
-        # Open sky over the body: a return well above the level within a cell is a crown.
-        hits = tree.query_ball_point(np.column_stack([x[near], y[near]]), c)
-        covered = np.fromiter((bool(len(h)) and float(np.max(z[tall_idx[h]])) > level + p.low_veg_max_m
-                               for h in hits), bool, len(near))
-        if np.mean(covered[np.isin(near, members)]) > 0.05:
-            continue   # a level floor under crowns is forest floor
-        water[near[~covered]] = True
+
+    def bodies(lab, joined: bool) -> np.ndarray:
+        """Water returns of the level regions ``lab`` (region id per cell) that are water bodies."""
+        water = np.zeros(n, bool)
+        size = np.bincount(lab)
+        big = size * c * c >= p.level_water_min_area_m2
+        big[0] = False
+        if not big.any():
+            return water
+        # Cut each large region to its level and relabel (a region may have crept along gentle slopes).
+        level_of = np.full(len(size), np.nan)
+        keep = big[lab]
+        for k in np.flatnonzero(big):
+            level_of[k] = np.median(med.ravel()[lab == k])
+        at_level = keep & (np.abs(med.ravel() - np.nan_to_num(level_of[lab], nan=np.inf)) <= tol)
+        if joined:
+            # A body joined across a gap is one body even where its level cells do not touch.
+            ids, inv = np.unique(np.where(at_level, lab, 0), return_inverse=True)
+            labels = (inv.reshape(nrows, ncols) if ids[0] == 0 else inv.reshape(nrows, ncols) + 1).astype(np.int64)
+            nlab = int(labels.max())
+        else:
+            labels, nlab = ndimage.label(at_level.reshape(nrows, ncols), np.ones((3, 3), int))
+        if nlab == 0:
+            return water
+        area = np.bincount(labels.ravel(), minlength=nlab + 1) * c * c
+        boxes = ndimage.find_objects(labels)
+        lab_pt = labels.ravel()[flat]
+        for k in np.flatnonzero(area[1:] >= p.level_water_min_area_m2) + 1:
+            pad = shore_cells + 2
+            r0, c0 = max(boxes[k - 1][0].start - pad, 0), max(boxes[k - 1][1].start - pad, 0)
+            win = (slice(r0, boxes[k - 1][0].stop + pad), slice(c0, boxes[k - 1][1].stop + pad))
+            region = labels[win] == k
+            level = float(np.median(med[win][region]))
+            rim = ndimage.binary_dilation(region, np.ones((3, 3), bool), 2) & ~region
+            bank = ground_cell_z[win][rim]
+            bank = bank[np.isfinite(bank)]
+            if len(bank) == 0 or np.mean(bank > level + tol) < p.level_water_bank_fraction:
+                continue
+            members = np.flatnonzero(candidate & (lab_pt == k))
+            members = members[np.abs(z[members] - level) <= tol]
+            if multi is not None and np.mean(multi[members]) > 0.05:
+                continue
+            if not tree:
+                tree.append(cKDTree(np.column_stack([x[tall_idx], y[tall_idx]])))
+            # Shore: candidates near the body at its level.
+            shore = ndimage.binary_dilation(region, np.ones((3, 3), bool), shore_cells)
+            rr, cc = np.divmod(flat[candidate], ncols)
+            ii, jj = rr - r0, cc - c0
+            inside = (ii >= 0) & (ii < shore.shape[0]) & (jj >= 0) & (jj < shore.shape[1])
+            inside[inside] = shore[ii[inside], jj[inside]]
+            near = np.flatnonzero(candidate)[inside]
+            near = near[np.abs(z[near] - level) <= tol]
+            # Open sky over the body: a return well above the level within a cell is a crown.
+            hits = tree[0].query_ball_point(np.column_stack([x[near], y[near]]), c)
+            covered = np.fromiter((bool(len(h)) and float(np.max(z[tall_idx[h]])) > level + p.low_veg_max_m
+                                   for h in hits), bool, len(near))
+            if np.mean(covered[np.isin(near, members)]) > 0.05:
+                continue   # a level floor under crowns is forest floor
+            water[near[~covered]] = True
+        return water
+
+    water = bodies(lab, False)
+    if p.level_water_across_dropouts:
+        # Level patches joined across the gaps they border: bodies the patches alone are too small to
+        # be (a joined body that fails a test leaves its parts' own verdicts standing).
+        joined = _join_across_dropouts(lab, med, np.bincount(flat, minlength=nrows * ncols) == 0, tol)
+        if joined is not lab:
+            # Only the bodies made of two or more regions: the others were judged above.
+            pairs = np.unique(np.column_stack([joined, lab])[lab > 0], axis=0)
+            parts = np.bincount(pairs[:, 0], minlength=int(joined.max()) + 1)
+            joined = np.where(parts[joined] >= 2, joined, 0)
+            if joined.any():
+                water |= bodies(joined, True)
     return water
 
 
