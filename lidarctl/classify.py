@@ -898,11 +898,16 @@ def level_water(x, y, z, candidate, is_ground, spacing_m: float, p: ClassifySett
     water = bodies(lab, False)
     if p.level_water_across_dropouts:
         # Level patches joined across the gaps they border: bodies the patches alone are too small to
-        # be (a joined body that fails a test leaves its parts' own verdicts standing).
-        joined = _join_across_dropouts(lab, med, np.bincount(flat, minlength=nrows * ncols) == 0, tol)
-        if joined is not lab:
-            # Only the bodies made of two or more regions: the others were judged above.
-            pairs = np.unique(np.column_stack([joined, lab])[lab > 0], axis=0)
+        # be (a joined body that fails a test leaves its parts' own verdicts standing). Only patches
+        # too small to be a body alone join: a level floor of a body's size (quays along a canal whose
+        # calm water returned nothing) is judged as itself, never merged across the canal.
+        small = np.bincount(lab) * c * c < p.level_water_min_area_m2
+        small[0] = False
+        patches = np.where(small[lab], lab, 0)
+        joined = _join_across_dropouts(patches, med, np.bincount(flat, minlength=nrows * ncols) == 0, tol)
+        if joined is not patches:
+            # Only the bodies made of two or more patches: the others were judged above.
+            pairs = np.unique(np.column_stack([joined, patches])[patches > 0], axis=0)
             parts = np.bincount(pairs[:, 0], minlength=int(joined.max()) + 1)
             joined = np.where(parts[joined] >= 2, joined, 0)
             if joined.any():
