@@ -24,7 +24,7 @@ Then the shipped defaults on the whole cloud, per lake, and the AHN3 Delft crop'
 The demo's four LiDAR strips (``--demo``, 4.9 M simulated returns, a scene with ponds, no classes in the
 strips): water returns with the shipped defaults and with the join off (or main's, ``--demo-classes``).
 
-    nice -n 10 .venv/bin/python bench/eval_water.py [--demo /work/ref/demo_chain/project/lidar | --demo-classes WORK]
+    nice -n 10 .venv/bin/python bench/eval_water.py [--jobs N] [--demo /work/ref/demo_chain/project/lidar | --demo-classes WORK]
 """
 
 from __future__ import annotations
@@ -35,6 +35,8 @@ import json
 import os
 import sys
 import time
+from concurrent.futures import ProcessPoolExecutor
+from multiprocessing import get_context
 from pathlib import Path
 
 import numpy as np
@@ -102,15 +104,24 @@ def pooled(a: dict, b: dict) -> dict:
             "truth_ground_called_water": a["truth_ground_called_water"] + b["truth_ground_called_water"]}
 
 
-def topography(admissible: list[bool]) -> dict:
+def _topography_water(gp: dict) -> np.ndarray:
+    c = io.read_cloud(DATA / "lidr_topography" / "Topography.laz")
+    return classify_cloud(c, **gp) == classify.WATER
+
+
+def topography(admissible: list[bool], jobs: int) -> dict:
     c = io.read_cloud(DATA / "lidr_topography" / "Topography.laz")
     truth = c.classification
     tw, tg = truth == classify.WATER, truth == classify.GROUND
     xm, ym = 0.5 * (c.x.min() + c.x.max()), 0.5 * (c.y.min() + c.y.max())
     halves = {"west": c.x < xm, "east": c.x >= xm, "south": c.y < ym, "north": c.y >= ym}
+    if jobs > 1:
+        with ProcessPoolExecutor(jobs, mp_context=get_context("spawn")) as pool:
+            preds = list(pool.map(_topography_water, grid_points()))
+    else:
+        preds = [_topography_water(gp) for gp in grid_points()]
     runs = []
-    for gp in grid_points():
-        pw = classify_cloud(c, **gp) == classify.WATER
+    for gp, pw in zip(grid_points(), preds):
         runs.append({"settings": gp, **{h: scores(pw, tw, tg, m) for h, m in halves.items()}})
         print(gp, {h: (round(runs[-1][h]["pa_pct"], 1), round(runs[-1][h]["ua_pct"] or 0, 1)) for h in halves})
     ok = [i for i in range(len(runs)) if admissible[i]]
@@ -187,17 +198,33 @@ def no_water_sets() -> dict:
     return {name: read(name, paths) for name, paths in sets.items() if all(p.is_file() for p in paths)}
 
 
-def water_on_no_water_sets(clouds: dict) -> list[dict]:
-    """Per grid point: returns called water, and truth ground among them, on each set without labelled water."""
-    out = []
-    for gp in grid_points():
-        per = {}
-        for name, c in clouds.items():
-            pw = classify_cloud(c, **gp) == classify.WATER
-            per[name] = [int(pw.sum()), int(np.sum(pw & (c.classification == classify.GROUND)))]
-        out.append({"settings": gp, "water_and_truth_ground_as_water": per,
-                    "admissible": not any(v[0] for v in per.values())})
-        print("no-water sets", gp, {k: v for k, v in per.items() if v[0]} or "none")
+_CLOUDS: dict = {}
+
+
+def _no_water_one(gp: dict) -> dict:
+    per = {}
+    for name, c in _CLOUDS.items():
+        pw = classify_cloud(c, **gp) == classify.WATER
+        per[name] = [int(pw.sum()), int(np.sum(pw & (c.classification == classify.GROUND)))]
+    return {"settings": gp, "water_and_truth_ground_as_water": per, "admissible": not any(v[0] for v in per.values())}
+
+
+def _load_no_water_sets():
+    _CLOUDS.update(no_water_sets())
+
+
+def water_on_no_water_sets(jobs: int) -> list[dict]:
+    """Per grid point: returns called water, and truth ground among them, on each set without labelled
+    water (``jobs`` processes)."""
+    if jobs > 1:
+        with ProcessPoolExecutor(jobs, mp_context=get_context("spawn"), initializer=_load_no_water_sets) as pool:
+            out = list(pool.map(_no_water_one, grid_points()))
+    else:
+        _load_no_water_sets()
+        out = [_no_water_one(gp) for gp in grid_points()]
+    for r in out:
+        print("no-water sets", r["settings"], {k: v for k, v in r["water_and_truth_ground_as_water"].items()
+                                                if v[0]} or "none")
     return out
 
 
@@ -226,15 +253,16 @@ def demo(folder: Path) -> dict:
 def main():
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--demo", type=Path, default=None, help="folder of the demo's LiDAR strips")
+    ap.add_argument("--jobs", type=int, default=1, help="processes for the grid runs")
     ap.add_argument("--demo-classes", type=Path, default=None, help="instead: the --work folder of "
                     "bench/classify_speed.py --only demo (its classes of the demo, main's and this tree's)")
     args = ap.parse_args()
     t0, load0 = time.perf_counter(), os.getloadavg()
     dest = REPO / "bench" / "results" / "water.json"
     out = {}
-    sweep = water_on_no_water_sets(no_water_sets())
+    sweep = water_on_no_water_sets(args.jobs)
     out["no_water_sets"] = sweep
-    out["lidr_topography"] = topo = topography([r["admissible"] for r in sweep])
+    out["lidr_topography"] = topo = topography([r["admissible"] for r in sweep], args.jobs)
     for f in topo["folds"]:
         print(f"chosen on {f['chosen_on']}: {f['settings']} -> {f['scored_on']} PA {f['held_out_half']['pa_pct']:.1f} "
               f"UA {f['held_out_half']['ua_pct']:.1f} (choosing half {objective(f['choosing_half']):.1f})")
@@ -247,6 +275,9 @@ def main():
     if args.demo is not None:
         out["demo"] = demo(args.demo)
         print("demo:", out["demo"])
+    elif args.demo_classes is not None and not all((args.demo_classes / f"classes_demo_{v}.npz").is_file()
+                                                   for v in ("before", "after")):
+        print(f"demo: no classes_demo_before/after.npz in {args.demo_classes}, skipped")
     elif args.demo_classes is not None:
         # bench/classify_speed.py's classes of the demo, main's code (before) and this tree's (after)
         cls = {v: np.load(args.demo_classes / f"classes_demo_{v}.npz")["demo"] for v in ("before", "after")}
