@@ -835,6 +835,12 @@ CASES = [
     # --- aerotri report
     C("report_no_stage_run", "aerotri", "report {p}", "report.json", remove("p/at", "p/control", "p/ortho", "p/reports")),
     C("report_at_report_corrupt", "aerotri", "report {p}", "report.json", binary("p/at/report.json")),
+    C("compare_reference_missing", "aerotri", "compare {p} --format orthority {w}/none.csv", "none.csv: not found"),
+    C("compare_reference_no_common_frame", "aerotri", "compare {p} --format orthority --crs EPSG:32649 {w}/ref.csv",
+      ["ref.csv", "no frame in common with at/eo.txt"], write("ref.csv", "filename,x,y,z,omega,phi,kappa\nzz,1,2,3,0,0,0\n")),
+    C("compare_no_adjustment", "aerotri", "compare {p} --format orthority --crs EPSG:32649 {w}/ref.csv",
+      ["eo.txt", "run aerotri adjust first"], lambda w: (remove("p/at")(w), write("ref.csv", "filename,x,y,z,omega,"
+                                                                              "phi,kappa\nzz,1,2,3,0,0,0\n")(w))),
     C("report_dom_report_truncated", "aerotri", "report {p}", "dom_report.json", truncate("p/ortho/dom_report.json", 0.5)),
     C("report_tolerances_bad_toml", "aerotri", "report {p} --tolerances {w}/tol.toml", "tol.toml",
       write("tol.toml", "[flat\n")),
