@@ -97,22 +97,15 @@ def compare_orientations(adjusted: ExteriorOrientations, reference: ExteriorOrie
 def compare_with_reference(root, format_name: str, files, crs: str | None = None) -> EoComparison:
     """Read the reference orientations of ``files`` (an import format) and compare ``at/eo.txt`` with them;
     writes ``reports/eo_comparison.json``."""
-    from aerotri.exchange.import_registry import IMPORT_FORMATS
+    from aerotri.exchange.import_registry import importer_and_files
     from aerotri.exchange.imported import ImportSettings
-    from aerotri.core.errors import OptionError
 
     project = Project.open(root)
-    if format_name not in IMPORT_FORMATS:
-        raise OptionError(f"unknown format {format_name!r}; expected one of {', '.join(IMPORT_FORMATS)}",
-                          param="--format")
-    files = [Path(f) for f in files]
-    for f in files:
-        if not f.exists():
-            raise InputError(f"{f}: not found ({format_name} expects {IMPORT_FORMATS[format_name].files})")
-    block = IMPORT_FORMATS[format_name].read(files, project, ImportSettings(crs=crs))
+    importer, files = importer_and_files(format_name, files)
+    block = importer.read(files, project, ImportSettings(crs=crs))
     if block.eo is None:
         raise InputError(f"{', '.join(str(f) for f in files)}: no orientations in these {format_name} files "
-                         f"(expected {IMPORT_FORMATS[format_name].files})")
+                         f"(expected {importer.files})")
     if not project.eo_path.is_file():
         raise InputError(f"{project.eo_path}: not found (run aerotri adjust first)")
     result = compare_orientations(read_eo(project.eo_path), block.eo, tuple(str(f) for f in files))
