@@ -332,7 +332,8 @@ def _options(ba, tolerances: str) -> dict:
         "antenna_offsets": ("Enabled (" + ", ".join(f"{v:.3f}" for v in b.lever_arm_m) + " m)") if has_gnss and np.any(b.lever_arm_m) else "Disabled",
         "gps_shift_drift_correction": gps_mode[opts.gnss_correction] if has_gnss else "Disabled",
         "ins_shift_drift_correction": "Disabled",
-        "image_sigma_px": opts.image_sigma_px,
+        "image_sigma_px": opts.image_sigma_px,  # the final solve's: sigma0 is relative to it
+        "image_sigma_apriori_px": st.image_sigma_px,
         "snooping_alpha": st.alpha,
         "tolerances": tolerances,
     }
@@ -749,7 +750,11 @@ def format_txt(rep: dict) -> str:
         L.append(f"{label:32}" + "".join(_v(x, 10, nd) for x in vals))
     k = rep["key_statistics"]
     sigma = "n/a" if k["sigma0_um"] is None else f"{k['sigma0_um']:.2f} um ({k['sigma0_px']:.3f} px of {k['pixel_um']:g} um)"
-    L += ["", "Key Statistics", f"  Sigma: {sigma}", f"  Number of iterations: {k['iterations']}",
+    L += ["", "Key Statistics", f"  Sigma: {sigma}"]
+    if o.get("image_sigma_apriori_px") not in (None, o["image_sigma_px"]):
+        L.append(f"  Image sigma: {o['image_sigma_px']:.3f} px from the residuals of the robust rounds (a priori "
+                 f"{o['image_sigma_apriori_px']:g} px), used in the final solve")
+    L += [f"  Number of iterations: {k['iterations']}",
           f"  Degrees of Freedom: {k['degrees_of_freedom']}", f"  {k['message']}"]
     behind = (k.get("points_behind_camera") or {}).get("messages")
     if behind:
@@ -961,7 +966,8 @@ def format_html(rep: dict, ba=None) -> str:
     parts = [f"<h1>Photo-T Parameters and Results for Project {esc(str(rep['project']))}</h1>",
              "<p>Plain-text layout: <a href='report.txt'>report.txt</a>; all numbers: <a href='report.json'>"
              "report.json</a>.</p>", "<h2>PhotoT Triangulation Options</h2>"]
-    names = dict(ISAT_OPTIONS, image_sigma_px="A-priori image sigma (px)", snooping_alpha="Data snooping alpha")
+    names = dict(ISAT_OPTIONS, image_sigma_px="Image sigma of the final solve (px)",
+                 image_sigma_apriori_px="A-priori image sigma (px)", snooping_alpha="Data snooping alpha")
     parts.append(T(["option", "value"], [[names.get(n, n.replace("_", " ").capitalize()),
                                           f"{v:g}" if isinstance(v, float) else v] for n, v in o.items()]))
     parts.append("<h2>Parameters</h2>")
