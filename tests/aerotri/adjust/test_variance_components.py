@@ -35,10 +35,8 @@ def gnss_block(tmp_path_factory):
 
 def test_components_add_up_and_find_the_image_precision(gnss_block):
     _, root, _ = gnss_block
-    # stated 1.0 px for rays measured with 0.3 px: the image factor tells (the final solve weighted by the a
-    # priori, image_sigma_from_residuals off)
-    r = adjust_project(root, AdjustSettings(image_sigma_px=1.0, point_covariances=True,
-                                            image_sigma_from_residuals=False)).result
+    # stated 1.0 px for rays measured with 0.3 px: the image factor tells
+    r = adjust_project(root, AdjustSettings(image_sigma_px=1.0, point_covariances=True)).result
     vc = {c.group: c for c in r.variance_components}
     assert set(vc) == {"image", "gnss", "control"}
     assert sum(c.redundancy for c in vc.values()) == pytest.approx(r.info.dof)
@@ -46,9 +44,10 @@ def test_components_add_up_and_find_the_image_precision(gnss_block):
     assert vc["image"].factor == pytest.approx(SIGMA_PX / 1.0, rel=0.1)
     assert vc["control"].factor is None  # 4 points: too little redundancy to estimate a factor
     assert 0 < vc["gnss"].redundancy < vc["gnss"].n
-    # by default the final solve already weights the images by their residuals' sigma: the component is then one,
-    # and the factor the weights carry is the 0.3
-    r = adjust_project(root, AdjustSettings(image_sigma_px=1.0, point_covariances=True)).result
+    # with image_sigma_from_residuals the final solve already weights the images by their residuals' sigma: the
+    # component is then one, and the factor the weights carry is the 0.3
+    r = adjust_project(root, AdjustSettings(image_sigma_px=1.0, point_covariances=True,
+                                            image_sigma_from_residuals=True)).result
     vc = {c.group: c for c in r.variance_components}
     assert vc["image"].factor == pytest.approx(1.0, abs=0.1)
     assert r.weight_factors["image"] == pytest.approx(SIGMA_PX / 1.0, rel=0.1)
