@@ -4,7 +4,8 @@ Detection runs on pyramid level L (the image shrunk by 2^L so that its larger si
 ``max_dim_px``) with a low contrast threshold; then every cell of a ``grid`` over the frame keeps
 its strongest keypoints (``budget`` in all), so that texture-poor parts of every frame still get
 points. Descriptors are RootSIFT (L1-normalised, square-rooted). Keypoints are stored in
-full-resolution pixel coordinates.
+full-resolution pixel coordinates. SIFT runs on tiles of the level (``tile_px``, ``extract_level``), so that its
+scale space follows the tile, not the level.
 """
 
 from __future__ import annotations
