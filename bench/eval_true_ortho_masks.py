@@ -42,9 +42,8 @@ sys.path.insert(0, str(REPO / "bench"))
 ROOF_BANDS_M = (1.0, 3.0)  # distance bands from the nearest roof cell
 
 
-def frame_inputs(project: Path, truth_orientation: bool, dsm_path: Path):
-    """(block inputs, DSM path, grid per frame): the frames' grids as ``ortho rectify`` makes them (the DEM footprint,
-    the default resolution)."""
+def frame_inputs(project: Path, truth_orientation: bool):
+    """The block (camera, orientation) as ``ortho rectify`` loads it."""
     from ortho.block import load_block
 
     kw = {"eo_path": project / "truth" / "eo.txt", "camera_path": project / "truth" / "camera.toml"} \
@@ -52,17 +51,7 @@ def frame_inputs(project: Path, truth_orientation: bool, dsm_path: Path):
     return load_block(project, **kw)
 
 
-def dsm_window(dsm_path: Path, project_crs, camera, C, R, zlo: float, zhi: float) -> object:
-    """The DSM window ``ortho rectify`` reads for a frame (``rectify_frame_task``)."""
-    from ortho.block import _plane_footprint_bounds
-    from ortho.dem import open_height_raster, read_height_window
-
-    bounds = _plane_footprint_bounds(camera, C, R, zlo - 5.0, zhi + 5.0, "frame")
-    with open_height_raster(dsm_path, project_crs, "DSM") as ds:
-        return read_height_window(ds, bounds, margin_m=4 * ds.transform.a, what="DSM")
-
-
-def frame_layers(block, i: int, dsm, dem, res_m: float, tolerance_m: float | None = None):
+def frame_layers(block, i: int, dsm, dem, res_m: float):
     """For frame ``i``: its grid, the imaged mask on the DSM (no occlusion), the true ortho's mask, the z-buffer's
     candidates and the march over every imaged pixel, as booleans on the grid."""
     from ortho.grid import GridToProject
@@ -77,18 +66,16 @@ def frame_layers(block, i: int, dsm, dem, res_m: float, tolerance_m: float | Non
     to_project = GridToProject(crs, crs)
     grid = frame_grid(cam, C, R, dem, res_m, crs, to_project, image_id=image_id, partial=True)
     image = np.zeros((cam.height, cam.width), np.uint8)
-    kw = {} if tolerance_m is None else {"occlusion_tolerance_m": tolerance_m}
     t = time.process_time()
     _, mask = rectify_frame(image, cam, C, R, dsm, grid, occlusion_dsm=dsm, tile_px=max(grid.width, grid.height) + 1,
-                            threads=1, **kw)
+                            threads=1)
     cpu = time.process_time() - t
     geometry = FrameGeometry(cam, np.asarray(C, float), np.asarray(R, float))
     map_int, _, imaged, z, anchors = fixed_point_maps(geometry, dsm, grid, to_project)
     zb = frame_zbuffer(geometry, dsm, grid, to_project, tile_px=max(grid.width, grid.height) + 1)
     cand = np.zeros(z.shape, bool)
     zbuffer_occlusion_from_maps(geometry, zb, grid, map_int.copy(), imaged, z, cand)
-    march = occlusion_mask(geometry, dsm, grid, z, anchors, candidates=imaged > 0,
-                           **({} if tolerance_m is None else {"tolerance_m": tolerance_m}))
+    march = occlusion_mask(geometry, dsm, grid, z, anchors, candidates=imaged > 0)
     return image_id, grid, imaged > 0, mask > 0, cand, march, z, cpu
 
 
@@ -145,13 +132,13 @@ def confusion(truth, image_id: str, grid, imaged, valid, cand, march, z_dsm):
     return out, {"hbv": hbv, "vbm": vbm, "hidden": hidden, "sees": sees, "roof": roof, "kind": kind}
 
 
-def run_project(project: Path, truth_orientation: bool, frames=None, keep=None, tolerance_m=None) -> dict:
+def run_project(project: Path, truth_orientation: bool, frames=None, keep=None) -> dict:
     from eval_true_ortho_occlusion import Truth
 
     from ortho.block import default_resolution
     from ortho.dem import height_range, open_height_raster, read_height_window
 
-    block = frame_inputs(project, truth_orientation, None)
+    block = frame_inputs(project, truth_orientation)
     dsm_path = project / "lidar_out" / "dsm.tif"
     if not dsm_path.exists():
         dsm_path = project / "truth" / "dsm.tif"
@@ -167,18 +154,18 @@ def run_project(project: Path, truth_orientation: bool, frames=None, keep=None, 
            "orientation": "truth/eo.txt, truth/camera.toml" if truth_orientation else "at/eo.txt",
            "res_m": res_m, "frames": []}
     tot = {}
+    from ortho.block import _plane_footprint_bounds
+
     for i, image_id in enumerate(block.eo.image_id):
         if frames and image_id not in frames:
             continue
-        from ortho.block import _plane_footprint_bounds
-
         C, R = block.eo.centre_m[i], block.eo.rotation(i)
         bounds = _plane_footprint_bounds(block.camera, C, R, zlo - 5.0, zhi + 5.0, image_id)
         with open_height_raster(dsm_path, block.project_crs, "DSM") as ds:
             dsm = read_height_window(ds, bounds, margin_m=4 * ds.transform.a, what="DSM")
         with open_height_raster(dem_path, block.project_crs, "DEM") as ds:
             dem = read_height_window(ds, bounds, margin_m=4 * ds.transform.a, what="DEM")
-        image_id, grid, imaged, valid, cand, march, z, cpu = frame_layers(block, i, dsm, dem, res_m, tolerance_m)
+        image_id, grid, imaged, valid, cand, march, z, cpu = frame_layers(block, i, dsm, dem, res_m)
         row, layers = confusion(truth, image_id, grid, imaged, valid, cand, march, z)
         row["rectify_cpu_s"] = round(cpu, 2)
         if keep is not None:

@@ -4,9 +4,12 @@ DSM (straight-down ray casts at the centres of 0.5 m cells, as ``truth/dsm.tif``
 cell of a 0.4 m ortho grid is ray cast from the frame's projection centre (``aerotri.sim.raycast``): the frame sees
 it when the first hit is the terrain within 0.2 m of the point (as ``bench/eval_true_ortho_occlusion.py``).
 
-The shares were chosen on seed 11 and hold on seed 12 (``MAX_HIDDEN_VALID``, ``MAX_VISIBLE_MASKED``); the march of
-main before this change (steps of one DSM cell over the bilinear DSM, z-buffer cell by cell) left 10-14 % of the
-hidden ground valid here.
+Both errors are counted as shares of the hidden ground cells: they lie along the edges of the hidden areas (the DSM
+places an edge to within about a cell), whose length goes with the hidden area. The limits are 1.5 x the worst of
+seed 11's two frames, rounded up (there: hidden left valid 1.5 % and 2.0 %, visible masked 5.8 % and 4.9 %), and
+hold on seed 12 (16 buildings against 9; measured 2.0 % and 2.8 %, 6.4 % and 6.5 %). The march before this change
+(steps of one DSM cell over the bilinear DSM, a z-buffer test cell by cell) left 8.8-18 % of the hidden ground
+valid on these frames (visible masked 2.3-3.8 % of the hidden).
 """
 
 from __future__ import annotations
@@ -25,9 +28,9 @@ SIZE_M = 200.0
 DSM_RES_M = 0.5
 ORTHO_RES_M = 0.4
 VISIBLE_TOL_M = 0.2
-# chosen on seed 11 (measured there: see the module docstring of the bench, bench/results/true_ortho_masks.json)
-MAX_HIDDEN_VALID = 0.03  # share of the hidden ground cells the mask leaves valid
-MAX_VISIBLE_MASKED = 0.02  # share of the seen ground cells the mask drops
+# chosen on seed 11, as shares of the hidden ground cells
+MAX_HIDDEN_VALID = 0.03  # hidden ground the mask leaves valid
+MAX_VISIBLE_MASKED = 0.09  # seen ground the mask drops
 # two frames (x, y, height above the median DSM height, omega, phi, kappa): over the town's corner (oblique rays into
 # the streets) and over its middle
 POSES = ((30.0, 40.0, 300.0, 1.5, -2.0, 5.0), (100.0, 95.0, 300.0, -1.0, 1.0, -8.0))
@@ -105,4 +108,4 @@ def test_the_masks_match_the_simulators_visibility(scene, pose):
     got = mask_against_truth(*scene, pose)
     assert got["hidden"] > 0.05 * got["ground"], got  # the tall buildings hide much of the ground
     assert got["hidden_valid"] <= MAX_HIDDEN_VALID * got["hidden"], got
-    assert got["visible_masked"] <= MAX_VISIBLE_MASKED * got["seen"], got
+    assert got["visible_masked"] <= MAX_VISIBLE_MASKED * got["hidden"], got
