@@ -79,8 +79,8 @@ from ortho.grid import OrthoGrid
 from ortho.settings import MosaicSettings
 from ortho.seamlines_gpkg import write_seamlines_gpkg
 from ortho.seamlines_preview import write_seamlines_preview
-from ortho.seamlines import (covered, keep_objects_whole, label_polygons, least_cost_seams, neighbour_pairs, seam_lines,
-                             voronoi_labels)
+from ortho.seamlines import (covered, footprint, keep_objects_whole, label_polygons, least_cost_seams, neighbour_pairs,
+                             seam_lines, voronoi_labels)
 
 logger = logging.getLogger(__name__)
 
@@ -507,7 +507,7 @@ def _mosaic_block(root, settings, *, object_height_m, max_seam_cells, end_reach_
         # occlusion) included: one region per frame whose holes the blending fills from the frame of the nearest
         # nadir point that sees them (on the frames' valid cells, every hole became an island of another frame
         # whose outline, along the walls and across the roofs between the streets, was a seam)
-        covers = [covered(v) for v in red.valid]
+        covers = [footprint(v) for v in red.valid]
         labels = voronoi_labels(covers, red.offsets, nadir_rc, red.shape)
     if seams == "least-cost" and edited is None:
         # a seam end may slide along the overlap border by up to end_reach_m to get round a building
