@@ -50,6 +50,7 @@ class _LazyGroup(Group):
     "init": "aerotri.chain.cli:init", "sim": "aerotri.sim.cli:sim", "demo": "aerotri.chain.cli:demo",
     "run": "aerotri.chain.cli:run", "crs": "aerotri.crs.cli:crs", "adjust": "aerotri.adjust.cli:adjust",
     "match": "aerotri.match.cli:match", "control": "aerotri.control.cli:control", "report": "aerotri.qa.cli:report",
+    "compare": "aerotri.qa.cli:compare",
     "export": "aerotri.exchange.cli:export", "import": "aerotri.exchange.cli:import_"})
 @click.version_option(package_name="aerotri")
 def main():

@@ -128,26 +128,37 @@ def check_truth(root: Path) -> dict:
     return out
 
 
-def _aerotri(args: list, pythonpath: str | None = None) -> dict:
-    """``aerotri ARGS`` in a child process under ``/usr/bin/time -v``: wall, CPU, peak RSS, its output."""
+def _aerotri(args: list, pythonpath: str | None = None, log: Path | None = None) -> dict:
+    """``aerotri ARGS`` in a child process under ``/usr/bin/time -v``: wall, CPU, peak RSS, its output; ``log``: its
+    console (stderr) written there as it runs (a long run can be followed)."""
     env = dict(os.environ)
     if pythonpath:
         env["PYTHONPATH"] = pythonpath
     code = "import sys; from aerotri.cli import main; sys.argv[0] = 'aerotri'; sys.exit(main())"
     load = os.getloadavg()[0]
-    p = subprocess.run(["/usr/bin/time", "-v", sys.executable, "-c", code, *args], capture_output=True, text=True, env=env)
+    # -P: without it ``python -c`` puts the working directory first on sys.path, ahead of PYTHONPATH, and a run from a
+    # checkout's root imports that checkout's aerotri instead of the other tree's
+    cmd = ["/usr/bin/time", "-v", sys.executable, *(["-P"] if pythonpath else []), "-c", code, *args]
+    if log is None:
+        p = subprocess.run(cmd, capture_output=True, text=True, env=env)
+        stderr = p.stderr
+    else:
+        with open(log, "w") as f:
+            p = subprocess.run(cmd, stdout=subprocess.PIPE, stderr=f, text=True, env=env)
+        stderr = Path(log).read_text()
     if p.returncode != 0:
-        raise RuntimeError(f"aerotri {' '.join(args)} failed ({p.returncode}):\n{p.stdout}\n{p.stderr[-4000:]}")
-    res = _time_v(p.stderr)
+        raise RuntimeError(f"aerotri {' '.join(args)} failed ({p.returncode}):\n{p.stdout}\n{stderr[-4000:]}")
+    res = _time_v(stderr)
     res["stdout"] = p.stdout.strip().splitlines()
+    res["robust_rounds"] = [ln for ln in stderr.splitlines() if ln.startswith("robust round")]
     res["load_average_1min"] = [round(load, 2), round(os.getloadavg()[0], 2)]  # before, after: the machine is shared
     return res
 
 
-def run_adjust(root: Path, pythonpath: str | None = None) -> dict:
+def run_adjust(root: Path, pythonpath: str | None = None, log: Path | None = None) -> dict:
     """``aerotri adjust ROOT --dem ROOT/dem.tif --no-exports``, then ``aerotri export ROOT`` (the PATB and COLMAP
-    files ``aerotri adjust`` writes without --no-exports), each timed on its own."""
-    res = _aerotri(["adjust", str(root), "--dem", str(root / "dem.tif"), "--no-exports"], pythonpath)
+    files ``aerotri adjust`` writes without --no-exports), each timed on its own; ``log``: the adjust's console."""
+    res = _aerotri(["adjust", str(root), "--dem", str(root / "dem.tif"), "--no-exports"], pythonpath, log)
     res["export"] = _aerotri(["export", str(root)], pythonpath)
     res["export"]["stdout"] = f"{len(res['export']['stdout'])} files written"
     return res
@@ -177,6 +188,7 @@ def main(argv=None):
     r.add_argument("--label", default="after")
     r.add_argument("--pythonpath", default=None)
     r.add_argument("--out", type=Path, default=Path("bench/results/adjust_scale.json"))
+    r.add_argument("--log", type=Path, default=None, help="write the adjust's console there as it runs")
     a_ = sub.add_parser("all")
     a_.add_argument("root", type=Path)
     a_.add_argument("--sizes", type=int, nargs="+", default=[300, 1000, 3000, 10000])
@@ -198,7 +210,7 @@ def main(argv=None):
             todo.append(root)
     for root in todo:
         block = json.loads((root / "block.json").read_text())
-        res = run_adjust(root, a.pythonpath)
+        res = run_adjust(root, a.pythonpath, getattr(a, "log", None))
         res["truth"] = check_truth(root)
         res["block"] = block
         print(json.dumps({k: v for k, v in res.items() if k != "block"}, indent=1), flush=True)

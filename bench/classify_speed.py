@@ -97,11 +97,13 @@ def prepare(args) -> dict[str, Path]:
             "dmc_tile": lambda: {"dmc_tile": _cloud(strips, (453000.0, 453800.0, -np.inf, np.inf))},
             "dmc_10m": lambda: {"dmc_10m": _cloud(strips, (452000.0, 454100.0, -np.inf, np.inf))}}
     for name, make in todo.items():
+        if args.only and name not in args.only:
+            continue   # not run: not prepared either
         out[name] = work / f"{name}.npz"
         if not out[name].exists():
             _save(out[name], make())
     out["small"] = work / "small.npz"
-    if not out["small"].exists():
+    if not out["small"].exists() and (not args.only or "small" in args.only):
         from aerotri.sim import load_preset, simulate
 
         sim = work / "tiny"
@@ -126,6 +128,8 @@ def main() -> None:
     ap.add_argument("--demo", default="/work/ref/demo_chain/project/lidar")
     ap.add_argument("--out", default=str(ROOT / "bench" / "results" / "classify_speed.json"))
     ap.add_argument("--only", nargs="*", help="inputs to run (demo, dmc_tile, dmc_10m, small)")
+    ap.add_argument("--change", default="lidarctl.knn bucket-grid kNN, chunked queries",
+                    help="what the 'after' tree changes (for the note)")
     args = ap.parse_args()
     inputs = prepare(args)
     work = Path(args.work)
@@ -157,7 +161,7 @@ def main() -> None:
     old = json.loads(path.read_text()) if path.exists() else {}
     old.setdefault("figures", {}).update(figures)
     old.setdefault("equality", {}).update(equal)
-    old["note"] = ("classify_points before (main) and after (lidarctl.knn bucket-grid kNN, chunked queries) in "
+    old["note"] = (f"classify_points before (main) and after ({args.change}) in "
                    "separate processes, numba on 1 thread, after a warm-up; cpu_s = user + sys; peak_rss_mb = "
                    "the process's maximum resident set (inputs included; rss_before_mb: before the timed call). "
                    "The machine was shared (load_1min).")

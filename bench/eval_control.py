@@ -78,12 +78,12 @@ def truth_projection_errors(root: Path, image_points: Path, points: Path) -> dic
     out = {}
     for r in csv.DictReader(open(image_points)):
         p = xyz[r["point_id"]]
-        d = np.hypot(*(t["xyz_m"][:, :2] - p[:2]).T)
+        d = np.hypot(*(t.xyz_m[:, :2] - p[:2]).T)
         k = int(np.argmin(d))
         if d[k] > 1.5:
             continue  # a LiDAR corner without a true roof corner nearby (not counted)
         i = ix[r["image_id"]]
-        x, y, _ = cam.project(t["xyz_m"][k], eo.centre_m[i], eo.rotation(i))
+        x, y, _ = cam.project(t.xyz_m[k], eo.centre_m[i], eo.rotation(i))
         e = np.array([float(r["x_px"]) - x[0], float(r["y_px"]) - y[0]])
         out.setdefault(kind[r["point_id"]], []).append(e)
     return {k: np.array(v) for k, v in out.items()}
@@ -98,7 +98,7 @@ def rejected_vs_truth(root: Path, transfer: dict, corners_csv: Path) -> dict:
     lid = {r["id"]: np.array([float(r["x"]), float(r["y"])]) for r in csv.DictReader(open(corners_csv))}
     stats = {}
     for c in transfer["corners"]:
-        d = np.hypot(*(t["xyz_m"][:, :2] - lid[c["id"]]).T)
+        d = np.hypot(*(t.xyz_m[:, :2] - lid[c["id"]]).T)
         k = int(np.argmin(d))
         for iid, f in c["frames"].items():
             st = f["status"]
@@ -111,7 +111,7 @@ def rejected_vs_truth(root: Path, transfer: dict, corners_csv: Path) -> dict:
                 rec["no_truth"] += 1
                 continue
             i = ix[iid]
-            x, y, _ = cam.project(t["xyz_m"][k], eo.centre_m[i], eo.rotation(i))
+            x, y, _ = cam.project(t.xyz_m[k], eo.centre_m[i], eo.rotation(i))
             err = float(np.hypot(f["x_px"] - x[0], f["y_px"] - y[0]))
             rec["wrong_gt_1px" if err > 1.0 else "right_le_1px"] += 1
     return stats

@@ -85,10 +85,12 @@ def _geocentric(crs_code, xyz):
 def bursa_wolf_case(name, from_epsg, to_epsg, lon_range, lat_range, h_range, n, noise_m, seed):
     rng = np.random.default_rng(seed)
     lon, lat, h = rng.uniform(*lon_range, n), rng.uniform(*lat_range, n), rng.uniform(*h_range, n)
-    src, dst, _ = simulate_spatial(TRUE_BURSA_WOLF7, from_epsg, to_epsg, lon, lat, h, noise_m=noise_m, seed=seed + 1)
+    src, dst, _ = simulate_spatial(TRUE_BURSA_WOLF7, from_epsg, to_epsg, lon_deg=lon, lat_deg=lat, h_m=h,
+                                   noise_m=noise_m, seed=seed + 1)
     XYZ_s, _ = _geocentric(from_epsg, src)
     XYZ_d, ll = _geocentric(to_epsg, dst)
-    res = fit_spatial("bursa-wolf7", range(n), XYZ_s, XYZ_d, ll, f"EPSG:{from_epsg}", f"EPSG:{to_epsg}")
+    res = fit_spatial("bursa-wolf7", range(n), XYZ_s, XYZ_d, dst_lat_lon_deg=ll, from_crs=f"EPSG:{from_epsg}",
+                      to_crs=f"EPSG:{to_epsg}")
     t = res.transformation
     params = {}
     for k in PARAMETER_NAMES["bursa-wolf7"]:
@@ -122,7 +124,7 @@ def bursa_wolf_calibration(runs=200, noise_m=0.03):
     """Monte Carlo: RMS over runs of (estimate - truth) / reported std dev, per parameter (ideal 1)."""
     rng = np.random.default_rng(42)
     lon, lat, h = rng.uniform(105, 115, 15), rng.uniform(30, 38, 15), rng.uniform(0, 2500, 15)
-    src, _, dst_true = simulate_spatial(TRUE_BURSA_WOLF7, 4326, 4610, lon, lat, h)
+    src, _, dst_true = simulate_spatial(TRUE_BURSA_WOLF7, 4326, 4610, lon_deg=lon, lat_deg=lat, h_m=h)
     XYZ_s, _ = _geocentric(4326, src)
     XYZ_t, _ = _geocentric(4610, dst_true)
     z, s0 = [], []
@@ -145,7 +147,7 @@ def helmert2d_case(noise_m, seed=7, n=25):
     rng = np.random.default_rng(seed)
     src = np.column_stack([rng.uniform(37_420_000, 37_470_000, n), rng.uniform(3_780_000, 3_830_000, n)])
     dst, _ = simulate_plane(TRUE_HELMERT2D, src, noise_m=noise_m, seed=seed + 1)
-    res = fit_plane("helmert2d", range(n), src, dst, "EPSG:2361", "EPSG:4525")
+    res = fit_plane("helmert2d", range(n), src, dst, from_crs="EPSG:2361", to_crs="EPSG:4525")
     t = res.transformation
     return {
         "noise_m": noise_m,

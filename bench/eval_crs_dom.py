@@ -119,8 +119,8 @@ def main(argv=None):
         for datum, truth in TRUTH.items():
             gk = gk3_zone_crs(float(lon_c[0]), datum)
             epsg = gk.to_epsg()
-            src, dst, _ = simulate_spatial(truth, project_crs.to_epsg(), epsg, lon.ravel(), lat.ravel(), h,
-                                           noise_m=0.02, seed=11)
+            src, dst, _ = simulate_spatial(truth, project_crs.to_epsg(), epsg, lon_deg=lon.ravel(), lat_deg=lat.ravel(),
+                                           h_m=h, noise_m=0.02, seed=11)
             common = tmp / f"common_{datum}.csv"
             write_common_points(common, [f"P{i:02d}" for i in range(len(src))], src, dst)
             params = tmp / f"{datum}.json"

@@ -18,6 +18,7 @@ Usage:
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import os
 import re
@@ -77,7 +78,7 @@ def main() -> int:
         frame_mp_per_cpu_s=round(truth["frames"] * frame_mp / usage["cpu_s"], 1),
         phase_seconds_wall_cpu=conn["phase_seconds"], pairs=conn["pairs"], tracks=conn["tracks"],
         observations=conn["observations"], components=conn["components"], weak_models=len(conn["weak_models"]),
-        tie_points_vs_truth={k: (round(v, 4) if isinstance(v, float) else v) for k, v in errors.items()},
+        tie_points_vs_truth={k: (round(v, 4) if isinstance(v, float) else v) for k, v in dataclasses.asdict(errors).items()},
         limit_peak_gb=LIMIT_PEAK_GB, within_limit=usage["peak_rss_mb"] / 1024 < LIMIT_PEAK_GB,
         load_avg_before=load0, load_avg_after=[round(v, 2) for v in os.getloadavg()], cpus=os.cpu_count(),
         measured_utc=time.strftime("%Y-%m-%d %H:%M", time.gmtime()))

@@ -36,7 +36,7 @@ def main(argv=None) -> int:
         print(f"skip: {a.project} is no project folder (run make demo first)")
         return 0
     qa = qa_settings(a.project)
-    tol = {k: v for k, v in load_tolerances(qa["map_scale"], qa["terrain"], qa["tolerances"]).items() if k in LIMIT_KEYS}
+    tol = {k: v for k, v in load_tolerances(qa.map_scale, qa.terrain, qa.tolerances).items() if k in LIMIT_KEYS}
     runs = {"project": project_flight_acceptance(a.project, tol)}
     t = a.project / "truth"
     if (t / "eo.txt").is_file() and (t / "dem.tif").is_file():

@@ -66,11 +66,11 @@ def truth_visibility(root: Path, res) -> dict:
     for k, r in res.rays.items():
         if r.reason != "too_few_rays" or frames.get(k, 0) < 2:
             continue
-        d = np.hypot(*(t["xyz_m"][:, :2] - res.corners.xyz_m[k, :2]).T)
+        d = np.hypot(*(t.xyz_m[:, :2] - res.corners.xyz_m[k, :2]).T)
         if d.min() > 1.5:
             out["no_true_corner_within_1.5_m"] += 1
             continue
-        X = t["xyz_m"][int(np.argmin(d))]
+        X = t.xyz_m[int(np.argmin(d))]
         seen = 0
         for i in range(len(eo.image_id)):
             x, y, _ = cam.project(X[None], eo.centre_m[i], eo.rotation(i))

@@ -10,6 +10,7 @@ Real blocks are set up as project folders under out/eval/ with the images linked
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import csv
 import json
 import shutil
@@ -99,7 +100,7 @@ def main():
     t = time.perf_counter()
     rep = match_project(proj)
     res = summary(rep)
-    res["truth_check"] = tie_point_errors(proj)
+    res["truth_check"] = dataclasses.asdict(tie_point_errors(proj))
     res["wall_s"] = round(time.perf_counter() - t, 1)
     results["demo"] = res
     print(json.dumps(res["truth_check"]), flush=True)

@@ -77,7 +77,8 @@ def simulate(seed: int, forested: bool = False):
     scene = build_scene(cfg["scene"], layout.width_m, layout.height_m, np.zeros(3), seed)
     accel = raycast.build_accel(scene)
     rng = np.random.default_rng(seed + 500)
-    parts = [scan_strip(scene, accel, line, cfg["lidar"], rng, layout.width_m) for line in lidar_lines(cfg, layout)]
+    parts = [scan_strip(scene, accel, line, L=cfg["lidar"], rng=rng,
+                        width_m=layout.width_m) for line in lidar_lines(cfg, layout)]
     cat = {k: np.concatenate([p[k] for p in parts]) for k in ("xyz", "intensity", "return_number",
                                                                  "number_of_returns", "classification")}
     xyz = cat["xyz"]

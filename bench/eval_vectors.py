@@ -252,7 +252,7 @@ def main(argv=None) -> int:
             proj, strips = project(name, root)
             dlg, ref = tmp / f"{name}_dlg.gpkg", tmp / f"{name}_reference.gpkg"
             t0 = time.perf_counter()
-            summary = vectors_to_file(strips, dlg, MapVectorSettings(), dem=proj / "truth" / "dem.tif",
+            summary = vectors_to_file(strips, dlg, params=MapVectorSettings(), dem=proj / "truth" / "dem.tif",
                                       image=proj / "truth" / "ortho.tif")
             seconds = time.perf_counter() - t0
             scene, origin, epsg = true_scene(name)

@@ -38,10 +38,14 @@ frames of the first S strips (a project of links to the frames), smallest first,
 per gigapixel can be compared across DOM sizes; ``--subset all`` is the whole set.
 
 Writes bench/results/mosaic_speed.json (``--out``); ``--skip-demo`` leaves the demo out (a large-set run on its own,
-e.g. ``--out bench/results/mosaic_speed_large.json``).
+e.g. ``--out bench/results/mosaic_speed_large.json``). With ``--label KEY`` the run goes under KEY of the ``--out``
+file, whose other keys (earlier rounds) are kept. The commit of the code measured is recorded (``commit``). With
+``--before-src DIR`` (a source tree of the code before a change, e.g. ``git archive main``) the demo runs that code's
+``ortho mosaic`` too, first in every repetition, and records whether the two mosaics have the same sha256.
 
 Usage: python bench/mosaic_speed.py [--demo DIR] [--work DIR] [--gp 4.2] [--repeats N] [--large-repeats N]
-       [--skip-demo] [--skip-large] [--keep-large] [--large-check] [--subset S,F ...] [--out FILE]
+       [--skip-demo] [--skip-large] [--keep-large] [--large-check] [--subset S,F ...] [--out FILE] [--label KEY]
+       [--before-src DIR]
 """
 
 from __future__ import annotations
@@ -299,18 +303,47 @@ def per_gp(result: dict) -> dict:
             "ratio_peer_over_ours_cpu": round(m["peer_cpu_s"] / m["ours_cpu_s"], 3)}
 
 
-def compare(work: Path, repeats: int, label: str, between=None) -> dict:
+def sha256_of(path: Path) -> str:
+    import hashlib
+
+    h = hashlib.sha256()
+    with open(path, "rb") as f:
+        for chunk in iter(lambda: f.read(1 << 24), b""):
+            h.update(chunk)
+    return h.hexdigest()
+
+
+def before_command(src: Path) -> list[str]:
+    """``ortho`` of the source tree ``src`` (e.g. ``git archive`` of main), run by this interpreter: that tree's
+    packages first on the path, the editable install of this one left out."""
+    code = ("import sys; sys.meta_path[:] = [f for f in sys.meta_path if 'editable' not in repr(f)]; "
+            f"sys.path.insert(0, {str(src)!r}); import ortho; assert ortho.__file__.startswith({str(src)!r}); "
+            "from ortho.cli import main; sys.argv = ['ortho'] + sys.argv[1:]; main()")
+    return [sys.executable, "-c", code]
+
+
+def compare(work: Path, repeats: int, label: str, between=None, before_src: Path | None = None) -> dict:
     """Ours and the peer alternately ``repeats`` times on ``work``'s frames; ``between()`` runs after the
-    first of ours (e.g. the DOM check), before our DOM is removed for the peer (``between`` set: disk)."""
+    first of ours (e.g. the DOM check), before our DOM is removed for the peer (``between`` set: disk). With
+    ``before_src`` (a source tree of the code before a change) its ``ortho mosaic`` runs first in every repetition
+    (``before``), and the sha256 of both mosaics are recorded."""
     frames = sorted((work / "ortho" / "frames").glob("*.tif"))
     listing = work / "peer_inputs.txt"
     listing.write_text("\n".join(str(f) for f in frames) + "\n")
     peer_out = work / "peer_mosaic.tif"
     runs = []
     for k in range(repeats):
+        before = None
+        if before_src is not None:
+            print(f"{label}: run {k + 1}/{repeats}: ortho mosaic of {before_src}", flush=True)
+            before = measured(before_command(before_src) + ["mosaic", "-q", str(work)], cwd=work)
+            before["sha256"] = sha256_of(work / "ortho" / "mosaic.tif")
+            print(f"  {before['wall_s']} s wall, {before['cpu_s']} CPU-s, {before['peak_rss_mb']} MB", flush=True)
         print(f"{label}: run {k + 1}/{repeats}: ortho mosaic", flush=True)
         ours = measured([tool("ortho"), "mosaic", "-q", str(work)])
         ours["file_mb"] = round((work / "ortho" / "mosaic.tif").stat().st_size / 1e6, 1)
+        if before is not None:
+            ours["sha256"] = sha256_of(work / "ortho" / "mosaic.tif")
         print(f"  {ours['wall_s']} s wall, {ours['cpu_s']} CPU-s, {ours['peak_rss_mb']} MB", flush=True)
         if k == 0:
             px = mosaic_px(work / "ortho" / "mosaic.tif")
@@ -321,20 +354,29 @@ def compare(work: Path, repeats: int, label: str, between=None) -> dict:
         peer = measured(PEER + ["--optfile", str(listing), str(peer_out)])
         peer["file_mb"] = round(peer_out.stat().st_size / 1e6, 1)
         print(f"  {peer['wall_s']} s wall, {peer['cpu_s']} CPU-s, {peer['peak_rss_mb']} MB", flush=True)
-        runs.append({"ours": ours, "peer": peer, "ratio": round(peer["wall_s"] / ours["wall_s"], 3)})
+        runs.append({"ours": ours, "peer": peer, "ratio": round(peer["wall_s"] / ours["wall_s"], 3),
+                     **({"before": before} if before is not None else {})})
         peer_px = mosaic_px(peer_out)
         peer_out.unlink()
     for r in runs:
         r["ours"]["mp_per_s"] = round(px / 1e6 / r["ours"]["wall_s"], 2)
         r["peer"]["mp_per_s"] = round(peer_px / 1e6 / r["peer"]["wall_s"], 2)
     med = lambda key, who: statistics.median(r[who][key] for r in runs)  # noqa: E731
-    return {"mosaic_px": px, "mosaic_gp": round(px / 1e9, 4), "peer_px": peer_px, "runs": runs,
+    with_before = {}
+    if before_src is not None:
+        with_before = {"before_src": str(before_src), "before_wall_s": med("wall_s", "before"),
+                       "before_cpu_s": med("cpu_s", "before"),
+                       "before_peak_rss_mb": max(r["before"]["peak_rss_mb"] for r in runs),
+                       "same_mosaic_bytes": all(r["before"]["sha256"] == r["ours"]["sha256"] for r in runs)}
+    return {"mosaic_px": px, "mosaic_gp": round(px / 1e9, 4), "peer_px": peer_px, "runs": runs, **with_before,
             "median": {"ours_wall_s": med("wall_s", "ours"), "peer_wall_s": med("wall_s", "peer"),
                        "ours_cpu_s": med("cpu_s", "ours"), "peer_cpu_s": med("cpu_s", "peer"),
                        "ours_peak_rss_mb": max(r["ours"]["peak_rss_mb"] for r in runs),
                        "peer_peak_rss_mb": max(r["peer"]["peak_rss_mb"] for r in runs),
                        "ours_mp_per_s": med("mp_per_s", "ours"), "peer_mp_per_s": med("mp_per_s", "peer"),
-                       "ratio_peer_over_ours_wall": statistics.median(r["ratio"] for r in runs)}}
+                       "ratio_peer_over_ours_wall": statistics.median(r["ratio"] for r in runs),
+                       "ratio_peer_over_ours_cpu": round(statistics.median(r["peer"]["cpu_s"] / r["ours"]["cpu_s"]
+                                                                           for r in runs), 3)}}
 
 
 def check(work: Path, reference: Path, out_stem: str) -> dict:
@@ -363,6 +405,9 @@ def main() -> None:
     ap.add_argument("--keep-large", action="store_true")
     ap.add_argument("--large-check", action="store_true", help="also ortho check the large DOM (long)")
     ap.add_argument("--out", type=Path, default=REPO / "bench" / "results" / "mosaic_speed.json")
+    ap.add_argument("--before-src", type=Path, help="source tree of the code before a change (git archive of main): "
+                    "its ortho mosaic also runs on the demo, alternately, and the two mosaics' sha256 are compared")
+    ap.add_argument("--label", help="write this run under this key of --out, keeping the file's other keys")
     a = ap.parse_args()
     if shutil.which("gdalwarp") is None:
         raise SystemExit("gdalwarp not found: the peer of this benchmark is GDAL's command line gdalwarp (Debian "
@@ -372,13 +417,24 @@ def main() -> None:
     import rasterio
 
     src = demo_project(a.demo)
-    result = {"machine": {"cpus": os.cpu_count(), "gdal_peer": peer_version, "gdal_ours": rasterio.__gdal_version__},
+    commit = subprocess.run(["git", "-C", str(REPO), "rev-parse", "--short", "HEAD"], capture_output=True, text=True)
+    dirty = subprocess.run(["git", "-C", str(REPO), "status", "--porcelain", "--", "ortho", "aerotri"],
+                           capture_output=True, text=True).stdout.strip()
+    result = {"commit": commit.stdout.strip() + (" (with uncommitted changes)" if dirty else ""),
+              "machine": {"cpus": os.cpu_count(), "gdal_peer": peer_version, "gdal_ours": rasterio.__gdal_version__},
               "peer_command": " ".join(PEER) + " --optfile <frames> <out.tif>",
               "ours_command": "ortho mosaic <project>"}
+    earlier = json.loads(a.out.read_text()) if a.label and a.out.is_file() else {}
+
+    def save():
+        """The results so far into --out (under --label, beside the file's other keys)."""
+        a.out.parent.mkdir(parents=True, exist_ok=True)
+        a.out.write_text(json.dumps({**earlier, a.label: result} if a.label else result, indent=1) + "\n")
+
     demo = copy_demo(src, a.work / "demo")
     if not a.skip_demo:
         print(f"demo: {len(list((demo / 'ortho' / 'frames').glob('*.tif')))} frames from {src}", flush=True)
-        result["demo"] = compare(demo, a.repeats, "demo")
+        result["demo"] = compare(demo, a.repeats, "demo", before_src=a.before_src)
         result["demo"]["per_gp"] = per_gp(result["demo"])
     if not a.skip_demo and (demo / "truth" / "ortho.tif").exists():
         before = json.loads((demo / "ortho" / "dom_report.json").read_text())["displacement"] \
@@ -389,8 +445,7 @@ def main() -> None:
             "before": None if before is None else {"patches": before["count"], "rms_xy_m": before["rms_xy_m"],
                                                    "rms_xy_gsd": before["rms_xy_gsd"], "max_xy_m": before["max_xy_m"],
                                                    "source": "the demo's ortho/dom_report.json"}}
-    a.out.parent.mkdir(parents=True, exist_ok=True)
-    a.out.write_text(json.dumps(result, indent=1) + "\n")
+    save()
     if not a.skip_large:
         large = a.work / "large"
         print(f"large: making the synthetic frame orthos for {a.gp} GP", flush=True)
@@ -411,21 +466,21 @@ def main() -> None:
 
             def large_check(part=part, proj=proj):
                 part["first_ours"] = "measured"
-                a.out.write_text(json.dumps(result, indent=1) + "\n")
+                save()
                 if a.large_check:
                     print(f"{key}: ortho check", flush=True)
                     part["dom_check"] = check(proj, proj / "reference.tif", "dom_report_bench")
                     part["dom_check"]["reference"] = f"the ground image at {REF_RES_M} m"
-                    a.out.write_text(json.dumps(result, indent=1) + "\n")
+                    save()
 
             part.update(compare(proj, a.large_repeats, key, between=large_check))
             part["per_gp"] = per_gp(part)
-            a.out.write_text(json.dumps(result, indent=1) + "\n")
+            save()
             if proj != large:
                 shutil.rmtree(proj)
         if not a.keep_large:
             shutil.rmtree(large)
-    a.out.write_text(json.dumps(result, indent=1) + "\n")
+    save()
     if "demo" in result:
         d = result["demo"]["median"]
         print(f"demo: ours {d['ours_wall_s']} s, gdalwarp {d['peer_wall_s']} s: {d['ratio_peer_over_ours_wall']}x")

@@ -12,10 +12,12 @@ best of each (the 2-core machine is shared: the load average is recorded beside 
 Throughput = points of the strips / wall seconds of the call.
 
 Comparison of the last outputs, per raster: cells that differ (nodata in one only counted), largest
-absolute difference; the hillshade PNG's pixels that differ.
-Writes bench/results/rasters_speed.json.
+absolute difference; the hillshade PNG's pixels that differ; whether the files are the same bytes (sha256).
+``--cold``: before the timed runs, one run of each tree with an empty numba cache (``NUMBA_CACHE_DIR``),
+as the first run after a fresh clone: its CPU seconds include numba's compilation.
+Writes bench/results/rasters_speed.json; with ``--key NAME`` only that key of it (the others kept).
 Run: .venv/bin/python bench/rasters_speed.py [--project /work/ref/demo_chain/project] [--baseline-rev a17e529]
-     [--repeat 2] [--work /tmp/rasters_speed]
+     [--repeat 2] [--work /tmp/rasters_speed] [--cold] [--key NAME]
 """
 
 from __future__ import annotations
@@ -60,9 +62,12 @@ def baseline_tree(rev: str, work: Path) -> Path:
     return dst
 
 
-def run(src: Path, out: Path, paths) -> dict:
+def run(src: Path, out: Path, paths, numba_cache: Path | None = None) -> dict:
     shutil.rmtree(out, ignore_errors=True)
     env = dict(os.environ, PYTHONPATH=str(src))
+    if numba_cache is not None:       # empty: the run compiles every numba function it calls
+        shutil.rmtree(numba_cache, ignore_errors=True)
+        env["NUMBA_CACHE_DIR"] = str(numba_cache)
     load0 = os.getloadavg()[0]
     p = subprocess.run([sys.executable, "-c", CHILD, str(out), *map(str, paths)], env=env, text=True, cwd=src,
                        capture_output=True)
@@ -105,7 +110,16 @@ def compare(a: Path, b: Path) -> dict:
     ha, hb = mpimg.imread(a / "hillshade.png"), mpimg.imread(b / "hillshade.png")
     out["hillshade"] = dict(pixels=int(ha.shape[0] * ha.shape[1]),
                             differing_pixels=int((ha != hb).any(axis=-1).sum()))
+    for name in ("dem", "dsm", "ndsm", "chm", "intensity"):
+        out[name]["same_bytes"] = sha256(a / f"{name}.tif") == sha256(b / f"{name}.tif")
+    out["hillshade"]["same_bytes"] = sha256(a / "hillshade.png") == sha256(b / "hillshade.png")
     return out
+
+
+def sha256(path: Path) -> str:
+    import hashlib
+
+    return hashlib.sha256(path.read_bytes()).hexdigest()
 
 
 def main():
@@ -115,6 +129,8 @@ def main():
     ap.add_argument("--baseline-rev", default="a17e529", help="main before the speed-up (issue 41)")
     ap.add_argument("--repeat", type=int, default=2)
     ap.add_argument("--work", type=Path, default=Path("/tmp/rasters_speed"))
+    ap.add_argument("--cold", action="store_true", help="also one run of each tree with an empty numba cache")
+    ap.add_argument("--key", help="write the results under this key of rasters_speed.json, keeping the others")
     args = ap.parse_args()
     import laspy
 
@@ -125,6 +141,15 @@ def main():
     args.work.mkdir(parents=True, exist_ok=True)
     base = baseline_tree(args.baseline_rev, args.work)
     trees = {"baseline": base, "ours": REPO}
+    cold = {}
+    if args.cold:
+        for name, src in trees.items():
+            r = run(src, args.work / f"out_{name}", paths, numba_cache=args.work / f"numba_cache_{name}")
+            r["points_per_s"] = n / r["seconds"]
+            r["points_per_cpu_s"] = n / r["cpu_seconds"]
+            cold[name] = r
+            print(f"{name}, empty numba cache: {r['seconds']:.1f} s, CPU {r['cpu_seconds']:.1f} s, "
+                  f"load {r['load_average_1min_before_after']}", flush=True)
     warm = small_strip(paths[0], args.work / "warm_up.laz")
     for name, src in trees.items():
         run(src, args.work / f"warm_{name}", [warm])
@@ -160,8 +185,17 @@ def main():
                 "precision merging); ours is exact (docs/lidar-rasters-speed.md)",
         "runs": runs,
     }
-    print(json.dumps({k: v for k, v in out.items() if k != "runs"}, indent=1))
-    (REPO / "bench" / "results" / "rasters_speed.json").write_text(json.dumps(out, indent=2) + "\n")
+    if cold:
+        out["empty_numba_cache"] = {
+            "what": "one run of each tree with an empty numba cache (a fresh clone's first run), before the others",
+            "cpu_seconds_baseline_ours": [cold["baseline"]["cpu_seconds"], cold["ours"]["cpu_seconds"]],
+            "seconds_baseline_ours": [cold["baseline"]["seconds"], cold["ours"]["seconds"]],
+            "runs": cold}
+    print(json.dumps({k: v for k, v in out.items() if k not in ("runs", "empty_numba_cache")}, indent=1))
+    path = REPO / "bench" / "results" / "rasters_speed.json"
+    if args.key:
+        out = dict(json.loads(path.read_text()), **{args.key: out})
+    path.write_text(json.dumps(out, indent=2) + "\n")
 
 
 if __name__ == "__main__":

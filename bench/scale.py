@@ -41,6 +41,7 @@ Usage:
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import os
 import shutil
@@ -118,7 +119,7 @@ def size_overrides(size: str) -> tuple[str, list[str]]:
     if not flight or size in DMC_SIZES:
         return preset, []
     full = load_preset(preset)
-    ratio = lidar_plan(load_preset(preset, flight))["scene_km2"] / lidar_plan(full)["scene_km2"]
+    ratio = lidar_plan(load_preset(preset, flight)).scene_km2 / lidar_plan(full).scene_km2
     return preset, flight + [f"scene.{k}={max(1, round(full['scene'][k] * ratio))}" for k in SCENE_COUNTS]
 
 
@@ -133,8 +134,8 @@ def generate(block: Path, size: str) -> dict:
 
     preset, overrides = size_overrides(size)
     plan = lidar_plan(load_preset(preset, overrides))
-    print(f"generating {block}: LiDAR {plan['strips']} strips, {plan['pulses'] / 1e6:.1f} M pulses over "
-          f"{plan['scene_km2']} km2 (about 0.8 points a pulse)", flush=True)
+    print(f"generating {block}: LiDAR {plan.strips} strips, {plan.pulses / 1e6:.1f} M pulses over "
+          f"{plan.scene_km2} km2 (about 0.8 points a pulse)", flush=True)
     cmd = generate_command(block, size)
     load0 = _load()
     with measure() as u:
@@ -142,7 +143,7 @@ def generate(block: Path, size: str) -> dict:
     truth = json.loads((block / "truth" / "truth.json").read_text())
     # the simulator's peak: the largest child reaped (RUSAGE_CHILDREN), not this process's
     return dict(wall_s=round(u.wall_s, 1), cpu_s=round(u.cpu_s, 1), peak_rss_mb=round(u.workers_peak_rss_mb, 1),
-                lidar_plan=plan, frames=truth["frames"], lidar_points=truth["lidar_points"], load_avg_before=load0,
+                lidar_plan=dataclasses.asdict(plan), frames=truth["frames"], lidar_points=truth["lidar_points"], load_avg_before=load0,
                 load_avg_after=_load(), command=" ".join(Path(cmd[0]).name if i == 0 else c for i, c in enumerate(cmd)))
 
 

@@ -113,8 +113,8 @@ def full_block_numbers(points_per_pulse: float) -> dict:
     t = cfg["truth"]
     raster_mp = 2 * math.floor(layout.width_m / t["raster_res_m"]) * math.floor(layout.height_m / t["raster_res_m"]) / 1e6
     ortho_mp = math.floor(layout.width_m / t["ortho_res_m"]) * math.floor(layout.height_m / t["ortho_res_m"]) / 1e6
-    return dict(frames=cfg["flight"]["strips"] * cfg["flight"]["frames_per_strip"], lidar_pulses=plan["pulses"],
-                lidar_points_planned=plan["pulses"] * points_per_pulse, scene_km2=plan["scene_km2"],
+    return dict(frames=cfg["flight"]["strips"] * cfg["flight"]["frames_per_strip"], lidar_pulses=plan.pulses,
+                lidar_points_planned=plan.pulses * points_per_pulse, scene_km2=plan.scene_km2,
                 truth_megapixels=raster_mp + ortho_mp)
 
 
@@ -134,8 +134,8 @@ def estimated_gb(overrides: list[str]) -> float:
     bands = 1 if cfg["render"].get("bands", "rgb") == "pan" else 3
     frames = f["strips"] * f["frames_per_strip"] * c["width"] * c["height"] * bands * BYTES_PER_SAMPLE
     plan = lidar_plan(cfg)
-    truth = plan["scene_km2"] * 1e6 / cfg["truth"]["ortho_res_m"] ** 2 * BYTES_PER_TRUTH_PX
-    return (frames + 0.8 * plan["pulses"] * BYTES_PER_POINT + truth) / 1e9
+    truth = plan.scene_km2 * 1e6 / cfg["truth"]["ortho_res_m"] ** 2 * BYTES_PER_TRUTH_PX
+    return (frames + 0.8 * plan.pulses * BYTES_PER_POINT + truth) / 1e9
 
 
 def make_block(out: Path, overrides: list[str]) -> dict:
@@ -166,8 +166,8 @@ def make_block(out: Path, overrides: list[str]) -> dict:
                    bits=cfg["render"].get("bits", 8), tile_px=cfg["render"].get("tile_px", 0),
                    compression=cfg["render"].get("compress", "none"), gsd_m=round(truth.gsd_m, 4),
                    focal_mm=cam["focal_mm"], pixel_um=truth.pixel_um, lidar_strips=truth.lidar_strips,
-                   lidar_points=truth.lidar_points, lidar_pulses=plan["pulses"],
-                   lidar_format=cfg["lidar"]["format"], scene_km2=plan["scene_km2"],
+                   lidar_points=truth.lidar_points, lidar_pulses=plan.pulses,
+                   lidar_format=cfg["lidar"]["format"], scene_km2=plan.scene_km2,
                    truth_ortho_res_m=cfg["truth"]["ortho_res_m"],
                    disk_gb=dict(images=_du_gb(out / "images"), lidar=_du_gb(out / "lidar"),
                                 truth=_du_gb(out / "truth"), total=_du_gb(out))),

@@ -41,7 +41,7 @@ def main(argv=None) -> None:
     plan = plan_frames(cfg, layout, np.random.default_rng(ss[1]))
     cam, _ = cameras_from_config(cfg["camera"])
     look = raster.SceneLook(scene, texture_fine_m(cfg, cam))
-    r = raster.FrameRenderer(scene, cam, look.fine_m, int(cfg["render"]["samples"]), 8, look=look)
+    r = raster.FrameRenderer(scene, cam, look.fine_m, samples=int(cfg["render"]["samples"]), bits=8, look=look)
     try:
         from aerotri.sim.project import sim_earth
 

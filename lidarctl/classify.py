@@ -63,7 +63,10 @@ Pipeline (``classify_points``):
    *Level water* (``level_water``): a calm lake that returned the pulse shows no dropout; it is a
    surface level to ``level_water_tol_m`` over at least ``level_water_min_area_m2``, in a bed (the
    ground on its rim stands above the level), under open sky, of single returns; its shore is
-   where the returns leave the level.
+   where the returns leave the level. A lake that mirrored the pulse away over its middle returns it
+   only in patches along its shores; level patches at one level (within ``level_water_tol_m``) that
+   border the same dropout gap (cells without any return) are one body
+   (``level_water_across_dropouts``; the lidR Topography lakes, bench/results/water.json).
 6. Bridge decks (17, ``bridge_decks``): ground between two open-water-sized dropout gaps (not
    occlusion shadows) at most ``bridge_max_width_m`` apart along a grid direction within 30 degrees
    of a gap's long axis (a watercourse runs on under the deck), standing more than
@@ -171,6 +174,9 @@ class ClassifySettings:
     level_water_tol_m: float = setting(0.05, min=0.0, min_open=True, help="Level water: returns within this of the "
                                                                           "level lie on it (m).")
     level_water_min_area_m2: float = setting(200.0, min=0.0, help="Level water: smallest body (m2); 0: off.")
+    level_water_across_dropouts: bool = setting(True, help="Level water: level patches around one pulse-dropout "
+                                                "gap at the same level are one body (water returns pulses only "
+                                                "along its shores).")
     level_water_bank_fraction: float = setting(0.8, min=0.0, max=1.0, help="Level water: share of the ground cells on "
                                                                            "its rim standing above the level (a bed).")
     # A deck is at most this long along the watercourse it spans (the road's width, not the span
@@ -389,8 +395,18 @@ def deep_ground_outliers(x, y, z, ground, cell_m: float = 5.0, deep_m: float = 5
     return out
 
 
+def _plane_offsets(x, y, z, query, nb, dist, min_points: int, robust: bool = False):
+    """``_plane_offsets_kernel`` with its arguments in one set of types (contiguous arrays, ``robust``
+    given): numba compiles a function once per set of argument types, and this one (parallel,
+    ``np.linalg.solve``, ``np.median``) takes about 10 CPU-s each time on a fresh clone; sliced
+    neighbour arrays and an omitted ``robust`` had made two."""
+    c = np.ascontiguousarray
+    return _plane_offsets_kernel(c(x, np.float64), c(y, np.float64), c(z, np.float64), c(query, np.int64),
+                                 c(nb, np.int64), c(dist, np.float64), int(min_points), bool(robust))
+
+
 @numba.njit(cache=True, parallel=True)
-def _plane_offsets(x, y, z, query, nb, dist, min_points, robust=False):
+def _plane_offsets_kernel(x, y, z, query, nb, dist, min_points, robust):
     """Per query point: height above the LSQ plane z = a dx + b dy + c through its valid
     neighbours ``nb`` (point indices; dx, dy relative to the query point, so c is the plane
     height there), and the neighbours' spread about the plane: their RMS residual, or with ``robust``
@@ -820,64 +836,138 @@ def level_water(x, y, z, candidate, is_ground, spacing_m: float, p: ClassifySett
     m = coo_matrix((np.ones(len(rows)), (rows, cols)), shape=(nrows * ncols,) * 2)
     _, lab = connected_components(m, directed=False)
     lab = np.where(ok.ravel(), lab + 1, 0)
-    size = np.bincount(lab)
-    big = size * c * c >= p.level_water_min_area_m2
-    big[0] = False
-    if not big.any():
-        return water
-    # Cut each large region to its level and relabel (a region may have crept along gentle slopes).
-    level_of = np.full(len(size), np.nan)
-    keep = big[lab]
-    for k in np.flatnonzero(big):
-        level_of[k] = np.median(med.ravel()[lab == k])
-    at_level = keep & (np.abs(med.ravel() - np.nan_to_num(level_of[lab], nan=np.inf)) <= tol)
-    labels, nlab = ndimage.label(at_level.reshape(nrows, ncols), np.ones((3, 3), int))
-    if nlab == 0:
-        return water
-    area = np.bincount(labels.ravel(), minlength=nlab + 1) * c * c
     ground_cell_z = reduce_grid(x[is_ground], y[is_ground], z[is_ground], c, x0, y0, nrows, ncols, "mean")
     tall = np.ones(n, bool) if solid is None else np.asarray(solid, bool).copy()
     tall_idx = np.flatnonzero(tall)
-    tree = None
+    tree = []
     multi = None if number_of_returns is None else np.asarray(number_of_returns) > 1
     if multi is not None and not multi.any():
         multi = None
     shore_cells = max(1, int(np.ceil(p.water_shore_m / c)))
-    boxes = ndimage.find_objects(labels)
-    lab_pt = labels.ravel()[flat]
-    for k in np.flatnonzero(area[1:] >= p.level_water_min_area_m2) + 1:
-        pad = shore_cells + 2
-        r0, c0 = max(boxes[k - 1][0].start - pad, 0), max(boxes[k - 1][1].start - pad, 0)
-        win = (slice(r0, boxes[k - 1][0].stop + pad), slice(c0, boxes[k - 1][1].stop + pad))
-        region = labels[win] == k
-        level = float(np.median(med[win][region]))
-        rim = ndimage.binary_dilation(region, np.ones((3, 3), bool), 2) & ~region
-        bank = ground_cell_z[win][rim]
-        bank = bank[np.isfinite(bank)]
-        if len(bank) == 0 or np.mean(bank > level + tol) < p.level_water_bank_fraction:
-            continue
-        members = np.flatnonzero(candidate & (lab_pt == k))
-        members = members[np.abs(z[members] - level) <= tol]
-        if multi is not None and np.mean(multi[members]) > 0.05:
-            continue
-        if tree is None:
-            tree = cKDTree(np.column_stack([x[tall_idx], y[tall_idx]]))
-        # Shore: candidates near the body at its level.
-        shore = ndimage.binary_dilation(region, np.ones((3, 3), bool), shore_cells)
-        rr, cc = np.divmod(flat[candidate], ncols)
-        ii, jj = rr - r0, cc - c0
-        inside = (ii >= 0) & (ii < shore.shape[0]) & (jj >= 0) & (jj < shore.shape[1])
-        inside[inside] = shore[ii[inside], jj[inside]]
-        near = np.flatnonzero(candidate)[inside]
-        near = near[np.abs(z[near] - level) <= tol]
-        # Open sky over the body: a return well above the level within a cell is a crown.
-        hits = tree.query_ball_point(np.column_stack([x[near], y[near]]), c)
-        covered = np.fromiter((bool(len(h)) and float(np.max(z[tall_idx[h]])) > level + p.low_veg_max_m
-                               for h in hits), bool, len(near))
-        if np.mean(covered[np.isin(near, members)]) > 0.05:
-            continue   # a level floor under crowns is forest floor
-        water[near[~covered]] = True
+
+    def bodies(lab, joined: bool) -> np.ndarray:
+        """Water returns of the level regions ``lab`` (region id per cell) that are water bodies."""
+        water = np.zeros(n, bool)
+        size = np.bincount(lab)
+        big = size * c * c >= p.level_water_min_area_m2
+        big[0] = False
+        if not big.any():
+            return water
+        # Cut each large region to its level and relabel (a region may have crept along gentle slopes).
+        level_of = np.full(len(size), np.nan)
+        keep = big[lab]
+        for k in np.flatnonzero(big):
+            level_of[k] = np.median(med.ravel()[lab == k])
+        at_level = keep & (np.abs(med.ravel() - np.nan_to_num(level_of[lab], nan=np.inf)) <= tol)
+        if joined:
+            # A body joined across a gap is one body even where its level cells do not touch.
+            ids, inv = np.unique(np.where(at_level, lab, 0), return_inverse=True)
+            labels = (inv.reshape(nrows, ncols) if ids[0] == 0 else inv.reshape(nrows, ncols) + 1).astype(np.int64)
+            nlab = int(labels.max())
+        else:
+            labels, nlab = ndimage.label(at_level.reshape(nrows, ncols), np.ones((3, 3), int))
+        if nlab == 0:
+            return water
+        area = np.bincount(labels.ravel(), minlength=nlab + 1) * c * c
+        boxes = ndimage.find_objects(labels)
+        lab_pt = labels.ravel()[flat]
+        for k in np.flatnonzero(area[1:] >= p.level_water_min_area_m2) + 1:
+            pad = shore_cells + 2
+            r0, c0 = max(boxes[k - 1][0].start - pad, 0), max(boxes[k - 1][1].start - pad, 0)
+            win = (slice(r0, boxes[k - 1][0].stop + pad), slice(c0, boxes[k - 1][1].stop + pad))
+            region = labels[win] == k
+            level = float(np.median(med[win][region]))
+            rim = ndimage.binary_dilation(region, np.ones((3, 3), bool), 2) & ~region
+            bank = ground_cell_z[win][rim]
+            bank = bank[np.isfinite(bank)]
+            if len(bank) == 0 or np.mean(bank > level + tol) < p.level_water_bank_fraction:
+                continue
+            members = np.flatnonzero(candidate & (lab_pt == k))
+            members = members[np.abs(z[members] - level) <= tol]
+            if multi is not None and np.mean(multi[members]) > 0.05:
+                continue
+            if not tree:
+                tree.append(cKDTree(np.column_stack([x[tall_idx], y[tall_idx]])))
+            # Shore: candidates near the body at its level.
+            shore = ndimage.binary_dilation(region, np.ones((3, 3), bool), shore_cells)
+            rr, cc = np.divmod(flat[candidate], ncols)
+            ii, jj = rr - r0, cc - c0
+            inside = (ii >= 0) & (ii < shore.shape[0]) & (jj >= 0) & (jj < shore.shape[1])
+            inside[inside] = shore[ii[inside], jj[inside]]
+            near = np.flatnonzero(candidate)[inside]
+            near = near[np.abs(z[near] - level) <= tol]
+            # Open sky over the body: a return well above the level within a cell is a crown.
+            hits = tree[0].query_ball_point(np.column_stack([x[near], y[near]]), c)
+            covered = np.fromiter((bool(len(h)) and float(np.max(z[tall_idx[h]])) > level + p.low_veg_max_m
+                                   for h in hits), bool, len(near))
+            if np.mean(covered[np.isin(near, members)]) > 0.05:
+                continue   # a level floor under crowns is forest floor
+            water[near[~covered]] = True
+        return water
+
+    water = bodies(lab, False)
+    if p.level_water_across_dropouts:
+        # Level patches joined across the gaps they border: bodies the patches alone are too small to
+        # be (a joined body that fails a test leaves its parts' own verdicts standing). Only patches
+        # too small to be a body alone join: a level floor of a body's size (quays along a canal whose
+        # calm water returned nothing) is judged as itself, never merged across the canal.
+        small = np.bincount(lab) * c * c < p.level_water_min_area_m2
+        small[0] = False
+        patches = np.where(small[lab], lab, 0)
+        joined = _join_across_dropouts(patches, med, np.bincount(flat, minlength=nrows * ncols) == 0, tol)
+        if joined is not patches:
+            # Only the bodies made of two or more patches: the others were judged above.
+            pairs = np.unique(np.column_stack([joined, patches])[patches > 0], axis=0)
+            parts = np.bincount(pairs[:, 0], minlength=int(joined.max()) + 1)
+            joined = np.where(parts[joined] >= 2, joined, 0)
+            if joined.any():
+                water |= bodies(joined, True)
     return water
+
+
+def _join_across_dropouts(lab: np.ndarray, med: np.ndarray, void: np.ndarray, tol: float) -> np.ndarray:
+    """Level regions (``lab``: region id per cell of the grid ``med``, 0: not level) joined across the
+    pulse-dropout gaps of a water body: two regions that border the same 8-connected group of empty
+    cells (``void``: no return at all) and whose levels (median of their cells' ``med``) differ by at most
+    ``tol`` are one body. Water that returned the pulse only along its shores, around a gap where
+    it mirrored the pulse away, is a ring of level patches, each smaller than a body; joined
+    through the gap they are one surface at one level. Returns the joined region id per cell."""
+    nrows, ncols = med.shape
+    void = void.reshape(nrows, ncols)
+    nreg = int(lab.max())
+    if nreg < 2 or not void.any():
+        return lab
+    vlab, nv = ndimage.label(void, np.ones((3, 3), int))
+    lab2 = lab.reshape(nrows, ncols)
+    pairs = []
+    for dr in (-1, 0, 1):
+        for dc in (-1, 0, 1):
+            if dr == dc == 0:
+                continue
+            a = (slice(max(0, -dr), nrows - max(0, dr)), slice(max(0, -dc), ncols - max(0, dc)))
+            b = (slice(max(0, dr), nrows - max(0, -dr)), slice(max(0, dc), ncols - max(0, -dc)))
+            e = (lab2[a] > 0) & (vlab[b] > 0)
+            pairs.append(np.column_stack([vlab[b][e], lab2[a][e]]))
+    pairs = np.unique(np.concatenate(pairs), axis=0)
+    if len(pairs) < 2:
+        return lab
+    ok = lab > 0
+    level = np.zeros(nreg + 1)
+    level[1:] = ndimage.median(med.ravel()[ok], lab[ok], np.arange(1, nreg + 1))
+    # Per gap, its bordering regions in order of level; neighbours in that order within tol join.
+    order = np.lexsort((level[pairs[:, 1]], pairs[:, 0]))
+    v, r = pairs[order, 0], pairs[order, 1]
+    link = (v[1:] == v[:-1]) & (np.abs(level[r[1:]] - level[r[:-1]]) <= tol)
+    if not link.any():
+        return lab
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+
+    g = coo_matrix((np.ones(int(link.sum())), (r[:-1][link], r[1:][link])), shape=(nreg + 1,) * 2)
+    _, comp = connected_components(g, directed=False)
+    # Relabel 1..k with 0 kept for the cells that are not level.
+    ids = np.unique(comp[1:], return_inverse=True)[1] + 1
+    return np.where(ok, np.r_[0, ids][lab], 0)
 
 
 def dropout_gaps(x, y, z, is_ground, g: DropoutGrid, p: ClassifySettings):

@@ -304,7 +304,7 @@ def _truth_notes(conf: dict) -> list[str]:
               help="Write the numbers as JSON (dz and statistics in metres, _m keys; per-point coordinates "
                    "in the cloud's units, named by xy_unit and z_unit).")
 @click.option("--crs", default=None, help="CRS (EPSG:code) when the file has none.")
-def check_heights(paths, dem_path, radius_m, exclude_m, grouping, cover_radius_m, canopy_height_m, open_below,
+def check_heights(*, paths, dem_path, radius_m, exclude_m, grouping, cover_radius_m, canopy_height_m, open_below,
                   dense_above, json_path, crs):
     """Height check against surveyed points (CSV id,x,y,z[,group] in the CRS and units of the cloud, or of the
     DEM): of the cloud's ground (class 2; one file or classified strips) and/or of the DEM raster (--dem);
@@ -320,8 +320,8 @@ def check_heights(paths, dem_path, radius_m, exclude_m, grouping, cover_radius_m
         refuse_input_as_output(json_path, [*cloud_paths, points_csv, dem_path], "--json")
     density = hc.DensityGroups(radius_m=cover_radius_m, canopy_height_m=canopy_height_m, open_below=open_below,
                                dense_above=dense_above)
-    result = hc.check_heights_file(cloud_paths, points_csv, radius_m, exclude_m, crs=crs, dem_path=dem_path,
-                                   grouping=grouping, density=density)
+    result = hc.check_heights_file(cloud_paths, points_csv, radius_m=radius_m, exclude_m=exclude_m, crs=crs,
+                                   dem_path=dem_path, grouping=grouping, density=density)
     click.echo(hc.format_report(result))
     if json_path:
         write_text_atomic(json_path, json.dumps(result, indent=2))
@@ -405,7 +405,8 @@ def contours(dem_path, out_path, interval, index_every, smoothing, tolerance_px,
     would put adjacent levels less than a cell apart on average is refused (exit 2)."""
     from lidarctl.contours import contours_from_file
 
-    s = contours_from_file(dem_path, out_path, interval, index_every, smoothing, tolerance_px, tension, png)
+    s = contours_from_file(dem_path, out_path, interval=interval, index_every=index_every, smoothing=smoothing,
+                           tolerance_px=tolerance_px, tension=tension, png=png)
     # + 0.0: a level of -0.0 (a multiple of the interval reached from below) is written 0, not -0
     span = (f" from {s['lowest_level'] + 0.0:g} to {s['highest_level'] + 0.0:g} {s['unit']}" if s["levels"] else "")
     click.echo(f"{out_path}: {s['contours']} contours on {s['levels']} levels every {s['interval']:g} {s['unit']} "
@@ -473,7 +474,7 @@ def vectors(paths, image, dem, contours_path, crs, **_settings):
     if dem and contours_path:
         raise OptionError("give --dem or --contours, not both", param="--contours")
     params = resolve(MapVectorSettings, None, click.get_current_context()).settings
-    s = vectors_to_file(clouds, out_path, params, crs=crs, dem=dem, contours=contours_path, image=image)
+    s = vectors_to_file(clouds, out_path, params=params, crs=crs, dem=dem, contours=contours_path, image=image)
     counts = ", ".join(f"{k} {s[k]}" for k in ("buildings", "roads", "road_centrelines", "water", "spot_heights",
                                                "contours") if k in s)
     click.echo(f"{out_path}: {counts} ({s['units']['xy_unit']})")

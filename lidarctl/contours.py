@@ -344,7 +344,7 @@ def preview_png(cs: ContourSet, dem: np.ndarray, transform, path, title: str = "
     return Path(path)
 
 
-def contours_from_file(dem_path, out_path, interval: float, index_every: int = 5, smoothing: str = "none",
+def contours_from_file(dem_path, out_path, *, interval: float, index_every: int = 5, smoothing: str = "none",
                        tolerance_px: float = 0.5, tension: float = 1.0, png: bool = True) -> dict:
     """Trace (and smooth) the contours of a DEM GeoTIFF into a GeoPackage/GeoJSON (+ a PNG preview beside it);
     ``interval`` in the DEM's height unit (its CRS's: feet for a DEM in feet). Returns the summary (counts,

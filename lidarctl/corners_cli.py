@@ -23,7 +23,7 @@ from lidarctl.corners import CornerSettings, corner_control
 @click_option(CornerSettings, "figure", "--figure/--no-figure")
 @click_option(CornerSettings, "tile_m", "--tile-m")
 @click_option(CornerSettings, "buffer_m", "--buffer-m")
-def corners(classified, outdir, min_edge_m, roof, sigma_strip_xy_m, sigma_strip_z_m, crs, figure, tile_m, buffer_m):
+def corners(*, classified, outdir, min_edge_m, roof, sigma_strip_xy_m, sigma_strip_z_m, crs, figure, tile_m, buffer_m):
     """Roof corners of CLASSIFIED LAS/LAZ file(s) (one or more strips in one CRS, building class 6)
     into OUTDIR.
 

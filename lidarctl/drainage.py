@@ -391,7 +391,7 @@ class Network:
     basin: np.ndarray  # 2-D int64 outlet segment id per cell, -1 none
 
 
-def stream_network(acc_cells: np.ndarray, down, order, transform, cell_area_m2: float, min_area_m2: float,
+def stream_network(acc_cells: np.ndarray, down, order, *, transform, cell_area_m2: float, min_area_m2: float,
                    xy_m: float = 1.0, simplify_px: float = 0.5) -> Network:
     """Streams where the upstream area >= ``min_area_m2`` (module doc); ``transform``: the raster's affine (cell
     centres in map units of ``xy_m`` metres)."""
@@ -529,7 +529,7 @@ def _cog(path, array, profile, nodata, unit=None, description=None):
     write_cog(path, array, profile["transform"], profile["crs"], unit, description, nodata=nodata, dtype=None)
 
 
-def _write_gpkg(path, net: Network, sub_ids, sub_geoms, basin_ids, basin_geoms, crs_wkt, cell_area_m2):
+def _write_gpkg(path, net: Network, *, sub_ids, sub_geoms, basin_ids, basin_geoms, crs_wkt, cell_area_m2):
     import shapely
     from pyogrio.raw import write
 
@@ -641,7 +641,8 @@ def drainage(dem_path, outdir, min_area_m2: float | None = None, method: str = "
     cond = condition(dem * z_m, method)  # metres: the slopes compare heights with distances in metres
     codes = flow_directions(cond.dem, dx_m, dy_m)
     down, order, acc = accumulate(codes, valid)
-    net = stream_network(acc, down, order, transform, cell_area_m2, min_area_m2, xy_m, simplify_px)
+    net = stream_network(acc, down, order, transform=transform, cell_area_m2=cell_area_m2, min_area_m2=min_area_m2,
+                         xy_m=xy_m, simplify_px=simplify_px)
     none = (why_no_streams(acc, valid, transform, cell_area_m2, min_area_m2, unit_long_name(crs))
             if not len(net.lines) else None)
     sub_ids, sub_geoms = polygons(net.subcatchment, transform)
@@ -667,7 +668,8 @@ def drainage(dem_path, outdir, min_area_m2: float | None = None, method: str = "
              "upstream area, m2")
         _cog(tmp / "strahler.tif", np.where(valid, net.strahler, 255).astype(np.uint8), profile, 255, None,
              "Strahler order of the stream cells, 0 off the streams")
-        _write_gpkg(tmp / "drainage.gpkg", net, sub_ids, sub_geoms, basin_ids, basin_geoms, crs.to_wkt(), cell_area_m2)
+        _write_gpkg(tmp / "drainage.gpkg", net, sub_ids=sub_ids, sub_geoms=sub_geoms, basin_ids=basin_ids,
+                    basin_geoms=basin_geoms, crs_wkt=crs.to_wkt(), cell_area_m2=cell_area_m2)
         if png:
             preview_png(dem * z_m, transform, net, tmp / "drainage.png",
                         f"{dem_path.name}: streams >= {min_area_m2:g} m2 ({method}), {len(net.lines)} segments", dx_m)

@@ -77,6 +77,7 @@ from aerotri.core.errors import OptionError
 from aerotri.core.settings import setting
 from lidarctl import grid
 from lidarctl.knn import QUERY_CHUNK, BucketGrid
+from lidarctl.slope_filter import SlopeSettings, slope_ground, slope_reach_m
 
 
 @dataclasses.dataclass
@@ -603,6 +604,7 @@ GROUND_FILTERS: dict[str, GroundFilter] = {
     "morph": GroundFilter(MorphSettings, morphological_ground, morph_reach_m, MORPH_PRESETS,
                           help="morphological + TIN refinement"),
     "ptd": GroundFilter(GroundSettings, ptd_ground, ptd_reach_m, PTD_PRESETS, help="progressive TIN densification"),
+    "slope": GroundFilter(SlopeSettings, slope_ground, slope_reach_m, help="slope-based filter (Vosselman 2000)"),
 }
 
 

@@ -137,7 +137,7 @@ def _spread_m(dx, dy) -> float:
     return float(np.sqrt(max(np.linalg.eigvalsh(c)[0], 0.0)))
 
 
-def ground_height_at(gx, gy, gz, qx, qy, radius_m: float = 5.0, slopes: bool = False):
+def ground_height_at(gx, gy, gz, qx, qy, *, radius_m: float = 5.0, slopes: bool = False):
     """Interpolated ground height at (qx, qy) and the number of ground points used (NaN if none); with
     ``slopes`` also the plane's slopes dz/dx, dz/dy (0 where the IDW mean is used)."""
     tree = cKDTree(np.column_stack([gx, gy]))
@@ -237,13 +237,13 @@ def stats(dz: np.ndarray, exclude_m: float, abs_edges=ABS_BIN_EDGES_M) -> dict:
     }
 
 
-def check_heights(gx, gy, gz, points: dict, radius_m: float = 5.0, exclude_m: float = 1.0,
+def check_heights(gx, gy, gz, points: dict, *, radius_m: float = 5.0, exclude_m: float = 1.0,
                   units: LengthUnits = METRE) -> dict:
     """dz statistics of surveyed ``points`` against ground points (gx, gy, gz); all in metres.
 
     ``units``: the CRS's units, in which the per-point coordinates are reported (the points as read,
     ``read_points_csv``, scaled by ``units`` to metres give ``points``)."""
-    z_lidar, n_used = ground_height_at(gx, gy, gz, points["x"], points["y"], radius_m)
+    z_lidar, n_used = ground_height_at(gx, gy, gz, points["x"], points["y"], radius_m=radius_m)
     dz = z_lidar - points["z"]
     xs, ys = units.xy_from_m(np.asarray(points["x"])), units.xy_from_m(np.asarray(points["y"]))
     zs, zl_crs = units.z_from_m(np.asarray(points["z"])), units.z_from_m(z_lidar)
@@ -290,7 +290,7 @@ def _near_points(px_m, py_m, radius_m: float):
     return near
 
 
-def check_heights_file(cloud_paths, points_csv, radius_m: float = 5.0, exclude_m: float = 1.0, crs=None,
+def check_heights_file(cloud_paths, points_csv, *, radius_m: float = 5.0, exclude_m: float = 1.0, crs=None,
                        dem_path=None, grouping: str = "auto", density: DensityGroups | None = None) -> dict:
     """Height check of surveyed points (CSV id,x,y,z[,group], in the CRS and units of the cloud, or of the
     DEM without a cloud) against the ground (class 2) of a classified LAS/LAZ file or of several strips
@@ -373,7 +373,8 @@ def check_heights_file(cloud_paths, points_csv, radius_m: float = 5.0, exclude_m
                 return hag[idx]
         else:
             gx, gy, gz = cloud["ground"]
-            z0, _, sxy = ground_height_at(gx, gy, gz, points_m["x"], points_m["y"], density.radius_m, slopes=True)
+            z0, _, sxy = ground_height_at(gx, gy, gz, points_m["x"], points_m["y"], radius_m=density.radius_m,
+                                          slopes=True)
 
             def hag_of(k, idx):
                 return fz[idx] - (z0[k] + sxy[k, 0] * (fx[idx] - points_m["x"][k]) + sxy[k, 1] * (fy[idx] - points_m["y"][k]))
@@ -383,7 +384,7 @@ def check_heights_file(cloud_paths, points_csv, radius_m: float = 5.0, exclude_m
         points_m["group"] = None
 
     if cloud is not None:
-        result = check_heights(*cloud["ground"], points_m, radius_m, exclude_m, units=u)
+        result = check_heights(*cloud["ground"], points_m, radius_m=radius_m, exclude_m=exclude_m, units=u)
     else:
         xs, ys, zs = points["x"], points["y"], points["z"]
         result = {"radius_m": None, **u.as_dict(), "n_points": len(xs), "n_without_ground": None, "overall": None,

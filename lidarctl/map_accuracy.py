@@ -142,7 +142,7 @@ def _overlaps(labels: np.ndarray, hit: np.ndarray, valid: np.ndarray):
     return area, over
 
 
-def building_accuracy(pred: np.ndarray, ref: np.ndarray, valid: np.ndarray, cell_area_m2: float,
+def building_accuracy(pred: np.ndarray, ref: np.ndarray, valid: np.ndarray, *, cell_area_m2: float,
                       ref_ids: np.ndarray | None = None, min_overlap: float = 0.5,
                       min_building_m2: float = 10.0) -> BuildingAccuracy:
     """Building measures of boolean building rasters ``pred`` and ``ref`` over ``valid`` cells;
@@ -185,8 +185,8 @@ def score_maps(pred: np.ndarray, ref: np.ndarray, cell_area_m2: float, ref_ids: 
     valid = (pred != cg.IGNORE) & (ref != cg.IGNORE)
     conf = confusion(pred[valid], ref[valid])
     has_building = bool(np.any(ref[valid] == BUILDING) or np.any(pred[valid] == BUILDING))
-    bld = building_accuracy(pred == BUILDING, ref == BUILDING, valid, cell_area_m2, ref_ids, min_overlap,
-                            min_building_m2) if has_building else None
+    bld = building_accuracy(pred == BUILDING, ref == BUILDING, valid, cell_area_m2=cell_area_m2, ref_ids=ref_ids,
+                            min_overlap=min_overlap, min_building_m2=min_building_m2) if has_building else None
     return conf, bld, int(valid.sum())
 
 

@@ -105,7 +105,7 @@ def _cells(xy, x0, y0, cell_m, shape):
     return row, col
 
 
-def class_mask(xy: np.ndarray, x0, y0, cell_m: float, shape, min_area_m2: float, close_cells: int = 1,
+def class_mask(xy: np.ndarray, x0, y0, cell_m: float, shape, *, min_area_m2: float, close_cells: int = 1,
                void: np.ndarray | None = None) -> np.ndarray:
     """Cells holding points ``xy`` (m), closed over gaps of ``close_cells``, small holes filled, small pieces
     dropped. ``void``: cells without any return; the void regions that touch the class's cells (and not the
@@ -343,7 +343,7 @@ def building_outlines(pts: dict, spacing_m: float | None = None) -> tuple[list, 
     spacing = float(np.median([cand[3] for cand in candidates])) if candidates else (spacing_m or 1.0)
     cell = max(0.5, spacing)
     x0, y0, nrows, ncols = _grid(bxy, cell)
-    bmask = class_mask(bxy, x0, y0, cell, (nrows, ncols), CELL_BUILDING_MIN_M2, 1)
+    bmask = class_mask(bxy, x0, y0, cell, (nrows, ncols), min_area_m2=CELL_BUILDING_MIN_M2, close_cells=1)
     covered = shapely.union_all([cand[0] for cand in candidates]) if candidates else None
     next_id = max([cand[1] for cand in candidates], default=0) + 1
     pieces = mask_polygons(bmask, x0, y0, cell, cell)
@@ -550,7 +550,7 @@ def extract_vectors(paths, out_path, params: MapVectorSettings = MapVectorSettin
     void = np.ones(shape, bool)
     void[r, c] = False
     void = ndimage.binary_opening(void, structure=np.ones((3, 3), bool), iterations=close)
-    road = class_mask(xy[cls == ROAD], x0, y0, p.cell_m, shape, p.min_area_m2, close)
+    road = class_mask(xy[cls == ROAD], x0, y0, p.cell_m, shape, min_area_m2=p.min_area_m2, close_cells=close)
     rpolys = mask_polygons(road, x0, y0, p.cell_m, p.simplify_m)
     lines = centrelines(road, x0, y0, p.cell_m, p.simplify_m)
     ltree = shapely.STRtree([ln for ln, _ in lines]) if lines else None
@@ -565,7 +565,8 @@ def extract_vectors(paths, out_path, params: MapVectorSettings = MapVectorSettin
                          "length_m": np.array([ln.length for ln, _ in lines], float)}))
     stats.update(roads=len(rpolys), road_centrelines=len(lines))
 
-    wmask = class_mask(xy[cls == WATER], x0, y0, p.cell_m, shape, p.min_area_m2, close, void=void)
+    wmask = class_mask(xy[cls == WATER], x0, y0, p.cell_m, shape, min_area_m2=p.min_area_m2, close_cells=close,
+                       void=void)
     wpolys = mask_polygons(wmask, x0, y0, p.cell_m, p.simplify_m)
     wxy, wz = xy[cls == WATER], pts["z"][cls == WATER]
     wlevel = []
@@ -617,7 +618,8 @@ def write_vectors(mv: MapVectors, path) -> Path:
     return path
 
 
-def vectors_to_file(paths, out_path, params: MapVectorSettings = MapVectorSettings(), crs=None, dem=None, contours=None,
+def vectors_to_file(paths, out_path, *, params: MapVectorSettings = MapVectorSettings(), crs=None, dem=None,
+                    contours=None,
                     image=None) -> dict:
     """``extract_vectors`` + ``write_vectors`` (+ a PNG preview beside OUT over ``image`` when given).
     Returns the summary."""

@@ -238,6 +238,11 @@ def _fill_triangles(filled, gaps, pts, z, simplices, max_radius_px, row0, col0):
         if i0 > i1:
             i0, i1 = i1, i0
         x0, y0 = pts[i0, 0], pts[i0, 1]
+        x1, y1, x2, y2 = pts[i1, 0], pts[i1, 1], pts[i2, 0], pts[i2, 1]
+        if max(x0, x1, x2) - min(x0, x1, x2) < 1.5 and max(y0, y1, y2) - min(y0, y1, y2) < 1.5:
+            # three corners of one 2 x 2 block of cells (jitter < 0.005 cell): the only other cell centre
+            # in its bounding box is the fourth corner, about 0.7 cell outside it; most triangles
+            continue
         cmin = max(int(np.ceil(min(x0, pts[i1, 0], pts[i2, 0]))) - col0, 0)
         cmax = min(int(np.floor(max(x0, pts[i1, 0], pts[i2, 0]))) - col0, ncols - 1)
         rmin = max(int(np.ceil(min(y0, pts[i1, 1], pts[i2, 1]))) - row0, 0)

@@ -73,7 +73,7 @@ def _incircle_exact(ax, ay, bx, by, cx, cy, dx, dy):
     return s
 
 
-@numba.njit(cache=True, inline="always")
+@numba.njit(cache=True)
 def _orient(ax, ay, bx, by, cx, cy):
     """Sign of the turn a -> b -> c: 1 counter-clockwise, -1 clockwise, 0 collinear (exact)."""
     left = (bx - ax) * (cy - ay)
@@ -84,7 +84,7 @@ def _orient(ax, ay, bx, by, cx, cy):
     return _orient_exact(ax, ay, bx, by, cx, cy)
 
 
-@numba.njit(cache=True, inline="always")
+@numba.njit(cache=True)
 def _incircle(ax, ay, bx, by, cx, cy, dx, dy):
     """1 when d lies inside the circle through the counter-clockwise a, b, c, -1 outside, 0 on it (exact)."""
     adx, ady, bdx, bdy, cdx, cdy = ax - dx, ay - dy, bx - dx, by - dy, cx - dx, cy - dy
@@ -136,7 +136,7 @@ def _insertion_keys(ix, iy, order_bits):
     return keys
 
 
-@numba.njit(cache=True, inline="always")
+@numba.njit(cache=True)
 def _between(ax, ay, bx, by, x, y):
     """A point collinear with a and b lies strictly between them."""
     if ax != bx:
@@ -144,7 +144,7 @@ def _between(ax, ay, bx, by, x, y):
     return min(ay, by) < y < max(ay, by)
 
 
-@numba.njit(cache=True, inline="always")
+@numba.njit(cache=True)
 def _ghost_last(a, b, c, inf):
     """The vertices of a triangle rotated so that the infinite one (if any) comes last."""
     if a == inf:
@@ -154,7 +154,7 @@ def _ghost_last(a, b, c, inf):
     return a, b, c
 
 
-@numba.njit(cache=True, inline="always")
+@numba.njit(cache=True)
 def _conflict(a, b, c, inf, ax, ay, bx, by, cx, cy, x, y):
     """The point (x, y) lies inside the circumcircle of the triangle (a, b, c) (rotated by
     ``_ghost_last``); for a ghost triangle (a, b, inf) over the hull edge b -> a: strictly outside that

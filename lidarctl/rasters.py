@@ -441,39 +441,75 @@ def _bin_points(inputs: _Inputs, args, grid, work: Path, chunk_points: int) -> n
     from aerotri.core.log import progress
 
     res_m, x0, y0 = args[:3]
+    tile_px, buffer_px = int(grid.tile_m), int(grid.buffer_m)
     used = np.zeros(grid.n_tiles, bool)
     n_ground = 0
     chunks = (c for path in inputs.paths for c in _file_points(path, inputs.units, chunk_points))
     with progress(inputs.n_points, "rasters: bin points into tiles", "pt", unit_scale=True) as bar:
         for x, y, z, cls, rn, inten in _read_ahead(chunks):
-            col = np.floor((x - x0) / res_m)
-            row = np.floor((y - y0) / res_m)
-            ids, pos = grid.assign(col, row)
-            rec = np.empty(len(pos), _BIN_DTYPE)     # the memberships' records, by tile
-            n_ground += _gather_records(rec, pos, x, y, z, cls, rn, inten)
-            cuts = np.flatnonzero(np.diff(ids)) + 1
-            for lo, hi in zip(np.concatenate(([0], cuts)), np.concatenate((cuts, [len(ids)]))):
-                tid = int(ids[lo])
+            count = np.zeros(grid.n_tiles + 1, np.int64)
+            rec = np.empty(_membership_count(x, y, res_m, x0, y0, tile_px, buffer_px, grid.nrows, grid.ncols, count),
+                           _BIN_DTYPE)     # the memberships' records, by tile
+            n_ground += _gather_records(rec, count, x, y, z, cls, rn, inten, res_m, x0, y0, tile_px, buffer_px,
+                                        grid.nrows, grid.ncols)
+            for tid in np.flatnonzero(count[1:] > count[:-1]):
                 used[tid] = True
                 with open(work / f"tile_{tid}.bin", "ab") as fh:
-                    rec[lo:hi].tofile(fh)
+                    rec[count[tid]:count[tid + 1]].tofile(fh)
             bar.update(len(x))
     if n_ground == 0:
         raise InputError(f"{inputs.names}: no ground points (class 2); run 'lidarctl classify' first")
     return used
 
 
+# The tiles of a point (its own and the 0 to 3 neighbours whose buffer holds it; the tile grid's
+# coordinates are global cells, the cells' indices exact floats): scalars only, so that the two loops
+# below compile in a fraction of a second (an array per point costs numba reference counting).
+@numba.njit(cache=True, nogil=True, inline="always")
+def _tile_and_near(x, y, res_m, x0, y0, tile_px, buffer_px, ntr, ntc):
+    """(tile row, tile col, first row of tiles, last, first col, last) of the tiles that hold the point."""
+    col = np.floor((x - x0) / res_m)
+    row = np.floor((y - y0) / res_m)
+    ci = int(min(max(np.floor(col / tile_px), 0.0), ntc - 1.0))
+    ri = int(min(max(np.floor(row / tile_px), 0.0), ntr - 1.0))
+    fx, fy = col - ci * tile_px, row - ri * tile_px
+    c_lo = ci - 1 if (fx < buffer_px and ci > 0) else ci
+    c_hi = ci + 1 if (fx >= tile_px - buffer_px and ci < ntc - 1) else ci
+    r_lo = ri - 1 if (fy < buffer_px and ri > 0) else ri
+    r_hi = ri + 1 if (fy >= tile_px - buffer_px and ri < ntr - 1) else ri
+    return r_lo, r_hi, c_lo, c_hi
+
+
 @numba.njit(cache=True, nogil=True)
-def _gather_records(rec, pos, x, y, z, cls, rn, inten):
-    """rec[k] = point pos[k] (``_BIN_DTYPE``); returns the number of ground (2) and water (9) points
-    among the memberships' distinct points (each point once: ``pos`` restarts in every tile)."""
-    for k in range(len(pos)):
-        i = pos[k]
-        rec[k].x, rec[k].y, rec[k].z = x[i], y[i], z[i]
-        rec[k].cls, rec[k].rn, rec[k].intensity = cls[i], rn[i], inten[i]
+def _membership_count(x, y, res_m, x0, y0, tile_px, buffer_px, ntr, ntc, count):
+    """Points per tile (core + buffer) into ``count[1:]``, then turned into the tiles' first record
+    (``count[t]`` .. ``count[t + 1]``); returns the number of memberships."""
+    for k in range(len(x)):
+        r_lo, r_hi, c_lo, c_hi = _tile_and_near(x[k], y[k], res_m, x0, y0, tile_px, buffer_px, ntr, ntc)
+        for r in range(r_lo, r_hi + 1):
+            for c in range(c_lo, c_hi + 1):
+                count[r * ntc + c + 1] += 1
+    for t in range(1, len(count)):
+        count[t] += count[t - 1]
+    return count[-1]
+
+
+@numba.njit(cache=True, nogil=True)
+def _gather_records(rec, count, x, y, z, cls, rn, inten, res_m, x0, y0, tile_px, buffer_px, ntr, ntc):
+    """The records (``_BIN_DTYPE``) of the memberships by tile, points in order within a tile (the
+    counting sort of ``TileGrid.assign``); returns the number of ground (2) and water (9) points."""
+    fill = count[:-1].copy()
     n = 0
-    for i in range(len(x)):
-        if cls[i] == 2 or cls[i] == 9:
+    for k in range(len(x)):
+        r_lo, r_hi, c_lo, c_hi = _tile_and_near(x[k], y[k], res_m, x0, y0, tile_px, buffer_px, ntr, ntc)
+        for r in range(r_lo, r_hi + 1):
+            for c in range(c_lo, c_hi + 1):
+                t = r * ntc + c
+                i = fill[t]
+                fill[t] += 1
+                rec[i].x, rec[i].y, rec[i].z = x[k], y[k], z[k]
+                rec[i].cls, rec[i].rn, rec[i].intensity = cls[k], rn[k], inten[k]
+        if cls[k] == 2 or cls[k] == 9:
             n += 1
     return n
 

@@ -398,7 +398,7 @@ def fit_edges(
     theta: float,
     rings: list[list[Edge]],
     observations: list[list[EdgeObservations]],
-    prior_d_m: float = 1.0,
+    *, prior_d_m: float = 1.0,
     prior_phi_deg: float = 5.0,
     min_sigma0: float = 1.0,
     iterations: int = 6,

@@ -110,7 +110,7 @@ def fit_plane(xyz: np.ndarray, roof_id: int = -1) -> RoofPlane:
 def segment_planes(
     xyz: np.ndarray,
     roof_id: int = -1,
-    k: int = 24,
+    *, k: int = 24,
     max_normal_angle_deg: float = 15.0,
     max_curvature: float = 0.02,
     inlier_m: float = 0.15,

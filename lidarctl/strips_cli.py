@@ -78,7 +78,8 @@ def check(strip_paths, outdir, crs, png, **kw):
 @surface_options
 @click.option("--crs", default=None, help="CRS (EPSG:code) of files that have none; never guessed.")
 @click.option("--png/--no-png", default=True, show_default=True, help="Colour maps (PNG) of the differences.")
-def adjust(strip_paths, outdir, trajectories, fixed, control, control_sigma_m, adjust_max_slope_deg, shift_sigma_m, crs,
+def adjust(*, strip_paths, outdir, trajectories, fixed, control, control_sigma_m, adjust_max_slope_deg, shift_sigma_m,
+           crs,
            png, **kw):
     """Strip adjustment on plane correspondences in the overlaps; corrected strips (only X, Y, Z change) with
     adjust.json (parameters, sigmas, correlations) and the check before and after (check_before/,

@@ -131,8 +131,10 @@ class TileGrid:
     def memberships(self, x: np.ndarray, y: np.ndarray):
         """``assign`` and whether each tile holds the core of any of these points: (tile_id, point_pos,
         has_core), the last a bool per tile id."""
-        return _assign_points(np.asarray(x, float), np.asarray(y, float), float(self.x0_m), float(self.y0_m),
-                              float(self.tile_m), float(self.buffer_m), self.nrows, self.ncols)
+        # contiguous: a strided field of a record array would be a second numba specialisation (compiled
+        # again on a fresh clone, about 1 CPU-s)
+        return _assign_points(np.ascontiguousarray(x, float), np.ascontiguousarray(y, float), float(self.x0_m),
+                              float(self.y0_m), float(self.tile_m), float(self.buffer_m), self.nrows, self.ncols)
 
 
 def plan_tiles(header: laspy.LasHeader, tile_size_m: float | None = None, buffer_m: float | None = None,

@@ -148,7 +148,7 @@ class TreeModel:
 
 
 @numba.njit(cache=True)
-def _rasterise_tin(px, py, ph, tri, max_edge2, x0, y0, res, nrows, ncols):
+def _rasterise_tin(px, py, ph, tri, *, max_edge2, x0, y0, res, nrows, ncols):
     """Linear interpolation of the TIN (px, py, ph; triangles ``tri``) at the centres of a south-up grid,
     triangles with an edge longer than sqrt(max_edge2) left out; NaN where no triangle is kept."""
     out = np.full((nrows, ncols), np.nan)
@@ -218,8 +218,9 @@ def canopy_model(x, y, z, cls, return_number, settings: TreeSettings, name: str 
         if k.sum() < 3 or np.ptp(px[k]) == 0 or np.ptp(py[k]) == 0:
             break
         tri = delaunay_2d(px[k], py[k]).astype(np.int64)
-        tin = np.fmax(tin, _rasterise_tin(px[k] - x0, py[k] - y0, h[k], tri, s.max_edge_m ** 2, 0.0, 0.0, res,
-                                          nrows, ncols))
+        tin = np.fmax(tin,
+                      _rasterise_tin(px[k] - x0, py[k] - y0, h[k], tri, max_edge2=s.max_edge_m ** 2, x0=0.0, y0=0.0,
+                                     res=res, nrows=nrows, ncols=ncols))
     chm = np.where(tin >= max(s.min_height_m, 1e-6), tin, np.nan)
     highest = np.full(nrows * ncols, np.nan)
     highest[cid[top]] = h

@@ -280,7 +280,7 @@ def _on_grid(ds, window_transform, shape, crs, resampling, band_indexes=None, op
         op = operation or CrsTransformer(crs, ds.crs)
         maximum = resampling == rasterio.enums.Resampling.max
         return read_on_grid(ds, window_transform.c, window_transform.f, window_transform.a, shape, op,
-                            "bilinear", idx, maximum=maximum)
+                            resampling="bilinear", bands=idx, maximum=maximum)
     out = np.full((len(idx),) + shape, np.nan, np.float32)
     valid = np.zeros(shape, np.uint8)
     src = _source_window(ds, window_transform, shape)

@@ -194,4 +194,4 @@ class GridToProject:
         transform at cell centres within ``tolerance_m``; for an identical CRS one cell suffices).
         """
         return anchor_grid(self.exact, grid.x_left_m, grid.y_top_m, grid.res_m, grid.width, grid.height,
-                           spacing_px, self.tolerance_m, affine=self.identity)
+                           spacing_px=spacing_px, tolerance=self.tolerance_m, affine=self.identity)

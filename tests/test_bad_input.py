@@ -127,7 +127,7 @@ def _lidar_files(d: Path) -> None:
     (d / "points.csv").write_text("id,x,y,z\n" + "".join(f"P{k},{a:.3f},{b:.3f},{c:.3f}\n"
                                                           for k, (a, b, c) in enumerate(zip(px, py, pz))))
     lon, lat, h = rng.uniform(109.6, 110.2, 8), rng.uniform(34.0, 34.5, 8), rng.uniform(400, 900, 8)
-    src, dst, _ = simulate_spatial(TRUE_BURSA_WOLF7, 32649, 2361, lon, lat, h, noise_m=0.01, seed=2)
+    src, dst, _ = simulate_spatial(TRUE_BURSA_WOLF7, 32649, 2361, lon_deg=lon, lat_deg=lat, h_m=h, noise_m=0.01, seed=2)
     write_common_points(d / "common.csv", [f"C{i}" for i in range(8)], src, dst)
     x, y = src[:, 0], src[:, 1]
     (d / "heights.csv").write_text("id,x,y,h,H\n" + "".join(f"H{i},{x[i]:.3f},{y[i]:.3f},{h[i]:.3f},{h[i] + 27.1:.3f}\n"
@@ -835,6 +835,12 @@ CASES = [
     # --- aerotri report
     C("report_no_stage_run", "aerotri", "report {p}", "report.json", remove("p/at", "p/control", "p/ortho", "p/reports")),
     C("report_at_report_corrupt", "aerotri", "report {p}", "report.json", binary("p/at/report.json")),
+    C("compare_reference_missing", "aerotri", "compare {p} --format orthority {w}/none.csv", "none.csv: not found"),
+    C("compare_reference_no_common_frame", "aerotri", "compare {p} --format orthority --crs EPSG:32649 {w}/ref.csv",
+      ["ref.csv", "no frame in common with at/eo.txt"], write("ref.csv", "filename,x,y,z,omega,phi,kappa\nzz,1,2,3,0,0,0\n")),
+    C("compare_no_adjustment", "aerotri", "compare {p} --format orthority --crs EPSG:32649 {w}/ref.csv",
+      ["eo.txt", "run aerotri adjust first"], lambda w: (remove("p/at")(w), write("ref.csv", "filename,x,y,z,omega,"
+                                                                              "phi,kappa\nzz,1,2,3,0,0,0\n")(w))),
     C("report_dom_report_truncated", "aerotri", "report {p}", "dom_report.json", truncate("p/ortho/dom_report.json", 0.5)),
     C("report_tolerances_bad_toml", "aerotri", "report {p} --tolerances {w}/tol.toml", "tol.toml",
       write("tol.toml", "[flat\n")),

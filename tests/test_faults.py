@@ -235,7 +235,7 @@ def build_workspace(tiny_project: Path, w: Path) -> None:
     from aerotri.crs.synthetic import TRUE_BURSA_WOLF7, simulate_spatial, write_common_points
 
     lon, lat, h = rng.uniform(109.6, 110.2, 8), rng.uniform(34.0, 34.5, 8), rng.uniform(400, 900, 8)
-    src, dst, _ = simulate_spatial(TRUE_BURSA_WOLF7, 32649, 2361, lon, lat, h, noise_m=0.01, seed=2)
+    src, dst, _ = simulate_spatial(TRUE_BURSA_WOLF7, 32649, 2361, lon_deg=lon, lat_deg=lat, h_m=h, noise_m=0.01, seed=2)
     write_common_points(las / "common.csv", [f"C{i}" for i in range(8)], src, dst)
     (las / "heights.csv").write_text("id,x,y,h,H\n" + "".join(
         f"H{i},{src[i, 0]:.3f},{src[i, 1]:.3f},{h[i]:.3f},{h[i] + 27.1:.3f}\n" for i in range(8)))

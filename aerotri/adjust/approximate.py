@@ -16,6 +16,7 @@ so the bundle starts from tilts of a few tenths of a degree instead of the full 
 
 from __future__ import annotations
 
+import numba
 import numpy as np
 
 from aerotri.adjust.check_points import intersect_rays, sum_by_index
@@ -92,6 +93,7 @@ def resect_attitudes(centre, R_cv, points, obs_point, obs_image, rays_cam, itera
     R = np.array(R_cv, dtype=float, copy=True)
     w = np.ones(len(k))
     enough = np.bincount(im, minlength=n) >= 3
+    grouping = _grouping(im, n)
     for _ in range(iterations):
         B = sum_by_index(im, w[:, None, None] * u[:, :, None] * d[:, None, :], n)
         U, _, Vt = np.linalg.svd(B)
@@ -100,19 +102,34 @@ def resect_attitudes(centre, R_cv, points, obs_point, obs_image, rays_cam, itera
         R[enough] = (U @ S @ Vt)[enough]
         # angular residuals (rad) and robust weights per frame
         ang = np.linalg.norm(u - np.einsum("kij,kj->ki", R[im], d), axis=1)
-        s = 1.4826 * np.maximum(_median_per_group(ang, im, n)[im], 1e-6)
+        s = 1.4826 * np.maximum(_median_per_group(ang, im, n, grouping)[im], 1e-6)
         w = np.minimum(1.0, 3.0 * s / np.maximum(ang, 1e-12))
     return R
 
 
-def _median_per_group(values, group, n_groups):
-    """Median of ``values`` per group index (lower median for even counts)."""
-    order = np.lexsort((values, group))
+def _median_per_group(values, group, n_groups, grouping=None):
+    """Median of ``values`` per group index (lower median for even counts; 0 for empty groups); ``grouping``:
+    ``_grouping(group, n_groups)`` when at hand."""
+    order, starts, counts = grouping if grouping is not None else _grouping(group, n_groups)
+    return _lower_medians(np.asarray(values, dtype=float), order, starts, counts)
+
+
+def _grouping(group, n_groups):
+    """(rows in group order, first row of each group in that order, rows per group)."""
     counts = np.bincount(group, minlength=n_groups)
-    starts = np.r_[0, np.cumsum(counts)[:-1]]
-    med = np.zeros(n_groups)
-    has = counts > 0
-    med[has] = values[order][starts[has] + (counts[has] - 1) // 2]
+    return np.argsort(group, kind="stable"), np.r_[0, np.cumsum(counts)[:-1]], counts
+
+
+@numba.njit(cache=True)
+def _lower_medians(values, order, starts, counts):
+    """Group by group (``order[starts[g]:starts[g] + counts[g]]``): the lower median (a sort of the group's values
+    alone: one sort of all K values by group and value was the cost of the space resection)."""
+    med = np.zeros(len(counts))
+    for g in range(len(counts)):
+        c = counts[g]
+        if c > 0:
+            v = np.sort(values[order[starts[g]:starts[g] + c]])
+            med[g] = v[(c - 1) // 2]
     return med
 
 

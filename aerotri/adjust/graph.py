@@ -176,6 +176,9 @@ class TiePoints:
     surface: SurfaceControl | None = None  # surface heights of the points with ``surface_active``
     surface_active: np.ndarray | None = None  # (M,) bool
     work: schur.Workspace | None = None  # the reduced system's arrays, reused by every linearisation of these rays
+    # (N, 6, 6) the diagonal blocks of the reduced camera system at the solve's last linearisation (unit weight, pose
+    # tangent [omega, v]): each orientation's information with the others held, its tie points free
+    pose_information: np.ndarray | None = None
 
     def _surface(self, coords: np.ndarray):
         """Whitened surface observations of the points (``surface.whitened``), zeros without surface."""
@@ -583,6 +586,7 @@ def _schur_levenberg_marquardt(gr: Graph, opts: SolveSettings) -> tuple[gtsam.Va
     lam = 0.0
     for it in range(1, opts.max_iterations + 1):
         gfg, rs = gr.linearize_reduced(values, coords)
+        tp.pose_information = np.array(rs.U)  # a copy: the workspace is overwritten by the next linearisation
         diag, failure = None, None
         while True:
             if lam > 0.0 and tp.surface is not None:

@@ -203,7 +203,8 @@ def _check_control_near_block(control: ControlPoints, positions_map, path, block
 
     if len(control):
         check_near_block(control.xyz_m[:, 0], control.xyz_m[:, 1], [f"point {p}" for p in control.id], str(path),
-                         np.asarray(positions_map)[:, :2], str(block_path), linear_unit_m(crs))
+                         block_xy=np.asarray(positions_map)[:, :2], block_source=str(block_path),
+                         unit_m=linear_unit_m(crs))
 
 
 def project_datum_shortfall(root, settings: AdjustSettings | None = None) -> str | None:
@@ -294,9 +295,9 @@ def read_inputs(project: Project, settings: AdjustSettings | None = None) -> Pro
         image_ids, approx_pos_map, block_path = list(eo0.image_id), eo0.centre_m, project.tiepoints_path
         notes.append(note)
     _check_control_near_block(control, approx_pos_map, project.control_points_path, block_path, crs)
-    validate_references(ties, control, cobs, image_ids, project.tiepoints_path, project.control_points_path,
-                        project.control_image_points_path, camera=cam, block_path=block_path,
-                        camera_path=project.camera_path)
+    validate_references(ties, control, cobs, image_ids, tie_path=project.tiepoints_path,
+                        control_path=project.control_points_path, control_obs_path=project.control_image_points_path,
+                        camera=cam, block_path=block_path, camera_path=project.camera_path)
     check_datum(control, gnss is not None, st.gnss_correction, surface=st.dem is not None)
     # a known k3 is taken off the measurements (Cal3DS2 has no k3; the camera keeps it for the outputs)
     ties = ImageObservations(ties.point_id, ties.image_id, cam.calibration_observations(ties.xy_px))
@@ -757,7 +758,7 @@ def write_outputs(ba: BlockAdjustment, root, html: bool = True, out_dir=None,
     at = Path(out_dir) if out_dir is not None else project.at_dir
     # the limits of the project's table (by its GSD and platform unless [qa] names one), as in reports/
     qa = qa_settings(root, project_block_scale(project, ba.points_map[:, 2]))
-    rep = report.build_report(ba, qa["map_scale"], qa["terrain"], qa["tolerances"], project_terrain(project))
+    rep = report.build_report(ba, qa.map_scale, qa.terrain, qa.tolerances, project_terrain(project))
     if settings_record is None:  # a library caller's own settings
         settings_record = settings_of(ba.settings, AdjustSettings).record()
     rep["settings"] = settings_record

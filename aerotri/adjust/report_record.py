@@ -25,6 +25,10 @@ def _xyz(v) -> tuple[float | None, ...] | None:
     return tuple(None if x is None else float(x) for x in v)
 
 
+def _number(v) -> float | None:
+    return None if v is None else float(v)
+
+
 @dataclass(frozen=True)
 class KeyStatistics:
     """The ISAT "key statistics" of the solution: sigma naught, iterations and the verdict."""
@@ -61,6 +65,7 @@ class AdjustmentRecord:
     check_points: int  # check points in the report (with or without residuals)
     check_normalised_rms: tuple[float | None, ...] | None
     flight_acceptance: dict | None  # the flight acceptance section as written (``FlightAcceptance.as_dict``)
+    control_to_tie_ratio: float | None = None  # RMS image residual of control over that of the ties
 
     @property
     def sigma0_in_px(self) -> float | None:
@@ -98,7 +103,8 @@ def adjustment_record(d: dict, path="at/report.json") -> AdjustmentRecord:
         key_statistics=_key_statistics(d.get("key_statistics") or {}),
         control_rms_m=_xyz(d.get("rms_control_ground_m")), rejected_control=rejected,
         check_rms_m=_xyz(d.get("check_rms_m")), check_residuals_m=residuals, check_points=len(checks),
-        check_normalised_rms=_xyz(d.get("check_normalised_rms")), flight_acceptance=d.get("flight_acceptance") or None)
+        check_normalised_rms=_xyz(d.get("check_normalised_rms")), flight_acceptance=d.get("flight_acceptance") or None,
+        control_to_tie_ratio=_number((d.get("image_residuals") or {}).get("control_to_tie_ratio")))
 
 
 def read_adjustment_report(path) -> AdjustmentRecord:

@@ -63,6 +63,9 @@ class HeightGrid:
     x0: float
     y0: float
     res: float
+    # the positions and result of the last call: a solve samples the same positions twice (the cost of a step, then
+    # the linearisation there), and each sample of a large block is a cache miss per point (0.35 us)
+    _last: tuple | None = dataclasses.field(default=None, init=False, repr=False, compare=False)
 
     def sample(self, x, y) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Height and its gradient (dz/dx, dz/dy) at map positions by cubic convolution (Catmull-Rom, 4 x 4
@@ -72,9 +75,16 @@ class HeightGrid:
         x, y = np.asarray(x, dtype=float), np.asarray(y, dtype=float)
         shape = np.broadcast(x, y).shape
         xb, yb = np.broadcast_to(x, shape).ravel(), np.broadcast_to(y, shape).ravel()
-        z = self.z if self.z.dtype in (np.float32, np.float64) else self.z.astype(float)
-        z = np.ascontiguousarray(z)
-        h, hx, hy = _sample_cubic(z, float(self.x0), float(self.y0), float(self.res), xb, yb)
+        last = self._last
+        if last is not None and last[0].shape == xb.shape and np.array_equal(last[0], xb, equal_nan=True) \
+                and np.array_equal(last[1], yb, equal_nan=True):
+            h, hx, hy = (a.copy() for a in last[2:])
+        else:
+            z = self.z if self.z.dtype in (np.float32, np.float64) else self.z.astype(float)
+            z = np.ascontiguousarray(z)
+            h, hx, hy = _sample_cubic(z, float(self.x0), float(self.y0), float(self.res), xb, yb)
+            if len(xb) >= 10_000:  # only large calls are worth keeping
+                self._last = (xb.copy(), yb.copy(), h.copy(), hx.copy(), hy.copy())
         return h.reshape(shape), hx.reshape(shape), hy.reshape(shape)
 
 

@@ -418,7 +418,7 @@ class Chain:
         from lidarctl.vector_check import VectorCheckSettings, check_files
 
         p = self.project
-        s = vectors_to_file(self.classified(), p.vectors_path, MapVectorSettings(), crs=p.crs)
+        s = vectors_to_file(self.classified(), p.vectors_path, params=MapVectorSettings(), crs=p.crs)
         counts = {k: s[k] for k in ("buildings", "roads", "water", "spot_heights") if k in s}
         ref = self.vectors_reference()
         if ref is None:
@@ -427,8 +427,8 @@ class Chain:
         if ref == p.truth_buildings_path:
             ref = self.truth_outline_reference()
         qa = qa_settings(root, project_block_scale(p))
-        check = check_files(p.vectors_path, ref, VectorCheckSettings(layers=("buildings",), scale=qa["map_scale"],
-                                                             terrain=qa["terrain"]), p.vectors_check_path)
+        check = check_files(p.vectors_path, ref, VectorCheckSettings(layers=("buildings",), scale=qa.map_scale,
+                                                             terrain=qa.terrain), p.vectors_check_path)
         b = check["layers"].get("buildings", {})
         return R.VectorsResult(**counts, checked=True, corner_rms_xy_m=b.get("rms_xy_corner_m"),
                                corners=b.get("n_matched_corners"))

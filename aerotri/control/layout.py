@@ -162,7 +162,7 @@ def candidate_tiers(n_frames, primary, roof, min_frames: int) -> np.ndarray:
     return tier
 
 
-def select_control(xy_m, score, n_frames, camera, centres_m, Rs, ground_z_m, *, rule: LayoutSettings | None = None,
+def select_control(xy_m, score, n_frames, *, camera, centres_m, Rs, ground_z_m, rule: LayoutSettings | None = None,
                    strip=None, residual_ratio=None, tier=None,
                    check=None) -> tuple[np.ndarray, list[LayoutTarget], float]:
     """Kind per corner ("full", "height", "check", or "candidate": a fallback corner not chosen), the

@@ -93,7 +93,7 @@ def _intersect(p1, u1, p2, u2):
     return p1 + s * u1
 
 
-def edge_points(grad, X, v, length_px, t0_px: float = 2.0, half_px: float = 2.5, step_px: float = 0.25):
+def edge_points(grad, X, v, length_px, *, t0_px: float = 2.0, half_px: float = 2.5, step_px: float = 0.25):
     """Sub-pixel edge points along the half line X + t v, t0 <= t <= length (chip pixels).
 
     At every pixel along the edge, the colour gradient across the edge (normal n) is sampled on a
@@ -225,7 +225,7 @@ def leg_length_px(grad, X, v, max_px: float, min_px: float = 6.0) -> float:
     return float(t[weak[0]] - 1.0) if len(weak) else float(max_px)
 
 
-def innermost_edge(grad, X, legs, pred, radius_px, convex: bool, min_ratio: float = 0.35):
+def innermost_edge(grad, X, legs, pred, *, radius_px, convex: bool, min_ratio: float = 0.35):
     """Move each leg's line to the edge nearest the roof interior (the eave line).
 
     On the side of a building facing the nadir point the image shows roof, then the wall (relief
@@ -300,7 +300,7 @@ def measure_in_image(image, x0, y0, dirs, radius_px, *, settings: MeasureSetting
     best = None
     for score, contrast, X, legs in cands[:3]:
         legs = [(v, leg_length_px(grad, X, v, s.edge_len_px)) for v, _ in legs]
-        X = innermost_edge(grad, X, legs, pred, radius_px, convex)
+        X = innermost_edge(grad, X, legs, pred, radius_px=radius_px, convex=convex)
         legs = [(v, leg_length_px(grad, X, v, s.edge_len_px)) for v, _ in legs]
         ref = refine_corner(grad, X, legs, s)
         if ref is not None:

@@ -103,7 +103,7 @@ def project_camera(root: Path, camera_path=None) -> tuple[BrownCamera, str]:
     return adjusted_camera(Project.open(root))
 
 
-def _measure_frames(corners: LidarCorners, camera: BrownCamera, eo: ExteriorOrientations, images_dir: Path,
+def _measure_frames(corners: LidarCorners, camera: BrownCamera, *, eo: ExteriorOrientations, images_dir: Path,
                     idx: np.ndarray, manual_k: dict, s: ControlSettings) -> tuple[dict, dict]:
     """Measurements and predictions {(corner index, image index): ...} of the corners ``idx`` in every frame
     they are predicted in, then the manual measurements in place of the automatic ones."""
@@ -170,8 +170,9 @@ def _select(corners: LidarCorners, camera: BrownCamera, eo: ExteriorOrientations
         worst = np.array([np.max(rays[int(k)].residual_px[rays[int(k)].kept]) for k in accepted])
         tier = candidate_tiers(n_frames, primary[accepted], corners.roof[accepted], s.layout.min_frames)
         kk, targets, base = select_control(corners.xyz_m[accepted, :2].reshape(-1, 2), corners.score[accepted],
-                                           n_frames, camera, eo.centre_m, eo.rotations(), ground_z, rule=s.layout,
-                                           residual_ratio=worst / s.tol_px, tier=tier, check=primary[accepted])
+                                           n_frames, camera=camera, centres_m=eo.centre_m, Rs=eo.rotations(),
+                                           ground_z_m=ground_z, rule=s.layout, residual_ratio=worst / s.tol_px,
+                                           tier=tier, check=primary[accepted])
         kind[accepted] = kk
         targets = [t if t.corner is None else dataclasses.replace(t, corner=int(accepted[t.corner])) for t in targets]
     return kind, targets, base
@@ -264,14 +265,14 @@ def transfer_control(corners: LidarCorners, camera: BrownCamera, eo: ExteriorOri
     primary = corners.usable.copy() if s.usable_only else np.ones(len(corners), bool)
     primary[[k for k, _ in manual_k]] = True
     idx = np.flatnonzero(primary)
-    meas, pred = _measure_frames(corners, camera, eo, Path(images_dir), idx, manual_k, s)
+    meas, pred = _measure_frames(corners, camera, eo=eo, images_dir=Path(images_dir), idx=idx, manual_k=manual_k, s=s)
     rays = _check_corners(corners, camera, eo, idx, meas, s)
     kind, targets, base = _select(corners, camera, eo, primary, rays, s)
     extra = _near_unfilled_targets(corners, targets, ~primary) if s.layout.fallback else np.zeros(0, int)
     if len(extra):
         log.info(f"{sum(t.tier != 'usable' for t in targets)} layout targets without a usable corner: measuring "
                  f"{len(extra)} more corners near them")
-        m2, p2 = _measure_frames(corners, camera, eo, Path(images_dir), extra, {}, s)
+        m2, p2 = _measure_frames(corners, camera, eo=eo, images_dir=Path(images_dir), idx=extra, manual_k={}, s=s)
         meas.update(m2)
         pred.update(p2)
         rays.update(_check_corners(corners, camera, eo, extra, meas, s))
@@ -507,7 +508,8 @@ def run_control(root, corners_path=None, eo_path=None, camera_path=None, manual_
 
     # LiDAR corners of another zone or place than the block's frames: refused by name, not "none measured"
     check_near_block(corners.xyz_m[:, 0], corners.xyz_m[:, 1], [f"corner {c}" for c in corners.id], str(corners_path),
-                     eo.centre_m[:, :2], str(eo_path), linear_unit_m(crs) if crs is not None else 1.0)
+                     block_xy=eo.centre_m[:, :2], block_source=str(eo_path),
+                     unit_m=linear_unit_m(crs) if crs is not None else 1.0)
     camera, _ = project_camera(paths.root, camera_path)
     manual = (read_manual(manual_path, corners.id, eo.image_id, camera, corners_path, eo_path)
               if manual_path else None)

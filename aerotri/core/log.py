@@ -226,10 +226,13 @@ class _LogProgress:
         self.n = 0
         self.t0 = self.last = time.monotonic()
         self.interval_s = interval_s
+        self.first = None  # (time, count) when the first items were done
 
     def update(self, n=1):
         self.n += n
         now = time.monotonic()
+        if self.first is None:
+            self.first = (now, self.n)
         if now - self.last >= self.interval_s:
             self.last = now
             _log.info(self._line(now))
@@ -239,6 +242,9 @@ class _LogProgress:
         if self.total:
             frac = self.n / self.total
             eta = el * (1 - frac) / frac if frac > 0 else float("nan")
+            if self.first is not None and self.n > self.first[1] and now > self.first[0]:
+                # the rate after the first items: those carry one-off costs (numba compilation, caches, opening)
+                eta = (now - self.first[0]) / (self.n - self.first[1]) * (self.total - self.n)
             tail = f", ETA {_duration(eta)}" if frac > 0 and self.n < self.total else ""
             return f"{self.desc}: {self.n:,}/{self.total:,} {self.unit} ({100 * frac:.1f} %), {_duration(el)} elapsed{tail}"
         return f"{self.desc}: {self.n:,} {self.unit}, {_duration(el)} elapsed"

@@ -353,10 +353,22 @@ def choose_table(cfg: QaConfig, block: BlockScale | None = None, *, scale: str |
     return cn(s, f"manned block, {_block_text(block)}; {row}")
 
 
-def qa_settings(root, block: BlockScale | None = None) -> dict:
-    """The report settings of a project: ``map_scale`` (the chosen table's key), ``terrain``, ``tolerances``
-    (a user's file or None), ``pdf`` and ``table`` (the ``ToleranceTable``, with why it was chosen).
-    ``block``: the block's GSD and platform (``aerotri.geom.block_scale``) for the choice."""
+@dataclasses.dataclass(frozen=True)
+class QaChoice:
+    """The report settings of a project resolved (``[qa]``, else the block's GSD and platform): the chosen table's
+    key and terrain class, a user's tolerance file (absolute path) or None, whether to write the PDF, and the
+    ``ToleranceTable`` with why it was chosen."""
+
+    map_scale: str
+    terrain: str
+    tolerances: str | None
+    pdf: bool
+    table: ToleranceTable
+
+
+def qa_settings(root, block: BlockScale | None = None) -> QaChoice:
+    """The report settings of a project; ``block``: the block's GSD and platform (``aerotri.geom.block_scale``)
+    for the choice of table."""
     cfg = read_qa_config(root)
     t = choose_table(cfg, block)
-    return dict(map_scale=t.key, terrain=t.terrain, tolerances=cfg.tolerances, pdf=cfg.pdf, table=t)
+    return QaChoice(map_scale=t.key, terrain=t.terrain, tolerances=cfg.tolerances, pdf=cfg.pdf, table=t)

@@ -94,7 +94,7 @@ def fit_heights_cmd(points, model, epsg, smoothing, output):
     ids, x, y, h, H = read_height_points(points, epsg)
     label = crs_label(parse_crs(epsg, "--epsg")) if epsg else None
     try:
-        res = fit_height_anomaly(ids, x, y, h, H, model, smoothing, label)
+        res = fit_height_anomaly(ids, x, y, h, H, model=model, smoothing=smoothing, crs=label)
     except InputError as exc:
         raise InputError(f"{points}: {exc}") from None
     write_json(out, res.to_dict())
@@ -127,7 +127,7 @@ def _height_fit_table(model, points, ids, res) -> str:
               help="height: cell values are heights and change with the datum (DEM, DSM); image: an orthophoto; "
                    "auto: one floating-point band is a height raster")
 @click.option("--resampling", type=click.Choice(list(RESAMPLING)), default="bilinear", show_default=True)
-def warp_cmd(input_path, output_path, to_epsg, from_epsg, params, heights, allow_ballpark, res, kind, resampling):
+def warp_cmd(*, input_path, output_path, to_epsg, from_epsg, params, heights, allow_ballpark, res, kind, resampling):
     """Reproject a GeoTIFF (DEM, DSM, DOM) across datums and projections into a COG, nodata kept."""
     t0 = time.perf_counter()
     r = warp_raster(input_path, output_path, to_epsg, from_crs=from_epsg,
@@ -148,11 +148,11 @@ def warp_cmd(input_path, output_path, to_epsg, from_epsg, params, heights, allow
 @click.option("--allow-ballpark", is_flag=True, help="accept PROJ's ballpark operation that ignores a datum shift")
 @click.option("--chunk-size", type=at_least(1, int), default=1_000_000, show_default=True,
               help="LAS/LAZ points per chunk")
-def transform_cmd(input_path, output_path, from_epsg, to_epsg, params, heights, allow_ballpark, chunk_size):
+def transform_cmd(*, input_path, output_path, from_epsg, to_epsg, params, heights, allow_ballpark, chunk_size):
     """Transform a CSV/TXT point list or a LAS/LAZ file (chunked, all point dimensions kept)."""
     t0 = time.perf_counter()
-    n, t = transform_points_file(input_path, output_path, from_epsg, to_epsg, params, heights, allow_ballpark,
-                                 chunk_size)
+    n, t = transform_points_file(input_path, output_path, from_crs=from_epsg, to_crs=to_epsg, params=params,
+                                 heights=heights, allow_ballpark=allow_ballpark, chunk_size=chunk_size)
     dt = time.perf_counter() - t0
     for w in t.warnings:
         log.warning(w)

@@ -214,7 +214,7 @@ def fit_common_points(path, model: str, from_crs, to_crs):
     """Read a common-point file and fit ``model`` (library entry point of ``crs fit``)."""
     src_crs, dst_crs = parse_crs(from_crs, "--from"), parse_crs(to_crs, "--to")
     cp = read_common_points(path, src_crs, dst_crs, need_z=SPATIAL[model])
-    labels = crs_label(src_crs), crs_label(dst_crs)
+    src_label, dst_label = crs_label(src_crs), crs_label(dst_crs)
     if not SPATIAL[model]:
         for c, opt in ((src_crs, "--from"), (dst_crs, "--to")):
             h = horizontal_crs(c)
@@ -224,14 +224,15 @@ def fit_common_points(path, model: str, from_crs, to_crs):
                     "use bursa-wolf7 or translation3 for geographic/geocentric coordinates"
                 )
         try:
-            return fit_plane(model, cp.ids, cp.src[:, :2], cp.dst[:, :2], *labels)
+            return fit_plane(model, cp.ids, cp.src[:, :2], cp.dst[:, :2], from_crs=src_label, to_crs=dst_label)
         except InputError as exc:
             raise InputError(f"{path}: {exc}") from None
     XYZ_s, _ = geocentric_of(src_crs, cp.src[:, 0], cp.src[:, 1], cp.src[:, 2])
     XYZ_d, ll_d = geocentric_of(dst_crs, cp.dst[:, 0], cp.dst[:, 1], cp.dst[:, 2])
     plane = cp.src[:, :2] if horizontal_crs(src_crs).is_projected and linear_unit_m(src_crs) == 1.0 else None
     try:
-        return fit_spatial(model, cp.ids, XYZ_s, XYZ_d, ll_d, *labels, src_plane_m=plane)
+        return fit_spatial(model, cp.ids, XYZ_s, XYZ_d, dst_lat_lon_deg=ll_d, from_crs=src_label, to_crs=dst_label,
+                           src_plane_m=plane)
     except InputError as exc:
         raise InputError(f"{path}: {exc}") from None
 
@@ -434,7 +435,7 @@ def transform_file(in_path, out_path, transformer: CrsTransformer, chunk_size: i
     return transform_point_list(in_path, out_path, transformer)
 
 
-def transform_points_file(in_path, out_path, from_crs=None, to_crs=None, params=None, heights=None,
+def transform_points_file(in_path, out_path, *, from_crs=None, to_crs=None, params=None, heights=None,
                           allow_ballpark: bool = False, chunk_size: int = 1_000_000) -> tuple[int, CrsTransformer]:
     """``aerotri crs transform``: a CSV/TXT point list or a LAS/LAZ file from ``from_crs`` (a LAS file's own CRS
     record when None) to ``to_crs``, with an optional fitted transformation (``params`` JSON) and height anomaly

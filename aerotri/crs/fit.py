@@ -190,7 +190,7 @@ def _point_min(r_obs, dim):
     return r_obs.reshape(-1, dim).min(axis=1)
 
 
-def fit_plane(model: str, ids, src_xy_m, dst_xy_m, from_crs="", to_crs="", weights=None) -> FitResult:
+def fit_plane(model: str, ids, src_xy_m, dst_xy_m, *, from_crs="", to_crs="", weights=None) -> FitResult:
     """Fit ``helmert2d`` or ``affine2d`` between two metre grids; coordinates are (n, 2) easting, northing."""
     ids = [str(i) for i in ids]
     src = np.asarray(src_xy_m, dtype=float)[:, :2]
@@ -257,7 +257,7 @@ def fit_plane(model: str, ids, src_xy_m, dst_xy_m, from_crs="", to_crs="", weigh
     return FitResult(T, ids, residuals, r_pt, gm.sigma0, gm.redundancy, cov, warns)
 
 
-def fit_spatial(model: str, ids, src_XYZ_m, dst_XYZ_m, dst_lat_lon_deg=None, from_crs="", to_crs="",
+def fit_spatial(model: str, ids, src_XYZ_m, dst_XYZ_m, *, dst_lat_lon_deg=None, from_crs="", to_crs="",
                 src_plane_m=None, weights=None) -> FitResult:
     """Fit ``bursa-wolf7`` or ``translation3`` on geocentric coordinates (n, 3) in metres.
 

@@ -56,7 +56,7 @@ class HeightFitResult:
         return d
 
 
-def fit_height_anomaly(ids, x_m, y_m, h_m, H_m, model: str = "plane", smoothing: float = 0.0,
+def fit_height_anomaly(ids, x_m, y_m, h_m, H_m, *, model: str = "plane", smoothing: float = 0.0,
                        crs: str | None = None) -> HeightFitResult:
     """Fit zeta = h - H over the points; see the module docstring for the models."""
     from aerotri.crs.fit import geometry_warnings

@@ -25,7 +25,7 @@ TRUE_BURSA_WOLF7 = {  # WGS 84 -> Xian 1980 style (coordinate frame); invented, 
 TRUE_HELMERT2D = {"tx_m": -512.37, "ty_m": 1843.91, "scale_ppm": 27.5, "rotation_arcsec": -4.2}
 
 
-def simulate_spatial(truth: dict, from_epsg, to_epsg, lon_deg, lat_deg, h_m, noise_m: float = 0.0,
+def simulate_spatial(truth: dict, from_epsg, to_epsg, *, lon_deg, lat_deg, h_m, noise_m: float = 0.0,
                      seed: int = 0, model: str = "bursa-wolf7"):
     """Points at (lon, lat, h) on the source datum, in ``from_epsg`` and, through the true spatial
     transformation plus Gaussian noise (``noise_m`` per coordinate in the target grid), in ``to_epsg``.

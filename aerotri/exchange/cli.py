@@ -46,7 +46,7 @@ def export(project, formats, out_dir):
 @click.option("--heights-measured", is_flag=True,
               help="Control heights that are all 0 (or all one number) were surveyed: keep them as height control "
                    "(default: taken as not measured, the points become plan-only control).")
-def import_(project, files, format_name, crs, sigma_xyz_m, as_gnss, force, heights_measured):
+def import_(*, project, files, format_name, crs, sigma_xyz_m, as_gnss, force, heights_measured):
     from aerotri.exchange.import_registry import import_files
     from aerotri.exchange.imported import ImportSettings
 

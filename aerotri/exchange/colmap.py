@@ -403,7 +403,7 @@ def read(files: list[Path], project: Project, options: ImportSettings) -> Import
                        f"(colmap model_aligner) and its CRS given with --crs, or described in {GEOREF}")
     block.origin = {"camera": Path(where).name.replace("images", "cameras"), "eo": Path(where).name}
     if options.as_gnss:
-        block.gnss, block.gnss_holds = positions_as_gnss(ids, block.eo.centre_m, options, project,
-                                                         "projection centres of the COLMAP model")
+        block.gnss, block.gnss_holds = positions_as_gnss(ids, block.eo.centre_m, options=options, project=project,
+                                                         what="projection centres of the COLMAP model")
         block.origin["gnss"] = Path(where).name
     return block

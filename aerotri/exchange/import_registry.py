@@ -49,6 +49,23 @@ IMPORT_FORMATS: dict[str, Importer] = {
 }
 
 
+def importer_and_files(format_name: str, files) -> tuple[Importer, list[Path]]:
+    """The registered importer of ``format_name`` and ``files`` as paths, each existing (OptionError naming
+    ``--format`` or ``FILE``, InputError naming a missing file); ``import_files`` and ``aerotri compare`` read
+    through it."""
+    if format_name not in IMPORT_FORMATS:
+        raise OptionError(f"unknown import format {format_name!r}; expected one of {', '.join(IMPORT_FORMATS)}",
+                          param="--format")
+    importer = IMPORT_FORMATS[format_name]
+    files = [Path(f) for f in files]
+    if not files:
+        raise OptionError(f"no input file; {format_name} expects {importer.files}", param="FILE")
+    for f in files:
+        if not f.exists():
+            raise InputError(f"{f}: not found ({format_name} expects {importer.files})")
+    return importer, files
+
+
 def import_files(root, format_name: str, files, options: ImportSettings | None = None,
                  overwrite: bool = False) -> list[WrittenFile]:
     """Read ``files`` of format ``format_name``, check them against the project
@@ -57,20 +74,11 @@ def import_files(root, format_name: str, files, options: ImportSettings | None =
     from aerotri.exchange.import_checks import check_import, plan_only_when_unmeasured
     from aerotri.geom.eo import check_block_crs
 
-    if format_name not in IMPORT_FORMATS:
-        raise OptionError(f"unknown import format {format_name!r}; expected one of {', '.join(IMPORT_FORMATS)}",
-                          param="--format")
-    importer = IMPORT_FORMATS[format_name]
     options = options or ImportSettings()
-    files = [Path(f) for f in files]
-    if not files:
-        raise OptionError(f"no input file; {format_name} expects {importer.files}", param="FILE")
+    importer, files = importer_and_files(format_name, files)
     if options.as_gnss and importer.positions is None:
         raise OptionError(f"{format_name} files hold no positions; --as-gnss is for formats with camera positions",
                           param="--as-gnss")
-    for f in files:
-        if not f.exists():
-            raise InputError(f"{f}: not found ({format_name} expects {importer.files})")
     project = Project.open(root)
     check_block_crs(project.crs, f"{project.config_path} [project] crs")  # before reading: no degrees, no geocentric
     block = importer.read(files, project, options)

@@ -120,7 +120,7 @@ def to_project_crs(xyz_m, from_crs, project: Project, source: str) -> np.ndarray
     return np.column_stack([x, y, z])
 
 
-def positions_as_gnss(ids, position_m, options: ImportSettings, project: Project, what: str,
+def positions_as_gnss(ids, position_m, *, options: ImportSettings, project: Project, what: str,
                       own_sigma_m=None, own_sigma_name: str = "") -> tuple[GnssPositions, str]:
     """(GNSS positions, what gnss.txt holds in words) of imported positions the user declared GNSS
     (``--as-gnss``). Accuracies: ``--sigma-xyz`` (the user's), else ``own_sigma_m`` (N, 3; the format's,

@@ -252,8 +252,8 @@ def read(files: list[Path], project: Project, options: ImportSettings) -> Import
         R_map = np.transpose(frame.rotation_local_from_map(centre_map), (0, 2, 1)) @ frame.R @ R_world @ FLIP_YZ
     block.eo = orientations_to_project(ids, centre_map, R_map, ref_crs, project, f"{path} <reference>")
     if options.as_gnss:
-        block.gnss, block.gnss_holds = positions_as_gnss(ids, block.eo.centre_m, options, project,
-                                                         "camera positions of Metashape's alignment")
+        block.gnss, block.gnss_holds = positions_as_gnss(ids, block.eo.centre_m, options=options, project=project,
+                                                         what="camera positions of Metashape's alignment")
     # markers: control (enabled) and check points, and their projections
     markers = chunk.findall("markers/marker")
     if markers:

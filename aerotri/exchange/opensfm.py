@@ -316,8 +316,9 @@ def read(files, project: Project, options: ImportSettings) -> ImportedBlock:
             raise InputError(f"{path}: --as-gnss: shot(s) {', '.join(missing[:10])} have no gps_position")
         gps_map, _ = topocentric_to_project(ref, crs, project, np.array(gps), None, source)
         own = np.array([[d, d, d] for d in dop]) if all(d is not None for d in dop) else None
-        block.gnss, block.gnss_holds = positions_as_gnss(ids, gps_map, options, project, "the shots' gps_position",
-                                                         own, "OpenSfM gps_dop (in X, Y and Z)")
+        block.gnss, block.gnss_holds = positions_as_gnss(ids, gps_map, options=options, project=project,
+                                                         what="the shots' gps_position", own_sigma_m=own,
+                                                         own_sigma_name="OpenSfM gps_dop (in X, Y and Z)")
     elif any(with_gps):
         d = [v for v in dop if v is not None]
         block.notes.append(f"{sum(with_gps)} shots carry gps_position" + (f" (gps_dop {min(d):.3g}..{max(d):.3g} m)"

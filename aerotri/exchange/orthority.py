@@ -273,8 +273,8 @@ def read(files: list[Path], project: Project, options: ImportSettings) -> Import
         block.eo = eo
         block.origin["eo"] = Path(path).name
         if options.as_gnss:
-            block.gnss, block.gnss_holds = positions_as_gnss(ids, eo.centre_m, options, project,
-                                                             "camera positions of the orthority exterior parameters")
+            block.gnss, block.gnss_holds = positions_as_gnss(ids, eo.centre_m, options=options, project=project,
+                                                             what="camera positions of the orthority exterior parameters")
             block.origin["gnss"] = Path(path).name
     if cameras:
         chosen = [c for c in cameras if c in used] or list(cameras)

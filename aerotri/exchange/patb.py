@@ -350,8 +350,8 @@ def read(files: list[Path], project: Project, options: ImportSettings) -> Import
         block.origin["eo"] = by[".ori"].name
         block.crs_assumed = options.crs is None
         if options.as_gnss:
-            block.gnss, block.gnss_holds = positions_as_gnss(ids, block.eo.centre_m, options, project,
-                                                             "projection centres of the PAT-B orientations")
+            block.gnss, block.gnss_holds = positions_as_gnss(ids, block.eo.centre_m, options=options, project=project,
+                                                             what="projection centres of the PAT-B orientations")
             block.origin["gnss"] = by[".ori"].name
     if cons:
         pid, kind, xyz = [], [], []

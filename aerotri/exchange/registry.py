@@ -9,7 +9,7 @@ from typing import Callable
 
 from aerotri.core.errors import OptionError
 from aerotri.core.project import Project
-from aerotri.exchange import colmap, layers, metashape, micmac, odm_export, orthority, patb
+from aerotri.exchange import colmap, layers, metashape, micmac, odm_export, orthority, patb, pix4d
 from aerotri.exchange.adjusted import AdjustedBlock, read_adjusted_block
 from aerotri.exchange.commit import ExportFile, write_together
 from aerotri.geom.images import find_images
@@ -49,6 +49,8 @@ EXPORT_FORMATS = {
                            "odm/cameras.json), ground control (odm/gcp_list.txt, odm/opensfm/ground_control_points.json), "
                            "check points and rejected measurements (odm/gcp_list_check.txt, gcp_list_rejected.txt)",
                     lambda block, project: odm_export.files(block, project, _image_names(project))),
+    "pix4d": Exporter("pix4d", "Pix4D image geolocation and orientation file: X Y Z omega phi kappa and accuracies "
+                               "(pix4d/image_geolocation.csv + .prj)", pix4d.files),
     "gpkg": Exporter("gpkg", "GeoPackage map layers: control/check points with ground residuals, frame footprints, "
                              "projection centres (layers/block.gpkg, project CRS)",
                      lambda block, project: layers.files(block, project, "gpkg")),

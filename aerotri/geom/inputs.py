@@ -132,7 +132,7 @@ def check_distinct_files(paths, what: str = "file") -> None:
 MIN_REACH_M = 10_000.0  # beyond any footprint's reach from its projection centre
 
 
-def check_near_block(x, y, records, source: str, block_xy, block_source: str, unit_m: float = 1.0) -> None:
+def check_near_block(x, y, records, source: str, *, block_xy, block_source: str, unit_m: float = 1.0) -> None:
     """``InputError`` naming the first record (``records[i]``, e.g. "line 5 (point RC12)") of ``source`` whose
     x, y lie farther from the block than a frame can see: beyond the bounding box of the projection centres
     ``block_xy`` (N, 2; from ``block_source``) widened by its diagonal, at least 10 km (``unit_m``: metres per

@@ -131,7 +131,7 @@ class MapAnchors:
             self._grow(int(idx.max()) + 1)
         m = np.empty_like(p)
         stale = np.zeros(len(p), dtype=bool)
-        _taylor(self.p0, self.m0, self.J0, idx, p, self.tol_m, m, stale)
+        _taylor(self.p0, self.m0, self.J0, idx, p, tol=self.tol_m, m=m, stale=stale)
         if stale.any():
             k = np.flatnonzero(stale)
             slot = idx[k]
@@ -143,7 +143,7 @@ class MapAnchors:
 
 
 @numba.njit(cache=True)
-def _taylor(p0, m0, J0, idx, p, tol, m, stale):
+def _taylor(p0, m0, J0, idx, p, *, tol, m, stale):
     """``m = m0 + J0 (p - p0)`` at each point's slot, or ``stale`` (a finite point farther than ``tol`` from its
     anchor, or without one); NaN for a non-finite point."""
     for n in range(len(idx)):

@@ -253,7 +253,7 @@ def validate_references(
     control: ControlPoints | None,
     control_obs: ImageObservations | None,
     image_ids: list[str],
-    tie_path="at/tiepoints.csv",
+    *, tie_path="at/tiepoints.csv",
     control_path="control/points.csv",
     control_obs_path="control/image_points.csv",
     camera=None,

@@ -28,7 +28,7 @@ def anchor_positions(n: int, spacing: int) -> np.ndarray:
 
 
 def anchor_grid(mapping, x_left: float, y_top: float, res: float, width: int, height: int,
-                spacing_px: int = 256, tolerance: float = 1e-3, affine: bool = False):
+                *, spacing_px: int = 256, tolerance: float = 1e-3, affine: bool = False):
     """``mapping(x, y) -> (X, Y)`` (arrays) on anchor nodes every ``spacing_px`` pixels of the grid.
 
     Returns (AX, AY, spacing_px) with shape (ny, nx); node (i, j) is pixel (row i*s, col j*s). The
@@ -77,7 +77,7 @@ def interpolate_anchors(A: np.ndarray, spacing_px: int, height: int, width: int)
 
 
 def warp_array(src: np.ndarray, src_valid: np.ndarray, src_x_left: float, src_y_top: float, src_res: float,
-               AX: np.ndarray, AY: np.ndarray, spacing_px: int, height: int, width: int,
+               *, AX: np.ndarray, AY: np.ndarray, spacing_px: int, height: int, width: int,
                resampling: str = "bilinear") -> tuple[np.ndarray, np.ndarray]:
     """Resample ``src`` (rows, cols[, bands]) onto a destination grid whose pixel centres map to source
     coordinates through the anchors (AX, AY, spacing) of ``anchor_grid``.
@@ -154,7 +154,7 @@ def _cell_in_source_px(AX: np.ndarray, AY: np.ndarray, spacing_px: int, src_res:
     return max(sides) / src_res if sides else 1.0
 
 
-def read_on_grid(ds, x_left: float, y_top: float, res: float, shape, operation=None, resampling: str = "bilinear",
+def read_on_grid(ds, x_left: float, y_top: float, res: float, shape, operation=None, *, resampling: str = "bilinear",
                  bands=None, maximum: bool = False, tolerance: float = 1e-3):
     """Read an open north-up dataset onto a destination grid (``shape`` rows, cols) whose pixel centres
     are mapped into the dataset's CRS by ``operation`` (destination -> dataset, a ``CrsTransformer``;
@@ -198,8 +198,8 @@ def read_on_grid(ds, x_left: float, y_top: float, res: float, shape, operation=N
             data[~np.isfinite(data)] = 0.0
     x0 = t.c + win.col_off * t.a
     y0 = t.f + win.row_off * t.e
-    dst, ok = warp_array(np.moveaxis(data, 0, -1), valid, x0, y0, abs(t.a), AX, AY, s, rows, cols,
-                         "nearest" if maximum else resampling)
+    dst, ok = warp_array(np.moveaxis(data, 0, -1), valid, x0, y0, abs(t.a), AX=AX, AY=AY, spacing_px=s, height=rows,
+                         width=cols, resampling="nearest" if maximum else resampling)
     return np.moveaxis(dst.reshape(rows, cols, -1), -1, 0), ok
 
 

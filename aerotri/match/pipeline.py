@@ -436,8 +436,9 @@ def _tracks(sparse, dense, matches, complete_px: float | None = None, size_px=No
         pm.append((i, j, m))
     track, image, kp, n_bad = build_tracks([len(x) for x in xy_all], pm)
     if complete_px is not None:
-        track, image, kp, n_added = complete_tracks(track, image, kp, xy_all, desc_all, rep_all, pm, size_px,
-                                                    complete_px)
+        track, image, kp, n_added = complete_tracks(track, image, kp, node_xy=xy_all, node_desc=desc_all,
+                                                    node_rep=rep_all, pair_links=pm, size_px=size_px,
+                                                    tol_px=complete_px)
         log.info(f"track completion: {n_added} observations added")
     xy = np.array([xy_all[i][k] for i, k in zip(image, kp)]).reshape(-1, 2)
     return track, image, xy, n_bad

@@ -63,7 +63,7 @@ def build_tracks(n_keypoints: list[int], pair_matches: list[tuple[int, int, np.n
     return track[order], image[keep][order], kp[keep][order], int(len(bad_labels))
 
 
-def complete_tracks(track: np.ndarray, image: np.ndarray, node: np.ndarray, node_xy: list[np.ndarray],
+def complete_tracks(track: np.ndarray, image: np.ndarray, node: np.ndarray, *, node_xy: list[np.ndarray],
                     node_desc: list[np.ndarray], node_rep: list[np.ndarray], pair_links: list,
                     size_px: tuple[int, int], tol_px: float, k: int = 10, desc_quantile: float = 0.9):
     """Extend tracks into the frames of verified pairs where they have no observation yet.

@@ -279,7 +279,7 @@ def _verdict(figure, limit, n, need, cp_ok) -> tuple[str, str]:
     return would, ""
 
 
-def _check(product, quantity, cls, measured, figure, limit, unit, n, need, cp_ok, cp_note, confirmed, source,
+def _check(product, quantity, cls, measured, figure, *, limit, unit, n, need, cp_ok, cp_note, confirmed, source,
            finest=None, rank=None, dimension="", verdict=None, why=None) -> ComplianceCheck:
     if verdict is None:
         verdict, why = _verdict(figure, limit, n, need, cp_ok)
@@ -331,7 +331,8 @@ def choose(standard: str | None, class_text: str | None, table: ToleranceTable, 
     table_key, _ = split_key(table.key)
     if std is None:
         std = "asprs2023" if table_key.startswith("ASPRS2023") else "cn-at"
-        std_src = f"the report's tolerance table {table.name!r} ({table.reason})"
+        # the table's own reason follows once, where its class or map scale is taken (not twice)
+        std_src = f"the report's tolerance table {table.name!r}"
     if std not in STANDARD_KEYS:
         raise ConfigError(f"standard {std!r}: expected one of {', '.join(STANDARD_KEYS)}")
     cls_src = "--class" if class_text else "project.toml [qa] accuracy_class"
@@ -448,8 +449,9 @@ def _asprs(figs: Figures, c: Choice) -> list[ComplianceCheck]:
                 cp_note += f"; {cs.note}"
             # the finest class: the limit is ``multiple`` x the class (the AT twice as accurate as the product)
             fin, rank = finest(fig, lad_h if dim == "H" else lad_v, multiple, dim)
-            ch = _check(product, f"check points, {quantity}", c.class_tested, meas, fig, limit, "m", n, need, cp_ok,
-                        cp_note, conf, source, fin, rank, dim)
+            ch = _check(product, f"check points, {quantity}", c.class_tested, meas, fig, limit=limit, unit="m", n=n,
+                        need=need, cp_ok=cp_ok, cp_note=cp_note, confirmed=conf, source=source, finest=fin, rank=rank,
+                        dimension=dim)
             if meas is None:
                 ch = dataclasses.replace(ch, verdict=NOT_TESTABLE, why=cs.note or "not measured")
             out.append(ch)
@@ -469,9 +471,9 @@ def _asprs(figs: Figures, c: Choice) -> list[ComplianceCheck]:
         cp_ok, cp_note = (None, "no class") if limit is None else _cp_note(
             lf.cp_rmse_v_m, limit / factor, lf.cp_source, f"{factor:g} x finer than the class needs <=")
         fin, rank = finest(fig, lad_v, 1.0, "V")
-        ch = _check("LiDAR DEM", "NVA: RMSE_V at non-vegetated check points", c.class_tested, lf.nva_rmse_m,
-                    fig, limit, "m", lf.n_nva, need, cp_ok, f"{cp_note}; {lf.grouping_note}", conf, source,
-                    fin, rank, "V")
+        ch = _check("LiDAR DEM", "NVA: RMSE_V at non-vegetated check points", c.class_tested, lf.nva_rmse_m, fig,
+                    limit=limit, unit="m", n=lf.n_nva, need=need, cp_ok=cp_ok, cp_note=f"{cp_note}; {lf.grouping_note}",
+                    confirmed=conf, source=source, finest=fin, rank=rank, dimension="V")
         if fig is None:
             ch = dataclasses.replace(ch, verdict=NOT_TESTABLE,
                                      why="not measured: no surveyed check points (lidarctl check-heights)")
@@ -479,15 +481,17 @@ def _asprs(figs: Figures, c: Choice) -> list[ComplianceCheck]:
         vva = L["vertical_vva"]
         out.append(_check("LiDAR DEM", "VVA: RMSE_V at vegetated check points", c.class_tested, lf.vva_rmse_m,
                           F.with_checkpoint_accuracy(lf.vva_rmse_m, lf.cp_rmse_v_m) if lf.vva_rmse_m is not None
-                          else None, None, "m", lf.n_vva, None, None, lf.grouping_note, vva["confirmed"],
-                          f"{src}; {vva['evidence']}", verdict="reported",
+                          else None, limit=None, unit="m", n=lf.n_vva, need=None, cp_ok=None, cp_note=lf.grouping_note,
+                          confirmed=vva["confirmed"],
+                          source=f"{src}; {vva['evidence']}", verdict="reported",
                           why="no pass/fail in Edition 2" + ("" if lf.n_vva else "; no vegetated check points")))
         if lf.swath_rmsdz_m is not None:
             limit, conf, source = lim("strip_rmsdz_m")
             fin, rank = finest(lf.swath_rmsdz_m, lad_v, 0.8, "V")
             out.append(_check("LiDAR swath overlaps", "swath-to-swath RMSDz on smooth surfaces", c.class_tested,
-                              lf.swath_rmsdz_m, lf.swath_rmsdz_m, limit, "m", None, None, None, lf.swath_note, conf,
-                              source, fin, rank, "V"))
+                              lf.swath_rmsdz_m, lf.swath_rmsdz_m, limit=limit, unit="m", n=None, need=None, cp_ok=None,
+                              cp_note=lf.swath_note, confirmed=conf, source=source, finest=fin, rank=rank,
+                              dimension="V"))
     return out
 
 
@@ -503,7 +507,7 @@ def _lbs(figs: Figures, c: Choice) -> list[ComplianceCheck]:
     if lf is None:
         return out
 
-    def row(key, quantity, fig, n, n_need, cp, cp_src, note, lower_is_better=True):
+    def row(key, quantity, fig, n, *, n_need, cp, cp_src, note, lower_is_better=True):
         """One quality-level row; the finest level is the first of QL0..QL3 whose limit the figure meets."""
         lv = levels[c.level]
         limit = lv[key]
@@ -520,27 +524,29 @@ def _lbs(figs: Figures, c: Choice) -> list[ComplianceCheck]:
         if lower_is_better:
             ch = _check("LiDAR DEM" if key in ("nva_rmse_m", "vva_p95_m") else
                         ("LiDAR swath overlaps" if key.startswith("interswath") else "LiDAR density"),
-                        quantity, c.class_tested, fig, fig, limit, "m", n, n_need, cp_ok, cp_note, conf, source, fin, rank)
+                        quantity, c.class_tested, fig, fig, limit=limit, unit="m", n=n, need=n_need, cp_ok=cp_ok,
+                        cp_note=cp_note, confirmed=conf, source=source, finest=fin, rank=rank)
             if fig is None:
                 ch = dataclasses.replace(ch, why=f"not measured: {note}" if note else "not measured")
         else:  # a lower limit (density): pass when the figure reaches it
             ok = None if fig is None else fig >= limit
-            ch = _check("LiDAR density", quantity, c.class_tested, fig, fig, limit, "per m2", None, None, None, note,
-                        conf, source, fin, rank, verdict=NOT_TESTABLE if ok is None else ("pass" if ok else "fail"),
+            ch = _check("LiDAR density", quantity, c.class_tested, fig, fig, limit=limit, unit="per m2", n=None,
+                        need=None, cp_ok=None, cp_note=note, confirmed=conf, source=source, finest=fin, rank=rank,
+                        verdict=NOT_TESTABLE if ok is None else ("pass" if ok else "fail"),
                         why="not measured" if ok is None else "a lower limit: the density must reach it")
         out.append(ch)
 
     # the DEM rows always: without surveyed points they say so (not testable)
     nopts = "" if lf.grouping_note else "no surveyed check points (lidarctl check-heights)"
-    row("nva_rmse_m", "NVA: RMSEz at non-vegetated check points", lf.nva_rmse_m, lf.n_nva, need, lf.cp_rmse_v_m,
-        lf.cp_source, lf.grouping_note or nopts)
-    row("vva_p95_m", "VVA: 95th percentile of |dz| at vegetated check points", lf.vva_p95_m, lf.n_vva, None, None,
-        None, lf.grouping_note or nopts)
+    row("nva_rmse_m", "NVA: RMSEz at non-vegetated check points", lf.nva_rmse_m, lf.n_nva, n_need=need,
+        cp=lf.cp_rmse_v_m, cp_src=lf.cp_source, note=lf.grouping_note or nopts)
+    row("vva_p95_m", "VVA: 95th percentile of |dz| at vegetated check points", lf.vva_p95_m, lf.n_vva, n_need=None,
+        cp=None, cp_src=None, note=lf.grouping_note or nopts)
     if lf.swath_rmsdz_m is not None:
-        row("interswath_rmsdz_m", "interswath (swath overlap) RMSDz on smooth surfaces", lf.swath_rmsdz_m, None, None,
-            None, None, lf.swath_note)
-    row("anpd_min", "aggregate nominal pulse density (first returns)", lf.anpd_per_m2, None, None, None, None,
-        lf.density_note, lower_is_better=False)
+        row("interswath_rmsdz_m", "interswath (swath overlap) RMSDz on smooth surfaces", lf.swath_rmsdz_m, None,
+            n_need=None, cp=None, cp_src=None, note=lf.swath_note)
+    row("anpd_min", "aggregate nominal pulse density (first returns)", lf.anpd_per_m2, None, n_need=None, cp=None,
+        cp_src=None, note=lf.density_note, lower_is_better=False)
     return out
 
 
@@ -574,16 +580,18 @@ def _cn(figs: Figures, c: Choice) -> list[ComplianceCheck]:
                                    "1/5 of the feature limit (GB/T 7931-2008 6.1) needs <=") if f_lim else
                           (None, "no feature limit to judge the check points by"))
         fin, rank = finest(cs.rmse_h_m, keys, c.terrain) if cs.rmse_h_m is not None else (None, None)
-        ch = _check(product, "check points, plan RMS (radial)", c.class_tested, cs.rmse_h_m, cs.rmse_h_m, limit, "m",
-                    cs.n_h, None, cp_ok, cp_note + "; the specifications set no minimum number of check points"
+        ch = _check(product, "check points, plan RMS (radial)", c.class_tested, cs.rmse_h_m, cs.rmse_h_m,
+                    limit=limit, unit="m", n=cs.n_h, need=None, cp_ok=cp_ok,
+                    cp_note=cp_note + "; the specifications set no minimum number of check points"
                     + (f"; {cs.note}" if cs.note else ""),
-                    conf, source, fin, rank)
+                    confirmed=conf, source=source, finest=fin, rank=rank)
         if cs.rmse_h_m is None:
             ch = dataclasses.replace(ch, verdict=NOT_TESTABLE, why=cs.note or "not measured")
         out.append(ch)
         if product == "Aerotriangulation" and cs.rmse_v_m is not None:
-            out.append(_check(product, "check points, height RMS", c.class_tested, cs.rmse_v_m, cs.rmse_v_m, None, "m",
-                              cs.n_v, None, None, "", None, f"{src}: heights of AT points not shipped (not read in any "
+            out.append(_check(product, "check points, height RMS", c.class_tested, cs.rmse_v_m, cs.rmse_v_m,
+                              limit=None, unit="m", n=cs.n_v, need=None, cp_ok=None, cp_note="", confirmed=None,
+                              source=f"{src}: heights of AT points not shipped (not read in any "
                               f"copy; docs/standards.md)"))
     lf = figs.lidar
     if lf is not None and (lf.nva_rmse_m is not None or lf.swath_rmsdz_m is not None):
@@ -592,15 +600,17 @@ def _cn(figs: Figures, c: Choice) -> list[ComplianceCheck]:
         if lf.nva_rmse_m is not None:
             met = [s for s in e["scales"] if (x := e.get(c.terrain, {}).get(s)) is not None and lf.nva_rmse_m <= x]
             out.append(_check("LiDAR DEM", "height RMS at non-vegetated check points (against the spot-height limit)",
-                              c.class_tested, lf.nva_rmse_m, lf.nva_rmse_m, lim, "m", lf.n_nva, None, None,
-                              lf.grouping_note, e["confirmed"] if lim is not None else None,
-                              f"{src}: {e['what']}, {e['clause']}; {e['evidence']}",
-                              met[0] if met else ("none of 1:500-1:2000" if e.get(c.terrain) else None),
-                              float(F.scale_denominator(met[0])) if met else None))
+                              c.class_tested, lf.nva_rmse_m, lf.nva_rmse_m, limit=lim, unit="m", n=lf.n_nva, need=None,
+                              cp_ok=None, cp_note=lf.grouping_note,
+                              confirmed=e["confirmed"] if lim is not None else None,
+                              source=f"{src}: {e['what']}, {e['clause']}; {e['evidence']}",
+                              finest=met[0] if met else ("none of 1:500-1:2000" if e.get(c.terrain) else None),
+                              rank=float(F.scale_denominator(met[0])) if met else None))
         if lf.swath_rmsdz_m is not None:
             out.append(_check("LiDAR swath overlaps", "swath-to-swath RMSDz on smooth surfaces", c.class_tested,
-                              lf.swath_rmsdz_m, lf.swath_rmsdz_m, None, "m", None, None, None, lf.swath_note, None,
-                              f"{src}: the AT specifications set no LiDAR limit"))
+                              lf.swath_rmsdz_m, lf.swath_rmsdz_m, limit=None, unit="m", n=None, need=None, cp_ok=None,
+                              cp_note=lf.swath_note, confirmed=None,
+                              source=f"{src}: the AT specifications set no LiDAR limit"))
     return out
 
 
@@ -629,8 +639,9 @@ def _thesis(figs: Figures, c: Choice) -> list[ComplianceCheck]:
                 continue
             limit, conf, source = lim(key)
             fin, rank = finest(meas, key) if meas is not None else (None, None)
-            ch = _check(product, f"check points, {q}", c.class_tested, meas, meas, limit, "m", n, None, None,
-                        "the thesis tables set no minimum number or accuracy of check points", conf, source, fin, rank)
+            ch = _check(product, f"check points, {q}", c.class_tested, meas, meas, limit=limit, unit="m", n=n,
+                        need=None, cp_ok=None, cp_note="the thesis tables set no minimum number or accuracy of check points",
+                        confirmed=conf, source=source, finest=fin, rank=rank)
             if meas is None:
                 ch = dataclasses.replace(ch, verdict=NOT_TESTABLE, why=cs.note or "not measured")
             out.append(ch)
@@ -645,7 +656,8 @@ def _thesis(figs: Figures, c: Choice) -> list[ComplianceCheck]:
             limit, conf, source = lim(key)
             fin, rank = finest(meas, key)
             out.append(_check("LiDAR DEM" if key == "dem_rmse_m" else "LiDAR swath overlaps", q, c.class_tested, meas,
-                              meas, limit, "m", n, None, None, note, conf, source, fin, rank))
+                              meas, limit=limit, unit="m", n=n, need=None, cp_ok=None, cp_note=note, confirmed=conf,
+                              source=source, finest=fin, rank=rank))
     return out
 
 

@@ -101,7 +101,7 @@ def _failed(check_id: str, section: str, name: str, why: str) -> QaCheck:
     return QaCheck(check_id, section, name, None, None, "", why, "fail")
 
 
-def _check(check_id: str, section: str, name: str, value, limit, unit: str, note: str = "",
+def _check(check_id: str, section: str, name: str, value, limit, unit: str, *, note: str = "",
            key: str | None = None) -> QaCheck:
     """A verdict row; ``key``: the tolerance-table key of ``limit`` (its source goes into the report)."""
     if value is None or limit is None:
@@ -134,11 +134,11 @@ def _roofs_row(section: str, dom_check, project: Project) -> QaCheck:
     if not r.count:
         why = dom_check.roofs_why or f"{dom_check.roof_corners or 0} roof corners, none measurable"
         return _check("dom_roofs_rms_xy_m", section, "displacement at roof corners, plan RMS", None, None, "m",
-                      f"none measured ({why})")
+                      note=f"none measured ({why})")
     gsd = r.rms_xy_gsd if r.rms_xy_gsd is not None else float("nan")
     median_gsd = r.median_xy_m / r.gsd_m if r.median_xy_m is not None and r.gsd_m else float("nan")
     return _check("dom_roofs_rms_xy_m", section, "displacement at roof corners, plan RMS", round(r.rms_xy_m, 4), None,
-                  "m", f"{r.count} of {dom_check.roof_corners} corners, {gsd:.2f} GSD, median {median_gsd:.2f} GSD; "
+                  "m", note=f"{r.count} of {dom_check.roof_corners} corners, {gsd:.2f} GSD, median {median_gsd:.2f} GSD; "
                   f"corners: {source}{kind}; not judged")
 
 
@@ -208,7 +208,8 @@ def strip_rows(project: Project, tol: dict) -> tuple[list[QaCheck], list | None]
     name = "strip-to-strip height differences on smooth surfaces, RMS over all pairs"
     chk = read_strip_check(path)
     if chk is None:
-        return [_check("strip_rmsdz_m", sec, name, None, None, "m", f"not checked: {nothing_compared(path)}")], None
+        return [_check("strip_rmsdz_m", sec, name, None, None, "m",
+                       note=f"not checked: {nothing_compared(path)}")], None
     a = chk.all_pairs
     pairs = [dict(a=p.a, b=p.b, n_cells=p.diff.n_cells, mean_m=p.diff.mean_m, rms_m=p.diff.rms_m, nmad_m=p.diff.nmad_m)
              for p in chk.pairs]
@@ -219,7 +220,7 @@ def strip_rows(project: Project, tol: dict) -> tuple[list[QaCheck], list | None]
         before = read_strip_adjustment(project.strips_adjust_path).check_before
         if before.rms_m is not None:
             note = f"after the strip adjustment (before: RMS {before.rms_m:.3f} m); " + note
-    return [_check("strip_rmsdz_m", sec, name, round(a.rms_m, 4), tol.get("strip_rmsdz_m"), "m", note,
+    return [_check("strip_rmsdz_m", sec, name, round(a.rms_m, 4), tol.get("strip_rmsdz_m"), "m", note=note,
                    key="strip_rmsdz_m")], pairs
 
 
@@ -247,7 +248,7 @@ def line_map_rows(project: Project, tol: dict) -> list[QaCheck]:
     note = (f"{b.n_matched_corners} corners within {chk.match_m:g} m of a reference corner; to the nearest "
             f"reference outline {b.rms_xy_to_line_m:.3f} m RMS; buildings complete {b.completeness_pct:.1f} %, "
             f"correct {b.correctness_pct:.1f} %; reference {Path(chk.reference).name}")
-    return [_check(cid, sec, name, round(b.rms_xy_corner_m, 4), tol.get("feature_rms_xy_m"), "m", note,
+    return [_check(cid, sec, name, round(b.rms_xy_corner_m, 4), tol.get("feature_rms_xy_m"), "m", note=note,
                    key="feature_rms_xy_m")]
 
 
@@ -257,7 +258,7 @@ def stage_results(project: Project) -> list:
             project.height_check_path, project.classification_eval_path]
 
 
-def build_qa_report(root, tolerance_file=None, terrain: str | None = None, scale: str | None = None,
+def build_qa_report(root, *, tolerance_file=None, terrain: str | None = None, scale: str | None = None,
                     standard: str | None = None, horizontal_class_cm: float | None = None,
                     vertical_class_cm: float | None = None, accuracy_class: str | None = None) -> dict:
     """The report of a project folder (``StageOrderError`` when no stage has left results yet). The
@@ -337,11 +338,12 @@ def build_qa_report(root, tolerance_file=None, terrain: str | None = None, scale
             if fb:
                 note = f"{fb} filled by fallbacks" + (f"; {note}" if note else "")
             rows.append(_check("layout_targets_filled", sec, "layout targets with a control point",
-                               f"{len(ctl.layout_targets) - len(empty)} of {len(ctl.layout_targets)}", None, "", note))
+                               f"{len(ctl.layout_targets) - len(empty)} of {len(ctl.layout_targets)}", None, "",
+                               note=note))
     if at and at.counts.get("control_points") == 0:
         why = "the datum comes from GNSS alone" if at.gnss_given else "no datum from control"
         rows.append(_check("control_points_used", sec, "control points in the adjustment", 0, None, "",
-                           f"no LiDAR control: {why}"))
+                           note=f"no LiDAR control: {why}"))
     ctrl = at.control_rms_m if at else None
     # plan and height each when there is one: plan-only control (the kite block's targets) has no height RMS
     if ctrl and None not in ctrl[:2]:
@@ -352,18 +354,26 @@ def build_qa_report(root, tolerance_file=None, terrain: str | None = None, scale
                            key="rms_z_m"))
     if at:
         rows.append(_check("control_rejected", sec, "control points rejected by the adjustment",
-                           len(at.rejected_control), None, "", ", ".join(at.rejected_control)))
+                           len(at.rejected_control), None, "", note=", ".join(at.rejected_control)))
     sec = "Aerotriangulation"
     ks = at.key_statistics if at else None
     if ks:
         # the adjustment's verdict, not only "products written": a weak solution (geometry held by GNSS and priors
         # alone, a calibration group fixed, frames left out) is not "Solution Successful" here either
-        rows.append(_check("solution_successful", sec, "solution successful", ks.successful, True, "", ks.message))
+        rows.append(_check("solution_successful", sec, "solution successful", ks.successful, True, "", note=ks.message))
         s0_px = at.sigma0_in_px
         if s0_px is not None and math.isfinite(s0_px):
-            rows.append(_check("sigma0_px", sec, "sigma naught", round(s0_px, 3), _sigma0_limit_px(tol, ks, s0_px), "px",
-                               f"{ks.sigma0_um:.2f} um" if ks.sigma0_um is not None else "",
+            rows.append(_check("sigma0_px", sec, "sigma naught", round(s0_px, 3), _sigma0_limit_px(tol, ks, s0_px),
+                               "px", note=f"{ks.sigma0_um:.2f} um" if ks.sigma0_um is not None else "",
                                key="sigma0_max_px" if tol.get("sigma0_max_px") is not None else "sigma0_max_um"))
+    if at and at.control_to_tie_ratio is not None:
+        # the PATB-table rule of thumb (docs/reports.md): not a contract limit, so reported, not judged
+        ratio = at.control_to_tie_ratio
+        rows.append(_check("control_to_tie_residual_ratio", sec, "control / tie image residuals, RMS ratio",
+                           round(ratio, 2), None, "", note=("above 10: a systematic error (camera, GNSS, datum or "
+                                                            "control coordinates) is worth compensating" if ratio > 10.0
+                                                            else "about 4 is normal, around 10 points at a systematic "
+                                                            "error") + "; not judged"))
     chk = at.check_rms_m if at else None
     if chk and None not in chk:
         n = at.check_points
@@ -373,11 +383,11 @@ def build_qa_report(root, tolerance_file=None, terrain: str | None = None, scale
             short = f"{need:g} required by {table.name.split(':')[0]}"
             npts += f" ({short}: not testable as the standard asks)" if n < need else f" ({short})"
             rows.append(_check("check_points_count", sec, "check points for the accuracy assessment", n, None, "",
-                               f"at least {need:g} required" + (": too few, the RMS rows below are indicative only"
+                               note=f"at least {need:g} required" + (": too few, the RMS rows below are indicative only"
                                                                 if n < need else ""), key="check_points_min"))
         rows.append(_check("check_rms_xy_m", sec, "check points, plan RMS", _hypot(chk[0], chk[1]), tol.get("rms_xy_m"),
-                           "m", npts, key="rms_xy_m"))
-        rows.append(_check("check_rms_z_m", sec, "check points, height RMS", chk[2], tol.get("rms_z_m"), "m", npts,
+                           "m", note=npts, key="rms_xy_m"))
+        rows.append(_check("check_rms_z_m", sec, "check points, height RMS", chk[2], tol.get("rms_z_m"), "m", note=npts,
                            key="rms_z_m"))
         d = at.check_residuals_m
         # Gross errors: single residuals beyond the residual limit (2 x the RMS limit); a few percent
@@ -386,9 +396,9 @@ def build_qa_report(root, tolerance_file=None, terrain: str | None = None, scale
             if d and lim:
                 big = sum((math.hypot(a, b) if k == 0 else abs(c)) > lim for a, b, c in d)
                 rows.append(_check(f"check_gross_{'xy' if k == 0 else 'z'}_pct", sec,
-                                   f"check points with a {name} residual beyond {lim:g} m", round(100.0 * big / len(d), 2),
-                                   tol.get("gross_error_max_pct"), "%", f"{big} of {len(d)}",
-                                   key="gross_error_max_pct"))
+                                   f"check points with a {name} residual beyond {lim:g} m",
+                                   round(100.0 * big / len(d), 2), tol.get("gross_error_max_pct"), "%",
+                                   note=f"{big} of {len(d)}", key="gross_error_max_pct"))
 
     # DOM
     sec = "DOM"
@@ -399,14 +409,15 @@ def build_qa_report(root, tolerance_file=None, terrain: str | None = None, scale
     if dom and dom.rms_xy_m is not None:
         gsd = dom.rms_xy_gsd if dom.rms_xy_gsd is not None else float("nan")
         rows.append(_check("dom_rms_xy_m", sec, "displacement on ground patches, plan RMS", round(dom.rms_xy_m, 4),
-                           tol.get("feature_rms_xy_m"), "m", f"{dom.count} patches, {gsd:.2f} GSD",
+                           tol.get("feature_rms_xy_m"), "m", note=f"{dom.count} patches, {gsd:.2f} GSD",
                            key="feature_rms_xy_m"))
         if dom.p95_xy_m is not None and tol.get("feature_rms_xy_m") and tol.get("gross_error_max_pct") == 5.0:
             # 95th percentile within 2 x the RMS limit <=> at most 5 % gross errors.
             largest = dom.max_xy_m if dom.max_xy_m is not None else float("nan")
-            rows.append(_check("dom_p95_xy_m", sec, "95th percentile of the patch displacements", round(dom.p95_xy_m, 4),
-                               2 * tol["feature_rms_xy_m"], "m", f"largest {largest:.3f} m; "
-                               "limit 2 x the RMS limit (at most 5 % gross errors)", key="feature_rms_xy_m"))
+            rows.append(_check("dom_p95_xy_m", sec, "95th percentile of the patch displacements",
+                               round(dom.p95_xy_m, 4), 2 * tol["feature_rms_xy_m"], "m",
+                               note=f"largest {largest:.3f} m; " "limit 2 x the RMS limit (at most 5 % gross errors)",
+                               key="feature_rms_xy_m"))
     if dom_check and dom_check.roofs is not None:
         rows.append(_roofs_row(sec, dom_check, project))
     if project.frames_index_path.is_file() and (dom_check or project.mosaic_path.is_file()):
@@ -419,7 +430,7 @@ def build_qa_report(root, tolerance_file=None, terrain: str | None = None, scale
     if dom_check and dom_check.seams_rms_px is not None:
         rows.append(_check("seam_misalignment_rms_px", sec, "misalignment across seamlines, RMS",
                            round(dom_check.seams_rms_px, 3), tol.get("seam_misalignment_rms_px"), "px",
-                           f"{dom_check.seam_patches} patches", key="seam_misalignment_rms_px"))
+                           note=f"{dom_check.seam_patches} patches", key="seam_misalignment_rms_px"))
 
     # Flight acceptance: from the adjustment's report when it has the section, else computed here (before
     # the adjustment: GNSS positions with the nominal attitude)
@@ -434,7 +445,7 @@ def build_qa_report(root, tolerance_file=None, terrain: str | None = None, scale
         rows += flight_rows(fa, tol)
     elif project.eo_path.is_file() or project.gnss_path.is_file():
         rows.append(_check("flight_acceptance", "Flight acceptance", "flight acceptance", None, None, "",
-                           "not measured: no camera.toml, or no DEM (lidar_out/dem.tif) and no [flight] "
+                           note="not measured: no camera.toml, or no DEM (lidar_out/dem.tif) and no [flight] "
                            "mean_terrain_height_m to put the footprints on"))
 
     verdicts = [r.verdict for r in rows if r.verdict]
@@ -667,7 +678,7 @@ def _text(v) -> str:
     return f"{v:.4g}" if isinstance(v, float) else str(v)
 
 
-def _pdf_table(pdf, plt, title: str, header: list, rows: list, widths: list, colours=None) -> None:
+def _pdf_table(pdf, plt, title: str, *, header: list, rows: list, widths: list, colours=None) -> None:
     """One A4-landscape page (or more, 34 rows each) with a table."""
     for start in range(0, max(len(rows), 1), 34):
         fig = plt.figure(figsize=(11.69, 8.27))
@@ -728,12 +739,13 @@ def write_pdf(path: Path, rep: dict, project: Project, figures: list | None = No
             rows = [compliance_row(c) for c in comp["checks"]]
             colours = [["white"] * 8 + [VERDICT_COLOURS.get(c["verdict"], "white"), "white"] for c in comp["checks"]]
             _pdf_table(pdf, plt, f"Compliance: {comp['name']}, class {comp['class_tested']}"[:110],
-                       COMPLIANCE_HEADER, rows, [0.09, 0.26, 0.08, 0.05, 0.05, 0.06, 0.06, 0.05, 0.2, 0.06], colours)
+                       header=COMPLIANCE_HEADER, rows=rows,
+                       widths=[0.09, 0.26, 0.08, 0.05, 0.05, 0.06, 0.06, 0.05, 0.2, 0.06], colours=colours)
             why = textwrap.wrap(f"Chosen because: {comp['reason']}", 150)
             _pdf_table(pdf, plt, "Compliance per product",
-                       ["product", "verdict", "finest class met"],
-                       [[p["product"], p["verdict"], p["finest_class"]] for p in comp["products"]]
-                       + [["", "", ""]] + [[line, "", ""] for line in why], [0.7, 0.1, 0.15])
+                       header=["product", "verdict", "finest class met"],
+                       rows=[[p["product"], p["verdict"], p["finest_class"]] for p in comp["products"]]
+                       + [["", "", ""]] + [[line, "", ""] for line in why], widths=[0.7, 0.1, 0.15])
         fa = rep.get("flight_acceptance")
         if fa:
             ops = {"max": "<=", "min": ">="}
@@ -743,15 +755,15 @@ def write_pdf(path: Path, rep: dict, project: Project, figures: list | None = No
             colours = [["white"] * 6 + [{"pass": "#ccffcc", "fail": "#ffcccc"}.get(r[-1], "white")] for r in rows]
             _pdf_table(pdf, plt, f"Flight acceptance ({fa['source']}; footprints on {Path(str(fa['terrain'])).name}; "
                                  f"limits: {str(fa.get('spec') or '')[:80]})",
-                       ["check", "worst", "limit", "unit", "at", "failing", "verdict"], rows,
-                       [0.36, 0.08, 0.08, 0.05, 0.14, 0.08, 0.07], colours)
+                       header=["check", "worst", "limit", "unit", "at", "failing", "verdict"], rows=rows,
+                       widths=[0.36, 0.08, 0.08, 0.05, 0.14, 0.08, 0.07], colours=colours)
             _pdf_table(pdf, plt, "Flight acceptance per strip",
-                       ["strip", "frames", "first", "last", "curvature %", "height range m", "forward min %",
+                       header=["strip", "frames", "first", "last", "curvature %", "height range m", "forward min %",
                         "side median %", "max tilt deg", "max kappa deg", "failing"],
-                       [[s["strip"], s["frames"], s["first"], s["last"], s["curvature_pct"], s["height_range_m"],
+                       rows=[[s["strip"], s["frames"], s["first"], s["last"], s["curvature_pct"], s["height_range_m"],
                          s["forward_overlap_min_pct"], s["side_overlap_median_pct"], s["max_tilt_deg"],
                          s["max_kappa_deviation_deg"], ", ".join(LIMIT_KEYS[k][0] for k in RF.strip_fails(fa, s))]
-                        for s in fa["strips"]], [0.05, 0.05, 0.1, 0.1, 0.08, 0.08, 0.08, 0.08, 0.08, 0.08, 0.2])
+                        for s in fa["strips"]], widths=[0.05, 0.05, 0.1, 0.1, 0.08, 0.08, 0.08, 0.08, 0.08, 0.08, 0.2])
         for f in figures or []:
             fig = plt.figure(figsize=(11.69, 8.27))
             fig.text(0.03, 0.96, f.title, fontsize=14, weight="bold")
@@ -773,14 +785,15 @@ def write_pdf(path: Path, rep: dict, project: Project, figures: list | None = No
                 plt.close(fig)
 
 
-def write_qa_report(root, tolerance_file=None, terrain: str | None = None, scale: str | None = None,
+def write_qa_report(root, *, tolerance_file=None, terrain: str | None = None, scale: str | None = None,
                     pdf: bool | None = None, standard: str | None = None, horizontal_class_cm: float | None = None,
                     vertical_class_cm: float | None = None, accuracy_class: str | None = None) -> QaReport:
     """``build_qa_report``, written: reports/summary.json (``QaReport.as_dict``), reports/index.html and, with ``pdf``
     (else ``[qa] pdf``), reports/report.pdf."""
     project = Project.open(root)
-    rep = build_qa_report(project.root, tolerance_file, terrain, scale, standard, horizontal_class_cm,
-                          vertical_class_cm, accuracy_class)
+    rep = build_qa_report(project.root, tolerance_file=tolerance_file, terrain=terrain, scale=scale, standard=standard,
+                          horizontal_class_cm=horizontal_class_cm, vertical_class_cm=vertical_class_cm,
+                          accuracy_class=accuracy_class)
     summary = rep.as_dict()
     write_text_atomic(project.report_summary_path, json.dumps(summary, indent=1) + "\n")
     figures = report_figures(rep, project)

@@ -36,7 +36,7 @@ from aerotri.core.commands import Command, FiniteFloatRange, finite, fraction
 @click.option("--bad-control-shift-m", type=finite(), default=0.0, show_default=True,
               help="Move the first control point horizontally by this much.")
 @click.argument("outdir", type=click.Path(file_okay=False, path_type=Path))
-def sim(preset, seed, overrides, force, observations, observations_only, tie_points_per_frame, tie_sigma_px,
+def sim(*, preset, seed, overrides, force, observations, observations_only, tie_points_per_frame, tie_sigma_px,
         n_control, blunder_fraction, bad_control_shift_m, outdir):
     """Simulate a complete project with known truth into OUTDIR."""
     from aerotri.sim.command import simulate_command

@@ -93,7 +93,7 @@ class ClutterTies:
                 for c in CLASSES}
 
 
-def _noisy(block, P, pi, ii, xy, prefix, sigma_px, min_rays, rng):
+def _noisy(block, P, pi, ii, xy, *, prefix, sigma_px, min_rays, rng):
     """Keep points with >= ``min_rays`` and add image noise; ids ``<prefix>000001``..."""
     rays = np.bincount(pi, minlength=len(P))
     keep = rays >= min_rays
@@ -111,7 +111,7 @@ def _subset_points(obs: ImageObservations, ids: np.ndarray, n: int, rng) -> tupl
     return obs.subset(np.isin(obs.point_id, ids[keep])), keep
 
 
-def moving_points(block: GeometricBlock, n: int, rng, step_m=(3.0, 15.0), height_m=(0.3, 1.6), sigma_px=0.3,
+def moving_points(block: GeometricBlock, n: int, rng, *, step_m=(3.0, 15.0), height_m=(0.3, 1.6), sigma_px=0.3,
                   min_rays: int = 2):
     """Points on cars that move ``step_m`` between consecutive exposures of a strip (straight, at a
     constant speed, in a random direction), ``height_m`` above the ground. A car is matched within one
@@ -142,7 +142,8 @@ def moving_points(block: GeometricBlock, n: int, rng, step_m=(3.0, 15.0), height
         out_xy.append(np.column_stack([x[ok], y[ok]]))
     pi, ii, xy = np.concatenate(out_p), np.concatenate(out_i), np.concatenate(out_xy)
     order = np.lexsort((ii, pi))
-    obs, ids, P = _noisy(block, base, pi[order], ii[order], xy[order], PREFIX["moving"], sigma_px, min_rays, rng)
+    obs, ids, P = _noisy(block, base, pi[order], ii[order], xy[order], prefix=PREFIX["moving"], sigma_px=sigma_px,
+                         min_rays=min_rays, rng=rng)
     obs, keep = _subset_points(obs, ids, n, rng)
     return obs, ids[keep], P[keep]
 
@@ -157,12 +158,14 @@ def clutter_ties(block: GeometricBlock, *, points_per_image: int = 150, vegetati
     n_cand = int(points_per_image * len(block.image_id) / 1.5)
     P = block.ground_points(n_cand, rng)
     P = P[trees.canopy_m(P[:, 0], P[:, 1]) == 0]  # hidden under the crowns
-    g_obs, g_ids, g_P = _noisy(block, P, *block.project(P), PREFIX["ground"], sigma_px, 3, rng)
+    g_obs, g_ids, g_P = _noisy(block, P, *block.project(P), prefix=PREFIX["ground"], sigma_px=sigma_px, min_rays=3,
+                               rng=rng)
     n_g = len(g_ids)
     n_total = n_g / (1 - vegetation_share - moving_share)
     n_veg, n_mov = round(vegetation_share * n_total), round(moving_share * n_total)
     V = trees.sample(block, 2 * n_veg + 100, rng)
-    v_obs, v_ids, _ = _noisy(block, V, *block.project(V), PREFIX["vegetation"], sigma_px, 3, rng)
+    v_obs, v_ids, _ = _noisy(block, V, *block.project(V), prefix=PREFIX["vegetation"], sigma_px=sigma_px, min_rays=3,
+                             rng=rng)
     v_obs, keep = _subset_points(v_obs, v_ids, n_veg, rng)
     v_ids = v_ids[keep]
     m_obs, m_ids, _ = moving_points(block, n_mov, rng, sigma_px=sigma_px)

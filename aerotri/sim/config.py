@@ -93,7 +93,7 @@ def apply_overrides(cfg: dict, overrides) -> dict:
     return cfg
 
 
-def _need(cfg, source, section, key, lo=None, hi=None, lo_open=False, integer=False):
+def _need(cfg, source, section, key, *, lo=None, hi=None, lo_open=False, integer=False):
     try:
         v = cfg[section][key]
     except KeyError:
@@ -115,43 +115,43 @@ def validate(cfg: dict, source: str = "preset") -> None:
             raise InputError(f"{source}: missing section [{section}]")
     # [chain.<stage>] (the stage options the project gets) is checked by aerotri run when it reads
     # project.toml; tests/aerotri/sim/test_config.py checks the shipped presets' sections.
-    _need(cfg, source, "crs", "epsg", 1, integer=True)
-    _need(cfg, source, "camera", "focal_mm", 1.0, 1000.0, lo_open=True)
-    _need(cfg, source, "camera", "sensor_width_mm", 1.0, 1000.0)
-    _need(cfg, source, "camera", "sensor_height_mm", 1.0, 1000.0)
-    _need(cfg, source, "camera", "width", 16, 30000, integer=True)
-    _need(cfg, source, "camera", "height", 16, 30000, integer=True)
+    _need(cfg, source, "crs", "epsg", lo=1, integer=True)
+    _need(cfg, source, "camera", "focal_mm", lo=1.0, hi=1000.0, lo_open=True)
+    _need(cfg, source, "camera", "sensor_width_mm", lo=1.0, hi=1000.0)
+    _need(cfg, source, "camera", "sensor_height_mm", lo=1.0, hi=1000.0)
+    _need(cfg, source, "camera", "width", lo=16, hi=30000, integer=True)
+    _need(cfg, source, "camera", "height", lo=16, hi=30000, integer=True)
     for side in ("forward_overlap", "side_overlap"):
-        _need(cfg, source, "flight", side, 0.0, 0.95)
-    _need(cfg, source, "lidar", "side_overlap", 0.0, 0.9)
-    _need(cfg, source, "flight", "strips", 1, 200, integer=True)
-    _need(cfg, source, "flight", "frames_per_strip", 2, 2000, integer=True)
-    _need(cfg, source, "flight", "speed_mps", 1.0, 500.0)
-    _need(cfg, source, "flight", "max_tilt_deg", 0.0, 10.0)
-    _need(cfg, source, "flight", "max_kappa_dev_deg", 0.0, 30.0)
-    _need(cfg, source, "gnss", "sigma_m", 0.0, 10.0)
-    _need(cfg, source, "lidar", "pulse_rate_hz", 100.0, 2e6)
-    _need(cfg, source, "lidar", "scan_frequency_hz", 1.0, 500.0)
-    _need(cfg, source, "lidar", "fov_deg", 1.0, 75.0)
-    _need(cfg, source, "lidar", "range_noise_m", 0.0, 5.0)
+        _need(cfg, source, "flight", side, lo=0.0, hi=0.95)
+    _need(cfg, source, "lidar", "side_overlap", lo=0.0, hi=0.9)
+    _need(cfg, source, "flight", "strips", lo=1, hi=200, integer=True)
+    _need(cfg, source, "flight", "frames_per_strip", lo=2, hi=2000, integer=True)
+    _need(cfg, source, "flight", "speed_mps", lo=1.0, hi=500.0)
+    _need(cfg, source, "flight", "max_tilt_deg", lo=0.0, hi=10.0)
+    _need(cfg, source, "flight", "max_kappa_dev_deg", lo=0.0, hi=30.0)
+    _need(cfg, source, "gnss", "sigma_m", lo=0.0, hi=10.0)
+    _need(cfg, source, "lidar", "pulse_rate_hz", lo=100.0, hi=2e6)
+    _need(cfg, source, "lidar", "scan_frequency_hz", lo=1.0, hi=500.0)
+    _need(cfg, source, "lidar", "fov_deg", lo=1.0, hi=75.0)
+    _need(cfg, source, "lidar", "range_noise_m", lo=0.0, hi=5.0)
     for key in ("low_outlier_rate", "high_outlier_rate", "water_return_fraction"):
-        _need(cfg, source, "lidar", key, 0.0, 1.0)
+        _need(cfg, source, "lidar", key, lo=0.0, hi=1.0)
     bore = cfg["lidar"].get("boresight_error_deg", [0.0, 0.0, 0.0])
     if not (isinstance(bore, (list, tuple)) and len(bore) == 3 and all(
             isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v) and abs(v) <= 5.0 for v in bore)):
         raise InputError(f"{source}: lidar.boresight_error_deg must be [roll, pitch, heading] in degrees (each within "
                          f"+-5), got {bore!r}")
     if "range_offset_m" in cfg["lidar"]:
-        _need(cfg, source, "lidar", "range_offset_m", -10.0, 10.0)
+        _need(cfg, source, "lidar", "range_offset_m", lo=-10.0, hi=10.0)
     if "scan_angle_scale_error" in cfg["lidar"]:
-        _need(cfg, source, "lidar", "scan_angle_scale_error", -0.01, 0.01)
+        _need(cfg, source, "lidar", "scan_angle_scale_error", lo=-0.01, hi=0.01)
     if cfg["lidar"].get("format") not in ("las", "laz"):
         raise InputError(f"{source}: lidar.format must be 'las' or 'laz', got {cfg['lidar'].get('format')!r}")
-    _need(cfg, source, "scene", "terrain_res_m", 0.1, 10.0)
-    _need(cfg, source, "scene", "steep_slope_deg", 0.0, 60.0)
-    _need(cfg, source, "render", "samples", 1, 8, integer=True)
-    _need(cfg, source, "truth", "raster_res_m", 0.05, 50.0)
-    _need(cfg, source, "truth", "ortho_res_m", 0.02, 50.0)
+    _need(cfg, source, "scene", "terrain_res_m", lo=0.1, hi=10.0)
+    _need(cfg, source, "scene", "steep_slope_deg", lo=0.0, hi=60.0)
+    _need(cfg, source, "render", "samples", lo=1, hi=8, integer=True)
+    _need(cfg, source, "truth", "raster_res_m", lo=0.05, hi=50.0)
+    _need(cfg, source, "truth", "ortho_res_m", lo=0.02, hi=50.0)
     ref = cfg["scene"].get("counts_for_m")
     if ref is not None and not (isinstance(ref, (list, tuple)) and len(ref) == 2 and all(
             isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v) and v > 0 for v in ref)):
@@ -162,7 +162,7 @@ def validate(cfg: dict, source: str = "preset") -> None:
     if r.get("bits", 8) not in (8, 12):
         raise InputError(f"{source}: render.bits must be 8 or 12, got {r.get('bits')!r}")
     if "tile_px" in r:
-        t = _need(cfg, source, "render", "tile_px", 0, 4096, integer=True)
+        t = _need(cfg, source, "render", "tile_px", lo=0, hi=4096, integer=True)
         if t % 32:
             raise InputError(f"{source}: render.tile_px must be a multiple of 32 (or 0: untiled), got {t}")
     for section in ("render", "truth"):
@@ -170,11 +170,11 @@ def validate(cfg: dict, source: str = "preset") -> None:
             raise InputError(f"{source}: {section}.compress must be one of none, deflate, lzw, zstd, got "
                              f"{cfg[section].get('compress')!r}")
     if "texture_fine_m" in cfg["render"]:
-        _need(cfg, source, "render", "texture_fine_m", 0.01, 10.0)
+        _need(cfg, source, "render", "texture_fine_m", lo=0.01, hi=10.0)
     if "tie_sigma_px" in cfg.get("observations", {}):
-        _need(cfg, source, "observations", "tie_sigma_px", 0.0, 10.0)
+        _need(cfg, source, "observations", "tie_sigma_px", lo=0.0, hi=10.0)
     if "tie_points_per_frame" in cfg.get("observations", {}):
-        _need(cfg, source, "observations", "tie_points_per_frame", 1, 10000, integer=True)
+        _need(cfg, source, "observations", "tie_points_per_frame", lo=1, hi=10000, integer=True)
     lo, hi = cfg["scene"]["building_height_m"]
     if not (0 < lo <= hi):
         raise InputError(f"{source}: scene.building_height_m must be [min, max] with 0 < min <= max")

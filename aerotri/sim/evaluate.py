@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import csv
 import tomllib
+from dataclasses import dataclass
 
 import numpy as np
 import rasterio
@@ -22,7 +23,32 @@ def read_tiepoints(path):
             np.array([[float(r["x_px"]), float(r["y_px"])] for r in rows]).reshape(-1, 2))
 
 
-def tie_point_errors(project, tiepoints_csv=None, tol_px: float = 1.0) -> dict:
+@dataclass(frozen=True)
+class TiePointErrors:
+    """Tie observations checked against the truth: how many are off by more than ``off_by_more_than_px``."""
+
+    observations: int
+    tracks: int
+    off_by_more_than_px: float
+    off_count: int
+    off_fraction: float
+    median_residual_px: float
+    rms_residual_px: float  # of the observations not off
+
+
+@dataclass(frozen=True)
+class TruthRoofCorners:
+    """The simulator's roof corners (N): ids, positions (N, 3) in map metres, grid bearings (N, 2) of the
+    incoming and outgoing outline edge in [0, 180), corner angles and roof kinds."""
+
+    id: np.ndarray
+    xyz_m: np.ndarray
+    bearing_deg: np.ndarray
+    angle_deg: np.ndarray
+    roof: np.ndarray
+
+
+def tie_point_errors(project, tiepoints_csv=None, tol_px: float = 1.0) -> TiePointErrors:
     """Which tie observations are off by more than ``tol_px`` from their true image positions.
 
     Each track is intersected with the true orientations and the true camera (in the ENU frame of
@@ -82,18 +108,17 @@ def tie_point_errors(project, tiepoints_csv=None, tol_px: float = 1.0) -> dict:
     dz_tol = tol_px * cam.pixel_um * 1e-6 / (cam.focal_mm * 1e-3) * Hh ** 2 / np.maximum(B, 1e-6) + 0.3
     bad_height = (Xm[:, 2] > hi[rows, cols] + dz_tol) | (Xm[:, 2] < lo[rows, cols] - dz_tol)
     off |= two & bad_height[track]
-    return dict(observations=int(len(xy)), tracks=n, off_by_more_than_px=float(tol_px), off_count=int(off.sum()),
-                off_fraction=float(off.mean()) if len(off) else 0.0,
-                median_residual_px=float(np.median(res)) if len(res) else 0.0,
-                rms_residual_px=float(np.sqrt(np.mean(res[~off] ** 2))) if (~off).any() else 0.0)
+    return TiePointErrors(observations=int(len(xy)), tracks=n, off_by_more_than_px=float(tol_px),
+                          off_count=int(off.sum()), off_fraction=float(off.mean()) if len(off) else 0.0,
+                          median_residual_px=float(np.median(res)) if len(res) else 0.0,
+                          rms_residual_px=float(np.sqrt(np.mean(res[~off] ** 2))) if (~off).any() else 0.0)
 
 
-def truth_roof_corners(project) -> dict:
+def truth_roof_corners(project) -> TruthRoofCorners:
     """The simulator's roof corners with their edge bearings, in the ``lidarctl corners`` layout.
 
-    Reads ``truth/roof_corners.csv`` and the roof outlines of ``truth/buildings.geojson``. Returns
-    arrays: id, xyz_m (N, 3), bearing_deg (N, 2) (grid bearings of the incoming and outgoing outline
-    edge, [0, 180)), angle_deg, roof. For development and tests of the control transfer only.
+    Reads ``truth/roof_corners.csv`` and the roof outlines of ``truth/buildings.geojson``. For development
+    and tests of the control transfer only.
     """
     import json
     from pathlib import Path
@@ -122,23 +147,23 @@ def truth_roof_corners(project) -> dict:
         bearing.append(b)
         angle.append(float(r["angle_deg"]))
         roof.append(r["roof"])
-    return {"id": np.array(ids, dtype=object), "xyz_m": np.array(xyz), "bearing_deg": np.array(bearing),
-            "angle_deg": np.array(angle), "roof": np.array(roof, dtype=object)}
+    return TruthRoofCorners(id=np.array(ids, dtype=object), xyz_m=np.array(xyz), bearing_deg=np.array(bearing),
+                            angle_deg=np.array(angle), roof=np.array(roof, dtype=object))
 
 
 def write_truth_corners_csv(project, path, sigma_xy_m: float = 0.1, sigma_z_m: float = 0.05, seed: int = 0,
                             noise: bool = False) -> None:
     """A ``corners.csv`` from the simulator truth (score 1; optional Gaussian noise with the given sigmas)."""
     t = truth_roof_corners(project)
-    xyz = t["xyz_m"].copy()
+    xyz = t.xyz_m.copy()
     if noise:
         rng = np.random.default_rng(seed)
         xyz += rng.normal(0.0, 1.0, xyz.shape) * [sigma_xy_m, sigma_xy_m, sigma_z_m]
     lines = ["id,x,y,z,sx_m,sy_m,sz_m,roof,building_id,edge1_deg,edge2_deg,angle_deg,support_pts,score,usable"]
-    for k in range(len(t["id"])):
-        usable = int(t["roof"][k] == "flat")
-        lines.append(f"{t['id'][k]},{xyz[k, 0]:.4f},{xyz[k, 1]:.4f},{xyz[k, 2]:.4f},{sigma_xy_m},{sigma_xy_m},{sigma_z_m},"
-                     f"{t['roof'][k]},0,{t['bearing_deg'][k, 0]:.3f},{t['bearing_deg'][k, 1]:.3f},{t['angle_deg'][k]:.2f},"
+    for k in range(len(t.id)):
+        usable = int(t.roof[k] == "flat")
+        lines.append(f"{t.id[k]},{xyz[k, 0]:.4f},{xyz[k, 1]:.4f},{xyz[k, 2]:.4f},{sigma_xy_m},{sigma_xy_m},{sigma_z_m},"
+                     f"{t.roof[k]},0,{t.bearing_deg[k, 0]:.3f},{t.bearing_deg[k, 1]:.3f},{t.angle_deg[k]:.2f},"
                      f"100,1.0,{usable}")
     from aerotri.core.atomic import write_text_atomic
 

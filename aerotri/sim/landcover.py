@@ -57,12 +57,13 @@ def classes_and_nir(ids: np.ndarray, rad: np.ndarray, x_m: np.ndarray, y_m: np.n
     nir = np.empty(ids.size, np.float32)
     _classes_and_nir(ids.reshape(-1).astype(np.int64), np.ascontiguousarray(rad, np.float32).reshape(-1, 3),
                      np.ascontiguousarray(x_m, float).reshape(-1), np.ascontiguousarray(y_m, float).reshape(-1),
-                     shading.ground_index(scene), cls_lut, ratio_lut, roof_ratio, kind_ratio, classes, nir)
+                     G=shading.ground_index(scene), cls_lut=cls_lut, ratio_lut=ratio_lut, roof_ratio=roof_ratio,
+                     kind_ratio=kind_ratio, classes=classes, nir=nir)
     return classes.reshape(shape), nir.reshape(shape)
 
 
 @numba.njit(cache=True, parallel=True)
-def _classes_and_nir(ids, rad, x_m, y_m, G, cls_lut, ratio_lut, roof_ratio, kind_ratio, classes, nir):
+def _classes_and_nir(ids, rad, x_m, y_m, *, G, cls_lut, ratio_lut, roof_ratio, kind_ratio, classes, nir):
     three = numba.float32(3.0)
     for p in numba.prange(ids.shape[0]):
         kind = ids[p] // 1_000_000

@@ -43,7 +43,7 @@ GPS_TIME_OFFSET_S = 4.0e8  # LAS gps_time = simulation time + this (adjusted sta
 
 
 @numba.njit(cache=True, parallel=True)
-def _pulses(origins, dirs, S, u, p_first, p_interior, p_ground):
+def _pulses(origins, dirs, S, *, u, p_first, p_interior, p_ground):
     """Up to three returns per pulse: (t, kind, obj) arrays (n, 3); t = inf where no return.
 
     ``u`` (n, 3) are uniform random numbers deciding the canopy behaviour of each pulse.
@@ -220,7 +220,7 @@ class _Returns:
     cls_override: np.ndarray  # (n,)
 
 
-def _water_and_outliers(scene: Scene, sw: _Sweep, T, K, O, L: dict, rng) -> _Returns:
+def _water_and_outliers(scene: Scene, sw: _Sweep, T, *, K, O, L: dict, rng) -> _Returns:
     """Most pulses on water give no return; low outliers (beyond the surface, preferably under trees and
     in ponds) and high outliers (birds) replace the returns of some pulses."""
     n = len(sw.t)
@@ -296,7 +296,7 @@ def _truth_classes(scene: Scene, P, kind, gm, override) -> np.ndarray:
     return cls
 
 
-def scan_strip(scene: Scene, accel, line: LidarLine, L: dict, rng, width_m: float, i0: int = 0,
+def scan_strip(scene: Scene, accel, line: LidarLine, *, L: dict, rng, width_m: float, i0: int = 0,
                i1: int | None = None):
     """Simulate pulses ``i0..i1`` of one strip (default: all of it); returns a dict of point arrays in local
     metres plus truth classes (the fields ``las_record`` writes). Draws ``rng`` in a fixed order per chunk."""
@@ -305,9 +305,9 @@ def scan_strip(scene: Scene, accel, line: LidarLine, L: dict, rng, width_m: floa
     sw = _sweep(line, L, rng, width_m, i0, i1)
     n = len(sw.t)
     u = rng.random((n, 3))
-    T, K, O = _pulses(sw.origins, np.ascontiguousarray(sw.dirs), accel, u, L["canopy_first_return_prob"],
-                      L["canopy_interior_return_prob"], L["canopy_ground_return_prob"])
-    rt = _water_and_outliers(scene, sw, T, K, O, L, rng)
+    T, K, O = _pulses(sw.origins, np.ascontiguousarray(sw.dirs), accel, u=u, p_first=L["canopy_first_return_prob"],
+                      p_interior=L["canopy_interior_return_prob"], p_ground=L["canopy_ground_return_prob"])
+    rt = _water_and_outliers(scene, sw, T, K=K, O=O, L=L, rng=rng)
     valid = rt.valid
     nret = valid.sum(axis=1)
     pulse, ret = np.nonzero(valid)

@@ -381,7 +381,8 @@ def write_truth_observations(
         P = ground(int(points_per_image * len(C) / 1.5))
         proj = project_points(P, C, R, cam, H_above)
     else:
-        P, proj = _draw_tie_points(ground, C, R, cam, H_above, int(tie_points_per_frame) * len(C), min_rays)
+        P, proj = _draw_tie_points(ground, C, R, cam, H_above=H_above, n_points=int(tie_points_per_frame) * len(C),
+                                   min_rays=min_rays)
     ties, P_tie, blunder = make_observations(
         P, proj, eo.image_id, cam, "t", sigma_px=tie_sigma_px, min_rays=min_rays, blunder_fraction=blunder_fraction,
         blunder_px_range=blunder_px_range, rng=rng,
@@ -433,7 +434,7 @@ def write_truth_observations(
             "n_check": len(chk), "n_control_observations": len(cobs), "tie_blunders": blunders, "bad_control": bad_ids}
 
 
-def _draw_tie_points(ground, C, R, cam, H_above, n_points: int, min_rays: int):
+def _draw_tie_points(ground, C, R, cam, *, H_above, n_points: int, min_rays: int):
     """Random ground points (``ground(n)``), drawn in batches until ``n_points`` of them are seen in at least
     ``min_rays`` frames: the points up to that one and their projections (``project_points``). The points
     are independent and uniform, so the first ``n_points`` kept are a uniform sample too."""

@@ -59,7 +59,7 @@ def _compression(name: str) -> dict:
     return dict(compress=name)
 
 
-def _write_geotiff(path: Path, width: int, height: int, bands: int, dtype, transform, epsg: int, rows, nodata=None,
+def _write_geotiff(path: Path, width: int, height: int, *, bands: int, dtype, transform, epsg: int, rows, nodata=None,
                    block_rows: int | None = None, compress: str = "deflate"):
     """Tiled, compressed GeoTIFF with overviews-friendly 256 px blocks, written ``block_rows`` rows at a time:
     ``rows(r0, r1)`` gives rows r0..r1 as (r1 - r0, width[, bands]), so a raster of any size is made in
@@ -116,7 +116,7 @@ class _TileRowWriter:
         self.row += len(arr)
 
 
-def _open_geotiff(path: Path, width: int, height: int, dtype, transform, epsg: int, nodata=None,
+def _open_geotiff(path: Path, width: int, height: int, *, dtype, transform, epsg: int, nodata=None,
                   compress: str = "deflate"):
     """A single-band GeoTIFF open for writing by windows, with ``_write_geotiff``'s layout."""
     return rasterio.open(path, "w", driver="GTiff", width=width, height=height, count=1, dtype=np.dtype(dtype).name,
@@ -240,23 +240,27 @@ def simulate(cfg: dict, outdir, force: bool = False, on_phase=None) -> SimTruth:
             (tmp / sub).mkdir(parents=True, exist_ok=True)
         n_frames = len(plan.image_id)
         with measure() as usage:
-            gains = _render_frames(tmp / "images", cfg, look, plan, cam_true, s_frames, earth)
+            gains = _render_frames(tmp / "images", cfg, look=look, plan=plan, cam_true=cam_true, s_frames=s_frames,
+                                   earth=earth)
         done("frames", usage, frames=n_frames, megapixels=n_frames * cam_true.width * cam_true.height / 1e6)
         log.info(f"rendered {n_frames} frames of {cam_true.width} x {cam_true.height} px in {usage.wall_s:.1f} s")
         planned = lidar_plan(cfg)
-        log.info("LiDAR planned: {strips} strips, {pulses} pulses over {scene_km2} km2".format(**planned))
+        log.info(f"LiDAR planned: {planned.strips} strips, {planned.pulses} pulses over {planned.scene_km2} km2")
         with measure() as usage:
-            lidar = _scan_lidar(tmp, cfg, layout, scene, accel, origin, epsg, s_lidar)
-        done("lidar", usage, points=int(lidar.points), pulses=int(planned["pulses"]))
+            lidar = _scan_lidar(tmp, cfg, layout=layout, scene=scene, accel=accel, origin=origin, epsg=epsg,
+                                s_lidar=s_lidar)
+        done("lidar", usage, points=int(lidar.points), pulses=int(planned.pulses))
         log.info(f"scanned {lidar.lines} LiDAR strips, {lidar.points} points in {usage.wall_s:.1f} s")
         with measure() as usage:
             megapixels = _write_truth_rasters(tmp / "truth", cfg, layout, look, origin, epsg)
         done("truth_rasters", usage, megapixels=megapixels)
         with measure() as usage:
-            _write_project_files(tmp, cfg, plan, cam_true, cam_nominal, origin, epsg, gains)
+            _write_project_files(tmp, cfg, plan=plan, cam_true=cam_true, cam_nominal=cam_nominal, origin=origin,
+                                 epsg=epsg, gains=gains)
             corners = scene.roof_corners()
             _write_truth_corners(tmp / "truth", scene, corners, origin)
-            targets = _write_check_targets(tmp / "truth", scene, accel, plan, cam_true, origin, earth)
+            targets = _write_check_targets(tmp / "truth", scene=scene, accel=accel, plan=plan, cam_true=cam_true,
+                                           origin=origin, earth=earth)
             _write_flight_acceptance(tmp / "truth", cfg, plan, cam_true, origin)
         done("other", usage)
         truth = SimTruth(
@@ -298,18 +302,28 @@ def texture_fine_m(cfg: dict, cam_true) -> float:
     return float(v) if v else float(cam_true.gsd_m(cfg["flight"]["height_above_ground_m"]))
 
 
-def frame_layout(cfg: dict) -> dict:
-    """How frames are written: sample depth, bands and TIFF layout from ``[render]`` (``bits`` 8 or 12, ``bands``
-    rgb or pan, ``tile_px``, ``compress``)."""
+@dataclasses.dataclass(frozen=True)
+class FrameLayout:
+    """How frames are written: sample depth, bands and TIFF layout."""
+
+    bits: int  # 8 or 12
+    dtype: str  # "uint8" or "uint16"
+    tile_px: int  # 0: strips written by OpenCV
+    bands: int  # 3 (RGB) or 1 (pan)
+    compress: str
+
+
+def frame_layout(cfg: dict) -> FrameLayout:
+    """The frame layout from ``[render]`` (``bits`` 8 or 12, ``bands`` rgb or pan, ``tile_px``, ``compress``)."""
     r = cfg["render"]
     bits = int(r.get("bits", 8))
     tile = int(r.get("tile_px", 0))
-    return dict(bits=bits, dtype="uint8" if bits == 8 else "uint16", tile_px=tile,
-                bands=1 if r.get("bands", "rgb") == "pan" else 3,
-                compress=str(r.get("compress", "none")) if tile else "lzw (OpenCV)")
+    return FrameLayout(bits=bits, dtype="uint8" if bits == 8 else "uint16", tile_px=tile,
+                       bands=1 if r.get("bands", "rgb") == "pan" else 3,
+                       compress=str(r.get("compress", "none")) if tile else "lzw (OpenCV)")
 
 
-def _render_frames(images_dir: Path, cfg: dict, look, plan, cam_true, s_frames, earth: SimEarth) -> list[float]:
+def _render_frames(images_dir: Path, cfg: dict, *, look, plan, cam_true, s_frames, earth: SimEarth) -> list[float]:
     """Render, expose and write every frame (``images_dir/<image_id>.tif``) as seen on ``earth``; the exposure
     gain of each.
 
@@ -318,8 +332,8 @@ def _render_frames(images_dir: Path, cfg: dict, look, plan, cam_true, s_frames, 
     """
     rcfg = cfg["render"]
     fl = frame_layout(cfg)
-    renderer = raster.FrameRenderer(look.scene, cam_true, look.fine_m, int(rcfg["samples"]), fl["bits"], look=look,
-                                    bands=fl["bands"])
+    renderer = raster.FrameRenderer(look.scene, cam_true, look.fine_m, samples=int(rcfg["samples"]), bits=fl.bits,
+                                    look=look, bands=fl.bands)
     frame_seeds = s_frames.spawn(len(plan.image_id))
     gains = []
     for i in track(range(len(plan.image_id)), "frames"):
@@ -331,7 +345,7 @@ def _render_frames(images_dir: Path, cfg: dict, look, plan, cam_true, s_frames, 
         R = rotation_matrix_opk(*plan.opk_deg[i])
         frame = renderer.setup(plan.centre_m[i], R, earth.frame_earth(plan.centre_m[i], R))
         path = images_dir / f"{plan.image_id[i]}.tif"
-        if fl["tile_px"]:
+        if fl.tile_px:
             _write_tiled_frame(path, renderer, frame, expo, fl)
         else:
             img, _ = renderer.render_rows(frame, 0, cam_true.height, **expo)
@@ -343,12 +357,12 @@ def _write_tiled_frame(path: Path, renderer, frame, expo: dict, fl: dict) -> Non
     """One frame as a tiled TIFF (pixel-interleaved R, G, B, or one panchromatic band; no georeferencing, as
     cameras deliver), rendered and written one row of tiles at a time."""
     cam = renderer.camera
-    tile = fl["tile_px"]
-    profile = dict(driver="GTiff", width=cam.width, height=cam.height, count=fl["bands"], dtype=fl["dtype"], tiled=True,
-                   blockxsize=tile, blockysize=tile, photometric="RGB" if fl["bands"] == 3 else "MINISBLACK",
+    tile = fl.tile_px
+    profile = dict(driver="GTiff", width=cam.width, height=cam.height, count=fl.bands, dtype=fl.dtype, tiled=True,
+                   blockxsize=tile, blockysize=tile, photometric="RGB" if fl.bands == 3 else "MINISBLACK",
                    interleave="pixel", bigtiff="IF_SAFER")
-    if fl["compress"] != "none":
-        profile.update(_compression(fl["compress"]))
+    if fl.compress != "none":
+        profile.update(_compression(fl.compress))
     with warnings.catch_warnings():
         warnings.filterwarnings("ignore", category=rasterio.errors.NotGeoreferencedWarning)
         with rasterio.open(path, "w", **profile) as dst:
@@ -358,17 +372,25 @@ def _write_tiled_frame(path: Path, renderer, frame, expo: dict, fl: dict) -> Non
                 dst.write(np.moveaxis(rows, 2, 0), window=rasterio.windows.Window(0, r0, cam.width, r1 - r0))
 
 
-def lidar_plan(cfg: dict) -> dict:
-    """What the preset's LiDAR will be, before any scanning: strips, pulses (each gives 0 to 3 points:
-    none off the scene or on most water, several in trees: 0.5 points a pulse on tiny, 0.6 on demo)
-    and the scene area."""
+@dataclasses.dataclass(frozen=True)
+class LidarPlan:
+    """What the preset's LiDAR will be, before any scanning: strips, pulses (each gives 0 to 3 points: none
+    off the scene or on most water, several in trees: 0.5 points a pulse on tiny, 0.6 on demo), scene area."""
+
+    strips: int
+    pulses: int
+    scene_km2: float
+
+
+def lidar_plan(cfg: dict) -> LidarPlan:
+    """The preset's ``LidarPlan``."""
     layout = block_layout(cfg)
     lines = lidar_lines(cfg, layout)
-    return dict(strips=len(lines), pulses=sum(strip_pulses(line, cfg["lidar"], layout.width_m) for line in lines),
-                scene_km2=round(layout.width_m * layout.height_m / 1e6, 3))
+    return LidarPlan(strips=len(lines), pulses=sum(strip_pulses(line, cfg["lidar"], layout.width_m) for line in lines),
+                     scene_km2=round(layout.width_m * layout.height_m / 1e6, 3))
 
 
-def _scan_lidar(tmp: Path, cfg: dict, layout, scene, accel, origin, epsg: int, s_lidar) -> _LidarSummary:
+def _scan_lidar(tmp: Path, cfg: dict, *, layout, scene, accel, origin, epsg: int, s_lidar) -> _LidarSummary:
     """Scan every LiDAR strip: ``lidar/`` unclassified with a per-strip offset, ``truth/lidar/`` the same points
     with their true classes."""
     L = cfg["lidar"]
@@ -389,7 +411,7 @@ def _scan_lidar(tmp: Path, cfg: dict, layout, scene, accel, origin, epsg: int, s
         with (laspy.open(tmp / "lidar" / name, mode="w", header=las_header(origin, epsg)) as obs_las,
               laspy.open(tmp / "truth" / "lidar" / name, mode="w", header=las_header(origin, epsg)) as truth_las):
             for i0, i1 in chunks:
-                pts = scan_strip(scene, accel, line, L, lrng, layout.width_m, i0, i1)
+                pts = scan_strip(scene, accel, line, L=L, rng=lrng, width_m=layout.width_m, i0=i0, i1=i1)
                 if off is None:
                     off = lrng.normal(0.0, L["strip_offset_sigma_m"], 3)
                 pts["xyz"] = pts["xyz"] + off
@@ -407,7 +429,7 @@ def _scan_lidar(tmp: Path, cfg: dict, layout, scene, accel, origin, epsg: int, s
     return _LidarSummary(len(lines), n_points, strip_offsets, class_counts)
 
 
-def _write_project_files(tmp: Path, cfg: dict, plan, cam_true, cam_nominal, origin, epsg: int, gains,
+def _write_project_files(tmp: Path, cfg: dict, *, plan, cam_true, cam_nominal, origin, epsg: int, gains,
                          chain: dict | None = None) -> None:
     """project.toml, camera.toml, gnss.txt and the flight truth (truth/eo.txt, camera.toml, gnss_truth.toml,
     frames.csv). ``chain``: the stage sections of project.toml (default: the preset's ``[chain]``)."""
@@ -466,7 +488,7 @@ def _write_truth_corners(truth_dir: Path, scene, corners: list[dict], origin) ->
     _write_buildings_geojson(truth_dir / "buildings.geojson", scene, origin)
 
 
-def _write_check_targets(truth_dir: Path, scene, accel, plan, cam_true, origin, earth: SimEarth) -> _CheckTargets:
+def _write_check_targets(truth_dir: Path, *, scene, accel, plan, cam_true, origin, earth: SimEarth) -> _CheckTargets:
     """truth/checkpoints.csv (the painted targets) and truth/checkpoint_image_points.csv (their true image
     positions, on ``earth``, in every frame that sees the whole target)."""
     tgt = np.column_stack([scene.targets[:, :2], scene.target_z]) if len(scene.targets) else np.zeros((0, 3))
@@ -515,27 +537,29 @@ def _write_truth_rasters(truth_dir: Path, cfg: dict, layout, look, origin, epsg:
         return scene.terrain_height(X, Y) + origin[2]
 
     def dsm_rows(r0, r1):
-        z, _, _ = raster.ortho_render(look, 0.0, layout.height_m, res, r0, r1, nx, shade=False)
+        z, _, _ = raster.ortho_render(look, 0.0, layout.height_m, res, r0=r0, r1=r1, ncols=nx, shade=False)
         return z + origin[2]
 
-    _write_geotiff(truth_dir / "dem.tif", nx, ny, 1, np.float32, transform, epsg, dem_rows, nodata=-9999.0,
-                   compress=compress)
-    _write_geotiff(truth_dir / "dsm.tif", nx, ny, 1, np.float32, transform, epsg, dsm_rows, nodata=-9999.0,
-                   compress=compress)
+    _write_geotiff(truth_dir / "dem.tif", nx, ny, bands=1, dtype=np.float32, transform=transform, epsg=epsg,
+                   rows=dem_rows, nodata=-9999.0, compress=compress)
+    _write_geotiff(truth_dir / "dsm.tif", nx, ny, bands=1, dtype=np.float32, transform=transform, epsg=epsg,
+                   rows=dsm_rows, nodata=-9999.0, compress=compress)
     ores = cfg["truth"]["ortho_res_m"]
     onx, ony = int(math.floor(layout.width_m / ores)), int(math.floor(layout.height_m / ores))
     oxs = (np.arange(onx) + 0.5) * ores
 
     otransform = from_origin(origin[0], origin[1] + layout.height_m, ores, ores)
     # The land-cover truth (extra files beside ortho.tif, from the same view).
-    with _open_geotiff(truth_dir / "ortho_nir.tif", onx, ony, np.uint8, otransform, epsg, compress=compress) as nir_dst, \
-            _open_geotiff(truth_dir / "classes.tif", onx, ony, np.uint8, otransform, epsg, nodata=landcover.NODATA,
+    with _open_geotiff(truth_dir / "ortho_nir.tif", onx, ony, dtype=np.uint8, transform=otransform, epsg=epsg,
+                       compress=compress) as nir_dst, \
+            _open_geotiff(truth_dir / "classes.tif", onx, ony, dtype=np.uint8, transform=otransform, epsg=epsg,
+                          nodata=landcover.NODATA,
                           compress=compress) as cls_dst:
         nir_out, cls_out = _TileRowWriter(nir_dst, np.uint8, band=1), _TileRowWriter(cls_dst, np.uint8, band=1)
 
         def ortho_rows(r0, r1):
             OX, OY = grid(ores, oxs, r0, r1)
-            _, rad, ids = raster.ortho_render(look, 0.0, layout.height_m, ores, r0, r1, onx)
+            _, rad, ids = raster.ortho_render(look, 0.0, layout.height_m, ores, r0=r0, r1=r1, ncols=onx)
             classes, nir = landcover.classes_and_nir(ids.ravel(), rad.reshape(-1, 3), OX.ravel(), OY.ravel(), scene)
             nir_out.write(raster.tone8(nir.reshape(OX.shape)[..., None])[..., 0])
             cls_out.write(classes.reshape(OX.shape))
@@ -543,9 +567,9 @@ def _write_truth_rasters(truth_dir: Path, cfg: dict, layout, look, origin, epsg:
                 return raster.tone8(((rad[..., 0] + rad[..., 1]) + rad[..., 2]) / np.float32(3.0))
             return raster.tone8(rad)
 
-        ortho_bands = frame_layout(cfg)["bands"]
-        _write_geotiff(truth_dir / "ortho.tif", onx, ony, ortho_bands, np.uint8, otransform, epsg, ortho_rows,
-                       compress=compress)
+        ortho_bands = frame_layout(cfg).bands
+        _write_geotiff(truth_dir / "ortho.tif", onx, ony, bands=ortho_bands, dtype=np.uint8, transform=otransform,
+                       epsg=epsg, rows=ortho_rows, compress=compress)
         nir_out.close()
         cls_out.close()
     return (2 * nx * ny + onx * ony) / 1e6
@@ -739,8 +763,8 @@ def simulate_observations(cfg: dict, outdir, force: bool = False, *, tie_sigma_p
              f"truth terrain at {terrain.terrain_res_m:.2f} m")
     with atomic_dir(outdir) as tmp, stage_block_cache(SIM_CACHE_BYTES):
         (tmp / "truth").mkdir(parents=True, exist_ok=True)
-        _write_project_files(tmp, cfg, plan, cam_true, cam_nominal, origin, epsg, [1.0] * len(plan.image_id),
-                             chain=observations_chain(cfg, cam_true, cam_nominal))
+        _write_project_files(tmp, cfg, plan=plan, cam_true=cam_true, cam_nominal=cam_nominal, origin=origin, epsg=epsg,
+                             gains=[1.0] * len(plan.image_id), chain=observations_chain(cfg, cam_true, cam_nominal))
         res = terrain.terrain_res_m
         nx, ny = int(math.floor(layout.width_m / res)), int(math.floor(layout.height_m / res))
         xs = (np.arange(nx) + 0.5) * res
@@ -749,8 +773,9 @@ def simulate_observations(cfg: dict, outdir, force: bool = False, *, tie_sigma_p
             X, Y = np.meshgrid(xs, layout.height_m - (np.arange(r0, r1) + 0.5) * res)
             return terrain.terrain_height(X, Y) + origin[2]
 
-        _write_geotiff(tmp / "dem.tif", nx, ny, 1, np.float32, from_origin(origin[0], origin[1] + layout.height_m, res, res),
-                       epsg, dem_rows, nodata=-9999.0, compress=str(cfg["truth"].get("compress", "deflate")))
+        _write_geotiff(tmp / "dem.tif", nx, ny, bands=1, dtype=np.float32,
+                       transform=from_origin(origin[0], origin[1] + layout.height_m, res, res), epsg=epsg,
+                       rows=dem_rows, nodata=-9999.0, compress=str(cfg["truth"].get("compress", "deflate")))
         _write_flight_acceptance(tmp / "truth", cfg, plan, cam_true, origin, dem=tmp / "dem.tif")
         summary = write_truth_observations(tmp, tie_sigma_px=tie_sigma_px, n_control=n_control,
                                            blunder_fraction=blunder_fraction, bad_control_shift_m=bad_control_shift_m,

@@ -122,7 +122,7 @@ class SceneLook:
 class FrameSetup:
     """The primitives of one frame, projected into it and binned into bands of rows."""
 
-    def __init__(self, look: SceneLook, camera: Camera, centre_m, R, band_rows: int = BAND_ROWS,
+    def __init__(self, look: SceneLook, camera: Camera, centre_m, R, *, band_rows: int = BAND_ROWS,
                  sample_reach_px: float = 0.0, earth: FrameEarth | None = None):
         """``earth``: the frame's map -> camera-frame transformation (``aerotri.sim.earth``); default the flat
         world (scene coordinates taken as a Cartesian frame)."""
@@ -143,7 +143,8 @@ class FrameSetup:
         ti1 = int(np.clip(math.ceil(ymax / res) + 1, self.ti0 + 1, ny - 1))
         self.tj0 = int(np.clip(math.floor(xmin / res) - 1, 0, nx - 2))
         tj1 = int(np.clip(math.ceil(xmax / res) + 1, self.tj0 + 1, nx - 1))
-        self.V, PX, PY = _project_nodes(look.hz, res, self.ti0, ti1, self.tj0, tj1, self.C, e.A, e.q, params)
+        self.V, PX, PY = _project_nodes(look.hz, res, i0=self.ti0, i1=ti1, j0=self.tj0, j1=tj1, C=self.C, A=e.A, q=e.q,
+                                        params=params)
         # sub-pixel samples sit up to sample_reach_px from the pixel centres
         margin = CELL_MARGIN_PX + float(sample_reach_px)
         rmin, rmax = _cell_rows(PX, PY, W, H, margin)
@@ -208,7 +209,7 @@ class FrameSetup:
 
 
 @numba.njit(cache=True, parallel=True)
-def _project_nodes(hz, res, i0, i1, j0, j1, C, A, q, params):
+def _project_nodes(hz, res, *, i0, i1, j0, j1, C, A, q, params):
     """Camera-frame coordinates (ni, nj, 3) and pixel positions of the terrain nodes i0..i1 x j0..j1 (map offsets
     from ``C`` -> camera frame: ``earth.FrameEarth`` ``A``, ``q``)."""
     ni = i1 - i0 + 1
@@ -421,7 +422,7 @@ def _hit_normal(typ, idx, x, y, z, dx, dy, dz, gi0, gj0, ncj, hz, res, tn, tkind
 
 
 @numba.njit(cache=True, parallel=True)
-def _render_bands(band0, band1, row_out0, W, H, band_rows, step, XN, YN, C, A_inv, quad, curved,
+def _render_bands(band0, band1, row_out0, *, W, H, band_rows, step, XN, YN, C, A_inv, quad, curved,
                   V, ti0, tj0, cell_start, cell_list, cell_box,
                   TV, tri_ids, tri_start, tri_list, tri_box,
                   tree_ids, tree_start, tree_list, tree_box, tree_G, tree_s,
@@ -684,7 +685,7 @@ class FrameRenderer:
     1: panchromatic (the mean of the R, G, B radiance).
     """
 
-    def __init__(self, scene: Scene, camera: Camera, fine_m: float, samples: int = 1, bits: int = 8,
+    def __init__(self, scene: Scene, camera: Camera, fine_m: float, *, samples: int = 1, bits: int = 8,
                  look: SceneLook | None = None, bands: int = 3):
         if bits not in (8, 12):
             raise ValueError(f"bits must be 8 or 12, got {bits}")
@@ -708,7 +709,7 @@ class FrameRenderer:
         ``aerotri.sim.earth.FrameEarth`` (default: the flat world)."""
         return FrameSetup(self.look, self.camera, centre_m, R, sample_reach_px=self.sample_reach_px, earth=earth)
 
-    def render_rows(self, frame: FrameSetup, r0: int, r1: int, gain: float = 1.0, vignetting: float = 0.0,
+    def render_rows(self, frame: FrameSetup, r0: int, r1: int, *, gain: float = 1.0, vignetting: float = 0.0,
                     noise_dn: float = 0.0, noise_seed: int = 0, with_ids: bool = False):
         """Rows r0..r1-1 (r0 a multiple of ``BAND_ROWS``) as (rows, width, bands) samples, and optionally the
         surface id of each pixel centre (kind * 1_000_000 + object, 0 where the ray leaves the scene)."""
@@ -720,14 +721,17 @@ class FrameRenderer:
         out = np.empty((r1 - r0, cam.width, self.bands), self.dtype)
         ids = np.empty((r1 - r0, cam.width) if with_ids else (1, 1), np.int64)
         L = self.look
-        _render_bands(r0 // br, (r1 + br - 1) // br, r0, cam.width, cam.height, br, float(self.step), self.XN, self.YN,
-                      frame.C, frame.earth.A_inv, frame.earth.q, bool(frame.earth.q.any()), frame.V, frame.ti0, frame.tj0, frame.cell_start,
-                      frame.cell_list, frame.cell_box, frame.TV, frame.tri_ids, frame.tri_start, frame.tri_list,
-                      frame.tri_box, frame.tree_ids, frame.tree_start, frame.tree_list, frame.tree_box, frame.tree_G,
-                      frame.tree_s,
-                      L.hz, L.res, L.tn, L.tkind, L.tobj, L.tc, L.ta, L.G, L.roof_albedo, L.fine_m, L.sun,
-                      float(gain), float(vignetting), float(noise_dn), np.uint32(noise_seed & 0xFFFFFFFF), self.bits, self.lut,
-                      out, ids, with_ids)
+        _render_bands(r0 // br, (r1 + br - 1) // br, r0, W=cam.width, H=cam.height, band_rows=br, step=float(self.step),
+                      XN=self.XN, YN=self.YN, C=frame.C, A_inv=frame.earth.A_inv, quad=frame.earth.q,
+                      curved=bool(frame.earth.q.any()), V=frame.V, ti0=frame.ti0, tj0=frame.tj0,
+                      cell_start=frame.cell_start, cell_list=frame.cell_list, cell_box=frame.cell_box, TV=frame.TV,
+                      tri_ids=frame.tri_ids, tri_start=frame.tri_start, tri_list=frame.tri_list, tri_box=frame.tri_box,
+                      tree_ids=frame.tree_ids, tree_start=frame.tree_start, tree_list=frame.tree_list,
+                      tree_box=frame.tree_box, tree_G=frame.tree_G, tree_s=frame.tree_s, hz=L.hz, res=L.res, tn=L.tn,
+                      tkind=L.tkind, tobj=L.tobj, tc=L.tc, ta=L.ta, G=L.G, roof_albedo=L.roof_albedo, fine_m=L.fine_m,
+                      sun=L.sun, gain=float(gain), vignetting=float(vignetting), noise_dn=float(noise_dn),
+                      noise_seed=np.uint32(noise_seed & 0xFFFFFFFF), bits=self.bits, lut=self.lut, out=out, ids_out=ids,
+                      want_ids=with_ids)
         return out, (ids if with_ids else None)
 
     def render(self, centre_m, R, **kw):
@@ -741,7 +745,7 @@ class FrameRenderer:
 
 
 @numba.njit(cache=True, parallel=True)
-def _ortho_rows(x0, ytop, step_m, r0, nrows, ncols, hz, res, tv, tri_ids, tree_ids, tc, ta, sub_rows, zout, code):
+def _ortho_rows(x0, ytop, step_m, r0, *, nrows, ncols, hz, res, tv, tri_ids, tree_ids, tc, ta, sub_rows, zout, code):
     """Highest surface at pixel centres (x0 + (c + 0.5) step, ytop - (r + 0.5) step), rows r0..r0+nrows-1:
     height into ``zout`` and primitive code into ``code``."""
     ny, nx = hz.shape
@@ -828,7 +832,7 @@ def _ortho_rows(x0, ytop, step_m, r0, nrows, ncols, hz, res, tv, tri_ids, tree_i
 
 
 @numba.njit(cache=True, parallel=True)
-def _ortho_shade(x0, ytop, step_m, r0, zin, code, hz, res, tn, tkind, tobj, tc, ta, G, roof_albedo, fine_m, sun,
+def _ortho_shade(x0, ytop, step_m, r0, *, zin, code, hz, res, tn, tkind, tobj, tc, ta, G, roof_albedo, fine_m, sun,
                  rad, ids):
     nrows, ncols = zin.shape
     nxc = hz.shape[1] - 1
@@ -857,7 +861,7 @@ def _ortho_shade(x0, ytop, step_m, r0, zin, code, hz, res, tn, tkind, tobj, tc, 
         shading.shade_points(X, Y, Z, kind, obj, NX, NY, NZ, G, roof_albedo, fine_m, sun, rad[a])
 
 
-def ortho_render(look: SceneLook, x0_m: float, ytop_m: float, step_m: float, r0: int, r1: int, ncols: int,
+def ortho_render(look: SceneLook, x0_m: float, ytop_m: float, step_m: float, *, r0: int, r1: int, ncols: int,
                  shade: bool = True):
     """Straight-down view of rows r0..r1-1 of the grid with pixel centres (x0 + (c + 0.5) step,
     ytop - (r + 0.5) step) (local metres): surface height (rows, cols), and with ``shade`` the radiance
@@ -879,14 +883,16 @@ def ortho_render(look: SceneLook, x0_m: float, ytop_m: float, step_m: float, r0:
         trees = np.zeros(0, np.int64)
     z = np.empty((nrows, ncols))
     code = np.empty((nrows, ncols), np.int64)
-    _ortho_rows(float(x0_m), float(ytop_m), float(step_m), int(r0), nrows, int(ncols), look.hz, look.res, look.tv,
-                tri, trees, look.tc, look.ta, 16, z, code)
+    _ortho_rows(float(x0_m), float(ytop_m), float(step_m), int(r0), nrows=nrows, ncols=int(ncols), hz=look.hz,
+                res=look.res, tv=look.tv, tri_ids=tri, tree_ids=trees, tc=look.tc, ta=look.ta, sub_rows=16, zout=z,
+                code=code)
     if not shade:
         return z, None, None
     rad = np.empty((nrows, ncols, 3), np.float32)
     ids = np.empty((nrows, ncols), np.int64)
-    _ortho_shade(float(x0_m), float(ytop_m), float(step_m), int(r0), z, code, look.hz, look.res, look.tn, look.tkind,
-                 look.tobj, look.tc, look.ta, look.G, look.roof_albedo, look.fine_m, look.sun, rad, ids)
+    _ortho_shade(float(x0_m), float(ytop_m), float(step_m), int(r0), zin=z, code=code, hz=look.hz, res=look.res,
+                 tn=look.tn, tkind=look.tkind, tobj=look.tobj, tc=look.tc, ta=look.ta, G=look.G,
+                 roof_albedo=look.roof_albedo, fine_m=look.fine_m, sun=look.sun, rad=rad, ids=ids)
     return z, rad, ids
 
 

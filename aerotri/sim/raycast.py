@@ -438,7 +438,7 @@ SUN = np.array([0.35, -0.45, 0.82]) / np.linalg.norm([0.35, -0.45, 0.82])
 
 
 @numba.njit(cache=True, parallel=True)
-def render_rays(origins, dirs, S, roads, ponds, targets, roof_albedo, seed, sun):
+def render_rays(origins, dirs, S, *, roads, ponds, targets, roof_albedo, seed, sun):
     """Radiance (N, 3) float32 and surface ids (N,) for rays; ``origins`` is (N, 3) or (1, 3).
 
     ids: kind * 1_000_000 + object id (building id, tree index; 0 for terrain).

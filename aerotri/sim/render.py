@@ -50,7 +50,7 @@ class PixelRays:
         return d
 
 
-def render_frame(scene: Scene, accel, camera: Camera, centre_m, R, samples: int = 2,
+def render_frame(scene: Scene, accel, camera: Camera, centre_m, R, *, samples: int = 2,
                  rows_per_block: int = 256, with_ids: bool = False, pixel_rays: PixelRays | None = None):
     """Radiance image (H, W, 3) float32 of one frame, and optionally the surface id of each pixel centre: a ray per
     pixel sample in the flat world (scene coordinates as a Cartesian frame; the reference of the rasteriser's
@@ -67,16 +67,17 @@ def render_frame(scene: Scene, accel, camera: Camera, centre_m, R, samples: int 
         for oy in pr.offsets:
             for ox in pr.offsets:
                 d = np.ascontiguousarray(pr.block(r0, r1, ox, oy) @ M)
-                rad, _ = raycast.render_rays(origin, d, accel, scene.roads, scene.ponds,
-                                             scene.targets, scene.roof_albedo, scene.seed, SUN)
+                rad, _ = raycast.render_rays(origin, d, accel, roads=scene.roads, ponds=scene.ponds,
+                                             targets=scene.targets, roof_albedo=scene.roof_albedo, seed=scene.seed,
+                                             sun=SUN)
                 acc += rad.reshape(r1 - r0, W, 3)
         out[r0:r1] = acc / (pr.samples * pr.samples)
         if with_ids:
             rows = np.arange(r0, r1, dtype=np.float64)
             yy, xx = np.meshgrid(rows, np.arange(W, dtype=np.float64), indexing="ij")
             d = camera.rays(xx.ravel(), yy.ravel(), R)
-            _, idb = raycast.render_rays(origin, np.ascontiguousarray(d), accel, scene.roads, scene.ponds,
-                                         scene.targets, scene.roof_albedo, scene.seed, SUN)
+            _, idb = raycast.render_rays(origin, np.ascontiguousarray(d), accel, roads=scene.roads, ponds=scene.ponds,
+                                         targets=scene.targets, roof_albedo=scene.roof_albedo, seed=scene.seed, sun=SUN)
             ids[r0:r1] = idb.reshape(r1 - r0, W)
     return out, ids
 
@@ -102,8 +103,8 @@ def vertical_render(scene: Scene, accel, x_m: np.ndarray, y_m: np.ndarray):
     origins[:, 2] = top
     dirs = np.zeros((n, 3))
     dirs[:, 2] = -1.0
-    rad, ids = raycast.render_rays(origins, dirs, accel, scene.roads, scene.ponds, scene.targets,
-                                   scene.roof_albedo, scene.seed, SUN)
+    rad, ids = raycast.render_rays(origins, dirs, accel, roads=scene.roads, ponds=scene.ponds, targets=scene.targets,
+                                   roof_albedo=scene.roof_albedo, seed=scene.seed, sun=SUN)
     t, kind, _, _ = raycast.cast_many(origins, dirs, accel, True)
     z = np.where(np.isfinite(t), top - t, np.nan)
     return z.reshape(x_m.shape), rad.reshape(x_m.shape + (3,)), ids.reshape(x_m.shape)

@@ -81,9 +81,10 @@ def build_ground_index(scene, cell_m: float = GROUND_CELL_M) -> GroundIndex:
     ny = max(1, int(math.ceil(y_hi / cell_m)) + 1)
     cells, codes = [], []
 
-    def add(kind, k, j0, j1, i0, i1, keep=None):
-        j0, j1 = max(j0, 0), min(j1, nx - 1)
-        i0, i1 = max(i0, 0), min(i1, ny - 1)
+    def add(kind, k, cols, rows, keep=None):
+        # cols, rows: the (first, last) cell columns and rows of the feature's box
+        j0, j1 = max(cols[0], 0), min(cols[1], nx - 1)
+        i0, i1 = max(rows[0], 0), min(rows[1], ny - 1)
         if j0 > j1 or i0 > i1:
             return
         ii, jj = np.mgrid[i0: i1 + 1, j0: j1 + 1]
@@ -99,11 +100,11 @@ def build_ground_index(scene, cell_m: float = GROUND_CELL_M) -> GroundIndex:
 
     for k, (x, y, r) in enumerate(scene.targets):
         reach = 1.8 * r + 1e-6
-        add(_TARGETS, k, *span(x - reach, x + reach), *span(y - reach, y + reach))
+        add(_TARGETS, k, span(x - reach, x + reach), span(y - reach, y + reach))
     for k, (cx, cy, a, b, ang, _) in enumerate(scene.ponds):
         hx = math.hypot(a * math.cos(ang), b * math.sin(ang)) + 1e-6
         hy = math.hypot(a * math.sin(ang), b * math.cos(ang)) + 1e-6
-        add(_PONDS, k, *span(cx - hx, cx + hx), *span(cy - hy, cy + hy))
+        add(_PONDS, k, span(cx - hx, cx + hx), span(cy - hy, cy + hy))
     half_diag = cell_m / math.sqrt(2.0)
     for k, (x0, y0, x1, y1, w) in enumerate(scene.roads):
         ex, ey = x1 - x0, y1 - y0
@@ -111,13 +112,13 @@ def build_ground_index(scene, cell_m: float = GROUND_CELL_M) -> GroundIndex:
         ux, uy = ex / L, ey / L
         reach = w / 2.0 + half_diag + 1e-6
 
-        def near(ii, jj, x0=x0, y0=y0, ux=ux, uy=uy, L=L, reach=reach):
+        def near(ii, jj, *, x0=x0, y0=y0, ux=ux, uy=uy, L=L, reach=reach):
             # cell centres within reach of the road's rectangle (segment +- w/2, flat ends)
             px, py = (jj + 0.5) * cell_m - x0, (ii + 0.5) * cell_m - y0
             s = np.clip(px * ux + py * uy, 0.0, L)
             return np.hypot(px - s * ux, py - s * uy) <= reach
 
-        add(_ROADS, k, *span(min(x0, x1) - reach, max(x0, x1) + reach), *span(min(y0, y1) - reach, max(y0, y1) + reach),
+        add(_ROADS, k, span(min(x0, x1) - reach, max(x0, x1) + reach), span(min(y0, y1) - reach, max(y0, y1) + reach),
             keep=near)
     if cells:
         c = np.concatenate(cells)

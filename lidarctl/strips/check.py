@@ -408,7 +408,7 @@ def write_outputs(res: CheckResult, folder: Path, title: str, vmax_m: float | No
                   tags={"LINEAR_UNITS": units.xy_name, "VERTICAL_UNITS": units.z_name, "CELL_SIZE_M": ss.grid.cell_m})
         ps = dataclasses.replace(ps, raster=f"{stem}.tif")
         if png:
-            _pair_png(folder / f"{stem}.png", p, ps, a, transform, vmax, title)
+            _pair_png(folder / f"{stem}.png", p, ps=ps, a=a, transform=transform, vmax=vmax, title=title)
             ps = dataclasses.replace(ps, png=f"{stem}.png")
         rows.append(ps)
     res.summary = dataclasses.replace(res.summary, pairs=tuple(rows), map_colour_limit_m=vmax)
@@ -418,7 +418,7 @@ def write_outputs(res: CheckResult, folder: Path, title: str, vmax_m: float | No
     _html(folder / "index.html", res.summary, title)
 
 
-def _pair_png(path, p: PairDiff, ps: PairCheck, a, transform, vmax: float, title: str) -> None:
+def _pair_png(path, p: PairDiff, *, ps: PairCheck, a, transform, vmax: float, title: str) -> None:
     import matplotlib
 
     matplotlib.use("Agg")

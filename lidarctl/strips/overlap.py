@@ -353,7 +353,8 @@ def read_strips(paths, params: SurfaceSettings = SurfaceSettings(), crs=None, *,
                 sel = ok if s.point_source_id is None else ok & (psid == s.point_source_id)
                 if not sel.any():
                     continue
-                total += _accumulate(accs, s, chunk, x, y, z, sel, multi, ang, t, grid, z_ref, extra)
+                total += _accumulate(accs, s, chunk, x=x, y=y, z=z, sel=sel, multi=multi, ang=ang, t=t, grid=grid,
+                                     z_ref=z_ref, extra=extra)
         if keep is not None:
             for s in group:
                 parts = kept_parts[s.name]
@@ -380,7 +381,7 @@ DENSE_CELLS_PER_POINT = 4.0
 
 
 @numba.njit(cache=True)
-def _cell_sums(x, y, z, sel, single, ang, t, ex, x0, y0, cell_m, z_ref, i0, j0, nr, nc):
+def _cell_sums(x, y, z, *, sel, single, ang, t, ex, x0, y0, cell_m, z_ref, i0, j0, nr, nc):
     """The occupied cells of the box (rows i0.., columns j0.., nr x nc cells) in id order (box indices), the
     sums of ``_N_SUMS`` + k per single return in each, and (count, multi-return count) of every point of
     ``sel``; points added in their order."""
@@ -435,7 +436,7 @@ def _cell_sums(x, y, z, sel, single, ang, t, ex, x0, y0, cell_m, z_ref, i0, j0, 
     return box, S, A
 
 
-def _accumulate(accs, s, chunk, x, y, z, sel, multi, ang, t, grid, z_ref, extra) -> int:
+def _accumulate(accs, s, chunk, *, x, y, z, sel, multi, ang, t, grid, z_ref, extra) -> int:
     """Adds the points ``sel`` of strip ``s`` (metres, corrected) to its cell sums; returns their number."""
     cell_m = grid.cell_m
     use = sel & ~multi
@@ -453,8 +454,9 @@ def _accumulate(accs, s, chunk, x, y, z, sel, multi, ang, t, grid, z_ref, extra)
     i0, j0 = int(i.min()), int(j.min())
     nr, nc = int(i.max()) - i0 + 1, int(j.max()) - j0 + 1
     if nr * nc <= DENSE_CELLS_PER_POINT * len(w) + 4096:
-        box, S, A = _cell_sums(x, y, z, sel, use, ang, t, ex if ex is not None else np.zeros((len(x), 0)), grid.x0,
-                               grid.y0, cell_m, z_ref, i0, j0, nr, nc)
+        box, S, A = _cell_sums(x, y, z, sel=sel, single=use, ang=ang, t=t,
+                               ex=ex if ex is not None else np.zeros((len(x), 0)), x0=grid.x0, y0=grid.y0,
+                               cell_m=cell_m, z_ref=z_ref, i0=i0, j0=j0, nr=nr, nc=nc)
         ids = (i0 + box // nc) * grid.ncols + j0 + box % nc  # ascending as box
         r = S[:, 0] > 0
         acc.parts.append((ids[r], S[r]))
@@ -493,8 +495,8 @@ def regrid(ss: StripSet, params: SurfaceSettings, extra=None, correct=None,
             t = kp.gps_time[k] if kp.gps_time is not None else np.zeros(len(x))
             if correct is not None:
                 x, y, z = correct(s, x, y, z, t)
-            total += _accumulate(accs, s, _KeptChunk(t), x, y, z, np.ones(len(x), bool), ~kp.single[k],
-                                 np.zeros(len(x)), t, grid, ss.z_ref, extra)
+            total += _accumulate(accs, s, _KeptChunk(t), x=x, y=y, z=z, sel=np.ones(len(x), bool), multi=~kp.single[k],
+                                 ang=np.zeros(len(x)), t=t, grid=grid, z_ref=ss.z_ref, extra=extra)
         if accs[s.name] is None:  # nothing kept: no cell of this strip in an overlap
             accs[s.name] = _Accumulator(0 if cp.extra is None else cp.extra.shape[1])
     strips = [_planes(cp.source, accs[cp.name], grid, params, ss.z_ref) for cp in ss.strips]

@@ -18,7 +18,7 @@ def test_every_subcommand_is_listed_and_resolves():
 
     from aerotri.cli import main
 
-    names = ["adjust", "control", "crs", "demo", "export", "import", "init", "match", "report", "run", "settings", "sim"]
+    names = ["adjust", "compare", "control", "crs", "demo", "export", "import", "init", "match", "report", "run", "settings", "sim"]
     assert main.list_commands(None) == names
     for name in names:
         assert main.get_command(None, name).name == name

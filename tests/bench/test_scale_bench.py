@@ -34,12 +34,12 @@ def test_smaller_blocks_keep_the_scene_density(scale):
     from aerotri.sim import lidar_plan, load_preset
 
     full = load_preset("scale")
-    full_km2 = lidar_plan(full)["scene_km2"]
+    full_km2 = lidar_plan(full).scene_km2
     for size, frames in (("quarter", 75), ("eighth", 30)):
         preset, overrides = scale.size_overrides(size)
         cfg = load_preset(preset, overrides)
         assert cfg["flight"]["strips"] * cfg["flight"]["frames_per_strip"] == frames
-        km2 = lidar_plan(cfg)["scene_km2"]
+        km2 = lidar_plan(cfg).scene_km2
         assert km2 < full_km2 / 3
         # buildings and trees per km2 as on the full block (to rounding)
         for key in ("buildings", "single_trees", "bushes"):

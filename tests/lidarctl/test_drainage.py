@@ -19,8 +19,8 @@ def _run(z, min_area_m2=None, method="fill", cell=1.0):
     down, order, acc = dr.accumulate(codes, np.isfinite(z))
     net = None
     if min_area_m2 is not None:
-        net = dr.stream_network(acc, down, order, from_origin(0.0, z.shape[0] * cell, cell, cell), cell * cell,
-                                min_area_m2)
+        net = dr.stream_network(acc, down, order, transform=from_origin(0.0, z.shape[0] * cell, cell, cell),
+                                cell_area_m2=cell * cell, min_area_m2=min_area_m2)
     return cond, codes, acc, net
 
 

@@ -36,11 +36,11 @@ def _cells(x, y, cell_m):
 
 
 def test_the_registry_names_the_filters_their_presets_and_reach():
-    assert list(ground.GROUND_FILTERS) == ["morph", "ptd"]
+    assert list(ground.GROUND_FILTERS) == ["morph", "ptd", "slope"]
     assert ground.preset_names() == ("urban", "rural", "forest", "mountain")
     assert ground.reach_m() == 60.0 and ground.reach_m("morph", "rural") == 50.0
     assert ground.reach_m("ptd") == 30.0 and ground.reach_m("ptd", "rural", seed_cell_m=40.0) == 60.0
-    with pytest.raises(OptionError, match="expected one of morph, ptd") as e:
+    with pytest.raises(OptionError, match="expected one of morph, ptd, slope") as e:
         classify.ClassifySettings(ground_method="csf")
     assert e.value.param == "--method"
 

@@ -102,7 +102,7 @@ def test_building_accuracy_by_count_and_area():
     pred_b = pred == 6
     pred_b[0:3, 16:20] = True  # a false detection of 12 cells
     pred_b[9, 9] = True        # a one-cell speck: below min_building_m2 (area 0.25 m2 per cell)
-    b = map_accuracy.building_accuracy(pred_b, ref_b, valid, 0.25, min_overlap=0.5, min_building_m2=1.0)
+    b = map_accuracy.building_accuracy(pred_b, ref_b, valid, cell_area_m2=0.25, min_overlap=0.5, min_building_m2=1.0)
     assert (b.n_reference, b.n_found, b.n_detected, b.n_correct) == (2, 1, 2, 1)
     assert b.completeness_count_pct == pytest.approx(50.0) and b.correctness_count_pct == pytest.approx(50.0)
     # area: reference 52 cells, 30 found; false 6 + 12 + 1 = 19 of 399 - 52 = 347 non-building cells
@@ -112,7 +112,8 @@ def test_building_accuracy_by_count_and_area():
     assert b.completeness_area_pct == pytest.approx(100 * 30 / 52)
     assert b.correctness_area_pct == pytest.approx(100 * 30 / 49)
     assert b.reference_area_m2 == pytest.approx(52 * 0.25)
-    strict = map_accuracy.building_accuracy(pred_b, ref_b, valid, 0.25, min_overlap=0.9, min_building_m2=1.0)
+    strict = map_accuracy.building_accuracy(pred_b, ref_b, valid, cell_area_m2=0.25, min_overlap=0.9,
+                                            min_building_m2=1.0)
     assert strict.n_found == 0 and strict.n_correct == 0   # 30 of 36 cells = 83 % overlap
 
 

@@ -93,3 +93,48 @@ def test_tin_fill_only_near_the_needed_cells_is_the_same_there():
     far[:10, :10] = True                           # beyond 2 r + 3 cells: the pull-push fill
     np.testing.assert_array_equal(part[far], fill_nodata(a)[far])
     assert not np.array_equal(whole[far & gaps], fill_nodata(a)[far & gaps])
+
+
+def _fill_triangles_reference(filled, gaps, pts, z, simplices, max_radius_px, row0, col0):
+    """``raster_ops._fill_triangles`` as plain Python, every triangle's bounding box scanned."""
+    done = np.zeros_like(gaps)
+    for tri in simplices:
+        i0, i1, i2 = sorted(int(i) for i in tri)
+        (x0, y0), (x1, y1), (x2, y2) = pts[i0], pts[i1], pts[i2]
+        e1x, e1y, e2x, e2y = x1 - x0, y1 - y0, x2 - x0, y2 - y0
+        det = e1x * e2y - e1y * e2x
+        radius = np.hypot(x1 - x2, y1 - y2) * np.hypot(e2x, e2y) * np.hypot(e1x, e1y) / max(2.0 * abs(det), 1e-12)
+        for r in range(max(int(np.ceil(min(y0, y1, y2))) - row0, 0),
+                       min(int(np.floor(max(y0, y1, y2))) - row0, gaps.shape[0] - 1) + 1):
+            for c in range(max(int(np.ceil(min(x0, x1, x2))) - col0, 0),
+                           min(int(np.floor(max(x0, x1, x2))) - col0, gaps.shape[1] - 1) + 1):
+                if not gaps[r, c] or done[r, c] or radius > max_radius_px:
+                    continue
+                dx, dy = (c + col0) - x0, (r + row0) - y0
+                l1, l2 = (dx * e2y - dy * e2x) / det, (e1x * dy - e1y * dx) / det
+                if min(1.0 - l1 - l2, l1, l2) < -1e-12:
+                    continue
+                filled[r, c] = (1.0 - l1 - l2) * z[i0] + l1 * z[i1] + l2 * z[i2]
+                done[r, c] = True
+
+
+def test_fill_triangles_passing_over_2x2_triangles_fills_the_same():
+    # _fill_triangles skips triangles of three cells of one 2 x 2 block (most of a dense lattice's)
+    from lidarctl.raster_ops import _fill_triangles
+
+    rng = np.random.default_rng(11)
+    shape, row0, col0 = (60, 70), 40, 1000
+    gaps = rng.random(shape) < 0.35
+    gaps[20:35, 25:45] = True                                   # a building
+    vr, vc = np.nonzero(~gaps)
+    pts = _jittered_cells(vr + row0, vc + col0)
+    z = rng.normal(100.0, 5.0, len(vr))
+    tri, status = delaunay_lattice(pts, vr + row0, vc + col0)
+    assert status == OK
+    small = np.ptp(pts[tri], axis=1)
+    assert ((small[:, 0] < 1.5) & (small[:, 1] < 1.5)).mean() > 0.3    # the case is exercised
+    ours, ref = np.full(shape, -1.0), np.full(shape, -1.0)
+    _fill_triangles(ours, gaps, pts, z, tri, 6.0, row0, col0)
+    _fill_triangles_reference(ref, gaps, pts, z, tri, 6.0, row0, col0)
+    assert (ref[gaps] != -1.0).mean() > 0.5                    # most gap cells filled by a triangle
+    np.testing.assert_array_equal(ours, ref)

@@ -48,8 +48,8 @@ def gk_project(tiny_project, tmp_path_factory):
     h = 300.0 + 50.0 * np.random.default_rng(1).random(lon.size)
     params = {}
     for datum, truth in TRUTH.items():
-        src, dst, _ = simulate_spatial(truth, "EPSG:32649", f"EPSG:{GK_EPSG[datum]}", lon.ravel(), lat.ravel(), h,
-                                       noise_m=0.02, seed=3)
+        src, dst, _ = simulate_spatial(truth, "EPSG:32649", f"EPSG:{GK_EPSG[datum]}", lon_deg=lon.ravel(),
+                                       lat_deg=lat.ravel(), h_m=h, noise_m=0.02, seed=3)
         common = root / f"common_{datum}.csv"
         write_common_points(common, [f"P{i:02d}" for i in range(len(src))], src, dst)
         params[datum] = root / f"{datum}.json"

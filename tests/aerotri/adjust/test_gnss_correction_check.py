@@ -77,3 +77,32 @@ def test_absorbed_height_error_is_flagged(sound, tmp_path):
                                                "displacement_m": pytest.approx(v, abs=1e-3)}]
     # stated a-priori sigma large enough for such shifts: not suspect
     assert gnss_correction_check(adjust_project(p, _settings(gnss_shift_sigma_m=0.3))).suspect == ()
+
+
+def test_unmodelled_drift_is_flagged(sound, tmp_path):
+    """A drift the solve does not model (gnss_correction = "shift"): strip 2's GNSS north positions drift by
+    +-0.6 m from end to end. The residuals trend along that strip; the check names it and the verdict is weak
+    with the advice; corrected with "shift_drift" the trend is gone. The sound block shows no trend."""
+    import shutil
+
+    from aerotri.adjust.report import unmodelled_drift_check
+
+    _, root = sound
+    assert unmodelled_drift_check(adjust_project(root, _settings())).trends == ()
+    p = shutil.copytree(root, tmp_path / "blk")
+    g = read_gnss(p / "gnss.txt")
+    strip2 = np.flatnonzero([i.startswith("s02") for i in g.image_id])
+    pos = g.position_m.copy()
+    pos[strip2, 1] += np.linspace(-0.6, 0.6, len(strip2))
+    write_gnss(p / "gnss.txt", type(g)(g.image_id, pos, g.sigma_m))
+    ba = adjust_project(p, _settings())
+    udc = unmodelled_drift_check(ba)
+    assert [(s, a) for s, a, _, _ in udc.trends] == [(2, "N")], udc
+    ks = build_report(ba)["key_statistics"]
+    assert ks["verdict"] == "weak" and "a drift the solve does not model" in ks["message"]
+    assert "strip 2 N" in ks["message"] and 'gnss_correction = "shift_drift"' in ks["message"]
+    assert ks["gnss_drift_unmodelled"][0]["strip"] == 2
+    ba = adjust_project(p, AdjustSettings(gnss_correction="shift_drift", image_sigma_px=SIGMA_PX,
+                                          point_covariances=False, gnss_shift_sigma_m=1.0))
+    assert unmodelled_drift_check(ba) is None
+    assert "does not model" not in build_report(ba)["key_statistics"]["message"]

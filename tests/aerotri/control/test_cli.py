@@ -36,11 +36,11 @@ def truth_errors(root):
     cam = BrownCamera.read(root / "truth" / "camera.toml")
     eo = read_eo(root / "truth" / "eo.txt")
     t = truth_roof_corners(root)
-    pos = {p: k for k, p in enumerate(t["id"])}
+    pos = {p: k for k, p in enumerate(t.id)}
     errs = []
     for r in csv.DictReader(open(root / "control" / "image_points.csv")):
         i = eo.index()[r["image_id"]]
-        x, y, _ = cam.project(t["xyz_m"][pos[r["point_id"]]], eo.centre_m[i], eo.rotation(i))
+        x, y, _ = cam.project(t.xyz_m[pos[r["point_id"]]], eo.centre_m[i], eo.rotation(i))
         errs.append([float(r["x_px"]) - x[0], float(r["y_px"]) - y[0]])
     return np.array(errs)
 
@@ -69,12 +69,12 @@ def test_control_transfer_on_tiny(tiny_project, tmp_path):
     eo = read_eo(root / "truth" / "eo.txt")
     t = truth_roof_corners(root)
     pick = None
-    for k, pid in enumerate(t["id"]):
+    for k, pid in enumerate(t.id):
         if pid in accepted:
             continue
         seen = []
         for i in range(len(eo)):
-            x, y, _ = cam.project(t["xyz_m"][k], eo.centre_m[i], eo.rotation(i))
+            x, y, _ = cam.project(t.xyz_m[k], eo.centre_m[i], eo.rotation(i))
             if cam.inside(x, y, 20)[0]:
                 seen.append((eo.image_id[i], x[0], y[0]))
         if len(seen) >= 2:

@@ -51,7 +51,8 @@ def test_full_points_at_strip_edges_every_five_baselines_and_height_points_in_th
     n = frames_seeing(xy, 310.0, centres, Rs)
     keep = n >= 2
     xy, score, n = xy[keep], score[keep], n[keep]
-    kind, targets, base = select_control(xy, score, n, CAM, centres, Rs, 310.0, rule=LayoutSettings(), strip=strip)
+    kind, targets, base = select_control(xy, score, n, camera=CAM, centres_m=centres, Rs=Rs, ground_z_m=310.0,
+                                         rule=LayoutSettings(), strip=strip)
     # strip length 9 baselines, triple overlap from frame 2 to 9 = 7 baselines -> 2 positions per line;
     # 4 lines (2 outer edges, 2 side overlaps) -> 8 full points; 1 group of 3 strips -> 1 height point
     assert sum(t.kind == "full" for t in targets) == 8
@@ -84,7 +85,7 @@ def test_a_target_without_a_usable_corner_falls_back_in_order_and_keeps_the_othe
     n = frames_seeing(xy, 310.0, centres, Rs)
     xy, n = xy[n >= 2], n[n >= 2]
     score = rng.uniform(0.5, 1.0, len(xy))
-    _, targets, base = select_control(xy, score, n, CAM, centres, Rs, 310.0, strip=strip)
+    _, targets, base = select_control(xy, score, n, camera=CAM, centres_m=centres, Rs=Rs, ground_z_m=310.0, strip=strip)
     t0 = np.array([targets[0].target_x_m, targets[0].target_y_m])
     radius = 1.25 * base
     far = np.hypot(*(xy - t0).T) > radius  # empty the first target's search circle
@@ -102,8 +103,8 @@ def test_a_target_without_a_usable_corner_falls_back_in_order_and_keeps_the_othe
     def select(keep, fallback=True):
         tier = candidate_tiers(n, primary, roof, 3)
         tier[~keep] = -1
-        return select_control(xy, score, n, CAM, centres, Rs, 310.0, strip=strip, tier=tier, check=primary,
-                              rule=LayoutSettings(fallback=fallback))
+        return select_control(xy, score, n, camera=CAM, centres_m=centres, Rs=Rs, ground_z_m=310.0, strip=strip,
+                              tier=tier, check=primary, rule=LayoutSettings(fallback=fallback))
 
     keep = np.ones(len(xy), bool)
     kind_off, t_off, _ = select(keep, fallback=False)

@@ -65,3 +65,17 @@ def test_log_file_records_the_command_and_never_appends_to_another_file(las, tmp
     r = _transform(las, tmp_path / "c.las", "--log-file", str(las))  # the input given as the log by mistake
     assert r.exit_code == 2 and "not a log" in r.stderr and "Traceback" not in r.stderr
     assert las.read_bytes() == before and not (tmp_path / "c.las").exists()
+
+
+def test_eta_from_the_rate_after_the_first_item(monkeypatch):
+    """The simulator's first frame carries numba's compilation: 18 frames, the first 60 s, then 1 s each; after 3
+    frames the ETA extrapolated from the mean (62 s / 3 x 15 = 310 s) was far off the 15 s left."""
+    from aerotri.core import log as L
+
+    clock = [0.0]
+    monkeypatch.setattr(L.time, "monotonic", lambda: clock[0])
+    p = L._LogProgress(18, "frames", "items", interval_s=1e9)
+    for t in (60.0, 61.0, 62.0):
+        clock[0] = t
+        p.update()
+    assert p._line(clock[0]).endswith("ETA 15 s")

@@ -228,14 +228,15 @@ def test_report_takes_qa_then_the_command_line(tmp_path, monkeypatch):
     import aerotri.qa.report as qa_report
 
     seen = []
-    monkeypatch.setattr(qa_report, "write_qa_report", lambda *a: seen.append(a) or (_ for _ in ()).throw(_Captured(a)))
+    monkeypatch.setattr(qa_report, "write_qa_report",
+                        lambda *a, **kw: seen.append(kw) or (_ for _ in ()).throw(_Captured(a)))
     p = _project(tmp_path, '\n[qa]\nmap_scale = "1:2000"\nterrain = "hilly"\n')
     CliRunner().invoke(aerotri_cli, ["report", str(p)])
     CliRunner().invoke(aerotri_cli, ["report", str(p), "--scale", "1:10000"])
-    assert [a[2:4] for a in seen] == [(None, None), (None, "1:10000")]
+    assert [(kw["terrain"], kw["scale"]) for kw in seen] == [(None, None), (None, "1:10000")]
     from aerotri.core.tolerances import qa_settings
 
-    assert (qa_settings(p)["map_scale"], qa_settings(p)["terrain"]) == ("1:2000", "hilly")
+    assert (qa_settings(p).map_scale, qa_settings(p).terrain) == ("1:2000", "hilly")
 
 
 def test_adjust_without_options_takes_the_project_toml_settings_and_reports_their_sources(tmp_path):

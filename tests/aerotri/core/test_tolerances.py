@@ -43,7 +43,7 @@ def _project(root: Path, camera, height_m: float, qa: str = "", frames: int = 8)
 
 
 def _choose(root: Path):
-    return qa_settings(root, project_block_scale(Project.open(root)))["table"]
+    return qa_settings(root, project_block_scale(Project.open(root))).table
 
 
 def test_drone_block_gets_asprs_classes_by_gsd_and_no_manned_flight_spec(tmp_path):
@@ -100,7 +100,7 @@ def test_unknown_gsd_keeps_the_default_and_says_why(tmp_path):
     root = tmp_path / "nocam"
     root.mkdir()
     (root / "project.toml").write_text('[project]\nname = "t"\ncrs = "EPSG:32615"\n')
-    t = qa_settings(root, project_block_scale(Project.open(root)))["table"]
+    t = qa_settings(root, project_block_scale(Project.open(root))).table
     assert t.key == "1:5000" and "GSD unknown (no camera.toml)" in t.reason
     # camera and positions but no terrain height: named as such
     root = _project(tmp_path / "noterrain", DRONE, 40.0)
@@ -189,7 +189,7 @@ def test_brighton_beach_drone_block_is_judged_by_asprs(shared_data, tmp_path):
     block = project_block_scale(Project.open(root), np.asarray(z), "the ODM cloud")
     assert 35.0 < block.height_above_ground_m < 45.0  # README: about 40 m
     assert 0.012 < block.gsd_m < 0.022 and block.platform == "uas"  # README: about 1.7 cm
-    t = qa_settings(root, block)["table"]
+    t = qa_settings(root, block).table
     assert t.key.startswith("ASPRS2023 ") and t.key.endswith(" UAS") and "flight_tilt_max_deg" not in t.limits
 
 
@@ -204,6 +204,6 @@ def test_ngi_dmc_block_is_manned_and_gets_a_map_scale_table(shared_data, tmp_pat
     block = project_block_scale(Project.open(root))
     assert block.platform == "manned" and 4000.0 < block.height_above_ground_m < 5200.0
     assert block.gsd_m == pytest.approx(block.height_above_ground_m * 144e-6 / 0.12)
-    t = qa_settings(root, block)["table"]
+    t = qa_settings(root, block).table
     assert t.key == "1:10000" and "coarser than every shipped table" in t.reason
     assert t.limits["flight_tilt_max_deg"] == 2.0 and math.isclose(t.limits["rms_xy_m"], 0.35)

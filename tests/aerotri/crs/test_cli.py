@@ -21,7 +21,7 @@ def common_points(tmp_path):
     """20 common points WGS 84 UTM 49N -> Xian 1980 zone 37, 1 cm noise."""
     rng = np.random.default_rng(1)
     lon, lat, h = rng.uniform(109.6, 110.2, 20), rng.uniform(34.0, 34.5, 20), rng.uniform(400, 900, 20)
-    src, dst, _ = simulate_spatial(TRUE_BURSA_WOLF7, 32649, 2361, lon, lat, h, noise_m=0.01, seed=2)
+    src, dst, _ = simulate_spatial(TRUE_BURSA_WOLF7, 32649, 2361, lon_deg=lon, lat_deg=lat, h_m=h, noise_m=0.01, seed=2)
     path = tmp_path / "common.csv"
     write_common_points(path, [f"P{i:02d}" for i in range(20)], src, dst)
     return path, src, dst

@@ -43,10 +43,10 @@ def test_bursa_wolf_apply_matches_proj_coordinate_frame_helmert():
 
 def test_bursa_wolf7_noise_free_national_network_recovers_parameters_exactly():
     lon, lat, h = _block(30, 1, lon=(100, 120), lat=(22, 45), h=(0, 3000))
-    src, dst, _ = simulate_spatial(TRUE_BURSA_WOLF7, 4326, 4610, lon, lat, h)
+    src, dst, _ = simulate_spatial(TRUE_BURSA_WOLF7, 4326, 4610, lon_deg=lon, lat_deg=lat, h_m=h)
     XYZ_s = np.column_stack(geodetic_to_geocentric(src[:, 1], src[:, 0], src[:, 2], WGS84))
     XYZ_d = np.column_stack(geodetic_to_geocentric(dst[:, 1], dst[:, 0], dst[:, 2], IAG75))
-    res = fit_spatial("bursa-wolf7", range(30), XYZ_s, XYZ_d, dst[:, 1::-1])
+    res = fit_spatial("bursa-wolf7", range(30), XYZ_s, XYZ_d, dst_lat_lon_deg=dst[:, 1::-1])
     for k, v in TRUE_BURSA_WOLF7.items():
         assert res.transformation.parameters[k] == pytest.approx(v, abs=1e-6)
     assert res.rms_m["horizontal"] < 1e-6 and res.rms_m["u"] < 1e-6
@@ -56,7 +56,8 @@ def test_bursa_wolf7_noisy_block_within_reported_std_devs(tmp_path):
     """WGS 84 UTM 49N -> Xian 1980 GK zone 37 over an ~80 km block, 2 cm noise, via the CSV reader."""
     noise = 0.02
     lon, lat, h = _block(40, 2)
-    src, dst, _ = simulate_spatial(TRUE_BURSA_WOLF7, 32649, 2361, lon, lat, h, noise_m=noise, seed=3)
+    src, dst, _ = simulate_spatial(TRUE_BURSA_WOLF7, 32649, 2361, lon_deg=lon, lat_deg=lat, h_m=h, noise_m=noise,
+                                   seed=3)
     path = tmp_path / "common.csv"
     write_common_points(path, [f"P{i:02d}" for i in range(40)], src, dst)
     res = fit_common_points(path, "bursa-wolf7", 32649, 2361)
@@ -75,7 +76,7 @@ def test_bursa_wolf7_noisy_block_within_reported_std_devs(tmp_path):
 def test_bursa_wolf7_std_devs_are_calibrated_monte_carlo():
     """Over 30 noise realisations the normalised errors (est - true) / sd have unit RMS."""
     lon, lat, h = _block(15, 4, lon=(105, 115), lat=(30, 38), h=(0, 2500))
-    src, _, dst_true = simulate_spatial(TRUE_BURSA_WOLF7, 4326, 4610, lon, lat, h)
+    src, _, dst_true = simulate_spatial(TRUE_BURSA_WOLF7, 4326, 4610, lon_deg=lon, lat_deg=lat, h_m=h)
     XYZ_s = np.column_stack(geodetic_to_geocentric(src[:, 1], src[:, 0], src[:, 2], WGS84))
     XYZ_t = np.column_stack(geodetic_to_geocentric(dst_true[:, 1], dst_true[:, 0], dst_true[:, 2], IAG75))
     rng = np.random.default_rng(5)
@@ -93,7 +94,7 @@ def test_helmert2d_recovers_four_parameters(noise):
     rng = np.random.default_rng(7)
     src = np.column_stack([rng.uniform(37_420_000, 37_470_000, 25), rng.uniform(3_780_000, 3_830_000, 25)])
     dst, _ = simulate_plane(TRUE_HELMERT2D, src, noise_m=noise, seed=8)
-    res = fit_plane("helmert2d", [f"T{i}" for i in range(25)], src, dst, "EPSG:2361", "EPSG:4525")
+    res = fit_plane("helmert2d", [f"T{i}" for i in range(25)], src, dst, from_crs="EPSG:2361", to_crs="EPSG:4525")
     t = res.transformation
     for k, v in TRUE_HELMERT2D.items():
         if noise == 0:

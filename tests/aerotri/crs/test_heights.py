@@ -27,7 +27,7 @@ def test_plane_recovers_a_tilted_plane_and_rms_matches_noise():
     rng = np.random.default_rng(2)
     h = rng.uniform(300, 900, 40)
     H = h - zeta + rng.normal(0, 0.01, 40)
-    res = fit_height_anomaly([f"B{i}" for i in range(40)], x, y, h, H, "plane")
+    res = fit_height_anomaly([f"B{i}" for i in range(40)], x, y, h, H, model="plane")
     assert res.sigma0_m == pytest.approx(0.01, rel=0.25)
     assert res.loo_rms_m > res.rms_m  # check-point style residuals are larger than fitted ones
     xq, yq = _points(200, 3)
@@ -46,12 +46,12 @@ def test_quadratic_and_tps_on_a_curved_surface():
     xq, yq = _points(300, 5, size_m=18_000.0)
     xq, yq = xq + 1000.0, yq + 1000.0  # inside the hull of the points
     truth = _zeta_true(xq, yq)
-    quad = fit_height_anomaly(range(30), x, y, h, H, "quadratic")
+    quad = fit_height_anomaly(range(30), x, y, h, H, model="quadratic")
     assert quad.rms_m < 1e-9
     assert np.max(np.abs(quad.model.zeta_m(xq, yq) - truth)) < 1e-9
-    plane = fit_height_anomaly(range(30), x, y, h, H, "plane")
+    plane = fit_height_anomaly(range(30), x, y, h, H, model="plane")
     assert plane.rms_m > 0.01  # a plane cannot follow the curvature
-    tps = fit_height_anomaly(range(30), x, y, h, H, "tps")
+    tps = fit_height_anomaly(range(30), x, y, h, H, model="tps")
     assert np.max(np.abs(tps.residuals_m)) < 1e-9  # interpolates
     assert np.isfinite(tps.loo_residuals_m).all() and tps.loo_rms_m < plane.loo_rms_m
     assert np.sqrt(np.mean((tps.model.zeta_m(xq, yq) - truth) ** 2)) < 0.01
@@ -64,11 +64,11 @@ def test_height_fit_bad_input():
     x, y = _points(5, 6)
     h = np.full(5, 500.0)
     with pytest.raises(InputError, match="at least 6 points"):
-        fit_height_anomaly(range(5), x, y, h, h - 28, "quadratic")
+        fit_height_anomaly(range(5), x, y, h, h - 28, model="quadratic")
     with pytest.raises(InputError, match="duplicate point id '1'"):
-        fit_height_anomaly(["1", "2", "1", "4", "5"], x, y, h, h - 28, "plane")
+        fit_height_anomaly(["1", "2", "1", "4", "5"], x, y, h, h - 28, model="plane")
     with pytest.raises(InputError, match="unknown height model"):
-        fit_height_anomaly(range(5), x, y, h, h - 28, "cubic")
+        fit_height_anomaly(range(5), x, y, h, h - 28, model="cubic")
     line_x = np.linspace(0, 1000, 5) + 37_450_000.0
     with pytest.raises(InputError, match="collinear"):
-        fit_height_anomaly(range(5), line_x, np.full(5, 3_800_000.0), h, h - 28, "plane")
+        fit_height_anomaly(range(5), line_x, np.full(5, 3_800_000.0), h, h - 28, model="plane")

@@ -64,13 +64,14 @@ def test_fitted_parameters_transform_a_straddling_block_into_one_chosen_zone(tmp
     to check points on both sides of 109.5 E and output in zone 37 and, alternatively, in zone 36."""
     lon, lat, h = _straddling_block(16, 2)
     noise = 0.01
-    src, dst, _ = simulate_spatial(TRUE_BURSA_WOLF7, 32649, 2361, lon, lat, h, noise_m=noise, seed=3)
+    src, dst, _ = simulate_spatial(TRUE_BURSA_WOLF7, 32649, 2361, lon_deg=lon, lat_deg=lat, h_m=h, noise_m=noise,
+                                   seed=3)
     path = tmp_path / "cp.csv"
     write_common_points(path, [f"C{i}" for i in range(16)], src, dst)
     params = fit_common_points(path, "bursa-wolf7", 32649, 2361).transformation
     lon_c, lat_c, h_c = _straddling_block(300, 4)
     for zone_epsg in (2361, 2360):
-        src_c, _, truth = simulate_spatial(TRUE_BURSA_WOLF7, 32649, zone_epsg, lon_c, lat_c, h_c)
+        src_c, _, truth = simulate_spatial(TRUE_BURSA_WOLF7, 32649, zone_epsg, lon_deg=lon_c, lat_deg=lat_c, h_m=h_c)
         t = CrsTransformer(32649, zone_epsg, params=params)
         X, Y, Z = t.transform(src_c[:, 0], src_c[:, 1], src_c[:, 2])
         err = np.hypot(X - truth[:, 0], Y - truth[:, 1])
@@ -84,7 +85,7 @@ def test_fitted_parameters_transform_a_straddling_block_into_one_chosen_zone(tmp
     # the same points given in geographic WGS 84 instead of UTM give the same result
     t_geo = CrsTransformer(4326, 2361, params=params)
     Xg, Yg, _ = t_geo.transform(lon_c, lat_c, h_c)
-    src_c, _, _ = simulate_spatial(TRUE_BURSA_WOLF7, 32649, 2361, lon_c, lat_c, h_c)
+    src_c, _, _ = simulate_spatial(TRUE_BURSA_WOLF7, 32649, 2361, lon_deg=lon_c, lat_deg=lat_c, h_m=h_c)
     X, Y, _ = CrsTransformer(32649, 2361, params=params).transform(*src_c.T)
     assert np.max(np.hypot(Xg - X, Yg - Y)) < 1e-6
 
@@ -102,7 +103,7 @@ def test_plane_parameters_and_heights_in_the_chain():
     hx = rng.uniform(37_420_000, 37_480_000, 20)
     hy = rng.uniform(3_760_000, 3_820_000, 20)
     zeta = -30.0 + 0.02 * (hx - 37_450_000) / 1000
-    hm = fit_height_anomaly(range(20), hx, hy, np.full(20, 500.0), 500.0 - zeta, "plane", crs="EPSG:2361").model
+    hm = fit_height_anomaly(range(20), hx, hy, np.full(20, 500.0), 500.0 - zeta, model="plane", crs="EPSG:2361").model
     t = CrsTransformer(4546, 2361, params=T, heights=hm)
     X, Y, Z = t.transform(E, N, h)
     ref = T.apply(np.column_stack([E, N]))

@@ -34,9 +34,9 @@ def test_tiny_block_is_connected_and_accurate(matched):
     assert all(not c.weak for c in rep.cross_strip)
     assert all(min(min(r) for r in m.regions) >= 3 for m in rep.models)
     err = tie_point_errors(p)
-    assert err["observations"] == rep.observations > 2000
-    assert err["off_fraction"] < 0.01
-    assert err["median_residual_px"] < 0.25
+    assert err.observations == rep.observations > 2000
+    assert err.off_fraction < 0.01
+    assert err.median_residual_px < 0.25
     assert (p / "at" / "connectivity.png").stat().st_size > 10_000
 
 
@@ -62,7 +62,7 @@ def test_track_completion_adds_true_observations_to_the_same_tracks(matched):
     assert plain.tracks == rep.tracks and plain.observations < rep.observations
     assert plain.tracks_3plus_fraction < rep.tracks_3plus_fraction
     added = rep.observations - plain.observations
-    assert with_c["off_count"] - without["off_count"] <= max(1, 0.02 * added)
+    assert with_c.off_count - without.off_count <= max(1, 0.02 * added)
     match_project(p)  # the module's copy as the other tests expect it
     # the stage's phases, wall and CPU seconds, add up to its time
     ph = rep.phase_seconds
@@ -185,5 +185,5 @@ def test_gnss_without_a_terrain_height_pairs_by_retrieval(tiny_project, tmp_path
     assert res.exit_code == 0, res.output
     assert "no terrain height for the GNSS footprints" in res.output and "thumbnail retrieval of all 15 pairs" in res.output
     err = tie_point_errors(p)
-    assert err["observations"] > 1500
-    assert err["off_fraction"] < 0.01 and err["median_residual_px"] < 0.25
+    assert err.observations > 1500
+    assert err.off_fraction < 0.01 and err.median_residual_px < 0.25

@@ -60,7 +60,8 @@ def test_completion_adds_the_missed_third_observation_only():
     lengths = np.bincount(track)
     assert bad == 0 and (lengths == 2).sum() == 11 and (lengths == 3).sum() == 50
     reps = [np.arange(s) for s in sizes]
-    t2, i2, k2, added = complete_tracks(track, image, kp, xy, d, reps, links, (1000, 1000), tol_px=0.5)
+    t2, i2, k2, added = complete_tracks(track, image, kp, node_xy=xy, node_desc=d, node_rep=reps, pair_links=links,
+                                        size_px=(1000, 1000), tol_px=0.5)
     assert added == 7
     # every track keeps one keypoint per frame, every keypoint one track
     assert len(np.unique(t2 * 3 + i2)) == len(t2)

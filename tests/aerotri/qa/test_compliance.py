@@ -106,6 +106,8 @@ class _Table:
 def test_choice_names_the_standard_class_and_why():
     c = choose(None, None, _Table(), None, _Qa(), None)
     assert c.key == "cn-at" and c.class_tested == "1:5000 flat" and "tolerance table" in c.reason
+    # the table's reason once (the NGI report printed it twice: for the standard and for the map scale)
+    assert c.reason.count(_Table().reason) == 1
     c = choose("asprs2023", "H7.1 V10", _Table(), None, _Qa(), None)
     assert (c.h_cm, c.v_cm) == (7.1, 10.0) and "--class" in c.reason
     c = choose("usgs-lbs", None, _Table(), None, _Qa(), None)

@@ -273,3 +273,18 @@ def test_index_links_only_the_stage_pages_the_project_has(tmp_path):
     links = re.findall(r'<a href="(\.\./[^"]+)"', page)
     assert links == ["../at/report.txt", "../ortho/dom_report.json"]
     assert all((p / "reports" / link).resolve().is_file() for link in links)
+
+
+def test_control_to_tie_residual_ratio_row(tmp_path):
+    """The PATB tables' rule of thumb (control image residuals about 4 x the ties' is normal, around 10 x points at a
+    systematic error) as a row of its own, taken from at/report.json's image residuals: shown, not judged."""
+    p = _project(tmp_path, [0.1, 0.1, 0.5], 0.18)
+    rep = json.loads((p / "at" / "report.json").read_text())
+    assert not write_qa_report(p).has("control_to_tie_residual_ratio")  # no image residual table: no row
+    for ratio, word in ((3.87, "about 4 is normal"), (12.4, "systematic error (camera, GNSS")):
+        rep["image_residuals"] = {"control_to_tie_ratio": ratio}
+        (p / "at" / "report.json").write_text(json.dumps(rep))
+        out = write_qa_report(p)
+        row = out.check("control_to_tie_residual_ratio")
+        assert row.value == ratio and row.limit is None and row.verdict is None and word in row.note
+        assert out.overall == "pass"  # not judged: it does not fail the report

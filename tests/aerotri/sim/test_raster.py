@@ -37,12 +37,12 @@ def test_rasteriser_shows_what_the_ray_caster_hits(tiny_truth):
     """Surface ids at every pixel centre of every tiny frame: the z-buffer renderer and a ray per pixel agree
     except where a pixel centre lies on an edge between two surfaces."""
     t = tiny_truth
-    renderer = raster.FrameRenderer(t["scene"], t["cam"], 0.96, 1, 8)
+    renderer = raster.FrameRenderer(t["scene"], t["cam"], 0.96, samples=1, bits=8)
     total = differ = 0
     for i in range(len(t["eo"])):
         C, R = t["eo"].centre_m[i] - t["origin"], t["eo"].rotation(i)
         _, ids = renderer.render(C, R, with_ids=True)
-        _, ids_ray = render.render_frame(t["scene"], t["accel"], t["cam"], C, R, 1, with_ids=True)
+        _, ids_ray = render.render_frame(t["scene"], t["accel"], t["cam"], C, R, samples=1, with_ids=True)
         total += ids.size
         differ += int((ids != ids_ray).sum())
     assert total == 6 * 432 * 240
@@ -54,7 +54,7 @@ def test_roof_corners_with_their_relief_displacement(tiny_truth):
     frame shows that roof, 1.5 px outside it does not; the displacement from the ground point under the corner
     is the relief displacement of the roof height (many pixels for tall buildings)."""
     t = tiny_truth
-    renderer = raster.FrameRenderer(t["scene"], t["cam"], 0.96, 1, 8)
+    renderer = raster.FrameRenderer(t["scene"], t["cam"], 0.96, samples=1, bits=8)
     checked, displaced = 0, []
     for i in range(len(t["eo"])):
         C, R = t["eo"].centre_m[i] - t["origin"], t["eo"].rotation(i)
@@ -120,7 +120,7 @@ def test_texture_follows_the_gsd():
     x0, ytop = 100.0, 150.0
     grass = []
     for look in (fine, coarse):
-        _, rad, ids = raster.ortho_render(look, x0, ytop, 0.05, 0, 200, 200)
+        _, rad, ids = raster.ortho_render(look, x0, ytop, 0.05, r0=0, r1=200, ncols=200)
         g = rad[:, :, 1].astype(float)
         grass.append(np.abs(np.diff(g[:, ::2], axis=1)).mean())  # neighbours 0.1 m apart
     assert grass[0] > 1.5 * grass[1]

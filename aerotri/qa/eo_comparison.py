@@ -1,0 +1,132 @@
+"""The adjusted orientations against a reference (another AT of the same frames: a national AT, a vendor's
+solution): ``aerotri compare PROJECT --format F FILE...``.
+
+The reference is read by the import format's own reader (``aerotri.exchange.IMPORT_FORMATS``: the same CRS
+handling and checks as ``aerotri import``, nothing written into the project) and compared frame by frame with
+``at/eo.txt`` over the frames both hold: projection centre differences dX dY dZ (m, project CRS, adjusted minus
+reference), omega phi kappa differences (deg, wrapped into (-180, 180]) and the angle of the rotation between
+the two attitudes (deg); with the adjustment's sigmas, each difference in its own sigmas (the reference taken as
+exact). Written to ``reports/eo_comparison.json`` (atomically); the console shows the RMS and the largest.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import math
+from pathlib import Path
+
+import numpy as np
+
+from aerotri.core.atomic import write_text_atomic
+from aerotri.core.errors import InputError
+from aerotri.core.project import Project
+from aerotri.geom.eo import ExteriorOrientations, read_eo
+from aerotri.geom.rotation import rotation_matrix_opk
+
+SCHEMA_VERSION = 1
+
+
+@dataclasses.dataclass(frozen=True)
+class FrameDifference:
+    image_id: str
+    d_centre_m: tuple[float, float, float]  # adjusted - reference, project CRS
+    d_opk_deg: tuple[float, float, float]
+    rotation_deg: float  # angle of R_adjusted^T R_reference
+    normalised: tuple[float, ...] | None  # the six differences over the adjustment's sigmas
+
+
+@dataclasses.dataclass(frozen=True)
+class EoComparison:
+    """RMS over the common frames (``frames``) of each difference; ``missing``: frames of at/eo.txt the
+    reference lacks, ``extra``: frames only the reference has."""
+
+    reference: tuple[str, ...]
+    frames: int
+    rms_centre_m: tuple[float, float, float]
+    rms_opk_deg: tuple[float, float, float]
+    rms_rotation_deg: float
+    max_rotation_deg: float
+    max_centre_m: float
+    rms_normalised: tuple[float, ...] | None  # X Y Z omega phi kappa, in the adjustment's sigmas
+    per_frame: tuple[FrameDifference, ...]
+    missing: tuple[str, ...]
+    extra: tuple[str, ...]
+
+    def as_record(self) -> dict:
+        return {"schema_version": SCHEMA_VERSION, "kind": "eo comparison", **dataclasses.asdict(self)}
+
+
+def _rms(a: np.ndarray) -> np.ndarray:
+    return np.sqrt(np.mean(np.square(a), axis=0))
+
+
+def compare_orientations(adjusted: ExteriorOrientations, reference: ExteriorOrientations,
+                         source: tuple[str, ...] = ()) -> EoComparison:
+    """Frame-by-frame differences of ``adjusted`` against ``reference`` (same CRS); InputError when they share
+    no frame."""
+    ref_index = {iid: k for k, iid in enumerate(reference.image_id)}
+    common = [i for i, iid in enumerate(adjusted.image_id) if iid in ref_index]
+    if not common:
+        raise InputError(f"{', '.join(source) or 'the reference'}: no frame in common with at/eo.txt (reference ids "
+                         f"{', '.join(reference.image_id[:3])} ...; adjusted {', '.join(adjusted.image_id[:3])} ...)")
+    k = np.array([ref_index[adjusted.image_id[i]] for i in common])
+    a = np.array(common)
+    d_c = adjusted.centre_m[a] - reference.centre_m[k]
+    d_o = (adjusted.opk_deg[a] - reference.opk_deg[k] + 180.0) % 360.0 - 180.0
+    rot = np.array([math.degrees(math.acos(np.clip((np.trace(rotation_matrix_opk(*adjusted.opk_deg[i]).T
+                                                             @ rotation_matrix_opk(*reference.opk_deg[j])) - 1) / 2,
+                                                   -1.0, 1.0)))
+                    for i, j in zip(a, k)])
+    norm = None
+    if adjusted.sigma is not None and np.all(adjusted.sigma[a] > 0):
+        norm = np.hstack([d_c, d_o]) / adjusted.sigma[a]
+    per = tuple(FrameDifference(adjusted.image_id[i], tuple(np.round(d_c[n], 4).tolist()),
+                                tuple(np.round(d_o[n], 7).tolist()), round(float(rot[n]), 7),
+                                None if norm is None else tuple(np.round(norm[n], 3).tolist()))
+                for n, i in enumerate(a))
+    return EoComparison(
+        reference=tuple(source), frames=len(a), rms_centre_m=tuple(np.round(_rms(d_c), 4).tolist()),
+        rms_opk_deg=tuple(np.round(_rms(d_o), 7).tolist()), rms_rotation_deg=round(float(_rms(rot)), 7),
+        max_rotation_deg=round(float(rot.max()), 7), max_centre_m=round(float(np.linalg.norm(d_c, axis=1).max()), 4),
+        rms_normalised=None if norm is None else tuple(np.round(_rms(norm), 3).tolist()), per_frame=per,
+        missing=tuple(iid for iid in adjusted.image_id if iid not in ref_index),
+        extra=tuple(sorted(set(reference.image_id) - set(adjusted.image_id))))
+
+
+def compare_with_reference(root, format_name: str, files, crs: str | None = None) -> EoComparison:
+    """Read the reference orientations of ``files`` (an import format) and compare ``at/eo.txt`` with them;
+    writes ``reports/eo_comparison.json``."""
+    from aerotri.exchange.import_registry import importer_and_files
+    from aerotri.exchange.imported import ImportSettings
+
+    project = Project.open(root)
+    importer, files = importer_and_files(format_name, files)
+    block = importer.read(files, project, ImportSettings(crs=crs))
+    if block.eo is None:
+        raise InputError(f"{', '.join(str(f) for f in files)}: no orientations in these {format_name} files "
+                         f"(expected {importer.files})")
+    if not project.eo_path.is_file():
+        raise InputError(f"{project.eo_path}: not found (run aerotri adjust first)")
+    result = compare_orientations(read_eo(project.eo_path), block.eo, tuple(str(f) for f in files))
+    write_text_atomic(project.root / "reports" / "eo_comparison.json",
+                      json.dumps(result.as_record(), indent=1, allow_nan=False) + "\n")
+    return result
+
+
+def summary_lines(c: EoComparison) -> list[str]:
+    """The console summary: RMS and largest differences, and the frames left out."""
+    x, y, z = c.rms_centre_m
+    o, p, k = c.rms_opk_deg
+    lines = [f"{c.frames} frames against {', '.join(Path(r).name for r in c.reference)}: centres RMS dX {x:.3f} "
+             f"dY {y:.3f} dZ {z:.3f} m (largest {c.max_centre_m:.3f} m); omega/phi/kappa RMS {o:.4f} / {p:.4f} / "
+             f"{k:.4f} deg, rotation RMS {c.rms_rotation_deg:.4f} deg (largest {c.max_rotation_deg:.4f})"]
+    if c.rms_normalised is not None:
+        lines.append("  in the adjustment's sigmas (RMS): X Y Z " + " ".join(f"{v:.2f}" for v in c.rms_normalised[:3])
+                     + ", omega phi kappa " + " ".join(f"{v:.2f}" for v in c.rms_normalised[3:]))
+    if c.missing:
+        lines.append(f"  not in the reference: {len(c.missing)} frames ({', '.join(c.missing[:5])}"
+                     + (" ..." if len(c.missing) > 5 else "") + ")")
+    if c.extra:
+        lines.append(f"  only in the reference: {len(c.extra)} frames")
+    return lines

@@ -1,0 +1,62 @@
+"""aerotri compare: the adjusted orientations against a reference read by an import format; known differences
+come back, frame by frame and as RMS, and bad input is one clear error."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+from click.testing import CliRunner
+
+from aerotri.cli import main as aerotri_cli
+from aerotri.geom.eo import ExteriorOrientations, format_eo
+
+PROJECT = '[project]\nname = "t"\ncrs = "EPSG:32632"\n'
+
+
+def _project(tmp_path):
+    rng = np.random.default_rng(4)
+    ids = [f"f{i:02d}" for i in range(6)]
+    centre = np.c_[500000 + 100 * np.arange(6), np.full(6, 5400000.0), np.full(6, 1200.0)] + rng.normal(0, 1, (6, 3))
+    opk = np.c_[rng.normal(0, 1, 6), rng.normal(0, 1, 6), rng.uniform(-180, 180, 6)]
+    sigma = np.tile([0.02, 0.02, 0.04, 0.002, 0.002, 0.001], (6, 1))
+    tmp_path.mkdir(parents=True)
+    (tmp_path / "project.toml").write_text(PROJECT)
+    (tmp_path / "at").mkdir()
+    (tmp_path / "at" / "eo.txt").write_text(format_eo(ExteriorOrientations(ids, centre, opk, sigma)))
+    return tmp_path, ids, centre, opk
+
+
+def test_known_differences_come_back(tmp_path):
+    root, ids, centre, opk = _project(tmp_path / "p")
+    d_c = np.array([0.03, -0.04, 0.08])
+    d_o = np.array([0.002, -0.001, 0.004])
+    ref = tmp_path / "ext_param.csv"
+    rows = ["filename,x,y,z,omega,phi,kappa"]
+    for i, iid in enumerate(ids[:5]):  # the reference lacks the last frame
+        x, y, z = centre[i] - d_c
+        o, p, k = opk[i] - d_o
+        rows.append(f"{iid},{x:.4f},{y:.4f},{z:.4f},{o:.7f},{p:.7f},{k:.7f}")
+    ref.write_text("\n".join(rows) + "\n")
+    r = CliRunner().invoke(aerotri_cli, ["compare", str(root), "--format", "orthority", "--crs", "EPSG:32632", str(ref)])
+    assert r.exit_code == 0, r.output
+    assert "5 frames against ext_param.csv" in r.output and "not in the reference: 1 frames (f05)" in r.output
+    rec = json.loads((root / "reports" / "eo_comparison.json").read_text())
+    assert rec["frames"] == 5 and rec["missing"] == ["f05"]
+    assert np.allclose(rec["rms_centre_m"], np.abs(d_c), atol=2e-4) and np.allclose(rec["rms_opk_deg"], np.abs(d_o), atol=2e-7)
+    assert rec["per_frame"][0]["d_centre_m"] == [0.03, -0.04, 0.08]
+    # in the adjustment's sigmas: 1.5 2 2 and 1 0.5 4
+    assert np.allclose(rec["rms_normalised"], [1.5, 2.0, 2.0, 1.0, 0.5, 4.0], atol=0.02)
+    # the rotation between the attitudes is about the size of the angle differences
+    assert 0.003 < rec["rms_rotation_deg"] < 0.0047
+
+
+def test_bad_input_is_one_clear_error(tmp_path):
+    root, *_ = _project(tmp_path / "p")
+    ref = tmp_path / "ext_param.csv"
+    ref.write_text("filename,x,y,z,omega,phi,kappa\nzz,1,2,3,0,0,0\n")
+    r = CliRunner().invoke(aerotri_cli, ["compare", str(root), "--format", "orthority", "--crs", "EPSG:32632", str(ref)])
+    assert r.exit_code == 2 and "no frame in common with at/eo.txt" in r.output and "Traceback" not in r.output
+    assert not (root / "reports" / "eo_comparison.json").exists()
+    r = CliRunner().invoke(aerotri_cli, ["compare", str(root), "--format", "orthority", str(tmp_path / "none.csv")])
+    assert r.exit_code == 2 and "none.csv: not found" in r.output
