@@ -1065,18 +1065,32 @@ class FrameHoles:
 
     def pixels(self, ok: np.ndarray, row: int, col: int, factor: int) -> np.ndarray:
         """The hole pixels (bool) of the mosaic window of ``ok.shape`` at pixel (row, col); ``ok`` the frame's
-        validity there."""
+        validity there. Built over the box of the window's cells with holes (slices, no per-pixel gather: a mosaic
+        tile reads every frame over it with this)."""
         h, w = ok.shape
+        hole = np.zeros((h, w), bool)
         ch, cw = self.cells.shape
-        rows, cols = np.arange(row, row + h), np.arange(col, col + w)
-        rr, cc = rows // factor - self.offset[0], cols // factor - self.offset[1]
-        inside = ((rr >= 0) & (rr < ch))[:, None] & ((cc >= 0) & (cc < cw))[None, :]
-        at = np.ix_(np.clip(rr, 0, ch - 1), np.clip(cc, 0, cw - 1))
-        state = np.where(inside, self.cells[at], 0)
-        hole = ~ok & (state == 1)
-        ys, xs = np.nonzero(state == 2)
-        if len(ys):
-            hole[ys, xs] = self.partial[self.partial_index[at][ys, xs], rows[ys] % factor, cols[xs] % factor]
+        r0, c0 = max(0, row // factor - self.offset[0]), max(0, col // factor - self.offset[1])
+        r1 = min(ch, (row + h - 1) // factor - self.offset[0] + 1)
+        c1 = min(cw, (col + w - 1) // factor - self.offset[1] + 1)
+        if r1 <= r0 or c1 <= c0:
+            return hole
+        sub = self.cells[r0:r1, c0:c1]
+        rs, cs = np.nonzero(sub)
+        if not len(rs):
+            return hole
+        # the box of the cells with holes, in the window's pixels (y0, x0 its first pixel; may lie before the window)
+        ra, rb, ca, cb = int(rs.min()), int(rs.max()) + 1, int(cs.min()), int(cs.max()) + 1
+        y0 = (self.offset[0] + r0 + ra) * factor - row
+        x0 = (self.offset[1] + c0 + ca) * factor - col
+        all_holes = np.repeat(np.repeat(sub[ra:rb, ca:cb] == 1, factor, axis=0), factor, axis=1)
+        ya, yb, xa, xb = max(0, y0), min(h, y0 + all_holes.shape[0]), max(0, x0), min(w, x0 + all_holes.shape[1])
+        hole[ya:yb, xa:xb] = all_holes[ya - y0:yb - y0, xa - x0:xb - x0] & ~ok[ya:yb, xa:xb]
+        for i, j in zip(*np.nonzero(sub == 2)):  # cells with some of their invalid pixels holes: their bits
+            bits = self.partial[self.partial_index[r0 + i, c0 + j]]
+            py, px = (self.offset[0] + r0 + i) * factor - row, (self.offset[1] + c0 + j) * factor - col
+            ya, yb, xa, xb = max(0, py), min(h, py + factor), max(0, px), min(w, px + factor)
+            hole[ya:yb, xa:xb] = bits[ya - py:yb - py, xa - px:xb - px]
         return hole
 
     def arrays(self, k: int) -> dict:
