@@ -781,8 +781,9 @@ class _BlendContext:
     dtype: str
     read_cells: object
     seam_shape: tuple
-    # per frame: None, or its ``FrameHoles`` for a frame whose ortho has holes (a true ortho's occlusion); its pixels within hole_margin_px of a hole are taken only where
-    # no other frame has the pixel away from its holes (``_hole_margin``)
+    # per frame: None, or its ``FrameHoles`` for a frame whose ortho has holes (a true ortho's occlusion); its pixels
+    # within hole_margin_px of a hole are taken only where no other frame has the pixel away from its holes
+    # (``_hole_margin``)
     holes: list | None = None
     hole_margin_px: int = 0
 
