@@ -59,6 +59,22 @@ def covered(valid: np.ndarray) -> np.ndarray:
     return outside[1:-1, 1:-1] != 2
 
 
+def footprint(valid: np.ndarray) -> np.ndarray:
+    """The seam cells a frame's region may hold: ``covered``, and for a frame with holes (a true ortho) the convex
+    hull of its valid cells: what it does not see may also reach the edge of its ortho (a street hidden from it down
+    to its edge), which is no hole and would cut its region in two (a frame's footprint on the ground is convex up to
+    the relief displacement of its edge). A frame without holes (a conventional ortho): its valid cells as they are."""
+    import cv2
+
+    filled = covered(valid)
+    if not (filled != valid).any():
+        return filled
+    contours, _ = cv2.findContours(valid.view(np.uint8).copy(), cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_SIMPLE)
+    hull = np.zeros(valid.shape, np.uint8)
+    cv2.fillConvexPoly(hull, cv2.convexHull(np.concatenate(contours)), 1)
+    return filled | (hull > 0)
+
+
 def neighbour_pairs(labels: np.ndarray) -> list[tuple[int, int]]:
     """Pairs (i < j) of labels that touch (4-neighbourhood)."""
     keys = []
