@@ -42,7 +42,7 @@ def evaluate(root: Path, gsd_m: float, blunders: bool, n_control: int, seed: int
     t0 = time.perf_counter()
     ba = adjust_project(root, AdjustSettings(gnss_correction="shift", image_sigma_px=NOISE_PX, self_calibration=("pp", "radial")))
     t_adj = time.perf_counter() - t0
-    rep = write_outputs(ba, root)
+    rep = json.loads(write_outputs(ba, root).report_path.read_text())
     r, b = ba.result, ba.block
     cam_true = BrownCamera.read(root / "truth" / "camera.toml")
     sd = np.sqrt(np.diag(r.cal_cov))

@@ -355,8 +355,9 @@ def _points_range(j0, j1, xy, obs_image, start, pair_row, pair_a, pair_b, pair_b
 
 
 
-def reduced_camera_system(xy, obs_image, row, start, pair_a, pair_b, pair_block, n_blocks, n_images, centre, R_cv, points,
-                          cal, inv_sigma, with_cal, huber_k, point_r, point_B, point_damping, work: Workspace | None = None):
+def reduced_camera_system(xy, obs_image, row, start, pair_a, pair_b, *, pair_block, n_blocks, n_images, centre, R_cv,
+                          points, cal, inv_sigma, with_cal, huber_k, point_r, point_B, point_damping,
+                          work: Workspace | None = None):
     """Linearise the tie-point rays at (orientations, points) and eliminate the points.
 
     Returns the reduced system ``S`` as diagonal blocks ``U`` (N, 6, 6) and pair blocks ``S_pair``
@@ -528,13 +529,13 @@ _sum_of_squares_serial = numba.njit(cache=True)(_sum_of_squares)
 _sum_of_squares_parallel = numba.njit(parallel=True, cache=True)(_variant(_sum_of_squares, "_parallel"))
 
 
-def point_increments(Vinv, bp, W, Z, obs_image, start, d_pose, d_cal):
+def point_increments(Vinv, bp, W, Z, obs_image, start, *, d_pose, d_cal):
     """``_point_increments``, in parallel for blocks of ``PARALLEL_MIN_RAYS`` rays or more."""
     f = _point_increments_parallel if len(obs_image) >= PARALLEL_MIN_RAYS else _point_increments_serial
     return f(Vinv, bp, W, Z, obs_image, start, d_pose, d_cal)
 
 
-def sum_of_squares(xy, obs_image, row, centre, R_cv, points, cal, inv_sigma, huber_k):
+def sum_of_squares(xy, obs_image, row, centre, R_cv, points, *, cal, inv_sigma, huber_k):
     """``_sum_of_squares``: blocks of ``PARALLEL_MIN_RAYS`` rays or more in ``PARTS`` runs in parallel, smaller ones
     in one."""
     if len(row) >= PARALLEL_MIN_RAYS:

@@ -437,7 +437,7 @@ def build_qa_report(root, *, tolerance_file=None, terrain: str | None = None, sc
     fa = at.flight_acceptance if at else None
     if fa is None and (project.eo_path.is_file() or project.gnss_path.is_file()) and project.camera_path.is_file():
         got = project_flight_acceptance(root, tol)
-        fa = got.as_dict() if got is not None else None
+        fa = dataclasses.asdict(got) if got is not None else None
     if fa:
         # judged by this report's table (its platform), whatever the adjustment's section was held to
         fa = {**fa, "spec": tol.get("flight_spec") or fa.get("spec"),

@@ -596,11 +596,11 @@ def _write_flight_acceptance(truth_dir: Path, cfg: dict, plan, cam_true, origin,
     dem = dem or truth_dir / "dem.tif"
     fa = flight_acceptance(plan.image_id, plan.centre_m + origin, plan.opk_deg, cam_true,
                            Terrain.from_dem(dem, float(origin[2]), source=f"{dem.parent.name}/{dem.name}"),
-                           plan.strip, limits)
+                           plan.strip, limits=limits)
     for c in fa.failed:
         log.warning(f"flight acceptance: {c['quantity']} {c['value']} {c['unit']} at {c['where']} "
                     f"(limit {c['limit']})")
-    (truth_dir / "flight_acceptance.json").write_text(json.dumps(fa.as_dict(), indent=1) + "\n")
+    (truth_dir / "flight_acceptance.json").write_text(json.dumps(dataclasses.asdict(fa), indent=1) + "\n")
 
 
 def _check_plan(plan, scene, cfg):

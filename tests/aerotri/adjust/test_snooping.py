@@ -54,13 +54,13 @@ def test_compiled_normals_and_leverages_equal_numpys():
     uv = project_cv(truth[pt], centre[im], R[im], cal)[0] + rng.normal(0, 0.3, (len(pt), 2))
     start = truth + rng.normal(0, 2.0, truth.shape)
     multi = np.bincount(pt, minlength=n_pts) >= 2
-    ref = refine_points(uv, pt, im, centre, R, cal, start, iterations=3)
-    got, N = refined_normals(uv, pt, im, centre, R, cal, start, iterations=3)
+    ref = refine_points(uv, pt, im, centre, R, cal, points=start, iterations=3)
+    got, N = refined_normals(uv, pt, im, centre, R, cal, points=start, iterations=3)
     assert np.abs(got - ref)[multi].max() < 1e-9  # m
     N_ref = point_normals(point_jacobian_cv(project_cv(ref[pt], centre[im], R[im], cal)[1], R[im], cal), pt, n_pts)
     assert np.abs(N - N_ref)[multi].max() < 1e-9 * np.abs(N_ref).max()
     active = rng.random(len(pt)) > 0.1
-    r = redundancy_numbers(pt, im, truth, centre, R, cal, active)
+    r = redundancy_numbers(pt, im, truth, centre, R, cal, active=active)
     _, pc = project_cv(truth[pt], centre[im], R[im], cal)
     J = point_jacobian_cv(pc, R[im], cal)
     Nk = point_normals(J[active], pt[active], n_pts)
