@@ -12,7 +12,7 @@ from __future__ import annotations
 import numba
 import numpy as np
 
-from aerotri.geom.lens_kernels import brown_distort, brown_distort_jacobian
+from aerotri.geom.lens_kernels import BrownCoefficients, brown_distort, brown_distort_jacobian
 from aerotri.adjust.collinearity import jacobians_cv, pixel_rays, point_jacobian_cv, point_normals, project_cv
 from aerotri.adjust.keys import K_KEY, X
 
@@ -82,8 +82,9 @@ def _ray_point_jacobian(xy, centre, R, point, cal, J):
     y = R[0, 1] * d0 + R[1, 1] * d1 + R[2, 1] * d2
     z = R[0, 2] * d0 + R[1, 2] * d1 + R[2, 2] * d2
     xn, yn = x / z, y / z
-    xd, yd = brown_distort(xn, yn, k1, k2, 0.0, p1, p2)
-    a00, a01, a10, a11 = brown_distort_jacobian(xn, yn, k1, k2, 0.0, p1, p2)
+    lens = BrownCoefficients(k1, k2, 0.0, p1, p2)
+    xd, yd = brown_distort(xn, yn, lens)
+    a00, a01, a10, a11 = brown_distort_jacobian(xn, yn, lens)
     m00, m01 = fx * a00 + sk * a10, fx * a01 + sk * a11
     m10, m11 = fy * a10, fy * a11
     iz, ux, uy = 1.0 / z, -xn / z, -yn / z  # d(xn, yn) / d pc as in ``collinearity._dpixel_dpc``
