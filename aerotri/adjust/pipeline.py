@@ -568,7 +568,8 @@ def adjust_project(root, settings: AdjustSettings | None = None) -> BlockAdjustm
     opts, checks, focal_mode = prepared.opts, {}, None
     while True:
         result = adjust_block(prepared.block, opts, state0, snooping=st.snooping, alpha=st.alpha,
-                              point_covariances=st.point_covariances, variance_components=st.variance_components)
+                              point_covariances=st.point_covariances, variance_components=st.variance_components,
+                              image_sigma_from_residuals=st.image_sigma_from_residuals)
         if not opts.self_calibration or result.calibration is None:
             break
         # the determinability of each estimated group (determinability.py); the groups the block cannot

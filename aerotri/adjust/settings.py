@@ -36,6 +36,12 @@ class AdjustSettings:
     self_calibration: tuple[str, ...] = setting((), choices=SELF_CAL_GROUP_NAMES,
                                                 help="Interior orientation groups to estimate.")
     image_sigma_px: float = setting(0.5, min=0.0, min_open=True, help="A-priori image standard deviation (px).")
+    image_sigma_from_residuals: bool = setting(
+        False, help="Weight the images of the final solve by the standard deviation their residuals show after the "
+                    "robust rounds (1.4826 MAD of v / sqrt(r)) instead of image_sigma_px, which then weights the "
+                    "robust rounds only: with a wrong a-priori image sigma the GNSS, control and DEM are weighted "
+                    "wrongly against the images, and the orientations' sigmas, scaled by a sigma0 the images "
+                    "dominate, come out too small or too large (the report says so when sigma0 is outside 0.8-1.25).")
     check: tuple[str, ...] = setting((), help="Control point ids to use as check points.")
     control: tuple[str, ...] = setting((), help="Point ids to use as full control even if marked check.")
     snooping: bool = setting(True, help="Blunder detection (data snooping).")

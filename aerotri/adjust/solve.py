@@ -99,6 +99,7 @@ def _adjust_block(
     max_rounds: int = 15,
     variance_components: bool = False,
     max_vce_iterations: int = 6,
+    image_sigma_from_residuals: bool = False,
 ) -> AdjustmentResult:
     """Adjust the block; with ``snooping``, remove blunders (image points, then control points). The variance
     components of the observation groups are estimated with the covariances; with ``variance_components``
@@ -193,6 +194,10 @@ def _adjust_block(
                 continue
             break
 
+    image_factor = 1.0
+    if image_sigma_from_residuals and rnd > 0:
+        opts, image_factor = _image_sigma_from_residuals(opts, *residuals_and_redundancy(state), obs_active)
+
     # final least squares without the robust kernel; a last snooping check
     _drop_weak_points(block, obs_active, state)
     if surface_candidates is not None:
@@ -230,7 +235,7 @@ def _adjust_block(
         if marg is not None and point_covariances:
             rays, point_unit, components = _point_precision(block, opts, state, obs_active, control_active, marg,
                                                             dof=info.dof)
-            factors = {c.group: 1.0 for c in components}
+            factors = {c.group: image_factor if c.group == "image" else 1.0 for c in components}
             for it in range(max_vce_iterations if variance_components else 0):
                 if all(c.factor is None or abs(c.factor - 1.0) < 0.05 for c in components):
                     break
@@ -312,6 +317,26 @@ def _point_precision(block: G.Block, opts: G.SolveSettings, state: G.State, obs_
     rays = point_rays(block, state, obs_active, opts.image_sigma_px, marg, self_cal)
     unit = point_covariances_rcs(block, state, obs_active, opts.image_sigma_px, marg, self_cal, rays=rays)
     return rays, unit, vce.estimate(block, opts, state, obs_active, control_active, marg, point_cov_unit=unit, dof=dof)
+
+
+# below this the residuals of a simulated block without noise would make the image weights unbounded
+MIN_IMAGE_SIGMA_PX = 0.02
+MIN_IMAGE_REDUNDANCY = 50.0  # the estimate of the image sigma needs this much redundancy, else the a priori stays
+
+
+def _image_sigma_from_residuals(opts: G.SolveSettings, v_px, r, sigma_px: float,
+                                obs_active) -> tuple[G.SolveSettings, float]:
+    """The options with ``image_sigma_px`` set to the robust estimate ``sigma_px`` of the image residuals (one
+    variance component, the images', from the last robust round) and the factor on the a-priori sigma; the
+    options unchanged (factor 1) when the redundancy is too small or the estimate not finite."""
+    redundancy = float(np.nansum(np.where(obs_active[:, None], r, 0.0)))
+    if not (np.isfinite(sigma_px) and sigma_px > 0 and redundancy >= MIN_IMAGE_REDUNDANCY):
+        return opts, 1.0
+    sigma_px = max(sigma_px, MIN_IMAGE_SIGMA_PX)
+    factor = sigma_px / opts.image_sigma_px
+    log.info(f"image sigma from the robust rounds' residuals: {sigma_px:.3f} px (a priori {opts.image_sigma_px:g} px, "
+             f"redundancy {redundancy:.0f}); the final solve weights the images by it")
+    return dataclasses.replace(opts, image_sigma_px=sigma_px), factor
 
 
 def _surface_gate(block: G.Block, state: G.State, obs_active, sigma_px: float) -> tuple[np.ndarray, np.ndarray]:

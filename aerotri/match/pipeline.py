@@ -222,9 +222,10 @@ class _Matcher:
         return items
 
     def features(self, frames, p: F.FeatureSettings, desc: str) -> dict:
-        """Features of the given frames (index -> Features), extracted as one task per frame."""
+        """Keypoints of the given frames (index -> CachedKeypoints: descriptors stay in the cache files), extracted
+        as one task per frame."""
         frames = list(frames)
-        return {i: F.cached_features(*item) for i, item in zip(frames, self.extract(frames, p, desc))}
+        return {i: F.cached_keypoints(*item) for i, item in zip(frames, self.extract(frames, p, desc))}
 
     def match(self, pairs_ij, fp: F.FeatureSettings, p: M.PairMatchSettings, desc: str) -> list:
         """Verified matches of the given frame pairs, one task per pair (features read from the cache)."""
@@ -403,7 +404,7 @@ def _tracks(sparse, dense, matches, complete_px: float | None = None, size_px=No
     extended into the frames of verified pairs where they were missed (``complete_tracks``, tolerance in
     full-resolution px)."""
     n_img = len(sparse)
-    xy_all, desc_all, rep_all, dense_map, sparse_map = [], [], [], {}, {}
+    xy_all, rep_all, dense_map, sparse_map, dense_new = [], [], {}, {}, {}
     for i in range(n_img):
         xs = sparse[i].xy_px
         sparse_map[i] = coincident(xs)
@@ -417,13 +418,12 @@ def _tracks(sparse, dense, matches, complete_px: float | None = None, size_px=No
             idx[~same] = len(xs) + coincident(new)  # dense keypoints at one place are one node too
             dense_map[i] = idx
             xy_all.append(np.vstack([xs, new]))
+            dense_new[i] = ~same
             if complete_px is not None:
-                desc_all.append(np.vstack([sparse[i].descriptors, dense[i].descriptors[~same]]))
                 rep_all.append(np.concatenate([sparse_map[i], len(xs) + coincident(new)]))
         else:
             xy_all.append(xs)
             if complete_px is not None:
-                desc_all.append(sparse[i].descriptors)
                 rep_all.append(sparse_map[i])
     pm = []
     for (i, j), (kind, m) in matches.items():
@@ -436,9 +436,34 @@ def _tracks(sparse, dense, matches, complete_px: float | None = None, size_px=No
         pm.append((i, j, m))
     track, image, kp, n_bad = build_tracks([len(x) for x in xy_all], pm)
     if complete_px is not None:
+        desc_all = _NodeDescriptors(sparse, dense, dense_new)
         track, image, kp, n_added = complete_tracks(track, image, kp, node_xy=xy_all, node_desc=desc_all,
                                                     node_rep=rep_all, pair_links=pm, size_px=size_px,
                                                     tol_px=complete_px)
         log.info(f"track completion: {n_added} observations added")
     xy = np.array([xy_all[i][k] for i, k in zip(image, kp)]).reshape(-1, 2)
     return track, image, xy, n_bad
+
+
+class _NodeDescriptors:
+    """The descriptors of every frame's track nodes (its sparse keypoints, then its dense ones that are no sparse
+    keypoint), read from the feature cache when a frame is asked for and kept for the last ``keep`` frames: memory
+    follows a few frames, not the block."""
+
+    def __init__(self, sparse: list, dense: dict, dense_new: dict, keep: int = 8):
+        self.sparse, self.dense, self.dense_new, self.keep = sparse, dense, dense_new, keep
+        self._recent: dict[int, np.ndarray] = {}
+
+    def __len__(self) -> int:
+        return len(self.sparse)
+
+    def __getitem__(self, i: int) -> np.ndarray:
+        d = self._recent.pop(i, None)
+        if d is None:
+            d = self.sparse[i].descriptors()
+            if i in self.dense:
+                d = np.vstack([d, self.dense[i].descriptors()[self.dense_new[i]]])
+            if len(self._recent) >= self.keep:
+                self._recent.pop(next(iter(self._recent)))  # the least recently used
+        self._recent[i] = d
+        return d

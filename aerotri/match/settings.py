@@ -17,7 +17,8 @@ from aerotri.core.settings import setting
 
 
 FEATURES_VERSION = 3  # 2: keypoints on the image content (SIFT precise upscale, pyramid levels without offset);
-# 3: frames read by windows, deep (12/16-bit) samples scaled by their significant bits
+# 3: frames read by windows, deep (12/16-bit) samples scaled by their significant bits; tile_px (detection by
+# tiles) joins the key through the settings
 
 
 def _key(params, version: int | None = None) -> str:
@@ -36,6 +37,10 @@ class FeatureSettings:
     max_dim_px: int = setting(3000, min=64, help="Detect on the pyramid level whose larger side is at most this many "
                                                  "pixels.")
     contrast_threshold: float = setting(0.01, min=0.0, min_open=True, help="SIFT contrast threshold.")
+    tile_px: int = setting(1792, min=256, help="Detect in tiles of about this many pixels a side of the detection level "
+                                               "(plus a 128 px margin), one after the other: SIFT holds about 230 bytes "
+                                               "a pixel of what it detects on, so memory follows the tile, not the "
+                                               "frame. A level up to this size plus the margins is detected whole.")
     name: str = setting("sparse", help="Tag of the cache files.")
 
     def key(self) -> str:

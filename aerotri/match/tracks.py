@@ -100,7 +100,7 @@ def complete_tracks(track: np.ndarray, image: np.ndarray, node: np.ndarray, *, n
     used = [np.zeros(len(x), bool) for x in node_xy]
     for i in range(n_img):
         used[i][node[by_image[bounds[i]:bounds[i + 1]]]] = True
-    trees = [None] * n_img
+    trees: dict[int, cKDTree] = {}  # of the last few frames b (pairs come in block order): not one a frame
     W, H = size_px
     prop_t, prop_b, prop_row, prop_d2 = [], [], [], []
     for a_, b_, m_ in pair_links:
@@ -123,9 +123,11 @@ def complete_tracks(track: np.ndarray, image: np.ndarray, node: np.ndarray, *, n
             pred += np.median(resid[nn], axis=1)
             inside = (pred[:, 0] >= -0.5) & (pred[:, 0] <= W - 0.5) & (pred[:, 1] >= -0.5) & (pred[:, 1] <= H - 0.5)
             sel, pred = sel[inside], pred[inside]
-            if trees[b] is None:
-                trees[b] = cKDTree(node_xy[b])
-            dist, cand = trees[b].query(pred, k=4, distance_upper_bound=tol_px)
+            tree = trees.pop(b, None)
+            trees[b] = tree = cKDTree(node_xy[b]) if tree is None else tree
+            if len(trees) > 16:
+                trees.pop(next(iter(trees)))  # the least recently used
+            dist, cand = tree.query(pred, k=4, distance_upper_bound=tol_px)
             ok = np.isfinite(dist)
             q, c = np.nonzero(ok)
             rows_b = cand[q, c]

@@ -45,6 +45,13 @@ def test_components_add_up_and_find_the_image_precision(gnss_block):
     assert vc["image"].factor == pytest.approx(SIGMA_PX / 1.0, rel=0.1)
     assert vc["control"].factor is None  # 4 points: too little redundancy to estimate a factor
     assert 0 < vc["gnss"].redundancy < vc["gnss"].n
+    # with image_sigma_from_residuals the final solve already weights the images by their residuals' sigma: the
+    # component is then one, and the factor the weights carry is the 0.3
+    r = adjust_project(root, AdjustSettings(image_sigma_px=1.0, point_covariances=True,
+                                            image_sigma_from_residuals=True)).result
+    vc = {c.group: c for c in r.variance_components}
+    assert vc["image"].factor == pytest.approx(1.0, abs=0.1)
+    assert r.weight_factors["image"] == pytest.approx(SIGMA_PX / 1.0, rel=0.1)
 
 
 def test_reweighting_finds_the_same_dem_precision_from_any_start(gnss_block):
