@@ -419,7 +419,8 @@ class Chain:
 
         p = self.project
         s = vectors_to_file(self.classified(), p.vectors_path, params=MapVectorSettings(), crs=p.crs)
-        counts = {k: s[k] for k in ("buildings", "roads", "water", "spot_heights") if k in s}
+        c = s.counts
+        counts = dict(buildings=c.buildings, roads=c.roads, water=c.water, spot_heights=c.spot_heights)
         ref = self.vectors_reference()
         if ref is None:
             return R.VectorsResult(**counts, notes=("no reference vectors ([vectors] reference): the line map is "
