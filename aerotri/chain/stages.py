@@ -417,7 +417,8 @@ class Chain:
 
         p = self.project
         s = vectors_to_file(self.classified(), p.vectors_path, params=MapVectorSettings(), crs=p.crs)
-        counts = {k: s[k] for k in ("buildings", "roads", "water", "spot_heights") if k in s}
+        c = s.counts
+        counts = dict(buildings=c.buildings, roads=c.roads, water=c.water, spot_heights=c.spot_heights)
         ref = self.vectors_reference()
         if ref is None:
             return R.VectorsResult(**counts, notes=("no reference vectors ([vectors] reference): the line map is "
@@ -571,7 +572,7 @@ class Chain:
         from ortho.points_dem import write_points_dem
 
         s = write_points_dem(root, self.tie_point_dem_path)
-        return R.TiePointDemResult(res_m=s["res_m"], points=s["points"], cells_measured=s["cells_measured"],
+        return R.TiePointDemResult(res_m=s.res_m, points=s.points, cells_measured=s.cells_measured,
                                    notes=("no LiDAR or given DEM: the orthophotos on the DEM of the adjusted tie "
                                           f"points ({self.tie_point_dem_path})",))
 
@@ -638,10 +639,9 @@ class Chain:
         return Path(given) if given is not None else simulator_roof_corners(self.reference_ortho)
 
     def run_dom_check(self, root) -> R.DomCheckResult:
-        from ortho.check import read_dom_check, run_check
+        from ortho.check import run_check
 
-        run_check(root, self.stage_settings("dom_check"), reference_path=self.reference_ortho)
-        rep = read_dom_check(self.project.dom_report_path)
+        rep = run_check(root, self.stage_settings("dom_check"), reference_path=self.reference_ortho)
         d, roofs = rep.displacement, rep.roofs
         return R.DomCheckResult(rms_xy_m=d.rms_xy_m, rms_xy_gsd=d.rms_xy_gsd, count=d.count,
                                 roofs_rms_xy_m=roofs.rms_xy_m if roofs else None,
