@@ -317,7 +317,7 @@ def _accuracy(block_t, ctx, st, surface=None) -> dict:
     cobs = ctx.control_obs.subset(np.isin(ctx.control_obs.point_id, chk.id))
     cid = {p: c for c, p in enumerate(chk.id)}
     P, _ = intersect(cobs.xy_px, np.array([cid[p] for p in cobs.point_id]), np.array([ctx.image_index[i] for i in cobs.image_id]),
-                     st.centre, st.R_cv, st.cal, len(chk))
+                     st.centre, st.R_cv, st.cal, n_points=len(chk))
     d = P - ctx.frame.to_local(chk.xyz_m)
     ok = np.all(np.isfinite(d), axis=1)
     dc = st.centre - C_true
@@ -413,7 +413,7 @@ def surface_bench(a):
             t = time.perf_counter() - t0
             res[name] = {"adjust_s": t, "adjust_cpu_s": time.process_time() - c0, "timings_s": r.timings_s, "iterations": r.iterations_total,
                          "removed_observations": len(r.removed), "sigma0": r.sigma0,
-                         "surface": r.surface.as_dict() if r.surface is not None else None,
+                         "surface": dataclasses.asdict(r.surface) if r.surface is not None else None,
                          **_accuracy(block_t, ctx, r.state, surface)}
             print(f"robust adjust_block {'with' if flag else 'without'} surface: {t:.1f} s "
                   f"({r.iterations_total} iterations)", flush=True)

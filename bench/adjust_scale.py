@@ -73,8 +73,8 @@ def make_block(out: Path, frames: int, *, points_per_image: int = POINTS_PER_IMA
     cal = '["pp", "radial"]' if self_calibration else "[]"
     (root / "project.toml").write_text(cfg + f'\n[adjust]\ngnss_correction = "shift_drift"\nself_calibration = {cal}\n')
     info = {"frames": n, "strips": strips, "frames_per_strip": per_strip,
-            "tie_points": summary["n_tie_points"], "image_observations": summary["n_tie_observations"],
-            "tie_blunders": len(summary["tie_blunders"]), "control_points": n_control, "check_points": 60,
+            "tie_points": summary.n_tie_points, "image_observations": summary.n_tie_observations,
+            "tie_blunders": len(summary.tie_blunders), "control_points": n_control, "check_points": 60,
             "dem_cell_m": cell, "points_per_image": points_per_image, "seed": seed,
             "self_calibration": self_calibration, "make_s": round(time.perf_counter() - t0, 1)}
     (root / "block.json").write_text(json.dumps(info, indent=1))

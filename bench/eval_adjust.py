@@ -42,7 +42,7 @@ def evaluate(root: Path, gsd_m: float, blunders: bool, n_control: int, seed: int
     t0 = time.perf_counter()
     ba = adjust_project(root, AdjustSettings(gnss_correction="shift", image_sigma_px=NOISE_PX, self_calibration=("pp", "radial")))
     t_adj = time.perf_counter() - t0
-    rep = write_outputs(ba, root)
+    rep = json.loads(write_outputs(ba, root).report_path.read_text())
     r, b = ba.result, ba.block
     cam_true = BrownCamera.read(root / "truth" / "camera.toml")
     sd = np.sqrt(np.diag(r.cal_cov))
@@ -54,7 +54,7 @@ def evaluate(root: Path, gsd_m: float, blunders: bool, n_control: int, seed: int
     rms_xy = float(np.sqrt(np.mean(np.sum(d[:, :2] ** 2, axis=1))))
     rms_z = float(np.sqrt(np.mean(d[:, 2] ** 2)))
     out = {
-        "images": b.n_images, "tie_observations": info["n_tie_observations"], "tie_points": info["n_tie_points"],
+        "images": b.n_images, "tie_observations": info.n_tie_observations, "tie_points": info.n_tie_points,
         "gsd_m": gsd_m, "injected_noise_px": NOISE_PX,
         "sigma0": r.sigma0, "sigma0_um": rep["key_statistics"]["sigma0_um"],
         "injected_noise_um": NOISE_PX * ba.camera_apriori.pixel_um,
@@ -72,19 +72,19 @@ def evaluate(root: Path, gsd_m: float, blunders: bool, n_control: int, seed: int
         "iterations": int(r.iterations_total), "adjust_s": t_adj, "timings_s": r.timings_s,
     }
     removed = {(str(b.point_id[b.obs_point[x.obs]]), b.image_id[b.obs_image[x.obs]]) for x in r.removed}
-    bad = {tuple(x) for x in info["tie_blunders"]}
+    bad = {tuple(x) for x in info.tie_blunders}
     out["removed_observations"] = len(removed)
     if blunders:
-        n_good = info["n_tie_observations"] - len(bad)
+        n_good = info.n_tie_observations - len(bad)
         out.update({
             "blunders_injected": len(bad), "blunders_removed": len(bad & removed),
             "blunder_recall_pct": 100.0 * len(bad & removed) / max(len(bad), 1),
             "good_removed": len(removed - bad), "good_removed_pct": 100.0 * len(removed - bad) / n_good,
-            "bad_control": info["bad_control"], "rejected_control": [str(ba.control.id[c]) for c, _ in r.rejected_control],
+            "bad_control": info.bad_control, "rejected_control": [str(ba.control.id[c]) for c, _ in r.rejected_control],
         })
         out["bad_control_found"] = out["rejected_control"] == out["bad_control"]
     else:
-        out["good_removed_pct"] = 100.0 * len(removed) / info["n_tie_observations"]
+        out["good_removed_pct"] = 100.0 * len(removed) / info.n_tie_observations
     targets = {
         "sigma0_within_10pct": abs(out["sigma0_error_pct"]) <= 10.0,
         "check_xy_le_0p5_gsd": out["rms_check_xy_gsd"] <= 0.5,

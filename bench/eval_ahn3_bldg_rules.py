@@ -73,7 +73,7 @@ def main():
     for name in names:
         t0 = time.perf_counter()
         pred = classify.classify_points(c.x, c.y, c.z, c.return_number, c.number_of_returns, c.intensity,
-                                        dataclasses.replace(classify.ClassifySettings(), **VARIANTS[name]))
+                                        params=dataclasses.replace(classify.ClassifySettings(), **VARIANTS[name]))
         rows[name] = {"params": VARIANTS[name], "seconds": round(time.perf_counter() - t0, 1),
                       "parts": {p: scores(pred[part == k], truth[part == k]) for k, p in enumerate(PARTS)}}
         print(name, rows[name]["seconds"], "s; building PA/UA per quarter:",

@@ -140,10 +140,12 @@ def main():
     mapped = np.where(np.isin(pred, (2, 6, 9)), pred, 1)
     part = part_of(c.x, c.y)
     nr = np.asarray(c.number_of_returns)
-    unrefined = classify.classify_points(c.x, c.y, c.z, c.return_number, c.number_of_returns, c.intensity,
-                                         dataclasses.replace(classify.ClassifySettings(), ground_lift_sigma=0.0))
-    nobridge = classify.classify_points(c.x, c.y, c.z, c.return_number, c.number_of_returns, c.intensity,
-                                        dataclasses.replace(classify.ClassifySettings(), bridge_max_width_m=0.0))
+    unrefined = classify.classify_points(
+        c.x, c.y, c.z, c.return_number, c.number_of_returns, c.intensity,
+        params=dataclasses.replace(classify.ClassifySettings(), ground_lift_sigma=0.0))
+    nobridge = classify.classify_points(
+        c.x, c.y, c.z, c.return_number, c.number_of_returns, c.intensity,
+        params=dataclasses.replace(classify.ClassifySettings(), bridge_max_width_m=0.0))
     out = {"data": "ahn3_cropped_1.laz, shipped ClassifySettings defaults", "parts": {}}
     for k, name in enumerate(PARTS):
         m = part == k

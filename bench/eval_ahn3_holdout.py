@@ -95,7 +95,7 @@ def main():
     def run(params: dict) -> list[dict]:
         """Scores on parts 0..3 and (index 4) the whole crop."""
         pred = classify.classify_points(c.x, c.y, c.z, c.return_number, c.number_of_returns, c.intensity,
-                                        dataclasses.replace(classify.ClassifySettings(), **params, **fixed))
+                                        params=dataclasses.replace(classify.ClassifySettings(), **params, **fixed))
         return [scores(pred[part == k], truth[part == k]) for k in range(4)] + [scores(pred, truth)]
 
     rows_b = []

@@ -48,7 +48,7 @@ def main():
            "runs": {}}
     for name, params in runs.items():
         pred = classify.classify_points(c.x, c.y, c.z, c.return_number, c.number_of_returns, c.intensity,
-                                        dataclasses.replace(classify.ClassifySettings(), **params))
+                                        params=dataclasses.replace(classify.ClassifySettings(), **params))
         out["runs"][name] = {"params": params, "by_edge_band_m": {
             str(b): dict(scores(pred[edge_m >= b], truth[edge_m >= b]), points=int(np.sum(edge_m >= b)))
             for b in BORDERS_M}}

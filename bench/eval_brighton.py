@@ -97,7 +97,8 @@ def measure(name: str, root: Path, lidar: Path, settings) -> dict:
     t = time.perf_counter()
     failed = None
     try:
-        ba, rep = run_adjustment(root, settings, html=False)
+        res = run_adjustment(root, settings, html=False)
+        ba, rep = res.adjustment, json.loads(res.report_path.read_text())
     except SolveError as exc:
         failed = str(exc)
         rep = json.loads((root / "work" / "adjust_failed" / "report.json").read_text())

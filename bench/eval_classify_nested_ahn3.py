@@ -49,7 +49,7 @@ def run_ahn3(cache_dir, nested_cv, loo, make_selectors) -> dict:
         k = _key(params)
         if k not in cache:
             pred = classify.classify_points(c.x, c.y, c.z, c.return_number, c.number_of_returns, c.intensity,
-                                            dataclasses.replace(d, **params))
+                                            params=dataclasses.replace(d, **params))
             cache[k] = [scores(pred[part == q], truth[part == q]) for q in range(4)] + [scores(pred, truth)]
             cache_dir.mkdir(parents=True, exist_ok=True)
             tmp = cache_path.with_suffix(".tmp")

@@ -198,7 +198,7 @@ def main(argv=None):
     write_text_atomic(final / "control" / "points.csv", "\n".join(pts) + "\n")
     write_text_atomic(final / "control" / "image_points.csv", "\n".join(["point_id,image_id,x_px,y_px"] + obs + tobs) + "\n")
     ba_b = adjust_pipeline.adjust_project(final, settings)
-    rep = adjust_pipeline.write_outputs(ba_b, final, html=True)
+    rep = json.loads(adjust_pipeline.write_outputs(ba_b, final, html=True).report_path.read_text())
     timings["adjust_with_control_s"] = time.perf_counter() - t0
     res_targets = check_rms(ba_b, [r["id"] for r in tgt], gsd)
     # baseline: the same check targets after the adjustment with tie points + GNSS only (no control)

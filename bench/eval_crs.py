@@ -158,7 +158,7 @@ def helmert2d_case(noise_m, seed=7, n=25):
             for k, v in TRUE_HELMERT2D.items()
         },
         "sigma0_m": res.sigma0_m,
-        "residual_rms_horizontal_m": res.rms_m["horizontal"],
+        "residual_rms_horizontal_m": res.rms_m.horizontal_m,
     }
 
 

@@ -75,8 +75,8 @@ def simulated(seed: int, work: Path) -> dict:
 
     root = write_block_project(geometric_block(2, 5, seed=seed), work / f"blk{seed}")
     write_truth_observations(root, tie_sigma_px=SIGMA_PX, n_control=5, points_per_image=80, n_check=4, seed=2)
-    ba, _ = run_adjustment(root, AdjustSettings(gnss_correction="shift", image_sigma_px=SIGMA_PX,
-                                                self_calibration=("pp", "radial")))
+    ba = run_adjustment(root, AdjustSettings(gnss_correction="shift", image_sigma_px=SIGMA_PX,
+                                                self_calibration=("pp", "radial"))).adjustment
     out = work / f"exp{seed}"
     export_project(root, list(FILES), out)
     eo = read_eo(root / "at" / "eo.txt")

@@ -11,6 +11,7 @@ Usage: python bench/eval_flight_demo.py [PROJECT] [--results bench/results/fligh
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import sys
 from pathlib import Path
@@ -43,10 +44,11 @@ def main(argv=None) -> int:
         eo = read_eo(t / "eo.txt")
         order = np.argsort(eo.image_id)
         runs["truth"] = flight_acceptance([eo.image_id[i] for i in order], eo.centre_m[order], eo.opk_deg[order],
-                                          read_camera(t / "camera.toml"), Terrain.from_dem(t / "dem.tif"), None, tol)
+                                          read_camera(t / "camera.toml"), Terrain.from_dem(t / "dem.tif"), None,
+                                          limits=tol)
     out = {}
     for name, fa in runs.items():
-        d = fa.as_dict()
+        d = dataclasses.asdict(fa)
         for f in d["frames"]:
             f.pop("footprint")
         out[name] = d

@@ -14,6 +14,7 @@ Usage: python bench/eval_flight_ngi.py [--data ../shared/data/ngi_dmc] [--result
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import csv
 import json
 import os
@@ -68,13 +69,13 @@ def main(argv=None) -> int:
     limits = {k: v for k, v in load_tolerances("1:5000", "flat").items() if k in LIMIT_KEYS}
     order = np.argsort(eo.image_id)
     ids = [eo.image_id[i] for i in order]
-    fa = flight_acceptance(ids, eo.centre_m[order], eo.opk_deg[order], cam, terrain, None, limits)
+    fa = flight_acceptance(ids, eo.centre_m[order], eo.opk_deg[order], cam, terrain, None, limits=limits)
     # the same from the OPK CSV (3 decimals): the file's precision moves nothing that matters
     cids, cc, copk = opk_csv(a.data / "formats" / "ngi_xyz_opk.csv")
     corder = np.argsort(cids)
-    fb = flight_acceptance([cids[i] for i in corder], cc[corder], copk[corder], cam, terrain, None, limits)
+    fb = flight_acceptance([cids[i] for i in corder], cc[corder], copk[corder], cam, terrain, None, limits=limits)
     diff = max(abs((x["value"] or 0) - (y["value"] or 0)) for x, y in zip(fa.checks, fb.checks))
-    out = fa.as_dict()
+    out = dataclasses.asdict(fa)
     for f in out["frames"]:
         f.pop("footprint")
     out.update(data=str(a.data), camera=cam.to_dict(), dem_mean_height_m=round(terrain.mean_height_m, 2),

@@ -59,7 +59,7 @@ def main():
                             judge_single=judge_single)
 
         with mock.patch.object(classify, "lifted_ground", judged):
-            pred = classify.classify_points(x, y, z, rn, nr, inten, dataclasses.replace(
+            pred = classify.classify_points(x, y, z, rn, nr, inten, params=dataclasses.replace(
                 classify.ClassifySettings(), ground_lift_sigma=lift, ground_lift_single=single))
         keep = ~np.isin(truth, (7, 18))
         err = evaluate.filter_errors(np.isin(pred[keep], (2, 9)), np.isin(truth[keep], (2, 9)))

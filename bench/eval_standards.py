@@ -26,6 +26,7 @@ from __future__ import annotations
 
 import argparse
 import csv
+import dataclasses
 import json
 import os
 import shutil
@@ -167,7 +168,7 @@ def ngi(work: Path, results: Path) -> dict:
         out["standards"][std] = _compact(rep.compliance)
         table = choose_table(read_qa_config(root), block, standard=std)
         choice = C.choose(std, None, table, block, project.qa, None)
-        out["against_national_at"][std] = _compact(C.judge(C.Figures(at=cs), choice).as_dict())
+        out["against_national_at"][std] = _compact(dataclasses.asdict(C.judge(C.Figures(at=cs), choice)))
     out["against_national_at"]["tie_points"] = len(d)
     out["against_national_at"]["mean_d_m"] = [round(float(v), 3) for v in d.mean(axis=0)]
     return out
@@ -199,8 +200,8 @@ def ahn3(work: Path, results: Path) -> dict:
            "area_m2": area, "anpd_per_m2": round(density, 2), "anps_m": round(F.anps(density), 3),
            "interswath_rmsdz_m": round(s["all_pairs"]["rms_m"], 4), "pairs": len(s["pairs"]), "levels": {}}
     for ql in ("QL0", "QL1", "QL2", "QL3"):
-        out["levels"][ql] = _compact(C.judge(C.Figures(lidar=lf), C.Choice("usgs-lbs", ql, f"{ql} (bench)", level=ql))
-                                     .as_dict())
+        out["levels"][ql] = _compact(dataclasses.asdict(C.judge(C.Figures(lidar=lf),
+                                                                C.Choice("usgs-lbs", ql, f"{ql} (bench)", level=ql))))
     return out
 
 

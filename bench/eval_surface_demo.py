@@ -104,7 +104,7 @@ def main() -> int:
                                                           ba.result.residual_px[ba.result.obs_active] ** 2))),
                                                       "control_points": int(ba.result.control_active.sum())}
             if ba.result.surface is not None:
-                row["surface"] = ba.result.surface.as_dict()
+                row["surface"] = dataclasses.asdict(ba.result.surface)
             if ba.result.weight_factors:
                 row["weight_factors"] = ba.result.weight_factors
             row["rms_xy_gsd"], row["rms_z_gsd"] = row["rms_xy_m"] / gsd, row["rms_z_m"] / gsd

@@ -24,6 +24,7 @@ Writes bench/results/surface_robust.json.
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import os
 import tempfile
@@ -158,7 +159,7 @@ def run_seed(tmp: Path, seed: int, strips: int, frames: int, points_per_image: i
         runs[v] = ba
         r = {"adjust_s": secs, **accuracy(ba, block, ties), "classes": by_class(ba, ties)}
         if ba.result.surface is not None:
-            r["surface"] = ba.result.surface.as_dict()
+            r["surface"] = dataclasses.asdict(ba.result.surface)
         if v.startswith("dirty") and "clean_dem" in runs and v != "dirty_none":
             r["against_clean_dem"] = against_clean(ba, runs["clean_dem"])
         if v == "dirty_none" and "clean_none" in runs:

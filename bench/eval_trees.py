@@ -79,7 +79,7 @@ def simulate(seed: int, forested: bool = False):
     rng = np.random.default_rng(seed + 500)
     parts = [scan_strip(scene, accel, line, L=cfg["lidar"], rng=rng,
                         width_m=layout.width_m) for line in lidar_lines(cfg, layout)]
-    cat = {k: np.concatenate([p[k] for p in parts]) for k in ("xyz", "intensity", "return_number",
+    cat = {k: np.concatenate([getattr(p, k) for p in parts]) for k in ("xyz", "intensity", "return_number",
                                                                  "number_of_returns", "classification")}
     xyz = cat["xyz"]
     cloud = PointCloud(xyz[:, 0] + X0, xyz[:, 1] + Y0, xyz[:, 2], cat["intensity"], cat["return_number"],

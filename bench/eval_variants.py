@@ -146,7 +146,7 @@ def target_check(root: Path) -> dict:
     track = np.array([pid[r["point_id"]] for r in rows], dtype=int)
     img = np.array([idx[r["image_id"]] for r in rows], dtype=int)
     xy = blk.camera.calibration_observations(np.array([[float(r["x_px"]), float(r["y_px"])] for r in rows]).reshape(-1, 2))
-    X, ok = intersect(xy, track, img, blk.centre_local, blk.R_cv, blk.cal, len(ids))
+    X, ok = intersect(xy, track, img, blk.centre_local, blk.R_cv, blk.cal, n_points=len(ids))
     use = ok & (np.bincount(track, minlength=len(ids)) >= 2) & np.isfinite(X).all(axis=1)
     err = X[use] - blk.frame.to_local(np.array([truth[ids[i]] for i in np.flatnonzero(use)]).reshape(-1, 3))
     return dict(n=int(len(err)), targets=len(truth), rms_xy_m=float(np.sqrt(np.mean(np.sum(err[:, :2] ** 2, axis=1)))),

@@ -261,7 +261,8 @@ def main(argv=None) -> int:
             check = vc.check_files(dlg, ref, vc.VectorCheckSettings(), png_path=png)
             print(f"--- {name} ({ROLES.get(name)}): vectors {seconds:.0f} s\n{vc.format_report(check)}")
             entry = {"role": ROLES.get(name), "vectors_seconds": seconds,
-                     "vectors": {k: v for k, v in summary.items() if k != "files"},
+                     "vectors": {**{k: v for k, v in dataclasses.asdict(summary.counts).items()
+                                    if k != "contours" or v is not None}, "units": summary.units.as_dict()},
                      "reference_features": n_ref, "check": check, "heights": height_errors(dlg, scene, origin),
                      "road_widths": width_errors(dlg, scene, origin)}
             print("heights:", json.dumps(entry["heights"]["all"]))

@@ -68,8 +68,8 @@ def child(way: str, frame: Path, out: Path) -> None:
     else:
         image = FrameFile(frame)
     with stage_block_cache(RECTIFY_CACHE_BYTES):  # as ``ortho rectify`` sets it for the stage
-        valid = rectify_frame_to_file(out, image, [1, 2, 3], cam, C, R, dem, grid, "bilinear",
-                                      GridToProject(crs, crs))
+        valid = rectify_frame_to_file(out, image, [1, 2, 3], cam, C, R, heights=dem, grid=grid,
+                                      interpolation="bilinear", to_project=GridToProject(crs, crs))
     import resource
 
     print(json.dumps({"wall_s": round(time.perf_counter() - t0, 2), "cpu_s": round(time.process_time() - c0, 2),

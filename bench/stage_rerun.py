@@ -46,8 +46,9 @@ def _dom_check(run: Path, reference: Path, ndsm: Path, tmp: Path) -> dict:
     from ortho.check import run_check
     from ortho.settings import CheckSettings
 
-    report = run_check(run, CheckSettings(ndsm=ndsm), reference_path=reference, out_stem=tmp / "dom_report")
-    return dict(then=_summary(json.loads((run / "ortho" / "dom_report.json").read_text())), now=_summary(report))
+    run_check(run, CheckSettings(ndsm=ndsm), reference_path=reference, out_stem=tmp / "dom_report")
+    return dict(then=_summary(json.loads((run / "ortho" / "dom_report.json").read_text())),
+                now=_summary(json.loads((tmp / "dom_report.json").read_text())))
 
 
 def _options(run: Path):

@@ -310,7 +310,7 @@ def segment_plane_rms(surface: np.ndarray, labels: np.ndarray, nlab: int, cell_m
     return out[1:]
 
 
-def lifted_ground(x, y, z, is_ground, spacing_m: float, lift_sigma: float, intercepted=None,
+def lifted_ground(x, y, z, is_ground, spacing_m: float, lift_sigma: float, *, intercepted=None,
                   k: int = 12, judge_single: bool = True) -> np.ndarray:
     """Ground points standing clear of the local ground surface under something that intercepted
     part of their pulse (mask over all points).
@@ -345,7 +345,7 @@ def lifted_ground(x, y, z, is_ground, spacing_m: float, lift_sigma: float, inter
         dist, nb, _ = nbrs.query(gx[a:b], gy[a:b], k + 1, radius_m)
         # the first neighbour is the point itself
         dist, nb = dist[:, 1:], gi[np.minimum(nb[:, 1:], len(gi) - 1)]
-        dz[a:b], spread[a:b] = _plane_offsets(xf, yf, zf, gi[a:b], nb, dist, 5, True)
+        dz[a:b], spread[a:b] = _plane_offsets(xf, yf, zf, gi[a:b], nb, dist, min_points=5, robust=True)
     del nbrs, dist, nb
     ok = np.isfinite(dz)
     if ok.sum() < 4 * k:
@@ -363,7 +363,7 @@ def lifted_ground(x, y, z, is_ground, spacing_m: float, lift_sigma: float, inter
     return out
 
 
-def ground_dem(x, y, z, ground, cell_m, x0, y0, nrows, ncols) -> np.ndarray:
+def ground_dem(x, y, z, ground, cell_m, *, x0, y0, nrows, ncols) -> np.ndarray:
     """Filled DEM (mean height of ground points per cell), rows growing with y."""
     dem = reduce_grid(x[ground], y[ground], z[ground], cell_m, x0, y0, nrows, ncols, "mean")
     return fill_nodata(dem)
@@ -395,7 +395,7 @@ def deep_ground_outliers(x, y, z, ground, cell_m: float = 5.0, deep_m: float = 5
     return out
 
 
-def _plane_offsets(x, y, z, query, nb, dist, min_points: int, robust: bool = False):
+def _plane_offsets(x, y, z, query, nb, dist, *, min_points: int, robust: bool = False):
     """``_plane_offsets_kernel`` with its arguments in one set of types (contiguous arrays, ``robust``
     given): numba compiles a function once per set of argument types, and this one (parallel,
     ``np.linalg.solve``, ``np.median``) takes about 10 CPU-s each time on a fresh clone; sliced
@@ -477,7 +477,7 @@ class _GrowingNeighbours:
         return d, n
 
 
-def local_plane_offsets(x, y, z, ref, query, k: int = 8, radius_m: float = 1.0, neighbours=None):
+def local_plane_offsets(x, y, z, ref, query, *, k: int = 8, radius_m: float = 1.0, neighbours=None):
     """Height of each query point above the least-squares plane through its k nearest reference
     points (horizontal distance, within ``radius_m``), and that plane's RMS residual (m).
 
@@ -489,7 +489,7 @@ def local_plane_offsets(x, y, z, ref, query, k: int = 8, radius_m: float = 1.0, 
     nbrs = neighbours or _GrowingNeighbours(x, y, ref, radius_m)
     dist, nb = nbrs.query(np.asarray(query, np.int64), min(k, len(ref)))
     dz, rms = _plane_offsets(np.asarray(x, float), np.asarray(y, float), np.asarray(z, float),
-                             np.asarray(query, np.int64), nb, dist, 5)
+                             np.asarray(query, np.int64), nb, dist, min_points=5)
     return dz, rms, np.isfinite(dz)
 
 
@@ -532,7 +532,7 @@ def roof_edge_completion(x, y, z, is_building, candidates, p: ClassifySettings) 
     for _ in range(p.edge_iterations):
         if len(query) == 0:
             return
-        dz, rms, ok = local_plane_offsets(x, y, z, ref, query, p.edge_neighbours, r, neighbours)
+        dz, rms, ok = local_plane_offsets(x, y, z, ref, query, k=p.edge_neighbours, radius_m=r, neighbours=neighbours)
         add = ok & (np.abs(np.nan_to_num(dz, nan=np.inf)) < p.edge_tolerance_m)
         add &= np.nan_to_num(rms, nan=np.inf) < p.edge_tolerance_m
         if not add.any():
@@ -555,12 +555,12 @@ def range_noise_m(x, y, z, surface, k: int = 8, sample: int = 20000) -> float:
     nbrs = _GrowingNeighbours(x, y, b, np.inf)
     dist, nb = nbrs.query(q, k + 1)
     dz = _plane_offsets(np.asarray(x, float), np.asarray(y, float), np.asarray(z, float), q, nb[:, 1:],
-                        dist[:, 1:], 5)[0]
+                        dist[:, 1:], min_points=5)[0]
     dz = dz[np.isfinite(dz)]
     return 1.4826 * float(np.median(np.abs(dz))) if len(dz) else 0.05
 
 
-def rooftop_objects(x, y, z, is_building, spacing_m: float, noise_m: float, max_area_m2: float,
+def rooftop_objects(x, y, z, is_building, spacing_m: float, noise_m: float, *, max_area_m2: float,
                     max_pitch_deg: float = 55.0) -> np.ndarray:
     """Building points that belong to objects standing on a roof (mask over all points).
 
@@ -659,7 +659,7 @@ def dropout_grid(x, y, is_building, spacing_m: float, p: ClassifySettings) -> Dr
     return DropoutGrid(c, flat, nrows, ncols, x0, y0, count, median_count, labels, nlab, area_m2, building_cell)
 
 
-def detect_water(x, y, z, intensity, candidate, is_building, is_ground, spacing_m: float,
+def detect_water(x, y, z, intensity, candidate, is_building, *, is_ground, spacing_m: float,
                  p: ClassifySettings, solid=None, dropout: DropoutGrid | None = None) -> np.ndarray:
     """Water returns (mask) by pulse-dropout water detection; see the module docstring, step 5.
 
@@ -781,7 +781,7 @@ def detect_water(x, y, z, intensity, candidate, is_building, is_ground, spacing_
 # Level water (``level_water``): a calm lake that returns the pulse is a surface level to centimetres
 # over a large area; terrain is not (it drains, so it slopes), and a level floor (a car park, a
 # square) ends at a curb or a street below it, where water stands in a bed whose banks rise above it.
-def level_water(x, y, z, candidate, is_ground, spacing_m: float, p: ClassifySettings, solid=None,
+def level_water(x, y, z, candidate, is_ground, spacing_m: float, *, p: ClassifySettings, solid=None,
                 number_of_returns=None) -> np.ndarray:
     """Water returns (mask) of calm water bodies that returned the pulse (no dropout needed).
 
@@ -1004,7 +1004,7 @@ def dropout_gaps(x, y, z, is_ground, g: DropoutGrid, p: ClassifySettings):
     return labels, bank, axis, flat, c
 
 
-def bridge_decks(x, y, z, is_ground, is_building, spacing_m: float, p: ClassifySettings,
+def bridge_decks(x, y, z, is_ground, is_building, spacing_m: float, *, p: ClassifySettings,
                  dropout: DropoutGrid | None = None) -> np.ndarray:
     """Ground points on bridge decks (mask): ground between two water gaps at most
     ``bridge_max_width_m`` apart along one of the four grid directions, running along a
@@ -1086,7 +1086,7 @@ def _walk_hits(mask: np.ndarray, rows: np.ndarray, cols: np.ndarray, step_rc: np
     return hit
 
 
-def spanning_decks(x, y, z, is_building, is_ground, g: DropoutGrid, p: ClassifySettings) -> np.ndarray:
+def spanning_decks(x, y, z, is_building, is_ground, g: DropoutGrid, *, p: ClassifySettings) -> np.ndarray:
     """Building points that are a bridge deck over water (mask): decks the ground filter left out (a deck
     high over a river is no terrain), which then meet the roof rules (planar, high, single returns).
 
@@ -1162,7 +1162,7 @@ def spanning_decks(x, y, z, is_building, is_ground, g: DropoutGrid, p: ClassifyS
 
 
 def classify_points(x, y, z, return_number=None, number_of_returns=None, intensity=None,
-                    params: ClassifySettings | None = None, fusion=None) -> np.ndarray:
+                    *, params: ClassifySettings | None = None, fusion=None) -> np.ndarray:
     """ASPRS class per point (uint8). Arrays are per point; heights in metres. ``fusion``
     (``lidarctl.fusion.Fusion``): the orthophoto's rules applied last (roads, grass/tree, building check)."""
     p = params or ClassifySettings()
@@ -1204,13 +1204,13 @@ def classify_points(x, y, z, return_number=None, number_of_returns=None, intensi
     intercepted = None
     if return_number is not None and number_of_returns is not None:
         intercepted = np.asarray(number_of_returns) > 1
-    lifted = lifted_ground(x, y, z, is_ground, spacing, p.ground_lift_sigma, intercepted,
+    lifted = lifted_ground(x, y, z, is_ground, spacing, p.ground_lift_sigma, intercepted=intercepted,
                            judge_single=p.ground_lift_single)
     c = p.cell_m or max(0.5, 2.0 * spacing)
     x0, y0 = float(x.min()), float(y.min())
     ncols = int(np.floor((x.max() - x0) / c)) + 1
     nrows = int(np.floor((y.max() - y0) / c)) + 1
-    dem = ground_dem(x, y, z, is_ground, c, x0, y0, nrows, ncols)
+    dem = ground_dem(x, y, z, is_ground, c, x0=x0, y0=y0, nrows=nrows, ncols=ncols)
     hag = z - sample_bilinear(dem, x, y, c, x0, y0)
 
     # Points far below the bare-earth DEM cannot be objects: low noise the gap tests missed.
@@ -1300,7 +1300,7 @@ def classify_points(x, y, z, return_number=None, number_of_returns=None, intensi
         # The range noise of the sensor, measured on the bare earth (roof plane fits cross ridges
         # and eaves).
         is_building &= ~rooftop_objects(x, y, z, is_building, spacing, range_noise_m(x, y, z, is_ground),
-                                        p.rooftop_object_max_area_m2, p.roof_max_pitch_deg)
+                                        max_area_m2=p.rooftop_object_max_area_m2, max_pitch_deg=p.roof_max_pitch_deg)
     cls[is_building] = BUILDING
 
     # vegetation
@@ -1319,15 +1319,15 @@ def classify_points(x, y, z, return_number=None, number_of_returns=None, intensi
     # water
     gaps = dropout_grid(x, y, is_building, spacing, p)
     water = detect_water(x, y, z, intensity, is_ground | (cls == UNCLASSIFIED) | (cls == LOW_VEG),
-                         is_building, is_ground, spacing, p, solid=clean, dropout=gaps)
+                         is_building, is_ground=is_ground, spacing_m=spacing, p=p, solid=clean, dropout=gaps)
     cls[water] = WATER
-    cls[level_water(x, y, z, is_ground | (cls == UNCLASSIFIED) | (cls == LOW_VEG), is_ground, spacing, p,
+    cls[level_water(x, y, z, is_ground | (cls == UNCLASSIFIED) | (cls == LOW_VEG), is_ground, spacing, p=p,
                     solid=clean, number_of_returns=number_of_returns)] = WATER
-    cls[bridge_decks(x, y, z, cls == GROUND, is_building, spacing, p, dropout=gaps)] = BRIDGE_DECK
-    cls[spanning_decks(x, y, z, cls == BUILDING, cls == GROUND, gaps, p)] = BRIDGE_DECK
+    cls[bridge_decks(x, y, z, cls == GROUND, is_building, spacing, p=p, dropout=gaps)] = BRIDGE_DECK
+    cls[spanning_decks(x, y, z, cls == BUILDING, cls == GROUND, gaps, p=p)] = BRIDGE_DECK
     if fusion is not None:
         from lidarctl import fusion as fusion_mod
 
-        cls = fusion_mod.fuse(x, y, z, hag, cls, intensity, fusion.image, fusion.params, return_number,
-                              number_of_returns)
+        cls = fusion_mod.fuse(x, y, z, hag, cls, intensity, img=fusion.image, p=fusion.params,
+                              return_number=return_number, number_of_returns=number_of_returns)
     return cls

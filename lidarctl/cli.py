@@ -105,8 +105,8 @@ def ground_filter_options(f):
                    "grid; greenness is then NDVI, else excess green.")
 @scheduler_options
 @ground_filter_options
-def classify(in_paths, out_path, crs, tile_size_m, buffer_m, work_dir, out_format, image_path, nir, scheduler, workers,
-             ground_params_file, **options):
+def classify(*, in_paths, out_path, crs, tile_size_m, buffer_m, work_dir, out_format, image_path, nir, scheduler,
+             workers, ground_params_file, **options):
     """Noise, ground, buildings, vegetation and water as ASPRS classes (LAS/LAZ in, LAS/LAZ out).
 
     One file: IN_PATH OUT_PATH (a .las/.laz file). Strips of a block: STRIP... OUT_DIR; they are
@@ -149,7 +149,7 @@ def classify(in_paths, out_path, crs, tile_size_m, buffer_m, work_dir, out_forma
               help="DEM cells without ground are interpolated in the TIN of the ground around them where the "
                    "triangle's circumradius is at most this many cells (buildings, sparse ground under canopy); "
                    "wider gaps get a smooth pyramid fill. 0: pyramid fill only.")
-def rasters(in_paths, outdir, res_m, crs, tile_px, buffer_px, dem_fill_radius_px):
+def rasters(*, in_paths, outdir, res_m, crs, tile_px, buffer_px, dem_fill_radius_px):
     """dem/dsm/ndsm/chm/intensity COGs and hillshade.png from classified LAS/LAZ file(s) (one or more
     strips in one CRS) into OUTDIR, by tiles read straight from the files (no merged cloud).
 
@@ -199,7 +199,7 @@ def rasters(in_paths, outdir, res_m, crs, tile_px, buffer_px, dem_fill_radius_px
               help="--reference: score only inside the polygons of this file, or 'hull': inside the convex hulls "
                    "of the reference polygons' blocks (a reference that maps only part of the area).")
 @click.option("--crs", default=None, help="--reference: CRS (EPSG:code) of inputs that have none.")
-def evaluate(pred_paths, truth_path, reference_path, json_path, map_pred, map_truth, res_m, class_field,
+def evaluate(*, pred_paths, truth_path, reference_path, json_path, map_pred, map_truth, res_m, class_field,
              reference_class, min_overlap, min_building_m2, within, crs):
     """Accuracy of the classification PRED_PATHS (one file; --reference: also classified strips).
 
@@ -370,7 +370,7 @@ def check_plan(paths, json_path, png_path, crs, points_crs, **_settings):
               help="Diffusion time step [order 4: 0.03, at most 1/32; order 2: 0.2, at most 0.25].")
 @click.option("--window-px", type=click.IntRange(min=16), default=2048, show_default=True,
               help="Processing window in cells (memory about 40 bytes per cell of a window with its halo).")
-def smooth(dem_path, out_path, order, edge_m, iterations, step, window_px):
+def smooth(*, dem_path, out_path, order, edge_m, iterations, step, window_px):
     """Edge-preserving smoothing of DEM_PATH (GeoTIFF) into OUT_PATH (COG): anisotropic diffusion, by
     windows (the same result as in one piece); nodata respected, CRS and units kept."""
     from lidarctl.smooth import DiffusionSettings, smooth_dem
@@ -399,7 +399,7 @@ def smooth(dem_path, out_path, order, edge_m, iterations, step, window_px):
 @click.option("--tension", type=at_least(0), default=1.0, show_default=True,
               help="Tension spline: 0 is a cubic spline, larger values tend to the traced polyline.")
 @click.option("--png/--no-png", default=True, show_default=True, help="A preview PNG beside OUT (over the hillshade).")
-def contours(dem_path, out_path, interval, index_every, smoothing, tolerance_px, tension, png):
+def contours(*, dem_path, out_path, interval, index_every, smoothing, tolerance_px, tension, png):
     """Contour lines of DEM_PATH (GeoTIFF) into OUT_PATH (.gpkg or .geojson, layer 'contours': elevation in the
     DEM's unit, elevation_m, index, closed), traced on the cell centres and cut at nodata. An interval that
     would put adjacent levels less than a cell apart on average is refused (exit 2)."""
@@ -408,11 +408,11 @@ def contours(dem_path, out_path, interval, index_every, smoothing, tolerance_px,
     s = contours_from_file(dem_path, out_path, interval=interval, index_every=index_every, smoothing=smoothing,
                            tolerance_px=tolerance_px, tension=tension, png=png)
     # + 0.0: a level of -0.0 (a multiple of the interval reached from below) is written 0, not -0
-    span = (f" from {s['lowest_level'] + 0.0:g} to {s['highest_level'] + 0.0:g} {s['unit']}" if s["levels"] else "")
-    click.echo(f"{out_path}: {s['contours']} contours on {s['levels']} levels every {s['interval']:g} {s['unit']} "
-               f"(the DEM's height unit){span} ({s['closed']} closed, "
-               f"{s['index_contours']} index), smoothing {s['smoothing']} ({s['fell_back_to_traced']} kept traced "
-               f"to avoid crossings), {s['crossings']} crossings")
+    span = f" from {s.lowest_level + 0.0:g} to {s.highest_level + 0.0:g} {s.unit}" if s.levels else ""
+    click.echo(f"{out_path}: {s.contours} contours on {s.levels} levels every {s.interval:g} {s.unit} "
+               f"(the DEM's height unit){span} ({s.closed} closed, "
+               f"{s.index_contours} index), smoothing {s.smoothing} ({s.fell_back_to_traced} kept traced "
+               f"to avoid crossings), {s.crossings} crossings")
 
 
 @main.command()
@@ -475,9 +475,10 @@ def vectors(paths, image, dem, contours_path, crs, **_settings):
         raise OptionError("give --dem or --contours, not both", param="--contours")
     params = resolve(MapVectorSettings, None, click.get_current_context()).settings
     s = vectors_to_file(clouds, out_path, params=params, crs=crs, dem=dem, contours=contours_path, image=image)
-    counts = ", ".join(f"{k} {s[k]}" for k in ("buildings", "roads", "road_centrelines", "water", "spot_heights",
-                                               "contours") if k in s)
-    click.echo(f"{out_path}: {counts} ({s['units']['xy_unit']})")
+    c = s.counts
+    counts = ", ".join(f"{k} {getattr(c, k)}" for k in ("buildings", "roads", "road_centrelines", "water",
+                                                        "spot_heights", "contours") if getattr(c, k) is not None)
+    click.echo(f"{out_path}: {counts} ({s.units.xy_name})")
 
 
 @main.command("check-vectors")

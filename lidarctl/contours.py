@@ -344,8 +344,29 @@ def preview_png(cs: ContourSet, dem: np.ndarray, transform, path, title: str = "
     return Path(path)
 
 
+@dataclasses.dataclass(frozen=True)
+class ContoursResult:
+    """What ``contours_from_file`` wrote: lines, levels, closed and index lines, the smoothing and the lines kept
+    traced to avoid crossings, the crossings left (0), the interval in the DEM's height ``unit`` (metres per unit),
+    the lowest and highest level (None without a line) and the files (the contours, then the PNG when made)."""
+
+    contours: int
+    levels: int
+    closed: int
+    index_contours: int
+    smoothing: str
+    fell_back_to_traced: int
+    crossings: int
+    interval: float
+    unit: str
+    metres_per_unit: float
+    lowest_level: float | None
+    highest_level: float | None
+    files: tuple[str, ...]
+
+
 def contours_from_file(dem_path, out_path, *, interval: float, index_every: int = 5, smoothing: str = "none",
-                       tolerance_px: float = 0.5, tension: float = 1.0, png: bool = True) -> dict:
+                       tolerance_px: float = 0.5, tension: float = 1.0, png: bool = True) -> ContoursResult:
     """Trace (and smooth) the contours of a DEM GeoTIFF into a GeoPackage/GeoJSON (+ a PNG preview beside it);
     ``interval`` in the DEM's height unit (its CRS's: feet for a DEM in feet). Returns the summary (counts,
     fall-backs, crossings, the interval and its unit)."""
@@ -377,10 +398,10 @@ def contours_from_file(dem_path, out_path, *, interval: float, index_every: int 
                                        f"{dem_path.name}: every {interval:g} {z_unit} (index {index_every * interval:g} "
                                        f"{z_unit}), smoothing {smoothing}")))
     levels = sorted({c.level for c in contours})
-    summary = {"contours": len(contours), "levels": len(levels), "closed": sum(c.closed for c in contours),
-               "index_contours": sum(c.index for c in contours), "smoothing": smoothing, "fell_back_to_traced": fell_back,
-               "crossings": n_cross, "interval": interval, "unit": z_unit, "metres_per_unit": z_m,
-               "lowest_level": levels[0] if levels else None, "highest_level": levels[-1] if levels else None,
-               "files": written}
+    summary = ContoursResult(
+        contours=len(contours), levels=len(levels), closed=sum(c.closed for c in contours),
+        index_contours=sum(c.index for c in contours), smoothing=smoothing, fell_back_to_traced=fell_back,
+        crossings=n_cross, interval=interval, unit=z_unit, metres_per_unit=z_m,
+        lowest_level=levels[0] if levels else None, highest_level=levels[-1] if levels else None, files=tuple(written))
     log.debug(f"{dem_path} -> {out_path}: {summary}")
     return summary

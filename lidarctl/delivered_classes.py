@@ -105,7 +105,7 @@ def check_delivered_classes(path, units: LengthUnits, chunk_points: int = 2_000_
     if counts[BUILDING] == 0:
         warnings.append(f"{path}: no building class (6): the roof-corner control will find no roofs")
     else:
-        building_h = _building_height(path, units, chunk_points, ground_min, x0, y0, ncol, cells)
+        building_h = _building_height(path, units, chunk_points, ground_min, x0, y0, ncol=ncol, cells=cells)
         if building_h < MIN_BUILDING_HEIGHT_M:
             raise InputError(f"{path}: the delivered building class (6) stands {building_h:.1f} m above the ground on "
                              f"average (expected at least {MIN_BUILDING_HEIGHT_M:g} m): it does not hold buildings; "
@@ -116,7 +116,7 @@ def check_delivered_classes(path, units: LengthUnits, chunk_points: int = 2_000_
                             below_share, building_h, warnings)
 
 
-def _cells(chunk, units: LengthUnits, x0: float, y0: float, ncol: int, cells: int, mask=None):
+def _cells(chunk, units: LengthUnits, x0: float, y0: float, ncol: int, cells: int, *, mask=None):
     """(cell index, height in metres) of a chunk's points (those of ``mask``) on the ``CELL_M`` grid."""
     x, y, z = (np.asarray(v) if mask is None else np.asarray(v)[mask] for v in (chunk.x, chunk.y, chunk.z))
     x, y, z = units.xy_to_m(x), units.xy_to_m(y), units.z_to_m(z)
@@ -124,14 +124,14 @@ def _cells(chunk, units: LengthUnits, x0: float, y0: float, ncol: int, cells: in
     return cell.clip(0, cells - 1), z
 
 
-def _building_height(path, units, chunk_points, ground_min, x0, y0, ncol, cells) -> float:
+def _building_height(path, units, chunk_points, ground_min, x0, y0, *, ncol, cells) -> float:
     """Mean height (m) of the class 6 points above their cell's lowest ground (cells with ground)."""
     total, count = 0.0, 0
     for _, chunk in las.iter_file_chunks(path, chunk_points):
         b = np.asarray(chunk.classification, dtype=np.uint8) == BUILDING
         if not b.any():
             continue
-        cell, z = _cells(chunk, units, x0, y0, ncol, cells, b)
+        cell, z = _cells(chunk, units, x0, y0, ncol, cells, mask=b)
         h = z - ground_min[cell]
         ok = np.isfinite(h)
         total += float(h[ok].sum())

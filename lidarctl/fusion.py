@@ -296,7 +296,7 @@ def first_minus_last(z, row, col, shape, return_number=None, number_of_returns=N
 
 
 def lines_per_building(labels: np.ndarray, nb: int, x0: float, y0: float, cell_m: float, img: ImageSource,
-                       p: FusionSettings = FusionSettings()):
+                       *, p: FusionSettings = FusionSettings()):
     """(segments per candidate (nb + 1,), covered (nb + 1,) bool) for the candidates ``labels`` (grid rows
     northwards from ``y0``, columns from ``x0``, cells of ``cell_m``): one Canny/Hough pass over the
     orthophoto window of all candidates; a segment counts for the candidate nearest its midpoint within
@@ -343,7 +343,7 @@ class Fusion:
     params: FusionSettings = FusionSettings()
 
 
-def fuse(x, y, z, hag, cls, intensity, img: ImageSource, p: FusionSettings = FusionSettings(),
+def fuse(x, y, z, hag, cls, intensity, *, img: ImageSource, p: FusionSettings = FusionSettings(),
          return_number=None, number_of_returns=None) -> np.ndarray:
     """Classes after the fusion rules (module docstring) for one tile's points (x, y, z in metres; ``hag``:
     height above the ground DEM; ``cls``: the LiDAR-only classes; return numbers for the first-minus-last
@@ -384,7 +384,7 @@ def fuse(x, y, z, hag, cls, intensity, img: ImageSource, p: FusionSettings = Fus
         penetrable = deep > p.building_max_fml_share * cells
         no_lines = np.zeros(nb + 1, bool)
         if p.building_min_lines > 0:
-            n_lines, covered = lines_per_building(labels, nb, x0, y0, c, img, p)
+            n_lines, covered = lines_per_building(labels, nb, x0, y0, c, img, p=p)
             no_lines = covered & (n_lines < p.building_min_lines)
         rejected = (tree_like | penetrable | no_lines)
         rejected[0] = False

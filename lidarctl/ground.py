@@ -219,7 +219,7 @@ def locate_in_tin(vx, vy, simplices, qx, qy) -> np.ndarray:
                    0.0, 0.0, cell_m, nrows, ncols)
 
 
-def tin_heights(vx, vy, vz, simplices, qx, qy, geometry: bool = False):
+def tin_heights(vx, vy, vz, simplices, qx, qy, *, geometry: bool = False):
     """Linear interpolation in the TIN (vertices vx, vy, vz; ``simplices``) at (qx, qy); NaN outside.
 
     ``geometry``: also return, per query point, the 3D distance (m) from its point on the TIN to the
@@ -419,7 +419,7 @@ def morphological_ground(x, y, z, params: MorphSettings | None = None, return_de
     if p.surface_neighbours > 0 and ground.sum() > p.surface_neighbours:
         g = np.flatnonzero(ground)
         ground[g[surface_outliers(x[g], y[g], z[g], p.surface_neighbours, p.surface_height_m,
-                                  p.breakline_tolerance_m, p.surface_iterations)]] = False
+                                  p.breakline_tolerance_m, iterations=p.surface_iterations)]] = False
     if p.refine_threshold_m > 0 and ground.sum() >= 3:
         g = np.flatnonzero(ground)
         cell, nrows, ncols, gx0, gy0 = grid.cell_ids(x[g], y[g], p.refine_cell_m)
@@ -502,7 +502,7 @@ def _plane_residuals(px, py, pz, query, nb, dist):
 
 
 def surface_outliers(x, y, z, neighbours: int = 16, height_m: float = 0.5, breakline_m: float = 0.1,
-                     iterations: int = 2) -> np.ndarray:
+                     *, iterations: int = 2) -> np.ndarray:
     """Indices of ground points standing above the local ground surface (objects left in a ground set).
 
     A point is an outlier when it is more than ``height_m`` above the plane through its
@@ -656,10 +656,19 @@ def option_name(method: str, name: str) -> str:
     return f"--{method}-{name.replace('_', '-')}"
 
 
-def read_parameter_file(path) -> dict:
+@dataclasses.dataclass(frozen=True)
+class GroundParameterFile:
+    """A ground-filter parameter file: its ``method`` and ``preset`` (None: not in the file) and the checked
+    parameter table of each filter it names (filter -> {parameter name: value})."""
+
+    method: str | None
+    preset: str | None
+    tables: Mapping[str, Mapping[str, Any]]
+
+
+def read_parameter_file(path) -> GroundParameterFile:
     """A ground-filter parameter file (TOML): optional ``method`` and ``preset`` keys and one table per
-    filter of parameters, e.g. ``method = "ptd"`` and ``[ptd]`` with ``seed_cell_m = 20.0``. Returns
-    {"method": str | None, "preset": str | None, "tables": {filter: {name: value}}}, every table checked
+    filter of parameters, e.g. ``method = "ptd"`` and ``[ptd]`` with ``seed_cell_m = 20.0``; every table checked
     (``ConfigError`` naming the file, the table and the key; ``InputError`` for an unreadable file)."""
     import tomllib
     from pathlib import Path
@@ -675,16 +684,17 @@ def read_parameter_file(path) -> dict:
         raise InputError(f"{path}: cannot read the ground-filter parameter file ({exc})") from None
     except tomllib.TOMLDecodeError as exc:
         raise ConfigError(f"{path}: not a TOML file ({exc})") from None
-    out = {"method": doc.pop("method", None), "preset": doc.pop("preset", None), "tables": {}}
-    for key in ("method", "preset"):
-        if out[key] is not None and not isinstance(out[key], str):
-            raise ConfigError(f"{path}: {key} = {out[key]!r}: expected text")
+    head = {key: doc.pop(key, None) for key in ("method", "preset")}
+    for key, value in head.items():
+        if value is not None and not isinstance(value, str):
+            raise ConfigError(f"{path}: {key} = {value!r}: expected text")
+    tables = {}
     for name, table in doc.items():
         if name not in GROUND_FILTERS or not isinstance(table, dict):
             raise ConfigError(f"{path}: unknown key or table {name!r}, expected method, preset and tables of "
                               + ", ".join(f"[{m}]" for m in GROUND_FILTERS))
-        out["tables"][name] = checked_overrides(name, table, f"{path} [{name}]")
-    return out
+        tables[name] = checked_overrides(name, table, f"{path} [{name}]")
+    return GroundParameterFile(head["method"], head["preset"], tables)
 
 
 def resolve_options(method: str, preset: str | None, parameter_file=None, options: Mapping | None = None,
@@ -697,17 +707,17 @@ def resolve_options(method: str, preset: str | None, parameter_file=None, option
 
     file = read_parameter_file(parameter_file) if parameter_file is not None else None
     if file is not None:
-        method = method if method_given or file["method"] is None else file["method"]
-        preset = preset if preset_given or file["preset"] is None else file["preset"]
+        method = method if method_given or file.method is None else file.method
+        preset = preset if preset_given or file.preset is None else file.preset
     check_method_preset(method, preset)
     overrides = {}
     if file is not None:
-        other = [m for m in file["tables"] if m != method]
+        other = [m for m in file.tables if m != method]
         if other:
             raise OptionError(f"--ground-params {parameter_file}: holds [{other[0]}] parameters, but the ground "
                               f"filter is {method!r} (give --method {other[0]} or method = \"{other[0]}\" in the file)",
                               param="--ground-params")
-        overrides.update(file["tables"].get(method, {}))
+        overrides.update(file.tables.get(method, {}))
     for (m, name), value in (options or {}).items():
         if value is None:
             continue
@@ -739,7 +749,7 @@ def ground_filter(x, y, z, method: str = "morph", preset: str | None = None, **o
 
 
 def raised_plateaus(x, y, z, cell_m: float, min_step_m: float = 2.0, max_area_m2: float = 2500.0,
-                    link_step_m: float = 0.5, link_slope: float = 0.8) -> np.ndarray:
+                    *, link_step_m: float = 0.5, link_slope: float = 0.8) -> np.ndarray:
     """Mask of ground points on raised plateaus: segments that stand on a step above all around.
 
     Segment-based test (after Sithole & Vosselman's segment connectivity): the lowest ground point

@@ -246,7 +246,7 @@ def _numbered(records):
         first += len(rec)
 
 
-def write_classified(in_path, out_path, classification: np.ndarray, crs: pyproj.CRS | None = None,
+def write_classified(in_path, out_path, classification: np.ndarray, *, crs: pyproj.CRS | None = None,
                      chunk_points: int = CHUNK_POINTS, records=None, progress=None) -> None:
     """Copy ``in_path`` to ``out_path`` chunk by chunk with new classes (atomic; LAS or LAZ by suffix).
 

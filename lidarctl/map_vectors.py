@@ -41,6 +41,7 @@ import numpy as np
 
 from aerotri.core.settings import setting
 from aerotri.core.errors import CrsError, InputError, OptionError
+from lidarctl.units import LengthUnits
 
 log = logging.getLogger(__name__)
 log.addHandler(logging.NullHandler())
@@ -81,12 +82,36 @@ class Layer:
     fields: dict
 
 
+@dataclasses.dataclass(frozen=True)
+class VectorCounts:
+    """Features per layer of the line map; ``roof_spacing_m``: the roof points' mean spacing (m; None without
+    buildings); ``contours``: None when no contour layer was made (neither --dem nor --contours)."""
+
+    buildings: int
+    roof_spacing_m: float | None
+    roads: int
+    road_centrelines: int
+    water: int
+    spot_heights: int
+    contours: int | None = None
+
+
 @dataclasses.dataclass
 class MapVectors:
     layers: list
     crs: object  # pyproj CRS
     units: object  # lidarctl.units.LengthUnits
-    stats: dict
+    stats: VectorCounts
+
+
+@dataclasses.dataclass(frozen=True)
+class VectorsResult:
+    """What ``vectors_to_file`` wrote: the features per layer, the units of the coordinates and the files (the
+    GeoPackage, then the preview PNG when made)."""
+
+    counts: VectorCounts
+    units: LengthUnits
+    files: tuple[str, ...]
 
 
 # ------------------------------------------------------------------------------------------------ masks
@@ -523,11 +548,9 @@ def extract_vectors(paths, out_path, params: MapVectorSettings = MapVectorSettin
     p = params
     f_xy = 1.0 / units.xy_m  # metres -> CRS units
     f_z = 1.0 / units.z_m
-    layers, stats = [], {}
+    layers = []
 
     polys, rows, bstats = building_outlines(pts)
-    stats["buildings"] = len(polys)
-    stats["roof_spacing_m"] = bstats.get("point_spacing_m")
     layers.append(Layer("buildings", "Polygon", _scale_geoms(polys, f_xy), {
         "building_id": np.array([r["building_id"] for r in rows], np.int64),
         "roof": np.array([r["roof"] for r in rows], object),
@@ -563,7 +586,6 @@ def extract_vectors(paths, out_path, params: MapVectorSettings = MapVectorSettin
     layers.append(Layer("road_centrelines", "LineString", _scale_geoms([ln for ln, _ in lines], f_xy),
                         {"width_m": np.array([w for _, w in lines], float),
                          "length_m": np.array([ln.length for ln, _ in lines], float)}))
-    stats.update(roads=len(rpolys), road_centrelines=len(lines))
 
     wmask = class_mask(xy[cls == WATER], x0, y0, p.cell_m, shape, min_area_m2=p.min_area_m2, close_cells=close,
                        void=void)
@@ -576,22 +598,21 @@ def extract_vectors(paths, out_path, params: MapVectorSettings = MapVectorSettin
     layers.append(Layer("water", "Polygon", _scale_geoms(wpolys, f_xy),
                         {"area_m2": np.array([q.area for q in wpolys], float),
                          "water_z": np.array(wlevel, float) * f_z}))
-    stats["water"] = len(wpolys)
 
     # open terrain: ground, road surface and grass (a fused classification labels grassland 3)
     is_g = np.isin(cls, OPEN_GROUND)
     sxy, sz = spot_heights(xy[is_g], pts["z"][is_g], xy[~is_g], max(p.cell_m, spacing), p.spot_spacing_m)
     layers.append(Layer("spot_heights", "Point", _scale_geoms(list(shapely.points(sxy)) if len(sxy) else [], f_xy),
                         {"z": sz * f_z, "z_m": sz}))
-    stats["spot_heights"] = len(sz)
 
     if contours is not None:
         layers.append(_read_contours(Path(contours), pts["crs"]))
     elif dem is not None:
         layers.append(_dem_contours(Path(dem), Path(out_path), p.contour_interval_m, pts["crs"]))
-    if len(layers) == 6:
-        stats["contours"] = len(layers[-1].geometries)
-    return MapVectors(layers, pts["crs"], units, stats)
+    counts = VectorCounts(buildings=len(polys), roof_spacing_m=bstats.get("point_spacing_m"), roads=len(rpolys),
+                          road_centrelines=len(lines), water=len(wpolys), spot_heights=len(sz),
+                          contours=len(layers[-1].geometries) if len(layers) == 6 else None)
+    return MapVectors(layers, pts["crs"], units, counts)
 
 
 def write_vectors(mv: MapVectors, path) -> Path:
@@ -620,7 +641,7 @@ def write_vectors(mv: MapVectors, path) -> Path:
 
 def vectors_to_file(paths, out_path, *, params: MapVectorSettings = MapVectorSettings(), crs=None, dem=None,
                     contours=None,
-                    image=None) -> dict:
+                    image=None) -> VectorsResult:
     """``extract_vectors`` + ``write_vectors`` (+ a PNG preview beside OUT over ``image`` when given).
     Returns the summary."""
     from aerotri.core.atomic import refuse_input_as_output
@@ -643,7 +664,7 @@ def vectors_to_file(paths, out_path, *, params: MapVectorSettings = MapVectorSet
     files = [str(out_path)]
     if image is not None:
         files.append(str(preview_png(mv, out_path.with_suffix(".png"), image=image)))
-    return {**mv.stats, "units": mv.units.as_dict(), "files": files}
+    return VectorsResult(mv.stats, mv.units, tuple(files))
 
 
 def _check_raster(path: Path) -> None:

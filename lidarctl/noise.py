@@ -165,7 +165,7 @@ def _gap_test(px, py, key, order, cell_start, cell_of, nrows, ncols, cand, radiu
     return out
 
 
-def _gap_outliers(x, y, z, radius_m, gap_m, slope, per_cell, sign):
+def _gap_outliers(x, y, z, radius_m, gap_m, slope, *, per_cell, sign):
     cell, nrows, ncols, _, _ = grid.cell_ids(x, y, radius_m)
     order, cell_start = grid._counting_sort(cell, nrows * ncols)
     key = sign * np.asarray(z, float)
@@ -178,19 +178,19 @@ def _gap_outliers(x, y, z, radius_m, gap_m, slope, per_cell, sign):
 
 
 def low_outliers(x, y, z, radius_m: float, gap_m: float = 1.0, slope: float = 1.2,
-                 candidates_per_cell: int = 3) -> np.ndarray:
+                 *, candidates_per_cell: int = 3) -> np.ndarray:
     """Boolean mask of points with no other point near their height within ``radius_m``, only points above."""
-    return _gap_outliers(x, y, z, radius_m, gap_m, slope, candidates_per_cell, +1.0)
+    return _gap_outliers(x, y, z, radius_m, gap_m, slope, per_cell=candidates_per_cell, sign=+1.0)
 
 
 def high_outliers(x, y, z, radius_m: float, gap_m: float = 10.0, slope: float = 1.2,
-                  candidates_per_cell: int = 3) -> np.ndarray:
+                  *, candidates_per_cell: int = 3) -> np.ndarray:
     """Boolean mask of points with nothing within ``gap_m + slope*d`` below them (mirror of low test)."""
-    return _gap_outliers(x, y, z, radius_m, gap_m, slope, candidates_per_cell, -1.0)
+    return _gap_outliers(x, y, z, radius_m, gap_m, slope, per_cell=candidates_per_cell, sign=-1.0)
 
 
 def low_clusters(x, y, z, cell_m: float, gap_m: float = 1.0, slope: float = 1.2,
-                 max_cells: int = 400, ring_m: float = 50.0, ring_slope: float = 0.3,
+                 *, max_cells: int = 400, ring_m: float = 50.0, ring_slope: float = 0.3,
                  patch_max_m2: float = 40.0) -> np.ndarray:
     """Boolean mask of points in small terrain-connected patches of cell minima lying below the terrain.
 
@@ -288,7 +288,8 @@ def detect_noise(x, y, z, params: NoiseSettings | None = None) -> np.ndarray:
     code[iso] = ISOLATED
     keep = np.flatnonzero(code == 0)
     for _ in range(2):
-        low = low_outliers(x[keep], y[keep], z[keep], radius, p.gap_m, p.slope, p.candidates_per_cell)
+        low = low_outliers(x[keep], y[keep], z[keep], radius, p.gap_m, p.slope,
+                           candidates_per_cell=p.candidates_per_cell)
         if not low.any():
             break
         code[keep[low]] = LOW
@@ -298,12 +299,13 @@ def detect_noise(x, y, z, params: NoiseSettings | None = None) -> np.ndarray:
     # previous pass flagged (its patches and their 50 m ring), not the whole cloud again.
     test = keep
     for _ in range(p.cluster_passes):
-        low = low_clusters(x[test], y[test], z[test], cell, p.gap_m, p.slope, p.cluster_max_cells)
+        low = low_clusters(x[test], y[test], z[test], cell, p.gap_m, p.slope, max_cells=p.cluster_max_cells)
         if not low.any():
             break
         code[test[low]] = LOW
         keep = keep[code[keep] == 0]
         test = keep[_near(x[keep], y[keep], x[test[low]], y[test[low]], 100.0)]
-    high = high_outliers(x[keep], y[keep], z[keep], radius, p.high_gap_m, p.slope, p.candidates_per_cell)
+    high = high_outliers(x[keep], y[keep], z[keep], radius, p.high_gap_m, p.slope,
+                         candidates_per_cell=p.candidates_per_cell)
     code[keep[high]] = HIGH
     return code

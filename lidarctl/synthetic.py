@@ -25,7 +25,7 @@ def terrain_height(x, y, x0=0.0, y0=0.0):
     return 100.0 + 0.03 * u + 0.02 * v + 3.0 * np.sin(u / 40.0) * np.cos(v / 55.0)
 
 
-def synthetic_scene(width_m: float = 200.0, height_m: float | None = None, density_per_m2: float = 4.0,
+def synthetic_scene(*, width_m: float = 200.0, height_m: float | None = None, density_per_m2: float = 4.0,
                     n_buildings: int = 6, n_trees: int = 40, n_low_outliers: int = 50,
                     n_high_outliers: int = 20, canopy_gap: float = 0.35, seed: int = 0,
                     x0: float = 500000.0, y0: float = 5400000.0, u0: float = 0.0,

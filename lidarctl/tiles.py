@@ -139,7 +139,7 @@ class TileGrid:
 
 def plan_tiles(header: laspy.LasHeader, tile_size_m: float | None = None, buffer_m: float | None = None,
                method: str = "morph", preset: str | None = None, path="input",
-               tile_points: int = DEFAULT_TILE_POINTS, units: LengthUnits = METRE, ground_params=None) -> TileGrid:
+               *, tile_points: int = DEFAULT_TILE_POINTS, units: LengthUnits = METRE, ground_params=None) -> TileGrid:
     """Tile grid (metres) over the header bounds (in the file's ``units``). ``header``: a LAS header, or
     anything with ``mins``, ``maxs`` and ``point_count`` (the union of several strips).
 
@@ -273,7 +273,7 @@ def _assign_points(x, y, x0, y0, tile_m, buffer_m, nrows, ncols):
 
 
 def split_into_tiles(in_paths, grid: TileGrid, work_dir, params, chunk_points: int = io.CHUNK_POINTS,
-                     records_paths=None, units: LengthUnits = METRE):
+                     records_paths=None, *, units: LengthUnits = METRE):
     """Pass 1: stream the input file(s) and append each tile's points to its points file (``TILE_DTYPE``);
     list of TileTask.
 
@@ -384,7 +384,7 @@ def classify_tile(task: TileTask) -> TileResult:
     core = (row == task.row) & (col == task.col)
     if len(x) >= 10:
         with _numba_threads(task.numba_threads):
-            classes = cl.classify_points(x, y, z, rn, nr, intensity, task.params, fusion=task.fusion)[core]
+            classes = cl.classify_points(x, y, z, rn, nr, intensity, params=task.params, fusion=task.fusion)[core]
     else:
         # Too few points for any neighbourhood statistics (a stray point at the edge of the grid).
         classes = np.full(int(core.sum()), cl.UNCLASSIFIED, np.uint8)
@@ -405,7 +405,7 @@ def _direct_classes(in_paths, crs, params, chunk_points, fusion=None):
     cloud = {f: np.concatenate([getattr(c, f) for c, _ in read]) for f in fields}
     if len(cloud["x"]) < 10:
         raise InputError(f"{in_paths[0]}: only {len(cloud['x'])} points; classification needs at least 10")
-    classes = cl.classify_points(*(cloud[f] for f in fields), params, fusion=fusion)
+    classes = cl.classify_points(*(cloud[f] for f in fields), params=params, fusion=fusion)
     return classes, [r for _, r in read], read[0][0].crs
 
 
@@ -643,7 +643,7 @@ def _classify_tiled(in_paths, out_paths, *, out_crs, units, params, grid, execut
     tmp_dir = temporary_dir(work_parent, f"{tiles_name}.tiles")
     try:
         records_paths = [tmp_dir / f"records_{k}.bin" for k in range(len(in_paths))]
-        tasks = split_into_tiles(in_paths, grid, tmp_dir, params, chunk_points, records_paths, units)
+        tasks = split_into_tiles(in_paths, grid, tmp_dir, params, chunk_points, records_paths, units=units)
         # Cores per task: tasks run side by side on the executor's workers (on a remote cluster
         # numba keeps its default).
         per_task = executor.cores_per_task(len(tasks))

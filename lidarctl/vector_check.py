@@ -99,41 +99,64 @@ def _rms(v: np.ndarray) -> float | None:
     return float(np.sqrt(np.mean((v**2).sum(axis=1)))) if len(v) else None
 
 
-def point_offsets(prod: list, ref: list, match_m: float) -> dict:
+@dataclasses.dataclass(frozen=True)
+class CornerOffsets:
+    """Offsets (CRS units, east and north per row) of the produced building corners ``corners``: ``to_line`` to the
+    nearest reference outline (one per corner; none without a reference), ``to_corner`` to the mutually nearest
+    reference corner within the match distance from the corners ``matched_from``; the reference's corner count."""
+
+    corners: np.ndarray
+    to_line: np.ndarray
+    to_corner: np.ndarray
+    matched_from: np.ndarray
+    n_reference_corners: int
+
+
+@dataclasses.dataclass(frozen=True)
+class Overlap:
+    """Produced and reference features of a layer: their areas (polygons; CRS units squared) or lengths (lines; CRS
+    units), and completeness / correctness in per cent of the reference / product matched (None: nothing to match)."""
+
+    reference_size: float
+    product_size: float
+    completeness_pct: float | None
+    correctness_pct: float | None
+
+
+def point_offsets(prod: list, ref: list, match_m: float) -> CornerOffsets:
     """Offsets (CRS units) of the produced building corners: to the nearest reference outline and to the
     mutually nearest reference corner within ``match_m``."""
     import shapely
     from scipy.spatial import cKDTree
 
     pc, rc = corners_of(prod), corners_of(ref)
-    out = {"corners": pc, "to_line": np.zeros((0, 2)), "to_corner": np.zeros((0, 2)), "matched_from": np.zeros((0, 2)),
-           "n_reference_corners": len(rc)}
+    none = np.zeros((0, 2))
     if len(pc) == 0 or not ref:
-        return out
+        return CornerOffsets(pc, none, none, none, len(rc))
     bounds = shapely.union_all([g.boundary for g in ref])
     near = shapely.shortest_line(shapely.points(pc), bounds)
-    out["to_line"] = np.array([np.asarray(ln.coords)[1] - np.asarray(ln.coords)[0] for ln in near])
+    to_line = np.array([np.asarray(ln.coords)[1] - np.asarray(ln.coords)[0] for ln in near])
+    to_corner, matched_from = none, none
     if len(rc):
         d1, j = cKDTree(rc).query(pc)
         _, back = cKDTree(pc).query(rc)
         mutual = (back[j] == np.arange(len(pc))) & (d1 <= match_m)
-        out["to_corner"] = rc[j[mutual]] - pc[mutual]
-        out["matched_from"] = pc[mutual]
-    return out
+        to_corner, matched_from = rc[j[mutual]] - pc[mutual], pc[mutual]
+    return CornerOffsets(pc, to_line, to_corner, matched_from, len(rc))
 
 
-def area_overlap(prod: list, ref: list) -> dict:
+def area_overlap(prod: list, ref: list) -> Overlap:
+    """Polygons: the areas of the union of each side and the share of each covered by the other."""
     import shapely
 
     P = shapely.union_all(prod) if prod else shapely.Polygon()
     R = shapely.union_all(ref) if ref else shapely.Polygon()
     inter = P.intersection(R).area
-    return {"reference_area": R.area, "product_area": P.area, "overlap_area": inter,
-            "completeness_pct": 100 * inter / R.area if R.area else None,
-            "correctness_pct": 100 * inter / P.area if P.area else None}
+    return Overlap(R.area, P.area, 100 * inter / R.area if R.area else None, 100 * inter / P.area if P.area else None)
 
 
-def buffer_overlap(prod: list, ref: list, buffer: float) -> dict:
+def buffer_overlap(prod: list, ref: list, buffer: float) -> Overlap:
+    """Lines: the lengths of each side and the share of each within ``buffer`` (CRS units) of the other."""
     import shapely
 
     P = shapely.union_all(prod) if prod else shapely.LineString()
@@ -141,9 +164,7 @@ def buffer_overlap(prod: list, ref: list, buffer: float) -> dict:
     lr, lp = R.length, P.length
     matched_ref = R.intersection(P.buffer(buffer)).length if lp else 0.0
     matched_prod = P.intersection(R.buffer(buffer)).length if lr else 0.0
-    return {"reference_length": lr, "product_length": lp,
-            "completeness_pct": 100 * matched_ref / lr if lr else None,
-            "correctness_pct": 100 * matched_prod / lp if lp else None}
+    return Overlap(lr, lp, 100 * matched_ref / lr if lr else None, 100 * matched_prod / lp if lp else None)
 
 
 def check_vectors(product_path, reference_path, params: VectorCheckSettings = VectorCheckSettings()) -> dict:
@@ -183,21 +204,21 @@ def check_vectors(product_path, reference_path, params: VectorCheckSettings = Ve
         kind = (P or R)[0].geom_type if (P or R) else "Polygon"
         if "Polygon" in kind:
             r = area_overlap(P, R)
-            r = {"reference_area_m2": r["reference_area"] * unit**2, "product_area_m2": r["product_area"] * unit**2,
-                 "completeness_pct": r["completeness_pct"], "correctness_pct": r["correctness_pct"],
+            r = {"reference_area_m2": r.reference_size * unit**2, "product_area_m2": r.product_size * unit**2,
+                 "completeness_pct": r.completeness_pct, "correctness_pct": r.correctness_pct,
                  "n_reference": len(R), "n_product": len(P)}
         elif "Line" in kind:
             r = buffer_overlap(P, R, params.buffer_m / unit)
-            r = {"reference_length_m": r["reference_length"] * unit, "product_length_m": r["product_length"] * unit,
-                 "completeness_pct": r["completeness_pct"], "correctness_pct": r["correctness_pct"],
+            r = {"reference_length_m": r.reference_size * unit, "product_length_m": r.product_size * unit,
+                 "completeness_pct": r.completeness_pct, "correctness_pct": r.correctness_pct,
                  "n_reference": len(R), "n_product": len(P)}
         else:
             r = {"n_reference": len(R), "n_product": len(P)}
         if n == "buildings":
             off = point_offsets(P, R, params.match_m / unit)
-            tl, tc = off["to_line"] * unit, off["to_corner"] * unit
+            tl, tc = off.to_line * unit, off.to_corner * unit
             offsets = off
-            r.update(n_corners=len(off["corners"]), n_reference_corners=off["n_reference_corners"],
+            r.update(n_corners=len(off.corners), n_reference_corners=off.n_reference_corners,
                      n_matched_corners=len(tc), rms_xy_to_line_m=_rms(tl), rms_xy_corner_m=_rms(tc),
                      rms_x_corner_m=float(np.sqrt(np.mean(tc[:, 0] ** 2))) if len(tc) else None,
                      rms_y_corner_m=float(np.sqrt(np.mean(tc[:, 1] ** 2))) if len(tc) else None,
@@ -233,17 +254,17 @@ def plot_offsets(result: dict, prod: dict, ref: dict, path, title: str = "") -> 
                     first = False
     off = result.get("_offsets")
     r = result["layers"].get("buildings", {})
-    if off is not None and len(off["to_corner"]):
-        span = max(np.ptp(off["corners"][:, 0]), np.ptp(off["corners"][:, 1]), 1.0)
+    if off is not None and len(off.to_corner):
+        span = max(np.ptp(off.corners[:, 0]), np.ptp(off.corners[:, 1]), 1.0)
         scale = unit / (0.05 * span)  # a 1 m offset is drawn 5 % of the plot wide
-        q = ax.quiver(off["matched_from"][:, 0], off["matched_from"][:, 1], off["to_corner"][:, 0],
-                      off["to_corner"][:, 1], np.hypot(*off["to_corner"].T) * unit, cmap="viridis", angles="xy",
+        q = ax.quiver(off.matched_from[:, 0], off.matched_from[:, 1], off.to_corner[:, 0],
+                      off.to_corner[:, 1], np.hypot(*off.to_corner.T) * unit, cmap="viridis", angles="xy",
                       scale_units="xy", scale=scale, width=0.004)
         ax.quiverkey(q, 0.85, 0.03, 1.0 / unit, "1 m offset", coordinates="axes")
         fig.colorbar(q, ax=ax, shrink=0.6, label="corner offset (m)")
-        tc = off["to_corner"] * unit
+        tc = off.to_corner * unit
         ax2.scatter(tc[:, 0], tc[:, 1], s=10, c="k", label="corner to corner")
-        tl = off["to_line"] * unit
+        tl = off.to_line * unit
         ax2.scatter(tl[:, 0], tl[:, 1], s=6, c="tab:orange", alpha=0.6, label="corner to outline")
         tol = result.get("tolerance_feature_rms_xy_m")
         if tol:

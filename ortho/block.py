@@ -211,7 +211,7 @@ def operation_tags(operation: dict | None, height_operation: dict | None = None)
     return tags
 
 
-def rectify_frame_to_file(path, image, band_order, camera, C, R, heights, grid, interpolation, to_project,
+def rectify_frame_to_file(path, image, band_order, camera, C, R, *, heights, grid, interpolation, to_project,
                           occlusion_dsm=None, compression: str = "zstd", threads: int | None = None,
                           tags: dict | None = None) -> float:
     """Rectify tile by tile straight into a GeoTIFF (the frame ortho is never whole in memory).
@@ -281,7 +281,7 @@ def _frame_image(path, expect_size):
     return read_native(path, expect_size)
 
 
-def _require_coverage(task: FrameTask, C, R, heights, what: str, path, extent) -> float:
+def _require_coverage(task: FrameTask, C, R, heights, *, what: str, path, extent) -> float:
     """Share of the frame whose ground the height raster covers (``covered_share``): a warning naming the frame
     and the share left as nodata when it is partial, an InputError naming the raster's extent when it is none."""
     share = covered_share(task.camera, C, R, heights)
@@ -317,11 +317,11 @@ def rectify_frame_task(task: FrameTask) -> dict:
             heights = read_height_window(dsm_ds, ground_bounds, margin_m=4 * dsm_ds.transform.a, what="DSM",
                                          frame=task.image_id, height_operation=height_op)
             extent, what, path = tuple(dsm_ds.bounds), "DSM", task.dsm_path
-    covered = _require_coverage(task, C, R, heights, what, path, extent)
+    covered = _require_coverage(task, C, R, heights, what=what, path=path, extent=extent)
     grid = frame_grid(task.camera, C, R, dem, task.res_m, out_crs, to_project, image_id=task.image_id, partial=True)
     image, band_order = _frame_image(task.image_path, (task.camera.width, task.camera.height))
-    valid_fraction = rectify_frame_to_file(task.out_path, image, band_order, task.camera, C, R, heights, grid,
-                                           task.interpolation, to_project,
+    valid_fraction = rectify_frame_to_file(task.out_path, image, band_order, task.camera, C, R, heights=heights,
+                                           grid=grid, interpolation=task.interpolation, to_project=to_project,
                                            occlusion_dsm=heights if task.dsm_path else None,
                                            compression=task.compression, threads=task.threads,
                                            tags=operation_tags(to_project.record(),
@@ -433,7 +433,7 @@ def rectify_block(root, settings: RectifySettings | Resolved | None = None, *, e
         operation = CrsTransformer(project_crs, out_crs, params=transformation, allow_ballpark=allow_ballpark)
     executor = executor or local_executor()
     check_frame_sizes(block, eo_idx, zlo, zhi, res, "--res" if res_m is not None else None,
-                      min(len(block.images), max(1, executor.workers)), operation)
+                      concurrent=min(len(block.images), max(1, executor.workers)), operation=operation)
     threads = executor.cores_per_task(len(block.images))  # tile threads per frame task (None: all)
     inputs = rectify_inputs(block, dem_path, _recorded_inputs(out_dir))
     old_index = _compatible_old_index(out_dir, res, out_crs, inputs) if frames else None
@@ -441,8 +441,10 @@ def rectify_block(root, settings: RectifySettings | Resolved | None = None, *, e
     # replaces it only when every frame and the index are written (a failed run leaves the old output)
     # GDAL's block cache bounded for the whole stage, set here before the frame tasks start on their threads
     with atomic_dir(out_dir) as tmp_dir, stage_block_cache(RECTIFY_CACHE_BYTES):
-        index = _rectify_into(tmp_dir, block, eo_idx, res, out_crs, project_crs, dem_path, zlo, zhi, interpolation,
-                              true_ortho, dsm_path, compression, threads, operation, height_op, executor, inputs)
+        index = _rectify_into(tmp_dir, block, eo_idx, res=res, out_crs=out_crs, project_crs=project_crs,
+                              dem_path=dem_path, zlo=zlo, zhi=zhi, interpolation=interpolation, true_ortho=true_ortho,
+                              dsm_path=dsm_path, compression=compression, threads=threads, operation=operation,
+                              height_op=height_op, executor=executor, inputs=inputs)
         if old_index is not None:  # re-run of a subset: the other frames of the earlier run come along
             done = {e["image_id"] for e in index["frames"]}
             keep = [e for e in old_index["frames"] if e["image_id"] not in done]
@@ -455,7 +457,7 @@ def rectify_block(root, settings: RectifySettings | Resolved | None = None, *, e
 
 
 def check_frame_sizes(block: BlockInputs, eo_idx: dict, zlo: float, zhi: float, res: float, option: str | None,
-                      concurrent: int = 1, operation=None) -> None:
+                      *, concurrent: int = 1, operation=None) -> None:
     """``ResourceError`` before any work when a frame ortho at ``res`` cannot be made on this machine: its
     grid (footprint between the lowest and highest DEM height; ``operation``: project -> output CRS)
     beyond a GeoTIFF's size, or the ortho and its validity mask beyond the memory (``concurrent``
@@ -484,7 +486,7 @@ def check_frame_sizes(block: BlockInputs, eo_idx: dict, zlo: float, zhi: float, 
                      + (f", {concurrent} frames at a time," if concurrent > 1 else ","), option)
 
 
-def _rectify_into(out_dir: Path, block: BlockInputs, eo_idx, res, out_crs, project_crs, dem_path, zlo, zhi,
+def _rectify_into(out_dir: Path, block: BlockInputs, eo_idx, *, res, out_crs, project_crs, dem_path, zlo, zhi,
                   interpolation, true_ortho, dsm_path, compression, threads, operation, height_op, executor,
                   inputs: dict) -> dict:
     """One task per frame writing ``out_dir/<image_id>.tif``; the index of the frames (in frame order)."""

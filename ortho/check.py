@@ -105,6 +105,7 @@ class DomCheck:
     roof_corners: int | None = None  # the roofs row: roof corners given or found (``count`` of them measured)
     roof_corners_from: str | None = None  # the roofs row: where the corners came from (a file, the nDSM)
     roofs_why: str | None = None  # the roofs row: why none were measured, when it says
+    json_path: str | None = None  # the report's own file (dom_report.json), as it names itself
 
 
 _DISPLACEMENT_FIELDS = frozenset(f.name for f in dataclasses.fields(Displacement))
@@ -114,14 +115,19 @@ def read_dom_check(path) -> DomCheck:
     """dom_report.json as ``run_check`` wrote it; InputError naming the file when it is not one."""
     d = read_record(path, DOM_CHECK, SCHEMA_VERSION)
     try:
-        seams = d.get("seams") or {}
-        row = d.get("roofs")
-        roofs = None if row is None else Displacement.of_record({k: v for k, v in row.items() if k in _DISPLACEMENT_FIELDS})
-        row = row or {}
-        return DomCheck(Displacement.of_record(d["displacement"]), seams.get("rms_px"), seams.get("patches"), roofs,
-                        row.get("corners"), row.get("corners_from"), row.get("why"))
+        return _dom_check_of(d)
     except (AttributeError, KeyError, TypeError, ValueError) as exc:
         raise record_error(path, DOM_CHECK, exc) from None
+
+
+def _dom_check_of(d: dict) -> DomCheck:
+    """The typed record of a dom_report.json document (``run_check`` builds it, ``read_dom_check`` reads it)."""
+    seams = d.get("seams") or {}
+    row = d.get("roofs")
+    roofs = None if row is None else Displacement.of_record({k: v for k, v in row.items() if k in _DISPLACEMENT_FIELDS})
+    row = row or {}
+    return DomCheck(Displacement.of_record(d["displacement"]), seams.get("rms_px"), seams.get("patches"), roofs,
+                    row.get("corners"), row.get("corners_from"), row.get("why"), d.get("json"))
 
 
 def displacement_statistics(de_m, dn_m, res_m: float) -> dict:
@@ -156,7 +162,19 @@ def displacement_statistics(de_m, dn_m, res_m: float) -> dict:
     }
 
 
-def read_points_csv(path) -> dict:
+@dataclasses.dataclass(frozen=True)
+class DomPoints:
+    """Surveyed points (``x``, ``y``) and where they were measured in the DOM (``x_dom``, ``y_dom``), in the DOM's
+    CRS; one entry per point in file order."""
+
+    id: list[str]
+    x: np.ndarray
+    y: np.ndarray
+    x_dom: np.ndarray
+    y_dom: np.ndarray
+
+
+def read_points_csv(path) -> DomPoints:
     """Surveyed points with their DOM measurements: columns id, x, y, x_dom, y_dom (header required)."""
     path = Path(path)
     text = read_text(path, "points file (id,x,y,x_dom,y_dom)")
@@ -176,7 +194,7 @@ def read_points_csv(path) -> dict:
     if not ids:
         raise InputError(f"{path}: no points")
     a = np.array(vals)
-    return {"id": ids, "x": a[:, 0], "y": a[:, 1], "x_dom": a[:, 2], "y_dom": a[:, 3]}
+    return DomPoints(ids, a[:, 0], a[:, 1], a[:, 2], a[:, 3])
 
 
 def plot_displacements(path, patches: PatchDisplacements | None, stats: dict, title: str, points=None,
@@ -262,7 +280,7 @@ def check_block_memory(patch_px: int, search_px: int, block_px: int = 2048) -> N
                      f"{option} {value}: DOM and reference blocks of {side:,} x {side:,} px", option)
 
 
-def _on_grid(ds, window_transform, shape, crs, resampling, band_indexes=None, operation=None):
+def _on_grid(ds, window_transform, shape, crs, resampling, band_indexes=None, *, operation=None):
     """Resample (part of) an open raster onto a target window grid; returns (bands, rows, cols), valid.
 
     A raster in another CRS than the grid's goes through the toolkit's coordinate-operation policy
@@ -330,7 +348,7 @@ def _operation_to(dom_path, other_path, params, allow_ballpark: bool, what: str)
                               allow_ballpark=allow_ballpark)
 
 
-def check_against_reference(dom_path, reference_path, ndsm_path=None, max_ndsm_m: float = 0.5, block_px: int = 2048,
+def check_against_reference(dom_path, reference_path, ndsm_path=None, max_ndsm_m: float = 0.5, *, block_px: int = 2048,
                             patch_px: int = 48, step_px: int = 48, search_px: int = 6, min_ncc: float = 0.7,
                             reference_operation=None, ndsm_operation=None):
     """Patch displacements of a DOM against a reference orthophoto, block by block (bounded memory: a block
@@ -401,16 +419,16 @@ def check_points(points_path, res_m: float, dom_bounds=None) -> tuple[dict, dict
     pts = read_points_csv(points_path)
     if dom_bounds is not None:
         left, bottom, right, top = dom_bounds
-        for k, (xd, yd) in enumerate(zip(pts["x_dom"], pts["y_dom"])):
+        for k, (xd, yd) in enumerate(zip(pts.x_dom, pts.y_dom)):
             if not (left <= xd <= right and bottom <= yd <= top):
-                raise InputError(f"{points_path}:{k + 2}: point {pts['id'][k]} measured at ({xd:.3f}, {yd:.3f}), "
+                raise InputError(f"{points_path}:{k + 2}: point {pts.id[k]} measured at ({xd:.3f}, {yd:.3f}), "
                                  f"outside the DOM ({left:.1f} .. {right:.1f}, {bottom:.1f} .. {top:.1f}); coordinates "
                                  "of another CRS, zone or place?")
-    de = pts["x_dom"] - pts["x"]
-    dn = pts["y_dom"] - pts["y"]
+    de = pts.x_dom - pts.x
+    dn = pts.y_dom - pts.y
     stats = displacement_statistics(de, dn, res_m)
     table = [{"id": i, "x_m": float(x), "y_m": float(y), "x_dom_m": float(xd), "y_dom_m": float(yd), "de_m": float(a),
-              "dn_m": float(b)} for i, x, y, xd, yd, a, b in zip(pts["id"], pts["x"], pts["y"], pts["x_dom"], pts["y_dom"], de, dn)]
+              "dn_m": float(b)} for i, x, y, xd, yd, a, b in zip(pts.id, pts.x, pts.y, pts.x_dom, pts.y_dom, de, dn)]
     return stats, {"points": table, "_de": de, "_dn": dn}
 
 
@@ -519,7 +537,7 @@ def roof_corners_from_ndsm(ndsm_path, dom_bounds, dom_crs, min_height_m: float =
     return np.array(xs, float), np.array(ys, float)
 
 
-def measure_roof_patches(dom_path, reference_path, x_m, y_m, patch_m: float | None = None,
+def measure_roof_patches(dom_path, reference_path, x_m, y_m, *, patch_m: float | None = None,
                          reference_operation=None, block_px: int = 1024) -> RoofDisplacements:
     """The displacement of the DOM against a reference true orthophoto at every roof corner ``x_m, y_m``: a
     square patch of ``patch_m`` (default ``max(ROOF_PATCH_M, ROOF_PATCH_PX DOM pixels)``) centred on the corner,
@@ -620,8 +638,9 @@ def simulator_roof_corners(reference_path) -> Path | None:
 
 def run_check(project_root, settings: CheckSettings | Resolved | None = None, *, reference_path=None, points_path=None,
               dom_path=None, out_stem=None, seams: bool = True, params=None, allow_ballpark: bool = False,
-              roof_corners_path=None) -> dict:
-    """The ``ortho check`` report: displacement statistics (+ per-seam misalignment when seamlines exist).
+              roof_corners_path=None) -> DomCheck:
+    """The ``ortho check`` report (written to ``<out_stem>.json``, returned typed as ``read_dom_check`` reads it):
+    displacement statistics (+ per-seam misalignment when seamlines exist).
 
     With a reference orthophoto, open ground (``displacement``: NCC patches, nDSM <= max_ndsm_m with an nDSM) and,
     when roofs can be located, roofs (``roofs``: a patch on every roof corner, ``measure_roof_patches``): the corners
@@ -704,8 +723,8 @@ def run_check(project_root, settings: CheckSettings | Resolved | None = None, *,
                                for r, c, a, b, n in zip(listed.row_px, listed.col_px, listed.de_m, listed.dn_m,
                                                         listed.ncc)])
 
-        roofs = _roofs_row(dom_path, reference_path, ref_op, corners, roof_corners_path, ndsm_path, ndsm_op, res,
-                           dom_bounds, dom_crs)
+        roofs = _roofs_row(dom_path, reference_path, ref_op=ref_op, corners=corners, corners_path=roof_corners_path,
+                           ndsm_path=ndsm_path, ndsm_op=ndsm_op, res_m=res, dom_bounds=dom_bounds, dom_crs=dom_crs)
         if roofs is not None:
             report["roofs"] = roofs
 
@@ -729,10 +748,10 @@ def run_check(project_root, settings: CheckSettings | Resolved | None = None, *,
     report["plot"] = str(out_stem.with_suffix(".png"))
     report["settings"] = resolved.record()
     write_json(out_stem.with_suffix(".json"), report)
-    return report
+    return _dom_check_of(report)
 
 
-def _roofs_row(dom_path, reference_path, ref_op, corners, corners_path, ndsm_path, ndsm_op, res_m, dom_bounds,
+def _roofs_row(dom_path, reference_path, *, ref_op, corners, corners_path, ndsm_path, ndsm_op, res_m, dom_bounds,
                dom_crs) -> dict | None:
     """(``run_check``) the report's ``roofs`` row: at the given roof corners, else at those of the nDSM's buildings;
     None when neither is at hand."""

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import click
 
@@ -10,6 +11,9 @@ from aerotri.core.commands import FiniteFloatRange, Group, scheduler_options
 from aerotri.core.executor import executor_for
 from aerotri.core.settings import click_option
 from ortho.settings import CheckSettings, MosaicSettings, RectifySettings
+
+if TYPE_CHECKING:
+    from ortho.check import DomCheck
 
 
 @click.group(cls=Group)
@@ -47,7 +51,7 @@ def _settings(cls, project):
 @click.option("--frames", help="comma-separated image ids (default: all images)")
 @click_option(RectifySettings, "compression", "--frame-compress")
 @scheduler_options
-def rectify(project, params_path, heights_path, allow_ballpark, eo_path, camera_path, frames, scheduler, workers,
+def rectify(*, project, params_path, heights_path, allow_ballpark, eo_path, camera_path, frames, scheduler, workers,
             **_settings_given):
     """One orthoimage per frame (ortho/frames/<image_id>.tif with a validity mask), one Dask task per frame.
 
@@ -78,10 +82,10 @@ def dem(project, res_m, min_rays, out):
     from ortho.points_dem import write_points_dem
 
     s = write_points_dem(project, out, res_m, min_rays)
-    click.echo(f"DEM {s['width']} x {s['height']} cells at {s['res_m']} m from {s['points']} tie points "
-               f"({s['outliers']} outliers out; cells measured {s['cells_measured']}, interpolated "
-               f"{s['cells_interpolated']}, extended {s['cells_extrapolated']}), heights {s['height_range_m'][0]:.2f} to "
-               f"{s['height_range_m'][1]:.2f} -> {s['file']}")
+    click.echo(f"DEM {s.width} x {s.height} cells at {s.res_m} m from {s.points} tie points "
+               f"({s.outliers} outliers out; cells measured {s.cells_measured}, interpolated "
+               f"{s.cells_interpolated}, extended {s.cells_extrapolated}), heights {s.height_range_m[0]:.2f} to "
+               f"{s.height_range_m[1]:.2f} -> {s.file}")
 
 
 @main.command()
@@ -129,7 +133,7 @@ def mosaic(project, crs, seamlines, scheduler, workers, **_settings_given):
 @click.option("--params", "params_path", type=click.Path(dir_okay=False, path_type=Path),
               help="datum parameter file ('aerotri crs fit') relating the reference's CRS and the DOM's")
 @click.option("--allow-ballpark", is_flag=True, help="accept PROJ's ballpark operation between the two CRSs")
-def check(project, reference_path, points_path, dom_path, out_stem, params_path, allow_ballpark, **_settings_given):
+def check(*, project, reference_path, points_path, dom_path, out_stem, params_path, allow_ballpark, **_settings_given):
     """DOM accuracy against a reference orthophoto (NCC patches) or surveyed points; JSON and a plot.
 
     Settings: the defaults, then project.toml [dom_check] (a folder with one), then the options given here."""
@@ -143,21 +147,22 @@ def check(project, reference_path, points_path, dom_path, out_stem, params_path,
     report = run_check(project, settings, reference_path=reference_path, points_path=points_path, dom_path=dom_path,
                        out_stem=out_stem, params=params_path, allow_ballpark=allow_ballpark)
     click.echo(_check_line(report, "patches" if reference_path else "points"))
-    if "roofs" in report:
-        click.echo(_roofs_line(report["roofs"]))
+    if report.roofs is not None:
+        click.echo(_roofs_line(report))
 
 
-def _check_line(report: dict, what: str) -> str:
-    s = report["displacement"]
-    if not s.get("count"):
-        return f"no usable {what} -> {report['json']}"
-    return (f"{s['count']} {what}: RMS {s['rms_xy_m']:.3f} m ({s['rms_xy_gsd']:.2f} GSD), max {s['max_xy_m']:.3f} m "
-            f"-> {report['json']}")
+def _check_line(report: DomCheck, what: str) -> str:
+    s = report.displacement
+    if not s.count:
+        return f"no usable {what} -> {report.json_path}"
+    return (f"{s.count} {what}: RMS {s.rms_xy_m:.3f} m ({s.rms_xy_gsd:.2f} GSD), max {s.max_xy_m:.3f} m "
+            f"-> {report.json_path}")
 
 
-def _roofs_line(r: dict) -> str:
-    if not r.get("count"):
-        why = r.get("why") or f"{r.get('corners', 0)} roof corners, none measurable"
+def _roofs_line(report: DomCheck) -> str:
+    r = report.roofs
+    if not r.count:
+        why = report.roofs_why or f"{report.roof_corners or 0} roof corners, none measurable"
         return f"roofs: none measured ({why})"
-    return (f"roofs: {r['count']} of {r['corners']} corners: RMS {r['rms_xy_m']:.3f} m ({r['rms_xy_gsd']:.2f} GSD), "
-            f"median {r['median_xy_m']:.3f} m ({r['median_xy_gsd']:.2f} GSD)")
+    return (f"roofs: {r.count} of {report.roof_corners} corners: RMS {r.rms_xy_m:.3f} m ({r.rms_xy_gsd:.2f} GSD), "
+            f"median {r.median_xy_m:.3f} m ({r.median_xy_m / r.gsd_m:.2f} GSD)")  # as roof_statistics divides

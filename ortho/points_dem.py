@@ -192,7 +192,33 @@ def _warn_if_sparse(project, n_points: int, min_rays: int) -> None:
                      f"LiDAR would show more")
 
 
-def write_points_dem(root, out=None, res_m: float | None = None, min_rays: int = 3) -> dict:
+@dataclasses.dataclass(frozen=True)
+class PointsDemResult:
+    """``ortho dem``'s numbers (``<out>.json``, keys in field order): the COG, its grid (project CRS, cells of
+    ``res_m``), the tie points used and dropped, the cells measured / interpolated / extended, the heights' range."""
+
+    file: str
+    crs: str
+    res_m: float
+    width: int
+    height: int
+    points: int
+    outliers: int
+    min_rays: int
+    cells_measured: int
+    cells_interpolated: int
+    cells_extrapolated: int
+    height_range_m: tuple[float, float]
+    source: str
+    note: str = ("median height of the adjusted tie points per cell (3-sigma neighbourhood outliers out), linear "
+                 "inside their hull, nearest cell outside it up to the frames' footprints")
+
+    def to_json(self) -> str:
+        """The ``<out>.json`` text."""
+        return json.dumps(dataclasses.asdict(self), indent=1) + "\n"
+
+
+def write_points_dem(root, out=None, res_m: float | None = None, min_rays: int = 3) -> PointsDemResult:
     """``ortho dem``: the DEM of the project's adjusted tie points as a COG (default ``at/dem.tif``) over the frames'
     footprints, and its numbers (``<out>.json``); returns them."""
     import rasterio
@@ -220,14 +246,12 @@ def write_points_dem(root, out=None, res_m: float | None = None, min_rays: int =
     data = np.where(np.isfinite(dem.heights_m), dem.heights_m, NODATA).astype(np.float32)
     profile = dict(driver="GTiff", width=data.shape[1], height=data.shape[0], count=1, dtype="float32", crs=crs,
                    transform=transform, nodata=NODATA)
-    stats = {"file": str(out), "crs": project.crs, "res_m": dem.res_m, "width": int(data.shape[1]),
-             "height": int(data.shape[0]), "points": dem.n_points, "outliers": dem.n_outliers, "min_rays": min_rays,
-             "cells_measured": dem.cells_measured, "cells_interpolated": dem.cells_interpolated,
-             "cells_extrapolated": dem.cells_extrapolated,
-             "height_range_m": [float(np.nanmin(dem.heights_m)), float(np.nanmax(dem.heights_m))],
-             "source": str(project.object_points_path),
-             "note": "median height of the adjusted tie points per cell (3-sigma neighbourhood outliers out), linear "
-                     "inside their hull, nearest cell outside it up to the frames' footprints"}
+    stats = PointsDemResult(
+        file=str(out), crs=project.crs, res_m=dem.res_m, width=int(data.shape[1]), height=int(data.shape[0]),
+        points=dem.n_points, outliers=dem.n_outliers, min_rays=min_rays, cells_measured=dem.cells_measured,
+        cells_interpolated=dem.cells_interpolated, cells_extrapolated=dem.cells_extrapolated,
+        height_range_m=(float(np.nanmin(dem.heights_m)), float(np.nanmax(dem.heights_m))),
+        source=str(project.object_points_path))
     with rasterio.MemoryFile() as mem:
         with mem.open(**profile) as ds:
             ds.write(data, 1)
@@ -237,5 +261,5 @@ def write_points_dem(root, out=None, res_m: float | None = None, min_rays: int =
                            CELLS_EXTRAPOLATED=str(dem.cells_extrapolated))
         with mem.open() as src, atomic_path(out) as tmp:
             rio_copy(src, tmp, driver="COG", compress="DEFLATE", predictor=3, overview_resampling="average")
-    write_text_atomic(out.with_suffix(".json"), json.dumps(stats, indent=1) + "\n")
+    write_text_atomic(out.with_suffix(".json"), stats.to_json())
     return stats

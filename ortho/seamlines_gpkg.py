@@ -120,7 +120,8 @@ def read_edited_seamlines(path, names: list[str], crs, labels_shape, transform, 
                                  f"({c.x:.1f}, {c.y:.1f}); a cell belongs to one frame")
     labels = features.rasterize(((g, k) for k, g in polygons), out_shape=labels_shape, transform=transform,
                                 fill=-1, dtype="int32")
-    _check_coverage(path, labels, names, feature_of_frame, transform, valid, offsets)
+    _check_coverage(path, labels, names, feature_of_frame=feature_of_frame, transform=transform, valid=valid,
+                    offsets=offsets)
     return EditedSeamlines(path, labels, {names[k]: fid for k, fid in feature_of_frame.items()})
 
 
@@ -142,7 +143,7 @@ def _place(a: np.ndarray, off, shape) -> np.ndarray:
     return out
 
 
-def _check_coverage(path, labels, names, feature_of_frame, transform, valid, offsets) -> None:
+def _check_coverage(path, labels, names, *, feature_of_frame, transform, valid, offsets) -> None:
     """No gap (a cell some frame sees outside every polygon), no polygon beyond its frame's footprint."""
     seen = np.zeros(labels.shape, bool)
     for v, off in zip(valid, offsets):

@@ -179,7 +179,7 @@ def _render_kernel(ref, ref_x0, ref_y0, ref_res, dem, dem_x0, dem_y0, dem_res, z
 
 
 def render_frame(reference: np.ndarray, reference_grid: OrthoGrid, dem: HeightRaster, camera: Camera, centre_m, R,
-                 march: bool = False):
+                 *, march: bool = False):
     """Render a frame (height, width, bands) uint8 and its validity mask from a ground-truth orthophoto.
 
     ``march``: intersect rays by marching (needed for a DSM with vertical walls); otherwise by
@@ -197,7 +197,7 @@ def render_frame(reference: np.ndarray, reference_grid: OrthoGrid, dem: HeightRa
     return (out if reference.ndim == 3 else out[:, :, 0]), valid
 
 
-def write_geotiff(path, array: np.ndarray, x_left_m: float, y_top_m: float, res_m: float, crs, nodata=None) -> None:
+def write_geotiff(path, array: np.ndarray, x_left_m: float, y_top_m: float, res_m: float, crs, *, nodata=None) -> None:
     """A north-up GeoTIFF from (rows, cols[, bands])."""
     import rasterio
     from rasterio.transform import Affine
@@ -212,7 +212,7 @@ def write_geotiff(path, array: np.ndarray, x_left_m: float, y_top_m: float, res_
             dst.write(np.moveaxis(a, -1, 0))
 
 
-def write_synthetic_project(root, strips: int = 2, frames_per_strip: int = 3, buildings: int = 20, seed: int = 7,
+def write_synthetic_project(root, *, strips: int = 2, frames_per_strip: int = 3, buildings: int = 20, seed: int = 7,
                             res_m: float = 0.2, crs: str = "EPSG:32649") -> dict:
     """A small project folder with truth, for tests: textured true orthophoto, smooth DEM, box buildings.
 

@@ -75,7 +75,7 @@ def camera_rays(obs_xy_px, cal) -> np.ndarray:
     return d / np.linalg.norm(d, axis=1, keepdims=True)
 
 
-def resect_attitudes(centre, R_cv, points, obs_point, obs_image, rays_cam, iterations: int = 3):
+def resect_attitudes(centre, R_cv, points, obs_point, obs_image, rays_cam, *, iterations: int = 3):
     """Attitudes (N, 3, 3) by space resection with known projection centres.
 
     For frame i the camera rays ``d_k`` (unit, camera frame, ``rays_cam``) and the object directions
@@ -145,7 +145,7 @@ def _ground_hits(centre, rays_world, obs_point, n_points, ground_height_m):
     return pts
 
 
-def intersect_points(obs_point, obs_image, obs_xy_px, centre, R_cv, cal, n_points, ground_height_m, rays_cam=None):
+def intersect_points(obs_point, obs_image, obs_xy_px, centre, R_cv, cal, *, n_points, ground_height_m, rays_cam=None):
     """Object points (P, 3) by (linear, least-squares) multi-ray intersection; points that fail (fewer
     than 2 rays, indeterminate, behind a camera or above the lowest camera) take the mean of their rays'
     hits on the ground plane."""
@@ -162,7 +162,7 @@ def intersect_points(obs_point, obs_image, obs_xy_px, centre, R_cv, cal, n_point
     return np.where(ok[:, None], pts, plane)
 
 
-def refine_orientations(gnss_local, lever_arm_m, centre, R_cv, obs_point, obs_image, obs_xy_px, cal, n_points,
+def refine_orientations(gnss_local, lever_arm_m, centre, R_cv, obs_point, obs_image, *, obs_xy_px, cal, n_points,
                         ground_height_m, iterations: int = 3):
     """Alternate space resection (centres from GNSS) and intersection -> (centres, R_cv, points).
 
@@ -176,11 +176,12 @@ def refine_orientations(gnss_local, lever_arm_m, centre, R_cv, obs_point, obs_im
     for _ in range(iterations):
         R = resect_attitudes(centre, R, pts, obs_point, obs_image, d_cam)
         centre = gnss_local - np.einsum("nij,j->ni", R, lever_cv)
-        pts = intersect_points(obs_point, obs_image, obs_xy_px, centre, R, cal, n_points, ground_height_m, rays_cam=d_cam)
+        pts = intersect_points(obs_point, obs_image, obs_xy_px, centre, R, cal, n_points=n_points,
+                               ground_height_m=ground_height_m, rays_cam=d_cam)
     return centre, R, pts
 
 
-def approximate_points(obs_point, obs_image, obs_xy_px, centre, R_cv, cal, n_points, ground_height_m):
+def approximate_points(obs_point, obs_image, obs_xy_px, centre, R_cv, cal, *, n_points, ground_height_m):
     """Object points as the mean of their rays' intersections with the plane at ``ground_height_m``.
 
     With approximate attitudes a least-squares intersection can put points hundreds of metres off;

@@ -12,7 +12,7 @@ from __future__ import annotations
 import numba
 import numpy as np
 
-from aerotri.geom.lens_kernels import brown_distort, brown_distort_jacobian
+from aerotri.geom.lens_kernels import BrownCoefficients, brown_distort, brown_distort_jacobian
 from aerotri.adjust.collinearity import jacobians_cv, pixel_rays, point_jacobian_cv, point_normals, project_cv
 from aerotri.adjust.keys import K_KEY, X
 
@@ -41,7 +41,7 @@ def sum_by_index(index, values, n):
     return out.reshape((n,) + values.shape[1:])
 
 
-def refine_points(xy_px, point_index, image_index, centre, R_cv, cal, points, iterations: int = 5):
+def refine_points(xy_px, point_index, image_index, centre, R_cv, cal, *, points, iterations: int = 5):
     """Gauss-Newton on the pixels for points (n, 3) with fixed orientations; rows that are not finite stay as
     they are. Returns a new array."""
     pts = np.array(points, dtype=float, copy=True)
@@ -57,7 +57,7 @@ def refine_points(xy_px, point_index, image_index, centre, R_cv, cal, points, it
     return pts
 
 
-def refined_normals(xy_px, point_index, image_index, centre, R_cv, cal, points, iterations: int = 5):
+def refined_normals(xy_px, point_index, image_index, centre, R_cv, cal, *, points, iterations: int = 5):
     """``refine_points`` ray by ray in compiled code, and the points' normal matrices ``sum J'J`` (n, 3, 3) at the
     refined points (``point_normals``, unit weights): (points, normals). The same arithmetic as the numpy
     functions (to rounding), without their (K, 3, 3) arrays of rotations and Jacobians per ray (the surface gate
@@ -82,8 +82,9 @@ def _ray_point_jacobian(xy, centre, R, point, cal, J):
     y = R[0, 1] * d0 + R[1, 1] * d1 + R[2, 1] * d2
     z = R[0, 2] * d0 + R[1, 2] * d1 + R[2, 2] * d2
     xn, yn = x / z, y / z
-    xd, yd = brown_distort(xn, yn, k1, k2, 0.0, p1, p2)
-    a00, a01, a10, a11 = brown_distort_jacobian(xn, yn, k1, k2, 0.0, p1, p2)
+    lens = BrownCoefficients(k1, k2, 0.0, p1, p2)
+    xd, yd = brown_distort(xn, yn, lens)
+    a00, a01, a10, a11 = brown_distort_jacobian(xn, yn, lens)
     m00, m01 = fx * a00 + sk * a10, fx * a01 + sk * a11
     m10, m11 = fy * a10, fy * a11
     iz, ux, uy = 1.0 / z, -xn / z, -yn / z  # d(xn, yn) / d pc as in ``collinearity._dpixel_dpc``
@@ -110,7 +111,7 @@ def _normals_kernel(xy, point, image, centre, R_cv, cal, pts, N, b):
                 N[j, p, q] += J[0, p] * J[0, q] + J[1, p] * J[1, q]
 
 
-def ray_leverages(point_index, image_index, centre, R_cv, cal, points, N_inv) -> np.ndarray:
+def ray_leverages(point_index, image_index, centre, R_cv, cal, points, *, N_inv) -> np.ndarray:
     """``J N^-1 J'`` per image coordinate (K, 2) of rays with their points' inverse normal matrices ``N_inv``
     (n, 3, 3): the diagonal of each point's hat matrix (``snooping.redundancy_numbers``), ray by ray."""
     H = np.empty((len(point_index), 2))
@@ -187,18 +188,18 @@ def _solve3(A):
     return True
 
 
-def intersect(xy_px, point_index, image_index, centre, R_cv, cal, n_points, iterations: int = 5):
+def intersect(xy_px, point_index, image_index, centre, R_cv, cal, *, n_points, iterations: int = 5):
     """Intersect points from their image measurements: linear start, then Gauss-Newton on pixels.
 
     Returns (points (n, 3) with NaN where fewer than 2 usable rays, rank-ok mask).
     """
     rays = pixel_rays(xy_px, R_cv[image_index], cal)
     pts, ok = intersect_rays(centre[image_index], rays, point_index, n_points)
-    pts = refine_points(xy_px, point_index, image_index, centre, R_cv, cal, pts, iterations)
+    pts = refine_points(xy_px, point_index, image_index, centre, R_cv, cal, points=pts, iterations=iterations)
     return pts, ok
 
 
-def intersect_with_covariance(xy_px, image_index, centre, R_cv, cal, sigma_px, marginals=None, self_cal=False):
+def intersect_with_covariance(xy_px, image_index, centre, R_cv, cal, sigma_px, *, marginals=None, self_cal=False):
     """Intersect one point from m measurements and give its covariance (3, 3) in the local frame.
 
     ``marginals`` (gtsam.Marginals of the final adjustment) adds the uncertainty of the orientations
@@ -206,7 +207,7 @@ def intersect_with_covariance(xy_px, image_index, centre, R_cv, cal, sigma_px, m
     Returns (point (3,), covariance (3, 3), image residuals (m, 2) px).
     """
     m = len(image_index)
-    pts, ok = intersect(xy_px, np.zeros(m, dtype=int), image_index, centre, R_cv, cal, 1)
+    pts, ok = intersect(xy_px, np.zeros(m, dtype=int), image_index, centre, R_cv, cal, n_points=1)
     X0 = pts[0]
     uv, pc = project_cv(np.repeat(X0[None], m, 0), centre[image_index], R_cv[image_index], cal)
     Jp, Jpose = jacobians_cv(pc, R_cv[image_index], cal)

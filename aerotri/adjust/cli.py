@@ -6,6 +6,7 @@ from pathlib import Path
 
 import click
 
+from aerotri.adjust.report_record import AdjustmentRecord
 from aerotri.adjust.settings import AdjustSettings
 from aerotri.core.commands import Command, finite
 from aerotri.core.settings import click_option
@@ -54,24 +55,22 @@ def adjust(project, no_html, no_exports, **_settings):
 
     p = Project.open(project)
     settings = project_settings(p, resolve(AdjustSettings, p, click.get_current_context()))
-    ba, rep = run_adjustment(p.root, settings, html=not no_html)
+    res = run_adjustment(p.root, settings, html=not no_html)
     if not no_exports:
         export_project(p.root)
-    click.echo(_summary(rep))
+    click.echo(_summary(res.record))
     if settings.settings.leave_one_out:
         from aerotri.adjust.leave_one_out import run_leave_one_out
 
-        click.echo(run_leave_one_out(p.root, settings.settings, full=ba).table())
+        click.echo(run_leave_one_out(p.root, settings.settings, full=res.adjustment).table())
 
 
-def _summary(rep: dict) -> str:
+def _summary(rec: AdjustmentRecord) -> str:
     """The lines ``aerotri adjust`` prints: sigma naught, surface control, check RMS."""
-    k = rep["key_statistics"]
-    lines = [f"sigma0 {k['sigma0_um']} um, {k['iterations']} iterations, dof {k['degrees_of_freedom']}: {k['message']}"]
-    sc = rep.get("surface_control")
-    if sc:
-        lines += [f"surface control, {name}: {c['used']} tie points used ({c['rejected']} rejected), point - surface "
-                  f"rms {c['rms_m']} m" for name, c in (sc.get("classes") or {"DEM": sc}).items()]
-    if rep["check_rms_m"]:
-        lines.append("check RMS X Y Z (m): " + " ".join(f"{v:.3f}" for v in rep["check_rms_m"]))
+    k = rec.key_statistics
+    lines = [f"sigma0 {k.sigma0_um} um, {k.iterations} iterations, dof {k.degrees_of_freedom}: {k.message}"]
+    lines += [f"surface control, {c.name}: {c.used} tie points used ({c.rejected} rejected), point - surface "
+              f"rms {c.rms_m} m" for c in rec.surface_control]
+    if rec.check_rms_m:
+        lines.append("check RMS X Y Z (m): " + " ".join(f"{v:.3f}" for v in rec.check_rms_m))
     return "\n".join(lines)

@@ -466,7 +466,7 @@ def point_rays(block: "G.Block", state: "G.State", obs_active, sigma_px: float, 
 
 
 def point_covariances(block: "G.Block", state: "G.State", obs_active, sigma_px: float, rc: ReducedCovariance,
-                      self_cal: bool, chunk: int = 25_000, rays: PointRays | None = None) -> np.ndarray:
+                      self_cal: bool, *, chunk: int = 25_000, rays: PointRays | None = None) -> np.ndarray:
     """Unit-weight covariances (P, 3, 3) of all object points in the local frame (NaN for unused); ``rays``:
     their ``point_rays`` when already at hand. ``Cov(X_j) = V_j^-1 + sum_ab G_a Sigma(a, b) G_b'`` over the
     pairs of rays (a, b) of the point, the orientations' covariance blocks gathered once per image pair; the

@@ -46,9 +46,6 @@ class DemCheck:
     def tested(self) -> bool:
         return self.limit_m is not None
 
-    def as_dict(self) -> dict:
-        return dataclasses.asdict(self)
-
     def summary(self) -> str:
         """One line: the numbers and the verdict."""
         if self.n == 0:

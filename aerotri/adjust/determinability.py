@@ -81,17 +81,21 @@ class GroupCheck:
     reason: str | None  # why not (None: determinable)
     action: str  # "estimated", or "fixed" (at its a-priori value, solved again without it)
 
-    def as_dict(self) -> dict:
-        return dataclasses.asdict(self)
+
+@dataclasses.dataclass(frozen=True)
+class GroundObservations:
+    """Whether control points in use (or a DEM) observe the ground's heights and plan positions."""
+
+    height: bool
+    plan: bool
 
 
-def ground_observations(block: G.Block, control_active, surface_active=None) -> dict:
-    """{"height": bool, "plan": bool}: whether control points in use (or a DEM) observe the ground's heights
-    and plan positions."""
+def ground_observations(block: G.Block, control_active, surface_active=None) -> GroundObservations:
+    """Whether control points in use (or a DEM, for the heights) observe the ground's heights and plan positions."""
     active = np.asarray(control_active, dtype=bool)
     rows = np.asarray(block.control_rows)[active] if len(block.control_rows) else np.zeros(0, int)
     surface = block.surface is not None and surface_active is not None and bool(np.any(surface_active))
-    return {"height": bool(np.any(rows != 2)) or surface, "plan": bool(np.any(rows != 1))}
+    return GroundObservations(height=bool(np.any(rows != 2)) or surface, plan=bool(np.any(rows != 1)))
 
 
 def _partial_correlation(cc: CalibrationCovariance, mode: str, group: list[int], others: list[int]) -> float:
@@ -147,8 +151,8 @@ def corner_sigma_px(group: str, cal: np.ndarray, cal_cov: np.ndarray, width: int
     return worst
 
 
-def check_groups(cc: CalibrationCovariance, groups, cal: np.ndarray, cal_apriori: np.ndarray, width: int,
-                 height: int, ground: dict) -> list[GroupCheck]:
+def check_groups(cc: CalibrationCovariance, groups, cal: np.ndarray, cal_apriori: np.ndarray, *, width: int,
+                 height: int, ground: GroundObservations) -> list[GroupCheck]:
     """The ``GroupCheck`` of every estimated group (``groups``) at a solution with calibration ``cal`` and its
     ``CalibrationCovariance``; ``ground``: ``ground_observations`` of the block."""
     free = {g: [CAL_NAMES.index(p) for p in GROUP_PARAMETERS[g]] for g in groups}
@@ -157,7 +161,7 @@ def check_groups(cc: CalibrationCovariance, groups, cal: np.ndarray, cal_apriori
     for g in groups:
         others = [i for h in groups if h != g for i in free[h]]
         corr = {m: _partial_correlation(cc, m, free[g], others) for m in REPORTED_WITH[g]}
-        observed = {m: bool(ground[_MODE_GROUND[m]]) for m in corr}
+        observed = {m: bool(getattr(ground, _MODE_GROUND[m])) for m in corr}
         sig_px = corner_sigma_px(g, cal, cc.cal_cov, width, height)
         frac = sig_px / f
         reasons = []

@@ -125,7 +125,7 @@ def footprint(camera, centre_m, R, terrain: Terrain):
 
 @dataclasses.dataclass
 class FlightAcceptance:
-    """Per-frame and per-strip values (JSON-ready via ``as_dict``) and the limits they were held to."""
+    """Per-frame and per-strip values (JSON-ready via ``dataclasses.asdict``) and the limits they were held to."""
 
     frames: list[dict]
     strips: list[dict]
@@ -134,9 +134,6 @@ class FlightAcceptance:
     terrain: str
     checks: list[dict]  # quantity, worst value, limit, unit, verdict, where
     spec: str = DEFAULT_SPEC  # the flight specification the limits come from, or why none applies
-
-    def as_dict(self) -> dict:
-        return dataclasses.asdict(self)
 
     @property
     def failed(self) -> list[dict]:
@@ -195,7 +192,7 @@ def _check(quantity, values, where, key, limits) -> dict:
                 n=len(pairs), n_fail=len(bad))
 
 
-def flight_acceptance(image_id, centre_m, opk_deg, camera, terrain: Terrain, strip=None, limits: dict | None = None,
+def flight_acceptance(image_id, centre_m, opk_deg, camera, terrain: Terrain, strip=None, *, limits: dict | None = None,
                       attitude_measured: bool = True) -> FlightAcceptance:
     """The flight acceptance of frames in flight order (``image_id`` order is the track order when
     ``strip`` is None: ``strips_from_track`` splits it). ``opk_deg`` in the photogrammetric
@@ -341,4 +338,4 @@ def project_flight_acceptance(root, limits: dict | None = None) -> FlightAccepta
     opk = np.asarray(opk)[order] if measured else nominal_attitude(c, strip)
     if terrain is None:
         return None  # the footprints need a terrain: the caller says the checks were not made
-    return flight_acceptance(ids, c, opk, camera, terrain, strip + 1, limits, measured)
+    return flight_acceptance(ids, c, opk, camera, terrain, strip + 1, limits=limits, attitude_measured=measured)

@@ -56,11 +56,6 @@ class GeometryMode:
     def sigma_deg(self) -> float:
         return float(np.degrees(np.arctan2(self.sigma_m, self.radius_m)))
 
-    def as_dict(self) -> dict:
-        d = dataclasses.asdict(self)
-        d["sigma_deg"] = self.sigma_deg if self.mode.startswith("tilt") else None
-        return d
-
 
 @dataclasses.dataclass(frozen=True)
 class CalibrationCovariance:
@@ -141,7 +136,7 @@ def _apply_q(block: G.Block, pr: PointRays, rc, l_p: np.ndarray, l_c: np.ndarray
     return u_p, u_c, var
 
 
-def _shares(block: G.Block, opts: G.SolveSettings, state: G.State, control_active, rc, pr: PointRays, u_p, u_c, var
+def _shares(block: G.Block, opts: G.SolveSettings, state: G.State, control_active, rc, pr: PointRays, *, u_p, u_c, var
             ) -> dict:
     """Group -> (M,) share of each functional's information ``u' H_k u / l'Q l`` (``priors``: the rest)."""
     share = {}
@@ -170,7 +165,7 @@ def _held(sh: dict) -> bool:
 
 
 def geometry_modes(block: G.Block, opts: G.SolveSettings, state: G.State, obs_active, control_active, rc,
-                   sigma0: float, rays: PointRays | None = None
+                   *, sigma0: float, rays: PointRays | None = None
                    ) -> tuple[list[GeometryMode], CalibrationCovariance | None]:
     """The four modes of the tie points' heights (see the module docstring) at the solution ``state``, and with
     self-calibration its ``CalibrationCovariance`` and the ``focal_height`` mode (when the focal length is
@@ -189,7 +184,7 @@ def geometry_modes(block: G.Block, opts: G.SolveSettings, state: G.State, obs_ac
         l_c = np.zeros((len(l_p), rc.n))
         l_c[-1, rc.offset[K_KEY] + np.array([0, 1])] = 0.5
     u_p, u_c, var = _apply_q(block, pr, rc, l_p, l_c)
-    share = _shares(block, opts, state, control_active, rc, pr, u_p, u_c, var)
+    share = _shares(block, opts, state, control_active, rc, pr, u_p=u_p, u_c=u_c, var=var)
     out = []
     for m, name in enumerate(MODES):
         sh = {k: float(v[m]) for k, v in share.items()}

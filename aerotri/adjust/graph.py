@@ -200,20 +200,23 @@ class TiePoints:
         if self.work is None:
             self.work = schur.Workspace.for_rays(len(pr.row), len(pr.start) - 1, n_images, len(pr.images), self.self_cal)
         return schur.ReducedSystem(*schur.reduced_camera_system(
-            self.xy_px, self.image, pr.row, pr.start, pr.a, pr.b, pr.pair_block, len(pr.images), n_images, centre, R_cv,
-            coords, cal, 1.0 / self.sigma_px, self.self_cal, self.huber_k, point_r, point_B, float(point_damping),
+            self.xy_px, self.image, pr.row, pr.start, pr.a, pr.b, pair_block=pr.pair_block, n_blocks=len(pr.images),
+            n_images=n_images, centre=centre, R_cv=R_cv, points=coords, cal=cal, inv_sigma=1.0 / self.sigma_px,
+            with_cal=self.self_cal, huber_k=self.huber_k, point_r=point_r, point_B=point_B,
+            point_damping=float(point_damping),
             work=self.work))
 
     def updated(self, rs: schur.ReducedSystem, delta: gtsam.VectorValues, n_images: int, coords: np.ndarray) -> np.ndarray:
         """The point coordinates after the back-substitution of the solved increments ``delta``."""
         d_pose = np.array([delta.at(X(i)) for i in range(n_images)])
         d_cal = np.asarray(delta.at(K_KEY), dtype=float) if self.self_cal else np.zeros(9)
-        return coords + schur.point_increments(rs.Vinv, rs.b_point, rs.W, rs.Z, self.image, self.pairs.start, d_pose, d_cal)
+        return coords + schur.point_increments(rs.Vinv, rs.b_point, rs.W, rs.Z, self.image, self.pairs.start,
+                                               d_pose=d_pose, d_cal=d_cal)
 
     def sum_of_squares(self, values: gtsam.Values, n_images: int, coords: np.ndarray) -> float:
         centre, R_cv, cal = self._cameras(values, n_images)
-        rays = float(schur.sum_of_squares(self.xy_px, self.image, self.pairs.row, centre, R_cv, coords, cal,
-                                          1.0 / self.sigma_px, self.huber_k))
+        rays = float(schur.sum_of_squares(self.xy_px, self.image, self.pairs.row, centre, R_cv, coords, cal=cal,
+                                          inv_sigma=1.0 / self.sigma_px, huber_k=self.huber_k))
         if self.surface is None:
             return rays
         return rays + surface_mod.surface_cost(self.surface, coords, self.surface_active, self.huber_k)
@@ -538,7 +541,7 @@ def _datum_step(gr: Graph, values: gtsam.Values, coords: np.ndarray, cost: float
     dc = gr.datum
     centre, R_cv, cal = gr.tie._cameras(values, gr.n_images)
     now = np.array([values.atPoint3(P(j)) for j in dc.point.tolist()])
-    meet, _ = intersect(dc.xy_px, dc.row, dc.image, centre, R_cv, cal, len(now))
+    meet, _ = intersect(dc.xy_px, dc.row, dc.image, centre, R_cv, cal, n_points=len(now))
     ok = np.all(np.isfinite(meet), axis=1)  # NaN: fewer than two usable rays
     meet[~ok] = now[~ok]
     _, pc = project_cv(meet[dc.row], centre[dc.image], R_cv[dc.image], cal)

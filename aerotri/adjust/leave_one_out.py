@@ -48,12 +48,6 @@ class LeftOutPoint:
     def checked(self) -> bool:
         return bool(np.all(np.isfinite(self.adjusted_m[:2])))
 
-    def as_dict(self) -> dict:
-        d = self.d_m
-        return {"id": self.id, "kind": self.kind, "rays": self.rays, "given_m": list(self.given_m),
-                "adjusted_m": _finite(self.adjusted_m), "dx_m": _f(d[0]), "dy_m": _f(d[1]),
-                "dz_m": _f(d[2]) if self.kind in ("full", "height") else None, "dxy_m": _f(math.hypot(d[0], d[1])),
-                "sigma_m": _finite(self.sigma_m), "seconds": round(self.seconds, 2)}
 
 
 @dataclasses.dataclass(frozen=True)
@@ -65,10 +59,6 @@ class ControlScatter:
     rms_xy_m: float  # plan RMS of the residuals
     rms_xy_dof_m: float  # ... scaled by sqrt(n / (n - 2)) for the 4 plan parameters the points determine
     residual_xy_m: dict  # id -> (dx, dy) adjusted - given
-
-    def as_dict(self) -> dict:
-        return {"n": self.n, "rms_xy_m": _f(self.rms_xy_m), "rms_xy_dof_corrected_m": _f(self.rms_xy_dof_m),
-                "residual_xy_m": {k: [_f(v[0]), _f(v[1])] for k, v in self.residual_xy_m.items()}}
 
 
 @dataclasses.dataclass(frozen=True)
@@ -85,20 +75,19 @@ class LeaveOneOut:
         d = self._d(("full", "horizontal"))
         return float(np.sqrt(np.mean(np.sum(d[:, :2] ** 2, axis=1)))) if len(d) else float("nan")
 
-    def as_dict(self) -> dict:
-        d = self._d(("full", "horizontal"))
-        dz = self._d(("full", "height"))[:, 2]
-        return {
-            "checked": int(len(d)), "not_checked": [p.id for p in self.points if not p.checked],
-            "rms_x_m": _f(np.sqrt(np.mean(d[:, 0] ** 2))) if len(d) else None,
-            "rms_y_m": _f(np.sqrt(np.mean(d[:, 1] ** 2))) if len(d) else None,
-            "rms_xy_m": _f(self.rms_xy_m) if len(d) else None,
-            "rms_z_m": _f(np.sqrt(np.mean(dz**2))) if len(dz) else None,
-            "control_scatter": self.scatter.as_dict(),
-            "points": [p.as_dict() for p in self.points], "seconds": round(self.seconds, 1),
-            "note": "each control point left out in turn; adjusted (intersected with the orientations the others "
-                    "hold) minus given, project CRS; plan-only points in plan only. control_scatter: the points' "
-                    "plan residuals with all of them in the adjustment, the reference for the plan RMS"}
+    @property
+    def rms_m(self) -> tuple[float, float, float]:
+        """X, Y RMS over the checked points with plan control, Z over those with height control (NaN: none)."""
+        d, dz = self._d(("full", "horizontal")), self._d(("full", "height"))[:, 2]
+        nan = float("nan")
+        return (float(np.sqrt(np.mean(d[:, 0] ** 2))) if len(d) else nan,
+                float(np.sqrt(np.mean(d[:, 1] ** 2))) if len(d) else nan,
+                float(np.sqrt(np.mean(dz**2))) if len(dz) else nan)
+
+    @property
+    def n_checked(self) -> int:
+        """Checked points with plan control (those in the plan RMS)."""
+        return len(self._d(("full", "horizontal")))
 
     def table(self) -> str:
         """A console table, one line per point, and the RMS against the control points' scatter."""
@@ -110,10 +99,10 @@ class LeaveOneOut:
                 continue
             dz = f"{d[2]:8.3f}" if p.kind in ("full", "height") else f"{'-':>8}"
             lines.append(f"{p.id:>12} {p.kind:>10} {p.rays:4d} {d[0]:8.3f} {d[1]:8.3f} {math.hypot(d[0], d[1]):8.3f} {dz}")
-        a = self.as_dict()
-        if a["rms_xy_m"] is not None:
-            lines.append(f"leave-one-out plan RMS {a['rms_xy_m']:.3f} m over {a['checked']} points (X {a['rms_x_m']:.3f}, "
-                         f"Y {a['rms_y_m']:.3f}); the control points' own plan scatter about the block "
+        if self.n_checked:  # the table shows the record's rounded figures (at/leave_one_out.json)
+            rx, ry = (_f(v) for v in self.rms_m[:2])
+            lines.append(f"leave-one-out plan RMS {_f(self.rms_xy_m):.3f} m over {self.n_checked} points (X {rx:.3f}, "
+                         f"Y {ry:.3f}); the control points' own plan scatter about the block "
                          f"{self.scatter.rms_xy_dof_m:.3f} m ({self.scatter.n} points, all in the adjustment)")
         return "\n".join(lines)
 
@@ -192,5 +181,36 @@ def run_leave_one_out(root, settings: AdjustSettings | None = None, full: BlockA
     from aerotri.core.project import Project
 
     loo = leave_one_out(root, settings, full)
-    write_text_atomic(Project.open(root).at_dir / "leave_one_out.json", json.dumps(loo.as_dict(), indent=1) + "\n")
+    write_text_atomic(Project.open(root).at_dir / "leave_one_out.json", json.dumps(_record(loo), indent=1) + "\n")
     return loo
+
+
+# -- at/leave_one_out.json: the record the stage writes, built from the dataclasses --------------------------
+
+def _point_record(p: LeftOutPoint) -> dict:
+    d = p.d_m
+    return {"id": p.id, "kind": p.kind, "rays": p.rays, "given_m": list(p.given_m),
+            "adjusted_m": _finite(p.adjusted_m), "dx_m": _f(d[0]), "dy_m": _f(d[1]),
+            "dz_m": _f(d[2]) if p.kind in ("full", "height") else None, "dxy_m": _f(math.hypot(d[0], d[1])),
+            "sigma_m": _finite(p.sigma_m), "seconds": round(p.seconds, 2)}
+
+
+def _scatter_record(s: ControlScatter) -> dict:
+    return {"n": s.n, "rms_xy_m": _f(s.rms_xy_m), "rms_xy_dof_corrected_m": _f(s.rms_xy_dof_m),
+            "residual_xy_m": {k: [_f(v[0]), _f(v[1])] for k, v in s.residual_xy_m.items()}}
+
+
+def _record(loo: LeaveOneOut) -> dict:
+    n = loo.n_checked
+    rx, ry, rz = loo.rms_m
+    return {
+        "checked": int(n), "not_checked": [p.id for p in loo.points if not p.checked],
+        "rms_x_m": _f(rx) if n else None,
+        "rms_y_m": _f(ry) if n else None,
+        "rms_xy_m": _f(loo.rms_xy_m) if n else None,
+        "rms_z_m": _f(rz) if math.isfinite(rz) else None,
+        "control_scatter": _scatter_record(loo.scatter),
+        "points": [_point_record(p) for p in loo.points], "seconds": round(loo.seconds, 1),
+        "note": "each control point left out in turn; adjusted (intersected with the orientations the others "
+                "hold) minus given, project CRS; plan-only points in plan only. control_scatter: the points' "
+                "plan residuals with all of them in the adjustment, the reference for the plan RMS"}

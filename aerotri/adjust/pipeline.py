@@ -38,6 +38,7 @@ from aerotri.geom.observations import (
 from aerotri.adjust.level_datum import height_datum, level_result
 from aerotri.adjust.dem_check import tie_dem_check
 from aerotri.adjust.determinability import check_groups, ground_observations
+from aerotri.adjust.report_record import AdjustmentRecord, adjustment_record
 from aerotri.adjust.solve import AdjustmentResult, adjust_block, check_point_errors
 from aerotri.adjust.variance_components import adjusted_gnss
 from aerotri.geom.strips import along_track_km, strips_from_track
@@ -315,7 +316,8 @@ def _image_approximations(project: Project, cam, ties: ImageObservations, contro
     from aerotri.adjust.relative import image_approximations
 
     frames = sorted(set(ties.image_id.tolist()) | set(cobs.image_id.tolist()))
-    ap = image_approximations(project.work_dir, project.tiepoints_path, ties, cam, frames, control, cobs, crs)
+    ap = image_approximations(project.work_dir, project.tiepoints_path, ties, cam, frames, control, control_obs=cobs,
+                              crs=crs)
     oriented = list(ap.eo.image_id)
     ties = ties.subset(_is_in(ties.image_id, oriented))
     kept = _is_in(cobs.image_id, oriented)
@@ -349,9 +351,6 @@ class LeftOutComponent:
 
     image_ids: list
     reason: str
-
-    def as_dict(self) -> dict:
-        return {"images": list(self.image_ids), "reason": self.reason}
 
 
 def _component_datum_gap(inp: ProjectInputs, ctrl_used: ControlPoints, ids: list) -> str | None:
@@ -464,11 +463,14 @@ def _approximations(inp: ProjectInputs, frame: LocalFrame, block: G.Block, image
         ground = float(np.median(centre0[:, 2]) - _flying_height_guess(centre0, cam))
     n_points = block.n_points
     if gl is not None and st.refine_approximations:
-        centre0, R0, pts0 = refine_orientations(gl, lever, centre0, R0, obs_point, obs_image, obs_xy, cal0, n_points, ground)
+        centre0, R0, pts0 = refine_orientations(gl, lever, centre0, R0, obs_point, obs_image, obs_xy_px=obs_xy,
+                                                cal=cal0, n_points=n_points, ground_height_m=ground)
     elif gl is None:
-        pts0 = intersect_points(obs_point, obs_image, obs_xy, centre0, R0, cal0, n_points, ground)
+        pts0 = intersect_points(obs_point, obs_image, obs_xy, centre0, R0, cal0, n_points=n_points,
+                                ground_height_m=ground)
     else:
-        pts0 = approximate_points(obs_point, obs_image, obs_xy, centre0, R0, cal0, n_points, ground)
+        pts0 = approximate_points(obs_point, obs_image, obs_xy, centre0, R0, cal0, n_points=n_points,
+                                  ground_height_m=ground)
     for c, j in enumerate(block.control_point):
         if block.control_rows[c] == 3:
             pts0[j] = given_loc[c]
@@ -576,7 +578,8 @@ def adjust_project(root, settings: AdjustSettings | None = None) -> BlockAdjustm
         ground = ground_observations(result.block or prepared.block, result.control_active,
                                      (result.block or prepared.block).surface_active)
         now = check_groups(result.calibration, solved.self_calibration, result.state.cal,
-                           G.cal_from_camera(prepared.camera), prepared.camera.width, prepared.camera.height, ground)
+                           G.cal_from_camera(prepared.camera), width=prepared.camera.width,
+                           height=prepared.camera.height, ground=ground)
         checks.update({c.group: c for c in now})
         focal_mode = next((g for g in result.geometry or [] if g.mode == "focal_height"), focal_mode)
         fixed = [c.group for c in now if not c.determinable]
@@ -671,7 +674,7 @@ def finish(prepared: PreparedBlock, result: AdjustmentResult) -> BlockAdjustment
         cid = {p: c for c, p in enumerate(chk.id)}
         opi = np.array([cid[p] for p in chk_obs.point_id], dtype=int)
         oim = np.array([img_index[i] for i in chk_obs.image_id], dtype=int)
-        P, C, rays = check_point_errors(chk_obs.xy_px, oim, opi, len(chk), state, opts, result, st.alpha)
+        P, C, rays = check_point_errors(chk_obs.xy_px, oim, opi, len(chk), state, opts, result=result, alpha=st.alpha)
         Pm = frame.to_map(np.nan_to_num(P))
         Jinv = np.linalg.inv(frame.jacobian_local_from_map(chk.xyz_m))
         for c, pid in enumerate(chk.id):
@@ -734,11 +737,21 @@ def object_points_csv(ba: BlockAdjustment) -> str:
     return "\n".join(lines) + "\n"
 
 
+@dataclasses.dataclass(frozen=True)
+class AdjustStageResult:
+    """What the adjustment stage leaves: the adjustment, and its report (``report.json``, schema and writer
+    ``aerotri.adjust.report``) as the typed record the stages after it read (``report_record``)."""
+
+    adjustment: BlockAdjustment
+    record: AdjustmentRecord
+    report_path: Path  # report.json as written (with report.txt/html, eo.txt, object_points.csv beside it)
+
+
 @committed(lambda ba, root, html=True, out_dir=None, settings_record=None:
            Path(out_dir) if out_dir is not None else Project(Path(root), {}).at_dir)
 def write_outputs(ba: BlockAdjustment, root, html: bool = True, out_dir=None,
-                  settings_record: dict | None = None) -> dict:
-    """Write at/eo.txt, object_points.csv and report.txt/json/html; returns the report dict.
+                  settings_record: dict | None = None) -> AdjustStageResult:
+    """Write at/eo.txt, object_points.csv and report.txt/json/html; returns them as an ``AdjustStageResult``.
 
     ``out_dir``: another folder than the project's ``at/`` (the chain's first adjustment); ``settings_record``:
     every setting with its source (``core.settings.Resolved.record``), report.json ``settings``. All texts
@@ -782,18 +795,19 @@ def write_outputs(ba: BlockAdjustment, root, html: bool = True, out_dir=None,
     files.update({"eo.txt": format_eo(ba.eo_map), "object_points.csv": object_points_csv(ba)})
     for rel, text in files.items():
         write_text_atomic(at / rel, text)
-    return rep
+    return AdjustStageResult(adjustment=ba, record=adjustment_record(rep, at / "report.json"),
+                             report_path=at / "report.json")
 
 
 def run_adjustment(root, settings: AdjustSettings | Resolved | None = None, out_dir=None,
-                   html: bool = True) -> tuple[BlockAdjustment, dict]:
+                   html: bool = True) -> AdjustStageResult:
     """The stage: adjust the project and write its outputs (``write_outputs``); returns the adjustment
-    and the report dict. ``aerotri adjust`` and the chain both run this. ``settings``: None, the project's
+    and its report's record. ``aerotri adjust`` and the chain both run this. ``settings``: None, the project's
     (``project_settings``, as ``aerotri adjust P`` without options); a ``Resolved`` carries every setting's source
     into the report."""
     resolved = project_settings(Project.open(root)) if settings is None else settings_of(settings, AdjustSettings)
     ba = adjust_project(root, resolved.settings)
-    return ba, write_outputs(ba, root, html=html, out_dir=out_dir, settings_record=resolved.record())
+    return write_outputs(ba, root, html=html, out_dir=out_dir, settings_record=resolved.record())
 
 
 def _json_default(o):

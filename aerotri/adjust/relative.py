@@ -445,7 +445,7 @@ def georeference(rel: RelativeBlock, control: ControlPoints, control_obs: ImageO
     xy = camera.calibration_observations(obs.xy_px)
     X = np.full((len(control), 3), np.nan)
     if len(obs):
-        X, _ = intersect(xy, opt, oim, rel.centre, rel.R_cv, rel.cal, len(control))
+        X, _ = intersect(xy, opt, oim, rel.centre, rel.R_cv, rel.cal, n_points=len(control))
     rays = np.bincount(opt, minlength=len(control))
     ahead = np.ones(len(control), dtype=bool)
     if len(obs):  # in front of every camera that sees it
@@ -514,7 +514,7 @@ def exterior_orientations(rel: RelativeBlock, datum: ImageDatum, frame: LocalFra
 
 
 def image_approximations(work_dir: Path, ties_path: Path, ties: ImageObservations, camera: Camera,
-                         image_ids: list[str], control: ControlPoints, control_obs: ImageObservations, crs,
+                         image_ids: list[str], control: ControlPoints, *, control_obs: ImageObservations, crs,
                          seed: int = 0) -> ImageApproximations:
     """Approximate orientations of a block without GNSS: relative orientation (cached in ``work_dir``) and the
     datum from the control (see the module docstring). ``NoDatum`` (an ``InputError``) with too little control,

@@ -279,7 +279,7 @@ def _self_calibration(ba) -> dict | None:
 
 
 def _check_dict(c) -> dict:
-    d = c.as_dict()
+    d = dataclasses.asdict(c)
     for key in ("estimate", "apriori", "sigma"):
         d[key] = {k: _f(v, 8) for k, v in d[key].items()}
     d["correlations"] = {k: _f(v, 4) for k, v in d["correlations"].items()}
@@ -288,7 +288,7 @@ def _check_dict(c) -> dict:
     return d
 
 
-def _parameters(ba, rms_control, cres, dchk, mean_sd_obj, rms_lim, res_lim) -> dict:
+def _parameters(ba, rms_control, cres, dchk, mean_sd_obj, rms_lim, *, res_lim) -> dict:
     """The ISAT "Parameters" block: X/Omega Y/Phi Z/Kappa XY per row."""
     sig = ba.eo_map.sigma
     has_gnss = ba.block.gnss_local is not None
@@ -573,8 +573,9 @@ def _geometry_modes(ba, height_limit_m: float) -> list | None:
     focal = next((c for c in getattr(ba, "calibration_checks", []) or [] if c.group == "focal"), None)
     if focal is not None and not focal.determinable:
         weak.add("focal_height")
-    return [{**g.as_dict(), "weak": g.mode in weak, "sigma_m": _f(g.sigma_m, 4), "radius_m": _f(g.radius_m, 1),
-             "sigma_deg": _f(g.sigma_deg, 5) if g.mode.startswith("tilt") else None,
+    # the keys in the order of the mode's fields, then sigma_deg (a property), then weak
+    return [{**dataclasses.asdict(g), "sigma_deg": _f(g.sigma_deg, 5) if g.mode.startswith("tilt") else None,
+             "weak": g.mode in weak, "sigma_m": _f(g.sigma_m, 4), "radius_m": _f(g.radius_m, 1),
              "correlation_with_height": _f(g.correlation_with_height, 4),
              "shares": {k: _f(v, 3) for k, v in g.shares.items()}} for g in ba.result.geometry]
 
@@ -586,8 +587,8 @@ def _flight(ba, ground, tol: dict) -> dict | None:
     from aerotri.adjust.flight_acceptance import flight_acceptance
 
     eo = ba.eo_map
-    return flight_acceptance(eo.image_id, eo.centre_m, eo.opk_deg, ba.camera_adjusted, ground,
-                             np.asarray(ba.block.strip) + 1, tol).as_dict()
+    return dataclasses.asdict(flight_acceptance(eo.image_id, eo.centre_m, eo.opk_deg, ba.camera_adjusted, ground,
+                                                np.asarray(ba.block.strip) + 1, limits=tol))
 
 
 def build_report(ba, map_scale: str = "1:5000", terrain: str = "flat", tolerance_file=None, ground=None) -> dict:
@@ -616,9 +617,10 @@ def build_report(ba, map_scale: str = "1:5000", terrain: str = "flat", tolerance
         "local_frame": {"origin_map": [float(v) for v in ba.frame.origin_map],
                         "note": "ENU tangent plane of the adjustment at origin_map (x, y, h in the project CRS)"},
         "options": _options(ba, tolerances),
-        "parameters": _parameters(ba, rms_control, cres, dchk, mean_sd_obj, rms_lim, res_lim),
+        "parameters": _parameters(ba, rms_control, cres, dchk, mean_sd_obj, rms_lim, res_lim=res_lim),
         "key_statistics": _key_statistics(ba, rms_lim[2]),
-        "components": {"adjusted": int(ba.components), "left_out": [lo.as_dict() for lo in ba.left_out]},
+        "components": {"adjusted": int(ba.components), "left_out": [{"images": list(lo.image_ids), "reason": lo.reason}
+                                                                   for lo in ba.left_out]},
         # what the datum rests on when GNSS does not carry it (approximations from the images, unmeasured heights)
         "datum": list(getattr(ba, "datum_notes", [])),
         "counts": {"images": b.n_images, "strips": b.n_strips, "tie_points": int(len(tie_pts)),
@@ -649,7 +651,7 @@ def build_report(ba, map_scale: str = "1:5000", terrain: str = "flat", tolerance
 
 
 def _dem_check_dict(d) -> dict:
-    out = d.as_dict()
+    out = dataclasses.asdict(d)
     for k in ("median_m", "nmad_m", "dem_sigma_m", "height_sigma_m", "sigma_offset_m", "limit_m"):
         out[k] = _f(out[k], 4)
     return out
@@ -661,7 +663,7 @@ def _surface_control(ba) -> dict | None:
     st = ba.result.surface
     if st is None:
         return None
-    d = st.as_dict()
+    d = dataclasses.asdict(st)
     d["dem"] = str(ba.settings.dem)
     d["ndsm"] = str(ba.settings.ndsm) if ba.settings.ndsm is not None else None
     planes = ba.block.surface.planes if ba.block.surface is not None else None

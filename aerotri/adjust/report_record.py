@@ -41,11 +41,23 @@ class KeyStatistics:
     sigma0_px: float | None  # None in reports written before sigma0_px: see ``sigma0_in_px``
     sigma0: float | None  # unit-free: sigma naught over the a-priori image sigma
     pixel_um: float | None
+    degrees_of_freedom: int | None = None
 
     @property
     def successful(self) -> bool:
         """"Solution Successful": products written and nothing weak."""
         return self.success and self.verdict == "successful"
+
+
+@dataclass(frozen=True)
+class SurfaceControlClass:
+    """Surface control over one class of ground (or the whole DEM, named "DEM"): tie points used and rejected,
+    RMS of point height minus surface (m)."""
+
+    name: str
+    used: int | None
+    rejected: int | None
+    rms_m: float | None
 
 
 @dataclass(frozen=True)
@@ -64,8 +76,10 @@ class AdjustmentRecord:
     check_residuals_m: tuple[tuple[float, float, float], ...]  # dX, dY, dZ per check point with all three
     check_points: int  # check points in the report (with or without residuals)
     check_normalised_rms: tuple[float | None, ...] | None
-    flight_acceptance: dict | None  # the flight acceptance section as written (``FlightAcceptance.as_dict``)
+    flight_acceptance: dict | None  # the flight acceptance section as written (a ``FlightAcceptance``, asdict)
     control_to_tie_ratio: float | None = None  # RMS image residual of control over that of the ties
+    datum_notes: tuple[str, ...] = ()  # what the datum rests on when GNSS does not carry it
+    surface_control: tuple[SurfaceControlClass, ...] = ()  # per class of ground, or the DEM as one; () without
 
     @property
     def sigma0_in_px(self) -> float | None:
@@ -86,11 +100,22 @@ def _key_statistics(ks: dict) -> KeyStatistics | None:
     f = {k: (None if ks.get(k) is None else float(ks[k])) for k in ("sigma0_um", "sigma0_px", "sigma0", "pixel_um")}
     return KeyStatistics(success=bool(ks.get("success")), verdict=str(ks.get("verdict", "successful")),
                          message=str(ks.get("message", "")),
-                         iterations=None if ks.get("iterations") is None else int(ks["iterations"]), **f)
+                         iterations=None if ks.get("iterations") is None else int(ks["iterations"]),
+                         degrees_of_freedom=(None if ks.get("degrees_of_freedom") is None
+                                             else int(ks["degrees_of_freedom"])),
+                         **f)
+
+
+def _surface_control(sc: dict | None) -> tuple[SurfaceControlClass, ...]:
+    if not sc:
+        return ()
+    return tuple(SurfaceControlClass(name=str(name), used=c.get("used"), rejected=c.get("rejected"),
+                                     rms_m=_number(c.get("rms_m")))
+                 for name, c in (sc.get("classes") or {"DEM": sc}).items())
 
 
 def adjustment_record(d: dict, path="at/report.json") -> AdjustmentRecord:
-    """The record of an adjustment report as a dict (what ``run_adjustment`` returns and writes; ``path``: where
+    """The record of an adjustment report as a dict (what ``write_outputs`` writes; ``path``: where
     it was read from); KeyError, TypeError or ValueError when a field is not what the adjustment writes."""
     options = d.get("options") or {}
     rejected = tuple(str(r.get("id", r) if isinstance(r, dict) else r) for r in d.get("rejected_control") or [])
@@ -104,7 +129,9 @@ def adjustment_record(d: dict, path="at/report.json") -> AdjustmentRecord:
         control_rms_m=_xyz(d.get("rms_control_ground_m")), rejected_control=rejected,
         check_rms_m=_xyz(d.get("check_rms_m")), check_residuals_m=residuals, check_points=len(checks),
         check_normalised_rms=_xyz(d.get("check_normalised_rms")), flight_acceptance=d.get("flight_acceptance") or None,
-        control_to_tie_ratio=_number((d.get("image_residuals") or {}).get("control_to_tie_ratio")))
+        control_to_tie_ratio=_number((d.get("image_residuals") or {}).get("control_to_tie_ratio")),
+        datum_notes=tuple(str(n) for n in d.get("datum") or ()),
+        surface_control=_surface_control(d.get("surface_control")))
 
 
 def read_adjustment_report(path) -> AdjustmentRecord:

@@ -33,12 +33,14 @@ from __future__ import annotations
 
 import dataclasses
 import types
+from typing import NamedTuple
 
 import gtsam
 import numba
 import numpy as np
 
-from aerotri.geom.lens_kernels import brown_coefficient_jacobian, brown_distort, brown_distort_jacobian
+from aerotri.geom.lens_kernels import (BrownCoefficients, brown_coefficient_jacobian, brown_distort,
+                                       brown_distort_jacobian)
 
 
 @dataclasses.dataclass
@@ -161,10 +163,11 @@ def _ray(xy, centre, R, point, cal, inv_sigma, A, B, r, C, with_cal):
     fx, fy, s, u0, v0, k1, k2, p1, p2 = cal[0], cal[1], cal[2], cal[3], cal[4], cal[5], cal[6], cal[7], cal[8]
     xn, yn = x / z, y / z
     # Cal3DS2 is the Brown lens without k3
-    xd, yd = brown_distort(xn, yn, k1, k2, 0.0, p1, p2)
+    lens = BrownCoefficients(k1, k2, 0.0, p1, p2)
+    xd, yd = brown_distort(xn, yn, lens)
     r[0] = (xy[0] - (fx * xd + s * yd + u0)) * inv_sigma
     r[1] = (xy[1] - (fy * yd + v0)) * inv_sigma
-    a00, a01, _, a11 = brown_distort_jacobian(xn, yn, k1, k2, 0.0, p1, p2)  # d(xd, yd) / d(xn, yn)
+    a00, a01, _, a11 = brown_distort_jacobian(xn, yn, lens)  # d(xd, yd) / d(xn, yn)
     # d pixel / d (xn, yn), whitened
     m00, m01 = (fx * a00 + s * a01) * inv_sigma, (fx * a01 + s * a11) * inv_sigma
     m10, m11 = fy * a01 * inv_sigma, fy * a11 * inv_sigma
@@ -235,12 +238,62 @@ def _inverse_sym3(V, Vi):
     return True
 
 
+class _Rays(NamedTuple):
+    """The rays, point by point (``start``: each point's first ray), and their pairs (``ray_pairs``)."""
+
+    xy: np.ndarray  # (K, 2) px
+    obs_image: np.ndarray  # (K,)
+    start: np.ndarray  # (M + 1,)
+    pair_row: np.ndarray  # the point row of each pair's first ray
+    pair_a: np.ndarray
+    pair_b: np.ndarray
+    pair_block: np.ndarray
+
+
+class _Linearisation(NamedTuple):
+    """Where the rays are linearised: orientations, points, calibration, weights, the points' own observations."""
+
+    centre: np.ndarray
+    R_cv: np.ndarray
+    points: np.ndarray
+    cal: np.ndarray
+    inv_sigma: float
+    with_cal: bool
+    huber_k: float
+    point_r: np.ndarray
+    point_B: np.ndarray
+    point_damping: float
+
+
+class _ImageSums(NamedTuple):
+    """The image blocks one run of points adds into (``Workspace`` U, S_pair, s, U_cal, s_cal, U_ic, one run's)."""
+
+    U: np.ndarray
+    S_pair: np.ndarray
+    s: np.ndarray
+    U_cal: np.ndarray
+    s_cal: np.ndarray
+    U_ic: np.ndarray
+
+
+class _PointBlocks(NamedTuple):
+    """What each point leaves for the back-substitution (``Workspace`` Vinv, bp, W, Z)."""
+
+    Vinv: np.ndarray
+    bp: np.ndarray
+    W: np.ndarray
+    Z: np.ndarray
+
+
 @numba.njit(cache=True)
-def _points_range(j0, j1, xy, obs_image, start, pair_row, pair_a, pair_b, pair_block, centre, R_cv, points, cal, inv_sigma,
-                  with_cal, huber_k, point_r, point_B, point_damping, U, S_pair, s, U_cal, s_cal, U_ic, Vinv, bp, W, Z):
+def _points_range(j0, j1, rays: _Rays, lin: _Linearisation, sums: _ImageSums, out: _PointBlocks):
     """``reduced_camera_system`` over the points ``j0 .. j1 - 1``: their rays' contributions added into ``U``,
     ``S_pair``, ``s``, ``U_cal``, ``s_cal``, ``U_ic`` (the upper triangle of ``U``), their own ``Vinv``, ``bp``,
     ``W``, ``Z`` written; returns (their part of ``f``, of ``r'r``)."""
+    xy, obs_image, start, pair_row, pair_a, pair_b, pair_block = rays
+    centre, R_cv, points, cal, inv_sigma, with_cal, huber_k, point_r, point_B, point_damping = lin
+    U, S_pair, s, U_cal, s_cal, U_ic = sums
+    Vinv, bp, W, Z = out
     m_max = 1
     for j in range(j0, j1):
         m_max = max(m_max, start[j + 1] - start[j])
@@ -355,8 +408,9 @@ def _points_range(j0, j1, xy, obs_image, start, pair_row, pair_a, pair_b, pair_b
 
 
 
-def reduced_camera_system(xy, obs_image, row, start, pair_a, pair_b, pair_block, n_blocks, n_images, centre, R_cv, points,
-                          cal, inv_sigma, with_cal, huber_k, point_r, point_B, point_damping, work: Workspace | None = None):
+def reduced_camera_system(xy, obs_image, row, start, pair_a, pair_b, *, pair_block, n_blocks, n_images, centre, R_cv,
+                          points, cal, inv_sigma, with_cal, huber_k, point_r, point_B, point_damping,
+                          work: Workspace | None = None):
     """Linearise the tie-point rays at (orientations, points) and eliminate the points.
 
     Returns the reduced system ``S`` as diagonal blocks ``U`` (N, 6, 6) and pair blocks ``S_pair``
@@ -402,10 +456,10 @@ def reduced_camera_system(xy, obs_image, row, start, pair_a, pair_b, pair_block,
     pair_row = work.pair_row
     bounds = np.minimum(M, np.searchsorted(start, (K * np.arange(parts + 1)) // parts)).astype(np.int64)
     bounds[parts] = M
-    f_part, rr_part = np.zeros(parts), np.zeros(parts)
-    (_runs_parallel if parallel else _runs_serial)(
-        bounds, xy, obs_image, start, pair_row, pair_a, pair_b, pair_block, centre, R_cv, points, cal, inv_sigma, with_cal,
-        huber_k, point_r, point_B, point_damping, U, S_pair, s, U_cal, s_cal, U_ic, Vinv, bp, W, Z, f_part, rr_part)
+    f_part, rr_part = (_runs_parallel if parallel else _runs_serial)(
+        bounds, _Rays(xy, obs_image, start, pair_row, pair_a, pair_b, pair_block),
+        _Linearisation(centre, R_cv, points, cal, inv_sigma, with_cal, huber_k, point_r, point_B, point_damping),
+        _ImageSums(U, S_pair, s, U_cal, s_cal, U_ic), _PointBlocks(Vinv, bp, W, Z))
     for t in range(1, parts):  # in a fixed order
         U[0] += U[t]
         S_pair[0] += S_pair[t]
@@ -423,15 +477,16 @@ def reduced_camera_system(xy, obs_image, row, start, pair_a, pair_b, pair_block,
     return Ut, S_pair[0], s[0], f, rr, Vinv, bp, W, U_cal[0], s_cal[0], U_ic[0], Z
 
 
-def _runs(bounds, xy, obs_image, start, pair_row, pair_a, pair_b, pair_block, centre, R_cv, points, cal, inv_sigma,
-          with_cal, huber_k, point_r, point_B, point_damping, U, S_pair, s, U_cal, s_cal, U_ic, Vinv, bp, W, Z, f_part,
-          rr_part):
-    """``_points_range`` over the runs of points ``bounds[t] .. bounds[t + 1] - 1``, each into its own copies."""
-    for t in numba.prange(len(bounds) - 1):
+def _runs(bounds, rays: _Rays, lin: _Linearisation, sums: _ImageSums, out: _PointBlocks):
+    """``_points_range`` over the runs of points ``bounds[t] .. bounds[t + 1] - 1``, each into its own copies of
+    the image blocks (``sums``: one per run along the first axis); returns each run's part of ``f`` and ``r'r``."""
+    parts = len(bounds) - 1
+    f_part, rr_part = np.zeros(parts), np.zeros(parts)
+    for t in numba.prange(parts):
         f_part[t], rr_part[t] = _points_range(
-            bounds[t], bounds[t + 1], xy, obs_image, start, pair_row, pair_a, pair_b, pair_block, centre, R_cv, points,
-            cal, inv_sigma, with_cal, huber_k, point_r, point_B, point_damping, U[t], S_pair[t], s[t], U_cal[t],
-            s_cal[t], U_ic[t], Vinv, bp, W, Z)
+            bounds[t], bounds[t + 1], rays, lin,
+            _ImageSums(sums.U[t], sums.S_pair[t], sums.s[t], sums.U_cal[t], sums.s_cal[t], sums.U_ic[t]), out)
+    return f_part, rr_part
 
 
 def _variant(func, suffix: str):
@@ -528,13 +583,13 @@ _sum_of_squares_serial = numba.njit(cache=True)(_sum_of_squares)
 _sum_of_squares_parallel = numba.njit(parallel=True, cache=True)(_variant(_sum_of_squares, "_parallel"))
 
 
-def point_increments(Vinv, bp, W, Z, obs_image, start, d_pose, d_cal):
+def point_increments(Vinv, bp, W, Z, obs_image, start, *, d_pose, d_cal):
     """``_point_increments``, in parallel for blocks of ``PARALLEL_MIN_RAYS`` rays or more."""
     f = _point_increments_parallel if len(obs_image) >= PARALLEL_MIN_RAYS else _point_increments_serial
     return f(Vinv, bp, W, Z, obs_image, start, d_pose, d_cal)
 
 
-def sum_of_squares(xy, obs_image, row, centre, R_cv, points, cal, inv_sigma, huber_k):
+def sum_of_squares(xy, obs_image, row, centre, R_cv, points, *, cal, inv_sigma, huber_k):
     """``_sum_of_squares``: blocks of ``PARALLEL_MIN_RAYS`` rays or more in ``PARTS`` runs in parallel, smaller ones
     in one."""
     if len(row) >= PARALLEL_MIN_RAYS:

@@ -22,18 +22,19 @@ def critical_value(alpha: float = 1e-4) -> float:
     return float(norm.isf(alpha / 2.0))
 
 
-def redundancy_numbers(obs_point, obs_image, points, centre, R_cv, cal, active) -> np.ndarray:
+def redundancy_numbers(obs_point, obs_image, points, centre, R_cv, cal, *, active) -> np.ndarray:
     """Redundancy numbers (K, 2) of image coordinates, orientations held fixed; NaN for inactive rows."""
     r = np.full((len(obs_point), 2), np.nan)
     k = np.flatnonzero(active)
     if len(k) == 0:
         return r
     # the rays' Jacobians in compiled code, ray by ray (numpy's (K, 2, 3) and (K, 3, 3) arrays: GBs at 6.5 M rays)
-    _, N = refined_normals(np.zeros((len(k), 2)), obs_point[k], obs_image[k], centre, R_cv, cal, points, iterations=0)
+    _, N = refined_normals(np.zeros((len(k), 2)), obs_point[k], obs_image[k], centre, R_cv, cal, points=points,
+                           iterations=0)
     det_ok = np.abs(np.linalg.det(N)) > 0
     Ninv = np.zeros_like(N)
     Ninv[det_ok] = np.linalg.inv(N[det_ok])
-    H = ray_leverages(obs_point[k], obs_image[k], centre, R_cv, cal, points, Ninv)
+    H = ray_leverages(obs_point[k], obs_image[k], centre, R_cv, cal, points, N_inv=Ninv)
     r[k] = np.clip(1.0 - H, 0.0, 1.0)
     return r
 

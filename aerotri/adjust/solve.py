@@ -91,6 +91,7 @@ def _adjust_block(
     block: G.Block,
     opts: G.SolveSettings,
     state0: G.State,
+    *,
     snooping: bool = True,
     alpha: float = 1e-4,
     compute_marginals: bool = True,
@@ -122,7 +123,8 @@ def _adjust_block(
         if tested and tested[0] is st and tested[1] == n_active:
             return tuple(tested[2:])
         v = G.image_residuals(block, st)
-        r = redundancy_numbers(block.obs_point, block.obs_image, st.points, st.centre, st.R_cv, st.cal, obs_active)
+        r = redundancy_numbers(block.obs_point, block.obs_image, st.points, st.centre, st.R_cv, st.cal,
+                               active=obs_active)
         tested[:] = [st, n_active, v, r, robust_sigma0(v, r, obs_active)]
         return tuple(tested[2:])
 
@@ -232,7 +234,7 @@ def _adjust_block(
         point_unit = rays = None
         if marg is not None and point_covariances:
             rays, point_unit, components = _point_precision(block, opts, state, obs_active, control_active, marg,
-                                                            info.dof)
+                                                            dof=info.dof)
             factors = {c.group: image_factor if c.group == "image" else 1.0 for c in components}
             for it in range(max_vce_iterations if variance_components else 0):
                 if all(c.factor is None or abs(c.factor - 1.0) < 0.05 for c in components):
@@ -253,7 +255,7 @@ def _adjust_block(
                     raise SolveError("the covariances failed after reweighting by variance components; "
                                      "adjust without variance-component reweighting")
                 rays, point_unit, components = _point_precision(block, opts, state, obs_active, control_active,
-                                                                marg, info.dof)
+                                                                marg, dof=info.dof)
                 log.info("variance components, iteration %d: %s", it + 1, ", ".join(
                     f"{c.group} {c.factor:.3f}" for c in components if c.factor is not None))
         sigma0 = float(np.sqrt(info.chi2 / info.dof)) if info.dof > 0 else float("nan")
@@ -262,8 +264,8 @@ def _adjust_block(
             pose_cov = np.array([marg.marginalCovariance(G.X(i)) for i in range(block.n_images)]) * s2
             if point_unit is not None:
                 point_cov = point_unit * s2
-                geometry, calibration = geometry_modes(block, opts, state, obs_active, control_active, marg, sigma0,
-                                                       rays)
+                geometry, calibration = geometry_modes(block, opts, state, obs_active, control_active, marg,
+                                                       sigma0=sigma0, rays=rays)
             if values.exists(G.K_KEY):
                 cal_cov = marg.marginalCovariance(G.K_KEY) * s2
         timings["marginals_s"] += time.perf_counter() - t0
@@ -307,13 +309,14 @@ def orientation_update_sigmas(before: G.State, after: G.State, information: np.n
     return float(np.max(np.abs(np.hstack([omega, v])[ok]) / sigma))
 
 
-def _point_precision(block: G.Block, opts: G.SolveSettings, state: G.State, obs_active, control_active, marg, dof: int):
+def _point_precision(block: G.Block, opts: G.SolveSettings, state: G.State, obs_active, control_active, marg, *,
+                     dof: int):
     """(the rays' linearisation, the points' unit-weight covariances, the groups' variance components) at the
     solution ``state`` with its reduced covariance ``marg``."""
     self_cal = bool(opts.self_calibration)
     rays = point_rays(block, state, obs_active, opts.image_sigma_px, marg, self_cal)
     unit = point_covariances_rcs(block, state, obs_active, opts.image_sigma_px, marg, self_cal, rays=rays)
-    return rays, unit, vce.estimate(block, opts, state, obs_active, control_active, marg, unit, dof)
+    return rays, unit, vce.estimate(block, opts, state, obs_active, control_active, marg, point_cov_unit=unit, dof=dof)
 
 
 # below this the residuals of a simulated block without noise would make the image weights unbounded
@@ -347,7 +350,7 @@ def _surface_gate(block: G.Block, state: G.State, obs_active, sigma_px: float) -
 
     k = np.flatnonzero(obs_active)
     pts, N = refined_normals(block.obs_xy_px[k], block.obs_point[k], block.obs_image[k], state.centre, state.R_cv,
-                             state.cal, state.points, iterations=3)
+                             state.cal, points=state.points, iterations=3)
     # only points the solve holds (two rays or more, not parallel) are candidates: a point without rays has no
     # height of its own, and with an infinite sigma it would pass the gate and count as used
     rays = np.bincount(block.obs_point[k], minlength=block.n_points)
@@ -376,7 +379,7 @@ def _drop_weak_points(block: G.Block, obs_active, state: G.State | None = None, 
 
         k = np.flatnonzero(obs_active)
         _, N = refined_normals(block.obs_xy_px[k], block.obs_point[k], block.obs_image[k], state.centre, state.R_cv,
-                               state.cal, state.points, iterations=0)
+                               state.cal, points=state.points, iterations=0)
         used = rays >= 2
         ev = np.zeros((block.n_points, 3))
         ev[used] = np.linalg.eigvalsh(N[used])
@@ -404,8 +407,8 @@ def control_test(block, opts, state, obs_active, control_active, marg) -> np.nda
         if len(k) < 2:
             continue
         X0, cov, _ = intersect_with_covariance(
-            block.obs_xy_px[k], block.obs_image[k], state.centre, state.R_cv, state.cal, opts.image_sigma_px, marg,
-            bool(opts.self_calibration),
+            block.obs_xy_px[k], block.obs_image[k], state.centre, state.R_cv, state.cal, opts.image_sigma_px,
+            marginals=marg, self_cal=bool(opts.self_calibration),
         )
         d = X0 - block.control_local[c]
         Sigma = cov + block.control_cov_local[c]
@@ -416,7 +419,8 @@ def control_test(block, opts, state, obs_active, control_active, marg) -> np.nda
     return w
 
 
-def check_point_errors(obs_xy_px, obs_image, obs_point, n_points, state, opts, result: AdjustmentResult, alpha: float = 1e-4):
+def check_point_errors(obs_xy_px, obs_image, obs_point, n_points, state, opts, *, result: AdjustmentResult,
+                       alpha: float = 1e-4):
     """Intersect check points with the final orientations: (points (M, 3), covariances (M, 3, 3), rays used (M,))."""
     pts = np.full((n_points, 3), np.nan)
     cov = np.full((n_points, 3, 3), np.nan)
@@ -428,8 +432,8 @@ def check_point_errors(obs_xy_px, obs_image, obs_point, n_points, state, opts, r
         k = np.flatnonzero(obs_point == j)
         while len(k) >= 2:
             X0, C, v = intersect_with_covariance(
-                obs_xy_px[k], obs_image[k], state.centre, state.R_cv, state.cal, opts.image_sigma_px, result.marginals,
-                bool(opts.self_calibration),
+                obs_xy_px[k], obs_image[k], state.centre, state.R_cv, state.cal, opts.image_sigma_px,
+                marginals=result.marginals, self_cal=bool(opts.self_calibration),
             )
             # a check measurement can be a blunder too: with 3+ rays, drop the worst ray if it fails the test
             # (redundancy of each coordinate about (2m - 3) / 2m)

@@ -494,9 +494,6 @@ class SurfaceStats:
     n_planes: int | None = None  # roof faces read (None: no roof planes)
     plane_sigma_strip_m: tuple[float, float] | None = None  # strip sigma plan, height (m) at the roof planes
 
-    def as_dict(self) -> dict:
-        return dataclasses.asdict(self)
-
 
 def _residual_stats(e: np.ndarray, sigma: np.ndarray, candidates: np.ndarray, active: np.ndarray) -> dict:
     used = active & np.isfinite(e)

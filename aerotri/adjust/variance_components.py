@@ -37,9 +37,6 @@ class VarianceComponent:
     sum_squares: float  # v' P v with the weights used in the solve
     factor: float | None  # s_k = sqrt(v' P v / r_k); None when r_k < MIN_REDUNDANCY (not estimable)
 
-    def as_dict(self) -> dict:
-        return dataclasses.asdict(self)
-
 
 def adjusted_gnss(block: G.Block, opts: G.SolveSettings, state: G.State) -> np.ndarray:
     """The GNSS positions the solution predicts (N, 3, local frame): antenna ``C + R l``, plus the strip's
@@ -71,7 +68,7 @@ def gnss_rows(block: G.Block, opts: G.SolveSettings, state: G.State) -> tuple[np
     return pred, rows
 
 
-def estimate(block: G.Block, opts: G.SolveSettings, state: G.State, obs_active, control_active, rc, point_cov_unit,
+def estimate(block: G.Block, opts: G.SolveSettings, state: G.State, obs_active, control_active, rc, *, point_cov_unit,
              dof: int) -> list[VarianceComponent]:
     """The variance components of the groups present in the block at the solution ``state`` (final,
     non-robust weights). ``point_cov_unit``: (P, 3, 3) unit-weight point covariances; ``dof``: the solve's

@@ -34,6 +34,7 @@ import json
 import logging
 from pathlib import Path
 
+from aerotri.adjust.report_record import AdjustmentRecord
 from aerotri.chain import results as R
 from aerotri.chain.options import ChainSettings, read_options
 from aerotri.chain.runner import Stage
@@ -47,12 +48,9 @@ def _json(path: Path) -> dict:
     return json.loads(path.read_text()) if path.is_file() else {}
 
 
-def adjustment_result(rep: dict, **more) -> R.AdjustResult:
-    """Key numbers of an adjustment report (the dict ``run_adjustment`` returns, as at/report.json) for the
+def adjustment_result(rec: AdjustmentRecord, **more) -> R.AdjustResult:
+    """Key numbers of an adjustment report (the record ``run_adjustment`` returns, as at/report.json) for the
     summary; ``more``: the leave-one-out numbers and notes."""
-    from aerotri.adjust.report_record import adjustment_record
-
-    rec = adjustment_record(rep)
     chk = rec.check_rms_m
     checked = bool(chk) and len(chk) == 3 and None not in chk
     return R.AdjustResult(sigma0_um=rec.key_statistics.sigma0_um if rec.key_statistics else None,
@@ -419,7 +417,8 @@ class Chain:
 
         p = self.project
         s = vectors_to_file(self.classified(), p.vectors_path, params=MapVectorSettings(), crs=p.crs)
-        counts = {k: s[k] for k in ("buildings", "roads", "water", "spot_heights") if k in s}
+        c = s.counts
+        counts = dict(buildings=c.buildings, roads=c.roads, water=c.water, spot_heights=c.spot_heights)
         ref = self.vectors_reference()
         if ref is None:
             return R.VectorsResult(**counts, notes=("no reference vectors ([vectors] reference): the line map is "
@@ -493,10 +492,10 @@ class Chain:
     def run_adjust_first(self, root) -> R.AdjustResult:
         from aerotri.adjust.pipeline import run_adjustment
 
-        ba, rep = run_adjustment(root, self.first_settings(), out_dir=self.first, html=False)
+        res = run_adjustment(root, self.first_settings(), out_dir=self.first, html=False)
         # the orientations belong to this camera (self-calibrated, or the nominal one)
-        write_text_atomic(self.first / "camera.toml", ba.camera_adjusted.to_toml())
-        return adjustment_result(rep)
+        write_text_atomic(self.first / "camera.toml", res.adjustment.camera_adjusted.to_toml())
+        return adjustment_result(res.record)
 
     def final_settings(self) -> Resolved:
         """The final adjustment: [adjust] with LiDAR control when it was transferred, completed from the project
@@ -558,22 +557,22 @@ class Chain:
 
         settings = self.final_settings()
         notes = self.final_notes(settings)
-        ba, rep = run_adjustment(root, settings)
+        res = run_adjustment(root, settings)
         export_project(root)  # PATB and COLMAP, read back from at/
-        notes = notes + list(rep.get("datum") or [])  # no GNSS: what the datum rests on
+        notes = notes + list(res.record.datum_notes)  # no GNSS: what the datum rests on
         loo = {}
         if settings.settings.leave_one_out:
             from aerotri.adjust.leave_one_out import run_leave_one_out
 
-            run = run_leave_one_out(root, settings.settings, full=ba)
+            run = run_leave_one_out(root, settings.settings, full=res.adjustment)
             loo = dict(loo_rms_xy_m=round(run.rms_xy_m, 3), control_scatter_xy_m=round(run.scatter.rms_xy_dof_m, 3))
-        return adjustment_result(rep, **loo, notes=tuple(notes))
+        return adjustment_result(res.record, **loo, notes=tuple(notes))
 
     def run_tie_point_dem(self, root) -> R.TiePointDemResult:
         from ortho.points_dem import write_points_dem
 
         s = write_points_dem(root, self.tie_point_dem_path)
-        return R.TiePointDemResult(res_m=s["res_m"], points=s["points"], cells_measured=s["cells_measured"],
+        return R.TiePointDemResult(res_m=s.res_m, points=s.points, cells_measured=s.cells_measured,
                                    notes=("no LiDAR or given DEM: the orthophotos on the DEM of the adjusted tie "
                                           f"points ({self.tie_point_dem_path})",))
 
@@ -640,10 +639,9 @@ class Chain:
         return Path(given) if given is not None else simulator_roof_corners(self.reference_ortho)
 
     def run_dom_check(self, root) -> R.DomCheckResult:
-        from ortho.check import read_dom_check, run_check
+        from ortho.check import run_check
 
-        run_check(root, self.stage_settings("dom_check"), reference_path=self.reference_ortho)
-        rep = read_dom_check(self.project.dom_report_path)
+        rep = run_check(root, self.stage_settings("dom_check"), reference_path=self.reference_ortho)
         d, roofs = rep.displacement, rep.roofs
         return R.DomCheckResult(rms_xy_m=d.rms_xy_m, rms_xy_gsd=d.rms_xy_gsd, count=d.count,
                                 roofs_rms_xy_m=roofs.rms_xy_m if roofs else None,

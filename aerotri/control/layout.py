@@ -49,12 +49,9 @@ class LayoutTarget:
     search_radius_m: float | None = None
     empty_reason: str | None = None  # why no corner, for the control report (set by the caller)
 
-    def to_dict(self) -> dict:
-        return dataclasses.asdict(self)
-
 
 def empty_target_text(t: dict) -> str:
-    """An empty layout target (``LayoutTarget.to_dict()``, as in control/transfer.json) in one phrase."""
+    """An empty layout target (a ``LayoutTarget`` as a dict, as in control/transfer.json) in one phrase."""
     return f"{t['kind']} target at {t['target_x_m']:.0f} {t['target_y_m']:.0f}: {t.get('empty_reason') or 'no corner'}"
 
 

@@ -83,9 +83,6 @@ class TransferSummary:
                 f"{self.control_height} height, {self.check_points} check points; rejected corners "
                 f"{self.corners_rejected}")
 
-    def to_dict(self) -> dict:
-        return dataclasses.asdict(self)
-
 
 @dataclasses.dataclass
 class ReviewPage:
@@ -362,8 +359,9 @@ def output_texts(res: TransferResult, checks: bool = True, settings_record: dict
             if r.kept[j]:
                 m = res.measurements[(k, i)]
                 obs.append(f"{c.id[k]},{res.image_ids[i]},{m.x_px:.3f},{m.y_px:.3f}")
-    targets = [{**t.to_dict(), "corner": None if t.corner is None else str(c.id[t.corner])} for t in res.targets]
-    rep = {"summary": summary(res).to_dict(), "layout_targets": targets, "corners": per_corner,
+    targets = [{**dataclasses.asdict(t), "corner": None if t.corner is None else str(c.id[t.corner])}
+               for t in res.targets]
+    rep = {"summary": dataclasses.asdict(summary(res)), "layout_targets": targets, "corners": per_corner,
            "settings": settings_record}
     return {"points.csv": "\n".join(pts) + "\n", "image_points.csv": "\n".join(obs) + "\n",
             "transfer.json": json.dumps(rep, indent=1, allow_nan=False, default=float)}
@@ -406,7 +404,7 @@ def layout_line(res: TransferResult) -> str:
     line = f"Layout: {len(filled)} of {n} targets filled"
     if fb:
         line += " (fallbacks: " + ", ".join(f"{k.replace('_', ' ')} {v}" for k, v in sorted(fb.items())) + ")"
-    empty = [empty_target_text(t.to_dict()) for t in res.targets if t.corner is None]
+    empty = [empty_target_text(dataclasses.asdict(t)) for t in res.targets if t.corner is None]
     return line + (("; empty: " + "; ".join(empty)) if empty else "") + "."
 
 

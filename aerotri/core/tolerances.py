@@ -64,9 +64,6 @@ class BlockScale:
     platform: str | None
     how: str  # e.g. "camera.toml (3.61 mm, 1.55 um); 18 frames of gnss.txt 41.0 m above lidar_out/dem.tif"
 
-    def as_dict(self) -> dict:
-        return dataclasses.asdict(self)
-
 
 @dataclasses.dataclass(frozen=True)
 class ToleranceTable:

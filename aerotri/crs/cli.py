@@ -52,8 +52,8 @@ def format_fit_report(result, path) -> str:
     for pid, r, ri in zip(result.ids, v, result.redundancy_numbers):
         lines.append(f"{pid:<12}" + "".join(f"{c:10.4f}" for c in r) + f"{ri:7.2f}")
     rms = result.rms_m
-    lines.append(f"{'RMS':<12}{rms['e']:10.4f}{rms['n']:10.4f}" + (f"{rms['u']:10.4f}" if "u" in rms else "")
-                 + f"   horizontal {rms['horizontal']:.4f} m")
+    lines.append(f"{'RMS':<12}{rms.e_m:10.4f}{rms.n_m:10.4f}" + (f"{rms.u_m:10.4f}" if rms.u_m is not None else "")
+                 + f"   horizontal {rms.horizontal_m:.4f} m")
     for w in result.warnings:
         lines.append(f"Warning: {w}")
     return "\n".join(lines)

@@ -81,6 +81,16 @@ def gauss_markov(A, l, weights=None, what: str = "model") -> GaussMarkov:
 # ----------------------------------------------------------------------------------------------
 
 
+@dataclasses.dataclass(frozen=True)
+class ResidualRms:
+    """RMS of the fit's residuals (m): east, north, horizontal (of the plan vectors) and up (None: a plan fit)."""
+
+    e_m: float
+    n_m: float
+    horizontal_m: float
+    u_m: float | None = None
+
+
 @dataclasses.dataclass
 class FitResult:
     transformation: Transformation
@@ -93,12 +103,10 @@ class FitResult:
     warnings: list
 
     @property
-    def rms_m(self) -> dict:
+    def rms_m(self) -> ResidualRms:
         v = self.residuals_m
-        out = {"e": _rms(v[:, 0]), "n": _rms(v[:, 1]), "horizontal": _rms(np.hypot(v[:, 0], v[:, 1]))}
-        if v.shape[1] == 3:
-            out["u"] = _rms(v[:, 2])
-        return out
+        return ResidualRms(e_m=_rms(v[:, 0]), n_m=_rms(v[:, 1]), horizontal_m=_rms(np.hypot(v[:, 0], v[:, 1])),
+                           u_m=_rms(v[:, 2]) if v.shape[1] == 3 else None)
 
     @property
     def correlation(self):
@@ -112,7 +120,9 @@ class FitResult:
         d["n_points"] = len(self.ids)
         d["redundancy"] = self.redundancy
         d["sigma0_m"] = None if not np.isfinite(self.sigma0_m) else self.sigma0_m
-        d["rms_m"] = self.rms_m
+        rms = self.rms_m
+        d["rms_m"] = {"e": rms.e_m, "n": rms.n_m, "horizontal": rms.horizontal_m} | (
+            {"u": rms.u_m} if rms.u_m is not None else {})
         names = ("de_m", "dn_m", "du_m")
         d["residuals"] = [
             {"id": pid, **{names[k]: float(r[k]) for k in range(len(r))}, "redundancy_number": float(ri)}

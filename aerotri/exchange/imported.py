@@ -100,9 +100,6 @@ class WrittenFile:
     def __str__(self) -> str:
         return f"{self.path}: {self.count} {self.holds} (from {self.source})"
 
-    def as_dict(self) -> dict:
-        return dataclasses.asdict(self)
-
 
 def to_project_crs(xyz_m, from_crs, project: Project, source: str) -> np.ndarray:
     """(N, 3) coordinates of ``from_crs`` in the project CRS (and height system), through the toolkit's
@@ -224,8 +221,8 @@ def write_imported(root, block: ImportedBlock, format_name: str, overwrite: bool
             raise InputError(f"{record_path}: not a record of imports (expected {{\"imports\": [...]}}); move it away "
                              "to import")
     written = [w for _, _, w in files]
-    record["imports"].append({"format": format_name, "source": block.source, "files": [w.as_dict() for w in written],
-                              "notes": block.notes})
+    record["imports"].append({"format": format_name, "source": block.source,
+                              "files": [dataclasses.asdict(w) for w in written], "notes": block.notes})
     contents = {p: text for p, text, _ in files}
     contents[record_path] = json.dumps(record, indent=2) + "\n"
     write_together(contents)

@@ -56,6 +56,17 @@ class BrownParams(NamedTuple):
     p2: float
 
 
+class BrownCoefficients(NamedTuple):
+    """Brown's lens coefficients alone (radial k1 k2 k3, tangential p1 p2): what the ``brown_*`` kernels read
+    (a ``BrownParams`` serves as well, it has the same fields)."""
+
+    k1: float
+    k2: float
+    k3: float
+    p1: float
+    p2: float
+
+
 class PinholeParams(NamedTuple):
     """Kernel parameters of the pinhole camera: focal length and principal point (px)."""
 
@@ -71,7 +82,9 @@ def _brown_radial(r2, k1, k2, k3):
 
 
 @numba.njit(cache=True, inline="always")
-def brown_distort(xn, yn, k1, k2, k3, p1, p2):
+def brown_distort(xn, yn, c):
+    """Distorted normalised coordinates (xd, yd); ``c``: the coefficients (``BrownCoefficients`` or ``BrownParams``)."""
+    k1, k2, k3, p1, p2 = c.k1, c.k2, c.k3, c.p1, c.p2
     r2 = xn * xn + yn * yn
     radial = _brown_radial(r2, k1, k2, k3)
     xd = xn * radial + 2.0 * p1 * xn * yn + p2 * (r2 + 2.0 * xn * xn)
@@ -80,8 +93,9 @@ def brown_distort(xn, yn, k1, k2, k3, p1, p2):
 
 
 @numba.njit(cache=True, inline="always")
-def brown_distort_jacobian(xn, yn, k1, k2, k3, p1, p2):
-    """d(xd, yd) / d(xn, yn) as (a00, a01, a10, a11) (a10 = a01)."""
+def brown_distort_jacobian(xn, yn, c):
+    """d(xd, yd) / d(xn, yn) as (a00, a01, a10, a11) (a10 = a01); ``c`` as in ``brown_distort``."""
+    k1, k2, k3, p1, p2 = c.k1, c.k2, c.k3, c.p1, c.p2
     r2 = xn * xn + yn * yn
     radial = _brown_radial(r2, k1, k2, k3)
     dr = k1 + 2.0 * k2 * r2 + 3.0 * k3 * r2 * r2  # d radial / d r2
@@ -100,9 +114,10 @@ def brown_coefficient_jacobian(xn, yn):
 
 
 @numba.njit(cache=True, inline="always")
-def brown_undistort(xd, yd, k1, k2, k3, p1, p2, iterations):
+def brown_undistort(xd, yd, c, iterations):
     """Fixed-point iteration ``xn = (xd - tangential) / radial`` (y with the new x): converges for
-    photogrammetric lenses (distortion a small fraction of the radius)."""
+    photogrammetric lenses (distortion a small fraction of the radius); ``c`` as in ``brown_distort``."""
+    k1, k2, k3, p1, p2 = c.k1, c.k2, c.k3, c.p1, c.p2
     xn, yn = xd, yd
     for _ in range(iterations):
         r2 = xn * xn + yn * yn
@@ -113,11 +128,11 @@ def brown_undistort(xd, yd, k1, k2, k3, p1, p2, iterations):
 
 
 def _brown_distort(params, xn, yn):
-    return brown_distort(xn, yn, params.k1, params.k2, params.k3, params.p1, params.p2)
+    return brown_distort(xn, yn, params)
 
 
 def _brown_distort_jacobian(params, xn, yn):
-    return brown_distort_jacobian(xn, yn, params.k1, params.k2, params.k3, params.p1, params.p2)
+    return brown_distort_jacobian(xn, yn, params)
 
 
 def _brown_coefficient_jacobian(params, xn, yn, out):
@@ -128,7 +143,7 @@ def _brown_coefficient_jacobian(params, xn, yn, out):
 
 
 def _brown_undistort(params, xd, yd, iterations):
-    return brown_undistort(xd, yd, params.k1, params.k2, params.k3, params.p1, params.p2, iterations)
+    return brown_undistort(xd, yd, params, iterations)
 
 
 # -- pinhole -----------------------------------------------------------------------------------------

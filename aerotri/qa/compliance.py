@@ -129,9 +129,6 @@ class Compliance:
     products: tuple[ProductCompliance, ...]
     unconfirmed: tuple[str, ...]
 
-    def as_dict(self) -> dict:
-        return dataclasses.asdict(self)
-
 
 # ---------------------------------------------------------------------------------------------- measurements
 def _json(path: Path) -> dict:

@@ -53,9 +53,6 @@ class EoComparison:
     missing: tuple[str, ...]
     extra: tuple[str, ...]
 
-    def as_record(self) -> dict:
-        return {"schema_version": SCHEMA_VERSION, "kind": "eo comparison", **dataclasses.asdict(self)}
-
 
 def _rms(a: np.ndarray) -> np.ndarray:
     return np.sqrt(np.mean(np.square(a), axis=0))
@@ -109,8 +106,9 @@ def compare_with_reference(root, format_name: str, files, crs: str | None = None
     if not project.eo_path.is_file():
         raise InputError(f"{project.eo_path}: not found (run aerotri adjust first)")
     result = compare_orientations(read_eo(project.eo_path), block.eo, tuple(str(f) for f in files))
+    record = {"schema_version": SCHEMA_VERSION, "kind": "eo comparison", **dataclasses.asdict(result)}
     write_text_atomic(project.root / "reports" / "eo_comparison.json",
-                      json.dumps(result.as_record(), indent=1, allow_nan=False) + "\n")
+                      json.dumps(record, indent=1, allow_nan=False) + "\n")
     return result
 
 

@@ -56,9 +56,6 @@ class QaCheck:
     limit_source: str | None = None
     limit_confirmed: bool | None = None
 
-    def as_dict(self) -> dict:
-        return dataclasses.asdict(self)
-
 
 @dataclass(frozen=True)
 class QaReport:
@@ -92,7 +89,7 @@ class QaReport:
 
     def as_dict(self) -> dict:
         d = {f.name: getattr(self, f.name) for f in dataclasses.fields(self) if f.name != "html"}
-        d["checks"] = [c.as_dict() for c in self.checks]
+        d["checks"] = [dataclasses.asdict(c) for c in self.checks]
         return d
 
 
@@ -260,7 +257,7 @@ def stage_results(project: Project) -> list:
 
 def build_qa_report(root, *, tolerance_file=None, terrain: str | None = None, scale: str | None = None,
                     standard: str | None = None, horizontal_class_cm: float | None = None,
-                    vertical_class_cm: float | None = None, accuracy_class: str | None = None) -> dict:
+                    vertical_class_cm: float | None = None, accuracy_class: str | None = None) -> QaReport:
     """The report of a project folder (``StageOrderError`` when no stage has left results yet). The
     tolerance table: the arguments (the command line), else ``[qa]`` of project.toml, else chosen by the
     block's GSD and platform (``aerotri.core.tolerances.choose_table``); the report names it and why."""
@@ -334,7 +331,7 @@ def build_qa_report(root, *, tolerance_file=None, terrain: str | None = None, sc
         if ctl.layout_targets:
             empty = [t for t in ctl.layout_targets if t.corner is None]
             fb = sum(t.tier not in (None, "usable") for t in ctl.layout_targets)
-            note = "; ".join(empty_target_text(t.to_dict()) for t in empty)
+            note = "; ".join(empty_target_text(dataclasses.asdict(t)) for t in empty)
             if fb:
                 note = f"{fb} filled by fallbacks" + (f"; {note}" if note else "")
             rows.append(_check("layout_targets_filled", sec, "layout targets with a control point",
@@ -437,7 +434,7 @@ def build_qa_report(root, *, tolerance_file=None, terrain: str | None = None, sc
     fa = at.flight_acceptance if at else None
     if fa is None and (project.eo_path.is_file() or project.gnss_path.is_file()) and project.camera_path.is_file():
         got = project_flight_acceptance(root, tol)
-        fa = got.as_dict() if got is not None else None
+        fa = dataclasses.asdict(got) if got is not None else None
     if fa:
         # judged by this report's table (its platform), whatever the adjustment's section was held to
         fa = {**fa, "spec": tol.get("flight_spec") or fa.get("spec"),
@@ -469,10 +466,10 @@ def build_qa_report(root, *, tolerance_file=None, terrain: str | None = None, sc
     return QaReport(project=(at.project if at and at.project else root.name),
                     map_scale=tol_path.stem if tol_file else split_key(table.key)[0],
                     tolerance_table=str(tol_path.name), terrain=terrain, tolerances=tol, table=table.as_dict(),
-                    block=block.as_dict(), checks=rows,
+                    block=dataclasses.asdict(block), checks=rows,
                     overall=("fail" if "fail" in verdicts else "pass") if verdicts else None,
                     passed=verdicts.count("pass"), failed=verdicts.count("fail"), details=info,
-                    flight_acceptance=fa, compliance=compliance.as_dict())
+                    flight_acceptance=fa, compliance=dataclasses.asdict(compliance))
 
 
 def _cell(v) -> str:

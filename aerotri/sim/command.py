@@ -3,6 +3,7 @@ only the block's observations, or the project and observations from its truth ge
 
 from __future__ import annotations
 
+import dataclasses
 from pathlib import Path
 
 from aerotri.core.errors import InputError
@@ -39,4 +40,5 @@ def simulate_command(preset: str, outdir: Path, *, seed: int | None = None, over
     summary = write_truth_observations(outdir, tie_sigma_px=sigma, n_control=n_control,
                                        blunder_fraction=blunder_fraction, bad_control_shift_m=bad_control_shift_m,
                                        seed=cfg["preset"]["seed"], tie_points_per_frame=tie_points_per_frame)
-    return f"truth observations: {', '.join(f'{k} {v}' for k, v in summary.items() if isinstance(v, (int, float)))}"
+    counts = ((f.name, getattr(summary, f.name)) for f in dataclasses.fields(summary))
+    return f"truth observations: {', '.join(f'{k} {v}' for k, v in counts if isinstance(v, (int, float)))}"

@@ -296,10 +296,26 @@ def _truth_classes(scene: Scene, P, kind, gm, override) -> np.ndarray:
     return cls
 
 
+@dataclasses.dataclass(frozen=True)
+class ScannedPoints:
+    """The returns of a stretch of one strip (``scan_strip``): local metres and the LAS point attributes."""
+
+    xyz: np.ndarray  # (n, 3) local metres
+    intensity: np.ndarray  # uint16
+    return_number: np.ndarray  # uint8
+    number_of_returns: np.ndarray  # uint8
+    scan_direction_flag: np.ndarray  # uint8
+    edge_of_flight_line: np.ndarray  # uint8
+    scan_angle_deg: np.ndarray
+    gps_time: np.ndarray  # s, the strip's time
+    classification: np.ndarray  # ASPRS classes (truth)
+    point_source_id: np.ndarray  # uint16, the strip number
+
+
 def scan_strip(scene: Scene, accel, line: LidarLine, *, L: dict, rng, width_m: float, i0: int = 0,
-               i1: int | None = None):
-    """Simulate pulses ``i0..i1`` of one strip (default: all of it); returns a dict of point arrays in local
-    metres plus truth classes (the fields ``las_record`` writes). Draws ``rng`` in a fixed order per chunk."""
+               i1: int | None = None) -> ScannedPoints:
+    """Simulate pulses ``i0..i1`` of one strip (default: all of it); returns its points in local metres plus
+    truth classes (the fields ``las_record`` writes). Draws ``rng`` in a fixed order per chunk."""
     n_strip = strip_pulses(line, L, width_m)
     i1 = n_strip if i1 is None else i1
     sw = _sweep(line, L, rng, width_m, i0, i1)
@@ -340,7 +356,7 @@ def scan_strip(scene: Scene, accel, line: LidarLine, *, L: dict, rng, width_m: f
         _, rising_next = _triangle_wave(L["scan_frequency_hz"] * (i1 / L["pulse_rate_hz"]))
         edge_pulse[-1] = bool(rising_next) != bool(sw.rising[-1])
     edge = edge_pulse[pulse]
-    return dict(
+    return ScannedPoints(
         xyz=P, intensity=np.clip(inten, 0, 65535).astype(np.uint16), return_number=order_in_pulse.astype(np.uint8),
         number_of_returns=nret[pulse].astype(np.uint8), scan_direction_flag=sw.rising[pulse].astype(np.uint8),
         edge_of_flight_line=edge.astype(np.uint8), scan_angle_deg=scan_deg, gps_time=line.t0_s + sw.t[pulse],
@@ -361,19 +377,19 @@ def las_header(origin_m, epsg: int, creation_date=datetime.date(2026, 1, 1)) -> 
     return header
 
 
-def las_record(header: laspy.LasHeader, pts: dict, origin_m, classification=None) -> laspy.LasData:
+def las_record(header: laspy.LasHeader, pts: ScannedPoints, origin_m, classification=None) -> laspy.LasData:
     """The points of ``scan_strip`` (local metres) as LAS records in the project CRS."""
     las = laspy.LasData(header)
-    xyz = pts["xyz"] + np.asarray(origin_m, dtype=float)
+    xyz = pts.xyz + np.asarray(origin_m, dtype=float)
     las.x, las.y, las.z = xyz[:, 0], xyz[:, 1], xyz[:, 2]
-    las.intensity = pts["intensity"]
-    las.return_number = pts["return_number"]
-    las.number_of_returns = pts["number_of_returns"]
-    las.scan_direction_flag = pts["scan_direction_flag"]
-    las.edge_of_flight_line = pts["edge_of_flight_line"]
-    las.classification = pts["classification"] if classification is None else classification
-    las.scan_angle = np.rint(pts["scan_angle_deg"] / 0.006).astype(np.int16)
-    las.point_source_id = pts["point_source_id"]
-    las.gps_time = pts["gps_time"] + GPS_TIME_OFFSET_S  # adjusted standard GPS time
+    las.intensity = pts.intensity
+    las.return_number = pts.return_number
+    las.number_of_returns = pts.number_of_returns
+    las.scan_direction_flag = pts.scan_direction_flag
+    las.edge_of_flight_line = pts.edge_of_flight_line
+    las.classification = pts.classification if classification is None else classification
+    las.scan_angle = np.rint(pts.scan_angle_deg / 0.006).astype(np.int16)
+    las.point_source_id = pts.point_source_id
+    las.gps_time = pts.gps_time + GPS_TIME_OFFSET_S  # adjusted standard GPS time
     return las
 

@@ -328,6 +328,20 @@ def write_block_project(block: GeometricBlock, out_dir, name: str = "geometric",
     return out
 
 
+@dataclasses.dataclass(frozen=True)
+class TruthObservations:
+    """What ``write_truth_observations`` wrote: counts, and the blunders it put in (also in
+    truth/observation_blunders.json)."""
+
+    n_tie_observations: int
+    n_tie_points: int
+    n_control: int
+    n_check: int
+    n_control_observations: int
+    tie_blunders: list  # (point id, image id) of each blundered tie observation, sorted
+    bad_control: list  # ids of the control points shifted by bad_control_shift_m
+
+
 def write_truth_observations(
     project_dir,
     *,
@@ -345,7 +359,7 @@ def write_truth_observations(
     dem=None,
     interpolation: str = "nearest",
     tie_points_per_frame: int | None = None,
-) -> dict:
+) -> TruthObservations:
     """Write at/tiepoints.csv, control/points.csv, control/image_points.csv from a project's truth/.
 
     Needs truth/eo.txt, truth/camera.toml and either a DEM (``dem``, default truth/dem.tif: simulator
@@ -430,8 +444,9 @@ def write_truth_observations(
         root / "truth" / "observation_blunders.json",
         json.dumps({"tie_blunders": blunders, "bad_control": bad_ids}, indent=0),
     )
-    return {"n_tie_observations": len(ties), "n_tie_points": len(P_tie), "n_control": len(sel),
-            "n_check": len(chk), "n_control_observations": len(cobs), "tie_blunders": blunders, "bad_control": bad_ids}
+    return TruthObservations(n_tie_observations=len(ties), n_tie_points=len(P_tie), n_control=len(sel),
+                             n_check=len(chk), n_control_observations=len(cobs), tie_blunders=blunders,
+                             bad_control=bad_ids)
 
 
 def _draw_tie_points(ground, C, R, cam, *, H_above, n_points: int, min_rays: int):

@@ -167,9 +167,6 @@ class SimTruth:
     steep_band_y_m: list[float]  # northing of the start and end of the steep valley side
     max_slope_deg: float
 
-    def to_dict(self) -> dict:
-        return dataclasses.asdict(self)
-
 
 @dataclasses.dataclass(frozen=True)
 class PhaseCost:
@@ -283,8 +280,9 @@ def simulate(cfg: dict, outdir, force: bool = False, on_phase=None) -> SimTruth:
             steep_band_y_m=[scene.steep_band_y_m[0] + origin[1], scene.steep_band_y_m[1] + origin[1]],
             max_slope_deg=_max_slope_deg(scene),
         )
-        (tmp / "truth" / "truth.json").write_text(json.dumps(truth.to_dict(), indent=2, sort_keys=True) + "\n")
-        (tmp / "README.txt").write_text(_README.format(**truth.to_dict()))
+        truth_record = dataclasses.asdict(truth)
+        (tmp / "truth" / "truth.json").write_text(json.dumps(truth_record, indent=2, sort_keys=True) + "\n")
+        (tmp / "README.txt").write_text(_README.format(**truth_record))
     log.info(f"wrote {outdir} in {time.perf_counter() - t_start:.1f} s")
     return truth
 
@@ -414,12 +412,12 @@ def _scan_lidar(tmp: Path, cfg: dict, *, layout, scene, accel, origin, epsg: int
                 pts = scan_strip(scene, accel, line, L=L, rng=lrng, width_m=layout.width_m, i0=i0, i1=i1)
                 if off is None:
                     off = lrng.normal(0.0, L["strip_offset_sigma_m"], 3)
-                pts["xyz"] = pts["xyz"] + off
-                n = len(pts["xyz"])
+                pts = dataclasses.replace(pts, xyz=pts.xyz + off)
+                n = len(pts.xyz)
                 obs_las.write_points(las_record(rec_header, pts, origin, np.ones(n, np.uint8)).points)
                 truth_las.write_points(las_record(rec_header, pts, origin).points)
                 n_points += n
-                for c, k in zip(*np.unique(pts["classification"], return_counts=True)):
+                for c, k in zip(*np.unique(pts.classification, return_counts=True)):
                     class_counts[int(c)] = class_counts.get(int(c), 0) + int(k)
                 del pts
         strip_offsets.append(off.tolist())
@@ -598,11 +596,11 @@ def _write_flight_acceptance(truth_dir: Path, cfg: dict, plan, cam_true, origin,
     dem = dem or truth_dir / "dem.tif"
     fa = flight_acceptance(plan.image_id, plan.centre_m + origin, plan.opk_deg, cam_true,
                            Terrain.from_dem(dem, float(origin[2]), source=f"{dem.parent.name}/{dem.name}"),
-                           plan.strip, limits)
+                           plan.strip, limits=limits)
     for c in fa.failed:
         log.warning(f"flight acceptance: {c['quantity']} {c['value']} {c['unit']} at {c['where']} "
                     f"(limit {c['limit']})")
-    (truth_dir / "flight_acceptance.json").write_text(json.dumps(fa.as_dict(), indent=1) + "\n")
+    (truth_dir / "flight_acceptance.json").write_text(json.dumps(dataclasses.asdict(fa), indent=1) + "\n")
 
 
 def _check_plan(plan, scene, cfg):
@@ -667,9 +665,6 @@ class ObservationsBlock:
     control_points: int
     check_points: int
     control_observations: int
-
-    def to_dict(self) -> dict:
-        return dataclasses.asdict(self)
 
 
 def observations_terrain(cfg: dict, layout, seed: int):
@@ -784,15 +779,15 @@ def simulate_observations(cfg: dict, outdir, force: bool = False, *, tie_sigma_p
         block = ObservationsBlock(
             frames=len(plan.image_id), strips=int(cfg["flight"]["strips"]), scene_width_m=layout.width_m,
             scene_height_m=layout.height_m, terrain_res_m=res, dem_path=str(outdir / "dem.tif"),
-            tie_points=summary["n_tie_points"], tie_observations=summary["n_tie_observations"],
-            control_points=summary["n_control"], check_points=summary["n_check"],
-            control_observations=summary["n_control_observations"])
+            tie_points=summary.n_tie_points, tie_observations=summary.n_tie_observations,
+            control_points=summary.n_control, check_points=summary.n_check,
+            control_observations=summary.n_control_observations)
         truth = dict(preset=cfg["preset"]["name"], seed=seed, crs=f"EPSG:{epsg}", origin_m=origin.tolist(),
                      observations_only=True, gsd_m=cam_true.gsd_m(cfg["flight"]["height_above_ground_m"]),
                      flying_height_above_ground_m=cfg["flight"]["height_above_ground_m"],
                      frames_per_strip=int(cfg["flight"]["frames_per_strip"]), image_width_px=cam_true.width,
                      image_height_px=cam_true.height, pixel_um=cam_true.pixel_um, base_m=layout.base_m,
-                     strip_spacing_m=layout.strip_spacing_m, **block.to_dict())
+                     strip_spacing_m=layout.strip_spacing_m, **dataclasses.asdict(block))
         (tmp / "truth" / "truth.json").write_text(json.dumps(truth, indent=2, sort_keys=True) + "\n")
         (tmp / "README.txt").write_text(_README_OBS.format(**truth))
     log.info(f"wrote {outdir} in {time.perf_counter() - t_start:.1f} s")

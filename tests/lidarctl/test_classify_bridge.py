@@ -40,23 +40,23 @@ def test_deck_between_two_gaps_along_the_canal_is_a_bridge_the_strip_between_can
     ground = np.ones(len(x), bool)
     spacing = 1 / np.sqrt(3.0)
     p = classify.ClassifySettings()
-    found = classify.bridge_decks(x, y, z, ground, np.zeros(len(x), bool), spacing, p)
+    found = classify.bridge_decks(x, y, z, ground, np.zeros(len(x), bool), spacing, p=p)
     assert found[deck].mean() > 0.9
     # nothing else: not the ramps, not the quays along the canals, not the raised strip between
     # the two parallel canals (water on both sides, 15 m apart, but across their axes)
     assert not found[~deck].any()
     # only ground points are judged; 0 disables the rule
     half = np.arange(len(x)) % 2 == 0
-    assert not classify.bridge_decks(x, y, z, half, np.zeros(len(x), bool), spacing, p)[~half].any()
+    assert not classify.bridge_decks(x, y, z, half, np.zeros(len(x), bool), spacing, p=p)[~half].any()
     off = classify.ClassifySettings(bridge_max_width_m=0.0)
-    assert not classify.bridge_decks(x, y, z, ground, np.zeros(len(x), bool), spacing, off).any()
+    assert not classify.bridge_decks(x, y, z, ground, np.zeros(len(x), bool), spacing, p=off).any()
     # a deck at quay level (a dam between two basins) is not a bridge
     flat = np.where(deck, z - 1.2, z)
-    assert not classify.bridge_decks(x, y, flat, ground, np.zeros(len(x), bool), spacing, p)[deck].any()
+    assert not classify.bridge_decks(x, y, flat, ground, np.zeros(len(x), bool), spacing, p=p)[deck].any()
     # a ridge of land across the water (an isthmus: its crest 1.2 m up, its sides sloping into the water
     # on both sides) clears the quays only along its crest: not a level deck
     crest = np.where(deck, z - 1.2 + 1.2 * np.clip(1.0 - np.abs(x - X0 - 95.0) / 5.0, 0.0, 1.0), z)
-    assert not classify.bridge_decks(x, y, crest, ground, np.zeros(len(x), bool), spacing, p).any()
+    assert not classify.bridge_decks(x, y, crest, ground, np.zeros(len(x), bool), spacing, p=p).any()
 
 
 def test_classification_labels_the_deck_17_and_keeps_the_quays_ground():
@@ -110,10 +110,11 @@ def test_footbridge_left_out_by_the_ground_filter_is_a_deck_not_a_building():
     spacing = classify.grid.mean_spacing_m(x, y)
     as_built = np.where(cls == classify.BRIDGE_DECK, classify.BUILDING, cls)
     g = classify.dropout_grid(x, y, as_built == classify.BUILDING, spacing, p)
-    found = classify.spanning_decks(x, y, z, as_built == classify.BUILDING, as_built == classify.GROUND, g, p)
+    found = classify.spanning_decks(x, y, z, as_built == classify.BUILDING, as_built == classify.GROUND, g, p=p)
     assert found[high].mean() > 0.9 and not found[lab > 1].any()
     off = classify.ClassifySettings(bridge_max_width_m=0.0)
-    assert not classify.spanning_decks(x, y, z, as_built == classify.BUILDING, as_built == classify.GROUND, g, off).any()
+    assert not classify.spanning_decks(x, y, z, as_built == classify.BUILDING, as_built == classify.GROUND, g,
+                                       p=off).any()
 
 
 @pytest.mark.realdata

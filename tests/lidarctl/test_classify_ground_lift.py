@@ -32,7 +32,7 @@ def test_low_vegetation_leaves_the_ground_and_the_threshold_follows_the_noise():
     x, y, z, multi, lifted, pavement = _terrain_with_low_vegetation(seed=1, noise_m=0.02)
     spacing = 1 / np.sqrt(8.0)
     everything = np.ones(len(x), bool)
-    flagged = classify.lifted_ground(x, y, z, everything, spacing, 4.0, multi, judge_single=False)
+    flagged = classify.lifted_ground(x, y, z, everything, spacing, 4.0, intercepted=multi, judge_single=False)
     # 0.2 m = 10 sigma of the range noise (5 with the strip offset in the spread): most low returns go (the least-squares plane leans on
     # the lifted neighbours too), nothing else does: not the terrain (slope, wave), not the
     # pavement beyond the curb, not the higher strip's points in the overlap (single returns).
@@ -41,24 +41,24 @@ def test_low_vegetation_leaves_the_ground_and_the_threshold_follows_the_noise():
     # Single returns judged too (the default), against their neighbours' spread: the same low
     # returns, and of the bare earth at most 0.1 % (on the strip and curb edges, where the
     # neighbours' plane bends).
-    guarded = classify.lifted_ground(x, y, z, everything, spacing, 4.0, multi)
+    guarded = classify.lifted_ground(x, y, z, everything, spacing, 4.0, intercepted=multi)
     assert guarded[lifted].mean() >= flagged[lifted].mean()
     assert guarded[~lifted].sum() <= 0.001 * (~lifted).sum()
     # Judged as if every point were intercepted, the strip overlap would lose points (more than
     # all the rest of the terrain): the multi-return condition is what keeps them.
-    anyway = classify.lifted_ground(x, y, z, everything, spacing, 4.0, everything, judge_single=False)
+    anyway = classify.lifted_ground(x, y, z, everything, spacing, 4.0, intercepted=everything, judge_single=False)
     overlap = (x > 85015) & (x < 85025)
     assert anyway[~lifted & overlap].sum() > max(5, anyway[~lifted & ~overlap].sum())
     assert anyway[~lifted].sum() > max(1, guarded[~lifted].sum())
     # Same vegetation in a cloud five times as noisy (0.1 m): 0.2 m is inside the noise.
     x, y, z, multi, lifted, pavement = _terrain_with_low_vegetation(seed=2, noise_m=0.1)
-    flagged = classify.lifted_ground(x, y, z, everything, spacing, 4.0, multi)
+    flagged = classify.lifted_ground(x, y, z, everything, spacing, 4.0, intercepted=multi)
     assert flagged[lifted].mean() < 0.1
     # Disabled by 0 or without return numbers, and only ground points are ever flagged.
-    assert not classify.lifted_ground(x, y, z, everything, spacing, 0.0, multi).any()
-    assert not classify.lifted_ground(x, y, z, everything, spacing, 4.0, None).any()
+    assert not classify.lifted_ground(x, y, z, everything, spacing, 0.0, intercepted=multi).any()
+    assert not classify.lifted_ground(x, y, z, everything, spacing, 4.0, intercepted=None).any()
     half = np.arange(len(x)) % 2 == 0
-    assert not classify.lifted_ground(x, y, z, half, spacing, 4.0, everything)[~half].any()
+    assert not classify.lifted_ground(x, y, z, half, spacing, 4.0, intercepted=everything)[~half].any()
 
 
 def test_single_return_low_objects_leave_the_ground_only_when_single_returns_are_judged():
@@ -69,7 +69,7 @@ def test_single_return_low_objects_leave_the_ground_only_when_single_returns_are
     spacing = 1 / np.sqrt(8.0)
     everything = np.ones(len(x), bool)
     single = np.zeros(len(x), bool)
-    judged = classify.lifted_ground(x, y, z, everything, spacing, 4.0, single)
+    judged = classify.lifted_ground(x, y, z, everything, spacing, 4.0, intercepted=single)
     assert judged[lifted].mean() > 0.1
     assert judged[~lifted].sum() <= 0.001 * (~lifted).sum()
-    assert not classify.lifted_ground(x, y, z, everything, spacing, 4.0, single, judge_single=False).any()
+    assert not classify.lifted_ground(x, y, z, everything, spacing, 4.0, intercepted=single, judge_single=False).any()

@@ -48,7 +48,7 @@ def scene(seed: int = 1):
 
 def test_level_lake_is_water_floors_are_not():
     x, y, z, ground, nr, lake, park, forest = scene()
-    water = classify.level_water(x, y, z, ground, ground, 1 / np.sqrt(2.0), classify.ClassifySettings(),
+    water = classify.level_water(x, y, z, ground, ground, 1 / np.sqrt(2.0), p=classify.ClassifySettings(),
                                  number_of_returns=nr)
     assert water[lake].mean() >= 0.95                   # the lake, up to its shore
     assert not water[park].any()                        # level, but its rim is a curb down
@@ -59,14 +59,14 @@ def test_level_lake_is_water_floors_are_not():
 def test_level_water_off_and_too_small():
     x, y, z, ground, nr, lake, _, _ = scene()
     off = classify.ClassifySettings(level_water_min_area_m2=0.0)
-    assert not classify.level_water(x, y, z, ground, ground, 0.7, off, number_of_returns=nr).any()
+    assert not classify.level_water(x, y, z, ground, ground, 0.7, p=off, number_of_returns=nr).any()
     # the lake (1,257 m2) is smaller than a body of 2,000 m2
     big = classify.ClassifySettings(level_water_min_area_m2=2000.0)
-    assert not classify.level_water(x, y, z, ground, ground, 0.7, big, number_of_returns=nr).any()
+    assert not classify.level_water(x, y, z, ground, ground, 0.7, p=big, number_of_returns=nr).any()
 
 
 def test_the_bed_rule_is_what_rejects_the_car_park():
     x, y, z, ground, nr, lake, park, _ = scene()
     no_bed = classify.ClassifySettings(level_water_bank_fraction=0.0)
-    water = classify.level_water(x, y, z, ground, ground, 1 / np.sqrt(2.0), no_bed, number_of_returns=nr)
+    water = classify.level_water(x, y, z, ground, ground, 1 / np.sqrt(2.0), p=no_bed, number_of_returns=nr)
     assert water[park].mean() > 0.9

@@ -20,11 +20,11 @@ def test_unit_on_a_flat_roof_is_an_object_the_roof_is_not():
     hall = (x > 14.0) & (y > 14.0)                                  # a 36 m2 raised part: too large
     z[hall] += 3.0
     spacing = classify.grid.mean_spacing_m(x, y)
-    obj = classify.rooftop_objects(x, y, z, np.ones(len(x), bool), spacing, 0.03, 20.0)
+    obj = classify.rooftop_objects(x, y, z, np.ones(len(x), bool), spacing, 0.03, max_area_m2=20.0)
     assert obj[unit].mean() > 0.95
     assert not obj[~unit].any()
     # off below its own area
-    assert not classify.rooftop_objects(x, y, z, np.ones(len(x), bool), spacing, 0.03, 5.0).any()
+    assert not classify.rooftop_objects(x, y, z, np.ones(len(x), bool), spacing, 0.03, max_area_m2=5.0).any()
 
 
 def test_gable_roof_ridge_and_eaves_are_not_objects():
@@ -32,7 +32,8 @@ def test_gable_roof_ridge_and_eaves_are_not_objects():
     x, y = _scan(rng, 16.0, 10.0)
     pitch = np.tan(np.radians(45.0))
     z = 8.0 + pitch * (5.0 - np.abs(y - 5.0)) + rng.normal(0, 0.03, len(x))
-    obj = classify.rooftop_objects(x, y, z, np.ones(len(x), bool), classify.grid.mean_spacing_m(x, y), 0.03, 20.0)
+    obj = classify.rooftop_objects(x, y, z, np.ones(len(x), bool), classify.grid.mean_spacing_m(x, y), 0.03,
+                                   max_area_m2=20.0)
     assert not obj.any()
 
 

@@ -58,7 +58,7 @@ def scene(seed: int = 3):
 
 def run(p: classify.ClassifySettings, seed: int = 3):
     x, y, z, ground, nr, lake, park, forest = scene(seed)
-    water = classify.level_water(x, y, z, ground, ground, 1 / np.sqrt(2.0), p, number_of_returns=nr)
+    water = classify.level_water(x, y, z, ground, ground, 1 / np.sqrt(2.0), p=p, number_of_returns=nr)
     return water, lake, park, forest
 
 

@@ -68,14 +68,14 @@ def test_fuse_roads_grass_bare_and_green_building(tmp_path):
         nir[rows[mask], cols[mask]] = n
     _image(tmp_path / "dom.tif", rgb, nir)
     img = fusion.open_image(tmp_path / "dom.tif", "4")
-    out = fusion.fuse(x + X0, y + Y0, z, hag, cls, intensity, img)
+    out = fusion.fuse(x + X0, y + Y0, z, hag, cls, intensity, img=img)
     assert np.mean(out[road] == 11) > 0.95
     assert np.all(out[bare] == 2)
     assert np.all(out[bld] == 5)
     grass = ~road & ~bare & ~bld
     assert np.mean(out[grass] == 3) > 0.99
     # without the NIR band the excess green gives the same classes here
-    out_rgb = fusion.fuse(x + X0, y + Y0, z, hag, cls, intensity, fusion.open_image(tmp_path / "dom.tif"))
+    out_rgb = fusion.fuse(x + X0, y + Y0, z, hag, cls, intensity, img=fusion.open_image(tmp_path / "dom.tif"))
     assert np.mean(out_rgb == out) > 0.99
 
 
@@ -162,13 +162,15 @@ def test_building_confirmation_by_lines_and_penetration(tmp_path):
     _image(tmp_path / "dom.tif", rgb, res=res)
     img = fusion.open_image(tmp_path / "dom.tif")
     args = (x + X0, y + Y0, 100.0 + hag, hag, cls, np.full(len(x), 300))
-    out = fusion.fuse(*args, img, fusion.FusionSettings(), rn, nr)
+    out = fusion.fuse(*args, img=img, p=fusion.FusionSettings(), return_number=rn, number_of_returns=nr)
     assert np.all(out[inside["A"]] == 6)
     assert np.all(out[inside["B"]] == 5)
     assert np.all(out[inside["C"] & ~under] == 5)
-    kept = fusion.fuse(*args, img, fusion.FusionSettings(building_min_lines=0), rn, nr)
+    kept = fusion.fuse(*args, img=img, p=fusion.FusionSettings(building_min_lines=0), return_number=rn,
+                       number_of_returns=nr)
     assert np.all(kept[inside["B"]] == 6) and np.all(kept[inside["A"]] == 6)
-    single = fusion.fuse(*args, img, fusion.FusionSettings(), np.ones(len(x)), np.ones(len(x)))
+    single = fusion.fuse(*args, img=img, p=fusion.FusionSettings(), return_number=np.ones(len(x)),
+                         number_of_returns=np.ones(len(x)))
     assert np.all(single[inside["C"] & ~under] == 6)
     # the segments counted are those of 2 m or more, in metres whatever the pixel size
     grey, (_, _, px_m) = fusion.read_grey(img, X0, Y0, X0 + 60, Y0 + 60)

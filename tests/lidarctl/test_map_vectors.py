@@ -183,14 +183,14 @@ def test_offsets_of_a_known_shift(tmp_path):
     sq = [box(0, 0, 10, 10)]
     moved = [affinity.translate(sq[0], 0.3, 0.0)]
     off = vc.point_offsets(moved, sq, match_m=3.0)
-    assert np.allclose(off["to_corner"], [[-0.3, 0.0]] * 4)
+    assert np.allclose(off.to_corner, [[-0.3, 0.0]] * 4)
     # the two corners moved off the outline are 0.3 away; the other two slid along the top and bottom edges
-    assert np.allclose(np.sort(np.hypot(*off["to_line"].T)), [0.0, 0.0, 0.3, 0.3])
+    assert np.allclose(np.sort(np.hypot(*off.to_line.T)), [0.0, 0.0, 0.3, 0.3])
     a = vc.area_overlap(moved, sq)
-    assert a["completeness_pct"] == pytest.approx(97.0) and a["correctness_pct"] == pytest.approx(97.0)
+    assert a.completeness_pct == pytest.approx(97.0) and a.correctness_pct == pytest.approx(97.0)
     ln = vc.buffer_overlap([shapely.LineString([(0, 0.5), (10, 0.5)])], [shapely.LineString([(0, 0), (20, 0)])], 1.0)
     # the buffer's round cap reaches sqrt(1 - 0.5^2) beyond the line's end
-    assert ln["completeness_pct"] == pytest.approx(100 * (10 + 0.75 ** 0.5) / 20, rel=1e-3) and ln["correctness_pct"] == pytest.approx(100.0)
+    assert ln.completeness_pct == pytest.approx(100 * (10 + 0.75 ** 0.5) / 20, rel=1e-3) and ln.correctness_pct == pytest.approx(100.0)
 
 
 def test_cloud_in_feet(tmp_path):

@@ -142,7 +142,7 @@ def test_one_tile_split_equals_direct_path(big, tmp_path):
     assert info.n_points == info.n_core == len(cloud)
     np.testing.assert_array_equal(np.load(task.core_index_path), np.arange(len(cloud)))
     direct = cl.classify_points(cloud.x, cloud.y, cloud.z, cloud.return_number, cloud.number_of_returns,
-                                cloud.intensity, params)
+                                cloud.intensity, params=params)
     np.testing.assert_array_equal(np.load(task.classes_path), direct)
 
 

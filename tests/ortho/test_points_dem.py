@@ -93,7 +93,7 @@ def test_a_dem_from_a_handful_of_tie_points_is_warned_of(tiny_project, tmp_path,
     (p / "at" / "object_points.csv").write_text("\n".join(rows) + "\n")
     with caplog.at_level("WARNING"):
         s = write_points_dem(p, min_rays=3)
-    assert s["points"] <= 5 and (p / "at" / "dem.tif").is_file()
+    assert s.points <= 5 and (p / "at" / "dem.tif").is_file()
     msgs = [m for m in caplog.messages if "tie points seen in 3 or more frames" in m]
     assert len(msgs) == 1 and f"for {n_frames} frames" in msgs[0] and "fewer than 10" in msgs[0], caplog.messages
 

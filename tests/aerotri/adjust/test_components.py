@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import csv
 import dataclasses
+import json
 
 import numpy as np
 import pytest
@@ -42,7 +43,8 @@ def split_block(tmp_path):
 def test_parts_with_gnss_are_adjusted_together(split_block):
     """GNSS without corrections gives each part its datum: both are adjusted and the report says two parts."""
     block, root = split_block
-    ba, rep = run_adjustment(root, AdjustSettings(image_sigma_px=SIGMA_PX), html=False)
+    res = run_adjustment(root, AdjustSettings(image_sigma_px=SIGMA_PX), html=False)
+    ba, rep = res.adjustment, json.loads(res.report_path.read_text())
     assert rep["key_statistics"]["success"]
     assert rep["components"] == {"adjusted": 2, "left_out": []}
     assert ba.block.n_images == 18
@@ -57,7 +59,8 @@ def test_a_part_without_datum_is_named_and_left_out(split_block):
     its EO written without strip 1's frames; without any control the adjustment stops."""
     block, root = split_block
     st = AdjustSettings(image_sigma_px=SIGMA_PX, gnss_correction="shift")
-    ba, rep = run_adjustment(root, st, html=False)
+    res = run_adjustment(root, st, html=False)
+    ba, rep = res.adjustment, json.loads(res.report_path.read_text())
     left = rep["components"]["left_out"]
     assert rep["components"]["adjusted"] == 1 and len(left) == 1
     assert sorted(left[0]["images"]) == [i for i in block.image_id if i.startswith("s01")]

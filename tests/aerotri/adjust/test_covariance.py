@@ -44,9 +44,9 @@ def test_reduced_covariance_matches_gtsam_marginals(tmp_path, monkeypatch):
     from aerotri.adjust.geometry_modes import geometry_modes
 
     ctrl = np.ones(len(b.control_point), bool)
-    whole, _ = geometry_modes(b, opts, st, act, ctrl, rc, 1.0)
+    whole, _ = geometry_modes(b, opts, st, act, ctrl, rc, sigma0=1.0)
     monkeypatch.setattr(covariance, "RAY_CHUNK", 53)
-    chunked, _ = geometry_modes(b, opts, st, act, ctrl, rc, 1.0)
+    chunked, _ = geometry_modes(b, opts, st, act, ctrl, rc, sigma0=1.0)
     for m0, m1 in zip(whole, chunked):
         assert m0.mode == m1.mode and np.isclose(m0.sigma_m, m1.sigma_m, rtol=1e-9)
         assert all(np.isclose(m0.shares[k], m1.shares[k], rtol=1e-7, atol=1e-12) for k in m0.shares)

@@ -12,6 +12,7 @@ points, 0.11 with a DEM); the blocks here are drawn with seeds 11 to 14.
 from __future__ import annotations
 
 import dataclasses
+import json
 import logging
 import warnings
 
@@ -141,7 +142,8 @@ def test_tie_points_against_a_dem_shifted_by_half_a_metre_fail(dem_block):
     the solution fails: no products, the failed report in work/adjust_failed."""
     root, dem, shifted = dem_block
     st = AdjustSettings(image_sigma_px=SIGMA_PX, use_control=False, surface_sigma_m=0.05)
-    _, rep = run_adjustment(root, dataclasses.replace(st, check_dem=dem), html=False)
+    res = run_adjustment(root, dataclasses.replace(st, check_dem=dem), html=False)
+    rep = json.loads(res.report_path.read_text())
     (d,) = rep["dem_checks"]
     assert d["role"] == "check" and d["n"] > 400 and not d["failed"]
     assert abs(d["median_m"]) < 0.1 and d["limit_m"] == pytest.approx(3 * d["sigma_offset_m"], abs=1e-3)
@@ -153,8 +155,6 @@ def test_tie_points_against_a_dem_shifted_by_half_a_metre_fail(dem_block):
     assert (root / "at" / "eo.txt").read_text() == before  # the earlier products stay
     failed = (root / "work" / "adjust_failed" / "report.txt").read_text()
     assert "Solution failed: Tie points - DEM" in failed and "FAILED (a systematic offset)" in failed
-    import json
-
     rj = json.loads((root / "work" / "adjust_failed" / "report.json").read_text())
     (d,) = rj["dem_checks"]
     assert d["failed"] and d["median_m"] == pytest.approx(-0.5, abs=0.1) and abs(d["median_m"]) > d["limit_m"]

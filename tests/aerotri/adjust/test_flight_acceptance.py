@@ -60,7 +60,7 @@ def test_violations_are_flagged_where_they_happen():
     cv = by["flight_curvature_max_pct"]
     assert cv["verdict"] == "fail" and cv["where"] == "strip 1" and cv["value"] == pytest.approx(5.0, abs=0.01)
     # a contract's own limits replace the defaults
-    loose = flight_acceptance(ids, c, opk, CAM, Terrain(0.0), strip, {"flight_tilt_max_deg": 3.0})
+    loose = flight_acceptance(ids, c, opk, CAM, Terrain(0.0), strip, limits={"flight_tilt_max_deg": 3.0})
     assert {x["key"]: x for x in loose.checks}["flight_tilt_max_deg"]["verdict"] == "pass"
 
 

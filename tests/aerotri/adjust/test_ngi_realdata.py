@@ -45,7 +45,8 @@ def ngi_adjusted(ngi_data, tmp_path_factory):
 
     root = ngi.build_ngi_project(ngi_data, tmp_path_factory.mktemp("ngi") / "project")
     match = match_project(root, ngi.match_settings(densify=False))
-    ba, report = run_adjustment(root, AdjustSettings(use_control=False), html=False)
+    res = run_adjustment(root, AdjustSettings(use_control=False), html=False)
+    ba, report = res.adjustment, json.loads(res.report_path.read_text())
     return root, match, ba, report
 
 
@@ -132,8 +133,9 @@ def test_the_dem_as_surface_control_brings_the_orientation_to_the_national_solut
 
     root = tmp_path / "project"
     shutil.copytree(ngi_adjusted[0], root, symlinks=True)
-    ba, report = run_adjustment(root, AdjustSettings(use_control=False, dem=ngi_data / ngi.DEM_FILE,
+    res = run_adjustment(root, AdjustSettings(use_control=False, dem=ngi_data / ngi.DEM_FILE,
                                                      variance_components=True), html=False)
+    ba, report = res.adjustment, json.loads(res.report_path.read_text())
     assert report["key_statistics"]["success"]
     vc = {g["group"]: g for g in report["variance_components"]}
     assert all(g["factor"] is None or abs(g["factor"] - 1) < 0.05 for g in vc.values())

@@ -62,7 +62,7 @@ def test_outputs_and_report(block_project):
     # suspect shifts (issue 41; tests/aerotri/adjust/test_gnss_correction_check.py).
     ba = adjust_project(root, AdjustSettings(gnss_correction="shift", image_sigma_px=SIGMA_PX, point_covariances=False,
                                              gnss_shift_sigma_m=0.3, self_calibration=("pp", "radial")))
-    rep = write_outputs(ba, root)
+    res = write_outputs(ba, root)
     at = root / "at"
     for f in ("eo.txt", "object_points.csv", "report.txt", "report.json", "report.html"):
         assert (at / f).stat().st_size > 0, f
@@ -72,7 +72,8 @@ def test_outputs_and_report(block_project):
                   "Sigma:", "Degrees of Freedom:", "Solution Successful.", "Check points"):
         assert label in txt
     js = json.loads((at / "report.json").read_text())
-    assert js["key_statistics"]["sigma0_um"] == rep["key_statistics"]["sigma0_um"]
+    assert js["key_statistics"]["sigma0_um"] == res.record.key_statistics.sigma0_um
+    assert res.report_path == at / "report.json" and res.adjustment is ba
     assert js["counts"]["images"] == 18 and js["counts"]["check_points"] == 12
     assert js["counts"]["image_observations"] + js["counts"]["removed_observations"] >= len(ba.block.obs_point) - 5
     from aerotri.geom.eo import read_eo
@@ -89,7 +90,8 @@ def test_report_limits_follow_the_project_map_scale(block_project, tmp_path):
     block, root = block_project
     ba = adjust_project(root, AdjustSettings(gnss_correction="shift", image_sigma_px=SIGMA_PX, point_covariances=False,
                                              snooping=False))
-    rep = write_outputs(ba, root, html=False)
+    res = write_outputs(ba, root, html=False)
+    rep = json.loads(res.report_path.read_text())
     # no [qa]: a DMC at 1000 m, GSD 10 cm, manned (above 150 m) -> the Chinese table of its GSD, 1:2000 (flat)
     assert rep["parameters"]["rms_limits_m"][:3] == [0.14, 0.14, 0.4]
     assert "Tolerances : 1:2000 flat (cn_1to2000.toml)" in (root / "at" / "report.txt").read_text()
@@ -98,7 +100,8 @@ def test_report_limits_follow_the_project_map_scale(block_project, tmp_path):
     shutil.copytree(root, copy)
     with open(copy / "project.toml", "a") as f:
         f.write('\n[qa]\nmap_scale = "1:2000"\nterrain = "hilly"\n')
-    rep = write_outputs(ba, copy, html=False)
+    res = write_outputs(ba, copy, html=False)
+    rep = json.loads(res.report_path.read_text())
     assert rep["parameters"]["rms_limits_m"][:3] == [0.14, 0.14, 0.8]
     assert rep["parameters"]["residual_limits_m"][:3] == [0.28, 0.28, 1.6]
     assert "Tolerances : 1:2000 hilly (cn_1to2000.toml)" in (copy / "at" / "report.txt").read_text()

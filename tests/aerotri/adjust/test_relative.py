@@ -162,11 +162,10 @@ def test_leave_one_out_against_the_known_control_noise(no_gnss_block, tmp_path):
     _plan_only(root)
     st = AdjustSettings(image_sigma_px=SIGMA_PX, point_covariances=False)
     loo = leave_one_out(root, st)
-    d = loo.as_dict()
-    assert d["checked"] >= 5
+    assert loo.n_checked >= 5
     # each left-out point: its own 0.5 m noise plus the datum from the others: sqrt(2) x 0.5 m plan, a little more
-    assert 0.4 < d["rms_xy_m"] < 1.2
-    assert 0.6 < d["rms_xy_m"] / loo.scatter.rms_xy_dof_m < 1.6
+    assert 0.4 < loo.rms_xy_m < 1.2
+    assert 0.6 < loo.rms_xy_m / loo.scatter.rms_xy_dof_m < 1.6
 
 
 def test_too_little_control_leaves_the_model_in_a_local_frame(no_gnss_block, tmp_path):

@@ -141,7 +141,8 @@ def test_the_parallel_kernels_equal_the_serial_ones(tmp_path, monkeypatch):
 
     def run():
         rs = tp.reduced_system(gr.values, gr.n_images, tp.coords)
-        inc = schur.point_increments(rs.Vinv, rs.b_point, rs.W, rs.Z, tp.image, tp.pairs.start, d_pose, d_cal)
+        inc = schur.point_increments(rs.Vinv, rs.b_point, rs.W, rs.Z, tp.image, tp.pairs.start, d_pose=d_pose,
+                                     d_cal=d_cal)
         return rs, inc, tp.sum_of_squares(gr.values, gr.n_images, tp.coords)
 
     serial = run()

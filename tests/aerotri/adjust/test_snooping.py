@@ -18,12 +18,12 @@ def test_blunders_removed(tmp_path):
     ba = adjust_project(root, AdjustSettings(gnss_correction="shift", image_sigma_px=0.3, self_calibration=("pp", "radial")))
     r, b = ba.result, ba.block
     removed = {(str(b.point_id[b.obs_point[x.obs]]), b.image_id[b.obs_image[x.obs]]) for x in r.removed}
-    bad = {tuple(x) for x in info["tie_blunders"]}
-    n_good = info["n_tie_observations"] - len(bad)
+    bad = {tuple(x) for x in info.tie_blunders}
+    n_good = info.n_tie_observations - len(bad)
     assert len(bad & removed) >= 0.95 * len(bad)
     assert len(removed - bad) < 0.01 * n_good
     # the shifted control point is reported by name and excluded
-    assert [str(ba.control.id[c]) for c, _ in r.rejected_control] == info["bad_control"] == ["gcp01"]
+    assert [str(ba.control.id[c]) for c, _ in r.rejected_control] == info.bad_control == ["gcp01"]
     assert 0.85 < r.sigma0 < 1.15
     d = np.array([np.subtract(c["adjusted_m"], c["measured_m"]) for c in ba.check.values()])
     assert np.sqrt(np.mean(d[:, :2] ** 2)) < 0.1 and np.sqrt(np.mean(d[:, 2] ** 2)) < 0.25
@@ -54,13 +54,13 @@ def test_compiled_normals_and_leverages_equal_numpys():
     uv = project_cv(truth[pt], centre[im], R[im], cal)[0] + rng.normal(0, 0.3, (len(pt), 2))
     start = truth + rng.normal(0, 2.0, truth.shape)
     multi = np.bincount(pt, minlength=n_pts) >= 2
-    ref = refine_points(uv, pt, im, centre, R, cal, start, iterations=3)
-    got, N = refined_normals(uv, pt, im, centre, R, cal, start, iterations=3)
+    ref = refine_points(uv, pt, im, centre, R, cal, points=start, iterations=3)
+    got, N = refined_normals(uv, pt, im, centre, R, cal, points=start, iterations=3)
     assert np.abs(got - ref)[multi].max() < 1e-9  # m
     N_ref = point_normals(point_jacobian_cv(project_cv(ref[pt], centre[im], R[im], cal)[1], R[im], cal), pt, n_pts)
     assert np.abs(N - N_ref)[multi].max() < 1e-9 * np.abs(N_ref).max()
     active = rng.random(len(pt)) > 0.1
-    r = redundancy_numbers(pt, im, truth, centre, R, cal, active)
+    r = redundancy_numbers(pt, im, truth, centre, R, cal, active=active)
     _, pc = project_cv(truth[pt], centre[im], R[im], cal)
     J = point_jacobian_cv(pc, R[im], cal)
     Nk = point_normals(J[active], pt[active], n_pts)

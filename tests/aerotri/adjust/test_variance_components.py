@@ -4,6 +4,7 @@ whose true precisions are known and against the covariance of the full (not redu
 from __future__ import annotations
 
 import dataclasses
+import json
 
 import gtsam
 import numpy as np
@@ -118,7 +119,8 @@ def test_report_names_a_weak_mode(gnss_block):
     the DEM the same block's height is held by the surface and nothing is weak."""
     _, root, dem = gnss_block
     st = AdjustSettings(image_sigma_px=SIGMA_PX, use_control=False, rms_limit_z_m=0.1)
-    _, rep = run_adjustment(root, st, html=False)
+    res = run_adjustment(root, st, html=False)
+    rep = json.loads(res.report_path.read_text())
     ks = rep["key_statistics"]
     height = {g["mode"]: g for g in rep["geometry_modes"]}["height"]
     assert "height" in ks["weak_geometry"] and height["weak"] and 3 * height["sigma_m"] > 0.1
@@ -126,7 +128,8 @@ def test_report_names_a_weak_mode(gnss_block):
     assert set(height["shares"]) == {"image", "gnss", "priors"} and height["shares"]["gnss"] > 0.2
     txt = (root / "at" / "report.txt").read_text()
     assert "BLOCK GEOMETRY" in txt and "VARIANCE COMPONENTS" in txt
-    _, rep = run_adjustment(root, dataclasses.replace(st, dem=dem, surface_sigma_m=0.1), html=False)
+    res = run_adjustment(root, dataclasses.replace(st, dem=dem, surface_sigma_m=0.1), html=False)
+    rep = json.loads(res.report_path.read_text())
     assert rep["key_statistics"]["weak_geometry"] == []
     height = {g["mode"]: g for g in rep["geometry_modes"]}["height"]
     assert height["shares"]["surface"] > 0.5

@@ -6,6 +6,7 @@ from __future__ import annotations
 import json
 
 from aerotri.chain import results as R
+from aerotri.adjust.report_record import adjustment_record
 from aerotri.chain.stages import adjustment_result
 
 
@@ -33,10 +34,12 @@ def test_vectors_write_the_check_figures_only_when_checked():
 
 def test_adjustment_numbers_of_a_report():
     rep = {"key_statistics": {"sigma0_um": 3.2}, "counts": {"control_points": 40}, "check_rms_m": [0.03, 0.04, 0.05]}
-    r = adjustment_result(rep, loo_rms_xy_m=0.061, control_scatter_xy_m=0.044, notes=("datum: control",))
+    r = adjustment_result(adjustment_record(rep), loo_rms_xy_m=0.061, control_scatter_xy_m=0.044,
+                          notes=("datum: control",))
     assert json.dumps(r.record()) == ('{"sigma0_um": 3.2, "control_points": 40, "rms_check_xy_m": 0.05, '
                                       '"rms_check_z_m": 0.05, "loo_rms_xy_m": 0.061, "control_scatter_xy_m": 0.044, '
                                       '"notes": ["datum: control"]}')
     # no check points, no sigma naught: left out (a block adjusted on GNSS alone)
-    assert adjustment_result({"counts": {"control_points": 0}, "check_rms_m": [None, None, None]}).record() == {
+    assert adjustment_result(adjustment_record({"counts": {"control_points": 0},
+                                                "check_rms_m": [None, None, None]})).record() == {
         "control_points": 0}

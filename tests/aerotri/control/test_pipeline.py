@@ -5,6 +5,7 @@ manual measurements."""
 from __future__ import annotations
 
 import csv
+import dataclasses
 import json
 import re
 
@@ -118,7 +119,7 @@ def test_output_files(frames):
         k, i = int(o["point_id"][1:]) - 1, EO.index()[o["image_id"]]
         assert np.hypot(*(np.array([float(o["x_px"]), float(o["y_px"])]) - truth_px(k, i))) < 0.5
     rep = json.loads(texts["transfer.json"])
-    assert rep["summary"] == json.loads(json.dumps(summary(res).to_dict()))
+    assert rep["summary"] == json.loads(json.dumps(dataclasses.asdict(summary(res))))
     assert [c["id"] for c in rep["corners"]] == ["C1", "C2", "C3", "C4"]
     assert rep["corners"][0]["reason"] == "lidar_mismatch"
     assert all(f["status"] == "accepted" for c in rep["corners"][1:] for f in c["frames"].values())

@@ -133,11 +133,12 @@ def test_uas_flight_values_reported_not_judged():
     opk = np.zeros((6, 3))
     opk[:, 2] = -90.0
     opk[2, :2] = (4.0, 0.0)  # 4 deg tilt: beyond the manned 2 deg
-    uas = flight_acceptance(ids, c, opk, DRONE, Terrain(0.0), np.ones(6, int), load_table("ASPRS2023 H7.1cm V10cm UAS").limits)
+    uas = flight_acceptance(ids, c, opk, DRONE, Terrain(0.0), np.ones(6, int),
+                            limits=load_table("ASPRS2023 H7.1cm V10cm UAS").limits)
     assert all(ch["verdict"] == "not judged" for ch in uas.checks if ch["n"]) and "none applies" in uas.spec
     assert not uas.failed
     assert max(f["tilt_deg"] for f in uas.frames) == pytest.approx(4.0)  # measured all the same
-    manned = flight_acceptance(ids, c, opk, DRONE, Terrain(0.0), np.ones(6, int), load_table("1:5000").limits)
+    manned = flight_acceptance(ids, c, opk, DRONE, Terrain(0.0), np.ones(6, int), limits=load_table("1:5000").limits)
     assert {ch["key"]: ch for ch in manned.checks}["flight_tilt_max_deg"]["verdict"] == "fail"
     assert "manned" in manned.spec
 

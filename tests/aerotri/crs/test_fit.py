@@ -49,7 +49,7 @@ def test_bursa_wolf7_noise_free_national_network_recovers_parameters_exactly():
     res = fit_spatial("bursa-wolf7", range(30), XYZ_s, XYZ_d, dst_lat_lon_deg=dst[:, 1::-1])
     for k, v in TRUE_BURSA_WOLF7.items():
         assert res.transformation.parameters[k] == pytest.approx(v, abs=1e-6)
-    assert res.rms_m["horizontal"] < 1e-6 and res.rms_m["u"] < 1e-6
+    assert res.rms_m.horizontal_m < 1e-6 and res.rms_m.u_m < 1e-6
 
 
 def test_bursa_wolf7_noisy_block_within_reported_std_devs(tmp_path):
@@ -70,7 +70,7 @@ def test_bursa_wolf7_noisy_block_within_reported_std_devs(tmp_path):
     # residual RMS per coordinate = noise * sqrt(r / n_obs)
     expected_rms = noise * np.sqrt(res.redundancy / 120)
     for axis in ("e", "n", "u"):
-        assert res.rms_m[axis] == pytest.approx(expected_rms, rel=0.3)
+        assert getattr(res.rms_m, f"{axis}_m") == pytest.approx(expected_rms, rel=0.3)
 
 
 def test_bursa_wolf7_std_devs_are_calibrated_monte_carlo():
@@ -103,9 +103,9 @@ def test_helmert2d_recovers_four_parameters(noise):
             assert abs(t.parameters[k] - v) < 3.0 * t.std_devs[k], k
     if noise:
         assert res.sigma0_m == pytest.approx(noise, rel=0.2)
-        assert res.rms_m["e"] == pytest.approx(noise * np.sqrt(46 / 50), rel=0.3)
+        assert res.rms_m.e_m == pytest.approx(noise * np.sqrt(46 / 50), rel=0.3)
     else:
-        assert res.rms_m["horizontal"] < 1e-6
+        assert res.rms_m.horizontal_m < 1e-6
     # a parameter file round trip applies identically
     t2 = Transformation.from_dict(res.to_dict())
     assert np.max(np.abs(t2.apply(src) - t.apply(src))) < 1e-9

@@ -24,8 +24,8 @@ def adjusted_tiny(tmp_path_factory):
     write_truth_observations(root, tie_sigma_px=SIGMA_PX, n_control=5, points_per_image=80, n_check=4, seed=2)
     with pytest.raises(StageOrderError):
         read_adjusted_block(root)
-    ba, _ = run_adjustment(root, AdjustSettings(gnss_correction="shift", image_sigma_px=SIGMA_PX,
-                                                self_calibration=("pp", "radial")))
+    ba = run_adjustment(root, AdjustSettings(gnss_correction="shift", image_sigma_px=SIGMA_PX,
+                                                self_calibration=("pp", "radial"))).adjustment
     return root, ba
 
 
@@ -57,7 +57,7 @@ def adjusted_with_rejections(tmp_path_factory):
     f[2] = f"{float(f[2]) + 40.0:.3f}"
     rows[k] = ",".join(f)
     path.write_text("\n".join([head] + rows) + "\n")
-    ba, _ = run_adjustment(root, AdjustSettings(gnss_correction="shift", image_sigma_px=SIGMA_PX))
+    ba = run_adjustment(root, AdjustSettings(gnss_correction="shift", image_sigma_px=SIGMA_PX)).adjustment
     return root, ba
 
 
@@ -68,5 +68,5 @@ def adjusted_without_control(tmp_path_factory):
     root = write_block_project(block, tmp_path_factory.mktemp("noctl") / "blk")
     write_truth_observations(root, tie_sigma_px=SIGMA_PX, n_control=0, points_per_image=80, n_check=0, seed=2)
     shutil.rmtree(root / "control")
-    ba, _ = run_adjustment(root, AdjustSettings(gnss_correction="none", image_sigma_px=SIGMA_PX))
+    ba = run_adjustment(root, AdjustSettings(gnss_correction="none", image_sigma_px=SIGMA_PX)).adjustment
     return root, ba
