@@ -130,12 +130,72 @@ def _push(coarse, v, w):
     return out
 
 
+@numba.njit(cache=True, nogil=True)
+def _pull_finite(a):
+    """``_pull(np.where(np.isfinite(a), a, 0.0), np.isfinite(a).astype(float))`` without those two arrays
+    (the same sums in the same order, so bit-identical): the first level of ``fill_nodata``."""
+    h, wd = a.shape
+    hh, ww = (h + 1) // 2, (wd + 1) // 2
+    vs = np.empty((hh, ww))
+    ws = np.empty((hh, ww))
+    for i in range(hh):
+        i1 = 2 * i + 1
+        for j in range(ww):
+            j1 = 2 * j + 1
+            a00, a01, a10, a11 = a[2 * i, 2 * j], 0.0, 0.0, 0.0
+            w00, w01, w10, w11 = 1.0, 0.0, 0.0, 0.0
+            if not np.isfinite(a00):
+                a00, w00 = 0.0, 0.0
+            if j1 < wd and np.isfinite(a[2 * i, j1]):
+                a01, w01 = a[2 * i, j1], 1.0
+            if i1 < h:
+                if np.isfinite(a[i1, 2 * j]):
+                    a10, w10 = a[i1, 2 * j], 1.0
+                if j1 < wd and np.isfinite(a[i1, j1]):
+                    a11, w11 = a[i1, j1], 1.0
+            n = (w00 + w01) + (w10 + w11)
+            if n > 0:
+                vs[i, j] = ((a00 + a01) + (a10 + a11)) / max(n, 1e-12)
+                ws[i, j] = 1.0
+            else:
+                vs[i, j] = 0.0
+                ws[i, j] = 0.0
+    return vs, ws
+
+
+@numba.njit(cache=True, nogil=True)
+def _push_finite(coarse, a):
+    """The last level of ``fill_nodata``: ``a`` where finite, else its parent's value."""
+    h, wd = a.shape
+    out = np.empty((h, wd))
+    for i in range(h):
+        for j in range(wd):
+            out[i, j] = a[i, j] if np.isfinite(a[i, j]) else coarse[i // 2, j // 2]
+    return out
+
+
 def fill_nodata(a: np.ndarray) -> np.ndarray:
     """Fill NaN cells by pull-push (pyramid averaging, then coarse-to-fine fill); smooth and O(n)."""
     a = np.asarray(a, float)
     valid = np.isfinite(a)
     if valid.all() or not valid.any():
         return a.copy()
+    if min(a.shape) > 1:
+        # the first level and the last push straight from ``a`` (two fewer full-size float64 arrays): the
+        # loop below's results, bit for bit
+        a = np.ascontiguousarray(a)
+        levels = [_pull_finite(a)]
+        while True:
+            v, w = levels[-1]
+            if (w > 0).all() or min(v.shape) == 1:
+                break
+            levels.append(_pull(v, w))
+        filled, w = levels[-1]
+        if not (w > 0).all():
+            filled = np.where(w > 0, filled, np.sum(filled * w) / w.sum())
+        for v, w in reversed(levels[:-1]):
+            filled = _push(filled, v, w)
+        return _push_finite(filled, a)
     levels = [(np.where(valid, a, 0.0), valid.astype(float))]
     while True:
         v, w = levels[-1]
@@ -276,6 +336,47 @@ def _fill_triangles(filled, gaps, pts, z, simplices, max_radius_px, row0, col0):
             break
 
 
+@numba.njit(cache=True, nogil=True)
+def _rim_cells(gaps, r_lo, r_hi, c_lo, c_hi):
+    """(rows, cols) in row-major order of the cells of rows r_lo..r_hi, cols c_lo..c_hi that are not gaps
+    and have a gap within 2 cells (a 5 x 5 square; outside the array is no gap): ``np.nonzero`` of
+    ``~gaps & ndimage.maximum_filter(gaps, size=5, mode="constant", cval=False)`` in that window."""
+    nrows, ncols = gaps.shape
+    g0 = max(r_lo - 2, 0)
+    g1 = min(r_hi + 2, nrows)
+    near = np.zeros((g1 - g0, c_hi - c_lo), np.bool_)      # a gap within 2 columns
+    for i in range(g0, g1):
+        last = -3                                           # the last gap column seen
+        for j in range(max(c_lo - 2, 0), min(c_hi + 2, ncols)):
+            if gaps[i, j]:
+                last = j
+                for jj in range(max(j - 2, c_lo), min(j, c_hi)):
+                    near[i - g0, jj - c_lo] = True
+            if c_lo <= j < c_hi and j - last <= 2:
+                near[i - g0, j - c_lo] = True
+    n = 0
+    for i in range(r_lo, r_hi):
+        for j in range(c_lo, c_hi):
+            if not gaps[i, j]:
+                for ii in range(max(i - 2, g0), min(i + 3, g1)):
+                    if near[ii - g0, j - c_lo]:
+                        n += 1
+                        break
+    out_r = np.empty(n, np.int64)
+    out_c = np.empty(n, np.int64)
+    n = 0
+    for i in range(r_lo, r_hi):
+        for j in range(c_lo, c_hi):
+            if not gaps[i, j]:
+                for ii in range(max(i - 2, g0), min(i + 3, g1)):
+                    if near[ii - g0, j - c_lo]:
+                        out_r[n] = i
+                        out_c[n] = j
+                        n += 1
+                        break
+    return out_r, out_c
+
+
 def fill_nodata_tin(a: np.ndarray, max_radius_px: float = DEFAULT_TIN_FILL_RADIUS_PX,
                     offset: tuple[int, int] = (0, 0), needed=None) -> np.ndarray:
     """Fill NaN cells by linear interpolation in the Delaunay TIN of the valid cells around the gaps
@@ -297,14 +398,12 @@ def fill_nodata_tin(a: np.ndarray, max_radius_px: float = DEFAULT_TIN_FILL_RADIU
     if valid.all() or not valid.any():
         return filled
     gaps = ~valid
-    # the vertices of a gap's triangles are the valid cells at its rim
-    rim = valid & ndimage.maximum_filter(gaps, size=5, mode="constant", cval=False)   # 3 x 3, twice
+    # the vertices of a gap's triangles are the valid cells at its rim: within 2 cells (a 5 x 5 square) of a gap
+    rows, cols = slice(0, a.shape[0]), slice(0, a.shape[1])
     if needed is not None:
         m = int(np.ceil(2 * max_radius_px)) + 3
-        keep = np.zeros_like(rim)
-        keep[max(needed[0].start - m, 0):needed[0].stop + m, max(needed[1].start - m, 0):needed[1].stop + m] = True
-        rim &= keep
-    vr, vc = np.nonzero(rim)
+        rows, cols = (slice(max(s.start - m, 0), min(s.stop + m, n)) for s, n in zip(needed, a.shape))
+    vr, vc = _rim_cells(gaps, rows.start, rows.stop, cols.start, cols.stop)
     if len(vr) < 3:
         return filled
     gr, gc = vr + offset[0], vc + offset[1]

@@ -71,3 +71,41 @@ def test_tin_fill_reproduces_a_plane_and_a_window_equals_the_whole():
     m = 2 * r + 2
     w = fill_nodata_tin(a[10:110, 20:140], max_radius_px=r, offset=(10, 20))
     np.testing.assert_array_equal(w[m:-m, m:-m], fill_nodata_tin(a, max_radius_px=r)[10 + m:110 - m, 20 + m:140 - m])
+
+
+@pytest.mark.parametrize("shape, share", [((61, 47), 0.3), ((40, 40), 0.97), ((3, 90), 0.5), ((90, 3), 0.05),
+                                          ((1, 9), 0.5), ((2, 2), 0.5)])
+def test_rim_cells_are_the_valid_cells_within_two_of_a_gap(shape, share):
+    # the numba scan equals the array version it replaced (a 5 x 5 maximum filter), whole array and windows
+    rng = np.random.default_rng(sum(shape))
+    gaps = rng.random(shape) < share
+    rim = ~gaps & ndimage.maximum_filter(gaps, size=5, mode="constant", cval=False)
+    (r0, r1), (c0, c1) = (sorted(rng.integers(0, n + 1, 2)) for n in shape)
+    windows = [(0, shape[0], 0, shape[1]), (r0, r1, c0, c1), (min(1, shape[0]), shape[0], min(2, shape[1]), shape[1]),
+               (0, 1, 0, shape[1])]
+    for r_lo, r_hi, c_lo, c_hi in windows:
+        keep = np.zeros(shape, bool)
+        keep[r_lo:r_hi, c_lo:c_hi] = True
+        vr, vc = raster_ops._rim_cells(gaps, r_lo, r_hi, c_lo, c_hi)
+        er, ec = np.nonzero(rim & keep)
+        np.testing.assert_array_equal(vr, er)
+        np.testing.assert_array_equal(vc, ec)
+
+
+def test_pull_push_from_the_raster_equals_the_general_loop():
+    # the first pull and the last push straight from the raster (NaN and inf as gaps) are the loop's, bit for bit
+    rng = np.random.default_rng(5)
+    for shape in [(97, 131), (2, 2), (3, 200), (200, 3), (2, 5)]:
+        for share in (0.2, 0.9, 0.999):
+            a = rng.normal(300, 30, shape)
+            a[rng.random(shape) < share] = np.nan
+            a[0, 0] = np.inf
+            if np.isfinite(a).any():
+                valid = np.isfinite(a)
+                vs, ws = raster_ops._pull(np.where(valid, a, 0.0), valid.astype(float))
+                vf, wf = raster_ops._pull_finite(a)
+                np.testing.assert_array_equal(vs, vf)
+                np.testing.assert_array_equal(ws, wf)
+                coarse = rng.normal(size=vs.shape)
+                np.testing.assert_array_equal(raster_ops._push(coarse, np.where(valid, a, 0.0), valid.astype(float)),
+                                              raster_ops._push_finite(coarse, a))
