@@ -81,6 +81,20 @@ def make_block(out: Path, frames: int, *, points_per_image: int = POINTS_PER_IMA
     return info
 
 
+def _block_summary(root: Path) -> dict:
+    """The block's summary: block.json of ``make``, else (a block of ``aerotri sim --observations-only``) the counts
+    of its truth/truth.json."""
+    if (root / "block.json").exists():
+        return json.loads((root / "block.json").read_text())
+    truth_path = root / "truth" / "truth.json"
+    if not truth_path.exists():
+        sys.exit(f"{root}: neither block.json (bench/adjust_scale.py make) nor truth/truth.json (aerotri sim)")
+    t = json.loads(truth_path.read_text())
+    return {"frames": t["frames"], "strips": t.get("strips"), "frames_per_strip": t.get("frames_per_strip"),
+            "tie_points": t.get("tie_points"), "image_observations": t.get("tie_observations"), "seed": t.get("seed"),
+            "made_by": f"aerotri sim --preset {t.get('preset')} --observations-only"}
+
+
 def _time_v(stderr: str) -> dict:
     """Wall, CPU (user + system) and peak RSS from ``/usr/bin/time -v``, and the minor page faults."""
     def field(name):
@@ -209,7 +223,7 @@ def main(argv=None):
                 make_block(root, size)
             todo.append(root)
     for root in todo:
-        block = json.loads((root / "block.json").read_text())
+        block = _block_summary(root)
         res = run_adjust(root, a.pythonpath, getattr(a, "log", None))
         res["truth"] = check_truth(root)
         res["block"] = block
