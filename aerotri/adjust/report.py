@@ -774,8 +774,9 @@ def format_txt(rep: dict) -> str:
     if k.get("sigma0_note"):
         L.append(f"  Note: {k['sigma0_note']}")
     if o.get("image_sigma_apriori_px") not in (None, o["image_sigma_px"]):
-        L.append(f"  Image sigma: {o['image_sigma_px']:.3f} px from the residuals of the robust rounds (a priori "
-                 f"{o['image_sigma_apriori_px']:g} px), used in the final solve")
+        # estimated from the robust rounds' residuals or reweighted by variance components: the line says neither
+        L.append(f"  Image sigma of the final solve: {o['image_sigma_px']:.3f} px (a priori "
+                 f"{o['image_sigma_apriori_px']:g} px)")
     L += [f"  Number of iterations: {k['iterations']}",
           f"  Degrees of Freedom: {k['degrees_of_freedom']}", f"  {k['message']}"]
     behind = (k.get("points_behind_camera") or {}).get("messages")
