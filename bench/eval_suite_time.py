@@ -108,7 +108,8 @@ def main() -> int:
     tmp = out.with_suffix(".tmp")
     tmp.write_text(json.dumps(doc, indent=1) + "\n")
     tmp.replace(out)
-    print(f"{table['kernels']} kernels, {table['signatures']} signatures, {table['compile_cpu_s']} CPU-s of compilation")
+    print(f"{table['kernels']} kernels, {table['signatures']} signatures, "
+          f"{table['compile_cpu_s']} CPU-s of compilation")
     for r in table["per_signature"][:25]:
         print(f"{r['exclusive_cpu_s']:8.2f} {r['kernel']} {r['signature'][:80]}")
     return 0
