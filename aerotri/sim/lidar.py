@@ -57,7 +57,7 @@ def _pulses(origins, dirs, S, *, u, p_first, p_interior, p_ground):
     for r in numba.prange(n):
         o = origins[r]
         d = dirs[r]
-        t, kind, obj, nx, ny, nz = raycast.cast(o, d, S, True, -1)
+        t, kind, obj, nx, ny, nz = raycast.cast(o, d, S, numba.boolean(True), numba.int64(-1))
         if kind == KIND_NONE:
             continue
         if kind != KIND_TREE:
@@ -93,7 +93,7 @@ def _pulses(origins, dirs, S, *, u, p_first, p_interior, p_ground):
                     O[r, k] = obj
                     k += 1
         if k == 0 or u[r, 2] < p_ground:
-            tg, kg, og, nx, ny, nz = raycast.cast(o, d, S, False, -1)
+            tg, kg, og, nx, ny, nz = raycast.cast(o, d, S, numba.boolean(False), numba.int64(-1))
             if kg != KIND_NONE and (k == 0 or tg - T[r, k - 1] > 1.5):
                 T[r, k] = tg
                 K[r, k] = kg

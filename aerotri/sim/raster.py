@@ -48,6 +48,7 @@ from aerotri.sim.earth import FrameEarth, to_camera_nb, to_map_nb
 from aerotri.sim.scene import KIND_NONE, KIND_TERRAIN, KIND_TREE, Scene
 
 BAND_ROWS = 32
+NARROW_ROWS = 512  # rows rendered at a time into the uint16 buffer of an 8-bit frame (FrameRenderer.render_rows)
 GRID_STEP_PX = 16
 # A terrain cell's edges curve under the lens distortion by ~1e-5 px over the cell (they are straight in
 # normalised coordinates); its vertices' pixel box grown by this margin holds every pixel centre it covers.
@@ -721,17 +722,27 @@ class FrameRenderer:
         out = np.empty((r1 - r0, cam.width, self.bands), self.dtype)
         ids = np.empty((r1 - r0, cam.width) if with_ids else (1, 1), np.int64)
         L = self.look
-        _render_bands(r0 // br, (r1 + br - 1) // br, r0, W=cam.width, H=cam.height, band_rows=br, step=float(self.step),
-                      XN=self.XN, YN=self.YN, C=frame.C, A_inv=frame.earth.A_inv, quad=frame.earth.q,
-                      curved=bool(frame.earth.q.any()), V=frame.V, ti0=frame.ti0, tj0=frame.tj0,
-                      cell_start=frame.cell_start, cell_list=frame.cell_list, cell_box=frame.cell_box, TV=frame.TV,
-                      tri_ids=frame.tri_ids, tri_start=frame.tri_start, tri_list=frame.tri_list, tri_box=frame.tri_box,
-                      tree_ids=frame.tree_ids, tree_start=frame.tree_start, tree_list=frame.tree_list,
-                      tree_box=frame.tree_box, tree_G=frame.tree_G, tree_s=frame.tree_s, hz=L.hz, res=L.res, tn=L.tn,
-                      tkind=L.tkind, tobj=L.tobj, tc=L.tc, ta=L.ta, G=L.G, roof_albedo=L.roof_albedo, fine_m=L.fine_m,
-                      sun=L.sun, gain=float(gain), vignetting=float(vignetting), noise_dn=float(noise_dn),
-                      noise_seed=np.uint32(noise_seed & 0xFFFFFFFF), bits=self.bits, lut=self.lut, out=out, ids_out=ids,
-                      want_ids=with_ids)
+        # The kernel always writes uint16 samples: one compiled signature for 8- and 12-bit frames (each one costs
+        # about 22 CPU-s to compile, docs/testing.md). 8-bit samples (0..255) are rendered by chunks of rows into a
+        # uint16 buffer and narrowed, so the extra memory stays one chunk.
+        chunk = r1 - r0 if self.dtype == np.uint16 else br * max(1, NARROW_ROWS // br)
+        for a in range(r0, r1, max(chunk, 1)):
+            b = min(r1, a + chunk)
+            buf = out[a - r0:b - r0] if self.dtype == np.uint16 else np.empty((b - a, cam.width, self.bands), np.uint16)
+            _render_bands(a // br, (b + br - 1) // br, a, W=cam.width, H=cam.height, band_rows=br, step=float(self.step),
+                          XN=self.XN, YN=self.YN, C=frame.C, A_inv=frame.earth.A_inv, quad=frame.earth.q,
+                          curved=bool(frame.earth.q.any()), V=frame.V, ti0=frame.ti0, tj0=frame.tj0,
+                          cell_start=frame.cell_start, cell_list=frame.cell_list, cell_box=frame.cell_box, TV=frame.TV,
+                          tri_ids=frame.tri_ids, tri_start=frame.tri_start, tri_list=frame.tri_list,
+                          tri_box=frame.tri_box, tree_ids=frame.tree_ids, tree_start=frame.tree_start,
+                          tree_list=frame.tree_list, tree_box=frame.tree_box, tree_G=frame.tree_G, tree_s=frame.tree_s,
+                          hz=L.hz, res=L.res, tn=L.tn, tkind=L.tkind, tobj=L.tobj, tc=L.tc, ta=L.ta, G=L.G,
+                          roof_albedo=L.roof_albedo, fine_m=L.fine_m, sun=L.sun, gain=float(gain),
+                          vignetting=float(vignetting), noise_dn=float(noise_dn),
+                          noise_seed=np.uint32(noise_seed & 0xFFFFFFFF), bits=self.bits, lut=self.lut, out=buf,
+                          ids_out=ids[a - r0:b - r0] if with_ids else ids, want_ids=with_ids)
+            if buf.dtype != out.dtype:
+                out[a - r0:b - r0] = buf
         return out, (ids if with_ids else None)
 
     def render(self, centre_m, R, **kw):

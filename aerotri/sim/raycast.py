@@ -228,7 +228,9 @@ def cast(o, d, S, use_trees, skip_tree):
 
     Returns (t, kind, obj, nx, ny, nz); kind KIND_NONE and t = inf when nothing is hit. ``skip_tree``
     ignores one crown (index) so that a LiDAR pulse can continue through it. The ray walks the coarse
-    cells (2D DDA) and tests those where it is below the cell's highest point.
+    cells (2D DDA) and tests those where it is below the cell's highest point. Jitted callers pass
+    ``numba.boolean(...)`` and ``numba.int64(...)``, not constants: numba compiles a callee once per literal
+    constant, and each compilation of this one costs about 4 CPU-s (docs/testing.md).
     """
     (hz, res, k, cs, ncx, ncy, zmax, start, items, tv, tn, tkind, tobj, tc, ta, zlo, zhi) = S
     ox, oy, oz = o[0], o[1], o[2]
@@ -449,7 +451,7 @@ def render_rays(origins, dirs, S, *, roads, ponds, targets, roof_albedo, seed, s
     single = origins.shape[0] == 1
     for r in numba.prange(n):
         origin = origins[0] if single else origins[r]
-        t, kind, obj, nx, ny, nz = cast(origin, dirs[r], S, True, -1)
+        t, kind, obj, nx, ny, nz = cast(origin, dirs[r], S, numba.boolean(True), numba.int64(-1))
         if kind == KIND_NONE:
             out[r, 0], out[r, 1], out[r, 2] = 0.55, 0.65, 0.8
             ids[r] = 0
@@ -478,7 +480,7 @@ def cast_many(origins, dirs, S, use_trees):
     obj_out = np.empty(n, np.int64)
     nz_out = np.empty(n)
     for r in numba.prange(n):
-        t, kind, obj, nx, ny, nz = cast(origins[r], dirs[r], S, use_trees, -1)
+        t, kind, obj, nx, ny, nz = cast(origins[r], dirs[r], S, use_trees, numba.int64(-1))
         t_out[r] = t
         kind_out[r] = kind
         obj_out[r] = obj

@@ -49,6 +49,20 @@ def test_rasteriser_shows_what_the_ray_caster_hits(tiny_truth):
     assert differ <= 1e-4 * total, differ
 
 
+def test_8_bit_rows_rendered_by_chunks_are_the_rows_of_one_call(tiny_truth, monkeypatch):
+    """The kernel writes uint16 samples for 8- and 12-bit frames (one compiled signature); 8-bit rows go through a
+    uint16 buffer by chunks of ``NARROW_ROWS``: chunks of one band (32 rows) give the samples and surface ids of
+    the whole frame rendered at once."""
+    t = tiny_truth
+    renderer = raster.FrameRenderer(t["scene"], t["cam"], 0.96, samples=1, bits=8)
+    C, R = t["eo"].centre_m[0] - t["origin"], t["eo"].rotation(0)
+    whole, ids = renderer.render(C, R, with_ids=True, noise_dn=2.0, noise_seed=7)
+    monkeypatch.setattr(raster, "NARROW_ROWS", raster.BAND_ROWS)
+    chunked, ids_chunked = renderer.render(C, R, with_ids=True, noise_dn=2.0, noise_seed=7)
+    assert whole.dtype == np.uint8 and whole.shape == (240, 432, 3) and whole.max() > 200
+    assert np.array_equal(whole, chunked) and np.array_equal(ids, ids_chunked)
+
+
 def test_roof_corners_with_their_relief_displacement(tiny_truth):
     """Flat-roof corners at their projected (relief-displaced) positions: 1 px inside the corner the rendered
     frame shows that roof, 1.5 px outside it does not; the displacement from the ground point under the corner
