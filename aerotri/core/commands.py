@@ -253,6 +253,8 @@ _GDAL_FAULTS = (("No space left on device", errno.ENOSPC), ("Free disk space ava
                 ("Permission denied", errno.EACCES), ("No such file or directory", errno.ENOENT),
                 ("File too large", errno.EFBIG), ("database or disk is full", errno.ENOSPC),
                 (" requested and ", SHORT_WRITE),
+                # numpy's tofile of more than 16 MB reserves the space first (posix_fallocate) and says this
+                ("Not enough free space to write", errno.ENOSPC),
                 # rasterio's write of a window whose GDAL error was not chained (a full disk under a 1 GP mosaic)
                 ("Write failed. See previous exception", SHORT_WRITE))
 

@@ -89,6 +89,8 @@ class Executor:
 
     def describe(self) -> str:
         if self._client is not None:
+            if str(self.scheduler).startswith("local:"):  # LocalCluster: processes of one thread each
+                return f"dask distributed ({self.scheduler}: {self.workers} worker processes of 1 thread)"
             return f"dask distributed ({self.scheduler}, {self.workers} worker threads)"
         if self.scheduler == "synchronous":
             return "dask synchronous"

@@ -276,3 +276,24 @@ def test_a_shed_below_the_outliner_is_on_the_map():
     assert len(k) == 1 and rows[k[0]]["roof"] == "cells"
     assert rows[k[0]]["area_m2"] == pytest.approx(shed.area, rel=0.5)
     assert rows[k[0]]["height_m"] == pytest.approx(2.4, abs=0.2)
+
+
+def test_line_overlap_window_by_window_equals_the_whole_layer_at_once():
+    """The line overlap computed in windows (memory follows the window) equals the union-and-buffer of the whole
+    layers, with lines crossing many windows, lines drawn twice and a product missing part of the reference."""
+    rng = np.random.default_rng(5)
+    ref = [shapely.LineString(np.cumsum(rng.normal(0, 3, (40, 2)), axis=0) + rng.uniform(0, 300, 2)) for _ in range(60)]
+    prod = [shapely.LineString(np.asarray(g.coords) + rng.normal(0, 0.8, (40, 2))) for g in ref[:45]]
+    prod += [ref[0], ref[0]]  # drawn twice: counted once
+    whole_r, whole_p = shapely.union_all(ref), shapely.union_all(prod)
+    want_c = 100 * whole_r.intersection(whole_p.buffer(1.5)).length / whole_r.length
+    want_k = 100 * whole_p.intersection(whole_r.buffer(1.5)).length / whole_p.length
+    for window in (None, 17.0, 1000.0):
+        got = vc.buffer_overlap(prod, ref, 1.5, window=window)
+        assert got.reference_size == pytest.approx(whole_r.length, rel=1e-9)
+        assert got.product_size == pytest.approx(whole_p.length, rel=1e-9)
+        assert got.completeness_pct == pytest.approx(want_c, rel=1e-9)
+        assert got.correctness_pct == pytest.approx(want_k, rel=1e-9)
+    assert 50 < want_c < 95 and want_k > 90  # the case is not trivial
+    assert vc.buffer_overlap([], ref, 1.5).completeness_pct == 0.0
+    assert vc.buffer_overlap(prod, [], 1.5).completeness_pct is None

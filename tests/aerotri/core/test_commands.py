@@ -50,3 +50,14 @@ def test_unchained_gdal_write_failure_is_a_one_line_disk_error():
     msg = fault_message(exc, "ortho mosaic", "P/ortho/mosaic.tif")
     assert msg.startswith("P/ortho/mosaic.tif: a write was cut short") and "outputs are as they were" in msg
     assert fault_message(ValueError("Write failed. See previous exception"), "ortho mosaic") is None
+
+
+def test_numpy_reservation_failure_is_a_one_line_disk_error():
+    """numpy's tofile of a large array reserves the space first; on a full disk it raises an OSError without an
+    errno (seen in the corners stage of the 120-frame DMC block): a disk-full message, not a traceback."""
+    from aerotri.core.commands import fault_message
+
+    exc = OSError("Not enough free space to write 25695486 bytes after offset 17698158")
+    msg = fault_message(exc, "stage corners", "P/lidar_out/corners.csv")
+    assert msg.startswith("P/lidar_out/corners.csv: no space left on device; stage corners stopped")
+    assert fault_message(OSError("something else entirely"), "stage corners") is None
