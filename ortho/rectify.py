@@ -166,9 +166,9 @@ def fixed_point_maps(geometry: FrameGeometry, dem: HeightRaster, grid: OrthoGrid
 # crosses it in one jump): the fine blocks keep the bound tight between buildings, the coarse ones let a ray
 # that has risen above the roofs around it leave in a few jumps
 MARCH_BLOCK_CELLS = (16, 128)
-# the march's DSM columns lose their convex corners along the line between the midpoints of the two exposed sides
-# (``_column_hit``): a wall at an angle to the DSM grid is then no staircase that masks the ground beside it
-CORNER_CUT = 0.0
+# the march tests a point from the top of its own DSM column where its bilinear height lies more than this above it
+# (a ground point within half a cell of a wall, part way up the wall's bilinear ramp: from there the ray passes
+# over the roof that hides the ground)
 OWN_COLUMN_M = 1.0
 CELL_FACTOR = 1.25
 
@@ -196,8 +196,7 @@ def march_bound(dsm: HeightRaster, blocks: tuple[int, int] = MARCH_BLOCK_CELLS) 
 
 def occlusion_mask(geometry: FrameGeometry, dsm: HeightRaster, grid: OrthoGrid, heights_m: np.ndarray, anchors,
                    tolerance_m: float = 0.3, candidates: np.ndarray | None = None,
-                   bound: MarchBound | None = None, near_share: np.ndarray | None = None,
-                   corner_cut: float | None = None) -> np.ndarray:
+                   bound: MarchBound | None = None, near_share: np.ndarray | None = None) -> np.ndarray:
     """True where the ground point (grid pixel at ``heights_m``) is hidden from the camera by the DSM (a march
     along its ray; only where ``candidates``, e.g. the points the z-buffer puts behind a nearer surface).
     ``near_share`` (``zbuffer_occlusion_from_maps``): where the march looks first; the result is the same."""
@@ -210,7 +209,7 @@ def occlusion_mask(geometry: FrameGeometry, dsm: HeightRaster, grid: OrthoGrid, 
                       dsm.x_left_m, dsm.y_top_m, dsm.res_m, bound.max_m, np.asarray(geometry.centre_m, np.float64),
                       float(tolerance_m), occ, np.ones(occ.shape, np.bool_) if candidates is None else candidates,
                       bound.block_max_m, bound.block, bound.coarse_max_m, bound.coarse,
-                      np.zeros((1, 1), np.float32) if near_share is None else near_share, float(CORNER_CUT if corner_cut is None else corner_cut), float(OWN_COLUMN_M))
+                      np.zeros((1, 1), np.float32) if near_share is None else near_share, float(OWN_COLUMN_M))
     return occ
 
 
