@@ -166,6 +166,10 @@ def fixed_point_maps(geometry: FrameGeometry, dem: HeightRaster, grid: OrthoGrid
 # crosses it in one jump): the fine blocks keep the bound tight between buildings, the coarse ones let a ray
 # that has risen above the roofs around it leave in a few jumps
 MARCH_BLOCK_CELLS = (16, 128)
+# the march tests a point from the top of its own DSM column where its bilinear height lies more than this above it
+# (a ground point within half a cell of a wall, part way up the wall's bilinear ramp: from there the ray passes
+# over the roof that hides the ground)
+OWN_COLUMN_M = 1.0
 CELL_FACTOR = 1.25
 
 
@@ -205,7 +209,7 @@ def occlusion_mask(geometry: FrameGeometry, dsm: HeightRaster, grid: OrthoGrid, 
                       dsm.x_left_m, dsm.y_top_m, dsm.res_m, bound.max_m, np.asarray(geometry.centre_m, np.float64),
                       float(tolerance_m), occ, np.ones(occ.shape, np.bool_) if candidates is None else candidates,
                       bound.block_max_m, bound.block, bound.coarse_max_m, bound.coarse,
-                      np.zeros((1, 1), np.float32) if near_share is None else near_share)
+                      np.zeros((1, 1), np.float32) if near_share is None else near_share, float(OWN_COLUMN_M))
     return occ
 
 

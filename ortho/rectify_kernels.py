@@ -190,7 +190,7 @@ def _boundary_in(g, e, k):
 @numba.njit(cache=True, nogil=True)
 def _occlusion_kernel(anchor_x, anchor_y, spacing, rows, cols, height_tile, dsm, dsm_x0, dsm_y0, dsm_res,
                       dsm_max, centre, tolerance_m, occluded, candidates, block_max, block, coarse_max, coarse,
-                      near_share):
+                      near_share, own_column_m):
     """Mark ground points whose ray to the projection centre passes below the DSM surface.
 
     The DSM is taken as columns: each cell a flat top at its height over its whole square (the edge of a roof
@@ -201,7 +201,11 @@ def _occlusion_kernel(anchor_x, anchor_y, spacing, rows, cols, height_tile, dsm,
     DSM height or leaves the DSM. (A march in steps of one cell over the bilinear surface missed the corner of a
     roof whenever the ray passed under it for less than a step, and rounded the corner off by half a cell: the
     ground just inside the edge of a hidden area was left visible, 9 % of the hidden ground of the tall block.)
-    Only the points where ``candidates`` is True are walked (the others are left as they are).
+    Only the points where ``candidates`` is True are walked (the others are left as they are). A point whose height
+    (``height_tile``, the bilinear DSM) lies more than ``own_column_m`` (>= 0; negative: never) above the top of its
+    own column is walked from that top: within half a cell of a wall the bilinear DSM puts the ground part way up
+    the wall, and the ray from there passed over the roof that hides the ground (on the synthetic block's exact
+    boxes, 4.5 % of the ground hidden in the nadir-most frame and seen by another came from such a frame).
     ``block_max`` (``_block_max`` of the DSM by ``block`` cells) and ``coarse_max`` (by ``coarse`` cells): where
     the ray is above the highest height of the current block plus the tolerance, no cell in that block can occlude
     (the ray rises), so the walk jumps to where the ray leaves the block (the coarse block first); the cells
@@ -243,9 +247,17 @@ def _occlusion_kernel(anchor_x, anchor_y, spacing, rows, cols, height_tile, dsm,
             gy = math.floor((dsm_y0 - Y) * inv_res * 1024.0 + 0.5) * (1.0 / 1024.0)
             ex = vx / hd
             ey = -vy / hd
-            rise = vz / hd * dsm_res  # metres of ray height per cell horizontally
             j_own = int(math.floor(gx))
             i_own = int(math.floor(gy))
+            if own_column_m >= 0.0 and i_own >= 0 and j_own >= 0 and i_own < dh and j_own < dw:
+                # the point at the top of its own column where the bilinear height lies more than own_column_m above
+                # it: a ground point within half a cell of a wall is part way up the wall there, and a ray from there
+                # passes over the roof that hides the ground (smaller steps, the DSM's noise and roof slopes, kept)
+                zo = dsm[i_own, j_own]
+                if zo < Z - own_column_m:
+                    Z = zo
+                    vz = centre[2] - Z
+            rise = vz / hd * dsm_res  # metres of ray height per cell horizontally
             if hinted and near_share[r, c] > 0.0:
                 # the ray's depth falls linearly to 0 at the centre: it reaches the near surface's depth after a
                 # horizontal distance hd * (1 - share); the cells at half-cell steps around there
