@@ -1,10 +1,11 @@
-"""Whether two runs of ``ortho mosaic`` (e.g. main's code and a branch's, each on its own copy of the same project) wrote
-the same outputs: sha256 of mosaic.tif, seams.tif, seamlines.geojson and seamlines_preview.png; seamlines.gpkg by
+"""Whether two runs of ``ortho mosaic`` (e.g. main's code and a branch's, each on its own copy of the same project)
+wrote the same outputs: sha256 of mosaic.tif, seams.tif, seamlines.geojson and seamlines_preview.png; seamlines.gpkg by
 content (its layer's CRS, fields, geometries as WKB and attribute values: the file's bytes hold the time it was
 written); mosaic.json but its ``path`` and the nDSM path under ``settings`` (the projects' folders differ).
 
-Usage: python bench/eval_mosaic_outputs.py PROJECT_A PROJECT_B [--out FILE --label KEY]
-(with --out the result goes under KEY, default "same_outputs", of that JSON file's "i41_mosaic5" entry or the top level)
+Usage: python bench/eval_mosaic_outputs.py PROJECT_A PROJECT_B [--out FILE] [--entry KEY] [--label KEY]
+(with --out the result goes under ``--label`` (default "same_outputs") of the ``--entry`` key (default "i41_mosaic5") of
+that JSON file, whose other keys are kept); exit code 1 when any output differs.
 """
 
 from __future__ import annotations
@@ -48,7 +49,8 @@ def compare(a: Path, b: Path) -> dict:
         ha, hb = sha256(oa / name), sha256(ob / name)
         out[name] = {"same_bytes": ha == hb, "sha256_a": ha, "sha256_b": hb}
     out["seamlines.gpkg"] = {"same_content": gpkg_content_equal(oa / "seamlines.gpkg", ob / "seamlines.gpkg")}
-    out["mosaic.json"] = {"same_but_paths": summary_without_paths(oa / "mosaic.json") == summary_without_paths(ob / "mosaic.json")}
+    same_summary = summary_without_paths(oa / "mosaic.json") == summary_without_paths(ob / "mosaic.json")
+    out["mosaic.json"] = {"same_but_paths": same_summary}
     out["all_same"] = all(v.get("same_bytes", v.get("same_content", v.get("same_but_paths"))) for v in out.values())
     return out
 
