@@ -80,8 +80,8 @@ from ortho.grid import OrthoGrid
 from ortho.settings import MosaicSettings
 from ortho.seamlines_gpkg import write_seamlines_gpkg
 from ortho.seamlines_preview import write_seamlines_preview
-from ortho.seamlines import (footprint, keep_objects_whole, label_polygons, least_cost_seams, neighbour_pairs,
-                             seam_lines, voronoi_labels)
+from ortho.seamlines import (footprint, frame_regions, keep_objects_whole, label_polygons, least_cost_seams,
+                             neighbour_pairs, seam_lines, voronoi_labels)
 
 logger = logging.getLogger(__name__)
 
@@ -607,7 +607,7 @@ class _PhaseTimer:
 
 
 def _import_vector_modules() -> None:
-    """Import what the seamline writers import (``_write_seamlines``, ``write_seamlines_gpkg``), in this thread."""
+    """Import what the seamline writer imports (``_write_seamlines``, ``write_seamlines_gpkg``), in this thread."""
     import pyogrio  # noqa: F401
     import pyogrio.raw  # noqa: F401
     import shapely  # noqa: F401
@@ -684,15 +684,13 @@ def _mosaic_outputs(work: Path, root: Path, index, frames_dir, red, labels, gain
     out_dir = root / "ortho"
     _write_labels(work / "seams.tif", labels, red.transform, crs)
     # the seamlines' polygons and lines on a thread while the tiles are blended and written
-    with _background(_write_seamlines, work / "seamlines.geojson", labels, red.transform, red.names, crs) as vectors, \
-            _background(write_seamlines_gpkg, work / "seamlines.gpkg", labels, red.transform, red.names, crs) as gpkg:
+    with _background(_write_seamlines, work, labels, red.transform, red.names, crs) as vectors:
         tiles = _write_mosaic(work / "mosaic.tif", frames_dir, index, mosaic, work / "seams.tif", factor, gains, nadir,
                               feather_px, tile_px, executor=executor, labels=labels, previous=previous,
                               decoded=red.decoded, holes=frame_holes(red))
         # the seamlines over the DOM, reduced to at most 2000 px, for a look before opening the GeoPackage
         write_seamlines_preview(work / "seamlines_preview.png", work / "mosaic.tif", labels, factor)
         vectors()
-        gpkg()
     summary = {"path": str(out_dir / "mosaic.tif"), "width": mosaic.width, "height": mosaic.height,
                "frames": len(red.names), "res_m": res, "seam_factor": factor, "seams": seams, "feather_px": feather_px,
                "index_sha1": index_sha1(root),
@@ -729,18 +727,21 @@ def _interior_nodata(path: Path, res_m: float, max_cells: float = 4e6) -> dict:
             "area_seen_by_no_frame_m2": round(holes * sx * sy * res_m * res_m, 1)}
 
 
-def _write_seamlines(path: Path, labels, transform, names, crs) -> None:
-    """seamlines.geojson: one polygon per frame (``frame_region``) and the seam lines between neighbours."""
-    features = label_polygons(labels, transform, names)
+def _write_seamlines(work: Path, labels, transform, names, crs) -> None:
+    """seamlines.gpkg (``write_seamlines_gpkg``) and seamlines.geojson (one polygon per frame, ``frame_region``, and
+    the seam lines between neighbours) in ``work``, from one polygonisation of the labels."""
+    regions = frame_regions(labels, transform)
+    features = label_polygons(labels, transform, names, regions)
+    write_seamlines_gpkg(work / "seamlines.gpkg", labels, transform, names, crs, features)
     for f in features:
         f["properties"]["kind"] = "frame_region"
-    lines = seam_lines(labels, transform, names)
+    lines = seam_lines(labels, transform, names, regions)
     for f in lines:
         f["properties"]["kind"] = "seamline"
     geo = {"type": "FeatureCollection", "name": "seamlines", "crs_wkt": crs.to_wkt(),
            "crs": {"type": "name", "properties": {"name": f"urn:ogc:def:crs:EPSG::{crs.to_epsg()}"}} if crs.to_epsg() else None,
            "features": features + lines}
-    write_text_atomic(path, json.dumps(geo) + "\n")
+    write_text_atomic(work / "seamlines.geojson", json.dumps(geo) + "\n")
 
 
 def index_sha1(root) -> str:

@@ -106,13 +106,19 @@ def _grid_graph(cost: np.ndarray, nodes: np.ndarray):
     W = w + 2
     flat_idx, flat_cost = idx.ravel(), cpad.ravel()
     here = np.flatnonzero(np.pad(nodes, 1))  # the nodes' positions in the framed grid, in node order
-    nbr = np.empty((n, 8), np.int32)
-    wts = np.empty((n, 8), np.float64)
+    # one contiguous row per neighbour slot (writing the columns of an (n, 8) array took twice as long), read
+    # node by node through the transpose: the same arrays as before
+    nbr = np.empty((8, n), np.int32)
+    wts = np.empty((8, n), np.float64)
     c_here = flat_cost[here]
+    there = np.empty(n, here.dtype)
     for k, (dr, dc) in enumerate(_NEIGHBOURS):
-        there = here + (dr * W + dc)
-        np.take(flat_idx, there, out=nbr[:, k])
-        wts[:, k] = (c_here + np.take(flat_cost, there)) * (0.5 * (2 ** 0.5 if dr and dc else 1.0))
+        np.add(here, dr * W + dc, out=there)
+        np.take(flat_idx, there, out=nbr[k])
+        np.take(flat_cost, there, out=wts[k])
+        wts[k] += c_here
+        wts[k] *= 0.5 * (2 ** 0.5 if dr and dc else 1.0)
+    nbr, wts = nbr.T, wts.T
     ok = nbr >= 0
     indptr = np.zeros(n + 1, np.int64)
     np.cumsum(np.count_nonzero(ok, axis=1), out=indptr[1:])
@@ -325,38 +331,50 @@ def keep_objects_whole(labels: np.ndarray, object_mask: np.ndarray, valid: list,
     return labels
 
 
-def label_polygons(labels: np.ndarray, transform, names: list[str]) -> list[dict]:
-    """GeoJSON features (one MultiPolygon per frame) of the label raster; ``transform`` is the seam grid's affine."""
+def frame_regions(labels: np.ndarray, transform) -> dict:
+    """Label -> its cells as one shapely (Multi)Polygon (the union of the label raster's 4-connected parts;
+    ``transform`` is the seam grid's affine): what ``label_polygons`` and ``seam_lines`` are made of, computed once
+    for both by a caller that writes the two."""
     from rasterio import features
-    from shapely.geometry import mapping, shape
+    from shapely.geometry import shape
     from shapely.ops import unary_union
 
     polys: dict[int, list] = {}
     for geom, value in features.shapes(labels, mask=labels >= 0, transform=transform, connectivity=4):
         polys.setdefault(int(value), []).append(shape(geom))
+    return {k: unary_union(v) for k, v in polys.items()}
+
+
+def label_polygons(labels: np.ndarray, transform, names: list[str], regions: dict | None = None) -> list[dict]:
+    """GeoJSON features (one MultiPolygon per frame) of the label raster; ``transform`` is the seam grid's affine;
+    ``regions``: ``frame_regions`` of the same labels, if already made."""
+    from shapely.geometry import mapping
+
+    regions = frame_regions(labels, transform) if regions is None else regions
     out = []
-    for k in sorted(polys):
-        g = unary_union(polys[k])
+    for k in sorted(regions):
+        g = regions[k]
         out.append({"type": "Feature", "properties": {"image_id": names[k], "area_m2": float(g.area)},
                     "geometry": mapping(g)})
     return out
 
 
-def seam_lines(labels: np.ndarray, transform, names: list[str]) -> list[dict]:
-    """GeoJSON LineString features of the seams between neighbouring frames (shared polygon edges)."""
-    from rasterio import features
-    from shapely.geometry import MultiLineString, mapping, shape
-    from shapely.ops import linemerge, unary_union
+def seam_lines(labels: np.ndarray, transform, names: list[str], regions: dict | None = None) -> list[dict]:
+    """GeoJSON LineString features of the seams between neighbouring frames (shared polygon edges); ``regions``:
+    ``frame_regions`` of the same labels, if already made."""
+    from shapely.geometry import MultiLineString, mapping
+    from shapely.ops import linemerge
 
-    polys: dict[int, object] = {}
-    for geom, value in features.shapes(labels, mask=labels >= 0, transform=transform, connectivity=4):
-        polys.setdefault(int(value), []).append(shape(geom))
-    polys = {k: unary_union(v) for k, v in polys.items()}
+    polys = frame_regions(labels, transform) if regions is None else regions
+    boundary: dict[int, object] = {}  # a frame's outline, made once for all its seams
     out = []
     for i, j in neighbour_pairs(labels):
         if i not in polys or j not in polys:
             continue
-        shared = polys[i].boundary.intersection(polys[j].boundary)
+        for k in (i, j):
+            if k not in boundary:
+                boundary[k] = polys[k].boundary
+        shared = boundary[i].intersection(boundary[j])
         # keep the line parts (boundaries can also touch in single points)
         parts = [g for g in getattr(shared, "geoms", [shared]) if g.geom_type in ("LineString", "MultiLineString")]
         segs = [ls for g in parts for ls in getattr(g, "geoms", [g]) if ls.length > 0]

@@ -37,16 +37,19 @@ class EditedSeamlines:
     feature_of_frame: dict
 
 
-def write_seamlines_gpkg(path, labels: np.ndarray, transform, names: list[str], crs) -> None:
+def write_seamlines_gpkg(path, labels: np.ndarray, transform, names: list[str], crs, features: list | None = None
+                         ) -> None:
     """``path`` (a GeoPackage, written whole): layer ``seamlines``, one MultiPolygon per labelled frame with the
-    fields ``frame`` (its image id) and ``area_m2``, in ``crs`` (the mosaic's)."""
+    fields ``frame`` (its image id) and ``area_m2``, in ``crs`` (the mosaic's). ``features``: ``label_polygons`` of
+    the same labels, if already made."""
     import pyogrio.raw
     import shapely
     from shapely.geometry import shape
 
     from ortho.seamlines import label_polygons
 
-    features = label_polygons(labels, transform, names)
+    if features is None:
+        features = label_polygons(labels, transform, names)
     geoms = [shapely.geometry.MultiPolygon([g]) if g.geom_type == "Polygon" else g
              for g in (shape(f["geometry"]) for f in features)]
     frames = np.array([f["properties"]["image_id"] for f in features], dtype=object)

@@ -62,8 +62,18 @@ def check_height_values(ds, path, what: str = "DEM", unit_m: float = 1.0, band: 
     vmin, vmax = np.inf, -np.inf
     from rasterio.windows import Window
 
+    fast_nodata = _plain_nodata(ds, band)
     for r0 in range(0, ds.height, rows_per_block):
         win = Window(0, r0, ds.width, min(rows_per_block, ds.height - r0))
+        if fast_nodata is not False:
+            block = _scan_plain(ds.read(band, window=win), fast_nodata, lo_u, hi_u)
+            if block is not None:
+                n, bmin, bmax = block
+                if n:
+                    valid += n
+                    vmin, vmax = min(vmin, bmin), max(vmax, bmax)
+                continue
+        # masked by GDAL's mask band (nodata, an internal mask, alpha), or a block the plain scan cannot tell
         a = ds.read(band, window=win, masked=True)
         data = np.ma.getdata(a)
         mask = np.ma.getmaskarray(a)
@@ -95,6 +105,53 @@ def check_height_values(ds, path, what: str = "DEM", unit_m: float = 1.0, band: 
     if key is not None:
         _scanned[key] = out
     return out
+
+
+def _plain_nodata(ds, band: int):
+    """The nodata value (None: none) when GDAL's mask of float band ``band`` is its nodata value or nothing, so that a
+    plain read with ``_scan_plain`` finds what the masked read finds; False otherwise (an integer band, an internal
+    mask, alpha: the masked read)."""
+    from rasterio.enums import MaskFlags
+
+    if np.dtype(ds.dtypes[band - 1]).kind != "f":
+        return False
+    flags = set(ds.mask_flag_enums[band - 1])
+    nodata = ds.nodatavals[band - 1]
+    if flags == {MaskFlags.all_valid} and nodata is None:
+        return None
+    if flags == {MaskFlags.nodata} and nodata is not None:
+        return None if np.isnan(nodata) else float(nodata)  # NaN is nodata in any case
+    return False
+
+
+def _scan_plain(data: np.ndarray, nodata, lo: float, hi: float):
+    """(valid cells, min, max) of a block of a float band read without its mask (``_plain_nodata``), or None when it
+    holds a cell that is neither a height within lo .. hi, nor NaN, nor exactly the nodata value (a bad cell, or one
+    GDAL's nodata mask may take as nodata by its tolerance): the masked read then decides, as it did alone.
+
+    One pass per test and no gathered copy: the masked scan decoded each block twice (the values and GDAL's mask)
+    and copied the valid cells (the demo's nDSM: 0.26 of the mosaic's CPU-s)."""
+    import cv2
+
+    inside = (data >= lo) & (data <= hi)  # NaN compares False: not inside
+    nd = None if nodata is None else data.dtype.type(nodata)  # as GDAL compares: in the band's type
+    if nd is not None and lo <= nd <= hi:
+        # a nodata value that is a plausible height: the cells near it are GDAL's to classify (its tolerance)
+        if nd != 0 and np.count_nonzero((np.abs(data - nd) <= 1e-5 * abs(nd)) & (data != nd)):
+            return None
+        inside &= data != nd
+    n = int(np.count_nonzero(inside))
+    others = np.count_nonzero(np.isnan(data))
+    if nd is not None and not (lo <= nd <= hi):
+        others += np.count_nonzero(data == nd)
+    if n + others != data.size:
+        return None
+    if not n:
+        return 0, np.inf, -np.inf
+    if data.ndim == 2 and data.dtype in (np.float32, np.float64):
+        vmin, vmax, _, _ = cv2.minMaxLoc(data, mask=inside.view(np.uint8))
+        return n, float(data.dtype.type(vmin)), float(data.dtype.type(vmax))
+    return n, float(data[inside].min()), float(data[inside].max())
 
 
 def _fingerprint(path: Path) -> tuple:
