@@ -130,72 +130,12 @@ def _push(coarse, v, w):
     return out
 
 
-@numba.njit(cache=True, nogil=True)
-def _pull_finite(a):
-    """``_pull(np.where(np.isfinite(a), a, 0.0), np.isfinite(a).astype(float))`` without those two arrays
-    (the same sums in the same order, so bit-identical): the first level of ``fill_nodata``."""
-    h, wd = a.shape
-    hh, ww = (h + 1) // 2, (wd + 1) // 2
-    vs = np.empty((hh, ww))
-    ws = np.empty((hh, ww))
-    for i in range(hh):
-        i1 = 2 * i + 1
-        for j in range(ww):
-            j1 = 2 * j + 1
-            a00, a01, a10, a11 = a[2 * i, 2 * j], 0.0, 0.0, 0.0
-            w00, w01, w10, w11 = 1.0, 0.0, 0.0, 0.0
-            if not np.isfinite(a00):
-                a00, w00 = 0.0, 0.0
-            if j1 < wd and np.isfinite(a[2 * i, j1]):
-                a01, w01 = a[2 * i, j1], 1.0
-            if i1 < h:
-                if np.isfinite(a[i1, 2 * j]):
-                    a10, w10 = a[i1, 2 * j], 1.0
-                if j1 < wd and np.isfinite(a[i1, j1]):
-                    a11, w11 = a[i1, j1], 1.0
-            n = (w00 + w01) + (w10 + w11)
-            if n > 0:
-                vs[i, j] = ((a00 + a01) + (a10 + a11)) / max(n, 1e-12)
-                ws[i, j] = 1.0
-            else:
-                vs[i, j] = 0.0
-                ws[i, j] = 0.0
-    return vs, ws
-
-
-@numba.njit(cache=True, nogil=True)
-def _push_finite(coarse, a):
-    """The last level of ``fill_nodata``: ``a`` where finite, else its parent's value."""
-    h, wd = a.shape
-    out = np.empty((h, wd))
-    for i in range(h):
-        for j in range(wd):
-            out[i, j] = a[i, j] if np.isfinite(a[i, j]) else coarse[i // 2, j // 2]
-    return out
-
-
 def fill_nodata(a: np.ndarray) -> np.ndarray:
     """Fill NaN cells by pull-push (pyramid averaging, then coarse-to-fine fill); smooth and O(n)."""
     a = np.asarray(a, float)
     valid = np.isfinite(a)
     if valid.all() or not valid.any():
         return a.copy()
-    if min(a.shape) > 1:
-        # the first level and the last push straight from ``a`` (two fewer full-size float64 arrays): the
-        # loop below's results, bit for bit
-        a = np.ascontiguousarray(a)
-        levels = [_pull_finite(a)]
-        while True:
-            v, w = levels[-1]
-            if (w > 0).all() or min(v.shape) == 1:
-                break
-            levels.append(_pull(v, w))
-        filled, w = levels[-1]
-        if not (w > 0).all():
-            filled = np.where(w > 0, filled, np.sum(filled * w) / w.sum())
-        for v, w in reversed(levels[:-1]):
-            filled = _push(filled, v, w)
-        return _push_finite(filled, a)
     levels = [(np.where(valid, a, 0.0), valid.astype(float))]
     while True:
         v, w = levels[-1]
