@@ -324,7 +324,7 @@ def check_heights(*, paths, dem_path, radius_m, exclude_m, grouping, cover_radiu
                                    dem_path=dem_path, grouping=grouping, density=density)
     click.echo(hc.format_report(result))
     if json_path:
-        write_text_atomic(json_path, json.dumps(result, indent=2))
+        write_text_atomic(json_path, result.to_json())
 
 
 @main.command("check-plan")

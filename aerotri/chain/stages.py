@@ -652,9 +652,9 @@ class Chain:
         from lidarctl.heights_check import check_heights_file
 
         result = check_heights_file(self.classified(), self.surveyed_points)
-        write_text_atomic(self.project.height_check_path, json.dumps(result, indent=2))
-        a = result.get("overall", {}).get("all", {})
-        return R.HeightCheckResult(rmse_m=a.get("rmse_m"), mean_abs_dz_m=a.get("mean_abs_dz_m"), n=a.get("n"))
+        write_text_atomic(self.project.height_check_path, result.to_json())
+        r = result.record
+        return R.HeightCheckResult(rmse_m=r.rmse_m, mean_abs_dz_m=r.mean_abs_dz_m, n=r.n_checked)
 
     def run_lidar_eval(self, root) -> R.LidarEvalResult:
         from lidarctl.evaluate import evaluate_strips, read_filter_test

@@ -363,4 +363,5 @@ def test_strips_evaluated_and_height_checked_as_the_merged_file(strips, tmp_path
     csv.write_text("id,x,y,z\n" + "".join(f"p{i},{cloud.x[j]:.3f},{cloud.y[j]:.3f},{cloud.z[j] + 0.1:.3f}\n"
                                           for i, j in enumerate(k)))
     merged = heights_check.check_heights_file(tmp_path / "merged.las", csv)
-    assert heights_check.check_heights_file(classified, csv) == merged and merged["overall"]["all"]["n"] > 10
+    assert heights_check.check_heights_file(classified, csv) == merged and merged.document["overall"]["all"]["n"] > 10
+    assert merged.record.n_checked == merged.document["overall"]["all"]["n"]
