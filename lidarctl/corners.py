@@ -940,7 +940,8 @@ def _figure_tile(fig, rec, tc: _TiledCloud, tid: int, spacing_m: float, max_cell
         w, h = g.ncols * g.tile_m, g.nrows * g.tile_m
         cell = max(0.5, spacing_m if np.isfinite(spacing_m) else 0.5, max(w, h) / max_cells)
         shape = (int(np.ceil(h / cell)), int(np.ceil(w / cell)))
-        check_grid(*shape, cell, NDSM_BYTES_PER_CELL, "the corners figure (nDSM)", "--figure", "use --no-figure")
+        check_grid(*shape, cell, NDSM_BYTES_PER_CELL, "the corners figure (nDSM)", option="--figure",
+                   hint="use --no-figure")
         fig = {"cell": cell, "ndsm": np.full(shape, np.nan),
                "extent": (g.x0_m, g.x0_m + shape[1] * cell, g.y0_m, g.y0_m + shape[0] * cell)}
     core = rec["core"] == 1
@@ -1114,8 +1115,8 @@ def simple_ndsm(xyz: np.ndarray, classification: np.ndarray, cell_m: float = 1.0
     xy = xyz[:, :2]
     origin = xy.min(axis=0)
     cols, rows = np.floor((xy.max(axis=0) - origin) / cell_m).astype(np.int64) + 1
-    check_grid(int(rows), int(cols), cell_m, NDSM_BYTES_PER_CELL, "the corners figure (nDSM)", "--figure",
-               "use --no-figure (or are the strips far apart?)")
+    check_grid(int(rows), int(cols), cell_m, NDSM_BYTES_PER_CELL, "the corners figure (nDSM)", option="--figure",
+               hint="use --no-figure (or are the strips far apart?)")
     ij = np.floor((xy - origin) / cell_m).astype(np.int64)
     shape = tuple(ij.max(axis=0)[::-1] + 1)
     dsm = np.full(shape, -np.inf)

@@ -97,7 +97,7 @@ class CellStats:
     first-return intensities (``inten_sum``, ``inten_n``), the highest vegetation above the DEM
     (``chm``, NaN where none)."""
 
-    def __init__(self, res_m: float, x0: float, y0: float, nrows: int, ncols: int, row0: int = 0, col0: int = 0):
+    def __init__(self, res_m: float, x0: float, y0: float, nrows: int, ncols: int, *, row0: int = 0, col0: int = 0):
         self.res_m, self.x0, self.y0 = float(res_m), float(x0), float(y0)
         self.nrows, self.ncols, self.row0, self.col0 = int(nrows), int(ncols), int(row0), int(col0)
         n = self.nrows * self.ncols
@@ -123,7 +123,7 @@ class CellStats:
         if bad >= 0:
             raise RuntimeError("a point lies outside the raster grid")   # a tiling bug, not an input error
 
-    def core_grids(self, footprint: np.ndarray, dem: np.ndarray, dsm_filled: np.ndarray, core, z_m: float,
+    def core_grids(self, footprint: np.ndarray, dem: np.ndarray, dsm_filled: np.ndarray, core, *, z_m: float,
                    metric: bool, nodata: float) -> np.ndarray:
         """``_core_grids`` of the window's core (row slice, col slice): (6, rows, cols) float32."""
         return _core_grids(footprint, np.ascontiguousarray(dem, float), np.ascontiguousarray(dsm_filled, float),

@@ -100,7 +100,7 @@ class _CellSums:
     def __init__(self, args, offset: tuple[int, int] = (0, 0)):
         self.args = args
         self.offset = offset
-        self._stats = CellStats(args[0], args[1], args[2], args[3], args[4], offset[0], offset[1])
+        self._stats = CellStats(args[0], args[1], args[2], args[3], args[4], row0=offset[0], col0=offset[1])
 
     # per-cell arrays (flat): points not noise, sum and count of ground heights, highest first return,
     # sum and count of first-return intensities, highest vegetation above the DEM
@@ -148,8 +148,8 @@ class _CellSums:
         NODATA, in the CRS's units (``to_crs_units`` of ``grids_south_up``'s core, in one loop), and
         the metric DEM with NaN (the hillshade's)."""
         dsm_filled = fill_nodata(self.dsm.reshape(self.args[3], self.args[4]))
-        out = self._stats.core_grids(self.footprint(footprint_cells), dem, dsm_filled, core, units.z_m,
-                                     units.is_metric, NODATA)
+        out = self._stats.core_grids(self.footprint(footprint_cells), dem, dsm_filled, core, z_m=units.z_m,
+                                     metric=units.is_metric, nodata=NODATA)
         return dict(zip(("dem_m", *RASTERS), out))
 
     def grids_south_up(self, dem: np.ndarray, footprint_cells: int) -> dict:
@@ -197,7 +197,7 @@ def make_grids(cloud: PointCloud, res_m: float, footprint_cells: int = 3,
     check_res(res_m)
     x, y, z, cls = cloud.x, cloud.y, cloud.z, cloud.classification
     args = grid_for_bounds(x.min(), y.min(), x.max(), y.max(), res_m)
-    check_grid(args[3], args[4], res_m, RASTER_BYTES_PER_CELL, "rasters", "--res", "use a coarser --res")
+    check_grid(args[3], args[4], res_m, RASTER_BYTES_PER_CELL, "rasters", option="--res", hint="use a coarser --res")
     sums = _CellSums(args)
     sums.add(x, y, z, cls, cloud.return_number, cloud.intensity)
     dem = sums.dem(fill_radius_px=dem_fill_radius_px)
@@ -251,8 +251,8 @@ def make_grids_streamed(path, res_m: float, footprint_cells: int = 3, chunk_poin
     mins, maxs = _header_bounds(path, header)
     args = grid_for_bounds(units.xy_to_m(mins[0]), units.xy_to_m(mins[1]), units.xy_to_m(maxs[0]),
                            units.xy_to_m(maxs[1]), res_m)
-    check_grid(args[3], args[4], res_m, RASTER_BYTES_PER_CELL, f"{path}: rasters over the header bounds", "--res",
-               "use a coarser --res (or check the bounds: strips far apart, a wrong CRS?)")
+    check_grid(args[3], args[4], res_m, RASTER_BYTES_PER_CELL, f"{path}: rasters over the header bounds",
+               option="--res", hint="use a coarser --res (or check the bounds: strips far apart, a wrong CRS?)")
     sums = _CellSums(args)
     for x, y, z, cls, rn, inten in _file_points(path, units, chunk_points):
         sums.add(x, y, z, cls, rn, inten)
@@ -282,7 +282,7 @@ def _transform_in_units(t, units: LengthUnits):
     return from_origin(t.c / units.xy_m, t.f / units.xy_m, t.a / units.xy_m, -t.e / units.xy_m)
 
 
-def write_cog(path, array: np.ndarray, transform, crs, unit: str | None = None, description: str | None = None,
+def write_cog(path, array: np.ndarray, transform, crs, *, unit: str | None = None, description: str | None = None,
               tags: dict | None = None, nodata: float = NODATA, dtype: str | None = "float32") -> None:
     """Single-band Cloud-Optimized GeoTIFF (deflate, internal overviews), float32 with nodata -9999 by
     default; NaN cells of a float array become ``nodata``.
@@ -569,7 +569,7 @@ def _bin_chunks(path: Path, chunk_points: int):
             yield rec
 
 
-def _tiled_gtiff(path, shape, transform, crs, count: int = 1, dtype: str = "float32", nodata=NODATA):
+def _tiled_gtiff(path, shape, transform, crs, *, count: int = 1, dtype: str = "float32", nodata=NODATA):
     """A working GeoTIFF, uncompressed: written once by windows and read once by the COG copy, so
     compressing it cost 2.3 CPU-s of the demo's rasters and saved only temporary disk space (which
     ``check_disk`` asks for uncompressed anyway)."""
@@ -597,7 +597,7 @@ def _tile_windows(grid, nrows: int, ncols: int):
         yield tid, (row0, col0, rows, cols), core, Window(c_lo, nrows - r_hi, c_hi - c_lo, r_hi - r_lo)
 
 
-def write_rasters(cloud, outdir, res_m: float, crs=None, tile_px: int = DEFAULT_TILE_PX,
+def write_rasters(cloud, outdir, res_m: float, crs=None, *, tile_px: int = DEFAULT_TILE_PX,
                   buffer_px: int = DEFAULT_BUFFER_PX, chunk_points: int = io.CHUNK_POINTS,
                   dem_fill_radius_px: float = DEFAULT_TIN_FILL_RADIUS_PX) -> list[Path]:
     """Write all rasters into ``outdir``; other files there (e.g. the classified cloud) stay.
@@ -688,7 +688,7 @@ def _write_set(outdir, write, files=FILES, name: str = "rasters") -> list[Path]:
     return [outdir / f for f in files]
 
 
-def write_rasters_tiled(paths, outdir, res_m: float, crs=None, tile_px: int = DEFAULT_TILE_PX,
+def write_rasters_tiled(paths, outdir, res_m: float, crs=None, *, tile_px: int = DEFAULT_TILE_PX,
                         buffer_px: int = DEFAULT_BUFFER_PX, chunk_points: int = io.CHUNK_POINTS,
                         footprint_cells: int = 3, dem_fill_radius_px: float = DEFAULT_TIN_FILL_RADIUS_PX) -> list[Path]:
     """The rasters of classified LAS/LAZ files (strips in one CRS) by tiles: memory is set by the tile
@@ -730,8 +730,8 @@ def write_rasters_tiled(paths, outdir, res_m: float, crs=None, tile_px: int = DE
                          "(header bounds); expected at least 2 x 2: a cloud of one point or one spot, or a --res "
                          "coarser than the cloud", param="--res")
     win = min(tile_px + 2 * buffer_px, nrows), min(tile_px + 2 * buffer_px, ncols)
-    check_grid(*win, res_m, RASTER_BYTES_PER_CELL, "rasters: one tile with its buffer", "--tile-px",
-               "use a smaller --tile-px")
+    check_grid(*win, res_m, RASTER_BYTES_PER_CELL, "rasters: one tile with its buffer",
+               option="--tile-px", hint="use a smaller --tile-px")
     threads = _tile_threads(win[0] * win[1])
     # the working GeoTIFFs and the COGs, uncompressed float32 at worst (a grid over strips far apart
     # is mostly nodata, but the tiles are still visited and written)
@@ -751,13 +751,14 @@ def write_rasters_tiled(paths, outdir, res_m: float, crs=None, tile_px: int = DE
         work.mkdir()
         used = _bin_points(inputs, args, grid, work, chunk_points)
         with rasterio.Env(**_GDAL_THREAD_ENV):
-            dem_sum, dem_n = _tiles_to_gtiffs(inputs, args, grid, used, work, tmp, transform, tags,
-                                              chunk_points, footprint_cells, dem_fill_radius_px, threads)
+            dem_sum, dem_n = _tiles_to_gtiffs(inputs, args, grid, used, work, tmp, transform=transform, tags=tags,
+                                              chunk_points=chunk_points, footprint_cells=footprint_cells,
+                                              dem_fill_radius_px=dem_fill_radius_px, threads=threads)
         fill = np.float32(dem_sum / dem_n) if dem_n else np.float32(np.nan)
 
         def hillshade_png() -> None:
-            _hillshade_by_windows(work / "dem_m.tif", work / "hillshade.tif", res_m, fill, grid, nrows, ncols,
-                                  transform, inputs.crs)
+            _hillshade_by_windows(work / "dem_m.tif", work / "hillshade.tif", res_m, fill, grid=grid, nrows=nrows,
+                                  ncols=ncols, transform=transform, crs=inputs.crs)
             _hillshade_png(work / "hillshade.tif", tmp / "hillshade.png")
 
         def cog(name: str) -> None:
@@ -816,7 +817,7 @@ def _run_threads(tasks) -> None:
             raise
 
 
-def _tile_grids(inputs: _Inputs, args, tile, work: Path, chunk_points: int, footprint_cells: int,
+def _tile_grids(inputs: _Inputs, args, tile, work: Path, *, chunk_points: int, footprint_cells: int,
                 dem_fill_radius_px: float):
     """The grids of one tile's core from its binned points (``_bin_points``): float32 arrays north-up,
     NODATA for no value, in the CRS's units, the DEM also in metres (``dem_m``); and the sum (float64)
@@ -842,7 +843,7 @@ def _tile_grids(inputs: _Inputs, args, tile, work: Path, chunk_points: int, foot
     return out, dem_sum, dem_n
 
 
-def _tiles_to_gtiffs(inputs: _Inputs, args, grid, used, work: Path, tmp: Path, transform, tags,
+def _tiles_to_gtiffs(inputs: _Inputs, args, grid, used, work: Path, tmp: Path, *, transform, tags,
                      chunk_points: int, footprint_cells: int, dem_fill_radius_px: float, threads: int = 1):
     """Pass 2: each tile's grids from its binned points (``_tile_grids``, ``threads`` tiles at a time,
     at most one more waiting), the core written by window into tiled GeoTIFFs (``work/<name>.tif`` in
@@ -888,8 +889,9 @@ def _tiles_to_gtiffs(inputs: _Inputs, args, grid, used, work: Path, tmp: Path, t
             try:
                 for tile in _tile_windows(grid, nrows, ncols):
                     tid, window = tile[0], tile[3]
-                    future = pool.submit(_tile_grids, inputs, args, tile, work, chunk_points, footprint_cells,
-                                         dem_fill_radius_px) if used[tid] else None
+                    future = pool.submit(_tile_grids, inputs, args, tile, work, chunk_points=chunk_points,
+                                         footprint_cells=footprint_cells,
+                                         dem_fill_radius_px=dem_fill_radius_px) if used[tid] else None
                     pending.append((window, future))
                     while len(pending) > threads:
                         drain_one()
@@ -903,7 +905,7 @@ def _tiles_to_gtiffs(inputs: _Inputs, args, grid, used, work: Path, tmp: Path, t
     return dem_sum, dem_n
 
 
-def _hillshade_by_windows(dem_path: Path, out_path: Path, res_m: float, fill, grid, nrows: int, ncols: int,
+def _hillshade_by_windows(dem_path: Path, out_path: Path, res_m: float, fill, *, grid, nrows: int, ncols: int,
                           transform, crs) -> None:
     """Pass 3: the hillshade (grey levels) of the metric DEM by the tiles' windows, each read with a
     one-cell border (clipped to the raster, as ``np.gradient`` treats the raster's edges), into an

@@ -237,8 +237,8 @@ def rectify_frame_to_file(path, image, band_order, camera, C, R, *, heights, gri
                 dst.write_mask(m, window=w)
                 valid[0] += int(np.count_nonzero(m))
 
-            rectify_frame(image, camera, C, R, heights, grid, interpolation, to_project, occlusion_dsm=occlusion_dsm,
-                          sink=sink, sink_bands_first=True, threads=threads)
+            rectify_frame(image, camera, C, R, heights, grid, interpolation=interpolation, to_project=to_project,
+                          occlusion_dsm=occlusion_dsm, sink=sink, sink_bands_first=True, threads=threads)
     return valid[0] / float(grid.width * grid.height)
 
 

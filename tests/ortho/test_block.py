@@ -107,7 +107,7 @@ def test_tile_threads_and_sink_do_not_change_the_ortho(small_block):
     assert none is None
     assert np.array_equal(np.moveaxis(got, 0, -1), one) and np.array_equal(got_mask, m1)
     # cubic: pixels outside the frame stay 0 also with the pooled, reused buffers
-    cub, mc = rectify_frame(img, cam, C, R, dem, grid, "cubic", tile_px=128, threads=2)
+    cub, mc = rectify_frame(img, cam, C, R, dem, grid, interpolation="cubic", tile_px=128, threads=2)
     assert np.all(cub[mc == 0] == 0) and np.array_equal(mc, m1)
 
 

@@ -70,7 +70,7 @@ def test_ignoring_distortion_is_detected(scene):
 @pytest.mark.parametrize("interpolation", ["cubic", "lanczos"])
 def test_other_kernels(scene, interpolation):
     s = scene
-    ortho, mask = rectify_frame(s["img"], s["cam"], s["C"], s["R"], s["dem"], s["grid"], interpolation)
+    ortho, mask = rectify_frame(s["img"], s["cam"], s["C"], s["R"], s["dem"], s["grid"], interpolation=interpolation)
     p = match_patches(ortho, s["ref"], mask > 0, None, RES)
     assert displacement_statistics(p.de_m, p.dn_m, RES)["rms_xy_gsd"] < 0.1
 
