@@ -661,7 +661,7 @@ class Chain:
 
         # each classified strip against its truth strip (truth/lidar/, same name, same points)
         result = evaluate_strips(self.classified(), self.project.truth_strips())
-        write_text_atomic(self.project.classification_eval_path, json.dumps(result, indent=2))
+        write_text_atomic(self.project.classification_eval_path, result.to_json())
         g = read_filter_test(self.project.classification_eval_path)
         return R.LidarEvalResult(type_i_error_pct=g.type_i_error_pct, type_ii_error_pct=g.type_ii_error_pct,
                                  kappa_pct=g.kappa_pct)
