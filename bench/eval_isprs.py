@@ -34,7 +34,8 @@ def run_method(name, fn):
         rows[s] = evaluate.filter_errors(g, c.classification == 2)
     mean = {k: float(np.mean([getattr(r, k) for r in rows.values()]))
             for k in ("type_i_error_pct", "type_ii_error_pct", "total_error_pct", "kappa_pct")}
-    return {"method": name, "samples": {s: dataclasses.asdict(r) for s, r in rows.items()}, "mean": mean, "seconds": seconds, "cpu_seconds": cpu_seconds,
+    return {"method": name, "samples": {s: dataclasses.asdict(r) for s, r in rows.items()}, "mean": mean,
+            "seconds": seconds, "cpu_seconds": cpu_seconds,
             "load_average_before_after": [list(load0), list(os.getloadavg())]}
 
 
