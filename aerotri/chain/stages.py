@@ -428,9 +428,9 @@ class Chain:
         qa = qa_settings(root, project_block_scale(p))
         check = check_files(p.vectors_path, ref, VectorCheckSettings(layers=("buildings",), scale=qa.map_scale,
                                                              terrain=qa.terrain), p.vectors_check_path)
-        b = check["layers"].get("buildings", {})
-        return R.VectorsResult(**counts, checked=True, corner_rms_xy_m=b.get("rms_xy_corner_m"),
-                               corners=b.get("n_matched_corners"))
+        b = check.record.buildings
+        return R.VectorsResult(**counts, checked=True, corner_rms_xy_m=b.rms_xy_corner_m if b else None,
+                               corners=b.n_matched_corners if b else None)
 
     def truth_outline_reference(self) -> Path:
         """The simulator's roof outlines (truth/buildings.geojson, part "roof_outline": what the LiDAR sees;
