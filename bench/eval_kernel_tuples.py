@@ -1,0 +1,118 @@
+"""Same bits, same speed (issue 40): the numba kernels that now take their grid as a NamedTuple
+(``lidarctl.raster_ops``: ``_cell_of`` / ``_cell_extreme_xy`` / ``_cell_sums`` behind ``reduce_grid``,
+``_bilinear`` behind ``sample_bilinear``; ``lidarctl.raster_cells``: ``_accumulate`` and ``_chm_max`` behind
+``CellStats.add`` / ``add_chm``, the rasters stage's per-point loops) against the code before the change.
+
+Each side runs in its own process with ``PYTHONPATH`` set to its code (``--before``: a copy of the package
+folders of the earlier commit, e.g. ``git archive 66bff5a lidarctl aerotri ortho | tar -x -C DIR``), on the same
+seeded points (10 % outside the grid, some NaN): SHA-256 of every output array and CPU seconds per call (the
+median of 7 calls after a warm-up call that compiles or loads the kernels).
+
+    python bench/eval_kernel_tuples.py --before DIR [--points 2000000] [--json bench/results/kernel_tuples.json]
+"""
+
+from __future__ import annotations
+
+import argparse
+import hashlib
+import json
+import os
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def _measure(n_points: int) -> dict:
+    import numpy as np
+
+    from lidarctl.raster_cells import CellStats
+    from lidarctl.raster_ops import reduce_grid, sample_bilinear
+
+    rng = np.random.default_rng(40)
+    cell_m, x0, y0, nrows, ncols = 0.5, 1000.0, 2000.0, 900, 1100
+    x = rng.uniform(x0 - 0.05 * ncols * cell_m, x0 + 1.05 * ncols * cell_m, n_points)
+    y = rng.uniform(y0 - 0.05 * nrows * cell_m, y0 + 1.05 * nrows * cell_m, n_points)
+    z = rng.normal(100.0, 5.0, n_points)
+    x[::997] = np.nan
+    dem = rng.normal(100.0, 2.0, (nrows, ncols))
+    # a window of the grid (rows 100.., cols 200..) and the points inside it, with classes and returns
+    inside = (x >= x0 + 200 * cell_m) & (x < x0 + 900 * cell_m) & (y >= y0 + 100 * cell_m) & (y < y0 + 700 * cell_m)
+    wx, wy, wz = x[inside], y[inside], z[inside]
+    cls = rng.choice(np.array([1, 2, 4, 5, 6, 7, 9], np.uint8), len(wx))
+    rn = rng.integers(1, 3, len(wx)).astype(np.uint8)
+    inten = rng.integers(0, 4000, len(wx)).astype(np.uint16)
+
+    def cells():
+        st = CellStats(cell_m, x0, y0, 600, 700, row0=100, col0=200) if _kw_cells() else \
+            CellStats(cell_m, x0, y0, 600, 700, 100, 200)
+        for part in np.array_split(np.arange(len(wx)), 3):   # three chunks: the per-chunk sums
+            st.add(wx[part], wy[part], wz[part], cls[part], rn[part], inten[part])
+        st.add_chm(wx, wy, wz, cls, dem[100:700, 200:900])
+        return np.concatenate([st._counts.ravel().astype(float), st._sums.ravel(), st.chm])
+    calls = {
+        "reduce_grid_min": lambda: reduce_grid(x, y, z, cell_m, x0, y0, nrows, ncols, "min"),
+        "reduce_grid_max": lambda: reduce_grid(x, y, z, cell_m, x0, y0, nrows, ncols, "max"),
+        "reduce_grid_mean": lambda: reduce_grid(x, y, z, cell_m, x0, y0, nrows, ncols, "mean"),
+        "sample_bilinear": lambda: sample_bilinear(dem, np.nan_to_num(x, nan=x0), y, cell_m, x0, y0),
+        "sample_bilinear_window": lambda: sample_bilinear(dem[100:700, 200:900], np.nan_to_num(x, nan=x0), y, cell_m,
+                                                          x0, y0, 100, 200),
+        "cell_stats_add_and_chm": cells,
+    }
+    out = {}
+    for name, fn in calls.items():
+        first = fn()
+        cpu = []
+        for _ in range(7):
+            c0 = time.process_time()
+            a = fn()
+            cpu.append(time.process_time() - c0)
+            assert np.array_equal(a, first, equal_nan=True)
+        out[name] = {"sha256": hashlib.sha256(np.ascontiguousarray(first).tobytes()).hexdigest(),
+                     "cpu_s_median": float(np.median(cpu)), "cpu_s_all": [round(c, 4) for c in cpu]}
+    return out
+
+
+def _kw_cells() -> bool:
+    import inspect
+
+    from lidarctl.raster_cells import CellStats
+
+    return inspect.signature(CellStats).parameters["row0"].kind == inspect.Parameter.KEYWORD_ONLY
+
+
+def _side(code: Path, n_points: int) -> dict:
+    env = dict(os.environ, PYTHONPATH=str(code))
+    r = subprocess.run([sys.executable, __file__, "--measure", "--points", str(n_points)], env=env,
+                       capture_output=True, text=True, check=True)
+    return json.loads(r.stdout)
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--before", type=Path, help="folder holding the earlier commit's lidarctl, aerotri, ortho")
+    ap.add_argument("--points", type=int, default=2_000_000)
+    ap.add_argument("--json", type=Path)
+    ap.add_argument("--measure", action="store_true", help=argparse.SUPPRESS)
+    a = ap.parse_args()
+    if a.measure:
+        print(json.dumps(_measure(a.points)))
+        return
+    if a.before is None:
+        ap.error("--before DIR is needed")
+    before, after = _side(a.before, a.points), _side(ROOT, a.points)
+    rows = {k: {"identical": before[k]["sha256"] == after[k]["sha256"],
+                "cpu_s_before": round(before[k]["cpu_s_median"], 4), "cpu_s_after": round(after[k]["cpu_s_median"], 4)}
+            for k in before}
+    for k, r in rows.items():
+        print(f"{k:24s} identical {r['identical']}  CPU {r['cpu_s_before']:.4f} -> {r['cpu_s_after']:.4f} s a call")
+    if a.json:
+        doc = {"points": a.points, "load_average": list(os.getloadavg()), "calls": rows,
+               "before": before, "after": after}
+        a.json.write_text(json.dumps(doc, indent=1) + "\n")
+
+
+if __name__ == "__main__":
+    main()
