@@ -987,7 +987,7 @@ def corners_csv_text(corners: list[dict]) -> str:
     return buf.getvalue()
 
 
-def corners_geojson(corners: list[dict], outlines: list[dict], crs=None) -> dict:
+def _corners_geojson_document(corners: list[dict], outlines: list[dict], crs=None) -> dict:
     """Corners (Point) and regularised roof outlines (Polygon, exterior CCW, courtyards CW), map CRS."""
     feats = []
     for o in outlines:
@@ -1095,7 +1095,7 @@ def write_corner_files(outdir, result: dict, crs=None, source: str | None = None
         refuse_input_as_output(p, inputs, "OUTDIR")
     outdir.mkdir(parents=True, exist_ok=True)
     write_text_atomic(files.csv, corners_csv_text(result["corners"]))
-    write_text_atomic(files.geojson, json.dumps(corners_geojson(result["corners"], result["outlines"], crs)))
+    write_text_atomic(files.geojson, json.dumps(_corners_geojson_document(result["corners"], result["outlines"], crs)))
     faces = result.get("faces", [])
     if faces and "plane" in faces[0]:  # still in metres (find_roof_corners' result as it is)
         from lidarctl.units import METRE
