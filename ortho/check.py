@@ -85,13 +85,13 @@ class Displacement:
         bins = d.get("distribution_gsd")
         return cls(**{**d, "distribution_gsd": None if bins is None else tuple(GsdBin(**b) for b in bins)})
 
-
-def _displacement_document(d: Displacement) -> dict:
-    """``d`` as dom_report.json holds it ("displacement"; the figures measured, the bins a list)."""
-    doc = {k: v for k, v in dataclasses.asdict(d).items() if v is not None}
-    if d.distribution_gsd is not None:
-        doc["distribution_gsd"] = list(doc["distribution_gsd"])
-    return doc
+    def as_dict(self) -> dict:
+        """As dom_report.json holds it ("displacement"; the bins a list, as JSON reads back); the accuracy report
+        carries it too."""
+        d = {k: v for k, v in dataclasses.asdict(self).items() if v is not None}
+        if self.distribution_gsd is not None:
+            d["distribution_gsd"] = list(d["distribution_gsd"])
+        return d
 
 
 @dataclasses.dataclass(frozen=True)
@@ -602,7 +602,7 @@ def measure_roof_patches(dom_path, reference_path, x_m, y_m, *, patch_m: float |
 def _roofs_document(roofs: RoofDisplacements, res_m: float, source: str) -> dict:
     """The report's ``roofs`` row: ``displacement_statistics`` of the measured patches (RMS and median in metres
     and GSD, count), with where the corners came from and how many were not measured."""
-    stats = _displacement_document(displacement_statistics(roofs.de_m, roofs.dn_m, res_m))
+    stats = displacement_statistics(roofs.de_m, roofs.dn_m, res_m).as_dict()
     if stats["count"]:
         stats["median_xy_gsd"] = stats["median_xy_m"] / res_m
     stats.update(corners=roofs.corners, corners_from=source, patch_m=roofs.patch_m,
@@ -716,7 +716,7 @@ def run_check(project_root, settings: CheckSettings | Resolved | None = None, *,
             report["reference_operation"] = ref_op.record()
         report.update(method="ncc_patches", reference=str(reference_path), ndsm=str(ndsm_path) if ndsm_path else None,
                       max_ndsm_m=max_ndsm_m if ndsm_path else None, patch_px=patch_px, search_px=search_px,
-                      displacement=_displacement_document(stats))
+                      displacement=stats.as_dict())
         # the statistics take every patch; the report lists and the plot draws at most MAX_LISTED of them,
         # evenly spread (a gigapixel DOM has millions: the JSON and the plot stay the size of a demo's)
         listed = patches.select(_spread(len(patches), MAX_LISTED))
@@ -737,7 +737,7 @@ def run_check(project_root, settings: CheckSettings | Resolved | None = None, *,
     else:
         stats, table = check_points(points_path, res, dom_bounds)
         report.update(method="surveyed_points", points_file=str(points_path),
-                      displacement=_displacement_document(stats), points=table["points"])
+                      displacement=stats.as_dict(), points=table["points"])
 
         def plot():
             plot_displacements(out_stem.with_suffix(".png"), None, stats, "DOM - survey",

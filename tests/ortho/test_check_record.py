@@ -10,26 +10,26 @@ import numpy as np
 import pytest
 
 from aerotri.core.errors import InputError
-from ortho.check import _displacement_document, displacement_statistics, read_dom_check
+from ortho.check import displacement_statistics, read_dom_check
 
 
 def test_the_record_gives_back_what_was_written(tmp_path):
     rng = np.random.default_rng(4)
     stats = displacement_statistics(rng.normal(0, 0.1, 200), rng.normal(0, 0.1, 200), 0.2)
     path = tmp_path / "dom_report.json"
-    doc = _displacement_document(stats)
+    doc = stats.as_dict()
     path.write_text(json.dumps({"displacement": doc, "seams": {"rms_px": 0.49, "patches": 17, "per_seam": []}}))
     r = read_dom_check(path)
     assert r.displacement.count == 200 and r.displacement.rms_xy_m == stats.rms_xy_m
     assert r.displacement == stats  # every figure and bin as computed
     assert r.seams_rms_px == 0.49 and r.seam_patches == 17
     # keys, order, values and types (the bins a list) as the file holds them
-    assert _displacement_document(r.displacement) == json.loads(path.read_text())["displacement"]
-    assert json.dumps(_displacement_document(r.displacement)) == json.dumps(doc)
+    assert r.displacement.as_dict() == json.loads(path.read_text())["displacement"]
+    assert json.dumps(r.displacement.as_dict()) == json.dumps(doc)
     assert list(doc)[:3] == ["count", "gsd_m", "rms_e_m"] and isinstance(doc["distribution_gsd"], list)
-    path.write_text(json.dumps({"displacement": _displacement_document(displacement_statistics([], [], 0.2))}))
+    path.write_text(json.dumps({"displacement": displacement_statistics([], [], 0.2).as_dict()}))
     r = read_dom_check(path)
-    assert _displacement_document(r.displacement) == {"count": 0} and r.seams_rms_px is None
+    assert r.displacement.as_dict() == {"count": 0} and r.seams_rms_px is None
 
 
 @pytest.mark.parametrize("text, words", [("[]", "a JSON array, expected an object"), ("{}", "KeyError 'displacement'"),
