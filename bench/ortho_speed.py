@@ -143,7 +143,7 @@ def _setup(d: Path):
     with open_height_raster(d / "lidar_out" / "dem.tif", crs) as ds:
         dem = read_height_window(ds, ds.bounds)
     tp = GridToProject(crs, crs)
-    grid = frame_grid(cam, C, R, dem, RES_M, crs, tp)
+    grid = frame_grid(cam, C, R, dem, RES_M, crs, to_project=tp)
     img = read_rgb(d / "images" / "dmc_001.tif", (cam.width, cam.height))
     return cam, C, R, dem, grid, img, tp
 

@@ -318,7 +318,8 @@ def _rectify_frame_task(task: FrameTask) -> dict:
                                          frame=task.image_id, height_operation=height_op)
             extent, what, path = tuple(dsm_ds.bounds), "DSM", task.dsm_path
     covered = _require_coverage(task, C, R, heights, what=what, path=path, extent=extent)
-    grid = frame_grid(task.camera, C, R, dem, task.res_m, out_crs, to_project, image_id=task.image_id, partial=True)
+    grid = frame_grid(task.camera, C, R, dem, task.res_m, out_crs, to_project=to_project, image_id=task.image_id,
+                      partial=True)
     image, band_order = _frame_image(task.image_path, (task.camera.width, task.camera.height))
     valid_fraction = rectify_frame_to_file(task.out_path, image, band_order, task.camera, C, R, heights=heights,
                                            grid=grid, interpolation=task.interpolation, to_project=to_project,

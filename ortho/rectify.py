@@ -643,8 +643,8 @@ def covered_share(camera: Camera, centre_m, R, heights: HeightRaster, per_side: 
     return float(np.mean(covered))
 
 
-def frame_grid(camera: Camera, centre_m, R, heights: HeightRaster, res_m: float, output_crs, to_project: GridToProject,
-               image_id: str = "frame", partial: bool = False) -> OrthoGrid:
+def frame_grid(camera: Camera, centre_m, R, heights: HeightRaster, res_m: float, output_crs, *,
+               to_project: GridToProject, image_id: str = "frame", partial: bool = False) -> OrthoGrid:
     """The snapped output grid covering the ground footprint of a frame on the height raster.
 
     ``partial``: border rays that miss the raster (a DEM covering part of the frame) count with their

@@ -90,7 +90,7 @@ def test_output_in_gauss_krueger_zone(scene, tmp_path):
                        "EPSG:32649", "EPSG:4546")
     to_project = GridToProject(gk, UTM49, operation=CrsTransformer(UTM49, gk, params=T), z_m=float(np.nanmean(s["dem"].heights_m)))
     assert not to_project.identity
-    grid = frame_grid(s["cam"], s["C"], s["R"], s["dem"], RES, gk, to_project)
+    grid = frame_grid(s["cam"], s["C"], s["R"], s["dem"], RES, gk, to_project=to_project)
     ortho, mask = rectify_frame(s["img"], s["cam"], s["C"], s["R"], s["dem"], grid, to_project=to_project)
     # the anchor grid reproduces the exact transform
     AX, AY, sp = to_project.anchors(grid)
@@ -253,7 +253,7 @@ def test_wide_frame_resampled_from_compact_windows_gives_the_same_pixels(monkeyp
     C = np.array([500000.0, 3000000.0, 400.0])
     R = rotation_matrix_opk(1.0, -0.5, 3.0)
     dem = smooth_dem((C[0] - 300, C[1] - 100, C[0] + 300, C[1] + 100), 2.0, amplitude_m=15.0)
-    grid = frame_grid(cam, C, R, dem, res_m, UTM49, GridToProject(UTM49, UTM49))
+    grid = frame_grid(cam, C, R, dem, res_m, UTM49, to_project=GridToProject(UTM49, UTM49))
     windows = []
     source = rectify.SourceWindow.source
 
