@@ -1,7 +1,9 @@
 """Same bits, same speed (issue 40): the numba kernels that now take their grid as a NamedTuple
 (``lidarctl.raster_ops``: ``_cell_of`` / ``_cell_extreme_xy`` / ``_cell_sums`` behind ``reduce_grid``,
 ``_bilinear`` behind ``sample_bilinear``; ``lidarctl.raster_cells``: ``_accumulate`` and ``_chm_max`` behind
-``CellStats.add`` / ``add_chm``, the rasters stage's per-point loops) against the code before the change.
+``CellStats.add`` / ``add_chm``, the rasters stage's per-point loops; ``lidarctl.rasters``: ``_tile_and_near``,
+``_membership_count`` and ``_gather_records``, the tiled rasters' binning pass, called the way each side's
+``_bin_points`` calls them) against the code before the change.
 
 Each side runs in its own process with ``PYTHONPATH`` set to its code (``--before``: a copy of the package
 folders of the earlier commit, e.g. ``git archive 66bff5a lidarctl aerotri ortho | tar -x -C DIR``), on the same
@@ -46,6 +48,22 @@ def _measure(n_points: int) -> dict:
     rn = rng.integers(1, 3, len(wx)).astype(np.uint8)
     inten = rng.integers(0, 4000, len(wx)).astype(np.uint16)
 
+    def binning():
+        from lidarctl import rasters
+
+        tile_px, buffer_px, ntr, ntc = 256, 32, 4, 5
+        count = np.zeros(ntr * ntc + 1, np.int64)
+        if hasattr(rasters, "_TileLayout"):
+            lay = rasters._TileLayout(cell_m, x0, y0, tile_px, buffer_px, ntr, ntc)
+            rec = np.empty(rasters._membership_count(wx, wy, lay, count), rasters._BIN_DTYPE)
+            n = rasters._gather_records(rec, count, rasters._ChunkPoints(wx, wy, wz, cls, rn, inten), lay)
+        else:
+            rec = np.empty(rasters._membership_count(wx, wy, cell_m, x0, y0, tile_px, buffer_px, ntr, ntc, count),
+                           rasters._BIN_DTYPE)
+            n = rasters._gather_records(rec, count, wx, wy, wz, cls, rn, inten, cell_m, x0, y0, tile_px, buffer_px,
+                                        ntr, ntc)
+        return np.concatenate([np.frombuffer(rec.tobytes(), np.uint8).astype(float), count.astype(float), [n]])
+
     def cells():
         st = CellStats(cell_m, x0, y0, 600, 700, row0=100, col0=200)
         for part in np.array_split(np.arange(len(wx)), 3):   # three chunks: the per-chunk sums
@@ -60,6 +78,7 @@ def _measure(n_points: int) -> dict:
         "sample_bilinear_window": lambda: sample_bilinear(dem[100:700, 200:900], np.nan_to_num(x, nan=x0), y, cell_m,
                                                           x0, y0, 100, 200),
         "cell_stats_add_and_chm": cells,
+        "rasters_binning": binning,
     }
     out = {}
     for name, fn in calls.items():

@@ -21,7 +21,7 @@ from __future__ import annotations
 
 import dataclasses
 import functools
-from typing import ClassVar
+from typing import ClassVar, NamedTuple
 import logging
 from pathlib import Path
 
@@ -442,16 +442,15 @@ def _bin_points(inputs: _Inputs, args, grid, work: Path, chunk_points: int) -> n
 
     res_m, x0, y0 = args[:3]
     tile_px, buffer_px = int(grid.tile_m), int(grid.buffer_m)
+    lay = _TileLayout(res_m, x0, y0, tile_px, buffer_px, grid.nrows, grid.ncols)
     used = np.zeros(grid.n_tiles, bool)
     n_ground = 0
     chunks = (c for path in inputs.paths for c in _file_points(path, inputs.units, chunk_points))
     with progress(inputs.n_points, "rasters: bin points into tiles", "pt", unit_scale=True) as bar:
         for x, y, z, cls, rn, inten in _read_ahead(chunks):
             count = np.zeros(grid.n_tiles + 1, np.int64)
-            rec = np.empty(_membership_count(x, y, res_m, x0, y0, tile_px, buffer_px, grid.nrows, grid.ncols, count),
-                           _BIN_DTYPE)     # the memberships' records, by tile
-            n_ground += _gather_records(rec, count, x, y, z, cls, rn, inten, res_m, x0, y0, tile_px, buffer_px,
-                                        grid.nrows, grid.ncols)
+            rec = np.empty(_membership_count(x, y, lay, count), _BIN_DTYPE)     # the memberships' records, by tile
+            n_ground += _gather_records(rec, count, _ChunkPoints(x, y, z, cls, rn, inten), lay)
             for tid in np.flatnonzero(count[1:] > count[:-1]):
                 used[tid] = True
                 with open(work / f"tile_{tid}.bin", "ab") as fh:
@@ -465,9 +464,35 @@ def _bin_points(inputs: _Inputs, args, grid, work: Path, chunk_points: int) -> n
 # The tiles of a point (its own and the 0 to 3 neighbours whose buffer holds it; the tile grid's
 # coordinates are global cells, the cells' indices exact floats): scalars only, so that the two loops
 # below compile in a fraction of a second (an array per point costs numba reference counting).
+class _TileLayout(NamedTuple):
+    """The tiles of the binning pass as its kernels take them: cell size and grid origin (m), tile size and
+    buffer (cells), tile rows and columns."""
+
+    res_m: float
+    x0: float
+    y0: float
+    tile_px: int
+    buffer_px: int
+    ntr: int
+    ntc: int
+
+
+class _ChunkPoints(NamedTuple):
+    """A chunk of points as ``_gather_records`` takes it (x, y, z in metres, class, return number, intensity)."""
+
+    x: np.ndarray
+    y: np.ndarray
+    z: np.ndarray
+    cls: np.ndarray
+    rn: np.ndarray
+    intensity: np.ndarray
+
+
 @numba.njit(cache=True, nogil=True, inline="always")
-def _tile_and_near(x, y, res_m, x0, y0, tile_px, buffer_px, ntr, ntc):
-    """(tile row, tile col, first row of tiles, last, first col, last) of the tiles that hold the point."""
+def _tile_and_near(x, y, lay):
+    """(first row of tiles, last, first col, last) of the tiles of ``_TileLayout`` ``lay`` that hold the point."""
+    res_m, x0, y0, tile_px, buffer_px, ntr, ntc = (lay.res_m, lay.x0, lay.y0, lay.tile_px, lay.buffer_px, lay.ntr,
+                                                   lay.ntc)
     col = np.floor((x - x0) / res_m)
     row = np.floor((y - y0) / res_m)
     ci = int(min(max(np.floor(col / tile_px), 0.0), ntc - 1.0))
@@ -481,11 +506,12 @@ def _tile_and_near(x, y, res_m, x0, y0, tile_px, buffer_px, ntr, ntc):
 
 
 @numba.njit(cache=True, nogil=True)
-def _membership_count(x, y, res_m, x0, y0, tile_px, buffer_px, ntr, ntc, count):
+def _membership_count(x, y, lay, count):
     """Points per tile (core + buffer) into ``count[1:]``, then turned into the tiles' first record
     (``count[t]`` .. ``count[t + 1]``); returns the number of memberships."""
+    ntc = lay.ntc
     for k in range(len(x)):
-        r_lo, r_hi, c_lo, c_hi = _tile_and_near(x[k], y[k], res_m, x0, y0, tile_px, buffer_px, ntr, ntc)
+        r_lo, r_hi, c_lo, c_hi = _tile_and_near(x[k], y[k], lay)
         for r in range(r_lo, r_hi + 1):
             for c in range(c_lo, c_hi + 1):
                 count[r * ntc + c + 1] += 1
@@ -495,13 +521,16 @@ def _membership_count(x, y, res_m, x0, y0, tile_px, buffer_px, ntr, ntc, count):
 
 
 @numba.njit(cache=True, nogil=True)
-def _gather_records(rec, count, x, y, z, cls, rn, inten, res_m, x0, y0, tile_px, buffer_px, ntr, ntc):
-    """The records (``_BIN_DTYPE``) of the memberships by tile, points in order within a tile (the
-    counting sort of ``TileGrid.assign``); returns the number of ground (2) and water (9) points."""
+def _gather_records(rec, count, pts, lay):
+    """The records (``_BIN_DTYPE``) of the memberships by tile of the chunk ``pts`` (``_ChunkPoints``), points
+    in order within a tile (the counting sort of ``TileGrid.assign``); returns the number of ground (2) and
+    water (9) points."""
+    x, y, z, cls, rn, inten = pts.x, pts.y, pts.z, pts.cls, pts.rn, pts.intensity
+    ntc = lay.ntc
     fill = count[:-1].copy()
     n = 0
     for k in range(len(x)):
-        r_lo, r_hi, c_lo, c_hi = _tile_and_near(x[k], y[k], res_m, x0, y0, tile_px, buffer_px, ntr, ntc)
+        r_lo, r_hi, c_lo, c_hi = _tile_and_near(x[k], y[k], lay)
         for r in range(r_lo, r_hi + 1):
             for c in range(c_lo, c_hi + 1):
                 t = r * ntc + c
