@@ -11,7 +11,8 @@ seeded points (10 % outside the grid, some NaN): SHA-256 of every output array a
 median of 7 calls after a warm-up call that compiles or loads the kernels; the sides alternate ``--rounds`` times
 and each side's least median is reported, as the machine's load changes).
 
-    python bench/eval_kernel_tuples.py --before DIR [--points 2000000] [--json bench/results/kernel_tuples.json]
+    python bench/eval_kernel_tuples.py --before DIR [--points 2000000] [--rounds 3] [--only CALL]
+        [--json bench/results/kernel_tuples.json]
 """
 
 from __future__ import annotations
@@ -28,7 +29,7 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 
 
-def _measure(n_points: int) -> dict:
+def _measure(n_points: int, only: list[str] | None = None) -> dict:
     import numpy as np
 
     from lidarctl.raster_cells import CellStats
@@ -82,6 +83,8 @@ def _measure(n_points: int) -> dict:
     }
     out = {}
     for name, fn in calls.items():
+        if only and name not in only:
+            continue
         first = fn()
         cpu = []
         for _ in range(7):
@@ -94,9 +97,10 @@ def _measure(n_points: int) -> dict:
     return out
 
 
-def _side(code: Path, n_points: int) -> dict:
+def _side(code: Path, n_points: int, only: list[str] | None = None) -> dict:
     env = dict(os.environ, PYTHONPATH=str(code))
-    r = subprocess.run([sys.executable, __file__, "--measure", "--points", str(n_points)], env=env,
+    r = subprocess.run([sys.executable, __file__, "--measure", "--points", str(n_points),
+                        *[a for name in only or [] for a in ("--only", name)]], env=env,
                        capture_output=True, text=True, check=True)
     return json.loads(r.stdout)
 
@@ -107,18 +111,19 @@ def main() -> None:
     ap.add_argument("--points", type=int, default=2_000_000)
     ap.add_argument("--rounds", type=int, default=3, help="before/after runs, alternating")
     ap.add_argument("--json", type=Path)
+    ap.add_argument("--only", action="append", help="measure only this call (repeatable)")
     ap.add_argument("--measure", action="store_true", help=argparse.SUPPRESS)
     a = ap.parse_args()
     if a.measure:
-        print(json.dumps(_measure(a.points)))
+        print(json.dumps(_measure(a.points, a.only)))
         return
     if a.before is None:
         ap.error("--before DIR is needed")
     # the sides alternate (the machine's load changes): the least of each side's medians
     runs = {"before": [], "after": []}
     for _ in range(a.rounds):
-        runs["before"].append(_side(a.before, a.points))
-        runs["after"].append(_side(ROOT, a.points))
+        runs["before"].append(_side(a.before, a.points, a.only))
+        runs["after"].append(_side(ROOT, a.points, a.only))
     before, after = runs["before"][0], runs["after"][0]
     rows = {k: {"identical": all(r[k]["sha256"] == before[k]["sha256"] for side in runs.values() for r in side),
                 "cpu_s_before": round(min(r[k]["cpu_s_median"] for r in runs["before"]), 4),
