@@ -8,6 +8,7 @@ Writes bench/results/lidar_ahn3.json. Run: .venv/bin/python bench/eval_ahn3.py
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import os
 import sys
@@ -34,7 +35,7 @@ def main():
     mapped = np.where(np.isin(pred, (2, 6, 9)), pred, 1)
     conf = evaluate.confusion(mapped, c.classification, classes=[1, 2, 6, 9, 26])
     filt = evaluate.filter_errors(pred == 2, c.classification == 2)
-    pa, ua = conf["producers_accuracy_pct"], conf["users_accuracy_pct"]
+    pa, ua = conf.producers_accuracy_pct, conf.users_accuracy_pct
     res = {
         "data": str(path), "points": int(len(c)), "classify_seconds": seconds, "classify_cpu_seconds": cpu_seconds,
         "load_average_before_after": [list(load0), list(os.getloadavg())],
@@ -45,8 +46,8 @@ def main():
         "water_points_truth": int(np.sum(c.classification == 9)), "water_points_pred": int(np.sum(pred == 9)),
         "target_pct": 95.0,
         "target_met": bool(min(pa["6"], ua["6"], pa["2"], ua["2"]) >= 95.0),
-        "ground_filter_errors": filt,
-        "confusion_ahn3_scheme": conf,
+        "ground_filter_errors": dataclasses.asdict(filt),
+        "confusion_ahn3_scheme": dataclasses.asdict(conf),
         "our_class_counts": {str(k): int(v) for k, v in zip(*np.unique(pred, return_counts=True))},
     }
     print(evaluate.format_confusion(conf, {1: "1 other", 2: "2 ground", 6: "6 building", 9: "9 water",

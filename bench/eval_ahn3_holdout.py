@@ -61,7 +61,7 @@ def part_of(x, y) -> np.ndarray:
 def scores(pred, truth) -> dict:
     mapped = np.where(np.isin(pred, (2, 6, 9)), pred, 1)
     conf = evaluate.confusion(mapped, truth, classes=[1, 2, 6, 9, 26])
-    pa, ua = conf["producers_accuracy_pct"], conf["users_accuracy_pct"]
+    pa, ua = conf.producers_accuracy_pct, conf.users_accuracy_pct
     out = {f"{name}_{kind}_pct": (d.get(k) if d.get(k) is not None else None)
            for name, k in (("building", "6"), ("ground", "2"), ("water", "9"))
            for kind, d in (("pa", pa), ("ua", ua))}

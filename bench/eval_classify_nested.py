@@ -100,8 +100,8 @@ def isprs_errors(configs: list[dict]) -> np.ndarray:
                         gi = np.flatnonzero(keep)[g[keep]]
                         gp[gi[ground.raised_plateaus(c.x[gi], c.y[gi], c.z[gi], cell_m, params.plateau_min_step_m,
                                                      params.plateau_max_area_m2)]] = False
-                    done[bkey] = {False: evaluate.filter_errors(g, truth)["total_error_pct"],
-                                  True: evaluate.filter_errors(gp, truth)["total_error_pct"]}
+                    done[bkey] = {False: evaluate.filter_errors(g, truth).total_error_pct,
+                                  True: evaluate.filter_errors(gp, truth).total_error_pct}
                 cache[config_key(cfg)] = done[bkey][cfg["plateau"]]
             tmp = path.with_suffix(".tmp")
             tmp.write_text(json.dumps(cache))

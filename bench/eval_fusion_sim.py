@@ -63,10 +63,10 @@ def project(name: str, seed: int | None, root: Path) -> Path:
     return out
 
 
-def subset(conf: dict, keep=SEED_CLASSES) -> dict:
+def subset(conf, keep=SEED_CLASSES) -> dict:
     """Figures over the cells whose truth is one of ``keep`` (predictions of other classes are errors)."""
-    classes = conf["classes"]
-    m = np.asarray(conf["matrix"])
+    classes = conf.classes
+    m = np.asarray(conf.matrix)
     rows = [classes.index(c) for c in keep if c in classes]
     sub = m[rows]
     n = sub.sum()
@@ -102,9 +102,9 @@ def run(proj: Path, work: Path, res_m: float) -> dict:
         d = r.as_dict()
         d["seed_classes"] = subset(r.confusion)
         d["classify_seconds"] = seconds
-        pa, ua = r.confusion["producers_accuracy_pct"], r.confusion["users_accuracy_pct"]
+        pa, ua = r.confusion.producers_accuracy_pct, r.confusion.users_accuracy_pct
         d["targets_met"] = {
-            "overall_accuracy_pct": r.confusion["overall_accuracy_pct"] >= TARGETS["overall_accuracy_pct"],
+            "overall_accuracy_pct": r.confusion.overall_accuracy_pct >= TARGETS["overall_accuracy_pct"],
             "road_pa_ua_pct": bool((pa.get("11") or 0) >= TARGETS["road_pa_ua_pct"]
                                    and (ua.get("11") or 0) >= TARGETS["road_pa_ua_pct"]),
             "building_area_overall_pct": bool(r.buildings is not None and r.buildings.overall_accuracy_pct

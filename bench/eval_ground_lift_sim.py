@@ -66,9 +66,9 @@ def main():
         b, tb = pred == 6, truth == 6
         runs[name] = {"ground_lift_sigma": lift, "ground_lift_single": single,
                       "every_ground_point_judged": every_point, "bridge_deck_points": int((pred == 17).sum()),
-                      "type_i_error_pct": err["type_i_error_pct"], "type_i_count": int(err["type_i_count"]),
-                      "type_ii_error_pct": err["type_ii_error_pct"], "type_ii_count": int(err["type_ii_count"]),
-                      "total_error_pct": err["total_error_pct"],
+                      "type_i_error_pct": err.type_i_error_pct, "type_i_count": int(err.type_i_count),
+                      "type_ii_error_pct": err.type_ii_error_pct, "type_ii_count": int(err.type_ii_count),
+                      "total_error_pct": err.total_error_pct,
                       "building_pa_pct": float(100 * (b & tb).sum() / max(tb.sum(), 1)),
                       "building_ua_pct": float(100 * (b & tb).sum() / max(b.sum(), 1)),
                       "water_points_pred": int((pred == 9).sum()), "water_points_truth": int((truth == 9).sum())}

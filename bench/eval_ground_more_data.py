@@ -14,6 +14,7 @@ Writes bench/results/ground_more_data.json. Run: nice .venv/bin/python bench/eva
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import os
 import sys
@@ -48,9 +49,9 @@ def one(path: Path, bare: tuple) -> dict:
     cls_s = time.perf_counter() - t0
     pw, tw = pred == classify.WATER, truth == 9
     out = {"points": len(c), "truth_classes": {str(k): int(v) for k, v in zip(*np.unique(truth, return_counts=True))},
-           "ground_filter": evaluate.filter_errors(g, true_ground),
+           "ground_filter": dataclasses.asdict(evaluate.filter_errors(g, true_ground)),
            # the pipeline's ground: class 2, and water on the lakes (a DTM's bare earth)
-           "classify_pipeline": evaluate.filter_errors(np.isin(pred, (2, 9)), true_ground),
+           "classify_pipeline": dataclasses.asdict(evaluate.filter_errors(np.isin(pred, (2, 9)), true_ground)),
            "predicted_classes": {str(k): int(v) for k, v in zip(*np.unique(pred, return_counts=True))},
            "water_predicted": int(pw.sum()), "water_truth": int(tw.sum()),
            "truth_ground_called_water": int(np.sum(pw & (truth == 2))),

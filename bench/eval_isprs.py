@@ -6,6 +6,7 @@ Run: .venv/bin/python bench/eval_isprs.py
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import os
 import sys
@@ -31,9 +32,10 @@ def run_method(name, fn):
         seconds += time.perf_counter() - t0
         cpu_seconds += time.process_time() - c0
         rows[s] = evaluate.filter_errors(g, c.classification == 2)
-    mean = {k: float(np.mean([r[k] for r in rows.values()]))
+    mean = {k: float(np.mean([getattr(r, k) for r in rows.values()]))
             for k in ("type_i_error_pct", "type_ii_error_pct", "total_error_pct", "kappa_pct")}
-    return {"method": name, "samples": rows, "mean": mean, "seconds": seconds, "cpu_seconds": cpu_seconds,
+    return {"method": name, "samples": {s: dataclasses.asdict(r) for s, r in rows.items()}, "mean": mean,
+            "seconds": seconds, "cpu_seconds": cpu_seconds,
             "load_average_before_after": [list(load0), list(os.getloadavg())]}
 
 
@@ -76,7 +78,8 @@ def main():
         out["runs"][name] = r
         print(f"\n{name}: mean total error {r['mean']['total_error_pct']:.2f} %, "
               f"mean kappa {r['mean']['kappa_pct']:.2f} %, {r['seconds']:.1f} s")
-        print(evaluate.format_filter_table(r["samples"], CSF_PUBLISHED))
+        print(evaluate.format_filter_table({s: evaluate.FilterTest(**v) for s, v in r["samples"].items()},
+                                           CSF_PUBLISHED))
     d = out["runs"]["lidarctl_classify_pipeline"]["mean"]["total_error_pct"]
     out["default_mean_total_error_pct"] = d
     out["target_mean_total_error_pct"] = 3.8  # issue 20

@@ -67,7 +67,7 @@ def total_errors(samples, combos, method="morph"):
         for i, params in enumerate(combos):
             g = np.zeros(len(c), bool)
             g[keep] = ground.ground_filter(c.x[keep], c.y[keep], c.z[keep], method=method, **FIXED[method], **params)
-            err[i, j] = evaluate.filter_errors(g, truth)["total_error_pct"]
+            err[i, j] = evaluate.filter_errors(g, truth).total_error_pct
         print(f"{s}: {len(combos)} grid points, best {err[:, j].min():.2f} %, worst {err[:, j].max():.2f} %")
     return err
 

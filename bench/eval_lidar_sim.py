@@ -11,6 +11,7 @@ Writes bench/results/lidar_sim.json. Run: .venv/bin/python bench/eval_lidar_sim.
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import subprocess
 import tempfile
@@ -49,6 +50,7 @@ def main():
     flagged = np.isin(pred, (7, 18))
     keep = ~outlier
     filt = evaluate.filter_errors(np.isin(pred[keep], (2, 9)), np.isin(truth[keep], (2, 9)))
+    conf = evaluate.confusion(pred, truth)
 
     cloud.classification = pred
     grids = rasters.make_grids(cloud, args.res)
@@ -83,7 +85,7 @@ def main():
 
     res = {
         "project": str(project), "points": int(len(pred)), "classify_seconds": seconds,
-        "ground_filter_errors": filt,
+        "ground_filter_errors": dataclasses.asdict(filt),
         "outliers_injected": int(outlier.sum()),
         "outliers_flagged_pct": 100.0 * float(np.mean(flagged[outlier])),
         "false_noise_flags_pct": 100.0 * float(np.mean(flagged[~outlier])),
@@ -94,15 +96,15 @@ def main():
         "dem_p99_abs_error_open_m": float(np.percentile(np.abs(err[open_ground & ok]), 99)),
         "targets": {"type_i_error_pct": 2.0, "type_ii_error_pct": 2.0, "outliers_flagged_pct": 99.0,
                     "false_noise_flags_pct": 0.1, "dem_rmse_open_m": 0.15, "dem_rmse_canopy_m": 0.30},
-        "confusion": evaluate.confusion(pred, truth),
+        "confusion": dataclasses.asdict(conf),
     }
     # Water (9): the ponds' few surviving returns (the simulator drops most water pulses).
     res["water_points_truth"] = int(np.sum(truth == 9))
     res["water_points_pred"] = int(np.sum(pred == 9))
-    res["water_producers_accuracy_pct"] = res["confusion"]["producers_accuracy_pct"].get("9")
-    res["water_users_accuracy_pct"] = res["confusion"]["users_accuracy_pct"].get("9")
+    res["water_producers_accuracy_pct"] = conf.producers_accuracy_pct.get("9")
+    res["water_users_accuracy_pct"] = conf.users_accuracy_pct.get("9")
     print(evaluate.format_filter_table({"sim demo": filt}))
-    print(evaluate.format_confusion(res["confusion"], classify.CLASS_NAMES))
+    print(evaluate.format_confusion(conf, classify.CLASS_NAMES))
     for k in ("points", "classify_seconds", "outliers_flagged_pct", "false_noise_flags_pct", "dem_rmse_open_m",
               "dem_rmse_canopy_m", "dem_rmse_all_m", "dem_p99_abs_error_open_m", "water_points_truth",
               "water_points_pred", "water_producers_accuracy_pct", "water_users_accuracy_pct"):

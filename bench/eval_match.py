@@ -35,7 +35,7 @@ OUT = REPO / "out" / "eval"
 
 def summary(report) -> dict:
     """The numbers of a ``MatchReport`` this evaluation records."""
-    rep = report.to_dict()
+    rep = dataclasses.asdict(report)
     keys = ("frames", "strips", "pairs", "pairs_by_kind", "pairs_with_ties", "components", "tracks", "observations",
             "tracks_3plus_fraction", "track_length_histogram", "weak_models", "weak_strip_pairs", "densified", "seconds")
     out = {k: rep[k] for k in keys}

@@ -16,11 +16,22 @@ the commands (run with ``PYTHONPATH`` set to the code of that side, the same com
     lidarctl check-vectors OUT/vectors.gpkg --reference OUT/vectors.gpkg --layer buildings --layer water
         --json OUT/check_vectors.json --png OUT/check_vectors.png   (the contours layer's overlap needs > 3.5 GB)
 
+    lidarctl rasters C/strip_0[1-4].laz OUT/rasters                                 (third round of issue 40)
+
 (C = P/lidar_out/classified), then, as ``ortho rectify`` makes the mosaic stale (``ortho check`` refuses it):
 
     ortho mosaic P --workers 1
     ortho check P --reference P/truth/ortho.tif
     ortho check P --points DOM_POINTS.csv --out OUT/dom_points_report   (checkpoints inside the mosaic, offset)
+
+The third round also ran, into a second folder OUT2 (C/strip_0[1-4].laz: the four classified strips):
+
+    lidarctl trees C/strip_01.laz C/strip_02.laz OUT2/trees
+    lidarctl corners C/strip_0[1-4].laz OUT2/corners
+    lidarctl check-plan C/strip_0[1-4].laz P/truth/roof_corners.csv --json OUT2/check_plan.json
+    lidarctl drainage P/lidar_out/dem.tif OUT2/drainage
+    lidarctl check-heights C/strip_01.laz C/strip_02.laz P/truth/checkpoints.csv --dem P/lidar_out/dem.tif
+        --groups density --json OUT2/check_heights_density.json
 
 Each side may spread its outputs over several folders (the commands ran in batches, each appending its console
 lines to OUT/log.txt). This script compares what the two sides left, file by file by SHA-256:

@@ -12,6 +12,7 @@ Writes bench/results/slope_filter.json. Run: .venv/bin/python bench/eval_slope_f
 from __future__ import annotations
 
 import itertools
+import dataclasses
 import json
 import sys
 import time
@@ -40,7 +41,8 @@ def _errors(cloud, params: SlopeSettings) -> dict:
     c, keep = cloud
     g = np.zeros(len(c), bool)
     g[keep] = slope_ground(c.x[keep], c.y[keep], c.z[keep], params)
-    return {k: round(float(v), 3) for k, v in evaluate.filter_errors(g, c.classification == 2).items()}
+    errors = evaluate.filter_errors(g, c.classification == 2)
+    return {k: round(float(v), 3) for k, v in dataclasses.asdict(errors).items()}
 
 
 def main() -> None:

@@ -113,8 +113,9 @@ def demo(work: Path, results: Path) -> dict:
                                                      for (i, x, y, z), g in zip(pts, cover)))
     classified = sorted((root / "lidar_out" / "classified").glob("*.la[sz]"))
     # the surveyor's land-cover record (the truth classes at each point) as the group column
-    hc = check_heights_file(classified, csv_path, grouping="column")
-    write_text_atomic(root / "lidar_out" / "height_check.json", json.dumps(hc, indent=2))
+    checked = check_heights_file(classified, csv_path, grouping="column")
+    write_text_atomic(root / "lidar_out" / "height_check.json", checked.to_json())
+    hc = checked.document
     out = {"project": str(root), "check_points_csv": str(csv_path), "surveyed_targets": len(targets),
            "points_under_trees": 30, "points_without_ground": hc.get("n_without_ground"),
            "height_check_groups": {g: {k: s["all"].get(k) for k in ("n", "rmse_m", "mean_m")}

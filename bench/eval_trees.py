@@ -291,7 +291,7 @@ def sim_dem(scene, cloud, ours, tmp: Path, tag: str = "demo"):
         write_dem(dem, grids["dem"], t.c, t.f, 1.0, EPSG)
         las = tmp / f"sim_{tag}_{name}.laz"
         synthetic.write_las(las, c, crs=EPSG)
-        r = hc.check_heights_file([las], csv, radius_m=5.0, exclude_m=1.0, dem_path=dem, grouping="density")
+        r = hc.check_heights_file([las], csv, radius_m=5.0, exclude_m=1.0, dem_path=dem, grouping="density").document
         out[name] = {"dem_1m": table(r), "ground_points_plane_5m": table(r, None)}
         print(f"sim {tag} DEM ({name}):", {g: (v["n"], round(v["rmse_m"], 3)) for g, v in out[name]["dem_1m"].items()},
               flush=True)
@@ -340,11 +340,11 @@ def lidr_dem(tmp: Path, folds: int = 5):
         las = tmp / f"lidr_fold_{f}.laz"
         synthetic.write_las(las, c, crs=crs)
         dens = hc.check_heights_file([tmp / "lidr_full.laz"], csv, dem_path=tmp / "lidr_dem_all.tif",
-                                     grouping="density")
+                                     grouping="density").document
         labels = [p["group"] for p in dens["points"]]
         cover = [p["canopy_cover"] for p in dens["points"]]
-        r_dem = hc.check_heights_file([las], csv, dem_path=tmp / f"lidr_dem_{f}.tif", grouping="none")
-        r_tin = hc.check_heights_file([las], csv, dem_path=tmp / f"lidr_tin_{f}.tif", grouping="none")
+        r_dem = hc.check_heights_file([las], csv, dem_path=tmp / f"lidr_dem_{f}.tif", grouping="none").document
+        r_tin = hc.check_heights_file([las], csv, dem_path=tmp / f"lidr_tin_{f}.tif", grouping="none").document
         rows_dem += [p["dz_dem_m"] for p in r_dem["points"]]
         rows_tin += [p["dz_dem_m"] for p in r_tin["points"]]
         rows_plane += [p["dz_m"] for p in r_dem["points"]]
@@ -354,7 +354,7 @@ def lidr_dem(tmp: Path, folds: int = 5):
            "group_counts": {g: labels_all.count(g) for g in hc.group_order(labels_all)}}
     for name, dz in (("dem_cells_1m", rows_dem), ("dem_tin", rows_tin), ("ground_points_plane_5m", rows_plane)):
         dz = np.array([np.nan if v is None else v for v in dz])
-        res = {"groups": hc.group_stats(dz, labels_all, 1.0), "overall": hc.stats(dz, 1.0)}
+        res = {"groups": hc._group_stats_document(dz, labels_all, 1.0), "overall": hc._stats_document(dz, 1.0)}
         out[name] = table(res, None)
         print(f"lidr {name}:", {g: (v["n"], round(v["rmse_m"], 3)) for g, v in out[name].items()}, flush=True)
     return out, np.array([np.nan if v is None else v for v in cover_all])

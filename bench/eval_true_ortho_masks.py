@@ -64,7 +64,7 @@ def frame_layers(block, i: int, dsm, dem, res_m: float):
     cam = block.camera
     crs = block.project_crs
     to_project = GridToProject(crs, crs)
-    grid = frame_grid(cam, C, R, dem, res_m, crs, to_project, image_id=image_id, partial=True)
+    grid = frame_grid(cam, C, R, dem, res_m, crs, to_project=to_project, image_id=image_id, partial=True)
     image = np.zeros((cam.height, cam.width), np.uint8)
     t = time.process_time()
     _, mask = rectify_frame(image, cam, C, R, dsm, grid, occlusion_dsm=dsm, tile_px=max(grid.width, grid.height) + 1,

@@ -263,7 +263,7 @@ def main(argv=None) -> int:
             entry = {"role": ROLES.get(name), "vectors_seconds": seconds,
                      "vectors": {**{k: v for k, v in dataclasses.asdict(summary.counts).items()
                                     if k != "contours" or v is not None}, "units": summary.units.as_dict()},
-                     "reference_features": n_ref, "check": check, "heights": height_errors(dlg, scene, origin),
+                     "reference_features": n_ref, "check": check.document, "heights": height_errors(dlg, scene, origin),
                      "road_widths": width_errors(dlg, scene, origin)}
             print("heights:", json.dumps(entry["heights"]["all"]))
             print("road widths:", json.dumps(entry["road_widths"]))

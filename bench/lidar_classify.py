@@ -20,6 +20,7 @@ Run: .venv/bin/python bench/lidar_classify.py [--tiles 25 --big-tiles 50] [--ski
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import os
 import sys
@@ -187,10 +188,10 @@ def main():
         "whole_cloud_correct_vs_truth_pct": 100.0 * float(np.mean(whole == truth)),
         "grid_phase_sensitivity": phase,
         "runs": runs,
-        "ground_filter_errors": ours,
+        "ground_filter_errors": dataclasses.asdict(ours),
         "outliers_flagged_pct": 100.0 * float(np.mean(flagged[outlier])),
         "false_noise_flags_pct": 100.0 * float(np.mean(flagged[~outlier])),
-        "confusion": evaluate.confusion(pred, truth),
+        "confusion": dataclasses.asdict(evaluate.confusion(pred, truth)),
     }
     print(f"lidarctl classify (tiled, default): {n:,} points in {seconds:.1f} s = {n / seconds:,.0f} points/s, "
           f"{cpu_s:.1f} CPU s, peak RSS {peak_mb:,.0f} MB; 20 M: peak {runs['tiled_20m']['peak_rss_mb']:,.0f} MB; "
@@ -211,7 +212,7 @@ def main():
         csf_s = time.perf_counter() - t0
         csf = evaluate.filter_errors(g[keep], truth[keep] == 2)
         result.update({"csf_ground_seconds": csf_s, "csf_points_per_s": n / csf_s,
-                       "csf_ground_filter_errors": csf,
+                       "csf_ground_filter_errors": dataclasses.asdict(csf),
                        "speed_ratio_ours_whole_command_vs_csf_filter_only": csf_s / seconds})
         print(f"CSF (filter only, in-process): {csf_s:.1f} s = {n / csf_s:,.0f} points/s; "
               f"lidarctl whole command is {csf_s / seconds:.1f}x faster")
@@ -238,7 +239,8 @@ def main():
                  lambda x, y, z: csf_ground(np.column_stack([x, y, z]))))}
     for k, r in isprs.items():
         print(f"\nISPRS {k}: mean total {r['mean']['total_error_pct']:.2f} %, {r['seconds']:.1f} s")
-        print(evaluate.format_filter_table(r["samples"], CSF_PUBLISHED))
+        print(evaluate.format_filter_table({s: evaluate.FilterTest(**v) for s, v in r["samples"].items()},
+                                           CSF_PUBLISHED))
     result["isprs"] = isprs
     result["isprs_speed_ratio_csf_over_ours"] = isprs["csf_raw"]["seconds"] / isprs["lidarctl_default"]["seconds"]
     path.write_text(json.dumps(result, indent=2))

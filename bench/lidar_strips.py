@@ -20,6 +20,7 @@ Run: .venv/bin/python bench/lidar_strips.py [--small 6 --large 18 --tile-size 20
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import os
 import sys
@@ -82,7 +83,7 @@ def main():
         pred = np.concatenate([np.asarray(laspy.read(out / p.name).classification) for p in paths])
         keep = ~np.isin(truth, (7, 18))
         r.update(strips=len(paths), points=n, points_per_s=n / r["seconds"], points_per_cpu_s=n / r["cpu_seconds"],
-                 ground_filter_errors=evaluate.filter_errors(pred[keep] == 2, truth[keep] == 2),
+                 ground_filter_errors=dataclasses.asdict(evaluate.filter_errors(pred[keep] == 2, truth[keep] == 2)),
                  correct_vs_truth_pct=100.0 * float(np.mean(pred == truth)))
         runs[name] = r
         print(f"{name}: {len(paths)} strips {n:,} points {r['seconds']:.1f} s {r['points_per_s']:,.0f} points/s "
@@ -97,7 +98,7 @@ def main():
                            for p in paths])
     keep = ~np.isin(truth, (7, 18))
     r.update(points=len(truth), points_per_s=len(truth) / r["seconds"], points_per_cpu_s=len(truth) / r["cpu_seconds"],
-             ground_filter_errors=evaluate.filter_errors(pred[keep] == 2, truth[keep] == 2),
+             ground_filter_errors=dataclasses.asdict(evaluate.filter_errors(pred[keep] == 2, truth[keep] == 2)),
              correct_vs_truth_pct=100.0 * float(np.mean(pred == truth)))
     runs["small_default_tiles"] = r
     print(f"small, default tiles: {r['seconds']:.1f} s CPU {r['cpu_seconds']:.1f} s load "
@@ -120,7 +121,7 @@ def main():
         "points_ratio_large_over_small": runs["large"]["points"] / small["points"],
         "csf_seconds": csf_s, "csf_cpu_seconds": csf_cpu, "csf_points_per_s": len(xyz) / csf_s,
         "csf_load_average_1min_before_after": [load0, os.getloadavg()[0]],
-        "csf_ground_filter_errors": evaluate.filter_errors(g[keep], truth[keep] == 2),
+        "csf_ground_filter_errors": dataclasses.asdict(evaluate.filter_errors(g[keep], truth[keep] == 2)),
         "speed_ratio_ours_whole_command_over_csf_filter_only_wall": csf_s / small["seconds"],
         "speed_ratio_ours_whole_command_over_csf_filter_only_cpu": csf_cpu / small["cpu_seconds"],
         "speed_ratio_default_tiles_over_csf_filter_only_wall": csf_s / runs["small_default_tiles"]["seconds"],

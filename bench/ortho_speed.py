@@ -143,7 +143,7 @@ def _setup(d: Path):
     with open_height_raster(d / "lidar_out" / "dem.tif", crs) as ds:
         dem = read_height_window(ds, ds.bounds)
     tp = GridToProject(crs, crs)
-    grid = frame_grid(cam, C, R, dem, RES_M, crs, tp)
+    grid = frame_grid(cam, C, R, dem, RES_M, crs, to_project=tp)
     img = read_rgb(d / "images" / "dmc_001.tif", (cam.width, cam.height))
     return cam, C, R, dem, grid, img, tp
 
@@ -335,7 +335,7 @@ def accuracy(dom: Path, truth: Path) -> dict:
 
     p, _ = check_against_reference(dom, truth, patch_px=48, step_px=240, search_px=6)
     s = displacement_statistics(p.de_m, p.dn_m, RES_M)
-    return {k: s[k] for k in ("count", "rms_xy_m", "rms_xy_gsd", "max_xy_m", "mean_e_m", "mean_n_m")}
+    return {k: getattr(s, k) for k in ("count", "rms_xy_m", "rms_xy_gsd", "max_xy_m", "mean_e_m", "mean_n_m")}
 
 
 def main():

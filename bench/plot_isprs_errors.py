@@ -38,8 +38,8 @@ def main():
         fig.colorbar(sc, ax=ax, shrink=0.7, label="height (m)")
         for mask, colour, name in ((truth & ~g, "red", "type I"), (~truth & g, "blue", "type II")):
             ax.scatter(x[mask], y[mask], s=3, c=colour, label=f"{name}: {mask.sum()}")
-        ax.set_title(f"{s}: total {e['total_error_pct']:.2f} %, type I {e['type_i_error_pct']:.1f} %, "
-                     f"type II {e['type_ii_error_pct']:.1f} %", fontsize=10)
+        ax.set_title(f"{s}: total {e.total_error_pct:.2f} %, type I {e.type_i_error_pct:.1f} %, "
+                     f"type II {e.type_ii_error_pct:.1f} %", fontsize=10)
         ax.set_aspect("equal")
         ax.set_xlabel("easting from the sample's corner (m)")
         ax.legend(loc="lower right", fontsize=8, markerscale=3)

@@ -58,7 +58,7 @@ def child(way: str, frame: Path, out: Path) -> None:
     C = np.array([500000.0, 3000000.0, 1100.0])
     R = rotation_matrix_opk(0.8, -0.5, 2.0)
     dem = smooth_dem((C[0] - 900, C[1] - 600, C[0] + 900, C[1] + 600), 1.0)
-    grid = frame_grid(cam, C, R, dem, 0.1, crs, GridToProject(crs, crs))
+    grid = frame_grid(cam, C, R, dem, 0.1, crs, to_project=GridToProject(crs, crs))
     t0, c0 = time.perf_counter(), time.process_time()
     if way == "whole":
         import rasterio

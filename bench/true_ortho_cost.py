@@ -150,7 +150,7 @@ def occlusion_agreement(project: Path, frame: str, tiles: int = 6, tile_px: int 
         dsm = read_height_window(ds, _plane_footprint_bounds(b.camera, C, R, zlo - 5.0, zhi + 5.0, frame),
                                  margin_m=4 * ds.transform.a, what="DSM")
     to_project = GridToProject(b.project_crs, b.project_crs)
-    grid = RF.frame_grid(b.camera, C, R, dsm, float(index["res_m"]), b.project_crs, to_project, partial=True)
+    grid = RF.frame_grid(b.camera, C, R, dsm, float(index["res_m"]), b.project_crs, to_project=to_project, partial=True)
     geometry = RF.FrameGeometry(b.camera, np.asarray(C, float), np.asarray(R, float))
     zbuffer = RF.frame_zbuffer(geometry, dsm, grid, to_project, tile_px)
     bound = RF.march_bound(dsm)

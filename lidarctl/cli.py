@@ -251,23 +251,25 @@ def _evaluate_map(pred_paths, reference_path, settings) -> tuple[str, dict]:
 
 def _evaluate_truth(pred_paths, truth_path, map_pred: dict, map_truth: dict) -> tuple[str, dict]:
     """``lidarctl evaluate --truth``: (the report, its numbers)."""
+    import dataclasses
+
     from aerotri.core.errors import OptionError
     from lidarctl import evaluate as ev
 
     if len(pred_paths) != 1:
         raise OptionError(f"--truth: one classified file, not {len(pred_paths)}", param="--truth")
     result = ev.evaluate_files(pred_paths[0], truth_path, map_pred, map_truth)
-    text = "\n".join([ev.format_filter_table({"ground": result["filter_test"]}), "",
-                      ev.format_confusion(result["confusion"])] + _truth_notes(result["confusion"]))
-    return text, result
+    text = "\n".join([ev.format_filter_table({"ground": result.filter_test}), "",
+                      ev.format_confusion(result.confusion)] + _truth_notes(result.confusion))
+    return text, dataclasses.asdict(result)
 
 
-def _truth_notes(conf: dict) -> list[str]:
+def _truth_notes(conf) -> list[str]:
     """What the numbers against a truth cloud do not say: its class 1 may hold ground (a production classification:
     Autzen, lidR's topography), and a truth of ground and one other class makes the matrix compare classes it has
     no label for (the ISPRS filter test's 0 / 2)."""
-    truth = [c for c, row in zip(conf["classes"], conf["matrix"]) if sum(row) > 0]
-    pred = [c for c, col in zip(conf["classes"], zip(*conf["matrix"])) if sum(col) > 0]
+    truth = [c for c, row in zip(conf.classes, conf.matrix) if sum(row) > 0]
+    pred = [c for c, col in zip(conf.classes, zip(*conf.matrix)) if sum(col) > 0]
     notes = []
     if 1 in truth:
         notes.append("note: the truth's class 1 (unclassified) counts as object: where it also holds ground (a "
@@ -310,8 +312,6 @@ def check_heights(*, paths, dem_path, radius_m, exclude_m, grouping, cover_radiu
     DEM): of the cloud's ground (class 2; one file or classified strips) and/or of the DEM raster (--dem);
     dz in metres, error bins, mean |dz| and RMSE overall and per group (seed 004 Tab. 1: by vegetation
     density with --groups density)."""
-    import json
-
     from lidarctl import heights_check as hc
     from aerotri.core.atomic import write_text_atomic
 
@@ -324,7 +324,7 @@ def check_heights(*, paths, dem_path, radius_m, exclude_m, grouping, cover_radiu
                                    dem_path=dem_path, grouping=grouping, density=density)
     click.echo(hc.format_report(result))
     if json_path:
-        write_text_atomic(json_path, json.dumps(result, indent=2))
+        write_text_atomic(json_path, result.to_json())
 
 
 @main.command("check-plan")

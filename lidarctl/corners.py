@@ -940,7 +940,8 @@ def _figure_tile(fig, rec, tc: _TiledCloud, tid: int, spacing_m: float, max_cell
         w, h = g.ncols * g.tile_m, g.nrows * g.tile_m
         cell = max(0.5, spacing_m if np.isfinite(spacing_m) else 0.5, max(w, h) / max_cells)
         shape = (int(np.ceil(h / cell)), int(np.ceil(w / cell)))
-        check_grid(*shape, cell, NDSM_BYTES_PER_CELL, "the corners figure (nDSM)", "--figure", "use --no-figure")
+        check_grid(*shape, cell, NDSM_BYTES_PER_CELL, "the corners figure (nDSM)", option="--figure",
+                   hint="use --no-figure")
         fig = {"cell": cell, "ndsm": np.full(shape, np.nan),
                "extent": (g.x0_m, g.x0_m + shape[1] * cell, g.y0_m, g.y0_m + shape[0] * cell)}
     core = rec["core"] == 1
@@ -986,7 +987,7 @@ def corners_csv_text(corners: list[dict]) -> str:
     return buf.getvalue()
 
 
-def corners_geojson(corners: list[dict], outlines: list[dict], crs=None) -> dict:
+def _corners_geojson_document(corners: list[dict], outlines: list[dict], crs=None) -> dict:
     """Corners (Point) and regularised roof outlines (Polygon, exterior CCW, courtyards CW), map CRS."""
     feats = []
     for o in outlines:
@@ -1094,7 +1095,7 @@ def write_corner_files(outdir, result: dict, crs=None, source: str | None = None
         refuse_input_as_output(p, inputs, "OUTDIR")
     outdir.mkdir(parents=True, exist_ok=True)
     write_text_atomic(files.csv, corners_csv_text(result["corners"]))
-    write_text_atomic(files.geojson, json.dumps(corners_geojson(result["corners"], result["outlines"], crs)))
+    write_text_atomic(files.geojson, json.dumps(_corners_geojson_document(result["corners"], result["outlines"], crs)))
     faces = result.get("faces", [])
     if faces and "plane" in faces[0]:  # still in metres (find_roof_corners' result as it is)
         from lidarctl.units import METRE
@@ -1114,8 +1115,8 @@ def simple_ndsm(xyz: np.ndarray, classification: np.ndarray, cell_m: float = 1.0
     xy = xyz[:, :2]
     origin = xy.min(axis=0)
     cols, rows = np.floor((xy.max(axis=0) - origin) / cell_m).astype(np.int64) + 1
-    check_grid(int(rows), int(cols), cell_m, NDSM_BYTES_PER_CELL, "the corners figure (nDSM)", "--figure",
-               "use --no-figure (or are the strips far apart?)")
+    check_grid(int(rows), int(cols), cell_m, NDSM_BYTES_PER_CELL, "the corners figure (nDSM)", option="--figure",
+               hint="use --no-figure (or are the strips far apart?)")
     ij = np.floor((xy - origin) / cell_m).astype(np.int64)
     shape = tuple(ij.max(axis=0)[::-1] + 1)
     dsm = np.full(shape, -np.inf)

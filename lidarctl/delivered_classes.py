@@ -53,9 +53,6 @@ class DeliveredClasses:
     building_height_m: float | None  # mean height of class 6 above its cell's lowest ground
     warnings: list
 
-    def as_dict(self) -> dict:
-        return dataclasses.asdict(self)
-
 
 def check_delivered_classes(path, units: LengthUnits, chunk_points: int = 2_000_000) -> DeliveredClasses:
     """Check the classes of a LAS/LAZ file (see the module docstring); InputError naming the file and what

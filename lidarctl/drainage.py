@@ -526,7 +526,8 @@ FILES = ("conditioned.tif", "flowdir.tif", "accum_cells.tif", "accum_m2.tif", "s
 def _cog(path, array, profile, nodata, unit=None, description=None):
     from lidarctl.rasters import write_cog
 
-    write_cog(path, array, profile["transform"], profile["crs"], unit, description, nodata=nodata, dtype=None)
+    write_cog(path, array, profile["transform"], profile["crs"], unit=unit, description=description, nodata=nodata,
+              dtype=None)
 
 
 def _write_gpkg(path, net: Network, *, sub_ids, sub_geoms, basin_ids, basin_geoms, crs_wkt, cell_area_m2):

@@ -20,6 +20,7 @@ are compared as stored, within 1.1 coordinate steps.
 from __future__ import annotations
 
 import dataclasses
+import json
 
 import numpy as np
 
@@ -76,9 +77,31 @@ class FilterTest:
     total_error_pct: float
     kappa_pct: float
 
-    def as_dict(self) -> dict:
-        """As ``filter_errors`` returns it and classification_eval.json holds it ("filter_test")."""
-        return dataclasses.asdict(self)
+
+@dataclasses.dataclass(frozen=True)
+class Confusion:
+    """A confusion matrix (``confusion``; module doc): rows truth, columns prediction, in the order of ``classes``;
+    producer's and user's accuracy per class (keyed by the class code as text, as JSON holds them; None for a class
+    absent on that side), overall accuracy and Cohen's kappa, percent."""
+
+    classes: tuple[int, ...]
+    matrix: tuple[tuple[int, ...], ...]
+    producers_accuracy_pct: dict[str, float | None]
+    users_accuracy_pct: dict[str, float | None]
+    overall_accuracy_pct: float
+    kappa_pct: float
+
+
+@dataclasses.dataclass(frozen=True)
+class ClassificationEvaluation:
+    """``evaluate_strips`` / ``evaluate_files``: the filter test (ground = classes 2, 9) and the confusion matrix."""
+
+    filter_test: FilterTest
+    confusion: Confusion
+
+    def to_json(self) -> str:
+        """classification_eval.json's text (``lidarctl evaluate --json``, the chain's lidar_eval)."""
+        return json.dumps(dataclasses.asdict(self), indent=2)
 
 
 def read_filter_test(path) -> FilterTest:
@@ -91,7 +114,7 @@ def read_filter_test(path) -> FilterTest:
         raise record_error(path, CLASSIFICATION_EVAL, exc) from None
 
 
-def filter_errors(pred_ground: np.ndarray, true_ground: np.ndarray) -> dict:
+def filter_errors(pred_ground: np.ndarray, true_ground: np.ndarray) -> FilterTest:
     """Type I / type II / total error (%) and Cohen's kappa (%) for boolean ground masks."""
     pred_ground = np.asarray(pred_ground, bool)
     true_ground = np.asarray(true_ground, bool)
@@ -103,20 +126,20 @@ def filter_errors(pred_ground: np.ndarray, true_ground: np.ndarray) -> dict:
     po = (a + d) / n
     pe = ((a + b) * (a + c) + (c + d) * (b + d)) / (n * n)
     kappa = (po - pe) / (1 - pe) if pe < 1 else 1.0
-    return {
-        "n_points": n,
-        "n_ground": a + b,
-        "n_object": c + d,
-        "type_i_count": b,
-        "type_ii_count": c,
-        "type_i_error_pct": 100.0 * b / max(a + b, 1),
-        "type_ii_error_pct": 100.0 * c / max(c + d, 1),
-        "total_error_pct": 100.0 * (b + c) / n,
-        "kappa_pct": 100.0 * kappa,
-    }
+    return FilterTest(
+        n_points=n,
+        n_ground=a + b,
+        n_object=c + d,
+        type_i_count=b,
+        type_ii_count=c,
+        type_i_error_pct=100.0 * b / max(a + b, 1),
+        type_ii_error_pct=100.0 * c / max(c + d, 1),
+        total_error_pct=100.0 * (b + c) / n,
+        kappa_pct=100.0 * kappa,
+    )
 
 
-def confusion(pred: np.ndarray, truth: np.ndarray, classes=None) -> dict:
+def confusion(pred: np.ndarray, truth: np.ndarray, classes=None) -> Confusion:
     """Confusion matrix (rows truth, columns prediction) with producer's/user's/overall accuracy (%)."""
     pred = np.asarray(pred).astype(np.int64)
     truth = np.asarray(truth).astype(np.int64)
@@ -138,29 +161,29 @@ def confusion(pred: np.ndarray, truth: np.ndarray, classes=None) -> dict:
         users = np.where(cols > 0, 100.0 * diag / cols, np.nan)
     n = max(int(m.sum()), 1)
     po, pe = float(diag.sum()) / n, float(np.dot(rows.astype(float), cols.astype(float))) / (n * n)
-    return {
-        "classes": classes,
-        "matrix": m.tolist(),
-        "producers_accuracy_pct": {str(c): _num(v) for c, v in zip(classes, producers)},
-        "users_accuracy_pct": {str(c): _num(v) for c, v in zip(classes, users)},
-        "overall_accuracy_pct": 100.0 * po,
-        "kappa_pct": 100.0 * ((po - pe) / (1 - pe) if pe < 1 else 1.0),
-    }
+    return Confusion(
+        classes=tuple(classes),
+        matrix=tuple(tuple(row) for row in m.tolist()),
+        producers_accuracy_pct={str(c): _num(v) for c, v in zip(classes, producers)},
+        users_accuracy_pct={str(c): _num(v) for c, v in zip(classes, users)},
+        overall_accuracy_pct=100.0 * po,
+        kappa_pct=100.0 * ((po - pe) / (1 - pe) if pe < 1 else 1.0),
+    )
 
 
 def _num(v):
     return None if not np.isfinite(v) else float(v)
 
 
-def format_filter_table(rows: dict, published: dict | None = None) -> str:
+def format_filter_table(rows: dict[str, FilterTest], published: dict | None = None) -> str:
     """Readable table: sample, type I, type II, total, kappa (%), and published numbers if given."""
     head = f"{'sample':<10}{'type I':>9}{'type II':>9}{'total':>9}{'kappa':>9}"
     if published:
         head += f"   {'published type I / II / total':>30}"
     lines = [head, "-" * len(head)]
     for name, r in rows.items():
-        line = (f"{name:<10}{r['type_i_error_pct']:9.2f}{r['type_ii_error_pct']:9.2f}"
-                f"{r['total_error_pct']:9.2f}{r['kappa_pct']:9.2f}")
+        line = (f"{name:<10}{r.type_i_error_pct:9.2f}{r.type_ii_error_pct:9.2f}"
+                f"{r.total_error_pct:9.2f}{r.kappa_pct:9.2f}")
         if published and name in published:
             pub = published[name]
             line += f"   {pub[0]:>9.2f} / {pub[1]:6.2f} / {pub[2]:6.2f}"
@@ -168,33 +191,33 @@ def format_filter_table(rows: dict, published: dict | None = None) -> str:
     return "\n".join(lines)
 
 
-def format_confusion(conf: dict, names: dict | None = None) -> str:
+def format_confusion(conf: Confusion, names: dict | None = None) -> str:
     names = names or {}
-    classes = conf["classes"]
+    classes = conf.classes
     labels = [names.get(c, str(c)) for c in classes]
     w = max(12, max(len(s) for s in labels) + 2)
     lines = ["truth \\ predicted".ljust(w) + "".join(s.rjust(w) for s in labels) + "producer %".rjust(w)]
-    for c, lab, row in zip(classes, labels, conf["matrix"]):
-        pa = conf["producers_accuracy_pct"][str(c)]
+    for c, lab, row in zip(classes, labels, conf.matrix):
+        pa = conf.producers_accuracy_pct[str(c)]
         lines.append(lab.ljust(w) + "".join(str(v).rjust(w) for v in row)
                      + (f"{pa:.2f}" if pa is not None else "-").rjust(w))
-    ua = [conf["users_accuracy_pct"][str(c)] for c in classes]
+    ua = [conf.users_accuracy_pct[str(c)] for c in classes]
     lines.append("user %".ljust(w) + "".join((f"{u:.2f}" if u is not None else "-").rjust(w) for u in ua))
-    line = f"overall accuracy: {conf['overall_accuracy_pct']:.2f} %"
-    if "kappa_pct" in conf:
-        line += f", kappa {conf['kappa_pct']:.2f} %"
+    line = f"overall accuracy: {conf.overall_accuracy_pct:.2f} %, kappa {conf.kappa_pct:.2f} %"
     lines.append(line)
     return "\n".join(lines)
 
 
-def evaluate_files(pred_path, truth_path, map_pred: dict | None = None, map_truth: dict | None = None) -> dict:
+def evaluate_files(pred_path, truth_path, map_pred: dict | None = None,
+                   map_truth: dict | None = None) -> ClassificationEvaluation:
     """The stage (``lidarctl evaluate``): filter-test errors (ground = classes 2, 9) and the confusion
     matrix of a classified file against a truth file with the same points in the same order.
     ``map_pred`` / ``map_truth``: class mappings applied first (e.g. ``{3: 1, 4: 1}``)."""
     return evaluate_strips([pred_path], [truth_path], map_pred, map_truth)
 
 
-def evaluate_strips(pred_paths, truth_paths, map_pred: dict | None = None, map_truth: dict | None = None) -> dict:
+def evaluate_strips(pred_paths, truth_paths, map_pred: dict | None = None,
+                    map_truth: dict | None = None) -> ClassificationEvaluation:
     """``evaluate_files`` over strips: each classified strip against its truth strip (same points, same
     order; ``read_same_points``), the errors and the confusion matrix over all their points together
     (only the classes of all strips are held, one byte per point each)."""
@@ -210,4 +233,4 @@ def evaluate_strips(pred_paths, truth_paths, map_pred: dict | None = None, map_t
         src = arr.copy()
         for a, b in mapping.items():
             arr[src == a] = b
-    return {"filter_test": filter_errors(np.isin(pc, (2, 9)), np.isin(tc, (2, 9))), "confusion": confusion(pc, tc)}
+    return ClassificationEvaluation(filter_errors(np.isin(pc, (2, 9)), np.isin(tc, (2, 9))), confusion(pc, tc))

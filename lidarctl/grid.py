@@ -61,7 +61,7 @@ def check_disk(n_bytes: float, folder, what: str, option: str | None = None, hin
 
 
 def check_grid(nrows: int, ncols: int, cell_m: float, bytes_per_cell: float, what: str,
-               option: str | None = None, hint: str = "") -> None:
+               *, option: str | None = None, hint: str = "") -> None:
     """``check_allocation`` for a grid of ``nrows`` x ``ncols`` cells of ``cell_m`` metres."""
     check_allocation(float(nrows) * float(ncols) * bytes_per_cell,
                      f"{what}: a grid of {nrows:,} x {ncols:,} cells of {cell_m:g} m", option, hint)

@@ -29,6 +29,7 @@ from __future__ import annotations
 import csv
 import dataclasses
 import io as stringio
+import json
 from pathlib import Path
 
 import numpy as np
@@ -85,7 +86,27 @@ def bin_labels(edges=BIN_EDGES_M) -> list[str]:
     return labels
 
 
-def read_points_csv(path, require_z: bool = True) -> dict:
+@dataclasses.dataclass(frozen=True, eq=False)
+class SurveyedPoints:
+    """Surveyed points (``read_points_csv``): coordinates in the units of the file (the CRS's), or in metres once
+    scaled (``in_metres``)."""
+
+    ids: tuple[str, ...]
+    x: np.ndarray
+    y: np.ndarray
+    z: np.ndarray | None  # None: the file has no z column (``require_z=False``)
+    group: tuple[str, ...] | None  # the group column per point, None without one
+
+    def __len__(self) -> int:
+        return len(self.x)
+
+    def in_metres(self, units: LengthUnits) -> "SurveyedPoints":
+        """The points with x, y and z scaled by ``units`` (the CRS's) to metres."""
+        return dataclasses.replace(self, x=units.xy_to_m(self.x), y=units.xy_to_m(self.y),
+                                   z=units.z_to_m(self.z) if self.z is not None else None)
+
+
+def read_points_csv(path, require_z: bool = True) -> SurveyedPoints:
     """Surveyed points: header with id, x, y, z (case-insensitive; also e/n/h) and optional group; without
     ``require_z`` the z column may be missing (``z`` None)."""
     path = Path(path)
@@ -122,8 +143,8 @@ def read_points_csv(path, require_z: bool = True) -> dict:
     if not xyz:
         raise InputError(f"{path}: no surveyed points after the header")
     xyz = np.array(xyz)
-    return {"id": ids, "x": xyz[:, 0], "y": xyz[:, 1], "z": xyz[:, 2] if "z" in col else None,
-            "group": groups if col_group is not None else None}
+    return SurveyedPoints(tuple(ids), xyz[:, 0], xyz[:, 1], xyz[:, 2] if "z" in col else None,
+                          tuple(groups) if col_group is not None else None)
 
 
 # A plane needs ground points spread in both directions: nearly collinear points (a few returns along a scan
@@ -213,7 +234,8 @@ def abs_bin_labels(edges=ABS_BIN_EDGES_M) -> list[str]:
     return [f"< {e[0]:g}"] + [f"{a:g} .. {b:g}" for a, b in zip(e[:-1], e[1:])] + [f"> {e[-1]:g}"]
 
 
-def stats(dz: np.ndarray, exclude_m: float, abs_edges=ABS_BIN_EDGES_M) -> dict:
+def _stats_document(dz: np.ndarray, exclude_m: float, abs_edges=ABS_BIN_EDGES_M) -> dict:
+    """dz statistics (metres) as height_check.json holds them: bins, |dz| bins, all, without |dz| > exclude_m."""
     dz = dz[np.isfinite(dz)]
     counts, _ = np.histogram(dz, bins=np.array(BIN_EDGES_M))
     abs_counts, _ = np.histogram(np.abs(dz), bins=np.array([0.0, *abs_edges, np.inf]))
@@ -237,26 +259,27 @@ def stats(dz: np.ndarray, exclude_m: float, abs_edges=ABS_BIN_EDGES_M) -> dict:
     }
 
 
-def check_heights(gx, gy, gz, points: dict, *, radius_m: float = 5.0, exclude_m: float = 1.0,
-                  units: LengthUnits = METRE) -> dict:
-    """dz statistics of surveyed ``points`` against ground points (gx, gy, gz); all in metres.
+def _cloud_check_document(gx, gy, gz, points: SurveyedPoints, *, radius_m: float = 5.0, exclude_m: float = 1.0,
+                          units: LengthUnits = METRE) -> dict:
+    """dz statistics of surveyed ``points`` against ground points (gx, gy, gz), all in metres, as the cloud's part
+    of height_check.json.
 
     ``units``: the CRS's units, in which the per-point coordinates are reported (the points as read,
     ``read_points_csv``, scaled by ``units`` to metres give ``points``)."""
-    z_lidar, n_used = ground_height_at(gx, gy, gz, points["x"], points["y"], radius_m=radius_m)
-    dz = z_lidar - points["z"]
-    xs, ys = units.xy_from_m(np.asarray(points["x"])), units.xy_from_m(np.asarray(points["y"]))
-    zs, zl_crs = units.z_from_m(np.asarray(points["z"])), units.z_from_m(z_lidar)
+    z_lidar, n_used = ground_height_at(gx, gy, gz, points.x, points.y, radius_m=radius_m)
+    dz = z_lidar - points.z
+    xs, ys = units.xy_from_m(np.asarray(points.x)), units.xy_from_m(np.asarray(points.y))
+    zs, zl_crs = units.z_from_m(np.asarray(points.z)), units.z_from_m(z_lidar)
     per_point = [{"id": i, "x": float(x), "y": float(y), "z_survey": float(z),
                   "z_lidar": None if not np.isfinite(zl) else float(zl),
                   "dz_m": None if not np.isfinite(d) else float(d), "n_ground": int(nu),
-                  "group": (points["group"][k] if points["group"] else None)}
-                 for k, (i, x, y, z, zl, d, nu) in enumerate(zip(points["id"], xs, ys, zs, zl_crs, dz, n_used))]
+                  "group": (points.group[k] if points.group else None)}
+                 for k, (i, x, y, z, zl, d, nu) in enumerate(zip(points.ids, xs, ys, zs, zl_crs, dz, n_used))]
     result = {"radius_m": radius_m, **units.as_dict(), "n_points": len(dz),
               "n_without_ground": int(np.sum(~np.isfinite(dz))),
-              "overall": stats(dz, exclude_m), "points": per_point, "groups": {}}
-    if points["group"]:
-        result["groups"] = group_stats(dz, points["group"], exclude_m)
+              "overall": _stats_document(dz, exclude_m), "points": per_point, "groups": {}}
+    if points.group:
+        result["groups"] = _group_stats_document(dz, points.group, exclude_m)
     return result
 
 
@@ -268,9 +291,10 @@ def group_order(labels) -> list[str]:
     return sorted(present)
 
 
-def group_stats(dz: np.ndarray, labels, exclude_m: float) -> dict:
+def _group_stats_document(dz: np.ndarray, labels, exclude_m: float) -> dict:
+    """``_stats_document`` per group (``group_order``), as height_check.json holds them."""
     labels_a = np.array(labels)
-    return {g: stats(dz[labels_a == g], exclude_m) for g in group_order(labels)}
+    return {g: _stats_document(dz[labels_a == g], exclude_m) for g in group_order(labels)}
 
 
 def _near_points(px_m, py_m, radius_m: float):
@@ -291,7 +315,7 @@ def _near_points(px_m, py_m, radius_m: float):
 
 
 def check_heights_file(cloud_paths, points_csv, *, radius_m: float = 5.0, exclude_m: float = 1.0, crs=None,
-                       dem_path=None, grouping: str = "auto", density: DensityGroups | None = None) -> dict:
+                       dem_path=None, grouping: str = "auto", density: DensityGroups | None = None) -> HeightCheck:
     """Height check of surveyed points (CSV id,x,y,z[,group], in the CRS and units of the cloud, or of the
     DEM without a cloud) against the ground (class 2) of a classified LAS/LAZ file or of several strips
     (one CRS and unit, else an InputError naming the strip; ``crs`` only for files without CRS), and/or
@@ -299,7 +323,17 @@ def check_heights_file(cloud_paths, points_csv, *, radius_m: float = 5.0, exclud
 
     ``grouping``: ``column`` (the CSV's group column), ``density`` (open / sparse / dense canopy from the
     cloud's first returns, ``density``), ``none``, or ``auto`` (the column when there is one). The strips are
-    read by chunks and only the returns near a surveyed point are kept (memory set by the chunk)."""
+    read by chunks and only the returns near a surveyed point are kept (memory set by the chunk).
+
+    Returns the typed record (what the accuracy report reads back from the file) and the JSON document."""
+    doc = _height_check_document(cloud_paths, points_csv, radius_m=radius_m, exclude_m=exclude_m, crs=crs,
+                                 dem_path=dem_path, grouping=grouping, density=density)
+    return HeightCheck(_record_of(doc), doc)
+
+
+def _height_check_document(cloud_paths, points_csv, *, radius_m, exclude_m, crs, dem_path, grouping,
+                           density) -> dict:
+    """height_check.json's content (``check_heights_file``)."""
     if not (np.isfinite(radius_m) and radius_m > 0):
         raise OptionError(f"--radius {radius_m}: must be a positive distance in metres", param="--radius")
     if not (np.isfinite(exclude_m) and exclude_m > 0):
@@ -318,8 +352,8 @@ def check_heights_file(cloud_paths, points_csv, *, radius_m: float = 5.0, exclud
                           param="--dem")
     points = read_points_csv(points_csv)
     if grouping == "auto":
-        grouping = "column" if points["group"] is not None else "none"
-    if grouping == "column" and points["group"] is None:
+        grouping = "column" if points.group is not None else "none"
+    if grouping == "column" and points.group is None:
         raise OptionError(f"--groups column: {points_csv} has no 'group' column", param="--groups")
     if grouping == "density" and not paths:
         raise OptionError("--groups density: the vegetation density comes from the cloud's first returns; give the "
@@ -346,13 +380,13 @@ def check_heights_file(cloud_paths, points_csv, *, radius_m: float = 5.0, exclud
     else:
         from lidarctl.units import units_of
 
-        _, crs_found, dem_z_m = dem_heights(dem_path, points["x"][:1], points["y"][:1])
+        _, crs_found, dem_z_m = dem_heights(dem_path, points.x[:1], points.y[:1])
         u = units_of(crs_found, source=str(dem_path), vertical_unit_m=dem_z_m)
-    points_m = dict(points, x=u.xy_to_m(points["x"]), y=u.xy_to_m(points["y"]), z=u.z_to_m(points["z"]))
+    points_m = points.in_metres(u)
 
     z_dem = dz_dem = dem_z_m = None
     if dem_path is not None:
-        z_dem, dem_crs, dem_z_m = dem_heights(dem_path, points["x"], points["y"])
+        z_dem, dem_crs, dem_z_m = dem_heights(dem_path, points.x, points.y)
         if cloud is not None and crs_found is not None:
             from aerotri.core.errors import CrsError
             from aerotri.geom.crs import same_horizontal
@@ -360,7 +394,7 @@ def check_heights_file(cloud_paths, points_csv, *, radius_m: float = 5.0, exclud
             if not same_horizontal(dem_crs, crs_found):
                 raise CrsError(f"{dem_path}: the DEM's CRS ({dem_crs}) is not the cloud's ({crs_found.name}); "
                                "reproject one of them (aerotri crs warp / transform)")
-        dz_dem = z_dem * dem_z_m - points_m["z"]
+        dz_dem = z_dem * dem_z_m - points_m.z
 
     cover = n_first = None
     if with_density:
@@ -373,24 +407,24 @@ def check_heights_file(cloud_paths, points_csv, *, radius_m: float = 5.0, exclud
                 return hag[idx]
         else:
             gx, gy, gz = cloud["ground"]
-            z0, _, sxy = ground_height_at(gx, gy, gz, points_m["x"], points_m["y"], radius_m=density.radius_m,
+            z0, _, sxy = ground_height_at(gx, gy, gz, points_m.x, points_m.y, radius_m=density.radius_m,
                                           slopes=True)
 
             def hag_of(k, idx):
-                return fz[idx] - (z0[k] + sxy[k, 0] * (fx[idx] - points_m["x"][k]) + sxy[k, 1] * (fy[idx] - points_m["y"][k]))
-        cover, n_first = canopy_cover(fx, fy, points_m["x"], points_m["y"], hag_of, density)
-        points_m["group"] = density.label(cover)
+                return fz[idx] - (z0[k] + sxy[k, 0] * (fx[idx] - points_m.x[k]) + sxy[k, 1] * (fy[idx] - points_m.y[k]))
+        cover, n_first = canopy_cover(fx, fy, points_m.x, points_m.y, hag_of, density)
+        points_m = dataclasses.replace(points_m, group=tuple(density.label(cover)))
     elif grouping == "none":
-        points_m["group"] = None
+        points_m = dataclasses.replace(points_m, group=None)
 
     if cloud is not None:
-        result = check_heights(*cloud["ground"], points_m, radius_m=radius_m, exclude_m=exclude_m, units=u)
+        result = _cloud_check_document(*cloud["ground"], points_m, radius_m=radius_m, exclude_m=exclude_m, units=u)
     else:
-        xs, ys, zs = points["x"], points["y"], points["z"]
+        xs, ys, zs = points.x, points.y, points.z
         result = {"radius_m": None, **u.as_dict(), "n_points": len(xs), "n_without_ground": None, "overall": None,
                   "groups": {}, "points": [{"id": i, "x": float(a), "y": float(b), "z_survey": float(c),
-                                            "group": points_m["group"][k] if points_m["group"] else None}
-                                           for k, (i, a, b, c) in enumerate(zip(points["id"], xs, ys, zs))]}
+                                            "group": points_m.group[k] if points_m.group else None}
+                                           for k, (i, a, b, c) in enumerate(zip(points.ids, xs, ys, zs))]}
     result["crs"] = crs_found.to_string() if crs_found is not None else None
     result["grouping"] = grouping
     result["abs_bin_edges_m"] = list(ABS_BIN_EDGES_M)
@@ -400,10 +434,11 @@ def check_heights_file(cloud_paths, points_csv, *, radius_m: float = 5.0, exclud
             p["canopy_cover"] = None if not np.isfinite(c) else float(c)
             p["first_returns"] = int(n)
     if dem_path is not None:
-        labels = points_m["group"]
+        labels = points_m.group
         result["dem"] = {"path": str(dem_path), "z_unit_m": dem_z_m, "n_points": len(dz_dem),
-                         "n_without_dem": int(np.sum(~np.isfinite(dz_dem))), "overall": stats(dz_dem, exclude_m),
-                         "groups": group_stats(dz_dem, labels, exclude_m) if labels else {}}
+                         "n_without_dem": int(np.sum(~np.isfinite(dz_dem))),
+                         "overall": _stats_document(dz_dem, exclude_m),
+                         "groups": _group_stats_document(dz_dem, labels, exclude_m) if labels else {}}
         for p, zd, d in zip(result["points"], z_dem, dz_dem):
             p["z_dem"] = None if not np.isfinite(zd) else float(zd)
             p["dz_dem_m"] = None if not np.isfinite(d) else float(d)
@@ -413,7 +448,7 @@ def check_heights_file(cloud_paths, points_csv, *, radius_m: float = 5.0, exclud
 def _refuse_points_elsewhere(points, points_csv, box, what: str, unit: str) -> None:
     """InputError when no surveyed point lies within ``box`` (xmin, ymin, xmax, ymax of the clouds or the DEM):
     points of another zone, CRS or unit would otherwise be reported as "no ground" one by one."""
-    x, y = np.asarray(points["x"], float), np.asarray(points["y"], float)
+    x, y = np.asarray(points.x, float), np.asarray(points.y, float)
     inside = (x >= box[0]) & (x <= box[2]) & (y >= box[1]) & (y <= box[3])
     if not inside.any():
         raise InputError(f"{points_csv}: none of its {len(x)} points lies within the extent of {what} (x {box[0]:.1f} "
@@ -429,7 +464,7 @@ def _read_near(paths, points, radius_m: float, density_radius_m: float | None, c
     for path, _, crs_i, units in io.checked_headers(paths, crs):
         if first is None:
             first = (path, crs_i, units)
-            near = _near_points(units.xy_to_m(points["x"]), units.xy_to_m(points["y"]), reach)
+            near = _near_points(units.xy_to_m(points.x), units.xy_to_m(points.y), reach)
         for first_record, chunk in las.iter_file_chunks(path, io.CHUNK_POINTS):
             cx, cy, cz = np.asarray(chunk.x), np.asarray(chunk.y), np.asarray(chunk.z)
             io.validate_xyz(path, cx, cy, cz, first_record, units)
@@ -483,9 +518,10 @@ def _group_table(title: str, overall: dict, groups: dict) -> list[str]:
     return lines
 
 
-def format_report(result: dict) -> str:
+def format_report(check: HeightCheck) -> str:
     """The height check table; statistics in metres, heights in the CRS's vertical unit (named), dz
     in metres and, for a cloud in feet, also in feet."""
+    result = check.document
     zu = result.get("z_unit", "m")
     z_unit_m = result.get("z_unit_m", 1.0)
     dem = result.get("dem")
@@ -544,13 +580,40 @@ HEIGHT_CHECK = "LiDAR height check (height_check.json)"
 
 @dataclasses.dataclass(frozen=True)
 class HeightCheckRecord:
-    """What ``height_check.json`` tells the accuracy report (metres)."""
+    """What ``height_check.json`` tells the accuracy report and the chain (metres)."""
 
     n_checked: int | None  # surveyed points with ground in reach (None: the cloud was not checked)
     rmse_m: float | None
     dz_m: tuple[float, ...]  # Z_lidar - Z_surveyed per point with ground in reach
-    bins: list | None  # counts per dz bin as written (``stats``)
+    bins: list | None  # counts per dz bin as written (``_stats_document``)
     groups: dict  # group -> statistics as written
+    mean_abs_dz_m: float | None = None
+
+
+@dataclasses.dataclass(frozen=True, eq=False)
+class HeightCheck:
+    """The height check (``check_heights_file``): the typed record other stages read, and the JSON document of
+    ``height_check.json`` (``to_json``; the module docstring says what its keys hold)."""
+
+    record: HeightCheckRecord
+    document: dict
+
+    def to_json(self) -> str:
+        """height_check.json's text (``lidarctl check-heights --json``, the chain's lidar_out/height_check.json)."""
+        return json.dumps(self.document, indent=2)
+
+    def __eq__(self, other) -> bool:
+        return isinstance(other, HeightCheck) and self.document == other.document
+
+
+def _record_of(d: dict) -> HeightCheckRecord:
+    overall = d.get("overall") or {}
+    every = overall.get("all") or {}
+    dz = tuple(float(p["dz_m"]) for p in d.get("points") or [] if p.get("dz_m") is not None)
+    return HeightCheckRecord(None if "n" not in every else int(every["n"]),
+                             None if every.get("rmse_m") is None else float(every["rmse_m"]), dz,
+                             overall.get("bins"), dict(d.get("groups") or {}),
+                             None if every.get("mean_abs_dz_m") is None else float(every["mean_abs_dz_m"]))
 
 
 def read_height_check(path) -> HeightCheckRecord:
@@ -559,11 +622,6 @@ def read_height_check(path) -> HeightCheckRecord:
 
     d = read_record(path, HEIGHT_CHECK, 1)
     try:
-        overall = d.get("overall") or {}
-        every = overall.get("all") or {}
-        dz = tuple(float(p["dz_m"]) for p in d.get("points") or [] if p.get("dz_m") is not None)
-        return HeightCheckRecord(None if "n" not in every else int(every["n"]),
-                                 None if every.get("rmse_m") is None else float(every["rmse_m"]), dz,
-                                 overall.get("bins"), dict(d.get("groups") or {}))
+        return _record_of(d)
     except (AttributeError, KeyError, TypeError, ValueError) as exc:
         raise record_error(path, HEIGHT_CHECK, exc) from None

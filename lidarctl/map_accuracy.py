@@ -37,7 +37,7 @@ from scipy import ndimage
 
 from aerotri.core.errors import InputError, OptionError
 from lidarctl import class_grid as cg
-from lidarctl.evaluate import confusion, filter_errors
+from lidarctl.evaluate import Confusion, confusion, filter_errors
 
 log = logging.getLogger(__name__)
 log.addHandler(logging.NullHandler())
@@ -111,10 +111,10 @@ class BuildingAccuracy:
 
 @dataclasses.dataclass
 class MapAccuracy:
-    """Result of ``evaluate_map``: the pixel confusion matrix (``evaluate.confusion`` dict) and the
+    """Result of ``evaluate_map``: the pixel confusion matrix (``evaluate.confusion``) and the
     building measures (None when neither side has a building)."""
 
-    confusion: dict
+    confusion: Confusion
     buildings: BuildingAccuracy | None
     cell_m: float
     n_cells: int
@@ -125,7 +125,7 @@ class MapAccuracy:
     def as_dict(self) -> dict:
         d = dataclasses.asdict(self)
         d["buildings"] = None if self.buildings is None else self.buildings.as_dict()
-        d["class_names"] = {str(c): cg.CLASS_LABELS.get(c, str(c)) for c in self.confusion["classes"]}
+        d["class_names"] = {str(c): cg.CLASS_LABELS.get(c, str(c)) for c in self.confusion.classes}
         return d
 
 
@@ -169,8 +169,8 @@ def building_accuracy(pred: np.ndarray, ref: np.ndarray, valid: np.ndarray, *, c
     n_found = int(np.sum(r_hit[r_keep] >= min_overlap * r_area[r_keep]))
     n_correct = int(np.sum(d_hit[d_keep] >= min_overlap * d_area[d_keep]))
     return BuildingAccuracy(
-        type_i_error_pct=area["type_i_error_pct"], type_ii_error_pct=area["type_ii_error_pct"],
-        overall_accuracy_pct=100.0 - area["total_error_pct"], kappa_pct=area["kappa_pct"],
+        type_i_error_pct=area.type_i_error_pct, type_ii_error_pct=area.type_ii_error_pct,
+        overall_accuracy_pct=100.0 - area.total_error_pct, kappa_pct=area.kappa_pct,
         completeness_area_pct=_pct(tp, tp + fn), correctness_area_pct=_pct(tp, tp + fp),
         reference_area_m2=(tp + fn) * cell_area_m2, detected_area_m2=(tp + fp) * cell_area_m2,
         n_reference=int(r_keep.sum()), n_found=n_found, n_detected=int(d_keep.sum()), n_correct=n_correct,
@@ -180,7 +180,7 @@ def building_accuracy(pred: np.ndarray, ref: np.ndarray, valid: np.ndarray, *, c
 
 def score_maps(pred: np.ndarray, ref: np.ndarray, cell_area_m2: float, ref_ids: np.ndarray | None = None,
                min_overlap: float = 0.5, min_building_m2: float = 10.0):
-    """(confusion dict, BuildingAccuracy or None, evaluated cells) of two class rasters on one grid
+    """(Confusion, BuildingAccuracy or None, evaluated cells) of two class rasters on one grid
     (ASPRS codes; IGNORE cells left out)."""
     valid = (pred != cg.IGNORE) & (ref != cg.IGNORE)
     conf = confusion(pred[valid], ref[valid])

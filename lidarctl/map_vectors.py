@@ -564,7 +564,7 @@ def extract_vectors(paths, out_path, params: MapVectorSettings = MapVectorSettin
     x0, y0, nrows, ncols = _grid(xy, p.cell_m)
     from lidarctl.grid import check_grid
 
-    check_grid(nrows, ncols, p.cell_m, 16, "road/water masks", "--cell-m", "use a coarser --cell-m")
+    check_grid(nrows, ncols, p.cell_m, 16, "road/water masks", option="--cell-m", hint="use a coarser --cell-m")
     shape = (nrows, ncols)
     # close over gaps of about two point spacings (a mask cell finer than the spacing leaves empty cells)
     spacing = point_spacing_m(xy)

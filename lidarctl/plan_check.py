@@ -29,6 +29,7 @@ import logging
 import tempfile
 import json
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -36,6 +37,9 @@ from aerotri.core.settings import setting
 from aerotri.core.errors import CrsError, InputError, OptionError
 from aerotri.core.textio import read_record, record_error
 from lidarctl.units import LengthUnits
+
+if TYPE_CHECKING:
+    from lidarctl.heights_check import SurveyedPoints
 
 log = logging.getLogger(__name__)
 log.addHandler(logging.NullHandler())
@@ -211,25 +215,26 @@ def read_plan_check(path) -> PlanCheckResult:
         raise record_error(path, what, exc) from None
 
 
-def check_plan(corners: list[dict], points_m: dict, params: PlanCheckSettings, units, tolerance_m=None) -> PlanCheckResult:
+def check_plan(corners: list[dict], points_m: SurveyedPoints, params: PlanCheckSettings, units,
+               tolerance_m=None) -> PlanCheckResult:
     """Match surveyed points (``points_m``: id, x, y[, z] in metres) to LiDAR corners (``find_roof_corners``
     dicts, metres); the result without its sources (module docstring)."""
     cxyz = np.array([[c["x"], c["y"], c["z"]] for c in corners], float).reshape(-1, 3)
-    sxy = np.column_stack([points_m["x"], points_m["y"]])
+    sxy = np.column_stack([points_m.x, points_m.y])
     j = match_corners(sxy, cxyz[:, :2], params.radius_m)
     found = j >= 0
     dxy = cxyz[j[found], :2] - sxy[found]
-    has_z = points_m.get("z") is not None
-    dz = cxyz[j[found], 2] - points_m["z"][found] if has_z else None
+    has_z = points_m.z is not None
+    dz = cxyz[j[found], 2] - points_m.z[found] if has_z else None
     rows = []
     for k in range(len(sxy)):
-        row = dict(id=points_m["id"][k], x=float(units.xy_from_m(sxy[k, 0])), y=float(units.xy_from_m(sxy[k, 1])),
+        row = dict(id=points_m.ids[k], x=float(units.xy_from_m(sxy[k, 0])), y=float(units.xy_from_m(sxy[k, 1])),
                    found=bool(found[k]))
         if has_z:
-            row["z_survey"] = float(units.z_from_m(points_m["z"][k]))
+            row["z_survey"] = float(units.z_from_m(points_m.z[k]))
         if found[k]:
             c = corners[j[k]]
-            d = cxyz[j[k]] - [sxy[k, 0], sxy[k, 1], points_m["z"][k] if has_z else 0.0]
+            d = cxyz[j[k]] - [sxy[k, 0], sxy[k, 1], points_m.z[k] if has_z else 0.0]
             row.update(lidar_corner=c["id"], dx_m=float(d[0]), dy_m=float(d[1]), plan_m=float(np.hypot(d[0], d[1])),
                        score=c["score"], usable=bool(c["usable"]))
             if has_z:
@@ -278,16 +283,14 @@ def check_plan_file(cloud_paths, points_csv, params: PlanCheckSettings = PlanChe
         raise OptionError("give the classified cloud(s) before POINTS_CSV", param="CLOUD")
     points = read_points_csv(points_csv, require_z=False)
     crs_found, units, box = _cloud_extent(paths, crs, points_crs)
-    inside = (points["x"] >= box[0]) & (points["x"] <= box[2]) & (points["y"] >= box[1]) & (points["y"] <= box[3])
+    inside = (points.x >= box[0]) & (points.x <= box[2]) & (points.y >= box[1]) & (points.y <= box[3])
     if not inside.any():
         raise InputError(f"{points_csv}: none of its {len(inside)} points lies within the extent of "
                          f"{', '.join(map(str, paths))} (x {box[0]:.1f} .. {box[2]:.1f}, y {box[1]:.1f} .. {box[3]:.1f} "
                          f"{units.xy_name}); the points must be in the cloud's CRS and units")
     result, _, _, _ = find_roof_corners_tiled(paths, crs=crs, min_edge_m=params.min_edge_m, roof="any",
                                               work_dir=tempfile.gettempdir())
-    z = points["z"]
-    points_m = dict(points, x=units.xy_to_m(points["x"]), y=units.xy_to_m(points["y"]),
-                    z=units.z_to_m(z) if z is not None else None)
+    points_m = points.in_metres(units)
     out = dataclasses.replace(
         check_plan(result["corners"], points_m, params, units, tol),
         min_edge_m=result["stats"]["min_edge_m"],  # the value used (resolved from the spacing by default)

@@ -9,6 +9,8 @@ depend on the order. Cells are in a window of a larger grid: (row, col) = floor(
 
 from __future__ import annotations
 
+from typing import NamedTuple
+
 import numba
 import numpy as np
 
@@ -22,10 +24,45 @@ _STAMP, _VALID_N, _GROUND_N, _INTEN_N = 0, 1, 2, 3                     # int32 (
 _GROUND_CHUNK, _INTEN_CHUNK, _DSM, _GROUND_SUM, _INTEN_SUM = 0, 1, 2, 3, 4   # float64
 
 
+class _Window(NamedTuple):
+    """The window as the kernels take it: cell size (m), the larger grid's origin (m), the window's first cell
+    and its size in cells."""
+
+    res_m: float
+    x0: float
+    y0: float
+    row0: int
+    col0: int
+    nrows: int
+    ncols: int
+
+
+class _Returns(NamedTuple):
+    """A chunk of points as ``_accumulate`` takes it (x, y, z in metres)."""
+
+    x: np.ndarray
+    y: np.ndarray
+    z: np.ndarray
+    cls: np.ndarray
+    return_number: np.ndarray
+    intensity: np.ndarray
+
+
+class _Classified(NamedTuple):
+    """A chunk of points as ``_chm_max`` takes it (x, y, z in metres)."""
+
+    x: np.ndarray
+    y: np.ndarray
+    z: np.ndarray
+    cls: np.ndarray
+
+
 @numba.njit(cache=True, nogil=True)
-def _accumulate(x, y, z, cls, rn, inten, res_m, x0, y0, row0, col0, nrows, ncols, counts, sums, stamp, touched):
-    """One chunk into the window's records (``counts``, ``sums``: one row per flat cell). Returns the
-    index of the first point off the window, or -1."""
+def _accumulate(pts, win, counts, sums, stamp, touched):
+    """One chunk (``_Returns``) into the records of the ``_Window`` (``counts``, ``sums``: one row per flat
+    cell). Returns the index of the first point off the window, or -1."""
+    x, y, z, cls, rn, inten = pts.x, pts.y, pts.z, pts.cls, pts.return_number, pts.intensity
+    res_m, x0, y0, row0, col0, nrows, ncols = win.res_m, win.x0, win.y0, win.row0, win.col0, win.nrows, win.ncols
     nt = 0
     for k in range(len(x)):
         j = np.int64(np.floor((x[k] - x0) / res_m)) - col0
@@ -61,10 +98,12 @@ def _accumulate(x, y, z, cls, rn, inten, res_m, x0, y0, row0, col0, nrows, ncols
 
 
 @numba.njit(cache=True, nogil=True)
-def _chm_max(x, y, z, cls, dem, res_m, x0, y0, row0, col0, chm):
-    """Highest height of vegetation points above the bilinear DEM per cell of the window (``chm``
-    flat, NaN where none), the DEM sampled as ``raster_ops.sample_bilinear`` samples it (the same
+def _chm_max(pts, dem, win, chm):
+    """Highest height of vegetation points (``_Classified``) above the bilinear DEM per cell of the ``_Window``
+    (``chm`` flat, NaN where none), the DEM sampled as ``raster_ops.sample_bilinear`` samples it (the same
     arithmetic). Returns the index of the first point off the window, or -1."""
+    x, y, z, cls = pts.x, pts.y, pts.z, pts.cls
+    res_m, x0, y0, row0, col0 = win.res_m, win.x0, win.y0, win.row0, win.col0
     nrows, ncols = dem.shape
     r0, c0 = float(row0), float(col0)
     for k in range(len(x)):
@@ -97,7 +136,7 @@ class CellStats:
     first-return intensities (``inten_sum``, ``inten_n``), the highest vegetation above the DEM
     (``chm``, NaN where none)."""
 
-    def __init__(self, res_m: float, x0: float, y0: float, nrows: int, ncols: int, row0: int = 0, col0: int = 0):
+    def __init__(self, res_m: float, x0: float, y0: float, nrows: int, ncols: int, *, row0: int = 0, col0: int = 0):
         self.res_m, self.x0, self.y0 = float(res_m), float(x0), float(y0)
         self.nrows, self.ncols, self.row0, self.col0 = int(nrows), int(ncols), int(row0), int(col0)
         n = self.nrows * self.ncols
@@ -114,16 +153,18 @@ class CellStats:
     inten_sum = property(lambda self: self._sums[:, _INTEN_SUM])
     dsm = property(lambda self: self._sums[:, _DSM])
 
+    def _window(self) -> _Window:
+        return _Window(self.res_m, self.x0, self.y0, self.row0, self.col0, self.nrows, self.ncols)
+
     def add(self, x, y, z, cls, return_number, intensity) -> None:
         """A chunk of points (x, y, z in metres, class, return number, intensity)."""
         self._stamp += 1
-        bad = _accumulate(x, y, z, cls, return_number, intensity, self.res_m, self.x0, self.y0, self.row0,
-                          self.col0, self.nrows, self.ncols, self._counts, self._sums, self._stamp,
-                          np.empty(len(x), np.int64))
+        bad = _accumulate(_Returns(x, y, z, cls, return_number, intensity), self._window(), self._counts,
+                          self._sums, self._stamp, np.empty(len(x), np.int64))
         if bad >= 0:
             raise RuntimeError("a point lies outside the raster grid")   # a tiling bug, not an input error
 
-    def core_grids(self, footprint: np.ndarray, dem: np.ndarray, dsm_filled: np.ndarray, core, z_m: float,
+    def core_grids(self, footprint: np.ndarray, dem: np.ndarray, dsm_filled: np.ndarray, core, *, z_m: float,
                    metric: bool, nodata: float) -> np.ndarray:
         """``_core_grids`` of the window's core (row slice, col slice): (6, rows, cols) float32."""
         return _core_grids(footprint, np.ascontiguousarray(dem, float), np.ascontiguousarray(dsm_filled, float),
@@ -132,8 +173,7 @@ class CellStats:
 
     def add_chm(self, x, y, z, cls, dem: np.ndarray) -> None:
         """A chunk of points again, once the window's DEM (filled, rows south to north) is known."""
-        if _chm_max(x, y, z, cls, np.ascontiguousarray(dem, float), self.res_m, self.x0, self.y0, self.row0,
-                    self.col0, self.chm) >= 0:
+        if _chm_max(_Classified(x, y, z, cls), np.ascontiguousarray(dem, float), self._window(), self.chm) >= 0:
             raise RuntimeError("a point lies outside the raster grid")
 
 

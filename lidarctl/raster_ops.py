@@ -8,6 +8,7 @@ Writers flip rows to the north-up GeoTIFF convention.
 from __future__ import annotations
 
 import logging
+from typing import NamedTuple
 
 import numba
 import numpy as np
@@ -37,33 +38,54 @@ def cell_extreme(flat: np.ndarray, values, ncells: int, how: str = "min") -> np.
     return _cell_extreme(np.asarray(flat, np.int64), np.asarray(values, float), ncells, 1.0 if how == "min" else -1.0)
 
 
+class _CellGrid(NamedTuple):
+    """A grid of the module docstring's convention as the numba kernels take it (one argument, not five)."""
+
+    cell_m: float
+    x0: float
+    y0: float
+    nrows: int
+    ncols: int
+
+
+class _GridWindow(NamedTuple):
+    """``_bilinear``'s raster: cell size and origin of the whole grid, first row and column of the window
+    (floats, as the kernel's arithmetic takes them)."""
+
+    cell_m: float
+    x0: float
+    y0: float
+    row0: float
+    col0: float
+
+
 @numba.njit(cache=True)
-def _cell_of(x, y, cell_m, x0, y0, nrows, ncols):
-    """Flat cell of a point, -1 off the grid (or NaN)."""
-    jf = np.floor((x - x0) / cell_m)
-    i_f = np.floor((y - y0) / cell_m)
-    if not (jf >= 0 and jf < ncols and i_f >= 0 and i_f < nrows):
+def _cell_of(x, y, g):
+    """Flat cell of a point in ``_CellGrid`` ``g``, -1 off the grid (or NaN)."""
+    jf = np.floor((x - g.x0) / g.cell_m)
+    i_f = np.floor((y - g.y0) / g.cell_m)
+    if not (jf >= 0 and jf < g.ncols and i_f >= 0 and i_f < g.nrows):
         return -1
-    return int(i_f) * ncols + int(jf)
+    return int(i_f) * g.ncols + int(jf)
 
 
 @numba.njit(cache=True)
-def _cell_extreme_xy(x, y, v, cell_m, x0, y0, nrows, ncols, sign):
-    out = np.full(nrows * ncols, np.nan)
+def _cell_extreme_xy(x, y, v, g, sign):
+    out = np.full(g.nrows * g.ncols, np.nan)
     for k in range(len(x)):
-        c = _cell_of(x[k], y[k], cell_m, x0, y0, nrows, ncols)
+        c = _cell_of(x[k], y[k], g)
         if c >= 0 and (np.isnan(out[c]) or sign * v[k] < sign * out[c]):
             out[c] = v[k]
     return out
 
 
 @numba.njit(cache=True)
-def _cell_sums(x, y, v, cell_m, x0, y0, nrows, ncols):
+def _cell_sums(x, y, v, g):
     """Per-cell sum (in point order, as np.bincount adds) and count of ``v``."""
-    s = np.zeros(nrows * ncols)
-    n = np.zeros(nrows * ncols)
+    s = np.zeros(g.nrows * g.ncols)
+    n = np.zeros(g.nrows * g.ncols)
     for k in range(len(x)):
-        c = _cell_of(x[k], y[k], cell_m, x0, y0, nrows, ncols)
+        c = _cell_of(x[k], y[k], g)
         if c >= 0:
             s[c] += v[k]
             n[c] += 1.0
@@ -78,13 +100,13 @@ def reduce_grid(x, y, values, cell_m, x0, y0, nrows, ncols, how: str = "min") ->
     if how not in ("min", "max", "mean"):
         raise ValueError(how)
     x, y, v = np.asarray(x, float), np.asarray(y, float), np.asarray(values, float)
+    grid = _CellGrid(float(cell_m), float(x0), float(y0), int(nrows), int(ncols))
     if how == "mean":
-        s, n = _cell_sums(x, y, v, float(cell_m), float(x0), float(y0), int(nrows), int(ncols))
+        s, n = _cell_sums(x, y, v, grid)
         with np.errstate(invalid="ignore"):
             out = s / n
     else:
-        out = _cell_extreme_xy(x, y, v, float(cell_m), float(x0), float(y0), int(nrows), int(ncols),
-                               1.0 if how == "min" else -1.0)
+        out = _cell_extreme_xy(x, y, v, grid, 1.0 if how == "min" else -1.0)
     return out.reshape(nrows, ncols)
 
 
@@ -130,72 +152,12 @@ def _push(coarse, v, w):
     return out
 
 
-@numba.njit(cache=True, nogil=True)
-def _pull_finite(a):
-    """``_pull(np.where(np.isfinite(a), a, 0.0), np.isfinite(a).astype(float))`` without those two arrays
-    (the same sums in the same order, so bit-identical): the first level of ``fill_nodata``."""
-    h, wd = a.shape
-    hh, ww = (h + 1) // 2, (wd + 1) // 2
-    vs = np.empty((hh, ww))
-    ws = np.empty((hh, ww))
-    for i in range(hh):
-        i1 = 2 * i + 1
-        for j in range(ww):
-            j1 = 2 * j + 1
-            a00, a01, a10, a11 = a[2 * i, 2 * j], 0.0, 0.0, 0.0
-            w00, w01, w10, w11 = 1.0, 0.0, 0.0, 0.0
-            if not np.isfinite(a00):
-                a00, w00 = 0.0, 0.0
-            if j1 < wd and np.isfinite(a[2 * i, j1]):
-                a01, w01 = a[2 * i, j1], 1.0
-            if i1 < h:
-                if np.isfinite(a[i1, 2 * j]):
-                    a10, w10 = a[i1, 2 * j], 1.0
-                if j1 < wd and np.isfinite(a[i1, j1]):
-                    a11, w11 = a[i1, j1], 1.0
-            n = (w00 + w01) + (w10 + w11)
-            if n > 0:
-                vs[i, j] = ((a00 + a01) + (a10 + a11)) / max(n, 1e-12)
-                ws[i, j] = 1.0
-            else:
-                vs[i, j] = 0.0
-                ws[i, j] = 0.0
-    return vs, ws
-
-
-@numba.njit(cache=True, nogil=True)
-def _push_finite(coarse, a):
-    """The last level of ``fill_nodata``: ``a`` where finite, else its parent's value."""
-    h, wd = a.shape
-    out = np.empty((h, wd))
-    for i in range(h):
-        for j in range(wd):
-            out[i, j] = a[i, j] if np.isfinite(a[i, j]) else coarse[i // 2, j // 2]
-    return out
-
-
 def fill_nodata(a: np.ndarray) -> np.ndarray:
     """Fill NaN cells by pull-push (pyramid averaging, then coarse-to-fine fill); smooth and O(n)."""
     a = np.asarray(a, float)
     valid = np.isfinite(a)
     if valid.all() or not valid.any():
         return a.copy()
-    if min(a.shape) > 1:
-        # the first level and the last push straight from ``a`` (two fewer full-size float64 arrays): the
-        # loop below's results, bit for bit
-        a = np.ascontiguousarray(a)
-        levels = [_pull_finite(a)]
-        while True:
-            v, w = levels[-1]
-            if (w > 0).all() or min(v.shape) == 1:
-                break
-            levels.append(_pull(v, w))
-        filled, w = levels[-1]
-        if not (w > 0).all():
-            filled = np.where(w > 0, filled, np.sum(filled * w) / w.sum())
-        for v, w in reversed(levels[:-1]):
-            filled = _push(filled, v, w)
-        return _push_finite(filled, a)
     levels = [(np.where(valid, a, 0.0), valid.astype(float))]
     while True:
         v, w = levels[-1]
@@ -211,13 +173,14 @@ def fill_nodata(a: np.ndarray) -> np.ndarray:
 
 
 @numba.njit(cache=True, parallel=True)
-def _bilinear(a, x, y, cell_m, x0, y0, row0, col0):
+def _bilinear(a, x, y, w):
     nrows, ncols = a.shape
     out = np.empty(len(x))
     for k in numba.prange(len(x)):
-        # fractional cell index of the point, clamped to the cell centres (edge cells extended)
-        r = min(max((y[k] - y0) / cell_m - 0.5 - row0, 0.0), nrows - 1.0)
-        c = min(max((x[k] - x0) / cell_m - 0.5 - col0, 0.0), ncols - 1.0)
+        # fractional cell index of the point in ``_GridWindow`` ``w``, clamped to the cell centres (edge cells
+        # extended)
+        r = min(max((y[k] - w.y0) / w.cell_m - 0.5 - w.row0, 0.0), nrows - 1.0)
+        c = min(max((x[k] - w.x0) / w.cell_m - 0.5 - w.col0, 0.0), ncols - 1.0)
         i, j = min(int(r), nrows - 2) if nrows > 1 else 0, min(int(c), ncols - 2) if ncols > 1 else 0
         fr, fc = r - i, c - j
         i1, j1 = min(i + 1, nrows - 1), min(j + 1, ncols - 1)
@@ -232,7 +195,7 @@ def sample_bilinear(a: np.ndarray, x, y, cell_m, x0, y0, row0: int = 0, col0: in
     faster on 2 cores; the classifier samples its DEMs at every point several times). ``row0``,
     ``col0``: the raster is the window of a larger grid with origin (x0, y0) starting at that cell (tiles)."""
     return _bilinear(np.ascontiguousarray(a, float), np.asarray(x, float), np.asarray(y, float),
-                     float(cell_m), float(x0), float(y0), float(row0), float(col0))
+                     _GridWindow(float(cell_m), float(x0), float(y0), float(row0), float(col0)))
 
 
 def slope_tan(a: np.ndarray, cell_m: float) -> np.ndarray:

@@ -21,7 +21,7 @@ from __future__ import annotations
 
 import dataclasses
 import functools
-from typing import ClassVar
+from typing import ClassVar, NamedTuple
 import logging
 from pathlib import Path
 
@@ -100,7 +100,7 @@ class _CellSums:
     def __init__(self, args, offset: tuple[int, int] = (0, 0)):
         self.args = args
         self.offset = offset
-        self._stats = CellStats(args[0], args[1], args[2], args[3], args[4], offset[0], offset[1])
+        self._stats = CellStats(args[0], args[1], args[2], args[3], args[4], row0=offset[0], col0=offset[1])
 
     # per-cell arrays (flat): points not noise, sum and count of ground heights, highest first return,
     # sum and count of first-return intensities, highest vegetation above the DEM
@@ -148,8 +148,8 @@ class _CellSums:
         NODATA, in the CRS's units (``to_crs_units`` of ``grids_south_up``'s core, in one loop), and
         the metric DEM with NaN (the hillshade's)."""
         dsm_filled = fill_nodata(self.dsm.reshape(self.args[3], self.args[4]))
-        out = self._stats.core_grids(self.footprint(footprint_cells), dem, dsm_filled, core, units.z_m,
-                                     units.is_metric, NODATA)
+        out = self._stats.core_grids(self.footprint(footprint_cells), dem, dsm_filled, core, z_m=units.z_m,
+                                     metric=units.is_metric, nodata=NODATA)
         return dict(zip(("dem_m", *RASTERS), out))
 
     def grids_south_up(self, dem: np.ndarray, footprint_cells: int) -> dict:
@@ -197,7 +197,7 @@ def make_grids(cloud: PointCloud, res_m: float, footprint_cells: int = 3,
     check_res(res_m)
     x, y, z, cls = cloud.x, cloud.y, cloud.z, cloud.classification
     args = grid_for_bounds(x.min(), y.min(), x.max(), y.max(), res_m)
-    check_grid(args[3], args[4], res_m, RASTER_BYTES_PER_CELL, "rasters", "--res", "use a coarser --res")
+    check_grid(args[3], args[4], res_m, RASTER_BYTES_PER_CELL, "rasters", option="--res", hint="use a coarser --res")
     sums = _CellSums(args)
     sums.add(x, y, z, cls, cloud.return_number, cloud.intensity)
     dem = sums.dem(fill_radius_px=dem_fill_radius_px)
@@ -251,8 +251,8 @@ def make_grids_streamed(path, res_m: float, footprint_cells: int = 3, chunk_poin
     mins, maxs = _header_bounds(path, header)
     args = grid_for_bounds(units.xy_to_m(mins[0]), units.xy_to_m(mins[1]), units.xy_to_m(maxs[0]),
                            units.xy_to_m(maxs[1]), res_m)
-    check_grid(args[3], args[4], res_m, RASTER_BYTES_PER_CELL, f"{path}: rasters over the header bounds", "--res",
-               "use a coarser --res (or check the bounds: strips far apart, a wrong CRS?)")
+    check_grid(args[3], args[4], res_m, RASTER_BYTES_PER_CELL, f"{path}: rasters over the header bounds",
+               option="--res", hint="use a coarser --res (or check the bounds: strips far apart, a wrong CRS?)")
     sums = _CellSums(args)
     for x, y, z, cls, rn, inten in _file_points(path, units, chunk_points):
         sums.add(x, y, z, cls, rn, inten)
@@ -282,7 +282,7 @@ def _transform_in_units(t, units: LengthUnits):
     return from_origin(t.c / units.xy_m, t.f / units.xy_m, t.a / units.xy_m, -t.e / units.xy_m)
 
 
-def write_cog(path, array: np.ndarray, transform, crs, unit: str | None = None, description: str | None = None,
+def write_cog(path, array: np.ndarray, transform, crs, *, unit: str | None = None, description: str | None = None,
               tags: dict | None = None, nodata: float = NODATA, dtype: str | None = "float32") -> None:
     """Single-band Cloud-Optimized GeoTIFF (deflate, internal overviews), float32 with nodata -9999 by
     default; NaN cells of a float array become ``nodata``.
@@ -442,16 +442,15 @@ def _bin_points(inputs: _Inputs, args, grid, work: Path, chunk_points: int) -> n
 
     res_m, x0, y0 = args[:3]
     tile_px, buffer_px = int(grid.tile_m), int(grid.buffer_m)
+    lay = _TileLayout(res_m, x0, y0, tile_px, buffer_px, grid.nrows, grid.ncols)
     used = np.zeros(grid.n_tiles, bool)
     n_ground = 0
     chunks = (c for path in inputs.paths for c in _file_points(path, inputs.units, chunk_points))
     with progress(inputs.n_points, "rasters: bin points into tiles", "pt", unit_scale=True) as bar:
         for x, y, z, cls, rn, inten in _read_ahead(chunks):
             count = np.zeros(grid.n_tiles + 1, np.int64)
-            rec = np.empty(_membership_count(x, y, res_m, x0, y0, tile_px, buffer_px, grid.nrows, grid.ncols, count),
-                           _BIN_DTYPE)     # the memberships' records, by tile
-            n_ground += _gather_records(rec, count, x, y, z, cls, rn, inten, res_m, x0, y0, tile_px, buffer_px,
-                                        grid.nrows, grid.ncols)
+            rec = np.empty(_membership_count(x, y, lay, count), _BIN_DTYPE)     # the memberships' records, by tile
+            n_ground += _gather_records(rec, count, _ChunkPoints(x, y, z, cls, rn, inten), lay)
             for tid in np.flatnonzero(count[1:] > count[:-1]):
                 used[tid] = True
                 with open(work / f"tile_{tid}.bin", "ab") as fh:
@@ -465,9 +464,35 @@ def _bin_points(inputs: _Inputs, args, grid, work: Path, chunk_points: int) -> n
 # The tiles of a point (its own and the 0 to 3 neighbours whose buffer holds it; the tile grid's
 # coordinates are global cells, the cells' indices exact floats): scalars only, so that the two loops
 # below compile in a fraction of a second (an array per point costs numba reference counting).
+class _TileLayout(NamedTuple):
+    """The tiles of the binning pass as its kernels take them: cell size and grid origin (m), tile size and
+    buffer (cells), tile rows and columns."""
+
+    res_m: float
+    x0: float
+    y0: float
+    tile_px: int
+    buffer_px: int
+    ntr: int
+    ntc: int
+
+
+class _ChunkPoints(NamedTuple):
+    """A chunk of points as ``_gather_records`` takes it (x, y, z in metres, class, return number, intensity)."""
+
+    x: np.ndarray
+    y: np.ndarray
+    z: np.ndarray
+    cls: np.ndarray
+    rn: np.ndarray
+    intensity: np.ndarray
+
+
 @numba.njit(cache=True, nogil=True, inline="always")
-def _tile_and_near(x, y, res_m, x0, y0, tile_px, buffer_px, ntr, ntc):
-    """(tile row, tile col, first row of tiles, last, first col, last) of the tiles that hold the point."""
+def _tile_and_near(x, y, lay):
+    """(first row of tiles, last, first col, last) of the tiles of ``_TileLayout`` ``lay`` that hold the point."""
+    res_m, x0, y0, tile_px, buffer_px, ntr, ntc = (lay.res_m, lay.x0, lay.y0, lay.tile_px, lay.buffer_px, lay.ntr,
+                                                   lay.ntc)
     col = np.floor((x - x0) / res_m)
     row = np.floor((y - y0) / res_m)
     ci = int(min(max(np.floor(col / tile_px), 0.0), ntc - 1.0))
@@ -481,11 +506,12 @@ def _tile_and_near(x, y, res_m, x0, y0, tile_px, buffer_px, ntr, ntc):
 
 
 @numba.njit(cache=True, nogil=True)
-def _membership_count(x, y, res_m, x0, y0, tile_px, buffer_px, ntr, ntc, count):
+def _membership_count(x, y, lay, count):
     """Points per tile (core + buffer) into ``count[1:]``, then turned into the tiles' first record
     (``count[t]`` .. ``count[t + 1]``); returns the number of memberships."""
+    ntc = lay.ntc
     for k in range(len(x)):
-        r_lo, r_hi, c_lo, c_hi = _tile_and_near(x[k], y[k], res_m, x0, y0, tile_px, buffer_px, ntr, ntc)
+        r_lo, r_hi, c_lo, c_hi = _tile_and_near(x[k], y[k], lay)
         for r in range(r_lo, r_hi + 1):
             for c in range(c_lo, c_hi + 1):
                 count[r * ntc + c + 1] += 1
@@ -495,13 +521,16 @@ def _membership_count(x, y, res_m, x0, y0, tile_px, buffer_px, ntr, ntc, count):
 
 
 @numba.njit(cache=True, nogil=True)
-def _gather_records(rec, count, x, y, z, cls, rn, inten, res_m, x0, y0, tile_px, buffer_px, ntr, ntc):
-    """The records (``_BIN_DTYPE``) of the memberships by tile, points in order within a tile (the
-    counting sort of ``TileGrid.assign``); returns the number of ground (2) and water (9) points."""
+def _gather_records(rec, count, pts, lay):
+    """The records (``_BIN_DTYPE``) of the memberships by tile of the chunk ``pts`` (``_ChunkPoints``), points
+    in order within a tile (the counting sort of ``TileGrid.assign``); returns the number of ground (2) and
+    water (9) points."""
+    x, y, z, cls, rn, inten = pts.x, pts.y, pts.z, pts.cls, pts.rn, pts.intensity
+    ntc = lay.ntc
     fill = count[:-1].copy()
     n = 0
     for k in range(len(x)):
-        r_lo, r_hi, c_lo, c_hi = _tile_and_near(x[k], y[k], res_m, x0, y0, tile_px, buffer_px, ntr, ntc)
+        r_lo, r_hi, c_lo, c_hi = _tile_and_near(x[k], y[k], lay)
         for r in range(r_lo, r_hi + 1):
             for c in range(c_lo, c_hi + 1):
                 t = r * ntc + c
@@ -569,7 +598,7 @@ def _bin_chunks(path: Path, chunk_points: int):
             yield rec
 
 
-def _tiled_gtiff(path, shape, transform, crs, count: int = 1, dtype: str = "float32", nodata=NODATA):
+def _tiled_gtiff(path, shape, transform, crs, *, count: int = 1, dtype: str = "float32", nodata=NODATA):
     """A working GeoTIFF, uncompressed: written once by windows and read once by the COG copy, so
     compressing it cost 2.3 CPU-s of the demo's rasters and saved only temporary disk space (which
     ``check_disk`` asks for uncompressed anyway)."""
@@ -597,7 +626,7 @@ def _tile_windows(grid, nrows: int, ncols: int):
         yield tid, (row0, col0, rows, cols), core, Window(c_lo, nrows - r_hi, c_hi - c_lo, r_hi - r_lo)
 
 
-def write_rasters(cloud, outdir, res_m: float, crs=None, tile_px: int = DEFAULT_TILE_PX,
+def write_rasters(cloud, outdir, res_m: float, crs=None, *, tile_px: int = DEFAULT_TILE_PX,
                   buffer_px: int = DEFAULT_BUFFER_PX, chunk_points: int = io.CHUNK_POINTS,
                   dem_fill_radius_px: float = DEFAULT_TIN_FILL_RADIUS_PX) -> list[Path]:
     """Write all rasters into ``outdir``; other files there (e.g. the classified cloud) stay.
@@ -688,7 +717,7 @@ def _write_set(outdir, write, files=FILES, name: str = "rasters") -> list[Path]:
     return [outdir / f for f in files]
 
 
-def write_rasters_tiled(paths, outdir, res_m: float, crs=None, tile_px: int = DEFAULT_TILE_PX,
+def write_rasters_tiled(paths, outdir, res_m: float, crs=None, *, tile_px: int = DEFAULT_TILE_PX,
                         buffer_px: int = DEFAULT_BUFFER_PX, chunk_points: int = io.CHUNK_POINTS,
                         footprint_cells: int = 3, dem_fill_radius_px: float = DEFAULT_TIN_FILL_RADIUS_PX) -> list[Path]:
     """The rasters of classified LAS/LAZ files (strips in one CRS) by tiles: memory is set by the tile
@@ -730,8 +759,8 @@ def write_rasters_tiled(paths, outdir, res_m: float, crs=None, tile_px: int = DE
                          "(header bounds); expected at least 2 x 2: a cloud of one point or one spot, or a --res "
                          "coarser than the cloud", param="--res")
     win = min(tile_px + 2 * buffer_px, nrows), min(tile_px + 2 * buffer_px, ncols)
-    check_grid(*win, res_m, RASTER_BYTES_PER_CELL, "rasters: one tile with its buffer", "--tile-px",
-               "use a smaller --tile-px")
+    check_grid(*win, res_m, RASTER_BYTES_PER_CELL, "rasters: one tile with its buffer",
+               option="--tile-px", hint="use a smaller --tile-px")
     threads = _tile_threads(win[0] * win[1])
     # the working GeoTIFFs and the COGs, uncompressed float32 at worst (a grid over strips far apart
     # is mostly nodata, but the tiles are still visited and written)
@@ -751,13 +780,14 @@ def write_rasters_tiled(paths, outdir, res_m: float, crs=None, tile_px: int = DE
         work.mkdir()
         used = _bin_points(inputs, args, grid, work, chunk_points)
         with rasterio.Env(**_GDAL_THREAD_ENV):
-            dem_sum, dem_n = _tiles_to_gtiffs(inputs, args, grid, used, work, tmp, transform, tags,
-                                              chunk_points, footprint_cells, dem_fill_radius_px, threads)
+            dem_sum, dem_n = _tiles_to_gtiffs(inputs, args, grid, used, work, tmp, transform=transform, tags=tags,
+                                              chunk_points=chunk_points, footprint_cells=footprint_cells,
+                                              dem_fill_radius_px=dem_fill_radius_px, threads=threads)
         fill = np.float32(dem_sum / dem_n) if dem_n else np.float32(np.nan)
 
         def hillshade_png() -> None:
-            _hillshade_by_windows(work / "dem_m.tif", work / "hillshade.tif", res_m, fill, grid, nrows, ncols,
-                                  transform, inputs.crs)
+            _hillshade_by_windows(work / "dem_m.tif", work / "hillshade.tif", res_m, fill, grid=grid, nrows=nrows,
+                                  ncols=ncols, transform=transform, crs=inputs.crs)
             _hillshade_png(work / "hillshade.tif", tmp / "hillshade.png")
 
         def cog(name: str) -> None:
@@ -816,7 +846,7 @@ def _run_threads(tasks) -> None:
             raise
 
 
-def _tile_grids(inputs: _Inputs, args, tile, work: Path, chunk_points: int, footprint_cells: int,
+def _tile_grids(inputs: _Inputs, args, tile, work: Path, *, chunk_points: int, footprint_cells: int,
                 dem_fill_radius_px: float):
     """The grids of one tile's core from its binned points (``_bin_points``): float32 arrays north-up,
     NODATA for no value, in the CRS's units, the DEM also in metres (``dem_m``); and the sum (float64)
@@ -842,7 +872,7 @@ def _tile_grids(inputs: _Inputs, args, tile, work: Path, chunk_points: int, foot
     return out, dem_sum, dem_n
 
 
-def _tiles_to_gtiffs(inputs: _Inputs, args, grid, used, work: Path, tmp: Path, transform, tags,
+def _tiles_to_gtiffs(inputs: _Inputs, args, grid, used, work: Path, tmp: Path, *, transform, tags,
                      chunk_points: int, footprint_cells: int, dem_fill_radius_px: float, threads: int = 1):
     """Pass 2: each tile's grids from its binned points (``_tile_grids``, ``threads`` tiles at a time,
     at most one more waiting), the core written by window into tiled GeoTIFFs (``work/<name>.tif`` in
@@ -888,8 +918,9 @@ def _tiles_to_gtiffs(inputs: _Inputs, args, grid, used, work: Path, tmp: Path, t
             try:
                 for tile in _tile_windows(grid, nrows, ncols):
                     tid, window = tile[0], tile[3]
-                    future = pool.submit(_tile_grids, inputs, args, tile, work, chunk_points, footprint_cells,
-                                         dem_fill_radius_px) if used[tid] else None
+                    future = pool.submit(_tile_grids, inputs, args, tile, work, chunk_points=chunk_points,
+                                         footprint_cells=footprint_cells,
+                                         dem_fill_radius_px=dem_fill_radius_px) if used[tid] else None
                     pending.append((window, future))
                     while len(pending) > threads:
                         drain_one()
@@ -903,7 +934,7 @@ def _tiles_to_gtiffs(inputs: _Inputs, args, grid, used, work: Path, tmp: Path, t
     return dem_sum, dem_n
 
 
-def _hillshade_by_windows(dem_path: Path, out_path: Path, res_m: float, fill, grid, nrows: int, ncols: int,
+def _hillshade_by_windows(dem_path: Path, out_path: Path, res_m: float, fill, *, grid, nrows: int, ncols: int,
                           transform, crs) -> None:
     """Pass 3: the hillshade (grey levels) of the metric DEM by the tiles' windows, each read with a
     one-cell border (clipped to the raster, as ``np.gradient`` treats the raster's edges), into an

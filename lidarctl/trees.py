@@ -201,7 +201,8 @@ def canopy_model(x, y, z, cls, return_number, settings: TreeSettings, name: str 
     if nrows < 2 or ncols < 2:
         raise InputError(f"{name}: the points span {nrows} x {ncols} cells of {res:g} m; expected at least 2 x 2 "
                          "(one point or one spot, or a --res-m coarser than the cloud)", param="--res-m")
-    check_grid(nrows, ncols, res, GRID_BYTES_PER_CELL, f"{name}: the CHM", "--res-m", "use a coarser --res-m")
+    check_grid(nrows, ncols, res, GRID_BYTES_PER_CELL, f"{name}: the CHM", option="--res-m",
+               hint="use a coarser --res-m")
     dem = fill_nodata(reduce_grid(x[ground], y[ground], z[ground], res, x0, y0, nrows, ncols, "mean"))
     first = (rn <= 1) & (veg | ground)
     if not (first & veg).any():
@@ -346,8 +347,31 @@ def tree_model(x, y, z, cls, return_number, settings: TreeSettings | None = None
     return TreeModel(grid, dem, chm, label, stands, tops, s, len(x), n_vertices)
 
 
-def summary(model: TreeModel) -> dict:
-    """The numbers of a tree model (JSON-ready; metres)."""
+@dataclasses.dataclass(frozen=True)
+class ForestHeights:
+    """Canopy heights within the stands (``TreesResult.forest_heights``), metres."""
+
+    mean_height_m: float
+    p50_height_m: float
+    p90_height_m: float
+    p95_height_m: float
+    max_height_m: float
+
+
+@dataclasses.dataclass(frozen=True)
+class TreesResult:
+    """What ``trees_from_files`` made (areas in square metres, heights in metres; trees.json holds more)."""
+
+    stands: int
+    forest_area_m2: float
+    canopy_area_m2: float
+    forest_heights: ForestHeights | None  # None: no stand
+    tree_tops: int
+    files: tuple[str, ...]
+
+
+def _summary_document(model: TreeModel) -> dict:
+    """The numbers of a tree model as trees.json holds them (metres)."""
     g, chm = model.grid, model.chm
     canopy = np.isfinite(chm)
     in_stand = model.stand_label > 0
@@ -461,10 +485,10 @@ def preview_png(model: TreeModel, path, title: str) -> None:
     plt.close(fig)
 
 
-def trees_from_files(in_paths, outdir, settings: TreeSettings | None = None, crs=None) -> dict:
+def trees_from_files(in_paths, outdir, settings: TreeSettings | None = None, crs=None) -> TreesResult:
     """``tree_model`` of classified LAS/LAZ file(s) (one CRS) written into ``outdir``: chm.tif (COG, heights in
     the CRS's vertical unit), trees.gpkg (layers stands, tree_tops), trees.png, trees.json. All files appear
-    together or none (other files in ``outdir`` stay). Returns the summary."""
+    together or none (other files in ``outdir`` stay). Returns the summary (trees.json has it in full)."""
     from rasterio.transform import from_origin
 
     from aerotri.core.atomic import refuse_input_as_output
@@ -485,7 +509,7 @@ def trees_from_files(in_paths, outdir, settings: TreeSettings | None = None, crs
     names = ", ".join(map(str, paths))
     (x, y, z, cls, rn), crs_found, units = _read_clouds(paths, crs)
     model = tree_model(x, y, z, cls, rn, s, names)
-    result = summary(model)
+    result = _summary_document(model)
     result.update(inputs=[str(p) for p in paths], crs=crs_found.to_string() if crs_found else None, **units.as_dict())
     g = model.grid
     transform = from_origin(g.x0 / units.xy_m, g.y_top / units.xy_m, g.res_m / units.xy_m, g.res_m / units.xy_m)
@@ -502,5 +526,8 @@ def trees_from_files(in_paths, outdir, settings: TreeSettings | None = None, crs
                     f"({area / 1e4:.2f} ha), {len(model.tops.x)} tree tops")
         (tmp / "trees.json").write_text(json.dumps(result, indent=2) + "\n")
 
-    result["files"] = [str(p) for p in rs._write_set(outdir, write, FILES, "trees")]
-    return result
+    files = tuple(str(p) for p in rs._write_set(outdir, write, FILES, "trees"))
+    fh = result["forest_heights"]
+    return TreesResult(stands=result["stands"], forest_area_m2=result["forest_area_m2"],
+                       canopy_area_m2=result["canopy_area_m2"], forest_heights=ForestHeights(**fh) if fh else None,
+                       tree_tops=result["tree_tops"], files=files)

@@ -42,9 +42,9 @@ def trees(*, classified, outdir, res_m, max_edge_m, min_height_m, min_stand_area
                             top_radius_per_m=top_radius_per_m, smooth_px=smooth_px, veg_classes=tuple(veg_classes),
                             pit_free=pit_free)
     r = trees_from_files(classified, outdir, settings, crs=crs)
-    fh = r["forest_heights"]
-    heights = (f"heights mean {fh['mean_height_m']:.1f} m, p95 {fh['p95_height_m']:.1f} m, max {fh['max_height_m']:.1f} m"
+    fh = r.forest_heights
+    heights = (f"heights mean {fh.mean_height_m:.1f} m, p95 {fh.p95_height_m:.1f} m, max {fh.max_height_m:.1f} m"
                if fh else "no stand")
-    click.echo(f"{outdir}: {r['stands']} stands, forest {r['forest_area_m2'] / 1e4:.3f} ha of "
-               f"{r['canopy_area_m2'] / 1e4:.3f} ha canopy; {heights}; {r['tree_tops']} tree tops")
+    click.echo(f"{outdir}: {r.stands} stands, forest {r.forest_area_m2 / 1e4:.3f} ha of "
+               f"{r.canopy_area_m2 / 1e4:.3f} ha canopy; {heights}; {r.tree_tops} tree tops")
 

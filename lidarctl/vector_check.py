@@ -19,6 +19,7 @@ Lengths and areas are in the CRS units of the files, reported in metres (``_m``,
 from __future__ import annotations
 
 import dataclasses
+import json
 import logging
 from pathlib import Path
 
@@ -214,9 +215,10 @@ def _clipped_union(lines: np.ndarray, tree, rect: tuple) -> object:
     return shapely.union_all(shapely.clip_by_rect(lines[hits], *rect))
 
 
-def check_vectors(product_path, reference_path, params: VectorCheckSettings = VectorCheckSettings()) -> dict:
-    """Accuracy of the DLG ``product_path`` against ``reference_path`` (see the module doc), as a JSON-ready
-    dict (metres). Raises InputError / CrsError / OptionError naming the file or option."""
+def check_vectors(product_path, reference_path, params: VectorCheckSettings = VectorCheckSettings()) -> VectorCheck:
+    """Accuracy of the DLG ``product_path`` against ``reference_path`` (see the module doc; metres): the typed
+    record, the JSON document and the buildings' corner offsets. Raises InputError / CrsError / OptionError
+    naming the file or option."""
     from aerotri.core.tolerances import TERRAINS, load_tolerances
     from aerotri.geom.crs import crs_label, same_horizontal
 
@@ -275,11 +277,10 @@ def check_vectors(product_path, reference_path, params: VectorCheckSettings = Ve
             rms = r["rms_xy_corner_m"]
             r["within_tolerance"] = None if rms is None or tol is None else bool(rms <= tol)
         out["layers"][n] = r
-    out["_offsets"] = offsets
-    return out
+    return VectorCheck(_record_of(out), out, offsets)
 
 
-def plot_offsets(result: dict, prod: dict, ref: dict, path, title: str = "") -> Path:
+def plot_offsets(check: VectorCheck, prod: dict, ref: dict, path, title: str = "") -> Path:
     """Reference (grey) and produced outlines, the corner-to-corner offset vectors exaggerated, with a key."""
     import matplotlib
 
@@ -288,6 +289,7 @@ def plot_offsets(result: dict, prod: dict, ref: dict, path, title: str = "") -> 
 
     from aerotri.core.atomic import atomic_path
 
+    result = check.document
     unit = result["xy_unit_m"]
     fig, (ax, ax2) = plt.subplots(1, 2, figsize=(15, 7.5), gridspec_kw={"width_ratios": [2, 1]})
     for name, geoms, colour, lw in (("reference", ref.get("buildings", []), "0.6", 2.0),
@@ -299,7 +301,7 @@ def plot_offsets(result: dict, prod: dict, ref: dict, path, title: str = "") -> 
                     xy = np.asarray(ring.coords)
                     ax.plot(xy[:, 0], xy[:, 1], color=colour, lw=lw, label=f"{name} outlines" if first else None)
                     first = False
-    off = result.get("_offsets")
+    off = check.offsets
     r = result["layers"].get("buildings", {})
     if off is not None and len(off.to_corner):
         span = max(np.ptp(off.corners[:, 0]), np.ptp(off.corners[:, 1]), 1.0)
@@ -339,7 +341,8 @@ def plot_offsets(result: dict, prod: dict, ref: dict, path, title: str = "") -> 
     return Path(path)
 
 
-def format_report(result: dict) -> str:
+def format_report(check: VectorCheck) -> str:
+    result = check.document
     lines = [f"line-map check: {result['product']} against {result['reference']}",
              f"tolerance for well-defined features ({result['map_scale']}, {result['terrain']}): plan RMS "
              f"{result['tolerance_feature_rms_xy_m']} m"]
@@ -360,10 +363,8 @@ def format_report(result: dict) -> str:
 
 
 def check_files(product_path, reference_path, params: VectorCheckSettings = VectorCheckSettings(), json_path=None,
-                png_path=None) -> dict:
+                png_path=None) -> VectorCheck:
     """``check_vectors`` + the JSON and the offset plot (atomic), refusing an input as output."""
-    import json
-
     from aerotri.core.atomic import refuse_input_as_output, write_text_atomic
 
     for opt, p in (("--json", json_path), ("--png", png_path)):
@@ -374,9 +375,8 @@ def check_files(product_path, reference_path, params: VectorCheckSettings = Vect
         prod, _, _ = read_layers(product_path)
         ref, _, _ = read_layers(reference_path)
         plot_offsets(result, prod, ref, png_path)
-    result.pop("_offsets")
     if json_path is not None:
-        write_text_atomic(json_path, json.dumps(result, indent=2))
+        write_text_atomic(json_path, result.to_json())
     return result
 
 
@@ -403,16 +403,35 @@ class VectorCheckRecord:
     buildings: BuildingCornerCheck | None  # None: no buildings layer checked
 
 
+@dataclasses.dataclass(frozen=True, eq=False)
+class VectorCheck:
+    """``check_vectors`` / ``check_files``: the typed record (what the chain and the accuracy report read), the JSON
+    document (``to_json``; the module doc says what it holds) and the buildings' corner offsets (the plot's;
+    None without a buildings layer)."""
+
+    record: VectorCheckRecord
+    document: dict
+    offsets: CornerOffsets | None
+
+    def to_json(self) -> str:
+        """The check-vectors JSON's text (``lidarctl check-vectors --json``, the chain's vectors_check.json)."""
+        return json.dumps(self.document, indent=2)
+
+
+def _record_of(d: dict) -> VectorCheckRecord:
+    b = (d.get("layers") or {}).get("buildings")
+    opt = {k: (None if b.get(k) is None else float(b[k]))
+           for k in ("rms_xy_corner_m", "rms_xy_to_line_m", "completeness_pct", "correctness_pct")} if b else {}
+    buildings = BuildingCornerCheck(int(b.get("n_matched_corners") or 0), **opt) if b else None
+    return VectorCheckRecord(str(d.get("reference", "?")), float(d.get("match_m", 0.0)), buildings)
+
+
 def read_vector_check(path) -> VectorCheckRecord:
     """A check-vectors JSON as ``check_files`` wrote it; InputError naming the file when it is not one."""
     from aerotri.core.textio import read_record, record_error
 
     d = read_record(path, VECTOR_CHECK, 1)
     try:
-        b = (d.get("layers") or {}).get("buildings")
-        opt = {k: (None if b.get(k) is None else float(b[k]))
-               for k in ("rms_xy_corner_m", "rms_xy_to_line_m", "completeness_pct", "correctness_pct")} if b else {}
-        buildings = BuildingCornerCheck(int(b.get("n_matched_corners") or 0), **opt) if b else None
-        return VectorCheckRecord(str(d.get("reference", "?")), float(d.get("match_m", 0.0)), buildings)
+        return _record_of(d)
     except (AttributeError, KeyError, TypeError, ValueError) as exc:
         raise record_error(path, VECTOR_CHECK, exc) from None

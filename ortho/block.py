@@ -13,7 +13,7 @@ when every frame and the index are written, so a failed run leaves the previous 
 ``--frames`` subset re-run brings the other frames of a compatible earlier run along (hard links).
 Consumers check the frame files against the index (``verify_index``) and never mix runs.
 
-Every frame is one Dask task (``rectify_frame_task`` on a small ``FrameTask``) through
+Every frame is one Dask task (``_rectify_frame_task`` on a small ``FrameTask``) through
 ``aerotri.core.executor.Executor``: local threads by default, ``--scheduler local:N`` or a cluster address
 to scale out; each task writes its own GeoTIFF atomically and returns its index entry, so the
 outputs are byte-identical whichever scheduler runs them.
@@ -237,8 +237,8 @@ def rectify_frame_to_file(path, image, band_order, camera, C, R, *, heights, gri
                 dst.write_mask(m, window=w)
                 valid[0] += int(np.count_nonzero(m))
 
-            rectify_frame(image, camera, C, R, heights, grid, interpolation, to_project, occlusion_dsm=occlusion_dsm,
-                          sink=sink, sink_bands_first=True, threads=threads)
+            rectify_frame(image, camera, C, R, heights, grid, interpolation=interpolation, to_project=to_project,
+                          occlusion_dsm=occlusion_dsm, sink=sink, sink_bands_first=True, threads=threads)
     return valid[0] / float(grid.width * grid.height)
 
 
@@ -296,7 +296,7 @@ def _require_coverage(task: FrameTask, C, R, heights, *, what: str, path, extent
     return share
 
 
-def rectify_frame_task(task: FrameTask) -> dict:
+def _rectify_frame_task(task: FrameTask) -> dict:
     """Rectify one frame into ``task.out_path`` (atomic); returns its index.json entry."""
     project_crs = CRS.from_wkt(task.project_crs_wkt)
     out_crs = CRS.from_wkt(task.output_crs_wkt)
@@ -318,7 +318,8 @@ def rectify_frame_task(task: FrameTask) -> dict:
                                          frame=task.image_id, height_operation=height_op)
             extent, what, path = tuple(dsm_ds.bounds), "DSM", task.dsm_path
     covered = _require_coverage(task, C, R, heights, what=what, path=path, extent=extent)
-    grid = frame_grid(task.camera, C, R, dem, task.res_m, out_crs, to_project, image_id=task.image_id, partial=True)
+    grid = frame_grid(task.camera, C, R, dem, task.res_m, out_crs, to_project=to_project, image_id=task.image_id,
+                      partial=True)
     image, band_order = _frame_image(task.image_path, (task.camera.width, task.camera.height))
     valid_fraction = rectify_frame_to_file(task.out_path, image, band_order, task.camera, C, R, heights=heights,
                                            grid=grid, interpolation=task.interpolation, to_project=to_project,
@@ -363,7 +364,7 @@ def rectify_block(root, settings: RectifySettings | Resolved | None = None, *, e
     fit-heights``) for a DEM in normal heights, ``allow_ballpark`` accepts PROJ's ballpark operation.
     The operations applied are recorded in index.json and in every frame's GeoTIFF tags.
 
-    One task per frame (``rectify_frame_task``) on ``executor`` (``aerotri.core.executor.Executor``,
+    One task per frame (``_rectify_frame_task``) on ``executor`` (``aerotri.core.executor.Executor``,
     default: the run's or local threads); every task writes its own GeoTIFF, the index is written
     here in frame order, so the outputs do not depend on the scheduler. ``compression``: one of
     ``FRAME_COMPRESSION``.
@@ -435,7 +436,7 @@ def rectify_block(root, settings: RectifySettings | Resolved | None = None, *, e
     check_frame_sizes(block, eo_idx, zlo, zhi, res, "--res" if res_m is not None else None,
                       concurrent=min(len(block.images), max(1, executor.workers)), operation=operation)
     threads = executor.cores_per_task(len(block.images))  # tile threads per frame task (None: all)
-    inputs = rectify_inputs(block, dem_path, _recorded_inputs(out_dir))
+    inputs = _rectify_inputs_document(block, dem_path, _recorded_inputs(out_dir))
     old_index = _compatible_old_index(out_dir, res, out_crs, inputs) if frames else None
     # all frames or none: the frames are written into a temporary folder next to ortho/frames, which
     # replaces it only when every frame and the index are written (a failed run leaves the old output)
@@ -498,7 +499,7 @@ def _rectify_into(out_dir: Path, block: BlockInputs, eo_idx, *, res, out_crs, pr
                        operation.spec() if operation is not None else None,
                        height_op.spec() if height_op is not None else None)
              for image_id, path in block.images.items()]
-    entries = executor.map(rectify_frame_task, tasks, desc="rectify", unit="frame")
+    entries = executor.map(_rectify_frame_task, tasks, desc="rectify", unit="frame")
     return {
         "crs": out_crs.to_wkt(), "crs_name": out_crs.name, "epsg": out_crs.to_epsg(), "res_m": res,
         "project_crs": project_crs.to_string(), "dem": str(dem_path), "eo": str(block.eo_path),
@@ -536,7 +537,7 @@ def _in_project(path, root: Path) -> str:
         return str(path)
 
 
-def rectify_inputs(block: BlockInputs, dem_path, earlier: dict | None = None) -> dict:
+def _rectify_inputs_document(block: BlockInputs, dem_path, earlier: dict | None = None) -> dict:
     """What the frames were made from, for index.json: the EO file (sha256), the camera as used (sha256 of
     its parameters; its file when given with --camera, else the project's choice, see ``block_camera``) and
     the DEM (size, modification time, sha256). ``stale_frames`` compares them with the files now.

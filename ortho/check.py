@@ -86,7 +86,8 @@ class Displacement:
         return cls(**{**d, "distribution_gsd": None if bins is None else tuple(GsdBin(**b) for b in bins)})
 
     def as_dict(self) -> dict:
-        """As dom_report.json holds it ("displacement"; the bins a list, as JSON reads back)."""
+        """As dom_report.json holds it ("displacement"; the bins a list, as JSON reads back); the accuracy report
+        carries it too."""
         d = {k: v for k, v in dataclasses.asdict(self).items() if v is not None}
         if self.distribution_gsd is not None:
             d["distribution_gsd"] = list(d["distribution_gsd"])
@@ -130,36 +131,37 @@ def _dom_check_of(d: dict) -> DomCheck:
                     row.get("corners"), row.get("corners_from"), row.get("why"), d.get("json"))
 
 
-def displacement_statistics(de_m, dn_m, res_m: float) -> dict:
-    """RMS, max, mean and distribution of planimetric displacements (metres and GSD units)."""
+def displacement_statistics(de_m, dn_m, res_m: float) -> Displacement:
+    """RMS, max, mean and distribution of planimetric displacements (metres and GSD units); only ``count`` (0)
+    without displacements."""
     de = np.asarray(de_m, float)
     dn = np.asarray(dn_m, float)
     n = len(de)
     if n == 0:
-        return {"count": 0}
+        return Displacement(count=0)
     dxy = np.hypot(de, dn)
     rms_xy = float(np.sqrt(np.mean(dxy ** 2)))
     edges_gsd = [0.0, 0.25, 0.5, 1.0, 2.0, 3.0, np.inf]
     hist, _ = np.histogram(dxy / res_m, bins=edges_gsd)
-    return {
-        "count": n,
-        "gsd_m": res_m,
-        "rms_e_m": float(np.sqrt(np.mean(de ** 2))),
-        "rms_n_m": float(np.sqrt(np.mean(dn ** 2))),
-        "rms_xy_m": rms_xy,
-        "rms_xy_gsd": rms_xy / res_m,
-        "mean_e_m": float(de.mean()),
-        "mean_n_m": float(dn.mean()),
-        "max_xy_m": float(dxy.max()),
-        "max_xy_gsd": float(dxy.max() / res_m),
-        "median_xy_m": float(np.median(dxy)),
-        "p95_xy_m": float(np.percentile(dxy, 95)),
-        "distribution_gsd": [
-            {"from_gsd": float(lo), "to_gsd": (None if not np.isfinite(hi) else float(hi)), "count": int(k),
-             "pct": 100.0 * int(k) / n}
+    return Displacement(
+        count=n,
+        gsd_m=res_m,
+        rms_e_m=float(np.sqrt(np.mean(de ** 2))),
+        rms_n_m=float(np.sqrt(np.mean(dn ** 2))),
+        rms_xy_m=rms_xy,
+        rms_xy_gsd=rms_xy / res_m,
+        mean_e_m=float(de.mean()),
+        mean_n_m=float(dn.mean()),
+        max_xy_m=float(dxy.max()),
+        max_xy_gsd=float(dxy.max() / res_m),
+        median_xy_m=float(np.median(dxy)),
+        p95_xy_m=float(np.percentile(dxy, 95)),
+        distribution_gsd=tuple(
+            GsdBin(from_gsd=float(lo), to_gsd=(None if not np.isfinite(hi) else float(hi)), count=int(k),
+                   pct=100.0 * int(k) / n)
             for lo, hi, k in zip(edges_gsd[:-1], edges_gsd[1:], hist)
-        ],
-    }
+        ),
+    )
 
 
 @dataclasses.dataclass(frozen=True)
@@ -197,7 +199,7 @@ def read_points_csv(path) -> DomPoints:
     return DomPoints(ids, a[:, 0], a[:, 1], a[:, 2], a[:, 3])
 
 
-def plot_displacements(path, patches: PatchDisplacements | None, stats: dict, title: str, points=None,
+def plot_displacements(path, patches: PatchDisplacements | None, stats: Displacement, title: str, points=None,
                        extent_px=None) -> None:
     """Vector plot of displacements (exaggerated) and a histogram of their lengths; PNG."""
     import matplotlib
@@ -221,13 +223,14 @@ def plot_displacements(path, patches: PatchDisplacements | None, stats: dict, ti
     elif points is not None:
         de, dn = points
         ax.quiver(np.arange(len(de)), np.zeros(len(de)), de, dn)
-        bx.hist(np.hypot(de, dn) / stats.get("gsd_m", 1.0), bins=20)
+        bx.hist(np.hypot(de, dn) / (stats.gsd_m if stats.gsd_m is not None else 1.0), bins=20)
     ax.set_title(title)
     ax.set_aspect("equal")
     bx.set_xlabel("displacement (GSD)")
     bx.set_ylabel("count")
-    if stats.get("count"):
-        bx.set_title(f"RMS {stats['rms_xy_m']:.3f} m ({stats['rms_xy_gsd']:.2f} GSD), max {stats['max_xy_m']:.3f} m, n={stats['count']}")
+    if stats.count:
+        bx.set_title(f"RMS {stats.rms_xy_m:.3f} m ({stats.rms_xy_gsd:.2f} GSD), max {stats.max_xy_m:.3f} m, "
+                     f"n={stats.count}")
     fig.tight_layout()
     with atomic_path(path) as tmp:
         fig.savefig(tmp, dpi=100, format="png")
@@ -413,7 +416,7 @@ def check_against_reference(dom_path, reference_path, ndsm_path=None, max_ndsm_m
         return PatchDisplacements(cat("row_px"), cat("col_px"), cat("dx_px"), cat("dy_px"), cat("ncc"), res), (dom.width, dom.height)
 
 
-def check_points(points_path, res_m: float, dom_bounds=None) -> tuple[dict, dict]:
+def check_points(points_path, res_m: float, dom_bounds=None) -> tuple[Displacement, dict]:
     """Statistics and per-point table for surveyed points measured in the DOM (``dom_bounds``: left, bottom,
     right, top of the DOM; a point measured outside it is refused by its line)."""
     pts = read_points_csv(points_path)
@@ -596,10 +599,10 @@ def measure_roof_patches(dom_path, reference_path, x_m, y_m, *, patch_m: float |
     return RoofDisplacements(k[:, 0], k[:, 1], k[:, 2], k[:, 3], len(x_m), outside, weak, patch_m)
 
 
-def roof_statistics(roofs: RoofDisplacements, res_m: float, source: str) -> dict:
+def _roofs_document(roofs: RoofDisplacements, res_m: float, source: str) -> dict:
     """The report's ``roofs`` row: ``displacement_statistics`` of the measured patches (RMS and median in metres
     and GSD, count), with where the corners came from and how many were not measured."""
-    stats = displacement_statistics(roofs.de_m, roofs.dn_m, res_m)
+    stats = displacement_statistics(roofs.de_m, roofs.dn_m, res_m).as_dict()
     if stats["count"]:
         stats["median_xy_gsd"] = stats["median_xy_m"] / res_m
     stats.update(corners=roofs.corners, corners_from=source, patch_m=roofs.patch_m,
@@ -713,7 +716,7 @@ def run_check(project_root, settings: CheckSettings | Resolved | None = None, *,
             report["reference_operation"] = ref_op.record()
         report.update(method="ncc_patches", reference=str(reference_path), ndsm=str(ndsm_path) if ndsm_path else None,
                       max_ndsm_m=max_ndsm_m if ndsm_path else None, patch_px=patch_px, search_px=search_px,
-                      displacement=stats)
+                      displacement=stats.as_dict())
         # the statistics take every patch; the report lists and the plot draws at most MAX_LISTED of them,
         # evenly spread (a gigapixel DOM has millions: the JSON and the plot stay the size of a demo's)
         listed = patches.select(_spread(len(patches), MAX_LISTED))
@@ -733,7 +736,8 @@ def run_check(project_root, settings: CheckSettings | Resolved | None = None, *,
                                extent_px=max(w, h))
     else:
         stats, table = check_points(points_path, res, dom_bounds)
-        report.update(method="surveyed_points", points_file=str(points_path), displacement=stats, points=table["points"])
+        report.update(method="surveyed_points", points_file=str(points_path),
+                      displacement=stats.as_dict(), points=table["points"])
 
         def plot():
             plot_displacements(out_stem.with_suffix(".png"), None, stats, "DOM - survey",
@@ -768,4 +772,4 @@ def _roofs_row(dom_path, reference_path, *, ref_op, corners, corners_path, ndsm_
     else:
         return None
     measured = measure_roof_patches(dom_path, reference_path, xs, ys, reference_operation=ref_op)
-    return roof_statistics(measured, res_m, source)
+    return _roofs_document(measured, res_m, source)

@@ -165,4 +165,4 @@ def _roofs_line(report: DomCheck) -> str:
         why = report.roofs_why or f"{report.roof_corners or 0} roof corners, none measurable"
         return f"roofs: none measured ({why})"
     return (f"roofs: {r.count} of {report.roof_corners} corners: RMS {r.rms_xy_m:.3f} m ({r.rms_xy_gsd:.2f} GSD), "
-            f"median {r.median_xy_m:.3f} m ({r.median_xy_m / r.gsd_m:.2f} GSD)")  # as roof_statistics divides
+            f"median {r.median_xy_m:.3f} m ({r.median_xy_m / r.gsd_m:.2f} GSD)")  # as _roofs_document divides

@@ -448,7 +448,7 @@ class FrameFile:
 
 
 def rectify_frame(image: np.ndarray, camera: Camera, centre_m, R, dem_dataset: HeightRaster, grid: OrthoGrid,
-                  interpolation: str = "bilinear", to_project: GridToProject | None = None,
+                  *, interpolation: str = "bilinear", to_project: GridToProject | None = None,
                   occlusion_dsm: HeightRaster | None = None, tile_px: int = 1024, sink=None, threads: int | None = None,
                   sink_bands_first: bool = False):
     """Orthorectify one frame onto ``grid``; returns (ortho (H, W[, bands]) of image dtype, mask uint8 255/0).
@@ -592,7 +592,7 @@ def _extent_text(heights: HeightRaster, extent_m) -> str:
     return f"(its extent: X {b[0]:.1f} .. {b[2]:.1f}, Y {b[1]:.1f} .. {b[3]:.1f})"
 
 
-def intersect_rays_with_heights(camera: Camera, centre_m, R, x_px, y_px, heights: HeightRaster, z_start_m: float,
+def intersect_rays_with_heights(camera: Camera, centre_m, R, x_px, y_px, heights: HeightRaster, *, z_start_m: float,
                                 iterations: int = 30, image_id: str = "frame", uncovered: str = "raise",
                                 extent_m=None):
     """Ground points (N, 3) where the rays of pixels meet the height raster (fixed-point iteration on Z).
@@ -642,12 +642,13 @@ def covered_share(camera: Camera, centre_m, R, heights: HeightRaster, per_side: 
     u = np.linspace(0.0, camera.width - 1.0, per_side)
     v = np.linspace(0.0, camera.height - 1.0, per_side)
     x, y = (a.ravel() for a in np.meshgrid(u, v))
-    _, covered = intersect_rays_with_heights(camera, centre_m, R, x, y, heights, 0.5 * (zlo + zhi), uncovered="plane")
+    _, covered = intersect_rays_with_heights(camera, centre_m, R, x, y, heights, z_start_m=0.5 * (zlo + zhi),
+                                             uncovered="plane")
     return float(np.mean(covered))
 
 
-def frame_grid(camera: Camera, centre_m, R, heights: HeightRaster, res_m: float, output_crs, to_project: GridToProject,
-               image_id: str = "frame", partial: bool = False) -> OrthoGrid:
+def frame_grid(camera: Camera, centre_m, R, heights: HeightRaster, res_m: float, output_crs, *,
+               to_project: GridToProject, image_id: str = "frame", partial: bool = False) -> OrthoGrid:
     """The snapped output grid covering the ground footprint of a frame on the height raster.
 
     ``partial``: border rays that miss the raster (a DEM covering part of the frame) count with their
@@ -655,8 +656,8 @@ def frame_grid(camera: Camera, centre_m, R, heights: HeightRaster, res_m: float,
     part becomes nodata in the ortho; otherwise such a ray is an InputError."""
     x, y = border_pixels(camera)
     zlo, zhi = heights.finite_range()
-    ground = intersect_rays_with_heights(camera, centre_m, R, x, y, heights, 0.5 * (zlo + zhi), image_id=image_id,
-                                         uncovered="plane" if partial else "raise")
+    ground = intersect_rays_with_heights(camera, centre_m, R, x, y, heights, z_start_m=0.5 * (zlo + zhi),
+                                         image_id=image_id, uncovered="plane" if partial else "raise")
     if partial:
         ground = ground[0]
     ox, oy = to_project.to_output(ground[:, 0], ground[:, 1])
@@ -664,11 +665,11 @@ def frame_grid(camera: Camera, centre_m, R, heights: HeightRaster, res_m: float,
     return OrthoGrid.snapped(output_crs, (np.min(ox) - pad, np.min(oy) - pad, np.max(ox) + pad, np.max(oy) + pad), res_m)
 
 
-def footprint_polygon_xy(camera: Camera, centre_m, R, heights: HeightRaster, to_project: GridToProject,
+def footprint_polygon_xy(camera: Camera, centre_m, R, heights: HeightRaster, *, to_project: GridToProject,
                          image_id: str = "frame", per_side: int = 16) -> np.ndarray:
     """Footprint ring (N, 2) in output-CRS coordinates."""
     x, y = border_pixels(camera, per_side)
     zlo, zhi = heights.finite_range()
-    g = intersect_rays_with_heights(camera, centre_m, R, x, y, heights, 0.5 * (zlo + zhi), image_id=image_id)
+    g = intersect_rays_with_heights(camera, centre_m, R, x, y, heights, z_start_m=0.5 * (zlo + zhi), image_id=image_id)
     ox, oy = to_project.to_output(g[:, 0], g[:, 1])
     return np.stack([ox, oy], axis=-1)

@@ -428,9 +428,9 @@ class Chain:
         qa = qa_settings(root, project_block_scale(p))
         check = check_files(p.vectors_path, ref, VectorCheckSettings(layers=("buildings",), scale=qa.map_scale,
                                                              terrain=qa.terrain), p.vectors_check_path)
-        b = check["layers"].get("buildings", {})
-        return R.VectorsResult(**counts, checked=True, corner_rms_xy_m=b.get("rms_xy_corner_m"),
-                               corners=b.get("n_matched_corners"))
+        b = check.record.buildings
+        return R.VectorsResult(**counts, checked=True, corner_rms_xy_m=b.rms_xy_corner_m if b else None,
+                               corners=b.n_matched_corners if b else None)
 
     def truth_outline_reference(self) -> Path:
         """The simulator's roof outlines (truth/buildings.geojson, part "roof_outline": what the LiDAR sees;
@@ -652,16 +652,16 @@ class Chain:
         from lidarctl.heights_check import check_heights_file
 
         result = check_heights_file(self.classified(), self.surveyed_points)
-        write_text_atomic(self.project.height_check_path, json.dumps(result, indent=2))
-        a = result.get("overall", {}).get("all", {})
-        return R.HeightCheckResult(rmse_m=a.get("rmse_m"), mean_abs_dz_m=a.get("mean_abs_dz_m"), n=a.get("n"))
+        write_text_atomic(self.project.height_check_path, result.to_json())
+        r = result.record
+        return R.HeightCheckResult(rmse_m=r.rmse_m, mean_abs_dz_m=r.mean_abs_dz_m, n=r.n_checked)
 
     def run_lidar_eval(self, root) -> R.LidarEvalResult:
         from lidarctl.evaluate import evaluate_strips, read_filter_test
 
         # each classified strip against its truth strip (truth/lidar/, same name, same points)
         result = evaluate_strips(self.classified(), self.project.truth_strips())
-        write_text_atomic(self.project.classification_eval_path, json.dumps(result, indent=2))
+        write_text_atomic(self.project.classification_eval_path, result.to_json())
         g = read_filter_test(self.project.classification_eval_path)
         return R.LidarEvalResult(type_i_error_pct=g.type_i_error_pct, type_ii_error_pct=g.type_ii_error_pct,
                                  kappa_pct=g.kappa_pct)

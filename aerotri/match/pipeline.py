@@ -82,9 +82,6 @@ class MatchReport:
     match_cache_hits: int
     settings: dict = dataclasses.field(default_factory=dict)  # path -> value and source (core.settings.Resolved)
 
-    def to_dict(self) -> dict:
-        return dataclasses.asdict(self)
-
     def summary_line(self) -> str:
         return (f"frames {self.frames}  pairs {self.pairs}  tracks {self.tracks}  observations {self.observations}  "
                 f"3+ rays {100 * self.tracks_3plus_fraction:.1f} %  components {self.components}  weak models "
@@ -391,7 +388,7 @@ def match_project(root, settings: MatchSettings | Resolved | None = None,
         plot_block(at / "connectivity.png", plan, ties_per_pair, strength)
     clock.lap("output")  # the report's own writing is left out of its numbers (milliseconds)
     report.seconds = round(time.perf_counter() - t0, 2)
-    write_text_atomic(project.connectivity_path, json.dumps(report.to_dict(), indent=1) + "\n")
+    write_text_atomic(project.connectivity_path, json.dumps(dataclasses.asdict(report), indent=1) + "\n")
     log.info(f"{report.frames} frames, {report.pairs} pairs, {report.tracks} tracks, {report.observations} "
              f"observations, {report.components} component(s), {len(report.weak_models)} weak model(s) -> "
              f"{project.tiepoints_path}")

@@ -455,7 +455,7 @@ def build_qa_report(root, *, tolerance_file=None, terrain: str | None = None, sc
         lidar_strips=strips,
         lidar_height_bins=hc.bins if hc else None,
         lidar_height_groups=(hc.groups or None) if hc else None,
-        lidar_classification=ce.as_dict() if ce else None,
+        lidar_classification=dataclasses.asdict(ce) if ce else None,
         dom=dom.as_dict() if dom else None,
     )
     # where each limit comes from; an unconfirmed one is marked

@@ -684,7 +684,7 @@ def observations_terrain(cfg: dict, layout, seed: int):
                  np.zeros(0), [], np.zeros((0, 3)), seed, steep)
 
 
-def truth_adjust_settings(cfg: dict, cam_true, cam_nominal) -> dict:
+def _truth_adjust_table(cfg: dict, cam_true, cam_nominal) -> dict:
     """The [adjust] settings the truth of a simulated block needs: the self-calibration groups in which the
     true camera differs from the nominal camera.toml (``BrownCamera.SELF_CAL_GROUPS``: pp, radial k1 k2, ...),
     and the GNSS correction per strip that models the antenna errors the preset draws (a drift per strip:
@@ -710,13 +710,13 @@ def gnss_shift_sigma_m(cfg: dict) -> float:
     return round(max(float(g.get("strip_shift_sigma_m", 0.0)), float(g.get("drift_sigma_m_per_s", 0.0)) * half_s), 3)
 
 
-def observations_chain(cfg: dict, cam_true, cam_nominal) -> dict:
+def _observations_chain_table(cfg: dict, cam_true, cam_nominal) -> dict:
     """The preset's stage sections with [adjust] set to what the block's observations need
-    (``truth_adjust_settings``): ``aerotri adjust OUT --dem OUT/dem.tif`` without options models the
+    (``_truth_adjust_table``): ``aerotri adjust OUT --dem OUT/dem.tif`` without options models the
     errors the block was made with. (The preset's own [chain.adjust] is that of the rendered chain, whose
     first adjustment runs before any control exists.)"""
     chain = {k: dict(v) for k, v in cfg.get("chain", {}).items()}
-    chain["adjust"] = {**chain.get("adjust", {}), **truth_adjust_settings(cfg, cam_true, cam_nominal)}
+    chain["adjust"] = {**chain.get("adjust", {}), **_truth_adjust_table(cfg, cam_true, cam_nominal)}
     return chain
 
 
@@ -759,7 +759,8 @@ def simulate_observations(cfg: dict, outdir, force: bool = False, *, tie_sigma_p
     with atomic_dir(outdir) as tmp, stage_block_cache(SIM_CACHE_BYTES):
         (tmp / "truth").mkdir(parents=True, exist_ok=True)
         _write_project_files(tmp, cfg, plan=plan, cam_true=cam_true, cam_nominal=cam_nominal, origin=origin, epsg=epsg,
-                             gains=[1.0] * len(plan.image_id), chain=observations_chain(cfg, cam_true, cam_nominal))
+                             gains=[1.0] * len(plan.image_id),
+                             chain=_observations_chain_table(cfg, cam_true, cam_nominal))
         res = terrain.terrain_res_m
         nx, ny = int(math.floor(layout.width_m / res)), int(math.floor(layout.height_m / res))
         xs = (np.arange(nx) + 0.5) * res

@@ -52,13 +52,13 @@ def read_control(path, units) -> ControlPoints:
     """The control points of ``path`` in metres (``units``: the strips' LengthUnits)."""
     path = Path(path)
     t = read_points_csv(path)
-    xyz = np.column_stack([t["x"] * units.xy_m, t["y"] * units.xy_m, t["z"] * units.z_m])
+    xyz = np.column_stack([t.x * units.xy_m, t.y * units.xy_m, t.z * units.z_m])
     seen = set()
-    for i in t["id"]:
+    for i in t.ids:
         if i in seen:
             raise InputError(f"{path}: control point id {i!r} appears twice")
         seen.add(i)
-    return ControlPoints(path, list(t["id"]), xyz)
+    return ControlPoints(path, list(t.ids), xyz)
 
 
 def control_observations(ss: ov.StripSet, control: ControlPoints, sigma_m: float,

@@ -21,7 +21,7 @@ def test_isprs_mean_total_error_one_parameter_set(shared_data):
         e = evaluate.filter_errors(g, c.classification == 2)
         # No true bare-earth point may be thrown away as noise.
         assert not np.any((code > 0) & (c.classification == 2)), s
-        totals.append(e["total_error_pct"])
+        totals.append(e.total_error_pct)
     # 3.23 % with the local-surface test and the TIN angle criterion (issue 21; 3.82 % before;
     # bench/results/lidar_isprs_loo.json: 3.52 % leave-one-sample-out)
     assert np.mean(totals) <= 3.3, totals
@@ -39,8 +39,8 @@ def test_ahn3_has_no_crs_and_ground_is_found(shared_data):
     # Target of issue 3: building and ground producer's and user's accuracy at least 95 %
     # (measured 95.4 / 95.1 % building, 98.4 / 96.6 % ground; bench/results/lidar_ahn3_holdout.json).
     for cls_ in ("2", "6"):
-        assert conf["producers_accuracy_pct"][cls_] >= 95.0, conf
-        assert conf["users_accuracy_pct"][cls_] >= 95.0, conf
+        assert conf.producers_accuracy_pct[cls_] >= 95.0, conf
+        assert conf.users_accuracy_pct[cls_] >= 95.0, conf
 
 
 @pytest.mark.realdata

@@ -10,22 +10,22 @@ def test_filter_errors_by_hand():
     truth = np.array([1, 1, 1, 1, 0, 0, 0, 0, 0, 0], bool)
     pred = np.array([1, 1, 1, 0, 1, 0, 0, 0, 0, 0], bool)
     e = evaluate.filter_errors(pred, truth)
-    assert e["type_i_error_pct"] == pytest.approx(25.0)
-    assert e["type_ii_error_pct"] == pytest.approx(100.0 / 6)
-    assert e["total_error_pct"] == pytest.approx(20.0)
+    assert e.type_i_error_pct == pytest.approx(25.0)
+    assert e.type_ii_error_pct == pytest.approx(100.0 / 6)
+    assert e.total_error_pct == pytest.approx(20.0)
     po, pe = 0.8, (4 * 4 + 6 * 6) / 100
-    assert e["kappa_pct"] == pytest.approx(100 * (po - pe) / (1 - pe))
+    assert e.kappa_pct == pytest.approx(100 * (po - pe) / (1 - pe))
 
 
 def test_confusion_accuracies():
     truth = np.array([2, 2, 2, 6, 6, 5])
     pred = np.array([2, 2, 6, 6, 6, 6])
     c = evaluate.confusion(pred, truth)
-    assert c["classes"] == [2, 5, 6]
-    assert c["matrix"] == [[2, 0, 1], [0, 0, 1], [0, 0, 2]]
-    assert c["producers_accuracy_pct"]["2"] == pytest.approx(200 / 3)
-    assert c["users_accuracy_pct"]["6"] == pytest.approx(50.0)
-    assert c["overall_accuracy_pct"] == pytest.approx(400 / 6)
+    assert c.classes == (2, 5, 6)
+    assert c.matrix == ((2, 0, 1), (0, 0, 1), (0, 0, 2))
+    assert c.producers_accuracy_pct["2"] == pytest.approx(200 / 3)
+    assert c.users_accuracy_pct["6"] == pytest.approx(50.0)
+    assert c.overall_accuracy_pct == pytest.approx(400 / 6)
     assert "overall accuracy" in evaluate.format_confusion(c)
 
 
@@ -34,7 +34,7 @@ def test_classify_synthetic_scene():
     cls = classify.classify_points(cloud.x, cloud.y, cloud.z, cloud.return_number,
                                    cloud.number_of_returns, cloud.intensity)
     conf = evaluate.confusion(cls, truth)
-    pa, ua = conf["producers_accuracy_pct"], conf["users_accuracy_pct"]
+    pa, ua = conf.producers_accuracy_pct, conf.users_accuracy_pct
     for c in ("2", "6"):
         assert pa[c] > 98.0 and ua[c] > 98.0
     veg_truth = np.isin(truth, (3, 4, 5))
@@ -88,13 +88,14 @@ def test_evaluate_says_what_a_ground_only_truth_cannot_measure():
 def test_filter_test_read_back_from_its_json_file_as_written(tmp_path):
     """classification_eval.json's filter test as a typed record: the numbers as ``filter_errors`` gave them, the
     same record (keys, order, values) when turned back into a dict."""
+    import dataclasses
     import json
 
     truth = np.array([1, 1, 1, 1, 0, 0, 0, 0, 0, 0], bool)
     pred = np.array([1, 1, 1, 0, 1, 0, 0, 0, 0, 0], bool)
     errors = evaluate.filter_errors(pred, truth)
     path = tmp_path / "classification_eval.json"
-    path.write_text(json.dumps({"filter_test": errors, "confusion": {}}, indent=2))
+    path.write_text(json.dumps({"filter_test": dataclasses.asdict(errors), "confusion": {}}, indent=2))
     ft = evaluate.read_filter_test(path)
     assert ft.type_i_count == 1 and ft.type_ii_count == 1 and ft.type_i_error_pct == 25.0
-    assert json.dumps(ft.as_dict()) == json.dumps(errors)
+    assert ft == errors and json.dumps(dataclasses.asdict(ft)) == json.dumps(dataclasses.asdict(errors))

@@ -90,8 +90,8 @@ def test_confusion_kappa_by_hand():
     truth = np.array([1] * 5 + [2] * 5)
     pred = np.array([1, 1, 1, 1, 2, 1, 1, 2, 2, 2])
     c = evaluate.confusion(pred, truth)
-    assert c["overall_accuracy_pct"] == pytest.approx(70.0)
-    assert c["kappa_pct"] == pytest.approx(40.0)
+    assert c.overall_accuracy_pct == pytest.approx(70.0)
+    assert c.kappa_pct == pytest.approx(40.0)
 
 
 def test_building_accuracy_by_count_and_area():

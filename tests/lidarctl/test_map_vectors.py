@@ -209,8 +209,9 @@ def test_cloud_in_feet(tmp_path):
     _, _, rf = _layer(out, "roads")
     assert rf["width_m"][0] == pytest.approx(10.0, abs=0.8)
     res = vc.check_vectors(out, _reference(tmp_path / "ref_ft.gpkg", FOOT_M))
-    assert res["xy_unit_m"] == pytest.approx(FOOT_M)
-    assert res["layers"]["buildings"]["rms_xy_corner_m"] < 0.5
+    assert res.document["xy_unit_m"] == pytest.approx(FOOT_M)
+    assert res.document["layers"]["buildings"]["rms_xy_corner_m"] < 0.5
+    assert res.record.buildings.rms_xy_corner_m == res.document["layers"]["buildings"]["rms_xy_corner_m"]
 
 
 @pytest.mark.parametrize("case", ["missing", "no_crs", "suffix", "same_as_input", "dem_and_contours", "bad_image"])

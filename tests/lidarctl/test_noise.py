@@ -40,8 +40,8 @@ def test_morphological_ground_type_i_ii_below_2pct():
     keep = ~np.isin(truth, (7, 18))
     g = ground.ground_filter(cloud.x[keep], cloud.y[keep], cloud.z[keep])
     err = evaluate.filter_errors(g, truth[keep] == 2)
-    assert err["type_i_error_pct"] < 2.0
-    assert err["type_ii_error_pct"] < 2.0
+    assert err.type_i_error_pct < 2.0
+    assert err.type_ii_error_pct < 2.0
 
 
 def test_ptd_ground_on_synthetic_scene():
@@ -49,8 +49,8 @@ def test_ptd_ground_on_synthetic_scene():
     keep = ~np.isin(truth, (7, 18))
     g = ground.ground_filter(cloud.x[keep], cloud.y[keep], cloud.z[keep], method="ptd", preset="urban")
     err = evaluate.filter_errors(g, truth[keep] == 2)
-    assert err["type_i_error_pct"] < 3.0
-    assert err["type_ii_error_pct"] < 3.0
+    assert err.type_i_error_pct < 3.0
+    assert err.type_ii_error_pct < 3.0
 
 
 def test_locate_in_tin_matches_scipy_and_interpolates_planes_exactly():

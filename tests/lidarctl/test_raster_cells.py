@@ -46,7 +46,7 @@ def test_cell_stats_equal_bincount_chunk_by_chunk():
     res_m, x0, y0, nrows, ncols, row0, col0 = 0.5, 1000.0, 5000.0, 40, 60, 3, 7
     wx0, wy0 = x0 + col0 * res_m, y0 + row0 * res_m          # the window of a larger grid
     chunks = [_points(n, seed, res_m, wx0, wy0, nrows, ncols) for seed, n in ((1, 9000), (2, 5000), (3, 1))]
-    stats = CellStats(res_m, x0, y0, nrows, ncols, row0, col0)
+    stats = CellStats(res_m, x0, y0, nrows, ncols, row0=row0, col0=col0)
     for c in chunks:
         stats.add(*c)
     ref = _reference(chunks, res_m, x0, y0, nrows, ncols, row0, col0)

@@ -352,7 +352,7 @@ def test_strips_evaluated_and_height_checked_as_the_merged_file(strips, tmp_path
     # each strip against its truth strip: the numbers of the merged file against the merged truth
     by_strip = evaluate.evaluate_strips(classified, truth)
     assert by_strip == evaluate.evaluate_files(tmp_path / "merged.las", d / "truth_merged.las")
-    assert sum(map(sum, by_strip["confusion"]["matrix"])) == sum(laspy.read(p).header.point_count for p in paths)
+    assert sum(map(sum, by_strip.confusion.matrix)) == sum(laspy.read(p).header.point_count for p in paths)
     with pytest.raises(InputError, match=r"classified/strip_0.las: \d+ points, but .*truth/strip_1.las"):
         evaluate.evaluate_strips(classified, truth[1:] + truth[:1])
     # the height check of the strips' ground: that of the merged file
@@ -363,4 +363,5 @@ def test_strips_evaluated_and_height_checked_as_the_merged_file(strips, tmp_path
     csv.write_text("id,x,y,z\n" + "".join(f"p{i},{cloud.x[j]:.3f},{cloud.y[j]:.3f},{cloud.z[j] + 0.1:.3f}\n"
                                           for i, j in enumerate(k)))
     merged = heights_check.check_heights_file(tmp_path / "merged.las", csv)
-    assert heights_check.check_heights_file(classified, csv) == merged and merged["overall"]["all"]["n"] > 10
+    assert heights_check.check_heights_file(classified, csv) == merged and merged.document["overall"]["all"]["n"] > 10
+    assert merged.record.n_checked == merged.document["overall"]["all"]["n"]

@@ -306,7 +306,8 @@ def test_check_heights_by_chunks_equals_all_ground_points(scenes, tmp_path, monk
     streamed = hc.check_heights_file(tmp_path / "c.laz", pts, radius_m=3.0)
     cloud = io.read_cloud(tmp_path / "c.laz")
     g = cloud.classification == 2
-    whole = hc.check_heights(cloud.x[g], cloud.y[g], cloud.z[g], hc.read_points_csv(pts), radius_m=3.0)
+    whole = hc._cloud_check_document(cloud.x[g], cloud.y[g], cloud.z[g], hc.read_points_csv(pts), radius_m=3.0)
+    streamed = streamed.document
     z_s = np.array([p["z_lidar"] if p["z_lidar"] is not None else np.nan for p in streamed["points"]])
     z_w = np.array([p["z_lidar"] if p["z_lidar"] is not None else np.nan for p in whole["points"]])
     assert np.isnan(z_w).sum() == np.isnan(z_s).sum() > 0 and np.isfinite(z_w).sum() > 15

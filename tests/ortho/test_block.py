@@ -90,7 +90,7 @@ def test_tile_threads_and_sink_do_not_change_the_ortho(small_block):
     dem = read_height_raster(small_block / "lidar_out" / "dem.tif", crs)
     img, _ = read_native(small_block / "images" / "s01_001.tif", (cam.width, cam.height))
     C, R = eo.centre_m[0], eo.rotation(0)
-    grid = frame_grid(cam, C, R, dem, 0.2, crs, GridToProject(crs, crs))
+    grid = frame_grid(cam, C, R, dem, 0.2, crs, to_project=GridToProject(crs, crs))
     one, m1 = rectify_frame(img, cam, C, R, dem, grid, tile_px=128, threads=1)
     three, m3 = rectify_frame(img, cam, C, R, dem, grid, tile_px=128, threads=3)
     assert np.array_equal(one, three) and np.array_equal(m1, m3)
@@ -107,7 +107,7 @@ def test_tile_threads_and_sink_do_not_change_the_ortho(small_block):
     assert none is None
     assert np.array_equal(np.moveaxis(got, 0, -1), one) and np.array_equal(got_mask, m1)
     # cubic: pixels outside the frame stay 0 also with the pooled, reused buffers
-    cub, mc = rectify_frame(img, cam, C, R, dem, grid, "cubic", tile_px=128, threads=2)
+    cub, mc = rectify_frame(img, cam, C, R, dem, grid, interpolation="cubic", tile_px=128, threads=2)
     assert np.all(cub[mc == 0] == 0) and np.array_equal(mc, m1)
 
 

@@ -1,5 +1,6 @@
 """dom_report.json read back as a typed record (ortho.check.read_dom_check): the displacements as
-``displacement_statistics`` gave them, the seam figures, and one InputError naming the file otherwise."""
+``displacement_statistics`` gave them (written as ``run_check`` writes them), the seam figures, and one InputError
+naming the file otherwise."""
 
 from __future__ import annotations
 
@@ -16,15 +17,17 @@ def test_the_record_gives_back_what_was_written(tmp_path):
     rng = np.random.default_rng(4)
     stats = displacement_statistics(rng.normal(0, 0.1, 200), rng.normal(0, 0.1, 200), 0.2)
     path = tmp_path / "dom_report.json"
-    path.write_text(json.dumps({"displacement": stats, "seams": {"rms_px": 0.49, "patches": 17, "per_seam": []}}))
+    doc = stats.as_dict()
+    path.write_text(json.dumps({"displacement": doc, "seams": {"rms_px": 0.49, "patches": 17, "per_seam": []}}))
     r = read_dom_check(path)
-    assert r.displacement.count == 200 and r.displacement.rms_xy_m == stats["rms_xy_m"]
+    assert r.displacement.count == 200 and r.displacement.rms_xy_m == stats.rms_xy_m
+    assert r.displacement == stats  # every figure and bin as computed
     assert r.seams_rms_px == 0.49 and r.seam_patches == 17
     # keys, order, values and types (the bins a list) as the file holds them
     assert r.displacement.as_dict() == json.loads(path.read_text())["displacement"]
-    assert json.dumps(r.displacement.as_dict()) == json.dumps(stats)
-    assert isinstance(r.displacement.as_dict()["distribution_gsd"], list)
-    path.write_text(json.dumps({"displacement": displacement_statistics([], [], 0.2)}))
+    assert json.dumps(r.displacement.as_dict()) == json.dumps(doc)
+    assert list(doc)[:3] == ["count", "gsd_m", "rms_e_m"] and isinstance(doc["distribution_gsd"], list)
+    path.write_text(json.dumps({"displacement": displacement_statistics([], [], 0.2).as_dict()}))
     r = read_dom_check(path)
     assert r.displacement.as_dict() == {"count": 0} and r.seams_rms_px is None
 
