@@ -386,23 +386,8 @@ def segment_plane_rms(surface: np.ndarray, labels: np.ndarray, nlab: int, cell_m
     ``surface`` (labels 1..nlab; NaN for segments of fewer than 4 cells)."""
     rows, cols = np.nonzero(labels)
     lab = labels[rows, cols]
-    h = surface[rows, cols].astype(float)
-    cnt = np.bincount(lab, minlength=nlab + 1).astype(float)
-    n = np.maximum(cnt, 1)
-    # centred coordinates (m) per segment for a well-conditioned fit
-    u = cols * cell_m
-    v = rows * cell_m
-    u = u - (np.bincount(lab, u, nlab + 1) / n)[lab]
-    v = v - (np.bincount(lab, v, nlab + 1) / n)[lab]
-    hc = h - (np.bincount(lab, h, nlab + 1) / n)[lab]
-    suu, svv, suv = (np.bincount(lab, w, nlab + 1) for w in (u * u, v * v, u * v))
-    suh, svh, shh = (np.bincount(lab, w, nlab + 1) for w in (u * hc, v * hc, hc * hc))
-    det = suu * svv - suv * suv
-    with np.errstate(invalid="ignore", divide="ignore"):
-        a = (suh * svv - svh * suv) / det
-        b = (svh * suu - suh * suv) / det
-        ss = shh - a * suh - b * svh       # residual sum of squares of the centred fit
-        out = np.sqrt(np.maximum(ss, 0.0) / n)
+    cnt = np.bincount(lab, minlength=nlab + 1)
+    out = _segment_planes(surface, rows, cols, lab, nlab, cell_m)[5]
     out[(cnt < 4) | ~np.isfinite(out)] = np.nan
     return out[1:]
 
