@@ -22,7 +22,14 @@ The classification runs with the shipped defaults; with ``--params FILE`` (JSON 
 overrides per quarter, e.g. the ones chosen on the other three quarters by
 bench/eval_classify_nested.py --ahn3) each quarter is scored on its own classification; ``--nested`` takes
 them from bench/results/classify_nested.json (the nested folds' choices).
-Writes bench/results/buildings_bgt.json. Run: nice .venv/bin/python bench/eval_buildings_bgt.py --nested
+Errors by type (key "errors", shipped defaults): false building area by distance from the nearest
+footprint and by AHN3's class of the cell's highest point; missed footprint area by our class and AHN3's.
+Rule sets (``--rules``, issue 44's discipline): the classification with each set of RULE_SETS (the new
+building rules off, then on one by one); for each held-out quarter the set with the best worst-quarter
+min(completeness, correctness) on the other quarters (those with footprints) is chosen, and the held-out
+quarter is scored once with it (area, objects, vector centroids). Ties go to the earlier (simpler) set.
+Writes bench/results/buildings_bgt.json. Run: nice .venv/bin/python bench/eval_buildings_bgt.py --rules
+(and/or --nested).
 """
 
 from __future__ import annotations
@@ -51,6 +58,19 @@ CRS = "EPSG:28992"
 CELL_M = 0.5
 BAND_M = 0.5
 PARTS = ("south-west", "south-east", "north-west", "north-east")
+# The building rules of issue 44 (lidarctl.classify.ClassifySettings), off and on: planar cores (small
+# roofs judged apart from the hedge or crown their segment also holds) with rooftop objects judged by
+# steps to roofs only (else a shed is cut as an object standing above its own wall returns), and the
+# roof reach (a segment's cells beyond it from a roof cell join only when mostly single-return).
+_OFF = {"small_building_planar_cores": False, "rooftop_steps_to_roofs_only": False, "roof_reach_cells": 0}
+RULE_SETS = {
+    "main (rules off)": _OFF,
+    "sheds": {**_OFF, "small_building_planar_cores": True, "rooftop_steps_to_roofs_only": True},
+    "sheds + reach 2": {**_OFF, "small_building_planar_cores": True, "rooftop_steps_to_roofs_only": True,
+                        "roof_reach_cells": 2},
+    "sheds + reach 3": {**_OFF, "small_building_planar_cores": True, "rooftop_steps_to_roofs_only": True,
+                        "roof_reach_cells": 3},
+}
 
 
 def read_bgt(sqlite_path: Path) -> list:
@@ -114,7 +134,59 @@ def evaluate_quarters(classified_by_part: dict, polys: list, x_split: float, y_s
     return out
 
 
-def vector_centroids(classified: Path, polys: list, out_gpkg: Path) -> dict:
+def _quarter_of(x, y, x_split: float, y_split: float) -> np.ndarray:
+    return (np.asarray(x) >= x_split).astype(int) + 2 * (np.asarray(y) >= y_split).astype(int)
+
+
+def errors_by_type(classified: Path, laz: Path, polys: list, x_split: float, y_split: float) -> dict:
+    """Per quarter: false building area (m2) by distance (m) from the nearest footprint and by AHN3's class
+    of the cell; missed footprint area by our class and AHN3's (highest point of the cell, empty cells
+    filled from the nearest cell with points); the footprints not found (area, our classes in cells)."""
+    grid, _ = cg.cloud_grid(classified, CELL_M, CRS)
+    ref_polys = cg.ClassPolygons(polys, np.full(len(polys), BUILDING, np.uint8), None, Path("bgt"))
+    ref, ids = cg.rasterize_polygons(ref_polys, grid)
+    ref = ref == BUILDING
+    band = cg.rasterize_mask([shapely.union_all([p.boundary for p in polys]).buffer(BAND_M)], grid)
+    scored = cg.rasterize_mask(cg.block_hulls(ref_polys), grid) & ~band
+    xc, yc = grid.centres()
+    part = _quarter_of(xc[None, :], yc[:, None], x_split, y_split)
+
+    def filled(path):
+        top = cg.cloud_classes(path, grid)
+        idx = ndimage.distance_transform_edt(top == cg.IGNORE, return_distances=False, return_indices=True)
+        return top[tuple(idx)]
+
+    ours, ahn = filled(classified), filled(laz)
+    bld = ours == BUILDING
+    dist_m = ndimage.distance_transform_edt(~ref) * CELL_M
+    a = CELL_M * CELL_M
+    bands = {"0.5-1 m": (0.0, 1.0), "1-1.5 m": (1.0, 1.5), "1.5-3 m": (1.5, 3.0), "over 3 m": (3.0, np.inf)}
+    out = {}
+    for k, name in enumerate(PARTS):
+        s = scored & (part == k)
+        fp, fn = bld & ~ref & s, ~bld & ref & s
+        if not (ref & s).any():
+            continue
+        d = dist_m[fp]
+        n_cells = np.bincount(ids.ravel(), minlength=len(polys) + 1)[1:]
+        n_bld = np.bincount(ids.ravel(), weights=bld.ravel(), minlength=len(polys) + 1)[1:]
+        cent = np.array([[p.centroid.x, p.centroid.y] for p in polys])
+        missed = np.flatnonzero((_quarter_of(cent[:, 0], cent[:, 1], x_split, y_split) == k) & (n_cells > 0)
+                                & (n_bld < 0.5 * n_cells))
+        out[name] = {
+            "false_m2_by_distance_from_footprint": {b: float(((d > lo) & (d <= hi)).sum() * a) for b, (lo, hi) in bands.items()},
+            "false_m2_by_ahn3_class": {str(int(v)): float((ahn[fp] == v).sum() * a) for v in np.unique(ahn[fp])},
+            "missed_m2_by_our_class": {str(int(v)): float((ours[fn] == v).sum() * a) for v in np.unique(ours[fn])},
+            "missed_m2_by_ahn3_class": {str(int(v)): float((ahn[fn] == v).sum() * a) for v in np.unique(ahn[fn])},
+            "footprints_not_found": [{"area_m2": round(float(polys[i].area), 2),
+                                      "our_classes_cells": {str(int(v)): int(n) for v, n in zip(*np.unique(ours[ids == i + 1], return_counts=True))},
+                                      "ahn3_classes_cells": {str(int(v)): int(n) for v, n in zip(*np.unique(ahn[ids == i + 1], return_counts=True))}}
+                                     for i in missed],
+        }
+    return out
+
+
+def vector_centroids(classified: Path, polys: list, out_gpkg: Path, split: tuple | None = None) -> dict:
     mv = map_vectors.extract_vectors([classified], out_gpkg, crs=CRS)
     layer = next(lay for lay in mv.layers if lay.name == "buildings")
     union = shapely.union_all(layer.geometries) if layer.geometries else shapely.Polygon()
@@ -125,10 +197,57 @@ def vector_centroids(classified: Path, polys: list, out_gpkg: Path) -> dict:
     cent = np.array([[p.centroid.x, p.centroid.y] for p in polys])
     covered = np.array([len(h) > 0 for h in tree.query_ball_point(cent, 2.0)])
     inside = shapely.contains_xy(union, cent[:, 0], cent[:, 1])
-    return {"footprints_covered_by_the_crop": int(covered.sum()), "centroid_in_building_layer": int((inside & covered).sum()),
-            "centroid_in_building_layer_pct": 100.0 * float((inside & covered).sum()) / max(int(covered.sum()), 1),
-            "building_polygons": len(layer.geometries),
-            "missed_footprint_areas_m2": sorted(float(polys[i].area) for i in np.flatnonzero(covered & ~inside))}
+    out = {"footprints_covered_by_the_crop": int(covered.sum()), "centroid_in_building_layer": int((inside & covered).sum()),
+           "centroid_in_building_layer_pct": 100.0 * float((inside & covered).sum()) / max(int(covered.sum()), 1),
+           "building_polygons": len(layer.geometries),
+           "missed_footprint_areas_m2": sorted(float(polys[i].area) for i in np.flatnonzero(covered & ~inside))}
+    if split is not None:
+        q = _quarter_of(cent[:, 0], cent[:, 1], *split)
+        out["per_quarter"] = {name: {"footprints": int((covered & (q == k)).sum()),
+                                     "centroid_in_building_layer": int((inside & covered & (q == k)).sum())}
+                              for k, name in enumerate(PARTS)}
+    return out
+
+
+def _worst(quarters: dict, names) -> float:
+    """The lowest of completeness and correctness over the quarters ``names`` that hold footprints."""
+    vals = [min(quarters[n]["area"]["completeness_pct"], quarters[n]["area"]["correctness_pct"])
+            for n in names if quarters[n]["area"]["footprint_area_m2"] > 0]
+    return min(vals) if vals else float("nan")
+
+
+def rules_nested(laz: Path, polys: list, split: tuple, tmp: Path) -> dict:
+    """Each RULE_SETS classification scored per quarter; per held-out quarter the set chosen on the others."""
+    per_set = {}
+    for k, (name, overrides) in enumerate(RULE_SETS.items()):
+        path = tmp / f"rules_{k}.laz"
+        t0 = time.process_time()
+        tiles.classify_file(laz, path, crs=CRS, params=dataclasses.replace(ClassifySettings(), **overrides))
+        cpu = time.process_time() - t0
+        per_set[name] = {"overrides": overrides, "classify_cpu_s": cpu,
+                         "quarters": evaluate_quarters({"x": path}, polys, *split),
+                         "vectors": vector_centroids(path, polys, tmp / f"rules_{k}.gpkg", split)}
+        print(f"{name}: worst quarter min(completeness, correctness) {_worst(per_set[name]['quarters'], PARTS):.2f} %; "
+              f"vectors {per_set[name]['vectors']['centroid_in_building_layer']}/"
+              f"{per_set[name]['vectors']['footprints_covered_by_the_crop']}", flush=True)
+    scored = [n for n in PARTS if per_set["main (rules off)"]["quarters"][n]["area"]["footprint_area_m2"] > 0]
+    held = {}
+    for name in scored:
+        train = [n for n in scored if n != name]
+        crit = {s: _worst(v["quarters"], train) for s, v in per_set.items()}
+        chosen = max(crit, key=lambda s: (crit[s], -list(RULE_SETS).index(s)))
+        q = per_set[chosen]["quarters"][name]
+        vq = per_set[chosen]["vectors"]["per_quarter"][name]
+        held[name] = {"chosen": chosen, "chosen_on": train, "training_worst_pct": crit,
+                      "area": q["area"], "footprints": q["footprints"], "footprints_found": q["footprints_found"],
+                      "footprints_found_pct": q["footprints_found_pct"],
+                      "vector_centroids": vq["centroid_in_building_layer"], "vector_footprints": vq["footprints"],
+                      "vector_centroids_pct": 100.0 * vq["centroid_in_building_layer"] / max(vq["footprints"], 1)}
+    for v in per_set.values():
+        for q in v["quarters"].values():
+            q.pop("classified_with", None)
+    return {"criterion": "the lowest of area completeness and correctness over the training quarters (those "
+                         "with footprints); ties to the earlier rule set", "rule_sets": per_set, "held_out": held}
 
 
 def main(argv=None) -> int:
@@ -160,8 +279,11 @@ def main(argv=None) -> int:
             "scored_area": "convex hulls of the BGT footprint blocks, cells within 0.5 m of an outline ignored",
             "quarters_split_at_m": [x_split, y_split],
             "defaults": evaluate_quarters({"default": default}, polys, x_split, y_split),
-            "vectors_defaults": vector_centroids(default, polys, tmp / "vectors.gpkg"),
+            "vectors_defaults": vector_centroids(default, polys, tmp / "vectors.gpkg", (x_split, y_split)),
+            "errors": errors_by_type(default, laz, polys, x_split, y_split),
         }
+        if "--rules" in argv:
+            result["rules_nested"] = rules_nested(laz, polys, (x_split, y_split), tmp)
         if classified:
             result["held_out_params"] = per_part
             result["held_out"] = evaluate_quarters(classified, polys, x_split, y_split)
@@ -180,6 +302,18 @@ def main(argv=None) -> int:
     vd = result["vectors_defaults"]
     print(f"vectors: centroid in the building layer {vd['centroid_in_building_layer']}/"
           f"{vd['footprints_covered_by_the_crop']} ({vd['centroid_in_building_layer_pct']:.1f} %)")
+    if "rules_nested" in result:
+        held = result["rules_nested"]["held_out"]
+        result["rules_nested"]["worst_held_out"] = {
+            "completeness_pct": min(v["area"]["completeness_pct"] for v in held.values()),
+            "correctness_pct": min(v["area"]["correctness_pct"] for v in held.values()),
+            "footprints_found_pct": min(v["footprints_found_pct"] for v in held.values()),
+            "vector_centroids_pct": min(v["vector_centroids_pct"] for v in held.values())}
+        for name, v in held.items():
+            a = v["area"]
+            print(f"held out {name} (rules '{v['chosen']}' chosen on {', '.join(v['chosen_on'])}): completeness "
+                  f"{a['completeness_pct']:.1f} %, correctness {a['correctness_pct']:.1f} %; footprints found "
+                  f"{v['footprints_found']}/{v['footprints']}; vector centroids {v['vector_centroids']}/{v['vector_footprints']}")
     out = REPO / "bench" / "results" / "buildings_bgt.json"
     out.write_text(json.dumps(result, indent=2))
     print(f"wrote {out}")

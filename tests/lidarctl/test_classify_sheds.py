@@ -1,0 +1,103 @@
+"""Small buildings beside vegetation (issue 44: the BGT sheds AHN3 Delft's classification missed).
+
+A shed whose cells join one candidate segment with a hedge fails the small-building tests as a whole
+(the hedge is rough and splits pulses); ``planar_cores`` judges the shed's plane alone. A shed's roof
+stands above its own wall returns, which is no rooftop object (``rooftop_objects`` counts only steps
+to roof-sized surfaces). A crown grown onto a roof's segment beyond the roof reach stays vegetation."""
+
+import dataclasses
+
+import numpy as np
+from lidarctl import classify
+
+OFF = {"small_building_planar_cores": False, "rooftop_steps_to_roofs_only": False, "roof_reach_cells": 0}
+
+
+def _scene(seed: int, density_per_m2: float = 10.0):
+    """A 40 x 30 m garden: level ground 100 m; a flat 3 x 3.5 m shed roof 2.6 m high with wall returns
+    under its eave; a hedge 1.2 m wide, 3.0-4.0 m high, touching the shed's east side, splitting 45 % of
+    its pulses. Returns x, y, z, return number, number of returns, truth (2 ground, 4 hedge, 6 shed)."""
+    rng = np.random.default_rng(seed)
+    n = int(40.0 * 30.0 * density_per_m2)
+    u, v = rng.uniform(0, 40.0, n), rng.uniform(0, 30.0, n)
+    ground = 100.0 + rng.normal(0, 0.02, n)
+    z, truth = ground.copy(), np.full(n, 2, np.uint8)
+    shed = (u > 15.0) & (u < 18.0) & (v > 12.0) & (v < 15.5)
+    z[shed] = 102.6 + rng.normal(0, 0.02, shed.sum())
+    truth[shed] = 6
+    hedge = (u >= 18.0) & (u < 19.2) & (v > 6.0) & (v < 22.0)
+    z[hedge] = 103.0 + rng.uniform(0.0, 1.0, hedge.sum())
+    truth[hedge] = 4
+    through = hedge & (rng.random(n) < 0.45)
+    k = int(through.sum())
+    # facade returns: a few points along the shed's walls, below its eave
+    m = 40
+    t = rng.uniform(0, 1, m)
+    side = rng.integers(0, 3, m)                       # west, south, north walls (east: the hedge)
+    wu = np.where(side == 0, 15.02, 15.0 + 3.0 * t)
+    wv = np.where(side == 0, 12.0 + 3.5 * t, np.where(side == 1, 12.02, 15.48))
+    wz = 100.3 + rng.uniform(0, 2.1, m)
+    x = np.r_[u, u[through], wu] + 85000.0
+    y = np.r_[v, v[through], wv] + 447000.0
+    zz = np.r_[z, ground[through], wz]
+    rn = np.r_[np.ones(n, np.uint8), np.full(k, 2, np.uint8), np.ones(m, np.uint8)]
+    nr = np.r_[np.where(through, 2, 1).astype(np.uint8), np.full(k, 2, np.uint8), np.ones(m, np.uint8)]
+    tr = np.r_[truth, np.full(k, 2, np.uint8), np.full(m, 6, np.uint8)]
+    return x, y, zz, rn, nr, tr
+
+
+def test_shed_beside_a_hedge_is_a_building_and_the_hedge_is_not():
+    for seed in (0, 1):
+        x, y, z, rn, nr, truth = _scene(seed)
+        roof = (truth == 6) & (z > 102.4)
+        cls = classify.classify_points(x, y, z, rn, nr, np.full(len(x), 300, np.uint16))
+        assert np.mean(cls[roof] == classify.BUILDING) > 0.9, seed
+        # the hedge: only its single returns in the ring of cells next to the shed join as wall points
+        hedge = truth == 4
+        assert np.mean(cls[hedge] == classify.BUILDING) < 0.25, seed
+        assert not np.any(cls[hedge & ((x - 85000.0 > 18.8) | (np.abs(y - 447013.75) > 2.8))] == classify.BUILDING), seed
+        if seed:
+            continue
+        # before: the shed's segment held the hedge and was rejected as a whole
+        off = dataclasses.replace(classify.ClassifySettings(), **OFF)
+        cls_off = classify.classify_points(x, y, z, rn, nr, np.full(len(x), 300, np.uint16), params=off)
+        assert np.mean(cls_off[roof] == classify.BUILDING) < 0.1, seed
+
+
+def test_a_sheds_roof_above_its_wall_returns_is_no_rooftop_object():
+    rng = np.random.default_rng(5)
+    u, v = rng.uniform(0, 3.0, 100), rng.uniform(0, 3.5, 100)        # a 10.5 m2 roof, 2.6 m up
+    roof_z = 2.6 + rng.normal(0, 0.02, 100)
+    wu, wv = np.full(20, -0.02), rng.uniform(0, 3.5, 20)            # its west wall's returns
+    wz = rng.uniform(0.3, 1.2, 20)                                  # below the 2.6 m eave
+    x, y, z = np.r_[u, wu], np.r_[v, wv], np.r_[roof_z, wz]
+    b = np.ones(len(x), bool)
+    spacing = float(np.sqrt(3.0 * 3.5 / 100))                      # the roof's mean point spacing
+    assert not classify.rooftop_objects(x, y, z, b, spacing, 0.02, max_area_m2=20.0).any()
+    # counting steps to any surface (the rule before) cut the whole roof
+    cut = classify.rooftop_objects(x, y, z, b, spacing, 0.02, max_area_m2=20.0, steps_to_roofs_only=False)
+    assert cut[:100].mean() > 0.9
+
+
+def test_planar_cores_grows_a_roof_plane_and_stops_at_the_crown():
+    rng = np.random.default_rng(6)
+    cell_m = 0.5
+    surface = np.full((30, 30), 100.0)
+    allowed = np.zeros((30, 30), bool)
+    allowed[10:17, 5:12] = True                                      # a 12 m2 shed, pitched 0.3
+    rows, cols = np.mgrid[0:30, 0:30]
+    surface[10:17, 5:12] = 102.5 + 0.3 * cols[10:17, 5:12] * cell_m
+    allowed[8:20, 12:16] = True                                      # a crown touching it, rough
+    surface[8:20, 12:16] = 103.0 + rng.uniform(0, 1.0, (12, 4))
+    seeds = np.zeros_like(allowed)
+    seeds[12:15, 7:10] = True                                        # the shed's 3x3-fit interior
+    multi = np.where(allowed & (cols >= 12), 0.5, 0.0)
+    got = classify.planar_cores(surface, seeds, allowed, multi, cell_m, min_area_m2=6.0, max_multi_fraction=0.2,
+                                plane_rms_m=0.1, reach_m=3.0)
+    assert got[10:17, 5:12].all()
+    assert not got[:, 12:].any()
+    # too small a piece, or one that splits pulses, is no roof
+    assert not classify.planar_cores(surface, seeds, allowed, multi, cell_m, min_area_m2=13.0, max_multi_fraction=0.2,
+                                     plane_rms_m=0.1, reach_m=3.0).any()
+    assert not classify.planar_cores(surface, seeds, allowed, np.full_like(multi, 0.3), cell_m, min_area_m2=6.0,
+                                     max_multi_fraction=0.2, plane_rms_m=0.1, reach_m=3.0).any()
