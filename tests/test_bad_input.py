@@ -922,6 +922,7 @@ CASES = [
     C("classify_buffer_negative", "lidarctl", "classify {w}/las/raw.las {w}/out.las --buffer -5", "--buffer"),
     C("classify_unknown_crs", "lidarctl", "classify {w}/las/nocrs.las {w}/out.las --crs EPSG:999999", "--crs"),
     C("classify_geographic_crs", "lidarctl", "classify {w}/las/nocrs.las {w}/out.las --crs EPSG:4326", "--crs"),
+    C("rasters_res_missing", "lidarctl", "rasters {w}/las/cloud.las {w}/r", "--res"),
     C("rasters_res_zero", "lidarctl", "rasters {w}/las/cloud.las {w}/r --res 0", "--res"),
     C("rasters_res_negative", "lidarctl", "rasters {w}/las/cloud.las {w}/r --res -1", "--res"),
     C("rasters_truncated", "lidarctl", "rasters {w}/las/cloud.las {w}/r --res 1", "cloud.las", truncate("las/cloud.las")),

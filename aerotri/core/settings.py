@@ -390,6 +390,9 @@ def click_option(cls, path: str, *decls: str, **kw):
     else:
         opts["type"] = click_type(owner, name)
     opts.update(kw)
+    if opts.get("required") and opts.get("default") is None:
+        # click >= 8.3 takes an explicit default of None as a value: a required option would never be missing
+        del opts["default"]
     return click.option(*decls, path.replace(".", "__"), cls=_OPTION_CLASS, settings_cls=cls, field=path, **opts)
 
 
