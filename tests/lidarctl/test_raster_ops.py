@@ -7,6 +7,7 @@ from scipy import ndimage
 
 from lidarctl import raster_ops
 from lidarctl.raster_ops import fill_nodata, sample_bilinear
+from tests.lidarctl.test_raster_cells import _fill_nodata_arrays  # the array version the numba pull-push replaced
 
 
 @pytest.mark.parametrize("shape", [(30, 40), (1, 5), (5, 1), (1, 1), (2, 2)])
@@ -90,33 +91,6 @@ def test_rim_cells_are_the_valid_cells_within_two_of_a_gap(shape, share):
         er, ec = np.nonzero(rim & keep)
         np.testing.assert_array_equal(vr, er)
         np.testing.assert_array_equal(vc, ec)
-
-
-def _fill_nodata_arrays(a):
-    """The array version of the pull-push fill that the numba ``_pull``/``_push`` replaced (numpy sums
-    of 2 x 2 blocks, ``np.repeat`` up-sampling)."""
-    valid = np.isfinite(a)
-    levels = [(np.where(valid, a, 0.0), valid.astype(float))]
-    while True:
-        v, w = levels[-1]
-        if (w > 0).all() or min(v.shape) == 1:
-            break
-        h, wd = (v.shape[0] + 1) // 2 * 2, (v.shape[1] + 1) // 2 * 2
-        vp = np.zeros((h, wd))
-        wp = np.zeros((h, wd))
-        vp[:v.shape[0], :v.shape[1]] = v * w
-        wp[:v.shape[0], :v.shape[1]] = w
-        ws = wp.reshape(h // 2, 2, wd // 2, 2).sum(axis=(1, 3))
-        vs = vp.reshape(h // 2, 2, wd // 2, 2).sum(axis=(1, 3))
-        with np.errstate(invalid="ignore", divide="ignore"):
-            levels.append((np.where(ws > 0, vs / np.maximum(ws, 1e-12), 0.0), (ws > 0).astype(float)))
-    filled, w = levels[-1]
-    if not (w > 0).all():
-        filled = np.where(w > 0, filled, np.sum(filled * w) / w.sum())
-    for v, w in reversed(levels[:-1]):
-        up = np.repeat(np.repeat(filled, 2, axis=0), 2, axis=1)[:v.shape[0], :v.shape[1]]
-        filled = np.where(w > 0, v, up)
-    return filled
 
 
 def test_pull_push_fill_equals_the_array_version():
