@@ -32,6 +32,7 @@ import numpy as np
 
 from aerotri.core.errors import InputError, OptionError
 from aerotri.core.gdal_cache import MiB, stage_block_cache
+from aerotri.core.log import track
 from aerotri.core.atomic import refuse_input_as_output
 from aerotri.core.project import Project, project_paths
 from aerotri.core.settings import COMMAND_LINE, Resolved, settings_of
@@ -380,35 +381,35 @@ def check_against_reference(dom_path, reference_path, ndsm_path=None, max_ndsm_m
         pieces = []
         halo = search_px + patch_px
         try:
-            for r0 in range(0, dom.height, block_px):
-                for c0 in range(0, dom.width, block_px):
-                    w = Window(c0, r0, min(block_px + halo, dom.width - c0), min(block_px + halo, dom.height - r0))
-                    shape = (int(w.height), int(w.width))
-                    if shape[0] < patch_px + 2 * search_px or shape[1] < patch_px + 2 * search_px:
+            blocks = [(r0, c0) for r0 in range(0, dom.height, block_px) for c0 in range(0, dom.width, block_px)]
+            for r0, c0 in track(blocks, "DOM check, open ground", "blocks"):
+                w = Window(c0, r0, min(block_px + halo, dom.width - c0), min(block_px + halo, dom.height - r0))
+                shape = (int(w.height), int(w.width))
+                if shape[0] < patch_px + 2 * search_px or shape[1] < patch_px + 2 * search_px:
+                    continue
+                with _reading(dom_path, "DOM"):
+                    dmask = dom.read_masks(1, window=w) > 0
+                    if not dmask.any():
                         continue
-                    with _reading(dom_path, "DOM"):
-                        dmask = dom.read_masks(1, window=w) > 0
-                        if not dmask.any():
-                            continue
-                        d = np.moveaxis(dom.read(list(range(1, min(dom.count, 3) + 1)), window=w), 0, -1)
-                    wt = wtransform(w, dom.transform)
-                    with _reading(reference_path, "reference orthophoto"):
-                        rimg, rvalid = _on_grid(ref, wt, shape, dom.crs, Resampling.bilinear,
-                                                operation=reference_operation)
-                    keep = None
-                    if ndsm is not None:
-                        with _reading(ndsm_path, "nDSM"):
-                            nd, nvalid = _on_grid(ndsm, wt, shape, dom.crs, Resampling.max, [1],
-                                                  operation=ndsm_operation)
-                        keep = nvalid & (nd[0] * ndsm_unit_m <= max_ndsm_m)
-                    p = match_patches(d, np.moveaxis(rimg, 0, -1), dmask, rvalid, res, patch_px, step_px, search_px,
-                                      min_ncc, keep=keep)
-                    # a patch belongs to the block whose core holds its centre (no duplicates from halos)
-                    core = (p.row_px < block_px) & (p.col_px < block_px)
-                    p = p.select(core)
-                    p.row_px += r0
-                    p.col_px += c0
-                    pieces.append(p)
+                    d = np.moveaxis(dom.read(list(range(1, min(dom.count, 3) + 1)), window=w), 0, -1)
+                wt = wtransform(w, dom.transform)
+                with _reading(reference_path, "reference orthophoto"):
+                    rimg, rvalid = _on_grid(ref, wt, shape, dom.crs, Resampling.bilinear,
+                                            operation=reference_operation)
+                keep = None
+                if ndsm is not None:
+                    with _reading(ndsm_path, "nDSM"):
+                        nd, nvalid = _on_grid(ndsm, wt, shape, dom.crs, Resampling.max, [1],
+                                              operation=ndsm_operation)
+                    keep = nvalid & (nd[0] * ndsm_unit_m <= max_ndsm_m)
+                p = match_patches(d, np.moveaxis(rimg, 0, -1), dmask, rvalid, res, patch_px, step_px, search_px,
+                                  min_ncc, keep=keep)
+                # a patch belongs to the block whose core holds its centre (no duplicates from halos)
+                core = (p.row_px < block_px) & (p.col_px < block_px)
+                p = p.select(core)
+                p.row_px += r0
+                p.col_px += c0
+                pieces.append(p)
         finally:
             if ndsm is not None:
                 ndsm.close()
@@ -568,7 +569,7 @@ def measure_roof_patches(dom_path, reference_path, x_m, y_m, *, patch_m: float |
         outside, weak = int(np.count_nonzero(~inside)), 0
         kept = []
         block_of = (r0s // block_px) * (dom.width // block_px + 1) + c0s // block_px
-        for b in np.unique(block_of[inside]):
+        for b in track(np.unique(block_of[inside]), "DOM check, roofs", "blocks"):
             sel = np.flatnonzero(inside & (block_of == b))
             br0, bc0 = int(r0s[sel].min()), int(c0s[sel].min())
             w = Window(bc0, br0, int(c0s[sel].max()) + n - bc0, int(r0s[sel].max()) + n - br0)
