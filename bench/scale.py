@@ -182,13 +182,27 @@ def stage_records(run_dir: Path) -> list[dict]:
     finished, in the order they finished."""
     summary_path = run_dir / "work" / "run_summary.json"
     if summary_path.exists():
-        return json.loads(summary_path.read_text())["stages"]
+        # a resumed run skips the stages an earlier run made: their rows come from those stages' stamps
+        return [dict(_stamp_record(run_dir, r["stage"]), earlier_run=True)
+                if str(r.get("status", "")).startswith("skipped (up to date)") and _stamp_record(run_dir, r["stage"])
+                else r for r in json.loads(summary_path.read_text())["stages"]]
     records = []
     for p in sorted((run_dir / "work" / "stages").glob("*.json"), key=lambda p: p.stat().st_mtime):
-        s = json.loads(p.read_text())
-        usage = {k: v for k, v in s.get("usage", {}).items() if k not in ("wall_s", "rss_reset")}
-        records.append(dict(stage=p.stem, status="done", seconds=s.get("seconds", 0.0), **usage, **s.get("result", {})))
+        records.append(_stamp_record(run_dir, p.stem))
     return records
+
+
+def _stamp_record(run_dir: Path, stage: str) -> dict | None:
+    """A stage's row from its stamp (``work/stages/<stage>.json``: time, CPU, peak RSS, key numbers of the run
+    that made it); None without a stamp or without its usage."""
+    p = run_dir / "work" / "stages" / f"{stage}.json"
+    if not p.exists():
+        return None
+    s = json.loads(p.read_text())
+    if not s.get("usage"):
+        return None
+    usage = {k: v for k, v in s["usage"].items() if k not in ("wall_s", "rss_reset")}
+    return dict(stage=stage, status="done", seconds=s.get("seconds", 0.0), **usage, **s.get("result", {}))
 
 
 def stage_rows(records: list[dict], blk: dict) -> list[dict]:
