@@ -4,7 +4,9 @@ seams between the frames' regions in magenta, the cells no frame sees (nodata in
 frame of a true ortho, or over DEM nodata) hatched orange and black, the outside of the block white, and a legend
 strip below the image.
 
-Colours: 8-bit frames as they are, 16-bit frames divided by 257 (their full range onto 0-255), one band as grey.
+Colours: 8-bit frames as they are; 16-bit frames by their bit depth onto 0-255 (the NBITS tag, else the fewest of
+8, 10, 12, 14 or 16 bits that hold the largest sample: a DMC's 12-bit data in 16-bit samples would be black divided
+by 257); one band as grey.
 """
 
 from __future__ import annotations
@@ -40,10 +42,21 @@ def seam_pixels(labels: np.ndarray) -> np.ndarray:
     return seam
 
 
-def _to_rgb8(img: np.ndarray) -> np.ndarray:
-    """(bands, h, w) samples -> (h, w, 3) uint8."""
+def sample_bits(img: np.ndarray, valid: np.ndarray | None = None, nbits: int | None = None) -> int:
+    """Bit depth of 16-bit samples: ``nbits`` (the raster's NBITS tag) when given, else the fewest of 8, 10, 12, 14
+    or 16 bits that hold the largest valid sample."""
+    if nbits:
+        return int(nbits)
+    top = int(img[:, valid].max()) if valid is not None and valid.any() else int(img.max(initial=0))
+    return next(b for b in (8, 10, 12, 14, 16) if top <= (1 << b) - 1)
+
+
+def _to_rgb8(img: np.ndarray, valid: np.ndarray | None = None, nbits: int | None = None) -> np.ndarray:
+    """(bands, h, w) samples -> (h, w, 3) uint8 (16-bit by their bit depth, ``sample_bits``)."""
     if img.dtype == np.uint16:
-        img = (img.astype(np.uint32) // 257).astype(np.uint8)
+        top = (1 << sample_bits(img, valid, nbits)) - 1
+        # (x * 255 // 65535 is x // 257: 16-bit data as before)
+        img = (np.minimum(img.astype(np.uint32), top) * 255 // top).astype(np.uint8)
     elif img.dtype != np.uint8:
         img = np.clip(img, 0, 255).astype(np.uint8)
     rgb = img[:3] if img.shape[0] >= 3 else np.repeat(img[:1], 3, axis=0)
@@ -81,7 +94,8 @@ def render_preview(mosaic_path, labels: np.ndarray, factor: int, max_px: int = P
         h, w, step = preview_shape(ds.width, ds.height, max_px)
         img = ds.read(out_shape=(ds.count, h, w), resampling=Resampling.average)
         ok = ds.read_masks(1, out_shape=(h, w), resampling=Resampling.nearest) > 0
-    rgb = _to_rgb8(img)
+        nbits = ds.tags(1, ns="IMAGE_STRUCTURE").get("NBITS")
+    rgb = _to_rgb8(img, ok, int(nbits) if nbits else None)
     # nodata: inside the block (not reached from the edge through nodata) or outside it
     empty = np.pad(~ok, 1, constant_values=True).view(np.uint8).copy()
     cv2.floodFill(empty, None, (0, 0), 2)

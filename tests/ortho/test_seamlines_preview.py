@@ -84,3 +84,20 @@ def test_preview_is_reduced_hatches_nodata_inside_and_marks_the_seam(tmp_path):
     assert _is(hole, HATCH_RGB[0]).mean() > 0.3 and _is(hole, HATCH_RGB[1]).mean() > 0.3
     assert _is(img[:, :95], OUTSIDE_RGB).all()
     assert not _is(img[:, 110:600], SEAM_RGB).any() and not _is(img[:, 110:600], OUTSIDE_RGB).all()
+
+
+def test_12_bit_data_in_16_bit_samples_fill_the_preview_range():
+    """A DMC's 12-bit data in 16-bit samples is shown by its bit depth (it would be black divided by 257), full
+    16-bit data as before (x // 257), 8-bit data as it is."""
+    from ortho.seamlines_preview import _to_rgb8, sample_bits
+
+    twelve = np.array([[[0, 1024, 2048, 4095]]], np.uint16)
+    assert sample_bits(twelve) == 12
+    assert _to_rgb8(twelve)[0, :, 0].tolist() == [0, 63, 127, 255]
+    full = np.array([[[0, 4095, 40000, 65535]]], np.uint16)
+    assert _to_rgb8(full)[0, :, 0].tolist() == [v // 257 for v in (0, 4095, 40000, 65535)]
+    assert sample_bits(twelve, nbits=16) == 16  # the raster's NBITS tag wins
+    # invalid cells (their sample says nothing) do not set the depth
+    assert sample_bits(full, valid=np.array([[True, True, False, False]])) == 12
+    eight = np.array([[[0, 200]]], np.uint8)
+    assert _to_rgb8(eight)[0, :, 0].tolist() == [0, 200]
