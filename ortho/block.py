@@ -213,7 +213,7 @@ def operation_tags(operation: dict | None, height_operation: dict | None = None)
 
 def rectify_frame_to_file(path, image, band_order, camera, C, R, *, heights, grid, interpolation, to_project,
                           occlusion_dsm=None, compression: str = "zstd", threads: int | None = None,
-                          tags: dict | None = None) -> float:
+                          tags: dict | None = None, max_view_angle_deg: float = 90.0) -> float:
     """Rectify tile by tile straight into a GeoTIFF (the frame ortho is never whole in memory).
 
     The tile threads compute the next tiles while this thread writes (GDAL compresses the blocks on
@@ -238,7 +238,8 @@ def rectify_frame_to_file(path, image, band_order, camera, C, R, *, heights, gri
                 valid[0] += int(np.count_nonzero(m))
 
             rectify_frame(image, camera, C, R, heights, grid, interpolation=interpolation, to_project=to_project,
-                          occlusion_dsm=occlusion_dsm, sink=sink, sink_bands_first=True, threads=threads)
+                          occlusion_dsm=occlusion_dsm, sink=sink, sink_bands_first=True, threads=threads,
+                          max_view_angle_deg=max_view_angle_deg)
     return valid[0] / float(grid.width * grid.height)
 
 
@@ -264,6 +265,7 @@ class FrameTask:
     threads: int | None = None  # tile threads (None: all cores of the worker)
     operation: OperationSpec | None = None  # project -> output CRS (None: the project CRS itself)
     height_operation: OperationSpec | None = None  # DEM/DSM heights -> the project's height system
+    max_view_angle_deg: float = 90.0  # cells seen more obliquely than this from the vertical are nodata
 
 
 def _frame_image(path, expect_size):
@@ -319,17 +321,21 @@ def _rectify_frame_task(task: FrameTask) -> dict:
             extent, what, path = tuple(dsm_ds.bounds), "DSM", task.dsm_path
     covered = _require_coverage(task, C, R, heights, what=what, path=path, extent=extent)
     grid = frame_grid(task.camera, C, R, dem, task.res_m, out_crs, to_project=to_project, image_id=task.image_id,
-                      partial=True)
+                      partial=True, max_view_angle_deg=task.max_view_angle_deg)
     image, band_order = _frame_image(task.image_path, (task.camera.width, task.camera.height))
     valid_fraction = rectify_frame_to_file(task.out_path, image, band_order, task.camera, C, R, heights=heights,
                                            grid=grid, interpolation=task.interpolation, to_project=to_project,
                                            occlusion_dsm=heights if task.dsm_path else None,
                                            compression=task.compression, threads=task.threads,
+                                           max_view_angle_deg=task.max_view_angle_deg,
                                            tags=operation_tags(to_project.record(),
                                                                height_op.record() if height_op else None))
     if isinstance(image, FrameFile):
         image.close()
     del image
+    if valid_fraction == 0.0 and task.max_view_angle_deg < 90.0:
+        _log.warning(f"frame {task.image_id}: no ground within {task.max_view_angle_deg:g} deg of the vertical "
+                     f"([rectify] max_view_angle_deg): its ortho is empty")
     nadir_x, nadir_y = to_project.to_output(np.array([C[0]]), np.array([C[1]]))
     return {
         "image_id": task.image_id, "file": Path(task.out_path).name, "x_left_m": grid.x_left_m, "y_top_m": grid.y_top_m,
@@ -375,6 +381,9 @@ def rectify_block(root, settings: RectifySettings | Resolved | None = None, *, e
     s = resolved.settings
     dem_path, res_m, crs, interpolation, true_ortho, dsm_path, compression = (
         s.dem, s.res_m, s.crs, s.interpolation, s.true_ortho, s.dsm, s.compression)
+    if not (math.isfinite(s.max_view_angle_deg) and 0.0 < s.max_view_angle_deg <= 90.0):
+        raise OptionError(f"{s.max_view_angle_deg!r}: expected an angle from the vertical in (0, 90] degrees",
+                          param="--max-view-angle")
     if res_m is not None and not (math.isfinite(res_m) and res_m > 0):
         raise OptionError(f"{res_m!r}: expected a positive pixel size in metres", param="--res")
     block = load_block(root, eo_path, camera_path, frames)
@@ -445,7 +454,8 @@ def rectify_block(root, settings: RectifySettings | Resolved | None = None, *, e
         index = _rectify_into(tmp_dir, block, eo_idx, res=res, out_crs=out_crs, project_crs=project_crs,
                               dem_path=dem_path, zlo=zlo, zhi=zhi, interpolation=interpolation, true_ortho=true_ortho,
                               dsm_path=dsm_path, compression=compression, threads=threads, operation=operation,
-                              height_op=height_op, executor=executor, inputs=inputs)
+                              height_op=height_op, executor=executor, inputs=inputs,
+                              max_view_angle_deg=float(s.max_view_angle_deg))
         if old_index is not None:  # re-run of a subset: the other frames of the earlier run come along
             done = {e["image_id"] for e in index["frames"]}
             keep = [e for e in old_index["frames"] if e["image_id"] not in done]
@@ -489,7 +499,7 @@ def check_frame_sizes(block: BlockInputs, eo_idx: dict, zlo: float, zhi: float, 
 
 def _rectify_into(out_dir: Path, block: BlockInputs, eo_idx, *, res, out_crs, project_crs, dem_path, zlo, zhi,
                   interpolation, true_ortho, dsm_path, compression, threads, operation, height_op, executor,
-                  inputs: dict) -> dict:
+                  inputs: dict, max_view_angle_deg: float = 90.0) -> dict:
     """One task per frame writing ``out_dir/<image_id>.tif``; the index of the frames (in frame order)."""
     tasks = [FrameTask(image_id, str(path), str(out_dir / f"{image_id}.tif"), block.camera,
                        tuple(float(v) for v in block.eo.centre_m[eo_idx[image_id]]),
@@ -497,7 +507,8 @@ def _rectify_into(out_dir: Path, block: BlockInputs, eo_idx, *, res, out_crs, pr
                        project_crs.to_wkt(), out_crs.to_wkt(), res, (zlo, zhi), interpolation,
                        str(dsm_path) if true_ortho else None, compression, threads,
                        operation.spec() if operation is not None else None,
-                       height_op.spec() if height_op is not None else None)
+                       height_op.spec() if height_op is not None else None,
+                       max_view_angle_deg=max_view_angle_deg)
              for image_id, path in block.images.items()]
     entries = executor.map(_rectify_frame_task, tasks, desc="rectify", unit="frame")
     return {

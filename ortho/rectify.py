@@ -450,7 +450,7 @@ class FrameFile:
 def rectify_frame(image: np.ndarray, camera: Camera, centre_m, R, dem_dataset: HeightRaster, grid: OrthoGrid,
                   *, interpolation: str = "bilinear", to_project: GridToProject | None = None,
                   occlusion_dsm: HeightRaster | None = None, tile_px: int = 1024, sink=None, threads: int | None = None,
-                  sink_bands_first: bool = False):
+                  sink_bands_first: bool = False, max_view_angle_deg: float = 90.0):
     """Orthorectify one frame onto ``grid``; returns (ortho (H, W[, bands]) of image dtype, mask uint8 255/0).
 
     ``image`` is (rows, cols[, bands]) in the camera's pixel convention, in memory, or a ``FrameFile``
@@ -464,6 +464,9 @@ def rectify_frame(image: np.ndarray, camera: Camera, centre_m, R, dem_dataset: H
     (bands, rows, cols) C-contiguous tiles, the layout rasterio writes without another copy (made
     here by the tile threads, not by the writer). The tiles given to the sink are reused once it
     returns: copy them if they must outlive the call.
+
+    Cells whose ray to the projection centre is more than ``max_view_angle_deg`` from the vertical (90: no
+    limit), or beyond the fold of the lens model, are invalid (``RayLimits``).
 
     Tiles of ``tile_px`` are computed by ``threads`` threads (default: all cores); the result does
     not depend on the number of threads.
@@ -493,6 +496,7 @@ def rectify_frame(image: np.ndarray, camera: Camera, centre_m, R, dem_dataset: H
     # the maps are the image positions at the DSM's heights when the ortho is rectified on the DSM itself (as
     # ``ortho rectify --true-ortho`` does) in the project CRS: the z-buffer test reads them instead of projecting again
     maps_at_dsm = occlusion_dsm is not None and dem_dataset is occlusion_dsm and to_project.identity
+    limits = RayLimits.of(geometry, max_view_angle_deg, to_project)
 
     local = threading.local()
     # tile outputs handed to the consumer come from a pool and go back to it once consumed: fresh
@@ -521,6 +525,10 @@ def rectify_frame(image: np.ndarray, camera: Camera, centre_m, R, dem_dataset: H
         handle, o, m = take_out_buffers(tile.height, tile.width)
         map_int, map_frac, _, z, anchors = fixed_point_maps(geometry, dem_dataset, tile, to_project,
                                                             buffers=local.buffers, mask_out=m, bounds_out=local.bounds)
+        beyond = limits.beyond(tile, z) if limits is not None else None
+        if beyond is not None:
+            m[beyond] = 0
+            map_int[beyond] = -32768
         if zbuffer is not None:
             # the z-buffer is fast but coarse (where a wall spans few DSM cells it puts visible points behind the
             # roof edge above them): the points it puts behind a nearer surface are decided by the march
@@ -572,6 +580,77 @@ def rectify_frame(image: np.ndarray, camera: Camera, centre_m, R, dem_dataset: H
                 mask[r0:r0 + m.shape[0], c0:c0 + m.shape[1]] = m
             free.put(handle)
     return ortho, mask
+
+
+@dataclasses.dataclass(frozen=True)
+class RayLimits:
+    """Which ground points a frame is rectified from: those whose ray to the projection centre is within
+    ``max_view_angle_deg`` of the vertical and, for a lens model that folds (``Camera.fold_radius``), inside the
+    fold. Beyond the fold the model turns back and ground far outside the field of view lands inside the frame
+    (wedges of smeared corner pixels round an oblique drone block's mosaic), so that limit always applies.
+
+    The tests run per tile in the project CRS (the tile's project coordinates affine in row and column from three
+    of its corners: a tile spans a few hundred metres, where a map projection's curvature is far below a
+    millimetre). A tile whose eight corners (four at its lowest and highest height) pass both tests is skipped:
+    the cone is convex and the camera maps the tile's box to a convex region of the image plane."""
+
+    centre_m: np.ndarray  # projection centre, project CRS
+    M: np.ndarray  # object -> camera frame (the kernels' matrix: camera x, y, depth along the axis)
+    tan_vertical: float | None  # tan of the largest angle from the vertical, None: no limit
+    fold_r2: float | None  # square of the lens fold's normalised radius, None: the model does not fold
+    to_project: GridToProject
+
+    @classmethod
+    def of(cls, geometry: FrameGeometry, max_view_angle_deg: float, to_project: GridToProject) -> RayLimits | None:
+        """The limits of a frame; None when neither applies (90 deg and a lens that does not fold)."""
+        tan_vertical = math.tan(math.radians(max_view_angle_deg)) if max_view_angle_deg < 90.0 else None
+        fold = geometry.camera.fold_radius()
+        if tan_vertical is None and fold is None:
+            return None
+        centre, M, _ = geometry.kernel_args()
+        return cls(centre, M, tan_vertical, None if fold is None else fold * fold, to_project)
+
+    def _outside(self, dx, dy, dz) -> np.ndarray:
+        out = np.zeros(np.broadcast_shapes(np.shape(dx), np.shape(dy), np.shape(dz)), bool)
+        if self.tan_vertical is not None:
+            out |= (dx * dx + dy * dy) > (dz * dz) * self.tan_vertical ** 2
+            out |= dz >= 0.0
+        if self.fold_r2 is not None:
+            M = self.M
+            xc = M[0, 0] * dx + M[0, 1] * dy + M[0, 2] * dz
+            yc = M[1, 0] * dx + M[1, 1] * dy + M[1, 2] * dz
+            zc = M[2, 0] * dx + M[2, 1] * dy + M[2, 2] * dz
+            out |= (zc <= 0.0) | (xc * xc + yc * yc > self.fold_r2 * zc * zc)
+        return out
+
+    def beyond(self, grid: OrthoGrid, heights_m: np.ndarray) -> np.ndarray | None:
+        """Cells of ``grid`` (heights (H, W) in m, NaN: none) outside the limits, bool (H, W); None when none is."""
+        finite = np.isfinite(heights_m)
+        if not finite.any():
+            return None
+        h, w = grid.height, grid.width
+        cols = grid.x_left_m + np.array([0.5, w - 0.5, 0.5]) * grid.res_m
+        rows = grid.y_top_m - np.array([0.5, 0.5, h - 0.5]) * grid.res_m
+        X, Y = self.to_project.exact(cols, rows)
+        X = np.asarray(X, float) - self.centre_m[0]
+        Y = np.asarray(Y, float) - self.centre_m[1]
+        # project coordinates of a cell: corner + (col / (w - 1)) (top right - corner) + (row / (h - 1)) (bottom left - corner)
+        fc, fr = 1.0 / max(w - 1, 1), 1.0 / max(h - 1, 1)
+        ax, bx, cx = X[0], (X[1] - X[0]) * fc, (X[2] - X[0]) * fr
+        ay, by, cy = Y[0], (Y[1] - Y[0]) * fc, (Y[2] - Y[0]) * fr
+        z_lo, z_hi = float(np.min(heights_m[finite])), float(np.max(heights_m[finite]))
+        cc = np.array([0.0, w - 1.0, 0.0, w - 1.0] * 2)
+        rr = np.array([0.0, 0.0, h - 1.0, h - 1.0] * 2)
+        zz = np.array([z_lo] * 4 + [z_hi] * 4) - self.centre_m[2]
+        if not self._outside(ax + bx * cc + cx * rr, ay + by * cc + cy * rr, zz).any():
+            return None
+        c = np.arange(w, dtype=np.float64)[None, :]
+        r = np.arange(h, dtype=np.float64)[:, None]
+        with np.errstate(invalid="ignore"):
+            out = self._outside(ax + bx * c + cx * r, ay + by * c + cy * r,
+                                heights_m.astype(np.float64) - self.centre_m[2])
+        out &= finite
+        return out if out.any() else None
 
 
 # -- footprints -------------------------------------------------------------------------------------
@@ -648,18 +727,26 @@ def covered_share(camera: Camera, centre_m, R, heights: HeightRaster, per_side: 
 
 
 def frame_grid(camera: Camera, centre_m, R, heights: HeightRaster, res_m: float, output_crs, *,
-               to_project: GridToProject, image_id: str = "frame", partial: bool = False) -> OrthoGrid:
+               to_project: GridToProject, image_id: str = "frame", partial: bool = False,
+               max_view_angle_deg: float = 90.0) -> OrthoGrid:
     """The snapped output grid covering the ground footprint of a frame on the height raster.
 
     ``partial``: border rays that miss the raster (a DEM covering part of the frame) count with their
     point on the plane of the raster's mid height, so the grid holds the whole frame and the uncovered
-    part becomes nodata in the ortho; otherwise such a ray is an InputError."""
+    part becomes nodata in the ortho; otherwise such a ray is an InputError. With ``max_view_angle_deg``
+    the footprint is cut to the cone of rays within that angle of the vertical (at the raster's lowest
+    height, where the cone is widest): an oblique frame's far field, which the ortho masks, takes no grid."""
     x, y = border_pixels(camera)
     zlo, zhi = heights.finite_range()
     ground = intersect_rays_with_heights(camera, centre_m, R, x, y, heights, z_start_m=0.5 * (zlo + zhi),
                                          image_id=image_id, uncovered="plane" if partial else "raise")
     if partial:
         ground = ground[0]
+    if max_view_angle_deg < 90.0:
+        r = max((float(centre_m[2]) - zlo) * math.tan(math.radians(max_view_angle_deg)), res_m)
+        ground = ground.copy()
+        ground[:, 0] = np.clip(ground[:, 0], centre_m[0] - r, centre_m[0] + r)
+        ground[:, 1] = np.clip(ground[:, 1], centre_m[1] - r, centre_m[1] + r)
     ox, oy = to_project.to_output(ground[:, 0], ground[:, 1])
     pad = 2 * res_m
     return OrthoGrid.snapped(output_crs, (np.min(ox) - pad, np.min(oy) - pad, np.max(ox) + pad, np.max(oy) + pad), res_m)

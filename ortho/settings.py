@@ -45,6 +45,11 @@ class RectifySettings:
     interpolation: str = setting("bilinear", choices=tuple(INTERPOLATION), help="Resampling of the frames.")
     true_ortho: bool = setting(False, help="Rectify on the DSM and mask pixels occluded by it.")
     dsm: Path | None = setting(None, path=True, help="DSM GeoTIFF of the true ortho.")
+    max_view_angle_deg: float = setting(
+        90.0, min=0.0, min_open=True, max=90.0,
+        help="Largest angle between a cell's ray to the projection centre and the vertical (deg); cells seen more "
+             "obliquely are nodata in the frame's ortho. 90: no limit; 50-60 trims the grazing far field of oblique "
+             "drone frames (a nadir DMC frame reaches about 41 deg at its corners with 3 deg of tilt).")
     compression: str = setting("zstd", choices=tuple(FRAME_COMPRESSION),
                                help="Per-frame GeoTIFFs: zstd (level 1 + predictor), zstd-fast (no predictor, ~1.7x "
                                     "larger, no less CPU), none (~40 % less CPU per frame, ~3.7x larger).")

@@ -129,6 +129,29 @@ class Camera:
         f = self.focal_px
         return np.array([[f, 0.0, self.cx_px], [0.0, f, self.cy_px], [0.0, 0.0, 1.0]])
 
+    def fold_radius(self, r_max: float = 10.0, steps: int = 4000) -> float | None:
+        """The normalised radius (tan of the angle off the optical axis) where the lens model stops growing
+        outwards towards any corner of the frame, None when it grows up to ``r_max`` (84 deg).
+
+        Past this radius a polynomial lens model turns back: rays far outside the field of view land
+        inside the frame again (a DJI DewarpData model with k1 = -0.27 folds at 51 deg, just past its frame's
+        corners). Anything projecting ground points into the frame must drop rays beyond it."""
+        params = self.kernel_params()
+        r = np.linspace(0.0, r_max, steps + 1)[1:]
+        fold = None
+        for cx, cy in ((0.0, 0.0), (self.width - 1.0, 0.0), (0.0, self.height - 1.0),
+                       (self.width - 1.0, self.height - 1.0)):
+            ux, uy = (cx - self.cx_px) / self.focal_px, (cy - self.cy_px) / self.focal_px
+            norm = math.hypot(ux, uy)
+            if norm == 0.0:
+                continue
+            xd, yd = lens_kernels.distort_points(params, r * ux / norm, r * uy / norm)
+            outwards = xd * ux + yd * uy  # distorted position along the corner's direction
+            turn = np.flatnonzero(np.diff(outwards) <= 0.0)
+            if turn.size:
+                fold = r[turn[0]] if fold is None else min(fold, float(r[turn[0]]))
+        return None if fold is None else float(fold)
+
     def ideal(self) -> "Camera":
         """The same camera without principal-point offset and distortion (the nominal camera)."""
         return dataclasses.replace(self, ppx_mm=0.0, ppy_mm=0.0, **{c: 0.0 for c in self.COEFFICIENTS})

@@ -1,0 +1,145 @@
+"""The view-angle limit of ``ortho rectify`` (``[rectify] max_view_angle_deg``): cells whose ray to the
+projection centre is more than the limit from the vertical are nodata, checked cell by cell against the
+geometry (cell centre on the DEM, the frame's projection centre); within it the ortho is the unlimited one."""
+
+from __future__ import annotations
+
+import json
+import shutil
+
+import numpy as np
+import pytest
+import rasterio
+from click.testing import CliRunner
+from scipy.ndimage import map_coordinates
+
+from ortho.cli import main
+from ortho.synthetic import write_synthetic_project
+
+
+def run(*args):
+    return CliRunner().invoke(main, [str(a) for a in args])
+
+
+@pytest.fixture(scope="module")
+def block(tmp_path_factory):
+    root = tmp_path_factory.mktemp("view_angle") / "p"
+    write_synthetic_project(root, strips=1, frames_per_strip=2, buildings=0, seed=5)
+    r = run("rectify", root, "--max-view-angle", 90)
+    assert r.exit_code == 0, r.output
+    unlimited = root.parent / "unlimited"
+    shutil.copytree(root / "ortho", unlimited)
+    return root, unlimited
+
+
+def _view_angle_deg(path, centre_m, dem_path):
+    """The angle from the vertical of each cell's ray to ``centre_m`` (cell centre on the DEM, bilinear)."""
+    with rasterio.open(path) as ds:
+        t, h, w = ds.transform, ds.height, ds.width
+    x = t.c + (np.arange(w) + 0.5) * t.a
+    y = t.f + (np.arange(h) + 0.5) * t.e
+    with rasterio.open(dem_path) as dem:
+        z_grid, dt = dem.read(1).astype(float), dem.transform
+    X, Y = np.meshgrid(x, y)
+    z = map_coordinates(z_grid, [(Y - dt.f) / dt.e - 0.5, (X - dt.c) / dt.a - 0.5], order=1, mode="nearest")
+    return np.degrees(np.arctan2(np.hypot(X - centre_m[0], Y - centre_m[1]), centre_m[2] - z)), t
+
+
+def test_cells_beyond_the_limit_are_nodata_and_the_rest_unchanged(block, tmp_path):
+    root, unlimited = block
+    work = tmp_path / "p"
+    shutil.copytree(root, work)
+    shutil.rmtree(work / "ortho")
+    r = run("rectify", work, "--max-view-angle", 8)  # the synthetic frames reach about 12 deg at their corners
+    assert r.exit_code == 0, r.output
+    index = json.loads((work / "ortho/frames/index.json").read_text())
+    assert index["settings"]["max_view_angle_deg"]["value"] == 8
+    for frame in index["frames"]:
+        path = work / "ortho/frames" / frame["file"]
+        angle, t = _view_angle_deg(path, frame["centre_m"], work / index["dem"] if not index["dem"].startswith("/")
+                                   else index["dem"])
+        with rasterio.open(path) as ds:
+            a, ok = ds.read(), ds.read_masks(1) > 0
+        with rasterio.open(unlimited / "frames" / frame["file"]) as ds:
+            b, okb, tb = ds.read(), ds.read_masks(1) > 0, ds.transform
+        # the limited grid is cut to the cone: a window of the unlimited one
+        dc, dr = round((t.c - tb.c) / t.a), round((t.f - tb.f) / t.e)
+        okb, b = okb[dr:dr + ok.shape[0], dc:dc + ok.shape[1]], b[:, dr:dr + ok.shape[0], dc:dc + ok.shape[1]]
+        assert okb.shape == ok.shape
+        tol_deg = 0.05  # the DEM's bilinear height against the kernel's, at 0.1 % of the distance
+        assert np.all(angle[ok] <= 8 + tol_deg)
+        inside = okb & (angle < 8 - tol_deg)
+        assert np.array_equal(ok & (angle < 8 - tol_deg), inside)
+        assert np.array_equal(a[:, inside], b[:, inside])
+        assert (okb & (angle > 8 + tol_deg)).sum() > 0.05 * okb.sum()  # the limit did cut the frame
+
+
+def test_a_limit_beyond_the_frames_field_changes_nothing(block, tmp_path):
+    root, unlimited = block
+    work = tmp_path / "p"
+    shutil.copytree(root, work)
+    shutil.rmtree(work / "ortho")
+    assert run("rectify", work, "--max-view-angle", 40).exit_code == 0  # the frames reach about 12 deg
+    for f in sorted((unlimited / "frames").glob("*.tif")):
+        with rasterio.open(f) as ds, rasterio.open(work / "ortho/frames" / f.name) as dn:
+            assert ds.transform == dn.transform and ds.shape == dn.shape
+            assert np.array_equal(ds.read(), dn.read()) and np.array_equal(ds.read_masks(1), dn.read_masks(1))
+
+
+@pytest.mark.parametrize("value", ["0", "95", "nan"])
+def test_a_bad_limit_is_refused(block, value):
+    root, _ = block
+    r = run("rectify", root, "--max-view-angle", value)
+    assert r.exit_code == 2 and "max-view-angle" in r.output and "Traceback" not in r.output
+
+
+def test_ground_beyond_the_lens_fold_is_not_rectified_from_the_corners():
+    """A DJI DewarpData-like lens (k1 = -0.27) folds at about 53 deg off its axis: past it the model turns back
+    and ground far outside the field of view lands inside the frame. Those cells are nodata; every valid cell's
+    ray is inside the fold; the ground the frame does see is rectified as before."""
+    from pyproj import CRS
+
+    from aerotri.geom.camera import BrownCamera
+    from aerotri.geom.lens_kernels import distort_points
+    from aerotri.geom.rotation import FLIP_YZ, rotation_matrix_opk
+    from ortho.grid import GridToProject, OrthoGrid
+    from ortho.rectify import rectify_frame
+    from ortho.synthetic import smooth_dem
+
+    utm = CRS.from_epsg(32651)
+    cam = BrownCamera(focal_mm=8.77, pixel_um=9.6, width=684, height=456, k1=-0.267, k2=0.112, k3=-0.0332)
+    fold = cam.fold_radius()
+    assert fold is not None and 1.2 < fold < 1.45
+    C = np.array([300000.0, 2730000.0, 250.0])
+    R = rotation_matrix_opk(-30.0, 0.0, 0.0)  # 30 deg oblique, as the Tuniu frames
+    dem = smooth_dem((C[0] - 700, C[1] - 700, C[0] + 700, C[1] + 700), 2.0, base_m=95.0, amplitude_m=3.0)
+    grid = OrthoGrid.snapped(utm, (C[0] - 450, C[1] - 450, C[0] + 450, C[1] + 450), 1.0)
+    img = np.full((cam.height, cam.width), 200, np.uint8)
+    ortho, mask = rectify_frame(img, cam, C, R, dem, grid, tile_px=128)
+    # each cell's ray in the camera frame, from the geometry
+    X = grid.x_left_m + (np.arange(grid.width) + 0.5) * grid.res_m
+    Y = grid.y_top_m - (np.arange(grid.height) + 0.5) * grid.res_m
+    XX, YY = np.meshgrid(X, Y)
+    from scipy.ndimage import map_coordinates
+
+    Z = map_coordinates(dem.heights_m.astype(float), [(dem.y_top_m - YY) / dem.res_m - 0.5,
+                                                      (XX - dem.x_left_m) / dem.res_m - 0.5], order=1)
+    M = (R @ FLIP_YZ).T
+    d = np.stack([XX - C[0], YY - C[1], Z - C[2]])
+    xc, yc, zc = np.einsum("ij,jhw->ihw", M, d)
+    r = np.hypot(xc, yc) / np.where(zc > 0, zc, np.nan)
+    valid = mask > 0
+    assert valid.sum() > 5000
+    assert np.all(r[valid] <= fold * 1.002)
+    # the cells the fold would have let in: beyond it, yet their (folded) image position lies inside the frame
+    far = (zc > 0) & (r > fold * 1.01)
+    xd, yd = distort_points(cam.kernel_params(), (xc / zc)[far], (yc / zc)[far])
+    px, py = cam.focal_px * xd + cam.cx_px, cam.focal_px * yd + cam.cy_px
+    folded_in = (px >= 0) & (px <= cam.width - 1) & (py >= 0) & (py <= cam.height - 1)
+    assert folded_in.sum() > 100  # the test block has such ground, and none of it is rectified
+    # inside the fold and inside the frame: rectified
+    near = (zc > 0) & (r < fold * 0.99)
+    xd, yd = distort_points(cam.kernel_params(), (xc / zc)[near], (yc / zc)[near])
+    px, py = cam.focal_px * xd + cam.cx_px, cam.focal_px * yd + cam.cy_px
+    inside = (px >= 1) & (px <= cam.width - 2) & (py >= 1) & (py <= cam.height - 2)
+    assert valid[near][inside].mean() > 0.999
