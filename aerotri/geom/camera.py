@@ -31,6 +31,7 @@ Conventions (see docs in README):
 from __future__ import annotations
 
 import dataclasses
+import functools
 import math
 import tomllib
 from pathlib import Path
@@ -71,6 +72,11 @@ def _flat(a, b) -> tuple[tuple, np.ndarray, np.ndarray]:
         a, b = np.broadcast_arrays(a, b)
     flat = [np.require(np.ravel(v), np.float64, ("C", "W")) for v in (a, b)]
     return a.shape, flat[0], flat[1]
+
+
+@functools.lru_cache(maxsize=64)
+def _fold_radius(camera: "Camera") -> float | None:
+    return camera.fold_radius()
 
 
 @dataclasses.dataclass(frozen=True)
@@ -239,7 +245,9 @@ class Camera:
         """Object points (N, 3) into pixels of a frame with centre C (3,) and rotation R (3, 3).
 
         Returns (x_px, y_px, depth_m); depth is the distance along the viewing axis, positive in
-        front of the camera. Points behind the camera get NaN pixel coordinates.
+        front of the camera. Points behind the camera, or beyond the fold of the lens model
+        (``fold_radius``: where it would put them inside the frame, far from where they are), get NaN pixel
+        coordinates.
         """
         P = np.atleast_2d(_as_array(points_m)) - _as_array(centre_m)
         d = P @ (_as_array(R) @ FLIP_YZ)  # computer-vision camera coordinates
@@ -247,6 +255,11 @@ class Camera:
         with np.errstate(divide="ignore", invalid="ignore"):
             xn = np.where(depth > 0, d[:, 0] / depth, np.nan)
             yn = np.where(depth > 0, d[:, 1] / depth, np.nan)
+        fold = _fold_radius(self)
+        if fold is not None:
+            with np.errstate(invalid="ignore"):
+                beyond = xn * xn + yn * yn > fold * fold
+            xn, yn = np.where(beyond, np.nan, xn), np.where(beyond, np.nan, yn)
         x_px, y_px = self.normalized_to_pixel(xn, yn)
         return x_px, y_px, depth
 

@@ -176,3 +176,33 @@ def test_colmap_models():
 def test_ideal_keeps_the_model():
     assert BROWN.ideal() == BrownCamera(focal_mm=120, pixel_um=12, width=13824, height=7680, name="DMC test")
     assert type(PINHOLE.ideal()) is PinholeCamera and PINHOLE.ideal().ppx_mm == 0.0
+
+
+def test_points_beyond_the_lens_fold_do_not_project_into_the_frame():
+    """DJI DewarpData-like radial terms (k1 = -0.27) fold 53 deg off the axis: the model's image radius turns back
+    there, and a point 61 deg off the axis would land inside the frame. ``project`` gives NaN for it, as for a point behind
+    the camera; inside the fold the projection is as before (a round trip through ``rays``)."""
+    import math
+
+    from aerotri.geom.camera import BrownCamera
+    from aerotri.geom.lens_kernels import distort_points
+    from aerotri.geom.rotation import rotation_matrix_opk
+
+    cam = BrownCamera(focal_mm=8.77, pixel_um=9.6, width=684, height=456, k1=-0.267, k2=0.112, k3=-0.0332)
+    fold = cam.fold_radius()
+    assert math.degrees(math.atan(fold)) == pytest.approx(53.4, abs=0.3)
+    # the model does turn back: the distorted radius at r = 1.6 below its value at the fold
+    rd = [np.hypot(*distort_points(cam.kernel_params(), np.array([r]), np.array([0.0])))[0] for r in (fold, 1.6)]
+    assert rd[1] < rd[0]
+    C, R = np.array([0.0, 0.0, 100.0]), rotation_matrix_opk(0.0, 0.0, 0.0)
+    far = np.array([[180.0, 0.0, 0.0]])  # 61 deg off the axis: r = 1.8
+    x, y, depth = cam.project(far, C, R)
+    assert np.isnan(x[0]) and np.isnan(y[0]) and depth[0] > 0
+    # without the fold test the model would have put it inside the frame
+    xd, _ = distort_points(cam.kernel_params(), np.array([1.8]), np.array([0.0]))
+    assert 0 <= cam.focal_px * xd[0] + cam.cx_px <= cam.width - 1
+    xs, ys = np.meshgrid(np.linspace(0, cam.width - 1, 7), np.linspace(0, cam.height - 1, 5))
+    d = cam.rays(xs.ravel(), ys.ravel(), R)
+    P = C + d * (100.0 / -d[:, 2:3])
+    x, y, _ = cam.project(P, C, R)
+    assert np.allclose(x, xs.ravel(), atol=1e-3) and np.allclose(y, ys.ravel(), atol=1e-3)
