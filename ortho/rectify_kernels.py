@@ -187,6 +187,15 @@ def _boundary_in(g, e, k):
     return -1e30
 
 
+@numba.njit(cache=True, inline="always")
+def _dda_step(sx, sy, dsx, dsy, i, j, step_i, step_j):
+    """One step of the 2D DDA: into the next cell across the nearer of the column (``sx``) and row (``sy``)
+    boundaries; returns the parameter s where the ray enters that cell, the next boundaries and the cell (i, j)."""
+    if sx < sy:
+        return sx, sx + dsx, sy, i, j + step_j
+    return sy, sx, sy + dsy, i + step_i, j
+
+
 @numba.njit(cache=True, nogil=True)
 def _occlusion_kernel(anchor_x, anchor_y, spacing, rows, cols, height_tile, dsm, dsm_x0, dsm_y0, dsm_res,
                       dsm_max, centre, tolerance_m, occluded, candidates, block_max, block, coarse_max, coarse,
@@ -289,14 +298,7 @@ def _occlusion_kernel(anchor_x, anchor_y, spacing, rows, cols, height_tile, dsm,
             i = i_own
             sx = _next_boundary(gx, ex, j)
             sy = _next_boundary(gy, ey, i)
-            if sx < sy:
-                s = sx
-                sx += dsx
-                j += step_j
-            else:
-                s = sy
-                sy += dsy
-                i += step_i
+            s, sx, sy, i, j = _dda_step(sx, sy, dsx, dsy, i, j, step_i, step_j)
             while True:  # the ray enters cell (i, j) at s
                 zr = Z + rise * s
                 if zr > dsm_max or i < 0 or j < 0 or i >= dh or j >= dw:
@@ -323,14 +325,7 @@ def _occlusion_kernel(anchor_x, anchor_y, spacing, rows, cols, height_tile, dsm,
                 if dsm[i, j] > zr + tolerance_m:
                     occluded[r, c] = True
                     break
-                if sx < sy:
-                    s = sx
-                    sx += dsx
-                    j += step_j
-                else:
-                    s = sy
-                    sy += dsy
-                    i += step_i
+                s, sx, sy, i, j = _dda_step(sx, sy, dsx, dsy, i, j, step_i, step_j)
 
 
 @numba.njit(cache=True, nogil=True, fastmath=_FASTMATH, error_model="numpy")

@@ -441,9 +441,11 @@ def build_qa_report(root, *, tolerance_file=None, terrain: str | None = None, sc
               "limits": {k: tol.get(k) for k in LIMIT_KEYS}}
         rows += flight_rows(fa, tol)
     elif project.eo_path.is_file() or project.gnss_path.is_file():
+        missing = (f"no {project.camera_path.name}" if not project.camera_path.is_file() else
+                   f"no DEM ({project.dem_path.relative_to(project.root)}) and no [flight] mean_terrain_height_m in "
+                   "project.toml to put the footprints on")
         rows.append(_check("flight_acceptance", "Flight acceptance", "flight acceptance", None, None, "",
-                           note="not measured: no camera.toml, or no DEM (lidar_out/dem.tif) and no [flight] "
-                           "mean_terrain_height_m to put the footprints on"))
+                           note=f"not measured: {missing}"))
 
     verdicts = [r.verdict for r in rows if r.verdict]
     ks_info = dict(sigma0_um=ks.sigma0_um, iterations=ks.iterations) if ks else dict(sigma0_um=None, iterations=None)
