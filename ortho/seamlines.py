@@ -120,7 +120,8 @@ def _grid_graph(cost: np.ndarray, nodes: np.ndarray):
         wts[k] *= 0.5 * (2 ** 0.5 if dr and dc else 1.0)
     nbr, wts = nbr.T, wts.T
     ok = nbr >= 0
-    indptr = np.zeros(n + 1, np.int64)
+    # int32 row pointers where they fit, as scipy stores them (given int64 it scans them and casts a copy)
+    indptr = np.zeros(n + 1, np.int32 if 8 * n < 2 ** 31 else np.int64)
     np.cumsum(np.count_nonzero(ok, axis=1), out=indptr[1:])
     g = csr_matrix((wts[ok], nbr[ok], indptr), shape=(n, n))
     g.has_sorted_indices = True
@@ -180,18 +181,22 @@ def least_cost_seams(labels: np.ndarray, valid: list, offsets: list, gray: list 
     obj = _dilate(np.ascontiguousarray(object_mask, bool), _SQUARE) if object_mask is not None else None
     done = set()
     labels = labels.copy()
+    # the cells no frame covers, framed by more of them: a re-routing only moves cells between the pair's two frames,
+    # so these stay the same for every seam (made once, not once a seam)
+    outside = np.pad(labels < 0, 1, constant_values=True)
     for _ in range(passes):
         todo = [p for p in neighbour_pairs(labels) if p not in done]
         for i, j in todo:
             done.add((i, j))
             _reroute_pair(labels, i, j, valid, offsets, gray, obj, object_cost, difference_cost, min_overlap_cells,
-                          end_reach, end_reach_cells, seen)
+                          end_reach, end_reach_cells, seen, outside)
     return labels
 
 
 def _reroute_pair(labels, i, j, valid, offsets, gray, obj, object_cost, difference_cost, min_overlap_cells, end_reach,
-                  end_reach_cells, seen=None) -> None:
-    """One seam (frames i, j) along its least-cost path; updates ``labels`` in place."""
+                  end_reach_cells, seen=None, outside=None) -> None:
+    """One seam (frames i, j) along its least-cost path; updates ``labels`` in place. ``outside``: the cells of no
+    frame (``labels < 0``) padded by one cell of them, if already made."""
     import cv2
 
     # window covering both frames
@@ -230,8 +235,9 @@ def _reroute_pair(labels, i, j, valid, offsets, gray, obj, object_cost, differen
     # does not pin it onto a building: within end_reach x seam length, and within end_reach_cells where
     # the border is the edge of the block (no frame beyond it, so no other seam is disturbed)
     border = corridor & ~_erode(corridor, _SQUARE)
-    outside = np.pad(labels < 0, 1, constant_values=True)[r0:r1 + 2, c0:c1 + 2]
-    block_edge = border & _dilate(np.ascontiguousarray(outside), _SQUARE)[1:-1, 1:-1]
+    if outside is None:
+        outside = np.pad(labels < 0, 1, constant_values=True)
+    block_edge = border & _dilate(np.ascontiguousarray(outside[r0:r1 + 2, c0:c1 + 2]), _SQUARE)[1:-1, 1:-1]
     reach = max(3.0, end_reach * float(np.hypot(ends[0][0] - ends[1][0], ends[0][1] - ends[1][1])))
     starts = np.union1d(_near(border, ends[0], reach), _near(block_edge, ends[0], end_reach_cells, False))
     goals = np.union1d(_near(border, ends[1], reach), _near(block_edge, ends[1], end_reach_cells, False))
@@ -248,10 +254,9 @@ def _reroute_pair(labels, i, j, valid, offsets, gray, obj, object_cost, differen
     path_nodes = [b]
     while pred[path_nodes[-1]] >= 0:
         path_nodes.append(int(pred[path_nodes[-1]]))
-    node_rc = np.argwhere(corridor)
     path = np.zeros(corridor.shape, bool)
-    pr = node_rc[path_nodes]
-    path[pr[:, 0], pr[:, 1]] = True
+    # node k is the k-th corridor cell in row-major order (``_grid_graph``)
+    path.flat[np.flatnonzero(corridor)[path_nodes]] = True
     # sides of the path: 4-connected parts of the corridor (an 8-connected path separates them)
     n_parts, parts = cv2.connectedComponents((corridor & ~path).view(np.uint8), connectivity=4, ltype=cv2.CV_32S)
     # which parts touch the exclusive areas (cells of i, or j, outside the corridor)
