@@ -50,7 +50,7 @@ def _sample(grids, x, y):
     t = grids["transform"]
     dem = grids["dem"][::-1].astype(float)            # south-up rows, as sample_bilinear expects
     y0 = t.f + t.e * dem.shape[0]
-    return sample_bilinear(np.where(np.isfinite(dem), dem, np.nan), x, y, t.a, t.c, y0)
+    return sample_bilinear(np.where(np.isfinite(dem), dem, np.nan), x, y, cell_m=t.a, x0=t.c, y0=y0)
 
 
 def _grids(cloud, radius):
