@@ -166,7 +166,8 @@ def occlusion_agreement(project: Path, frame: str, tiles: int = 6, tile_px: int 
         tile = grid.window(c0, r0, tile_px, tile_px)
         map_int, _, mask, z, anchors = RF.fixed_point_maps(geometry, dsm, tile, to_project)
         ok = mask > 0
-        behind = RF.zbuffer_occlusion_from_maps(geometry, zbuffer, tile, map_int, mask, z, np.empty(z.shape, bool))
+        behind = RF.zbuffer_occlusion_from_maps(geometry, zbuffer, tile, map_int, mask, z,
+                                                out=np.empty(z.shape, bool))
         occ = RF.occlusion_mask(geometry, dsm, tile, z, anchors, candidates=behind, bound=bound)
         c = time.process_time()
         full = RF.occlusion_mask(geometry, dsm, tile, z, anchors, bound=bound)
