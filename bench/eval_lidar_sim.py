@@ -54,8 +54,8 @@ def main():
 
     cloud.classification = pred
     grids = rasters.make_grids(cloud, args.res)
-    dem = grids["dem"][::-1]                                  # rows growing with y again
-    tr = grids["transform"]
+    dem = grids.dem[::-1]                                  # rows growing with y again
+    tr = grids.transform
     nrows, ncols = dem.shape
     x0, y0 = tr.c, tr.f - nrows * args.res
     jj, ii = np.meshgrid(np.arange(ncols), np.arange(nrows))
