@@ -67,12 +67,12 @@ def settings(project: Path, true_ortho: bool):
 
 
 def one_frame(project: Path, frame: str, true_ortho: bool) -> dict:
-    from ortho.block import rectify_block
+    from ortho.block import read_index, rectify_block
 
     t, c = time.perf_counter(), time.process_time()
-    index = rectify_block(project, settings(project, true_ortho), frames=[frame])
+    rectify_block(project, settings(project, true_ortho), frames=[frame])
     cpu, wall = time.process_time() - c, time.perf_counter() - t
-    e = next(e for e in index["frames"] if e["image_id"] == frame)
+    e = next(e for e in read_index(project)["frames"] if e["image_id"] == frame)
     mp = e["width"] * e["height"] / 1e6
     return {"frame": frame, "frame_ortho_mp": round(mp, 3), "cpu_s": round(cpu, 3), "wall_s": round(wall, 3),
             "load_avg_1min": round(os.getloadavg()[0], 2), "valid_fraction": e["valid_fraction"]}

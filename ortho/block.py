@@ -352,9 +352,36 @@ def file_fingerprint(path) -> dict:
     return {"size": Path(path).stat().st_size, "sha1": h.hexdigest()}
 
 
+@dataclasses.dataclass(frozen=True)
+class RectifiedFrames:
+    """What ``rectify_block`` made: ``ortho/frames/index.json`` (``index_path``; its reader: ``read_index``), the
+    output CRS (WKT) and pixel size (metres, or the CRS's unit), and every frame's grid, in frame order."""
+
+    index_path: Path
+    crs_wkt: str
+    res_m: float
+    image_ids: tuple[str, ...]
+    grids: tuple[OrthoGrid, ...]
+    operation: str | None  # the coordinate operation project -> output CRS applied (its description), None: none
+
+    def grid(self, image_id: str) -> OrthoGrid:
+        """The output grid of frame ``image_id`` (KeyError naming the frames there are)."""
+        if image_id not in self.image_ids:
+            raise KeyError(f"no frame {image_id!r}; there are: {', '.join(self.image_ids)}")
+        return self.grids[self.image_ids.index(image_id)]
+
+
+def _rectified_frames(index: dict, path: Path) -> RectifiedFrames:
+    grids = index_grids(index)
+    op = index.get("coordinate_operation")
+    return RectifiedFrames(path, index["crs"], index["res_m"], tuple(grids), tuple(grids.values()),
+                           op["description"] if op else None)
+
+
 def rectify_block(root, settings: RectifySettings | Resolved | None = None, *, eo_path=None, camera_path=None,
-                  frames=None, executor=None, params=None, heights=None, allow_ballpark: bool = False) -> dict:
-    """Rectify the frames of a project into ``ortho/frames/``; returns the index written to index.json.
+                  frames=None, executor=None, params=None, heights=None,
+                  allow_ballpark: bool = False) -> RectifiedFrames:
+    """Rectify the frames of a project into ``ortho/frames/``; the frames and their index.json (``RectifiedFrames``).
 
     ``settings``: None reads [rectify] of project.toml; a ``Resolved`` (``ortho rectify``, the chain) carries the
     source of every setting into index.json (``settings``). The output CRS (``crs``; default the target CRS
@@ -454,7 +481,7 @@ def rectify_block(root, settings: RectifySettings | Resolved | None = None, *, e
             index["frames"] = sorted(keep + index["frames"], key=lambda e: e["image_id"])
         index["settings"] = resolved.record()
         write_text_atomic(tmp_dir / "index.json", json.dumps(index, indent=1) + "\n")
-    return index
+    return _rectified_frames(index, out_dir / "index.json")
 
 
 def check_frame_sizes(block: BlockInputs, eo_idx: dict, zlo: float, zhi: float, res: float, option: str | None,

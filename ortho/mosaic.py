@@ -434,10 +434,35 @@ def _write_labels(path, labels, transform, crs):
             dst.write(labels, 1)
 
 
+@dataclasses.dataclass(frozen=True)
+class MosaicSummary:
+    """What ``mosaic_block`` made: the COG (``path``), its size (px) and pixel size, the frames blended, how the seams
+    were made, the feather (px), every frame's band gains (name, gains), the cells inside the block no frame sees,
+    and ``summary_path``, ortho/mosaic.json (the record with the seam pairs, tiles and settings as well)."""
+
+    path: Path
+    summary_path: Path
+    width_px: int
+    height_px: int
+    frames: int
+    res_m: float
+    seams: str
+    feather_px: float
+    gains: tuple[tuple[str, tuple[float, ...]], ...]
+    cells_seen_by_no_frame: int
+    area_seen_by_no_frame_m2: float
+
+
+def _mosaic_summary(doc: dict, summary_path: Path) -> MosaicSummary:
+    return MosaicSummary(Path(doc["path"]), summary_path, doc["width"], doc["height"], doc["frames"], doc["res_m"],
+                         doc["seams"], doc["feather_px"], tuple((n, tuple(g)) for n, g in doc["gains"].items()),
+                         doc["cells_seen_by_no_frame"], doc["area_seen_by_no_frame_m2"])
+
+
 def mosaic_block(root, settings: MosaicSettings | Resolved | None = None, *, object_height_m: float = 2.5,
                  max_seam_cells: float = 5e7, end_reach_m: float = 30.0, seam_cell_m: float = 1.5,
-                 executor=None, seamlines=None) -> dict:
-    """``ortho mosaic``: see the module doc. Returns a summary dict.
+                 executor=None, seamlines=None) -> MosaicSummary:
+    """``ortho mosaic``: see the module doc. Returns what it made (``MosaicSummary``).
 
     ``seamlines``: an edited seamlines GeoPackage (``ortho/seamlines.gpkg`` as a run writes it, edited in QGIS) whose
     polygons replace the seams the run would route (checked first: ``ortho.seamlines_gpkg``).
@@ -448,8 +473,9 @@ def mosaic_block(root, settings: MosaicSettings | Resolved | None = None, *, obj
     scheduler. GDAL's block cache is ``MOSAIC_CACHE_BYTES`` for the whole stage (set here, before any thread
     of the stage starts: ``aerotri.core.gdal_cache``)."""
     with stage_block_cache(MOSAIC_CACHE_BYTES):
-        return _mosaic_block(root, settings, object_height_m=object_height_m, max_seam_cells=max_seam_cells,
-                             end_reach_m=end_reach_m, seam_cell_m=seam_cell_m, executor=executor, seamlines=seamlines)
+        doc = _mosaic_block(root, settings, object_height_m=object_height_m, max_seam_cells=max_seam_cells,
+                            end_reach_m=end_reach_m, seam_cell_m=seam_cell_m, executor=executor, seamlines=seamlines)
+    return _mosaic_summary(doc, Path(root) / "ortho" / "mosaic.json")
 
 
 def _mosaic_block(root, settings, *, object_height_m, max_seam_cells, end_reach_m, seam_cell_m, executor,
