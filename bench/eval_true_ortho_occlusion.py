@@ -476,7 +476,7 @@ def measure_way(project: Path, truth: Truth, grid, surface_kind, ground, roof, v
     seams["roof_seam_cells_where_a_ground_route_existed"] = sum(
         p["roof_seam_cells"] for p in pairs_out if p["ground_route_existed"])
     mis = seam_misalignment(project)
-    seams["misalignment"] = {k: mis[k] for k in ("patch_px", "patches", "rms_px", "max_px")}
+    seams["misalignment"] = {k: getattr(mis, k) for k in ("patch_px", "patches", "rms_px", "max_px")}
     return {"source_frame_by_value": agree, "ghosts": ghosts, "occluded_ground": occluded,
             "seams": seams}
 

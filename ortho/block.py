@@ -37,6 +37,7 @@ from pyproj import CRS
 from aerotri.geom.eo import ExteriorOrientations, read_eo
 from aerotri.core.errors import InputError
 from aerotri.core.project import Project
+from aerotri.core.records import to_record
 from aerotri.core.settings import Resolved, settings_of
 from aerotri.geom.rotation import rotation_matrix_opk
 from aerotri.core.atomic import atomic_dir, atomic_path, remove_leftovers, write_text_atomic
@@ -336,11 +337,17 @@ def _rectify_frame_task(task: FrameTask) -> dict:
         "width": grid.width, "height": grid.height, "centre_m": [float(v) for v in C],
         "nadir_xy_m": [float(nadir_x[0]), float(nadir_y[0])], "valid_fraction": valid_fraction,
         "height_covered_share": round(covered, 4),
-        **file_fingerprint(task.out_path),
+        **to_record(file_fingerprint(task.out_path)),
     }
 
 
-def file_fingerprint(path) -> dict:
+@dataclasses.dataclass(frozen=True)
+class FileFingerprint:
+    size: int  # bytes
+    sha1: str
+
+
+def file_fingerprint(path) -> FileFingerprint:
     """``size`` (bytes) and ``sha1`` of a file: what index.json records of every frame ortho, so that a
     consumer can tell a frame file that does not belong to the index (``verify_index``)."""
     import hashlib
@@ -349,7 +356,7 @@ def file_fingerprint(path) -> dict:
     with open(path, "rb") as f:
         for block in iter(lambda: f.read(1 << 22), b""):
             h.update(block)
-    return {"size": Path(path).stat().st_size, "sha1": h.hexdigest()}
+    return FileFingerprint(Path(path).stat().st_size, h.hexdigest())
 
 
 @dataclasses.dataclass(frozen=True)
@@ -752,7 +759,7 @@ def verify_index(frames_dir, index: dict) -> None:
                              "frame does not belong to this index (changed or left by another run); re-run ortho rectify")
     with_hash = [e for e in index["frames"] if "sha1" in e]
     with ThreadPoolExecutor(max(1, min(8, os.cpu_count() or 1))) as pool:  # hashlib releases the GIL
-        got = list(pool.map(lambda e: file_fingerprint(frames_dir / e["file"])["sha1"], with_hash))
+        got = list(pool.map(lambda e: file_fingerprint(frames_dir / e["file"]).sha1, with_hash))
     for e, h in zip(with_hash, got):
         if h != e["sha1"]:
             raise InputError(f"{frames_dir / e['file']}: content differs from {frames_dir / 'index.json'} (sha1 {h[:12]}, "

@@ -742,7 +742,7 @@ def run_check(project_root, settings: CheckSettings | Resolved | None = None, *,
         from ortho.mosaic import seam_misalignment
 
         with stage_block_cache(CHECK_CACHE_BYTES):
-            report["seams"] = seam_misalignment(root, ndsm_path=ndsm_path, max_ndsm_m=max_ndsm_m)
+            report["seams"] = to_record(seam_misalignment(root, ndsm_path=ndsm_path, max_ndsm_m=max_ndsm_m))
     plot()  # the outputs only after every measurement succeeded
     report["json"] = str(out_stem.with_suffix(".json"))
     report["plot"] = str(out_stem.with_suffix(".png"))

@@ -1554,8 +1554,32 @@ def seam_samples(labels: np.ndarray, spacing_cells: int):
         yield (i, j), np.stack(np.divmod(c, w), axis=1)
 
 
+@dataclasses.dataclass(frozen=True)
+class SeamPair:
+    """One seam's misalignment: the two frames, the patches matched, RMS and largest displacement (px; None
+    without patches)."""
+
+    image_a: str
+    image_b: str
+    patches: int
+    rms_px: float | None
+    max_px: float | None
+
+
+@dataclasses.dataclass(frozen=True)
+class SeamMisalignment:
+    """``seam_misalignment``: the patch size (px), the patches of all seams, their RMS and largest displacement
+    (px; None without patches) and every seam's (dom_report.json's ``seams`` is ``to_record`` of it)."""
+
+    patch_px: int
+    patches: int
+    rms_px: float | None
+    max_px: float | None
+    per_seam: tuple[SeamPair, ...]
+
+
 def seam_misalignment(root, *, patch_px: int = 32, search_px: int = 4, spacing_cells: int = 4, min_ncc: float = 0.7,
-                      ndsm_path=None, max_ndsm_m: float = 0.5) -> dict:
+                      ndsm_path=None, max_ndsm_m: float = 0.5) -> SeamMisalignment:
     """Relative displacement of neighbouring frame orthos across each seam (NCC patches on the seam).
 
     For every seam (pair of frames sharing a boundary in ``ortho/seams.tif``), patches centred on
@@ -1617,9 +1641,8 @@ def seam_misalignment(root, *, patch_px: int = 32, search_px: int = 4, spacing_c
                     ds_list.extend(np.hypot(p.dx_px, p.dy_px).tolist())
         d = np.array(ds_list)
         all_d.extend(ds_list)
-        per_seam.append({"image_a": names[i], "image_b": names[j], "patches": int(len(d)),
-                         "rms_px": float(np.sqrt(np.mean(d ** 2))) if len(d) else None,
-                         "max_px": float(d.max()) if len(d) else None})
+        per_seam.append(SeamPair(names[i], names[j], int(len(d)), float(np.sqrt(np.mean(d ** 2))) if len(d) else None,
+                                 float(d.max()) if len(d) else None))
     d = np.array(all_d)
-    return {"patch_px": patch_px, "patches": int(len(d)), "rms_px": float(np.sqrt(np.mean(d ** 2))) if len(d) else None,
-            "max_px": float(d.max()) if len(d) else None, "per_seam": per_seam}
+    return SeamMisalignment(patch_px, int(len(d)), float(np.sqrt(np.mean(d ** 2))) if len(d) else None,
+                            float(d.max()) if len(d) else None, tuple(per_seam))
