@@ -2,7 +2,7 @@
 
 - public functions returning a dict: a public function (name without a leading underscore, its class
   public too) with a ``dict`` return annotation or a ``return`` of a dict literal, comprehension or
-  ``dict(...)`` call;
+  ``dict(...)`` call (its own returns, not those of functions defined inside it);
 - ``["key"]`` lookups: subscripts whose index is a string constant, per 1,000 lines;
 - functions with more than 6 positional parameters (``self``/``cls`` not counted);
 - command bodies: the line count of each click command's function body (decorated ``@click.command``,
@@ -24,13 +24,24 @@ ROOT = Path(__file__).resolve().parents[1]
 PACKAGES = ("aerotri", "lidarctl", "ortho")
 
 
+def _own_nodes(fn: ast.FunctionDef):
+    """The nodes of ``fn``'s body, not those of the functions and lambdas defined inside it (a nested helper's
+    ``return {...}`` is not ``fn``'s return)."""
+    todo = list(fn.body)
+    while todo:
+        node = todo.pop()
+        yield node
+        if not isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef, ast.Lambda, ast.ClassDef)):
+            todo.extend(ast.iter_child_nodes(node))
+
+
 def _returns_dict(fn: ast.FunctionDef) -> bool:
     ann = fn.returns
     if ann is not None:
         text = ast.unparse(ann)
         if text == "dict" or text.startswith("dict[") or text.startswith("Dict"):
             return True
-    for node in ast.walk(fn):
+    for node in _own_nodes(fn):
         if isinstance(node, ast.Return) and node.value is not None:
             v = node.value
             if isinstance(v, (ast.Dict, ast.DictComp)):

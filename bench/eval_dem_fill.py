@@ -47,10 +47,10 @@ def _stats(dz):
 def _sample(grids, x, y):
     from lidarctl.raster_ops import sample_bilinear
 
-    t = grids["transform"]
-    dem = grids["dem"][::-1].astype(float)            # south-up rows, as sample_bilinear expects
+    t = grids.transform
+    dem = grids.dem[::-1].astype(float)            # south-up rows, as sample_bilinear expects
     y0 = t.f + t.e * dem.shape[0]
-    return sample_bilinear(np.where(np.isfinite(dem), dem, np.nan), x, y, t.a, t.c, y0)
+    return sample_bilinear(np.where(np.isfinite(dem), dem, np.nan), x, y, cell_m=t.a, x0=t.c, y0=y0)
 
 
 def _grids(cloud, radius):
@@ -97,8 +97,8 @@ def sim(seed: int = 2):
     out = {}
     for name, radius in RADII.items():
         g = _grids(cloud, radius)
-        t = g["transform"]
-        dem = g["dem"][::-1]
+        t = g.transform
+        dem = g.dem[::-1]
         nr, nc = dem.shape
         cx = t.c + (np.arange(nc) + 0.5) * t.a
         cy = t.f + t.e * nr + (np.arange(nr) + 0.5) * t.a

@@ -37,6 +37,7 @@ def _measure(n_points: int, only: list[str] | None = None) -> dict:
 
     rng = np.random.default_rng(40)
     cell_m, x0, y0, nrows, ncols = 0.5, 1000.0, 2000.0, 900, 1100
+    grid = dict(cell_m=cell_m, x0=x0, y0=y0, nrows=nrows, ncols=ncols)
     x = rng.uniform(x0 - 0.05 * ncols * cell_m, x0 + 1.05 * ncols * cell_m, n_points)
     y = rng.uniform(y0 - 0.05 * nrows * cell_m, y0 + 1.05 * nrows * cell_m, n_points)
     z = rng.normal(100.0, 5.0, n_points)
@@ -72,12 +73,12 @@ def _measure(n_points: int, only: list[str] | None = None) -> dict:
         st.add_chm(wx, wy, wz, cls, dem[100:700, 200:900])
         return np.concatenate([st._counts.ravel().astype(float), st._sums.ravel(), st.chm])
     calls = {
-        "reduce_grid_min": lambda: reduce_grid(x, y, z, cell_m, x0, y0, nrows, ncols, "min"),
-        "reduce_grid_max": lambda: reduce_grid(x, y, z, cell_m, x0, y0, nrows, ncols, "max"),
-        "reduce_grid_mean": lambda: reduce_grid(x, y, z, cell_m, x0, y0, nrows, ncols, "mean"),
-        "sample_bilinear": lambda: sample_bilinear(dem, np.nan_to_num(x, nan=x0), y, cell_m, x0, y0),
-        "sample_bilinear_window": lambda: sample_bilinear(dem[100:700, 200:900], np.nan_to_num(x, nan=x0), y, cell_m,
-                                                          x0, y0, 100, 200),
+        "reduce_grid_min": lambda: reduce_grid(x, y, z, **grid, how="min"),
+        "reduce_grid_max": lambda: reduce_grid(x, y, z, **grid, how="max"),
+        "reduce_grid_mean": lambda: reduce_grid(x, y, z, **grid, how="mean"),
+        "sample_bilinear": lambda: sample_bilinear(dem, np.nan_to_num(x, nan=x0), y, cell_m=cell_m, x0=x0, y0=y0),
+        "sample_bilinear_window": lambda: sample_bilinear(dem[100:700, 200:900], np.nan_to_num(x, nan=x0), y,
+                                                          cell_m=cell_m, x0=x0, y0=y0, row0=100, col0=200),
         "cell_stats_add_and_chm": cells,
         "rasters_binning": binning,
     }

@@ -54,8 +54,8 @@ def main():
 
     cloud.classification = pred
     grids = rasters.make_grids(cloud, args.res)
-    dem = grids["dem"][::-1]                                  # rows growing with y again
-    tr = grids["transform"]
+    dem = grids.dem[::-1]                                  # rows growing with y again
+    tr = grids.transform
     nrows, ncols = dem.shape
     x0, y0 = tr.c, tr.f - nrows * args.res
     jj, ii = np.meshgrid(np.arange(ncols), np.arange(nrows))
@@ -66,16 +66,16 @@ def main():
         row = (cy - ds.transform.f) / ds.transform.e - 0.5
     true_z = ndimage.map_coordinates(tdem, [row.ravel(), col.ravel()], order=1, mode="nearest",
                                      cval=np.nan).reshape(dem.shape)
-    args_grid = (args.res, x0, y0, nrows, ncols)
+    grid_kw = dict(cell_m=args.res, x0=x0, y0=y0, nrows=nrows, ncols=ncols)
     obj = np.isin(truth, (3, 4, 5, 6))
     veg = np.isin(truth, (3, 4, 5))
-    any_obj = np.isfinite(reduce_grid(cloud.x[obj], cloud.y[obj], cloud.z[obj], *args_grid, "max"))
-    any_veg = np.isfinite(reduce_grid(cloud.x[veg], cloud.y[veg], cloud.z[veg], *args_grid, "max"))
+    any_obj = np.isfinite(reduce_grid(cloud.x[obj], cloud.y[obj], cloud.z[obj], **grid_kw, how="max"))
+    any_veg = np.isfinite(reduce_grid(cloud.x[veg], cloud.y[veg], cloud.z[veg], **grid_kw, how="max"))
     any_ground = np.isfinite(reduce_grid(cloud.x[truth == 2], cloud.y[truth == 2], cloud.z[truth == 2],
-                                         *args_grid, "max"))
+                                         **grid_kw, how="max"))
     open_ground = any_ground & ~ndimage.binary_dilation(any_obj, np.ones((3, 3), bool))
     canopy = any_veg & ~ndimage.binary_dilation(np.isfinite(reduce_grid(
-        cloud.x[truth == 6], cloud.y[truth == 6], cloud.z[truth == 6], *args_grid, "max")), np.ones((3, 3), bool))
+        cloud.x[truth == 6], cloud.y[truth == 6], cloud.z[truth == 6], **grid_kw, how="max")), np.ones((3, 3), bool))
     err = dem - true_z
     ok = np.isfinite(err)
 

@@ -155,10 +155,10 @@ def ortho_measures(root: Path, ref) -> dict:
     ref_eo.write_text(format_eo(ExteriorOrientations(list(ref.image_id), ref.centre_m, ref.opk_deg, None)))
     out = {}
     for name, eo in (("reference", ref_eo), ("adjusted", None)):
-        index = rectify_block(root, eo_path=eo)
+        done = rectify_block(root, eo_path=eo)
         shifts = overlap_shifts(root / "ortho" / "frames")
         s = np.array([v["shift_px"] for v in shifts.values()])
-        out[name] = {"res_m": index["res_m"], "pairs": shifts,
+        out[name] = {"res_m": done.res_m, "pairs": shifts,
                      "shift_rms_px": float(np.sqrt(np.mean(s**2))) if len(s) else None,
                      "shift_max_px": float(s.max()) if len(s) else None}
     return out

@@ -57,7 +57,8 @@ import sqlite3
 from pathlib import Path
 
 PROJECT_OUTPUTS = ("ortho/frames", "ortho/dom_report.json", "ortho/dom_report.png", "ortho/mosaic.tif",
-                   "ortho/mosaic.json", "ortho/seamlines.geojson", "ortho/seams.tif")
+                   "ortho/mosaic.json", "ortho/seamlines.geojson", "ortho/seams.tif",
+                   "reports/summary.json")  # the QA report (bench/same_products_run.sh's last command)
 TEXT_SUFFIXES = (".json", ".txt", ".csv")
 VARIES = re.compile(r"elapsed|ETA|^rc=|^== |^done$| in [0-9.]+ s|points/s|Command exited")
 

@@ -38,6 +38,7 @@ import numpy as np
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
 
+from aerotri.core.records import to_record  # noqa: E402
 from aerotri.sim import load_preset, simulate  # noqa: E402
 from aerotri.sim.config import apply_overrides  # noqa: E402
 from lidarctl.strips import adjust as adj  # noqa: E402
@@ -79,8 +80,8 @@ def dem_error(project: Path, strips: list[Path], res_m: float = 2.0) -> dict:
     cloud = io.PointCloud(*[np.concatenate([getattr(c, f) for c in clouds]) for f in fields],
                           np.concatenate(truth_cls), crs=clouds[0].crs)
     grids = rasters.make_grids(cloud, res_m)
-    dem = grids["dem"][::-1].astype(float)
-    tr = grids["transform"]
+    dem = grids.dem[::-1].astype(float)
+    tr = grids.transform
     nrows, ncols = dem.shape
     x0, y0 = tr.c, tr.f - nrows * res_m
     g = np.isin(cloud.classification, (2,))
@@ -173,8 +174,9 @@ def eval_seed(work: Path, seed: int) -> dict:
         "seed": seed, "role": "development" if seed in DEV_SEEDS else "hold-out",
         "points": s.points, "observations": s.observations, "sigma0": s.sigma0, "reads": s.reads,
         "parameters": params,
-        "strip_differences": {"before": s.check_before.as_dict(), "after": s.check_after.as_dict(),
-                              "noise_only": noise.all_pairs.as_dict(),
+        "strip_differences": {"before": to_record(s.check_before, drop_none=True),
+                              "after": to_record(s.check_after, drop_none=True),
+                              "noise_only": to_record(noise.all_pairs, drop_none=True),
                               "after_over_noise_only_rms": s.check_after.rms_m / noise.all_pairs.rms_m},
         "strong_correlations": [dataclasses.asdict(c) for c in s.strong_correlations[:6]],
         "adjust_seconds": dt,
@@ -188,7 +190,8 @@ def eval_seed(work: Path, seed: int) -> dict:
             "after": corner_error(err, sorted((work / f"seed{seed}_adjusted").glob("*.las"))),
             "noise_only": corner_error(clean, strips_of(clean))},
         "strip_model_on_preset": {"fixed": fixed, "parameters": rel, "sigma0": sm.sigma0,
-                                  "before": sm.check_before.as_dict(), "after": sm.check_after.as_dict()},
+                                  "before": to_record(sm.check_before, drop_none=True),
+                                  "after": to_record(sm.check_after, drop_none=True)},
         "control": control_eval(work, seed, err, truth),
     }
 
@@ -351,7 +354,8 @@ def eval_ahn3(work: Path, results: Path) -> dict:
         shutil.copy(out / f"check_{when}" / "overview.png", results / f"strips_ahn3_{when}_overview.png")
     return {"file": str(AHN3.name), "crs": "EPSG:28992", "cell_m": s.cell_m, "points": s.points,
             "fixed_strip": s.fixed_strip, "skipped_pairs": dict(before.skipped_pairs), "pairs": pairs,
-            "all_pairs_before": before.all_pairs.as_dict(), "all_pairs_after": after.all_pairs.as_dict(),
+            "all_pairs_before": to_record(before.all_pairs, drop_none=True),
+            "all_pairs_after": to_record(after.all_pairs, drop_none=True),
             "parameters": {n: dataclasses.asdict(e) for n, e in s.parameters.items()}, "sigma0": s.sigma0,
             "observations": s.observations,
             "strong_correlations": [dataclasses.asdict(c) for c in s.strong_correlations[:6]], "adjust_seconds": dt}

@@ -286,9 +286,9 @@ def sim_dem(scene, cloud, ours, tmp: Path, tag: str = "demo"):
     for name, classes in (("lidarctl_classify", ours), ("truth_classes", cloud.classification)):
         c = dataclasses.replace(cloud, classification=classes)
         grids = rasters.make_grids(c, 1.0)
-        t = grids["transform"]
+        t = grids.transform
         dem = tmp / f"sim_dem_{tag}_{name}.tif"
-        write_dem(dem, grids["dem"], t.c, t.f, 1.0, EPSG)
+        write_dem(dem, grids.dem, t.c, t.f, 1.0, EPSG)
         las = tmp / f"sim_{tag}_{name}.laz"
         synthetic.write_las(las, c, crs=EPSG)
         r = hc.check_heights_file([las], csv, radius_m=5.0, exclude_m=1.0, dem_path=dem, grouping="density").document
@@ -313,8 +313,8 @@ def lidr_dem(tmp: Path, folds: int = 5):
     rows_dem, rows_tin, rows_plane, labels_all, cover_all = [], [], [], [], []
     # the density groups come from the full cloud (every first return) and one DEM of all its ground points
     grids = rasters.make_grids(full, 1.0)
-    t = grids["transform"]
-    write_dem(tmp / "lidr_dem_all.tif", grids["dem"], t.c, t.f, 1.0, crs)
+    t = grids.transform
+    write_dem(tmp / "lidr_dem_all.tif", grids.dem, t.c, t.f, 1.0, crs)
     synthetic.write_las(tmp / "lidr_full.laz", full, crs=crs)
     for f in range(folds):
         check = gidx[fold_of == f]
@@ -325,17 +325,17 @@ def lidr_dem(tmp: Path, folds: int = 5):
         csv = tmp / f"lidr_check_{f}.csv"
         csv.write_text("id,x,y,z\n" + "".join(f"G{k},{full.x[k]:.3f},{full.y[k]:.3f},{full.z[k]:.3f}\n" for k in check))
         g = rasters.make_grids(c, 1.0)
-        t = g["transform"]
-        write_dem(tmp / f"lidr_dem_{f}.tif", g["dem"], t.c, t.f, 1.0, crs)
+        t = g.transform
+        write_dem(tmp / f"lidr_dem_{f}.tif", g.dem, t.c, t.f, 1.0, crs)
         # the TIN DEM: Delaunay of the remaining ground and water points, sampled at the cell centres
         gm = np.isin(c.classification, (2, 9))
         gx, gy, gz = c.x[gm], c.y[gm], c.z[gm]
         tri = Delaunay(np.column_stack([gx - gx.min(), gy - gy.min()])).simplices
-        nr, nc = g["dem"].shape
+        nr, nc = g.dem.shape
         cc, rr = np.meshgrid(np.arange(nc), np.arange(nr))
         qx, qy = t.c + (cc.ravel() + 0.5) * t.a, t.f + (rr.ravel() + 0.5) * t.e
         tin = tin_heights(gx, gy, gz, tri, qx, qy).reshape(nr, nc)
-        write_dem(tmp / f"lidr_tin_{f}.tif", np.where(np.isfinite(g["dem"]), tin, np.nan), t.c, t.f, 1.0, crs)
+        write_dem(tmp / f"lidr_tin_{f}.tif", np.where(np.isfinite(g.dem), tin, np.nan), t.c, t.f, 1.0, crs)
         # cloud without the check points: the ground-point check; the density from the full cloud + full DEM
         las = tmp / f"lidr_fold_{f}.laz"
         synthetic.write_las(las, c, crs=crs)

@@ -56,12 +56,12 @@ def make_dom(project: Path, true_ortho: bool) -> dict:
         else RectifySettings()
     with Executor() as ex:
         t, c = time.perf_counter(), time.process_time()
-        index = rectify_block(project, settings, executor=ex)
+        done = rectify_block(project, settings, executor=ex)
         rect = {"wall_s": time.perf_counter() - t, "cpu_s": time.process_time() - c}
         t, c = time.perf_counter(), time.process_time()
-        summary = mosaic_block(project, MosaicSettings(), executor=ex)
+        summary = json.loads(mosaic_block(project, MosaicSettings(), executor=ex).summary_path.read_text())
         mos = {"wall_s": time.perf_counter() - t, "cpu_s": time.process_time() - c}
-    mp = sum(e["width"] * e["height"] for e in index["frames"]) / 1e6
+    mp = sum(g.width * g.height for g in done.grids) / 1e6
     rect.update(frame_ortho_mp=round(mp, 2), cpu_s_per_mp=rect["cpu_s"] / mp, wall_s_per_mp=rect["wall_s"] / mp)
     return {"rectify": rect, "mosaic": mos, "summary": summary}
 

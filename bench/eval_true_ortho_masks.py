@@ -74,7 +74,7 @@ def frame_layers(block, i: int, dsm, dem, res_m: float):
     map_int, _, imaged, z, anchors = fixed_point_maps(geometry, dsm, grid, to_project)
     zb = frame_zbuffer(geometry, dsm, grid, to_project, tile_px=max(grid.width, grid.height) + 1)
     cand = np.zeros(z.shape, bool)
-    zbuffer_occlusion_from_maps(geometry, zb, grid, map_int.copy(), imaged, z, cand)
+    zbuffer_occlusion_from_maps(geometry, zb, grid, map_int.copy(), imaged, z, out=cand)
     march = occlusion_mask(geometry, dsm, grid, z, anchors, candidates=imaged > 0)
     return image_id, grid, imaged > 0, mask > 0, cand, march, z, cpu
 

@@ -103,12 +103,12 @@ def make_dom(project: Path, true_ortho: bool, eo_path=None, camera_path=None) ->
         else RectifySettings()
     with Executor() as ex:
         t, c = time.perf_counter(), time.process_time()
-        index = rectify_block(project, settings, eo_path=eo_path, camera_path=camera_path, executor=ex)
+        done = rectify_block(project, settings, eo_path=eo_path, camera_path=camera_path, executor=ex)
         rect = {"wall_s": time.perf_counter() - t, "cpu_s": time.process_time() - c}
         t, c = time.perf_counter(), time.process_time()
-        summary = mosaic_block(project, MosaicSettings(), executor=ex)
+        summary = json.loads(mosaic_block(project, MosaicSettings(), executor=ex).summary_path.read_text())
         mos = {"wall_s": time.perf_counter() - t, "cpu_s": time.process_time() - c}
-    mp = sum(e["width"] * e["height"] for e in index["frames"]) / 1e6
+    mp = sum(g.width * g.height for g in done.grids) / 1e6
     rect.update(frame_ortho_mp=round(mp, 2), cpu_s_per_mp=rect["cpu_s"] / mp)
     return {"rectify": rect, "mosaic": mos, "summary": summary}
 
@@ -120,7 +120,7 @@ def remosaic_dom(project: Path) -> dict:
 
     with Executor() as ex:
         t, c = time.perf_counter(), time.process_time()
-        summary = mosaic_block(project, MosaicSettings(), executor=ex)
+        summary = json.loads(mosaic_block(project, MosaicSettings(), executor=ex).summary_path.read_text())
         mos = {"wall_s": time.perf_counter() - t, "cpu_s": time.process_time() - c}
     return {"mosaic": mos, "summary": summary}
 
@@ -476,7 +476,7 @@ def measure_way(project: Path, truth: Truth, grid, surface_kind, ground, roof, v
     seams["roof_seam_cells_where_a_ground_route_existed"] = sum(
         p["roof_seam_cells"] for p in pairs_out if p["ground_route_existed"])
     mis = seam_misalignment(project)
-    seams["misalignment"] = {k: mis[k] for k in ("patch_px", "patches", "rms_px", "max_px")}
+    seams["misalignment"] = {k: getattr(mis, k) for k in ("patch_px", "patches", "rms_px", "max_px")}
     return {"source_frame_by_value": agree, "ghosts": ghosts, "occluded_ground": occluded,
             "seams": seams}
 

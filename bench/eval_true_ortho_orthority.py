@@ -57,17 +57,18 @@ def copy_project(src: Path, dst: Path) -> None:
 def ours(project: Path, way: str, out: Path) -> tuple[dict, float]:
     """``ortho rectify`` of every frame (``way``: on the DEM, on the DSM, true ortho on the DSM) -> {image id: frame
     ortho}, res."""
-    from ortho.block import rectify_block
+    from ortho.block import read_index, rectify_block
     from ortho.settings import RectifySettings
 
     dsm = str(project / "lidar_out" / "dsm.tif")
     settings = {"ours_conventional_dem": RectifySettings(), "ours_conventional_dsm": RectifySettings(dem=dsm),
                 "ours_true_dsm": RectifySettings(true_ortho=True, dsm=dsm)}[way]
-    index = rectify_block(project, settings)
+    res_m = rectify_block(project, settings).res_m
+    index = read_index(project)
     if out.exists():
         shutil.rmtree(out)
     shutil.copytree(project / "ortho" / "frames", out)
-    return {e["image_id"]: out / e["file"] for e in index["frames"]}, float(index["res_m"])
+    return {e["image_id"]: out / e["file"] for e in index["frames"]}, float(res_m)
 
 
 def orthority_orthos(project: Path, surface: Path, res_m: float, out: Path) -> dict:

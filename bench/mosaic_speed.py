@@ -186,6 +186,7 @@ def make_large(work: Path, demo_src: Path, gp: float, seed: int = 41) -> dict:
     from rasterio.windows import Window
 
     from aerotri.core.project import Project
+    from aerotri.core.records import to_record
     from ortho.block import _camera_sha256, _sha256, block_camera, file_fingerprint, frame_profile
     from ortho.grid import OrthoGrid
 
@@ -240,7 +241,7 @@ def make_large(work: Path, demo_src: Path, gp: float, seed: int = 41) -> dict:
             entries.append({"image_id": image_id, "file": path.name, "x_left_m": grid.x_left_m, "y_top_m": grid.y_top_m,
                             "width": FRAME_W, "height": FRAME_H, "centre_m": [centre[0], centre[1], 1300.0],
                             "nadir_xy_m": [centre[0], centre[1]], "valid_fraction": valid_px / (FRAME_W * FRAME_H),
-                            **file_fingerprint(path)})
+                            **to_record(file_fingerprint(path))})
             print(f"  frame {k + 1}/{len(frames)} {image_id} ({time.perf_counter() - t0:.0f} s)", flush=True)
     project = Project.open(work)
     dem = work / "lidar_out" / "dem.tif"

@@ -196,10 +196,10 @@ def run_kind(kind: str, d: Path) -> dict:
         rectify_block(d, RectifySettings(res_m=5.0))  # JIT warm-up (cached compile) on a coarse grid
         t0_cpu = os.times()
         t = time.perf_counter()
-        index = rectify_block(d, RectifySettings(res_m=RES_M, compression=compression))
+        done = rectify_block(d, RectifySettings(res_m=RES_M, compression=compression))
         out["seconds"] = time.perf_counter() - t
-        e = index["frames"][0]
-        out["output_px"] = e["width"] * e["height"]
+        g = done.grids[0]
+        out["output_px"] = g.width * g.height
         out["file_mb"] = (d / "ortho" / "frames" / "dmc_001.tif").stat().st_size / 1e6
         if kind == "ours_cli":
             out["output"] = str(d / "ortho" / "frames" / "dmc_001.tif")

@@ -67,12 +67,12 @@ def settings(project: Path, true_ortho: bool):
 
 
 def one_frame(project: Path, frame: str, true_ortho: bool) -> dict:
-    from ortho.block import rectify_block
+    from ortho.block import read_index, rectify_block
 
     t, c = time.perf_counter(), time.process_time()
-    index = rectify_block(project, settings(project, true_ortho), frames=[frame])
+    rectify_block(project, settings(project, true_ortho), frames=[frame])
     cpu, wall = time.process_time() - c, time.perf_counter() - t
-    e = next(e for e in index["frames"] if e["image_id"] == frame)
+    e = next(e for e in read_index(project)["frames"] if e["image_id"] == frame)
     mp = e["width"] * e["height"] / 1e6
     return {"frame": frame, "frame_ortho_mp": round(mp, 3), "cpu_s": round(cpu, 3), "wall_s": round(wall, 3),
             "load_avg_1min": round(os.getloadavg()[0], 2), "valid_fraction": e["valid_fraction"]}
@@ -166,7 +166,8 @@ def occlusion_agreement(project: Path, frame: str, tiles: int = 6, tile_px: int 
         tile = grid.window(c0, r0, tile_px, tile_px)
         map_int, _, mask, z, anchors = RF.fixed_point_maps(geometry, dsm, tile, to_project)
         ok = mask > 0
-        behind = RF.zbuffer_occlusion_from_maps(geometry, zbuffer, tile, map_int, mask, z, np.empty(z.shape, bool))
+        behind = RF.zbuffer_occlusion_from_maps(geometry, zbuffer, tile, map_int, mask, z,
+                                                out=np.empty(z.shape, bool))
         occ = RF.occlusion_mask(geometry, dsm, tile, z, anchors, candidates=behind, bound=bound)
         c = time.process_time()
         full = RF.occlusion_mask(geometry, dsm, tile, z, anchors, bound=bound)

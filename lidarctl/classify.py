@@ -447,7 +447,8 @@ def lifted_ground(x, y, z, is_ground, spacing_m: float, lift_sigma: float, *, in
 
 def ground_dem(x, y, z, ground, cell_m, *, x0, y0, nrows, ncols) -> np.ndarray:
     """Filled DEM (mean height of ground points per cell), rows growing with y."""
-    dem = reduce_grid(x[ground], y[ground], z[ground], cell_m, x0, y0, nrows, ncols, "mean")
+    dem = reduce_grid(x[ground], y[ground], z[ground], cell_m=cell_m, x0=x0, y0=y0, nrows=nrows, ncols=ncols,
+                      how="mean")
     return fill_nodata(dem)
 
 
@@ -730,8 +731,8 @@ class DropoutGrid:
 
     def ground_cell_z(self, x, y, z, is_ground) -> np.ndarray:
         """Mean height (m) of the ``is_ground`` points per cell (NaN without)."""
-        return reduce_grid(x[is_ground], y[is_ground], z[is_ground], self.c, self.x0, self.y0, self.nrows,
-                           self.ncols, "mean")
+        return reduce_grid(x[is_ground], y[is_ground], z[is_ground], cell_m=self.c, x0=self.x0, y0=self.y0,
+                           nrows=self.nrows, ncols=self.ncols, how="mean")
 
 
 def dropout_grid(x, y, is_building, spacing_m: float, p: ClassifySettings) -> DropoutGrid:
@@ -925,7 +926,8 @@ def level_water(x, y, z, candidate, is_ground, spacing_m: float, *, p: ClassifyS
     m = coo_matrix((np.ones(len(rows)), (rows, cols)), shape=(nrows * ncols,) * 2)
     _, lab = connected_components(m, directed=False)
     lab = np.where(ok.ravel(), lab + 1, 0)
-    ground_cell_z = reduce_grid(x[is_ground], y[is_ground], z[is_ground], c, x0, y0, nrows, ncols, "mean")
+    ground_cell_z = reduce_grid(x[is_ground], y[is_ground], z[is_ground], cell_m=c, x0=x0, y0=y0, nrows=nrows,
+                                ncols=ncols, how="mean")
     tall = np.ones(n, bool) if solid is None else np.asarray(solid, bool).copy()
     tall_idx = np.flatnonzero(tall)
     tree = []
@@ -1300,7 +1302,7 @@ def classify_points(x, y, z, return_number=None, number_of_returns=None, intensi
     ncols = int(np.floor((x.max() - x0) / c)) + 1
     nrows = int(np.floor((y.max() - y0) / c)) + 1
     dem = ground_dem(x, y, z, is_ground, c, x0=x0, y0=y0, nrows=nrows, ncols=ncols)
-    hag = z - sample_bilinear(dem, x, y, c, x0, y0)
+    hag = z - sample_bilinear(dem, x, y, cell_m=c, x0=x0, y0=y0)
 
     # Points far below the bare-earth DEM cannot be objects: low noise the gap tests missed.
     code[(code == 0) & ~is_ground & (hag < -p.deep_m)] = noise_mod.LOW
@@ -1314,7 +1316,7 @@ def classify_points(x, y, z, return_number=None, number_of_returns=None, intensi
     is_ground &= ~lifted
     cls[is_ground] = GROUND
     flat = grid.cell_ids(x, y, c, x0, y0)[0]
-    dsm = reduce_grid(x[obj], y[obj], z[obj], c, x0, y0, nrows, ncols, "max")
+    dsm = reduce_grid(x[obj], y[obj], z[obj], cell_m=c, x0=x0, y0=y0, nrows=nrows, ncols=ncols, how="max")
     has_obj = np.isfinite(dsm)
     dsm_f = np.where(has_obj, dsm, dem)
     rms = plane_rms(dsm_f, c)

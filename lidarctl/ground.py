@@ -378,7 +378,7 @@ def ground_surface_morph(x, y, z, params: MorphSettings | None = None):
     nrows = int(np.floor((np.max(y) - y0) / c)) + 1
     from lidarctl.raster_ops import fill_nodata, reduce_grid
 
-    zmin = reduce_grid(x, y, z, c, x0, y0, nrows, ncols, "min")
+    zmin = reduce_grid(x, y, z, cell_m=c, x0=x0, y0=y0, nrows=nrows, ncols=ncols, how="min")
     empty = ~np.isfinite(zmin)
     last = fill_nodata(zmin)
     is_object = np.zeros_like(empty)
@@ -412,8 +412,8 @@ def morphological_ground(x, y, z, params: MorphSettings | None = None, return_de
 
     p = params or MorphSettings()
     dem, x0, y0, c = ground_surface_morph(x, y, z, p)
-    slope = sample_bilinear(slope_tan(dem, c), x, y, c, x0, y0)
-    dz = z - sample_bilinear(dem, x, y, c, x0, y0)
+    slope = sample_bilinear(slope_tan(dem, c), x, y, cell_m=c, x0=x0, y0=y0)
+    dz = z - sample_bilinear(dem, x, y, cell_m=c, x0=x0, y0=y0)
     tol = p.elevation_threshold_m + p.elevation_scaler * slope
     ground = (dz <= tol) & (dz >= -np.maximum(tol, p.below_threshold_m))
     if p.surface_neighbours > 0 and ground.sum() > p.surface_neighbours:
@@ -428,8 +428,9 @@ def morphological_ground(x, y, z, params: MorphSettings | None = None, return_de
         if len(g) >= p.dense_points_per_cell * len(lowest):
             # Dense ground: the mean of the ground points per cell is as good as a TIN, and O(n).
             from lidarctl.raster_ops import fill_nodata, reduce_grid
-            surf = fill_nodata(reduce_grid(x[g], y[g], z[g], p.refine_cell_m, gx0, gy0, nrows, ncols, "mean"))
-            z_ref = sample_bilinear(surf, x, y, p.refine_cell_m, gx0, gy0)
+            surf = fill_nodata(reduce_grid(x[g], y[g], z[g], cell_m=p.refine_cell_m, x0=gx0, y0=gy0, nrows=nrows,
+                                           ncols=ncols, how="mean"))
+            z_ref = sample_bilinear(surf, x, y, cell_m=p.refine_cell_m, x0=gx0, y0=gy0)
         else:
             z_ref, vertex_m, cos_tilt = tin_heights(x[lowest], y[lowest], z[lowest],
                                                     delaunay_2d(x[lowest], y[lowest]), x, y, geometry=True)

@@ -36,6 +36,7 @@ import numpy as np
 from scipy import ndimage
 
 from aerotri.core.errors import InputError, OptionError
+from aerotri.core.records import to_record
 from lidarctl import class_grid as cg
 from lidarctl.evaluate import Confusion, confusion, filter_errors
 
@@ -103,11 +104,6 @@ class BuildingAccuracy:
     min_overlap: float
     min_building_m2: float
 
-    def as_dict(self) -> dict:
-        """JSON-ready: undefined ratios (no building on a side) as None."""
-        return {k: (None if isinstance(v, float) and not np.isfinite(v) else v)
-                for k, v in dataclasses.asdict(self).items()}
-
 
 @dataclasses.dataclass
 class MapAccuracy:
@@ -123,8 +119,10 @@ class MapAccuracy:
     reference: str
 
     def as_dict(self) -> dict:
+        """The JSON record: the fields, undefined building ratios (no building on a side) as None, and the class
+        names."""
         d = dataclasses.asdict(self)
-        d["buildings"] = None if self.buildings is None else self.buildings.as_dict()
+        d["buildings"] = None if self.buildings is None else to_record(self.buildings, finite=True)
         d["class_names"] = {str(c): cg.CLASS_LABELS.get(c, str(c)) for c in self.confusion.classes}
         return d
 

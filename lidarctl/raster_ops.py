@@ -92,7 +92,7 @@ def _cell_sums(x, y, v, g):
     return s, n
 
 
-def reduce_grid(x, y, values, cell_m, x0, y0, nrows, ncols, how: str = "min") -> np.ndarray:
+def reduce_grid(x, y, values, *, cell_m, x0, y0, nrows, ncols, how: str = "min") -> np.ndarray:
     """Per-cell min / max / mean of ``values``; NaN where no point falls. A grid larger than the
     machine's RAM is a ResourceError before anything is allocated."""
     check_grid(nrows, ncols, cell_m, GRID_BYTES_PER_CELL, "the points' extent",
@@ -189,7 +189,7 @@ def _bilinear(a, x, y, w):
     return out
 
 
-def sample_bilinear(a: np.ndarray, x, y, cell_m, x0, y0, row0: int = 0, col0: int = 0) -> np.ndarray:
+def sample_bilinear(a: np.ndarray, x, y, *, cell_m, x0, y0, row0: int = 0, col0: int = 0) -> np.ndarray:
     """Bilinear interpolation of a filled raster at points (edge cells extended): the values of
     ``scipy.ndimage.map_coordinates(order=1, mode="nearest")``, in a parallel numba loop (about 10x
     faster on 2 cores; the classifier samples its DEMs at every point several times). ``row0``,

@@ -50,6 +50,28 @@ log = logging.getLogger(__name__)
 NODATA = -9999.0
 FILES = ("dem.tif", "dsm.tif", "ndsm.tif", "chm.tif", "intensity.tif", "hillshade.png")
 HEIGHT_GRIDS = ("dem", "dsm", "ndsm", "chm")
+
+
+@dataclasses.dataclass(frozen=True)
+class RasterGrids:
+    """The rasters of a cloud (``make_grids``): float32 arrays, rows north-up, NaN = nodata, and the GeoTIFF
+    transform; heights (DEM, DSM, nDSM, CHM) and the transform in metres, or in the CRS's units after
+    ``in_crs_units``; intensity as the points record it."""
+
+    dem: np.ndarray
+    dsm: np.ndarray
+    ndsm: np.ndarray
+    chm: np.ndarray
+    intensity: np.ndarray
+    transform: object  # affine.Affine
+
+    def in_crs_units(self, units: LengthUnits) -> "RasterGrids":
+        """The grids in the cloud's units: heights divided by the vertical unit, the transform by the horizontal
+        unit (these very grids for metres)."""
+        if units.is_metric:
+            return self
+        heights = {n: (getattr(self, n).astype(float) / units.z_m).astype(np.float32) for n in HEIGHT_GRIDS}
+        return dataclasses.replace(self, **heights, transform=_transform_in_units(self.transform, units))
 DESCRIPTIONS = {"dem": "DEM: mean height of ground and water points", "dsm": "DSM: highest first return",
                 "ndsm": "nDSM: DSM - DEM", "chm": "CHM: highest vegetation above the DEM",
                 "intensity": "mean intensity of first returns (sensor units)"}
@@ -145,7 +167,7 @@ class _CellSums:
 
     def core_grids(self, dem: np.ndarray, footprint_cells: int, core, units: LengthUnits):
         """The rasters of a tile's core (row slice, col slice of the window), north-up float32 with
-        NODATA, in the CRS's units (``to_crs_units`` of ``grids_south_up``'s core, in one loop), and
+        NODATA, in the CRS's units (``RasterGrids.in_crs_units`` of ``grids_south_up``'s core, in one loop), and
         the metric DEM with NaN (the hillshade's)."""
         dsm_filled = fill_nodata(self.dsm.reshape(self.args[3], self.args[4]))
         out = self._stats.core_grids(self.footprint(footprint_cells), dem, dsm_filled, core, z_m=units.z_m,
@@ -169,11 +191,10 @@ class _CellSums:
         out["ndsm"] = out["dsm"] - out["dem"]
         return {k: v.astype(np.float32) for k, v in out.items()}
 
-    def grids(self, dem: np.ndarray, footprint_cells: int) -> dict:
+    def grids(self, dem: np.ndarray, footprint_cells: int) -> RasterGrids:
         res_m, x0, y0, nrows, ncols = self.args
         out = {k: v[::-1] for k, v in self.grids_south_up(dem, footprint_cells).items()}   # north-up rows
-        out["transform"] = from_origin(x0, y0 + nrows * res_m, res_m, res_m)
-        return out
+        return RasterGrids(**out, transform=from_origin(x0, y0 + nrows * res_m, res_m, res_m))
 
 
 def _fill_holes(mask: np.ndarray) -> np.ndarray:
@@ -190,10 +211,9 @@ def _fill_holes(mask: np.ndarray) -> np.ndarray:
 
 
 def make_grids(cloud: PointCloud, res_m: float, footprint_cells: int = 3,
-               dem_fill_radius_px: float = DEFAULT_TIN_FILL_RADIUS_PX) -> dict:
-    """Arrays (rows north-up, NaN = nodata) and the GeoTIFF transform of all rasters, in metres
-    (``to_crs_units`` converts them to the cloud's units). ``dem_fill_radius_px``: see
-    ``_CellSums.dem``."""
+               dem_fill_radius_px: float = DEFAULT_TIN_FILL_RADIUS_PX) -> RasterGrids:
+    """All rasters of the cloud in metres (``RasterGrids.in_crs_units`` converts them to the cloud's units).
+    ``dem_fill_radius_px``: see ``_CellSums.dem``."""
     check_res(res_m)
     x, y, z, cls = cloud.x, cloud.y, cloud.z, cloud.classification
     args = grid_for_bounds(x.min(), y.min(), x.max(), y.max(), res_m)
@@ -245,7 +265,7 @@ def make_grids_streamed(path, res_m: float, footprint_cells: int = 3, chunk_poin
     chunk and the whole grids (the reference for the tiled rasters of ``write_rasters``). The grid
     comes from the header bounds (which the LAS specification requires to enclose the points; a
     point outside them is an InputError). ``units``: the file's linear units (the grids are in
-    metres). Returns (grids, number of points)."""
+    metres). Returns (``RasterGrids``, number of points)."""
     check_res(res_m)
     header = las.read_header(path)
     mins, maxs = _header_bounds(path, header)
@@ -262,19 +282,6 @@ def make_grids_streamed(path, res_m: float, footprint_cells: int = 3, chunk_poin
     for x, y, z, cls, _, _ in _file_points(path, units, chunk_points, validate=False):
         sums.add_chm(x, y, z, cls, dem)
     return sums.grids(dem, footprint_cells), int(header.point_count)
-
-
-def to_crs_units(grids: dict, units: LengthUnits) -> dict:
-    """Grids of ``make_grids`` (metres) in the cloud's units: heights divided by the vertical unit,
-    the transform by the horizontal unit (the same dict for metres)."""
-    if units.is_metric:
-        return grids
-    out = dict(grids)
-    for name in HEIGHT_GRIDS:
-        out[name] = (grids[name].astype(float) / units.z_m).astype(np.float32)
-    if "transform" in grids:
-        out["transform"] = _transform_in_units(grids["transform"], units)
-    return out
 
 
 def _transform_in_units(t, units: LengthUnits):
@@ -655,13 +662,13 @@ def write_rasters(cloud, outdir, res_m: float, crs=None, *, tile_px: int = DEFAU
     _check_fill_radius(dem_fill_radius_px)
     grids = make_grids(cloud, res_m, dem_fill_radius_px=dem_fill_radius_px)
     # The hillshade needs heights and cell size in one unit: from the metric grids.
-    hs = hillshade(grids["dem"], res_m)
-    grids = to_crs_units(grids, units)
+    hs = hillshade(grids.dem, res_m)
+    grids = grids.in_crs_units(units)
     tags = _tags(units, res_m)
 
     def write(tmp: Path) -> None:
         for name in RASTERS:
-            write_cog(tmp / f"{name}.tif", grids[name], grids["transform"], crs, unit=_unit(name, units),
+            write_cog(tmp / f"{name}.tif", getattr(grids, name), grids.transform, crs, unit=_unit(name, units),
                       description=_description(name, units), tags=tags)
         import matplotlib
         matplotlib.use("Agg")

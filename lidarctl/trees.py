@@ -203,12 +203,13 @@ def canopy_model(x, y, z, cls, return_number, settings: TreeSettings, name: str 
                          "(one point or one spot, or a --res-m coarser than the cloud)", param="--res-m")
     check_grid(nrows, ncols, res, GRID_BYTES_PER_CELL, f"{name}: the CHM", option="--res-m",
                hint="use a coarser --res-m")
-    dem = fill_nodata(reduce_grid(x[ground], y[ground], z[ground], res, x0, y0, nrows, ncols, "mean"))
+    dem = fill_nodata(reduce_grid(x[ground], y[ground], z[ground], cell_m=res, x0=x0, y0=y0, nrows=nrows, ncols=ncols,
+                                  how="mean"))
     first = (rn <= 1) & (veg | ground)
     if not (first & veg).any():
         log.info("%s: no first returns of the vegetation classes %s", name, s.veg_classes)
     px, py = x[first], y[first]
-    h = np.where(veg[first], np.maximum(z[first] - sample_bilinear(dem, px, py, res, x0, y0), 0.0), 0.0)
+    h = np.where(veg[first], np.maximum(z[first] - sample_bilinear(dem, px, py, cell_m=res, x0=x0, y0=y0), 0.0), 0.0)
     # the highest return per cell: the canopy's top, a TIN of at most one vertex per cell
     cid = np.floor((py - y0) / res).astype(np.int64) * ncols + np.floor((px - x0) / res).astype(np.int64)
     top = lowest_per_cell(cid, -h)

@@ -37,6 +37,7 @@ from pyproj import CRS
 from aerotri.geom.eo import ExteriorOrientations, read_eo
 from aerotri.core.errors import InputError
 from aerotri.core.project import Project
+from aerotri.core.records import to_record
 from aerotri.core.settings import Resolved, settings_of
 from aerotri.geom.rotation import rotation_matrix_opk
 from aerotri.core.atomic import atomic_dir, atomic_path, remove_leftovers, write_text_atomic
@@ -342,11 +343,17 @@ def _rectify_frame_task(task: FrameTask) -> dict:
         "width": grid.width, "height": grid.height, "centre_m": [float(v) for v in C],
         "nadir_xy_m": [float(nadir_x[0]), float(nadir_y[0])], "valid_fraction": valid_fraction,
         "height_covered_share": round(covered, 4),
-        **file_fingerprint(task.out_path),
+        **to_record(file_fingerprint(task.out_path)),
     }
 
 
-def file_fingerprint(path) -> dict:
+@dataclasses.dataclass(frozen=True)
+class FileFingerprint:
+    size: int  # bytes
+    sha1: str
+
+
+def file_fingerprint(path) -> FileFingerprint:
     """``size`` (bytes) and ``sha1`` of a file: what index.json records of every frame ortho, so that a
     consumer can tell a frame file that does not belong to the index (``verify_index``)."""
     import hashlib
@@ -355,12 +362,39 @@ def file_fingerprint(path) -> dict:
     with open(path, "rb") as f:
         for block in iter(lambda: f.read(1 << 22), b""):
             h.update(block)
-    return {"size": Path(path).stat().st_size, "sha1": h.hexdigest()}
+    return FileFingerprint(Path(path).stat().st_size, h.hexdigest())
+
+
+@dataclasses.dataclass(frozen=True)
+class RectifiedFrames:
+    """What ``rectify_block`` made: ``ortho/frames/index.json`` (``index_path``; its reader: ``read_index``), the
+    output CRS (WKT) and pixel size (metres, or the CRS's unit), and every frame's grid, in frame order."""
+
+    index_path: Path
+    crs_wkt: str
+    res_m: float
+    image_ids: tuple[str, ...]
+    grids: tuple[OrthoGrid, ...]
+    operation: str | None  # the coordinate operation project -> output CRS applied (its description), None: none
+
+    def grid(self, image_id: str) -> OrthoGrid:
+        """The output grid of frame ``image_id`` (KeyError naming the frames there are)."""
+        if image_id not in self.image_ids:
+            raise KeyError(f"no frame {image_id!r}; there are: {', '.join(self.image_ids)}")
+        return self.grids[self.image_ids.index(image_id)]
+
+
+def _rectified_frames(index: dict, path: Path) -> RectifiedFrames:
+    grids = index_grids(index)
+    op = index.get("coordinate_operation")
+    return RectifiedFrames(path, index["crs"], index["res_m"], tuple(grids), tuple(grids.values()),
+                           op["description"] if op else None)
 
 
 def rectify_block(root, settings: RectifySettings | Resolved | None = None, *, eo_path=None, camera_path=None,
-                  frames=None, executor=None, params=None, heights=None, allow_ballpark: bool = False) -> dict:
-    """Rectify the frames of a project into ``ortho/frames/``; returns the index written to index.json.
+                  frames=None, executor=None, params=None, heights=None,
+                  allow_ballpark: bool = False) -> RectifiedFrames:
+    """Rectify the frames of a project into ``ortho/frames/``; the frames and their index.json (``RectifiedFrames``).
 
     ``settings``: None reads [rectify] of project.toml; a ``Resolved`` (``ortho rectify``, the chain) carries the
     source of every setting into index.json (``settings``). The output CRS (``crs``; default the target CRS
@@ -464,7 +498,7 @@ def rectify_block(root, settings: RectifySettings | Resolved | None = None, *, e
             index["frames"] = sorted(keep + index["frames"], key=lambda e: e["image_id"])
         index["settings"] = resolved.record()
         write_text_atomic(tmp_dir / "index.json", json.dumps(index, indent=1) + "\n")
-    return index
+    return _rectified_frames(index, out_dir / "index.json")
 
 
 def check_frame_sizes(block: BlockInputs, eo_idx: dict, zlo: float, zhi: float, res: float, option: str | None,
@@ -736,7 +770,7 @@ def verify_index(frames_dir, index: dict) -> None:
                              "frame does not belong to this index (changed or left by another run); re-run ortho rectify")
     with_hash = [e for e in index["frames"] if "sha1" in e]
     with ThreadPoolExecutor(max(1, min(8, os.cpu_count() or 1))) as pool:  # hashlib releases the GIL
-        got = list(pool.map(lambda e: file_fingerprint(frames_dir / e["file"])["sha1"], with_hash))
+        got = list(pool.map(lambda e: file_fingerprint(frames_dir / e["file"]).sha1, with_hash))
     for e, h in zip(with_hash, got):
         if h != e["sha1"]:
             raise InputError(f"{frames_dir / e['file']}: content differs from {frames_dir / 'index.json'} (sha1 {h[:12]}, "

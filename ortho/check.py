@@ -35,6 +35,7 @@ from aerotri.core.gdal_cache import MiB, stage_block_cache
 from aerotri.core.log import track
 from aerotri.core.atomic import refuse_input_as_output
 from aerotri.core.project import Project, project_paths
+from aerotri.core.records import to_record
 from aerotri.core.settings import COMMAND_LINE, Resolved, settings_of
 from aerotri.core.textio import read_record, read_text, record_error
 from aerotri.geom.crs import height_unit_m, parse_crs
@@ -65,7 +66,8 @@ class GsdBin:
 class Displacement:
     """Planimetric displacements of the DOM (``displacement_statistics``): how many, the GSD (m), RMS east, north
     and plan (m; plan also in GSD), mean east and north, largest, median and 95th percentile (m), the
-    distribution in GSD bins; only ``count`` (0) when nothing was measured (None: not in the record)."""
+    distribution in GSD bins; only ``count`` (0) when nothing was measured. dom_report.json's "displacement" (and
+    the accuracy report's) is ``to_record(d, drop_none=True)``: a None is not in the record."""
 
     count: int | None = None
     gsd_m: float | None = None
@@ -86,13 +88,6 @@ class Displacement:
         bins = d.get("distribution_gsd")
         return cls(**{**d, "distribution_gsd": None if bins is None else tuple(GsdBin(**b) for b in bins)})
 
-    def as_dict(self) -> dict:
-        """As dom_report.json holds it ("displacement"; the bins a list, as JSON reads back); the accuracy report
-        carries it too."""
-        d = {k: v for k, v in dataclasses.asdict(self).items() if v is not None}
-        if self.distribution_gsd is not None:
-            d["distribution_gsd"] = list(d["distribution_gsd"])
-        return d
 
 
 @dataclasses.dataclass(frozen=True)
@@ -402,8 +397,8 @@ def check_against_reference(dom_path, reference_path, ndsm_path=None, max_ndsm_m
                         nd, nvalid = _on_grid(ndsm, wt, shape, dom.crs, Resampling.max, [1],
                                               operation=ndsm_operation)
                     keep = nvalid & (nd[0] * ndsm_unit_m <= max_ndsm_m)
-                p = match_patches(d, np.moveaxis(rimg, 0, -1), dmask, rvalid, res, patch_px, step_px, search_px,
-                                  min_ncc, keep=keep)
+                p = match_patches(d, np.moveaxis(rimg, 0, -1), dmask, rvalid, res_m=res, patch_px=patch_px,
+                                  step_px=step_px, search_px=search_px, min_ncc=min_ncc, keep=keep)
                 # a patch belongs to the block whose core holds its centre (no duplicates from halos)
                 core = (p.row_px < block_px) & (p.col_px < block_px)
                 p = p.select(core)
@@ -603,7 +598,7 @@ def measure_roof_patches(dom_path, reference_path, x_m, y_m, *, patch_m: float |
 def _roofs_document(roofs: RoofDisplacements, res_m: float, source: str) -> dict:
     """The report's ``roofs`` row: ``displacement_statistics`` of the measured patches (RMS and median in metres
     and GSD, count), with where the corners came from and how many were not measured."""
-    stats = displacement_statistics(roofs.de_m, roofs.dn_m, res_m).as_dict()
+    stats = to_record(displacement_statistics(roofs.de_m, roofs.dn_m, res_m), drop_none=True)
     if stats["count"]:
         stats["median_xy_gsd"] = stats["median_xy_m"] / res_m
     stats.update(corners=roofs.corners, corners_from=source, patch_m=roofs.patch_m,
@@ -717,7 +712,7 @@ def run_check(project_root, settings: CheckSettings | Resolved | None = None, *,
             report["reference_operation"] = ref_op.record()
         report.update(method="ncc_patches", reference=str(reference_path), ndsm=str(ndsm_path) if ndsm_path else None,
                       max_ndsm_m=max_ndsm_m if ndsm_path else None, patch_px=patch_px, search_px=search_px,
-                      displacement=stats.as_dict())
+                      displacement=to_record(stats, drop_none=True))
         # the statistics take every patch; the report lists and the plot draws at most MAX_LISTED of them,
         # evenly spread (a gigapixel DOM has millions: the JSON and the plot stay the size of a demo's)
         listed = patches.select(_spread(len(patches), MAX_LISTED))
@@ -738,7 +733,7 @@ def run_check(project_root, settings: CheckSettings | Resolved | None = None, *,
     else:
         stats, table = check_points(points_path, res, dom_bounds)
         report.update(method="surveyed_points", points_file=str(points_path),
-                      displacement=stats.as_dict(), points=table["points"])
+                      displacement=to_record(stats, drop_none=True), points=table["points"])
 
         def plot():
             plot_displacements(out_stem.with_suffix(".png"), None, stats, "DOM - survey",
@@ -747,7 +742,7 @@ def run_check(project_root, settings: CheckSettings | Resolved | None = None, *,
         from ortho.mosaic import seam_misalignment
 
         with stage_block_cache(CHECK_CACHE_BYTES):
-            report["seams"] = seam_misalignment(root, ndsm_path=ndsm_path, max_ndsm_m=max_ndsm_m)
+            report["seams"] = to_record(seam_misalignment(root, ndsm_path=ndsm_path, max_ndsm_m=max_ndsm_m))
     plot()  # the outputs only after every measurement succeeded
     report["json"] = str(out_stem.with_suffix(".json"))
     report["plot"] = str(out_stem.with_suffix(".png"))

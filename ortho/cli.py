@@ -62,12 +62,11 @@ def rectify(*, project, params_path, heights_path, allow_ballpark, eo_path, came
     from ortho.block import rectify_block
 
     with executor_for(scheduler, workers) as executor:
-        index = rectify_block(project, _settings(RectifySettings, project), eo_path=eo_path, camera_path=camera_path,
+        done = rectify_block(project, _settings(RectifySettings, project), eo_path=eo_path, camera_path=camera_path,
                               frames=frames.split(",") if frames else None, executor=executor, params=params_path,
                               heights=heights_path, allow_ballpark=allow_ballpark)
-    op = index.get("coordinate_operation")
-    click.echo(f"rectified {len(index['frames'])} frames at {index['res_m']} m in {crs_label(parse_crs(index['crs']))}"
-               f"{' (' + op['description'] + ')' if op else ''} -> {Path(project) / 'ortho' / 'frames'}")
+    click.echo(f"rectified {len(done.image_ids)} frames at {done.res_m} m in {crs_label(parse_crs(done.crs_wkt))}"
+               f"{' (' + done.operation + ')' if done.operation else ''} -> {Path(project) / 'ortho' / 'frames'}")
 
 
 @main.command()
@@ -115,8 +114,8 @@ def mosaic(project, crs, seamlines, scheduler, workers, **_settings_given):
     if crs is not None:
         require_frames_crs(project, crs)
     with executor_for(scheduler, workers) as executor:
-        info = mosaic_block(project, _settings(MosaicSettings, project), executor=executor, seamlines=seamlines)
-    click.echo(f"mosaic {info['width']} x {info['height']} px of {info['frames']} frames -> {info['path']}")
+        done = mosaic_block(project, _settings(MosaicSettings, project), executor=executor, seamlines=seamlines)
+    click.echo(f"mosaic {done.width_px} x {done.height_px} px of {done.frames} frames -> {done.path}")
 
 
 @main.command()

@@ -157,7 +157,7 @@ class ReducedFrames:
     """Frames block-averaged onto the seam grid: rgb (h, w, bands; the frames' sample type, float32 for types
     OpenCV does not resize), valid (bool: every pixel of the cell valid), offsets (row, col)."""
 
-    def __init__(self, names, rgb, valid, offsets, factor, seam_transform, shape):
+    def __init__(self, names, rgb, valid, offsets, *, factor, seam_transform, shape):
         self.names, self.rgb, self.valid, self.offsets = names, rgb, valid, offsets
         self.factor, self.transform, self.shape = factor, seam_transform, shape
         self._gray = {}
@@ -278,7 +278,7 @@ def reduce_frames(frames_dir: Path, index: dict, mosaic: OrthoGrid, factor: int,
                 bar.update(1)
     shape = (-(-mosaic.height // factor), -(-mosaic.width // factor))
     t = Affine(mosaic.res_m * factor, 0, mosaic.x_left_m, 0, -mosaic.res_m * factor, mosaic.y_top_m)
-    red = ReducedFrames(names, rgbs, valids, offsets, factor, t, shape)
+    red = ReducedFrames(names, rgbs, valids, offsets, factor=factor, seam_transform=t, shape=shape)
     red.histograms = hists
     red.decoded = decoded
     red.holes = holes
@@ -434,10 +434,35 @@ def _write_labels(path, labels, transform, crs):
             dst.write(labels, 1)
 
 
+@dataclasses.dataclass(frozen=True)
+class MosaicSummary:
+    """What ``mosaic_block`` made: the COG (``path``), its size (px) and pixel size, the frames blended, how the seams
+    were made, the feather (px), every frame's band gains (name, gains), the cells inside the block no frame sees,
+    and ``summary_path``, ortho/mosaic.json (the record with the seam pairs, tiles and settings as well)."""
+
+    path: Path
+    summary_path: Path
+    width_px: int
+    height_px: int
+    frames: int
+    res_m: float
+    seams: str
+    feather_px: float
+    gains: tuple[tuple[str, tuple[float, ...]], ...]
+    cells_seen_by_no_frame: int
+    area_seen_by_no_frame_m2: float
+
+
+def _mosaic_summary(doc: dict, summary_path: Path) -> MosaicSummary:
+    return MosaicSummary(Path(doc["path"]), summary_path, doc["width"], doc["height"], doc["frames"], doc["res_m"],
+                         doc["seams"], doc["feather_px"], tuple((n, tuple(g)) for n, g in doc["gains"].items()),
+                         doc["cells_seen_by_no_frame"], doc["area_seen_by_no_frame_m2"])
+
+
 def mosaic_block(root, settings: MosaicSettings | Resolved | None = None, *, object_height_m: float = 2.5,
                  max_seam_cells: float = 5e7, end_reach_m: float = 30.0, seam_cell_m: float = 1.5,
-                 executor=None, seamlines=None) -> dict:
-    """``ortho mosaic``: see the module doc. Returns a summary dict.
+                 executor=None, seamlines=None) -> MosaicSummary:
+    """``ortho mosaic``: see the module doc. Returns what it made (``MosaicSummary``).
 
     ``seamlines``: an edited seamlines GeoPackage (``ortho/seamlines.gpkg`` as a run writes it, edited in QGIS) whose
     polygons replace the seams the run would route (checked first: ``ortho.seamlines_gpkg``).
@@ -448,8 +473,9 @@ def mosaic_block(root, settings: MosaicSettings | Resolved | None = None, *, obj
     scheduler. GDAL's block cache is ``MOSAIC_CACHE_BYTES`` for the whole stage (set here, before any thread
     of the stage starts: ``aerotri.core.gdal_cache``)."""
     with stage_block_cache(MOSAIC_CACHE_BYTES):
-        return _mosaic_block(root, settings, object_height_m=object_height_m, max_seam_cells=max_seam_cells,
-                             end_reach_m=end_reach_m, seam_cell_m=seam_cell_m, executor=executor, seamlines=seamlines)
+        doc = _mosaic_block(root, settings, object_height_m=object_height_m, max_seam_cells=max_seam_cells,
+                            end_reach_m=end_reach_m, seam_cell_m=seam_cell_m, executor=executor, seamlines=seamlines)
+    return _mosaic_summary(doc, Path(root) / "ortho" / "mosaic.json")
 
 
 def _mosaic_block(root, settings, *, object_height_m, max_seam_cells, end_reach_m, seam_cell_m, executor,
@@ -516,8 +542,8 @@ def _mosaic_block(root, settings, *, object_height_m, max_seam_cells, end_reach_
     if seamlines is not None:  # the user's polygons, checked whole before anything is written
         from ortho.seamlines_gpkg import read_edited_seamlines
 
-        edited = read_edited_seamlines(seamlines, red.names, mosaic.crs, red.shape, red.transform, red.valid,
-                                       red.offsets)
+        edited = read_edited_seamlines(seamlines, red.names, mosaic.crs, labels_shape=red.shape,
+                                       transform=red.transform, valid=red.valid, offsets=red.offsets)
         labels = edited.labels
     else:
         # the seams are routed on the cells each frame covers, the holes of what it does not see (a true ortho's
@@ -528,7 +554,7 @@ def _mosaic_block(root, settings, *, object_height_m, max_seam_cells, end_reach_
         labels = voronoi_labels(covers, red.offsets, nadir_rc, red.shape)
     if seams == "least-cost" and edited is None:
         # a seam end may slide along the overlap border by up to end_reach_m to get round a building
-        labels = least_cost_seams(labels, covers, red.offsets, red.gray_of, objects,
+        labels = least_cost_seams(labels, covers, red.offsets, gray=red.gray_of, object_mask=objects,
                                   end_reach_cells=end_reach_m / (res * factor), seen=red.valid)
         if objects is not None:
             labels = keep_objects_whole(labels, objects, covers, red.offsets)
@@ -544,8 +570,8 @@ def _mosaic_block(root, settings, *, object_height_m, max_seam_cells, end_reach_
                        100 * own, 100 * would)
     timer.done("gains")
     # edited seamlines: the tiles their change does not reach are taken from the mosaic they were edited on
-    previous = previous_mosaic(root, index, red.names, labels, gains, feather_px, factor, mosaic) \
-        if edited is not None else None
+    previous = previous_mosaic(root, index, red.names, labels, gains=gains, feather_px=feather_px, factor=factor,
+                               mosaic=mosaic) if edited is not None else None
     for name, g in zip(red.names, gains):
         if np.any(np.abs(np.log(g)) > math.log(1.3)):  # beyond exposure differences between frames of one flight
             logger.warning("frame %s needs gains %s to match its neighbours: check its exposure, or how its image "
@@ -554,8 +580,9 @@ def _mosaic_block(root, settings, *, object_height_m, max_seam_cells, end_reach_
     # every output is made in a work folder first and moved into ortho/ only when all of them exist:
     # a failed run leaves the previous seams, seamlines, mosaic and summary together
     with scratch_dir(out_dir, "mosaic") as work:
-        outputs = _mosaic_outputs(Path(work), root, index, frames_dir, red, labels, gains, mosaic, factor, nadir,
-                                  feather_px, tile_px, seams, executor, resolved.record(), previous)
+        outputs = _mosaic_outputs(Path(work), root, index, frames_dir, red=red, labels=labels, gains=gains,
+                                  mosaic=mosaic, factor=factor, nadir=nadir, feather_px=feather_px, tile_px=tile_px,
+                                  seams=seams, executor=executor, settings_record=resolved.record(), previous=previous)
         timer.done("blend and COG")
         with commit_outputs(out_dir):  # one commit: all new, or (a failure, a kill) all as before
             for name in ("seams.tif", "seamlines.geojson", "seamlines.gpkg", "seamlines_preview.png", "mosaic.tif",
@@ -675,7 +702,7 @@ def _open_frame(path):
         raise InputError(f"{path}: cannot read the frame ortho ({exc}); re-run ortho rectify") from None
 
 
-def _mosaic_outputs(work: Path, root: Path, index, frames_dir, red, labels, gains, mosaic: OrthoGrid, factor, nadir,
+def _mosaic_outputs(work: Path, root: Path, index, frames_dir, *, red, labels, gains, mosaic: OrthoGrid, factor, nadir,
                     feather_px, tile_px, seams, executor, settings_record: dict, previous=None) -> dict:
     """seams.tif, seamlines.geojson, seamlines.gpkg, mosaic.tif, seamlines_preview.png and mosaic.json into ``work``;
     returns the summary. ``previous``
@@ -685,8 +712,9 @@ def _mosaic_outputs(work: Path, root: Path, index, frames_dir, red, labels, gain
     _write_labels(work / "seams.tif", labels, red.transform, crs)
     # the seamlines' polygons and lines on a thread while the tiles are blended and written
     with _background(_write_seamlines, work, labels, red.transform, red.names, crs) as vectors:
-        tiles = _write_mosaic(work / "mosaic.tif", frames_dir, index, mosaic, work / "seams.tif", factor, gains, nadir,
-                              feather_px, tile_px, executor=executor, labels=labels, previous=previous,
+        tiles = _write_mosaic(work / "mosaic.tif", frames_dir, index, mosaic, seams_path=work / "seams.tif",
+                              factor=factor, gains=gains, nadir=nadir, feather_px=feather_px, tile_px=tile_px,
+                              executor=executor, labels=labels, previous=previous,
                               decoded=red.decoded, holes=frame_holes(red))
         # the seamlines over the DOM, reduced to at most 2000 px, for a look before opening the GeoPackage
         write_seamlines_preview(work / "seamlines_preview.png", work / "mosaic.tif", labels, factor)
@@ -799,7 +827,7 @@ class _BlendContext:
         return [[np.clip(np.rint(x * np.float32(g)), 0, top).astype(dt) for g in row] for row in self.gains]
 
 
-def _context(index, frames_dir, mosaic: OrthoGrid, factor, halo, gains, nadir, feather_px, bands, dtype, read_cells,
+def _context(index, frames_dir, mosaic: OrthoGrid, *, factor, halo, gains, nadir, feather_px, bands, dtype, read_cells,
              seam_shape, holes=None) -> _BlendContext:
     grids = index_grids(index)
     names = [e["image_id"] for e in index["frames"]]
@@ -831,8 +859,9 @@ def _load_context(path: str, mtime_ns: int) -> _BlendContext:
     if ctx.get("holes_path"):
         with np.load(ctx["holes_path"]) as z:
             holes = [FrameHoles.from_arrays(z, k) for k in range(len(index["frames"]))]
-    return _context(index, ctx["frames_dir"], mosaic, ctx["factor"], ctx["halo"], ctx["gains"], ctx["nadir"],
-                    ctx["feather_px"], ctx["bands"], ctx["dtype"], read_cells, seam_shape, holes)
+    return _context(index, ctx["frames_dir"], mosaic, factor=ctx["factor"], halo=ctx["halo"], gains=ctx["gains"],
+                    nadir=ctx["nadir"], feather_px=ctx["feather_px"], bands=ctx["bands"], dtype=ctx["dtype"],
+                    read_cells=read_cells, seam_shape=seam_shape, holes=holes)
 
 
 class _FrameReaders:
@@ -940,7 +969,7 @@ def _blend_tile(ctx: _BlendContext, readers, r0: int, c0: int, th: int, tw: int)
         key = (k, y0, y1, x0, x1)
         if key not in reads:
             if ctx.holes is not None and ctx.holes[k] is not None:
-                reads[key], raw[key] = _hole_margin(ctx, readers, k, r0 + y0, c0 + x0, y1 - y0, x1 - x0)
+                reads[key], raw[key] = _hole_margin(ctx, readers, k, row=r0 + y0, col=c0 + x0, h=y1 - y0, w=x1 - x0)
             else:
                 reads[key] = readers.window(ctx.files[k], c0 + x0 - int(fc[k]), r0 + y0 - int(fr[k]), x1 - x0,
                                             y1 - y0)
@@ -953,7 +982,7 @@ def _blend_tile(ctx: _BlendContext, readers, r0: int, c0: int, th: int, tw: int)
             return _apply_gain(ctx, k, img), m
     bands = ctx.bands
     ks = labelled.tolist()
-    boxes = _weight_boxes(ctx, cells, ks, r0 - rl * f, c0 - cl * f, lr - rl, lc - cl, th, tw)
+    boxes = _weight_boxes(ctx, cells, ks, dr=r0 - rl * f, dc=c0 - cl * f, lr=lr - rl, lc=lc - cl, th=th, tw=tw)
     out = np.zeros((bands, th, tw), np.dtype(ctx.dtype))
     valid = np.zeros((th, tw), bool)
     one = np.float32(1.0 - 1e-4)
@@ -1136,7 +1165,7 @@ def frame_holes(red: ReducedFrames) -> list | None:
     return holes if holes and any(h is not None for h in holes) else None
 
 
-def _hole_margin(ctx: _BlendContext, readers, k: int, row: int, col: int, h: int, w: int):
+def _hole_margin(ctx: _BlendContext, readers, k: int, *, row: int, col: int, h: int, w: int):
     """Frame k's (samples, validity away from its holes) and its validity over the mosaic window (row, col, h, w):
     the hole pixels are those of ``FrameHoles``, found at pixel level; the validity is cleared within
     ``ctx.hole_margin_px`` of them (read with that halo, so that the result does not depend on the window)."""
@@ -1169,7 +1198,7 @@ def _mixed_boxes(mask: np.ndarray, strip_px: int = 64, gap_px: int = 32) -> list
     return out
 
 
-def _weight_boxes(ctx: _BlendContext, cells: np.ndarray, ks: list, dr: int, dc: int, lr: np.ndarray, lc: np.ndarray,
+def _weight_boxes(ctx: _BlendContext, cells: np.ndarray, ks: list, *, dr: int, dc: int, lr: np.ndarray, lc: np.ndarray,
                   th: int, tw: int) -> list:
     """Per labelled frame of ``ks``: (y0, y1, x0, x1, weight (y1 - y0, x1 - x0) float32) over the box of the tile
     where its weight (its label mask in ``cells`` blurred by the feather) is not 0, or (0, 0, 0, 0, None) where it
@@ -1219,7 +1248,7 @@ def _weight_boxes(ctx: _BlendContext, cells: np.ndarray, ks: list, dr: int, dc: 
     return out
 
 
-def _write_mosaic(path, frames_dir, index, mosaic: OrthoGrid, seams_path, factor, gains, nadir, feather_px, tile_px,
+def _write_mosaic(path, frames_dir, index, mosaic: OrthoGrid, *, seams_path, factor, gains, nadir, feather_px, tile_px,
                   executor=None, labels=None, previous=None, decoded=None, holes=None) -> dict:
     """Blend the output tiles into a tiled stage GeoTIFF and its overviews, then copy those to the COG
     (module doc, step 5). On local threads (or synchronous) the tiles are computed ahead of this thread,
@@ -1269,8 +1298,9 @@ def _write_mosaic(path, frames_dir, index, mosaic: OrthoGrid, seams_path, factor
             def read_cells(r, c, h, w):
                 return cells[r:r + h, c:c + w]
 
-            ctx = _context(index, frames_dir, mosaic, factor, halo, gains, nadir, feather_px, bands, dtype,
-                           read_cells, labels.shape, holes)
+            ctx = _context(index, frames_dir, mosaic, factor=factor, halo=halo, gains=gains, nadir=nadir,
+                           feather_px=feather_px, bands=bands, dtype=dtype, read_cells=read_cells,
+                           seam_shape=labels.shape, holes=holes)
         tiles = [(r0, c0, min(tile_px, mosaic.height - r0), min(tile_px, mosaic.width - c0))
                  for r0 in range(0, mosaic.height, tile_px) for c0 in range(0, mosaic.width, tile_px)]
         stage = tmp_dir / "stage.tif"
@@ -1325,8 +1355,8 @@ def _write_mosaic(path, frames_dir, index, mosaic: OrthoGrid, seams_path, factor
         pyramid.finish(stage)
         timer.done("overviews")
         vrt = tmp_dir / "mosaic.vrt"
-        write_vrt(vrt, stage, pyramid.paths, mosaic, bands, dtype, colorinterp,
-                  operation_tags(index.get("coordinate_operation"), index.get("height_operation")))
+        write_vrt(vrt, stage, pyramid.paths, mosaic, bands=bands, dtype=dtype, colorinterp=colorinterp,
+                  tags=operation_tags(index.get("coordinate_operation"), index.get("height_operation")))
         with atomic_path(path) as tmp:
             rasterio.shutil.copy(vrt, tmp, **COG_OPTIONS)
         timer.done("COG")
@@ -1355,7 +1385,8 @@ class PreviousMosaic:
         return bool(self.changed[lr0:lr1 + 1, lc0:lc1 + 1].any())
 
 
-def previous_mosaic(root: Path, index, names, labels, gains, feather_px, factor, mosaic: OrthoGrid) -> PreviousMosaic:
+def previous_mosaic(root: Path, index, names, labels, *, gains, feather_px, factor,
+                    mosaic: OrthoGrid) -> PreviousMosaic:
     """The mosaic in ``ortho/`` when the edited run would blend its tiles the same away from the edit: made from the
     same frames (index.json sha1), with the same gains, feather and seam grid; else every tile is blended
     (``why_all`` says why)."""
@@ -1464,7 +1495,7 @@ _GDAL_TYPES = {"uint8": "Byte", "int8": "Int8", "uint16": "UInt16", "int16": "In
                "int32": "Int32", "float32": "Float32", "float64": "Float64"}
 
 
-def write_vrt(path: Path, full: Path, overviews: list, grid: OrthoGrid, bands: int, dtype: str, colorinterp,
+def write_vrt(path: Path, full: Path, overviews: list, grid: OrthoGrid, *, bands: int, dtype: str, colorinterp,
               tags: dict) -> None:
     """A VRT of ``full`` (a GeoTIFF with an internal mask) declaring ``overviews`` (files of the same bands
     and mask, finest first) as its overviews and its mask's, with the metadata ``tags``: the source the
@@ -1523,8 +1554,32 @@ def seam_samples(labels: np.ndarray, spacing_cells: int):
         yield (i, j), np.stack(np.divmod(c, w), axis=1)
 
 
-def seam_misalignment(root, patch_px: int = 32, search_px: int = 4, spacing_cells: int = 4, min_ncc: float = 0.7,
-                      ndsm_path=None, max_ndsm_m: float = 0.5) -> dict:
+@dataclasses.dataclass(frozen=True)
+class SeamPair:
+    """One seam's misalignment: the two frames, the patches matched, RMS and largest displacement (px; None
+    without patches)."""
+
+    image_a: str
+    image_b: str
+    patches: int
+    rms_px: float | None
+    max_px: float | None
+
+
+@dataclasses.dataclass(frozen=True)
+class SeamMisalignment:
+    """``seam_misalignment``: the patch size (px), the patches of all seams, their RMS and largest displacement
+    (px; None without patches) and every seam's (dom_report.json's ``seams`` is ``to_record`` of it)."""
+
+    patch_px: int
+    patches: int
+    rms_px: float | None
+    max_px: float | None
+    per_seam: tuple[SeamPair, ...]
+
+
+def seam_misalignment(root, *, patch_px: int = 32, search_px: int = 4, spacing_cells: int = 4, min_ncc: float = 0.7,
+                      ndsm_path=None, max_ndsm_m: float = 0.5) -> SeamMisalignment:
     """Relative displacement of neighbouring frame orthos across each seam (NCC patches on the seam).
 
     For every seam (pair of frames sharing a boundary in ``ortho/seams.tif``), patches centred on
@@ -1581,14 +1636,13 @@ def seam_misalignment(root, patch_px: int = 32, search_px: int = 4, spacing_cell
                 for s in sel:
                     win = (slice(R[s] - r0, R[s] - r0 + size), slice(C[s] - c0, C[s] - c0 + size))
                     p = match_patches(imgs[0][0][win], imgs[1][0][win], imgs[0][1][win], imgs[1][1][win],
-                                      mosaic.res_m, patch_px, patch_px, search_px, min_ncc,
-                                      keep=None if keep is None else keep[win])
+                                      res_m=mosaic.res_m, patch_px=patch_px, step_px=patch_px, search_px=search_px,
+                                      min_ncc=min_ncc, keep=None if keep is None else keep[win])
                     ds_list.extend(np.hypot(p.dx_px, p.dy_px).tolist())
         d = np.array(ds_list)
         all_d.extend(ds_list)
-        per_seam.append({"image_a": names[i], "image_b": names[j], "patches": int(len(d)),
-                         "rms_px": float(np.sqrt(np.mean(d ** 2))) if len(d) else None,
-                         "max_px": float(d.max()) if len(d) else None})
+        per_seam.append(SeamPair(names[i], names[j], int(len(d)), float(np.sqrt(np.mean(d ** 2))) if len(d) else None,
+                                 float(d.max()) if len(d) else None))
     d = np.array(all_d)
-    return {"patch_px": patch_px, "patches": int(len(d)), "rms_px": float(np.sqrt(np.mean(d ** 2))) if len(d) else None,
-            "max_px": float(d.max()) if len(d) else None, "per_seam": per_seam}
+    return SeamMisalignment(patch_px, int(len(d)), float(np.sqrt(np.mean(d ** 2))) if len(d) else None,
+                            float(d.max()) if len(d) else None, tuple(per_seam))

@@ -57,7 +57,7 @@ def _subpixel(c_m, c_0, c_p):
     return 0.0 if den >= 0 else float(np.clip(0.5 * (c_m - c_p) / den, -0.5, 0.5))
 
 
-def match_patches(dom, reference, dom_valid=None, reference_valid=None, res_m: float = 1.0, patch_px: int = 48,
+def match_patches(dom, reference, dom_valid=None, reference_valid=None, *, res_m: float = 1.0, patch_px: int = 48,
                   step_px: int = 48, search_px: int = 6, min_ncc: float = 0.7, min_std: float = 4.0,
                   keep=None) -> PatchDisplacements:
     """Displacements of DOM patches against a reference on the same grid (see module doc).

@@ -129,7 +129,7 @@ class MapBuffers:
 
 
 def fixed_point_maps(geometry: FrameGeometry, dem: HeightRaster, grid: OrthoGrid, to_project: GridToProject | None = None,
-                     margin_px: float = 0.0, buffers: MapBuffers | None = None, mask_out: np.ndarray | None = None,
+                     *, margin_px: float = 0.0, buffers: MapBuffers | None = None, mask_out: np.ndarray | None = None,
                      bounds_out: np.ndarray | None = None):
     """cv2.remap fixed-point maps (int16 (H, W, 2), uint16 (H, W)), validity mask (uint8 255/0), heights, anchors.
 
@@ -194,7 +194,7 @@ def march_bound(dsm: HeightRaster, blocks: tuple[int, int] = MARCH_BLOCK_CELLS) 
                       _block_max(dsm.heights_m, coarse), coarse)
 
 
-def occlusion_mask(geometry: FrameGeometry, dsm: HeightRaster, grid: OrthoGrid, heights_m: np.ndarray, anchors,
+def occlusion_mask(geometry: FrameGeometry, dsm: HeightRaster, grid: OrthoGrid, heights_m: np.ndarray, anchors, *,
                    tolerance_m: float = 0.3, candidates: np.ndarray | None = None,
                    bound: MarchBound | None = None, near_share: np.ndarray | None = None) -> np.ndarray:
     """True where the ground point (grid pixel at ``heights_m``) is hidden from the camera by the DSM (a march
@@ -292,7 +292,7 @@ def zbuffer_occlusion(geometry: FrameGeometry, zbuffer: ZBuffer, heights_m: np.n
 
 
 def zbuffer_occlusion_from_maps(geometry: FrameGeometry, zbuffer: ZBuffer, tile: OrthoGrid, map_int: np.ndarray,
-                                mask: np.ndarray, heights_m: np.ndarray, out: np.ndarray,
+                                mask: np.ndarray, heights_m: np.ndarray, *, out: np.ndarray,
                                 near_share: np.ndarray | None = None) -> np.ndarray:
     """``zbuffer_occlusion`` of a tile in the project CRS from its cv2.remap maps (``fixed_point_maps`` at the same
     ``heights_m``): the image positions are not computed again; only imaged pixels (``mask``) are tested.
@@ -534,7 +534,7 @@ def rectify_frame(image: np.ndarray, camera: Camera, centre_m, R, dem_dataset: H
             # roof edge above them): the points it puts behind a nearer surface are decided by the march
             occ_out = local.occluded[:tile.height * tile.width].reshape(tile.height, tile.width)
             near = local.near_share[:tile.height * tile.width].reshape(tile.height, tile.width) if maps_at_dsm else None
-            behind = zbuffer_occlusion_from_maps(geometry, zbuffer, tile, map_int, m, z, occ_out, near) \
+            behind = zbuffer_occlusion_from_maps(geometry, zbuffer, tile, map_int, m, z, out=occ_out, near_share=near) \
                 if maps_at_dsm else zbuffer_occlusion(geometry, zbuffer, z, anchors, out=occ_out)
             if behind.any():
                 occluded = occlusion_mask(geometry, occlusion_dsm, tile, z, anchors, candidates=behind, bound=bound,

@@ -167,7 +167,7 @@ def _near(mask, rc, radius, at_least_one: bool = True):
     return (sel[:, 0] * mask.shape[1] + sel[:, 1]).astype(np.int64)
 
 
-def least_cost_seams(labels: np.ndarray, valid: list, offsets: list, gray: list | None = None,
+def least_cost_seams(labels: np.ndarray, valid: list, offsets: list, *, gray: list | None = None,
                      object_mask: np.ndarray | None = None, object_cost: float = 50.0,
                      difference_cost: float = 5.0, min_overlap_cells: int = 16, end_reach: float = 0.1,
                      end_reach_cells: float = 0.0, passes: int = 2, seen: list | None = None) -> np.ndarray:
@@ -188,13 +188,14 @@ def least_cost_seams(labels: np.ndarray, valid: list, offsets: list, gray: list 
         todo = [p for p in neighbour_pairs(labels) if p not in done]
         for i, j in todo:
             done.add((i, j))
-            _reroute_pair(labels, i, j, valid, offsets, gray, obj, object_cost, difference_cost, min_overlap_cells,
-                          end_reach, end_reach_cells, seen, outside)
+            _reroute_pair(labels, i, j, valid=valid, offsets=offsets, gray=gray, obj=obj, object_cost=object_cost,
+                          difference_cost=difference_cost, min_overlap_cells=min_overlap_cells, end_reach=end_reach,
+                          end_reach_cells=end_reach_cells, seen=seen, outside=outside)
     return labels
 
 
-def _reroute_pair(labels, i, j, valid, offsets, gray, obj, object_cost, difference_cost, min_overlap_cells, end_reach,
-                  end_reach_cells, seen=None, outside=None) -> None:
+def _reroute_pair(labels, i, j, *, valid, offsets, gray, obj, object_cost, difference_cost, min_overlap_cells,
+                  end_reach, end_reach_cells, seen=None, outside=None) -> None:
     """One seam (frames i, j) along its least-cost path; updates ``labels`` in place. ``outside``: the cells of no
     frame (``labels < 0``) padded by one cell of them, if already made."""
     import cv2

@@ -58,7 +58,7 @@ def write_seamlines_gpkg(path, labels: np.ndarray, transform, names: list[str], 
                       layer=LAYER, driver="GPKG", geometry_type="MultiPolygon", crs=crs.to_wkt())
 
 
-def read_edited_seamlines(path, names: list[str], crs, labels_shape, transform, valid: list, offsets: list
+def read_edited_seamlines(path, names: list[str], crs, *, labels_shape, transform, valid: list, offsets: list
                           ) -> EditedSeamlines:
     """The polygons of an edited seamlines GeoPackage (or any OGR vector file) as labels on the seam grid
     (``labels_shape``, ``transform``), checked against the frames (``names``; ``valid``/``offsets``: each frame's

@@ -8,7 +8,9 @@ displacement measured by ``ortho.check`` is then the error of the rectification 
 
 from __future__ import annotations
 
+import dataclasses
 import math
+from pathlib import Path
 
 import cv2
 import numba
@@ -212,18 +214,29 @@ def write_geotiff(path, array: np.ndarray, x_left_m: float, y_top_m: float, res_
             dst.write(np.moveaxis(a, -1, 0))
 
 
+@dataclasses.dataclass(frozen=True)
+class SyntheticProject:
+    """``write_synthetic_project``'s truth: the folder, camera, exterior orientations, the buildings (boxes x0, y0,
+    x1, y1, roof height, metres), the pixel size (m) and the truth orthophoto's grid."""
+
+    root: Path
+    camera: object  # aerotri.geom.camera.BrownCamera
+    eo: object  # aerotri.geom.eo.ExteriorOrientations
+    buildings: list
+    res_m: float
+    truth_grid: object  # ortho.grid.OrthoGrid
+
+
 def write_synthetic_project(root, *, strips: int = 2, frames_per_strip: int = 3, buildings: int = 20, seed: int = 7,
-                            res_m: float = 0.2, crs: str = "EPSG:32649") -> dict:
+                            res_m: float = 0.2, crs: str = "EPSG:32649") -> SyntheticProject:
     """A small project folder with truth, for tests: textured true orthophoto, smooth DEM, box buildings.
 
     Camera 600 x 400 px, 12 um, f 24 mm with distortion, 400 m above ground (GSD 0.2 m); strips run
     north-south (image rows along track), 60 % forward and about 33 % side overlap. Frames are rendered
     from the truth orthophoto on the DSM (buildings lean in the images). Writes project.toml,
     camera.toml, at/eo.txt (= truth), images/, lidar_out/dem.tif + ndsm.tif, truth/{eo.txt, dem.tif,
-    dsm.tif, ortho.tif, roof_corners.csv}. Returns a dict of paths and the truth (buildings, grid).
+    dsm.tif, ortho.tif, roof_corners.csv}. Returns the folder and the truth (``SyntheticProject``).
     """
-    from pathlib import Path
-
     from aerotri.geom.eo import ExteriorOrientations, write_eo
     from aerotri.core.atomic import write_text_atomic
 
@@ -273,4 +286,4 @@ def write_synthetic_project(root, *, strips: int = 2, frames_per_strip: int = 3,
     write_text_atomic(root / "truth" / "roof_corners.csv", "id,x,y,z\n" + "".join(
         f"B{k + 1:03d}_{j + 1},{x:.3f},{y:.3f},{z:.3f}\n" for k, (x0, y0, x1, y1, z) in enumerate(boxes)
         for j, (x, y) in enumerate(((x0, y0), (x1, y0), (x1, y1), (x0, y1)))))
-    return {"root": root, "camera": camera, "eo": eo, "buildings": boxes, "res_m": res_m, "truth_grid": grid}
+    return SyntheticProject(root, camera, eo, boxes, res_m, grid)

@@ -75,8 +75,8 @@ def test_the_stages_set_the_cache_in_bytes_and_leave_it_as_it_was(block, monkeyp
     monkeypatch.setattr(ortho.block, "rectify_frame_to_file", recording_to_file)
     monkeypatch.setattr(ortho.mosaic, "_blend_tile", recording_blend)
     with Executor(workers=3) as ex:
-        index = ortho.block.rectify_block(block, executor=ex)
-        assert len(index["frames"]) == 6
+        done = ortho.block.rectify_block(block, executor=ex)
+        assert len(done.image_ids) == 6
         assert cache_max_bytes() == before
         ortho.mosaic.mosaic_block(block, MosaicSettings(seams="voronoi", tile_px=256), executor=ex)
     assert cache_max_bytes() == before

@@ -108,7 +108,7 @@ READERS = {
 }
 
 
-def option_names(groups: list[tuple[str, object]]) -> dict:
+def _option_names(groups: list[tuple[str, object]]) -> dict:
     """``{(section dataclass, path): ["aerotri adjust --dem", ...]}`` over the commands of the click ``groups``
     (``(program name, group)``): every option declared from a settings field (``core.settings.click_option``)."""
     from aerotri.core.settings import setting_options
@@ -154,7 +154,7 @@ sub-sections (`[match.sparse]`); file names are relative to the project folder. 
     sections: dict = {}
     for name, cls in ALL_SECTIONS:  # [control]: the control points' sigmas (core), then the control stage's keys
         sections.setdefault(name, []).append(cls)
-    return head + markdown_reference([(n, cs, READERS[n]) for n, cs in sections.items()], option_names(groups))
+    return head + markdown_reference([(n, cs, READERS[n]) for n, cs in sections.items()], _option_names(groups))
 
 
 def project_settings_text(project: Project, ctx=None) -> str:

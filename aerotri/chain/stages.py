@@ -603,9 +603,9 @@ class Chain:
         from ortho.block import rectify_block
 
         settings = self.rectify_settings()
-        index = rectify_block(root, settings)
+        done = rectify_block(root, settings)
         note = self.true_ortho_note(settings)
-        return R.RectifyResult(frames=len(index["frames"]), res_m=index["res_m"],
+        return R.RectifyResult(frames=len(done.image_ids), res_m=done.res_m,
                                ortho="true (DSM)" if settings.settings.true_ortho else "conventional (DEM)",
                                notes=(note,) if note else ())
 
@@ -626,8 +626,8 @@ class Chain:
     def run_mosaic(self, root) -> R.MosaicResult:
         from ortho.mosaic import mosaic_block
 
-        info = mosaic_block(root, self.stage_settings("mosaic"))
-        return R.MosaicResult(width_px=info["width"], height_px=info["height"])
+        done = mosaic_block(root, self.stage_settings("mosaic"))
+        return R.MosaicResult(width_px=done.width_px, height_px=done.height_px)
 
     # -- checks and report ----------------------------------------------------------------------
     def roof_corners_path(self) -> Path | None:

@@ -328,7 +328,7 @@ def read(files, project: Project, options: ImportSettings) -> ImportedBlock:
 
 # -- export ------------------------------------------------------------------------------------------
 
-def camera_to_opensfm(camera: Camera) -> dict:
+def _camera_to_opensfm(camera: Camera) -> dict:
     """OpenSfM's ``brown`` camera of ours (a pinhole: zero coefficients; ``camera_to_json``'s keys)."""
     w, h = camera.width, camera.height
     s = float(max(w, h))
@@ -377,7 +377,7 @@ def reconstruction(eo: ExteriorOrientations, camera: Camera, project: Project, r
     for i, iid in enumerate(eo.image_id):
         shots[names.get(iid, iid)] = {"rotation": [float(v) for v in rotvec[i]], "translation": [float(v) for v in t[i]],
                                       "camera": cam_id, "orientation": 1, **gps.get(iid, {})}
-    rec = {"cameras": {cam_id: camera_to_opensfm(camera)}, "shots": shots, "points": {}, "biases": {},
+    rec = {"cameras": {cam_id: _camera_to_opensfm(camera)}, "shots": shots, "points": {}, "biases": {},
            "reference_lla": dict(reference)}
     if points is not None:
         pid, xyz = points

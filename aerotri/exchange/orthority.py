@@ -134,7 +134,7 @@ def read_int_param(path: Path) -> tuple[dict[str, Camera], set[str]]:
     return cams, {str(k) for k, v in d.items() if "sensor_size" not in v}
 
 
-def int_param_of(camera: Camera) -> dict:
+def _int_param_of(camera: Camera) -> dict:
     """orthority interior parameters of our camera (mm; cx, cy normalised, y down)."""
     scale = max(camera.width, camera.height)
     sw, sh = camera.sensor_mm
@@ -310,7 +310,7 @@ def texts(eo: ExteriorOrientations, camera: Camera, project: Project, folder: st
 
     cam_id = camera.name or "camera"
     int_text = (f"# orthority interior parameters of {project.name} (aerotri export; focal_len and sensor_size in mm)\n"
-                + yaml.safe_dump({cam_id: int_param_of(camera)}, sort_keys=False, default_flow_style=None))
+                + yaml.safe_dump({cam_id: _int_param_of(camera)}, sort_keys=False, default_flow_style=None))
     rows = ["filename,x,y,z,omega,phi,kappa,camera"]
     for iid, (x, y, z), (o, p, k) in zip(eo.image_id, eo.centre_m, eo.opk_deg):
         rows.append(f"{iid},{x:.4f},{y:.4f},{z:.4f},{o:.7f},{p:.7f},{k:.7f},{cam_id}")

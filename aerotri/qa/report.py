@@ -32,6 +32,7 @@ from aerotri.core.atomic import atomic_path, write_text_atomic
 from aerotri.core.errors import InputError, StageOrderError
 from aerotri.core.textio import read_record
 from aerotri.core.project import Project
+from aerotri.core.records import to_record
 from aerotri.core.tolerances import TERRAINS, TOLERANCE_DIR, choose_table, read_qa_config, split_key
 from aerotri.geom.block_scale import project_block_scale
 from aerotri.qa.compliance import asprs_class_cm, project_compliance
@@ -59,7 +60,8 @@ class QaCheck:
 
 @dataclass(frozen=True)
 class QaReport:
-    """The consolidated accuracy report (``reports/summary.json`` is ``as_dict()``)."""
+    """The consolidated accuracy report (``reports/summary.json`` is its record,
+    ``to_record(report, exclude=("html",))``)."""
 
     project: str
     map_scale: str
@@ -86,11 +88,6 @@ class QaReport:
 
     def has(self, check_id: str) -> bool:
         return any(c.id == check_id for c in self.checks)
-
-    def as_dict(self) -> dict:
-        d = {f.name: getattr(self, f.name) for f in dataclasses.fields(self) if f.name != "html"}
-        d["checks"] = [dataclasses.asdict(c) for c in self.checks]
-        return d
 
 
 def _failed(check_id: str, section: str, name: str, why: str) -> QaCheck:
@@ -458,7 +455,7 @@ def build_qa_report(root, *, tolerance_file=None, terrain: str | None = None, sc
         lidar_height_bins=hc.bins if hc else None,
         lidar_height_groups=(hc.groups or None) if hc else None,
         lidar_classification=dataclasses.asdict(ce) if ce else None,
-        dom=dom.as_dict() if dom else None,
+        dom=to_record(dom, drop_none=True) if dom else None,
     )
     # where each limit comes from; an unconfirmed one is marked
     prov = [table.provenance.get(r.limit_key or "") for r in rows]
@@ -787,13 +784,13 @@ def write_pdf(path: Path, rep: dict, project: Project, figures: list | None = No
 def write_qa_report(root, *, tolerance_file=None, terrain: str | None = None, scale: str | None = None,
                     pdf: bool | None = None, standard: str | None = None, horizontal_class_cm: float | None = None,
                     vertical_class_cm: float | None = None, accuracy_class: str | None = None) -> QaReport:
-    """``build_qa_report``, written: reports/summary.json (``QaReport.as_dict``), reports/index.html and, with ``pdf``
+    """``build_qa_report``, written: reports/summary.json (the report's record), reports/index.html and, with ``pdf``
     (else ``[qa] pdf``), reports/report.pdf."""
     project = Project.open(root)
     rep = build_qa_report(project.root, tolerance_file=tolerance_file, terrain=terrain, scale=scale, standard=standard,
                           horizontal_class_cm=horizontal_class_cm, vertical_class_cm=vertical_class_cm,
                           accuracy_class=accuracy_class)
-    summary = rep.as_dict()
+    summary = to_record(rep, exclude=("html",))
     write_text_atomic(project.report_summary_path, json.dumps(summary, indent=1) + "\n")
     figures = report_figures(rep, project)
     present = [(src, alt) for src, alt in STAGE_IMAGES if (project.reports_dir / src).resolve().is_file()]
@@ -807,18 +804,16 @@ def write_qa_report(root, *, tolerance_file=None, terrain: str | None = None, sc
 
 def console_summary(report: QaReport) -> str:
     """The lines ``aerotri report`` prints: the table and why it was chosen, every judged row, the verdict."""
-    rep = report.as_dict()
-    t = rep["table"]
+    t = report.table
     lines = [f"tolerances: {t['name']} ({t['file']}); chosen because {t['reason']}"]
     if t["unconfirmed"]:
         lines.append(f"  limits not confirmed in their source (marked *): {', '.join(t['unconfirmed'])}")
-    for r in rep["checks"]:
-        if r["verdict"]:
-            star = "*" if r.get("limit_confirmed") is False and r["limit"] is not None else ""
-            lines.append(f"  {r['verdict']:<5} {r['section']}: {r['quantity']} = {r['value']} {r['unit']} "
-                         f"(limit {r['limit']}{star})")
-    lines += compliance_lines(rep.get("compliance"))
-    verdict = rep["overall"] or "no verdict (no quantity with a tolerance yet)"
-    lines.append(f"{report.html}: {verdict} ({rep['passed']} passed, {rep['failed']} failed; "
-                 f"{rep['map_scale']} {rep['terrain']})")
+    for r in report.checks:
+        if r.verdict:
+            star = "*" if r.limit_confirmed is False and r.limit is not None else ""
+            lines.append(f"  {r.verdict:<5} {r.section}: {r.quantity} = {r.value} {r.unit} (limit {r.limit}{star})")
+    lines += compliance_lines(report.compliance)
+    verdict = report.overall or "no verdict (no quantity with a tolerance yet)"
+    lines.append(f"{report.html}: {verdict} ({report.passed} passed, {report.failed} failed; "
+                 f"{report.map_scale} {report.terrain})")
     return "\n".join(lines)

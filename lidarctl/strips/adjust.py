@@ -49,6 +49,7 @@ import numpy as np
 from threadpoolctl import threadpool_limits
 
 from aerotri.core.atomic import atomic_dir, refuse_input_as_output
+from aerotri.core.records import to_record
 from aerotri.core.errors import InputError, OptionError, SolveError
 from aerotri.core.textio import read_record, record_error
 from aerotri.core.settings import setting
@@ -190,7 +191,7 @@ class StripAdjustResult:
             elif f.name == "parameters":
                 v = {n: dataclasses.asdict(e) for n, e in v.items()}
             elif f.name in ("check_before", "check_after"):
-                v = v.as_dict()
+                v = to_record(v, drop_none=True)
             elif isinstance(v, tuple):
                 v = [dataclasses.asdict(x) if dataclasses.is_dataclass(x) else
                      (list(x) if isinstance(x, tuple) else x) for x in v]

@@ -26,6 +26,7 @@ from typing import Mapping
 import numpy as np
 
 from aerotri.core.atomic import atomic_dir, refuse_input_as_output
+from aerotri.core.records import to_record
 from aerotri.core.textio import read_record, record_error
 from lidarctl.strips.overlap import PairDiff, StripSet, SurfaceSettings, overlapping_pairs_or_error, read_strips
 from lidarctl.units import LengthUnits
@@ -45,7 +46,8 @@ STRIP_CHECK = "strip check (strips.json)"  # the record's name in messages
 @dataclasses.dataclass(frozen=True)
 class DiffStats:
     """Statistics of height differences (metres): n, mean, RMS, standard deviation, median, NMAD and the
-    95th percentile of |dz|; only ``n_cells`` (0) when there are none."""
+    95th percentile of |dz|; only ``n_cells`` (0) when there are none. strips.json holds
+    ``to_record(d, drop_none=True)`` (``{"n_cells": 0}`` without differences)."""
 
     n_cells: int
     mean_m: float | None = None
@@ -55,13 +57,9 @@ class DiffStats:
     nmad_m: float | None = None
     p95_abs_m: float | None = None
 
-    def as_dict(self) -> dict:
-        """As strips.json writes it (``{"n_cells": 0}`` without differences)."""
-        return dataclasses.asdict(self) if self.n_cells else {"n_cells": 0}
-
     @classmethod
     def of_record(cls, d: dict) -> "DiffStats":
-        """From ``as_dict``'s record (or a record holding its keys, as a pair's in strips.json)."""
+        """From its record (or a record holding its keys, as a pair's in strips.json)."""
         return cls(**{f.name: d[f.name] for f in dataclasses.fields(cls) if f.name in d})
 
 
@@ -169,7 +167,8 @@ class StripCheckResult:
 
 def _pair_record(p: PairCheck) -> dict:
     fit = p.vs_scan_angle_a.fit
-    out = {"a": p.a, "b": p.b, "common_planar_cells": p.common_planar_cells, **p.diff.as_dict(), "area_m2": p.area_m2,
+    out = {"a": p.a, "b": p.b, "common_planar_cells": p.common_planar_cells, **to_record(p.diff, drop_none=True),
+           "area_m2": p.area_m2,
            "vs_scan_angle_a": {"bins": [dataclasses.asdict(b) for b in p.vs_scan_angle_a.bins],
                                "fit": dataclasses.asdict(fit) if fit is not None else {}},
            "offset_3d_b_minus_a": dataclasses.asdict(p.offset_3d_b_minus_a) if p.offset_3d_b_minus_a else {}}
@@ -183,9 +182,9 @@ def _check_record(r: StripCheckResult) -> dict:
     out = {"schema_version": r.schema_version, "convention": r.convention, "cell_m": r.cell_m, "crs": r.crs,
            **r.units.as_dict(), "points": r.points,
            "strips": [{**{f.name: getattr(t, f.name) for f in dataclasses.fields(t)},
-                       "minus_others": t.minus_others.as_dict()} for t in r.strips],
+                       "minus_others": to_record(t.minus_others, drop_none=True)} for t in r.strips],
            "pairs": [_pair_record(p) for p in r.pairs], "skipped_pairs": dict(r.skipped_pairs),
-           "all_pairs": r.all_pairs.as_dict(), "surface": dataclasses.asdict(r.surface)}
+           "all_pairs": to_record(r.all_pairs, drop_none=True), "surface": dataclasses.asdict(r.surface)}
     for k in ("map_colour_limit_m", "overview_png"):
         if getattr(r, k) is not None:
             out[k] = getattr(r, k)

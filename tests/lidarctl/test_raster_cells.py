@@ -59,7 +59,7 @@ def test_cell_stats_equal_bincount_chunk_by_chunk():
     want = np.full(nrows * ncols, np.nan)
     for x, y, z, cls, _, _ in chunks:
         veg = np.isin(cls, (4, 5))
-        hag = z[veg] - sample_bilinear(dem, x[veg], y[veg], res_m, x0, y0, row0, col0)
+        hag = z[veg] - sample_bilinear(dem, x[veg], y[veg], cell_m=res_m, x0=x0, y0=y0, row0=row0, col0=col0)
         flat = (np.floor((y[veg] - y0) / res_m).astype(np.int64) - row0) * ncols + np.floor((x[veg] - x0) / res_m).astype(np.int64) - col0
         np.fmax.at(want, flat, hag)
     np.testing.assert_array_equal(stats.chm, want)

@@ -19,10 +19,10 @@ def test_bilinear_sampling_equals_scipy_inside_and_beyond_the_edges(shape):
     x = x0 + rng.uniform(-3 * cell_m, (shape[1] + 3) * cell_m, 20000)
     y = y0 + rng.uniform(-3 * cell_m, (shape[0] + 3) * cell_m, 20000)
     ref = ndimage.map_coordinates(a, [(y - y0) / cell_m - 0.5, (x - x0) / cell_m - 0.5], order=1, mode="nearest")
-    np.testing.assert_allclose(sample_bilinear(a, x, y, cell_m, x0, y0), ref, rtol=0, atol=1e-12)
+    np.testing.assert_allclose(sample_bilinear(a, x, y, cell_m=cell_m, x0=x0, y0=y0), ref, rtol=0, atol=1e-12)
     # at a cell centre the cell's value
     i, j = shape[0] - 1, shape[1] - 1
-    assert sample_bilinear(a, [x0 + (j + 0.5) * cell_m], [y0 + (i + 0.5) * cell_m], cell_m, x0, y0)[0] == \
+    assert sample_bilinear(a, [x0 + (j + 0.5) * cell_m], [y0 + (i + 0.5) * cell_m], cell_m=cell_m, x0=x0, y0=y0)[0] == \
         pytest.approx(a[i, j], abs=1e-12)
 
 
@@ -34,17 +34,18 @@ def test_reduce_grid_equals_bincount_and_per_cell_extremes():
     x, y, v = x[~hole], y[~hole], v[~hole]
     x[7] = np.nan
     c, x0, y0, nrows, ncols = 1.5, 0.0, 0.0, 20, 30
+    grid = dict(cell_m=c, x0=x0, y0=y0, nrows=nrows, ncols=ncols)
     j, i = np.floor((x - x0) / c), np.floor((y - y0) / c)
     ok = (i >= 0) & (i < nrows) & (j >= 0) & (j < ncols)
     flat = (i[ok] * ncols + j[ok]).astype(int)
     n = np.bincount(flat, minlength=nrows * ncols)
     want_mean = np.bincount(flat, v[ok], minlength=nrows * ncols) / np.where(n > 0, n, np.nan)
-    np.testing.assert_array_equal(raster_ops.reduce_grid(x, y, v, c, x0, y0, nrows, ncols, "mean").ravel(), want_mean)
+    np.testing.assert_array_equal(raster_ops.reduce_grid(x, y, v, **grid, how="mean").ravel(), want_mean)
     want_min, want_max = np.full(nrows * ncols, np.nan), np.full(nrows * ncols, np.nan)
     np.fmin.at(want_min, flat, v[ok])
     np.fmax.at(want_max, flat, v[ok])
-    np.testing.assert_array_equal(raster_ops.reduce_grid(x, y, v, c, x0, y0, nrows, ncols, "min").ravel(), want_min)
-    np.testing.assert_array_equal(raster_ops.reduce_grid(x, y, v, c, x0, y0, nrows, ncols, "max").ravel(), want_max)
+    np.testing.assert_array_equal(raster_ops.reduce_grid(x, y, v, **grid, how="min").ravel(), want_min)
+    np.testing.assert_array_equal(raster_ops.reduce_grid(x, y, v, **grid, how="max").ravel(), want_max)
     assert np.isnan(want_mean).any() and np.isfinite(want_mean).any()
 
 

@@ -232,9 +232,9 @@ def test_streamed_rasters_equal_in_memory_grids(classified, tmp_path):
     cloud = io.read_cloud(classified)
     ref = rasters.make_grids(cloud, 2.0)
     got, n = rasters.make_grids_streamed(classified, 2.0, chunk_points=40_000)     # 10 chunks
-    assert n == len(cloud) and got["transform"] == ref["transform"]
+    assert n == len(cloud) and got.transform == ref.transform
     for name in ("dem", "dsm", "ndsm", "chm", "intensity"):
-        a, b = ref[name], got[name]
+        a, b = getattr(ref, name), getattr(got, name)
         np.testing.assert_array_equal(np.isfinite(a), np.isfinite(b))
         # Means summed chunk by chunk: equal up to the summation order (float32 rounding).
         np.testing.assert_allclose(b[np.isfinite(b)], a[np.isfinite(a)], rtol=1e-6, atol=1e-4)
@@ -244,7 +244,7 @@ def test_streamed_rasters_equal_in_memory_grids(classified, tmp_path):
     with rasterio.open(tmp_path / "r" / "dem.tif") as ds:
         dem = ds.read(1, masked=True)
         assert ds.crs.to_epsg() == 32632
-    np.testing.assert_allclose(dem.filled(np.nan), got["dem"], rtol=1e-6, atol=1e-4)
+    np.testing.assert_allclose(dem.filled(np.nan), got.dem, rtol=1e-6, atol=1e-4)
     raw = laspy.read(classified)
     raw.classification = np.ones(len(raw.points), np.uint8)
     raw.write(tmp_path / "unclassified.laz")

@@ -46,10 +46,10 @@ def test_outputs_identical_on_every_scheduler(small_block, tmp_path):
         root = tmp_path / str(scheduler).replace(":", "_")
         shutil.copytree(small_block, root)
         with Executor(scheduler, 2) as ex:
-            index = rectify_block(root, executor=ex)
+            done = rectify_block(root, executor=ex)
             # small tiles: several mosaic tiles and batches even on this small block
             mosaic_block(root, MosaicSettings(tile_px=256), executor=ex)
-        assert len(index["frames"]) == 4
+        assert len(done.image_ids) == 4 and len(done.grids) == 4
         digests[scheduler] = _digests(root)
     assert len(digests["synchronous"]) == 7
     assert digests["synchronous"] == digests[None] == digests["local:2"]
@@ -140,7 +140,7 @@ def test_a_resolution_far_finer_than_the_gsd_is_warned_about(small_block, tmp_pa
 
     root = tmp_path / "p"
     shutil.copytree(small_block, root)
-    gsd = rectify_block(root, frames=["s01_001"])["res_m"]  # the default: the GSD
+    gsd = rectify_block(root, frames=["s01_001"]).res_m  # the default: the GSD
     messages: list[str] = []
     handler = Collect(logging.WARNING)
     logging.getLogger("ortho").addHandler(handler)  # the CLIs' logging set-up may stop propagation
@@ -185,17 +185,18 @@ def test_frame_files_hold_the_library_ortho(small_block, tmp_path, compression):
     from aerotri.geom.camera import BrownCamera
     from aerotri.geom.eo import read_eo
     from aerotri.geom.images import read_rgb
-    from ortho.block import _plane_footprint_bounds, index_grids
+    from ortho.block import _plane_footprint_bounds, index_grids, read_index
     from ortho.dem import height_range, open_height_raster, read_height_window
     from ortho.grid import parse_crs
     from ortho.rectify import rectify_frame
 
     root = tmp_path / "p"
     shutil.copytree(small_block, root)
-    gsd = rectify_block(root, frames=["s01_002"])["res_m"]
+    gsd = rectify_block(root, frames=["s01_002"]).res_m
     # finer than the GSD: a grid of several 512 px blocks and 1024 px compute tiles
-    index = rectify_block(root, RectifySettings(res_m=0.55 * gsd, compression=compression), frames=["s01_002"])
-    grid = index_grids(index)["s01_002"]
+    done = rectify_block(root, RectifySettings(res_m=0.55 * gsd, compression=compression), frames=["s01_002"])
+    grid = done.grid("s01_002")
+    assert grid == index_grids(read_index(root))["s01_002"]  # the grid index.json records
     assert grid.width > 1024 and grid.height > 512
     cam = BrownCamera.read(root / "camera.toml")
     eo = read_eo(root / "at" / "eo.txt")

@@ -10,6 +10,7 @@ import numpy as np
 import pytest
 
 from aerotri.core.errors import InputError
+from aerotri.core.records import to_record
 from ortho.check import displacement_statistics, read_dom_check
 
 
@@ -17,19 +18,19 @@ def test_the_record_gives_back_what_was_written(tmp_path):
     rng = np.random.default_rng(4)
     stats = displacement_statistics(rng.normal(0, 0.1, 200), rng.normal(0, 0.1, 200), 0.2)
     path = tmp_path / "dom_report.json"
-    doc = stats.as_dict()
+    doc = to_record(stats, drop_none=True)
     path.write_text(json.dumps({"displacement": doc, "seams": {"rms_px": 0.49, "patches": 17, "per_seam": []}}))
     r = read_dom_check(path)
     assert r.displacement.count == 200 and r.displacement.rms_xy_m == stats.rms_xy_m
     assert r.displacement == stats  # every figure and bin as computed
     assert r.seams_rms_px == 0.49 and r.seam_patches == 17
     # keys, order, values and types (the bins a list) as the file holds them
-    assert r.displacement.as_dict() == json.loads(path.read_text())["displacement"]
-    assert json.dumps(r.displacement.as_dict()) == json.dumps(doc)
+    assert to_record(r.displacement, drop_none=True) == json.loads(path.read_text())["displacement"]
+    assert json.dumps(to_record(r.displacement, drop_none=True)) == json.dumps(doc)
     assert list(doc)[:3] == ["count", "gsd_m", "rms_e_m"] and isinstance(doc["distribution_gsd"], list)
-    path.write_text(json.dumps({"displacement": displacement_statistics([], [], 0.2).as_dict()}))
+    path.write_text(json.dumps({"displacement": to_record(displacement_statistics([], [], 0.2), drop_none=True)}))
     r = read_dom_check(path)
-    assert r.displacement.as_dict() == {"count": 0} and r.seams_rms_px is None
+    assert to_record(r.displacement, drop_none=True) == {"count": 0} and r.seams_rms_px is None
 
 
 @pytest.mark.parametrize("text, words", [("[]", "a JSON array, expected an object"), ("{}", "KeyError 'displacement'"),

@@ -73,7 +73,7 @@ def test_mosaic_is_a_cog_matching_truth_with_seams_around_buildings(block):
     geo = json.loads((root / "ortho" / "seamlines.geojson").read_text())
     regions = [f for f in geo["features"] if f["properties"]["kind"] == "frame_region"]
     lines = [f for f in geo["features"] if f["properties"]["kind"] == "seamline"]
-    assert sorted(f["properties"]["image_id"] for f in regions) == sorted(info["eo"].image_id)
+    assert sorted(f["properties"]["image_id"] for f in regions) == sorted(info.eo.image_id)
     assert len(lines) >= 5
 
     # accuracy on ground patches and misalignment across seams
@@ -146,7 +146,7 @@ def test_true_ortho_removes_building_lean(block, tmp_path):
 
     p, _ = check_against_reference(true_root / "ortho" / "mosaic.tif", root / "truth" / "ortho.tif", patch_px=32,
                                    search_px=4)
-    st = displacement_statistics(p.de_m, p.dn_m, info["res_m"])
+    st = displacement_statistics(p.de_m, p.dn_m, info.res_m)
     assert st.rms_xy_gsd < 0.2  # every patch, roofs included
 
 

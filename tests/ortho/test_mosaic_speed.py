@@ -46,7 +46,8 @@ def test_weight_boxes_are_the_whole_tile_weights_cut_to_their_support(factor, fe
     cells[:2, :2] = 7
     cells[-3:, :] = -1
     ks = [int(k) for k in np.unique(cells) if k >= 0]
-    boxes = mosaic_mod._weight_boxes(ctx, cells, ks, r0 - rl * factor, c0 - cl * factor, lr - rl, lc - cl, th, tw)
+    boxes = mosaic_mod._weight_boxes(ctx, cells, ks, dr=r0 - rl * factor, dc=c0 - cl * factor, lr=lr - rl, lc=lc - cl,
+                                     th=th, tw=tw)
     sigma = max(0.5, feather_px / 2.0)
     checked = smaller = 0
     for k, (y0, y1, x0, x1, wt) in zip(ks, boxes):

@@ -41,7 +41,7 @@ def test_rectified_frame_matches_truth_orthophoto(scene):
     s = scene
     ortho, mask = rectify_frame(s["img"], s["cam"], s["C"], s["R"], s["dem"], s["grid"], tile_px=256)
     assert 0.15 < (mask > 0).mean() < 0.4
-    p = match_patches(ortho, s["ref"], mask > 0, None, RES)
+    p = match_patches(ortho, s["ref"], mask > 0, None, res_m=RES)
     st = displacement_statistics(p.de_m, p.dn_m, RES)
     assert st.count > 80
     assert st.rms_xy_gsd < 0.1  # the 0.5 GSD requirement with a wide margin
@@ -53,7 +53,7 @@ def test_rectified_frame_matches_truth_orthophoto(scene):
 def test_wrong_eo_shows_up_as_displacement_of_the_right_sign(scene):
     s = scene
     ortho, mask = rectify_frame(s["img"], s["cam"], s["C"] + [1.0, 0.0, 0.0], s["R"], s["dem"], s["grid"])
-    p = match_patches(ortho, s["ref"], mask > 0, None, RES, search_px=10)
+    p = match_patches(ortho, s["ref"], mask > 0, None, res_m=RES, search_px=10)
     st = displacement_statistics(p.de_m, p.dn_m, RES)
     # a camera placed 1 m too far east puts every ground point about 1 m east in the DOM
     assert st.mean_e_m == pytest.approx(1.0, abs=0.06)
@@ -63,7 +63,7 @@ def test_wrong_eo_shows_up_as_displacement_of_the_right_sign(scene):
 def test_ignoring_distortion_is_detected(scene):
     s = scene
     ortho, mask = rectify_frame(s["img"], s["cam"].ideal(), s["C"], s["R"], s["dem"], s["grid"])
-    p = match_patches(ortho, s["ref"], mask > 0, None, RES, search_px=12)
+    p = match_patches(ortho, s["ref"], mask > 0, None, res_m=RES, search_px=12)
     assert displacement_statistics(p.de_m, p.dn_m, RES).rms_xy_gsd > 1.0
 
 
@@ -71,7 +71,7 @@ def test_ignoring_distortion_is_detected(scene):
 def test_other_kernels(scene, interpolation):
     s = scene
     ortho, mask = rectify_frame(s["img"], s["cam"], s["C"], s["R"], s["dem"], s["grid"], interpolation=interpolation)
-    p = match_patches(ortho, s["ref"], mask > 0, None, RES)
+    p = match_patches(ortho, s["ref"], mask > 0, None, res_m=RES)
     assert displacement_statistics(p.de_m, p.dn_m, RES).rms_xy_gsd < 0.1
 
 

@@ -95,7 +95,7 @@ def test_the_mosaic_fills_ground_hidden_in_one_frame_from_a_frame_that_sees_it(g
     from ortho.block import read_index
 
     base, info, ids = grey_block
-    boxes = info["buildings"]
+    boxes = info.buildings
     with rasterio.open(base / "true" / "ortho" / "mosaic.tif") as ds:
         dom, dom_valid, T = ds.read(), ds.read_masks(1) > 0, ds.transform
     H, W = dom_valid.shape
