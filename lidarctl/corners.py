@@ -835,8 +835,8 @@ def _bin_corner_points(paths, crs, work: Path, tile_m: float, buffer_m: float, c
     return _TiledCloud(work, grid, used, first[1], units, index, n_bldg, bmin, amin - MARGIN_CELL_M,
                        len(paths) > 1 and all(one_sid), record, frozenset(parts),
                        np.array([h.scales for h in headers], float), np.array([h.offsets for h in headers], float),
-                       np.array(file_base, np.int64), np.array([f for f, _ in pairs], np.int64).reshape(-1),
-                       np.array([s for _, s in pairs], np.int64).reshape(-1), scratch_bytes)
+                       np.array(file_base, np.int64), np.array([f for f, _ in pairs], np.uint16).reshape(-1),
+                       np.array([s for _, s in pairs], np.uint16).reshape(-1), scratch_bytes)
 
 
 def _metres(tc: _TiledCloud, raw: np.ndarray, file: np.ndarray, axis: int) -> np.ndarray:
@@ -864,15 +864,19 @@ def _tile_points(tc: _TiledCloud, tid: int) -> np.ndarray:
                     parts.append(np.fromfile(_tile_file(tc.work, n, code), tc.record))
                     own.append(np.full(len(parts[-1]), n == tid))
     raw = np.concatenate(parts)
+    del parts
     file = tc.strip_file[raw["strip"]]
     index = tc.file_base[file] + raw["index"].astype(np.int64)
     order = np.argsort(index, kind="stable")
-    raw, file = raw[order], file[order]
+    # field by field: a tile's records are gathered once, not copied whole in between
     rec = np.empty(len(raw), _CORNER_BIN)
+    rec["index"] = index[order]
+    del index
+    file = file[order]
     for axis, name in enumerate(("x", "y", "z")):
-        rec[name] = _metres(tc, raw[name.upper()], file, axis)
-    rec["cls"], rec["core"], rec["file"] = raw["cls"], np.concatenate(own)[order], file
-    rec["sid"], rec["index"] = tc.strip_sid[raw["strip"]], index[order]
+        rec[name] = _metres(tc, raw[name.upper()][order], file, axis)
+    rec["file"], rec["cls"], rec["core"] = file, raw["cls"][order], np.concatenate(own)[order]
+    rec["sid"] = tc.strip_sid[raw["strip"][order]]
     return rec
 
 
@@ -931,8 +935,10 @@ def find_roof_corners_tiled(paths, crs=None, *, tile_m: float = DEFAULT_TILE_M, 
     """``find_roof_corners`` of classified LAS/LAZ files (strips in one CRS) by tiles of ``tile_m`` with a
     ``buffer_m`` border (metres), read straight from the files: memory is set by the tile size.
 
-    The files are streamed once into per-tile files; the spacing of the building points comes from all
-    tiles' core points; each tile's building points are clustered into roofs and a roof is kept by the
+    The files are streamed once into a scratch folder beside the output (``work_dir``), each point once as its
+    file stores it (``_bin_corner_points``: about 20 bytes a point, refused before it starts when the disk has
+    not room for 27; removed at the end, also on errors), and a tile takes its buffer from its neighbours'
+    scratch files; the spacing of the building points comes from all of them; each tile's building points are clustered into roofs and a roof is kept by the
     tile whose core holds its reference point (its first point in file order), so every roof is found
     once. Roof ids are ranked as in the whole cloud (size, then the reference point), so the result
     equals the whole cloud's when every roof is smaller than the buffer, except the strip margin: a
