@@ -9,14 +9,17 @@ set before anything is measured (numba's caches of the unpacked tree). Scratch: 
 folder just before the stage removes it (its files only grow until then); bytes per point are over the binned
 (non-noise) points. The figure's nDSM is made as the stage makes it (``FIGURE_CELLS``).
 
-Sets: ``NAME=GLOB[@TILE_M,BUFFER_M]`` (default 500 m tiles with a 150 m buffer, the stage's defaults).
+Sets: ``NAME=GLOB[@TILE_M,BUFFER_M][%CRS]`` (default 500 m tiles with a 150 m buffer, the stage's defaults; CRS
+for files without one).
 Writes bench/results/corners_scratch.json.
 Run (issue 41's figures):
   .venv/bin/python bench/corners_scratch.py --work /work/tmp/corners_scratch \\
-      --set 'ahn3_tiles=/work/shared/data/ahn3_delft/ahn3_cropped_1.laz@100,60' \\
+      --set 'ahn3_tiles=/work/shared/data/ahn3_delft/ahn3_cropped_1.laz@100,60%EPSG:28992' \\
+      --set 'ahn3=/work/shared/data/ahn3_delft/ahn3_cropped_1.laz%EPSG:28992' \\
       --set 'demo=DEMO/truth/lidar/strip_*.las' --set 'demo_x4=DEMO_X4/truth/lidar/strip_*.laz'
   (DEMO: ``aerotri sim --preset demo DEMO``; DEMO_X4: the same with ``--set lidar.pulse_rate_hz=280000 --set
-  lidar.format='"laz"'``, four times the points; the simulator's strips carry its true classes.)
+  lidar.format='"laz"' --set camera.width=432 --set camera.height=240``, four times the points, small frames; the
+  simulator's strips carry its true classes.)
 """
 
 from __future__ import annotations
@@ -42,7 +45,8 @@ from pathlib import Path
 import numpy as np
 import lidarctl
 from lidarctl import corners as C
-out, work, tile_m, buffer_m, paths = Path(sys.argv[1]), Path(sys.argv[2]), float(sys.argv[3]), float(sys.argv[4]), sys.argv[5:]
+out, work, tile_m, buffer_m, crs = Path(sys.argv[1]), Path(sys.argv[2]), float(sys.argv[3]), float(sys.argv[4]), sys.argv[5]
+paths = sys.argv[6:]
 scratch = []
 real_rmtree = shutil.rmtree
 def rmtree(p, *a, **k):
@@ -52,8 +56,8 @@ def rmtree(p, *a, **k):
     return real_rmtree(p, *a, **k)
 shutil.rmtree = rmtree
 t0, c0 = time.perf_counter(), time.process_time()
-res, crs, units, figure = C.find_roof_corners_tiled(paths, tile_m=tile_m, buffer_m=buffer_m, work_dir=work,
-                                                    figure_cells=C.FIGURE_CELLS)
+res, crs, units, figure = C.find_roof_corners_tiled(paths, crs=crs or None, tile_m=tile_m, buffer_m=buffer_m,
+                                                    work_dir=work, figure_cells=C.FIGURE_CELLS)
 seconds, cpu = time.perf_counter() - t0, time.process_time() - c0
 assert not list(work.iterdir()), list(work.iterdir())
 planes = json.dumps(C.roof_planes_geojson(C._faces_in_crs_units(res["faces"], units), res["stats"]))
@@ -78,11 +82,11 @@ def baseline_tree(rev: str, work: Path) -> Path:
     return dst
 
 
-def run(src: Path, out: Path, scratch: Path, tile_m: float, buffer_m: float, paths) -> dict:
+def run(src: Path, out: Path, scratch: Path, tile_m: float, buffer_m: float, crs: str, paths) -> dict:
     scratch.mkdir(parents=True, exist_ok=True)
     env = dict(os.environ, PYTHONPATH=str(src))
     load0 = os.getloadavg()[0]
-    p = subprocess.run([sys.executable, "-c", CHILD, str(out), str(scratch), str(tile_m), str(buffer_m), *paths],
+    p = subprocess.run([sys.executable, "-c", CHILD, str(out), str(scratch), str(tile_m), str(buffer_m), crs, *paths],
                        env=env, text=True, cwd=src, capture_output=True)
     if p.returncode:
         raise RuntimeError(f"{src}: exit {p.returncode}: {p.stderr[-3000:]}")
@@ -117,36 +121,37 @@ def main():
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--baseline-rev", default="087dbcb")
     ap.add_argument("--work", type=Path, required=True)
-    ap.add_argument("--set", dest="sets", action="append", required=True, metavar="NAME=GLOB[@TILE_M,BUFFER_M]")
+    ap.add_argument("--set", dest="sets", action="append", required=True, metavar="NAME=GLOB[@TILE_M,BUFFER_M][%CRS]")
     args = ap.parse_args()
     sets = []
     for spec in args.sets:
         name, rest = spec.split("=", 1)
+        rest, _, crs = rest.partition("%")
         pattern, _, tiles = rest.partition("@")
         tile_m, buffer_m = (float(v) for v in tiles.split(",")) if tiles else (500.0, 150.0)
         paths = sorted(glob.glob(pattern))
         if not paths:
             sys.exit(f"--set {spec}: no file matches {pattern}")
-        sets.append((name, paths, tile_m, buffer_m))
+        sets.append((name, paths, tile_m, buffer_m, crs))
     base = baseline_tree(args.baseline_rev, args.work)
     scratch = args.work / "scratch"
     trees = (("baseline", base), ("ours", REPO))
-    name, paths, tile_m, buffer_m = sets[0]
+    name, paths, tile_m, buffer_m, crs = sets[0]
     for label, src in trees:  # warm-up: numba caches
-        run(src, args.work / f"warmup_{label}.json", scratch, tile_m, buffer_m, paths)
+        run(src, args.work / f"warmup_{label}.json", scratch, tile_m, buffer_m, crs, paths)
     import laspy
 
     results = {}
-    for name, paths, tile_m, buffer_m in sets:
+    for name, paths, tile_m, buffer_m, crs in sets:
         runs = {}
         for label, src in trees:
-            runs[label] = run(src, args.work / f"{name}_{label}.json", scratch, tile_m, buffer_m, paths)
+            runs[label] = run(src, args.work / f"{name}_{label}.json", scratch, tile_m, buffer_m, crs, paths)
             r = runs[label]
             print(f"{name} {label}: scratch {r['scratch_bytes'] / 1e6:.1f} MB ({r['bytes_per_point']:.1f} B a point), "
                   f"{r['seconds']:.1f} s, CPU {r['cpu_seconds']:.1f} s, peak RSS {r['peak_rss_mb']:.0f} MB", flush=True)
         a, b = runs["baseline"], runs["ours"]
         results[name] = {
-            "files": paths, "tile_m": tile_m, "buffer_m": buffer_m,
+            "files": paths, "tile_m": tile_m, "buffer_m": buffer_m, "crs_given": crs or None,
             "points_in_files": int(sum(laspy.open(p).header.point_count for p in paths)),
             "points_binned": b["n_points"],
             "scratch_bytes_baseline_ours": [a["scratch_bytes"], b["scratch_bytes"]],
