@@ -43,6 +43,7 @@ import dataclasses
 from typing import ClassVar, Mapping
 import io
 import json
+import logging
 import time
 from pathlib import Path
 
@@ -70,6 +71,8 @@ from lidarctl.roof_outline import (
 from lidarctl.roof_segments import cluster_roofs, point_spacing_m, segment_planes
 from lidarctl.units import LengthUnits
 from aerotri.core.log import track
+
+log = logging.getLogger(__name__)
 
 BUILDING = 6
 GROUND = 2
@@ -677,21 +680,37 @@ def _finish(raw, outlines, faces, *, n_points, n_building_points, spacing_m, n_r
 # point in file order), from the tile's points with a buffer larger than the largest roof.
 DEFAULT_TILE_M = 500.0
 DEFAULT_BUFFER_M = 150.0
+# A tile's points with its buffer as the roof search reads them (``_tile_points``, in memory only).
 _CORNER_BIN = np.dtype([("x", "f8"), ("y", "f8"), ("z", "f8"), ("cls", "u1"), ("core", "u1"), ("file", "u2"),
                         ("sid", "u2"), ("index", "i8")])
+# The scratch (``_bin_corner_points``): every non-noise point once, in the file of its core tile and its near code
+# (``TileGrid.core_near``: whose buffers hold it), as its LAS file stores it: the integer coordinates (the
+# coordinates of ``read_strips`` exactly, with the file's scales, offsets and units), the class, the strip (an
+# entry of the (file, point_source_id) pairs) and its number among the file's non-noise points: 19 bytes a point
+# (23 when a file holds 2^32 points or more), each written once; a tile takes its buffer from its neighbours'
+# files of the codes that reach into it. Before: a 38-byte record of float64 metres per tile holding the point,
+# 2.56 copies with 500 m tiles and a 150 m buffer (97 bytes a point, bench/corners_scratch.py).
+_SCRATCH_FIELDS = [("X", "<i4"), ("Y", "<i4"), ("Z", "<i4"), ("cls", "u1"), ("strip", "<u2")]
+_MAX_STRIPS = 1 << 16
+_BUILDING_XY = "building_{}.bin"   # integer (X, Y) int32 of every building point of file k, in file order
 
 
-_BUILDING_XY = "building_xy.bin"   # (x, y) float64 of every building point, in file order
+def _scratch_dtype(index_dtype) -> np.dtype:
+    return np.dtype(_SCRATCH_FIELDS + [("index", index_dtype)])
+
+
+def _tile_file(work: Path, tid: int, code: int) -> Path:
+    return work / f"tile_{tid}_{code}.bin"
 
 
 @dataclasses.dataclass
 class _TiledCloud:
-    """The non-noise points of the files binned into tile files (``_CORNER_BIN``) and what the whole
-    cloud's processing needs from all of them."""
+    """The non-noise points of the files binned into scratch files by core tile and near code (``_scratch_dtype``)
+    and what the whole cloud's processing needs from all of them."""
 
     work: Path
     grid: object            # lidarctl.tiles.TileGrid (metres)
-    used: np.ndarray        # tiles holding points
+    used: np.ndarray        # tiles holding points (core or buffer)
     crs: object
     units: object
     n_points: int           # non-noise points
@@ -699,11 +718,30 @@ class _TiledCloud:
     building_min: np.ndarray
     margin_anchor: np.ndarray
     file_is_strip: bool     # several files, each with one point_source_id: the file is the strip
+    record: np.dtype        # the scratch records (``_scratch_dtype``)
+    parts: frozenset        # (tile, near code) pairs with a scratch file
+    scales: np.ndarray      # (files, 3) LAS scales and offsets of each file
+    offsets: np.ndarray
+    file_base: np.ndarray   # global index of each file's first non-noise point
+    strip_file: np.ndarray  # per strip entry: its file and point_source_id
+    strip_sid: np.ndarray
+    scratch_bytes: int
+
+
+def _mark_used(used: np.ndarray, grid, tid: int, code: int) -> None:
+    """The tiles whose core or buffer holds the points of (tile ``tid``, near ``code``)."""
+    from lidarctl.tiles import near_code_in_buffer_of
+
+    r, c = divmod(tid, grid.ncols)
+    for dr in (-1, 0, 1):
+        for dc in (-1, 0, 1):
+            if near_code_in_buffer_of(code, dr, dc):
+                used[(r + dr) * grid.ncols + c + dc] = True
 
 
 def _bin_corner_points(paths, crs, work: Path, tile_m: float, buffer_m: float, chunk_points: int) -> _TiledCloud:
-    """One streaming pass over the files: their non-noise points into per-tile files (core + buffer,
-    file order), with the global index each has in ``read_strips``' concatenation without noise."""
+    """One streaming pass over the files: their non-noise points into the scratch files (``_scratch_dtype``, by
+    core tile and near code, file order), with the index each has in ``read_strips``' concatenation without noise."""
     from aerotri.geom import las
     from lidarctl.tiles import TileGrid
 
@@ -724,21 +762,31 @@ def _bin_corner_points(paths, crs, work: Path, tile_m: float, buffer_m: float, c
         if np.isfinite(f_lo).all() and np.isfinite(f_hi).all():
             n_occupied += float(np.prod(np.floor(np.maximum(f_hi - f_lo, 0.0) / tile_m) + 2))
     units = first[2]
+    names = ", ".join(map(str, paths))
     if not (np.isfinite(lo).all() and np.isfinite(hi).all()) or (np.abs(np.r_[lo, hi]) > las_io.MAX_ABS_XY_M).any():
-        raise InputError(f"{', '.join(map(str, paths))}: absurd bounds in the LAS headers ({lo.tolist()} .. {hi.tolist()})")
+        raise InputError(f"{names}: absurd bounds in the LAS headers ({lo.tolist()} .. {hi.tolist()})")
     from aerotri.core.limits import check_task_count
 
     n_cr = np.maximum(np.ceil((hi - lo) / tile_m), 1)
-    check_task_count(min(float(n_cr[0] * n_cr[1]), n_occupied), f"{', '.join(map(str, paths))}: tiles of {tile_m:g} m",
+    check_task_count(min(float(n_cr[0] * n_cr[1]), n_occupied), f"{names}: tiles of {tile_m:g} m",
                      "--tile-m", "use a larger --tile-m")
     nc, nr = n_cr.astype(int)
     grid = TileGrid(float(lo[0]), float(lo[1]), float(tile_m), float(buffer_m), int(nr), int(nc))
     used = np.zeros(grid.n_tiles, bool)
+    record = _scratch_dtype(np.uint32 if max(h.point_count for h in headers) < 1 << 32 else np.uint64)
+    from lidarctl.grid import check_disk
+
+    # every point once, and the building points' (X, Y) once more when all are building points
+    check_disk(sum(h.point_count for h in headers) * (record.itemsize + 8.0), work,
+               f"{names}: the corner search's scratch ({record.itemsize} + 8 bytes a point)")
+    parts, strips, file_base = set(), {}, []
     index = n_bldg = 0
     bmin, amin = np.full(2, np.inf), np.full(2, np.inf)
     one_sid = []
     for k, p in enumerate(paths):
         sids = set()
+        file_base.append(index)
+        n_file = 0
         for first_rec, chunk in las.iter_file_chunks(p, chunk_points):
             x, y, z = np.asarray(chunk.x), np.asarray(chunk.y), np.asarray(chunk.z)
             las_io.validate_xyz(p, x, y, z, first_rec, units)
@@ -746,51 +794,108 @@ def _bin_corner_points(paths, crs, work: Path, tile_m: float, buffer_m: float, c
             sid = np.asarray(chunk.point_source_id)
             sids.update(np.unique(sid).tolist())
             keep = ~np.isin(cls, NOISE)
-            rec = np.empty(int(keep.sum()), _CORNER_BIN)
-            rec["x"], rec["y"], rec["z"] = units.xy_to_m(x[keep]), units.xy_to_m(y[keep]), units.z_to_m(z[keep])
-            rec["cls"], rec["file"], rec["sid"] = cls[keep], k, sid[keep]
-            rec["index"] = index + np.arange(len(rec))
-            index += len(rec)
-            if not len(rec):
+            if not keep.any():
                 continue
-            amin = np.minimum(amin, [rec["x"].min(), rec["y"].min()])
+            rec = np.empty(int(keep.sum()), record)
+            for name in ("X", "Y", "Z"):
+                rec[name] = np.asarray(chunk[name])[keep]
+            rec["cls"] = cls[keep]
+            sid_values, sid_entry = np.unique(sid[keep], return_inverse=True)
+            entries = np.array([strips.setdefault((k, int(s)), len(strips)) for s in sid_values], np.int64)
+            if len(strips) > _MAX_STRIPS:
+                raise InputError(f"{names}: more than {_MAX_STRIPS} strips (pairs of file and point_source_id)")
+            rec["strip"] = entries[sid_entry.ravel()]
+            rec["index"] = n_file + np.arange(len(rec))
+            n_file += len(rec)
+            xm, ym = units.xy_to_m(x[keep]), units.xy_to_m(y[keep])
+            amin = np.minimum(amin, [xm.min(), ym.min()])
             b = rec["cls"] == BUILDING
             if b.any():
                 n_bldg += int(b.sum())
-                bmin = np.minimum(bmin, [rec["x"][b].min(), rec["y"][b].min()])
-                # every point lies in one tile's core: the building points once, for the spacing
-                with open(work / _BUILDING_XY, "ab") as fh:
-                    np.column_stack([rec["x"][b], rec["y"][b]]).tofile(fh)
-            row, col = grid.core_rc(rec["x"], rec["y"])
-            core_id = row * grid.ncols + col
-            ids, pos = grid.assign(rec["x"], rec["y"])
-            cuts = np.flatnonzero(np.diff(ids)) + 1
-            for sel_ids, sel_pos in zip(np.split(ids, cuts), np.split(pos, cuts)):
-                tid = int(sel_ids[0])
-                part = rec[sel_pos]
-                part["core"] = core_id[sel_pos] == tid
-                used[tid] = True
-                with open(work / f"tile_{tid}.bin", "ab") as fh:
-                    part.tofile(fh)
+                bmin = np.minimum(bmin, [xm[b].min(), ym[b].min()])
+                # every point lies in one tile's core: the building points once more, for the spacing
+                with open(work / _BUILDING_XY.format(k), "ab") as fh:
+                    np.column_stack([rec["X"][b], rec["Y"][b]]).tofile(fh)
+            tile, code = grid.core_near(xm, ym)
+            key = tile * 16 + code
+            order = np.argsort(key, kind="stable")  # by tile and code, file order within
+            for sel in np.split(order, np.flatnonzero(np.diff(key[order])) + 1):
+                tid, c = divmod(int(key[sel[0]]), 16)
+                with open(_tile_file(work, tid, c), "ab") as fh:
+                    rec[sel].tofile(fh)
+                if (tid, c) not in parts:
+                    parts.add((tid, c))
+                    _mark_used(used, grid, tid, c)
+        index += n_file
         one_sid.append(len(sids) == 1)
+    pairs = sorted(strips, key=strips.get)
+    scratch_bytes = sum(f.stat().st_size for f in work.iterdir())
+    log.debug(f"corner scratch: {scratch_bytes / 1e6:.1f} MB for {index} points "
+              f"({scratch_bytes / max(index, 1):.1f} bytes a point)")
     return _TiledCloud(work, grid, used, first[1], units, index, n_bldg, bmin, amin - MARGIN_CELL_M,
-                       len(paths) > 1 and all(one_sid))
+                       len(paths) > 1 and all(one_sid), record, frozenset(parts),
+                       np.array([h.scales for h in headers], float), np.array([h.offsets for h in headers], float),
+                       np.array(file_base, np.int64), np.array([f for f, _ in pairs], np.uint16).reshape(-1),
+                       np.array([s for _, s in pairs], np.uint16).reshape(-1), scratch_bytes)
+
+
+def _metres(tc: _TiledCloud, raw: np.ndarray, file: np.ndarray, axis: int) -> np.ndarray:
+    """Coordinates (m) of integer LAS coordinates ``raw`` of the files ``file`` along ``axis`` (0, 1, 2): laspy's
+    X * scale + offset, then the units, so the values equal ``read_strips``' to the bit."""
+    v = raw * tc.scales[file, axis] + tc.offsets[file, axis]
+    return tc.units.z_to_m(v) if axis == 2 else tc.units.xy_to_m(v)
 
 
 def _tile_points(tc: _TiledCloud, tid: int) -> np.ndarray:
-    return np.fromfile(tc.work / f"tile_{tid}.bin", _CORNER_BIN)
+    """The points of tile ``tid`` with its buffer (``_CORNER_BIN``, in file order, ``core`` 1 for its own): its own
+    scratch files and its neighbours' of the near codes that reach into it."""
+    from lidarctl.tiles import near_code_in_buffer_of
+
+    g = tc.grid
+    r, c = divmod(tid, g.ncols)
+    parts, own = [], []
+    for dr in (-1, 0, 1):
+        for dc in (-1, 0, 1):
+            if not (0 <= r + dr < g.nrows and 0 <= c + dc < g.ncols):
+                continue
+            n = (r + dr) * g.ncols + c + dc
+            for code in range(16):
+                if (n, code) in tc.parts and near_code_in_buffer_of(code, -dr, -dc):
+                    parts.append(np.fromfile(_tile_file(tc.work, n, code), tc.record))
+                    own.append(np.full(len(parts[-1]), n == tid))
+    raw = np.concatenate(parts)
+    del parts
+    file = tc.strip_file[raw["strip"]]
+    index = tc.file_base[file] + raw["index"].astype(np.int64)
+    order = np.argsort(index, kind="stable")
+    # field by field: a tile's records are gathered once, not copied whole in between
+    rec = np.empty(len(raw), _CORNER_BIN)
+    rec["index"] = index[order]
+    del index
+    file = file[order]
+    for axis, name in enumerate(("x", "y", "z")):
+        rec[name] = _metres(tc, raw[name.upper()][order], file, axis)
+    rec["file"], rec["cls"], rec["core"] = file, raw["cls"][order], np.concatenate(own)[order]
+    rec["sid"] = tc.strip_sid[raw["strip"][order]]
+    return rec
 
 
 def _global_spacing_m(tc: _TiledCloud, chunk_points: int = las_io.CHUNK_POINTS) -> float:
     """``point_spacing_m`` of all building points (as ``_roof_clusters`` computes it), from the
-    building points' (x, y) the binning kept aside (read by chunks, not the tiles again): occupied
+    building points' integer (x, y) the binning kept aside (read by chunks, not the tiles again): occupied
     cells anchored at the building points' lowest x, y."""
     def spacing(cell_m):
         cells = []  # occupied cells of each chunk (a cell may hold points of several chunks)
-        with open(tc.work / _BUILDING_XY, "rb") as fh:
-            while len(xy := np.fromfile(fh, np.float64, count=2 * chunk_points)):
-                ij = np.floor((xy.reshape(-1, 2) - tc.building_min) / cell_m).astype(np.int64)
-                cells.append(np.unique(ij[:, 0] * (1 << 31) + ij[:, 1]))
+        for k in range(len(tc.file_base)):
+            path = tc.work / _BUILDING_XY.format(k)
+            if not path.exists():
+                continue
+            with open(path, "rb") as fh:
+                while len(XY := np.fromfile(fh, np.int32, count=2 * chunk_points)):
+                    XY = XY.reshape(-1, 2)
+                    xy = np.column_stack([_metres(tc, XY[:, 0], k, 0), _metres(tc, XY[:, 1], k, 1)])
+                    ij = np.floor((xy - tc.building_min) / cell_m).astype(np.int64)
+                    cells.append(np.unique(ij[:, 0] * (1 << 31) + ij[:, 1]))
         n_cells = len(np.unique(np.concatenate(cells)))
         return float(np.sqrt(n_cells * cell_m * cell_m / tc.n_building))
 
@@ -830,8 +935,10 @@ def find_roof_corners_tiled(paths, crs=None, *, tile_m: float = DEFAULT_TILE_M, 
     """``find_roof_corners`` of classified LAS/LAZ files (strips in one CRS) by tiles of ``tile_m`` with a
     ``buffer_m`` border (metres), read straight from the files: memory is set by the tile size.
 
-    The files are streamed once into per-tile files; the spacing of the building points comes from all
-    tiles' core points; each tile's building points are clustered into roofs and a roof is kept by the
+    The files are streamed once into a scratch folder beside the output (``work_dir``), each point once as its
+    file stores it (``_bin_corner_points``: about 20 bytes a point, refused before it starts when the disk has
+    not room for 27; removed at the end, also on errors), and a tile takes its buffer from its neighbours'
+    scratch files; the spacing of the building points comes from all of them; each tile's building points are clustered into roofs and a roof is kept by the
     tile whose core holds its reference point (its first point in file order), so every roof is found
     once. Roof ids are ranked as in the whole cloud (size, then the reference point), so the result
     equals the whole cloud's when every roof is smaller than the buffer, except the strip margin: a

@@ -136,6 +136,20 @@ class TileGrid:
         return _assign_points(np.ascontiguousarray(x, float), np.ascontiguousarray(y, float), float(self.x0_m),
                               float(self.y0_m), float(self.tile_m), float(self.buffer_m), self.nrows, self.ncols)
 
+    def core_near(self, x: np.ndarray, y: np.ndarray):
+        """(core tile id, near code) of points: the code's bits 1, 2, 4, 8 are ``memberships``' near flags
+        (dc-, dc+, dr-, dr+); the point lies in the buffer of the tile (dr, dc) from its own core tile when
+        ``near_code_in_buffer_of(code, dr, dc)``: the same memberships as ``assign``, one record a point."""
+        return _core_near(np.ascontiguousarray(x, float), np.ascontiguousarray(y, float), float(self.x0_m),
+                          float(self.y0_m), float(self.tile_m), float(self.buffer_m), self.nrows, self.ncols)
+
+
+def near_code_in_buffer_of(code: int, dr: int, dc: int) -> bool:
+    """Whether points of near code ``code`` (``TileGrid.core_near``) belong to the tile (dr, dc) from their core
+    tile (``_in_buffer_of``; their own tile: dr = dc = 0)."""
+    return not ((dr == -1 and not code & 4) or (dr == 1 and not code & 8)
+                or (dc == -1 and not code & 1) or (dc == 1 and not code & 2))
+
 
 def plan_tiles(header: laspy.LasHeader, tile_size_m: float | None = None, buffer_m: float | None = None,
                method: str = "morph", preset: str | None = None, path="input",
@@ -229,6 +243,24 @@ def _in_buffer_of(near, dr, dc):
     (its own tile: dr = dc = 0)."""
     return not ((dr == -1 and not near[2]) or (dr == 1 and not near[3])
                 or (dc == -1 and not near[0]) or (dc == 1 and not near[1]))
+
+
+@numba.njit(cache=True)
+def _core_near(x, y, x0, y0, tile_m, buffer_m, nrows, ncols):
+    """``TileGrid.core_near``: the core tile and the near flags of ``_assign_points`` (same arithmetic) as a code."""
+    n = len(x)
+    tile = np.empty(n, np.int64)
+    code = np.empty(n, np.uint8)
+    for k in range(n):
+        c = min(max(np.floor((x[k] - x0) / tile_m), 0.0), ncols - 1.0)
+        r = min(max(np.floor((y[k] - y0) / tile_m), 0.0), nrows - 1.0)
+        ci, ri = int(c), int(r)
+        tile[k] = ri * ncols + ci
+        fx = x[k] - (x0 + ci * tile_m)
+        fy = y[k] - (y0 + ri * tile_m)
+        code[k] = ((1 if (fx < buffer_m and ci > 0) else 0) | (2 if (fx >= tile_m - buffer_m and ci < ncols - 1) else 0)
+                   | (4 if (fy < buffer_m and ri > 0) else 0) | (8 if (fy >= tile_m - buffer_m and ri < nrows - 1) else 0))
+    return tile, code
 
 
 @numba.njit(cache=True)

@@ -41,8 +41,11 @@ def closing_words(rows: list[dict]) -> str | None:
 
 def stale_simulation(project: Path, cfg: dict) -> str | None:
     """Why the simulated project must be made (again), or None: missing, or its project.toml lacks the
-    stage options the preset gives (a project simulated by an earlier version)."""
+    stage options the simulator writes for the preset (``aerotri.sim.project.rendered_chain_table``: a project
+    simulated by an earlier version)."""
     import tomllib
+
+    from aerotri.sim.project import rendered_chain_table
 
     if not (project / "truth" / "truth.json").is_file() or not (project / "project.toml").is_file():
         return "no simulated project yet"
@@ -58,7 +61,7 @@ def stale_simulation(project: Path, cfg: dict) -> str | None:
                 return f"project.toml [{name}] {key} is not the preset's {value!r}"
         return None
 
-    for section, table in cfg.get("chain", {}).items():
+    for section, table in rendered_chain_table(cfg).items():
         why = differs(table, have.get(section) or {}, section)
         if why:
             return why

@@ -450,7 +450,7 @@ def _write_project_files(tmp: Path, cfg: dict, *, plan, cam_true, cam_nominal, o
         f"mean_terrain_height_m = {origin[2]}\nspeed_mps = {cfg['flight']['speed_mps']}\n\n"
         f"[qa]\n# tolerance table of the accuracy report (aerotri report): map scale, terrain class, PDF copy\n"
         f'map_scale = "1:5000"\nterrain = "flat"\npdf = true\n'
-        + stage_sections_toml(_with_gnss_prior(cfg) if chain is None else chain)
+        + stage_sections_toml(rendered_chain_table(cfg) if chain is None else chain)
     )
     (tmp / "truth" / "gnss_truth.toml").write_text(
         f"lever_arm_m = [{lever}]\n"
@@ -466,13 +466,15 @@ def _write_project_files(tmp: Path, cfg: dict, *, plan, cam_true, cam_nominal, o
     _csv(tmp / "truth" / "frames.csv", ["image_id", "strip", "gps_time_s", "exposure_gain"], flight_rows)
 
 
-def _with_gnss_prior(cfg: dict) -> dict:
-    """The preset's stage sections with the a-priori sigma of its GNSS corrections in [adjust]
-    (``gnss_shift_sigma_m``), when its GNSS has shifts or drifts."""
+def rendered_chain_table(cfg: dict) -> dict:
+    """The preset's stage sections with [adjust] stating the GNSS correction per strip its antenna errors need
+    (``gnss_correction_of``; a ``gnss_correction`` the preset or ``--set`` gives is kept) and, when its GNSS has
+    shifts or drifts, the a-priori sigma they are drawn with (``gnss_shift_sigma_m``)."""
     chain = {k: dict(v) for k, v in cfg.get("chain", {}).items()}
-    g = cfg["gnss"]
-    if float(g.get("strip_shift_sigma_m", 0.0)) > 0.0 or float(g.get("drift_sigma_m_per_s", 0.0)) > 0.0:
-        chain["adjust"] = {**chain.get("adjust", {}), "gnss_shift_sigma_m": gnss_shift_sigma_m(cfg)}
+    adjust = chain.get("adjust", {})
+    chain["adjust"] = {**adjust, "gnss_correction": adjust.get("gnss_correction", gnss_correction_of(cfg))}
+    if gnss_correction_of(cfg) != "none":
+        chain["adjust"]["gnss_shift_sigma_m"] = gnss_shift_sigma_m(cfg)
     return chain
 
 
@@ -692,13 +694,19 @@ def _truth_adjust_table(cfg: dict, cam_true, cam_nominal) -> dict:
     true, nominal = cam_true.calibration_vector(), cam_nominal.calibration_vector()
     groups = [g for g, idx in cam_true.SELF_CAL_GROUPS.items()
               if not np.allclose(true[list(idx)], nominal[list(idx)], rtol=0.0, atol=1e-12)]
-    g = cfg["gnss"]
-    correction = ("shift_drift" if float(g.get("drift_sigma_m_per_s", 0.0)) > 0.0
-                  else "shift" if float(g.get("strip_shift_sigma_m", 0.0)) > 0.0 else "none")
+    correction = gnss_correction_of(cfg)
     out = {"self_calibration": groups, "gnss_correction": correction}
     if correction != "none":
         out["gnss_shift_sigma_m"] = gnss_shift_sigma_m(cfg)
     return out
+
+
+def gnss_correction_of(cfg: dict) -> str:
+    """The GNSS correction per strip (``[adjust] gnss_correction``) that models the antenna errors the preset
+    draws: a drift per strip: ``shift_drift``; a shift alone: ``shift``; neither: ``none``."""
+    g = cfg["gnss"]
+    return ("shift_drift" if float(g.get("drift_sigma_m_per_s", 0.0)) > 0.0
+            else "shift" if float(g.get("strip_shift_sigma_m", 0.0)) > 0.0 else "none")
 
 
 def gnss_shift_sigma_m(cfg: dict) -> float:

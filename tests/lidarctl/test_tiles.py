@@ -73,6 +73,25 @@ def test_tile_grid_cores_partition_and_buffers_match_brute_force():
     assert np.bincount(row * grid.ncols + col, minlength=grid.n_tiles).sum() == len(x)
 
 
+def test_core_near_codes_give_the_memberships_of_assign():
+    """One record a point (its core tile and near code, what the corner stage's scratch holds) gives the same
+    tile memberships as ``assign``, also for points exactly on a core edge or a buffer line."""
+    rng = np.random.default_rng(2)
+    for tile_m, buffer_m in ((100.0, 30.0), (100.0, 100.0), (150.0, 1.0)):
+        grid = tiles.TileGrid(1000.0, 2000.0, tile_m, buffer_m, nrows=3, ncols=4)
+        x = rng.uniform(990.0, 1010.0 + 4 * tile_m, 20000)
+        y = rng.uniform(1990.0, 2010.0 + 3 * tile_m, 20000)
+        on = rng.random(len(x)) < 0.2   # on the lines themselves
+        x[on] = 1000.0 + tile_m * rng.integers(0, 5, on.sum()) + rng.choice([0.0, buffer_m, -buffer_m], on.sum())
+        ids, pos = grid.assign(x, y)
+        tile, code = grid.core_near(x, y)
+        np.testing.assert_array_equal(tile, np.ravel_multi_index(grid.core_rc(x, y), (grid.nrows, grid.ncols)))
+        mine = [((t // grid.ncols + dr) * grid.ncols + t % grid.ncols + dc, k)
+                for k, (t, c) in enumerate(zip(tile.tolist(), code.tolist()))
+                for dr in (-1, 0, 1) for dc in (-1, 0, 1) if tiles.near_code_in_buffer_of(c, dr, dc)]
+        np.testing.assert_array_equal(np.array(sorted(mine)), np.column_stack([ids, pos]))
+
+
 def test_plan_defaults_and_option_errors(big):
     d, _, _ = big
     header = las_format.read_header(d / "in.laz")

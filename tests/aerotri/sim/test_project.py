@@ -58,6 +58,29 @@ def test_project_layout_and_truth_summary(tiny_project):
     assert 0.0 < err.max() < 1.0
     # Relief: the valley side reaches at least 30 degrees.
     assert truth["max_slope_deg"] >= 30.0
+    # [adjust] states the GNSS correction the injected errors need: the strips' antenna positions drift
+    # (truth/gnss_truth.toml), so shift_drift, with the a-priori sigma they were drawn with.
+    drifts = np.array([s["drift_m_per_s"] for s in tomllib.loads((p / "truth/gnss_truth.toml").read_text())["strip"]])
+    assert np.abs(drifts).max() > 0.0
+    assert cfg["adjust"]["gnss_correction"] == "shift_drift" and cfg["adjust"]["gnss_shift_sigma_m"] > 0.0
+
+
+def test_rendered_project_states_the_gnss_correction_of_its_errors():
+    """The full simulator's [adjust] gnss_correction follows the preset's [gnss] errors as the observation-only
+    simulator's does; one the preset or --set gives is kept."""
+    from aerotri.sim.project import rendered_chain_table
+
+    cfg = load_preset("tiny")
+    assert rendered_chain_table(cfg)["adjust"]["gnss_correction"] == "shift_drift"
+    cfg["gnss"]["drift_sigma_m_per_s"] = 0.0
+    assert rendered_chain_table(cfg)["adjust"]["gnss_correction"] == "shift"
+    cfg["gnss"]["strip_shift_sigma_m"] = 0.0
+    adjust = rendered_chain_table(cfg)["adjust"]
+    assert adjust["gnss_correction"] == "none" and "gnss_shift_sigma_m" not in adjust
+    cfg = load_preset("demo")
+    cfg["chain"]["adjust"]["gnss_correction"] = "shift"
+    assert rendered_chain_table(cfg)["adjust"]["gnss_correction"] == "shift"
+    assert load_preset("demo")["chain"]["adjust"]["self_calibration"] == ["pp", "radial"]
 
 
 def test_checkpoint_truth_matches_rendered_targets(tiny_project):
