@@ -159,8 +159,9 @@ class CellStats:
     def add(self, x, y, z, cls, return_number, intensity) -> None:
         """A chunk of points (x, y, z in metres, class, return number, intensity)."""
         self._stamp += 1
-        bad = _accumulate(_Returns(x, y, z, cls, return_number, intensity), self._window(), self._counts,
-                          self._sums, self._stamp, np.empty(len(x), np.int64))
+        c = np.ascontiguousarray  # one layout, one compilation (record fields and slices were two more of each kernel)
+        bad = _accumulate(_Returns(c(x), c(y), c(z), c(cls), c(return_number), c(intensity)), self._window(),
+                          self._counts, self._sums, self._stamp, np.empty(len(x), np.int64))
         if bad >= 0:
             raise RuntimeError("a point lies outside the raster grid")   # a tiling bug, not an input error
 
@@ -173,7 +174,8 @@ class CellStats:
 
     def add_chm(self, x, y, z, cls, dem: np.ndarray) -> None:
         """A chunk of points again, once the window's DEM (filled, rows south to north) is known."""
-        if _chm_max(_Classified(x, y, z, cls), np.ascontiguousarray(dem, float), self._window(), self.chm) >= 0:
+        c = np.ascontiguousarray
+        if _chm_max(_Classified(c(x), c(y), c(z), c(cls)), c(dem, float), self._window(), self.chm) >= 0:
             raise RuntimeError("a point lies outside the raster grid")
 
 
