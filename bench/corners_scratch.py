@@ -26,18 +26,18 @@ from __future__ import annotations
 
 import argparse
 import glob
-import io
 import json
 import os
 import subprocess
 import sys
-import tarfile
 import time
 from pathlib import Path
 
 import numpy as np
 
 REPO = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(REPO / "bench"))
+from lidar_common import baseline_tree  # noqa: E402
 
 CHILD = r"""
 import json, resource, shutil, sys, time
@@ -70,16 +70,6 @@ print("RESULT " + json.dumps(dict(seconds=seconds, cpu_seconds=cpu, scratch_byte
                                   peak_rss_mb=resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0,
                                   n_points=stats["n_points"], code=lidarctl.__file__)))
 """
-
-
-def baseline_tree(rev: str, work: Path) -> Path:
-    dst = work / f"baseline_{rev}"
-    if not (dst / "lidarctl").is_dir():
-        data = subprocess.run(["git", "-C", str(REPO), "archive", rev, "lidarctl", "aerotri", "ortho"],
-                              capture_output=True, check=True).stdout
-        dst.mkdir(parents=True, exist_ok=True)
-        tarfile.open(fileobj=io.BytesIO(data)).extractall(dst)
-    return dst
 
 
 def run(src: Path, out: Path, scratch: Path, tile_m: float, buffer_m: float, crs: str, paths) -> dict:

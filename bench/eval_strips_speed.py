@@ -14,16 +14,15 @@ Run: .venv/bin/python bench/eval_strips_speed.py [--baseline-rev 8557c60] [--cop
 from __future__ import annotations
 
 import argparse
-import io
 import json
 import os
 import subprocess
 import sys
-import tarfile
 from pathlib import Path
 
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO / "bench"))
+from lidar_common import baseline_tree  # noqa: E402
 
 CHILD = r"""
 import json, resource, sys, time, logging
@@ -59,16 +58,6 @@ def run(src: Path, what: str, out: Path, paths) -> dict:
     res["log"] = [ln for ln in p.stderr.splitlines() if "strip adjustment" in ln]
     assert Path(res["code"]).resolve().is_relative_to(src.resolve()), res["code"]
     return res
-
-
-def baseline_tree(rev: str, work: Path) -> Path:
-    dst = work / f"baseline_{rev}"
-    if not (dst / "lidarctl").is_dir():
-        data = subprocess.run(["git", "-C", str(REPO), "archive", rev, "lidarctl", "aerotri", "ortho"],
-                              capture_output=True, check=True).stdout
-        dst.mkdir(parents=True, exist_ok=True)
-        tarfile.open(fileobj=io.BytesIO(data)).extractall(dst)
-    return dst
 
 
 def main():

@@ -3,11 +3,13 @@ running a command with its wall/CPU time and the peak RSS of its process tree.""
 
 from __future__ import annotations
 
+import io
 import itertools
 import os
 import resource
 import subprocess
 import sys
+import tarfile
 import threading
 import time
 from pathlib import Path
@@ -121,3 +123,15 @@ def grid_points(grid: dict, default: dict | None = None) -> list[dict]:
     if default is not None and default not in combos:
         combos.append(default)
     return combos
+
+
+def baseline_tree(rev: str, work: Path) -> Path:
+    """The packages (lidarctl, aerotri, ortho) of git revision ``rev``, unpacked once into ``work/baseline_<rev>``:
+    the "before" side of a benchmark run in the same session."""
+    dst = work / f"baseline_{rev}"
+    if not (dst / "lidarctl").is_dir():
+        data = subprocess.run(["git", "-C", str(REPO), "archive", rev, "lidarctl", "aerotri", "ortho"],
+                              capture_output=True, check=True).stdout
+        dst.mkdir(parents=True, exist_ok=True)
+        tarfile.open(fileobj=io.BytesIO(data)).extractall(dst)
+    return dst

@@ -23,18 +23,18 @@ Run: .venv/bin/python bench/rasters_speed.py [--project /work/ref/demo_chain/pro
 from __future__ import annotations
 
 import argparse
-import io
 import json
 import os
 import shutil
 import subprocess
 import sys
-import tarfile
 from pathlib import Path
 
 import numpy as np
 
 REPO = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(REPO / "bench"))
+from lidar_common import baseline_tree  # noqa: E402
 RES_M = 0.5      # the demo's [rasters] res_m
 
 CHILD = r"""
@@ -50,16 +50,6 @@ res = dict(seconds=time.perf_counter() - t1, cpu_seconds=time.process_time() - c
            peak_rss_mb=resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0, code=rasters.__file__)
 print("RESULT " + json.dumps(res))
 """ % RES_M
-
-
-def baseline_tree(rev: str, work: Path) -> Path:
-    dst = work / f"baseline_{rev}"
-    if not (dst / "lidarctl").is_dir():
-        data = subprocess.run(["git", "-C", str(REPO), "archive", rev, "lidarctl", "aerotri", "ortho"],
-                              capture_output=True, check=True).stdout
-        dst.mkdir(parents=True, exist_ok=True)
-        tarfile.open(fileobj=io.BytesIO(data)).extractall(dst)
-    return dst
 
 
 def run(src: Path, out: Path, paths, numba_cache: Path | None = None) -> dict:
