@@ -74,9 +74,29 @@ def _flat(a, b) -> tuple[tuple, np.ndarray, np.ndarray]:
     return a.shape, flat[0], flat[1]
 
 
+# the fold search: normalised radii up to 10 (84 deg off the axis) in steps of 0.0025
+FOLD_SEARCH_MAX_R = 10.0
+FOLD_SEARCH_STEPS = 4000
+
+
 @functools.lru_cache(maxsize=64)
 def _fold_radius(camera: "Camera") -> float | None:
-    return camera.fold_radius()
+    """``Camera.fold_radius``, computed once per camera (a frozen dataclass: cameras equal in every field share it)."""
+    params = camera.kernel_params()
+    r = np.linspace(0.0, FOLD_SEARCH_MAX_R, FOLD_SEARCH_STEPS + 1)[1:]
+    turns = []
+    for cx, cy in ((0.0, 0.0), (camera.width - 1.0, 0.0), (0.0, camera.height - 1.0),
+                   (camera.width - 1.0, camera.height - 1.0)):
+        ux, uy = (cx - camera.cx_px) / camera.focal_px, (cy - camera.cy_px) / camera.focal_px
+        norm = math.hypot(ux, uy)
+        if norm == 0.0:
+            continue
+        xd, yd = lens_kernels.distort_points(params, r * ux / norm, r * uy / norm)
+        outwards = xd * ux + yd * uy  # distorted position along the corner's direction
+        turn = np.flatnonzero(np.diff(outwards) <= 0.0)
+        if turn.size:
+            turns.append(float(r[turn[0]]))
+    return min(turns) if turns else None
 
 
 @dataclasses.dataclass(frozen=True)
@@ -135,28 +155,14 @@ class Camera:
         f = self.focal_px
         return np.array([[f, 0.0, self.cx_px], [0.0, f, self.cy_px], [0.0, 0.0, 1.0]])
 
-    def fold_radius(self, r_max: float = 10.0, steps: int = 4000) -> float | None:
+    def fold_radius(self) -> float | None:
         """The normalised radius (tan of the angle off the optical axis) where the lens model stops growing
-        outwards towards any corner of the frame, None when it grows up to ``r_max`` (84 deg).
+        outwards towards any corner of the frame, None when it grows up to 84 deg off the axis.
 
         Past this radius a polynomial lens model turns back: rays far outside the field of view land
-        inside the frame again (a DJI DewarpData model with k1 = -0.27 folds at 51 deg, just past its frame's
+        inside the frame again (a DJI DewarpData model with k1 = -0.27 folds at 53 deg, just past its frame's
         corners). Anything projecting ground points into the frame must drop rays beyond it."""
-        params = self.kernel_params()
-        r = np.linspace(0.0, r_max, steps + 1)[1:]
-        fold = None
-        for cx, cy in ((0.0, 0.0), (self.width - 1.0, 0.0), (0.0, self.height - 1.0),
-                       (self.width - 1.0, self.height - 1.0)):
-            ux, uy = (cx - self.cx_px) / self.focal_px, (cy - self.cy_px) / self.focal_px
-            norm = math.hypot(ux, uy)
-            if norm == 0.0:
-                continue
-            xd, yd = lens_kernels.distort_points(params, r * ux / norm, r * uy / norm)
-            outwards = xd * ux + yd * uy  # distorted position along the corner's direction
-            turn = np.flatnonzero(np.diff(outwards) <= 0.0)
-            if turn.size:
-                fold = r[turn[0]] if fold is None else min(fold, float(r[turn[0]]))
-        return None if fold is None else float(fold)
+        return _fold_radius(self)
 
     def ideal(self) -> "Camera":
         """The same camera without principal-point offset and distortion (the nominal camera)."""
@@ -255,7 +261,7 @@ class Camera:
         with np.errstate(divide="ignore", invalid="ignore"):
             xn = np.where(depth > 0, d[:, 0] / depth, np.nan)
             yn = np.where(depth > 0, d[:, 1] / depth, np.nan)
-        fold = _fold_radius(self)
+        fold = self.fold_radius()
         if fold is not None:
             with np.errstate(invalid="ignore"):
                 beyond = xn * xn + yn * yn > fold * fold
