@@ -18,7 +18,7 @@ import numpy as np
 import pyproj
 
 from aerotri.core.errors import CrsError
-from aerotri.geom.crs import crs_label, horizontal_crs, linear_unit_m, unit_name
+from aerotri.geom.crs.definition import crs_label, horizontal_crs, linear_unit_m, unit_name
 from aerotri.geom.las import FOOT_M, US_SURVEY_FOOT_M
 
 

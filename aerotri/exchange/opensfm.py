@@ -198,8 +198,8 @@ def ecef_from_topocentric(ref: dict) -> tuple[np.ndarray, np.ndarray]:
 
 
 def _geocentric(ref_crs: str, source: str):
-    from aerotri.geom.crs import parse_crs
-    from aerotri.geom.transform import same_datum_geocentric
+    from aerotri.geom.crs.definition import parse_crs
+    from aerotri.geom.crs.transform import same_datum_geocentric
 
     return same_datum_geocentric(parse_crs(ref_crs, source))
 
@@ -226,8 +226,8 @@ def project_to_topocentric(ref: dict, project: Project, xyz_map, R_photo_map=Non
     """The inverse of :func:`topocentric_to_project` for a WGS84 ``reference_lla``: (topocentric positions,
     computer-vision camera -> topocentric rotations or None)."""
     from aerotri.exchange.poses import rotation_to_project
-    from aerotri.geom.crs import project_crs, project_heights
-    from aerotri.geom.transform import transform_points
+    from aerotri.geom.crs.definition import project_crs, project_heights
+    from aerotri.geom.crs.transform import transform_points
 
     R_et, origin = ecef_from_topocentric(ref)
     geocentric = _geocentric(DEFAULT_CRS, source)
@@ -244,8 +244,8 @@ def project_to_topocentric(ref: dict, project: Project, xyz_map, R_photo_map=Non
 
 def reference_of(project: Project, xyz_map) -> dict:
     """``reference_lla`` (WGS84) of a project-CRS point, through the coordinate-operation policy."""
-    from aerotri.geom.crs import parse_crs, project_crs, project_heights
-    from aerotri.geom.transform import transform_points
+    from aerotri.geom.crs.definition import parse_crs, project_crs, project_heights
+    from aerotri.geom.crs.transform import transform_points
 
     x, y, z = np.asarray(xyz_map, float).reshape(3)
     lon, lat, alt = transform_points(np.array([x]), np.array([y]), np.array([z]), from_crs=project_crs(project),

@@ -1,6 +1,6 @@
 """Rasters through a coordinate operation: anchor-grid mappings and resampling of arrays.
 
-A coordinate operation (``aerotri.geom.transform.CrsTransformer``) is too slow to call per pixel of a
+A coordinate operation (``aerotri.geom.crs.transform.CrsTransformer``) is too slow to call per pixel of a
 large raster, but it is smooth: ``anchor_grid`` evaluates it on nodes every ``spacing_px`` pixels and
 halves the spacing until bilinear interpolation between the nodes reproduces it at the cell centres
 within a tolerance (default 1 mm). ``warp_array`` resamples a source array onto a destination grid
@@ -238,7 +238,7 @@ def open_north_up(path, what: str = "raster", *, no_crs_hint: str = "", square: 
     try:
         check_raster_size(ds, path, what)
         if heights:
-            from aerotri.geom.crs import height_unit_m, parse_crs
+            from aerotri.geom.crs.definition import height_unit_m, parse_crs
 
             check_height_values(ds, path, what, height_unit_m(parse_crs(ds.crs.to_wkt(), f"{path} CRS")))
     except rasterio.errors.RasterioIOError as exc:

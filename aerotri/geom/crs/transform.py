@@ -5,7 +5,7 @@ applied to arrays. It chains
 
 1. a PROJ operation from ``from_crs`` into the parameter set's source CRS (a conversion within one
    datum: unprojecting, changing zone),
-2. the fitted parameter set (``aerotri.geom.datum.Transformation``, from ``aerotri crs fit``): on grid
+2. the fitted parameter set (``aerotri.geom.crs.datum.Transformation``, from ``aerotri crs fit``): on grid
    coordinates for the plane models, on geocentric XYZ for the spatial models,
 3. a PROJ operation from the parameter set's target CRS into ``to_crs``,
 4. optionally the height anomaly model (``aerotri crs fit-heights``): H = h - zeta(x, y).
@@ -39,9 +39,9 @@ import pyproj
 from pyproj.transformer import TransformerGroup
 
 from aerotri.core.errors import CrsError
-from aerotri.geom.crs import crs_label, height_unit_m, horizontal_crs, length_unit_name, linear_unit_m, parse_crs, same_horizontal
-from aerotri.geom.datum import HeightAnomalyModel, Transformation, outside_extent
-from aerotri.geom.ellipsoid import Ellipsoid, geocentric_to_geodetic, geodetic_to_geocentric
+from aerotri.geom.crs.definition import crs_label, height_unit_m, horizontal_crs, length_unit_name, linear_unit_m, parse_crs, same_horizontal
+from aerotri.geom.crs.datum import HeightAnomalyModel, Transformation, outside_extent
+from aerotri.geom.crs.ellipsoid import Ellipsoid, geocentric_to_geodetic, geodetic_to_geocentric
 
 
 class BallparkRefused(CrsError):

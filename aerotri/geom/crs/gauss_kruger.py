@@ -25,7 +25,7 @@ import re
 
 import numpy as np
 
-from aerotri.geom.ellipsoid import Ellipsoid
+from aerotri.geom.crs.ellipsoid import Ellipsoid
 
 
 def _krueger_coefficients(n: float):

@@ -1,8 +1,7 @@
 """Datum parameter sets and height anomaly models: applying them, inverting them, reading their files.
 
-Estimating them from common points is the ``aerotri.crs`` stage (``fit``, ``heights``); applying them
-belongs here because every coordinate operation of the toolkit (``aerotri.geom.transform``) may
-include one.
+Estimating them from common points is ``fit`` and ``heights``; every coordinate operation of the
+toolkit (``transform``) may include one.
 
 Plane models (x = easting, y = northing in metres) and spatial models (X, Y, Z geocentric metres):
 
@@ -30,7 +29,7 @@ import numpy as np
 
 from aerotri.core.errors import ConfigError, InputError
 from aerotri.core.textio import read_json
-from aerotri.geom.ellipsoid import ARCSEC_PER_RAD
+from aerotri.geom.crs.ellipsoid import ARCSEC_PER_RAD
 
 MODELS = ("helmert2d", "affine2d", "bursa-wolf7", "translation3")
 MIN_POINTS = {"helmert2d": 2, "affine2d": 3, "bursa-wolf7": 3, "translation3": 1}

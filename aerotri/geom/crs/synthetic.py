@@ -8,10 +8,10 @@ from __future__ import annotations
 
 import numpy as np
 
-from aerotri.geom.ellipsoid import Ellipsoid, geocentric_to_geodetic, geodetic_to_geocentric
-from aerotri.geom.crs import parse_crs
-from aerotri.geom.datum import Transformation
-from aerotri.geom.transform import _ProjLeg
+from aerotri.geom.crs.ellipsoid import Ellipsoid, geocentric_to_geodetic, geodetic_to_geocentric
+from aerotri.geom.crs.definition import parse_crs
+from aerotri.geom.crs.datum import Transformation
+from aerotri.geom.crs.transform import _ProjLeg
 
 TRUE_BURSA_WOLF7 = {  # WGS 84 -> Xian 1980 style (coordinate frame); invented, realistic size
     "tx_m": -24.3,

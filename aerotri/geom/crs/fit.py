@@ -1,7 +1,7 @@
 """Datum/grid transformation parameters estimated from common points (Gauss-Markov least squares).
 
 The models and their conventions (helmert2d, affine2d, bursa-wolf7, translation3) are defined where
-they are applied, in ``aerotri.geom.datum``.
+they are applied, in ``aerotri.geom.crs.datum``.
 
 Least squares (Gauss-Markov): observations l (target coordinates), v = A x^ - l (residual =
 transformed source minus given target), sigma0^2 = v'Pv / r with redundancy r = n - u, parameter
@@ -18,7 +18,7 @@ import math
 import numpy as np
 
 from aerotri.core.errors import InputError
-from aerotri.geom.datum import (  # noqa: F401  (MODELS, PARAMETER_NAMES: the fit command's choices)
+from aerotri.geom.crs.datum import (  # noqa: F401  (MODELS, PARAMETER_NAMES: the fit command's choices)
     MODELS,
     MIN_POINTS,
     PARAMETER_NAMES,
@@ -26,7 +26,7 @@ from aerotri.geom.datum import (  # noqa: F401  (MODELS, PARAMETER_NAMES: the fi
     _rotation_cf,
     _bursa_wolf,
 )
-from aerotri.geom.ellipsoid import ARCSEC_PER_RAD, enu_rotation
+from aerotri.geom.crs.ellipsoid import ARCSEC_PER_RAD, enu_rotation
 
 # ----------------------------------------------------------------------------------------------
 # Gauss-Markov least squares

@@ -22,7 +22,7 @@ import dataclasses
 import numpy as np
 
 from aerotri.core.errors import InputError
-from aerotri.geom.datum import HEIGHT_MODELS, MIN_HEIGHT_POINTS, _design, HeightAnomalyModel, _tps  # noqa: F401
+from aerotri.geom.crs.datum import HEIGHT_MODELS, MIN_HEIGHT_POINTS, _design, HeightAnomalyModel, _tps  # noqa: F401
 
 @dataclasses.dataclass
 class HeightFitResult:
@@ -59,7 +59,7 @@ class HeightFitResult:
 def fit_height_anomaly(ids, x_m, y_m, h_m, H_m, *, model: str = "plane", smoothing: float = 0.0,
                        crs: str | None = None) -> HeightFitResult:
     """Fit zeta = h - H over the points; see the module docstring for the models."""
-    from aerotri.crs.fit import geometry_warnings
+    from aerotri.geom.crs.fit import geometry_warnings
 
     if model not in HEIGHT_MODELS:
         raise InputError(f"unknown height model {model!r}; choose one of {', '.join(HEIGHT_MODELS)}")
