@@ -8,7 +8,7 @@
   that carries no CRS is read in the project CRS only when that CRS is in metres: in a project in feet
   ``--crs`` must say whether the file is in metres or feet.
 - **Coordinates where the project is**: every imported position must lie in the area of use of the project
-  CRS (``aerotri.geom.crs.check_coordinates``: degrees, swapped axes, a far zone); and, where the project
+  CRS (``aerotri.geom.crs.definition.check_coordinates``: degrees, swapped axes, a far zone); and, where the project
   already has positions (gnss.txt, imported/eo.txt, at/eo.txt, control/points.csv that this import does not
   replace, else the GNSS tags of a few frames in images/), within ``max(50 km, 2 x their extent)`` of them:
   UTM coordinates of a neighbouring zone read in the project's zone land 200-700 km away (6 degrees of

@@ -45,6 +45,7 @@ from aerotri.core.project import Project
 from aerotri.core.textio import read_json
 from aerotri.exchange.imported import ImportedBlock, ImportSettings, positions_as_gnss, to_project_crs
 from aerotri.geom.camera import BrownCamera, Camera
+from aerotri.geom.crs.ellipsoid import enu_rotation
 from aerotri.geom.eo import ExteriorOrientations, GnssPositions
 from aerotri.geom.rotation import FLIP_YZ, opk_from_matrix
 
@@ -191,9 +192,7 @@ def ecef_from_lla(lat_deg, lon_deg, alt_m) -> np.ndarray:
 
 def ecef_from_topocentric(ref: dict) -> tuple[np.ndarray, np.ndarray]:
     """(R_et (3, 3), origin (3,)): ``X_ecef = R_et X_topo + origin`` (OpenSfM's ``geo.ecef_from_topocentric_transform``)."""
-    sa, ca = np.sin(np.radians(ref["latitude"])), np.cos(np.radians(ref["latitude"]))
-    so, co = np.sin(np.radians(ref["longitude"])), np.cos(np.radians(ref["longitude"]))
-    R = np.array([[-so, -sa * co, ca * co], [co, -sa * so, ca * so], [0.0, ca, sa]])
+    R = enu_rotation(ref["latitude"], ref["longitude"]).T  # columns: the east, north, up axes
     return R, ecef_from_lla(ref["latitude"], ref["longitude"], ref["altitude"])
 
 

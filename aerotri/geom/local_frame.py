@@ -20,7 +20,7 @@ import numba
 import numpy as np
 
 from aerotri.geom.crs.definition import horizontal_crs, parse_crs
-from aerotri.geom.crs.ellipsoid import Ellipsoid, geocentric_to_geodetic
+from aerotri.geom.crs.ellipsoid import Ellipsoid, enu_rotation, geocentric_to_geodetic
 from aerotri.geom.crs.transform import CrsTransformer, same_datum_geocentric
 
 
@@ -40,10 +40,7 @@ class LocalFrame:
         self._from_ecef = self._to_ecef.inverse()
         self.ecef0 = np.concatenate(self._to_ecef.transform(*self.origin_map[:, None]))
         lat, lon, _ = geocentric_to_geodetic(*self.ecef0, Ellipsoid.from_crs(self.crs))
-        lam, phi = np.radians(lon), np.radians(lat)
-        sl, cl, sp, cp = np.sin(lam), np.cos(lam), np.sin(phi), np.cos(phi)
-        # rows: east, north, up in ECEF
-        self.R = np.array([[-sl, cl, 0.0], [-sp * cl, -sp * sl, cp], [cp * cl, cp * sl, sp]])
+        self.R = enu_rotation(lat, lon)  # rows: east, north, up in ECEF
 
     @classmethod
     def at_centre(cls, crs, points_map) -> "LocalFrame":

@@ -104,12 +104,17 @@ def warp_array(src: np.ndarray, src_valid: np.ndarray, src_x_left: float, src_y_
     inside = cv2.remap(1 - invalid, map_x, map_y, cv2.INTER_NEAREST, borderMode=cv2.BORDER_CONSTANT,
                        borderValue=0).astype(bool)
     inside &= (map_x >= -0.5) & (map_y >= -0.5) & (map_x <= src.shape[1] - 0.5) & (map_y <= src.shape[0] - 0.5)
-    return dst.astype(src.dtype, copy=False) if src.dtype.kind == "f" else _cast(dst, src.dtype), inside
+    return cast_to_dtype(dst, src.dtype), inside
 
 
-def _cast(a: np.ndarray, dtype) -> np.ndarray:
-    info = np.iinfo(dtype)
-    return np.clip(np.rint(a), info.min, info.max).astype(dtype)
+def cast_to_dtype(a: np.ndarray, dtype) -> np.ndarray:
+    """Resampled values in a raster's ``dtype``: floats as they are (no copy when ``a`` has it already),
+    integers rounded half to even and clipped to the type's range (no wrap-around)."""
+    dt = np.dtype(dtype)
+    if dt.kind == "f":
+        return a.astype(dt, copy=False)
+    info = np.iinfo(dt)
+    return np.clip(np.rint(a), info.min, info.max).astype(dt)
 
 
 def height_change(operation, x, y, z_lo: float, z_hi: float):

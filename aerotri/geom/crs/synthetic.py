@@ -47,9 +47,8 @@ def simulate_spatial(truth: dict, from_epsg, to_epsg, *, lon_deg, lat_deg, h_m, 
     noise = rng.normal(0.0, noise_m, dst_true.shape) if noise_m > 0 else np.zeros_like(dst_true)
     if dst_crs.is_geographic:  # metres of noise -> degrees with the radii of curvature M and N
         ell = Ellipsoid.from_crs(dst_crs)
-        w2 = 1.0 - ell.e2 * np.sin(np.radians(lat_t)) ** 2
-        M = ell.a_m * (1.0 - ell.e2) / w2**1.5
-        N = ell.a_m / np.sqrt(w2)
+        M = ell.meridian_radius_m(np.radians(lat_t))
+        N = ell.prime_vertical_radius_m(np.radians(lat_t))
         noise[:, 0] = np.degrees(noise[:, 0] / (N * np.cos(np.radians(lat_t))))
         noise[:, 1] = np.degrees(noise[:, 1] / M)
     return np.column_stack([sx, sy, sz]), dst_true + noise, dst_true
