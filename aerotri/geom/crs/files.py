@@ -35,7 +35,7 @@ from aerotri.geom.crs.ellipsoid import Ellipsoid, geocentric_to_geodetic, geodet
 from aerotri.geom.crs.definition import check_coordinates, crs_label, horizontal_crs, linear_unit_m, parse_crs, same_crs, unit_name
 from aerotri.geom.crs.fit import fit_plane, fit_spatial
 from aerotri.geom.crs.datum import SPATIAL, load_height_model, load_transformation
-from aerotri.geom.crs.transform import CrsTransformer, ProjLeg, z_unit_m
+from aerotri.geom.crs.transform import CrsTransformer, to_own_geodetic, z_unit_m
 from aerotri.core.errors import InputError, OptionError
 from aerotri.core.log import track_chunks
 from aerotri.core.atomic import atomic_path, write_text_atomic
@@ -197,8 +197,7 @@ def geocentric_of(crs_obj, x, y, z):
         XYZ = np.column_stack([x, y, z])
         lat, lon, _ = geocentric_to_geodetic(x, y, z, Ellipsoid.from_crs(crs_obj))
         return XYZ, np.column_stack([lat, lon])
-    leg = ProjLeg(crs_obj, crs_obj.geodetic_crs, allow_ballpark=False)
-    lon, lat, h = leg(np.asarray(x, float), np.asarray(y, float), np.asarray(z, float))
+    lon, lat, h = to_own_geodetic(crs_obj, np.asarray(x, float), np.asarray(y, float), np.asarray(z, float))
     XYZ = np.column_stack(geodetic_to_geocentric(lat, lon, h, Ellipsoid.from_crs(crs_obj)))
     return XYZ, np.column_stack([lat, lon])
 

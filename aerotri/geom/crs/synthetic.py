@@ -11,7 +11,7 @@ import numpy as np
 from aerotri.geom.crs.ellipsoid import Ellipsoid, geocentric_to_geodetic, geodetic_to_geocentric
 from aerotri.geom.crs.definition import parse_crs
 from aerotri.geom.crs.datum import Transformation
-from aerotri.geom.crs.transform import ProjLeg
+from aerotri.geom.crs.transform import from_own_geodetic
 
 TRUE_BURSA_WOLF7 = {  # WGS 84 -> Xian 1980 style (coordinate frame); invented, realistic size
     "tx_m": -24.3,
@@ -34,14 +34,12 @@ def simulate_spatial(truth: dict, from_epsg, to_epsg, *, lon_deg, lat_deg, h_m, 
     the noise is in metres on the ground whatever the units."""
     src_crs, dst_crs = parse_crs(from_epsg), parse_crs(to_epsg)
     lon, lat, h = (np.asarray(a, dtype=float) for a in (lon_deg, lat_deg, h_m))
-    to_src = ProjLeg(src_crs.geodetic_crs, src_crs, allow_ballpark=False)
-    sx, sy, sz = to_src(lon, lat, h)
+    sx, sy, sz = from_own_geodetic(src_crs, lon, lat, h)
     XYZ = np.column_stack(geodetic_to_geocentric(lat, lon, h, Ellipsoid.from_crs(src_crs)))
     T = Transformation(model, dict(truth), str(from_epsg), str(to_epsg))
     XYZ_t = T.apply(XYZ)
     lat_t, lon_t, h_t = geocentric_to_geodetic(*XYZ_t.T, Ellipsoid.from_crs(dst_crs))
-    to_dst = ProjLeg(dst_crs.geodetic_crs, dst_crs, allow_ballpark=False)
-    dx, dy, dz = to_dst(lon_t, lat_t, h_t)
+    dx, dy, dz = from_own_geodetic(dst_crs, lon_t, lat_t, h_t)
     dst_true = np.column_stack([dx, dy, dz])
     rng = np.random.default_rng(seed)
     noise = rng.normal(0.0, noise_m, dst_true.shape) if noise_m > 0 else np.zeros_like(dst_true)

@@ -97,7 +97,7 @@ def _group(s3_wkt: str, d3_wkt: str):
                                 allow_ballpark=False)
 
 
-class ProjLeg:
+class _ProjLeg:
     """One PROJ operation between two CRSs, z converted to metres around it."""
 
     def __init__(self, src: pyproj.CRS, dst: pyproj.CRS, allow_ballpark: bool, purpose: str = ""):
@@ -206,7 +206,7 @@ class CrsTransformer:
         self.n_points = 0
         legs = []
         if params is None:
-            legs.append(ProjLeg(self.src, self.dst, allow_ballpark))
+            legs.append(_ProjLeg(self.src, self.dst, allow_ballpark))
         else:
             p_from = parse_crs(params.from_crs, "parameter file from_crs")
             p_to = parse_crs(params.to_crs, "parameter file to_crs")
@@ -222,21 +222,21 @@ class CrsTransformer:
                 self._ell_to = Ellipsoid.from_crs(p_to)
                 self._geo_from = p_from if p_from.is_geocentric else p_from.geodetic_crs
                 self._geo_to = p_to if p_to.is_geocentric else p_to.geodetic_crs
-                self._pre_plane = ProjLeg(self.src, p_from, allow_ballpark, why) if not p_from.is_geocentric else None
-                legs.append(ProjLeg(self.src, self._geo_from, allow_ballpark, why))
-                legs.append(ProjLeg(self._geo_to, self.dst, allow_ballpark, " (from the parameter set's target)"))
+                self._pre_plane = _ProjLeg(self.src, p_from, allow_ballpark, why) if not p_from.is_geocentric else None
+                legs.append(_ProjLeg(self.src, self._geo_from, allow_ballpark, why))
+                legs.append(_ProjLeg(self._geo_to, self.dst, allow_ballpark, " (from the parameter set's target)"))
             else:
                 for c, role in ((p_from, "from_crs"), (p_to, "to_crs")):
                     if not horizontal_crs(c).is_projected or abs(linear_unit_m(c) - 1.0) > 1e-12:
                         raise CrsError(f"parameter file {role} {crs_label(c)}: plane models need a metre grid")
-                legs.append(ProjLeg(self.src, p_from, allow_ballpark, why))
-                legs.append(ProjLeg(p_to, self.dst, allow_ballpark, " (from the parameter set's target)"))
+                legs.append(_ProjLeg(self.src, p_from, allow_ballpark, why))
+                legs.append(_ProjLeg(p_to, self.dst, allow_ballpark, " (from the parameter set's target)"))
         self._legs = legs
         self._height_leg = None
         if heights is not None and heights.crs:
             hcrs = parse_crs(heights.crs, "height model crs")
             if hcrs != self.dst and hcrs != self.src:
-                self._height_leg = ProjLeg(self.dst, hcrs, allow_ballpark=False, purpose=" (height model)")
+                self._height_leg = _ProjLeg(self.dst, hcrs, allow_ballpark=False, purpose=" (height model)")
             self._heights_crs = hcrs
         else:
             self._heights_crs = self.dst
@@ -350,6 +350,17 @@ class CrsTransformer:
 def transform_points(x, y, z=None, *, from_crs, to_crs, params=None, heights=None, allow_ballpark=False):
     """One-shot convenience: ``CrsTransformer(...).transform(x, y, z)``."""
     return CrsTransformer(from_crs, to_crs, params, heights, allow_ballpark).transform(x, y, z)
+
+
+def to_own_geodetic(crs: pyproj.CRS, x, y, z):
+    """(lon_deg, lat_deg, h) of coordinates in ``crs`` on its own geodetic CRS: a conversion, never a datum shift
+    (h in metres; z in the height unit of ``crs``, see the module docstring)."""
+    return _ProjLeg(crs, crs.geodetic_crs, allow_ballpark=False)(x, y, z)
+
+
+def from_own_geodetic(crs: pyproj.CRS, lon_deg, lat_deg, h_m):
+    """Coordinates in ``crs`` of points given on its own geodetic CRS (the inverse of ``to_own_geodetic``)."""
+    return _ProjLeg(crs.geodetic_crs, crs, allow_ballpark=False)(lon_deg, lat_deg, h_m)
 
 
 def same_datum_geocentric(crs: pyproj.CRS) -> pyproj.CRS:
