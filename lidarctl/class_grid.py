@@ -163,7 +163,7 @@ def read_class_raster(path, crs=None) -> tuple[np.ndarray, ClassGrid]:
     -> IGNORE). ``crs`` for a raster without one."""
     import rasterio
 
-    from aerotri.geom.crs import parse_crs
+    from aerotri.geom.crs.definition import parse_crs
 
     try:
         src = rasterio.open(path)
@@ -290,7 +290,7 @@ def rasterize_mask(geometries: list, grid: ClassGrid) -> np.ndarray:
 
 def common_crs(a: pyproj.CRS | None, a_name, b: pyproj.CRS | None, b_name) -> pyproj.CRS | None:
     """The CRS two inputs share (one without a CRS takes the other's); CrsError when they differ."""
-    from aerotri.geom.crs import crs_label, same_horizontal
+    from aerotri.geom.crs.definition import crs_label, same_horizontal
 
     if a is None or b is None:
         return a if b is None else b

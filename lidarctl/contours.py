@@ -370,7 +370,7 @@ def contours_from_file(dem_path, out_path, *, interval: float, index_every: int 
     """Trace (and smooth) the contours of a DEM GeoTIFF into a GeoPackage/GeoJSON (+ a PNG preview beside it);
     ``interval`` in the DEM's height unit (its CRS's: feet for a DEM in feet). Returns the summary (counts,
     fall-backs, crossings, the interval and its unit)."""
-    from aerotri.geom.crs import length_unit_name, unit_name
+    from aerotri.geom.crs.definition import length_unit_name, unit_name
     from lidarctl.dem_io import open_dem
 
     if not (np.isfinite(interval) and interval > 0):

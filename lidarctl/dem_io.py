@@ -8,12 +8,12 @@ from pathlib import Path
 
 def open_dem(in_path, out_path=None):
     """(open rasterio dataset, metres per height unit) of a north-up DEM with a CRS, one band of finite,
-    plausible heights with at least one valid cell and at least 2 x 2 cells (``aerotri.geom.raster_warp.
+    plausible heights with at least one valid cell and at least 2 x 2 cells (``aerotri.geom.crs.raster_warp.
     open_north_up``); refuses ``out_path`` equal to the input (``OptionError`` naming OUT; None: a check that
     writes no raster) and anything else with an ``InputError`` naming the file. The caller closes the dataset."""
     from aerotri.core.atomic import refuse_input_as_output
-    from aerotri.geom.crs import height_unit_m
-    from aerotri.geom.raster_warp import open_north_up
+    from aerotri.geom.crs.definition import height_unit_m
+    from aerotri.geom.crs.raster_warp import open_north_up
 
     in_path = Path(in_path)
     if out_path is not None:

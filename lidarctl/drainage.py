@@ -600,7 +600,7 @@ def drainage(dem_path, outdir, min_area_m2: float | None = None, method: str = "
     import json
 
     from aerotri.core.atomic import atomic_dir
-    from aerotri.geom.crs import height_unit_m, linear_unit_m, unit_long_name
+    from aerotri.geom.crs.definition import height_unit_m, linear_unit_m, unit_long_name
     from lidarctl.dem_io import open_dem
 
     if method not in METHODS:

@@ -110,7 +110,7 @@ def open_image(path, nir=None, cloud_crs=None, xy_m: float = 1.0) -> ImageSource
     1, same grid), or None. Errors name the file or the option."""
     import rasterio
 
-    from aerotri.geom.crs import crs_label, same_horizontal
+    from aerotri.geom.crs.definition import crs_label, same_horizontal
 
     def opened(p, option):
         try:

@@ -389,7 +389,7 @@ def _height_check_document(cloud_paths, points_csv, *, radius_m, exclude_m, crs,
         z_dem, dem_crs, dem_z_m = dem_heights(dem_path, points.x, points.y)
         if cloud is not None and crs_found is not None:
             from aerotri.core.errors import CrsError
-            from aerotri.geom.crs import same_horizontal
+            from aerotri.geom.crs.definition import same_horizontal
 
             if not same_horizontal(dem_crs, crs_found):
                 raise CrsError(f"{dem_path}: the DEM's CRS ({dem_crs}) is not the cloud's ({crs_found.name}); "

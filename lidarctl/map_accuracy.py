@@ -270,7 +270,7 @@ def evaluate_map(pred_paths, ref_path, params: MapEvalSettings = MapEvalSettings
 
 def _within_mask(within: str, polys, grid, ref_path) -> np.ndarray:
     """The evaluation area of ``MapEvalSettings.within`` on ``grid``."""
-    from aerotri.geom.crs import same_horizontal
+    from aerotri.geom.crs.definition import same_horizontal
 
     if within == "hull":
         if polys is None:

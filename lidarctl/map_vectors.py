@@ -464,7 +464,7 @@ def _same_crs(path: Path, crs_wkt, cloud_crs) -> None:
     """CrsError naming ``path`` when its CRS differs from the cloud's (never a silent transform)."""
     import pyproj
 
-    from aerotri.geom.crs import crs_label, same_horizontal
+    from aerotri.geom.crs.definition import crs_label, same_horizontal
 
     if cloud_crs is None or not crs_wkt:
         return

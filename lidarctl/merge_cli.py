@@ -18,7 +18,7 @@ from aerotri.core.commands import Command
 def merge(strips, out_path, crs):
     """Merge the LiDAR STRIPS into OUT_PATH, every point and dimension kept (point_source_id tells the
     strips apart)."""
-    from aerotri.geom.crs import parse_crs
+    from aerotri.geom.crs.definition import parse_crs
     from lidarctl.merge import merge_las
 
     n = merge_las(strips, out_path, crs=parse_crs(crs, "--crs") if crs else None)

@@ -247,7 +247,7 @@ def check_plan(corners: list[dict], points_m: SurveyedPoints, params: PlanCheckS
 def _cloud_extent(paths, crs, points_crs):
     """(CRS, units, (xmin, ymin, xmax, ymax) in the CRS's units) of the clouds from their headers; the
     strips must share one CRS, ``points_crs`` (the CSV's, when given) must be theirs."""
-    from aerotri.geom.crs import crs_label, same_horizontal
+    from aerotri.geom.crs.definition import crs_label, same_horizontal
     from lidarctl import io
 
     first, box = None, [np.inf, np.inf, -np.inf, -np.inf]
@@ -256,7 +256,7 @@ def _cloud_extent(paths, crs, points_crs):
         box = [min(box[0], header.mins[0]), min(box[1], header.mins[1]), max(box[2], header.maxs[0]),
                max(box[3], header.maxs[1])]
     if points_crs is not None:
-        from aerotri.geom.crs import parse_crs
+        from aerotri.geom.crs.definition import parse_crs
 
         pc = parse_crs(points_crs, "--points-crs")
         if not same_horizontal(pc, first[1]):

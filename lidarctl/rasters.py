@@ -43,7 +43,8 @@ from lidarctl.grid import check_disk, check_grid
 from lidarctl.io import PointCloud
 from lidarctl.raster_cells import CellStats
 from lidarctl.raster_ops import DEFAULT_TIN_FILL_RADIUS_PX, fill_nodata, fill_nodata_tin
-from lidarctl.units import METRE, LengthUnits, long_name
+from aerotri.geom.crs.definition import length_unit_name
+from lidarctl.units import METRE, LengthUnits
 
 log = logging.getLogger(__name__)
 
@@ -682,16 +683,17 @@ RASTERS = ("dem", "dsm", "ndsm", "chm", "intensity")
 
 
 def _tags(units: LengthUnits, res_m: float) -> dict:
-    return {"LINEAR_UNITS": long_name(units.xy_m), "VERTICAL_UNITS": long_name(units.z_m),
+    return {"LINEAR_UNITS": length_unit_name(units.xy_m, long=True),
+            "VERTICAL_UNITS": length_unit_name(units.z_m, long=True),
             "CELL_SIZE_M": f"{res_m:g}", "CELL_SIZE": f"{res_m / units.xy_m:.10g} {units.xy_name}"}
 
 
 def _unit(name: str, units: LengthUnits) -> str | None:
-    return long_name(units.z_m) if name in HEIGHT_GRIDS else None
+    return length_unit_name(units.z_m, long=True) if name in HEIGHT_GRIDS else None
 
 
 def _description(name: str, units: LengthUnits) -> str:
-    return DESCRIPTIONS[name] + (f" ({long_name(units.z_m)})" if name in HEIGHT_GRIDS else "")
+    return DESCRIPTIONS[name] + (f" ({length_unit_name(units.z_m, long=True)})" if name in HEIGHT_GRIDS else "")
 
 
 def _write_set(outdir, write, files=FILES, name: str = "rasters") -> list[Path]:

@@ -69,7 +69,7 @@ from aerotri.core.atomic import atomic_dir, atomic_path, refuse_input_as_output,
 from aerotri.core.errors import InputError, OptionError, ResourceError
 from aerotri.core.executor import local_executor
 from aerotri.core.log import progress
-from aerotri.geom.crs import parse_crs
+from aerotri.geom.crs.definition import parse_crs
 from lidarctl.units import METRE, LengthUnits
 
 logger = logging.getLogger(__name__)

@@ -494,7 +494,7 @@ def trees_from_files(in_paths, outdir, settings: TreeSettings | None = None, crs
 
     from aerotri.core.atomic import refuse_input_as_output
     from lidarctl import rasters as rs
-    from lidarctl.units import long_name
+    from aerotri.geom.crs.definition import length_unit_name
 
     s = settings or TreeSettings()
     s.validate()
@@ -514,12 +514,13 @@ def trees_from_files(in_paths, outdir, settings: TreeSettings | None = None, crs
     result.update(inputs=[str(p) for p in paths], crs=crs_found.to_string() if crs_found else None, **units.as_dict())
     g = model.grid
     transform = from_origin(g.x0 / units.xy_m, g.y_top / units.xy_m, g.res_m / units.xy_m, g.res_m / units.xy_m)
-    tags = {"LINEAR_UNITS": long_name(units.xy_m), "VERTICAL_UNITS": long_name(units.z_m), "CELL_SIZE_M": f"{g.res_m:g}",
+    z_unit = length_unit_name(units.z_m, long=True)
+    tags = {"LINEAR_UNITS": length_unit_name(units.xy_m, long=True), "VERTICAL_UNITS": z_unit, "CELL_SIZE_M": f"{g.res_m:g}",
             "MAX_EDGE_M": f"{s.max_edge_m:g}", "MIN_HEIGHT_M": f"{s.min_height_m:g}"}
 
     def write(tmp: Path) -> None:
         rs.write_cog(tmp / "chm.tif", (model.chm / units.z_m).astype(np.float32), transform, crs_found,
-                     unit=long_name(units.z_m), description=f"CHM: tree height above the DEM ({long_name(units.z_m)}); "
+                     unit=z_unit, description=f"CHM: tree height above the DEM ({z_unit}); "
                      f"TIN, edges <= {s.max_edge_m:g} m, >= {s.min_height_m:g} m", tags=tags)
         write_gpkg(model, tmp / "trees.gpkg", crs_found.to_wkt(), units)
         area = result["forest_area_m2"]

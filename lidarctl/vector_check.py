@@ -220,7 +220,7 @@ def check_vectors(product_path, reference_path, params: VectorCheckSettings = Ve
     record, the JSON document and the buildings' corner offsets. Raises InputError / CrsError / OptionError
     naming the file or option."""
     from aerotri.core.tolerances import TERRAINS, load_tolerances
-    from aerotri.geom.crs import crs_label, same_horizontal
+    from aerotri.geom.crs.definition import crs_label, same_horizontal
 
     for name in ("match_m", "buffer_m"):
         v = getattr(params, name)

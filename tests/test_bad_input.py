@@ -111,7 +111,7 @@ def build_workspace(tiny_project: Path, w: Path) -> Path:
 
 
 def _lidar_files(d: Path) -> None:
-    from aerotri.crs.synthetic import TRUE_BURSA_WOLF7, simulate_spatial, write_common_points
+    from aerotri.geom.crs.synthetic import TRUE_BURSA_WOLF7, simulate_spatial, write_common_points
     from lidarctl import synthetic
 
     d.mkdir(parents=True)

@@ -232,7 +232,7 @@ def build_workspace(tiny_project: Path, w: Path) -> None:
     pz = synthetic.terrain_height(px - 500000.0, py - 5400000.0)
     (las / "points.csv").write_text("id,x,y,z\n" + "".join(f"P{k},{a:.3f},{b:.3f},{c:.3f}\n"
                                                             for k, (a, b, c) in enumerate(zip(px, py, pz))))
-    from aerotri.crs.synthetic import TRUE_BURSA_WOLF7, simulate_spatial, write_common_points
+    from aerotri.geom.crs.synthetic import TRUE_BURSA_WOLF7, simulate_spatial, write_common_points
 
     lon, lat, h = rng.uniform(109.6, 110.2, 8), rng.uniform(34.0, 34.5, 8), rng.uniform(400, 900, 8)
     src, dst, _ = simulate_spatial(TRUE_BURSA_WOLF7, 32649, 2361, lon_deg=lon, lat_deg=lat, h_m=h, noise_m=0.01, seed=2)

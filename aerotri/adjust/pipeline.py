@@ -25,7 +25,7 @@ from aerotri.adjust.approximate import (
     refine_orientations,
 )
 from aerotri.geom.local_frame import LocalFrame
-from aerotri.geom.crs import height_unit_m, horizontal_crs, linear_unit_m, project_crs, project_heights
+from aerotri.geom.crs.definition import height_unit_m, horizontal_crs, linear_unit_m, project_crs, project_heights
 from aerotri.adjust.surface import SurfaceControl, read_height_grid, read_roof_planes
 from aerotri.geom.observations import (
     ControlPoints,
@@ -199,7 +199,7 @@ def _refuse_check_and_control(st: AdjustSettings) -> None:
 def _check_control_near_block(control: ControlPoints, positions_map, path, block_path, crs) -> None:
     """Control and check points where a frame of the block can see them (``aerotri.geom.inputs.check_near_block``):
     points of another zone or place are refused by their record, not adjusted into "Solution Successful"."""
-    from aerotri.geom.crs import linear_unit_m
+    from aerotri.geom.crs.definition import linear_unit_m
     from aerotri.geom.inputs import check_near_block
 
     if len(control):
@@ -495,7 +495,7 @@ def _surface_control(project: Project, st: AdjustSettings, frame: LocalFrame, po
                          f"{bounds[1]:.0f}..{bounds[3]:.0f} in the project CRS)")
     ndsm = read_height_grid(st.ndsm, crs, None, "nDSM", bounds) if st.ndsm is not None else None
     planes = read_roof_planes(st.planes, crs, heights, st.plane_sigma_m) if st.planes is not None and not check else None
-    # the frame's map heights are in the horizontal CRS's height unit (geom.transform's convention)
+    # the frame's map heights are in the horizontal CRS's height unit (geom.crs.transform's convention)
     units = (linear_unit_m(crs), height_unit_m(horizontal_crs(crs)))
     return SurfaceControl(dem, frame, sigma_m=float(st.surface_sigma_m), ndsm=ndsm, max_ndsm_m=float(st.max_ndsm_m),
                           planes=planes, map_unit_m=units)

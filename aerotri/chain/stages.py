@@ -190,7 +190,7 @@ class Chain:
         # (a wrong one would otherwise stop the chain at the orthophotos, after the adjustment)
         given = self.options.rectify.dem
         if given is not None:
-            from aerotri.geom.crs import project_crs
+            from aerotri.geom.crs.definition import project_crs
             from ortho.dem import open_height_raster
 
             with open_height_raster(given, project_crs(self.project)) as ds:
@@ -203,7 +203,7 @@ class Chain:
 
     def _check_stage_inputs(self) -> None:
         """(``check_files``) the project's own inputs of the stages, each with its stage's reader."""
-        from aerotri.geom.crs import project_crs
+        from aerotri.geom.crs.definition import project_crs
         from aerotri.geom.eo import read_eo
         from aerotri.geom.observations import read_control_points, read_image_points
         from aerotri.match.pipeline import check_inputs as check_match_inputs
@@ -233,7 +233,7 @@ class Chain:
                 with open_height_raster(path, project_crs(p), what) as ds:
                     _read_ends(ds, path, what)
         if self.reference_ortho is not None:
-            from aerotri.geom.raster_warp import open_north_up
+            from aerotri.geom.crs.raster_warp import open_north_up
 
             _check_raster(self.reference_ortho, "reference orthophoto")
             open_north_up(self.reference_ortho, "reference orthophoto").close()  # georeferenced, with a CRS

@@ -89,7 +89,7 @@ def read_corners(path, crs=None) -> LidarCorners:
         raise InputError(f"{path}: no corners")
     a = np.array(num, dtype=float)
     if crs is not None:
-        from aerotri.geom.crs import check_coordinates
+        from aerotri.geom.crs.definition import check_coordinates
 
         check_coordinates(crs, a[:, 0], a[:, 1], str(path), [f"line {seen[i]} (corner {i})" for i in ids])
     return LidarCorners(

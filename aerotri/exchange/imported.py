@@ -104,8 +104,8 @@ class WrittenFile:
 def to_project_crs(xyz_m, from_crs, project: Project, source: str) -> np.ndarray:
     """(N, 3) coordinates of ``from_crs`` in the project CRS (and height system), through the toolkit's
     coordinate-operation policy (no silent ballpark transform)."""
-    from aerotri.geom.crs import parse_crs, project_crs, project_heights, same_crs
-    from aerotri.geom.transform import transform_points
+    from aerotri.geom.crs.definition import parse_crs, project_crs, project_heights, same_crs
+    from aerotri.geom.crs.transform import transform_points
 
     xyz = np.asarray(xyz_m, float).reshape(-1, 3)
     src = parse_crs(from_crs, source)

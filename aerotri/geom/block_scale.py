@@ -57,7 +57,7 @@ def project_block_scale(project, ground_heights=None, ground_source: str = "the 
     of the ground in the CRS's height unit (e.g. the adjustment's tie points) when there is neither a DEM nor
     a mean terrain height. A ``BlockScale`` without GSD says what was missing."""
     from aerotri.geom.camera import adjusted_camera
-    from aerotri.geom.crs import height_unit_m, project_crs
+    from aerotri.geom.crs.definition import height_unit_m, project_crs
     from aerotri.geom.eo import read_eo, read_gnss
 
     if not project.camera_path.is_file():

@@ -17,7 +17,7 @@ from shapely.geometry import box
 
 from lidarctl import vector_check as vc
 from lidarctl.cli import main
-from lidarctl.units import FOOT_M
+from aerotri.geom.las import FOOT_M
 
 X0, Y0 = 500000.0, 5400000.0
 M_CRS, FT_CRS = "EPSG:32632", "EPSG:2994"

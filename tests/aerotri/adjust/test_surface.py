@@ -352,7 +352,7 @@ def test_a_dem_larger_than_the_memory_budget_is_read_averaged(tmp_path, monkeypa
     from rasterio.transform import from_origin
 
     from aerotri.adjust import surface
-    from aerotri.geom.crs import parse_crs
+    from aerotri.geom.crs.definition import parse_crs
 
     z = (np.arange(300)[:, None] * 0.1 + np.arange(200)[None, :] * 0.05).astype(np.float32)  # a plane
     path = tmp_path / "dem.tif"

@@ -4,13 +4,13 @@ import numpy as np
 import pyproj
 import pytest
 
-from aerotri.geom.crs import parse_crs
-from aerotri.crs.files import fit_common_points
-from aerotri.geom.datum import Transformation, outside_extent
-from aerotri.crs.gauss_kruger import GaussKruger
-from aerotri.crs.heights import fit_height_anomaly
-from aerotri.crs.synthetic import TRUE_BURSA_WOLF7, simulate_spatial, write_common_points
-from aerotri.geom.transform import BallparkRefused, CrsTransformer, transform_points
+from aerotri.geom.crs.definition import parse_crs
+from aerotri.geom.crs.files import fit_common_points
+from aerotri.geom.crs.datum import Transformation, outside_extent
+from aerotri.geom.crs.gauss_kruger import GaussKruger
+from aerotri.geom.crs.heights import fit_height_anomaly
+from aerotri.geom.crs.synthetic import TRUE_BURSA_WOLF7, simulate_spatial, write_common_points
+from aerotri.geom.crs.transform import BallparkRefused, CrsTransformer, transform_points
 from aerotri.core.errors import InputError
 
 
@@ -126,7 +126,7 @@ def test_crs_label_describes_an_unnamed_crs():
     """A CRS written as a PROJ string (the NGI data's "Lo25"), or its WKT, is labelled by its projection,
     parameters and datum in messages and the ortho summary, not by PROJ's "unknown"; EPSG codes and named
     CRSs keep their labels."""
-    from aerotri.geom.crs import crs_label, parse_crs
+    from aerotri.geom.crs.definition import crs_label, parse_crs
 
     lo25 = "+proj=tmerc +lat_0=0 +lon_0=25 +k=1 +x_0=0 +y_0=0 +datum=WGS84 +units=m +no_defs +type=crs"
     want = "Transverse Mercator (Longitude of natural origin 25, Scale factor at natural origin 1), World Geodetic System 1984"

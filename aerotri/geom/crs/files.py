@@ -31,18 +31,11 @@ from pathlib import Path
 import numpy as np
 
 from aerotri.geom import las
-from aerotri.geom.ellipsoid import Ellipsoid, geocentric_to_geodetic, geodetic_to_geocentric
-from aerotri.geom.crs import check_coordinates, crs_label, horizontal_crs, linear_unit_m, parse_crs, same_crs, unit_name
-from aerotri.crs.fit import fit_plane, fit_spatial
-from aerotri.geom.datum import (  # noqa: F401  (load_*: the crs command's readers)
-    SPATIAL,
-    HeightAnomalyModel,
-    Transformation,
-    load_height_model,
-    load_json,
-    load_transformation,
-)
-from aerotri.geom.transform import CrsTransformer, _ProjLeg, z_unit_m
+from aerotri.geom.crs.ellipsoid import Ellipsoid, geocentric_to_geodetic, geodetic_to_geocentric
+from aerotri.geom.crs.definition import check_coordinates, crs_label, horizontal_crs, linear_unit_m, parse_crs, same_crs, unit_name
+from aerotri.geom.crs.fit import fit_plane, fit_spatial
+from aerotri.geom.crs.datum import SPATIAL, load_height_model, load_transformation
+from aerotri.geom.crs.transform import CrsTransformer, to_own_geodetic, z_unit_m
 from aerotri.core.errors import InputError, OptionError
 from aerotri.core.log import track_chunks
 from aerotri.core.atomic import atomic_path, write_text_atomic
@@ -204,8 +197,7 @@ def geocentric_of(crs_obj, x, y, z):
         XYZ = np.column_stack([x, y, z])
         lat, lon, _ = geocentric_to_geodetic(x, y, z, Ellipsoid.from_crs(crs_obj))
         return XYZ, np.column_stack([lat, lon])
-    leg = _ProjLeg(crs_obj, crs_obj.geodetic_crs, allow_ballpark=False)
-    lon, lat, h = leg(np.asarray(x, float), np.asarray(y, float), np.asarray(z, float))
+    lon, lat, h = to_own_geodetic(crs_obj, np.asarray(x, float), np.asarray(y, float), np.asarray(z, float))
     XYZ = np.column_stack(geodetic_to_geocentric(lat, lon, h, Ellipsoid.from_crs(crs_obj)))
     return XYZ, np.column_stack([lat, lon])
 
@@ -441,7 +433,7 @@ def transform_points_file(in_path, out_path, *, from_crs=None, to_crs=None, para
     record when None) to ``to_crs``, with an optional fitted transformation (``params`` JSON) and height anomaly
     model (``heights`` JSON). Returns (points written, the transformer: its description and warnings)."""
     from aerotri.core.atomic import refuse_input_as_output
-    from aerotri.geom.crs import parse_crs
+    from aerotri.geom.crs.definition import parse_crs
 
     refuse_input_as_output(out_path, [in_path, params, heights], "OUT")
     if not Path(in_path).exists():

@@ -22,7 +22,9 @@ import dataclasses
 import numpy as np
 
 from aerotri.core.errors import InputError
-from aerotri.geom.datum import HEIGHT_MODELS, MIN_HEIGHT_POINTS, _design, HeightAnomalyModel, _tps  # noqa: F401
+from aerotri.geom.crs.datum import (HEIGHT_MODELS, MIN_HEIGHT_POINTS, HeightAnomalyModel, height_design_matrix,
+                                    thin_plate_spline)
+
 
 @dataclasses.dataclass
 class HeightFitResult:
@@ -59,7 +61,7 @@ class HeightFitResult:
 def fit_height_anomaly(ids, x_m, y_m, h_m, H_m, *, model: str = "plane", smoothing: float = 0.0,
                        crs: str | None = None) -> HeightFitResult:
     """Fit zeta = h - H over the points; see the module docstring for the models."""
-    from aerotri.crs.fit import geometry_warnings
+    from aerotri.geom.crs.fit import geometry_warnings
 
     if model not in HEIGHT_MODELS:
         raise InputError(f"unknown height model {model!r}; choose one of {', '.join(HEIGHT_MODELS)}")
@@ -78,7 +80,7 @@ def fit_height_anomaly(ids, x_m, y_m, h_m, H_m, *, model: str = "plane", smoothi
     dx, dy = (x - origin[0]) / 1000.0, (y - origin[1]) / 1000.0
     warns = geometry_warnings(np.column_stack([x, y]), model)
     if model in ("plane", "quadratic"):
-        A = _design(dx, dy, model)
+        A = height_design_matrix(dx, dy, model)
         U, s, Vt = np.linalg.svd(A, full_matrices=False)
         if s[-1] < 1e-9 * s[0]:
             raise InputError(f"height model {model}: points collinear or coincident, surface undetermined")
@@ -104,7 +106,7 @@ def fit_height_anomaly(ids, x_m, y_m, h_m, H_m, *, model: str = "plane", smoothi
             for i in range(n):
                 keep = np.arange(n) != i
                 try:
-                    f = _tps(pts[keep, :2], pts[keep, 2], origin, smoothing)
+                    f = thin_plate_spline(pts[keep, :2], pts[keep, 2], origin, smoothing)
                     loo[i] = f(np.array([[dx[i], dy[i]]]))[0] - zeta[i]
                 except (np.linalg.LinAlgError, ValueError):
                     pass

@@ -1,8 +1,7 @@
 """Datum parameter sets and height anomaly models: applying them, inverting them, reading their files.
 
-Estimating them from common points is the ``aerotri.crs`` stage (``fit``, ``heights``); applying them
-belongs here because every coordinate operation of the toolkit (``aerotri.geom.transform``) may
-include one.
+Estimating them from common points is ``fit`` and ``heights``; every coordinate operation of the
+toolkit (``transform``) may include one.
 
 Plane models (x = easting, y = northing in metres) and spatial models (X, Y, Z geocentric metres):
 
@@ -30,7 +29,7 @@ import numpy as np
 
 from aerotri.core.errors import ConfigError, InputError
 from aerotri.core.textio import read_json
-from aerotri.geom.ellipsoid import ARCSEC_PER_RAD
+from aerotri.geom.crs.ellipsoid import ARCSEC_PER_RAD
 
 MODELS = ("helmert2d", "affine2d", "bursa-wolf7", "translation3")
 MIN_POINTS = {"helmert2d": 2, "affine2d": 3, "bursa-wolf7": 3, "translation3": 1}
@@ -98,7 +97,7 @@ class Transformation:
             return np.eye(3), T
         sign = 1.0 if self.convention == "coordinate_frame" else -1.0
         rx, ry, rz = (sign * p[k] / ARCSEC_PER_RAD for k in ("rx_arcsec", "ry_arcsec", "rz_arcsec"))
-        return (1.0 + p["scale_ppm"] * 1e-6) * _rotation_cf(rx, ry, rz), T
+        return (1.0 + p["scale_ppm"] * 1e-6) * rotation_cf(rx, ry, rz), T
 
     def apply(self, coords):
         coords = np.asarray(coords, dtype=float)
@@ -121,7 +120,7 @@ class Transformation:
             return coords + T
         sign = 1.0 if self.convention == "coordinate_frame" else -1.0
         rx, ry, rz = (sign * p[k] / ARCSEC_PER_RAD for k in ("rx_arcsec", "ry_arcsec", "rz_arcsec"))
-        return _bursa_wolf(coords, np.array([*T, rx, ry, rz, p["scale_ppm"] * 1e-6]))
+        return bursa_wolf(coords, np.array([*T, rx, ry, rz, p["scale_ppm"] * 1e-6]))
 
     # JSON parameter file --------------------------------------------------------------------
     def to_dict(self) -> dict:
@@ -170,14 +169,14 @@ def _helmert2d(xy, a, b, tx, ty):
     return np.column_stack([tx + a * x - b * y, ty + b * x + a * y])
 
 
-def _rotation_cf(rx, ry, rz):
+def rotation_cf(rx, ry, rz):
     """Small-angle rotation matrix of the coordinate-frame convention (EPSG 9607)."""
     return np.array([[1.0, rz, -ry], [-rz, 1.0, rx], [ry, -rx, 1.0]])
 
 
-def _bursa_wolf(XYZ, p):
+def bursa_wolf(XYZ, p):
     """p = (tx, ty, tz, rx, ry, rz [rad], m [unitless]), coordinate-frame convention."""
-    R = _rotation_cf(*p[3:6])
+    R = rotation_cf(*p[3:6])
     return p[:3] + (1.0 + p[6]) * (XYZ @ R.T)
 
 
@@ -200,7 +199,8 @@ HEIGHT_MODELS = ("plane", "quadratic", "tps")
 MIN_HEIGHT_POINTS = {"plane": 3, "quadratic": 6, "tps": 3}
 
 
-def _design(dx_km, dy_km, model):
+def height_design_matrix(dx_km, dy_km, model):
+    """Columns 1, dx, dy (plane) [, dx^2, dx dy, dy^2 (quadratic)] of the height anomaly surface, dx, dy in km."""
     one = np.ones_like(dx_km)
     cols = [one, dx_km, dy_km]
     if model == "quadratic":
@@ -230,10 +230,10 @@ class HeightAnomalyModel:
         dx = (x - self.origin_m[0]) / 1000.0
         dy = (y - self.origin_m[1]) / 1000.0
         if self.model in ("plane", "quadratic"):
-            return _design(dx.ravel(), dy.ravel(), self.model) @ np.asarray(self.coefficients)
+            return height_design_matrix(dx.ravel(), dy.ravel(), self.model) @ np.asarray(self.coefficients)
         if self._rbf is None:
             pts = np.asarray(self.points_m, dtype=float)
-            self._rbf = _tps(pts[:, :2], pts[:, 2], self.origin_m, self.smoothing)
+            self._rbf = thin_plate_spline(pts[:, :2], pts[:, 2], self.origin_m, self.smoothing)
         return self._rbf(np.column_stack([dx.ravel(), dy.ravel()]))
 
     def normal_height(self, x_m, y_m, h_m):
@@ -265,7 +265,8 @@ class HeightAnomalyModel:
             raise InputError(f"{source}: not a height anomaly model file ({exc!r})") from None
 
 
-def _tps(xy_m, zeta_m, origin_m, smoothing):
+def thin_plate_spline(xy_m, zeta_m, origin_m, smoothing):
+    """zeta as a thin-plate spline with a linear trend over (x, y) - origin in km; called on (n, 2) km offsets."""
     from scipy.interpolate import RBFInterpolator
 
     d = (np.asarray(xy_m, dtype=float) - np.asarray(origin_m)) / 1000.0

@@ -157,7 +157,7 @@ def unit_long_name(crs: pyproj.CRS) -> str:
 
 def height_unit_m(crs: pyproj.CRS) -> float:
     """Metres per unit of height values in ``crs``: the vertical axis's unit of a compound or 3D CRS; a 2D
-    projected CRS has heights in its horizontal unit (the LAS convention, as ``geom.transform`` reads
+    projected CRS has heights in its horizontal unit (the LAS convention, as ``transform`` reads
     z); a 2D geographic CRS in metres."""
     crs = parse_crs(crs)
     if crs.is_compound:

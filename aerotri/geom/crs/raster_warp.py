@@ -1,6 +1,6 @@
 """Rasters through a coordinate operation: anchor-grid mappings and resampling of arrays.
 
-A coordinate operation (``aerotri.geom.transform.CrsTransformer``) is too slow to call per pixel of a
+A coordinate operation (``aerotri.geom.crs.transform.CrsTransformer``) is too slow to call per pixel of a
 large raster, but it is smooth: ``anchor_grid`` evaluates it on nodes every ``spacing_px`` pixels and
 halves the spacing until bilinear interpolation between the nodes reproduces it at the cell centres
 within a tolerance (default 1 mm). ``warp_array`` resamples a source array onto a destination grid
@@ -104,12 +104,17 @@ def warp_array(src: np.ndarray, src_valid: np.ndarray, src_x_left: float, src_y_
     inside = cv2.remap(1 - invalid, map_x, map_y, cv2.INTER_NEAREST, borderMode=cv2.BORDER_CONSTANT,
                        borderValue=0).astype(bool)
     inside &= (map_x >= -0.5) & (map_y >= -0.5) & (map_x <= src.shape[1] - 0.5) & (map_y <= src.shape[0] - 0.5)
-    return dst.astype(src.dtype, copy=False) if src.dtype.kind == "f" else _cast(dst, src.dtype), inside
+    return cast_to_dtype(dst, src.dtype), inside
 
 
-def _cast(a: np.ndarray, dtype) -> np.ndarray:
-    info = np.iinfo(dtype)
-    return np.clip(np.rint(a), info.min, info.max).astype(dtype)
+def cast_to_dtype(a: np.ndarray, dtype) -> np.ndarray:
+    """Resampled values in a raster's ``dtype``: floats as they are (no copy when ``a`` has it already),
+    integers rounded half to even and clipped to the type's range (no wrap-around)."""
+    dt = np.dtype(dtype)
+    if dt.kind == "f":
+        return a.astype(dt, copy=False)
+    info = np.iinfo(dt)
+    return np.clip(np.rint(a), info.min, info.max).astype(dt)
 
 
 def height_change(operation, x, y, z_lo: float, z_hi: float):
@@ -238,7 +243,7 @@ def open_north_up(path, what: str = "raster", *, no_crs_hint: str = "", square: 
     try:
         check_raster_size(ds, path, what)
         if heights:
-            from aerotri.geom.crs import height_unit_m, parse_crs
+            from aerotri.geom.crs.definition import height_unit_m, parse_crs
 
             check_height_values(ds, path, what, height_unit_m(parse_crs(ds.crs.to_wkt(), f"{path} CRS")))
     except rasterio.errors.RasterioIOError as exc:

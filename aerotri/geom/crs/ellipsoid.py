@@ -39,6 +39,15 @@ class Ellipsoid:
         """Third flattening n = (a - b) / (a + b) = f / (2 - f) (Krueger's series parameter)."""
         return self.f / (2.0 - self.f)
 
+    def prime_vertical_radius_m(self, lat_rad):
+        """Radius of curvature in the prime vertical, N = a / sqrt(1 - e2 sin^2(lat)), at latitudes in radians."""
+        return self.a_m / np.sqrt(1.0 - self.e2 * np.sin(lat_rad) ** 2)
+
+    def meridian_radius_m(self, lat_rad):
+        """Radius of curvature in the meridian, M = a (1 - e2) / (1 - e2 sin^2(lat))^1.5, at latitudes in radians."""
+        w2 = 1.0 - self.e2 * np.sin(lat_rad) ** 2
+        return self.a_m * (1.0 - self.e2) / w2**1.5
+
     @classmethod
     def from_crs(cls, crs) -> "Ellipsoid":
         """The ellipsoid of a pyproj CRS (any CRS with a geodetic datum)."""
@@ -65,7 +74,7 @@ def geodetic_to_geocentric(lat_deg, lon_deg, h_m, ellipsoid: Ellipsoid):
     h = np.asarray(h_m, dtype=float)
     e2 = ellipsoid.e2
     sin_lat = np.sin(lat)
-    N = ellipsoid.a_m / np.sqrt(1.0 - e2 * sin_lat**2)
+    N = ellipsoid.prime_vertical_radius_m(lat)
     X = (N + h) * np.cos(lat) * np.cos(lon)
     Y = (N + h) * np.cos(lat) * np.sin(lon)
     Z = (N * (1.0 - e2) + h) * sin_lat
@@ -87,10 +96,10 @@ def geocentric_to_geodetic(X_m, Y_m, Z_m, ellipsoid: Ellipsoid):
     theta = np.arctan2(Z * a, p * b)  # Bowring's parametric-latitude start
     lat = np.arctan2(Z + ep2 * b * np.sin(theta) ** 3, p - e2 * a * np.cos(theta) ** 3)
     for _ in range(3):
-        N = a / np.sqrt(1.0 - e2 * np.sin(lat) ** 2)
+        N = ellipsoid.prime_vertical_radius_m(lat)
         h = p / np.cos(lat) - N
         lat = np.arctan2(Z, p * (1.0 - e2 * N / (N + h)))
-    N = a / np.sqrt(1.0 - e2 * np.sin(lat) ** 2)
+    N = ellipsoid.prime_vertical_radius_m(lat)
     # p/cos(lat) loses precision near the poles; this form is stable everywhere.
     h = p * np.cos(lat) + Z * np.sin(lat) - a * a / N
     return np.degrees(lat), np.degrees(lon), h

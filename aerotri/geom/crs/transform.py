@@ -5,7 +5,7 @@ applied to arrays. It chains
 
 1. a PROJ operation from ``from_crs`` into the parameter set's source CRS (a conversion within one
    datum: unprojecting, changing zone),
-2. the fitted parameter set (``aerotri.geom.datum.Transformation``, from ``aerotri crs fit``): on grid
+2. the fitted parameter set (``aerotri.geom.crs.datum.Transformation``, from ``aerotri crs fit``): on grid
    coordinates for the plane models, on geocentric XYZ for the spatial models,
 3. a PROJ operation from the parameter set's target CRS into ``to_crs``,
 4. optionally the height anomaly model (``aerotri crs fit-heights``): H = h - zeta(x, y).
@@ -39,9 +39,9 @@ import pyproj
 from pyproj.transformer import TransformerGroup
 
 from aerotri.core.errors import CrsError
-from aerotri.geom.crs import crs_label, height_unit_m, horizontal_crs, length_unit_name, linear_unit_m, parse_crs, same_horizontal
-from aerotri.geom.datum import HeightAnomalyModel, Transformation, outside_extent
-from aerotri.geom.ellipsoid import Ellipsoid, geocentric_to_geodetic, geodetic_to_geocentric
+from aerotri.geom.crs.definition import crs_label, height_unit_m, horizontal_crs, length_unit_name, linear_unit_m, parse_crs, same_horizontal
+from aerotri.geom.crs.datum import HeightAnomalyModel, Transformation, outside_extent
+from aerotri.geom.crs.ellipsoid import Ellipsoid, geocentric_to_geodetic, geodetic_to_geocentric
 
 
 class BallparkRefused(CrsError):
@@ -350,6 +350,17 @@ class CrsTransformer:
 def transform_points(x, y, z=None, *, from_crs, to_crs, params=None, heights=None, allow_ballpark=False):
     """One-shot convenience: ``CrsTransformer(...).transform(x, y, z)``."""
     return CrsTransformer(from_crs, to_crs, params, heights, allow_ballpark).transform(x, y, z)
+
+
+def to_own_geodetic(crs: pyproj.CRS, x, y, z):
+    """(lon_deg, lat_deg, h) of coordinates in ``crs`` on its own geodetic CRS: a conversion, never a datum shift
+    (h in metres; z in the height unit of ``crs``, see the module docstring)."""
+    return _ProjLeg(crs, crs.geodetic_crs, allow_ballpark=False)(x, y, z)
+
+
+def from_own_geodetic(crs: pyproj.CRS, lon_deg, lat_deg, h_m):
+    """Coordinates in ``crs`` of points given on its own geodetic CRS (the inverse of ``to_own_geodetic``)."""
+    return _ProjLeg(crs.geodetic_crs, crs, allow_ballpark=False)(lon_deg, lat_deg, h_m)
 
 
 def same_datum_geocentric(crs: pyproj.CRS) -> pyproj.CRS:

@@ -25,7 +25,7 @@ import re
 
 import numpy as np
 
-from aerotri.geom.ellipsoid import Ellipsoid
+from aerotri.geom.crs.ellipsoid import Ellipsoid
 
 
 def _krueger_coefficients(n: float):
@@ -102,8 +102,7 @@ class GaussKruger:
         """Point scale factor k (grid distance / ellipsoidal distance), by a small east-west step."""
         lat = np.asarray(lat_deg, dtype=float)
         lon = np.asarray(lon_deg, dtype=float)
-        a, e2 = self.ellipsoid.a_m, self.ellipsoid.e2
-        N = a / np.sqrt(1.0 - e2 * np.sin(np.radians(lat)) ** 2)
+        N = self.ellipsoid.prime_vertical_radius_m(np.radians(lat))
         dlon_deg = np.degrees(step_m / (N * np.cos(np.radians(lat))))
         e0, n0 = self.forward(lat, lon - dlon_deg / 2)
         e1, n1 = self.forward(lat, lon + dlon_deg / 2)

@@ -4,11 +4,11 @@ import numpy as np
 import pyproj
 import pytest
 
-from aerotri.geom.ellipsoid import IAG75, WGS84, geodetic_to_geocentric
-from aerotri.crs.files import fit_common_points
-from aerotri.crs.fit import fit_plane, fit_spatial
-from aerotri.geom.datum import PARAMETER_NAMES, Transformation
-from aerotri.crs.synthetic import (
+from aerotri.geom.crs.ellipsoid import IAG75, WGS84, geodetic_to_geocentric
+from aerotri.geom.crs.files import fit_common_points
+from aerotri.geom.crs.fit import fit_plane, fit_spatial
+from aerotri.geom.crs.datum import PARAMETER_NAMES, Transformation
+from aerotri.geom.crs.synthetic import (
     TRUE_BURSA_WOLF7,
     TRUE_HELMERT2D,
     simulate_plane,

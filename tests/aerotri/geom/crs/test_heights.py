@@ -3,8 +3,8 @@
 import numpy as np
 import pytest
 
-from aerotri.crs.heights import fit_height_anomaly
-from aerotri.geom.datum import HeightAnomalyModel
+from aerotri.geom.crs.heights import fit_height_anomaly
+from aerotri.geom.crs.datum import HeightAnomalyModel
 from aerotri.core.errors import InputError
 
 

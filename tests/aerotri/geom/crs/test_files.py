@@ -5,10 +5,10 @@ import numpy as np
 import pyproj
 import pytest
 
-from aerotri.crs.files import las_crs, transform_las, transform_point_list
-from aerotri.geom.datum import HeightAnomalyModel, Transformation
-from aerotri.crs.synthetic import TRUE_BURSA_WOLF7
-from aerotri.geom.transform import CrsTransformer
+from aerotri.geom.crs.files import las_crs, transform_las, transform_point_list
+from aerotri.geom.crs.datum import HeightAnomalyModel, Transformation
+from aerotri.geom.crs.synthetic import TRUE_BURSA_WOLF7
+from aerotri.geom.crs.transform import CrsTransformer
 from aerotri.core.errors import InputError
 
 PARAMS = Transformation("bursa-wolf7", TRUE_BURSA_WOLF7, "EPSG:32649", "EPSG:2361")

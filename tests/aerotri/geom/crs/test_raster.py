@@ -14,11 +14,11 @@ from click.testing import CliRunner
 from pyproj import CRS
 
 from aerotri.cli import main as aerotri_cli
-from aerotri.crs.synthetic import TRUE_BURSA_WOLF7
-from aerotri.geom.datum import HeightAnomalyModel, Transformation
-from aerotri.geom.ellipsoid import IAG75, geodetic_to_geocentric
+from aerotri.geom.crs.synthetic import TRUE_BURSA_WOLF7
+from aerotri.geom.crs.datum import HeightAnomalyModel, Transformation
+from aerotri.geom.crs.ellipsoid import IAG75, geodetic_to_geocentric
 from aerotri.geom.local_frame import LocalFrame
-from aerotri.geom.transform import BallparkRefused, CrsTransformer
+from aerotri.geom.crs.transform import BallparkRefused, CrsTransformer
 
 XIAN_GK = "EPSG:2382"  # Xian 1980 / 3-degree GK CM 111E
 

@@ -4,7 +4,7 @@ import numpy as np
 import pyproj
 import pytest
 
-from aerotri.geom.ellipsoid import (
+from aerotri.geom.crs.ellipsoid import (
     CGCS2000,
     IAG75,
     KRASSOVSKY,
@@ -12,7 +12,7 @@ from aerotri.geom.ellipsoid import (
     geocentric_to_geodetic,
     geodetic_to_geocentric,
 )
-from aerotri.crs.gauss_kruger import (
+from aerotri.geom.crs.gauss_kruger import (
     GaussKruger,
     central_meridian_deg,
     false_easting_m,

@@ -1,7 +1,7 @@
 """Datum/grid transformation parameters estimated from common points (Gauss-Markov least squares).
 
 The models and their conventions (helmert2d, affine2d, bursa-wolf7, translation3) are defined where
-they are applied, in ``aerotri.geom.datum``.
+they are applied, in ``aerotri.geom.crs.datum``.
 
 Least squares (Gauss-Markov): observations l (target coordinates), v = A x^ - l (residual =
 transformed source minus given target), sigma0^2 = v'Pv / r with redundancy r = n - u, parameter
@@ -18,15 +18,8 @@ import math
 import numpy as np
 
 from aerotri.core.errors import InputError
-from aerotri.geom.datum import (  # noqa: F401  (MODELS, PARAMETER_NAMES: the fit command's choices)
-    MODELS,
-    MIN_POINTS,
-    PARAMETER_NAMES,
-    Transformation,
-    _rotation_cf,
-    _bursa_wolf,
-)
-from aerotri.geom.ellipsoid import ARCSEC_PER_RAD, enu_rotation
+from aerotri.geom.crs.datum import MIN_POINTS, MODELS, PARAMETER_NAMES, Transformation, bursa_wolf, rotation_cf
+from aerotri.geom.crs.ellipsoid import ARCSEC_PER_RAD, enu_rotation
 
 # ----------------------------------------------------------------------------------------------
 # Gauss-Markov least squares
@@ -290,15 +283,15 @@ def fit_spatial(model: str, ids, src_XYZ_m, dst_XYZ_m, *, dst_lat_lon_deg=None, 
         # Gauss-Newton on the exact (1 + m) R product; the model is nearly linear, 2-3 steps suffice.
         p = np.zeros(7)
         for _ in range(10):
-            f = (_bursa_wolf(src, p) - dst).reshape(-1)
+            f = (bursa_wolf(src, p) - dst).reshape(-1)
             J = _bursa_wolf_jacobian(src, p)
             gm = gauss_markov(J, -f, w, what=model)
             p = p + gm.x
             if np.max(np.abs(gm.x[:3])) < 1e-7 and np.max(np.abs(gm.x[3:])) < 1e-14:
                 break
         J = _bursa_wolf_jacobian(src, p)
-        gm = gauss_markov(J, -(_bursa_wolf(src, p) - dst).reshape(-1), w, what=model)
-        gm.v = (_bursa_wolf(src, p) - dst).reshape(-1)
+        gm = gauss_markov(J, -(bursa_wolf(src, p) - dst).reshape(-1), w, what=model)
+        gm.v = (bursa_wolf(src, p) - dst).reshape(-1)
         gm.sigma0 = float(np.sqrt(np.sum(gm.v**2) / gm.redundancy)) if gm.redundancy > 0 else float("nan")
         values = np.concatenate([p[:3], p[3:6] * ARCSEC_PER_RAD, [p[6] * 1e6]])
         M = np.diag([1, 1, 1, ARCSEC_PER_RAD, ARCSEC_PER_RAD, ARCSEC_PER_RAD, 1e6])
@@ -340,7 +333,7 @@ def _bursa_wolf_jacobian(XYZ, p):
     J[:, :, 3] = k * np.column_stack([zero, Z, -Y])
     J[:, :, 4] = k * np.column_stack([-Z, zero, X])
     J[:, :, 5] = k * np.column_stack([Y, -X, zero])
-    J[:, :, 6] = XYZ @ _rotation_cf(*p[3:6]).T
+    J[:, :, 6] = XYZ @ rotation_cf(*p[3:6]).T
     return J.reshape(3 * n, 7)
 
 

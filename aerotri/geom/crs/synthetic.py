@@ -8,10 +8,10 @@ from __future__ import annotations
 
 import numpy as np
 
-from aerotri.geom.ellipsoid import Ellipsoid, geocentric_to_geodetic, geodetic_to_geocentric
-from aerotri.geom.crs import parse_crs
-from aerotri.geom.datum import Transformation
-from aerotri.geom.transform import _ProjLeg
+from aerotri.geom.crs.ellipsoid import Ellipsoid, geocentric_to_geodetic, geodetic_to_geocentric
+from aerotri.geom.crs.definition import parse_crs
+from aerotri.geom.crs.datum import Transformation
+from aerotri.geom.crs.transform import from_own_geodetic
 
 TRUE_BURSA_WOLF7 = {  # WGS 84 -> Xian 1980 style (coordinate frame); invented, realistic size
     "tx_m": -24.3,
@@ -34,22 +34,19 @@ def simulate_spatial(truth: dict, from_epsg, to_epsg, *, lon_deg, lat_deg, h_m, 
     the noise is in metres on the ground whatever the units."""
     src_crs, dst_crs = parse_crs(from_epsg), parse_crs(to_epsg)
     lon, lat, h = (np.asarray(a, dtype=float) for a in (lon_deg, lat_deg, h_m))
-    to_src = _ProjLeg(src_crs.geodetic_crs, src_crs, allow_ballpark=False)
-    sx, sy, sz = to_src(lon, lat, h)
+    sx, sy, sz = from_own_geodetic(src_crs, lon, lat, h)
     XYZ = np.column_stack(geodetic_to_geocentric(lat, lon, h, Ellipsoid.from_crs(src_crs)))
     T = Transformation(model, dict(truth), str(from_epsg), str(to_epsg))
     XYZ_t = T.apply(XYZ)
     lat_t, lon_t, h_t = geocentric_to_geodetic(*XYZ_t.T, Ellipsoid.from_crs(dst_crs))
-    to_dst = _ProjLeg(dst_crs.geodetic_crs, dst_crs, allow_ballpark=False)
-    dx, dy, dz = to_dst(lon_t, lat_t, h_t)
+    dx, dy, dz = from_own_geodetic(dst_crs, lon_t, lat_t, h_t)
     dst_true = np.column_stack([dx, dy, dz])
     rng = np.random.default_rng(seed)
     noise = rng.normal(0.0, noise_m, dst_true.shape) if noise_m > 0 else np.zeros_like(dst_true)
     if dst_crs.is_geographic:  # metres of noise -> degrees with the radii of curvature M and N
         ell = Ellipsoid.from_crs(dst_crs)
-        w2 = 1.0 - ell.e2 * np.sin(np.radians(lat_t)) ** 2
-        M = ell.a_m * (1.0 - ell.e2) / w2**1.5
-        N = ell.a_m / np.sqrt(w2)
+        M = ell.meridian_radius_m(np.radians(lat_t))
+        N = ell.prime_vertical_radius_m(np.radians(lat_t))
         noise[:, 0] = np.degrees(noise[:, 0] / (N * np.cos(np.radians(lat_t))))
         noise[:, 1] = np.degrees(noise[:, 1] / M)
     return np.column_stack([sx, sy, sz]), dst_true + noise, dst_true

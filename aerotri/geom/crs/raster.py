@@ -3,9 +3,9 @@
 The destination grid is north-up in the target CRS, snapped to multiples of the cell size, and covers
 the source's footprint. It is filled block by block (memory bounded by the block size, whatever the
 raster size): each block's pixel centres are mapped back into the source CRS by the inverse of the
-coordinate operation (``aerotri.geom.transform``: the toolkit's one policy, so a datum change needs
+coordinate operation (``aerotri.geom.crs.transform``: the toolkit's one policy, so a datum change needs
 a parameter set or is refused), interpolated from anchors within 1 mm, and the source is resampled
-there (``aerotri.geom.raster_warp``). For height rasters the values change too: Z' = Z transformed at
+there (``aerotri.geom.crs.raster_warp``). For height rasters the values change too: Z' = Z transformed at
 its place (a datum shift moves ellipsoidal heights by up to several metres; a height anomaly model
 turns them into normal heights). Nodata stays nodata (never interpolated into valid cells). The
 result is a Cloud-Optimised GeoTIFF with the operation in its metadata.
@@ -27,11 +27,12 @@ from rasterio.windows import Window
 from aerotri.core.atomic import atomic_path, refuse_input_as_output, scratch_dir
 from aerotri.core.errors import CrsError, InputError, OptionError
 from aerotri.core.log import progress
-from aerotri.geom.crs import (check_stored_crs, crs_label, geotiff_crs, height_unit_m, horizontal_crs,
+from aerotri.geom.crs.definition import (check_stored_crs, crs_label, geotiff_crs, height_unit_m, horizontal_crs,
                                length_unit_name, linear_unit_m, parse_crs, same_horizontal, unit_long_name, unit_name)
 from aerotri.geom.inputs import check_height_values
-from aerotri.geom.raster_warp import RESAMPLING, anchor_grid, height_change, interpolate_anchors, open_north_up, read_on_grid
-from aerotri.geom.transform import CrsTransformer
+from aerotri.geom.crs.raster_warp import (RESAMPLING, anchor_grid, cast_to_dtype, height_change, interpolate_anchors,
+                                         open_north_up, read_on_grid)
+from aerotri.geom.crs.transform import CrsTransformer
 
 log = logging.getLogger(__name__)
 
@@ -135,7 +136,7 @@ def warp_raster(in_path, out_path, to_crs, *, from_crs=None, params=None, height
                         data[0] = _heights_through(data[0], valid, inverse, bx, by, res)
                     n_valid += int(valid.sum())
                     win = Window(c0, r0, w, h)
-                    out = _cast(data, dtype)
+                    out = cast_to_dtype(data, dtype)
                     if use_mask:
                         dst.write(out, window=win)
                         dst.write_mask(np.where(valid, 255, 0).astype(np.uint8), window=win)
@@ -202,10 +203,3 @@ def _heights_through(z: np.ndarray, valid: np.ndarray, inverse: CrsTransformer, 
     k = interpolate_anchors(K, s, rows, cols)
     return np.where(valid, (z - dz0) / (1.0 + k), z).astype(np.float32)
 
-
-def _cast(a: np.ndarray, dtype) -> np.ndarray:
-    dt = np.dtype(dtype)
-    if dt.kind == "f":
-        return a.astype(dt)
-    info = np.iinfo(dt)
-    return np.clip(np.rint(a), info.min, info.max).astype(dt)
