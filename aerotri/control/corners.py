@@ -19,7 +19,7 @@ from aerotri.core.errors import InputError
 from aerotri.core.textio import read_text
 
 REQUIRED = ["id", "x", "y", "z", "sx_m", "sy_m", "sz_m", "edge1_deg", "edge2_deg", "angle_deg", "score"]
-USABLE_SCORE = 0.5  # lidarctl.corners.USABLE_SCORE (same rule when the file has no usable column)
+USABLE_SCORE = 0.5  # lidarctl.corners.roof_corners.USABLE_SCORE (same rule when the file has no usable column)
 
 
 @dataclasses.dataclass

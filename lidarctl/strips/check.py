@@ -392,7 +392,7 @@ def pair_raster(p: PairDiff, ss: StripSet):
 def write_outputs(res: CheckResult, folder: Path, title: str, vmax_m: float | None, png: bool = True) -> None:
     """Rasters, PNGs and the HTML page of a check into ``folder`` (strips.json is written by the caller);
     ``res.summary`` gets the colour limit and the files' names."""
-    from lidarctl.rasters import _transform_in_units, write_cog
+    from lidarctl.rasters.products import _transform_in_units, write_cog
     from aerotri.geom.crs.definition import length_unit_name
 
     ss = res.strip_set

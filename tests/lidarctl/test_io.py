@@ -17,7 +17,7 @@ from laspy.vlrs.known import GeoKeyEntryStruct
 
 from aerotri.core.errors import InputError
 from lidarctl import io, synthetic
-from lidarctl.cli import main
+from lidarctl.cli.main import main
 from aerotri.geom.las import FOOT_M
 
 _spec = importlib.util.spec_from_file_location("corners_synth", Path(__file__).with_name("corners_synth.py"))

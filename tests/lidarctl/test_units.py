@@ -18,8 +18,8 @@ from click.testing import CliRunner
 
 from aerotri.core.errors import CrsError
 from lidarctl import io, synthetic
-from lidarctl.cli import main
-from lidarctl.corners import read_corner_summary
+from lidarctl.cli.main import main
+from lidarctl.corners.roof_corners import read_corner_summary
 from aerotri.geom.las import FOOT_M, US_SURVEY_FOOT_M
 from lidarctl.units import LengthUnits, units_of
 
@@ -295,7 +295,7 @@ def test_dem_keeps_the_compound_crs_of_its_cloud(scenes, tmp_path):
 def test_check_heights_by_chunks_equals_all_ground_points(scenes, tmp_path, monkeypatch):
     """The strips are read by chunks keeping only ground points near a surveyed point: the same
     heights as interpolating from every ground point of the cloud held in memory."""
-    from lidarctl import heights_check as hc
+    from lidarctl.checks import heights as hc
 
     d = scenes["dir"]
     _ok(["classify", d / "ft_m.laz", tmp_path / "c.laz"])

@@ -48,7 +48,7 @@ def brighton6(shared_data, tmp_path_factory):
     from aerotri.exchange import import_files
     from aerotri.geom.camera import read_camera
     from aerotri.geom.eo import read_gnss
-    from lidarctl.cli import main as lidar_cli
+    from lidarctl.cli.main import main as lidar_cli
 
     data = shared_data / "brighton_beach"
     out = tmp_path_factory.mktemp("brighton6")

@@ -12,13 +12,13 @@ import click
 from aerotri.core.atomic import refuse_input_as_output
 from aerotri.core.commands import FiniteFloatRange, Group, at_least, fraction, positive, scheduler_options
 from aerotri.core.settings import click_option, resolve
-from lidarctl.classify import ClassifySettings
-from lidarctl.heights_check import GROUPINGS, DensityGroups
-from lidarctl.map_accuracy import MapEvalSettings
-from lidarctl.map_vectors import MapVectorSettings
-from lidarctl.plan_check import PlanCheckSettings
-from lidarctl.vector_check import VectorCheckSettings
-from lidarctl.rasters import DEFAULT_BUFFER_PX, DEFAULT_TILE_PX, DEFAULT_TIN_FILL_RADIUS_PX, RasterSettings
+from lidarctl.classify.pipeline import ClassifySettings
+from lidarctl.checks.heights import GROUPINGS, DensityGroups
+from lidarctl.checks.map_accuracy import MapEvalSettings
+from lidarctl.vectors.layers import MapVectorSettings
+from lidarctl.checks.plan import PlanCheckSettings
+from lidarctl.checks.vectors import VectorCheckSettings
+from lidarctl.rasters.products import DEFAULT_BUFFER_PX, DEFAULT_TILE_PX, DEFAULT_TIN_FILL_RADIUS_PX, RasterSettings
 
 
 @click.group(cls=Group)
@@ -27,10 +27,10 @@ def main():
     """Airborne LiDAR: noise removal, ground filtering, classification, rasters, roof-corner control."""
 
 
-from lidarctl.corners_cli import corners  # noqa: E402
-from lidarctl.merge_cli import merge  # noqa: E402
-from lidarctl.strips_cli import strips  # noqa: E402
-from lidarctl.trees_cli import trees  # noqa: E402
+from lidarctl.cli.corners import corners  # noqa: E402
+from lidarctl.cli.merge import merge  # noqa: E402
+from lidarctl.cli.strips import strips  # noqa: E402
+from lidarctl.cli.trees import trees  # noqa: E402
 
 main.add_command(corners)
 main.add_command(merge)
@@ -66,7 +66,7 @@ def ground_filter_options(f):
 
     from aerotri.core.commands import GroupedOption
     from aerotri.core.settings import click_type, constraints
-    from lidarctl import ground
+    from lidarctl.classify import ground
 
     for method, flt in reversed(list(ground.GROUND_FILTERS.items())):
         defaults = flt.params()
@@ -99,7 +99,7 @@ def ground_filter_options(f):
 @click.option("--image", "image_path", type=click.Path(dir_okay=False), default=None,
               help="Orthophoto (GeoTIFF, R G B [NIR], the cloud's CRS) to fuse with: grass and trees split by "
                    "greenness at 1 m, road surface (11) from intensity, smoothness and shape, green 'buildings' "
-                   "made trees (lidarctl.fusion).")
+                   "made trees (lidarctl.classify.fusion).")
 @click.option("--nir", default=None,
               help="--image: the near-infrared band number of the orthophoto (e.g. 4) or a one-band file on its "
                    "grid; greenness is then NDVI, else excess green.")
@@ -160,7 +160,7 @@ def rasters(*, in_paths, outdir, res_m, crs, tile_px, buffer_px, dem_fill_radius
 
     from aerotri.geom import las
     from lidarctl import io
-    from lidarctl import rasters as rs
+    from lidarctl.rasters import products as rs
 
     _, units = io.resolve_crs_units(in_paths[0], las.read_header(in_paths[0]), crs)
     if not units.is_metric:
@@ -243,7 +243,7 @@ def _check_evaluate_paths(pred_paths, truth_path, reference_path, json_path, wit
 
 def _evaluate_map(pred_paths, reference_path, settings) -> tuple[str, dict]:
     """``lidarctl evaluate --reference``: (the report, its numbers)."""
-    from lidarctl import map_accuracy as ma
+    from lidarctl.checks import map_accuracy as ma
 
     result = ma.evaluate_map(pred_paths, reference_path, settings)
     return ma.format_map_report(result), result.as_dict()
@@ -254,7 +254,7 @@ def _evaluate_truth(pred_paths, truth_path, map_pred: dict, map_truth: dict) -> 
     import dataclasses
 
     from aerotri.core.errors import OptionError
-    from lidarctl import evaluate as ev
+    from lidarctl.checks import classes as ev
 
     if len(pred_paths) != 1:
         raise OptionError(f"--truth: one classified file, not {len(pred_paths)}", param="--truth")
@@ -312,7 +312,7 @@ def check_heights(*, paths, dem_path, radius_m, exclude_m, grouping, cover_radiu
     DEM): of the cloud's ground (class 2; one file or classified strips) and/or of the DEM raster (--dem);
     dz in metres, error bins, mean |dz| and RMSE overall and per group (seed 004 Tab. 1: by vegetation
     density with --groups density)."""
-    from lidarctl import heights_check as hc
+    from lidarctl.checks import heights as hc
     from aerotri.core.atomic import write_text_atomic
 
     *cloud_paths, points_csv = paths
@@ -346,7 +346,7 @@ def check_plan(paths, json_path, png_path, crs, points_crs, **_settings):
     eave corners of lidarctl corners) within --radius; dx, dy, plan offset (LiDAR - surveyed), RMS x / y /
     plan, mean (bias), max, found / not found, dz when the CSV has z; pass / fail against the map scale's
     plan RMS of well-defined features. Wall corners (cadastre footprints) include the roof overhang."""
-    from lidarctl import plan_check as pc
+    from lidarctl.checks import plan as pc
 
     *cloud_paths, points_csv = paths
     params = resolve(PlanCheckSettings, None, click.get_current_context()).settings
@@ -373,7 +373,7 @@ def check_plan(paths, json_path, png_path, crs, points_crs, **_settings):
 def smooth(*, dem_path, out_path, order, edge_m, iterations, step, window_px):
     """Edge-preserving smoothing of DEM_PATH (GeoTIFF) into OUT_PATH (COG): anisotropic diffusion, by
     windows (the same result as in one piece); nodata respected, CRS and units kept."""
-    from lidarctl.smooth import DiffusionSettings, smooth_dem
+    from lidarctl.terrain.smooth import DiffusionSettings, smooth_dem
 
     order = int(order)
     params = DiffusionSettings(order=order, edge_m=edge_m or (1.0 if order == 4 else 0.5),
@@ -403,7 +403,7 @@ def contours(*, dem_path, out_path, interval, index_every, smoothing, tolerance_
     """Contour lines of DEM_PATH (GeoTIFF) into OUT_PATH (.gpkg or .geojson, layer 'contours': elevation in the
     DEM's unit, elevation_m, index, closed), traced on the cell centres and cut at nodata. An interval that
     would put adjacent levels less than a cell apart on average is refused (exit 2)."""
-    from lidarctl.contours import contours_from_file
+    from lidarctl.terrain.contours import contours_from_file
 
     s = contours_from_file(dem_path, out_path, interval=interval, index_every=index_every, smoothing=smoothing,
                            tolerance_px=tolerance_px, tension=tension, png=png)
@@ -436,7 +436,7 @@ def drainage(dem_path, outdir, min_area_m2, fill, simplify_px, png):
     drainage.json. Global: the whole DEM is held in memory, about 100 bytes per cell at the peak (1 GB for
     10 M cells).
     """
-    from lidarctl.drainage import drainage as run
+    from lidarctl.terrain.drainage import drainage as run
 
     r = run(dem_path, outdir, min_area_m2, "fill" if fill else "breach", simplify_px, png)
     click.echo(f"{r.outdir}: {r.valid_cells:,} of {r.cells:,} cells; {r.method}: {r.cells_changed:,} cells changed "
@@ -466,7 +466,7 @@ def vectors(paths, image, dem, contours_path, crs, **_settings):
     (regularised outlines, eave/ridge heights, area), roads (polygons of class 11) and road_centrelines
     (width), water (class 9), spot_heights, and contours (--contours or --dem)."""
     from aerotri.core.errors import OptionError
-    from lidarctl.map_vectors import vectors_to_file
+    from lidarctl.vectors.layers import vectors_to_file
 
     if len(paths) < 2:
         raise OptionError("give the classified cloud(s) and then OUT.gpkg", param="PATHS")
@@ -498,7 +498,7 @@ def check_vectors(product_path, reference_path, json_path, png_path, **_settings
     """Line-map accuracy of PRODUCT_PATH (lidarctl vectors) against --reference: plan RMS of the building corners
     (to the nearest reference outline and to the matched reference corner), completeness and correctness of
     each layer by area (polygons) or buffer (lines), with the map scale's tolerance for well-defined features."""
-    from lidarctl import vector_check as vc
+    from lidarctl.checks import vectors as vc
 
     params = resolve(VectorCheckSettings, None, click.get_current_context()).settings
     result = vc.check_files(product_path, reference_path, params, json_path, png_path)

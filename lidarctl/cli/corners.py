@@ -9,7 +9,7 @@ import click
 from aerotri.core.commands import Command
 from aerotri.core.errors import InputError
 from aerotri.core.settings import click_option, resolve
-from lidarctl.corners import CornerSettings, corner_control
+from lidarctl.corners.roof_corners import CornerSettings, corner_control
 
 
 @click.command(cls=Command, name="corners")

@@ -77,7 +77,7 @@ from aerotri.core.errors import OptionError
 from aerotri.core.settings import setting
 from lidarctl import grid
 from lidarctl.knn import QUERY_CHUNK, BucketGrid
-from lidarctl.slope_filter import SlopeSettings, slope_ground, slope_reach_m
+from lidarctl.classify.slope_filter import SlopeSettings, slope_ground, slope_reach_m
 
 
 @dataclasses.dataclass

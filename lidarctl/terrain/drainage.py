@@ -524,7 +524,7 @@ FILES = ("conditioned.tif", "flowdir.tif", "accum_cells.tif", "accum_m2.tif", "s
 
 
 def _cog(path, array, profile, nodata, unit=None, description=None):
-    from lidarctl.rasters import write_cog
+    from lidarctl.rasters.products import write_cog
 
     write_cog(path, array, profile["transform"], profile["crs"], unit=unit, description=description, nodata=nodata,
               dtype=None)
@@ -557,7 +557,7 @@ def preview_png(dem, transform, net: Network, path, title: str, dx_m: float) -> 
     from matplotlib.collections import LineCollection
     from scipy import ndimage
 
-    from lidarctl.rasters import hillshade
+    from lidarctl.rasters.products import hillshade
 
     ok = np.isfinite(dem)
     hs = np.where(ndimage.binary_erosion(ok, iterations=1, border_value=1), hillshade(dem, dx_m), np.nan)
@@ -601,7 +601,7 @@ def drainage(dem_path, outdir, min_area_m2: float | None = None, method: str = "
 
     from aerotri.core.atomic import atomic_dir
     from aerotri.geom.crs.definition import height_unit_m, linear_unit_m, unit_long_name
-    from lidarctl.dem_io import open_dem
+    from lidarctl.terrain.dem_io import open_dem
 
     if method not in METHODS:
         raise OptionError(f"depression handling is one of {', '.join(METHODS)}, got {method!r}", param="--fill/--breach")

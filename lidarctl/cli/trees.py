@@ -8,7 +8,7 @@ import click
 
 from aerotri.core.commands import Command
 from aerotri.core.settings import click_option
-from lidarctl.trees import TreeSettings
+from lidarctl.rasters.trees import TreeSettings
 
 
 @click.command(cls=Command, name="trees")
@@ -35,7 +35,7 @@ def trees(*, classified, outdir, res_m, max_edge_m, min_height_m, min_stand_area
     height, with their heights), trees.png (preview with a colour key) and trees.json (summary). The four
     files appear together or not at all. Lengths in metres, also for clouds in feet.
     """
-    from lidarctl.trees import trees_from_files
+    from lidarctl.rasters.trees import trees_from_files
 
     settings = TreeSettings(res_m=res_m, max_edge_m=max_edge_m, min_height_m=min_height_m,
                             min_stand_area_m2=min_stand_area_m2, top_radius_m=top_radius_m,

@@ -1,6 +1,6 @@
 """Plan check of the LiDAR against surveyed roof / building corners (issue 24).
 
-The LiDAR's corners are the roof corners of ``lidarctl.corners`` (eave corners of the regularised roof
+The LiDAR's corners are the roof corners of ``lidarctl.corners.roof_corners`` (eave corners of the regularised roof
 outlines, the same extraction as the AT control; every reported corner, usable as control or not). For
 each surveyed point the nearest LiDAR corner within ``radius_m`` horizontally is its match;
 dx, dy = LiDAR - surveyed, the plan offset hypot(dx, dy); dz = LiDAR - surveyed when the CSV has z
@@ -39,7 +39,7 @@ from aerotri.core.textio import read_record, record_error
 from lidarctl.units import LengthUnits
 
 if TYPE_CHECKING:
-    from lidarctl.heights_check import SurveyedPoints
+    from lidarctl.checks.heights import SurveyedPoints
 
 log = logging.getLogger(__name__)
 log.addHandler(logging.NullHandler())
@@ -271,8 +271,8 @@ def check_plan_file(cloud_paths, points_csv, params: PlanCheckSettings = PlanChe
     classified LAS/LAZ file(s) (strips in one CRS). Returns (result, the LiDAR corners in the CRS's units).
     InputError when no surveyed point lies within the clouds' extent (wrong CRS or units, or the wrong area)."""
     from aerotri.core.tolerances import TERRAINS, load_tolerances
-    from lidarctl.corners import find_roof_corners_tiled, to_crs_units
-    from lidarctl.heights_check import read_points_csv
+    from lidarctl.corners.roof_corners import find_roof_corners_tiled, to_crs_units
+    from lidarctl.checks.heights import read_points_csv
 
     params.validate()
     if params.terrain not in TERRAINS:

@@ -1,5 +1,5 @@
 """Class rasters: the land-cover classes of a classified cloud, a class GeoTIFF or class polygons on one
-grid, for map-style accuracy (``lidarctl.map_accuracy``).
+grid, for map-style accuracy (``lidarctl.checks.map_accuracy``).
 
 Classes are ASPRS codes (``MAP_CLASSES``: building 6, tree 5, grass 3, road 11, bare ground 2,
 water 9); ``OTHER`` (0) marks "none of the reference's classes" (outside every reference polygon),

@@ -25,7 +25,7 @@ heights in CRS units, the ``_m`` attributes in metres):
   from any cell that is not open ground (buildings, water, trees, data gaps) - off breaklines; open
   ground is ground, road surface and low vegetation (2, 11, 3: fused classifications label grass 3);
   ``z`` the mean of those points in the cell.
-* ``contours`` (LineString): copied from ``--contours`` or traced from ``--dem`` (``lidarctl.contours``).
+* ``contours`` (LineString): copied from ``--contours`` or traced from ``--dem`` (``lidarctl.terrain.contours``).
 
 Cells and lengths of the parameters are metres whatever the CRS; points are read with
 ``corners.read_strips`` (metres) and written back in the CRS units.
@@ -322,7 +322,7 @@ def building_outlines(pts: dict, spacing_m: float | None = None) -> tuple[list, 
     import shapely
     from shapely.geometry import Polygon
 
-    from lidarctl.corners import find_roof_corners
+    from lidarctl.corners.roof_corners import find_roof_corners
 
     cls = pts["classification"]
     if not (cls == BUILDING).any():
@@ -499,8 +499,8 @@ def _read_contours(path: Path, cloud_crs) -> Layer:
 def _dem_contours(path: Path, out_path: Path, interval_m: float, cloud_crs) -> Layer:
     import shapely
 
-    from lidarctl.contours import trace
-    from lidarctl.dem_io import open_dem
+    from lidarctl.terrain.contours import trace
+    from lidarctl.terrain.dem_io import open_dem
 
     src, z_m = open_dem(path, out_path)
     with src:
@@ -529,8 +529,8 @@ def extract_vectors(paths, out_path, params: MapVectorSettings = MapVectorSettin
     import shapely
     from scipy import ndimage
 
-    from lidarctl.corners import read_strips
-    from lidarctl.roof_segments import point_spacing_m
+    from lidarctl.corners.roof_corners import read_strips
+    from lidarctl.corners.roof_segments import point_spacing_m
 
     for name in ("cell_m", "min_area_m2", "simplify_m", "spot_spacing_m", "contour_interval_m"):
         v = getattr(params, name)

@@ -178,7 +178,7 @@ def smooth_dem(in_path, out_path, params: DiffusionSettings = DiffusionSettings(
     from rasterio.windows import Window
 
     from aerotri.core.atomic import atomic_path, temporary_dir
-    from lidarctl.dem_io import open_dem
+    from lidarctl.terrain.dem_io import open_dem
 
     params.validate()
     if window_px < 16:

@@ -319,7 +319,7 @@ def preview_png(cs: ContourSet, dem: np.ndarray, transform, path, title: str = "
     from scipy import ndimage
 
     from aerotri.core.atomic import atomic_path
-    from lidarctl.rasters import hillshade
+    from lidarctl.rasters.products import hillshade
 
     # no shading where the filled nodata enters the gradient
     hs = np.where(ndimage.binary_erosion(np.isfinite(dem), iterations=1, border_value=1),
@@ -371,7 +371,7 @@ def contours_from_file(dem_path, out_path, *, interval: float, index_every: int 
     ``interval`` in the DEM's height unit (its CRS's: feet for a DEM in feet). Returns the summary (counts,
     fall-backs, crossings, the interval and its unit)."""
     from aerotri.geom.crs.definition import length_unit_name, unit_name
-    from lidarctl.dem_io import open_dem
+    from lidarctl.terrain.dem_io import open_dem
 
     if not (np.isfinite(interval) and interval > 0):
         raise OptionError(f"the contour interval must be a positive number in the DEM's height unit, got {interval}",

@@ -182,8 +182,8 @@ def canopy_model(x, y, z, cls, return_number, settings: TreeSettings, name: str 
     """(grid, DEM, CHM, highest return per cell, TIN vertices) north-up in metres from points in metres
     (the highest return's height above the DEM, NaN in cells without a first return); ``name`` is the
     input named in errors."""
-    from lidarctl.ground import delaunay_2d
-    from lidarctl.rasters import grid_for_bounds
+    from lidarctl.classify.ground import delaunay_2d
+    from lidarctl.rasters.products import grid_for_bounds
 
     s = settings
     keep = ~np.isin(cls, NOISE_CLASSES)
@@ -493,7 +493,7 @@ def trees_from_files(in_paths, outdir, settings: TreeSettings | None = None, crs
     from rasterio.transform import from_origin
 
     from aerotri.core.atomic import refuse_input_as_output
-    from lidarctl import rasters as rs
+    from lidarctl.rasters import products as rs
     from aerotri.geom.crs.definition import length_unit_name
 
     s = settings or TreeSettings()

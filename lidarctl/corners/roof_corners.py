@@ -1,8 +1,8 @@
 """Roof corners as LiDAR ground control: detection, precision, control score, output files.
 
 A corner is the intersection of two adjacent fitted edges of a regularised roof (eave) outline
-(``lidarctl.roof_outline``); its height is the roof plane of the adjacent roof face evaluated at the
-corner (``lidarctl.roof_segments``), i.e. the eave height. Standard deviations sx_m, sy_m come from the
+(``lidarctl.corners.roof_outline``); its height is the roof plane of the adjacent roof face evaluated at the
+corner (``lidarctl.corners.roof_segments``), i.e. the eave height. Standard deviations sx_m, sy_m come from the
 edge-line adjustment, sz_m from the plane fit plus the roof slope times the horizontal uncertainty; both
 include the strip georeferencing error (``sigma_strip_xy_m``, ``sigma_strip_z_m``).
 
@@ -58,7 +58,7 @@ from aerotri.core.settings import Resolved, setting, settings_of
 from aerotri.core.textio import read_record, record_error
 from lidarctl import io as las_io
 from lidarctl.grid import check_grid
-from lidarctl.roof_outline import (
+from lidarctl.corners.roof_outline import (
     CORNER_MARGIN_SPACINGS,
     corners_from_edges,
     edge_length_m,
@@ -68,7 +68,7 @@ from lidarctl.roof_outline import (
     reweight_observations,
     trace_rings,
 )
-from lidarctl.roof_segments import cluster_roofs, point_spacing_m, segment_planes
+from lidarctl.corners.roof_segments import cluster_roofs, point_spacing_m, segment_planes
 from lidarctl.units import LengthUnits
 from aerotri.core.log import track
 

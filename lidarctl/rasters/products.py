@@ -41,7 +41,7 @@ from aerotri.core.settings import setting
 from aerotri.core.limits import check_task_count
 from lidarctl.grid import check_disk, check_grid
 from lidarctl.io import PointCloud
-from lidarctl.raster_cells import CellStats
+from lidarctl.rasters.cells import CellStats
 from lidarctl.raster_ops import DEFAULT_TIN_FILL_RADIUS_PX, fill_nodata, fill_nodata_tin
 from aerotri.geom.crs.definition import length_unit_name
 from lidarctl.units import METRE, LengthUnits

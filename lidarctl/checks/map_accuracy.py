@@ -2,7 +2,7 @@
 (``lidarctl evaluate PRED --reference REF``).
 
 PRED: a classified LAS/LAZ cloud or a class GeoTIFF; REF: a class GeoTIFF or class polygons
-(GeoPackage, GeoJSON). Both go onto one grid (``lidarctl.class_grid``: the reference raster's grid,
+(GeoPackage, GeoJSON). Both go onto one grid (``lidarctl.classify.class_grid``: the reference raster's grid,
 else the prediction raster's, else ``res_m`` cells over the cloud's bounds) as ASPRS codes of the map
 classes (building 6, tree 5, grass 3, road 11, bare ground 2, water 9). Only cells labelled on both
 sides count (a cloud's cell without a point, a raster's nodata are left out).
@@ -13,7 +13,7 @@ building / not-building map.
 
 Measures
 * Pixel confusion matrix (rows reference, columns prediction) with producer's, user's and overall
-  accuracy and Cohen's kappa (``lidarctl.evaluate.confusion``); counts are cells, areas m^2.
+  accuracy and Cohen's kappa (``lidarctl.checks.classes.confusion``); counts are cells, areas m^2.
 * Buildings per area (seed 002): building = positive; type I = reference building area not found /
   reference building area, type II = area wrongly labelled building / reference non-building area,
   overall = correctly labelled area / evaluated area; kappa; completeness TP/(TP+FN) and correctness
@@ -37,8 +37,8 @@ from scipy import ndimage
 
 from aerotri.core.errors import InputError, OptionError
 from aerotri.core.records import to_record
-from lidarctl import class_grid as cg
-from lidarctl.evaluate import Confusion, confusion, filter_errors
+from lidarctl.classify import class_grid as cg
+from lidarctl.checks.classes import Confusion, confusion, filter_errors
 
 log = logging.getLogger(__name__)
 log.addHandler(logging.NullHandler())
@@ -284,7 +284,7 @@ def _within_mask(within: str, polys, grid, ref_path) -> np.ndarray:
 
 def format_map_report(result: MapAccuracy) -> str:
     """The confusion matrix with class names and the building measures as a readable table."""
-    from lidarctl.evaluate import format_confusion
+    from lidarctl.checks.classes import format_confusion
 
     lines = [f"{result.prediction} against {result.reference}: {result.n_cells:,} cells of {result.cell_m:g} m "
              f"({result.n_cells_left_out:,} left out: unlabelled on one side or outside --within)", "",

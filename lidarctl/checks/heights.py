@@ -208,7 +208,7 @@ def dem_heights(dem_path, x, y):
     from rasterio.windows import Window
     from scipy import ndimage
 
-    from lidarctl.dem_io import open_dem
+    from lidarctl.terrain.dem_io import open_dem
 
     x, y = np.asarray(x, float), np.asarray(y, float)
     src, z_m = open_dem(dem_path)
@@ -367,7 +367,7 @@ def _height_check_document(cloud_paths, points_csv, *, radius_m, exclude_m, crs,
             unit = units.xy_name
         _refuse_points_elsewhere(points, points_csv, box, ", ".join(map(str, paths)), unit)
     elif dem_path is not None:
-        from lidarctl.dem_io import open_dem
+        from lidarctl.terrain.dem_io import open_dem
 
         src, _ = open_dem(dem_path)
         with src:

@@ -1,9 +1,9 @@
 """Full classification into ASPRS classes: noise, ground, buildings, vegetation, water.
 
 Pipeline (``classify_points``):
-1. Noise (lidarctl.noise): low outliers -> 7, high outliers -> 18; isolated points -> 7 when below
+1. Noise (lidarctl.classify.noise): low outliers -> 7, high outliers -> 18; isolated points -> 7 when below
    the ground DEM, else 18.
-2. Ground (lidarctl.ground) -> 2; ground points more than ``deep_m`` below the mean ground of
+2. Ground (lidarctl.classify.ground) -> 2; ground points more than ``deep_m`` below the mean ground of
    their 15 m neighbourhood (a deep patch of low noise that slipped through) become low noise
    and the ground is filtered again. Ground refinement (``lifted_ground``): a ground point that
    stands more than ``ground_lift_sigma`` range-noise sigmas above the least-squares plane of its
@@ -99,8 +99,8 @@ from scipy.spatial import cKDTree
 from aerotri.core.errors import ConfigError
 from aerotri.core.settings import setting
 from lidarctl import grid
-from lidarctl import ground as ground_mod
-from lidarctl import noise as noise_mod
+from lidarctl.classify import ground as ground_mod
+from lidarctl.classify import noise as noise_mod
 from lidarctl.knn import QUERY_CHUNK, BucketGrid
 from lidarctl.raster_ops import fill_nodata, plane_rms, reduce_grid, sample_bilinear, slope_tan
 
@@ -115,7 +115,7 @@ class ClassifySettings:
     """Options of the classification stage (``lidarctl classify``, ``[classify]`` in project.toml).
 
     ``ground_method`` and ``preset`` name a filter of the ground-filter registry
-    (``lidarctl.ground.GROUND_FILTERS``) and one of its presets; the field choices list the filters
+    (``lidarctl.classify.ground.GROUND_FILTERS``) and one of its presets; the field choices list the filters
     registered when this module is imported, ``__post_init__`` checks against the registry as it is.
     """
 
@@ -126,10 +126,10 @@ class ClassifySettings:
     preset: str | None = setting(None, choices=ground_mod.preset_names(), help="Ground filter parameters for "
                                  "the terrain type (default: the single all-round set).")
     ground_params: dict = setting(default_factory=dict, help="Ground-filter parameters that replace the "
-                                  "preset's (name -> value; lidarctl.ground.GroundSettings / MorphSettings fields).")
+                                  "preset's (name -> value; lidarctl.classify.ground.GroundSettings / MorphSettings fields).")
     keep_classes: bool = setting(False, help="Keep the classes the LiDAR was delivered with (vendor-classified) "
                                              "after checking that ground and building classes are present and "
-                                             "plausible (lidarctl.delivered_classes); no classification is run.")
+                                             "plausible (lidarctl.classify.delivered_classes); no classification is run.")
     cell_m: float = setting(0.0, min=0.0, help="Cell of the surface grids (DSM, local planes) in metres; 0: max(0.5 m, "
                                                "2 x the mean point spacing).")
     building_min_height_m: float = setting(2.0, min=0.0, help="Objects standing higher than this above the DEM may be "
@@ -1255,7 +1255,7 @@ def spanning_decks(x, y, z, is_building, is_ground, g: DropoutGrid, *, p: Classi
 def classify_points(x, y, z, return_number=None, number_of_returns=None, intensity=None,
                     *, params: ClassifySettings | None = None, fusion=None) -> np.ndarray:
     """ASPRS class per point (uint8). Arrays are per point; heights in metres. ``fusion``
-    (``lidarctl.fusion.Fusion``): the orthophoto's rules applied last (roads, grass/tree, building check)."""
+    (``lidarctl.classify.fusion.Fusion``): the orthophoto's rules applied last (roads, grass/tree, building check)."""
     p = params or ClassifySettings()
     n = len(x)
     if n < 10:
@@ -1431,7 +1431,7 @@ def classify_points(x, y, z, return_number=None, number_of_returns=None, intensi
     cls[bridge_decks(x, y, z, cls == GROUND, is_building, spacing, p=p, dropout=gaps)] = BRIDGE_DECK
     cls[spanning_decks(x, y, z, cls == BUILDING, cls == GROUND, gaps, p=p)] = BRIDGE_DECK
     if fusion is not None:
-        from lidarctl import fusion as fusion_mod
+        from lidarctl.classify import fusion as fusion_mod
 
         cls = fusion_mod.fuse(x, y, z, hag, cls, intensity, img=fusion.image, p=fusion.params,
                               return_number=return_number, number_of_returns=number_of_returns)
