@@ -52,9 +52,26 @@ def _fixed_point_entry(x, y, in_front, x_lo, x_hi, y_lo, y_hi, far):
 
 
 @numba.njit(cache=True, inline="always", fastmath=_FASTMATH)
+def _within_limits(xn, yn, dx, dy, dz, limits):
+    """Whether the ray of a point in front of the camera (normalised position xn, yn; offset dx, dy, dz from the
+    projection centre, m) is inside the lens model's fold and within the view angle of the vertical (``limits``:
+    ``ortho.rectify.RayLimits``, inf where none). Beyond the fold the model turns back and
+    puts ground far outside the field of view inside the frame: such a point must neither be imaged nor stand in a
+    z-buffer. The tests are loop-invariant branches: the compiler makes loops without the tests that do not apply
+    (a lens that does not fold, no view angle: the maps cost what they did without them)."""
+    ok = True
+    if limits.fold_r2 != np.inf:
+        ok = xn * xn + yn * yn <= limits.fold_r2
+    if limits.tan2_vertical != np.inf:
+        ok = ok & (dz < 0.0) & (dx * dx + dy * dy <= limits.tan2_vertical * (dz * dz))
+    return ok
+
+
+@numba.njit(cache=True, inline="always", fastmath=_FASTMATH)
 def _ground_to_image(r, c, inv_s, anchor_x, anchor_y, dem, dem_x0, dem_y0, dem_res, centre, M, cam, width, height,
-                     margin):
-    """Ground point of output pixel (r, c), its height and image position; ok False if not imaged."""
+                     margin, limits):
+    """Ground point of output pixel (r, c), its height and image position; ok False if not imaged (outside the
+    DEM, behind the camera, beyond ``limits``, outside the frame)."""
     ar = r * inv_s
     i0 = min(int(ar), anchor_x.shape[0] - 2)
     fr = ar - i0
@@ -79,24 +96,25 @@ def _ground_to_image(r, c, inv_s, anchor_x, anchor_y, dem, dem_x0, dem_y0, dem_r
     xn = (M[0, 0] * dx + M[0, 1] * dy + M[0, 2] * dz) / zc
     yn = (M[1, 0] * dx + M[1, 1] * dy + M[1, 2] * dz) / zc
     x, y = to_pixel(cam, xn, yn)
-    ok = x >= margin and x <= width - 1 - margin and y >= margin and y <= height - 1 - margin
+    ok = (x >= margin and x <= width - 1 - margin and y >= margin and y <= height - 1 - margin
+          and _within_limits(xn, yn, dx, dy, dz, limits))
     return Z, x, y, ok
 
 
 @numba.njit(parallel=True, cache=True, fastmath=_FASTMATH)
 def _backproject_kernel(anchor_x, anchor_y, spacing, rows, cols, dem, dem_x0, dem_y0, dem_res,
-                        centre, M, cam, width, height, margin, map_x, map_y, height_out):
+                        centre, M, cam, width, height, margin, limits, map_x, map_y, height_out):
     """Float image coordinates (map_x, map_y; -1e5 where not imaged) and heights of a rows x cols tile.
 
     cam: the camera's kernel parameters (``Camera.kernel_params()``, any model of
     ``aerotri.geom.lens_kernels``); M = (R @ FLIP_YZ).T maps object offsets to the computer-vision camera
-    frame.
+    frame; ``limits``: ``ortho.rectify.RayLimits``.
     """
     inv_s = 1.0 / spacing
     for r in numba.prange(rows):
         for c in range(cols):
             Z, x, y, ok = _ground_to_image(r, c, inv_s, anchor_x, anchor_y, dem, dem_x0, dem_y0, dem_res, centre, M,
-                                           cam, width, height, margin)
+                                           cam, width, height, margin, limits)
             map_x[r, c] = x if ok else _INVALID
             map_y[r, c] = y if ok else _INVALID
             height_out[r, c] = Z
@@ -126,7 +144,7 @@ def _pack_fixed_point(ix_row, iy_row, int_row, frac_row, bounds):
 
 @numba.njit(cache=True, nogil=True, fastmath=_FASTMATH, error_model="numpy")
 def _fixed_point_kernel(anchor_x, anchor_y, spacing, rows, cols, dem, dem_x0, dem_y0, dem_res,
-                        centre, M, cam, width, height, margin, map_int, map_frac, mask, height_out, bounds):
+                        centre, M, cam, width, height, margin, limits, map_int, map_frac, mask, height_out, bounds):
     """As _backproject_kernel, but writes cv2.remap's fixed-point maps directly (CV_16SC2 integer
     positions + CV_16UC1 1/32 px fractions, as cv2.convertMaps would), the validity mask (255/0) and
     the integer bounds of the imaged positions (``bounds``, see _pack_fixed_point).
@@ -163,7 +181,8 @@ def _fixed_point_kernel(anchor_x, anchor_y, spacing, rows, cols, dem, dem_x0, de
             xn = (m00 * dx + m01 * dy + m02 * dz) * inv_zc
             yn = (m10 * dx + m11 * dy + m12 * dz) * inv_zc
             x, y = to_pixel(cam, xn, yn)
-            ix_row[c], iy_row[c], mask_row[c] = _fixed_point_entry(x, y, zc > 0.0, x_lo, x_hi, y_lo, y_hi, far)
+            seen = (zc > 0.0) & _within_limits(xn, yn, dx, dy, dz, limits)
+            ix_row[c], iy_row[c], mask_row[c] = _fixed_point_entry(x, y, seen, x_lo, x_hi, y_lo, y_hi, far)
         _pack_fixed_point(ix_row, iy_row, map_int[r], map_frac[r], bounds)
 
 
@@ -329,8 +348,8 @@ def _occlusion_kernel(anchor_x, anchor_y, spacing, rows, cols, height_tile, dsm,
 
 
 @numba.njit(cache=True, nogil=True, fastmath=_FASTMATH, error_model="numpy")
-def _fixed_point_kernel_affine(heights, x0, y0, res, centre, M, cam, width, height, margin, map_int, map_frac, mask,
-                               bounds):
+def _fixed_point_kernel_affine(heights, x0, y0, res, centre, M, cam, width, height, margin, limits, map_int, map_frac,
+                               mask, bounds):
     """Fast path of _fixed_point_kernel when the output grid is in the project CRS: ground X, Y are
     affine in (row, col) and the heights on the grid are given (bilinear DEM, see heights_on_grid).
 
@@ -361,18 +380,21 @@ def _fixed_point_kernel_affine(heights, x0, y0, res, centre, M, cam, width, heig
             xn = (bx + c * sx + m02 * dz) * inv_zc
             yn = (by + c * sy + m12 * dz) * inv_zc
             x, y = to_pixel(cam, xn, yn)
-            ix_row[c], iy_row[c], mask_row[c] = _fixed_point_entry(x, y, zc > 0.0, x_lo, x_hi, y_lo, y_hi, far)
+            seen = (zc > 0.0) & _within_limits(xn, yn, dx0 + c * res, dy, dz, limits)
+            ix_row[c], iy_row[c], mask_row[c] = _fixed_point_entry(x, y, seen, x_lo, x_hi, y_lo, y_hi, far)
         _pack_fixed_point(ix_row, iy_row, map_int[r], map_frac[r], bounds)
 
 
 @numba.njit(cache=True, nogil=True, fastmath=_FASTMATH, error_model="numpy")
-def _zbuffer_kernel(anchor_x, anchor_y, spacing, heights, centre, M, cam, width, height, cell_px, zbuf, tolerance_m,
-                    occluded, scatter):
+def _zbuffer_kernel(anchor_x, anchor_y, spacing, heights, centre, M, cam, fold_r2, width, height, cell_px, zbuf,
+                    tolerance_m, occluded, scatter):
     """Z-buffer occlusion of a true ortho: the surface points of a tile (its pixels at their DSM ``heights``)
     projected into the frame, their depth along the optical axis (zc, m) compared by cells of ``cell_px``
     image pixels. ``scatter``: keep the nearest depth per cell in ``zbuf`` (first pass, over every tile of
     the frame); else mark ``occluded`` the points more than ``tolerance_m`` behind the nearest surface of
-    their cell (points outside the frame or on nodata are left as they are)."""
+    their cell (points outside the frame or on nodata are left as they are). Points beyond the lens fold
+    (normalised radius squared above ``fold_r2``, inf: none) are neither: the model puts them at a wrong place in
+    the image. (The view angle does not apply: a surface seen beyond it may still hide ground within it.)"""
     inv_s = 1.0 / spacing
     rows, cols = heights.shape
     zh, zw = zbuf.shape
@@ -400,6 +422,8 @@ def _zbuffer_kernel(anchor_x, anchor_y, spacing, heights, centre, M, cam, width,
                 continue
             xn = (M[0, 0] * dx + M[0, 1] * dy + M[0, 2] * dz) / zc
             yn = (M[1, 0] * dx + M[1, 1] * dy + M[1, 2] * dz) / zc
+            if not xn * xn + yn * yn <= fold_r2:
+                continue
             x, y = to_pixel(cam, xn, yn)
             if not (x >= 0.0 and y >= 0.0 and x < width and y < height):
                 continue
@@ -442,13 +466,14 @@ def _fill_gap(x0, y0, z0, x1, y1, z1, flat_x, flat_y, cell_px, inv_cell, zbuf):
 
 
 @numba.njit(cache=True, nogil=True, fastmath=_FASTMATH, error_model="numpy")
-def _zbuffer_scatter_affine(heights, x0, y0, res, centre, M, cam, width, height, cell_px, zbuf):
+def _zbuffer_scatter_affine(heights, x0, y0, res, centre, M, cam, fold_r2, width, height, cell_px, zbuf):
     """The scatter pass of ``_zbuffer_kernel`` when the output grid is in the project CRS (ground X, Y affine in
     (row, col), heights given on the grid): the projection is branch-free and vectorised as in
     ``_fixed_point_kernel_affine``, positions and depth go to row arrays, and a second, scalar loop keeps the
     nearest depth per cell and fills the gaps between neighbours (left and above) that land more than a cell apart
-    (``_fill_gap``). NaN heights fail the range test. Tiles must overlap by a row and a column for the gaps
-    across their edges."""
+    (``_fill_gap``). NaN heights fail the range test; points beyond the lens fold (``fold_r2``, as
+    ``_zbuffer_kernel``) are not surface points, nor ends of a gap. Tiles must overlap by a row and a column for the
+    gaps across their edges."""
     rows, cols = heights.shape
     zh, zw = zbuf.shape
     inv_cell = 1.0 / cell_px
@@ -476,7 +501,8 @@ def _zbuffer_scatter_affine(heights, x0, y0, res, centre, M, cam, width, height,
             xn = (bx + c * sx + m02 * dz) * inv_zc
             yn = (by + c * sy + m12 * dz) * inv_zc
             x, y = to_pixel(cam, xn, yn)
-            ok_row[c] = (zc > 0.0) & (x >= 0.0) & (y >= 0.0) & (x < width) & (y < height)
+            ok_row[c] = (zc > 0.0) & (xn * xn + yn * yn <= fold_r2) & (x >= 0.0) & (y >= 0.0) & (x < width) & \
+                (y < height)
             x_row[c] = x
             y_row[c] = y
             zc_row[c] = zc
