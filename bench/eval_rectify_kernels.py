@@ -12,7 +12,8 @@ not counted (the compiled code loaded, the height rasters scanned). The sides al
 machine's load changes); each side's least CPU is reported with the load average of every run.
 
     python bench/eval_rectify_kernels.py --before DIR [--demo out/demo/project] [--rounds 3] [--work DIR]
-        [--images DIR] [--dem lidar_out/dem.tif] [--dsm lidar_out/dsm.tif] [--json bench/results/rectify_kernels.json]
+        [--images DIR] [--dem lidar_out/dem.tif] [--dsm lidar_out/dsm.tif] [--max-view-angle DEG] [--crs CRS]
+        [--json bench/results/rectify_kernels.json]
 """
 
 from __future__ import annotations
@@ -61,7 +62,7 @@ def _products(project: Path) -> dict:
     return {"sha256": block.hexdigest(), "frames": frames, "frame_ortho_mp": round(mp, 3)}
 
 
-def _measure(demo: Path, work: Path, images: Path, dem: str, dsm: str) -> dict:
+def _measure(demo: Path, work: Path, images: Path, dem: str, dsm: str, extra: dict) -> dict:
     from aerotri.geom.eo import read_eo
     from ortho.block import rectify_block
     from ortho.settings import RectifySettings
@@ -71,8 +72,8 @@ def _measure(demo: Path, work: Path, images: Path, dem: str, dsm: str) -> dict:
     for way in WAYS:
         p = work / way
         _small_project(demo, p, images, tuple(dict.fromkeys((dem, dsm))))
-        s = RectifySettings(dem=str(p / dem), true_ortho=True, dsm=str(p / dsm)) if way == "true_ortho" \
-            else RectifySettings(dem=str(p / dem))
+        s = RectifySettings(dem=str(p / dem), true_ortho=True, dsm=str(p / dsm), **extra) if way == "true_ortho" \
+            else RectifySettings(dem=str(p / dem), **extra)
         rectify_block(p, s, frames=frames[:1])  # not counted
         shutil.rmtree(p / "ortho")
         c, t = time.process_time(), time.perf_counter()
@@ -90,7 +91,8 @@ def _measure(demo: Path, work: Path, images: Path, dem: str, dsm: str) -> dict:
 def _side(code: Path, a: argparse.Namespace, work: Path) -> dict:
     env = dict(os.environ, PYTHONPATH=str(code))
     r = subprocess.run([sys.executable, __file__, "--measure", "--demo", str(a.demo.resolve()), "--work", str(work),
-                        "--images", str(a.images.resolve()), "--dem", a.dem, "--dsm", a.dsm], env=env,
+                        "--images", str(a.images.resolve()), "--dem", a.dem, "--dsm", a.dsm,
+                        "--max-view-angle", str(a.max_view_angle)] + (["--crs", a.crs] if a.crs else []), env=env,
                        capture_output=True, text=True)
     if r.returncode != 0:
         raise SystemExit(f"{code}: the measurement failed:\n{r.stderr[-3000:]}")
@@ -104,6 +106,8 @@ def main() -> None:
     ap.add_argument("--images", type=Path, help="its frames (default: its images folder)")
     ap.add_argument("--dem", default="lidar_out/dem.tif", help="the DEM, relative to the project")
     ap.add_argument("--dsm", default="lidar_out/dsm.tif", help="the true ortho's DSM, relative to the project")
+    ap.add_argument("--max-view-angle", type=float, default=90.0, help="ortho rectify --max-view-angle")
+    ap.add_argument("--crs", help="ortho rectify --crs (default: the project CRS)")
     ap.add_argument("--rounds", type=int, default=3, help="before/after runs, alternating")
     ap.add_argument("--work", type=Path, default=ROOT / "out" / "rectify_kernels")
     ap.add_argument("--json", type=Path)
@@ -111,7 +115,8 @@ def main() -> None:
     a = ap.parse_args()
     a.images = a.images or a.demo / "images"
     if a.measure:
-        print(json.dumps(_measure(a.demo, a.work, a.images, a.dem, a.dsm)))
+        extra = {"max_view_angle_deg": a.max_view_angle} | ({"crs": a.crs} if a.crs else {})
+        print(json.dumps(_measure(a.demo, a.work, a.images, a.dem, a.dsm, extra)))
         return
     if a.before is None:
         ap.error("--before DIR is needed")
@@ -140,7 +145,8 @@ def main() -> None:
     if a.json:
         commit = subprocess.run(["git", "-C", str(ROOT), "rev-parse", "HEAD"], capture_output=True,
                                 text=True).stdout.strip()
-        doc = {"project": str(a.demo), "dem": a.dem, "dsm": a.dsm, "rounds": a.rounds, "commit": commit,
+        doc = {"project": str(a.demo), "dem": a.dem, "dsm": a.dsm, "max_view_angle_deg": a.max_view_angle,
+               "crs": a.crs, "rounds": a.rounds, "commit": commit,
                "before": str(a.before), "ways": rows, "runs": runs}
         from aerotri.core.atomic import write_text_atomic
 

@@ -65,6 +65,97 @@ class RayLimits(NamedTuple):
     tan2_vertical: float
 
 
+# -- the kernels' argument groups (``ortho.rectify_kernels`` reads their fields by name) -------------------------
+class HeightGrid(NamedTuple):
+    """A DEM or DSM as the kernels take it: heights (float32 (rows, cols), NaN nodata), its top-left corner and cell
+    size in the project CRS."""
+
+    heights_m: np.ndarray
+    x_left_m: float
+    y_top_m: float
+    res_m: float
+
+
+class AnchorGrid(NamedTuple):
+    """A tile's project coordinates (float64 (rows, cols) each) at every ``spacing_px``-th output pixel
+    (``GridToProject.anchors``), interpolated bilinearly between them."""
+
+    x_m: np.ndarray
+    y_m: np.ndarray
+    spacing_px: float
+
+
+class AffineTile(NamedTuple):
+    """A tile of an output grid in the project CRS: the heights at its cell centres (float32 (rows, cols)), the
+    first (top-left) cell centre and the cell size; ground X, Y are affine in (row, col)."""
+
+    heights_m: np.ndarray
+    x0_m: float
+    y0_m: float
+    res_m: float
+
+
+class FrameArgs(NamedTuple):
+    """A frame as the kernels take it: projection centre (3,), the object -> computer-vision camera matrix M =
+    (R @ FLIP_YZ).T, the camera's kernel parameters (``Camera.kernel_params()``), the frame's size and its
+    ``RayLimits``."""
+
+    centre_m: np.ndarray
+    M: np.ndarray
+    cam: tuple
+    width_px: int
+    height_px: int
+    limits: RayLimits
+
+
+class RemapMaps(NamedTuple):
+    """What the fixed-point kernels write: cv2.remap's maps (int16 (rows, cols, 2), uint16 (rows, cols)), the
+    validity mask (uint8 255/0) and the integer bounds of the imaged positions (int32 [4])."""
+
+    map_int: np.ndarray
+    map_frac: np.ndarray
+    mask: np.ndarray
+    bounds: np.ndarray
+
+
+class ZBufferArgs(NamedTuple):
+    """A z-buffer as the kernels take it (``ZBuffer``): depth per cell (float32), cell size (px), tolerance (m)."""
+
+    depth_m: np.ndarray
+    cell_px: int
+    tolerance_m: float
+
+
+class MarchArgs(NamedTuple):
+    """The march's bounds (``MarchBound``) and settings: the highest DSM height, the highest heights by blocks of
+    ``block`` and of ``coarse`` cells, the tolerance (m) and ``OWN_COLUMN_M``."""
+
+    max_m: float
+    block_max_m: np.ndarray
+    block: int
+    coarse_max_m: np.ndarray
+    coarse: int
+    tolerance_m: float
+    own_column_m: float
+
+
+class TilePoints(NamedTuple):
+    """The points of a tile the march tests: their heights (float32 (rows, cols)), which to test (bool), and the
+    z-buffer's hint (``near_share``, float32 like the tile, or (1, 1) for none)."""
+
+    heights_m: np.ndarray
+    candidates: np.ndarray
+    near_share: np.ndarray
+
+
+def _height_grid(raster: HeightRaster) -> HeightGrid:
+    return HeightGrid(raster.heights_m, raster.x_left_m, raster.y_top_m, raster.res_m)
+
+
+def _affine_tile(heights_m: np.ndarray, grid: OrthoGrid) -> AffineTile:
+    return AffineTile(heights_m, grid.x_left_m + 0.5 * grid.res_m, grid.y_top_m - 0.5 * grid.res_m, grid.res_m)
+
+
 @dataclasses.dataclass
 class FrameGeometry:
     """The per-frame inputs of the back-projection; cells whose ray to the projection centre is more than
@@ -89,6 +180,11 @@ class FrameGeometry:
         """The kernels' limits of this frame's rays: the lens fold and ``max_view_angle_deg``."""
         tan2 = math.tan(math.radians(self.max_view_angle_deg)) ** 2 if self.max_view_angle_deg < 90.0 else math.inf
         return RayLimits(self.fold_r2(), tan2)
+
+    def kernel_frame(self) -> FrameArgs:
+        """The frame as the kernels take it."""
+        centre, M, params = self.kernel_args()
+        return FrameArgs(centre, M, params, self.camera.width, self.camera.height, self.ray_limits())
 
 
 def heights_on_grid(dem: HeightRaster, grid: OrthoGrid, out: np.ndarray | None = None) -> np.ndarray:
@@ -118,16 +214,14 @@ def image_coordinates(geometry: FrameGeometry, dem: HeightRaster, grid: OrthoGri
     """
     to_project = to_project or GridToProject(grid.crs, grid.crs)
     AX, AY, s = to_project.anchors(grid)
-    centre, M, params = geometry.kernel_args()
     shape = (grid.height, grid.width)
     map_x = np.empty(shape, np.float32)
     map_y = np.empty(shape, np.float32)
     z = np.empty(shape, np.float32)
     from ortho.rectify_kernels import _backproject_kernel
 
-    _backproject_kernel(AX, AY, float(s), grid.height, grid.width, dem.heights_m, dem.x_left_m, dem.y_top_m, dem.res_m,
-                        centre, M, params, geometry.camera.width, geometry.camera.height, float(margin_px),
-                        geometry.ray_limits(), map_x, map_y, z)
+    _backproject_kernel(AnchorGrid(AX, AY, float(s)), _height_grid(dem), geometry.kernel_frame(), float(margin_px),
+                        (map_x, map_y, z))
     return map_x, map_y, z, (AX, AY, s)
 
 
@@ -164,7 +258,6 @@ def fixed_point_maps(geometry: FrameGeometry, dem: HeightRaster, grid: OrthoGrid
     """
     to_project = to_project or GridToProject(grid.crs, grid.crs)
     AX, AY, s = to_project.anchors(grid)
-    centre, M, params = geometry.kernel_args()
     shape = (grid.height, grid.width)
     if buffers is not None:
         map_int, map_frac, z = buffers.views(*shape)
@@ -175,16 +268,12 @@ def fixed_point_maps(geometry: FrameGeometry, dem: HeightRaster, grid: OrthoGrid
     bounds[:] = (32767, -32768, 32767, -32768)
     from ortho.rectify_kernels import _fixed_point_kernel, _fixed_point_kernel_affine
 
-    limits = geometry.ray_limits()
+    frame, maps = geometry.kernel_frame(), RemapMaps(map_int, map_frac, mask, bounds)
     if to_project.identity:
         z = heights_on_grid(dem, grid, out=z)
-        _fixed_point_kernel_affine(z, grid.x_left_m + 0.5 * grid.res_m, grid.y_top_m - 0.5 * grid.res_m, grid.res_m,
-                                   centre, M, params, geometry.camera.width, geometry.camera.height, float(margin_px),
-                                   limits, map_int, map_frac, mask, bounds)
+        _fixed_point_kernel_affine(_affine_tile(z, grid), frame, float(margin_px), maps)
         return map_int, map_frac, mask, z, (AX, AY, s)
-    _fixed_point_kernel(AX, AY, float(s), grid.height, grid.width, dem.heights_m, dem.x_left_m, dem.y_top_m, dem.res_m,
-                        centre, M, params, geometry.camera.width, geometry.camera.height, float(margin_px), limits,
-                        map_int, map_frac, mask, z, bounds)
+    _fixed_point_kernel(AnchorGrid(AX, AY, float(s)), _height_grid(dem), frame, float(margin_px), maps, z)
     return map_int, map_frac, mask, z, (AX, AY, s)
 
 
@@ -231,11 +320,12 @@ def occlusion_mask(geometry: FrameGeometry, dsm: HeightRaster, grid: OrthoGrid, 
     bound = bound or march_bound(dsm)
     from ortho.rectify_kernels import _occlusion_kernel
 
-    _occlusion_kernel(AX, AY, float(s), grid.height, grid.width, heights_m.astype(np.float32), dsm.heights_m,
-                      dsm.x_left_m, dsm.y_top_m, dsm.res_m, bound.max_m, np.asarray(geometry.centre_m, np.float64),
-                      float(tolerance_m), occ, np.ones(occ.shape, np.bool_) if candidates is None else candidates,
-                      bound.block_max_m, bound.block, bound.coarse_max_m, bound.coarse,
-                      np.zeros((1, 1), np.float32) if near_share is None else near_share, float(OWN_COLUMN_M))
+    points = TilePoints(heights_m.astype(np.float32), np.ones(occ.shape, np.bool_) if candidates is None else candidates,
+                        np.zeros((1, 1), np.float32) if near_share is None else near_share)
+    march = MarchArgs(bound.max_m, bound.block_max_m, bound.block, bound.coarse_max_m, bound.coarse,
+                      float(tolerance_m), float(OWN_COLUMN_M))
+    _occlusion_kernel(AnchorGrid(AX, AY, float(s)), points, _height_grid(dsm), march,
+                      np.asarray(geometry.centre_m, np.float64), occ)
     return occ
 
 
@@ -261,9 +351,10 @@ def frame_zbuffer(geometry: FrameGeometry, dsm: HeightRaster, grid: OrthoGrid, t
     from ortho.rectify_kernels import _zbuffer_kernel, _zbuffer_scatter_affine
 
     to_project = to_project or GridToProject(grid.crs, grid.crs)
-    centre, M, params = geometry.kernel_args()
-    # every surface point seen, whatever the view angle (it may hide ground within it), but none beyond the fold
-    fold_r2 = geometry.fold_r2()
+    # every surface point seen, whatever the view angle (it may hide ground within it), but none beyond the fold:
+    # the z-buffer kernels read the frame's fold alone
+    frame = geometry.kernel_frame()
+    centre, params = frame.centre_m, frame.cam
     cam = geometry.camera
     finite = dsm.heights_m[np.isfinite(dsm.heights_m)]
     distance_m = max(1.0, float(centre[2]) - (float(np.median(finite)) if finite.size else 0.0))
@@ -288,14 +379,12 @@ def frame_zbuffer(geometry: FrameGeometry, dsm: HeightRaster, grid: OrthoGrid, t
                 r1, c1 = max(r0 - 1, 0), max(c0 - 1, 0)
                 tile = grid.window(c1, r1, c0 + tile.width - c1, r0 + tile.height - r1)
                 z = heights_on_grid(dsm, tile, out=over.views(tile.height, tile.width)[2])
-                _zbuffer_scatter_affine(z, tile.x_left_m + 0.5 * tile.res_m, tile.y_top_m - 0.5 * tile.res_m,
-                                        tile.res_m, centre, M, params, fold_r2, cam.width, cam.height, cell_px, depth)
+                _zbuffer_scatter_affine(_affine_tile(z, tile), frame, ZBufferArgs(depth, cell_px, 0.0))
                 continue
             else:
                 m = mask[:tile.height * tile.width].reshape(tile.height, tile.width)
                 _, _, _, z, (AX, AY, s) = fixed_point_maps(geometry, dsm, tile, to_project, buffers=buffers, mask_out=m)
-            _zbuffer_kernel(AX, AY, float(s), z, centre, M, params, fold_r2, cam.width, cam.height, float(cell_px),
-                            depth, 0.0, none, True)
+            _zbuffer_kernel(AnchorGrid(AX, AY, float(s)), z, frame, ZBufferArgs(depth, cell_px, 0.0), none, True)
     # each cell gets the nearest surface of its 3 x 3 cells: a point just inside the edge of a hidden area lands
     # beside the image of the roof edge hiding it, often in a cell that the roof's samples (the last of them up to
     # an output pixel inside the edge) miss, among the visible ground beyond the edge at about its own depth: it was
@@ -310,13 +399,11 @@ def zbuffer_occlusion(geometry: FrameGeometry, zbuffer: ZBuffer, heights_m: np.n
     from ortho.rectify_kernels import _zbuffer_kernel
 
     AX, AY, s = anchors
-    centre, M, params = geometry.kernel_args()
     occ = np.zeros(heights_m.shape, np.bool_) if out is None else out
     if out is not None:
         occ[...] = False
-    _zbuffer_kernel(AX, AY, float(s), heights_m, centre, M, params, geometry.fold_r2(), geometry.camera.width,
-                    geometry.camera.height, float(zbuffer.cell_px), zbuffer.depth_m, float(zbuffer.tolerance_m), occ,
-                    False)
+    _zbuffer_kernel(AnchorGrid(AX, AY, float(s)), heights_m, geometry.kernel_frame(),
+                    ZBufferArgs(zbuffer.depth_m, zbuffer.cell_px, float(zbuffer.tolerance_m)), occ, False)
     return occ
 
 
@@ -329,11 +416,10 @@ def zbuffer_occlusion_from_maps(geometry: FrameGeometry, zbuffer: ZBuffer, tile:
     (for ``occlusion_mask``)."""
     from ortho.rectify_kernels import _zbuffer_test_maps
 
-    centre, M, _ = geometry.kernel_args()
     out[...] = False
     near = np.empty(heights_m.shape, np.float32) if near_share is None else near_share
-    _zbuffer_test_maps(map_int, mask, heights_m, tile.x_left_m + 0.5 * tile.res_m, tile.y_top_m - 0.5 * tile.res_m,
-                       tile.res_m, centre, M, zbuffer.cell_px, zbuffer.depth_m, float(zbuffer.tolerance_m), out, near)
+    _zbuffer_test_maps((map_int, mask), _affine_tile(heights_m, tile), geometry.kernel_frame(),
+                       ZBufferArgs(zbuffer.depth_m, zbuffer.cell_px, float(zbuffer.tolerance_m)), out, near)
     return out
 
 
