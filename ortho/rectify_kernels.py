@@ -240,7 +240,7 @@ def _dda_step(boundary, between, cell, step):
 @numba.njit(cache=True, nogil=True)
 def _occlusion_kernel(anchors, points, grid, march, centre, occluded):
     """Mark ground points whose ray to the projection centre passes below the DSM surface (``HeightGrid``
-    ``grid``): the points of a tile (``AnchorGrid`` ``anchors``) at heights ``points.heights`` (``TilePoints``), the
+    ``grid``): the points of a tile (``AnchorGrid`` ``anchors``) at heights ``points.heights_m`` (``TilePoints``), the
     ``MarchArgs`` ``march`` (bounds, ``tolerance_m``, ``own_column_m``), into ``occluded``.
 
     The DSM is taken as columns: each cell a flat top at its height over its whole square (the edge of a roof
@@ -472,13 +472,12 @@ def _zbuffer_kernel(anchors, heights, frame, zbuffer, occluded, scatter):
 @numba.njit(cache=True, inline="always", fastmath=_FASTMATH, error_model="numpy")
 def _fill_gap(p0, p1, flat, cell_px, inv_cell, zbuf):
     """Where two neighbouring surface points of the output grid (``p0``, ``p1``: image x, y and depth) land more than
-    a cell apart in the image (a wall:
-    the DSM's ramp between roof edge and ground spans a DSM cell on the ground but many pixels in the image), the
-    surface between them, sampled along the image segment at less than a cell's spacing, depth perspective-correct
-    (1 / depth linear in the image), into the z-buffer: without it the ground seen through the wall's image has
-    no nearer surface in its cell and is not a candidate. ``flat_x, flat_y``: the image direction of the same
-    ground step on flat ground; a gap against it is a fold (a wall facing away, whose image the roof in front of
-    it covers): not filled."""
+    a cell apart in the image (a wall: the DSM's ramp between roof edge and ground spans a DSM cell on the ground but
+    many pixels in the image), the surface between them, sampled along the image segment at less than a cell's
+    spacing, depth perspective-correct (1 / depth linear in the image), into the z-buffer: without it the ground seen
+    through the wall's image has no nearer surface in its cell and is not a candidate. ``flat`` (x, y): the image
+    direction of the same ground step on flat ground; a gap against it is a fold (a wall facing away, whose image the
+    roof in front of it covers): not filled."""
     x0, y0, z0 = p0
     x1, y1, z1 = p1
     flat_x, flat_y = flat
