@@ -35,7 +35,7 @@ import os
 import queue
 import threading
 from concurrent.futures import ThreadPoolExecutor
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, NamedTuple
 
 import cv2
 import numpy as np
@@ -53,18 +53,138 @@ if TYPE_CHECKING:
 INTERPOLATION = {"nearest": cv2.INTER_NEAREST, "bilinear": cv2.INTER_LINEAR, "cubic": cv2.INTER_CUBIC, "lanczos": cv2.INTER_LANCZOS4}
 
 
+class RayLimits(NamedTuple):
+    """Which rays of a frame the kernels image (``ortho.rectify_kernels._within_limits``, beside "in front of the
+    camera"): ``fold_r2``, the square of the normalised radius where the lens model folds (``Camera.fold_radius``;
+    inf: it does not), and ``tan2_vertical``, the square of the tangent of the largest angle from the vertical
+    (inf: no limit). Beyond the fold the model turns back and ground far outside the field of view lands inside
+    the frame (wedges of smeared corner pixels round an oblique drone block's mosaic, and in a true ortho's
+    z-buffer surfaces in front of ground they do not hide), so that limit always applies."""
+
+    fold_r2: float
+    tan2_vertical: float
+
+
+# -- the kernels' argument groups (``ortho.rectify_kernels`` reads their fields by name) -------------------------
+class HeightGrid(NamedTuple):
+    """A DEM or DSM as the kernels take it: heights (float32 (rows, cols), NaN nodata), its top-left corner and cell
+    size in the project CRS."""
+
+    heights_m: np.ndarray
+    x_left_m: float
+    y_top_m: float
+    res_m: float
+
+
+class AnchorGrid(NamedTuple):
+    """A tile's project coordinates (float64 (rows, cols) each) at every ``spacing_px``-th output pixel
+    (``GridToProject.anchors``), interpolated bilinearly between them."""
+
+    x_m: np.ndarray
+    y_m: np.ndarray
+    spacing_px: float
+
+
+class AffineTile(NamedTuple):
+    """A tile of an output grid in the project CRS: the heights at its cell centres (float32 (rows, cols)), the
+    first (top-left) cell centre and the cell size; ground X, Y are affine in (row, col)."""
+
+    heights_m: np.ndarray
+    x0_m: float
+    y0_m: float
+    res_m: float
+
+
+class FrameArgs(NamedTuple):
+    """A frame as the kernels take it: projection centre (3,), the object -> computer-vision camera matrix M =
+    (R @ FLIP_YZ).T, the camera's kernel parameters (``Camera.kernel_params()``), the frame's size and its
+    ``RayLimits``."""
+
+    centre_m: np.ndarray
+    M: np.ndarray
+    cam: tuple
+    width_px: int
+    height_px: int
+    limits: RayLimits
+
+
+class RemapMaps(NamedTuple):
+    """What the fixed-point kernels write: cv2.remap's maps (int16 (rows, cols, 2), uint16 (rows, cols)), the
+    validity mask (uint8 255/0) and the integer bounds of the imaged positions (int32 [4])."""
+
+    map_int: np.ndarray
+    map_frac: np.ndarray
+    mask: np.ndarray
+    bounds: np.ndarray
+
+
+class ZBufferArgs(NamedTuple):
+    """A z-buffer as the kernels take it (``ZBuffer``): depth per cell (float32), cell size (px), tolerance (m)."""
+
+    depth_m: np.ndarray
+    cell_px: int
+    tolerance_m: float
+
+
+class MarchArgs(NamedTuple):
+    """The march's bounds (``MarchBound``) and settings: the highest DSM height, the highest heights by blocks of
+    ``block`` and of ``coarse`` cells, the tolerance (m) and ``OWN_COLUMN_M``."""
+
+    max_m: float
+    block_max_m: np.ndarray
+    block: int
+    coarse_max_m: np.ndarray
+    coarse: int
+    tolerance_m: float
+    own_column_m: float
+
+
+class TilePoints(NamedTuple):
+    """The points of a tile the march tests: their heights (float32 (rows, cols)), which to test (bool), and the
+    z-buffer's hint (``near_share``, float32 like the tile, or (1, 1) for none)."""
+
+    heights_m: np.ndarray
+    candidates: np.ndarray
+    near_share: np.ndarray
+
+
+def _height_grid(raster: HeightRaster) -> HeightGrid:
+    return HeightGrid(raster.heights_m, raster.x_left_m, raster.y_top_m, raster.res_m)
+
+
+def _affine_tile(heights_m: np.ndarray, grid: OrthoGrid) -> AffineTile:
+    return AffineTile(heights_m, grid.x_left_m + 0.5 * grid.res_m, grid.y_top_m - 0.5 * grid.res_m, grid.res_m)
+
+
 @dataclasses.dataclass
 class FrameGeometry:
-    """The per-frame inputs of the back-projection."""
+    """The per-frame inputs of the back-projection; cells whose ray to the projection centre is more than
+    ``max_view_angle_deg`` from the vertical (90: no limit) are not imaged."""
 
     camera: Camera
     centre_m: np.ndarray
     R: np.ndarray
+    max_view_angle_deg: float = 90.0
 
     def kernel_args(self):
         cam = self.camera
         M = np.ascontiguousarray((np.asarray(self.R, float) @ FLIP_YZ).T)
         return np.asarray(self.centre_m, dtype=np.float64), M, cam.kernel_params()
+
+    def fold_r2(self) -> float:
+        """The square of the lens fold's normalised radius (inf: the model does not fold)."""
+        fold = self.camera.fold_radius()
+        return math.inf if fold is None else fold * fold
+
+    def ray_limits(self) -> RayLimits:
+        """The kernels' limits of this frame's rays: the lens fold and ``max_view_angle_deg``."""
+        tan2 = math.tan(math.radians(self.max_view_angle_deg)) ** 2 if self.max_view_angle_deg < 90.0 else math.inf
+        return RayLimits(self.fold_r2(), tan2)
+
+    def kernel_frame(self) -> FrameArgs:
+        """The frame as the kernels take it."""
+        centre, M, params = self.kernel_args()
+        return FrameArgs(centre, M, params, self.camera.width, self.camera.height, self.ray_limits())
 
 
 def heights_on_grid(dem: HeightRaster, grid: OrthoGrid, out: np.ndarray | None = None) -> np.ndarray:
@@ -88,21 +208,20 @@ def image_coordinates(geometry: FrameGeometry, dem: HeightRaster, grid: OrthoGri
                       margin_px: float = 0.0):
     """Image coordinates (map_x, map_y float32) and heights (float32) for every pixel of ``grid``.
 
-    Pixels not imaged (outside the frame, behind the camera, DEM nodata) have map = -1e5.
+    Pixels not imaged (outside the frame, behind the camera, beyond ``geometry.ray_limits()``, DEM nodata) have
+    map = -1e5.
     Returns (map_x, map_y, heights, anchors).
     """
     to_project = to_project or GridToProject(grid.crs, grid.crs)
     AX, AY, s = to_project.anchors(grid)
-    centre, M, params = geometry.kernel_args()
     shape = (grid.height, grid.width)
     map_x = np.empty(shape, np.float32)
     map_y = np.empty(shape, np.float32)
     z = np.empty(shape, np.float32)
     from ortho.rectify_kernels import _backproject_kernel
 
-    _backproject_kernel(AX, AY, float(s), grid.height, grid.width, dem.heights_m, dem.x_left_m, dem.y_top_m, dem.res_m,
-                        centre, M, params, geometry.camera.width, geometry.camera.height, float(margin_px),
-                        map_x, map_y, z)
+    _backproject_kernel(AnchorGrid(AX, AY, float(s)), _height_grid(dem), geometry.kernel_frame(), float(margin_px),
+                        (map_x, map_y, z))
     return map_x, map_y, z, (AX, AY, s)
 
 
@@ -139,7 +258,6 @@ def fixed_point_maps(geometry: FrameGeometry, dem: HeightRaster, grid: OrthoGrid
     """
     to_project = to_project or GridToProject(grid.crs, grid.crs)
     AX, AY, s = to_project.anchors(grid)
-    centre, M, params = geometry.kernel_args()
     shape = (grid.height, grid.width)
     if buffers is not None:
         map_int, map_frac, z = buffers.views(*shape)
@@ -150,15 +268,12 @@ def fixed_point_maps(geometry: FrameGeometry, dem: HeightRaster, grid: OrthoGrid
     bounds[:] = (32767, -32768, 32767, -32768)
     from ortho.rectify_kernels import _fixed_point_kernel, _fixed_point_kernel_affine
 
+    frame, maps = geometry.kernel_frame(), RemapMaps(map_int, map_frac, mask, bounds)
     if to_project.identity:
         z = heights_on_grid(dem, grid, out=z)
-        _fixed_point_kernel_affine(z, grid.x_left_m + 0.5 * grid.res_m, grid.y_top_m - 0.5 * grid.res_m, grid.res_m,
-                                   centre, M, params, geometry.camera.width, geometry.camera.height, float(margin_px),
-                                   map_int, map_frac, mask, bounds)
+        _fixed_point_kernel_affine(_affine_tile(z, grid), frame, float(margin_px), maps)
         return map_int, map_frac, mask, z, (AX, AY, s)
-    _fixed_point_kernel(AX, AY, float(s), grid.height, grid.width, dem.heights_m, dem.x_left_m, dem.y_top_m, dem.res_m,
-                        centre, M, params, geometry.camera.width, geometry.camera.height, float(margin_px),
-                        map_int, map_frac, mask, z, bounds)
+    _fixed_point_kernel(AnchorGrid(AX, AY, float(s)), _height_grid(dem), frame, float(margin_px), maps, z)
     return map_int, map_frac, mask, z, (AX, AY, s)
 
 
@@ -205,11 +320,12 @@ def occlusion_mask(geometry: FrameGeometry, dsm: HeightRaster, grid: OrthoGrid, 
     bound = bound or march_bound(dsm)
     from ortho.rectify_kernels import _occlusion_kernel
 
-    _occlusion_kernel(AX, AY, float(s), grid.height, grid.width, heights_m.astype(np.float32), dsm.heights_m,
-                      dsm.x_left_m, dsm.y_top_m, dsm.res_m, bound.max_m, np.asarray(geometry.centre_m, np.float64),
-                      float(tolerance_m), occ, np.ones(occ.shape, np.bool_) if candidates is None else candidates,
-                      bound.block_max_m, bound.block, bound.coarse_max_m, bound.coarse,
-                      np.zeros((1, 1), np.float32) if near_share is None else near_share, float(OWN_COLUMN_M))
+    points = TilePoints(heights_m.astype(np.float32), np.ones(occ.shape, np.bool_) if candidates is None else candidates,
+                        np.zeros((1, 1), np.float32) if near_share is None else near_share)
+    march = MarchArgs(bound.max_m, bound.block_max_m, bound.block, bound.coarse_max_m, bound.coarse,
+                      float(tolerance_m), float(OWN_COLUMN_M))
+    _occlusion_kernel(AnchorGrid(AX, AY, float(s)), points, _height_grid(dsm), march,
+                      np.asarray(geometry.centre_m, np.float64), occ)
     return occ
 
 
@@ -235,7 +351,10 @@ def frame_zbuffer(geometry: FrameGeometry, dsm: HeightRaster, grid: OrthoGrid, t
     from ortho.rectify_kernels import _zbuffer_kernel, _zbuffer_scatter_affine
 
     to_project = to_project or GridToProject(grid.crs, grid.crs)
-    centre, M, params = geometry.kernel_args()
+    # every surface point seen, whatever the view angle (it may hide ground within it), but none beyond the fold:
+    # the z-buffer kernels read the frame's fold alone
+    frame = geometry.kernel_frame()
+    centre, params = frame.centre_m, frame.cam
     cam = geometry.camera
     finite = dsm.heights_m[np.isfinite(dsm.heights_m)]
     distance_m = max(1.0, float(centre[2]) - (float(np.median(finite)) if finite.size else 0.0))
@@ -260,14 +379,12 @@ def frame_zbuffer(geometry: FrameGeometry, dsm: HeightRaster, grid: OrthoGrid, t
                 r1, c1 = max(r0 - 1, 0), max(c0 - 1, 0)
                 tile = grid.window(c1, r1, c0 + tile.width - c1, r0 + tile.height - r1)
                 z = heights_on_grid(dsm, tile, out=over.views(tile.height, tile.width)[2])
-                _zbuffer_scatter_affine(z, tile.x_left_m + 0.5 * tile.res_m, tile.y_top_m - 0.5 * tile.res_m,
-                                        tile.res_m, centre, M, params, cam.width, cam.height, cell_px, depth)
+                _zbuffer_scatter_affine(_affine_tile(z, tile), frame, ZBufferArgs(depth, cell_px, 0.0))
                 continue
             else:
                 m = mask[:tile.height * tile.width].reshape(tile.height, tile.width)
                 _, _, _, z, (AX, AY, s) = fixed_point_maps(geometry, dsm, tile, to_project, buffers=buffers, mask_out=m)
-            _zbuffer_kernel(AX, AY, float(s), z, centre, M, params, cam.width, cam.height, float(cell_px), depth, 0.0,
-                            none, True)
+            _zbuffer_kernel(AnchorGrid(AX, AY, float(s)), z, frame, ZBufferArgs(depth, cell_px, 0.0), none, True)
     # each cell gets the nearest surface of its 3 x 3 cells: a point just inside the edge of a hidden area lands
     # beside the image of the roof edge hiding it, often in a cell that the roof's samples (the last of them up to
     # an output pixel inside the edge) miss, among the visible ground beyond the edge at about its own depth: it was
@@ -282,12 +399,11 @@ def zbuffer_occlusion(geometry: FrameGeometry, zbuffer: ZBuffer, heights_m: np.n
     from ortho.rectify_kernels import _zbuffer_kernel
 
     AX, AY, s = anchors
-    centre, M, params = geometry.kernel_args()
     occ = np.zeros(heights_m.shape, np.bool_) if out is None else out
     if out is not None:
         occ[...] = False
-    _zbuffer_kernel(AX, AY, float(s), heights_m, centre, M, params, geometry.camera.width, geometry.camera.height,
-                    float(zbuffer.cell_px), zbuffer.depth_m, float(zbuffer.tolerance_m), occ, False)
+    _zbuffer_kernel(AnchorGrid(AX, AY, float(s)), heights_m, geometry.kernel_frame(),
+                    ZBufferArgs(zbuffer.depth_m, zbuffer.cell_px, float(zbuffer.tolerance_m)), occ, False)
     return occ
 
 
@@ -300,11 +416,10 @@ def zbuffer_occlusion_from_maps(geometry: FrameGeometry, zbuffer: ZBuffer, tile:
     (for ``occlusion_mask``)."""
     from ortho.rectify_kernels import _zbuffer_test_maps
 
-    centre, M, _ = geometry.kernel_args()
     out[...] = False
     near = np.empty(heights_m.shape, np.float32) if near_share is None else near_share
-    _zbuffer_test_maps(map_int, mask, heights_m, tile.x_left_m + 0.5 * tile.res_m, tile.y_top_m - 0.5 * tile.res_m,
-                       tile.res_m, centre, M, zbuffer.cell_px, zbuffer.depth_m, float(zbuffer.tolerance_m), out, near)
+    _zbuffer_test_maps((map_int, mask), _affine_tile(heights_m, tile), geometry.kernel_frame(),
+                       ZBufferArgs(zbuffer.depth_m, zbuffer.cell_px, float(zbuffer.tolerance_m)), out, near)
     return out
 
 
@@ -466,7 +581,7 @@ def rectify_frame(image: np.ndarray, camera: Camera, centre_m, R, dem_dataset: H
     returns: copy them if they must outlive the call.
 
     Cells whose ray to the projection centre is more than ``max_view_angle_deg`` from the vertical (90: no
-    limit), or beyond the fold of the lens model, are invalid (``RayLimits``).
+    limit), or beyond the fold of the lens model, are invalid (``RayLimits``, tested in the kernels).
 
     Tiles of ``tile_px`` are computed by ``threads`` threads (default: all cores); the result does
     not depend on the number of threads.
@@ -474,7 +589,7 @@ def rectify_frame(image: np.ndarray, camera: Camera, centre_m, R, dem_dataset: H
     if image.shape[0] != camera.height or image.shape[1] != camera.width:
         raise InputError(f"image is {image.shape[1]} x {image.shape[0]} px but the camera is {camera.width} x {camera.height} px")
     flag = _interpolation_flag(interpolation)
-    geometry = FrameGeometry(camera, np.asarray(centre_m, float), np.asarray(R, float))
+    geometry = FrameGeometry(camera, np.asarray(centre_m, float), np.asarray(R, float), float(max_view_angle_deg))
     to_project = to_project or GridToProject(grid.crs, grid.crs)
     bands = () if image.ndim == 2 else (image.shape[2],)
     ortho = None if sink is not None else np.zeros((grid.height, grid.width) + bands, dtype=image.dtype)
@@ -496,7 +611,6 @@ def rectify_frame(image: np.ndarray, camera: Camera, centre_m, R, dem_dataset: H
     # the maps are the image positions at the DSM's heights when the ortho is rectified on the DSM itself (as
     # ``ortho rectify --true-ortho`` does) in the project CRS: the z-buffer test reads them instead of projecting again
     maps_at_dsm = occlusion_dsm is not None and dem_dataset is occlusion_dsm and to_project.identity
-    limits = RayLimits.of(geometry, max_view_angle_deg, to_project)
 
     local = threading.local()
     # tile outputs handed to the consumer come from a pool and go back to it once consumed: fresh
@@ -525,10 +639,6 @@ def rectify_frame(image: np.ndarray, camera: Camera, centre_m, R, dem_dataset: H
         handle, o, m = take_out_buffers(tile.height, tile.width)
         map_int, map_frac, _, z, anchors = fixed_point_maps(geometry, dem_dataset, tile, to_project,
                                                             buffers=local.buffers, mask_out=m, bounds_out=local.bounds)
-        beyond = limits.beyond(tile, z) if limits is not None else None
-        if beyond is not None:
-            m[beyond] = 0
-            map_int[beyond] = -32768
         if zbuffer is not None:
             # the z-buffer is fast but coarse (where a wall spans few DSM cells it puts visible points behind the
             # roof edge above them): the points it puts behind a nearer surface are decided by the march
@@ -580,77 +690,6 @@ def rectify_frame(image: np.ndarray, camera: Camera, centre_m, R, dem_dataset: H
                 mask[r0:r0 + m.shape[0], c0:c0 + m.shape[1]] = m
             free.put(handle)
     return ortho, mask
-
-
-@dataclasses.dataclass(frozen=True)
-class RayLimits:
-    """Which ground points a frame is rectified from: those whose ray to the projection centre is within
-    ``max_view_angle_deg`` of the vertical and, for a lens model that folds (``Camera.fold_radius``), inside the
-    fold. Beyond the fold the model turns back and ground far outside the field of view lands inside the frame
-    (wedges of smeared corner pixels round an oblique drone block's mosaic), so that limit always applies.
-
-    The tests run per tile in the project CRS (the tile's project coordinates affine in row and column from three
-    of its corners: a tile spans a few hundred metres, where a map projection's curvature is far below a
-    millimetre). A tile whose eight corners (four at its lowest and highest height) pass both tests is skipped:
-    the cone is convex and the camera maps the tile's box to a convex region of the image plane."""
-
-    centre_m: np.ndarray  # projection centre, project CRS
-    M: np.ndarray  # object -> camera frame (the kernels' matrix: camera x, y, depth along the axis)
-    tan_vertical: float | None  # tan of the largest angle from the vertical, None: no limit
-    fold_r2: float | None  # square of the lens fold's normalised radius, None: the model does not fold
-    to_project: GridToProject
-
-    @classmethod
-    def of(cls, geometry: FrameGeometry, max_view_angle_deg: float, to_project: GridToProject) -> RayLimits | None:
-        """The limits of a frame; None when neither applies (90 deg and a lens that does not fold)."""
-        tan_vertical = math.tan(math.radians(max_view_angle_deg)) if max_view_angle_deg < 90.0 else None
-        fold = geometry.camera.fold_radius()
-        if tan_vertical is None and fold is None:
-            return None
-        centre, M, _ = geometry.kernel_args()
-        return cls(centre, M, tan_vertical, None if fold is None else fold * fold, to_project)
-
-    def _outside(self, dx, dy, dz) -> np.ndarray:
-        out = np.zeros(np.broadcast_shapes(np.shape(dx), np.shape(dy), np.shape(dz)), bool)
-        if self.tan_vertical is not None:
-            out |= (dx * dx + dy * dy) > (dz * dz) * self.tan_vertical ** 2
-            out |= dz >= 0.0
-        if self.fold_r2 is not None:
-            M = self.M
-            xc = M[0, 0] * dx + M[0, 1] * dy + M[0, 2] * dz
-            yc = M[1, 0] * dx + M[1, 1] * dy + M[1, 2] * dz
-            zc = M[2, 0] * dx + M[2, 1] * dy + M[2, 2] * dz
-            out |= (zc <= 0.0) | (xc * xc + yc * yc > self.fold_r2 * zc * zc)
-        return out
-
-    def beyond(self, grid: OrthoGrid, heights_m: np.ndarray) -> np.ndarray | None:
-        """Cells of ``grid`` (heights (H, W) in m, NaN: none) outside the limits, bool (H, W); None when none is."""
-        finite = np.isfinite(heights_m)
-        if not finite.any():
-            return None
-        h, w = grid.height, grid.width
-        cols = grid.x_left_m + np.array([0.5, w - 0.5, 0.5]) * grid.res_m
-        rows = grid.y_top_m - np.array([0.5, 0.5, h - 0.5]) * grid.res_m
-        X, Y = self.to_project.exact(cols, rows)
-        X = np.asarray(X, float) - self.centre_m[0]
-        Y = np.asarray(Y, float) - self.centre_m[1]
-        # project coordinates of a cell: corner + (col / (w - 1)) (top right - corner) + (row / (h - 1)) (bottom left - corner)
-        fc, fr = 1.0 / max(w - 1, 1), 1.0 / max(h - 1, 1)
-        ax, bx, cx = X[0], (X[1] - X[0]) * fc, (X[2] - X[0]) * fr
-        ay, by, cy = Y[0], (Y[1] - Y[0]) * fc, (Y[2] - Y[0]) * fr
-        z_lo, z_hi = float(np.min(heights_m[finite])), float(np.max(heights_m[finite]))
-        cc = np.array([0.0, w - 1.0, 0.0, w - 1.0] * 2)
-        rr = np.array([0.0, 0.0, h - 1.0, h - 1.0] * 2)
-        zz = np.array([z_lo] * 4 + [z_hi] * 4) - self.centre_m[2]
-        if not self._outside(ax + bx * cc + cx * rr, ay + by * cc + cy * rr, zz).any():
-            return None
-        c = np.arange(w, dtype=np.float64)[None, :]
-        r = np.arange(h, dtype=np.float64)[:, None]
-        with np.errstate(invalid="ignore"):
-            out = self._outside(ax + bx * c + cx * r, ay + by * c + cy * r,
-                                heights_m.astype(np.float64) - self.centre_m[2])
-        out &= finite
-        return out if out.any() else None
 
 
 # -- footprints -------------------------------------------------------------------------------------

@@ -2,6 +2,14 @@
 the camera into cv2.remap's fixed-point maps, and the occlusion test of a true ortho. A module of their own
 so that the commands without rectification (``ortho mosaic``, ``ortho check``) do not import numba (about
 0.3 CPU-s) nor load compiled code; ``ortho.rectify`` imports it when it first maps a tile.
+
+The kernels take their repeated argument groups as the NamedTuples of ``ortho.rectify`` (built there, read here by
+field name): ``HeightGrid`` (a DEM or DSM: heights, top-left corner, cell size), ``AnchorGrid`` (a tile's project
+coordinates at every ``spacing``-th output pixel), ``AffineTile`` (a tile of the output grid in the project CRS:
+heights, first cell centre, cell size), ``FrameArgs`` (projection centre, object -> camera matrix, lens parameters,
+frame size, ``RayLimits``), ``RemapMaps`` (cv2.remap's fixed-point maps, mask and bounds, written),
+``ZBufferArgs`` (depth per cell, cell size, tolerance), ``MarchArgs`` and ``TilePoints`` (the march's bounds and
+settings; the points of a tile it tests).
 """
 
 from __future__ import annotations
@@ -22,12 +30,13 @@ _FASTMATH = {"contract", "arcp", "reassoc", "nsz", "afn"}
 
 
 @numba.njit(cache=True, inline="always", fastmath=_FASTMATH)
-def _dem_height(dem, X, Y, dem_x0, dem_y0, dem_res):
-    """Bilinear DEM height at (X, Y), clamped half a pixel beyond the outer cell centres; NaN outside
-    the DEM or on nodata. Computed without an early return so that loops over it stay branch-free."""
+def _dem_height(grid, X, Y):
+    """Bilinear height of ``HeightGrid`` ``grid`` at (X, Y), clamped half a pixel beyond the outer cell centres; NaN
+    outside the grid or on nodata. Computed without an early return so that loops over it stay branch-free."""
+    dem = grid.heights_m
     dh, dw = dem.shape
-    u = (X - dem_x0) / dem_res - 0.5
-    v = (dem_y0 - Y) / dem_res - 0.5
+    u = (X - grid.x_left_m) / grid.res_m - 0.5
+    v = (grid.y_top_m - Y) / grid.res_m - 0.5
     inside = u >= -0.5 and u <= dw - 0.5 and v >= -0.5 and v <= dh - 0.5
     u = min(max(u, 0.0), dw - 1.0)
     v = min(max(v, 0.0), dh - 1.0)
@@ -43,18 +52,40 @@ def _dem_height(dem, X, Y, dem_x0, dem_y0, dem_res):
 
 
 @numba.njit(cache=True, inline="always", fastmath=_FASTMATH)
-def _fixed_point_entry(x, y, in_front, x_lo, x_hi, y_lo, y_hi, far):
-    """cv2.remap 1/32 px fixed-point x, y and mask (255/0) of one output pixel. Where imaged x, y >= 0,
-    so truncation rounds; not imaged: ``far`` outside the image, branch-free (a select, vectorisable)."""
+def _fixed_point_entry(x, y, in_front, window, far):
+    """cv2.remap 1/32 px fixed-point x, y and mask (255/0) of one output pixel, imaged where ``in_front`` and within
+    ``window`` (x_lo, x_hi, y_lo, y_hi). Where imaged x, y >= 0, so truncation rounds; not imaged: ``far`` outside the
+    image, branch-free (a select, vectorisable)."""
+    x_lo, x_hi, y_lo, y_hi = window
     ok = in_front & (x >= x_lo) & (x <= x_hi) & (y >= y_lo) & (y <= y_hi)
     return (np.int32(x * INTER_TAB_SIZE + 0.5) if ok else far, np.int32(y * INTER_TAB_SIZE + 0.5) if ok else far,
             np.uint8(255) if ok else np.uint8(0))
 
 
 @numba.njit(cache=True, inline="always", fastmath=_FASTMATH)
-def _ground_to_image(r, c, inv_s, anchor_x, anchor_y, dem, dem_x0, dem_y0, dem_res, centre, M, cam, width, height,
-                     margin):
-    """Ground point of output pixel (r, c), its height and image position; ok False if not imaged."""
+def _within_limits(xn, yn, dx, dy, dz, limits):
+    """Whether the ray of a point in front of the camera (normalised position xn, yn; offset dx, dy, dz from the
+    projection centre, m) is inside the lens model's fold and within the view angle of the vertical (``limits``:
+    ``ortho.rectify.RayLimits``, inf where none). Beyond the fold the model turns back and
+    puts ground far outside the field of view inside the frame: such a point must neither be imaged nor stand in a
+    z-buffer. The tests are loop-invariant branches: the compiler makes loops without the tests that do not apply
+    (a lens that does not fold, no view angle: the maps cost what they did without them)."""
+    ok = True
+    if limits.fold_r2 != np.inf:
+        ok = xn * xn + yn * yn <= limits.fold_r2
+    if limits.tan2_vertical != np.inf:
+        ok = ok & (dz < 0.0) & (dx * dx + dy * dy <= limits.tan2_vertical * (dz * dz))
+    return ok
+
+
+@numba.njit(cache=True, inline="always", fastmath=_FASTMATH)
+def _ground_to_image(r, c, anchors, dem, frame, margin):
+    """Ground point of output pixel (r, c) (``AnchorGrid`` ``anchors``), its height on ``HeightGrid`` ``dem`` and its
+    image position in ``FrameArgs`` ``frame``; ok False if not imaged (outside the DEM, behind the camera, beyond the
+    frame's ``RayLimits``, outside the frame less ``margin`` px)."""
+    anchor_x, anchor_y = anchors.x_m, anchors.y_m
+    centre, M = frame.centre_m, frame.M
+    inv_s = 1.0 / anchors.spacing_px
     ar = r * inv_s
     i0 = min(int(ar), anchor_x.shape[0] - 2)
     fr = ar - i0
@@ -67,7 +98,7 @@ def _ground_to_image(r, c, inv_s, anchor_x, anchor_y, dem, dem_x0, dem_y0, dem_r
     w11 = fr * fc
     X = anchor_x[i0, j0] * w00 + anchor_x[i0, j0 + 1] * w01 + anchor_x[i0 + 1, j0] * w10 + anchor_x[i0 + 1, j0 + 1] * w11
     Y = anchor_y[i0, j0] * w00 + anchor_y[i0, j0 + 1] * w01 + anchor_y[i0 + 1, j0] * w10 + anchor_y[i0 + 1, j0 + 1] * w11
-    Z = _dem_height(dem, X, Y, dem_x0, dem_y0, dem_res)
+    Z = _dem_height(dem, X, Y)
     if Z != Z:  # outside the DEM or on its nodata
         return Z, 0.0, 0.0, False
     dx = X - centre[0]
@@ -78,25 +109,27 @@ def _ground_to_image(r, c, inv_s, anchor_x, anchor_y, dem, dem_x0, dem_y0, dem_r
         return Z, 0.0, 0.0, False
     xn = (M[0, 0] * dx + M[0, 1] * dy + M[0, 2] * dz) / zc
     yn = (M[1, 0] * dx + M[1, 1] * dy + M[1, 2] * dz) / zc
-    x, y = to_pixel(cam, xn, yn)
-    ok = x >= margin and x <= width - 1 - margin and y >= margin and y <= height - 1 - margin
+    x, y = to_pixel(frame.cam, xn, yn)
+    ok = (x >= margin and x <= frame.width_px - 1 - margin and y >= margin and y <= frame.height_px - 1 - margin
+          and _within_limits(xn, yn, dx, dy, dz, frame.limits))
     return Z, x, y, ok
 
 
-@numba.njit(parallel=True, cache=True, fastmath=_FASTMATH)
-def _backproject_kernel(anchor_x, anchor_y, spacing, rows, cols, dem, dem_x0, dem_y0, dem_res,
-                        centre, M, cam, width, height, margin, map_x, map_y, height_out):
-    """Float image coordinates (map_x, map_y; -1e5 where not imaged) and heights of a rows x cols tile.
+@numba.njit(cache=True, fastmath=_FASTMATH)
+def _backproject_kernel(anchors, dem, frame, margin, out):
+    """Float image coordinates (map_x, map_y; -1e5 where not imaged) and heights of a tile into ``out`` (map_x,
+    map_y, heights: (rows, cols) each).
 
-    cam: the camera's kernel parameters (``Camera.kernel_params()``, any model of
-    ``aerotri.geom.lens_kernels``); M = (R @ FLIP_YZ).T maps object offsets to the computer-vision camera
-    frame.
+    ``frame.cam``: the camera's kernel parameters (``Camera.kernel_params()``, any model of
+    ``aerotri.geom.lens_kernels``); ``frame.M`` = (R @ FLIP_YZ).T maps object offsets to the computer-vision camera
+    frame. Serial (the reference of the fixed-point kernels; numba's parallel loops do not take the argument
+    tuples).
     """
-    inv_s = 1.0 / spacing
-    for r in numba.prange(rows):
+    map_x, map_y, height_out = out
+    rows, cols = map_x.shape
+    for r in range(rows):
         for c in range(cols):
-            Z, x, y, ok = _ground_to_image(r, c, inv_s, anchor_x, anchor_y, dem, dem_x0, dem_y0, dem_res, centre, M,
-                                           cam, width, height, margin)
+            Z, x, y, ok = _ground_to_image(r, c, anchors, dem, frame, margin)
             map_x[r, c] = x if ok else _INVALID
             map_y[r, c] = y if ok else _INVALID
             height_out[r, c] = Z
@@ -125,18 +158,21 @@ def _pack_fixed_point(ix_row, iy_row, int_row, frac_row, bounds):
 
 
 @numba.njit(cache=True, nogil=True, fastmath=_FASTMATH, error_model="numpy")
-def _fixed_point_kernel(anchor_x, anchor_y, spacing, rows, cols, dem, dem_x0, dem_y0, dem_res,
-                        centre, M, cam, width, height, margin, map_int, map_frac, mask, height_out, bounds):
-    """As _backproject_kernel, but writes cv2.remap's fixed-point maps directly (CV_16SC2 integer
-    positions + CV_16UC1 1/32 px fractions, as cv2.convertMaps would), the validity mask (255/0) and
-    the integer bounds of the imaged positions (``bounds``, see _pack_fixed_point).
+def _fixed_point_kernel(anchors, dem, frame, margin, maps, height_out):
+    """As _backproject_kernel, but writes cv2.remap's fixed-point maps directly (``RemapMaps`` ``maps``: CV_16SC2
+    integer positions + CV_16UC1 1/32 px fractions, as cv2.convertMaps would), the validity mask (255/0) and
+    the integer bounds of the imaged positions (``bounds``, see _pack_fixed_point), and the heights.
     Not-imaged pixels point far outside the image, so cv2.remap with a constant border gives 0.
     Loop invariants are hoisted by hand (LLVM cannot prove the output arrays do not alias them)."""
-    inv_s = 1.0 / spacing
+    anchor_x, anchor_y = anchors.x_m, anchors.y_m
+    centre, M, cam, limits = frame.centre_m, frame.M, frame.cam, frame.limits
+    map_int, map_frac, mask, bounds = maps
+    rows, cols = height_out.shape
+    inv_s = 1.0 / anchors.spacing_px
     m00, m01, m02, m10, m11, m12, m20, m21, m22 = (M[0, 0], M[0, 1], M[0, 2], M[1, 0], M[1, 1], M[1, 2],
                                                    M[2, 0], M[2, 1], M[2, 2])
     c0, c1, c2 = centre[0], centre[1], centre[2]
-    x_lo, x_hi, y_lo, y_hi = margin, width - 1 - margin, margin, height - 1 - margin
+    window = (margin, frame.width_px - 1 - margin, margin, frame.height_px - 1 - margin)
     na = anchor_x.shape[1]
     far = np.int32(-32768 * INTER_TAB_SIZE)
     ix_row = np.empty(cols, np.int32)
@@ -153,7 +189,7 @@ def _fixed_point_kernel(anchor_x, anchor_y, spacing, rows, cols, dem, dem_x0, de
             fc = ac - j0
             X = (1.0 - fr) * ((1.0 - fc) * ax0[j0] + fc * ax0[j0 + 1]) + fr * ((1.0 - fc) * ax1[j0] + fc * ax1[j0 + 1])
             Y = (1.0 - fr) * ((1.0 - fc) * ay0[j0] + fc * ay0[j0 + 1]) + fr * ((1.0 - fc) * ay1[j0] + fc * ay1[j0 + 1])
-            Z = _dem_height(dem, X, Y, dem_x0, dem_y0, dem_res)
+            Z = _dem_height(dem, X, Y)
             z_row[c] = Z
             dx = X - c0
             dy = Y - c1
@@ -163,7 +199,8 @@ def _fixed_point_kernel(anchor_x, anchor_y, spacing, rows, cols, dem, dem_x0, de
             xn = (m00 * dx + m01 * dy + m02 * dz) * inv_zc
             yn = (m10 * dx + m11 * dy + m12 * dz) * inv_zc
             x, y = to_pixel(cam, xn, yn)
-            ix_row[c], iy_row[c], mask_row[c] = _fixed_point_entry(x, y, zc > 0.0, x_lo, x_hi, y_lo, y_hi, far)
+            seen = (zc > 0.0) & _within_limits(xn, yn, dx, dy, dz, limits)
+            ix_row[c], iy_row[c], mask_row[c] = _fixed_point_entry(x, y, seen, window, far)
         _pack_fixed_point(ix_row, iy_row, map_int[r], map_frac[r], bounds)
 
 
@@ -188,19 +225,23 @@ def _boundary_in(g, e, k):
 
 
 @numba.njit(cache=True, inline="always")
-def _dda_step(sx, sy, dsx, dsy, i, j, step_i, step_j):
-    """One step of the 2D DDA: into the next cell across the nearer of the column (``sx``) and row (``sy``)
-    boundaries; returns the parameter s where the ray enters that cell, the next boundaries and the cell (i, j)."""
+def _dda_step(boundary, between, cell, step):
+    """One step of the 2D DDA: into the next cell across the nearer of the column and row boundaries (``boundary``:
+    their parameters sx, sy; ``between``: the parameter between two column / row boundaries; ``cell``: i, j;
+    ``step``: the row and column steps); returns the parameter s where the ray enters that cell, the next
+    boundaries and the cell (i, j)."""
+    sx, sy = boundary
+    i, j = cell
     if sx < sy:
-        return sx, sx + dsx, sy, i, j + step_j
-    return sy, sx, sy + dsy, i + step_i, j
+        return sx, sx + between[0], sy, i, j + step[1]
+    return sy, sx, sy + between[1], i + step[0], j
 
 
 @numba.njit(cache=True, nogil=True)
-def _occlusion_kernel(anchor_x, anchor_y, spacing, rows, cols, height_tile, dsm, dsm_x0, dsm_y0, dsm_res,
-                      dsm_max, centre, tolerance_m, occluded, candidates, block_max, block, coarse_max, coarse,
-                      near_share, own_column_m):
-    """Mark ground points whose ray to the projection centre passes below the DSM surface.
+def _occlusion_kernel(anchors, points, grid, march, centre, occluded):
+    """Mark ground points whose ray to the projection centre passes below the DSM surface (``HeightGrid``
+    ``grid``): the points of a tile (``AnchorGrid`` ``anchors``) at heights ``points.heights_m`` (``TilePoints``), the
+    ``MarchArgs`` ``march`` (bounds, ``tolerance_m``, ``own_column_m``), into ``occluded``.
 
     The DSM is taken as columns: each cell a flat top at its height over its whole square (the edge of a roof
     half way between a roof sample and a ground sample, where a point-sampled DSM puts it on average). The ray is
@@ -224,9 +265,14 @@ def _occlusion_kernel(anchor_x, anchor_y, spacing, rows, cols, height_tile, dsm,
     that depth are tried first, and a hit there decides (the walk would find the same cell: "occluded" is whether
     any cell hits), else the walk runs from the start.
     """
+    anchor_x, anchor_y = anchors.x_m, anchors.y_m
+    height_tile, candidates, near_share = points
+    dsm, dsm_x0, dsm_y0, dsm_res = grid
+    dsm_max, block_max, block, coarse_max, coarse, tolerance_m, own_column_m = march
+    rows, cols = height_tile.shape
     hinted = near_share.shape[0] == rows and near_share.shape[1] == cols
     dh, dw = dsm.shape
-    inv_s = 1.0 / spacing
+    inv_s = 1.0 / anchors.spacing_px
     inv_res = 1.0 / dsm_res
     for r in range(rows):
         ar = r * inv_s
@@ -298,7 +344,7 @@ def _occlusion_kernel(anchor_x, anchor_y, spacing, rows, cols, height_tile, dsm,
             i = i_own
             sx = _next_boundary(gx, ex, j)
             sy = _next_boundary(gy, ey, i)
-            s, sx, sy, i, j = _dda_step(sx, sy, dsx, dsy, i, j, step_i, step_j)
+            s, sx, sy, i, j = _dda_step((sx, sy), (dsx, dsy), (i, j), (step_i, step_j))
             while True:  # the ray enters cell (i, j) at s
                 zr = Z + rise * s
                 if zr > dsm_max or i < 0 or j < 0 or i >= dh or j >= dw:
@@ -325,22 +371,24 @@ def _occlusion_kernel(anchor_x, anchor_y, spacing, rows, cols, height_tile, dsm,
                 if dsm[i, j] > zr + tolerance_m:
                     occluded[r, c] = True
                     break
-                s, sx, sy, i, j = _dda_step(sx, sy, dsx, dsy, i, j, step_i, step_j)
+                s, sx, sy, i, j = _dda_step((sx, sy), (dsx, dsy), (i, j), (step_i, step_j))
 
 
 @numba.njit(cache=True, nogil=True, fastmath=_FASTMATH, error_model="numpy")
-def _fixed_point_kernel_affine(heights, x0, y0, res, centre, M, cam, width, height, margin, map_int, map_frac, mask,
-                               bounds):
-    """Fast path of _fixed_point_kernel when the output grid is in the project CRS: ground X, Y are
-    affine in (row, col) and the heights on the grid are given (bilinear DEM, see heights_on_grid).
+def _fixed_point_kernel_affine(tile, frame, margin, maps):
+    """Fast path of _fixed_point_kernel when the output grid is in the project CRS (``AffineTile`` ``tile``): ground
+    X, Y are affine in (row, col) and the heights on the grid are given (bilinear DEM, see heights_on_grid).
 
     Branch-free inner loop with everything loop-invariant hoisted and plain int32 row outputs, so
     LLVM vectorises it (AVX-512: ~5x faster than a branching loop storing the interleaved int16 map);
     the packing into cv2's layout is a second, cheap pass. NaN heights (DEM nodata) make x, y NaN and
     fail the range test.
     """
+    heights, x0, y0, res = tile
+    centre, M, cam, limits = frame.centre_m, frame.M, frame.cam, frame.limits
+    map_int, map_frac, mask, bounds = maps
     rows, cols = heights.shape
-    x_lo, x_hi, y_lo, y_hi = margin, width - 1 - margin, margin, height - 1 - margin
+    window = (margin, frame.width_px - 1 - margin, margin, frame.height_px - 1 - margin)
     m02, m12, m22 = M[0, 2], M[1, 2], M[2, 2]
     sx, sy, sz = M[0, 0] * res, M[1, 0] * res, M[2, 0] * res
     far = np.int32(-32768 * INTER_TAB_SIZE)
@@ -361,19 +409,26 @@ def _fixed_point_kernel_affine(heights, x0, y0, res, centre, M, cam, width, heig
             xn = (bx + c * sx + m02 * dz) * inv_zc
             yn = (by + c * sy + m12 * dz) * inv_zc
             x, y = to_pixel(cam, xn, yn)
-            ix_row[c], iy_row[c], mask_row[c] = _fixed_point_entry(x, y, zc > 0.0, x_lo, x_hi, y_lo, y_hi, far)
+            seen = (zc > 0.0) & _within_limits(xn, yn, dx0 + c * res, dy, dz, limits)
+            ix_row[c], iy_row[c], mask_row[c] = _fixed_point_entry(x, y, seen, window, far)
         _pack_fixed_point(ix_row, iy_row, map_int[r], map_frac[r], bounds)
 
 
 @numba.njit(cache=True, nogil=True, fastmath=_FASTMATH, error_model="numpy")
-def _zbuffer_kernel(anchor_x, anchor_y, spacing, heights, centre, M, cam, width, height, cell_px, zbuf, tolerance_m,
-                    occluded, scatter):
-    """Z-buffer occlusion of a true ortho: the surface points of a tile (its pixels at their DSM ``heights``)
-    projected into the frame, their depth along the optical axis (zc, m) compared by cells of ``cell_px``
-    image pixels. ``scatter``: keep the nearest depth per cell in ``zbuf`` (first pass, over every tile of
-    the frame); else mark ``occluded`` the points more than ``tolerance_m`` behind the nearest surface of
-    their cell (points outside the frame or on nodata are left as they are)."""
-    inv_s = 1.0 / spacing
+def _zbuffer_kernel(anchors, heights, frame, zbuffer, occluded, scatter):
+    """Z-buffer occlusion of a true ortho: the surface points of a tile (``AnchorGrid`` ``anchors``, its pixels at
+    their DSM ``heights``) projected into the frame (``FrameArgs``), their depth along the optical axis (zc, m)
+    compared by cells of ``zbuffer.cell_px`` image pixels (``ZBufferArgs``). ``scatter``: keep the nearest depth per
+    cell in ``zbuffer.depth_m`` (first pass, over every tile of the frame); else mark ``occluded`` the points more
+    than ``zbuffer.tolerance_m`` behind the nearest surface of their cell (points outside the frame or on nodata are
+    left as they are). Points beyond the lens fold (``frame.limits.fold_r2``) are neither: the model puts them at a
+    wrong place in the image. (The view angle does not apply: a surface seen beyond it may still hide ground within
+    it.)"""
+    anchor_x, anchor_y = anchors.x_m, anchors.y_m
+    centre, M, cam, fold_r2 = frame.centre_m, frame.M, frame.cam, frame.limits.fold_r2
+    width, height = frame.width_px, frame.height_px
+    zbuf, cell_px, tolerance_m = zbuffer
+    inv_s = 1.0 / anchors.spacing_px
     rows, cols = heights.shape
     zh, zw = zbuf.shape
     inv_cell = 1.0 / cell_px
@@ -400,6 +455,8 @@ def _zbuffer_kernel(anchor_x, anchor_y, spacing, heights, centre, M, cam, width,
                 continue
             xn = (M[0, 0] * dx + M[0, 1] * dy + M[0, 2] * dz) / zc
             yn = (M[1, 0] * dx + M[1, 1] * dy + M[1, 2] * dz) / zc
+            if not xn * xn + yn * yn <= fold_r2:
+                continue
             x, y = to_pixel(cam, xn, yn)
             if not (x >= 0.0 and y >= 0.0 and x < width and y < height):
                 continue
@@ -413,14 +470,17 @@ def _zbuffer_kernel(anchor_x, anchor_y, spacing, heights, centre, M, cam, width,
 
 
 @numba.njit(cache=True, inline="always", fastmath=_FASTMATH, error_model="numpy")
-def _fill_gap(x0, y0, z0, x1, y1, z1, flat_x, flat_y, cell_px, inv_cell, zbuf):
-    """Where two neighbouring surface points of the output grid land more than a cell apart in the image (a wall:
-    the DSM's ramp between roof edge and ground spans a DSM cell on the ground but many pixels in the image), the
-    surface between them, sampled along the image segment at less than a cell's spacing, depth perspective-correct
-    (1 / depth linear in the image), into the z-buffer: without it the ground seen through the wall's image has
-    no nearer surface in its cell and is not a candidate. ``flat_x, flat_y``: the image direction of the same
-    ground step on flat ground; a gap against it is a fold (a wall facing away, whose image the roof in front of
-    it covers): not filled."""
+def _fill_gap(p0, p1, flat, cell_px, inv_cell, zbuf):
+    """Where two neighbouring surface points of the output grid (``p0``, ``p1``: image x, y and depth) land more than
+    a cell apart in the image (a wall: the DSM's ramp between roof edge and ground spans a DSM cell on the ground but
+    many pixels in the image), the surface between them, sampled along the image segment at less than a cell's
+    spacing, depth perspective-correct (1 / depth linear in the image), into the z-buffer: without it the ground seen
+    through the wall's image has no nearer surface in its cell and is not a candidate. ``flat`` (x, y): the image
+    direction of the same ground step on flat ground; a gap against it is a fold (a wall facing away, whose image the
+    roof in front of it covers): not filled."""
+    x0, y0, z0 = p0
+    x1, y1, z1 = p1
+    flat_x, flat_y = flat
     dx = x1 - x0
     dy = y1 - y0
     span = max(abs(dx), abs(dy))
@@ -442,13 +502,18 @@ def _fill_gap(x0, y0, z0, x1, y1, z1, flat_x, flat_y, cell_px, inv_cell, zbuf):
 
 
 @numba.njit(cache=True, nogil=True, fastmath=_FASTMATH, error_model="numpy")
-def _zbuffer_scatter_affine(heights, x0, y0, res, centre, M, cam, width, height, cell_px, zbuf):
-    """The scatter pass of ``_zbuffer_kernel`` when the output grid is in the project CRS (ground X, Y affine in
-    (row, col), heights given on the grid): the projection is branch-free and vectorised as in
+def _zbuffer_scatter_affine(tile, frame, zbuffer):
+    """The scatter pass of ``_zbuffer_kernel`` when the output grid is in the project CRS (``AffineTile`` ``tile``:
+    ground X, Y affine in (row, col), heights given on the grid): the projection is branch-free and vectorised as in
     ``_fixed_point_kernel_affine``, positions and depth go to row arrays, and a second, scalar loop keeps the
     nearest depth per cell and fills the gaps between neighbours (left and above) that land more than a cell apart
-    (``_fill_gap``). NaN heights fail the range test. Tiles must overlap by a row and a column for the gaps
-    across their edges."""
+    (``_fill_gap``). NaN heights fail the range test; points beyond the lens fold (``frame.limits.fold_r2``,
+    as ``_zbuffer_kernel``) are not surface points, nor ends of a gap. Tiles must overlap by a row and a column for
+    the gaps across their edges."""
+    heights, x0, y0, res = tile
+    centre, M, cam, fold_r2 = frame.centre_m, frame.M, frame.cam, frame.limits.fold_r2
+    width, height = frame.width_px, frame.height_px
+    zbuf, cell_px = zbuffer.depth_m, zbuffer.cell_px
     rows, cols = heights.shape
     zh, zw = zbuf.shape
     inv_cell = 1.0 / cell_px
@@ -476,7 +541,8 @@ def _zbuffer_scatter_affine(heights, x0, y0, res, centre, M, cam, width, height,
             xn = (bx + c * sx + m02 * dz) * inv_zc
             yn = (by + c * sy + m12 * dz) * inv_zc
             x, y = to_pixel(cam, xn, yn)
-            ok_row[c] = (zc > 0.0) & (x >= 0.0) & (y >= 0.0) & (x < width) & (y < height)
+            ok_row[c] = (zc > 0.0) & (xn * xn + yn * yn <= fold_r2) & (x >= 0.0) & (y >= 0.0) & (x < width) & \
+                (y < height)
             x_row[c] = x
             y_row[c] = y
             zc_row[c] = zc
@@ -493,23 +559,27 @@ def _zbuffer_scatter_affine(heights, x0, y0, res, centre, M, cam, width, height,
             if c > 0 and ok_row[c - 1] and max(abs(x - x_row[c - 1]), abs(y - y_row[c - 1])) > cell_px:
                 xn = (x - cam.cx) / cam.f
                 yn = (y - cam.cy) / cam.f
-                _fill_gap(x_row[c - 1], y_row[c - 1], zc_row[c - 1], x, y, zc, sx - xn * sz, sy - yn * sz, cell_px,
-                          inv_cell, zbuf)
+                _fill_gap((x_row[c - 1], y_row[c - 1], zc_row[c - 1]), (x, y, zc), (sx - xn * sz, sy - yn * sz),
+                          cell_px, inv_cell, zbuf)
             if r > 0 and ok_up[c] and max(abs(x - x_up[c]), abs(y - y_up[c])) > cell_px:
                 xn = (x - cam.cx) / cam.f
                 yn = (y - cam.cy) / cam.f
-                _fill_gap(x_up[c], y_up[c], zc_up[c], x, y, zc, xn * m21 - m01, yn * m21 - m11, cell_px, inv_cell,
-                          zbuf)
+                _fill_gap((x_up[c], y_up[c], zc_up[c]), (x, y, zc), (xn * m21 - m01, yn * m21 - m11), cell_px,
+                          inv_cell, zbuf)
 
 
 @numba.njit(cache=True, nogil=True, fastmath=_FASTMATH, error_model="numpy")
-def _zbuffer_test_maps(map_int, mask, heights, x0, y0, res, centre, M, cell_px, zbuf, tolerance_m, occluded,
-                       near_share):
-    """The test pass of ``_zbuffer_kernel`` reusing the tile's cv2.remap maps (the image position of every
-    imaged pixel at the same heights, ``_fixed_point_kernel_affine``): the cell from the integer position, the
+def _zbuffer_test_maps(imaged, tile, frame, zbuffer, occluded, near_share):
+    """The test pass of ``_zbuffer_kernel`` reusing the tile's cv2.remap maps (``imaged``: the integer map and the
+    mask of ``RemapMaps``, the image position of every imaged pixel of ``AffineTile`` ``tile`` at the same heights,
+    ``_fixed_point_kernel_affine``): the cell from the integer position, the
     depth along the optical axis affine in (row, col) and height; ``occluded`` where the imaged pixel
     (``mask`` != 0) lies more than ``tolerance_m`` behind its cell's nearest surface (set, never cleared), and
     there ``near_share`` = that surface's depth / the pixel's (where the march looks first)."""
+    map_int, mask = imaged
+    heights, x0, y0, res = tile
+    centre, M = frame.centre_m, frame.M
+    zbuf, cell_px, tolerance_m = zbuffer
     rows, cols = heights.shape
     zh, zw = zbuf.shape
     sz = M[2, 0] * res
