@@ -4,67 +4,28 @@ Cells are square, ``cell_m`` wide, anchored at the lower-left corner (x0, y0) of
 index ``i`` grows with y, column index ``j`` with x. All functions are vectorised NumPy.
 
 Grids over a bounding box can be absurdly large when points lie far apart (strips of two UTM zones
-under one CRS, a stray point): ``check_allocation`` compares a grid's memory with the machine's RAM
+under one CRS, a stray point): ``aerotri.core.limits.check_allocation`` compares a grid's memory with the machine's RAM
 before it is allocated, and ``cell_ids`` applies it to every grid made here.
 """
 
 from __future__ import annotations
 
 import dataclasses
-import os
 
 import numba
 import numpy as np
 
-from aerotri.core.errors import ResourceError
+from aerotri.core.limits import check_allocation
 
 # Per-cell memory of the grids callers of ``cell_ids`` build (a few float64/int64 arrays per cell).
 GRID_BYTES_PER_CELL = 48
-
-
-def machine_ram_bytes() -> int:
-    """Physical memory of this machine (bytes)."""
-    try:
-        return int(os.sysconf("SC_PAGE_SIZE")) * int(os.sysconf("SC_PHYS_PAGES"))
-    except (ValueError, OSError, AttributeError):  # not a POSIX system: no limit known
-        return 2 ** 62
-
-
-def check_allocation(n_bytes: float, what: str, option: str | None = None, hint: str = "") -> None:
-    """``ResourceError`` (naming ``what``, e.g. the file and grid, and ``option``) when ``n_bytes``
-    exceed this machine's RAM: refuse before allocating rather than fail with a MemoryError."""
-    ram = machine_ram_bytes()
-    if n_bytes > ram:
-        gib = 1024.0 ** 3
-        msg = f"{what} would need {n_bytes / gib:,.1f} GiB of memory, more than this machine's {ram / gib:,.1f} GiB"
-        if hint:
-            msg += f"; {hint}"
-        raise ResourceError(msg, param=option)
-
-
-def check_disk(n_bytes: float, folder, what: str, option: str | None = None, hint: str = "") -> None:
-    """``ResourceError`` when ``n_bytes`` exceed the free space on the disk holding ``folder`` (or
-    its nearest existing parent): refuse before writing rather than fill the disk."""
-    import shutil
-    from pathlib import Path
-
-    folder = Path(folder).absolute()
-    while not folder.exists() and folder != folder.parent:
-        folder = folder.parent
-    free = shutil.disk_usage(folder).free
-    if n_bytes > free:
-        gib = 1024.0 ** 3
-        msg = f"{what} would need up to {n_bytes / gib:,.1f} GiB of disk, more than the {free / gib:,.1f} GiB free in {folder}"
-        if hint:
-            msg += f"; {hint}"
-        raise ResourceError(msg, param=option)
 
 
 def check_grid(nrows: int, ncols: int, cell_m: float, bytes_per_cell: float, what: str,
                *, option: str | None = None, hint: str = "") -> None:
     """``check_allocation`` for a grid of ``nrows`` x ``ncols`` cells of ``cell_m`` metres."""
     check_allocation(float(nrows) * float(ncols) * bytes_per_cell,
-                     f"{what}: a grid of {nrows:,} x {ncols:,} cells of {cell_m:g} m", option, hint)
+                     f"{what}: a grid of {nrows:,} x {ncols:,} cells of {cell_m:g} m", option, hint=hint)
 
 
 @numba.njit(cache=True, parallel=True)

@@ -33,7 +33,7 @@ from aerotri.core.atomic import atomic_path, refuse_input_as_output
 from aerotri.core.errors import InputError
 from aerotri.geom import las
 from aerotri.geom.crs.definition import horizontal_crs, parse_crs
-from lidarctl.grid import check_allocation
+from aerotri.core.limits import check_allocation
 from lidarctl.units import METRE, UNKNOWN, LengthUnits, units_of
 
 

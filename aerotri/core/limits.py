@@ -1,4 +1,4 @@
-"""Physical limits checked before allocating: memory of this machine and raster grid sizes.
+"""Physical limits checked before allocating or writing: memory and disk of this machine, raster grid sizes.
 
 A command whose options ask for more than the machine can hold (``ortho rectify --res 0.0005`` over a
 block of 300 m frames is an ortho of 4e11 pixels per frame) stops at once with a ``ResourceError``
@@ -39,15 +39,33 @@ def format_bytes(n: float) -> str:
     return f"{n:.1f} PiB"
 
 
-def check_allocation(n_bytes: float, what: str, option: str | None = None, fraction: float = 0.8) -> None:
-    """``ResourceError`` when ``what`` would need more than ``fraction`` of the physical memory.
+def check_allocation(n_bytes: float, what: str, option: str | None = None, *, hint: str = "",
+                     fraction: float = 0.8) -> None:
+    """``ResourceError`` when ``what`` would need more than ``fraction`` of the physical memory: refuse before
+    allocating rather than fail with a MemoryError (or the out-of-memory killer) minutes later.
 
-    ``option`` names the option that sets the size (e.g. ``--res``); the message gives both sizes."""
+    ``option`` names the option that sets the size (e.g. ``--res``); the message gives both sizes and ``hint``
+    (what to change). 80 %: the process, its libraries and the system need the rest."""
     total = physical_memory_bytes()
     if total and n_bytes > fraction * total:
-        hint = f"; change {option}" if option else ""
-        raise ResourceError(f"{what} would need {format_bytes(n_bytes)} of memory, more than this machine's "
-                            f"{format_bytes(total)}{hint}", param=option)
+        hint = f"; {hint}" if hint else f"; change {option}" if option else ""
+        raise ResourceError(f"{what} would need {format_bytes(n_bytes)} of memory, more than {fraction:.0%} of this "
+                            f"machine's {format_bytes(total)}{hint}", param=option)
+
+
+def check_disk(n_bytes: float, folder, what: str, option: str | None = None, *, hint: str = "") -> None:
+    """``ResourceError`` when ``n_bytes`` exceed the free space on the disk holding ``folder`` (or its nearest
+    existing parent): refuse before writing rather than fill the disk."""
+    import shutil
+    from pathlib import Path
+
+    folder = Path(folder).absolute()
+    while not folder.exists() and folder != folder.parent:
+        folder = folder.parent
+    free = shutil.disk_usage(folder).free
+    if n_bytes > free:
+        msg = f"{what} would need up to {format_bytes(n_bytes)} of disk, more than the {format_bytes(free)} free in {folder}"
+        raise ResourceError(msg + (f"; {hint}" if hint else ""), param=option)
 
 
 def check_task_count(n_tasks: float, what: str, option: str | None = None, hint: str = "") -> None:

@@ -26,7 +26,7 @@ import numpy as np
 
 from aerotri.core.errors import InputError
 from aerotri.geom import las
-from lidarctl.grid import check_allocation
+from aerotri.core.limits import check_allocation
 from lidarctl.units import LengthUnits
 
 log = logging.getLogger(__name__)

@@ -774,7 +774,7 @@ def _bin_corner_points(paths, crs, work: Path, tile_m: float, buffer_m: float, c
     grid = TileGrid(float(lo[0]), float(lo[1]), float(tile_m), float(buffer_m), int(nr), int(nc))
     used = np.zeros(grid.n_tiles, bool)
     record = _scratch_dtype(np.uint32 if max(h.point_count for h in headers) < 1 << 32 else np.uint64)
-    from lidarctl.grid import check_disk
+    from aerotri.core.limits import check_disk
 
     # every point once, and the building points' (X, Y) once more when all are building points
     check_disk(sum(h.point_count for h in headers) * (record.itemsize + 8.0), work,

@@ -39,7 +39,8 @@ from aerotri.core.errors import InputError, OptionError
 from aerotri.core.gdal_cache import MiB, stage_block_cache
 from aerotri.core.settings import setting
 from aerotri.core.limits import check_task_count
-from lidarctl.grid import check_disk, check_grid
+from aerotri.core.limits import check_disk
+from lidarctl.grid import check_grid
 from lidarctl.io import PointCloud
 from lidarctl.rasters.cells import CellStats
 from lidarctl.raster_ops import DEFAULT_TIN_FILL_RADIUS_PX, fill_nodata, fill_nodata_tin
@@ -775,7 +776,7 @@ def write_rasters_tiled(paths, outdir, res_m: float, crs=None, *, tile_px: int =
     # is mostly nodata, but the tiles are still visited and written)
     check_disk(2.0 * 4 * (len(RASTERS) + 1) * nrows * ncols, outdir,
                f"{inputs.names}: rasters over the header bounds, a grid of {nrows:,} x {ncols:,} cells of {res_m:g} m",
-               "--res", "use a coarser --res (or are strips far apart?)")
+               "--res", hint="use a coarser --res (or are strips far apart?)")
     check_task_count((-(-nrows // tile_px)) * (-(-ncols // tile_px)),
                      f"{inputs.names}: a grid of {nrows:,} x {ncols:,} cells in tiles of {tile_px} cells", "--tile-px",
                      "use a larger --tile-px")
@@ -819,9 +820,10 @@ _THREADS = 2
 
 
 def _tile_threads(window_cells: int) -> int:
-    from lidarctl.grid import machine_ram_bytes
+    from aerotri.core.limits import physical_memory_bytes
 
-    return _THREADS if _THREADS * window_cells * RASTER_BYTES_PER_CELL <= 0.5 * machine_ram_bytes() else 1
+    ram = physical_memory_bytes() or float("inf")  # 0: the system does not say
+    return _THREADS if _THREADS * window_cells * RASTER_BYTES_PER_CELL <= 0.5 * ram else 1
 
 
 # GDAL's block cache while the tiled rasters are written (windows written, COGs copied): bounded, not 5 % of

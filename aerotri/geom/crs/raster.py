@@ -26,6 +26,7 @@ from rasterio.windows import Window
 
 from aerotri.core.atomic import atomic_path, refuse_input_as_output, scratch_dir
 from aerotri.core.errors import CrsError, InputError, OptionError
+from aerotri.core.limits import check_disk
 from aerotri.core.log import progress
 from aerotri.geom.crs.definition import (check_stored_crs, crs_label, geotiff_crs, height_unit_m, horizontal_crs,
                                length_unit_name, linear_unit_m, parse_crs, same_horizontal, unit_long_name, unit_name)
@@ -109,7 +110,8 @@ def warp_raster(in_path, out_path, to_crs, *, from_crs=None, params=None, height
             y0 = math.ceil(top / res) * res
             width = int(math.ceil((right - x0) / res))
             height = int(math.ceil((y0 - bottom) / res))
-        _check_disk(width * height * ds.count * np.dtype(ds.dtypes[0]).itemsize, out_path, width, height)
+        check_disk(width * height * ds.count * np.dtype(ds.dtypes[0]).itemsize, out_path.parent,
+                   f"the target grid of {width} x {height} cells (uncompressed)", "--res", hint="choose a coarser --res")
         # the grid's corners and centre: where the stored CRS must put the grid as the requested one does
         gx = x0 + res * np.array([0.0, width, 0.0, width, width / 2.0])
         gy = y0 - res * np.array([0.0, 0.0, height, height, height / 2.0])
@@ -174,17 +176,6 @@ def _unit_tags(crs, res: float, kind: str) -> dict:
     if kind == "height":
         tags["VERTICAL_UNITS"] = length_unit_name(height_unit_m(crs), long=True)
     return tags
-
-
-def _check_disk(n_bytes: int, out_path: Path, width: int, height: int) -> None:
-    """Refuse a target grid whose uncompressed size exceeds the free disk (before any work)."""
-    import shutil
-
-    free = shutil.disk_usage(out_path.parent if out_path.parent.exists() else Path.cwd()).free
-    if n_bytes > free:
-        raise OptionError(f"--res: the target grid would be {width} x {height} cells ({n_bytes / 2**30:.1f} GiB "
-                          f"uncompressed) but {out_path.parent} has {free / 2**30:.1f} GiB free; choose a coarser --res",
-                          param="--res")
 
 
 def _heights_through(z: np.ndarray, valid: np.ndarray, inverse: CrsTransformer, x_left, y_top, res) -> np.ndarray:
