@@ -118,3 +118,23 @@ def test_a_drift_along_a_strip_is_judged_by_the_between_frame_sigmas(consumer_bl
     assert ks["verdict"] == "weak" and "strip 2 E" in ks["message"], ks["message"]
     assert "beyond 0.2 m ([gnss] sigma_xy_m, sigma_z_m" in ks["message"] and 'gnss_correction = "offset"' in ks["message"]
     assert "The receiver wanders along the strips" in ks["message"]
+
+
+def test_an_offset_beyond_its_a_priori_sigmas_is_suspect_with_plan_and_height(consumer_block, tmp_path):
+    """Every GNSS height 20 m too high (the offset's U 23 m, 4.6 of its a-priori 5 m): with the DEM the offset is
+    estimated, flagged as suspect, and the message states the plan / height a-priori sigmas (3 / 5 m)."""
+    import shutil
+
+    from aerotri.geom.eo import read_gnss, write_gnss
+
+    _, root, dem = consumer_block
+    _gnss(root, offset=True)
+    p = shutil.copytree(root, tmp_path / "blk")
+    g = read_gnss(p / "gnss.txt")
+    write_gnss(p / "gnss.txt", type(g)(g.image_id, g.position_m + [0.0, 0.0, 20.0], g.sigma_m))
+    ba = adjust_project(p, dataclasses.replace(SETTINGS, dem=p / "dem.tif", surface_sigma_m=0.05))
+    ks = build_report(ba)["key_statistics"]
+    assert [(s["term"], s["axis"]) for s in ks["gnss_corrections_suspect"]] == [("shift", "U")], ks
+    assert ks["gnss_corrections_suspect"][0]["displacement_m"] == pytest.approx(OFFSET_M[2] + 20.0, abs=0.3)
+    assert ("a-priori sigmas of 3 / 5 m (plan / height; [gnss] offset_sigma_xy_m, offset_sigma_z_m; 1 % false "
+            "alarms over the block's 3 estimates): strip 1 shift U") in ks["message"], ks["message"]
