@@ -408,29 +408,36 @@ def gnss_correction_check(ba) -> GnssCorrectionCheck | None:
 
 @dataclasses.dataclass(frozen=True)
 class UnmodelledDriftCheck:
-    """GNSS residuals that trend along a strip when the solve corrects a shift only (``gnss_correction = "shift"``):
-    per strip (4 frames or more) and axis, the residuals' straight line over the strip's along-track position; its
-    displacement at the strip end is reported when it exceeds the a-priori ``sigma_m`` (``gnss_shift_sigma_m``: a
-    drift that matters) and ``k`` of its own standard errors (the line's fit; ``k`` Bonferroni over the block's
-    ``n`` tests at ``GNSS_CORRECTION_ALPHA``). The tie points hold part of such a drift, so the residual trend
-    understates it; on a 10,000-frame block with drifts of 0.001-0.004 m/s over 200-frame strips the orientations
-    came out 8 of their sigmas off with "Solution Successful" before this check."""
+    """GNSS residuals that trend along a strip when the solve corrects no drift (``gnss_correction = "shift"``, or
+    a consumer receiver's ``"offset"``): per strip (4 frames or more) and axis, the residuals' straight line over the
+    strip's along-track position; its displacement at the strip end is reported when it exceeds the axis's
+    ``sigma_axis_m`` (a drift that matters) and ``k`` of its own standard errors (the line's fit; ``k`` Bonferroni
+    over the block's ``n`` tests at ``GNSS_CORRECTION_ALPHA``). A survey receiver's limit is ``gnss_shift_sigma_m``
+    (0.1 m); a consumer receiver's (``[gnss] offset_sigma_xy_m`` given) the positions' own sigmas between frames
+    (``[gnss] sigma_xy_m``, ``sigma_z_m``, decimetres): its model says the frames of a flight differ by no more,
+    and 0.1 m would judge its decimetres of noise by a survey receiver's rule. The tie points hold part of such a
+    drift, so the residual trend understates it; on a 10,000-frame block with drifts of 0.001-0.004 m/s over
+    200-frame strips the orientations came out 8 of their sigmas off with "Solution Successful" before this
+    check."""
 
     sigma_m: float
     k: float
     n: int
     trends: tuple  # of (strip 1-based, axis "E" | "N" | "U", displacement m at the strip end, standard errors)
+    source: str = "gnss_shift_sigma_m"  # the setting the limit comes from
+    sigma_axis_m: tuple = ()  # (E, N, U) limit per axis (a consumer receiver's plan and height); () all sigma_m
 
     def reasons(self) -> list[str]:
         return [f"strip {s} {axis} {v:+.3f} m at the strip end ({t:.1f} standard errors)" for s, axis, v, t in self.trends]
 
 
 def unmodelled_drift_check(ba) -> UnmodelledDriftCheck | None:
-    """``UnmodelledDriftCheck`` of an adjustment that corrected a GNSS shift per strip and no drift, else None."""
+    """``UnmodelledDriftCheck`` of an adjustment that corrected a GNSS shift (per strip, or the flight's offset)
+    and no drift, else None."""
     from scipy.stats import norm
 
     b, res = ba.block, getattr(ba, "gnss_residual_m", None)
-    if ba.opts.gnss_correction != "shift" or res is None or b.gnss_local is None:
+    if ba.opts.gnss_correction not in ("shift", "offset") or res is None or b.gnss_local is None:
         return None
     fits = []
     for s in range(b.n_strips):
@@ -450,11 +457,23 @@ def unmodelled_drift_check(ba) -> UnmodelledDriftCheck | None:
         fits += [(s + 1, "ENU"[a], float(slope[a] * half), float(se[a] * half)) for a in range(3)]
     if not fits:
         return None
-    sigma = float(ba.settings.gnss_shift_sigma_m)
+    if b.gnss_offset_sigma_m is not None:  # a consumer receiver: its sigmas between frames (median, per axis)
+        sigma_axis = np.median(np.asarray(b.gnss_sigma_m, dtype=float), axis=0)
+        source = "[gnss] sigma_xy_m, sigma_z_m: the positions' sigmas between frames"
+    else:
+        sigma_axis, source = np.full(3, float(ba.settings.gnss_shift_sigma_m)), "gnss_shift_sigma_m"
+    sig = dict(zip("ENU", sigma_axis))
     k = float(norm.isf(GNSS_CORRECTION_ALPHA / (2 * len(fits))))
     trends = tuple((s, a, round(v, 4), round(abs(v) / se, 1) if se > 0 else float("inf")) for s, a, v, se in fits
-                   if abs(v) > sigma and abs(v) > k * se)
-    return UnmodelledDriftCheck(sigma, round(k, 2), len(fits), trends)
+                   if abs(v) > sig[a] and abs(v) > k * se)
+    return UnmodelledDriftCheck(float(sigma_axis[0]), round(k, 2), len(fits), trends, source,
+                                tuple(float(x) for x in sigma_axis))
+
+
+def _limit(check, more: str = "") -> str:
+    """A check's limit in words with its source: "0.1 m (gnss_shift_sigma_m)", "3 / 5 m (plan / height; ...)"."""
+    p, _, h = check.sigma_axis_m or (check.sigma_m,) * 3
+    return f"{p:g} m ({check.source}{more})" if p == h else f"{p:g} / {h:g} m (plan / height; {check.source}{more})"
 
 
 SIGMA0_PLAUSIBLE = (0.8, 1.25)  # beyond, the a-priori image sigma is off by more than a fifth
@@ -496,14 +515,19 @@ def _key_statistics(ba, height_limit_m: float) -> dict:
             f"{c.group} fixed at its a-priori value (not determinable: {c.reason})" for c in fixed) + ".")
     gcc = gnss_correction_check(ba)
     if gcc is not None and gcc.suspect:
-        weaknesses.append(f"GNSS corrections suspect, beyond {gcc.k:g} a-priori sigmas of {gcc.sigma_m:g} m "
-                          f"({gcc.source}; 1 % false alarms over the block's {gcc.n} estimates): "
+        weaknesses.append(f"GNSS corrections suspect, beyond {gcc.k:g} a-priori sigmas of "
+                          + _limit(gcc, f"; 1 % false alarms over the block's {gcc.n} estimates") + ": "
                           + "; ".join(gcc.reasons()) + ". An error of the block's datum or of the GNSS may be absorbed.")
     udc = unmodelled_drift_check(ba)
     if udc is not None and udc.trends:
-        weaknesses.append(f"GNSS residuals trend along strips beyond {udc.sigma_m:g} m (gnss_shift_sigma_m) and "
-                          f"{udc.k:g} standard errors: a drift the solve does not model (gnss_correction = \"shift\"): "
-                          + "; ".join(udc.reasons()) + ". Set [adjust] gnss_correction = \"shift_drift\".")
+        advice = "Set [adjust] gnss_correction = \"shift_drift\"."
+        if ba.block.gnss_offset_sigma_m is not None:  # a consumer receiver, judged by its between-frame sigmas
+            advice = ("The receiver wanders along the strips by more than its [gnss] sigma_xy_m / sigma_z_m say: "
+                      "state there what it holds over a strip, or with control points set [adjust] gnss_correction "
+                      "= \"shift_drift\".")
+        weaknesses.append(f"GNSS residuals trend along strips beyond {_limit(udc)} and {udc.k:g} standard errors: a "
+                          f"drift the solve does not model (gnss_correction = \"{opts.gnss_correction}\"): "
+                          + "; ".join(udc.reasons()) + ". " + advice)
     if ba.left_out:
         n = sum(len(lo.image_ids) for lo in ba.left_out)
         weaknesses.append(f"{n} images in {len(ba.left_out)} part(s) that no tie point connects to the block and "

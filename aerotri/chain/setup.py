@@ -34,6 +34,8 @@ heights = "ellipsoidal"  # or a vertical CRS, e.g. "EPSG:3855" (EGM2008 height) 
 # sigma_xy_m = 0.05      # a-priori accuracy of positions without their own sX sY sZ (m)
 # sigma_z_m = 0.1
 # lever_arm_m = [0.0, 0.0, 0.0]   # antenna offset from the projection centre, camera frame (x right, y up, z up), m
+# offset_sigma_xy_m = 3.0  # a consumer receiver (no RTK): one offset for the flight, a priori (m); not given: none
+# offset_sigma_z_m = 5.0   # (sigma_xy_m, sigma_z_m are then between frames, e.g. 0.5; docs/real-blocks.md)
 
 # [control]              # control/points.csv: id,kind,x,y,z,sx_m,sy_m,sz_m and control/image_points.csv
 # sigma_xy_m = 0.10

@@ -421,10 +421,15 @@ def read(files, project: Project, options: ImportSettings) -> ImportedBlock:
     if all(m.relative_alt_m is not None for m in metas):
         # the ground at the take-off point, in the project's heights: a terrain height for the frames' footprints
         takeoff_m = float(np.median(xyz[:, 2] - np.array([m.relative_alt_m for m in metas])))
-        block.notes.append(f"flight: the frames' heights above the take-off point (DJI RelativeAltitude) put the ground "
-                           f"there at {takeoff_m:.1f} m: with [flight] mean_terrain_height_m = {takeoff_m:.1f} in "
-                           f"{project.config_path.name}, aerotri match pairs the frames by their footprints instead of "
-                           "matching thumbnails of every pair")
+        block.terrain_height_m = takeoff_m
+        block.terrain_height_from = ("aerotri import --format exif: the ground at the take-off point, the frames' "
+                                     "heights less their DJI RelativeAltitude")
+        if project.source_of("flight", "mean_terrain_height_m") != "project.toml":
+            block.notes.append(f"flight: the frames' heights above the take-off point (DJI RelativeAltitude) put the "
+                               f"ground there at {takeoff_m:.1f} m: {project.config_path.name} gets [flight] "
+                               f"mean_terrain_height_m = {takeoff_m:.1f}, with which aerotri match pairs the frames by "
+                               "their footprints instead of matching thumbnails of every pair; edit it if the terrain "
+                               "lies higher or lower than the take-off point")
     block.gnss = GnssPositions(ids, xyz, sigma)
     if all(m.gimbal_ypr_deg is not None for m in metas):
         from aerotri.geom.local_frame import LocalFrame

@@ -11,6 +11,8 @@ the project's own files:
 | ``gnss`` | ``gnss.txt`` | GNSS positions the adjustment weights as observations |
 | ``control`` | ``control/points.csv`` | control and check points |
 | ``image_points`` | ``control/image_points.csv`` | the control points' image measurements |
+| ``gnss_section`` | ``project.toml`` ``[gnss]`` | the positions' model (appended when project.toml has no [gnss]) |
+| ``terrain_height_m`` | ``project.toml`` ``[flight] mean_terrain_height_m`` | the terrain height for the frames' footprints (when project.toml has none) |
 
 ``gnss.txt`` gets only what the source measured with GNSS (EXIF positions) or, with ``--as-gnss``, a
 reconstruction's positions the user declares to be GNSS, with the accuracies the user states
@@ -62,6 +64,10 @@ class ImportedBlock:
     notes: list[str] = dataclasses.field(default_factory=list)  # what the user should know (assumptions made)
     gnss_holds: str = "GNSS positions"  # what gnss.txt holds, in words (with where its accuracies came from)
     gnss_section: str | None = None  # a [gnss] section for project.toml (the positions' model), when it has none
+    # [flight] mean_terrain_height_m for project.toml when it has none (the user's value is never replaced), and
+    # where it came from (the comment written beside it)
+    terrain_height_m: float | None = None
+    terrain_height_from: str = ""
     origin: dict = dataclasses.field(default_factory=dict)
     crs_assumed: bool = False
 
@@ -191,6 +197,30 @@ def _holds_camera(path: Path, camera: Camera | None) -> bool:
     return there == here
 
 
+def _with_terrain_height(project: Project, config: str, block: ImportedBlock) -> str | None:
+    """project.toml's text with ``[flight] mean_terrain_height_m`` of the block and a comment saying where it came
+    from: appended as a [flight] section, or put under the file's [flight] header; None when the file gives the key
+    already (the user's value stays) or has no [flight] header line to put it under (a dotted key or inline table),
+    and a note says so."""
+    import re
+
+    line = f"mean_terrain_height_m = {block.terrain_height_m:.1f}  # {block.terrain_height_from}\n"
+    if project.source_of("flight", "mean_terrain_height_m") == "project.toml":
+        block.notes.append(f"flight: {project.config_path.name} gives [flight] mean_terrain_height_m = "
+                           f"{project.flight.mean_terrain_height_m:g}, kept (the import's "
+                           f"{block.terrain_height_m:.1f} m is {block.terrain_height_from})")
+        return None
+    if "flight" not in project.config:
+        return config.rstrip("\n") + "\n\n[flight]\n" + line
+    header = re.search(r"(?m)^[ \t]*\[flight\][^\n]*(\n|\Z)", config)
+    if header is None:
+        block.notes.append(f"flight: {project.config_path.name} has [flight] keys but no [flight] header line to "
+                           f"put mean_terrain_height_m = {block.terrain_height_m:.1f} under: not written")
+        return None
+    head = config[:header.end()] + ("" if header.group(1) else "\n")
+    return head + line + config[header.end():]
+
+
 def write_imported(root, block: ImportedBlock, format_name: str, overwrite: bool = False) -> list[WrittenFile]:
     """Write an imported block into a project folder (see the module docstring); returns what was written
     (the record file ``imported/imports.json`` last).
@@ -229,6 +259,13 @@ def write_imported(root, block: ImportedBlock, format_name: str, overwrite: bool
                                          + block.gnss_section)
         written.append(WrittenFile(path=project.config_path.name, holds="[gnss] the GNSS positions' model (no "
                                    "accuracy in the source)", count=1, source=block.source_of("gnss")))
+    if block.terrain_height_m is not None:
+        config = contents.get(project.config_path) or project.config_path.read_text(encoding="utf-8")
+        with_height = _with_terrain_height(project, config, block)
+        if with_height is not None:
+            contents[project.config_path] = with_height
+            written.append(WrittenFile(path=project.config_path.name, holds=f"[flight] mean_terrain_height_m "
+                                       f"({block.terrain_height_from})", count=1, source=block.source_of("gnss")))
     record["imports"].append({"format": format_name, "source": block.source,
                               "files": [dataclasses.asdict(w) for w in written], "notes": block.notes})
     contents[record_path] = json.dumps(record, indent=2) + "\n"

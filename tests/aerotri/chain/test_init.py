@@ -153,13 +153,18 @@ def test_docs_name_every_project_and_camera_key():
 
 def test_project_toml_template_shows_the_gnss_defaults(tmp_path):
     """project.toml's commented [gnss] lines are what the adjustment takes when they stay commented (the template
-    said sigma_z_m = 0.08 while the default, which the EXIF import and `aerotri settings` state, is 0.1)."""
+    said sigma_z_m = 0.08 while the default, which the EXIF import and `aerotri settings` state, is 0.1); the flight
+    offset's keys, which have no default (no offset: a survey receiver), show what the EXIF import writes for a
+    consumer receiver."""
     from aerotri.chain.setup import PROJECT_TOML
     from aerotri.core.project import GnssSettings
+    from aerotri.exchange.exif import CONSUMER_GNSS
 
     text = PROJECT_TOML.format(name="t", crs="EPSG:32615", crs_name="UTM")
     gnss = text.split("# [gnss]", 1)[1].split("\n\n", 1)[0]
     shown = tomllib.loads("\n".join(line.removeprefix("# ").split("#")[0] for line in gnss.splitlines()[1:]))
     defaults = GnssSettings()
     assert shown == {"sigma_xy_m": defaults.sigma_xy_m, "sigma_z_m": defaults.sigma_z_m,
-                     "lever_arm_m": list(defaults.lever_arm_m)}
+                     "lever_arm_m": list(defaults.lever_arm_m),
+                     "offset_sigma_xy_m": CONSUMER_GNSS[2], "offset_sigma_z_m": CONSUMER_GNSS[3]}
+    assert defaults.offset_sigma_m is None and f"e.g. {CONSUMER_GNSS[0]:g}" in gnss

@@ -235,6 +235,42 @@ def test_bad_input_through_the_command(tmp_path):
     assert r.exit_code == 2 and "Traceback" not in r.output
 
 
+def test_take_off_height_written_as_the_terrain_height_unless_given(tmp_path):
+    """DJI RelativeAltitude: the frames' heights less it put the ground at the take-off point (150.5 - 100.0 =
+    50.5 m); the import writes it into project.toml as [flight] mean_terrain_height_m with a comment saying where it
+    came from, recorded in imports.json: a [flight] section appended, or the key put under the user's [flight]
+    header, every other line kept; a user's mean_terrain_height_m is never replaced."""
+    from aerotri.core.project import Project
+
+    (tmp_path / "imgs").mkdir()
+    _frame(tmp_path / "imgs" / "a.tif", EXIF, dict(GOOD, RelativeAltitude="+100.0"))
+    header = '[project]\nname = "p"\ncrs = "EPSG:32651"\n'
+    for name, given in [("none", ""), ("speed", "[flight]  # the plan\nspeed_mps = 12.0\n\n[qa]\npdf = false\n"),
+                        ("user", "[flight]\nmean_terrain_height_m = 7.0\n")]:
+        root = tmp_path / name
+        root.mkdir()
+        (root / "project.toml").write_text(header + given)
+        r = CliRunner().invoke(aerotri_cli, ["import", str(root), "--format", "exif", str(tmp_path / "imgs")])
+        assert r.exit_code == 0, r.output
+        text = (root / "project.toml").read_text()
+        project = Project.open(root)
+        files = json.loads((root / "imported" / "imports.json").read_text())["imports"][0]["files"]
+        if name == "user":
+            assert text == header + given and project.flight.mean_terrain_height_m == 7.0
+            assert "[flight] mean_terrain_height_m = 7, kept (the import's 50.5 m" in r.output
+            assert all(f["path"] != "project.toml" for f in files)
+            continue
+        assert project.flight.mean_terrain_height_m == pytest.approx(50.5)
+        assert re.search(r"(?m)^mean_terrain_height_m = 50\.5  # .*the ground at the take-off point.*RelativeAltitude$",
+                         text)
+        assert text.startswith(header + given.split("\n")[0])  # the user's lines kept, in their order
+        if name == "speed":
+            assert project.flight.speed_mps == 12.0 and "[qa]\npdf = false\n" in text
+        (f,) = [f for f in files if f["path"] == "project.toml"]
+        assert f["holds"].startswith("[flight] mean_terrain_height_m") and "RelativeAltitude" in f["holds"]
+        assert "project.toml gets [flight] mean_terrain_height_m = 50.5" in r.output
+
+
 def test_init_then_import_as_the_init_says(tmp_path):
     """`aerotri init` writes camera.toml from the EXIF and says to run `aerotri import --format exif` next: that
     import keeps the same camera.toml (it is not a replacement) and writes gnss.txt; a camera.toml that differs
@@ -264,9 +300,8 @@ def test_init_then_import_as_the_init_says(tmp_path):
 
 @pytest.mark.realdata
 def test_brighton_import_says_the_take_off_height_and_the_missing_accuracy(shared_data, tmp_path):
-    """What the import cannot write but the user needs next: the ground at the take-off point from DJI's
-    RelativeAltitude (for [flight] mean_terrain_height_m: exif_positions.csv gives abs_alt_m - rel_alt_m = 158.5 m
-    for every frame); positions without RTK accuracies get a consumer receiver's model in project.toml [gnss]
+    """What the user needs next: the ground at the take-off point from DJI's RelativeAltitude, written as [flight]
+    mean_terrain_height_m (exif_positions.csv gives abs_alt_m - rel_alt_m = 158.5 m for every frame); positions without RTK accuracies get a consumer receiver's model in project.toml [gnss]
     (decimetres between frames, one offset of metres for the flight), not [gnss]'s aerial defaults."""
     from aerotri.core.project import Project
     from aerotri.exchange.exif import CONSUMER_GNSS
@@ -284,13 +319,18 @@ def test_brighton_import_says_the_take_off_height_and_the_missing_accuracy(share
     assert "states no accuracy (no DJI RTK): project.toml [gnss] gets a consumer receiver's model" in r.output
     g = Project.open(root).gnss  # appended to the user's project.toml, every earlier line kept
     assert (g.sigma_xy_m, g.sigma_z_m, g.offset_sigma_xy_m, g.offset_sigma_z_m) == CONSUMER_GNSS
-    assert json.loads((root / "imported" / "imports.json").read_text())["imports"][0]["files"][-1]["path"] == "project.toml"
+    assert Project.open(root).flight.mean_terrain_height_m == pytest.approx(takeoff, abs=0.05)
+    files = json.loads((root / "imported" / "imports.json").read_text())["imports"][0]["files"]
+    assert [f["holds"].split(" ", 1)[0] for f in files if f["path"] == "project.toml"] == ["[gnss]", "[flight]"]
     # the sources of a folder of frames in a few words, not 18 file names
     assert "(from 18 files, DJI_0018.JPG ... DJI_0035.JPG)" in r.output
     # stated in project.toml: no note
     (tmp_path / "q").mkdir()
-    (tmp_path / "q" / "project.toml").write_text('[project]\ncrs = "EPSG:32615"\n[gnss]\nsigma_xy_m = 3.0\nsigma_z_m = 5.0\n')
+    user = '[project]\ncrs = "EPSG:32615"\n[gnss]\nsigma_xy_m = 3.0\nsigma_z_m = 5.0\n'
+    (tmp_path / "q" / "project.toml").write_text(user)
     r = CliRunner().invoke(aerotri_cli, ["import", str(tmp_path / "q"), "--format", "exif", str(data / "images")])
     assert r.exit_code == 0, r.output
     assert "states no accuracy" not in r.output
-    assert (tmp_path / "q" / "project.toml").read_text().endswith("sigma_z_m = 5.0\n")  # the user's [gnss], untouched
+    # the user's [gnss] untouched; the [flight] terrain height appended after it
+    text = (tmp_path / "q" / "project.toml").read_text()
+    assert text.startswith(user) and text[len(user):].startswith("\n[flight]\nmean_terrain_height_m = 158.5  #")
