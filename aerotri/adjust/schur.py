@@ -558,36 +558,39 @@ def _point_increments(blocks, obs_image, start, d_pose, d_cal):
     return d
 
 
+@numba.njit(cache=True)
+def _ray_cost(k0, k1, rays, poses, points, weights):
+    """The cost of ``_sum_of_squares`` over the rays ``k0 .. k1 - 1``, in order. A function of its own, not inlined
+    into the parallel loop: numba's array analysis of a parallel loop fails on ``_ray``'s tuple of arrays."""
+    xy, obs_image, row = rays
+    centre, R_cv = poses
+    cal, inv_sigma, huber_k = weights
+    model = (cal, inv_sigma, False)
+    r = np.empty(2)
+    out = (r, np.empty((2, 6)), np.empty((2, 3)), np.empty((2, 9)))
+    total = 0.0
+    for k in range(k0, k1):
+        i = obs_image[k]
+        if not _ray(xy[k], (centre[i], R_cv[i]), points[row[k]], model, out):
+            return np.inf
+        x2 = r[0] * r[0] + r[1] * r[1]
+        if huber_k > 0.0 and x2 > huber_k * huber_k:
+            total += 2.0 * huber_k * np.sqrt(x2) - huber_k * huber_k
+        else:
+            total += x2
+    return total
+
+
 def _sum_of_squares(rays, poses, points, weights, parts):
     """Sum of the squared whitened residuals of the ``rays`` (xy, obs_image, row: pixel, image, point row) at the
     ``poses`` (centre, R_cv) and ``points`` (behind the camera: infinite); ``weights``: (cal, inv_sigma, huber_k),
     ``huber_k`` > 0: twice Huber's robust cost instead (``x^2`` per ray up to ``k``, ``2 k x - k^2`` beyond). The
     rays in ``PARTS`` runs (in parallel when compiled so), their sums added in order (the result does not depend
     on the number of threads)."""
-    xy, obs_image, row = rays
-    centre, R_cv = poses
-    cal, inv_sigma, huber_k = weights
-    K = len(row)
+    K = len(rays[2])
     part = np.zeros(parts)
     for t in numba.prange(parts):
-        A = np.empty((2, 6))
-        B = np.empty((2, 3))
-        C = np.empty((2, 9))
-        r = np.empty(2)
-        model = (cal, inv_sigma, False)
-        out = (r, A, B, C)
-        total = 0.0
-        for k in range((K * t) // parts, (K * (t + 1)) // parts):
-            i = obs_image[k]
-            if not _ray(xy[k], (centre[i], R_cv[i]), points[row[k]], model, out):
-                total = np.inf
-                break
-            x2 = r[0] * r[0] + r[1] * r[1]
-            if huber_k > 0.0 and x2 > huber_k * huber_k:
-                total += 2.0 * huber_k * np.sqrt(x2) - huber_k * huber_k
-            else:
-                total += x2
-        part[t] = total
+        part[t] = _ray_cost((K * t) // parts, (K * (t + 1)) // parts, rays, poses, points, weights)
     total = 0.0
     for t in range(parts):
         total += part[t]
