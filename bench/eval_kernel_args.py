@@ -18,6 +18,12 @@ as the machine's load changes).
 
     python bench/eval_kernel_args.py --before DIR [--rounds 3] [--repeat 5] [--only CALL]
         [--json bench/results/kernel_args.json]
+
+``--compile``: instead, numba's compilation of the calls (each side with an empty ``NUMBA_CACHE_DIR``, one call
+each): the compile CPU seconds per call and in all, timed by ``bench/eval_numba_compile.py``'s listener of
+numba's ``numba:compile`` event (exclusive thread CPU seconds), ``--rounds`` runs a side, the least reported.
+
+    python bench/eval_kernel_args.py --before DIR --compile [--rounds 2] [--json bench/results/kernel_args_compile.json]
 """
 
 from __future__ import annotations
@@ -286,11 +292,34 @@ def _measure(repeat: int, only: list[str] | None = None) -> dict:
     return out
 
 
-def _side(code: Path, repeat: int, only: list[str] | None = None) -> dict:
-    env = dict(os.environ, PYTHONPATH=str(code))
-    r = subprocess.run([sys.executable, __file__, "--measure", "--repeat", str(repeat),
-                        *[a for name in only or [] for a in ("--only", name)]], env=env,
-                       capture_output=True, text=True, check=True, cwd=code)
+def _measure_compile(only: list[str] | None = None) -> dict:
+    """Compile CPU seconds of each call's first run (an empty numba cache) and the numba compilations in all."""
+    sys.path.insert(0, str(Path(__file__).resolve().parent))
+    from eval_numba_compile import _Timer, records, summary
+    from numba.core import event as ev
+
+    ev.register("numba:compile", _Timer())
+    out = {}
+    for name, fn in _calls().items():
+        if only and name not in only:
+            continue
+        n0 = len(records)
+        fn()
+        out[name] = round(sum(r["exclusive_cpu_s"] for r in records[n0:]), 3)
+    s = summary(records)
+    return {"calls": out, "compile_cpu_s": round(s["compile_cpu_s"], 3), "compilations": s["compilations"],
+            "per_function_exclusive_cpu_s_count": s["per_function_exclusive_cpu_s_count"]}
+
+
+def _side(code: Path, repeat: int, only: list[str] | None = None, compile_: bool = False) -> dict:
+    import tempfile
+
+    with tempfile.TemporaryDirectory(dir=os.environ.get("TMPDIR")) as cache:
+        env = dict(os.environ, PYTHONPATH=str(code), **({"NUMBA_CACHE_DIR": cache} if compile_ else {}))
+        r = subprocess.run([sys.executable, __file__, "--measure", "--repeat", str(repeat),
+                            *(["--compile"] if compile_ else []),
+                            *[a for name in only or [] for a in ("--only", name)]], env=env,
+                           capture_output=True, text=True, check=True, cwd=code)
     return json.loads(r.stdout)
 
 
@@ -301,13 +330,30 @@ def main() -> None:
     ap.add_argument("--repeat", type=int, default=5, help="timed calls per run (after one warm-up call)")
     ap.add_argument("--json", type=Path)
     ap.add_argument("--only", action="append", help="measure only this call (repeatable)")
+    ap.add_argument("--compile", action="store_true", help="measure numba's compilation instead (empty cache)")
     ap.add_argument("--measure", action="store_true", help=argparse.SUPPRESS)
     a = ap.parse_args()
     if a.measure:
-        print(json.dumps(_measure(a.repeat, a.only)))
+        print(json.dumps(_measure_compile(a.only) if a.compile else _measure(a.repeat, a.only)))
         return
     if a.before is None:
         ap.error("--before DIR is needed")
+    if a.compile:
+        runs = {"before": [], "after": []}
+        for _ in range(a.rounds):
+            runs["before"].append(_side(a.before.resolve(), 0, a.only, True))
+            runs["after"].append(_side(ROOT, 0, a.only, True))
+        rows = {k: {"compile_cpu_s_before": min(r["calls"][k] for r in runs["before"]),
+                    "compile_cpu_s_after": min(r["calls"][k] for r in runs["after"])} for k in runs["before"][0]["calls"]}
+        total = {side: min(r["compile_cpu_s"] for r in rs) for side, rs in runs.items()}
+        for k, r in rows.items():
+            print(f"{k:26s} compile CPU {r['compile_cpu_s_before']:.2f} -> {r['compile_cpu_s_after']:.2f} s")
+        print(f"{'all':26s} compile CPU {total['before']:.2f} -> {total['after']:.2f} s")
+        if a.json:
+            doc = {"rounds": a.rounds, "load_average": list(os.getloadavg()), "calls": rows,
+                   "compile_cpu_s": total, "runs": runs}
+            a.json.write_text(json.dumps(doc, indent=1) + "\n")
+        return
     runs = {"before": [], "after": []}
     for _ in range(a.rounds):
         runs["before"].append(_side(a.before.resolve(), a.repeat, a.only))

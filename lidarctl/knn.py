@@ -49,13 +49,12 @@ class _Buckets(NamedTuple):
 
 
 @numba.njit(cache=True, inline="always")
-def _scan(pts, span, query, bd, bi, cnt):
-    """Offer the (cell-sorted) points ``pts`` (sx, sy) ``span`` (first, last): first..last-1 to the sorted
-    buffer (bd, bi) of the kk = len(bd) nearest of ``query`` (x, y, ub2: squared distance bound); returns the
-    new count."""
-    sx, sy = pts
-    first, last = span
-    x, y, ub2 = query
+def _scan(sx, sy, scan, bd, bi, cnt):
+    """Offer the (cell-sorted) points (sx, sy) first..last-1 to the sorted buffer (bd, bi) of the kk = len(bd)
+    nearest of the query (x, y) (``scan``: (first, last, x, y, ub2), ub2 the squared distance bound); returns the
+    new count. Scalars in the tuple, the arrays apart: an array taken out of a tuple costs a reference count
+    per call."""
+    first, last, x, y, ub2 = scan
     kk = len(bd)
     for s in range(first, last):
         dx = x - sx[s]
@@ -95,7 +94,6 @@ def _knn_kernel(buckets, queries, k, kk, ub2):
     for b in numba.prange(nblocks):
         bd = np.empty(kk)
         bi = np.empty(kk, np.int64)
-        pts = (sx, sy)
         for t in range(b * 4096, min(m, (b + 1) * 4096)):
             q = qorder[t]
             x, y = qx[q], qy[q]
@@ -111,15 +109,15 @@ def _knn_kernel(buckets, queries, k, kk, ub2):
                     row = i * ncols
                     if i == ci - r or i == ci + r:
                         # a whole row of the ring: its cells are consecutive in the sorted points
-                        cnt = _scan(pts, (cell_start[row + jlo], cell_start[row + jhi + 1]), (x, y, ub2), bd, bi,
+                        cnt = _scan(sx, sy, (cell_start[row + jlo], cell_start[row + jhi + 1], x, y, ub2), bd, bi,
                                     cnt)
                     else:
                         if cj - r >= 0:
                             c = row + cj - r
-                            cnt = _scan(pts, (cell_start[c], cell_start[c + 1]), (x, y, ub2), bd, bi, cnt)
+                            cnt = _scan(sx, sy, (cell_start[c], cell_start[c + 1], x, y, ub2), bd, bi, cnt)
                         if r > 0 and cj + r < ncols:
                             c = row + cj + r
-                            cnt = _scan(pts, (cell_start[c], cell_start[c + 1]), (x, y, ub2), bd, bi, cnt)
+                            cnt = _scan(sx, sy, (cell_start[c], cell_start[c + 1], x, y, ub2), bd, bi, cnt)
                 # Nearest possible distance of a point outside the scanned block (a micrometre of
                 # margin for the rounding of the cell assignment).
                 gx = min(x - (x0 + (cj - r) * cell_m), x0 + (cj + r + 1) * cell_m - x)

@@ -399,9 +399,11 @@ def _hit_normal(typ, idx, p, d, cells, surfaces):
     ``tobj``, the crowns (ellipsoids: centres ``tc``, semi-axes ``ta``)."""
     x, y, z = p
     dx, dy, dz = d
-    gi0, gj0, ncj = cells
-    hz, res, tn, tkind, tobj, tc, ta = surfaces
+    # each branch takes its arrays from ``surfaces`` itself: an array unpacked once for all branches costs a
+    # reference count per pixel (numba prunes the pair only within one block)
     if typ == _T_TERRAIN_A or typ == _T_TERRAIN_B:
+        gi0, gj0, ncj = cells
+        hz, res = surfaces[0], surfaces[1]
         ca = idx // ncj
         gi = gi0 + ca
         gj = gj0 + idx - ca * ncj
@@ -419,10 +421,12 @@ def _hit_normal(typ, idx, p, d, cells, surfaces):
         k = KIND_TERRAIN
         o = 0
     elif typ == _T_TRI:
+        tn, tkind, tobj = surfaces[2], surfaces[3], surfaces[4]
         nx, ny, nz = tn[idx, 0], tn[idx, 1], tn[idx, 2]
         k = tkind[idx]
         o = tobj[idx]
     else:
+        tc, ta = surfaces[5], surfaces[6]
         nx = (x - tc[idx, 0]) / (ta[idx, 0] * ta[idx, 0])
         ny = (y - tc[idx, 1]) / (ta[idx, 0] * ta[idx, 0])
         nz = (z - tc[idx, 2]) / (ta[idx, 1] * ta[idx, 1])
