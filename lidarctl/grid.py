@@ -81,10 +81,11 @@ class MinimaSegments:
 
 
 @numba.njit(cache=True)
-def _pairs_within(mx, my, mcell, ncols, nrows, reach_cells, r2):
-    """Pairs (a, b), a < b, of cell minima (one per cell, sorted by cell ``mcell``) whose squared
-    horizontal distance is at most ``r2``; only cells within ``reach_cells`` rows/columns can hold
-    such a pair. The half-window (later cells) gives each pair once, with a < b."""
+def _pairs_within(mx, my, mcell, shape, reach_cells, r2):
+    """Pairs (a, b), a < b, of cell minima (one per cell, sorted by cell ``mcell`` of a grid of ``shape``
+    (nrows, ncols)) whose squared horizontal distance is at most ``r2``; only cells within ``reach_cells``
+    rows/columns can hold such a pair. The half-window (later cells) gives each pair once, with a < b."""
+    nrows, ncols = shape
     m = len(mx)
     at = np.full(nrows * ncols, -1, np.int64)
     for k in range(m):
@@ -119,8 +120,10 @@ def _pairs_within(mx, my, mcell, ncols, nrows, reach_cells, r2):
 
 
 @numba.njit(cache=True)
-def _link_pairs(mx, my, mz, a, b, step_m, slope):
-    """Height of b above a per pair, and whether they link (``|dz| <= step_m + slope * d``)."""
+def _link_pairs(minima, a, b, step_m, slope):
+    """Height of b above a per pair of ``minima`` (mx, my, mz), and whether they link
+    (``|dz| <= step_m + slope * d``)."""
+    mx, my, mz = minima
     dz = np.empty(len(a))
     linked = np.empty(len(a), np.bool_)
     for e in range(len(a)):
@@ -176,11 +179,11 @@ def segment_cell_minima(x, y, z, cell_m: float, step_m: float, slope: float) -> 
     lowest = lowest_per_cell(cid, z)
     mx, my, mz = x[lowest], y[lowest], z[lowest]
     radius = 2.5 * cell_m
-    a, b = _pairs_within(np.asarray(mx, float), np.asarray(my, float), cid[lowest], ncols, nrows,
+    a, b = _pairs_within(np.asarray(mx, float), np.asarray(my, float), cid[lowest], (nrows, ncols),
                          int(np.ceil(radius / cell_m)), radius * radius)
     if len(a) == 0:
         return None
-    dz, linked = _link_pairs(np.asarray(mx, float), np.asarray(my, float), np.asarray(mz, float), a, b,
+    dz, linked = _link_pairs((np.asarray(mx, float), np.asarray(my, float), np.asarray(mz, float)), a, b,
                              float(step_m), float(slope))
     m = len(mx)
     ncomp, label = _components(m, a[linked], b[linked])

@@ -19,6 +19,7 @@ is returned for the record).
 from __future__ import annotations
 
 import math
+from typing import NamedTuple
 
 import numba
 import numpy as np
@@ -32,10 +33,29 @@ CELL_SHARE_OF_RADIUS = 0.5
 QUERY_CHUNK = 1_000_000
 
 
+class _Buckets(NamedTuple):
+    """The points bucketed as the kernel takes them: sorted by cell (sx, sy; ``order``: their original indices),
+    each cell's first (``cell_start``), the grid (rows, columns, origin x0, y0 and cell edge, metres)."""
+
+    sx: np.ndarray
+    sy: np.ndarray
+    order: np.ndarray
+    cell_start: np.ndarray
+    nrows: int
+    ncols: int
+    x0: float
+    y0: float
+    cell_m: float
+
+
 @numba.njit(cache=True, inline="always")
-def _scan(sx, sy, first, last, x, y, ub2, bd, bi, cnt, kk):
-    """Offer the (cell-sorted) points first..last-1 to the sorted buffer (bd, bi) of the kk nearest;
-    returns the new count."""
+def _scan(sx, sy, scan, bd, bi, cnt):
+    """Offer the (cell-sorted) points (sx, sy) first..last-1 to the sorted buffer (bd, bi) of the kk = len(bd)
+    nearest of the query (x, y) (``scan``: (first, last, x, y, ub2), ub2 the squared distance bound); returns the
+    new count. Scalars in the tuple, the arrays apart: an array taken out of a tuple costs a reference count
+    per call."""
+    first, last, x, y, ub2 = scan
+    kk = len(bd)
     for s in range(first, last):
         dx = x - sx[s]
         dy = y - sy[s]
@@ -54,14 +74,16 @@ def _scan(sx, sy, first, last, x, y, ub2, bd, bi, cnt, kk):
 
 
 @numba.njit(cache=True, parallel=True)
-def _knn_kernel(sx, sy, order, cell_start, nrows, ncols, x0, y0, cell_m, qx, qy, qorder, k, kk, ub2):
+def _knn_kernel(buckets, queries, k, kk, ub2):
     """The ``k`` nearest points (squared distance < ``ub2``) of each query, ascending, found among its
-    ``kk`` (k or k + 1) nearest. ``sx``, ``sy``: the points sorted by cell (``order``: their original
-    indices, ``cell_start``: each cell's first).
+    ``kk`` (k or k + 1) nearest. ``buckets`` (``_Buckets``): the points sorted by cell and the cells;
+    ``queries``: (qx, qy, qorder: the queries in cell order).
 
     Returns dist (m, k) (inf where missing), idx (m, k) (len(sx) where missing) and a per-query flag:
     True when two of the kk nearest distances are equal (the order or the set is then cKDTree's
     tie-break, not the distance's)."""
+    sx, sy, order, cell_start, nrows, ncols, x0, y0, cell_m = buckets
+    qx, qy, qorder = queries
     m = len(qx)
     n = len(sx)
     out_d = np.full((m, k), np.inf)
@@ -87,15 +109,15 @@ def _knn_kernel(sx, sy, order, cell_start, nrows, ncols, x0, y0, cell_m, qx, qy,
                     row = i * ncols
                     if i == ci - r or i == ci + r:
                         # a whole row of the ring: its cells are consecutive in the sorted points
-                        cnt = _scan(sx, sy, cell_start[row + jlo], cell_start[row + jhi + 1], x, y, ub2, bd, bi,
-                                    cnt, kk)
+                        cnt = _scan(sx, sy, (cell_start[row + jlo], cell_start[row + jhi + 1], x, y, ub2), bd, bi,
+                                    cnt)
                     else:
                         if cj - r >= 0:
                             c = row + cj - r
-                            cnt = _scan(sx, sy, cell_start[c], cell_start[c + 1], x, y, ub2, bd, bi, cnt, kk)
+                            cnt = _scan(sx, sy, (cell_start[c], cell_start[c + 1], x, y, ub2), bd, bi, cnt)
                         if r > 0 and cj + r < ncols:
                             c = row + cj + r
-                            cnt = _scan(sx, sy, cell_start[c], cell_start[c + 1], x, y, ub2, bd, bi, cnt, kk)
+                            cnt = _scan(sx, sy, (cell_start[c], cell_start[c + 1], x, y, ub2), bd, bi, cnt)
                 # Nearest possible distance of a point outside the scanned block (a micrometre of
                 # margin for the rounding of the cell assignment).
                 gx = min(x - (x0 + (cj - r) * cell_m), x0 + (cj + r + 1) * cell_m - x)
@@ -154,8 +176,9 @@ class BucketGrid:
             raise ValueError("knn needs k >= 1")
         qorder = np.argsort(self._cells(qx, qy), kind="stable")
         ub2 = float(upper_m) * float(upper_m) if np.isfinite(upper_m) else np.inf
-        dist, nb, tied = _knn_kernel(self.sx, self.sy, self.order, self.cell_start, self.nrows, self.ncols,
-                                     self.x0, self.y0, self.cell_m, qx, qy, qorder, k, min(k + 1, self.n), ub2)
+        buckets = _Buckets(self.sx, self.sy, self.order, self.cell_start, self.nrows, self.ncols, float(self.x0),
+                           float(self.y0), float(self.cell_m))
+        dist, nb, tied = _knn_kernel(buckets, (qx, qy, qorder), k, min(k + 1, self.n), ub2)
         t = np.flatnonzero(tied)
         if len(t):
             if self._tree is None:

@@ -242,13 +242,15 @@ def _jittered_cells(rows, cols):
 
 
 @numba.njit(cache=True, nogil=True)
-def _fill_triangles(filled, gaps, pts, z, simplices, max_radius_px, row0, col0):
-    """Linear interpolation of the gap cells of ``filled`` inside each triangle of circumradius at most
-    ``max_radius_px``: every triangle visits the cell centres of its bounding box (scan conversion),
-    instead of a point location per gap cell. ``pts`` are (col, row) in global cells, the window's
-    first cell at (``row0``, ``col0``); a triangle's vertices are taken in increasing index order
-    (by global cell), so that a tile computes bit-identical weights. A cell on an edge shared by two
-    triangles takes the first."""
+def _fill_triangles(filled, gaps, tin, max_radius_px, origin):
+    """Linear interpolation of the gap cells of ``filled`` inside each triangle of the ``tin`` (pts, z,
+    simplices) of circumradius at most ``max_radius_px``: every triangle visits the cell centres of its
+    bounding box (scan conversion), instead of a point location per gap cell. ``pts`` are (col, row) in
+    global cells, the window's first cell at ``origin`` (row0, col0); a triangle's vertices are taken in
+    increasing index order (by global cell), so that a tile computes bit-identical weights. A cell on an edge
+    shared by two triangles takes the first."""
+    pts, z, simplices = tin
+    row0, col0 = origin
     nrows, ncols = gaps.shape
     done = np.zeros_like(gaps)
     eps = 1e-12
@@ -380,5 +382,5 @@ def fill_nodata_tin(a: np.ndarray, max_radius_px: float = DEFAULT_TIN_FILL_RADIU
             simplices = Delaunay(pts).simplices
         except QhullError:
             return filled
-    _fill_triangles(filled, gaps, pts, a[vr, vc], simplices, float(max_radius_px), offset[0], offset[1])
+    _fill_triangles(filled, gaps, (pts, a[vr, vc], simplices), float(max_radius_px), (offset[0], offset[1]))
     return filled

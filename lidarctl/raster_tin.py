@@ -52,8 +52,8 @@ def _orient_exact_py(ax, ay, bx, by, cx, cy) -> int:
     return _sign((bx - ax) * (cy - ay) - (by - ay) * (cx - ax))
 
 
-def _incircle_exact_py(ax, ay, bx, by, cx, cy, dx, dy) -> int:
-    ax, ay, bx, by, cx, cy, dx, dy = _as_integers(ax, ay, bx, by, cx, cy, dx, dy)
+def _incircle_exact_py(a, b, c, d) -> int:
+    ax, ay, bx, by, cx, cy, dx, dy = _as_integers(*a, *b, *c, *d)
     adx, ady, bdx, bdy, cdx, cdy = ax - dx, ay - dy, bx - dx, by - dy, cx - dx, cy - dy
     return _sign((adx * adx + ady * ady) * (bdx * cdy - cdx * bdy) + (bdx * bdx + bdy * bdy) * (cdx * ady - adx * cdy)
                  + (cdx * cdx + cdy * cdy) * (adx * bdy - bdx * ady))
@@ -67,9 +67,9 @@ def _orient_exact(ax, ay, bx, by, cx, cy):
 
 
 @numba.njit(cache=True)
-def _incircle_exact(ax, ay, bx, by, cx, cy, dx, dy):
+def _incircle_exact(a, b, c, d):
     with numba.objmode(s="int64"):
-        s = _incircle_exact_py(ax, ay, bx, by, cx, cy, dx, dy)
+        s = _incircle_exact_py(a, b, c, d)
     return s
 
 
@@ -85,8 +85,13 @@ def _orient(ax, ay, bx, by, cx, cy):
 
 
 @numba.njit(cache=True)
-def _incircle(ax, ay, bx, by, cx, cy, dx, dy):
-    """1 when d lies inside the circle through the counter-clockwise a, b, c, -1 outside, 0 on it (exact)."""
+def _incircle(a, b, c, d):
+    """1 when d lies inside the circle through the counter-clockwise a, b, c, -1 outside, 0 on it (exact);
+    points are (x, y) tuples."""
+    ax, ay = a
+    bx, by = b
+    cx, cy = c
+    dx, dy = d
     adx, ady, bdx, bdy, cdx, cdy = ax - dx, ay - dy, bx - dx, by - dy, cx - dx, cy - dy
     bdxcdy, cdxbdy = bdx * cdy, cdx * bdy
     cdxady, adxcdy = cdx * ady, adx * cdy
@@ -97,7 +102,7 @@ def _incircle(ax, ay, bx, by, cx, cy, dx, dy):
             + (abs(adxbdy) + abs(bdxady)) * clift)
     if abs(det) > _ICC_BOUND * perm:
         return 1 if det > 0.0 else -1
-    return _incircle_exact(ax, ay, bx, by, cx, cy, dx, dy)
+    return _incircle_exact(a, b, c, d)
 
 
 @numba.njit(cache=True, nogil=True)
@@ -155,16 +160,21 @@ def _ghost_last(a, b, c, inf):
 
 
 @numba.njit(cache=True)
-def _conflict(a, b, c, inf, ax, ay, bx, by, cx, cy, x, y):
-    """The point (x, y) lies inside the circumcircle of the triangle (a, b, c) (rotated by
-    ``_ghost_last``); for a ghost triangle (a, b, inf) over the hull edge b -> a: strictly outside that
-    edge, or on it. Scalars only: numba counts references to arrays passed to a function."""
+def _conflict(tri, inf, pa, pb, pc, p):
+    """The point ``p`` lies inside the circumcircle of the triangle ``tri`` (a, b, c) (rotated by
+    ``_ghost_last``; its vertices at ``pa``, ``pb``, ``pc``); for a ghost triangle (a, b, inf) over the hull
+    edge b -> a: strictly outside that edge, or on it. Points are (x, y) tuples. Scalars only: numba counts
+    references to arrays passed to a function."""
+    c = tri[2]
+    ax, ay = pa
+    bx, by = pb
+    x, y = p
     if c == inf:
         o = _orient(ax, ay, bx, by, x, y)
         if o != 0:
             return o > 0
         return _between(ax, ay, bx, by, x, y)
-    return _incircle(ax, ay, bx, by, cx, cy, x, y) > 0
+    return _incircle(pa, pb, pc, p) > 0
 
 
 @numba.njit(cache=True, nogil=True)
@@ -238,7 +248,7 @@ def _bowyer_watson(px, py, index):
             return empty, UNDECIDED
         a, b, c = _ghost_last(tri[3 * t], tri[3 * t + 1], tri[3 * t + 2], inf)
         cc = c if c != inf else a
-        if not _conflict(a, b, c, inf, px[a], py[a], px[b], py[b], px[cc], py[cc], x, y):
+        if not _conflict((a, b, c), inf, (px[a], py[a]), (px[b], py[b]), (px[cc], py[cc]), (x, y)):
             return empty, UNDECIDED
         # the cavity: triangles in conflict, connected to t
         nc, nb = 0, 0
@@ -259,7 +269,7 @@ def _bowyer_watson(px, py, index):
                 if mark[u] != -stamp:
                     a, b, c = _ghost_last(tri[3 * u], tri[3 * u + 1], tri[3 * u + 2], inf)
                     cc = c if c != inf else a
-                    in_conflict = _conflict(a, b, c, inf, px[a], py[a], px[b], py[b], px[cc], py[cc], x, y)
+                    in_conflict = _conflict((a, b, c), inf, (px[a], py[a]), (px[b], py[b]), (px[cc], py[cc]), (x, y))
                 if in_conflict:
                     mark[u] = stamp
                     if nc == cap:

@@ -133,15 +133,18 @@ class TileGrid:
         has_core), the last a bool per tile id."""
         # contiguous: a strided field of a record array would be a second numba specialisation (compiled
         # again on a fresh clone, about 1 CPU-s)
-        return _assign_points(np.ascontiguousarray(x, float), np.ascontiguousarray(y, float), float(self.x0_m),
-                              float(self.y0_m), float(self.tile_m), float(self.buffer_m), self.nrows, self.ncols)
+        return _assign_points(np.ascontiguousarray(x, float), np.ascontiguousarray(y, float), self._layout())
 
     def core_near(self, x: np.ndarray, y: np.ndarray):
         """(core tile id, near code) of points: the code's bits 1, 2, 4, 8 are ``memberships``' near flags
         (dc-, dc+, dr-, dr+); the point lies in the buffer of the tile (dr, dc) from its own core tile when
         ``near_code_in_buffer_of(code, dr, dc)``: the same memberships as ``assign``, one record a point."""
-        return _core_near(np.ascontiguousarray(x, float), np.ascontiguousarray(y, float), float(self.x0_m),
-                          float(self.y0_m), float(self.tile_m), float(self.buffer_m), self.nrows, self.ncols)
+        return _core_near(np.ascontiguousarray(x, float), np.ascontiguousarray(y, float), self._layout())
+
+    def _layout(self):
+        """The grid as its kernels take it: (x0_m, y0_m, tile_m, buffer_m, nrows, ncols)."""
+        return (float(self.x0_m), float(self.y0_m), float(self.tile_m), float(self.buffer_m), int(self.nrows),
+                int(self.ncols))
 
 
 def near_code_in_buffer_of(code: int, dr: int, dc: int) -> bool:
@@ -246,8 +249,10 @@ def _in_buffer_of(near, dr, dc):
 
 
 @numba.njit(cache=True)
-def _core_near(x, y, x0, y0, tile_m, buffer_m, nrows, ncols):
-    """``TileGrid.core_near``: the core tile and the near flags of ``_assign_points`` (same arithmetic) as a code."""
+def _core_near(x, y, layout):
+    """``TileGrid.core_near``: the core tile and the near flags of ``_assign_points`` (same arithmetic) as a code;
+    ``layout``: ``TileGrid._layout``."""
+    x0, y0, tile_m, buffer_m, nrows, ncols = layout
     n = len(x)
     tile = np.empty(n, np.int64)
     code = np.empty(n, np.uint8)
@@ -264,8 +269,10 @@ def _core_near(x, y, x0, y0, tile_m, buffer_m, nrows, ncols):
 
 
 @numba.njit(cache=True)
-def _assign_points(x, y, x0, y0, tile_m, buffer_m, nrows, ncols):
-    """``TileGrid.memberships`` in one pass: counting sort of the memberships by tile, positions ascending."""
+def _assign_points(x, y, layout):
+    """``TileGrid.memberships`` in one pass: counting sort of the memberships by tile, positions ascending;
+    ``layout``: ``TileGrid._layout`` (x0_m, y0_m, tile_m, buffer_m, nrows, ncols)."""
+    x0, y0, tile_m, buffer_m, nrows, ncols = layout
     n = len(x)
     row = np.empty(n, np.int64)
     col = np.empty(n, np.int64)

@@ -106,8 +106,15 @@ def _sample_bilinear(a, u, v):
 
 
 @numba.njit(parallel=True, cache=True)
-def _render_kernel(ref, ref_x0, ref_y0, ref_res, dem, dem_x0, dem_y0, dem_res, z_start, centre, Rcv, cam, out, valid,
-                   march, z_top):
+def _render_kernel(reference, surface, pose, cam, out, valid, *, z_start, march, z_top):
+    """The frame ``out`` (H, W, B) and its ``valid`` mask: each pixel's ray (camera ``pose`` (centre, Rcv: camera
+    (cv) to object axes), ``cam``: ``Camera.kernel_params``, a NamedTuple: numba's parallel loops do not take one
+    inside a tuple) meets the raster ``surface`` (heights, x_left, y_top, res; m),
+    at the fixed point of Z from ``z_start`` or (``march``) marching down from ``z_top``, and takes the bilinear
+    sample of the orthophoto ``reference`` (bands, x_left, y_top, res) there."""
+    ref, ref_x0, ref_y0, ref_res = reference
+    dem, dem_x0, dem_y0, dem_res = surface
+    centre, Rcv = pose
     H, W, B = out.shape
     for r in numba.prange(H):
         for c in range(W):
@@ -193,9 +200,9 @@ def render_frame(reference: np.ndarray, reference_grid: OrthoGrid, dem: HeightRa
     Rcv = np.ascontiguousarray(np.asarray(R, float) @ FLIP_YZ)
     cam = camera.kernel_params()
     z0 = float(np.nanmean(dem.heights_m))
-    _render_kernel(ref, reference_grid.x_left_m, reference_grid.y_top_m, reference_grid.res_m, dem.heights_m,
-                   dem.x_left_m, dem.y_top_m, dem.res_m, z0, np.asarray(centre_m, float), Rcv, cam, out, valid,
-                   bool(march), float(np.nanmax(dem.heights_m)) + 0.1)
+    _render_kernel((ref, reference_grid.x_left_m, reference_grid.y_top_m, reference_grid.res_m),
+                   (dem.heights_m, dem.x_left_m, dem.y_top_m, dem.res_m), (np.asarray(centre_m, float), Rcv), cam,
+                   out, valid, z_start=z0, march=bool(march), z_top=float(np.nanmax(dem.heights_m)) + 0.1)
     return (out if reference.ndim == 3 else out[:, :, 0]), valid
 
 

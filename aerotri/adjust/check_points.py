@@ -66,9 +66,10 @@ def refined_normals(xy_px, point_index, image_index, centre, R_cv, cal, *, point
     N = np.empty((len(pts), 3, 3))
     b = np.empty((len(pts), 3))
     cal = np.asarray(cal, dtype=float)
-    _refine_kernel(np.ascontiguousarray(xy_px, dtype=float), np.asarray(point_index, dtype=np.int64),
-                   np.asarray(image_index, dtype=np.int64), np.ascontiguousarray(centre, dtype=float),
-                   np.ascontiguousarray(R_cv, dtype=float), cal, pts, N, b, int(iterations))
+    _refine_kernel(np.ascontiguousarray(xy_px, dtype=float),
+                   (np.asarray(point_index, dtype=np.int64), np.asarray(image_index, dtype=np.int64)),
+                   (np.ascontiguousarray(centre, dtype=float), np.ascontiguousarray(R_cv, dtype=float), cal), pts,
+                   (N, b), int(iterations))
     return pts, N
 
 
@@ -97,8 +98,13 @@ def _ray_point_jacobian(xy, centre, R, point, cal, J):
 
 
 @numba.njit(cache=True)
-def _normals_kernel(xy, point, image, centre, R_cv, cal, pts, N, b):
-    """``point_normals(point_jacobian_cv(...), ..., residual)`` at ``pts``: the upper triangle of ``N`` and ``b``."""
+def _normals_kernel(xy, rays, cameras, pts, normals):
+    """``point_normals(point_jacobian_cv(...), ..., residual)`` at ``pts``: the upper triangle of ``N`` and ``b``
+    (``normals``: (N, b)); ``rays``: each ray's (point, image) indices, ``xy`` its pixel; ``cameras``: the
+    images' (centre, R_cv) and the calibration ``cal``."""
+    point, image = rays
+    centre, R_cv, cal = cameras
+    N, b = normals
     N[:] = 0.0
     b[:] = 0.0
     J = np.empty((2, 3))
@@ -115,15 +121,18 @@ def ray_leverages(point_index, image_index, centre, R_cv, cal, points, *, N_inv)
     """``J N^-1 J'`` per image coordinate (K, 2) of rays with their points' inverse normal matrices ``N_inv``
     (n, 3, 3): the diagonal of each point's hat matrix (``snooping.redundancy_numbers``), ray by ray."""
     H = np.empty((len(point_index), 2))
-    _leverage_kernel(np.asarray(point_index, dtype=np.int64), np.asarray(image_index, dtype=np.int64),
-                     np.ascontiguousarray(centre, dtype=float), np.ascontiguousarray(R_cv, dtype=float),
-                     np.asarray(cal, dtype=float), np.ascontiguousarray(points, dtype=float),
+    _leverage_kernel((np.asarray(point_index, dtype=np.int64), np.asarray(image_index, dtype=np.int64)),
+                     (np.ascontiguousarray(centre, dtype=float), np.ascontiguousarray(R_cv, dtype=float),
+                      np.asarray(cal, dtype=float)), np.ascontiguousarray(points, dtype=float),
                      np.ascontiguousarray(N_inv, dtype=float), H)
     return H
 
 
 @numba.njit(cache=True)
-def _leverage_kernel(point, image, centre, R_cv, cal, pts, N_inv, H):
+def _leverage_kernel(rays, cameras, pts, N_inv, H):
+    """``ray_leverages`` into ``H`` (K, 2): ``rays`` (point, image), ``cameras`` (centre, R_cv, cal)."""
+    point, image = rays
+    centre, R_cv, cal = cameras
     J = np.empty((2, 3))
     xy = np.zeros(2)
     for k in range(len(point)):
@@ -138,12 +147,13 @@ def _leverage_kernel(point, image, centre, R_cv, cal, pts, N_inv, H):
 
 
 @numba.njit(cache=True)
-def _refine_kernel(xy, point, image, centre, R_cv, cal, pts, N, b, iterations):
+def _refine_kernel(xy, rays, cameras, pts, normals, iterations):
     """Gauss-Newton steps ``(N + 1e-12 I) step = b`` of every point whose ``b`` and coordinates are finite
-    (``refine_points``), then ``N`` (full) at the refined points."""
+    (``refine_points``), then ``N`` (full) at the refined points; the arguments of ``_normals_kernel``."""
+    N, b = normals
     A = np.empty((3, 4))
     for _ in range(iterations):
-        _normals_kernel(xy, point, image, centre, R_cv, cal, pts, N, b)
+        _normals_kernel(xy, rays, cameras, pts, normals)
         for j in range(len(pts)):
             good = True
             for p in range(3):
@@ -157,7 +167,7 @@ def _refine_kernel(xy, point, image, centre, R_cv, cal, pts, N, b, iterations):
             if _solve3(A):
                 for p in range(3):
                     pts[j, p] += A[p, 3]
-    _normals_kernel(xy, point, image, centre, R_cv, cal, pts, N, b)
+    _normals_kernel(xy, rays, cameras, pts, normals)
     for j in range(len(pts)):
         N[j, 1, 0], N[j, 2, 0], N[j, 2, 1] = N[j, 0, 1], N[j, 0, 2], N[j, 1, 2]
 

@@ -150,10 +150,15 @@ class Workspace:
 
 
 @numba.njit(cache=True, inline="always")
-def _ray(xy, centre, R, point, cal, inv_sigma, A, B, r, C, with_cal):
+def _ray(xy, pose, point, model, out):
     """Whitened residual r (2,) and Jacobians of the prediction A (2, 6) wrt the pose tangent, B (2, 3) wrt
-    the point and, ``with_cal``, C (2, 9) wrt Cal3DS2 [fx fy s u0 v0 k1 k2 p1 p2] of one ray; returns False
-    behind the camera. The lens arithmetic is the Brown model's (``aerotri.geom.lens_kernels``)."""
+    the point and, ``with_cal``, C (2, 9) wrt Cal3DS2 [fx fy s u0 v0 k1 k2 p1 p2] of one ray (pixel ``xy``,
+    ``pose`` (centre, R: camera (cv) to object axes), object ``point``) into ``out`` (r, A, B, C); ``model``:
+    (cal, inv_sigma, with_cal). Returns False behind the camera. The lens arithmetic is the Brown model's
+    (``aerotri.geom.lens_kernels``)."""
+    centre, R = pose
+    cal, inv_sigma, with_cal = model
+    r, A, B, C = out
     d0, d1, d2 = point[0] - centre[0], point[1] - centre[1], point[2] - centre[2]
     x = R[0, 0] * d0 + R[1, 0] * d1 + R[2, 0] * d2  # R^T (P - C)
     y = R[0, 1] * d0 + R[1, 1] * d1 + R[2, 1] * d2
@@ -307,6 +312,7 @@ def _points_range(j0, j1, rays: _Rays, lin: _Linearisation, sums: _ImageSums, ou
     n_pairs = len(pair_a)
     # the next pair: pairs are sorted by their first ray, so a point's pairs are consecutive
     nxt = np.searchsorted(pair_row, j0)
+    model = (cal, inv_sigma, with_cal)
     rr = 0.0
     f = 0.0
     V = np.empty((3, 3))
@@ -322,7 +328,7 @@ def _points_range(j0, j1, rays: _Rays, lin: _Linearisation, sums: _ImageSums, ou
         k0 = start[j]
         for k in range(k0, start[j + 1]):
             i, n = obs_image[k], k - k0
-            front[n] = _ray(xy[k], centre[i], R_cv[i], points[j], cal, inv_sigma, A[n], B[n], r[n], Cr[n], with_cal)
+            front[n] = _ray(xy[k], (centre[i], R_cv[i]), points[j], model, (r[n], A[n], B[n], Cr[n]))
             if not front[n]:
                 W[k, :, :] = 0.0
                 continue
@@ -401,7 +407,7 @@ def _points_range(j0, j1, rays: _Rays, lin: _Linearisation, sums: _ImageSums, ou
                         U_ic[i, p, q] -= Wk[p, 0] * VZ[0, q] + Wk[p, 1] * VZ[1, q] + Wk[p, 2] * VZ[2, q]
         # the off-diagonal blocks, pair by pair of this point's rays
         while nxt < n_pairs and pair_row[nxt] == j:
-            _pair_block(nxt, pair_a, pair_b, pair_block, k0, W, VW, obs_image, S_pair, U)
+            _pair_block(nxt, k0, rays, W, VW, sums)
             nxt += 1
     return f + rr, rr
 
@@ -505,9 +511,12 @@ _runs_parallel = numba.njit(parallel=True, cache=True)(_variant(_runs, "_paralle
 
 
 @numba.njit(cache=True, inline="always")
-def _pair_block(n, pair_a, pair_b, pair_block, k0, W, VW, obs_image, S_pair, U):
-    """The coupling ``- W_a V^-1 W_b'`` of the rays of pair ``n`` (of one point, its first ray ``k0``) into their
-    images' pair block, or into the image's own block when both rays are in one image."""
+def _pair_block(n, k0, rays, W, VW, sums):
+    """The coupling ``- W_a V^-1 W_b'`` of the rays of pair ``n`` (of ``rays``, ``_Rays``; of one point, its first
+    ray ``k0``) into their images' pair block, or into the image's own block when both rays are in one image
+    (``sums``: ``_ImageSums`` S_pair and U)."""
+    pair_a, pair_b, pair_block, obs_image = rays.pair_a, rays.pair_b, rays.pair_block, rays.obs_image
+    S_pair, U = sums.S_pair, sums.U
     ka, kb = pair_a[n], pair_b[n]
     Wa, VWb = W[ka], VW[kb - k0]
     blk = pair_block[n]
@@ -526,9 +535,11 @@ def _pair_block(n, pair_a, pair_b, pair_block, k0, W, VW, obs_image, S_pair, U):
                     U[i, q, p] -= v
 
 
-def _point_increments(Vinv, bp, W, Z, obs_image, start, d_pose, d_cal):
+def _point_increments(blocks, obs_image, start, d_pose, d_cal):
     """Back-substitution: ``d_point_j = V_j^-1 (b_point_j - sum_k W_k' d_pose[image_k] - Z_j' d_cal)`` (M, 3)
-    (``Z`` empty without calibration unknowns); the points in parallel (each its own)."""
+    (``blocks``: ``_PointBlocks`` Vinv, bp, W, Z; ``Z`` empty without calibration unknowns); the points in
+    parallel (each its own)."""
+    Vinv, bp, W, Z = blocks
     M = len(start) - 1
     d = np.zeros((M, 3))
     for j in numba.prange(M):
@@ -547,30 +558,39 @@ def _point_increments(Vinv, bp, W, Z, obs_image, start, d_pose, d_cal):
     return d
 
 
-def _sum_of_squares(xy, obs_image, row, centre, R_cv, points, cal, inv_sigma, huber_k, parts):
-    """Sum of the squared whitened residuals of the rays (behind the camera: infinite); ``huber_k`` > 0:
-    twice Huber's robust cost instead (``x^2`` per ray up to ``k``, ``2 k x - k^2`` beyond). The rays in ``PARTS``
-    runs (in parallel when compiled so), their sums added in order (the result does not depend on the number of
-    threads)."""
-    K = len(row)
+@numba.njit(cache=True)
+def _ray_cost(k0, k1, rays, poses, points, weights):
+    """The cost of ``_sum_of_squares`` over the rays ``k0 .. k1 - 1``, in order. A function of its own, not inlined
+    into the parallel loop: numba's array analysis of a parallel loop fails on ``_ray``'s tuple of arrays."""
+    xy, obs_image, row = rays
+    centre, R_cv = poses
+    cal, inv_sigma, huber_k = weights
+    model = (cal, inv_sigma, False)
+    r = np.empty(2)
+    out = (r, np.empty((2, 6)), np.empty((2, 3)), np.empty((2, 9)))
+    total = 0.0
+    for k in range(k0, k1):
+        i = obs_image[k]
+        if not _ray(xy[k], (centre[i], R_cv[i]), points[row[k]], model, out):
+            return np.inf
+        x2 = r[0] * r[0] + r[1] * r[1]
+        if huber_k > 0.0 and x2 > huber_k * huber_k:
+            total += 2.0 * huber_k * np.sqrt(x2) - huber_k * huber_k
+        else:
+            total += x2
+    return total
+
+
+def _sum_of_squares(rays, poses, points, weights, parts):
+    """Sum of the squared whitened residuals of the ``rays`` (xy, obs_image, row: pixel, image, point row) at the
+    ``poses`` (centre, R_cv) and ``points`` (behind the camera: infinite); ``weights``: (cal, inv_sigma, huber_k),
+    ``huber_k`` > 0: twice Huber's robust cost instead (``x^2`` per ray up to ``k``, ``2 k x - k^2`` beyond). The
+    rays in ``PARTS`` runs (in parallel when compiled so), their sums added in order (the result does not depend
+    on the number of threads)."""
+    K = len(rays[2])
     part = np.zeros(parts)
     for t in numba.prange(parts):
-        A = np.empty((2, 6))
-        B = np.empty((2, 3))
-        C = np.empty((2, 9))
-        r = np.empty(2)
-        total = 0.0
-        for k in range((K * t) // parts, (K * (t + 1)) // parts):
-            i = obs_image[k]
-            if not _ray(xy[k], centre[i], R_cv[i], points[row[k]], cal, inv_sigma, A, B, r, C, False):
-                total = np.inf
-                break
-            x2 = r[0] * r[0] + r[1] * r[1]
-            if huber_k > 0.0 and x2 > huber_k * huber_k:
-                total += 2.0 * huber_k * np.sqrt(x2) - huber_k * huber_k
-            else:
-                total += x2
-        part[t] = total
+        part[t] = _ray_cost((K * t) // parts, (K * (t + 1)) // parts, rays, poses, points, weights)
     total = 0.0
     for t in range(parts):
         total += part[t]
@@ -586,15 +606,16 @@ _sum_of_squares_parallel = numba.njit(parallel=True, cache=True)(_variant(_sum_o
 def point_increments(Vinv, bp, W, Z, obs_image, start, *, d_pose, d_cal):
     """``_point_increments``, in parallel for blocks of ``PARALLEL_MIN_RAYS`` rays or more."""
     f = _point_increments_parallel if len(obs_image) >= PARALLEL_MIN_RAYS else _point_increments_serial
-    return f(Vinv, bp, W, Z, obs_image, start, d_pose, d_cal)
+    return f(_PointBlocks(Vinv, bp, W, Z), obs_image, start, d_pose, d_cal)
 
 
 def sum_of_squares(xy, obs_image, row, centre, R_cv, points, *, cal, inv_sigma, huber_k):
     """``_sum_of_squares``: blocks of ``PARALLEL_MIN_RAYS`` rays or more in ``PARTS`` runs in parallel, smaller ones
     in one."""
     if len(row) >= PARALLEL_MIN_RAYS:
-        return _sum_of_squares_parallel(xy, obs_image, row, centre, R_cv, points, cal, inv_sigma, huber_k, PARTS)
-    return _sum_of_squares_serial(xy, obs_image, row, centre, R_cv, points, cal, inv_sigma, huber_k, 1)
+        return _sum_of_squares_parallel((xy, obs_image, row), (centre, R_cv), points, (cal, inv_sigma, huber_k),
+                                        PARTS)
+    return _sum_of_squares_serial((xy, obs_image, row), (centre, R_cv), points, (cal, inv_sigma, huber_k), 1)
 
 
 def hessian_factors(keys, rs: ReducedSystem, pair_images, cal_key=None) -> gtsam.GaussianFactorGraph:

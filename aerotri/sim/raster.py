@@ -353,9 +353,16 @@ def _mix32(h):
 
 
 @numba.njit(cache=True, inline="always")
-def _raster_tri(ax, ay, az, bx, by, bz, cx, cy, cz, c0, c1, r0, r1, rb0, xnb, ynb, wb, code, code_val):
-    """Depth-test one camera-frame triangle into the band buffers (inverse depth ``wb``, larger = nearer) over
-    pixel box (c0..c1, r0..r1)."""
+def _raster_tri(a, b, c, box, band, code_val):
+    """Depth-test one camera-frame triangle (vertices ``a``, ``b``, ``c``: (x, y, z) tuples) into the band
+    buffers over the pixel ``box`` (c0, c1, r0, r1); ``band``: its first row ``rb0``, the pixel rays ``xnb``,
+    ``ynb``, the inverse depth ``wb`` (larger = nearer) and the primitive ``code`` of each pixel, set to
+    ``code_val`` where the triangle is nearer."""
+    ax, ay, az = a
+    bx, by, bz = b
+    cx, cy, cz = c
+    c0, c1, r0, r1 = box
+    rb0, xnb, ynb, wb, code = band
     e1x, e1y, e1z = _cross(ax, ay, az, bx, by, bz)
     e2x, e2y, e2z = _cross(bx, by, bz, cx, cy, cz)
     e3x, e3y, e3z = _cross(cx, cy, cz, ax, ay, az)
@@ -369,27 +376,34 @@ def _raster_tri(ax, ay, az, bx, by, bz, cx, cy, cz, c0, c1, r0, r1, rb0, xnb, yn
     nz *= ik
     for r in range(r0, r1 + 1):
         rr = r - rb0
-        for c in range(c0, c1 + 1):
-            xn = xnb[rr, c]
-            yn = ynb[rr, c]
+        for col in range(c0, c1 + 1):
+            xn = xnb[rr, col]
+            yn = ynb[rr, col]
             s1 = e1x * xn + e1y * yn + e1z
             s2 = e2x * xn + e2y * yn + e2z
             s3 = e3x * xn + e3y * yn + e3z
             if (s1 >= 0.0 and s2 >= 0.0 and s3 >= 0.0) or (s1 <= 0.0 and s2 <= 0.0 and s3 <= 0.0):
                 w = nx * xn + ny * yn + nz
-                if w > wb[rr, c]:
-                    wb[rr, c] = w
-                    code[rr, c] = code_val
+                if w > wb[rr, col]:
+                    wb[rr, col] = w
+                    code[rr, col] = code_val
 
 
 @numba.njit(cache=True, inline="always")
-def _hit_normal(typ, idx, x, y, z, dx, dy, dz, gi0, gj0, ncj, hz, res, tn, tkind, tobj, tc, ta):
-    """The unit surface normal (nx, ny, nz), facing against the viewing direction (dx, dy, dz), and the kind
-    and object id of a z-buffer hit at (x, y, z) (local metres): ``typ`` terrain triangle A or B of terrain
-    cell ``idx`` (row ``idx // ncj``, column ``idx % ncj`` of the cells from node (gi0, gj0) of ``hz``, nodes
-    ``res`` apart), ``_T_TRI`` mesh triangle ``idx`` (normal ``tn``, kind ``tkind``, object ``tobj``), or
-    else the crown of tree ``idx`` (an ellipsoid: centre ``tc``, semi-axes ``ta``)."""
+def _hit_normal(typ, idx, p, d, cells, surfaces):
+    """The unit surface normal (nx, ny, nz), facing against the viewing direction ``d`` (dx, dy, dz), and the
+    kind and object id of a z-buffer hit at ``p`` (x, y, z) (local metres): ``typ`` terrain triangle A or B of
+    terrain cell ``idx`` (``cells`` (gi0, gj0, ncj): row ``idx // ncj``, column ``idx % ncj`` of the cells from
+    node (gi0, gj0)), ``_T_TRI`` mesh triangle ``idx``, or else the crown of tree ``idx``. ``surfaces``: the
+    height field ``hz`` (nodes ``res`` apart), the mesh triangles' normals ``tn``, kinds ``tkind`` and objects
+    ``tobj``, the crowns (ellipsoids: centres ``tc``, semi-axes ``ta``)."""
+    x, y, z = p
+    dx, dy, dz = d
+    # each branch takes its arrays from ``surfaces`` itself: an array unpacked once for all branches costs a
+    # reference count per pixel (numba prunes the pair only within one block)
     if typ == _T_TERRAIN_A or typ == _T_TERRAIN_B:
+        gi0, gj0, ncj = cells
+        hz, res = surfaces[0], surfaces[1]
         ca = idx // ncj
         gi = gi0 + ca
         gj = gj0 + idx - ca * ncj
@@ -407,10 +421,12 @@ def _hit_normal(typ, idx, x, y, z, dx, dy, dz, gi0, gj0, ncj, hz, res, tn, tkind
         k = KIND_TERRAIN
         o = 0
     elif typ == _T_TRI:
+        tn, tkind, tobj = surfaces[2], surfaces[3], surfaces[4]
         nx, ny, nz = tn[idx, 0], tn[idx, 1], tn[idx, 2]
         k = tkind[idx]
         o = tobj[idx]
     else:
+        tc, ta = surfaces[5], surfaces[6]
         nx = (x - tc[idx, 0]) / (ta[idx, 0] * ta[idx, 0])
         ny = (y - tc[idx, 1]) / (ta[idx, 0] * ta[idx, 0])
         nz = (z - tc[idx, 2]) / (ta[idx, 1] * ta[idx, 1])
@@ -457,6 +473,10 @@ def _render_bands(band0, band1, row_out0, *, W, H, band_rows, step, XN, YN, C, A
         kind = np.empty(W, np.int64)
         obj = np.empty(W, np.int64)
         rad = np.empty((W, 3), np.float32)
+        band = (rb0, xnb, ynb, wb, code)  # the tuples of arrays once a band, not once a pixel
+        surfaces = (hz, res, tn, tkind, tobj, tc, ta)
+        exposure = (gain, vignetting, noise_dn, noise_seed, bits, lut)
+        look = (G, roof_albedo, fine_m, sun)
         for s in range(S):
             # pixel rays of the band: the coarse grid interpolated along its rows, then along the columns
             for rr in range(hb):
@@ -537,9 +557,9 @@ def _render_bands(band0, band1, row_out0, *, W, H, band_rows, step, XN, YN, C, A
                 r1 = min(rb1 - 1, tri_box[k, 3])
                 if r0 > r1:
                     continue
-                _raster_tri(TV[k, 0, 0], TV[k, 0, 1], TV[k, 0, 2], TV[k, 1, 0], TV[k, 1, 1], TV[k, 1, 2],
-                            TV[k, 2, 0], TV[k, 2, 1], TV[k, 2, 2], tri_box[k, 0], tri_box[k, 1], r0, r1, rb0,
-                            xnb, ynb, wb, code, (numba.int64(_T_TRI) << _SHIFT) | tri_ids[k])
+                _raster_tri((TV[k, 0, 0], TV[k, 0, 1], TV[k, 0, 2]), (TV[k, 1, 0], TV[k, 1, 1], TV[k, 1, 2]),
+                            (TV[k, 2, 0], TV[k, 2, 1], TV[k, 2, 2]), (tri_box[k, 0], tri_box[k, 1], r0, r1),
+                            band, (numba.int64(_T_TRI) << _SHIFT) | tri_ids[k])
             # crowns (spheroids with vertical axis), in object coordinates
             for q in range(tree_start[b], tree_start[b + 1]):
                 k = tree_list[q]
@@ -602,14 +622,13 @@ def _render_bands(band0, band1, row_out0, *, W, H, band_rows, step, XN, YN, C, A
                         Y[c] = C[1] + t * dy
                         Z[c] = C[2] + t * dz
                     NX[c], NY[c], NZ[c], kind[c], obj[c] = _hit_normal(
-                        typ, idx, X[c], Y[c], Z[c], dx, dy, dz, ti0, tj0, ncj, hz, res, tn, tkind, tobj, tc, ta)
-                shading.shade_points(X, Y, Z, kind, obj, NX, NY, NZ, G, roof_albedo, fine_m, sun, rad)
+                        typ, idx, (X[c], Y[c], Z[c]), (dx, dy, dz), (ti0, tj0, ncj), surfaces)
+                shading.shade_points((X, Y, Z), kind, obj, (NX, NY, NZ), look, rad)
                 if want_ids and s == 0:
                     for c in range(W):
                         ids_out[rb0 + rr - row_out0, c] = kind[c] * 1000000 + obj[c] if kind[c] != KIND_NONE else 0
                 if S == 1:
-                    _expose_row(rad, rb0 + rr, W, H, gain, vignetting, noise_dn, noise_seed, bits, lut,
-                                out[rb0 + rr - row_out0])
+                    _expose_row(rad, rb0 + rr, (W, H), exposure, out[rb0 + rr - row_out0])
                 else:
                     for c in range(W):
                         acc[rr, c, 0] += rad[c, 0] / S
@@ -617,17 +636,18 @@ def _render_bands(band0, band1, row_out0, *, W, H, band_rows, step, XN, YN, C, A
                         acc[rr, c, 2] += rad[c, 2] / S
         if S > 1:
             for rr in range(hb):
-                _expose_row(acc[rr], rb0 + rr, W, H, gain, vignetting, noise_dn, noise_seed, bits, lut,
-                            out[rb0 + rr - row_out0])
+                _expose_row(acc[rr], rb0 + rr, (W, H), exposure, out[rb0 + rr - row_out0])
 
 
 @numba.njit(cache=True, fastmath=True)
-def _expose_row(rad, r, W, H, gain, vignetting, noise_dn, noise_seed, bits, lut, out):
-    """Exposure of image row ``r``: radiance (W, 3) x gain x radial vignetting (the fraction ``vignetting``
-    lost at the corners), the tone curve (8-bit: ``lut``; 12-bit: linear 0..4095 for 1.25 x radiance 0..1),
-    sensor noise (the sum of two 10-bit uniforms from a hash of seed, pixel and band: triangular, zero
-    mean, sigma ``noise_dn``), rounding, clipping -> ``out`` (W, 3), or (W, 1): panchromatic, the mean of R, G
-    and B."""
+def _expose_row(rad, r, size, exposure, out):
+    """Exposure of image row ``r`` of a frame of ``size`` (W, H) px; ``exposure``: (gain, vignetting, noise_dn,
+    noise_seed, bits, lut). Radiance (W, 3) x gain x radial vignetting (the fraction ``vignetting`` lost at the
+    corners), the tone curve (8-bit: ``lut``; 12-bit: linear 0..4095 for 1.25 x radiance 0..1), sensor noise
+    (the sum of two 10-bit uniforms from a hash of seed, pixel and band: triangular, zero mean, sigma
+    ``noise_dn``), rounding, clipping -> ``out`` (W, 3), or (W, 1): panchromatic, the mean of R, G and B."""
+    W, H = size
+    gain, vignetting, noise_dn, noise_seed, bits, lut = exposure
     cw = (W - 1) / 2.0
     ch = (H - 1) / 2.0
     rnorm = 1.0 / (cw * cw + ch * ch)
@@ -857,6 +877,7 @@ def _ortho_shade(x0, ytop, step_m, r0, *, zin, code, hz, res, tn, tkind, tobj, t
         NZ = np.empty(ncols)
         kind = np.empty(ncols, np.int64)
         obj = np.empty(ncols, np.int64)
+        surfaces = (hz, res, tn, tkind, tobj, tc, ta)
         for c in range(ncols):
             x = x0 + (c + 0.5) * step_m
             z = zin[a, c]
@@ -867,9 +888,9 @@ def _ortho_shade(x0, ytop, step_m, r0, *, zin, code, hz, res, tn, tkind, tobj, t
             idx = cv & _MASK
             # seen straight down: facing up (the ray's direction is (0, 0, -1))
             NX[c], NY[c], NZ[c], kind[c], obj[c] = _hit_normal(
-                typ, idx, X[c], Y[c], Z[c], 0.0, 0.0, -1.0, 0, 0, nxc, hz, res, tn, tkind, tobj, tc, ta)
+                typ, idx, (X[c], Y[c], Z[c]), (0.0, 0.0, -1.0), (0, 0, nxc), surfaces)
             ids[a, c] = kind[c] * 1000000 + obj[c]
-        shading.shade_points(X, Y, Z, kind, obj, NX, NY, NZ, G, roof_albedo, fine_m, sun, rad[a])
+        shading.shade_points((X, Y, Z), kind, obj, (NX, NY, NZ), (G, roof_albedo, fine_m, sun), rad[a])
 
 
 def ortho_render(look: SceneLook, x0_m: float, ytop_m: float, step_m: float, *, r0: int, r1: int, ncols: int,

@@ -85,8 +85,14 @@ def build_accel(scene: Scene, cell_m: float = 4.0):
 
 
 @numba.njit(cache=True, inline="always")
-def _tri_hit(ox, oy, oz, dx, dy, dz, ax, ay, az, bx, by, bz, cx, cy, cz):
-    """Moeller-Trumbore: ray parameter t of the hit or inf."""
+def _tri_hit(o, d, a, b, c):
+    """Moeller-Trumbore: ray parameter t of the hit or inf; ray origin ``o``, direction ``d``, triangle vertices
+    ``a``, ``b``, ``c``, each an (x, y, z) tuple."""
+    ox, oy, oz = o
+    dx, dy, dz = d
+    ax, ay, az = a
+    bx, by, bz = b
+    cx, cy, cz = c
     e1x, e1y, e1z = bx - ax, by - ay, bz - az
     e2x, e2y, e2z = cx - ax, cy - ay, cz - az
     px = dy * e2z - dz * e2y
@@ -113,8 +119,12 @@ def _tri_hit(ox, oy, oz, dx, dy, dz, ax, ay, az, bx, by, bz, cx, cy, cz):
 
 
 @numba.njit(cache=True, inline="always")
-def _clip_to_scene(ox, oy, oz, dx, dy, dz, W, H, zlo, zhi):
-    """Ray interval (t0, t1) inside the z slab [zlo, zhi] and the XY box [0, W) x [0, H); t0 >= t1: none."""
+def _clip_to_scene(o, d, bounds):
+    """Ray interval (t0, t1) inside the scene ``bounds`` (W, H, zlo, zhi): the z slab [zlo, zhi] and the XY box
+    [0, W) x [0, H); t0 >= t1: none."""
+    ox, oy, oz = o
+    dx, dy, dz = d
+    W, H, zlo, zhi = bounds
     t0 = max(0.0, (oz - zhi) / (-dz))
     t1 = (oz - zlo) / (-dz)
     if dx != 0.0:
@@ -135,9 +145,16 @@ def _clip_to_scene(ox, oy, oz, dx, dy, dz, W, H, zlo, zhi):
 
 
 @numba.njit(cache=True, inline="always")
-def _terrain_hits(ox, oy, oz, dx, dy, dz, tin, tout, ci, cj, hz, res, k, best, bkind, bobj, bnx, bny, bnz):
-    """The nearest hit so far (t, kind, obj, normal) after the terrain triangles under the ray segment
-    [tin, tout] within coarse cell (ci, cj)."""
+def _terrain_hits(o, d, seg, cell, terrain, hit):
+    """The nearest hit so far ``hit`` (t, kind, obj, nx, ny, nz) after the terrain triangles under the ray segment
+    ``seg`` (tin, tout) within coarse cell ``cell`` (ci, cj); ``terrain``: the height field ``hz``, its node
+    spacing ``res`` (m) and the coarse cell's size in nodes ``k``."""
+    ox, oy, oz = o
+    dx, dy, dz = d
+    tin, tout = seg
+    ci, cj = cell
+    hz, res, k = terrain
+    best, bkind, bobj, bnx, bny, bnz = hit
     nfx = hz.shape[1] - 1
     nfy = hz.shape[0] - 1
     xa = ox + dx * tin
@@ -158,7 +175,7 @@ def _terrain_hits(ox, oy, oz, dx, dy, dz, tin, tout, ci, cj, hz, res, k, best, b
             h10 = hz[i, j + 1]
             h01 = hz[i + 1, j]
             h11 = hz[i + 1, j + 1]
-            t = _tri_hit(ox, oy, oz, dx, dy, dz, x0, y0, h00, x1, y0, h10, x1, y1, h11)
+            t = _tri_hit(o, d, (x0, y0, h00), (x1, y0, h10), (x1, y1, h11))
             if t < best:
                 best = t
                 bkind = KIND_TERRAIN
@@ -167,7 +184,7 @@ def _terrain_hits(ox, oy, oz, dx, dy, dz, tin, tout, ci, cj, hz, res, k, best, b
                 bnx = -(h10 - h00) * res
                 bny = -(h11 - h10) * res
                 bnz = res * res
-            t = _tri_hit(ox, oy, oz, dx, dy, dz, x0, y0, h00, x1, y1, h11, x0, y1, h01)
+            t = _tri_hit(o, d, (x0, y0, h00), (x1, y1, h11), (x0, y1, h01))
             if t < best:
                 best = t
                 bkind = KIND_TERRAIN
@@ -179,15 +196,21 @@ def _terrain_hits(ox, oy, oz, dx, dy, dz, tin, tout, ci, cj, hz, res, k, best, b
 
 
 @numba.njit(cache=True, inline="always")
-def _item_hits(ox, oy, oz, dx, dy, dz, c, start, items, tv, tn, tkind, tobj, tc, ta, use_trees, skip_tree,
-               best, bkind, bobj, bnx, bny, bnz):
-    """The nearest hit so far (t, kind, obj, normal) after the building triangles and (``use_trees``, all
-    but crown ``skip_tree``) the crown spheroids registered in coarse cell ``c``."""
+def _item_hits(o, d, c, cells, trees, hit):
+    """The nearest hit so far ``hit`` (t, kind, obj, nx, ny, nz) after the building triangles and (``trees``:
+    (use_trees, skip_tree): all crowns but ``skip_tree``) the crown spheroids registered in coarse cell ``c``;
+    ``cells``: the items of each cell (start, items) and the triangles' vertices, normals, kinds and objects
+    (tv, tn, tkind, tobj), the crowns' centres and semi-axes (tc, ta) of ``build_accel``."""
+    ox, oy, oz = o
+    dx, dy, dz = d
+    start, items, tv, tn, tkind, tobj, tc, ta = cells
+    use_trees, skip_tree = trees
+    best, bkind, bobj, bnx, bny, bnz = hit
     for q in range(start[c], start[c + 1]):
         it = items[q]
         if it >= 0:
-            t = _tri_hit(ox, oy, oz, dx, dy, dz, tv[it, 0, 0], tv[it, 0, 1], tv[it, 0, 2],
-                         tv[it, 1, 0], tv[it, 1, 1], tv[it, 1, 2], tv[it, 2, 0], tv[it, 2, 1], tv[it, 2, 2])
+            t = _tri_hit(o, d, (tv[it, 0, 0], tv[it, 0, 1], tv[it, 0, 2]), (tv[it, 1, 0], tv[it, 1, 1], tv[it, 1, 2]),
+                         (tv[it, 2, 0], tv[it, 2, 1], tv[it, 2, 2]))
             if t < best:
                 best = t
                 bkind = tkind[it]
@@ -241,7 +264,9 @@ def cast(o, d, S, use_trees, skip_tree):
     bnx, bny, bnz = 0.0, 0.0, 1.0
     if dz >= 0.0:
         return best, bkind, bobj, bnx, bny, bnz
-    t0, t1 = _clip_to_scene(ox, oy, oz, dx, dy, dz, ncx * cs, ncy * cs, zlo, zhi)
+    o3 = (ox, oy, oz)
+    d3 = (dx, dy, dz)
+    t0, t1 = _clip_to_scene(o3, d3, (ncx * cs, ncy * cs, zlo, zhi))
     if t0 >= t1:
         return best, bkind, bobj, bnx, bny, bnz
     # DDA set-up: the cell of the entry point, the ray parameter of the next cell boundary in x and y
@@ -271,11 +296,11 @@ def cast(o, d, S, use_trees, skip_tree):
         zin = oz + dz * tin
         zout = oz + dz * tout
         if min(zin, zout) <= zmax[ci, cj]:
-            best, bkind, bobj, bnx, bny, bnz = _terrain_hits(ox, oy, oz, dx, dy, dz, tin, tout, ci, cj, hz, res, k,
-                                                             best, bkind, bobj, bnx, bny, bnz)
-            best, bkind, bobj, bnx, bny, bnz = _item_hits(ox, oy, oz, dx, dy, dz, ci * ncx + cj, start, items, tv, tn,
-                                                          tkind, tobj, tc, ta, use_trees, skip_tree,
-                                                          best, bkind, bobj, bnx, bny, bnz)
+            best, bkind, bobj, bnx, bny, bnz = _terrain_hits(o3, d3, (tin, tout), (ci, cj), (hz, res, k),
+                                                             (best, bkind, bobj, bnx, bny, bnz))
+            best, bkind, bobj, bnx, bny, bnz = _item_hits(o3, d3, ci * ncx + cj, (start, items, tv, tn, tkind, tobj, tc,
+                                                                                 ta), (use_trees, skip_tree),
+                                                          (best, bkind, bobj, bnx, bny, bnz))
             if best <= tout + 1e-9:
                 break
         if tout >= t1:
@@ -390,10 +415,12 @@ def ground_material(x, y, roads, ponds, targets, seed):
 
 
 @numba.njit(cache=True)
-def surface_albedo(x, y, z, kind, obj, S_roads, S_ponds, S_targets, roof_albedo, seed):
-    """RGB albedo (0..1) and material code at a surface point."""
+def surface_albedo(x, y, z, kind, obj, materials):
+    """RGB albedo (0..1) and material code at a surface point (local metres) of ``kind`` (scene KIND_*) and
+    object ``obj``; ``materials``: the scene's (roads, ponds, targets, roof_albedo, seed)."""
+    roads, ponds, targets, roof_albedo, seed = materials
     if kind == KIND_TERRAIN:
-        m = ground_material(x, y, S_roads, S_ponds, S_targets, seed)
+        m = ground_material(x, y, roads, ponds, targets, seed)
         n1 = fbm(x, y, seed + 1, 4.0, 4)
         n2 = fbm(x, y, seed + 2, 0.8, 2)
         # Small clutter (stones, bushes, manholes): square 2 m patches with their own tone.
@@ -450,6 +477,7 @@ def render_rays(origins, dirs, S, *, roads, ponds, targets, roof_albedo, seed, s
     ids = np.empty(n, np.int64)
     single = origins.shape[0] == 1
     for r in numba.prange(n):
+        materials = (roads, ponds, targets, roof_albedo, seed)
         origin = origins[0] if single else origins[r]
         t, kind, obj, nx, ny, nz = cast(origin, dirs[r], S, numba.boolean(True), numba.int64(-1))
         if kind == KIND_NONE:
@@ -459,7 +487,7 @@ def render_rays(origins, dirs, S, *, roads, ponds, targets, roof_albedo, seed, s
         x = origin[0] + dirs[r, 0] * t
         y = origin[1] + dirs[r, 1] * t
         z = origin[2] + dirs[r, 2] * t
-        ar, ag, ab, m = surface_albedo(x, y, z, kind, obj, roads, ponds, targets, roof_albedo, seed)
+        ar, ag, ab, m = surface_albedo(x, y, z, kind, obj, materials)
         lam = nx * sun[0] + ny * sun[1] + nz * sun[2]
         if lam < 0.0:
             lam = 0.0

@@ -318,8 +318,10 @@ def n_octaves(scale_m, fine_m):
 
 
 @numba.njit(cache=True, fastmath=True)
-def _octave(acc, tu, tv, f0, sd, noct, o, amp, fo):
-    """acc += amp x value noise of octave ``o`` (frequency f0 x fo, seed sd + 17 o) where o < noct."""
+def _octave(acc, texture, o, amp, fo):
+    """acc += amp x value noise of octave ``o`` (frequency f0 x fo, seed sd + 17 o) where o < noct, per point of
+    ``texture`` (tu, tv, f0, sd, noct): texture coordinates, coarsest frequency, seed, octaves."""
+    tu, tv, f0, sd, noct = texture
     ds = numba.uint32(17 * o)
     for p in range(acc.shape[0]):
         w = amp if o < noct[p] else numba.float32(0.0)
@@ -327,15 +329,20 @@ def _octave(acc, tu, tv, f0, sd, noct, o, amp, fo):
 
 
 @numba.njit(cache=True)
-def shade_points(X, Y, Z, kind, obj, NX, NY, NZ, G, roof_albedo, fine_m, sun, rad):
-    """Radiance (R, G, B) into ``rad`` (n, 3) of surface points (local metres) of ``kind`` (scene KIND_*;
-    KIND_NONE: haze) and object ``obj`` with unit normals (NX, NY, NZ) facing the viewer.
+def shade_points(points, kind, obj, normals, look, rad):
+    """Radiance (R, G, B) into ``rad`` (n, 3) of surface ``points`` (X, Y, Z) (local metres) of ``kind`` (scene
+    KIND_*; KIND_NONE: haze) and object ``obj`` with unit ``normals`` (NX, NY, NZ) facing the viewer; ``look``:
+    the scene's ``GroundIndex`` ``G`` and ``roof_albedo``, the finest texture scale ``fine_m`` and the unit
+    vector towards the ``sun`` (G, roof_albedo, fine_m, sun).
 
     Albedo x (0.45 + 0.55 max(0, normal . sun)). Texture: fractal value noise, octaves from the surface's
     coarsest spacing (ground 4 m, roof 3 m, wall 2 m, crown 1.2 m) halving down to 0.9 ``fine_m``,
     amplitude x 0.55 per octave over the first four (``DECAY_OCTAVES``); ground markings and targets are
     plain.
     """
+    X, Y, Z = points
+    NX, NY, NZ = normals
+    G, roof_albedo, fine_m, sun = look
     n = X.shape[0]
     tu = np.empty(n, np.float32)
     tv = np.empty(n, np.float32)
@@ -398,10 +405,11 @@ def shade_points(X, Y, Z, kind, obj, NX, NY, NZ, G, roof_albedo, fine_m, sun, ra
             sd[p] = 0
     # the octaves, one vectorised sweep each
     acc = np.zeros(n, np.float32)
+    texture = (tu, tv, f0, sd, noct)
     amp = numba.float32(0.5)
     fo = numba.float32(1.0)
     for o in range(max_oct):
-        _octave(acc, tu, tv, f0, sd, noct, o, amp, fo)
+        _octave(acc, texture, o, amp, fo)
         if o < DECAY_OCTAVES:
             amp *= numba.float32(0.55)
         fo *= numba.float32(2.0)

@@ -174,9 +174,14 @@ def _plane_distance(tri_pts, px, py, pz):
 
 
 @numba.njit(cache=True)
-def _locate(vx, vy, simplices, qx, qy, order, cell_start, x0, y0, cell_m, nrows, ncols):
-    """Triangle containing each query point (-1 outside): triangles scan the grid cells of their
-    bounding box and test the (cell-sorted) query points there with barycentric coordinates."""
+def _locate(tin, qx, qy, buckets, cell_grid):
+    """Triangle of ``tin`` (vx, vy, simplices) containing each query point (qx, qy) (-1 outside): triangles scan
+    the grid cells of their bounding box and test the query points there with barycentric coordinates.
+    ``buckets``: the queries in cell order and each cell's first (order, cell_start); ``cell_grid``: the cells
+    (x0, y0, cell_m, nrows, ncols; metres)."""
+    vx, vy, simplices = tin
+    order, cell_start = buckets
+    x0, y0, cell_m, nrows, ncols = cell_grid
     out = np.full(len(qx), -1, np.int64)
     for t in range(simplices.shape[0]):
         a, b, c = simplices[t, 0], simplices[t, 1], simplices[t, 2]
@@ -214,9 +219,9 @@ def locate_in_tin(vx, vy, simplices, qx, qy) -> np.ndarray:
     cid = i * ncols + j
     order = np.argsort(cid, kind="stable")
     cell_start = np.searchsorted(cid[order], np.arange(nrows * ncols + 1))
-    return _locate(np.asarray(vx, float) - x0, np.asarray(vy, float) - y0, simplices.astype(np.int64),
-                   np.asarray(qx, float) - x0, np.asarray(qy, float) - y0, order, cell_start,
-                   0.0, 0.0, cell_m, nrows, ncols)
+    return _locate((np.asarray(vx, float) - x0, np.asarray(vy, float) - y0, simplices.astype(np.int64)),
+                   np.asarray(qx, float) - x0, np.asarray(qy, float) - y0, (order, cell_start),
+                   (0.0, 0.0, cell_m, nrows, ncols))
 
 
 def tin_heights(vx, vy, vz, simplices, qx, qy, *, geometry: bool = False):

@@ -129,9 +129,14 @@ def _k_lowest_in_cells(order, cell_start, key, k):
 
 
 @numba.njit(cache=True, parallel=True)
-def _gap_test(px, py, key, order, cell_start, cell_of, nrows, ncols, cand, radius_m, gap_m, slope):
+def _gap_test(pts, cells, cand, rule):
     """True for candidates (positions into ``order``) without a supporter: some other point q
-    within ``radius_m`` with key_q - key_p <= gap_m + slope * d_pq (key = z, or -z for high)."""
+    within ``radius_m`` with key_q - key_p <= gap_m + slope * d_pq (key = z, or -z for high).
+    ``pts``: (px, py, key); ``cells``: the points in cell order, each cell's first, each point's cell and the
+    grid's size (order, cell_start, cell_of, nrows, ncols); ``rule``: (radius_m, gap_m, slope)."""
+    px, py, key = pts
+    order, cell_start, cell_of, nrows, ncols = cells
+    radius_m, gap_m, slope = rule
     out = np.zeros(len(cand), np.bool_)
     r2 = radius_m * radius_m
     for c in numba.prange(len(cand)):
@@ -170,8 +175,8 @@ def _gap_outliers(x, y, z, radius_m, gap_m, slope, *, per_cell, sign):
     order, cell_start = grid._counting_sort(cell, nrows * ncols)
     key = sign * np.asarray(z, float)
     cand = _k_lowest_in_cells(order, cell_start, key, per_cell)
-    flags = _gap_test(np.asarray(x, float), np.asarray(y, float), key, order, cell_start, cell, nrows, ncols,
-                      cand, float(radius_m), float(gap_m), float(slope))
+    flags = _gap_test((np.asarray(x, float), np.asarray(y, float), key), (order, cell_start, cell, nrows, ncols),
+                      cand, (float(radius_m), float(gap_m), float(slope)))
     mask = np.zeros(len(x), bool)
     mask[order[cand[flags]]] = True
     return mask

@@ -484,16 +484,17 @@ def _plane_offsets(x, y, z, query, nb, dist, *, min_points: int, robust: bool = 
     ``np.linalg.solve``, ``np.median``) takes about 10 CPU-s each time on a fresh clone; sliced
     neighbour arrays and an omitted ``robust`` had made two."""
     c = np.ascontiguousarray
-    return _plane_offsets_kernel(c(x, np.float64), c(y, np.float64), c(z, np.float64), c(query, np.int64),
+    return _plane_offsets_kernel((c(x, np.float64), c(y, np.float64), c(z, np.float64)), c(query, np.int64),
                                  c(nb, np.int64), c(dist, np.float64), int(min_points), bool(robust))
 
 
 @numba.njit(cache=True, parallel=True)
-def _plane_offsets_kernel(x, y, z, query, nb, dist, min_points, robust):
-    """Per query point: height above the LSQ plane z = a dx + b dy + c through its valid
-    neighbours ``nb`` (point indices; dx, dy relative to the query point, so c is the plane
-    height there), and the neighbours' spread about the plane: their RMS residual, or with ``robust``
+def _plane_offsets_kernel(points, query, nb, dist, min_points, robust):
+    """Per query point (an index into ``points`` (x, y, z)): height above the LSQ plane z = a dx + b dy + c
+    through its valid neighbours ``nb`` (point indices, at ``dist``; dx, dy relative to the query point, so c is
+    the plane height there), and the neighbours' spread about the plane: their RMS residual, or with ``robust``
     1.4826 x their median absolute residual. NaN with fewer than ``min_points`` neighbours."""
+    x, y, z = points
     n, k = nb.shape
     dz = np.full(n, np.nan)
     spread = np.full(n, np.nan)

@@ -168,9 +168,10 @@ class CellStats:
     def core_grids(self, footprint: np.ndarray, dem: np.ndarray, dsm_filled: np.ndarray, core, *, z_m: float,
                    metric: bool, nodata: float) -> np.ndarray:
         """``_core_grids`` of the window's core (row slice, col slice): (6, rows, cols) float32."""
-        return _core_grids(footprint, np.ascontiguousarray(dem, float), np.ascontiguousarray(dsm_filled, float),
-                           self.chm, self._counts, self._sums, core[0].start, core[0].stop, core[1].start,
-                           core[1].stop, float(z_m), bool(metric), float(nodata))
+        return _core_grids((footprint, np.ascontiguousarray(dem, float), np.ascontiguousarray(dsm_filled, float)),
+                           (self.chm, self._counts, self._sums), (core[0].start, core[0].stop, core[1].start,
+                                                                  core[1].stop),
+                           z_m=float(z_m), metric=bool(metric), nodata=float(nodata))
 
     def add_chm(self, x, y, z, cls, dem: np.ndarray) -> None:
         """A chunk of points again, once the window's DEM (filled, rows south to north) is known."""
@@ -180,11 +181,16 @@ class CellStats:
 
 
 @numba.njit(cache=True, nogil=True, error_model="numpy")
-def _core_grids(footprint, dem, dsm_filled, chm, counts, sums, r_lo, r_hi, c_lo, c_hi, z_m, metric, nodata):
-    """The float32 grids of a tile's core (window rows r_lo..r_hi, cols c_lo..c_hi), rows north to
-    south: DEM in metres with NaN, then DEM, DSM, nDSM, CHM (heights divided by ``z_m`` unless
-    ``metric``) and intensity with ``nodata`` for no value. The arithmetic of the array version:
-    heights in float64, cast to float32, then scaled in float64 and cast again."""
+def _core_grids(surfaces, cells, core, *, z_m, metric, nodata):
+    """The float32 grids of a tile's ``core`` (r_lo, r_hi, c_lo, c_hi: window rows r_lo..r_hi, cols
+    c_lo..c_hi), rows north to south: DEM in metres with NaN, then DEM, DSM, nDSM, CHM (heights divided by
+    ``z_m`` unless ``metric``) and intensity with ``nodata`` for no value. ``surfaces``: the window's
+    (footprint, dem, dsm_filled) grids; ``cells``: its (chm, counts, sums) per cell (``CellStats``). The
+    arithmetic of the array version: heights in float64, cast to float32, then scaled in float64 and cast
+    again."""
+    footprint, dem, dsm_filled = surfaces
+    chm, counts, sums = cells
+    r_lo, r_hi, c_lo, c_hi = core
     ncols = dem.shape[1]
     h, w = r_hi - r_lo, c_hi - c_lo
     out = np.empty((6, h, w), np.float32)

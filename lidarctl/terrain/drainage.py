@@ -66,7 +66,11 @@ CODE_NAMES = {1: "E", 2: "SE", 4: "S", 8: "SW", 16: "W", 32: "NW", 64: "N", 128:
 
 
 @numba.njit(cache=True)
-def _heap_push(key, seq, idx, size, k, s, i):
+def _heap_push(heap, size, entry):
+    """Push ``entry`` (key, seq, index) onto the binary min-heap ``heap`` (key, seq, idx arrays; ``size`` entries,
+    ordered by key, then seq); returns the new size."""
+    key, seq, idx = heap
+    k, s, i = entry
     p = size
     key[p], seq[p], idx[p] = k, s, i
     while p > 0:
@@ -81,7 +85,9 @@ def _heap_push(key, seq, idx, size, k, s, i):
 
 
 @numba.njit(cache=True)
-def _heap_pop(key, seq, idx, size):
+def _heap_pop(heap, size):
+    """The index of the least entry of ``heap`` (``_heap_push``), removed: (index, new size)."""
+    key, seq, idx = heap
     top = idx[0]
     size -= 1
     key[0], seq[0], idx[0] = key[size], seq[size], idx[size]
@@ -129,6 +135,7 @@ def _priority_flood(z, valid, breach):
     key = np.empty(n_valid, dtype=np.float64)
     seq = np.empty(n_valid, dtype=np.int64)
     idx = np.empty(n_valid, dtype=np.int64)
+    heap = (key, seq, idx)
     size = 0
     counter = 0
     for i in range(ny):
@@ -136,11 +143,11 @@ def _priority_flood(z, valid, breach):
             c = i * nx + j
             if vf[c] and _edge_cell(valid, i, j):
                 closed[c] = True
-                size = _heap_push(key, seq, idx, size, zf[c], counter, c)
+                size = _heap_push(heap, size, (zf[c], counter, c))
                 counter += 1
     changed = 0
     while size > 0:
-        c, size = _heap_pop(key, seq, idx, size)
+        c, size = _heap_pop(heap, size)
         zc = zf[c]
         ci, cj = c // nx, c % nx
         for k in range(8):
@@ -167,7 +174,7 @@ def _priority_flood(z, valid, breach):
             elif zf[m] <= zc:
                 zf[m] = np.nextafter(zc, np.inf)
                 changed += 1
-            size = _heap_push(key, seq, idx, size, zf[m], counter, m)
+            size = _heap_push(heap, size, (zf[m], counter, m))
             counter += 1
     return out, changed
 

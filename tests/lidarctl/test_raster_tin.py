@@ -27,7 +27,7 @@ def _check_delaunay(pts: np.ndarray, tri: np.ndarray) -> None:
     for (u, v), w in opposite.items():
         x = opposite.get((v, u))
         if x is not None:    # interior edge u-v between triangles (u, v, w) and (v, u, x)
-            assert _incircle(*pts[u], *pts[v], *pts[w], *pts[x]) <= 0
+            assert _incircle(tuple(pts[u]), tuple(pts[v]), tuple(pts[w]), tuple(pts[x])) <= 0
 
 
 def _lattice(shape, density, seed, row0=0, col0=0):
@@ -95,8 +95,10 @@ def test_tin_fill_only_near_the_needed_cells_is_the_same_there():
     assert not np.array_equal(whole[far & gaps], fill_nodata(a)[far & gaps])
 
 
-def _fill_triangles_reference(filled, gaps, pts, z, simplices, max_radius_px, row0, col0):
+def _fill_triangles_reference(filled, gaps, tin, max_radius_px, origin):
     """``raster_ops._fill_triangles`` as plain Python, every triangle's bounding box scanned."""
+    pts, z, simplices = tin
+    row0, col0 = origin
     done = np.zeros_like(gaps)
     for tri in simplices:
         i0, i1, i2 = sorted(int(i) for i in tri)
@@ -134,7 +136,7 @@ def test_fill_triangles_passing_over_2x2_triangles_fills_the_same():
     small = np.ptp(pts[tri], axis=1)
     assert ((small[:, 0] < 1.5) & (small[:, 1] < 1.5)).mean() > 0.3    # the case is exercised
     ours, ref = np.full(shape, -1.0), np.full(shape, -1.0)
-    _fill_triangles(ours, gaps, pts, z, tri, 6.0, row0, col0)
-    _fill_triangles_reference(ref, gaps, pts, z, tri, 6.0, row0, col0)
+    _fill_triangles(ours, gaps, (pts, z, tri), 6.0, (row0, col0))
+    _fill_triangles_reference(ref, gaps, (pts, z, tri), 6.0, (row0, col0))
     assert (ref[gaps] != -1.0).mean() > 0.5                    # most gap cells filled by a triangle
     np.testing.assert_array_equal(ours, ref)

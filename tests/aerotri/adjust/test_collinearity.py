@@ -45,7 +45,7 @@ def test_numpy_side_equals_the_schur_kernel():
     J_point, J_pose, J_cal = co.jacobians_cv(pc, R, CAL, with_cal=True)
     A, B, C, r = np.empty((2, 6)), np.empty((2, 3)), np.empty((2, 9)), np.empty(2)
     for k in range(len(pts)):
-        assert schur._ray(xy[k], centre[k], R[k], pts[k], CAL, 1.0, A, B, r, C, True)
+        assert schur._ray(xy[k], (centre[k], R[k]), pts[k], (CAL, 1.0, True), (r, A, B, C))
         assert np.abs(r - (xy[k] - uv[k])).max() < 1e-12 * 1e4
         # the kernel differentiates the prediction; its residual is observed - predicted
         assert np.allclose(A, J_pose[k], rtol=1e-12, atol=1e-12 * np.abs(J_pose[k]).max())

@@ -65,7 +65,7 @@ def test_ray_jacobians_match_gtsam_retraction():
         point = np.array([*rng.uniform(-300, 300, 2), rng.uniform(0, 50)])
         xy = G.project_cv(point[None], centre[None], R_cv[None], cal)[0][0] + rng.normal(0, 2, 2)
         A, B, C, r = np.empty((2, 6)), np.empty((2, 3)), np.empty((2, 9)), np.empty(2)
-        assert schur._ray(xy, centre, R_cv, point, cal, 1 / 0.5, A, B, r, C, True)
+        assert schur._ray(xy, (centre, R_cv), point, (cal, 1 / 0.5, True), (r, A, B, C))
 
         def res(p, X, k=cal):
             uv = G.project_cv(X[None], p.translation()[None], p.rotation().matrix()[None], k)[0][0]
