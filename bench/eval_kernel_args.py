@@ -132,7 +132,7 @@ def _calls() -> dict:
         return [d, i, np.array([tied])]
 
     def cell_stats():
-        from lidarctl.raster_cells import CellStats
+        from lidarctl.rasters.cells import CellStats
 
         st = CellStats(0.5, 0.0, 0.0, 400, 600)
         cls = np.where(rng.random(n) < 0.6, 2, 5).astype(np.uint8)
@@ -151,14 +151,14 @@ def _calls() -> dict:
     def locate():
         from scipy.spatial import Delaunay
 
-        from lidarctl.ground import locate_in_tin
+        from lidarctl.classify.ground import locate_in_tin
 
         k = slice(0, n, 40)
         tri = Delaunay(np.column_stack([x[k], y[k]]))
         return [locate_in_tin(x[k], y[k], tri.simplices, x, y)]
 
     def noise():
-        from lidarctl.noise import high_outliers, low_outliers
+        from lidarctl.classify.noise import high_outliers, low_outliers
 
         return [low_outliers(x, y, z, 2.0), high_outliers(x, y, z, 2.0)]
 
@@ -172,7 +172,7 @@ def _calls() -> dict:
         return [simp, np.array([status])]
 
     def plane_offsets():
-        from lidarctl.classify import local_plane_offsets
+        from lidarctl.classify.pipeline import local_plane_offsets
 
         q = np.arange(0, n, 5)
         return list(local_plane_offsets(x, y, z, np.arange(n), q, k=8, radius_m=1.5))
@@ -193,7 +193,7 @@ def _calls() -> dict:
         return [*g.memberships(x, y), *g.core_near(x, y)]
 
     def drainage():
-        from lidarctl.drainage import condition
+        from lidarctl.terrain.drainage import condition
 
         r = np.random.default_rng(6)
         d = 100.0 + np.cumsum(np.cumsum(r.normal(0.0, 0.05, (400, 400)), axis=0), axis=1) * 0.01
