@@ -77,7 +77,7 @@ def test_without_a_dem_the_focal_length_is_fixed_and_the_solution_is_weak(bright
     focal = {c.group: c for c in ba.calibration_checks}["focal"]
     assert focal.action == "fixed" and not focal.ground_observed["height"]
     assert focal.correlations["height"] > 0.9 and "block height" in focal.reason
-    ks = build_report(ba)["key_statistics"]
+    ks = build_report(ba).key_statistics
     assert ks["verdict"] != "successful" and "focal" in ks["calibration_fixed"]
     assert "Solution Successful" not in ks["message"] and "focal fixed at its a-priori value" in ks["message"]
     assert ba.camera_adjusted.focal_px == pytest.approx(ba.camera_apriori.focal_px, rel=1e-4)
@@ -98,4 +98,4 @@ def test_with_the_dem_the_tie_points_lie_on_it(brighton6):
     f = np.mean(list(focal.estimate.values()))
     # the sensor width's 2344 px is 3 % long for this lens: the estimate moves to about 2270 px (full size)
     assert 0.95 * cam.focal_px / SHRINK < f < 0.995 * cam.focal_px / SHRINK
-    assert build_report(ba)["key_statistics"]["verdict"] == "successful"
+    assert build_report(ba).key_statistics["verdict"] == "successful"
