@@ -141,6 +141,9 @@ class ProjectSections:
     qa: QaSettings = dataclasses.field(default_factory=QaSettings)
 
 
+assert tuple(f.name for f in dataclasses.fields(ProjectSections)) == tuple(PROJECT_SECTIONS)  # one field a section
+
+
 def check_sections(config: dict, source) -> ProjectSections:
     """Refuse an unknown section, an unknown key of a project section, a bad value of one, and a section given
     as a value, naming ``source`` (project.toml), the section and the key; returns the project sections'
