@@ -75,7 +75,7 @@ def settings(project, markdown):
 
 def command_groups() -> list:
     """The three command lines (program name, click group), for the reference page of the settings."""
-    from lidarctl.cli import main as lidarctl_main
+    from lidarctl.cli.main import main as lidarctl_main
     from ortho.cli import main as ortho_main
 
     return [("aerotri", main), ("lidarctl", lidarctl_main), ("ortho", ortho_main)]

@@ -47,7 +47,7 @@ def worker(src: str, npz: str, out: str) -> None:
     sys.path.insert(0, src)
     import numba
 
-    from lidarctl import classify as cl
+    from lidarctl.classify import pipeline as cl
 
     assert Path(cl.__file__).resolve().is_relative_to(Path(src).resolve()), cl.__file__
     numba.set_num_threads(1)

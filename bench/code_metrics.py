@@ -7,7 +7,10 @@
 - functions with more than 6 positional parameters (``self``/``cls`` not counted);
 - command bodies: the line count of each click command's function body (decorated ``@click.command``,
   ``@<group>.command`` or ``cls=Command``), longest first;
-- README lines; committed result files (PNG/JSON under ``results/`` or ``bench/results/``).
+- README lines; committed result files (PNG/JSON under ``results/`` or ``bench/results/``);
+- import cycles: strongly connected components of more than one module in the graph of the modules'
+  imports (lazy imports inside functions included; ``from p import m`` counts as importing module
+  ``p.m`` when that is a module, else ``p``), the cycle count ``lint-imports`` keeps at 0 per package.
 
     python bench/code_metrics.py [--json OUT.json] [--top N]
 """
@@ -63,6 +66,67 @@ def _is_command(fn: ast.FunctionDef) -> bool:
     return False
 
 
+def _module_name(root: Path, path: Path) -> str:
+    parts = list(path.relative_to(root).with_suffix("").parts)
+    return ".".join(parts[:-1] if parts[-1] == "__init__" else parts)
+
+
+def import_cycles(root: Path = ROOT) -> list:
+    """The import cycles of the packages: lists of module names (each a strongly connected component of
+    two or more modules), by Tarjan's algorithm over the import graph."""
+    paths = {_module_name(root, p): p for pkg in PACKAGES for p in sorted((root / pkg).rglob("*.py"))}
+    graph = {}
+    for mod, path in paths.items():
+        is_pkg = path.name == "__init__.py"
+        edges = set()
+        for node in ast.walk(ast.parse(path.read_text())):
+            if isinstance(node, ast.Import):
+                edges.update(a.name for a in node.names)
+            elif isinstance(node, ast.ImportFrom):
+                base = node.module or ""
+                if node.level:  # relative: from the module's package, one level up per extra dot
+                    pkg = mod.split(".") if is_pkg else mod.split(".")[:-1]
+                    pkg = pkg[:len(pkg) - node.level + 1]
+                    base = ".".join(pkg + ([base] if base else []))
+                for a in node.names:
+                    edges.add(f"{base}.{a.name}" if f"{base}.{a.name}" in paths else base)
+        graph[mod] = sorted(e for e in edges if e in paths and e != mod)
+    index, low, on_stack, stack, sccs = {}, {}, set(), [], []
+    for start in graph:  # iterative Tarjan (no recursion limit on long import chains)
+        if start in index:
+            continue
+        work = [(start, iter(graph[start]))]
+        index[start] = low[start] = len(index)
+        stack.append(start)
+        on_stack.add(start)
+        while work:
+            v, children = work[-1]
+            w = next(children, None)
+            if w is not None:
+                if w not in index:
+                    index[w] = low[w] = len(index)
+                    stack.append(w)
+                    on_stack.add(w)
+                    work.append((w, iter(graph[w])))
+                elif w in on_stack:
+                    low[v] = min(low[v], index[w])
+                continue
+            work.pop()
+            if work:
+                low[work[-1][0]] = min(low[work[-1][0]], low[v])
+            if low[v] == index[v]:
+                comp = []
+                while True:
+                    w = stack.pop()
+                    on_stack.discard(w)
+                    comp.append(w)
+                    if w == v:
+                        break
+                if len(comp) > 1:
+                    sccs.append(sorted(comp))
+    return sorted(sccs)
+
+
 def scan(root: Path = ROOT) -> dict:
     dict_returns, many_args, commands = [], [], []
     key_lookups = lines = 0
@@ -105,6 +169,7 @@ def scan(root: Path = ROOT) -> dict:
     results = [t for t in tracked if t.split("/")[0] in ("results",) or t.startswith("bench/results/")]
     results = [t for t in results if t.endswith((".png", ".json", ".jpg"))]
     commands.sort(key=lambda c: -c[1])
+    cycles = import_cycles(root)
     return {
         "lines": lines,
         "public_dict_returns": len(dict_returns),
@@ -115,9 +180,11 @@ def scan(root: Path = ROOT) -> dict:
         "commands_over_15_lines": sum(1 for _, n in commands if n > 15),
         "readme_lines": readme,
         "committed_result_files": len(results),
+        "import_cycles": len(cycles),
         "dict_returns": dict_returns,
         "many_positional": sorted(many_args, key=lambda a: -a[1]),
         "command_bodies": commands,
+        "import_cycle_modules": cycles,
     }
 
 
@@ -133,6 +200,8 @@ def main() -> None:
     print(f"\nlongest command bodies (top {a.top}):")
     for name, n in m["command_bodies"][:a.top]:
         print(f"  {n:4d}  {name}")
+    for comp in m["import_cycle_modules"]:
+        print("import cycle: " + " <-> ".join(comp))
     if a.json:
         a.json.write_text(json.dumps(m, indent=1) + "\n")
 

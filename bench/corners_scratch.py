@@ -1,4 +1,4 @@
-"""Scratch disk, peak memory and CPU of the corner stage by tiles (``lidarctl.corners.find_roof_corners_tiled``,
+"""Scratch disk, peak memory and CPU of the corner stage by tiles (``lidarctl.corners.roof_corners.find_roof_corners_tiled``,
 what ``lidarctl corners`` and the chain run), this checkout against an earlier revision (default 087dbcb: float64
 records written once per tile holding the point), and their results compared (corners, outlines, roof planes,
 figure).
@@ -44,7 +44,7 @@ import dataclasses, json, resource, shutil, sys, time
 from pathlib import Path
 import numpy as np
 import lidarctl
-from lidarctl import corners as C
+from lidarctl.corners import roof_corners as C
 out, work, tile_m, buffer_m, crs = Path(sys.argv[1]), Path(sys.argv[2]), float(sys.argv[3]), float(sys.argv[4]), sys.argv[5]
 paths = sys.argv[6:]
 scratch = []
@@ -161,7 +161,7 @@ def main():
         }
         print(json.dumps({k: v for k, v in results[name].items() if k not in ("runs", "files")}), flush=True)
     out = {
-        "what": "lidarctl.corners.find_roof_corners_tiled (the corner stage by tiles, with its figure): this checkout "
+        "what": "lidarctl.corners.roof_corners.find_roof_corners_tiled (the corner stage by tiles, with its figure): this checkout "
                 "against the baseline revision, each run in its own process; scratch = the stage's temporary folder "
                 "at its largest, bytes per binned (non-noise) point",
         "baseline_rev": args.baseline_rev,

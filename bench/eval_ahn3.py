@@ -20,7 +20,9 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from lidar_common import DATA, REPO, warm_up_jit  # noqa: E402
 
-from lidarctl import classify, evaluate, io  # noqa: E402
+from lidarctl import io  # noqa: E402
+from lidarctl.classify import pipeline as classify
+from lidarctl.checks import classes as evaluate
 
 
 def main():

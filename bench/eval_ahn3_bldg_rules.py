@@ -26,7 +26,8 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from eval_ahn3_holdout import PARTS, part_of, scores  # noqa: E402
 from lidar_common import DATA, REPO  # noqa: E402
 
-from lidarctl import classify, io  # noqa: E402
+from lidarctl import io  # noqa: E402
+from lidarctl.classify import pipeline as classify
 
 # Every variant states all the rule knobs (the shipped defaults have the rules on): "default" is the
 # classification before these rules; "shipped" is ClassifySettings() as it is now.

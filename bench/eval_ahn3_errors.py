@@ -38,7 +38,8 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from eval_ahn3_holdout import PARTS, part_of, scores  # noqa: E402
 from lidar_common import DATA, REPO  # noqa: E402
 
-from lidarctl import classify, grid, io  # noqa: E402
+from lidarctl import grid, io  # noqa: E402
+from lidarctl.classify import pipeline as classify
 
 ERROR_KINDS = (  # (truth classes, our AHN3-mapped class, colour, label)
     ((1, 26), 6, "red", "false building (truth 1/26)"),

@@ -32,7 +32,9 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from lidar_common import DATA, REPO, grid_points  # noqa: E402
 
-from lidarctl import classify, evaluate, io  # noqa: E402
+from lidarctl import io  # noqa: E402
+from lidarctl.classify import pipeline as classify
+from lidarctl.checks import classes as evaluate
 
 GRID = {
     "roof_rms_m": (0.1, 0.15, 0.25),

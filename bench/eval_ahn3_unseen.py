@@ -24,7 +24,8 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from eval_ahn3_holdout import scores  # noqa: E402
 from lidar_common import REPO  # noqa: E402
 
-from lidarctl import classify, io  # noqa: E402
+from lidarctl import io  # noqa: E402
+from lidarctl.classify import pipeline as classify
 
 BORDERS_M = (0.0, 5.0, 10.0, 20.0)
 

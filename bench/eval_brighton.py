@@ -143,7 +143,7 @@ def main():
     from aerotri.adjust.settings import AdjustSettings
     from aerotri.cli import main as aerotri_cli
     from aerotri.geom.camera import read_camera
-    from lidarctl.cli import main as lidar_cli
+    from lidarctl.cli.main import main as lidar_cli
 
     out, res = args.out, {"data": "brighton_beach", "timings_s": {}}
     root, lidar = out / "project", out / "lidar"

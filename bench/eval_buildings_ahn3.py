@@ -18,15 +18,15 @@ the west and east halves (split at the median x of the footprints) are scored se
 together, to show the spread. For context the
 same scores of the AHN3 production classes (class 6) that come with the file.
 
-Measures (``lidarctl.map_accuracy``): per area type I (footprint area not labelled building), type II
+Measures (``lidarctl.checks.map_accuracy``): per area type I (footprint area not labelled building), type II
 (other area labelled building), overall, kappa, completeness/correctness by area; per building
 completeness (footprints >= 50 % covered) and correctness (connected building regions >= 50 % on
 footprints). BGT footprints are wall lines, LiDAR roofs include eaves: an overhang of a few
 decimetres around every roof is type II by construction (a 0.3 m eave on a 10 x 10 m house is 12 %
 of its area).
 
-Outline plan accuracy: the vertices of our regularised roof outlines (``lidarctl.corners`` over
-``lidarctl.roof_outline``) inside the scored blocks against the outer boundaries of the BGT footprint
+Outline plan accuracy: the vertices of our regularised roof outlines (``lidarctl.corners.roof_corners`` over
+``lidarctl.corners.roof_outline``) inside the scored blocks against the outer boundaries of the BGT footprint
 blocks: signed distance (positive: outside the footprint, the eave), RMS, mean and RMS about the
 mean of the vertices within 2 m (``outline_plan_offsets``).
 
@@ -51,11 +51,11 @@ import shapely
 import shapely.wkb
 from pyogrio.raw import write as write_vector
 
-from lidarctl import class_grid as cg
-from lidarctl.corners import find_roof_corners, read_classified_cloud
-from lidarctl import map_accuracy as ma
+from lidarctl.classify import class_grid as cg
+from lidarctl.corners.roof_corners import find_roof_corners, read_classified_cloud
+from lidarctl.checks import map_accuracy as ma
 from lidarctl import tiles
-from lidarctl.classify import ClassifySettings
+from lidarctl.classify.pipeline import ClassifySettings
 
 REPO = Path(__file__).resolve().parents[1]
 SHARED = Path(os.environ.get("AEROTRI_SHARED_DATA", REPO.parent / "shared" / "data"))
@@ -88,7 +88,7 @@ def score(pred: Path, ref: Path, within: str) -> dict:
 
 
 def outline_plan_offsets(classified: Path, polys: list, hulls: list) -> dict:
-    """Plan offsets of our regularised roof outlines (``lidarctl.corners``, the roof_outline fit) from the BGT:
+    """Plan offsets of our regularised roof outlines (``lidarctl.corners.roof_corners``, the roof_outline fit) from the BGT:
     for every outline vertex inside the scored blocks, its distance to the nearest outer boundary of the
     footprint blocks (footprints sharing walls joined: a roof shows no party wall), signed positive outside
     the footprints (eave overhang). Vertices within MATCH_M count; RMS, mean (the systematic overhang)

@@ -48,9 +48,10 @@ import shapely
 import shapely.wkb
 from scipy import ndimage
 
-from lidarctl import class_grid as cg
-from lidarctl import io, map_vectors, tiles
-from lidarctl.classify import BUILDING, ClassifySettings
+from lidarctl.classify import class_grid as cg
+from lidarctl import io, tiles
+from lidarctl.vectors import layers as map_vectors
+from lidarctl.classify.pipeline import BUILDING, ClassifySettings
 
 REPO = Path(__file__).resolve().parents[1]
 SHARED = Path(os.environ.get("AEROTRI_SHARED_DATA", REPO.parent / "shared" / "data"))
@@ -58,7 +59,7 @@ CRS = "EPSG:28992"
 CELL_M = 0.5
 BAND_M = 0.5
 PARTS = ("south-west", "south-east", "north-west", "north-east")
-# The building rules of issue 44 (lidarctl.classify.ClassifySettings), off and on: planar cores (small
+# The building rules of issue 44 (lidarctl.classify.pipeline.ClassifySettings), off and on: planar cores (small
 # roofs judged apart from the hedge or crown their segment also holds) with rooftop objects judged by
 # steps to roofs only (else a shed is cut as an object standing above its own wall returns), and the
 # roof reach (a segment's cells beyond it from a roof cell join only when mostly single-return).

@@ -41,12 +41,15 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from lidar_common import DATA, REPO, SAMPLES, grid_points  # noqa: E402
 
-from lidarctl import evaluate, grid, ground, io, noise  # noqa: E402
+from lidarctl import grid, io  # noqa: E402
+from lidarctl.checks import classes as evaluate
+from lidarctl.classify import ground
+from lidarctl.classify import noise
 
 CACHE = Path(os.environ.get("NESTED_CACHE", Path(tempfile.gettempdir()) / "aerotri_nested_cache"))
 RESULT = REPO / "bench" / "results" / "classify_nested.json"
 
-# Knobs of the morphological filter (physical meaning in lidarctl.ground.MorphSettings) and rule
+# Knobs of the morphological filter (physical meaning in lidarctl.classify.ground.MorphSettings) and rule
 # switches: surface_height_m None = local-surface test off; refine_angle_deg 0 = TIN angle criterion
 # off; plateau False = raised-plateau test off.
 CONFIG_GRID = {
@@ -192,7 +195,7 @@ def run_isprs() -> dict:
     best_all = int(np.argmin(err.mean(axis=1)))
     out = {
         "data": "ISPRS WG III/3 filter test, the 7 shared samples (../shared/data/isprs_filtertest)",
-        "method": "noise flags, then lidarctl.ground morphological filter + TIN refinement (+ raised-plateau "
+        "method": "noise flags, then lidarctl.classify.ground morphological filter + TIN refinement (+ raised-plateau "
                   "test), configuration from the grid",
         "grid": {k: list(v) for k, v in CONFIG_GRID.items()},
         "grid_note": "surface_height_m null: local-surface test off; refine_angle_deg 0: TIN angle criterion off; "

@@ -20,7 +20,8 @@ import numpy as np
 
 from eval_ahn3_holdout import GROUND_GRID, GROUND_KEYS, PARTS, criterion, part_of, scores
 from lidar_common import DATA, grid_points
-from lidarctl import classify, io
+from lidarctl import io
+from lidarctl.classify import pipeline as classify
 
 BUILDING_GRID = {
     "roof_rms_m": (0.1, 0.15, 0.25),

@@ -149,7 +149,7 @@ def main():
                                    + ([] if seed == 2 and method == "bspline" else ["--no-png"]),
                                    capture_output=True, text=True, check=True)
                 lines, lev = read_lines(out, "elevation")
-                from lidarctl.contours import Contour, crossings
+                from lidarctl.terrain.contours import Contour, crossings
 
                 import shapely
 

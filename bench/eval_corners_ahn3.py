@@ -44,7 +44,7 @@ a uniform overhang o moves the corner by o along both normals, o sqrt(2) in all.
 Hold-out: the crop is split at the x median of the ``all`` reference vertices into a west and an east
 half; numbers are reported for the whole crop and each half (corners belong to the half their
 reference vertex lies in). No parameter of the detector is tuned on this crop (the occlusion view
-angle is a property of the frame block, see lidarctl.corners); the halves show the spread.
+angle is a property of the frame block, see lidarctl.corners.roof_corners); the halves show the spread.
 """
 
 from __future__ import annotations
@@ -61,7 +61,7 @@ import shapely
 import shapely.wkb
 from scipy.spatial import cKDTree
 
-from lidarctl.corners import find_roof_corners, plot_corners, read_classified_cloud, simple_ndsm, write_corner_files
+from lidarctl.corners.roof_corners import find_roof_corners, plot_corners, read_classified_cloud, simple_ndsm, write_corner_files
 
 REPO = Path(__file__).resolve().parents[1]
 SHARED = Path(os.environ.get("AEROTRI_SHARED_DATA", REPO.parent / "shared" / "data"))

@@ -26,7 +26,7 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from aerotri.core.atomic import write_text_atomic
-from lidarctl.corners import find_roof_corners, plot_corners, read_classified_cloud, simple_ndsm, write_corner_files
+from lidarctl.corners.roof_corners import find_roof_corners, plot_corners, read_classified_cloud, simple_ndsm, write_corner_files
 
 REPO = Path(__file__).resolve().parents[1]
 MATCH_M = 1.0

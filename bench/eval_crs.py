@@ -1,4 +1,4 @@
-"""Evaluate aerotri.crs: Gauss-Krueger against PROJ, parameter recovery, zone straddling, LAS throughput.
+"""Evaluate aerotri.geom.crs: Gauss-Krueger against PROJ, parameter recovery, zone straddling, LAS throughput.
 
 Writes ``bench/results/crs.json``. Run: ``.venv/bin/python bench/eval_crs.py`` (about a minute).
 """
@@ -17,12 +17,12 @@ import pyproj
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
 
-from aerotri.geom.crs import parse_crs  # noqa: E402
-from aerotri.crs.fit import fit_plane, fit_spatial  # noqa: E402
-from aerotri.geom.datum import PARAMETER_NAMES  # noqa: E402
-from aerotri.crs.gauss_kruger import GaussKruger  # noqa: E402
-from aerotri.crs.synthetic import TRUE_BURSA_WOLF7, TRUE_HELMERT2D, simulate_plane, simulate_spatial  # noqa: E402
-from aerotri.geom.transform import CrsTransformer  # noqa: E402
+from aerotri.geom.crs.definition import parse_crs  # noqa: E402
+from aerotri.geom.crs.fit import fit_plane, fit_spatial  # noqa: E402
+from aerotri.geom.crs.datum import PARAMETER_NAMES  # noqa: E402
+from aerotri.geom.crs.gauss_kruger import GaussKruger  # noqa: E402
+from aerotri.geom.crs.synthetic import TRUE_BURSA_WOLF7, TRUE_HELMERT2D, simulate_plane, simulate_spatial  # noqa: E402
+from aerotri.geom.crs.transform import CrsTransformer  # noqa: E402
 
 # Xian 1980 6-degree (2327-2337 zone-prefixed, 2338-2348 CM), Xian 1980 3-degree (2349-2369 zone,
 # 2370-2390 CM), CGCS2000 6-degree (4491-4512), CGCS2000 3-degree (4513-4554), Beijing 1954 3-degree (2401-2442)
@@ -77,7 +77,7 @@ def gauss_kruger_vs_proj(n_per_zone: int = 20_000):
 
 def _geocentric(crs_code, xyz):
     crs = parse_crs(crs_code)
-    from aerotri.crs.files import geocentric_of
+    from aerotri.geom.crs.files import geocentric_of
 
     return geocentric_of(crs, xyz[:, 0], xyz[:, 1], xyz[:, 2])
 
@@ -112,9 +112,9 @@ def bursa_wolf_case(name, from_epsg, to_epsg, lon_range, lat_range, h_range, n, 
         "parameters": params,
         "all_within_3_sigma": bool(all(abs(p["error_over_std_dev"]) < 3 for p in params.values())),
         "sigma0_m": res.sigma0_m,
-        "residual_rms_e_m": rms["e"],
-        "residual_rms_n_m": rms["n"],
-        "residual_rms_u_m": rms["u"],
+        "residual_rms_e_m": rms.e_m,
+        "residual_rms_n_m": rms.n_m,
+        "residual_rms_u_m": rms.u_m,
         "residual_rms_expected_m": noise_m * float(np.sqrt(res.redundancy / (3 * n))),
         "warnings": res.warnings,
     }
@@ -181,8 +181,8 @@ def zone_straddle():
 def las_throughput(n_points=2_000_000):
     import laspy
 
-    from aerotri.crs.files import transform_las
-    from aerotri.geom.datum import Transformation
+    from aerotri.geom.crs.files import transform_las
+    from aerotri.geom.crs.datum import Transformation
 
     rng = np.random.default_rng(0)
     with tempfile.TemporaryDirectory() as tmp:

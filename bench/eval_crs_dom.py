@@ -38,9 +38,9 @@ REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
 
 from aerotri.core.atomic import write_text_atomic  # noqa: E402
-from aerotri.crs.synthetic import TRUE_BURSA_WOLF7, simulate_spatial, write_common_points  # noqa: E402
-from aerotri.geom.raster_warp import interpolate_anchors  # noqa: E402
-from aerotri.geom.transform import CrsTransformer, OperationSpec  # noqa: E402
+from aerotri.geom.crs.synthetic import TRUE_BURSA_WOLF7, simulate_spatial, write_common_points  # noqa: E402
+from aerotri.geom.crs.raster_warp import interpolate_anchors  # noqa: E402
+from aerotri.geom.crs.transform import CrsTransformer, OperationSpec  # noqa: E402
 from ortho.grid import GridToProject, OrthoGrid, gk3_zone_crs  # noqa: E402
 
 TRUE_CGCS2000 = {"tx_m": 0.41, "ty_m": -0.27, "tz_m": 0.18, "rx_arcsec": 0.012, "ry_arcsec": -0.008,
@@ -126,7 +126,7 @@ def main(argv=None):
             params = tmp / f"{datum}.json"
             run(BIN / "aerotri", "crs", "fit", common, "--model", "bursa-wolf7", "--from",
                 f"EPSG:{project_crs.to_epsg()}", "--to", f"EPSG:{epsg}", "-o", params)
-            from aerotri.geom.datum import Transformation, load_transformation
+            from aerotri.geom.crs.datum import Transformation, load_transformation
 
             gx, gy = np.meshgrid(np.linspace(b.left, b.right, 9), np.linspace(b.bottom, b.top, 9))
             gz = np.full(gx.size, 300.0)

@@ -54,7 +54,7 @@ def _sample(grids, x, y):
 
 
 def _grids(cloud, radius):
-    from lidarctl import rasters
+    from lidarctl.rasters import products as rasters
 
     kw = {} if radius is None else {"dem_fill_radius_px": radius}
     return rasters.make_grids(cloud, 1.0, **kw)
@@ -64,7 +64,7 @@ def lidr(folds: int = 5):
     from scipy.spatial import Delaunay
 
     from lidarctl import io
-    from lidarctl.ground import tin_heights
+    from lidarctl.classify.ground import tin_heights
 
     full = io.read_cloud(LIDR)
     gidx = np.flatnonzero(full.classification == 2)

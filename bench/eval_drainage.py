@@ -50,7 +50,7 @@ sys.path.insert(0, str(REPO))
 from aerotri.sim import load_preset  # noqa: E402
 from aerotri.sim.flight import block_layout  # noqa: E402
 from aerotri.sim.scene import build_scene  # noqa: E402
-from lidarctl import drainage as dr  # noqa: E402
+from lidarctl.terrain import drainage as dr  # noqa: E402
 
 RES_M = 1.0
 W_M, H_M = 800.0, 1200.0
@@ -272,7 +272,7 @@ def sim_picture(dem_path, outdir, line_map, png):
     from matplotlib.collections import LineCollection
     from pyogrio.raw import read
 
-    from lidarctl.rasters import hillshade
+    from lidarctl.rasters.products import hillshade
 
     with rasterio.open(dem_path) as s:
         dem = s.read(1, masked=True).filled(np.nan).astype(float)
@@ -324,7 +324,7 @@ import re, sys, time, numpy as np
 def hwm_kb():  # VmHWM: the peak of this process image (ru_maxrss would carry the forking parent's over exec)
     return int(re.search(r"VmHWM:\\s+(\\d+)", open("/proc/self/status").read()).group(1))
 sys.path.insert(0, {str(REPO)!r})
-from lidarctl import drainage as dr
+from lidarctl.terrain import drainage as dr
 small = 100 + np.random.default_rng(0).normal(0, 0.3, (60, 60))
 for m in dr.METHODS:
     dr.accumulate(dr.flow_directions(dr.condition(small, m).dem, 1, 1), np.isfinite(small))

@@ -27,7 +27,8 @@ from scipy.spatial import cKDTree
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from lidar_common import DATA, REPO  # noqa: E402
 
-from lidarctl import classify, io  # noqa: E402
+from lidarctl import io  # noqa: E402
+from lidarctl.classify import pipeline as classify
 
 # The Autzen footbridge's axis on autzen_ortho_1ft.jpg (ft, the crop's CRS, digitised by eye to a metre or
 # two) and its corridor: the deck's half-width plus that tolerance, and as far past the digitised ends (m)

@@ -39,11 +39,11 @@ from pathlib import Path
 import numpy as np
 
 from aerotri.sim import load_preset, simulate
-from lidarctl import class_grid as cg
-from lidarctl import fusion as fu
-from lidarctl import map_accuracy as ma
+from lidarctl.classify import class_grid as cg
+from lidarctl.classify import fusion as fu
+from lidarctl.checks import map_accuracy as ma
 from lidarctl import tiles
-from lidarctl.classify import ClassifySettings
+from lidarctl.classify.pipeline import ClassifySettings
 
 REPO = Path(__file__).resolve().parents[1]
 PROJECTS = [("tiny", None, "development"), ("demo", None, "development"), ("demo", 7, "held-out")]

@@ -23,7 +23,9 @@ from unittest import mock
 
 import numpy as np
 
-from lidarctl import classify, evaluate, io
+from lidarctl import io
+from lidarctl.classify import pipeline as classify
+from lidarctl.checks import classes as evaluate
 
 REPO = Path(__file__).resolve().parents[1]
 

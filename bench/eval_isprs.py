@@ -18,7 +18,11 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from lidar_common import CSF_PUBLISHED, DATA, REPO, SAMPLES, csf_ground, warm_up_jit  # noqa: E402
 
-from lidarctl import classify, evaluate, ground, io, noise  # noqa: E402
+from lidarctl import io  # noqa: E402
+from lidarctl.classify import pipeline as classify
+from lidarctl.checks import classes as evaluate
+from lidarctl.classify import ground
+from lidarctl.classify import noise
 
 
 def run_method(name, fn):

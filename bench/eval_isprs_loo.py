@@ -8,7 +8,7 @@ leave-one-out (LOO) estimate; its gap to the in-sample figure (the grid point be
 and the shipped default) is the over-fitting the habit exposes.
 
 Same path as ``bench/eval_isprs.py`` "lidarctl_default_morph_tin": noise flags first, then
-``lidarctl.ground.ground_filter`` (morph + TIN refinement + raised plateaus) on the rest.
+``lidarctl.classify.ground.ground_filter`` (morph + TIN refinement + raised plateaus) on the rest.
 Writes bench/results/lidar_isprs_loo.json. Run: .venv/bin/python bench/eval_isprs_loo.py
 
 ``--method ptd``: the same for the progressive TIN densification (``ground_filter(method='ptd')``, with
@@ -28,7 +28,10 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from lidar_common import DATA, REPO, SAMPLES, grid_points  # noqa: E402
 
-from lidarctl import evaluate, ground, io, noise  # noqa: E402
+from lidarctl import io  # noqa: E402
+from lidarctl.checks import classes as evaluate
+from lidarctl.classify import ground
+from lidarctl.classify import noise
 
 # The morphological filter's physical knobs: terrain slope tolerated (tan) by the opening, the first
 # ground set's growth of tolerance with slope, the local-surface test's height above the plane of the
@@ -96,7 +99,7 @@ def main(method: str = "morph"):
     in_sample = float(err[best_all].mean())
     out = {
         "data": "ISPRS WG III/3 filter test, the 7 shared samples (../shared/data/isprs_filtertest)",
-        "method": f"noise flags, then lidarctl.ground.ground_filter(method={method!r}) with the grid point",
+        "method": f"noise flags, then lidarctl.classify.ground.ground_filter(method={method!r}) with the grid point",
         "fixed_params": FIXED[method],
         "grid": {k: list(v) for k, v in grid.items()},
         "n_grid_points": len(combos),

@@ -1,7 +1,7 @@
 """Same bits, same speed (issue 40): the numba kernels that now take their grid as a NamedTuple
 (``lidarctl.raster_ops``: ``_cell_of`` / ``_cell_extreme_xy`` / ``_cell_sums`` behind ``reduce_grid``,
-``_bilinear`` behind ``sample_bilinear``; ``lidarctl.raster_cells``: ``_accumulate`` and ``_chm_max`` behind
-``CellStats.add`` / ``add_chm``, the rasters stage's per-point loops; ``lidarctl.rasters``: ``_tile_and_near``,
+``_bilinear`` behind ``sample_bilinear``; ``lidarctl.rasters.cells``: ``_accumulate`` and ``_chm_max`` behind
+``CellStats.add`` / ``add_chm``, the rasters stage's per-point loops; ``lidarctl.rasters.products``: ``_tile_and_near``,
 ``_membership_count`` and ``_gather_records``, the tiled rasters' binning pass, called the way each side's
 ``_bin_points`` calls them) against the code before the change.
 
@@ -32,7 +32,7 @@ ROOT = Path(__file__).resolve().parents[1]
 def _measure(n_points: int, only: list[str] | None = None) -> dict:
     import numpy as np
 
-    from lidarctl.raster_cells import CellStats
+    from lidarctl.rasters.cells import CellStats
     from lidarctl.raster_ops import reduce_grid, sample_bilinear
 
     rng = np.random.default_rng(40)
@@ -51,7 +51,7 @@ def _measure(n_points: int, only: list[str] | None = None) -> dict:
     inten = rng.integers(0, 4000, len(wx)).astype(np.uint16)
 
     def binning():
-        from lidarctl import rasters
+        from lidarctl.rasters import products as rasters
 
         tile_px, buffer_px, ntr, ntc = 256, 32, 4, 5
         count = np.zeros(ntr * ntc + 1, np.int64)

@@ -22,7 +22,10 @@ import numpy as np
 import rasterio
 from scipy import ndimage
 
-from lidarctl import classify, evaluate, io, rasters
+from lidarctl import io
+from lidarctl.classify import pipeline as classify
+from lidarctl.checks import classes as evaluate
+from lidarctl.rasters import products as rasters
 from lidarctl.raster_ops import reduce_grid
 
 REPO = Path(__file__).resolve().parents[1]

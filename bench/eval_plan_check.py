@@ -34,7 +34,7 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from aerotri.core.atomic import write_text_atomic
-from lidarctl.plan_check import PlanCheckSettings, check_plan_files, plan_stats
+from lidarctl.checks.plan import PlanCheckSettings, check_plan_files, plan_stats
 
 REPO = Path(__file__).resolve().parents[1]
 # ../shared/data beside the checkout (or beside ../main's, from a worktree under ../wt/)

@@ -1,4 +1,4 @@
-"""The slope-based ground filter (``lidarctl/slope_filter.py``, ``--method slope``): parameters chosen on
+"""The slope-based ground filter (``lidarctl/classify/slope_filter.py``, ``--method slope``): parameters chosen on
 labelled sets that are not the ISPRS samples, then the ISPRS samples scored once with them.
 
 Choice: total error (all points, after the noise filter, class 2 = ground) on AHN3 Delft (urban, flat) and lidR
@@ -23,8 +23,10 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from lidar_common import DATA, REPO, SAMPLES  # noqa: E402
 
-from lidarctl import evaluate, io, noise  # noqa: E402
-from lidarctl.slope_filter import SlopeSettings, slope_ground  # noqa: E402
+from lidarctl import io  # noqa: E402
+from lidarctl.checks import classes as evaluate
+from lidarctl.classify import noise
+from lidarctl.classify.slope_filter import SlopeSettings, slope_ground  # noqa: E402
 
 CHOICE = {"ahn3_delft": ("ahn3_delft/ahn3_cropped_1.laz", "EPSG:28992"),
           "lidr_mixedconifer": ("lidr_mixedconifer/MixedConifer.laz", None)}

@@ -39,7 +39,7 @@ sys.path.insert(0, str(REPO))
 from aerotri.sim import load_preset  # noqa: E402
 from aerotri.sim.flight import block_layout  # noqa: E402
 from aerotri.sim.scene import build_scene  # noqa: E402
-from lidarctl.smooth import DiffusionSettings, anisotropic_diffusion  # noqa: E402
+from lidarctl.terrain.smooth import DiffusionSettings, anisotropic_diffusion  # noqa: E402
 
 RES_M = 0.5
 NOISE_M = 0.15

@@ -93,7 +93,7 @@ def land_cover(project: Path, pts) -> list[str]:
 
 
 def demo(work: Path, results: Path) -> dict:
-    from lidarctl.heights_check import check_heights_file
+    from lidarctl.checks.heights import check_heights_file
     from aerotri.core.atomic import write_text_atomic
     from aerotri.qa.report import write_qa_report
 

@@ -67,12 +67,13 @@ def strips_of(project: Path):
 
 
 def dem_error(project: Path, strips: list[Path], res_m: float = 2.0) -> dict:
-    """DEM (mean height of the truth's ground points per cell, lidarctl.rasters.make_grids) of ``strips``
+    """DEM (mean height of the truth's ground points per cell, lidarctl.rasters.products.make_grids) of ``strips``
     against truth/dem.tif, over the cells that hold ground points (no interpolated cell)."""
     import rasterio
     from scipy import ndimage
 
-    from lidarctl import io, rasters
+    from lidarctl import io
+    from lidarctl.rasters import products as rasters
 
     clouds = [io.read_cloud(p) for p in strips]
     truth_cls = [io.read_cloud(project / "truth" / "lidar" / p.name).classification for p in strips]
@@ -103,13 +104,13 @@ def dem_error(project: Path, strips: list[Path], res_m: float = 2.0) -> dict:
 
 
 def corner_error(project: Path, strips: list[Path], match_m: float = 1.0) -> dict:
-    """Roof corners (lidarctl.corners, flat roofs, the truth's classes on the given coordinates) matched to
+    """Roof corners (lidarctl.corners.roof_corners, flat roofs, the truth's classes on the given coordinates) matched to
     truth/roof_corners.csv within ``match_m``: RMS of the horizontal and vertical errors of the matched ones."""
     import csv
 
     from scipy.spatial import cKDTree
 
-    from lidarctl.corners import find_roof_corners, read_classified_cloud
+    from lidarctl.corners.roof_corners import find_roof_corners, read_classified_cloud
 
     clouds = [read_classified_cloud(p) for p in strips]
     cls = [read_classified_cloud(project / "truth" / "lidar" / p.name).classification for p in strips]

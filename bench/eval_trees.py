@@ -52,10 +52,10 @@ from aerotri.sim import load_preset, raycast  # noqa: E402
 from aerotri.sim.flight import block_layout, lidar_lines  # noqa: E402
 from aerotri.sim.lidar import scan_strip  # noqa: E402
 from aerotri.sim.scene import build_scene  # noqa: E402
-from lidarctl import heights_check as hc  # noqa: E402
+from lidarctl.checks import heights as hc  # noqa: E402
 from lidarctl import synthetic  # noqa: E402
 from lidarctl.io import PointCloud  # noqa: E402
-from lidarctl.trees import TreeSettings, tree_model, tree_tops  # noqa: E402
+from lidarctl.rasters.trees import TreeSettings, tree_model, tree_tops  # noqa: E402
 
 X0, Y0 = 500000.0, 4000000.0   # map origin of the scene's (0, 0), UTM 33N
 EPSG = "EPSG:32633"
@@ -194,7 +194,7 @@ def sim_trees():
     scored = {}
     for name, classes in (("truth_classes", cloud.classification), ("lidarctl_classify", None)):
         if classes is None:
-            from lidarctl.classify import classify_points
+            from lidarctl.classify.pipeline import classify_points
 
             t1 = time.perf_counter()
             classes = classify_points(cloud.x, cloud.y, cloud.z, cloud.return_number, cloud.number_of_returns,
@@ -225,7 +225,7 @@ def sim_trees():
 
 def forested(tmp: Path):
     """Tree detection and the DEM table on a closed forest (``simulate(forested=True)``, seed 2)."""
-    from lidarctl.classify import classify_points
+    from lidarctl.classify.pipeline import classify_points
 
     scene, cloud = simulate(SCORE_SEED, forested=True)
     truth = true_trees(scene)
@@ -242,7 +242,7 @@ def forested(tmp: Path):
 def write_dem(path, dem_north_up, x0, y_top, res, crs):
     from rasterio.transform import from_origin
 
-    from lidarctl.rasters import write_cog
+    from lidarctl.rasters.products import write_cog
 
     write_cog(path, dem_north_up.astype(np.float32), from_origin(x0, y_top, res, res), crs, unit="metre")
 
@@ -259,7 +259,7 @@ def table(result, key="dem"):
 
 
 def sim_dem(scene, cloud, ours, tmp: Path, tag: str = "demo"):
-    from lidarctl import rasters
+    from lidarctl.rasters import products as rasters
 
     rng = np.random.default_rng(77)
     w, h = scene.width_m, scene.height_m
@@ -302,8 +302,9 @@ def lidr_dem(tmp: Path, folds: int = 5):
     """The real forested set: class-2 points held out in folds (module docstring)."""
     from scipy.spatial import Delaunay
 
-    from lidarctl import io, rasters
-    from lidarctl.ground import tin_heights
+    from lidarctl import io
+    from lidarctl.rasters import products as rasters
+    from lidarctl.classify.ground import tin_heights
 
     full = io.read_cloud(LIDR)
     crs = full.crs

@@ -40,11 +40,11 @@ import shapely
 from aerotri.sim import load_preset, simulate
 from aerotri.sim.flight import block_layout
 from aerotri.sim.scene import build_scene
-from lidarctl import fusion as fu
+from lidarctl.classify import fusion as fu
 from lidarctl import tiles
-from lidarctl import vector_check as vc
-from lidarctl.classify import ClassifySettings
-from lidarctl.map_vectors import MapVectorSettings, draw_layers, vectors_to_file
+from lidarctl.checks import vectors as vc
+from lidarctl.classify.pipeline import ClassifySettings
+from lidarctl.vectors.layers import MapVectorSettings, draw_layers, vectors_to_file
 
 REPO = Path(__file__).resolve().parents[1]
 ROLES = {"tiny": "development", "demo": "held-out"}

@@ -7,7 +7,7 @@ returns are grouped into lakes by their 2 m cells grown by ``LAKE_REACH_M`` (lak
 returns; the rest and everything farther from the water is "elsewhere").
 Every pulse-returning lake surface is class 9, the dropout gaps (no returns) carry no points to score.
 
-Choosing: the water settings of ``lidarctl.classify`` on a grid (``GRID``: level patches joined across
+Choosing: the water settings of ``lidarctl.classify.pipeline`` on a grid (``GRID``: level patches joined across
 a dropout gap ``level_water_across_dropouts`` (False: main's code), the level tolerance
 ``level_water_tol_m``, the smallest level body ``level_water_min_area_m2``). A grid point is admissible
 when it calls no return water on the sets without labelled water (``no_water_sets``: the 7 ISPRS samples,
@@ -46,7 +46,8 @@ from scipy.spatial import cKDTree
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from lidar_common import DATA, REPO, SAMPLES  # noqa: E402
 
-from lidarctl import classify, io  # noqa: E402
+from lidarctl import io  # noqa: E402
+from lidarctl.classify import pipeline as classify
 
 # Main's values first in each list: ties go to them.
 GRID = {"level_water_across_dropouts": (False, True),

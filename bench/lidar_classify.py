@@ -34,7 +34,8 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from lidar_common import CSF_PUBLISHED, REPO, csf_ground, run_peak
 
-from lidarctl import evaluate, io, synthetic
+from lidarctl import io, synthetic
+from lidarctl.checks import classes as evaluate
 
 TILE_M = 200.0
 
@@ -81,7 +82,7 @@ def grid_phase_sensitivity(path: Path, window_m: float = 400.0, cut_m: float = 0
     """How much classify_points itself changes when its grids shift (a tile's grids start at the
     tile's lowest coordinates): classes of a ``window_m`` square of the cloud, in one piece and
     with a ``cut_m`` strip removed at its west edge, compared more than 60 m from the cut."""
-    from lidarctl import classify as cl
+    from lidarctl.classify import pipeline as cl
 
     c = io.read_cloud(path)
     x0, y0 = c.x.min(), c.y.min()
@@ -232,7 +233,7 @@ def main():
     # ISPRS tables of both filters, one parameter set each (from bench/eval_isprs.py).
     from eval_isprs import run_method, with_noise
 
-    from lidarctl import ground
+    from lidarctl.classify import ground
     isprs = {"lidarctl_default": run_method("lidarctl_default", with_noise(ground.ground_filter)),
              "csf_raw": run_method("csf_raw", lambda c: csf_ground(np.column_stack([c.x, c.y, c.z]))),
              "csf_after_lidarctl_noise": run_method("csf_after_lidarctl_noise", with_noise(

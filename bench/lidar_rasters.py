@@ -36,7 +36,8 @@ import rasterio
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
 
-from lidarctl import io, rasters, synthetic
+from lidarctl import io, synthetic
+from lidarctl.rasters import products as rasters
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from lidar_common import run_peak as _run_peak
@@ -83,7 +84,7 @@ def worker(kind: str, paths: list[Path], out: Path) -> None:
         cat = read_concatenated(paths)
         rasters.write_rasters(cat, out, RES_M)
     else:
-        from lidarctl import corners as C
+        from lidarctl.corners import roof_corners as C
         cat = C.read_strips(paths)
         r = C.find_roof_corners(cat.x, cat.y, cat.z, cat.classification, cat.point_source_id)
         print(json.dumps({k: getattr(r.stats, k) for k in ("n_points", "n_roofs", "n_corners", "n_usable")}))
@@ -133,7 +134,7 @@ def demo_equality(demo: Path, work: Path) -> dict:
 
 
 def corners_equality(demo: Path, work: Path) -> dict:
-    from lidarctl import corners as C
+    from lidarctl.corners import roof_corners as C
 
     paths = sorted(demo.glob("*.las")) + sorted(demo.glob("*.laz"))
     res = {"tile_m": C.DEFAULT_TILE_M, "buffer_m": C.DEFAULT_BUFFER_M}

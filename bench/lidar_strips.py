@@ -35,7 +35,8 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from lidar_classify import TILE_M, _layout, make_tile, run_classify  # noqa: E402
 from lidar_common import REPO, csf_ground  # noqa: E402
 
-from lidarctl import evaluate, io, synthetic  # noqa: E402
+from lidarctl import io, synthetic  # noqa: E402
+from lidarctl.checks import classes as evaluate
 
 
 def make_strips(work: Path, tiles: int, density: float):

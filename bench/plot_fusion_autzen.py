@@ -27,10 +27,10 @@ from pathlib import Path
 
 import numpy as np
 
-from lidarctl import class_grid as cg
-from lidarctl import fusion as fu
+from lidarctl.classify import class_grid as cg
+from lidarctl.classify import fusion as fu
 from lidarctl import tiles
-from lidarctl.classify import ClassifySettings
+from lidarctl.classify.pipeline import ClassifySettings
 
 REPO = Path(__file__).resolve().parents[1]
 DATA = Path("/work/shared/data/autzen")

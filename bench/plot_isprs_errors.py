@@ -2,7 +2,7 @@
 
 Points grey by height; type I errors (bare earth rejected) red, type II (objects accepted as ground)
 blue; the same path as ``bench/eval_isprs.py`` "lidarctl_default_morph_tin" (noise flags, then
-``lidarctl.ground.ground_filter``). Writes bench/results/lidar_isprs_errors.png.
+``lidarctl.classify.ground.ground_filter``). Writes bench/results/lidar_isprs_errors.png.
 Run: .venv/bin/python bench/plot_isprs_errors.py
 """
 
@@ -20,7 +20,10 @@ import matplotlib.pyplot as plt  # noqa: E402
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from lidar_common import DATA, REPO, SAMPLES  # noqa: E402
 
-from lidarctl import evaluate, ground, io, noise  # noqa: E402
+from lidarctl import io  # noqa: E402
+from lidarctl.checks import classes as evaluate
+from lidarctl.classify import ground
+from lidarctl.classify import noise
 
 
 def main():

@@ -113,7 +113,7 @@ def draw(work: Path, out_png: Path, title: str, truth_streams: Path | None = Non
     import shapely
     from matplotlib.lines import Line2D
 
-    from lidarctl.rasters import hillshade
+    from lidarctl.rasters.products import hillshade
 
     with rasterio.open(work / "dem_smooth.tif") as src:
         dem = src.read(1, masked=True).astype(float).filled(np.nan)

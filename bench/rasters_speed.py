@@ -3,7 +3,7 @@ the hillshade) on the demo strips: this checkout against the code before the spe
 main), in one session, and every raster of the two compared.
 
 Each run is a fresh subprocess (one at a time, so that its peak RSS, resource.getrusage's ru_maxrss,
-is its own) calling ``lidarctl.rasters.write_rasters`` on the strips (what the chain's rasters stage
+is its own) calling ``lidarctl.rasters.products.write_rasters`` on the strips (what the chain's rasters stage
 and the command call; the command adds its imports, about 1.4 CPU-s here): the baseline from
 ``git archive <rev>`` unpacked into the work folder, ours from this checkout. Before the timed runs
 both trees run once on a 20 000-point strip, so that numba's compilation (cached on disk) is not
@@ -41,7 +41,7 @@ CHILD = r"""
 import json, resource, sys, time
 from pathlib import Path
 t0, c0 = time.perf_counter(), time.process_time()
-from lidarctl import rasters
+from lidarctl.rasters import products as rasters
 out, paths = Path(sys.argv[1]), [Path(p) for p in sys.argv[2:]]
 t1, c1 = time.perf_counter(), time.process_time()
 rasters.write_rasters(paths, out, %r)

@@ -7,8 +7,8 @@ wall and CPU seconds, peak RSS, and whether the outputs are the same:
 
 - ``dom_check`` (``ortho.check.run_check``: NCC patches of the DOM against the true orthophoto, by 2048 px
   blocks, plus the seam misalignment between neighbouring frame orthos): patches and RMS then and now;
-- ``rasters`` (``lidarctl.rasters.write_rasters`` on the classified strips): every raster's cells compared;
-- ``corners`` (``lidarctl.corners.corner_control``): corners.csv compared;
+- ``rasters`` (``lidarctl.rasters.products.write_rasters`` on the classified strips): every raster's cells compared;
+- ``corners`` (``lidarctl.corners.roof_corners.corner_control``): corners.csv compared;
 - ``classify`` (``lidarctl.tiles.classify_files`` on the strips): points whose class differs from the run's.
 
 The chain total with the stage re-measured is the run's other stages' wall time plus the new stage (plus any
@@ -63,7 +63,7 @@ def _rasters(run: Path, reference: Path, ndsm: Path, tmp: Path) -> dict:
     import numpy as np
     import rasterio
 
-    from lidarctl.rasters import write_rasters
+    from lidarctl.rasters.products import write_rasters
 
     project, options = _options(run)
     written = write_rasters(project.classified_strips(), tmp / "lidar_out", options.rasters.res_m, crs=project.crs)
@@ -77,7 +77,7 @@ def _rasters(run: Path, reference: Path, ndsm: Path, tmp: Path) -> dict:
 
 
 def _corners(run: Path, reference: Path, ndsm: Path, tmp: Path) -> dict:
-    from lidarctl.corners import corner_control
+    from lidarctl.corners.roof_corners import corner_control
 
     project, options = _options(run)
     st = corner_control(project.classified_strips(), tmp / "lidar_out", options.corners,

@@ -32,7 +32,7 @@ import pyproj
 from aerotri.core.atomic import atomic_path, refuse_input_as_output
 from aerotri.core.errors import InputError
 from aerotri.geom import las
-from aerotri.geom.crs import horizontal_crs, parse_crs
+from aerotri.geom.crs.definition import horizontal_crs, parse_crs
 from lidarctl.grid import check_allocation
 from lidarctl.units import METRE, UNKNOWN, LengthUnits, units_of
 
@@ -185,7 +185,7 @@ def read_cloud(path, crs: str | int | None = None, require_crs: bool = True,
 def require_same_crs(path, crs, units: LengthUnits, first) -> None:
     """InputError naming ``path`` when its CRS or units differ from ``first``, the (path, CRS, units)
     of the first strip of a set that must share one CRS."""
-    from aerotri.geom.crs import crs_label, same_crs
+    from aerotri.geom.crs.definition import crs_label, same_crs
 
     first_path, first_crs, first_units = first
     if units != first_units or not same_crs(crs, first_crs):

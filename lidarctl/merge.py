@@ -18,7 +18,7 @@ import numpy as np
 
 from aerotri.core.atomic import atomic_path, refuse_input_as_output
 from aerotri.core.errors import CrsError, InputError, OptionError
-from aerotri.geom.crs import crs_label, horizontal_crs, parse_crs, same_horizontal, same_vertical, vertical_crs
+from aerotri.geom.crs.definition import crs_label, horizontal_crs, parse_crs, same_horizontal, same_vertical, vertical_crs
 from aerotri.geom import las
 
 

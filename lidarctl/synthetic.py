@@ -158,7 +158,7 @@ def metric_twin_crs(crs) -> pyproj.CRS:
     """The same projected CRS with metre units: axis units and length parameters (false easting and
     northing) converted to metres. Coordinates of a point in ``crs`` times its unit are that point's
     coordinates in the twin."""
-    from aerotri.geom.crs import horizontal_crs
+    from aerotri.geom.crs.definition import horizontal_crs
 
     d = horizontal_crs(pyproj.CRS.from_user_input(crs)).to_json_dict()
     d.pop("id", None)

@@ -69,7 +69,7 @@ from aerotri.core.atomic import atomic_dir, atomic_path, refuse_input_as_output,
 from aerotri.core.errors import InputError, OptionError, ResourceError
 from aerotri.core.executor import local_executor
 from aerotri.core.log import progress
-from aerotri.geom.crs import parse_crs
+from aerotri.geom.crs.definition import parse_crs
 from lidarctl.units import METRE, LengthUnits
 
 logger = logging.getLogger(__name__)
@@ -85,9 +85,9 @@ MAX_TILES = 1_000_000
 
 def default_buffer_m(method: str = "morph", preset: str | None = None, ground_params=None) -> float:
     """Overlap buffer (m) beyond which a point cannot change the classes of a tile's core points: the
-    reach of the ground filter (``lidarctl.ground.GROUND_FILTERS``) with ``preset``; 60 m for the
+    reach of the ground filter (``lidarctl.classify.ground.GROUND_FILTERS``) with ``preset``; 60 m for the
     default morphological filter, 90 m for the progressive TIN densification."""
-    from lidarctl import ground
+    from lidarctl.classify import ground
 
     return ground.reach_m(method, preset, **(ground_params or {}))
 
@@ -207,7 +207,7 @@ class TileTask:
     params: object          # classify.ClassifySettings
     numba_threads: int = 0  # threads of numba's parallel loops in this task (0: numba's default)
     units: LengthUnits = METRE  # the input's units: tile files hold coordinates in them
-    fusion: object = None   # lidarctl.fusion.Fusion: the orthophoto's rules after the LiDAR classes
+    fusion: object = None   # lidarctl.classify.fusion.Fusion: the orthophoto's rules after the LiDAR classes
 
 
 # What a tile file holds per point: the fields the classifier reads, coordinates in the input's
@@ -399,7 +399,7 @@ def classify_tile(task: TileTask) -> TileResult:
     Writes ``classes_path`` (uint8 ASPRS classes) and ``core_index_path`` (int64 point indices in
     the input file), both in input order. Returns small statistics (points, seconds).
     """
-    from lidarctl import classify as cl
+    from lidarctl.classify import pipeline as cl
 
     t0 = time.perf_counter()
     rec = np.fromfile(task.points_path, dtype=TILE_DTYPE)
@@ -430,7 +430,7 @@ def classify_tile(task: TileTask) -> TileResult:
 def _direct_classes(in_paths, crs, params, chunk_points, fusion=None):
     """Classes of a one-tile input in memory (no temporary files): the tiled path with one tile.
     (classes of all files one after the other, the records of each file, the CRS of the first)."""
-    from lidarctl import classify as cl
+    from lidarctl.classify import pipeline as cl
 
     read = [io.read_cloud(q, crs=crs, chunk_points=chunk_points, keep_records=True) for q in in_paths]
     fields = ("x", "y", "z", "return_number", "number_of_returns", "intensity")
@@ -487,7 +487,7 @@ def classify_file(in_path, out_path, crs=None, params=None, *, tile_size_m: floa
     ``aerotri.core.executor.Executor`` (default: local threads). ``work_dir``: parent folder of the
     temporary tile files (default: next to the output); they are removed in any case.
     The output is written atomically: on any error or interrupt no output file is left.
-    ``fusion`` (``lidarctl.fusion.Fusion``): fuse each tile's classes with an orthophoto.
+    ``fusion`` (``lidarctl.classify.fusion.Fusion``): fuse each tile's classes with an orthophoto.
     Returns statistics: points, tiles, buffer overhead, seconds per pass, class counts.
     """
     in_path, out_path = Path(in_path), Path(out_path)
@@ -561,7 +561,7 @@ def _classify(in_paths, out_paths, crs, params, *, tile_size_m, buffer_m, execut
               chunk_points, fusion=None) -> ClassifyStats:
     """``classify_file`` / ``classify_files``: the files in ``in_paths`` (checked to agree) classified
     together, each written to its ``out_paths`` entry."""
-    from lidarctl import classify as cl
+    from lidarctl.classify import pipeline as cl
 
     t0 = time.perf_counter()
     params = params or cl.ClassifySettings()
@@ -616,9 +616,9 @@ def _classify(in_paths, out_paths, crs, params, *, tile_size_m, buffer_m, execut
 
 
 def _keep_delivered(in_path, out_path, *, out_crs, units, chunk_points, t0) -> ClassifyRun:
-    """``classify_file`` with ``keep_classes``: the delivered classes checked (``lidarctl.delivered_classes``)
+    """``classify_file`` with ``keep_classes``: the delivered classes checked (``lidarctl.classify.delivered_classes``)
     and copied to the output as they are."""
-    from lidarctl.delivered_classes import check_delivered_classes
+    from lidarctl.classify.delivered_classes import check_delivered_classes
 
     found = check_delivered_classes(in_path, units, chunk_points)
     classes = np.concatenate([np.asarray(c.classification, np.uint8) for _, c in las.iter_file_chunks(in_path, chunk_points)])
@@ -739,8 +739,8 @@ def classify_command(in_paths, out_path, keep_classes: bool = False, method: str
     delivered classes, checked. The other settings are ``ClassifySettings``' defaults. Returns the line the command
     prints."""
     from aerotri.core.executor import executor_for
-    from lidarctl import classify as cl
-    from lidarctl import ground
+    from lidarctl.classify import pipeline as cl
+    from lidarctl.classify import ground
 
     to_folder = len(in_paths) > 1 or Path(out_path).is_dir() or Path(out_path).suffix.lower() not in (".las", ".laz")
     if not to_folder:
@@ -755,7 +755,7 @@ def classify_command(in_paths, out_path, keep_classes: bool = False, method: str
         raise OptionError("--nir: only with --image", param="--nir")
     fusion = None
     if image_path is not None:
-        from lidarctl import fusion as fu
+        from lidarctl.classify import fusion as fu
 
         refuse_input_as_output(out_path, [image_path, None if nir is None or str(nir).isdigit() else nir], "OUT_PATH")
         cloud_crs, units = io.resolve_crs_units(in_paths[0], las.read_header(in_paths[0]), crs)

@@ -18,24 +18,7 @@ import numpy as np
 import pyproj
 
 from aerotri.core.errors import CrsError
-from aerotri.geom.crs import crs_label, horizontal_crs, linear_unit_m, unit_name
-from aerotri.geom.las import FOOT_M, US_SURVEY_FOOT_M
-
-
-def short_name(unit_m: float) -> str:
-    """'m', 'ft' or 'us-ft' (the names ``aerotri.geom.crs.unit_name`` uses) for metres per unit."""
-    if abs(unit_m - 1.0) < 1e-12:
-        return "m"
-    if abs(unit_m - FOOT_M) < 1e-9:
-        return "ft"
-    if abs(unit_m - US_SURVEY_FOOT_M) < 1e-9:
-        return "us-ft"
-    return f"{unit_m:g}m"
-
-
-def long_name(unit_m: float) -> str:
-    """The unit's name as GDAL band unit types and WKT spell it: 'metre', 'foot', 'US survey foot'."""
-    return {"m": "metre", "ft": "foot", "us-ft": "US survey foot"}.get(short_name(unit_m), f"{unit_m:g} metre")
+from aerotri.geom.crs.definition import crs_label, horizontal_crs, length_unit_name, linear_unit_m, unit_name
 
 
 @dataclasses.dataclass(frozen=True)
@@ -52,11 +35,11 @@ class LengthUnits:
 
     @property
     def xy_name(self) -> str:
-        return short_name(self.xy_m) if self.known else "file units"
+        return length_unit_name(self.xy_m) if self.known else "file units"
 
     @property
     def z_name(self) -> str:
-        return short_name(self.z_m) if self.known else "file units"
+        return length_unit_name(self.z_m) if self.known else "file units"
 
     @property
     def is_metric(self) -> bool:
@@ -66,8 +49,8 @@ class LengthUnits:
         if not self.known:
             return "unknown units (no CRS)"
         if self.xy_m == self.z_m:
-            return f"x, y, z in {long_name(self.xy_m)}"
-        return f"x, y in {long_name(self.xy_m)}, z in {long_name(self.z_m)}"
+            return f"x, y, z in {length_unit_name(self.xy_m, long=True)}"
+        return f"x, y in {length_unit_name(self.xy_m, long=True)}, z in {length_unit_name(self.z_m, long=True)}"
 
     def as_dict(self) -> dict:
         """JSON-ready description: unit names and metres per unit."""

@@ -44,9 +44,9 @@ from aerotri.core.atomic import atomic_dir, atomic_path, remove_leftovers, write
 from aerotri.core.errors import OptionError
 from aerotri.core.limits import check_allocation, check_grid
 from aerotri.core.textio import read_json
-from aerotri.geom.crs import linear_unit_m, parse_heights
-from aerotri.geom.datum import load_height_model, load_transformation
-from aerotri.geom.transform import CrsTransformer, OperationSpec
+from aerotri.geom.crs.definition import linear_unit_m, parse_heights
+from aerotri.geom.crs.datum import load_height_model, load_transformation
+from aerotri.geom.crs.transform import CrsTransformer, OperationSpec
 from ortho.dem import dem_height_operation, height_range, open_height_raster, read_height_window
 from aerotri.core.gdal_cache import MiB, stage_block_cache
 from ortho.grid import GridToProject, OrthoGrid, nice_resolution, parse_crs, resolve_output_crs

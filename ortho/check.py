@@ -38,7 +38,7 @@ from aerotri.core.project import Project, project_paths
 from aerotri.core.records import to_record
 from aerotri.core.settings import COMMAND_LINE, Resolved, settings_of
 from aerotri.core.textio import read_record, read_text, record_error
-from aerotri.geom.crs import height_unit_m, parse_crs
+from aerotri.geom.crs.definition import height_unit_m, parse_crs
 from aerotri.geom.inputs import check_raster_size
 from ortho.patches import MIN_PATCH_PX, PatchDisplacements, match_patches  # noqa: F401  (PatchDisplacements: the report API)
 from ortho.settings import CheckSettings
@@ -288,9 +288,9 @@ def _on_grid(ds, window_transform, shape, crs, resampling, band_indexes=None, *,
     from rasterio.warp import reproject
     from rasterio.windows import transform as window_transform_of
 
-    from aerotri.geom.crs import same_horizontal
-    from aerotri.geom.raster_warp import read_on_grid
-    from aerotri.geom.transform import CrsTransformer
+    from aerotri.geom.crs.definition import same_horizontal
+    from aerotri.geom.crs.raster_warp import read_on_grid
+    from aerotri.geom.crs.transform import CrsTransformer
 
     idx = band_indexes or list(range(1, min(ds.count, 3) + 1))
     if operation is not None or not same_horizontal(ds.crs, crs):
@@ -334,9 +334,9 @@ def _source_window(ds, window_transform, shape, margin_px: int = 3):
 
 def _operation_to(dom_path, other_path, params, allow_ballpark: bool, what: str):
     """DOM CRS -> the other raster's CRS (None when they are the same and no parameters are given)."""
-    from aerotri.geom.crs import same_horizontal
-    from aerotri.geom.datum import load_transformation
-    from aerotri.geom.transform import CrsTransformer
+    from aerotri.geom.crs.definition import same_horizontal
+    from aerotri.geom.crs.datum import load_transformation
+    from aerotri.geom.crs.transform import CrsTransformer
 
     with _open(dom_path, "DOM") as a, _open(other_path, what) as b:
         if a.crs is None or b.crs is None:
@@ -357,7 +357,7 @@ def check_against_reference(dom_path, reference_path, ndsm_path=None, max_ndsm_m
     The reference (and the nDSM used to keep only ground patches, height above ground <= max_ndsm_m)
     is resampled onto each DOM block (bilinear; nDSM by maximum so that patches touching objects drop).
     A reference or nDSM in another CRS is mapped through ``reference_operation`` / ``ndsm_operation``
-    (DOM CRS -> its CRS; ``aerotri.geom.transform.CrsTransformer``), by default PROJ's operation when
+    (DOM CRS -> its CRS; ``aerotri.geom.crs.transform.CrsTransformer``), by default PROJ's operation when
     it is rigorous (a ballpark one is refused).
     """
     import rasterio
@@ -433,7 +433,7 @@ def check_points(points_path, res_m: float, dom_bounds=None) -> tuple[Displaceme
 
 def _check_over_dom(reference_path, ndsm_path, dom_bounds, dom_crs) -> None:
     """Before any work: the reference orthophoto and the nDSM (one band of finite heights) over the DOM."""
-    from aerotri.geom.raster_warp import open_north_up
+    from aerotri.geom.crs.raster_warp import open_north_up
     from ortho.dem import require_overlap
 
     if dom_crs is None:
@@ -506,7 +506,7 @@ def roof_corners_from_ndsm(ndsm_path, dom_bounds, dom_crs, min_height_m: float =
     from rasterio.enums import Resampling
     from rasterio.transform import Affine
 
-    from aerotri.geom.crs import same_horizontal
+    from aerotri.geom.crs.definition import same_horizontal
 
     with _open(ndsm_path, "nDSM") as nd:
         if nd.crs is not None and dom_crs is not None and not same_horizontal(nd.crs, dom_crs):

@@ -58,7 +58,7 @@ def rectify(*, project, params_path, heights_path, allow_ballpark, eo_path, came
 
     Settings: the defaults, then project.toml [rectify], then the options given here (ortho/frames/index.json
     lists each with where it came from)."""
-    from aerotri.geom.crs import crs_label, parse_crs
+    from aerotri.geom.crs.definition import crs_label, parse_crs
     from ortho.block import rectify_block
 
     with executor_for(scheduler, workers) as executor:

@@ -23,9 +23,9 @@ from pyproj import CRS
 from rasterio.windows import Window, from_bounds
 
 from aerotri.core.errors import CrsError, InputError
-from aerotri.geom.crs import crs_label, height_crs, horizontal_crs, same_horizontal, vertical_crs
-from aerotri.geom.raster_warp import anchor_grid, height_change, interpolate_anchors, open_north_up
-from aerotri.geom.transform import CrsTransformer
+from aerotri.geom.crs.definition import crs_label, height_crs, horizontal_crs, same_horizontal, vertical_crs
+from aerotri.geom.crs.raster_warp import anchor_grid, height_change, interpolate_anchors, open_north_up
+from aerotri.geom.crs.transform import CrsTransformer
 
 
 @dataclasses.dataclass

@@ -9,7 +9,7 @@ time).
 Exterior orientations and DEMs are in the project CRS. When the product CRS differs (e.g. a
 3-degree Gauss-Krueger zone of CGCS2000 or Xian 1980 for a block surveyed in WGS 84 UTM),
 ``GridToProject`` maps output coordinates to project coordinates through the toolkit's one
-coordinate-operation policy (``aerotri.geom.transform``): a datum change needs the parameter set fitted
+coordinate-operation policy (``aerotri.geom.crs.transform``): a datum change needs the parameter set fitted
 from common points (``--params``), PROJ's ballpark operation is refused unless explicitly allowed. The
 operation is built once; per pixel it is interpolated from an anchor grid whose spacing is halved
 until the interpolation error at the cell centres is below a tolerance (default 1 mm on the ground).
@@ -25,9 +25,9 @@ from pyproj import CRS
 from rasterio.transform import Affine
 
 from aerotri.core.errors import CrsError, InputError
-from aerotri.geom.crs import crs_label, horizontal_crs, linear_unit_m, parse_crs
-from aerotri.geom.raster_warp import anchor_grid
-from aerotri.geom.transform import CrsTransformer
+from aerotri.geom.crs.definition import crs_label, horizontal_crs, linear_unit_m, parse_crs
+from aerotri.geom.crs.raster_warp import anchor_grid
+from aerotri.geom.crs.transform import CrsTransformer
 
 # EPSG codes of the 3-degree Gauss-Krueger zones with the central meridian in the code's name
 # (zone CM = 75E + 3 * (code - first)), 75E .. 135E.
@@ -148,7 +148,7 @@ def nice_resolution(gsd_m: float) -> float:
 class GridToProject:
     """Output-grid coordinates to project-CRS coordinates and back (built once per CRS pair).
 
-    ``operation``: the project -> output coordinate operation (``aerotri.geom.transform.CrsTransformer``,
+    ``operation``: the project -> output coordinate operation (``aerotri.geom.crs.transform.CrsTransformer``,
     with a parameter set and height model when the datums differ); None builds PROJ's operation under
     the policy (refused when it would be a ballpark). ``z_m``: the height used for the planimetric
     mapping (a datum change through geocentric coordinates depends on it by rotation x height, under a
@@ -189,7 +189,7 @@ class GridToProject:
     def anchors(self, grid: OrthoGrid, spacing_px: int = 256):
         """Project-CRS coordinates on anchor nodes every ``spacing_px`` pixels, covering the grid.
 
-        Returns (anchor_x_m, anchor_y_m, spacing_px) with shape (ny, nx) (``aerotri.geom.raster_warp.
+        Returns (anchor_x_m, anchor_y_m, spacing_px) with shape (ny, nx) (``aerotri.geom.crs.raster_warp.
         anchor_grid``: refined until bilinear interpolation between anchors reproduces the exact
         transform at cell centres within ``tolerance_m``; for an identical CRS one cell suffices).
         """

@@ -384,9 +384,9 @@ def _read_ndsm_on(path, transform, shape, crs, operation=None, ds=None):
     nDSM already open (``_open_checked_ndsm``), read instead of opening ``path`` again."""
     from rasterio.warp import reproject
 
-    from aerotri.geom.crs import height_unit_m, parse_crs, same_horizontal
-    from aerotri.geom.raster_warp import read_on_grid
-    from aerotri.geom.transform import CrsTransformer
+    from aerotri.geom.crs.definition import height_unit_m, parse_crs, same_horizontal
+    from aerotri.geom.crs.raster_warp import read_on_grid
+    from aerotri.geom.crs.transform import CrsTransformer
 
     out = np.full(shape, np.nan, np.float32)
     if ds is None and not Path(path).is_file():

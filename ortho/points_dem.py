@@ -36,7 +36,7 @@ _log = logging.getLogger(__name__)
 MIN_POINTS_PER_FRAME = 10
 from aerotri.core.project import Project
 from aerotri.core.textio import read_text
-from aerotri.geom.crs import project_crs
+from aerotri.geom.crs.definition import project_crs
 
 NODATA = -9999.0
 

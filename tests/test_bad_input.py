@@ -57,7 +57,7 @@ def _cli(prog: str):
     if prog == "aerotri":
         from aerotri.cli import main
     elif prog == "lidarctl":
-        from lidarctl.cli import main
+        from lidarctl.cli.main import main
     else:
         from ortho.cli import main
     return main
@@ -111,7 +111,7 @@ def build_workspace(tiny_project: Path, w: Path) -> Path:
 
 
 def _lidar_files(d: Path) -> None:
-    from aerotri.crs.synthetic import TRUE_BURSA_WOLF7, simulate_spatial, write_common_points
+    from aerotri.geom.crs.synthetic import TRUE_BURSA_WOLF7, simulate_spatial, write_common_points
     from lidarctl import synthetic
 
     d.mkdir(parents=True)
@@ -1759,7 +1759,7 @@ def test_bad_input_subprocess(case: Case, workspace, tmp_path):
     before = snapshot(w)
     # what the console script does (``main()`` of the command group) in a fresh interpreter; the source tree
     # on the path, so that it does not depend on how the package is installed
-    module = {"aerotri": "aerotri.cli", "lidarctl": "lidarctl.cli", "ortho": "ortho.cli"}[case.prog]
+    module = {"aerotri": "aerotri.cli", "lidarctl": "lidarctl.cli.main", "ortho": "ortho.cli"}[case.prog]
     code = f"import sys; sys.argv[0] = {case.prog!r}; from {module} import main; sys.exit(main())"
     env = dict(os.environ, PYTHONPATH=os.pathsep.join([str(REPO), os.environ.get("PYTHONPATH", "")]))
     r = subprocess.run([sys.executable, "-c", code, *formatted(case.args, w)], capture_output=True, text=True,

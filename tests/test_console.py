@@ -72,7 +72,7 @@ def cloud(tmp_path_factory) -> Path:
 
 
 def _run(prog, *args, cwd):
-    module = {"aerotri": "aerotri.cli", "lidarctl": "lidarctl.cli", "ortho": "ortho.cli"}[prog]
+    module = {"aerotri": "aerotri.cli", "lidarctl": "lidarctl.cli.main", "ortho": "ortho.cli"}[prog]
     code = f"import sys; sys.argv[0] = {prog!r}; from {module} import main; sys.exit(main())"
     return subprocess.run([sys.executable, "-c", code, *map(str, args)], capture_output=True, text=True, env=ENV,
                           cwd=cwd, timeout=600)

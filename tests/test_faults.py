@@ -44,7 +44,7 @@ def _cli(prog: str):
     if prog == "aerotri":
         from aerotri.cli import main
     elif prog == "lidarctl":
-        from lidarctl.cli import main
+        from lidarctl.cli.main import main
     else:
         from ortho.cli import main
     return main
@@ -232,7 +232,7 @@ def build_workspace(tiny_project: Path, w: Path) -> None:
     pz = synthetic.terrain_height(px - 500000.0, py - 5400000.0)
     (las / "points.csv").write_text("id,x,y,z\n" + "".join(f"P{k},{a:.3f},{b:.3f},{c:.3f}\n"
                                                             for k, (a, b, c) in enumerate(zip(px, py, pz))))
-    from aerotri.crs.synthetic import TRUE_BURSA_WOLF7, simulate_spatial, write_common_points
+    from aerotri.geom.crs.synthetic import TRUE_BURSA_WOLF7, simulate_spatial, write_common_points
 
     lon, lat, h = rng.uniform(109.6, 110.2, 8), rng.uniform(34.0, 34.5, 8), rng.uniform(400, 900, 8)
     src, dst, _ = simulate_spatial(TRUE_BURSA_WOLF7, 32649, 2361, lon_deg=lon, lat_deg=lat, h_m=h, noise_m=0.01, seed=2)
@@ -409,14 +409,14 @@ def forkserver():
     import multiprocessing
 
     ctx = multiprocessing.get_context("forkserver")
-    ctx.set_forkserver_preload(["aerotri.cli", "lidarctl.cli", "ortho.cli", "click.testing"])
+    ctx.set_forkserver_preload(["aerotri.cli", "lidarctl.cli.main", "ortho.cli", "click.testing"])
     return ctx
 
 
 def _kill_child(ctx, wr: Writer, w: Path, at: int) -> tuple[int, str]:
     """Run the command in a child process that SIGKILLs itself at its ``at``-th output move (or its third file
     created); the child's exit code (-9: killed) and what it said when it finished instead."""
-    module = {"aerotri": "aerotri.cli", "lidarctl": "lidarctl.cli", "ortho": "ortho.cli"}[wr.prog]
+    module = {"aerotri": "aerotri.cli", "lidarctl": "lidarctl.cli.main", "ortho": "ortho.cli"}[wr.prog]
     area = w / wr.area if (w / wr.area).exists() else (w / wr.area).parent
     report = w.parent / "child.txt"
     code = CHILD.format(hooks=str(REPO / "tests" / "fault_hooks.py"), module=module, create=wr.kill_on == "create",
@@ -503,7 +503,7 @@ def test_run_refuses_a_bad_later_input_before_its_first_stage(case, workspace, t
 
 
 def _console(prog, args, cwd, env=None, preexec=None, timeout=900):
-    module = {"aerotri": "aerotri.cli", "lidarctl": "lidarctl.cli", "ortho": "ortho.cli"}[prog]
+    module = {"aerotri": "aerotri.cli", "lidarctl": "lidarctl.cli.main", "ortho": "ortho.cli"}[prog]
     code = f"import sys; sys.argv[0] = {prog!r}; from {module} import main; sys.exit(main())"
     env = dict(os.environ, PYTHONPATH=os.pathsep.join([str(REPO), os.environ.get("PYTHONPATH", "")]), **(env or {}))
     return subprocess.run([sys.executable, "-c", code, *args], capture_output=True, text=True, cwd=cwd, env=env,

@@ -34,7 +34,7 @@ def test_wheel_file_list(wheel):
     for std in ("asprs2023", "usgs_lbs", "cn_at"):  # the standards of the compliance section
         assert f"aerotri/qa/standards/{std}.toml" in names
     assert any(n.endswith("dist-info/licenses/LICENSE") for n in names)
-    for pkg in ("aerotri/core/errors.py", "aerotri/geom/transform.py", "lidarctl/cli.py", "ortho/cli.py"):
+    for pkg in ("aerotri/core/errors.py", "aerotri/geom/crs/transform.py", "lidarctl/cli/main.py", "ortho/cli.py"):
         assert pkg in names
     assert not any(n.startswith(("tests/", "bench/", "datasets/")) for n in names)
     meta = zipfile.ZipFile(wheel).read(next(n for n in names if n.endswith("dist-info/METADATA"))).decode()

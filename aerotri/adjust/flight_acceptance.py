@@ -317,7 +317,7 @@ def project_flight_acceptance(root, limits: dict | None = None) -> FlightAccepta
     a DEM nor a mean terrain height."""
     from aerotri.core.project import Project
     from aerotri.adjust.report_record import adjusted_camera
-    from aerotri.geom.crs import parse_crs
+    from aerotri.geom.crs.definition import parse_crs
     from aerotri.geom.eo import read_eo, read_gnss
 
     project = Project.open(root)

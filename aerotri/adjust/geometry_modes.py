@@ -63,9 +63,10 @@ class CalibrationCovariance:
     times sigma0^2: px^2, m^2, px m).
 
     ``cal_cov`` (9, 9) in ``CAL_NAMES`` order; ``cross`` (len(MODES) + len(PLAN_MODES), 9): the covariance of
-    each mode (``MODES``, then ``PLAN_MODES``) with each calibration parameter; ``mode_var`` the modes'
-    variances; ``focal_shares``: which observation groups determine the mean focal length (as the modes'
-    shares); ``depth_m``: the median depth of the tie points below the cameras (the focal length's lever on
+    each mode (``MODES``, then ``PLAN_MODES``) with each calibration parameter, the ``height`` row the flying
+    height's (the tie points' mean height minus the projection centres': the block height where GNSS holds the
+    centres); ``mode_var`` the modes' variances (the same row the flying height's); ``focal_shares``: which
+    observation groups determine the mean focal length (as the modes' shares); ``depth_m``: the median depth of the tie points below the cameras (the focal length's lever on
     their heights)."""
 
     cal_cov: np.ndarray
@@ -179,10 +180,13 @@ def geometry_modes(block: G.Block, opts: G.SolveSettings, state: G.State, obs_ac
     l_p, rho = fun
     n_modes = len(l_p)
     l_c = None
-    if self_cal:  # the mean focal length as one more functional (camera part only)
-        l_p = np.concatenate([l_p, np.zeros((1,) + l_p.shape[1:])])
+    if self_cal:
+        # the mean focal length (camera part only), and the flying height: the tie points' mean height minus the
+        # projection centres' (pose tangent [omega, v], d centre / d v = R), what a focal length is confounded with
+        l_p = np.concatenate([l_p, np.zeros((1,) + l_p.shape[1:]), l_p[:1]])
         l_c = np.zeros((len(l_p), rc.n))
-        l_c[-1, rc.offset[K_KEY] + np.array([0, 1])] = 0.5
+        l_c[-2, rc.offset[K_KEY] + np.array([0, 1])] = 0.5
+        l_c[-1, (pr.pose_offset[:, None] + np.arange(3, 6)).ravel()] = -(state.R_cv[:, 2, :] / block.n_images).ravel()
     u_p, u_c, var = _apply_q(block, pr, rc, l_p, l_c)
     share = _shares(block, opts, state, control_active, rc, pr, u_p=u_p, u_c=u_c, var=var)
     out = []
@@ -195,15 +199,20 @@ def geometry_modes(block: G.Block, opts: G.SolveSettings, state: G.State, obs_ac
     s2 = sigma0**2
     cal_cov = rc.entries((k0 + np.arange(9))[:, None], (k0 + np.arange(9))[None, :]) * s2
     cross = u_c[:n_modes, k0:k0 + 9] * s2
+    mode_var = var[:n_modes] * s2
+    # the calibration against the flying height, not the tie points' height alone: with the projection centres
+    # held by GNSS (a survey receiver) the two are one; with a consumer receiver's free offset (or no GNSS) the
+    # centres move with the datum, and the focal length is confounded with the height above the ground
+    cross[0], mode_var[0] = u_c[-1, k0:k0 + 9] * s2, var[-1] * s2
     # the tie points' depth below the cameras: a relative focal change moves their heights by this times it
     k = np.flatnonzero(~np.isin(block.obs_point, block.control_point) & np.asarray(obs_active, bool))
     depth = np.einsum("kji,kj->ki", state.R_cv[block.obs_image[k]],
                       state.points[block.obs_point[k]] - state.centre[block.obs_image[k]])[:, 2]
-    cc = CalibrationCovariance(cal_cov, cross, var[:n_modes] * s2, {g: float(v[-1]) for g, v in share.items()},
+    cc = CalibrationCovariance(cal_cov, cross, mode_var, {g: float(v[-2]) for g, v in share.items()},
                                float(np.median(depth)) if len(depth) else float("nan"))
     if any(g == "focal" for g in opts.self_calibration):
         f = 0.5 * (state.cal[0] + state.cal[1])
-        sigma_f = float(np.sqrt(max(var[-1], 0.0))) * sigma0
+        sigma_f = float(np.sqrt(max(var[-2], 0.0))) * sigma0
         out.append(GeometryMode("focal_height", sigma_f / f * cc.depth_m, rho, dict(cc.focal_shares),
                                 _held(cc.focal_shares), cc.correlation("height", ("fx_px", "fy_px"))))
     return out, cc

@@ -20,6 +20,10 @@ Observation equations and their factors:
 - GNSS with shift/drift: ``a_i = C_i + R_i l`` (ReferenceFrameFactorPoint3Pose3 as a hard constraint)
   and the linear ``g_i = a_i + s_strip + t_i d_strip`` (t = along-track km) -> JacobianFactor in a
   LinearContainerFactor (exact, the equation is linear);
+- GNSS with one offset for the flight (``gnss_correction = "offset"``, a consumer receiver): as the shift, with
+  one shift ``s`` common to every image (``shift_index``);
+- a-priori sigma of the shifts (``Block.gnss_offset_sigma_m``, a receiver's absolute accuracy): a prior
+  ``s = 0`` on each shift, so that the shifts carry a datum of that precision without control;
 - control point: prior on the object point with its covariance rotated into ENU (a horizontal point
   has a loose height, a height point loose planimetry);
 - calibration parameters not estimated: tight priors.
@@ -83,6 +87,8 @@ class Block:
     control_rows: np.ndarray  # (C,) number of constrained components (3 full, 2 horizontal, 1 height)
     surface: SurfaceControl | None = None  # the DEM the tie points on the ground are held to
     surface_active: np.ndarray | None = None  # (P,) bool: points whose surface observation is used
+    # (3,) ENU a-priori sigma of each GNSS shift (the receiver's absolute accuracy, m); None: shifts unconstrained
+    gnss_offset_sigma_m: np.ndarray | None = None
 
     @property
     def n_images(self):
@@ -97,10 +103,27 @@ class Block:
         return int(self.strip.max()) + 1 if len(self.strip) else 0
 
 
+# the solve's GNSS models: the settings' corrections per strip, and one offset for the whole flight (a consumer
+# receiver's common error; chosen by project.toml [gnss] offset_sigma_xy_m, not by a correction setting)
+GNSS_MODELS = GNSS_CORRECTIONS + ("offset",)
+
+
+def shift_index(block: Block, correction: str) -> np.ndarray:
+    """(N,) the GNSS shift each image's position takes: its strip's, or the flight's one (``offset``)."""
+    if correction == "offset":
+        return np.zeros(block.n_images, dtype=int)
+    return np.asarray(block.strip, dtype=int)
+
+
+def n_shifts(block: Block, correction: str) -> int:
+    """How many GNSS shifts the solve estimates (0 without a correction)."""
+    return 0 if correction == "none" else 1 if correction == "offset" else block.n_strips
+
+
 @dataclasses.dataclass
 class SolveSettings:
     image_sigma_px: float = 0.5
-    gnss_correction: str = "none"  # none | shift | shift_drift
+    gnss_correction: str = "none"  # GNSS_MODELS: none | shift | shift_drift | offset
     self_calibration: tuple = ()  # subset of SELF_CAL_GROUPS
     huber_k: float = 2.5  # robust kernel threshold in standard deviations
     max_iterations: int = 100
@@ -111,8 +134,8 @@ class SolveSettings:
     eliminate_tie_points: bool = True  # Schur-eliminate the tie points (see module docstring)
 
     def __post_init__(self):
-        if self.gnss_correction not in GNSS_CORRECTIONS:
-            raise InputError(f"GNSS correction {self.gnss_correction!r} is not one of {GNSS_CORRECTIONS}")
+        if self.gnss_correction not in GNSS_MODELS:
+            raise InputError(f"GNSS correction {self.gnss_correction!r} is not one of {GNSS_MODELS}")
         bad = sorted(set(self.self_calibration) - set(SELF_CAL_GROUPS))
         if bad:
             raise InputError(f"self-calibration parameters {bad} are not among {sorted(SELF_CAL_GROUPS)}")
@@ -393,18 +416,23 @@ def build_graph(block: Block, opts: SolveSettings, state: State, obs_active, con
             drift = opts.gnss_correction == "shift_drift"
             v.insert(L_KEY, lever_cv)
             g.add(gtsam.PriorFactorPoint3(L_KEY, lever_cv, gtsam.noiseModel.Isotropic.Sigma(3, 1e-6)))
-            for s in range(block.n_strips):
+            n_shift, shift_of = n_shifts(block, opts.gnss_correction), shift_index(block, opts.gnss_correction)
+            for s in range(n_shift):
                 v.insert(S(s), np.asarray(state.shift[s], dtype=float))
                 if drift:
                     v.insert(D(s), np.asarray(state.drift[s], dtype=float))
-            n_unk += 3 * block.n_strips * (2 if drift else 1)
+                if block.gnss_offset_sigma_m is not None:  # the receiver's absolute accuracy bounds each shift
+                    prior = gtsam.noiseModel.Diagonal.Sigmas(np.asarray(block.gnss_offset_sigma_m, dtype=float))
+                    g.add(gtsam.PriorFactorPoint3(S(s), np.zeros(3), prior))
+                    n_eq += 3
+            n_unk += 3 * n_shift * (2 if drift else 1)
             hard = gtsam.noiseModel.Isotropic.Sigma(3, 1e-3)
             I3 = np.eye(3)
             for i in range(block.n_images):
                 a = state.centre[i] + state.R_cv[i] @ lever_cv
                 v.insert(A(i), a)
                 g.add(gtsam.ReferenceFrameFactorPoint3Pose3(L_KEY, X(i), A(i), hard))
-                s, t = int(block.strip[i]), float(block.along_km[i])
+                s, t = int(shift_of[i]), float(block.along_km[i])
                 lin = gtsam.Values()
                 lin.insert(A(i), a)
                 lin.insert(S(s), np.asarray(state.shift[s], dtype=float))

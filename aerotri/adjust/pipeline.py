@@ -17,7 +17,7 @@ import numpy as np
 from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 
-from aerotri.adjust import graph as G
+from aerotri.adjust import gnss_model, graph as G
 from aerotri.adjust.approximate import (
     approximate_orientations,
     approximate_points,
@@ -25,7 +25,7 @@ from aerotri.adjust.approximate import (
     refine_orientations,
 )
 from aerotri.geom.local_frame import LocalFrame
-from aerotri.geom.crs import height_unit_m, horizontal_crs, linear_unit_m, project_crs, project_heights
+from aerotri.geom.crs.definition import height_unit_m, horizontal_crs, linear_unit_m, project_crs, project_heights
 from aerotri.adjust.surface import SurfaceControl, read_height_grid, read_roof_planes
 from aerotri.geom.observations import (
     ControlPoints,
@@ -118,9 +118,14 @@ def connected_image_components(n_images, obs_point, obs_image) -> list[np.ndarra
     return sorted((np.array(g) for g in groups.values()), key=len, reverse=True)
 
 
-def datum_shortfall(control: ControlPoints, gnss: bool, correction: str, surface: bool = False) -> str | None:
+def datum_shortfall(control: ControlPoints, gnss: bool, correction: str, surface: bool = False,
+                    gnss_offset: bool = False) -> str | None:
     """Why the control points cannot fix the datum with (or without) GNSS and its corrections, or None.
-    With ``surface`` control (a DEM) the heights of every strip are observed: no height control is needed."""
+    With ``surface`` control (a DEM) the heights of every strip are observed: no height control is needed.
+    With ``gnss_offset`` (project.toml [gnss] offset_sigma_xy_m: the shifts' a-priori sigma) the GNSS carries
+    the datum to that sigma, which the report states."""
+    if gnss and gnss_offset:
+        return None
     n_xy = int(np.isin(control.kind, ["full", "horizontal"]).sum())
     n_z = int(np.isin(control.kind, ["full", "height"]).sum())
     if not gnss:
@@ -151,8 +156,9 @@ def _is_in(ids: np.ndarray, allowed) -> np.ndarray:
     return np.fromiter(map(allowed.__contains__, np.asarray(ids).tolist()), dtype=bool, count=len(ids))
 
 
-def check_datum(control: ControlPoints, gnss: bool, correction: str, surface: bool = False) -> None:
-    msg = datum_shortfall(control, gnss, correction, surface)
+def check_datum(control: ControlPoints, gnss: bool, correction: str, surface: bool = False,
+                gnss_offset: bool = False) -> None:
+    msg = datum_shortfall(control, gnss, correction, surface, gnss_offset)
     if msg:
         raise InputError(msg)
 
@@ -199,7 +205,7 @@ def _refuse_check_and_control(st: AdjustSettings) -> None:
 def _check_control_near_block(control: ControlPoints, positions_map, path, block_path, crs) -> None:
     """Control and check points where a frame of the block can see them (``aerotri.geom.inputs.check_near_block``):
     points of another zone or place are refused by their record, not adjusted into "Solution Successful"."""
-    from aerotri.geom.crs import linear_unit_m
+    from aerotri.geom.crs.definition import linear_unit_m
     from aerotri.geom.inputs import check_near_block
 
     if len(control):
@@ -213,7 +219,8 @@ def project_datum_shortfall(root, settings: AdjustSettings | None = None) -> str
     project = Project.open(root)
     st = _settings_from_project(project, settings or AdjustSettings())
     control, _ = read_project_control(project, st)
-    return datum_shortfall(control, st.use_gnss and project.gnss_path.exists(), st.gnss_correction, st.dem is not None)
+    return datum_shortfall(control, st.use_gnss and project.gnss_path.exists(), st.gnss_correction, st.dem is not None,
+                           project.gnss.offset_sigma_m is not None)
 
 
 def _initial_orientations(path, image_ids: list | None, crs=None) -> ExteriorOrientations:
@@ -268,6 +275,7 @@ class PreparedBlock:
     datum_notes: list = dataclasses.field(default_factory=list)  # what the datum rests on (no GNSS)
     level: object | None = None  # level_datum.LevelDatum: plan-only control, heights and tilt by assumption
     check_surface: SurfaceControl | None = None  # the check DEM (settings.check_dem): compared, not observed
+    gnss_sigma_source: str = ""  # where the GNSS positions' sigmas came from (gnss_model.sigma_source)
 
 
 def read_inputs(project: Project, settings: AdjustSettings | None = None) -> ProjectInputs:
@@ -299,7 +307,8 @@ def read_inputs(project: Project, settings: AdjustSettings | None = None) -> Pro
     validate_references(ties, control, cobs, image_ids, tie_path=project.tiepoints_path,
                         control_path=project.control_points_path, control_obs_path=project.control_image_points_path,
                         camera=cam, block_path=block_path, camera_path=project.camera_path)
-    check_datum(control, gnss is not None, st.gnss_correction, surface=st.dem is not None)
+    check_datum(control, gnss is not None, st.gnss_correction, surface=st.dem is not None,
+                gnss_offset=project.gnss.offset_sigma_m is not None)
     # a known k3 is taken off the measurements (Cal3DS2 has no k3; the camera keeps it for the outputs)
     ties = ImageObservations(ties.point_id, ties.image_id, cam.calibration_observations(ties.xy_px))
     cobs = ImageObservations(cobs.point_id, cobs.image_id, cam.calibration_observations(cobs.xy_px))
@@ -359,7 +368,8 @@ def _component_datum_gap(inp: ProjectInputs, ctrl_used: ControlPoints, ids: list
     cobs, st = inp.control_obs, inp.settings
     measured = np.unique(cobs.point_id[_is_in(cobs.image_id, ids)])
     ctrl = ctrl_used.subset(np.isin(ctrl_used.id, measured))
-    return datum_shortfall(ctrl, inp.gnss is not None, st.gnss_correction, st.dem is not None)
+    return datum_shortfall(ctrl, inp.gnss is not None, st.gnss_correction, st.dem is not None,
+                           inp.project.gnss.offset_sigma_m is not None)
 
 
 def _observations(inp: ProjectInputs, ctrl_used: ControlPoints) -> _Observations:
@@ -494,7 +504,7 @@ def _surface_control(project: Project, st: AdjustSettings, frame: LocalFrame, po
                          f"{bounds[1]:.0f}..{bounds[3]:.0f} in the project CRS)")
     ndsm = read_height_grid(st.ndsm, crs, None, "nDSM", bounds) if st.ndsm is not None else None
     planes = read_roof_planes(st.planes, crs, heights, st.plane_sigma_m) if st.planes is not None and not check else None
-    # the frame's map heights are in the horizontal CRS's height unit (geom.transform's convention)
+    # the frame's map heights are in the horizontal CRS's height unit (geom.crs.transform's convention)
     units = (linear_unit_m(crs), height_unit_m(horizontal_crs(crs)))
     return SurfaceControl(dem, frame, sigma_m=float(st.surface_sigma_m), ndsm=ndsm, max_ndsm_m=float(st.max_ndsm_m),
                           planes=planes, map_unit_m=units)
@@ -528,11 +538,15 @@ def prepare_project(root, settings: AdjustSettings | None = None) -> tuple[Prepa
         control_point=np.array([ob.control_position[p] for p in ctrl_used.id], dtype=int), control_local=given_loc,
         control_cov_local=cov_loc, control_rows=rows,
     )
+    correction = st.gnss_correction if gl is not None else "none"
+    if gl is not None and project.gnss.offset_sigma_m is not None:  # a consumer receiver: the flight's offset
+        block.gnss_offset_sigma_m = np.array(project.gnss.offset_sigma_m, dtype=float)
+        correction = "offset" if correction == "none" else correction
     if st.dem is not None:
         block.surface = _surface_control(project, st, frame, approx_pos_map)
     check_surface = _surface_control(project, st, frame, approx_pos_map, check=True) if st.check_dem is not None else None
     opts = G.SolveSettings(
-        image_sigma_px=float(st.image_sigma_px), gnss_correction=st.gnss_correction if gl is not None else "none",
+        image_sigma_px=float(st.image_sigma_px), gnss_correction=correction,
         self_calibration=tuple(st.self_calibration),
     )
     state0 = _approximations(inp, frame, block, ob.image_ids)
@@ -555,6 +569,7 @@ def prepare_project(root, settings: AdjustSettings | None = None) -> tuple[Prepa
         gnss_map=gnss.position_m[ob.order] if gnss is not None else None, n_tie_points=ob.n_tie,
         components=ob.components, left_out=ob.left_out, datum_notes=notes, level=level,
         check_surface=check_surface,
+        gnss_sigma_source=gnss_model.sigma_source(project, gnss.sigma_m is not None) if gnss is not None else "",
     )
     return prepared, state0
 
@@ -597,6 +612,11 @@ def adjust_project(root, settings: AdjustSettings | None = None) -> BlockAdjustm
         # the focal length was fixed: its mode as the solve that estimated it found it
         result.geometry = list(result.geometry or []) + [dataclasses.replace(
             focal_mode, note="from the solve that estimated the focal length; fixed since")]
+    if prepared.block.gnss_local is not None:  # the GNSS model and where its sigmas came from (DATUM)
+        b = prepared.block
+        prepared.datum_notes.append(gnss_model.statement(
+            prepared.opts.gnss_correction, b.gnss_sigma_m, prepared.gnss_sigma_source, b.gnss_offset_sigma_m,
+            f"{prepared.project.config_path.name} [gnss] offset_sigma_xy_m, offset_sigma_z_m", result.state.shift))
     ba = finish(prepared, result)
     ba.self_calibration_requested = requested
     ba.calibration_checks = [checks[g] for g in requested if g in checks]

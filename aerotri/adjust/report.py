@@ -160,7 +160,7 @@ def _photo_rows(ba, res: _Residuals) -> list[dict]:
     photos = []
     corr = None
     if ba.gnss_residual_m is not None and ba.opts.gnss_correction != "none":
-        s, t = b.strip.astype(int), np.asarray(b.along_km, dtype=float)
+        s, t = G.shift_index(b, ba.opts.gnss_correction), np.asarray(b.along_km, dtype=float)
         st = ba.result.state
         corr = st.shift[s] + (t[:, None] * st.drift[s] if ba.opts.gnss_correction == "shift_drift" else 0.0)
     # each frame's observations at once (a mask over all observations per frame would cost frames x observations)
@@ -320,7 +320,8 @@ def _self_calibration_option(ba) -> str:
 def _options(ba, tolerances: str) -> dict:
     """The ISAT "PhotoT Triangulation Options" block."""
     r, b, opts, st = ba.result, ba.block, ba.opts, ba.settings
-    gps_mode = {"none": "Disabled", "shift": "Enabled (shift per strip)", "shift_drift": "Enabled (shift and drift per strip)"}
+    gps_mode = {"none": "Disabled", "shift": "Enabled (shift per strip)", "shift_drift": "Enabled (shift and drift per strip)",
+                "offset": "Enabled (one offset for the flight)"}
     has_gnss = b.gnss_local is not None
     return {
         "adjustment_mode": "Absolute" if (len(ba.control) or has_gnss) else "Relative",
@@ -372,10 +373,13 @@ class GnssCorrectionCheck:
     k: float
     n: int
     suspect: tuple  # of (strip 1-based, "shift" | "drift", axis "E" | "N" | "U", displacement m)
+    source: str = "gnss_shift_sigma_m"  # the setting the a-priori sigma comes from
+    sigma_axis_m: tuple = ()  # (E, N, U) a-priori sigma per axis (the offset's plan and height); () all sigma_m
 
     def reasons(self) -> list[str]:
+        sig = dict(zip("ENU", self.sigma_axis_m or (self.sigma_m,) * 3))
         return [f"strip {s} {term} {axis} {v:+.3f} m{' at the strip end' if term == 'drift' else ''} "
-                f"({abs(v) / self.sigma_m:.1f} sigma)" for s, term, axis, v in self.suspect]
+                f"({abs(v) / sig[axis]:.1f} sigma)" for s, term, axis, v in self.suspect]
 
 
 def gnss_correction_check(ba) -> GnssCorrectionCheck | None:
@@ -386,16 +390,20 @@ def gnss_correction_check(ba) -> GnssCorrectionCheck | None:
     if mode == "none" or ba.block.gnss_local is None:
         return None
     st, b = ba.result.state, ba.block
-    sigma = float(ba.settings.gnss_shift_sigma_m)
-    terms = [("shift", np.asarray(st.shift, dtype=float))]
+    if b.gnss_offset_sigma_m is not None:  # the shifts' own a-priori sigma (a consumer receiver's, per axis)
+        sigma_axis, source = np.asarray(b.gnss_offset_sigma_m, dtype=float), "[gnss] offset_sigma_xy_m, offset_sigma_z_m"
+    else:
+        sigma_axis, source = np.full(3, float(ba.settings.gnss_shift_sigma_m)), "gnss_shift_sigma_m"
+    sigma = float(sigma_axis[0])
+    terms = [("shift", np.asarray(st.shift, dtype=float)[:G.n_shifts(b, mode)])]
     if mode == "shift_drift":
         half_km = np.array([np.abs(b.along_km[b.strip == s]).max(initial=0.0) for s in range(b.n_strips)])
         terms.append(("drift", np.asarray(st.drift, dtype=float) * half_km[:, None]))
     n = sum(v.size for _, v in terms)
     k = float(norm.isf(GNSS_CORRECTION_ALPHA / (2 * n)))
     suspect = tuple((s + 1, term, "ENU"[a], float(v[s, a])) for term, v in terms
-                    for s in range(v.shape[0]) for a in range(3) if abs(v[s, a]) > k * sigma)
-    return GnssCorrectionCheck(sigma, round(k, 2), n, suspect)
+                    for s in range(v.shape[0]) for a in range(3) if abs(v[s, a]) > k * sigma_axis[a])
+    return GnssCorrectionCheck(sigma, round(k, 2), n, suspect, source, tuple(float(x) for x in sigma_axis))
 
 
 @dataclasses.dataclass(frozen=True)
@@ -489,7 +497,7 @@ def _key_statistics(ba, height_limit_m: float) -> dict:
     gcc = gnss_correction_check(ba)
     if gcc is not None and gcc.suspect:
         weaknesses.append(f"GNSS corrections suspect, beyond {gcc.k:g} a-priori sigmas of {gcc.sigma_m:g} m "
-                          f"(gnss_shift_sigma_m; 1 % false alarms over the block's {gcc.n} estimates): "
+                          f"({gcc.source}; 1 % false alarms over the block's {gcc.n} estimates): "
                           + "; ".join(gcc.reasons()) + ". An error of the block's datum or of the GNSS may be absorbed.")
     udc = unmodelled_drift_check(ba)
     if udc is not None and udc.trends:
@@ -624,8 +632,8 @@ class AdjustmentReport:
     gnss_strips: list | None
     surface_control: dict | None
     dem_checks: list
-    variance_components: dict | None
-    geometry_modes: dict | None
+    variance_components: list | None
+    geometry_modes: list | None
     flight_acceptance: dict | None
     timings_s: dict
     settings: dict | None = None
@@ -688,7 +696,7 @@ def build_report(ba, map_scale: str = "1:5000", terrain: str = "flat", tolerance
         "worst_tie_points": worst_points,
         "self_calibration": _self_calibration(ba),
         "gnss_strips": [{"strip": s + 1, "shift_m": _lst(r.state.shift[s], 4), "drift_m_per_km": _lst(r.state.drift[s], 4)}
-                        for s in range(b.n_strips)] if opts.gnss_correction != "none" else None,
+                        for s in range(G.n_shifts(b, opts.gnss_correction))] if opts.gnss_correction != "none" else None,
         "surface_control": _surface_control(ba),
         "dem_checks": [_dem_check_dict(d) for d in getattr(ba, "dem_checks", []) or []],
         "variance_components": _variance_components(ba),

@@ -15,6 +15,11 @@ from typing import ClassVar
 from aerotri.core.settings import PROJECT_TOML, DEFAULT, Resolved, setting
 
 GNSS_CORRECTIONS = ("none", "shift", "shift_drift")
+# the self-calibration of a camera that is the EXIF's nominal one (focal length from EXIF, principal point at the
+# centre, no distortion: aerotri.exchange.exif), when none is asked for: a consumer wide-angle lens's radial
+# distortion is tens of pixels at the corners (Brighton Beach's FC300S: 60 px), which its tie points determine; the
+# focal length only with height control (a DEM or control points), so it is the user's to add
+NOMINAL_CAMERA_SELF_CAL = ("pp", "radial")
 SELF_CAL_GROUP_NAMES = ("focal", "pp", "radial", "tangential")  # aerotri.adjust.graph.SELF_CAL_GROUPS' keys
 
 
@@ -108,11 +113,24 @@ def _usable_roof_planes(project) -> bool:
     return summary.get("n_usable", 1) > 0
 
 
+def _exif_nominal_camera(project) -> str | None:
+    """The name of the project's camera when it is the EXIF's nominal one (``aerotri.exchange.exif``), else None."""
+    from aerotri.core.errors import InputError
+    from aerotri.geom.camera import Camera
+
+    try:
+        cam = Camera.read(project.camera_path)
+    except (InputError, OSError, ValueError):
+        return None  # no or a bad camera.toml: the adjustment says so
+    return cam.name if cam.name.endswith("(EXIF nominal)") else None
+
+
 def for_project(project, resolved: Resolved, *, first: bool = False, datum_shortfall=None) -> Resolved:
     """The adjustment settings completed from the project folder, the same for ``aerotri adjust P`` and both
     adjustments of ``aerotri run`` (so that a stage run by hand with no options gives what the chain gives):
 
     - ``lever_arm_m`` not given: project.toml [gnss] lever_arm_m (else zero);
+    - ``self_calibration`` not given and the camera the EXIF's nominal one: ``NOMINAL_CAMERA_SELF_CAL``;
     - no DEM given and ``lidar_surface``: the LiDAR stages' DEM, nDSM and roof planes when lidar_out/ has them
       (the roof planes only with usable roof corners);
     - ``first``: the chain's first adjustment, tie points and GNSS only (no control, no GNSS corrections);
@@ -128,6 +146,13 @@ def for_project(project, resolved: Resolved, *, first: bool = False, datum_short
         source = project.source_of("gnss", "lever_arm_m")
         resolved = resolved.replace("lever_arm_m", project.gnss.lever_arm_m,
                                     f"{PROJECT_TOML} [gnss]" if source == PROJECT_TOML else source)
+    if not s.self_calibration and resolved.sources.get("self_calibration", DEFAULT) == DEFAULT:
+        name = _exif_nominal_camera(project)
+        if name is not None:
+            resolved = resolved.replace("self_calibration", NOMINAL_CAMERA_SELF_CAL, DEFAULT,
+                                        f"the camera is the EXIF's nominal one ({name}): principal point and radial "
+                                        "distortion estimated; the focal length needs height control (add focal with "
+                                        "a DEM or control points)")
     if first:
         for path, value in (("use_control", False), ("gnss_correction", "none"), ("check", ()), ("control", ())):
             resolved = resolved.replace(path, value, "aerotri run (first adjustment: tie points and GNSS)")

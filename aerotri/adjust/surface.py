@@ -133,8 +133,8 @@ def read_height_grid(path, project_crs, project_heights=None, what: str = "DEM",
     import rasterio
     from rasterio.windows import from_bounds
 
-    from aerotri.geom.crs import crs_label, parse_crs, same_horizontal, same_vertical, vertical_crs
-    from aerotri.geom.raster_warp import open_north_up
+    from aerotri.geom.crs.definition import crs_label, parse_crs, same_horizontal, same_vertical, vertical_crs
+    from aerotri.geom.crs.raster_warp import open_north_up
 
     path = Path(path)
     with open_north_up(path, what, square=True, heights=True) as ds:
@@ -250,7 +250,7 @@ def read_roof_planes(path, project_crs, project_heights=None, plane_sigma_m: flo
     from shapely.geometry import shape
 
     from aerotri.core.errors import InputError
-    from aerotri.geom.crs import crs_label, height_unit_m, linear_unit_m, parse_crs, same_horizontal, same_vertical, \
+    from aerotri.geom.crs.definition import crs_label, height_unit_m, linear_unit_m, parse_crs, same_horizontal, same_vertical, \
         vertical_crs
 
     path = Path(path)

@@ -40,11 +40,11 @@ class VarianceComponent:
 
 def adjusted_gnss(block: G.Block, opts: G.SolveSettings, state: G.State) -> np.ndarray:
     """The GNSS positions the solution predicts (N, 3, local frame): antenna ``C + R l``, plus the strip's
-    shift (and drift times the along-track km) when the solve corrects them."""
+    shift (the flight's one offset; and drift times the along-track km) when the solve corrects them."""
     pred = state.centre + state.R_cv @ (FLIP_YZ @ block.lever_arm_m)
     if opts.gnss_correction == "none":
         return pred
-    s, t = block.strip.astype(int), np.asarray(block.along_km, dtype=float)
+    s, t = G.shift_index(block, opts.gnss_correction), np.asarray(block.along_km, dtype=float)
     return pred + state.shift[s] + (t[:, None] * state.drift[s] if opts.gnss_correction == "shift_drift" else 0.0)
 
 
@@ -61,7 +61,7 @@ def gnss_rows(block: G.Block, opts: G.SolveSettings, state: G.State) -> tuple[np
             rows.append([(X(i), np.hstack([-state.R_cv[i] @ lx, state.R_cv[i]]))])
         return pred, rows
     drift = opts.gnss_correction == "shift_drift"
-    s, t = block.strip.astype(int), np.asarray(block.along_km, dtype=float)
+    s, t = G.shift_index(block, opts.gnss_correction), np.asarray(block.along_km, dtype=float)
     eye = np.eye(3)
     for i in range(block.n_images):
         rows.append([(A(i), eye), (S(s[i]), eye)] + ([(D(s[i]), t[i] * eye)] if drift else []))

@@ -33,11 +33,11 @@ from aerotri.control.settings import ControlSettings
 from aerotri.core.project import PROJECT_SECTIONS, STAGE_SECTION_NAMES, Project, check_sections
 from aerotri.core.settings import Resolved, resolve
 from aerotri.match.settings import MatchSettings
-from lidarctl.classify import ClassifySettings
-from lidarctl.corners import CornerSettings
-from lidarctl.rasters import RasterSettings
+from lidarctl.classify.pipeline import ClassifySettings
+from lidarctl.corners.roof_corners import CornerSettings
+from lidarctl.rasters.products import RasterSettings
 from lidarctl.strips.settings import StripsSettings
-from lidarctl.vectors_settings import VectorsSettings
+from lidarctl.vectors.settings import VectorsSettings
 from ortho.settings import CheckSettings, MosaicSettings, RectifySettings
 
 # section -> the settings dataclass of the stage it configures (in chain order)

@@ -155,7 +155,7 @@ def _camera_text(frames: dict[str, Path], size: tuple[int, int], camera_path: Pa
 def init_project(root, images_dir, crs: str, camera_path=None, copy: bool = False, name: str | None = None) -> InitResult:
     """Make the project folder ``root`` (module docstring); ``root`` must not exist or be an empty folder.
     Returns what was made."""
-    from aerotri.geom.crs import crs_label
+    from aerotri.geom.crs.definition import crs_label
     from aerotri.geom.eo import check_block_crs
 
     root, images_dir = Path(root), Path(images_dir)

@@ -152,7 +152,7 @@ class Chain:
             return why
         if not self.options.adjust.use_control:
             return f"{self.project.config_path}: [adjust] use_control = false"
-        from lidarctl.corners import read_corner_summary
+        from lidarctl.corners.roof_corners import read_corner_summary
 
         path = self.project.corners_summary_path
         if path.is_file() and read_corner_summary(path).no_usable:
@@ -190,7 +190,7 @@ class Chain:
         # (a wrong one would otherwise stop the chain at the orthophotos, after the adjustment)
         given = self.options.rectify.dem
         if given is not None:
-            from aerotri.geom.crs import project_crs
+            from aerotri.geom.crs.definition import project_crs
             from ortho.dem import open_height_raster
 
             with open_height_raster(given, project_crs(self.project)) as ds:
@@ -203,7 +203,7 @@ class Chain:
 
     def _check_stage_inputs(self) -> None:
         """(``check_files``) the project's own inputs of the stages, each with its stage's reader."""
-        from aerotri.geom.crs import project_crs
+        from aerotri.geom.crs.definition import project_crs
         from aerotri.geom.eo import read_eo
         from aerotri.geom.observations import read_control_points, read_image_points
         from aerotri.match.pipeline import check_inputs as check_match_inputs
@@ -233,7 +233,7 @@ class Chain:
                 with open_height_raster(path, project_crs(p), what) as ds:
                     _read_ends(ds, path, what)
         if self.reference_ortho is not None:
-            from aerotri.geom.raster_warp import open_north_up
+            from aerotri.geom.crs.raster_warp import open_north_up
 
             _check_raster(self.reference_ortho, "reference orthophoto")
             open_north_up(self.reference_ortho, "reference orthophoto").close()  # georeferenced, with a CRS
@@ -242,7 +242,7 @@ class Chain:
 
                 read_roof_corners(self.roof_corners_path())
         if self.surveyed_points is not None:
-            from lidarctl.heights_check import read_points_csv
+            from lidarctl.checks.heights import read_points_csv
 
             read_points_csv(self.surveyed_points)
 
@@ -369,13 +369,13 @@ class Chain:
         return R.ClassifyResult(points=st.n_points, strips=st.n_files, tiles=st.run.n_tiles)
 
     def run_rasters(self, root) -> R.RastersResult:
-        from lidarctl.rasters import write_rasters
+        from lidarctl.rasters.products import write_rasters
 
         write_rasters(self.classified(), self.lo, self.options.rasters.res_m, crs=self.project.crs)
         return R.RastersResult(res_m=self.options.rasters.res_m)
 
     def corner_outputs(self, root) -> list[Path]:
-        from lidarctl.corners import read_corner_summary
+        from lidarctl.corners.roof_corners import read_corner_summary
 
         path = self.project.corners_summary_path
         usable = read_corner_summary(path).stats.n_usable > 0 if path.is_file() else True
@@ -383,7 +383,7 @@ class Chain:
             [self.project.corners_path, self.project.roof_planes_path] if usable else [])
 
     def run_corners(self, root) -> R.CornersResult:
-        from lidarctl.corners import corner_control
+        from lidarctl.corners.roof_corners import corner_control
 
         res = corner_control(self.classified(), self.lo, self.stage_settings("corners"), record_none=True)
         notes = ()
@@ -412,8 +412,8 @@ class Chain:
     def run_vectors(self, root) -> R.VectorsResult:
         from aerotri.core.tolerances import qa_settings
         from aerotri.geom.block_scale import project_block_scale
-        from lidarctl.map_vectors import MapVectorSettings, vectors_to_file
-        from lidarctl.vector_check import VectorCheckSettings, check_files
+        from lidarctl.vectors.layers import MapVectorSettings, vectors_to_file
+        from lidarctl.checks.vectors import VectorCheckSettings, check_files
 
         p = self.project
         s = vectors_to_file(self.classified(), p.vectors_path, params=MapVectorSettings(), crs=p.crs)
@@ -649,7 +649,7 @@ class Chain:
                                 roofs_count=roofs.count if roofs else None)
 
     def run_height_check(self, root) -> R.HeightCheckResult:
-        from lidarctl.heights_check import check_heights_file
+        from lidarctl.checks.heights import check_heights_file
 
         result = check_heights_file(self.classified(), self.surveyed_points)
         write_text_atomic(self.project.height_check_path, result.to_json())
@@ -657,7 +657,7 @@ class Chain:
         return R.HeightCheckResult(rmse_m=r.rmse_m, mean_abs_dz_m=r.mean_abs_dz_m, n=r.n_checked)
 
     def run_lidar_eval(self, root) -> R.LidarEvalResult:
-        from lidarctl.evaluate import evaluate_strips, read_filter_test
+        from lidarctl.checks.classes import evaluate_strips, read_filter_test
 
         # each classified strip against its truth strip (truth/lidar/, same name, same points)
         result = evaluate_strips(self.classified(), self.project.truth_strips())

@@ -19,7 +19,7 @@ from aerotri.core.errors import InputError
 from aerotri.core.textio import read_text
 
 REQUIRED = ["id", "x", "y", "z", "sx_m", "sy_m", "sz_m", "edge1_deg", "edge2_deg", "angle_deg", "score"]
-USABLE_SCORE = 0.5  # lidarctl.corners.USABLE_SCORE (same rule when the file has no usable column)
+USABLE_SCORE = 0.5  # lidarctl.corners.roof_corners.USABLE_SCORE (same rule when the file has no usable column)
 
 
 @dataclasses.dataclass
@@ -89,7 +89,7 @@ def read_corners(path, crs=None) -> LidarCorners:
         raise InputError(f"{path}: no corners")
     a = np.array(num, dtype=float)
     if crs is not None:
-        from aerotri.geom.crs import check_coordinates
+        from aerotri.geom.crs.definition import check_coordinates
 
         check_coordinates(crs, a[:, 0], a[:, 1], str(path), [f"line {seen[i]} (corner {i})" for i in ids])
     return LidarCorners(

@@ -517,7 +517,7 @@ def run_control(root, corners_path=None, eo_path=None, camera_path=None, manual_
         raise InputError(f"{eo_path}: orientations not found (run the first aerotri adjust, tie points + GNSS, "
                          "or pass --eo FILE)")
     eo = read_eo(eo_path, crs)
-    from aerotri.geom.crs import linear_unit_m
+    from aerotri.geom.crs.definition import linear_unit_m
     from aerotri.geom.inputs import check_near_block
 
     # LiDAR corners of another zone or place than the block's frames: refused by name, not "none measured"

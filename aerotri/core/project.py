@@ -55,8 +55,29 @@ class GnssSettings:
     sigma_xy_m: float = setting(0.05, min=0.0, min_open=True, help="A-priori standard deviation of a GNSS position "
                                                                     "in plan (records of gnss.txt without their own).")
     sigma_z_m: float = setting(0.1, min=0.0, min_open=True, help="A-priori standard deviation of a GNSS height.")
+    offset_sigma_xy_m: float | None = setting(
+        None, min=0.0, min_open=True,
+        help="A consumer receiver: a-priori standard deviation in plan of one offset common to every position of the "
+             "flight (its absolute accuracy, metres), which the adjustment estimates; sigma_xy_m and sigma_z_m are "
+             "then the errors between frames (decimetres). aerotri import --format exif writes it when the EXIF "
+             "states no accuracy. Not given: no offset (a survey receiver's positions).")
+    offset_sigma_z_m: float | None = setting(None, min=0.0, min_open=True,
+                                             help="The flight offset's a-priori standard deviation in height (with "
+                                                  "offset_sigma_xy_m).")
     lever_arm_m: tuple[float, float, float] = setting(
         (0.0, 0.0, 0.0), help="Antenna offset from the projection centre in the camera frame (x right, y up, z up).")
+
+    def __post_init__(self):
+        if (self.offset_sigma_xy_m is None) != (self.offset_sigma_z_m is None):
+            raise ValueError("offset_sigma_xy_m and offset_sigma_z_m: give both (the flight offset's a-priori "
+                             "standard deviations in plan and height, m) or neither")
+
+    @property
+    def offset_sigma_m(self) -> tuple[float, float, float] | None:
+        """(east, north, up) a-priori sigma of the flight's GNSS offset (m), or None: no offset."""
+        if self.offset_sigma_xy_m is None:
+            return None
+        return (self.offset_sigma_xy_m, self.offset_sigma_xy_m, self.offset_sigma_z_m)
 
 
 @dataclasses.dataclass(frozen=True)

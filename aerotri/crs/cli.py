@@ -13,19 +13,12 @@ from aerotri.core.atomic import refuse_input_as_output
 from aerotri.core.commands import Group, at_least, positive
 import numpy as np
 
-from aerotri.geom.crs import crs_label, parse_crs
-from aerotri.crs.files import (
-    fit_common_points,
-    load_height_model,
-    load_transformation,
-    read_height_points,
-    transform_points_file,
-    write_json,
-)
-from aerotri.geom.datum import HEIGHT_MODELS, MODELS, PARAMETER_NAMES
-from aerotri.crs.heights import fit_height_anomaly
-from aerotri.crs.raster import KINDS, warp_raster
-from aerotri.geom.raster_warp import RESAMPLING
+from aerotri.geom.crs.definition import crs_label, parse_crs
+from aerotri.geom.crs.files import fit_common_points, read_height_points, transform_points_file, write_json
+from aerotri.geom.crs.datum import HEIGHT_MODELS, MODELS, PARAMETER_NAMES, load_height_model, load_transformation
+from aerotri.geom.crs.heights import fit_height_anomaly
+from aerotri.geom.crs.raster import KINDS, warp_raster
+from aerotri.geom.crs.raster_warp import RESAMPLING
 from aerotri.core.errors import InputError
 
 log = logging.getLogger(__name__)

@@ -12,7 +12,9 @@ GDAL-written TIFFs as ``EXIF_*`` items and the XMP packet as the ``xml:XMP`` dom
   camera offset is not known and not applied.
 - accuracy: DJI RTK ``RtkStdLon``, ``RtkStdLat``, ``RtkStdHgt`` (m) -> gnss.txt sX sY sZ (east, north, up
   taken as the grid axes: the meridian convergence mixes sX and sY by less than their difference matters),
-  else ``--sigma-xyz``, else none.
+  else ``--sigma-xyz``, else none in gnss.txt and, when project.toml has no [gnss] section, a consumer
+  receiver's model appended to it (``CONSUMER_GNSS``: decimetres between frames, one offset of metres for the
+  flight; ``aerotri.adjust.gnss_model``).
 - camera: DJI ``DewarpData`` = ``date;fx,fy,cx,cy,k1,k2,p1,p2,k3`` (the factory calibration; fx, fy in
   pixels, cx, cy the principal point's offset from the photo centre in pixels, x right, y down, for the
   full sensor of EXIF ``PixelXDimension`` x ``PixelYDimension``; k1 k2 p1 p2 k3 OpenCV's Brown model on
@@ -54,6 +56,23 @@ from aerotri.geom.rotation import FLIP_YZ, opk_from_matrix
 log = logging.getLogger(__name__)
 
 DEFAULT_CRS = "EPSG:4979"  # WGS84 latitude, longitude, ellipsoidal height
+# A consumer drone's GNSS (no RTK, the EXIF states no accuracy), written into project.toml [gnss] by the import:
+# sigma_xy_m, sigma_z_m between frames of one flight, and offset_sigma_xy_m, offset_sigma_z_m of the one offset
+# common to the flight (its absolute accuracy; aerotri.adjust.gnss_model). Measured on Brighton Beach (DJI FC300S)
+# with the ODM cloud's DEM as surface control: GNSS residuals about the estimated offset 0.32 / 0.54 m RMS east /
+# north, 0.39 m in height (bench/eval_consumer_gnss.py); the offset's 3 / 5 m a consumer receiver's absolute accuracy.
+CONSUMER_GNSS = (0.5, 0.5, 3.0, 5.0)
+
+
+def consumer_gnss_section() -> str:
+    """The [gnss] section of a consumer drone's GNSS (``CONSUMER_GNSS``) for project.toml, with comments."""
+    sxy, sz, oxy, oz = CONSUMER_GNSS
+    return ("[gnss]  # aerotri import --format exif: the EXIF states no accuracy (no RTK), a consumer receiver's GNSS\n"
+            f"sigma_xy_m = {sxy}         # between frames of one flight (m)\n"
+            f"sigma_z_m = {sz}\n"
+            f"offset_sigma_xy_m = {oxy}  # one offset common to the flight, estimated by the adjustment: the "
+            "receiver's absolute accuracy (m)\n"
+            f"offset_sigma_z_m = {oz}\n")
 DIAGONAL_35MM_MM = math.hypot(36.0, 24.0)
 
 # body (x forward, y right, z down) -> computer-vision camera (x right, y down, z forward): the camera looks
@@ -384,11 +403,21 @@ def read(files, project: Project, options: ImportSettings) -> ImportedBlock:
         sigma = np.tile(np.asarray(options.sigma_xyz_m, float), (len(metas), 1))
     else:
         sigma = None
-    if sigma is None and any(project.source_of("gnss", k) != "project.toml" for k in ("sigma_xy_m", "sigma_z_m")):
+    if sigma is None and "gnss" not in project.config:
+        # a consumer receiver: its model into project.toml, not the [gnss] defaults (a survey receiver's 0.05 / 0.1 m)
+        block.gnss_section = consumer_gnss_section()
+        sxy, sz, oxy, oz = CONSUMER_GNSS
+        block.notes.append(f"positions: the EXIF states no accuracy (no DJI RTK): {project.config_path.name} [gnss] "
+                           f"gets a consumer receiver's model, {sxy:g} / {sz:g} m between frames and one offset for "
+                           f"the flight of {oxy:g} / {oz:g} m (plan / height) that the adjustment estimates; edit "
+                           "them for your receiver, or give --sigma-xyz for positions of a stated accuracy")
+    elif sigma is None and any(project.source_of("gnss", k) != "project.toml" for k in ("sigma_xy_m", "sigma_z_m")):
         g = project.gnss
         block.notes.append(f"positions: the EXIF states no accuracy (no DJI RTK): the adjustment takes [gnss] "
-                           f"sigma_xy_m / sigma_z_m ({g.sigma_xy_m:g} / {g.sigma_z_m:g} m); give --sigma-xyz or set them "
-                           "for a consumer drone's GNSS, metres off")
+                           f"sigma_xy_m / sigma_z_m ({g.sigma_xy_m:g} / {g.sigma_z_m:g} m); for a consumer drone set "
+                           f"them to {CONSUMER_GNSS[0]:g} / {CONSUMER_GNSS[1]:g} and offset_sigma_xy_m / "
+                           f"offset_sigma_z_m to {CONSUMER_GNSS[2]:g} / {CONSUMER_GNSS[3]:g} (one offset of the "
+                           "flight, metres), or give --sigma-xyz")
     if all(m.relative_alt_m is not None for m in metas):
         # the ground at the take-off point, in the project's heights: a terrain height for the frames' footprints
         takeoff_m = float(np.median(xyz[:, 2] - np.array([m.relative_alt_m for m in metas])))

@@ -8,12 +8,12 @@
   that carries no CRS is read in the project CRS only when that CRS is in metres: in a project in feet
   ``--crs`` must say whether the file is in metres or feet.
 - **Coordinates where the project is**: every imported position must lie in the area of use of the project
-  CRS (``aerotri.geom.crs.check_coordinates``: degrees, swapped axes, a far zone); and, where the project
+  CRS (``aerotri.geom.crs.definition.check_coordinates``: degrees, swapped axes, a far zone); and, where the project
   already has positions (gnss.txt, imported/eo.txt, at/eo.txt, control/points.csv that this import does not
   replace, else the GNSS tags of a few frames in images/), within ``max(50 km, 2 x their extent)`` of them:
   UTM coordinates of a neighbouring zone read in the project's zone land 200-700 km away (6 degrees of
   longitude), inside that zone's area of use, where only the block itself can tell. Files that state their
-  CRS are transformed rigorously (``aerotri.geom.transform``) before these checks.
+  CRS are transformed rigorously (``aerotri.geom.crs.transform``) before these checks.
 - **Ids**: when ``images/`` holds frames, every image id of the import must be one of them; every measured
   point must be a control point (of the import, else of control/points.csv). Those that are not are named.
 """
@@ -41,7 +41,7 @@ def _listing(ids, n: int = 10) -> str:
 
 def check_project_crs(project: Project, block: ImportedBlock) -> list[str]:
     """Refuse a project CRS a photo block cannot use; notes on a CRS in feet (see the module docstring)."""
-    from aerotri.geom.crs import crs_label, linear_unit_m, unit_long_name
+    from aerotri.geom.crs.definition import crs_label, linear_unit_m, unit_long_name
     from aerotri.geom.eo import check_block_crs
 
     crs = check_block_crs(project.crs, f"{project.config_path} [project] crs")
@@ -125,7 +125,7 @@ def _frame_positions(project: Project) -> tuple[str, np.ndarray] | None:
 
 def check_positions(project: Project, block: ImportedBlock, replaced: set) -> None:
     """Imported positions in the area of use of the project CRS and near the project's own positions."""
-    from aerotri.geom.crs import check_coordinates, crs_label, linear_unit_m, project_crs
+    from aerotri.geom.crs.definition import check_coordinates, crs_label, linear_unit_m, project_crs
 
     crs = project_crs(project)
     unit_m = linear_unit_m(crs) if not crs.is_engineering else 1.0

@@ -61,6 +61,7 @@ class ImportedBlock:
     image_points: ImageObservations | None = None
     notes: list[str] = dataclasses.field(default_factory=list)  # what the user should know (assumptions made)
     gnss_holds: str = "GNSS positions"  # what gnss.txt holds, in words (with where its accuracies came from)
+    gnss_section: str | None = None  # a [gnss] section for project.toml (the positions' model), when it has none
     origin: dict = dataclasses.field(default_factory=dict)
     crs_assumed: bool = False
 
@@ -104,8 +105,8 @@ class WrittenFile:
 def to_project_crs(xyz_m, from_crs, project: Project, source: str) -> np.ndarray:
     """(N, 3) coordinates of ``from_crs`` in the project CRS (and height system), through the toolkit's
     coordinate-operation policy (no silent ballpark transform)."""
-    from aerotri.geom.crs import parse_crs, project_crs, project_heights, same_crs
-    from aerotri.geom.transform import transform_points
+    from aerotri.geom.crs.definition import parse_crs, project_crs, project_heights, same_crs
+    from aerotri.geom.crs.transform import transform_points
 
     xyz = np.asarray(xyz_m, float).reshape(-1, 3)
     src = parse_crs(from_crs, source)
@@ -221,9 +222,15 @@ def write_imported(root, block: ImportedBlock, format_name: str, overwrite: bool
             raise InputError(f"{record_path}: not a record of imports (expected {{\"imports\": [...]}}); move it away "
                              "to import")
     written = [w for _, _, w in files]
+    contents = {p: text for p, text, _ in files}
+    if block.gnss_section is not None and block.gnss is not None and "gnss" not in project.config:
+        # appended, not replaced: the user's project.toml keeps every line
+        contents[project.config_path] = (project.config_path.read_text(encoding="utf-8").rstrip("\n") + "\n\n"
+                                         + block.gnss_section)
+        written.append(WrittenFile(path=project.config_path.name, holds="[gnss] the GNSS positions' model (no "
+                                   "accuracy in the source)", count=1, source=block.source_of("gnss")))
     record["imports"].append({"format": format_name, "source": block.source,
                               "files": [dataclasses.asdict(w) for w in written], "notes": block.notes})
-    contents = {p: text for p, text, _ in files}
     contents[record_path] = json.dumps(record, indent=2) + "\n"
     write_together(contents)
     for path in kept:

@@ -74,8 +74,8 @@ def footprints(project: Project, block: AdjustedBlock) -> tuple[list[str], list[
     with contextlib.ExitStack() as stack:
         sampler = None
         if project.dem_path.is_file():
-            from aerotri.geom.crs import parse_crs, same_horizontal
-            from aerotri.geom.raster_warp import open_north_up
+            from aerotri.geom.crs.definition import parse_crs, same_horizontal
+            from aerotri.geom.crs.raster_warp import open_north_up
 
             # checked as every DEM reader checks it (a CRS, 2 x 2 cells, one band of finite heights)
             ds = stack.enter_context(open_north_up(project.dem_path, "DEM", heights=True))
@@ -152,8 +152,8 @@ def _layers(block: AdjustedBlock, project: Project) -> tuple[list, str]:
 def _to_wgs84(geoms, block: AdjustedBlock, project: Project):
     import shapely
 
-    from aerotri.geom.crs import parse_crs, project_heights
-    from aerotri.geom.transform import CrsTransformer
+    from aerotri.geom.crs.definition import parse_crs, project_heights
+    from aerotri.geom.crs.transform import CrsTransformer
 
     t = CrsTransformer(parse_crs(block.crs), parse_crs("EPSG:4979"), heights=project_heights(project))
 
@@ -180,7 +180,7 @@ def files(block: AdjustedBlock, project: Project, fmt: str) -> list[ExportFile]:
     log.info(f"footprints on the {surface}")
     with tempfile.TemporaryDirectory() as tmp:
         if fmt == "gpkg":
-            from aerotri.geom.crs import crs_label, horizontal_crs, parse_crs
+            from aerotri.geom.crs.definition import crs_label, horizontal_crs, parse_crs
 
             path = Path(tmp) / "block.gpkg"
             crs = parse_crs(block.crs)

@@ -121,7 +121,7 @@ def files(block: AdjustedBlock, project: Project) -> list[ExportFile]:
                 for k in ks:
                     ET.SubElement(m, "location", camera_id=str(cam_index[obs.image_id[k]]), pinned="true",
                                   x=_fmt(obs.xy_px[k, 0] + 0.5), y=_fmt(obs.xy_px[k, 1] + 0.5))
-    from aerotri.geom.crs import parse_crs
+    from aerotri.geom.crs.definition import parse_crs
 
     ET.SubElement(chunk, "reference").text = parse_crs(project.crs).to_wkt(version="WKT1_GDAL") or parse_crs(project.crs).to_wkt()
     tr = ET.SubElement(chunk, "transform")
@@ -239,7 +239,7 @@ def read(files: list[Path], project: Project, options: ImportSettings) -> Import
     s = _numbers(s_el, 1, f"{path} chunk transform", "scale")[0] if s_el is not None else 1.0
     X = s * centre @ Rc.T + Tc
     R_world = Rc @ R_cv
-    from aerotri.geom.crs import horizontal_crs, parse_crs
+    from aerotri.geom.crs.definition import horizontal_crs, parse_crs
 
     ref_crs = horizontal_crs(parse_crs(crs_text, f"{path} <reference>"))
     frame0 = LocalFrame(ref_crs, [0.0, 0.0, 0.0])

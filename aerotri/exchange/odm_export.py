@@ -34,7 +34,7 @@ log = logging.getLogger(__name__)
 
 
 def _crs_line(crs_text: str) -> str:
-    from aerotri.geom.crs import horizontal_crs, parse_crs
+    from aerotri.geom.crs.definition import horizontal_crs, parse_crs
 
     crs = horizontal_crs(parse_crs(crs_text))
     code = crs.to_epsg(min_confidence=90)
@@ -93,8 +93,8 @@ def _measurements(block: AdjustedBlock, project: Project):
 def _ground_control_points_json(obs: ImageObservations, ids, xyz: dict, project: Project, block: AdjustedBlock,
                                 names: dict) -> str:
     """OpenSfM's ground_control_points.json: WGS84 positions through the CRS policy, projections normalised."""
-    from aerotri.geom.crs import parse_crs, project_heights
-    from aerotri.geom.transform import transform_points
+    from aerotri.geom.crs.definition import parse_crs, project_heights
+    from aerotri.geom.crs.transform import transform_points
 
     if not ids:
         return json.dumps({"points": []}, indent=2) + "\n"

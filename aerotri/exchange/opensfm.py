@@ -45,6 +45,7 @@ from aerotri.core.project import Project
 from aerotri.core.textio import read_json
 from aerotri.exchange.imported import ImportedBlock, ImportSettings, positions_as_gnss, to_project_crs
 from aerotri.geom.camera import BrownCamera, Camera
+from aerotri.geom.crs.ellipsoid import enu_rotation
 from aerotri.geom.eo import ExteriorOrientations, GnssPositions
 from aerotri.geom.rotation import FLIP_YZ, opk_from_matrix
 
@@ -191,15 +192,13 @@ def ecef_from_lla(lat_deg, lon_deg, alt_m) -> np.ndarray:
 
 def ecef_from_topocentric(ref: dict) -> tuple[np.ndarray, np.ndarray]:
     """(R_et (3, 3), origin (3,)): ``X_ecef = R_et X_topo + origin`` (OpenSfM's ``geo.ecef_from_topocentric_transform``)."""
-    sa, ca = np.sin(np.radians(ref["latitude"])), np.cos(np.radians(ref["latitude"]))
-    so, co = np.sin(np.radians(ref["longitude"])), np.cos(np.radians(ref["longitude"]))
-    R = np.array([[-so, -sa * co, ca * co], [co, -sa * so, ca * so], [0.0, ca, sa]])
+    R = enu_rotation(ref["latitude"], ref["longitude"]).T  # columns: the east, north, up axes
     return R, ecef_from_lla(ref["latitude"], ref["longitude"], ref["altitude"])
 
 
 def _geocentric(ref_crs: str, source: str):
-    from aerotri.geom.crs import parse_crs
-    from aerotri.geom.transform import same_datum_geocentric
+    from aerotri.geom.crs.definition import parse_crs
+    from aerotri.geom.crs.transform import same_datum_geocentric
 
     return same_datum_geocentric(parse_crs(ref_crs, source))
 
@@ -226,8 +225,8 @@ def project_to_topocentric(ref: dict, project: Project, xyz_map, R_photo_map=Non
     """The inverse of :func:`topocentric_to_project` for a WGS84 ``reference_lla``: (topocentric positions,
     computer-vision camera -> topocentric rotations or None)."""
     from aerotri.exchange.poses import rotation_to_project
-    from aerotri.geom.crs import project_crs, project_heights
-    from aerotri.geom.transform import transform_points
+    from aerotri.geom.crs.definition import project_crs, project_heights
+    from aerotri.geom.crs.transform import transform_points
 
     R_et, origin = ecef_from_topocentric(ref)
     geocentric = _geocentric(DEFAULT_CRS, source)
@@ -244,8 +243,8 @@ def project_to_topocentric(ref: dict, project: Project, xyz_map, R_photo_map=Non
 
 def reference_of(project: Project, xyz_map) -> dict:
     """``reference_lla`` (WGS84) of a project-CRS point, through the coordinate-operation policy."""
-    from aerotri.geom.crs import parse_crs, project_crs, project_heights
-    from aerotri.geom.transform import transform_points
+    from aerotri.geom.crs.definition import parse_crs, project_crs, project_heights
+    from aerotri.geom.crs.transform import transform_points
 
     x, y, z = np.asarray(xyz_map, float).reshape(3)
     lon, lat, alt = transform_points(np.array([x]), np.array([y]), np.array([z]), from_crs=project_crs(project),

@@ -305,8 +305,8 @@ def texts(eo: ExteriorOrientations, camera: Camera, project: Project, folder: st
     folder)."""
     import yaml
 
-    from aerotri.geom.crs import horizontal_crs, parse_crs, project_crs
-    from aerotri.geom.transform import transform_points
+    from aerotri.geom.crs.definition import horizontal_crs, parse_crs, project_crs
+    from aerotri.geom.crs.transform import transform_points
 
     cam_id = camera.name or "camera"
     int_text = (f"# orthority interior parameters of {project.name} (aerotri export; focal_len and sensor_size in mm)\n"

@@ -46,7 +46,7 @@ def number(text, where: str, what: str) -> float:
 def rotation_to_project(from_crs, project: Project, xyz_m, source: str, step_m: float = 1.0) -> np.ndarray:
     """(N, 3, 3) rotations from the axes of ``from_crs`` at ``xyz_m`` (N, 3; in ``from_crs``) onto the project
     CRS's grid axes (identity when the CRSs are the same)."""
-    from aerotri.geom.crs import parse_crs, project_crs, same_crs
+    from aerotri.geom.crs.definition import parse_crs, project_crs, same_crs
 
     xyz = np.asarray(xyz_m, float).reshape(-1, 3)
     if same_crs(parse_crs(from_crs, source), project_crs(project)):
@@ -88,6 +88,6 @@ def adjusted_orientations(project: Project) -> tuple[ExteriorOrientations, Camer
 
 def horizontal_wkt(project: Project) -> str:
     """WKT of the project's horizontal CRS (what ``.prj`` sidecars and foreign files carry)."""
-    from aerotri.geom.crs import horizontal_crs, project_crs
+    from aerotri.geom.crs.definition import horizontal_crs, project_crs
 
     return horizontal_crs(project_crs(project)).to_wkt()

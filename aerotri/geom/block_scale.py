@@ -60,7 +60,7 @@ def project_block_scale(project, ground_heights=None, ground_source: str = "the 
     ``aerotri.adjust.report_record.adjusted_camera``); None: the nominal camera.toml. A ``BlockScale``
     without GSD says what was missing."""
     from aerotri.geom.camera import project_camera
-    from aerotri.geom.crs import height_unit_m, project_crs
+    from aerotri.geom.crs.definition import height_unit_m, project_crs
     from aerotri.geom.eo import read_eo, read_gnss
 
     if not project.camera_path.is_file():

@@ -91,7 +91,7 @@ def check_block_crs(crs, source: str):
     metres or feet (projected or a local engineering CRS); ``CrsError`` naming ``source`` otherwise
     (e.g. ``P/project.toml [project] crs``): the adjustment and the footprints need x = easting,
     y = northing, not longitude/latitude."""
-    from aerotri.geom.crs import crs_label, horizontal_crs, parse_crs
+    from aerotri.geom.crs.definition import crs_label, horizontal_crs, parse_crs
 
     c = parse_crs(crs, source)
     h = horizontal_crs(c)
@@ -104,7 +104,7 @@ def check_block_crs(crs, source: str):
 
 def check_positions(path, ids, xyz_m, lines, crs) -> None:
     """InputError naming the line whose X, Y cannot be in ``crs`` (swapped X/Y, degrees, another zone)."""
-    from aerotri.geom.crs import check_coordinates
+    from aerotri.geom.crs.definition import check_coordinates
 
     xyz_m = np.asarray(xyz_m, dtype=float)
     check_coordinates(crs, xyz_m[:, 0], xyz_m[:, 1], str(path),

@@ -26,7 +26,6 @@ import numpy as np
 import pyproj
 
 from aerotri.core.errors import CrsError, InputError
-from aerotri.geom.crs import horizontal_crs
 
 logger = logging.getLogger(__name__)
 
@@ -273,7 +272,7 @@ def add_crs(header: laspy.LasHeader, crs: pyproj.CRS) -> None:
             raise
     from laspy.vlrs.known import GeoKeyEntryStruct
 
-    header.add_crs(horizontal_crs(crs))
+    header.add_crs(crs.sub_crs_list[0])  # its horizontal part (aerotri.geom.crs imports this module, not back)
     vertical = next((c for c in crs.sub_crs_list if c.is_vertical), None)
     vlr = next((v for v in header.vlrs if type(v).__name__ == "GeoKeyDirectoryVlr"), None)
     if vertical is None or vlr is None:

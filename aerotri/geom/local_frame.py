@@ -3,7 +3,7 @@
 The bundle adjustment runs in a Cartesian frame in which the collinearity equations hold exactly;
 map-projection coordinates are not such a frame (scale factor, earth curvature). Project-CRS
 coordinates ``(x, y, h)`` go to the geocentric frame of the project's OWN datum (a conversion, never a
-datum shift: ``aerotri.geom.transform``), then to ENU at the origin. Attitudes given in the project CRS
+datum shift: ``aerotri.geom.crs.transform``), then to ENU at the origin. Attitudes given in the project CRS
 refer to the grid axes (grid east, grid north, up) at the projection centre; ``rotation_local_from_map``
 gives the rotation between those axes and ENU.
 
@@ -19,9 +19,9 @@ from __future__ import annotations
 import numba
 import numpy as np
 
-from aerotri.geom.crs import horizontal_crs, parse_crs
-from aerotri.geom.ellipsoid import Ellipsoid, geocentric_to_geodetic
-from aerotri.geom.transform import CrsTransformer, same_datum_geocentric
+from aerotri.geom.crs.definition import horizontal_crs, parse_crs
+from aerotri.geom.crs.ellipsoid import Ellipsoid, enu_rotation, geocentric_to_geodetic
+from aerotri.geom.crs.transform import CrsTransformer, same_datum_geocentric
 
 
 class LocalFrame:
@@ -40,10 +40,7 @@ class LocalFrame:
         self._from_ecef = self._to_ecef.inverse()
         self.ecef0 = np.concatenate(self._to_ecef.transform(*self.origin_map[:, None]))
         lat, lon, _ = geocentric_to_geodetic(*self.ecef0, Ellipsoid.from_crs(self.crs))
-        lam, phi = np.radians(lon), np.radians(lat)
-        sl, cl, sp, cp = np.sin(lam), np.cos(lam), np.sin(phi), np.cos(phi)
-        # rows: east, north, up in ECEF
-        self.R = np.array([[-sl, cl, 0.0], [-sp * cl, -sp * sl, cp], [cp * cl, cp * sl, sp]])
+        self.R = enu_rotation(lat, lon)  # rows: east, north, up in ECEF
 
     @classmethod
     def at_centre(cls, crs, points_map) -> "LocalFrame":

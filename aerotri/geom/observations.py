@@ -224,7 +224,7 @@ def read_control_points(path, crs=None, hint: str = "") -> ControlPoints:
     if not ids:
         raise InputError(f"{path}: no control points")
     if crs is not None:
-        from aerotri.geom.crs import check_coordinates
+        from aerotri.geom.crs.definition import check_coordinates
 
         a = np.array(xyz, dtype=float)
         check_coordinates(crs, a[:, 0], a[:, 1], str(path), [f"line {seen[p]} (point {p})" for p in ids])

@@ -112,8 +112,8 @@ def _terrain_height(project: Project, s: MatchSettings, crs=None) -> float | Non
         return h
     dem = project.lidar_out_dir / "dem.tif"
     if dem.exists():
-        from aerotri.geom.crs import crs_label, parse_crs, same_horizontal
-        from aerotri.geom.raster_warp import open_north_up
+        from aerotri.geom.crs.definition import crs_label, parse_crs, same_horizontal
+        from aerotri.geom.crs.raster_warp import open_north_up
 
         try:
             with open_north_up(dem, "DEM", heights=True) as ds:

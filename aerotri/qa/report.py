@@ -37,9 +37,9 @@ from aerotri.core.records import to_record
 from aerotri.core.tolerances import TERRAINS, TOLERANCE_DIR, choose_table, read_qa_config, split_key
 from aerotri.geom.block_scale import project_block_scale
 from aerotri.qa.compliance import asprs_class_cm, project_compliance
-from lidarctl.heights_check import read_height_check
-from lidarctl.vector_check import read_vector_check
-from lidarctl.vectors_settings import VectorsSettings
+from lidarctl.checks.heights import read_height_check
+from lidarctl.checks.vectors import read_vector_check
+from lidarctl.vectors.settings import VectorsSettings
 
 @dataclass(frozen=True)
 class QaCheck:
@@ -259,7 +259,7 @@ def build_qa_report(root, *, tolerance_file=None, terrain: str | None = None, sc
     """The report of a project folder (``StageOrderError`` when no stage has left results yet). The
     tolerance table: the arguments (the command line), else ``[qa]`` of project.toml, else chosen by the
     block's GSD and platform (``aerotri.core.tolerances.choose_table``); the report names it and why."""
-    from lidarctl.evaluate import read_filter_test
+    from lidarctl.checks.classes import read_filter_test
     from ortho.check import read_dom_check
 
     project = Project.open(root)  # a project folder: project.toml with [project] crs

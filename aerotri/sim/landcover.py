@@ -3,7 +3,7 @@
 From the same straight-down view as ``truth/ortho.tif`` (``raster.ortho_render``: radiance and surface id
 per pixel), so the class raster, the NIR band and the RGB ortho agree pixel for pixel.
 
-Classes (ASPRS codes, as ``lidarctl.class_grid`` scores them): roof and wall -> building 6, tree crown
+Classes (ASPRS codes, as ``lidarctl.classify.class_grid`` scores them): roof and wall -> building 6, tree crown
 -> tree 5; terrain by its ground material: grass 3, soil and painted targets -> bare ground 2, road
 and road markings -> road 11, pond -> water 9; no hit -> 255 (nodata).
 

@@ -548,3 +548,25 @@ def _ground_model(root: Path, frame: LocalFrame, C, cam, dem=None, interpolation
     foot = 0.5 * H_above * max(cam.width, cam.height) * cam.pixel_um / (cam.focal_mm * 1000.0)
     extent = (C[:, 0].min() - foot, C[:, 0].max() + foot, C[:, 1].min() - foot, C[:, 1].max() + foot)
     return height, extent, H_above
+
+
+def write_terrain_dem(block: GeometricBlock, path, cell_m: float = 2.0, margin_m: float = 200.0) -> Path:
+    """The terrain of a geometric block as a GeoTIFF DEM in its project CRS (heights as the project's), reaching
+    ``margin_m`` beyond the ground the frames cover: surface control for the adjustment of the block."""
+    import rasterio
+    from rasterio.transform import from_origin
+
+    xmin, xmax, ymin, ymax = block.extent_local
+    corners = block.frame.to_map(np.array([[xmin, ymin, 0.0], [xmax, ymax, 0.0]]))
+    x0, y1 = corners[0, 0] - margin_m, corners[1, 1] + margin_m
+    W = int((corners[1, 0] + margin_m - x0) / cell_m)
+    H = int((y1 - (corners[0, 1] - margin_m)) / cell_m)
+    X, Y = np.meshgrid(x0 + (np.arange(W) + 0.5) * cell_m, y1 - (np.arange(H) + 0.5) * cell_m)
+    h = np.zeros_like(X)
+    for _ in range(4):  # the map height whose local point lies on the terrain (the local frame's earth curvature)
+        p = block.frame.to_local(np.column_stack([X.ravel(), Y.ravel(), h.ravel()]))
+        h = h + (block.terrain(p[:, 0], p[:, 1]) - p[:, 2]).reshape(h.shape)
+    with rasterio.open(path, "w", driver="GTiff", width=W, height=H, count=1, dtype="float32", crs=block.crs,
+                       transform=from_origin(x0, y1, cell_m, cell_m), nodata=-9999.0) as ds:
+        ds.write(h.astype(np.float32), 1)
+    return Path(path)

@@ -392,8 +392,8 @@ def pair_raster(p: PairDiff, ss: StripSet):
 def write_outputs(res: CheckResult, folder: Path, title: str, vmax_m: float | None, png: bool = True) -> None:
     """Rasters, PNGs and the HTML page of a check into ``folder`` (strips.json is written by the caller);
     ``res.summary`` gets the colour limit and the files' names."""
-    from lidarctl.rasters import _transform_in_units, write_cog
-    from lidarctl.units import long_name
+    from lidarctl.rasters.products import _transform_in_units, write_cog
+    from aerotri.geom.crs.definition import length_unit_name
 
     ss = res.strip_set
     units = ss.units
@@ -403,7 +403,8 @@ def write_outputs(res: CheckResult, folder: Path, title: str, vmax_m: float | No
         stem = f"diff_{p.a}_{p.b}"
         a, transform = pair_raster(p, ss)
         write_cog(folder / f"{stem}.tif", units.z_from_m(a), _transform_in_units(transform, units), ss.crs,
-                  unit=long_name(units.z_m), description=f"dz = z({p.b}) - z({p.a}) on smooth single-return surfaces",
+                  unit=length_unit_name(units.z_m, long=True),
+                  description=f"dz = z({p.b}) - z({p.a}) on smooth single-return surfaces",
                   tags={"LINEAR_UNITS": units.xy_name, "VERTICAL_UNITS": units.z_name, "CELL_SIZE_M": ss.grid.cell_m})
         ps = dataclasses.replace(ps, raster=f"{stem}.tif")
         if png:

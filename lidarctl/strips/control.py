@@ -1,6 +1,6 @@
 """Control points for ``lidarctl strips adjust --control``: surveyed points on smooth surfaces that fix the datum.
 
-File: CSV with a header line naming the columns ``id,x,y,z`` (also ``e/n/h``; lidarctl.heights_check's
+File: CSV with a header line naming the columns ``id,x,y,z`` (also ``e/n/h``; lidarctl.checks.heights's
 surveyed-points table), coordinates in the strips' CRS and units. Every point lies on a smooth surface
 (open ground, a flat or sloped roof face; not on an edge, under trees or on a car). A control *surface*
 is given as several points on the same patch: each point is its own observation.
@@ -22,7 +22,7 @@ from pathlib import Path
 import numpy as np
 
 from aerotri.core.errors import InputError
-from lidarctl.heights_check import read_points_csv
+from lidarctl.checks.heights import read_points_csv
 from lidarctl.strips import overlap as ov
 
 log = logging.getLogger(__name__)

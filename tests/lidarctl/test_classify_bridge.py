@@ -1,4 +1,4 @@
-"""Bridge decks (lidarctl.classify.bridge_decks): ground between two water gaps along a watercourse,
+"""Bridge decks (lidarctl.classify.pipeline.bridge_decks): ground between two water gaps along a watercourse,
 standing clear above the quays, leaves the ground class (-> 17, bridge deck).
 
 The scene (200 x 100 m, 3 returns/m2, 2 cm range noise, quays and streets at 0 m): canal A along u
@@ -12,7 +12,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from lidarctl import classify
+from lidarctl.classify import pipeline as classify
 
 X0, Y0 = 85000.0, 447000.0
 

@@ -1,7 +1,7 @@
-"""Building rule of lidarctl.classify: penetration evidence keeps tree crowns out of the roofs."""
+"""Building rule of lidarctl.classify.pipeline: penetration evidence keeps tree crowns out of the roofs."""
 
 import numpy as np
-from lidarctl import classify
+from lidarctl.classify import pipeline as classify
 
 
 def _roof_and_crown(seed: int, density_per_m2: float = 10.0, canopy_gap: float = 0.35):

@@ -1,9 +1,9 @@
-"""Ground refinement of lidarctl.classify: the last returns of low vegetation leave the ground
+"""Ground refinement of lidarctl.classify.pipeline: the last returns of low vegetation leave the ground
 class, by a threshold scaled to the measured range noise; single returns are judged against their
 neighbours' robust spread too, so a strip offset does not lift them but a low object does."""
 
 import numpy as np
-from lidarctl import classify
+from lidarctl.classify import pipeline as classify
 
 
 def _terrain_with_low_vegetation(seed: int, noise_m: float, lift_m: float = 0.2):

@@ -1,4 +1,4 @@
-"""Level water (lidarctl.classify.level_water): calm water that returned the pulse, against synthetic truth.
+"""Level water (lidarctl.classify.pipeline.level_water): calm water that returned the pulse, against synthetic truth.
 
 The scene (2 returns per m2, 1.5 cm range noise): a lake whose surface returns every pulse at one level,
 in a bed whose banks rise 8 cm per metre; a level car park (same noise, same flatness) whose rim is a
@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from lidarctl import classify
+from lidarctl.classify import pipeline as classify
 
 LAKE_C, LAKE_R = (40.0, 60.0), 20.0
 PARK = (75.0, 105.0, 45.0, 75.0)          # u0, u1, v0, v1 (m)

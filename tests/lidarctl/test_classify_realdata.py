@@ -4,7 +4,11 @@ import numpy as np
 import pytest
 from scipy.spatial import cKDTree
 
-from lidarctl import classify, evaluate, io, noise, ground
+from lidarctl import io
+from lidarctl.classify import pipeline as classify
+from lidarctl.checks import classes as evaluate
+from lidarctl.classify import noise
+from lidarctl.classify import ground
 
 SAMPLES = ("samp11", "samp21", "samp31", "samp41", "samp51", "samp61", "samp71")
 

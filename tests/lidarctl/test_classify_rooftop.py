@@ -1,9 +1,9 @@
-"""Rooftop objects (lidarctl.classify.rooftop_objects): units standing on a roof are cut from it by
+"""Rooftop objects (lidarctl.classify.pipeline.rooftop_objects): units standing on a roof are cut from it by
 their step; pitched roofs, ridges and the roof itself stay building. The one-plane fit of a
 segment (segment_plane_rms) that lets narrow sheds count as planar."""
 
 import numpy as np
-from lidarctl import classify
+from lidarctl.classify import pipeline as classify
 
 
 def _scan(rng, w, h, density_per_m2=10.0):

@@ -8,7 +8,7 @@ to roof-sized surfaces). A crown grown onto a roof's segment beyond the roof rea
 import dataclasses
 
 import numpy as np
-from lidarctl import classify
+from lidarctl.classify import pipeline as classify
 
 OFF = {"small_building_planar_cores": False, "rooftop_steps_to_roofs_only": False, "roof_reach_cells": 0}
 

@@ -1,4 +1,4 @@
-"""Pulse-dropout water detection (lidarctl.classify step 5) against synthetic truth.
+"""Pulse-dropout water detection (lidarctl.classify.pipeline step 5) against synthetic truth.
 
 The scene: lidarctl.synthetic terrain with one flat-roofed building and a pond. Over the pond 95 %
 of the pulses give no return and the rest lie on the flat water level with low intensity; the
@@ -11,7 +11,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from lidarctl import classify
+from lidarctl.classify import pipeline as classify
 from lidarctl.synthetic import synthetic_scene, terrain_height
 
 X0, Y0 = 500000.0, 5400000.0

@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from lidarctl import classify
+from lidarctl.classify import pipeline as classify
 
 LAKE_C, LAKE_R, GAP_R = (35.0, 45.0), 20.0, 14.0
 PARK = (75.0, 110.0, 10.0, 40.0)          # u0, u1, v0, v1 (m)

@@ -6,7 +6,8 @@ import numpy as np
 import pytest
 from scipy.spatial import cKDTree
 
-from lidarctl import classify, io
+from lidarctl import io
+from lidarctl.classify import pipeline as classify
 
 # The south-east lake's part of the cloud (EPSG:2949 metres): east of the cloud's centre, south of the
 # lakes further north.

@@ -9,7 +9,7 @@ import rasterio
 from click.testing import CliRunner
 
 from lidarctl import io, synthetic
-from lidarctl.cli import main
+from lidarctl.cli.main import main
 from aerotri.core.errors import InputError
 
 

@@ -8,8 +8,8 @@ import rasterio
 from click.testing import CliRunner
 from rasterio.transform import from_origin
 
-from lidarctl.cli import main
-from lidarctl.contours import _tension_1d, crossings, data_footprint, smooth_contours, trace
+from lidarctl.cli.main import main
+from lidarctl.terrain.contours import _tension_1d, crossings, data_footprint, smooth_contours, trace
 
 
 def _surface(x, y):
@@ -165,7 +165,7 @@ def test_interval_too_fine_for_the_data_is_refused_fast(tmp_path):
     before any tracing, naming the option and the smallest interval that fits, exit 2, nothing written."""
     import time
 
-    from lidarctl.contours import MAX_VERTICES_PER_CELL, check_interval, vertex_count
+    from lidarctl.terrain.contours import MAX_VERTICES_PER_CELL, check_interval, vertex_count
 
     z, t = _dem()
     dem = _feet_dem(tmp_path / "dem.tif", z / 0.3048, t)

@@ -14,7 +14,7 @@ import shapely
 import shapely.wkb
 from scipy.spatial import cKDTree
 
-from lidarctl.corners import find_roof_corners, read_classified_cloud
+from lidarctl.corners.roof_corners import find_roof_corners, read_classified_cloud
 
 WINDOW = (84880.0, 84990.0, 447480.0, 447600.0)  # the terraced blocks in the middle of the footprint set
 

@@ -12,8 +12,8 @@ import numpy as np
 import pyproj
 from click.testing import CliRunner
 
-from lidarctl.cli import main
-from lidarctl.corners import read_corner_summary
+from lidarctl.cli.main import main
+from lidarctl.corners.roof_corners import read_corner_summary
 
 _spec = importlib.util.spec_from_file_location("corners_synth", Path(__file__).with_name("corners_synth.py"))
 cs = importlib.util.module_from_spec(_spec)
@@ -72,7 +72,7 @@ def test_figure_draws_cells_without_height_apart_from_the_tallest(tmp_path):
     """nDSM cells without a height (water drop-outs) get a colour of their own, not the grey scale's white."""
     import matplotlib.image as mpimg
 
-    from lidarctl.corners import plot_corners
+    from lidarctl.corners.roof_corners import plot_corners
 
     ndsm = np.tile(np.linspace(0.0, 15.0, 60), (60, 1))
     ndsm[20:40, 20:40] = np.nan

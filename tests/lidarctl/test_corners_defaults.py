@@ -16,7 +16,7 @@ import pytest
 from shapely import affinity
 from shapely.geometry import Polygon, box
 
-from lidarctl.corners import MIN_EDGE_FLOOR_M, MIN_EDGE_SPACINGS, default_min_edge_m, find_roof_corners
+from lidarctl.corners.roof_corners import MIN_EDGE_FLOOR_M, MIN_EDGE_SPACINGS, default_min_edge_m, find_roof_corners
 
 _spec = importlib.util.spec_from_file_location("corners_synth", Path(__file__).with_name("corners_synth.py"))
 cs = importlib.util.module_from_spec(_spec)

@@ -1,4 +1,4 @@
-"""The corner stage's scratch (``lidarctl.corners._bin_corner_points``): every point written once as its LAS file
+"""The corner stage's scratch (``lidarctl.corners.roof_corners._bin_corner_points``): every point written once as its LAS file
 stores it, the tiles with their buffers rebuilt from it equal to the whole cloud's corners (two strips in a foot CRS,
 noise points, several files), the scratch removed on success and on errors, and a full disk during the binning a
 one-line error with exit code 2 and no output."""
@@ -16,8 +16,8 @@ import pytest
 from click.testing import CliRunner
 
 from aerotri.core.errors import InputError
-from lidarctl import corners as C
-from lidarctl.cli import main
+from lidarctl.corners import roof_corners as C
+from lidarctl.cli.main import main
 
 _spec = importlib.util.spec_from_file_location("corners_synth", Path(__file__).with_name("corners_synth.py"))
 cs = importlib.util.module_from_spec(_spec)

@@ -12,7 +12,7 @@ import csv
 import numpy as np
 from scipy.spatial import cKDTree
 
-from lidarctl.corners import find_roof_corners, read_classified_cloud
+from lidarctl.corners.roof_corners import find_roof_corners, read_classified_cloud
 
 
 def test_tiny_project_corners_match_truth_with_honest_sigmas(tiny_project):

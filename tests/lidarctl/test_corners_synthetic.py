@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 import shapely
 
-from lidarctl.corners import VIEW_OFF_NADIR_DEG, VIEW_SECTORS, find_roof_corners, strip_margin_m, view_openness
+from lidarctl.corners.roof_corners import VIEW_OFF_NADIR_DEG, VIEW_SECTORS, find_roof_corners, strip_margin_m, view_openness
 from aerotri.core.errors import InputError
 
 _spec = importlib.util.spec_from_file_location("corners_synth", Path(__file__).with_name("corners_synth.py"))

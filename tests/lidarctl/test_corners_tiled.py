@@ -1,4 +1,4 @@
-"""Roof corners of several classified strips by tiles (lidarctl.corners.find_roof_corners_tiled) against
+"""Roof corners of several classified strips by tiles (lidarctl.corners.roof_corners.find_roof_corners_tiled) against
 the whole cloud (find_roof_corners of the concatenated strips): every roof found once, the same corners
 CSV, roof planes and outlines."""
 
@@ -9,8 +9,8 @@ import json
 import numpy as np
 from click.testing import CliRunner
 
-from lidarctl import corners as C
-from lidarctl.cli import main
+from lidarctl.corners import roof_corners as C
+from lidarctl.cli.main import main
 
 
 def _strips(tiny_project):

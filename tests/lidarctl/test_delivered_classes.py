@@ -9,7 +9,7 @@ import pytest
 from click.testing import CliRunner
 
 from lidarctl import synthetic
-from lidarctl.cli import main
+from lidarctl.cli.main import main
 
 CRS = "EPSG:32632"
 

@@ -9,8 +9,8 @@ import rasterio
 from click.testing import CliRunner
 from rasterio.transform import from_origin
 
-from lidarctl import drainage as dr
-from lidarctl.cli import main
+from lidarctl.terrain import drainage as dr
+from lidarctl.cli.main import main
 
 
 def _run(z, min_area_m2=None, method="fill", cell=1.0):

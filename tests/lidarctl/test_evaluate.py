@@ -3,7 +3,9 @@
 import numpy as np
 import pytest
 
-from lidarctl import classify, evaluate, synthetic
+from lidarctl import synthetic
+from lidarctl.classify import pipeline as classify
+from lidarctl.checks import classes as evaluate
 
 
 def test_filter_errors_by_hand():
@@ -56,7 +58,7 @@ def test_deep_noise_patch_of_mixed_depths_is_not_ground():
 
 
 def test_height_check_csv_errors_name_the_line(tmp_path):
-    from lidarctl import heights_check
+    from lidarctl.checks import heights as heights_check
     from aerotri.core.errors import InputError
 
     f = tmp_path / "p.csv"
@@ -72,7 +74,7 @@ def test_evaluate_says_what_a_ground_only_truth_cannot_measure():
     """`lidarctl evaluate --truth` against the ISPRS filter test (labels 2 / 0) printed "overall accuracy 53 %" over
     classes the truth does not label, and against Autzen (class 1 "unclassified", which holds ground too) a total
     error of 55 %, with no word; the notes say so and give the mapping to the two-class matrix."""
-    from lidarctl.cli import _truth_notes
+    from lidarctl.cli.main import _truth_notes
 
     isprs = evaluate.confusion(np.array([2, 2, 3, 5, 6, 2]), np.array([2, 2, 0, 0, 0, 0]))
     notes = _truth_notes(isprs)

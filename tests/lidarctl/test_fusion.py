@@ -9,8 +9,10 @@ import rasterio
 from click.testing import CliRunner
 from rasterio.transform import from_origin
 
-from lidarctl import classify, fusion, synthetic
-from lidarctl.cli import main
+from lidarctl import synthetic
+from lidarctl.classify import pipeline as classify
+from lidarctl.classify import fusion
+from lidarctl.cli.main import main
 
 X0, Y0 = 500000.0, 5400000.0
 GREEN, GREY, BROWN = (60, 140, 50), (120, 120, 125), (150, 120, 80)

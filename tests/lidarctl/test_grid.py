@@ -32,7 +32,7 @@ def test_segment_cell_minima_matches_kdtree_pairs_and_scipy_components():
 def test_classifier_grid_helpers_equal_scipy():
     from scipy import ndimage
 
-    from lidarctl.classify import dilate_square, labelled_median
+    from lidarctl.classify.pipeline import dilate_square, labelled_median
 
     rng = np.random.default_rng(3)
     mask = rng.random((120, 90)) < 0.05

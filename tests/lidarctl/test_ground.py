@@ -1,4 +1,4 @@
-"""The ground filters (lidarctl.ground): the registry, and the methods added for the AHN3 and simulator
+"""The ground filters (lidarctl.classify.ground): the registry, and the methods added for the AHN3 and simulator
 misses, each against a synthetic scene with known truth.
 
 * a filter registered in a test runs through the whole classification (``classify_file``),
@@ -15,7 +15,10 @@ import pytest
 
 from aerotri.core.errors import ConfigError, OptionError
 from aerotri.core.settings import from_table
-from lidarctl import classify, grid, ground, io, noise, synthetic, tiles
+from lidarctl import grid, io, synthetic, tiles
+from lidarctl.classify import pipeline as classify
+from lidarctl.classify import ground
+from lidarctl.classify import noise
 
 
 @dataclasses.dataclass(frozen=True)

@@ -8,9 +8,10 @@ from click.testing import CliRunner
 
 from aerotri.core.errors import ConfigError
 from aerotri.core.settings import from_table
-from lidarctl import ground, synthetic
-from lidarctl.classify import ClassifySettings
-from lidarctl.cli import main
+from lidarctl import synthetic
+from lidarctl.classify import ground
+from lidarctl.classify.pipeline import ClassifySettings
+from lidarctl.cli.main import main
 
 
 @pytest.fixture(scope="module")

@@ -13,8 +13,9 @@ import numpy as np
 import pytest
 from click.testing import CliRunner
 
-from lidarctl import ground, synthetic
-from lidarctl.cli import main
+from lidarctl import synthetic
+from lidarctl.classify import ground
+from lidarctl.cli.main import main
 
 
 def _jittered_grid(rng, spacing_m, size_m, jitter_m):

@@ -15,10 +15,11 @@ from click.testing import CliRunner
 from pyogrio.raw import write as write_vector
 from rasterio.transform import from_origin
 
-from lidarctl import class_grid as cg
-from lidarctl import evaluate, map_accuracy
-from lidarctl.cli import main
-from lidarctl.units import FOOT_M
+from lidarctl.classify import class_grid as cg
+from lidarctl.checks import classes as evaluate
+from lidarctl.checks import map_accuracy
+from lidarctl.cli.main import main
+from aerotri.geom.las import FOOT_M
 
 X0, Y0 = 500000.0, 5400000.0   # south-west corner of the 20 x 20 cell area (CRS units)
 N = 20

@@ -15,9 +15,9 @@ from pyogrio.raw import read, write
 from shapely import affinity
 from shapely.geometry import box
 
-from lidarctl import vector_check as vc
-from lidarctl.cli import main
-from lidarctl.units import FOOT_M
+from lidarctl.checks import vectors as vc
+from lidarctl.cli.main import main
+from aerotri.geom.las import FOOT_M
 
 X0, Y0 = 500000.0, 5400000.0
 M_CRS, FT_CRS = "EPSG:32632", "EPSG:2994"
@@ -263,9 +263,9 @@ def test_the_old_option_names_without_units_are_gone(made, tmp_path, command, ol
 def test_a_shed_below_the_outliner_is_on_the_map():
     """Issue 44: a 3 x 2.5 m garden shed (7.5 m2, below the regularised outliner's 25 m2) classified building is in
     the buildings layer (the outline of its cells), next to the two regularised roofs; no sliver is added."""
-    from lidarctl.corners import ClassifiedStrips
-    from lidarctl.map_vectors import building_outlines
+    from lidarctl.corners.roof_corners import ClassifiedStrips
     from lidarctl.units import METRE
+    from lidarctl.vectors.layers import building_outlines
 
     x, y, z, cls = _truth_m()
     shed = box(10, 70, 13, 72.5)

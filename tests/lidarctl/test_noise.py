@@ -3,7 +3,10 @@
 import numpy as np
 from scipy.spatial import Delaunay
 
-from lidarctl import evaluate, ground, noise, synthetic
+from lidarctl import synthetic
+from lidarctl.checks import classes as evaluate
+from lidarctl.classify import ground
+from lidarctl.classify import noise
 
 
 def _scene(seed=3, **kw):

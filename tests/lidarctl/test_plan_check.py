@@ -15,8 +15,8 @@ import pyproj
 import pytest
 from click.testing import CliRunner
 
-from lidarctl.cli import main
-from lidarctl.plan_check import read_plan_check
+from lidarctl.cli.main import main
+from lidarctl.checks.plan import read_plan_check
 
 _spec = importlib.util.spec_from_file_location("corners_synth", Path(__file__).with_name("corners_synth.py"))
 cs = importlib.util.module_from_spec(_spec)

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 from scipy import ndimage
 
-from lidarctl.raster_cells import CellStats
+from lidarctl.rasters.cells import CellStats
 from lidarctl.raster_ops import fill_nodata, sample_bilinear
 
 
@@ -104,7 +104,7 @@ def test_pull_push_equals_the_array_version(shape, share):
 
 
 def test_footprint_holes_as_binary_fill_holes():
-    from lidarctl.rasters import _fill_holes
+    from lidarctl.rasters.products import _fill_holes
 
     rng = np.random.default_rng(7)
     for _ in range(10):
@@ -117,7 +117,7 @@ def test_footprint_holes_as_binary_fill_holes():
 def test_hillshade_grey_and_png_are_matplotlibs(tmp_path):
     import matplotlib.image as mpimg
 
-    from lidarctl.rasters import _write_png_grey_as_rgba, hillshade_grey, hillshade_rgba
+    from lidarctl.rasters.products import _write_png_grey_as_rgba, hillshade_grey, hillshade_rgba
 
     rng = np.random.default_rng(8)
     hs = rng.random((301, 203))

@@ -1,4 +1,4 @@
-"""Rasters of several classified files by tiles (lidarctl.rasters.write_rasters_tiled) against the
+"""Rasters of several classified files by tiles (lidarctl.rasters.products.write_rasters_tiled) against the
 whole grids of the concatenated cloud (make_grids): same cells, same values, same metadata; the
 CLI takes several files; bad input leaves no output."""
 
@@ -7,8 +7,9 @@ import pytest
 import rasterio
 from click.testing import CliRunner
 
-from lidarctl import io, rasters, synthetic
-from lidarctl.cli import main
+from lidarctl import io, synthetic
+from lidarctl.rasters import products as rasters
+from lidarctl.cli.main import main
 
 FIELDS = ("x", "y", "z", "intensity", "return_number", "number_of_returns")
 

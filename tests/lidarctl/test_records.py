@@ -7,9 +7,9 @@ from __future__ import annotations
 import pytest
 
 from aerotri.core.errors import InputError
-from lidarctl.corners import read_corner_summary
-from lidarctl.evaluate import read_filter_test
-from lidarctl.plan_check import read_plan_check
+from lidarctl.corners.roof_corners import read_corner_summary
+from lidarctl.checks.classes import read_filter_test
+from lidarctl.checks.plan import read_plan_check
 from lidarctl.strips.adjust import read_strip_adjustment
 from lidarctl.strips.check import read_strip_check
 

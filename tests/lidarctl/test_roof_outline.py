@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import shapely
 
-from lidarctl.roof_outline import (
+from lidarctl.corners.roof_outline import (
     Edge,
     EdgeObservations,
     corners_from_edges,
@@ -17,7 +17,7 @@ from lidarctl.roof_outline import (
     reweight_observations,
     trace_rings,
 )
-from lidarctl.roof_segments import cluster_roofs, segment_planes
+from lidarctl.corners.roof_segments import cluster_roofs, segment_planes
 
 
 def _grid(spacing, angle_deg, extent=20.0, jitter=0.0, seed=0):

@@ -17,8 +17,8 @@ from shapely.geometry import shape
 from aerotri.adjust.surface import read_roof_planes
 from aerotri.core.errors import CrsError, InputError
 from lidarctl import synthetic
-from lidarctl.cli import main
-from lidarctl.units import FOOT_M
+from lidarctl.cli.main import main
+from aerotri.geom.las import FOOT_M
 
 _spec = importlib.util.spec_from_file_location("corners_synth", Path(__file__).with_name("corners_synth.py"))
 cs = importlib.util.module_from_spec(_spec)

@@ -6,9 +6,9 @@ from __future__ import annotations
 import numpy as np
 from click.testing import CliRunner
 
-from lidarctl import ground
-from lidarctl.cli import main as lidarctl_cli
-from lidarctl.slope_filter import SlopeSettings, slope_ground
+from lidarctl.classify import ground
+from lidarctl.cli.main import main as lidarctl_cli
+from lidarctl.classify.slope_filter import SlopeSettings, slope_ground
 
 
 def _scene(slope: float, building_m: float, seed: int = 3):

@@ -10,8 +10,8 @@ from click.testing import CliRunner
 from rasterio.transform import from_origin
 from scipy import ndimage
 
-from lidarctl.cli import main
-from lidarctl.smooth import DiffusionSettings, anisotropic_diffusion, gaussian_equivalent_sigma_px
+from lidarctl.cli.main import main
+from lidarctl.terrain.smooth import DiffusionSettings, anisotropic_diffusion, gaussian_equivalent_sigma_px
 
 NODATA = -9999.0
 

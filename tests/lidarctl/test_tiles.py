@@ -10,9 +10,9 @@ from click.testing import CliRunner
 
 from aerotri.core.executor import Executor
 from aerotri.geom import las as las_format
-from lidarctl import classify as cl
+from lidarctl.classify import pipeline as cl
 from lidarctl import io, synthetic, tiles
-from lidarctl.cli import main
+from lidarctl.cli.main import main
 from aerotri.core.errors import InputError
 
 
@@ -245,7 +245,7 @@ def test_interrupt_during_tasks_leaves_no_output(small, tmp_path, monkeypatch):
 
 
 def test_streamed_rasters_equal_in_memory_grids(classified, tmp_path):
-    from lidarctl import rasters
+    from lidarctl.rasters import products as rasters
 
     classified = classified[0]
     cloud = io.read_cloud(classified)
@@ -361,7 +361,8 @@ def test_strips_that_differ_are_refused_naming_the_strip_and_leave_no_output(str
 
 
 def test_strips_evaluated_and_height_checked_as_the_merged_file(strips, tmp_path):
-    from lidarctl import evaluate, heights_check
+    from lidarctl.checks import classes as evaluate
+    from lidarctl.checks import heights as heights_check
 
     d, paths = strips
     tiles.classify_files(paths, tmp_path / "classified", suffix=".las", tile_size_m=100.0, buffer_m=40.0)

@@ -13,9 +13,9 @@ from rasterio.transform import from_origin
 
 from aerotri.geom.las import US_SURVEY_FOOT_M
 from lidarctl import synthetic
-from lidarctl.cli import main
+from lidarctl.cli.main import main
 from lidarctl.io import PointCloud
-from lidarctl.trees import TreeSettings, tree_model
+from lidarctl.rasters.trees import TreeSettings, tree_model
 
 X0, Y0, GROUND_Z = 500000.0, 5000000.0, 100.0
 # (x, y, height, crown radius) in metres from the scene's corner

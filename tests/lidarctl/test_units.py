@@ -18,9 +18,10 @@ from click.testing import CliRunner
 
 from aerotri.core.errors import CrsError
 from lidarctl import io, synthetic
-from lidarctl.cli import main
-from lidarctl.corners import read_corner_summary
-from lidarctl.units import FOOT_M, US_SURVEY_FOOT_M, units_of
+from lidarctl.cli.main import main
+from lidarctl.corners.roof_corners import read_corner_summary
+from aerotri.geom.las import FOOT_M, US_SURVEY_FOOT_M
+from lidarctl.units import LengthUnits, units_of
 
 _spec = importlib.util.spec_from_file_location("corners_synth", Path(__file__).with_name("corners_synth.py"))
 cs = importlib.util.module_from_spec(_spec)
@@ -294,7 +295,7 @@ def test_dem_keeps_the_compound_crs_of_its_cloud(scenes, tmp_path):
 def test_check_heights_by_chunks_equals_all_ground_points(scenes, tmp_path, monkeypatch):
     """The strips are read by chunks keeping only ground points near a surveyed point: the same
     heights as interpolating from every ground point of the cloud held in memory."""
-    from lidarctl import heights_check as hc
+    from lidarctl.checks import heights as hc
 
     d = scenes["dir"]
     _ok(["classify", d / "ft_m.laz", tmp_path / "c.laz"])
@@ -313,3 +314,14 @@ def test_check_heights_by_chunks_equals_all_ground_points(scenes, tmp_path, monk
     assert np.isnan(z_w).sum() == np.isnan(z_s).sum() > 0 and np.isfinite(z_w).sum() > 15
     np.testing.assert_allclose(z_s, z_w, rtol=0, atol=1e-9)
     assert [p["n_ground"] for p in streamed["points"]] == [p["n_ground"] for p in whole["points"]]
+
+
+def test_unit_names_are_the_crs_names():
+    """``LengthUnits`` names its units with ``aerotri.geom.crs.definition.length_unit_name``: short names as
+    ``unit_name`` gives them for a CRS, long names as GDAL and WKT spell them."""
+    u = units_of(pyproj.CRS(FT_CRS))
+    assert (u.xy_name, u.z_name) == ("ft", "ft") and u.describe() == "x, y, z in foot"
+    comp = units_of(pyproj.CRS("EPSG:32610+6360"))
+    assert comp.describe() == "x, y in metre, z in US survey foot"
+    assert LengthUnits(0.5, 0.5).xy_name == "0.5m" and LengthUnits(0.5, 1.0).describe() == "x, y in 0.5 metre, z in metre"
+    assert LengthUnits(known=False).describe() == "unknown units (no CRS)"

@@ -1,7 +1,7 @@
 """The DOM delivered in a national grid on another datum (CGCS2000 / Xian 1980 3-degree Gauss-Krueger)
 from a WGS 84 UTM project: refused without a parameter set, right to the millimetre with one.
 
-Truth: common points generated through known 7-parameter sets (``aerotri.crs.synthetic``), the
+Truth: common points generated through known 7-parameter sets (``aerotri.geom.crs.synthetic``), the
 parameters fitted from them by ``aerotri crs fit`` as a user would; the ortho's pixel centres are
 compared with ``aerotri crs transform --params`` of the same positions, and its content with the
 project-CRS ortho of the same frames mapped through the same operation.
@@ -19,9 +19,9 @@ from click.testing import CliRunner
 from pyproj import CRS
 
 from aerotri.cli import main as aerotri_cli
-from aerotri.crs.synthetic import TRUE_BURSA_WOLF7, simulate_spatial, write_common_points
-from aerotri.geom.raster_warp import interpolate_anchors
-from aerotri.geom.transform import OperationSpec
+from aerotri.geom.crs.synthetic import TRUE_BURSA_WOLF7, simulate_spatial, write_common_points
+from aerotri.geom.crs.raster_warp import interpolate_anchors
+from aerotri.geom.crs.transform import OperationSpec
 from ortho.cli import main as ortho_cli
 from ortho.grid import GridToProject, OrthoGrid
 

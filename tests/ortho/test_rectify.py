@@ -78,8 +78,8 @@ def test_other_kernels(scene, interpolation):
 def test_output_in_gauss_krueger_zone(scene, tmp_path):
     """Product in CGCS2000 / 3-degree GK CM 111E (EPSG:4546) from a UTM 49N project through a datum parameter
     set, checked after mapping the reference through the same set; without the set, refused."""
-    from aerotri.geom.datum import Transformation
-    from aerotri.geom.transform import BallparkRefused, CrsTransformer
+    from aerotri.geom.crs.datum import Transformation
+    from aerotri.geom.crs.transform import BallparkRefused, CrsTransformer
 
     s = scene
     gk = CRS.from_epsg(4546)

@@ -9,6 +9,13 @@ the focal length is fixed with the reason and the verdict is not "Solution Succe
 block's focal went from 2121 to 2904 px and its tie points 11 m below the DEM, "Solution Successful"). With
 the DEM the focal length is estimated and the tie points lie on the DEM (median within 0.3 m). The whole block:
 bench/eval_brighton.py -> bench/results/brighton.json.
+
+These two tests weight the positions as a survey receiver's (project.toml [gnss] 0.05 / 0.1 m, the defaults they
+were written with): the heights of the projection centres are then held, and the focal length follows from them.
+The EXIF states no accuracy, so the import writes a consumer receiver's model instead (decimetres between frames,
+one offset of metres for the flight): the last test. With it the centres' heights are free by metres, and on flat
+ground the focal length is confounded with the flying height even with the DEM (only the terrain's relief
+separates them): bench/eval_consumer_gnss.py -> bench/results/consumer_gnss.json.
 """
 
 from __future__ import annotations
@@ -20,6 +27,15 @@ pytestmark = pytest.mark.realdata
 
 FRAMES = ("DJI_0019", "DJI_0020", "DJI_0021", "DJI_0025", "DJI_0026", "DJI_0027")
 SHRINK = 5  # 4000 x 2250 -> 800 x 450 px
+SURVEY_GNSS = "[gnss]\nsigma_xy_m = 0.05\nsigma_z_m = 0.1\n"  # the [gnss] defaults: a survey receiver's
+
+
+def _set_gnss(root, section: str) -> None:
+    """project.toml with its [gnss] section (the exif import's consumer model) replaced by ``section``."""
+    import re
+
+    p = root / "project.toml"
+    p.write_text(re.sub(r"(?ms)^\[gnss\].*?(?=^\[|\Z)", "", p.read_text()).rstrip() + "\n\n" + section)
 
 
 @pytest.fixture(scope="module")
@@ -32,7 +48,7 @@ def brighton6(shared_data, tmp_path_factory):
     from aerotri.exchange import import_files
     from aerotri.geom.camera import read_camera
     from aerotri.geom.eo import read_gnss
-    from lidarctl.cli import main as lidar_cli
+    from lidarctl.cli.main import main as lidar_cli
 
     data = shared_data / "brighton_beach"
     out = tmp_path_factory.mktemp("brighton6")
@@ -41,6 +57,7 @@ def brighton6(shared_data, tmp_path_factory):
     (root / "project.toml").write_text('[project]\nname = "brighton6"\ncrs = "EPSG:32615"\n\n'
                                        "[flight]\nmean_terrain_height_m = 158.5\n")
     import_files(root, "exif", [data / "images" / f"{i}.JPG" for i in FRAMES])
+    _set_gnss(root, SURVEY_GNSS)
     cam = read_camera(root / "camera.toml")
     w, h = cam.width // SHRINK, cam.height // SHRINK
     (root / "images").mkdir()
@@ -99,3 +116,34 @@ def test_with_the_dem_the_tie_points_lie_on_it(brighton6):
     # the sensor width's 2344 px is 3 % long for this lens: the estimate moves to about 2270 px (full size)
     assert 0.95 * cam.focal_px / SHRINK < f < 0.995 * cam.focal_px / SHRINK
     assert build_report(ba).key_statistics["verdict"] == "successful"
+
+
+def test_consumer_gnss_states_the_datum_in_metres_and_the_dem_places_it(brighton6, tmp_path):
+    """The model the exif import writes: without the DEM the block height has a sigma of metres (held by the
+    offset's a-priori 5 m) and the focal length is confounded with the flying height; with the DEM the tie points
+    lie on it and the flight's height offset is estimated."""
+    import shutil
+
+    from aerotri.adjust.pipeline import AdjustSettings, adjust_project
+    from aerotri.adjust.report import build_report
+    from aerotri.exchange.exif import consumer_gnss_section
+
+    survey, lidar, _ = brighton6
+    root = tmp_path / "consumer"
+    shutil.copytree(survey, root, symlinks=True)
+    _set_gnss(root, consumer_gnss_section())
+    ba = adjust_project(root, AdjustSettings(self_calibration=("focal", "pp", "radial")))
+    rep = build_report(ba).to_record()
+    modes = {g["mode"]: g for g in rep["geometry_modes"]}
+    # metres: the offset's 5 m times sigma0 (0.3 here: the 800 px frames measure better than the a-priori 0.5 px,
+    # and the report's sigma0 note says the sigmas are scaled by it)
+    assert ba.opts.gnss_correction == "offset" and modes["height"]["sigma_m"] > 1.0 and modes["height"]["weak"]
+    focal = {c.group: c for c in ba.calibration_checks}["focal"]
+    assert focal.action == "fixed" and focal.correlations["height"] > 0.9  # with the flying height
+    assert any(n.startswith("GNSS:") and "one 3-D offset for the whole flight" in n for n in rep["datum"])
+    ba = adjust_project(root, AdjustSettings(self_calibration=("pp", "radial"), dem=lidar / "dem.tif",
+                                             ndsm=lidar / "ndsm.tif"))
+    (d,) = ba.dem_checks
+    assert d.n > 200 and not d.failed and abs(d.median_m) < 0.3, d
+    assert {g["mode"]: g for g in build_report(ba).geometry_modes}["height"]["sigma_m"] < 0.1
+    assert abs(ba.result.state.shift[0][2]) > 1.0  # the EXIF heights are metres off the cloud's DEM

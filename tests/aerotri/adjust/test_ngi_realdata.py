@@ -54,7 +54,7 @@ def test_project_is_read_as_built(ngi_data, tmp_path):
     """The toolkit reads the built project as the data's README describes it."""
     from aerotri.core.project import Project
     from aerotri.geom.camera import project_camera
-    from aerotri.geom.crs import horizontal_crs, parse_crs, project_heights, same_crs
+    from aerotri.geom.crs.definition import horizontal_crs, parse_crs, project_heights, same_crs
     from ortho.dem import dem_height_operation
     import rasterio
 

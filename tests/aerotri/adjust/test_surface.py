@@ -143,7 +143,7 @@ SQUARE_M, FACE_M = 60.0, 50.0  # "roofs": 50 m faces on a 60 m grid over the blo
 
 
 def _plane_faces(block, offset_m=None, seed=11):
-    """Faces as roof_planes.geojson holds them (``lidarctl.corners._faces_in_crs_units``' keys, metric CRS):
+    """Faces as roof_planes.geojson holds them (``lidarctl.corners.roof_corners._faces_in_crs_units``' keys, metric CRS):
     each a 50 m square of the block's terrain with the least-squares plane of 400 terrain points in map
     coordinates, its covariance (point noise 2 cm) and rms. ``offset_m``: {face index: metres} added to c."""
     rng = np.random.default_rng(seed)
@@ -173,7 +173,7 @@ def _plane_faces(block, offset_m=None, seed=11):
 def _write_planes(folder, faces, crs):
     import json
 
-    from lidarctl.corners import roof_planes_geojson
+    from lidarctl.corners.roof_corners import roof_planes_geojson
 
     folder.mkdir(parents=True, exist_ok=True)
     gj = roof_planes_geojson(faces, None, sigma_strip_xy_m=0.03, sigma_strip_z_m=0.03, crs=crs)
@@ -352,7 +352,7 @@ def test_a_dem_larger_than_the_memory_budget_is_read_averaged(tmp_path, monkeypa
     from rasterio.transform import from_origin
 
     from aerotri.adjust import surface
-    from aerotri.geom.crs import parse_crs
+    from aerotri.geom.crs.definition import parse_crs
 
     z = (np.arange(300)[:, None] * 0.1 + np.arange(200)[None, :] * 0.05).astype(np.float32)  # a plane
     path = tmp_path / "dem.tif"

@@ -24,10 +24,10 @@ from aerotri.geom.eo import ExteriorOrientations, read_eo, write_eo
 from aerotri.core.project import Project
 from aerotri.sim import load_preset
 from aerotri.sim.observations import geometric_block, true_dmc_camera, write_block_project, write_truth_observations
-from lidarctl.cli import main as lidarctl_cli
-from lidarctl.corners import CornerSettings
+from lidarctl.cli.main import main as lidarctl_cli
+from lidarctl.corners.roof_corners import CornerSettings
 from lidarctl.merge import merge_las
-from lidarctl.rasters import RasterSettings
+from lidarctl.rasters.products import RasterSettings
 
 PROJECT = '[project]\nname = "t"\ncrs = "EPSG:32649"\n'
 

@@ -102,7 +102,7 @@ def test_worker_counts_that_would_hang_or_swamp_are_refused(scheduler, workers, 
 def test_scheduler_local_zero_on_the_command_line_exits_2(tmp_path):
     from click.testing import CliRunner
 
-    from lidarctl.cli import main
+    from lidarctl.cli.main import main
 
     r = CliRunner().invoke(main, ["classify", str(tmp_path / "in.las"), str(tmp_path / "out.las"), "--scheduler",
                                   "local:0"])

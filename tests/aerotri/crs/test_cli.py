@@ -7,9 +7,9 @@ import pytest
 from click.testing import CliRunner
 
 from aerotri.crs.cli import crs
-from aerotri.crs.synthetic import TRUE_BURSA_WOLF7, TRUE_HELMERT2D, simulate_plane, simulate_spatial, write_common_points
-from aerotri.geom.transform import CrsTransformer
-from aerotri.geom.datum import Transformation
+from aerotri.geom.crs.synthetic import TRUE_BURSA_WOLF7, TRUE_HELMERT2D, simulate_plane, simulate_spatial, write_common_points
+from aerotri.geom.crs.transform import CrsTransformer
+from aerotri.geom.crs.datum import Transformation
 
 
 def _run(*args):

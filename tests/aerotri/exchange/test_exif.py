@@ -4,6 +4,7 @@ OpenSfM's solution of the same frames."""
 
 from __future__ import annotations
 
+import json
 import re
 import shutil
 
@@ -265,7 +266,11 @@ def test_init_then_import_as_the_init_says(tmp_path):
 def test_brighton_import_says_the_take_off_height_and_the_missing_accuracy(shared_data, tmp_path):
     """What the import cannot write but the user needs next: the ground at the take-off point from DJI's
     RelativeAltitude (for [flight] mean_terrain_height_m: exif_positions.csv gives abs_alt_m - rel_alt_m = 158.5 m
-    for every frame), and that positions without RTK accuracies get [gnss]'s aerial defaults."""
+    for every frame); positions without RTK accuracies get a consumer receiver's model in project.toml [gnss]
+    (decimetres between frames, one offset of metres for the flight), not [gnss]'s aerial defaults."""
+    from aerotri.core.project import Project
+    from aerotri.exchange.exif import CONSUMER_GNSS
+
     import csv
 
     data = shared_data / "brighton_beach"
@@ -276,7 +281,10 @@ def test_brighton_import_says_the_take_off_height_and_the_missing_accuracy(share
     r = CliRunner().invoke(aerotri_cli, ["import", str(root), "--format", "exif", str(data / "images")])
     assert r.exit_code == 0, r.output
     assert f"[flight] mean_terrain_height_m = {takeoff:.1f}" in r.output
-    assert "states no accuracy (no DJI RTK): the adjustment takes [gnss] sigma_xy_m / sigma_z_m (0.05 / 0.1 m)" in r.output
+    assert "states no accuracy (no DJI RTK): project.toml [gnss] gets a consumer receiver's model" in r.output
+    g = Project.open(root).gnss  # appended to the user's project.toml, every earlier line kept
+    assert (g.sigma_xy_m, g.sigma_z_m, g.offset_sigma_xy_m, g.offset_sigma_z_m) == CONSUMER_GNSS
+    assert json.loads((root / "imported" / "imports.json").read_text())["imports"][0]["files"][-1]["path"] == "project.toml"
     # the sources of a folder of frames in a few words, not 18 file names
     assert "(from 18 files, DJI_0018.JPG ... DJI_0035.JPG)" in r.output
     # stated in project.toml: no note
@@ -285,3 +293,4 @@ def test_brighton_import_says_the_take_off_height_and_the_missing_accuracy(share
     r = CliRunner().invoke(aerotri_cli, ["import", str(tmp_path / "q"), "--format", "exif", str(data / "images")])
     assert r.exit_code == 0, r.output
     assert "states no accuracy" not in r.output
+    assert (tmp_path / "q" / "project.toml").read_text().endswith("sigma_z_m = 5.0\n")  # the user's [gnss], untouched

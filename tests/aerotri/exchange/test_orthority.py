@@ -135,9 +135,9 @@ def test_crs_is_required_and_checked(tiny_project, tmp_path, fresh_project):
 def test_other_crs_rotates_onto_the_project_grid(tiny_project, tmp_path, fresh_project):
     """A position and attitude in the neighbouring UTM zone: the centre is transformed and the attitude is
     turned by the grid convergence between the zones (kappa changes, the viewing direction does not)."""
-    from aerotri.geom.crs import project_crs
+    from aerotri.geom.crs.definition import project_crs
     from aerotri.geom.rotation import rotation_matrix_opk
-    from aerotri.geom.transform import transform_points
+    from aerotri.geom.crs.transform import transform_points
 
     root = fresh_project(tiny_project, tmp_path / "p")
     crs = project_crs(Project.open(root))

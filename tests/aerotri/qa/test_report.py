@@ -148,7 +148,7 @@ def test_line_map_row_from_the_check_vectors_result(tmp_path):
     import pytest
 
     from aerotri.core.errors import InputError
-    from lidarctl.vector_check import check_files
+    from lidarctl.checks.vectors import check_files
 
     (tmp_path / "p").mkdir()
     p = _project(tmp_path / "p", [0.1, 0.1, 0.5], 0.18)

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 from click.testing import CliRunner
 
-from lidarctl.cli import main
+from lidarctl.cli.main import main
 from lidarctl.strips.adjust import read_strip_adjustment
 from lidarctl.strips.check import read_strip_check
 

@@ -10,7 +10,7 @@ import pytest
 import rasterio
 from click.testing import CliRunner
 
-from lidarctl.cli import main
+from lidarctl.cli.main import main
 from lidarctl.strips.check import nothing_compared, read_strip_check
 
 

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 from click.testing import CliRunner
 
-from lidarctl.cli import main
+from lidarctl.cli.main import main
 from lidarctl.strips.adjust import read_strip_adjustment
 
 # every strip 0.17-0.25 m high (a common GNSS height error) plus small horizontal shifts

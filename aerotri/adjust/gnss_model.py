@@ -1,0 +1,59 @@
+"""The GNSS model of an adjustment in words: how the positions are weighted, which shifts are estimated, and where
+the sigmas came from (gnss.txt, project.toml [gnss], or the defaults), for the report's DATUM section.
+
+Two receivers the toolkit models:
+
+- a survey receiver (aerial GNSS/IMU, RTK): each position with its own sigma (centimetres), independent between
+  frames; optionally a shift (and drift) per strip, free, which control points must then fix
+  (``[adjust] gnss_correction``);
+- a consumer receiver (a drone without RTK): the positions of one flight share an error of metres (its absolute
+  accuracy) and differ among themselves by decimetres. Positions weighted with the decimetres (``[gnss]
+  sigma_xy_m``, ``sigma_z_m``) plus one 3-D offset for the whole flight with the metres as its a-priori sigma
+  (``[gnss] offset_sigma_xy_m``, ``offset_sigma_z_m``). One offset per flight, not per strip: the error of a
+  consumer receiver changes over minutes, not at a turn, and per-strip offsets of metres would let the strips of
+  a small block move apart by metres that the tie points alone must hold. Without control the block's datum is
+  then held by the offset's a-priori sigma (metres, and the report says so); with a DEM or control the offset is
+  estimated and the baselines between frames, weighted by decimetres, still give the block's scale.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+DEFAULT_SOURCE = "the [gnss] defaults, a survey receiver's"
+
+
+def sigma_source(project, per_record: bool) -> str:
+    """Where the positions' sigmas came from: gnss.txt's sX sY sZ, project.toml [gnss], or the defaults."""
+    if per_record:
+        return f"{project.gnss_path.name} sX sY sZ"
+    if all(project.source_of("gnss", k) == "project.toml" for k in ("sigma_xy_m", "sigma_z_m")):
+        return f"{project.config_path.name} [gnss] sigma_xy_m, sigma_z_m"
+    return DEFAULT_SOURCE
+
+
+def statement(correction: str, sigma_m: np.ndarray, source: str, offset_sigma_m, offset_source: str,
+              shift_m: np.ndarray | None = None) -> str:
+    """The GNSS model in one paragraph. ``correction``: the solve's GNSS model (``graph.GNSS_MODELS``);
+    ``sigma_m`` (N, 3) the positions' sigmas; ``offset_sigma_m`` (3,) or None the shifts' a-priori sigma;
+    ``shift_m`` (S, 3) the estimated shifts (ENU, m)."""
+    med = np.median(np.asarray(sigma_m, dtype=float), axis=0)
+    weights = f"positions weighted with {med[0]:.3g} / {med[2]:.3g} m (plan / height; {source})"
+    if correction == "none":
+        return (f"GNSS: {weights}, independent between frames, no offset estimated: the datum is as good as these "
+                "sigmas say.")
+    what = {"offset": "one 3-D offset for the whole flight (a consumer receiver's common error)",
+            "shift": "a shift per strip", "shift_drift": "a shift and drift per strip"}[correction]
+    if offset_sigma_m is None:
+        prior = "free (the control fixes it)"
+    else:
+        o = np.asarray(offset_sigma_m, dtype=float)
+        prior = f"a priori {o[0]:.3g} / {o[2]:.3g} m ({offset_source})"
+    text = f"GNSS: {weights} between frames, and {what}, {prior}"
+    if shift_m is not None and correction == "offset":
+        e, n, u = np.asarray(shift_m, dtype=float)[0]
+        text += f"; estimated E {e:+.2f} N {n:+.2f} U {u:+.2f} m"
+    if offset_sigma_m is not None:
+        text += (". Without control or a DEM the block's height is held by that a-priori sigma (BLOCK "
+                 "GEOMETRY)")
+    return text + "."

@@ -1,0 +1,326 @@
+"""CRSs: parsing (the one parser every command uses), labels, units, and plausibility checks of
+coordinates against a CRS.
+
+The checks catch the usual mix-ups before any arithmetic: degrees given for a projected CRS,
+feet for metres, eastings without the Gauss-Krueger zone prefix, or a wrong zone.
+"""
+
+from __future__ import annotations
+
+import functools
+
+import numpy as np
+import pyproj
+
+from aerotri.core.errors import CrsError, InputError
+
+
+@functools.lru_cache(maxsize=256)
+def _crs_from_code(code: str) -> pyproj.CRS:
+    return pyproj.CRS.from_user_input(code)
+
+
+def parse_crs(value, source: str = "CRS") -> pyproj.CRS:
+    """A pyproj CRS from ``4326``, ``"4326"``, ``"EPSG:4326"``, WKT, PROJ text or a pyproj CRS.
+
+    ``CrsError`` (an ``InputError``) naming ``source`` (the option, file or key) if PROJ does not know it.
+    """
+    if isinstance(value, pyproj.CRS):
+        return value
+    if hasattr(value, "to_wkt") and not isinstance(value, str):  # rasterio's CRS
+        return _crs_from_code(value.to_wkt())
+    text = str(value).strip()
+    if not text:
+        raise CrsError(f"{source}: empty CRS (expected e.g. EPSG:32649)")
+    if text.isdigit():
+        text = f"EPSG:{text}"
+    try:
+        return _crs_from_code(text.upper() if text.lower().startswith("epsg:") else text)
+    except pyproj.exceptions.CRSError:
+        raise CrsError(f"{source}: unknown CRS {value!r} (not an EPSG code, WKT or PROJ string PROJ knows)") from None
+
+
+def crs_label(crs: pyproj.CRS) -> str:
+    """``EPSG:nnnn`` when the CRS has an EPSG identity, else its name; a projected CRS without a name (PROJ
+    calls one given as a PROJ string "unknown") by its projection, parameters and datum."""
+    code = crs.to_epsg(min_confidence=90)
+    if code:
+        return f"EPSG:{code}"
+    op = crs.coordinate_operation
+    if crs.name in ("", "unknown") and op is not None:
+        params = ", ".join(f"{p.name} {p.value:g}" for p in op.params if p.value)
+        datum = crs.datum.name if crs.datum is not None else "unknown datum"
+        return f"{op.method_name} ({params}), {datum}"
+    return crs.name
+
+
+def horizontal_crs(crs: pyproj.CRS) -> pyproj.CRS:
+    """The horizontal part of a compound CRS, else the CRS itself."""
+    crs = parse_crs(crs)
+    if crs.is_compound:
+        return crs.sub_crs_list[0]
+    return crs
+
+
+def vertical_crs(crs: pyproj.CRS) -> pyproj.CRS | None:
+    """The vertical part of a compound CRS, else None (a 2D CRS's heights are not declared)."""
+    crs = parse_crs(crs)
+    if crs.is_compound:
+        for c in crs.sub_crs_list[1:]:
+            if c.is_vertical:
+                return c
+    return None
+
+
+def same_crs(a, b) -> bool:
+    """True when two CRSs are the same (axis order ignored; definitions that differ only in naming but
+    carry the same EPSG identity agree); None equals only None."""
+    if a is None or b is None:
+        return a is None and b is None
+    a, b = parse_crs(a), parse_crs(b)
+    if a.equals(b, ignore_axis_order=True):
+        return True
+    ea, eb = a.to_epsg(min_confidence=70), b.to_epsg(min_confidence=70)
+    return ea is not None and ea == eb
+
+
+def same_horizontal(a, b) -> bool:
+    """True when two CRSs have the same horizontal part (compound CRSs compared by their parts)."""
+    return same_crs(horizontal_crs(a), horizontal_crs(b))
+
+
+def same_vertical(a, b) -> bool:
+    """False only when both CRSs declare a vertical part and the two differ (a 2D CRS says nothing)."""
+    va, vb = vertical_crs(a), vertical_crs(b)
+    return va is None or vb is None or va.equals(vb)
+
+
+def parse_heights(value, source: str = "[project] heights") -> pyproj.CRS | None:
+    """The project's height system: ``"ellipsoidal"`` (None) or a vertical CRS (e.g. ``EPSG:3855``,
+    EGM2008 height; ``EPSG:5773``, EGM96 height)."""
+    text = str(value or "ellipsoidal").strip()
+    if text.lower() == "ellipsoidal":
+        return None
+    crs = parse_crs(text, source)
+    if not crs.is_vertical:
+        raise CrsError(f"{source}: {crs_label(crs)} ({crs.name}) is not a vertical CRS; expected \"ellipsoidal\" or "
+                       "a vertical CRS such as EPSG:3855 (EGM2008 height)")
+    return crs
+
+
+def height_crs(horizontal: pyproj.CRS, heights: pyproj.CRS | None) -> pyproj.CRS:
+    """The 3D CRS of coordinates in ``horizontal`` with heights in ``heights`` (None: ellipsoidal)."""
+    h = horizontal_crs(horizontal)
+    if heights is None:
+        return h.to_3d()
+    return pyproj.crs.CompoundCRS(f"{h.name} + {heights.name}", [h, heights])
+
+
+def linear_unit_m(crs: pyproj.CRS) -> float:
+    """Metres per unit of the first horizontal axis (1 for metre grids, 0.3048006 for US survey feet);
+    ``nan`` for geographic CRSs (degrees)."""
+    h = horizontal_crs(crs)
+    if h.is_geographic:
+        return float("nan")
+    return float(h.axis_info[0].unit_conversion_factor)
+
+
+def unit_name(crs: pyproj.CRS) -> str:
+    """Short unit of the horizontal axes: 'deg', 'm', 'ft' or 'us-ft'."""
+    h = horizontal_crs(crs)
+    if h.is_geographic:
+        return "deg"
+    return length_unit_name(linear_unit_m(h))
+
+
+_LONG_NAMES = {"deg": "degree", "m": "metre", "ft": "foot", "us-ft": "US survey foot"}
+
+
+def length_unit_name(unit_m: float, long: bool = False) -> str:
+    """Name of a length unit given in metres per unit: 'm', 'ft', 'us-ft' (``long``: as GDAL band unit
+    types and WKT spell them: 'metre', 'foot', 'US survey foot'); other units as '<f>m' / '<f> metre'."""
+    if abs(unit_m - 1.0) < 1e-12:
+        short = "m"
+    elif abs(unit_m - 0.3048) < 1e-9:
+        short = "ft"
+    elif abs(unit_m - 1200 / 3937) < 1e-9:
+        short = "us-ft"
+    else:
+        return f"{unit_m:g} metre" if long else f"{unit_m:g}m"
+    return _LONG_NAMES[short] if long else short
+
+
+def unit_long_name(crs: pyproj.CRS) -> str:
+    """The horizontal axes' unit as GDAL and WKT spell it: 'degree', 'metre', 'foot', 'US survey foot'."""
+    return _LONG_NAMES.get(unit_name(crs)) or length_unit_name(linear_unit_m(crs), long=True)
+
+
+def height_unit_m(crs: pyproj.CRS) -> float:
+    """Metres per unit of height values in ``crs``: the vertical axis's unit of a compound or 3D CRS; a 2D
+    projected CRS has heights in its horizontal unit (the LAS convention, as ``transform`` reads
+    z); a 2D geographic CRS in metres."""
+    crs = parse_crs(crs)
+    if crs.is_compound:
+        v = vertical_crs(crs)
+        if v is not None and v.axis_info:
+            return float(v.axis_info[0].unit_conversion_factor)
+    if len(crs.axis_info) >= 3:
+        return float(crs.axis_info[2].unit_conversion_factor)
+    f = linear_unit_m(crs)
+    return 1.0 if np.isnan(f) else f
+
+
+def check_stored_crs(requested: pyproj.CRS, stored, where: str, x, y, tolerance: float) -> None:
+    """``CrsError`` naming ``where`` unless the CRS a GeoTIFF holds (``stored``: rasterio's CRS or None) is
+    ``requested``. GDAL may rewrite a definition into an equivalent one (polar stereographic variant A
+    as variant B): that counts as the same when datum, units and vertical part agree and the grid points
+    (x, y) unproject with ``requested`` and reproject with ``stored`` to within ``tolerance`` units."""
+    label = crs_label(requested) + ("" if crs_label(requested) == requested.name else f" ({requested.name})")
+    why = None
+    if stored is None:
+        why = "GDAL wrote no CRS at all"
+    else:
+        got = parse_crs(stored)
+        if not same_crs(requested, got):
+            h_req, h_got = horizontal_crs(requested), horizontal_crs(got)
+            if len(requested.axis_info) != len(got.axis_info) or requested.is_compound != got.is_compound:
+                why = f"GDAL stores it as {got.type_name} {got.name!r} (with {len(got.axis_info)} axes)"
+            elif requested.is_compound and not vertical_crs(requested).equals(vertical_crs(got)):
+                why = f"GDAL stores its vertical part as {vertical_crs(got).name!r}"
+            elif (h_req.type_name != h_got.type_name
+                  or not h_req.geodetic_crs.equals(h_got.geodetic_crs, ignore_axis_order=True)
+                  or h_req.is_bound and not h_req.coordinate_operation.equals(h_got.coordinate_operation)):
+                why = f"GDAL stores it with another datum ({h_got.name!r}, {h_got.geodetic_crs.name!r})"
+            elif h_req.is_projected and abs(linear_unit_m(h_req) - linear_unit_m(h_got)) > 1e-12:
+                why = f"GDAL stores it in {unit_name(h_got)}"
+            else:
+                with np.errstate(all="ignore"):
+                    X, Y = pyproj.Transformer.from_crs(h_req, h_got, always_xy=True).transform(
+                        np.asarray(x, float), np.asarray(y, float), errcheck=False)
+                err = np.hypot(np.asarray(X) - x, np.asarray(Y) - y)
+                if not np.all(np.isfinite(err)) or float(np.max(err)) > tolerance:
+                    why = f"GDAL stores it as {got.name!r}, which puts the grid elsewhere"
+    if why:
+        raise CrsError(f"{where}: {label} cannot be stored in a GeoTIFF ({why}); give the CRS in a form GeoTIFF "
+                       "keeps: an EPSG code, or a 2D projected CRS (heights are then in its linear unit and the "
+                       "raster says so in VERTICAL_UNITS), or a compound CRS with an EPSG vertical CRS")
+
+
+def geotiff_crs(crs: pyproj.CRS, where: str, x, y, tolerance: float):
+    """The rasterio CRS to write ``crs`` into a GeoTIFF (from its WKT), after a round trip through an
+    in-memory GeoTIFF that ``check_stored_crs`` accepts (so a product never loses or changes its CRS)."""
+    import rasterio
+    from rasterio.transform import Affine
+    from rasterio.crs import CRS as RioCRS
+    from rasterio.io import MemoryFile
+
+    rio = RioCRS.from_wkt(crs.to_wkt())
+    # without PAM: GDAL would keep a CRS it cannot encode in an .aux.xml side file, which a copy loses
+    with rasterio.Env(GDAL_PAM_ENABLED=False), MemoryFile() as mem:
+        with mem.open(driver="GTiff", width=1, height=1, count=1, dtype="uint8", crs=rio,
+                      transform=Affine(1.0, 0.0, 0.5, 0.0, -1.0, 0.5)):
+            pass
+        with mem.open() as ds:
+            stored = ds.crs
+    check_stored_crs(crs, stored, where, x, y, tolerance)
+    return rio
+
+
+def check_coordinates(crs: pyproj.CRS, x, y, source: str, records=None, margin_deg: float = 1.0) -> None:
+    """Raise ``InputError`` naming the first record whose coordinates cannot belong to ``crs``.
+
+    Geographic CRSs need longitude/latitude in range; projected CRSs need points that fall, once
+    unprojected, within the CRS's area of use widened by ``margin_deg``, and within that area's
+    grid bounding box widened by 5 % (at least 10 km). Zone-prefixed
+    Gauss-Krueger eastings must carry their zone number. ``records`` labels the points (e.g. line
+    numbers or ids) in the messages.
+    """
+    x = np.asarray(x, dtype=float)
+    y = np.asarray(y, dtype=float)
+    label = crs_label(crs)
+
+    def where(i):
+        return f"{source}: {records[i]}" if records is not None else f"{source}: point {i + 1}"
+
+    bad = ~(np.isfinite(x) & np.isfinite(y))
+    if bad.any():
+        raise InputError(f"{where(int(np.argmax(bad)))}: coordinates are not finite numbers")
+    h = horizontal_crs(crs)
+    if h.is_geocentric:
+        return
+    if h.is_geographic:
+        bad = (np.abs(y) > 90.0) | (x < -180.0) | (x > 360.0)
+        if bad.any():
+            i = int(np.argmax(bad))
+            raise InputError(
+                f"{where(i)}: ({x[i]:.3f}, {y[i]:.3f}) is not a longitude/latitude in degrees, which {label} "
+                "expects (x = longitude, y = latitude); metres given for a geographic CRS? (mixed units)"
+            )
+        return
+    # Zone-prefixed Gauss-Krueger: the millions of the easting are the zone number.
+    op = h.coordinate_operation
+    fe = None
+    if op is not None and "transverse mercator" in op.method_name.lower():
+        params = {p.name.lower(): p.value for p in op.params}
+        fe = float(params.get("false easting", 0.0))
+    if fe is not None and fe >= 1_000_000.0 and abs(linear_unit_m(h) - 1.0) < 1e-12:
+        zone = int(fe // 1_000_000)
+        bad = np.floor(x / 1_000_000.0).astype(int) != zone
+        if bad.any():
+            i = int(np.argmax(bad))
+            raise InputError(
+                f"{where(i)}: easting {x[i]:.3f} does not carry the zone prefix {zone} of {label} "
+                f"(expected {zone}xxxxxx.xxx m; eastings without prefix belong to a 'CM' grid, "
+                "degrees or another zone are mixed units/zones)"
+            )
+    aou = h.area_of_use
+    if aou is None:
+        return
+    to_geo = pyproj.Transformer.from_crs(h, h.geodetic_crs, always_xy=True)
+    with np.errstate(all="ignore"):
+        lon, lat = to_geo.transform(x, y, errcheck=False)
+    lon = np.asarray(lon, dtype=float)
+    lat = np.asarray(lat, dtype=float)
+    west, east = aou.west, aou.east
+    if east < west:  # area crossing the antimeridian
+        east += 360.0
+        lon = np.where(lon < west - margin_deg, lon + 360.0, lon)
+    bad = ~(
+        np.isfinite(lon)
+        & np.isfinite(lat)
+        & (lon >= west - margin_deg)
+        & (lon <= east + margin_deg)
+        & (lat >= aou.south - margin_deg)
+        & (lat <= aou.north + margin_deg)
+    )
+    # The same area in grid coordinates, widened by 5 % (at least 10 km): catches small numbers
+    # (degrees, kilometres) that unproject to somewhere near the grid's false origin.
+    to_grid = pyproj.Transformer.from_crs(h.geodetic_crs, h, always_xy=True)
+    try:
+        xmin, ymin, xmax, ymax = to_grid.transform_bounds(
+            max(aou.west - margin_deg, -180.0), max(aou.south - margin_deg, -90.0),
+            min(aou.east + margin_deg, 180.0), min(aou.north + margin_deg, 90.0), densify_pts=21)
+    except pyproj.exceptions.ProjError:
+        xmin = ymin = -np.inf
+        xmax = ymax = np.inf
+    if np.all(np.isfinite([xmin, ymin, xmax, ymax])):
+        mx = max(0.05 * (xmax - xmin), 10_000.0 / linear_unit_m(h))
+        my = max(0.05 * (ymax - ymin), 10_000.0 / linear_unit_m(h))
+        bad |= (x < xmin - mx) | (x > xmax + mx) | (y < ymin - my) | (y > ymax + my)
+    if bad.any():
+        i = int(np.argmax(bad))
+        raise InputError(
+            f"{where(i)}: ({x[i]:.3f}, {y[i]:.3f}) lies outside the area of use of {label} ({h.name}, "
+            f"lon {aou.west:.1f}..{aou.east:.1f}, lat {aou.south:.1f}..{aou.north:.1f}); wrong CRS or mixed units "
+            f"(degrees, feet or metres)? {label} expects {unit_name(h)} in x = easting, y = northing order"
+        )
+
+
+def project_crs(project) -> pyproj.CRS:
+    """The CRS of a project folder (``[project] crs`` of project.toml), checked."""
+    return parse_crs(project.crs, f"{project.config_path} [project] crs")
+
+
+def project_heights(project) -> pyproj.CRS | None:
+    """The height system of a project folder (``[project] heights``; None: ellipsoidal), checked."""
+    return parse_heights(project.info.heights, f"{project.config_path} [project] heights")

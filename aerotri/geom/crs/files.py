@@ -1,0 +1,451 @@
+"""Files: common-point lists, height points, parameter files, and transforming point lists and LAS/LAZ.
+
+Common points (``crs fit``), CSV or whitespace text with a header line::
+
+    id,x_from,y_from,z_from,x_to,y_to,z_to
+    P01,423456.789,3812345.678,512.345,37423400.123,3812300.456,498.765
+
+x = easting (or longitude), y = northing (or latitude) in the units of each CRS; z (ellipsoidal
+heights, metres) is needed by the spatial models only. Columns may carry a unit suffix
+(``x_from_m``, ``y_to_deg``, ``_ft``); the suffixes must agree with each other and with the CRS.
+
+Height points (``crs fit-heights``): header ``id,x,y,h,H`` (h ellipsoidal, H normal height, metres;
+``h_ellipsoidal``/``H_normal`` also accepted).
+
+Point lists (``crs transform``): CSV with a header naming ``x``, ``y`` and optionally ``z`` columns
+(case-insensitive; other columns are copied), or header-less whitespace text ``id x y z ...``
+(like gnss.txt). Lines starting with ``#`` are kept as they are.
+"""
+
+from __future__ import annotations
+
+import copy
+import csv
+import dataclasses
+import io
+import json
+import math
+import re
+from pathlib import Path
+
+import numpy as np
+
+from aerotri.geom import las
+from aerotri.geom.crs.ellipsoid import Ellipsoid, geocentric_to_geodetic, geodetic_to_geocentric
+from aerotri.geom.crs.definition import check_coordinates, crs_label, horizontal_crs, linear_unit_m, parse_crs, same_crs, unit_name
+from aerotri.geom.crs.fit import fit_plane, fit_spatial
+from aerotri.geom.crs.datum import SPATIAL, load_height_model, load_transformation
+from aerotri.geom.crs.transform import CrsTransformer, to_own_geodetic, z_unit_m
+from aerotri.core.errors import InputError, OptionError
+from aerotri.core.log import track_chunks
+from aerotri.core.atomic import atomic_path, write_text_atomic
+from aerotri.core.textio import read_text
+
+LAS_SUFFIXES = (".las", ".laz")
+_UNIT_SUFFIX = re.compile(r"^(?P<base>.+?)_(?P<unit>m|deg|ft|usft|us-ft)$", re.IGNORECASE)
+
+
+# ----------------------------------------------------------------------------------------------
+# Reading tables
+# ----------------------------------------------------------------------------------------------
+
+
+@dataclasses.dataclass
+class _Table:
+    path: Path
+    header: list | None
+    rows: list  # list of field lists
+    line_numbers: list
+    delimiter: str | None  # ',' or None for whitespace
+    lines: list  # raw lines (for copying comments)
+
+
+def _read_table(path, require_header: bool) -> _Table:
+    path = Path(path)
+    text = read_text(path, "point table")
+    lines = text.splitlines()
+    data = [(i + 1, ln) for i, ln in enumerate(lines) if ln.strip() and not ln.lstrip().startswith("#")]
+    if not data:
+        raise InputError(f"{path}: no records")
+    delimiter = "," if "," in data[0][1] else None
+
+    def split(ln):
+        if delimiter == ",":
+            return [f.strip() for f in next(csv.reader([ln]))]
+        return ln.split()
+
+    first = split(data[0][1])
+    has_header = not _is_number(first[1]) if len(first) > 1 else True
+    if require_header and not has_header:
+        raise InputError(f"{path}: line {data[0][0]}: a header line naming the columns is required")
+    header = first if has_header else None
+    body = data[1:] if has_header else data
+    if not body:
+        raise InputError(f"{path}: a header line and no records (expected one point per line after it)")
+    return _Table(path, header, [split(ln) for _, ln in body], [n for n, _ in body], delimiter, lines)
+
+
+def _is_number(s: str) -> bool:
+    try:
+        float(s)
+        return True
+    except ValueError:
+        return False
+
+
+def _columns(table: _Table, wanted: dict, optional=()) -> dict:
+    """Map logical names to column indices; ``wanted`` maps a name to accepted header spellings.
+    Returns {name: (index, unit or None)}."""
+    found = {}
+    for j, col in enumerate(table.header):
+        m = _UNIT_SUFFIX.match(col)
+        base, unit = (m["base"], m["unit"].lower().replace("usft", "us-ft")) if m else (col, None)
+        for name, spellings in wanted.items():
+            if base in spellings or base.lower() in spellings:
+                if name in found:
+                    raise InputError(f"{table.path}: line 1: column {name} appears twice")
+                found[name] = (j, unit)
+    missing = [n for n in wanted if n not in found and n not in optional]
+    if missing:
+        raise InputError(
+            f"{table.path}: header {table.header} lacks column(s) {', '.join(missing)} "
+            f"(expected {', '.join(wanted)})"
+        )
+    return found
+
+
+def _float_columns(table: _Table, cols: dict, names) -> dict:
+    out = {n: np.empty(len(table.rows)) for n in names}
+    for r, (fields, line) in enumerate(zip(table.rows, table.line_numbers)):
+        for n in names:
+            j = cols[n][0]
+            if j >= len(fields):
+                raise InputError(f"{table.path}: line {line}: missing value for {n}")
+            try:
+                v = float(fields[j])
+            except ValueError:
+                raise InputError(f"{table.path}: line {line}: {n} = {fields[j]!r} is not a number") from None
+            if not math.isfinite(v):
+                raise InputError(f"{table.path}: line {line}: {n} = {fields[j]!r} is not finite")
+            out[n][r] = v
+    return out
+
+
+def _ids(table: _Table, j: int) -> list:
+    ids, seen = [], {}
+    for fields, line in zip(table.rows, table.line_numbers):
+        pid = fields[j]
+        if pid in seen:
+            raise InputError(f"{table.path}: line {line}: duplicate point id {pid!r} (first on line {seen[pid]})")
+        seen[pid] = line
+        ids.append(pid)
+    return ids
+
+
+def _check_units(table: _Table, cols: dict, side: str, crs) -> None:
+    units = {n: cols[n][1] for n in cols if n.endswith(side) and cols[n][1] is not None}
+    horiz = {n: u for n, u in units.items() if not n.startswith("z")}
+    if len(set(horiz.values())) > 1:
+        raise InputError(
+            f"{table.path}: line 1: mixed units in the header for the {side.strip('_')} system: "
+            + ", ".join(f"{n}[{u}]" for n, u in horiz.items())
+        )
+    expected = unit_name(crs)
+    for n, u in horiz.items():
+        if u != expected:
+            raise InputError(
+                f"{table.path}: line 1: column {n} is in {u} but {crs_label(crs)} ({crs.name}) uses {expected} (mixed units)"
+            )
+    for n, u in units.items():
+        if n.startswith("z") and u not in ("m",):
+            raise InputError(f"{table.path}: line 1: column {n}: heights must be in metres, not {u}")
+
+
+@dataclasses.dataclass
+class CommonPoints:
+    ids: list
+    src: np.ndarray  # (n, 2) or (n, 3)
+    dst: np.ndarray
+    has_z: bool
+
+
+def read_common_points(path, from_crs, to_crs, need_z: bool = False) -> CommonPoints:
+    table = _read_table(path, require_header=True)
+    wanted = {n: (n,) for n in ("id", "x_from", "y_from", "z_from", "x_to", "y_to", "z_to")}
+    cols = _columns(table, wanted, optional=("z_from", "z_to"))
+    has_z = "z_from" in cols and "z_to" in cols
+    if need_z and not has_z:
+        raise InputError(f"{table.path}: the spatial models need ellipsoidal heights in columns z_from and z_to")
+    src_crs, dst_crs = parse_crs(from_crs, "--from"), parse_crs(to_crs, "--to")
+    _check_units(table, cols, "_from", src_crs)
+    _check_units(table, cols, "_to", dst_crs)
+    names = ["x_from", "y_from", "x_to", "y_to"] + (["z_from", "z_to"] if has_z else [])
+    v = _float_columns(table, cols, names)
+    ids = _ids(table, cols["id"][0])
+    rec = [f"line {ln} (id {pid})" for ln, pid in zip(table.line_numbers, ids)]
+    check_coordinates(src_crs, v["x_from"], v["y_from"], f"{table.path} [from {crs_label(src_crs)}]", rec)
+    check_coordinates(dst_crs, v["x_to"], v["y_to"], f"{table.path} [to {crs_label(dst_crs)}]", rec)
+    src = [v["x_from"], v["y_from"]] + ([v["z_from"]] if has_z else [])
+    dst = [v["x_to"], v["y_to"]] + ([v["z_to"]] if has_z else [])
+    return CommonPoints(ids, np.column_stack(src), np.column_stack(dst), has_z)
+
+
+def geocentric_of(crs_obj, x, y, z):
+    """Geocentric XYZ (metres) and geodetic lat/lon of coordinates in ``crs_obj`` on its own datum
+    (a conversion, never a datum shift)."""
+    if crs_obj.is_geocentric:
+        XYZ = np.column_stack([x, y, z])
+        lat, lon, _ = geocentric_to_geodetic(x, y, z, Ellipsoid.from_crs(crs_obj))
+        return XYZ, np.column_stack([lat, lon])
+    lon, lat, h = to_own_geodetic(crs_obj, np.asarray(x, float), np.asarray(y, float), np.asarray(z, float))
+    XYZ = np.column_stack(geodetic_to_geocentric(lat, lon, h, Ellipsoid.from_crs(crs_obj)))
+    return XYZ, np.column_stack([lat, lon])
+
+
+def fit_common_points(path, model: str, from_crs, to_crs):
+    """Read a common-point file and fit ``model`` (library entry point of ``crs fit``)."""
+    src_crs, dst_crs = parse_crs(from_crs, "--from"), parse_crs(to_crs, "--to")
+    cp = read_common_points(path, src_crs, dst_crs, need_z=SPATIAL[model])
+    src_label, dst_label = crs_label(src_crs), crs_label(dst_crs)
+    if not SPATIAL[model]:
+        for c, opt in ((src_crs, "--from"), (dst_crs, "--to")):
+            h = horizontal_crs(c)
+            if not h.is_projected or abs(linear_unit_m(h) - 1.0) > 1e-12:
+                raise InputError(
+                    f"{opt} {crs_label(c)} ({c.name}): {model} works on metre grids (projected CRS); "
+                    "use bursa-wolf7 or translation3 for geographic/geocentric coordinates"
+                )
+        try:
+            return fit_plane(model, cp.ids, cp.src[:, :2], cp.dst[:, :2], from_crs=src_label, to_crs=dst_label)
+        except InputError as exc:
+            raise InputError(f"{path}: {exc}") from None
+    XYZ_s, _ = geocentric_of(src_crs, cp.src[:, 0], cp.src[:, 1], cp.src[:, 2])
+    XYZ_d, ll_d = geocentric_of(dst_crs, cp.dst[:, 0], cp.dst[:, 1], cp.dst[:, 2])
+    plane = cp.src[:, :2] if horizontal_crs(src_crs).is_projected and linear_unit_m(src_crs) == 1.0 else None
+    try:
+        return fit_spatial(model, cp.ids, XYZ_s, XYZ_d, dst_lat_lon_deg=ll_d, from_crs=src_label, to_crs=dst_label,
+                           src_plane_m=plane)
+    except InputError as exc:
+        raise InputError(f"{path}: {exc}") from None
+
+
+def read_height_points(path, crs=None):
+    """(ids, x, y, h, H) from a header table id,x,y,h,H."""
+    table = _read_table(path, require_header=True)
+    wanted = {
+        "id": ("id",),
+        "x": ("x", "X", "easting"),
+        "y": ("y", "Y", "northing"),
+        "h": ("h", "h_ellipsoidal", "h_ell"),
+        "H": ("H", "H_normal", "H_norm"),
+    }
+    cols = {}
+    for j, col in enumerate(table.header):
+        base = _UNIT_SUFFIX.match(col)["base"] if _UNIT_SUFFIX.match(col) else col
+        for name, spell in wanted.items():
+            if base in spell or (name in ("id", "x", "y") and base.lower() in spell):
+                cols[name] = (j, None)
+    missing = [n for n in wanted if n not in cols]
+    if missing:
+        raise InputError(f"{table.path}: header {table.header} lacks column(s) {', '.join(missing)} "
+                         "(expected id, x, y, h (ellipsoidal), H (normal height))")
+    v = _float_columns(table, cols, ["x", "y", "h", "H"])
+    ids = _ids(table, cols["id"][0])
+    if crs is not None:
+        c = parse_crs(crs, "--epsg")
+        if not c.is_projected:
+            raise InputError(f"--epsg {crs_label(c)}: height anomaly models need a projected (metre) CRS")
+        rec = [f"line {ln} (id {pid})" for ln, pid in zip(table.line_numbers, ids)]
+        check_coordinates(c, v["x"], v["y"], str(table.path), rec)
+    return ids, v["x"], v["y"], v["h"], v["H"]
+
+
+def write_json(path, data: dict) -> None:
+    write_text_atomic(path, json.dumps(data, indent=2, allow_nan=False) + "\n")
+
+
+# ----------------------------------------------------------------------------------------------
+# Point lists
+# ----------------------------------------------------------------------------------------------
+
+
+def _decimals(crs) -> int:
+    return 9 if unit_name(crs) == "deg" else 4
+
+
+def transform_point_list(in_path, out_path, transformer: CrsTransformer) -> int:
+    """Transform a CSV/TXT point list (see module docstring); returns the number of points."""
+    table = _read_table(in_path, require_header=False)
+    if table.header is None:
+        ix, iy, iz = 1, 2, 3
+        if any(len(f) < 3 for f in table.rows):
+            ln = table.line_numbers[next(i for i, f in enumerate(table.rows) if len(f) < 3)]
+            raise InputError(f"{table.path}: line {ln}: expected 'id x y [z ...]'")
+        if any(len(f) < 4 for f in table.rows):
+            iz = None
+    else:
+        lower = [c.lower() for c in table.header]
+        pick = {}
+        for name, spell in {"x": ("x", "easting", "e", "lon"), "y": ("y", "northing", "n", "lat"),
+                            "z": ("z", "h", "height", "elevation")}.items():
+            pick[name] = next((lower.index(s) for s in spell if s in lower), None)
+        if pick["x"] is None or pick["y"] is None:
+            raise InputError(f"{table.path}: header {table.header} must name x and y columns")
+        ix, iy, iz = pick["x"], pick["y"], pick["z"]
+    cols = {"x": (ix, None), "y": (iy, None)}
+    if iz is not None:
+        cols["z"] = (iz, None)
+    v = _float_columns(table, cols, list(cols))
+    recs = [f"line {ln}" for ln in table.line_numbers]
+    check_coordinates(transformer.src, v["x"], v["y"], str(table.path), recs)
+    X, Y, Z = transformer.transform(v["x"], v["y"], v.get("z"))
+    dec = _decimals(transformer.dst)
+    out_rows = []
+    for r, fields in enumerate(table.rows):
+        f = list(fields)
+        f[ix] = f"{X[r]:.{dec}f}"
+        f[iy] = f"{Y[r]:.{dec}f}"
+        if iz is not None:
+            f[iz] = f"{Z[r]:.4f}"
+        out_rows.append(f)
+    # Rebuild the text with comments where they were.
+    body_by_line = dict(zip(table.line_numbers, out_rows))
+    buf = io.StringIO()
+    writer = csv.writer(buf, lineterminator="\n") if table.delimiter == "," else None
+    for i, ln in enumerate(table.lines, start=1):
+        if i in body_by_line:
+            if writer:
+                writer.writerow(body_by_line[i])
+            else:
+                buf.write(" ".join(body_by_line[i]) + "\n")
+        else:
+            buf.write(ln + "\n")
+    write_text_atomic(out_path, buf.getvalue())
+    return len(out_rows)
+
+
+# ----------------------------------------------------------------------------------------------
+# LAS / LAZ
+# ----------------------------------------------------------------------------------------------
+
+
+def las_crs(path):
+    """The CRS recorded in a LAS/LAZ header (WKT or GeoTIFF keys), or None (also when unreadable)."""
+    with las.open_las(path) as reader:
+        return las.header_crs(reader.header)
+
+
+def _nice_scale(scale: float) -> float:
+    """The largest power of ten not above ``scale`` (0.003048 -> 0.001)."""
+    return 10.0 ** math.floor(math.log10(scale) + 1e-9)
+
+
+def transform_las(in_path, out_path, transformer: CrsTransformer, chunk_size: int = 1_000_000) -> int:
+    """Transform a LAS/LAZ file chunk by chunk; every point dimension other than x, y, z is copied
+    bit for bit (classes, returns, GPS time, intensity, RGB, extra bytes). The header gets new
+    scales/offsets for the target units and the target CRS record (WKT for point formats >= 6,
+    GeoTIFF keys otherwise). Returns the number of points."""
+    import laspy
+    in_path, out_path = Path(in_path), Path(out_path)
+    if chunk_size < 1:
+        raise OptionError(f"{chunk_size}: expected at least 1 point per chunk", param="--chunk-size")
+    with las.open_las(in_path) as reader:
+        hdr = reader.header
+        if not (np.asarray(hdr.scales) > 0).all():
+            # (new scales are derived from them below)
+            raise InputError(f"{in_path}: header scale factors {list(hdr.scales)} must be positive numbers")
+        file_crs = las.header_crs(hdr)
+        if file_crs is not None and not same_crs(file_crs, transformer.src):
+            raise InputError(
+                f"{in_path}: the file's CRS ({file_crs.name}) is not --from {crs_label(transformer.src)}"
+            )
+        out_hdr = laspy.LasHeader(version=hdr.version, point_format=hdr.point_format)
+        for vlr in hdr.vlrs:
+            # laspy writes the extra-bytes and LASzip records itself from the point format
+            if type(vlr).__name__ == "ExtraBytesVlr" or getattr(vlr, "user_id", "") == "laszip encoded":
+                continue
+            out_hdr.vlrs.append(vlr)
+        out_hdr.global_encoding = copy.copy(hdr.global_encoding)
+        out_hdr.global_encoding.wkt = False  # add_crs sets it again when it writes a WKT record
+        out_hdr.system_identifier = hdr.system_identifier
+        out_hdr.generating_software = "aerotri crs transform"
+        out_hdr.file_source_id = hdr.file_source_id
+        out_hdr.creation_date = hdr.creation_date
+        # Scales for the target units; offsets from the transformed bounding box corners.
+        dst = transformer.dst
+        f_in = z_unit_m(transformer.src) if not transformer.src.is_geographic else 111_320.0
+        f_out = z_unit_m(dst) if not dst.is_geographic else 111_320.0
+        sx = _nice_scale(hdr.scales[0] * f_in / f_out)
+        sz = _nice_scale(hdr.scales[2] * z_unit_m(transformer.src) / z_unit_m(dst))
+        cx = np.array([hdr.mins[0], hdr.maxs[0], hdr.mins[0], hdr.maxs[0]])
+        cy = np.array([hdr.mins[1], hdr.mins[1], hdr.maxs[1], hdr.maxs[1]])
+        cz = np.full(4, 0.5 * (hdr.mins[2] + hdr.maxs[2]))
+        if hdr.point_count == 0:
+            raise InputError(f"{in_path}: the file holds no points (nothing to transform)")
+        check_coordinates(transformer.src, cx, cy, str(in_path), [f"header bounds corner {i + 1}" for i in range(4)])
+        X, Y, Z = transformer.transform(cx, cy, cz)
+        transformer.n_points -= 4  # corners are not points of the file
+        transformer.n_outside_fit_extent = 0
+        unit = 1.0 if dst.is_geographic else 1000.0
+        out_hdr.offsets = np.array([math.floor(X.min() / unit) * unit, math.floor(Y.min() / unit) * unit,
+                                    math.floor(Z.min() / 100.0) * 100.0 if np.isfinite(Z).all() else 0.0])
+        out_hdr.scales = np.array([sx, sx, sz])
+        out_hdr.add_crs(dst)
+        from aerotri.core.limits import check_task_count
+
+        check_task_count(math.ceil(hdr.point_count / chunk_size), f"{in_path}: {hdr.point_count:,} points in chunks of "
+                         f"{chunk_size:,}", "--chunk-size", "use a larger --chunk-size")
+        n = 0
+        with atomic_path(out_path) as tmp:
+            with laspy.open(tmp, mode="w", header=out_hdr, do_compress=out_path.suffix.lower() == ".laz") as writer:
+                for _, chunk in track_chunks(las.iter_chunks(reader, in_path, chunk_size), hdr.point_count,
+                                             f"transform {in_path.name}"):
+                    X, Y, Z = transformer.transform(np.asarray(chunk.x), np.asarray(chunk.y), np.asarray(chunk.z))
+                    out = laspy.ScaleAwarePointRecord.zeros(len(chunk), header=out_hdr)
+                    out.array[:] = chunk.array  # every dimension bit for bit, then new X, Y, Z
+                    _set_scaled(out, "X", X, out_hdr.offsets[0], out_hdr.scales[0], in_path)
+                    _set_scaled(out, "Y", Y, out_hdr.offsets[1], out_hdr.scales[1], in_path)
+                    _set_scaled(out, "Z", Z, out_hdr.offsets[2], out_hdr.scales[2], in_path)
+                    writer.write_points(out)
+                    n += len(chunk)
+    return n
+
+
+def _set_scaled(record, dim: str, values, offset, scale, path):
+    q = np.round((values - offset) / scale)
+    if q.min(initial=0) < -(2**31) or q.max(initial=0) > 2**31 - 1:
+        raise InputError(f"{path}: transformed {dim.lower()} does not fit the LAS integer range at scale {scale}")
+    record[dim] = q.astype(np.int32)
+
+
+def transform_file(in_path, out_path, transformer: CrsTransformer, chunk_size: int = 1_000_000) -> int:
+    """Dispatch on the suffix: LAS/LAZ chunked, anything else a point list."""
+    if Path(in_path).suffix.lower() in LAS_SUFFIXES:
+        if Path(out_path).suffix.lower() not in LAS_SUFFIXES:
+            raise InputError(f"{out_path}: a LAS/LAZ input needs a .las or .laz output")
+        return transform_las(in_path, out_path, transformer, chunk_size)
+    return transform_point_list(in_path, out_path, transformer)
+
+
+def transform_points_file(in_path, out_path, *, from_crs=None, to_crs=None, params=None, heights=None,
+                          allow_ballpark: bool = False, chunk_size: int = 1_000_000) -> tuple[int, CrsTransformer]:
+    """``aerotri crs transform``: a CSV/TXT point list or a LAS/LAZ file from ``from_crs`` (a LAS file's own CRS
+    record when None) to ``to_crs``, with an optional fitted transformation (``params`` JSON) and height anomaly
+    model (``heights`` JSON). Returns (points written, the transformer: its description and warnings)."""
+    from aerotri.core.atomic import refuse_input_as_output
+    from aerotri.geom.crs.definition import parse_crs
+
+    refuse_input_as_output(out_path, [in_path, params, heights], "OUT")
+    if not Path(in_path).exists():
+        raise InputError(f"{in_path}: file not found")
+    if from_crs is None:
+        if Path(in_path).suffix.lower() not in LAS_SUFFIXES:
+            raise InputError("--from is required for point lists")
+        src = las_crs(in_path)
+        if src is None:
+            raise InputError(f"{in_path}: no CRS record in the file; give --from")
+    else:
+        src = parse_crs(from_crs, "--from")
+    t = CrsTransformer(src, to_crs, params=load_transformation(params) if params else None,
+                       heights=load_height_model(heights) if heights else None, allow_ballpark=allow_ballpark)
+    return transform_file(in_path, out_path, t, chunk_size), t

@@ -1,0 +1,114 @@
+"""Height anomaly surfaces (GNSS levelling): normal height H = h - zeta.
+
+From points with both ellipsoidal height h (GNSS) and normal height H (levelling), the height anomaly
+zeta = h - H is modelled over the block as
+
+- ``plane``: zeta = c0 + c1 dx + c2 dy (at least 3 points),
+- ``quadratic``: + c3 dx^2 + c4 dx dy + c5 dy^2 (at least 6 points),
+- ``tps``: a thin-plate spline with a linear trend (scipy RBFInterpolator; at least 3 points),
+  interpolating exactly unless ``smoothing`` > 0,
+
+with dx, dy = (x - x0, y - y0) / 1000 in kilometres from the points' centroid (x = easting,
+y = northing in metres of a projected CRS). Residuals are fitted minus given zeta; for an honest
+accuracy figure the leave-one-out residuals (each point predicted from all the others) are also
+reported: they are what a check point would show, and for an interpolating spline the only
+meaningful ones.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+
+from aerotri.core.errors import InputError
+from aerotri.geom.crs.datum import (HEIGHT_MODELS, MIN_HEIGHT_POINTS, HeightAnomalyModel, height_design_matrix,
+                                    thin_plate_spline)
+
+
+@dataclasses.dataclass
+class HeightFitResult:
+    model: HeightAnomalyModel
+    ids: list
+    zeta_m: np.ndarray  # given h - H
+    residuals_m: np.ndarray  # fitted minus given zeta
+    loo_residuals_m: np.ndarray  # leave-one-out prediction minus given zeta
+    sigma0_m: float
+    warnings: list
+
+    @property
+    def rms_m(self) -> float:
+        return float(np.sqrt(np.mean(self.residuals_m**2)))
+
+    @property
+    def loo_rms_m(self) -> float:
+        return float(np.sqrt(np.nanmean(self.loo_residuals_m**2)))
+
+    def to_dict(self) -> dict:
+        d = self.model.to_dict()
+        d["n_points"] = len(self.ids)
+        d["sigma0_m"] = None if not np.isfinite(self.sigma0_m) else self.sigma0_m
+        d["rms_m"] = self.rms_m
+        d["loo_rms_m"] = self.loo_rms_m
+        d["residuals"] = [
+            {"id": pid, "zeta_m": float(z), "residual_m": float(r), "loo_residual_m": float(lr)}
+            for pid, z, r, lr in zip(self.ids, self.zeta_m, self.residuals_m, self.loo_residuals_m)
+        ]
+        d["warnings"] = list(self.warnings)
+        return d
+
+
+def fit_height_anomaly(ids, x_m, y_m, h_m, H_m, *, model: str = "plane", smoothing: float = 0.0,
+                       crs: str | None = None) -> HeightFitResult:
+    """Fit zeta = h - H over the points; see the module docstring for the models."""
+    from aerotri.geom.crs.fit import geometry_warnings
+
+    if model not in HEIGHT_MODELS:
+        raise InputError(f"unknown height model {model!r}; choose one of {', '.join(HEIGHT_MODELS)}")
+    ids = [str(i) for i in ids]
+    seen = {}
+    for i, pid in enumerate(ids):
+        if pid in seen:
+            raise InputError(f"duplicate point id {pid!r} (points {seen[pid] + 1} and {i + 1})")
+        seen[pid] = i
+    x, y, h, H = (np.asarray(a, dtype=float) for a in (x_m, y_m, h_m, H_m))
+    n = len(x)
+    if n < MIN_HEIGHT_POINTS[model]:
+        raise InputError(f"height model {model} needs at least {MIN_HEIGHT_POINTS[model]} points, got {n}")
+    zeta = h - H
+    origin = (float(x.mean()), float(y.mean()))
+    dx, dy = (x - origin[0]) / 1000.0, (y - origin[1]) / 1000.0
+    warns = geometry_warnings(np.column_stack([x, y]), model)
+    if model in ("plane", "quadratic"):
+        A = height_design_matrix(dx, dy, model)
+        U, s, Vt = np.linalg.svd(A, full_matrices=False)
+        if s[-1] < 1e-9 * s[0]:
+            raise InputError(f"height model {model}: points collinear or coincident, surface undetermined")
+        c = Vt.T @ ((U.T @ zeta) / s)
+        res = A @ c - zeta
+        r = n - A.shape[1]
+        hat = np.sum(U * U, axis=1)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            loo = np.where(hat < 1 - 1e-9, res / (1.0 - hat), np.nan)  # exact leave-one-out
+        sigma0 = float(np.sqrt(res @ res / r)) if r > 0 else float("nan")
+        hm = HeightAnomalyModel(model, origin, coefficients=c.tolist(), crs=crs)
+        if r == 0:
+            warns.append(f"no redundancy: {n} points is the minimum for {model}; residuals are zero")
+    else:
+        pts = np.column_stack([x, y, zeta])
+        hm = HeightAnomalyModel(model, origin, points_m=pts.tolist(), smoothing=smoothing, crs=crs)
+        try:
+            res = hm.zeta_m(x, y) - zeta
+        except (np.linalg.LinAlgError, ValueError) as exc:
+            raise InputError(f"height model tps: points do not determine a spline ({exc})") from None
+        loo = np.full(n, np.nan)
+        if n > 3:
+            for i in range(n):
+                keep = np.arange(n) != i
+                try:
+                    f = thin_plate_spline(pts[keep, :2], pts[keep, 2], origin, smoothing)
+                    loo[i] = f(np.array([[dx[i], dy[i]]]))[0] - zeta[i]
+                except (np.linalg.LinAlgError, ValueError):
+                    pass
+        sigma0 = float("nan")
+    return HeightFitResult(hm, ids, zeta, res, loo, sigma0, warns)

@@ -1,0 +1,205 @@
+"""Rasters across datums and projections: DEM/DSM heights and orthophoto images (``aerotri crs warp``).
+
+The destination grid is north-up in the target CRS, snapped to multiples of the cell size, and covers
+the source's footprint. It is filled block by block (memory bounded by the block size, whatever the
+raster size): each block's pixel centres are mapped back into the source CRS by the inverse of the
+coordinate operation (``aerotri.geom.crs.transform``: the toolkit's one policy, so a datum change needs
+a parameter set or is refused), interpolated from anchors within 1 mm, and the source is resampled
+there (``aerotri.geom.crs.raster_warp``). For height rasters the values change too: Z' = Z transformed at
+its place (a datum shift moves ellipsoidal heights by up to several metres; a height anomaly model
+turns them into normal heights). Nodata stays nodata (never interpolated into valid cells). The
+result is a Cloud-Optimised GeoTIFF with the operation in its metadata.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import logging
+import math
+from pathlib import Path
+
+import numpy as np
+import rasterio
+import rasterio.shutil
+from rasterio.windows import Window
+
+from aerotri.core.atomic import atomic_path, refuse_input_as_output, scratch_dir
+from aerotri.core.errors import CrsError, InputError, OptionError
+from aerotri.core.log import progress
+from aerotri.geom.crs.definition import (check_stored_crs, crs_label, geotiff_crs, height_unit_m, horizontal_crs,
+                               length_unit_name, linear_unit_m, parse_crs, same_horizontal, unit_long_name, unit_name)
+from aerotri.geom.inputs import check_height_values
+from aerotri.geom.crs.raster_warp import (RESAMPLING, anchor_grid, cast_to_dtype, height_change, interpolate_anchors,
+                                         open_north_up, read_on_grid)
+from aerotri.geom.crs.transform import CrsTransformer
+
+log = logging.getLogger(__name__)
+
+KINDS = ("auto", "height", "image")
+
+
+@dataclasses.dataclass
+class WarpResult:
+    path: Path
+    kind: str
+    width: int
+    height: int
+    res: float
+    crs: str
+    operation: dict
+    valid_fraction: float
+
+
+def _open(path):
+    return open_north_up(path, "raster", no_crs_hint="; give it one (e.g. gdal_edit.py -a_srs) before warping")
+
+
+def _footprint(ds, operation: CrsTransformer, per_side: int = 64):
+    """Target-CRS bounds of the source raster's outline (densified edges)."""
+    b = ds.bounds
+    t = np.linspace(0.0, 1.0, per_side)
+    x = np.concatenate([b.left + (b.right - b.left) * t, np.full(per_side, b.right),
+                        b.right - (b.right - b.left) * t, np.full(per_side, b.left)])
+    y = np.concatenate([np.full(per_side, b.top), b.top - (b.top - b.bottom) * t,
+                        np.full(per_side, b.bottom), b.bottom + (b.top - b.bottom) * t])
+    X, Y, _ = operation.transform(x, y)
+    return float(X.min()), float(Y.min()), float(X.max()), float(Y.max())
+
+
+def warp_raster(in_path, out_path, to_crs, *, from_crs=None, params=None, heights=None, allow_ballpark=False,
+                res=None, kind: str = "auto", resampling: str = "bilinear", block_px: int = 1024) -> WarpResult:
+    """Reproject a GeoTIFF into ``to_crs`` through the coordinate-operation policy (see module docstring).
+
+    ``params``: a ``Transformation`` (``aerotri crs fit``), ``heights``: a ``HeightAnomalyModel``;
+    ``res``: target cell size in the target CRS's units (default: the source cell size converted
+    through the linear units); ``kind``: ``height`` (values are heights and change with the datum),
+    ``image``, or ``auto`` (one floating-point band: height). Writes a COG atomically."""
+    in_path, out_path = Path(in_path), Path(out_path)
+    refuse_input_as_output(out_path, [in_path], "OUT")
+    if kind not in KINDS:
+        raise OptionError(f"--kind {kind!r}: expected one of {', '.join(KINDS)}", param="--kind")
+    if resampling not in RESAMPLING:
+        raise OptionError(f"--resampling {resampling!r}: expected one of {', '.join(RESAMPLING)}", param="--resampling")
+    with _open(in_path) as ds:
+        src_crs = parse_crs(from_crs, "--from") if from_crs else ds.crs
+        dst_crs = parse_crs(to_crs, "--to")
+        if not horizontal_crs(dst_crs).is_projected and res is None:
+            raise OptionError(f"--to {crs_label(dst_crs)} is geographic: give --res in degrees", param="--res")
+        if kind == "auto":
+            kind = "height" if ds.count == 1 and np.dtype(ds.dtypes[0]).kind == "f" else "image"
+        if kind == "height":  # before any work: finite, plausible heights in one band, not all nodata
+            if ds.count != 1:
+                raise InputError(f"{in_path}: --kind height needs one band of heights; the file has {ds.count}")
+            check_height_values(ds, in_path, "height raster", height_unit_m(parse_crs(src_crs, "--from")))
+        forward = CrsTransformer(src_crs, dst_crs, params=params, heights=heights, allow_ballpark=allow_ballpark)
+        inverse = forward.inverse()
+        src_res = abs(ds.transform.a)
+        if res is None:
+            f_src, f_dst = linear_unit_m(horizontal_crs(src_crs)), linear_unit_m(horizontal_crs(dst_crs))
+            res = src_res * (f_src / f_dst if np.isfinite(f_src) and np.isfinite(f_dst) else 1.0)
+        if not (res > 0 and math.isfinite(res)):
+            raise OptionError(f"--res {res}: must be a positive cell size", param="--res")
+        if params is None and same_horizontal(src_crs, dst_crs) and abs(res - src_res) <= 1e-12 * src_res:
+            # only the heights change: keep the source grid cell for cell
+            x0, y0, width, height = ds.transform.c, ds.transform.f, ds.width, ds.height
+        else:
+            left, bottom, right, top = _footprint(ds, forward)
+            x0 = math.floor(left / res) * res
+            y0 = math.ceil(top / res) * res
+            width = int(math.ceil((right - x0) / res))
+            height = int(math.ceil((y0 - bottom) / res))
+        _check_disk(width * height * ds.count * np.dtype(ds.dtypes[0]).itemsize, out_path, width, height)
+        # the grid's corners and centre: where the stored CRS must put the grid as the requested one does
+        gx = x0 + res * np.array([0.0, width, 0.0, width, width / 2.0])
+        gy = y0 - res * np.array([0.0, 0.0, height, height, height / 2.0])
+        out_crs = geotiff_crs(dst_crs, f"--to {to_crs}", gx, gy, 1e-3 * res)
+        nodata = ds.nodata
+        dtype = ds.dtypes[0]
+        record = forward.record()
+        profile = dict(driver="GTiff", width=width, height=height, count=ds.count, dtype=dtype, crs=out_crs,
+                       transform=rasterio.transform.Affine(res, 0.0, x0, 0.0, -res, y0), tiled=True,
+                       blockxsize=512, blockysize=512, compress="deflate", BIGTIFF="IF_SAFER")
+        use_mask = nodata is None
+        if not use_mask:
+            profile["nodata"] = nodata
+        blocks = [(r, c) for r in range(0, height, block_px) for c in range(0, width, block_px)]
+        n_valid = 0
+        with scratch_dir(out_path.parent, out_path.name) as tmp_dir, rasterio.Env(GDAL_TIFF_INTERNAL_MASK=True):
+            stage = Path(tmp_dir) / "stage.tif"
+            with rasterio.open(stage, "w", **profile) as dst, progress(len(blocks), "warp", "blocks") as bar:
+                for r0, c0 in blocks:
+                    h, w = min(block_px, height - r0), min(block_px, width - c0)
+                    bx, by = x0 + c0 * res, y0 - r0 * res
+                    data, valid = read_on_grid(ds, bx, by, res, (h, w), inverse, resampling=resampling)
+                    if kind == "height" and valid.any():
+                        data[0] = _heights_through(data[0], valid, inverse, bx, by, res)
+                    n_valid += int(valid.sum())
+                    win = Window(c0, r0, w, h)
+                    out = cast_to_dtype(data, dtype)
+                    if use_mask:
+                        dst.write(out, window=win)
+                        dst.write_mask(np.where(valid, 255, 0).astype(np.uint8), window=win)
+                    else:
+                        out[:, ~valid] = nodata
+                        dst.write(out, window=win)
+                    bar.update(1)
+                dst.update_tags(COORDINATE_OPERATION=record["description"],
+                                COORDINATE_OPERATION_JSON=json.dumps(record), SOURCE=str(in_path),
+                                **_unit_tags(dst_crs, res, kind))
+                if kind == "height":
+                    z_unit = length_unit_name(height_unit_m(dst_crs), long=True)
+                    dst.units = (z_unit,) * ds.count
+                    dst.update_tags(1, HEIGHTS=f"transformed with the coordinate operation, in {z_unit}")
+            if n_valid == 0:
+                raise CrsError(f"{in_path}: no valid cell lands in the target grid of {crs_label(dst_crs)}")
+            with atomic_path(out_path) as tmp:
+                rasterio.shutil.copy(stage, tmp, driver="COG", COMPRESS="DEFLATE", BLOCKSIZE=512,
+                                     OVERVIEWS="AUTO", BIGTIFF="IF_SAFER")
+                with rasterio.Env(GDAL_PAM_ENABLED=False), rasterio.open(tmp) as written:  # as a reader sees it
+                    check_stored_crs(dst_crs, written.crs, str(out_path), gx, gy, 1e-3 * res)
+    for w in forward.warnings:
+        log.warning(w)
+    return WarpResult(out_path, kind, width, height, float(res), crs_label(dst_crs), record,
+                      n_valid / float(width * height))
+
+
+def _unit_tags(crs, res: float, kind: str) -> dict:
+    """The units a reader needs, from the CRS (as ``lidarctl rasters`` writes them): LINEAR_UNITS and the
+    cell size, and for height rasters VERTICAL_UNITS, the unit the height values are in (a 2D foot grid:
+    feet, converted from the source's unit by the operation; a compound CRS: its vertical unit)."""
+    tags = {"LINEAR_UNITS": unit_long_name(crs), "CELL_SIZE": f"{res:.10g} {unit_name(crs)}"}
+    if horizontal_crs(crs).is_projected:
+        tags["CELL_SIZE_M"] = f"{res * linear_unit_m(crs):.10g}"
+    if kind == "height":
+        tags["VERTICAL_UNITS"] = length_unit_name(height_unit_m(crs), long=True)
+    return tags
+
+
+def _check_disk(n_bytes: int, out_path: Path, width: int, height: int) -> None:
+    """Refuse a target grid whose uncompressed size exceeds the free disk (before any work)."""
+    import shutil
+
+    free = shutil.disk_usage(out_path.parent if out_path.parent.exists() else Path.cwd()).free
+    if n_bytes > free:
+        raise OptionError(f"--res: the target grid would be {width} x {height} cells ({n_bytes / 2**30:.1f} GiB "
+                          f"uncompressed) but {out_path.parent} has {free / 2**30:.1f} GiB free; choose a coarser --res",
+                          param="--res")
+
+
+def _heights_through(z: np.ndarray, valid: np.ndarray, inverse: CrsTransformer, x_left, y_top, res) -> np.ndarray:
+    """Target heights from source heights ``z`` sampled at the block's pixels: with the inverse operation's
+    height change z_src = z_dst + dz0 + k z_dst (on anchors of the target block), z_dst = (z_src - dz0) / (1 + k)."""
+    rows, cols = z.shape
+    v = z[valid]
+    zlo, zhi = float(v.min()), float(v.max())
+
+    def change(x, y):
+        dz0, k = height_change(inverse, x, y, zlo, zhi)
+        return dz0.reshape(np.shape(x)), k.reshape(np.shape(x))
+
+    D0, K, s = anchor_grid(change, x_left, y_top, res, cols, rows, spacing_px=64, tolerance=1e-4)
+    dz0 = interpolate_anchors(D0, s, rows, cols)
+    k = interpolate_anchors(K, s, rows, cols)
+    return np.where(valid, (z - dz0) / (1.0 + k), z).astype(np.float32)
+

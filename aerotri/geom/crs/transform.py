@@ -1,0 +1,376 @@
+"""The toolkit's one coordinate-operation policy: every transformation between CRSs goes through here.
+
+``CrsTransformer(from_crs, to_crs, params=None, heights=None, allow_ballpark=False)`` is built once and
+applied to arrays. It chains
+
+1. a PROJ operation from ``from_crs`` into the parameter set's source CRS (a conversion within one
+   datum: unprojecting, changing zone),
+2. the fitted parameter set (``aerotri.geom.crs.datum.Transformation``, from ``aerotri crs fit``): on grid
+   coordinates for the plane models, on geocentric XYZ for the spatial models,
+3. a PROJ operation from the parameter set's target CRS into ``to_crs``,
+4. optionally the height anomaly model (``aerotri crs fit-heights``): H = h - zeta(x, y).
+
+The policy:
+
+- Without a parameter set, PROJ's own operation is used only when it is rigorous (it knows the datum
+  shift, or there is none). When PROJ only has a "ballpark" operation (datums differ and the shift is
+  ignored: errors of decimetres to hundreds of metres), the transformer refuses (``BallparkRefused``)
+  unless ``allow_ballpark=True`` (``--allow-ballpark``); the remedy is a parameter set from common
+  points. When the rigorous operation needs a PROJ grid (a geoid model, an NTv2 file) that is not
+  installed, the refusal names the grid and how to get it.
+- Compound CRSs (horizontal + vertical) are taken by their parts: PROJ transforms them as 3D CRSs.
+- ``record()`` describes what was applied (each PROJ step's pipeline and accuracy, the parameter
+  set, the height model) for the product's metadata and the stage report.
+- ``inverse()`` is the same operation backwards (parameter sets inverted exactly, H -> h).
+
+Heights: ``z`` is in the vertical unit of the CRS: the linear unit of a projected 2D CRS (LAS
+convention: feet grids carry feet heights), metres for geographic CRSs; a compound CRS uses its
+vertical axis. Ellipsoidal heights follow datum shifts; the height model converts to normal heights.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import functools
+import warnings
+
+import numpy as np
+import pyproj
+from pyproj.transformer import TransformerGroup
+
+from aerotri.core.errors import CrsError
+from aerotri.geom.crs.definition import crs_label, height_unit_m, horizontal_crs, length_unit_name, linear_unit_m, parse_crs, same_horizontal
+from aerotri.geom.crs.datum import HeightAnomalyModel, Transformation, outside_extent
+from aerotri.geom.crs.ellipsoid import Ellipsoid, geocentric_to_geodetic, geodetic_to_geocentric
+
+
+class BallparkRefused(CrsError):
+    """PROJ would ignore a datum shift; parameters from common points (or a missing grid) are needed."""
+
+
+def z_unit_m(crs: pyproj.CRS) -> float:
+    """Metres per height unit as this module reads z for ``crs`` (see module docstring)."""
+    if crs.is_compound or len(crs.axis_info) >= 3:
+        return 1.0  # PROJ reads z in the CRS's own vertical unit
+    f = linear_unit_m(crs)
+    return 1.0 if np.isnan(f) else f
+
+
+def _as_3d(crs: pyproj.CRS) -> pyproj.CRS:
+    if crs.is_compound or crs.is_geocentric or len(crs.axis_info) >= 3:
+        return crs
+    return crs.to_3d()
+
+
+def is_ballpark(transformer: pyproj.Transformer) -> bool:
+    text = transformer.description or ""
+    ops = transformer.operations or []
+    return "ballpark" in text.lower() or any("ballpark" in (op.name or "").lower() for op in ops)
+
+
+def _missing_grids(group: TransformerGroup) -> list:
+    """Grids (short name, url) the better operations of ``group`` need but PROJ does not have."""
+    out = []
+    for op in group.unavailable_operations:
+        for g in op.grids:
+            if not g.available and g.short_name not in [m[0] for m in out]:
+                out.append((g.short_name, g.url))
+    return out
+
+
+def grid_advice(grids) -> str:
+    names = ", ".join(name for name, _ in grids[:3])
+    first = grids[0][0]
+    return (f"the rigorous operation needs the PROJ grid {names}, which is not installed: get it with "
+            f"`pyproj sync --file {first}` (PROJ's `projsync --file {first}` works too; or set "
+            f"PROJ_NETWORK=ON on a machine with internet), or put the file into "
+            f"{pyproj.datadir.get_user_data_dir()}")
+
+
+@functools.lru_cache(maxsize=64)
+def _group(s3_wkt: str, d3_wkt: str):
+    # pyproj warns "Best transformation is not available due to missing Grid": the caller names the
+    # missing grid and how to get it (grid_advice), so the bare warning would only repeat it half
+    with warnings.catch_warnings():
+        warnings.filterwarnings("ignore", message="Best transformation is not available", category=UserWarning)
+        return TransformerGroup(pyproj.CRS.from_wkt(s3_wkt), pyproj.CRS.from_wkt(d3_wkt), always_xy=True,
+                                allow_ballpark=False)
+
+
+class _ProjLeg:
+    """One PROJ operation between two CRSs, z converted to metres around it."""
+
+    def __init__(self, src: pyproj.CRS, dst: pyproj.CRS, allow_ballpark: bool, purpose: str = ""):
+        self.src, self.dst = src, dst
+        self.identity = src == dst
+        self.ballpark = False
+        self.notes = []
+        if self.identity:
+            return
+        s3, d3 = _as_3d(src), _as_3d(dst)
+        self.z_in, self.z_out = z_unit_m(src), z_unit_m(dst)
+        group = _group(s3.to_wkt(), d3.to_wkt())
+        missing = _missing_grids(group)
+        if not group.transformers:
+            if not allow_ballpark:
+                why = (grid_advice(missing) + "; or ") if missing else ("PROJ knows no rigorous transformation "
+                                                                          "between these datums, only a 'ballpark' "
+                                                                          "one that ignores the datum shift (errors "
+                                                                          "of decimetres to hundreds of metres); ")
+                raise BallparkRefused(
+                    f"{crs_label(src)} ({src.name}) -> {crs_label(dst)} ({dst.name}){purpose}: {why}fit parameters "
+                    "from common points known in both systems (aerotri crs fit ... --from/--to) and pass them with "
+                    "--params (a height anomaly model with --heights), or accept the ballpark result explicitly "
+                    "with --allow-ballpark"
+                )
+            self.ballpark = True
+        elif not group.best_available and missing:
+            self.notes.append(f"{crs_label(src)} -> {crs_label(dst)}: a less accurate operation is used because "
+                              + grid_advice(missing))
+        self.transformer = pyproj.Transformer.from_crs(s3, d3, always_xy=True, allow_ballpark=self.ballpark)
+        if self.ballpark:
+            self.notes.append(
+                f"{crs_label(src)} -> {crs_label(dst)}: BALLPARK transformation accepted by the user "
+                f"({self.transformer.description}); the datum shift is ignored"
+            )
+
+    def record(self) -> dict:
+        if self.identity:
+            return {"step": "identity", "crs": crs_label(self.src)}
+        acc = self.transformer.accuracy
+        return {"step": "proj", "from": crs_label(self.src), "to": crs_label(self.dst),
+                "operation": self.transformer.description, "proj_pipeline": self.transformer.definition,
+                "accuracy_m": None if acc is None or acc < 0 else float(acc), "ballpark": self.ballpark}
+
+    def __call__(self, x, y, z):
+        if self.identity:
+            return x, y, z
+        X, Y, Z = self.transformer.transform(x, y, z * self.z_in, errcheck=False)
+        X, Y, Z = (np.asarray(a, dtype=float) for a in (X, Y, Z))
+        bad = ~(np.isfinite(X) & np.isfinite(Y) & np.isfinite(Z))
+        if bad.any():
+            i = int(np.argmax(bad))
+            raise CrsError(
+                f"{crs_label(self.src)} -> {crs_label(self.dst)}: point {i + 1} ({x[i]:.3f}, {y[i]:.3f}) could not be "
+                "transformed rigorously (outside the area of the available operations, or not a valid coordinate)"
+            )
+        return X, Y, Z / self.z_out
+
+
+@dataclasses.dataclass(frozen=True)
+class OperationSpec:
+    """A coordinate operation as plain data (picklable for Dask tasks, storable in JSON): CRSs as WKT or
+    codes, the parameter set and height model as their file dicts. ``build()`` makes the transformer."""
+
+    from_crs: str
+    to_crs: str
+    params: dict | None = None
+    heights: dict | None = None
+    allow_ballpark: bool = False
+    heights_inverse: bool = False
+
+    def build(self) -> "CrsTransformer":
+        return _build(self)
+
+
+@functools.lru_cache(maxsize=16)
+def _build_cached(spec_json: str) -> "CrsTransformer":
+    import json
+
+    d = json.loads(spec_json)
+    params = Transformation.from_dict(d["params"], "operation parameters") if d["params"] else None
+    heights = HeightAnomalyModel.from_dict(d["heights"], "operation height model") if d["heights"] else None
+    return CrsTransformer(d["from_crs"], d["to_crs"], params, heights, d["allow_ballpark"],
+                          heights_inverse=d["heights_inverse"])
+
+
+def _build(spec: OperationSpec) -> "CrsTransformer":
+    import json
+
+    return _build_cached(json.dumps(dataclasses.asdict(spec), sort_keys=True))
+
+
+class CrsTransformer:
+    """Build once, call ``transform(x, y, z)`` on arrays (see the module docstring)."""
+
+    def __init__(self, from_crs, to_crs, params: Transformation | None = None,
+                 heights: HeightAnomalyModel | None = None, allow_ballpark: bool = False,
+                 heights_inverse: bool = False):
+        self.src = parse_crs(from_crs, "--from")
+        self.dst = parse_crs(to_crs, "--to")
+        self.params = params
+        self.heights = heights
+        self.allow_ballpark = allow_ballpark
+        self.heights_inverse = heights_inverse  # h = H + zeta (the inverse of a normal-height operation)
+        self.n_outside_fit_extent = 0
+        self.n_points = 0
+        legs = []
+        if params is None:
+            legs.append(_ProjLeg(self.src, self.dst, allow_ballpark))
+        else:
+            p_from = parse_crs(params.from_crs, "parameter file from_crs")
+            p_to = parse_crs(params.to_crs, "parameter file to_crs")
+            if (same_horizontal(p_to, self.src) and same_horizontal(p_from, self.dst)
+                    and not same_horizontal(p_from, self.src)):
+                # a parameter set fitted the other way round: one file serves both directions
+                params = self.params = params.inverse()
+                p_from, p_to = p_to, p_from
+            self._p_from, self._p_to = p_from, p_to
+            why = " (into the parameter set's source system)"
+            if params.spatial:
+                self._ell_from = Ellipsoid.from_crs(p_from)
+                self._ell_to = Ellipsoid.from_crs(p_to)
+                self._geo_from = p_from if p_from.is_geocentric else p_from.geodetic_crs
+                self._geo_to = p_to if p_to.is_geocentric else p_to.geodetic_crs
+                self._pre_plane = _ProjLeg(self.src, p_from, allow_ballpark, why) if not p_from.is_geocentric else None
+                legs.append(_ProjLeg(self.src, self._geo_from, allow_ballpark, why))
+                legs.append(_ProjLeg(self._geo_to, self.dst, allow_ballpark, " (from the parameter set's target)"))
+            else:
+                for c, role in ((p_from, "from_crs"), (p_to, "to_crs")):
+                    if not horizontal_crs(c).is_projected or abs(linear_unit_m(c) - 1.0) > 1e-12:
+                        raise CrsError(f"parameter file {role} {crs_label(c)}: plane models need a metre grid")
+                legs.append(_ProjLeg(self.src, p_from, allow_ballpark, why))
+                legs.append(_ProjLeg(p_to, self.dst, allow_ballpark, " (from the parameter set's target)"))
+        self._legs = legs
+        self._height_leg = None
+        if heights is not None and heights.crs:
+            hcrs = parse_crs(heights.crs, "height model crs")
+            if hcrs != self.dst and hcrs != self.src:
+                self._height_leg = _ProjLeg(self.dst, hcrs, allow_ballpark=False, purpose=" (height model)")
+            self._heights_crs = hcrs
+        else:
+            self._heights_crs = self.dst
+        self.ballpark = any(leg.ballpark for leg in legs)
+        self.notes = [n for leg in legs for n in leg.notes]
+
+    @property
+    def identity(self) -> bool:
+        return self.params is None and self.heights is None and self.src == self.dst
+
+    @property
+    def description(self) -> str:
+        parts = [f"{crs_label(self.src)} -> {crs_label(self.dst)}"]
+        if self.params is not None:
+            way = " applied inversely" if self.params.inverted else ""
+            parts.append(f"via {self.params.model}{way} ({self.params.from_crs} -> {self.params.to_crs})")
+        if self.heights is not None:
+            kind = "ellipsoidal heights from" if self.heights_inverse else "normal heights by"
+            parts.append(f"{kind} {self.heights.model} height anomaly model")
+        return ", ".join(parts)
+
+    def inverse(self) -> "CrsTransformer":
+        """The same operation from ``to_crs`` back to ``from_crs``."""
+        heights = self.heights
+        if heights is not None and not heights.crs:
+            heights = dataclasses.replace(heights, crs=self.dst.to_wkt())  # it was evaluated on the output x, y
+        return CrsTransformer(self.dst, self.src, self.params.inverse() if self.params is not None else None,
+                              heights, self.allow_ballpark, heights_inverse=not self.heights_inverse)
+
+    def spec(self) -> OperationSpec:
+        """This operation as plain data (for Dask tasks and JSON)."""
+        return OperationSpec(self.src.to_wkt(), self.dst.to_wkt(),
+                             self.params.to_dict() if self.params is not None else None,
+                             self.heights.to_dict() if self.heights is not None else None,
+                             self.allow_ballpark, self.heights_inverse)
+
+    def record(self) -> dict:
+        """What this operation applies, for product metadata and stage reports: the CRSs, every PROJ step
+        with its pipeline and stated accuracy, the parameter set and the height model."""
+        steps = [leg.record() for leg in self._legs]
+        if self.params is not None:
+            steps.insert(1, {"step": "parameters", "model": self.params.model,
+                             "applied": "inverse" if self.params.inverted else "forward",
+                             "from": self.params.from_crs, "to": self.params.to_crs,
+                             "parameters": {k: float(v) for k, v in self.params.parameters.items()}})
+        if self.heights is not None:
+            steps.append({"step": "height anomaly", "model": self.heights.model,
+                          "formula": "h = H + zeta(x, y)" if self.heights_inverse else "H = h - zeta(x, y)"})
+        # heights go in and out in these units (a 2D foot grid's heights are feet, whatever the PROJ
+        # pipeline's own z unit says: the legs scale z around it)
+        z_units = {"from": length_unit_name(height_unit_m(self.src), long=True),
+                   "to": length_unit_name(height_unit_m(self.dst), long=True)}
+        return {"from_crs": crs_label(self.src), "to_crs": crs_label(self.dst), "description": self.description,
+                "ballpark": self.ballpark, "z_units": z_units, "steps": steps, "warnings": self.warnings}
+
+    def transform(self, x, y, z=None):
+        """Arrays in ``from_crs`` (x = easting/longitude) -> arrays in ``to_crs``; z defaults to 0."""
+        x = np.atleast_1d(np.asarray(x, dtype=float))
+        y = np.atleast_1d(np.asarray(y, dtype=float))
+        z = np.zeros_like(x) if z is None else np.atleast_1d(np.asarray(z, dtype=float))
+        x_in, y_in = x, y
+        self.n_points += len(x)
+        if self.params is None:
+            X, Y, Z = self._legs[0](x, y, z)
+        elif not self.params.spatial:
+            a, b, c = self._legs[0](x, y, z)
+            self._count_outside(a, b)
+            ab = self.params.apply(np.column_stack([a, b]))
+            X, Y, Z = self._legs[1](ab[:, 0], ab[:, 1], c)
+        else:
+            if self.params.fit_extent is not None and self._pre_plane is not None:
+                a, b, _ = self._pre_plane(x, y, z)
+                self._count_outside(a, b)
+            if self._p_from.is_geocentric:
+                XYZ = np.column_stack(self._legs[0](x, y, z))
+            else:
+                lon, lat, h = self._legs[0](x, y, z)
+                XYZ = np.column_stack(geodetic_to_geocentric(lat, lon, h, self._ell_from))
+            XYZ = self.params.apply(XYZ)
+            if self._p_to.is_geocentric:
+                X, Y, Z = self._legs[1](XYZ[:, 0], XYZ[:, 1], XYZ[:, 2])
+            else:
+                lat, lon, h = geocentric_to_geodetic(XYZ[:, 0], XYZ[:, 1], XYZ[:, 2], self._ell_to)
+                X, Y, Z = self._legs[1](lon, lat, h)
+        if self.heights is not None:
+            if self._height_leg is not None:
+                hx, hy, _ = self._height_leg(X, Y, np.zeros_like(X))
+            elif self._heights_crs == self.src and self._heights_crs != self.dst:
+                hx, hy = x_in, y_in
+            else:
+                hx, hy = X, Y
+            zeta = self.heights.zeta_m(hx, hy) / z_unit_m(self.dst)
+            Z = Z + zeta if self.heights_inverse else Z - zeta
+        return X, Y, Z
+
+    def _count_outside(self, a, b):
+        if self.params is not None and self.params.fit_extent is not None:
+            self.n_outside_fit_extent += int(outside_extent(self.params.fit_extent, np.column_stack([a, b])).sum())
+
+    @property
+    def warnings(self) -> list:
+        out = list(self.notes)
+        if self.n_outside_fit_extent:
+            out.append(
+                f"{self.n_outside_fit_extent} of {self.n_points} points lie outside the area of the common points "
+                "used for the parameters (extrapolation; accuracy unknown there)"
+            )
+        return out
+
+
+def transform_points(x, y, z=None, *, from_crs, to_crs, params=None, heights=None, allow_ballpark=False):
+    """One-shot convenience: ``CrsTransformer(...).transform(x, y, z)``."""
+    return CrsTransformer(from_crs, to_crs, params, heights, allow_ballpark).transform(x, y, z)
+
+
+def to_own_geodetic(crs: pyproj.CRS, x, y, z):
+    """(lon_deg, lat_deg, h) of coordinates in ``crs`` on its own geodetic CRS: a conversion, never a datum shift
+    (h in metres; z in the height unit of ``crs``, see the module docstring)."""
+    return _ProjLeg(crs, crs.geodetic_crs, allow_ballpark=False)(x, y, z)
+
+
+def from_own_geodetic(crs: pyproj.CRS, lon_deg, lat_deg, h_m):
+    """Coordinates in ``crs`` of points given on its own geodetic CRS (the inverse of ``to_own_geodetic``)."""
+    return _ProjLeg(crs.geodetic_crs, crs, allow_ballpark=False)(lon_deg, lat_deg, h_m)
+
+
+def same_datum_geocentric(crs: pyproj.CRS) -> pyproj.CRS:
+    """The geocentric CRS of ``crs``'s own datum (the conversion to it never shifts a datum)."""
+    geod = horizontal_crs(crs).geodetic_crs
+    return pyproj.CRS.from_json_dict({
+        "$schema": "https://proj.org/schemas/v0.7/projjson.schema.json", "type": "GeodeticCRS",
+        "name": f"{geod.name} (geocentric)", "datum" if geod.datum.type_name != "Datum Ensemble" else
+        "datum_ensemble": geod.datum.to_json_dict(),
+        "coordinate_system": {"subtype": "Cartesian", "axis": [
+            {"name": "Geocentric X", "abbreviation": "X", "direction": "geocentricX", "unit": "metre"},
+            {"name": "Geocentric Y", "abbreviation": "Y", "direction": "geocentricY", "unit": "metre"},
+            {"name": "Geocentric Z", "abbreviation": "Z", "direction": "geocentricZ", "unit": "metre"}]}})

@@ -1,0 +1,1 @@
+"""Accuracy checks: classes against truth, heights and plan against surveyed points, map vectors."""

@@ -1,0 +1,627 @@
+"""Field check of LiDAR heights against surveyed points (the production "height check table").
+
+For each surveyed point (X, Y, Z) the cloud's ground height is interpolated from the ground points
+(class 2) within ``radius_m`` horizontally: a least-squares plane, inverse-distance weighted
+(1/d^2), evaluated at (X, Y); with fewer than 3 points, or points nearly on a line (spread across
+it below 0.1 radius), the IDW mean. dz = Z_lidar - Z_surveyed (m).
+Statistics: counts per error bin, counts per |dz| bin (seed 004 Tab. 1: < 0.3, 0.3-0.5, 0.5-1, > 1 m),
+mean |dz|, RMSE, mean dz; the same without |dz| > ``exclude_m``; all of it per group.
+
+The DEM raster itself (``dem_path``, ``--dem``) is checked the same way: its bilinear height at each
+surveyed point (NaN where one of the four cells around it is nodata), dz_dem = Z_dem - Z_surveyed. The
+DEM alone (no cloud) or both side by side.
+
+Groups: a ``group`` column of the points (e.g. open / road / steep), or the vegetation density around
+each point from the cloud (``DensityGroups``): the canopy cover is the share of the first returns
+(noise excluded) within ``radius_m`` horizontally that lie more than ``canopy_height_m`` above the
+ground: the DEM when one is given, else the local ground plane (least squares, 1/d^2 weights) of the
+ground points within that radius. open: cover < ``open_below``; sparse: up to ``dense_above``; dense:
+above; unknown: no first return in range.
+
+Units: the surveyed points are in the cloud's CRS (x, y in its horizontal unit, z in its vertical
+unit). Radius, threshold, bins and every ``_m`` key (dz, mean, RMSE) are metres, also for clouds
+in feet; the per-point coordinates (``x``, ``y``, ``z_survey``, ``z_lidar``) are in the CRS's units,
+named by ``xy_unit`` and ``z_unit``.
+"""
+
+from __future__ import annotations
+
+import csv
+import dataclasses
+import io as stringio
+import json
+from pathlib import Path
+
+import numpy as np
+from scipy.spatial import cKDTree
+
+from aerotri.geom import las
+
+from aerotri.core.errors import InputError, OptionError
+from aerotri.core.textio import read_text
+from lidarctl import io
+from lidarctl.units import METRE, LengthUnits
+
+BIN_EDGES_M = (-np.inf, -1.0, -0.5, 0.5, 1.0, 1.5, 2.0, 5.0, np.inf)
+ABS_BIN_EDGES_M = (0.3, 0.5, 1.0)
+GROUPINGS = ("auto", "column", "density", "none")
+DENSITY_ORDER = ("open", "sparse", "dense", "unknown")
+
+
+@dataclasses.dataclass(frozen=True, kw_only=True)
+class DensityGroups:
+    """Vegetation density around a surveyed point from the cloud's first returns (module docstring)."""
+
+    radius_m: float = 10.0
+    canopy_height_m: float = 2.0
+    open_below: float = 0.2
+    dense_above: float = 0.6
+
+    def validate(self) -> None:
+        if not (np.isfinite(self.radius_m) and self.radius_m > 0):
+            raise OptionError(f"--cover-radius {self.radius_m}: must be a positive distance in metres",
+                              param="--cover-radius")
+        if not (np.isfinite(self.canopy_height_m) and self.canopy_height_m > 0):
+            raise OptionError(f"--canopy-height {self.canopy_height_m}: must be a positive height in metres",
+                              param="--canopy-height")
+        if not (0 <= self.open_below <= self.dense_above <= 1):
+            raise OptionError(f"--open-below {self.open_below:g} / --dense-above {self.dense_above:g}: expected "
+                              "0 <= open-below <= dense-above <= 1 (cover fractions)", param="--dense-above")
+
+    def label(self, cover: np.ndarray) -> list[str]:
+        cover = np.asarray(cover, float)
+        lab = np.where(cover < self.open_below, "open", np.where(cover <= self.dense_above, "sparse", "dense"))
+        return [str(v) for v in np.where(np.isfinite(cover), lab, "unknown")]
+
+
+def bin_labels(edges=BIN_EDGES_M) -> list[str]:
+    labels = []
+    for lo, hi in zip(edges[:-1], edges[1:]):
+        if np.isinf(lo):
+            labels.append(f"< {hi:g}")
+        elif np.isinf(hi):
+            labels.append(f"> {lo:g}")
+        else:
+            labels.append(f"{lo:g} .. {hi:g}")
+    return labels
+
+
+@dataclasses.dataclass(frozen=True, eq=False)
+class SurveyedPoints:
+    """Surveyed points (``read_points_csv``): coordinates in the units of the file (the CRS's), or in metres once
+    scaled (``in_metres``)."""
+
+    ids: tuple[str, ...]
+    x: np.ndarray
+    y: np.ndarray
+    z: np.ndarray | None  # None: the file has no z column (``require_z=False``)
+    group: tuple[str, ...] | None  # the group column per point, None without one
+
+    def __len__(self) -> int:
+        return len(self.x)
+
+    def in_metres(self, units: LengthUnits) -> "SurveyedPoints":
+        """The points with x, y and z scaled by ``units`` (the CRS's) to metres."""
+        return dataclasses.replace(self, x=units.xy_to_m(self.x), y=units.xy_to_m(self.y),
+                                   z=units.z_to_m(self.z) if self.z is not None else None)
+
+
+def read_points_csv(path, require_z: bool = True) -> SurveyedPoints:
+    """Surveyed points: header with id, x, y, z (case-insensitive; also e/n/h) and optional group; without
+    ``require_z`` the z column may be missing (``z`` None)."""
+    path = Path(path)
+    rows = list(csv.reader(stringio.StringIO(read_text(path, "surveyed points table (id,x,y,z[,group])"), newline="")))
+    if not rows:
+        raise InputError(f"{path}: empty file, expected a header line 'id,x,y,z[,group]'")
+    head = [h.strip().lower() for h in rows[0]]
+    alias = {"x": ("x", "e", "easting"), "y": ("y", "n", "northing"), "z": ("z", "h", "height", "elevation")}
+    col = {}
+    for key, names in alias.items():
+        found = [k for k, h in enumerate(head) if h in names]
+        if not found:
+            if key == "z" and not require_z:
+                continue
+            raise InputError(f"{path}: line 1: no '{key}' column in header {rows[0]}")
+        col[key] = found[0]
+    col_id = head.index("id") if "id" in head else None
+    col_group = head.index("group") if "group" in head else None
+    ids, xyz, groups = [], [], []
+    for line_no, row in enumerate(rows[1:], start=2):
+        if not row or all(not c.strip() for c in row):
+            continue
+        if len(row) < len(head):
+            raise InputError(f"{path}: line {line_no}: {len(row)} fields, expected {len(head)}")
+        try:
+            vals = [float(row[col[k]]) for k in ("x", "y", "z") if k in col]
+        except ValueError:
+            raise InputError(f"{path}: line {line_no}: {'/'.join(col)} not numbers: {row}") from None
+        if not np.all(np.isfinite(vals)):
+            raise InputError(f"{path}: line {line_no}: non-finite coordinate: {row}")
+        ids.append(row[col_id].strip() if col_id is not None else str(line_no - 1))
+        xyz.append(vals)
+        groups.append(row[col_group].strip() if col_group is not None else "")
+    if not xyz:
+        raise InputError(f"{path}: no surveyed points after the header")
+    xyz = np.array(xyz)
+    return SurveyedPoints(tuple(ids), xyz[:, 0], xyz[:, 1], xyz[:, 2] if "z" in col else None,
+                          tuple(groups) if col_group is not None else None)
+
+
+# A plane needs ground points spread in both directions: nearly collinear points (a few returns along a scan
+# line in sparse ground) give a plane whose tilt across them is noise, metres off at the surveyed point.
+MIN_PLANE_SPREAD = 0.1
+
+
+def _spread_m(dx, dy) -> float:
+    """RMS spread of the points across their main direction (the smaller principal axis, metres)."""
+    c = np.cov(np.vstack([dx, dy]), bias=True)
+    return float(np.sqrt(max(np.linalg.eigvalsh(c)[0], 0.0)))
+
+
+def ground_height_at(gx, gy, gz, qx, qy, *, radius_m: float = 5.0, slopes: bool = False):
+    """Interpolated ground height at (qx, qy) and the number of ground points used (NaN if none); with
+    ``slopes`` also the plane's slopes dz/dx, dz/dy (0 where the IDW mean is used)."""
+    tree = cKDTree(np.column_stack([gx, gy]))
+    z_out = np.full(len(qx), np.nan)
+    n_used = np.zeros(len(qx), int)
+    sxy = np.zeros((len(qx), 2))
+    for k, nb in enumerate(tree.query_ball_point(np.column_stack([qx, qy]), radius_m)):
+        if not nb:
+            continue
+        nb = np.asarray(nb)
+        dx, dy = gx[nb] - qx[k], gy[nb] - qy[k]
+        w = 1.0 / np.maximum(dx * dx + dy * dy, 0.01)
+        n_used[k] = len(nb)
+        if len(nb) >= 3 and _spread_m(dx, dy) >= MIN_PLANE_SPREAD * radius_m:
+            a = np.column_stack([np.ones(len(nb)), dx, dy]) * np.sqrt(w)[:, None]
+            coef, _, rank, _ = np.linalg.lstsq(a, gz[nb] * np.sqrt(w), rcond=None)
+            if rank == 3:
+                z_out[k] = coef[0]
+                sxy[k] = coef[1:]
+                continue
+        z_out[k] = np.sum(w * gz[nb]) / np.sum(w)
+    return (z_out, n_used, sxy) if slopes else (z_out, n_used)
+
+
+def canopy_cover(fx, fy, qx, qy, hag_of, density: DensityGroups) -> tuple[np.ndarray, np.ndarray]:
+    """(cover fraction, first returns counted) within ``density.radius_m`` of each (qx, qy), from first returns
+    (fx, fy); ``hag_of(k, idx)`` gives the heights above ground of returns ``idx`` around point k (metres).
+    NaN cover where no return is in range."""
+    cover = np.full(len(qx), np.nan)
+    n = np.zeros(len(qx), int)
+    if len(fx):
+        tree = cKDTree(np.column_stack([fx, fy]))
+        for k, nb in enumerate(tree.query_ball_point(np.column_stack([qx, qy]), density.radius_m)):
+            if not nb:
+                continue
+            hag = hag_of(k, np.asarray(nb))
+            ok = np.isfinite(hag)
+            n[k] = int(ok.sum())
+            if n[k]:
+                cover[k] = float(np.mean(hag[ok] > density.canopy_height_m))
+    return cover, n
+
+
+def dem_heights(dem_path, x, y):
+    """Bilinear heights of a DEM GeoTIFF at x, y (its CRS's units), in its height unit; NaN off the DEM and
+    next to nodata. Reads the window around the points only. Returns (heights, CRS, metres per height unit)."""
+    from rasterio.windows import Window
+    from scipy import ndimage
+
+    from lidarctl.terrain.dem_io import open_dem
+
+    x, y = np.asarray(x, float), np.asarray(y, float)
+    src, z_m = open_dem(dem_path)
+    with src:
+        t = src.transform
+        col, row = (x - t.c) / t.a - 0.5, (y - t.f) / t.e - 0.5
+        inside = (col >= -0.5) & (col <= src.width - 0.5) & (row >= -0.5) & (row <= src.height - 0.5)
+        out = np.full(len(x), np.nan)
+        if inside.any():
+            c0, r0 = max(int(np.floor(col[inside].min())), 0), max(int(np.floor(row[inside].min())), 0)
+            c1 = min(int(np.floor(col[inside].max())) + 2, src.width)
+            r1 = min(int(np.floor(row[inside].max())) + 2, src.height)
+            a = src.read(1, window=Window(c0, r0, c1 - c0, r1 - r0), masked=True).astype(float).filled(np.nan)
+            # the outer half cell takes the edge cell's value; a nodata neighbour makes the height NaN
+            rr = np.clip(row[inside] - r0, 0, a.shape[0] - 1)
+            cc = np.clip(col[inside] - c0, 0, a.shape[1] - 1)
+            out[inside] = ndimage.map_coordinates(a, [rr, cc], order=1, mode="nearest")
+        return out, src.crs, z_m
+
+
+def abs_bin_labels(edges=ABS_BIN_EDGES_M) -> list[str]:
+    e = list(edges)
+    return [f"< {e[0]:g}"] + [f"{a:g} .. {b:g}" for a, b in zip(e[:-1], e[1:])] + [f"> {e[-1]:g}"]
+
+
+def _stats_document(dz: np.ndarray, exclude_m: float, abs_edges=ABS_BIN_EDGES_M) -> dict:
+    """dz statistics (metres) as height_check.json holds them: bins, |dz| bins, all, without |dz| > exclude_m."""
+    dz = dz[np.isfinite(dz)]
+    counts, _ = np.histogram(dz, bins=np.array(BIN_EDGES_M))
+    abs_counts, _ = np.histogram(np.abs(dz), bins=np.array([0.0, *abs_edges, np.inf]))
+    kept = dz[np.abs(dz) <= exclude_m]
+    n = len(dz)
+
+    def block(d):
+        return {"n": int(len(d)),
+                "mean_dz_m": float(np.mean(d)) if len(d) else None,
+                "mean_abs_dz_m": float(np.mean(np.abs(d))) if len(d) else None,
+                "rmse_m": float(np.sqrt(np.mean(d * d))) if len(d) else None}
+
+    return {
+        "bins": [{"bin_m": lab, "count": int(c), "percent": 100.0 * c / n if n else 0.0}
+                 for lab, c in zip(bin_labels(), counts)],
+        "abs_bins": [{"abs_dz_m": lab, "count": int(c), "percent": 100.0 * c / n if n else 0.0}
+                     for lab, c in zip(abs_bin_labels(abs_edges), abs_counts)],
+        "all": block(dz),
+        "excluded_beyond_m": exclude_m,
+        "without_excluded": block(kept),
+    }
+
+
+def _cloud_check_document(gx, gy, gz, points: SurveyedPoints, *, radius_m: float = 5.0, exclude_m: float = 1.0,
+                          units: LengthUnits = METRE) -> dict:
+    """dz statistics of surveyed ``points`` against ground points (gx, gy, gz), all in metres, as the cloud's part
+    of height_check.json.
+
+    ``units``: the CRS's units, in which the per-point coordinates are reported (the points as read,
+    ``read_points_csv``, scaled by ``units`` to metres give ``points``)."""
+    z_lidar, n_used = ground_height_at(gx, gy, gz, points.x, points.y, radius_m=radius_m)
+    dz = z_lidar - points.z
+    xs, ys = units.xy_from_m(np.asarray(points.x)), units.xy_from_m(np.asarray(points.y))
+    zs, zl_crs = units.z_from_m(np.asarray(points.z)), units.z_from_m(z_lidar)
+    per_point = [{"id": i, "x": float(x), "y": float(y), "z_survey": float(z),
+                  "z_lidar": None if not np.isfinite(zl) else float(zl),
+                  "dz_m": None if not np.isfinite(d) else float(d), "n_ground": int(nu),
+                  "group": (points.group[k] if points.group else None)}
+                 for k, (i, x, y, z, zl, d, nu) in enumerate(zip(points.ids, xs, ys, zs, zl_crs, dz, n_used))]
+    result = {"radius_m": radius_m, **units.as_dict(), "n_points": len(dz),
+              "n_without_ground": int(np.sum(~np.isfinite(dz))),
+              "overall": _stats_document(dz, exclude_m), "points": per_point, "groups": {}}
+    if points.group:
+        result["groups"] = _group_stats_document(dz, points.group, exclude_m)
+    return result
+
+
+def group_order(labels) -> list[str]:
+    """The groups present: open, sparse, dense, unknown in that order for density groups, else sorted."""
+    present = set(labels)
+    if present <= set(DENSITY_ORDER):
+        return [g for g in DENSITY_ORDER if g in present]
+    return sorted(present)
+
+
+def _group_stats_document(dz: np.ndarray, labels, exclude_m: float) -> dict:
+    """``_stats_document`` per group (``group_order``), as height_check.json holds them."""
+    labels_a = np.array(labels)
+    return {g: _stats_document(dz[labels_a == g], exclude_m) for g in group_order(labels)}
+
+
+def _near_points(px_m, py_m, radius_m: float):
+    """A function (x, y) -> mask of the points within ``radius_m`` of any of (px_m, py_m)."""
+    tree = cKDTree(np.column_stack([px_m, py_m]))
+    lo = np.array([np.min(px_m), np.min(py_m)]) - radius_m
+    hi = np.array([np.max(px_m), np.max(py_m)]) + radius_m
+
+    def near(x, y):
+        mask = (x >= lo[0]) & (x <= hi[0]) & (y >= lo[1]) & (y <= hi[1])
+        k = np.flatnonzero(mask)
+        if len(k):
+            d, _ = tree.query(np.column_stack([x[k], y[k]]), distance_upper_bound=radius_m)
+            mask[k] = d <= radius_m
+        return mask
+
+    return near
+
+
+def check_heights_file(cloud_paths, points_csv, *, radius_m: float = 5.0, exclude_m: float = 1.0, crs=None,
+                       dem_path=None, grouping: str = "auto", density: DensityGroups | None = None) -> HeightCheck:
+    """Height check of surveyed points (CSV id,x,y,z[,group], in the CRS and units of the cloud, or of the
+    DEM without a cloud) against the ground (class 2) of a classified LAS/LAZ file or of several strips
+    (one CRS and unit, else an InputError naming the strip; ``crs`` only for files without CRS), and/or
+    against the DEM GeoTIFF ``dem_path`` (same horizontal CRS as the cloud).
+
+    ``grouping``: ``column`` (the CSV's group column), ``density`` (open / sparse / dense canopy from the
+    cloud's first returns, ``density``), ``none``, or ``auto`` (the column when there is one). The strips are
+    read by chunks and only the returns near a surveyed point are kept (memory set by the chunk).
+
+    Returns the typed record (what the accuracy report reads back from the file) and the JSON document."""
+    doc = _height_check_document(cloud_paths, points_csv, radius_m=radius_m, exclude_m=exclude_m, crs=crs,
+                                 dem_path=dem_path, grouping=grouping, density=density)
+    return HeightCheck(_record_of(doc), doc)
+
+
+def _height_check_document(cloud_paths, points_csv, *, radius_m, exclude_m, crs, dem_path, grouping,
+                           density) -> dict:
+    """height_check.json's content (``check_heights_file``)."""
+    if not (np.isfinite(radius_m) and radius_m > 0):
+        raise OptionError(f"--radius {radius_m}: must be a positive distance in metres", param="--radius")
+    if not (np.isfinite(exclude_m) and exclude_m > 0):
+        raise OptionError(f"--exclude {exclude_m}: must be a positive height difference in metres", param="--exclude")
+    if grouping not in GROUPINGS:
+        raise OptionError(f"--groups {grouping!r}: expected one of {', '.join(GROUPINGS)}", param="--groups")
+    density = density or DensityGroups()
+    density.validate()
+    paths = [] if cloud_paths is None else (
+        [cloud_paths] if isinstance(cloud_paths, (str, Path)) else list(cloud_paths))
+    from aerotri.geom.inputs import check_distinct_files
+
+    check_distinct_files(paths, "LAS/LAZ file")  # a strip given twice would count every point twice
+    if not paths and dem_path is None:
+        raise OptionError("nothing to check: give the classified cloud(s) before POINTS_CSV, --dem DEM.tif, or both",
+                          param="--dem")
+    points = read_points_csv(points_csv)
+    if grouping == "auto":
+        grouping = "column" if points.group is not None else "none"
+    if grouping == "column" and points.group is None:
+        raise OptionError(f"--groups column: {points_csv} has no 'group' column", param="--groups")
+    if grouping == "density" and not paths:
+        raise OptionError("--groups density: the vegetation density comes from the cloud's first returns; give the "
+                          "classified cloud(s) before POINTS_CSV", param="--groups")
+    with_density = grouping == "density"
+    if paths:
+        box, unit = [np.inf, np.inf, -np.inf, -np.inf], ""
+        for _, header, _, units in io.checked_headers(paths, crs):
+            box = [min(box[0], header.mins[0]), min(box[1], header.mins[1]), max(box[2], header.maxs[0]),
+                   max(box[3], header.maxs[1])]
+            unit = units.xy_name
+        _refuse_points_elsewhere(points, points_csv, box, ", ".join(map(str, paths)), unit)
+    elif dem_path is not None:
+        from lidarctl.terrain.dem_io import open_dem
+
+        src, _ = open_dem(dem_path)
+        with src:
+            b = src.bounds
+        _refuse_points_elsewhere(points, points_csv, [b.left, b.bottom, b.right, b.top], str(dem_path), "CRS units")
+
+    cloud = _read_near(paths, points, radius_m, density.radius_m if with_density else None, crs) if paths else None
+    if cloud is not None:
+        crs_found, u = cloud["crs"], cloud["units"]
+    else:
+        from lidarctl.units import units_of
+
+        _, crs_found, dem_z_m = dem_heights(dem_path, points.x[:1], points.y[:1])
+        u = units_of(crs_found, source=str(dem_path), vertical_unit_m=dem_z_m)
+    points_m = points.in_metres(u)
+
+    z_dem = dz_dem = dem_z_m = None
+    if dem_path is not None:
+        z_dem, dem_crs, dem_z_m = dem_heights(dem_path, points.x, points.y)
+        if cloud is not None and crs_found is not None:
+            from aerotri.core.errors import CrsError
+            from aerotri.geom.crs.definition import same_horizontal
+
+            if not same_horizontal(dem_crs, crs_found):
+                raise CrsError(f"{dem_path}: the DEM's CRS ({dem_crs}) is not the cloud's ({crs_found.name}); "
+                               "reproject one of them (aerotri crs warp / transform)")
+        dz_dem = z_dem * dem_z_m - points_m.z
+
+    cover = n_first = None
+    if with_density:
+        fx, fy, fz = cloud["first"]
+        if dem_path is not None:
+            f_dem, _, _ = dem_heights(dem_path, u.xy_from_m(fx), u.xy_from_m(fy))
+            hag = fz - f_dem * dem_z_m
+
+            def hag_of(k, idx):
+                return hag[idx]
+        else:
+            gx, gy, gz = cloud["ground"]
+            z0, _, sxy = ground_height_at(gx, gy, gz, points_m.x, points_m.y, radius_m=density.radius_m,
+                                          slopes=True)
+
+            def hag_of(k, idx):
+                return fz[idx] - (z0[k] + sxy[k, 0] * (fx[idx] - points_m.x[k]) + sxy[k, 1] * (fy[idx] - points_m.y[k]))
+        cover, n_first = canopy_cover(fx, fy, points_m.x, points_m.y, hag_of, density)
+        points_m = dataclasses.replace(points_m, group=tuple(density.label(cover)))
+    elif grouping == "none":
+        points_m = dataclasses.replace(points_m, group=None)
+
+    if cloud is not None:
+        result = _cloud_check_document(*cloud["ground"], points_m, radius_m=radius_m, exclude_m=exclude_m, units=u)
+    else:
+        xs, ys, zs = points.x, points.y, points.z
+        result = {"radius_m": None, **u.as_dict(), "n_points": len(xs), "n_without_ground": None, "overall": None,
+                  "groups": {}, "points": [{"id": i, "x": float(a), "y": float(b), "z_survey": float(c),
+                                            "group": points_m.group[k] if points_m.group else None}
+                                           for k, (i, a, b, c) in enumerate(zip(points.ids, xs, ys, zs))]}
+    result["crs"] = crs_found.to_string() if crs_found is not None else None
+    result["grouping"] = grouping
+    result["abs_bin_edges_m"] = list(ABS_BIN_EDGES_M)
+    if with_density:
+        result["density"] = dataclasses.asdict(density)
+        for p, c, n in zip(result["points"], cover, n_first):
+            p["canopy_cover"] = None if not np.isfinite(c) else float(c)
+            p["first_returns"] = int(n)
+    if dem_path is not None:
+        labels = points_m.group
+        result["dem"] = {"path": str(dem_path), "z_unit_m": dem_z_m, "n_points": len(dz_dem),
+                         "n_without_dem": int(np.sum(~np.isfinite(dz_dem))),
+                         "overall": _stats_document(dz_dem, exclude_m),
+                         "groups": _group_stats_document(dz_dem, labels, exclude_m) if labels else {}}
+        for p, zd, d in zip(result["points"], z_dem, dz_dem):
+            p["z_dem"] = None if not np.isfinite(zd) else float(zd)
+            p["dz_dem_m"] = None if not np.isfinite(d) else float(d)
+    return result
+
+
+def _refuse_points_elsewhere(points, points_csv, box, what: str, unit: str) -> None:
+    """InputError when no surveyed point lies within ``box`` (xmin, ymin, xmax, ymax of the clouds or the DEM):
+    points of another zone, CRS or unit would otherwise be reported as "no ground" one by one."""
+    x, y = np.asarray(points.x, float), np.asarray(points.y, float)
+    inside = (x >= box[0]) & (x <= box[2]) & (y >= box[1]) & (y <= box[3])
+    if not inside.any():
+        raise InputError(f"{points_csv}: none of its {len(x)} points lies within the extent of {what} (x {box[0]:.1f} "
+                         f".. {box[2]:.1f}, y {box[1]:.1f} .. {box[3]:.1f} {unit}); the points must be in its CRS and "
+                         "units")
+
+
+def _read_near(paths, points, radius_m: float, density_radius_m: float | None, crs) -> dict:
+    """The ground points (class 2) within ``radius_m`` (and ``density_radius_m``) of a surveyed point and, with
+    ``density_radius_m``, the first returns (noise excluded) within it; metres. Streamed by chunks."""
+    ground, first_returns, first, n_ground = [], [], None, 0
+    reach = max(radius_m, density_radius_m or 0.0)
+    for path, _, crs_i, units in io.checked_headers(paths, crs):
+        if first is None:
+            first = (path, crs_i, units)
+            near = _near_points(units.xy_to_m(points.x), units.xy_to_m(points.y), reach)
+        for first_record, chunk in las.iter_file_chunks(path, io.CHUNK_POINTS):
+            cx, cy, cz = np.asarray(chunk.x), np.asarray(chunk.y), np.asarray(chunk.z)
+            io.validate_xyz(path, cx, cy, cz, first_record, units)
+            cls = np.asarray(chunk.classification)
+            g = cls == 2
+            n_ground += int(g.sum())
+            gx, gy = units.xy_to_m(cx[g]), units.xy_to_m(cy[g])
+            keep = near(gx, gy)
+            ground.append((gx[keep], gy[keep], units.z_to_m(cz[g][keep])))
+            if density_radius_m is not None:
+                rn, _ = io.sanitize_returns(np.asarray(chunk.return_number), np.asarray(chunk.number_of_returns))
+                f = (rn <= 1) & ~np.isin(cls, (7, 18))
+                fx, fy = units.xy_to_m(cx[f]), units.xy_to_m(cy[f])
+                keep = near(fx, fy)
+                first_returns.append((fx[keep], fy[keep], units.z_to_m(cz[f][keep])))
+    if not n_ground:
+        raise InputError(f"{', '.join(map(str, paths))}: no ground points (class 2); run 'lidarctl classify' first")
+    out = {"crs": first[1], "units": first[2],
+           "ground": tuple(np.concatenate([gr[k] for gr in ground]) for k in range(3))}
+    if density_radius_m is not None:
+        out["first"] = tuple(np.concatenate([fr[k] for fr in first_returns]) for k in range(3))
+    return out
+
+
+def _format_block(title: str, s: dict) -> list[str]:
+    lines = [title, f"  {'error bin (m)':<16}{'count':>8}{'percent':>10}"]
+    for b in s["bins"]:
+        lines.append(f"  {b['bin_m']:<16}{b['count']:>8}{b['percent']:>9.1f}%")
+
+    def fmt(v):
+        return "-" if v is None else f"{v:.3f}"
+
+    a, w = s["all"], s["without_excluded"]
+    lines.append(f"  n = {a['n']}  mean |dz| = {fmt(a['mean_abs_dz_m'])} m  RMSE = {fmt(a['rmse_m'])} m"
+                 f"  mean dz = {fmt(a['mean_dz_m'])} m")
+    lines.append(f"  without |dz| > {s['excluded_beyond_m']:g} m: n = {w['n']}  mean |dz| = "
+                 f"{fmt(w['mean_abs_dz_m'])} m  RMSE = {fmt(w['rmse_m'])} m")
+    return lines
+
+
+def _group_table(title: str, overall: dict, groups: dict) -> list[str]:
+    """Seed 004 Tab. 1: per group the share of points in each |dz| bin, mean |dz|, RMSE and the count."""
+    labels = [b["abs_dz_m"] for b in overall["abs_bins"]]
+    head = f"  {'group':<10}{'n':>6}" + "".join(f"{lab:>12}" for lab in labels) + f"{'mean |dz|':>11}{'RMSE':>8}"
+    lines = [title + " (|dz| bins in m: percent of points; mean |dz| and RMSE in m)", head]
+    for name, s in [*groups.items(), ("all", overall)]:
+        a = s["all"]
+        fmt = (lambda v: "-" if v is None else f"{v:.3f}")
+        lines.append(f"  {name:<10}{a['n']:>6}" + "".join(f"{b['percent']:>11.1f}%" for b in s["abs_bins"])
+                     + f"{fmt(a['mean_abs_dz_m']):>11}{fmt(a['rmse_m']):>8}")
+    return lines
+
+
+def format_report(check: HeightCheck) -> str:
+    """The height check table; statistics in metres, heights in the CRS's vertical unit (named), dz
+    in metres and, for a cloud in feet, also in feet."""
+    result = check.document
+    zu = result.get("z_unit", "m")
+    z_unit_m = result.get("z_unit_m", 1.0)
+    dem = result.get("dem")
+    lines = []
+    if result["overall"] is not None:
+        lines += ["LiDAR height check (dz = Z_lidar - Z_surveyed, in metres)",
+                  f"search radius {result['radius_m']:g} m, {result['n_points']} points, "
+                  f"{result['n_without_ground']} without ground points in range", ""]
+        if zu != "m":
+            lines[-1:-1] = [f"heights in {zu} (the cloud's vertical unit); dz and statistics in m"]
+        lines += _format_block("All points", result["overall"])
+        for g, s in result["groups"].items():
+            lines += [""] + _format_block(f"Group: {g}", s)
+    if dem is not None:
+        lines += ([""] if lines else []) + [
+            f"DEM height check (dz = Z_dem - Z_surveyed, in metres): {dem['path']}, {dem['n_points']} points, "
+            f"{dem['n_without_dem']} off the DEM or next to nodata", ""]
+        lines += _format_block("All points (DEM)", dem["overall"])
+        for g, s in dem["groups"].items():
+            lines += [""] + _format_block(f"Group: {g} (DEM)", s)
+    if result.get("density"):
+        d = result["density"]
+        lines += ["", f"groups by canopy cover (first returns more than {d['canopy_height_m']:g} m above the ground "
+                  f"within {d['radius_m']:g} m): open < {d['open_below']:.0%}, sparse up to {d['dense_above']:.0%}, "
+                  "dense above"]
+    if result["overall"] is not None:
+        lines += [""] + _group_table("Ground points by group", result["overall"], result["groups"])
+    if dem is not None:
+        lines += [""] + _group_table("DEM by group", dem["overall"], dem["groups"])
+    has_lidar = result["overall"] is not None
+    head = f"{'id':<12}{'group':<18}{f'z survey ({zu})':>16}"
+    if has_lidar:
+        head += f"{f'z lidar ({zu})':>16}{'dz (m)':>9}"
+        if zu != "m":
+            head += f"{f'dz ({zu})':>10}"
+    if dem is not None:
+        head += f"{'z dem':>12}{'dz dem (m)':>12}"
+    lines += ["", head]
+    for p in result["points"]:
+        line = f"{p['id']:<12}{(p['group'] or ''):<18}{p['z_survey']:>16.3f}"
+        if has_lidar:
+            zl = "-" if p["z_lidar"] is None else f"{p['z_lidar']:.3f}"
+            dz = "-" if p["dz_m"] is None else f"{p['dz_m']:+.3f}"
+            line += f"{zl:>16}{dz:>9}"
+            if zu != "m":
+                line += f"{'-' if p['dz_m'] is None else format(p['dz_m'] / z_unit_m, '+.3f'):>10}"
+        if dem is not None:
+            line += f"{'-' if p['z_dem'] is None else format(p['z_dem'], '.3f'):>12}"
+            line += f"{'-' if p['dz_dem_m'] is None else format(p['dz_dem_m'], '+.3f'):>12}"
+        lines.append(line)
+    return "\n".join(lines)
+
+
+HEIGHT_CHECK = "LiDAR height check (height_check.json)"
+
+
+@dataclasses.dataclass(frozen=True)
+class HeightCheckRecord:
+    """What ``height_check.json`` tells the accuracy report and the chain (metres)."""
+
+    n_checked: int | None  # surveyed points with ground in reach (None: the cloud was not checked)
+    rmse_m: float | None
+    dz_m: tuple[float, ...]  # Z_lidar - Z_surveyed per point with ground in reach
+    bins: list | None  # counts per dz bin as written (``_stats_document``)
+    groups: dict  # group -> statistics as written
+    mean_abs_dz_m: float | None = None
+
+
+@dataclasses.dataclass(frozen=True, eq=False)
+class HeightCheck:
+    """The height check (``check_heights_file``): the typed record other stages read, and the JSON document of
+    ``height_check.json`` (``to_json``; the module docstring says what its keys hold)."""
+
+    record: HeightCheckRecord
+    document: dict
+
+    def to_json(self) -> str:
+        """height_check.json's text (``lidarctl check-heights --json``, the chain's lidar_out/height_check.json)."""
+        return json.dumps(self.document, indent=2)
+
+    def __eq__(self, other) -> bool:
+        return isinstance(other, HeightCheck) and self.document == other.document
+
+
+def _record_of(d: dict) -> HeightCheckRecord:
+    overall = d.get("overall") or {}
+    every = overall.get("all") or {}
+    dz = tuple(float(p["dz_m"]) for p in d.get("points") or [] if p.get("dz_m") is not None)
+    return HeightCheckRecord(None if "n" not in every else int(every["n"]),
+                             None if every.get("rmse_m") is None else float(every["rmse_m"]), dz,
+                             overall.get("bins"), dict(d.get("groups") or {}),
+                             None if every.get("mean_abs_dz_m") is None else float(every["mean_abs_dz_m"]))
+
+
+def read_height_check(path) -> HeightCheckRecord:
+    """``height_check.json`` as ``check_heights_file`` wrote it; InputError naming the file when it is not one."""
+    from aerotri.core.textio import read_record, record_error
+
+    d = read_record(path, HEIGHT_CHECK, 1)
+    try:
+        return _record_of(d)
+    except (AttributeError, KeyError, TypeError, ValueError) as exc:
+        raise record_error(path, HEIGHT_CHECK, exc) from None

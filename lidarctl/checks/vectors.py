@@ -1,0 +1,437 @@
+"""Line-map (DLG) accuracy against reference vectors: plan offsets of well-defined points, completeness
+and correctness per layer.
+
+* Well-defined points are the corners of the ``buildings`` outlines (vertices whose interior angle differs
+  from a straight line by more than ``CORNER_MIN_TURN_DEG``). For each produced corner: the offset vector to
+  the nearest point of any reference outline (vertex-to-line), and, when a reference corner lies within
+  ``match_m`` and the two are each other's nearest, the corner-to-corner offset. Plan RMS of both.
+* Polygon layers (buildings, roads, water): completeness = area of reference covered by the product /
+  reference area; correctness = area of product covered by the reference / product area (Heipke et al. 1997
+  as areas). Line layers (road_centrelines, contours): the same with lengths inside a buffer of
+  ``buffer_m`` around the other set's lines.
+* Tolerance: the plan RMS of well-defined map features of the map scale's tolerance table
+  (``aerotri.core.tolerances``, ``feature_rms_xy_m``; 1:10000 flat 0.50 m, mountainous 0.75 m, the table of
+  the Chinese specification in ../shared/design/reports.md).
+
+Lengths and areas are in the CRS units of the files, reported in metres (``_m``, ``_m2``).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import logging
+from pathlib import Path
+
+import numpy as np
+
+from aerotri.core.settings import setting
+from aerotri.core.errors import CrsError, InputError, OptionError
+
+log = logging.getLogger(__name__)
+log.addHandler(logging.NullHandler())
+
+CORNER_MIN_TURN_DEG = 30.0
+POLYGON_LAYERS = ("buildings", "roads", "water")
+LINE_LAYERS = ("road_centrelines", "contours")
+
+
+@dataclasses.dataclass(frozen=True)
+class VectorCheckSettings:
+    """``lidarctl check-vectors``: the layers checked, how corners are paired, the tolerance table."""
+
+    layers: tuple = setting((), help="Check only these layers (empty: every layer the two files share).")
+    match_m: float = setting(3.0, min=0.0, min_open=True, help="Largest distance (m) of a produced corner from its "
+                                                               "reference corner to pair them.")
+    buffer_m: float = setting(2.0, min=0.0, min_open=True, help="Buffer (m) around lines for their completeness and "
+                                                                "correctness.")
+    scale: str = setting("1:10000", help="Map scale of the tolerance table.")
+    terrain: str = setting("flat", help="Terrain class of the tolerance table.")
+
+
+def read_layers(path: Path) -> tuple[dict, object, float]:
+    """{layer: list of shapely geometries}, CRS (pyproj), metres per CRS unit of a GeoPackage/GeoJSON."""
+    import pyogrio
+    import pyproj
+    import shapely
+    from pyogrio.errors import DataLayerError, DataSourceError
+    from pyogrio.raw import read
+
+    from lidarctl.units import units_of
+
+    path = Path(path)
+    if not path.is_file():
+        raise InputError(f"{path}: no such file")
+    try:
+        names = [str(n) for n, _ in pyogrio.list_layers(path)]
+        out, crs = {}, None
+        for name in names:
+            meta, _, wkb, _ = read(path, layer=name)
+            if wkb is None:  # a table without geometries (a CSV read by GDAL): not a vector map layer
+                raise InputError(f"{path}: layer {name!r} has no geometries; expected a vector map (.gpkg/.geojson) "
+                                 "with layers of the same names as the product's")
+            if meta.get("crs") and crs is None:
+                crs = pyproj.CRS.from_user_input(meta["crs"])
+            out[name] = [g for g in (shapely.from_wkb(b) for b in wkb if b is not None) if g is not None and not g.is_empty]
+    except (DataSourceError, DataLayerError, OSError) as exc:
+        raise InputError(f"{path}: not a readable vector file ({exc})") from None
+    xy_m = units_of(crs, str(path)).xy_m if crs is not None else 1.0
+    return out, crs, xy_m
+
+
+def corners_of(polys: list) -> np.ndarray:
+    """(N, 2) vertices of the polygons' rings where the outline turns by more than CORNER_MIN_TURN_DEG."""
+    pts = []
+    for g in polys:
+        for p in getattr(g, "geoms", [g]):
+            if p.geom_type != "Polygon":
+                continue
+            for ring in (p.exterior, *p.interiors):
+                xy = np.asarray(ring.coords)[:-1, :2]
+                if len(xy) < 3:
+                    continue
+                a, b = xy - np.roll(xy, 1, axis=0), np.roll(xy, -1, axis=0) - xy
+                turn = np.degrees(np.abs(np.arctan2(a[:, 0] * b[:, 1] - a[:, 1] * b[:, 0], (a * b).sum(axis=1))))
+                pts.append(xy[turn > CORNER_MIN_TURN_DEG])
+    return np.vstack(pts) if pts else np.zeros((0, 2))
+
+
+def _rms(v: np.ndarray) -> float | None:
+    return float(np.sqrt(np.mean((v**2).sum(axis=1)))) if len(v) else None
+
+
+@dataclasses.dataclass(frozen=True)
+class CornerOffsets:
+    """Offsets (CRS units, east and north per row) of the produced building corners ``corners``: ``to_line`` to the
+    nearest reference outline (one per corner; none without a reference), ``to_corner`` to the mutually nearest
+    reference corner within the match distance from the corners ``matched_from``; the reference's corner count."""
+
+    corners: np.ndarray
+    to_line: np.ndarray
+    to_corner: np.ndarray
+    matched_from: np.ndarray
+    n_reference_corners: int
+
+
+@dataclasses.dataclass(frozen=True)
+class Overlap:
+    """Produced and reference features of a layer: their areas (polygons; CRS units squared) or lengths (lines; CRS
+    units), and completeness / correctness in per cent of the reference / product matched (None: nothing to match)."""
+
+    reference_size: float
+    product_size: float
+    completeness_pct: float | None
+    correctness_pct: float | None
+
+
+def point_offsets(prod: list, ref: list, match_m: float) -> CornerOffsets:
+    """Offsets (CRS units) of the produced building corners: to the nearest reference outline and to the
+    mutually nearest reference corner within ``match_m``."""
+    import shapely
+    from scipy.spatial import cKDTree
+
+    pc, rc = corners_of(prod), corners_of(ref)
+    none = np.zeros((0, 2))
+    if len(pc) == 0 or not ref:
+        return CornerOffsets(pc, none, none, none, len(rc))
+    bounds = shapely.union_all([g.boundary for g in ref])
+    near = shapely.shortest_line(shapely.points(pc), bounds)
+    to_line = np.array([np.asarray(ln.coords)[1] - np.asarray(ln.coords)[0] for ln in near])
+    to_corner, matched_from = none, none
+    if len(rc):
+        d1, j = cKDTree(rc).query(pc)
+        _, back = cKDTree(pc).query(rc)
+        mutual = (back[j] == np.arange(len(pc))) & (d1 <= match_m)
+        to_corner, matched_from = rc[j[mutual]] - pc[mutual], pc[mutual]
+    return CornerOffsets(pc, to_line, to_corner, matched_from, len(rc))
+
+
+def area_overlap(prod: list, ref: list) -> Overlap:
+    """Polygons: the areas of the union of each side and the share of each covered by the other."""
+    import shapely
+
+    P = shapely.union_all(prod) if prod else shapely.Polygon()
+    R = shapely.union_all(ref) if ref else shapely.Polygon()
+    inter = P.intersection(R).area
+    return Overlap(R.area, P.area, 100 * inter / R.area if R.area else None, 100 * inter / P.area if P.area else None)
+
+
+# Vertices of one window of the line overlap: a union and a buffer of every line of a large layer at once (31,204
+# contour lines of the demo's 1 m contours) held 3.8 GB; windows of this many vertices keep it to tens of MB.
+_WINDOW_VERTICES = 20_000
+
+
+def buffer_overlap(prod: list, ref: list, buffer: float, *, window: float | None = None) -> Overlap:
+    """Lines: the lengths of each side and the share of each within ``buffer`` (CRS units) of the other.
+
+    Computed window by window (square windows of side ``window``, CRS units; default: about
+    ``_WINDOW_VERTICES`` vertices a window): a side's lines clipped to the window, the other side's to the window
+    grown by ``buffer``, so memory follows the window, not the layer. Lengths are those of each side's union
+    (a line drawn twice counts once)."""
+    import shapely
+
+    P = np.asarray(prod, dtype=object) if prod else np.empty(0, dtype=object)
+    R = np.asarray(ref, dtype=object) if ref else np.empty(0, dtype=object)
+    if not len(P) and not len(R):
+        return Overlap(0.0, 0.0, None, None)
+    both = np.concatenate([P, R])
+    # the windows start off the data's bounds by an odd fraction of the buffer: clip_by_rect drops a line that runs
+    # along a window's edge, and map lines at round coordinates (a contour's straight run, a box) would do so
+    pad = 0.6180339887 * buffer
+    xmin, ymin, xmax, ymax = shapely.total_bounds(both) + np.array([-pad, -pad, pad, pad])
+    if window is None:
+        n_windows = max(1.0, shapely.get_num_coordinates(both).sum() / _WINDOW_VERTICES)
+        window = max(20.0 * buffer, np.sqrt(max((xmax - xmin) * (ymax - ymin), 1e-12) / n_windows))
+    nx, ny = max(1, int(np.ceil((xmax - xmin) / window))), max(1, int(np.ceil((ymax - ymin) / window)))
+    tree_p, tree_r = shapely.STRtree(P), shapely.STRtree(R)
+    lr = lp = matched_ref = matched_prod = 0.0
+    for i in range(nx):
+        for j in range(ny):
+            x0, y0 = xmin + i * window, ymin + j * window
+            # lines cross the windows' shared edges at points (one running exactly along an edge would be lost)
+            x1 = xmin + (i + 1) * window if i < nx - 1 else xmax
+            y1 = ymin + (j + 1) * window if j < ny - 1 else ymax
+            r_in, p_in = _clipped_union(R, tree_r, (x0, y0, x1, y1)), _clipped_union(P, tree_p, (x0, y0, x1, y1))
+            lr, lp = lr + r_in.length, lp + p_in.length
+            grown = (x0 - buffer, y0 - buffer, x1 + buffer, y1 + buffer)
+            if r_in.length:
+                near_p = _clipped_union(P, tree_p, grown)
+                if near_p.length:
+                    matched_ref += r_in.intersection(near_p.buffer(buffer)).length
+            if p_in.length:
+                near_r = _clipped_union(R, tree_r, grown)
+                if near_r.length:
+                    matched_prod += p_in.intersection(near_r.buffer(buffer)).length
+    return Overlap(lr, lp, 100 * matched_ref / lr if lr else None, 100 * matched_prod / lp if lp else None)
+
+
+def _clipped_union(lines: np.ndarray, tree, rect: tuple) -> object:
+    """The union of ``lines`` (STRtree ``tree``) clipped to the rectangle ``rect`` = (x0, y0, x1, y1)."""
+    import shapely
+
+    hits = tree.query(shapely.box(*rect))
+    if not len(hits):
+        return shapely.LineString()
+    return shapely.union_all(shapely.clip_by_rect(lines[hits], *rect))
+
+
+def check_vectors(product_path, reference_path, params: VectorCheckSettings = VectorCheckSettings()) -> VectorCheck:
+    """Accuracy of the DLG ``product_path`` against ``reference_path`` (see the module doc; metres): the typed
+    record, the JSON document and the buildings' corner offsets. Raises InputError / CrsError / OptionError
+    naming the file or option."""
+    from aerotri.core.tolerances import TERRAINS, load_table
+    from aerotri.geom.crs.definition import crs_label, same_horizontal
+
+    for name in ("match_m", "buffer_m"):
+        v = getattr(params, name)
+        if not (np.isfinite(v) and v > 0):
+            raise OptionError(f"must be a positive number of metres, got {v}", param="--" + name[:-2].replace("_", "-"))
+    if params.terrain not in TERRAINS:
+        raise OptionError(f"{params.terrain!r}: expected one of {', '.join(TERRAINS)}", param="--terrain")
+    tol = load_table(params.scale, params.terrain).limits.get("feature_rms_xy_m")
+    prod, pcrs, p_m = read_layers(product_path)
+    ref, rcrs, r_m = read_layers(reference_path)
+    if pcrs is not None and rcrs is not None and not same_horizontal(pcrs, rcrs):
+        raise CrsError(f"{product_path} is in {crs_label(pcrs)} but {reference_path} in {crs_label(rcrs)}; give both "
+                       "in one CRS (aerotri crs transform)")
+    unit = p_m if pcrs is not None else r_m
+    shared = [n for n in prod if n in ref]
+    layers = list(params.layers) or shared
+    for n in layers:
+        if n not in prod or n not in ref:
+            where = product_path if n not in prod else reference_path
+            raise OptionError(f"{where}: no layer {n!r} (layers: {', '.join(prod if n not in prod else ref)})",
+                              param="--layer")
+    if not layers:
+        raise InputError(f"{product_path} and {reference_path} share no layer")
+    out = {"product": str(product_path), "reference": str(reference_path), "xy_unit_m": unit,
+           "map_scale": params.scale, "terrain": params.terrain, "tolerance_feature_rms_xy_m": tol,
+           "match_m": params.match_m, "buffer_m": params.buffer_m, "layers": {}}
+    offsets = None
+    for n in layers:
+        P, R = prod[n], ref[n]
+        kind = (P or R)[0].geom_type if (P or R) else "Polygon"
+        if "Polygon" in kind:
+            r = area_overlap(P, R)
+            r = {"reference_area_m2": r.reference_size * unit**2, "product_area_m2": r.product_size * unit**2,
+                 "completeness_pct": r.completeness_pct, "correctness_pct": r.correctness_pct,
+                 "n_reference": len(R), "n_product": len(P)}
+        elif "Line" in kind:
+            r = buffer_overlap(P, R, params.buffer_m / unit)
+            r = {"reference_length_m": r.reference_size * unit, "product_length_m": r.product_size * unit,
+                 "completeness_pct": r.completeness_pct, "correctness_pct": r.correctness_pct,
+                 "n_reference": len(R), "n_product": len(P)}
+        else:
+            r = {"n_reference": len(R), "n_product": len(P)}
+        if n == "buildings":
+            off = point_offsets(P, R, params.match_m / unit)
+            tl, tc = off.to_line * unit, off.to_corner * unit
+            offsets = off
+            r.update(n_corners=len(off.corners), n_reference_corners=off.n_reference_corners,
+                     n_matched_corners=len(tc), rms_xy_to_line_m=_rms(tl), rms_xy_corner_m=_rms(tc),
+                     rms_x_corner_m=float(np.sqrt(np.mean(tc[:, 0] ** 2))) if len(tc) else None,
+                     rms_y_corner_m=float(np.sqrt(np.mean(tc[:, 1] ** 2))) if len(tc) else None,
+                     mean_dx_corner_m=float(tc[:, 0].mean()) if len(tc) else None,
+                     mean_dy_corner_m=float(tc[:, 1].mean()) if len(tc) else None,
+                     max_offset_to_line_m=float(np.hypot(*tl.T).max()) if len(tl) else None)
+            rms = r["rms_xy_corner_m"]
+            r["within_tolerance"] = None if rms is None or tol is None else bool(rms <= tol)
+        out["layers"][n] = r
+    return VectorCheck(_record_of(out), out, offsets)
+
+
+def plot_offsets(check: VectorCheck, prod: dict, ref: dict, path, title: str = "") -> Path:
+    """Reference (grey) and produced outlines, the corner-to-corner offset vectors exaggerated, with a key."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from aerotri.core.atomic import atomic_path
+
+    result = check.document
+    unit = result["xy_unit_m"]
+    fig, (ax, ax2) = plt.subplots(1, 2, figsize=(15, 7.5), gridspec_kw={"width_ratios": [2, 1]})
+    for name, geoms, colour, lw in (("reference", ref.get("buildings", []), "0.6", 2.0),
+                                    ("product", prod.get("buildings", []), "firebrick", 0.8)):
+        first = True
+        for g in geoms:
+            for p in getattr(g, "geoms", [g]):
+                for ring in (p.exterior, *p.interiors):
+                    xy = np.asarray(ring.coords)
+                    ax.plot(xy[:, 0], xy[:, 1], color=colour, lw=lw, label=f"{name} outlines" if first else None)
+                    first = False
+    off = check.offsets
+    r = result["layers"].get("buildings", {})
+    if off is not None and len(off.to_corner):
+        span = max(np.ptp(off.corners[:, 0]), np.ptp(off.corners[:, 1]), 1.0)
+        scale = unit / (0.05 * span)  # a 1 m offset is drawn 5 % of the plot wide
+        q = ax.quiver(off.matched_from[:, 0], off.matched_from[:, 1], off.to_corner[:, 0],
+                      off.to_corner[:, 1], np.hypot(*off.to_corner.T) * unit, cmap="viridis", angles="xy",
+                      scale_units="xy", scale=scale, width=0.004)
+        ax.quiverkey(q, 0.85, 0.03, 1.0 / unit, "1 m offset", coordinates="axes")
+        fig.colorbar(q, ax=ax, shrink=0.6, label="corner offset (m)")
+        tc = off.to_corner * unit
+        ax2.scatter(tc[:, 0], tc[:, 1], s=10, c="k", label="corner to corner")
+        tl = off.to_line * unit
+        ax2.scatter(tl[:, 0], tl[:, 1], s=6, c="tab:orange", alpha=0.6, label="corner to outline")
+        tol = result.get("tolerance_feature_rms_xy_m")
+        if tol:
+            ax2.add_patch(plt.Circle((0, 0), tol, fill=False, ls="--", color="tab:blue",
+                                     label=f"tolerance {tol:g} m ({result['map_scale']}, {result['terrain']})"))
+        lim = max(1.0, float(np.nanmax(np.abs(np.r_[tc.ravel(), tl.ravel()]))) * 1.1)
+        ax2.set_xlim(-lim, lim)
+        ax2.set_ylim(-lim, lim)
+        ax2.axhline(0, color="0.8", lw=0.5)
+        ax2.axvline(0, color="0.8", lw=0.5)
+        ax2.set_aspect("equal")
+        ax2.set_xlabel("dx (m)")
+        ax2.set_ylabel("dy (m)")
+        ax2.legend(fontsize=8, loc="upper left")
+        ax2.set_title(f"corner RMS {r.get('rms_xy_corner_m') or float('nan'):.2f} m (n={r.get('n_matched_corners')}),"
+                      f" to outline {r.get('rms_xy_to_line_m') or float('nan'):.2f} m")
+    ax.set_aspect("equal")
+    ax.ticklabel_format(useOffset=False, style="plain")
+    ax.legend(loc="upper left", fontsize=8)
+    ax.set_title(title or "building corners: offsets product -> reference (exaggerated)")
+    fig.tight_layout()
+    with atomic_path(path) as tmp:
+        fig.savefig(tmp, dpi=90)
+    plt.close(fig)
+    return Path(path)
+
+
+def format_report(check: VectorCheck) -> str:
+    result = check.document
+    lines = [f"line-map check: {result['product']} against {result['reference']}",
+             f"tolerance for well-defined features ({result['map_scale']}, {result['terrain']}): plan RMS "
+             f"{result['tolerance_feature_rms_xy_m']} m"]
+    for n, r in result["layers"].items():
+        comp, corr = r.get("completeness_pct"), r.get("correctness_pct")
+        s = f"{n:18s} reference {r['n_reference']:5d}  product {r['n_product']:5d}"
+        if comp is not None or corr is not None:
+            s += f"  completeness {comp or 0:6.2f} %  correctness {corr or 0:6.2f} %"
+        lines.append(s)
+        if n == "buildings" and r.get("n_corners"):
+            f = lambda v: "-" if v is None else f"{v:.3f}"  # noqa: E731
+            lines.append(f"  corners {r['n_corners']} (reference {r['n_reference_corners']}), matched "
+                         f"{r['n_matched_corners']}: plan RMS corner-to-corner {f(r['rms_xy_corner_m'])} m "
+                         f"(x {f(r['rms_x_corner_m'])}, y {f(r['rms_y_corner_m'])}; mean dx {f(r['mean_dx_corner_m'])}, "
+                         f"dy {f(r['mean_dy_corner_m'])}), corner-to-outline {f(r['rms_xy_to_line_m'])} m -> "
+                         f"{'within' if r['within_tolerance'] else 'NOT within'} tolerance")
+    return "\n".join(lines)
+
+
+def check_files(product_path, reference_path, params: VectorCheckSettings = VectorCheckSettings(), json_path=None,
+                png_path=None) -> VectorCheck:
+    """``check_vectors`` + the JSON and the offset plot (atomic), refusing an input as output."""
+    from aerotri.core.atomic import refuse_input_as_output, write_text_atomic
+
+    for opt, p in (("--json", json_path), ("--png", png_path)):
+        if p is not None:
+            refuse_input_as_output(p, [product_path, reference_path], opt)
+    result = check_vectors(product_path, reference_path, params)
+    if png_path is not None:
+        prod, _, _ = read_layers(product_path)
+        ref, _, _ = read_layers(reference_path)
+        plot_offsets(result, prod, ref, png_path)
+    if json_path is not None:
+        write_text_atomic(json_path, result.to_json())
+    return result
+
+
+VECTOR_CHECK = "vector check (check-vectors JSON)"
+
+
+@dataclasses.dataclass(frozen=True)
+class BuildingCornerCheck:
+    """The buildings layer of a vector check: corners against their reference (metres, per cent)."""
+
+    n_matched_corners: int
+    rms_xy_corner_m: float | None
+    rms_xy_to_line_m: float | None
+    completeness_pct: float | None
+    correctness_pct: float | None
+
+
+@dataclasses.dataclass(frozen=True)
+class VectorCheckRecord:
+    """What a check-vectors JSON tells the accuracy report."""
+
+    reference: str
+    match_m: float
+    buildings: BuildingCornerCheck | None  # None: no buildings layer checked
+
+
+@dataclasses.dataclass(frozen=True, eq=False)
+class VectorCheck:
+    """``check_vectors`` / ``check_files``: the typed record (what the chain and the accuracy report read), the JSON
+    document (``to_json``; the module doc says what it holds) and the buildings' corner offsets (the plot's;
+    None without a buildings layer)."""
+
+    record: VectorCheckRecord
+    document: dict
+    offsets: CornerOffsets | None
+
+    def to_json(self) -> str:
+        """The check-vectors JSON's text (``lidarctl check-vectors --json``, the chain's vectors_check.json)."""
+        return json.dumps(self.document, indent=2)
+
+
+def _record_of(d: dict) -> VectorCheckRecord:
+    b = (d.get("layers") or {}).get("buildings")
+    opt = {k: (None if b.get(k) is None else float(b[k]))
+           for k in ("rms_xy_corner_m", "rms_xy_to_line_m", "completeness_pct", "correctness_pct")} if b else {}
+    buildings = BuildingCornerCheck(int(b.get("n_matched_corners") or 0), **opt) if b else None
+    return VectorCheckRecord(str(d.get("reference", "?")), float(d.get("match_m", 0.0)), buildings)
+
+
+def read_vector_check(path) -> VectorCheckRecord:
+    """A check-vectors JSON as ``check_files`` wrote it; InputError naming the file when it is not one."""
+    from aerotri.core.textio import read_record, record_error
+
+    d = read_record(path, VECTOR_CHECK, 1)
+    try:
+        return _record_of(d)
+    except (AttributeError, KeyError, TypeError, ValueError) as exc:
+        raise record_error(path, VECTOR_CHECK, exc) from None

@@ -1,0 +1,1 @@
+"""The lidarctl command line: thin click commands over the library."""

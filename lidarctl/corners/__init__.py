@@ -1,0 +1,1 @@
+"""Roof corners and roof planes as LiDAR ground control."""

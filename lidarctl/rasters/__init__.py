@@ -1,0 +1,1 @@
+"""Rasters from a classified cloud: DEM, DSM, nDSM, CHM, intensity, tree heights."""

@@ -1,0 +1,973 @@
+"""Rasters from a classified cloud: DEM, DSM, nDSM, CHM, intensity (Cloud-Optimized GeoTIFF) and a
+hillshade quicklook (PNG).
+
+Grid: cells of ``res_m`` metres aligned to multiples of ``res_m`` metres in the cloud's CRS, north-up.
+
+Units: the grids are computed in metres (clouds in feet are scaled as they are read) and written in
+the cloud's CRS and units: in a foot CRS a 1 m cell is 3.2808 ft (3.2808 US survey ft) wide in the
+GeoTIFF transform, and heights (dem, dsm, ndsm, chm) are in the CRS's vertical unit. Every GeoTIFF
+says so: the band's unit type (``metre``, ``foot``, ``US survey foot``; none for intensity), its
+description, and the tags ``LINEAR_UNITS``, ``VERTICAL_UNITS`` and ``CELL_SIZE_M``.
+* dem.tif: mean height of ground (2) and water (9) points per cell; gaps inside the footprint
+  filled (pull-push interpolation); nodata outside it.
+* dsm.tif: highest first return (noise excluded) per cell; gaps filled as for the DEM.
+* ndsm.tif: dsm - dem.
+* chm.tif: highest vegetation (classes 4, 5) height above the DEM per cell; nodata where no trees.
+* intensity.tif: mean intensity of first returns (nodata where none).
+The footprint is the set of cells within ``footprint_cells`` cells of a point.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import functools
+from typing import ClassVar, NamedTuple
+import logging
+from pathlib import Path
+
+import numba
+import numpy as np
+from rasterio.io import MemoryFile
+from rasterio.shutil import copy as rio_copy
+from rasterio.transform import from_origin
+from scipy import ndimage
+
+from aerotri.geom import las
+from lidarctl import io
+from aerotri.core.atomic import atomic_path, refuse_input_as_output, temporary_dir
+from aerotri.core.errors import InputError, OptionError
+from aerotri.core.gdal_cache import MiB, stage_block_cache
+from aerotri.core.settings import setting
+from aerotri.core.limits import check_task_count
+from lidarctl.grid import check_disk, check_grid
+from lidarctl.io import PointCloud
+from lidarctl.rasters.cells import CellStats
+from lidarctl.raster_ops import DEFAULT_TIN_FILL_RADIUS_PX, fill_nodata, fill_nodata_tin
+from aerotri.geom.crs.definition import length_unit_name
+from lidarctl.units import METRE, LengthUnits
+
+log = logging.getLogger(__name__)
+
+NODATA = -9999.0
+FILES = ("dem.tif", "dsm.tif", "ndsm.tif", "chm.tif", "intensity.tif", "hillshade.png")
+HEIGHT_GRIDS = ("dem", "dsm", "ndsm", "chm")
+
+
+@dataclasses.dataclass(frozen=True)
+class RasterGrids:
+    """The rasters of a cloud (``make_grids``): float32 arrays, rows north-up, NaN = nodata, and the GeoTIFF
+    transform; heights (DEM, DSM, nDSM, CHM) and the transform in metres, or in the CRS's units after
+    ``in_crs_units``; intensity as the points record it."""
+
+    dem: np.ndarray
+    dsm: np.ndarray
+    ndsm: np.ndarray
+    chm: np.ndarray
+    intensity: np.ndarray
+    transform: object  # affine.Affine
+
+    def in_crs_units(self, units: LengthUnits) -> "RasterGrids":
+        """The grids in the cloud's units: heights divided by the vertical unit, the transform by the horizontal
+        unit (these very grids for metres)."""
+        if units.is_metric:
+            return self
+        heights = {n: (getattr(self, n).astype(float) / units.z_m).astype(np.float32) for n in HEIGHT_GRIDS}
+        return dataclasses.replace(self, **heights, transform=_transform_in_units(self.transform, units))
+DESCRIPTIONS = {"dem": "DEM: mean height of ground and water points", "dsm": "DSM: highest first return",
+                "ndsm": "nDSM: DSM - DEM", "chm": "CHM: highest vegetation above the DEM",
+                "intensity": "mean intensity of first returns (sensor units)"}
+# Memory of a tile per cell of its window at the peak of ``_CellSums`` and the TIN fill (per-cell
+# records, the pull-push pyramid, the triangulation; measured: 1.07 GB peak RSS with one tile of
+# 2304 x 2224 cells at a time, 1.65 GB with two, of which 0.25 GB the process itself). Two tiles are
+# computed at once when they fit in half of the RAM.
+RASTER_BYTES_PER_CELL = 160
+# Tiles of the rasters of LAS/LAZ files (cells): a 2048 + 2 x 256 cell window needs about 1 GB
+# (RASTER_BYTES_PER_CELL); both multiples of 256, so the gap filling's pyramid blocks up to 256
+# cells coincide with the whole grid's.
+DEFAULT_TILE_PX = 2048
+DEFAULT_BUFFER_PX = 256
+
+
+def check_res(res_m: float) -> None:
+    if not (np.isfinite(res_m) and res_m > 0):
+        raise OptionError(f"--res {res_m}: must be a positive cell size in metres", param="--res")
+
+
+@dataclasses.dataclass(frozen=True)
+class RasterSettings:
+    """Options of the raster stage (``[rasters]`` in project.toml; ``lidarctl rasters --res``)."""
+
+    SECTION: ClassVar[str] = "rasters"
+
+    res_m: float = setting(0.5, min=0.0, min_open=True, help="Cell size in metres.")
+
+
+def grid_for_bounds(xmin: float, ymin: float, xmax: float, ymax: float, res_m: float):
+    """(res_m, x0, y0, nrows, ncols) of the raster grid covering the bounds, aligned to multiples of res_m."""
+    x0 = np.floor(xmin / res_m) * res_m
+    y0 = np.floor(ymin / res_m) * res_m
+    ncols = int(np.floor((xmax - x0) / res_m)) + 1
+    nrows = int(np.floor((ymax - y0) / res_m)) + 1
+    return res_m, x0, y0, nrows, ncols
+
+
+class _CellSums:
+    """Per-cell sums, counts and maxima, accumulated chunk by chunk (same result as all at once:
+    maxima are exact; means are sums over counts, equal up to the summation order).
+
+    ``args``: (res_m, x0, y0, nrows, ncols) of the grid; ``offset``: (row, col) of its first cell in
+    a larger grid whose origin is (x0, y0) (a tile window, which may reach beyond that grid). Cell
+    indices are always computed from the large grid's origin, so a point falls into the same global
+    cell in a tile as in the whole grid. The loops are ``raster_cells``' (numba, one pass a chunk)."""
+
+    def __init__(self, args, offset: tuple[int, int] = (0, 0)):
+        self.args = args
+        self.offset = offset
+        self._stats = CellStats(args[0], args[1], args[2], args[3], args[4], row0=offset[0], col0=offset[1])
+
+    # per-cell arrays (flat): points not noise, sum and count of ground heights, highest first return,
+    # sum and count of first-return intensities, highest vegetation above the DEM
+    valid_n = property(lambda self: self._stats.valid_n)
+    ground_sum = property(lambda self: self._stats.ground_sum)
+    ground_n = property(lambda self: self._stats.ground_n)
+    dsm = property(lambda self: self._stats.dsm)
+    inten_sum = property(lambda self: self._stats.inten_sum)
+    inten_n = property(lambda self: self._stats.inten_n)
+    chm = property(lambda self: self._stats.chm)
+
+    def add(self, x, y, z, cls, return_number, intensity) -> None:
+        """Pass 1: occupancy, ground mean, first-return DSM maximum and mean intensity."""
+        self._stats.add(x, y, z, cls, return_number, intensity)
+
+    def add_chm(self, x, y, z, cls, dem) -> None:
+        """Pass 2 (after the DEM): highest vegetation height above the DEM per cell."""
+        self._stats.add_chm(x, y, z, cls, dem)
+
+    def dem(self, require_ground: bool = True, fill_radius_px: float = DEFAULT_TIN_FILL_RADIUS_PX,
+            needed=None) -> np.ndarray:
+        """Mean ground height per cell; cells without ground (under buildings, sparse ground under
+        canopy) from the TIN of the surrounding cells (``fill_nodata_tin``). ``needed``: (row slice,
+        col slice) of the cells whose values are used (a tile's core and one cell around it, which the
+        CHM's bilinear samples reach); the TIN is then made only within the distance that decides
+        them, and the other cells keep the pull-push fill."""
+        if require_ground and not self.ground_n.any():
+            raise ValueError("the cloud has no ground points (class 2): classify it first")
+        shape = self.args[3], self.args[4]
+        with np.errstate(invalid="ignore"):
+            return fill_nodata_tin((self.ground_sum / self.ground_n).reshape(shape), fill_radius_px, self.offset,
+                                   needed=needed)
+
+    def footprint(self, footprint_cells: int) -> np.ndarray:
+        """Cells within ``footprint_cells`` cells of a point that is not noise, and the gaps they enclose."""
+        occupied = (self.valid_n > 0).reshape(self.args[3], self.args[4])
+        # within footprint_cells cells (a 3 x 3 dilation that many times)
+        footprint = ndimage.maximum_filter(occupied, size=2 * footprint_cells + 1, mode="constant", cval=False)
+        # Gaps enclosed by data (ponds without returns, shadows behind tall buildings) are
+        # interpolated, as production DEMs are: only the outside of the survey stays nodata.
+        return _fill_holes(footprint)
+
+    def core_grids(self, dem: np.ndarray, footprint_cells: int, core, units: LengthUnits):
+        """The rasters of a tile's core (row slice, col slice of the window), north-up float32 with
+        NODATA, in the CRS's units (``RasterGrids.in_crs_units`` of ``grids_south_up``'s core, in one loop), and
+        the metric DEM with NaN (the hillshade's)."""
+        dsm_filled = fill_nodata(self.dsm.reshape(self.args[3], self.args[4]))
+        out = self._stats.core_grids(self.footprint(footprint_cells), dem, dsm_filled, core, z_m=units.z_m,
+                                     metric=units.is_metric, nodata=NODATA)
+        return dict(zip(("dem_m", *RASTERS), out))
+
+    def grids_south_up(self, dem: np.ndarray, footprint_cells: int) -> dict:
+        """float32 grids, rows south to north (row 0 = the grid's first row)."""
+        res_m, x0, y0, nrows, ncols = self.args
+        footprint = self.footprint(footprint_cells)
+        dsm = np.maximum(fill_nodata(self.dsm.reshape(nrows, ncols)), dem)
+        chm = self.chm.reshape(nrows, ncols)
+        with np.errstate(invalid="ignore"):
+            inten = (self.inten_sum / self.inten_n).reshape(nrows, ncols)
+        out = {
+            "dem": np.where(footprint, dem, np.nan),
+            "dsm": np.where(footprint, dsm, np.nan),
+            "chm": np.where(chm > 0, chm, np.nan),
+            "intensity": inten,
+        }
+        out["ndsm"] = out["dsm"] - out["dem"]
+        return {k: v.astype(np.float32) for k, v in out.items()}
+
+    def grids(self, dem: np.ndarray, footprint_cells: int) -> RasterGrids:
+        res_m, x0, y0, nrows, ncols = self.args
+        out = {k: v[::-1] for k, v in self.grids_south_up(dem, footprint_cells).items()}   # north-up rows
+        return RasterGrids(**out, transform=from_origin(x0, y0 + nrows * res_m, res_m, res_m))
+
+
+def _fill_holes(mask: np.ndarray) -> np.ndarray:
+    """``ndimage.binary_fill_holes``: the background not 4-connected to the array's edge becomes
+    foreground (one labelling, instead of a dilation repeated until nothing changes)."""
+    labels, n = ndimage.label(~mask)
+    if n == 0:
+        return mask.copy()
+    edge = np.zeros(n + 1, bool)
+    for side in (labels[0], labels[-1], labels[:, 0], labels[:, -1]):
+        edge[side] = True
+    edge[0] = True                      # label 0: the foreground itself
+    return mask | ~edge[labels]
+
+
+def make_grids(cloud: PointCloud, res_m: float, footprint_cells: int = 3,
+               dem_fill_radius_px: float = DEFAULT_TIN_FILL_RADIUS_PX) -> RasterGrids:
+    """All rasters of the cloud in metres (``RasterGrids.in_crs_units`` converts them to the cloud's units).
+    ``dem_fill_radius_px``: see ``_CellSums.dem``."""
+    check_res(res_m)
+    x, y, z, cls = cloud.x, cloud.y, cloud.z, cloud.classification
+    args = grid_for_bounds(x.min(), y.min(), x.max(), y.max(), res_m)
+    check_grid(args[3], args[4], res_m, RASTER_BYTES_PER_CELL, "rasters", option="--res", hint="use a coarser --res")
+    sums = _CellSums(args)
+    sums.add(x, y, z, cls, cloud.return_number, cloud.intensity)
+    dem = sums.dem(fill_radius_px=dem_fill_radius_px)
+    sums.add_chm(x, y, z, cls, dem)
+    return sums.grids(dem, footprint_cells)
+
+
+def _header_bounds(path, header):
+    """(mins, maxs) of a LAS header in the file's units, checked: points, finite, ordered."""
+    mins, maxs = np.asarray(header.mins, float), np.asarray(header.maxs, float)
+    if header.point_count == 0:
+        raise InputError(f"{path}: the file holds no points")
+    if not (np.isfinite(mins).all() and np.isfinite(maxs).all()) or (maxs[:2] < mins[:2]).any():
+        raise InputError(f"{path}: absurd bounds in the LAS header (min {mins.tolist()}, max {maxs.tolist()})")
+    return mins, maxs
+
+
+def _file_points(path, units: LengthUnits, chunk_points: int, validate: bool = True):
+    """Chunks of a LAS/LAZ file as (x, y, z in metres, class, return number, intensity); with
+    ``validate`` every chunk is checked (``io.validate_xyz``, and points outside the header bounds,
+    which the grids are made from, are an InputError naming the record)."""
+    import laspy
+
+    mins, maxs = _header_bounds(path, las.read_header(path))
+    # only the fields read here (LAZ 1.4 point formats 6-10 store the others in layers left compressed)
+    fields = (laspy.DecompressionSelection.XY_RETURNS_CHANNEL | laspy.DecompressionSelection.Z
+              | laspy.DecompressionSelection.CLASSIFICATION | laspy.DecompressionSelection.INTENSITY)
+    for first, chunk in las.iter_file_chunks(path, chunk_points, fields):
+        x, y, z = np.asarray(chunk.x), np.asarray(chunk.y), np.asarray(chunk.z)
+        if validate:
+            io.validate_xyz(path, x, y, z, first, units)
+            out = (x < mins[0]) | (x > maxs[0]) | (y < mins[1]) | (y > maxs[1])
+            if out.any():
+                k = int(np.flatnonzero(out)[0])
+                raise InputError(f"{path}: point record {first + k} ({x[k]!r}, {y[k]!r}) lies outside the "
+                                 f"header bounds {mins[:2].tolist()} .. {maxs[:2].tolist()}")
+        rn, _ = io.sanitize_returns(np.asarray(chunk.return_number), np.asarray(chunk.number_of_returns))
+        yield (units.xy_to_m(x), units.xy_to_m(y), units.z_to_m(z), np.asarray(chunk.classification), rn,
+               np.asarray(chunk.intensity))
+
+
+def make_grids_streamed(path, res_m: float, footprint_cells: int = 3, chunk_points: int = io.CHUNK_POINTS,
+                        units: LengthUnits = METRE):
+    """``make_grids`` of a LAS/LAZ file in two streaming passes over its chunks: memory holds one
+    chunk and the whole grids (the reference for the tiled rasters of ``write_rasters``). The grid
+    comes from the header bounds (which the LAS specification requires to enclose the points; a
+    point outside them is an InputError). ``units``: the file's linear units (the grids are in
+    metres). Returns (``RasterGrids``, number of points)."""
+    check_res(res_m)
+    header = las.read_header(path)
+    mins, maxs = _header_bounds(path, header)
+    args = grid_for_bounds(units.xy_to_m(mins[0]), units.xy_to_m(mins[1]), units.xy_to_m(maxs[0]),
+                           units.xy_to_m(maxs[1]), res_m)
+    check_grid(args[3], args[4], res_m, RASTER_BYTES_PER_CELL, f"{path}: rasters over the header bounds",
+               option="--res", hint="use a coarser --res (or check the bounds: strips far apart, a wrong CRS?)")
+    sums = _CellSums(args)
+    for x, y, z, cls, rn, inten in _file_points(path, units, chunk_points):
+        sums.add(x, y, z, cls, rn, inten)
+    if not sums.ground_n.any():
+        raise InputError(f"{path}: no ground points (class 2); run 'lidarctl classify' first")
+    dem = sums.dem()
+    for x, y, z, cls, _, _ in _file_points(path, units, chunk_points, validate=False):
+        sums.add_chm(x, y, z, cls, dem)
+    return sums.grids(dem, footprint_cells), int(header.point_count)
+
+
+def _transform_in_units(t, units: LengthUnits):
+    """A north-up GeoTIFF transform in metres in the CRS's horizontal units."""
+    return from_origin(t.c / units.xy_m, t.f / units.xy_m, t.a / units.xy_m, -t.e / units.xy_m)
+
+
+def write_cog(path, array: np.ndarray, transform, crs, *, unit: str | None = None, description: str | None = None,
+              tags: dict | None = None, nodata: float = NODATA, dtype: str | None = "float32") -> None:
+    """Single-band Cloud-Optimized GeoTIFF (deflate, internal overviews), float32 with nodata -9999 by
+    default; NaN cells of a float array become ``nodata``.
+
+    ``unit``: the band's unit type (e.g. 'metre', 'foot'); ``description``: the band description;
+    ``tags``: dataset metadata (e.g. LINEAR_UNITS); ``dtype``: None keeps the array's (codes and counts
+    as integers, a conditioned DEM in float64)."""
+    array = np.asarray(array)
+    is_float = array.dtype.kind == "f"
+    data = (np.where(np.isfinite(array), array, nodata) if is_float else array).astype(dtype or array.dtype)
+    profile = dict(driver="GTiff", width=data.shape[1], height=data.shape[0], count=1, dtype=data.dtype.name,
+                   crs=crs, transform=transform, nodata=nodata)
+    with MemoryFile() as mem:
+        with mem.open(**profile) as ds:
+            ds.write(data, 1)
+            if unit:
+                ds.units = (unit,)
+            if description:
+                ds.set_band_description(1, description)
+            if tags:
+                ds.update_tags(**tags)
+        with mem.open() as src, atomic_path(path) as tmp:
+            rio_copy(src, tmp, driver="COG", compress="DEFLATE", predictor=3 if data.dtype.kind == "f" else 2,
+                     overview_resampling="average" if data.dtype.kind == "f" else "nearest")
+
+
+def hillshade(dem: np.ndarray, res_m: float, azimuth_deg: float = 315.0, altitude_deg: float = 45.0,
+              fill_value=None) -> np.ndarray:
+    """Hillshade 0..1 of a north-up DEM (NaN cells stay NaN). NaN cells count as ``fill_value`` in the
+    slopes of their neighbours (default: the DEM's mean; a window of a larger DEM passes that one's)."""
+    filled = np.where(np.isfinite(dem), dem, np.nanmean(dem) if fill_value is None else fill_value)
+    dz_dy, dz_dx = np.gradient(filled, res_m)
+    dz_dy = -dz_dy   # rows run north to south
+    slope = np.arctan(np.hypot(dz_dx, dz_dy))
+    aspect = np.arctan2(-dz_dx, dz_dy)
+    az, alt = np.radians(azimuth_deg), np.radians(altitude_deg)
+    shade = np.sin(alt) * np.cos(slope) + np.cos(alt) * np.sin(slope) * np.cos(az - aspect)
+    return np.where(np.isfinite(dem), np.clip(shade, 0.0, 1.0), np.nan)
+
+
+def hillshade_rgba(hs: np.ndarray) -> np.ndarray:
+    """(rows, cols, 4) uint8 grey RGBA of a hillshade 0..1, NaN black, as ``matplotlib.pyplot.imsave``
+    with the grey colour map writes it."""
+    from matplotlib import cm, colors
+
+    mappable = cm.ScalarMappable(norm=colors.Normalize(0.0, 1.0), cmap="gray")
+    return mappable.to_rgba(np.where(np.isfinite(hs), hs, 0.0), bytes=True)
+
+
+# matplotlib's grey colour map as bytes (its table of 256 entries, linspace(0, 1) x 255 truncated)
+_GREY_LUT = (np.linspace(0.0, 1.0, 256) * 255).astype(np.uint8)
+
+
+def hillshade_grey(hs: np.ndarray) -> np.ndarray:
+    """The grey level (uint8) of ``hillshade_rgba`` (whose R, G and B are equal and alpha 255), indexed
+    as matplotlib indexes a colour map: int(value x 256), 1.0 -> 255 (without importing matplotlib)."""
+    x = np.where(np.isfinite(hs), hs, 0.0) * 256.0
+    return _GREY_LUT[np.minimum(x.astype(np.int64), 255)]
+
+
+def _write_png_grey_as_rgba(path, read_rows, nrows: int, ncols: int, rows_per_read: int = 256) -> None:
+    """An RGBA PNG (8 bit, no filter, zlib level 1) of a grey image, streamed: ``read_rows(r0, r1)``
+    gives rows r0..r1 (north to south) as uint8, written as (g, g, g, 255). A tenth of the CPU of GDAL's
+    PNG copy, which tries five filters on every line (3.4 of 17 CPU-s of the demo's rasters), for
+    a file 2 % larger."""
+    import struct
+    import zlib
+
+    def chunk(tag: bytes, data: bytes) -> bytes:
+        return struct.pack(">I", len(data)) + tag + data + struct.pack(">I", zlib.crc32(tag + data) & 0xFFFFFFFF)
+
+    comp = zlib.compressobj(1)
+    with open(path, "wb") as f:
+        f.write(b"\x89PNG\r\n\x1a\n")
+        f.write(chunk(b"IHDR", struct.pack(">IIBBBBB", ncols, nrows, 8, 6, 0, 0, 0)))
+        for r0 in range(0, nrows, rows_per_read):
+            grey = read_rows(r0, min(r0 + rows_per_read, nrows))
+            lines = np.empty((grey.shape[0], 1 + 4 * ncols), np.uint8)
+            lines[:, 0] = 0                                   # filter type: none
+            rgba = lines[:, 1:].reshape(grey.shape[0], ncols, 4)
+            rgba[..., :3] = grey[..., None]
+            rgba[..., 3] = 255
+            data = comp.compress(lines.tobytes())
+            if data:
+                f.write(chunk(b"IDAT", data))
+        f.write(chunk(b"IDAT", comp.flush()))
+        f.write(chunk(b"IEND", b""))
+
+
+def _check_fill_radius(dem_fill_radius_px: float) -> None:
+    if not dem_fill_radius_px >= 0:
+        raise OptionError(f"--dem-fill-radius-px {dem_fill_radius_px:g}: must be 0 or more cells",
+                          param="--dem-fill-radius-px")
+
+
+def _check_tiling(tile_px: int, buffer_px: int, dem_fill_radius_px: float = 0.0) -> None:
+    if tile_px < 1:
+        raise OptionError(f"--tile-px {tile_px}: must be a positive number of cells", param="--tile-px")
+    if not 0 <= buffer_px <= tile_px:
+        raise OptionError(f"--buffer-px {buffer_px}: must be between 0 and the tile size ({tile_px} cells)",
+                          param="--buffer-px")
+    _check_fill_radius(dem_fill_radius_px)
+    if buffer_px < 2 * dem_fill_radius_px + 2:
+        log.warning("--buffer-px %d is less than 2 x --dem-fill-radius-px + 2 = %d cells: DEM cells filled "
+                    "from gaps near a tile's edge may differ from those of an untiled run",
+                    buffer_px, int(2 * dem_fill_radius_px + 2))
+
+
+@dataclasses.dataclass(frozen=True)
+class _Inputs:
+    """Classified files in one CRS: paths, CRSs, units, union of their header bounds (m), points."""
+
+    paths: tuple
+    crs: object
+    surface_crs: object   # the first file's compound CRS when it has one (DEM, DSM), else ``crs``
+    units: LengthUnits
+    bounds_m: tuple
+    n_points: int
+
+    @property
+    def names(self) -> str:
+        return ", ".join(str(p) for p in self.paths)
+
+
+def _inputs(paths, crs_arg) -> _Inputs:
+    """Headers of the files checked (points, bounds, one CRS and units) and their union bounds."""
+    paths = tuple(Path(p) for p in paths)
+    if not paths:
+        raise InputError("no classified LAS/LAZ file given")
+    lo, hi, n, first = np.full(2, np.inf), np.full(2, -np.inf), 0, None
+    for p in paths:
+        header = las.read_header(p)
+        mins, maxs = _header_bounds(p, header)
+        crs, units = io.resolve_crs_units(p, header, crs_arg)
+        if first is None:
+            file_crs = las.header_crs(header)
+            surface = file_crs if file_crs is not None and file_crs.is_compound else crs
+            first = (p, crs, units, surface)
+        else:
+            io.require_same_crs(p, crs, units, first[:3])
+        lo = np.minimum(lo, units.xy_to_m(mins[:2]))
+        hi = np.maximum(hi, units.xy_to_m(maxs[:2]))
+        n += int(header.point_count)
+    return _Inputs(paths, first[1], first[3], first[2], (lo[0], lo[1], hi[0], hi[1]), n)
+
+
+_BIN_DTYPE = np.dtype([("x", "f8"), ("y", "f8"), ("z", "f8"), ("cls", "u1"), ("rn", "u1"), ("intensity", "u2")])
+_BLOCK_PX = 512
+
+
+def _bin_points(inputs: _Inputs, args, grid, work: Path, chunk_points: int) -> np.ndarray:
+    """Pass 1: stream every file once and append each tile's points (core + buffer) to its
+    ``tile_<id>.bin`` (``_BIN_DTYPE``, metres, file order). Tiles are in raster cells: the tile grid's
+    coordinates are the global cell indices, so tile membership is exact integer arithmetic and
+    agrees with the cell ``_CellSums`` puts a point in. Returns which tiles hold points."""
+    from aerotri.core.log import progress
+
+    res_m, x0, y0 = args[:3]
+    tile_px, buffer_px = int(grid.tile_m), int(grid.buffer_m)
+    lay = _TileLayout(res_m, x0, y0, tile_px, buffer_px, grid.nrows, grid.ncols)
+    used = np.zeros(grid.n_tiles, bool)
+    n_ground = 0
+    chunks = (c for path in inputs.paths for c in _file_points(path, inputs.units, chunk_points))
+    with progress(inputs.n_points, "rasters: bin points into tiles", "pt", unit_scale=True) as bar:
+        for x, y, z, cls, rn, inten in _read_ahead(chunks):
+            count = np.zeros(grid.n_tiles + 1, np.int64)
+            rec = np.empty(_membership_count(x, y, lay, count), _BIN_DTYPE)     # the memberships' records, by tile
+            n_ground += _gather_records(rec, count, _ChunkPoints(x, y, z, cls, rn, inten), lay)
+            for tid in np.flatnonzero(count[1:] > count[:-1]):
+                used[tid] = True
+                with open(work / f"tile_{tid}.bin", "ab") as fh:
+                    rec[count[tid]:count[tid + 1]].tofile(fh)
+            bar.update(len(x))
+    if n_ground == 0:
+        raise InputError(f"{inputs.names}: no ground points (class 2); run 'lidarctl classify' first")
+    return used
+
+
+# The tiles of a point (its own and the 0 to 3 neighbours whose buffer holds it; the tile grid's
+# coordinates are global cells, the cells' indices exact floats): scalars only, so that the two loops
+# below compile in a fraction of a second (an array per point costs numba reference counting).
+class _TileLayout(NamedTuple):
+    """The tiles of the binning pass as its kernels take them: cell size and grid origin (m), tile size and
+    buffer (cells), tile rows and columns."""
+
+    res_m: float
+    x0: float
+    y0: float
+    tile_px: int
+    buffer_px: int
+    ntr: int
+    ntc: int
+
+
+class _ChunkPoints(NamedTuple):
+    """A chunk of points as ``_gather_records`` takes it (x, y, z in metres, class, return number, intensity)."""
+
+    x: np.ndarray
+    y: np.ndarray
+    z: np.ndarray
+    cls: np.ndarray
+    rn: np.ndarray
+    intensity: np.ndarray
+
+
+@numba.njit(cache=True, nogil=True, inline="always")
+def _tile_and_near(x, y, lay):
+    """(first row of tiles, last, first col, last) of the tiles of ``_TileLayout`` ``lay`` that hold the point."""
+    res_m, x0, y0, tile_px, buffer_px, ntr, ntc = (lay.res_m, lay.x0, lay.y0, lay.tile_px, lay.buffer_px, lay.ntr,
+                                                   lay.ntc)
+    col = np.floor((x - x0) / res_m)
+    row = np.floor((y - y0) / res_m)
+    ci = int(min(max(np.floor(col / tile_px), 0.0), ntc - 1.0))
+    ri = int(min(max(np.floor(row / tile_px), 0.0), ntr - 1.0))
+    fx, fy = col - ci * tile_px, row - ri * tile_px
+    c_lo = ci - 1 if (fx < buffer_px and ci > 0) else ci
+    c_hi = ci + 1 if (fx >= tile_px - buffer_px and ci < ntc - 1) else ci
+    r_lo = ri - 1 if (fy < buffer_px and ri > 0) else ri
+    r_hi = ri + 1 if (fy >= tile_px - buffer_px and ri < ntr - 1) else ri
+    return r_lo, r_hi, c_lo, c_hi
+
+
+@numba.njit(cache=True, nogil=True)
+def _membership_count(x, y, lay, count):
+    """Points per tile (core + buffer) into ``count[1:]``, then turned into the tiles' first record
+    (``count[t]`` .. ``count[t + 1]``); returns the number of memberships."""
+    ntc = lay.ntc
+    for k in range(len(x)):
+        r_lo, r_hi, c_lo, c_hi = _tile_and_near(x[k], y[k], lay)
+        for r in range(r_lo, r_hi + 1):
+            for c in range(c_lo, c_hi + 1):
+                count[r * ntc + c + 1] += 1
+    for t in range(1, len(count)):
+        count[t] += count[t - 1]
+    return count[-1]
+
+
+@numba.njit(cache=True, nogil=True)
+def _gather_records(rec, count, pts, lay):
+    """The records (``_BIN_DTYPE``) of the memberships by tile of the chunk ``pts`` (``_ChunkPoints``), points
+    in order within a tile (the counting sort of ``TileGrid.assign``); returns the number of ground (2) and
+    water (9) points."""
+    x, y, z, cls, rn, inten = pts.x, pts.y, pts.z, pts.cls, pts.rn, pts.intensity
+    ntc = lay.ntc
+    fill = count[:-1].copy()
+    n = 0
+    for k in range(len(x)):
+        r_lo, r_hi, c_lo, c_hi = _tile_and_near(x[k], y[k], lay)
+        for r in range(r_lo, r_hi + 1):
+            for c in range(c_lo, c_hi + 1):
+                t = r * ntc + c
+                i = fill[t]
+                fill[t] += 1
+                rec[i].x, rec[i].y, rec[i].z = x[k], y[k], z[k]
+                rec[i].cls, rec[i].rn, rec[i].intensity = cls[k], rn[k], inten[k]
+        if cls[k] == 2 or cls[k] == 9:
+            n += 1
+    return n
+
+
+def _read_ahead(chunks, depth: int = 1):
+    """The items of an iterator, the next one made in a thread while the caller works on the current
+    one (LAZ decompression, which releases the GIL, beside the binning); errors are raised in the
+    caller, in order. Memory: ``depth`` + 2 chunks."""
+    import queue
+    import threading
+
+    q: queue.Queue = queue.Queue(maxsize=depth)
+    stop = threading.Event()
+    done = object()
+
+    def produce():
+        try:
+            for item in chunks:
+                while not stop.is_set():
+                    try:
+                        q.put((item, None), timeout=0.1)
+                        break
+                    except queue.Full:
+                        continue
+                if stop.is_set():
+                    return
+            q.put((done, None))
+        except BaseException as exc:   # handed to the caller
+            q.put((done, exc))
+
+    thread = threading.Thread(target=produce, name="rasters-read", daemon=True)
+    thread.start()
+    try:
+        while True:
+            item, exc = q.get()
+            if item is done:
+                if exc is not None:
+                    raise exc
+                return
+            yield item
+    finally:
+        stop.set()
+        while thread.is_alive():     # unblock a producer waiting on a full queue
+            try:
+                q.get_nowait()
+            except queue.Empty:
+                pass
+            thread.join(timeout=0.1)
+
+
+def _bin_chunks(path: Path, chunk_points: int):
+    with open(path, "rb") as fh:
+        while True:
+            rec = np.fromfile(fh, _BIN_DTYPE, count=chunk_points)
+            if not len(rec):
+                return
+            yield rec
+
+
+def _tiled_gtiff(path, shape, transform, crs, *, count: int = 1, dtype: str = "float32", nodata=NODATA):
+    """A working GeoTIFF, uncompressed: written once by windows and read once by the COG copy, so
+    compressing it cost 2.3 CPU-s of the demo's rasters and saved only temporary disk space (which
+    ``check_disk`` asks for uncompressed anyway)."""
+    import rasterio
+
+    return rasterio.open(path, "w", driver="GTiff", width=shape[1], height=shape[0], count=count, dtype=dtype,
+                         crs=crs, transform=transform, nodata=nodata, tiled=True, blockxsize=_BLOCK_PX,
+                         blockysize=_BLOCK_PX, bigtiff="IF_SAFER")
+
+
+def _tile_windows(grid, nrows: int, ncols: int):
+    """(tile id, (row0, col0, rows, cols) of its buffered window clipped to the raster, core slices in
+    that window, north-up Window of the core in the raster) of every tile, rows of tiles south to
+    north. Clipping keeps the gap filling's pyramid aligned: a window starts at a multiple of the
+    tile and buffer sizes or at 0, and ends where the raster ends."""
+    from rasterio.windows import Window
+
+    t, b = int(grid.tile_m), int(grid.buffer_m)
+    for tid in range(grid.n_tiles):
+        r, c = divmod(tid, grid.ncols)
+        r_lo, r_hi, c_lo, c_hi = r * t, min((r + 1) * t, nrows), c * t, min((c + 1) * t, ncols)
+        row0, col0 = max(r_lo - b, 0), max(c_lo - b, 0)
+        rows, cols = min(r_hi + b, nrows) - row0, min(c_hi + b, ncols) - col0
+        core = (slice(r_lo - row0, r_hi - row0), slice(c_lo - col0, c_hi - col0))
+        yield tid, (row0, col0, rows, cols), core, Window(c_lo, nrows - r_hi, c_hi - c_lo, r_hi - r_lo)
+
+
+def write_rasters(cloud, outdir, res_m: float, crs=None, *, tile_px: int = DEFAULT_TILE_PX,
+                  buffer_px: int = DEFAULT_BUFFER_PX, chunk_points: int = io.CHUNK_POINTS,
+                  dem_fill_radius_px: float = DEFAULT_TIN_FILL_RADIUS_PX) -> list[Path]:
+    """Write all rasters into ``outdir``; other files there (e.g. the classified cloud) stay.
+
+    ``cloud``: a PointCloud (x, y, z in metres; its ``crs`` and ``units`` say how to write them; whole
+    grids in memory), or the path or list of paths of classified LAS/LAZ files (strips in one CRS),
+    processed by tiles (``write_rasters_tiled``; ``crs`` is used only for files without a CRS
+    record). ``res_m``: cell size in metres. ``dem_fill_radius_px``: DEM cells without ground are
+    interpolated in the TIN of the ground cells around them where its triangle's circumradius is at
+    most this many cells (under buildings, sparse ground under canopy); wider gaps keep the smooth
+    pyramid fill. The rasters are in the cloud's CRS and units (see the
+    module docstring). Everything is written into a temporary folder first and moved into place only
+    when all files are complete, so an error leaves no partial set behind.
+    """
+    check_res(res_m)
+    if not isinstance(cloud, PointCloud):
+        paths = [cloud] if isinstance(cloud, (str, Path)) else list(cloud)
+        from aerotri.geom.inputs import check_distinct_files
+
+        check_distinct_files(paths, "LAS/LAZ file")  # a strip given twice would count every point twice
+        return write_rasters_tiled(paths, outdir, res_m, crs=crs, tile_px=tile_px, buffer_px=buffer_px,
+                                   chunk_points=chunk_points, dem_fill_radius_px=dem_fill_radius_px)
+    crs, units = cloud.crs, cloud.units
+    if crs is None:
+        raise ValueError("a CRS is needed for the rasters")
+    _check_fill_radius(dem_fill_radius_px)
+    grids = make_grids(cloud, res_m, dem_fill_radius_px=dem_fill_radius_px)
+    # The hillshade needs heights and cell size in one unit: from the metric grids.
+    hs = hillshade(grids.dem, res_m)
+    grids = grids.in_crs_units(units)
+    tags = _tags(units, res_m)
+
+    def write(tmp: Path) -> None:
+        for name in RASTERS:
+            write_cog(tmp / f"{name}.tif", getattr(grids, name), grids.transform, crs, unit=_unit(name, units),
+                      description=_description(name, units), tags=tags)
+        import matplotlib
+        matplotlib.use("Agg")
+        import matplotlib.pyplot as plt
+        plt.imsave(tmp / "hillshade.png", np.where(np.isfinite(hs), hs, 0.0), cmap="gray", vmin=0, vmax=1)
+
+    return _write_set(outdir, write)
+
+
+RASTERS = ("dem", "dsm", "ndsm", "chm", "intensity")
+
+
+def _tags(units: LengthUnits, res_m: float) -> dict:
+    return {"LINEAR_UNITS": length_unit_name(units.xy_m, long=True),
+            "VERTICAL_UNITS": length_unit_name(units.z_m, long=True),
+            "CELL_SIZE_M": f"{res_m:g}", "CELL_SIZE": f"{res_m / units.xy_m:.10g} {units.xy_name}"}
+
+
+def _unit(name: str, units: LengthUnits) -> str | None:
+    return length_unit_name(units.z_m, long=True) if name in HEIGHT_GRIDS else None
+
+
+def _description(name: str, units: LengthUnits) -> str:
+    return DESCRIPTIONS[name] + (f" ({length_unit_name(units.z_m, long=True)})" if name in HEIGHT_GRIDS else "")
+
+
+def _write_set(outdir, write, files=FILES, name: str = "rasters") -> list[Path]:
+    """``write(tmp)`` writes ``files`` into a temporary folder in ``outdir``; then they replace the old set."""
+    import os
+    import shutil
+
+    from aerotri.core.atomic import commit_outputs, move_into
+
+    outdir = Path(outdir)
+    # folders this call creates go again if it fails (a corrupt chunk may only show in a late tile)
+    created = [d for d in (outdir, *outdir.parents) if not d.exists()]
+    outdir.mkdir(parents=True, exist_ok=True)
+    tmp = temporary_dir(outdir, name)
+    done = False
+    try:
+        write(tmp)
+        with commit_outputs(outdir):  # all new, or (a failure, a kill) all as before
+            for f in files:
+                os.chmod(tmp / f, 0o644)
+                move_into(tmp / f, outdir / f)
+        done = True
+    finally:
+        shutil.rmtree(tmp, ignore_errors=True)
+        for d in created if not done else ():   # deepest first; only while empty
+            try:
+                d.rmdir()
+            except OSError:
+                break
+    return [outdir / f for f in files]
+
+
+def write_rasters_tiled(paths, outdir, res_m: float, crs=None, *, tile_px: int = DEFAULT_TILE_PX,
+                        buffer_px: int = DEFAULT_BUFFER_PX, chunk_points: int = io.CHUNK_POINTS,
+                        footprint_cells: int = 3, dem_fill_radius_px: float = DEFAULT_TIN_FILL_RADIUS_PX) -> list[Path]:
+    """The rasters of classified LAS/LAZ files (strips in one CRS) by tiles: memory is set by the tile
+    size, not by the size of the block.
+
+    The raster grid covers the union of the files' header bounds. It is cut into square tiles of
+    ``tile_px`` cells; each tile is computed over its window grown by ``buffer_px`` cells on every
+    side (the points there are binned into a temporary file per tile in one pass over the files) and
+    only its core is written, by windows, into tiled GeoTIFFs, which are copied block by block into
+    COGs; the hillshade is computed by windows from the written DEM and copied into the PNG.
+
+    Equal to the whole grids (``make_grids``) except where a cell's value comes from further away
+    than the buffer: the pull-push gap filling at pyramid levels coarser than the tiles' alignment
+    (the tile size and buffer are multiples of 2^k cells: 256 for the defaults), i.e. extrapolated
+    cells near the edge of the survey and gaps wider than the buffer, and enclosed gaps wider than
+    the buffer (which the whole grid fills and a tile leaves nodata). The DEM's TIN gap fill is
+    equal wherever ``buffer_px >= 2 * dem_fill_radius_px + 2``. ``bench/lidar_rasters.py``
+    measures the difference and the memory.
+
+    Temporary disk space: 28 bytes per point and buffer copy, plus the uncompressed-size GeoTIFFs
+    at worst, in a hidden folder in ``outdir``, removed at the end, also on errors.
+    """
+    import rasterio
+    from rasterio.transform import from_origin as _from_origin
+
+    from lidarctl.tiles import TileGrid
+
+    check_res(res_m)
+    _check_tiling(tile_px, buffer_px, dem_fill_radius_px)
+    outdir = Path(outdir)
+    inputs = _inputs(paths, crs)
+    for f in FILES:
+        refuse_input_as_output(outdir / f, list(inputs.paths), "OUTDIR")
+    units = inputs.units
+    args = grid_for_bounds(*inputs.bounds_m, res_m)
+    _, x0, y0, nrows, ncols = args
+    if nrows < 2 or ncols < 2:  # a DEM, its slopes and the hillshade need neighbouring cells
+        raise InputError(f"{inputs.names}: the points span {nrows} x {ncols} cells (rows x columns) of {res_m:g} m "
+                         "(header bounds); expected at least 2 x 2: a cloud of one point or one spot, or a --res "
+                         "coarser than the cloud", param="--res")
+    win = min(tile_px + 2 * buffer_px, nrows), min(tile_px + 2 * buffer_px, ncols)
+    check_grid(*win, res_m, RASTER_BYTES_PER_CELL, "rasters: one tile with its buffer",
+               option="--tile-px", hint="use a smaller --tile-px")
+    threads = _tile_threads(win[0] * win[1])
+    # the working GeoTIFFs and the COGs, uncompressed float32 at worst (a grid over strips far apart
+    # is mostly nodata, but the tiles are still visited and written)
+    check_disk(2.0 * 4 * (len(RASTERS) + 1) * nrows * ncols, outdir,
+               f"{inputs.names}: rasters over the header bounds, a grid of {nrows:,} x {ncols:,} cells of {res_m:g} m",
+               "--res", "use a coarser --res (or are strips far apart?)")
+    check_task_count((-(-nrows // tile_px)) * (-(-ncols // tile_px)),
+                     f"{inputs.names}: a grid of {nrows:,} x {ncols:,} cells in tiles of {tile_px} cells", "--tile-px",
+                     "use a larger --tile-px")
+    grid = TileGrid(0.0, 0.0, float(tile_px), float(buffer_px), -(-nrows // tile_px), -(-ncols // tile_px))
+    transform_m = _from_origin(x0, y0 + nrows * res_m, res_m, res_m)
+    transform = transform_m if units.is_metric else _transform_in_units(transform_m, units)
+    tags = _tags(units, res_m)
+
+    def write(tmp: Path) -> None:
+        work = tmp / "work"
+        work.mkdir()
+        used = _bin_points(inputs, args, grid, work, chunk_points)
+        with rasterio.Env(**_GDAL_THREAD_ENV):
+            dem_sum, dem_n = _tiles_to_gtiffs(inputs, args, grid, used, work, tmp, transform=transform, tags=tags,
+                                              chunk_points=chunk_points, footprint_cells=footprint_cells,
+                                              dem_fill_radius_px=dem_fill_radius_px, threads=threads)
+        fill = np.float32(dem_sum / dem_n) if dem_n else np.float32(np.nan)
+
+        def hillshade_png() -> None:
+            _hillshade_by_windows(work / "dem_m.tif", work / "hillshade.tif", res_m, fill, grid=grid, nrows=nrows,
+                                  ncols=ncols, transform=transform, crs=inputs.crs)
+            _hillshade_png(work / "hillshade.tif", tmp / "hillshade.png")
+
+        def cog(name: str) -> None:
+            with rasterio.open(work / f"{name}.tif") as src, atomic_path(tmp / f"{name}.tif") as dst:
+                # DEFLATE level 1: 30 % less CPU than the default 6 (5.1 -> 3.6 s for the demo's five
+                # rasters) for files 1.3 % larger
+                rio_copy(src, dst, driver="COG", compress="DEFLATE", predictor=3, level=1,
+                         overview_resampling="average", num_threads="ALL_CPUS")
+
+        _run_threads([hillshade_png] + [functools.partial(cog, name) for name in RASTERS])
+
+    with stage_block_cache(RASTERS_CACHE_BYTES):
+        return _write_set(outdir, write)
+
+
+# Threads of the tiled rasters: tiles are computed two at a time (numba and numpy release the GIL;
+# memory: two tiles, when they take at most half of the RAM), the COGs and the hillshade written two
+# at a time (GDAL releases it).
+_THREADS = 2
+
+
+def _tile_threads(window_cells: int) -> int:
+    from lidarctl.grid import machine_ram_bytes
+
+    return _THREADS if _THREADS * window_cells * RASTER_BYTES_PER_CELL <= 0.5 * machine_ram_bytes() else 1
+
+
+# GDAL's block cache while the tiled rasters are written (windows written, COGs copied): bounded, not 5 % of
+# the RAM; one size for the process, set once around the stage from its calling thread
+# (``aerotri.core.gdal_cache``), never per thread.
+RASTERS_CACHE_BYTES = 256 * MiB
+# GDAL's configuration in every thread (these options are per thread in rasterio): no .aux.xml files; ZSTD
+# level 1 for the temporary file in which the COG driver computes the overviews (default 9; the COGs are the
+# same bytes, and 1 of 4 CPU-s of the demo's five COGs less).
+_GDAL_THREAD_ENV = dict(GDAL_PAM_ENABLED="NO", ZSTD_LEVEL_OVERVIEW="1")
+
+
+def _run_threads(tasks) -> None:
+    """Call every task, ``_THREADS`` at a time, each in its own rasterio Env; the first error is raised
+    after the others have stopped."""
+    import rasterio
+    from concurrent.futures import ThreadPoolExecutor
+
+    def run(task):
+        with rasterio.Env(**_GDAL_THREAD_ENV):
+            task()
+
+    with ThreadPoolExecutor(_THREADS) as pool:
+        futures = [pool.submit(run, t) for t in tasks]
+        try:
+            for f in futures:
+                f.result()
+        except BaseException:
+            for f in futures:
+                f.cancel()
+            raise
+
+
+def _tile_grids(inputs: _Inputs, args, tile, work: Path, *, chunk_points: int, footprint_cells: int,
+                dem_fill_radius_px: float):
+    """The grids of one tile's core from its binned points (``_bin_points``): float32 arrays north-up,
+    NODATA for no value, in the CRS's units, the DEM also in metres (``dem_m``); and the sum (float64)
+    and count of the core's DEM cells. Runs in a worker thread."""
+    import os
+
+    res_m, x0, y0 = args[:3]
+    tid, (row0, col0, rows, cols), core, _ = tile
+    bin_path = work / f"tile_{tid}.bin"
+    sums = _CellSums((res_m, x0, y0, rows, cols), (row0, col0))
+    for rec in _bin_chunks(bin_path, chunk_points):
+        sums.add(rec["x"], rec["y"], rec["z"], rec["cls"], rec["rn"], rec["intensity"])
+    grown = tuple(slice(max(c.start - 1, 0), c.stop + 1) for c in core)   # the CHM's bilinear samples
+    dem = sums.dem(require_ground=False, fill_radius_px=dem_fill_radius_px, needed=grown)
+    for rec in _bin_chunks(bin_path, chunk_points):
+        sums.add_chm(rec["x"], rec["y"], rec["z"], rec["cls"], dem)
+    os.remove(bin_path)
+    out = sums.core_grids(dem, footprint_cells, core, inputs.units)
+    del sums, dem
+    finite = np.isfinite(out["dem_m"])
+    dem_sum, dem_n = float(out["dem_m"][finite].sum(dtype=np.float64)), int(finite.sum())
+    out["dem_m"][~finite] = NODATA
+    return out, dem_sum, dem_n
+
+
+def _tiles_to_gtiffs(inputs: _Inputs, args, grid, used, work: Path, tmp: Path, *, transform, tags,
+                     chunk_points: int, footprint_cells: int, dem_fill_radius_px: float, threads: int = 1):
+    """Pass 2: each tile's grids from its binned points (``_tile_grids``, ``threads`` tiles at a time,
+    at most one more waiting), the core written by window into tiled GeoTIFFs (``work/<name>.tif`` in
+    the CRS's units, ``work/dem_m.tif`` the DEM in metres for the hillshade) in tile order. Returns
+    the sum and count of the DEM's cells (metres) for the hillshade's fill."""
+    import collections
+    import contextlib
+    from concurrent.futures import ThreadPoolExecutor
+
+    from aerotri.core.log import progress
+
+    res_m, x0, y0, nrows, ncols = args
+    units = inputs.units
+    dem_sum, dem_n = 0.0, 0
+    with contextlib.ExitStack() as stack:
+        out = {}
+        for name in RASTERS:
+            ds = stack.enter_context(_tiled_gtiff(work / f"{name}.tif", (nrows, ncols), transform,
+                                                  inputs.surface_crs if name in ("dem", "dsm") else inputs.crs))
+            if _unit(name, units):
+                ds.units = (_unit(name, units),)
+            ds.set_band_description(1, _description(name, units))
+            ds.update_tags(**tags)
+            out[name] = ds
+        out["dem_m"] = stack.enter_context(_tiled_gtiff(work / "dem_m.tif", (nrows, ncols), transform, inputs.crs))
+        pool = stack.enter_context(ThreadPoolExecutor(threads))
+        pending = collections.deque()
+
+        def drain_one() -> None:
+            nonlocal dem_sum, dem_n
+            window, future = pending.popleft()
+            if future is None:
+                grids = {name: np.full((window.height, window.width), NODATA, np.float32) for name in out}
+            else:
+                grids, s, n = future.result()
+                dem_sum += s
+                dem_n += n
+            for name, ds in out.items():
+                ds.write(grids[name], 1, window=window)
+            bar.update(1)
+
+        with progress(grid.n_tiles, "rasters: tiles", "tile") as bar:
+            try:
+                for tile in _tile_windows(grid, nrows, ncols):
+                    tid, window = tile[0], tile[3]
+                    future = pool.submit(_tile_grids, inputs, args, tile, work, chunk_points=chunk_points,
+                                         footprint_cells=footprint_cells,
+                                         dem_fill_radius_px=dem_fill_radius_px) if used[tid] else None
+                    pending.append((window, future))
+                    while len(pending) > threads:
+                        drain_one()
+                while pending:
+                    drain_one()
+            except BaseException:
+                for _, f in pending:
+                    if f is not None:
+                        f.cancel()
+                raise
+    return dem_sum, dem_n
+
+
+def _hillshade_by_windows(dem_path: Path, out_path: Path, res_m: float, fill, *, grid, nrows: int, ncols: int,
+                          transform, crs) -> None:
+    """Pass 3: the hillshade (grey levels) of the metric DEM by the tiles' windows, each read with a
+    one-cell border (clipped to the raster, as ``np.gradient`` treats the raster's edges), into an
+    uncompressed single-band GeoTIFF of strips (rewritten in place as the windows arrive, then read
+    row by row for the PNG)."""
+    import rasterio
+    from rasterio.windows import Window
+
+    with rasterio.open(dem_path) as src, rasterio.open(out_path, "w", driver="GTiff", width=ncols, height=nrows,
+                                                       count=1, dtype="uint8", crs=crs, transform=transform,
+                                                       tiled=False, blockysize=_BLOCK_PX, bigtiff="IF_SAFER") as dst:
+        for _, _, _, w in _tile_windows(grid, nrows, ncols):
+            r0, c0 = max(w.row_off - 1, 0), max(w.col_off - 1, 0)
+            r1, c1 = min(w.row_off + w.height + 1, nrows), min(w.col_off + w.width + 1, ncols)
+            dem = src.read(1, window=Window(c0, r0, c1 - c0, r1 - r0), masked=True).filled(np.nan)
+            hs = hillshade(dem, res_m, fill_value=fill)
+            core = hs[w.row_off - r0: w.row_off - r0 + w.height, w.col_off - c0: w.col_off - c0 + w.width]
+            dst.write(hillshade_grey(core), 1, window=w)
+
+
+def _hillshade_png(grey_path: Path, png_path: Path) -> None:
+    import rasterio
+    from rasterio.windows import Window
+
+    with rasterio.open(grey_path) as src:
+        _write_png_grey_as_rgba(png_path, lambda r0, r1: src.read(1, window=Window(0, r0, src.width, r1 - r0)),
+                                src.height, src.width)

@@ -1,0 +1,1 @@
+"""Terrain products of a DEM: smoothing, contours, drainage."""

@@ -1,0 +1,407 @@
+"""Contour lines from a DEM (seed 002 §3.1: interpolate, trace, fit), with optional smoothing.
+
+Tracing: marching squares on the cell centres (contourpy, C++), linear interpolation along the cell
+edges, cut cleanly where the DEM has nodata (masked cells); a contour that comes back to its start is
+closed. Levels are whole multiples of the interval, which is in the DEM's height unit (the unit of its CRS:
+feet for a DEM in feet, so 1 gives levels at whole feet); every ``index_every``-th level is an index contour.
+The work is bounded by the data, not by the interval: before tracing, the number of vertices the levels
+would make is counted exactly from the DEM (each level crossing a cell edge is one vertex, so it is the
+sum over the edges of |dz| / interval); more than ``MAX_VERTICES_PER_CELL`` per valid cell (adjacent
+levels closer than a cell apart on average: not a readable map, and the work would grow without bound as
+the interval shrinks) is refused naming the option and the smallest interval that fits.
+
+Smoothing (fit) of each traced line:
+- ``bspline``: an approximating cubic B-spline (scipy ``splprep``; periodic for closed lines) whose
+  RMS distance from the traced vertices is about ``tolerance_px`` cells, resampled at half-cell steps;
+- ``tension``: a spline under tension through the traced vertices (Cline 1974's exponential spline,
+  evaluated per coordinate against chord length; ``tension`` 0 is a cubic spline, large values tend to
+  the polyline), resampled the same way;
+- ``none``: the traced polyline.
+A smoothed line that crosses itself or a neighbouring contour (shapely, against the lines of the
+levels next to it), or leaves the DEM's valid-data footprint (the union of its valid cells,
+``data_footprint``; an approximating spline can cut outside near the border or a nodata edge) falls
+back to the traced line, which never crosses and stays on the cell centres: contours stay topologically
+valid and inside the data, and how many fell back is reported.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import logging
+from pathlib import Path
+
+import numpy as np
+
+from aerotri.core.errors import OptionError
+
+log = logging.getLogger(__name__)
+log.addHandler(logging.NullHandler())
+
+SMOOTHING = ("none", "bspline", "tension")
+MAX_VERTICES_PER_CELL = 2.0  # contour vertices per valid DEM cell above which an interval is refused
+
+
+@dataclasses.dataclass(frozen=True)
+class Contour:
+    level: float  # in the DEM's height unit
+    index: bool
+    closed: bool
+    xy: np.ndarray  # (N, 2) map coordinates; a closed line repeats its first vertex at the end
+
+
+@dataclasses.dataclass(frozen=True)
+class ContourSet:
+    contours: list
+    interval: float  # in the DEM's height unit
+    smoothing: str
+    fell_back: int  # smoothed lines replaced by the traced line (a crossing)
+
+
+def _level_multiples(z, interval) -> np.ndarray:
+    """The integers k of the levels k x interval within the DEM's range."""
+    lo, hi = np.nanmin(z), np.nanmax(z)
+    return np.arange(np.ceil(lo / interval), np.floor(hi / interval) + 1.0)
+
+
+def _level(k: float, interval: float) -> float:
+    """k x interval without the binary noise of the product (0.1 x 3 is 0.3, not 0.30000000000000004)."""
+    digits = max(0, 10 - int(np.floor(np.log10(interval))))
+    return float(round(k * interval, digits))
+
+
+def _nice_at_least(v: float) -> float:
+    """The smallest 1, 2 or 5 x 10^n not below ``v``."""
+    e = 10.0 ** np.floor(np.log10(v))
+    return float(next(m * e for m in (1.0, 2.0, 5.0, 10.0) if m * e >= v * (1 - 1e-12)))
+
+
+def vertex_count(dem: np.ndarray, interval: float) -> float:
+    """The number of contour vertices the levels k x ``interval`` make on ``dem`` (NaN = nodata): each level
+    crossing a cell edge between two valid cell centres is one vertex, so the count is the sum over those
+    edges of the number of multiples of the interval between their ends (exact, O(cells))."""
+    dem = np.asarray(dem, dtype=np.float64)
+    finite = np.isfinite(dem)
+    with np.errstate(over="ignore", invalid="ignore"):
+        z = dem / interval
+    if not np.all(np.isfinite(z[finite])):
+        return float("inf")  # heights / interval beyond the float range: unbounded
+    n = 0.0
+    for a, b in ((z[:, 1:], z[:, :-1]), (z[1:, :], z[:-1, :])):
+        ok = np.isfinite(a) & np.isfinite(b)
+        lo, hi = np.minimum(a[ok], b[ok]), np.maximum(a[ok], b[ok])
+        n += float(np.maximum(np.floor(hi) - np.ceil(lo) + 1.0, 0.0).sum())
+    return n if np.isfinite(n) else float("inf")
+
+
+def check_interval(dem: np.ndarray, interval: float, unit: str = "", option: str = "--interval") -> float:
+    """The vertex count of ``interval`` on ``dem``; ``OptionError`` naming ``option`` when it exceeds
+    ``MAX_VERTICES_PER_CELL`` per valid cell, with the smallest interval that fits."""
+    valid = int(np.isfinite(dem).sum())
+    n = vertex_count(dem, interval)
+    limit = MAX_VERTICES_PER_CELL * max(valid, 1)
+    if n > limit:
+        # the smallest 1-2-5 interval that fits: the count scales about as 1 / interval; start there (or, for
+        # an overflowing count, from the relief: the sum of |dz| over the edges per allowed vertex) and step up
+        if np.isfinite(n):
+            need = _nice_at_least(interval * n / limit)
+        else:
+            z = np.asarray(dem, dtype=np.float64)
+            relief = np.nansum(np.abs(np.diff(z, axis=0))) + np.nansum(np.abs(np.diff(z, axis=1)))
+            need = _nice_at_least(max(relief / limit, 1e-9))
+        while vertex_count(dem, need) > limit:
+            need = _nice_at_least(need * 1.5)
+        u = f" {unit}" if unit else ""
+        raise OptionError(f"a contour interval of {interval:g}{u} gives about {n:.3g} contour vertices on this DEM of "
+                          f"{valid:,} valid cells (more than {MAX_VERTICES_PER_CELL:g} per cell: adjacent levels less "
+                          f"than a cell apart); give an interval of at least {need:g}{u} (the DEM's height unit)",
+                          param=option)
+    return n
+
+
+def trace(dem: np.ndarray, transform, interval: float, index_every: int = 5, option: str = "--interval") -> list:
+    """Contours of ``dem`` (2-D, NaN = nodata; heights in any unit, ``interval`` in the same) with map
+    coordinates from the affine ``transform`` (cell centres); levels at whole multiples of ``interval``.
+    An interval that would make more than ``MAX_VERTICES_PER_CELL`` vertices per valid cell is refused
+    (``check_interval``; ``option`` names it) before any tracing."""
+    import contourpy
+
+    z = np.ma.masked_invalid(np.asarray(dem, dtype=np.float64))
+    if z.count() == 0:
+        return []
+    check_interval(z.filled(np.nan), interval, option=option)
+    ny, nx = z.shape
+    cols, rows = np.arange(nx) + 0.5, np.arange(ny) + 0.5
+    gen = contourpy.contour_generator(cols, rows, z, name="serial", line_type=contourpy.LineType.Separate,
+                                      corner_mask=True)
+    a, b, c, d, e, f = transform.a, transform.b, transform.c, transform.d, transform.e, transform.f
+    out = []
+    for kf in _level_multiples(z.filled(np.nan), interval):
+        k, level = int(kf), _level(kf, interval)
+        for line in gen.lines(level):
+            if len(line) < 2:
+                continue
+            # closed in cell coordinates, exactly: contourpy repeats a ring's first point, while an open line
+            # from the border back to it may end a fraction of a cell from its start (np.allclose's relative
+            # tolerance on map coordinates of 10^5..10^6 m would call ends metres apart the same point)
+            closed = len(line) > 3 and bool(np.all(np.abs(line[0] - line[-1]) <= 1e-9))
+            x = a * line[:, 0] + b * line[:, 1] + c
+            y = d * line[:, 0] + e * line[:, 1] + f
+            xy = np.column_stack([x, y])
+            out.append(Contour(float(level), index_every > 0 and k % index_every == 0, closed, xy))
+    return out
+
+
+def _resample_param(xy, step):
+    seg = np.hypot(*np.diff(xy, axis=0).T)
+    t = np.concatenate([[0.0], np.cumsum(seg)])
+    n = max(int(np.ceil(t[-1] / step)) + 1, 4)
+    return t, np.linspace(0.0, t[-1], n)
+
+
+def _bspline(xy, closed, tolerance, step):
+    from scipy.interpolate import splev, splprep
+
+    pts = xy[:-1] if closed else xy
+    if len(pts) < 5:
+        return xy
+    keep = np.concatenate([[True], np.hypot(*np.diff(pts, axis=0).T) > 1e-9])
+    pts = pts[keep]
+    if len(pts) < 5:
+        return xy
+    try:
+        tck, u = splprep([pts[:, 0], pts[:, 1]], s=len(pts) * tolerance ** 2, per=1 if closed else 0, k=3)
+    except (ValueError, TypeError):
+        return xy
+    _, uu = _resample_param(xy, step)
+    uu = np.linspace(0.0, 1.0, len(uu))
+    x, y = splev(uu, tck)
+    out = np.column_stack([x, y])
+    if closed:
+        out[-1] = out[0]
+    else:
+        out[0], out[-1] = xy[0], xy[-1]  # an open line keeps its ends on the nodata edge or the border
+    return out
+
+
+def _tension_1d(t, v, tau, tt):
+    """Cline's spline under tension through (t, v), evaluated at tt (natural end conditions)."""
+    n = len(t)
+    h = np.diff(t)
+    sh, ch = np.sinh(tau * h), np.cosh(tau * h)
+    # second-derivative-like moments M solve a tridiagonal system (Cline 1974, eq. for the exponential spline)
+    alpha = 1.0 / h - tau / sh
+    beta = tau * ch / sh - 1.0 / h
+    from scipy.linalg import solve_banded
+
+    ab = np.zeros((3, n))  # the tridiagonal system in banded form: super-, main and sub-diagonal
+    rhs = np.zeros(n)
+    ab[1, 0] = ab[1, -1] = 1.0  # natural ends: no curvature at the first and last vertex
+    ab[1, 1:-1] = beta[:-1] + beta[1:]
+    ab[0, 2:] = alpha[1:]
+    ab[2, :-2] = alpha[:-1]
+    rhs[1:-1] = np.diff(v) [1:] / h[1:] - np.diff(v)[:-1] / h[:-1]
+    M = solve_banded((1, 1), ab, rhs * tau ** 2)
+    i = np.clip(np.searchsorted(t, tt, side="right") - 1, 0, n - 2)
+    hi, a_, b_ = h[i], tt - t[i], t[i + 1] - tt
+    s = np.sinh(tau * hi)
+    return ((M[i] * np.sinh(tau * b_) + M[i + 1] * np.sinh(tau * a_)) / (tau ** 2 * s)
+            + (v[i] - M[i] / tau ** 2) * b_ / hi + (v[i + 1] - M[i + 1] / tau ** 2) * a_ / hi)
+
+
+def _tension(xy, closed, tension, step):
+    keep = np.concatenate([[True], np.hypot(*np.diff(xy, axis=0).T) > 1e-9])
+    pts = xy[keep]
+    if len(pts) < 4:
+        return xy
+    t, tt = _resample_param(pts, step)
+    tau = max(tension, 1e-3) / max(np.median(np.diff(t)), 1e-9)  # tension per unit chord length
+    out = np.column_stack([_tension_1d(t, pts[:, 0], tau, tt), _tension_1d(t, pts[:, 1], tau, tt)])
+    out[0], out[-1] = pts[0], pts[-1]
+    return out
+
+
+def data_footprint(valid: np.ndarray, transform):
+    """The union of the valid cells (``valid``: 2-D bool) as a shapely (Multi)Polygon in map coordinates."""
+    import shapely
+    from rasterio import features
+
+    parts = [shapely.geometry.shape(g) for g, v in features.shapes(valid.astype(np.uint8), transform=transform)
+             if v == 1]
+    return shapely.union_all(parts) if parts else shapely.Polygon()
+
+
+def smooth_contours(contours: list, method: str, cell: float, tolerance_px: float = 0.5,
+                    tension: float = 1.0, footprint=None) -> tuple[list, int]:
+    """Smoothed copies of ``contours`` (``method`` in SMOOTHING; ``cell``: the DEM cell size in map units);
+    lines whose smoothed form crosses itself or a contour of the same or a neighbouring level, or is not
+    covered by ``footprint`` (shapely geometry, ``data_footprint``; None: not checked), keep their traced
+    form. Returns (contours, number that fell back)."""
+    if method not in SMOOTHING:
+        raise OptionError(f"unknown smoothing {method!r}; expected one of {', '.join(SMOOTHING)}", param="--smooth")
+    if method == "none" or not contours:
+        return list(contours), 0
+    import shapely
+    from shapely import LineString
+
+    step = 0.5 * cell
+    smoothed = []
+    for c in contours:
+        xy = (_bspline(c.xy, c.closed, tolerance_px * cell, step) if method == "bspline"
+              else _tension(c.xy, c.closed, tension, step))
+        smoothed.append(dataclasses.replace(c, xy=xy))
+    traced = [LineString(c.xy) for c in contours]
+    lines = [LineString(c.xy) for c in smoothed]
+    levels = np.array([c.level for c in contours])
+    rank = np.searchsorted(np.unique(levels), levels)
+    n = len(lines)
+    # One pass suffices: traced lines never cross, so a smoothed line that meets neither the traced nor the
+    # smoothed form of any line of its own or the neighbouring levels stays clear whichever form those keep.
+    ok = np.array([ln.is_simple for ln in lines])
+    if footprint is not None:
+        # a hair of slack: vertices pinned on the footprint's boundary must not fail on rounding
+        ok &= shapely.covered_by(lines, shapely.buffer(footprint, 1e-6 * cell, join_style="mitre"))
+    tree = shapely.STRtree(lines + traced)
+    for i in np.flatnonzero(ok):
+        for j in tree.query(lines[i], predicate="intersects"):
+            k = int(j) % n
+            if k != i and abs(int(rank[k]) - int(rank[i])) <= 1:
+                ok[i] = False
+                break
+    out = [smoothed[i] if ok[i] else contours[i] for i in range(n)]
+    return out, int((~ok).sum())
+
+
+def crossings(contours: list) -> int:
+    """Pairs of contours that cross or touch (different lines) plus lines that cross themselves."""
+    import shapely
+    from shapely import LineString
+
+    lines = [LineString(c.xy) for c in contours]
+    bad = sum(0 if ln.is_simple else 1 for ln in lines)
+    tree = shapely.STRtree(lines)
+    for i, ln in enumerate(lines):
+        for j in tree.query(ln, predicate="intersects"):
+            if j > i:
+                bad += 1
+    return bad
+
+
+def write_contours(cs: ContourSet, path, crs, z_unit_name: str, z_unit_m: float) -> Path:
+    """A GeoPackage (or GeoJSON, by the suffix) layer ``contours``: elevation (DEM unit), elevation_m, index,
+    closed; written atomically."""
+    import shapely
+    from pyogrio.raw import write
+
+    from aerotri.core.atomic import atomic_path
+
+    path = Path(path)
+    driver = {".gpkg": "GPKG", ".geojson": "GeoJSON", ".json": "GeoJSON"}.get(path.suffix.lower())
+    if driver is None:
+        raise OptionError(f"{path}: the output must end in .gpkg or .geojson", param="OUT")
+    geoms = shapely.to_wkb(np.array([shapely.LineString(c.xy) for c in cs.contours], dtype=object))
+    fields = {"elevation": np.array([c.level for c in cs.contours], float),
+              "elevation_m": np.array([c.level * z_unit_m for c in cs.contours], float),
+              "index": np.array([c.index for c in cs.contours], bool),
+              "closed": np.array([c.closed for c in cs.contours], bool)}
+    with atomic_path(path) as tmp:
+        tmp.unlink(missing_ok=True)
+        write(tmp, geoms, field_data=list(fields.values()), fields=list(fields), geometry_type="LineString",
+                      crs=crs, driver=driver, layer="contours")
+    return path
+
+
+def preview_png(cs: ContourSet, dem: np.ndarray, transform, path, title: str = "") -> Path:
+    """Contours (index lines thicker) over the DEM's hillshade."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    from scipy import ndimage
+
+    from aerotri.core.atomic import atomic_path
+    from lidarctl.rasters.products import hillshade
+
+    # no shading where the filled nodata enters the gradient
+    hs = np.where(ndimage.binary_erosion(np.isfinite(dem), iterations=1, border_value=1),
+                  hillshade(dem, abs(transform.a)), np.nan)
+    ny, nx = dem.shape
+    extent = (transform.c, transform.c + nx * transform.a, transform.f + ny * transform.e, transform.f)
+    h_in = min(12.0, 8.0 * ny / max(nx, 1)) + 0.8
+    fig, ax = plt.subplots(figsize=(9, h_in))
+    ax.imshow(hs, cmap="gray", extent=extent, vmin=-0.2, vmax=1.0)
+    for c in cs.contours:
+        ax.plot(c.xy[:, 0], c.xy[:, 1], color="#8b4513", lw=1.0 if c.index else 0.4)
+    ax.set_aspect("equal")
+    ax.ticklabel_format(useOffset=False, style="plain")
+    ax.set_title(title or f"contours every {cs.interval:g} (index every {5 * cs.interval:g}; DEM height unit), "
+                          f"{cs.smoothing}")
+    ax.set_xlabel("easting")
+    ax.set_ylabel("northing")
+    fig.tight_layout()
+    with atomic_path(path) as tmp:
+        fig.savefig(tmp, dpi=110)
+    plt.close(fig)
+    return Path(path)
+
+
+@dataclasses.dataclass(frozen=True)
+class ContoursResult:
+    """What ``contours_from_file`` wrote: lines, levels, closed and index lines, the smoothing and the lines kept
+    traced to avoid crossings, the crossings left (0), the interval in the DEM's height ``unit`` (metres per unit),
+    the lowest and highest level (None without a line) and the files (the contours, then the PNG when made)."""
+
+    contours: int
+    levels: int
+    closed: int
+    index_contours: int
+    smoothing: str
+    fell_back_to_traced: int
+    crossings: int
+    interval: float
+    unit: str
+    metres_per_unit: float
+    lowest_level: float | None
+    highest_level: float | None
+    files: tuple[str, ...]
+
+
+def contours_from_file(dem_path, out_path, *, interval: float, index_every: int = 5, smoothing: str = "none",
+                       tolerance_px: float = 0.5, tension: float = 1.0, png: bool = True) -> ContoursResult:
+    """Trace (and smooth) the contours of a DEM GeoTIFF into a GeoPackage/GeoJSON (+ a PNG preview beside it);
+    ``interval`` in the DEM's height unit (its CRS's: feet for a DEM in feet). Returns the summary (counts,
+    fall-backs, crossings, the interval and its unit)."""
+    from aerotri.geom.crs.definition import length_unit_name, unit_name
+    from lidarctl.terrain.dem_io import open_dem
+
+    if not (np.isfinite(interval) and interval > 0):
+        raise OptionError(f"the contour interval must be a positive number in the DEM's height unit, got {interval}",
+                          param="--interval")
+    dem_path, out_path = Path(dem_path), Path(out_path)
+    src, z_m = open_dem(dem_path, out_path)
+    with src:
+        # contours are lines over the whole DEM: it is read whole (a 10 x 10 km DEM at 1 m is 400 MB in float32)
+        dem = src.read(1, masked=True).astype(np.float64).filled(np.nan)
+        transform, crs = src.transform, src.crs
+    z_unit = length_unit_name(z_m)
+    check_interval(dem, interval, z_unit)  # before any work: the interval fits the data
+    traced = trace(dem, transform, interval, index_every)
+    footprint = data_footprint(np.isfinite(dem), transform) if smoothing != "none" else None
+    contours, fell_back = smooth_contours(traced, smoothing, abs(transform.a), tolerance_px, tension, footprint)
+    cs = ContourSet(contours, interval, smoothing, fell_back)
+    n_cross = crossings(contours) if smoothing != "none" else 0  # traced lines of one surface never cross
+    if n_cross:
+        raise RuntimeError(f"{n_cross} contour crossings after smoothing (a bug: crossing lines fall back)")
+    write_contours(cs, out_path, crs.to_wkt(), unit_name(crs.to_wkt()), z_m)
+    written = [str(out_path)]
+    if png:
+        written.append(str(preview_png(cs, dem, transform, out_path.with_suffix(".png"),
+                                       f"{dem_path.name}: every {interval:g} {z_unit} (index {index_every * interval:g} "
+                                       f"{z_unit}), smoothing {smoothing}")))
+    levels = sorted({c.level for c in contours})
+    summary = ContoursResult(
+        contours=len(contours), levels=len(levels), closed=sum(c.closed for c in contours),
+        index_contours=sum(c.index for c in contours), smoothing=smoothing, fell_back_to_traced=fell_back,
+        crossings=n_cross, interval=interval, unit=z_unit, metres_per_unit=z_m,
+        lowest_level=levels[0] if levels else None, highest_level=levels[-1] if levels else None, files=tuple(written))
+    log.debug(f"{dem_path} -> {out_path}: {summary}")
+    return summary

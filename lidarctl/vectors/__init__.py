@@ -1,0 +1,1 @@
+"""Line-map (DLG) vector layers from a classified cloud."""

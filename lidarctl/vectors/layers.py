@@ -1,0 +1,744 @@
+"""Line-map (DLG) vector layers from a classified cloud: buildings, roads, water, spot heights, contours.
+
+Layers of the GeoPackage (``write_vectors``), all in the cloud's CRS and its units (coordinates and
+heights in CRS units, the ``_m`` attributes in metres):
+
+* ``buildings`` (Polygon): regularised roof (eave) outlines of the building points (class 6), traced,
+  regularised and edge-fitted as ``lidarctl corners`` does (``corners.find_roof_corners``);
+  ``eave_z``: the median height of its corners (each the roof plane at the corner, as in ``corners``),
+  without corners the most frequent height (``EAVE_BIN_M`` bins) of the roof points within
+  ``max(1.5 m, 2 spacings)`` inside the outline; ``ridge_z``: the ``RIDGE_PERCENTILE`` of all roof points inside it; ``ground_z``: the median of
+  the ground points up to 5 m outside it; ``height_m`` = ridge - ground; ``area_m2``, ``roof``.
+  Building cells no regularised outline covers (roofs below the outliner's 25 m2, outlines that failed)
+  are outlined from their cells (roof ``cells``; pieces of at least ``CELL_BUILDING_MIN_M2``, slivers
+  along the regularised outlines removed by an opening of one cell).
+* ``roads`` (Polygon): cells of ``cell_m`` holding road points (class 11, e.g. from ``classify --image``),
+  closed over gaps of one cell, holes below ``min_area_m2`` filled, pieces below it dropped; the polygon
+  edges are the road edges; ``width_m`` is the median width along its centre line.
+* ``road_centrelines`` (LineString): the skeleton of the road cells (Zhang-Suen thinning), cut at
+  junctions, spurs (a free end, shorter than twice the road width) dropped, merged through junctions
+  that are left with two lines, simplified by ``simplify_m``; ``width_m`` = 2 x the median distance
+  from the centre line to the road edge (within half a cell), ``length_m``.
+* ``water`` (Polygon): cells of water points (class 9) as for roads; ``water_z`` the median height.
+* ``spot_heights`` (Point): one per ``spot_spacing_m`` square, at the ground cell of the square with the
+  flattest neighbourhood (smallest RMS of a plane over 3 x 3 cells) that is at least ``BREAKLINE_CLEAR_M``
+  from any cell that is not open ground (buildings, water, trees, data gaps) - off breaklines; open
+  ground is ground, road surface and low vegetation (2, 11, 3: fused classifications label grass 3);
+  ``z`` the mean of those points in the cell.
+* ``contours`` (LineString): copied from ``--contours`` or traced from ``--dem`` (``lidarctl.terrain.contours``).
+
+Cells and lengths of the parameters are metres whatever the CRS; points are read with
+``corners.read_strips`` (metres) and written back in the CRS units.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import logging
+from pathlib import Path
+
+import numpy as np
+
+from aerotri.core.settings import setting
+from aerotri.core.errors import CrsError, InputError, OptionError
+from lidarctl.units import LengthUnits
+
+log = logging.getLogger(__name__)
+log.addHandler(logging.NullHandler())
+
+GROUND, BUILDING, WATER, ROAD = 2, 6, 9, 11
+NOISE = (7, 18)
+OPEN_GROUND = (GROUND, 3, ROAD)
+EAVE_BIN_M = 0.25
+RIDGE_PERCENTILE = 99.0
+BREAKLINE_CLEAR_M = 3.0
+# Building cells outlined when no regularised outline covers them: pieces from this area (m2; a garden shed
+# is 5-8 m2 in the BGT of Delft).
+CELL_BUILDING_MIN_M2 = 4.0
+LAYERS = ("buildings", "roads", "road_centrelines", "water", "spot_heights", "contours")
+
+
+@dataclasses.dataclass(frozen=True)
+class MapVectorSettings:
+    """Cell size of the road/water masks, smallest polygon, simplification, spot-height spacing (metres)."""
+
+    cell_m: float = setting(1.0, min=0.0, min_open=True, help="Cell of the road and water masks (m); about the point "
+                                                              "spacing or larger.")
+    min_area_m2: float = setting(50.0, min=0.0, min_open=True, help="Road and water pieces (and holes in them) smaller "
+                                                                    "than this (m2) are dropped (filled).")
+    simplify_m: float = setting(0.5, min=0.0, min_open=True, help="Douglas-Peucker tolerance of road/water polygons and "
+                                                                  "centre lines (m).")
+    spot_spacing_m: float = setting(100.0, min=0.0, min_open=True, help="One spot height per square of this side (m).")
+    contour_interval_m: float = setting(1.0, min=0.0, min_open=True, help="--dem: contour interval (m).")
+
+
+@dataclasses.dataclass
+class Layer:
+    """One layer: shapely geometries (CRS units) and attribute columns (equal lengths)."""
+
+    name: str
+    geometry_type: str
+    geometries: list
+    fields: dict
+
+
+@dataclasses.dataclass(frozen=True)
+class VectorCounts:
+    """Features per layer of the line map; ``roof_spacing_m``: the roof points' mean spacing (m; None without
+    buildings); ``contours``: None when no contour layer was made (neither --dem nor --contours)."""
+
+    buildings: int
+    roof_spacing_m: float | None
+    roads: int
+    road_centrelines: int
+    water: int
+    spot_heights: int
+    contours: int | None = None
+
+
+@dataclasses.dataclass
+class MapVectors:
+    layers: list
+    crs: object  # pyproj CRS
+    units: object  # lidarctl.units.LengthUnits
+    stats: VectorCounts
+
+
+@dataclasses.dataclass(frozen=True)
+class VectorsResult:
+    """What ``vectors_to_file`` wrote: the features per layer, the units of the coordinates and the files (the
+    GeoPackage, then the preview PNG when made)."""
+
+    counts: VectorCounts
+    units: LengthUnits
+    files: tuple[str, ...]
+
+
+# ------------------------------------------------------------------------------------------------ masks
+def _grid(xy: np.ndarray, cell_m: float, pad: int = 2):
+    """Origin (x0 at the west, y0 at the north edge) and shape of a grid of ``cell_m`` over ``xy``."""
+    x0 = np.floor(xy[:, 0].min() / cell_m) * cell_m - pad * cell_m
+    y0 = np.ceil(xy[:, 1].max() / cell_m) * cell_m + pad * cell_m
+    ncols = int(np.ceil((xy[:, 0].max() - x0) / cell_m)) + pad + 1
+    nrows = int(np.ceil((y0 - xy[:, 1].min()) / cell_m)) + pad + 1
+    return x0, y0, nrows, ncols
+
+
+def _cells(xy, x0, y0, cell_m, shape):
+    col = np.clip(((xy[:, 0] - x0) / cell_m).astype(np.int64), 0, shape[1] - 1)
+    row = np.clip(((y0 - xy[:, 1]) / cell_m).astype(np.int64), 0, shape[0] - 1)
+    return row, col
+
+
+def class_mask(xy: np.ndarray, x0, y0, cell_m: float, shape, *, min_area_m2: float, close_cells: int = 1,
+               void: np.ndarray | None = None) -> np.ndarray:
+    """Cells holding points ``xy`` (m), closed over gaps of ``close_cells``, small holes filled, small pieces
+    dropped. ``void``: cells without any return; the void regions that touch the class's cells (and not the
+    grid's border) join it - water gives few returns."""
+    from scipy import ndimage
+
+    eight = np.ones((3, 3), bool)
+    m = np.zeros(shape, bool)
+    if len(xy):
+        r, c = _cells(xy, x0, y0, cell_m, shape)
+        m[r, c] = True
+    if void is not None and m.any():
+        lab, n = ndimage.label(void, structure=eight)
+        touch = np.unique(lab[ndimage.binary_dilation(m, structure=eight) & void])
+        border = np.unique(np.r_[lab[0], lab[-1], lab[:, 0], lab[:, -1]])
+        join = np.zeros(n + 1, bool)
+        join[touch] = True
+        join[border] = False
+        join[0] = False
+        m |= join[lab]
+    if close_cells > 0:
+        m = ndimage.binary_closing(np.pad(m, close_cells), structure=eight,
+                                   iterations=close_cells)[close_cells:-close_cells, close_cells:-close_cells]
+    min_cells = max(1, int(round(min_area_m2 / cell_m**2)))
+    holes, n = ndimage.label(~m)
+    if n:
+        size = np.bincount(holes.ravel())
+        border = np.unique(np.r_[holes[0], holes[-1], holes[:, 0], holes[:, -1]])
+        small = size < min_cells
+        small[0] = False
+        small[border] = False
+        m |= small[holes]
+    lab, n = ndimage.label(m, structure=eight)
+    if n:
+        size = np.bincount(lab.ravel())
+        keep = size >= min_cells
+        keep[0] = False
+        m = keep[lab]
+    return m
+
+
+def mask_polygons(mask: np.ndarray, x0, y0, cell_m: float, simplify_m: float) -> list:
+    """Polygons (metres) of the True cells of ``mask``, simplified by ``simplify_m``."""
+    import shapely
+    from rasterio import features
+    from rasterio.transform import Affine
+    from shapely.geometry import shape
+
+    if not mask.any():
+        return []
+    tr = Affine(cell_m, 0.0, x0, 0.0, -cell_m, y0)
+    polys = [shape(g) for g, v in features.shapes(mask.astype(np.uint8), mask=mask, transform=tr, connectivity=8)]
+    out = []
+    for p in polys:
+        q = shapely.make_valid(p.simplify(simplify_m, preserve_topology=True))
+        parts = [g for g in getattr(q, "geoms", [q]) if g.geom_type == "Polygon" and not g.is_empty]
+        out += parts
+    return out
+
+
+def _crossing_number(sk: np.ndarray) -> np.ndarray:
+    """Branches meeting at each pixel of a skeleton: the 0 -> 1 transitions around its 8 neighbours (a staircase
+    pixel has two, like a straight one; an end one; a junction three or more)."""
+    p = np.pad(sk, 1).astype(np.int8)
+    h, w = sk.shape
+    ring = [(0, 1), (0, 2), (1, 2), (2, 2), (2, 1), (2, 0), (1, 0), (0, 0)]  # clockwise from north
+    nbrs = [p[r:r + h, c:c + w] for r, c in ring]
+    return sum(((nbrs[i] == 0) & (nbrs[(i + 1) % 8] == 1)).astype(np.int8) for i in range(8))
+
+
+def _skeleton_paths(skel: np.ndarray) -> list:
+    """(path as (K, 2) float (row, col), free ends, starts at a junction, ends at one) of a one-pixel skeleton cut at its junctions: each path runs
+    between junctions (ending at the centre of the junction's pixels) or free ends (``free ends``: how many of
+    its two ends are no junction)."""
+    from scipy import ndimage
+
+    sk = skel.astype(bool)
+    eight = np.ones((3, 3), bool)
+    junction = sk & (_crossing_number(sk) >= 3)
+    jlab, nj = ndimage.label(junction, structure=eight)
+    jcentre = np.array(ndimage.center_of_mass(junction, jlab, range(1, nj + 1))).reshape(-1, 2)
+    # the arms' first pixels touch each other diagonally around a junction: cut them off with it
+    runs, n = ndimage.label(sk & ~ndimage.binary_dilation(junction, structure=eight), structure=eight)
+    offsets = [(-1, 0), (0, -1), (0, 1), (1, 0), (-1, -1), (-1, 1), (1, -1), (1, 1)]  # 4-neighbours first
+    paths = []
+    # a walk per run of skeleton pixels: the skeleton is thin (a few pixels per metre of road), not per point
+    for k, sl in enumerate(ndimage.find_objects(runs), start=1):
+        rr, cc = np.nonzero(runs[sl] == k)
+        pix = set(zip((rr + sl[0].start).tolist(), (cc + sl[1].start).tolist()))
+        remaining = set(pix)
+        # a run with an undetected branch needs more than one walk: walk until every pixel is on a path
+        while remaining:
+            start = next((q for q in sorted(remaining)
+                          if sum((q[0] + a, q[1] + b) in remaining for a, b in offsets) <= 1), min(remaining))
+            path = [start]
+            remaining.discard(start)
+            while True:
+                q = path[-1]
+                nxt = [(q[0] + a, q[1] + b) for a, b in offsets if (q[0] + a, q[1] + b) in remaining]
+                if not nxt:
+                    break
+                path.append(nxt[0])
+                remaining.discard(nxt[0])
+            on_path = set(path)
+            rc = np.array(path, float)
+            free, ends = 0, []
+            for end in (path[0], path[-1]):
+                r0, c0 = end
+                win = jlab[max(r0 - 2, 0):r0 + 3, max(c0 - 2, 0):c0 + 3]
+                ids = np.unique(win[win > 0])
+                other = [(r0 + a, c0 + b) for a, b in offsets if (r0 + a, c0 + b) in pix and (r0 + a, c0 + b) not in on_path]
+                if len(ids):
+                    ends.append(jcentre[ids[0] - 1])  # the line reaches the junction's centre, so lines meet there
+                elif other:
+                    ends.append(np.array(other[0], float))  # a branch of the same run
+                else:
+                    ends.append(None)
+                    free += 1
+            if ends[0] is not None:
+                rc = np.vstack([ends[0], rc])
+            if ends[1] is not None and not (len(path) == 1 and ends[0] is not None
+                                            and np.array_equal(ends[0], ends[1])):
+                rc = np.vstack([rc, ends[1]])
+            paths.append((rc, free, ends[0] is not None, ends[1] is not None))
+    return paths
+
+
+def centrelines(mask: np.ndarray, x0, y0, cell_m: float, simplify_m: float) -> list:
+    """(LineString in metres, width_m) of the centre lines of the road cells ``mask``: the thinned mask cut at
+    junctions, spurs (a free end, shorter than twice the road width) dropped, the rest merged and simplified."""
+    import cv2
+    import shapely
+    from scipy import ndimage
+
+    if not mask.any():
+        return []
+    padded = np.pad(mask, 1)
+    # Distance from a centre-line cell to the nearest cell outside the road: half the width plus half a cell
+    # when the road is an odd number of cells wide, half the width when even (the line then runs along one of
+    # the two middle cells); -0.25 cell is the mean of the two, so widths are within half a cell.
+    half = ndimage.distance_transform_edt(padded)[1:-1, 1:-1] * cell_m - 0.25 * cell_m
+    # a rounded mask thins with fewer spurs from its ragged edges
+    smooth = ndimage.binary_opening(padded, structure=np.ones((3, 3), bool), iterations=1)
+    skel = cv2.ximgproc.thinning(smooth.astype(np.uint8) * 255, thinningType=cv2.ximgproc.THINNING_ZHANGSUEN) > 0
+    skel = skel[1:-1, 1:-1]
+    pieces = []
+    for _ in range(3):  # dropping spurs makes new free ends (spurs of spurs): prune a few times
+        pieces, dropped = [], 0
+        for rc, free, j0, j1 in _skeleton_paths(skel):
+            ij = np.round(rc).astype(np.int64)
+            width = float(2.0 * np.median(half[ij[:, 0], ij[:, 1]]))
+            length = float(np.hypot(*np.diff(rc, axis=0).T).sum()) * cell_m
+            if free and length < 2.0 * max(width, cell_m):
+                inner = ij[int(j0):len(ij) - int(j1)]  # keep the junction a spur hangs from
+                skel[inner[:, 0], inner[:, 1]] = False
+                dropped += 1
+                continue
+            pieces.append((rc, width))
+        if not dropped:
+            break
+        # junction pixels of dropped spurs may be left as stubs: re-thin
+        skel = cv2.ximgproc.thinning(skel.astype(np.uint8) * 255) > 0
+    lines, widths, lengths = [], [], []
+    for rc, width in pieces:
+        if len(rc) < 2:
+            continue
+        xy = np.column_stack([x0 + (rc[:, 1] + 0.5) * cell_m, y0 - (rc[:, 0] + 0.5) * cell_m])
+        ln = shapely.LineString(xy)
+        lines.append(ln)
+        widths.append(width)
+        lengths.append(ln.length)
+    if not lines:
+        return []
+    merged = shapely.line_merge(shapely.MultiLineString(lines))
+    tree = shapely.STRtree(lines)
+    out = []
+    for m in getattr(merged, "geoms", [merged]):
+        # the width of a merged line: its pieces' widths weighted by length
+        hit = [i for i in tree.query(m, predicate="intersects") if shapely.length(shapely.intersection(lines[i], m)) > 0]
+        w = (float(np.average([widths[i] for i in hit], weights=[lengths[i] for i in hit])) if hit
+             else float(np.median(widths)))
+        out.append((m.simplify(simplify_m), w))
+    return out
+
+
+# --------------------------------------------------------------------------------------------- buildings
+def building_outlines(pts, spacing_m: float | None = None) -> tuple[list, list, dict]:
+    """(polygons in metres, attribute rows, stats) of the buildings of a cloud (``corners.ClassifiedStrips``, or
+    any object with its x, y, z, classification and point_source_id arrays)."""
+    import shapely
+    from shapely.geometry import Polygon
+
+    from lidarctl.corners.roof_corners import find_roof_corners
+
+    cls = pts.classification
+    if not (cls == BUILDING).any():
+        return [], [], {"n_roofs": 0}
+    try:
+        # min_edge_m as before the corner stage's density-adaptive default (issue 21): it sets the smallest
+        # roof outlined (25 m^2) and the corners the eave heights come from; not re-evaluated for the line map
+        res = find_roof_corners(pts.x, pts.y, pts.z, cls, pts.point_source_id, roof="any", min_edge_m=5.0)
+    except InputError as exc:
+        log.info(f"no building outlines: {exc}")
+        return [], [], {"n_roofs": 0}
+    is_b, is_g = cls == BUILDING, cls == GROUND
+    bxy = np.column_stack([pts.x[is_b], pts.y[is_b]])
+    bz = pts.z[is_b]
+    gxy = np.column_stack([pts.x[is_g], pts.y[is_g]])
+    gz = pts.z[is_g]
+    from scipy.spatial import cKDTree
+
+    btree = cKDTree(bxy)
+    # eave height: the corners' heights, each the roof plane at the corner (corners.py)
+    corner_z: dict = {}
+    for c in res.corners:
+        corner_z.setdefault(int(c["building_id"]), []).append(float(c["z"]))
+    gtree = cKDTree(gxy) if len(gxy) else None
+    polys, rows = [], []
+    candidates = []
+    for o in res.outlines:
+        rings = [r for r in o["rings"] if len(r) >= 3]
+        if not rings:
+            continue
+        rings.sort(key=lambda r: -abs(Polygon(r).area))
+        shell = Polygon(rings[0])
+        holes = [r for r in rings[1:] if shell.contains(Polygon(r).representative_point())]
+        poly = shapely.make_valid(Polygon(rings[0], holes))
+        if poly.geom_type != "Polygon":
+            poly = max(getattr(poly, "geoms", [poly]), key=lambda g: g.area if g.geom_type == "Polygon" else -1)
+        if poly.geom_type != "Polygon" or poly.area <= 0:
+            continue
+        candidates.append((poly, int(o["building_id"]), o["roof"], o["spacing_m"]))
+    # Building points no regularised outline covers (roofs below the outliner's smallest, 25 m2, and
+    # roofs whose outline failed): the outline of their cells, so that every classified building is on
+    # the map (roof "cells": not regularised).
+    spacing = float(np.median([cand[3] for cand in candidates])) if candidates else (spacing_m or 1.0)
+    cell = max(0.5, spacing)
+    x0, y0, nrows, ncols = _grid(bxy, cell)
+    bmask = class_mask(bxy, x0, y0, cell, (nrows, ncols), min_area_m2=CELL_BUILDING_MIN_M2, close_cells=1)
+    covered = shapely.union_all([cand[0] for cand in candidates]) if candidates else None
+    next_id = max([cand[1] for cand in candidates], default=0) + 1
+    pieces = mask_polygons(bmask, x0, y0, cell, cell)
+    if covered is not None and pieces:
+        # what the outlines leave of the building cells, without the slivers along their edges (an opening
+        # of one cell)
+        rest = shapely.make_valid(shapely.union_all(pieces).difference(covered))
+        rest = rest.buffer(-cell, join_style="mitre").buffer(cell, join_style="mitre").intersection(rest)
+        pieces = [g for g in getattr(rest, "geoms", [rest]) if g.geom_type == "Polygon"]
+    for q in pieces:
+        if q.is_empty or q.area < CELL_BUILDING_MIN_M2:
+            continue
+        candidates.append((q, next_id, "cells", spacing))
+        next_id += 1
+    for poly, building_id, roof, spacing_o in candidates:
+        # roof points inside the outline: those within the circumscribed circle, then tested
+        c = np.asarray(poly.centroid.coords[0])
+        rad = float(np.max(np.hypot(*(np.asarray(poly.exterior.coords) - c).T))) + 0.1
+        idx = np.asarray(btree.query_ball_point(c, rad), np.int64)
+        idx = idx[shapely.contains_xy(poly, bxy[idx, 0], bxy[idx, 1])] if len(idx) else idx
+        if len(idx) < 3:
+            continue
+        cz = corner_z.get(building_id) if roof != "cells" else None
+        if cz is not None:
+            eave = float(np.median(cz))
+        else:
+            # no fitted corner: the most frequent height of the roof points near the outline (the eave rim is
+            # level; wall points under it spread over the wall's height, gable ends over the gable's)
+            band = max(1.5, 2.0 * spacing_o)
+            near = idx[shapely.distance(poly.boundary, shapely.points(bxy[idx])) < band]
+            zb = bz[near if len(near) >= 3 else idx]
+            bins = np.floor((zb - zb.min()) / EAVE_BIN_M).astype(np.int64)
+            top = np.bincount(bins).argmax()
+            eave = float(np.median(zb[np.abs(bins - top) <= 1]))
+        ridge = float(np.percentile(bz[idx], RIDGE_PERCENTILE))
+        ground = float("nan")
+        if gtree is not None:
+            gi = np.asarray(gtree.query_ball_point(c, rad + 5.0), np.int64)
+            if len(gi):
+                ring = poly.buffer(5.0).difference(poly)
+                gi = gi[shapely.contains_xy(ring, gxy[gi, 0], gxy[gi, 1])]
+                if len(gi):
+                    ground = float(np.median(gz[gi]))
+        polys.append(poly)
+        rows.append(dict(building_id=building_id, roof=roof, eave_z=eave, ridge_z=ridge,
+                         ground_z=ground, height_m=ridge - ground, area_m2=float(poly.area),
+                         n_points=int(len(idx))))
+    return polys, rows, dataclasses.asdict(res.stats)
+
+
+# ------------------------------------------------------------------------------------------- spot heights
+def spot_heights(gxy: np.ndarray, gz: np.ndarray, other_xy: np.ndarray, cell_m: float, spacing_m: float):
+    """(xy (K, 2), z (K,)) in metres: one spot height per ``spacing_m`` square (see the module doc)."""
+    from scipy import ndimage
+
+    from lidarctl.raster_ops import plane_rms
+
+    if len(gxy) == 0:
+        return np.zeros((0, 2)), np.zeros(0)
+    allxy = np.vstack([gxy, other_xy]) if len(other_xy) else gxy
+    x0, y0, nrows, ncols = _grid(allxy, cell_m)
+    shape = (nrows, ncols)
+    r, c = _cells(gxy, x0, y0, cell_m, shape)
+    flat = r * ncols + c
+    cnt = np.bincount(flat, minlength=nrows * ncols).reshape(shape)
+    zsum = np.bincount(flat, weights=gz, minlength=nrows * ncols).reshape(shape)
+    zmean = np.where(cnt > 0, zsum / np.maximum(cnt, 1), np.nan)
+    # cells of a sparse cloud without a point of their own are no breakline: close over them
+    ground = ndimage.binary_closing(np.pad(cnt > 0, 1), structure=np.ones((3, 3), bool))[1:-1, 1:-1]
+    if len(other_xy):
+        ro, co = _cells(other_xy, x0, y0, cell_m, shape)
+        occupied_other = np.zeros(shape, bool)
+        occupied_other[ro, co] = True
+        ground &= ~occupied_other  # a cell with a roof, tree or water point over it is no open ground
+    clear = ndimage.distance_transform_edt(np.pad(ground, 1))[1:-1, 1:-1] * cell_m > BREAKLINE_CLEAR_M
+    rough = plane_rms(np.where(np.isfinite(zmean), zmean, np.nanmedian(zmean)), cell_m)
+    ok = clear & np.isfinite(rough) & (cnt > 0)
+    rows, cols = np.nonzero(ok)
+    if len(rows) == 0:
+        return np.zeros((0, 2)), np.zeros(0)
+    cx, cy = x0 + (cols + 0.5) * cell_m, y0 - (rows + 0.5) * cell_m
+    sq = (np.floor(cx / spacing_m).astype(np.int64), np.floor(cy / spacing_m).astype(np.int64))
+    key = (sq[0] - sq[0].min()) * (sq[1].max() - sq[1].min() + 1) + (sq[1] - sq[1].min())
+    # flattest cell per square; ties broken by the distance to the square's centre (deterministic)
+    dcen = np.hypot(cx - (sq[0] + 0.5) * spacing_m, cy - (sq[1] + 0.5) * spacing_m)
+    order = np.lexsort((dcen, rough[rows, cols], key))
+    first = order[np.r_[True, np.diff(key[order]) != 0]]
+    return np.column_stack([cx[first], cy[first]]), zmean[rows[first], cols[first]]
+
+
+# ------------------------------------------------------------------------------------------------- main
+def _same_crs(path: Path, crs_wkt, cloud_crs) -> None:
+    """CrsError naming ``path`` when its CRS differs from the cloud's (never a silent transform)."""
+    import pyproj
+
+    from aerotri.geom.crs.definition import crs_label, same_horizontal
+
+    if cloud_crs is None or not crs_wkt:
+        return
+    crs = pyproj.CRS.from_user_input(crs_wkt)
+    if not same_horizontal(crs, cloud_crs):
+        raise CrsError(f"{path} is in {crs_label(crs)} but the cloud in {crs_label(cloud_crs)}; give both in one CRS "
+                       "(aerotri crs transform)")
+
+
+def _read_contours(path: Path, cloud_crs) -> Layer:
+    import shapely
+    from pyogrio.errors import DataLayerError, DataSourceError
+    from pyogrio.raw import read
+
+    import pyogrio
+
+    try:
+        names = [str(n) for n, _ in pyogrio.list_layers(path)]
+        # a DLG GeoPackage of an earlier run holds many layers: take its contours
+        meta, _, wkb, fields = read(path, layer="contours" if "contours" in names else names[0])
+    except (DataSourceError, DataLayerError, OSError, IndexError) as exc:
+        raise InputError(f"{path}: not a readable vector layer ({exc})") from None
+    _same_crs(path, meta.get("crs"), cloud_crs)
+    geoms = [shapely.from_wkb(b) for b in wkb]
+    if any(g is None or g.geom_type not in ("LineString", "MultiLineString") for g in geoms):
+        raise InputError(f"{path}: contours must be lines")
+    cols = {str(n): np.asarray(v) for n, v in zip(meta["fields"], fields)}
+    gtype = "MultiLineString" if any(g.geom_type == "MultiLineString" for g in geoms) else "LineString"
+    return Layer("contours", gtype, geoms, cols)
+
+
+def _dem_contours(path: Path, out_path: Path, interval_m: float, cloud_crs) -> Layer:
+    import shapely
+
+    from lidarctl.terrain.contours import trace
+    from lidarctl.terrain.dem_io import open_dem
+
+    src, z_m = open_dem(path, out_path)
+    with src:
+        _same_crs(path, src.crs.to_wkt(), cloud_crs)
+        dem = src.read(1, masked=True).astype(np.float64).filled(np.nan)
+        transform = src.transform
+    cs = trace(dem, transform, interval_m / z_m)
+    return Layer("contours", "LineString", [shapely.LineString(c.xy) for c in cs],
+                 {"elevation": np.array([c.level for c in cs], float),
+                  "elevation_m": np.array([c.level * z_m for c in cs], float),
+                  "index": np.array([c.index for c in cs], bool)})
+
+
+def _scale_geoms(geoms: list, f: float) -> list:
+    import shapely
+
+    if f == 1.0:
+        return geoms
+    return [shapely.transform(g, lambda a: a * f) for g in geoms]
+
+
+def extract_vectors(paths, out_path, params: MapVectorSettings = MapVectorSettings(), crs=None, dem=None,
+                    contours=None) -> MapVectors:
+    """The DLG layers of classified LAS/LAZ ``paths`` (one CRS); see the module doc. ``dem``/``contours``:
+    a DEM GeoTIFF to contour or a contour layer to copy (same CRS as the cloud)."""
+    import shapely
+    from scipy import ndimage
+
+    from lidarctl.corners.roof_corners import read_strips
+    from lidarctl.corners.roof_segments import point_spacing_m
+
+    for name in ("cell_m", "min_area_m2", "simplify_m", "spot_spacing_m", "contour_interval_m"):
+        v = getattr(params, name)
+        if not (np.isfinite(v) and v > 0):
+            raise OptionError(f"must be a positive number, got {v}", param="--" + name.replace("_", "-"))
+    pts = read_strips(paths, crs=crs)
+    units = pts.units
+    cls = pts.classification
+    keep = ~np.isin(cls, NOISE)
+    pts = pts.subset(keep)
+    cls = pts.classification
+    xy = np.column_stack([pts.x, pts.y])
+    if len(xy) == 0:
+        raise InputError(f"{', '.join(map(str, paths))}: no points besides noise")
+    p = params
+    f_xy = 1.0 / units.xy_m  # metres -> CRS units
+    f_z = 1.0 / units.z_m
+    layers = []
+
+    polys, rows, bstats = building_outlines(pts)
+    layers.append(Layer("buildings", "Polygon", _scale_geoms(polys, f_xy), {
+        "building_id": np.array([r["building_id"] for r in rows], np.int64),
+        "roof": np.array([r["roof"] for r in rows], object),
+        "eave_z": np.array([r["eave_z"] for r in rows], float) * f_z,
+        "ridge_z": np.array([r["ridge_z"] for r in rows], float) * f_z,
+        "ground_z": np.array([r["ground_z"] for r in rows], float) * f_z,
+        "height_m": np.array([r["height_m"] for r in rows], float),
+        "area_m2": np.array([r["area_m2"] for r in rows], float),
+        "n_points": np.array([r["n_points"] for r in rows], np.int64)}))
+
+    x0, y0, nrows, ncols = _grid(xy, p.cell_m)
+    from lidarctl.grid import check_grid
+
+    check_grid(nrows, ncols, p.cell_m, 16, "road/water masks", option="--cell-m", hint="use a coarser --cell-m")
+    shape = (nrows, ncols)
+    # close over gaps of about two point spacings (a mask cell finer than the spacing leaves empty cells)
+    spacing = point_spacing_m(xy)
+    close = max(1, int(np.ceil(spacing / p.cell_m)))
+    r, c = _cells(xy, x0, y0, p.cell_m, shape)
+    void = np.ones(shape, bool)
+    void[r, c] = False
+    void = ndimage.binary_opening(void, structure=np.ones((3, 3), bool), iterations=close)
+    road = class_mask(xy[cls == ROAD], x0, y0, p.cell_m, shape, min_area_m2=p.min_area_m2, close_cells=close)
+    rpolys = mask_polygons(road, x0, y0, p.cell_m, p.simplify_m)
+    lines = centrelines(road, x0, y0, p.cell_m, p.simplify_m)
+    ltree = shapely.STRtree([ln for ln, _ in lines]) if lines else None
+    rwidth = []
+    for q in rpolys:
+        hit = ltree.query(q, predicate="intersects") if ltree is not None else []
+        rwidth.append(float(np.median([lines[i][1] for i in hit])) if len(hit) else float("nan"))
+    layers.append(Layer("roads", "Polygon", _scale_geoms(rpolys, f_xy),
+                        {"area_m2": np.array([q.area for q in rpolys], float), "width_m": np.array(rwidth, float)}))
+    layers.append(Layer("road_centrelines", "LineString", _scale_geoms([ln for ln, _ in lines], f_xy),
+                        {"width_m": np.array([w for _, w in lines], float),
+                         "length_m": np.array([ln.length for ln, _ in lines], float)}))
+
+    wmask = class_mask(xy[cls == WATER], x0, y0, p.cell_m, shape, min_area_m2=p.min_area_m2, close_cells=close,
+                       void=void)
+    wpolys = mask_polygons(wmask, x0, y0, p.cell_m, p.simplify_m)
+    wxy, wz = xy[cls == WATER], pts.z[cls == WATER]
+    wlevel = []
+    for q in wpolys:
+        inside = shapely.contains_xy(q, wxy[:, 0], wxy[:, 1]) if len(wxy) else np.zeros(0, bool)
+        wlevel.append(float(np.median(wz[inside])) if inside.any() else float("nan"))
+    layers.append(Layer("water", "Polygon", _scale_geoms(wpolys, f_xy),
+                        {"area_m2": np.array([q.area for q in wpolys], float),
+                         "water_z": np.array(wlevel, float) * f_z}))
+
+    # open terrain: ground, road surface and grass (a fused classification labels grassland 3)
+    is_g = np.isin(cls, OPEN_GROUND)
+    sxy, sz = spot_heights(xy[is_g], pts.z[is_g], xy[~is_g], max(p.cell_m, spacing), p.spot_spacing_m)
+    layers.append(Layer("spot_heights", "Point", _scale_geoms(list(shapely.points(sxy)) if len(sxy) else [], f_xy),
+                        {"z": sz * f_z, "z_m": sz}))
+
+    if contours is not None:
+        layers.append(_read_contours(Path(contours), pts.crs))
+    elif dem is not None:
+        layers.append(_dem_contours(Path(dem), Path(out_path), p.contour_interval_m, pts.crs))
+    counts = VectorCounts(buildings=len(polys), roof_spacing_m=bstats.get("point_spacing_m"), roads=len(rpolys),
+                          road_centrelines=len(lines), water=len(wpolys), spot_heights=len(sz),
+                          contours=len(layers[-1].geometries) if len(layers) == 6 else None)
+    return MapVectors(layers, pts.crs, units, counts)
+
+
+def write_vectors(mv: MapVectors, path) -> Path:
+    """All layers into one GeoPackage, with the CRS on each, written atomically (an empty layer is written
+    with its fields, so a reader finds every layer)."""
+    import shapely
+    from pyogrio.raw import write
+
+    from aerotri.core.atomic import atomic_path
+
+    path = Path(path)
+    if path.suffix.lower() != ".gpkg":
+        raise OptionError(f"{path}: the output must end in .gpkg", param="OUT")
+    crs = mv.crs.to_wkt() if mv.crs is not None else None
+    with atomic_path(path) as tmp:
+        tmp.unlink(missing_ok=True)
+        for i, layer in enumerate(mv.layers):
+            geoms = np.array(shapely.to_wkb(np.array(layer.geometries, dtype=object)) if layer.geometries else [],
+                             dtype=object)
+            names = list(layer.fields)
+            data = [np.asarray(v) for v in layer.fields.values()]
+            write(tmp, geoms, field_data=data, fields=names, geometry_type=layer.geometry_type, crs=crs,
+                  driver="GPKG", layer=layer.name, append=i > 0)
+    return path
+
+
+def vectors_to_file(paths, out_path, *, params: MapVectorSettings = MapVectorSettings(), crs=None, dem=None,
+                    contours=None,
+                    image=None) -> VectorsResult:
+    """``extract_vectors`` + ``write_vectors`` (+ a PNG preview beside OUT over ``image`` when given).
+    Returns the summary."""
+    from aerotri.core.atomic import refuse_input_as_output
+
+    out_path = Path(out_path)
+    inputs = [Path(q) for q in paths] + [Path(q) for q in (dem, contours, image) if q is not None]
+    from aerotri.geom.inputs import check_distinct_files
+
+    check_distinct_files(paths, "LAS/LAZ file")  # a strip given twice would count every point twice
+    refuse_input_as_output(out_path, inputs, option="OUT")
+    for q in inputs:
+        if not q.is_file():
+            raise InputError(f"{q}: no such file")
+    if out_path.suffix.lower() != ".gpkg":
+        raise OptionError(f"{out_path}: the output must end in .gpkg", param="OUT")
+    if image is not None:
+        _check_raster(Path(image))
+    mv = extract_vectors(paths, out_path, params, crs=crs, dem=dem, contours=contours)
+    write_vectors(mv, out_path)
+    files = [str(out_path)]
+    if image is not None:
+        files.append(str(preview_png(mv, out_path.with_suffix(".png"), image=image)))
+    return VectorsResult(mv.stats, mv.units, tuple(files))
+
+
+def _check_raster(path: Path) -> None:
+    import rasterio
+
+    from aerotri.geom.inputs import check_raster_size
+
+    try:
+        with rasterio.open(path) as src:
+            if src.crs is None:
+                raise InputError(f"{path}: the image has no CRS")
+            check_raster_size(src, path, "image")
+    except rasterio.errors.RasterioIOError as exc:
+        raise InputError(f"{path}: not a readable raster ({exc})") from None
+
+
+STYLE = {"buildings": ("firebrick", 1.0), "roads": ("dimgray", 0.8), "road_centrelines": ("gold", 1.0),
+         "water": ("royalblue", 1.0), "contours": ("#8b4513", 0.4)}
+
+
+def draw_layers(ax, layers: dict) -> None:
+    """Draw ``{name: list of shapely geometries}`` on a matplotlib axes in the DLG colours."""
+    for name, geoms in layers.items():
+        if name == "spot_heights":
+            if geoms:
+                xy = np.array([g.coords[0][:2] for g in geoms])
+                ax.plot(xy[:, 0], xy[:, 1], "k+", ms=6, label=f"spot heights ({len(geoms)})")
+            continue
+        colour, lw = STYLE.get(name, ("k", 0.5))
+        first = True
+        for g in geoms:
+            parts = getattr(g, "geoms", [g])
+            for part in parts:
+                rings = [part.exterior, *part.interiors] if part.geom_type == "Polygon" else [part]
+                for ring in rings:
+                    xy = np.asarray(ring.coords)
+                    ax.plot(xy[:, 0], xy[:, 1], color=colour, lw=lw, label=f"{name} ({len(geoms)})" if first else None)
+                    first = False
+
+
+def preview_png(mv: MapVectors, path, image=None, title: str = "") -> Path:
+    """The layers over the orthophoto ``image`` (when given), with a legend and axes in CRS units."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from aerotri.core.atomic import atomic_path
+
+    fig, ax = plt.subplots(figsize=(10, 10))
+    if image is not None:
+        import rasterio
+        from rasterio.enums import Resampling
+
+        with rasterio.open(image) as src:
+            f = max(1, int(np.ceil(max(src.width, src.height) / 2000)))
+            data = src.read(indexes=list(range(1, min(3, src.count) + 1)), out_shape=(min(3, src.count),
+                            src.height // f, src.width // f), resampling=Resampling.average)
+            b = src.bounds
+        img = np.moveaxis(data, 0, -1)
+        img = img[..., 0] if img.shape[-1] < 3 else img
+        if img.dtype != np.uint8:
+            img = np.clip(img / max(float(np.nanpercentile(img, 99)), 1e-9), 0, 1)
+        ax.imshow(img, extent=(b.left, b.right, b.bottom, b.top), cmap="gray", alpha=0.6)
+    draw_layers(ax, {ly.name: ly.geometries for ly in mv.layers})
+    ax.set_aspect("equal")
+    ax.ticklabel_format(useOffset=False, style="plain")
+    ax.set_xlabel(f"easting ({mv.units.xy_name})")
+    ax.set_ylabel(f"northing ({mv.units.xy_name})")
+    ax.legend(loc="upper right", fontsize=8)
+    ax.set_title(title or "DLG layers")
+    fig.tight_layout()
+    with atomic_path(path) as tmp:
+        fig.savefig(tmp, dpi=100)
+    plt.close(fig)
+    return Path(path)

@@ -1,0 +1,207 @@
+"""Rasters across datums (``aerotri crs warp``) and the coordinate-operation policy around rasters: DEM
+heights change with the datum, nodata is kept, a compound DEM CRS is taken by its parts, and no silent
+ballpark anywhere (the local adjustment frame on a non-WGS 84 project datum included)."""
+
+from __future__ import annotations
+
+import json
+import shutil
+
+import numpy as np
+import pytest
+import rasterio
+from click.testing import CliRunner
+from pyproj import CRS
+
+from aerotri.cli import main as aerotri_cli
+from aerotri.geom.crs.synthetic import TRUE_BURSA_WOLF7
+from aerotri.geom.crs.datum import HeightAnomalyModel, Transformation
+from aerotri.geom.crs.ellipsoid import IAG75, geodetic_to_geocentric
+from aerotri.geom.local_frame import LocalFrame
+from aerotri.geom.crs.transform import BallparkRefused, CrsTransformer
+
+XIAN_GK = "EPSG:2382"  # Xian 1980 / 3-degree GK CM 111E
+
+
+@pytest.fixture(scope="module")
+def dem_and_params(tiny_project, tmp_path_factory):
+    d = tmp_path_factory.mktemp("warp")
+    dem = d / "dem.tif"
+    with rasterio.open(tiny_project / "truth" / "dem.tif") as src:
+        profile = src.profile
+        a = src.read(1)
+    a[100:140, 200:260] = profile["nodata"]  # a hole the warp must keep
+    with rasterio.open(dem, "w", **profile) as dst:
+        dst.write(a, 1)
+    params = d / "xian.json"
+    T = Transformation("bursa-wolf7", dict(TRUE_BURSA_WOLF7), "EPSG:32649", XIAN_GK)
+    params.write_text(json.dumps(T.to_dict()))
+    return dem, params, T
+
+
+def _bilinear(ds, x, y):
+    a = ds.read(1, masked=True).filled(np.nan).astype(float)
+    c = (x - ds.transform.c) / ds.transform.a - 0.5
+    r = (y - ds.transform.f) / ds.transform.e - 0.5
+    c0, r0 = np.floor(c).astype(int), np.floor(r).astype(int)
+    fc, fr = c - c0, r - r0
+    return (a[r0, c0] * (1 - fc) * (1 - fr) + a[r0, c0 + 1] * fc * (1 - fr) + a[r0 + 1, c0] * (1 - fc) * fr
+            + a[r0 + 1, c0 + 1] * fc * fr)
+
+
+def test_dem_warp_moves_heights_with_the_datum(dem_and_params, tmp_path):
+    dem, params, T = dem_and_params
+    out = tmp_path / "dem_xian.tif"
+    r = CliRunner().invoke(aerotri_cli, ["crs", "warp", str(dem), str(out), "--to", XIAN_GK, "--params", str(params)])
+    assert r.exit_code == 0, r.output
+    assert "height raster" in r.output
+    op = CrsTransformer("EPSG:32649", XIAN_GK, params=T)
+    rng = np.random.default_rng(5)
+    with rasterio.open(dem) as src, rasterio.open(out) as dst:
+        assert dst.crs.to_epsg() == 2382 and dst.nodata == src.nodata
+        assert dst.profile["tiled"] and dst.overviews(1)  # a COG
+        assert "bursa-wolf7" in dst.tags()["COORDINATE_OPERATION"]
+        b = src.bounds
+        x = rng.uniform(b.left + 20, b.right - 20, 400)
+        y = rng.uniform(b.bottom + 20, b.top - 20, 400)
+        z = _bilinear(src, x, y)
+        keep = np.isfinite(z) & (z != src.nodata)
+        X, Y, Z = op.transform(x[keep], y[keep], z[keep])
+        got = _bilinear(dst, X, Y)
+        dz = got - Z
+        ok = np.isfinite(dz) & (np.abs(got) < 1e4)
+        assert ok.sum() > 300
+        assert np.median(np.abs(Z - z[keep])) > 5.0  # the datum shift changes heights by metres ...
+        assert np.sqrt(np.mean(dz[ok] ** 2)) < 0.05  # ... and the warped DEM carries the change
+        # the hole stays nodata at its new place
+        hx, hy = src.xy(120, 230)
+        HX, HY, _ = op.transform([hx], [hy], [300.0])
+        row, col = dst.index(HX[0], HY[0])
+        assert dst.read(1)[row, col] == dst.nodata
+
+
+def test_warp_refuses_ballpark_and_its_input_as_output(dem_and_params, tmp_path):
+    dem, _, _ = dem_and_params
+    out = tmp_path / "x.tif"
+    r = CliRunner().invoke(aerotri_cli, ["crs", "warp", str(dem), str(out), "--to", XIAN_GK])
+    assert r.exit_code == 2 and "ballpark" in r.output and not out.exists()
+    r = CliRunner().invoke(aerotri_cli, ["crs", "warp", str(dem), str(dem), "--to", XIAN_GK])
+    assert r.exit_code == 2 and "input" in r.output
+
+
+def test_height_model_makes_normal_heights(dem_and_params, tmp_path):
+    """Within one CRS, a height anomaly model (zeta = 20 m + a slope) turns ellipsoidal into normal heights."""
+    dem, _, _ = dem_and_params
+    model = HeightAnomalyModel("plane", (452250.0, 3407400.0), coefficients=[20.0, 0.5, -0.25], crs="EPSG:32649")
+    mfile = tmp_path / "zeta.json"
+    mfile.write_text(json.dumps(model.to_dict()))
+    out = tmp_path / "dem_normal.tif"
+    r = CliRunner().invoke(aerotri_cli, ["crs", "warp", str(dem), str(out), "--to", "EPSG:32649", "--heights", str(mfile)])
+    assert r.exit_code == 0, r.output
+    with rasterio.open(dem) as a, rasterio.open(out) as b:
+        assert b.transform == a.transform
+        za, zb = a.read(1, masked=True), b.read(1, masked=True)
+        rows, cols = np.nonzero(~np.ma.getmaskarray(za) & ~np.ma.getmaskarray(zb))
+        xs, ys = rasterio.transform.xy(a.transform, rows, cols)
+        expect = za[rows, cols] - model.zeta_m(np.array(xs), np.array(ys))
+        assert np.abs(zb[rows, cols] - expect).max() < 2e-3
+
+
+def test_ortho_dem_compound_crs_by_its_parts(tiny_project, tmp_path):
+    """A DEM tagged UTM 49N + EGM2008 height: its horizontal part is the project's. With an ellipsoidal
+    project and no geoid grid it is refused naming the grid; with the project's heights declared as
+    EGM2008 it is used as it is; with a height anomaly model its heights are converted."""
+    root = tmp_path / "p"
+    shutil.copytree(tiny_project, root)
+    dem = tmp_path / "dem_egm.tif"
+    with rasterio.open(root / "truth" / "dem.tif") as src:
+        profile = dict(src.profile, crs=rasterio.crs.CRS.from_wkt(CRS("EPSG:32649+3855").to_wkt()))
+        with rasterio.open(dem, "w", **profile) as dst:
+            dst.write(src.read(1), 1)
+    args = ["rectify", str(root), "--eo", str(root / "truth" / "eo.txt"), "--dem", str(dem), "--res", "1",
+            "--frames", "s01_001"]
+    from ortho.cli import main as ortho_cli
+
+    r = CliRunner().invoke(ortho_cli, args)
+    assert r.exit_code == 2 and "us_nga_egm08_25.tif" in r.output and "projsync" in r.output, r.output
+    toml = (root / "project.toml").read_text()
+    (root / "project.toml").write_text(toml.replace('heights = "ellipsoidal"', 'heights = "EPSG:3855"'))
+    r = CliRunner().invoke(ortho_cli, args)
+    assert r.exit_code == 0, r.output
+    assert json.loads((root / "ortho" / "frames" / "index.json").read_text())["height_operation"] is None
+    (root / "project.toml").write_text(toml)
+    model = HeightAnomalyModel("plane", (452250.0, 3407400.0), coefficients=[-12.0, 0.0, 0.0], crs="EPSG:32649")
+    (tmp_path / "zeta.json").write_text(json.dumps(model.to_dict()))
+    r = CliRunner().invoke(ortho_cli, args + ["--heights", str(tmp_path / "zeta.json")])
+    assert r.exit_code == 0, r.output
+    rec = json.loads((root / "ortho" / "frames" / "index.json").read_text())["height_operation"]
+    assert rec["steps"][-1]["formula"] == "h = H + zeta(x, y)"
+
+
+def test_local_frame_uses_the_projects_own_datum():
+    """A Xian 1980 GK project: the adjustment frame is geocentric on Xian 1980's own ellipsoid (IAG 75),
+    no WGS 84 datum shift (which PROJ could only do as a ballpark)."""
+    crs = CRS.from_epsg(2382)
+    frame = LocalFrame(crs, (500200.0, 3410000.0, 350.0))
+    assert all(s["step"] != "proj" or not s["ballpark"] for s in frame._to_ecef.record()["steps"])
+    lon, lat = CrsTransformer(crs, crs.geodetic_crs).transform([500200.0], [3410000.0])[:2]
+    X, Y, Z = geodetic_to_geocentric(lat, lon, np.array([350.0]), IAG75)
+    assert np.allclose(frame.ecef0, np.concatenate([X, Y, Z]), atol=1e-6)
+    # round trip and a 1 km east offset stays 1 km (grid scale aside)
+    p = np.array([[500200.0, 3410000.0, 350.0], [501200.0, 3410000.0, 350.0]])
+    assert np.allclose(frame.to_map(frame.to_local(p)), p, atol=1e-6)
+    with pytest.raises(BallparkRefused):
+        CrsTransformer(crs, "EPSG:4978")
+
+
+@pytest.fixture
+def small_dem(tmp_path):
+    """50 x 50 float32 DEM of 1 m cells in EPSG:32649, heights 100..107.35 m (a tilted plane)."""
+    z = (100.0 + 0.1 * np.arange(50)[:, None] + 0.05 * np.arange(50)[None, :]).astype(np.float32)
+    dem = tmp_path / "dem.tif"
+    with rasterio.open(dem, "w", driver="GTiff", width=50, height=50, count=1, dtype="float32", crs="EPSG:32649",
+                       transform=rasterio.Affine(1.0, 0.0, 500_000.0, 0.0, -1.0, 3_400_000.0),
+                       nodata=-9999.0) as ds:
+        ds.write(z, 1)
+    return dem
+
+
+TMERC_PROJ = "+proj=tmerc +lon_0=111.2 +k=1 +x_0=0 +y_0=0 +datum=WGS84 +units=m +no_defs"
+LCC_USFT_PROJ = ("+proj=lcc +lat_1=30 +lat_2=32 +lat_0=29 +lon_0=111 +x_0=0 +y_0=0 +datum=WGS84 +units=us-ft "
+                 "+no_defs")
+
+
+@pytest.mark.parametrize("to, z_unit_m, z_unit", [(TMERC_PROJ, 1.0, "metre"),
+                                                  (LCC_USFT_PROJ, 1200 / 3937, "US survey foot")])
+def test_warp_to_a_proj_string_keeps_the_crs_and_labels_heights_with_their_unit(small_dem, tmp_path, to, z_unit_m,
+                                                                                z_unit):
+    out = tmp_path / "out.tif"
+    r = CliRunner().invoke(aerotri_cli, ["crs", "warp", str(small_dem), str(out), "--to", to])
+    assert r.exit_code == 0, r.output
+    want = CRS.from_user_input(to)
+    op = CrsTransformer("EPSG:32649", want)
+    rng = np.random.default_rng(8)
+    with rasterio.open(small_dem) as src, rasterio.open(out) as dst:
+        assert dst.crs is not None and CRS.from_wkt(dst.crs.to_wkt()).equals(want)
+        # heights 100..107 m: in a US-foot grid they are US feet (328..353), and the raster says so
+        assert dst.tags()["VERTICAL_UNITS"] == z_unit and dst.units == (z_unit,)
+        assert dst.tags()["LINEAR_UNITS"] == z_unit
+        assert json.loads(dst.tags()["COORDINATE_OPERATION_JSON"])["z_units"] == {"from": "metre", "to": z_unit}
+        x = rng.uniform(500_005.0, 500_045.0, 200)
+        y = rng.uniform(3_399_955.0, 3_399_995.0, 200)
+        z = _bilinear(src, x, y)
+        X, Y, Z = op.transform(x, y, z)
+        assert np.allclose(Z, z / z_unit_m, atol=1e-3)  # same datum: only the unit changes
+        got = _bilinear(dst, X, Y)
+        assert np.max(np.abs(got - Z)) < 0.01
+
+
+def test_warp_refuses_a_crs_geotiff_cannot_store(small_dem, tmp_path):
+    # a 3D projected CRS (vertical axis in US feet): GDAL's GeoTIFF writer silently drops it
+    out = tmp_path / "out" / "dem_lcc.tif"
+    out.parent.mkdir()
+    r = CliRunner().invoke(aerotri_cli, ["crs", "warp", str(small_dem), str(out), "--to",
+                                         LCC_USFT_PROJ + " +vunits=us-ft"])
+    assert r.exit_code == 2, r.output
+    assert "cannot be stored in a GeoTIFF" in r.output and "--to" in r.output
+    assert list(out.parent.iterdir()) == []  # no output, no temporary left
