@@ -119,8 +119,7 @@ def check_truth(root: Path) -> dict:
     from aerotri.geom.eo import read_eo
 
     eo, truth = read_eo(root / "at" / "eo.txt"), read_eo(root / "truth" / "eo.txt")
-    k = truth.index()
-    sel = np.array([k[i] for i in eo.image_id])
+    sel = truth.rows(eo.image_id)
     d = np.column_stack([eo.centre_m - truth.centre_m[sel], _angle_diff_deg(eo.opk_deg, truth.opk_deg[sel])])
     z = d / eo.sigma
     names = ["X", "Y", "Z", "omega", "phi", "kappa"]

@@ -40,7 +40,7 @@ sys.path.insert(0, str(REPO / "bench"))
 from lidar_common import baseline_tree  # noqa: E402
 
 CHILD = r"""
-import json, resource, shutil, sys, time
+import dataclasses, json, resource, shutil, sys, time
 from pathlib import Path
 import numpy as np
 import lidarctl
@@ -60,7 +60,13 @@ res, crs, units, figure = C.find_roof_corners_tiled(paths, crs=crs or None, tile
                                                     work_dir=work, figure_cells=C.FIGURE_CELLS)
 seconds, cpu = time.perf_counter() - t0, time.process_time() - c0
 assert not list(work.iterdir()), list(work.iterdir())
-planes = json.dumps(C.roof_planes_geojson(C._faces_in_crs_units(res["faces"], units), res["stats"]))
+if isinstance(res, dict):  # the result of a baseline tree before RoofCorners
+    planes = json.dumps(C.roof_planes_geojson(C._faces_in_crs_units(res["faces"], units), res["stats"]))
+else:
+    planes = json.dumps(C.roof_planes_geojson(C._faces_in_crs_units(res.faces, units), None,
+                                              sigma_strip_xy_m=res.stats.sigma_strip_xy_m,
+                                              sigma_strip_z_m=res.stats.sigma_strip_z_m))
+    res = {"corners": res.corners, "outlines": res.outlines, "stats": dataclasses.asdict(res.stats)}
 outlines = [[np.asarray(r).tolist() for r in o["rings"]] for o in res["outlines"]]
 stats = {k: v for k, v in res["stats"].items() if k != "runtime_s"}
 np.save(out.with_suffix(".ndsm.npy"), figure[0])

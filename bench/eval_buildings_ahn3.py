@@ -100,7 +100,7 @@ def outline_plan_offsets(classified: Path, polys: list, hulls: list) -> dict:
     union = union.buffer(0.05, join_style="mitre").buffer(-0.05, join_style="mitre")
     boundary = union.boundary
     area = shapely.union_all(hulls).buffer(MATCH_M)
-    xy = np.concatenate([ring for o in res["outlines"] for ring in o["rings"] if len(ring)])
+    xy = np.concatenate([ring for o in res.outlines for ring in o["rings"] if len(ring)])
     pts = shapely.points(xy)
     keep = shapely.contains(area, pts)
     d = shapely.distance(boundary, pts[keep])
@@ -108,7 +108,7 @@ def outline_plan_offsets(classified: Path, polys: list, hulls: list) -> dict:
     near = d <= MATCH_M
     sd = (sign * d)[near]
     out = {"n_outline_vertices_in_blocks": int(keep.sum()), "n_within_match": int(near.sum()), "match_m": MATCH_M,
-           "n_roof_outlines": len(res["outlines"])}
+           "n_roof_outlines": len(res.outlines)}
     if len(sd):
         out.update(rms_m=float(np.sqrt(np.mean(sd ** 2))), mean_signed_m=float(np.mean(sd)),
                    rms_about_mean_m=float(np.std(sd)), median_abs_m=float(np.median(np.abs(sd))),

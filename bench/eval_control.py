@@ -74,7 +74,7 @@ def truth_projection_errors(root: Path, image_points: Path, points: Path) -> dic
     t = truth_roof_corners(root)
     kind = {r["id"]: r["kind"] for r in csv.DictReader(open(points))}
     xyz = {r["id"]: np.array([float(r["x"]), float(r["y"]), float(r["z"])]) for r in csv.DictReader(open(points))}
-    ix = eo.index()
+    ix = dict(zip(eo.image_id, range(len(eo.image_id))))  # image id -> row
     out = {}
     for r in csv.DictReader(open(image_points)):
         p = xyz[r["point_id"]]
@@ -93,7 +93,7 @@ def rejected_vs_truth(root: Path, transfer: dict, corners_csv: Path) -> dict:
     """Of the measurements rejected in the image / dropped as inconsistent: how many were really wrong."""
     cam = BrownCamera.read(root / "truth" / "camera.toml")
     eo = read_eo(root / "truth" / "eo.txt")
-    ix = eo.index()
+    ix = dict(zip(eo.image_id, range(len(eo.image_id))))  # image id -> row
     t = truth_roof_corners(root)
     lid = {r["id"]: np.array([float(r["x"]), float(r["y"])]) for r in csv.DictReader(open(corners_csv))}
     stats = {}

@@ -116,7 +116,7 @@ def wrong_line_check(root: Path) -> dict:
     project = Project.open(root)
     eo = read_eo(project.eo_path)
     cam, _ = block_camera(project)
-    i = eo.index()["IMG_0031"]
+    i = eo.row("IMG_0031")
     z = float(np.median([float(r["z"]) for r in csv.DictReader(project.object_points_path.read_text().splitlines()) if r["kind"] == "tie"]))
     out = {"measured_px": [3485.0, 728.6]}
     for pid, xy in (("gcp04", (235262.54, 3811203.5)), ("gcp00", (235277.61, 3811190.36))):

@@ -229,8 +229,8 @@ def reference_sets(blocks, xy: np.ndarray) -> tuple[np.ndarray, dict]:
 
 def score_sets(vxy: np.ndarray, sets: dict, halves: dict, res: dict) -> dict:
     """Completeness and offsets of the corners of ``res`` per reference set and half of the crop."""
-    corners = res["corners"]
-    frames = corner_edge_frames(corners, res["outlines"])
+    corners = res.corners
+    frames = corner_edge_frames(corners, res.outlines)
     scores = {}
     for name, in_set in sets.items():
         scores[name] = {}
@@ -250,7 +250,7 @@ def why_not_usable(ref: np.ndarray, res: dict, min_edge_m: float) -> dict:
     weakest factor)."""
     from collections import Counter
 
-    corners = res["corners"]
+    corners = res.corners
     out = Counter()
     if not len(ref):
         return {}
@@ -258,7 +258,7 @@ def why_not_usable(ref: np.ndarray, res: dict, min_edge_m: float) -> dict:
     use = np.array([bool(c["usable"]) for c in corners], bool)
     d_any, j_any = cKDTree(cxy).query(ref)
     d_use = cKDTree(cxy[use]).query(ref)[0] if use.any() else np.full(len(ref), np.inf)
-    rings = [r for o in res["outlines"] for r in o["rings"] if len(r) >= 3]
+    rings = [r for o in res.outlines for r in o["rings"] if len(r) >= 3]
     lines = shapely.MultiLineString([np.vstack([r, r[:1]]) for r in rings]) if rings else None
     d_line = shapely.distance(lines, shapely.points(ref)) if lines is not None else np.full(len(ref), np.inf)
     factors = [k for k in corners[0] if k.startswith("score_")] if corners else []
@@ -291,10 +291,10 @@ def outline_but_no_corner(ref: np.ndarray, res: dict, res_short: dict, min_edge_
     regularised outline runs past it: a lower annex merged into the roof, an annex not in the building
     class, a rounded or chamfered corner) - or a traced corner dropped by the sigma gate. With the vertices
     (x, y) for the zoomed figure."""
-    corners = res["corners"]
+    corners = res.corners
     cxy = np.array([[c["x"], c["y"]] for c in corners]).reshape(-1, 2)
     d_any = cKDTree(cxy).query(ref)[0] if len(cxy) else np.full(len(ref), np.inf)
-    rings = [r for o in res["outlines"] for r in o["rings"] if len(r) >= 3]
+    rings = [r for o in res.outlines for r in o["rings"] if len(r) >= 3]
     lines = shapely.MultiLineString([np.vstack([r, r[:1]]) for r in rings]) if rings else None
     d_line = shapely.distance(lines, shapely.points(ref)) if lines is not None else np.full(len(ref), np.inf)
     miss = np.flatnonzero((d_any > MATCH_M) & (d_line <= MATCH_M))
@@ -331,8 +331,8 @@ def plot_misses(path: Path, cloud, res: dict, polys, detail: dict, half_m: float
     rows = (len(items) + cols - 1) // cols
     fig, axs = plt.subplots(rows, cols, figsize=(3.0 * cols + 1.0, 3.2 * rows + 0.6), squeeze=False,
                             layout="constrained")
-    cxy = np.array([[c["x"], c["y"]] for c in res["corners"]]).reshape(-1, 2)
-    use = np.array([bool(c["usable"]) for c in res["corners"]], bool)
+    cxy = np.array([[c["x"], c["y"]] for c in res.corners]).reshape(-1, 2)
+    use = np.array([bool(c["usable"]) for c in res.corners], bool)
     short = {"no_outline_vertex_near": "no outline vertex", "traced_corner_edge_shorter_than_min_edge": "LiDAR edge short",
              "traced_corner_dropped_by_sigma_gate": "sigma gate"}
     for ax in axs.ravel():
@@ -342,7 +342,7 @@ def plot_misses(path: Path, cloud, res: dict, polys, detail: dict, half_m: float
         im = ax.imshow(ndsm, origin="lower", extent=ext, cmap="gray", vmin=0, vmax=15)
         for p in polys:
             ax.plot(*np.asarray(p.exterior.coords).T, color="tab:cyan", lw=0.8)
-        for o in res["outlines"]:
+        for o in res.outlines:
             for r in o["rings"]:
                 if len(r) >= 3:
                     rr = np.vstack([r, r[:1]])
@@ -379,7 +379,7 @@ def evaluate(laz: Path, polys: list, min_edge_m: float, corner_dir: Path, datase
     crs = pyproj.CRS.from_epsg(28992)  # the file has no CRS record (README): RD New
     load0 = os.getloadavg()
     res, runtime = detect(cloud, min_edge_m)
-    min_edge_given, min_edge_m = min_edge_m, res["stats"]["min_edge_m"]
+    min_edge_given, min_edge_m = min_edge_m, res.stats.min_edge_m
     write_corner_files(corner_dir, res, crs=crs, source=str(laz))
 
     blocks = footprint_blocks(polys)
@@ -388,7 +388,7 @@ def evaluate(laz: Path, polys: list, min_edge_m: float, corner_dir: Path, datase
     x_split = float(np.median(vxy[sets["all"], 0]))
     halves = {"whole": np.ones(len(vxy), bool), "west": vxy[:, 0] < x_split, "east": vxy[:, 0] >= x_split}
     scores = score_sets(vxy, sets, halves, res)
-    corners = res["corners"]
+    corners = res.corners
 
     # Every corner near a footprint against the nearest footprint vertex (the earlier, corner-side figure).
     fp_union = shapely.union_all(polys)
@@ -403,14 +403,14 @@ def evaluate(laz: Path, polys: list, min_edge_m: float, corner_dir: Path, datase
     summary = {
         "dataset": dataset,
         "min_edge_m": min_edge_m,
-        "min_edge_rule": res["stats"]["min_edge_rule"],
+        "min_edge_rule": res.stats.min_edge_rule,
         "match_radius_m": MATCH_M,
         "min_building_m": MIN_BUILDING_M,
         "x_split_m": x_split,
-        "n_points": res["stats"]["n_points"],
-        "point_spacing_m": res["stats"]["point_spacing_m"],
-        "n_roofs": res["stats"]["n_roofs"],
-        "n_roof_outlines": res["stats"]["n_outlines"],
+        "n_points": res.stats.n_points,
+        "point_spacing_m": res.stats.point_spacing_m,
+        "n_roofs": res.stats.n_roofs,
+        "n_roof_outlines": res.stats.n_outlines,
         "n_corners": len(corners),
         "n_usable": int(sum(c["usable"] for c in corners)),
         "n_corners_near_bgt": int(near_bgt.sum()),
@@ -439,10 +439,10 @@ def evaluate(laz: Path, polys: list, min_edge_m: float, corner_dir: Path, datase
         "by_reference_set": scores,
         "corners_near_bgt_offset_to_nearest_vertex": {"all": offset_stats(d_all[d_all <= MATCH_M]),
                                                       "usable": offset_stats(d_all[(d_all <= MATCH_M) & usable_near])},
-        "median_sxy_usable_m": res["stats"]["median_sxy_usable_m"],
+        "median_sxy_usable_m": res.stats.median_sxy_usable_m,
         "runtime_s": runtime,
         "loadavg_1_5_15": list(load0),
-        "points_per_s": res["stats"]["n_points"] / runtime,
+        "points_per_s": res.stats.n_points / runtime,
         "note": ("footprints are wall lines, roof corners are eave corners: offsets include the eave overhang "
                  "(overhang_normal: along the roof edges' outward normals)"),
     }

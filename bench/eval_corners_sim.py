@@ -74,7 +74,7 @@ def main():
 
     truth = read_truth(args.project / "truth" / "roof_corners.csv")
     txy = np.column_stack([truth["x"], truth["y"]])
-    corners = res["corners"]
+    corners = res.corners
     cxy = np.array([[c["x"], c["y"]] for c in corners]).reshape(-1, 2)
     cz = np.array([c["z"] for c in corners])
     sig = np.array([[c["sx_m"], c["sy_m"], c["sz_m"]] for c in corners]).reshape(-1, 3)
@@ -110,11 +110,11 @@ def main():
         "seed": truth_info.get("seed"),
         "lidar_mean_spacing_m": truth_info.get("lidar_mean_spacing_m"),
         "roof": args.roof,
-        "min_edge_m": res["stats"]["min_edge_m"],
-        "min_edge_rule": res["stats"]["min_edge_rule"],
+        "min_edge_m": res.stats.min_edge_m,
+        "min_edge_rule": res.stats.min_edge_rule,
         "match_radius_m": MATCH_M,
-        "n_points": res["stats"]["n_points"],
-        "point_spacing_m": res["stats"]["point_spacing_m"],
+        "n_points": res.stats.n_points,
+        "point_spacing_m": res.stats.point_spacing_m,
         "n_truth_corners": int(len(txy)),
         "n_truth_corners_flat_10x10": int(big_flat.sum()),
         "n_corners": len(corners),
@@ -131,7 +131,7 @@ def main():
         "normalised_rms_xy_usable": rms(norm[u, :2]),
         "normalised_rms_z_usable": rms(norm[u, 2]),
         "normalised_rms_xyz_usable": rms(norm[u]),
-        "median_sxy_usable_m": res["stats"]["median_sxy_usable_m"],
+        "median_sxy_usable_m": res.stats.median_sxy_usable_m,
         "rms_xy_all_matched_m": rms(np.hypot(err[matched, 0], err[matched, 1])),
         "rms_z_all_matched_m": rms(err[matched, 2]),
         "normalised_rms_xy_all_matched": rms(norm[matched, :2]),
@@ -143,7 +143,7 @@ def main():
         "duplicate_matches": int(len(j[matched]) - len(np.unique(j[matched]))),
         "per_roof_type": per_roof,
         "runtime_s": runtime,
-        "points_per_s": res["stats"]["n_points"] / runtime,
+        "points_per_s": res.stats.n_points / runtime,
         "targets": {"rms_xy_usable_m": 0.20, "rms_z_usable_m": 0.15, "completeness_flat_10x10_pct": 80.0,
                     "unmatched_pct": 2.0, "normalised_rms": [0.7, 1.5]},
     }
@@ -165,12 +165,12 @@ def main():
 
     title = (f"sim {args.project.name}: {len(corners)} corners ({int(usable.sum())} usable), RMS usable "
              f"{fmt(summary['rms_xy_usable_m'])} m xy, {fmt(summary['rms_z_usable_m'])} m z")
-    plot_corners(args.out / "corners_sim.png", ndsm, extent, res["outlines"], corners, truth_xy=txy,
+    plot_corners(args.out / "corners_sim.png", ndsm, extent, res.outlines, corners, truth_xy=txy,
                  title=title, marker_size=1.5)
     # a 300 m window around the corner-densest spot, to see outlines and corners
     centre = cxy[np.argmax(cKDTree(cxy).query_ball_point(cxy, 150.0, return_length=True))]
     window = (centre[0] - 150, centre[0] + 150, centre[1] - 150, centre[1] + 150)
-    plot_corners(args.out / "corners_sim_zoom.png", ndsm, extent, res["outlines"], corners, truth_xy=txy,
+    plot_corners(args.out / "corners_sim_zoom.png", ndsm, extent, res.outlines, corners, truth_xy=txy,
                  title=title, window=window, marker_size=4.0)
     print(json.dumps(summary, indent=2))
 

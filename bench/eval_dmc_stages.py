@@ -90,8 +90,7 @@ def orientations_vs_truth(work: Path, block: Path, gsd_m: float) -> dict:
     from aerotri.geom.eo import read_eo
 
     eo, truth = read_eo(work / "at" / "eo.txt"), read_eo(block / "truth" / "eo.txt")
-    k = truth.index()
-    sel = np.array([k[i] for i in eo.image_id])
+    sel = truth.rows(eo.image_id)
     d = eo.centre_m - truth.centre_m[sel]
     att = (eo.opk_deg - truth.opk_deg[sel] + 180.0) % 360.0 - 180.0
     xy, z = float(np.sqrt(np.mean(d[:, :2] ** 2))), float(np.sqrt(np.mean(d[:, 2] ** 2)))

@@ -23,7 +23,7 @@ sys.path.insert(0, str(REPO))
 
 from aerotri.adjust.flight_acceptance import (LIMIT_KEYS, Terrain, flight_acceptance,  # noqa: E402
                                               project_flight_acceptance)
-from aerotri.core.tolerances import load_tolerances, qa_settings  # noqa: E402
+from aerotri.core.tolerances import load_table, qa_settings  # noqa: E402
 from aerotri.geom.camera import read_camera  # noqa: E402
 from aerotri.geom.eo import read_eo  # noqa: E402
 
@@ -37,7 +37,7 @@ def main(argv=None) -> int:
         print(f"skip: {a.project} is no project folder (run make demo first)")
         return 0
     qa = qa_settings(a.project)
-    tol = {k: v for k, v in load_tolerances(qa.map_scale, qa.terrain, qa.tolerances).items() if k in LIMIT_KEYS}
+    tol = {k: v for k, v in load_table(qa.map_scale, qa.terrain, qa.tolerances).limits.items() if k in LIMIT_KEYS}
     runs = {"project": project_flight_acceptance(a.project, tol)}
     t = a.project / "truth"
     if (t / "eo.txt").is_file() and (t / "dem.tif").is_file():

@@ -28,7 +28,7 @@ REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
 
 from aerotri.adjust.flight_acceptance import LIMIT_KEYS, Terrain, flight_acceptance  # noqa: E402
-from aerotri.core.tolerances import load_tolerances  # noqa: E402
+from aerotri.core.tolerances import load_table  # noqa: E402
 from aerotri.geom.camera import PinholeCamera  # noqa: E402
 from aerotri.geom.eo import read_eo  # noqa: E402
 
@@ -66,7 +66,7 @@ def main(argv=None) -> int:
     cam = ngi_camera(a.data / "formats" / "ngi_int_param.yaml")
     eo = read_eo(a.data / "camera_pos_ori.txt")
     terrain = Terrain.from_dem(a.data / "dem.tif")
-    limits = {k: v for k, v in load_tolerances("1:5000", "flat").items() if k in LIMIT_KEYS}
+    limits = {k: v for k, v in load_table("1:5000", "flat").limits.items() if k in LIMIT_KEYS}
     order = np.argsort(eo.image_id)
     ids = [eo.image_id[i] for i in order]
     fa = flight_acceptance(ids, eo.centre_m[order], eo.opk_deg[order], cam, terrain, None, limits=limits)

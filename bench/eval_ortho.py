@@ -106,7 +106,7 @@ def lidar_ground_dem(project: Path, out: Path, cell_m: float = 1.0):
 
 def building_cuts(project_dir: Path, buildings_geojson: Path) -> dict:
     """Buildings whose footprint holds more than one frame label; 'avoidable' if one of those frames covers it all."""
-    from ortho.block import index_grids, read_index
+    from ortho.block import read_index
     from ortho.grid import OrthoGrid
     from ortho.mosaic import reduce_frames
 
@@ -114,7 +114,7 @@ def building_cuts(project_dir: Path, buildings_geojson: Path) -> dict:
         labels = ds.read(1)
         t = ds.transform
     index = read_index(project_dir)
-    grids = index_grids(index)
+    grids = dict(zip(index.image_ids, index.grids))
     mosaic = OrthoGrid.union(grids.values())
     factor = int(round(t.a / mosaic.res_m))
     red = reduce_frames(project_dir / "ortho/frames", index, mosaic, factor)

@@ -36,14 +36,17 @@ The third round also ran, into a second folder OUT2 (C/strip_0[1-4].laz: the fou
 Each side may spread its outputs over several folders (the commands ran in batches, each appending its console
 lines to OUT/log.txt). This script compares what the two sides left, file by file by SHA-256:
 
-- JSON and CSV text with the side's folder names replaced by OUT and P;
+- JSON, CSV, text and HTML with the side's folder names replaced by OUT and P;
 - mosaic.json without the SHA-1 of frames/index.json (that file names the folder; it is compared itself);
 - a GeoPackage by its SQL without the time each layer was written (gpkg_contents.last_change).
 
 The console lines of all commands are compared as one sorted list (paths replaced; elapsed times, progress and
 "rc=" lines left out):
 
-    python bench/eval_same_products.py --before P_BEFORE OUT... --after P_AFTER OUT... --json RESULT.json
+    python bench/eval_same_products.py --before P_BEFORE OUT... --after P_AFTER OUT... --json RESULT.json [--what TEXT]
+
+The fifth round of issue 40 added ``aerotri adjust P`` as the last command (at/ compared: report.json, report.txt,
+report.html, eo.txt, object_points.csv, the PATB and COLMAP exports).
 """
 
 from __future__ import annotations
@@ -58,8 +61,9 @@ from pathlib import Path
 
 PROJECT_OUTPUTS = ("ortho/frames", "ortho/dom_report.json", "ortho/dom_report.png", "ortho/mosaic.tif",
                    "ortho/mosaic.json", "ortho/seamlines.geojson", "ortho/seams.tif",
-                   "reports/summary.json")  # the QA report (bench/same_products_run.sh's last command)
-TEXT_SUFFIXES = (".json", ".txt", ".csv")
+                   "reports/summary.json",  # the QA report (bench/same_products_run.sh)
+                   "at")  # aerotri adjust (its last command)
+TEXT_SUFFIXES = (".json", ".txt", ".csv", ".html")
 VARIES = re.compile(r"elapsed|ETA|^rc=|^== |^done$| in [0-9.]+ s|points/s|Command exited")
 
 
@@ -69,8 +73,19 @@ def _neutral(text: str, outs: list[Path], project: Path) -> str:
     return text.replace(str(project), "P")
 
 
-def _files(outs: list[Path], project: Path) -> tuple[dict[str, str], list[str]]:
+def _json_keys_differing(a, b) -> list[str]:
+    """The top-level keys whose values differ between two JSON objects (e.g. only the wall-clock ``timings_s``);
+    ``a``, ``b``: (file, the side's output folders, its project), the folder names replaced as for the digests."""
+    da, db = (json.loads(_neutral(p.read_text(), outs, project)) for p, outs, project in (a, b))
+    if not (isinstance(da, dict) and isinstance(db, dict)):
+        return ["(not objects)"]
+    return sorted(k for k in set(da) | set(db) if da.get(k, "-") != db.get(k, "-"))
+
+
+def _files(outs: list[Path], project: Path, paths: dict | None = None) -> tuple[dict[str, str], list[str]]:
+    """(name -> SHA-256, console lines); ``paths``, when given, gets name -> (file, ``outs``, ``project``)."""
     found, console = {}, []
+    paths = {} if paths is None else paths
 
     def digest(p: Path) -> str:
         if p.suffix == ".gpkg":  # its SQL, without the time each layer was written (gpkg_contents.last_change)
@@ -95,11 +110,13 @@ def _files(outs: list[Path], project: Path) -> tuple[dict[str, str], list[str]]:
                 console += [ln for ln in re.split(r"[\r\n]+", text) if ln.strip() and not VARIES.search(ln)]
                 continue
             found[f"OUT/{p.relative_to(out)}"] = digest(p)
+            paths[f"OUT/{p.relative_to(out)}"] = (p, outs, project)
     for rel in PROJECT_OUTPUTS:
         base = project / rel
         for p in sorted(base.rglob("*")) if base.is_dir() else [base]:
             if p.is_file() and not p.name.startswith("."):
                 found[f"P/{p.relative_to(project)}"] = digest(p)
+                paths[f"P/{p.relative_to(project)}"] = (p, outs, project)
     return found, sorted(console)
 
 
@@ -108,14 +125,19 @@ def main() -> None:
     ap.add_argument("--before", nargs="+", type=Path, required=True, help="PROJECT OUT...")
     ap.add_argument("--after", nargs="+", type=Path, required=True, help="PROJECT OUT...")
     ap.add_argument("--json", type=Path)
+    ap.add_argument("--what", help="what the two sides are (revisions, command lines), kept in the JSON")
     a = ap.parse_args()
-    before, console_before = _files(a.before[1:], a.before[0])
-    after, console_after = _files(a.after[1:], a.after[0])
+    paths_before, paths_after = {}, {}
+    before, console_before = _files(a.before[1:], a.before[0], paths_before)
+    after, console_after = _files(a.after[1:], a.after[0], paths_after)
     names = sorted(set(before) | set(after))
     differ = [n for n in names if before.get(n) != after.get(n)]
+    json_keys = {n: _json_keys_differing(paths_before[n], paths_after[n]) for n in differ
+                 if n.endswith(".json") and n in paths_before and n in paths_after}
     lines_differ = sorted((collections.Counter(console_before) - collections.Counter(console_after)).elements()) + \
         sorted((collections.Counter(console_after) - collections.Counter(console_before)).elements())
-    result = {"files": len(names), "identical": len(names) - len(differ), "different": differ,
+    result = {**({"what": a.what} if a.what else {}), "files": len(names), "identical": len(names) - len(differ),
+              "different": differ, "json_keys_differing": json_keys,
               "console_lines": len(console_after), "console_identical": console_before == console_after,
               "console_lines_differing": lines_differ,
               "sha256": {n: after.get(n) or before.get(n) for n in names}}

@@ -89,7 +89,7 @@ def true_image_positions(p: Path, obs):
     frame = LocalFrame.at_centre(tomllib.loads((p / "project.toml").read_text())["project"]["crs"], eo.centre_m)
     C, R = frame.to_local(eo.centre_m), frame.rotation_local_from_map(eo.centre_m) @ eo.rotations()
     cps = {r["id"]: [float(r["x"]), float(r["y"]), float(r["z"])] for r in csv.DictReader(open(p / "truth/checkpoints.csv"))}
-    idx = eo.index()
+    idx = dict(zip(eo.image_id, range(len(eo.image_id))))  # image id -> row
     out = []
     for pid, iid, *_ in obs:
         i = idx[iid]
@@ -134,7 +134,7 @@ def run_case(name: str, work: Path) -> dict:
     match_cpu = time.process_time() - t0
     ba = adjust_project(p, AdjustSettings(gnss_correction="shift", point_covariances=False, lidar_surface=False))
     true = read_eo(p / "truth/eo.txt")
-    k = [true.index()[i] for i in ba.eo_map.image_id]
+    k = true.rows(ba.eo_map.image_id)
     dz = ba.eo_map.centre_m[:, 2] - true.centre_m[k, 2]
     z = dz / ba.eo_map.sigma[:, 2]
     fr = phases["frames"]

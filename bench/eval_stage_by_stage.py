@@ -106,8 +106,7 @@ def attitude_rms(root: Path) -> dict:
     from aerotri.geom.eo import read_eo
 
     got, true = read_eo(root / "at" / "eo.txt"), read_eo(root / "truth" / "eo.txt")
-    k = true.index()
-    sel = [k[i] for i in got.image_id]
+    sel = true.rows(got.image_id)
     d = (got.opk_deg - true.opk_deg[sel] + 180.0) % 360.0 - 180.0
     rms = np.sqrt(np.mean(d ** 2, axis=0))
     return dict(n=len(sel), omega_deg=float(rms[0]), phi_deg=float(rms[1]), kappa_deg=float(rms[2]))

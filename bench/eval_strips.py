@@ -118,8 +118,8 @@ def corner_error(project: Path, strips: list[Path], match_m: float = 1.0) -> dic
     res = find_roof_corners(cat["x"], cat["y"], cat["z"], np.concatenate(cls), cat["point_source_id"], roof="flat")
     rows = list(csv.DictReader(open(project / "truth" / "roof_corners.csv")))
     txyz = np.array([[float(r["x"]), float(r["y"]), float(r["z"])] for r in rows])
-    c = np.array([[k["x"], k["y"], k["z"]] for k in res["corners"]]).reshape(-1, 3)
-    usable = np.array([k["usable"] for k in res["corners"]], bool)
+    c = np.array([[k["x"], k["y"], k["z"]] for k in res.corners]).reshape(-1, 3)
+    usable = np.array([k["usable"] for k in res.corners], bool)
     d, j = cKDTree(txyz[:, :2]).query(c[:, :2])
     m = d <= match_m
     e = c[m] - txyz[j[m]]

@@ -73,11 +73,11 @@ def measure_block(work: Path, name: str) -> dict:
     import rasterio
 
     import eval_true_ortho_occlusion as E
-    from ortho.block import index_grids, read_index
+    from ortho.block import read_index
     from ortho.grid import OrthoGrid
 
     conv, tru = work / name / "conventional", work / name / "true_ortho"
-    grid = OrthoGrid.union(index_grids(read_index(conv)).values())
+    grid = OrthoGrid.union(read_index(conv).grids)
     H, W = grid.height, grid.width
     t = time.perf_counter()
     truth = E.Truth(conv)

@@ -217,18 +217,18 @@ def frame_masks(project: Path, grid) -> tuple[list, list, np.ndarray]:
     """Per frame of ortho/frames/index.json: (image_id, (row0, col0, mask) on ``grid``), nadir points (F, 2)."""
     import rasterio
 
-    from ortho.block import index_grids, read_index
+    from ortho.block import read_index
 
     index = read_index(project)
-    grids = index_grids(index)
+    grids = dict(zip(index.image_ids, index.grids))
     out = []
-    for e in index["frames"]:
-        g = grids[e["image_id"]]
+    for e in index.frames:
+        g = grids[e.image_id]
         c0, r0 = g.offset_in(grid)
-        with rasterio.open(project / "ortho" / "frames" / e["file"]) as ds:
+        with rasterio.open(project / "ortho" / "frames" / e.file) as ds:
             m = ds.read_masks(1) > 0
-        out.append((e["image_id"], r0, c0, m))
-    nadir = np.array([e["nadir_xy_m"] for e in index["frames"]], float)
+        out.append((e.image_id, r0, c0, m))
+    nadir = np.array([e.nadir_xy_m for e in index.frames], float)
     return out, nadir
 
 
@@ -298,7 +298,7 @@ def source_by_value(project: Path, grid, masks: list, dom: np.ndarray, dom_valid
     best = np.full((H, W), np.iinfo(np.int32).max, np.int64)
     src = np.full((H, W), -1, np.int32)
     index = json.loads((project / "ortho" / "frames" / "index.json").read_text())
-    files = {e["image_id"]: e["file"] for e in index["frames"]}
+    files = {e.image_id: e.file for e in index.frames}
     top = np.iinfo(dom.dtype).max if np.issubdtype(dom.dtype, np.integer) else None
     for k, (image_id, r0, c0, m) in enumerate(masks):
         gains = summary["gains"][image_id]
@@ -511,7 +511,7 @@ def truth_on_grid(truth: Truth, project: Path, grid):
 def run_block(name: str, src: Path, work: Path, tall: bool, reuse: bool = False, remosaic: bool = False) -> dict:
     from eval_true_ortho import roof_displacements
 
-    from ortho.block import index_grids, read_index
+    from ortho.block import read_index
     from ortho.grid import OrthoGrid
 
     out = {"project": str(src), "ways": {}}
@@ -536,7 +536,7 @@ def run_block(name: str, src: Path, work: Path, tall: bool, reuse: bool = False,
         kept.write_text(json.dumps(made[way], indent=1, default=str) + "\n")
         print(name, way, "rectified and mosaicked", flush=True)
     conv = work / name / "conventional"
-    grid = OrthoGrid.union(index_grids(read_index(conv)).values())
+    grid = OrthoGrid.union(read_index(conv).grids)
     t = time.perf_counter()
     truth = Truth(conv)
     kind, ground, roof, vis, foot_nadir, masks = truth_on_grid(truth, conv, grid)

@@ -68,7 +68,7 @@ def ours(project: Path, way: str, out: Path) -> tuple[dict, float]:
     if out.exists():
         shutil.rmtree(out)
     shutil.copytree(project / "ortho" / "frames", out)
-    return {e["image_id"]: out / e["file"] for e in index["frames"]}, float(res_m)
+    return {e.image_id: out / e.file for e in index.frames}, float(res_m)
 
 
 def orthority_orthos(project: Path, surface: Path, res_m: float, out: Path) -> dict:

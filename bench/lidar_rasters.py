@@ -86,8 +86,8 @@ def worker(kind: str, paths: list[Path], out: Path) -> None:
     else:
         from lidarctl.corners import roof_corners as C
         cat = C.read_strips(paths)
-        r = C.find_roof_corners(cat["x"], cat["y"], cat["z"], cat["classification"], cat["point_source_id"])
-        print(json.dumps({k: r["stats"][k] for k in ("n_points", "n_roofs", "n_corners", "n_usable")}))
+        r = C.find_roof_corners(cat.x, cat.y, cat.z, cat.classification, cat.point_source_id)
+        print(json.dumps({k: getattr(r.stats, k) for k in ("n_points", "n_roofs", "n_corners", "n_usable")}))
 
 
 def read_concatenated(paths: list[Path]) -> io.PointCloud:
@@ -141,7 +141,7 @@ def corners_equality(demo: Path, work: Path) -> dict:
     load = os.getloadavg()
     t0, c0 = time.perf_counter(), time.process_time()
     cat = C.read_strips(paths)
-    whole = C.find_roof_corners(cat["x"], cat["y"], cat["z"], cat["classification"], cat["point_source_id"],
+    whole = C.find_roof_corners(cat.x, cat.y, cat.z, cat.classification, cat.point_source_id,
                                 roof="any")
     del cat
     res["whole"] = {"seconds": time.perf_counter() - t0, "cpu_seconds": time.process_time() - c0,
@@ -150,20 +150,24 @@ def corners_equality(demo: Path, work: Path) -> dict:
     t0, c0 = time.perf_counter(), time.process_time()
     tiled, _, units, _ = C.find_roof_corners_tiled(paths, roof="any", work_dir=work, figure_cells=C.FIGURE_CELLS)
     res["tiled"] = {"seconds": time.perf_counter() - t0, "cpu_seconds": time.process_time() - c0,
-                    "tiles": tiled["stats"]["tiles"],
+                    "tiles": tiled.stats.tiles,
                     "load_average_before": list(load), "load_average_after": list(os.getloadavg())}
-    res["stats"] = {k: [whole["stats"][k], tiled["stats"][k]] for k in
+    res["stats"] = {k: [getattr(whole.stats, k), getattr(tiled.stats, k)] for k in
                     ("n_points", "n_building_points", "point_spacing_m", "n_roofs", "n_outlines", "n_corners_traced",
                      "n_corners", "n_usable", "n_roof_planes")}
-    res["corners_csv_identical"] = C.corners_csv_text(whole["corners"]) == C.corners_csv_text(tiled["corners"])
+    res["corners_csv_identical"] = C.corners_csv_text(whole.corners) == C.corners_csv_text(tiled.corners)
     res["roof_planes_identical"] = (
-        json.dumps(C.roof_planes_geojson(C._faces_in_crs_units(whole["faces"], units), whole["stats"]))
-        == json.dumps(C.roof_planes_geojson(C._faces_in_crs_units(tiled["faces"], units), tiled["stats"])))
-    res["outlines_identical"] = len(whole["outlines"]) == len(tiled["outlines"]) and all(
+        json.dumps(C.roof_planes_geojson(C._faces_in_crs_units(whole.faces, units), None,
+                                         sigma_strip_xy_m=whole.stats.sigma_strip_xy_m,
+                                         sigma_strip_z_m=whole.stats.sigma_strip_z_m))
+        == json.dumps(C.roof_planes_geojson(C._faces_in_crs_units(tiled.faces, units), None,
+                                            sigma_strip_xy_m=tiled.stats.sigma_strip_xy_m,
+                                            sigma_strip_z_m=tiled.stats.sigma_strip_z_m)))
+    res["outlines_identical"] = len(whole.outlines) == len(tiled.outlines) and all(
         len(a["rings"]) == len(b["rings"]) and all(np.array_equal(x, y) for x, y in zip(a["rings"], b["rings"]))
-        for a, b in zip(whole["outlines"], tiled["outlines"]))
-    mw = np.array([c["strip_margin_m"] for c in whole["corners"]])
-    mt = np.array([c["strip_margin_m"] for c in tiled["corners"]])
+        for a, b in zip(whole.outlines, tiled.outlines))
+    mw = np.array([c["strip_margin_m"] for c in whole.corners])
+    mt = np.array([c["strip_margin_m"] for c in tiled.corners])
     differ = mw != mt
     res["strip_margin"] = {
         "corners_differing": int(differ.sum()), "tiled_above_whole": int((mt > mw).sum()),

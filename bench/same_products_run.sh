@@ -59,3 +59,4 @@ run lidarctl drainage "$P/lidar_out/dem.tif" "$OUT2/drainage"
 run lidarctl check-heights "$C/strip_01.laz" "$C/strip_02.laz" "$P/truth/checkpoints.csv" --dem "$P/lidar_out/dem.tif" \
     --groups density --json "$OUT2/check_heights_density.json"
 run aerotri report "$P"
+run aerotri adjust "$P"

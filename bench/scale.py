@@ -350,8 +350,7 @@ def accuracy(block: Path, run_dir: Path, rows: list[dict]) -> dict:
     eo_path = run_dir / "at" / "eo.txt"
     if eo_path.exists():
         eo, truth = read_eo(eo_path), read_eo(block / "truth" / "eo.txt")
-        k = truth.index()
-        sel = np.array([k[i] for i in eo.image_id])
+        sel = truth.rows(eo.image_id)
         d = np.column_stack([eo.centre_m - truth.centre_m[sel], _angle_diff_deg(eo.opk_deg, truth.opk_deg[sel])])
         xy = float(np.sqrt(np.mean(d[:, 0] ** 2 + d[:, 1] ** 2) / 2))
         z = float(np.sqrt(np.mean(d[:, 2] ** 2)))

@@ -59,8 +59,7 @@ def orientation_check(out: Path) -> dict:
     from aerotri.geom.eo import read_eo
 
     adjusted, true = read_eo(out / "at" / "eo.txt"), read_eo(out / "truth" / "eo.txt")
-    idx = true.index()
-    k = [idx[i] for i in adjusted.image_id]
+    k = true.rows(adjusted.image_id)
     d = np.hstack([adjusted.centre_m - true.centre_m[k], (adjusted.opk_deg - true.opk_deg[k] + 180.0) % 360.0 - 180.0])
     z = d / adjusted.sigma
     names = ("X", "Y", "Z", "omega", "phi", "kappa")

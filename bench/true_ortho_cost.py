@@ -72,7 +72,7 @@ def one_frame(project: Path, frame: str, true_ortho: bool) -> dict:
     t, c = time.perf_counter(), time.process_time()
     rectify_block(project, settings(project, true_ortho), frames=[frame])
     cpu, wall = time.process_time() - c, time.perf_counter() - t
-    e = next(e for e in read_index(project)["frames"] if e["image_id"] == frame)
+    e = next(e for e in read_index(project).document["frames"] if e["image_id"] == frame)  # with valid_fraction
     mp = e["width"] * e["height"] / 1e6
     return {"frame": frame, "frame_ortho_mp": round(mp, 3), "cpu_s": round(cpu, 3), "wall_s": round(wall, 3),
             "load_avg_1min": round(os.getloadavg()[0], 2), "valid_fraction": e["valid_fraction"]}
@@ -142,7 +142,7 @@ def occlusion_agreement(project: Path, frame: str, tiles: int = 6, tile_px: int 
     from ortho.grid import GridToProject
 
     b = load_block(project)
-    i = b.eo.index()[frame]
+    i = b.eo.row(frame)
     C, R = b.eo.centre_m[i], rotation_matrix_opk(*b.eo.opk_deg[i])
     index = json.loads((project / "ortho" / "frames" / "index.json").read_text())
     with open_height_raster(project / "lidar_out" / "dsm.tif", b.project_crs, "DSM") as ds:

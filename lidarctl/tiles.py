@@ -482,20 +482,6 @@ class ClassifyStats:
         """Points classified (cores + buffers) per point of the file."""
         return self.run.tiled_points / self.n_points
 
-    def to_dict(self) -> dict:
-        """The statistics as plain values (``_m`` keys in metres; units named)."""
-        r = self.run
-        passes = {"n_tiles": r.n_tiles, "tiled_points": r.tiled_points, "max_tile_points": r.max_tile_points}
-        if r.split_s is not None:
-            passes["split_s"] = r.split_s
-        passes.update(classify_s=r.classify_s, write_s=r.write_s)
-        if r.tile_cpu_s is not None:
-            passes["tile_cpu_s"] = r.tile_cpu_s
-        return {"n_points": self.n_points, "n_files": self.n_files, "tile_m": self.grid.tile_m, "buffer_m": self.grid.buffer_m,
-                "tile_rows": self.grid.nrows, "tile_cols": self.grid.ncols, **self.units.as_dict(), **passes,
-                "class_counts": r.class_counts, "buffer_overhead": self.buffer_overhead, "seconds": self.seconds,
-                "crs": self.crs}
-
 
 def classify_file(in_path, out_path, crs=None, params=None, *, tile_size_m: float | None = None,
                   buffer_m: float | None = None, executor=None, work_dir=None,

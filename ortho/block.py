@@ -107,7 +107,7 @@ def load_block(root, eo_path=None, camera_path=None, frames=None) -> BlockInputs
     # the projection centres checked against the project CRS (another zone's numbers, swapped X/Y)
     eo = read_eo(eo_path, check_block_crs(project.crs, f"{project.config_path} [project] crs"))
     images = find_images(project.images_dir)
-    idx = eo.index()
+    oriented = set(eo.image_id)
     if frames:
         twice = sorted({f for f in frames if frames.count(f) > 1})
         if twice:
@@ -116,7 +116,7 @@ def load_block(root, eo_path=None, camera_path=None, frames=None) -> BlockInputs
         if unknown:
             raise InputError(f"{project.images_dir}: no image for frame(s) {', '.join(unknown)} given with --frames")
         images = {f: images[f] for f in frames}
-    missing = [k for k in images if k not in idx]
+    missing = [k for k in images if k not in oriented]
     if missing and not eo_given and not frames:
         # frames the adjustment left out (a part of the block without a datum) are not rectified
         left = _left_out_by_adjustment(project)
@@ -155,7 +155,8 @@ def block_camera(project: Project, eo_path=None, camera_path=None) -> tuple[Brow
     """(camera, source) the frames are rectified with: ``camera_path`` when given, else the self-calibrated
     camera of the last adjustment for the project's own at/eo.txt (its orientations belong to it), else
     (an EO file given with --eo) the nominal camera.toml."""
-    from aerotri.geom.camera import BrownCamera, adjusted_camera, project_camera
+    from aerotri.adjust.report_record import adjusted_camera
+    from aerotri.geom.camera import BrownCamera, project_camera
 
     if camera_path:
         return BrownCamera.read(camera_path), str(camera_path)
@@ -384,10 +385,9 @@ class RectifiedFrames:
         return self.grids[self.image_ids.index(image_id)]
 
 
-def _rectified_frames(index: dict, path: Path) -> RectifiedFrames:
-    grids = index_grids(index)
-    op = index.get("coordinate_operation")
-    return RectifiedFrames(path, index["crs"], index["res_m"], tuple(grids), tuple(grids.values()),
+def _rectified_frames(index: FrameIndex) -> RectifiedFrames:
+    op = index.coordinate_operation
+    return RectifiedFrames(index.path, index.crs_wkt, index.res_m, index.image_ids, index.grids,
                            op["description"] if op else None)
 
 
@@ -452,8 +452,8 @@ def rectify_block(root, settings: RectifySettings | Resolved | None = None, *, e
             b = dem_ds.bounds
             _, _, zc = height_op.transform([0.5 * (b.left + b.right)], [0.5 * (b.bottom + b.top)], [0.5 * (zlo + zhi)])
             zlo, zhi = zlo + float(zc[0]) - 0.5 * (zlo + zhi), zhi + float(zc[0]) - 0.5 * (zlo + zhi)
-        eo_idx = block.eo.index()
-        sel = [eo_idx[k] for k in block.images]
+        sel = block.eo.rows(list(block.images))
+        eo_idx = dict(zip(block.images, sel.tolist()))  # image id -> row of block.eo
         eo_sel = ExteriorOrientations([block.eo.image_id[i] for i in sel], block.eo.centre_m[sel], block.eo.opk_deg[sel])
         with _raster_read(dem_path, "DEM"):
             nadir_z = np.array([np.ma.filled(v.astype(float), np.nan)[0]
@@ -492,13 +492,13 @@ def rectify_block(root, settings: RectifySettings | Resolved | None = None, *, e
                               max_view_angle_deg=float(s.max_view_angle_deg))
         if old_index is not None:  # re-run of a subset: the other frames of the earlier run come along
             done = {e["image_id"] for e in index["frames"]}
-            keep = [e for e in old_index["frames"] if e["image_id"] not in done]
+            keep = [e for e in old_index.document["frames"] if e["image_id"] not in done]
             for e in keep:
                 _link_or_copy(out_dir / e["file"], tmp_dir / e["file"])
             index["frames"] = sorted(keep + index["frames"], key=lambda e: e["image_id"])
         index["settings"] = resolved.record()
         write_text_atomic(tmp_dir / "index.json", json.dumps(index, indent=1) + "\n")
-    return _rectified_frames(index, out_dir / "index.json")
+    return _rectified_frames(frame_index(index, out_dir / "index.json"))
 
 
 def check_frame_sizes(block: BlockInputs, eo_idx: dict, zlo: float, zhi: float, res: float, option: str | None,
@@ -624,13 +624,13 @@ def _same_inputs(a, b) -> bool:
     return all(a.get(k, {}).get("sha256") == b[k]["sha256"] for k in ("eo", "camera", "dem"))
 
 
-def stale_frames(root, index: dict) -> str | None:
+def stale_frames(root, index: FrameIndex) -> str | None:
     """Why the frames of ``index`` no longer belong to the project's orientation (the EO file or the camera
     changed since ``ortho rectify``, e.g. a re-adjustment wrote a new at/eo.txt), or None when they do.
     A DEM changed since, and an index written before the inputs were recorded, are logged warnings."""
     project = Project.open(root)
     root, path = project.root, project.frames_index_path
-    rec = index.get("inputs")
+    rec = index.inputs
     if not isinstance(rec, dict):
         _log.warning(f"{path}: written by an earlier version without the hashes of its EO, camera and DEM; the "
                      "frames cannot be checked against the current at/eo.txt (re-run `ortho rectify` to record them)")
@@ -664,7 +664,7 @@ def stale_frames(root, index: dict) -> str | None:
     return None
 
 
-def require_current_frames(root, index: dict, then: str) -> None:
+def require_current_frames(root, index: FrameIndex, then: str) -> None:
     """``InputError`` when the frames are stale (``stale_frames``), saying to re-run ortho rectify and
     ``then`` (the commands after it, e.g. "`ortho mosaic P`")."""
     why = stale_frames(root, index)
@@ -673,15 +673,15 @@ def require_current_frames(root, index: dict, then: str) -> None:
                          "the old orientation)")
 
 
-def _compatible_old_index(out_dir: Path, res: float, out_crs, inputs: dict) -> dict | None:
+def _compatible_old_index(out_dir: Path, res: float, out_crs, inputs: dict) -> FrameIndex | None:
     """The index of the frames rectified earlier onto the same grid (resolution and CRS), checked against
     its files, or None (no earlier run, or another grid: a subset re-run then replaces them all)."""
     if not (out_dir / "index.json").exists():
         return None
     old = read_index(out_dir.parent.parent)
-    if old.get("res_m") != res or old.get("crs") != out_crs.to_wkt():
+    if old.res_m != res or old.crs_wkt != out_crs.to_wkt():
         return None
-    if not _same_inputs(old.get("inputs"), inputs):  # the other frames are stale: never brought along
+    if not _same_inputs(old.inputs, inputs):  # the other frames are stale: never brought along
         _log.info(f"{out_dir / 'index.json'}: the earlier frames were made from other inputs; only the frames "
                   "given with --frames are kept")
         return None
@@ -719,12 +719,65 @@ _INDEX_KEYS = ("crs", "res_m", "frames")
 _FRAME_KEYS = ("image_id", "file", "x_left_m", "y_top_m", "width", "height", "nadir_xy_m")
 
 
-def read_index(root) -> dict:
-    """``ortho/frames/index.json`` (the frames of the last complete ``ortho rectify``), its layout checked."""
-    path = Path(root) / "ortho" / "frames" / "index.json"
-    if not path.exists():
-        raise InputError(f"{path}: not found (run `ortho rectify` first)")
-    index = read_json(path, "frame index", hint="run `ortho rectify` first")
+@dataclasses.dataclass(frozen=True)
+class FrameEntry:
+    """One frame of ``ortho/frames/index.json``: its file (in the frames folder), its output grid (left and top
+    edge, pixels), the nadir point in the output CRS, the projection centre in the project CRS (None in indexes
+    written before it was recorded) and the file's size and SHA-1 (None likewise)."""
+
+    image_id: str
+    file: str
+    x_left_m: float
+    y_top_m: float
+    width: int
+    height: int
+    nadir_xy_m: tuple[float, float]
+    centre_m: tuple[float, ...] | None = None
+    size: int | None = None
+    sha1: str | None = None
+
+
+@dataclasses.dataclass(frozen=True)
+class FrameIndex:
+    """``ortho/frames/index.json`` read back (``read_index``): the output CRS (WKT) and pixel size (metres, or the
+    CRS's unit), the frames in frame order, the project CRS and whether the frames are true orthos, the coordinate
+    operations applied (``operation``: the spec ``index_operation`` builds; ``coordinate_operation`` /
+    ``height_operation``: their records, as GeoTIFF tags name them), the inputs' hashes (``stale_frames``) and the
+    document as written (``document``: what a re-run of a subset carries along and the mosaic's workers read)."""
+
+    path: Path
+    crs_wkt: str
+    res_m: float
+    frames: tuple[FrameEntry, ...]
+    project_crs: str | None
+    true_ortho: bool
+    operation: dict | None
+    coordinate_operation: dict | None
+    height_operation: dict | None
+    inputs: dict | None
+    document: dict
+
+    @property
+    def image_ids(self) -> tuple[str, ...]:
+        return tuple(e.image_id for e in self.frames)
+
+    @property
+    def grids(self) -> tuple[OrthoGrid, ...]:
+        """Every frame's output grid, in frame order."""
+        crs = CRS.from_wkt(self.crs_wkt)
+        return tuple(OrthoGrid(crs, e.x_left_m, e.y_top_m, self.res_m, e.width, e.height) for e in self.frames)
+
+    def grid(self, image_id: str) -> OrthoGrid:
+        """The output grid of frame ``image_id`` (KeyError naming the frames there are)."""
+        if image_id not in self.image_ids:
+            raise KeyError(f"no frame {image_id!r} in {self.path}; there are: {', '.join(self.image_ids)}")
+        return self.grids[self.image_ids.index(image_id)]
+
+
+def frame_index(document: dict, path) -> FrameIndex:
+    """The ``FrameIndex`` of an index.json document (``path``: the file it is or will be, for messages), its layout
+    checked (InputError naming the file and the frame record)."""
+    path, index = Path(path), document
     if not isinstance(index, dict) or any(k not in index for k in _INDEX_KEYS) or not isinstance(index["frames"], list):
         raise InputError(f"{path}: not a frame index of ortho rectify (expected keys {', '.join(_INDEX_KEYS)}); "
                          "re-run `ortho rectify`")
@@ -743,7 +796,20 @@ def read_index(root) -> dict:
             raise InputError(f"{path}: {where} nadir_xy_m = {e['nadir_xy_m']!r}: expected [x, y]; re-run `ortho rectify`")
         for v in e["nadir_xy_m"]:
             _check_number(path, f"{where} nadir_xy_m", v)
-    return index
+    frames = tuple(FrameEntry(e["image_id"], e["file"], e["x_left_m"], e["y_top_m"], e["width"], e["height"],
+                              tuple(e["nadir_xy_m"]), tuple(e["centre_m"]) if e.get("centre_m") else None,
+                              e.get("size"), e.get("sha1")) for e in index["frames"])
+    return FrameIndex(path, index["crs"], index["res_m"], frames, index.get("project_crs"),
+                      bool(index.get("true_ortho")), index.get("operation"), index.get("coordinate_operation"),
+                      index.get("height_operation"), index.get("inputs"), index)
+
+
+def read_index(root) -> FrameIndex:
+    """``ortho/frames/index.json`` (the frames of the last complete ``ortho rectify``), its layout checked."""
+    path = Path(root) / "ortho" / "frames" / "index.json"
+    if not path.exists():
+        raise InputError(f"{path}: not found (run `ortho rectify` first)")
+    return frame_index(read_json(path, "frame index", hint="run `ortho rectify` first"), path)
 
 
 def _check_number(path, what: str, v, positive: bool = False) -> None:
@@ -754,27 +820,27 @@ def _check_number(path, what: str, v, positive: bool = False) -> None:
                          "re-run `ortho rectify`")
 
 
-def verify_index(frames_dir, index: dict) -> None:
+def verify_index(frames_dir, index: FrameIndex) -> None:
     """``InputError`` naming the first frame file that is not the one ``index`` records (missing, another
     size or content): frames from different runs must never be mixed. Indexes written before sizes and
     hashes were recorded are checked for the files' presence only."""
     from concurrent.futures import ThreadPoolExecutor
 
     frames_dir = Path(frames_dir)
-    for e in index["frames"]:
-        p = frames_dir / e["file"]
+    for e in index.frames:
+        p = frames_dir / e.file
         if not p.is_file():
             raise InputError(f"{p}: frame ortho listed in {frames_dir / 'index.json'} is missing (re-run ortho rectify)")
-        if "size" in e and p.stat().st_size != e["size"]:
-            raise InputError(f"{p}: {p.stat().st_size} bytes, but {frames_dir / 'index.json'} records {e['size']}: the "
+        if e.size is not None and p.stat().st_size != e.size:
+            raise InputError(f"{p}: {p.stat().st_size} bytes, but {frames_dir / 'index.json'} records {e.size}: the "
                              "frame does not belong to this index (changed or left by another run); re-run ortho rectify")
-    with_hash = [e for e in index["frames"] if "sha1" in e]
+    with_hash = [e for e in index.frames if e.sha1 is not None]
     with ThreadPoolExecutor(max(1, min(8, os.cpu_count() or 1))) as pool:  # hashlib releases the GIL
-        got = list(pool.map(lambda e: file_fingerprint(frames_dir / e["file"]).sha1, with_hash))
+        got = list(pool.map(lambda e: file_fingerprint(frames_dir / e.file).sha1, with_hash))
     for e, h in zip(with_hash, got):
-        if h != e["sha1"]:
-            raise InputError(f"{frames_dir / e['file']}: content differs from {frames_dir / 'index.json'} (sha1 {h[:12]}, "
-                             f"recorded {e['sha1'][:12]}): the frame does not belong to this index (changed or left by "
+        if h != e.sha1:
+            raise InputError(f"{frames_dir / e.file}: content differs from {frames_dir / 'index.json'} (sha1 {h[:12]}, "
+                             f"recorded {e.sha1[:12]}): the frame does not belong to this index (changed or left by "
                              "another run); re-run ortho rectify")
 
 
@@ -783,8 +849,8 @@ def require_frames_crs(root, crs: str) -> None:
     from aerotri.core.errors import OptionError
 
     index = read_index(root)
-    have = CRS.from_wkt(index["crs"])
-    centre = np.median([e["centre_m"][:2] for e in index["frames"]], axis=0)
+    have = CRS.from_wkt(index.crs_wkt)
+    centre = np.median([e.centre_m[:2] for e in index.frames], axis=0)
     want = resolve_output_crs(crs, parse_crs(Project.open(root).crs, "[project] crs"), centre)
     if want != have:
         raise OptionError(f"--crs {crs}: the frames in {Path(root) / 'ortho' / 'frames'} are in {have.name}, not in "
@@ -792,14 +858,7 @@ def require_frames_crs(root, crs: str) -> None:
                           "does not resample the frames a second time)", param="--crs")
 
 
-def index_operation(index: dict) -> CrsTransformer | None:
+def index_operation(index: FrameIndex) -> CrsTransformer | None:
     """The coordinate operation from the frames' output CRS back to the project CRS (None when the
     frames are in the project CRS), as recorded by ``rectify_block``."""
-    spec = index.get("operation")
-    return None if spec is None else OperationSpec(**spec).build().inverse()
-
-
-def index_grids(index: dict) -> dict[str, OrthoGrid]:
-    crs = CRS.from_wkt(index["crs"])
-    return {e["image_id"]: OrthoGrid(crs, e["x_left_m"], e["y_top_m"], index["res_m"], e["width"], e["height"])
-            for e in index["frames"]}
+    return None if index.operation is None else OperationSpec(**index.operation).build().inverse()

@@ -74,7 +74,7 @@ from aerotri.core.limits import check_allocation, check_grid, check_task_count
 from aerotri.core.project import Project
 from aerotri.core.settings import Resolved, settings_of
 from aerotri.core.textio import read_json
-from ortho.block import (index_grids, index_operation, operation_tags, read_index, require_current_frames,
+from ortho.block import (FrameIndex, frame_index, index_operation, operation_tags, read_index, require_current_frames,
                          verify_index)
 from ortho.grid import OrthoGrid
 from ortho.settings import MosaicSettings
@@ -148,9 +148,9 @@ def window_of(img: np.ndarray, valid: np.ndarray, col_off: int, row_off: int, wi
 DECODED_FRAMES_MAX_BYTES = 256 * 2 ** 20
 
 
-def decoded_bytes(index: dict, bands: int, itemsize: int) -> int:
+def decoded_bytes(index: FrameIndex, bands: int, itemsize: int) -> int:
     """Memory of all frames of ``index`` decoded (samples and a validity byte per pixel)."""
-    return sum(int(e["width"]) * int(e["height"]) * (bands * itemsize + 1) for e in index["frames"])
+    return sum(int(e.width) * int(e.height) * (bands * itemsize + 1) for e in index.frames)
 
 
 class ReducedFrames:
@@ -250,31 +250,31 @@ def _add_histogram(hist: np.ndarray, top_count: np.ndarray, img: np.ndarray, ok:
         top_count[b] += counts[top]
 
 
-def reduce_frames(frames_dir: Path, index: dict, mosaic: OrthoGrid, factor: int,
+def reduce_frames(frames_dir: Path, index: FrameIndex, mosaic: OrthoGrid, factor: int,
                   threads: int | None = None, keep_decoded: bool = False) -> ReducedFrames:
     """Every frame of ``index`` on the seam grid of ``factor`` mosaic pixels per cell (frames on ``threads``
     threads, default all cores; GDAL's decoding and OpenCV's averaging release the GIL). With ``keep_decoded``
     the frames read whole are kept in ``decoded`` (frame file path -> (samples, validity)) for the blending."""
     from ortho.rectify import ordered_thread_map
 
-    grids = index_grids(index)
-    entries = index["frames"]
+    entries = list(zip(index.frames, index.grids))
 
-    def one(e):
-        return _reduce_frame(frames_dir / e["file"], grids[e["image_id"]], mosaic, factor, keep_decoded=keep_decoded)
+    def one(entry):
+        e, grid = entry
+        return _reduce_frame(frames_dir / e.file, grid, mosaic, factor, keep_decoded=keep_decoded)
 
     names, rgbs, valids, offsets, hists, decoded, holes = [], [], [], [], [], {}, []
     with progress(len(entries), "seam grid", "frames") as bar:
         with contextlib.closing(ordered_thread_map(one, entries, threads or os.cpu_count() or 1)) as made:
-            for e, (rgb, valid, off, hist, frame, hole) in zip(entries, made):
-                names.append(e["image_id"])
+            for (e, _), (rgb, valid, off, hist, frame, hole) in zip(entries, made):
+                names.append(e.image_id)
                 holes.append(hole)
                 rgbs.append(rgb)
                 valids.append(valid)
                 offsets.append(off)
                 hists.append(hist)
                 if frame is not None:
-                    decoded[str(Path(frames_dir) / e["file"])] = frame
+                    decoded[str(Path(frames_dir) / e.file)] = frame
                 bar.update(1)
     shape = (-(-mosaic.height // factor), -(-mosaic.width // factor))
     t = Affine(mosaic.res_m * factor, 0, mosaic.x_left_m, 0, -mosaic.res_m * factor, mosaic.y_top_m)
@@ -409,13 +409,13 @@ def _read_ndsm_on(path, transform, shape, crs, operation=None, ds=None):
     return out
 
 
-def _open_checked_ndsm(path, index: dict, mosaic):
+def _open_checked_ndsm(path, index: FrameIndex, mosaic):
     """The nDSM checked before any work: a height raster (``ortho.dem.open_height_raster``: 2 x 2 cells or more,
     one band of finite heights) in the project CRS the frames were rectified from, over the mosaic; returned open
     (the caller closes it)."""
     from ortho.dem import open_height_raster, require_overlap
 
-    project = index.get("project_crs")
+    project = index.project_crs
     ds = open_height_raster(path, CRS.from_user_input(project) if project else None, "nDSM")
     try:
         require_overlap(ds, path, "nDSM", (mosaic.x_left_m, mosaic.y_top_m - mosaic.height * mosaic.res_m,
@@ -500,16 +500,16 @@ def _mosaic_block(root, settings, *, object_height_m, max_seam_cells, end_reach_
                               param="--seamlines")
     index = read_index(root)
     frames_dir = root / "ortho" / "frames"
-    if not index["frames"]:
+    if not index.frames:
         raise InputError(f"{frames_dir / 'index.json'}: no frames")
     verify_index(frames_dir, index)
     require_current_frames(root, index, f"`ortho mosaic {root}`")
-    grids = index_grids(index)
-    mosaic = OrthoGrid.union(grids.values())
+    grids = index.grids
+    mosaic = OrthoGrid.union(grids)
     res = mosaic.res_m
     check_grid(mosaic.width, mosaic.height, f"the mosaic of {len(grids)} frames at {res:g} m")
     feather_px = max(1.0, feather_m / res) if feather_m is not None else 8.0
-    bands, itemsize = _frame_layout(frames_dir / index["frames"][0]["file"])
+    bands, itemsize = _frame_layout(frames_dir / index.frames[0].file)
     check_allocation(_tile_bytes(tile_px, feather_px, bands, itemsize) * _tiles_in_flight(executor),
                      f"--tile-px {tile_px}: mosaic tiles of {tile_px} x {tile_px} px (with their halo, {bands} band(s))",
                      "--tile-px")
@@ -518,7 +518,7 @@ def _mosaic_block(root, settings, *, object_height_m, max_seam_cells, end_reach_
     if ndsm_path is None and (root / "lidar_out" / "ndsm.tif").exists():
         ndsm_path = root / "lidar_out" / "ndsm.tif"
         resolved = resolved.replace("ndsm", ndsm_path, resolved.sources.get("ndsm", "default"), "the LiDAR stages' nDSM")
-    total_px = sum(g.width * g.height for g in grids.values())
+    total_px = sum(g.width * g.height for g in grids)
     # seam cells of about seam_cell_m (buildings and roads are metres wide; finer cells only cost time: the
     # seams took 2.5 of the demo's 6 CPU-s on 0.8 m cells), more where the frames would not fit max_seam_cells
     factor = max(2, int(round(seam_cell_m / res)), int(math.ceil(math.sqrt(total_px / max_seam_cells))))
@@ -535,7 +535,7 @@ def _mosaic_block(root, settings, *, object_height_m, max_seam_cells, end_reach_
         timer.done("seam grid")
         objects = objects_of()
         timer.done("nDSM")
-    nadir = np.array([e["nadir_xy_m"] for e in index["frames"]])
+    nadir = np.array([e.nadir_xy_m for e in index.frames])
     nadir_rc = np.stack([(mosaic.y_top_m - nadir[:, 1]) / (res * factor) - 0.5,
                          (nadir[:, 0] - mosaic.x_left_m) / (res * factor) - 0.5], axis=1)
     edited = None
@@ -829,11 +829,11 @@ class _BlendContext:
 
 def _context(index, frames_dir, mosaic: OrthoGrid, *, factor, halo, gains, nadir, feather_px, bands, dtype, read_cells,
              seam_shape, holes=None) -> _BlendContext:
-    grids = index_grids(index)
-    names = [e["image_id"] for e in index["frames"]]
-    offsets = np.array([grids[n].offset_in(mosaic) for n in names], np.int64).reshape(-1, 2)
-    sizes = np.array([(grids[n].width, grids[n].height) for n in names], np.int64).reshape(-1, 2)
-    files = [str(Path(frames_dir) / e["file"]) for e in index["frames"]]
+    grids = index.grids
+    names = list(index.image_ids)
+    offsets = np.array([g.offset_in(mosaic) for g in grids], np.int64).reshape(-1, 2)
+    sizes = np.array([(g.width, g.height) for g in grids], np.int64).reshape(-1, 2)
+    files = [str(Path(frames_dir) / e.file) for e in index.frames]
     return _BlendContext(names, files, offsets, sizes, np.asarray(gains, np.float64), np.asarray(nadir, np.float64),
                          mosaic, int(factor), int(halo), float(feather_px), int(bands), str(dtype), read_cells,
                          tuple(seam_shape), holes if hole_margin_px(mosaic.res_m) else None,
@@ -844,9 +844,9 @@ def _context(index, frames_dir, mosaic: OrthoGrid, *, factor, halo, gains, nadir
 def _load_context(path: str, mtime_ns: int) -> _BlendContext:
     """The mosaic context (frames, grids, gains, seam raster path), parsed once per worker process."""
     ctx = json.loads(Path(path).read_text())
-    index = ctx["index"]
+    index = frame_index(ctx["index"], ctx["index_path"])
     m = ctx["mosaic"]
-    mosaic = OrthoGrid(CRS.from_wkt(index["crs"]), m["x_left_m"], m["y_top_m"], m["res_m"], m["width"], m["height"])
+    mosaic = OrthoGrid(CRS.from_wkt(index.crs_wkt), m["x_left_m"], m["y_top_m"], m["res_m"], m["width"], m["height"])
     seams_path = ctx["seams_path"]
     with rasterio.open(seams_path) as sds:
         seam_shape = (sds.height, sds.width)
@@ -858,7 +858,7 @@ def _load_context(path: str, mtime_ns: int) -> _BlendContext:
     holes = None
     if ctx.get("holes_path"):
         with np.load(ctx["holes_path"]) as z:
-            holes = [FrameHoles.from_arrays(z, k) for k in range(len(index["frames"]))]
+            holes = [FrameHoles.from_arrays(z, k) for k in range(len(index.frames))]
     return _context(index, ctx["frames_dir"], mosaic, factor=ctx["factor"], halo=ctx["halo"], gains=ctx["gains"],
                     nadir=ctx["nadir"], feather_px=ctx["feather_px"], bands=ctx["bands"], dtype=ctx["dtype"],
                     read_cells=read_cells, seam_shape=seam_shape, holes=holes)
@@ -1124,7 +1124,7 @@ class FrameHoles:
             hole[ya:yb, xa:xb] = bits[ya - py:yb - py, xa - px:xb - px]
         return hole
 
-    def arrays(self, k: int) -> dict:
+    def _arrays(self, k: int) -> dict:
         """The arrays of frame ``k``'s holes under names ending in ``_k`` (a context file for Dask workers)."""
         return {f"holes_offset_{k}": np.asarray(self.offset), f"holes_cells_{k}": self.cells,
                 f"holes_index_{k}": self.partial_index, f"holes_partial_{k}": self.partial}
@@ -1263,7 +1263,7 @@ def _write_mosaic(path, frames_dir, index, mosaic: OrthoGrid, *, seams_path, fac
     from ortho.rectify import ordered_thread_map
 
     executor = executor or local_executor()
-    with rasterio.open(Path(frames_dir) / index["frames"][0]["file"]) as ds:
+    with rasterio.open(Path(frames_dir) / index.frames[0].file) as ds:
         bands, dtype = ds.count, ds.dtypes[0]
         colorinterp = ds.colorinterp
     halo = int(math.ceil(2.0 * feather_px)) + factor
@@ -1276,7 +1276,8 @@ def _write_mosaic(path, frames_dir, index, mosaic: OrthoGrid, *, seams_path, fac
             rasterio.Env(GDAL_TIFF_INTERNAL_MASK=True):  # the block cache is the stage's (mosaic_block)
         tmp_dir = Path(tmp_dir)
         if executor.distributed:
-            context = {"index": index, "frames_dir": str(Path(frames_dir).resolve()),
+            context = {"index": index.document, "index_path": str(index.path),
+                       "frames_dir": str(Path(frames_dir).resolve()),
                        "mosaic": {"x_left_m": mosaic.x_left_m, "y_top_m": mosaic.y_top_m, "res_m": mosaic.res_m,
                                   "width": mosaic.width, "height": mosaic.height},
                        "seams_path": str(Path(seams_path).resolve()), "factor": int(factor), "halo": halo,
@@ -1286,7 +1287,7 @@ def _write_mosaic(path, frames_dir, index, mosaic: OrthoGrid, *, seams_path, fac
             if holes and any(h is not None for h in holes):
                 holes_path = (tmp_dir / "context_holes.npz").resolve()
                 np.savez(holes_path, **{key: v for k, h in enumerate(holes) if h is not None
-                                        for key, v in h.arrays(k).items()})
+                                        for key, v in h._arrays(k).items()})
                 context["holes_path"] = str(holes_path)
             context_path.write_text(json.dumps(context))
         else:
@@ -1356,7 +1357,7 @@ def _write_mosaic(path, frames_dir, index, mosaic: OrthoGrid, *, seams_path, fac
         timer.done("overviews")
         vrt = tmp_dir / "mosaic.vrt"
         write_vrt(vrt, stage, pyramid.paths, mosaic, bands=bands, dtype=dtype, colorinterp=colorinterp,
-                  tags=operation_tags(index.get("coordinate_operation"), index.get("height_operation")))
+                  tags=operation_tags(index.coordinate_operation, index.height_operation))
         with atomic_path(path) as tmp:
             rasterio.shutil.copy(vrt, tmp, **COG_OPTIONS)
         timer.done("COG")
@@ -1598,12 +1599,12 @@ def seam_misalignment(root, *, patch_px: int = 32, search_px: int = 4, spacing_c
         if made_from is not None and made_from != index_sha1(root):
             raise InputError(f"{root / 'ortho' / 'seams.tif'}: the seamlines were made from other frames than "
                              f"{frames_dir / 'index.json'} lists (ortho rectify ran again since); re-run ortho mosaic")
-    grids = index_grids(index)
-    mosaic = OrthoGrid.union(grids.values())
+    grids = index.grids  # in frame order, as the labels number the frames
+    mosaic = OrthoGrid.union(grids)
     with rasterio.open(root / "ortho" / "seams.tif") as ds:
         labels = ds.read(1)
         factor = int(round(ds.transform.a / mosaic.res_m))
-    names = [e["image_id"] for e in index["frames"]]
+    names = list(index.image_ids)
     if ndsm_path is None and (root / "lidar_out" / "ndsm.tif").exists():
         ndsm_path = root / "lidar_out" / "ndsm.tif"
     to_project = index_operation(index)
@@ -1625,7 +1626,7 @@ def seam_misalignment(root, *, patch_px: int = 32, search_px: int = 4, spacing_c
                 h, w = int(R[sel].max()) - r0 + size, int(C[sel].max()) - c0 + size
                 imgs = []
                 for k, ds in ((i, fa), (j, fb)):
-                    fc, fr = grids[names[k]].offset_in(mosaic)
+                    fc, fr = grids[k].offset_in(mosaic)
                     imgs.append(read_window(ds, c0 - fc, r0 - fr, w, h))
                 keep = None
                 if ndsm_path is not None:

@@ -18,6 +18,8 @@ Labels are frame indices (int32), -1 where no frame is valid.
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 
 # OpenCV (morphology, connected parts) and scipy.sparse (the path search) are imported by the functions that
@@ -337,8 +339,23 @@ def keep_objects_whole(labels: np.ndarray, object_mask: np.ndarray, valid: list,
     return labels
 
 
-def frame_regions(labels: np.ndarray, transform) -> dict:
-    """Label -> its cells as one shapely (Multi)Polygon (the union of the label raster's 4-connected parts;
+@dataclasses.dataclass(frozen=True)
+class FrameRegions:
+    """The cells of each label of a label raster as one shapely (Multi)Polygon, labels ascending (a label without
+    cells has none)."""
+
+    labels: tuple[int, ...]
+    polygons: tuple
+
+    def __contains__(self, label) -> bool:
+        return label in self.labels
+
+    def polygon(self, label: int):
+        return self.polygons[self.labels.index(label)]
+
+
+def frame_regions(labels: np.ndarray, transform) -> FrameRegions:
+    """Each label's cells as one shapely (Multi)Polygon (the union of the label raster's 4-connected parts;
     ``transform`` is the seam grid's affine): what ``label_polygons`` and ``seam_lines`` are made of, computed once
     for both by a caller that writes the two."""
     from rasterio import features
@@ -348,24 +365,25 @@ def frame_regions(labels: np.ndarray, transform) -> dict:
     polys: dict[int, list] = {}
     for geom, value in features.shapes(labels, mask=labels >= 0, transform=transform, connectivity=4):
         polys.setdefault(int(value), []).append(shape(geom))
-    return {k: unary_union(v) for k, v in polys.items()}
+    keys = sorted(polys)
+    return FrameRegions(tuple(keys), tuple(unary_union(polys[k]) for k in keys))
 
 
-def label_polygons(labels: np.ndarray, transform, names: list[str], regions: dict | None = None) -> list[dict]:
+def label_polygons(labels: np.ndarray, transform, names: list[str],
+                   regions: FrameRegions | None = None) -> list[dict]:
     """GeoJSON features (one MultiPolygon per frame) of the label raster; ``transform`` is the seam grid's affine;
     ``regions``: ``frame_regions`` of the same labels, if already made."""
     from shapely.geometry import mapping
 
     regions = frame_regions(labels, transform) if regions is None else regions
     out = []
-    for k in sorted(regions):
-        g = regions[k]
+    for k, g in zip(regions.labels, regions.polygons):
         out.append({"type": "Feature", "properties": {"image_id": names[k], "area_m2": float(g.area)},
                     "geometry": mapping(g)})
     return out
 
 
-def seam_lines(labels: np.ndarray, transform, names: list[str], regions: dict | None = None) -> list[dict]:
+def seam_lines(labels: np.ndarray, transform, names: list[str], regions: FrameRegions | None = None) -> list[dict]:
     """GeoJSON LineString features of the seams between neighbouring frames (shared polygon edges); ``regions``:
     ``frame_regions`` of the same labels, if already made."""
     from shapely.geometry import MultiLineString, mapping
@@ -379,7 +397,7 @@ def seam_lines(labels: np.ndarray, transform, names: list[str], regions: dict | 
             continue
         for k in (i, j):
             if k not in boundary:
-                boundary[k] = polys[k].boundary
+                boundary[k] = polys.polygon(k).boundary
         shared = boundary[i].intersection(boundary[j])
         # keep the line parts (boundaries can also touch in single points)
         parts = [g for g in getattr(shared, "geoms", [shared]) if g.geom_type in ("LineString", "MultiLineString")]

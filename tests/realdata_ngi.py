@@ -121,8 +121,7 @@ def angle_diff_deg(a, b) -> np.ndarray:
 
 def opk_differences(eo_ids, eo_opk_deg, eo_centre_m, ref: Reference) -> dict:
     """Attitude and position differences of an orientation against the reference (same image ids)."""
-    k = ref.index()
-    sel = np.array([k[i] for i in eo_ids], dtype=int)
+    sel = ref.rows(eo_ids)
     d_opk = angle_diff_deg(eo_opk_deg, ref.opk_deg[sel])
     d_pos = np.asarray(eo_centre_m, float) - ref.centre_m[sel]
     return {

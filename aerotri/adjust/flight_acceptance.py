@@ -316,7 +316,7 @@ def project_flight_acceptance(root, limits: dict | None = None) -> FlightAccepta
     present, else on ``[flight] mean_terrain_height_m``. None when there is neither EO nor GNSS, or neither
     a DEM nor a mean terrain height."""
     from aerotri.core.project import Project
-    from aerotri.geom.camera import adjusted_camera
+    from aerotri.adjust.report_record import adjusted_camera
     from aerotri.geom.crs.definition import parse_crs
     from aerotri.geom.eo import read_eo, read_gnss
 

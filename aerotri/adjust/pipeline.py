@@ -38,7 +38,7 @@ from aerotri.geom.observations import (
 from aerotri.adjust.level_datum import height_datum, level_result
 from aerotri.adjust.dem_check import tie_dem_check
 from aerotri.adjust.determinability import check_groups, ground_observations
-from aerotri.adjust.report_record import AdjustmentRecord, adjustment_record
+from aerotri.adjust.report_record import AdjustmentRecord, adjusted_camera, adjustment_record
 from aerotri.adjust.solve import AdjustmentResult, adjust_block, check_point_errors
 from aerotri.adjust.variance_components import adjusted_gnss
 from aerotri.geom.strips import along_track_km, strips_from_track
@@ -459,8 +459,7 @@ def _approximations(inp: ProjectInputs, frame: LocalFrame, block: G.Block, image
     obs_point, obs_image, obs_xy = block.obs_point, block.obs_image, block.obs_xy_px
     cal0 = G.cal_from_camera(cam)
     if eo0 is not None:
-        k = eo0.index()
-        sel = np.array([k[i] for i in image_ids], dtype=int)
+        sel = eo0.rows(image_ids)
         centre0 = frame.to_local(eo0.centre_m[sel])
         R0 = frame.rotation_local_from_map(eo0.centre_m[sel]) @ eo0.rotations()[sel] @ FLIP_YZ
     else:
@@ -791,11 +790,13 @@ def write_outputs(ba: BlockAdjustment, root, html: bool = True, out_dir=None,
     project = Project.open(root)
     at = Path(out_dir) if out_dir is not None else project.at_dir
     # the limits of the project's table (by its GSD and platform unless [qa] names one), as in reports/
-    qa = qa_settings(root, project_block_scale(project, ba.points_map[:, 2]))
-    rep = report.build_report(ba, qa.map_scale, qa.terrain, qa.tolerances, project_terrain(project))
+    # the camera of the report before this one (this adjustment's is written below)
+    camera = adjusted_camera(project) if project.camera_path.is_file() else None
+    qa = qa_settings(root, project_block_scale(project, ba.points_map[:, 2], camera=camera))
+    built = report.build_report(ba, qa.map_scale, qa.terrain, qa.tolerances, project_terrain(project))
     if settings_record is None:  # a library caller's own settings
         settings_record = settings_of(ba.settings, AdjustSettings).record()
-    rep["settings"] = settings_record
+    rep = dataclasses.replace(built, settings=settings_record).to_record()
     files = {
         "report.txt": report.format_txt(rep),
         "report.json": json.dumps(rep, indent=1, allow_nan=False, default=_json_default),

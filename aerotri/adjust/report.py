@@ -14,7 +14,7 @@ import numpy as np
 
 from aerotri.adjust import graph as G
 from aerotri.core.settings import settings_lines
-from aerotri.core.tolerances import load_tolerances, tolerance_path
+from aerotri.core.tolerances import load_table, tolerance_path
 
 
 def _rms(a, axis=0):
@@ -623,12 +623,60 @@ def _flight(ba, ground, tol: dict) -> dict | None:
                                                 np.asarray(ba.block.strip) + 1, limits=tol))
 
 
-def build_report(ba, map_scale: str = "1:5000", terrain: str = "flat", tolerance_file=None, ground=None) -> dict:
-    """All report numbers as a JSON-ready dict (keys with units). RMS and residual limits come from the
+@dataclasses.dataclass(frozen=True)
+class AdjustmentReport:
+    """The adjustment report as ``build_report`` makes it: at/report.json's sections in the file's order, each
+    a JSON-ready value (keys with units), and ``settings``, the settings with their sources
+    (``aerotri.core.settings.Resolved.record``; None: not attached, no key). ``to_record()`` is the document
+    written (and what ``format_txt`` / ``format_html`` lay out); the stages after the adjustment read the file
+    back through ``report_record.read_adjustment_report``."""
+
+    project: str | None
+    crs: str | None
+    local_frame: dict
+    options: dict
+    parameters: dict
+    key_statistics: dict
+    components: dict
+    datum: list
+    counts: dict
+    image_residuals: dict
+    control_points: list
+    rms_control_ground_m: list
+    rejected_control: list
+    check_points: list
+    check_sum_m: list | None
+    check_rms_m: list | None
+    check_normalised_rms: list | None
+    photos: list
+    image_pairs: list
+    removed_observations: list
+    worst_tie_points: list
+    self_calibration: dict | None
+    gnss_strips: list | None
+    surface_control: dict | None
+    dem_checks: list
+    variance_components: list | None
+    geometry_modes: list | None
+    flight_acceptance: dict | None
+    timings_s: dict
+    settings: dict | None = None
+
+    def to_record(self) -> dict:
+        """at/report.json's document: the sections by name, in order (``settings`` last, when attached)."""
+        out = {f.name: getattr(self, f.name) for f in dataclasses.fields(self)}
+        if self.settings is None:
+            del out["settings"]
+        return out
+
+
+def build_report(ba, map_scale: str = "1:5000", terrain: str = "flat", tolerance_file=None,
+                 ground=None) -> AdjustmentReport:
+    """All report numbers as an ``AdjustmentReport`` (keys with units). RMS and residual limits come from the
     tolerance table of ``map_scale`` and ``terrain`` (or ``tolerance_file``) unless the settings give them.
     ``ground``: a ``flight_acceptance.Terrain`` for the flight acceptance section (None: no section)."""
     r, b, opts, st = ba.result, ba.block, ba.opts, ba.settings
-    tol = load_tolerances(map_scale, terrain, tolerance_file)
+    tol = load_table(map_scale, terrain, tolerance_file).limits
     tol_table = tolerance_path(map_scale, tolerance_file).name
     rms_lim = [st.rms_limit_xy_m or tol["rms_xy_m"]] * 2 + [st.rms_limit_z_m or tol["rms_z_m"]]
     res_lim = [st.residual_limit_m or tol["residual_xy_m"]] * 2 + [st.residual_limit_m or tol["residual_z_m"]]
@@ -643,7 +691,7 @@ def build_report(ba, map_scale: str = "1:5000", terrain: str = "flat", tolerance
     sd_tie = ba.points_sigma_map[tie_pts]
     mean_sd_obj = _mean(sd_tie, axis=0) if len(tie_pts) else np.full(3, np.nan)
     tolerances = f"{map_scale} {terrain} ({tol_table})" if tolerance_file is None else f"{terrain} ({tol_table})"
-    return {
+    sections = {
         "project": ba.project_name,
         "crs": ba.crs,
         "local_frame": {"origin_map": [float(v) for v in ba.frame.origin_map],
@@ -680,6 +728,7 @@ def build_report(ba, map_scale: str = "1:5000", terrain: str = "flat", tolerance
         "flight_acceptance": _flight(ba, ground, tol),
         "timings_s": {k: _f(v, 3) for k, v in r.timings_s.items()},
     }
+    return AdjustmentReport(**sections)
 
 
 def _dem_check_dict(d) -> dict:

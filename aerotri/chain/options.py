@@ -163,7 +163,7 @@ def project_settings_text(project: Project, ctx=None) -> str:
 
     lines = []
     for name, cls in PROJECT_SECTIONS.items():
-        typed = project.sections.get(name) or cls()
+        typed = getattr(project.sections, name)
         sources = {f.name: project.source_of(name, f.name) for f in dataclasses.fields(cls)}
         lines += settings_lines(Resolved(typed, sources).record(), f"[{name}]")
     from aerotri.adjust.pipeline import project_settings

@@ -34,7 +34,7 @@ import json
 import logging
 from pathlib import Path
 
-from aerotri.adjust.report_record import AdjustmentRecord
+from aerotri.adjust.report_record import AdjustmentRecord, adjusted_camera
 from aerotri.chain import results as R
 from aerotri.chain.options import ChainSettings, read_options
 from aerotri.chain.runner import Stage
@@ -425,7 +425,7 @@ class Chain:
                                                     "not checked",))
         if ref == p.truth_buildings_path:
             ref = self.truth_outline_reference()
-        qa = qa_settings(root, project_block_scale(p))
+        qa = qa_settings(root, project_block_scale(p, camera=adjusted_camera(p) if p.camera_path.is_file() else None))
         check = check_files(p.vectors_path, ref, VectorCheckSettings(layers=("buildings",), scale=qa.map_scale,
                                                              terrain=qa.terrain), p.vectors_check_path)
         b = check.record.buildings

@@ -98,8 +98,21 @@ def read_corners(path, crs=None) -> LidarCorners:
     )
 
 
-def read_manual(path, corner_ids, image_ids, camera=None, corners_path="corners.csv", eo_path="eo.txt") -> dict:
-    """Manual measurements ``point_id,image_id,x_px,y_px`` -> {(point_id, image_id): (x_px, y_px)}.
+@dataclasses.dataclass(frozen=True)
+class ManualMeasurements:
+    """Corners measured by hand: per measurement the corner id, the frame id and (x, y) in pixels (file order)."""
+
+    point_id: tuple[str, ...]
+    image_id: tuple[str, ...]
+    xy_px: np.ndarray  # (M, 2)
+
+    def __len__(self) -> int:
+        return len(self.point_id)
+
+
+def read_manual(path, corner_ids, image_ids, camera=None, corners_path="corners.csv",
+                eo_path="eo.txt") -> ManualMeasurements:
+    """Manual measurements ``point_id,image_id,x_px,y_px`` (a corner measured twice in a frame: the last one).
 
     Every record must name a corner and a frame of the block and, with ``camera``, lie inside the frame
     (a measurement is never dropped silently: InputError naming the line)."""
@@ -109,7 +122,7 @@ def read_manual(path, corner_ids, image_ids, camera=None, corners_path="corners.
     if len(obs) == 0:  # a file given to import measurements that holds none: the wrong file
         raise InputError(f"{path}: no measurements (expected point_id,image_id,x_px,y_px records after the header)")
     known_c, known_i = set(corner_ids), set(image_ids)
-    out = {}
+    out = {}  # (point_id, image_id) -> (x_px, y_px): the last measurement of a corner in a frame
     for k in range(len(obs)):
         pid, iid = str(obs.point_id[k]), str(obs.image_id[k])
         where = obs.where(k, path)
@@ -123,4 +136,5 @@ def read_manual(path, corner_ids, image_ids, camera=None, corners_path="corners.
                              f"{camera.width} x {camera.height} px frame {iid!r} (x in 0..{camera.width - 1}, "
                              f"y in 0..{camera.height - 1})")
         out[(pid, iid)] = (float(x), float(y))
-    return out
+    return ManualMeasurements(tuple(p for p, _ in out), tuple(i for _, i in out),
+                              np.array(list(out.values()), dtype=float).reshape(-1, 2))

@@ -19,7 +19,7 @@ from pathlib import Path
 import numpy as np
 
 from aerotri.control.consistency import check_rays
-from aerotri.control.corners import LidarCorners, read_corners, read_manual
+from aerotri.control.corners import LidarCorners, ManualMeasurements, read_corners, read_manual
 from aerotri.control.layout import LayoutTarget, candidate_tiers, empty_target_text, select_control
 from aerotri.control.measure import Measurement, measure_in_image, predict
 from aerotri.control.settings import ControlSettings
@@ -28,7 +28,7 @@ from aerotri.core.log import track
 from aerotri.core.atomic import committed
 from aerotri.core.project import Project, project_paths
 from aerotri.core.settings import Resolved, settings_of
-from aerotri.geom.camera import BrownCamera, adjusted_camera
+from aerotri.geom.camera import BrownCamera
 from aerotri.geom.eo import ExteriorOrientations, read_eo
 from aerotri.geom.images import FrameWindows, find_image
 
@@ -97,6 +97,8 @@ def project_camera(root: Path, camera_path=None) -> tuple[BrownCamera, str]:
     """The camera to project with: explicit file, else self-calibrated from at/report.json, else camera.toml."""
     if camera_path is not None:
         return BrownCamera.read(camera_path), str(camera_path)
+    from aerotri.adjust.report_record import adjusted_camera
+
     return adjusted_camera(Project.open(root))
 
 
@@ -246,7 +248,8 @@ def why_empty(res: "TransferResult", t: LayoutTarget, s: ControlSettings) -> str
 
 
 def transfer_control(corners: LidarCorners, camera: BrownCamera, eo: ExteriorOrientations, images_dir,
-                     settings: ControlSettings | None = None, manual: dict | None = None) -> TransferResult:
+                     settings: ControlSettings | None = None,
+                     manual: ManualMeasurements | None = None) -> TransferResult:
     """Measure the corners in every frame, check them across frames, select control by the layout rule.
 
     When a layout target gets no usable corner in ``min_frames`` frames and ``settings.layout.fallback``
@@ -255,10 +258,9 @@ def transfer_control(corners: LidarCorners, camera: BrownCamera, eo: ExteriorOri
     (``aerotri.control.layout``); targets filled by the rule itself keep their corner.
     """
     s = settings or ControlSettings()
-    manual = manual or {}
     cid = {str(p): k for k, p in enumerate(corners.id)}
-    iidx = eo.index()
-    manual_k = {(cid[p], iidx[i]): xy for (p, i), xy in manual.items()}
+    manual_k = {} if manual is None else {(cid[p], int(i)): tuple(xy) for p, i, xy in
+                                          zip(manual.point_id, eo.rows(manual.image_id), manual.xy_px)}
     primary = corners.usable.copy() if s.usable_only else np.ones(len(corners), bool)
     primary[[k for k, _ in manual_k]] = True
     idx = np.flatnonzero(primary)
@@ -315,7 +317,21 @@ def summary(res: TransferResult) -> TransferSummary:
     )
 
 
-def output_texts(res: TransferResult, checks: bool = True, settings_record: dict | None = None) -> dict[str, str]:
+@dataclasses.dataclass(frozen=True)
+class ControlTexts:
+    """The control stage's files as texts: control/points.csv, control/image_points.csv, control/transfer.json."""
+
+    points_csv: str
+    image_points_csv: str
+    transfer_json: str
+
+    def files(self) -> tuple[tuple[str, str], ...]:
+        """(file name in control/, text) of each file."""
+        return (("points.csv", self.points_csv), ("image_points.csv", self.image_points_csv),
+                ("transfer.json", self.transfer_json))
+
+
+def output_texts(res: TransferResult, checks: bool = True, settings_record: dict | None = None) -> ControlTexts:
     """control/points.csv, control/image_points.csv and control/transfer.json as texts."""
     c = res.corners
     pts = ["id,kind,x,y,z,sx_m,sy_m,sz_m"]
@@ -363,8 +379,8 @@ def output_texts(res: TransferResult, checks: bool = True, settings_record: dict
                for t in res.targets]
     rep = {"summary": dataclasses.asdict(summary(res)), "layout_targets": targets, "corners": per_corner,
            "settings": settings_record}
-    return {"points.csv": "\n".join(pts) + "\n", "image_points.csv": "\n".join(obs) + "\n",
-            "transfer.json": json.dumps(rep, indent=1, allow_nan=False, default=float)}
+    return ControlTexts("\n".join(pts) + "\n", "\n".join(obs) + "\n",
+                        json.dumps(rep, indent=1, allow_nan=False, default=float))
 
 
 CONTROL_TRANSFER = "control transfer report (control/transfer.json)"
@@ -521,6 +537,6 @@ def run_control(root, corners_path=None, eo_path=None, camera_path=None, manual_
     if review is not None:
         with atomic_dir(paths.control_dir / "review") as tmp:
             write_review(tmp, paths.root.name, review.summary, review.corners, review.chips)
-    for name, text in texts.items():
+    for name, text in texts.files():
         write_text_atomic(paths.control_dir / name, text)
     return sm

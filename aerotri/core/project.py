@@ -149,10 +149,26 @@ def _keys(cls) -> tuple[str, ...]:
     return tuple(f.name for f in dataclasses.fields(cls))
 
 
-def check_sections(config: dict, source) -> dict:
+@dataclasses.dataclass(frozen=True)
+class ProjectSections:
+    """The project sections of a project.toml, checked (``PROJECT_SECTIONS``; a section not given: its defaults).
+    Field names are the section names."""
+
+    project: ProjectSettings = dataclasses.field(default_factory=ProjectSettings)
+    camera: CameraSettings = dataclasses.field(default_factory=CameraSettings)
+    gnss: GnssSettings = dataclasses.field(default_factory=GnssSettings)
+    control: ControlPointSettings = dataclasses.field(default_factory=ControlPointSettings)
+    flight: FlightSettings = dataclasses.field(default_factory=FlightSettings)
+    qa: QaSettings = dataclasses.field(default_factory=QaSettings)
+
+
+assert tuple(f.name for f in dataclasses.fields(ProjectSections)) == tuple(PROJECT_SECTIONS)  # one field a section
+
+
+def check_sections(config: dict, source) -> ProjectSections:
     """Refuse an unknown section, an unknown key of a project section, a bad value of one, and a section given
     as a value, naming ``source`` (project.toml), the section and the key; returns the project sections'
-    settings (section -> dataclass)."""
+    settings."""
     out = {}
     for section, table in config.items():
         if section not in PROJECT_SECTIONS and section not in STAGE_SECTION_NAMES:
@@ -166,7 +182,7 @@ def check_sections(config: dict, source) -> dict:
             table = {k: v for k, v in table.items() if k in _keys(cls)}
         # file names stay as written (relative to the project folder, which the folder's paths anchor)
         out[section] = from_table(cls, table, f"{source} [{section}]")
-    return out
+    return ProjectSections(**out)
 
 
 @dataclasses.dataclass
@@ -176,7 +192,7 @@ class Project:
 
     root: Path
     config: dict
-    sections: dict = dataclasses.field(default_factory=dict, repr=False)  # section -> project section settings
+    sections: ProjectSections = dataclasses.field(default_factory=ProjectSections, repr=False)
 
     @classmethod
     def open(cls, root) -> "Project":
@@ -191,13 +207,12 @@ class Project:
         except tomllib.TOMLDecodeError as exc:
             raise ConfigError(f"{cfg_path}: not valid TOML ({exc})") from None
         sections = check_sections(config, cfg_path)
-        if sections["project"].crs is None:
+        if sections.project.crs is None:
             raise ConfigError(f"{cfg_path}: [project] crs is missing (e.g. crs = \"EPSG:32649\")")
         return cls(root, config, sections)
 
     def _section(self, cls):
-        got = self.sections.get(cls.SECTION)
-        return got if got is not None else cls()
+        return getattr(self.sections, cls.SECTION)
 
     info = property(lambda self: self._section(ProjectSettings), doc="[project]")
     camera = property(lambda self: self._section(CameraSettings), doc="[camera]")

@@ -44,19 +44,34 @@ from aerotri.core.errors import ConfigError
 _KEY = "aerotri_setting"
 
 
+@dataclasses.dataclass(frozen=True)
+class Constraints:
+    """What a setting field allows and says: its choices (None: any), its range (``min`` / ``max``, None: open;
+    ``min_open`` / ``max_open``: the bound itself excluded), whether it is a file name (``path``: relative to the
+    project folder) and its help text."""
+
+    choices: tuple | None = None
+    min: float | None = None
+    max: float | None = None
+    min_open: bool = False
+    max_open: bool = False
+    path: bool = False
+    help: str = ""
+
+
 def setting(default=dataclasses.MISSING, *, default_factory=dataclasses.MISSING, choices=None, min=None, max=None,
             min_open: bool = False, max_open: bool = False, path: bool = False, help: str = ""):
     """A dataclass field with its constraints (see the module docstring)."""
-    meta = {_KEY: dict(choices=tuple(choices) if choices is not None else None, min=min, max=max,
-                       min_open=min_open, max_open=max_open, path=path, help=help)}
+    meta = {_KEY: Constraints(choices=tuple(choices) if choices is not None else None, min=min, max=max,
+                              min_open=min_open, max_open=max_open, path=path, help=help)}
     if default_factory is not dataclasses.MISSING:
         return dataclasses.field(default_factory=default_factory, metadata=meta)
     return dataclasses.field(default=default, metadata=meta)
 
 
-def constraints(field: dataclasses.Field) -> dict:
-    return dict(field.metadata.get(_KEY) or dict(choices=None, min=None, max=None, min_open=False, max_open=False,
-                                                 path=False, help=""))
+def constraints(field: dataclasses.Field) -> Constraints:
+    """The constraints ``setting`` gave the field (a plain field: none)."""
+    return field.metadata.get(_KEY) or Constraints()
 
 
 def field_named(cls, name: str) -> dataclasses.Field:
@@ -85,36 +100,36 @@ def _unwrap_optional(tp):
     return tp, False
 
 
-def _describe(cons: dict) -> str:
-    if cons["choices"] is not None:
-        return "one of " + ", ".join(str(c) for c in cons["choices"])
+def _describe(cons: Constraints) -> str:
+    if cons.choices is not None:
+        return "one of " + ", ".join(str(c) for c in cons.choices)
     parts = []
-    if cons["min"] is not None:
-        parts.append(f"{'>' if cons['min_open'] else '>='} {cons['min']:g}")
-    if cons["max"] is not None:
-        parts.append(f"{'<' if cons['max_open'] else '<='} {cons['max']:g}")
+    if cons.min is not None:
+        parts.append(f"{'>' if cons.min_open else '>='} {cons.min:g}")
+    if cons.max is not None:
+        parts.append(f"{'<' if cons.max_open else '<='} {cons.max:g}")
     return " and ".join(parts)
 
 
-def check_value(value, cons: dict, where: str) -> None:
+def check_value(value, cons: Constraints, where: str) -> None:
     """Range and choice checks of one (scalar) value; ``ConfigError`` naming ``where``."""
-    if cons["choices"] is not None and value not in cons["choices"]:
+    if cons.choices is not None and value not in cons.choices:
         raise ConfigError(f"{where} = {value!r}: expected {_describe(cons)}")
     if isinstance(value, (int, float)) and not isinstance(value, bool):
-        lo, hi = cons["min"], cons["max"]
-        if (lo is not None and (value < lo or (cons["min_open"] and value == lo))) or \
-                (hi is not None and (value > hi or (cons["max_open"] and value == hi))):
+        lo, hi = cons.min, cons.max
+        if (lo is not None and (value < lo or (cons.min_open and value == lo))) or \
+                (hi is not None and (value > hi or (cons.max_open and value == hi))):
             raise ConfigError(f"{where} = {value!r}: out of range, expected {_describe(cons)}")
 
 
-def _convert(value, tp, cons: dict, where: str, base_dir):
+def _convert(value, tp, cons: Constraints, where: str, base_dir):
     tp, _ = _unwrap_optional(tp)
     if dataclasses.is_dataclass(tp):
         if not isinstance(value, dict):
             raise ConfigError(f"{where}: expected a table of {', '.join(f.name for f in dataclasses.fields(tp))}")
         return from_table(tp, value, where, base_dir)
     origin = typing.get_origin(tp) or tp
-    if cons["path"]:
+    if cons.path:
         if not isinstance(value, str) or not value.strip():
             raise ConfigError(f"{where} = {value!r}: expected a file name (text)")
         p = Path(value)
@@ -208,14 +223,14 @@ def click_type(cls, name: str):
     f = field_named(cls, name)
     cons = constraints(f)
     tp, _ = _unwrap_optional(typing.get_type_hints(cls)[name])
-    if cons["choices"] is not None and tp is str:
-        return click.Choice([str(c) for c in cons["choices"]])
-    if cons["path"] or tp is Path:
+    if cons.choices is not None and tp is str:
+        return click.Choice([str(c) for c in cons.choices])
+    if cons.path or tp is Path:
         return click.Path(path_type=Path)
     if tp is float:
-        return FiniteFloatRange(min=cons["min"], max=cons["max"], min_open=cons["min_open"], max_open=cons["max_open"])
-    if tp is int and (cons["min"] is not None or cons["max"] is not None):
-        return click.IntRange(min=cons["min"], max=cons["max"], min_open=cons["min_open"], max_open=cons["max_open"])
+        return FiniteFloatRange(min=cons.min, max=cons.max, min_open=cons.min_open, max_open=cons.max_open)
+    if tp is int and (cons.min is not None or cons.max is not None):
+        return click.IntRange(min=cons.min, max=cons.max, min_open=cons.min_open, max_open=cons.max_open)
     return {int: click.INT, bool: click.BOOL}.get(tp, click.STRING)
 
 
@@ -371,7 +386,7 @@ def click_option(cls, path: str, *decls: str, **kw):
         _OPTION_CLASS = _option_class()
     owner, name = _owner(cls, path)
     tp, _ = _unwrap_optional(typing.get_type_hints(owner)[name])
-    help_text = constraints(field_named(owner, name))["help"]
+    help_text = constraints(field_named(owner, name)).help
     if getattr(cls, "SECTION", None) is not None:
         help_text = f"{help_text} (project.toml {toml_key(cls, path)})".strip()
     opts = dict(default=field_default(cls, path), show_default=True, help=help_text)
@@ -381,7 +396,7 @@ def click_option(cls, path: str, *decls: str, **kw):
     elif typing.get_origin(tp) in (tuple, list) or tp in (tuple, list):
         if not kw.get("multiple") and not kw.get("nargs"):
             opts.update(type=click.STRING, callback=_comma_list(owner, name))
-            choices = constraints(field_named(owner, name))["choices"]
+            choices = constraints(field_named(owner, name)).choices
             if choices is not None:
                 opts["help"] = f"{opts['help']} Comma-separated: {', '.join(map(str, choices))}."
             d = opts["default"]
@@ -550,11 +565,11 @@ def markdown_reference(sections: list[tuple[str, list, str]], options: dict) -> 
             f = field_named(owner, fname)
             cons = constraints(f)
             tp = typing.get_type_hints(owner)[fname]
-            allowed = _describe(cons) if (cons["choices"] is not None or cons["min"] is not None
-                                          or cons["max"] is not None) else ""
+            allowed = _describe(cons) if (cons.choices is not None or cons.min is not None
+                                          or cons.max is not None) else ""
             opts = "<br>".join(f"`{o}`" for o in options.get((cls, path), []))
             key = toml_key(cls, path).replace(f"[{name}] ", "")
-            help_text = cons["help"].replace("|", "\\|").replace("\n", " ")
+            help_text = cons.help.replace("|", "\\|").replace("\n", " ")
             out.append(f"| `{key}` | {_type_name(tp)} | {unit_of(fname)} | `{_md_value(field_default(cls, path))}` | "
                        f"{allowed} | {opts} | {help_text} |")
         out.append("")

@@ -233,11 +233,6 @@ def load_table(scale: str | None = None, terrain: str = "flat", tolerance_file=N
                           reason=reason, platform="uas" if uas else None)
 
 
-def load_tolerances(scale: str | None = None, terrain: str = "flat", tolerance_file=None) -> dict:
-    """The limits of a table key (or a user's file) for one terrain class (``load_table(...).limits``)."""
-    return load_table(scale, terrain, tolerance_file).limits
-
-
 @dataclasses.dataclass(frozen=True)
 class QaConfig:
     """``[qa]`` of project.toml, checked; None where not given."""

@@ -157,7 +157,7 @@ def _lines(path: Path):
             yield n, s
 
 
-def read_cameras_txt(path: Path) -> dict[int, tuple[str, int, int, list[float]]]:
+def _read_cameras_txt(path: Path) -> dict[int, tuple[str, int, int, list[float]]]:
     """camera id -> (model, width, height, params) of ``cameras.txt``."""
     cams = {}
     for n, s in _lines(path):
@@ -183,7 +183,7 @@ def read_cameras_txt(path: Path) -> dict[int, tuple[str, int, int, list[float]]]
     return cams
 
 
-def read_images_txt(path: Path) -> list[tuple[str, int, np.ndarray, np.ndarray, str]]:
+def _read_images_txt(path: Path) -> list[tuple[str, int, np.ndarray, np.ndarray, str]]:
     """(name, camera id, R world -> camera (3, 3), t (3,), where) per image of ``images.txt`` (every other
     data line: the image line, then its points line, which may be empty)."""
     text = read_text(path, "COLMAP text model")
@@ -359,7 +359,7 @@ def read(files: list[Path], project: Project, options: ImportSettings) -> Import
     folder = _folder_of(files)
     block = ImportedBlock(source=[str(folder)])
     if (folder / "cameras.txt").is_file() and (folder / "images.txt").is_file():
-        cams, images = read_cameras_txt(folder / "cameras.txt"), read_images_txt(folder / "images.txt")
+        cams, images = _read_cameras_txt(folder / "cameras.txt"), _read_images_txt(folder / "images.txt")
         where = str(folder / "images.txt")
     elif (folder / "cameras.bin").is_file() and (folder / "images.bin").is_file():
         cams, images = _read_binary(folder)

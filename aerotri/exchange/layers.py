@@ -63,7 +63,7 @@ def _dem_sampler(ds):
 
 def footprints(project: Project, block: AdjustedBlock) -> tuple[list[str], list[np.ndarray], np.ndarray, str]:
     """(image ids, (M, 3) outline per frame in the project CRS, omega-phi-kappa (N, 3), surface used)."""
-    from aerotri.geom.camera import adjusted_camera
+    from aerotri.adjust.report_record import adjusted_camera
     from aerotri.geom.eo import read_eo
 
     cam, _ = adjusted_camera(project)

@@ -365,7 +365,7 @@ def reconstruction(eo: ExteriorOrientations, camera: Camera, project: Project, r
     t = -np.einsum("nij,nj->ni", R_wc, topo)
     gps = {}
     if gnss is not None:
-        gi = gnss.index()
+        gi = {k: i for i, k in enumerate(gnss.image_id)}  # the frames with a GNSS position
         g_topo, _ = project_to_topocentric(reference, project, gnss.position_m, None, "gnss.txt")
         for iid in eo.image_id:
             if iid in gi:

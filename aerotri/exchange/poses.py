@@ -18,7 +18,8 @@ import numpy as np
 from aerotri.core.errors import InputError
 from aerotri.core.project import Project
 from aerotri.exchange.imported import to_project_crs
-from aerotri.geom.camera import Camera, adjusted_camera
+from aerotri.adjust.report_record import adjusted_camera
+from aerotri.geom.camera import Camera
 from aerotri.geom.eo import ExteriorOrientations, read_eo
 from aerotri.geom.rotation import opk_from_matrix, rotation_matrix_opk
 

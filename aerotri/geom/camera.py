@@ -481,17 +481,3 @@ def dmc_camera() -> BrownCamera:
 def project_camera(project) -> Camera:
     """The nominal camera of a project folder (``camera.toml``)."""
     return Camera.read(project.camera_path)
-
-
-def adjusted_camera(project) -> tuple[Camera, str]:
-    """(camera, source): the self-calibrated camera of the project's last adjustment (``at/report.json``)
-    when there is one, else the nominal ``camera.toml``. Orientations in ``at/eo.txt`` belong to it."""
-    from aerotri.core.textio import read_json
-
-    rep = project.adjustment_report_path
-    if rep.is_file():
-        d = read_json(rep, "adjustment report")
-        cam = (d.get("self_calibration") or {}).get("camera") if isinstance(d, dict) else None
-        if cam:
-            return Camera.from_dict(cam, source=f"{rep} self_calibration.camera"), f"{rep} (self-calibrated)"
-    return project_camera(project), str(project.camera_path)

@@ -37,8 +37,21 @@ class ExteriorOrientations:
     def rotations(self) -> np.ndarray:
         return rotation_matrix_opk(self.opk_deg[:, 0], self.opk_deg[:, 1], self.opk_deg[:, 2])
 
-    def index(self) -> dict[str, int]:
-        return {k: i for i, k in enumerate(self.image_id)}
+    def rows(self, image_ids) -> np.ndarray:
+        """The row numbers (int) of ``image_ids`` (KeyError naming the first id that has no orientation)."""
+        return _rows(self.image_id, image_ids, "orientation")
+
+    def row(self, image_id: str) -> int:
+        return int(self.rows([image_id])[0])
+
+
+def _rows(ids, wanted, what: str) -> np.ndarray:
+    """Row numbers in ``ids`` of the ids ``wanted``, in their order."""
+    at = {k: i for i, k in enumerate(ids)}
+    try:
+        return np.array([at[k] for k in wanted], dtype=np.int64)
+    except KeyError as exc:
+        raise KeyError(f"image {exc.args[0]!r} has no {what}") from None
 
 
 def _parse_table(path: Path, min_cols: int, max_cols: int, what: str) -> tuple[list[str], np.ndarray, list[int]]:
@@ -135,8 +148,9 @@ class GnssPositions:
     position_m: np.ndarray  # (N, 3)
     sigma_m: np.ndarray | None = None  # (N, 3)
 
-    def index(self) -> dict[str, int]:
-        return {k: i for i, k in enumerate(self.image_id)}
+    def rows(self, image_ids) -> np.ndarray:
+        """The row numbers (int) of ``image_ids`` (KeyError naming the first id that has no position)."""
+        return _rows(self.image_id, image_ids, "GNSS position")
 
 
 def read_gnss(path, crs=None) -> GnssPositions:

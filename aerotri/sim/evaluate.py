@@ -67,8 +67,7 @@ def tie_point_errors(project, tiepoints_csv=None, tol_px: float = 1.0) -> TiePoi
     with open(project / "project.toml", "rb") as f:
         frame = LocalFrame.at_centre(tomllib.load(f)["project"]["crs"], eo.centre_m)
     centre = frame.to_local(eo.centre_m)
-    idx = eo.index()
-    img = np.array([idx[i] for i in iid])
+    img = eo.rows(iid)
     _, track = np.unique(pid, return_inverse=True)
     n = int(track.max()) + 1 if len(track) else 0
     R = frame.rotation_local_from_map(eo.centre_m) @ eo.rotations()

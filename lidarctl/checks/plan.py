@@ -270,14 +270,14 @@ def check_plan_file(cloud_paths, points_csv, params: PlanCheckSettings = PlanChe
     """Plan check of surveyed corners (CSV id,x,y[,z] in the clouds' CRS and units) against the roof corners of
     classified LAS/LAZ file(s) (strips in one CRS). Returns (result, the LiDAR corners in the CRS's units).
     InputError when no surveyed point lies within the clouds' extent (wrong CRS or units, or the wrong area)."""
-    from aerotri.core.tolerances import TERRAINS, load_tolerances
-    from lidarctl.corners.roof_corners import find_roof_corners_tiled, to_crs_units
+    from aerotri.core.tolerances import TERRAINS, load_table
+    from lidarctl.corners.roof_corners import find_roof_corners_tiled
     from lidarctl.checks.heights import read_points_csv
 
     params.validate()
     if params.terrain not in TERRAINS:
         raise OptionError(f"{params.terrain!r}: expected one of {', '.join(TERRAINS)}", param="--terrain")
-    tol = load_tolerances(params.scale, params.terrain).get("feature_rms_xy_m")
+    tol = load_table(params.scale, params.terrain).limits.get("feature_rms_xy_m")
     paths = [Path(p) for p in cloud_paths]
     if not paths:
         raise OptionError("give the classified cloud(s) before POINTS_CSV", param="CLOUD")
@@ -292,11 +292,11 @@ def check_plan_file(cloud_paths, points_csv, params: PlanCheckSettings = PlanChe
                                               work_dir=tempfile.gettempdir())
     points_m = points.in_metres(units)
     out = dataclasses.replace(
-        check_plan(result["corners"], points_m, params, units, tol),
-        min_edge_m=result["stats"]["min_edge_m"],  # the value used (resolved from the spacing by default)
+        check_plan(result.corners, points_m, params, units, tol),
+        min_edge_m=result.stats.min_edge_m,  # the value used (resolved from the spacing by default)
         clouds=tuple(str(p) for p in paths), points_csv=str(points_csv),
         crs=crs_found.to_string() if crs_found is not None else None, n_outside_cloud=int((~inside).sum()))
-    return out, to_crs_units(result, units)["corners"]
+    return out, result.in_crs_units(units).corners
 
 
 def plot_plan_check(result: PlanCheckResult, corners: list[dict], path, title: str = "") -> Path:

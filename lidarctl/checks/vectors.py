@@ -219,7 +219,7 @@ def check_vectors(product_path, reference_path, params: VectorCheckSettings = Ve
     """Accuracy of the DLG ``product_path`` against ``reference_path`` (see the module doc; metres): the typed
     record, the JSON document and the buildings' corner offsets. Raises InputError / CrsError / OptionError
     naming the file or option."""
-    from aerotri.core.tolerances import TERRAINS, load_tolerances
+    from aerotri.core.tolerances import TERRAINS, load_table
     from aerotri.geom.crs.definition import crs_label, same_horizontal
 
     for name in ("match_m", "buffer_m"):
@@ -228,7 +228,7 @@ def check_vectors(product_path, reference_path, params: VectorCheckSettings = Ve
             raise OptionError(f"must be a positive number of metres, got {v}", param="--" + name[:-2].replace("_", "-"))
     if params.terrain not in TERRAINS:
         raise OptionError(f"{params.terrain!r}: expected one of {', '.join(TERRAINS)}", param="--terrain")
-    tol = load_tolerances(params.scale, params.terrain).get("feature_rms_xy_m")
+    tol = load_table(params.scale, params.terrain).limits.get("feature_rms_xy_m")
     prod, pcrs, p_m = read_layers(product_path)
     ref, rcrs, r_m = read_layers(reference_path)
     if pcrs is not None and rcrs is not None and not same_horizontal(pcrs, rcrs):

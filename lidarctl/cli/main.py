@@ -74,7 +74,7 @@ def ground_filter_options(f):
             f = click.option(ground.option_name(method, fld.name), f"gp__{method}__{fld.name}", cls=GroupedOption,
                              group=f"Ground filter {method!r}, {flt.help} (--method {method}; [default] without --preset)",
                              type=click_type(flt.params, fld.name), default=None,
-                             help=f"{constraints(fld)['help']} [{getattr(defaults, fld.name):g}]")(f)
+                             help=f"{constraints(fld).help} [{getattr(defaults, fld.name):g}]")(f)
     return click.option("--ground-params", "ground_params_file", type=click.Path(dir_okay=False), default=None,
                         help="TOML file of ground-filter parameters: optional method and preset keys and a table "
                              "per filter, e.g. [ptd] seed_cell_m = 20.0; the options below override it.")(f)

@@ -26,7 +26,7 @@ end at corners of the outline (not where the edge lines of a neighbour meet off 
 with ``roof="flat"``, its roof is flat.
 
 Units: ``find_roof_corners`` works in metres (every length above, the sigmas and the edge lengths);
-``read_strips`` scales clouds in feet to metres and ``to_crs_units`` writes the corner and outline
+``read_strips`` scales clouds in feet to metres and ``RoofCorners.in_crs_units`` writes the corner and outline
 coordinates (x, y, z) back in the clouds' CRS units, so corners.csv holds coordinates in the input's
 CRS (x, y in its horizontal unit, z in its vertical unit) and sigmas in metres (``_m`` columns);
 corners.json names the units (``xy_unit``, ``z_unit``); ``read_corner_summary`` reads it back into the
@@ -205,6 +205,31 @@ class CornerControlResult:
         return json.dumps(out, indent=2) + "\n"
 
 
+@dataclasses.dataclass(frozen=True)
+class RoofCorners:
+    """What ``find_roof_corners`` found: the reported corners (rows of ``CSV_COLUMNS`` and their scores), the
+    regularised roof outlines, the roof faces (planes with their shrunk footprints) and the numbers.
+    ``units``: None while coordinates are in metres (as found); else the CRS units ``in_crs_units`` gave
+    the corner, outline and face coordinates (sigmas, edge lengths and spacings stay in metres)."""
+
+    corners: list
+    outlines: list
+    faces: list
+    stats: CornerStats
+    units: LengthUnits | None = None
+
+    def in_crs_units(self, units: LengthUnits) -> "RoofCorners":
+        """Corner, outline and roof-face coordinates in the CRS units (``lidarctl.units.LengthUnits``: x, y in
+        the horizontal unit, z in the vertical unit), from the result in metres."""
+        if self.units is not None:
+            raise ValueError("the corners are in CRS units already")
+        corners = [dict(c, x=float(units.xy_from_m(c["x"])), y=float(units.xy_from_m(c["y"])),
+                        z=float(units.z_from_m(c["z"]))) for c in self.corners]
+        outlines = [dict(o, rings=[np.asarray(units.xy_from_m(np.asarray(r, float))) for r in o["rings"]])
+                    for o in self.outlines]
+        return RoofCorners(corners, outlines, _faces_in_crs_units(self.faces, units), self.stats, units)
+
+
 def _units_of(d: Mapping) -> LengthUnits | None:
     """The units a record names (``LengthUnits.as_dict``' keys), None when it names none."""
     if "xy_unit_m" not in d:
@@ -241,7 +266,27 @@ def read_classified_cloud(path, crs=None, require_crs: bool = False) -> las_io.P
     return dataclasses.replace(c, point_source_id=c.point_source_id.astype(np.int64))
 
 
-def read_strips(paths, crs=None) -> dict:
+@dataclasses.dataclass(frozen=True)
+class ClassifiedStrips:
+    """Classified strips concatenated (file order): x, y, z in metres, the class, the strip id
+    (``point_source_id``, int64), the files' one CRS (pyproj or None) and their units."""
+
+    x: np.ndarray
+    y: np.ndarray
+    z: np.ndarray
+    classification: np.ndarray
+    point_source_id: np.ndarray
+    crs: object
+    units: LengthUnits
+
+    def subset(self, keep: np.ndarray) -> "ClassifiedStrips":
+        """The points where ``keep`` (a boolean mask or indices)."""
+        return dataclasses.replace(self, x=self.x[keep], y=self.y[keep], z=self.z[keep],
+                                   classification=self.classification[keep],
+                                   point_source_id=self.point_source_id[keep])
+
+
+def read_strips(paths, crs=None) -> ClassifiedStrips:
     """The classified strips of ``read_classified_cloud`` concatenated (x, y, z in metres), with one
     CRS: a file whose CRS (or units) differs from the first file's is an InputError naming it.
     Files without strip ids (all points of each file share one point_source_id) are told apart by
@@ -256,8 +301,7 @@ def read_strips(paths, crs=None) -> dict:
     if len(clouds) > 1 and all(len(np.unique(c.point_source_id)) == 1 for c in clouds):
         # one file per strip without strip ids: the file is the strip
         cat["point_source_id"] = np.concatenate([np.full(len(c.x), i + 1) for i, c in enumerate(clouds)])
-    cat.update(crs=first.crs, units=first.units)
-    return cat
+    return ClassifiedStrips(**cat, crs=first.crs, units=first.units)
 
 
 def _margin_grid(xy: np.ndarray, cell_m: float, anchor=None):
@@ -603,7 +647,7 @@ def find_roof_corners(
     roof: str = "flat",
     sigma_strip_xy_m: float = 0.03,
     sigma_strip_z_m: float = 0.03,
-) -> dict:
+) -> RoofCorners:
     """Corners and regularised outlines of all roofs of a classified cloud (metres).
 
     ``min_edge_m``: shortest edge of a reported corner; None: ``default_min_edge_m`` of the building
@@ -616,9 +660,8 @@ def find_roof_corners(
     common to all points of the strip, so no fit over its points reduces it; added in quadrature to the
     fitted corner's standard deviations. Take them from the system's (strip-adjusted) accuracy.
 
-    Returns ``{"corners": list of dict (CSV_COLUMNS), "outlines": list of dict, "faces": list of dict (roof
-    planes with their shrunk footprints, ``_roof_faces``), "stats": dict}``;
-    raises InputError when the cloud has no building points or no roof could be outlined.
+    Returns the ``RoofCorners`` in metres (corners: rows of ``CSV_COLUMNS``; faces: roof planes with their
+    shrunk footprints, ``_roof_faces``); raises InputError when the cloud has no building points or no roof could be outlined.
     """
     if roof not in ("flat", "any"):
         raise InputError(f"roof must be 'flat' or 'any', not {roof!r}")
@@ -647,7 +690,7 @@ def min_roof_m2(min_edge_m: float) -> float:
 
 
 def _finish(raw, outlines, faces, *, n_points, n_building_points, spacing_m, n_roofs, t_start, min_edge_m, roof,
-            sigma_strip_xy_m, sigma_strip_z_m, min_edge_auto=False) -> dict:
+            sigma_strip_xy_m, sigma_strip_z_m, min_edge_auto=False) -> RoofCorners:
     """The reported corners and the stats of the scored corners of all roofs (in roof order)."""
     if not raw:
         raise InputError(
@@ -656,7 +699,7 @@ def _finish(raw, outlines, faces, *, n_points, n_building_points, spacing_m, n_r
         )
     corners = _reported_corners(raw, min_edge_m, spacing_m)
     n_usable = sum(c["usable"] for c in corners)
-    stats = {
+    stats = CornerStats(**{
         "n_points": int(n_points), "n_building_points": n_building_points, "point_spacing_m": spacing_m,
         "n_roofs": n_roofs, "n_outlines": len(outlines), "n_corners_traced": len(raw),
         "n_corners": len(corners), "n_usable": int(n_usable), "n_roof_planes": len(faces),
@@ -671,8 +714,8 @@ def _finish(raw, outlines, faces, *, n_points, n_building_points, spacing_m, n_r
             if n_usable else None
         ),
         "runtime_s": time.perf_counter() - t_start,
-    }
-    return {"corners": corners, "outlines": outlines, "faces": faces, "stats": stats}
+    })
+    return RoofCorners(corners, outlines, faces, stats)
 
 
 # ------------------------------------------------------------------------------------------------ by tiles
@@ -1020,7 +1063,8 @@ def find_roof_corners_tiled(paths, crs=None, *, tile_m: float = DEFAULT_TILE_M, 
                          min_edge_auto=min_edge_auto)
     except InputError as exc:
         raise InputError(f"{names}: {exc}") from None
-    result["stats"].update(tiles=len(tiles), tile_m=tile_m, buffer_m=buffer_m)
+    result = dataclasses.replace(result, stats=dataclasses.replace(result.stats, tiles=len(tiles), tile_m=tile_m,
+                                                                   buffer_m=buffer_m))
     figure = None
     if fig is not None:
         figure = _crop_to_data(fig["ndsm"], fig["extent"], fig["cell"])
@@ -1134,10 +1178,11 @@ def _crs_member(crs) -> dict | None:
     return {"type": "name", "properties": {"name": f"urn:ogc:def:crs:EPSG::{epsg}" if epsg else crs.to_wkt()}}
 
 
-def roof_planes_geojson(faces: list[dict], stats: dict, crs=None) -> dict:
+def roof_planes_geojson(faces: list[dict], units: LengthUnits | None, *, sigma_strip_xy_m: float,
+                        sigma_strip_z_m: float, crs=None) -> dict:
     """roof_planes.geojson: one Polygon per roof face (its footprint shrunk inward by ``margin_m``, exterior
-    CCW) with the face's plane (``ROOF_PLANE_MODEL``); coordinates in the CRS's units. ``faces`` as
-    ``to_crs_units`` returns them, ``stats`` with the units (``xy_unit_m``, ``z_unit_m``) and strip sigmas."""
+    CCW) with the face's plane (``ROOF_PLANE_MODEL``); coordinates in the CRS's units (``units``; None: metres,
+    no unit names). ``faces`` as ``RoofCorners.in_crs_units`` gives them; the strip sigmas in metres."""
     feats = []
     for n, f in enumerate(faces, 1):
         rings = [np.asarray(f["rings"][0]).round(3).tolist()] + [np.asarray(r).round(3).tolist() for r in f["rings"][1:]]
@@ -1148,9 +1193,9 @@ def roof_planes_geojson(faces: list[dict], stats: dict, crs=None) -> dict:
             "slope_deg": round(f["slope_deg"], 3), "margin_m": round(f["margin_m"], 3), "area_m2": round(f["area_m2"], 1),
         }})
     out = {"type": "FeatureCollection", "plane_model": ROOF_PLANE_MODEL,
-           **{k: stats.get(k, 1.0) for k in ("xy_unit_m", "z_unit_m")},
-           **{k: stats.get(k) for k in ("xy_unit", "z_unit", "sigma_strip_xy_m", "sigma_strip_z_m")},
-           "features": feats}
+           "xy_unit_m": units.xy_m if units is not None else 1.0, "z_unit_m": units.z_m if units is not None else 1.0,
+           "xy_unit": units.xy_name if units is not None else None, "z_unit": units.z_name if units is not None else None,
+           "sigma_strip_xy_m": sigma_strip_xy_m, "sigma_strip_z_m": sigma_strip_z_m, "features": feats}
     member = _crs_member(crs)
     if member is not None:
         out["crs"] = member
@@ -1175,25 +1220,13 @@ def _faces_in_crs_units(faces: list[dict], units) -> list[dict]:
     return out
 
 
-def to_crs_units(result: dict, units) -> dict:
-    """``find_roof_corners`` result (metres) with corner, outline and roof-face coordinates in the CRS units
-    (``lidarctl.units.LengthUnits``: x, y in the horizontal unit, z in the vertical unit); sigmas,
-    edge lengths and spacings stay in metres (``_m`` keys). The stats name the units."""
-    corners = [dict(c, x=float(units.xy_from_m(c["x"])), y=float(units.xy_from_m(c["y"])),
-                    z=float(units.z_from_m(c["z"]))) for c in result["corners"]]
-    outlines = [dict(o, rings=[np.asarray(units.xy_from_m(np.asarray(r, float))) for r in o["rings"]])
-                for o in result["outlines"]]
-    return {"corners": corners, "outlines": outlines, "faces": _faces_in_crs_units(result.get("faces", []), units),
-            "stats": {**result["stats"], **units.as_dict()}}
-
-
-def write_corner_files(outdir, result: dict, crs=None, source: str | None = None, inputs=(),
+def write_corner_files(outdir, result: RoofCorners, crs=None, source: str | None = None, inputs=(),
                        settings_record: dict | None = None) -> CornerFiles:
     """Write corners.csv, corners.geojson, roof_planes.geojson and corners.json (summary) atomically; return
     the paths and the summary.
 
-    ``result``: corners and faces in the CRS's units (``to_crs_units``; a result in metres without units
-    is written as metres). ``inputs``: the input files, which no output may replace. ``settings_record``: the
+    ``result``: corners and faces in the CRS's units (``RoofCorners.in_crs_units``; a result in metres without
+    units is written as metres). ``inputs``: the input files, which no output may replace. ``settings_record``: the
     settings with their sources (``aerotri.core.settings.Resolved.record``), corners.json ``settings``."""
     outdir = Path(outdir)
     files = CornerFiles(outdir / "corners.csv", outdir / "corners.geojson", outdir / ROOF_PLANES_FILE,
@@ -1201,16 +1234,18 @@ def write_corner_files(outdir, result: dict, crs=None, source: str | None = None
     for p in (files.csv, files.geojson, files.planes, files.summary_json):
         refuse_input_as_output(p, inputs, "OUTDIR")
     outdir.mkdir(parents=True, exist_ok=True)
-    write_text_atomic(files.csv, corners_csv_text(result["corners"]))
-    write_text_atomic(files.geojson, json.dumps(_corners_geojson_document(result["corners"], result["outlines"], crs)))
-    faces = result.get("faces", [])
-    if faces and "plane" in faces[0]:  # still in metres (find_roof_corners' result as it is)
+    write_text_atomic(files.csv, corners_csv_text(result.corners))
+    write_text_atomic(files.geojson, json.dumps(_corners_geojson_document(result.corners, result.outlines, crs)))
+    faces = result.faces
+    if result.units is None:  # still in metres (find_roof_corners' result as it is)
         from lidarctl.units import METRE
 
         faces = _faces_in_crs_units(faces, METRE)
-    write_text_atomic(files.planes, json.dumps(roof_planes_geojson(faces, result["stats"], crs)))
-    summary = CornerControlResult(source, crs.to_string() if crs is not None else None, _units_of(result["stats"]),
-                                  CornerStats.of_record(result["stats"]), settings_record)
+    write_text_atomic(files.planes, json.dumps(roof_planes_geojson(
+        faces, result.units, sigma_strip_xy_m=result.stats.sigma_strip_xy_m,
+        sigma_strip_z_m=result.stats.sigma_strip_z_m, crs=crs)))
+    summary = CornerControlResult(source, crs.to_string() if crs is not None else None, result.units,
+                                  result.stats, settings_record)
     write_text_atomic(files.summary_json, summary.to_json())
     return dataclasses.replace(files, summary=summary)
 
@@ -1364,7 +1399,7 @@ def corner_control(paths, outdir, settings: CornerSettings | Resolved = CornerSe
         sigma_strip_xy_m=s.sigma_strip_xy_m, sigma_strip_z_m=s.sigma_strip_z_m,
         work_dir=next(p for p in (outdir, *outdir.parents) if p.is_dir()),
         figure_cells=FIGURE_CELLS if s.figure else 0, work_name=f"{outdir.name}.corners")
-    st = CornerStats.of_record(result["stats"])
+    st = result.stats
     crs_text = crs_out.to_string() if crs_out is not None else None
     if st.n_usable == 0:
         reason = (f"{names}: no usable roof corner ({st.n_corners} corners on {st.n_outlines} roof outlines, "
@@ -1382,11 +1417,11 @@ def corner_control(paths, outdir, settings: CornerSettings | Resolved = CornerSe
         return summary
     if s.figure:
         ndsm, extent_m = figure
-    out = to_crs_units(result, units)
+    out = result.in_crs_units(units)
     files = write_corner_files(outdir, out, crs=crs_out, source=names, inputs=paths, settings_record=resolved.record())
     if s.figure:
         extent = tuple(float(units.xy_from_m(v)) for v in extent_m)
-        plot_corners(outdir / "corners.png", ndsm, extent, out["outlines"], out["corners"],
+        plot_corners(outdir / "corners.png", ndsm, extent, out.outlines, out.corners,
                      title=f"roof corners: {st.n_usable} usable of {st.n_corners} (edges >= {st.min_edge_m:.2f} m)",
                      xy_unit=units.xy_name)
     return files.summary

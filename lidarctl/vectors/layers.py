@@ -317,39 +317,40 @@ def centrelines(mask: np.ndarray, x0, y0, cell_m: float, simplify_m: float) -> l
 
 
 # --------------------------------------------------------------------------------------------- buildings
-def building_outlines(pts: dict, spacing_m: float | None = None) -> tuple[list, list, dict]:
-    """(polygons in metres, attribute rows, stats) of the buildings of a cloud (``corners.read_strips`` dict)."""
+def building_outlines(pts, spacing_m: float | None = None) -> tuple[list, list, dict]:
+    """(polygons in metres, attribute rows, stats) of the buildings of a cloud (``corners.ClassifiedStrips``, or
+    any object with its x, y, z, classification and point_source_id arrays)."""
     import shapely
     from shapely.geometry import Polygon
 
     from lidarctl.corners.roof_corners import find_roof_corners
 
-    cls = pts["classification"]
+    cls = pts.classification
     if not (cls == BUILDING).any():
         return [], [], {"n_roofs": 0}
     try:
         # min_edge_m as before the corner stage's density-adaptive default (issue 21): it sets the smallest
         # roof outlined (25 m^2) and the corners the eave heights come from; not re-evaluated for the line map
-        res = find_roof_corners(pts["x"], pts["y"], pts["z"], cls, pts["point_source_id"], roof="any", min_edge_m=5.0)
+        res = find_roof_corners(pts.x, pts.y, pts.z, cls, pts.point_source_id, roof="any", min_edge_m=5.0)
     except InputError as exc:
         log.info(f"no building outlines: {exc}")
         return [], [], {"n_roofs": 0}
     is_b, is_g = cls == BUILDING, cls == GROUND
-    bxy = np.column_stack([pts["x"][is_b], pts["y"][is_b]])
-    bz = pts["z"][is_b]
-    gxy = np.column_stack([pts["x"][is_g], pts["y"][is_g]])
-    gz = pts["z"][is_g]
+    bxy = np.column_stack([pts.x[is_b], pts.y[is_b]])
+    bz = pts.z[is_b]
+    gxy = np.column_stack([pts.x[is_g], pts.y[is_g]])
+    gz = pts.z[is_g]
     from scipy.spatial import cKDTree
 
     btree = cKDTree(bxy)
     # eave height: the corners' heights, each the roof plane at the corner (corners.py)
     corner_z: dict = {}
-    for c in res["corners"]:
+    for c in res.corners:
         corner_z.setdefault(int(c["building_id"]), []).append(float(c["z"]))
     gtree = cKDTree(gxy) if len(gxy) else None
     polys, rows = [], []
     candidates = []
-    for o in res["outlines"]:
+    for o in res.outlines:
         rings = [r for r in o["rings"] if len(r) >= 3]
         if not rings:
             continue
@@ -416,7 +417,7 @@ def building_outlines(pts: dict, spacing_m: float | None = None) -> tuple[list, 
         rows.append(dict(building_id=building_id, roof=roof, eave_z=eave, ridge_z=ridge,
                          ground_z=ground, height_m=ridge - ground, area_m2=float(poly.area),
                          n_points=int(len(idx))))
-    return polys, rows, res["stats"]
+    return polys, rows, dataclasses.asdict(res.stats)
 
 
 # ------------------------------------------------------------------------------------------- spot heights
@@ -537,12 +538,12 @@ def extract_vectors(paths, out_path, params: MapVectorSettings = MapVectorSettin
         if not (np.isfinite(v) and v > 0):
             raise OptionError(f"must be a positive number, got {v}", param="--" + name.replace("_", "-"))
     pts = read_strips(paths, crs=crs)
-    units = pts["units"]
-    cls = pts["classification"]
+    units = pts.units
+    cls = pts.classification
     keep = ~np.isin(cls, NOISE)
-    pts = {k: (v[keep] if isinstance(v, np.ndarray) else v) for k, v in pts.items()}
-    cls = pts["classification"]
-    xy = np.column_stack([pts["x"], pts["y"]])
+    pts = pts.subset(keep)
+    cls = pts.classification
+    xy = np.column_stack([pts.x, pts.y])
     if len(xy) == 0:
         raise InputError(f"{', '.join(map(str, paths))}: no points besides noise")
     p = params
@@ -590,7 +591,7 @@ def extract_vectors(paths, out_path, params: MapVectorSettings = MapVectorSettin
     wmask = class_mask(xy[cls == WATER], x0, y0, p.cell_m, shape, min_area_m2=p.min_area_m2, close_cells=close,
                        void=void)
     wpolys = mask_polygons(wmask, x0, y0, p.cell_m, p.simplify_m)
-    wxy, wz = xy[cls == WATER], pts["z"][cls == WATER]
+    wxy, wz = xy[cls == WATER], pts.z[cls == WATER]
     wlevel = []
     for q in wpolys:
         inside = shapely.contains_xy(q, wxy[:, 0], wxy[:, 1]) if len(wxy) else np.zeros(0, bool)
@@ -601,18 +602,18 @@ def extract_vectors(paths, out_path, params: MapVectorSettings = MapVectorSettin
 
     # open terrain: ground, road surface and grass (a fused classification labels grassland 3)
     is_g = np.isin(cls, OPEN_GROUND)
-    sxy, sz = spot_heights(xy[is_g], pts["z"][is_g], xy[~is_g], max(p.cell_m, spacing), p.spot_spacing_m)
+    sxy, sz = spot_heights(xy[is_g], pts.z[is_g], xy[~is_g], max(p.cell_m, spacing), p.spot_spacing_m)
     layers.append(Layer("spot_heights", "Point", _scale_geoms(list(shapely.points(sxy)) if len(sxy) else [], f_xy),
                         {"z": sz * f_z, "z_m": sz}))
 
     if contours is not None:
-        layers.append(_read_contours(Path(contours), pts["crs"]))
+        layers.append(_read_contours(Path(contours), pts.crs))
     elif dem is not None:
-        layers.append(_dem_contours(Path(dem), Path(out_path), p.contour_interval_m, pts["crs"]))
+        layers.append(_dem_contours(Path(dem), Path(out_path), p.contour_interval_m, pts.crs))
     counts = VectorCounts(buildings=len(polys), roof_spacing_m=bstats.get("point_spacing_m"), roads=len(rpolys),
                           road_centrelines=len(lines), water=len(wpolys), spot_heights=len(sz),
                           contours=len(layers[-1].geometries) if len(layers) == 6 else None)
-    return MapVectors(layers, pts["crs"], units, counts)
+    return MapVectors(layers, pts.crs, units, counts)
 
 
 def write_vectors(mv: MapVectors, path) -> Path:

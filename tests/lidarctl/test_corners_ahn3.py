@@ -31,7 +31,7 @@ def test_ahn3_window_corners_near_bgt_footprint_vertices(shared_data):
     polys = [shapely.wkb.loads(bytes(b)) for (b,) in con.execute("SELECT GEOMETRY FROM buildingpart")]
     con.close()
     vertices = np.concatenate([np.asarray(p.exterior.coords)[:-1] for p in polys])
-    cxy = np.array([[q["x"], q["y"]] for q in res["corners"]])
+    cxy = np.array([[q["x"], q["y"]] for q in res.corners])
     # corners well inside the window, where BGT has footprints
     inner = (cxy[:, 0] > x0 + 10) & (cxy[:, 0] < x1 - 10) & (cxy[:, 1] > y0 + 10) & (cxy[:, 1] < y1 - 10)
     dist, _ = cKDTree(vertices).query(cxy[inner])
@@ -42,11 +42,11 @@ def test_ahn3_window_corners_near_bgt_footprint_vertices(shared_data):
     # corner heights are roof heights, not ground: every corner above the ground at it (the density-adaptive
     # minimum edge, 3.1 m here, also outlines garden sheds: eaves 0.8-1.6 m above the ground), and the
     # usable ones on the houses, 5-20 m above NAP ground
-    z = np.array([q["z"] for q in res["corners"]])
+    z = np.array([q["z"] for q in res.corners])
     g = c.classification == 2
     _, nn = cKDTree(np.column_stack([c.x[g], c.y[g]])).query(cxy)
     assert np.all(z - c.z[g][nn] > 0.5)
-    use = np.array([q["usable"] for q in res["corners"]], bool)
+    use = np.array([q["usable"] for q in res.corners], bool)
     assert use.sum() >= 10 and np.all((z[use] > 2.0) & (z[use] < 30.0))
 
 
@@ -59,14 +59,14 @@ def test_ahn3_tree_crowns_hide_corners_only_where_they_rise_above_the_view_rays(
     d = shared_data / "ahn3_delft"
     c = read_classified_cloud(d / "ahn3_cropped_1.laz")
     res = find_roof_corners(c.x, c.y, c.z, c.classification, c.point_source_id, roof="any")
-    corners = res["corners"]
+    corners = res.corners
     under = [q for q in corners if np.hypot(q["x"] - 84842.0, q["y"] - 447563.0) < 1.0]
     assert len(under) >= 1 and all(q["score_view_openness"] == 0.0 and not q["usable"] for q in under)
     openness = np.array([q["score_view_openness"] for q in corners])
     assert np.any((openness > 0.0) & (openness < 1.0))  # partly hidden: trees on some sides only
     # a usable corner's two edges end at corners of its roof outline (edge lengths between them): not the
     # corner at (84874.6, 447520.6), where the edge lines of its neighbours meet off the traced outline
-    rings = [np.asarray(r) for o in res["outlines"] for r in o["rings"]]
+    rings = [np.asarray(r) for o in res.outlines for r in o["rings"]]
     for q in corners:
         if not q["usable"]:
             continue

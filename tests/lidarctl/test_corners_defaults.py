@@ -38,7 +38,7 @@ def run(request):
 
 
 def _nearest(res, xy):
-    c = res["corners"]
+    c = res.corners
     cxy = np.array([[q["x"], q["y"]] for q in c])
     d = np.hypot(*(cxy - xy).T)
     k = int(np.argmin(d))
@@ -47,10 +47,10 @@ def _nearest(res, xy):
 
 def test_default_min_edge_follows_the_measured_spacing(run):
     spacing, res = run
-    st = res["stats"]
-    assert st["min_edge_m"] == pytest.approx(default_min_edge_m(st["point_spacing_m"]))
-    assert st["min_edge_m"] == pytest.approx(max(MIN_EDGE_FLOOR_M, MIN_EDGE_SPACINGS * spacing), rel=0.15)
-    assert "spacings" in st["min_edge_rule"]
+    st = res.stats
+    assert st.min_edge_m == pytest.approx(default_min_edge_m(st.point_spacing_m))
+    assert st.min_edge_m == pytest.approx(max(MIN_EDGE_FLOOR_M, MIN_EDGE_SPACINGS * spacing), rel=0.15)
+    assert "spacings" in st.min_edge_rule
     assert default_min_edge_m(0.05) == MIN_EDGE_FLOOR_M  # dense clouds: the floor
 
 

@@ -52,18 +52,18 @@ def strips(tmp_path_factory):
 
 def test_tiles_from_the_scratch_equal_the_whole_cloud(strips, tmp_path):
     cat = C.read_strips(strips)
-    assert cat["units"].xy_m == pytest.approx(FT)
-    whole = C.find_roof_corners(cat["x"], cat["y"], cat["z"], cat["classification"], cat["point_source_id"],
+    assert cat.units.xy_m == pytest.approx(FT)
+    whole = C.find_roof_corners(cat.x, cat.y, cat.z, cat.classification, cat.point_source_id,
                                 roof="any")
     # 50 m tiles with a 45 m buffer over the 150 m x 140 m town: roofs cut by tile edges, files read in pieces
     tiled, _, units, _ = C.find_roof_corners_tiled(strips, tile_m=50.0, buffer_m=45.0, roof="any", work_dir=tmp_path,
                                                    chunk_points=7_000)
-    assert tiled["stats"]["tiles"] >= 9 and not list(tmp_path.iterdir())
-    assert len(whole["corners"]) > 20
-    assert C.corners_csv_text(tiled["corners"]) == C.corners_csv_text(whole["corners"])
+    assert tiled.stats.tiles >= 9 and not list(tmp_path.iterdir())
+    assert len(whole.corners) > 20
+    assert C.corners_csv_text(tiled.corners) == C.corners_csv_text(whole.corners)
     for k in ("n_points", "n_building_points", "point_spacing_m", "n_roofs", "n_outlines", "n_corners_traced",
               "n_usable", "n_roof_planes"):
-        assert tiled["stats"][k] == whole["stats"][k], k
+        assert getattr(tiled.stats, k) == getattr(whole.stats, k), k
 
 
 def test_each_point_is_written_once_as_its_file_stores_it(strips, tmp_path):
@@ -71,14 +71,14 @@ def test_each_point_is_written_once_as_its_file_stores_it(strips, tmp_path):
     files = [f for f in tmp_path.iterdir() if f.name.startswith("tile_")]
     assert sum(f.stat().st_size for f in files) == tc.n_points * tc.record.itemsize == tc.n_points * 19
     cat = C.read_strips(strips)
-    keep = ~np.isin(cat["classification"], C.NOISE)
+    keep = ~np.isin(cat.classification, C.NOISE)
     got = np.concatenate([C._tile_points(tc, t) for t in np.flatnonzero(tc.used)])
     core = got[got["core"] == 1]
     assert len(core) == tc.n_points == keep.sum()
     core = core[np.argsort(core["index"])]
     np.testing.assert_array_equal(core["index"], np.arange(tc.n_points))
     for name, field in (("x", "x"), ("y", "y"), ("z", "z"), ("cls", "classification")):
-        np.testing.assert_array_equal(core[name], cat[field][keep])       # bit for bit, in metres
+        np.testing.assert_array_equal(core[name], getattr(cat, field)[keep])       # bit for bit, in metres
     n0 = laspy.open(strips[0]).header.point_count
     n_kept = [keep[:n0].sum(), keep[n0:].sum()]
     np.testing.assert_array_equal(core["file"], np.repeat([0, 1], n_kept))

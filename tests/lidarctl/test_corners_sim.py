@@ -23,7 +23,7 @@ def test_tiny_project_corners_match_truth_with_honest_sigmas(tiny_project):
     res = find_roof_corners(cat["x"], cat["y"], cat["z"], cat["classification"], cat["point_source_id"], roof="any")
     truth = list(csv.DictReader(open(tiny_project / "truth" / "roof_corners.csv")))
     txyz = np.array([[float(r["x"]), float(r["y"]), float(r["z"])] for r in truth])
-    corners = res["corners"]
+    corners = res.corners
     assert len(corners) >= 0.4 * len(txyz)
     cxyz = np.array([[c["x"], c["y"], c["z"]] for c in corners])
     sig = np.array([[c["sx_m"], c["sy_m"], c["sz_m"]] for c in corners])

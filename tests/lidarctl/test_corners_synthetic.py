@@ -40,7 +40,7 @@ def runs():
 
 
 def _table(res):
-    c = res["corners"]
+    c = res.corners
     return {
         "xy": np.array([[q["x"], q["y"]] for q in c]),
         "z": np.array([q["z"] for q in c]),
@@ -80,7 +80,7 @@ def test_edges_not_biased_inwards(runs):
     buildings, _, _, _, results = runs
     offsets = []
     for res in results:
-        for o in res["outlines"]:
+        for o in res.outlines:
             fit = shapely.Polygon(o["rings"][0], [r for r in o["rings"][1:] if len(r) >= 3])
             true = max((b[0] for b in buildings), key=lambda p: p.intersection(fit).area)
             if true.area < 100.0:
@@ -149,7 +149,7 @@ def test_tree_beside_corner_below_the_view_rays_does_not_hide_it(runs):
     _, truth_xyz, _, _, results = runs
     k_true = int(np.argmin(np.hypot(truth_xyz[:, 0] - 41.0, truth_xyz[:, 1] - 23.5)))
     for res in results:
-        hit = [q for q in res["corners"] if np.hypot(q["x"] - 41.0, q["y"] - 23.5) < 1.0]
+        hit = [q for q in res.corners if np.hypot(q["x"] - 41.0, q["y"] - 23.5) < 1.0]
         assert len(hit) == 1
         assert hit[0]["score_view_openness"] == 1.0
         assert np.hypot(hit[0]["x"] - truth_xyz[k_true, 0], hit[0]["y"] - truth_xyz[k_true, 1]) < 0.5

@@ -22,39 +22,41 @@ def _strips(tiny_project):
 def test_tiled_corners_equal_whole_cloud(tiny_project, tmp_path):
     files = _strips(tiny_project)
     cat = C.read_strips(files)
-    whole = C.find_roof_corners(cat["x"], cat["y"], cat["z"], cat["classification"], cat["point_source_id"],
+    whole = C.find_roof_corners(cat.x, cat.y, cat.z, cat.classification, cat.point_source_id,
                                 roof="any")
     # 150 m tiles with a 100 m buffer: the ~515 m x 830 m block in 4 x 6 tiles, roofs cut by tile edges
     # small chunks: the files and the building points kept aside for the spacing are read in pieces
     tiled, crs, units, figure = C.find_roof_corners_tiled(files, tile_m=150.0, buffer_m=100.0, roof="any",
                                                           work_dir=tmp_path, figure_cells=500, chunk_points=30_000)
-    assert tiled["stats"]["tiles"] >= 12
+    assert tiled.stats.tiles >= 12
     assert not list(tmp_path.iterdir())                                    # temporary tiles removed
-    assert len(whole["corners"]) > 20
-    assert C.corners_csv_text(tiled["corners"]) == C.corners_csv_text(whole["corners"])
+    assert len(whole.corners) > 20
+    assert C.corners_csv_text(tiled.corners) == C.corners_csv_text(whole.corners)
     for k in ("n_points", "n_building_points", "point_spacing_m", "n_roofs", "n_outlines", "n_corners_traced",
               "n_usable", "n_roof_planes"):
-        assert tiled["stats"][k] == whole["stats"][k], k
-    planes = [json.dumps(C.roof_planes_geojson(C._faces_in_crs_units(r["faces"], units), r["stats"]))
+        assert getattr(tiled.stats, k) == getattr(whole.stats, k), k
+    planes = [json.dumps(C.roof_planes_geojson(C._faces_in_crs_units(r.faces, units), None,
+                                                 sigma_strip_xy_m=r.stats.sigma_strip_xy_m,
+                                                 sigma_strip_z_m=r.stats.sigma_strip_z_m))
               for r in (whole, tiled)]
     assert planes[0] == planes[1]
-    for a, b in zip(whole["outlines"], tiled["outlines"]):
+    for a, b in zip(whole.outlines, tiled.outlines):
         assert a["building_id"] == b["building_id"] and len(a["rings"]) == len(b["rings"])
         for ra, rb in zip(a["rings"], b["rings"]):
             np.testing.assert_array_equal(ra, rb)
     # strip margins: a tile sees a strip's footprint only within its buffer (clipped, and a gap that reaches
     # past the buffer is not filled as a hole), so its margin is a lower bound of the whole cloud's; equal
     # where the score looks (10 m)
-    for a, b in zip(whole["corners"], tiled["corners"]):
+    for a, b in zip(whole.corners, tiled.corners):
         assert (a["strip_margin_m"] >= 10.0) == (b["strip_margin_m"] >= 10.0)
         assert b["strip_margin_m"] <= a["strip_margin_m"]
-    assert sum(a["strip_margin_m"] == b["strip_margin_m"] for a, b in zip(whole["corners"], tiled["corners"])) > 0
+    assert sum(a["strip_margin_m"] == b["strip_margin_m"] for a, b in zip(whole.corners, tiled.corners)) > 0
     ndsm, extent = figure
     assert ndsm.shape[1] <= 500 and np.nanmax(ndsm) > 5.0                 # roofs stand out in the figure
     # the figure ends where the points end, not with the whole tiles (no empty margins)
     cell = (extent[1] - extent[0]) / ndsm.shape[1]
-    assert extent[0] >= cat["x"].min() - cell and extent[1] <= cat["x"].max() + cell
-    assert extent[2] >= cat["y"].min() - cell and extent[3] <= cat["y"].max() + cell
+    assert extent[0] >= cat.x.min() - cell and extent[1] <= cat.x.max() + cell
+    assert extent[2] >= cat.y.min() - cell and extent[3] <= cat.y.max() + cell
     assert all(np.isfinite(edge).any() for edge in (ndsm[0], ndsm[-1], ndsm[:, 0], ndsm[:, -1]))
 
 

@@ -263,6 +263,8 @@ def test_the_old_option_names_without_units_are_gone(made, tmp_path, command, ol
 def test_a_shed_below_the_outliner_is_on_the_map():
     """Issue 44: a 3 x 2.5 m garden shed (7.5 m2, below the regularised outliner's 25 m2) classified building is in
     the buildings layer (the outline of its cells), next to the two regularised roofs; no sliver is added."""
+    from lidarctl.corners.roof_corners import ClassifiedStrips
+    from lidarctl.units import METRE
     from lidarctl.vectors.layers import building_outlines
 
     x, y, z, cls = _truth_m()
@@ -270,7 +272,8 @@ def test_a_shed_below_the_outliner_is_on_the_map():
     inside = shapely.contains_xy(shed, x, y)
     cls[inside] = 6
     z[inside] = ground_z(11.5, 71.25) + 2.4
-    pts = {"x": x, "y": y, "z": z, "classification": cls, "point_source_id": np.ones(len(x), np.uint16)}
+    pts = ClassifiedStrips(x=x, y=y, z=z, classification=cls, point_source_id=np.ones(len(x), np.int64), crs=None,
+                           units=METRE)
     polys, rows, _ = building_outlines(pts)
     assert len(polys) == 3
     k = [i for i, p in enumerate(polys) if p.contains(shed.centroid)]

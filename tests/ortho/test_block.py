@@ -185,7 +185,7 @@ def test_frame_files_hold_the_library_ortho(small_block, tmp_path, compression):
     from aerotri.geom.camera import BrownCamera
     from aerotri.geom.eo import read_eo
     from aerotri.geom.images import read_rgb
-    from ortho.block import _plane_footprint_bounds, index_grids, read_index
+    from ortho.block import _plane_footprint_bounds, read_index
     from ortho.dem import height_range, open_height_raster, read_height_window
     from ortho.grid import parse_crs
     from ortho.rectify import rectify_frame
@@ -196,11 +196,11 @@ def test_frame_files_hold_the_library_ortho(small_block, tmp_path, compression):
     # finer than the GSD: a grid of several 512 px blocks and 1024 px compute tiles
     done = rectify_block(root, RectifySettings(res_m=0.55 * gsd, compression=compression), frames=["s01_002"])
     grid = done.grid("s01_002")
-    assert grid == index_grids(read_index(root))["s01_002"]  # the grid index.json records
+    assert grid == read_index(root).grid("s01_002")  # the grid index.json records
     assert grid.width > 1024 and grid.height > 512
     cam = BrownCamera.read(root / "camera.toml")
     eo = read_eo(root / "at" / "eo.txt")
-    k = eo.index()["s01_002"]
+    k = eo.row("s01_002")
     C, R = eo.centre_m[k], eo.rotation(k)
     # the DEM window the stage reads (bilinear heights on the grid depend on the window's origin in the
     # last of cv2's 1/32 cell position bits, so the whole DEM would differ by 1 in a few pixels)

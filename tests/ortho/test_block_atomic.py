@@ -237,7 +237,7 @@ def _readjusted(root, dx_m=0.8):
     from aerotri.geom.eo import read_eo, write_eo
 
     eo = read_eo(root / "at/eo.txt")
-    eo.centre_m[eo.index()["s01_002"], 0] += dx_m
+    eo.centre_m[eo.row("s01_002"), 0] += dx_m
     write_eo(root / "at/eo.txt", eo)
 
 

@@ -31,7 +31,7 @@ def block(tmp_path_factory):
 @pytest.mark.parametrize("frame", ["s01_001", "s02_002"])
 def test_zbuffer_and_march_mask_what_the_march_masks_everywhere(block, frame):
     b = load_block(block)
-    i = b.eo.index()[frame]
+    i = b.eo.row(frame)
     C, R = b.eo.centre_m[i], rotation_matrix_opk(*b.eo.opk_deg[i])
     dsm = read_height_raster(block / "truth" / "dsm.tif", b.project_crs, "DSM")
     to_project = GridToProject(b.project_crs, b.project_crs)
@@ -125,7 +125,7 @@ def test_the_march_jumping_over_dsm_blocks_gives_the_step_by_step_result(block):
     from ortho.rectify import MarchBound, march_bound
 
     b = load_block(block)
-    i = b.eo.index()["s02_002"]
+    i = b.eo.row("s02_002")
     C, R = b.eo.centre_m[i], rotation_matrix_opk(*b.eo.opk_deg[i])
     dsm = read_height_raster(block / "truth" / "dsm.tif", b.project_crs, "DSM")
     to_project = GridToProject(b.project_crs, b.project_crs)
@@ -150,7 +150,7 @@ def test_true_ortho_seams_give_each_frame_one_region_and_the_mosaic_fills_what_i
     import cv2
     import rasterio
 
-    from ortho.block import index_grids, read_index
+    from ortho.block import read_index
     from ortho.grid import OrthoGrid
 
     root = tmp_path / "p"
@@ -167,7 +167,7 @@ def test_true_ortho_seams_give_each_frame_one_region_and_the_mosaic_fills_what_i
     assert all(n == 1 for n in parts.values()), parts
     # every mosaic cell some frame sees has a value; occluded cells of the labelled frame among them
     index = read_index(root)
-    grids = index_grids(index)
+    grids = dict(zip(index.image_ids, index.grids))
     mosaic = OrthoGrid.union(grids.values())
     seen_by_any = np.zeros((mosaic.height, mosaic.width), bool)
     hidden_in_label = np.zeros_like(seen_by_any)
@@ -175,9 +175,9 @@ def test_true_ortho_seams_give_each_frame_one_region_and_the_mosaic_fills_what_i
         ok = ds.read_masks(1) > 0
         factor = int(round(s.transform.a / ds.res[0]))
     lab_px = np.kron(labels, np.ones((factor, factor), labels.dtype))[:mosaic.height, :mosaic.width]
-    for k, e in enumerate(index["frames"]):
-        c0, r0 = grids[e["image_id"]].offset_in(mosaic)
-        with rasterio.open(root / "ortho" / "frames" / e["file"]) as ds:
+    for k, e in enumerate(index.frames):
+        c0, r0 = grids[e.image_id].offset_in(mosaic)
+        with rasterio.open(root / "ortho" / "frames" / e.file) as ds:
             m = ds.read_masks(1) > 0
         win = (slice(r0, r0 + m.shape[0]), slice(c0, c0 + m.shape[1]))
         seen_by_any[win] |= m
@@ -226,11 +226,11 @@ def _taken_near_own_holes(root, margin_px):
     import cv2
     import rasterio
 
-    from ortho.block import index_grids, read_index
+    from ortho.block import read_index
     from ortho.grid import OrthoGrid
 
     index = read_index(root)
-    grids = index_grids(index)
+    grids = dict(zip(index.image_ids, index.grids))
     mosaic = OrthoGrid.union(grids.values())
     with rasterio.open(root / "ortho" / "mosaic.tif") as ds, rasterio.open(root / "ortho" / "seams.tif") as s:
         dom = ds.read()
@@ -239,9 +239,9 @@ def _taken_near_own_holes(root, margin_px):
     lab_px = np.kron(labels, np.ones((factor, factor), labels.dtype))[:mosaic.height, :mosaic.width]
     disc = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * margin_px + 1,) * 2)
     frames = []
-    for e in index["frames"]:
-        c0, r0 = grids[e["image_id"]].offset_in(mosaic)
-        with rasterio.open(root / "ortho" / "frames" / e["file"]) as ds:
+    for e in index.frames:
+        c0, r0 = grids[e.image_id].offset_in(mosaic)
+        with rasterio.open(root / "ortho" / "frames" / e.file) as ds:
             img, m = ds.read(), ds.read_masks(1) > 0
         near = cv2.dilate((~m & _filled(m)).astype(np.uint8), disc) > 0
         frames.append((slice(r0, r0 + m.shape[0]), slice(c0, c0 + m.shape[1]), img, m, near))

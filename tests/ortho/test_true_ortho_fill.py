@@ -110,20 +110,20 @@ def test_the_mosaic_fills_ground_hidden_in_one_frame_from_a_frame_that_sees_it(g
     with rasterio.open(base / "true" / "truth" / "dem.tif") as ds:
         dem, DT = ds.read(1), ds.transform
     Z = map_coordinates(dem, [(DT.f - Y) / -DT.e - 0.5, (X - DT.c) / DT.a - 0.5], order=1)
-    index = {e["image_id"]: e for e in read_index(base / "conv")["frames"]}
+    index = {e.image_id: e for e in read_index(base / "conv").frames}
     ground = ~near_or_in
     # per frame: its footprint (conventional ortho valid) and whether it sees each ground cell of it
-    foot = np.stack([_on_dom(base / "conv" / "ortho" / "frames" / index[i]["file"], T, (H, W)) for i in ids])
+    foot = np.stack([_on_dom(base / "conv" / "ortho" / "frames" / index[i].file, T, (H, W)) for i in ids])
     # seen: the line of sight clears every box; hidden: it passes more than the march's tolerance (0.3 m, for the
     # DSM's noise) below a roof; a ray that grazes a roof edge by less (a few cm across at these steep rays) is neither
     sees = np.zeros(foot.shape, bool)
     hides = np.zeros(foot.shape, bool)
     for k, i in enumerate(ids):
         sel = foot[k] & ground
-        sees[k][sel] = _sees(boxes, index[i]["centre_m"], X[sel], Y[sel], Z[sel])
-        hides[k][sel] = ~_sees(boxes, index[i]["centre_m"], X[sel], Y[sel], Z[sel], lower_m=0.3)
+        sees[k][sel] = _sees(boxes, index[i].centre_m, X[sel], Y[sel], Z[sel])
+        hides[k][sel] = ~_sees(boxes, index[i].centre_m, X[sel], Y[sel], Z[sel], lower_m=0.3)
     # the frame of the nearest nadir point among those covering each cell
-    dist = np.stack([np.hypot(X - index[i]["nadir_xy_m"][0], Y - index[i]["nadir_xy_m"][1]) for i in ids])
+    dist = np.stack([np.hypot(X - index[i].nadir_xy_m[0], Y - index[i].nadir_xy_m[1]) for i in ids])
     nadir_most = np.argmin(np.where(foot, dist, np.inf), axis=0)
     covered = foot.any(axis=0)
     hidden = ground & covered & np.take_along_axis(hides, nadir_most[None], 0)[0]

@@ -94,7 +94,7 @@ def test_without_a_dem_the_focal_length_is_fixed_and_the_solution_is_weak(bright
     focal = {c.group: c for c in ba.calibration_checks}["focal"]
     assert focal.action == "fixed" and not focal.ground_observed["height"]
     assert focal.correlations["height"] > 0.9 and "block height" in focal.reason
-    ks = build_report(ba)["key_statistics"]
+    ks = build_report(ba).key_statistics
     assert ks["verdict"] != "successful" and "focal" in ks["calibration_fixed"]
     assert "Solution Successful" not in ks["message"] and "focal fixed at its a-priori value" in ks["message"]
     assert ba.camera_adjusted.focal_px == pytest.approx(ba.camera_apriori.focal_px, rel=1e-4)
@@ -115,7 +115,7 @@ def test_with_the_dem_the_tie_points_lie_on_it(brighton6):
     f = np.mean(list(focal.estimate.values()))
     # the sensor width's 2344 px is 3 % long for this lens: the estimate moves to about 2270 px (full size)
     assert 0.95 * cam.focal_px / SHRINK < f < 0.995 * cam.focal_px / SHRINK
-    assert build_report(ba)["key_statistics"]["verdict"] == "successful"
+    assert build_report(ba).key_statistics["verdict"] == "successful"
 
 
 def test_consumer_gnss_states_the_datum_in_metres_and_the_dem_places_it(brighton6, tmp_path):
@@ -133,7 +133,7 @@ def test_consumer_gnss_states_the_datum_in_metres_and_the_dem_places_it(brighton
     shutil.copytree(survey, root, symlinks=True)
     _set_gnss(root, consumer_gnss_section())
     ba = adjust_project(root, AdjustSettings(self_calibration=("focal", "pp", "radial")))
-    rep = build_report(ba)
+    rep = build_report(ba).to_record()
     modes = {g["mode"]: g for g in rep["geometry_modes"]}
     # metres: the offset's 5 m times sigma0 (0.3 here: the 800 px frames measure better than the a-priori 0.5 px,
     # and the report's sigma0 note says the sigmas are scaled by it)
@@ -145,5 +145,5 @@ def test_consumer_gnss_states_the_datum_in_metres_and_the_dem_places_it(brighton
                                              ndsm=lidar / "ndsm.tif"))
     (d,) = ba.dem_checks
     assert d.n > 200 and not d.failed and abs(d.median_m) < 0.3, d
-    assert {g["mode"]: g for g in build_report(ba)["geometry_modes"]}["height"]["sigma_m"] < 0.1
+    assert {g["mode"]: g for g in build_report(ba).geometry_modes}["height"]["sigma_m"] < 0.1
     assert abs(ba.result.state.shift[0][2]) > 1.0  # the EXIF heights are metres off the cloud's DEM

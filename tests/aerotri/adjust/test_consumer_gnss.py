@@ -59,7 +59,7 @@ def test_the_flight_offset_model_states_metres_where_the_survey_model_claims_cen
     assert np.all(np.abs(err) > 1.5) and np.all(np.abs(err / sig) < 2.5), (err, sig)
     assert sig[0] > 2.5 and sig[2] > 4.0  # the offset's a-priori 3 / 5 m, nothing more from the images
     assert ba.opts.gnss_correction == "offset"
-    rep = build_report(ba)
+    rep = build_report(ba).to_record()
     modes = {g["mode"]: g for g in rep["geometry_modes"]}
     assert modes["height"]["sigma_m"] > 4.0 and modes["height"]["held_by_priors"]
     assert rep["key_statistics"]["verdict"] == "weak" and "block height held only by" in rep["key_statistics"]["message"]
@@ -75,7 +75,7 @@ def test_with_a_dem_the_height_offset_is_estimated(consumer_block):
     assert abs(err[2]) < 0.3 and sig[2] < 0.3 and np.all(np.abs(err / sig) < 3.0), (err, sig)
     # the estimated offset (GNSS minus the adjusted antenna, common part) recovers the simulated height offset
     assert ba.result.state.shift[0][2] == pytest.approx(OFFSET_M[2], abs=0.3)
-    assert build_report(ba)["key_statistics"]["gnss_corrections_suspect"] == []  # 3 m within the 3 / 5 m a priori
+    assert build_report(ba).key_statistics["gnss_corrections_suspect"] == []  # 3 m within the 3 / 5 m a priori
 
 
 def test_per_strip_shifts_need_no_control_with_the_offset_sigma(consumer_block):

@@ -47,7 +47,7 @@ def test_sound_block_is_successful(sound):
     ba = adjust_project(root, _settings())
     gcc = gnss_correction_check(ba)
     assert gcc.n == 9 and gcc.k == pytest.approx(3.26, abs=0.01) and gcc.suspect == ()
-    ks = build_report(ba)["key_statistics"]
+    ks = build_report(ba).key_statistics
     assert ks["verdict"] == "successful" and ks["gnss_corrections_suspect"] == []
 
 
@@ -70,7 +70,7 @@ def test_absorbed_height_error_is_flagged(sound, tmp_path):
     assert term == "shift" and axis == "U" and 0.8 - 0.15 < v < 0.8 + 0.15
     # the strip the check names is the one whose frames were moved
     assert all(ba.block.strip[ba.block.image_id.index(i)] == s - 1 for i in np.asarray(g.image_id)[strip2])
-    ks = build_report(ba)["key_statistics"]
+    ks = build_report(ba).key_statistics
     assert ks["verdict"] == "weak" and "Solution Successful" not in ks["message"]
     assert "GNSS corrections suspect" in ks["message"] and f"strip {s} shift U" in ks["message"]
     assert ks["gnss_corrections_suspect"] == [{"strip": s, "term": "shift", "axis": "U",
@@ -98,11 +98,11 @@ def test_unmodelled_drift_is_flagged(sound, tmp_path):
     ba = adjust_project(p, _settings())
     udc = unmodelled_drift_check(ba)
     assert [(s, a) for s, a, _, _ in udc.trends] == [(2, "N")], udc
-    ks = build_report(ba)["key_statistics"]
+    ks = build_report(ba).key_statistics
     assert ks["verdict"] == "weak" and "a drift the solve does not model" in ks["message"]
     assert "strip 2 N" in ks["message"] and 'gnss_correction = "shift_drift"' in ks["message"]
     assert ks["gnss_drift_unmodelled"][0]["strip"] == 2
     ba = adjust_project(p, AdjustSettings(gnss_correction="shift_drift", image_sigma_px=SIGMA_PX,
                                           point_covariances=False, gnss_shift_sigma_m=1.0))
     assert unmodelled_drift_check(ba) is None
-    assert "does not model" not in build_report(ba)["key_statistics"]["message"]
+    assert "does not model" not in build_report(ba).key_statistics["message"]

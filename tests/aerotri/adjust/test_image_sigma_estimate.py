@@ -30,8 +30,7 @@ def _normalised_rms(root, estimate: bool):
     ba = adjust_project(root, AdjustSettings(gnss_correction="shift_drift", image_sigma_px=APRIORI_PX,
                                              image_sigma_from_residuals=estimate, point_covariances=False))
     eo, truth = ba.eo_map, read_eo(root / "truth" / "eo.txt")
-    k = truth.index()
-    sel = np.array([k[i] for i in eo.image_id])
+    sel = truth.rows(eo.image_id)
     d = np.column_stack([eo.centre_m - truth.centre_m[sel],
                          (eo.opk_deg - truth.opk_deg[sel] + 180.0) % 360.0 - 180.0])
     return np.sqrt(np.mean((d / eo.sigma) ** 2, axis=0)), ba

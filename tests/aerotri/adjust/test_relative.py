@@ -147,7 +147,7 @@ def test_plan_only_control_gives_plan_and_a_level_datum(no_gnss_block, tmp_path)
     assert _rms(d[:, 2] - d[:, 2].mean()) < 0.3  # heights are relative: 0 at the targets' median ground
     from aerotri.adjust.report import build_report
 
-    rep = build_report(ba)
+    rep = build_report(ba).to_record()
     assert rep["rms_control_ground_m"][2] is None  # no height RMS
     assert all(row["kind"] == "horizontal" and row["residual_m"][2] is None for row in rep["control_points"])
 
@@ -224,8 +224,7 @@ def test_simulated_frames_without_gnss_end_to_end(tiny_project, tmp_path):
     assert "from the images (pycolmap)" in r.stdout and (root / "ortho" / "mosaic.tif").is_file()
     truth = read_eo(root / "truth" / "eo.txt")
     eo = read_eo(root / "at" / "eo.txt")
-    k = truth.index()
-    idx = [k[i] for i in eo.image_id]
+    idx = truth.rows(eo.image_id)
     assert len(eo) == len(truth)
     d = eo.centre_m - truth.centre_m[idx]
     dopk = (eo.opk_deg - truth.opk_deg[idx] + 180.0) % 360.0 - 180.0

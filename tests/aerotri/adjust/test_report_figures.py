@@ -25,7 +25,7 @@ def adjusted(tmp_path_factory):
     root = write_block_project(block, tmp_path_factory.mktemp("figs") / "blk")
     write_truth_observations(root, tie_sigma_px=0.3, n_control=5, points_per_image=80, n_check=6, seed=5)
     ba = adjust_project(root, AdjustSettings(gnss_correction="shift", image_sigma_px=0.3))
-    return root, ba, report.build_report(ba, ground=Terrain(GROUND_M))
+    return root, ba, report.build_report(ba, ground=Terrain(GROUND_M)).to_record()
 
 
 def _artists(fig, kind):

@@ -173,7 +173,7 @@ def test_adjusted_camera_of_an_adjustment_without_self_calibration(tmp_path):
     (tmp_path / "camera.toml").write_text(cam.to_toml())
     (tmp_path / "at").mkdir()
     (tmp_path / "at" / "report.json").write_text(json.dumps({"self_calibration": None}))
-    from aerotri.geom.camera import adjusted_camera
+    from aerotri.adjust.report_record import adjusted_camera
 
     got, source = adjusted_camera(Project.open(tmp_path))
     assert got == BrownCamera.read(tmp_path / "camera.toml") and source.endswith("camera.toml")

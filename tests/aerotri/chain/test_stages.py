@@ -300,7 +300,7 @@ def test_strip_stage_skips_a_single_strip_and_adjusts_when_asked(tiny_project, t
     classification reads the corrected ones."""
     from aerotri.chain import Chain, read_options, run_stages
     from aerotri.core.project import Project
-    from aerotri.core.tolerances import load_tolerances
+    from aerotri.core.tolerances import load_table
     from aerotri.qa.report import strip_rows
 
     def strip_stage(p):
@@ -315,7 +315,7 @@ def test_strip_stage_skips_a_single_strip_and_adjusts_when_asked(tiny_project, t
     assert rows[0]["status"] == "skipped" and "one strip only" in rows[0]["why"]
     assert chain.classify_inputs() == project.lidar_strips()
     assert run_stages(one, stages, log=lambda m: None)[0]["status"] == "skipped (up to date)"
-    (row,), _ = strip_rows(project, load_tolerances())
+    (row,), _ = strip_rows(project, load_table().limits)
     assert row.id == "strip_rmsdz_m" and row.value is None and row.verdict is None and "one strip only" in row.note
 
     p = tmp_path / "adjusted"
@@ -328,7 +328,7 @@ def test_strip_stage_skips_a_single_strip_and_adjusts_when_asked(tiny_project, t
     # the simulator's per-strip GNSS offsets (0.03 m) removed down to the range noise
     assert r["rms_after_m"] < 0.6 * r["rms_before_m"]
     assert chain.classify_inputs() == project.adjusted_strips() and all(f.is_file() for f in project.adjusted_strips())
-    (row,), pairs = strip_rows(project, load_tolerances())
+    (row,), pairs = strip_rows(project, load_table().limits)
     assert row.value == r["rms_after_m"] and f"before: RMS {r['rms_before_m']:.3f} m" in row.note
     assert len(pairs) == 3
 

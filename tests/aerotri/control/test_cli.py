@@ -39,7 +39,7 @@ def truth_errors(root):
     pos = {p: k for k, p in enumerate(t.id)}
     errs = []
     for r in csv.DictReader(open(root / "control" / "image_points.csv")):
-        i = eo.index()[r["image_id"]]
+        i = eo.row(r["image_id"])
         x, y, _ = cam.project(t.xyz_m[pos[r["point_id"]]], eo.centre_m[i], eo.rotation(i))
         errs.append([float(r["x_px"]) - x[0], float(r["y_px"]) - y[0]])
     return np.array(errs)

@@ -13,7 +13,7 @@ import cv2
 import numpy as np
 import pytest
 
-from aerotri.control.corners import LidarCorners
+from aerotri.control.corners import LidarCorners, ManualMeasurements
 from aerotri.control.pipeline import output_texts, run_control, summary, transfer_control
 from aerotri.control.settings import ControlSettings, LayoutSettings
 from aerotri.core.errors import InputError
@@ -101,7 +101,7 @@ def test_a_corner_off_in_height_and_one_outside_every_frame_are_rejected(frames)
 
 def test_manual_measurements_replace_the_automatic_ones(frames):
     t = truth_px(1, 2) + [0.4, -0.2]
-    res = transfer_control(corners(), CAM, EO, frames, ControlSettings(), manual={("C2", "f3"): tuple(t)})
+    res = transfer_control(corners(), CAM, EO, frames, ControlSettings(), manual=ManualMeasurements(("C2",), ("f3",), np.array([t], float)))
     m = res.measurements[(1, 2)]
     assert m.ok and m.reason == "manual" and (m.x_px, m.y_px) == tuple(t)
     assert summary(res).manual_measurements == 1
@@ -110,15 +110,15 @@ def test_manual_measurements_replace_the_automatic_ones(frames):
 def test_output_files(frames):
     res = transfer_control(corners(z_error_m=1.5), CAM, EO, frames, ControlSettings())
     texts = output_texts(res)
-    pts = list(csv.DictReader(texts["points.csv"].splitlines()))
+    pts = list(csv.DictReader(texts.points_csv.splitlines()))
     assert [p["id"] for p in pts] == ["C2", "C3", "C4"]  # the rejected corner is no control
     assert {p["kind"] for p in pts} <= {"full", "height", "check"}
-    obs = list(csv.DictReader(texts["image_points.csv"].splitlines()))
+    obs = list(csv.DictReader(texts.image_points_csv.splitlines()))
     assert len(obs) == 9
     for o in obs:
-        k, i = int(o["point_id"][1:]) - 1, EO.index()[o["image_id"]]
+        k, i = int(o["point_id"][1:]) - 1, EO.row(o["image_id"])
         assert np.hypot(*(np.array([float(o["x_px"]), float(o["y_px"])]) - truth_px(k, i))) < 0.5
-    rep = json.loads(texts["transfer.json"])
+    rep = json.loads(texts.transfer_json)
     assert rep["summary"] == json.loads(json.dumps(dataclasses.asdict(summary(res))))
     assert [c["id"] for c in rep["corners"]] == ["C1", "C2", "C3", "C4"]
     assert rep["corners"][0]["reason"] == "lidar_mismatch"
@@ -126,7 +126,7 @@ def test_output_files(frames):
     for t in rep["layout_targets"]:
         assert t["corner"] in (None, "C2", "C3", "C4")
     # without check points only the control remains
-    no_checks = list(csv.DictReader(output_texts(res, checks=False)["points.csv"].splitlines()))
+    no_checks = list(csv.DictReader(output_texts(res, checks=False).points_csv.splitlines()))
     assert [p for p in pts if p["kind"] != "check"] == no_checks
 
 
@@ -173,9 +173,9 @@ def test_an_empty_layout_target_measures_fallback_corners_and_says_why_when_it_s
     empty = [t for t in res.targets if t.corner is None][0]
     assert empty.empty_reason == ("2 LiDAR corners within 12.0 m: 1 rejected by consistency (lidar mismatch); "
                                   "1 control for another target")
-    pts = list(csv.DictReader(output_texts(res)["points.csv"].splitlines()))
+    pts = list(csv.DictReader(output_texts(res).points_csv.splitlines()))
     assert sorted(p["id"] for p in pts) == ["C2", "C3", "C4"]
-    rep = json.loads(output_texts(res)["transfer.json"])
+    rep = json.loads(output_texts(res).transfer_json)
     assert [c["fallback"] for c in rep["corners"]] == [False, True, True, True]
     assert sum(t["empty_reason"] is not None for t in rep["layout_targets"]) == 1
 

@@ -194,7 +194,7 @@ def test_every_setting_has_help_and_its_unit_in_the_name():
     for name, cls in ALL_SECTIONS:
         for path in leaf_paths(cls):
             owner, field = _owner(cls, path)
-            if not constraints(field_named(owner, field))["help"]:
+            if not constraints(field_named(owner, field)).help:
                 missing.append(f"[{name}] {path}")
     assert missing == []
     # no float setting of the stage sections named like a length without its unit

@@ -15,7 +15,8 @@ from aerotri.core.project import Project
 from aerotri.exchange import ImportSettings, export_project, import_files
 from aerotri.exchange.adjusted import read_adjusted_block
 from aerotri.exchange.colmap import _quat_wxyz
-from aerotri.geom.camera import adjusted_camera, read_camera
+from aerotri.adjust.report_record import adjusted_camera
+from aerotri.geom.camera import read_camera
 from aerotri.geom.eo import read_eo
 from aerotri.geom.rotation import FLIP_YZ, rotation_matrix_opk
 

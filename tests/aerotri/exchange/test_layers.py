@@ -12,7 +12,7 @@ import shapely
 from aerotri.core.errors import InputError
 from aerotri.core.textio import read_json
 from aerotri.exchange import export_project
-from aerotri.geom.camera import adjusted_camera
+from aerotri.adjust.report_record import adjusted_camera
 from aerotri.core.project import Project
 from aerotri.geom.eo import read_eo
 

@@ -17,7 +17,8 @@ from aerotri.cli import main as aerotri_cli
 from aerotri.core.project import Project
 from aerotri.exchange import ImportSettings, export_project, import_files, opensfm
 from aerotri.exchange.adjusted import read_adjusted_block
-from aerotri.geom.camera import adjusted_camera, read_camera
+from aerotri.adjust.report_record import adjusted_camera
+from aerotri.geom.camera import read_camera
 from aerotri.geom.eo import read_eo
 from aerotri.geom.observations import read_control_points, read_image_points
 

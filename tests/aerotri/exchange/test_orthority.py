@@ -17,7 +17,8 @@ from aerotri.cli import main as aerotri_cli
 from aerotri.core.errors import CrsError, InputError
 from aerotri.core.project import Project
 from aerotri.exchange import ImportSettings, export_project, import_files
-from aerotri.geom.camera import adjusted_camera, read_camera
+from aerotri.adjust.report_record import adjusted_camera
+from aerotri.geom.camera import read_camera
 from aerotri.geom.eo import read_eo, read_gnss
 
 _spec = importlib.util.spec_from_file_location("realdata_ngi", Path(__file__).parents[2] / "realdata_ngi.py")

@@ -84,7 +84,7 @@ def test_rendered_targets_at_their_true_image_positions(block):
     eo, cam = read_eo(block / "truth/eo.txt"), BrownCamera.read(block / "truth/camera.toml")
     cps = {r["id"]: [float(r["x"]), float(r["y"]), float(r["z"])]
            for r in csv.DictReader(open(block / "truth/checkpoints.csv", newline=""))}
-    idx = eo.index()
+    idx = dict(zip(eo.image_id, range(len(eo.image_id))))  # image id -> row
     flat = []
     for pid, iid, x, y, *_ in m:
         i = idx[iid]
@@ -119,7 +119,7 @@ def test_adjusted_centre_heights_within_their_sigmas(block, tmp_path):
     assert res.exit_code == 0, res.output
     ba = adjust_project(p, AdjustSettings(gnss_correction="shift", point_covariances=False, lidar_surface=False))
     true = read_eo(block / "truth/eo.txt")
-    k = [true.index()[i] for i in ba.eo_map.image_id]
+    k = true.rows(ba.eo_map.image_id)
     dz = ba.eo_map.centre_m[:, 2] - true.centre_m[k, 2]
     z = dz / ba.eo_map.sigma[:, 2]
     assert len(k) == 6 and np.sqrt((z ** 2).mean()) < 3.0, (dz, ba.eo_map.sigma[:, 2])

@@ -101,8 +101,7 @@ def test_adjust_recovers_the_true_orientations(demo_block):
     report = json.loads((out / "at/report.json").read_text())
     assert 0.25 < report["key_statistics"]["sigma0_px"] < 0.35
     adjusted, true = read_eo(out / "at/eo.txt"), read_eo(out / "truth/eo.txt")
-    idx = true.index()
-    k = [idx[i] for i in adjusted.image_id]
+    k = true.rows(adjusted.image_id)
     assert len(k) == 18 and adjusted.sigma is not None
     d = np.hstack([adjusted.centre_m - true.centre_m[k], (adjusted.opk_deg - true.opk_deg[k] + 180.0) % 360.0 - 180.0])
     z = d / adjusted.sigma  # X, Y, Z, omega, phi, kappa in units of their reported sigmas
@@ -129,8 +128,7 @@ def test_project_toml_has_the_adjust_settings_the_truth_needs(tmp_path):
                                             "--no-exports"])
     assert res.exit_code == 0, res.output
     adjusted, true = read_eo(out / "at/eo.txt"), read_eo(out / "truth/eo.txt")
-    idx = true.index()
-    k = [idx[i] for i in adjusted.image_id]
+    k = true.rows(adjusted.image_id)
     assert len(k) == 75
     d = np.hstack([adjusted.centre_m - true.centre_m[k], (adjusted.opk_deg - true.opk_deg[k] + 180.0) % 360.0 - 180.0])
     z = d / adjusted.sigma
