@@ -103,7 +103,7 @@ def test_a_drift_along_a_strip_is_judged_by_the_between_frame_sigmas(consumer_bl
     ba = adjust_project(root, SETTINGS)
     udc = unmodelled_drift_check(ba)
     assert udc.trends == () and udc.n == 9 and udc.sigma_axis_m == (NOISE_M,) * 3, udc
-    assert "trend along strips" not in build_report(ba)["key_statistics"]["message"]
+    assert "trend along strips" not in build_report(ba).key_statistics["message"]
     p = shutil.copytree(root, tmp_path / "blk")
     g = read_gnss(p / "gnss.txt")
     strip2 = np.flatnonzero([i.startswith("s02") for i in g.image_id])
@@ -114,7 +114,7 @@ def test_a_drift_along_a_strip_is_judged_by_the_between_frame_sigmas(consumer_bl
     udc = unmodelled_drift_check(ba)
     assert [(s, a) for s, a, _, _ in udc.trends] == [(2, "E")], udc
     assert abs(udc.trends[0][2]) > 0.7  # the tie points hold part of the drift: the residual trend understates it
-    ks = build_report(ba)["key_statistics"]
+    ks = build_report(ba).key_statistics
     assert ks["verdict"] == "weak" and "strip 2 E" in ks["message"], ks["message"]
     assert "beyond 0.2 m ([gnss] sigma_xy_m, sigma_z_m" in ks["message"] and 'gnss_correction = "offset"' in ks["message"]
     assert "The receiver wanders along the strips" in ks["message"]
@@ -133,7 +133,7 @@ def test_an_offset_beyond_its_a_priori_sigmas_is_suspect_with_plan_and_height(co
     g = read_gnss(p / "gnss.txt")
     write_gnss(p / "gnss.txt", type(g)(g.image_id, g.position_m + [0.0, 0.0, 20.0], g.sigma_m))
     ba = adjust_project(p, dataclasses.replace(SETTINGS, dem=p / "dem.tif", surface_sigma_m=0.05))
-    ks = build_report(ba)["key_statistics"]
+    ks = build_report(ba).key_statistics
     assert [(s["term"], s["axis"]) for s in ks["gnss_corrections_suspect"]] == [("shift", "U")], ks
     assert ks["gnss_corrections_suspect"][0]["displacement_m"] == pytest.approx(OFFSET_M[2] + 20.0, abs=0.3)
     assert ("a-priori sigmas of 3 / 5 m (plan / height; [gnss] offset_sigma_xy_m, offset_sigma_z_m; 1 % false "
