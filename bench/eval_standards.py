@@ -145,7 +145,6 @@ def ngi_reference_checks(root: Path, data_dir: Path):
 
 
 def ngi(work: Path, results: Path) -> dict:
-    from aerotri.adjust.report_record import adjusted_camera
     from aerotri.core.project import Project
     from aerotri.core.tolerances import choose_table, read_qa_config
     from aerotri.geom.block_scale import project_block_scale
@@ -164,7 +163,7 @@ def ngi(work: Path, results: Path) -> dict:
                     cp_source="not stated (the national AT's orientations as the reference)",
                     note="tie points against the national AT, not surveyed check points")
     project = Project.open(root)
-    block = project_block_scale(project, camera=adjusted_camera(project))
+    block = project_block_scale(project)
     for std in ("asprs2023", "cn-at"):
         rep = write_qa_report(root, standard=std, pdf=False)
         out["standards"][std] = _compact(rep.compliance)

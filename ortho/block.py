@@ -153,15 +153,14 @@ def _left_out_by_adjustment(project: Project) -> dict:
 
 def block_camera(project: Project, eo_path=None, camera_path=None) -> tuple[BrownCamera, str]:
     """(camera, source) the frames are rectified with: ``camera_path`` when given, else the self-calibrated
-    camera of the last adjustment for the project's own at/eo.txt (its orientations belong to it), else
+    camera of the last adjustment for the project's own at/eo.txt (at/camera.toml: its orientations belong to it), else
     (an EO file given with --eo) the nominal camera.toml."""
-    from aerotri.adjust.report_record import adjusted_camera
-    from aerotri.geom.camera import BrownCamera, project_camera
+    from aerotri.geom.camera import BrownCamera, oriented_camera, project_camera
 
     if camera_path:
         return BrownCamera.read(camera_path), str(camera_path)
     if eo_path is None:
-        return adjusted_camera(project)
+        return oriented_camera(project)
     return project_camera(project), str(project.camera_path)
 
 

@@ -280,6 +280,8 @@ def write_synthetic_project(root, *, strips: int = 2, frames_per_strip: int = 3,
     write_text_atomic(root / "project.toml", f'[project]\nname = "synthetic"\ncrs = "{crs}"\n')
     write_text_atomic(root / "camera.toml", camera.to_toml())
     write_eo(root / "at" / "eo.txt", eo)
+    # the camera at/eo.txt belongs to, as an adjustment writes it beside its orientations (the true one)
+    write_text_atomic(root / "at" / "camera.toml", camera.to_toml())
     write_eo(root / "truth" / "eo.txt", eo)
     for i, iid in enumerate(ids):
         img, _ = render_frame(ortho_truth, grid, dsm, camera, eo.centre_m[i], eo.rotation(i), march=bool(buildings))

@@ -44,8 +44,10 @@ class Reference:
     centre_m: np.ndarray
     opk_deg: np.ndarray
 
-    def index(self) -> dict[str, int]:
-        return {k: i for i, k in enumerate(self.image_id)}
+    def rows(self, image_ids) -> np.ndarray:
+        """Row of each of ``image_ids`` (KeyError naming an id the reference lacks)."""
+        k = {iid: i for i, iid in enumerate(self.image_id)}
+        return np.array([k[i] for i in image_ids], dtype=int)
 
 
 def read_reference(data_dir) -> Reference:

@@ -816,8 +816,11 @@ CASES = [
     C("control_eo_duplicate", "aerotri", "control {p}", "eo.txt:3", duplicate_line("p/at/eo.txt", 2)),
     C("control_camera_option_bad", "aerotri", "control {p} --camera {w}/cam.toml", "cam.toml",
       write("cam.toml", "focal_mm = 120.0\n")),
-    C("control_report_json_corrupt", "aerotri", "control {p}", "report.json", binary("p/at/report.json")),
-    C("control_report_json_truncated", "aerotri", "control {p}", "report.json", truncate("p/at/report.json", 0.5)),
+    C("control_adjusted_camera_corrupt", "aerotri", "control {p}", "at/camera.toml", binary("p/at/camera.toml")),
+    C("control_adjusted_camera_truncated", "aerotri", "control {p}", "at/camera.toml",
+      truncate("p/at/camera.toml", 0.5)),
+    C("control_adjusted_camera_missing", "aerotri", "control {p}", ["eo.txt", "camera.toml", "aerotri adjust"],
+      remove("p/at/camera.toml")),
     C("control_manual_outside_frame", "aerotri", "control {p} --import-manual {w}/manual.csv", "manual.csv:2",
       manual(x="4321.0")),
     C("control_manual_nan", "aerotri", "control {p} --import-manual {w}/manual.csv", "manual.csv:2", manual(y="nan")),
@@ -1000,7 +1003,7 @@ CASES = [
     C("rectify_true_ortho_without_dsm", "ortho", "rectify {p} --true-ortho", "--dsm"),
     C("rectify_project_crs_geographic", "ortho", "rectify {p}", ["project.toml", "crs"],
       toml_set("p/project.toml", "project", "crs", '"EPSG:4326"')),
-    C("rectify_report_json_corrupt", "ortho", "rectify {p}", "report.json", binary("p/at/report.json")),
+    C("rectify_adjusted_camera_corrupt", "ortho", "rectify {p}", "at/camera.toml", binary("p/at/camera.toml")),
 
     # --- ortho mosaic
     C("mosaic_before_rectify", "ortho", "mosaic {p}", ["index.json", "ortho rectify"], remove("p/ortho/frames")),
@@ -1470,10 +1473,10 @@ ISSUE39 = _raster_cases() + [
       for vid, val in [("nan", "nan"), ("inf", "inf"), ("minus_inf", "-inf")]
       if not (opt == "--blunder-fraction" and vid == "nan")],  # (sim_blunder_fraction: 2 is refused already)
     # --- numbers in JSON products a later stage reads
-    C("rectify_report_camera_text", "ortho", "rectify {p}", ["report.json", "focal_mm"],
-      json_set("p/at/report.json", ["self_calibration", "camera", "focal_mm"], "abc")),
-    C("control_report_camera_inf", "aerotri", "control {p}", ["report.json", "focal_mm"],
-      json_set("p/at/report.json", ["self_calibration", "camera", "focal_mm"], float("inf"))),
+    C("rectify_adjusted_camera_text", "ortho", "rectify {p}", ["at/camera.toml", "focal_mm"],
+      toml_set("p/at/camera.toml", None, "focal_mm", '"abc"')),
+    C("control_adjusted_camera_inf", "aerotri", "control {p}", ["at/camera.toml", "focal_mm"],
+      toml_set("p/at/camera.toml", None, "focal_mm", "inf")),
     C("mosaic_index_text", "ortho", "mosaic {p}", ["index.json", "x_left_m"],
       json_set("p/ortho/frames/index.json", ["frames", 0, "x_left_m"], "abc")),
     C("mosaic_index_nan", "ortho", "mosaic {p}", ["index.json", "res_m"],

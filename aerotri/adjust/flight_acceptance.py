@@ -316,13 +316,13 @@ def project_flight_acceptance(root, limits: dict | None = None) -> FlightAccepta
     present, else on ``[flight] mean_terrain_height_m``. None when there is neither EO nor GNSS, or neither
     a DEM nor a mean terrain height."""
     from aerotri.core.project import Project
-    from aerotri.adjust.report_record import adjusted_camera
+    from aerotri.geom.camera import oriented_camera
     from aerotri.geom.crs.definition import parse_crs
     from aerotri.geom.eo import read_eo, read_gnss
 
     project = Project.open(root)
     terrain = project_terrain(project)
-    camera, _ = adjusted_camera(project)
+    camera, _ = oriented_camera(project)
     if project.eo_path.is_file():
         eo = read_eo(project.eo_path, parse_crs(project.crs))
         ids, c, opk, measured = eo.image_id, eo.centre_m, eo.opk_deg, True

@@ -3,8 +3,8 @@
 Inputs: ``camera.toml``, ``gnss.txt`` (antenna positions), ``project.toml`` ([gnss] sigma_xy_m,
 sigma_z_m, lever_arm_m; [control] sigmas; optional [adjust] options), ``at/tiepoints.csv``,
 ``control/points.csv``, ``control/image_points.csv``. Outputs in ``at/``: eo.txt (with standard
-deviations), object_points.csv and report.txt/json/html, all written only after the whole adjustment
-succeeded. Exports to other software read these files (``aerotri.exchange``).
+deviations), camera.toml (the camera eo.txt belongs to: self-calibrated, or the nominal one held fixed),
+object_points.csv and report.txt/json/html, all written only after the whole adjustment succeeded. Exports to other software read these files (``aerotri.exchange``).
 """
 
 from __future__ import annotations
@@ -38,7 +38,7 @@ from aerotri.geom.observations import (
 from aerotri.adjust.level_datum import height_datum, level_result
 from aerotri.adjust.dem_check import tie_dem_check
 from aerotri.adjust.determinability import check_groups, ground_observations
-from aerotri.adjust.report_record import AdjustmentRecord, adjusted_camera, adjustment_record
+from aerotri.adjust.report_record import AdjustmentRecord, adjustment_record
 from aerotri.adjust.solve import AdjustmentResult, adjust_block, check_point_errors
 from aerotri.adjust.variance_components import adjusted_gnss
 from aerotri.geom.strips import along_track_km, strips_from_track
@@ -791,8 +791,7 @@ def write_outputs(ba: BlockAdjustment, root, html: bool = True, out_dir=None,
     at = Path(out_dir) if out_dir is not None else project.at_dir
     # the limits of the project's table (by its GSD and platform unless [qa] names one), as in reports/
     # the camera of the report before this one (this adjustment's is written below)
-    camera = adjusted_camera(project) if project.camera_path.is_file() else None
-    qa = qa_settings(root, project_block_scale(project, ba.points_map[:, 2], camera=camera))
+    qa = qa_settings(root, project_block_scale(project, ba.points_map[:, 2]))
     built = report.build_report(ba, qa.map_scale, qa.terrain, qa.tolerances, project_terrain(project))
     if settings_record is None:  # a library caller's own settings
         settings_record = settings_of(ba.settings, AdjustSettings).record()
@@ -813,11 +812,22 @@ def write_outputs(ba: BlockAdjustment, root, html: bool = True, out_dir=None,
         raise SolveError(f"{rep['key_statistics']['message']} sigma naught "
                          f"{rep['key_statistics']['sigma0']}; the report of the failed solve is in {failed} "
                          f"(the earlier outputs in {at} are unchanged)")
-    files.update({"eo.txt": format_eo(ba.eo_map), "object_points.csv": object_points_csv(ba)})
+    files.update({"eo.txt": format_eo(ba.eo_map), "object_points.csv": object_points_csv(ba),
+                  "camera.toml": _adjusted_camera_toml(ba)})
     for rel, text in files.items():
         write_text_atomic(at / rel, text)
     return AdjustStageResult(adjustment=ba, record=adjustment_record(rep, at / "report.json"),
                              report_path=at / "report.json")
+
+
+def _adjusted_camera_toml(ba: BlockAdjustment) -> str:
+    """at/camera.toml: the camera the orientations of eo.txt belong to (the stages after the adjustment read it
+    with ``aerotri.geom.camera.oriented_camera``): the self-calibrated one, or the nominal camera unchanged."""
+    groups = tuple(ba.opts.self_calibration)  # the groups estimated (the determinability checks may fix some)
+    camera = ba.camera_adjusted if groups else ba.camera_apriori
+    why = (f"self-calibrated by aerotri adjust ({', '.join(groups)} estimated)" if groups
+           else "the nominal camera.toml, held fixed by aerotri adjust")
+    return f"# The camera of eo.txt beside this file: {why}.\n" + camera.to_toml()
 
 
 def run_adjustment(root, settings: AdjustSettings | Resolved | None = None, out_dir=None,

@@ -13,7 +13,6 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from aerotri.core.textio import read_record, record_error
-from aerotri.geom.camera import Camera, project_camera
 
 ADJUSTMENT_REPORT = "bundle adjustment report (at/report.json)"
 SCHEMA_VERSION = 1
@@ -143,15 +142,3 @@ def read_adjustment_report(path) -> AdjustmentRecord:
         return adjustment_record(d, path)
     except (AttributeError, KeyError, TypeError, ValueError) as exc:
         raise record_error(path, ADJUSTMENT_REPORT, exc) from None
-
-
-def adjusted_camera(project) -> tuple[Camera, str]:
-    """(camera, source): the self-calibrated camera of the project's last adjustment (``at/report.json``
-    ``self_calibration.camera``) when there is one, else the nominal ``camera.toml``. Orientations in
-    ``at/eo.txt`` belong to it. InputError naming the file when the report is not one."""
-    rep = project.adjustment_report_path
-    if rep.is_file():
-        cam = (read_record(rep, ADJUSTMENT_REPORT, SCHEMA_VERSION).get("self_calibration") or {}).get("camera")
-        if cam:
-            return Camera.from_dict(cam, source=f"{rep} self_calibration.camera"), f"{rep} (self-calibrated)"
-    return project_camera(project), str(project.camera_path)

@@ -34,7 +34,7 @@ import json
 import logging
 from pathlib import Path
 
-from aerotri.adjust.report_record import AdjustmentRecord, adjusted_camera
+from aerotri.adjust.report_record import AdjustmentRecord
 from aerotri.chain import results as R
 from aerotri.chain.options import ChainSettings, read_options
 from aerotri.chain.runner import Stage
@@ -425,7 +425,7 @@ class Chain:
                                                     "not checked",))
         if ref == p.truth_buildings_path:
             ref = self.truth_outline_reference()
-        qa = qa_settings(root, project_block_scale(p, camera=adjusted_camera(p) if p.camera_path.is_file() else None))
+        qa = qa_settings(root, project_block_scale(p))
         check = check_files(p.vectors_path, ref, VectorCheckSettings(layers=("buildings",), scale=qa.map_scale,
                                                              terrain=qa.terrain), p.vectors_check_path)
         b = check.record.buildings
@@ -545,7 +545,7 @@ class Chain:
                                layout_targets=sm.layout_targets, layout_targets_unfilled=sm.layout_targets_unfilled)
 
     def adjust_final_outputs(self, root=None) -> list[Path]:
-        out = [self.project.eo_path, self.project.adjustment_report_path]
+        out = [self.project.eo_path, self.project.adjusted_camera_path, self.project.adjustment_report_path]
         if self.options.adjust.leave_one_out:
             out.append(self.project.at_dir / "leave_one_out.json")
         return out

@@ -94,12 +94,12 @@ class ReviewPage:
 
 
 def project_camera(root: Path, camera_path=None) -> tuple[BrownCamera, str]:
-    """The camera to project with: explicit file, else self-calibrated from at/report.json, else camera.toml."""
+    """The camera to project with: explicit file, else the adjustment's at/camera.toml, else camera.toml."""
     if camera_path is not None:
         return BrownCamera.read(camera_path), str(camera_path)
-    from aerotri.adjust.report_record import adjusted_camera
+    from aerotri.geom.camera import oriented_camera
 
-    return adjusted_camera(Project.open(root))
+    return oriented_camera(Project.open(root))
 
 
 def _measure_frames(corners: LidarCorners, camera: BrownCamera, *, eo: ExteriorOrientations, images_dir: Path,

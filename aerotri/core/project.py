@@ -317,6 +317,7 @@ class Project:
     connectivity_path = property(lambda self: self.at_dir / "connectivity.json")
     connectivity_plot_path = property(lambda self: self.at_dir / "connectivity.png")
     eo_path = property(lambda self: self.at_dir / "eo.txt")
+    adjusted_camera_path = property(lambda self: self.at_dir / "camera.toml")  # the camera of at/eo.txt
     adjustment_report_path = property(lambda self: self.at_dir / "report.json")
     object_points_path = property(lambda self: self.at_dir / "object_points.csv")
     exports_dir = property(lambda self: self.at_dir / "exports")

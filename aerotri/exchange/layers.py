@@ -63,10 +63,10 @@ def _dem_sampler(ds):
 
 def footprints(project: Project, block: AdjustedBlock) -> tuple[list[str], list[np.ndarray], np.ndarray, str]:
     """(image ids, (M, 3) outline per frame in the project CRS, omega-phi-kappa (N, 3), surface used)."""
-    from aerotri.adjust.report_record import adjusted_camera
+    from aerotri.geom.camera import oriented_camera
     from aerotri.geom.eo import read_eo
 
-    cam, _ = adjusted_camera(project)
+    cam, _ = oriented_camera(project)
     eo = read_eo(project.eo_path)
     xy = _edge_pixels(cam.width, cam.height)
     mean_h = float(np.mean(block.frame.to_map(block.points_local)[:, 2])) if len(block.points_local) else 0.0

@@ -18,8 +18,7 @@ import numpy as np
 from aerotri.core.errors import InputError
 from aerotri.core.project import Project
 from aerotri.exchange.imported import to_project_crs
-from aerotri.adjust.report_record import adjusted_camera
-from aerotri.geom.camera import Camera
+from aerotri.geom.camera import Camera, oriented_camera
 from aerotri.geom.eo import ExteriorOrientations, read_eo
 from aerotri.geom.rotation import opk_from_matrix, rotation_matrix_opk
 
@@ -82,7 +81,7 @@ def opk_orientations_to_project(image_id, centre_m, opk_deg, from_crs, project: 
 def adjusted_orientations(project: Project) -> tuple[ExteriorOrientations, Camera]:
     """(orientations, camera): ``at/eo.txt`` in the project CRS and the camera they belong to (the
     self-calibrated one when the adjustment calibrated, k3 included)."""
-    camera, _ = adjusted_camera(project)
+    camera, _ = oriented_camera(project)
     return read_eo(project.eo_path), camera
 
 

@@ -39,7 +39,7 @@ from typing import ClassVar
 
 import numpy as np
 
-from aerotri.core.errors import InputError
+from aerotri.core.errors import InputError, StageOrderError
 from aerotri.geom.rotation import FLIP_YZ
 
 
@@ -481,3 +481,23 @@ def dmc_camera() -> BrownCamera:
 def project_camera(project) -> Camera:
     """The nominal camera of a project folder (``camera.toml``)."""
     return Camera.read(project.camera_path)
+
+
+def oriented_camera(project) -> tuple[Camera, str]:
+    """(camera, source): the camera the project's adjusted orientations (``at/eo.txt``) belong to:
+    ``at/camera.toml``, which the adjustment writes beside them (self-calibrated, or the nominal camera it held
+    fixed), else the nominal ``camera.toml`` (no adjustment yet). The source says "self-calibrated" when the
+    adjustment's camera differs from the nominal one."""
+    path = project.adjusted_camera_path
+    if not path.is_file():
+        if project.eo_path.is_file() and project.adjustment_report_path.is_file():
+            # adjusted by a version that wrote no camera file: the nominal camera may not be the one of eo.txt
+            raise StageOrderError(f"{project.eo_path}: no {path.name} beside it (the camera its orientations belong "
+                                  f"to; written by aerotri adjust since 0.1): adjust again (aerotri adjust "
+                                  f"{project.root})")
+        return project_camera(project), str(project.camera_path)
+    camera = Camera.read(path)
+    nominal = project_camera(project) if project.camera_path.is_file() else None
+    if nominal is not None and camera.to_dict() == nominal.to_dict():
+        return camera, str(path)
+    return camera, f"{path} (self-calibrated)"

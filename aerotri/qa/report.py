@@ -25,7 +25,7 @@ from pathlib import Path
 
 from aerotri.adjust import report_figures as RF
 from aerotri.adjust.flight_acceptance import LIMIT_KEYS, project_flight_acceptance
-from aerotri.adjust.report_record import (ADJUSTMENT_REPORT, SCHEMA_VERSION, KeyStatistics, adjusted_camera,
+from aerotri.adjust.report_record import (ADJUSTMENT_REPORT, SCHEMA_VERSION, KeyStatistics,
                                           read_adjustment_report)
 from aerotri.control.layout import empty_target_text
 from aerotri.control.pipeline import read_control_transfer
@@ -273,7 +273,7 @@ def build_qa_report(root, *, tolerance_file=None, terrain: str | None = None, sc
     cfg = read_qa_config(root)
     if terrain and terrain not in TERRAINS and not (tolerance_file or cfg.tolerances):
         raise InputError(f"terrain class {terrain!r}: expected one of {', '.join(TERRAINS)}")
-    block = project_block_scale(project, camera=adjusted_camera(project) if project.camera_path.is_file() else None)
+    block = project_block_scale(project)
     if (standard or cfg.standard) == "asprs2023" and (hv := asprs_class_cm(accuracy_class or project.qa.accuracy_class)):
         # the class of the compliance section is the class of the verdict table too
         horizontal_class_cm, vertical_class_cm = horizontal_class_cm or hv[0], vertical_class_cm or hv[1]

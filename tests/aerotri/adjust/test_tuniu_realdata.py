@@ -59,12 +59,10 @@ def matched(tuniu_data, tmp_path_factory):
     r = run("import", p, "--format", "exif", p / "images")
     assert r.exit_code == 0, r.output
     assert "gnss.txt: 4 GNSS positions" in r.output and "RtkStdLon/Lat/Hgt" in r.output
-    # the import's note: the ground at the take-off point for the footprints (the median of AbsoluteAltitude -
+    # the import writes the ground at the take-off point for the footprints (the median of AbsoluteAltitude -
     # RelativeAltitude, 86.6 m; the ground under the frames lies at about 94 m)
-    m = re.search(r"\[flight\] mean_terrain_height_m = ([-0-9.]+)", r.output)
-    assert m and abs(float(m.group(1)) - 86.6) < 0.1, r.output
-    with open(p / "project.toml", "a") as f:
-        f.write(f"\n[flight]\nmean_terrain_height_m = {m.group(1)}\n")
+    m = re.search(r"(?m)^mean_terrain_height_m = ([-0-9.]+)", (p / "project.toml").read_text())
+    assert m and abs(float(m.group(1)) - 86.6) < 0.1, (p / "project.toml").read_text()
     r = run("match", p)
     assert r.exit_code == 0, r.output
     assert "4 frames, 6 pairs" in r.output

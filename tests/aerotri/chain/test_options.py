@@ -19,7 +19,7 @@ from aerotri.adjust.pipeline import AdjustSettings, adjust_project
 from aerotri.geom.camera import BrownCamera
 from aerotri.chain.options import STAGE_SECTIONS, ChainSettings, read_stage_sections
 from aerotri.cli import main as aerotri_cli
-from aerotri.core.errors import ConfigError, CrsError
+from aerotri.core.errors import ConfigError, CrsError, StageOrderError
 from aerotri.geom.eo import ExteriorOrientations, read_eo, write_eo
 from aerotri.core.project import Project
 from aerotri.sim import load_preset
@@ -167,16 +167,30 @@ def test_report_refuses_a_folder_without_project_or_results(tmp_path):
     assert "None" not in r.stderr and not (tmp_path / "reports").exists()
 
 
-def test_adjusted_camera_of_an_adjustment_without_self_calibration(tmp_path):
+def test_oriented_camera_is_the_adjustments_camera_file(tmp_path):
+    """The camera at/eo.txt belongs to: camera.toml before any adjustment; at/camera.toml after one, named
+    self-calibrated only when it differs from the nominal camera."""
+    from aerotri.geom.camera import oriented_camera
+
     (tmp_path / "project.toml").write_text(PROJECT)
     cam = BrownCamera(focal_mm=120.0, pixel_um=12.0, width=1000, height=800, k1=-1e-3)
     (tmp_path / "camera.toml").write_text(cam.to_toml())
+    got, source = oriented_camera(Project.open(tmp_path))
+    assert got == cam and source.endswith("camera.toml") and "at" not in source.split("/")
     (tmp_path / "at").mkdir()
-    (tmp_path / "at" / "report.json").write_text(json.dumps({"self_calibration": None}))
-    from aerotri.adjust.report_record import adjusted_camera
-
-    got, source = adjusted_camera(Project.open(tmp_path))
-    assert got == BrownCamera.read(tmp_path / "camera.toml") and source.endswith("camera.toml")
+    (tmp_path / "at" / "camera.toml").write_text("# held fixed\n" + cam.to_toml())
+    got, source = oriented_camera(Project.open(tmp_path))
+    assert got == cam and source.endswith("at/camera.toml") and "self-calibrated" not in source
+    calibrated = dataclasses.replace(cam, focal_mm=120.3, k1=-1.2e-3)
+    (tmp_path / "at" / "camera.toml").write_text(calibrated.to_toml())
+    got, source = oriented_camera(Project.open(tmp_path))
+    assert got == calibrated and "self-calibrated" in source
+    # orientations and a report of an adjustment that wrote no camera file: refused, not the nominal camera
+    (tmp_path / "at" / "camera.toml").unlink()
+    (tmp_path / "at" / "eo.txt").write_text("")
+    (tmp_path / "at" / "report.json").write_text("{}")
+    with pytest.raises(StageOrderError, match="camera.toml beside it"):
+        oriented_camera(Project.open(tmp_path))
 
 
 def test_control_and_rectify_after_an_adjustment_without_self_calibration(tiny_project, tmp_path):

@@ -15,7 +15,7 @@ from aerotri.core.project import Project
 from aerotri.exchange import ImportSettings, export_project, import_files
 from aerotri.exchange.adjusted import read_adjusted_block
 from aerotri.exchange.colmap import _quat_wxyz
-from aerotri.adjust.report_record import adjusted_camera
+from aerotri.geom.camera import oriented_camera
 from aerotri.geom.camera import read_camera
 from aerotri.geom.eo import read_eo
 from aerotri.geom.rotation import FLIP_YZ, rotation_matrix_opk
@@ -66,7 +66,7 @@ def test_round_trip(exported, tmp_path, folder, fresh_project):
     assert back.image_id == eo.image_id
     assert np.abs(back.centre_m - eo.centre_m).max() < 1e-4
     assert np.abs(back.opk_deg - eo.opk_deg).max() < 1e-6
-    got, cam = read_camera(dst / "camera.toml"), adjusted_camera(p)[0]
+    got, cam = read_camera(dst / "camera.toml"), oriented_camera(p)[0]
     assert got.MODEL == cam.MODEL
     for f in got.fields():
         assert getattr(got, f) == pytest.approx(getattr(cam, f), rel=1e-7, abs=1e-8), f  # 1e-6 px in the file

@@ -12,7 +12,7 @@ import shapely
 from aerotri.core.errors import InputError
 from aerotri.core.textio import read_json
 from aerotri.exchange import export_project
-from aerotri.adjust.report_record import adjusted_camera
+from aerotri.geom.camera import oriented_camera
 from aerotri.core.project import Project
 from aerotri.geom.eo import read_eo
 
@@ -75,7 +75,7 @@ def test_footprints_lie_on_the_dem_and_on_the_frame_edges(adjusted_tiny, tmp_pat
     crs, polys, cols_ = _read(tmp_path / "out" / "layers" / "block.gpkg", "footprints")
     assert crs == "EPSG:32649" and list(cols_["image_id"]) == eo.image_id
     assert np.allclose(np.column_stack([cols_["omega_deg"], cols_["phi_deg"], cols_["kappa_deg"]]), eo.opk_deg)
-    cam, _ = adjusted_camera(project)
+    cam, _ = oriented_camera(project)
     for i, poly in enumerate(polys):
         assert poly.is_valid and poly.area > 0
         v = shapely.get_coordinates(poly, include_z=True)[:-1]

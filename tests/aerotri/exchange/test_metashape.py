@@ -15,7 +15,7 @@ from aerotri.cli import main as aerotri_cli
 from aerotri.core.errors import CrsError, InputError
 from aerotri.core.project import Project
 from aerotri.exchange import export_project, import_files
-from aerotri.adjust.report_record import adjusted_camera
+from aerotri.geom.camera import oriented_camera
 from aerotri.geom.camera import read_camera
 from aerotri.geom.eo import read_eo
 from aerotri.geom.observations import read_control_points, read_image_points
@@ -38,7 +38,7 @@ def test_round_trip(exported, tmp_path, fresh_project):
     assert back.image_id == eo.image_id
     assert np.abs(back.centre_m - eo.centre_m).max() < 1e-4
     assert np.abs(back.opk_deg - eo.opk_deg).max() < 1e-7
-    got, cam = read_camera(dst / "camera.toml"), adjusted_camera(p)[0]
+    got, cam = read_camera(dst / "camera.toml"), oriented_camera(p)[0]
     for f in got.fields():
         assert getattr(got, f) == pytest.approx(getattr(cam, f), rel=1e-9, abs=1e-12), f
     con, mine = read_control_points(dst / "control" / "points.csv"), read_control_points(p.control_points_path)
@@ -55,7 +55,7 @@ def test_metashape_conventions(exported):
     the calibration's p1/p2 are ours swapped; cx, cy are pixels from the image centre."""
     root, xml = exported
     p = Project.open(root)
-    cam = adjusted_camera(p)[0]
+    cam = oriented_camera(p)[0]
     chunk = ET.parse(xml).getroot().find("chunk")
     cal = chunk.find("sensors/sensor/calibration")
     assert float(cal.find("p1").text) == cam.p2 and float(cal.find("p2").text) == cam.p1

@@ -17,7 +17,7 @@ from aerotri.cli import main as aerotri_cli
 from aerotri.core.project import Project
 from aerotri.exchange import ImportSettings, export_project, import_files, opensfm
 from aerotri.exchange.adjusted import read_adjusted_block
-from aerotri.adjust.report_record import adjusted_camera
+from aerotri.geom.camera import oriented_camera
 from aerotri.geom.camera import read_camera
 from aerotri.geom.eo import read_eo
 from aerotri.geom.observations import read_control_points, read_image_points
@@ -106,7 +106,7 @@ def test_round_trip_through_the_opensfm_import(exported, tmp_path, fresh_project
     assert block.eo.image_id == eo.image_id
     assert np.abs(block.eo.centre_m - eo.centre_m).max() < 1e-6
     assert _rotation_deg(block.eo.rotations(), eo.rotations()).max() < 1e-6
-    cam, got = adjusted_camera(p)[0], block.camera
+    cam, got = oriented_camera(p)[0], block.camera
     for k in ("focal_px", "cx_px", "cy_px", "k1", "k2", "k3", "p1", "p2"):
         assert getattr(got, k) == pytest.approx(getattr(cam, k), rel=1e-9, abs=1e-12), k
     r = CliRunner().invoke(aerotri_cli, ["import", str(dst), "--format", "opensfm",

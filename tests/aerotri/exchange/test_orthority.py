@@ -17,7 +17,7 @@ from aerotri.cli import main as aerotri_cli
 from aerotri.core.errors import CrsError, InputError
 from aerotri.core.project import Project
 from aerotri.exchange import ImportSettings, export_project, import_files
-from aerotri.adjust.report_record import adjusted_camera
+from aerotri.geom.camera import oriented_camera
 from aerotri.geom.camera import read_camera
 from aerotri.geom.eo import read_eo, read_gnss
 
@@ -32,7 +32,7 @@ def test_round_trip_through_an_adjusted_project(adjusted_tiny, tmp_path, fresh_p
     out = tmp_path / "exp"
     export_project(root, ["orthority"], out)
     p = Project.open(root)
-    eo, cam = read_eo(p.eo_path), adjusted_camera(p)[0]
+    eo, cam = read_eo(p.eo_path), oriented_camera(p)[0]
     for ext, as_gnss in (("ext_param.csv", False), ("ext_param.geojson", True)):
         dst = fresh_project(root, tmp_path / ext)
         import_files(dst, "orthority", [out / "orthority" / "int_param.yaml", out / "orthority" / ext],

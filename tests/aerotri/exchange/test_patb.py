@@ -16,7 +16,7 @@ from aerotri.core.project import Project
 from aerotri.exchange import ImportSettings, export_project, import_files
 from aerotri.exchange.adjusted import read_adjusted_block
 from aerotri.exchange.patb import photo_coordinates_mm
-from aerotri.adjust.report_record import adjusted_camera
+from aerotri.geom.camera import oriented_camera
 from aerotri.geom.camera import read_camera
 from aerotri.geom.eo import read_eo
 from aerotri.geom.observations import read_control_points, read_image_points
@@ -39,7 +39,7 @@ def test_round_trip(exported, tmp_path, fresh_project):
     assert back.image_id == eo.image_id
     assert np.abs(back.centre_m - eo.centre_m).max() < 1e-4
     assert np.abs(back.opk_deg - eo.opk_deg).max() < 1e-7
-    got, cam = read_camera(dst / "camera.toml"), adjusted_camera(p)[0]
+    got, cam = read_camera(dst / "camera.toml"), oriented_camera(p)[0]
     assert got == cam  # every field written with repr: exact
     blk = read_adjusted_block(root)
     con = read_control_points(dst / "control" / "points.csv")
