@@ -372,14 +372,20 @@ class GnssCorrectionCheck:
     sigma_m: float
     k: float
     n: int
-    suspect: tuple  # of (strip 1-based, "shift" | "drift", axis "E" | "N" | "U", displacement m)
+    suspect: tuple  # of (strip 1-based, "shift" | "drift" | "offset" (the flight's one), axis "E" | "N" | "U", m)
     source: str = "gnss_shift_sigma_m"  # the setting the a-priori sigma comes from
     sigma_axis_m: tuple = ()  # (E, N, U) a-priori sigma per axis (the offset's plan and height); () all sigma_m
 
     def reasons(self) -> list[str]:
         sig = dict(zip("ENU", self.sigma_axis_m or (self.sigma_m,) * 3))
-        return [f"strip {s} {term} {axis} {v:+.3f} m{' at the strip end' if term == 'drift' else ''} "
+        return [f"{suspect_label(s, term)} {axis} {v:+.3f} m{' at the strip end' if term == 'drift' else ''} "
                 f"({abs(v) / sig[axis]:.1f} sigma)" for s, term, axis, v in self.suspect]
+
+
+def suspect_label(strip: int, term: str) -> str:
+    """How a report names a suspect GNSS correction: "strip 2 shift", or "flight offset" (the consumer model's one
+    offset, which belongs to no strip)."""
+    return "flight offset" if term == "offset" else f"strip {strip} {term}"
 
 
 def gnss_correction_check(ba) -> GnssCorrectionCheck | None:
@@ -395,7 +401,7 @@ def gnss_correction_check(ba) -> GnssCorrectionCheck | None:
     else:
         sigma_axis, source = np.full(3, float(ba.settings.gnss_shift_sigma_m)), "gnss_shift_sigma_m"
     sigma = float(sigma_axis[0])
-    terms = [("shift", np.asarray(st.shift, dtype=float)[:G.n_shifts(b, mode)])]
+    terms = [("offset" if mode == "offset" else "shift", np.asarray(st.shift, dtype=float)[:G.n_shifts(b, mode)])]
     if mode == "shift_drift":
         half_km = np.array([np.abs(b.along_km[b.strip == s]).max(initial=0.0) for s in range(b.n_strips)])
         terms.append(("drift", np.asarray(st.drift, dtype=float) * half_km[:, None]))
@@ -963,7 +969,7 @@ def format_txt(rep: dict) -> str:
         sus = rep["key_statistics"].get("gnss_corrections_suspect") or []
         if sus:
             L.append("  suspect (beyond the a-priori limit, key statistics): " + ", ".join(
-                f"strip {x['strip']} {x['term']} {x['axis']} {x['displacement_m']:+.3f} m" for x in sus))
+                f"{suspect_label(x['strip'], x['term'])} {x['axis']} {x['displacement_m']:+.3f} m" for x in sus))
     fa = rep.get("flight_acceptance")
     if fa:
         from aerotri.adjust.flight_acceptance import LIMIT_KEYS

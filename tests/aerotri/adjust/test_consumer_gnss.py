@@ -65,6 +65,13 @@ def test_the_flight_offset_model_states_metres_where_the_survey_model_claims_cen
     assert rep["key_statistics"]["verdict"] == "weak" and "block height held only by" in rep["key_statistics"]["message"]
     note = next(n for n in rep["datum"] if n.startswith("GNSS:"))
     assert "one 3-D offset for the whole flight" in note and "offset_sigma_xy_m" in note and "[gnss] sigma_xy_m" in note
+    # the settings block lists gnss_correction = none (no per-strip correction) and says the flight's offset is estimated
+    from aerotri.adjust.pipeline import project_settings
+    from aerotri.core.project import Project
+
+    resolved = project_settings(Project.open(root))
+    assert resolved.settings.gnss_correction == "none"
+    assert "one GNSS offset for the flight is estimated" in resolved.notes["gnss_correction"]
 
 
 def test_with_a_dem_the_height_offset_is_estimated(consumer_block):
@@ -134,7 +141,7 @@ def test_an_offset_beyond_its_a_priori_sigmas_is_suspect_with_plan_and_height(co
     write_gnss(p / "gnss.txt", type(g)(g.image_id, g.position_m + [0.0, 0.0, 20.0], g.sigma_m))
     ba = adjust_project(p, dataclasses.replace(SETTINGS, dem=p / "dem.tif", surface_sigma_m=0.05))
     ks = build_report(ba).key_statistics
-    assert [(s["term"], s["axis"]) for s in ks["gnss_corrections_suspect"]] == [("shift", "U")], ks
+    assert [(s["term"], s["axis"]) for s in ks["gnss_corrections_suspect"]] == [("offset", "U")], ks
     assert ks["gnss_corrections_suspect"][0]["displacement_m"] == pytest.approx(OFFSET_M[2] + 20.0, abs=0.3)
     assert ("a-priori sigmas of 3 / 5 m (plan / height; [gnss] offset_sigma_xy_m, offset_sigma_z_m; 1 % false "
-            "alarms over the block's 3 estimates): strip 1 shift U") in ks["message"], ks["message"]
+            "alarms over the block's 3 estimates): flight offset U") in ks["message"], ks["message"]
