@@ -369,15 +369,14 @@ class GnssCorrectionCheck:
     block's ``n`` estimated components): a sound block is flagged in at most 1 % of cases however many strips it
     has, and an error the corrections absorb is flagged once it reaches k sigmas (3.6 for 6 strips with drift)."""
 
-    sigma_m: float
+    sigma_axis_m: tuple  # (E, N, U) a-priori sigma of a correction (gnss_shift_sigma_m, or the offset's plan, height)
     k: float
     n: int
     suspect: tuple  # of (strip 1-based, "shift" | "drift" | "offset" (the flight's one), axis "E" | "N" | "U", m)
-    source: str = "gnss_shift_sigma_m"  # the setting the a-priori sigma comes from
-    sigma_axis_m: tuple = ()  # (E, N, U) a-priori sigma per axis (the offset's plan and height); () all sigma_m
+    source: str  # the setting the a-priori sigma comes from
 
     def reasons(self) -> list[str]:
-        sig = dict(zip("ENU", self.sigma_axis_m or (self.sigma_m,) * 3))
+        sig = dict(zip("ENU", self.sigma_axis_m))
         return [f"{suspect_label(s, term)} {axis} {v:+.3f} m{' at the strip end' if term == 'drift' else ''} "
                 f"({abs(v) / sig[axis]:.1f} sigma)" for s, term, axis, v in self.suspect]
 
@@ -400,7 +399,6 @@ def gnss_correction_check(ba) -> GnssCorrectionCheck | None:
         sigma_axis, source = np.asarray(b.gnss_offset_sigma_m, dtype=float), "[gnss] offset_sigma_xy_m, offset_sigma_z_m"
     else:
         sigma_axis, source = np.full(3, float(ba.settings.gnss_shift_sigma_m)), "gnss_shift_sigma_m"
-    sigma = float(sigma_axis[0])
     terms = [("offset" if mode == "offset" else "shift", np.asarray(st.shift, dtype=float)[:G.n_shifts(b, mode)])]
     if mode == "shift_drift":
         half_km = np.array([np.abs(b.along_km[b.strip == s]).max(initial=0.0) for s in range(b.n_strips)])
@@ -409,7 +407,7 @@ def gnss_correction_check(ba) -> GnssCorrectionCheck | None:
     k = float(norm.isf(GNSS_CORRECTION_ALPHA / (2 * n)))
     suspect = tuple((s + 1, term, "ENU"[a], float(v[s, a])) for term, v in terms
                     for s in range(v.shape[0]) for a in range(3) if abs(v[s, a]) > k * sigma_axis[a])
-    return GnssCorrectionCheck(sigma, round(k, 2), n, suspect, source, tuple(float(x) for x in sigma_axis))
+    return GnssCorrectionCheck(tuple(float(x) for x in sigma_axis), round(k, 2), n, suspect, source)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -426,12 +424,11 @@ class UnmodelledDriftCheck:
     200-frame strips the orientations came out 8 of their sigmas off with "Solution Successful" before this
     check."""
 
-    sigma_m: float
+    sigma_axis_m: tuple  # (E, N, U) limit per axis (gnss_shift_sigma_m, or a consumer receiver's plan and height)
     k: float
     n: int
     trends: tuple  # of (strip 1-based, axis "E" | "N" | "U", displacement m at the strip end, standard errors)
-    source: str = "gnss_shift_sigma_m"  # the setting the limit comes from
-    sigma_axis_m: tuple = ()  # (E, N, U) limit per axis (a consumer receiver's plan and height); () all sigma_m
+    source: str  # the setting the limit comes from
 
     def reasons(self) -> list[str]:
         return [f"strip {s} {axis} {v:+.3f} m at the strip end ({t:.1f} standard errors)" for s, axis, v, t in self.trends]
@@ -472,13 +469,12 @@ def unmodelled_drift_check(ba) -> UnmodelledDriftCheck | None:
     k = float(norm.isf(GNSS_CORRECTION_ALPHA / (2 * len(fits))))
     trends = tuple((s, a, round(v, 4), round(abs(v) / se, 1) if se > 0 else float("inf")) for s, a, v, se in fits
                    if abs(v) > sig[a] and abs(v) > k * se)
-    return UnmodelledDriftCheck(float(sigma_axis[0]), round(k, 2), len(fits), trends, source,
-                                tuple(float(x) for x in sigma_axis))
+    return UnmodelledDriftCheck(tuple(float(x) for x in sigma_axis), round(k, 2), len(fits), trends, source)
 
 
 def _limit(check, more: str = "") -> str:
     """A check's limit in words with its source: "0.1 m (gnss_shift_sigma_m)", "3 / 5 m (plan / height; ...)"."""
-    p, _, h = check.sigma_axis_m or (check.sigma_m,) * 3
+    p, _, h = check.sigma_axis_m
     return f"{p:g} m ({check.source}{more})" if p == h else f"{p:g} / {h:g} m (plan / height; {check.source}{more})"
 
 
