@@ -33,7 +33,6 @@ import hashlib
 import json
 import os
 import statistics
-import subprocess
 import sys
 import time
 from pathlib import Path
@@ -315,13 +314,12 @@ def _measure_compile(only: list[str] | None = None) -> dict:
 def _side(code: Path, repeat: int, only: list[str] | None = None, compile_: bool = False) -> dict:
     import tempfile
 
+    from lidar_common import measure_on_tree
+
     with tempfile.TemporaryDirectory(dir=os.environ.get("TMPDIR")) as cache:
-        env = dict(os.environ, PYTHONPATH=str(code), **({"NUMBA_CACHE_DIR": cache} if compile_ else {}))
-        r = subprocess.run([sys.executable, __file__, "--measure", "--repeat", str(repeat),
-                            *(["--compile"] if compile_ else []),
-                            *[a for name in only or [] for a in ("--only", name)]], env=env,
-                           capture_output=True, text=True, check=True, cwd=code)
-    return json.loads(r.stdout)
+        return measure_on_tree(code, __file__, ["--repeat", repeat, *(["--compile"] if compile_ else []),
+                                                *[a for name in only or [] for a in ("--only", name)]],
+                               env={"NUMBA_CACHE_DIR": cache} if compile_ else None, cwd=code)
 
 
 def main() -> None:

@@ -21,8 +21,6 @@ import argparse
 import hashlib
 import json
 import os
-import subprocess
-import sys
 import time
 from pathlib import Path
 
@@ -99,11 +97,9 @@ def _measure(n_points: int, only: list[str] | None = None) -> dict:
 
 
 def _side(code: Path, n_points: int, only: list[str] | None = None) -> dict:
-    env = dict(os.environ, PYTHONPATH=str(code))
-    r = subprocess.run([sys.executable, __file__, "--measure", "--points", str(n_points),
-                        *[a for name in only or [] for a in ("--only", name)]], env=env,
-                       capture_output=True, text=True, check=True)
-    return json.loads(r.stdout)
+    from lidar_common import measure_on_tree
+
+    return measure_on_tree(code, __file__, ["--points", n_points, *[a for name in only or [] for a in ("--only", name)]])
 
 
 def main() -> None:

@@ -24,7 +24,6 @@ import json
 import os
 import shutil
 import subprocess
-import sys
 import time
 from pathlib import Path
 
@@ -89,14 +88,11 @@ def _measure(demo: Path, work: Path, images: Path, dem: str, dsm: str, extra: di
 
 
 def _side(code: Path, a: argparse.Namespace, work: Path) -> dict:
-    env = dict(os.environ, PYTHONPATH=str(code))
-    r = subprocess.run([sys.executable, __file__, "--measure", "--demo", str(a.demo.resolve()), "--work", str(work),
-                        "--images", str(a.images.resolve()), "--dem", a.dem, "--dsm", a.dsm,
-                        "--max-view-angle", str(a.max_view_angle)] + (["--crs", a.crs] if a.crs else []), env=env,
-                       capture_output=True, text=True)
-    if r.returncode != 0:
-        raise SystemExit(f"{code}: the measurement failed:\n{r.stderr[-3000:]}")
-    return json.loads(r.stdout.strip().splitlines()[-1])
+    from lidar_common import measure_on_tree
+
+    return measure_on_tree(code, __file__, ["--demo", a.demo.resolve(), "--work", work, "--images", a.images.resolve(),
+                                            "--dem", a.dem, "--dsm", a.dsm, "--max-view-angle", a.max_view_angle]
+                           + (["--crs", a.crs] if a.crs else []))
 
 
 def main() -> None:

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import io
 import itertools
+import json
 import os
 import resource
 import subprocess
@@ -123,6 +124,17 @@ def grid_points(grid: dict, default: dict | None = None) -> list[dict]:
     if default is not None and default not in combos:
         combos.append(default)
     return combos
+
+
+def measure_on_tree(code: Path, script, args, *, env: dict | None = None, cwd=None) -> dict:
+    """Run ``script --measure ARGS`` in its own process with the packages of ``code`` first on the path (one side,
+    before or after, of a benchmark of two code trees) and return the JSON of the last line it prints; SystemExit
+    with the end of its stderr when it fails. ``env``: more environment variables."""
+    r = subprocess.run([sys.executable, str(script), "--measure", *map(str, args)], capture_output=True, text=True,
+                       env=dict(os.environ, PYTHONPATH=str(code), **(env or {})), cwd=cwd)
+    if r.returncode != 0:
+        raise SystemExit(f"{code}: the measurement failed:\n{r.stderr[-3000:]}")
+    return json.loads(r.stdout.strip().splitlines()[-1])
 
 
 def baseline_tree(rev: str, work: Path) -> Path:
