@@ -790,8 +790,12 @@ def write_outputs(ba: BlockAdjustment, root, html: bool = True, out_dir=None,
     project = Project.open(root)
     at = Path(out_dir) if out_dir is not None else project.at_dir
     # the limits of the project's table (by its GSD and platform unless [qa] names one), as in reports/
-    # the camera of the report before this one (this adjustment's is written below)
-    qa = qa_settings(root, project_block_scale(project, ba.points_map[:, 2]))
+    # the camera of the adjustment before this one (this one's is written below); without at/camera.toml the
+    # nominal one: oriented_camera refuses a project adjusted before that file existed, and this is its new adjustment
+    camera = None
+    if not project.adjusted_camera_path.is_file() and project.camera_path.is_file():
+        camera = (project_camera(project), str(project.camera_path))
+    qa = qa_settings(root, project_block_scale(project, ba.points_map[:, 2], camera=camera))
     built = report.build_report(ba, qa.map_scale, qa.terrain, qa.tolerances, project_terrain(project))
     if settings_record is None:  # a library caller's own settings
         settings_record = settings_of(ba.settings, AdjustSettings).record()

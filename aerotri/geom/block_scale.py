@@ -52,19 +52,20 @@ def block_scale(camera, centre_z, ground_z, height_unit_m: float, how: str) -> B
     return BlockScale(camera.gsd_m(hm), hm, platform, how)
 
 
-def project_block_scale(project, ground_heights=None, ground_source: str = "the adjusted tie points") -> BlockScale:
+def project_block_scale(project, ground_heights=None, ground_source: str = "the adjusted tie points", *,
+                        camera: tuple | None = None) -> BlockScale:
     """The block's GSD and platform from the project folder (module docstring); ``ground_heights``: heights
     of the ground in the CRS's height unit (e.g. the adjustment's tie points) when there is neither a DEM nor
     a mean terrain height. The camera is the one the orientations belong to (``oriented_camera``: the
-    adjustment's at/camera.toml, else the nominal camera.toml). A ``BlockScale`` without GSD says what was
-    missing."""
+    adjustment's at/camera.toml, else the nominal camera.toml), or ``camera``, (camera, source), when given. A
+    ``BlockScale`` without GSD says what was missing."""
     from aerotri.geom.camera import oriented_camera
     from aerotri.geom.crs.definition import height_unit_m, project_crs
     from aerotri.geom.eo import read_eo, read_gnss
 
     if not project.camera_path.is_file():
         return BlockScale(None, None, None, "no camera.toml")
-    camera, cam_src = oriented_camera(project)
+    camera, cam_src = camera if camera is not None else oriented_camera(project)
     cam = f"{Path(cam_src).name if 'self-calibrated' not in cam_src else 'self-calibrated camera'} " \
           f"(f {camera.focal_mm:g} mm, pixel {camera.pixel_um:g} um)"
     if project.eo_path.is_file():

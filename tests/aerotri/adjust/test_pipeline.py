@@ -82,6 +82,29 @@ def test_outputs_and_report(block_project):
     assert eo.sigma is not None and len(eo.image_id) == 18
 
 
+def test_the_camera_of_the_orientations_is_written_beside_them(block_project, tmp_path):
+    """at/camera.toml is the self-calibrated camera of at/eo.txt; a project adjusted before that file existed is
+    refused by the stages that read it ("adjust again"), and adjusting it again writes the file."""
+    import shutil
+
+    from aerotri.core.errors import StageOrderError
+    from aerotri.core.project import Project
+    from aerotri.geom.camera import oriented_camera
+
+    block, root = block_project
+    copy = shutil.copytree(root, tmp_path / "blk")
+    ba = adjust_project(copy, AdjustSettings(gnss_correction="shift", image_sigma_px=SIGMA_PX, point_covariances=False,
+                                             gnss_shift_sigma_m=0.3, self_calibration=("pp", "radial"), snooping=False))
+    write_outputs(ba, copy, html=False)
+    camera, source = oriented_camera(Project.open(copy))
+    assert camera == ba.camera_adjusted and "self-calibrated" in source
+    (copy / "at" / "camera.toml").unlink()  # as an adjustment before the file existed left the project
+    with pytest.raises(StageOrderError, match="adjust again"):
+        oriented_camera(Project.open(copy))
+    write_outputs(ba, copy, html=False)
+    assert oriented_camera(Project.open(copy))[0] == ba.camera_adjusted
+
+
 def test_report_limits_follow_the_project_map_scale(block_project, tmp_path):
     """at/report.* takes its RMS and residual limits from the project's [qa] map scale and terrain; without
     [qa] from the table of the block's GSD and platform (aerotri.core.tolerances.choose_table)."""
