@@ -24,10 +24,11 @@ bench/eval_classify_nested.py --ahn3) each quarter is scored on its own classifi
 them from bench/results/classify_nested.json (the nested folds' choices).
 Errors by type (key "errors", shipped defaults): false building area by distance from the nearest
 footprint and by AHN3's class of the cell's highest point; missed footprint area by our class and AHN3's.
+What the false area physically is: bench/eval_buildings_bgt_false.py.
 Rule sets (``--rules``, issue 44's discipline): the classification with each set of RULE_SETS (the new
-building rules off, then on one by one); for each held-out quarter the set with the best worst-quarter
-min(completeness, correctness) on the other quarters (those with footprints) is chosen, and the held-out
-quarter is scored once with it (area, objects, vector centroids). Ties go to the earlier (simpler) set.
+building rules off, then on alone and combined; RULE_NOTES: what each was designed on); for each
+held-out quarter the set with the best worst-quarter min(completeness, correctness) on the other
+quarters (those with footprints) is chosen, and the held-out quarter is scored once with it (area, objects, vector centroids). Ties go to the earlier (simpler) set.
 Writes bench/results/buildings_bgt.json. Run: nice .venv/bin/python bench/eval_buildings_bgt.py --rules
 (and/or --nested).
 """
@@ -63,7 +64,8 @@ PARTS = ("south-west", "south-east", "north-west", "north-east")
 # roofs judged apart from the hedge or crown their segment also holds) with rooftop objects judged by
 # steps to roofs only (else a shed is cut as an object standing above its own wall returns), and the
 # roof reach (a segment's cells beyond it from a roof cell join only when mostly single-return).
-_OFF = {"small_building_planar_cores": False, "rooftop_steps_to_roofs_only": False, "roof_reach_cells": 0}
+_OFF = {"small_building_planar_cores": False, "rooftop_steps_to_roofs_only": False, "roof_reach_cells": 0,
+        "low_growth_max_height_m": 0.0}
 RULE_SETS = {
     "main (rules off)": _OFF,
     "sheds": {**_OFF, "small_building_planar_cores": True, "rooftop_steps_to_roofs_only": True},
@@ -71,6 +73,24 @@ RULE_SETS = {
                         "roof_reach_cells": 2},
     "sheds + reach 3": {**_OFF, "small_building_planar_cores": True, "rooftop_steps_to_roofs_only": True,
                         "roof_reach_cells": 3},
+    # Low split-pulse growth (low_growth_max_height_m), with and without the shed rules: heights fixed before
+    # the run, from a storey's height (about 2.5-3 m) to the 4 m that bounds 90 % of the false area's
+    # heights (bench/eval_buildings_bgt_false.py).
+    **{f"sheds + low {h:g}": {**_OFF, "small_building_planar_cores": True, "rooftop_steps_to_roofs_only": True,
+                              "low_growth_max_height_m": h} for h in (2.5, 3.0, 3.5, 4.0)},
+    **{f"low {h:g}": {**_OFF, "low_growth_max_height_m": h} for h in (2.5, 3.0, 3.5, 4.0)},
+}
+
+# What each rule was designed on (issue 44's discipline: the nested choice is made per held-out quarter,
+# but a rule's form was shaped by the data its designer looked at).
+RULE_NOTES = {
+    "small_building_planar_cores, rooftop_steps_to_roofs_only": "designed looking at the north-east quarter's "
+        "missed BGT sheds; thresholds re-used from the small-building rules (6 m2, 0.2, 0.1 m)",
+    "roof_reach_cells": "2 cells from the 3x3 plane fit's geometry; 3 tried",
+    "low_growth_max_height_m": "designed looking at the false area of the north-west and north-east quarters "
+        "(bench/eval_buildings_bgt_false.py: 77 % of it 1.5-4 m above the ground); the split-pulse test re-uses "
+        "the roof cells' (max_multi_return_fraction 0.3 at 95 % confidence); heights 2.5-4 m fixed before the "
+        "nested run; the sets without the shed rules added after a first run (shed rules x low heights)",
 }
 
 
@@ -248,7 +268,8 @@ def rules_nested(laz: Path, polys: list, split: tuple, tmp: Path) -> dict:
         for q in v["quarters"].values():
             q.pop("classified_with", None)
     return {"criterion": "the lowest of area completeness and correctness over the training quarters (those "
-                         "with footprints); ties to the earlier rule set", "rule_sets": per_set, "held_out": held}
+                         "with footprints); ties to the earlier rule set", "rule_notes": RULE_NOTES,
+            "rule_sets": per_set, "held_out": held}
 
 
 def main(argv=None) -> int:
@@ -310,6 +331,9 @@ def main(argv=None) -> int:
             "correctness_pct": min(v["area"]["correctness_pct"] for v in held.values()),
             "footprints_found_pct": min(v["footprints_found_pct"] for v in held.values()),
             "vector_centroids_pct": min(v["vector_centroids_pct"] for v in held.values())}
+        wh = result["rules_nested"]["worst_held_out"]
+        result["targets_met"]["area_rules_nested"] = bool(min(wh["completeness_pct"], wh["correctness_pct"]) >= 95.0)
+        result["targets_met"]["vectors_rules_nested"] = bool(wh["vector_centroids_pct"] >= 95.0)
         for name, v in held.items():
             a = v["area"]
             print(f"held out {name} (rules '{v['chosen']}' chosen on {', '.join(v['chosen_on'])}): completeness "
