@@ -68,7 +68,12 @@ def seen_with_clearance(truth, image_id: str, x: np.ndarray, y: np.ndarray, r_m:
     return ok
 
 
-def measure_block(work: Path, name: str) -> dict:
+def measure_block(work: Path, name: str, *, true_ortho: Path | None = None, truth=None,
+                  truth_arrays: tuple | None = None, cells_out: dict | None = None) -> dict:
+    """The figures of one block: its DOMs in ``work/name/conventional`` and ``work/name/true_ortho`` (or the true
+    ortho project ``true_ortho``); ``truth`` (``Truth``) and ``truth_arrays`` (``truth_on_grid``'s kind, ground,
+    roof, vis, foot_nadir) when already made. ``cells_out``: receives the boolean grids ``seen_other`` (occluded
+    ground another frame sees), ``miss`` and ``over`` (the misses every seeing frame masks)."""
     import cv2
     import rasterio
 
@@ -76,12 +81,15 @@ def measure_block(work: Path, name: str) -> dict:
     from ortho.block import read_index
     from ortho.grid import OrthoGrid
 
-    conv, tru = work / name / "conventional", work / name / "true_ortho"
+    conv, tru = work / name / "conventional", true_ortho or work / name / "true_ortho"
     grid = OrthoGrid.union(read_index(conv).grids)
     H, W = grid.height, grid.width
     t = time.perf_counter()
-    truth = E.Truth(conv)
-    kind, ground, roof, vis, foot_nadir, _ = E.truth_on_grid(truth, conv, grid)
+    truth = truth or E.Truth(conv)
+    if truth_arrays is None:
+        kind, ground, roof, vis, foot_nadir, _ = E.truth_on_grid(truth, conv, grid)
+    else:
+        kind, ground, roof, vis, foot_nadir = truth_arrays
     vis = np.stack(vis)
     ray_cast_s = time.perf_counter() - t
     masks, _ = E.frame_masks(tru, grid)
@@ -113,6 +121,8 @@ def measure_block(work: Path, name: str) -> dict:
     from_nadir = src == foot_nadir
     over = miss & ~dom_valid & ~seeing_has_it
     choice = miss & dom_valid & seeing_has_it
+    if cells_out is not None:
+        cells_out.update(seen_other=seen_other, miss=miss, over=over)
     # the over-masked cells: in a hole of a seeing frame's mask (enclosed, 4-connected) or in an invalid part joined to
     # the frame's outside
     in_hole = np.zeros((H, W), bool)

@@ -297,8 +297,9 @@ def source_by_value(project: Path, grid, masks: list, dom: np.ndarray, dom_valid
     H, W = dom_valid.shape
     best = np.full((H, W), np.iinfo(np.int32).max, np.int64)
     src = np.full((H, W), -1, np.int32)
-    index = json.loads((project / "ortho" / "frames" / "index.json").read_text())
-    files = {e.image_id: e.file for e in index.frames}
+    from ortho.block import read_index
+
+    files = {e.image_id: e.file for e in read_index(project).frames}
     top = np.iinfo(dom.dtype).max if np.issubdtype(dom.dtype, np.integer) else None
     for k, (image_id, r0, c0, m) in enumerate(masks):
         gains = summary["gains"][image_id]

@@ -1,0 +1,267 @@
+"""Is the true-ortho mosaic's miss of occluded ground the DSM's cell size, and if not, what limits it? (issue 42,
+target: 99.5 % of the occluded ground another frame sees filled from a frame that sees it.)
+
+DSM cell: the truth surface is rasterised again at finer cells (straight-down rays at the cell centres, as the
+simulator makes ``truth/dsm.tif``; ``Truth.surface`` of ``eval_true_ortho_occlusion.py``) and the same frames are
+rectified with ``--true-ortho --dsm`` that raster (the DOM cell unchanged) and mosaicked; measured as
+``bench/eval_true_ortho_occlusion.py`` (roofs, ghosts, seams) and ``bench/eval_true_ortho_fill.py`` (fill, misses by
+class) do, against the same ray-cast truth (computed once per block, kept in ``DIR/<block>/truth_on_grid.npz``).
+
+The bound of any 2.5D surface (``surface_clearance``): for every frame that sees an occluded ground cell another
+frame sees, the truth's straight-down surface (no raster: the exact roof outlines, as fine as the ray caster) is
+sampled along the line of sight every 5 cm; the frame "sees the cell over the 2.5D surface" when the surface stays
+within the march's 0.3 m tolerance of the ray everywhere. Where it does not (the ray reached the ground in the truth
+all the same) the ray passed beneath what stands highest above it: a roof outside its building's wall line (the eave
+overhang, ``[scene] eave_m`` of the preset) or a tree crown; no height raster, however fine, can let such a cell
+through without letting through the ground the roof hides. The share of cells some seeing frame sees over the 2.5D
+surface is the most a 2.5D occlusion test can fill; the misses of each DOM are split the same way.
+
+Usage: python bench/eval_true_ortho_dsm_cell.py --work DIR [--tall PROJECT] [--demo PROJECT]
+[--blocks "demo:lidar,0.5,0.1;tall:0.5,0.25,0.2,0.1"] [--out FILE]
+Per block the DSMs to try: ``lidar`` the project's lidar_out/dsm.tif (the demo: the chain's LiDAR DSM and adjusted
+orientation), ``0.5`` on the tall block truth/dsm.tif, other numbers the truth surface at that cell (m). The tall
+block: ``aerotri sim DIR --preset tall``, rectified with the true orientation and camera as in
+eval_true_ortho_occlusion.py; the demo: a project made by ``aerotri demo``. Writes the key ``dsm_cell`` of
+bench/results/true_ortho_fill.json (the other keys kept).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+REPO = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(REPO))
+sys.path.insert(0, str(REPO / "bench"))
+
+ROWS_PER_CHUNK = 256
+
+
+def write_fine_dsm(project: Path, truth, cell_m: float, out: Path) -> float:
+    """The truth surface at cells of ``cell_m`` over the extent of truth/dsm.tif; returns the ray-cast seconds."""
+    import rasterio
+    from rasterio.transform import from_origin
+
+    with rasterio.open(project / "truth" / "dsm.tif") as ds:
+        b, crs = ds.bounds, ds.crs
+    nx, ny = int(math.floor((b.right - b.left) / cell_m)), int(math.floor((b.top - b.bottom) / cell_m))
+    xs = b.left + (np.arange(nx) + 0.5) * cell_m - truth.origin[0]
+    t = time.perf_counter()
+    tmp = out.with_suffix(".part.tif")
+    with rasterio.open(tmp, "w", driver="GTiff", width=nx, height=ny, count=1, dtype="float32", crs=crs,
+                       transform=from_origin(b.left, b.top, cell_m, cell_m), nodata=-9999.0, tiled=True,
+                       blockxsize=256, blockysize=256, compress="deflate", predictor=3) as dst:
+        for r0 in range(0, ny, ROWS_PER_CHUNK):
+            r1 = min(ny, r0 + ROWS_PER_CHUNK)
+            ys = b.top - (np.arange(r0, r1) + 0.5) * cell_m - truth.origin[1]
+            X, Y = np.meshgrid(xs, ys)
+            _, z, _ = truth.surface(X.ravel(), Y.ravel())
+            dst.write((z.reshape(r1 - r0, nx) + truth.origin[2]).astype(np.float32), 1,
+                      window=rasterio.windows.Window(0, r0, nx, r1 - r0))
+    tmp.replace(out)
+    return time.perf_counter() - t
+
+
+# what stands above a line of sight that reaches the ground (``surface_clearance``)
+CLEAR, EAVE, ROOF_OVER_WALLS, TREE_CROWN, OTHER = 0, 1, 2, 3, 4
+BLOCKERS = {EAVE: "eave_overhang", ROOF_OVER_WALLS: "roof_inside_the_walls", TREE_CROWN: "tree_crown", OTHER: "other"}
+STEP_M = 0.05  # along the line of sight, horizontally
+RAYS_PER_CHUNK = 2000
+
+
+def surface_clearance(truth, image_id: str, x: np.ndarray, y: np.ndarray, tolerance_m: float) -> np.ndarray:
+    """What a 2.5D surface (the straight-down view of the scene at every point, no raster) puts in the line of sight
+    from ground points (local x, y) to the frame's true projection centre: ``CLEAR`` where the surface stays within
+    ``tolerance_m`` of the ray everywhere (every STEP_M horizontally, from STEP_M to where the ray is above the
+    highest surface), else what the surface is where it stands highest above the ray: a roof outside its building's
+    wall line (``EAVE``: the overhang, under which the ray may pass), a roof inside it, a tree crown, other."""
+    import shapely
+
+    from aerotri.sim.scene import KIND_ROOF, KIND_TREE
+
+    footprints = {b.building_id: b.footprint for b in truth.scene.buildings}
+    top = float(truth.accel[-1])
+    C = truth.centres[image_id]
+    out = np.zeros(len(x), np.uint8)
+    for a in range(0, len(x), RAYS_PER_CHUNK):
+        X, Y = x[a:a + RAYS_PER_CHUNK], y[a:a + RAYS_PER_CHUNK]
+        Z = truth.scene.terrain_height(X, Y)
+        vx, vy, vz = C[0] - X, C[1] - Y, C[2] - Z
+        hd = np.hypot(vx, vy)
+        rise = vz / hd
+        S = np.arange(1, int(np.ceil((top - Z.min()) / rise.min() / STEP_M)) + 1) * STEP_M
+        PX, PY = X[:, None] + vx[:, None] / hd[:, None] * S, Y[:, None] + vy[:, None] / hd[:, None] * S
+        kind, zs, obj = truth.surface(PX.ravel(), PY.ravel())
+        excess = zs.reshape(PX.shape) - (Z[:, None] + rise[:, None] * S)
+        m = np.argmax(excess, 1)
+        rows = np.arange(len(X))
+        blocked = excess[rows, m] > tolerance_m
+        k, o = kind.reshape(PX.shape)[rows, m], obj.reshape(PX.shape)[rows, m]
+        code = np.where(k == KIND_TREE, TREE_CROWN, OTHER).astype(np.uint8)
+        for q in np.flatnonzero(blocked & (k == KIND_ROOF)):
+            inside = shapely.contains_xy(footprints[int(o[q])], PX[q, m[q]], PY[q, m[q]])
+            code[q] = ROOF_OVER_WALLS if inside else EAVE
+        out[a:a + RAYS_PER_CHUNK] = np.where(blocked, code, CLEAR)
+    return out
+
+
+def occluded_seen_by_another(E, ground, vis, foot_nadir) -> np.ndarray:
+    """Ground cells hidden in the nadir-most frame covering them that another frame sees (as eval_true_ortho_fill)."""
+    code_nadir = np.zeros(ground.shape, np.uint8)
+    for k in range(len(vis)):
+        sel = foot_nadir == k
+        code_nadir[sel] = vis[k][sel]
+    return ground & (foot_nadir >= 0) & (code_nadir >= E.ROOF) & (np.stack(vis) == E.SEES).any(0)
+
+
+def cached_clearance(E, truth, work: Path, grid, ground, vis, foot_nadir, tolerance_m: float = 0.3):
+    """``surface_clearance`` of every frame that sees an occluded ground cell another frame sees (codes (F, H, W),
+    255 where not evaluated; kept in work/surface_clearance.npz), and what a 2.5D occlusion test could fill at
+    best: the share of those cells some seeing frame sees over the 2.5D surface (within ``tolerance_m``, the
+    march's)."""
+    path = work / "surface_clearance.npz"
+    seen_other = occluded_seen_by_another(E, ground, vis, foot_nadir)
+    cast_s = None
+    if path.exists():
+        codes = np.load(path)["codes"]
+    else:
+        t = time.perf_counter()
+        codes = np.full((len(vis),) + ground.shape, 255, np.uint8)
+        xs, ys = grid.centres()
+        from ortho.block import read_index
+
+        ids = [e.image_id for e in read_index(work / "conventional").frames]
+        for k, image_id in enumerate(ids):
+            rr, cc = np.nonzero(seen_other & (vis[k] == E.SEES))
+            codes[k, rr, cc] = surface_clearance(truth, image_id, xs[cc] - truth.origin[0], ys[rr] - truth.origin[1],
+                                                 tolerance_m)
+        np.savez_compressed(path, codes=codes)
+        cast_s = round(time.perf_counter() - t, 1)
+    clear_any = (codes == CLEAR).any(0) & seen_other
+    bound = {"tolerance_m": tolerance_m, "step_m": STEP_M,
+             "seen_by_another_frame": int(seen_other.sum()),
+             "a_seeing_frame_clears_the_2_5d_surface": int(clear_any.sum()),
+             "fill_share_at_best": float(clear_any.sum() / max(1, seen_other.sum())),
+             "no_seeing_frame_clears_it": misses_by_blocker(codes, vis, seen_other & ~clear_any)}
+    if cast_s is not None:  # the ray casts of this run (none when read from the cache)
+        bound["ray_cast_s"] = cast_s
+    return codes, bound
+
+
+def misses_by_blocker(codes: np.ndarray, vis, cells: np.ndarray) -> dict:
+    """Cells by what the 2.5D surface puts in the lines of sight of the frames that see them: any of them clear,
+    else the blocker of the first seeing frame in the order eave, roof, tree, other."""
+    seeing = codes[:, cells]
+    clear = (seeing == CLEAR).any(0)
+    first = np.where(seeing == 255, 255, seeing).min(0)
+    out = {"cells": int(cells.sum()), "a_seeing_frame_clears_the_2_5d_surface": int(clear.sum())}
+    for code, name in BLOCKERS.items():
+        out[name] = int(((first == code) & ~clear).sum())
+    return out
+
+
+def cached_truth(E, work: Path, conv: Path, grid):
+    """truth_on_grid of eval_true_ortho_occlusion.py for the block, kept in work/truth_on_grid.npz."""
+    path = work / "truth_on_grid.npz"
+    if path.exists():
+        z = np.load(path)
+        return z["kind"], z["ground"], z["roof"], list(z["vis"]), z["foot_nadir"]
+    truth = E.Truth(conv)
+    kind, ground, roof, vis, foot_nadir, _ = E.truth_on_grid(truth, conv, grid)
+    np.savez_compressed(path, kind=kind, ground=ground, roof=roof, vis=np.stack(vis), foot_nadir=foot_nadir)
+    return kind, ground, roof, vis, foot_nadir
+
+
+def run_block(name: str, src: Path, work: Path, cells: list[str]) -> dict:
+    """The block's conventional DOM, truth and 2.5D bound, then per DSM (``lidar``: the project's
+    lidar_out/dsm.tif; ``0.5``: truth/dsm.tif; other numbers: the truth surface at that cell) its true-ortho DOM and
+    its figures."""
+    import shutil
+
+    import eval_true_ortho_occlusion as E
+    from eval_true_ortho import roof_displacements
+    from eval_true_ortho_fill import measure_block
+
+    from ortho.block import read_index
+    from ortho.grid import OrthoGrid
+
+    tall = name != "demo"
+    kw = {"eo_path": src / "truth" / "eo.txt", "camera_path": src / "truth" / "camera.toml"} if tall else {}
+    copy = E.copy_tall if tall else E.copy_demo
+    conv = work / name / "conventional"
+    if not (conv / "made.json").exists():
+        copy(src, conv)
+        (conv / "made.json").write_text(json.dumps(E.make_dom(conv, False, **kw), indent=1, default=str) + "\n")
+    grid = OrthoGrid.union(read_index(conv).grids)
+    t = time.perf_counter()
+    kind, ground, roof, vis, foot_nadir = cached_truth(E, work / name, conv, grid)
+    vis = list(vis)
+    print(name, "truth", round(time.perf_counter() - t, 1), "s", flush=True)
+    conv_masks = E.frame_masks(conv, grid)[0]
+    truth = E.Truth(conv)
+    codes, bound = cached_clearance(E, truth, work / name, grid, ground, vis, foot_nadir)
+    print(name, "2.5D bound", json.dumps(bound), flush=True)
+    results = {}
+    for cell in cells:
+        p = work / name / f"true_ortho_dsm_{cell}"
+        made_path = p / "made.json"
+        if not made_path.exists():
+            copy(src, p)
+            cast_s = 0.0
+            if cell == "0.5" and tall:
+                pass  # copy_tall put truth/dsm.tif there
+            elif cell != "lidar":
+                cast_s = write_fine_dsm(src, truth, float(cell), p / "lidar_out" / "dsm.tif")
+            made = E.make_dom(p, True, **kw)
+            made["dsm_ray_cast_s"] = cast_s
+            made_path.write_text(json.dumps(made, indent=1, default=str) + "\n")
+        made = json.loads(made_path.read_text())
+        res = {"rectify": made["rectify"], "dsm_ray_cast_s": made["dsm_ray_cast_s"],
+               "roofs": roof_displacements(p / "ortho" / "mosaic.tif", p / "truth" / "ortho.tif",
+                                           p / "truth" / "roof_corners.csv")}
+        way = E.measure_way(p, None, grid, kind, ground, roof, vis, foot_nadir, conv_masks)
+        res["ghosts"] = way["ghosts"]
+        res["occluded_ground"] = way["occluded_ground"]
+        res["seams"] = {k: v for k, v in way["seams"].items() if k != "pairs"}
+        # the fill measure of eval_true_ortho_fill.py on this DOM (its conventional DOM the same)
+        got = {}
+        res["fill"] = measure_block(work, name, true_ortho=p, truth=truth,
+                                    truth_arrays=(kind, ground, roof, vis, foot_nadir), cells_out=got)
+        res["misses_by_what_the_2_5d_surface_puts_in_the_line_of_sight"] = {
+            which: misses_by_blocker(codes, vis, got[which]) for which in ("miss", "over")}
+        results[cell] = res
+        print(name, cell, json.dumps({k: v for k, v in res.items() if k != "seams"}, indent=1), flush=True)
+        shutil.rmtree(p / "images", ignore_errors=True)
+    return {"project": str(src), "surface_2_5d_bound": bound, "dsm": results}
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("--tall", type=Path, default=REPO / "out" / "tall_sim")
+    ap.add_argument("--demo", type=Path, default=Path("/work/ref/demo_chain/project"))
+    ap.add_argument("--work", type=Path, default=REPO / "out" / "true_ortho_occlusion")
+    ap.add_argument("--blocks", default="demo:lidar,0.5,0.1;tall:0.5,0.25,0.2,0.1")
+    ap.add_argument("--out", type=Path, default=REPO / "bench" / "results" / "true_ortho_fill.json")
+    args = ap.parse_args()
+    out = json.loads(args.out.read_text()) if args.out.exists() else {}
+    key = out.setdefault("dsm_cell", {"blocks": {}})
+    for spec in args.blocks.split(";"):
+        name, cells = spec.split(":")
+        key["blocks"][name] = run_block(name, args.tall if name == "tall" else args.demo, args.work, cells.split(","))
+    key["command"] = ("python bench/eval_true_ortho_dsm_cell.py --work DIR --tall DIR --demo DIR "
+                      f"--blocks '{args.blocks}'")
+    key["commit"] = subprocess.run(["git", "-C", str(REPO), "rev-parse", "--short", "HEAD"], capture_output=True,
+                                   text=True).stdout.strip()
+    args.out.write_text(json.dumps(out, indent=1) + "\n")
+    print(f"wrote {args.out}")
+
+
+if __name__ == "__main__":
+    main()
