@@ -9,9 +9,9 @@ length with the flying height; this script shows what the adjustment says now. S
 1. ``aerotri import P --format exif images/`` (a project with ``[project] crs = "EPSG:32615"`` and the frames
    linked into ``images/``): GNSS positions, gimbal attitudes and the camera from EXIF (the pixel size from
    the FC300S's sensor width, 6.16 mm / 4000 px: 2344 px, where the 35 mm equivalent gave 2121 px);
-2. ``aerotri match P --terrain-height 158.5`` (the EXIF altitude minus the height above take-off);
+2. ``aerotri match P --terrain-height-m 158.5`` (the EXIF altitude minus the height above take-off);
 3. the DEM and nDSM of ``model.laz`` (the ODM point cloud, a peer's product, not truth):
-   ``lidarctl classify model.laz cls.laz`` and ``lidarctl rasters cls.laz lidar --res 0.5``;
+   ``lidarctl classify model.laz cls.laz`` and ``lidarctl rasters cls.laz lidar --res-m 0.5``;
 4. adjustments (library ``aerotri.adjust.pipeline.run_adjustment``, as ``aerotri adjust``), each with
    ``--self-cal focal,pp,radial``:
    - ``no_dem``: nothing else (the issue's run);
@@ -157,11 +157,11 @@ def main():
         run(aerotri_cli, ["import", str(matched), "--format", "exif", str(matched / "images")])
         res["timings_s"]["import"] = round(time.perf_counter() - t, 1)
         t = time.perf_counter()
-        run(aerotri_cli, ["match", str(matched), "--terrain-height", str(TERRAIN_HEIGHT_M)])
+        run(aerotri_cli, ["match", str(matched), "--terrain-height-m", str(TERRAIN_HEIGHT_M)])
         res["timings_s"]["match"] = round(time.perf_counter() - t, 1)
         t = time.perf_counter()
         run(lidar_cli, ["classify", str(args.data / "model.laz"), str(out / "model_classified.laz"), "-q"])
-        run(lidar_cli, ["rasters", str(out / "model_classified.laz"), str(lidar), "--res", "0.5", "-q"])
+        run(lidar_cli, ["rasters", str(out / "model_classified.laz"), str(lidar), "--res-m", "0.5", "-q"])
         res["timings_s"]["dem_from_model_laz"] = round(time.perf_counter() - t, 1)
     cam = read_camera(matched / "camera.toml")
     res["camera_apriori"] = {"focal_px": round(cam.focal_px, 2), "pixel_um": cam.pixel_um, "name": cam.name,

@@ -5,7 +5,7 @@ Data: ../shared/data/brighton_beach (18 DJI FC300S frames, EXIF GNSS, ODM point 
 The commands a user runs (``bench/eval_real_blocks.py``'s Brighton chain, through the same ``Runner``):
 
 1. ``aerotri init`` / ``import --format exif`` / ``match``; ``lidarctl classify model.laz`` and ``lidarctl rasters
-   --res 0.5`` (the DEM of the ODM cloud, which covers the middle of the block only); ``aerotri adjust --self-cal
+   --res-m 0.5`` (the DEM of the ODM cloud, which covers the middle of the block only); ``aerotri adjust --self-cal
    focal,pp,radial --dem --ndsm`` (the DEM as surface control, as in docs/real-blocks.md);
 2. ``full``: ``ortho dem`` (the tie points' DEM, to the frames' edges), ``ortho rectify --dem at/dem.tif``, ``ortho
    mosaic`` (the run of issue 42's 4.6 %);
@@ -179,7 +179,7 @@ def adjust(r: Runner, P: Path, D: Path, lidar: Path) -> None:
         r.edit(f"brighton/project.toml: [flight] mean_terrain_height_m = {takeoff:g} (the import's note)")
     r.run("aerotri", "match", P)
     r.run("lidarctl", "classify", D / "model.laz", lidar / "model_classified.laz")
-    r.run("lidarctl", "rasters", lidar / "model_classified.laz", lidar, "--res", "0.5")
+    r.run("lidarctl", "rasters", lidar / "model_classified.laz", lidar, "--res-m", "0.5")
     r.run("aerotri", "adjust", P, "--self-cal", "focal,pp,radial", "--dem", lidar / "dem.tif", "--ndsm",
           lidar / "ndsm.tif")
 

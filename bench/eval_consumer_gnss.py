@@ -20,7 +20,7 @@ tilt sigmas of the report's BLOCK GEOMETRY; sigma0.
 
 ``brighton`` (``--brighton P --dem D``): a project matched from the 18 Brighton frames (aerotri init + import
 --format exif + match; its work/ and at/tiepoints.csv are reused, not matched again) adjusted with each model,
-without and with the DEM of the block's ODM cloud (``lidarctl classify model.laz`` + ``rasters --res 0.5``; a
+without and with the DEM of the block's ODM cloud (``lidarctl classify model.laz`` + ``rasters --res-m 0.5``; a
 peer's product from the same EXIF GNSS, not truth) as surface control, ``self_calibration`` as given. Per run:
 verdict, sigma0, focal length, block height / tilt sigmas, estimated flight offset, and the tie points' median
 height - ODM DEM (a check of the run without the DEM; both come from the same consumer GNSS, so their agreement

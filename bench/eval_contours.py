@@ -123,13 +123,13 @@ def main():
             write_dem(scene, dem)
             row = {}
             # warm-up: numba/contourpy caches and the page cache, for both
-            timed([lidarctl, "contours", str(dem), str(work / "warm.gpkg"), "--interval", "1", "--no-png"])
+            timed([lidarctl, "contours", str(dem), str(work / "warm.gpkg"), "--interval-m", "1", "--no-png"])
             timed(["gdal_contour", "-q", "-a", "elev", "-i", "1", str(dem), str(work / "warm_g.gpkg")])
             runs = {"ours": [], "gdal": []}
             for k in range(2):
                 for name in ("ours", "gdal"):
                     out = work / f"{name}_{seed}_{k}.gpkg"
-                    cmd = ([lidarctl, "contours", str(dem), str(out), "--interval", "1", "--no-png"] if name == "ours"
+                    cmd = ([lidarctl, "contours", str(dem), str(out), "--interval-m", "1", "--no-png"] if name == "ours"
                            else ["gdal_contour", "-q", "-a", "elev", "-i", "1", str(dem), str(out)])
                     runs[name].append(timed(cmd))
             row["timing"] = {n: {"wall_s": min(w for w, _ in r), "cpu_s": min(c for _, c in r)} for n, r in runs.items()}
@@ -145,7 +145,7 @@ def main():
             row["vertical_error"] = {"traced": vertical_error(scene, ours, ours_lev)}
             for method in ("bspline", "tension"):
                 out = work / f"{method}_{seed}.gpkg"
-                r = subprocess.run([lidarctl, "contours", str(dem), str(out), "--interval", "1", "--smooth", method]
+                r = subprocess.run([lidarctl, "contours", str(dem), str(out), "--interval-m", "1", "--smooth", method]
                                    + ([] if seed == 2 and method == "bspline" else ["--no-png"]),
                                    capture_output=True, text=True, check=True)
                 lines, lev = read_lines(out, "elevation")

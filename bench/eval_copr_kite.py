@@ -4,12 +4,12 @@ bench/results/copr_kite.json.
 
 The commands, run as a user runs them (each timed):
 
-    aerotri import P --format odm gcp_list.txt --sigma-xyz 1 1 5      # refused: gcp04 and gcp00 at one pixel of IMG_0031
-    aerotri import P --format odm gcp_list_fixed.txt --sigma-xyz 1 1 5  # without the mislabelled gcp04 line: plan-only
+    aerotri import P --format odm gcp_list.txt --sigma-xyz-m 1 1 5      # refused: gcp04 and gcp00 at one pixel of IMG_0031
+    aerotri import P --format odm gcp_list_fixed.txt --sigma-xyz-m 1 1 5  # without the mislabelled gcp04 line: plan-only
     aerotri match P                                                   # no GNSS: pairs by thumbnail retrieval
     aerotri adjust P --self-cal pp,radial --leave-one-out             # approximations from the images, level datum
     ortho dem P                                                       # DEM of the adjusted tie points (at/dem.tif)
-    ortho rectify P --dem P/at/dem.tif --res 0.01
+    ortho rectify P --dem P/at/dem.tif --res-m 0.01
     ortho mosaic P
     aerotri report P
 
@@ -109,13 +109,13 @@ def gnss_average_spread(data: Path) -> dict:
 def wrong_line_check(root: Path) -> dict:
     """Where the surveyed gcp04 and gcp00 fall in IMG_0031 with the adjusted orientation, against the one pixel both
     lines of gcp_list.txt give there (3485, 729): which of the two labels is wrong."""
-    from ortho.block import block_camera
+    from aerotri.geom.camera import orientations_camera
     from aerotri.core.project import Project
     from aerotri.geom.eo import read_eo
 
     project = Project.open(root)
     eo = read_eo(project.eo_path)
-    cam, _ = block_camera(project)
+    cam, _ = orientations_camera(project)
     i = eo.row("IMG_0031")
     z = float(np.median([float(r["z"]) for r in csv.DictReader(project.object_points_path.read_text().splitlines()) if r["kind"] == "tie"]))
     out = {"measured_px": [3485.0, 728.6]}
@@ -159,15 +159,15 @@ def main(argv=None):
         res["commands"].append(" ".join(cmd).replace(P, "P").replace(str(a.data), "DATA").replace(str(fixed), "gcp_list_fixed.txt"))
         return out
 
-    out = step("import_refused", ["aerotri", "import", P, "--format", "odm", str(a.data / "gcp_list.txt"), "--sigma-xyz",
+    out = step("import_refused", ["aerotri", "import", P, "--format", "odm", str(a.data / "gcp_list.txt"), "--sigma-xyz-m",
                                   "1", "1", "5"], expect=2)
     res["import_refusal"] = out.strip().splitlines()[-1].replace(str(a.data), "DATA")
-    out = step("import", ["aerotri", "import", P, "--format", "odm", str(fixed), "--sigma-xyz", "1", "1", "5"])
+    out = step("import", ["aerotri", "import", P, "--format", "odm", str(fixed), "--sigma-xyz-m", "1", "1", "5"])
     res["import_warnings"] = [ln.replace(str(fixed), "gcp_list_fixed.txt") for ln in out.splitlines() if ln.startswith("warning")]
     step("match", ["aerotri", "match", P])
     out = step("adjust_and_leave_one_out", ["aerotri", "adjust", P, "--self-cal", "pp,radial", "--leave-one-out"])
     step("dem", ["ortho", "dem", P])
-    step("rectify", ["ortho", "rectify", P, "--dem", str(root / "at" / "dem.tif"), "--res", "0.01"])
+    step("rectify", ["ortho", "rectify", P, "--dem", str(root / "at" / "dem.tif"), "--res-m", "0.01"])
     step("mosaic", ["ortho", "mosaic", P])
     step("report", ["aerotri", "report", P])
     res["seconds"]["total"] = round(time.perf_counter() - t_all, 1)

@@ -349,13 +349,13 @@ def lidr(work, results, method):
     if not laz.exists():
         return {"skipped": f"{laz} not found"}
     exe = Path(sys.executable).with_name("lidarctl")
-    subprocess.run([str(exe), "rasters", str(laz), str(work / "lidr"), "--res", "2"], check=True, capture_output=True)
+    subprocess.run([str(exe), "rasters", str(laz), str(work / "lidr"), "--res-m", "2"], check=True, capture_output=True)
     r = subprocess.run([str(exe), "drainage", str(work / "lidr" / "dem.tif"), str(work / "lidr_drainage"),
                         "--min-area-m2", "2000", f"--{method}"], check=True, capture_output=True, text=True)
     shutil.copy(work / "lidr_drainage" / "drainage.png", results / "drainage_lidr.png")
     s = json.loads((work / "lidr_drainage" / "drainage.json").read_text())
     s.pop("flowdir_codes", None)
-    s["dem"] = "lidarctl rasters Topography.laz --res 2 -> dem.tif (8,159 ground points over 288 x 288 m: 1 m cells are mostly gaps)"
+    s["dem"] = "lidarctl rasters Topography.laz --res-m 2 -> dem.tif (8,159 ground points over 288 x 288 m: 1 m cells are mostly gaps)"
     s["command_output"] = r.stdout.strip()
     return s
 

@@ -174,7 +174,7 @@ def main(argv=None) -> int:
     tmp = Path(tempfile.mkdtemp(prefix="eval_fusion_sim_"))
     root = args.keep or tmp
     result = {"command": "lidarctl classify STRIPS OUT [--image truth/ortho.tif [--nir truth/ortho_nir.tif]]; "
-                         "lidarctl evaluate OUT/*.las --reference truth/classes.tif --res RES",
+                         "lidarctl evaluate OUT/*.las --reference truth/classes.tif --res-m RES",
               "targets": TARGETS, "projects": {}}
     try:
         for name, seed, role in PROJECTS:

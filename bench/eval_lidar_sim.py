@@ -34,7 +34,7 @@ REPO = Path(__file__).resolve().parents[1]
 def main():
     ap = argparse.ArgumentParser()
     ap.add_argument("--project", default=None)
-    ap.add_argument("--res", type=float, default=1.0)
+    ap.add_argument("--res-m", type=float, default=1.0)
     args = ap.parse_args()
     project = Path(args.project) if args.project else Path(tempfile.gettempdir()) / "aerotri_lidar_sim_demo"
     if not (project / "truth" / "dem.tif").exists():
@@ -56,20 +56,20 @@ def main():
     conf = evaluate.confusion(pred, truth)
 
     cloud.classification = pred
-    grids = rasters.make_grids(cloud, args.res)
+    grids = rasters.make_grids(cloud, args.res_m)
     dem = grids.dem[::-1]                                  # rows growing with y again
     tr = grids.transform
     nrows, ncols = dem.shape
-    x0, y0 = tr.c, tr.f - nrows * args.res
+    x0, y0 = tr.c, tr.f - nrows * args.res_m
     jj, ii = np.meshgrid(np.arange(ncols), np.arange(nrows))
-    cx, cy = x0 + (jj + 0.5) * args.res, y0 + (ii + 0.5) * args.res
+    cx, cy = x0 + (jj + 0.5) * args.res_m, y0 + (ii + 0.5) * args.res_m
     with rasterio.open(project / "truth" / "dem.tif") as ds:
         tdem = ds.read(1, masked=True).filled(np.nan)
         col = (cx - ds.transform.c) / ds.transform.a - 0.5
         row = (cy - ds.transform.f) / ds.transform.e - 0.5
     true_z = ndimage.map_coordinates(tdem, [row.ravel(), col.ravel()], order=1, mode="nearest",
                                      cval=np.nan).reshape(dem.shape)
-    grid_kw = dict(cell_m=args.res, x0=x0, y0=y0, nrows=nrows, ncols=ncols)
+    grid_kw = dict(cell_m=args.res_m, x0=x0, y0=y0, nrows=nrows, ncols=ncols)
     obj = np.isin(truth, (3, 4, 5, 6))
     veg = np.isin(truth, (3, 4, 5))
     any_obj = np.isfinite(reduce_grid(cloud.x[obj], cloud.y[obj], cloud.z[obj], **grid_kw, how="max"))
@@ -92,7 +92,7 @@ def main():
         "outliers_injected": int(outlier.sum()),
         "outliers_flagged_pct": 100.0 * float(np.mean(flagged[outlier])),
         "false_noise_flags_pct": 100.0 * float(np.mean(flagged[~outlier])),
-        "dem_res_m": args.res,
+        "dem_res_m": args.res_m,
         "dem_rmse_open_m": rmse(open_ground), "dem_cells_open": int((open_ground & ok).sum()),
         "dem_rmse_canopy_m": rmse(canopy), "dem_cells_canopy": int((canopy & ok).sum()),
         "dem_rmse_all_m": rmse(np.ones_like(ok)),

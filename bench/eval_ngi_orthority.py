@@ -6,7 +6,7 @@ orthority is a bench extra (``make bench`` installs it).
 
 1. ``aerotri import PROJECT --format orthority`` of orthority's files into a fresh NGI project (images and
    DEM linked): the imported orientation against camera_pos_ori.txt (the national AT);
-2. ``ortho rectify PROJECT --eo imported/eo.txt --dem dem.tif --res RES``: our frame orthos;
+2. ``ortho rectify PROJECT --eo imported/eo.txt --dem dem.tif --res-m RES``: our frame orthos;
 3. orthority's ``Ortho`` of each frame from its own files (same DEM, resolution, bilinear resampling,
    pixels aligned on whole multiples of the resolution, as ours): the offset of our ortho against
    orthority's by phase correlation over their common valid area (px of the ortho grid), and the grey-level
@@ -16,7 +16,7 @@ orthority is a bench extra (``make bench`` installs it).
    orthority's own (offset, grey-level difference);
 5. ``ortho mosaic PROJECT`` of our frames -> a PNG of the mosaic.
 
-Usage: python bench/eval_ngi_orthority.py [--data ../shared/data/ngi_dmc] [--out out/ngi_orthority] [--res 5]
+Usage: python bench/eval_ngi_orthority.py [--data ../shared/data/ngi_dmc] [--out out/ngi_orthority] [--res-m 5]
 """
 
 from __future__ import annotations
@@ -192,7 +192,7 @@ def evaluate(data: Path, out: Path, res_m: float, png: Path) -> dict:
     res["imported_camera"] = camera.to_dict()
     # 2. ours
     t = time.perf_counter()
-    _cli(ortho_main, ["rectify", root, "--eo", project.imported_eo_path, "--dem", data / ngi.DEM_FILE, "--res", res_m])
+    _cli(ortho_main, ["rectify", root, "--eo", project.imported_eo_path, "--dem", data / ngi.DEM_FILE, "--res-m", res_m])
     res["ours_rectify_s"] = round(time.perf_counter() - t, 2)
     index = json.loads((project.frames_dir / "index.json").read_text())
     ours = {f["image_id"]: project.frames_dir / f["file"] for f in index["frames"]}
@@ -230,7 +230,7 @@ def main(argv=None) -> int:
     shared = Path(os.environ.get("AEROTRI_SHARED_DATA", REPO.parent / "shared" / "data"))
     ap.add_argument("--data", type=Path, default=shared / "ngi_dmc")
     ap.add_argument("--out", type=Path, default=REPO / "out" / "ngi_orthority")
-    ap.add_argument("--res", type=float, default=5.0, help="ortho cell size (m); orthority's config for this block: 5")
+    ap.add_argument("--res-m", type=float, default=5.0, help="ortho cell size (m); orthority's config for this block: 5")
     ap.add_argument("--results", type=Path, default=REPO / "bench" / "results" / "ngi_orthority.json")
     ap.add_argument("--png", type=Path, default=REPO / "bench" / "results" / "ngi_orthority_mosaic.jpg")
     a = ap.parse_args(argv)
@@ -241,7 +241,7 @@ def main(argv=None) -> int:
         import orthority  # noqa: F401
     except ImportError:
         raise SystemExit("orthority is not installed (make bench installs it)") from None
-    res = evaluate(a.data.resolve(), a.out.resolve(), a.res, a.png.resolve())
+    res = evaluate(a.data.resolve(), a.out.resolve(), a.res_m, a.png.resolve())
     a.results.write_text(json.dumps(res, indent=2) + "\n")
     print(json.dumps({k: v for k, v in res.items() if not isinstance(v, dict)}, indent=2))
     return 0

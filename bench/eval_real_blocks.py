@@ -173,7 +173,7 @@ def eval_ngi(data: Path, work: Path) -> dict:
     _add_flight_height(P, mean_m)
     r.edit(f'ngi/project.toml: heights = "{ngi.HEIGHTS}"; [flight] mean_terrain_height_m = {mean_m:g} (the DEM\'s mean)')
     r.run("aerotri", "import", P, "--format", "orthority", D / "formats" / "ngi_int_param.yaml",
-          D / "formats" / "ngi_xyz_opk.csv", "--as-gnss", "--sigma-xyz", "0.05", "0.05", "0.05")
+          D / "formats" / "ngi_xyz_opk.csv", "--as-gnss", "--sigma-xyz-m", "0.05", "0.05", "0.05")
     r.run("aerotri", "match", P)
     P0 = _copy(P, work / "ngi_nodem")
     r.run("aerotri", "adjust", P0)
@@ -263,7 +263,7 @@ def eval_brighton(data: Path, work: Path) -> dict:
     r.run("aerotri", "adjust", P2, "--self-cal", "pp,radial")
     lidar = work / "brighton_lidar"
     r.run("lidarctl", "classify", D / "model.laz", lidar / "model_classified.laz")
-    r.run("lidarctl", "rasters", lidar / "model_classified.laz", lidar, "--res", "0.5")
+    r.run("lidarctl", "rasters", lidar / "model_classified.laz", lidar, "--res-m", "0.5")
     r.run("aerotri", "adjust", P1, "--self-cal", "focal,pp,radial", "--dem", lidar / "dem.tif", "--ndsm",
           lidar / "ndsm.tif")
     r.run("aerotri", "adjust", P3, "--self-cal", "pp,radial", "--dem", lidar / "dem.tif", "--ndsm", lidar / "ndsm.tif")
@@ -298,16 +298,16 @@ def eval_kite(data: Path, work: Path) -> dict:
     r = Runner(work, D)
     P = work / "kite"
     r.run("aerotri", "init", P, "--images", D / "images", "--crs", "EPSG:32611")
-    r.run("aerotri", "import", P, "--format", "odm", D / "gcp_list.txt", "--sigma-xyz", "1", "1", "5", expect=2)
+    r.run("aerotri", "import", P, "--format", "odm", D / "gcp_list.txt", "--sigma-xyz-m", "1", "1", "5", expect=2)
     fixed = work / "gcp_list_fixed.txt"
     lines = (D / "gcp_list.txt").read_text().splitlines()
     fixed.write_text("\n".join(ln for ln in lines if not (ln.split()[-2:] == ["IMG_0031.jpg", "gcp04"])) + "\n")
     r.edit("grep -v -P 'IMG_0031.jpg\\tgcp04' DATA/gcp_list.txt > gcp_list_fixed.txt")
-    r.run("aerotri", "import", P, "--format", "odm", fixed, "--sigma-xyz", "1", "1", "5")
+    r.run("aerotri", "import", P, "--format", "odm", fixed, "--sigma-xyz-m", "1", "1", "5")
     r.run("aerotri", "match", P)
     r.run("aerotri", "adjust", P, "--self-cal", "pp,radial", "--leave-one-out")
     r.run("ortho", "dem", P)
-    r.run("ortho", "rectify", P, "--dem", P / "at" / "dem.tif", "--res", "0.01")
+    r.run("ortho", "rectify", P, "--dem", P / "at" / "dem.tif", "--res-m", "0.01")
     r.run("ortho", "mosaic", P)
     r.run("aerotri", "report", P)
     acc = {"adjustment": _key_statistics(P)}

@@ -12,7 +12,7 @@ not counted (the compiled code loaded, the height rasters scanned). The sides al
 machine's load changes); each side's least CPU is reported with the load average of every run.
 
     python bench/eval_rectify_kernels.py --before DIR [--demo out/demo/project] [--rounds 3] [--work DIR]
-        [--images DIR] [--dem lidar_out/dem.tif] [--dsm lidar_out/dsm.tif] [--max-view-angle DEG] [--crs CRS]
+        [--images DIR] [--dem lidar_out/dem.tif] [--dsm lidar_out/dsm.tif] [--max-view-angle-deg DEG] [--crs CRS]
         [--json bench/results/rectify_kernels.json]
 """
 
@@ -91,7 +91,7 @@ def _side(code: Path, a: argparse.Namespace, work: Path) -> dict:
     from lidar_common import measure_on_tree
 
     return measure_on_tree(code, __file__, ["--demo", a.demo.resolve(), "--work", work, "--images", a.images.resolve(),
-                                            "--dem", a.dem, "--dsm", a.dsm, "--max-view-angle", a.max_view_angle]
+                                            "--dem", a.dem, "--dsm", a.dsm, "--max-view-angle-deg", a.max_view_angle_deg]
                            + (["--crs", a.crs] if a.crs else []))
 
 
@@ -102,7 +102,7 @@ def main() -> None:
     ap.add_argument("--images", type=Path, help="its frames (default: its images folder)")
     ap.add_argument("--dem", default="lidar_out/dem.tif", help="the DEM, relative to the project")
     ap.add_argument("--dsm", default="lidar_out/dsm.tif", help="the true ortho's DSM, relative to the project")
-    ap.add_argument("--max-view-angle", type=float, default=90.0, help="ortho rectify --max-view-angle")
+    ap.add_argument("--max-view-angle-deg", type=float, default=90.0, help="ortho rectify --max-view-angle-deg")
     ap.add_argument("--crs", help="ortho rectify --crs (default: the project CRS)")
     ap.add_argument("--rounds", type=int, default=3, help="before/after runs, alternating")
     ap.add_argument("--work", type=Path, default=ROOT / "out" / "rectify_kernels")
@@ -111,7 +111,7 @@ def main() -> None:
     a = ap.parse_args()
     a.images = a.images or a.demo / "images"
     if a.measure:
-        extra = {"max_view_angle_deg": a.max_view_angle} | ({"crs": a.crs} if a.crs else {})
+        extra = {"max_view_angle_deg": a.max_view_angle_deg} | ({"crs": a.crs} if a.crs else {})
         print(json.dumps(_measure(a.demo, a.work, a.images, a.dem, a.dsm, extra)))
         return
     if a.before is None:
@@ -141,7 +141,7 @@ def main() -> None:
     if a.json:
         commit = subprocess.run(["git", "-C", str(ROOT), "rev-parse", "HEAD"], capture_output=True,
                                 text=True).stdout.strip()
-        doc = {"project": str(a.demo), "dem": a.dem, "dsm": a.dsm, "max_view_angle_deg": a.max_view_angle,
+        doc = {"project": str(a.demo), "dem": a.dem, "dsm": a.dsm, "max_view_angle_deg": a.max_view_angle_deg,
                "crs": a.crs, "rounds": a.rounds, "commit": commit,
                "before": str(a.before), "ways": rows, "runs": runs}
         from aerotri.core.atomic import write_text_atomic

@@ -11,7 +11,7 @@ the commands (run with ``PYTHONPATH`` set to the code of that side, the same com
     lidarctl evaluate C/strip_02.laz --truth P/truth/lidar/strip_02.las --json OUT/evaluate.json
     lidarctl check-heights C/strip_0[1-4].laz P/truth/checkpoints.csv --json OUT/check_heights.json
     lidarctl check-heights P/truth/checkpoints.csv --dem P/lidar_out/dem.tif --json OUT/check_heights_dem.json
-    lidarctl contours P/lidar_out/dem.tif OUT/contours.gpkg --interval 1
+    lidarctl contours P/lidar_out/dem.tif OUT/contours.gpkg --interval-m 1
     lidarctl vectors C/strip_0[1-4].laz --dem P/lidar_out/dem.tif OUT/vectors.gpkg
     lidarctl check-vectors OUT/vectors.gpkg --reference OUT/vectors.gpkg --layer buildings --layer water
         --json OUT/check_vectors.json --png OUT/check_vectors.png   (the contours layer's overlap needs > 3.5 GB)

@@ -5,7 +5,7 @@ Measures (same run, so that the shared 2-core machine's load affects all of them
   LAZ), run as a subprocess, and its peak memory: the summed RSS of the command and all its child
   processes (Dask workers), polled every 0.1 s with psutil;
 * memory against file size: tiled (default) on ~10 M and ~20 M points, beside the whole cloud in
-  one piece (``--tile-size`` larger than the file: the direct path, as before tiling);
+  one piece (``--tile-size-m`` larger than the file: the direct path, as before tiling);
 * speed-up from 1 to 2 workers: ``--workers 1`` vs ``--workers 2`` (local threads) and
   ``--scheduler local:1`` vs ``local:2`` (Dask distributed worker processes);
 * tiled vs whole-cloud classes (fraction of points that differ, and both against the truth),
@@ -119,7 +119,7 @@ def main():
     n = len(truth)
 
     out = work / "classified.laz"
-    one_piece = ["--tile-size", "1000000"]
+    one_piece = ["--tile-size-m", "1000000"]
     plan = [("tiled_10m", inp, out, []), ("tiled_20m", big, work / "classified_big.laz", []),
             ("whole_10m", inp, work / "classified_whole.laz", one_piece),
             ("whole_20m", big, work / "classified_whole_big.laz", one_piece),

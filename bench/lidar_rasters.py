@@ -203,7 +203,7 @@ def main() -> None:
         row = {"side_m": side * TILE_M, "strips": len(paths), "points": int(n), "raster_cells": [ncells, ncells]}
         out = args.work / f"out_{side}"
         files = [str(p) for p in paths]
-        row["rasters_tiled"] = run_peak(lidarctl("rasters", *files, str(out / "tiled"), "--res", str(RES_M),
+        row["rasters_tiled"] = run_peak(lidarctl("rasters", *files, str(out / "tiled"), "--res-m", str(RES_M),
                                                  "--tile-px", "512", "--buffer-px", "128"))
         row["rasters_tiled"]["args"] = "--tile-px 512 --buffer-px 128"
         row["rasters_whole"] = run_peak([*me, "--worker", "rasters-whole", *files, str(out / "whole")])

@@ -14,7 +14,7 @@ that the shared 2-core machine's load affects all alike; load averages recorded)
 * the smaller block once more with the default tile size (what a user runs: one tile here, no
   buffer classified twice), with its own ratios to CSF.
 Writes bench/results/lidar_strips_bench.json.
-Run: .venv/bin/python bench/lidar_strips.py [--small 6 --large 18 --tile-size 200]
+Run: .venv/bin/python bench/lidar_strips.py [--small 6 --large 18 --tile-size-m 200]
 """
 
 from __future__ import annotations
@@ -68,7 +68,7 @@ def main():
     ap.add_argument("--small", type=int, default=6, help="scene tiles of the smaller block (6: ~2.6 M points)")
     ap.add_argument("--large", type=int, default=18, help="scene tiles of the larger block (18: ~7.7 M points)")
     ap.add_argument("--density", type=float, default=10.0)
-    ap.add_argument("--tile-size", type=float, default=200.0,
+    ap.add_argument("--tile-size-m", type=float, default=200.0,
                     help="classification tile size (m), both blocks (200: both blocks are whole tiles, so two "
                          "tiles in flight hold as many points in either)")
     ap.add_argument("--workdir", default=os.path.join(tempfile.gettempdir(), "aerotri_lidar_strips_bench"))
@@ -79,7 +79,7 @@ def main():
     for name, tiles in (("small", args.small), ("large", args.large)):
         paths, truth = make_strips(work, tiles, args.density)
         out = work / f"classified_{name}"
-        r = run_classify(paths, out, ["--tile-size", f"{args.tile_size:g}"])
+        r = run_classify(paths, out, ["--tile-size-m", f"{args.tile_size_m:g}"])
         n = len(truth)
         pred = np.concatenate([np.asarray(laspy.read(out / p.name).classification) for p in paths])
         keep = ~np.isin(truth, (7, 18))
@@ -90,7 +90,7 @@ def main():
         print(f"{name}: {len(paths)} strips {n:,} points {r['seconds']:.1f} s {r['points_per_s']:,.0f} points/s "
               f"CPU {r['cpu_seconds']:.1f} s ({r['points_per_cpu_s']:,.0f} points/CPU s) peak RSS "
               f"{r['peak_rss_mb']:.0f} MB load {r['load_average_1min_before_after']}", flush=True)
-    # The smaller block as a user runs it (no --tile-size: the default plans ~4 M points per tile with
+    # The smaller block as a user runs it (no --tile-size-m: the default plans ~4 M points per tile with
     # its buffer, here one tile, so no buffer is classified twice); its classes differ from the 200 m
     # tiles' by the tiling's grid-origin effect (module docstring of lidarctl.tiles).
     paths, truth = make_strips(work, args.small, args.density)
@@ -117,7 +117,7 @@ def main():
     result = {
         "what": "lidarctl classify STRIPS... OUTDIR (no merged file) at two block sizes, same tile size; CSF filter "
                 "alone on the smaller block in the same run",
-        "machine_cores": os.cpu_count(), "tile_size_m": args.tile_size, "runs": runs,
+        "machine_cores": os.cpu_count(), "tile_size_m": args.tile_size_m, "runs": runs,
         "peak_rss_ratio_large_over_small": runs["large"]["peak_rss_mb"] / small["peak_rss_mb"],
         "points_ratio_large_over_small": runs["large"]["points"] / small["points"],
         "csf_seconds": csf_s, "csf_cpu_seconds": csf_cpu, "csf_points_per_s": len(xyz) / csf_s,

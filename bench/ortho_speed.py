@@ -153,10 +153,10 @@ def _rectify_command(project: Path, compression: str | None = None) -> dict:
     frame files' size (MB); ``compression``: its ``--frame-compress`` (None: the default)."""
     exe = Path(sys.executable).with_name("ortho")
     env = {k: v for k, v in os.environ.items() if k != "PYTHONDONTWRITEBYTECODE"}
-    warm = subprocess.run([str(exe), "rectify", str(project), "--res", "5"], capture_output=True, text=True, env=env)
+    warm = subprocess.run([str(exe), "rectify", str(project), "--res-m", "5"], capture_output=True, text=True, env=env)
     if warm.returncode != 0:
         raise SystemExit(warm.stderr)
-    args = [str(exe), "rectify", str(project), "--res", str(RES_M)]
+    args = [str(exe), "rectify", str(project), "--res-m", str(RES_M)]
     if compression is not None:
         args += ["--frame-compress", compression]
     ru0 = resource.getrusage(resource.RUSAGE_CHILDREN)

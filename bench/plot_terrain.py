@@ -69,9 +69,9 @@ def products(classified: list, work: Path, s: dict, crs=None) -> dict:
     """rasters -> smooth -> contours -> drainage of classified cloud(s) into ``work``; the commands' last lines."""
     log = {}
     crs_opt = ["--crs", crs] if crs else []
-    log["rasters"] = run(EXE, "rasters", *classified, work / "rasters", "--res", s["res"], *crs_opt)
+    log["rasters"] = run(EXE, "rasters", *classified, work / "rasters", "--res-m", s["res"], *crs_opt)
     log["smooth"] = run(EXE, "smooth", work / "rasters" / "dem.tif", work / "dem_smooth.tif")
-    log["contours"] = run(EXE, "contours", work / "dem_smooth.tif", work / "contours.gpkg", "--interval", s["interval"],
+    log["contours"] = run(EXE, "contours", work / "dem_smooth.tif", work / "contours.gpkg", "--interval-m", s["interval"],
                           "--index", s["index"], "--smooth", "bspline")
     log["drainage"] = run(EXE, "drainage", work / "dem_smooth.tif", work / "drainage", "--min-area-m2",
                           s["min_area_m2"])

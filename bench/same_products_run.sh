@@ -28,11 +28,11 @@ run ortho check "$P" --reference "$P/truth/ortho.tif"
 run lidarctl evaluate "$C/strip_02.laz" --truth "$P/truth/lidar/strip_02.las" --json "$OUT/evaluate.json"
 run lidarctl check-heights "$C"/strip_0[1-4].laz "$P/truth/checkpoints.csv" --json "$OUT/check_heights.json"
 run lidarctl check-heights "$P/truth/checkpoints.csv" --dem "$P/lidar_out/dem.tif" --json "$OUT/check_heights_dem.json"
-run lidarctl contours "$P/lidar_out/dem.tif" "$OUT/contours.gpkg" --interval 1
+run lidarctl contours "$P/lidar_out/dem.tif" "$OUT/contours.gpkg" --interval-m 1
 run lidarctl vectors "$C"/strip_0[1-4].laz --dem "$P/lidar_out/dem.tif" "$OUT/vectors.gpkg"
 run lidarctl check-vectors "$OUT/vectors.gpkg" --reference "$OUT/vectors.gpkg" --layer buildings --layer water \
     --json "$OUT/check_vectors.json" --png "$OUT/check_vectors.png"
-run lidarctl rasters "$C"/strip_0[1-4].laz "$OUT/rasters" --res 1.0
+run lidarctl rasters "$C"/strip_0[1-4].laz "$OUT/rasters" --res-m 1.0
 run lidarctl strips check "$C"/strip_0[1-4].laz "$OUT/strips"
 run ortho mosaic "$P" --workers 1
 run ortho check "$P" --reference "$P/truth/ortho.tif"

@@ -167,7 +167,7 @@ def plan_tiles(header: laspy.LasHeader, tile_size_m: float | None = None, buffer
     """
     buffer_m = default_buffer_m(method, preset, ground_params) if buffer_m is None else float(buffer_m)
     if not (buffer_m >= 0 and math.isfinite(buffer_m)):
-        raise OptionError(f"--buffer {buffer_m}: must be a non-negative distance in metres", param="--buffer")
+        raise OptionError(f"--buffer-m {buffer_m}: must be a non-negative distance in metres", param="--buffer-m")
     mins, maxs = np.asarray(header.mins, float), np.asarray(header.maxs, float)
     if not units.is_metric:
         mins, maxs = mins.copy(), maxs.copy()
@@ -186,13 +186,13 @@ def plan_tiles(header: laspy.LasHeader, tile_size_m: float | None = None, buffer
     else:
         tile_m = float(tile_size_m)
         if not (tile_m > 0 and math.isfinite(tile_m)):
-            raise OptionError(f"--tile-size {tile_size_m}: must be a positive size in metres", param="--tile-size")
+            raise OptionError(f"--tile-size-m {tile_size_m}: must be a positive size in metres", param="--tile-size-m")
         if buffer_m > tile_m:
-            raise OptionError(f"--buffer {buffer_m:g} m is larger than the tile size {tile_m:g} m", param="--buffer")
+            raise OptionError(f"--buffer-m {buffer_m:g} m is larger than the tile size {tile_m:g} m", param="--buffer-m")
     ncols = max(1, math.ceil(width / tile_m))
     nrows = max(1, math.ceil(height / tile_m))
     if ncols * nrows > MAX_TILES:
-        raise InputError(f"{path}: {ncols} x {nrows} tiles of {tile_m:g} m; use a larger --tile-size")
+        raise InputError(f"{path}: {ncols} x {nrows} tiles of {tile_m:g} m; use a larger --tile-size-m")
     return TileGrid(float(mins[0]), float(mins[1]), tile_m, buffer_m, nrows, ncols)
 
 

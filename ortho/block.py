@@ -93,10 +93,11 @@ class BlockInputs:
 
 def load_block(root, eo_path=None, camera_path=None, frames=None) -> BlockInputs:
     """Open a project and check that every selected image has an EO (InputError naming what is missing)."""
+    from aerotri.geom.camera import orientations_camera
     from aerotri.geom.images import check_frames, find_images
 
     project = Project.open(root)
-    camera, camera_source = block_camera(project, eo_path, camera_path)
+    camera, camera_source = orientations_camera(project, eo_path, camera_path)
     eo_given = eo_path is not None
     eo_path = Path(eo_path) if eo_path else project.eo_path
     if not eo_path.exists():
@@ -149,19 +150,6 @@ def _left_out_by_adjustment(project: Project) -> dict:
         return {}
     comp = read_json(path).get("components") or {}
     return {k: lo.get("reason", "") for lo in comp.get("left_out", []) for k in lo.get("images", [])}
-
-
-def block_camera(project: Project, eo_path=None, camera_path=None) -> tuple[BrownCamera, str]:
-    """(camera, source) the frames are rectified with: ``camera_path`` when given, else the self-calibrated
-    camera of the last adjustment for the project's own at/eo.txt (at/camera.toml: its orientations belong to it), else
-    (an EO file given with --eo) the nominal camera.toml."""
-    from aerotri.geom.camera import BrownCamera, oriented_camera, project_camera
-
-    if camera_path:
-        return BrownCamera.read(camera_path), str(camera_path)
-    if eo_path is None:
-        return oriented_camera(project)
-    return project_camera(project), str(project.camera_path)
 
 
 def default_resolution(camera: BrownCamera, eo: ExteriorOrientations, ground_height_m) -> float:
@@ -416,9 +404,9 @@ def rectify_block(root, settings: RectifySettings | Resolved | None = None, *, e
         s.dem, s.res_m, s.crs, s.interpolation, s.true_ortho, s.dsm, s.compression)
     if not (math.isfinite(s.max_view_angle_deg) and 0.0 < s.max_view_angle_deg <= 90.0):
         raise OptionError(f"{s.max_view_angle_deg!r}: expected an angle from the vertical in (0, 90] degrees",
-                          param="--max-view-angle")
+                          param="--max-view-angle-deg")
     if res_m is not None and not (math.isfinite(res_m) and res_m > 0):
-        raise OptionError(f"{res_m!r}: expected a positive pixel size in metres", param="--res")
+        raise OptionError(f"{res_m!r}: expected a positive pixel size in metres", param="--res-m")
     block = load_block(root, eo_path, camera_path, frames)
     project = block.project
     project_crs = block.project_crs
@@ -468,14 +456,14 @@ def rectify_block(root, settings: RectifySettings | Resolved | None = None, *, e
     out_crs = resolve_output_crs(crs, project_crs, centre_xy)
     res_in_m = res * linear_unit_m(out_crs)  # nan for degrees: no comparison
     if res_m is not None and res_in_m < 0.5 * gsd_res:
-        _log.warning(f"--res {res:g} ({res_in_m:.3g} m) is finer than half the block's ground sample distance "
+        _log.warning(f"--res-m {res:g} ({res_in_m:.3g} m) is finer than half the block's ground sample distance "
                      f"({gsd_res:g} m): the orthophotos get {(gsd_res / res_in_m) ** 2:.0f} times the pixels of the "
                      "default resolution without more detail")
     operation = None
     if transformation is not None or out_crs != project_crs:
         operation = CrsTransformer(project_crs, out_crs, params=transformation, allow_ballpark=allow_ballpark)
     executor = executor or local_executor()
-    check_frame_sizes(block, eo_idx, zlo, zhi, res, "--res" if res_m is not None else None,
+    check_frame_sizes(block, eo_idx, zlo, zhi, res, "--res-m" if res_m is not None else None,
                       concurrent=min(len(block.images), max(1, executor.workers)), operation=operation)
     threads = executor.cores_per_task(len(block.images))  # tile threads per frame task (None: all)
     inputs = _rectify_inputs_document(block, dem_path, _recorded_inputs(out_dir))
@@ -583,8 +571,8 @@ def _in_project(path, root: Path) -> str:
 
 def _rectify_inputs_document(block: BlockInputs, dem_path, earlier: dict | None = None) -> dict:
     """What the frames were made from, for index.json: the EO file (sha256), the camera as used (sha256 of
-    its parameters; its file when given with --camera, else the project's choice, see ``block_camera``) and
-    the DEM (size, modification time, sha256). ``stale_frames`` compares them with the files now.
+    its parameters; its file when given with --camera, else the project's choice, see
+    ``aerotri.geom.camera.orientations_camera``) and the DEM (size, modification time, sha256). ``stale_frames`` compares them with the files now.
 
     The DEM's sha256 is taken from ``earlier`` (the ``inputs`` of the index there is now) when that
     recorded the same file with the same size and modification time, which ``stale_frames`` also takes
@@ -645,8 +633,10 @@ def stale_frames(root, index: FrameIndex) -> str | None:
         return (f"{path}: the frames were rectified from an older {eo} (the exterior orientation changed since, "
                 "e.g. by a new adjustment)")
     cam_file = rec["camera"]["file"]
+    from aerotri.geom.camera import orientations_camera
+
     try:
-        camera, source = block_camera(project, eo if rec["eo"].get("given") else None,
+        camera, source = orientations_camera(project, eo if rec["eo"].get("given") else None,
                                       where(cam_file) if cam_file else None)
     except InputError as exc:
         return f"{path}: the camera the frames were rectified with cannot be read now ({exc})"

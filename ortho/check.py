@@ -39,7 +39,7 @@ from aerotri.core.records import to_record
 from aerotri.core.settings import COMMAND_LINE, Resolved, settings_of
 from aerotri.core.textio import read_record, read_text, record_error
 from aerotri.geom.crs.definition import height_unit_m, parse_crs
-from aerotri.geom.inputs import check_raster_size
+from aerotri.geom.crs.raster_warp import open_north_up
 from ortho.patches import MIN_PATCH_PX, PatchDisplacements, match_patches  # noqa: F401  (PatchDisplacements: the report API)
 from ortho.settings import CheckSettings
 
@@ -239,24 +239,6 @@ def write_json(path, obj) -> None:
     write_text_atomic(path, json.dumps(obj, indent=2) + "\n")
 
 
-def _open(path, what):
-    import rasterio
-
-    path = Path(path)
-    if not path.exists():
-        raise InputError(f"{path}: {what} not found")
-    try:
-        ds = rasterio.open(path)
-    except rasterio.errors.RasterioIOError as exc:
-        raise InputError(f"{path}: cannot read {what} ({exc})") from None
-    try:
-        check_raster_size(ds, path, what)
-    except BaseException:
-        ds.close()
-        raise
-    return ds
-
-
 @contextlib.contextmanager
 def _reading(path, what):
     """Read errors of a raster (truncated or corrupt data) as an InputError naming it."""
@@ -338,9 +320,7 @@ def _operation_to(dom_path, other_path, params, allow_ballpark: bool, what: str)
     from aerotri.geom.crs.datum import load_transformation
     from aerotri.geom.crs.transform import CrsTransformer
 
-    with _open(dom_path, "DOM") as a, _open(other_path, what) as b:
-        if a.crs is None or b.crs is None:
-            raise InputError(f"{dom_path if a.crs is None else other_path}: no CRS")
+    with open_north_up(dom_path, "DOM") as a, open_north_up(other_path, what) as b:
         if same_horizontal(a.crs, b.crs):
             return None
         return CrsTransformer(a.crs, b.crs, params=load_transformation(params) if params else None,
@@ -365,13 +345,11 @@ def check_against_reference(dom_path, reference_path, ndsm_path=None, max_ndsm_m
     from rasterio.windows import Window
     from rasterio.windows import transform as wtransform
 
-    with stage_block_cache(CHECK_CACHE_BYTES), _open(dom_path, "DOM") as dom, \
-            _open(reference_path, "reference orthophoto") as ref:
-        if dom.crs is None or ref.crs is None:
-            raise InputError(f"{dom_path if dom.crs is None else reference_path}: no CRS")
-        ndsm = _open(ndsm_path, "nDSM") if ndsm_path else None
+    with stage_block_cache(CHECK_CACHE_BYTES), open_north_up(dom_path, "DOM") as dom, \
+            open_north_up(reference_path, "reference orthophoto") as ref:
+        ndsm = open_north_up(ndsm_path, "nDSM") if ndsm_path else None
         # heights above ground in the nDSM's own unit (its CRS says which); the threshold is in metres
-        ndsm_unit_m = height_unit_m(parse_crs(ndsm.crs.to_wkt(), f"{ndsm_path} CRS")) if ndsm is not None and ndsm.crs else 1.0
+        ndsm_unit_m = height_unit_m(parse_crs(ndsm.crs.to_wkt(), f"{ndsm_path} CRS")) if ndsm is not None else 1.0
         res = abs(dom.transform.a)
         pieces = []
         halo = search_px + patch_px
@@ -433,15 +411,11 @@ def check_points(points_path, res_m: float, dom_bounds=None) -> tuple[Displaceme
 
 def _check_over_dom(reference_path, ndsm_path, dom_bounds, dom_crs) -> None:
     """Before any work: the reference orthophoto and the nDSM (one band of finite heights) over the DOM."""
-    from aerotri.geom.crs.raster_warp import open_north_up
     from ortho.dem import require_overlap
 
-    if dom_crs is None:
-        return  # the readers name a DOM without CRS
     if reference_path is not None:
-        with _open(reference_path, "reference orthophoto") as ref:
-            if ref.crs is not None:
-                require_overlap(ref, reference_path, "reference orthophoto", dom_bounds, dom_crs.to_wkt(), "the DOM")
+        with open_north_up(reference_path, "reference orthophoto") as ref:
+            require_overlap(ref, reference_path, "reference orthophoto", dom_bounds, dom_crs.to_wkt(), "the DOM")
     if ndsm_path is not None:
         with open_north_up(ndsm_path, "nDSM", heights=True) as nd:
             require_overlap(nd, ndsm_path, "nDSM", dom_bounds, dom_crs.to_wkt(), "the DOM")
@@ -508,8 +482,8 @@ def roof_corners_from_ndsm(ndsm_path, dom_bounds, dom_crs, min_height_m: float =
 
     from aerotri.geom.crs.definition import same_horizontal
 
-    with _open(ndsm_path, "nDSM") as nd:
-        if nd.crs is not None and dom_crs is not None and not same_horizontal(nd.crs, dom_crs):
+    with open_north_up(ndsm_path, "nDSM") as nd:
+        if not same_horizontal(nd.crs, dom_crs):
             raise InputError(f"{ndsm_path}: the nDSM is in another CRS than the DOM; roofs are found only in an nDSM "
                              "of the DOM's CRS (give the roof corners with --roof-corners)")
         left, bottom, right, top = dom_bounds
@@ -519,7 +493,7 @@ def roof_corners_from_ndsm(ndsm_path, dom_bounds, dom_crs, min_height_m: float =
         shape = (max(1, int(w.height) // step), max(1, int(w.width) // step))
         with _reading(ndsm_path, "nDSM"):
             z = nd.read(1, window=w, out_shape=shape, masked=True, resampling=Resampling.average)
-        unit = height_unit_m(parse_crs(nd.crs.to_wkt(), f"{ndsm_path} CRS")) if nd.crs else 1.0
+        unit = height_unit_m(parse_crs(nd.crs.to_wkt(), f"{ndsm_path} CRS"))
         t = nd.window_transform(w) @ Affine.scale(w.width / shape[1], w.height / shape[0])
     cell_m = abs(t.a)
     high = (np.ma.filled(z.astype(np.float32), 0.0) * unit > min_height_m).astype(np.uint8)
@@ -550,8 +524,8 @@ def measure_roof_patches(dom_path, reference_path, x_m, y_m, *, patch_m: float |
     from rasterio.windows import Window
 
     x_m, y_m = np.atleast_1d(np.asarray(x_m, float)), np.atleast_1d(np.asarray(y_m, float))
-    with stage_block_cache(CHECK_CACHE_BYTES), _open(dom_path, "DOM") as dom, \
-            _open(reference_path, "reference orthophoto") as ref:
+    with stage_block_cache(CHECK_CACHE_BYTES), open_north_up(dom_path, "DOM") as dom, \
+            open_north_up(reference_path, "reference orthophoto") as ref:
         res = abs(dom.transform.a)
         patch_m = float(patch_m) if patch_m else max(ROOF_PATCH_M, ROOF_PATCH_PX * res)
         n = max(16, int(round(patch_m / res)))
@@ -695,9 +669,9 @@ def run_check(project_root, settings: CheckSettings | Resolved | None = None, *,
         from ortho.block import read_index, require_current_frames
 
         require_current_frames(root, read_index(root), f"`ortho mosaic {root}` and `ortho check`")
-    with _open(dom_path, "DOM") as ds:
+    with open_north_up(dom_path, "DOM") as ds:
         res = abs(ds.transform.a)
-        crs = ds.crs.to_string() if ds.crs else None
+        crs = ds.crs.to_string()
         dom_bounds, dom_crs = tuple(ds.bounds), ds.crs
     report = {"dom": str(dom_path), "crs": crs, "gsd_m": res}
     _check_over_dom(reference_path, ndsm_path, dom_bounds, dom_crs)

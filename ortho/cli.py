@@ -33,7 +33,7 @@ def _settings(cls, project):
 @main.command()
 @click.argument("project", type=click.Path(path_type=Path))
 @click_option(RectifySettings, "dem", "--dem")
-@click_option(RectifySettings, "res_m", "--res")
+@click_option(RectifySettings, "res_m", "--res-m")
 @click_option(RectifySettings, "crs", "--crs")
 @click.option("--params", "params_path", type=click.Path(dir_okay=False, path_type=Path),
               help="datum parameter file from 'aerotri crs fit' (e.g. WGS 84 UTM -> Xian 1980 GK); needed when the "
@@ -48,7 +48,7 @@ def _settings(cls, project):
 @click_option(RectifySettings, "interpolation", "--interpolation")
 @click_option(RectifySettings, "true_ortho", "--true-ortho")
 @click_option(RectifySettings, "dsm", "--dsm")
-@click_option(RectifySettings, "max_view_angle_deg", "--max-view-angle")
+@click_option(RectifySettings, "max_view_angle_deg", "--max-view-angle-deg")
 @click.option("--frames", help="comma-separated image ids (default: all images)")
 @click_option(RectifySettings, "compression", "--frame-compress")
 @scheduler_options
@@ -71,7 +71,7 @@ def rectify(*, project, params_path, heights_path, allow_ballpark, eo_path, came
 
 @main.command()
 @click.argument("project", type=click.Path(path_type=Path))
-@click.option("--res", "res_m", type=FiniteFloatRange(min=0.0, min_open=True), default=None,
+@click.option("--res-m", "res_m", type=FiniteFloatRange(min=0.0, min_open=True), default=None,
               help="cell size (m) [about 4 tie points per cell]")
 @click.option("--min-rays", type=click.IntRange(min=2), default=3, show_default=True,
               help="tie points seen in at least this many frames")

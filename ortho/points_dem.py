@@ -99,7 +99,7 @@ def points_dem(xyz_m: np.ndarray, res_m: float, bounds=None, min_tolerance_m: fl
     if len(p) < 3:
         raise InputError(f"{len(p)} adjusted tie points: too few for a DEM (need at least 3)")
     if not (math.isfinite(res_m) and res_m > 0):
-        raise OptionError(f"DEM cell size {res_m!r}: expected a positive number of metres", param="--res")
+        raise OptionError(f"DEM cell size {res_m!r}: expected a positive number of metres", param="--res-m")
     x0, y0, x1, y1 = bounds if bounds is not None else (p[:, 0].min(), p[:, 1].min(), p[:, 0].max(), p[:, 1].max())
     x0, y0 = min(x0, p[:, 0].min()), min(y0, p[:, 1].min())
     x1, y1 = max(x1, p[:, 0].max()), max(y1, p[:, 1].max())
@@ -107,7 +107,7 @@ def points_dem(xyz_m: np.ndarray, res_m: float, bounds=None, min_tolerance_m: fl
     shape = (int(math.ceil((y1 - y0) / res_m)) + 1, int(math.ceil((x1 - x0) / res_m)) + 1)
     if shape[0] * shape[1] > 200_000_000:
         raise OptionError(f"DEM of {shape[1]} x {shape[0]} cells at {res_m} m: too large; give a larger cell size",
-                          param="--res")
+                          param="--res-m")
     row, col = _cell_index(p[:, 0], p[:, 1], x0, y1, res_m, shape)
     z = p[:, 2]
     # 1. outliers against the neighbourhood's median

@@ -80,8 +80,8 @@ def _run(prog, *args, cwd):
 
 def test_real_commands_print_no_third_party_warning(cloud):
     """A few commands as a user runs them (real processes): no Python warning, no traceback on stderr."""
-    runs = [("lidarctl", "rasters", cloud / "cloud.las", cloud / "r", "--res", "1"),
-            ("lidarctl", "contours", cloud / "r" / "dem.tif", cloud / "c.gpkg", "--interval", "1"),
+    runs = [("lidarctl", "rasters", cloud / "cloud.las", cloud / "r", "--res-m", "1"),
+            ("lidarctl", "contours", cloud / "r" / "dem.tif", cloud / "c.gpkg", "--interval-m", "1"),
             ("lidarctl", "smooth", cloud / "r" / "dem.tif", cloud / "s.tif"),
             ("aerotri", "crs", "warp", cloud / "r" / "dem.tif", cloud / "w.tif", "--to", "EPSG:32633")]
     for prog, *args in runs:

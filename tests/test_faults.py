@@ -101,7 +101,7 @@ WRITERS = [
       moves=1),
     # lidarctl
     W("classify", "lidarctl", "classify {w}/las/raw.las {w}/o/cls.las", "o", "las/raw.las", moves=1),
-    W("rasters", "lidarctl", "rasters {w}/las/cloud.las {w}/r --res 1", "r", "las/cloud.las"),
+    W("rasters", "lidarctl", "rasters {w}/las/cloud.las {w}/r --res-m 1", "r", "las/cloud.las"),
     W("evaluate", "lidarctl", "evaluate {w}/las/cloud.las --truth {w}/las/cloud.laz --json {w}/o/ev.json", "o",
       "las/cloud.laz", moves=1),
     W("check_heights", "lidarctl", "check-heights {w}/las/cloud.las {w}/las/points.csv --json {w}/o/ch.json", "o",
@@ -109,7 +109,7 @@ WRITERS = [
     W("check_plan", "lidarctl", "check-plan {w}/las/roofs.las {w}/las/corners.csv --json {w}/o/cp.json --png "
       "{w}/o/cp.png", "o", "las/corners.csv"),
     W("smooth", "lidarctl", "smooth {w}/r/dem.tif {w}/o/sm.tif", "o", "r/dem.tif", moves=1),
-    W("contours", "lidarctl", "contours {w}/r/dem.tif {w}/o/ct.gpkg --interval 1", "o", "r/dem.tif"),
+    W("contours", "lidarctl", "contours {w}/r/dem.tif {w}/o/ct.gpkg --interval-m 1", "o", "r/dem.tif"),
     W("drainage", "lidarctl", "drainage {w}/r/dem.tif {w}/dr --min-area-m2 100", ".", "r/dem.tif", moves=1),
     W("vectors", "lidarctl", "vectors {w}/las/cloud.las {w}/o/vec.gpkg", "o", "las/cloud.las", moves=1),
     W("check_vectors", "lidarctl", "check-vectors {w}/o/vec.gpkg --reference {w}/las/ref.gpkg --json {w}/o/cv.json",
@@ -511,7 +511,7 @@ def _console(prog, args, cwd, env=None, preexec=None, timeout=900):
 
 
 REAL = [W("adjust", "aerotri", "adjust {p} --no-html", "p/at"),
-        W("rasters", "lidarctl", "rasters {w}/las/cloud.las {w}/r --res 1", "r"),
+        W("rasters", "lidarctl", "rasters {w}/las/cloud.las {w}/r --res-m 1", "r"),
         W("crs_warp", "aerotri", "crs warp {w}/r/dem.tif {w}/o/warped.tif --to EPSG:32633", "o")]
 
 

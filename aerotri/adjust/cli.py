@@ -15,11 +15,11 @@ from aerotri.core.settings import click_option
 @click.command(cls=Command)
 @click.argument("project", type=click.Path(file_okay=False))
 @click_option(AdjustSettings, "gnss_correction", "--gnss-correction")
-@click_option(AdjustSettings, "lever_arm_m", "--lever-arm", nargs=3, type=finite(), default=None, show_default=False,
+@click_option(AdjustSettings, "lever_arm_m", "--lever-arm-m", nargs=3, type=finite(), default=None, show_default=False,
               help="Antenna offset from the projection centre in the camera frame (m) (project.toml [adjust] "
                    "lever_arm_m, else [gnss] lever_arm_m, else zero).")
 @click_option(AdjustSettings, "self_calibration", "--self-cal")
-@click_option(AdjustSettings, "image_sigma_px", "--image-sigma")
+@click_option(AdjustSettings, "image_sigma_px", "--image-sigma-px")
 @click_option(AdjustSettings, "check", "--check", multiple=True, show_default=False,
               help="Use this control point id as a check point (repeatable) (project.toml [adjust] check).")
 @click_option(AdjustSettings, "control", "--control", multiple=True, show_default=False,

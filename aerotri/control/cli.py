@@ -21,12 +21,13 @@ log = logging.getLogger(__name__)
 @click.option("--eo", "eo_path", type=click.Path(dir_okay=False, path_type=Path), default=None,
               help="Orientations of the first adjustment (tie points + GNSS) [default: PROJECT/at/eo.txt].")
 @click.option("--camera", "camera_path", type=click.Path(dir_okay=False, path_type=Path), default=None,
-              help="Camera file [default: self-calibrated camera of PROJECT/at/report.json, else PROJECT/camera.toml].")
+              help="Camera file [default: the camera of the orientations: PROJECT/at/camera.toml for PROJECT/at/eo.txt "
+                   "(self-calibrated by the adjustment), else PROJECT/camera.toml].")
 @click.option("--import-manual", "manual_path", type=click.Path(dir_okay=False, exists=True, path_type=Path), default=None,
               help="Manual measurements point_id,image_id,x_px,y_px (same layout as control/image_points.csv); they "
                    "replace the automatic measurement of that corner in that frame.")
-@click_option(ControlSettings, "layout.full_spacing_baselines", "--full-spacing")
-@click_option(ControlSettings, "layout.height_every_strips", "--height-every")
+@click_option(ControlSettings, "layout.full_spacing_baselines", "--full-spacing-baselines")
+@click_option(ControlSettings, "layout.height_every_strips", "--height-every-strips")
 @click_option(ControlSettings, "layout.min_frames", "--min-frames")
 @click_option(ControlSettings, "layout.fallback", "--fallback/--no-fallback")
 @click_option(ControlSettings, "tol_px", "--tol-px")

@@ -28,7 +28,7 @@ from aerotri.core.log import track
 from aerotri.core.atomic import committed
 from aerotri.core.project import Project, project_paths
 from aerotri.core.settings import Resolved, settings_of
-from aerotri.geom.camera import BrownCamera
+from aerotri.geom.camera import BrownCamera, orientations_camera
 from aerotri.geom.eo import ExteriorOrientations, read_eo
 from aerotri.geom.images import FrameWindows, find_image
 
@@ -91,15 +91,6 @@ class ReviewPage:
     summary: str
     corners: list[dict]
     chips: dict[str, bytes]
-
-
-def project_camera(root: Path, camera_path=None) -> tuple[BrownCamera, str]:
-    """The camera to project with: explicit file, else the adjustment's at/camera.toml, else camera.toml."""
-    if camera_path is not None:
-        return BrownCamera.read(camera_path), str(camera_path)
-    from aerotri.geom.camera import oriented_camera
-
-    return oriented_camera(Project.open(root))
 
 
 def _measure_frames(corners: LidarCorners, camera: BrownCamera, *, eo: ExteriorOrientations, images_dir: Path,
@@ -491,9 +482,10 @@ def run_control(root, corners_path=None, eo_path=None, camera_path=None, manual_
     """The stage: read, transfer, write all outputs atomically; returns the summary.
 
     Defaults: the corners ``lidar_out/corners.csv``, the orientations ``at/eo.txt``, the camera of
-    ``project_camera``; ``manual_path``: manual measurements (``read_manual``). ``settings``: None reads
-    [control] of project.toml (a folder without one: the defaults); a ``Resolved`` (``aerotri control``, the
-    chain) carries every setting's source into control/transfer.json (``settings``).
+    ``aerotri.geom.camera.orientations_camera`` (at/camera.toml for at/eo.txt, else camera.toml);
+    ``manual_path``: manual measurements (``read_manual``). ``settings``: None reads [control] of project.toml
+    (a folder without one: the defaults); a ``Resolved`` (``aerotri control``, the chain) carries every
+    setting's source into control/transfer.json (``settings``).
     """
     from aerotri.core.atomic import atomic_dir, write_text_atomic
 
@@ -524,7 +516,8 @@ def run_control(root, corners_path=None, eo_path=None, camera_path=None, manual_
     check_near_block(corners.xyz_m[:, 0], corners.xyz_m[:, 1], [f"corner {c}" for c in corners.id], str(corners_path),
                      block_xy=eo.centre_m[:, :2], block_source=str(eo_path),
                      unit_m=linear_unit_m(crs) if crs is not None else 1.0)
-    camera, _ = project_camera(paths.root, camera_path)
+    # the camera of these orientations: at/camera.toml only for the project's own at/eo.txt
+    camera, _ = orientations_camera(Project.open(paths.root) if camera_path is None else None, eo_path, camera_path)
     manual = (read_manual(manual_path, corners.id, eo.image_id, camera, corners_path, eo_path)
               if manual_path else None)
     res = transfer_control(corners, camera, eo, paths.images_dir, s, manual)

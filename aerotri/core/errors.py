@@ -39,7 +39,7 @@ class InputError(AerotriError, ValueError):
 
 
 class OptionError(InputError):
-    """An option value out of range or inconsistent with another (``param``: the option, e.g. ``--res``)."""
+    """An option value out of range or inconsistent with another (``param``: the option, e.g. ``--res-m``)."""
 
 
 class ConfigError(InputError):

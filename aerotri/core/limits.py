@@ -1,6 +1,6 @@
 """Physical limits checked before allocating or writing: memory and disk of this machine, raster grid sizes.
 
-A command whose options ask for more than the machine can hold (``ortho rectify --res 0.0005`` over a
+A command whose options ask for more than the machine can hold (``ortho rectify --res-m 0.0005`` over a
 block of 300 m frames is an ortho of 4e11 pixels per frame) stops at once with a ``ResourceError``
 naming the option and the size it would need, instead of trying to allocate it (a MemoryError, or
 the kernel's out-of-memory killer, minutes later).
@@ -44,7 +44,7 @@ def check_allocation(n_bytes: float, what: str, option: str | None = None, *, hi
     """``ResourceError`` when ``what`` would need more than ``fraction`` of the physical memory: refuse before
     allocating rather than fail with a MemoryError (or the out-of-memory killer) minutes later.
 
-    ``option`` names the option that sets the size (e.g. ``--res``); the message gives both sizes and ``hint``
+    ``option`` names the option that sets the size (e.g. ``--res-m``); the message gives both sizes and ``hint``
     (what to change). 80 %: the process, its libraries and the system need the rest."""
     total = physical_memory_bytes()
     if total and n_bytes > fraction * total:

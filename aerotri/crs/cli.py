@@ -114,19 +114,22 @@ def _height_fit_table(model, points, ids, res) -> str:
 @click.option("--heights", type=click.Path(dir_okay=False), help="height anomaly model from 'crs fit-heights' "
                                                                  "(ellipsoidal -> normal heights)")
 @click.option("--allow-ballpark", is_flag=True, help="accept PROJ's ballpark operation that ignores a datum shift")
-@click.option("--res", type=positive(),
-              help="target cell size in the target CRS's units [the source cell size]")
+@click.option("--res-m", type=positive(),
+              help="target cell size (m) of a projected target, also for grids in feet (0.3048 m: 1 ft cells) "
+                   "[the source cell size]")
+@click.option("--res-deg", type=positive(), help="target cell size (degrees) of a geographic target")
 @click.option("--kind", type=click.Choice(KINDS), default="auto", show_default=True,
               help="height: cell values are heights and change with the datum (DEM, DSM); image: an orthophoto; "
                    "auto: one floating-point band is a height raster")
 @click.option("--resampling", type=click.Choice(list(RESAMPLING)), default="bilinear", show_default=True)
-def warp_cmd(*, input_path, output_path, to_epsg, from_epsg, params, heights, allow_ballpark, res, kind, resampling):
+def warp_cmd(*, input_path, output_path, to_epsg, from_epsg, params, heights, allow_ballpark, res_m, res_deg, kind,
+             resampling):
     """Reproject a GeoTIFF (DEM, DSM, DOM) across datums and projections into a COG, nodata kept."""
     t0 = time.perf_counter()
     r = warp_raster(input_path, output_path, to_epsg, from_crs=from_epsg,
                     params=load_transformation(params) if params else None,
                     heights=load_height_model(heights) if heights else None, allow_ballpark=allow_ballpark,
-                    res=res, kind=kind, resampling=resampling)
+                    res_m=res_m, res_deg=res_deg, kind=kind, resampling=resampling)
     click.echo(f"{r.width} x {r.height} cells of {r.res:g} in {r.crs} ({r.kind} raster, {100 * r.valid_fraction:.1f} % "
                f"valid) {r.operation['description']}: {output_path} ({time.perf_counter() - t0:.1f} s)")
 
@@ -139,7 +142,7 @@ def warp_cmd(*, input_path, output_path, to_epsg, from_epsg, params, heights, al
 @click.option("--params", type=click.Path(dir_okay=False), help="parameter file from 'crs fit'")
 @click.option("--heights", type=click.Path(dir_okay=False), help="height anomaly model from 'crs fit-heights'")
 @click.option("--allow-ballpark", is_flag=True, help="accept PROJ's ballpark operation that ignores a datum shift")
-@click.option("--chunk-size", type=at_least(1, int), default=1_000_000, show_default=True,
+@click.option("--chunk-points", "chunk_size", type=at_least(1, int), default=1_000_000, show_default=True,
               help="LAS/LAZ points per chunk")
 def transform_cmd(*, input_path, output_path, from_epsg, to_epsg, params, heights, allow_ballpark, chunk_size):
     """Transform a CSV/TXT point list or a LAS/LAZ file (chunked, all point dimensions kept)."""

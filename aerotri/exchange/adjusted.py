@@ -1,10 +1,10 @@
 """An adjusted block as the project folder holds it: the input of every exporter.
 
-Read from ``at/eo.txt`` (orientations), ``at/object_points.csv`` (adjusted points, their kinds and
-rays), ``at/report.json`` (the local frame's origin, the self-calibrated camera, the removed
-observations, the control points used), ``at/tiepoints.csv`` and ``control/image_points.csv`` (the
-measurements; those of points the adjustment used and did not remove), ``control/points.csv`` and
-``camera.toml``. Poses and points are also given in the adjustment's local ENU frame
+Read from ``at/eo.txt`` (orientations), ``at/camera.toml`` (the camera they belong to, self-calibrated
+or nominal, through ``aerotri.geom.camera.oriented_camera``), ``at/object_points.csv`` (adjusted points,
+their kinds and rays), ``at/report.json`` (the local frame's origin, the removed observations),
+``at/tiepoints.csv`` and ``control/image_points.csv`` (the measurements; those of points the adjustment
+used and did not remove), ``control/points.csv`` and ``camera.toml`` (the a-priori camera). Poses and points are also given in the adjustment's local ENU frame
 (``aerotri.geom.local_frame``), where collinearity holds exactly.
 """
 
@@ -19,13 +19,11 @@ import numpy as np
 from aerotri.core.errors import InputError, StageOrderError
 from aerotri.core.project import Project
 from aerotri.core.textio import read_json, read_text
-from aerotri.geom.camera import Camera, project_camera
+from aerotri.geom.camera import Camera, oriented_camera, project_camera
 from aerotri.geom.eo import check_block_crs, read_eo
 from aerotri.geom.local_frame import LocalFrame
 from aerotri.geom.observations import read_control_points, read_image_points
 from aerotri.geom.rotation import FLIP_YZ
-
-CAL_NAMES = ("fx_px", "fy_px", "skew_px", "u0_px", "v0_px", "k1", "k2", "p1", "p2")
 
 
 @dataclasses.dataclass(kw_only=True)
@@ -36,7 +34,7 @@ class AdjustedBlock:
     crs: str
     frame: LocalFrame
     camera: Camera  # the a-priori camera (camera.toml)
-    cal: np.ndarray  # (9,) adjusted interior orientation, Cal3DS2 order: fx fy skew u0 v0 k1 k2 p1 p2 (px)
+    cal: np.ndarray  # (9,) interior orientation of at/camera.toml, Cal3DS2 order: fx fy skew u0 v0 k1 k2 p1 p2 (px)
     image_id: list
     centre_local: np.ndarray  # (N, 3) projection centres, ENU
     R_cv: np.ndarray  # (N, 3, 3) computer-vision camera -> ENU
@@ -50,10 +48,6 @@ class AdjustedBlock:
     control_id: np.ndarray  # control points in the adjustment, not rejected
     control_kind: np.ndarray
     control_xyz_m: np.ndarray  # (C, 3) given coordinates, project CRS
-
-
-def _cal_of(camera: Camera) -> np.ndarray:
-    return camera.calibration_vector()
 
 
 def _object_points(path):
@@ -91,9 +85,9 @@ def read_adjusted_block(root) -> AdjustedBlock:
         raise InputError(f"{project.adjustment_report_path}: local_frame origin_map = {origin!r}: expected three finite "
                          f"numbers (X, Y, Z); adjust the project again (aerotri adjust {project.root})")
     frame = LocalFrame(project.crs, frame_info["origin_map"])
-    camera = project_camera(project)
-    selfcal = report.get("self_calibration") or {}
-    cal = np.array([selfcal["adjusted"][k] for k in CAL_NAMES], float) if selfcal.get("adjusted") else _cal_of(camera)
+    camera = project_camera(project)  # a priori: it prepared the measurements the adjustment saw
+    # the orientations' own camera from its file, at full precision (report.json rounds to 8 decimals)
+    cal = oriented_camera(project)[0].calibration_vector()
     # the projection centres checked against the project CRS (another zone's numbers, swapped X/Y)
     eo = read_eo(project.eo_path, check_block_crs(project.crs, f"{project.config_path} [project] crs"))
     centre_local = frame.to_local(eo.centre_m)

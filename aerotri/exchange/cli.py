@@ -37,10 +37,10 @@ def export(project, formats, out_dir):
               help="Format of FILES.")
 @click.option("--crs", default=None, help="CRS of FILES when they carry none (e.g. EPSG:32611); converted to the "
                                           "project CRS.")
-@click.option("--sigma-xyz", "sigma_xyz_m", type=positive(), nargs=3, default=None,
+@click.option("--sigma-xyz-m", "sigma_xyz_m", type=positive(), nargs=3, default=None,
               help="Accuracy (m) of imported positions that come without one.")
 @click.option("--as-gnss", is_flag=True, help="Also write the imported camera positions to gnss.txt as GNSS "
-                                             "observations (accuracies: --sigma-xyz, else the format's own); without "
+                                             "observations (accuracies: --sigma-xyz-m, else the format's own); without "
                                              "it a reconstruction's orientations go to imported/eo.txt only.")
 @click.option("--force", is_flag=True, help="Replace project files the import writes (camera.toml, gnss.txt, ...).")
 @click.option("--heights-measured", is_flag=True,

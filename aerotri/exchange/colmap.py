@@ -17,7 +17,7 @@ files cannot::
 Import (``aerotri import P --format colmap MODEL_FOLDER`` or its files): cameras -> camera.toml (one
 camera; SIMPLE_PINHOLE, PINHOLE, SIMPLE_RADIAL, RADIAL, OPENCV, FULL_OPENCV with k4 = k5 = k6 = 0;
 fx and fy averaged), images -> imported/eo.txt (approximations) in the project CRS; the projection centres
-go to gnss.txt only with ``--as-gnss`` (accuracies from ``--sigma-xyz``: COLMAP models carry none). The world frame comes
+go to gnss.txt only with ``--as-gnss`` (accuracies from ``--sigma-xyz-m``: COLMAP models carry none). The world frame comes
 from ``georef.txt`` (our exports; or written by hand: ``frame local_enu`` + ``crs`` + ``origin_map``),
 else the text model's header comment of our older exports, else ``--crs``: a foreign model must be
 georeferenced already (e.g. ``colmap model_aligner``), its world coordinates in that CRS (projected, or

@@ -12,7 +12,7 @@ GDAL-written TIFFs as ``EXIF_*`` items and the XMP packet as the ``xml:XMP`` dom
   camera offset is not known and not applied.
 - accuracy: DJI RTK ``RtkStdLon``, ``RtkStdLat``, ``RtkStdHgt`` (m) -> gnss.txt sX sY sZ (east, north, up
   taken as the grid axes: the meridian convergence mixes sX and sY by less than their difference matters),
-  else ``--sigma-xyz``, else none in gnss.txt and, when project.toml has no [gnss] section, a consumer
+  else ``--sigma-xyz-m``, else none in gnss.txt and, when project.toml has no [gnss] section, a consumer
   receiver's model appended to it (``CONSUMER_GNSS``: decimetres between frames, one offset of metres for the
   flight; ``aerotri.adjust.gnss_model``).
 - camera: DJI ``DewarpData`` = ``date;fx,fy,cx,cy,k1,k2,p1,p2,k3`` (the factory calibration; fx, fy in
@@ -410,14 +410,14 @@ def read(files, project: Project, options: ImportSettings) -> ImportedBlock:
         block.notes.append(f"positions: the EXIF states no accuracy (no DJI RTK): {project.config_path.name} [gnss] "
                            f"gets a consumer receiver's model, {sxy:g} / {sz:g} m between frames and one offset for "
                            f"the flight of {oxy:g} / {oz:g} m (plan / height) that the adjustment estimates; edit "
-                           "them for your receiver, or give --sigma-xyz for positions of a stated accuracy")
+                           "them for your receiver, or give --sigma-xyz-m for positions of a stated accuracy")
     elif sigma is None and any(project.source_of("gnss", k) != "project.toml" for k in ("sigma_xy_m", "sigma_z_m")):
         g = project.gnss
         block.notes.append(f"positions: the EXIF states no accuracy (no DJI RTK): the adjustment takes [gnss] "
                            f"sigma_xy_m / sigma_z_m ({g.sigma_xy_m:g} / {g.sigma_z_m:g} m); for a consumer drone set "
                            f"them to {CONSUMER_GNSS[0]:g} / {CONSUMER_GNSS[1]:g} and offset_sigma_xy_m / "
                            f"offset_sigma_z_m to {CONSUMER_GNSS[2]:g} / {CONSUMER_GNSS[3]:g} (one offset of the "
-                           "flight, metres), or give --sigma-xyz")
+                           "flight, metres), or give --sigma-xyz-m")
     if all(m.relative_alt_m is not None for m in metas):
         # the ground at the take-off point, in the project's heights: a terrain height for the frames' footprints
         takeoff_m = float(np.median(xyz[:, 2] - np.array([m.relative_alt_m for m in metas])))

@@ -85,7 +85,7 @@ def import_files(root, format_name: str, files, options: ImportSettings | None =
     if importer.positions == "reconstruction" and block.eo is not None and block.gnss is None \
             and not any("--as-gnss" in n for n in block.notes):
         block.notes.append(f"positions: the {len(block.eo)} projection centres are another program's solution: "
-                           "imported/eo.txt (approximations), not gnss.txt (--as-gnss with --sigma-xyz to weight them "
+                           "imported/eo.txt (approximations), not gnss.txt (--as-gnss with --sigma-xyz-m to weight them "
                            "as GNSS)")
     replaced = {p for p, name in ((project.camera_path, "camera"), (project.gnss_path, "gnss"),
                                   (project.imported_eo_path, "eo"), (project.control_points_path, "control"),

@@ -16,7 +16,7 @@ the project's own files:
 
 ``gnss.txt`` gets only what the source measured with GNSS (EXIF positions) or, with ``--as-gnss``, a
 reconstruction's positions the user declares to be GNSS, with the accuracies the user states
-(``--sigma-xyz``) or the format's own (OpenSfM ``gps_dop``); :func:`positions_as_gnss` says which.
+(``--sigma-xyz-m``) or the format's own (OpenSfM ``gps_dop``); :func:`positions_as_gnss` says which.
 A reconstruction's camera centres are never weighted as GNSS by default: the adjustment would take
 another program's solution for measurements (at the project's default 0.05 / 0.10 m).
 
@@ -127,7 +127,7 @@ def to_project_crs(xyz_m, from_crs, project: Project, source: str) -> np.ndarray
 def positions_as_gnss(ids, position_m, *, options: ImportSettings, project: Project, what: str,
                       own_sigma_m=None, own_sigma_name: str = "") -> tuple[GnssPositions, str]:
     """(GNSS positions, what gnss.txt holds in words) of imported positions the user declared GNSS
-    (``--as-gnss``). Accuracies: ``--sigma-xyz`` (the user's), else ``own_sigma_m`` (N, 3; the format's,
+    (``--as-gnss``). Accuracies: ``--sigma-xyz-m`` (the user's), else ``own_sigma_m`` (N, 3; the format's,
     named ``own_sigma_name``), else project.toml [gnss] sigma_xy_m and sigma_z_m when both are set (gnss.txt
     then carries none and the adjustment takes those); ``OptionError`` otherwise: a reconstruction's
     positions have no accuracy the toolkit could assume."""
@@ -135,15 +135,15 @@ def positions_as_gnss(ids, position_m, *, options: ImportSettings, project: Proj
     pos = np.asarray(position_m, float).reshape(-1, 3)
     if options.sigma_xyz_m is not None:
         s = np.asarray(options.sigma_xyz_m, float)
-        sigma, said = np.tile(s, (len(ids), 1)), f"accuracies {s[0]:g} {s[1]:g} {s[2]:g} m from --sigma-xyz"
+        sigma, said = np.tile(s, (len(ids), 1)), f"accuracies {s[0]:g} {s[1]:g} {s[2]:g} m from --sigma-xyz-m"
     elif own_sigma_m is not None:
         sigma = np.asarray(own_sigma_m, float).reshape(-1, 3)
         said = f"accuracies from {own_sigma_name} ({sigma.min():.3g}..{sigma.max():.3g} m)"
     else:
         # the defaults of [gnss] are an aerial GNSS/IMU's: another program's centres need their accuracy stated
         if any(project.source_of("gnss", k) != "project.toml" for k in ("sigma_xy_m", "sigma_z_m")):
-            raise OptionError(f"--as-gnss: the {what} come without accuracies; state them with --sigma-xyz SX SY SZ "
-                              f"(m) or [gnss] sigma_xy_m and sigma_z_m in {project.config_path}", param="--sigma-xyz")
+            raise OptionError(f"--as-gnss: the {what} come without accuracies; state them with --sigma-xyz-m SX SY SZ "
+                              f"(m) or [gnss] sigma_xy_m and sigma_z_m in {project.config_path}", param="--sigma-xyz-m")
         g = project.gnss
         sigma, said = None, (f"accuracies {g.sigma_xy_m:g} / {g.sigma_z_m:g} m from {project.config_path.name} "
                              "[gnss]")

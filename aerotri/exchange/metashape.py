@@ -33,7 +33,7 @@ Conventions (Metashape manual, appendix "Camera models"):
   the control points' measured pixels (control/image_points.csv, as measured).
 
 Import: the sensor -> camera.toml, the aligned cameras -> imported/eo.txt (approximations), markers ->
-control/; the camera positions go to gnss.txt only with ``--as-gnss`` (accuracies from ``--sigma-xyz``).
+control/; the camera positions go to gnss.txt only with ``--as-gnss`` (accuracies from ``--sigma-xyz-m``).
 
 Heights: the geocentric coordinates come from the project's heights read as ellipsoidal
 (``aerotri.geom.local_frame``); the round trip is exact, but with ``[project] heights`` a geoid
@@ -277,7 +277,7 @@ def read(files: list[Path], project: Project, options: ImportSettings) -> Import
             elif options.sigma_xyz_m:
                 sig.append(list(options.sigma_xyz_m))
             else:
-                raise InputError(f"{where}: no sx sy sz; give --sigma-xyz")
+                raise InputError(f"{where}: no sx sy sz; give --sigma-xyz-m")
             if min(sig[-1]) <= 0:
                 raise InputError(f"{where}: sx sy sz must be positive")
         if mid:

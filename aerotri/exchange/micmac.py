@@ -135,7 +135,7 @@ def read_gcp(path: Path, root, project: Project, options: ImportSettings) -> Con
         elif options.sigma_xyz_m:
             s = list(options.sigma_xyz_m)
         else:
-            raise InputError(f"{where}: no <Incertitude>; give --sigma-xyz")
+            raise InputError(f"{where}: no <Incertitude>; give --sigma-xyz-m")
         free_xy, free_z = s[0] <= 0 or s[1] <= 0, s[2] <= 0
         if free_xy and free_z:
             raise InputError(f"{where}: Incertitude {s} leaves every axis unused")

@@ -12,7 +12,7 @@ Pixel coordinates: OpenSfM, which consumes the file for ODM, normalises them wit
 top-left pixel, as ours; they are taken and written unchanged. A point without ``gcp_name`` is named by
 its coordinates (OpenSfM groups measurements by (x, y, z)): ``gcp1``, ``gcp2``, ... in order of first
 appearance. ``geo_z`` NaN (OpenSfM: no altitude) makes the point a horizontal control point. The file
-carries no accuracies: ``--sigma-xyz`` gives them (required).
+carries no accuracies: ``--sigma-xyz-m`` gives them (required).
 
 Control as measured: a file whose heights are all 0 (or all the same number) has heights nobody measured (ODM
 writes 0 where a survey gave none: the Coal Oil Point targets); its points are imported as horizontal control,
@@ -110,8 +110,8 @@ def read(files, project: Project, options: ImportSettings) -> ImportedBlock:
         raise InputError(f"odm expects one gcp_list.txt, got {len(files)} files")
     path = Path(files[0])
     if options.sigma_xyz_m is None:
-        raise OptionError(f"{path}: gcp_list.txt carries no accuracies; give the control points' with --sigma-xyz "
-                          f"SX SY SZ (m)", param="--sigma-xyz")
+        raise OptionError(f"{path}: gcp_list.txt carries no accuracies; give the control points' with --sigma-xyz-m "
+                          f"SX SY SZ (m)", param="--sigma-xyz-m")
     crs, points, obs = read_gcp_list(path)
     if options.crs is not None:
         raise OptionError(f"{path}: the file names its CRS ({crs}); --crs is for files that carry none",

@@ -29,7 +29,7 @@ the OpenSfM folder, else the size in the file; normalised coordinates do not cha
 one focal length (f = (focal_x + focal_y) / 2, noted when they differ); pixel size from the frames'
 EXIF, else the project's camera.toml, else nominal; the shots' centres and attitudes ->
 ``imported/eo.txt`` (approximations). With ``--as-gnss`` the shots' ``gps_position`` (the GNSS the
-reconstruction was made with, not its solution) -> ``gnss.txt``, accuracies ``--sigma-xyz`` or else
+reconstruction was made with, not its solution) -> ``gnss.txt``, accuracies ``--sigma-xyz-m`` or else
 ``gps_dop`` in X, Y and Z. ``--crs``: the CRS of ``reference_lla`` (default EPSG:4979, WGS84).
 """
 

@@ -22,7 +22,7 @@ angles pass unchanged (checked on the NGI block: orthority's ngi_xyz_opk.csv car
 camera_pos_ori.txt angles, and orthority's camera projects our object points to our pixels).
 
 Import: camera.toml (one camera) and imported/eo.txt (approximations) in the project CRS; the camera
-positions go to gnss.txt only with ``--as-gnss`` (accuracies from ``--sigma-xyz``: the files carry none).
+positions go to gnss.txt only with ``--as-gnss`` (accuracies from ``--sigma-xyz-m``: the files carry none).
 Export (``orthority/``): ``int_param.yaml``, ``ext_param.csv`` + ``ext_param.prj`` and ``ext_param.geojson`` of the adjusted orientations (``at/eo.txt``, project CRS, its heights) and the
 self-calibrated camera.
 """

@@ -30,7 +30,7 @@ keep their values, others are numbered 1, 2, ... in order); ``block.cam`` holds 
 Import (any of the files; the CRS is the project's, or ``--crs``): ``.ori`` -> imported/eo.txt
 (approximations; gnss.txt only with ``--as-gnss``); ``.cam`` -> camera.toml; ``.con`` files ->
 control/points.csv (kind from numbers.txt, else from the file name's ``_check``/``_horizontal``/``_height``,
-else full; sigmas: ``--sigma-xyz``, else the project's ``[control]`` sigmas); ``.im`` ->
+else full; sigmas: ``--sigma-xyz-m``, else the project's ``[control]`` sigmas); ``.im`` ->
 control/image_points.csv: the measurements of the control points (of the ``.con`` imported with it, else of
 control/points.csv), back in pixels through the camera (the ``.cam`` imported with it, else camera.toml)
 and its distortion. Records are read as blank-separated fields (a fixed-column file reads the same);
@@ -255,7 +255,7 @@ def _control_sigma(project: Project, options: ImportSettings, path: Path) -> np.
     c = project.control_points
     if c.sigma_xy_m is not None and c.sigma_z_m is not None:
         return np.array([c.sigma_xy_m, c.sigma_xy_m, c.sigma_z_m], float)
-    raise InputError(f"{path}: control points without accuracies; give --sigma-xyz SX SY SZ (m) or [control] "
+    raise InputError(f"{path}: control points without accuracies; give --sigma-xyz-m SX SY SZ (m) or [control] "
                      f"sigma_xy_m, sigma_z_m in {project.config_path}")
 
 

@@ -501,3 +501,16 @@ def oriented_camera(project) -> tuple[Camera, str]:
     if nominal is not None and camera.to_dict() == nominal.to_dict():
         return camera, str(path)
     return camera, f"{path} (self-calibrated)"
+
+
+def orientations_camera(project, eo_path=None, camera_path=None) -> tuple[Camera, str]:
+    """(camera, source) to project with the orientations of ``eo_path``: ``camera_path`` when given; for the
+    project's own adjusted orientations (``eo_path`` None or ``at/eo.txt`` itself) the camera they belong to
+    (``oriented_camera``: at/camera.toml); for other orientations (an EO file given with --eo: a truth, an
+    import, another adjustment) the nominal ``camera.toml``, as at/camera.toml's self-calibration was
+    estimated with at/eo.txt and belongs to no other orientations. ``project`` may be None with a ``camera_path``."""
+    if camera_path is not None:
+        return Camera.read(camera_path), str(camera_path)
+    if eo_path is None or Path(eo_path).resolve() == project.eo_path.resolve():
+        return oriented_camera(project)
+    return project_camera(project), str(project.camera_path)

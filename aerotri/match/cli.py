@@ -14,10 +14,10 @@ from aerotri.match.settings import MatchSettings
 @click.command(cls=Command)
 @click.argument("project", type=click.Path(file_okay=False, path_type=Path))
 @click_option(MatchSettings, "sparse.budget", "--budget")
-@click_option(MatchSettings, "sparse.max_dim_px", "--max-dim")
+@click_option(MatchSettings, "sparse.max_dim_px", "--max-dim-px")
 @click_option(MatchSettings, "match.ratio", "--ratio")
 @click_option(MatchSettings, "min_overlap", "--min-overlap")
-@click_option(MatchSettings, "terrain_height_m", "--terrain-height")
+@click_option(MatchSettings, "terrain_height_m", "--terrain-height-m")
 @click_option(MatchSettings, "image_top_deg", "--image-top-deg")
 @click_option(MatchSettings, "densify", "--densify/--no-densify")
 @scheduler_options

@@ -102,7 +102,7 @@ class _PhaseClock:
 
 
 def _terrain_height(project: Project, s: MatchSettings, crs=None) -> float | None:
-    """The mean terrain height for the footprints: --terrain-height, [flight] mean_terrain_height_m, else the
+    """The mean terrain height for the footprints: --terrain-height-m, [flight] mean_terrain_height_m, else the
     mean of lidar_out/dem.tif (checked: in the project CRS ``crs``, finite heights, 2 x 2 cells or more);
     None when none of these is there."""
     if s.terrain_height_m is not None:
@@ -120,7 +120,7 @@ def _terrain_height(project: Project, s: MatchSettings, crs=None) -> float | Non
                 dem_crs = parse_crs(ds.crs.to_wkt(), f"{dem} CRS")
                 if crs is not None and not same_horizontal(dem_crs, crs):
                     raise InputError(f"{dem}: the DEM is in {crs_label(dem_crs)}, the project in "
-                                     f"{crs_label(crs)}; warp it first (aerotri crs warp) or give --terrain-height")
+                                     f"{crs_label(crs)}; warp it first (aerotri crs warp) or give --terrain-height-m")
                 a = ds.read(1, masked=True, out_shape=(1, min(ds.height, 512), min(ds.width, 512)))
         except rasterio.errors.RasterioIOError as exc:
             raise InputError(f"{dem}: cannot read the DEM for the mean terrain height ({exc})") from None
@@ -336,7 +336,7 @@ def match_project(root, settings: MatchSettings | Resolved | None = None,
     elif project.gnss_path.exists():
         n = len(ids)
         log.warning(f"{project.config_path}: no terrain height for the GNSS footprints ([flight] mean_terrain_height_m, "
-                    f"--terrain-height or lidar_out/dem.tif): pairs by thumbnail retrieval of all {n * (n - 1) // 2} "
+                    f"--terrain-height-m or lidar_out/dem.tif): pairs by thumbnail retrieval of all {n * (n - 1) // 2} "
                     "pairs, no weak-model analysis or densification")
     else:
         log.info(f"{project.gnss_path} not found: pairs by thumbnail retrieval")

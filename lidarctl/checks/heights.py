@@ -59,11 +59,11 @@ class DensityGroups:
 
     def validate(self) -> None:
         if not (np.isfinite(self.radius_m) and self.radius_m > 0):
-            raise OptionError(f"--cover-radius {self.radius_m}: must be a positive distance in metres",
-                              param="--cover-radius")
+            raise OptionError(f"--cover-radius-m {self.radius_m}: must be a positive distance in metres",
+                              param="--cover-radius-m")
         if not (np.isfinite(self.canopy_height_m) and self.canopy_height_m > 0):
-            raise OptionError(f"--canopy-height {self.canopy_height_m}: must be a positive height in metres",
-                              param="--canopy-height")
+            raise OptionError(f"--canopy-height-m {self.canopy_height_m}: must be a positive height in metres",
+                              param="--canopy-height-m")
         if not (0 <= self.open_below <= self.dense_above <= 1):
             raise OptionError(f"--open-below {self.open_below:g} / --dense-above {self.dense_above:g}: expected "
                               "0 <= open-below <= dense-above <= 1 (cover fractions)", param="--dense-above")
@@ -335,9 +335,9 @@ def _height_check_document(cloud_paths, points_csv, *, radius_m, exclude_m, crs,
                            density) -> dict:
     """height_check.json's content (``check_heights_file``)."""
     if not (np.isfinite(radius_m) and radius_m > 0):
-        raise OptionError(f"--radius {radius_m}: must be a positive distance in metres", param="--radius")
+        raise OptionError(f"--radius-m {radius_m}: must be a positive distance in metres", param="--radius-m")
     if not (np.isfinite(exclude_m) and exclude_m > 0):
-        raise OptionError(f"--exclude {exclude_m}: must be a positive height difference in metres", param="--exclude")
+        raise OptionError(f"--exclude-m {exclude_m}: must be a positive height difference in metres", param="--exclude-m")
     if grouping not in GROUPINGS:
         raise OptionError(f"--groups {grouping!r}: expected one of {', '.join(GROUPINGS)}", param="--groups")
     density = density or DensityGroups()

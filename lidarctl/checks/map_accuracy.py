@@ -76,7 +76,7 @@ class MapEvalSettings:
 
     def __post_init__(self):
         if self.res_m is not None and not (np.isfinite(self.res_m) and self.res_m > 0):
-            raise OptionError(f"--res {self.res_m}: must be a positive cell size in metres", param="--res")
+            raise OptionError(f"--res-m {self.res_m}: must be a positive cell size in metres", param="--res-m")
         if not 0 < self.min_overlap <= 1:
             raise OptionError(f"--min-overlap {self.min_overlap}: must be in (0, 1]", param="--min-overlap")
         if not (np.isfinite(self.min_building_m2) and self.min_building_m2 >= 0):

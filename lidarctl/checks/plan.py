@@ -60,7 +60,7 @@ class PlanCheckSettings:
     terrain: str = setting("flat", help="Terrain class of the tolerance table.")
 
     def validate(self) -> None:
-        for name, opt in (("radius_m", "--radius"), ("min_edge_m", "--min-edge-m")):
+        for name, opt in (("radius_m", "--radius-m"), ("min_edge_m", "--min-edge-m")):
             v = getattr(self, name)
             if v is None and name == "min_edge_m":
                 continue

@@ -86,10 +86,10 @@ def ground_filter_options(f):
 @click_option(ClassifySettings, "preset", "--preset")
 @click.option("--crs", default=None, help="CRS (EPSG:code) when the file has none; never guessed.")
 @click_option(ClassifySettings, "ground_method", "--method")
-@click.option("--tile-size", "tile_size_m", type=positive(), default=None,
+@click.option("--tile-size-m", "tile_size_m", type=positive(), default=None,
               help="Tile size in metres, also for clouds in feet (default: about 4 M points per tile with its "
                    "buffer at the file's density).")
-@click.option("--buffer", "buffer_m", type=positive(), default=None,
+@click.option("--buffer-m", "buffer_m", type=positive(), default=None,
               help="Overlap buffer around each tile in metres (default: the ground filter's reach, 60 m).")
 @click.option("--work-dir", type=click.Path(file_okay=False), default=None,
               help="Folder for the temporary tile files (default: next to the output; removed afterwards).")
@@ -135,7 +135,7 @@ def classify(*, in_paths, out_path, crs, tile_size_m, buffer_m, work_dir, out_fo
 @main.command()
 @click.argument("in_paths", nargs=-1, required=True, type=click.Path(dir_okay=False))
 @click.argument("outdir", type=click.Path(file_okay=False))
-@click_option(RasterSettings, "res_m", "--res", required=True, default=None, show_default=False,
+@click_option(RasterSettings, "res_m", "--res-m", required=True, default=None, show_default=False,
               help="Cell size in metres, also for clouds in feet (1 m = 3.2808 ft in the GeoTIFF) ([rasters] res_m of "
                    "aerotri run).")
 @click.option("--crs", default=None, help="CRS (EPSG:code) of files that have none.")
@@ -182,7 +182,7 @@ def rasters(*, in_paths, outdir, res_m, crs, tile_px, buffer_px, dem_fill_radius
 @click.option("--json", "json_path", type=click.Path(dir_okay=False), default=None, help="Write the numbers as JSON.")
 @click.option("--map-pred", default=None, help="Class mapping for the prediction, e.g. 3:1,4:1,5:1 (TO 255: leave out).")
 @click.option("--map-truth", default=None, help="Class mapping for the truth or reference, e.g. 0:1.")
-@click.option("--res", "res_m", type=positive(), default=None,
+@click.option("--res-m", "res_m", type=positive(), default=None,
               help="--reference: cell size in metres [0.5; with a raster: the raster's cells, or a raster sampled at "
                    "the centres of cells of this size, e.g. to match a sparse cloud].")
 @click.option("--class-field", default=MapEvalSettings.class_field, show_default=True,
@@ -287,16 +287,16 @@ def _truth_notes(conf) -> list[str]:
 @click.argument("paths", nargs=-1, required=True, type=click.Path(dir_okay=False), metavar="[CLOUD]... POINTS_CSV")
 @click.option("--dem", "dem_path", type=click.Path(dir_okay=False), default=None,
               help="Also check this DEM GeoTIFF (bilinear height at each point); with no CLOUD, the DEM alone.")
-@click.option("--radius", "radius_m", type=positive(), default=5.0, show_default=True,
+@click.option("--radius-m", "radius_m", type=positive(), default=5.0, show_default=True,
               help="Search radius (m, also for clouds in feet).")
-@click.option("--exclude", "exclude_m", type=positive(), default=1.0, show_default=True,
+@click.option("--exclude-m", "exclude_m", type=positive(), default=1.0, show_default=True,
               help="Statistics again without points with |dz| beyond this (m).")
 @click.option("--groups", "grouping", type=click.Choice(GROUPINGS), default="auto", show_default=True,
               help="Group the statistics by the CSV's group column, by the vegetation density around each point "
                    "(from the cloud's first returns), or not at all; auto: the column when there is one.")
-@click.option("--cover-radius", "cover_radius_m", type=positive(), default=_DENSITY.radius_m, show_default=True,
+@click.option("--cover-radius-m", "cover_radius_m", type=positive(), default=_DENSITY.radius_m, show_default=True,
               help="Density: radius (m) of the first returns counted around a point.")
-@click.option("--canopy-height", "canopy_height_m", type=positive(), default=_DENSITY.canopy_height_m,
+@click.option("--canopy-height-m", "canopy_height_m", type=positive(), default=_DENSITY.canopy_height_m,
               show_default=True, help="Density: a first return this high above the ground (m) is canopy.")
 @click.option("--open-below", type=fraction(), default=_DENSITY.open_below, show_default=True,
               help="Density: canopy cover below this fraction is open.")
@@ -329,7 +329,7 @@ def check_heights(*, paths, dem_path, radius_m, exclude_m, grouping, cover_radiu
 
 @main.command("check-plan")
 @click.argument("paths", nargs=-1, required=True, type=click.Path(dir_okay=False), metavar="CLOUD... POINTS_CSV")
-@click_option(PlanCheckSettings, "radius_m", "--radius")
+@click_option(PlanCheckSettings, "radius_m", "--radius-m")
 @click_option(PlanCheckSettings, "min_edge_m", "--min-edge-m")
 @click_option(PlanCheckSettings, "scale", "--scale")
 @click_option(PlanCheckSettings, "terrain", "--terrain")
@@ -343,7 +343,7 @@ def check_heights(*, paths, dem_path, radius_m, exclude_m, grouping, cover_radiu
 def check_plan(paths, json_path, png_path, crs, points_crs, **_settings):
     """Plan check of classified CLOUD(s) (building class 6; strips in one CRS) against surveyed roof / building
     corners (POINTS_CSV id,x,y[,z] in the cloud's CRS and units): each point's nearest LiDAR roof corner (the
-    eave corners of lidarctl corners) within --radius; dx, dy, plan offset (LiDAR - surveyed), RMS x / y /
+    eave corners of lidarctl corners) within --radius-m; dx, dy, plan offset (LiDAR - surveyed), RMS x / y /
     plan, mean (bias), max, found / not found, dz when the CSV has z; pass / fail against the map scale's
     plan RMS of well-defined features. Wall corners (cadastre footprints) include the roof overhang."""
     from lidarctl.checks import plan as pc
@@ -361,7 +361,7 @@ def check_plan(paths, json_path, png_path, crs, points_crs, **_settings):
 @click.option("--order", type=click.Choice(["4", "2"]), default="4", show_default=True,
               help="4: keeps planes and the breaklines between them (crests, toes, embankments); 2 (Perona-Malik): "
                    "keeps steps (walls, cliffs) but rounds creases.")
-@click.option("--edge", "edge_m", type=positive(), default=None,
+@click.option("--edge-m", "edge_m", type=positive(), default=None,
               help="What counts as a breakline rather than noise (m, also for DEMs in feet): order 4, the "
                    "4-neighbour Laplacian [1.0]; order 2, the height difference between neighbouring cells [0.5].")
 @click.option("--iterations", type=click.IntRange(min=1, max=100000), default=None,
@@ -386,9 +386,9 @@ def smooth(*, dem_path, out_path, order, edge_m, iterations, step, window_px):
 @main.command()
 @click.argument("dem_path", type=click.Path(dir_okay=False))
 @click.argument("out_path", type=click.Path(dir_okay=False))
-@click.option("--interval", "interval", type=positive(), required=True,
-              help="Contour interval in the DEM's height unit (its CRS's: feet for a DEM in feet); levels at its "
-                   "whole multiples.")
+@click.option("--interval-m", type=positive(), required=True,
+              help="Contour interval (m), traced in the DEM's height unit: 0.3048 gives 1 ft on a DEM in feet "
+                   "(0.3048006096 in US survey feet); levels at its whole multiples.")
 @click.option("--index", "index_every", type=click.IntRange(min=0), default=5, show_default=True,
               help="Every N-th level is an index contour (0: none).")
 @click.option("--smooth", "smoothing", type=click.Choice(["none", "bspline", "tension"]), default="none",
@@ -399,13 +399,13 @@ def smooth(*, dem_path, out_path, order, edge_m, iterations, step, window_px):
 @click.option("--tension", type=at_least(0), default=1.0, show_default=True,
               help="Tension spline: 0 is a cubic spline, larger values tend to the traced polyline.")
 @click.option("--png/--no-png", default=True, show_default=True, help="A preview PNG beside OUT (over the hillshade).")
-def contours(*, dem_path, out_path, interval, index_every, smoothing, tolerance_px, tension, png):
+def contours(*, dem_path, out_path, interval_m, index_every, smoothing, tolerance_px, tension, png):
     """Contour lines of DEM_PATH (GeoTIFF) into OUT_PATH (.gpkg or .geojson, layer 'contours': elevation in the
     DEM's unit, elevation_m, index, closed), traced on the cell centres and cut at nodata. An interval that
     would put adjacent levels less than a cell apart on average is refused (exit 2)."""
     from lidarctl.terrain.contours import contours_from_file
 
-    s = contours_from_file(dem_path, out_path, interval=interval, index_every=index_every, smoothing=smoothing,
+    s = contours_from_file(dem_path, out_path, interval_m=interval_m, index_every=index_every, smoothing=smoothing,
                            tolerance_px=tolerance_px, tension=tension, png=png)
     # + 0.0: a level of -0.0 (a multiple of the interval reached from below) is written 0, not -0
     span = f" from {s.lowest_level + 0.0:g} to {s.highest_level + 0.0:g} {s.unit}" if s.levels else ""

@@ -91,12 +91,12 @@ DEFAULT_BUFFER_PX = 256
 
 def check_res(res_m: float) -> None:
     if not (np.isfinite(res_m) and res_m > 0):
-        raise OptionError(f"--res {res_m}: must be a positive cell size in metres", param="--res")
+        raise OptionError(f"--res-m {res_m}: must be a positive cell size in metres", param="--res-m")
 
 
 @dataclasses.dataclass(frozen=True)
 class RasterSettings:
-    """Options of the raster stage (``[rasters]`` in project.toml; ``lidarctl rasters --res``)."""
+    """Options of the raster stage (``[rasters]`` in project.toml; ``lidarctl rasters --res-m``)."""
 
     SECTION: ClassVar[str] = "rasters"
 
@@ -219,7 +219,7 @@ def make_grids(cloud: PointCloud, res_m: float, footprint_cells: int = 3,
     check_res(res_m)
     x, y, z, cls = cloud.x, cloud.y, cloud.z, cloud.classification
     args = grid_for_bounds(x.min(), y.min(), x.max(), y.max(), res_m)
-    check_grid(args[3], args[4], res_m, RASTER_BYTES_PER_CELL, "rasters", option="--res", hint="use a coarser --res")
+    check_grid(args[3], args[4], res_m, RASTER_BYTES_PER_CELL, "rasters", option="--res-m", hint="use a coarser --res-m")
     sums = _CellSums(args)
     sums.add(x, y, z, cls, cloud.return_number, cloud.intensity)
     dem = sums.dem(fill_radius_px=dem_fill_radius_px)
@@ -274,7 +274,7 @@ def make_grids_streamed(path, res_m: float, footprint_cells: int = 3, chunk_poin
     args = grid_for_bounds(units.xy_to_m(mins[0]), units.xy_to_m(mins[1]), units.xy_to_m(maxs[0]),
                            units.xy_to_m(maxs[1]), res_m)
     check_grid(args[3], args[4], res_m, RASTER_BYTES_PER_CELL, f"{path}: rasters over the header bounds",
-               option="--res", hint="use a coarser --res (or check the bounds: strips far apart, a wrong CRS?)")
+               option="--res-m", hint="use a coarser --res-m (or check the bounds: strips far apart, a wrong CRS?)")
     sums = _CellSums(args)
     for x, y, z, cls, rn, inten in _file_points(path, units, chunk_points):
         sums.add(x, y, z, cls, rn, inten)
@@ -766,8 +766,8 @@ def write_rasters_tiled(paths, outdir, res_m: float, crs=None, *, tile_px: int =
     _, x0, y0, nrows, ncols = args
     if nrows < 2 or ncols < 2:  # a DEM, its slopes and the hillshade need neighbouring cells
         raise InputError(f"{inputs.names}: the points span {nrows} x {ncols} cells (rows x columns) of {res_m:g} m "
-                         "(header bounds); expected at least 2 x 2: a cloud of one point or one spot, or a --res "
-                         "coarser than the cloud", param="--res")
+                         "(header bounds); expected at least 2 x 2: a cloud of one point or one spot, or a --res-m "
+                         "coarser than the cloud", param="--res-m")
     win = min(tile_px + 2 * buffer_px, nrows), min(tile_px + 2 * buffer_px, ncols)
     check_grid(*win, res_m, RASTER_BYTES_PER_CELL, "rasters: one tile with its buffer",
                option="--tile-px", hint="use a smaller --tile-px")
@@ -776,7 +776,7 @@ def write_rasters_tiled(paths, outdir, res_m: float, crs=None, *, tile_px: int =
     # is mostly nodata, but the tiles are still visited and written)
     check_disk(2.0 * 4 * (len(RASTERS) + 1) * nrows * ncols, outdir,
                f"{inputs.names}: rasters over the header bounds, a grid of {nrows:,} x {ncols:,} cells of {res_m:g} m",
-               "--res", hint="use a coarser --res (or are strips far apart?)")
+               "--res-m", hint="use a coarser --res-m (or are strips far apart?)")
     check_task_count((-(-nrows // tile_px)) * (-(-ncols // tile_px)),
                      f"{inputs.names}: a grid of {nrows:,} x {ncols:,} cells in tiles of {tile_px} cells", "--tile-px",
                      "use a larger --tile-px")

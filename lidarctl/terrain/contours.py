@@ -2,8 +2,10 @@
 
 Tracing: marching squares on the cell centres (contourpy, C++), linear interpolation along the cell
 edges, cut cleanly where the DEM has nodata (masked cells); a contour that comes back to its start is
-closed. Levels are whole multiples of the interval, which is in the DEM's height unit (the unit of its CRS:
-feet for a DEM in feet, so 1 gives levels at whole feet); every ``index_every``-th level is an index contour.
+closed. Levels are whole multiples of the interval. The option gives it in metres, as every length
+option (``--interval-m``); it is converted to the DEM's height unit (the unit of its CRS) to 10 significant
+digits, so 0.3048 m on a DEM in feet (0.3048006096 m in US survey feet) gives levels at whole feet; every
+``index_every``-th level is an index contour.
 The work is bounded by the data, not by the interval: before tracing, the number of vertices the levels
 would make is counted exactly from the DEM (each level crossing a cell edge is one vertex, so it is the
 sum over the edges of |dz| / interval); more than ``MAX_VERTICES_PER_CELL`` per valid cell (adjacent
@@ -93,9 +95,11 @@ def vertex_count(dem: np.ndarray, interval: float) -> float:
     return n if np.isfinite(n) else float("inf")
 
 
-def check_interval(dem: np.ndarray, interval: float, unit: str = "", option: str = "--interval") -> float:
-    """The vertex count of ``interval`` on ``dem``; ``OptionError`` naming ``option`` when it exceeds
-    ``MAX_VERTICES_PER_CELL`` per valid cell, with the smallest interval that fits."""
+def check_interval(dem: np.ndarray, interval: float, unit: str = "", option: str = "--interval-m",
+                   unit_m: float = 1.0) -> float:
+    """The vertex count of ``interval`` (in the DEM's height ``unit`` of ``unit_m`` metres) on ``dem``;
+    ``OptionError`` naming ``option`` (a value in metres) when it exceeds ``MAX_VERTICES_PER_CELL`` per valid
+    cell, with the smallest interval that fits."""
     valid = int(np.isfinite(dem).sum())
     n = vertex_count(dem, interval)
     limit = MAX_VERTICES_PER_CELL * max(valid, 1)
@@ -113,12 +117,13 @@ def check_interval(dem: np.ndarray, interval: float, unit: str = "", option: str
         u = f" {unit}" if unit else ""
         raise OptionError(f"a contour interval of {interval:g}{u} gives about {n:.3g} contour vertices on this DEM of "
                           f"{valid:,} valid cells (more than {MAX_VERTICES_PER_CELL:g} per cell: adjacent levels less "
-                          f"than a cell apart); give an interval of at least {need:g}{u} (the DEM's height unit)",
+                          f"than a cell apart); give an interval of at least {need:g}{u} (the DEM's height unit): "
+                          f"{option} {need * unit_m:.10g}",
                           param=option)
     return n
 
 
-def trace(dem: np.ndarray, transform, interval: float, index_every: int = 5, option: str = "--interval") -> list:
+def trace(dem: np.ndarray, transform, interval: float, index_every: int = 5, option: str = "--interval-m") -> list:
     """Contours of ``dem`` (2-D, NaN = nodata; heights in any unit, ``interval`` in the same) with map
     coordinates from the affine ``transform`` (cell centres); levels at whole multiples of ``interval``.
     An interval that would make more than ``MAX_VERTICES_PER_CELL`` vertices per valid cell is refused
@@ -365,25 +370,26 @@ class ContoursResult:
     files: tuple[str, ...]
 
 
-def contours_from_file(dem_path, out_path, *, interval: float, index_every: int = 5, smoothing: str = "none",
+def contours_from_file(dem_path, out_path, *, interval_m: float, index_every: int = 5, smoothing: str = "none",
                        tolerance_px: float = 0.5, tension: float = 1.0, png: bool = True) -> ContoursResult:
     """Trace (and smooth) the contours of a DEM GeoTIFF into a GeoPackage/GeoJSON (+ a PNG preview beside it);
-    ``interval`` in the DEM's height unit (its CRS's: feet for a DEM in feet). Returns the summary (counts,
-    fall-backs, crossings, the interval and its unit)."""
-    from aerotri.geom.crs.definition import length_unit_name, unit_name
+    ``interval_m`` in metres, traced in the DEM's height unit (its CRS's: 0.3048 m is 1 ft on a DEM in feet).
+    Returns the summary (counts, fall-backs, crossings, the interval in the DEM's unit and that unit)."""
+    from aerotri.geom.crs.definition import length_in_units, length_unit_name, unit_name
     from lidarctl.terrain.dem_io import open_dem
 
-    if not (np.isfinite(interval) and interval > 0):
-        raise OptionError(f"the contour interval must be a positive number in the DEM's height unit, got {interval}",
-                          param="--interval")
+    if not (np.isfinite(interval_m) and interval_m > 0):
+        raise OptionError(f"the contour interval must be a positive number of metres, got {interval_m}",
+                          param="--interval-m")
     dem_path, out_path = Path(dem_path), Path(out_path)
     src, z_m = open_dem(dem_path, out_path)
+    interval = length_in_units(interval_m, z_m)
     with src:
         # contours are lines over the whole DEM: it is read whole (a 10 x 10 km DEM at 1 m is 400 MB in float32)
         dem = src.read(1, masked=True).astype(np.float64).filled(np.nan)
         transform, crs = src.transform, src.crs
     z_unit = length_unit_name(z_m)
-    check_interval(dem, interval, z_unit)  # before any work: the interval fits the data
+    check_interval(dem, interval, z_unit, unit_m=z_m)  # before any work: the interval fits the data
     traced = trace(dem, transform, interval, index_every)
     footprint = data_footprint(np.isfinite(dem), transform) if smoothing != "none" else None
     contours, fell_back = smooth_contours(traced, smoothing, abs(transform.a), tolerance_px, tension, footprint)

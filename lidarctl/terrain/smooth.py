@@ -71,7 +71,7 @@ class DiffusionSettings:
         if self.order not in MAX_STEP:
             raise OptionError(f"the diffusion order is 2 or 4, got {self.order}", param="--order")
         if not (np.isfinite(self.edge_m) and self.edge_m > 0):
-            raise OptionError(f"the edge height must be a positive number of metres, got {self.edge_m}", param="--edge")
+            raise OptionError(f"the edge height must be a positive number of metres, got {self.edge_m}", param="--edge-m")
         if self.iterations < 1:
             raise OptionError(f"at least one iteration, got {self.iterations}", param="--iterations")
         if not (0 < self.time_step <= MAX_STEP[self.order]):

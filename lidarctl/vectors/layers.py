@@ -500,6 +500,7 @@ def _read_contours(path: Path, cloud_crs) -> Layer:
 def _dem_contours(path: Path, out_path: Path, interval_m: float, cloud_crs) -> Layer:
     import shapely
 
+    from aerotri.geom.crs.definition import length_in_units
     from lidarctl.terrain.contours import trace
     from lidarctl.terrain.dem_io import open_dem
 
@@ -508,7 +509,7 @@ def _dem_contours(path: Path, out_path: Path, interval_m: float, cloud_crs) -> L
         _same_crs(path, src.crs.to_wkt(), cloud_crs)
         dem = src.read(1, masked=True).astype(np.float64).filled(np.nan)
         transform = src.transform
-    cs = trace(dem, transform, interval_m / z_m)
+    cs = trace(dem, transform, length_in_units(interval_m, z_m), option="--contour-interval-m")
     return Layer("contours", "LineString", [shapely.LineString(c.xy) for c in cs],
                  {"elevation": np.array([c.level for c in cs], float),
                   "elevation_m": np.array([c.level * z_m for c in cs], float),

@@ -42,7 +42,7 @@ def test_classify_evaluate_rasters_round_trip(scene):
     assert ev["filter_test"]["total_error_pct"] < 2.0
     assert "type I" in r.output and "producer" in r.output
 
-    r = CliRunner().invoke(main, ["rasters", str(d / "out.laz"), str(d / "rasters"), "--res", "1"])
+    r = CliRunner().invoke(main, ["rasters", str(d / "out.laz"), str(d / "rasters"), "--res-m", "1"])
     assert r.exit_code == 0, r.output
     with rasterio.open(d / "rasters" / "dem.tif") as ds:
         assert ds.crs.to_epsg() == 32632 and ds.nodata == -9999.0

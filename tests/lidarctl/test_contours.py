@@ -73,12 +73,12 @@ def test_command_geopackage_and_feet(tmp_path):
     from pyogrio.raw import read
 
     z, t = _dem()
-    for name, crs, scale in (("m", "EPSG:32631", 1.0), ("ft", "EPSG:2992", 1200.0 / 3937.0)):
+    for name, crs, scale, interval_m in (("m", "EPSG:32631", 1.0, "2"), ("ft", "EPSG:2992", 1200.0 / 3937.0, "0.6096")):
         with rasterio.open(tmp_path / f"dem_{name}.tif", "w", driver="GTiff", width=500, height=400, count=1,
                            dtype="float32", crs=crs, transform=t, nodata=-9999.0) as d:
             d.write(np.where(np.isfinite(z), z / scale, -9999.0).astype("float32"), 1)
         r = CliRunner().invoke(main, ["contours", str(tmp_path / f"dem_{name}.tif"), str(tmp_path / f"c_{name}.gpkg"),
-                                      "--interval", "2", "--smooth", "bspline"])
+                                      "--interval-m", interval_m, "--smooth", "bspline"])
         assert r.exit_code == 0, r.output
         assert (tmp_path / f"c_{name}.png").stat().st_size > 10_000
         info = read_info(tmp_path / f"c_{name}.gpkg", layer="contours")
@@ -86,15 +86,15 @@ def test_command_geopackage_and_feet(tmp_path):
         meta, _, geom, fields = read(tmp_path / f"c_{name}.gpkg", layer="contours")
         elev = fields[list(meta["fields"]).index("elevation")]
         elev_m = fields[list(meta["fields"]).index("elevation_m")]
-        # the interval is in the DEM's height unit: levels at whole multiples of 2 m, or of 2 ft for the DEM in
-        # feet; elevation_m converts with the CRS's unit
+        # the interval is traced in the DEM's height unit: levels at whole multiples of 2 m, or of 2 ft (0.6096 m)
+        # for the DEM in feet; elevation_m converts with the CRS's unit
         assert np.array_equal(elev, 2.0 * np.round(elev / 2.0)) and np.allclose(np.diff(np.unique(elev)), 2.0)
         assert np.allclose(elev_m, elev * scale)
         assert f"every 2 {name}" in r.output and "the DEM's height unit" in r.output
-    r = CliRunner().invoke(main, ["contours", str(tmp_path / "dem_m.tif"), str(tmp_path / "c.shp"), "--interval", "1"])
+    r = CliRunner().invoke(main, ["contours", str(tmp_path / "dem_m.tif"), str(tmp_path / "c.shp"), "--interval-m", "1"])
     assert r.exit_code == 2 and ".gpkg" in r.output and not (tmp_path / "c.shp").exists()
     (tmp_path / "bad.tif").write_text("no raster")
-    r = CliRunner().invoke(main, ["contours", str(tmp_path / "bad.tif"), str(tmp_path / "x.gpkg"), "--interval", "1"])
+    r = CliRunner().invoke(main, ["contours", str(tmp_path / "bad.tif"), str(tmp_path / "x.gpkg"), "--interval-m", "1"])
     assert r.exit_code == 2 and "bad.tif" in r.output and "Traceback" not in r.output
     assert not (tmp_path / "x.gpkg").exists()
 
@@ -142,19 +142,27 @@ def _feet_dem(path, z_ft, t):
 
 
 def test_feet_dem_levels_at_whole_feet(tmp_path):
-    """Autzen's case (a DEM in feet, 406-435 ft): --interval 1 gives levels at whole feet, not 1 m apart at
-    406.82, 410.10 ft; every traced vertex lies on its level."""
+    """Autzen's case (a DEM in feet, 406-435 ft): --interval-m 0.3048 gives levels at whole feet, not at
+    binary-noise neighbours of them; every traced vertex lies on its level. The option is in metres, as every
+    length option: 1 gives levels 1 m (3.2808399 ft) apart."""
     from pyogrio.raw import read
 
     z, t = _dem(nodata_band=False)
     z_ft = 406.3 + (z - np.nanmin(z)) * (434.9 - 406.3) / (np.nanmax(z) - np.nanmin(z))
     dem = _feet_dem(tmp_path / "dem_ft.tif", z_ft, t)
-    r = CliRunner().invoke(main, ["contours", str(dem), str(tmp_path / "c.gpkg"), "--interval", "1", "--no-png"])
+    r = CliRunner().invoke(main, ["contours", str(dem), str(tmp_path / "c.gpkg"), "--interval-m", "0.3048",
+                                  "--no-png"])
     assert r.exit_code == 0, r.output
     meta, _, _, fields = read(tmp_path / "c.gpkg", layer="contours")
     elev = fields[list(meta["fields"]).index("elevation")]
     assert set(np.unique(elev)) == set(np.arange(407.0, 435.0))  # 407 ... 434 ft, whole feet
     assert "every 1 ft" in r.output and "from 407 to 434 ft" in r.output
+    r = CliRunner().invoke(main, ["contours", str(dem), str(tmp_path / "c_m.gpkg"), "--interval-m", "1", "--no-png"])
+    assert r.exit_code == 0, r.output
+    meta, _, _, fields = read(tmp_path / "c_m.gpkg", layer="contours")
+    levels = np.unique(fields[list(meta["fields"]).index("elevation")])
+    assert np.allclose(np.diff(levels), 1 / 0.3048, rtol=1e-9) and levels[0] == pytest.approx(124 / 0.3048)
+    assert "every 3.28084 ft" in r.output
     # sub-unit intervals land on their own multiples too (no binary noise: 0.1 x 4071 is 407.1)
     cs = trace(z_ft, t, 0.5, 5)
     assert all(c.level * 2 == round(c.level * 2) for c in cs)
@@ -170,9 +178,9 @@ def test_interval_too_fine_for_the_data_is_refused_fast(tmp_path):
     z, t = _dem()
     dem = _feet_dem(tmp_path / "dem.tif", z / 0.3048, t)
     t0 = time.perf_counter()
-    r = CliRunner().invoke(main, ["contours", str(dem), str(tmp_path / "c.gpkg"), "--interval", "0.001"])
+    r = CliRunner().invoke(main, ["contours", str(dem), str(tmp_path / "c.gpkg"), "--interval-m", "0.001"])
     assert time.perf_counter() - t0 < 10.0
-    assert r.exit_code == 2 and "--interval" in r.output and "ft" in r.output and "at least" in r.output
+    assert r.exit_code == 2 and "--interval-m" in r.output and "ft" in r.output and "at least" in r.output
     assert "Traceback" not in r.output and not (tmp_path / "c.gpkg").exists() and not (tmp_path / "c.png").exists()
     # the count is exact: the vertices traced at an accepted interval
     zz = z[:60, :80]
@@ -189,7 +197,7 @@ def test_interval_too_fine_for_the_data_is_refused_fast(tmp_path):
 
     with pytest.raises(OptionError, match="at least") as e:
         trace(z, t, 1e-310, 5)
-    assert e.value.param == "--interval"
+    assert e.value.param == "--interval-m"
 
 
 def test_a_zero_level_reached_from_below_is_written_0(tmp_path):
@@ -197,6 +205,7 @@ def test_a_zero_level_reached_from_below_is_written_0(tmp_path):
     z, t = _dem(nodata_band=False)
     z_ft = -0.6 + (z - np.nanmin(z)) * 4.0 / (np.nanmax(z) - np.nanmin(z))
     dem = _feet_dem(tmp_path / "dem_ft.tif", z_ft, t)
-    r = CliRunner().invoke(main, ["contours", str(dem), str(tmp_path / "c.gpkg"), "--interval", "1", "--no-png"])
+    r = CliRunner().invoke(main, ["contours", str(dem), str(tmp_path / "c.gpkg"), "--interval-m", "0.3048",
+                                  "--no-png"])
     assert r.exit_code == 0, r.output
     assert "from 0 to 3 ft" in r.output and "from -0" not in r.output and " -0 " not in r.output

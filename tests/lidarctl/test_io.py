@@ -46,7 +46,7 @@ def _commands(bad: Path, good: Path, points: Path, out: Path):
     """Every lidarctl command reading ``bad`` (a classified cloud), writing under ``out``."""
     return {
         "classify": ["classify", bad, out / "o.laz"],
-        "rasters": ["rasters", bad, out / "r", "--res", "2"],
+        "rasters": ["rasters", bad, out / "r", "--res-m", "2"],
         "evaluate": ["evaluate", bad, "--truth", good],
         "evaluate-truth": ["evaluate", good, "--truth", bad],
         "check-heights": ["check-heights", bad, points, "--json", out / "hc.json"],
@@ -178,7 +178,7 @@ def test_strips_far_apart_are_refused_before_allocating(tmp_path):
     las.x, las.y, las.z = np.concatenate([a.x, b.x]), np.concatenate([a.y, b.y]), np.concatenate([a.z, b.z])
     las.classification = np.concatenate([a.classification, b.classification])
     las.write(merged)
-    for args, text in ((["rasters", merged, tmp_path / "r", "--res", "1"], "--res"),
+    for args, text in ((["rasters", merged, tmp_path / "r", "--res-m", "1"], "--res-m"),
                        (["classify", merged, tmp_path / "c.laz"], "are strips far apart")):
         r = CliRunner().invoke(main, [str(x) for x in args])
         assert r.exit_code == 2 and r.output.count("\n") == 1, r.output
@@ -187,18 +187,18 @@ def test_strips_far_apart_are_refused_before_allocating(tmp_path):
 
 
 @pytest.mark.parametrize("args,option", [
-    (["classify", "{las}", "{out}/o.laz", "--tile-size", "0"], "--tile-size"),
-    (["classify", "{las}", "{out}/o.laz", "--tile-size", "-50"], "--tile-size"),
-    (["classify", "{las}", "{out}/o.laz", "--buffer", "0"], "--buffer"),
-    (["classify", "{las}", "{out}/o.laz", "--buffer", "-5"], "--buffer"),
-    (["classify", "{las}", "{out}/o.laz", "--tile-size", "nan"], "--tile-size"),
-    (["rasters", "{las}", "{out}/r", "--res", "0"], "--res"),
-    (["rasters", "{las}", "{out}/r", "--res", "-1"], "--res"),
-    (["rasters", "{las}", "{out}/r", "--res", "nan"], "--res"),
-    (["check-heights", "{las}", "{pts}", "--radius", "-1"], "--radius"),
-    (["check-heights", "{las}", "{pts}", "--radius", "0"], "--radius"),
-    (["check-heights", "{las}", "{pts}", "--exclude", "-0.5"], "--exclude"),
-    (["check-heights", "{las}", "{pts}", "--radius", "inf"], "--radius"),
+    (["classify", "{las}", "{out}/o.laz", "--tile-size-m", "0"], "--tile-size-m"),
+    (["classify", "{las}", "{out}/o.laz", "--tile-size-m", "-50"], "--tile-size-m"),
+    (["classify", "{las}", "{out}/o.laz", "--buffer-m", "0"], "--buffer-m"),
+    (["classify", "{las}", "{out}/o.laz", "--buffer-m", "-5"], "--buffer-m"),
+    (["classify", "{las}", "{out}/o.laz", "--tile-size-m", "nan"], "--tile-size-m"),
+    (["rasters", "{las}", "{out}/r", "--res-m", "0"], "--res-m"),
+    (["rasters", "{las}", "{out}/r", "--res-m", "-1"], "--res-m"),
+    (["rasters", "{las}", "{out}/r", "--res-m", "nan"], "--res-m"),
+    (["check-heights", "{las}", "{pts}", "--radius-m", "-1"], "--radius-m"),
+    (["check-heights", "{las}", "{pts}", "--radius-m", "0"], "--radius-m"),
+    (["check-heights", "{las}", "{pts}", "--exclude-m", "-0.5"], "--exclude-m"),
+    (["check-heights", "{las}", "{pts}", "--radius-m", "inf"], "--radius-m"),
     (["corners", "{las}", "{out}/co", "--min-edge-m", "0.1"], "--min-edge-m"),
     (["corners", "{las}", "{out}/co", "--sigma-strip-xy-m", "-1"], "--sigma-strip-xy-m"),
 ])
@@ -227,7 +227,7 @@ def test_outputs_never_replace_an_input(files, tmp_path):
     for args in (["classify", las, las],
                  ["evaluate", las, "--truth", d / "c14.las", "--json", las],
                  ["check-heights", las, pts, "--json", pts],
-                 ["rasters", disguised, tmp_path / "out", "--res", "2"],
+                 ["rasters", disguised, tmp_path / "out", "--res-m", "2"],
                  ["corners", corners_json, tmp_path / "out"]):
         r = CliRunner().invoke(main, [str(a) for a in args])
         assert r.exit_code == 2 and "the output is the input" in r.output, (args, r.output)

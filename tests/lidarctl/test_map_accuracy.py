@@ -152,7 +152,7 @@ def test_polygons_reference_cloud_and_raster_prediction(tmp_path, crs, unit_m):
     res = 1.0 * unit_m   # one cell per CRS unit
     for pred_path in ("c.las", "p.tif"):
         out = tmp_path / f"{pred_path}.json"
-        r = _run(["evaluate", tmp_path / pred_path, "--reference", tmp_path / "ref.geojson", "--res", res,
+        r = _run(["evaluate", tmp_path / pred_path, "--reference", tmp_path / "ref.geojson", "--res-m", res,
                   "--min-building-m2", 10 * unit_m ** 2, "--json", out])
         assert r.exit_code == 0, r.output
         d = json.loads(out.read_text())
@@ -165,7 +165,7 @@ def test_polygons_reference_cloud_and_raster_prediction(tmp_path, crs, unit_m):
         assert b["reference_area_m2"] == pytest.approx(58 * unit_m ** 2)
         assert b["overall_accuracy_pct"] == pytest.approx(100 * (400 - 34) / 400)
     # only inside the blocks' hulls: the three polygons are apart, so the hulls are the polygons
-    r = _run(["evaluate", tmp_path / "c.las", "--reference", tmp_path / "ref.geojson", "--res", res,
+    r = _run(["evaluate", tmp_path / "c.las", "--reference", tmp_path / "ref.geojson", "--res-m", res,
               "--within", "hull", "--json", tmp_path / "h.json"])
     assert r.exit_code == 0, r.output
     c = json.loads((tmp_path / "h.json").read_text())["confusion"]

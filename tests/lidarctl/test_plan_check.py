@@ -52,7 +52,7 @@ def scene(tmp_path_factory):
 
 def test_check_plan_recovers_the_bias_and_counts(scene):
     d, n_true = scene
-    r = CliRunner().invoke(main, ["check-plan", str(d / "classified.las"), str(d / "points.csv"), "--radius", "1.5",
+    r = CliRunner().invoke(main, ["check-plan", str(d / "classified.las"), str(d / "points.csv"), "--radius-m", "1.5",
                                   "--json", str(d / "plan.json"), "--png", str(d / "plan.png")])
     assert r.exit_code == 0, r.output
     res = read_plan_check(d / "plan.json")
@@ -125,4 +125,4 @@ def test_bad_input_stops_with_exit_2_and_writes_nothing(scene):
     assert "none of its 2 points lies within the extent" in out
     out = _bad(scene, f"id,x,y\nA,{E0 + 100},{N0 + 100}\n", "--points-crs", "EPSG:32650")
     assert "EPSG:32650" in out or "UTM zone 50N" in out
-    assert "--radius" in _bad(scene, f"id,x,y\nA,{E0 + 100},{N0 + 100}\n", "--radius", "-1")
+    assert "--radius-m" in _bad(scene, f"id,x,y\nA,{E0 + 100},{N0 + 100}\n", "--radius-m", "-1")

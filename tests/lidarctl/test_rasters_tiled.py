@@ -64,25 +64,25 @@ def test_tiled_rasters_equal_whole_grids(strips, tmp_path, names, tile_px, buffe
 def test_rasters_cli_several_files_and_errors(strips, tmp_path):
     out = tmp_path / "r"
     r = CliRunner().invoke(main, ["rasters", str(strips / "west.las"), str(strips / "east.las"), str(out),
-                                  "--res", "2", "--tile-px", "40", "--buffer-px", "20"])
+                                  "--res-m", "2", "--tile-px", "40", "--buffer-px", "20"])
     assert r.exit_code == 0, r.output
     with rasterio.open(out / "dem.tif") as ds:
         assert ds.crs.to_epsg() == 32632 and ds.width == 150 and ds.is_tiled
         dem = ds.read(1, masked=True)
     assert dem.count() > 0.95 * dem.size                                   # the strips cover the square
     before = {f: (out / f).read_bytes() for f in rasters.FILES}
-    r = CliRunner().invoke(main, ["rasters", str(strips / "west.las"), str(out), "--res", "2", "--tile-px", "10",
+    r = CliRunner().invoke(main, ["rasters", str(strips / "west.las"), str(out), "--res-m", "2", "--tile-px", "10",
                                   "--buffer-px", "20"])
     assert r.exit_code == 2 and "--buffer-px" in r.output
     # a file in another CRS: refused before anything is written, the old set stays
     cloud = io.read_cloud(strips / "east.las")
     synthetic.write_las(tmp_path / "other.las", cloud, crs="EPSG:32633")
     r = CliRunner().invoke(main, ["rasters", str(strips / "west.las"), str(tmp_path / "other.las"), str(out),
-                                  "--res", "2"])
+                                  "--res-m", "2"])
     assert r.exit_code == 2 and "other.las" in r.output and "differs" in r.output
     cloud.classification[:] = 1
     synthetic.write_las(tmp_path / "unclassified.las", cloud, crs="EPSG:32632")
-    r = CliRunner().invoke(main, ["rasters", str(tmp_path / "unclassified.las"), str(out), "--res", "2"])
+    r = CliRunner().invoke(main, ["rasters", str(tmp_path / "unclassified.las"), str(out), "--res-m", "2"])
     assert r.exit_code == 2 and "no ground points" in r.output
     assert {f: (out / f).read_bytes() for f in rasters.FILES} == before
     assert sorted(p.name for p in out.iterdir()) == sorted(rasters.FILES)

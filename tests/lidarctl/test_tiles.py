@@ -106,9 +106,9 @@ def test_plan_defaults_and_option_errors(big):
     fine = tiles.plan_tiles(header, buffer_m=10.0, tile_points=50_000)    # 112 - 20 m -> 3 x 100 m
     assert (fine.nrows, fine.ncols) == (3, 3) and fine.tile_m == 100.0
     assert tiles.default_buffer_m("ptd") == 30.0 and tiles.default_buffer_m("ptd", ground_params={"seed_cell_m": 60}) == 90
-    with pytest.raises(InputError, match="--buffer"):
+    with pytest.raises(InputError, match="--buffer-m"):
         tiles.plan_tiles(header, tile_size_m=50.0, buffer_m=60.0)
-    with pytest.raises(InputError, match="--tile-size"):
+    with pytest.raises(InputError, match="--tile-size-m"):
         tiles.plan_tiles(header, tile_size_m=-5.0)
 
 
@@ -179,7 +179,7 @@ def test_same_bytes_for_synchronous_threads_and_local_cluster(small):
     outs = []
     for sched in ("synchronous", None, "local:2"):
         out = d / f"out_{sched or 'threads'}.laz".replace(":", "")
-        args = ["classify", str(d / "in.laz"), str(out), "--tile-size", "100", "--buffer", "40"]
+        args = ["classify", str(d / "in.laz"), str(out), "--tile-size-m", "100", "--buffer-m", "40"]
         if sched:
             args += ["--scheduler", sched]
         r = CliRunner().invoke(main, args)
@@ -192,7 +192,7 @@ def test_same_bytes_for_synchronous_threads_and_local_cluster(small):
 def test_las12_input_with_crs_option_tiled(small, tmp_path):
     out = tmp_path / "o.las"
     r = CliRunner().invoke(main, ["classify", str(small / "v12.las"), str(out), "--crs", "EPSG:32632",
-                                  "--tile-size", "100", "--buffer", "40", "--scheduler", "synchronous"])
+                                  "--tile-size-m", "100", "--buffer-m", "40", "--scheduler", "synchronous"])
     assert r.exit_code == 0, r.output
     src, res = laspy.read(small / "v12.las"), laspy.read(out)
     assert res.header.version == src.header.version and res.header.point_format.id == 1
@@ -216,7 +216,7 @@ def test_bad_input_in_tiled_mode_gives_exit_2_and_no_output(small, tmp_path):
     cloud = io.read_cloud(d / "in.laz")
     cloud.z[len(cloud) - 5] = 1.0e6                                 # late record: found in pass 1
     synthetic.write_las(tmp_path / "absurd.las", cloud, crs="EPSG:32632")
-    tiled = ["--tile-size", "100", "--buffer", "40"]
+    tiled = ["--tile-size-m", "100", "--buffer-m", "40"]
     _fails(["classify", str(tmp_path / "absurd.las"), str(out), *tiled], out, f"record {len(cloud) - 5}")
     cloud.z[len(cloud) - 5] = 100.0
     cloud.x[7] = np.nan                              # the writer's x offset (floor of the minimum) is NaN
@@ -226,7 +226,7 @@ def test_bad_input_in_tiled_mode_gives_exit_2_and_no_output(small, tmp_path):
     (tmp_path / "trunc.laz").write_bytes(data[: len(data) * 2 // 3])
     _fails(["classify", str(tmp_path / "trunc.laz"), str(out), *tiled], out, "trunc.laz")
     _fails(["classify", str(d / "v12.las"), str(out), *tiled], out, "no CRS record")
-    _fails(["classify", str(d / "in.laz"), str(out), "--tile-size", "30"], out, "--buffer")
+    _fails(["classify", str(d / "in.laz"), str(out), "--tile-size-m", "30"], out, "--buffer-m")
 
 
 def test_interrupt_during_tasks_leaves_no_output(small, tmp_path, monkeypatch):
@@ -257,7 +257,7 @@ def test_streamed_rasters_equal_in_memory_grids(classified, tmp_path):
         np.testing.assert_array_equal(np.isfinite(a), np.isfinite(b))
         # Means summed chunk by chunk: equal up to the summation order (float32 rounding).
         np.testing.assert_allclose(b[np.isfinite(b)], a[np.isfinite(a)], rtol=1e-6, atol=1e-4)
-    r = CliRunner().invoke(main, ["rasters", str(classified), str(tmp_path / "r"), "--res", "2"])
+    r = CliRunner().invoke(main, ["rasters", str(classified), str(tmp_path / "r"), "--res-m", "2"])
     assert r.exit_code == 0, r.output
     import rasterio
     with rasterio.open(tmp_path / "r" / "dem.tif") as ds:
@@ -267,7 +267,7 @@ def test_streamed_rasters_equal_in_memory_grids(classified, tmp_path):
     raw = laspy.read(classified)
     raw.classification = np.ones(len(raw.points), np.uint8)
     raw.write(tmp_path / "unclassified.laz")
-    r = CliRunner().invoke(main, ["rasters", str(tmp_path / "unclassified.laz"), str(tmp_path / "r2"), "--res", "2"])
+    r = CliRunner().invoke(main, ["rasters", str(tmp_path / "unclassified.laz"), str(tmp_path / "r2"), "--res-m", "2"])
     assert r.exit_code == 2 and "no ground points" in r.output
     assert not (tmp_path / "r2" / "dem.tif").exists()
 
@@ -354,7 +354,7 @@ def test_strips_that_differ_are_refused_naming_the_strip_and_leave_no_output(str
     r = CliRunner().invoke(main, ["classify", str(paths[0]), str(other), str(tmp_path / "out")])
     assert r.exit_code == 2 and "zone33.las" in r.stderr and "Traceback" not in r.output
     r = CliRunner().invoke(main, ["classify", *map(str, paths), str(tmp_path / "out"), "--format", "las",
-                                  "--tile-size", "100", "--buffer", "40"])
+                                  "--tile-size-m", "100", "--buffer-m", "40"])
     assert r.exit_code == 0, r.output
     assert "of 3 strips" in r.output and sorted(p.name for p in (tmp_path / "out").iterdir()) == [
         "strip_0.las", "strip_1.las", "strip_2.las"]

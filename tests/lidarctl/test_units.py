@@ -91,7 +91,7 @@ def test_reading_scales_feet_to_metres(scenes):
 @pytest.mark.parametrize("name", ["ft", "usft"])
 def test_classify_feet_equals_metric_copy(scenes, name):
     d = scenes["dir"]
-    for extra, tag in (([], "one"), (["--tile-size", "80", "--buffer", "40"], "tiled")):
+    for extra, tag in (([], "one"), (["--tile-size-m", "80", "--buffer-m", "40"], "tiled")):
         r = _ok(["classify", d / f"{name}.laz", d / f"{name}_{tag}.laz", *extra])
         assert "processed in metres" in r.output and f"tiles of {80 if extra else 160} m" in r.output, r.output
         _ok(["classify", d / f"{name}_m.laz", d / f"{name}_m_{tag}.laz", *extra])
@@ -111,8 +111,8 @@ def test_rasters_in_feet_have_metre_cells_and_say_their_units(scenes):
     d = scenes["dir"]
     _ok(["classify", d / "ft.laz", d / "ft_c.laz"])
     _ok(["classify", d / "ft_m.laz", d / "ft_m_c.laz"])
-    _ok(["rasters", d / "ft_c.laz", d / "r_ft", "--res", "1"])
-    _ok(["rasters", d / "ft_m_c.laz", d / "r_m", "--res", "1"])
+    _ok(["rasters", d / "ft_c.laz", d / "r_ft", "--res-m", "1"])
+    _ok(["rasters", d / "ft_m_c.laz", d / "r_m", "--res-m", "1"])
     for name in ("dem", "dsm", "ndsm", "chm", "intensity"):
         with rasterio.open(d / "r_ft" / f"{name}.tif") as f, rasterio.open(d / "r_m" / f"{name}.tif") as m:
             assert f.res == pytest.approx((1 / FOOT_M, 1 / FOOT_M))       # 1 m cells, 3.2808 ft
@@ -147,7 +147,7 @@ def test_check_heights_in_feet_reports_metres(scenes, tmp_path):
     pts = tmp_path / "points_ft.csv"
     pts.write_text("id,x,y,z\n" + "".join(f"P{k},{a / FOOT_M:.4f},{b / FOOT_M:.4f},{c / FOOT_M:.4f}\n"
                                           for k, (a, b, c) in enumerate(zip(px_m, py_m, pz_m))))
-    r = _ok(["check-heights", d / "ft_h.laz", pts, "--radius", "3", "--json", tmp_path / "hc.json"])
+    r = _ok(["check-heights", d / "ft_h.laz", pts, "--radius-m", "3", "--json", tmp_path / "hc.json"])
     hc = json.loads((tmp_path / "hc.json").read_text())
     assert hc["radius_m"] == 3 and hc["xy_unit"] == "ft" and hc["z_unit"] == "ft"
     assert hc["overall"]["all"]["mean_dz_m"] == pytest.approx(0.2, abs=0.05)     # metres, not feet
@@ -223,7 +223,7 @@ def test_geographic_crs_is_refused(scenes, tmp_path):
     nocrs = tmp_path / "nocrs.las"
     synthetic.write_las(nocrs, cloud, version="1.2")
     for args in (["classify", nocrs, tmp_path / "o.las", "--crs", "EPSG:4326"],
-                 ["rasters", nocrs, tmp_path / "r", "--res", "1", "--crs", "EPSG:4326"]):
+                 ["rasters", nocrs, tmp_path / "r", "--res-m", "1", "--crs", "EPSG:4326"]):
         r = _run(args)
         assert r.exit_code == 2 and "geographic" in r.output and "EPSG:4326" in r.output, r.output
 
@@ -241,7 +241,7 @@ def test_autzen_in_feet_equals_its_metric_copy(shared_data, tmp_path):
     a, b = _classes(tmp_path / "ft.laz"), _classes(tmp_path / "m.laz")
     assert np.mean(a != b) * 100 < 0.1, f"{np.mean(a != b) * 100:.3f} % of the points differ"
     assert np.mean(a == 2) > 0.7          # mostly ground (the stadium's surroundings)
-    _ok(["rasters", tmp_path / "ft.laz", tmp_path / "r", "--res", "1"])
+    _ok(["rasters", tmp_path / "ft.laz", tmp_path / "r", "--res-m", "1"])
     with rasterio.open(tmp_path / "r" / "dem.tif") as ds:
         assert ds.res == pytest.approx((1 / FOOT_M, 1 / FOOT_M))
         assert ds.units == ("foot",)
@@ -286,7 +286,7 @@ def test_dem_keeps_the_compound_crs_of_its_cloud(scenes, tmp_path):
     src = tmp_path / "nocrs.las"
     synthetic.write_las(src, z_ft, version="1.4")
     _ok(["classify", src, tmp_path / "out.las", "--crs", "EPSG:32610+6360"])
-    _ok(["rasters", tmp_path / "out.las", tmp_path / "r", "--res", "1"])
+    _ok(["rasters", tmp_path / "out.las", tmp_path / "r", "--res-m", "1"])
     with rasterio.open(tmp_path / "r" / "dem.tif") as dem, rasterio.open(tmp_path / "r" / "ndsm.tif") as ndsm:
         assert CRS(dem.crs).is_compound and "NAVD88" in CRS(dem.crs).sub_crs_list[1].name
         assert not CRS(ndsm.crs).is_compound and CRS(ndsm.crs).to_epsg() == 32610

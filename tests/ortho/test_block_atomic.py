@@ -133,7 +133,7 @@ def test_subset_rerun_keeps_the_other_frames(project):
     r = run("mosaic", project, "--seams", "voronoi")
     assert r.exit_code == 0, r.output
     # a subset on another grid replaces the frames: the index never mixes grids
-    r = run("rectify", project, "--frames", "s01_002", "--res", "0.4")
+    r = run("rectify", project, "--frames", "s01_002", "--res-m", "0.4")
     assert r.exit_code == 0, r.output
     index = json.loads((frames / "index.json").read_text())
     assert [e["image_id"] for e in index["frames"]] == ["s01_002"] and index["res_m"] == 0.4
@@ -212,16 +212,16 @@ def test_limits():
     assert total > 0
     check_allocation(total * 0.1, "a small array", "--opt")
     with pytest.raises(ResourceError) as e:
-        check_allocation(total * 2, "the ortho", "--res")
-    assert "--res" in e.value.user_message() and "GiB" in str(e.value)
+        check_allocation(total * 2, "the ortho", "--res-m")
+    assert "--res-m" in e.value.user_message() and "GiB" in str(e.value)
     with pytest.raises(ResourceError):
-        check_grid(3e9, 10, "a grid", "--res")
+        check_grid(3e9, 10, "a grid", "--res-m")
     with pytest.raises(ResourceError):
         check_grid(0, 10, "a grid")
 
 
 @pytest.mark.parametrize("args, option", [
-    (["rectify", "{p}", "--res", "0.0005"], "--res"),
+    (["rectify", "{p}", "--res-m", "0.0005"], "--res-m"),
     (["mosaic", "{p}", "--tile-px", "1000000"], "--tile-px"),
     (["check", "{p}", "--reference", "{p}/truth/ortho.tif", "--patch-px", "400000"], "--patch-px"),
 ])

@@ -60,7 +60,7 @@ def gk_project(tiny_project, tmp_path_factory):
 
 def _rectify(root, *extra):
     return CliRunner().invoke(ortho_cli, ["rectify", str(root), "--eo", str(root / "truth" / "eo.txt"), "--dem",
-                                          str(root / "truth" / "dem.tif"), "--res", "1", *map(str, extra)])
+                                          str(root / "truth" / "dem.tif"), "--res-m", "1", *map(str, extra)])
 
 
 @pytest.mark.parametrize("datum", ["xian1980", "cgcs2000"])

@@ -25,7 +25,7 @@ def run(*args):
 def block(tmp_path_factory):
     root = tmp_path_factory.mktemp("view_angle") / "p"
     write_synthetic_project(root, strips=1, frames_per_strip=2, buildings=0, seed=5)
-    r = run("rectify", root, "--max-view-angle", 90)
+    r = run("rectify", root, "--max-view-angle-deg", 90)
     assert r.exit_code == 0, r.output
     unlimited = root.parent / "unlimited"
     shutil.copytree(root / "ortho", unlimited)
@@ -50,7 +50,7 @@ def test_cells_beyond_the_limit_are_nodata_and_the_rest_unchanged(block, tmp_pat
     work = tmp_path / "p"
     shutil.copytree(root, work)
     shutil.rmtree(work / "ortho")
-    r = run("rectify", work, "--max-view-angle", 8)  # the synthetic frames reach about 12 deg at their corners
+    r = run("rectify", work, "--max-view-angle-deg", 8)  # the synthetic frames reach about 12 deg at their corners
     assert r.exit_code == 0, r.output
     index = json.loads((work / "ortho/frames/index.json").read_text())
     assert index["settings"]["max_view_angle_deg"]["value"] == 8
@@ -79,7 +79,7 @@ def test_a_limit_beyond_the_frames_field_changes_nothing(block, tmp_path):
     work = tmp_path / "p"
     shutil.copytree(root, work)
     shutil.rmtree(work / "ortho")
-    assert run("rectify", work, "--max-view-angle", 40).exit_code == 0  # the frames reach about 12 deg
+    assert run("rectify", work, "--max-view-angle-deg", 40).exit_code == 0  # the frames reach about 12 deg
     for f in sorted((unlimited / "frames").glob("*.tif")):
         with rasterio.open(f) as ds, rasterio.open(work / "ortho/frames" / f.name) as dn:
             assert ds.transform == dn.transform and ds.shape == dn.shape
@@ -89,7 +89,7 @@ def test_a_limit_beyond_the_frames_field_changes_nothing(block, tmp_path):
 @pytest.mark.parametrize("value", ["0", "95", "nan"])
 def test_a_bad_limit_is_refused(block, value):
     root, _ = block
-    r = run("rectify", root, "--max-view-angle", value)
+    r = run("rectify", root, "--max-view-angle-deg", value)
     assert r.exit_code == 2 and "max-view-angle" in r.output and "Traceback" not in r.output
 
 

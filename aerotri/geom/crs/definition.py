@@ -8,6 +8,7 @@ feet for metres, eastings without the Gauss-Krueger zone prefix, or a wrong zone
 from __future__ import annotations
 
 import functools
+import math
 
 import numpy as np
 import pyproj
@@ -123,6 +124,14 @@ def linear_unit_m(crs: pyproj.CRS) -> float:
     if h.is_geographic:
         return float("nan")
     return float(h.axis_info[0].unit_conversion_factor)
+
+
+def length_in_units(value_m: float, unit_m: float) -> float:
+    """A length given in metres (every length option is) in a unit of ``unit_m`` metres, to 10 significant
+    digits: the rounding makes 0.3048006096 m exactly 1 US survey foot and 0.6096 m exactly 2 feet, so that
+    a cell size or contour interval meant in feet comes out as that whole number of feet."""
+    v = value_m / unit_m
+    return float(f"{v:.10g}") if math.isfinite(v) else v
 
 
 def unit_name(crs: pyproj.CRS) -> str:

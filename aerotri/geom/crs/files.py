@@ -348,7 +348,7 @@ def transform_las(in_path, out_path, transformer: CrsTransformer, chunk_size: in
     import laspy
     in_path, out_path = Path(in_path), Path(out_path)
     if chunk_size < 1:
-        raise OptionError(f"{chunk_size}: expected at least 1 point per chunk", param="--chunk-size")
+        raise OptionError(f"{chunk_size}: expected at least 1 point per chunk", param="--chunk-points")
     with las.open_las(in_path) as reader:
         hdr = reader.header
         if not (np.asarray(hdr.scales) > 0).all():
@@ -394,7 +394,7 @@ def transform_las(in_path, out_path, transformer: CrsTransformer, chunk_size: in
         from aerotri.core.limits import check_task_count
 
         check_task_count(math.ceil(hdr.point_count / chunk_size), f"{in_path}: {hdr.point_count:,} points in chunks of "
-                         f"{chunk_size:,}", "--chunk-size", "use a larger --chunk-size")
+                         f"{chunk_size:,}", "--chunk-points", "use a larger --chunk-points")
         n = 0
         with atomic_path(out_path) as tmp:
             with laspy.open(tmp, mode="w", header=out_hdr, do_compress=out_path.suffix.lower() == ".laz") as writer:

@@ -29,7 +29,8 @@ from aerotri.core.errors import CrsError, InputError, OptionError
 from aerotri.core.limits import check_disk
 from aerotri.core.log import progress
 from aerotri.geom.crs.definition import (check_stored_crs, crs_label, geotiff_crs, height_unit_m, horizontal_crs,
-                               length_unit_name, linear_unit_m, parse_crs, same_horizontal, unit_long_name, unit_name)
+                               length_in_units, length_unit_name, linear_unit_m, parse_crs, same_horizontal,
+                               unit_long_name, unit_name)
 from aerotri.geom.inputs import check_height_values
 from aerotri.geom.crs.raster_warp import (RESAMPLING, anchor_grid, cast_to_dtype, height_change, interpolate_anchors,
                                          open_north_up, read_on_grid)
@@ -69,11 +70,13 @@ def _footprint(ds, operation: CrsTransformer, per_side: int = 64):
 
 
 def warp_raster(in_path, out_path, to_crs, *, from_crs=None, params=None, heights=None, allow_ballpark=False,
-                res=None, kind: str = "auto", resampling: str = "bilinear", block_px: int = 1024) -> WarpResult:
+                res_m=None, res_deg=None, kind: str = "auto", resampling: str = "bilinear",
+                block_px: int = 1024) -> WarpResult:
     """Reproject a GeoTIFF into ``to_crs`` through the coordinate-operation policy (see module docstring).
 
     ``params``: a ``Transformation`` (``aerotri crs fit``), ``heights``: a ``HeightAnomalyModel``;
-    ``res``: target cell size in the target CRS's units (default: the source cell size converted
+    ``res_m``: target cell size in metres for a projected target (converted to its unit: 0.3048 is 1 ft
+    on a grid in feet), ``res_deg`` in degrees for a geographic one (default: the source cell size converted
     through the linear units); ``kind``: ``height`` (values are heights and change with the datum),
     ``image``, or ``auto`` (one floating-point band: height). Writes a COG atomically."""
     in_path, out_path = Path(in_path), Path(out_path)
@@ -85,8 +88,7 @@ def warp_raster(in_path, out_path, to_crs, *, from_crs=None, params=None, height
     with _open(in_path) as ds:
         src_crs = parse_crs(from_crs, "--from") if from_crs else ds.crs
         dst_crs = parse_crs(to_crs, "--to")
-        if not horizontal_crs(dst_crs).is_projected and res is None:
-            raise OptionError(f"--to {crs_label(dst_crs)} is geographic: give --res in degrees", param="--res")
+        res, res_option = _target_cell(dst_crs, res_m, res_deg)
         if kind == "auto":
             kind = "height" if ds.count == 1 and np.dtype(ds.dtypes[0]).kind == "f" else "image"
         if kind == "height":  # before any work: finite, plausible heights in one band, not all nodata
@@ -99,8 +101,6 @@ def warp_raster(in_path, out_path, to_crs, *, from_crs=None, params=None, height
         if res is None:
             f_src, f_dst = linear_unit_m(horizontal_crs(src_crs)), linear_unit_m(horizontal_crs(dst_crs))
             res = src_res * (f_src / f_dst if np.isfinite(f_src) and np.isfinite(f_dst) else 1.0)
-        if not (res > 0 and math.isfinite(res)):
-            raise OptionError(f"--res {res}: must be a positive cell size", param="--res")
         if params is None and same_horizontal(src_crs, dst_crs) and abs(res - src_res) <= 1e-12 * src_res:
             # only the heights change: keep the source grid cell for cell
             x0, y0, width, height = ds.transform.c, ds.transform.f, ds.width, ds.height
@@ -111,7 +111,8 @@ def warp_raster(in_path, out_path, to_crs, *, from_crs=None, params=None, height
             width = int(math.ceil((right - x0) / res))
             height = int(math.ceil((y0 - bottom) / res))
         check_disk(width * height * ds.count * np.dtype(ds.dtypes[0]).itemsize, out_path.parent,
-                   f"the target grid of {width} x {height} cells (uncompressed)", "--res", hint="choose a coarser --res")
+                   f"the target grid of {width} x {height} cells (uncompressed)", res_option,
+                   hint=f"choose a coarser {res_option}")
         # the grid's corners and centre: where the stored CRS must put the grid as the requested one does
         gx = x0 + res * np.array([0.0, width, 0.0, width, width / 2.0])
         gy = y0 - res * np.array([0.0, 0.0, height, height, height / 2.0])
@@ -164,6 +165,24 @@ def warp_raster(in_path, out_path, to_crs, *, from_crs=None, params=None, height
         log.warning(w)
     return WarpResult(out_path, kind, width, height, float(res), crs_label(dst_crs), record,
                       n_valid / float(width * height))
+
+
+def _target_cell(dst_crs, res_m, res_deg) -> tuple[float | None, str]:
+    """(the target cell size in the target CRS's unit, or None for the source's; the option that sets it):
+    ``res_m`` (metres) for a projected target, converted to its unit; ``res_deg`` for a geographic one."""
+    projected = horizontal_crs(dst_crs).is_projected
+    given, option, other = (res_m, "--res-m", "--res-deg") if projected else (res_deg, "--res-deg", "--res-m")
+    if (res_deg if projected else res_m) is not None:
+        kind = "projected (a grid in its linear unit)" if projected else "geographic"
+        raise OptionError(f"--to {crs_label(dst_crs)} is {kind}: give {option}, not {other}", param=other)
+    if given is None:
+        if not projected:
+            raise OptionError(f"--to {crs_label(dst_crs)} is geographic: give the cell size with --res-deg",
+                              param="--res-deg")
+        return None, option
+    if not (given > 0 and math.isfinite(given)):
+        raise OptionError(f"{option} {given}: must be a positive cell size", param=option)
+    return (length_in_units(given, linear_unit_m(dst_crs)) if projected else float(given)), option
 
 
 def _unit_tags(crs, res: float, kind: str) -> dict:

@@ -78,7 +78,7 @@ def brighton6(shared_data, tmp_path_factory):
     crop.points = las.points[keep]
     crop.write(out / "cloud.laz")
     for args in (["classify", str(out / "cloud.laz"), str(out / "classified.laz"), "-q"],
-                 ["rasters", str(out / "classified.laz"), str(out / "lidar"), "--res", "0.5", "-q"]):
+                 ["rasters", str(out / "classified.laz"), str(out / "lidar"), "--res-m", "0.5", "-q"]):
         r = CliRunner().invoke(lidar_cli, args)
         assert r.exit_code == 0, r.output
     return root, out / "lidar", cam

@@ -58,10 +58,10 @@ def test_copr_kite_subset_end_to_end(shared_data, tmp_path):
     gcp = _project(data, root)
     run = CliRunner()
     # the published list: refused, both targets and the frame named
-    r = run.invoke(aerotri_cli, ["import", str(root), "--format", "odm", str(data / "gcp_list.txt"), "--sigma-xyz", "1", "1", "5"])
+    r = run.invoke(aerotri_cli, ["import", str(root), "--format", "odm", str(data / "gcp_list.txt"), "--sigma-xyz-m", "1", "1", "5"])
     assert r.exit_code == 2 and "'gcp04' and 'gcp00'" in r.output and "'IMG_0031'" in r.output
     # the targets of these frames: every height 0, not measured: plan-only control
-    r = run.invoke(aerotri_cli, ["import", str(root), "--format", "odm", str(gcp), "--sigma-xyz", "1", "1", "5"])
+    r = run.invoke(aerotri_cli, ["import", str(root), "--format", "odm", str(gcp), "--sigma-xyz-m", "1", "1", "5"])
     assert r.exit_code == 0, r.output
     assert "taken as not measured" in r.output
     c = read_control_points(root / "control" / "points.csv")

@@ -186,7 +186,7 @@ def test_the_commands_of_a_dmc_block_with_a_dem(ngi_data, tmp_path):
     toml = (p / "project.toml").read_text().replace('heights = "ellipsoidal"', f'heights = "{ngi.HEIGHTS}"', 1)
     (p / "project.toml").write_text(toml + "\n[flight]\nmean_terrain_height_m = 411.0\n")
     r = run("import", p, "--format", "orthority", ngi_data / "formats" / "ngi_int_param.yaml",
-            ngi_data / "formats" / "ngi_xyz_opk.csv", "--as-gnss", "--sigma-xyz", "0.05", "0.05", "0.05")
+            ngi_data / "formats" / "ngi_xyz_opk.csv", "--as-gnss", "--sigma-xyz-m", "0.05", "0.05", "0.05")
     assert r.exit_code == 0, r.output
     assert "gnss.txt: 4 GNSS positions" in r.output and "camera.toml: 1 camera (pinhole, 640 x 1152 px)" in r.output
     r = run("match", p)

@@ -87,7 +87,7 @@ def test_block_without_gnss_is_oriented_from_its_images(no_gnss_block, tmp_path)
     cached and the result repeatable."""
     block, src = no_gnss_block
     root = _copy(src, tmp_path / "p")
-    r = CliRunner().invoke(aerotri_cli, ["adjust", str(root), "--image-sigma", str(SIGMA_PX), "--no-exports"],
+    r = CliRunner().invoke(aerotri_cli, ["adjust", str(root), "--image-sigma-px", str(SIGMA_PX), "--no-exports"],
                            catch_exceptions=False)
     assert r.exit_code == 0, r.output
     rep = json.loads((root / "at" / "report.json").read_text())
@@ -99,7 +99,7 @@ def test_block_without_gnss_is_oriented_from_its_images(no_gnss_block, tmp_path)
     assert np.all(chk < [0.15, 0.15, 0.3])
     cache = root / "work" / "relative" / "model.npz"
     mtime, eo1 = cache.stat().st_mtime_ns, (root / "at" / "eo.txt").read_bytes()
-    r = CliRunner().invoke(aerotri_cli, ["adjust", str(root), "--image-sigma", str(SIGMA_PX), "--no-exports"],
+    r = CliRunner().invoke(aerotri_cli, ["adjust", str(root), "--image-sigma-px", str(SIGMA_PX), "--no-exports"],
                            catch_exceptions=False)
     assert r.exit_code == 0 and cache.stat().st_mtime_ns == mtime  # read back, not oriented again
     assert (root / "at" / "eo.txt").read_bytes() == eo1

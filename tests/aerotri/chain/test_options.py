@@ -231,7 +231,7 @@ def test_block_without_gnss_is_adjusted_from_approximate_orientations(tmp_path):
     write_truth_observations(root, tie_sigma_px=SIGMA_PX, n_control=5, points_per_image=100, n_check=8, seed=6)
     (root / "gnss.txt").unlink()
     # without --eo: approximate orientations from the images (pycolmap on the tie points), datum from the control
-    r = CliRunner().invoke(aerotri_cli, ["adjust", str(root), "--image-sigma", str(SIGMA_PX)], catch_exceptions=False)
+    r = CliRunner().invoke(aerotri_cli, ["adjust", str(root), "--image-sigma-px", str(SIGMA_PX)], catch_exceptions=False)
     assert r.exit_code == 0, r.output
     rep = json.loads((root / "at" / "report.json").read_text())
     assert any("from the images (pycolmap)" in note for note in rep["datum"])
@@ -244,7 +244,7 @@ def test_block_without_gnss_is_adjusted_from_approximate_orientations(tmp_path):
                                   t.opk_deg + rng.normal(0, 0.5, t.opk_deg.shape))
     write_eo(tmp_path / "initial_eo.txt", approx)
     r = CliRunner().invoke(aerotri_cli, ["adjust", str(root), "--eo", str(tmp_path / "initial_eo.txt"),
-                                         "--image-sigma", str(SIGMA_PX)], catch_exceptions=False)
+                                         "--image-sigma-px", str(SIGMA_PX)], catch_exceptions=False)
     assert r.exit_code == 0, r.output
     rep = json.loads((root / "at" / "report.json").read_text())
     assert rep["counts"]["control_points"] == 5 and rep["options"]["given_eo_gps"] != "Enabled"

@@ -112,3 +112,34 @@ def test_manual_point_unknown_is_an_input_error(tiny_project, tmp_path):
     res = run(root, "--import-manual", str(manual))
     assert res.exit_code == 2 and "NOPE" in res.output
     assert not (root / "control").exists()
+
+
+def test_foreign_orientations_take_the_nominal_camera_not_the_adjusted_one(tiny_project, tmp_path):
+    """``aerotri control --eo OTHER``: at/camera.toml was estimated with at/eo.txt and belongs to no other
+    orientations. Before, the control stage took it for any --eo (a self-calibration 30 % off in focal length
+    put every prediction off its corner: nothing measured, exit 2); now OTHER takes the nominal camera.toml,
+    and at/eo.txt itself (however it is given) still takes at/camera.toml."""
+    import dataclasses
+
+    from aerotri.core.project import Project
+    from aerotri.geom.camera import orientations_camera
+
+    root = project_copy(tiny_project, tmp_path)
+    nominal = BrownCamera.read(root / "camera.toml")
+    adjusted = dataclasses.replace(nominal, focal_mm=0.7 * nominal.focal_mm)
+    (root / "at").mkdir()
+    (root / "at" / "camera.toml").write_text(adjusted.to_toml())
+    res = CliRunner().invoke(main, ["control", str(root), "--eo", str(root / "truth" / "eo.txt"), "--min-frames", "2"],
+                             catch_exceptions=False)
+    assert res.exit_code == 0, res.output
+    e = truth_errors(root)
+    assert len(e) >= 20 and np.sqrt(np.mean(np.sum(e**2, axis=1))) < 0.5
+    shutil.copy(root / "truth" / "eo.txt", root / "at" / "eo.txt")
+    project = Project.open(root)
+    for eo_path in (None, root / "at" / "eo.txt", root / "at" / ".." / "at" / "eo.txt"):
+        cam, source = orientations_camera(project, eo_path)
+        assert cam == adjusted and source == f"{root / 'at' / 'camera.toml'} (self-calibrated)"
+    cam, source = orientations_camera(project, root / "truth" / "eo.txt")
+    assert cam == nominal and source == str(root / "camera.toml")
+    cam, source = orientations_camera(project, root / "at" / "eo.txt", root / "truth" / "camera.toml")
+    assert cam == BrownCamera.read(root / "truth" / "camera.toml") and source == str(root / "truth" / "camera.toml")

@@ -24,7 +24,7 @@ def las(tmp_path):
 
 def _transform(las, out, *extra):
     return CliRunner().invoke(aerotri_cli, ["crs", "transform", str(las), str(out), "--to", "EPSG:4326",
-                                            "--chunk-size", "2000", *extra])
+                                            "--chunk-points", "2000", *extra])
 
 
 def test_progress_lines_off_a_terminal(las, tmp_path, monkeypatch):

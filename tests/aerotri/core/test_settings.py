@@ -72,7 +72,7 @@ CASES = {
                 ("control.layout", "min_frames", "2", 2), ("--min-frames", "4", 4), ("fallback", "false", False),
                 "layout.min_frames", "layout.fallback"),
     "rectify": (ortho_cli, ["rectify"], ("ortho.block", "rectify_block", 1),
-                ("rectify", "res_m", "0.25", 0.25), ("--res", "0.3", 0.3), ("interpolation", '"cubic"', "cubic"),
+                ("rectify", "res_m", "0.25", 0.25), ("--res-m", "0.3", 0.3), ("interpolation", '"cubic"', "cubic"),
                 "res_m", "interpolation"),
     "mosaic": (ortho_cli, ["mosaic"], ("ortho.mosaic", "mosaic_block", 1),
                ("mosaic", "seams", '"voronoi"', "voronoi"), ("--seams", "least-cost", "least-cost"),
@@ -178,7 +178,7 @@ def test_docs_settings_md_is_current():
     for section in ("project", "camera", "gnss", "control", "flight", "qa", "adjust", "match", "rectify", "mosaic",
                     "dom_check", "classify", "corners", "strips", "vectors", "rasters"):
         assert f"## [{section}]" in r.output
-    assert "`aerotri adjust --gnss-correction`" in r.output and "`ortho rectify --res`" in r.output
+    assert "`aerotri adjust --gnss-correction`" in r.output and "`ortho rectify --res-m`" in r.output
 
 
 def test_every_setting_has_help_and_its_unit_in_the_name():

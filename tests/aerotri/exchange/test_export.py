@@ -26,7 +26,12 @@ def test_block_read_from_the_folder_is_the_adjusted_one(adjusted):
     assert blk.image_id == list(ba.eo_map.image_id)
     assert np.abs(blk.centre_local - ba.result.state.centre).max() < 2e-4  # eo.txt keeps 0.1 mm
     assert np.abs(blk.R_cv - ba.result.state.R_cv).max() < 1e-7  # and 1e-7 degrees
-    assert np.allclose(blk.cal, ba.result.state.cal, rtol=1e-6, atol=1e-8)
+    # the interior orientation of at/camera.toml, every digit (report.json keeps 8 decimals: p1 1.8e-9 was 0 there):
+    # the adjusted one with fx and fy in one focal length and no skew, as every stage after the adjustment has it
+    cal = ba.result.state.cal
+    assert np.array_equal(blk.cal, ba.camera_adjusted.calibration_vector())
+    assert blk.cal[0] == blk.cal[1] == pytest.approx(0.5 * (cal[0] + cal[1]), rel=1e-12) and blk.cal[2] == 0.0
+    assert np.allclose(blk.cal[3:], cal[3:], rtol=1e-9, atol=1e-15)
     # the measurements the adjustment used, and no other
     assert len(blk.obs_xy_px) == int(ba.result.obs_active.sum())
     assert set(blk.control_id) == {c for c, a in zip(ba.control.id, ba.result.control_active) if a}

@@ -80,23 +80,23 @@ def test_orientations_are_approximations_and_every_file_is_listed(exported, tmp_
 
 @pytest.mark.parametrize("fmt", [f for f in FORMATS if f != "opensfm"])
 def test_as_gnss_needs_accuracies(exported, tmp_path, fmt):
-    """--as-gnss without --sigma-xyz, without the format's or the project's accuracies: exit 2, nothing written.
-    With --sigma-xyz: gnss.txt holds the projection centres with those accuracies, and says so."""
+    """--as-gnss without --sigma-xyz-m, without the format's or the project's accuracies: exit 2, nothing written.
+    With --sigma-xyz-m: gnss.txt holds the projection centres with those accuracies, and says so."""
     root, out = exported
     dst = _bare(root, tmp_path)
     before = _listing(dst)
     r = _import(dst, fmt, out, "--as-gnss")
-    assert r.exit_code == 2 and "--sigma-xyz" in r.output and "Traceback" not in r.output
+    assert r.exit_code == 2 and "--sigma-xyz-m" in r.output and "Traceback" not in r.output
     assert _listing(dst) == before
-    r = _import(dst, fmt, out, "--as-gnss", "--sigma-xyz", "0.5", "0.5", "1.0")
+    r = _import(dst, fmt, out, "--as-gnss", "--sigma-xyz-m", "0.5", "0.5", "1.0")
     assert r.exit_code == 0, r.output
     g, eo = read_gnss(dst / "gnss.txt"), read_eo(dst / "imported" / "eo.txt")
     assert g.image_id == eo.image_id and np.allclose(g.position_m, eo.centre_m) and np.allclose(g.sigma_m, [0.5, 0.5, 1.0])
     header = (dst / "gnss.txt").read_text().splitlines()[0]
-    assert "--as-gnss" in header and "--sigma-xyz" in header
+    assert "--as-gnss" in header and "--sigma-xyz-m" in header
     (entry,) = json.loads((dst / "imported" / "imports.json").read_text())["imports"]
     holds = next(f["holds"] for f in entry["files"] if f["path"] == "gnss.txt")
-    assert "accuracies 0.5 0.5 1 m from --sigma-xyz" in holds and f"gnss.txt: {len(g.image_id)} GNSS positions" in r.output
+    assert "accuracies 0.5 0.5 1 m from --sigma-xyz-m" in holds and f"gnss.txt: {len(g.image_id)} GNSS positions" in r.output
 
 
 def test_as_gnss_with_the_project_sigmas(exported, tmp_path):

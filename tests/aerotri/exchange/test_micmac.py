@@ -61,7 +61,7 @@ def test_horizontal_and_height_control(tiny_project, tmp_path, fresh_project):
     ("<Global><DicoAppuisFlottant><OneAppuisDAF><Pt>1 2 nan</Pt><NamePt>a</NamePt><Incertitude>1 1 1</Incertitude>"
      "</OneAppuisDAF></DicoAppuisFlottant></Global>", "Pt is NaN"),
     ("<Global><DicoAppuisFlottant><OneAppuisDAF><Pt>1 2 3</Pt><NamePt>a</NamePt></OneAppuisDAF>"
-     "</DicoAppuisFlottant></Global>", "no <Incertitude>; give --sigma-xyz"),
+     "</DicoAppuisFlottant></Global>", "no <Incertitude>; give --sigma-xyz-m"),
     ("<Global><DicoAppuisFlottant><OneAppuisDAF><Pt>1 2 3</Pt><Incertitude>1 1 1</Incertitude></OneAppuisDAF>"
      "</DicoAppuisFlottant></Global>", r"OneAppuisDAF\[0\]: <NamePt> is missing"),
     ("<SetOfMesureAppuisFlottants><MesureAppuiFlottant1Im><NameIm>a.tif</NameIm><OneMesureAF1I><NamePt>g</NamePt>"

@@ -38,7 +38,7 @@ def test_round_trip_through_gcp_list(adjusted_tiny, tmp_path):
     blk = read_adjusted_block(root)
     fresh = _fresh(tmp_path, root)
     r = CliRunner().invoke(aerotri_cli, ["import", str(fresh), "--format", "odm", str(out / "odm" / "gcp_list.txt"),
-                                         "--sigma-xyz", "0.02", "0.02", "0.04"])
+                                         "--sigma-xyz-m", "0.02", "0.02", "0.04"])
     assert r.exit_code == 0, r.output
     got = read_control_points(fresh / "control" / "points.csv")
     assert sorted(got.id) == sorted(blk.control_id)
@@ -107,7 +107,7 @@ def test_copr_kite_gcp_list_imported(shared_data, tmp_path):
     for r in rows:
         assert np.allclose(got[(r[6].strip(), r[5].rsplit(".", 1)[0])], [float(r[3]), float(r[4])], atol=5e-4)
     # the heights forced: full control with height 0
-    r = CliRunner().invoke(aerotri_cli, ["import", str(root), "--format", "odm", str(fixed), "--sigma-xyz", "0.3", "0.3",
+    r = CliRunner().invoke(aerotri_cli, ["import", str(root), "--format", "odm", str(fixed), "--sigma-xyz-m", "0.3", "0.3",
                                          "5", "--force", "--heights-measured"])
     assert r.exit_code == 0, r.output
     c = read_control_points(root / "control" / "points.csv")
@@ -124,7 +124,7 @@ def test_heights_all_zero_or_equal_are_not_measured(tmp_path):
         f.write_text("EPSG:32611\n" + "".join(f"{235260 + 10 * k} {3811200 + 7 * k} {z[k]} {100 + 50 * k} 200 a.jpg p{k}\n"
                                                f"{235260 + 10 * k} {3811200 + 7 * k} {z[k]} {120 + 50 * k} 900 b.jpg p{k}\n"
                                                for k in range(3)))
-        r = CliRunner().invoke(aerotri_cli, ["import", str(root), "--format", "odm", str(f), "--sigma-xyz", "0.1", "0.1",
+        r = CliRunner().invoke(aerotri_cli, ["import", str(root), "--format", "odm", str(f), "--sigma-xyz-m", "0.1", "0.1",
                                              "0.2", "--force"])
         assert r.exit_code == 0, r.output
         c = read_control_points(root / "control" / "points.csv")
@@ -173,7 +173,7 @@ def test_accuracy_is_required_and_the_command_says_so(tmp_path):
     f = tmp_path / "gcp_list.txt"
     f.write_text("EPSG:32611\n235269 3811198 0 4 5 a.jpg p\n")
     root = _fresh(tmp_path, crs="EPSG:32611")
-    with pytest.raises(OptionError, match="--sigma-xyz"):
+    with pytest.raises(OptionError, match="--sigma-xyz-m"):
         import_files(root, "odm", [f])
     r = CliRunner().invoke(aerotri_cli, ["import", str(root), "--format", "odm", str(f)])
-    assert r.exit_code == 2 and "--sigma-xyz" in r.output and "Traceback" not in r.output
+    assert r.exit_code == 2 and "--sigma-xyz-m" in r.output and "Traceback" not in r.output

@@ -100,8 +100,8 @@ def test_control_needs_sigmas_and_cli_exit(tiny_project, tmp_path):
     (root / "project.toml").write_text('[project]\nname = "x"\ncrs = "EPSG:32649"\n')
     (tmp_path / "c.con").write_text("g1 500000 4100000 10  * height\n-99\n")
     r = CliRunner().invoke(aerotri_cli, ["import", str(root), "--format", "patb", str(tmp_path / "c.con")])
-    assert r.exit_code == 2 and "give --sigma-xyz" in r.output and "Traceback" not in r.output
-    r = CliRunner().invoke(aerotri_cli, ["import", str(root), "--format", "patb", "--sigma-xyz", "0.02", "0.02", "0.03",
+    assert r.exit_code == 2 and "give --sigma-xyz-m" in r.output and "Traceback" not in r.output
+    r = CliRunner().invoke(aerotri_cli, ["import", str(root), "--format", "patb", "--sigma-xyz-m", "0.02", "0.02", "0.03",
                                          str(tmp_path / "c.con")])
     assert r.exit_code == 0, r.output
     c = read_control_points(root / "control" / "points.csv")

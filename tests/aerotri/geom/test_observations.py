@@ -26,7 +26,7 @@ def _no_output(root):
 
 
 def test_cli_runs(project):
-    res = _run(project, "--gnss-correction", "shift", "--image-sigma", "0.3")
+    res = _run(project, "--gnss-correction", "shift", "--image-sigma-px", "0.3")
     assert res.exit_code == 0, res.output
     assert "sigma0" in res.output and (project / "at" / "report.txt").exists()
 
@@ -100,7 +100,7 @@ def test_disconnected_block(project):
 
 def test_gnss_only_adjustment_without_control(project):
     """The first adjustment of the chain: tie points + GNSS, no control files (or --no-control)."""
-    res = _run(project, "--no-control", "--image-sigma", "0.3")
+    res = _run(project, "--no-control", "--image-sigma-px", "0.3")
     assert res.exit_code == 0, res.output
     import json
 
@@ -110,7 +110,7 @@ def test_gnss_only_adjustment_without_control(project):
 
     shutil.rmtree(project / "control")
     (project / "at" / "eo.txt").unlink()
-    res = _run(project, "--image-sigma", "0.3")
+    res = _run(project, "--image-sigma-px", "0.3")
     assert res.exit_code == 0, res.output
     # Strip shifts cannot be separated from the datum without control: refused.
     res = _run(project, "--no-control", "--gnss-correction", "shift")

@@ -118,7 +118,7 @@ def test_ortho_dem_compound_crs_by_its_parts(tiny_project, tmp_path):
         profile = dict(src.profile, crs=rasterio.crs.CRS.from_wkt(CRS("EPSG:32649+3855").to_wkt()))
         with rasterio.open(dem, "w", **profile) as dst:
             dst.write(src.read(1), 1)
-    args = ["rectify", str(root), "--eo", str(root / "truth" / "eo.txt"), "--dem", str(dem), "--res", "1",
+    args = ["rectify", str(root), "--eo", str(root / "truth" / "eo.txt"), "--dem", str(dem), "--res-m", "1",
             "--frames", "s01_001"]
     from ortho.cli import main as ortho_cli
 
@@ -205,3 +205,31 @@ def test_warp_refuses_a_crs_geotiff_cannot_store(small_dem, tmp_path):
     assert r.exit_code == 2, r.output
     assert "cannot be stored in a GeoTIFF" in r.output and "--to" in r.output
     assert list(out.parent.iterdir()) == []  # no output, no temporary left
+
+
+@pytest.mark.parametrize("res_m, cell_usft", [(0.3048006096, 1.0), (2.0, 2.0 * 3937 / 1200)])
+def test_warp_cell_size_is_in_metres_and_a_foot_grid_gets_it_in_feet(small_dem, tmp_path, res_m, cell_usft):
+    """Issue 40: --res-m is metres like every length option; a US-foot target grid gets the cell in US feet
+    (0.3048006096 m is exactly 1 US survey foot, not 0.999999999996)."""
+    out = tmp_path / "out.tif"
+    r = CliRunner().invoke(aerotri_cli, ["crs", "warp", str(small_dem), str(out), "--to", LCC_USFT_PROJ,
+                                         "--res-m", str(res_m)])
+    assert r.exit_code == 0, r.output
+    with rasterio.open(out) as dst:
+        assert dst.res[0] == pytest.approx(cell_usft, rel=1e-9) and dst.res[0] == dst.res[1]
+        assert dst.tags()["CELL_SIZE"] == f"{cell_usft:.10g} us-ft"
+
+
+def test_warp_cell_size_options_follow_the_target_crs(small_dem, tmp_path):
+    """A geographic target takes --res-deg and refuses --res-m (and the other way round), exit 2, nothing written."""
+    out = tmp_path / "out.tif"
+    cases = [(["--to", "EPSG:4326"], "--res-deg"), (["--to", "EPSG:4326", "--res-m", "1"], "--res-m"),
+             (["--to", TMERC_PROJ, "--res-deg", "0.001"], "--res-deg")]
+    for args, named in cases:
+        r = CliRunner().invoke(aerotri_cli, ["crs", "warp", str(small_dem), str(out), *args])
+        assert r.exit_code == 2 and named in r.output and "Traceback" not in r.output and not out.exists(), r.output
+    r = CliRunner().invoke(aerotri_cli, ["crs", "warp", str(small_dem), str(out), "--to", "EPSG:4326",
+                                         "--res-deg", "0.00002"])
+    assert r.exit_code == 0, r.output
+    with rasterio.open(out) as dst:
+        assert dst.res == pytest.approx((0.00002, 0.00002)) and dst.tags()["CELL_SIZE"] == "2e-05 deg"
