@@ -1529,7 +1529,7 @@ ISSUE39 = _raster_cases() + [
       "--cell-m"),
     C("opt_vectors_cell_tiny", "lidarctl", "vectors {w}/lid/bldg.las {w}/out.gpkg --cell-m 1e-7", "--cell-m"),
     C("opt_evaluate_res_tiny", "lidarctl", "evaluate {w}/lid/bldg.las --reference {w}/ref.geojson "
-      "--reference-class building --res-m 1e-7", "--res",  # class_grid.check_grid names the option
+      "--reference-class building --res-m 1e-7", "--res-m",  # class_grid.check_grid names the option
       write("ref.geojson", _BUILDING_GEOJSON)),
     C("opt_classify_tile_tiny", "lidarctl", "classify {w}/las/raw.las {w}/out.las --tile-size-m 1e-7", "tile size"),
     C("opt_control_eo_sigma_huge", "aerotri", "control {p} --eo-sigma-px 1e9", "--eo-sigma-px"),

@@ -102,8 +102,8 @@ def _grid_for_cloud(bounds, cell_m: float, crs, units: LengthUnits, path) -> Cla
     x0, y0 = np.floor(bounds[0] / step) * step, np.floor(bounds[1] / step) * step
     ncols = int(np.floor((bounds[2] - x0) / step)) + 1
     nrows = int(np.floor((bounds[3] - y0) / step)) + 1
-    check_grid(nrows, ncols, cell_m, BYTES_PER_CELL, f"{path}: class raster over the cloud's bounds", option="--res",
-               hint="use a coarser --res")
+    check_grid(nrows, ncols, cell_m, BYTES_PER_CELL, f"{path}: class raster over the cloud's bounds", option="--res-m",
+               hint="use a coarser --res-m")
     return ClassGrid(Affine(step, 0, x0, 0, -step, y0 + nrows * step), (nrows, ncols), crs, cell_m)
 
 
@@ -192,7 +192,7 @@ def regrid(grid: ClassGrid, cell_m: float) -> ClassGrid:
     t = grid.transform
     ncols = max(1, int(np.floor(grid.shape[1] * abs(t.a) / step)))
     nrows = max(1, int(np.floor(grid.shape[0] * abs(t.e) / step)))
-    check_grid(nrows, ncols, cell_m, BYTES_PER_CELL, "evaluation grid", option="--res", hint="use a coarser --res")
+    check_grid(nrows, ncols, cell_m, BYTES_PER_CELL, "evaluation grid", option="--res", hint="use a coarser --res-m")
     return ClassGrid(Affine(step, 0, t.c, 0, -step, t.f), (nrows, ncols), grid.crs, cell_m)
 
 
