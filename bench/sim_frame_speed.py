@@ -137,7 +137,8 @@ def main() -> None:
         for side, code in (("before", a.before.resolve()), ("after", ROOT)):
             r = _side(code, a, a.work / side)
             runs[side].append(r)
-            print(f"round {k + 1} {side:6s} {r['megapixels']} MP: {r['cpu_s']} CPU-s ({r['mp_per_cpu_s']} MP per CPU-s), "
+            print(f"round {k + 1} {side:6s} {r['megapixels']} MP: {r['cpu_s']} CPU-s ({r['mp_per_cpu_s']} MP per "
+                  f"CPU-s), "
                   f"wall {r['wall_s']} s ({r['mp_per_wall_s']} MP/s), TIFF write {r['tiff_write_cpu_s_per_frame']} "
                   f"CPU-s a frame, load {r['load_average_before'][0]}-{r['load_average_after'][0]}", flush=True)
     best = {s: min(v, key=lambda r: r["cpu_s"]) for s, v in runs.items()}

@@ -721,7 +721,8 @@ def _render_bands(band0, band1, row_out0, *, W, H, band_rows, tile_cols, step, X
                     r = rb0 + rr
                     if want_ids and s == 0:
                         for cc in range(tw):
-                            ids_out[r - row_out0, cb0 + cc] = kind[cc] * 1000000 + obj[cc] if kind[cc] != KIND_NONE else 0
+                            ids_out[r - row_out0, cb0 + cc] = (kind[cc] * 1000000 + obj[cc]
+                                                               if kind[cc] != KIND_NONE else 0)
                     if S == 1:
                         _expose_row(rad, r, (cb0, cb1), (W, H), exposure, out[r - row_out0], expo_scratch)
                     else:
