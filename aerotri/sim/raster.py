@@ -19,8 +19,9 @@ the lens distortion of the true camera are exact, as they were with a ray per pi
   centre, and a pixel's surface point goes back to the map by the inverse. ``FrameEarth.flat`` (the default
   of ``FrameSetup``) is the flat world of the ray caster.
 - Work: the terrain nodes, building triangles and crowns in view are projected once per frame and
-  binned into bands of ``BAND_ROWS`` rows; bands are rendered in parallel (numba prange), each with its
-  own depth buffer, so a frame of any size needs memory for a few bands only.
+  binned into tiles of ``BAND_ROWS`` rows x ``TILE_COLS`` columns; bands of rows are rendered in parallel
+  (numba prange), each a tile at a time with one depth buffer of a tile (held in the core's cache), so a
+  frame of any size needs memory for a few tiles only.
 - Shading (``aerotri.sim.shading``), exposure (gain, radial vignetting), tone curve (8-bit: the gamma of
   ``render.tone_map``; 12-bit: linear) and sensor noise (a counter-based hash of the frame's noise seed,
   pixel and band: triangular, zero mean, the preset's sigma) are fused into the same pass.
@@ -48,6 +49,11 @@ from aerotri.sim.earth import FrameEarth, to_camera_nb, to_map_nb
 from aerotri.sim.scene import KIND_NONE, KIND_TERRAIN, KIND_TREE, Scene
 
 BAND_ROWS = 32
+# Columns of a tile: a band is rendered a tile at a time so that the tile's rays, depth buffer and primitive
+# codes (4 x 32 x 512 x 8 bytes) stay in the core's L2 cache; a band's whole width (13824 px: 14 MB) did not,
+# and every primitive's pixels came from memory (a multiple of 64, so that the vectorised loops over a row of a
+# tile leave the same last columns of the row to their scalar remainder as a loop over the whole row).
+TILE_COLS = 512
 NARROW_ROWS = 512  # rows rendered at a time into the uint16 buffer of an 8-bit frame (FrameRenderer.render_rows)
 GRID_STEP_PX = 16
 # A terrain cell's edges curve under the lens distortion by ~1e-5 px over the cell (they are straight in
@@ -57,6 +63,10 @@ CELL_MARGIN_PX = 0.05
 _T_NONE, _T_TERRAIN_A, _T_TERRAIN_B, _T_TRI, _T_TREE = 0, 1, 2, 3, 4
 _SHIFT = 56
 _MASK = (1 << _SHIFT) - 1
+# a terrain triangle's code holds its cell's row << _CELL_SHIFT | column (from the frame's first node): decoded by
+# shifts, as a division by the row length per pixel cost more than the rest of the normal
+_CELL_SHIFT = 28
+_CELL_MASK = (1 << _CELL_SHIFT) - 1
 TONE_LUT_SIZE = 16384
 SQRT6 = math.sqrt(6.0)
 
@@ -135,6 +145,9 @@ class FrameSetup:
         self.band_rows = int(band_rows)
         W, H = camera.width, camera.height
         self.nbands = (H + band_rows - 1) // band_rows
+        self.tile_cols = TILE_COLS
+        self.nblocks = (W + TILE_COLS - 1) // TILE_COLS
+        tiles = (self.band_rows, self.nbands, self.tile_cols, self.nblocks)
         params = camera.kernel_params()
         xmin, xmax, ymin, ymax = self._ground_region(look)
         res = look.res
@@ -149,8 +162,9 @@ class FrameSetup:
         # sub-pixel samples sit up to sample_reach_px from the pixel centres
         margin = CELL_MARGIN_PX + float(sample_reach_px)
         rmin, rmax = _cell_rows(PX, PY, W, H, margin)
-        self.cell_start, self.cell_list = _bin(rmin, rmax, self.band_rows, self.nbands)
         self.cell_box = _cell_boxes(PX, PY, margin)
+        self.cell_start, self.cell_list = _bin(rmin, rmax, np.maximum(self.cell_box[:, 0], 0),
+                                               np.minimum(self.cell_box[:, 1], W - 1), tiles)
         # building triangles whose ground box meets the region
         if len(look.tv):
             sel = np.flatnonzero((look.tri_hi[:, 0] >= xmin) & (look.tri_lo[:, 0] <= xmax)
@@ -161,7 +175,8 @@ class FrameSetup:
         TV = np.ascontiguousarray(e.to_camera(look.tv[sel] - self.C).reshape(-1, 3, 3))  # camera-frame vertices
         self.TV = TV
         self.tri_box = _vertex_boxes(TV.reshape(-1, 3), 3, params, W, H)
-        self.tri_start, self.tri_list = _bin(self.tri_box[:, 2], self.tri_box[:, 3], self.band_rows, self.nbands)
+        self.tri_start, self.tri_list = _bin(self.tri_box[:, 2], self.tri_box[:, 3], self.tri_box[:, 0],
+                                             self.tri_box[:, 1], tiles)
         # crowns: the 8 corners of each crown's box
         if len(look.tc):
             reach = look.ta[:, 0]
@@ -185,7 +200,8 @@ class FrameSetup:
         d_c = look.tc[selk] - self.C
         self.tree_G = np.ascontiguousarray(D_inv @ np.linalg.inv(e.jacobian(d_c)))
         self.tree_s = np.ascontiguousarray(-np.einsum("kij,kj->ki", self.tree_G, e.to_camera(d_c)))
-        self.tree_start, self.tree_list = _bin(self.tree_box[:, 2], self.tree_box[:, 3], self.band_rows, self.nbands)
+        self.tree_start, self.tree_list = _bin(self.tree_box[:, 2], self.tree_box[:, 3], self.tree_box[:, 0],
+                                               self.tree_box[:, 1], tiles)
 
     def _ground_region(self, look: SceneLook):
         """Ground box (local x, y) that the frame's rays cross between the scene's lowest and highest
@@ -313,23 +329,30 @@ def _vertex_boxes(Vc, per_item, params, W, H):
 
 
 @numba.njit(cache=True)
-def _bin(rmin, rmax, band_rows, nbands):
-    """CSR lists of the items overlapping each band of rows (items with rmin > rmax are in none)."""
-    counts = np.zeros(nbands + 1, np.int64)
+def _bin(rmin, rmax, cmin, cmax, tiles):
+    """CSR lists of the items overlapping each tile (items with rows rmin..rmax and columns cmin..cmax; none where
+    rmin > rmax or cmin > cmax); ``tiles`` (band_rows, nbands, tile_cols, nblocks): tile b * nblocks + j holds
+    rows of band b and columns of block j. Each list keeps the items' order (the depth test keeps the first of
+    equally near surfaces: the same one as in one list for the whole frame)."""
+    band_rows, nbands, tile_cols, nblocks = tiles
+    counts = np.zeros(nbands * nblocks + 1, np.int64)
     for k in range(rmin.shape[0]):
-        if rmin[k] > rmax[k]:
+        if rmin[k] > rmax[k] or cmin[k] > cmax[k]:
             continue
         for b in range(rmin[k] // band_rows, rmax[k] // band_rows + 1):
-            counts[b + 1] += 1
+            for j in range(cmin[k] // tile_cols, cmax[k] // tile_cols + 1):
+                counts[b * nblocks + j + 1] += 1
     start = np.cumsum(counts)
     fill = start[:-1].copy()
     items = np.empty(start[-1], np.int64)
     for k in range(rmin.shape[0]):
-        if rmin[k] > rmax[k]:
+        if rmin[k] > rmax[k] or cmin[k] > cmax[k]:
             continue
         for b in range(rmin[k] // band_rows, rmax[k] // band_rows + 1):
-            items[fill[b]] = k
-            fill[b] += 1
+            for j in range(cmin[k] // tile_cols, cmax[k] // tile_cols + 1):
+                t = b * nblocks + j
+                items[fill[t]] = k
+                fill[t] += 1
     return start, items
 
 
@@ -355,14 +378,14 @@ def _mix32(h):
 @numba.njit(cache=True, inline="always")
 def _raster_tri(a, b, c, box, band, code_val):
     """Depth-test one camera-frame triangle (vertices ``a``, ``b``, ``c``: (x, y, z) tuples) into the band
-    buffers over the pixel ``box`` (c0, c1, r0, r1); ``band``: its first row ``rb0``, the pixel rays ``xnb``,
-    ``ynb``, the inverse depth ``wb`` (larger = nearer) and the primitive ``code`` of each pixel, set to
-    ``code_val`` where the triangle is nearer."""
+    buffers over the pixel ``box`` (c0, c1, r0, r1); ``band``: the tile's first row ``rb0`` and column ``cb0``, the
+    pixel rays ``xnb``, ``ynb``, the inverse depth ``wb`` (larger = nearer) and the primitive ``code`` of each
+    pixel, set to ``code_val`` where the triangle is nearer."""
     ax, ay, az = a
     bx, by, bz = b
     cx, cy, cz = c
     c0, c1, r0, r1 = box
-    rb0, xnb, ynb, wb, code = band
+    rb0, cb0, xnb, ynb, wb, code = band
     e1x, e1y, e1z = _cross(ax, ay, az, bx, by, bz)
     e2x, e2y, e2z = _cross(bx, by, bz, cx, cy, cz)
     e3x, e3y, e3z = _cross(cx, cy, cz, ax, ay, az)
@@ -376,37 +399,35 @@ def _raster_tri(a, b, c, box, band, code_val):
     nz *= ik
     for r in range(r0, r1 + 1):
         rr = r - rb0
-        for col in range(c0, c1 + 1):
-            xn = xnb[rr, col]
-            yn = ynb[rr, col]
+        for cc in range(c0 - cb0, c1 - cb0 + 1):
+            xn = xnb[rr, cc]
+            yn = ynb[rr, cc]
             s1 = e1x * xn + e1y * yn + e1z
             s2 = e2x * xn + e2y * yn + e2z
             s3 = e3x * xn + e3y * yn + e3z
             if (s1 >= 0.0 and s2 >= 0.0 and s3 >= 0.0) or (s1 <= 0.0 and s2 <= 0.0 and s3 <= 0.0):
                 w = nx * xn + ny * yn + nz
-                if w > wb[rr, col]:
-                    wb[rr, col] = w
-                    code[rr, col] = code_val
+                if w > wb[rr, cc]:
+                    wb[rr, cc] = w
+                    code[rr, cc] = code_val
 
 
 @numba.njit(cache=True, inline="always")
-def _hit_normal(typ, idx, p, d, cells, surfaces):
-    """The unit surface normal (nx, ny, nz), facing against the viewing direction ``d`` (dx, dy, dz), and the
-    kind and object id of a z-buffer hit at ``p`` (x, y, z) (local metres): ``typ`` terrain triangle A or B of
-    terrain cell ``idx`` (``cells`` (gi0, gj0, ncj): row ``idx // ncj``, column ``idx % ncj`` of the cells from
-    node (gi0, gj0)), ``_T_TRI`` mesh triangle ``idx``, or else the crown of tree ``idx``. ``surfaces``: the
-    height field ``hz`` (nodes ``res`` apart), the mesh triangles' normals ``tn``, kinds ``tkind`` and objects
-    ``tobj``, the crowns (ellipsoids: centres ``tc``, semi-axes ``ta``)."""
+def _surface_normal(typ, idx, p, cells, surfaces):
+    """The surface normal (nx, ny, nz), not unit, and the kind and object id of a z-buffer hit at ``p`` (x, y, z)
+    (local metres): ``typ`` terrain triangle A or B of terrain cell ``idx`` (row ``idx >> _CELL_SHIFT``, column
+    ``idx & _CELL_MASK`` of the cells from node ``cells`` (gi0, gj0)), ``_T_TRI`` mesh triangle ``idx``, or else
+    the crown of tree ``idx``. ``surfaces``: the height field ``hz`` (nodes ``res`` apart), the mesh triangles'
+    normals ``tn``, kinds ``tkind`` and objects ``tobj``, the crowns (ellipsoids: centres ``tc``, semi-axes
+    ``ta``)."""
     x, y, z = p
-    dx, dy, dz = d
     # each branch takes its arrays from ``surfaces`` itself: an array unpacked once for all branches costs a
     # reference count per pixel (numba prunes the pair only within one block)
     if typ == _T_TERRAIN_A or typ == _T_TERRAIN_B:
-        gi0, gj0, ncj = cells
+        gi0, gj0 = cells
         hz, res = surfaces[0], surfaces[1]
-        ca = idx // ncj
-        gi = gi0 + ca
-        gj = gj0 + idx - ca * ncj
+        gi = gi0 + (idx >> _CELL_SHIFT)
+        gj = gj0 + (idx & _CELL_MASK)
         h00 = hz[gi, gj]
         h10 = hz[gi, gj + 1]
         h01 = hz[gi + 1, gj]
@@ -432,14 +453,77 @@ def _hit_normal(typ, idx, p, d, cells, surfaces):
         nz = (z - tc[idx, 2]) / (ta[idx, 1] * ta[idx, 1])
         k = KIND_TREE
         o = idx
+    return nx, ny, nz, k, o
+
+
+@numba.njit(cache=True, inline="always")
+def _hit_normal(typ, idx, p, d, cells, surfaces):
+    """``_surface_normal`` as a unit normal facing against the viewing direction ``d`` (dx, dy, dz)."""
+    nx, ny, nz, k, o = _surface_normal(typ, idx, p, cells, surfaces)
+    dx, dy, dz = d
     nn = math.sqrt(nx * nx + ny * ny + nz * nz)
     if nx * dx + ny * dy + nz * dz > 0.0:
         nn = -nn
     return nx / nn, ny / nn, nz / nn, k, o
 
 
+@numba.njit(cache=True, error_model="numpy")
+def _hit_points(ray, n, C, earth, P, D):
+    """Surface points ``P`` (X, Y, Z: map offsets from the frame's centre ``C`` plus ``C``) and viewing directions
+    ``D`` (DX, DY, DZ, map axes) of the first ``n`` pixels of a row of a tile: ``ray`` (xn, yn, w) their rays and
+    inverse depths; ``earth`` (A_inv, quad, curved): the frame's camera -> map transformation
+    (``aerotri.sim.earth.to_map_nb`` where ``curved``). A pixel that shows nothing (w = 0) gets a point at
+    infinity, which the caller replaces. A loop of its own, with numpy's error model (no check of w for zero),
+    so that it vectorises."""
+    xnr, ynr, wr = ray
+    A_inv, quad, curved = earth
+    X, Y, Z = P
+    DX, DY, DZ = D
+    for c in range(n):
+        xn = xnr[c]
+        yn = ynr[c]
+        # the viewing direction in map axes (its sign turns the normal) and the hit point: the camera-frame
+        # point at depth 1 / w back to the map
+        dx = A_inv[0, 0] * xn + A_inv[0, 1] * yn + A_inv[0, 2]
+        dy = A_inv[1, 0] * xn + A_inv[1, 1] * yn + A_inv[1, 2]
+        dz = A_inv[2, 0] * xn + A_inv[2, 1] * yn + A_inv[2, 2]
+        t = 1.0 / wr[c]
+        if curved:
+            ox, oy, oz = to_map_nb(A_inv, quad, t * xn, t * yn, t)
+            X[c] = C[0] + ox
+            Y[c] = C[1] + oy
+            Z[c] = C[2] + oz
+        else:
+            X[c] = C[0] + t * dx
+            Y[c] = C[1] + t * dy
+            Z[c] = C[2] + t * dz
+        DX[c] = dx
+        DY[c] = dy
+        DZ[c] = dz
+
+
+@numba.njit(cache=True, error_model="numpy")
+def _face_viewer(N, D, n):
+    """``_hit_normal``'s last step over the first ``n`` normals ``N`` (NX, NY, NZ), in place: each made unit and
+    turned against its viewing direction in ``D`` (DX, DY, DZ). Apart from the per-pixel branches of
+    ``_surface_normal`` this loop vectorises (its square roots and divisions were a fifth of a frame's time);
+    the same operations, so the same bits."""
+    NX, NY, NZ = N
+    DX, DY, DZ = D
+    for c in range(n):
+        nx = NX[c]
+        ny = NY[c]
+        nz = NZ[c]
+        nn = math.sqrt(nx * nx + ny * ny + nz * nz)
+        if nx * DX[c] + ny * DY[c] + nz * DZ[c] > 0.0:
+            nn = -nn
+        NX[c] = nx / nn
+        NY[c] = ny / nn
+        NZ[c] = nz / nn
+
+
 @numba.njit(cache=True, parallel=True)
-def _render_bands(band0, band1, row_out0, *, W, H, band_rows, step, XN, YN, C, A_inv, quad, curved,
+def _render_bands(band0, band1, row_out0, *, W, H, band_rows, tile_cols, step, XN, YN, C, A_inv, quad, curved,
                   V, ti0, tj0, cell_start, cell_list, cell_box,
                   TV, tri_ids, tri_start, tri_list, tri_box,
                   tree_ids, tree_start, tree_list, tree_box, tree_G, tree_s,
@@ -448,206 +532,222 @@ def _render_bands(band0, band1, row_out0, *, W, H, band_rows, step, XN, YN, C, A
                   gain, vignetting, noise_dn, noise_seed, bits, lut,
                   out, ids_out, want_ids):
     """Render bands band0..band1-1 of a frame into ``out`` (rows from ``row_out0``; (rows, W, 3) uint8 or
-    uint16); ``XN``/``YN`` (S, rows, cols) hold the pixel grid of each of the S sub-pixel samples."""
+    uint16), each band a tile of ``tile_cols`` columns at a time (the primitive lists are per tile: band b, block
+    j at b * nblocks + j); ``XN``/``YN`` (S, rows, cols) hold the pixel grid of each of the S sub-pixel samples."""
     S = XN.shape[0]
     ncj = V.shape[1] - 1
-    gcols = XN.shape[2]
     inv_step = 1.0 / step
+    nblocks = (W + tile_cols - 1) // tile_cols
     for b in numba.prange(band0, band1):
         rb0 = b * band_rows
         rb1 = min(H, rb0 + band_rows)
         hb = rb1 - rb0
-        acc = np.zeros((hb if S > 1 else 0, W, 3), np.float32)
-        wb = np.empty((hb, W))
-        code = np.empty((hb, W), np.int64)
-        xnb = np.empty((hb, W))
-        ynb = np.empty((hb, W))
-        rowx = np.empty(gcols)
-        rowy = np.empty(gcols)
-        X = np.empty(W)
-        Y = np.empty(W)
-        Z = np.empty(W)
-        NX = np.empty(W)
-        NY = np.empty(W)
-        NZ = np.empty(W)
-        kind = np.empty(W, np.int64)
-        obj = np.empty(W, np.int64)
-        rad = np.empty((W, 3), np.float32)
-        band = (rb0, xnb, ynb, wb, code)  # the tuples of arrays once a band, not once a pixel
+        TW = min(tile_cols, W)
+        acc = np.zeros((hb if S > 1 else 0, TW, 3), np.float32)
+        wb = np.empty((hb, TW))
+        code = np.empty((hb, TW), np.int64)
+        xnb = np.empty((hb, TW))
+        ynb = np.empty((hb, TW))
+        rowx = np.empty(XN.shape[2])
+        rowy = np.empty(XN.shape[2])
+        X = np.empty(TW)
+        Y = np.empty(TW)
+        Z = np.empty(TW)
+        NX = np.empty(TW)
+        NY = np.empty(TW)
+        NZ = np.empty(TW)
+        DX = np.empty(TW)
+        DY = np.empty(TW)
+        DZ = np.empty(TW)
+        kind = np.empty(TW, np.int64)
+        obj = np.empty(TW, np.int64)
+        rad = np.empty((TW, 3), np.float32)
+        scratch = shading.shade_scratch_nb(TW)
+        expo_scratch = (np.empty(TW, np.float32), np.empty(TW, np.uint32), np.empty(TW, np.uint32))
         surfaces = (hz, res, tn, tkind, tobj, tc, ta)
         exposure = (gain, vignetting, noise_dn, noise_seed, bits, lut)
         look = (G, roof_albedo, fine_m, sun)
-        for s in range(S):
-            # pixel rays of the band: the coarse grid interpolated along its rows, then along the columns
-            for rr in range(hb):
-                gy = (rb0 + rr) * inv_step
-                gi = int(gy)
-                v = gy - gi
-                for j in range(gcols):
-                    rowx[j] = XN[s, gi, j] + (XN[s, gi + 1, j] - XN[s, gi, j]) * v
-                    rowy[j] = YN[s, gi, j] + (YN[s, gi + 1, j] - YN[s, gi, j]) * v
-                for c in range(W):
-                    gx = c * inv_step
-                    gj = int(gx)
-                    u = gx - gj
-                    xnb[rr, c] = rowx[gj] + (rowx[gj + 1] - rowx[gj]) * u
-                    ynb[rr, c] = rowy[gj] + (rowy[gj + 1] - rowy[gj]) * u
-                    wb[rr, c] = 0.0
-                    code[rr, c] = 0
-            # terrain cells: triangles (00, 10, 11) and (00, 11, 01) as the ray caster splits them
-            for q in range(cell_start[b], cell_start[b + 1]):
-                cell = cell_list[q]
-                ca = cell // ncj
-                cb = cell - ca * ncj
-                c0 = max(0, cell_box[cell, 0])
-                c1 = min(W - 1, cell_box[cell, 1])
-                r0 = max(rb0, cell_box[cell, 2])
-                r1 = min(rb1 - 1, cell_box[cell, 3])
-                if c0 > c1 or r0 > r1:
-                    continue
-                p00x, p00y, p00z = V[ca, cb, 0], V[ca, cb, 1], V[ca, cb, 2]
-                p10x, p10y, p10z = V[ca, cb + 1, 0], V[ca, cb + 1, 1], V[ca, cb + 1, 2]
-                p01x, p01y, p01z = V[ca + 1, cb, 0], V[ca + 1, cb, 1], V[ca + 1, cb, 2]
-                p11x, p11y, p11z = V[ca + 1, cb + 1, 0], V[ca + 1, cb + 1, 1], V[ca + 1, cb + 1, 2]
-                e1x, e1y, e1z = _cross(p00x, p00y, p00z, p10x, p10y, p10z)
-                e2x, e2y, e2z = _cross(p10x, p10y, p10z, p11x, p11y, p11z)
-                e3x, e3y, e3z = _cross(p11x, p11y, p11z, p00x, p00y, p00z)
-                f2x, f2y, f2z = _cross(p11x, p11y, p11z, p01x, p01y, p01z)
-                f3x, f3y, f3z = _cross(p01x, p01y, p01z, p00x, p00y, p00z)
-                # inverse depth on each triangle's plane: (n . d) / (n . P0), linear in (xn, yn)
-                nax, nay, naz = _cross(p10x - p00x, p10y - p00y, p10z - p00z, p11x - p00x, p11y - p00y, p11z - p00z)
-                ka = nax * p00x + nay * p00y + naz * p00z
-                nbx, nby, nbz = _cross(p11x - p00x, p11y - p00y, p11z - p00z, p01x - p00x, p01y - p00y, p01z - p00z)
-                kb = nbx * p00x + nby * p00y + nbz * p00z
-                if ka == 0.0 or kb == 0.0:
-                    continue
-                nax /= ka
-                nay /= ka
-                naz /= ka
-                nbx /= kb
-                nby /= kb
-                nbz /= kb
-                code_a = (numba.int64(_T_TERRAIN_A) << _SHIFT) | cell
-                code_b = (numba.int64(_T_TERRAIN_B) << _SHIFT) | cell
-                for r in range(r0, r1 + 1):
-                    rr = r - rb0
-                    for c in range(c0, c1 + 1):
-                        xn = xnb[rr, c]
-                        yn = ynb[rr, c]
-                        s1 = e1x * xn + e1y * yn + e1z
-                        s2 = e2x * xn + e2y * yn + e2z
-                        s3 = e3x * xn + e3y * yn + e3z
-                        if (s1 >= 0.0 and s2 >= 0.0 and s3 >= 0.0) or (s1 <= 0.0 and s2 <= 0.0 and s3 <= 0.0):
-                            w = nax * xn + nay * yn + naz
-                            if w > wb[rr, c]:
-                                wb[rr, c] = w
-                                code[rr, c] = code_a
-                            continue
-                        t2 = f2x * xn + f2y * yn + f2z
-                        t3 = f3x * xn + f3y * yn + f3z
-                        if (s3 <= 0.0 and t2 >= 0.0 and t3 >= 0.0) or (s3 >= 0.0 and t2 <= 0.0 and t3 <= 0.0):
-                            w = nbx * xn + nby * yn + nbz
-                            if w > wb[rr, c]:
-                                wb[rr, c] = w
-                                code[rr, c] = code_b
-            # building triangles
-            for q in range(tri_start[b], tri_start[b + 1]):
-                k = tri_list[q]
-                r0 = max(rb0, tri_box[k, 2])
-                r1 = min(rb1 - 1, tri_box[k, 3])
-                if r0 > r1:
-                    continue
-                _raster_tri((TV[k, 0, 0], TV[k, 0, 1], TV[k, 0, 2]), (TV[k, 1, 0], TV[k, 1, 1], TV[k, 1, 2]),
-                            (TV[k, 2, 0], TV[k, 2, 1], TV[k, 2, 2]), (tri_box[k, 0], tri_box[k, 1], r0, r1),
-                            band, (numba.int64(_T_TRI) << _SHIFT) | tri_ids[k])
-            # crowns (spheroids with vertical axis), in object coordinates
-            for q in range(tree_start[b], tree_start[b + 1]):
-                k = tree_list[q]
-                m = tree_ids[k]
-                r0 = max(rb0, tree_box[k, 2])
-                r1 = min(rb1 - 1, tree_box[k, 3])
-                if r0 > r1:
-                    continue
-                Gk = tree_G[k]
-                sx, sy, sz = tree_s[k, 0], tree_s[k, 1], tree_s[k, 2]
-                Cq = sx * sx + sy * sy + sz * sz - 1.0
-                tcode = (numba.int64(_T_TREE) << _SHIFT) | m
-                for r in range(r0, r1 + 1):
-                    rr = r - rb0
-                    for c in range(tree_box[k, 0], tree_box[k, 1] + 1):
-                        xn = xnb[rr, c]
-                        yn = ynb[rr, c]
-                        ux = Gk[0, 0] * xn + Gk[0, 1] * yn + Gk[0, 2]
-                        uy = Gk[1, 0] * xn + Gk[1, 1] * yn + Gk[1, 2]
-                        uz = Gk[2, 0] * xn + Gk[2, 1] * yn + Gk[2, 2]
-                        A = ux * ux + uy * uy + uz * uz
-                        B = 2.0 * (sx * ux + sy * uy + sz * uz)
-                        disc = B * B - 4.0 * A * Cq
-                        if disc > 0.0:
-                            t = (-B - math.sqrt(disc)) / (2.0 * A)
-                            if t > 1e-9 and 1.0 > t * wb[rr, c]:
-                                wb[rr, c] = 1.0 / t
-                                code[rr, c] = tcode
-            # the surface point, normal and kind of every pixel, shaded a row at a time
-            for rr in range(hb):
-                for c in range(W):
-                    cv = code[rr, c]
-                    typ = cv >> _SHIFT
-                    idx = cv & _MASK
-                    if typ == _T_NONE:
-                        kind[c] = KIND_NONE
-                        obj[c] = 0
-                        X[c] = 0.0
-                        Y[c] = 0.0
-                        Z[c] = 0.0
-                        NX[c] = 0.0
-                        NY[c] = 0.0
-                        NZ[c] = 1.0
+        for jb in range(nblocks):
+            cb0 = jb * tile_cols
+            cb1 = min(W, cb0 + tile_cols)
+            tw = cb1 - cb0
+            t = b * nblocks + jb
+            band = (rb0, cb0, xnb, ynb, wb, code)  # the tuples of arrays once a tile, not once a pixel
+            if S > 1:
+                acc[:] = 0.0
+            for s in range(S):
+                # pixel rays of the tile: the coarse grid interpolated along its rows, then along the columns
+                g0 = int(cb0 * inv_step)
+                g1 = int((cb1 - 1) * inv_step) + 1
+                for rr in range(hb):
+                    gy = (rb0 + rr) * inv_step
+                    gi = int(gy)
+                    v = gy - gi
+                    for j in range(g0, g1 + 1):
+                        rowx[j] = XN[s, gi, j] + (XN[s, gi + 1, j] - XN[s, gi, j]) * v
+                        rowy[j] = YN[s, gi, j] + (YN[s, gi + 1, j] - YN[s, gi, j]) * v
+                    for c in range(cb0, cb1):
+                        gx = c * inv_step
+                        gj = int(gx)
+                        u = gx - gj
+                        xnb[rr, c - cb0] = rowx[gj] + (rowx[gj + 1] - rowx[gj]) * u
+                        ynb[rr, c - cb0] = rowy[gj] + (rowy[gj + 1] - rowy[gj]) * u
+                        wb[rr, c - cb0] = 0.0
+                        code[rr, c - cb0] = 0
+                # terrain cells: triangles (00, 10, 11) and (00, 11, 01) as the ray caster splits them
+                for q in range(cell_start[t], cell_start[t + 1]):
+                    cell = cell_list[q]
+                    ca = cell // ncj
+                    cb = cell - ca * ncj
+                    c0 = max(cb0, cell_box[cell, 0])
+                    c1 = min(cb1 - 1, cell_box[cell, 1])
+                    r0 = max(rb0, cell_box[cell, 2])
+                    r1 = min(rb1 - 1, cell_box[cell, 3])
+                    if c0 > c1 or r0 > r1:
                         continue
-                    xn = xnb[rr, c]
-                    yn = ynb[rr, c]
-                    # the viewing direction in map axes (its sign turns the normal) and the hit point: the
-                    # camera-frame point at depth t back to the map
-                    dx = A_inv[0, 0] * xn + A_inv[0, 1] * yn + A_inv[0, 2]
-                    dy = A_inv[1, 0] * xn + A_inv[1, 1] * yn + A_inv[1, 2]
-                    dz = A_inv[2, 0] * xn + A_inv[2, 1] * yn + A_inv[2, 2]
-                    t = 1.0 / wb[rr, c]
-                    if curved:
-                        ox, oy, oz = to_map_nb(A_inv, quad, t * xn, t * yn, t)
-                        X[c] = C[0] + ox
-                        Y[c] = C[1] + oy
-                        Z[c] = C[2] + oz
+                    p00x, p00y, p00z = V[ca, cb, 0], V[ca, cb, 1], V[ca, cb, 2]
+                    p10x, p10y, p10z = V[ca, cb + 1, 0], V[ca, cb + 1, 1], V[ca, cb + 1, 2]
+                    p01x, p01y, p01z = V[ca + 1, cb, 0], V[ca + 1, cb, 1], V[ca + 1, cb, 2]
+                    p11x, p11y, p11z = V[ca + 1, cb + 1, 0], V[ca + 1, cb + 1, 1], V[ca + 1, cb + 1, 2]
+                    e1x, e1y, e1z = _cross(p00x, p00y, p00z, p10x, p10y, p10z)
+                    e2x, e2y, e2z = _cross(p10x, p10y, p10z, p11x, p11y, p11z)
+                    e3x, e3y, e3z = _cross(p11x, p11y, p11z, p00x, p00y, p00z)
+                    f2x, f2y, f2z = _cross(p11x, p11y, p11z, p01x, p01y, p01z)
+                    f3x, f3y, f3z = _cross(p01x, p01y, p01z, p00x, p00y, p00z)
+                    # inverse depth on each triangle's plane: (n . d) / (n . P0), linear in (xn, yn)
+                    nax, nay, naz = _cross(p10x - p00x, p10y - p00y, p10z - p00z, p11x - p00x, p11y - p00y,
+                                           p11z - p00z)
+                    ka = nax * p00x + nay * p00y + naz * p00z
+                    nbx, nby, nbz = _cross(p11x - p00x, p11y - p00y, p11z - p00z, p01x - p00x, p01y - p00y,
+                                           p01z - p00z)
+                    kb = nbx * p00x + nby * p00y + nbz * p00z
+                    if ka == 0.0 or kb == 0.0:
+                        continue
+                    nax /= ka
+                    nay /= ka
+                    naz /= ka
+                    nbx /= kb
+                    nby /= kb
+                    nbz /= kb
+                    code_a = (numba.int64(_T_TERRAIN_A) << _SHIFT) | (ca << _CELL_SHIFT) | cb
+                    code_b = (numba.int64(_T_TERRAIN_B) << _SHIFT) | (ca << _CELL_SHIFT) | cb
+                    for r in range(r0, r1 + 1):
+                        rr = r - rb0
+                        for cc in range(c0 - cb0, c1 - cb0 + 1):
+                            xn = xnb[rr, cc]
+                            yn = ynb[rr, cc]
+                            s1 = e1x * xn + e1y * yn + e1z
+                            s2 = e2x * xn + e2y * yn + e2z
+                            s3 = e3x * xn + e3y * yn + e3z
+                            if (s1 >= 0.0 and s2 >= 0.0 and s3 >= 0.0) or (s1 <= 0.0 and s2 <= 0.0 and s3 <= 0.0):
+                                w = nax * xn + nay * yn + naz
+                                if w > wb[rr, cc]:
+                                    wb[rr, cc] = w
+                                    code[rr, cc] = code_a
+                                continue
+                            t2 = f2x * xn + f2y * yn + f2z
+                            t3 = f3x * xn + f3y * yn + f3z
+                            if (s3 <= 0.0 and t2 >= 0.0 and t3 >= 0.0) or (s3 >= 0.0 and t2 <= 0.0 and t3 <= 0.0):
+                                w = nbx * xn + nby * yn + nbz
+                                if w > wb[rr, cc]:
+                                    wb[rr, cc] = w
+                                    code[rr, cc] = code_b
+                # building triangles
+                for q in range(tri_start[t], tri_start[t + 1]):
+                    k = tri_list[q]
+                    r0 = max(rb0, tri_box[k, 2])
+                    r1 = min(rb1 - 1, tri_box[k, 3])
+                    c0 = max(cb0, tri_box[k, 0])
+                    c1 = min(cb1 - 1, tri_box[k, 1])
+                    if r0 > r1 or c0 > c1:
+                        continue
+                    _raster_tri((TV[k, 0, 0], TV[k, 0, 1], TV[k, 0, 2]), (TV[k, 1, 0], TV[k, 1, 1], TV[k, 1, 2]),
+                                (TV[k, 2, 0], TV[k, 2, 1], TV[k, 2, 2]), (c0, c1, r0, r1),
+                                band, (numba.int64(_T_TRI) << _SHIFT) | tri_ids[k])
+                # crowns (spheroids with vertical axis), in object coordinates
+                for q in range(tree_start[t], tree_start[t + 1]):
+                    k = tree_list[q]
+                    m = tree_ids[k]
+                    r0 = max(rb0, tree_box[k, 2])
+                    r1 = min(rb1 - 1, tree_box[k, 3])
+                    c0 = max(cb0, tree_box[k, 0])
+                    c1 = min(cb1 - 1, tree_box[k, 1])
+                    if r0 > r1 or c0 > c1:
+                        continue
+                    Gk = tree_G[k]
+                    sx, sy, sz = tree_s[k, 0], tree_s[k, 1], tree_s[k, 2]
+                    Cq = sx * sx + sy * sy + sz * sz - 1.0
+                    tcode = (numba.int64(_T_TREE) << _SHIFT) | m
+                    for r in range(r0, r1 + 1):
+                        rr = r - rb0
+                        for cc in range(c0 - cb0, c1 - cb0 + 1):
+                            xn = xnb[rr, cc]
+                            yn = ynb[rr, cc]
+                            ux = Gk[0, 0] * xn + Gk[0, 1] * yn + Gk[0, 2]
+                            uy = Gk[1, 0] * xn + Gk[1, 1] * yn + Gk[1, 2]
+                            uz = Gk[2, 0] * xn + Gk[2, 1] * yn + Gk[2, 2]
+                            A = ux * ux + uy * uy + uz * uz
+                            B = 2.0 * (sx * ux + sy * uy + sz * uz)
+                            disc = B * B - 4.0 * A * Cq
+                            if disc > 0.0:
+                                tt = (-B - math.sqrt(disc)) / (2.0 * A)
+                                if tt > 1e-9 and 1.0 > tt * wb[rr, cc]:
+                                    wb[rr, cc] = 1.0 / tt
+                                    code[rr, cc] = tcode
+                # the surface point, normal and kind of every pixel, shaded a row of the tile at a time
+                for rr in range(hb):
+                    _hit_points((xnb[rr], ynb[rr], wb[rr]), tw, C, (A_inv, quad, curved), (X, Y, Z), (DX, DY, DZ))
+                    for cc in range(tw):
+                        cv = code[rr, cc]
+                        typ = cv >> _SHIFT
+                        idx = cv & _MASK
+                        if typ == _T_NONE:
+                            kind[cc] = KIND_NONE
+                            obj[cc] = 0
+                            X[cc] = 0.0
+                            Y[cc] = 0.0
+                            Z[cc] = 0.0
+                            NX[cc] = 0.0
+                            NY[cc] = 0.0
+                            NZ[cc] = 1.0
+                            DX[cc] = 0.0  # (0, 0, 1) stays as it is
+                            DY[cc] = 0.0
+                            DZ[cc] = 0.0
+                            continue
+                        NX[cc], NY[cc], NZ[cc], kind[cc], obj[cc] = _surface_normal(
+                            typ, idx, (X[cc], Y[cc], Z[cc]), (ti0, tj0), surfaces)
+                    _face_viewer((NX, NY, NZ), (DX, DY, DZ), tw)
+                    shading.shade_into((X, Y, Z), kind, obj, (NX, NY, NZ), look, rad, scratch, tw)
+                    r = rb0 + rr
+                    if want_ids and s == 0:
+                        for cc in range(tw):
+                            ids_out[r - row_out0, cb0 + cc] = (kind[cc] * 1000000 + obj[cc]
+                                                               if kind[cc] != KIND_NONE else 0)
+                    if S == 1:
+                        _expose_row(rad, r, (cb0, cb1), (W, H), exposure, out[r - row_out0], expo_scratch)
                     else:
-                        X[c] = C[0] + t * dx
-                        Y[c] = C[1] + t * dy
-                        Z[c] = C[2] + t * dz
-                    NX[c], NY[c], NZ[c], kind[c], obj[c] = _hit_normal(
-                        typ, idx, (X[c], Y[c], Z[c]), (dx, dy, dz), (ti0, tj0, ncj), surfaces)
-                shading.shade_points((X, Y, Z), kind, obj, (NX, NY, NZ), look, rad)
-                if want_ids and s == 0:
-                    for c in range(W):
-                        ids_out[rb0 + rr - row_out0, c] = kind[c] * 1000000 + obj[c] if kind[c] != KIND_NONE else 0
-                if S == 1:
-                    _expose_row(rad, rb0 + rr, (W, H), exposure, out[rb0 + rr - row_out0])
-                else:
-                    for c in range(W):
-                        acc[rr, c, 0] += rad[c, 0] / S
-                        acc[rr, c, 1] += rad[c, 1] / S
-                        acc[rr, c, 2] += rad[c, 2] / S
-        if S > 1:
-            for rr in range(hb):
-                _expose_row(acc[rr], rb0 + rr, (W, H), exposure, out[rb0 + rr - row_out0])
+                        for cc in range(tw):
+                            acc[rr, cc, 0] += rad[cc, 0] / S
+                            acc[rr, cc, 1] += rad[cc, 1] / S
+                            acc[rr, cc, 2] += rad[cc, 2] / S
+            if S > 1:
+                for rr in range(hb):
+                    _expose_row(acc[rr], rb0 + rr, (cb0, cb1), (W, H), exposure, out[rb0 + rr - row_out0],
+                                expo_scratch)
 
 
 @numba.njit(cache=True, fastmath=True)
-def _expose_row(rad, r, size, exposure, out):
-    """Exposure of image row ``r`` of a frame of ``size`` (W, H) px; ``exposure``: (gain, vignetting, noise_dn,
-    noise_seed, bits, lut). Radiance (W, 3) x gain x radial vignetting (the fraction ``vignetting`` lost at the
-    corners), the tone curve (8-bit: ``lut``; 12-bit: linear 0..4095 for 1.25 x radiance 0..1), sensor noise
-    (the sum of two 10-bit uniforms from a hash of seed, pixel and band: triangular, zero mean, sigma
-    ``noise_dn``), rounding, clipping -> ``out`` (W, 3), or (W, 1): panchromatic, the mean of R, G and B."""
+def _expose_row(rad, r, cols, size, exposure, out, scratch):
+    """Exposure of columns c0..c1-1 (``cols``) of image row ``r`` of a frame of ``size`` (W, H) px; ``exposure``:
+    (gain, vignetting, noise_dn, noise_seed, bits, lut). Radiance (``rad`` (c1 - c0, 3), from column c0) x gain x
+    radial vignetting (the fraction ``vignetting`` lost at the corners), the tone curve (8-bit: ``lut``; 12-bit:
+    linear 0..4095 for 1.25 x radiance 0..1), sensor noise (the sum of two 10-bit uniforms from a hash of seed,
+    pixel and band: triangular, zero mean, sigma ``noise_dn``), rounding, clipping -> ``out`` (W, 3), or (W, 1):
+    panchromatic, the mean of R, G and B; ``scratch``: three work arrays of at least c1 - c0."""
     W, H = size
+    c0, c1 = cols
     gain, vignetting, noise_dn, noise_seed, bits, lut = exposure
+    fac, h1, h2 = scratch
     cw = (W - 1) / 2.0
     ch = (H - 1) / 2.0
     rnorm = 1.0 / (cw * cw + ch * ch)
@@ -662,36 +762,35 @@ def _expose_row(rad, r, size, exposure, out):
     zero = numba.float32(0.0)
     one = numba.float32(1.0)
     half = numba.float32(0.5)
-    fac = np.empty(W, np.float32)
-    h1 = np.empty(W, np.uint32)
-    h2 = np.empty(W, np.uint32)
-    for c in range(W):
+    for c in range(c0, c1):
         dxc = numba.float32(c - cw)
-        fac[c] = g * (one - vig * (dxc * dxc + ry))
+        fac[c - c0] = g * (one - vig * (dxc * dxc + ry))
         h = _mix32(numba.uint32(noise_seed ^ numba.uint32(base + numba.uint32(c))))
-        h1[c] = h
-        h2[c] = _mix32(numba.uint32(h ^ numba.uint32(0x9E3779B9)))
+        h1[c - c0] = h
+        h2[c - c0] = _mix32(numba.uint32(h ^ numba.uint32(0x9E3779B9)))
     nb = out.shape[1]
     third = numba.float32(1.0 / 3.0)
     for band in range(nb):
         sh = numba.uint32(10 * band)
         if nb == 1:  # panchromatic: the mean of the R, G, B radiance
-            for c in range(W):
+            for c in range(c1 - c0):
                 fac[c] *= (numba.float32(rad[c, 0]) + numba.float32(rad[c, 1]) + numba.float32(rad[c, 2])) * third
         if bits == 8:
-            for c in range(W):
+            for c in range(c1 - c0):
                 x = min(max((numba.float32(rad[c, band]) if nb > 1 else one) * fac[c], zero), one)
                 fi = x * nlut
                 i = numba.int32(fi)
                 dn = lut[i] + (lut[i + 1] - lut[i]) * (fi - numba.float32(i))
                 u = numba.float32((h1[c] >> sh) & numba.uint32(1023)) + numba.float32((h2[c] >> sh) & numba.uint32(1023))
                 # round half up: truncation of the non-negative value + 0.5
-                out[c, band] = numba.int32(min(max(dn + (u - numba.float32(1023.0)) * scale + half, zero), out_max + half))
+                out[c0 + c, band] = numba.int32(min(max(dn + (u - numba.float32(1023.0)) * scale + half, zero),
+                                                    out_max + half))
         else:
-            for c in range(W):
+            for c in range(c1 - c0):
                 dn = out_max * min(max((numba.float32(rad[c, band]) if nb > 1 else one) * fac[c], zero), one)
                 u = numba.float32((h1[c] >> sh) & numba.uint32(1023)) + numba.float32((h2[c] >> sh) & numba.uint32(1023))
-                out[c, band] = numba.int32(min(max(dn + (u - numba.float32(1023.0)) * scale + half, zero), out_max + half))
+                out[c0 + c, band] = numba.int32(min(max(dn + (u - numba.float32(1023.0)) * scale + half, zero),
+                                                    out_max + half))
 
 
 # ----------------------------------------------------------------------------------------------
@@ -749,7 +848,8 @@ class FrameRenderer:
         for a in range(r0, r1, max(chunk, 1)):
             b = min(r1, a + chunk)
             buf = out[a - r0:b - r0] if self.dtype == np.uint16 else np.empty((b - a, cam.width, self.bands), np.uint16)
-            _render_bands(a // br, (b + br - 1) // br, a, W=cam.width, H=cam.height, band_rows=br, step=float(self.step),
+            _render_bands(a // br, (b + br - 1) // br, a, W=cam.width, H=cam.height, band_rows=br,
+                          tile_cols=frame.tile_cols, step=float(self.step),
                           XN=self.XN, YN=self.YN, C=frame.C, A_inv=frame.earth.A_inv, quad=frame.earth.q,
                           curved=bool(frame.earth.q.any()), V=frame.V, ti0=frame.ti0, tj0=frame.tj0,
                           cell_start=frame.cell_start, cell_list=frame.cell_list, cell_box=frame.cell_box, TV=frame.TV,
@@ -802,10 +902,10 @@ def _ortho_rows(x0, ytop, step_m, r0, *, nrows, ncols, hz, res, tv, tri_ids, tre
                 h11 = hz[i + 1, j + 1]
                 if u >= v:
                     zout[a, c] = h00 + u * (h10 - h00) + v * (h11 - h10)
-                    code[a, c] = (numba.int64(_T_TERRAIN_A) << _SHIFT) | (i * (nx - 1) + j)
+                    code[a, c] = (numba.int64(_T_TERRAIN_A) << _SHIFT) | (i << _CELL_SHIFT) | j
                 else:
                     zout[a, c] = h00 + v * (h01 - h00) + u * (h11 - h01)
-                    code[a, c] = (numba.int64(_T_TERRAIN_B) << _SHIFT) | (i * (nx - 1) + j)
+                    code[a, c] = (numba.int64(_T_TERRAIN_B) << _SHIFT) | (i << _CELL_SHIFT) | j
         for q in range(tri_ids.shape[0]):
             k = tri_ids[q]
             ax, ay, az = tv[k, 0, 0], tv[k, 0, 1], tv[k, 0, 2]
@@ -866,7 +966,6 @@ def _ortho_rows(x0, ytop, step_m, r0, *, nrows, ncols, hz, res, tv, tri_ids, tre
 def _ortho_shade(x0, ytop, step_m, r0, *, zin, code, hz, res, tn, tkind, tobj, tc, ta, G, roof_albedo, fine_m, sun,
                  rad, ids):
     nrows, ncols = zin.shape
-    nxc = hz.shape[1] - 1
     for a in numba.prange(nrows):
         y = ytop - (r0 + a + 0.5) * step_m
         X = np.empty(ncols)
@@ -888,7 +987,7 @@ def _ortho_shade(x0, ytop, step_m, r0, *, zin, code, hz, res, tn, tkind, tobj, t
             idx = cv & _MASK
             # seen straight down: facing up (the ray's direction is (0, 0, -1))
             NX[c], NY[c], NZ[c], kind[c], obj[c] = _hit_normal(
-                typ, idx, (X[c], Y[c], Z[c]), (0.0, 0.0, -1.0), (0, 0, nxc), surfaces)
+                typ, idx, (X[c], Y[c], Z[c]), (0.0, 0.0, -1.0), (0, 0), surfaces)
             ids[a, c] = kind[c] * 1000000 + obj[c]
         shading.shade_points((X, Y, Z), kind, obj, (NX, NY, NZ), (G, roof_albedo, fine_m, sun), rad[a])
 

@@ -318,22 +318,40 @@ def n_octaves(scale_m, fine_m):
 
 
 @numba.njit(cache=True, fastmath=True)
-def _octave(acc, texture, o, amp, fo):
-    """acc += amp x value noise of octave ``o`` (frequency f0 x fo, seed sd + 17 o) where o < noct, per point of
-    ``texture`` (tu, tv, f0, sd, noct): texture coordinates, coarsest frequency, seed, octaves."""
+def _octave(acc, texture, o, amp, fo, n):
+    """acc += amp x value noise of octave ``o`` (frequency f0 x fo, seed sd + 17 o) where o < noct, per point
+    0..n-1 of ``texture`` (tu, tv, f0, sd, noct): texture coordinates, coarsest frequency, seed, octaves."""
     tu, tv, f0, sd, noct = texture
     ds = numba.uint32(17 * o)
-    for p in range(acc.shape[0]):
+    for p in range(n):
         w = amp if o < noct[p] else numba.float32(0.0)
         acc[p] += w * value_noise(tu[p] * f0[p] * fo, tv[p] * f0[p] * fo, numba.uint32(sd[p] + ds))
 
 
+def shade_scratch(n):
+    """Work arrays of ``shade_into`` for up to ``n`` points (numba and Python)."""
+    return (np.empty(n, np.float32), np.empty(n, np.float32), np.empty(n, np.float32), np.empty(n, np.uint32),
+            np.empty(n, np.int32), np.empty(n, np.int32), np.empty(n, np.float32), np.empty(n, np.float32),
+            np.empty(n, np.float32))
+
+
+shade_scratch_nb = numba.njit(cache=True)(shade_scratch)
+
+
 @numba.njit(cache=True)
 def shade_points(points, kind, obj, normals, look, rad):
-    """Radiance (R, G, B) into ``rad`` (n, 3) of surface ``points`` (X, Y, Z) (local metres) of ``kind`` (scene
-    KIND_*; KIND_NONE: haze) and object ``obj`` with unit ``normals`` (NX, NY, NZ) facing the viewer; ``look``:
-    the scene's ``GroundIndex`` ``G`` and ``roof_albedo``, the finest texture scale ``fine_m`` and the unit
-    vector towards the ``sun`` (G, roof_albedo, fine_m, sun).
+    """``shade_into`` all points, with work arrays of its own."""
+    n = points[0].shape[0]
+    shade_into(points, kind, obj, normals, look, rad, shade_scratch_nb(n), n)
+
+
+@numba.njit(cache=True)
+def shade_into(points, kind, obj, normals, look, rad, scratch, n):
+    """Radiance (R, G, B) into ``rad`` (n, 3) of the first ``n`` surface ``points`` (X, Y, Z) (local metres) of
+    ``kind`` (scene KIND_*; KIND_NONE: haze) and object ``obj`` with unit ``normals`` (NX, NY, NZ) facing the
+    viewer; ``look``: the scene's ``GroundIndex`` ``G`` and ``roof_albedo``, the finest texture scale ``fine_m``
+    and the unit vector towards the ``sun`` (G, roof_albedo, fine_m, sun); ``scratch``: work arrays of at least
+    ``n`` (``shade_scratch``), so that a renderer shading a row at a time allocates nothing per row.
 
     Albedo x (0.45 + 0.55 max(0, normal . sun)). Texture: fractal value noise, octaves from the surface's
     coarsest spacing (ground 4 m, roof 3 m, wall 2 m, crown 1.2 m) halving down to 0.9 ``fine_m``,
@@ -343,15 +361,11 @@ def shade_points(points, kind, obj, normals, look, rad):
     X, Y, Z = points
     NX, NY, NZ = normals
     G, roof_albedo, fine_m, sun = look
-    n = X.shape[0]
-    tu = np.empty(n, np.float32)
-    tv = np.empty(n, np.float32)
-    f0 = np.empty(n, np.float32)
-    sd = np.empty(n, np.uint32)
-    noct = np.zeros(n, np.int32)
-    mat = np.empty(n, np.int32)
-    spot = np.zeros(n, np.float32)
-    lam = np.empty(n, np.float32)
+    tu, tv, f0, sd, noct, mat, spot, lam, acc = scratch
+    for p in range(n):
+        noct[p] = 0
+        spot[p] = 0.0
+        acc[p] = 0.0
     seed = G.seed
     no = (n_octaves(SCALE_GROUND_M, fine_m), n_octaves(SCALE_ROOF_M, fine_m), n_octaves(SCALE_WALL_M, fine_m),
           n_octaves(SCALE_CROWN_M, fine_m))
@@ -404,12 +418,11 @@ def shade_points(points, kind, obj, normals, look, rad):
             f0[p] = 0.0
             sd[p] = 0
     # the octaves, one vectorised sweep each
-    acc = np.zeros(n, np.float32)
     texture = (tu, tv, f0, sd, noct)
     amp = numba.float32(0.5)
     fo = numba.float32(1.0)
     for o in range(max_oct):
-        _octave(acc, texture, o, amp, fo)
+        _octave(acc, texture, o, amp, fo, n)
         if o < DECAY_OCTAVES:
             amp *= numba.float32(0.55)
         fo *= numba.float32(2.0)
