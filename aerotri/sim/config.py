@@ -386,9 +386,11 @@ def _validate(cfg: dict, source: str = "preset") -> None:
         _need(cfg, source, "observations", "tie_sigma_px", lo=0.0, hi=10.0)
     if "tie_points_per_frame" in cfg.get("observations", {}):
         _need(cfg, source, "observations", "tie_points_per_frame", lo=1, hi=10000, integer=True)
-    lo, hi = cfg["scene"]["building_height_m"]
-    if not (0 < lo <= hi):
-        raise InputError(f"{source}: scene.building_height_m must be [min, max] with 0 < min <= max")
+    heights = cfg["scene"].get("building_height_m")
+    if not (isinstance(heights, (list, tuple)) and len(heights) == 2 and all(
+            isinstance(v, (int, float)) and not isinstance(v, bool) for v in heights) and 0 < heights[0] <= heights[1]):
+        raise InputError(f"{source}: scene.building_height_m must be [min, max] with 0 < min <= max, got {heights!r}")
+    lo, hi = heights
     # Flying heights must clear the whole scene, the valley side and the tallest building with room
     # to spare, and the frames must see the ground.
     top_m = (cfg["scene"]["steep_band_m"] * math.tan(math.radians(cfg["scene"]["steep_slope_deg"]))

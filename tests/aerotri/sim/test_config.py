@@ -44,3 +44,5 @@ def test_preset_is_typed_and_checked(tmp_path):
         load_preset("tiny", ["scene.ponds=2.5"])
     with pytest.raises(InputError, match="unknown parameter 'scene.buildngs'"):
         load_preset("tiny", ["scene.buildngs=3"])
+    with pytest.raises(InputError, match=r"building_height_m must be \[min, max\].*got \[5.0\]"):  # was a traceback
+        load_preset("tiny", ["scene.building_height_m=[5.0]"])
