@@ -84,7 +84,7 @@ def score(pred: Path, ref: Path, within: str) -> dict:
                                 crs=CRS, within=within)
     r = ma.evaluate_map(pred, ref, params)
     print(ma.format_map_report(r), "\n")
-    return r.as_dict()
+    return json.loads(r.to_json())
 
 
 def outline_plan_offsets(classified: Path, polys: list, hulls: list) -> dict:

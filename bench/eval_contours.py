@@ -43,7 +43,7 @@ X0, Y0 = 500000.0, 4000000.0  # map origin of the scene's (0, 0)
 def scene_of(seed):
     cfg = load_preset("demo")
     layout = block_layout(cfg)
-    return build_scene(cfg["scene"], layout.width_m, layout.height_m, np.zeros(3), seed)
+    return build_scene(cfg.scene, layout.width_m, layout.height_m, np.zeros(3), seed)
 
 
 def write_dem(scene, path):

@@ -82,7 +82,7 @@ def carved_dem(seed):
 
     cfg = load_preset("demo")
     layout = block_layout(cfg)
-    scene = build_scene(cfg["scene"], layout.width_m, layout.height_m, np.zeros(3), seed)
+    scene = build_scene(cfg.scene, layout.width_m, layout.height_m, np.zeros(3), seed)
     nx, ny = int(W_M / RES_M), int(H_M / RES_M)
     x = (np.arange(nx) + 0.5) * RES_M
     y = H_M - (np.arange(ny) + 0.5) * RES_M

@@ -56,9 +56,7 @@ def project(name: str, seed: int | None, root: Path) -> Path:
     out = root / (name if seed is None else f"{name}_seed{seed}")
     if (out / "truth" / "classes.tif").is_file():
         return out
-    cfg = load_preset(name)
-    if seed is not None:
-        cfg["preset"]["seed"] = seed   # as aerotri sim --seed
+    cfg = load_preset(name, [f"preset.seed={seed}"] if seed is not None else [])  # as aerotri sim --seed
     simulate(cfg, out, force=True)
     return out
 
@@ -99,7 +97,7 @@ def run(proj: Path, work: Path, res_m: float) -> dict:
         seconds = time.perf_counter() - t0
         r = ma.evaluate_map(sorted(dst.glob("*.las")), truth, ma.MapEvalSettings(res_m=res_m))
         print(f"--- {proj.name} {name} ({seconds:.0f} s)\n{ma.format_map_report(r)}\n")
-        d = r.as_dict()
+        d = json.loads(r.to_json())
         d["seed_classes"] = subset(r.confusion)
         d["classify_seconds"] = seconds
         pa, ua = r.confusion.producers_accuracy_pct, r.confusion.users_accuracy_pct
@@ -183,7 +181,7 @@ def main(argv=None) -> int:
             proj = project(name, seed, root)
             spacing = json.loads((proj / "truth" / "truth.json").read_text())["lidar_mean_spacing_m"]
             # cells of about the point spacing, a multiple of the truth raster's cells
-            ores = load_preset(name)["truth"]["ortho_res_m"]
+            ores = load_preset(name).truth.ortho_res_m
             res_m = max(ores, round(spacing / ores) * ores)
             result["projects"][proj.name] = {"role": role, "res_m": res_m, "lidar_spacing_m": spacing,
                                              **run(proj, tmp, res_m)}

@@ -55,7 +55,7 @@ def _calls() -> dict:
 
         cfg = load_preset("tiny", ())
         layout = block_layout(cfg)
-        scene = build_scene(cfg["scene"], layout.width_m, layout.height_m, np.zeros(3), 12345)
+        scene = build_scene(cfg.scene, layout.width_m, layout.height_m, np.zeros(3), 12345)
         cam = BrownCamera(focal_mm=20.0, pixel_um=12.0, width=640, height=384, ppx_mm=0.05, ppy_mm=-0.03, k1=-0.01)
         C = np.array([0.45 * layout.width_m, 0.5 * layout.height_m, float(scene.terrain_z.max()) + 220.0])
         return scene, cam, C, opk_to_matrix(2.0, -3.0, 10.0)

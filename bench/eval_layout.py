@@ -50,12 +50,11 @@ def truth_visibility(root: Path, res) -> dict:
     from aerotri.sim.scene import build_scene
 
     truth = json.loads((root / "truth" / "truth.json").read_text())
-    cfg = load_preset(truth["preset"])
-    cfg["preset"]["seed"] = truth["seed"]
+    cfg = load_preset(truth["preset"], [f"preset.seed={int(truth['seed'])}"])
     s_scene = np.random.SeedSequence(int(truth["seed"])).spawn(4)[0]  # as aerotri.sim.project.simulate
-    origin = np.array([cfg["crs"]["origin_e_m"], cfg["crs"]["origin_n_m"], cfg["crs"]["base_height_m"]])
+    origin = np.array([cfg.crs.origin_e_m, cfg.crs.origin_n_m, cfg.crs.base_height_m])
     layout = block_layout(cfg)
-    scene = build_scene(cfg["scene"], layout.width_m, layout.height_m, origin,
+    scene = build_scene(cfg.scene, layout.width_m, layout.height_m, origin,
                         int(np.random.default_rng(s_scene).integers(0, 2**31 - 1)))
     accel = raycast.build_accel(scene)
     cam = BrownCamera.read(root / "truth" / "camera.toml")

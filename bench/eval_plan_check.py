@@ -34,6 +34,7 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from aerotri.core.atomic import write_text_atomic
+from aerotri.core.records import to_record
 from lidarctl.checks.plan import PlanCheckSettings, check_plan_files, plan_stats
 
 REPO = Path(__file__).resolve().parents[1]
@@ -53,6 +54,11 @@ def _ahn3_module():
     return mod
 
 
+def _record(stats) -> dict:
+    """The statistics as check-plan's JSON writes them."""
+    return to_record(stats, exclude=stats.left_out_of_json())
+
+
 def by_kind(result, kinds: dict) -> dict:
     out = {}
     for kind in sorted(set(kinds.values())):
@@ -60,7 +66,7 @@ def by_kind(result, kinds: dict) -> dict:
         f = [p for p in rows if p.found]
         d = np.array([[p.dx_m, p.dy_m] for p in f]).reshape(-1, 2)
         dz = np.array([p.dz_m for p in f]) if result.has_z else None
-        out[kind] = plan_stats(d, dz, len(rows), result.overall.tolerance_rms_plan_m).as_dict()
+        out[kind] = _record(plan_stats(d, dz, len(rows), result.overall.tolerance_rms_plan_m))
     return out
 
 
@@ -84,7 +90,7 @@ def simulator(project: Path, out: Path, params: PlanCheckSettings) -> dict:
                        f"classes from {source}; surveyed points = truth/roof_corners.csv (true eave corners)",
             "hold_out": "none needed: no parameter is chosen here (command defaults)",
             "n_lidar_corners": res.n_lidar_corners, "radius_m": res.radius_m, "min_edge_m": res.min_edge_m,
-            "overall": res.overall.as_dict(), "by_roof": by_kind(res, kinds), "runtime_s": runtime}
+            "overall": _record(res.overall), "by_roof": by_kind(res, kinds), "runtime_s": runtime}
 
 
 def ahn3(out: Path, params: PlanCheckSettings) -> dict:
@@ -112,9 +118,9 @@ def ahn3(out: Path, params: PlanCheckSettings) -> dict:
     return {"dataset": "AHN3 Delft crop (ahn3_cropped_1.laz, EPSG:28992) vs BGT footprint vertices (bgt_pand.sqlite)",
             "note": "BGT footprints are wall lines, LiDAR corners eave corners: offsets include the roof overhang "
                     "(not the LiDAR's error); a smoke run of the command on real data",
-            "n_lidar_corners": res.n_lidar_corners, "radius_m": res.radius_m, "overall": res.overall.as_dict(),
-            "vertices_with_edges_ge_min_edge": plan_stats(d, None, int(long_edges.sum()),
-                                                          res.overall.tolerance_rms_plan_m).as_dict(),
+            "n_lidar_corners": res.n_lidar_corners, "radius_m": res.radius_m, "overall": _record(res.overall),
+            "vertices_with_edges_ge_min_edge": _record(plan_stats(d, None, int(long_edges.sum()),
+                                                                  res.overall.tolerance_rms_plan_m)),
             "runtime_s": runtime}
 
 

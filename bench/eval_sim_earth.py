@@ -115,7 +115,7 @@ def run_case(name: str, work: Path) -> dict:
     simulate(cfg, p, on_phase=lambda c: phases.__setitem__(c.phase, c))
     sim_cpu = time.process_time() - t0
     truth = json.loads((p / "truth/truth.json").read_text())
-    obs = measured_targets(p, float(cfg["scene"]["target_radius_m"]), truth["gsd_m"])
+    obs = measured_targets(p, float(cfg.scene.target_radius_m), truth["gsd_m"])
     xy = np.array([(x, y) for *_, x, y in obs])
     off = np.hypot(*(xy - true_image_positions(p, obs)).T)
     # the adjustment: GNSS with a shift per strip, the targets as control, matched ties, the true camera

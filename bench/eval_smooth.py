@@ -52,7 +52,7 @@ def truth(seed: int):
     """(true DEM, breakline mask, description) of one seed."""
     cfg = load_preset("demo")
     layout = block_layout(cfg)
-    scene = build_scene(cfg["scene"], layout.width_m, layout.height_m, np.zeros(3), seed)
+    scene = build_scene(cfg.scene, layout.width_m, layout.height_m, np.zeros(3), seed)
     rng = np.random.default_rng(seed + 1000)
     w, h = 800.0, 1200.0  # the south part with the flats and ponds, and the valley side
     x = np.arange(0, w, RES_M) + RES_M / 2

@@ -40,7 +40,6 @@ sys.path.insert(0, str(REPO))
 
 from aerotri.core.records import to_record  # noqa: E402
 from aerotri.sim import load_preset, simulate  # noqa: E402
-from aerotri.sim.config import apply_overrides  # noqa: E402
 from lidarctl.strips import adjust as adj  # noqa: E402
 from lidarctl.strips.check import check_strips, read_strip_check  # noqa: E402
 
@@ -56,8 +55,7 @@ AHN3 = Path(os.environ.get("AEROTRI_SHARED_DATA", REPO.parent / "shared" / "data
 def sim(work: Path, seed: int, name: str, overrides) -> Path:
     out = work / f"seed{seed}_{name}"
     if not (out / "truth" / "truth.json").exists():
-        cfg = apply_overrides(load_preset("tiny"), overrides)
-        cfg["preset"]["seed"] = seed
+        cfg = load_preset("tiny", [*overrides, f"preset.seed={seed}"])
         simulate(cfg, out, force=True)
     return out
 

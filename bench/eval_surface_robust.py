@@ -34,6 +34,7 @@ from pathlib import Path
 import numpy as np
 
 from aerotri.adjust.pipeline import AdjustSettings, adjust_project
+from aerotri.core.records import to_record
 from aerotri.sim.clutter import CLASSES, write_clutter_projects
 from aerotri.sim.observations import geometric_block
 
@@ -151,7 +152,7 @@ def against_clean(ba, clean) -> dict:
 def run_seed(tmp: Path, seed: int, strips: int, frames: int, points_per_image: int, variants=tuple(VARIANTS)) -> dict:
     t0 = time.perf_counter()
     block, ties, roots = make_case(tmp, seed, strips, frames, points_per_image)
-    out = {"seed": seed, "images": len(block.image_id), "counts": ties.counts(), "gnss_height_shift_m":
+    out = {"seed": seed, "images": len(block.image_id), "counts": to_record(ties.counts()), "gnss_height_shift_m":
            [float(v) for v in block.gnss_shift_m[:, 2]], "simulate_s": time.perf_counter() - t0, "variants": {}}
     runs = {}
     for v in variants:

@@ -71,13 +71,13 @@ def simulate(seed: int, forested: bool = False):
     ``forested``: 25 times the trees on the valley side and three times the groves (a closed forest)."""
     cfg = load_preset("demo")
     if forested:
-        cfg["scene"]["slope_trees"] *= 25
-        cfg["scene"]["tree_clusters"] *= 3
+        cfg = load_preset("demo", [f"scene.slope_trees={cfg.scene.slope_trees * 25}",
+                                    f"scene.tree_clusters={cfg.scene.tree_clusters * 3}"])
     layout = block_layout(cfg)
-    scene = build_scene(cfg["scene"], layout.width_m, layout.height_m, np.zeros(3), seed)
+    scene = build_scene(cfg.scene, layout.width_m, layout.height_m, np.zeros(3), seed)
     accel = raycast.build_accel(scene)
     rng = np.random.default_rng(seed + 500)
-    parts = [scan_strip(scene, accel, line, L=cfg["lidar"], rng=rng,
+    parts = [scan_strip(scene, accel, line, L=cfg.lidar, rng=rng,
                         width_m=layout.width_m) for line in lidar_lines(cfg, layout)]
     cat = {k: np.concatenate([getattr(p, k) for p in parts]) for k in ("xyz", "intensity", "return_number",
                                                                  "number_of_returns", "classification")}

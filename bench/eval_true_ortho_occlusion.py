@@ -137,14 +137,12 @@ class Truth:
         from aerotri.sim.scene import build_scene
 
         info = json.loads((project / "truth" / "truth.json").read_text())
-        cfg = load_preset(info["preset"])
-        if int(cfg["preset"]["seed"]) != int(info["seed"]):
-            cfg["preset"]["seed"] = int(info["seed"])
+        cfg = load_preset(info["preset"], [f"preset.seed={int(info['seed'])}"])
         self.origin = np.array(info["origin_m"], float)
         layout = block_layout(cfg)
         s_scene = np.random.SeedSequence(int(info["seed"])).spawn(4)[0]
         scene_seed = int(np.random.default_rng(s_scene).integers(0, 2**31 - 1))
-        self.scene = build_scene(cfg["scene"], layout.width_m, layout.height_m, self.origin, scene_seed)
+        self.scene = build_scene(cfg.scene, layout.width_m, layout.height_m, self.origin, scene_seed)
         self.accel = raycast.build_accel(self.scene)
         self.cast_many = raycast.cast_many
         self._check(project)

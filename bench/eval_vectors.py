@@ -64,12 +64,12 @@ def project(name: str, root: Path) -> tuple[Path, list]:
 def true_scene(name: str):
     """The scene ``aerotri sim`` builds for the preset (same seeds) and its origin."""
     cfg = load_preset(name)
-    ss = np.random.SeedSequence(int(cfg["preset"]["seed"]))
+    ss = np.random.SeedSequence(int(cfg.preset.seed))
     s_scene = ss.spawn(4)[0]
-    origin = np.array([cfg["crs"]["origin_e_m"], cfg["crs"]["origin_n_m"], cfg["crs"]["base_height_m"]])
+    origin = np.array([cfg.crs.origin_e_m, cfg.crs.origin_n_m, cfg.crs.base_height_m])
     layout = block_layout(cfg)
     seed = int(np.random.default_rng(s_scene).integers(0, 2**31 - 1))
-    return build_scene(cfg["scene"], layout.width_m, layout.height_m, origin, seed), origin, int(cfg["crs"]["epsg"])
+    return build_scene(cfg.scene, layout.width_m, layout.height_m, origin, seed), origin, int(cfg.crs.epsg)
 
 
 def write_reference(scene, origin, epsg: int, path: Path) -> dict:

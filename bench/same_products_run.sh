@@ -13,8 +13,10 @@ C=$P/lidar_out/classified
 LOG=$OUT/log.txt
 run() {  # run PROGRAM ARGS...: one command of the side, its console lines appended to the log
     local prog=$1; shift
+    local entry=$prog.cli  # the console script's module (pyproject [project.scripts]); lidarctl's is cli/main.py
+    [ "$prog" = lidarctl ] && entry=lidarctl.cli.main
     echo "\$ $prog $*" >> "$LOG"
-    PYTHONPATH=$CODE "$PY" -P -c "import sys; from $prog.cli import main; sys.argv[0] = '$prog'; main()" "$@" \
+    PYTHONPATH=$CODE "$PY" -P -c "import sys; from $entry import main; sys.argv[0] = '$prog'; main()" "$@" \
         >> "$LOG" 2>&1
     echo "rc=$?" >> "$LOG"
 }

@@ -120,7 +120,7 @@ def size_overrides(size: str) -> tuple[str, list[str]]:
         return preset, []
     full = load_preset(preset)
     ratio = lidar_plan(load_preset(preset, flight)).scene_km2 / lidar_plan(full).scene_km2
-    return preset, flight + [f"scene.{k}={max(1, round(full['scene'][k] * ratio))}" for k in SCENE_COUNTS]
+    return preset, flight + [f"scene.{k}={max(1, round(getattr(full.scene, k) * ratio))}" for k in SCENE_COUNTS]
 
 
 def generate_command(block: Path, size: str) -> list[str]:

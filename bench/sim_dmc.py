@@ -58,8 +58,8 @@ def _run_name(overrides: list[str]) -> str:
         return "full"
     from aerotri.sim import load_preset
 
-    f = load_preset(PRESET, overrides)["flight"]
-    return f"subset_{f['strips']}x{f['frames_per_strip']}"
+    f = load_preset(PRESET, overrides).flight
+    return f"subset_{f.strips}x{f.frames_per_strip}"
 
 
 def unit_costs(phases: dict) -> dict:
@@ -110,10 +110,10 @@ def full_block_numbers(points_per_pulse: float) -> dict:
     cfg = load_preset(PRESET)
     layout = block_layout(cfg)
     plan = lidar_plan(cfg)
-    t = cfg["truth"]
-    raster_mp = 2 * math.floor(layout.width_m / t["raster_res_m"]) * math.floor(layout.height_m / t["raster_res_m"]) / 1e6
-    ortho_mp = math.floor(layout.width_m / t["ortho_res_m"]) * math.floor(layout.height_m / t["ortho_res_m"]) / 1e6
-    return dict(frames=cfg["flight"]["strips"] * cfg["flight"]["frames_per_strip"], lidar_pulses=plan.pulses,
+    t = cfg.truth
+    raster_mp = 2 * math.floor(layout.width_m / t.raster_res_m) * math.floor(layout.height_m / t.raster_res_m) / 1e6
+    ortho_mp = math.floor(layout.width_m / t.ortho_res_m) * math.floor(layout.height_m / t.ortho_res_m) / 1e6
+    return dict(frames=cfg.flight.strips * cfg.flight.frames_per_strip, lidar_pulses=plan.pulses,
                 lidar_points_planned=plan.pulses * points_per_pulse, scene_km2=plan.scene_km2,
                 truth_megapixels=raster_mp + ortho_mp)
 
@@ -130,11 +130,11 @@ def estimated_gb(overrides: list[str]) -> float:
     from aerotri.sim import lidar_plan, load_preset
 
     cfg = load_preset(PRESET, overrides)
-    c, f = cfg["camera"], cfg["flight"]
-    bands = 1 if cfg["render"].get("bands", "rgb") == "pan" else 3
-    frames = f["strips"] * f["frames_per_strip"] * c["width"] * c["height"] * bands * BYTES_PER_SAMPLE
+    c, f = cfg.camera, cfg.flight
+    bands = 1 if cfg.render.bands == "pan" else 3
+    frames = f.strips * f.frames_per_strip * c.width * c.height * bands * BYTES_PER_SAMPLE
     plan = lidar_plan(cfg)
-    truth = plan.scene_km2 * 1e6 / cfg["truth"]["ortho_res_m"] ** 2 * BYTES_PER_TRUTH_PX
+    truth = plan.scene_km2 * 1e6 / cfg.truth.ortho_res_m ** 2 * BYTES_PER_TRUTH_PX
     return (frames + 0.8 * plan.pulses * BYTES_PER_POINT + truth) / 1e9
 
 
@@ -159,16 +159,16 @@ def make_block(out: Path, overrides: list[str]) -> dict:
     with measure() as total:
         truth = simulate(cfg, out, on_phase=lambda cost: phases.__setitem__(cost.phase, dataclasses.asdict(cost)))
     peak = max(p["peak_rss_mb"] or 0.0 for p in phases.values())
-    cam = cfg["camera"]
+    cam = cfg.camera
     return dict(
         block=dict(path=str(out), frames=truth.frames, image_width_px=truth.image_width_px,
-                   image_height_px=truth.image_height_px, bands=cfg["render"].get("bands", "rgb"),
-                   bits=cfg["render"].get("bits", 8), tile_px=cfg["render"].get("tile_px", 0),
-                   compression=cfg["render"].get("compress", "none"), gsd_m=round(truth.gsd_m, 4),
-                   focal_mm=cam["focal_mm"], pixel_um=truth.pixel_um, lidar_strips=truth.lidar_strips,
+                   image_height_px=truth.image_height_px, bands=cfg.render.bands,
+                   bits=cfg.render.bits, tile_px=cfg.render.tile_px,
+                   compression=cfg.render.compress, gsd_m=round(truth.gsd_m, 4),
+                   focal_mm=cam.focal_mm, pixel_um=truth.pixel_um, lidar_strips=truth.lidar_strips,
                    lidar_points=truth.lidar_points, lidar_pulses=plan.pulses,
-                   lidar_format=cfg["lidar"]["format"], scene_km2=plan.scene_km2,
-                   truth_ortho_res_m=cfg["truth"]["ortho_res_m"],
+                   lidar_format=cfg.lidar.format, scene_km2=plan.scene_km2,
+                   truth_ortho_res_m=cfg.truth.ortho_res_m,
                    disk_gb=dict(images=_du_gb(out / "images"), lidar=_du_gb(out / "lidar"),
                                 truth=_du_gb(out / "truth"), total=_du_gb(out))),
         command=f"aerotri sim --preset {PRESET} " + "".join(f"--set {o} " for o in overrides) + str(out),

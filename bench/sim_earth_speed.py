@@ -34,14 +34,14 @@ def main(argv=None) -> None:
 
     cfg = load_preset(a.preset, a.sets)
     layout = block_layout(cfg)
-    ss = np.random.SeedSequence(cfg["preset"]["seed"]).spawn(4)
-    origin = np.array([cfg["crs"]["origin_e_m"], cfg["crs"]["origin_n_m"], cfg["crs"]["base_height_m"]])
-    scene = build_scene(cfg["scene"], layout.width_m, layout.height_m, origin,
+    ss = np.random.SeedSequence(cfg.preset.seed).spawn(4)
+    origin = np.array([cfg.crs.origin_e_m, cfg.crs.origin_n_m, cfg.crs.base_height_m])
+    scene = build_scene(cfg.scene, layout.width_m, layout.height_m, origin,
                         int(np.random.default_rng(ss[0]).integers(0, 2**31 - 1)))
     plan = plan_frames(cfg, layout, np.random.default_rng(ss[1]))
-    cam, _ = cameras_from_config(cfg["camera"])
+    cam, _ = cameras_from_config(cfg.camera)
     look = raster.SceneLook(scene, texture_fine_m(cfg, cam))
-    r = raster.FrameRenderer(scene, cam, look.fine_m, samples=int(cfg["render"]["samples"]), bits=8, look=look)
+    r = raster.FrameRenderer(scene, cam, look.fine_m, samples=int(cfg.render.samples), bits=8, look=look)
     try:
         from aerotri.sim.project import sim_earth
 

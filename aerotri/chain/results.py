@@ -21,13 +21,19 @@ class StageResult:
 
     why: str | None = None
     notes: tuple[str, ...] = ()
+    _HIDDEN: ClassVar[tuple[str, ...]] = ()  # fields the record never holds
+
+    def _written_when_none(self) -> tuple[str, ...]:
+        """Fields with a default of None that the record holds even while None."""
+        return ()
 
     def record(self) -> dict:
         """The key numbers as the stamp and the summary row hold them (module doc)."""
         out = {}
+        keep = self._written_when_none()
         for f in dataclasses.fields(self):
             v = getattr(self, f.name)
-            if f.name in _LAST or (v is None and f.default is None):
+            if f.name in _LAST or f.name in self._HIDDEN or (v is None and f.default is None and f.name not in keep):
                 continue
             out[f.name] = v
         if self.why is not None:
@@ -71,8 +77,8 @@ class CornersResult(StageResult):
 
 @dataclasses.dataclass(frozen=True, kw_only=True)
 class VectorsResult(StageResult):
-    """The line map's feature counts and, when it was checked (``checked``), the plan RMS of its building corners
-    to the reference (metres) and their count (None: no building corner matched)."""
+    """The line map's feature counts and, when it was checked (``checked``, not in the record), the plan RMS of its
+    building corners to the reference (metres) and their count (None: no building corner matched)."""
 
     buildings: int | None = None
     roads: int | None = None
@@ -81,15 +87,10 @@ class VectorsResult(StageResult):
     checked: bool = False
     corner_rms_xy_m: float | None = None
     corners: int | None = None
-    _CHECK: ClassVar[tuple[str, ...]] = ("corner_rms_xy_m", "corners")
+    _HIDDEN: ClassVar[tuple[str, ...]] = ("checked",)
 
-    def record(self) -> dict:
-        out = super().record()
-        out.pop("checked")
-        if not self.checked:
-            return out
-        tail = {k: out.pop(k) for k in _LAST if k in out}
-        return {**out, **{k: getattr(self, k) for k in self._CHECK}, **tail}
+    def _written_when_none(self) -> tuple[str, ...]:
+        return ("corner_rms_xy_m", "corners") if self.checked else ()
 
 
 @dataclasses.dataclass(frozen=True, kw_only=True)

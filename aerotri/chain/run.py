@@ -5,10 +5,14 @@ from __future__ import annotations
 
 import json
 import logging
+import typing
 from pathlib import Path
 
 from aerotri.core.project import Project
 from aerotri.core.settings import Resolved
+
+if typing.TYPE_CHECKING:
+    from aerotri.sim.config import Preset
 
 log = logging.getLogger(__name__)
 
@@ -39,7 +43,7 @@ def closing_words(rows: list[dict]) -> str | None:
     return None
 
 
-def stale_simulation(project: Path, cfg: dict) -> str | None:
+def stale_simulation(project: Path, cfg: Preset) -> str | None:
     """Why the simulated project must be made (again), or None: missing, or its project.toml lacks the
     stage options the simulator writes for the preset (``aerotri.sim.project.rendered_chain_table``: a project
     simulated by an earlier version)."""

@@ -84,12 +84,6 @@ class ToleranceTable:
     def unconfirmed(self) -> list[str]:
         return [k for k, p in self.provenance.items() if not p.confirmed and k in self.limits]
 
-    def as_dict(self) -> dict:
-        return dict(key=self.key, name=self.name, file=self.path.name, terrain=self.terrain, reason=self.reason,
-                    platform=self.platform, flight_spec=self.limits.get("flight_spec"),
-                    unconfirmed=self.unconfirmed,
-                    provenance={k: dataclasses.asdict(p) for k, p in self.provenance.items()})
-
 
 def _toml(path: Path, what: str = "tolerance table (TOML)") -> dict:
     try:

@@ -9,12 +9,12 @@ from pathlib import Path
 
 import click
 
-from aerotri.core.atomic import refuse_input_as_output
+from aerotri.core.atomic import refuse_input_as_output, write_text_atomic
 from aerotri.core.commands import Group, at_least, positive
 import numpy as np
 
 from aerotri.geom.crs.definition import crs_label, parse_crs
-from aerotri.geom.crs.files import fit_common_points, read_height_points, transform_points_file, write_json
+from aerotri.geom.crs.files import fit_common_points, read_height_points, transform_points_file
 from aerotri.geom.crs.datum import HEIGHT_MODELS, MODELS, PARAMETER_NAMES, load_height_model, load_transformation
 from aerotri.geom.crs.heights import fit_height_anomaly
 from aerotri.geom.crs.raster import KINDS, warp_raster
@@ -68,7 +68,7 @@ def fit_cmd(common_points, model, from_epsg, to_epsg, output):
     out = Path(output) if output else Path(common_points).with_suffix(f".{model}.json")
     refuse_input_as_output(out, [common_points], "-o")
     result = fit_common_points(common_points, model, from_epsg, to_epsg)
-    write_json(out, result.to_dict())
+    write_text_atomic(out, result.to_json())
     click.echo(format_fit_report(result, common_points))
     click.echo(f"Parameters written to {out}")
 
@@ -90,7 +90,7 @@ def fit_heights_cmd(points, model, epsg, smoothing, output):
         res = fit_height_anomaly(ids, x, y, h, H, model=model, smoothing=smoothing, crs=label)
     except InputError as exc:
         raise InputError(f"{points}: {exc}") from None
-    write_json(out, res.to_dict())
+    write_text_atomic(out, res.to_json())
     click.echo(_height_fit_table(model, points, ids, res))
     click.echo(f"Model written to {out}")
 

@@ -34,7 +34,8 @@ from aerotri.core.errors import InputError, StageOrderError
 from aerotri.core.textio import read_record
 from aerotri.core.project import Project
 from aerotri.core.records import to_record
-from aerotri.core.tolerances import TERRAINS, TOLERANCE_DIR, choose_table, read_qa_config, split_key
+from aerotri.core.tolerances import (TERRAINS, TOLERANCE_DIR, ToleranceTable, choose_table, read_qa_config,
+                                     split_key)
 from aerotri.geom.block_scale import project_block_scale
 from aerotri.qa.compliance import asprs_class_cm, project_compliance
 from lidarctl.checks.heights import read_height_check
@@ -89,6 +90,14 @@ class QaReport:
 
     def has(self, check_id: str) -> bool:
         return any(c.id == check_id for c in self.checks)
+
+
+def _table_record(table: ToleranceTable) -> dict:
+    """The report's record of the tolerance table that judged the block: which table (its file's name), why, the
+    flight specification, the limits whose source is unconfirmed and every limit's source."""
+    return dict(key=table.key, name=table.name, file=table.path.name, terrain=table.terrain, reason=table.reason,
+                platform=table.platform, flight_spec=table.limits.get("flight_spec"), unconfirmed=table.unconfirmed,
+                provenance={k: dataclasses.asdict(p) for k, p in table.provenance.items()})
 
 
 def _failed(check_id: str, section: str, name: str, why: str) -> QaCheck:
@@ -465,7 +474,7 @@ def build_qa_report(root, *, tolerance_file=None, terrain: str | None = None, sc
                  for r, p in zip(rows, prov))
     return QaReport(project=(at.project if at and at.project else root.name),
                     map_scale=tol_path.stem if tol_file else split_key(table.key)[0],
-                    tolerance_table=str(tol_path.name), terrain=terrain, tolerances=tol, table=table.as_dict(),
+                    tolerance_table=str(tol_path.name), terrain=terrain, tolerances=tol, table=_table_record(table),
                     block=dataclasses.asdict(block), checks=rows,
                     overall=("fail" if "fail" in verdicts else "pass") if verdicts else None,
                     passed=verdicts.count("pass"), failed=verdicts.count("fail"), details=info,

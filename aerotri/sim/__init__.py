@@ -4,9 +4,9 @@
 Nothing in the library imports this package.
 """
 
-__all__ = ["SimTruth", "available_presets", "lidar_plan", "load_preset", "simulate"]
+__all__ = ["Preset", "SimTruth", "available_presets", "lidar_plan", "load_preset", "simulate"]
 
-_HOME = {"SimTruth": "aerotri.sim.project", "available_presets": "aerotri.sim.config",
+_HOME = {"Preset": "aerotri.sim.config", "SimTruth": "aerotri.sim.project", "available_presets": "aerotri.sim.config",
          "load_preset": "aerotri.sim.config", "simulate": "aerotri.sim.project",
          "lidar_plan": "aerotri.sim.project"}
 

@@ -77,6 +77,27 @@ class Trees:
         return np.column_stack([xy, z])
 
 
+@dataclasses.dataclass(frozen=True)
+class ClassCount:
+    """Tie points of one class and their image observations."""
+
+    points: int
+    observations: int
+
+
+@dataclasses.dataclass(frozen=True)
+class ClutterCounts:
+    """Tie points and observations per class (``CLASSES``)."""
+
+    ground: ClassCount
+    vegetation: ClassCount
+    moving: ClassCount
+
+    @property
+    def points(self) -> int:
+        return self.ground.points + self.vegetation.points + self.moving.points
+
+
 @dataclasses.dataclass
 class ClutterTies:
     """Tie observations of the three classes and their truth."""
@@ -86,11 +107,11 @@ class ClutterTies:
     ground_truth_local: dict  # ground point id -> true local position (3,)
     trees: Trees
 
-    def counts(self) -> dict:
+    def counts(self) -> ClutterCounts:
         """Points and observations per class."""
         cls = np.array([self.point_class[p] for p in self.obs.point_id])
-        return {c: {"points": int(sum(v == c for v in self.point_class.values())), "observations": int((cls == c).sum())}
-                for c in CLASSES}
+        return ClutterCounts(**{c: ClassCount(points=int(sum(v == c for v in self.point_class.values())),
+                                              observations=int((cls == c).sum())) for c in CLASSES})
 
 
 def _noisy(block, P, pi, ii, xy, *, prefix, sigma_px, min_rays, rng):

@@ -16,9 +16,7 @@ def simulate_command(preset: str, outdir: Path, *, seed: int | None = None, over
     """Simulate into ``outdir``; returns the line the command prints (None: the simulator printed its own)."""
     from aerotri.sim import load_preset, simulate
 
-    cfg = load_preset(preset, overrides)
-    if seed is not None:
-        cfg["preset"]["seed"] = seed
+    cfg = load_preset(preset, [*overrides, *([f"preset.seed={int(seed)}"] if seed is not None else [])])
     if not 0.0 <= blunder_fraction < 1.0:
         raise InputError(f"--blunder-fraction {blunder_fraction}: must be in [0, 1)")
     if observations_only:
@@ -33,12 +31,11 @@ def simulate_command(preset: str, outdir: Path, *, seed: int | None = None, over
     simulate(cfg, outdir, force=force)
     if not observations:
         return None
-    from aerotri.sim.config import optional
     from aerotri.sim.observations import write_truth_observations
 
-    sigma = optional(cfg, "observations", "tie_sigma_px") if tie_sigma_px is None else tie_sigma_px
+    sigma = cfg.observations.tie_sigma_px if tie_sigma_px is None else tie_sigma_px
     summary = write_truth_observations(outdir, tie_sigma_px=sigma, n_control=n_control,
                                        blunder_fraction=blunder_fraction, bad_control_shift_m=bad_control_shift_m,
-                                       seed=cfg["preset"]["seed"], tie_points_per_frame=tie_points_per_frame)
+                                       seed=cfg.preset.seed, tie_points_per_frame=tie_points_per_frame)
     counts = ((f.name, getattr(summary, f.name)) for f in dataclasses.fields(summary))
     return f"truth observations: {', '.join(f'{k} {v}' for k, v in counts if isinstance(v, (int, float)))}"

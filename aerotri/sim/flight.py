@@ -14,6 +14,7 @@ import numpy as np
 
 from aerotri.geom.camera import BrownCamera
 from aerotri.geom.rotation import rotation_matrix_opk
+from aerotri.sim.config import Preset, PresetCamera
 
 
 @dataclasses.dataclass
@@ -30,13 +31,13 @@ class FramePlan:
     strip_t0_s: np.ndarray  # (S,) reference time of each strip's drift
 
 
-def cameras_from_config(cam: dict) -> tuple[BrownCamera, BrownCamera]:
+def cameras_from_config(cam: PresetCamera) -> tuple[BrownCamera, BrownCamera]:
     """(true camera, nominal camera) from the ``[camera]`` table."""
-    pixel_um = cam["sensor_width_mm"] * 1000.0 / cam["width"]
+    pixel_um = cam.sensor_width_mm * 1000.0 / cam.width
     true = BrownCamera(
-        focal_mm=float(cam["focal_mm"]), pixel_um=pixel_um, width=int(cam["width"]), height=int(cam["height"]),
-        ppx_mm=float(cam["ppx_mm"]), ppy_mm=float(cam["ppy_mm"]), k1=float(cam["k1"]), k2=float(cam["k2"]),
-        k3=float(cam["k3"]), p1=float(cam["p1"]), p2=float(cam["p2"]), name="DMC-like (true)",
+        focal_mm=float(cam.focal_mm), pixel_um=pixel_um, width=int(cam.width), height=int(cam.height),
+        ppx_mm=float(cam.ppx_mm), ppy_mm=float(cam.ppy_mm), k1=float(cam.k1), k2=float(cam.k2),
+        k3=float(cam.k3), p1=float(cam.p1), p2=float(cam.p2), name="DMC-like (true)",
     )
     nominal = BrownCamera(focal_mm=true.focal_mm, pixel_um=pixel_um, width=true.width, height=true.height,
                           name="DMC-like")
@@ -68,33 +69,33 @@ class LidarLine:
     t0_s: float  # GPS time at the start of the line
 
 
-def block_layout(cfg: dict) -> BlockLayout:
+def block_layout(cfg: Preset) -> BlockLayout:
     """Footprints, base and strip spacing, and the scene size that holds the block with margins."""
-    f = cfg["flight"]
-    cam = cfg["camera"]
-    H = f["height_above_ground_m"]
-    along = H * cam["sensor_height_mm"] / cam["focal_mm"]
-    across = H * cam["sensor_width_mm"] / cam["focal_mm"]
-    base = (1.0 - f["forward_overlap"]) * along
-    spacing = (1.0 - f["side_overlap"]) * across
-    block_x = (f["frames_per_strip"] - 1) * base + along
-    block_y = (f["strips"] - 1) * spacing + across
-    margin = cfg["scene"]["margin_m"]
+    f = cfg.flight
+    cam = cfg.camera
+    H = f.height_above_ground_m
+    along = H * cam.sensor_height_mm / cam.focal_mm
+    across = H * cam.sensor_width_mm / cam.focal_mm
+    base = (1.0 - f.forward_overlap) * along
+    spacing = (1.0 - f.side_overlap) * across
+    block_x = (f.frames_per_strip - 1) * base + along
+    block_y = (f.strips - 1) * spacing + across
+    margin = cfg.scene.margin_m
     return BlockLayout(footprint_along_m=along, footprint_across_m=across, base_m=base, strip_spacing_m=spacing,
                        width_m=block_x + 2 * margin, height_m=block_y + 2 * margin, margin_m=margin)
 
 
-def plan_frames(cfg: dict, layout: BlockLayout, rng) -> FramePlan:
+def plan_frames(cfg: Preset, layout: BlockLayout, rng) -> FramePlan:
     """Frame positions and attitudes along alternating strips, and the GNSS antenna observations with
     per-strip shift and drift and white noise (``rng`` draws in a fixed order: same seed, same plan)."""
-    f = cfg["flight"]
-    g = cfg["gnss"]
-    H = f["height_above_ground_m"]
-    ns, nf = int(f["strips"]), int(f["frames_per_strip"])
+    f = cfg.flight
+    g = cfg.gnss
+    H = f.height_above_ground_m
+    ns, nf = int(f.strips), int(f.frames_per_strip)
     margin = layout.margin_m
     ids, strip, C, opk, times = [], [], [], [], []
-    tilt_sd = f["max_tilt_deg"] / 2.5
-    kap_sd = f["max_kappa_dev_deg"] / 3.0
+    tilt_sd = f.max_tilt_deg / 2.5
+    kap_sd = f.max_kappa_dev_deg / 3.0
     t_strip0 = []
     for s in range(ns):
         east = s % 2 == 0
@@ -102,17 +103,17 @@ def plan_frames(cfg: dict, layout: BlockLayout, rng) -> FramePlan:
         xs = margin + layout.footprint_along_m / 2 + np.arange(nf) * layout.base_m
         if not east:
             xs = xs[::-1]
-        crab = np.clip(rng.normal(0, kap_sd), -0.6 * f["max_kappa_dev_deg"], 0.6 * f["max_kappa_dev_deg"])
+        crab = np.clip(rng.normal(0, kap_sd), -0.6 * f.max_kappa_dev_deg, 0.6 * f.max_kappa_dev_deg)
         t0 = 1000.0 + s * 400.0  # strips flown 400 s apart (turns)
-        t_strip0.append(t0 + 0.5 * (nf - 1) * layout.base_m / f["speed_mps"])
+        t_strip0.append(t0 + 0.5 * (nf - 1) * layout.base_m / f.speed_mps)
         for i, x in enumerate(xs):
             ids.append(f"s{s + 1:02d}_{i + 1:03d}")
             strip.append(s + 1)
             C.append((x, y + rng.normal(0, 2.0), H + rng.normal(0, 3.0)))
-            om, ph = np.clip(rng.normal(0, tilt_sd, 2), -0.95 * f["max_tilt_deg"], 0.95 * f["max_tilt_deg"])
-            dk = np.clip(crab + rng.normal(0, kap_sd / 2), -0.95 * f["max_kappa_dev_deg"], 0.95 * f["max_kappa_dev_deg"])
+            om, ph = np.clip(rng.normal(0, tilt_sd, 2), -0.95 * f.max_tilt_deg, 0.95 * f.max_tilt_deg)
+            dk = np.clip(crab + rng.normal(0, kap_sd / 2), -0.95 * f.max_kappa_dev_deg, 0.95 * f.max_kappa_dev_deg)
             opk.append((om, ph, (-90.0 if east else 90.0) + dk))
-            times.append(t0 + i * layout.base_m / f["speed_mps"])
+            times.append(t0 + i * layout.base_m / f.speed_mps)
     C = np.array(C)
     opk = np.array(opk)
     times = np.array(times)
@@ -130,22 +131,22 @@ def plan_frames(cfg: dict, layout: BlockLayout, rng) -> FramePlan:
         nominal = np.arctan2(0.0, np.sign(d[:, 0]))
         opk[idx, 2] += np.degrees((np.arctan2(d[:, 1], d[:, 0]) - nominal + np.pi) % (2 * np.pi) - np.pi)
     R = rotation_matrix_opk(opk[:, 0], opk[:, 1], opk[:, 2])
-    lever = np.asarray(g["lever_arm_m"], dtype=float)
+    lever = np.asarray(g.lever_arm_m, dtype=float)
     antenna = C + np.einsum("nij,j->ni", R, lever)
-    shift = rng.normal(0, g["strip_shift_sigma_m"], (ns, 3))
-    drift = rng.normal(0, g["drift_sigma_m_per_s"], (ns, 3))
+    shift = rng.normal(0, g.strip_shift_sigma_m, (ns, 3))
+    drift = rng.normal(0, g.drift_sigma_m_per_s, (ns, 3))
     t_ref = np.array(t_strip0)
     err = shift[strip - 1] + drift[strip - 1] * (times - t_ref[strip - 1])[:, None]
-    obs = antenna + err + rng.normal(0, g["sigma_m"], antenna.shape)
+    obs = antenna + err + rng.normal(0, g.sigma_m, antenna.shape)
     return FramePlan(ids, strip, C, opk, times, antenna, obs, shift, drift, t_ref)
 
 
-def lidar_lines(cfg: dict, layout: BlockLayout) -> list[LidarLine]:
+def lidar_lines(cfg: Preset, layout: BlockLayout) -> list[LidarLine]:
     """Flight lines of the LiDAR: east-west, covering the whole scene with the configured side overlap."""
-    L = cfg["lidar"]
-    H = L["height_above_ground_m"]
-    swath = 2.0 * H * math.tan(math.radians(L["fov_deg"] / 2.0))
-    spacing = (1.0 - L["side_overlap"]) * swath
+    L = cfg.lidar
+    H = L.height_above_ground_m
+    swath = 2.0 * H * math.tan(math.radians(L.fov_deg / 2.0))
+    spacing = (1.0 - L.side_overlap) * swath
     Hs = layout.height_m
     n = max(1, int(math.ceil(max(0.0, Hs - swath) / spacing)) + 1)
     y0 = Hs / 2 - (n - 1) * spacing / 2

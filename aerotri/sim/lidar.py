@@ -32,6 +32,7 @@ import numpy as np
 import pyproj
 
 from aerotri.sim import raycast, shading
+from aerotri.sim.config import PresetLidar
 from aerotri.sim.flight import LidarLine
 from aerotri.sim.scene import KIND_NONE, KIND_ROOF, KIND_TERRAIN, KIND_TREE, KIND_WALL, WATER, Scene
 
@@ -121,9 +122,9 @@ class _Sweep:
     nominal: np.ndarray | None = None  # (n, 3) directions the points are computed along (None: ``dirs``)
 
 
-def strip_pulses(line: LidarLine, L: dict, width_m: float) -> int:
+def strip_pulses(line: LidarLine, L: PresetLidar, width_m: float) -> int:
     """Number of pulses of one strip: the scene width plus half a swath at each end, flown at constant speed."""
-    return int((width_m + line.swath_m) / L["speed_mps"] * L["pulse_rate_hz"])
+    return int((width_m + line.swath_m) / L.speed_mps * L.pulse_rate_hz)
 
 
 def pulse_chunks(n_pulses: int, chunk_pulses: int | None = None) -> list[tuple[int, int]]:
@@ -133,15 +134,15 @@ def pulse_chunks(n_pulses: int, chunk_pulses: int | None = None) -> list[tuple[i
     return [(i0, min(n_pulses, i0 + chunk_pulses)) for i0 in range(0, max(n_pulses, 1), chunk_pulses)]
 
 
-def _sweep(line: LidarLine, L: dict, rng, width_m: float, i0: int = 0, i1: int | None = None) -> _Sweep:
+def _sweep(line: LidarLine, L: PresetLidar, rng, width_m: float, i0: int = 0, i1: int | None = None) -> _Sweep:
     """Zig-zag pulses ``i0..i1`` of the flight line with attitude noise (draws ``rng`` once: the attitude noise).
 
     Times, positions and scan angles follow from the pulse index, so a chunk of pulses is the same as that
     part of the whole strip; only the attitude noise depends on how the strip is chunked.
     """
-    v = L["speed_mps"]
-    prf = L["pulse_rate_hz"]
-    half_fov = math.radians(L["fov_deg"] / 2.0)
+    v = L.speed_mps
+    prf = L.pulse_rate_hz
+    half_fov = math.radians(L.fov_deg / 2.0)
     # Fly past the scene ends by half a swath so the corners are covered.
     lead = line.swath_m / 2.0
     i1 = strip_pulses(line, L, width_m) if i1 is None else i1
@@ -150,11 +151,11 @@ def _sweep(line: LidarLine, L: dict, rng, width_m: float, i0: int = 0, i1: int |
     x_air = (-lead + v * t) if line.east else (width_m + lead - v * t)
     y_air = line.y_m + 0.5 * np.sin(2 * np.pi * t / 37.0)  # a gentle weave of the flight line
     z_air = np.full(n, line.z_m)
-    tri, rising = _triangle_wave(L["scan_frequency_hz"] * t)
+    tri, rising = _triangle_wave(L.scan_frequency_hz * t)
     theta = tri * half_fov
     # Across-track is +y (left) flying east; the scan angle is positive to the right of the track.
     side = -1.0 if line.east else 1.0
-    att = np.radians(L["attitude_noise_deg"]) * rng.standard_normal((n, 2))
+    att = np.radians(L.attitude_noise_deg) * rng.standard_normal((n, 2))
 
     def beam(angle):
         d = np.stack([np.zeros(n), side * np.sin(angle), -np.cos(angle)], axis=1)
@@ -165,7 +166,7 @@ def _sweep(line: LidarLine, L: dict, rng, width_m: float, i0: int = 0, i1: int |
     dirs = beam(theta)
     origins = np.stack([x_air, y_air, z_air], axis=1)
     rb = boresight_rotation(L)
-    k = float(L.get("scan_angle_scale_error", 0.0))
+    k = float(L.scan_angle_scale_error)
     if rb is None and k == 0.0:
         return _Sweep(t, origins, dirs, theta, rising)
     # the beam leaves at the scaled angle, rotated by the boresight error; the points are computed along the
@@ -177,9 +178,9 @@ def _sweep(line: LidarLine, L: dict, rng, width_m: float, i0: int = 0, i1: int |
     return _Sweep(t, origins, actual, theta, rising, nominal=dirs)
 
 
-def boresight_rotation(L: dict) -> np.ndarray | None:
+def boresight_rotation(L: PresetLidar) -> np.ndarray | None:
     """Rz(heading) Ry(pitch) Rx(roll) of ``boresight_error_deg`` in the body frame; None when zero (or absent)."""
-    r, p, h = np.radians(np.asarray(L.get("boresight_error_deg", (0.0, 0.0, 0.0)), float))
+    r, p, h = np.radians(np.asarray(L.boresight_error_deg, float))
     if r == 0 and p == 0 and h == 0:
         return None
     cr, sr, cp, sp, ch, sh = np.cos(r), np.sin(r), np.cos(p), np.sin(p), np.cos(h), np.sin(h)
@@ -194,12 +195,12 @@ def body_to_world(line: LidarLine) -> np.ndarray:
     return np.array([[f, 0.0, 0.0], [0.0, -f, 0.0], [0.0, 0.0, -1.0]]).T
 
 
-def trajectory(line: LidarLine, L: dict, width_m: float, rate_hz: float = 50.0):
+def trajectory(line: LidarLine, L: PresetLidar, width_m: float, rate_hz: float = 50.0):
     """(LAS gps_time, scanner positions (n, 3) in local metres, roll/pitch/heading (n, 3) deg) of a strip at
     ``rate_hz``, over the strip's pulses and a second beyond; the positions follow ``_sweep`` (the weave)."""
-    v = L["speed_mps"]
+    v = L.speed_mps
     lead = line.swath_m / 2.0
-    t_end = strip_pulses(line, L, width_m) / L["pulse_rate_hz"]
+    t_end = strip_pulses(line, L, width_m) / L.pulse_rate_hz
     t = np.arange(-1.0, t_end + 1.0, 1.0 / rate_hz)
     x = (-lead + v * t) if line.east else (width_m + lead - v * t)
     y = line.y_m + 0.5 * np.sin(2 * np.pi * t / 37.0)
@@ -220,7 +221,7 @@ class _Returns:
     cls_override: np.ndarray  # (n,)
 
 
-def _water_and_outliers(scene: Scene, sw: _Sweep, T, *, K, O, L: dict, rng) -> _Returns:
+def _water_and_outliers(scene: Scene, sw: _Sweep, T, *, K, O, L: PresetLidar, rng) -> _Returns:
     """Most pulses on water give no return; low outliers (beyond the surface, preferably under trees and
     in ponds) and high outliers (birds) replace the returns of some pulses."""
     n = len(sw.t)
@@ -233,8 +234,8 @@ def _water_and_outliers(scene: Scene, sw: _Sweep, T, *, K, O, L: dict, rng) -> _
     on_water = valid[:, 0] & (K[:, 0] == KIND_TERRAIN) & (mat == WATER)
 
     # Outliers: low (below the surface along the beam) and high (birds).
-    n_low = rng.binomial(n, L["low_outlier_rate"])
-    n_high = rng.binomial(n, L["high_outlier_rate"])
+    n_low = rng.binomial(n, L.low_outlier_rate)
+    n_high = rng.binomial(n, L.high_outlier_rate)
     cand_tree = np.flatnonzero(valid[:, 0] & (K[:, 0] == KIND_TREE))
     cand_water = np.flatnonzero(on_water)
     cand_any = np.flatnonzero(valid[:, 0])
@@ -252,7 +253,7 @@ def _water_and_outliers(scene: Scene, sw: _Sweep, T, *, K, O, L: dict, rng) -> _
     rest = np.setdiff1d(cand_any, low, assume_unique=True)
     high = rng.choice(rest, min(n_high, len(cand_any)), replace=False) if n_high else np.zeros(0, int)
 
-    keep_water = rng.random(n) < L["water_return_fraction"]
+    keep_water = rng.random(n) < L.water_return_fraction
     drop = on_water & ~keep_water
     drop[low] = False
     valid[drop] = False
@@ -312,7 +313,7 @@ class ScannedPoints:
     point_source_id: np.ndarray  # uint16, the strip number
 
 
-def scan_strip(scene: Scene, accel, line: LidarLine, *, L: dict, rng, width_m: float, i0: int = 0,
+def scan_strip(scene: Scene, accel, line: LidarLine, *, L: PresetLidar, rng, width_m: float, i0: int = 0,
                i1: int | None = None) -> ScannedPoints:
     """Simulate pulses ``i0..i1`` of one strip (default: all of it); returns its points in local metres plus
     truth classes (the fields ``las_record`` writes). Draws ``rng`` in a fixed order per chunk."""
@@ -321,16 +322,16 @@ def scan_strip(scene: Scene, accel, line: LidarLine, *, L: dict, rng, width_m: f
     sw = _sweep(line, L, rng, width_m, i0, i1)
     n = len(sw.t)
     u = rng.random((n, 3))
-    T, K, O = _pulses(sw.origins, np.ascontiguousarray(sw.dirs), accel, u=u, p_first=L["canopy_first_return_prob"],
-                      p_interior=L["canopy_interior_return_prob"], p_ground=L["canopy_ground_return_prob"])
+    T, K, O = _pulses(sw.origins, np.ascontiguousarray(sw.dirs), accel, u=u, p_first=L.canopy_first_return_prob,
+                      p_interior=L.canopy_interior_return_prob, p_ground=L.canopy_ground_return_prob)
     rt = _water_and_outliers(scene, sw, T, K=K, O=O, L=L, rng=rng)
     valid = rt.valid
     nret = valid.sum(axis=1)
     pulse, ret = np.nonzero(valid)
     # Returns are stored in time order per pulse: compact the valid slots.
     order_in_pulse = np.cumsum(valid, axis=1)[pulse, ret]
-    rng_m = rt.ranges[pulse, ret] + rng.normal(0.0, L["range_noise_m"], pulse.size)
-    offset = float(L.get("range_offset_m", 0.0))
+    rng_m = rt.ranges[pulse, ret] + rng.normal(0.0, L.range_noise_m, pulse.size)
+    offset = float(L.range_offset_m)
     if sw.nominal is None and offset == 0.0:
         P = sw.origins[pulse] + sw.dirs[pulse] * rng_m[:, None]
     else:
@@ -353,7 +354,7 @@ def scan_strip(scene: Scene, accel, line: LidarLine, *, L: dict, rng, width_m: f
     edge_pulse = np.zeros(n, bool)
     edge_pulse[turn] = True
     if i1 < n_strip:  # the chunk's last pulse is an edge when the mirror turns before the next chunk's first
-        _, rising_next = _triangle_wave(L["scan_frequency_hz"] * (i1 / L["pulse_rate_hz"]))
+        _, rising_next = _triangle_wave(L.scan_frequency_hz * (i1 / L.pulse_rate_hz))
         edge_pulse[-1] = bool(rising_next) != bool(sw.rising[-1])
     edge = edge_pulse[pulse]
     return ScannedPoints(

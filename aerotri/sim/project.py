@@ -25,7 +25,7 @@ from aerotri.geom.eo import ExteriorOrientations, GnssPositions, format_eo, writ
 from aerotri.core.errors import InputError
 from aerotri.geom.rotation import rotation_matrix_opk
 from aerotri.sim import landcover, raster, raycast, render
-from aerotri.sim.config import optional, stage_sections_toml
+from aerotri.sim.config import Preset, stage_sections_toml
 from aerotri.sim.earth import SimEarth
 from aerotri.sim.flight import block_layout, cameras_from_config, lidar_lines, plan_frames
 from aerotri.sim.lidar import las_header, las_record, pulse_chunks, scan_strip, strip_pulses, trajectory
@@ -196,7 +196,7 @@ class _CheckTargets:
     image_points: int  # observations of the targets in the frames
 
 
-def simulate(cfg: dict, outdir, force: bool = False, on_phase=None) -> SimTruth:
+def simulate(cfg: Preset, outdir, force: bool = False, on_phase=None) -> SimTruth:
     """Generate the project described by preset ``cfg`` into ``outdir``; returns the truth summary.
 
     ``on_phase``: called with a ``PhaseCost`` after each phase (scene, frames, lidar, truth_rasters, other).
@@ -205,11 +205,11 @@ def simulate(cfg: dict, outdir, force: bool = False, on_phase=None) -> SimTruth:
     if outdir.exists() and any(outdir.iterdir()) and not force:
         raise InputError(f"{outdir}: output folder exists and is not empty (use --force to replace it)")
     t_start = time.perf_counter()
-    seed = int(cfg["preset"]["seed"])
+    seed = int(cfg.preset.seed)
     ss = np.random.SeedSequence(seed)
     s_scene, s_flight, s_frames, s_lidar = ss.spawn(4)
-    epsg = int(cfg["crs"]["epsg"])
-    origin = np.array([cfg["crs"]["origin_e_m"], cfg["crs"]["origin_n_m"], cfg["crs"]["base_height_m"]])
+    epsg = int(cfg.crs.epsg)
+    origin = np.array([cfg.crs.origin_e_m, cfg.crs.origin_n_m, cfg.crs.base_height_m])
 
     on_phase = on_phase or (lambda cost: None)
 
@@ -220,10 +220,10 @@ def simulate(cfg: dict, outdir, force: bool = False, on_phase=None) -> SimTruth:
     layout = block_layout(cfg)
     with measure() as usage:
         scene_seed = int(np.random.default_rng(s_scene).integers(0, 2**31 - 1))
-        scene = build_scene(cfg["scene"], layout.width_m, layout.height_m, origin, scene_seed)
+        scene = build_scene(cfg.scene, layout.width_m, layout.height_m, origin, scene_seed)
         accel = raycast.build_accel(scene)
         plan = plan_frames(cfg, layout, np.random.default_rng(s_flight))
-        cam_true, cam_nominal = cameras_from_config(cfg["camera"])
+        cam_true, cam_nominal = cameras_from_config(cfg.camera)
         _check_plan(plan, scene, cfg)
         look = raster.SceneLook(scene, texture_fine_m(cfg, cam_true))
         earth = sim_earth(cfg, layout)
@@ -261,22 +261,22 @@ def simulate(cfg: dict, outdir, force: bool = False, on_phase=None) -> SimTruth:
             _write_flight_acceptance(tmp / "truth", cfg, plan, cam_true, origin)
         done("other", usage)
         truth = SimTruth(
-            preset=cfg["preset"]["name"], seed=seed, crs=f"EPSG:{epsg}", origin_m=origin.tolist(),
+            preset=cfg.preset.name, seed=seed, crs=f"EPSG:{epsg}", origin_m=origin.tolist(),
             scene_width_m=layout.width_m, scene_height_m=layout.height_m,
-            flying_height_above_ground_m=cfg["flight"]["height_above_ground_m"],
-            gsd_m=cam_true.gsd_m(cfg["flight"]["height_above_ground_m"]),
-            frames=len(plan.image_id), strips=int(cfg["flight"]["strips"]),
-            frames_per_strip=int(cfg["flight"]["frames_per_strip"]),
+            flying_height_above_ground_m=cfg.flight.height_above_ground_m,
+            gsd_m=cam_true.gsd_m(cfg.flight.height_above_ground_m),
+            frames=len(plan.image_id), strips=int(cfg.flight.strips),
+            frames_per_strip=int(cfg.flight.frames_per_strip),
             image_width_px=cam_true.width, image_height_px=cam_true.height, pixel_um=cam_true.pixel_um,
             base_m=layout.base_m, strip_spacing_m=layout.strip_spacing_m,
             buildings=len(scene.buildings), roof_corners=len(corners), trees=int(len(scene.tree_c)),
             check_targets=int(len(targets.xyz_m)), check_image_points=targets.image_points,
             lidar_strips=lidar.lines, lidar_points=int(lidar.points), lidar_class_counts=lidar.class_counts,
             lidar_strip_offsets_m=lidar.strip_offsets_m,
-            lidar_boresight_error_deg=[float(v) for v in cfg["lidar"].get("boresight_error_deg", (0.0, 0.0, 0.0))],
-            lidar_range_offset_m=float(cfg["lidar"].get("range_offset_m", 0.0)),
-            lidar_scan_angle_scale_error=float(cfg["lidar"].get("scan_angle_scale_error", 0.0)),
-            lidar_mean_spacing_m=_mean_spacing(cfg["lidar"]),
+            lidar_boresight_error_deg=[float(v) for v in cfg.lidar.boresight_error_deg],
+            lidar_range_offset_m=float(cfg.lidar.range_offset_m),
+            lidar_scan_angle_scale_error=float(cfg.lidar.scan_angle_scale_error),
+            lidar_mean_spacing_m=_mean_spacing(cfg.lidar),
             steep_band_y_m=[scene.steep_band_y_m[0] + origin[1], scene.steep_band_y_m[1] + origin[1]],
             max_slope_deg=_max_slope_deg(scene),
         )
@@ -287,17 +287,17 @@ def simulate(cfg: dict, outdir, force: bool = False, on_phase=None) -> SimTruth:
     return truth
 
 
-def sim_earth(cfg: dict, layout) -> SimEarth:
+def sim_earth(cfg: Preset, layout) -> SimEarth:
     """The earth of a preset's world: its CRS, with the ENU frame at the scene's centre (``aerotri.sim.earth``)."""
-    origin = np.array([cfg["crs"]["origin_e_m"], cfg["crs"]["origin_n_m"], cfg["crs"]["base_height_m"]])
-    return SimEarth(f"EPSG:{int(cfg['crs']['epsg'])}", origin, [layout.width_m / 2, layout.height_m / 2, 0.0])
+    origin = np.array([cfg.crs.origin_e_m, cfg.crs.origin_n_m, cfg.crs.base_height_m])
+    return SimEarth(f"EPSG:{int(cfg.crs.epsg)}", origin, [layout.width_m / 2, layout.height_m / 2, 0.0])
 
 
-def texture_fine_m(cfg: dict, cam_true) -> float:
+def texture_fine_m(cfg: Preset, cam_true) -> float:
     """Finest texture scale of the scene (``[render] texture_fine_m``, default the nominal GSD): the scene's
     texture has structure down to this size, so a finer GSD sees finer ground texture."""
-    v = cfg["render"].get("texture_fine_m")
-    return float(v) if v else float(cam_true.gsd_m(cfg["flight"]["height_above_ground_m"]))
+    v = cfg.render.texture_fine_m
+    return float(v) if v else float(cam_true.gsd_m(cfg.flight.height_above_ground_m))
 
 
 @dataclasses.dataclass(frozen=True)
@@ -311,34 +311,34 @@ class FrameLayout:
     compress: str
 
 
-def frame_layout(cfg: dict) -> FrameLayout:
+def frame_layout(cfg: Preset) -> FrameLayout:
     """The frame layout from ``[render]`` (``bits`` 8 or 12, ``bands`` rgb or pan, ``tile_px``, ``compress``)."""
-    r = cfg["render"]
-    bits = int(r.get("bits", 8))
-    tile = int(r.get("tile_px", 0))
+    r = cfg.render
+    bits = int(r.bits)
+    tile = int(r.tile_px)
     return FrameLayout(bits=bits, dtype="uint8" if bits == 8 else "uint16", tile_px=tile,
-                       bands=1 if r.get("bands", "rgb") == "pan" else 3,
-                       compress=str(r.get("compress", "none")) if tile else "lzw (OpenCV)")
+                       bands=1 if r.bands == "pan" else 3,
+                       compress=str(r.compress) if tile else "lzw (OpenCV)")
 
 
-def _render_frames(images_dir: Path, cfg: dict, *, look, plan, cam_true, s_frames, earth: SimEarth) -> list[float]:
+def _render_frames(images_dir: Path, cfg: Preset, *, look, plan, cam_true, s_frames, earth: SimEarth) -> list[float]:
     """Render, expose and write every frame (``images_dir/<image_id>.tif``) as seen on ``earth``; the exposure
     gain of each.
 
     Frames with ``[render] tile_px`` are written as tiled TIFFs (pixel-interleaved RGB, ``compress``) a tile row
     at a time, so a frame of any size is made in bounded memory; others whole, by OpenCV, as before.
     """
-    rcfg = cfg["render"]
+    rcfg = cfg.render
     fl = frame_layout(cfg)
-    renderer = raster.FrameRenderer(look.scene, cam_true, look.fine_m, samples=int(rcfg["samples"]), bits=fl.bits,
+    renderer = raster.FrameRenderer(look.scene, cam_true, look.fine_m, samples=int(rcfg.samples), bits=fl.bits,
                                     look=look, bands=fl.bands)
     frame_seeds = s_frames.spawn(len(plan.image_id))
     gains = []
     for i in track(range(len(plan.image_id)), "frames"):
         frng = np.random.default_rng(frame_seeds[i])
-        gain = float(np.exp(frng.normal(0.0, rcfg["exposure_sigma"])))
+        gain = float(np.exp(frng.normal(0.0, rcfg.exposure_sigma)))
         gains.append(gain)
-        expo = dict(gain=gain, vignetting=rcfg["vignetting"], noise_dn=rcfg["noise_dn"],
+        expo = dict(gain=gain, vignetting=rcfg.vignetting, noise_dn=rcfg.noise_dn,
                     noise_seed=int(frng.integers(0, 2**32)))
         R = rotation_matrix_opk(*plan.opk_deg[i])
         frame = renderer.setup(plan.centre_m[i], R, earth.frame_earth(plan.centre_m[i], R))
@@ -380,21 +380,21 @@ class LidarPlan:
     scene_km2: float
 
 
-def lidar_plan(cfg: dict) -> LidarPlan:
+def lidar_plan(cfg: Preset) -> LidarPlan:
     """The preset's ``LidarPlan``."""
     layout = block_layout(cfg)
     lines = lidar_lines(cfg, layout)
-    return LidarPlan(strips=len(lines), pulses=sum(strip_pulses(line, cfg["lidar"], layout.width_m) for line in lines),
+    return LidarPlan(strips=len(lines), pulses=sum(strip_pulses(line, cfg.lidar, layout.width_m) for line in lines),
                      scene_km2=round(layout.width_m * layout.height_m / 1e6, 3))
 
 
-def _scan_lidar(tmp: Path, cfg: dict, *, layout, scene, accel, origin, epsg: int, s_lidar) -> _LidarSummary:
+def _scan_lidar(tmp: Path, cfg: Preset, *, layout, scene, accel, origin, epsg: int, s_lidar) -> _LidarSummary:
     """Scan every LiDAR strip: ``lidar/`` unclassified with a per-strip offset, ``truth/lidar/`` the same points
     with their true classes."""
-    L = cfg["lidar"]
+    L = cfg.lidar
     lines = lidar_lines(cfg, layout)
     strip_seeds = s_lidar.spawn(len(lines))
-    ext = L["format"]
+    ext = L.format
     n_points = 0
     strip_offsets = []
     class_counts: dict[int, int] = {}
@@ -403,7 +403,7 @@ def _scan_lidar(tmp: Path, cfg: dict, *, layout, scene, accel, origin, epsg: int
         chunks = pulse_chunks(strip_pulses(line, L, layout.width_m))
         # A strip of one chunk draws its offset after its points (the order the presets' published results
         # were made with); a longer one draws it first, so every chunk is written as soon as it is scanned.
-        off = lrng.normal(0.0, L["strip_offset_sigma_m"], 3) if len(chunks) > 1 else None
+        off = lrng.normal(0.0, L.strip_offset_sigma_m, 3) if len(chunks) > 1 else None
         name = f"strip_{line.strip:02d}.{ext}"
         rec_header = las_header(origin, epsg)  # the writers keep their own headers' counts and bounds
         with (laspy.open(tmp / "lidar" / name, mode="w", header=las_header(origin, epsg)) as obs_las,
@@ -411,7 +411,7 @@ def _scan_lidar(tmp: Path, cfg: dict, *, layout, scene, accel, origin, epsg: int
             for i0, i1 in chunks:
                 pts = scan_strip(scene, accel, line, L=L, rng=lrng, width_m=layout.width_m, i0=i0, i1=i1)
                 if off is None:
-                    off = lrng.normal(0.0, L["strip_offset_sigma_m"], 3)
+                    off = lrng.normal(0.0, L.strip_offset_sigma_m, 3)
                 pts = dataclasses.replace(pts, xyz=pts.xyz + off)
                 n = len(pts.xyz)
                 obs_las.write_points(las_record(rec_header, pts, origin, np.ones(n, np.uint8)).points)
@@ -427,27 +427,27 @@ def _scan_lidar(tmp: Path, cfg: dict, *, layout, scene, accel, origin, epsg: int
     return _LidarSummary(len(lines), n_points, strip_offsets, class_counts)
 
 
-def _write_project_files(tmp: Path, cfg: dict, *, plan, cam_true, cam_nominal, origin, epsg: int, gains,
+def _write_project_files(tmp: Path, cfg: Preset, *, plan, cam_true, cam_nominal, origin, epsg: int, gains,
                          chain: dict | None = None) -> None:
     """project.toml, camera.toml, gnss.txt and the flight truth (truth/eo.txt, camera.toml, gnss_truth.toml,
     frames.csv). ``chain``: the stage sections of project.toml (default: the preset's ``[chain]``)."""
-    g = cfg["gnss"]
+    g = cfg.gnss
     (tmp / "camera.toml").write_text(cam_nominal.to_toml())
     (tmp / "truth" / "camera.toml").write_text(cam_true.to_toml())
     n = len(plan.image_id)
-    sig = np.tile([g["sigma_xy_m"], g["sigma_xy_m"], g["sigma_z_m"]], (n, 1))
+    sig = np.tile([g.sigma_xy_m, g.sigma_xy_m, g.sigma_z_m], (n, 1))
     write_gnss(tmp / "gnss.txt", GnssPositions(plan.image_id, plan.antenna_obs_m + origin, sig))
     eo = ExteriorOrientations(plan.image_id, plan.centre_m + origin, plan.opk_deg)
     (tmp / "truth" / "eo.txt").write_text(format_eo(eo))
-    lever = ", ".join(f"{v}" for v in g["lever_arm_m"])
+    lever = ", ".join(f"{v}" for v in g.lever_arm_m)
     (tmp / "project.toml").write_text(
-        f'[project]\nname = "{cfg["preset"]["name"]}"\ncrs = "EPSG:{epsg}"\nheights = "ellipsoidal"\n\n'
+        f'[project]\nname = "{cfg.preset.name}"\ncrs = "EPSG:{epsg}"\nheights = "ellipsoidal"\n\n'
         f'[camera]\nfile = "camera.toml"\n\n'
         f"[gnss]\n# antenna positions in gnss.txt; lever arm = antenna in the camera frame (x right, y up, z up)\n"
-        f"sigma_xy_m = {g['sigma_xy_m']}\nsigma_z_m = {g['sigma_z_m']}\nlever_arm_m = [{lever}]\n\n"
+        f"sigma_xy_m = {g.sigma_xy_m}\nsigma_z_m = {g.sigma_z_m}\nlever_arm_m = [{lever}]\n\n"
         f"[control]\nsigma_xy_m = 0.10\nsigma_z_m = 0.10\n\n"
         f"[flight]\n# from the flight plan: mean terrain height (m, ellipsoidal) and speed\n"
-        f"mean_terrain_height_m = {origin[2]}\nspeed_mps = {cfg['flight']['speed_mps']}\n\n"
+        f"mean_terrain_height_m = {origin[2]}\nspeed_mps = {cfg.flight.speed_mps}\n\n"
         f"[qa]\n# tolerance table of the accuracy report (aerotri report): map scale, terrain class, PDF copy\n"
         f'map_scale = "1:5000"\nterrain = "flat"\npdf = true\n'
         + stage_sections_toml(rendered_chain_table(cfg) if chain is None else chain)
@@ -466,11 +466,11 @@ def _write_project_files(tmp: Path, cfg: dict, *, plan, cam_true, cam_nominal, o
     _csv(tmp / "truth" / "frames.csv", ["image_id", "strip", "gps_time_s", "exposure_gain"], flight_rows)
 
 
-def rendered_chain_table(cfg: dict) -> dict:
+def rendered_chain_table(cfg: Preset) -> dict:
     """The preset's stage sections with [adjust] stating the GNSS correction per strip its antenna errors need
     (``gnss_correction_of``; a ``gnss_correction`` the preset or ``--set`` gives is kept) and, when its GNSS has
     shifts or drifts, the a-priori sigma they are drawn with (``gnss_shift_sigma_m``)."""
-    chain = {k: dict(v) for k, v in cfg.get("chain", {}).items()}
+    chain = {k: dict(v) for k, v in cfg.chain.items()}
     adjust = chain.get("adjust", {})
     chain["adjust"] = {**adjust, "gnss_correction": adjust.get("gnss_correction", gnss_correction_of(cfg))}
     if gnss_correction_of(cfg) != "none":
@@ -515,7 +515,7 @@ def _write_check_targets(truth_dir: Path, *, scene, accel, plan, cam_true, origi
     return _CheckTargets(tgt, len(img_rows))
 
 
-def _write_truth_rasters(truth_dir: Path, cfg: dict, layout, look, origin, epsg: int) -> float:
+def _write_truth_rasters(truth_dir: Path, cfg: Preset, layout, look, origin, epsg: int) -> float:
     """truth/dem.tif and truth/dsm.tif (``[truth] raster_res_m``), truth/ortho.tif (``ortho_res_m``; R, G, B,
     or one band, the mean of R, G and B, for panchromatic frames) and on its grid the land-cover truth
     (``aerotri.sim.landcover``): truth/ortho_nir.tif (near-infrared band) and truth/classes.tif (ASPRS classes
@@ -523,8 +523,8 @@ def _write_truth_rasters(truth_dir: Path, cfg: dict, layout, look, origin, epsg:
     straight-down view of the scene (``raster.ortho_render``) at pixel centres; ``[truth] compress`` (default
     deflate). Returns the megapixels of the DEM, DSM and ortho grids."""
     scene = look.scene
-    compress = str(cfg["truth"].get("compress", "deflate"))
-    res = cfg["truth"]["raster_res_m"]
+    compress = str(cfg.truth.compress)
+    res = cfg.truth.raster_res_m
     nx, ny = int(math.floor(layout.width_m / res)), int(math.floor(layout.height_m / res))
     xs = (np.arange(nx) + 0.5) * res
     transform = from_origin(origin[0], origin[1] + layout.height_m, res, res)
@@ -544,7 +544,7 @@ def _write_truth_rasters(truth_dir: Path, cfg: dict, layout, look, origin, epsg:
                    rows=dem_rows, nodata=-9999.0, compress=compress)
     _write_geotiff(truth_dir / "dsm.tif", nx, ny, bands=1, dtype=np.float32, transform=transform, epsg=epsg,
                    rows=dsm_rows, nodata=-9999.0, compress=compress)
-    ores = cfg["truth"]["ortho_res_m"]
+    ores = cfg.truth.ortho_res_m
     onx, ony = int(math.floor(layout.width_m / ores)), int(math.floor(layout.height_m / ores))
     oxs = (np.arange(onx) + 0.5) * ores
 
@@ -577,8 +577,8 @@ def _write_truth_rasters(truth_dir: Path, cfg: dict, layout, look, origin, epsg:
 
 def _mean_spacing(L):
     """Nominal single-strip point spacing 1/sqrt(density) from the scanner settings."""
-    swath = 2.0 * L["height_above_ground_m"] * math.tan(math.radians(L["fov_deg"] / 2.0))
-    density = L["pulse_rate_hz"] / (L["speed_mps"] * swath)
+    swath = 2.0 * L.height_above_ground_m * math.tan(math.radians(L.fov_deg / 2.0))
+    density = L.pulse_rate_hz / (L.speed_mps * swath)
     return round(1.0 / math.sqrt(density), 3)
 
 
@@ -587,14 +587,14 @@ def _max_slope_deg(scene) -> float:
     return round(float(np.degrees(np.arctan(np.hypot(gx, gy))).max()), 1)
 
 
-def _write_flight_acceptance(truth_dir: Path, cfg: dict, plan, cam_true, origin, dem: Path | None = None) -> None:
+def _write_flight_acceptance(truth_dir: Path, cfg: Preset, plan, cam_true, origin, dem: Path | None = None) -> None:
     """truth/flight_acceptance.json: the flown block's acceptance checks (the same library the reports
     use) on the true orientations and the true DEM (``dem``, default truth/dem.tif), held to the preset's
     tilt and kappa limits."""
     from aerotri.adjust.flight_acceptance import Terrain, flight_acceptance
 
-    f = cfg["flight"]
-    limits = {"flight_tilt_max_deg": f["max_tilt_deg"], "flight_kappa_max_deg": f["max_kappa_dev_deg"]}
+    f = cfg.flight
+    limits = {"flight_tilt_max_deg": f.max_tilt_deg, "flight_kappa_max_deg": f.max_kappa_dev_deg}
     dem = dem or truth_dir / "dem.tif"
     fa = flight_acceptance(plan.image_id, plan.centre_m + origin, plan.opk_deg, cam_true,
                            Terrain.from_dem(dem, float(origin[2]), source=f"{dem.parent.name}/{dem.name}"),
@@ -612,7 +612,7 @@ def _check_plan(plan, scene, cfg):
         z_top = max(z_top, float(scene.tri_v[:, :, 2].max()))
     low = plan.centre_m[:, 2].min()
     if low <= z_top + 20.0:
-        raise InputError(f"flight.height_above_ground_m = {cfg['flight']['height_above_ground_m']}: cameras at "
+        raise InputError(f"flight.height_above_ground_m = {cfg.flight.height_above_ground_m}: cameras at "
                          f"{low:.0f} m do not clear the highest point of the scene ({z_top:.0f} m)")
 
 
@@ -669,15 +669,15 @@ class ObservationsBlock:
     control_observations: int
 
 
-def observations_terrain(cfg: dict, layout, seed: int):
+def observations_terrain(cfg: Preset, layout, seed: int):
     """The truth terrain of an observations-only block (terrain and ponds of ``build_scene``, same random
     stream; no roads, buildings or trees), at ``terrain_res_m`` or coarser so that it has at most
     ``OBS_MAX_TERRAIN_NODES`` nodes. Returns a ``Scene`` holding the terrain only."""
     from aerotri.sim.scene import Scene, _ponds, build_terrain, scene_counts
 
-    sc = scene_counts(cfg["scene"], layout.width_m, layout.height_m)
-    res = max(float(sc["terrain_res_m"]), math.sqrt(layout.width_m * layout.height_m / OBS_MAX_TERRAIN_NODES))
-    sc = dict(sc, terrain_res_m=res)
+    sc = scene_counts(cfg.scene, layout.width_m, layout.height_m)
+    res = max(float(sc.terrain_res_m), math.sqrt(layout.width_m * layout.height_m / OBS_MAX_TERRAIN_NODES))
+    sc = dataclasses.replace(sc, terrain_res_m=res)
     rng = np.random.default_rng(seed)
     z, steep = build_terrain(sc, layout.width_m, layout.height_m, rng)
     ponds, z, _ = _ponds(sc, z, res, layout.width_m, steep, rng)
@@ -686,7 +686,7 @@ def observations_terrain(cfg: dict, layout, seed: int):
                  np.zeros(0), [], np.zeros((0, 3)), seed, steep)
 
 
-def _truth_adjust_table(cfg: dict, cam_true, cam_nominal) -> dict:
+def _truth_adjust_table(cfg: Preset, cam_true, cam_nominal) -> dict:
     """The [adjust] settings the truth of a simulated block needs: the self-calibration groups in which the
     true camera differs from the nominal camera.toml (``BrownCamera.SELF_CAL_GROUPS``: pp, radial k1 k2, ...),
     and the GNSS correction per strip that models the antenna errors the preset draws (a drift per strip:
@@ -701,34 +701,34 @@ def _truth_adjust_table(cfg: dict, cam_true, cam_nominal) -> dict:
     return out
 
 
-def gnss_correction_of(cfg: dict) -> str:
+def gnss_correction_of(cfg: Preset) -> str:
     """The GNSS correction per strip (``[adjust] gnss_correction``) that models the antenna errors the preset
     draws: a drift per strip: ``shift_drift``; a shift alone: ``shift``; neither: ``none``."""
-    g = cfg["gnss"]
-    return ("shift_drift" if float(g.get("drift_sigma_m_per_s", 0.0)) > 0.0
-            else "shift" if float(g.get("strip_shift_sigma_m", 0.0)) > 0.0 else "none")
+    g = cfg.gnss
+    return ("shift_drift" if float(g.drift_sigma_m_per_s) > 0.0
+            else "shift" if float(g.strip_shift_sigma_m) > 0.0 else "none")
 
 
-def gnss_shift_sigma_m(cfg: dict) -> float:
+def gnss_shift_sigma_m(cfg: Preset) -> float:
     """The a-priori sigma of a strip's GNSS shift and of its drift's displacement at the strip ends (``[adjust]
     gnss_shift_sigma_m``) that the preset's GNSS errors are drawn with: the larger of the shift sigma and the
     drift sigma times half a strip's flying time (the drift runs from the strip's middle)."""
-    g, f = cfg["gnss"], cfg["flight"]
-    half_s = 0.5 * (int(f["frames_per_strip"]) - 1) * block_layout(cfg).base_m / float(f["speed_mps"])
-    return round(max(float(g.get("strip_shift_sigma_m", 0.0)), float(g.get("drift_sigma_m_per_s", 0.0)) * half_s), 3)
+    g, f = cfg.gnss, cfg.flight
+    half_s = 0.5 * (int(f.frames_per_strip) - 1) * block_layout(cfg).base_m / float(f.speed_mps)
+    return round(max(float(g.strip_shift_sigma_m), float(g.drift_sigma_m_per_s) * half_s), 3)
 
 
-def _observations_chain_table(cfg: dict, cam_true, cam_nominal) -> dict:
+def _observations_chain_table(cfg: Preset, cam_true, cam_nominal) -> dict:
     """The preset's stage sections with [adjust] set to what the block's observations need
     (``_truth_adjust_table``): ``aerotri adjust OUT --dem OUT/dem.tif`` without options models the
     errors the block was made with. (The preset's own [chain.adjust] is that of the rendered chain, whose
     first adjustment runs before any control exists.)"""
-    chain = {k: dict(v) for k, v in cfg.get("chain", {}).items()}
+    chain = {k: dict(v) for k, v in cfg.chain.items()}
     chain["adjust"] = {**chain.get("adjust", {}), **_truth_adjust_table(cfg, cam_true, cam_nominal)}
     return chain
 
 
-def simulate_observations(cfg: dict, outdir, force: bool = False, *, tie_sigma_px: float | None = None,
+def simulate_observations(cfg: Preset, outdir, force: bool = False, *, tie_sigma_px: float | None = None,
                           tie_points_per_frame: int | None = None, n_control: int = 4, blunder_fraction: float = 0.0,
                           bad_control_shift_m: float = 0.0) -> ObservationsBlock:
     """A block of any size with its tie, control and GNSS observations and a DEM of the truth terrain, from the
@@ -741,7 +741,7 @@ def simulate_observations(cfg: dict, outdir, force: bool = False, *, tie_sigma_p
     at most ``OBS_MAX_TERRAIN_NODES`` terrain nodes); image observations by the collinearity equations of the
     true camera (``observations.write_truth_observations``) with Gaussian noise ``tie_sigma_px``, tie points on
     the truth terrain (about ``tie_points_per_frame`` per frame, each seen in >= 3 frames); both default to
-    the preset's ``[observations]`` (``config.OPTIONAL``).
+    the preset's ``[observations]`` (``config.PresetObservations``).
     """
     from aerotri.sim.observations import write_truth_observations
 
@@ -749,18 +749,18 @@ def simulate_observations(cfg: dict, outdir, force: bool = False, *, tie_sigma_p
     if outdir.exists() and any(outdir.iterdir()) and not force:
         raise InputError(f"{outdir}: output folder exists and is not empty (use --force to replace it)")
     t_start = time.perf_counter()
-    tie_sigma_px = optional(cfg, "observations", "tie_sigma_px") if tie_sigma_px is None else tie_sigma_px
-    tie_points_per_frame = (optional(cfg, "observations", "tie_points_per_frame") if tie_points_per_frame is None
+    tie_sigma_px = cfg.observations.tie_sigma_px if tie_sigma_px is None else tie_sigma_px
+    tie_points_per_frame = (cfg.observations.tie_points_per_frame if tie_points_per_frame is None
                             else tie_points_per_frame)
-    seed = int(cfg["preset"]["seed"])
+    seed = int(cfg.preset.seed)
     s_scene, s_flight, _, _ = np.random.SeedSequence(seed).spawn(4)
-    epsg = int(cfg["crs"]["epsg"])
-    origin = np.array([cfg["crs"]["origin_e_m"], cfg["crs"]["origin_n_m"], cfg["crs"]["base_height_m"]])
+    epsg = int(cfg.crs.epsg)
+    origin = np.array([cfg.crs.origin_e_m, cfg.crs.origin_n_m, cfg.crs.base_height_m])
     layout = block_layout(cfg)
     scene_seed = int(np.random.default_rng(s_scene).integers(0, 2**31 - 1))
     terrain = observations_terrain(cfg, layout, scene_seed)
     plan = plan_frames(cfg, layout, np.random.default_rng(s_flight))
-    cam_true, cam_nominal = cameras_from_config(cfg["camera"])
+    cam_true, cam_nominal = cameras_from_config(cfg.camera)
     _check_plan(plan, terrain, cfg)
     log.info(f"block of {len(plan.image_id)} frames over {layout.width_m / 1000:.1f} x {layout.height_m / 1000:.1f} km, "
              f"truth terrain at {terrain.terrain_res_m:.2f} m")
@@ -779,22 +779,22 @@ def simulate_observations(cfg: dict, outdir, force: bool = False, *, tie_sigma_p
 
         _write_geotiff(tmp / "dem.tif", nx, ny, bands=1, dtype=np.float32,
                        transform=from_origin(origin[0], origin[1] + layout.height_m, res, res), epsg=epsg,
-                       rows=dem_rows, nodata=-9999.0, compress=str(cfg["truth"].get("compress", "deflate")))
+                       rows=dem_rows, nodata=-9999.0, compress=str(cfg.truth.compress))
         _write_flight_acceptance(tmp / "truth", cfg, plan, cam_true, origin, dem=tmp / "dem.tif")
         summary = write_truth_observations(tmp, tie_sigma_px=tie_sigma_px, n_control=n_control,
                                            blunder_fraction=blunder_fraction, bad_control_shift_m=bad_control_shift_m,
                                            seed=seed, tie_points_per_frame=tie_points_per_frame,
                                            dem=tmp / "dem.tif", interpolation="bilinear")
         block = ObservationsBlock(
-            frames=len(plan.image_id), strips=int(cfg["flight"]["strips"]), scene_width_m=layout.width_m,
+            frames=len(plan.image_id), strips=int(cfg.flight.strips), scene_width_m=layout.width_m,
             scene_height_m=layout.height_m, terrain_res_m=res, dem_path=str(outdir / "dem.tif"),
             tie_points=summary.n_tie_points, tie_observations=summary.n_tie_observations,
             control_points=summary.n_control, check_points=summary.n_check,
             control_observations=summary.n_control_observations)
-        truth = dict(preset=cfg["preset"]["name"], seed=seed, crs=f"EPSG:{epsg}", origin_m=origin.tolist(),
-                     observations_only=True, gsd_m=cam_true.gsd_m(cfg["flight"]["height_above_ground_m"]),
-                     flying_height_above_ground_m=cfg["flight"]["height_above_ground_m"],
-                     frames_per_strip=int(cfg["flight"]["frames_per_strip"]), image_width_px=cam_true.width,
+        truth = dict(preset=cfg.preset.name, seed=seed, crs=f"EPSG:{epsg}", origin_m=origin.tolist(),
+                     observations_only=True, gsd_m=cam_true.gsd_m(cfg.flight.height_above_ground_m),
+                     flying_height_above_ground_m=cfg.flight.height_above_ground_m,
+                     frames_per_strip=int(cfg.flight.frames_per_strip), image_width_px=cam_true.width,
                      image_height_px=cam_true.height, pixel_um=cam_true.pixel_um, base_m=layout.base_m,
                      strip_spacing_m=layout.strip_spacing_m, **dataclasses.asdict(block))
         (tmp / "truth" / "truth.json").write_text(json.dumps(truth, indent=2, sort_keys=True) + "\n")

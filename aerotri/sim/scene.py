@@ -17,6 +17,8 @@ import shapely
 from shapely.geometry import LineString, Point, Polygon
 from shapely.ops import unary_union
 
+from aerotri.sim.config import PresetScene
+
 # Material codes for the ground texture (also used for truth classes and LiDAR intensity).
 GRASS, SOIL, ROAD, MARKING, WATER, TARGET, TARGET_RING = 0, 1, 2, 3, 4, 5, 6
 # Surface kinds returned by the ray caster.
@@ -115,29 +117,29 @@ def _smooth_noise(rng, shape, scale_px):
     return out / (out.std() + 1e-12)
 
 
-def build_terrain(cfg: dict, width_m: float, height_m: float, rng) -> tuple[np.ndarray, tuple[float, float]]:
+def build_terrain(cfg: PresetScene, width_m: float, height_m: float, rng) -> tuple[np.ndarray, tuple[float, float]]:
     """Heights of the terrain nodes: flat urban ground, gentle hills and a steep valley side.
 
     The steep band runs along the northern part of the scene: a ramp of ``steep_slope_deg`` over
     ``steep_band_m`` ending in a hilly plateau, like the side of a mountain reservoir valley.
     """
-    res = cfg["terrain_res_m"]
+    res = cfg.terrain_res_m
     nx = int(math.ceil(width_m / res)) + 1
     ny = int(math.ceil(height_m / res)) + 1
     y = np.arange(ny) * res
-    hills = cfg["hill_amplitude_m"] * _smooth_noise(rng, (ny, nx), cfg["hill_scale_m"] / res)
+    hills = cfg.hill_amplitude_m * _smooth_noise(rng, (ny, nx), cfg.hill_scale_m / res)
     rough = 0.15 * _smooth_noise(rng, (ny, nx), 6.0 / res)
     z = hills + rough
-    y0 = height_m * cfg["steep_start_frac"]
-    band = cfg["steep_band_m"]
-    rise = band * math.tan(math.radians(cfg["steep_slope_deg"]))
+    y0 = height_m * cfg.steep_start_frac
+    band = cfg.steep_band_m
+    rise = band * math.tan(math.radians(cfg.steep_slope_deg))
     s = np.clip((y - y0) / band, 0.0, 1.0)
     # Smoothed ramp: constant slope in the middle, rounded toe and crest over ~10 % of the band.
     ramp = rise * _smooth_ramp(s)
     z = z + ramp[:, None]
     # Mountain side relief: ridges and gullies on the slope and plateau.
     slope_mask = np.clip((y - y0) / (0.3 * band), 0.0, 1.0)[:, None]
-    z = z + slope_mask * cfg["mountain_relief_m"] * _smooth_noise(rng, (ny, nx), 40.0 / res)
+    z = z + slope_mask * cfg.mountain_relief_m * _smooth_noise(rng, (ny, nx), 40.0 / res)
     return z, (y0, y0 + band)
 
 
@@ -156,16 +158,16 @@ def _smooth_ramp(s):
 # Roads, ponds, buildings, trees
 
 
-def build_roads(cfg: dict, urban: Polygon, rng) -> np.ndarray:
+def build_roads(cfg: PresetScene, urban: Polygon, rng) -> np.ndarray:
     """A rotated grid of straight roads clipped to the urban area."""
-    ang = math.radians(cfg["road_angle_deg"])
+    ang = math.radians(cfg.road_angle_deg)
     u = np.array([math.cos(ang), math.sin(ang)])
     v = np.array([-u[1], u[0]])
     cx, cy = urban.centroid.x, urban.centroid.y
     half = math.hypot(*np.ptp(np.asarray(urban.exterior.coords), axis=0))
     roads = []
     for direction, normal in ((u, v), (v, u)):
-        spacing = cfg["road_spacing_m"]
+        spacing = cfg.road_spacing_m
         offsets = np.arange(-half, half, spacing) + rng.uniform(0, spacing)
         for off in offsets:
             c = np.array([cx, cy]) + normal * off
@@ -174,7 +176,7 @@ def build_roads(cfg: dict, urban: Polygon, rng) -> np.ndarray:
                 continue
             for seg in getattr(line, "geoms", [line]):
                 (x0, y0), (x1, y1) = seg.coords[0], seg.coords[-1]
-                w = rng.uniform(*cfg["road_width_m"])
+                w = rng.uniform(*cfg.road_width_m)
                 roads.append((x0, y0, x1, y1, w))
     return np.array(roads, dtype=float).reshape(-1, 5)
 
@@ -262,7 +264,7 @@ def _building_triangles(b: Building, angle_rad: float, centre: tuple[float, floa
 
 
 def _building_height(cfg, rng) -> float:
-    lo, hi = cfg["building_height_m"]
+    lo, hi = cfg.building_height_m
     # Mostly low-rise with some towers up to the top of the range.
     r = rng.random()
     if r < 0.7:
@@ -272,13 +274,13 @@ def _building_height(cfg, rng) -> float:
     return rng.uniform(min(hi, 35.0), hi)
 
 
-def _ponds(cfg: dict, z: np.ndarray, res: float, width_m: float, steep: tuple[float, float], rng):
+def _ponds(cfg: PresetScene, z: np.ndarray, res: float, width_m: float, steep: tuple[float, float], rng):
     """Flat water surfaces set into the terrain of the urban/rural flats: (P, 6) ponds, the terrain with the
     ponds and their banks (``z`` changed in place), the pond outlines."""
-    margin = cfg["urban_margin_m"]
+    margin = cfg.urban_margin_m
     ponds = []
-    for _ in range(cfg["ponds"]):
-        a, b = rng.uniform(*cfg["pond_size_m"]), rng.uniform(*cfg["pond_size_m"])
+    for _ in range(cfg.ponds):
+        a, b = rng.uniform(*cfg.pond_size_m), rng.uniform(*cfg.pond_size_m)
         cx = rng.uniform(margin + a, width_m - margin - a)
         cy = rng.uniform(margin + a, max(margin + a + 1, steep[0] - a))
         ang = rng.uniform(0, math.pi)
@@ -323,13 +325,13 @@ class _Buildings:
     objs: list  # building id per triangle
 
 
-def _place_buildings(cfg: dict, ground: Scene, urban: Polygon, blocked, rng) -> _Buildings:
+def _place_buildings(cfg: PresetScene, ground: Scene, urban: Polygon, blocked, rng) -> _Buildings:
     """Footprints aligned with the road grid, kept off roads, ponds (``blocked``) and each other, on ground
     flat enough; their roofs and triangles."""
-    angle = math.radians(cfg["road_angle_deg"])
+    angle = math.radians(cfg.road_angle_deg)
     out = _Buildings([], [], [], [], [])
     attempts = 0
-    n_target = cfg["buildings"]
+    n_target = cfg.buildings
     shapes = ("rectangle", "L", "courtyard")
     shapely.prepare(blocked)
     # placed footprints by 100 m cell: the gap test looks at the footprints whose box meets the candidate's
@@ -347,9 +349,9 @@ def _place_buildings(cfg: dict, ground: Scene, urban: Polygon, blocked, rng) -> 
                         yield k
     while len(out.buildings) < n_target and attempts < n_target * 60:
         attempts += 1
-        shape = shapes[rng.choice(3, p=cfg["shape_weights"])]
-        L = rng.uniform(*cfg["building_length_m"])
-        W = rng.uniform(cfg["building_width_m"][0], min(cfg["building_width_m"][1], L))
+        shape = shapes[rng.choice(3, p=cfg.shape_weights)]
+        L = rng.uniform(*cfg.building_length_m)
+        W = rng.uniform(cfg.building_width_m[0], min(cfg.building_width_m[1], L))
         if shape == "courtyard":
             L, W = max(L, 24.0), max(W, 22.0)
         if shape == "L":
@@ -357,24 +359,24 @@ def _place_buildings(cfg: dict, ground: Scene, urban: Polygon, blocked, rng) -> 
         fp0 = _footprint(shape, L, W, rng)
         cx = rng.uniform(urban.bounds[0] + 10, urban.bounds[2] - 10)
         cy = rng.uniform(urban.bounds[1] + 10, urban.bounds[3] - 10)
-        rot = angle + rng.choice([0.0, math.pi / 2]) + math.radians(rng.normal(0, cfg["building_angle_jitter_deg"]))
+        rot = angle + rng.choice([0.0, math.pi / 2]) + math.radians(rng.normal(0, cfg.building_angle_jitter_deg))
         fp = _place(fp0, rot, cx, cy)
         if not urban.contains(fp.buffer(3.0)) or fp.buffer(2.0).intersects(blocked):
             continue
-        grown = fp.buffer(cfg["building_gap_m"])
+        grown = fp.buffer(cfg.building_gap_m)
         if any(grown.intersects(out.footprints[k]) for k in sorted(near(grown.bounds))):
             continue
         roof = "flat"
-        if shape == "rectangle" and rng.random() < cfg["pitched_fraction"]:
+        if shape == "rectangle" and rng.random() < cfg.pitched_fraction:
             roof = "gable" if rng.random() < 0.5 else "hip"
-        eave = rng.uniform(*cfg["eave_m"])
+        eave = rng.uniform(*cfg.eave_m)
         outline = fp.buffer(eave, join_style="mitre")
         verts = np.asarray(outline.exterior.coords)
         zt = ground.terrain_height(verts[:, 0], verts[:, 1])
         base = float(zt.min())
         if zt.max() - zt.min() > 4.0:
             continue
-        height = _building_height(cfg, rng) if roof == "flat" else rng.uniform(cfg["building_height_m"][0], 14.0)
+        height = _building_height(cfg, rng) if roof == "flat" else rng.uniform(cfg.building_height_m[0], 14.0)
         eave_z = base + height
         pitch = rng.uniform(25.0, 40.0)
         ridge_z = eave_z + (W / 2 + eave) * math.tan(math.radians(pitch)) if roof != "flat" else eave_z
@@ -392,7 +394,7 @@ def _place_buildings(cfg: dict, ground: Scene, urban: Polygon, blocked, rng) -> 
     return out
 
 
-def _plant_trees(cfg: dict, ground: Scene, no_tree, steep: tuple[float, float], rng) -> tuple[np.ndarray, np.ndarray]:
+def _plant_trees(cfg: PresetScene, ground: Scene, no_tree, steep: tuple[float, float], rng) -> tuple[np.ndarray, np.ndarray]:
     """Single trees, clusters (groves), forest on the steep slope and bushes, never where ``no_tree`` (roofs,
     roads, water): crown centres (K, 3) and semi-axes (K, 2)."""
     width_m, height_m = ground.width_m, ground.height_m
@@ -409,35 +411,35 @@ def _plant_trees(cfg: dict, ground: Scene, no_tree, steep: tuple[float, float], 
         centres.append((x, y, zg + height - c))
         axes.append((crown_r, c))
 
-    for _ in range(cfg["single_trees"]):
-        try_tree(rng.uniform(0, width_m), rng.uniform(0, steep[0]), rng.uniform(*cfg["crown_radius_m"]),
-                 rng.uniform(*cfg["tree_height_m"]))
-    for _ in range(cfg["tree_clusters"]):
+    for _ in range(cfg.single_trees):
+        try_tree(rng.uniform(0, width_m), rng.uniform(0, steep[0]), rng.uniform(*cfg.crown_radius_m),
+                 rng.uniform(*cfg.tree_height_m))
+    for _ in range(cfg.tree_clusters):
         gx, gy = rng.uniform(0, width_m), rng.uniform(0, height_m)
         n = rng.integers(8, 25)
         for _ in range(n):
-            try_tree(gx + rng.normal(0, 12), gy + rng.normal(0, 12), rng.uniform(*cfg["crown_radius_m"]),
-                     rng.uniform(*cfg["tree_height_m"]))
-    for _ in range(cfg["slope_trees"]):
-        try_tree(rng.uniform(0, width_m), rng.uniform(steep[0], height_m), rng.uniform(*cfg["crown_radius_m"]),
-                 rng.uniform(*cfg["tree_height_m"]))
-    for _ in range(cfg["bushes"]):
+            try_tree(gx + rng.normal(0, 12), gy + rng.normal(0, 12), rng.uniform(*cfg.crown_radius_m),
+                     rng.uniform(*cfg.tree_height_m))
+    for _ in range(cfg.slope_trees):
+        try_tree(rng.uniform(0, width_m), rng.uniform(steep[0], height_m), rng.uniform(*cfg.crown_radius_m),
+                 rng.uniform(*cfg.tree_height_m))
+    for _ in range(cfg.bushes):
         try_tree(rng.uniform(0, width_m), rng.uniform(0, steep[0]), rng.uniform(0.6, 1.2), rng.uniform(0.8, 1.8))
     return np.array(centres, dtype=float).reshape(-1, 3), np.array(axes, dtype=float).reshape(-1, 2)
 
 
-def _place_targets(cfg: dict, ground: Scene, clutter, rng) -> tuple[np.ndarray, np.ndarray]:
+def _place_targets(cfg: PresetScene, ground: Scene, clutter, rng) -> tuple[np.ndarray, np.ndarray]:
     """Painted check targets on open, flat-ish ground at least 40 m apart, clear of ``clutter``: (C, 3)
     x y radius and their terrain heights (C,)."""
     width_m, height_m = ground.width_m, ground.height_m
     targets, tz = [], []
-    radius = cfg["target_radius_m"]
+    radius = cfg.target_radius_m
     shapely.prepare(clutter)
     tries = 0
-    while len(targets) < cfg["check_targets"] and tries < 20000:
+    while len(targets) < cfg.check_targets and tries < 20000:
         tries += 1
-        x = rng.uniform(cfg["urban_margin_m"], width_m - cfg["urban_margin_m"])
-        y = rng.uniform(cfg["urban_margin_m"], height_m - cfg["urban_margin_m"])
+        x = rng.uniform(cfg.urban_margin_m, width_m - cfg.urban_margin_m)
+        y = rng.uniform(cfg.urban_margin_m, height_m - cfg.urban_margin_m)
         if clutter.intersects(Point(x, y).buffer(radius)):
             continue
         if any(math.hypot(x - t[0], y - t[1]) < 40.0 for t in targets):
@@ -454,7 +456,7 @@ def _place_targets(cfg: dict, ground: Scene, clutter, rng) -> tuple[np.ndarray, 
 COUNT_KEYS = ("ponds", "buildings", "single_trees", "tree_clusters", "bushes", "check_targets")
 
 
-def scene_counts(cfg: dict, width_m: float, height_m: float) -> dict:
+def scene_counts(cfg: PresetScene, width_m: float, height_m: float) -> PresetScene:
     """The ``[scene]`` table with its object counts for a scene of this size.
 
     With ``counts_for_m = [width, height]`` the counts (ponds, buildings, trees, bushes, targets) are those of
@@ -462,21 +464,18 @@ def scene_counts(cfg: dict, width_m: float, height_m: float) -> dict:
     side runs across the scene): a flight made larger with ``--set`` flies over a larger town, not over the
     same town spread thin. Without it (or for that very size) the counts are used as they are.
     """
-    ref = cfg.get("counts_for_m")
+    ref = cfg.counts_for_m
     if not ref:
         return cfg
     area = (width_m * height_m) / (float(ref[0]) * float(ref[1]))
     width = width_m / float(ref[0])
     if abs(area - 1.0) < 1e-9 and abs(width - 1.0) < 1e-9:
         return cfg
-    out = dict(cfg)
-    for key in COUNT_KEYS:
-        out[key] = int(round(cfg[key] * area))
-    out["slope_trees"] = int(round(cfg["slope_trees"] * width))
-    return out
+    return dataclasses.replace(cfg, **{key: int(round(getattr(cfg, key) * area)) for key in COUNT_KEYS},
+                               slope_trees=int(round(cfg.slope_trees * width)))
 
 
-def build_scene(cfg: dict, width_m: float, height_m: float, origin_m, seed: int) -> Scene:
+def build_scene(cfg: PresetScene, width_m: float, height_m: float, origin_m, seed: int) -> Scene:
     """Generate the whole scene from the ``[scene]`` preset table (counts by ``scene_counts``).
 
     One random stream, drawn in a fixed order (terrain, ponds, roads, buildings, trees, targets, roof
@@ -484,9 +483,9 @@ def build_scene(cfg: dict, width_m: float, height_m: float, origin_m, seed: int)
     """
     cfg = scene_counts(cfg, width_m, height_m)
     rng = np.random.default_rng(seed)
-    res = cfg["terrain_res_m"]
+    res = cfg.terrain_res_m
     z, steep = build_terrain(cfg, width_m, height_m, rng)
-    margin = cfg["urban_margin_m"]
+    margin = cfg.urban_margin_m
     urban = Polygon([(margin, margin), (width_m - margin, margin), (width_m - margin, steep[0] - 20.0),
                      (margin, steep[0] - 20.0)])
     ponds, z, pond_polys = _ponds(cfg, z, res, width_m, steep, rng)

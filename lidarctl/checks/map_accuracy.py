@@ -29,6 +29,7 @@ Measures
 from __future__ import annotations
 
 import dataclasses
+import json
 import logging
 from pathlib import Path
 
@@ -118,13 +119,13 @@ class MapAccuracy:
     prediction: str
     reference: str
 
-    def as_dict(self) -> dict:
-        """The JSON record: the fields, undefined building ratios (no building on a side) as None, and the class
-        names."""
+    def to_json(self) -> str:
+        """The --json file's text: the fields, undefined building ratios (no building on a side) as null, and the
+        class names."""
         d = dataclasses.asdict(self)
         d["buildings"] = None if self.buildings is None else to_record(self.buildings, finite=True)
         d["class_names"] = {str(c): cg.CLASS_LABELS.get(c, str(c)) for c in self.confusion.classes}
-        return d
+        return json.dumps(d, indent=2)
 
 
 def _pct(a: float, b: float) -> float:

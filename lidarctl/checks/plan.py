@@ -33,6 +33,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from aerotri.core.records import to_record
 from aerotri.core.settings import setting
 from aerotri.core.errors import CrsError, InputError, OptionError
 from aerotri.core.textio import read_record, record_error
@@ -104,14 +105,9 @@ class PlanStats:
     mean_dz_m: float | None = None
     max_abs_dz_m: float | None = None
 
-    def as_dict(self) -> dict:
-        """As the JSON writes it (no height keys without surveyed heights)."""
-        d = dataclasses.asdict(self)
-        del d["with_heights"]
-        if not self.with_heights:
-            for k in ("rms_z_m", "mean_dz_m", "max_abs_dz_m"):
-                del d[k]
-        return d
+    def left_out_of_json(self) -> tuple[str, ...]:
+        """The fields the JSON leaves out: ``with_heights``, and the height fields without surveyed heights."""
+        return ("with_heights",) + (() if self.with_heights else ("rms_z_m", "mean_dz_m", "max_abs_dz_m"))
 
 
 def plan_stats(dxy_m: np.ndarray, dz_m: np.ndarray | None, n_points: int, tolerance_m: float | None) -> PlanStats:
@@ -179,7 +175,7 @@ class PlanCheckResult:
         out.update({k: getattr(self, k) for k in ("radius_m", "min_edge_m", "map_scale", "terrain", "n_lidar_corners",
                                                   "has_z")})
         out.update(self.units.as_dict())
-        out["overall"] = self.overall.as_dict()
+        out["overall"] = to_record(self.overall, exclude=self.overall.left_out_of_json())
         out["points"] = [_point_record(p, self.has_z) for p in self.points]
         if self.clouds is not None:
             out.update(clouds=list(self.clouds), points_csv=self.points_csv, crs=self.crs,

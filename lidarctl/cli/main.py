@@ -212,21 +212,19 @@ def evaluate(*, pred_paths, truth_path, reference_path, json_path, map_pred, map
     user's and overall accuracy and kappa; buildings per area (type I/II, overall) and per building
     (completeness and correctness by count).
     """
-    import json
-
     from aerotri.core.atomic import write_text_atomic
 
     _check_evaluate_paths(pred_paths, truth_path, reference_path, json_path, within)
     maps = _parse_map(map_pred, "--map-pred"), _parse_map(map_truth, "--map-truth")
     if reference_path is not None:
-        text, result = _evaluate_map(pred_paths, reference_path, MapEvalSettings(
+        text, json_text = _evaluate_map(pred_paths, reference_path, MapEvalSettings(
             res_m=res_m, min_overlap=min_overlap, min_building_m2=min_building_m2, class_field=class_field,
             reference_class=reference_class, map_pred=maps[0], map_ref=maps[1], crs=crs, within=within))
     else:
-        text, result = _evaluate_truth(pred_paths, truth_path, *maps)
+        text, json_text = _evaluate_truth(pred_paths, truth_path, *maps)
     click.echo(text)
     if json_path:
-        write_text_atomic(json_path, json.dumps(result, indent=2))
+        write_text_atomic(json_path, json_text)
 
 
 def _check_evaluate_paths(pred_paths, truth_path, reference_path, json_path, within) -> None:
@@ -241,18 +239,16 @@ def _check_evaluate_paths(pred_paths, truth_path, reference_path, json_path, wit
                                            None if within in (None, "hull") else within], "--json")
 
 
-def _evaluate_map(pred_paths, reference_path, settings) -> tuple[str, dict]:
-    """``lidarctl evaluate --reference``: (the report, its numbers)."""
+def _evaluate_map(pred_paths, reference_path, settings) -> tuple[str, str]:
+    """``lidarctl evaluate --reference``: (the report, the --json file's text)."""
     from lidarctl.checks import map_accuracy as ma
 
     result = ma.evaluate_map(pred_paths, reference_path, settings)
-    return ma.format_map_report(result), result.as_dict()
+    return ma.format_map_report(result), result.to_json()
 
 
-def _evaluate_truth(pred_paths, truth_path, map_pred: dict, map_truth: dict) -> tuple[str, dict]:
-    """``lidarctl evaluate --truth``: (the report, its numbers)."""
-    import dataclasses
-
+def _evaluate_truth(pred_paths, truth_path, map_pred: dict, map_truth: dict) -> tuple[str, str]:
+    """``lidarctl evaluate --truth``: (the report, the --json file's text)."""
     from aerotri.core.errors import OptionError
     from lidarctl.checks import classes as ev
 
@@ -261,7 +257,7 @@ def _evaluate_truth(pred_paths, truth_path, map_pred: dict, map_truth: dict) -> 
     result = ev.evaluate_files(pred_paths[0], truth_path, map_pred, map_truth)
     text = "\n".join([ev.format_filter_table({"ground": result.filter_test}), "",
                       ev.format_confusion(result.confusion)] + _truth_notes(result.confusion))
-    return text, dataclasses.asdict(result)
+    return text, result.to_json()
 
 
 def _truth_notes(conf) -> list[str]:

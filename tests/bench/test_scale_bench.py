@@ -38,12 +38,12 @@ def test_smaller_blocks_keep_the_scene_density(scale):
     for size, frames in (("quarter", 75), ("eighth", 30)):
         preset, overrides = scale.size_overrides(size)
         cfg = load_preset(preset, overrides)
-        assert cfg["flight"]["strips"] * cfg["flight"]["frames_per_strip"] == frames
+        assert cfg.flight.strips * cfg.flight.frames_per_strip == frames
         km2 = lidar_plan(cfg).scene_km2
         assert km2 < full_km2 / 3
         # buildings and trees per km2 as on the full block (to rounding)
         for key in ("buildings", "single_trees", "bushes"):
-            assert cfg["scene"][key] / km2 == pytest.approx(full["scene"][key] / full_km2, rel=0.01)
+            assert getattr(cfg.scene, key) / km2 == pytest.approx(getattr(full.scene, key) / full_km2, rel=0.01)
     assert scale.size_overrides("full") == ("scale", [])
     assert scale.size_overrides("tiny") == ("tiny", [])
 

@@ -14,6 +14,8 @@ valid on these frames (visible masked 2.3-3.8 % of the hidden).
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 import pytest
 from pyproj import CRS
@@ -43,9 +45,8 @@ def town(seed: int):
     from aerotri.sim.config import load_preset
     from aerotri.sim.scene import build_scene
 
-    cfg = dict(load_preset("tall")["scene"])
-    cfg.update(buildings=60, single_trees=6, tree_clusters=0, slope_trees=0, bushes=0, check_targets=0,
-               urban_margin_m=20.0, road_spacing_m=120.0)
+    cfg = dataclasses.replace(load_preset("tall").scene, buildings=60, single_trees=6, tree_clusters=0, slope_trees=0,
+                              bushes=0, check_targets=0, urban_margin_m=20.0, road_spacing_m=120.0)
     scene = build_scene(cfg, SIZE_M, SIZE_M, np.zeros(3), seed)
     accel = raycast.build_accel(scene)
     n = int(SIZE_M / DSM_RES_M)

@@ -278,7 +278,7 @@ def thin_plate_spline(xy_m, zeta_m, origin_m, smoothing):
 # ----------------------------------------------------------------------------------------------
 
 
-def load_json(path, what: str) -> dict:
+def _load_json(path, what: str) -> dict:
     """A JSON object from a file; ``InputError`` naming the file when it is missing, unreadable or not JSON."""
     d = read_json(path, what)
     if not isinstance(d, dict):
@@ -288,12 +288,12 @@ def load_json(path, what: str) -> dict:
 
 def load_transformation(path) -> Transformation:
     """A parameter file of ``aerotri crs fit``."""
-    return Transformation.from_dict(load_json(path, "parameter file"), str(path))
+    return Transformation.from_dict(_load_json(path, "parameter file"), str(path))
 
 
 def load_height_model(path) -> HeightAnomalyModel:
     """A height anomaly model file of ``aerotri crs fit-heights``."""
-    d = load_json(path, "height model file")
+    d = _load_json(path, "height model file")
     if d.get("model") not in HEIGHT_MODELS:
         raise ConfigError(f"{path}: not a height anomaly model file (model {d.get('model')!r}; expected one of "
                           f"{', '.join(HEIGHT_MODELS)})")

@@ -23,7 +23,6 @@ import copy
 import csv
 import dataclasses
 import io
-import json
 import math
 import re
 from pathlib import Path
@@ -258,10 +257,6 @@ def read_height_points(path, crs=None):
         rec = [f"line {ln} (id {pid})" for ln, pid in zip(table.line_numbers, ids)]
         check_coordinates(c, v["x"], v["y"], str(table.path), rec)
     return ids, v["x"], v["y"], v["h"], v["H"]
-
-
-def write_json(path, data: dict) -> None:
-    write_text_atomic(path, json.dumps(data, indent=2, allow_nan=False) + "\n")
 
 
 # ----------------------------------------------------------------------------------------------

@@ -13,6 +13,7 @@ would not show in its residual (Baarda's internal reliability).
 from __future__ import annotations
 
 import dataclasses
+import json
 import math
 
 import numpy as np
@@ -108,7 +109,9 @@ class FitResult:
         sd = np.sqrt(np.diag(self.covariance))
         return self.covariance / np.outer(sd, sd)
 
-    def to_dict(self) -> dict:
+    def to_json(self) -> str:
+        """The parameter file's text (``aerotri crs fit``): the transformation (``Transformation.to_dict``, what
+        ``load_transformation`` reads) followed by the fit's report: counts, sigma0, RMS, residuals, correlation."""
         d = self.transformation.to_dict()
         d["n_points"] = len(self.ids)
         d["redundancy"] = self.redundancy
@@ -124,7 +127,7 @@ class FitResult:
         corr = self.correlation
         d["correlation"] = None if corr is None else np.round(corr, 6).tolist()
         d["warnings"] = list(self.warnings)
-        return d
+        return json.dumps(d, indent=2, allow_nan=False) + "\n"
 
 
 def _rms(a):

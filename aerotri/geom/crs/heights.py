@@ -18,6 +18,7 @@ meaningful ones.
 from __future__ import annotations
 
 import dataclasses
+import json
 
 import numpy as np
 
@@ -44,7 +45,9 @@ class HeightFitResult:
     def loo_rms_m(self) -> float:
         return float(np.sqrt(np.nanmean(self.loo_residuals_m**2)))
 
-    def to_dict(self) -> dict:
+    def to_json(self) -> str:
+        """The model file's text (``aerotri crs fit-heights``): the model (``HeightAnomalyModel.to_dict``, what
+        ``load_height_model`` reads) followed by the fit's report: counts, sigma0, RMS, residuals."""
         d = self.model.to_dict()
         d["n_points"] = len(self.ids)
         d["sigma0_m"] = None if not np.isfinite(self.sigma0_m) else self.sigma0_m
@@ -55,7 +58,7 @@ class HeightFitResult:
             for pid, z, r, lr in zip(self.ids, self.zeta_m, self.residuals_m, self.loo_residuals_m)
         ]
         d["warnings"] = list(self.warnings)
-        return d
+        return json.dumps(d, indent=2, allow_nan=False) + "\n"
 
 
 def fit_height_anomaly(ids, x_m, y_m, h_m, H_m, *, model: str = "plane", smoothing: float = 0.0,

@@ -46,8 +46,8 @@ def _classes(ba, ties):
 def test_trees_and_moving_cars_do_not_bias_the_heights(cluttered):
     ties, clean_root, dirty_root = cluttered
     counts = ties.counts()
-    n = sum(c["points"] for c in counts.values())
-    assert 0.08 < counts["vegetation"]["points"] / n < 0.12 and 0.08 < counts["moving"]["points"] / n < 0.12, counts
+    n = counts.points
+    assert 0.08 < counts.vegetation.points / n < 0.12 and 0.08 < counts.moving.points / n < 0.12, counts
     clean = _check_dz(_adjust(clean_root))
     bound = np.sqrt(np.mean(clean**2) / len(clean))  # the clean run's check heights know their mean to this
     for ndsm in (False, True):  # the DEM alone (the gate and Huber do all the work), and with the crowns' nDSM

@@ -290,7 +290,7 @@ def test_demo_simulates_again_when_the_project_lacks_the_preset_options(tmp_path
     (tmp_path / "truth" / "truth.json").write_text("{}")
     (tmp_path / "project.toml").write_text(PROJECT)  # simulated by an earlier version: no [adjust]
     assert "[adjust] self_calibration" in _stale_simulation(tmp_path, cfg)
-    (tmp_path / "project.toml").write_text(PROJECT + stage_sections_toml(cfg["chain"]))
+    (tmp_path / "project.toml").write_text(PROJECT + stage_sections_toml(cfg.chain))
     # made before the simulator stated the GNSS correction of its errors
     assert "[adjust] gnss_correction" in _stale_simulation(tmp_path, cfg)
     (tmp_path / "project.toml").write_text(PROJECT + stage_sections_toml(rendered_chain_table(cfg)))

@@ -55,7 +55,7 @@ def _measured_targets(p):
     (point id, image id, x px, y px, true x px, true y px) of targets wholly inside a frame."""
     rows = list(csv.DictReader(open(p / "truth/checkpoint_image_points.csv", newline="")))
     cam = BrownCamera.read(p / "truth/camera.toml")
-    r_px = load_preset("tiny", SETS)["scene"]["target_radius_m"] / json.loads((p / "truth/truth.json").read_text())["gsd_m"]
+    r_px = load_preset("tiny", SETS).scene.target_radius_m / json.loads((p / "truth/truth.json").read_text())["gsd_m"]
     images, out = {}, []
     for r in rows:
         if r["image_id"] not in images:

@@ -60,8 +60,8 @@ def test_dem_is_the_terrain_of_the_full_simulation(tmp_path):
     assert res.exit_code == 0, res.output
     cfg = load_preset("tiny", sets)
     layout = block_layout(cfg)
-    seed = int(np.random.default_rng(np.random.SeedSequence(cfg["preset"]["seed"]).spawn(4)[0]).integers(0, 2**31 - 1))
-    scene = build_scene(cfg["scene"], layout.width_m, layout.height_m, np.zeros(3), seed)
+    seed = int(np.random.default_rng(np.random.SeedSequence(cfg.preset.seed).spawn(4)[0]).integers(0, 2**31 - 1))
+    scene = build_scene(cfg.scene, layout.width_m, layout.height_m, np.zeros(3), seed)
     origin = json.loads((out / "truth/truth.json").read_text())["origin_m"]
     with rasterio.open(out / "dem.tif") as ds:
         z = ds.read(1)

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import csv
+import dataclasses
 import hashlib
 import json
 import tomllib
@@ -72,15 +73,15 @@ def test_rendered_project_states_the_gnss_correction_of_its_errors():
 
     cfg = load_preset("tiny")
     assert rendered_chain_table(cfg)["adjust"]["gnss_correction"] == "shift_drift"
-    cfg["gnss"]["drift_sigma_m_per_s"] = 0.0
+    cfg = load_preset("tiny", ["gnss.drift_sigma_m_per_s=0.0"])
     assert rendered_chain_table(cfg)["adjust"]["gnss_correction"] == "shift"
-    cfg["gnss"]["strip_shift_sigma_m"] = 0.0
+    cfg = load_preset("tiny", ["gnss.drift_sigma_m_per_s=0.0", "gnss.strip_shift_sigma_m=0.0"])
     adjust = rendered_chain_table(cfg)["adjust"]
     assert adjust["gnss_correction"] == "none" and "gnss_shift_sigma_m" not in adjust
     cfg = load_preset("demo")
-    cfg["chain"]["adjust"]["gnss_correction"] = "shift"
+    cfg = dataclasses.replace(cfg, chain={**cfg.chain, "adjust": {**cfg.chain["adjust"], "gnss_correction": "shift"}})
     assert rendered_chain_table(cfg)["adjust"]["gnss_correction"] == "shift"
-    assert load_preset("demo")["chain"]["adjust"]["self_calibration"] == ["pp", "radial"]
+    assert load_preset("demo").chain["adjust"]["self_calibration"] == ["pp", "radial"]
 
 
 def test_checkpoint_truth_matches_rendered_targets(tiny_project):
@@ -92,7 +93,7 @@ def test_checkpoint_truth_matches_rendered_targets(tiny_project):
     true = BrownCamera.read(p / "truth/camera.toml")
     gsd = json.loads((p / "truth/truth.json").read_text())["gsd_m"]
     cfg = load_preset("tiny")
-    r_px = cfg["scene"]["target_radius_m"] / gsd
+    r_px = cfg.scene.target_radius_m / gsd
     for r in rows:
         img = cv2.imread(str(p / "images" / f"{r['image_id']}.tif"), cv2.IMREAD_GRAYSCALE).astype(float)
         x0, y0 = float(r["x_px"]), float(r["y_px"])
@@ -118,9 +119,9 @@ def test_truth_corners_lie_on_rendered_roofs(tiny_project):
     truth = json.loads((tiny_project / "truth/truth.json").read_text())
     origin = np.array(truth["origin_m"])
     # Rebuild the scene from the same seed stream as the simulator.
-    ss = np.random.SeedSequence(cfg["preset"]["seed"]).spawn(4)
+    ss = np.random.SeedSequence(cfg.preset.seed).spawn(4)
     scene_seed = int(np.random.default_rng(ss[0]).integers(0, 2**31 - 1))
-    scene = build_scene(cfg["scene"], layout.width_m, layout.height_m, origin, scene_seed)
+    scene = build_scene(cfg.scene, layout.width_m, layout.height_m, origin, scene_seed)
     accel = raycast.build_accel(scene)
     corners = _rows(tiny_project / "truth/roof_corners.csv")
     assert len(corners) == sum(len(b.outline.exterior.coords) - 1 + sum(len(r.coords) - 1 for r in b.outline.interiors)
@@ -160,8 +161,8 @@ def test_rendered_id_buffer_shows_roofs_at_projected_corners(tiny_project):
     cfg = load_preset("tiny")
     layout = block_layout(cfg)
     origin = np.array(json.loads((tiny_project / "truth/truth.json").read_text())["origin_m"])
-    ss = np.random.SeedSequence(cfg["preset"]["seed"]).spawn(4)
-    scene = build_scene(cfg["scene"], layout.width_m, layout.height_m, origin,
+    ss = np.random.SeedSequence(cfg.preset.seed).spawn(4)
+    scene = build_scene(cfg.scene, layout.width_m, layout.height_m, origin,
                         int(np.random.default_rng(ss[0]).integers(0, 2**31 - 1)))
     accel = raycast.build_accel(scene)
     eo = read_eo(tiny_project / "truth/eo.txt")

@@ -20,8 +20,8 @@ from aerotri.sim.scene import KIND_ROOF, build_scene, scene_counts
 def _scene(name="tiny", sets=()):
     cfg = load_preset(name, sets)
     layout = block_layout(cfg)
-    ss = np.random.SeedSequence(cfg["preset"]["seed"]).spawn(4)
-    return cfg, build_scene(cfg["scene"], layout.width_m, layout.height_m, np.zeros(3),
+    ss = np.random.SeedSequence(cfg.preset.seed).spawn(4)
+    return cfg, build_scene(cfg.scene, layout.width_m, layout.height_m, np.zeros(3),
                             int(np.random.default_rng(ss[0]).integers(0, 2**31 - 1)))
 
 
@@ -143,9 +143,9 @@ def test_texture_follows_the_gsd():
 def test_scene_counts_scale_with_the_flight():
     cfg = load_preset("demo")
     layout = block_layout(cfg)
-    assert scene_counts(cfg["scene"], layout.width_m, layout.height_m) is cfg["scene"]  # its own flight: as given
-    bigger = scene_counts(cfg["scene"], 2 * layout.width_m, 2 * layout.height_m)
-    assert bigger["buildings"] == 4 * cfg["scene"]["buildings"] and bigger["slope_trees"] == 2 * cfg["scene"]["slope_trees"]
+    assert scene_counts(cfg.scene, layout.width_m, layout.height_m) is cfg.scene  # its own flight: as given
+    bigger = scene_counts(cfg.scene, 2 * layout.width_m, 2 * layout.height_m)
+    assert bigger.buildings == 4 * cfg.scene.buildings and bigger.slope_trees == 2 * cfg.scene.slope_trees
 
 
 def _digest(folder):
