@@ -12,7 +12,8 @@ best of each (the 2-core machine is shared: the load average is recorded beside 
 Throughput = points of the strips / wall seconds of the call.
 
 Comparison of the last outputs, per raster: cells that differ (nodata in one only counted), largest
-absolute difference; the hillshade PNG's pixels that differ; whether the files are the same bytes (sha256).
+absolute difference; the cells of every overview level that differ; the compression and file sizes; the
+hillshade PNG's pixels that differ; whether the files are the same bytes (sha256).
 ``--cold``: before the timed runs, one run of each tree with an empty numba cache (``NUMBA_CACHE_DIR``),
 as the first run after a fresh clone: its CPU seconds include numba's compilation.
 Writes bench/results/rasters_speed.json; with ``--key NAME`` only that key of it (the others kept).
@@ -96,7 +97,13 @@ def compare(a: Path, b: Path) -> dict:
             out[name] = dict(cells=int(x.size), differing_cells=int((d > 0).sum() + (ma != mb).sum()),
                              nodata_mismatches=int((ma != mb).sum()), max_abs_difference=float(d.max(initial=0.0)),
                              same_tags=fa.tags() == fb.tags(), same_units=fa.units == fb.units,
-                             same_overview_levels=fa.overviews(1) == fb.overviews(1))
+                             same_overview_levels=fa.overviews(1) == fb.overviews(1), overview_factors=fa.overviews(1),
+                             compression=[str(fa.compression), str(fb.compression)],
+                             file_bytes=[(a / f"{name}.tif").stat().st_size, (b / f"{name}.tif").stat().st_size])
+        # the overviews' values too (what a viewer shows zoomed out), level by level, nodata included
+        levels = range(len(out[name]["overview_factors"]))
+        out[name]["overview_cells_differing"] = [overview_cells_differing(a / f"{name}.tif", b / f"{name}.tif", k)
+                                                 for k in levels]
     ha, hb = mpimg.imread(a / "hillshade.png"), mpimg.imread(b / "hillshade.png")
     out["hillshade"] = dict(pixels=int(ha.shape[0] * ha.shape[1]),
                             differing_pixels=int((ha != hb).any(axis=-1).sum()))
@@ -104,6 +111,15 @@ def compare(a: Path, b: Path) -> dict:
         out[name]["same_bytes"] = sha256(a / f"{name}.tif") == sha256(b / f"{name}.tif")
     out["hillshade"]["same_bytes"] = sha256(a / "hillshade.png") == sha256(b / "hillshade.png")
     return out
+
+
+def overview_cells_differing(a: Path, b: Path, level: int) -> int:
+    """Cells of overview ``level`` (0: the first) whose stored values differ (NaN-safe, bit patterns)."""
+    import rasterio
+
+    with rasterio.open(a, overview_level=level) as fa, rasterio.open(b, overview_level=level) as fb:
+        x, y = fa.read(1), fb.read(1)
+    return int((x.view(np.uint32) != y.view(np.uint32)).sum()) if x.shape == y.shape else -1
 
 
 def sha256(path: Path) -> str:

@@ -178,11 +178,11 @@ def test_lidarctl_rasters_set_the_cache_once_not_per_thread(tmp_path, monkeypatc
             return out
         monkeypatch.setattr(lidarctl.rasters.products, name, call)
 
-    for name in ("_tiles_to_gtiffs", "_hillshade_by_windows", "rio_copy"):
+    for name in ("_tiles_to_gtiffs", "_hillshade_png", "rio_copy"):
         recording(name, getattr(lidarctl.rasters.products, name))
     with stage_block_cache(300 * 2 ** 20):
         lidarctl.rasters.products.write_rasters([las], tmp_path / "out", 1.0, tile_px=48, buffer_px=16)
         assert cache_max_bytes() == 300 * 2 ** 20
-    assert {n for n, _ in seen} == {"_tiles_to_gtiffs", "_hillshade_by_windows", "rio_copy"}
+    assert {n for n, _ in seen} == {"_tiles_to_gtiffs", "_hillshade_png", "rio_copy"}
     assert len([n for n, _ in seen if n == "rio_copy"]) == 2 * len(lidarctl.rasters.products.RASTERS)
     assert {v for _, v in seen} == {lidarctl.rasters.products.RASTERS_CACHE_BYTES}

@@ -130,3 +130,31 @@ def test_hillshade_grey_and_png_are_matplotlibs(tmp_path):
     _write_png_grey_as_rgba(tmp_path / "h.png", lambda r0, r1: grey[r0:r1], *grey.shape, rows_per_read=64)
     back = mpimg.imread(tmp_path / "h.png")
     np.testing.assert_array_equal(np.round(back * 255).astype(np.uint8), rgba)
+
+
+def test_hillshade_grey_of_dem_is_the_grey_of_the_hillshade(tmp_path):
+    """The one-pass grey levels equal hillshade_grey(hillshade(...)) pixel for pixel (float32 and float64 DEMs,
+    nodata, steep and flat cells), and the PNG made by strips of rows from a GeoTIFF equals the whole array's."""
+    import matplotlib.image as mpimg
+    import rasterio
+    from rasterio.transform import from_origin
+
+    from lidarctl.rasters.products import (NODATA, _hillshade_png, hillshade, hillshade_grey,
+                                           hillshade_grey_of_dem)
+
+    rng = np.random.default_rng(11)
+    dem = np.cumsum(rng.normal(0.0, 0.3, (517, 389)), axis=1) + 40.0 * (rng.random((517, 389)) < 0.01)
+    dem[100:140, 50:90] = 12.0                                   # flat: shade = sin(altitude)
+    dem[rng.random(dem.shape) < 0.05] = np.nan
+    for d in (dem.astype(np.float32), dem):
+        for fill in (None, np.float32(3.5)):
+            want = hillshade_grey(hillshade(d, 0.5, fill_value=fill))
+            got = hillshade_grey_of_dem(d, 0.5, np.nanmean(d) if fill is None else fill)
+            np.testing.assert_array_equal(got, want)
+    d32 = dem.astype(np.float32)
+    with rasterio.open(tmp_path / "dem.tif", "w", driver="GTiff", width=d32.shape[1], height=d32.shape[0], count=1,
+                       dtype="float32", nodata=NODATA, transform=from_origin(0, 0, 0.5, 0.5)) as ds:
+        ds.write(np.where(np.isfinite(d32), d32, NODATA).astype(np.float32), 1)
+    _hillshade_png(tmp_path / "dem.tif", tmp_path / "h.png", 0.5, np.float32(3.5))
+    back = np.round(mpimg.imread(tmp_path / "h.png") * 255).astype(np.uint8)
+    np.testing.assert_array_equal(back[..., 0], hillshade_grey(hillshade(d32, 0.5, fill_value=np.float32(3.5))))

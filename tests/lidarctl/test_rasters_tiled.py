@@ -68,6 +68,8 @@ def test_rasters_cli_several_files_and_errors(strips, tmp_path):
     assert r.exit_code == 0, r.output
     with rasterio.open(out / "dem.tif") as ds:
         assert ds.crs.to_epsg() == 32632 and ds.width == 150 and ds.is_tiled
+        assert ds.tags(ns="IMAGE_STRUCTURE") == {"LAYOUT": "COG", "COMPRESSION": "ZSTD", "INTERLEAVE": "BAND",
+                                                 "PREDICTOR": "3"}   # lossless, the float predictor
         dem = ds.read(1, masked=True)
     assert dem.count() > 0.95 * dem.size                                   # the strips cover the square
     before = {f: (out / f).read_bytes() for f in rasters.FILES}
