@@ -72,7 +72,8 @@ def write_fine_dsm(project: Path, truth, cell_m: float, out: Path) -> float:
     return time.perf_counter() - t
 
 
-POINT_DSMS = ("max", "tin", "tin_top", "nearest")  # DSMs made here from the project's LiDAR points (``write_points_dsm``)
+# DSMs made here from the project's LiDAR points (``write_points_dsm``)
+POINT_DSMS = ("max", "tin", "tin_top", "nearest")
 TIN_TILE_CELLS = 256
 TIN_BUFFER_M = 12.0
 TIN_MAX_EDGE_M = 10.0  # triangles with a longer edge (gaps in the LiDAR) left to the fallback DSM
