@@ -21,8 +21,11 @@ Usage: python bench/eval_true_ortho_dsm_cell.py --work DIR [--tall PROJECT] [--d
 Per block the DSMs to try: ``lidar`` the project's lidar_out/dsm.tif (the demo: the chain's LiDAR DSM and adjusted
 orientation), ``0.5`` on the tall block truth/dsm.tif, other numbers the truth surface at that cell (m). The tall
 block: ``aerotri sim DIR --preset tall``, rectified with the true orientation and camera as in
-eval_true_ortho_occlusion.py; the demo: a project made by ``aerotri demo``. Writes the key ``dsm_cell`` of
-bench/results/true_ortho_fill.json (the other keys kept).
+eval_true_ortho_occlusion.py; the demo: a project made by ``aerotri demo``. ``max``, ``tin``, ``tin_top`` and
+``nearest``: DSMs from the block's LiDAR first returns on the grid of its LiDAR DSM (demo) or truth DSM (tall), see
+``write_points_dsm`` (the demo's classified strips of the chain, the tall block's simulated strips with their
+true classes). Writes the key ``--key`` (default ``dsm_cell``) of bench/results/true_ortho_fill.json (the other
+keys kept).
 """
 
 from __future__ import annotations
@@ -67,6 +70,104 @@ def write_fine_dsm(project: Path, truth, cell_m: float, out: Path) -> float:
                       window=rasterio.windows.Window(0, r0, nx, r1 - r0))
     tmp.replace(out)
     return time.perf_counter() - t
+
+
+# DSMs made here from the project's LiDAR points (``write_points_dsm``)
+POINT_DSMS = ("max", "tin", "tin_top", "nearest")
+TIN_TILE_CELLS = 256
+TIN_BUFFER_M = 12.0
+TIN_MAX_EDGE_M = 10.0  # triangles with a longer edge (gaps in the LiDAR) left to the fallback DSM
+
+
+def first_returns(las_paths, class_paths=None):
+    """x, y, z (m) of the first returns (return number 0 or 1) that are not noise (classes 7, 18), as the LiDAR
+    DSM takes them; classes from ``class_paths`` (same point order: the simulator's truth/lidar) when given."""
+    import laspy
+
+    xs, ys, zs = [], [], []
+    for k, path in enumerate(las_paths):
+        las = laspy.read(path)
+        cls = np.asarray((laspy.read(class_paths[k]) if class_paths else las).classification)
+        keep = (np.asarray(las.return_number) <= 1) & ~np.isin(cls, (7, 18))
+        xs.append(np.asarray(las.x)[keep])
+        ys.append(np.asarray(las.y)[keep])
+        zs.append(np.asarray(las.z)[keep])
+    return np.concatenate(xs), np.concatenate(ys), np.concatenate(zs)
+
+
+def _highest_per_cell(x, y, z, left, top, res, shape):
+    """Indices of the highest point per cell of the north-up grid and the flat cells they fall in."""
+    r = np.floor((top - y) / res).astype(np.int64)
+    c = np.floor((x - left) / res).astype(np.int64)
+    ok = np.flatnonzero((r >= 0) & (r < shape[0]) & (c >= 0) & (c < shape[1]))
+    cid = r[ok] * shape[1] + c[ok]
+    order = np.lexsort((z[ok], cid))
+    last = np.r_[cid[order][1:] != cid[order][:-1], True]
+    return ok[order[last]], cid[order[last]]
+
+
+def write_points_dsm(how: str, x, y, z, like: Path, out: Path) -> dict:
+    """A DSM on the grid of ``like`` (a DSM GeoTIFF) from first returns (x, y, z in m): ``max`` the highest
+    return per cell (the LiDAR DSM's rule), NaN cells filled by pull-push; ``tin`` the linear interpolation of a
+    Delaunay TIN of all the returns at the cell centres (straight down at the centre, as the simulator's truth
+    DSM); ``tin_top`` the same of the highest return per cell (one vertex a cell, at the point's own x, y);
+    ``nearest`` the return nearest the cell centre (a step halfway between a roof's and the ground's returns).
+    TIN cells under no triangle with edges within TIN_MAX_EDGE_M, and centres with no return within half of it,
+    take the ``max`` DSM; ``like``'s nodata cells stay nodata. Returns the seconds and counts."""
+    import rasterio
+    from scipy.spatial import Delaunay
+
+    from lidarctl.raster_ops import fill_nodata
+    from lidarctl.rasters.trees import _rasterise_tin
+
+    t = time.perf_counter()
+    with rasterio.open(like) as ds:
+        prof, tf = ds.profile, ds.transform
+        valid = ds.read(1) != ds.nodata
+    res, left, top = tf.a, tf.c, tf.f
+    shape = valid.shape
+    top_idx, cid = _highest_per_cell(x, y, z, left, top, res, shape)
+    dsm = np.full(shape[0] * shape[1], np.nan)
+    dsm[cid] = z[top_idx]
+    dsm = fill_nodata(dsm.reshape(shape))
+    n_vertices = 0
+    if how == "nearest":
+        from lidarctl.rasters.nearest import nearest_return_surface
+
+        near = nearest_return_surface(x, y, z, x0_m=left, y_top_m=top, res_m=res, nrows=shape[0], ncols=shape[1],
+                                      max_dist_m=TIN_MAX_EDGE_M / 2)
+        dsm = np.where(np.isfinite(near), near, dsm)
+    elif how != "max":
+        if how == "tin_top":
+            x, y, z = x[top_idx], y[top_idx], z[top_idx]
+        tin = np.full(shape, np.nan)
+        buf = TIN_BUFFER_M
+        for r0 in range(0, shape[0], TIN_TILE_CELLS):
+            r1 = min(shape[0], r0 + TIN_TILE_CELLS)
+            yt, yb = top - r0 * res, top - r1 * res
+            rows = np.flatnonzero((y > yb - buf) & (y < yt + buf))
+            xr, yr, zr = x[rows], y[rows], z[rows]
+            for c0 in range(0, shape[1], TIN_TILE_CELLS):
+                c1 = min(shape[1], c0 + TIN_TILE_CELLS)
+                xl, xh = left + c0 * res, left + c1 * res
+                k = np.flatnonzero((xr > xl - buf) & (xr < xh + buf))
+                if len(k) < 3:
+                    continue
+                px, py = xr[k] - xl, yr[k] - yb
+                n_vertices += len(k)
+                tri = Delaunay(np.column_stack([px, py])).simplices.astype(np.int64)
+                part = _rasterise_tin(px, py, zr[k], tri, max_edge2=TIN_MAX_EDGE_M ** 2, x0=0.0, y0=0.0, res=res,
+                                      nrows=r1 - r0, ncols=c1 - c0)
+                tin[r0:r1, c0:c1] = part[::-1]
+        dsm = np.where(np.isfinite(tin), tin, dsm)
+    dsm = np.where(valid, dsm, prof["nodata"]).astype(np.float32)
+    prof.update(dtype="float32", compress="deflate", predictor=3)
+    tmp = out.with_suffix(".part.tif")
+    with rasterio.open(tmp, "w", **prof) as dst:
+        dst.write(dsm, 1)
+    tmp.replace(out)
+    return {"how": how, "points": int(len(x)), "tin_vertices_with_buffers": n_vertices,
+            "seconds": round(time.perf_counter() - t, 1)}
 
 
 # what stands above a line of sight that reaches the ground (``surface_clearance``)
@@ -179,6 +280,15 @@ def cached_truth(E, work: Path, conv: Path, grid):
     return kind, ground, roof, vis, foot_nadir
 
 
+def block_first_returns(src: Path, tall: bool):
+    """The block's LiDAR first returns (``first_returns``): the demo's classified strips of the chain
+    (lidar_out/classified), the tall block's simulated strips with their true classes (no chain run)."""
+    if tall:
+        las = sorted((src / "lidar").glob("*.la[sz]"))
+        return first_returns(las, [src / "truth" / "lidar" / q.name for q in las])
+    return first_returns(sorted((src / "lidar_out" / "classified").glob("*.la[sz]")))
+
+
 def run_block(name: str, src: Path, work: Path, cells: list[str]) -> dict:
     """The block's conventional DOM, truth and 2.5D bound, then per DSM (``lidar``: the project's
     lidar_out/dsm.tif; ``0.5``: truth/dsm.tif; other numbers: the truth surface at that cell) its true-ortho DOM and
@@ -209,6 +319,7 @@ def run_block(name: str, src: Path, work: Path, cells: list[str]) -> dict:
     codes, bound = cached_clearance(E, truth, work / name, grid, ground, vis, foot_nadir)
     print(name, "2.5D bound", json.dumps(bound), flush=True)
     results = {}
+    points = None
     for cell in cells:
         p = work / name / f"true_ortho_dsm_{cell}"
         made_path = p / "made.json"
@@ -217,13 +328,20 @@ def run_block(name: str, src: Path, work: Path, cells: list[str]) -> dict:
             cast_s = 0.0
             if cell == "0.5" and tall:
                 pass  # copy_tall put truth/dsm.tif there
+            elif cell in POINT_DSMS:
+                if points is None:
+                    points = block_first_returns(src, tall)
+                like = src / ("truth" if tall else "lidar_out") / "dsm.tif"
+                point_dsm = write_points_dsm(cell, *points, like, p / "lidar_out" / "dsm.tif")
             elif cell != "lidar":
                 cast_s = write_fine_dsm(src, truth, float(cell), p / "lidar_out" / "dsm.tif")
             made = E.make_dom(p, True, **kw)
             made["dsm_ray_cast_s"] = cast_s
+            if cell in POINT_DSMS:
+                made["point_dsm"] = point_dsm
             made_path.write_text(json.dumps(made, indent=1, default=str) + "\n")
         made = json.loads(made_path.read_text())
-        res = {"rectify": made["rectify"], "dsm_ray_cast_s": made["dsm_ray_cast_s"],
+        res = {"rectify": made["rectify"], "dsm_ray_cast_s": made["dsm_ray_cast_s"], "point_dsm": made.get("point_dsm"),
                "roofs": roof_displacements(p / "ortho" / "mosaic.tif", p / "truth" / "ortho.tif",
                                            p / "truth" / "roof_corners.csv")}
         way = E.measure_way(p, None, grid, kind, ground, roof, vis, foot_nadir, conv_masks)
@@ -248,15 +366,16 @@ def main() -> None:
     ap.add_argument("--demo", type=Path, default=Path("/work/ref/demo_chain/project"))
     ap.add_argument("--work", type=Path, default=REPO / "out" / "true_ortho_occlusion")
     ap.add_argument("--blocks", default="demo:lidar,0.5,0.1;tall:0.5,0.25,0.2,0.1")
+    ap.add_argument("--key", default="dsm_cell", help="the key of the JSON to write (the others kept)")
     ap.add_argument("--out", type=Path, default=REPO / "bench" / "results" / "true_ortho_fill.json")
     args = ap.parse_args()
     out = json.loads(args.out.read_text()) if args.out.exists() else {}
-    key = out.setdefault("dsm_cell", {"blocks": {}})
+    key = out.setdefault(args.key, {"blocks": {}})
     for spec in args.blocks.split(";"):
         name, cells = spec.split(":")
         key["blocks"][name] = run_block(name, args.tall if name == "tall" else args.demo, args.work, cells.split(","))
     key["command"] = ("python bench/eval_true_ortho_dsm_cell.py --work DIR --tall DIR --demo DIR "
-                      f"--blocks '{args.blocks}'")
+                      f"--blocks '{args.blocks}' --key {args.key}")
     key["commit"] = subprocess.run(["git", "-C", str(REPO), "rev-parse", "--short", "HEAD"], capture_output=True,
                                    text=True).stdout.strip()
     args.out.write_text(json.dumps(out, indent=1) + "\n")
