@@ -116,7 +116,9 @@ def _side(code: Path, a: argparse.Namespace, work: Path) -> dict:
     sys.path.insert(0, str(ROOT / "bench"))
     from lidar_common import measure_on_tree
 
-    return measure_on_tree(code, __file__, ["--work", work] + [x for s in a.set for x in ("--set", s)])
+    # both sides read this checkout's presets (a tree from ``git archive`` has no datasets/presets)
+    return measure_on_tree(code, __file__, ["--work", work] + [x for s in a.set for x in ("--set", s)],
+                           env={"AEROTRI_PRESETS": str(ROOT / "datasets" / "presets")})
 
 
 def main() -> None:
