@@ -12,8 +12,11 @@ samples, so file metadata does not count) and the first frame is written again f
 the TIFF writing and its compression. The sides alternate ``--rounds`` times (the machine's load changes); the
 least CPU of each side and the ratio of MP per CPU-second are reported with the load average of every run.
 
-    python bench/sim_frame_speed.py --before DIR [--rounds 2] [--work DIR] [--json bench/results/sim_frame_speed.json]
-        [--set flight.frames_per_strip=3 ...]
+    python bench/sim_frame_speed.py --before DIR [--rounds 2] [--work DIR] [--json bench/results/sim_frame_speed.json
+        [--key NAME]] [--set flight.frames_per_strip=3 ...]
+
+With ``--key`` the result goes under that key of the JSON file, the file's other keys kept (without: the file is
+the result).
 """
 
 from __future__ import annotations
@@ -47,20 +50,20 @@ def _measure(sets: list[str], work: Path) -> dict:
     from aerotri.sim.scene import build_scene
 
     cfg = load_preset(PRESET, sets)
-    ss = np.random.SeedSequence(int(cfg["preset"]["seed"]))
+    ss = np.random.SeedSequence(int(cfg.preset.seed))
     s_scene, s_flight, s_frames, _ = ss.spawn(4)
-    origin = np.array([cfg["crs"]["origin_e_m"], cfg["crs"]["origin_n_m"], cfg["crs"]["base_height_m"]])
+    origin = np.array([cfg.crs.origin_e_m, cfg.crs.origin_n_m, cfg.crs.base_height_m])
     layout = block_layout(cfg)
-    scene = build_scene(cfg["scene"], layout.width_m, layout.height_m, origin,
+    scene = build_scene(cfg.scene, layout.width_m, layout.height_m, origin,
                         int(np.random.default_rng(s_scene).integers(0, 2**31 - 1)))
     plan = plan_frames(cfg, layout, np.random.default_rng(s_flight))
-    cam, _ = cameras_from_config(cfg["camera"])
+    cam, _ = cameras_from_config(cfg.camera)
     look = raster.SceneLook(scene, P.texture_fine_m(cfg, cam))
     earth = P.sim_earth(cfg, layout)
     fl = P.frame_layout(cfg)
     # compile (or load the cached) renderer: one band of the first frame
     c0, t0 = time.process_time(), time.perf_counter()
-    r = raster.FrameRenderer(scene, cam, look.fine_m, samples=int(cfg["render"]["samples"]), bits=fl.bits,
+    r = raster.FrameRenderer(scene, cam, look.fine_m, samples=int(cfg.render.samples), bits=fl.bits,
                              look=look, bands=fl.bands)
     R = rotation_matrix_opk(*plan.opk_deg[0])
     r.render_rows(r.setup(plan.centre_m[0], R, earth.frame_earth(plan.centre_m[0], R)), 0, raster.BAND_ROWS)
@@ -113,7 +116,9 @@ def _side(code: Path, a: argparse.Namespace, work: Path) -> dict:
     sys.path.insert(0, str(ROOT / "bench"))
     from lidar_common import measure_on_tree
 
-    return measure_on_tree(code, __file__, ["--work", work] + [x for s in a.set for x in ("--set", s)])
+    # both sides read this checkout's presets (a tree from ``git archive`` has no datasets/presets)
+    return measure_on_tree(code, __file__, ["--work", work] + [x for s in a.set for x in ("--set", s)],
+                           env={"AEROTRI_PRESETS": str(ROOT / "datasets" / "presets")})
 
 
 def main() -> None:
@@ -123,6 +128,7 @@ def main() -> None:
     ap.add_argument("--rounds", type=int, default=2, help="before/after runs, alternating")
     ap.add_argument("--work", type=Path, default=ROOT / "out" / "sim_frame_speed")
     ap.add_argument("--json", type=Path)
+    ap.add_argument("--key", help="store the result under this key of the --json file, keeping its other keys")
     ap.add_argument("--measure", action="store_true", help=argparse.SUPPRESS)
     a = ap.parse_args()
     a.set = a.set or SETS
@@ -154,6 +160,8 @@ def main() -> None:
         doc = {"preset": PRESET, "sets": a.set, "rounds": a.rounds, "commit": commit, "before": str(a.before),
                "identical": identical, "mp_per_cpu_s_before": best["before"]["mp_per_cpu_s"],
                "mp_per_cpu_s_after": best["after"]["mp_per_cpu_s"], "ratio": round(ratio, 3), "runs": runs}
+        if a.key:
+            doc = {**(json.loads(a.json.read_text()) if a.json.exists() else {}), a.key: doc}
         write_text_atomic(a.json, json.dumps(doc, indent=1) + "\n")
         print(f"wrote {a.json}")
 

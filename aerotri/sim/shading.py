@@ -7,11 +7,12 @@ The frame renderer (``aerotri.sim.raster``) and the true orthophoto shade every 
 Ground material: the one ``raycast.ground_material`` defines (painted targets, ponds, roads with their
 markings, then soil or grass by a 60 m noise field), found through ``GroundIndex``: a grid of 4 m cells
 listing the targets, ponds and roads that reach into each cell (in the order the reference tests them)
-and the soil field interpolated at the cell corners. A point is tested against its cell's features
-only, and the soil field is evaluated exactly only where the interpolated value lies within
-``SOIL_EPS`` of the threshold (the bilinear interpolation error of that field on 4 m cells is below
-0.014): the material of every point is the reference's, at a few ns instead of a loop over every
-road, pond and target of the scene.
+and the soil field interpolated on a grid of half the cell (2 m). A point is tested against its cell's
+features only, and the soil field is evaluated exactly only where the interpolated value lies within
+``SOIL_EPS`` of the threshold (the bilinear interpolation error of that field on 2 m cells is below
+0.0034); a cell without features whose soil nodes all lie on one side of that band has one material
+(``GroundIndex.plain``): the material of every point is the reference's, at a few ns instead of a loop
+over every road, pond and target of the scene.
 
 Texture: value noise (a 64-bit integer hash of the lattice corners, smoothstep interpolation) summed
 over octaves that halve from each material's coarsest scale down to the scene's finest texture scale
@@ -36,8 +37,10 @@ from aerotri.sim.scene import (
 GROUND_CELL_M = 4.0
 SOIL_THRESHOLD = 0.62
 # The 60 m, 2-octave soil field has second derivatives below 6 sum(w_o f_o^2) = 3.4e-3 / m2, so bilinear
-# interpolation on 4 m cells is within 4^2/8 x 2 x 3.4e-3 = 0.014 of it: 0.02 leaves a margin.
-SOIL_EPS = 0.02
+# interpolation on 2 m cells is within 2^2/8 x 2 x 3.4e-3 = 0.0034 of it: 0.005 leaves a margin. (On 4 m
+# cells the band was 0.02 wide and a fifth of the ground points needed the exact field, 17 ns each.)
+SOIL_EPS = 0.005
+SOIL_SUB = 2  # soil nodes per cell side: every cell_m / SOIL_SUB
 HAZE = (0.55, 0.65, 0.8)  # radiance of a ray that leaves the scene
 SUN = raycast.SUN
 _FEATURE_SHIFT = 32  # feature code = type << 32 | index; types in the reference's test order
@@ -52,13 +55,15 @@ class GroundIndex(NamedTuple):
     ny: int
     start: np.ndarray  # (nx * ny + 1,) int64: features of cell i * nx + j at codes[start[c]:start[c + 1]]
     codes: np.ndarray  # int64 feature codes, type-major in the reference's order
-    soil: np.ndarray  # (ny + 1, nx + 1) float32: the soil field at the cell corners (node (i, j) at (j, i) * cell_m)
+    soil: np.ndarray  # (SOIL_SUB ny + 1, SOIL_SUB nx + 1) float32: the soil field at (j, i) * cell_m / SOIL_SUB
     roads: np.ndarray
     ponds: np.ndarray
     targets: np.ndarray
     seed: int
     road_axes: np.ndarray  # (R, 3): the unit direction (ex, ey) and length L of each road, as the reference computes them
     pond_axes: np.ndarray  # (P, 2): cos and sin of each pond's angle
+    plain: np.ndarray  # (nx * ny,) int8: the material of every point of a cell without features whose soil nodes
+    # all lie on one side of the threshold band (SOIL or GRASS), else -1
 
 
 def build_ground_index(scene, cell_m: float = GROUND_CELL_M) -> GroundIndex:
@@ -129,13 +134,35 @@ def build_ground_index(scene, cell_m: float = GROUND_CELL_M) -> GroundIndex:
     else:
         q = np.zeros(0, np.int64)
         start = np.zeros(nx * ny + 1, np.int64)
-    soil = _soil_nodes(nx + 1, ny + 1, cell_m, int(scene.seed))
+    soil = _soil_nodes(SOIL_SUB * nx + 1, SOIL_SUB * ny + 1, cell_m / SOIL_SUB, int(scene.seed))
     roads = np.ascontiguousarray(scene.roads, dtype=np.float64).reshape(-1, 5)
     ponds = np.ascontiguousarray(scene.ponds, dtype=np.float64).reshape(-1, 6)
     road_axes, pond_axes = _feature_axes(roads, ponds)
     return GroundIndex(float(cell_m), nx, ny, start, q, soil, roads, ponds,
                        np.ascontiguousarray(scene.targets, dtype=np.float64).reshape(-1, 3), int(scene.seed),
-                       road_axes, pond_axes)
+                       road_axes, pond_axes, _plain_cells(start, soil))
+
+
+def _plain_cells(start, soil):
+    """``GroundIndex.plain``: an interpolated soil value lies between the least and the greatest of its four nodes
+    (each rounded step of ``ground_material``'s interpolation is monotone and exact at u, v = 0, 1), so where
+    all nodes of a cell are beyond the same side of the band its material is decided without interpolating."""
+    k = SOIL_SUB
+    ny, nx = (soil.shape[0] - 1) // k, (soil.shape[1] - 1) // k
+    S = soil.astype(np.float64)
+    lo = np.full((ny, nx), np.inf)
+    hi = np.full((ny, nx), -np.inf)
+    for a in range(k + 1):
+        for b in range(k + 1):
+            node = S[a: a + k * ny: k, b: b + k * nx: k]
+            lo = np.minimum(lo, node)
+            hi = np.maximum(hi, node)
+    lo, hi = lo.ravel(), hi.ravel()
+    plain = np.full(lo.size, -1, np.int8)
+    plain[lo > SOIL_THRESHOLD + SOIL_EPS] = SOIL
+    plain[hi < SOIL_THRESHOLD - SOIL_EPS] = GRASS
+    plain[np.diff(start) > 0] = -1
+    return plain
 
 
 def ground_index(scene) -> GroundIndex:
@@ -189,6 +216,9 @@ def ground_material(x, y, G):
     j = int(fx)
     i = int(fy)
     c = i * G.nx + j
+    plain = G.plain[c]
+    if plain >= 0:
+        return numba.int64(plain)
     targets = G.targets
     ponds = G.ponds
     roads = G.roads
@@ -229,8 +259,13 @@ def ground_material(x, y, G):
                 if abs(abs(lat) - (w / 2.0 - 0.6)) < 0.15:
                     return MARKING
                 return ROAD
-    u = fx - j
-    v = fy - i
+    # the soil node grid: SOIL_SUB x the cell coordinates (a power of two: the same bits as x / (cell / SOIL_SUB))
+    sx = fx * SOIL_SUB
+    sy = fy * SOIL_SUB
+    j = int(sx)
+    i = int(sy)
+    u = sx - j
+    v = sy - i
     S = G.soil
     a = S[i, j] + (S[i, j + 1] - S[i, j]) * u
     b = S[i + 1, j] + (S[i + 1, j + 1] - S[i + 1, j]) * u
@@ -302,6 +337,21 @@ MAX_OCTAVES = 8
 # and stays at that level below: a finer GSD sees texture of the same contrast at its own pixel scale
 # (grass, gravel, roofing at 0.1-0.2 m), as real ground has, not a fading copy of the coarse texture.
 DECAY_OCTAVES = 3
+
+
+def _weight_sums():
+    """The sum of the octaves' weights of 0..MAX_OCTAVES octaves, added in the octaves' order in float64 as the
+    per-point sum of ``shade_into`` was (the same bits): the texture's normalisation, out of the points' loop."""
+    sums = [0.0]
+    a = 0.5
+    for o in range(MAX_OCTAVES):
+        sums.append(sums[-1] + a)
+        if o < DECAY_OCTAVES:
+            a *= 0.55
+    return np.array(sums)
+
+
+_WEIGHT_SUMS = _weight_sums()  # a global array: a constant of the compiled code
 # coarsest lattice spacing of each surface's texture (m): ground, roof, wall, crown
 SCALE_GROUND_M, SCALE_ROOF_M, SCALE_WALL_M, SCALE_CROWN_M = 4.0, 3.0, 2.0, 1.2
 
@@ -433,12 +483,7 @@ def shade_into(points, kind, obj, normals, look, rad, scratch, n):
             rad[p, 1] = HAZE[1]
             rad[p, 2] = HAZE[2]
             continue
-        norm = 0.0
-        a = 0.5
-        for o in range(noct[p]):
-            norm += a
-            if o < DECAY_OCTAVES:
-                a *= 0.55
+        norm = _WEIGHT_SUMS[noct[p]]
         t = acc[p] / norm if norm > 0.0 else 0.5
         L = lam[p]
         if k == KIND_TERRAIN:
@@ -481,3 +526,4 @@ def shade_into(points, kind, obj, normals, look, rad, scratch, n):
         rad[p, 0] = r * L
         rad[p, 1] = g * L
         rad[p, 2] = b * L
+
