@@ -717,14 +717,14 @@ def _render_bands(band0, band1, row_out0, *, W, H, band_rows, tile_cols, step, X
                         NX[cc], NY[cc], NZ[cc], kind[cc], obj[cc] = _surface_normal(
                             typ, idx, (X[cc], Y[cc], Z[cc]), (ti0, tj0), surfaces)
                     _face_viewer((NX, NY, NZ), (DX, DY, DZ), tw)
-                    shading.shade_into((X, Y, Z), kind, obj, (NX, NY, NZ), look, rad, scratch, tw)
+                    shading.shade_into((X, Y, Z), (kind, obj), (NX, NY, NZ), look, (rad, tw), scratch)
                     r = rb0 + rr
                     if want_ids and s == 0:
                         for cc in range(tw):
                             ids_out[r - row_out0, cb0 + cc] = (kind[cc] * 1000000 + obj[cc]
                                                                if kind[cc] != KIND_NONE else 0)
                     if S == 1:
-                        _expose_row(rad, r, (cb0, cb1), (W, H), exposure, out[r - row_out0], expo_scratch)
+                        _expose_row(rad, (r, cb0, cb1), (W, H), exposure, out[r - row_out0], expo_scratch)
                     else:
                         for cc in range(tw):
                             acc[rr, cc, 0] += rad[cc, 0] / S
@@ -732,20 +732,20 @@ def _render_bands(band0, band1, row_out0, *, W, H, band_rows, tile_cols, step, X
                             acc[rr, cc, 2] += rad[cc, 2] / S
             if S > 1:
                 for rr in range(hb):
-                    _expose_row(acc[rr], rb0 + rr, (cb0, cb1), (W, H), exposure, out[rb0 + rr - row_out0],
+                    _expose_row(acc[rr], (rb0 + rr, cb0, cb1), (W, H), exposure, out[rb0 + rr - row_out0],
                                 expo_scratch)
 
 
 @numba.njit(cache=True, fastmath=True)
-def _expose_row(rad, r, cols, size, exposure, out, scratch):
-    """Exposure of columns c0..c1-1 (``cols``) of image row ``r`` of a frame of ``size`` (W, H) px; ``exposure``:
+def _expose_row(rad, span, size, exposure, out, scratch):
+    """Exposure of columns c0..c1-1 of image row r (``span``: (r, c0, c1)) of a frame of ``size`` (W, H) px; ``exposure``:
     (gain, vignetting, noise_dn, noise_seed, bits, lut). Radiance (``rad`` (c1 - c0, 3), from column c0) x gain x
     radial vignetting (the fraction ``vignetting`` lost at the corners), the tone curve (8-bit: ``lut``; 12-bit:
     linear 0..4095 for 1.25 x radiance 0..1), sensor noise (the sum of two 10-bit uniforms from a hash of seed,
     pixel and band: triangular, zero mean, sigma ``noise_dn``), rounding, clipping -> ``out`` (W, 3), or (W, 1):
     panchromatic, the mean of R, G and B; ``scratch``: three work arrays of at least c1 - c0."""
     W, H = size
-    c0, c1 = cols
+    r, c0, c1 = span
     gain, vignetting, noise_dn, noise_seed, bits, lut = exposure
     fac, h1, h2 = scratch
     cw = (W - 1) / 2.0

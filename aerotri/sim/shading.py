@@ -392,14 +392,14 @@ shade_scratch_nb = numba.njit(cache=True)(shade_scratch)
 def shade_points(points, kind, obj, normals, look, rad):
     """``shade_into`` all points, with work arrays of its own."""
     n = points[0].shape[0]
-    shade_into(points, kind, obj, normals, look, rad, shade_scratch_nb(n), n)
+    shade_into(points, (kind, obj), normals, look, (rad, n), shade_scratch_nb(n))
 
 
 @numba.njit(cache=True)
-def shade_into(points, kind, obj, normals, look, rad, scratch, n):
-    """Radiance (R, G, B) into ``rad`` (n, 3) of the first ``n`` surface ``points`` (X, Y, Z) (local metres) of
-    ``kind`` (scene KIND_*; KIND_NONE: haze) and object ``obj`` with unit ``normals`` (NX, NY, NZ) facing the
-    viewer; ``look``: the scene's ``GroundIndex`` ``G`` and ``roof_albedo``, the finest texture scale ``fine_m``
+def shade_into(points, surface, normals, look, out, scratch):
+    """Radiance (R, G, B) into ``rad`` (n, 3) of the first ``n`` surface ``points`` (X, Y, Z) (local metres)
+    (``out``: (rad, n)) of ``surface`` (kind, obj): scene KIND_* (KIND_NONE: haze) and object, with unit ``normals``
+    (NX, NY, NZ) facing the viewer; ``look``: the scene's ``GroundIndex`` ``G`` and ``roof_albedo``, the finest texture scale ``fine_m``
     and the unit vector towards the ``sun`` (G, roof_albedo, fine_m, sun); ``scratch``: work arrays of at least
     ``n`` (``shade_scratch``), so that a renderer shading a row at a time allocates nothing per row.
 
@@ -409,8 +409,10 @@ def shade_into(points, kind, obj, normals, look, rad, scratch, n):
     plain.
     """
     X, Y, Z = points
+    kind, obj = surface
     NX, NY, NZ = normals
     G, roof_albedo, fine_m, sun = look
+    rad, n = out
     tu, tv, f0, sd, noct, mat, spot, lam, acc = scratch
     for p in range(n):
         noct[p] = 0

@@ -18,7 +18,10 @@ import numpy as np
 
 
 @numba.njit(cache=True)
-def _nearest_in_buckets(px, py, pz, start, x0, y_top, res, nrows, ncols, max_dist):
+def _nearest_in_buckets(points, start, grid, max_dist):
+    # points: (x, y, z) sorted by cell; start: each cell's first point; grid: (x0, y_top, res, nrows, ncols)
+    px, py, pz = points
+    x0, y_top, res, nrows, ncols = grid
     out = np.full((nrows, ncols), np.nan)
     reach = int(math.ceil(max_dist / res))
     for i in range(nrows):
@@ -59,5 +62,5 @@ def nearest_return_surface(x: np.ndarray, y: np.ndarray, z: np.ndarray, *, x0_m:
     order = np.argsort(cell, kind="stable")
     start = np.searchsorted(cell[order], np.arange(nrows * ncols + 1))
     pts = on[order]
-    return _nearest_in_buckets(x[pts], y[pts], z[pts], start, float(x0_m), float(y_top_m), float(res_m), nrows,
-                               ncols, float(max_dist_m))
+    return _nearest_in_buckets((x[pts], y[pts], z[pts]), start,
+                               (float(x0_m), float(y_top_m), float(res_m), int(nrows), int(ncols)), float(max_dist_m))

@@ -345,11 +345,14 @@ def hillshade_grey_of_dem(dem: np.ndarray, res_m: float, fill_value, azimuth_deg
     """``hillshade_grey(hillshade(dem, ...))`` (uint8), the same levels, with the float64 sum, clip,
     NaN test and grey level in one numba pass instead of eight whole-array temporaries."""
     cos_slope, sin_slope, cos_rel, alt = _hillshade_terms(dem, res_m, azimuth_deg, altitude_deg, fill_value)
-    return _shade_grey(dem, cos_slope, sin_slope, cos_rel, float(np.sin(alt)), float(np.cos(alt)), _GREY_LUT)
+    return _shade_grey(dem, (cos_slope, sin_slope, cos_rel), (float(np.sin(alt)), float(np.cos(alt))), _GREY_LUT)
 
 
 @numba.njit(cache=True, nogil=True)
-def _shade_grey(dem, cos_slope, sin_slope, cos_rel, sin_alt, cos_alt, lut):
+def _shade_grey(dem, slope_terms, sun, lut):
+    # slope_terms: (cos slope, sin slope, cos of azimuth - aspect) per cell; sun: (sin, cos) of its altitude
+    cos_slope, sin_slope, cos_rel = slope_terms
+    sin_alt, cos_alt = sun
     # numpy's order of operations in float64 (products, then the sum); no fastmath, so no fused multiply-add
     out = np.empty(dem.shape, np.uint8)
     for i in range(dem.shape[0]):
