@@ -337,11 +337,10 @@ def main() -> None:
         return
     if a.before is None:
         ap.error("--before DIR is needed")
+    from lidar_common import alternate_rounds
+
     if a.compile:
-        runs = {"before": [], "after": []}
-        for _ in range(a.rounds):
-            runs["before"].append(_side(a.before.resolve(), 0, a.only, True))
-            runs["after"].append(_side(ROOT, 0, a.only, True))
+        runs = alternate_rounds(a.before.resolve(), ROOT, a.rounds, lambda code, side, k: _side(code, 0, a.only, True))
         rows = {k: {"compile_cpu_s_before": min(r["calls"][k] for r in runs["before"]),
                     "compile_cpu_s_after": min(r["calls"][k] for r in runs["after"])} for k in runs["before"][0]["calls"]}
         total = {side: min(r["compile_cpu_s"] for r in rs) for side, rs in runs.items()}
@@ -353,10 +352,7 @@ def main() -> None:
                    "compile_cpu_s": total, "runs": runs}
             a.json.write_text(json.dumps(doc, indent=1) + "\n")
         return
-    runs = {"before": [], "after": []}
-    for _ in range(a.rounds):
-        runs["before"].append(_side(a.before.resolve(), a.repeat, a.only))
-        runs["after"].append(_side(ROOT, a.repeat, a.only))
+    runs = alternate_rounds(a.before.resolve(), ROOT, a.rounds, lambda code, side, k: _side(code, a.repeat, a.only))
     before = runs["before"][0]
     rows = {k: {"identical": all(r[k]["sha256"] == before[k]["sha256"] for side in runs.values() for r in side),
                 "cpu_s_before": round(min(r[k]["cpu_s_median"] for r in runs["before"]), 4),
