@@ -319,7 +319,9 @@ def _side(code: Path, repeat: int, only: list[str] | None = None, compile_: bool
     with tempfile.TemporaryDirectory(dir=os.environ.get("TMPDIR")) as cache:
         return measure_on_tree(code, __file__, ["--repeat", repeat, *(["--compile"] if compile_ else []),
                                                 *[a for name in only or [] for a in ("--only", name)]],
-                               env={"NUMBA_CACHE_DIR": cache} if compile_ else None, cwd=code)
+                               # both sides read this checkout's presets (``git archive`` of the packages has none)
+                               env={"AEROTRI_PRESETS": str(ROOT / "datasets" / "presets")}
+                               | ({"NUMBA_CACHE_DIR": cache} if compile_ else {}), cwd=code)
 
 
 def main() -> None:
