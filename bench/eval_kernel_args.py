@@ -319,7 +319,9 @@ def _side(code: Path, repeat: int, only: list[str] | None = None, compile_: bool
     with tempfile.TemporaryDirectory(dir=os.environ.get("TMPDIR")) as cache:
         return measure_on_tree(code, __file__, ["--repeat", repeat, *(["--compile"] if compile_ else []),
                                                 *[a for name in only or [] for a in ("--only", name)]],
-                               env={"NUMBA_CACHE_DIR": cache} if compile_ else None, cwd=code)
+                               # both sides read this checkout's presets (``git archive`` of the packages has none)
+                               env={"AEROTRI_PRESETS": str(ROOT / "datasets" / "presets")}
+                               | ({"NUMBA_CACHE_DIR": cache} if compile_ else {}), cwd=code)
 
 
 def main() -> None:
@@ -337,11 +339,10 @@ def main() -> None:
         return
     if a.before is None:
         ap.error("--before DIR is needed")
+    from lidar_common import alternate_rounds
+
     if a.compile:
-        runs = {"before": [], "after": []}
-        for _ in range(a.rounds):
-            runs["before"].append(_side(a.before.resolve(), 0, a.only, True))
-            runs["after"].append(_side(ROOT, 0, a.only, True))
+        runs = alternate_rounds(a.before.resolve(), ROOT, a.rounds, lambda code, side, k: _side(code, 0, a.only, True))
         rows = {k: {"compile_cpu_s_before": min(r["calls"][k] for r in runs["before"]),
                     "compile_cpu_s_after": min(r["calls"][k] for r in runs["after"])} for k in runs["before"][0]["calls"]}
         total = {side: min(r["compile_cpu_s"] for r in rs) for side, rs in runs.items()}
@@ -353,10 +354,7 @@ def main() -> None:
                    "compile_cpu_s": total, "runs": runs}
             a.json.write_text(json.dumps(doc, indent=1) + "\n")
         return
-    runs = {"before": [], "after": []}
-    for _ in range(a.rounds):
-        runs["before"].append(_side(a.before.resolve(), a.repeat, a.only))
-        runs["after"].append(_side(ROOT, a.repeat, a.only))
+    runs = alternate_rounds(a.before.resolve(), ROOT, a.rounds, lambda code, side, k: _side(code, a.repeat, a.only))
     before = runs["before"][0]
     rows = {k: {"identical": all(r[k]["sha256"] == before[k]["sha256"] for side in runs.values() for r in side),
                 "cpu_s_before": round(min(r[k]["cpu_s_median"] for r in runs["before"]), 4),

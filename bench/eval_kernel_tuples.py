@@ -117,10 +117,9 @@ def main() -> None:
     if a.before is None:
         ap.error("--before DIR is needed")
     # the sides alternate (the machine's load changes): the least of each side's medians
-    runs = {"before": [], "after": []}
-    for _ in range(a.rounds):
-        runs["before"].append(_side(a.before, a.points, a.only))
-        runs["after"].append(_side(ROOT, a.points, a.only))
+    from lidar_common import alternate_rounds
+
+    runs = alternate_rounds(a.before, ROOT, a.rounds, lambda code, side, k: _side(code, a.points, a.only))
     before, after = runs["before"][0], runs["after"][0]
     rows = {k: {"identical": all(r[k]["sha256"] == before[k]["sha256"] for side in runs.values() for r in side),
                 "cpu_s_before": round(min(r[k]["cpu_s_median"] for r in runs["before"]), 4),

@@ -116,14 +116,16 @@ def main() -> None:
         return
     if a.before is None:
         ap.error("--before DIR is needed")
-    runs = {"before": [], "after": []}
-    for k in range(a.rounds):
-        for side, code in (("before", a.before.resolve()), ("after", ROOT)):
-            r = _side(code, a, a.work / side)
-            runs[side].append(r)
-            print(f"round {k + 1} {side:6s} " + "  ".join(
-                f"{w} {r[w]['cpu_s_per_mp']:.4f} CPU-s/MP (wall {r[w]['wall_s_per_mp']:.4f}, load "
-                f"{r[w]['load_average'][0]:.1f})" for w in WAYS), flush=True)
+    from lidar_common import alternate_rounds
+
+    def measure(code: Path, side: str, k: int) -> dict:
+        r = _side(code, a, a.work / side)
+        print(f"round {k + 1} {side:6s} " + "  ".join(
+            f"{w} {r[w]['cpu_s_per_mp']:.4f} CPU-s/MP (wall {r[w]['wall_s_per_mp']:.4f}, load "
+            f"{r[w]['load_average'][0]:.1f})" for w in WAYS), flush=True)
+        return r
+
+    runs = alternate_rounds(a.before.resolve(), ROOT, a.rounds, measure)
     rows = {}
     for w in WAYS:
         ref = runs["before"][0][w]

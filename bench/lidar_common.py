@@ -137,6 +137,16 @@ def measure_on_tree(code: Path, script, args, *, env: dict | None = None, cwd=No
     return json.loads(r.stdout.strip().splitlines()[-1])
 
 
+def alternate_rounds(before: Path, after: Path, rounds: int, measure) -> dict[str, list[dict]]:
+    """``rounds`` rounds of ``measure(code, side, round_index)`` on two code trees, the "before" side first in each
+    round, so that a change of the shared machine's load falls on both sides alike; the runs of each side in order."""
+    runs = {"before": [], "after": []}
+    for k in range(rounds):
+        for side, code in (("before", before), ("after", after)):
+            runs[side].append(measure(code, side, k))
+    return runs
+
+
 def baseline_tree(rev: str, work: Path) -> Path:
     """The packages (lidarctl, aerotri, ortho) of git revision ``rev``, unpacked once into ``work/baseline_<rev>``:
     the "before" side of a benchmark run in the same session."""

@@ -113,7 +113,6 @@ def _measure(sets: list[str], work: Path) -> dict:
 
 
 def _side(code: Path, a: argparse.Namespace, work: Path) -> dict:
-    sys.path.insert(0, str(ROOT / "bench"))
     from lidar_common import measure_on_tree
 
     # both sides read this checkout's presets (a tree from ``git archive`` has no datasets/presets)
@@ -138,15 +137,18 @@ def main() -> None:
         return
     if a.before is None:
         ap.error("--before DIR is needed")
-    runs = {"before": [], "after": []}
-    for k in range(a.rounds):
-        for side, code in (("before", a.before.resolve()), ("after", ROOT)):
-            r = _side(code, a, a.work / side)
-            runs[side].append(r)
-            print(f"round {k + 1} {side:6s} {r['megapixels']} MP: {r['cpu_s']} CPU-s ({r['mp_per_cpu_s']} MP per "
-                  f"CPU-s), "
-                  f"wall {r['wall_s']} s ({r['mp_per_wall_s']} MP/s), TIFF write {r['tiff_write_cpu_s_per_frame']} "
-                  f"CPU-s a frame, load {r['load_average_before'][0]}-{r['load_average_after'][0]}", flush=True)
+    sys.path.insert(0, str(ROOT / "bench"))
+    from lidar_common import alternate_rounds
+
+    def measure(code: Path, side: str, k: int) -> dict:
+        r = _side(code, a, a.work / side)
+        print(f"round {k + 1} {side:6s} {r['megapixels']} MP: {r['cpu_s']} CPU-s ({r['mp_per_cpu_s']} MP per "
+              f"CPU-s), "
+              f"wall {r['wall_s']} s ({r['mp_per_wall_s']} MP/s), TIFF write {r['tiff_write_cpu_s_per_frame']} "
+              f"CPU-s a frame, load {r['load_average_before'][0]}-{r['load_average_after'][0]}", flush=True)
+        return r
+
+    runs = alternate_rounds(a.before.resolve(), ROOT, a.rounds, measure)
     best = {s: min(v, key=lambda r: r["cpu_s"]) for s, v in runs.items()}
     identical = len({r["sha256"] for v in runs.values() for r in v}) == 1
     ratio = best["after"]["mp_per_cpu_s"] / best["before"]["mp_per_cpu_s"]
