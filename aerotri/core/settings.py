@@ -184,6 +184,11 @@ def from_table(cls, table: dict, where: str, base_dir=None):
     for key in table:
         if key not in fields:
             raise ConfigError(f"{where}: unknown key {key!r} (known: {', '.join(fields)})")
+    required = [name for name, f in fields.items()
+                if f.default is dataclasses.MISSING and f.default_factory is dataclasses.MISSING]
+    missing = [name for name in required if name not in table]
+    if missing:
+        raise ConfigError(f"{where}: missing key {missing[0]!r}" + (f" (and {len(missing) - 1} more)" if len(missing) > 1 else ""))
     kwargs = {}
     for key, value in table.items():
         if dataclasses.is_dataclass(_unwrap_optional(hints[key])[0]):  # a sub-table: [match.sparse]
@@ -507,7 +512,8 @@ def settings_lines(record: dict | None, title: str = "Settings (value, and where
 
 
 # -- the reference page ---------------------------------------------------------------------------
-_UNITS = (("_m2", "m²"), ("_m_per_km", "m/km"), ("_mps", "m/s"), ("_px", "px"), ("_deg", "deg"), ("_pct", "%"),
+_UNITS = (("_m2", "m²"), ("_m_per_km", "m/km"), ("_m_per_s", "m/s"), ("_mm", "mm"), ("_hz", "Hz"), ("_dn", "DN"),
+          ("_mps", "m/s"), ("_px", "px"), ("_deg", "deg"), ("_pct", "%"),
           ("_mb", "MB"), ("_s", "s"), ("_m", "m"))
 
 
@@ -568,9 +574,13 @@ def markdown_reference(sections: list[tuple[str, list, str]], options: dict) -> 
             allowed = _describe(cons) if (cons.choices is not None or cons.min is not None
                                           or cons.max is not None) else ""
             opts = "<br>".join(f"`{o}`" for o in options.get((cls, path), []))
+            try:
+                default = f"`{_md_value(field_default(cls, path))}`"
+            except KeyError:  # a required key (the simulator's preset tables)
+                default = "required"
             key = toml_key(cls, path).replace(f"[{name}] ", "")
             help_text = cons.help.replace("|", "\\|").replace("\n", " ")
-            out.append(f"| `{key}` | {_type_name(tp)} | {unit_of(fname)} | `{_md_value(field_default(cls, path))}` | "
+            out.append(f"| `{key}` | {_type_name(tp)} | {unit_of(fname)} | {default} | "
                        f"{allowed} | {opts} | {help_text} |")
         out.append("")
     return "\n".join(out)

@@ -21,7 +21,7 @@ import typing
 from pathlib import Path
 
 from aerotri.core.errors import InputError
-from aerotri.core.settings import from_table
+from aerotri.core.settings import default_settings, from_table, setting
 
 def _preset_dir() -> Path:
     """``$AEROTRI_PRESETS``, else the source checkout's datasets/presets, else the installed copy."""
@@ -60,8 +60,9 @@ def load_preset(name_or_path: str, overrides: list[str] | tuple[str, ...] = ()) 
     except tomllib.TOMLDecodeError as exc:
         raise InputError(f"{path}: not valid TOML ({exc})") from None
     cfg = _apply_overrides(cfg, overrides)
-    _validate(cfg, str(path))
-    return _typed(cfg, str(path))
+    preset = _typed(cfg, str(path))
+    _check_across_tables(preset, str(path))
+    return preset
 
 
 # ----------------------------------------------------------------------------------------------
@@ -75,19 +76,19 @@ def load_preset(name_or_path: str, overrides: list[str] | tuple[str, ...] = ()) 
 class PresetHeader:
     """``[preset]``: its name, a line saying what it is, the seed of every random stream."""
 
-    name: str
-    description: str = ""
-    seed: int
+    name: str = setting(help="the preset's name, written into the project")
+    description: str = setting("", help="one line saying what the block is")
+    seed: int = setting(help="the seed of every random stream (aerotri sim --seed overrides it)")
 
 
 @dataclasses.dataclass(frozen=True, kw_only=True)
 class PresetCrs:
     """``[crs]``: the project CRS (EPSG code) and the scene's lower-left corner in it (ellipsoidal height)."""
 
-    epsg: int
-    origin_e_m: float
-    origin_n_m: float
-    base_height_m: float
+    epsg: int = setting(min=1, help="the project CRS (a projected CRS in metres)")
+    origin_e_m: float = setting(help="easting of the scene's lower-left corner")
+    origin_n_m: float = setting(help="northing of the scene's lower-left corner")
+    base_height_m: float = setting(help="ellipsoidal height of the flat town")
 
 
 @dataclasses.dataclass(frozen=True, kw_only=True)
@@ -95,32 +96,33 @@ class PresetCamera:
     """``[camera]``: the true camera the frames are rendered through (camera.toml gets only its focal length and
     format); principal point offset in mm (x right, y up), Brown coefficients."""
 
-    focal_mm: float
-    sensor_width_mm: float
-    sensor_height_mm: float
-    width: int
-    height: int
-    ppx_mm: float
-    ppy_mm: float
-    k1: float
-    k2: float
-    k3: float
-    p1: float
-    p2: float
+    focal_mm: float = setting(min=1.0, max=1000.0, min_open=True, help="focal length")
+    sensor_width_mm: float = setting(min=1.0, max=1000.0, help="sensor size across track (image x)")
+    sensor_height_mm: float = setting(min=1.0, max=1000.0, help="sensor size along track (image y)")
+    width: int = setting(min=16, max=30000, help="frame width in pixels")
+    height: int = setting(min=16, max=30000, help="frame height in pixels")
+    ppx_mm: float = setting(help="principal point offset, x right (camera.toml has none)")
+    ppy_mm: float = setting(help="principal point offset, y up")
+    k1: float = setting(help="Brown radial coefficient (r in mm)")
+    k2: float = setting(help="Brown radial coefficient")
+    k3: float = setting(help="Brown radial coefficient")
+    p1: float = setting(help="Brown tangential coefficient")
+    p2: float = setting(help="Brown tangential coefficient")
 
 
 @dataclasses.dataclass(frozen=True, kw_only=True)
 class PresetFlight:
     """``[flight]``: the photo flight (overlaps as fractions, tilt and kappa deviations drawn within the limits)."""
 
-    height_above_ground_m: float
-    forward_overlap: float
-    side_overlap: float
-    strips: int
-    frames_per_strip: int
-    speed_mps: float
-    max_tilt_deg: float
-    max_kappa_dev_deg: float
+    height_above_ground_m: float = setting(min=0.0, min_open=True,
+                                           help="above the town; must clear the valley side and the tallest building")
+    forward_overlap: float = setting(min=0.0, max=0.95, help="along-track overlap over the town (fraction)")
+    side_overlap: float = setting(min=0.0, max=0.95, help="across-track overlap over the town (fraction)")
+    strips: int = setting(min=1, max=200, help="flight lines (the scene grows with the flight)")
+    frames_per_strip: int = setting(min=2, max=2000, help="frames per flight line")
+    speed_mps: float = setting(min=1.0, max=500.0, help="ground speed (the GNSS times)")
+    max_tilt_deg: float = setting(min=0.0, max=10.0, help="largest omega/phi deviation from nadir")
+    max_kappa_dev_deg: float = setting(min=0.0, max=30.0, help="largest kappa deviation from the flight direction")
 
 
 @dataclasses.dataclass(frozen=True, kw_only=True)
@@ -128,12 +130,12 @@ class PresetGnss:
     """``[gnss]``: the antenna positions' errors (white noise, per-strip shift and drift), the lever arm in the
     camera frame (x right, y up, z up) and the sigmas written into gnss.txt and project.toml."""
 
-    sigma_m: float
-    strip_shift_sigma_m: float = 0.0
-    drift_sigma_m_per_s: float = 0.0
-    lever_arm_m: tuple[float, float, float]
-    sigma_xy_m: float
-    sigma_z_m: float
+    sigma_m: float = setting(min=0.0, max=10.0, help="white noise of each antenna position")
+    strip_shift_sigma_m: float = setting(0.0, min=0.0, help="per-strip constant shift")
+    drift_sigma_m_per_s: float = setting(0.0, min=0.0, help="per-strip linear drift")
+    lever_arm_m: tuple[float, float, float] = setting(help="antenna in the camera frame (x right, y up, z up)")
+    sigma_xy_m: float = setting(min=0.0, min_open=True, help="plan sigma written into gnss.txt and project.toml")
+    sigma_z_m: float = setting(min=0.0, min_open=True, help="height sigma written into gnss.txt and project.toml")
 
 
 @dataclasses.dataclass(frozen=True, kw_only=True)
@@ -141,25 +143,27 @@ class PresetLidar:
     """``[lidar]``: the LiDAR flight and scanner (zig-zag, full field of view ``fov_deg``), its noise and outliers,
     the injected system errors (boresight roll, pitch, heading; range offset; scan angle scale) and the format."""
 
-    height_above_ground_m: float
-    pulse_rate_hz: float
-    scan_frequency_hz: float
-    fov_deg: float
-    speed_mps: float
-    side_overlap: float
-    range_noise_m: float
-    strip_offset_sigma_m: float
-    boresight_error_deg: tuple[float, float, float] = (0.0, 0.0, 0.0)
-    range_offset_m: float = 0.0
-    scan_angle_scale_error: float = 0.0
-    attitude_noise_deg: float
-    low_outlier_rate: float
-    high_outlier_rate: float
-    water_return_fraction: float
-    canopy_first_return_prob: float
-    canopy_interior_return_prob: float
-    canopy_ground_return_prob: float
-    format: str
+    height_above_ground_m: float = setting(min=0.0, min_open=True, help="above the town, as the photo flight's")
+    pulse_rate_hz: float = setting(min=100.0, max=2e6, help="pulses per second")
+    scan_frequency_hz: float = setting(min=1.0, max=500.0, help="mirror lines per second")
+    fov_deg: float = setting(min=1.0, max=75.0, help="full field of view (zig-zag, oscillating mirror)")
+    speed_mps: float = setting(min=1.0, max=500.0, help="ground speed")
+    side_overlap: float = setting(min=0.0, max=0.9, help="overlap of neighbouring strips (fraction)")
+    range_noise_m: float = setting(min=0.0, max=5.0, help="range noise (sigma)")
+    strip_offset_sigma_m: float = setting(min=0.0, help="per-strip height offset (sigma)")
+    boresight_error_deg: tuple[float, float, float] = setting(
+        (0.0, 0.0, 0.0), min=-5.0, max=5.0, help="scanner roll, pitch, heading against the IMU (an injected error)")
+    range_offset_m: float = setting(0.0, min=-10.0, max=10.0, help="added to every range (an injected error)")
+    scan_angle_scale_error: float = setting(0.0, min=-0.01, max=0.01,
+                                            help="the beam leaves at (1 + this) x the scan angle read (injected)")
+    attitude_noise_deg: float = setting(min=0.0, help="IMU attitude noise (sigma)")
+    low_outlier_rate: float = setting(min=0.0, max=1.0, help="share of returns far below the surface")
+    high_outlier_rate: float = setting(min=0.0, max=1.0, help="share of returns in the air (birds, haze)")
+    water_return_fraction: float = setting(min=0.0, max=1.0, help="share of pulses on water that return")
+    canopy_first_return_prob: float = setting(min=0.0, max=1.0, help="chance a pulse into a crown returns from its top")
+    canopy_interior_return_prob: float = setting(min=0.0, max=1.0, help="chance of a return from inside the crown")
+    canopy_ground_return_prob: float = setting(min=0.0, max=1.0, help="chance of a return from the ground beneath")
+    format: str = setting(choices=("las", "laz"), help="the strips' file format")
 
 
 @dataclasses.dataclass(frozen=True, kw_only=True)
@@ -167,38 +171,39 @@ class PresetScene:
     """``[scene]``: the town, the valley side and the targets (ranges as [min, max]); the counts are those of a
     scene of ``counts_for_m`` = [width, height] metres (None: of any size), see ``scene.scene_counts``."""
 
-    counts_for_m: tuple[float, float] | None = None
-    margin_m: float
-    terrain_res_m: float
-    hill_amplitude_m: float
-    hill_scale_m: float
-    steep_start_frac: float
-    steep_band_m: float
-    steep_slope_deg: float
-    mountain_relief_m: float
-    urban_margin_m: float
-    road_angle_deg: float
-    road_spacing_m: float
-    road_width_m: tuple[float, float]
-    ponds: int
-    pond_size_m: tuple[float, float]
-    buildings: int
-    shape_weights: tuple[float, float, float]
-    building_length_m: tuple[float, float]
-    building_width_m: tuple[float, float]
-    building_height_m: tuple[float, float]
-    building_angle_jitter_deg: float
-    building_gap_m: float
-    pitched_fraction: float
-    eave_m: tuple[float, float]
-    single_trees: int
-    tree_clusters: int
-    slope_trees: int
-    bushes: int
-    crown_radius_m: tuple[float, float]
-    tree_height_m: tuple[float, float]
-    check_targets: int
-    target_radius_m: float
+    counts_for_m: tuple[float, float] | None = setting(
+        None, min=0.0, min_open=True, help="[width, height] of the scene the counts are for (another flight scales them)")
+    margin_m: float = setting(min=0.0, help="terrain beyond the photo footprints")
+    terrain_res_m: float = setting(min=0.1, max=10.0, help="cell of the truth terrain")
+    hill_amplitude_m: float = setting(min=0.0, help="rolling hills' amplitude")
+    hill_scale_m: float = setting(min=0.0, min_open=True, help="rolling hills' wavelength")
+    steep_start_frac: float = setting(min=0.0, max=1.0, help="the valley side starts at this fraction of the height")
+    steep_band_m: float = setting(min=0.0, help="width of the valley side")
+    steep_slope_deg: float = setting(min=0.0, max=60.0, help="slope of the valley side")
+    mountain_relief_m: float = setting(min=0.0, help="relief above the valley side")
+    urban_margin_m: float = setting(min=0.0, help="kept free of buildings at the scene's edge")
+    road_angle_deg: float = setting(help="direction of the road grid")
+    road_spacing_m: float = setting(min=0.0, min_open=True, help="distance between roads")
+    road_width_m: tuple[float, float] = setting(min=0.0, help="[min, max]")
+    ponds: int = setting(min=0, help="ponds (water)")
+    pond_size_m: tuple[float, float] = setting(min=0.0, help="[min, max]")
+    buildings: int = setting(min=0, help="buildings in a scene of counts_for_m")
+    shape_weights: tuple[float, float, float] = setting(min=0.0, help="rectangle, L, courtyard")
+    building_length_m: tuple[float, float] = setting(min=0.0, help="[min, max]")
+    building_width_m: tuple[float, float] = setting(min=0.0, help="[min, max]")
+    building_height_m: tuple[float, float] = setting(min=0.0, min_open=True, help="[min, max], min <= max")
+    building_angle_jitter_deg: float = setting(min=0.0, help="deviation from the road grid")
+    building_gap_m: float = setting(min=0.0, help="least distance between buildings")
+    pitched_fraction: float = setting(min=0.0, max=1.0, help="share of pitched roofs")
+    eave_m: tuple[float, float] = setting(min=0.0, help="roof overhang beyond the walls, [min, max]")
+    single_trees: int = setting(min=0, help="trees standing alone")
+    tree_clusters: int = setting(min=0, help="groups of trees")
+    slope_trees: int = setting(min=0, help="trees on the valley side")
+    bushes: int = setting(min=0, help="low vegetation objects")
+    crown_radius_m: tuple[float, float] = setting(min=0.0, help="[min, max]")
+    tree_height_m: tuple[float, float] = setting(min=0.0, help="[min, max]")
+    check_targets: int = setting(min=0, help="painted targets (surveyed check points)")
+    target_radius_m: float = setting(min=0.0, min_open=True, help="radius of a target")
 
 
 @dataclasses.dataclass(frozen=True, kw_only=True)
@@ -206,24 +211,28 @@ class PresetRender:
     """``[render]``: rays per pixel per axis, sensor noise and exposure, the frames' bits, bands, tiling (0: one
     strip image written by OpenCV) and compression, the finest texture (0: the GSD)."""
 
-    samples: int
-    noise_dn: float
-    exposure_sigma: float
-    vignetting: float
-    bits: int = 8
-    bands: str = "rgb"
-    tile_px: int = 0
-    compress: str = "none"
-    texture_fine_m: float = 0.0
+    samples: int = setting(min=1, max=8, help="rays per pixel per axis (anti-aliasing)")
+    noise_dn: float = setting(min=0.0, help="sensor noise (sigma, digital numbers of 8 bits)")
+    exposure_sigma: float = setting(min=0.0, help="frame-to-frame exposure change (relative sigma)")
+    vignetting: float = setting(min=0.0, max=1.0, help="relative fall-off at the image corner")
+    bits: int = setting(8, choices=(8, 12), help="8-bit frames, or 12-bit data in 16-bit TIFF")
+    bands: str = setting("rgb", choices=("rgb", "pan"), help="three colour bands or one panchromatic")
+    tile_px: int = setting(0, min=0, max=4096, help="TIFF tile size, a multiple of 32 (0: one strip image)")
+    compress: str = setting("none", choices=("none", "deflate", "lzw", "zstd"), help="the frames' compression")
+    texture_fine_m: float = setting(0.0, min=0.0, max=10.0, help="the finest texture (0: the GSD)")
+
+    def __post_init__(self):
+        if self.tile_px % 32:
+            raise ValueError(f"tile_px must be a multiple of 32 (or 0: untiled), got {self.tile_px}")
 
 
 @dataclasses.dataclass(frozen=True, kw_only=True)
 class PresetTruth:
     """``[truth]``: the cell sizes of the truth rasters and orthophoto, their compression."""
 
-    raster_res_m: float
-    ortho_res_m: float
-    compress: str = "deflate"
+    raster_res_m: float = setting(min=0.05, max=50.0, help="cell of the truth DEM, DSM and class rasters")
+    ortho_res_m: float = setting(min=0.02, max=50.0, help="cell of the true orthophoto")
+    compress: str = setting("deflate", choices=("none", "deflate", "lzw", "zstd"), help="the rasters' compression")
 
 
 @dataclasses.dataclass(frozen=True, kw_only=True)
@@ -231,8 +240,8 @@ class PresetObservations:
     """``[observations]`` (``aerotri sim --observations-only``): image noise of the tie and control measurements,
     tie points per frame on average."""
 
-    tie_sigma_px: float = 0.3
-    tie_points_per_frame: int = 130
+    tie_sigma_px: float = setting(0.3, min=0.0, max=10.0, help="image noise of the tie and control measurements")
+    tie_points_per_frame: int = setting(130, min=1, max=10000, help="tie points per frame on average")
 
 
 @dataclasses.dataclass(frozen=True, kw_only=True)
@@ -259,11 +268,15 @@ def _table_classes() -> dict:
 
 
 def _typed(cfg: dict, source: str) -> Preset:
-    """The checked TOML document as a ``Preset`` (an unknown table or key, a wrong type: ``ConfigError``)."""
+    """The TOML document as a ``Preset``: every table's keys, types, ranges and choices checked by ``from_table``
+    (a missing table or key, an unknown one, a wrong type or a value out of range: ``ConfigError``)."""
     classes = _table_classes()
     unknown = [k for k in cfg if k not in classes and k != "chain"]
     if unknown:
         raise InputError(f"{source}: unknown table [{unknown[0]}] (known: {', '.join([*classes, 'chain'])})")
+    missing = [name for name, cls in classes.items() if name not in cfg and default_settings(cls) is None]
+    if missing:
+        raise InputError(f"{source}: missing table [{missing[0]}]")
     tables = {name: from_table(cls, cfg.get(name, {}), f"{source} [{name}]") for name, cls in classes.items()}
     return Preset(**tables, chain=copy.deepcopy(cfg.get("chain", {})))
 
@@ -303,107 +316,41 @@ def _apply_overrides(cfg: dict, overrides) -> dict:
     return cfg
 
 
-def _need(cfg, source, section, key, *, lo=None, hi=None, lo_open=False, integer=False):
-    try:
-        v = cfg[section][key]
-    except KeyError:
-        raise InputError(f"{source}: missing parameter {section}.{key}") from None
-    if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
-        raise InputError(f"{source}: {section}.{key} must be a finite number, got {v!r}")
-    if integer and int(v) != v:
-        raise InputError(f"{source}: {section}.{key} must be a whole number, got {v!r}")
-    if lo is not None and (v < lo or (lo_open and v == lo)):
-        raise InputError(f"{source}: {section}.{key} = {v} is out of range (must be {'>' if lo_open else '>='} {lo})")
-    if hi is not None and v > hi:
-        raise InputError(f"{source}: {section}.{key} = {v} is out of range (must be <= {hi})")
-    return v
-
-
-def _validate(cfg: dict, source: str = "preset") -> None:
-    """The ranges and the checks across tables, on the TOML document (the typing follows in ``_typed``)."""
-    for section in ("preset", "crs", "camera", "flight", "gnss", "lidar", "scene", "render", "truth"):
-        if section not in cfg:
-            raise InputError(f"{source}: missing section [{section}]")
-    # [chain.<stage>] (the stage options the project gets) is checked by aerotri run when it reads
-    # project.toml; tests/aerotri/sim/test_config.py checks the shipped presets' sections.
-    _need(cfg, source, "crs", "epsg", lo=1, integer=True)
-    _need(cfg, source, "camera", "focal_mm", lo=1.0, hi=1000.0, lo_open=True)
-    _need(cfg, source, "camera", "sensor_width_mm", lo=1.0, hi=1000.0)
-    _need(cfg, source, "camera", "sensor_height_mm", lo=1.0, hi=1000.0)
-    _need(cfg, source, "camera", "width", lo=16, hi=30000, integer=True)
-    _need(cfg, source, "camera", "height", lo=16, hi=30000, integer=True)
-    for side in ("forward_overlap", "side_overlap"):
-        _need(cfg, source, "flight", side, lo=0.0, hi=0.95)
-    _need(cfg, source, "lidar", "side_overlap", lo=0.0, hi=0.9)
-    _need(cfg, source, "flight", "strips", lo=1, hi=200, integer=True)
-    _need(cfg, source, "flight", "frames_per_strip", lo=2, hi=2000, integer=True)
-    _need(cfg, source, "flight", "speed_mps", lo=1.0, hi=500.0)
-    _need(cfg, source, "flight", "max_tilt_deg", lo=0.0, hi=10.0)
-    _need(cfg, source, "flight", "max_kappa_dev_deg", lo=0.0, hi=30.0)
-    _need(cfg, source, "gnss", "sigma_m", lo=0.0, hi=10.0)
-    _need(cfg, source, "lidar", "pulse_rate_hz", lo=100.0, hi=2e6)
-    _need(cfg, source, "lidar", "scan_frequency_hz", lo=1.0, hi=500.0)
-    _need(cfg, source, "lidar", "fov_deg", lo=1.0, hi=75.0)
-    _need(cfg, source, "lidar", "range_noise_m", lo=0.0, hi=5.0)
-    for key in ("low_outlier_rate", "high_outlier_rate", "water_return_fraction"):
-        _need(cfg, source, "lidar", key, lo=0.0, hi=1.0)
-    bore = cfg["lidar"].get("boresight_error_deg", [0.0, 0.0, 0.0])
-    if not (isinstance(bore, (list, tuple)) and len(bore) == 3 and all(
-            isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v) and abs(v) <= 5.0 for v in bore)):
-        raise InputError(f"{source}: lidar.boresight_error_deg must be [roll, pitch, heading] in degrees (each within "
-                         f"+-5), got {bore!r}")
-    if "range_offset_m" in cfg["lidar"]:
-        _need(cfg, source, "lidar", "range_offset_m", lo=-10.0, hi=10.0)
-    if "scan_angle_scale_error" in cfg["lidar"]:
-        _need(cfg, source, "lidar", "scan_angle_scale_error", lo=-0.01, hi=0.01)
-    if cfg["lidar"].get("format") not in ("las", "laz"):
-        raise InputError(f"{source}: lidar.format must be 'las' or 'laz', got {cfg['lidar'].get('format')!r}")
-    _need(cfg, source, "scene", "terrain_res_m", lo=0.1, hi=10.0)
-    _need(cfg, source, "scene", "steep_slope_deg", lo=0.0, hi=60.0)
-    _need(cfg, source, "render", "samples", lo=1, hi=8, integer=True)
-    _need(cfg, source, "truth", "raster_res_m", lo=0.05, hi=50.0)
-    _need(cfg, source, "truth", "ortho_res_m", lo=0.02, hi=50.0)
-    ref = cfg["scene"].get("counts_for_m")
-    if ref is not None and not (isinstance(ref, (list, tuple)) and len(ref) == 2 and all(
-            isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v) and v > 0 for v in ref)):
-        raise InputError(f"{source}: scene.counts_for_m must be [width, height] in metres (both > 0), got {ref!r}")
-    r = cfg["render"]
-    if r.get("bands", "rgb") not in ("rgb", "pan"):
-        raise InputError(f"{source}: render.bands must be 'rgb' or 'pan', got {r.get('bands')!r}")
-    if r.get("bits", 8) not in (8, 12):
-        raise InputError(f"{source}: render.bits must be 8 or 12, got {r.get('bits')!r}")
-    if "tile_px" in r:
-        t = _need(cfg, source, "render", "tile_px", lo=0, hi=4096, integer=True)
-        if t % 32:
-            raise InputError(f"{source}: render.tile_px must be a multiple of 32 (or 0: untiled), got {t}")
-    for section in ("render", "truth"):
-        if cfg[section].get("compress", "deflate") not in ("none", "deflate", "lzw", "zstd"):
-            raise InputError(f"{source}: {section}.compress must be one of none, deflate, lzw, zstd, got "
-                             f"{cfg[section].get('compress')!r}")
-    if "texture_fine_m" in cfg["render"]:
-        _need(cfg, source, "render", "texture_fine_m", lo=0.01, hi=10.0)
-    if "tie_sigma_px" in cfg.get("observations", {}):
-        _need(cfg, source, "observations", "tie_sigma_px", lo=0.0, hi=10.0)
-    if "tie_points_per_frame" in cfg.get("observations", {}):
-        _need(cfg, source, "observations", "tie_points_per_frame", lo=1, hi=10000, integer=True)
-    heights = cfg["scene"].get("building_height_m")
-    if not (isinstance(heights, (list, tuple)) and len(heights) == 2 and all(
-            isinstance(v, (int, float)) and not isinstance(v, bool) for v in heights) and 0 < heights[0] <= heights[1]):
-        raise InputError(f"{source}: scene.building_height_m must be [min, max] with 0 < min <= max, got {heights!r}")
-    lo, hi = heights
+def _check_across_tables(preset: Preset, source: str) -> None:
+    """What no single field can check: the ranges' order, and flying heights that clear the scene."""
+    lo, hi = preset.scene.building_height_m
+    if lo > hi:
+        raise InputError(f"{source} [scene] building_height_m = [{lo}, {hi}]: expected [min, max] with min <= max")
     # Flying heights must clear the whole scene, the valley side and the tallest building with room
     # to spare, and the frames must see the ground.
-    top_m = (cfg["scene"]["steep_band_m"] * math.tan(math.radians(cfg["scene"]["steep_slope_deg"]))
-             + 3 * cfg["scene"]["mountain_relief_m"] + 3 * cfg["scene"]["hill_amplitude_m"])
+    sc = preset.scene
+    top_m = sc.steep_band_m * math.tan(math.radians(sc.steep_slope_deg)) + 3 * sc.mountain_relief_m \
+        + 3 * sc.hill_amplitude_m
     for section in ("flight", "lidar"):
-        h = _need(cfg, source, section, "height_above_ground_m")
-        if h <= 0:
-            raise InputError(f"{source}: {section}.height_above_ground_m = {h}: the flying height is below the terrain")
+        h = getattr(preset, section).height_above_ground_m
         if h < top_m + hi + 50.0:
             raise InputError(
-                f"{source}: {section}.height_above_ground_m = {h} m does not clear the terrain: the valley side "
+                f"{source} [{section}] height_above_ground_m = {h}: does not clear the terrain: the valley side "
                 f"rises about {top_m:.0f} m above the town and buildings reach {hi} m (need at least "
                 f"{top_m + hi + 50.0:.0f} m)")
+
+
+def preset_reference() -> str:
+    """docs/presets.md: every table of a preset with its keys (type, unit, default, allowed range, meaning), from
+    the dataclasses ``load_preset`` reads them with (``core.settings.markdown_reference``)."""
+    from aerotri.core.settings import markdown_reference
+
+    hints = typing.get_type_hints(Preset)
+    sections = [(f.name, [hints[f.name]], "`aerotri sim`") for f in dataclasses.fields(Preset) if f.name != "chain"]
+    head = ("# Simulator presets: every key\n\n"
+            "Generated by `preset_reference()` in `aerotri/sim/config.py` from the preset's dataclasses;\n"
+            "`tests/aerotri/sim/test_config.py` checks that this page is current. A preset is a TOML file\n"
+            "(`datasets/presets/*.toml`, or a path) of the tables below, plus `[chain.<stage>]` tables: the stage\n"
+            "options the simulated project's project.toml gets (checked by `aerotri run`, see docs/settings.md).\n"
+            "`aerotri sim --set table.key=value` overrides one value (TOML syntax). A missing or unknown key, a value\n"
+            "of the wrong type or out of range, and flying heights that do not clear the scene stop with the file,\n"
+            "the table and the key. See docs/simulator.md for what the simulator makes.\n\n")
+    return head + markdown_reference(sections, {})
 
 
 def _toml_value(v) -> str:

@@ -44,5 +44,49 @@ def test_preset_is_typed_and_checked(tmp_path):
         load_preset("tiny", ["scene.ponds=2.5"])
     with pytest.raises(InputError, match="unknown parameter 'scene.buildngs'"):
         load_preset("tiny", ["scene.buildngs=3"])
-    with pytest.raises(InputError, match=r"building_height_m must be \[min, max\].*got \[5.0\]"):  # was a traceback
+    with pytest.raises(InputError, match=r"\[scene\] building_height_m = \[5.0\]: expected 2 values"):  # was a traceback
         load_preset("tiny", ["scene.building_height_m=[5.0]"])
+
+
+@pytest.mark.parametrize("override, message", [
+    ("flight.strips=0", r"tiny.toml \[flight\] strips = 0: out of range, expected >= 1 and <= 200"),
+    ("camera.focal_mm=1.0", r"\[camera\] focal_mm = 1.0: out of range, expected > 1 and <= 1000"),
+    ("lidar.boresight_error_deg=[0.0, 0.0, 7.0]", r"\[lidar\] boresight_error_deg = 7.0: out of range, expected >= -5"),
+    ("lidar.format=\"xyz\"", r"\[lidar\] format = 'xyz': expected one of las, laz"),
+    ("render.bits=16", r"\[render\] bits = 16: expected one of 8, 12"),
+    ("render.tile_px=100", r"\[render\]: tile_px must be a multiple of 32"),
+    ("scene.building_height_m=[50.0, 5.0]", r"\[scene\] building_height_m = \[50.0, 5.0\]: expected \[min, max\]"),
+    ("lidar.height_above_ground_m=150.0", r"\[lidar\] height_above_ground_m = 150.0: does not clear the terrain"),
+])
+def test_preset_values_are_checked_by_their_settings(override, message):
+    """Each table's ranges and choices are its fields' own (``setting(min=..., max=..., choices=...)``, read by
+    ``from_table``, as project.toml's are); what no field can check alone is checked across the tables."""
+    from aerotri.core.errors import InputError
+
+    with pytest.raises(InputError, match=message):
+        load_preset("tiny", [override])
+
+
+def test_preset_missing_table_or_key_is_named(tmp_path):
+    from aerotri.core.errors import InputError
+    from aerotri.sim.config import PRESET_DIR
+
+    text = (PRESET_DIR / "tiny.toml").read_text()
+    bad = tmp_path / "bad.toml"
+    bad.write_text("\n".join(line for line in text.splitlines() if not line.startswith("pulse_rate_hz")))
+    with pytest.raises(InputError, match=r"bad.toml \[lidar\]: missing key 'pulse_rate_hz'"):
+        load_preset(str(bad))
+    bad.write_text(text.replace("[truth]", "[truth_]"))
+    with pytest.raises(InputError, match=r"unknown table \[truth_\]"):
+        load_preset(str(bad))
+
+
+def test_presets_page_is_current():
+    """docs/presets.md is generated from the preset's dataclasses (ranges, defaults, units, meaning)."""
+    from pathlib import Path
+
+    from aerotri.sim.config import preset_reference
+
+    page = Path(__file__).resolve().parents[3] / "docs" / "presets.md"
+    assert page.read_text() == preset_reference() + "\n", "regenerate: python -c 'from aerotri.sim.config import " \
+        "preset_reference; print(preset_reference())' > docs/presets.md"

@@ -255,9 +255,9 @@ def test_same_seed_same_bytes(tiny_project, tmp_path):
     "args, message",
     [
         (["--preset", "nosuch"], "unknown preset 'nosuch'"),
-        (["--preset", "tiny", "--set", "flight.side_overlap=-0.2"], "flight.side_overlap = -0.2 is out of range"),
-        (["--preset", "tiny", "--set", "flight.forward_overlap=1.2"], "flight.forward_overlap = 1.2 is out of range"),
-        (["--preset", "tiny", "--set", "flight.height_above_ground_m=-100"], "below the terrain"),
+        (["--preset", "tiny", "--set", "flight.side_overlap=-0.2"], "[flight] side_overlap = -0.2: out of range, expected >= 0 and <= 0.95"),
+        (["--preset", "tiny", "--set", "flight.forward_overlap=1.2"], "[flight] forward_overlap = 1.2: out of range"),
+        (["--preset", "tiny", "--set", "flight.height_above_ground_m=-100"], "[flight] height_above_ground_m = -100.0: out of range, expected > 0"),
         (["--preset", "tiny", "--set", "flight.height_above_ground_m=120"], "does not clear the terrain"),
         (["--preset", "tiny", "--set", "camera.width=abc"], "camera.width must be a number"),
         (["--preset", "tiny", "--set", "flight.nosuch=1"], "unknown parameter 'flight.nosuch'"),
