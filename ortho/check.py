@@ -38,6 +38,7 @@ from aerotri.core.project import Project, project_paths
 from aerotri.core.records import to_record
 from aerotri.core.settings import COMMAND_LINE, Resolved, settings_of
 from aerotri.core.textio import read_record, read_text, record_error
+from aerotri.core.figures import pyplot, save_png
 from aerotri.geom.crs.definition import height_unit_m, parse_crs
 from aerotri.geom.crs.raster_warp import open_north_up
 from ortho.patches import MIN_PATCH_PX, PatchDisplacements, match_patches  # noqa: F401  (PatchDisplacements: the report API)
@@ -198,12 +199,7 @@ def read_points_csv(path) -> DomPoints:
 def plot_displacements(path, patches: PatchDisplacements | None, stats: Displacement, title: str, points=None,
                        extent_px=None) -> None:
     """Vector plot of displacements (exaggerated) and a histogram of their lengths; PNG."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    from aerotri.core.atomic import atomic_path
+    plt = pyplot()
 
     fig, (ax, bx) = plt.subplots(1, 2, figsize=(12, 5.5), gridspec_kw={"width_ratios": [1.4, 1]})
     if patches is not None and len(patches):
@@ -228,9 +224,7 @@ def plot_displacements(path, patches: PatchDisplacements | None, stats: Displace
         bx.set_title(f"RMS {stats.rms_xy_m:.3f} m ({stats.rms_xy_gsd:.2f} GSD), max {stats.max_xy_m:.3f} m, "
                      f"n={stats.count}")
     fig.tight_layout()
-    with atomic_path(path) as tmp:
-        fig.savefig(tmp, dpi=100, format="png")
-    plt.close(fig)
+    save_png(fig, path, dpi=100)
 
 
 def write_json(path, obj) -> None:

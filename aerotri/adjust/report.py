@@ -13,6 +13,7 @@ import math
 import numpy as np
 
 from aerotri.adjust import graph as G
+from aerotri.core.figures import pyplot
 from aerotri.core.settings import settings_lines
 from aerotri.core.tolerances import load_table, tolerance_path
 
@@ -1043,7 +1044,7 @@ def report_figures(rep: dict, ba=None) -> list:
     figs = [RF.ground_residual_map(rep), RF.image_residual_frames(rep, (rep.get("key_statistics") or {}).get("pixel_um")),
             RF.gnss_strip_plot(rep), RF.von_gruber_map(rep), RF.flight_map(rep.get("flight_acceptance") or {})]
     if ba is not None:
-        plt = RF._plt()
+        plt = pyplot()
         r = ba.result
         act = r.obs_active
         fig, axs = plt.subplots(1, 2, figsize=(10, 3.6))

@@ -12,10 +12,11 @@ from __future__ import annotations
 import base64
 import dataclasses
 import html
-import io
 import math
 
 import numpy as np
+
+from aerotri.core.figures import png_bytes, pyplot
 
 MAX_FRAME_PANELS = 24  # image residual panels per figure (the frames with the largest RMS beyond that)
 
@@ -32,12 +33,7 @@ class Figure:
     def png(self, dpi: int = 110) -> bytes:
         """The figure as PNG (drawn once; the matplotlib figure is closed then)."""
         if getattr(self, "_png", None) is None:
-            import matplotlib.pyplot as plt
-
-            buf = io.BytesIO()
-            self.fig.savefig(buf, format="png", dpi=dpi, bbox_inches="tight")
-            plt.close(self.fig)
-            self._png = buf.getvalue()
+            self._png = png_bytes(self.fig, dpi=dpi, tight=True)
         return self._png
 
     def png_base64(self, dpi: int = 110) -> str:
@@ -47,15 +43,6 @@ class Figure:
         alt = html.escape(f"{self.title}. Scale: {self.key}", quote=True)
         return (f"<figure><img src='data:image/png;base64,{self.png_base64(dpi)}' alt='{alt}'>"
                 f"<figcaption>{html.escape(self.caption)} <b>Scale:</b> {html.escape(self.key)}</figcaption></figure>")
-
-
-def _plt():
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    return plt
 
 
 def nice_length(x: float) -> float:
@@ -120,7 +107,7 @@ def ground_residual_map(rep: dict) -> Figure | None:
     chk = [r for r in rep.get("check_points", []) if r.get("d_m") and None not in r["d_m"] and r.get("measured_m")]
     if not ctrl and not chk:
         return None
-    plt = _plt()
+    plt = pyplot()
     pos = np.array([r["given_m"] for r in ctrl] + [r["measured_m"] for r in chk], dtype=float)
     d = np.array([[np.nan if v is None else v for v in r["residual_m"]] for r in ctrl] + [r["d_m"] for r in chk],
                  dtype=float)
@@ -170,7 +157,7 @@ def image_residual_frames(rep: dict, pixel_um: float | None = None) -> Figure | 
     photos = [p for p in rep.get("photos", []) if p.get("residual_grid")]
     if not photos:
         return None
-    plt = _plt()
+    plt = pyplot()
     shown = photos
     note = ""
     if len(photos) > MAX_FRAME_PANELS:
@@ -238,7 +225,7 @@ def gnss_strip_plot(rep: dict) -> Figure | None:
     photos = [p for p in rep.get("photos", []) if p.get("gnss_offset_m") and p.get("along_km") is not None]
     if not photos:
         return None
-    plt = _plt()
+    plt = pyplot()
     strips = sorted({p["strip"] for p in photos})
     shown = strips[:16]
     cols = min(4, len(shown))
@@ -278,7 +265,7 @@ def von_gruber_map(rep: dict, min_per_area: int = 3) -> Figure | None:
     photos = [p for p in photos if p["image_id"] in pos]
     if not photos:
         return None
-    plt = _plt()
+    plt = pyplot()
     from matplotlib.collections import PolyCollection
 
     fp = {f["image_id"]: np.array(f["footprint"], float) for f in fa.get("frames", [])}
@@ -348,7 +335,7 @@ def flight_map(fa: dict) -> Figure | None:
     frames = fa.get("frames") or []
     if not frames:
         return None
-    plt = _plt()
+    plt = pyplot()
     from matplotlib.collections import PolyCollection
 
     fp = [np.array(f["footprint"], float) for f in frames]

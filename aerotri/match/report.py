@@ -4,16 +4,13 @@ from __future__ import annotations
 
 import numpy as np
 
-from aerotri.core.atomic import atomic_path
+from aerotri.core.figures import pyplot, save_png
 
 
 def plot_block(path, plan, pairs_ties: list[tuple[int, int, int]], strength) -> None:
     """The block (footprints, frame centres, a line per pair coloured by its ties, weak models in red) as PNG;
     ``strength``: ``aerotri.match.weak.BlockStrength``."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    plt = pyplot()
     fig, ax = plt.subplots(figsize=(10, 8))
     for fp in plan.footprints:
         x, y = fp.exterior.xy
@@ -42,9 +39,7 @@ def plot_block(path, plan, pairs_ties: list[tuple[int, int, int]], strength) -> 
     ax.ticklabel_format(useOffset=False, style="plain")
     # full map coordinates (e.g. -59000 on NGI's Lo25) run into each other on a tall block's narrow x axis
     ax.tick_params(axis="x", labelrotation=90)
-    with atomic_path(path) as tmp:
-        fig.savefig(tmp, dpi=120, bbox_inches="tight", format="png")
-    plt.close(fig)
+    save_png(fig, path, dpi=120, tight=True)
 
 
 def track_length_histogram(track: np.ndarray) -> dict[str, int]:

@@ -34,6 +34,7 @@ from aerotri.core.errors import InputError, StageOrderError
 from aerotri.core.textio import read_record
 from aerotri.core.project import Project
 from aerotri.core.records import to_record
+from aerotri.core.figures import pyplot
 from aerotri.core.tolerances import (TERRAINS, TOLERANCE_DIR, ToleranceTable, choose_table, read_qa_config,
                                      split_key)
 from aerotri.geom.block_scale import project_block_scale
@@ -706,11 +707,9 @@ def _pdf_table(pdf, plt, title: str, *, header: list, rows: list, widths: list, 
 def write_pdf(path: Path, rep: dict, project: Project, figures: list | None = None) -> None:
     """The verdict table on the first page, the flight acceptance tables, the report's figures (each with
     its caption and scale key), then the plots the stages wrote (A4 landscape)."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
     from matplotlib.backends.backend_pdf import PdfPages
+
+    plt = pyplot()
 
     with atomic_path(path) as tmp, PdfPages(tmp, metadata={"Title": f"Accuracy report {rep['project']}",
                                                            "CreationDate": None}) as pdf:

@@ -37,6 +37,7 @@ from aerotri.core.records import to_record
 from aerotri.core.settings import setting
 from aerotri.core.errors import CrsError, InputError, OptionError
 from aerotri.core.textio import read_record, record_error
+from aerotri.core.figures import pyplot, save_png
 from lidarctl.units import LengthUnits
 
 if TYPE_CHECKING:
@@ -298,12 +299,7 @@ def check_plan_file(cloud_paths, points_csv, params: PlanCheckSettings = PlanChe
 def plot_plan_check(result: PlanCheckResult, corners: list[dict], path, title: str = "") -> Path:
     """Offset vectors (exaggerated, with a scale arrow) at the surveyed points, the LiDAR corners, points without
     a match; and the histogram of the plan offsets with the tolerance."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    from aerotri.core.atomic import atomic_path
+    plt = pyplot()
 
     u = result.units.xy_m
     pts = result.points
@@ -346,9 +342,7 @@ def plot_plan_check(result: PlanCheckResult, corners: list[dict], path, title: s
     ax2.set_xlabel("plan offset (m)")
     ax2.set_ylabel("points")
     fig.tight_layout()
-    with atomic_path(path) as tmp:
-        fig.savefig(tmp, dpi=90, bbox_inches="tight", format="png")
-    plt.close(fig)
+    save_png(fig, path, dpi=90, tight=True)
     return Path(path)
 
 

@@ -27,6 +27,7 @@ import numpy as np
 
 from aerotri.core.settings import setting
 from aerotri.core.errors import CrsError, InputError, OptionError
+from aerotri.core.figures import pyplot, save_png
 
 log = logging.getLogger(__name__)
 log.addHandler(logging.NullHandler())
@@ -282,12 +283,7 @@ def check_vectors(product_path, reference_path, params: VectorCheckSettings = Ve
 
 def plot_offsets(check: VectorCheck, prod: dict, ref: dict, path, title: str = "") -> Path:
     """Reference (grey) and produced outlines, the corner-to-corner offset vectors exaggerated, with a key."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    from aerotri.core.atomic import atomic_path
+    plt = pyplot()
 
     result = check.document
     unit = result["xy_unit_m"]
@@ -335,9 +331,7 @@ def plot_offsets(check: VectorCheck, prod: dict, ref: dict, path, title: str = "
     ax.legend(loc="upper left", fontsize=8)
     ax.set_title(title or "building corners: offsets product -> reference (exaggerated)")
     fig.tight_layout()
-    with atomic_path(path) as tmp:
-        fig.savefig(tmp, dpi=90)
-    plt.close(fig)
+    save_png(fig, path, dpi=90)
     return Path(path)
 
 

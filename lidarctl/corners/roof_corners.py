@@ -71,6 +71,7 @@ from lidarctl.corners.roof_outline import (
 from lidarctl.corners.roof_segments import cluster_roofs, point_spacing_m, segment_planes
 from lidarctl.units import LengthUnits
 from aerotri.core.log import track
+from aerotri.core.figures import pyplot, save_png
 
 log = logging.getLogger(__name__)
 
@@ -1295,12 +1296,7 @@ def plot_corners(path, ndsm, extent, outlines, corners, *, truth_xy=None, refere
     ``window``: (xmin, xmax, ymin, ymax) to zoom into; default the whole nDSM extent. Coordinates,
     extent and window in ``xy_unit`` (the axis labels); the nDSM in metres.
     """
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    from aerotri.core.atomic import atomic_path
+    plt = pyplot()
 
     view = extent if window is None else window
     ndsm = _fill_small_gaps(ndsm)
@@ -1339,9 +1335,7 @@ def plot_corners(path, ndsm, extent, outlines, corners, *, truth_xy=None, refere
     ax.legend(loc="upper right", fontsize=8)
     ax.set_title(title)
     fig.tight_layout()
-    with atomic_path(path) as tmp:
-        fig.savefig(tmp, dpi=130)
-    plt.close(fig)
+    save_png(fig, path, dpi=130)
 
 
 # ------------------------------------------------------------------------------------------------ the stage

@@ -41,6 +41,7 @@ from scipy import ndimage
 
 from aerotri.core.errors import InputError, OptionError
 from aerotri.core.settings import setting
+from aerotri.core.figures import pyplot, save_png
 from lidarctl.grid import GRID_BYTES_PER_CELL, check_grid, lowest_per_cell
 from lidarctl.raster_ops import fill_nodata, reduce_grid, sample_bilinear
 
@@ -454,12 +455,7 @@ def write_gpkg(model: TreeModel, path, crs_wkt: str, units) -> None:
 
 def preview_png(model: TreeModel, path, title: str) -> None:
     """CHM (colour key in metres) with the stand outlines and the tree tops, axes in metres from the corner."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    from aerotri.core.atomic import atomic_path
+    plt = pyplot()
 
     g = model.grid
     w, h = g.ncols * g.res_m, g.nrows * g.res_m
@@ -481,9 +477,7 @@ def preview_png(model: TreeModel, path, title: str) -> None:
     ax.legend(loc="upper right", fontsize=8)
     ax.set_title(title, fontsize=9)
     fig.tight_layout()
-    with atomic_path(path) as tmp:
-        fig.savefig(tmp, dpi=110)
-    plt.close(fig)
+    save_png(fig, path, dpi=110)
 
 
 def trees_from_files(in_paths, outdir, settings: TreeSettings | None = None, crs=None) -> TreesResult:

@@ -28,6 +28,7 @@ import numpy as np
 from aerotri.core.atomic import atomic_dir, refuse_input_as_output
 from aerotri.core.records import to_record
 from aerotri.core.textio import read_record, record_error
+from aerotri.core.figures import pyplot, save_png
 from lidarctl.strips.overlap import PairDiff, StripSet, SurfaceSettings, overlapping_pairs_or_error, read_strips
 from lidarctl.units import LengthUnits
 
@@ -419,10 +420,7 @@ def write_outputs(res: CheckResult, folder: Path, title: str, vmax_m: float | No
 
 
 def _pair_png(path, p: PairDiff, *, ps: PairCheck, a, transform, vmax: float, title: str) -> None:
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    plt = pyplot()
 
     ny, nx = a.shape
     extent = (transform.c, transform.c + nx * transform.a, transform.f - ny * transform.a, transform.f)
@@ -454,15 +452,11 @@ def _pair_png(path, p: PairDiff, *, ps: PairCheck, a, transform, vmax: float, ti
     ax2.legend(fontsize=8, loc="upper right")
     fig.suptitle(title, fontsize=10)
     fig.tight_layout()
-    fig.savefig(path, dpi=100)
-    plt.close(fig)
+    save_png(fig, path, dpi=100)
 
 
 def _overview_png(path, res: CheckResult, vmax: float, title: str) -> None:
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    plt = pyplot()
 
     ss = res.strip_set
     g = ss.grid
@@ -482,8 +476,7 @@ def _overview_png(path, res: CheckResult, vmax: float, title: str) -> None:
     ax.legend(fontsize=7, markerscale=8, loc="upper right")
     ax.set_title(f"{title}: all pairs, RMS {res.summary.all_pairs.rms_m:.3f} m", fontsize=10)
     fig.tight_layout()
-    fig.savefig(path, dpi=100)
-    plt.close(fig)
+    save_png(fig, path, dpi=100)
 
 
 _TEMPLATE = """<!doctype html>

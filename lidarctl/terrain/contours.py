@@ -35,6 +35,7 @@ from pathlib import Path
 import numpy as np
 
 from aerotri.core.errors import OptionError
+from aerotri.core.figures import pyplot, save_png
 
 log = logging.getLogger(__name__)
 log.addHandler(logging.NullHandler())
@@ -317,13 +318,9 @@ def write_contours(cs: ContourSet, path, crs, z_unit_name: str, z_unit_m: float)
 
 def preview_png(cs: ContourSet, dem: np.ndarray, transform, path, title: str = "") -> Path:
     """Contours (index lines thicker) over the DEM's hillshade."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    plt = pyplot()
     from scipy import ndimage
 
-    from aerotri.core.atomic import atomic_path
     from lidarctl.rasters.products import hillshade
 
     # no shading where the filled nodata enters the gradient
@@ -343,9 +340,7 @@ def preview_png(cs: ContourSet, dem: np.ndarray, transform, path, title: str = "
     ax.set_xlabel("easting")
     ax.set_ylabel("northing")
     fig.tight_layout()
-    with atomic_path(path) as tmp:
-        fig.savefig(tmp, dpi=110)
-    plt.close(fig)
+    save_png(fig, path, dpi=110)
     return Path(path)
 
 

@@ -45,6 +45,7 @@ import numba
 import numpy as np
 
 from aerotri.core.errors import InputError, OptionError
+from aerotri.core.figures import pyplot, save_png
 
 log = logging.getLogger(__name__)
 log.addHandler(logging.NullHandler())
@@ -556,10 +557,7 @@ def _write_gpkg(path, net: Network, *, sub_ids, sub_geoms, basin_ids, basin_geom
 
 def preview_png(dem, transform, net: Network, path, title: str, dx_m: float) -> None:
     """Streams (width and colour by Strahler order) over the DEM's hillshade, with a key and map axes."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    plt = pyplot()
     import shapely
     from matplotlib.collections import LineCollection
     from scipy import ndimage
@@ -593,8 +591,7 @@ def preview_png(dem, transform, net: Network, path, title: str, dx_m: float) -> 
     ax.set_xlabel("easting")
     ax.set_ylabel("northing")
     fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
+    save_png(fig, path, dpi=110)
 
 
 def drainage(dem_path, outdir, min_area_m2: float | None = None, method: str = "fill", simplify_px: float = 0.5,

@@ -41,6 +41,7 @@ import numpy as np
 
 from aerotri.core.settings import setting
 from aerotri.core.errors import CrsError, InputError, OptionError
+from aerotri.core.figures import pyplot, save_png
 from lidarctl.units import LengthUnits
 
 log = logging.getLogger(__name__)
@@ -709,12 +710,7 @@ def draw_layers(ax, layers: dict) -> None:
 
 def preview_png(mv: MapVectors, path, image=None, title: str = "") -> Path:
     """The layers over the orthophoto ``image`` (when given), with a legend and axes in CRS units."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    from aerotri.core.atomic import atomic_path
+    plt = pyplot()
 
     fig, ax = plt.subplots(figsize=(10, 10))
     if image is not None:
@@ -739,7 +735,5 @@ def preview_png(mv: MapVectors, path, image=None, title: str = "") -> Path:
     ax.legend(loc="upper right", fontsize=8)
     ax.set_title(title or "DLG layers")
     fig.tight_layout()
-    with atomic_path(path) as tmp:
-        fig.savefig(tmp, dpi=100)
-    plt.close(fig)
+    save_png(fig, path, dpi=100)
     return Path(path)
