@@ -1,4 +1,4 @@
-"""The wheel works without the source tree: it carries the presets, tolerance tables and licence, declares
+"""The wheel works without the source tree: it carries the presets, tolerance tables, page templates and licence, declares
 one version and every imported third-party package, and ``aerotri sim --preset tiny`` runs from it."""
 
 from __future__ import annotations
@@ -33,6 +33,10 @@ def test_wheel_file_list(wheel):
         assert f"aerotri/core/tolerance_tables/cn_{scale}.toml" in names
     for std in ("asprs2023", "usgs_lbs", "cn_at"):  # the standards of the compliance section
         assert f"aerotri/qa/standards/{std}.toml" in names
+    for page in ("aerotri/templates/macros.html.j2", "aerotri/templates/adjust_report.html.j2",
+                 "aerotri/templates/qa_report.html.j2", "aerotri/templates/control_review.html.j2",
+                 "aerotri/templates/report.css", "lidarctl/templates/strips_check.html.j2"):  # aerotri.core.pages
+        assert page in names, page
     assert any(n.endswith("dist-info/licenses/LICENSE") for n in names)
     for pkg in ("aerotri/core/errors.py", "aerotri/geom/crs/transform.py", "lidarctl/cli/main.py", "ortho/cli.py"):
         assert pkg in names

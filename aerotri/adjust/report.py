@@ -7,7 +7,6 @@ Residuals are observed minus adjusted for image points, adjusted minus given for
 from __future__ import annotations
 
 import dataclasses
-import html
 import math
 
 import numpy as np
@@ -1065,142 +1064,119 @@ def report_figures(rep: dict, ba=None) -> list:
 
 def format_html(rep: dict, ba=None) -> str:
     """report.html: the ISAT blocks and the RMS, control, check, GNSS, photo and flight tables as HTML
-    tables, and the figures with their scale keys (the plain-text layout: report.txt)."""
+    tables, and the figures with their scale keys (the plain-text layout: report.txt); the page is
+    ``aerotri/templates/adjust_report.html.j2``."""
     from aerotri.adjust import report_figures as RF
+    from aerotri.core.pages import render
 
-    T, esc = RF.table, html.escape
+    T = RF.table
     o, k = rep["options"], rep["key_statistics"]
-    parts = [f"<h1>Photo-T Parameters and Results for Project {esc(str(rep['project']))}</h1>",
-             "<p>Plain-text layout: <a href='report.txt'>report.txt</a>; all numbers: <a href='report.json'>"
-             "report.json</a>.</p>", "<h2>PhotoT Triangulation Options</h2>"]
     names = dict(ISAT_OPTIONS, image_sigma_px="Image sigma of the final solve (px)",
                  image_sigma_apriori_px="A-priori image sigma (px)", snooping_alpha="Data snooping alpha")
-    parts.append(T(["option", "value"], [[names.get(n, n.replace("_", " ").capitalize()),
-                                          f"{v:g}" if isinstance(v, float) else v] for n, v in o.items()]))
-    parts.append("<h2>Parameters</h2>")
     rows = [("RMS Control (m)", "rms_control_m"), ("RMS Check (m)", "rms_check_m"), ("RMS Limits (m)", "rms_limits_m"),
             ("Max Ground Residual (m)", "max_ground_residual_m"), ("Residual Limits (m)", "residual_limits_m"),
             ("Mean Std Dev Object (m)", "mean_std_dev_object_m"), ("RMS Photo Position (m)", "rms_photo_position_m"),
             ("RMS Photo Attitude (deg)", "rms_photo_attitude_deg"),
             ("Mean Std Dev Photo Position (m)", "mean_std_dev_photo_position_m"),
             ("Mean Std Dev Photo Attitude (deg)", "mean_std_dev_photo_attitude_deg")]
-    parts.append(T(["", "X/Omega", "Y/Phi", "Z/Kappa", "XY"],
-                   [[label] + list(rep["parameters"][key] or [None] * 4) for label, key in rows], 4))
     sigma = "n/a" if k["sigma0_um"] is None else f"{k['sigma0_um']:.2f} um ({k['sigma0_px']:.3f} px of {k['pixel_um']:g} um)"
-    parts.append("<h2>Key Statistics</h2>" + T(["statistic", "value"], [
-        ["Sigma", sigma], ["Number of iterations", k["iterations"]], ["Degrees of Freedom", k["degrees_of_freedom"]],
-        ["Result", k["message"]]], num_from=9))
-    if rep.get("datum"):
-        parts.append("<h2>Datum</h2>" + "".join(f"<p>{esc(note)}</p>" for note in rep["datum"]))
     c = rep["counts"]
-    parts.append(f"<p>Images {c['images']} in {c['strips']} strips, tie points {c['tie_points']}, control points "
-                 f"{c['control_points']}, check points {c['check_points']}, image observations "
-                 f"{c['image_observations']}, removed {c['removed_observations']}.</p>")
-    figs = {f.title: f for f in report_figures(rep, ba)}
-
-    def fig(title):
-        f = figs.pop(title, None)
-        return f.html() if f is not None else ""
-
     ir = rep["image_residuals"]
-    parts.append("<h2>Residuals of photogrammetric observations (PATB)</h2>")
-    parts.append(T(["points", "axis", "obs", "rms um", "rms m", "check value um"],
-                   [[name, ax, blk.get("obs_" + ax), blk.get(f"rms_{ax}_um"), blk.get(f"rms_{ax}_m"), blk.get(f"chv_{ax}_um")]
-                    for name, blk in (("tie points", ir["tie"]), ("control points", ir["control"])) if blk.get("obs_x")
-                    for ax in "xy"], 4, num_from=2))
-    if ir["control_to_tie_ratio"] is not None:
-        parts.append(f"<p>Control / tie image residual ratio: {ir['control_to_tie_ratio']:.2f} (about 4 is normal, "
-                     "around 10 points at a systematic error).</p>")
-    if ir["warning"]:
-        parts.append(f"<p class='fail'>WARNING: {esc(ir['warning'])}</p>")
-    parts.append(fig("Image residuals per frame"))
-    parts.append(fig("Image residual histograms"))
-    parts.append("<h2>Control and check points</h2>")
-    parts.append(fig("Control and check-point residual vectors"))
-    parts.append("<h3>Control points (residual = adjusted - given)</h3>")
-    parts.append(RF.long_table("control points", ["id", "kind", "used", "rays", "dX m", "dY m", "dZ m", "image rms um"],
-                   [[r["id"], r["kind"], r.get("status", r["used"]), r["rays"], *r["residual_m"], r["image_rms_um"]]
-                    for r in rep["control_points"]], 4, num_from=3))
-    if rep["rejected_control"]:
-        parts.append("<p>Control points failing the test (excluded): "
-                     + ", ".join(f"{esc(str(x['id']))} (w = {x['w']})" for x in rep["rejected_control"]) + "</p>")
+    fa = rep.get("flight_acceptance")
+    sc = rep.get("self_calibration")
+    vc = rep.get("variance_components")
+    gm = rep.get("geometry_modes")
+    gnss = bool(rep.get("gnss_strips") or any(p.get("gnss_offset_m") for p in rep["photos"]))
+    pairs = rep.get("image_pairs") or []
+    rem = rep["removed_observations"]
+    figures = {f.title: f for f in report_figures(rep, ba)}
+    placed = {"Image residuals per frame", "Image residual histograms", "Control and check-point residual vectors",
+              "Von Gruber tie-point distribution"}
+    placed |= {"GNSS shift and drift per strip"} if gnss else set()
+    placed |= {"Flight: footprints on the terrain"} if fa else set()
+    placed |= {"Surface control"} if rep.get("surface_control") else set()
+    ctx = dict(
+        project=str(rep["project"]), figures={t: f for t, f in figures.items() if t in placed},
+        unplaced=[f for t, f in figures.items() if t not in placed],  # any figure without a place of its own
+        options=T(["option", "value"], [[names.get(n, n.replace("_", " ").capitalize()),
+                                         f"{v:g}" if isinstance(v, float) else v] for n, v in o.items()]),
+        parameters=T(["", "X/Omega", "Y/Phi", "Z/Kappa", "XY"],
+                     [[label] + list(rep["parameters"][key] or [None] * 4) for label, key in rows], 4),
+        key_statistics=T(["statistic", "value"], [
+            ["Sigma", sigma], ["Number of iterations", k["iterations"]], ["Degrees of Freedom", k["degrees_of_freedom"]],
+            ["Result", k["message"]]], num_from=9),
+        datum=rep.get("datum") or [],
+        counts=(f"Images {c['images']} in {c['strips']} strips, tie points {c['tie_points']}, control points "
+                f"{c['control_points']}, check points {c['check_points']}, image observations "
+                f"{c['image_observations']}, removed {c['removed_observations']}."),
+        image_residuals=T(["points", "axis", "obs", "rms um", "rms m", "check value um"],
+                          [[name, ax, blk.get("obs_" + ax), blk.get(f"rms_{ax}_um"), blk.get(f"rms_{ax}_m"),
+                            blk.get(f"chv_{ax}_um")]
+                           for name, blk in (("tie points", ir["tie"]), ("control points", ir["control"]))
+                           if blk.get("obs_x") for ax in "xy"], 4, num_from=2),
+        control_to_tie=(f"Control / tie image residual ratio: {ir['control_to_tie_ratio']:.2f} (about 4 is normal, "
+                        "around 10 points at a systematic error)." if ir["control_to_tie_ratio"] is not None else ""),
+        residual_warning=ir["warning"] or "",
+        control_points=RF.long_table("control points", ["id", "kind", "used", "rays", "dX m", "dY m", "dZ m",
+                                                        "image rms um"],
+                                     [[r["id"], r["kind"], r.get("status", r["used"]), r["rays"], *r["residual_m"],
+                                       r["image_rms_um"]] for r in rep["control_points"]], 4, num_from=3),
+        rejected_control=", ".join(f"{x['id']} (w = {x['w']})" for x in rep["rejected_control"]),
+        check_points=None, check_sums=None, check_normalised=" ".join(f"{x:.2f}" for x in rep["check_normalised_rms"] or []),
+        gnss=gnss, gnss_strips=T(["strip", "shift X m", "shift Y m", "shift Z m", "drift X m/km", "drift Y m/km",
+                                  "drift Z m/km"], [[s["strip"], *s["shift_m"], *s["drift_m_per_km"]]
+                                                    for s in rep["gnss_strips"]], 4) if rep.get("gnss_strips") else None,
+        flight_tables=RF.flight_tables(fa) if fa else None,
+        self_calibration=None,
+        variance_components=T(["group", "obs", "redundancy", "factor", "weighted", "estimated", "a-priori"],
+                              [[g["group"], g["observations"], g["redundancy"], g["factor"], g["weight_factor"],
+                                g["estimated_factor"], g["apriori_sigma"]] for g in vc], 3) if vc else None,
+        geometry_modes=_geometry_modes_table(gm) if gm else None,
+        surface_control=bool(rep.get("surface_control")),
+        dem_checks=[dict(role=d["role"], failed=d["failed"], dem=str(d["dem"]), line=_dem_check_line(d))
+                    for d in rep.get("dem_checks") or []],
+        photos=RF.long_table("photos", ["image", "strip", "obs", "rms x um", "rms y um", "GNSS res X m", "Y m", "Z m",
+                                        "sX m", "sY m", "sZ m", "tie obs per von Gruber area"],
+                             [[p["image_id"], p["strip"], p["obs"], p["rms_x_um"], p["rms_y_um"],
+                               *(p.get("gnss_residual_m") or [None] * 3), *(p.get("sigma_position_m") or [None] * 3),
+                               " ".join(str(v) for v in p.get("von_gruber_tie_obs", []))] for p in rep["photos"]], 3),
+        n_pairs=len(pairs),
+        image_pairs=T(["left", "right", "points", "in 3+ frames", "rms um", "rms px"],
+                      [[x["left"], x["right"], x["tie_points"], x["in_3plus_frames"], x["rms_um"], x["rms_px"]]
+                       for x in pairs[:20]], 3, num_from=2),
+        worst_tie_points=T(["point", "rays", "rms um", "X m", "Y m", "Z m"],
+                           [[x["point_id"], x["rays"], x["rms_um"], *x["xyz_m"]] for x in rep["worst_tie_points"]], 3),
+        n_removed=len(rem),
+        removed=RF.long_table("removed observations", ["point", "image", "w", "vx px", "vy px", "round"],
+                              [[x["point_id"], x["image_id"], x["w"], *x["residual_px"], x["round"]] for x in rem[:200]], 2),
+    )
     if rep["check_points"]:
-        parts.append("<h3>Check points (d = adjusted - measured)</h3>")
         crow = [[r["id"], r["rays"], *r["measured_m"], *r["adjusted_m"], *r["d_m"]] for r in rep["check_points"]]
         if rep["check_sum_m"]:
-            parts.append(T(["", "points", "dX m", "dY m", "dZ m"],
-                           [["sum", len(crow), *rep["check_sum_m"]], ["rms", len(crow), *rep["check_rms_m"]]], 3))
+            ctx["check_sums"] = T(["", "points", "dX m", "dY m", "dZ m"],
+                                  [["sum", len(crow), *rep["check_sum_m"]], ["rms", len(crow), *rep["check_rms_m"]]], 3)
             crow += [["sum"] + [None] * 7 + list(rep["check_sum_m"]), ["rms"] + [None] * 7 + list(rep["check_rms_m"])]
-        parts.append(RF.long_table("check points", ["id", "rays", "X m", "Y m", "Z m", "X adj m", "Y adj m", "Z adj m",
-                                                    "dX m", "dY m", "dZ m"], crow, 3))
-        if rep["check_normalised_rms"]:
-            parts.append("<p>Normalised check errors (d / sigma), RMS X Y Z: "
-                         + " ".join(f"{x:.2f}" for x in rep["check_normalised_rms"]) + "</p>")
-    if rep.get("gnss_strips") or any(p.get("gnss_offset_m") for p in rep["photos"]):
-        parts.append("<h2>GNSS</h2>")
-        if rep.get("gnss_strips"):
-            parts.append(T(["strip", "shift X m", "shift Y m", "shift Z m", "drift X m/km", "drift Y m/km",
-                            "drift Z m/km"], [[s["strip"], *s["shift_m"], *s["drift_m_per_km"]]
-                                              for s in rep["gnss_strips"]], 4))
-        parts.append(fig("GNSS shift and drift per strip"))
-    parts.append("<h2>Tie-point distribution</h2>")
-    parts.append(fig("Von Gruber tie-point distribution"))
-    fa = rep.get("flight_acceptance")
-    if fa:
-        parts.append("<h2>Flight acceptance</h2>" + RF.flight_tables(fa))
-        parts.append(fig("Flight: footprints on the terrain"))
-    sc = rep.get("self_calibration")
+        ctx["check_points"] = RF.long_table("check points", ["id", "rays", "X m", "Y m", "Z m", "X adj m", "Y adj m",
+                                                             "Z adj m", "dX m", "dY m", "dZ m"], crow, 3)
     if sc:
-        parts.append(f"<h2>Self-calibration (asked: {esc(', '.join(sc['groups']))}; estimated: "
-                     f"{esc(', '.join(sc.get('estimated') or []) or 'none')})</h2>")
-        parts.append(T(["parameter", "a priori", "adjusted", "std dev"],
-                       [[n, sc["apriori"][n], sc["adjusted"][n], (sc["std_dev"] or {}).get(n)] for n in sc["adjusted"]], 6))
-        if sc.get("determinability"):
-            parts.append("<h3>Determinability</h3>" + T(
+        ctx["self_calibration"] = dict(
+            asked=", ".join(sc["groups"]), estimated=", ".join(sc.get("estimated") or []) or "none",
+            table=T(["parameter", "a priori", "adjusted", "std dev"],
+                    [[n, sc["apriori"][n], sc["adjusted"][n], (sc["std_dev"] or {}).get(n)] for n in sc["adjusted"]], 6),
+            determinability=T(
                 ["group", "action", "corner sigma px", "corner sigma / focal", "partial correlations", "reason"],
-                [[c["group"], c["action"], c["corner_sigma_px"], c["corner_sigma_fraction"],
-                  ", ".join(f"{m} {v}" for m, v in c["correlations"].items()), c["reason"] or ""]
-                 for c in sc["determinability"]], 4, num_from=2))
-    vc = rep.get("variance_components")
-    if vc:
-        parts.append("<h2>Variance components</h2>" + T(
-            ["group", "obs", "redundancy", "factor", "weighted", "estimated", "a-priori"],
-            [[g["group"], g["observations"], g["redundancy"], g["factor"], g["weight_factor"], g["estimated_factor"],
-              g["apriori_sigma"]] for g in vc], 3))
-    gm = rep.get("geometry_modes")
-    if gm:
-        groups = [x for x in ("image", "gnss", "control", "surface", "priors") if any(x in g["shares"] for g in gm)]
-        parts.append("<h2>Block geometry</h2>" + T(
-            ["mode", "sigma m", "sigma deg"] + [f"share {x}" for x in groups] + ["weak"],
-            [[g["mode"], g["sigma_m"], g["sigma_deg"], *[g["shares"].get(x) for x in groups],
-              ("YES (not determinable)" if g["weak"] else "no") if g["mode"] == "focal_height" else
-              "YES (held by priors)" if g["held_by_priors"] else "YES" if g["weak"] else "no"] for g in gm], 4))
-    if rep.get("surface_control"):
-        parts.append("<h2>Surface control</h2>" + fig("Surface control"))
-    for d in rep.get("dem_checks") or []:
-        cls = " class='fail'" if d["failed"] else ""
-        parts.append(f"<h2>Tie points vs DEM ({esc(d['role'])})</h2><p{cls}>{esc(str(d['dem']))}: "
-                     f"{esc(_dem_check_line(d))}</p>")
-    parts.append("<h2>Photos</h2>")
-    parts.append(RF.long_table("photos", ["image", "strip", "obs", "rms x um", "rms y um", "GNSS res X m", "Y m", "Z m", "sX m", "sY m", "sZ m",
-                    "tie obs per von Gruber area"],
-                   [[p["image_id"], p["strip"], p["obs"], p["rms_x_um"], p["rms_y_um"],
-                     *(p.get("gnss_residual_m") or [None] * 3), *(p.get("sigma_position_m") or [None] * 3),
-                     " ".join(str(v) for v in p.get("von_gruber_tie_obs", []))] for p in rep["photos"]], 3))
-    pairs = rep.get("image_pairs") or []
-    parts.append(f"<h2>Image pairs</h2><p>{len(pairs)} pairs share tie points; the {min(len(pairs), 20)} weakest "
-                 "(all: report.json).</p>")
-    parts.append(T(["left", "right", "points", "in 3+ frames", "rms um", "rms px"],
-                   [[x["left"], x["right"], x["tie_points"], x["in_3plus_frames"], x["rms_um"], x["rms_px"]]
-                    for x in pairs[:20]], 3, num_from=2))
-    parts.append("<h2>Tie points with the largest image residuals</h2>" + T(
-        ["point", "rays", "rms um", "X m", "Y m", "Z m"],
-        [[x["point_id"], x["rays"], x["rms_um"], *x["xyz_m"]] for x in rep["worst_tie_points"]], 3))
-    rem = rep["removed_observations"]
-    parts.append(f"<h2>Removed observations ({len(rem)})</h2>")
-    if rem:
-        parts.append(RF.long_table("removed observations", ["point", "image", "w", "vx px", "vy px", "round"],
-                       [[x["point_id"], x["image_id"], x["w"], *x["residual_px"], x["round"]] for x in rem[:200]], 2))
-    parts += [f.html() for f in figs.values()]  # any figure without a place of its own
-    return (f"<!doctype html><html><head><meta charset='utf-8'><title>Photo-T report {esc(str(rep['project']))}"
-            f"</title><style>{RF.STYLE}</style></head><body>{''.join(parts)}</body></html>")
+                [[d["group"], d["action"], d["corner_sigma_px"], d["corner_sigma_fraction"],
+                  ", ".join(f"{m} {v}" for m, v in d["correlations"].items()), d["reason"] or ""]
+                 for d in sc["determinability"]], 4, num_from=2) if sc.get("determinability") else None)
+    return render("adjust_report.html.j2", **ctx)
+
+
+def _geometry_modes_table(gm: list):
+    """The block's geometry modes: sigma, the share of each observation group, and whether the mode is weak."""
+    from aerotri.adjust import report_figures as RF
+
+    groups = [x for x in ("image", "gnss", "control", "surface", "priors") if any(x in g["shares"] for g in gm)]
+    return RF.table(["mode", "sigma m", "sigma deg"] + [f"share {x}" for x in groups] + ["weak"],
+                    [[g["mode"], g["sigma_m"], g["sigma_deg"], *[g["shares"].get(x) for x in groups],
+                      ("YES (not determinable)" if g["weak"] else "no") if g["mode"] == "focal_height" else
+                      "YES (held by priors)" if g["held_by_priors"] else "YES" if g["weak"] else "no"] for g in gm], 4)

@@ -11,7 +11,6 @@ from __future__ import annotations
 
 import base64
 import dataclasses
-import html
 import math
 
 import numpy as np
@@ -37,12 +36,8 @@ class Figure:
         return self._png
 
     def png_base64(self, dpi: int = 110) -> str:
+        """The PNG for an ``<img src="data:image/png;base64,...">`` (the templates' ``figure`` macro)."""
         return base64.b64encode(self.png(dpi)).decode()
-
-    def html(self, dpi: int = 110) -> str:
-        alt = html.escape(f"{self.title}. Scale: {self.key}", quote=True)
-        return (f"<figure><img src='data:image/png;base64,{self.png_base64(dpi)}' alt='{alt}'>"
-                f"<figcaption>{html.escape(self.caption)} <b>Scale:</b> {html.escape(self.key)}</figcaption></figure>")
 
 
 def nice_length(x: float) -> float:
@@ -372,43 +367,59 @@ def flight_map(fa: dict) -> Figure | None:
                   f"Footprints draped on {fa.get('terrain')}; +: projection centres.", f"map scale bar {bar}", fig)
 
 
-# -- HTML tables ---------------------------------------------------------------------------------
+# -- HTML tables (rendered by the templates' ``table`` macro) -------------------------------------
+
+@dataclasses.dataclass(frozen=True)
+class Cell:
+    """A table cell: its text (plain, the template escapes it) and CSS classes ("num", "pass", "fail")."""
+
+    text: str
+    css: str = ""
+
+
+@dataclasses.dataclass(frozen=True)
+class Table:
+    """An HTML table: header texts and rows of cells; ``folded``: the summary of the <details> element a long
+    table folds into (click to open), None for a table shown open."""
+
+    headers: tuple[str, ...]
+    rows: tuple[tuple[Cell, ...], ...]
+    folded: str | None = None
+
 
 def cell(v, nd: int = 3) -> str:
+    """A value as table text: None empty, booleans yes/no, floats with ``nd`` decimals (not finite: empty)."""
     if v is None:
         return ""
     if isinstance(v, bool):
         return "yes" if v else "no"
     if isinstance(v, float):
         return f"{v:.{nd}f}" if math.isfinite(v) else ""
-    return html.escape(str(v))
+    return str(v)
 
 
 def table(headers: list[str], rows: list[list], nd: int = 3, verdict_col: int | None = None,
-          num_from: int = 1) -> str:
-    """An HTML table; numbers right-aligned from column ``num_from``; a verdict column coloured."""
-    head = "".join(f"<th>{html.escape(h)}</th>" for h in headers)
-    body = []
+          num_from: int = 1) -> Table:
+    """A table; numbers right-aligned from column ``num_from``; a verdict column coloured."""
+    out = []
     for r in rows:
-        tds = []
+        cells = []
         for j, v in enumerate(r):
-            cls = []
+            css = []
             if j >= num_from and isinstance(v, (int, float)) and not isinstance(v, bool):
-                cls.append("num")
+                css.append("num")
             if verdict_col is not None and j == verdict_col and v in ("pass", "fail"):
-                cls.append(v)
-            tds.append(f"<td class='{' '.join(cls)}'>{cell(v, nd)}</td>" if cls else f"<td>{cell(v, nd)}</td>")
-        body.append("<tr>" + "".join(tds) + "</tr>")
-    return f"<table><thead><tr>{head}</tr></thead><tbody>{''.join(body)}</tbody></table>"
+                css.append(v)
+            cells.append(Cell(cell(v, nd), " ".join(css)))
+        out.append(tuple(cells))
+    return Table(tuple(headers), tuple(out))
 
 
-def long_table(what: str, headers: list[str], rows: list[list], nd: int = 3, shown: int = 40, **kw) -> str:
+def long_table(what: str, headers: list[str], rows: list[list], nd: int = 3, shown: int = 40, **kw) -> Table:
     """A table; beyond ``shown`` rows it folds into a <details> element (click to open), so that a long
     per-point list does not push the rest of the report pages down."""
     t = table(headers, rows, nd, **kw)
-    if len(rows) <= shown:
-        return t
-    return f"<details><summary>{len(rows)} {html.escape(what)} (click to show the table)</summary>{t}</details>"
+    return t if len(rows) <= shown else dataclasses.replace(t, folded=f"{len(rows)} {what}")
 
 
 def strip_fails(fa: dict, strip: dict) -> list:
@@ -422,27 +433,36 @@ def strip_fails(fa: dict, strip: dict) -> list:
     return [k for k in LIMIT_KEYS if k in keys]
 
 
-def flight_tables(fa: dict) -> str:
-    """The flight acceptance: the checks with their limits, then per strip and per frame."""
+@dataclasses.dataclass(frozen=True)
+class FlightTables:
+    """The flight acceptance as tables: where the figures come from, the checks with their limits, per strip and
+    per frame (the templates' ``flight`` macro)."""
+
+    source: str
+    terrain: str
+    checks: Table
+    strips: Table
+    frames: Table
+
+
+def flight_tables(fa: dict) -> FlightTables | None:
+    """The flight acceptance: the checks with their limits, then per strip and per frame (None: no flight)."""
     if not fa:
-        return ""
+        return None
     ops = {"max": "<=", "min": ">="}
     from aerotri.adjust.flight_acceptance import LIMIT_KEYS
 
     checks = [[c["quantity"], c["value"], f"{ops[LIMIT_KEYS[c['key']][2]]} {_fmt(c['limit'])}"
                if c["limit"] is not None else "", c["unit"], c["where"], f"{c['n_fail']} of {c['n']}", c["verdict"]]
               for c in fa["checks"]]
-    out = [f"<p>From the {html.escape(fa['source'])}; footprints on {html.escape(str(fa['terrain']))}.</p>",
-           table(["check", "worst", "limit", "unit", "at", "failing", "verdict"], checks, 2, verdict_col=6)]
-    out.append("<h3>Per strip</h3>")
-    out.append(table(["strip", "frames", "first", "last", "length m", "curvature %", "height range m",
-                      "mean Z m", "above ground m", "forward min %", "forward mean %", "side median %",
-                      "max tilt deg", "max kappa deg", "failing"],
-                     [[s["strip"], s["frames"], s["first"], s["last"], s["length_m"], s["curvature_pct"],
-                       s["height_range_m"], s["mean_z_m"], s["mean_height_above_ground_m"], s["forward_overlap_min_pct"],
-                       s["forward_overlap_mean_pct"], s["side_overlap_median_pct"], s["max_tilt_deg"],
-                       s["max_kappa_deviation_deg"], ", ".join(LIMIT_KEYS[k][0] for k in strip_fails(fa, s))]
-                      for s in fa["strips"]], 2))
+    strips = table(["strip", "frames", "first", "last", "length m", "curvature %", "height range m",
+                    "mean Z m", "above ground m", "forward min %", "forward mean %", "side median %",
+                    "max tilt deg", "max kappa deg", "failing"],
+                   [[s["strip"], s["frames"], s["first"], s["last"], s["length_m"], s["curvature_pct"],
+                     s["height_range_m"], s["mean_z_m"], s["mean_height_above_ground_m"], s["forward_overlap_min_pct"],
+                     s["forward_overlap_mean_pct"], s["side_overlap_median_pct"], s["max_tilt_deg"],
+                     s["max_kappa_deviation_deg"], ", ".join(LIMIT_KEYS[k][0] for k in strip_fails(fa, s))]
+                    for s in fa["strips"]], 2)
     lim = fa["limits"]
 
     def mark(v, key):
@@ -451,21 +471,13 @@ def flight_tables(fa: dict) -> str:
         bad = v > lim[key] if LIMIT_KEYS[key][2] == "max" else v < lim[key]
         return f"{v:.2f} !" if bad else v
 
-    out.append("<h3>Per frame</h3><p>! marks a value beyond its limit.</p>")
-    out.append(long_table("frames", ["image", "strip", "Z m", "above ground m", "tilt deg", "kappa dev. deg", "height step m",
-                      "forward %", "side %"],
-                     [[f["image_id"], f["strip"], f["z_m"], f["height_above_ground_m"],
-                       mark(f["tilt_deg"], "flight_tilt_max_deg"), mark(f["kappa_deviation_deg"], "flight_kappa_max_deg"),
-                       mark(f["height_step_m"], "flight_height_step_max_m"),
-                       mark(f["forward_overlap_pct"], "flight_forward_overlap_min_pct"),
-                       mark(f["side_overlap_pct"], "flight_side_overlap_min_pct")] for f in fa["frames"]], 2))
-    return "".join(out)
-
-
-STYLE = """body{font-family:sans-serif;margin:1.5em;max-width:1400px;color:#222}
-table{border-collapse:collapse;margin:0.5em 0 1em 0;font-size:13px}
-td,th{border:1px solid #ccc;padding:3px 7px;text-align:left}th{background:#eef}
-td.num{text-align:right;font-variant-numeric:tabular-nums}.pass{background:#cfc}.fail{background:#fcc}
-figure{margin:1em 0}figure img{max-width:100%;border:1px solid #ddd}figcaption{font-size:13px;color:#444;max-width:1000px}
-h2{border-bottom:2px solid #99c;padding-bottom:2px;margin-top:1.6em}
-summary{cursor:pointer;color:#225;margin:0.4em 0;font-size:14px}"""
+    frames = long_table("frames", ["image", "strip", "Z m", "above ground m", "tilt deg", "kappa dev. deg",
+                                   "height step m", "forward %", "side %"],
+                        [[f["image_id"], f["strip"], f["z_m"], f["height_above_ground_m"],
+                          mark(f["tilt_deg"], "flight_tilt_max_deg"), mark(f["kappa_deviation_deg"], "flight_kappa_max_deg"),
+                          mark(f["height_step_m"], "flight_height_step_max_m"),
+                          mark(f["forward_overlap_pct"], "flight_forward_overlap_min_pct"),
+                          mark(f["side_overlap_pct"], "flight_side_overlap_min_pct")] for f in fa["frames"]], 2)
+    return FlightTables(str(fa["source"]), str(fa["terrain"]),
+                        table(["check", "worst", "limit", "unit", "at", "failing", "verdict"], checks, 2, verdict_col=6),
+                        strips, frames)

@@ -1,7 +1,7 @@
 """Review page: an image chip per corner and frame with the predicted and the measured position.
 
-``control/review.html`` (jinja2) and ``control/chips/<corner>_<image>.png``. Chips are enlarged
-``scale`` times without interpolation; a blue circle marks the prediction, a red cross the accepted
+``control/review.html`` (``aerotri/templates/control_review.html.j2``) and ``control/chips/<corner>_<image>.png``.
+Chips are enlarged ``scale`` times without interpolation; a blue circle marks the prediction, a red cross the accepted
 measurement, an orange cross a rejected one.
 """
 
@@ -10,24 +10,9 @@ from __future__ import annotations
 from pathlib import Path
 
 import cv2
-import jinja2
 import numpy as np
 
-PAGE = jinja2.Template("""<!doctype html>
-<html><head><meta charset="utf-8"><title>Control transfer review - {{ project }}</title>
-<style>body{font-family:sans-serif;font-size:13px} table{border-collapse:collapse} td,th{border:1px solid #ccc;padding:3px;vertical-align:top}
-.full{background:#e3f2e3}.height{background:#e3ecf7}.check{background:#f6f6f6}.rejected{background:#f7e3e3} figure{display:inline-block;margin:2px}
-figcaption{font-size:11px}</style></head><body>
-<h1>Control transfer review: {{ project }}</h1>
-<p>{{ summary }}</p>
-<p>Blue circle: predicted from the LiDAR corner and the orientations; red cross: accepted measurement; orange: rejected.
-Manual measurements for rejected corners: add <code>point_id,image_id,x_px,y_px</code> lines to a CSV and run
-<code>aerotri control PROJECT --import-manual FILE.csv</code>.</p>
-<table><tr><th>corner</th><th>status</th><th>chips (image: x_px, y_px, ray residual)</th></tr>
-{% for c in corners %}<tr class="{{ c.cls }}"><td>{{ c.id }}<br>score {{ c.score }}<br>{{ c.xyz }}</td><td>{{ c.status }}</td><td>
-{% for ch in c.chips %}<figure><img src="chips/{{ ch.file }}" width="{{ ch.size }}"><figcaption>{{ ch.caption }}</figcaption></figure>{% endfor %}
-</td></tr>{% endfor %}</table></body></html>
-""")
+from aerotri.core.pages import render
 
 
 def chip_png(image, pred_xy, meas_xy, ok: bool, half_px: int = 16, scale: int = 4) -> bytes:
@@ -55,4 +40,5 @@ def write_review(folder: Path, project: str, summary: str, corners: list[dict], 
     (folder / "chips").mkdir(parents=True, exist_ok=True)
     for name, data in chips.items():
         (folder / "chips" / name).write_bytes(data)
-    (folder / "review.html").write_text(PAGE.render(project=project, summary=summary, corners=corners))
+    (folder / "review.html").write_text(render("control_review.html.j2", project=project, summary=summary,
+                                                    corners=corners))

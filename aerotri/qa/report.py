@@ -15,7 +15,6 @@ limits not confirmed in their source.
 from __future__ import annotations
 
 import dataclasses
-import html
 import io
 import textwrap
 import json
@@ -483,11 +482,12 @@ def build_qa_report(root, *, tolerance_file=None, terrain: str | None = None, sc
 
 
 def _cell(v) -> str:
+    """A value as verdict-table text (the template escapes it): None empty, floats to 4 significant digits."""
     if v is None:
         return ""
     if isinstance(v, float):
-        return html.escape(f"{v:.4g}")
-    return html.escape(str(v))
+        return f"{v:.4g}"
+    return str(v)
 
 
 def _label(key: str) -> str:
@@ -499,21 +499,31 @@ def _label(key: str) -> str:
     return key.replace("_", " ")
 
 
-def details_html(value, depth: int = 0) -> str:
+@dataclasses.dataclass(frozen=True)
+class DetailBlock:
+    """One piece of the report's "Details": a table, a heading (``level`` 4-6) or a paragraph (``text``)."""
+
+    table: RF.Table | None = None
+    level: int = 0
+    text: str = ""
+
+
+def detail_blocks(value, depth: int = 0) -> list[DetailBlock]:
     """A stage's numbers as tables: scalars as name/value rows, lists of records as tables, nested
-    objects as their own small tables (no JSON)."""
+    objects as their own small tables under a heading (no JSON)."""
     if isinstance(value, list) and value and all(isinstance(v, dict) for v in value):
         cols = list(dict.fromkeys(k for v in value for k in v))
-        return RF.table([_label(c) for c in cols], [[_scalar(v.get(c)) for c in cols] for v in value], 3, num_from=0)
+        return [DetailBlock(RF.table([_label(c) for c in cols], [[_scalar(v.get(c)) for c in cols] for v in value], 3,
+                                     num_from=0))]
     if isinstance(value, dict):
         flat = [[_label(k), _scalar(v)] for k, v in value.items() if not isinstance(v, (dict, list)) or
                 (isinstance(v, list) and all(not isinstance(x, (dict, list)) for x in v))]
-        out = RF.table(["quantity", "value"], flat, 4) if flat else ""
+        out = [DetailBlock(RF.table(["quantity", "value"], flat, 4))] if flat else []
         for k, v in value.items():
             if isinstance(v, dict) or (isinstance(v, list) and v and any(isinstance(x, (dict, list)) for x in v)):
-                out += f"<h{min(4 + depth, 6)}>{html.escape(_label(k))}</h{min(4 + depth, 6)}>" + details_html(v, depth + 1)
+                out += [DetailBlock(level=min(4 + depth, 6), text=_label(k)), *detail_blocks(v, depth + 1)]
         return out
-    return f"<p>{html.escape(str(_scalar(value)))}</p>"
+    return [DetailBlock(text=str(_scalar(value)))]
 
 
 def _scalar(v):
@@ -545,27 +555,19 @@ STAGE_IMAGES = (("../ortho/dom_report.png", "DOM displacement against the refere
                 ("../at/connectivity.png", "Tie-point connectivity"))
 
 
-def _mark(row: dict) -> str:
-    """A limit's mark in the verdict table: '*' when its source is not confirmed (title: the source)."""
-    if row.get("limit") is None or row.get("limit_confirmed") is not False:
-        return ""
-    return f"<span class='unconf' title='{html.escape(row.get('limit_source') or '')}'>*</span>"
-
-
-def table_html(rep: dict) -> str:
+def _tolerance_section(rep: dict) -> dict | None:
     """The tolerance table that judged the block: name, file, why it was chosen, the flight specification,
     and each limit with its source (unconfirmed ones marked)."""
     t = rep.get("table") or {}
     if not t:
-        return ""
+        return None
     prov = t.get("provenance") or {}
     rows = [[k, _scalar(v), "yes" if prov.get(k, {}).get("confirmed") else ("no" if k in prov else ""),
              prov.get(k, {}).get("source", "")]
             for k, v in (rep.get("tolerances") or {}).items() if k not in ("flight_spec", "flight_limits_apply")]
-    return (f"<h2>Tolerance table</h2><p><b>{html.escape(t.get('name', ''))}</b> ({html.escape(t.get('file', ''))}): "
-            f"chosen because {html.escape(t.get('reason', ''))}.</p><p>Flight acceptance: "
-            f"{html.escape(str(t.get('flight_spec') or ''))}.</p>"
-            + RF.table(["limit", "value", "confirmed in the source", "source"], rows, 4))
+    return dict(name=t.get("name", ""), file=t.get("file", ""), reason=t.get("reason", ""),
+                flight_spec=str(t.get("flight_spec") or ""),
+                limits=RF.table(["limit", "value", "confirmed in the source", "source"], rows, 4))
 
 
 VERDICT_COLOURS = {"pass": "#ccffcc", "fail": "#ffcccc", "not testable": "#eeeeee", "reported": "#ddeeff"}
@@ -588,31 +590,15 @@ def compliance_row(c: dict) -> list:
             need, acc, verdict, c["finest_class"] or ""]
 
 
-def compliance_html(comp: dict | None) -> str:
+def _compliance_section(comp: dict | None) -> dict | None:
     """The compliance section: standard, class and why; per product the verdict and the finest class met; every
     check with its figure, limit (source in the title, * unconfirmed), check points and verdict."""
     if not comp:
-        return ""
-    prod = "".join(f"<tr><td>{html.escape(p['product'])}</td><td class='{html.escape(p['verdict'].split()[0])}'>"
-                   f"{html.escape(p['verdict'])}</td><td>{html.escape(p['finest_class'])}</td></tr>"
-                   for p in comp["products"])
-    rows = []
-    for c in comp["checks"]:
-        cells = compliance_row(c)
-        title = html.escape(c["limit_source"] or "")
-        note = html.escape(c["checkpoints_note"] or "")
-        rows.append("<tr>" + "".join(f"<td>{html.escape(str(x))}</td>" for x in cells[:5])
-                    + f"<td class='num' title='{title}'>{html.escape(cells[5])}</td>"
-                    + f"<td title='{note}'>{html.escape(cells[6])}</td><td title='{note}'>{html.escape(cells[7])}</td>"
-                    + f"<td class='{html.escape(c['verdict'].split()[0])}'>{html.escape(cells[8])}</td>"
-                    + f"<td>{html.escape(cells[9])}</td></tr>")
-    unconf = ("<p>Limits marked * are not confirmed in the standard's own text (docs/standards.md): "
-              + html.escape("; ".join(comp["unconfirmed"])) + ".</p>") if comp["unconfirmed"] else ""
-    return (f"<h2>Compliance: {html.escape(comp['name'])}, class {html.escape(comp['class_tested'])}</h2>"
-            f"<p>Chosen because: {html.escape(comp['reason'])}.</p>"
-            f"<table><tr><th>product</th><th>verdict</th><th>finest class met</th></tr>{prod}</table>"
-            f"<table class='verdicts'><tr>{''.join(f'<th>{h}</th>' for h in COMPLIANCE_HEADER)}</tr>{''.join(rows)}</table>"
-            f"{unconf}")
+        return None
+    checks = [dict(cells=[str(x) for x in compliance_row(c)], limit_source=c["limit_source"] or "",
+                   note=c["checkpoints_note"] or "", verdict_class=c["verdict"].split()[0]) for c in comp["checks"]]
+    return dict(name=comp["name"], class_tested=comp["class_tested"], reason=comp["reason"], products=comp["products"],
+                header=COMPLIANCE_HEADER, checks=checks, unconfirmed="; ".join(comp["unconfirmed"]))
 
 
 def compliance_lines(comp: dict | None) -> list[str]:
@@ -637,45 +623,30 @@ def compliance_lines(comp: dict | None) -> list[str]:
 
 def format_html(rep: dict, figures: list | None = None, stage_images=STAGE_IMAGES, stage_links=STAGE_LINKS) -> str:
     """index.html: the verdict table, links to the stage reports, the stage plots present, the figures
-    (``report_figures``), the flight acceptance tables and the stages' numbers as tables."""
-    body, section = [], None
+    (``report_figures``), the flight acceptance tables and the stages' numbers as tables; the page is
+    ``aerotri/templates/qa_report.html.j2``."""
+    from aerotri.core.pages import render
+
+    verdicts, section = [], None
     for r in rep["checks"]:
-        if r["section"] != section:
-            section = r["section"]
-            body.append(f"<tr><th colspan='6' class='sec'>{html.escape(section)}</th></tr>")
-        body.append(f"<tr><td>{_cell(r['quantity'])}</td><td class='num'>{_cell(r['value'])}</td>"
-                    f"<td class='num'>{_cell(r['limit'])}{_mark(r)}</td>"
-                    f"<td>{_cell(r['unit'])}</td><td class='{r['verdict'] or ''}'>{_cell(r['verdict'])}</td>"
-                    f"<td>{_cell(r['note'])}</td></tr>")
-    details = "".join(f"<h3>{html.escape(k.replace('_', ' '))}</h3>{details_html(v)}"
-                      for k, v in rep["details"].items() if v)
+        unconfirmed = None  # a limit whose source is not confirmed: '*' with the source as its title
+        if r.get("limit") is not None and r.get("limit_confirmed") is False:
+            unconfirmed = r.get("limit_source") or ""
+        verdicts.append(dict(section=r["section"] if r["section"] != section else None, quantity=_cell(r["quantity"]),
+                             value=_cell(r["value"]), limit=_cell(r["limit"]), unconfirmed=unconfirmed,
+                             unit=_cell(r["unit"]), verdict=r["verdict"] or "", note=_cell(r["note"])))
+        section = r["section"]
     fa = rep.get("flight_acceptance")
-    flight = (f"<h2>Flight acceptance</h2><p>Limits: {html.escape(str(fa.get('spec') or ''))}.</p>"
-              f"{RF.flight_tables(fa)}" if fa else "")
-    figs = "".join(f.html() for f in (figures or []))
-    stage_imgs = "".join(f'<img src="{src}" alt="{html.escape(alt)}">' for src, alt in stage_images)
-    links = (", ".join(f'<a href="{src}">{html.escape(text)}</a>' for src, text in stage_links) + "."
-             if stage_links else "none of the stages has written a report page yet.")
-    return f"""<!doctype html><html><head><meta charset="utf-8"><title>Accuracy report {html.escape(rep['project'])}</title>
-<style>{RF.STYLE}
-th.sec{{background:#dde}}.unconf{{color:#a60;font-weight:bold}}table.verdicts td:first-child{{min-width:22em}}.stage img{{max-width:48%;margin:4px;border:1px solid #ddd}}</style></head><body>
-<h1>Accuracy report: {html.escape(rep['project'])}</h1>
-<p>Tolerances: <b>{html.escape((rep.get('table') or {}).get('name') or str(rep['map_scale']))}</b>
-({html.escape(rep['tolerance_table'])}), terrain class <b>{html.escape(rep['terrain'])}</b>; chosen because
-{html.escape((rep.get('table') or {}).get('reason') or 'given')}. Limits marked * are not confirmed in their source
-(see "Tolerance table" below).
-Overall verdict: <b class="{rep['overall'] or ''}">{html.escape(rep['overall'] or 'none (no quantity with a tolerance)')}</b>
-({rep['passed']} passed, {rep['failed']} failed).</p>
-<table class="verdicts"><tr><th>quantity</th><th>value</th><th>limit</th><th>unit</th><th>verdict</th><th>note</th></tr>{''.join(body)}</table>
-{compliance_html(rep.get("compliance"))}
-<h2>Stage reports</h2>
-<p>{links}</p>
-<p class="stage">{stage_imgs}</p>
-<h2>Figures</h2>{figs}
-{flight}
-{table_html(rep)}
-<h2>Details</h2>{details}</body></html>
-"""
+    return render("qa_report.html.j2", project=rep["project"],
+                  table_name=(rep.get("table") or {}).get("name") or str(rep["map_scale"]),
+                  tolerance_table=rep["tolerance_table"], terrain=rep["terrain"],
+                  reason=(rep.get("table") or {}).get("reason") or "given", overall=rep["overall"] or "",
+                  passed=rep["passed"], failed=rep["failed"], verdicts=verdicts,
+                  compliance=_compliance_section(rep.get("compliance")), stage_links=list(stage_links),
+                  stage_images=list(stage_images), figures=list(figures or []),
+                  flight_tables=RF.flight_tables(fa) if fa else None, flight_spec=str((fa or {}).get("spec") or ""),
+                  tolerance=_tolerance_section(rep),
+                  details=[(k.replace("_", " "), detail_blocks(v)) for k, v in rep["details"].items() if v])
 
 
 def _text(v) -> str:

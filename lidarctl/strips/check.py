@@ -479,45 +479,8 @@ def _overview_png(path, res: CheckResult, vmax: float, title: str) -> None:
     save_png(fig, path, dpi=100)
 
 
-_TEMPLATE = """<!doctype html>
-<html><head><meta charset="utf-8"><title>{{ title }}</title>
-<style>body{font-family:sans-serif;margin:2em} table{border-collapse:collapse} td,th{border:1px solid #aaa;
-padding:3px 8px;text-align:right} th{background:#eee} img{max-width:100%}</style></head><body>
-<h1>{{ title }}</h1>
-<p>{{ s.points }} points, {{ s.strips|length }} strips, cells of {{ s.cell_m }} m; CRS {{ s.crs }};
-{{ s.convention }}. All pairs: RMS {{ "%.3f"|format(s.all_pairs.rms_m) }} m, NMAD
-{{ "%.3f"|format(s.all_pairs.nmad_m) }} m over {{ s.all_pairs.n_cells }} cells.</p>
-<h2>Pairs</h2>
-<table><tr><th>a</th><th>b</th><th>cells</th><th>mean [m]</th><th>RMS [m]</th><th>NMAD [m]</th>
-<th>relative roll [mdeg]</th><th>torsion [1/km]</th><th>3D offset b - a (dx, dy, dz +- sigma) [m]</th></tr>
-{% for p in s.pairs %}<tr><td>{{ p.a }}</td><td>{{ p.b }}</td><td>{{ p.n_cells }}</td>
-<td>{{ "%+.3f"|format(p.mean_m) }}</td><td>{{ "%.3f"|format(p.rms_m) }}</td><td>{{ "%.3f"|format(p.nmad_m) }}</td>
-<td>{% if p.vs_scan_angle_a.fit %}{{ "%+.1f"|format(p.vs_scan_angle_a.fit.relative_roll_deg * 1000) }}{% endif %}</td>
-<td>{% if p.vs_scan_angle_a.fit %}{{ "%+.3f"|format(p.vs_scan_angle_a.fit.curvature_per_m * 1000) }}{% endif %}</td>
-<td>{% set o = p.offset_3d_b_minus_a %}{% if o %}{{ "%+.3f"|format(o.dx_m) }} +- {{ "%.3f"|format(o.sigma_dx_m) }},
-{{ "%+.3f"|format(o.dy_m) }} +- {{ "%.3f"|format(o.sigma_dy_m) }}, {{ "%+.3f"|format(o.dz_m) }} +- {{ "%.3f"|format(o.sigma_dz_m) }}
-({{ o.cells }} cells, {{ o.sloped_cells }} sloped){% endif %}</td></tr>
-{% endfor %}</table>
-{% if s.skipped_pairs %}<p>Left out: {% for k, v in s.skipped_pairs.items() %}{{ k }} ({{ v }}); {% endfor %}</p>{% endif %}
-<h2>Strips (this strip minus the others)</h2>
-<table><tr><th>strip</th><th>points</th><th>planar cells</th><th>pairs</th><th>mean [m]</th><th>RMS [m]</th>
-<th>NMAD [m]</th></tr>
-{% for t in s.strips %}<tr><td>{{ t.name }}</td><td>{{ t.points }}</td><td>{{ t.planar_cells }}</td><td>{{ t.pairs }}</td>
-<td>{% if t.minus_others.n_cells %}{{ "%+.3f"|format(t.minus_others.mean_m) }}{% endif %}</td>
-<td>{% if t.minus_others.n_cells %}{{ "%.3f"|format(t.minus_others.rms_m) }}{% endif %}</td>
-<td>{% if t.minus_others.n_cells %}{{ "%.3f"|format(t.minus_others.nmad_m) }}{% endif %}</td></tr>
-{% endfor %}</table>
-{% if s.overview_png %}<h2>Overview</h2><img src="{{ s.overview_png }}">{% endif %}
-<h2>Maps</h2>
-{% for p in s.pairs %}<h3>{{ p.b }} - {{ p.a }}</h3><p>raster: <a href="{{ p.raster }}">{{ p.raster }}</a></p>
-{% if p.png %}<img src="{{ p.png }}">{% endif %}{% endfor %}
-</body></html>
-"""
-
-
 def _html(path: Path, summary: StripCheckResult, title: str) -> None:
-    import jinja2
+    from aerotri.core.pages import render
 
-    env = jinja2.Environment(autoescape=True)
     # the page shows strips.json's numbers, under its names
-    path.write_text(env.from_string(_TEMPLATE).render(s=_check_record(summary), title=title))
+    path.write_text(render("strips_check.html.j2", package="lidarctl", s=_check_record(summary), title=title))
