@@ -58,7 +58,7 @@ def test_regrid_of_kept_points_gives_the_planes_of_a_reread(shifted_block, senso
     assert reach > 12.0  # metres: the overlaps grow by several cells (3.5 m)
     keep = adj.keep_region(ss, reach + adj.REACH_MARGIN_M, times=sensor_model)
     first = ov.read_strip_planes(paths, PARAMS, extra=extra, correct=model.correction(theta), grid=ss.grid, keep=keep,
-                           z_ref=ss.z_ref)
+                                 z_ref=ss.z_ref)
     # a later correction that moves the points by up to the margin more
     theta2 = theta * 1.05
     assert adj._reach_m(model, theta2) <= reach + adj.REACH_MARGIN_M
