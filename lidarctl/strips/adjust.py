@@ -256,7 +256,7 @@ class Model:
         return e
 
     def correction(self, theta: np.ndarray):
-        """``read_strips``' ``correct`` callback: the points of a strip moved by -e(p) = -J(p) theta."""
+        """``read_strip_planes``' ``correct`` callback: the points of a strip moved by -e(p) = -J(p) theta."""
         def correct(source, x, y, z, t):
             e = self.displacement(source.name, x, y, z, t, theta)
             return np.asarray(x, float) - e[:, 0], np.asarray(y, float) - e[:, 1], np.asarray(z, float) - e[:, 2]
@@ -316,7 +316,7 @@ def strip_model(ss: ov.StripSet, fixed: str | None, controlled: bool = False) ->
 
 
 def boresight_extra(trajs: list[tj.Trajectory]):
-    """The ``read_strips`` callback of the boresight model: per point the 15 entries of R [b]x, R b/|b| and
+    """The ``read_strip_planes`` callback of the boresight model: per point the 15 entries of R [b]x, R b/|b| and
     the scan-angle scale column (the effect Jacobians of the boresight angles, the range offset and the
     scan-angle scale). InputError when a strip's GPS times are not covered by a trajectory."""
     chosen = {}
@@ -635,8 +635,8 @@ def estimate(paths, ss: ov.StripSet, model: Model, settings: StripAdjustSettings
             if passes + 1 < settings.relinearise:  # another read may follow: keep the overlaps' points
                 kept_reach = reach + REACH_MARGIN_M
                 keep = keep_region(ss, kept_reach, times=model.kind == "boresight")
-            ss_i = ov.read_strips(paths, read_params, crs, extra=extra, correct=model.correction(theta),
-                                  grid=ss.grid, keep=keep, z_ref=ss.z_ref)
+            ss_i = ov.read_strip_planes(paths, read_params, crs, extra=extra, correct=model.correction(theta),
+                                        grid=ss.grid, keep=keep, z_ref=ss.z_ref)
             kept = ss_i if keep is not None else None
             if kept is not None:
                 log.info("strip adjustment: %d points of the overlaps kept for re-gridding (moves up to %.2f m)",
@@ -687,7 +687,7 @@ def adjust_strips(paths, outdir, settings: StripAdjustSettings = StripAdjustSett
     if trajectories:
         trajs = tj.read_trajectories(trajectories, units.xy_m, units.z_m)
         extra, chosen = boresight_extra(trajs)
-    ss = ov.read_strips(paths, read_params, crs, extra=extra)
+    ss = ov.read_strip_planes(paths, read_params, crs, extra=extra)
     before = chk.analyse(ss, surface, paths)
     t_read = time.perf_counter()
     model = boresight_model(ss, chosen, settings.shift_sigma_m) if trajectories else \
@@ -698,7 +698,7 @@ def adjust_strips(paths, outdir, settings: StripAdjustSettings = StripAdjustSett
     with atomic_dir(outdir) as tmp:
         corrected = write_corrected(ss, model, sol.theta, tmp)
         t_write = time.perf_counter()
-        ss_after = ov.read_strips(corrected, surface, crs)
+        ss_after = ov.read_strip_planes(corrected, surface, crs)
         after = chk.analyse(ss_after, surface, corrected)
         # the corrected strips as they are found after the commit: in OUTDIR, not in the temporary folder
         after.summary = dataclasses.replace(after.summary, strips=tuple(

@@ -29,7 +29,7 @@ from aerotri.core.atomic import atomic_dir, refuse_input_as_output
 from aerotri.core.records import to_record
 from aerotri.core.textio import read_record, record_error
 from aerotri.core.figures import pyplot, save_png
-from lidarctl.strips.overlap import PairDiff, StripSet, SurfaceSettings, overlapping_pairs_or_error, read_strips
+from lidarctl.strips.overlap import PairDiff, StripSet, SurfaceSettings, overlapping_pairs_or_error, read_strip_planes
 from lidarctl.units import LengthUnits
 
 log = logging.getLogger(__name__)
@@ -362,7 +362,7 @@ def check_strips(paths, outdir, params: SurfaceSettings = SurfaceSettings(), *, 
     from aerotri.geom.inputs import check_distinct_files
 
     check_distinct_files(paths, "LAS/LAZ file")  # a strip given twice would count every point twice
-    ss = read_strips(paths, params, crs)
+    ss = read_strip_planes(paths, params, crs)
     res = analyse(ss, params, paths)
     with atomic_dir(outdir) as tmp:
         write_outputs(res, tmp, title, vmax_m, png)

@@ -294,9 +294,10 @@ class KeptPoints:
         return units.xy_to_m(c[:, 0]), units.xy_to_m(c[:, 1]), units.z_to_m(c[:, 2])
 
 
-def read_strips(paths, params: SurfaceSettings = SurfaceSettings(), crs=None, *, extra=None, correct=None,
-                grid: Grid | None = None, keep: KeepRegion | None = None, z_ref: float | None = None) -> StripSet:
-    """Planar cells of every strip of ``paths`` (see the module docstring).
+def read_strip_planes(paths, params: SurfaceSettings = SurfaceSettings(), crs=None, *, extra=None, correct=None,
+                      grid: Grid | None = None, keep: KeepRegion | None = None, z_ref: float | None = None) -> StripSet:
+    """Planar cells of every strip of ``paths`` (see the module docstring); the points themselves, classified,
+    are ``lidarctl.corners.roof_corners.read_strips``.
 
     ``extra(source, chunk, x_m, y_m, z_m) -> (n, k)`` adds caller-defined per-point quantities whose
     per-cell means end up in ``CellPlanes.extra`` (the adjustment's sensor-model derivatives).
@@ -481,7 +482,7 @@ def _accumulate(accs, s, chunk, *, x, y, z, sel, multi, ang, t, grid, z_ref, ext
 def regrid(ss: StripSet, params: SurfaceSettings, extra=None, correct=None,
            chunk_points: int = io.CHUNK_POINTS) -> StripSet:
     """The planar cells of the points ``ss.kept`` (a read with ``keep``), moved by ``correct``, on the grid and
-    height reference of ``ss``: what ``read_strips`` with that correction gives at every cell whose points and
+    height reference of ``ss``: what ``read_strip_planes`` with that correction gives at every cell whose points and
     4-neighbours' points all lie in the kept region (the caller sizes the region for that). Scan angles are
     not kept (the cells' ``scan_angle_deg`` are 0), nor GPS times unless the region asked for them."""
     units, grid = ss.units, ss.grid

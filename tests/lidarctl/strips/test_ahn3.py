@@ -5,14 +5,14 @@ from __future__ import annotations
 import pytest
 
 from lidarctl.strips.check import analyse
-from lidarctl.strips.overlap import SurfaceSettings, read_strips
+from lidarctl.strips.overlap import SurfaceSettings, read_strip_planes
 
 
 @pytest.mark.realdata
 def test_ahn3_strip_differences_close_around_the_triangle(shared_data):
     path = shared_data / "ahn3_delft" / "ahn3_cropped_1.laz"
     params = SurfaceSettings()
-    res = analyse(read_strips([path], params, crs="EPSG:28992"), params, [path])
+    res = analyse(read_strip_planes([path], params, crs="EPSG:28992"), params, [path])
     s = res.summary
     assert s.cell_m == 1.0  # ~15 points per m^2
     pairs = {(p.a, p.b): p.diff for p in s.pairs}

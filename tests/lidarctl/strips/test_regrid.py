@@ -43,7 +43,7 @@ def test_regrid_of_kept_points_gives_the_planes_of_a_reread(shifted_block, senso
     extra, chosen = None, {}
     if sensor_model:
         extra, chosen = adj.boresight_extra(tj.read_trajectories(shifted_block.trajectories))
-    ss = ov.read_strips(paths, PARAMS, extra=extra)
+    ss = ov.read_strip_planes(paths, PARAMS, extra=extra)
     if sensor_model:
         model = adj.boresight_model(ss, chosen, 0.05)
         theta = np.zeros(len(model.names))
@@ -57,20 +57,21 @@ def test_regrid_of_kept_points_gives_the_planes_of_a_reread(shifted_block, senso
     reach = adj._reach_m(model, theta)
     assert reach > 12.0  # metres: the overlaps grow by several cells (3.5 m)
     keep = adj.keep_region(ss, reach + adj.REACH_MARGIN_M, times=sensor_model)
-    first = ov.read_strips(paths, PARAMS, extra=extra, correct=model.correction(theta), grid=ss.grid, keep=keep,
-                           z_ref=ss.z_ref)
+    first = ov.read_strip_planes(paths, PARAMS, extra=extra, correct=model.correction(theta), grid=ss.grid, keep=keep,
+                                 z_ref=ss.z_ref)
     # a later correction that moves the points by up to the margin more
     theta2 = theta * 1.05
     assert adj._reach_m(model, theta2) <= reach + adj.REACH_MARGIN_M
-    want = ov.read_strips(paths, PARAMS, extra=extra, correct=model.correction(theta2), grid=ss.grid, z_ref=ss.z_ref)
+    want = ov.read_strip_planes(paths, PARAMS, extra=extra, correct=model.correction(theta2), grid=ss.grid,
+                                z_ref=ss.z_ref)
     got = ov.regrid(first, PARAMS, extra=extra, correct=model.correction(theta2), chunk_points=7000)
     _assert_same_shared_planes(got, want)
 
 
 def test_keep_region_leaves_out_what_no_overlap_can_reach(shifted_block):
-    ss = ov.read_strips(shifted_block.paths, PARAMS)
+    ss = ov.read_strip_planes(shifted_block.paths, PARAMS)
     keep = adj.keep_region(ss, 0.5)
-    first = ov.read_strips(shifted_block.paths, PARAMS, grid=ss.grid, keep=keep, z_ref=ss.z_ref)
+    first = ov.read_strip_planes(shifted_block.paths, PARAMS, grid=ss.grid, keep=keep, z_ref=ss.z_ref)
     kept = {name: len(k.single) for name, k in first.kept.items()}
     # strips 1 and 3 (45 m either side of 2, swaths of 88 m) keep their half next to strip 2 and the margin
     # (5 cells of 3.5 m, rounded up to whole blocks of 5 cells: 17.5 to 35 m)
@@ -80,9 +81,9 @@ def test_keep_region_leaves_out_what_no_overlap_can_reach(shifted_block):
 
 
 def test_dense_and_sparse_cell_sums_agree(shifted_block, monkeypatch):
-    dense = ov.read_strips(shifted_block.paths, PARAMS)
+    dense = ov.read_strip_planes(shifted_block.paths, PARAMS)
     monkeypatch.setattr(ov, "DENSE_CELLS_PER_POINT", -1e9)  # every chunk through np.unique and bincount
-    sparse = ov.read_strips(shifted_block.paths, PARAMS)
+    sparse = ov.read_strip_planes(shifted_block.paths, PARAMS)
     for a, b in zip(dense.strips, sparse.strips):
         assert np.array_equal(a.ids, b.ids) and np.array_equal(a.occupied, b.occupied)
         for f in ("n", "centroid", "grad", "rms_m", "scan_angle_deg", "u_m"):
