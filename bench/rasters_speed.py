@@ -237,7 +237,8 @@ def main():
     out = {
         "what": "write_rasters (lidarctl rasters) of the demo's classified strips at 0.5 m: this checkout against "
                 "the baseline revision, each run in its own process; best of the runs",
-        "baseline_rev": args.baseline_rev, "ours_rev": head, "points": int(n), "strips": len(paths),
+        "project": str(args.project), "baseline_rev": args.baseline_rev, "ours_rev": head, "points": int(n),
+        "strips": len(paths),
         "res_m": RES_M, "machine_cores": os.cpu_count(),
         "points_per_s_baseline_ours": [b["points_per_s"], o["points_per_s"]],
         "speed_ratio_wall": b["seconds"] / o["seconds"],
@@ -265,18 +266,20 @@ def main():
             "seconds_baseline_ours": [cold["baseline"]["seconds"], cold["ours"]["seconds"]],
             "runs": cold}
     if sampled:
+        share = {k: r["runnable_threads_share_0_1_2plus"] for k, r in sampled.items()}
+        busy = {k: (v[1] + 2 * v[2]) / max(1e-9, v[1] + v[2]) for k, v in share.items()}
         out["runnable_threads"] = {
             "what": "one more run of each tree, its threads sampled every 10 ms (/proc/self/task/*/stat state R: "
                     "running or waiting for a core): the share of the stage's wall, and of each pass's, with 0, 1 "
                     "and 2 or more threads runnable. With 1, one of the 2 cores has nothing of the stage to do; "
-                    "on a loaded machine a thread waiting for a core counts as runnable. idle_machine_seconds_estimate "
-                    "= CPU s / mean of min(runnable, 2) over the samples with one or more: the stage's wall if each "
-                    "runnable thread had a core (the sampler's own CPU included)",
+                    "on a loaded machine a thread waiting for a core counts as runnable. mean_cores_busy: the mean of "
+                    "min(runnable, 2) over the samples with one or more; idle_machine_seconds_estimate = the tree's "
+                    "best CPU s of the timed runs / mean_cores_busy: the stage's wall if every runnable thread had a "
+                    "core (an estimate, not a measurement)",
             "runs": sampled,
-            "idle_machine_seconds_estimate_baseline_ours": [
-                r["cpu_seconds"] / max(1e-9, sum(k * f for k, f in enumerate(r["runnable_threads_share_0_1_2plus"]))
-                                       / max(1e-9, 1 - r["runnable_threads_share_0_1_2plus"][0]))
-                for r in (sampled["baseline"], sampled["ours"])]}
+            "mean_cores_busy_baseline_ours": [busy[k] for k in ("baseline", "ours")],
+            "idle_machine_seconds_estimate_baseline_ours": [best_cpu[k] / busy[k] for k in ("baseline", "ours")],
+            "idle_machine_points_per_s_estimate_baseline_ours": [n * busy[k] / best_cpu[k] for k in ("baseline", "ours")]}
     print(json.dumps({k: v for k, v in out.items() if k not in ("runs", "empty_numba_cache")}, indent=1))
     path = REPO / "bench" / "results" / "rasters_speed.json"
     if args.key:
