@@ -467,10 +467,10 @@ _BLOCK_PX = 512
 
 # Points a chunk of the binning pass: the strips are decompressed a chunk ahead of the binning (``_read_ahead``),
 # so the first chunk's decompression and the last one's binning run alone, and the chunk's arrays are fresh
-# pages each time. Chunks of 2 M points (a demo strip, 1.1-1.3 M points, was one chunk): 2.0-2.4 CPU-s
-# (0.5-0.7 s system), two threads runnable 30-40 % of the time; of 250 k: 1.6-1.7 CPU-s (0.1-0.2 s system),
-# 80-99 % (the demo, both numpy page advices). The tiles' files are the same bytes whatever the chunks (a
-# tile's records in file order).
+# pages each time. The pass alone on the demo (load 10-12): chunks of 2 M points (a demo strip, 1.1-1.3 M
+# points, was one chunk) 1.8-2.5 CPU-s (0.3-0.7 s system), two threads runnable 29-77 % of the time; of 250 k
+# 1.6-2.0 CPU-s (0.1-0.3 s system), 74-99 %. The tiles' files are the same bytes whatever the chunks (a tile's
+# records in file order).
 _BIN_READ_POINTS = 250_000
 
 
@@ -853,12 +853,13 @@ def write_rasters_tiled(paths, outdir, res_m: float, crs=None, *, tile_px: int =
 @contextlib.contextmanager
 def _no_hugepage_advice():
     """numpy's transparent-huge-page advice (``madvise(MADV_HUGEPAGE)`` on every array of 4 MiB or more) off
-    while the tiled rasters are made, as before. Why: with the kernel's THP mode ``madvise`` (this machine's
+    while the tiled rasters are made. Why: with the kernel's THP mode ``madvise`` (this machine's
     ``/sys/kernel/mm/transparent_hugepage/enabled``) each first touch of such an array zeroes a whole 2 MiB
     page, and the stage allocates and frees window-sized arrays tile after tile; on the demo's strips the
-    advice cost 0.8 s of system time for 0.3 s of user time saved (``NUMPY_MADVISE_HUGEPAGE=0``: system
-    2.7-2.9 -> 2.0-2.3 s of 10 CPU-s; docs/performance.md). The setting is numpy's, process-wide: set from the
-    calling thread around the stage (the tile threads run inside it) and restored after."""
+    advice cost 0.7-0.9 s of system time and saved 0.1-0.4 s of user time (``NUMPY_MADVISE_HUGEPAGE=0`` on
+    main's code: system 3.0-3.2 -> 2.3 s, 10.1-10.5 -> 9.5-9.9 CPU-s; docs/performance.md). The setting is
+    numpy's, process-wide: set from the calling thread around the stage (the tile threads run inside it) and
+    restored after."""
     try:
         from numpy._core.multiarray import _set_madvise_hugepage
     except ImportError:       # another numpy: its default
