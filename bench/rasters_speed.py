@@ -17,8 +17,12 @@ hillshade PNG's pixels that differ; whether the files are the same bytes (sha256
 ``--cold``: before the timed runs, one run of each tree with an empty numba cache (``NUMBA_CACHE_DIR``),
 as the first run after a fresh clone: its CPU seconds include numba's compilation.
 Writes bench/results/rasters_speed.json; with ``--key NAME`` only that key of it (the others kept).
+Records user and system CPU seconds and minor page faults of every run; ``--env-ours``/``--env-baseline``
+set environment variables of one side's runs (e.g. NUMPY_MADVISE_HUGEPAGE=0, numpy's huge-page advice off);
+``--sample-threads`` adds one run of each tree whose runnable threads are sampled (where the stage leaves a
+core idle).
 Run: .venv/bin/python bench/rasters_speed.py [--project /work/ref/demo_chain/project] [--baseline-rev a17e529]
-     [--repeat 2] [--work /tmp/rasters_speed] [--cold] [--key NAME]
+     [--repeat 2] [--work /tmp/rasters_speed] [--cold] [--key NAME] [--env-ours NAME=VALUE] [--sample-threads]
 """
 
 from __future__ import annotations
@@ -39,23 +43,60 @@ from lidar_common import baseline_tree  # noqa: E402
 RES_M = 0.5      # the demo's [rasters] res_m
 
 CHILD = r"""
-import json, resource, sys, time
+import functools, json, os, resource, sys, threading, time
 from pathlib import Path
 t0, c0 = time.perf_counter(), time.process_time()
 from lidarctl.rasters import products as rasters
 out, paths = Path(sys.argv[1]), [Path(p) for p in sys.argv[2:]]
-t1, c1 = time.perf_counter(), time.process_time()
+samples, marks = [], []
+if os.environ.get("RASTERS_SPEED_SAMPLE"):
+    # every 10 ms: how many of this process's threads are runnable (state R: running or waiting for a core)
+    def sample():
+        me = str(threading.get_native_id())
+        while True:
+            n = 0
+            for t in os.listdir("/proc/self/task"):
+                try:
+                    n += t != me and open(f"/proc/self/task/{t}/stat").read().rsplit(")", 1)[1].split()[0] == "R"
+                except OSError:
+                    pass
+            samples.append((time.perf_counter(), n))
+            time.sleep(0.01)
+    threading.Thread(target=sample, daemon=True).start()
+    for name in %r:                 # the passes (the same names in the baseline's code)
+        def timed(f, name=name):
+            @functools.wraps(f)
+            def g(*a, **k):
+                r, t = resource.getrusage(resource.RUSAGE_SELF), time.perf_counter()
+                try:
+                    return f(*a, **k)
+                finally:
+                    r2 = resource.getrusage(resource.RUSAGE_SELF)
+                    marks.append((name, t, time.perf_counter(), r2.ru_utime + r2.ru_stime - r.ru_utime - r.ru_stime))
+            return g
+        if hasattr(rasters, name):
+            setattr(rasters, name, timed(getattr(rasters, name)))
+t1, c1, r1 = time.perf_counter(), time.process_time(), resource.getrusage(resource.RUSAGE_SELF)
 rasters.write_rasters(paths, out, %r)
-res = dict(seconds=time.perf_counter() - t1, cpu_seconds=time.process_time() - c1,
-           import_seconds=t1 - t0, import_cpu_seconds=c1 - c0,
-           peak_rss_mb=resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0, code=rasters.__file__)
+t2, c2, r2 = time.perf_counter(), time.process_time(), resource.getrusage(resource.RUSAGE_SELF)
+res = dict(seconds=t2 - t1, cpu_seconds=c2 - c1, user_seconds=r2.ru_utime - r1.ru_utime,
+           system_seconds=r2.ru_stime - r1.ru_stime, minor_page_faults=r2.ru_minflt - r1.ru_minflt,
+           import_seconds=t1 - t0, import_cpu_seconds=c1 - c0, peak_rss_mb=r2.ru_maxrss / 1024.0,
+           code=rasters.__file__)
+def runnable(a, b):
+    ns = [min(n, 2) for t, n in samples if a <= t < b]
+    return [sum(n == k for n in ns) / max(len(ns), 1) for k in (0, 1, 2)]
+if samples:
+    res["runnable_threads_share_0_1_2plus"] = runnable(t1, t2)
+    res["passes"] = [dict(name=n, seconds=b - a, cpu_seconds=c, runnable_threads_share_0_1_2plus=runnable(a, b))
+                     for n, a, b, c in marks]
 print("RESULT " + json.dumps(res))
-""" % RES_M
+""" % (("_bin_points", "_tiles_to_gtiffs", "_run_threads"), RES_M)
 
 
-def run(src: Path, out: Path, paths, numba_cache: Path | None = None) -> dict:
+def run(src: Path, out: Path, paths, numba_cache: Path | None = None, extra_env: dict | None = None) -> dict:
     shutil.rmtree(out, ignore_errors=True)
-    env = dict(os.environ, PYTHONPATH=str(src))
+    env = dict(os.environ, PYTHONPATH=str(src), **(extra_env or {}))
     if numba_cache is not None:       # empty: the run compiles every numba function it calls
         shutil.rmtree(numba_cache, ignore_errors=True)
         env["NUMBA_CACHE_DIR"] = str(numba_cache)
@@ -137,7 +178,16 @@ def main():
     ap.add_argument("--work", type=Path, default=Path("/tmp/rasters_speed"))
     ap.add_argument("--cold", action="store_true", help="also one run of each tree with an empty numba cache")
     ap.add_argument("--key", help="write the results under this key of rasters_speed.json, keeping the others")
+    ap.add_argument("--env-baseline", action="append", default=[], metavar="NAME=VALUE",
+                    help="an environment variable of the baseline's runs (repeatable), e.g. NUMPY_MADVISE_HUGEPAGE=0")
+    ap.add_argument("--env-ours", action="append", default=[], metavar="NAME=VALUE",
+                    help="an environment variable of this checkout's runs (repeatable)")
+    ap.add_argument("--sample-threads", action="store_true",
+                    help="after the timed runs, one more run of each tree sampling its runnable threads every 10 ms "
+                         "(the passes' share of time with 0, 1, 2+ threads runnable; its CPU includes the sampler's)")
     args = ap.parse_args()
+    envs = {"baseline": dict(e.split("=", 1) for e in args.env_baseline),
+            "ours": dict(e.split("=", 1) for e in args.env_ours)}
     import laspy
 
     paths = sorted((args.project / "lidar_out" / "classified").glob("*.laz"))
@@ -150,7 +200,8 @@ def main():
     cold = {}
     if args.cold:
         for name, src in trees.items():
-            r = run(src, args.work / f"out_{name}", paths, numba_cache=args.work / f"numba_cache_{name}")
+            r = run(src, args.work / f"out_{name}", paths, numba_cache=args.work / f"numba_cache_{name}",
+                    extra_env=envs[name])
             r["points_per_s"] = n / r["seconds"]
             r["points_per_cpu_s"] = n / r["cpu_seconds"]
             cold[name] = r
@@ -158,16 +209,26 @@ def main():
                   f"load {r['load_average_1min_before_after']}", flush=True)
     warm = small_strip(paths[0], args.work / "warm_up.laz")
     for name, src in trees.items():
-        run(src, args.work / f"warm_{name}", [warm])
+        run(src, args.work / f"warm_{name}", [warm], extra_env=envs[name])
     runs = {name: [] for name in trees}
     for _ in range(args.repeat):
         for name, src in trees.items():
-            r = run(src, args.work / f"out_{name}", paths)
+            r = run(src, args.work / f"out_{name}", paths, extra_env=envs[name])
             r["points_per_s"] = n / r["seconds"]
             r["points_per_cpu_s"] = n / r["cpu_seconds"]
             runs[name].append(r)
-            print(f"{name}: {r['seconds']:.1f} s ({r['points_per_s']:,.0f} points/s), CPU {r['cpu_seconds']:.1f} s, "
+            print(f"{name}: {r['seconds']:.1f} s ({r['points_per_s']:,.0f} points/s), CPU {r['cpu_seconds']:.1f} s "
+                  f"(user {r['user_seconds']:.2f}, sys {r['system_seconds']:.2f}, {r['minor_page_faults']:,} faults), "
                   f"peak RSS {r['peak_rss_mb']:.0f} MB, load {r['load_average_1min_before_after']}", flush=True)
+    sampled = {}
+    if args.sample_threads:
+        for name, src in trees.items():
+            r = run(src, args.work / f"sampled_{name}", paths, extra_env=dict(envs[name], RASTERS_SPEED_SAMPLE="1"))
+            sampled[name] = r
+            print(f"{name}, sampled: {r['seconds']:.1f} s, CPU {r['cpu_seconds']:.1f} s, runnable 0/1/2+ "
+                  f"{[round(x, 2) for x in r['runnable_threads_share_0_1_2plus']]}, passes "
+                  f"{[(p['name'], round(p['cpu_seconds'], 2), [round(x, 2) for x in p['runnable_threads_share_0_1_2plus']]) for p in r['passes']]}",
+                  flush=True)
     best = {k: min(v, key=lambda r: r["seconds"]) for k, v in runs.items()}
     best_cpu = {k: min(r["cpu_seconds"] for r in v) for k, v in runs.items()}
     b, o = best["baseline"], best["ours"]
@@ -176,7 +237,8 @@ def main():
     out = {
         "what": "write_rasters (lidarctl rasters) of the demo's classified strips at 0.5 m: this checkout against "
                 "the baseline revision, each run in its own process; best of the runs",
-        "baseline_rev": args.baseline_rev, "ours_rev": head, "points": int(n), "strips": len(paths),
+        "project": str(args.project), "baseline_rev": args.baseline_rev, "ours_rev": head, "points": int(n),
+        "strips": len(paths),
         "res_m": RES_M, "machine_cores": os.cpu_count(),
         "points_per_s_baseline_ours": [b["points_per_s"], o["points_per_s"]],
         "speed_ratio_wall": b["seconds"] / o["seconds"],
@@ -184,6 +246,12 @@ def main():
         "speed_ratio_cpu": best_cpu["baseline"] / best_cpu["ours"],
         "points_per_cpu_s_baseline_ours": [n / best_cpu["baseline"], n / best_cpu["ours"]],
         "peak_rss_mb_baseline_ours": [b["peak_rss_mb"], o["peak_rss_mb"]],
+        "user_system_seconds_of_best_cpu_run_baseline_ours": [
+            [min(v, key=lambda r: r["cpu_seconds"])[k] for k in ("user_seconds", "system_seconds")]
+            for v in (runs["baseline"], runs["ours"])],
+        "environment_baseline_ours": [envs["baseline"], envs["ours"]],
+        "load_average_1min_range": [min(x for v in runs.values() for r in v for x in r["load_average_1min_before_after"]),
+                                    max(x for v in runs.values() for r in v for x in r["load_average_1min_before_after"])],
         "comparison_baseline_vs_ours": compare(args.work / "out_baseline", args.work / "out_ours"),
         "note": "the 2-core machine is shared with other jobs (load average per run): wall times vary with it; CPU "
                 "seconds and the same-session ratios are the figures to compare. The differing DEM cells: the "
@@ -197,6 +265,21 @@ def main():
             "cpu_seconds_baseline_ours": [cold["baseline"]["cpu_seconds"], cold["ours"]["cpu_seconds"]],
             "seconds_baseline_ours": [cold["baseline"]["seconds"], cold["ours"]["seconds"]],
             "runs": cold}
+    if sampled:
+        share = {k: r["runnable_threads_share_0_1_2plus"] for k, r in sampled.items()}
+        busy = {k: (v[1] + 2 * v[2]) / max(1e-9, v[1] + v[2]) for k, v in share.items()}
+        out["runnable_threads"] = {
+            "what": "one more run of each tree, its threads sampled every 10 ms (/proc/self/task/*/stat state R: "
+                    "running or waiting for a core): the share of the stage's wall, and of each pass's, with 0, 1 "
+                    "and 2 or more threads runnable. With 1, one of the 2 cores has nothing of the stage to do; "
+                    "on a loaded machine a thread waiting for a core counts as runnable. mean_cores_busy: the mean of "
+                    "min(runnable, 2) over the samples with one or more; idle_machine_seconds_estimate = the tree's "
+                    "best CPU s of the timed runs / mean_cores_busy: the stage's wall if every runnable thread had a "
+                    "core (an estimate, not a measurement)",
+            "runs": sampled,
+            "mean_cores_busy_baseline_ours": [busy[k] for k in ("baseline", "ours")],
+            "idle_machine_seconds_estimate_baseline_ours": [best_cpu[k] / busy[k] for k in ("baseline", "ours")],
+            "idle_machine_points_per_s_estimate_baseline_ours": [n * busy[k] / best_cpu[k] for k in ("baseline", "ours")]}
     print(json.dumps({k: v for k, v in out.items() if k not in ("runs", "empty_numba_cache")}, indent=1))
     path = REPO / "bench" / "results" / "rasters_speed.json"
     if args.key:

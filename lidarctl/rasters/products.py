@@ -19,6 +19,7 @@ The footprint is the set of cells within ``footprint_cells`` cells of a point.
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import functools
 from typing import ClassVar, NamedTuple
@@ -342,8 +343,9 @@ def _hillshade_terms(dem, res_m, azimuth_deg, altitude_deg, fill_value):
 
 def hillshade_grey_of_dem(dem: np.ndarray, res_m: float, fill_value, azimuth_deg: float = 315.0,
                           altitude_deg: float = 45.0) -> np.ndarray:
-    """``hillshade_grey(hillshade(dem, ...))`` (uint8), the same levels, with the float64 sum, clip,
-    NaN test and grey level in one numba pass instead of eight whole-array temporaries."""
+    """The grey levels (uint8, ``_GREY_LUT``) of ``hillshade(dem, ...)`` as matplotlib's grey colour map gives
+    them (NaN black), with the float64 sum, clip, NaN test and grey level in one numba pass instead of eight
+    whole-array temporaries. ``fill_value``: as ``hillshade``'s (None: the DEM's mean)."""
     cos_slope, sin_slope, cos_rel, alt = _hillshade_terms(dem, res_m, azimuth_deg, altitude_deg, fill_value)
     return _shade_grey(dem, (cos_slope, sin_slope, cos_rel), (float(np.sin(alt)), float(np.cos(alt))), _GREY_LUT)
 
@@ -360,38 +362,24 @@ def _shade_grey(dem, slope_terms, sun, lut):
             g = 0
             if np.isfinite(dem[i, j]):
                 shade = sin_alt * np.float64(cos_slope[i, j]) + cos_alt * np.float64(sin_slope[i, j]) * cos_rel[i, j]
-                if shade == shade:           # NaN: black, as hillshade_grey
+                if shade == shade:           # NaN: black, as matplotlib's grey of 0
                     shade = min(max(shade, 0.0), 1.0)
                     g = min(int(shade * 256.0), 255)
             out[i, j] = lut[g]
     return out
 
 
-def hillshade_rgba(hs: np.ndarray) -> np.ndarray:
-    """(rows, cols, 4) uint8 grey RGBA of a hillshade 0..1, NaN black, as ``matplotlib.pyplot.imsave``
-    with the grey colour map writes it."""
-    from matplotlib import cm, colors
-
-    mappable = cm.ScalarMappable(norm=colors.Normalize(0.0, 1.0), cmap="gray")
-    return mappable.to_rgba(np.where(np.isfinite(hs), hs, 0.0), bytes=True)
-
-
-# matplotlib's grey colour map as bytes (its table of 256 entries, linspace(0, 1) x 255 truncated)
+# matplotlib's grey colour map as bytes (its table of 256 entries, linspace(0, 1) x 255 truncated), indexed as
+# matplotlib indexes a colour map: int(value x 256), 1.0 -> 255 (without importing matplotlib)
 _GREY_LUT = (np.linspace(0.0, 1.0, 256) * 255).astype(np.uint8)
-
-
-def hillshade_grey(hs: np.ndarray) -> np.ndarray:
-    """The grey level (uint8) of ``hillshade_rgba`` (whose R, G and B are equal and alpha 255), indexed
-    as matplotlib indexes a colour map: int(value x 256), 1.0 -> 255 (without importing matplotlib)."""
-    x = np.where(np.isfinite(hs), hs, 0.0) * 256.0
-    return _GREY_LUT[np.minimum(x.astype(np.int64), 255)]
 
 
 def _write_png_grey_as_rgba(path, read_rows, nrows: int, ncols: int, rows_per_read: int = 256) -> None:
     """An RGBA PNG (8 bit, no filter, zlib level 1) of a grey image, streamed: ``read_rows(r0, r1)``
-    gives rows r0..r1 (north to south) as uint8, written as (g, g, g, 255). A tenth of the CPU of GDAL's
-    PNG copy, which tries five filters on every line (3.4 of 17 CPU-s of the demo's rasters), for
-    a file 2 % larger."""
+    gives rows r0..r1 (north to south) as uint8, written as (g, g, g, 255): the pixels
+    ``matplotlib.pyplot.imsave`` writes for a hillshade with the grey colour map. The hillshade of both the
+    tiled and the in-memory rasters. A tenth of the CPU of GDAL's PNG copy, which tries five filters on every
+    line (3.4 of 17 CPU-s of the demo's rasters), for a file 2 % larger."""
     import struct
     import zlib
 
@@ -477,6 +465,15 @@ _BIN_DTYPE = np.dtype([("x", "f8"), ("y", "f8"), ("z", "f8"), ("cls", "u1"), ("r
 _BLOCK_PX = 512
 
 
+# Points a chunk of the binning pass: the strips are decompressed a chunk ahead of the binning (``_read_ahead``),
+# so the first chunk's decompression and the last one's binning run alone, and the chunk's arrays are fresh
+# pages each time. The pass alone on the demo (load 10-12): chunks of 2 M points (a demo strip, 1.1-1.3 M
+# points, was one chunk) 1.8-2.5 CPU-s (0.3-0.7 s system), two threads runnable 29-77 % of the time; of 250 k
+# 1.6-2.0 CPU-s (0.1-0.3 s system), 74-99 %. The tiles' files are the same bytes whatever the chunks (a tile's
+# records in file order).
+_BIN_READ_POINTS = 250_000
+
+
 def _bin_points(inputs: _Inputs, args, grid, work: Path, chunk_points: int) -> np.ndarray:
     """Pass 1: stream every file once and append each tile's points (core + buffer) to its
     ``tile_<id>.bin`` (``_BIN_DTYPE``, metres, file order). Tiles are in raster cells: the tile grid's
@@ -489,7 +486,8 @@ def _bin_points(inputs: _Inputs, args, grid, work: Path, chunk_points: int) -> n
     lay = _TileLayout(res_m, x0, y0, tile_px, buffer_px, grid.nrows, grid.ncols)
     used = np.zeros(grid.n_tiles, bool)
     n_ground = 0
-    chunks = (c for path in inputs.paths for c in _file_points(path, inputs.units, chunk_points))
+    read_points = min(chunk_points, _BIN_READ_POINTS)
+    chunks = (c for path in inputs.paths for c in _file_points(path, inputs.units, read_points))
     with progress(inputs.n_points, "rasters: bin points into tiles", "pt", unit_scale=True) as bar:
         for x, y, z, cls, rn, inten in _read_ahead(chunks):
             count = np.zeros(grid.n_tiles + 1, np.int64)
@@ -698,8 +696,9 @@ def write_rasters(cloud, outdir, res_m: float, crs=None, *, tile_px: int = DEFAU
         raise ValueError("a CRS is needed for the rasters")
     _check_fill_radius(dem_fill_radius_px)
     grids = make_grids(cloud, res_m, dem_fill_radius_px=dem_fill_radius_px)
-    # The hillshade needs heights and cell size in one unit: from the metric grids.
-    hs = hillshade(grids.dem, res_m)
+    # The hillshade needs heights and cell size in one unit: from the metric grids (NaN cells count as the
+    # DEM's mean in their neighbours' slopes).
+    grey = hillshade_grey_of_dem(grids.dem, res_m, None)
     grids = grids.in_crs_units(units)
     tags = _tags(units, res_m)
 
@@ -707,10 +706,7 @@ def write_rasters(cloud, outdir, res_m: float, crs=None, *, tile_px: int = DEFAU
         for name in RASTERS:
             write_cog(tmp / f"{name}.tif", getattr(grids, name), grids.transform, crs, unit=_unit(name, units),
                       description=_description(name, units), tags=tags)
-        import matplotlib
-        matplotlib.use("Agg")
-        import matplotlib.pyplot as plt
-        plt.imsave(tmp / "hillshade.png", np.where(np.isfinite(hs), hs, 0.0), cmap="gray", vmin=0, vmax=1)
+        _write_png_grey_as_rgba(tmp / "hillshade.png", lambda r0, r1: grey[r0:r1], *grey.shape)
 
     return _write_set(outdir, write)
 
@@ -825,26 +821,55 @@ def write_rasters_tiled(paths, outdir, res_m: float, crs=None, *, tile_px: int =
         work = tmp / "work"
         work.mkdir()
         used = _bin_points(inputs, args, grid, work, chunk_points)
-        with rasterio.Env(**_GDAL_THREAD_ENV):
-            dem_sum, dem_n = _tiles_to_gtiffs(inputs, args, grid, used, work, tmp, transform=transform, tags=tags,
-                                              chunk_points=chunk_points, footprint_cells=footprint_cells,
-                                              dem_fill_radius_px=dem_fill_radius_px, threads=threads)
-        fill = np.float32(dem_sum / dem_n) if dem_n else np.float32(np.nan)
+        with contextlib.ExitStack() as working:     # the working GeoTIFFs, closed on errors too
+            with rasterio.Env(**_GDAL_THREAD_ENV):
+                gtiffs, dem_sum, dem_n = _tiles_to_gtiffs(inputs, args, grid, used, work, working,
+                                                          transform=transform, tags=tags, chunk_points=chunk_points,
+                                                          footprint_cells=footprint_cells,
+                                                          dem_fill_radius_px=dem_fill_radius_px, threads=threads)
+            fill = np.float32(dem_sum / dem_n) if dem_n else np.float32(np.nan)
 
-        def hillshade_png() -> None:
-            _hillshade_png(work / "dem_m.tif", tmp / "hillshade.png", res_m, fill)
+            # Each task closes its working GeoTIFF first: the windows sit in GDAL's block cache (the demo's six
+            # working rasters, 181 MB, fit in it) and are written out at the close, so the six closes run two
+            # at a time beside the hillshade and the COGs instead of one after the other before them.
+            def hillshade_png() -> None:
+                gtiffs["dem_m"].close()
+                _hillshade_png(work / "dem_m.tif", tmp / "hillshade.png", res_m, fill)
 
-        def cog(name: str) -> None:
-            with rasterio.open(work / f"{name}.tif") as src, atomic_path(tmp / f"{name}.tif") as dst:
-                # ZSTD level 1 (as the ortho mosaic's COGs): the same values as DEFLATE level 1 with 40 %
-                # less CPU (the demo's five COGs 1.95-2.02 -> 1.17-1.26 CPU-s) and files 0.9 % smaller
-                rio_copy(src, dst, driver="COG", compress="ZSTD", predictor=3, level=1,
-                         overview_resampling="average", num_threads="ALL_CPUS")
+            def cog(name: str) -> None:
+                gtiffs[name].close()
+                with rasterio.open(work / f"{name}.tif") as src, atomic_path(tmp / f"{name}.tif") as dst:
+                    # ZSTD level 1 (as the ortho mosaic's COGs): the same values as DEFLATE level 1 with 40 %
+                    # less CPU (the demo's five COGs 1.95-2.02 -> 1.17-1.26 CPU-s) and files 0.9 % smaller
+                    rio_copy(src, dst, driver="COG", compress="ZSTD", predictor=3, level=1,
+                             overview_resampling="average", num_threads="ALL_CPUS")
 
-        _run_threads([hillshade_png] + [functools.partial(cog, name) for name in RASTERS])
+            _run_threads([hillshade_png] + [functools.partial(cog, name) for name in RASTERS])
 
-    with stage_block_cache(RASTERS_CACHE_BYTES):
+    with stage_block_cache(RASTERS_CACHE_BYTES), _no_hugepage_advice():
         return _write_set(outdir, write)
+
+
+@contextlib.contextmanager
+def _no_hugepage_advice():
+    """numpy's transparent-huge-page advice (``madvise(MADV_HUGEPAGE)`` on every array of 4 MiB or more) off
+    while the tiled rasters are made. Why: with the kernel's THP mode ``madvise`` (this machine's
+    ``/sys/kernel/mm/transparent_hugepage/enabled``) each first touch of such an array zeroes a whole 2 MiB
+    page, and the stage allocates and frees window-sized arrays tile after tile; on the demo's strips the
+    advice cost 0.7-0.9 s of system time and saved 0.1-0.4 s of user time (``NUMPY_MADVISE_HUGEPAGE=0`` on
+    main's code: system 3.0-3.2 -> 2.3 s, 10.1-10.5 -> 9.5-9.9 CPU-s; docs/performance.md). The setting is
+    numpy's, process-wide: set from the calling thread around the stage (the tile threads run inside it) and
+    restored after."""
+    try:
+        from numpy._core.multiarray import _set_madvise_hugepage
+    except ImportError:       # another numpy: its default
+        yield
+        return
+    before = _set_madvise_hugepage(False)
+    try:
+        yield
+    finally:
+        _set_madvise_hugepage(before)
 
 
 # Threads of the tiled rasters: tiles are computed two at a time (numba and numpy release the GIL;
@@ -917,66 +942,77 @@ def _tile_grids(inputs: _Inputs, args, tile, work: Path, *, chunk_points: int, f
     return out, dem_sum, dem_n
 
 
-def _tiles_to_gtiffs(inputs: _Inputs, args, grid, used, work: Path, tmp: Path, *, transform, tags,
-                     chunk_points: int, footprint_cells: int, dem_fill_radius_px: float, threads: int = 1):
+def _tiles_to_gtiffs(inputs: _Inputs, args, grid, used, work: Path, working: contextlib.ExitStack, *, transform,
+                     tags, chunk_points: int, footprint_cells: int, dem_fill_radius_px: float, threads: int = 1):
     """Pass 2: each tile's grids from its binned points (``_tile_grids``, ``threads`` tiles at a time,
-    at most one more waiting), the core written by window into tiled GeoTIFFs (``work/<name>.tif`` in
-    the CRS's units, ``work/dem_m.tif`` the DEM in metres for the hillshade) in tile order. Returns
-    the sum and count of the DEM's cells (metres) for the hillshade's fill."""
+    at most one more waiting, largest first), the core written by window into tiled GeoTIFFs
+    (``work/<name>.tif`` in the CRS's units, ``work/dem_m.tif`` the DEM in metres for the hillshade) as each
+    tile is done. Returns the working GeoTIFFs, open (``working`` closes them: the caller closes each when it
+    copies it), and the sum and count of the DEM's cells (metres) for the hillshade's fill, summed in tile
+    order."""
     import collections
-    import contextlib
-    from concurrent.futures import ThreadPoolExecutor
+    from concurrent.futures import FIRST_COMPLETED, ThreadPoolExecutor, wait
 
     from aerotri.core.log import progress
 
     res_m, x0, y0, nrows, ncols = args
     units = inputs.units
-    dem_sum, dem_n = 0.0, 0
-    with contextlib.ExitStack() as stack:
-        out = {}
-        for name in RASTERS:
-            ds = stack.enter_context(_tiled_gtiff(work / f"{name}.tif", (nrows, ncols), transform,
-                                                  inputs.surface_crs if name in ("dem", "dsm") else inputs.crs))
-            if _unit(name, units):
-                ds.units = (_unit(name, units),)
-            ds.set_band_description(1, _description(name, units))
-            ds.update_tags(**tags)
-            out[name] = ds
-        out["dem_m"] = stack.enter_context(_tiled_gtiff(work / "dem_m.tif", (nrows, ncols), transform, inputs.crs))
-        pool = stack.enter_context(ThreadPoolExecutor(threads))
-        pending = collections.deque()
+    tiles = list(_tile_windows(grid, nrows, ncols))
+    dem_sums = {}        # tile id -> (sum, count) of its core's DEM cells
+    out = {}
+    for name in RASTERS:
+        ds = working.enter_context(_tiled_gtiff(work / f"{name}.tif", (nrows, ncols), transform,
+                                                 inputs.surface_crs if name in ("dem", "dsm") else inputs.crs))
+        if _unit(name, units):
+            ds.units = (_unit(name, units),)
+        ds.set_band_description(1, _description(name, units))
+        ds.update_tags(**tags)
+        out[name] = ds
+    out["dem_m"] = working.enter_context(_tiled_gtiff(work / "dem_m.tif", (nrows, ncols), transform, inputs.crs))
+    with ThreadPoolExecutor(threads) as pool:
 
-        def drain_one() -> None:
-            nonlocal dem_sum, dem_n
-            window, future = pending.popleft()
-            if future is None:
-                grids = {name: np.full((window.height, window.width), NODATA, np.float32) for name in out}
-            else:
-                grids, s, n = future.result()
-                dem_sum += s
-                dem_n += n
+        def write(window, grids) -> None:
             for name, ds in out.items():
                 ds.write(grids[name], 1, window=window)
             bar.update(1)
 
+        # Largest windows first, each tile written as soon as it is done (the working files take windows in
+        # any order): no thread waits for an earlier tile while another computes, and the last tiles are the
+        # small ones. ``threads`` tiles computing and one queued, so that a thread goes on while the calling
+        # thread writes a finished tile.
+        todo = collections.deque(sorted((t for t in tiles if used[t[0]]), key=lambda t: -t[1][2] * t[1][3]))
+        empty = [t[3] for t in tiles if not used[t[0]]]
+        running = {}
         with progress(grid.n_tiles, "rasters: tiles", "tile") as bar:
             try:
-                for tile in _tile_windows(grid, nrows, ncols):
-                    tid, window = tile[0], tile[3]
-                    future = pool.submit(_tile_grids, inputs, args, tile, work, chunk_points=chunk_points,
-                                         footprint_cells=footprint_cells,
-                                         dem_fill_radius_px=dem_fill_radius_px) if used[tid] else None
-                    pending.append((window, future))
-                    while len(pending) > threads:
-                        drain_one()
-                while pending:
-                    drain_one()
+                while todo or running or empty:
+                    while todo and len(running) < threads + 1:
+                        tile = todo.popleft()
+                        running[pool.submit(_tile_grids, inputs, args, tile, work, chunk_points=chunk_points,
+                                            footprint_cells=footprint_cells,
+                                            dem_fill_radius_px=dem_fill_radius_px)] = tile
+                    if empty:     # tiles without points: nodata, written while the first tiles are computed
+                        for window in empty:
+                            write(window, {name: np.full((window.height, window.width), NODATA, np.float32)
+                                           for name in out})
+                        empty = []
+                        continue
+                    done, _ = wait(running, return_when=FIRST_COMPLETED)
+                    for future in done:
+                        tile = running.pop(future)
+                        grids, tile_sum, tile_n = future.result()
+                        dem_sums[tile[0]] = tile_sum, tile_n
+                        write(tile[3], grids)
+                        del grids
             except BaseException:
-                for _, f in pending:
-                    if f is not None:
-                        f.cancel()
+                for f in running:
+                    f.cancel()
                 raise
-    return dem_sum, dem_n
+    dem_sum, dem_n = 0.0, 0
+    for tid in sorted(dem_sums):       # in tile order, whatever order they finished in: the same float sum
+        dem_sum += dem_sums[tid][0]
+        dem_n += dem_sums[tid][1]
+    return out, dem_sum, dem_n
 
 
 def _hillshade_png(dem_path: Path, png_path: Path, res_m: float, fill) -> None:

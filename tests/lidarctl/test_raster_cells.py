@@ -114,10 +114,28 @@ def test_footprint_holes_as_binary_fill_holes():
         np.testing.assert_array_equal(f, ndimage.maximum_filter(m, size=7, mode="constant", cval=False))
 
 
+def hillshade_rgba(hs: np.ndarray) -> np.ndarray:
+    """(rows, cols, 4) uint8 RGBA of a hillshade 0..1 as ``matplotlib.pyplot.imsave`` with the grey colour
+    map writes it (NaN black): the reference of the rasters' PNG."""
+    from matplotlib import cm, colors
+
+    mappable = cm.ScalarMappable(norm=colors.Normalize(0.0, 1.0), cmap="gray")
+    return mappable.to_rgba(np.where(np.isfinite(hs), hs, 0.0), bytes=True)
+
+
+def hillshade_grey(hs: np.ndarray) -> np.ndarray:
+    """The grey level of ``hillshade_rgba`` by the rasters' table: int(value x 256), 1.0 -> 255."""
+    from lidarctl.rasters.products import _GREY_LUT
+
+    x = np.where(np.isfinite(hs), hs, 0.0) * 256.0
+    return _GREY_LUT[np.minimum(x.astype(np.int64), 255)]
+
+
 def test_hillshade_grey_and_png_are_matplotlibs(tmp_path):
+    import matplotlib
     import matplotlib.image as mpimg
 
-    from lidarctl.rasters.products import _write_png_grey_as_rgba, hillshade_grey, hillshade_rgba
+    from lidarctl.rasters.products import _write_png_grey_as_rgba
 
     rng = np.random.default_rng(8)
     hs = rng.random((301, 203))
@@ -130,6 +148,12 @@ def test_hillshade_grey_and_png_are_matplotlibs(tmp_path):
     _write_png_grey_as_rgba(tmp_path / "h.png", lambda r0, r1: grey[r0:r1], *grey.shape, rows_per_read=64)
     back = mpimg.imread(tmp_path / "h.png")
     np.testing.assert_array_equal(np.round(back * 255).astype(np.uint8), rgba)
+    # what the rasters wrote before through matplotlib (plt.imsave): the same pixels
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    plt.imsave(tmp_path / "m.png", np.where(np.isfinite(hs), hs, 0.0), cmap="gray", vmin=0, vmax=1)
+    np.testing.assert_array_equal(mpimg.imread(tmp_path / "m.png"), back)
 
 
 def test_hillshade_grey_of_dem_is_the_grey_of_the_hillshade(tmp_path):
@@ -139,8 +163,7 @@ def test_hillshade_grey_of_dem_is_the_grey_of_the_hillshade(tmp_path):
     import rasterio
     from rasterio.transform import from_origin
 
-    from lidarctl.rasters.products import (NODATA, _hillshade_png, hillshade, hillshade_grey,
-                                           hillshade_grey_of_dem)
+    from lidarctl.rasters.products import NODATA, _hillshade_png, hillshade, hillshade_grey_of_dem
 
     rng = np.random.default_rng(11)
     dem = np.cumsum(rng.normal(0.0, 0.3, (517, 389)), axis=1) + 40.0 * (rng.random((517, 389)) < 0.01)

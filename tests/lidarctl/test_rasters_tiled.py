@@ -49,15 +49,21 @@ def test_tiled_rasters_equal_whole_grids(strips, tmp_path, names, tile_px, buffe
     fill = {"dem_fill_radius_px": (buffer_px - 2) // 2}
     _whole(paths, 1.0, tmp_path / "whole", **fill)
     # small chunks: a tile's points arrive from several chunks of several files
+    from numpy._core.multiarray import _get_madvise_hugepage
+
+    advice = _get_madvise_hugepage()
     rasters.write_rasters(paths, tmp_path / "tiled", 1.0, tile_px=tile_px, buffer_px=buffer_px, chunk_points=30_000,
                           **fill)
+    assert _get_madvise_hugepage() == advice          # numpy's setting off during the stage only
     with rasterio.open(tmp_path / "whole" / "dem.tif") as ds:
         assert ds.width > 3 * tile_px and ds.height > 3 * tile_px          # several tiles each way
     for f in rasters.FILES:
         a, b = _read(tmp_path / "whole" / f), _read(tmp_path / "tiled" / f)
         np.testing.assert_array_equal(a[0], b[0], err_msg=f)
-        if f.endswith(".tif"):   # (the PNG: the same pixels; matplotlib adds its name as a text chunk)
+        if f.endswith(".tif"):
             assert a[1:] == b[1:], f
+    # one PNG writer for both: the same bytes
+    assert (tmp_path / "whole" / "hillshade.png").read_bytes() == (tmp_path / "tiled" / "hillshade.png").read_bytes()
     assert sorted(p.name for p in (tmp_path / "tiled").iterdir()) == sorted(rasters.FILES)   # no temporaries
 
 
