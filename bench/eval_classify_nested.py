@@ -51,14 +51,23 @@ RESULT = REPO / "bench" / "results" / "classify_nested.json"
 
 # Knobs of the morphological filter (physical meaning in lidarctl.classify.ground.MorphSettings) and rule
 # switches: surface_height_m None = local-surface test off; refine_angle_deg 0 = TIN angle criterion
-# off; plateau False = raised-plateau test off.
+# off; plateau False = raised-plateau test off; sunken_max_area_m2 0 = sunken-patch test off (issue 44, third
+# round: returns from below the ground left out of the opening, lidarctl.classify.ground.sunken_patches).
 CONFIG_GRID = {
     "slope": (0.25, 0.3, 0.35),
     "elevation_scaler": (0.75, 1.0, 1.25),
     "surface_height_m": (None, 0.3, 0.5, 0.8),
     "refine_angle_deg": (0.0, 10.0, 20.0, 30.0),
     "plateau": (False, True),
+    "sunken_max_area_m2": (0.0, 10.0, 40.0),
 }
+
+
+# Grid values admissible as a shipped default: those that move no other labelled set by more than 0.2 points
+# (bench/eval_ground_sunken.py, bench/results/ground_sunken.json: sunken_max_area_m2 40 lowers AHN3's south-east
+# ground PA by 0.20 points, small yards enclosed by roofs taken for sunken patches; 10 moves no set). Chosen on
+# the other sets, not on ISPRS; the nested estimate over this grid is reported beside the full grid's.
+ADMISSIBLE = {"sunken_max_area_m2": (0.0, 10.0)}
 
 
 def config_key(cfg: dict) -> str:
@@ -67,7 +76,7 @@ def config_key(cfg: dict) -> str:
 
 def _morph_overrides(cfg: dict) -> dict:
     o = {"slope": cfg["slope"], "elevation_scaler": cfg["elevation_scaler"],
-         "refine_angle_deg": cfg["refine_angle_deg"]}
+         "refine_angle_deg": cfg["refine_angle_deg"], "sunken_max_area_m2": cfg["sunken_max_area_m2"]}
     if cfg["surface_height_m"] is None:
         o["surface_neighbours"] = 0
     else:
@@ -188,9 +197,13 @@ def run_isprs() -> dict:
     selectors = make_selectors(configs, CONFIG_GRID)
     nest = nested_cv(err, selectors)
     plain = loo(err, selectors["mean"])
+    adm = [i for i, cfg in enumerate(configs) if all(cfg[k] in v for k, v in ADMISSIBLE.items())]
+    adm_configs = [configs[i] for i in adm]
+    nest_adm = nested_cv(err[adm], make_selectors(adm_configs, {**CONFIG_GRID, **ADMISSIBLE}))
     d = ground.MorphSettings()
     default = {"slope": d.slope, "elevation_scaler": d.elevation_scaler, "surface_height_m": d.surface_height_m,
-               "refine_angle_deg": d.refine_angle_deg, "plateau": d.plateau_min_step_m > 0}
+               "refine_angle_deg": d.refine_angle_deg, "plateau": d.plateau_min_step_m > 0,
+               "sunken_max_area_m2": d.sunken_max_area_m2}
     i_def = configs.index(default)
     best_all = int(np.argmin(err.mean(axis=1)))
     out = {
@@ -216,6 +229,15 @@ def run_isprs() -> dict:
                                                 "held_out_total_error_pct": f["held_out_error"]}
                       for f in nest["folds"]},
         },
+        "nested_admissible_grid": {
+            "definition": "the same nested procedure over the grid restricted to the values admissible as a default "
+                          "(ADMISSIBLE: no other labelled set moved by more than 0.2 points)",
+            "admissible": {k: list(v) for k, v in ADMISSIBLE.items()},
+            "estimate_total_error_pct": nest_adm["estimate"],
+            "folds": {SAMPLES[f["held_out"]]: {"selector": f["selector"], "chosen": adm_configs[f["chosen"]],
+                                                "held_out_total_error_pct": f["held_out_error"]}
+                      for f in nest_adm["folds"]},
+        },
         "loo_mean_selector": {
             "definition": "configuration of lowest mean total error over the other 6 samples (the earlier "
                           "rounds' leave-one-out, on this grid)",
@@ -232,7 +254,7 @@ def run_isprs() -> dict:
         "load_average_before_after": [list(load0), list(os.getloadavg())],
     }
     out["target_met"] = bool(out["nested"]["estimate_total_error_pct"] <= 3.3)
-    print(f"ISPRS: nested {nest['estimate']:.2f} %, LOO (mean selector) {plain['estimate']:.2f} %, "
+    print(f"ISPRS: nested {nest['estimate']:.2f} % (admissible grid {nest_adm['estimate']:.2f} %), LOO (mean selector) {plain['estimate']:.2f} %, "
           f"defaults in-sample {err[i_def].mean():.2f} %, best on all 7 {err[best_all].mean():.2f} %")
     for s, f in out["nested"]["folds"].items():
         print(f"  {s}: selector {f['selector']}, {f['chosen']} -> {f['held_out_total_error_pct']:.2f} %")
