@@ -135,11 +135,22 @@ def window_of(img: np.ndarray, valid: np.ndarray, col_off: int, row_off: int, wi
     if c0 == col_off and r0 == row_off and c1 == col_off + width and r1 == row_off + height:
         return img[:, r0:r1, c0:c1].copy(), valid[r0:r1, c0:c1].copy()
     out = np.zeros((img.shape[0], height, width), img.dtype)
-    ok = np.zeros((height, width), bool)
     if c1 > c0 and r1 > r0:
         out[:, r0 - row_off:r1 - row_off, c0 - col_off:c1 - col_off] = img[:, r0:r1, c0:c1]
-        ok[r0 - row_off:r1 - row_off, c0 - col_off:c1 - col_off] = valid[r0:r1, c0:c1]
-    return out, ok
+    return out, mask_window(valid, col_off, row_off, width, height)
+
+
+def mask_window(mask: np.ndarray, col_off: int, row_off: int, width: int, height: int) -> np.ndarray:
+    """A copy of the window of ``mask`` (h, w; bool), False beyond it."""
+    h, w = mask.shape
+    c0, r0 = max(0, col_off), max(0, row_off)
+    c1, r1 = min(w, col_off + width), min(h, row_off + height)
+    if c0 == col_off and r0 == row_off and c1 == col_off + width and r1 == row_off + height:
+        return mask[r0:r1, c0:c1].copy()
+    ok = np.zeros((height, width), bool)
+    if c1 > c0 and r1 > r0:
+        ok[r0 - row_off:r1 - row_off, c0 - col_off:c1 - col_off] = mask[r0:r1, c0:c1]
+    return ok
 
 
 # frames are kept decoded from the seam grid's reading to the blending when all of them (samples and validity)
@@ -149,8 +160,25 @@ DECODED_FRAMES_MAX_BYTES = 256 * 2 ** 20
 
 
 def decoded_bytes(index: FrameIndex, bands: int, itemsize: int) -> int:
-    """Memory of all frames of ``index`` decoded (samples and a validity byte per pixel)."""
-    return sum(int(e.width) * int(e.height) * (bands * itemsize + 1) for e in index.frames)
+    """Memory of all frames of ``index`` decoded (samples, and two validity bytes per pixel: the frame's own and,
+    for a frame with holes, that away from them)."""
+    return sum(int(e.width) * int(e.height) * (bands * itemsize + 2) for e in index.frames)
+
+
+@dataclasses.dataclass(frozen=True)
+class DecodedFrame:
+    """A frame ortho decoded whole: ``samples`` (bands, h, w), ``valid`` (h, w) bool and, for a frame with holes,
+    ``away`` (h, w) bool: valid and not within the hole margin of a hole (``_hole_margin``), else None."""
+
+    samples: np.ndarray
+    valid: np.ndarray
+    away: np.ndarray | None = None
+
+
+def _dilated(mask: np.ndarray, radius_px: int) -> np.ndarray:
+    """``mask`` (bool) dilated by a disc of ``radius_px`` (OpenCV's ellipse of 2 r + 1 px; nothing beyond the array)."""
+    kernel = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * radius_px + 1,) * 2)
+    return cv2.dilate(mask.view(np.uint8), kernel).view(bool)
 
 
 class ReducedFrames:
@@ -183,12 +211,13 @@ _HISTOGRAM_TYPES = (np.dtype(np.uint8), np.dtype(np.uint16))
 SATURATION_ALLOWANCE = 0.001
 
 
-def _reduce_frame(path, g: OrthoGrid, mosaic: OrthoGrid, factor: int, strip_px: int = 1024, keep_decoded=False):
+def _reduce_frame(path, g: OrthoGrid, mosaic: OrthoGrid, factor: int, strip_px: int = 1024, keep_decoded=False,
+                  margin_px: int = 0):
     """One frame on the seam grid: (rgb (h, w, bands), valid (h, w), (row, col) of its first cell, histogram,
     decoded, holes), read by strips of whole cells (memory of the samples set by ``strip_px`` rows, not by the
     frame; the holes need one byte per pixel of the frame); with ``keep_decoded`` the frame is read whole and
-    returned as ``decoded`` (samples (bands, h, w), validity), else that is None. ``holes``: ``FrameHoles`` or
-    None (no invalid pixel enclosed by valid ones)."""
+    returned as ``decoded`` (``DecodedFrame``; its validity away from the holes cleared ``margin_px`` round them),
+    else that is None. ``holes``: ``FrameHoles`` or None (no invalid pixel enclosed by valid ones)."""
     c0, r0 = g.offset_in(mosaic)
     # align the frame's window to whole seam-grid cells
     rc0, cc0 = r0 // factor, c0 // factor
@@ -226,6 +255,15 @@ def _reduce_frame(path, g: OrthoGrid, mosaic: OrthoGrid, factor: int, strip_px: 
             valid[s:s + n] = bad < 0.5 / n_px
             np.logical_not(ok, out=invalid[1 + s * factor:1 + (s + n) * factor, 1:-1].view(bool))
     holes = find_holes(invalid, factor, (rc0, cc0))
+    if decoded is not None:
+        away = None
+        if holes is not None and margin_px:
+            # the frame's validity away from its holes, once for the whole frame (``_hole_margin`` of a window of it
+            # is a window of this: a dilation reaches margin_px, the window's halo)
+            dy, dx = r0 - rc0 * factor, c0 - cc0 * factor
+            hole = invalid[1 + dy:1 + dy + g.height, 1 + dx:1 + dx + g.width] == 1
+            away = decoded[1] & ~_dilated(hole, margin_px)
+        decoded = DecodedFrame(decoded[0], decoded[1], away)
     return (rgb, valid, (rc0, cc0), (None if hist is None else SampleHistogram(hist, top_count, bits)), decoded,
             holes)
 
@@ -254,14 +292,16 @@ def reduce_frames(frames_dir: Path, index: FrameIndex, mosaic: OrthoGrid, factor
                   threads: int | None = None, keep_decoded: bool = False) -> ReducedFrames:
     """Every frame of ``index`` on the seam grid of ``factor`` mosaic pixels per cell (frames on ``threads``
     threads, default all cores; GDAL's decoding and OpenCV's averaging release the GIL). With ``keep_decoded``
-    the frames read whole are kept in ``decoded`` (frame file path -> (samples, validity)) for the blending."""
+    the frames read whole are kept in ``decoded`` (frame file path -> ``DecodedFrame``) for the blending."""
     from ortho.rectify import ordered_thread_map
 
     entries = list(zip(index.frames, index.grids))
 
+    margin = hole_margin_px(mosaic.res_m)
+
     def one(entry):
         e, grid = entry
-        return _reduce_frame(frames_dir / e.file, grid, mosaic, factor, keep_decoded=keep_decoded)
+        return _reduce_frame(frames_dir / e.file, grid, mosaic, factor, keep_decoded=keep_decoded, margin_px=margin)
 
     names, rgbs, valids, offsets, hists, decoded, holes = [], [], [], [], [], {}, []
     with progress(len(entries), "seam grid", "frames") as bar:
@@ -879,8 +919,12 @@ class _FrameReaders:
         """``read_planar`` of frame ``path``: from memory when the frame is kept decoded, else from its file."""
         frame = self._decoded.get(path)
         if frame is not None:
-            return window_of(*frame, col_off, row_off, width, height)
+            return window_of(frame.samples, frame.valid, col_off, row_off, width, height)
         return read_planar(self.get(path), col_off, row_off, width, height)
+
+    def decoded(self, path: str) -> DecodedFrame | None:
+        """Frame ``path`` decoded in memory, or None (read from its file)."""
+        return self._decoded.get(path)
 
     def get(self, path: str):
         cache = getattr(self._local, "open", None)
@@ -1027,45 +1071,79 @@ def _blend_tile(ctx: _BlendContext, readers, r0: int, c0: int, th: int, tw: int)
             acc /= np.maximum(ws, 1e-6)
             np.copyto(out[:, ya:yb, xa:xb], _to_type(acc, ctx.dtype), where=put[None])
             valid[ya:yb, xa:xb] |= put
-        flat_out = out.reshape(bands, -1)
-        # pixels of the feather zone no weight reaches (no frame labelled there: the edge of the block)
+        # pixels of the feather zone no weight reaches (no frame labelled there: the edge of the block; a true ortho's
+        # holes and their margin)
         need = np.flatnonzero(mixed & ~(wsum > 1e-3))
         if len(need):
-            # the valid frame of the nearest nadir point fills pixels no labelled frame reaches (read over the
-            # box of those pixels)
-            rows, cols = np.divmod(need, tw)
-            ya, yb, xa, xb = int(rows.min()), int(rows.max()) + 1, int(cols.min()), int(cols.max()) + 1
-            inner = (rows - ya) * (xb - xa) + (cols - xa)
-            ys = ctx.mosaic.y_top_m - (r0 + rows + 0.5) * ctx.mosaic.res_m
-            xs = ctx.mosaic.x_left_m + (c0 + cols + 0.5) * ctx.mosaic.res_m
-            best = np.full(len(need), np.inf)
-            fill = np.zeros((bands, len(need)), np.float32)
-            over = np.flatnonzero((fc < c0 + tw) & (fc + ctx.sizes[:, 0] > c0) & (fr < r0 + th)
-                                  & (fr + ctx.sizes[:, 1] > r0))
-
-            def take_nearer(k, img, cand):
-                """Frame k's samples where it is a candidate and its nadir point nearer than the best so far."""
-                if not cand.any():
-                    return
-                d = np.hypot(xs - ctx.nadir[k, 0], ys - ctx.nadir[k, 1])
-                better = cand & (d < best)
-                best[better] = d[better]
-                fill[:, better] = img.reshape(bands, -1)[:, inner[better]] * ctx.gains[k].astype(np.float32)[:, None]
-
-            for k in over.tolist():
-                img, m = frame(k, ya, yb, xa, xb)
-                take_nearer(k, img, m.ravel()[inner])
-            got = np.isfinite(best)
-            if raw and not got.all():
-                # pixels every frame has only near its holes: the valid frame of the nearest nadir point after all
-                for k in over.tolist():
-                    key = (k, ya, yb, xa, xb)
-                    if key in raw:
-                        take_nearer(k, reads[key][0], raw[key].ravel()[inner] & ~got)
-                got = np.isfinite(best)
-            flat_out[:, need[got]] = _to_type(fill[:, got], ctx.dtype)
-            valid.ravel()[need[got]] = True
+            _fill_nearest(ctx, readers, frame, raw, need, r0=r0, c0=c0, th=th, tw=tw, out=out, valid=valid)
     return out, valid
+
+
+def _fill_nearest(ctx: _BlendContext, readers, frame, raw: dict, need: np.ndarray, *, r0: int, c0: int, th: int,
+                  tw: int, out: np.ndarray, valid: np.ndarray) -> None:
+    """Fill the tile's pixels ``need`` (flat indices; ascending) in ``out`` and ``valid`` from the valid frame of the
+    nearest nadir point (distances in float64; of equal ones the first frame), a frame with holes valid away from
+    them; pixels every frame has only near its holes from the nearest frame that has them after all. ``frame(k, y0,
+    y1, x0, x1)``: the tile's reading of frame k (its validity away from holes), ``raw``: the validity of such
+    readings of frames with holes. A frame decoded in memory is looked up at the pixels, no window copied; a frame
+    read from its file is read over the box of the pixels."""
+    rows, cols = np.divmod(need, tw)
+    ya, yb, xa, xb = int(rows[0]), int(rows[-1]) + 1, int(cols.min()), int(cols.max()) + 1
+    ys = ctx.mosaic.y_top_m - (r0 + rows + 0.5) * ctx.mosaic.res_m
+    xs = ctx.mosaic.x_left_m + (c0 + cols + 0.5) * ctx.mosaic.res_m
+    fc, fr = ctx.offsets[:, 0], ctx.offsets[:, 1]
+    over = np.flatnonzero((fc < c0 + tw) & (fc + ctx.sizes[:, 0] > c0) & (fr < r0 + th) & (fr + ctx.sizes[:, 1] > r0))
+    best = np.full(len(need), np.inf)
+    winner = np.full(len(need), -1, np.int64)
+    sources = {}
+
+    def has_holes(k):
+        return ctx.holes is not None and ctx.holes[k] is not None
+
+    def source(k):
+        """(samples, validity away from holes, validity, row and column of its first element in the tile)."""
+        if k not in sources:
+            d = readers.decoded(ctx.files[k])
+            if d is not None and (not has_holes(k) or d.away is not None):
+                sources[k] = (d.samples, d.away if has_holes(k) else d.valid, d.valid, int(fr[k]) - r0, int(fc[k]) - c0)
+            else:
+                img, m = frame(k, ya, yb, xa, xb)
+                sources[k] = (img, m, raw.get((k, ya, yb, xa, xb), m), ya, xa)
+        return sources[k]
+
+    def inside(k):
+        """The pixels (indices into ``need``) inside frame k's grid (rows ascending: a range of them)."""
+        y0, x0 = int(fr[k]) - r0, int(fc[k]) - c0
+        a, b = np.searchsorted(rows, [y0, y0 + int(ctx.sizes[k, 1])])
+        c = cols[a:b]
+        return a + np.flatnonzero((c >= x0) & (c < x0 + int(ctx.sizes[k, 0])))
+
+    def take_nearer(k, sub, away):
+        """Frame k where it is valid at the pixels ``sub`` and its nadir point nearer than the best so far."""
+        src = source(k)
+        sub = sub[(src[1] if away else src[2])[rows[sub] - src[3], cols[sub] - src[4]]]
+        d = np.hypot(xs[sub] - ctx.nadir[k, 0], ys[sub] - ctx.nadir[k, 1])
+        better = d < best[sub]
+        sub = sub[better]
+        best[sub] = d[better]
+        winner[sub] = k
+
+    for k in over.tolist():
+        take_nearer(k, inside(k), True)
+    got = winner >= 0
+    if not got.all():
+        # pixels every frame has only near its holes: the valid frame of the nearest nadir point after all
+        for k in over.tolist():
+            if has_holes(k):
+                sub = inside(k)
+                take_nearer(k, sub[~got[sub]], False)
+        got = winner >= 0
+    for k in np.unique(winner[got]).tolist():
+        sub = np.flatnonzero(winner == k)
+        img, _, _, y0, x0 = source(k)
+        fill = img[:, rows[sub] - y0, cols[sub] - x0] * ctx.gains[k].astype(np.float32)[:, None]
+        out[:, rows[sub], cols[sub]] = _to_type(fill, ctx.dtype)
+    valid[rows[got], cols[got]] = True
 
 
 # a true ortho's frame is taken this far from its holes only where no other frame has the pixel away from its own:
@@ -1137,25 +1215,32 @@ class FrameHoles:
                    z[f"holes_partial_{k}"])
 
 
-def find_holes(invalid: np.ndarray, factor: int, offset, strip_cells: int = 64) -> FrameHoles | None:
+def find_holes(invalid: np.ndarray, factor: int, offset, strip_cells: int = 256) -> FrameHoles | None:
     """The holes of a frame (``FrameHoles``) from ``invalid`` (uint8 (h * factor + 2, w * factor + 2): 1 an invalid
     pixel of its window on whole seam cells, 0 a valid one, framed by 1s; overwritten); None when it has none."""
     cv2.floodFill(invalid, None, (0, 0), 2)  # the invalid pixels joined to the outside (4-connected) become 2
     if not (invalid == 1).any():  # a conventional ortho (the demo's 18 frames: 0.02 CPU-s, 0.27 with the cells below)
         return None
     h, w = (invalid.shape[0] - 2) // factor, (invalid.shape[1] - 2) // factor
-    px = invalid[1:-1, 1:-1].reshape(h, factor, w, factor)
+    px = invalid[1:-1, 1:-1]
+
+    def any_in_cell(mask, n):
+        # a cell's mean of the indicator is > 0 exactly when one of its pixels is set (float32: no rounding to 0)
+        return cv2.resize(mask.view(np.uint8).astype(np.float32), (w, n), interpolation=cv2.INTER_AREA) > 0
+
     cells = np.zeros((h, w), np.uint8)
-    for s in range(0, h, strip_cells):
-        block = px[s:s + strip_cells]
-        hole = (block == 1).any(axis=(1, 3))
-        cells[s:s + strip_cells] = np.where(hole, np.where((block == 2).any(axis=(1, 3)), 2, 1), 0)
+    for s in range(0, h, strip_cells):  # by strips of rows: float32 indicators of a strip, not of the frame
+        n = min(strip_cells, h - s)
+        block = px[s * factor:(s + n) * factor]
+        cells[s:s + n] = np.where(any_in_cell(block == 1, n), np.where(any_in_cell(block == 2, n), 2, 1), 0)
     if not cells.any():
         return None
     rs, cs = np.nonzero(cells == 2)
     partial_index = np.full((h, w), -1, np.int32)
     partial_index[rs, cs] = np.arange(len(rs), dtype=np.int32)
-    return FrameHoles(tuple(int(v) for v in offset), cells, partial_index, px[rs, :, cs, :] == 1)
+    step = np.arange(factor)
+    partial = px[(rs[:, None] * factor + step)[:, :, None], (cs[:, None] * factor + step)[:, None, :]] == 1
+    return FrameHoles(tuple(int(v) for v in offset), cells, partial_index, partial)
 
 
 def frame_holes(red: ReducedFrames) -> list | None:
@@ -1171,6 +1256,10 @@ def _hole_margin(ctx: _BlendContext, readers, k: int, *, row: int, col: int, h: 
     ``ctx.hole_margin_px`` of them (read with that halo, so that the result does not depend on the window)."""
     m_px = ctx.hole_margin_px
     fc, fr = int(ctx.offsets[k, 0]), int(ctx.offsets[k, 1])
+    frame = readers.decoded(ctx.files[k])
+    if frame is not None and frame.away is not None:  # the frame's validity away from its holes made once, whole
+        img, ok = window_of(frame.samples, frame.valid, col - fc, row - fr, w, h)
+        return (img, mask_window(frame.away, col - fc, row - fr, w, h)), ok
     img, ok = readers.window(ctx.files[k], col - m_px - fc, row - m_px - fr, w + 2 * m_px, h + 2 * m_px)
     hole = ctx.holes[k].pixels(ok, row - m_px, col - m_px, ctx.factor)
     inner = (slice(m_px, m_px + h), slice(m_px, m_px + w))
@@ -1256,7 +1345,7 @@ def _write_mosaic(path, frames_dir, index, mosaic: OrthoGrid, *, seams_path, fac
     on a Dask cluster in batches of a few tiles per worker (the tasks read their windows of
     ``seams_path``). Memory is bounded by the tiles in flight, not by the mosaic. ``previous``
     (``PreviousMosaic``, local threads only): tiles whose seam cells and halo did not change are read from it
-    instead of blended. ``decoded``: frames already decoded in memory (file path -> (samples, validity); local
+    instead of blended. ``decoded``: frames already decoded in memory (file path -> ``DecodedFrame``; local
     threads only), read instead of their files. ``holes``: per frame None or its ``FrameHoles``
     (``_BlendContext.holes``). Returns the counts of tiles blended and taken over."""
     from aerotri.core.executor import local_executor
