@@ -571,6 +571,7 @@ def _mosaic_block(root, settings, *, object_height_m, max_seam_cells, end_reach_
         # blending on local threads reads the frames kept decoded by the seam grid when they are small
         keep = (executor is None or not executor.distributed) and \
             decoded_bytes(index, bands, itemsize) <= DECODED_FRAMES_MAX_BYTES
+        timer.trim = not keep
         red = reduce_frames(frames_dir, index, mosaic, factor, keep_decoded=keep)
         timer.done("seam grid")
         objects = objects_of()
@@ -657,17 +658,21 @@ def release_freed_memory() -> None:
 
 
 class _PhaseTimer:
-    """Wall and CPU time of the phases of a run, logged at debug level (``-v``); the end of every phase also
-    hands the memory it freed back to the system (``release_freed_memory``)."""
+    """Wall and CPU time of the phases of a run, logged at debug level (``-v``); with ``trim`` the end of every phase
+    also hands the memory it freed back to the system (``release_freed_memory``). A small block (its frames kept
+    decoded) is run without: its phases then reuse the memory freed before them instead of faulting in new pages (the
+    demo: 166 k -> 131 k minor page faults, 0.1 CPU-s of system time, peak RSS +60 MB)."""
 
-    def __init__(self):
+    def __init__(self, trim: bool = True):
         import time
 
+        self.trim = trim
         self._clock = time
         self._t, self._c = time.perf_counter(), time.process_time()
 
     def done(self, phase: str) -> None:
-        release_freed_memory()
+        if self.trim:
+            release_freed_memory()
         t, c = self._clock.perf_counter(), self._clock.process_time()
         logger.debug("mosaic: %s %.2f s (CPU %.2f s)", phase, t - self._t, c - self._c)
         self._t, self._c = t, c
@@ -1024,6 +1029,13 @@ def _blend_tile(ctx: _BlendContext, readers, r0: int, c0: int, th: int, tw: int)
         img, m = frame(k)
         if m.all():  # labelled cells are valid all over (seam grid validity is the minimum over the cell)
             return _apply_gain(ctx, k, img), m
+        # a frame with holes here (a true ortho): its weight is 1 all over the tile, so the blend below would give its
+        # samples where it is valid away from them, and fill the rest (``_fill_nearest``)
+        out = np.zeros((ctx.bands, th, tw), np.dtype(ctx.dtype))
+        np.copyto(out, _apply_gain(ctx, k, img), where=m[None])
+        valid = m.copy()
+        _fill_nearest(ctx, readers, frame, raw, np.flatnonzero(~m), r0=r0, c0=c0, th=th, tw=tw, out=out, valid=valid)
+        return out, valid
     bands = ctx.bands
     ks = labelled.tolist()
     boxes = _weight_boxes(ctx, cells, ks, dr=r0 - rl * f, dc=c0 - cl * f, lr=lr - rl, lc=lc - cl, th=th, tw=tw)
@@ -1360,7 +1372,7 @@ def _write_mosaic(path, frames_dir, index, mosaic: OrthoGrid, *, seams_path, fac
                      f"mosaic of {mosaic.width} x {mosaic.height} px in tiles of {tile_px} px", "--tile-px",
                      "use a larger --tile-px")
     levels = overview_factors(mosaic.width, mosaic.height)
-    timer = _PhaseTimer()
+    timer = _PhaseTimer(trim=not decoded)
     with scratch_dir(path.parent, "mosaic") as tmp_dir, \
             rasterio.Env(GDAL_TIFF_INTERNAL_MASK=True):  # the block cache is the stage's (mosaic_block)
         tmp_dir = Path(tmp_dir)
