@@ -80,8 +80,8 @@ from ortho.grid import OrthoGrid
 from ortho.settings import MosaicSettings
 from ortho.seamlines_gpkg import write_seamlines_gpkg
 from ortho.seamlines_preview import write_seamlines_preview
-from ortho.seamlines import (footprint, frame_regions, keep_objects_whole, label_polygons, least_cost_seams,
-                             neighbour_pairs, seam_lines, voronoi_labels)
+from ortho.seamlines import (footprint, frame_regions, import_path_search, keep_objects_whole, label_polygons,
+                             least_cost_seams, neighbour_pairs, seam_lines, voronoi_labels)
 
 logger = logging.getLogger(__name__)
 
@@ -188,6 +188,9 @@ class ReducedFrames:
     def __init__(self, names, rgb, valid, offsets, *, factor, seam_transform, shape):
         self.names, self.rgb, self.valid, self.offsets = names, rgb, valid, offsets
         self.factor, self.transform, self.shape = factor, seam_transform, shape
+        # per frame: its SampleHistogram made while it was read, its DecodedFrame (kept for the blending), or None
+        self.sample_histograms = [None] * len(names)
+        self.decoded_frames = [None] * len(names)
         self._gray = {}
 
     def gray_of(self, k: int) -> np.ndarray:
@@ -203,6 +206,16 @@ class ReducedFrames:
 
     def gray(self):
         return [self.gray_of(k) for k in range(len(self.rgb))]
+
+    def histograms(self, gains: np.ndarray) -> list:
+        """Per frame its ``SampleHistogram`` (None for types without one), what ``limit_gains`` reads for ``gains``
+        (frames, bands): a frame kept decoded has it made here, and only when one of its gains is above 1 (the
+        others are left alone by ``limit_gains``: None)."""
+        out = list(self.sample_histograms)
+        for k, frame in enumerate(self.decoded_frames):
+            if frame is not None and out[k] is None and np.any(np.asarray(gains[k]) > 1.0):
+                out[k] = sample_histogram(frame.samples, frame.valid)
+        return out
 
 
 _RESIZABLE = (np.uint8, np.uint16, np.int16, np.float32, np.float64)
@@ -234,7 +247,9 @@ def _reduce_frame(path, g: OrthoGrid, mosaic: OrthoGrid, factor: int, strip_px: 
         # of samples at the type's maximum): what a gain would saturate
         bits = 8 * dtype.itemsize
         shift = max(0, bits - 10)
-        hist = np.zeros((ds.count, (1 << bits) >> shift), np.int64) if dtype in _HISTOGRAM_TYPES else None
+        # (a frame kept decoded has it made later, and only where a gain may need it: ``ReducedFrames.histograms``)
+        hist = np.zeros((ds.count, (1 << bits) >> shift), np.int64) \
+            if dtype in _HISTOGRAM_TYPES and not keep_decoded else None
         top_count = np.zeros(ds.count, np.int64)
         decoded = read_planar(ds, 0, 0, ds.width, ds.height) if keep_decoded else None
         # the invalid pixels (1) of the frame's window on whole seam cells, framed by invalid ones: its holes are
@@ -266,6 +281,19 @@ def _reduce_frame(path, g: OrthoGrid, mosaic: OrthoGrid, factor: int, strip_px: 
         decoded = DecodedFrame(decoded[0], decoded[1], away)
     return (rgb, valid, (rc0, cc0), (None if hist is None else SampleHistogram(hist, top_count, bits)), decoded,
             holes)
+
+
+def sample_histogram(img: np.ndarray, ok: np.ndarray) -> SampleHistogram | None:
+    """``SampleHistogram`` of the valid samples of ``img`` (bands, h, w); None for types without one."""
+    dtype = img.dtype
+    if dtype not in _HISTOGRAM_TYPES:
+        return None
+    bits = 8 * dtype.itemsize
+    shift = max(0, bits - 10)
+    hist = np.zeros((img.shape[0], (1 << bits) >> shift), np.int64)
+    top_count = np.zeros(img.shape[0], np.int64)
+    _add_histogram(hist, top_count, img, ok, bits, shift)
+    return SampleHistogram(hist, top_count, bits)
 
 
 def _add_histogram(hist: np.ndarray, top_count: np.ndarray, img: np.ndarray, ok: np.ndarray, bits: int,
@@ -303,7 +331,7 @@ def reduce_frames(frames_dir: Path, index: FrameIndex, mosaic: OrthoGrid, factor
         e, grid = entry
         return _reduce_frame(frames_dir / e.file, grid, mosaic, factor, keep_decoded=keep_decoded, margin_px=margin)
 
-    names, rgbs, valids, offsets, hists, decoded, holes = [], [], [], [], [], {}, []
+    names, rgbs, valids, offsets, hists, decoded, holes, frames = [], [], [], [], [], {}, [], []
     with progress(len(entries), "seam grid", "frames") as bar:
         with contextlib.closing(ordered_thread_map(one, entries, threads or os.cpu_count() or 1)) as made:
             for (e, _), (rgb, valid, off, hist, frame, hole) in zip(entries, made):
@@ -313,13 +341,15 @@ def reduce_frames(frames_dir: Path, index: FrameIndex, mosaic: OrthoGrid, factor
                 valids.append(valid)
                 offsets.append(off)
                 hists.append(hist)
+                frames.append(frame)
                 if frame is not None:
                     decoded[str(Path(frames_dir) / e.file)] = frame
                 bar.update(1)
     shape = (-(-mosaic.height // factor), -(-mosaic.width // factor))
     t = Affine(mosaic.res_m * factor, 0, mosaic.x_left_m, 0, -mosaic.res_m * factor, mosaic.y_top_m)
     red = ReducedFrames(names, rgbs, valids, offsets, factor=factor, seam_transform=t, shape=shape)
-    red.histograms = hists
+    red.sample_histograms = hists
+    red.decoded_frames = frames
     red.decoded = decoded
     red.holes = holes
     return red
@@ -567,12 +597,20 @@ def _mosaic_block(root, settings, *, object_height_m, max_seam_cells, end_reach_
     timer.done("checks")
     # the nDSM is checked and read onto the seam grid on a thread while the frames are reduced (both before
     # any output is written; its error is raised before the seams are made)
+    # the path search's modules (scipy.sparse.csgraph: 0.2 CPU-s, a fifth of the demo's start-up) are imported on a
+    # thread of their own meanwhile; joined before the seams, so that no other thread imports them at the same time
+    importer = None
+    if seams == "least-cost" and seamlines is None:
+        importer = threading.Thread(target=import_path_search, name="mosaic-import", daemon=True)
+        importer.start()
     with _background(_ndsm_objects, ndsm_path, index, mosaic, seam_transform, seam_shape, object_height_m) as objects_of:
         # blending on local threads reads the frames kept decoded by the seam grid when they are small
         keep = (executor is None or not executor.distributed) and \
             decoded_bytes(index, bands, itemsize) <= DECODED_FRAMES_MAX_BYTES
         timer.trim = not keep
         red = reduce_frames(frames_dir, index, mosaic, factor, keep_decoded=keep)
+        if importer is not None:
+            importer.join()
         timer.done("seam grid")
         objects = objects_of()
         timer.done("nDSM")
@@ -604,7 +642,7 @@ def _mosaic_block(root, settings, *, object_height_m, max_seam_cells, end_reach_
     timer.done("seams")
     gains = balance_gains(red) if balance else np.ones((len(red.names), red.rgb[0].shape[2]))
     # colour that does not clip: no gain saturates more of a frame than the frame has saturated itself
-    gains, limited = limit_gains(gains, red.histograms)
+    gains, limited = limit_gains(gains, red.histograms(gains))
     for k, b, g0, g1, own, would in limited:
         logger.warning("frame %s band %d: gain %.2f lowered to %.2f so that it saturates no more of the frame than "
                        "the frame itself (%.2f %%; the gain would have saturated %.2f %%)", red.names[k], b + 1, g0, g1,
@@ -1005,7 +1043,7 @@ def _blend_tile(ctx: _BlendContext, readers, r0: int, c0: int, th: int, tw: int)
     lc = np.clip(np.arange(c0 - halo, c0 + tw + halo) // f, 0, sw - 1)
     rl, cl = int(lr[0]), int(lc[0])
     cells = np.asarray(ctx.read_cells(rl, cl, int(lr[-1]) + 1 - rl, int(lc[-1]) + 1 - cl))
-    present = np.unique(cells)
+    present = np.flatnonzero(np.bincount(cells.ravel() + 1)) - 1  # the labels there, ascending (-1: none)
     labelled = present[present >= 0]
     fc, fr = ctx.offsets[:, 0], ctx.offsets[:, 1]
     reads = {}
@@ -1113,14 +1151,20 @@ def _fill_nearest(ctx: _BlendContext, readers, frame, raw: dict, need: np.ndarra
         return ctx.holes is not None and ctx.holes[k] is not None
 
     def source(k):
-        """(samples, validity away from holes, validity, row and column of its first element in the tile)."""
+        """(samples (bands, n), validity away from holes (n,), validity (n,): flat arrays of a window of the frame, row
+        and column of its first element in the tile, its width)."""
         if k not in sources:
             d = readers.decoded(ctx.files[k])
             if d is not None and (not has_holes(k) or d.away is not None):
-                sources[k] = (d.samples, d.away if has_holes(k) else d.valid, d.valid, int(fr[k]) - r0, int(fc[k]) - c0)
+                img, away, ok = d.samples, (d.away if has_holes(k) else d.valid), d.valid
+                y0, x0 = int(fr[k]) - r0, int(fc[k]) - c0
             else:
-                img, m = frame(k, ya, yb, xa, xb)
-                sources[k] = (img, m, raw.get((k, ya, yb, xa, xb), m), ya, xa)
+                img, away = frame(k, ya, yb, xa, xb)
+                ok = raw.get((k, ya, yb, xa, xb), away)
+                img, away, ok = np.ascontiguousarray(img), np.ascontiguousarray(away), np.ascontiguousarray(ok)
+                y0, x0 = ya, xa
+            w = away.shape[1]
+            sources[k] = (img.reshape(img.shape[0], -1), away.ravel(), ok.ravel(), y0, x0, w)
         return sources[k]
 
     def inside(k):
@@ -1130,10 +1174,14 @@ def _fill_nearest(ctx: _BlendContext, readers, frame, raw: dict, need: np.ndarra
         c = cols[a:b]
         return a + np.flatnonzero((c >= x0) & (c < x0 + int(ctx.sizes[k, 0])))
 
+    def at(src, sub):
+        """Flat positions in ``src``'s arrays of the pixels ``sub``."""
+        return (rows[sub] - src[3]) * src[5] + (cols[sub] - src[4])
+
     def take_nearer(k, sub, away):
         """Frame k where it is valid at the pixels ``sub`` and its nadir point nearer than the best so far."""
         src = source(k)
-        sub = sub[(src[1] if away else src[2])[rows[sub] - src[3], cols[sub] - src[4]]]
+        sub = sub[(src[1] if away else src[2]).take(at(src, sub))]
         d = np.hypot(xs[sub] - ctx.nadir[k, 0], ys[sub] - ctx.nadir[k, 1])
         better = d < best[sub]
         sub = sub[better]
@@ -1150,12 +1198,13 @@ def _fill_nearest(ctx: _BlendContext, readers, frame, raw: dict, need: np.ndarra
                 sub = inside(k)
                 take_nearer(k, sub[~got[sub]], False)
         got = winner >= 0
-    for k in np.unique(winner[got]).tolist():
+    flat_out = out.reshape(out.shape[0], -1)
+    for k in np.flatnonzero(np.bincount(winner[got])).tolist():  # the winning frames, ascending
         sub = np.flatnonzero(winner == k)
-        img, _, _, y0, x0 = source(k)
-        fill = img[:, rows[sub] - y0, cols[sub] - x0] * ctx.gains[k].astype(np.float32)[:, None]
-        out[:, rows[sub], cols[sub]] = _to_type(fill, ctx.dtype)
-    valid[rows[got], cols[got]] = True
+        src = source(k)
+        fill = src[0].take(at(src, sub), axis=1) * ctx.gains[k].astype(np.float32)[:, None]
+        flat_out[:, need[sub]] = _to_type(fill, ctx.dtype)
+    valid.ravel()[need[got]] = True
 
 
 # a true ortho's frame is taken this far from its holes only where no other frame has the pixel away from its own:
