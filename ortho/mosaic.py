@@ -1253,14 +1253,17 @@ class FrameHoles:
         ra, rb, ca, cb = int(rs.min()), int(rs.max()) + 1, int(cs.min()), int(cs.max()) + 1
         y0 = (self.offset[0] + r0 + ra) * factor - row
         x0 = (self.offset[1] + c0 + ca) * factor - col
-        all_holes = np.repeat(np.repeat(sub[ra:rb, ca:cb] == 1, factor, axis=0), factor, axis=1)
+        box = sub[ra:rb, ca:cb]
+        all_holes = np.repeat(np.repeat(box == 1, factor, axis=0), factor, axis=1)
+        # cells with some of their invalid pixels holes: their bits, all at once (the cells are disjoint from those
+        # whose invalid pixels are all holes)
+        bits = np.zeros(all_holes.shape, bool)
+        ii, jj = np.nonzero(box == 2)
+        bits.reshape(rb - ra, factor, cb - ca, factor)[ii, :, jj, :] = \
+            self.partial[self.partial_index[r0 + ra + ii, c0 + ca + jj]]
         ya, yb, xa, xb = max(0, y0), min(h, y0 + all_holes.shape[0]), max(0, x0), min(w, x0 + all_holes.shape[1])
-        hole[ya:yb, xa:xb] = all_holes[ya - y0:yb - y0, xa - x0:xb - x0] & ~ok[ya:yb, xa:xb]
-        for i, j in zip(*np.nonzero(sub == 2)):  # cells with some of their invalid pixels holes: their bits
-            bits = self.partial[self.partial_index[r0 + i, c0 + j]]
-            py, px = (self.offset[0] + r0 + i) * factor - row, (self.offset[1] + c0 + j) * factor - col
-            ya, yb, xa, xb = max(0, py), min(h, py + factor), max(0, px), min(w, px + factor)
-            hole[ya:yb, xa:xb] = bits[ya - py:yb - py, xa - px:xb - px]
+        hole[ya:yb, xa:xb] = (all_holes[ya - y0:yb - y0, xa - x0:xb - x0] & ~ok[ya:yb, xa:xb]) \
+            | bits[ya - y0:yb - y0, xa - x0:xb - x0]
         return hole
 
     def _arrays(self, k: int) -> dict:
