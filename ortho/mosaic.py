@@ -1283,7 +1283,7 @@ def find_holes(invalid: np.ndarray, factor: int, offset, strip_cells: int = 256)
     """The holes of a frame (``FrameHoles``) from ``invalid`` (uint8 (h * factor + 2, w * factor + 2): 1 an invalid
     pixel of its window on whole seam cells, 0 a valid one, framed by 1s; overwritten); None when it has none."""
     cv2.floodFill(invalid, None, (0, 0), 2)  # the invalid pixels joined to the outside (4-connected) become 2
-    if not (invalid == 1).any():  # a conventional ortho (the demo's 18 frames: 0.02 CPU-s, 0.27 with the cells below)
+    if not (invalid == 1).any():  # a conventional ortho: no hole
         return None
     h, w = (invalid.shape[0] - 2) // factor, (invalid.shape[1] - 2) // factor
     px = invalid[1:-1, 1:-1]
