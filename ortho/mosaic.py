@@ -799,16 +799,19 @@ def _mosaic_outputs(work: Path, root: Path, index, frames_dir, *, red, labels, g
                               factor=factor, gains=gains, nadir=nadir, feather_px=feather_px, tile_px=tile_px,
                               executor=executor, labels=labels, previous=previous,
                               decoded=red.decoded, holes=frame_holes(red))
-        # the seamlines over the DOM, reduced to at most 2000 px, for a look before opening the GeoPackage
-        write_seamlines_preview(work / "seamlines_preview.png", work / "mosaic.tif", labels, factor)
+        # the seamlines over the DOM, reduced to at most 2000 px, for a look before opening the GeoPackage: on a thread
+        # while this one counts the pairs and the nodata inside the block for the summary
+        with _background(write_seamlines_preview, work / "seamlines_preview.png", work / "mosaic.tif", labels,
+                         factor) as preview:
+            pairs = [[red.names[i], red.names[j]] for i, j in neighbour_pairs(labels)]
+            nodata = _interior_nodata(work / "mosaic.tif", res)
+            preview()
         vectors()
     summary = {"path": str(out_dir / "mosaic.tif"), "width": mosaic.width, "height": mosaic.height,
                "frames": len(red.names), "res_m": res, "seam_factor": factor, "seams": seams, "feather_px": feather_px,
                "index_sha1": index_sha1(root),
                "gains": {n: [float(v) for v in g] for n, g in zip(red.names, gains)},
-               "pairs": [[red.names[i], red.names[j]] for i, j in neighbour_pairs(labels)],
-               **_interior_nodata(work / "mosaic.tif", res),
-               "settings": settings_record}
+               "pairs": pairs, **nodata, "settings": settings_record}
     if previous is not None:
         summary["tiles"] = tiles
         logger.info("edited seamlines: %d of %d tiles blended, %d taken over from the earlier mosaic%s", tiles["blended"],
