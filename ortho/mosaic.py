@@ -30,7 +30,8 @@ blending in compiled or vectorised code (OpenCV; scipy's Dijkstra for the seam p
 cores while this thread writes, no float64 intermediates; a seam tile reads each frame only over the box
 its weight reaches and blends its feather zone in dense windows round the seams (``_mixed_boxes``), and the
 frames of a small block (``DECODED_FRAMES_MAX_BYTES``) are decoded once, by the seam grid, and blended from
-memory. The tile order, the tile results and so the files do not depend
+memory, a true ortho's frame with its validity away from its holes made once, whole (``DecodedFrame``); the pixels no
+weight reaches are filled by looking the frames up at them (``_fill_nearest``). The tile order, the tile results and so the files do not depend
 on the scheduler or the number of threads.
 
 The frames are checked against ``ortho/frames/index.json`` first (sizes and hashes), the tile size
