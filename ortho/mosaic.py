@@ -602,7 +602,8 @@ def _mosaic_block(root, settings, *, object_height_m, max_seam_cells, end_reach_
     # thread of their own meanwhile; joined before the seams, so that no other thread imports them at the same time
     importer = None
     if seams == "least-cost" and seamlines is None:
-        importer = threading.Thread(target=import_path_search, name="mosaic-import", daemon=True)
+        importer = threading.Thread(target=_import_quietly, args=(import_path_search,), name="mosaic-import",
+                                    daemon=True)
         importer.start()
     with _background(_ndsm_objects, ndsm_path, index, mosaic, seam_transform, seam_shape, object_height_m) as objects_of:
         # blending on local threads reads the frames kept decoded by the seam grid when they are small
@@ -715,6 +716,15 @@ class _PhaseTimer:
         t, c = self._clock.perf_counter(), self._clock.process_time()
         logger.debug("mosaic: %s %.2f s (CPU %.2f s)", phase, t - self._t, c - self._c)
         self._t, self._c = t, c
+
+
+def _import_quietly(importer) -> None:
+    """``importer()`` on a thread: an ImportError is left to the code that needs the modules (it imports them again
+    and fails there, with the error handling of its own thread), not printed as a thread's traceback."""
+    try:
+        importer()
+    except ImportError:
+        pass
 
 
 def _import_vector_modules() -> None:
