@@ -1172,11 +1172,12 @@ def _fill_nearest(ctx: _BlendContext, readers, frame, raw: dict, need: np.ndarra
             if d is not None and (not has_holes(k) or d.away is not None):
                 img, away, ok = d.samples, (d.away if has_holes(k) else d.valid), d.valid
                 y0, x0 = int(fr[k]) - r0, int(fc[k]) - c0
-            else:
-                img, away = frame(k, ya, yb, xa, xb)
-                ok = raw.get((k, ya, yb, xa, xb), away)
+            else:  # read over the box of the pixels within the frame's grid
+                y0, x0 = max(ya, int(fr[k]) - r0), max(xa, int(fc[k]) - c0)
+                y1, x1 = min(yb, int(fr[k] + ctx.sizes[k, 1]) - r0), min(xb, int(fc[k] + ctx.sizes[k, 0]) - c0)
+                img, away = frame(k, y0, y1, x0, x1)
+                ok = raw.get((k, y0, y1, x0, x1), away)
                 img, away, ok = np.ascontiguousarray(img), np.ascontiguousarray(away), np.ascontiguousarray(ok)
-                y0, x0 = ya, xa
             w = away.shape[1]
             sources[k] = (img.reshape(img.shape[0], -1), away.ravel(), ok.ravel(), y0, x0, w)
         return sources[k]
@@ -1194,6 +1195,8 @@ def _fill_nearest(ctx: _BlendContext, readers, frame, raw: dict, need: np.ndarra
 
     def take_nearer(k, sub, away):
         """Frame k where it is valid at the pixels ``sub`` and its nadir point nearer than the best so far."""
+        if not len(sub):  # (a frame read from its file is not read for no pixel)
+            return
         src = source(k)
         sub = sub[(src[1] if away else src[2]).take(at(src, sub))]
         d = np.hypot(xs[sub] - ctx.nadir[k, 0], ys[sub] - ctx.nadir[k, 1])
