@@ -48,9 +48,14 @@ bytecode first (``__pycache__``, as pip writes it for a wheel install): an edita
 PYTHONDONTWRITEBYTECODE=1 (this machine's sessions) compiles every module of this project in every run, about 0.08
 CPU-s of ``ortho mosaic``; recorded as ``bytecode``.
 
+With ``--phases N``, after the timed runs, ``ortho mosaic -v`` runs N more times on the demo (alternately with
+``--before-src``'s): the CPU seconds of each phase from its phase timer, medians, as ``phases_cpu_s`` (what is not in a
+phase, ``outside_phases``, is the start-up, its imports and the end; ``outputs``: seams.tif, the vector files, the
+preview and the summary after the COG).
+
 Usage: python bench/mosaic_speed.py [--demo DIR] [--work DIR] [--gp 4.2] [--repeats N] [--large-repeats N]
        [--skip-demo] [--skip-large] [--keep-large] [--large-check] [--subset S,F ...] [--out FILE] [--label KEY]
-       [--before-src DIR] [--bytecode]
+       [--before-src DIR] [--bytecode] [--phases N]
 """
 
 from __future__ import annotations
@@ -59,6 +64,7 @@ import argparse
 import json
 import math
 import os
+import re
 import shutil
 import statistics
 import subprocess
@@ -85,8 +91,9 @@ def tool(name: str) -> str:
     return str(here) if here.exists() else (shutil.which(name) or name)
 
 
-def measured(cmd: list[str], cwd=None) -> dict:
-    """Run ``cmd`` in its own process: wall s, CPU s (user + system), peak RSS MB, exit code."""
+def measured(cmd: list[str], cwd=None, keep_stderr: bool = False) -> dict:
+    """Run ``cmd`` in its own process: wall s, CPU s (user + system), peak RSS MB, exit code (and its ``stderr`` with
+    ``keep_stderr``)."""
     load = os.getloadavg()[0]
     t0 = time.perf_counter()
     p = subprocess.Popen(cmd, cwd=cwd, stdout=subprocess.PIPE, stderr=subprocess.PIPE)
@@ -101,7 +108,37 @@ def measured(cmd: list[str], cwd=None) -> dict:
         raise SystemExit(f"{' '.join(map(str, cmd))} failed ({code}):\n{err[-3000:]}")
     return {"wall_s": round(wall, 3), "cpu_s": round(ru.ru_utime + ru.ru_stime, 3),
             "peak_rss_mb": round(ru.ru_maxrss / 1024.0, 1), "load_1min_before": round(load, 2),
-            "stdout": out.strip()[-500:]}
+            "stdout": out.strip()[-500:], **({"stderr": err} if keep_stderr else {})}
+
+
+PHASE_LINE = re.compile(r"mosaic: (.+?) [0-9.]+ s \(CPU ([0-9.]+) s\)")
+
+
+def phase_cpu(cmd: list[str], cwd=None) -> dict:
+    """One ``ortho mosaic -v`` run (``cmd`` ends with its arguments): CPU s of each phase from its phase timer (user +
+    system of the whole process, all threads, between the ends of two phases; ``ortho.mosaic._PhaseTimer``), and of
+    the whole process (``total``); what is not in a phase is the start-up and the end."""
+    r = measured(cmd[:-1] + ["-v", cmd[-1]], cwd=cwd, keep_stderr=True)
+    out = {name: float(cpu) for name, cpu in PHASE_LINE.findall(r["stderr"])}
+    out["total"] = r["cpu_s"]
+    # the run's phases follow one another (``blend and COG`` holds the tiles, overviews and COG, and then the seams'
+    # raster, vector files, preview and summary: ``outputs``)
+    outer = ("checks", "seam grid", "nDSM", "seams", "gains", "blend and COG")
+    out["outputs"] = round(out.get("blend and COG", 0.0) - sum(out.get(k, 0.0) for k in ("tiles", "overviews", "COG")), 3)
+    out["outside_phases"] = round(r["cpu_s"] - sum(out.get(k, 0.0) for k in outer), 3)
+    return out
+
+
+def phases(work: Path, runs: int, before_src: Path | None = None) -> dict:
+    """``phase_cpu`` of ours (and of ``before_src``'s code) ``runs`` times alternately on ``work``: per phase the
+    median."""
+    got = {"ours": [], **({"before": []} if before_src is not None else {})}
+    for _ in range(runs):
+        if before_src is not None:
+            got["before"].append(phase_cpu(before_command(before_src) + ["mosaic", str(work)], cwd=work))
+        got["ours"].append(phase_cpu([tool("ortho"), "mosaic", str(work)]))
+    return {"runs": runs, **{who: {k: round(statistics.median(r[k] for r in rs if k in r), 3) for k in rs[0]}
+                             for who, rs in got.items()}}
 
 
 # --- the demo's frames -----------------------------------------------------------------------------------
@@ -414,6 +451,9 @@ def main() -> None:
     ap.add_argument("--out", type=Path, default=REPO / "bench" / "results" / "mosaic_speed.json")
     ap.add_argument("--before-src", type=Path, help="source tree of the code before a change (git archive of main): "
                     "its ortho mosaic also runs on the demo, alternately, and the two mosaics' sha256 are compared")
+    ap.add_argument("--phases", type=int, default=0, metavar="N",
+                    help="after the timed runs, N runs of `ortho mosaic -v` on the demo (and of --before-src's) for "
+                         "the CPU seconds of each phase (medians, `phases_cpu_s`)")
     ap.add_argument("--label", help="write this run under this key of --out, keeping the file's other keys")
     ap.add_argument("--bytecode", action="store_true",
                     help="compile the measured sources (this tree's and --before-src's ortho and aerotri) to bytecode "
@@ -456,6 +496,9 @@ def main() -> None:
         print(f"demo: {len(list((demo / 'ortho' / 'frames').glob('*.tif')))} frames from {src}", flush=True)
         result["demo"] = compare(demo, a.repeats, "demo", before_src=a.before_src)
         result["demo"]["per_gp"] = per_gp(result["demo"])
+        if a.phases:
+            print(f"demo: CPU per phase, {a.phases} run(s) each", flush=True)
+            result["demo"]["phases_cpu_s"] = phases(demo, a.phases, a.before_src)
     if not a.skip_demo and (demo / "truth" / "ortho.tif").exists():
         before = json.loads((demo / "ortho" / "dom_report.json").read_text())["displacement"] \
             if (demo / "ortho" / "dom_report.json").exists() else None

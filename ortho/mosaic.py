@@ -30,7 +30,8 @@ blending in compiled or vectorised code (OpenCV; scipy's Dijkstra for the seam p
 cores while this thread writes, no float64 intermediates; a seam tile reads each frame only over the box
 its weight reaches and blends its feather zone in dense windows round the seams (``_mixed_boxes``), and the
 frames of a small block (``DECODED_FRAMES_MAX_BYTES``) are decoded once, by the seam grid, and blended from
-memory. The tile order, the tile results and so the files do not depend
+memory, a true ortho's frame with its validity away from its holes made once, whole (``DecodedFrame``); the pixels no
+weight reaches are filled by looking the frames up at them (``_fill_nearest``). The tile order, the tile results and so the files do not depend
 on the scheduler or the number of threads.
 
 The frames are checked against ``ortho/frames/index.json`` first (sizes and hashes), the tile size
@@ -80,8 +81,8 @@ from ortho.grid import OrthoGrid
 from ortho.settings import MosaicSettings
 from ortho.seamlines_gpkg import write_seamlines_gpkg
 from ortho.seamlines_preview import write_seamlines_preview
-from ortho.seamlines import (footprint, frame_regions, keep_objects_whole, label_polygons, least_cost_seams,
-                             neighbour_pairs, seam_lines, voronoi_labels)
+from ortho.seamlines import (footprint, frame_regions, import_path_search, keep_objects_whole, label_polygons,
+                             least_cost_seams, neighbour_pairs, seam_lines, voronoi_labels)
 
 logger = logging.getLogger(__name__)
 
@@ -135,11 +136,22 @@ def window_of(img: np.ndarray, valid: np.ndarray, col_off: int, row_off: int, wi
     if c0 == col_off and r0 == row_off and c1 == col_off + width and r1 == row_off + height:
         return img[:, r0:r1, c0:c1].copy(), valid[r0:r1, c0:c1].copy()
     out = np.zeros((img.shape[0], height, width), img.dtype)
-    ok = np.zeros((height, width), bool)
     if c1 > c0 and r1 > r0:
         out[:, r0 - row_off:r1 - row_off, c0 - col_off:c1 - col_off] = img[:, r0:r1, c0:c1]
-        ok[r0 - row_off:r1 - row_off, c0 - col_off:c1 - col_off] = valid[r0:r1, c0:c1]
-    return out, ok
+    return out, mask_window(valid, col_off, row_off, width, height)
+
+
+def mask_window(mask: np.ndarray, col_off: int, row_off: int, width: int, height: int) -> np.ndarray:
+    """A copy of the window of ``mask`` (h, w; bool), False beyond it."""
+    h, w = mask.shape
+    c0, r0 = max(0, col_off), max(0, row_off)
+    c1, r1 = min(w, col_off + width), min(h, row_off + height)
+    if c0 == col_off and r0 == row_off and c1 == col_off + width and r1 == row_off + height:
+        return mask[r0:r1, c0:c1].copy()
+    ok = np.zeros((height, width), bool)
+    if c1 > c0 and r1 > r0:
+        ok[r0 - row_off:r1 - row_off, c0 - col_off:c1 - col_off] = mask[r0:r1, c0:c1]
+    return ok
 
 
 # frames are kept decoded from the seam grid's reading to the blending when all of them (samples and validity)
@@ -149,8 +161,25 @@ DECODED_FRAMES_MAX_BYTES = 256 * 2 ** 20
 
 
 def decoded_bytes(index: FrameIndex, bands: int, itemsize: int) -> int:
-    """Memory of all frames of ``index`` decoded (samples and a validity byte per pixel)."""
-    return sum(int(e.width) * int(e.height) * (bands * itemsize + 1) for e in index.frames)
+    """Memory of all frames of ``index`` decoded (samples, and two validity bytes per pixel: the frame's own and,
+    for a frame with holes, that away from them)."""
+    return sum(int(e.width) * int(e.height) * (bands * itemsize + 2) for e in index.frames)
+
+
+@dataclasses.dataclass(frozen=True)
+class DecodedFrame:
+    """A frame ortho decoded whole: ``samples`` (bands, h, w), ``valid`` (h, w) bool and, for a frame with holes,
+    ``away`` (h, w) bool: valid and not within the hole margin of a hole (``_hole_margin``), else None."""
+
+    samples: np.ndarray
+    valid: np.ndarray
+    away: np.ndarray | None = None
+
+
+def _dilated(mask: np.ndarray, radius_px: int) -> np.ndarray:
+    """``mask`` (bool) dilated by a disc of ``radius_px`` (OpenCV's ellipse of 2 r + 1 px; nothing beyond the array)."""
+    kernel = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * radius_px + 1,) * 2)
+    return cv2.dilate(mask.view(np.uint8), kernel).view(bool)
 
 
 class ReducedFrames:
@@ -160,6 +189,9 @@ class ReducedFrames:
     def __init__(self, names, rgb, valid, offsets, *, factor, seam_transform, shape):
         self.names, self.rgb, self.valid, self.offsets = names, rgb, valid, offsets
         self.factor, self.transform, self.shape = factor, seam_transform, shape
+        # per frame: its SampleHistogram made while it was read, its DecodedFrame (kept for the blending), or None
+        self.sample_histograms = [None] * len(names)
+        self.decoded_frames = [None] * len(names)
         self._gray = {}
 
     def gray_of(self, k: int) -> np.ndarray:
@@ -176,6 +208,16 @@ class ReducedFrames:
     def gray(self):
         return [self.gray_of(k) for k in range(len(self.rgb))]
 
+    def histograms(self, gains: np.ndarray) -> list:
+        """Per frame its ``SampleHistogram`` (None for types without one), what ``limit_gains`` reads for ``gains``
+        (frames, bands): a frame kept decoded has it made here, and only when one of its gains is above 1 (the
+        others are left alone by ``limit_gains``: None)."""
+        out = list(self.sample_histograms)
+        for k, frame in enumerate(self.decoded_frames):
+            if frame is not None and out[k] is None and np.any(np.asarray(gains[k]) > 1.0):
+                out[k] = sample_histogram(frame.samples, frame.valid)
+        return out
+
 
 _RESIZABLE = (np.uint8, np.uint16, np.int16, np.float32, np.float64)
 _HISTOGRAM_TYPES = (np.dtype(np.uint8), np.dtype(np.uint16))
@@ -183,12 +225,13 @@ _HISTOGRAM_TYPES = (np.dtype(np.uint8), np.dtype(np.uint16))
 SATURATION_ALLOWANCE = 0.001
 
 
-def _reduce_frame(path, g: OrthoGrid, mosaic: OrthoGrid, factor: int, strip_px: int = 1024, keep_decoded=False):
+def _reduce_frame(path, g: OrthoGrid, mosaic: OrthoGrid, factor: int, strip_px: int = 1024, keep_decoded=False,
+                  margin_px: int = 0):
     """One frame on the seam grid: (rgb (h, w, bands), valid (h, w), (row, col) of its first cell, histogram,
     decoded, holes), read by strips of whole cells (memory of the samples set by ``strip_px`` rows, not by the
     frame; the holes need one byte per pixel of the frame); with ``keep_decoded`` the frame is read whole and
-    returned as ``decoded`` (samples (bands, h, w), validity), else that is None. ``holes``: ``FrameHoles`` or
-    None (no invalid pixel enclosed by valid ones)."""
+    returned as ``decoded`` (``DecodedFrame``; its validity away from the holes cleared ``margin_px`` round them),
+    else that is None. ``holes``: ``FrameHoles`` or None (no invalid pixel enclosed by valid ones)."""
     c0, r0 = g.offset_in(mosaic)
     # align the frame's window to whole seam-grid cells
     rc0, cc0 = r0 // factor, c0 // factor
@@ -205,7 +248,9 @@ def _reduce_frame(path, g: OrthoGrid, mosaic: OrthoGrid, factor: int, strip_px: 
         # of samples at the type's maximum): what a gain would saturate
         bits = 8 * dtype.itemsize
         shift = max(0, bits - 10)
-        hist = np.zeros((ds.count, (1 << bits) >> shift), np.int64) if dtype in _HISTOGRAM_TYPES else None
+        # (a frame kept decoded has it made later, and only where a gain may need it: ``ReducedFrames.histograms``)
+        hist = np.zeros((ds.count, (1 << bits) >> shift), np.int64) \
+            if dtype in _HISTOGRAM_TYPES and not keep_decoded else None
         top_count = np.zeros(ds.count, np.int64)
         decoded = read_planar(ds, 0, 0, ds.width, ds.height) if keep_decoded else None
         # the invalid pixels (1) of the frame's window on whole seam cells, framed by invalid ones: its holes are
@@ -226,8 +271,30 @@ def _reduce_frame(path, g: OrthoGrid, mosaic: OrthoGrid, factor: int, strip_px: 
             valid[s:s + n] = bad < 0.5 / n_px
             np.logical_not(ok, out=invalid[1 + s * factor:1 + (s + n) * factor, 1:-1].view(bool))
     holes = find_holes(invalid, factor, (rc0, cc0))
+    if decoded is not None:
+        away = None
+        if holes is not None and margin_px:
+            # the frame's validity away from its holes, once for the whole frame (``_hole_margin`` of a window of it
+            # is a window of this: a dilation reaches margin_px, the window's halo)
+            dy, dx = r0 - rc0 * factor, c0 - cc0 * factor
+            hole = invalid[1 + dy:1 + dy + g.height, 1 + dx:1 + dx + g.width] == 1
+            away = decoded[1] & ~_dilated(hole, margin_px)
+        decoded = DecodedFrame(decoded[0], decoded[1], away)
     return (rgb, valid, (rc0, cc0), (None if hist is None else SampleHistogram(hist, top_count, bits)), decoded,
             holes)
+
+
+def sample_histogram(img: np.ndarray, ok: np.ndarray) -> SampleHistogram | None:
+    """``SampleHistogram`` of the valid samples of ``img`` (bands, h, w); None for types without one."""
+    dtype = img.dtype
+    if dtype not in _HISTOGRAM_TYPES:
+        return None
+    bits = 8 * dtype.itemsize
+    shift = max(0, bits - 10)
+    hist = np.zeros((img.shape[0], (1 << bits) >> shift), np.int64)
+    top_count = np.zeros(img.shape[0], np.int64)
+    _add_histogram(hist, top_count, img, ok, bits, shift)
+    return SampleHistogram(hist, top_count, bits)
 
 
 def _add_histogram(hist: np.ndarray, top_count: np.ndarray, img: np.ndarray, ok: np.ndarray, bits: int,
@@ -254,16 +321,18 @@ def reduce_frames(frames_dir: Path, index: FrameIndex, mosaic: OrthoGrid, factor
                   threads: int | None = None, keep_decoded: bool = False) -> ReducedFrames:
     """Every frame of ``index`` on the seam grid of ``factor`` mosaic pixels per cell (frames on ``threads``
     threads, default all cores; GDAL's decoding and OpenCV's averaging release the GIL). With ``keep_decoded``
-    the frames read whole are kept in ``decoded`` (frame file path -> (samples, validity)) for the blending."""
+    the frames read whole are kept in ``decoded`` (frame file path -> ``DecodedFrame``) for the blending."""
     from ortho.rectify import ordered_thread_map
 
     entries = list(zip(index.frames, index.grids))
 
+    margin = hole_margin_px(mosaic.res_m)
+
     def one(entry):
         e, grid = entry
-        return _reduce_frame(frames_dir / e.file, grid, mosaic, factor, keep_decoded=keep_decoded)
+        return _reduce_frame(frames_dir / e.file, grid, mosaic, factor, keep_decoded=keep_decoded, margin_px=margin)
 
-    names, rgbs, valids, offsets, hists, decoded, holes = [], [], [], [], [], {}, []
+    names, rgbs, valids, offsets, hists, decoded, holes, frames = [], [], [], [], [], {}, [], []
     with progress(len(entries), "seam grid", "frames") as bar:
         with contextlib.closing(ordered_thread_map(one, entries, threads or os.cpu_count() or 1)) as made:
             for (e, _), (rgb, valid, off, hist, frame, hole) in zip(entries, made):
@@ -273,13 +342,15 @@ def reduce_frames(frames_dir: Path, index: FrameIndex, mosaic: OrthoGrid, factor
                 valids.append(valid)
                 offsets.append(off)
                 hists.append(hist)
+                frames.append(frame)
                 if frame is not None:
                     decoded[str(Path(frames_dir) / e.file)] = frame
                 bar.update(1)
     shape = (-(-mosaic.height // factor), -(-mosaic.width // factor))
     t = Affine(mosaic.res_m * factor, 0, mosaic.x_left_m, 0, -mosaic.res_m * factor, mosaic.y_top_m)
     red = ReducedFrames(names, rgbs, valids, offsets, factor=factor, seam_transform=t, shape=shape)
-    red.histograms = hists
+    red.sample_histograms = hists
+    red.decoded_frames = frames
     red.decoded = decoded
     red.holes = holes
     return red
@@ -527,11 +598,21 @@ def _mosaic_block(root, settings, *, object_height_m, max_seam_cells, end_reach_
     timer.done("checks")
     # the nDSM is checked and read onto the seam grid on a thread while the frames are reduced (both before
     # any output is written; its error is raised before the seams are made)
+    # the path search's modules (scipy.sparse.csgraph: 0.2 CPU-s, a fifth of the demo's start-up) are imported on a
+    # thread of their own meanwhile; joined before the seams, so that no other thread imports them at the same time
+    importer = None
+    if seams == "least-cost" and seamlines is None:
+        importer = threading.Thread(target=_import_quietly, args=(import_path_search,), name="mosaic-import",
+                                    daemon=True)
+        importer.start()
     with _background(_ndsm_objects, ndsm_path, index, mosaic, seam_transform, seam_shape, object_height_m) as objects_of:
         # blending on local threads reads the frames kept decoded by the seam grid when they are small
         keep = (executor is None or not executor.distributed) and \
             decoded_bytes(index, bands, itemsize) <= DECODED_FRAMES_MAX_BYTES
+        timer.trim = not keep
         red = reduce_frames(frames_dir, index, mosaic, factor, keep_decoded=keep)
+        if importer is not None:
+            importer.join()
         timer.done("seam grid")
         objects = objects_of()
         timer.done("nDSM")
@@ -563,7 +644,7 @@ def _mosaic_block(root, settings, *, object_height_m, max_seam_cells, end_reach_
     timer.done("seams")
     gains = balance_gains(red) if balance else np.ones((len(red.names), red.rgb[0].shape[2]))
     # colour that does not clip: no gain saturates more of a frame than the frame has saturated itself
-    gains, limited = limit_gains(gains, red.histograms)
+    gains, limited = limit_gains(gains, red.histograms(gains))
     for k, b, g0, g1, own, would in limited:
         logger.warning("frame %s band %d: gain %.2f lowered to %.2f so that it saturates no more of the frame than "
                        "the frame itself (%.2f %%; the gain would have saturated %.2f %%)", red.names[k], b + 1, g0, g1,
@@ -617,20 +698,33 @@ def release_freed_memory() -> None:
 
 
 class _PhaseTimer:
-    """Wall and CPU time of the phases of a run, logged at debug level (``-v``); the end of every phase also
-    hands the memory it freed back to the system (``release_freed_memory``)."""
+    """Wall and CPU time of the phases of a run, logged at debug level (``-v``); with ``trim`` the end of every phase
+    also hands the memory it freed back to the system (``release_freed_memory``). A small block (its frames kept
+    decoded) is run without: its phases then reuse the memory freed before them instead of faulting in new pages (the
+    demo: 166 k -> 131 k minor page faults, 0.1 CPU-s of system time, peak RSS +60 MB)."""
 
-    def __init__(self):
+    def __init__(self, trim: bool = True):
         import time
 
+        self.trim = trim
         self._clock = time
         self._t, self._c = time.perf_counter(), time.process_time()
 
     def done(self, phase: str) -> None:
-        release_freed_memory()
+        if self.trim:
+            release_freed_memory()
         t, c = self._clock.perf_counter(), self._clock.process_time()
         logger.debug("mosaic: %s %.2f s (CPU %.2f s)", phase, t - self._t, c - self._c)
         self._t, self._c = t, c
+
+
+def _import_quietly(importer) -> None:
+    """``importer()`` on a thread: an ImportError is left to the code that needs the modules (it imports them again
+    and fails there, with the error handling of its own thread), not printed as a thread's traceback."""
+    try:
+        importer()
+    except ImportError:
+        pass
 
 
 def _import_vector_modules() -> None:
@@ -716,16 +810,19 @@ def _mosaic_outputs(work: Path, root: Path, index, frames_dir, *, red, labels, g
                               factor=factor, gains=gains, nadir=nadir, feather_px=feather_px, tile_px=tile_px,
                               executor=executor, labels=labels, previous=previous,
                               decoded=red.decoded, holes=frame_holes(red))
-        # the seamlines over the DOM, reduced to at most 2000 px, for a look before opening the GeoPackage
-        write_seamlines_preview(work / "seamlines_preview.png", work / "mosaic.tif", labels, factor)
+        # the seamlines over the DOM, reduced to at most 2000 px, for a look before opening the GeoPackage: on a thread
+        # while this one counts the pairs and the nodata inside the block for the summary
+        with _background(write_seamlines_preview, work / "seamlines_preview.png", work / "mosaic.tif", labels,
+                         factor) as preview:
+            pairs = [[red.names[i], red.names[j]] for i, j in neighbour_pairs(labels)]
+            nodata = _interior_nodata(work / "mosaic.tif", res)
+            preview()
         vectors()
     summary = {"path": str(out_dir / "mosaic.tif"), "width": mosaic.width, "height": mosaic.height,
                "frames": len(red.names), "res_m": res, "seam_factor": factor, "seams": seams, "feather_px": feather_px,
                "index_sha1": index_sha1(root),
                "gains": {n: [float(v) for v in g] for n, g in zip(red.names, gains)},
-               "pairs": [[red.names[i], red.names[j]] for i, j in neighbour_pairs(labels)],
-               **_interior_nodata(work / "mosaic.tif", res),
-               "settings": settings_record}
+               "pairs": pairs, **nodata, "settings": settings_record}
     if previous is not None:
         summary["tiles"] = tiles
         logger.info("edited seamlines: %d of %d tiles blended, %d taken over from the earlier mosaic%s", tiles["blended"],
@@ -879,8 +976,12 @@ class _FrameReaders:
         """``read_planar`` of frame ``path``: from memory when the frame is kept decoded, else from its file."""
         frame = self._decoded.get(path)
         if frame is not None:
-            return window_of(*frame, col_off, row_off, width, height)
+            return window_of(frame.samples, frame.valid, col_off, row_off, width, height)
         return read_planar(self.get(path), col_off, row_off, width, height)
+
+    def decoded(self, path: str) -> DecodedFrame | None:
+        """Frame ``path`` decoded in memory, or None (read from its file)."""
+        return self._decoded.get(path)
 
     def get(self, path: str):
         cache = getattr(self._local, "open", None)
@@ -956,7 +1057,7 @@ def _blend_tile(ctx: _BlendContext, readers, r0: int, c0: int, th: int, tw: int)
     lc = np.clip(np.arange(c0 - halo, c0 + tw + halo) // f, 0, sw - 1)
     rl, cl = int(lr[0]), int(lc[0])
     cells = np.asarray(ctx.read_cells(rl, cl, int(lr[-1]) + 1 - rl, int(lc[-1]) + 1 - cl))
-    present = np.unique(cells)
+    present = np.flatnonzero(np.bincount(cells.ravel() + 1)) - 1  # the labels there, ascending (-1: none)
     labelled = present[present >= 0]
     fc, fr = ctx.offsets[:, 0], ctx.offsets[:, 1]
     reads = {}
@@ -980,6 +1081,13 @@ def _blend_tile(ctx: _BlendContext, readers, r0: int, c0: int, th: int, tw: int)
         img, m = frame(k)
         if m.all():  # labelled cells are valid all over (seam grid validity is the minimum over the cell)
             return _apply_gain(ctx, k, img), m
+        # a frame with holes here (a true ortho): its weight is 1 all over the tile, so the blend below would give its
+        # samples where it is valid away from them, and fill the rest (``_fill_nearest``)
+        out = np.zeros((ctx.bands, th, tw), np.dtype(ctx.dtype))
+        np.copyto(out, _apply_gain(ctx, k, img), where=m[None])
+        valid = m.copy()
+        _fill_nearest(ctx, readers, frame, raw, np.flatnonzero(~m), r0=r0, c0=c0, th=th, tw=tw, out=out, valid=valid)
+        return out, valid
     bands = ctx.bands
     ks = labelled.tolist()
     boxes = _weight_boxes(ctx, cells, ks, dr=r0 - rl * f, dc=c0 - cl * f, lr=lr - rl, lc=lc - cl, th=th, tw=tw)
@@ -1027,45 +1135,93 @@ def _blend_tile(ctx: _BlendContext, readers, r0: int, c0: int, th: int, tw: int)
             acc /= np.maximum(ws, 1e-6)
             np.copyto(out[:, ya:yb, xa:xb], _to_type(acc, ctx.dtype), where=put[None])
             valid[ya:yb, xa:xb] |= put
-        flat_out = out.reshape(bands, -1)
-        # pixels of the feather zone no weight reaches (no frame labelled there: the edge of the block)
+        # pixels of the feather zone no weight reaches (no frame labelled there: the edge of the block; a true ortho's
+        # holes and their margin)
         need = np.flatnonzero(mixed & ~(wsum > 1e-3))
         if len(need):
-            # the valid frame of the nearest nadir point fills pixels no labelled frame reaches (read over the
-            # box of those pixels)
-            rows, cols = np.divmod(need, tw)
-            ya, yb, xa, xb = int(rows.min()), int(rows.max()) + 1, int(cols.min()), int(cols.max()) + 1
-            inner = (rows - ya) * (xb - xa) + (cols - xa)
-            ys = ctx.mosaic.y_top_m - (r0 + rows + 0.5) * ctx.mosaic.res_m
-            xs = ctx.mosaic.x_left_m + (c0 + cols + 0.5) * ctx.mosaic.res_m
-            best = np.full(len(need), np.inf)
-            fill = np.zeros((bands, len(need)), np.float32)
-            over = np.flatnonzero((fc < c0 + tw) & (fc + ctx.sizes[:, 0] > c0) & (fr < r0 + th)
-                                  & (fr + ctx.sizes[:, 1] > r0))
-
-            def take_nearer(k, img, cand):
-                """Frame k's samples where it is a candidate and its nadir point nearer than the best so far."""
-                if not cand.any():
-                    return
-                d = np.hypot(xs - ctx.nadir[k, 0], ys - ctx.nadir[k, 1])
-                better = cand & (d < best)
-                best[better] = d[better]
-                fill[:, better] = img.reshape(bands, -1)[:, inner[better]] * ctx.gains[k].astype(np.float32)[:, None]
-
-            for k in over.tolist():
-                img, m = frame(k, ya, yb, xa, xb)
-                take_nearer(k, img, m.ravel()[inner])
-            got = np.isfinite(best)
-            if raw and not got.all():
-                # pixels every frame has only near its holes: the valid frame of the nearest nadir point after all
-                for k in over.tolist():
-                    key = (k, ya, yb, xa, xb)
-                    if key in raw:
-                        take_nearer(k, reads[key][0], raw[key].ravel()[inner] & ~got)
-                got = np.isfinite(best)
-            flat_out[:, need[got]] = _to_type(fill[:, got], ctx.dtype)
-            valid.ravel()[need[got]] = True
+            _fill_nearest(ctx, readers, frame, raw, need, r0=r0, c0=c0, th=th, tw=tw, out=out, valid=valid)
     return out, valid
+
+
+def _fill_nearest(ctx: _BlendContext, readers, frame, raw: dict, need: np.ndarray, *, r0: int, c0: int, th: int,
+                  tw: int, out: np.ndarray, valid: np.ndarray) -> None:
+    """Fill the tile's pixels ``need`` (flat indices; ascending) in ``out`` and ``valid`` from the valid frame of the
+    nearest nadir point (distances in float64; of equal ones the first frame), a frame with holes valid away from
+    them; pixels every frame has only near its holes from the nearest frame that has them after all. ``frame(k, y0,
+    y1, x0, x1)``: the tile's reading of frame k (its validity away from holes), ``raw``: the validity of such
+    readings of frames with holes. A frame decoded in memory is looked up at the pixels, no window copied; a frame
+    read from its file is read over the box of the pixels."""
+    rows, cols = np.divmod(need, tw)
+    ya, yb, xa, xb = int(rows[0]), int(rows[-1]) + 1, int(cols.min()), int(cols.max()) + 1
+    ys = ctx.mosaic.y_top_m - (r0 + rows + 0.5) * ctx.mosaic.res_m
+    xs = ctx.mosaic.x_left_m + (c0 + cols + 0.5) * ctx.mosaic.res_m
+    fc, fr = ctx.offsets[:, 0], ctx.offsets[:, 1]
+    over = np.flatnonzero((fc < c0 + tw) & (fc + ctx.sizes[:, 0] > c0) & (fr < r0 + th) & (fr + ctx.sizes[:, 1] > r0))
+    best = np.full(len(need), np.inf)
+    winner = np.full(len(need), -1, np.int64)
+    sources = {}
+
+    def has_holes(k):
+        return ctx.holes is not None and ctx.holes[k] is not None
+
+    def source(k):
+        """(samples (bands, n), validity away from holes (n,), validity (n,): flat arrays of a window of the frame, row
+        and column of its first element in the tile, its width)."""
+        if k not in sources:
+            d = readers.decoded(ctx.files[k])
+            if d is not None and (not has_holes(k) or d.away is not None):
+                img, away, ok = d.samples, (d.away if has_holes(k) else d.valid), d.valid
+                y0, x0 = int(fr[k]) - r0, int(fc[k]) - c0
+            else:  # read over the box of the pixels within the frame's grid
+                y0, x0 = max(ya, int(fr[k]) - r0), max(xa, int(fc[k]) - c0)
+                y1, x1 = min(yb, int(fr[k] + ctx.sizes[k, 1]) - r0), min(xb, int(fc[k] + ctx.sizes[k, 0]) - c0)
+                img, away = frame(k, y0, y1, x0, x1)
+                ok = raw.get((k, y0, y1, x0, x1), away)
+                img, away, ok = np.ascontiguousarray(img), np.ascontiguousarray(away), np.ascontiguousarray(ok)
+            w = away.shape[1]
+            sources[k] = (img.reshape(img.shape[0], -1), away.ravel(), ok.ravel(), y0, x0, w)
+        return sources[k]
+
+    def inside(k):
+        """The pixels (indices into ``need``) inside frame k's grid (rows ascending: a range of them)."""
+        y0, x0 = int(fr[k]) - r0, int(fc[k]) - c0
+        a, b = np.searchsorted(rows, [y0, y0 + int(ctx.sizes[k, 1])])
+        c = cols[a:b]
+        return a + np.flatnonzero((c >= x0) & (c < x0 + int(ctx.sizes[k, 0])))
+
+    def at(src, sub):
+        """Flat positions in ``src``'s arrays of the pixels ``sub``."""
+        return (rows[sub] - src[3]) * src[5] + (cols[sub] - src[4])
+
+    def take_nearer(k, sub, away):
+        """Frame k where it is valid at the pixels ``sub`` and its nadir point nearer than the best so far."""
+        if not len(sub):  # (a frame read from its file is not read for no pixel)
+            return
+        src = source(k)
+        sub = sub[(src[1] if away else src[2]).take(at(src, sub))]
+        d = np.hypot(xs[sub] - ctx.nadir[k, 0], ys[sub] - ctx.nadir[k, 1])
+        better = d < best[sub]
+        sub = sub[better]
+        best[sub] = d[better]
+        winner[sub] = k
+
+    for k in over.tolist():
+        take_nearer(k, inside(k), True)
+    got = winner >= 0
+    if not got.all():
+        # pixels every frame has only near its holes: the valid frame of the nearest nadir point after all
+        for k in over.tolist():
+            if has_holes(k):
+                sub = inside(k)
+                take_nearer(k, sub[~got[sub]], False)
+        got = winner >= 0
+    flat_out = out.reshape(out.shape[0], -1)
+    for k in np.flatnonzero(np.bincount(winner[got])).tolist():  # the winning frames, ascending
+        sub = np.flatnonzero(winner == k)
+        src = source(k)
+        fill = src[0].take(at(src, sub), axis=1) * ctx.gains[k].astype(np.float32)[:, None]
+        flat_out[:, need[sub]] = _to_type(fill, ctx.dtype)
+    valid.ravel()[need[got]] = True
 
 
 # a true ortho's frame is taken this far from its holes only where no other frame has the pixel away from its own:
@@ -1114,14 +1270,17 @@ class FrameHoles:
         ra, rb, ca, cb = int(rs.min()), int(rs.max()) + 1, int(cs.min()), int(cs.max()) + 1
         y0 = (self.offset[0] + r0 + ra) * factor - row
         x0 = (self.offset[1] + c0 + ca) * factor - col
-        all_holes = np.repeat(np.repeat(sub[ra:rb, ca:cb] == 1, factor, axis=0), factor, axis=1)
+        box = sub[ra:rb, ca:cb]
+        all_holes = np.repeat(np.repeat(box == 1, factor, axis=0), factor, axis=1)
+        # cells with some of their invalid pixels holes: their bits, all at once (the cells are disjoint from those
+        # whose invalid pixels are all holes)
+        bits = np.zeros(all_holes.shape, bool)
+        ii, jj = np.nonzero(box == 2)
+        bits.reshape(rb - ra, factor, cb - ca, factor)[ii, :, jj, :] = \
+            self.partial[self.partial_index[r0 + ra + ii, c0 + ca + jj]]
         ya, yb, xa, xb = max(0, y0), min(h, y0 + all_holes.shape[0]), max(0, x0), min(w, x0 + all_holes.shape[1])
-        hole[ya:yb, xa:xb] = all_holes[ya - y0:yb - y0, xa - x0:xb - x0] & ~ok[ya:yb, xa:xb]
-        for i, j in zip(*np.nonzero(sub == 2)):  # cells with some of their invalid pixels holes: their bits
-            bits = self.partial[self.partial_index[r0 + i, c0 + j]]
-            py, px = (self.offset[0] + r0 + i) * factor - row, (self.offset[1] + c0 + j) * factor - col
-            ya, yb, xa, xb = max(0, py), min(h, py + factor), max(0, px), min(w, px + factor)
-            hole[ya:yb, xa:xb] = bits[ya - py:yb - py, xa - px:xb - px]
+        hole[ya:yb, xa:xb] = (all_holes[ya - y0:yb - y0, xa - x0:xb - x0] & ~ok[ya:yb, xa:xb]) \
+            | bits[ya - y0:yb - y0, xa - x0:xb - x0]
         return hole
 
     def _arrays(self, k: int) -> dict:
@@ -1137,25 +1296,32 @@ class FrameHoles:
                    z[f"holes_partial_{k}"])
 
 
-def find_holes(invalid: np.ndarray, factor: int, offset, strip_cells: int = 64) -> FrameHoles | None:
+def find_holes(invalid: np.ndarray, factor: int, offset, strip_cells: int = 256) -> FrameHoles | None:
     """The holes of a frame (``FrameHoles``) from ``invalid`` (uint8 (h * factor + 2, w * factor + 2): 1 an invalid
     pixel of its window on whole seam cells, 0 a valid one, framed by 1s; overwritten); None when it has none."""
     cv2.floodFill(invalid, None, (0, 0), 2)  # the invalid pixels joined to the outside (4-connected) become 2
-    if not (invalid == 1).any():  # a conventional ortho (the demo's 18 frames: 0.02 CPU-s, 0.27 with the cells below)
+    if not (invalid == 1).any():  # a conventional ortho: no hole
         return None
     h, w = (invalid.shape[0] - 2) // factor, (invalid.shape[1] - 2) // factor
-    px = invalid[1:-1, 1:-1].reshape(h, factor, w, factor)
+    px = invalid[1:-1, 1:-1]
+
+    def any_in_cell(mask, n):
+        # a cell's mean of the indicator is > 0 exactly when one of its pixels is set (float32: no rounding to 0)
+        return cv2.resize(mask.view(np.uint8).astype(np.float32), (w, n), interpolation=cv2.INTER_AREA) > 0
+
     cells = np.zeros((h, w), np.uint8)
-    for s in range(0, h, strip_cells):
-        block = px[s:s + strip_cells]
-        hole = (block == 1).any(axis=(1, 3))
-        cells[s:s + strip_cells] = np.where(hole, np.where((block == 2).any(axis=(1, 3)), 2, 1), 0)
+    for s in range(0, h, strip_cells):  # by strips of rows: float32 indicators of a strip, not of the frame
+        n = min(strip_cells, h - s)
+        block = px[s * factor:(s + n) * factor]
+        cells[s:s + n] = np.where(any_in_cell(block == 1, n), np.where(any_in_cell(block == 2, n), 2, 1), 0)
     if not cells.any():
         return None
     rs, cs = np.nonzero(cells == 2)
     partial_index = np.full((h, w), -1, np.int32)
     partial_index[rs, cs] = np.arange(len(rs), dtype=np.int32)
-    return FrameHoles(tuple(int(v) for v in offset), cells, partial_index, px[rs, :, cs, :] == 1)
+    step = np.arange(factor)
+    partial = px[(rs[:, None] * factor + step)[:, :, None], (cs[:, None] * factor + step)[:, None, :]] == 1
+    return FrameHoles(tuple(int(v) for v in offset), cells, partial_index, partial)
 
 
 def frame_holes(red: ReducedFrames) -> list | None:
@@ -1171,6 +1337,10 @@ def _hole_margin(ctx: _BlendContext, readers, k: int, *, row: int, col: int, h: 
     ``ctx.hole_margin_px`` of them (read with that halo, so that the result does not depend on the window)."""
     m_px = ctx.hole_margin_px
     fc, fr = int(ctx.offsets[k, 0]), int(ctx.offsets[k, 1])
+    frame = readers.decoded(ctx.files[k])
+    if frame is not None and frame.away is not None:  # the frame's validity away from its holes made once, whole
+        img, ok = window_of(frame.samples, frame.valid, col - fc, row - fr, w, h)
+        return (img, mask_window(frame.away, col - fc, row - fr, w, h)), ok
     img, ok = readers.window(ctx.files[k], col - m_px - fc, row - m_px - fr, w + 2 * m_px, h + 2 * m_px)
     hole = ctx.holes[k].pixels(ok, row - m_px, col - m_px, ctx.factor)
     inner = (slice(m_px, m_px + h), slice(m_px, m_px + w))
@@ -1256,7 +1426,7 @@ def _write_mosaic(path, frames_dir, index, mosaic: OrthoGrid, *, seams_path, fac
     on a Dask cluster in batches of a few tiles per worker (the tasks read their windows of
     ``seams_path``). Memory is bounded by the tiles in flight, not by the mosaic. ``previous``
     (``PreviousMosaic``, local threads only): tiles whose seam cells and halo did not change are read from it
-    instead of blended. ``decoded``: frames already decoded in memory (file path -> (samples, validity); local
+    instead of blended. ``decoded``: frames already decoded in memory (file path -> ``DecodedFrame``; local
     threads only), read instead of their files. ``holes``: per frame None or its ``FrameHoles``
     (``_BlendContext.holes``). Returns the counts of tiles blended and taken over."""
     from aerotri.core.executor import local_executor
@@ -1271,7 +1441,7 @@ def _write_mosaic(path, frames_dir, index, mosaic: OrthoGrid, *, seams_path, fac
                      f"mosaic of {mosaic.width} x {mosaic.height} px in tiles of {tile_px} px", "--tile-px",
                      "use a larger --tile-px")
     levels = overview_factors(mosaic.width, mosaic.height)
-    timer = _PhaseTimer()
+    timer = _PhaseTimer(trim=not decoded)
     with scratch_dir(path.parent, "mosaic") as tmp_dir, \
             rasterio.Env(GDAL_TIFF_INTERNAL_MASK=True):  # the block cache is the stage's (mosaic_block)
         tmp_dir = Path(tmp_dir)

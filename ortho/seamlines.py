@@ -169,6 +169,13 @@ def _near(mask, rc, radius, at_least_one: bool = True):
     return (sel[:, 0] * mask.shape[1] + sel[:, 1]).astype(np.int64)
 
 
+def import_path_search() -> None:
+    """Import what the least-cost seams import (``scipy.sparse``, ``scipy.sparse.csgraph``: 0.2 CPU-s), e.g. on a
+    thread while the frames are read."""
+    import scipy.sparse  # noqa: F401
+    import scipy.sparse.csgraph  # noqa: F401
+
+
 def least_cost_seams(labels: np.ndarray, valid: list, offsets: list, *, gray: list | None = None,
                      object_mask: np.ndarray | None = None, object_cost: float = 50.0,
                      difference_cost: float = 5.0, min_overlap_cells: int = 16, end_reach: float = 0.1,

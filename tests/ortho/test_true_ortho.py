@@ -353,3 +353,43 @@ def test_the_mosaic_finds_a_frames_holes_pixel_by_pixel():
     invalid = np.ones((ch * factor + 2, cw * factor + 2), np.uint8)
     invalid[1 + r:1 + r + h, 1 + c:1 + c + w] = 0
     assert find_holes(invalid, factor, (sr, sc)) is None
+
+
+def test_a_decoded_frames_hole_margin_is_that_of_its_file_windows(true_frames):
+    """A frame kept decoded for the blending has its validity away from its holes made once, whole
+    (``DecodedFrame.away``): over any mosaic window, also past the frame's edges, the same as the hole margin of the
+    window read from the file (``FrameHoles`` at pixel level, dilated with the margin as halo)."""
+    import ortho.mosaic as om
+    from ortho.block import read_index
+    from ortho.grid import OrthoGrid
+
+    index = read_index(true_frames)
+    frames_dir = true_frames / "ortho" / "frames"
+    mosaic = OrthoGrid.union(index.grids)
+    factor = 4
+    red = om.reduce_frames(frames_dir, index, mosaic, factor, keep_decoded=True)
+    holes = om.frame_holes(red)
+    assert holes is not None and sum(h is not None for h in holes) >= 3
+    ctx = om._context(index, frames_dir, mosaic, factor=factor, halo=20, gains=np.ones((len(holes), 3)),
+                      nadir=np.zeros((len(holes), 2)), feather_px=8.0, bands=3, dtype="uint8", read_cells=None,
+                      seam_shape=red.shape, holes=holes)
+    assert ctx.hole_margin_px >= 1
+    from_memory, from_files = om._FrameReaders(red.decoded), om._FrameReaders()
+    rng = np.random.default_rng(3)
+    checked = 0
+    try:
+        for k, h in enumerate(holes):
+            if h is None:
+                continue
+            (fc, fr), (w, hh) = ctx.offsets[k], ctx.sizes[k]
+            for _ in range(6):
+                row, col = int(fr + rng.integers(-40, hh)), int(fc + rng.integers(-40, w))
+                size = (int(rng.integers(20, 300)), int(rng.integers(20, 300)))
+                (img_a, away_a), ok_a = om._hole_margin(ctx, from_memory, k, row=row, col=col, h=size[0], w=size[1])
+                (img_b, away_b), ok_b = om._hole_margin(ctx, from_files, k, row=row, col=col, h=size[0], w=size[1])
+                assert np.array_equal(img_a, img_b) and np.array_equal(ok_a, ok_b)
+                assert np.array_equal(away_a, away_b), (k, row, col, size)
+                checked += int(np.count_nonzero(ok_a & ~away_a))
+    finally:
+        from_files.close()
+    assert checked > 100  # pixels cleared near holes were compared
