@@ -28,7 +28,7 @@ import tomllib
 from pathlib import Path
 
 from aerotri.core.errors import ConfigError, InputError
-from aerotri.core.project import Project
+from aerotri.core.project import Project, QaSettings
 from aerotri.core.textio import read_text
 
 TOLERANCE_DIR = Path(__file__).with_name("tolerance_tables")
@@ -227,29 +227,12 @@ def load_table(scale: str | None = None, terrain: str = "flat", tolerance_file=N
                           reason=reason, platform="uas" if uas else None)
 
 
-@dataclasses.dataclass(frozen=True)
-class QaConfig:
-    """``[qa]`` of project.toml, checked; None where not given."""
-
-    map_scale: str | None
-    terrain: str | None
-    tolerances: str | None  # absolute path
-    pdf: bool
-    standard: str | None
-    platform: str | None
-    horizontal_class_cm: float | None
-    vertical_class_cm: float | None
-    source: str  # "P/project.toml [qa]", for errors
-
-    @property
-    def named(self) -> str:
-        """Where a choice came from, as reports name it (the same for a copy of the project elsewhere)."""
-        return "project.toml [qa]"
+QA_SECTION = "project.toml [qa]"  # where a choice came from, as reports name it (the same for a copy elsewhere)
 
 
-def read_qa_config(root) -> QaConfig:
+def read_qa_config(root) -> QaSettings:
     """``[qa]`` of the project at ``root`` (types and ranges checked when the project is opened; here the
-    table names and the combinations: ConfigError naming the key)."""
+    table names and the combinations: ConfigError naming the key), ``tolerances`` as an absolute path."""
     project = Project.open(root)
     qa = project.qa
     src = f"{project.config_path} [qa]"
@@ -262,10 +245,7 @@ def read_qa_config(root) -> QaConfig:
         raise ConfigError(f"{src}: standard = \"asprs2023\" and map_scale = {qa.map_scale!r} contradict each other "
                           f"(a map scale names a Chinese table); give one of them")
     tol = qa.tolerances
-    return QaConfig(map_scale=qa.map_scale, terrain=qa.terrain,
-                    tolerances=str((Path(project.root) / tol).resolve()) if tol else None, pdf=bool(qa.pdf),
-                    standard=qa.standard, platform=qa.platform, horizontal_class_cm=qa.horizontal_class_cm,
-                    vertical_class_cm=qa.vertical_class_cm, source=src)
+    return dataclasses.replace(qa, tolerances=(Path(project.root) / tol).resolve() if tol else None)
 
 
 def _block_text(block: BlockScale | None) -> str:
@@ -275,7 +255,7 @@ def _block_text(block: BlockScale | None) -> str:
             f"({block.how})")
 
 
-def choose_table(cfg: QaConfig, block: BlockScale | None = None, *, scale: str | None = None,
+def choose_table(cfg: QaSettings, block: BlockScale | None = None, *, scale: str | None = None,
                  standard: str | None = None, terrain: str | None = None, tolerance_file=None,
                  horizontal_class_cm: float | None = None, vertical_class_cm: float | None = None) -> ToleranceTable:
     """The table that judges a block, and why. The keyword arguments (the command line) override ``cfg``
@@ -284,7 +264,7 @@ def choose_table(cfg: QaConfig, block: BlockScale | None = None, *, scale: str |
     manned block the Chinese map-scale table of its GSD; a block of unknown GSD the 1:5000 table."""
     platform = cfg.platform or (block.platform if block is not None else None)
     if cfg.platform:
-        plat_why = f"platform {cfg.platform} from {cfg.named}"
+        plat_why = f"platform {cfg.platform} from {QA_SECTION}"
     elif platform:
         plat_why = (f"platform {platform}: {block.height_above_ground_m:.0f} m above ground (a UAS block flies below "
                     f"{low_altitude_height_m():g} m)")
@@ -305,24 +285,24 @@ def choose_table(cfg: QaConfig, block: BlockScale | None = None, *, scale: str |
         return load_table(key + (UAS_SUFFIX if uas else ""), terrain, None, f"{why}; {plat_why}")
 
     if file:
-        src = "--tolerances" if tolerance_file else f"{cfg.named} tolerances"
+        src = "--tolerances" if tolerance_file else f"{QA_SECTION} tolerances"
         # the key stays a built-in scale: stages that only pass the key on judge by the built-in table
         return load_table(DEFAULT_SCALE + (UAS_SUFFIX if uas else ""), terrain, file, f"your table ({src}); {plat_why}")
     if given_scale:
-        return cn(given_scale, f"map scale {given_scale} from {'--scale' if scale else cfg.named}")
+        return cn(given_scale, f"map scale {given_scale} from {'--scale' if scale else QA_SECTION}")
     gsd = block.gsd_m if block is not None else None
     if std == "cn":
         if gsd is None:
-            return cn(DEFAULT_SCALE, f"standard cn from {'--standard' if standard else cfg.named}; "
+            return cn(DEFAULT_SCALE, f"standard cn from {'--standard' if standard else QA_SECTION}; "
                                      f"{_block_text(block)}: default {DEFAULT_SCALE}")
         s, row = scale_for_gsd(gsd)
-        return cn(s, f"standard cn from {'--standard' if standard else cfg.named}; {_block_text(block)}; {row}")
+        return cn(s, f"standard cn from {'--standard' if standard else QA_SECTION}; {_block_text(block)}; {row}")
     if std == "asprs2023" or (std is None and gsd is not None and (uas or gsd < asprs_gsd_max_m())):
-        why = (f"standard asprs2023 from {'--standard' if standard else cfg.named}" if std else
+        why = (f"standard asprs2023 from {'--standard' if standard else QA_SECTION}" if std else
                f"{'a UAS block' if uas else f'GSD under {100 * asprs_gsd_max_m():g} cm'} (selection.toml)")
         if h_cm is None or v_cm is None:
             if gsd is None:
-                raise ConfigError(f"{cfg.source}: standard asprs2023 needs the accuracy classes: give "
+                raise ConfigError(f"{QA_SECTION}: standard asprs2023 needs the accuracy classes: give "
                                   f"horizontal_class_cm and vertical_class_cm, or a camera.toml and a terrain height "
                                   f"(lidar_out/dem.tif or [flight] mean_terrain_height_m) to choose them by GSD "
                                   f"({_block_text(block)})")
@@ -330,7 +310,7 @@ def choose_table(cfg: QaConfig, block: BlockScale | None = None, *, scale: str |
             why += f"; {_block_text(block)}; {row}"
             h_cm, v_cm = h_cm or gh, v_cm or gv
         else:
-            why += f"; classes from {cfg.named if not horizontal_class_cm else 'the command line'}"
+            why += f"; classes from {QA_SECTION if not horizontal_class_cm else 'the command line'}"
         return load_table(asprs_key(h_cm, v_cm, uas), terrain, None, f"{why}; {plat_why}")
     if gsd is None:
         return cn(DEFAULT_SCALE, f"{_block_text(block)}: the default {DEFAULT_SCALE} table (set [qa] map_scale or "
@@ -357,4 +337,5 @@ def qa_settings(root, block: BlockScale | None = None) -> QaChoice:
     for the choice of table."""
     cfg = read_qa_config(root)
     t = choose_table(cfg, block)
-    return QaChoice(map_scale=t.key, terrain=t.terrain, tolerances=cfg.tolerances, pdf=cfg.pdf, table=t)
+    return QaChoice(map_scale=t.key, terrain=t.terrain, tolerances=str(cfg.tolerances) if cfg.tolerances else None,
+                    pdf=cfg.pdf, table=t)
