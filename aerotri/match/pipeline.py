@@ -25,7 +25,7 @@ from aerotri.geom.images import check_frames, find_images
 from aerotri.match import features as F
 from aerotri.match import matching as M
 from aerotri.match.pairs import BlockPlan, Pair, candidate_pairs, plan_block
-from aerotri.match.report import plot_block, track_length_histogram
+from aerotri.match.report import plot_block, track_lengths
 from aerotri.match.settings import MatchSettings
 from aerotri.match.tracks import build_tracks, coincident, complete_tracks
 from aerotri.match.weak import BlockStrength, ModelStrength, StripTies, analyse
@@ -65,7 +65,7 @@ class MatchReport:
     observations: int
     inconsistent_tracks_dropped: int
     tracks_3plus_fraction: float
-    track_length_histogram: dict[str, int]
+    track_length_histogram: dict[str, int]  # rays -> tracks (``track_lengths``), as connectivity.json keys them
     ties_per_pair: list[PairTies]
     weak_models: list[list[str]]
     weak_strip_pairs: list[list[int]]
@@ -368,13 +368,14 @@ def match_project(root, settings: MatchSettings | Resolved | None = None,
     for pr in pairs:
         kinds[pr.kind] = kinds.get(pr.kind, 0) + 1
     strength = ties.strength
+    hist = track_lengths(ties.track)
     report = MatchReport(
         project=project.name, frames=len(ids), strips=int(len(np.unique(plan.strip))) if plan is not None else 0,
         pairs=len(pairs), pairs_by_kind=kinds, pairs_with_ties=int(sum(t > 0 for _, _, t in ties_per_pair)),
         components=len(components), component_frames=components if len(components) > 1 else [],
         tracks=int(len(lengths)), observations=int(len(ties.track)), inconsistent_tracks_dropped=ties.n_bad,
         tracks_3plus_fraction=float((lengths >= 3).mean()) if len(lengths) else 0.0,
-        track_length_histogram=track_length_histogram(ties.track),
+        track_length_histogram={str(n): t for n, t in zip(hist.rays.tolist(), hist.tracks.tolist())},
         ties_per_pair=[PairTies(ids[i], ids[j], t) for i, j, t in ties_per_pair],
         weak_models=[[m.left, m.right] for m in strength.models if m.weak],
         weak_strip_pairs=[[c.strip_a, c.strip_b] for c in strength.cross_strip if c.weak],
