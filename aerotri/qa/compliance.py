@@ -591,16 +591,16 @@ def _cn(figs: Figures, c: Choice) -> list[ComplianceCheck]:
     lf = figs.lidar
     if lf is not None and (lf.nva_rmse_m is not None or lf.swath_rmsdz_m is not None):
         e = L.spot_height_m
-        heights = e.by_scale(c.terrain) or {}
-        lim = heights.get(c.scale)
+        lim = e.height_m(c.terrain, c.scale)
         if lf.nva_rmse_m is not None:
-            met = [s for s in e.scales if (x := heights.get(s)) is not None and lf.nva_rmse_m <= x]
+            met = [s for s in e.scales if (x := e.height_m(c.terrain, s)) is not None and lf.nva_rmse_m <= x]
+            some = any(e.height_m(c.terrain, s) is not None for s in e.scales)
             out.append(_check("LiDAR DEM", "height RMS at non-vegetated check points (against the spot-height limit)",
                               c.class_tested, lf.nva_rmse_m, lf.nva_rmse_m, limit=lim, unit="m", n=lf.n_nva, need=None,
                               cp_ok=None, cp_note=lf.grouping_note,
                               confirmed=e.confirmed if lim is not None else None,
                               source=f"{src}: {e.what}, {e.clause}; {e.evidence}",
-                              finest=met[0] if met else ("none of 1:500-1:2000" if heights else None),
+                              finest=met[0] if met else ("none of 1:500-1:2000" if some else None),
                               rank=float(F.scale_denominator(met[0])) if met else None))
         if lf.swath_rmsdz_m is not None:
             out.append(_check("LiDAR swath overlaps", "swath-to-swath RMSDz on smooth surfaces", c.class_tested,

@@ -146,10 +146,11 @@ class SpotHeightLimit:
     mountainous: dict[str, float] | None = None
     high_mountain: dict[str, float] | None = None
 
-    def by_scale(self, terrain: str) -> dict[str, float] | None:
-        """Map scale -> limit (m) of a terrain class, None where the specifications give none."""
-        return {"flat": self.flat, "hilly": self.hilly, "mountainous": self.mountainous,
-                "high_mountain": self.high_mountain}.get(terrain)
+    def height_m(self, terrain: str, scale: str) -> float | None:
+        """The limit (m) of a terrain class (``CnAt.terrains``) at a map scale, None where none is given."""
+        by_scale = {"flat": self.flat, "hilly": self.hilly, "mountainous": self.mountainous,
+                    "high_mountain": self.high_mountain}[terrain]
+        return None if by_scale is None else by_scale.get(scale)
 
 
 @dataclasses.dataclass(frozen=True)
