@@ -37,6 +37,7 @@ from aerotri.geom.observations import (
 )
 from aerotri.adjust.level_datum import height_datum, level_result
 from aerotri.adjust.relative import ModelHeights
+from aerotri.core.records import to_record
 from aerotri.adjust.dem_check import tie_dem_check
 from aerotri.adjust.determinability import check_groups, ground_observations
 from aerotri.adjust.report_record import AdjustmentRecord, adjustment_record
@@ -800,7 +801,7 @@ def write_outputs(ba: BlockAdjustment, root, html: bool = True, out_dir=None,
     built = report.build_report(ba, qa.map_scale, qa.terrain, qa.tolerances, project_terrain(project))
     if settings_record is None:  # a library caller's own settings
         settings_record = settings_of(ba.settings, AdjustSettings).record()
-    rep = dataclasses.replace(built, settings=settings_record).to_record()
+    rep = to_record(dataclasses.replace(built, settings=settings_record))
     files = {
         "report.txt": report.format_txt(rep),
         "report.json": json.dumps(rep, indent=1, allow_nan=False, default=_json_default),
