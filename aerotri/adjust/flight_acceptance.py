@@ -294,9 +294,9 @@ def flight_acceptance(image_id, centre_m, opk_deg, camera, terrain: Terrain, str
         _check("side overlap (median over a strip's frames)", [st["side_overlap_median_pct"] for st in strips], sid,
                "flight_side_overlap_min_pct", lim),
     ]
-    return FlightAcceptance(frames, strips, to_record(lim, drop_none=True), "exterior orientations" if attitude_measured else
-                            "GNSS positions, nominal attitude (tilt and kappa not measured)", terrain.source, checks,
-                            spec)
+    source = ("exterior orientations" if attitude_measured else
+              "GNSS positions, nominal attitude (tilt and kappa not measured)")
+    return FlightAcceptance(frames, strips, to_record(lim, drop_none=True), source, terrain.source, checks, spec)
 
 
 def project_terrain(project) -> Terrain | None:

@@ -556,7 +556,8 @@ def _cn(figs: Figures, c: Choice) -> list[ComplianceCheck]:
         """(limit m, confirmed, source) of the first of ``limits`` (``MapPlanLimit``) that covers ``scale``."""
         for e in limits:
             if scale in e.scales:
-                return F.map_mm_to_ground_m(e.mm(terrain), scale), e.confirmed, f"{src}: {e.what}, {e.clause}; {e.evidence}"
+                return (F.map_mm_to_ground_m(e.mm(terrain), scale), e.confirmed,
+                        f"{src}: {e.what}, {e.clause}; {e.evidence}")
         return None, None, f"{src}: no limit shipped for {scale} {terrain}"
 
     def finest(fig, limits, terrain):

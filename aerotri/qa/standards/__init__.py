@@ -5,8 +5,9 @@ map-scale tolerance tables (aerotri/core/tolerance_tables/cn_1to*.toml), read th
 
 Each file is read into its own frozen dataclass (the three standards state their limits in three shapes: ASPRS
 by class multiples and counts, the LBS by quality level, the Chinese specifications in map millimetres by scale
-and terrain): ``asprs2023()``, ``usgs_lbs()``, ``cn_at()``. The TOML keys are the field names (``aerotri.core.settings.from_table`` reads them; the files ship with the package, so
-a key of another name is a bug, not bad input).
+and terrain): ``asprs2023()``, ``usgs_lbs()``, ``cn_at()``. The TOML keys are the field names
+(``aerotri.core.settings.from_table`` reads them; the files ship with the package, so a key of another name is a
+bug, not bad input).
 """
 
 from __future__ import annotations
