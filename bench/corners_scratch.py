@@ -63,9 +63,9 @@ assert not list(work.iterdir()), list(work.iterdir())
 if isinstance(res, dict):  # the result of a baseline tree before RoofCorners
     planes = json.dumps(C.roof_planes_geojson(C._faces_in_crs_units(res["faces"], units), res["stats"]))
 else:
-    planes = json.dumps(C.roof_planes_geojson(C._faces_in_crs_units(res.faces, units), None,
-                                              sigma_strip_xy_m=res.stats.sigma_strip_xy_m,
-                                              sigma_strip_z_m=res.stats.sigma_strip_z_m))
+    planes = C.roof_planes_geojson(C._faces_in_crs_units(res.faces, units), None,
+                                   sigma_strip_xy_m=res.stats.sigma_strip_xy_m, sigma_strip_z_m=res.stats.sigma_strip_z_m)
+    planes = planes if isinstance(planes, str) else json.dumps(planes)  # a tree before the text
     res = {"corners": res.corners, "outlines": res.outlines, "stats": dataclasses.asdict(res.stats)}
 outlines = [[np.asarray(r).tolist() for r in o["rings"]] for o in res["outlines"]]
 stats = {k: v for k, v in res["stats"].items() if k != "runtime_s"}

@@ -25,7 +25,7 @@ REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
 
 from aerotri.match import match_project  # noqa: E402
-from aerotri.geom.images import camera_from_exif, find_images  # noqa: E402
+from aerotri.geom.images import ImageFiles, camera_from_exif, find_images  # noqa: E402
 from aerotri.sim import load_preset, simulate  # noqa: E402
 from aerotri.sim.evaluate import tie_point_errors  # noqa: E402
 
@@ -46,12 +46,12 @@ def summary(report) -> dict:
     return out
 
 
-def link_project(name: str, images: dict[str, Path], camera, crs: str, gnss_lines=None, terrain_m=None) -> Path:
+def link_project(name: str, images: ImageFiles, camera, crs: str, gnss_lines=None, terrain_m=None) -> Path:
     p = OUT / name
     if p.exists():
         shutil.rmtree(p)
     (p / "images").mkdir(parents=True)
-    for iid, src in images.items():
+    for src in images.path:
         (p / "images" / src.name).symlink_to(src)
     (p / "camera.toml").write_text(camera.to_toml())
     toml = f'[project]\nname = "{name}"\ncrs = "{crs}"\n'
@@ -66,7 +66,7 @@ def link_project(name: str, images: dict[str, Path], camera, crs: str, gnss_line
 def brighton() -> dict:
     d = SHARED / "brighton_beach"
     images = find_images(d / "images")
-    cam = camera_from_exif(next(iter(images.values())), sensor_width_mm=6.17)
+    cam = camera_from_exif(images.path[0], sensor_width_mm=6.17)
     to_utm = pyproj.Transformer.from_crs("EPSG:4326", "EPSG:32615", always_xy=True)
     rows = list(csv.DictReader(open(d / "exif_positions.csv")))
     lines, ground = [], []
@@ -81,7 +81,7 @@ def brighton() -> dict:
 def copr() -> dict:
     d = SHARED / "copr_kite"
     images = find_images(d / "images")
-    cam = camera_from_exif(next(iter(images.values())))
+    cam = camera_from_exif(images.path[0])
     p = link_project("copr_kite", images, cam, "EPSG:32611")
     return summary(match_project(p))
 

@@ -157,12 +157,10 @@ def corners_equality(demo: Path, work: Path) -> dict:
                      "n_corners", "n_usable", "n_roof_planes")}
     res["corners_csv_identical"] = C.corners_csv_text(whole.corners) == C.corners_csv_text(tiled.corners)
     res["roof_planes_identical"] = (
-        json.dumps(C.roof_planes_geojson(C._faces_in_crs_units(whole.faces, units), None,
-                                         sigma_strip_xy_m=whole.stats.sigma_strip_xy_m,
-                                         sigma_strip_z_m=whole.stats.sigma_strip_z_m))
-        == json.dumps(C.roof_planes_geojson(C._faces_in_crs_units(tiled.faces, units), None,
-                                            sigma_strip_xy_m=tiled.stats.sigma_strip_xy_m,
-                                            sigma_strip_z_m=tiled.stats.sigma_strip_z_m)))
+        C.roof_planes_geojson(C._faces_in_crs_units(whole.faces, units), None,
+                              sigma_strip_xy_m=whole.stats.sigma_strip_xy_m, sigma_strip_z_m=whole.stats.sigma_strip_z_m)
+        == C.roof_planes_geojson(C._faces_in_crs_units(tiled.faces, units), None,
+                                 sigma_strip_xy_m=tiled.stats.sigma_strip_xy_m, sigma_strip_z_m=tiled.stats.sigma_strip_z_m))
     res["outlines_identical"] = len(whole.outlines) == len(tiled.outlines) and all(
         len(a["rings"]) == len(b["rings"]) and all(np.array_equal(x, y) for x, y in zip(a["rings"], b["rings"]))
         for a, b in zip(whole.outlines, tiled.outlines))

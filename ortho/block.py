@@ -57,6 +57,7 @@ from ortho.settings import FRAME_COMPRESSION, RectifySettings
 # are imported by the functions that need them: ``ortho mosaic`` and ``ortho check`` read the index here
 if TYPE_CHECKING:
     from aerotri.geom.camera import BrownCamera
+    from aerotri.geom.images import ImageFiles
 
 _log = logging.getLogger(__name__)
 
@@ -82,7 +83,7 @@ class BlockInputs:
     camera: BrownCamera
     eo: ExteriorOrientations
     eo_path: Path
-    images: dict[str, Path]  # image_id -> file, only frames that will be rectified
+    images: ImageFiles  # only the frames that will be rectified
     camera_path: Path | None = None  # a camera file given instead of the project's (``--camera``)
     eo_given: bool = False  # ``eo_path`` was given (``--eo``) rather than the project's at/eo.txt
 
@@ -116,8 +117,8 @@ def load_block(root, eo_path=None, camera_path=None, frames=None) -> BlockInputs
         unknown = [f for f in frames if f not in images]
         if unknown:
             raise InputError(f"{project.images_dir}: no image for frame(s) {', '.join(unknown)} given with --frames")
-        images = {f: images[f] for f in frames}
-    missing = [k for k in images if k not in oriented]
+        images = images.select(frames)
+    missing = [k for k in images.image_id if k not in oriented]
     if missing and not eo_given and not frames:
         # frames the adjustment left out (a part of the block without a datum) are not rectified
         left = _left_out_by_adjustment(project)
@@ -125,7 +126,7 @@ def load_block(root, eo_path=None, camera_path=None, frames=None) -> BlockInputs
         if skipped:
             _log.warning(f"{len(skipped)} frame(s) the adjustment left out are not rectified ({', '.join(skipped[:8])}"
                          f"{' ...' if len(skipped) > 8 else ''}): {left[skipped[0]]}")
-            images = {k: v for k, v in images.items() if k not in left}
+            images = images.select([k for k in images.image_id if k not in left])
             missing = [k for k in missing if k not in left]
     if missing:
         raise InputError(f"{eo_path}: no exterior orientation for frame(s) {', '.join(missing[:10])}"
@@ -439,8 +440,8 @@ def rectify_block(root, settings: RectifySettings | Resolved | None = None, *, e
             b = dem_ds.bounds
             _, _, zc = height_op.transform([0.5 * (b.left + b.right)], [0.5 * (b.bottom + b.top)], [0.5 * (zlo + zhi)])
             zlo, zhi = zlo + float(zc[0]) - 0.5 * (zlo + zhi), zhi + float(zc[0]) - 0.5 * (zlo + zhi)
-        sel = block.eo.rows(list(block.images))
-        eo_idx = dict(zip(block.images, sel.tolist()))  # image id -> row of block.eo
+        sel = block.eo.rows(list(block.images.image_id))
+        eo_idx = dict(zip(block.images.image_id, sel.tolist()))  # image id -> row of block.eo
         eo_sel = ExteriorOrientations([block.eo.image_id[i] for i in sel], block.eo.centre_m[sel], block.eo.opk_deg[sel])
         with _raster_read(dem_path, "DEM"):
             nadir_z = np.array([np.ma.filled(v.astype(float), np.nan)[0]
@@ -496,10 +497,10 @@ def check_frame_sizes(block: BlockInputs, eo_idx: dict, zlo: float, zhi: float, 
     frames at a time)."""
     from aerotri.geom.images import image_layout
 
-    bands, itemsize = image_layout(next(iter(block.images.values())))
+    bands, itemsize = image_layout(block.images.path[0])
     to_output = operation.spec().build() if operation is not None else None
     worst = (0.0, "", 0.0, 0.0)
-    for image_id in block.images:
+    for image_id in block.images.image_id:
         i = eo_idx[image_id]
         x0, y0, x1, y1 = _plane_footprint_bounds(block.camera, block.eo.centre_m[i], block.eo.rotation(i), zlo, zhi,
                                                  image_id)
@@ -530,7 +531,7 @@ def _rectify_into(out_dir: Path, block: BlockInputs, eo_idx, *, res, out_crs, pr
                        operation.spec() if operation is not None else None,
                        height_op.spec() if height_op is not None else None,
                        max_view_angle_deg=max_view_angle_deg)
-             for image_id, path in block.images.items()]
+             for image_id, path in block.images.pairs()]
     entries = executor.map(_rectify_frame_task, tasks, desc="rectify", unit="frame")
     return {
         "crs": out_crs.to_wkt(), "crs_name": out_crs.name, "epsg": out_crs.to_epsg(), "res_m": res,

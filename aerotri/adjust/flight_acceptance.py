@@ -28,11 +28,12 @@ from pathlib import Path
 import numpy as np
 
 from aerotri.core.errors import InputError
-from aerotri.core.tolerances import NO_FLIGHT_SPEC, manned_flight_limits
+from aerotri.core.records import to_record
+from aerotri.core.tolerances import NO_FLIGHT_SPEC, FlightLimits, manned_flight_limits
 from aerotri.geom.rotation import rotation_matrix_opk
 from aerotri.geom.strips import strips_from_track
 
-# tolerance-table key -> (quantity, unit, "max" or "min")
+# tolerance-table key (a field of FlightLimits) -> (quantity, unit, "max" or "min")
 LIMIT_KEYS = {
     "flight_tilt_max_deg": ("tilt", "deg", "max"),
     "flight_kappa_max_deg": ("kappa deviation", "deg", "max"),
@@ -129,7 +130,7 @@ class FlightAcceptance:
 
     frames: list[dict]
     strips: list[dict]
-    limits: dict
+    limits: dict  # the FlightLimits that apply, as the report writes them (key -> limit; none for a UAS block)
     source: str  # "exterior orientations" or "GNSS positions, nominal attitude ..."
     terrain: str
     checks: list[dict]  # quantity, worst value, limit, unit, verdict, where
@@ -169,17 +170,17 @@ def _strip_order(centre_m, strip) -> list:
     return sorted(ids, key=lambda s: float(np.mean(centre_m[strip == s, :2] @ w)))
 
 
-def _beyond(value, key, limits) -> bool:
+def _beyond(value, key, limits: FlightLimits) -> bool:
     """True when ``value`` breaks the limit ``key`` (a max or a min limit); False without either."""
-    limit = limits.get(key)
+    limit = getattr(limits, key)
     if value is None or limit is None:
         return False
     return value > limit if LIMIT_KEYS[key][2] == "max" else value < limit
 
 
-def _check(quantity, values, where, key, limits) -> dict:
+def _check(quantity, values, where, key, limits: FlightLimits) -> dict:
     unit, kind = LIMIT_KEYS[key][1], LIMIT_KEYS[key][2]
-    limit = limits.get(key)
+    limit = getattr(limits, key)
     pairs = [(v, w) for v, w in zip(values, where) if v is not None and math.isfinite(v)]
     if not pairs:
         return dict(quantity=quantity, value=None, limit=limit, unit=unit, verdict=None, where="", key=key,
@@ -205,10 +206,10 @@ def flight_acceptance(image_id, centre_m, opk_deg, camera, terrain: Terrain, str
     strip = strips_from_track(c) + 1 if strip is None else np.asarray(strip)
     limits = limits or {}
     if limits.get("flight_limits_apply", True):
-        lim = {**DEFAULT_LIMITS, **{k: v for k, v in limits.items() if k in LIMIT_KEYS}}
+        lim = dataclasses.replace(DEFAULT_LIMITS, **{k: v for k, v in limits.items() if k in LIMIT_KEYS})
         spec = limits.get("flight_spec") or DEFAULT_SPEC
     else:  # a UAS block: no manned flight specification judges it
-        lim, spec = {}, limits.get("flight_spec") or NO_FLIGHT_SPEC
+        lim, spec = FlightLimits(), limits.get("flight_spec") or NO_FLIGHT_SPEC
     R = rotation_matrix_opk(opk[:, 0], opk[:, 1], opk[:, 2])
     polys = [footprint(camera, c[i], R[i], terrain) for i in range(n)]
     ground = terrain.height(c[:, 0], c[:, 1])
@@ -293,9 +294,9 @@ def flight_acceptance(image_id, centre_m, opk_deg, camera, terrain: Terrain, str
         _check("side overlap (median over a strip's frames)", [st["side_overlap_median_pct"] for st in strips], sid,
                "flight_side_overlap_min_pct", lim),
     ]
-    return FlightAcceptance(frames, strips, lim, "exterior orientations" if attitude_measured else
-                            "GNSS positions, nominal attitude (tilt and kappa not measured)", terrain.source, checks,
-                            spec)
+    source = ("exterior orientations" if attitude_measured else
+              "GNSS positions, nominal attitude (tilt and kappa not measured)")
+    return FlightAcceptance(frames, strips, to_record(lim, drop_none=True), source, terrain.source, checks, spec)
 
 
 def project_terrain(project) -> Terrain | None:

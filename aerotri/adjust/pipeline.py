@@ -36,6 +36,8 @@ from aerotri.geom.observations import (
     validate_references,
 )
 from aerotri.adjust.level_datum import height_datum, level_result
+from aerotri.adjust.relative import ModelHeights
+from aerotri.core.records import to_record
 from aerotri.adjust.dem_check import tie_dem_check
 from aerotri.adjust.determinability import check_groups, ground_observations
 from aerotri.adjust.report_record import AdjustmentRecord, adjustment_record
@@ -250,7 +252,7 @@ class ProjectInputs:
     initial_eo: ExteriorOrientations | None
     gnss_sigma_m: tuple  # (xy, z) default a-priori sigmas of project.toml [gnss]
     datum_notes: list = dataclasses.field(default_factory=list)  # how the approximations got their datum
-    model_heights_map: dict = dataclasses.field(default_factory=dict)  # control id -> height in the image model
+    model_heights: ModelHeights = dataclasses.field(default_factory=ModelHeights)  # of the control, in the image model
 
 
 @dataclasses.dataclass
@@ -288,7 +290,7 @@ def read_inputs(project: Project, settings: AdjustSettings | None = None) -> Pro
     control, cobs = read_project_control(project, st, crs)
     # orientation source: GNSS (with given approximate EO, if any) or given approximate EO alone
     gnss = eo0 = None
-    notes, model_heights = [], {}
+    notes, model_heights = [], ModelHeights()
     if st.use_gnss and project.gnss_path.exists():
         gnss = read_gnss(project.gnss_path, crs)
         image_ids, approx_pos_map, block_path = list(gnss.image_id), gnss.position_m, project.gnss_path
@@ -300,7 +302,7 @@ def read_inputs(project: Project, settings: AdjustSettings | None = None) -> Pro
     else:
         # no GNSS, no given orientations: from the images (pycolmap on the tie points) and the control
         ap, ties, control, cobs, note = _image_approximations(project, cam, ties, control, cobs, crs)
-        eo0, model_heights = ap.eo, ap.control_heights_map(control)
+        eo0, model_heights = ap.eo, ap.control_heights(control)
         image_ids, approx_pos_map, block_path = list(eo0.image_id), eo0.centre_m, project.tiepoints_path
         notes.append(note)
     _check_control_near_block(control, approx_pos_map, project.control_points_path, block_path, crs)
@@ -314,7 +316,7 @@ def read_inputs(project: Project, settings: AdjustSettings | None = None) -> Pro
     cobs = ImageObservations(cobs.point_id, cobs.image_id, cam.calibration_observations(cobs.xy_px))
     return ProjectInputs(project=project, settings=st, camera=cam, ties=ties, control=control, control_obs=cobs,
                          image_ids=image_ids, approx_position_map=approx_pos_map, gnss=gnss, initial_eo=eo0,
-                         gnss_sigma_m=gnss_sigma, datum_notes=notes, model_heights_map=model_heights)
+                         gnss_sigma_m=gnss_sigma, datum_notes=notes, model_heights=model_heights)
 
 
 def _image_approximations(project: Project, cam, ties: ImageObservations, control: ControlPoints,
@@ -552,11 +554,11 @@ def prepare_project(root, settings: AdjustSettings | None = None) -> tuple[Prepa
     state0 = _approximations(inp, frame, block, ob.image_ids)
     notes = list(inp.datum_notes)
     model_z = {}
-    for c, pid in enumerate(ctrl_used.id):  # the image model's heights, in the local frame
-        if str(pid) in inp.model_heights_map:
-            xyz = ctrl_used.xyz_m[c].copy()
-            xyz[2] = inp.model_heights_map[str(pid)]
-            model_z[c] = float(frame.to_local(xyz[None])[0, 2])
+    height_m = inp.model_heights.heights_of(ctrl_used.id)
+    for c in np.flatnonzero(np.isfinite(height_m)).tolist():  # the image model's heights, in the local frame
+        xyz = ctrl_used.xyz_m[c].copy()
+        xyz[2] = height_m[c]
+        model_z[c] = float(frame.to_local(xyz[None])[0, 2])
     level = height_datum(block, state0, frame.jacobian_local_from_map(ctrl_used.xyz_m) if len(ctrl_used) else None,
                          ctrl_used.sigma_m, model_z)
     if level is not None:
@@ -799,7 +801,7 @@ def write_outputs(ba: BlockAdjustment, root, html: bool = True, out_dir=None,
     built = report.build_report(ba, qa.map_scale, qa.terrain, qa.tolerances, project_terrain(project))
     if settings_record is None:  # a library caller's own settings
         settings_record = settings_of(ba.settings, AdjustSettings).record()
-    rep = dataclasses.replace(built, settings=settings_record).to_record()
+    rep = to_record(dataclasses.replace(built, settings=settings_record))
     files = {
         "report.txt": report.format_txt(rep),
         "report.json": json.dumps(rep, indent=1, allow_nan=False, default=_json_default),

@@ -131,15 +131,30 @@ class ImageApproximations:
     relative: RelativeBlock
     frame: LocalFrame  # the local ENU frame of ``datum``
 
-    def control_heights_map(self, control: ControlPoints) -> dict:
-        """id -> height (project CRS) of the control points intersected in the model (with the mapper's camera)."""
-        out = {}
-        for pid, xyz in zip(control.id, control.xyz_m):
-            if str(pid) in self.datum.height_m:
-                loc = self.frame.to_local(xyz[None])[0]
-                loc[2] = self.datum.height_m[str(pid)]
-                out[str(pid)] = float(self.frame.to_map(loc[None])[0, 2])
-        return out
+    def control_heights(self, control: ControlPoints) -> ModelHeights:
+        """The heights (project CRS) of the control points intersected in the model (with the mapper's camera),
+        in ``control``'s order."""
+        ids = [str(pid) for pid in control.id if str(pid) in self.datum.height_m]
+        if not ids:
+            return ModelHeights()
+        xyz = np.array([x for pid, x in zip(control.id, control.xyz_m) if str(pid) in self.datum.height_m], float)
+        loc = self.frame.to_local(xyz)
+        loc[:, 2] = [self.datum.height_m[i] for i in ids]
+        return ModelHeights(tuple(ids), self.frame.to_map(loc)[:, 2].astype(float))
+
+
+@dataclasses.dataclass(frozen=True)
+class ModelHeights:
+    """The heights (project CRS, m) the image model gives the control points it intersected: ``point_id`` and
+    ``height_m`` beside it (none for a block with GNSS or given orientations)."""
+
+    point_id: tuple[str, ...] = ()
+    height_m: np.ndarray = dataclasses.field(default_factory=lambda: np.zeros(0))
+
+    def heights_of(self, ids) -> np.ndarray:
+        """The model height of each of ``ids``, NaN for a point the model did not intersect."""
+        row = {pid: k for k, pid in enumerate(self.point_id)}
+        return np.array([self.height_m[row[str(i)]] if str(i) in row else np.nan for i in ids], float)
 
 
 # -- relative orientation -----------------------------------------------------------------------------

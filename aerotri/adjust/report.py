@@ -629,9 +629,9 @@ def _flight(ba, ground, tol: dict) -> dict | None:
 class AdjustmentReport:
     """The adjustment report as ``build_report`` makes it: at/report.json's sections in the file's order, each
     a JSON-ready value (keys with units), and ``settings``, the settings with their sources
-    (``aerotri.core.settings.Resolved.record``; None: not attached, no key). ``to_record()`` is the document
-    written (and what ``format_txt`` / ``format_html`` lay out); the stages after the adjustment read the file
-    back through ``report_record.read_adjustment_report``."""
+    (``aerotri.core.settings.Resolved.record``; None: not attached). ``aerotri.core.records.to_record`` of it is the
+    document written, the fields as keys (and what ``format_txt`` / ``format_html`` lay out); the stages after the
+    adjustment read the file back through ``report_record.read_adjustment_report``."""
 
     project: str | None
     crs: str | None
@@ -662,14 +662,7 @@ class AdjustmentReport:
     geometry_modes: list | None
     flight_acceptance: dict | None
     timings_s: dict
-    settings: dict | None = None
-
-    def to_record(self) -> dict:
-        """at/report.json's document: the sections by name, in order (``settings`` last, when attached)."""
-        out = {f.name: getattr(self, f.name) for f in dataclasses.fields(self)}
-        if self.settings is None:
-            del out["settings"]
-        return out
+    settings: dict | None = None  # last in the file
 
 
 def build_report(ba, map_scale: str = "1:5000", terrain: str = "flat", tolerance_file=None,

@@ -19,9 +19,13 @@ import dataclasses
 import os
 import shutil
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from aerotri.core.atomic import atomic_dir
 from aerotri.core.errors import InputError, OptionError
+
+if TYPE_CHECKING:  # geom.images imports OpenCV: the module loads it only to read frames
+    from aerotri.geom.images import ImageFiles
 
 PROJECT_TOML = """\
 # Project settings (docs/project.md lists every section and key). Written by aerotri init.
@@ -101,7 +105,7 @@ def _exif_gnss(path: Path) -> bool:
     return None not in (m.lat_deg, m.lon_deg, m.alt_m)
 
 
-def _frames(images_dir: Path) -> dict[str, Path]:
+def _frames(images_dir: Path) -> ImageFiles:
     from aerotri.geom.images import find_images
 
     if not images_dir.is_dir():
@@ -109,12 +113,12 @@ def _frames(images_dir: Path) -> dict[str, Path]:
     return find_images(images_dir)
 
 
-def _sizes(frames: dict[str, Path]) -> dict[tuple[int, int], list[str]]:
+def _sizes(frames: ImageFiles) -> dict[tuple[int, int], list[str]]:
     """Image size (width, height) -> the ids of the frames of that size (from the file headers)."""
     import rasterio
 
     out: dict[tuple[int, int], list[str]] = {}
-    for image_id, path in frames.items():
+    for image_id, path in frames.pairs():
         if not path.is_file():
             raise InputError(f"{path}: not a file (image {image_id!r}); expected a TIFF/JPEG/PNG frame")
         try:
@@ -126,7 +130,7 @@ def _sizes(frames: dict[str, Path]) -> dict[tuple[int, int], list[str]]:
     return out
 
 
-def _camera_text(frames: dict[str, Path], size: tuple[int, int], camera_path: Path | None):
+def _camera_text(frames: ImageFiles, size: tuple[int, int], camera_path: Path | None):
     """(camera.toml text or None, source or None, what to do when None, notes)."""
     from aerotri.geom.camera import read_camera
 
@@ -138,7 +142,7 @@ def _camera_text(frames: dict[str, Path], size: tuple[int, int], camera_path: Pa
         return Path(camera_path).read_text(encoding="utf-8"), str(camera_path), None, []
     from aerotri.exchange.exif import camera_from_metadata, read_frame_metadata
 
-    first = next(iter(frames.values()))
+    first = frames.path[0]
     try:
         cam, notes = camera_from_metadata(read_frame_metadata(first))
     except InputError as exc:
@@ -182,7 +186,7 @@ def init_project(root, images_dir, crs: str, camera_path=None, copy: bool = Fals
     toml = PROJECT_TOML.format(name=name.replace('"', "'"), crs=crs, crs_name=crs_name)
     with atomic_dir(root) as tmp:
         (tmp / "images").mkdir()
-        for image_id, path in frames.items():
+        for path in frames.path:
             dst = tmp / "images" / path.name
             if copy:
                 shutil.copy2(path, dst)
@@ -192,7 +196,7 @@ def init_project(root, images_dir, crs: str, camera_path=None, copy: bool = Fals
         if camera_text is not None:
             (tmp / "camera.toml").write_text(camera_text, encoding="utf-8")
     return InitResult(root, len(frames), not copy, camera_source, camera_missing, tuple(notes),
-                      _exif_gnss(next(iter(frames.values()))))
+                      _exif_gnss(frames.path[0]))
 
 
 def _inside(path: Path, folder: Path) -> bool:

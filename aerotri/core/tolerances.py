@@ -142,9 +142,24 @@ def _flight_limits(uas: bool, own: dict) -> tuple[dict, dict]:
     return {**limits, "flight_spec": spec}, prov
 
 
-def manned_flight_limits() -> dict:
-    """The flight acceptance limits of manned aerial photography (``flight_cn_aerial.toml`` [general])."""
-    return dict(_toml(TOLERANCE_DIR / FLIGHT_FILE)["general"])
+@dataclasses.dataclass(frozen=True)
+class FlightLimits:
+    """The limits a flight is accepted by (``aerotri.adjust.flight_acceptance``), named by their tolerance-table keys
+    (a table's own ``flight_*`` keys replace the specification's); None: not judged (a UAS block: none)."""
+
+    flight_tilt_max_deg: float | None = None  # tilt of the camera axis from the vertical
+    flight_kappa_max_deg: float | None = None  # kappa deviation from the base direction
+    flight_curvature_max_pct: float | None = None  # strip curvature, % of the strip's length
+    flight_height_step_max_m: float | None = None  # flying-height change between adjacent frames
+    flight_height_range_max_m: float | None = None  # highest minus lowest flying height of a strip
+    flight_forward_overlap_min_pct: float | None = None
+    flight_side_overlap_min_pct: float | None = None
+
+
+def manned_flight_limits() -> FlightLimits:
+    """The flight acceptance limits of manned aerial photography (``flight_cn_aerial.toml`` [general], shipped
+    with the package: a key of another name is a bug, not bad input)."""
+    return FlightLimits(**_toml(TOLERANCE_DIR / FLIGHT_FILE)["general"])
 
 
 def asprs_table(h_cm: float, v_cm: float) -> tuple[dict, dict, dict]:

@@ -264,22 +264,38 @@ def _make_key(make: str) -> str:
     return (make.strip().split() or [""])[0].lower()
 
 
+@dataclasses.dataclass(frozen=True)
+class SensorWidth:
+    """One row of the sensor table: the EXIF make's first word and the model (both lower case), the sensor's
+    long side (mm) and where that width comes from (``opensfm`` or ``format``: the CSV's header)."""
+
+    make: str
+    model: str
+    width_mm: float
+    source: str
+
+
+@dataclasses.dataclass(frozen=True)
+class SensorTable:
+    """The rows of ``data/sensor_widths.csv``, in file order."""
+
+    rows: tuple[SensorWidth, ...]
+
+    def width_of(self, make: str, model: str) -> SensorWidth | None:
+        """The row of a camera's EXIF Make and Model (the make by its first word, case ignored), or None."""
+        make, model = _make_key(make), model.strip().lower()
+        return next((r for r in self.rows if r.make == make and r.model == model), None)
+
+
 @functools.lru_cache(maxsize=1)
-def sensor_widths() -> dict[tuple[str, str], tuple[float, str]]:
-    """(make key, model lower case) -> (sensor width mm, source) of ``data/sensor_widths.csv``."""
+def sensor_table() -> SensorTable:
+    """``data/sensor_widths.csv`` (shipped with the package: a broken row is a bug, not bad input)."""
     import csv
 
-    out = {}
     with open(SENSOR_TABLE, newline="") as f:
         rows = csv.DictReader(line for line in f if not line.startswith("#"))
-        for r in rows:
-            out[_make_key(r["make"]), r["model"].strip().lower()] = (float(r["sensor_width_mm"]), r["source"])
-    return out
-
-
-def sensor_width_mm(make: str, model: str) -> tuple[float, str] | None:
-    """(sensor width mm, source) of a camera's EXIF Make and Model from the sensor table, or None."""
-    return sensor_widths().get((_make_key(make), model.strip().lower()))
+        return SensorTable(tuple(SensorWidth(_make_key(r["make"]), r["model"].strip().lower(),
+                                             float(r["sensor_width_mm"]), r["source"]) for r in rows))
 
 
 def pixel_size_mm(m: FrameMetadata, full_w: int, full_h: int) -> tuple[float, str]:
@@ -288,9 +304,9 @@ def pixel_size_mm(m: FrameMetadata, full_w: int, full_h: int) -> tuple[float, st
         return 1.0 / m.focal_plane_px_per_mm, "EXIF focal plane resolution"
     if m.focal_mm and m.calibrated_focal_px:
         return m.focal_mm / m.calibrated_focal_px, "EXIF focal length / DJI CalibratedFocalLength"
-    sensor = sensor_width_mm(m.make, m.model)
+    sensor = sensor_table().width_of(m.make, m.model)
     if sensor is not None:
-        width_mm, source = sensor
+        width_mm, source = sensor.width_mm, sensor.source
         # the sensor's long side is the frame's long side (frames are cropped across it, e.g. 16:9 from 4:3)
         return width_mm / max(full_w, full_h), (f"sensor width {width_mm:g} mm of the {m.make} {m.model} "
                                                 f"(sensor table, {source}) over {max(full_w, full_h)} px")

@@ -162,11 +162,12 @@ def check_image_ids(project: Project, block: ImportedBlock) -> None:
                       ("control measurements", None if block.image_points is None else block.image_points.image_id)):
         if ids is None:
             continue
-        missing = sorted({str(i) for i in ids} - set(frames))
+        missing = sorted({str(i) for i in ids} - set(frames.image_id))
         if missing:
             field = {"orientations": "eo", "positions": "gnss", "control measurements": "image_points"}[what]
             raise InputError(f"{block.source_of(field)}: {what} of image(s) {_listing(missing)} that are not frames "
-                             f"in {project.images_dir} ({len(frames)} frames, e.g. {_listing(sorted(frames), 3)})")
+                             f"in {project.images_dir} ({len(frames)} frames, e.g. "
+                             f"{_listing(sorted(frames.image_id), 3)})")
 
 
 def check_point_ids(project: Project, block: ImportedBlock, replaced: set) -> None:

@@ -42,7 +42,7 @@ from aerotri.exchange.adjusted import AdjustedBlock
 from aerotri.exchange.commit import ExportFile
 from aerotri.exchange.imported import ImportedBlock, ImportSettings, to_project_crs
 from aerotri.exchange.poses import image_id_of, number
-from aerotri.geom.images import find_images
+from aerotri.geom.images import ImageFiles, find_images
 from aerotri.geom.observations import ControlPoints, ImageObservations, read_control_points, read_image_points
 
 NOT_USED = -1.0
@@ -81,11 +81,11 @@ def files(block: AdjustedBlock, project: Project) -> list[ExportFile]:
         out.append(ExportFile("micmac/check.xml", _gcp_xml(cp.subset(check))))
     if project.control_image_points_path.is_file():
         obs = read_image_points(project.control_image_points_path)
-        names = {k: p.name for k, p in find_images(project.images_dir).items()} if project.images_dir.is_dir() else {}
+        frames = find_images(project.images_dir) if project.images_dir.is_dir() else ImageFiles((), ())
         root = ET.Element("SetOfMesureAppuisFlottants")
         for iid in dict.fromkeys(obs.image_id):
             im = ET.SubElement(root, "MesureAppuiFlottant1Im")
-            ET.SubElement(im, "NameIm").text = names.get(iid, str(iid))
+            ET.SubElement(im, "NameIm").text = frames.name_of(iid)
             for k in np.flatnonzero(obs.image_id == iid):
                 one = ET.SubElement(im, "OneMesureAF1I")
                 ET.SubElement(one, "NamePt").text = str(obs.point_id[k])

@@ -42,6 +42,7 @@ documented layout of them was found (the references that list an "ISAT EO file" 
 
 from __future__ import annotations
 
+import dataclasses
 from pathlib import Path
 
 import numpy as np
@@ -75,34 +76,50 @@ def photo_coordinates_mm(block: AdjustedBlock) -> tuple[np.ndarray, np.ndarray, 
 
 # -- export ------------------------------------------------------------------------------------------
 
-def numbering(ids) -> dict[str, int]:
-    """id -> PAT-B number: the ids themselves when every one is a plain integer (no sign, no leading zero,
-    below 10^15), else 1, 2, ... in order."""
-    ids = [str(i) for i in dict.fromkeys(ids)]
+@dataclasses.dataclass(frozen=True)
+class PatbNumbering:
+    """PAT-B's integer number of each id (``ids`` in order, each once; ``numbers`` beside them)."""
+
+    ids: tuple[str, ...]
+    numbers: tuple[int, ...]
+    _number: dict = dataclasses.field(init=False, repr=False, compare=False)  # id -> number, for the lookups
+
+    def __post_init__(self):
+        object.__setattr__(self, "_number", dict(zip(self.ids, self.numbers)))
+
+    def number_of(self, id_: str) -> int:
+        """The PAT-B number of an id (KeyError for an id that was not numbered)."""
+        return self._number[id_]
+
+
+def numbering(ids) -> PatbNumbering:
+    """PAT-B numbers of ``ids`` (repeats numbered once): the ids themselves when every one is a plain integer
+    (no sign, no leading zero, below 10^15), else 1, 2, ... in order."""
+    ids = tuple(str(i) for i in dict.fromkeys(ids))
     if ids and all(i.isdigit() and str(int(i)) == i and int(i) < MAX_NUMBER for i in ids):
-        return {i: int(i) for i in ids}
-    return {i: n for n, i in enumerate(ids, start=1)}
+        return PatbNumbering(ids, tuple(int(i) for i in ids))
+    return PatbNumbering(ids, tuple(range(1, len(ids) + 1)))
 
 
 def _i16(n: int) -> str:
     return f"{n:{FIELD}d}"
 
 
-def orientation_text(eo, photo_no: dict) -> str:
+def orientation_text(eo, photo_no: PatbNumbering) -> str:
     """``block.ori``: three fixed-column records per photo (I16,16X,3F16.5 / 5F16.12 / 4F16.12)."""
     lines = []
     R = eo.rotations()
     for i, iid in enumerate(eo.image_id):
         a = R[i].reshape(9)
-        lines.append(_i16(photo_no[iid]) + " " * FIELD + "".join(f"{v:{FIELD}.5f}" for v in eo.centre_m[i]))
+        lines.append(_i16(photo_no.number_of(iid)) + " " * FIELD + "".join(f"{v:{FIELD}.5f}" for v in eo.centre_m[i]))
         lines.append("".join(f"{v:{FIELD}.12f}" for v in a[:5]))
         lines.append("".join(f"{v:{FIELD}.12f}" for v in a[5:]))
     return "\n".join(lines) + "\n"
 
 
-def control_text(ids, xyz, point_no: dict) -> str:
+def control_text(ids, xyz, point_no: PatbNumbering) -> str:
     """A ``.con`` file: ``I16, 3F16.4`` point number X Y Z per point, ``-99`` at the end."""
-    rows = [_i16(point_no[p]) + "".join(f"{v:{FIELD}.4f}" for v in c) for p, c in zip(ids, xyz)]
+    rows = [_i16(point_no.number_of(p)) + "".join(f"{v:{FIELD}.4f}" for v in c) for p, c in zip(ids, xyz)]
     return "\n".join(rows + [_i16(-99)]) + "\n"
 
 
@@ -128,9 +145,9 @@ def files(block: AdjustedBlock, project: Project | None = None) -> list[ExportFi
     by_image = np.argsort(block.obs_image, kind="stable")  # each image's observations in file order, at once
     bounds = np.searchsorted(block.obs_image[by_image], np.arange(len(block.image_id) + 1))
     for i, iid in enumerate(block.image_id):
-        im.append(_i16(photo_no[iid]))
+        im.append(_i16(photo_no.number_of(iid)))
         for k in by_image[bounds[i]:bounds[i + 1]].tolist():
-            im.append(_i16(point_no[str(block.point_id[block.obs_point[k]])]) + f"{x_mm[k]:{FIELD}.6f}"
+            im.append(_i16(point_no.number_of(str(block.point_id[block.obs_point[k]]))) + f"{x_mm[k]:{FIELD}.6f}"
                       + f"{y_mm[k]:{FIELD}.6f}")
         im.append(_i16(-99))
     out = [ExportFile("patb/block.im", "\n".join(im) + "\n")]
@@ -148,8 +165,8 @@ def files(block: AdjustedBlock, project: Project | None = None) -> list[ExportFi
         out.append(ExportFile("patb/block.ori", orientation_text(eo, photo_no)))
         out.append(ExportFile("patb/block.cam", camera_text(camera)))
     nums = ["# aerotri: PAT-B numbers of the files beside this one -> ids (photo|point number id [kind])"]
-    nums += [f"photo {n} {i}" for i, n in photo_no.items()]
-    nums += [f"point {n} {p}" + (f" {kinds[p]}" if p in kinds else "") for p, n in point_no.items()]
+    nums += [f"photo {n} {i}" for i, n in zip(photo_no.ids, photo_no.numbers)]
+    nums += [f"point {n} {p}" + (f" {kinds[p]}" if p in kinds else "") for p, n in zip(point_no.ids, point_no.numbers)]
     out.append(ExportFile("patb/numbers.txt", "\n".join(nums) + "\n"))
     return out
 

@@ -25,19 +25,19 @@ from aerotri.core.project import Project
 from aerotri.exchange.adjusted import AdjustedBlock
 from aerotri.exchange.commit import ExportFile
 from aerotri.exchange.poses import adjusted_orientations, horizontal_wkt
-from aerotri.geom.images import find_images
+from aerotri.geom.images import ImageFiles, find_images
 
 
 def files(block: AdjustedBlock, project: Project) -> list[ExportFile]:
     """``pix4d/image_geolocation.csv`` and ``.prj`` of the adjusted orientations (``at/eo.txt``)."""
     eo, _ = adjusted_orientations(project)
-    names = {k: p.name for k, p in find_images(project.images_dir).items()} if project.images_dir.is_dir() else {}
+    frames = find_images(project.images_dir) if project.images_dir.is_dir() else ImageFiles((), ())
     columns = "imagename,X,Y,Z,omega,phi,kappa" + (",accuracy_horz_m,accuracy_vert_m" if eo.sigma is not None else "")
     rows = [f"# {columns} (aerotri export of {project.name}; X Y Z in {project.crs}, heights "
             f"{project.info.heights}; omega phi kappa in degrees, camera x right y up z back -> map axes)"]
     for i, iid in enumerate(eo.image_id):
         (x, y, z), (o, p, k) = eo.centre_m[i], eo.opk_deg[i]
-        row = f"{names.get(iid, iid)},{x:.4f},{y:.4f},{z:.4f},{o:.7f},{p:.7f},{k:.7f}"
+        row = f"{frames.name_of(iid)},{x:.4f},{y:.4f},{z:.4f},{o:.7f},{p:.7f},{k:.7f}"
         if eo.sigma is not None:
             sx, sy, sz = eo.sigma[i, :3]
             row += f",{math.sqrt((sx * sx + sy * sy) / 2):.4f},{sz:.4f}"

@@ -18,8 +18,8 @@ log = logging.getLogger(__name__)
 
 
 def _image_names(project: Project) -> dict | None:
-    """image id -> file name in images/ (None without images/)."""
-    return {k: p.name for k, p in find_images(project.images_dir).items()} if project.images_dir.is_dir() else None
+    """image id -> file name in images/ (None without images/), as the COLMAP writers take them."""
+    return {k: p.name for k, p in find_images(project.images_dir).pairs()} if project.images_dir.is_dir() else None
 
 
 @dataclasses.dataclass(frozen=True)
@@ -34,9 +34,7 @@ EXPORT_FORMATS = {
                              "partial control in their own .con files), the number map and aerotri's camera (patb/"
                              "numbers.txt, block.cam)", patb.files),
     "colmap": Exporter("colmap", "COLMAP text model (colmap/cameras.txt, images.txt, points3D.txt)",
-                       lambda block, project: colmap.files(
-                           block, {k: p.name for k, p in find_images(project.images_dir).items()}
-                           if project.images_dir.is_dir() else None)),
+                       lambda block, project: colmap.files(block, _image_names(project))),
     "colmap-bin": Exporter("colmap-bin", "COLMAP binary model (colmap_bin/cameras.bin, images.bin, points3D.bin)",
                            lambda block, project: colmap.binary_files(block, _image_names(project))),
     "orthority": Exporter("orthority", "orthority interior YAML, OPK CSV + .prj and exterior GeoJSON (orthority/)",

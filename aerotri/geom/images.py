@@ -20,6 +20,7 @@ coordinates refer to the grid as stored, the grid whose size ``check_frames`` ch
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import warnings
 from pathlib import Path
@@ -41,20 +42,55 @@ _ID_SUFFIXES = IMAGE_SUFFIXES + (".TIF", ".JPG")
 
 
 # -- finding ----------------------------------------------------------------------------------------
-def find_images(folder) -> dict[str, Path]:
-    """Image id (file stem) -> path for every frame in ``folder``."""
+@dataclasses.dataclass(frozen=True)
+class ImageFiles:
+    """Frames and their files: ``image_id`` (each once) and ``path`` beside them; ``find_images`` gives a
+    folder's, sorted by file name."""
+
+    image_id: tuple[str, ...]
+    path: tuple[Path, ...]
+
+    def __len__(self) -> int:
+        return len(self.image_id)
+
+    def __contains__(self, image_id) -> bool:
+        return image_id in self.image_id
+
+    def pairs(self):
+        """(image id, path) of every frame, in order."""
+        return zip(self.image_id, self.path)
+
+    def path_of(self, image_id: str) -> Path:
+        """The file of a frame (KeyError for an id that is not among them)."""
+        try:
+            return self.path[self.image_id.index(image_id)]
+        except ValueError:
+            raise KeyError(image_id) from None
+
+    def name_of(self, image_id: str) -> str:
+        """The file name of a frame, the id itself for a frame that is not among them (an exporter's shot name)."""
+        return self.path_of(image_id).name if image_id in self.image_id else str(image_id)
+
+    def select(self, image_ids) -> "ImageFiles":
+        """The frames ``image_ids``, in that order (KeyError for an id that is not among them)."""
+        image_ids = tuple(image_ids)
+        return ImageFiles(image_ids, tuple(self.path_of(i) for i in image_ids))
+
+
+def find_images(folder) -> ImageFiles:
+    """The frames of ``folder`` (image id: the file stem), sorted by file name."""
     folder = Path(folder)
     if not folder.is_dir():
         raise InputError(f"{folder}: image folder not found")
-    out = {}
+    found = {}
     for p in sorted(folder.iterdir()):
         if p.suffix.lower() in IMAGE_SUFFIXES:
-            if p.stem in out:
-                raise InputError(f"{p}: two images share the id {p.stem!r} ({out[p.stem].name})")
-            out[p.stem] = p
-    if not out:
+            if p.stem in found:
+                raise InputError(f"{p}: two images share the id {p.stem!r} ({found[p.stem].name})")
+            found[p.stem] = p
+    if not found:
         raise InputError(f"{folder}: no images ({', '.join(IMAGE_SUFFIXES)})")
-    return out
+    return ImageFiles(tuple(found), tuple(found.values()))
 
 
 def find_image(images_dir, image_id: str) -> Path:
@@ -80,12 +116,12 @@ def _open_raster(path):
     return rasterio.open(path)
 
 
-def check_frames(images: dict, camera: BrownCamera, camera_source="camera.toml") -> None:
+def check_frames(images: ImageFiles, camera: BrownCamera, camera_source="camera.toml") -> None:
     """Every frame is a readable image file of the camera's size, checked from the file headers before
     any work (a folder, an unreadable file or a frame of another size stops here, naming it)."""
     import rasterio
 
-    for image_id, path in images.items():
+    for image_id, path in images.pairs():
         path = Path(path)
         if not path.is_file():
             raise InputError(f"{path}: not a file (image {image_id!r}); expected a TIFF/JPEG/PNG frame")

@@ -21,11 +21,11 @@ from aerotri.core.project import Project
 from aerotri.core.settings import Resolved, settings_of
 from aerotri.geom.camera import BrownCamera, project_camera
 from aerotri.geom.eo import check_block_crs, read_gnss
-from aerotri.geom.images import check_frames, find_images
+from aerotri.geom.images import ImageFiles, check_frames, find_images
 from aerotri.match import features as F
 from aerotri.match import matching as M
 from aerotri.match.pairs import BlockPlan, Pair, candidate_pairs, plan_block
-from aerotri.match.report import plot_block, track_length_histogram
+from aerotri.match.report import plot_block, track_lengths
 from aerotri.match.settings import MatchSettings
 from aerotri.match.tracks import build_tracks, coincident, complete_tracks
 from aerotri.match.weak import BlockStrength, ModelStrength, StripTies, analyse
@@ -65,7 +65,7 @@ class MatchReport:
     observations: int
     inconsistent_tracks_dropped: int
     tracks_3plus_fraction: float
-    track_length_histogram: dict[str, int]
+    track_length_histogram: dict[str, int]  # rays -> tracks (``track_lengths``), as connectivity.json keys them
     ties_per_pair: list[PairTies]
     weak_models: list[list[str]]
     weak_strip_pairs: list[list[int]]
@@ -156,7 +156,7 @@ class _Frames:
     """The frames to match: ids in block order, their files, and their GNSS plan (None without GNSS)."""
 
     ids: list[str]
-    images: dict[str, Path]
+    images: ImageFiles
     plan: BlockPlan | None
 
 
@@ -166,18 +166,18 @@ def _read_frames(project: Project, crs, camera: BrownCamera, s: MatchSettings) -
     gnss = None
     if project.gnss_path.exists():
         gnss = read_gnss(project.gnss_path, crs)
-        missing = sorted(set(images) - set(gnss.image_id))
+        missing = sorted(set(images.image_id) - set(gnss.image_id))
         if missing:
             raise InputError(f"{project.gnss_path}: no GNSS position for frame(s) {', '.join(missing[:10])}"
                              + (" ..." if len(missing) > 10 else ""))
-        no_image = sorted(set(gnss.image_id) - set(images))
+        no_image = sorted(set(gnss.image_id) - set(images.image_id))
         if no_image:
             raise InputError(f"{project.images_dir}: no image file for GNSS record(s) {', '.join(no_image[:10])} "
                              f"of {project.gnss_path}")
         ids = list(gnss.image_id)
         lever = project.gnss.lever_arm_m
     else:
-        ids = sorted(images)
+        ids = sorted(images.image_id)
     if len(ids) < 2:
         raise InputError(f"{project.images_dir}: a block of {len(ids)} frame ({', '.join(ids)}); tie points need "
                          "at least 2 overlapping frames")
@@ -210,7 +210,7 @@ class _Matcher:
         self.match_cache_hits = 0
 
     def _item(self, i: int, p: F.FeatureSettings) -> tuple:
-        return (self.images[self.ids[i]], self.cache_f, p, (self.camera.width, self.camera.height))
+        return (self.images.path_of(self.ids[i]), self.cache_f, p, (self.camera.width, self.camera.height))
 
     def extract(self, frames, p: F.FeatureSettings, desc: str) -> list:
         """Extract (or find cached) the features of the given frames, one task per frame; their cache keys."""
@@ -368,13 +368,14 @@ def match_project(root, settings: MatchSettings | Resolved | None = None,
     for pr in pairs:
         kinds[pr.kind] = kinds.get(pr.kind, 0) + 1
     strength = ties.strength
+    hist = track_lengths(ties.track)
     report = MatchReport(
         project=project.name, frames=len(ids), strips=int(len(np.unique(plan.strip))) if plan is not None else 0,
         pairs=len(pairs), pairs_by_kind=kinds, pairs_with_ties=int(sum(t > 0 for _, _, t in ties_per_pair)),
         components=len(components), component_frames=components if len(components) > 1 else [],
         tracks=int(len(lengths)), observations=int(len(ties.track)), inconsistent_tracks_dropped=ties.n_bad,
         tracks_3plus_fraction=float((lengths >= 3).mean()) if len(lengths) else 0.0,
-        track_length_histogram=track_length_histogram(ties.track),
+        track_length_histogram={str(n): t for n, t in zip(hist.rays.tolist(), hist.tracks.tolist())},
         ties_per_pair=[PairTies(ids[i], ids[j], t) for i, j, t in ties_per_pair],
         weak_models=[[m.left, m.right] for m in strength.models if m.weak],
         weak_strip_pairs=[[c.strip_a, c.strip_b] for c in strength.cross_strip if c.weak],

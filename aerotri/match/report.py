@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 
 from aerotri.core.figures import pyplot, save_png
@@ -42,9 +44,17 @@ def plot_block(path, plan, pairs_ties: list[tuple[int, int, int]], strength) -> 
     save_png(fig, path, dpi=120, tight=True)
 
 
-def track_length_histogram(track: np.ndarray) -> dict[str, int]:
-    if len(track) == 0:
-        return {}
-    lengths = np.bincount(track)
-    vals, cnt = np.unique(lengths[lengths > 0], return_counts=True)
-    return {str(int(v)): int(c) for v, c in zip(vals, cnt)}
+@dataclasses.dataclass(frozen=True)
+class TrackLengths:
+    """How long the tracks are: ``rays`` (the frames a track is measured in, ascending, each length that occurs)
+    and ``tracks`` (how many tracks have that length), int arrays of one length."""
+
+    rays: np.ndarray
+    tracks: np.ndarray
+
+
+def track_lengths(track: np.ndarray) -> TrackLengths:
+    """The track lengths of the measurements' track numbers ``track`` (one per image measurement)."""
+    lengths = np.bincount(track) if len(track) else np.zeros(0, int)
+    rays, tracks = np.unique(lengths[lengths > 0], return_counts=True)
+    return TrackLengths(rays.astype(int), tracks.astype(int))

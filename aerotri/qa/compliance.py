@@ -28,7 +28,7 @@ from aerotri.core.project import ControlPointSettings, Project
 from aerotri.core.textio import read_json
 from aerotri.core.tolerances import (SCALE_TABLES, ToleranceTable, asprs_classes_for_gsd, asprs_table, load_table,
                                      scale_for_gsd, split_key)
-from aerotri.qa.standards import STANDARD_KEYS, load_standard
+from aerotri.qa.standards import STANDARD_KEYS, asprs2023, cn_at, usgs_lbs
 from aerotri.qa.standards import formulas as F
 
 NOT_TESTABLE = "not testable"
@@ -360,18 +360,17 @@ def choose(standard: str | None, class_text: str | None, table: ToleranceTable, 
                                                          "finest class met is stated")
         return Choice("asprs2023", f"H{h:g}cm V{v:g}cm", why, h_cm=h, v_cm=v)
     if std == "usgs-lbs":
-        d = load_standard("usgs-lbs")
+        lbs = usgs_lbs()
         if cls:
-            lvl = cls.strip().upper()
-            if lvl not in d["levels"]:
-                raise OptionError(f"--class {cls!r}: expected a quality level {', '.join(d['levels'])}",
-                                  param="--class")
+            lvl, names = cls.strip().upper(), [lv.name for lv in lbs.levels]
+            if lvl not in names:
+                raise OptionError(f"--class {cls!r}: expected a quality level {', '.join(names)}", param="--class")
             why += f"; {lvl} from {cls_src}"
         else:
-            lvl = d["standard"]["default_class"]
-            why += f"; {d['standard']['default_class_reason']}"
+            lvl = lbs.default_level
+            why += f"; {lbs.default_level_reason}"
         return Choice("usgs-lbs", lvl, why, level=lvl)
-    scales = load_standard("cn-at")["standard"]["scales"] if std == "cn-at" else list(SCALE_TABLES)
+    scales = list(cn_at().standard.scales) if std == "cn-at" else list(SCALE_TABLES)
     if cls:
         scale = cls.strip().replace(" ", "")
         if scale not in scales:
@@ -399,14 +398,14 @@ def choose(standard: str | None, class_text: str | None, table: ToleranceTable, 
 
 
 def _asprs(figs: Figures, c: Choice) -> list[ComplianceCheck]:
-    d = load_standard("asprs2023")
-    L = d["limits"]
-    need = int(L["check_points_min"]["value"])
-    factor = float(L["checkpoint_accuracy_factor"]["value"])
-    fac_ok = L["checkpoint_accuracy_factor"]["confirmed"]
-    src = f"{d['standard']['name']}"
-    lad_h = [x / 100 for x in d["ladders"]["horizontal_cm"]]
-    lad_v = [x / 100 for x in d["ladders"]["vertical_cm"]]
+    d = asprs2023()
+    L = d.limits
+    need = int(L.check_points_min.value)
+    factor = float(L.checkpoint_accuracy_factor.value)
+    fac_ok = L.checkpoint_accuracy_factor.confirmed
+    src = d.standard.name
+    lad_h = [x / 100 for x in d.ladders.horizontal_cm]
+    lad_v = [x / 100 for x in d.ladders.vertical_cm]
     if c.h_cm is not None:
         limits, prov, _ = asprs_table(c.h_cm, c.v_cm)
     else:
@@ -475,12 +474,12 @@ def _asprs(figs: Figures, c: Choice) -> list[ComplianceCheck]:
             ch = dataclasses.replace(ch, verdict=NOT_TESTABLE,
                                      why="not measured: no surveyed check points (lidarctl check-heights)")
         out.append(ch)
-        vva = L["vertical_vva"]
+        vva = L.vertical_vva
         out.append(_check("LiDAR DEM", "VVA: RMSE_V at vegetated check points", c.class_tested, lf.vva_rmse_m,
                           F.with_checkpoint_accuracy(lf.vva_rmse_m, lf.cp_rmse_v_m) if lf.vva_rmse_m is not None
                           else None, limit=None, unit="m", n=lf.n_vva, need=None, cp_ok=None, cp_note=lf.grouping_note,
-                          confirmed=vva["confirmed"],
-                          source=f"{src}; {vva['evidence']}", verdict="reported",
+                          confirmed=vva.confirmed,
+                          source=f"{src}; {vva.evidence}", verdict="reported",
                           why="no pass/fail in Edition 2" + ("" if lf.n_vva else "; no vegetated check points")))
         if lf.swath_rmsdz_m is not None:
             limit, conf, source = lim("strip_rmsdz_m")
@@ -493,12 +492,10 @@ def _asprs(figs: Figures, c: Choice) -> list[ComplianceCheck]:
 
 
 def _lbs(figs: Figures, c: Choice) -> list[ComplianceCheck]:
-    d = load_standard("usgs-lbs")
-    levels = d["levels"]
-    order = list(levels)
-    src = d["standard"]["name"]
-    need = int(d["check_points"]["nva_min"])
-    factor = float(load_standard("asprs2023")["limits"]["checkpoint_accuracy_factor"]["value"])
+    d = usgs_lbs()
+    src = d.standard.name
+    need = d.nva_min_points
+    factor = float(asprs2023().limits.checkpoint_accuracy_factor.value)
     lf = figs.lidar
     out = []
     if lf is None:
@@ -506,18 +503,19 @@ def _lbs(figs: Figures, c: Choice) -> list[ComplianceCheck]:
 
     def row(key, quantity, fig, n, *, n_need, cp, cp_src, note, lower_is_better=True):
         """One quality-level row; the finest level is the first of QL0..QL3 whose limit the figure meets."""
-        lv = levels[c.level]
-        limit = lv[key]
-        conf = key in lv["provenance"]["confirmed"]
-        source = f"{src} {c.level} {key}; {lv['provenance']['evidence']}"
+        lv = d.level(c.level)
+        limit = getattr(lv, key)  # key: a limit of QualityLevel by its name, as the rows and sources name it
+        conf = key in lv.confirmed
+        source = f"{src} {c.level} {key}; {lv.evidence}"
         cp_ok, cp_note = (None, note) if cp_src is None else _cp_note(cp, limit / factor, cp_src,
                                                                      f"{factor:g} x finer (ASPRS, unconfirmed) needs <=")
         if cp_src is not None and note:
             cp_note = f"{cp_note}; {note}"
         fin, rank = None, None
         if fig is not None:
-            met = [i for i, q in enumerate(order) if (fig <= levels[q][key] if lower_is_better else fig >= levels[q][key])]
-            fin, rank = (order[met[0]], float(met[0])) if met else ("none (coarser than QL3)", math.inf)
+            met = [i for i, q in enumerate(d.levels)
+                   if (fig <= getattr(q, key) if lower_is_better else fig >= getattr(q, key))]
+            fin, rank = (d.levels[met[0]].name, float(met[0])) if met else ("none (coarser than QL3)", math.inf)
         if lower_is_better:
             ch = _check("LiDAR DEM" if key in ("nva_rmse_m", "vva_p95_m") else
                         ("LiDAR swath overlaps" if key.startswith("interswath") else "LiDAR density"),
@@ -548,32 +546,33 @@ def _lbs(figs: Figures, c: Choice) -> list[ComplianceCheck]:
 
 
 def _cn(figs: Figures, c: Choice) -> list[ComplianceCheck]:
-    d = load_standard("cn-at")
-    L = d["limits"]
-    scales = d["standard"]["scales"]
-    src = d["standard"]["name"]
-    acc = d["check_point_accuracy"]
+    d = cn_at()
+    L = d.limits
+    scales = d.standard.scales
+    src = d.standard.name
+    acc = d.check_point_accuracy
 
-    def limit_m(key_names, scale, terrain):
-        for k in key_names:
-            e = L[k]
-            if scale in e["scales"] and terrain in e:
-                return F.map_mm_to_ground_m(e[terrain], scale), e["confirmed"], f"{src}: {e['what']}, {e['clause']}; {e['evidence']}"
+    def limit_m(limits, scale, terrain):
+        """(limit m, confirmed, source) of the first of ``limits`` (``MapPlanLimit``) that covers ``scale``."""
+        for e in limits:
+            if scale in e.scales:
+                return (F.map_mm_to_ground_m(e.mm(terrain), scale), e.confirmed,
+                        f"{src}: {e.what}, {e.clause}; {e.evidence}")
         return None, None, f"{src}: no limit shipped for {scale} {terrain}"
 
-    def finest(fig, key_names, terrain):
-        met = [s for s in scales if (lm := limit_m(key_names, s, terrain)[0]) is not None and fig <= lm]
+    def finest(fig, limits, terrain):
+        met = [s for s in scales if (lm := limit_m(limits, s, terrain)[0]) is not None and fig <= lm]
         return (met[0], float(F.scale_denominator(met[0]))) if met else ("none (coarser than 1:10000)", math.inf)
 
-    feat = ("feature_plan_mm", "feature_plan_mm_small")
+    feat = (L.feature_plan_mm, L.feature_plan_mm_small)
     out = []
-    for product, cs, keys in (("Aerotriangulation", figs.at, ("check_plan_mm",)), ("DOM", figs.dom, feat),
+    for product, cs, keys in (("Aerotriangulation", figs.at, (L.check_plan_mm,)), ("DOM", figs.dom, feat),
                               ("Line map (DLG)", figs.line_map, feat)):
         if cs is None:
             continue
         limit, conf, source = limit_m(keys, c.scale, c.terrain)
         f_lim = limit_m(feat, c.scale, c.terrain)[0]
-        cp_ok, cp_note = (_cp_note(cs.cp_rmse_h_m, acc["plan_fraction_of_feature"] * f_lim, cs.cp_source,
+        cp_ok, cp_note = (_cp_note(cs.cp_rmse_h_m, acc.plan_fraction_of_feature * f_lim, cs.cp_source,
                                    "1/5 of the feature limit (GB/T 7931-2008 6.1) needs <=") if f_lim else
                           (None, "no feature limit to judge the check points by"))
         fin, rank = finest(cs.rmse_h_m, keys, c.terrain) if cs.rmse_h_m is not None else (None, None)
@@ -592,16 +591,17 @@ def _cn(figs: Figures, c: Choice) -> list[ComplianceCheck]:
                               f"copy; docs/standards.md)"))
     lf = figs.lidar
     if lf is not None and (lf.nva_rmse_m is not None or lf.swath_rmsdz_m is not None):
-        e = L["spot_height_m"]
-        lim = e.get(c.terrain, {}).get(c.scale) if isinstance(e.get(c.terrain), dict) else None
+        e = L.spot_height_m
+        lim = e.height_m(c.terrain, c.scale)
         if lf.nva_rmse_m is not None:
-            met = [s for s in e["scales"] if (x := e.get(c.terrain, {}).get(s)) is not None and lf.nva_rmse_m <= x]
+            met = [s for s in e.scales if (x := e.height_m(c.terrain, s)) is not None and lf.nva_rmse_m <= x]
+            some = any(e.height_m(c.terrain, s) is not None for s in e.scales)
             out.append(_check("LiDAR DEM", "height RMS at non-vegetated check points (against the spot-height limit)",
                               c.class_tested, lf.nva_rmse_m, lf.nva_rmse_m, limit=lim, unit="m", n=lf.n_nva, need=None,
                               cp_ok=None, cp_note=lf.grouping_note,
-                              confirmed=e["confirmed"] if lim is not None else None,
-                              source=f"{src}: {e['what']}, {e['clause']}; {e['evidence']}",
-                              finest=met[0] if met else ("none of 1:500-1:2000" if e.get(c.terrain) else None),
+                              confirmed=e.confirmed if lim is not None else None,
+                              source=f"{src}: {e.what}, {e.clause}; {e.evidence}",
+                              finest=met[0] if met else ("none of 1:500-1:2000" if some else None),
                               rank=float(F.scale_denominator(met[0])) if met else None))
         if lf.swath_rmsdz_m is not None:
             out.append(_check("LiDAR swath overlaps", "swath-to-swath RMSDz on smooth surfaces", c.class_tested,
@@ -684,9 +684,8 @@ def summarise(checks) -> tuple[ProductCompliance, ...]:
 def judge(figs: Figures, choice: Choice) -> Compliance:
     """The checks of ``figs`` against ``choice`` and their summary per product."""
     checks = tuple(JUDGES[choice.key](figs, choice))
-    names = {"asprs2023": load_standard("asprs2023")["standard"]["name"],
-             "usgs-lbs": load_standard("usgs-lbs")["standard"]["name"],
-             "cn-at": load_standard("cn-at")["standard"]["name"],
+    names = {"asprs2023": asprs2023().standard.name, "usgs-lbs": usgs_lbs().standard.name,
+             "cn-at": cn_at().standard.name,
              "thesis": "the thesis' map-scale tolerance tables (aerotri/core/tolerance_tables/cn_1to*.toml)"}
     unconf = tuple(dict.fromkeys(f"{c.product}: {c.quantity}" for c in checks if c.limit_confirmed is False))
     return Compliance(key=choice.key, name=names[choice.key], class_tested=choice.class_tested, reason=choice.reason,

@@ -1180,8 +1180,8 @@ def _crs_member(crs) -> dict | None:
 
 
 def roof_planes_geojson(faces: list[dict], units: LengthUnits | None, *, sigma_strip_xy_m: float,
-                        sigma_strip_z_m: float, crs=None) -> dict:
-    """roof_planes.geojson: one Polygon per roof face (its footprint shrunk inward by ``margin_m``, exterior
+                        sigma_strip_z_m: float, crs=None) -> str:
+    """roof_planes.geojson's text (``aerotri.adjust.surface.read_roof_planes`` reads it): one Polygon per roof face (its footprint shrunk inward by ``margin_m``, exterior
     CCW) with the face's plane (``ROOF_PLANE_MODEL``); coordinates in the CRS's units (``units``; None: metres,
     no unit names). ``faces`` as ``RoofCorners.in_crs_units`` gives them; the strip sigmas in metres."""
     feats = []
@@ -1200,7 +1200,7 @@ def roof_planes_geojson(faces: list[dict], units: LengthUnits | None, *, sigma_s
     member = _crs_member(crs)
     if member is not None:
         out["crs"] = member
-    return out
+    return json.dumps(out)
 
 
 def _faces_in_crs_units(faces: list[dict], units) -> list[dict]:
@@ -1242,9 +1242,9 @@ def write_corner_files(outdir, result: RoofCorners, crs=None, source: str | None
         from lidarctl.units import METRE
 
         faces = _faces_in_crs_units(faces, METRE)
-    write_text_atomic(files.planes, json.dumps(roof_planes_geojson(
+    write_text_atomic(files.planes, roof_planes_geojson(
         faces, result.units, sigma_strip_xy_m=result.stats.sigma_strip_xy_m,
-        sigma_strip_z_m=result.stats.sigma_strip_z_m, crs=crs)))
+        sigma_strip_z_m=result.stats.sigma_strip_z_m, crs=crs))
     summary = CornerControlResult(source, crs.to_string() if crs is not None else None, result.units,
                                   result.stats, settings_record)
     write_text_atomic(files.summary_json, summary.to_json())

@@ -36,7 +36,7 @@ def test_zbuffer_and_march_mask_what_the_march_masks_everywhere(block, frame):
     dsm = read_height_raster(block / "truth" / "dsm.tif", b.project_crs, "DSM")
     to_project = GridToProject(b.project_crs, b.project_crs)
     grid = frame_grid(b.camera, C, R, dsm, 0.2, b.project_crs, to_project=to_project)
-    image, _ = read_native(b.images[frame], (b.camera.width, b.camera.height))
+    image, _ = read_native(b.images.path_of(frame), (b.camera.width, b.camera.height))
     _, seen = rectify_frame(image, b.camera, C, R, dsm, grid, occlusion_dsm=dsm, tile_px=256)
     _, imaged = rectify_frame(image, b.camera, C, R, dsm, grid, tile_px=256)
     # the march over every pixel of the grid (what --true-ortho did before the z-buffer)

@@ -126,6 +126,7 @@ def test_consumer_gnss_states_the_datum_in_metres_and_the_dem_places_it(brighton
 
     from aerotri.adjust.pipeline import AdjustSettings, adjust_project
     from aerotri.adjust.report import build_report
+    from aerotri.core.records import to_record
     from aerotri.exchange.exif import consumer_gnss_section
 
     survey, lidar, _ = brighton6
@@ -133,7 +134,7 @@ def test_consumer_gnss_states_the_datum_in_metres_and_the_dem_places_it(brighton
     shutil.copytree(survey, root, symlinks=True)
     _set_gnss(root, consumer_gnss_section())
     ba = adjust_project(root, AdjustSettings(self_calibration=("focal", "pp", "radial")))
-    rep = build_report(ba).to_record()
+    rep = to_record(build_report(ba))
     modes = {g["mode"]: g for g in rep["geometry_modes"]}
     # metres: the offset's 5 m times sigma0 (0.3 here: the 800 px frames measure better than the a-priori 0.5 px,
     # and the report's sigma0 note says the sigmas are scaled by it)

@@ -13,6 +13,7 @@ import pytest
 
 from aerotri.adjust.pipeline import AdjustSettings, adjust_project
 from aerotri.adjust.report import build_report
+from aerotri.core.records import to_record
 from aerotri.sim.observations import geometric_block, write_block_project, write_terrain_dem, write_truth_observations
 
 OFFSET_M = np.array([2.5, -2.0, 3.0])
@@ -59,7 +60,7 @@ def test_the_flight_offset_model_states_metres_where_the_survey_model_claims_cen
     assert np.all(np.abs(err) > 1.5) and np.all(np.abs(err / sig) < 2.5), (err, sig)
     assert sig[0] > 2.5 and sig[2] > 4.0  # the offset's a-priori 3 / 5 m, nothing more from the images
     assert ba.opts.gnss_correction == "offset"
-    rep = build_report(ba).to_record()
+    rep = to_record(build_report(ba))
     modes = {g["mode"]: g for g in rep["geometry_modes"]}
     assert modes["height"]["sigma_m"] > 4.0 and modes["height"]["held_by_priors"]
     assert rep["key_statistics"]["verdict"] == "weak" and "block height held only by" in rep["key_statistics"]["message"]

@@ -23,6 +23,7 @@ import rasterio
 from aerotri.adjust.pipeline import AdjustSettings, adjust_project, run_adjustment
 from aerotri.adjust.report import build_report, format_html, format_txt
 from aerotri.core.errors import SolveError
+from aerotri.core.records import to_record
 from aerotri.geom.camera import dmc_camera, read_camera
 from aerotri.sim.observations import geometric_block, write_block_project, write_truth_observations
 from rasterio.transform import from_origin
@@ -83,7 +84,7 @@ def test_focal_of_a_flat_gnss_only_block_is_fixed_with_a_warning(flat, caplog):
     assert ba.opts.self_calibration == ("pp", "radial")
     assert ba.camera_adjusted.focal_px == pytest.approx(ba.camera_apriori.focal_px, abs=0.05)  # held
     assert any("focal fixed at its a-priori value" in r.getMessage() for r in caplog.records)
-    rep = build_report(ba).to_record()
+    rep = to_record(build_report(ba))
     ks = rep["key_statistics"]
     assert ks["verdict"] == "weak" and ks["calibration_fixed"] == ["focal"] and ks["converged"]
     assert ks["message"].startswith("Solution weak.") and "Solution Successful" not in ks["message"]
@@ -114,7 +115,7 @@ def test_focal_with_height_control_is_estimated_within_its_sigma(tmp_path_factor
     sigma = np.mean(list(focal.sigma.values()))
     assert abs(est - true_f) < 3 * sigma, (est, true_f, sigma)
     assert sigma < 2e-4 * true_f and abs(est - true_f) < 1e-3 * true_f  # from 100 px off to about 1 px
-    rep = build_report(ba).to_record()
+    rep = to_record(build_report(ba))
     assert rep["key_statistics"]["calibration_fixed"] == []
     assert "Self-calibration:" not in rep["key_statistics"]["message"]
 
@@ -167,7 +168,7 @@ def test_surface_control_dem_is_reported_too(dem_block):
     ba = adjust_project(root, AdjustSettings(image_sigma_px=SIGMA_PX, use_control=False, dem=dem, surface_sigma_m=0.05))
     (d,) = ba.dem_checks
     assert d.role == "surface control" and d.n > 400 and not d.failed and abs(d.median_m) < 0.05
-    assert "TIE POINTS VS DEM (surface control" in format_txt(build_report(ba).to_record())
+    assert "TIE POINTS VS DEM (surface control" in format_txt(to_record(build_report(ba)))
 
 
 def test_control_point_without_rays_is_not_used_and_the_report_is_quiet(dem_block, tmp_path):
@@ -192,7 +193,7 @@ def test_control_point_without_rays_is_not_used_and_the_report_is_quiet(dem_bloc
     ba.result.obs_active[rays] = False  # as data snooping leaves a point whose every ray it removed
     with warnings.catch_warnings():
         warnings.simplefilter("error", RuntimeWarning)
-        rep = build_report(ba).to_record()
+        rep = to_record(build_report(ba))
         txt = format_txt(rep)
         html = format_html(rep, ba)
     assert "no rays" in html

@@ -2,13 +2,15 @@
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import math
 
 import numpy as np
 import pytest
 
-from aerotri.adjust.flight_acceptance import Terrain, flight_acceptance, project_flight_acceptance
+from aerotri.adjust.flight_acceptance import LIMIT_KEYS, Terrain, flight_acceptance, project_flight_acceptance
+from aerotri.core.tolerances import FlightLimits, manned_flight_limits
 from aerotri.geom.camera import BrownCamera, read_camera
 from aerotri.geom.eo import read_eo
 
@@ -62,6 +64,19 @@ def test_violations_are_flagged_where_they_happen():
     # a contract's own limits replace the defaults
     loose = flight_acceptance(ids, c, opk, CAM, Terrain(0.0), strip, limits={"flight_tilt_max_deg": 3.0})
     assert {x["key"]: x for x in loose.checks}["flight_tilt_max_deg"]["verdict"] == "pass"
+    assert loose.limits == {**fa.limits, "flight_tilt_max_deg": 3.0}
+
+
+def test_the_manned_specification_limits_every_key_and_a_uas_block_none():
+    """flight_cn_aerial.toml [general] gives every limit the checks name (thesis section 4.1); a UAS table
+    (``flight_limits_apply = false``) none: the values are reported, not judged."""
+    spec = manned_flight_limits()
+    assert [f.name for f in dataclasses.fields(FlightLimits)] == list(LIMIT_KEYS)
+    assert (spec.flight_tilt_max_deg, spec.flight_kappa_max_deg, spec.flight_curvature_max_pct) == (2.0, 7.0, 3.0)
+    assert (spec.flight_forward_overlap_min_pct, spec.flight_side_overlap_min_pct) == (56.0, 13.0)
+    ids, c, opk, strip = _block()
+    uas = flight_acceptance(ids, c, opk, CAM, Terrain(0.0), strip, limits={"flight_limits_apply": False})
+    assert uas.limits == {} and {x["verdict"] for x in uas.checks} == {"not judged"}
 
 
 def test_terrain_raises_reduce_overlap():

@@ -16,6 +16,7 @@ from aerotri.adjust.leave_one_out import leave_one_out
 from aerotri.adjust.pipeline import AdjustSettings, adjust_project
 from aerotri.adjust.relative import NoDatum, level_normal, robust_similarity
 from aerotri.cli import main as aerotri_cli
+from aerotri.core.records import to_record
 from aerotri.geom.eo import ExteriorOrientations, read_eo, write_eo
 from aerotri.sim.observations import geometric_block, write_block_project, write_truth_observations
 
@@ -147,7 +148,7 @@ def test_plan_only_control_gives_plan_and_a_level_datum(no_gnss_block, tmp_path)
     assert _rms(d[:, 2] - d[:, 2].mean()) < 0.3  # heights are relative: 0 at the targets' median ground
     from aerotri.adjust.report import build_report
 
-    rep = build_report(ba).to_record()
+    rep = to_record(build_report(ba))
     assert rep["rms_control_ground_m"][2] is None  # no height RMS
     assert all(row["kind"] == "horizontal" and row["residual_m"][2] is None for row in rep["control_points"])
 

@@ -10,6 +10,7 @@ import pytest
 
 from aerotri.adjust import report
 from aerotri.adjust.pipeline import AdjustSettings, adjust_project
+from aerotri.core.records import to_record
 from aerotri.sim.observations import geometric_block, write_block_project, write_truth_observations
 
 
@@ -22,7 +23,7 @@ def ba(tmp_path_factory):
 
 
 def test_numbers_agree_with_the_adjustment(ba):
-    rep = report.build_report(ba).to_record()
+    rep = to_record(report.build_report(ba))
     json.dumps(rep, allow_nan=False, default=float)  # JSON-ready
     d = np.array([row["d_m"] for row in rep["check_points"]], float)
     assert rep["counts"]["check_points"] == len(ba.check) == len(d) > 0
@@ -42,7 +43,7 @@ def test_numbers_agree_with_the_adjustment(ba):
 
 
 def test_limits_come_from_the_tolerance_table(ba):
-    rep = report.build_report(ba, "1:2000", "hilly").to_record()
+    rep = to_record(report.build_report(ba, "1:2000", "hilly"))
     from aerotri.core.tolerances import load_table
 
     tol = load_table("1:2000", "hilly").limits
@@ -51,7 +52,7 @@ def test_limits_come_from_the_tolerance_table(ba):
 
 
 def test_text_layout_is_isat_then_patb(ba):
-    rep = report.build_report(ba).to_record()
+    rep = to_record(report.build_report(ba))
     txt = report.format_txt(rep)
     lines = txt.splitlines()
     order = [next(i for i, ln in enumerate(lines) if ln.strip() == h) for h in
@@ -66,7 +67,7 @@ def test_text_layout_is_isat_then_patb(ba):
 def test_image_pairs_count_shared_points_and_their_residuals(ba):
     """Per pair of frames: the tie points both see, and the RMS of both frames' residuals on them, checked
     against a direct count over the points."""
-    rep = report.build_report(ba).to_record()
+    rep = to_record(report.build_report(ba))
     b, r = ba.block, ba.result
     tie = r.obs_active & ~np.isin(b.obs_point, b.control_point)
     v_um = r.residual_px * ba.camera_apriori.pixel_um

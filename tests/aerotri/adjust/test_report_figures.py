@@ -14,6 +14,7 @@ from aerotri.adjust import report
 from aerotri.adjust import report_figures as RF
 from aerotri.adjust.flight_acceptance import Terrain
 from aerotri.adjust.pipeline import AdjustSettings, adjust_project, write_outputs
+from aerotri.core.records import to_record
 from aerotri.sim.observations import geometric_block, write_block_project, write_truth_observations
 
 GROUND_M = 150.0  # the geometric block's terrain: local height 0 (+- relief) at origin height 150 m
@@ -25,7 +26,7 @@ def adjusted(tmp_path_factory):
     root = write_block_project(block, tmp_path_factory.mktemp("figs") / "blk")
     write_truth_observations(root, tie_sigma_px=0.3, n_control=5, points_per_image=80, n_check=6, seed=5)
     ba = adjust_project(root, AdjustSettings(gnss_correction="shift", image_sigma_px=0.3))
-    return root, ba, report.build_report(ba, ground=Terrain(GROUND_M)).to_record()
+    return root, ba, to_record(report.build_report(ba, ground=Terrain(GROUND_M)))
 
 
 def _artists(fig, kind):

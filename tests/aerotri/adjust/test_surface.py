@@ -171,13 +171,11 @@ def _plane_faces(block, offset_m=None, seed=11):
 
 
 def _write_planes(folder, faces, crs):
-    import json
-
     from lidarctl.corners.roof_corners import roof_planes_geojson
 
     folder.mkdir(parents=True, exist_ok=True)
-    gj = roof_planes_geojson(faces, None, sigma_strip_xy_m=0.03, sigma_strip_z_m=0.03, crs=crs)
-    (folder / "roof_planes.geojson").write_text(json.dumps(gj))
+    (folder / "roof_planes.geojson").write_text(roof_planes_geojson(faces, None, sigma_strip_xy_m=0.03,
+                                                                    sigma_strip_z_m=0.03, crs=crs))
     return folder
 
 

@@ -17,8 +17,7 @@ from aerotri.exchange.exif import (
     camera_from_metadata,
     pixel_size_mm,
     read_frame_metadata,
-    sensor_width_mm,
-    sensor_widths,
+    sensor_table,
 )
 from aerotri.geom.camera import read_camera
 from tests.aerotri.exchange.test_exif import _frame, _project
@@ -29,12 +28,13 @@ POSITION = dict(GpsLatitude="46.8426", GpsLongtitude="-91.9945", AbsoluteAltitud
 
 
 def test_table_rows_are_read_and_cite_a_source():
-    table = sensor_widths()
-    assert len(table) >= 30
-    assert all(0.5 < w < 60.0 and src in ("opensfm", "format") for w, src in table.values())
-    assert sensor_width_mm("DJI", "FC300S") == (6.16, "opensfm")
-    assert sensor_width_mm("NIKON CORPORATION", "NIKON D800") == (35.9, "opensfm")  # make: its first word
-    assert sensor_width_mm("DJI", "NO-SUCH-CAMERA") is None
+    table = sensor_table()
+    assert len(table.rows) >= 30
+    assert all(0.5 < r.width_mm < 60.0 and r.source in ("opensfm", "format") for r in table.rows)
+    p3 = table.width_of("DJI", "FC300S")
+    assert (p3.width_mm, p3.source) == (6.16, "opensfm")
+    assert table.width_of("NIKON CORPORATION", "NIKON D800").width_mm == 35.9  # make: its first word
+    assert table.width_of("DJI", "NO-SUCH-CAMERA") is None
 
 
 def test_sensor_width_before_the_35mm_equivalent(tmp_path):
@@ -81,4 +81,4 @@ def test_real_frames_take_their_published_sensor(shared_data, tmp_path):
     kite = read_frame_metadata(sorted((shared_data / "copr_kite" / "images").glob("*.jpg"))[0])
     pix, source = pixel_size_mm(kite, *kite.full_size)
     assert source == "EXIF focal plane resolution" and 4272 * pix == pytest.approx(22.2, rel=0.01)
-    assert np.isclose(sensor_width_mm(kite.make, kite.model)[0], 22.2)
+    assert np.isclose(sensor_table().width_of(kite.make, kite.model).width_mm, 22.2)

@@ -9,7 +9,7 @@ from click.testing import CliRunner
 from pyproj import Transformer
 
 from aerotri.cli import main as aerotri_cli
-from aerotri.exchange.patb import orientation_text
+from aerotri.exchange.patb import numbering, orientation_text
 from aerotri.geom.eo import ExteriorOrientations, GnssPositions, format_gnss, read_eo
 
 OPK = np.array([[0.5, -0.3, 10.0], [0.2, 0.4, 12.0], [-0.1, 0.1, 8.0]])
@@ -49,9 +49,9 @@ def _opk_csv(tmp_path, xyz, prj_crs, ids=("a", "b", "c")):
 
 def _ori(tmp_path, xyz, ids=("a", "b", "c")):
     eo = ExteriorOrientations(list(ids), np.asarray(xyz, float), OPK.copy())
-    numbers = {i: n for n, i in enumerate(ids, start=1)}
+    numbers = numbering(ids)  # not plain integers: 1, 2, ... in order
     (tmp_path / "block.ori").write_text(orientation_text(eo, numbers))
-    (tmp_path / "numbers.txt").write_text("".join(f"photo {n} {i}\n" for i, n in numbers.items()))
+    (tmp_path / "numbers.txt").write_text("".join(f"photo {n} {i}\n" for i, n in zip(numbers.ids, numbers.numbers)))
     return [tmp_path / "block.ori", tmp_path / "numbers.txt"]
 
 

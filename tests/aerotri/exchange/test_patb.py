@@ -181,7 +181,9 @@ def test_files_in_the_documented_columns(exported):
 def test_numbering_keeps_integer_ids():
     from aerotri.exchange.patb import numbering
 
-    assert numbering(["1001", "1002", "17"]) == {"1001": 1001, "1002": 1002, "17": 17}
+    kept = numbering(["1001", "1002", "17", "1001"])
+    assert kept.ids == ("1001", "1002", "17") and kept.numbers == (1001, 1002, 17) and kept.number_of("17") == 17
     # a leading zero, a letter, a sign: all numbered in order (one rule for the whole set keeps numbers unique)
-    assert numbering(["0018", "1002"]) == {"0018": 1, "1002": 2}
-    assert numbering(["s01_001", "s01_002", "7"]) == {"s01_001": 1, "s01_002": 2, "7": 3}
+    assert numbering(["0018", "1002"]).numbers == (1, 2)
+    mixed = numbering(["s01_001", "s01_002", "7"])
+    assert mixed.numbers == (1, 2, 3) and mixed.number_of("7") == 3

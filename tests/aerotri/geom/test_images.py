@@ -118,7 +118,12 @@ def test_size_and_readability_are_checked(tmp_path):
 def test_frames_are_found_by_id(tmp_path):
     for name in ("a.tif", "b.JPG", "c.png", "notes.txt"):
         (tmp_path / name).write_bytes(b"")
-    assert list(find_images(tmp_path)) == ["a", "b", "c"]
+    found = find_images(tmp_path)
+    assert found.image_id == ("a", "b", "c") and found.path_of("b") == tmp_path / "b.JPG" and "c" in found
+    assert found.select(["c", "a"]).path == (tmp_path / "c.png", tmp_path / "a.tif")
+    assert (found.name_of("c"), found.name_of("zz")) == ("c.png", "zz")  # an exporter's shot name
+    with pytest.raises(KeyError):
+        found.select(["zz"])
     assert find_image(tmp_path, "b") == tmp_path / "b.JPG"
     with pytest.raises(InputError, match="no image file for image id 'd'"):
         find_image(tmp_path, "d")

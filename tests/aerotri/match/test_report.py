@@ -1,4 +1,4 @@
-"""The connectivity plot of a block."""
+"""The connectivity plot of a block and the track lengths of its report."""
 
 from __future__ import annotations
 
@@ -7,7 +7,7 @@ from types import SimpleNamespace
 import numpy as np
 from shapely.geometry import box
 
-from aerotri.match.report import plot_block
+from aerotri.match.report import plot_block, track_lengths
 
 
 def test_connectivity_plot_x_labels_do_not_overlap(tmp_path, monkeypatch):
@@ -33,3 +33,11 @@ def test_connectivity_plot_x_labels_do_not_overlap(tmp_path, monkeypatch):
     for a, b in zip(boxes, boxes[1:]):
         assert b.x0 - a.x1 > 0.3 * a.height, (a, b)  # a gap of a third of the text height at least
     plt.close(fig)
+
+
+def test_track_lengths_count_the_tracks_of_each_length():
+    """Tracks 0 and 1 seen in 3 frames, 2 and 4 in 2, 3 in 1 (measurement order does not matter)."""
+    h = track_lengths(np.array([1, 0, 2, 0, 1, 3, 4, 0, 2, 1, 4]))
+    assert h.rays.tolist() == [1, 2, 3] and h.tracks.tolist() == [1, 2, 2]
+    empty = track_lengths(np.zeros(0, int))
+    assert empty.rays.size == 0 and empty.tracks.size == 0

@@ -4,42 +4,56 @@ else hand-computed cases."""
 
 from __future__ import annotations
 
+import dataclasses
 import math
 
 import numpy as np
 import pytest
 
-from aerotri.qa.standards import STANDARD_FILES, load_standard
+from aerotri.qa.standards import STANDARD_FILES, asprs2023, cn_at, usgs_lbs
 from aerotri.qa.standards import formulas as F
 
 
-@pytest.mark.parametrize("key", list(STANDARD_FILES))
-def test_every_limit_names_its_source_and_confirmation(key):
-    d = load_standard(key)
-    assert d["standard"]["name"] and d["standard"]["document"] and d["standard"]["edition"]
-    if key == "usgs-lbs":
-        for name, lv in d["levels"].items():
-            prov = lv["provenance"]
-            assert prov["evidence"], name
-            assert set(prov["confirmed"]) <= {k for k in lv if k != "provenance"}, name
+@pytest.mark.parametrize("read", [asprs2023, usgs_lbs, cn_at])
+def test_every_limit_names_its_source_and_confirmation(read):
+    d = read()
+    assert d.standard.name and d.standard.document and d.standard.edition and d.standard.key in STANDARD_FILES
+    if read is usgs_lbs:
+        assert [lv.name for lv in d.levels] == ["QL0", "QL1", "QL2", "QL3"] and d.level(d.default_level)
+        for lv in d.levels:
+            assert lv.evidence, lv.name
+            assert set(lv.confirmed) <= {f.name for f in dataclasses.fields(lv)} - {"name", "confirmed", "evidence"}
         return
-    for name, e in d["limits"].items():
-        assert isinstance(e["confirmed"], bool), name
-        assert e.get("evidence") and e.get("clause"), name
+    for f in dataclasses.fields(d.limits):
+        e = getattr(d.limits, f.name)
+        assert isinstance(e.confirmed, bool), f.name
+        assert e.evidence and e.clause, f.name
 
 
 def test_the_strip_rmsdz_from_memory_is_marked_unconfirmed():
     """The 0.08 m swath overlap limit (QL1/QL2) is quoted only by secondary sources: unconfirmed."""
-    lv = load_standard("usgs-lbs")["levels"]
+    lbs = usgs_lbs()
     for ql in ("QL1", "QL2"):
-        assert lv[ql]["interswath_rmsdz_m"] == 0.08
-        assert "interswath_rmsdz_m" not in lv[ql]["provenance"]["confirmed"]
+        assert lbs.level(ql).interswath_rmsdz_m == 0.08
+        assert "interswath_rmsdz_m" not in lbs.level(ql).confirmed
+
+
+def test_cn_limits_by_terrain_and_scale():
+    """Map millimetres by terrain class (GB/T 7931-2008 6.1: features 0.6 mm flat, 0.8 mm mountainous); spot
+    heights only for flat and hilly ground at 1:500-1:2000."""
+    L = cn_at().limits
+    assert (L.feature_plan_mm.mm("flat"), L.feature_plan_mm.mm("mountainous")) == (0.6, 0.8)
+    assert L.feature_plan_mm.confirmed and "1:5000" in L.feature_plan_mm_small.scales
+    assert [L.spot_height_m.height_m("flat", s) for s in ("1:500", "1:1000", "1:2000", "1:5000")] == [0.4, 0.5, 0.5, None]
+    assert L.spot_height_m.height_m("mountainous", "1:500") is None
+    with pytest.raises(KeyError):
+        usgs_lbs().level("QL9")
 
 
 def test_lbs_pulse_spacing_is_the_inverse_square_root_of_the_density():
     """The table's two density columns agree (ANPS = 1 / sqrt(ANPD), to the 2 decimals the LBS gives)."""
-    for name, lv in load_standard("usgs-lbs")["levels"].items():
-        assert F.anps(lv["anpd_min"]) == pytest.approx(lv["anps_max_m"], abs=0.005), name
+    for lv in usgs_lbs().levels:
+        assert F.anps(lv.anpd_min) == pytest.approx(lv.anps_max_m, abs=0.005), lv.name
 
 
 def test_nva_95_percent_of_the_10_cm_class():
