@@ -225,7 +225,7 @@ _HISTOGRAM_TYPES = (np.dtype(np.uint8), np.dtype(np.uint16))
 SATURATION_ALLOWANCE = 0.001
 
 
-def _reduce_frame(path, g: OrthoGrid, mosaic: OrthoGrid, factor: int, strip_px: int = 1024, keep_decoded=False,
+def _reduce_frame(path, g: OrthoGrid, mosaic: OrthoGrid, factor: int, *, strip_px: int = 1024, keep_decoded=False,
                   margin_px: int = 0):
     """One frame on the seam grid: (rgb (h, w, bands), valid (h, w), (row, col) of its first cell, histogram,
     decoded, holes), read by strips of whole cells (memory of the samples set by ``strip_px`` rows, not by the
