@@ -21,7 +21,9 @@ the DOM's cells without a value set to the patch mean; now it correlates the val
    (``largest_new_over_1_gsd``, at most ``--top``; the sheet ``*_new.png``).
 
 Usage: python bench/eval_true_ortho_roofs.py --project DIR [--dsm lidar_out/dsm.tif] [--top 50] [--sheet PNG]
-       [--out bench/results/true_ortho_roofs.json] [--key demo]
+       [--out bench/results/true_ortho_roofs.json] [--key demo] [--streaming]
+``--streaming`` (a DOM too large to hold: full-size DMC frames) reads a window per corner and gives step 2 only;
+``--ground-ndsm NDSM`` adds the DOM check's open-ground figures (patches where the nDSM is below 0.5 m).
 ``DIR`` a project with ``ortho/mosaic.tif``, ``ortho/frames`` and ``truth/`` (e.g. a copy of
 ``/work/ref/demo_chain/project``: ``cp -a /work/ref/demo_chain/project DIR``). Results go under ``--key`` in the JSON.
 """
@@ -129,6 +131,42 @@ def measure_corners(rasters: Rasters, r0s, c0s, n: int, S: int) -> dict:
         big = (slice(P + r - S, P + r + n + S), slice(P + c - S, P + c + n + S))
         out["new_dx"][i], out["new_dy"][i], out["new_ncc"][i] = ncc_shift(a, pv, rasters.ref[big],
                                                                           rasters.ref_valid[big], win, S)
+    return out
+
+
+def measure_corners_streaming(project: Path, x, y, n: int, S: int) -> dict:
+    """``measure_corners`` reading one window of the DOM and of the reference per corner (a DOM of gigapixels)."""
+    import rasterio
+    from rasterio.enums import Resampling
+    from rasterio.windows import Window
+
+    from ortho.check import ROOF_MIN_VALID, _on_grid
+
+    win = np.outer(np.hanning(n), np.hanning(n))
+    k = len(x)
+    out = {name: np.full(k, np.nan) for name in ("old_dx", "old_dy", "old_resp", "new_dx", "new_dy", "new_ncc",
+                                                  "nodata_share")}
+    out["inside"] = np.zeros(k, bool)
+    with rasterio.open(project / "ortho" / "mosaic.tif") as dom, rasterio.open(project / "truth" / "ortho.tif") as ref:
+        cols, rows = ~dom.transform @ (np.asarray(x), np.asarray(y))
+        bands = list(range(1, min(dom.count, 3) + 1))
+        for i in range(k):
+            r, c = int(np.floor(rows[i])) - n // 2, int(np.floor(cols[i])) - n // 2
+            if r < 0 or c < 0 or r + n > dom.height or c + n > dom.width:
+                continue
+            w = Window(c, r, n, n)
+            pv = dom.read_masks(1, window=w) > 0
+            a = dom.read(bands, window=w).astype(np.float32).mean(axis=0)
+            wide = Window(c - S, r - S, n + 2 * S, n + 2 * S)
+            img, ok = _on_grid(ref, dom.window_transform(wide), (n + 2 * S, n + 2 * S), dom.crs, Resampling.average)
+            g_big = img.mean(axis=0)
+            out["nodata_share"][i] = 1.0 - pv.mean()
+            rv = ok[S:S + n, S:S + n]
+            if pv.mean() < ROOF_MIN_VALID or rv.mean() < ROOF_MIN_VALID:
+                continue
+            out["inside"][i] = True
+            out["old_dx"][i], out["old_dy"][i], out["old_resp"][i] = phase_shift(a, pv, g_big[S:S + n, S:S + n], rv, win)
+            out["new_dx"][i], out["new_dy"][i], out["new_ncc"][i] = ncc_shift(a, pv, g_big, ok, win, S)
     return out
 
 
@@ -320,6 +358,10 @@ def main() -> None:
     ap.add_argument("--sheet", type=Path, help="contact sheet PNG of the largest displacements")
     ap.add_argument("--key", default="demo")
     ap.add_argument("--out", type=Path, default=REPO / "bench" / "results" / "true_ortho_roofs.json")
+    ap.add_argument("--ground-ndsm", type=Path,
+                    help="also the DOM check's open ground (ortho.check.check_against_reference) with this nDSM")
+    ap.add_argument("--streaming", action="store_true",
+                    help="a window per corner (a large DOM): both methods only, no known-truth cases, no diagnosis")
     args = ap.parse_args()
     from ortho.check import ROOF_MIN_NCC, ROOF_PATCH_M, ROOF_PATCH_PX, measure_roof_patches, read_roof_corners
 
@@ -331,9 +373,13 @@ def main() -> None:
         res = ds.transform.a
     n = max(16, int(round(max(ROOF_PATCH_M, ROOF_PATCH_PX * res) / res)))
     S = n // 2
-    rasters = Rasters(project, pad=n + S)
-    x, y, r0s, c0s = corner_cells(rasters, project, n)
-    m = measure_corners(rasters, r0s, c0s, n, S)
+    if args.streaming:
+        x, y = read_roof_corners(project / "truth" / "roof_corners.csv")
+        m = measure_corners_streaming(project, x, y, n, S)
+    else:
+        rasters = Rasters(project, pad=n + S)
+        x, y, r0s, c0s = corner_cells(rasters, project, n)
+        m = measure_corners(rasters, r0s, c0s, n, S)
     inside = m["inside"]
     old_ok = inside & (m["old_resp"] >= OLD_MIN_RESPONSE)
     result = {"project": str(project), "dom": "ortho/mosaic.tif", "reference": "truth/ortho.tif",
@@ -353,9 +399,36 @@ def main() -> None:
     check = measure_roof_patches(project / "ortho" / "mosaic.tif", project / "truth" / "ortho.tif", xs, ys)
     result["measure_roof_patches"] = stats_px(check.de_m / res, check.dn_m / res, res)
     result["measure_roof_patches"].update(weak=check.weak, outside_or_invalid=check.outside_or_invalid)
+    if args.ground_ndsm:
+        from ortho.check import check_against_reference
+
+        ground, _ = check_against_reference(project / "ortho" / "mosaic.tif", project / "truth" / "ortho.tif",
+                                            args.ground_ndsm)
+        result["open_ground"] = stats_px(ground.dx_px, ground.dy_px, res)
+        result["open_ground"].update(mean_dx_dy_px=[float(ground.dx_px.mean()), float(ground.dy_px.mean())])
+    ok = new_ok & np.isfinite(m["new_dx"])
+    result["new_masked_ncc"]["mean_dx_dy_px"] = [float(m["new_dx"][ok].mean()), float(m["new_dy"][ok].mean())]
+    result["old_phase_correlation"]["mean_dx_dy_px"] = [float(m["old_dx"][old_ok].mean()),
+                                                        float(m["old_dy"][old_ok].mean())]
     print(json.dumps(result, indent=1), flush=True)
-    result["synthetic"] = synthetic(rasters, r0s, c0s, inside, m["nodata_share"], n, S)
-    print(json.dumps(result["synthetic"], indent=1), flush=True)
+    if not args.streaming:
+        result["synthetic"] = synthetic(rasters, r0s, c0s, inside, m["nodata_share"], n, S)
+        print(json.dumps(result["synthetic"], indent=1), flush=True)
+        diagnosis(result, args, project, rasters, x, y, r0s, c0s, m, n, old_ok, new_ok)
+    result["cpu_s"] = round(time.process_time() - c0, 1)
+    result["wall_s"] = round(time.perf_counter() - t0, 1)
+    result["command"] = "python bench/eval_true_ortho_roofs.py " + " ".join(sys.argv[1:])
+    result["commit"] = subprocess.run(["git", "-C", str(REPO), "rev-parse", "HEAD"], capture_output=True,
+                                      text=True).stdout.strip()
+    doc = json.loads(args.out.read_text()) if args.out.exists() else {}
+    doc[args.key] = result
+    args.out.write_text(json.dumps(doc, indent=1) + "\n")
+    print(json.dumps(result.get("largest_summary"), indent=1))
+    print(f"wrote {args.out}")
+
+
+def diagnosis(result: dict, args, project: Path, rasters: Rasters, x, y, r0s, c0s, m: dict, n: int, old_ok, new_ok):
+    """The ``largest`` and ``largest_new_over_1_gsd`` rows, their contact sheets and the summary, into ``result``."""
     d_old = np.where(old_ok, np.hypot(m["old_dx"], m["old_dy"]), -1)
     d_new = np.where(new_ok & np.isfinite(m["new_dx"]), np.hypot(m["new_dx"], m["new_dy"]), -1)
     orders = {"largest": [int(i) for i in np.argsort(-d_old)[:args.top] if d_old[i] >= 0],
@@ -375,16 +448,6 @@ def main() -> None:
         "corners": len(rows), "with_nodata": int((top[:, 2] > 0).sum()), "with_ghost_cells": int((top[:, 3] > 0).sum()),
         "new_within_1_gsd": int((top[:, 1] <= 1).sum()), "frame_is_nadir_most": sum(
             r["frame_at_corner"] == r["nadir_most_at_corner"] for r in rows)}
-    result["cpu_s"] = round(time.process_time() - c0, 1)
-    result["wall_s"] = round(time.perf_counter() - t0, 1)
-    result["command"] = "python bench/eval_true_ortho_roofs.py " + " ".join(sys.argv[1:])
-    result["commit"] = subprocess.run(["git", "-C", str(REPO), "rev-parse", "HEAD"], capture_output=True,
-                                      text=True).stdout.strip()
-    doc = json.loads(args.out.read_text()) if args.out.exists() else {}
-    doc[args.key] = result
-    args.out.write_text(json.dumps(doc, indent=1) + "\n")
-    print(json.dumps(result["largest_summary"], indent=1))
-    print(f"wrote {args.out}")
 
 
 if __name__ == "__main__":
