@@ -3,9 +3,10 @@ DEM and, with ``--true-ortho``, on the LiDAR DSM (lidar_out/dsm.tif), each mosai
 simulator's true orthophoto (truth/ortho.tif, roofs in place):
 
 - roofs: the displacement of a 24 x 24 m patch centred on every roof corner of truth/roof_corners.csv, DOM
-  against the truth resampled onto the DOM grid (cv2.phaseCorrelate with a Hanning window; patches with at least
-  80 % of their DOM cells valid, the others set to the patch mean, and a correlation response of at least 0.1),
-  RMS and median in metres and DOM pixels (GSD);
+  against the truth resampled onto the DOM grid (``ortho.check.measure_roof_patches``: masked NCC over the cells
+  valid in both, patches with at least 80 % of their DOM cells valid; until issue 42's roofs work, figures in the
+  JSON before it, cv2.phaseCorrelate with the DOM's nodata set to the patch mean), RMS and median in metres and DOM
+  pixels (GSD);
 - the rectify wall and CPU time of each way (in this process, imports excluded), per MP of frame orthos;
 - interior cells left empty: DOM cells inside the convex hull of the valid DOM without a value (the hull also
   takes in some of the block's ragged outer edge);
@@ -30,8 +31,6 @@ REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
 
 PATCH_M = 24.0
-MIN_RESPONSE = 0.1
-MIN_VALID = 0.8  # patches with at least this share of DOM cells with a value (nodata set to the patch mean)
 
 
 def copy_project(src: Path, dst: Path) -> None:
@@ -67,47 +66,22 @@ def make_dom(project: Path, true_ortho: bool) -> dict:
 
 
 def roof_displacements(dom_path: Path, truth_path: Path, corners_csv: Path) -> dict:
-    import csv
-
-    import cv2
+    """The DOM check's roof measurement (``ortho.check.measure_roof_patches``: masked NCC over the valid cells since
+    issue 42's roofs work; until then a phase correlation with nodata set to the patch mean, in this function) at the
+    corners of ``corners_csv``, as a dict of figures."""
     import rasterio
-    from rasterio.enums import Resampling
-    from rasterio.warp import reproject
+
+    from ortho.check import measure_roof_patches, read_roof_corners
 
     with rasterio.open(dom_path) as dom:
         res = dom.res[0]
-        n = int(round(PATCH_M / res))
-        win = np.outer(np.hanning(n), np.hanning(n)).astype(np.float32)
-        rows = list(csv.DictReader(open(corners_csv)))
-        shifts, skipped = [], {"outside_or_invalid": 0, "weak": 0}
-        with rasterio.open(truth_path) as truth:
-            for row in rows:
-                x, y = float(row["x"]), float(row["y"])
-                r, c = dom.index(x, y)
-                r0, c0 = r - n // 2, c - n // 2
-                if r0 < 0 or c0 < 0 or r0 + n > dom.height or c0 + n > dom.width:
-                    skipped["outside_or_invalid"] += 1
-                    continue
-                w = rasterio.windows.Window(c0, r0, n, n)
-                a = dom.read(window=w).astype(np.float32)
-                ok = dom.read_masks(1, window=w) > 0
-                if ok.mean() < MIN_VALID:
-                    skipped["outside_or_invalid"] += 1
-                    continue
-                ref = np.zeros((truth.count, n, n), np.float32)
-                reproject(rasterio.band(truth, list(range(1, truth.count + 1))), ref,
-                          dst_transform=dom.window_transform(w), dst_crs=dom.crs, resampling=Resampling.average)
-                g1 = a[:3].mean(axis=0)
-                g1[~ok] = g1[ok].mean()  # nodata (occluded cells no frame sees) neutral: the patch mean
-                g2 = ref[:3].mean(axis=0)
-                (dx, dy), resp = cv2.phaseCorrelate(g2.astype(np.float64), g1.astype(np.float64), win.astype(np.float64))
-                if resp < MIN_RESPONSE:
-                    skipped["weak"] += 1
-                    continue
-                shifts.append((dx * res, -dy * res))  # DOM minus truth, east and north
-    d = np.array(shifts).reshape(-1, 2)
+    xs, ys = read_roof_corners(corners_csv)
+    m = measure_roof_patches(dom_path, truth_path, xs, ys, patch_m=PATCH_M)
+    d = np.stack([m.de_m, m.dn_m], axis=1)
     mag = np.hypot(d[:, 0], d[:, 1])
-    return {"corners": len(rows), "measured": int(len(d)), "skipped": skipped, "gsd_m": res,
+    return {"corners": m.corners, "measured": int(len(d)),
+            "skipped": {"outside_or_invalid": m.outside_or_invalid, "weak": m.weak}, "gsd_m": res,
+            "method": "masked NCC (ortho.check.measure_roof_patches)",
             "rms_m": float(np.sqrt(np.mean(mag ** 2))), "median_m": float(np.median(mag)),
             "rms_gsd": float(np.sqrt(np.mean(mag ** 2)) / res), "median_gsd": float(np.median(mag) / res),
             "p90_m": float(np.percentile(mag, 90)), "mean_dx_m": float(d[:, 0].mean()), "mean_dy_m": float(d[:, 1].mean())}
@@ -133,7 +107,7 @@ def main() -> None:
     ap.add_argument("--work", type=Path, default=REPO / "out" / "true_ortho")
     ap.add_argument("--out", type=Path, default=REPO / "bench" / "results" / "true_ortho.json")
     args = ap.parse_args()
-    out = {"project": str(args.project), "patch_m": PATCH_M, "min_response": MIN_RESPONSE, "min_valid": MIN_VALID,
+    out = {"project": str(args.project), "patch_m": PATCH_M,
            "ways": {}}
     for way, true_ortho in (("conventional", False), ("true_ortho", True)):
         p = args.work / way

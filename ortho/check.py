@@ -6,8 +6,8 @@ cross-correlation. The displacement is DOM position minus reference position, in
 y down) and in metres (dE east, dN north).
 
 Roofs (against a true orthophoto as the reference): a patch centred on every roof corner (``--roof-corners`` CSV,
-else the outline corners of the nDSM's buildings) phase-correlated with the reference (``measure_roof_patches``): the
-report's ``roofs`` row, beside the open ground's ``displacement``.
+else the outline corners of the nDSM's buildings) correlated with the reference over the cells valid in both
+(masked NCC, ``measure_roof_patches``): the report's ``roofs`` row, beside the open ground's ``displacement``.
 
 Surveyed points: a CSV ``id,x,y,x_dom,y_dom`` with the surveyed coordinates and the coordinates of
 the same point measured in the DOM (both in the DOM's CRS); the displacement is DOM minus survey.
@@ -41,7 +41,7 @@ from aerotri.core.textio import read_record, read_text, record_error
 from aerotri.core.figures import pyplot, save_png
 from aerotri.geom.crs.definition import height_unit_m, parse_crs
 from aerotri.geom.crs.raster_warp import open_north_up
-from ortho.patches import MIN_PATCH_PX, PatchDisplacements, match_patches  # noqa: F401  (PatchDisplacements: the report API)
+from ortho.patches import MIN_PATCH_PX, PatchDisplacements, match_patches, parabola_peak
 from ortho.settings import CheckSettings
 
 # GDAL's block cache during check (``aerotri.core.gdal_cache``): the DOM, reference and nDSM blocks of the blocks
@@ -416,11 +416,11 @@ def _check_over_dom(reference_path, ndsm_path, dom_bounds, dom_crs) -> None:
 
 
 # roofs: a square patch centred on every roof corner, at least ROOF_PATCH_M and ROOF_PATCH_PX DOM pixels wide (a
-# roof displaced by relief must stay inside it), phase-correlated with the reference (bench/eval_true_ortho.py)
+# roof displaced by relief must stay inside it), correlated with the reference over the valid cells (masked NCC)
 ROOF_PATCH_M = 24.0
 ROOF_PATCH_PX = 48
-ROOF_MIN_VALID = 0.8  # share of the patch's DOM cells with a value (nodata is set to the patch mean)
-ROOF_MIN_RESPONSE = 0.1  # phase-correlation peak below which the patch is not measured
+ROOF_MIN_VALID = 0.8  # share of the patch's DOM cells with a value (only they are correlated)
+ROOF_MIN_NCC = 0.5  # masked-NCC peak below which the patch is not measured (demo's true ortho: 99 % above 0.85)
 ROOF_HEIGHT_M = 2.5  # nDSM above which a cell is a roof (buildings found in the nDSM)
 ROOF_MIN_AREA_M2 = 50.0  # smaller nDSM objects (bushes, cars) are not buildings
 
@@ -436,7 +436,7 @@ class RoofDisplacements:
     dn_m: np.ndarray
     corners: int  # roof corners given or found
     outside_or_invalid: int  # patch not whole inside the DOM, or less than ROOF_MIN_VALID of it valid
-    weak: int  # phase-correlation response below ROOF_MIN_RESPONSE
+    weak: int  # NCC peak below ROOF_MIN_NCC, or on the edge of the search (+- half a patch)
     patch_m: float
 
 
@@ -504,16 +504,63 @@ def roof_corners_from_ndsm(ndsm_path, dom_bounds, dom_crs, min_height_m: float =
     return np.array(xs, float), np.array(ys, float)
 
 
+def masked_ncc_shift(dom, dom_weight, reference, reference_valid, search_px: int,
+                     min_overlap: float = 0.5) -> tuple[float, float, float]:
+    """Shift of a DOM patch against the reference by normalised cross-correlation over the valid cells only
+    (masked NCC after Padfield 2012, by FFT): ``dom`` (n0 x n1) with ``dom_weight`` (0 on cells without a value,
+    e.g. a Hanning window times the mask), ``reference`` (n0 + 2 S x n1 + 2 S, the same centre) with
+    ``reference_valid``; every integer shift within +-``search_px`` (S) correlates the cells valid in both, weighted,
+    and the peak is refined by a parabola in x and y. Returns (dx_px, dy_px, peak NCC), DOM minus reference (x right,
+    y down); NaN shifts when the peak lies on the edge of the search or no shift keeps ``min_overlap`` of the
+    weight. A hole has no value to correlate: unlike a patch mean put in its place, it cannot pull the peak."""
+    n0, n1 = dom.shape
+    S = int(search_px)
+    N0, N1 = n0 + 2 * S, n1 + 2 * S
+    if reference.shape != (N0, N1) or reference_valid.shape != (N0, N1) or dom_weight.shape != dom.shape:
+        raise ValueError(f"reference {reference.shape} must be the DOM patch {dom.shape} plus {S} px on each side")
+    w = np.where(np.isfinite(dom), np.asarray(dom_weight, np.float64), 0.0)
+    v = (np.asarray(reference_valid, bool) & np.isfinite(reference)).astype(np.float64)
+    if w.sum() <= 0 or v.sum() <= 0:
+        return math.nan, math.nan, -1.0
+    t = np.where(w > 0, dom, 0.0).astype(np.float64)
+    t = np.where(w > 0, t - (w * t).sum() / w.sum(), 0.0)  # centred: the sums below cancel less
+    s = np.where(v > 0, reference, 0.0).astype(np.float64)
+    s = np.where(v > 0, s - (v * s).sum() / v.sum(), 0.0)
+    rfft, irfft = np.fft.rfft2, np.fft.irfft2
+    fv, fs, fss = rfft(v), rfft(s), rfft(s * s)
+
+    def corr(f_ref, tmpl):  # sum over x of ref[x + k] * tmpl[x], k = 0 .. 2S (no wrap: tmpl is n x n in N x N)
+        return irfft(f_ref * np.conj(rfft(tmpl, (N0, N1))), (N0, N1))[:2 * S + 1, :2 * S + 1]
+
+    sw, st, stt = corr(fv, w), corr(fv, w * t), corr(fv, w * t * t)
+    ss, sss, sts = corr(fs, w), corr(fss, w), corr(fs, w * t)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        var_t, var_s = stt - st * st / sw, sss - ss * ss / sw
+        ncc = (sts - st * ss / sw) / np.sqrt(var_t * var_s)
+    scale = max(float(np.abs(stt).max()), float(np.abs(sss).max()), 1e-300)
+    ok = (sw >= min_overlap * w.sum()) & (var_t > 1e-9 * scale) & (var_s > 1e-9 * scale) & np.isfinite(ncc)
+    if not ok.any():
+        return math.nan, math.nan, -1.0
+    ncc = np.where(ok, ncc, -1.0)
+    py, px = np.unravel_index(int(np.argmax(ncc)), ncc.shape)
+    peak = float(ncc[py, px])
+    if px in (0, 2 * S) or py in (0, 2 * S):
+        return math.nan, math.nan, peak
+    sx = parabola_peak(ncc[py, px - 1], ncc[py, px], ncc[py, px + 1])
+    sy = parabola_peak(ncc[py - 1, px], ncc[py, px], ncc[py + 1, px])
+    # the DOM patch is found in the reference at offset (px + sx - S, py + sy - S): the DOM shows it moved by minus that
+    return -(px + sx - S), -(py + sy - S), peak
+
+
 def measure_roof_patches(dom_path, reference_path, x_m, y_m, *, patch_m: float | None = None,
                          reference_operation=None, block_px: int = 1024) -> RoofDisplacements:
     """The displacement of the DOM against a reference true orthophoto at every roof corner ``x_m, y_m``: a
     square patch of ``patch_m`` (default ``max(ROOF_PATCH_M, ROOF_PATCH_PX DOM pixels)``) centred on the corner,
-    the reference averaged onto the DOM's grid, grey values (the mean of the first three bands) phase-correlated
-    with a Hanning window (``cv2.phaseCorrelate``). DOM cells without a value are set to the patch mean; patches
-    less than ``ROOF_MIN_VALID`` valid or past the DOM's edge, and peaks below ``ROOF_MIN_RESPONSE``, are counted,
-    not measured. The DOM is read by blocks of ``block_px`` (with a patch's halo) that hold corners, the
-    reference resampled once per block."""
-    import cv2
+    the reference averaged onto the DOM's grid, grey values (the mean of the first three bands) correlated over the
+    cells valid in both (``masked_ncc_shift``, the DOM patch weighted by a Hanning window, shifts up to half a patch).
+    Patches less than ``ROOF_MIN_VALID`` valid or past the DOM's edge, and peaks below ``ROOF_MIN_NCC`` or on the
+    edge of the search, are counted, not measured. The DOM is read by blocks of ``block_px`` (with a patch's halo)
+    that hold corners, the reference resampled once per block (with the search's halo)."""
     from rasterio.enums import Resampling
     from rasterio.windows import Window
 
@@ -523,6 +570,7 @@ def measure_roof_patches(dom_path, reference_path, x_m, y_m, *, patch_m: float |
         res = abs(dom.transform.a)
         patch_m = float(patch_m) if patch_m else max(ROOF_PATCH_M, ROOF_PATCH_PX * res)
         n = max(16, int(round(patch_m / res)))
+        S = n // 2  # as far as phase correlation of the patch could tell a shift
         win = np.outer(np.hanning(n), np.hanning(n))
         bands = list(range(1, min(dom.count, 3) + 1))
         inv = ~dom.transform
@@ -540,22 +588,21 @@ def measure_roof_patches(dom_path, reference_path, x_m, y_m, *, patch_m: float |
             with _reading(dom_path, "DOM"):
                 ok = dom.read_masks(1, window=w) > 0
                 grey = dom.read(bands, window=w).astype(np.float32).mean(axis=0)
+            wide = Window(bc0 - S, br0 - S, shape[1] + 2 * S, shape[0] + 2 * S)
             with _reading(reference_path, "reference orthophoto"):
-                refimg, refok = _on_grid(ref, dom.window_transform(w), shape, dom.crs, Resampling.average,
-                                         operation=reference_operation)
+                refimg, refok = _on_grid(ref, dom.window_transform(wide), (shape[0] + 2 * S, shape[1] + 2 * S),
+                                         dom.crs, Resampling.average, operation=reference_operation)
             ref_grey = refimg.mean(axis=0)
             for i in sel:
                 r, c = int(r0s[i]) - br0, int(c0s[i]) - bc0
-                pv, rv = ok[r:r + n, c:c + n], refok[r:r + n, c:c + n]
+                pv, rv = ok[r:r + n, c:c + n], refok[r + S:r + S + n, c + S:c + S + n]
                 if pv.mean() < ROOF_MIN_VALID or rv.mean() < ROOF_MIN_VALID:
                     outside += 1
                     continue
-                a = grey[r:r + n, c:c + n].astype(np.float64)
-                a[~pv] = a[pv].mean()  # nodata (cells no frame sees) neutral
-                g = ref_grey[r:r + n, c:c + n].astype(np.float64)
-                g[~rv] = g[rv].mean()
-                (dx, dy), response = cv2.phaseCorrelate(g, a, win)
-                if response < ROOF_MIN_RESPONSE:
+                dx, dy, peak = masked_ncc_shift(np.where(pv, grey[r:r + n, c:c + n], 0.0), win * pv,
+                                                ref_grey[r:r + n + 2 * S, c:c + n + 2 * S],
+                                                refok[r:r + n + 2 * S, c:c + n + 2 * S], S)
+                if not (peak >= ROOF_MIN_NCC and math.isfinite(dx)):
                     weak += 1
                     continue
                 kept.append((x_m[i], y_m[i], dx * res, -dy * res))  # DOM minus reference: east, north

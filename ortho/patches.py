@@ -52,7 +52,9 @@ def to_gray(image: np.ndarray) -> np.ndarray:
     return a.astype(np.float32)
 
 
-def _subpixel(c_m, c_0, c_p):
+def parabola_peak(c_m, c_0, c_p):
+    """Offset (-0.5 .. 0.5) of the top of the parabola through three neighbouring correlation values; 0 when not
+    a maximum."""
     den = c_m - 2.0 * c_0 + c_p
     return 0.0 if den >= 0 else float(np.clip(0.5 * (c_m - c_p) / den, -0.5, 0.5))
 
@@ -92,8 +94,8 @@ def match_patches(dom, reference, dom_valid=None, reference_valid=None, *, res_m
             _, peak, _, (px, py) = cv2.minMaxLoc(cc)
             if peak < min_ncc or px in (0, cc.shape[1] - 1) or py in (0, cc.shape[0] - 1):
                 continue
-            sx = _subpixel(cc[py, px - 1], cc[py, px], cc[py, px + 1])
-            sy = _subpixel(cc[py - 1, px], cc[py, px], cc[py + 1, px])
+            sx = parabola_peak(cc[py, px - 1], cc[py, px], cc[py, px + 1])
+            sy = parabola_peak(cc[py - 1, px], cc[py, px], cc[py + 1, px])
             # the DOM patch at (r, c) is found in the reference at (r + py - S, c + px - S):
             # the DOM shows that content displaced by minus that offset
             rows.append(r + (P - 1) / 2.0)
