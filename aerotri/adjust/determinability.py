@@ -29,6 +29,10 @@ is judged at the solution by two tests (``CalibrationCovariance`` of ``geometry_
    parameter through it (4 full control points: correlation 0.95 with the height, focal within 1.5 sigma of
    the truth on simulated blocks).
 
+   Groups that share a mode are also judged together: their joint multiple correlation with it over the
+   limit fixes the group of the largest correlation of its own (``_jointly_confounded``; the focal length and
+   the radial distortion both scale the image radius, and holding one hides the pair).
+
 2. **Too loose to matter.** The group's standard deviation moves the image corner by more than
    ``SIGMA_LIMIT_FRACTION`` of the focal length (that fraction of the flying height on the ground).
 
@@ -151,6 +155,30 @@ def corner_sigma_px(group: str, cal: np.ndarray, cal_cov: np.ndarray, width: int
     return worst
 
 
+def _jointly_confounded(cc: CalibrationCovariance, free: dict, ground: GroundObservations) -> dict:
+    """group -> reason, for a mode nothing on the ground observes that the estimated groups *together* follow
+    (multiple correlation over ``CORRELATION_LIMIT``) while each passes alone with the others held: the focal
+    length and the radial distortion both scale the image radius, so holding one hides what the pair does with
+    the block height (Brighton Beach without a DEM: focal | radial 0.72, both together 0.90, the focal length
+    21 % off). The group of the largest correlation of its own with the mode is the one fixed."""
+    out = {}
+    for m in MODES:
+        if bool(getattr(ground, _MODE_GROUND[m])):
+            continue
+        groups = [g for g in free if m in CONFOUNDED_WITH[g]]
+        if len(groups) < 2 or len(free) < 2:
+            continue
+        r = _partial_correlation(cc, m, [i for g in free for i in free[g]], [])
+        if not (math.isfinite(r) and r > CORRELATION_LIMIT):
+            continue
+        alone = {g: _partial_correlation(cc, m, free[g], []) for g in groups}
+        g = max(alone, key=lambda k: alone[k] if math.isfinite(alone[k]) else -1.0)
+        what = "no height control point or DEM" if _MODE_GROUND[m] == "height" else "no plan control point"
+        out[g] = (f"correlation {r:.3f} of the estimated groups together ({', '.join(free)}) with {MODE_NAMES[m]} "
+                  f"(limit {CORRELATION_LIMIT:g}; {g} alone {alone[g]:.3f}), which {what} observes")
+    return out
+
+
 def check_groups(cc: CalibrationCovariance, groups, cal: np.ndarray, cal_apriori: np.ndarray, *, width: int,
                  height: int, ground: GroundObservations) -> list[GroupCheck]:
     """The ``GroupCheck`` of every estimated group (``groups``) at a solution with calibration ``cal`` and its
@@ -158,6 +186,7 @@ def check_groups(cc: CalibrationCovariance, groups, cal: np.ndarray, cal_apriori
     free = {g: [CAL_NAMES.index(p) for p in GROUP_PARAMETERS[g]] for g in groups}
     f = 0.5 * (cal[0] + cal[1])
     out = []
+    joint = _jointly_confounded(cc, free, ground)
     for g in groups:
         others = [i for h in groups if h != g for i in free[h]]
         corr = {m: _partial_correlation(cc, m, free[g], others) for m in REPORTED_WITH[g]}
@@ -174,6 +203,8 @@ def check_groups(cc: CalibrationCovariance, groups, cal: np.ndarray, cal_apriori
         if not math.isfinite(frac) or frac > SIGMA_LIMIT_FRACTION:
             reasons.append(f"its standard deviation moves the image corner by {sig_px:.1f} px, {100 * frac:.2f} % of "
                            f"the focal length (limit {100 * SIGMA_LIMIT_FRACTION:g} %)")
+        if g in joint and not reasons:
+            reasons.append(joint[g])
         names = GROUP_PARAMETERS[g]
         sd = np.sqrt(np.clip(np.diag(cc.cal_cov), 0.0, None))
         out.append(GroupCheck(

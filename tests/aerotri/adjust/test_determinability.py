@@ -230,3 +230,37 @@ def test_gtsam_cheirality_lines_are_counted_not_printed(capfd):
     out = capfd.readouterr().out
     assert "Cheirality" not in out and "kept" in out
     assert seen.lines == 2 and seen.pairs == {("p0", "x0")}
+
+
+def test_groups_that_follow_the_block_height_together_are_caught():
+    """The focal length and the radial distortion both scale the image radius: each may pass the test with the
+    other held while the two together follow the block height (Brighton Beach's 18 frames without a DEM: 0.72 and
+    0.90, the focal length 21 % off). A covariance built so that the height is fx + fy + 1e4 (k1 + k2) plus noise
+    (variance 0.6 against 4): each group with the other held 0.877, both 0.933; the focal length is fixed, the
+    radial distortion judged again on the next solve; with a DEM (height observed) both stay estimated."""
+    from aerotri.adjust.determinability import GroundObservations, check_groups
+    from aerotri.adjust.geometry_modes import CAL_NAMES, MODES, PLAN_MODES, CalibrationCovariance
+
+    sd = {"fx_px": 1.0, "fy_px": 1.0, "skew_px": 1.0, "u0_px": 1.0, "v0_px": 1.0, "k1": 1e-4, "k2": 1e-4,
+          "p1": 1e-4, "p2": 1e-4}
+    cal_cov = np.diag([sd[n] ** 2 for n in CAL_NAMES])
+    weight = {"fx_px": 1.0, "fy_px": 1.0, "k1": 1e4, "k2": 1e4}  # height = sum(weight * parameter) + noise
+    cross = np.zeros((len(MODES) + len(PLAN_MODES), len(CAL_NAMES)))
+    for n, w in weight.items():
+        cross[0, CAL_NAMES.index(n)] = w * sd[n] ** 2
+    mode_var = np.ones(len(MODES) + len(PLAN_MODES))
+    mode_var[0] = 4.0 + 0.6
+    cc = CalibrationCovariance(cal_cov, cross, mode_var, {"image": 1.0}, 40.0)
+    cal = np.array([2000.0, 2000.0, 0.0, 1000.0, 750.0, 0.0, 0.0, 0.0, 0.0])
+    blind = GroundObservations(height=False, plan=False)
+    checks = {c.group: c for c in check_groups(cc, ("focal", "radial"), cal, cal, width=2000, height=1500,
+                                               ground=blind)}
+    assert checks["focal"].correlations["height"] == pytest.approx(np.sqrt(2 / 2.6), abs=1e-6)  # under 0.9
+    assert checks["radial"].correlations["height"] == pytest.approx(np.sqrt(2 / 2.6), abs=1e-6)
+    assert checks["focal"].action == "fixed" and "together (focal, radial)" in checks["focal"].reason
+    assert "0.933" in checks["focal"].reason and checks["radial"].action == "estimated"
+    seen = check_groups(cc, ("focal", "radial"), cal, cal, width=2000, height=1500,
+                        ground=GroundObservations(height=True, plan=False))
+    assert all(c.action == "estimated" for c in seen)
+    alone = check_groups(cc, ("focal",), cal, cal, width=2000, height=1500, ground=blind)  # one group: its own test
+    assert alone[0].action == "estimated" and alone[0].correlations["height"] == pytest.approx(np.sqrt(2 / 4.6))
