@@ -245,10 +245,12 @@ def gnss_strip_plot(rep: dict) -> Figure | None:
         ax.axis("off")
     axs[0, 0].legend(fontsize=7, loc="best")
     mode = (rep.get("options") or {}).get("gps_shift_drift_correction", "")
+    lines = (f"lines: the strip's estimated correction ({mode}). A trend the lines miss calls for drift correction."
+             if mode.startswith("Enabled") else "no correction per strip was estimated ([adjust] gnss_correction = "
+             "\"none\"): a level or a trend of the dots per strip calls for one.")
     return Figure("GNSS shift and drift per strip",
                   "Dots: GNSS antenna position minus the adjusted antenna position per frame (local east, north, "
-                  f"up); lines: the strip's estimated correction ({mode}). A trend the lines miss calls for "
-                  "drift correction.", "vertical axes in metres, horizontal in km along the strip", fig)
+                  f"up); {lines}", "vertical axes in metres, horizontal in km along the strip", fig)
 
 
 def von_gruber_map(rep: dict, min_per_area: int = 3) -> Figure | None:
@@ -307,13 +309,16 @@ def von_gruber_map(rep: dict, min_per_area: int = 3) -> Figure | None:
     ax.add_collection(pc)
     if weak.any():
         ax.add_collection(PolyCollection(verts[weak], facecolor="none", edgecolor="red", linewidth=1.5))
-    if len(photos) <= 40:
-        for p, (x0, y0) in zip(photos, xy):
+    if len(photos) <= 40:  # above the frame's areas (an oblique frame's lie far from its projection centre)
+        for p, (x0, y0) in zip(photos, C.mean(axis=1)):
             ax.annotate(p["image_id"], (x0, y0 + 1.7 * cell), fontsize=6, ha="center")
     pad = 2 * cell
-    ax.set_xlim(xy[:, 0].min() - pad, xy[:, 0].max() + pad)
-    ax.set_ylim(xy[:, 1].min() - 2.5 * pad, xy[:, 1].max() + pad)  # room for the scale bar
-    extent = max(np.ptp(xy[:, 0]), np.ptp(xy[:, 1]), 1.0)
+    # the areas where they lie, not only the centres: an oblique frame's areas are far ahead of its centre
+    drawn = np.vstack([xy, verts.reshape(-1, 2)])
+    lo, hi = drawn.min(axis=0), drawn.max(axis=0)
+    ax.set_xlim(lo[0] - pad, hi[0] + pad)
+    ax.set_ylim(lo[1] - 2.5 * pad, hi[1] + pad)  # room for the scale bar
+    extent = max(float(np.ptp(drawn[:, 0])), float(np.ptp(drawn[:, 1])), 1.0)
     bar = _map_axes(ax, o, extent)
     fig.colorbar(pc, ax=ax, shrink=0.8, label="tie observations per von Gruber area")
     n_weak = int(weak.sum())

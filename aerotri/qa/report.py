@@ -482,9 +482,12 @@ def build_qa_report(root, *, tolerance_file=None, terrain: str | None = None, sc
 
 
 def _cell(v) -> str:
-    """A value as verdict-table text (the template escapes it): None empty, floats to 4 significant digits."""
+    """A value as verdict-table text (the template escapes it): None empty, true/false as yes/no (as the
+    adjustment report's tables have them), floats to 4 significant digits."""
     if v is None:
         return ""
+    if isinstance(v, bool):
+        return "yes" if v else "no"
     if isinstance(v, float):
         return f"{v:.4g}"
     return str(v)
