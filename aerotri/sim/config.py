@@ -60,8 +60,15 @@ def load_preset(name_or_path: str, overrides: list[str] | tuple[str, ...] = ()) 
     except tomllib.TOMLDecodeError as exc:
         raise InputError(f"{path}: not valid TOML ({exc})") from None
     cfg = _apply_overrides(cfg, overrides)
-    preset = _typed(cfg, str(path))
-    _check_across_tables(preset, str(path))
+    try:
+        preset = _typed(cfg, str(path))
+        _check_across_tables(preset, str(path))
+    except InputError as exc:  # a value given with --set: the message names the option as typed
+        given = [o for o in overrides if "=" in o and "[{}] {}".format(*o.split("=", 1)[0].strip().split(".", 1))
+                 in str(exc)]
+        if given:
+            raise type(exc)(f"--set {given[-1]}: {exc}") from None
+        raise
     return preset
 
 
