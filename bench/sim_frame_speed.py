@@ -13,7 +13,10 @@ the TIFF writing and its compression. The sides alternate ``--rounds`` times (th
 least CPU of each side and the ratio of MP per CPU-second are reported with the load average of every run.
 
     python bench/sim_frame_speed.py --before DIR [--rounds 2] [--work DIR] [--json bench/results/sim_frame_speed.json
-        [--key NAME]] [--set flight.frames_per_strip=3 ...]
+        [--key NAME]] [--set flight.frames_per_strip=3 ...] [--busy-threads N]
+
+``--busy-threads N``: N busy single-threaded processes run beside each measured run (a shared machine's other work,
+the same for both sides); ``cores_busy`` of a run is its CPU-s over its wall seconds.
 
 With ``--key`` the result goes under that key of the JSON file, the file's other keys kept (without: the file is
 the result).
@@ -87,11 +90,15 @@ def _measure(sets: list[str], work: Path) -> dict:
         pixels = np.moveaxis(ds.read(), 0, 2)
     size_mb = (images / f"{plan.image_id[0]}.tif").stat().st_size / 1e6
 
-    class _Rendered:
+    class _Rendered:  # the rows at once, through either side's interface
         camera = cam
 
         def render_rows(self, frame, r0, r1, **expo):
             return pixels[r0:r1], None
+
+        def submit_rows(self, frame, r0, r1, **expo):
+            rows = pixels[r0:r1]
+            return type("Done", (), {"result": lambda self: (rows, None)})()
 
     c, t = time.process_time(), time.perf_counter()
     with stage_block_cache(P.SIM_CACHE_BYTES):
@@ -115,9 +122,17 @@ def _measure(sets: list[str], work: Path) -> dict:
 def _side(code: Path, a: argparse.Namespace, work: Path) -> dict:
     from lidar_common import measure_on_tree
 
-    # both sides read this checkout's presets (a tree from ``git archive`` has no datasets/presets)
-    return measure_on_tree(code, __file__, ["--work", work] + [x for s in a.set for x in ("--set", s)],
-                           env={"AEROTRI_PRESETS": str(ROOT / "datasets" / "presets")})
+    # other work on the machine, the same for both sides: busy single-threaded processes at this niceness
+    busy = [subprocess.Popen([sys.executable, "-c", "while True: pass"]) for _ in range(a.busy_threads)]
+    try:
+        # both sides read this checkout's presets (a tree from ``git archive`` has no datasets/presets)
+        r = measure_on_tree(code, __file__, ["--work", work] + [x for s in a.set for x in ("--set", s)],
+                            env={"AEROTRI_PRESETS": str(ROOT / "datasets" / "presets")})
+    finally:
+        for p in busy:
+            p.kill()
+            p.wait()
+    return {**r, "busy_threads": a.busy_threads, "cores_busy": round(r["cpu_s"] / r["wall_s"], 2)}
 
 
 def main() -> None:
@@ -125,6 +140,8 @@ def main() -> None:
     ap.add_argument("--before", type=Path, help="folder holding the earlier commit's aerotri, lidarctl, ortho")
     ap.add_argument("--set", action="append", help=f"preset override (default {' '.join(SETS)})")
     ap.add_argument("--rounds", type=int, default=2, help="before/after runs, alternating")
+    ap.add_argument("--busy-threads", type=int, default=0,
+                    help="busy single-threaded processes beside each run (other work on a shared machine)")
     ap.add_argument("--work", type=Path, default=ROOT / "out" / "sim_frame_speed")
     ap.add_argument("--json", type=Path)
     ap.add_argument("--key", help="store the result under this key of the --json file, keeping its other keys")
@@ -144,7 +161,7 @@ def main() -> None:
         r = _side(code, a, a.work / side)
         print(f"round {k + 1} {side:6s} {r['megapixels']} MP: {r['cpu_s']} CPU-s ({r['mp_per_cpu_s']} MP per "
               f"CPU-s), "
-              f"wall {r['wall_s']} s ({r['mp_per_wall_s']} MP/s), TIFF write {r['tiff_write_cpu_s_per_frame']} "
+              f"wall {r['wall_s']} s ({r['mp_per_wall_s']} MP/s, {r['cores_busy']} cores), TIFF write {r['tiff_write_cpu_s_per_frame']} "
               f"CPU-s a frame, load {r['load_average_before'][0]}-{r['load_average_after'][0]}", flush=True)
         return r
 
@@ -159,8 +176,8 @@ def main() -> None:
 
         commit = subprocess.run(["git", "-C", str(ROOT), "rev-parse", "HEAD"], capture_output=True,
                                 text=True).stdout.strip()
-        doc = {"preset": PRESET, "sets": a.set, "rounds": a.rounds, "commit": commit, "before": str(a.before),
-               "identical": identical, "mp_per_cpu_s_before": best["before"]["mp_per_cpu_s"],
+        doc = {"preset": PRESET, "sets": a.set, "rounds": a.rounds, "busy_threads": a.busy_threads, "commit": commit,
+               "before": str(a.before), "identical": identical, "mp_per_cpu_s_before": best["before"]["mp_per_cpu_s"],
                "mp_per_cpu_s_after": best["after"]["mp_per_cpu_s"], "ratio": round(ratio, 3), "runs": runs}
         if a.key:
             doc = {**(json.loads(a.json.read_text()) if a.json.exists() else {}), a.key: doc}

@@ -139,18 +139,18 @@ def test_the_simulator_sets_the_cache_once_for_all_its_writers(tmp_path, monkeyp
     the simulator's cache in bytes; after ``simulate`` the cache is what it was before (set here to a size of
     its own, so that a writer leaving GDAL's default behind shows)."""
     seen_frames, seen_truth = [], []
-    render_rows = aerotri.sim.raster.FrameRenderer.render_rows
+    submit_rows = aerotri.sim.raster.FrameRenderer.submit_rows
     write_rows = aerotri.sim.project._TileRowWriter.write
 
-    def recording_render_rows(self, *args, **kwargs):
+    def recording_submit_rows(self, *args, **kwargs):
         seen_frames.append(cache_max_bytes())
-        return render_rows(self, *args, **kwargs)
+        return submit_rows(self, *args, **kwargs)
 
     def recording_write_rows(self, *args, **kwargs):
         seen_truth.append(cache_max_bytes())
         return write_rows(self, *args, **kwargs)
 
-    monkeypatch.setattr(aerotri.sim.raster.FrameRenderer, "render_rows", recording_render_rows)
+    monkeypatch.setattr(aerotri.sim.raster.FrameRenderer, "submit_rows", recording_submit_rows)
     monkeypatch.setattr(aerotri.sim.project._TileRowWriter, "write", recording_write_rows)
     with stage_block_cache(300 * 2 ** 20):
         simulate(load_preset("tiny", TILED_FRAMES), tmp_path / "sim")

@@ -334,26 +334,40 @@ def _render_frames(images_dir: Path, cfg: Preset, *, look, plan, cam_true, s_fra
                                     look=look, bands=fl.bands)
     frame_seeds = s_frames.spawn(len(plan.image_id))
     gains = []
-    for i in track(range(len(plan.image_id)), "frames"):
-        frng = np.random.default_rng(frame_seeds[i])
-        gain = float(np.exp(frng.normal(0.0, rcfg.exposure_sigma)))
-        gains.append(gain)
-        expo = dict(gain=gain, vignetting=rcfg.vignetting, noise_dn=rcfg.noise_dn,
-                    noise_seed=int(frng.integers(0, 2**32)))
-        R = rotation_matrix_opk(*plan.opk_deg[i])
-        frame = renderer.setup(plan.centre_m[i], R, earth.frame_earth(plan.centre_m[i], R))
-        path = images_dir / f"{plan.image_id[i]}.tif"
-        if fl.tile_px:
-            _write_tiled_frame(path, renderer, frame, expo, fl)
-        else:
+
+    def frames():  # (path, set-up, exposure) of each frame, set up when drawn
+        for i in track(range(len(plan.image_id)), "frames"):
+            frng = np.random.default_rng(frame_seeds[i])
+            gain = float(np.exp(frng.normal(0.0, rcfg.exposure_sigma)))
+            gains.append(gain)
+            expo = dict(gain=gain, vignetting=rcfg.vignetting, noise_dn=rcfg.noise_dn,
+                        noise_seed=int(frng.integers(0, 2**32)))
+            R = rotation_matrix_opk(*plan.opk_deg[i])
+            frame = renderer.setup(plan.centre_m[i], R, earth.frame_earth(plan.centre_m[i], R))
+            yield images_dir / f"{plan.image_id[i]}.tif", frame, expo
+
+    if fl.tile_px:
+        _write_tiled_frames(frames(), renderer, fl)
+    else:
+        for path, frame, expo in frames():
             img, _ = renderer.render_rows(frame, 0, cam_true.height, **expo)
             cv2.imwrite(str(path), img[:, :, ::-1] if img.shape[2] == 3 else img[:, :, 0])
     return gains
 
 
-def _write_tiled_frame(path: Path, renderer, frame, expo: dict, fl: dict) -> None:
-    """One frame as a tiled TIFF (pixel-interleaved R, G, B, or one panchromatic band; no georeferencing, as
-    cameras deliver), rendered and written one row of tiles at a time."""
+def _write_tiled_frame(path: Path, renderer, frame, expo: dict, fl: FrameLayout) -> None:
+    """One frame as a tiled TIFF (``_write_tiled_frames``)."""
+    _write_tiled_frames([(path, frame, expo)], renderer, fl)
+
+
+def _write_tiled_frames(frames, renderer, fl: FrameLayout) -> None:
+    """Frames ``(path, set-up, exposure)`` as tiled TIFFs (pixel-interleaved R, G, B, or one panchromatic band;
+    no georeferencing, as cameras deliver), rendered and written one row of tiles at a time.
+
+    A row of tiles is rendered (``renderer.submit_rows``: on the renderer's threads) while the one before it is
+    written on this thread, and the next frame's set-up and first row while a frame's last tiles are compressed
+    at its close, so the cores are not idle between the rows (memory: one row of tiles more). All GDAL calls are
+    made on this thread (the stage's block cache, ``aerotri.core.gdal_cache``)."""
     cam = renderer.camera
     tile = fl.tile_px
     profile = dict(driver="GTiff", width=cam.width, height=cam.height, count=fl.bands, dtype=fl.dtype, tiled=True,
@@ -361,13 +375,31 @@ def _write_tiled_frame(path: Path, renderer, frame, expo: dict, fl: dict) -> Non
                    interleave="pixel", bigtiff="IF_SAFER")
     if fl.compress != "none":
         profile.update(_compression(fl.compress))
-    with warnings.catch_warnings():
-        warnings.filterwarnings("ignore", category=rasterio.errors.NotGeoreferencedWarning)
-        with rasterio.open(path, "w", **profile) as dst:
-            for r0 in range(0, cam.height, tile):
-                r1 = min(cam.height, r0 + tile)
-                rows, _ = renderer.render_rows(frame, r0, r1, **expo)
-                dst.write(np.moveaxis(rows, 2, 0), window=rasterio.windows.Window(0, r0, cam.width, r1 - r0))
+    # rows of tiles in frame order: (path, r0, r1, set-up, exposure); a frame is set up when its first is drawn
+    rows = ((path, r0, min(cam.height, r0 + tile), frame, expo) for path, frame, expo in frames
+            for r0 in range(0, cam.height, tile))
+    cur = next(rows, None)
+    pending = None if cur is None else renderer.submit_rows(cur[3], cur[1], cur[2], **cur[4])
+    dst = None
+    try:
+        with warnings.catch_warnings():
+            warnings.filterwarnings("ignore", category=rasterio.errors.NotGeoreferencedWarning)
+            while cur is not None:
+                path, r0, r1, _, _ = cur
+                nxt = next(rows, None)  # a new frame is set up here, while this row renders
+                pixels, _ = pending.result()
+                if nxt is not None:
+                    pending = renderer.submit_rows(nxt[3], nxt[1], nxt[2], **nxt[4])
+                if r0 == 0:
+                    dst = rasterio.open(path, "w", **profile)
+                dst.write(np.moveaxis(pixels, 2, 0), window=rasterio.windows.Window(0, r0, cam.width, r1 - r0))
+                if r1 == cam.height:
+                    dst.close()  # its last tiles compressed while the next frame's first row renders
+                    dst = None
+                cur = nxt
+    finally:
+        if dst is not None:
+            dst.close()
 
 
 @dataclasses.dataclass(frozen=True)

@@ -19,9 +19,12 @@ the lens distortion of the true camera are exact, as they were with a ray per pi
   centre, and a pixel's surface point goes back to the map by the inverse. ``FrameEarth.flat`` (the default
   of ``FrameSetup``) is the flat world of the ray caster.
 - Work: the terrain nodes, building triangles and crowns in view are projected once per frame and
-  binned into tiles of ``BAND_ROWS`` rows x ``TILE_COLS`` columns; bands of rows are rendered in parallel
-  (numba prange), each a tile at a time with one depth buffer of a tile (held in the core's cache), so a
-  frame of any size needs memory for a few tiles only.
+  binned into tiles of ``BAND_ROWS`` rows x ``TILE_COLS`` columns; bands of rows are rendered on threads (one a
+  core: ``numba.get_num_threads()``), each a tile at a time with one depth buffer of a tile (held in the core's
+  cache), so a frame of any size needs memory for a few tiles only. A thread takes the next band when it is done
+  (numba's prange gave each thread a fixed half of the bands: the thread with the costlier half, or one waiting
+  for a core taken by other work, held the other up at the end of every call), and the kernel runs without the
+  GIL, so a caller can write rows already rendered while the next are rendered (``FrameRenderer.submit_rows``).
 - Shading (``aerotri.sim.shading``), exposure (gain, radial vignetting), tone curve (8-bit: the gamma of
   ``render.tone_map``; 12-bit: linear) and sensor noise (a counter-based hash of the frame's noise seed,
   pixel and band: triangular, zero mean, the preset's sigma) are fused into the same pass.
@@ -37,6 +40,7 @@ Note numba's cache checks only the source file of a cached function: after editi
 from __future__ import annotations
 
 import math
+from concurrent.futures import Future, ThreadPoolExecutor
 
 import numba
 import numpy as np
@@ -54,7 +58,6 @@ BAND_ROWS = 32
 # and every primitive's pixels came from memory (a multiple of 64, so that the vectorised loops over a row of a
 # tile leave the same last columns of the row to their scalar remainder as a loop over the whole row).
 TILE_COLS = 512
-NARROW_ROWS = 512  # rows rendered at a time into the uint16 buffer of an 8-bit frame (FrameRenderer.render_rows)
 GRID_STEP_PX = 16
 # A terrain cell's edges curve under the lens distortion by ~1e-5 px over the cell (they are straight in
 # normalised coordinates); its vertices' pixel box grown by this margin holds every pixel centre it covers.
@@ -522,7 +525,7 @@ def _face_viewer(N, D, n):
         NZ[c] = nz / nn
 
 
-@numba.njit(cache=True, parallel=True)
+@numba.njit(cache=True, nogil=True)
 def _render_bands(band0, band1, row_out0, *, W, H, band_rows, tile_cols, step, XN, YN, C, A_inv, quad, curved,
                   V, ti0, tj0, cell_start, cell_list, cell_box,
                   TV, tri_ids, tri_start, tri_list, tri_box,
@@ -533,12 +536,13 @@ def _render_bands(band0, band1, row_out0, *, W, H, band_rows, tile_cols, step, X
                   out, ids_out, want_ids):
     """Render bands band0..band1-1 of a frame into ``out`` (rows from ``row_out0``; (rows, W, 3) uint8 or
     uint16), each band a tile of ``tile_cols`` columns at a time (the primitive lists are per tile: band b, block
-    j at b * nblocks + j); ``XN``/``YN`` (S, rows, cols) hold the pixel grid of each of the S sub-pixel samples."""
+    j at b * nblocks + j); ``XN``/``YN`` (S, rows, cols) hold the pixel grid of each of the S sub-pixel samples.
+    One thread; without the GIL (``FrameRenderer`` runs bands on its threads)."""
     S = XN.shape[0]
     ncj = V.shape[1] - 1
     inv_step = 1.0 / step
     nblocks = (W + tile_cols - 1) // tile_cols
-    for b in numba.prange(band0, band1):
+    for b in range(band0, band1):
         rb0 = b * band_rows
         rb1 = min(H, rb0 + band_rows)
         hb = rb1 - rb0
@@ -797,6 +801,19 @@ def _expose_row(rad, span, size, exposure, out, scratch):
 # Public API
 
 
+class RenderedRows:
+    """Rows being rendered (``FrameRenderer.submit_rows``): ``result()`` waits for their bands and gives
+    (rows, width, bands) samples and the surface ids (None unless asked for)."""
+
+    def __init__(self, tasks: list[Future], out: np.ndarray, ids: np.ndarray | None):
+        self._tasks, self._out, self._ids = tasks, out, ids
+
+    def result(self):
+        for t in self._tasks:
+            t.result()  # a band's error is raised here
+        return self._out, self._ids
+
+
 class FrameRenderer:
     """Renders the frames of a block: ``render_rows`` gives any range of rows of a frame as output samples.
 
@@ -823,6 +840,7 @@ class FrameRenderer:
         self.step = grids[0].step
         self.lut = tone_lut()
         self.dtype = np.uint8 if bits == 8 else np.uint16
+        self._pool: ThreadPoolExecutor | None = None  # started at the first rows (threads: numba's count then)
 
     def setup(self, centre_m, R, earth: FrameEarth | None = None) -> FrameSetup:
         """A frame at scene-local ``centre_m`` with attitude ``R`` (grid axes at the centre); ``earth``: its
@@ -833,6 +851,13 @@ class FrameRenderer:
                     noise_dn: float = 0.0, noise_seed: int = 0, with_ids: bool = False):
         """Rows r0..r1-1 (r0 a multiple of ``BAND_ROWS``) as (rows, width, bands) samples, and optionally the
         surface id of each pixel centre (kind * 1_000_000 + object, 0 where the ray leaves the scene)."""
+        return self.submit_rows(frame, r0, r1, gain=gain, vignetting=vignetting, noise_dn=noise_dn,
+                                noise_seed=noise_seed, with_ids=with_ids).result()
+
+    def submit_rows(self, frame: FrameSetup, r0: int, r1: int, *, gain: float = 1.0, vignetting: float = 0.0,
+                    noise_dn: float = 0.0, noise_seed: int = 0, with_ids: bool = False) -> RenderedRows:
+        """``render_rows`` started on the renderer's threads, a band (``BAND_ROWS`` rows) a task; its
+        ``result()`` waits for them. The calling thread is free meanwhile (the kernel holds no GIL)."""
         cam = self.camera
         br = frame.band_rows
         if r0 % br:
@@ -841,29 +866,37 @@ class FrameRenderer:
         out = np.empty((r1 - r0, cam.width, self.bands), self.dtype)
         ids = np.empty((r1 - r0, cam.width) if with_ids else (1, 1), np.int64)
         L = self.look
-        # The kernel always writes uint16 samples: one compiled signature for 8- and 12-bit frames (each one costs
-        # about 22 CPU-s to compile, docs/testing.md). 8-bit samples (0..255) are rendered by chunks of rows into a
-        # uint16 buffer and narrowed, so the extra memory stays one chunk.
-        chunk = r1 - r0 if self.dtype == np.uint16 else br * max(1, NARROW_ROWS // br)
-        for a in range(r0, r1, max(chunk, 1)):
-            b = min(r1, a + chunk)
-            buf = out[a - r0:b - r0] if self.dtype == np.uint16 else np.empty((b - a, cam.width, self.bands), np.uint16)
-            _render_bands(a // br, (b + br - 1) // br, a, W=cam.width, H=cam.height, band_rows=br,
-                          tile_cols=frame.tile_cols, step=float(self.step),
-                          XN=self.XN, YN=self.YN, C=frame.C, A_inv=frame.earth.A_inv, quad=frame.earth.q,
-                          curved=bool(frame.earth.q.any()), V=frame.V, ti0=frame.ti0, tj0=frame.tj0,
-                          cell_start=frame.cell_start, cell_list=frame.cell_list, cell_box=frame.cell_box, TV=frame.TV,
-                          tri_ids=frame.tri_ids, tri_start=frame.tri_start, tri_list=frame.tri_list,
-                          tri_box=frame.tri_box, tree_ids=frame.tree_ids, tree_start=frame.tree_start,
-                          tree_list=frame.tree_list, tree_box=frame.tree_box, tree_G=frame.tree_G, tree_s=frame.tree_s,
-                          hz=L.hz, res=L.res, tn=L.tn, tkind=L.tkind, tobj=L.tobj, tc=L.tc, ta=L.ta, G=L.G,
-                          roof_albedo=L.roof_albedo, fine_m=L.fine_m, sun=L.sun, gain=float(gain),
-                          vignetting=float(vignetting), noise_dn=float(noise_dn),
-                          noise_seed=np.uint32(noise_seed & 0xFFFFFFFF), bits=self.bits, lut=self.lut, out=buf,
-                          ids_out=ids[a - r0:b - r0] if with_ids else ids, want_ids=with_ids)
-            if buf.dtype != out.dtype:
+        args = dict(W=cam.width, H=cam.height, band_rows=br, tile_cols=frame.tile_cols, step=float(self.step),
+                    XN=self.XN, YN=self.YN, C=frame.C, A_inv=frame.earth.A_inv, quad=frame.earth.q,
+                    curved=bool(frame.earth.q.any()), V=frame.V, ti0=frame.ti0, tj0=frame.tj0,
+                    cell_start=frame.cell_start, cell_list=frame.cell_list, cell_box=frame.cell_box, TV=frame.TV,
+                    tri_ids=frame.tri_ids, tri_start=frame.tri_start, tri_list=frame.tri_list,
+                    tri_box=frame.tri_box, tree_ids=frame.tree_ids, tree_start=frame.tree_start,
+                    tree_list=frame.tree_list, tree_box=frame.tree_box, tree_G=frame.tree_G, tree_s=frame.tree_s,
+                    hz=L.hz, res=L.res, tn=L.tn, tkind=L.tkind, tobj=L.tobj, tc=L.tc, ta=L.ta, G=L.G,
+                    roof_albedo=L.roof_albedo, fine_m=L.fine_m, sun=L.sun, gain=float(gain),
+                    vignetting=float(vignetting), noise_dn=float(noise_dn),
+                    noise_seed=np.uint32(noise_seed & 0xFFFFFFFF), bits=self.bits, lut=self.lut, want_ids=with_ids)
+
+        def band(a: int) -> None:
+            b = min(r1, a + br)
+            rows_ids = ids[a - r0:b - r0] if with_ids else ids
+            if self.dtype == np.uint16:
+                _render_bands(a // br, a // br + 1, a, out=out[a - r0:b - r0], ids_out=rows_ids, **args)
+            else:
+                # the kernel always writes uint16 samples: one compiled signature for 8- and 12-bit frames (each
+                # costs about 22 CPU-s to compile, docs/testing.md); 8-bit ones (0..255) are narrowed a band at a time
+                buf = np.empty((b - a, cam.width, self.bands), np.uint16)
+                _render_bands(a // br, a // br + 1, a, out=buf, ids_out=rows_ids, **args)
                 out[a - r0:b - r0] = buf
-        return out, (ids if with_ids else None)
+
+        return RenderedRows([self._threads().submit(band, a) for a in range(r0, r1, br)], out,
+                            ids if with_ids else None)
+
+    def _threads(self) -> ThreadPoolExecutor:
+        if self._pool is None:
+            self._pool = ThreadPoolExecutor(max(1, numba.get_num_threads()), thread_name_prefix="render")
+        return self._pool
 
     def render(self, centre_m, R, **kw):
         """A whole frame (for small frames and tests)."""

@@ -49,18 +49,28 @@ def test_rasteriser_shows_what_the_ray_caster_hits(tiny_truth):
     assert differ <= 1e-4 * total, differ
 
 
-def test_8_bit_rows_rendered_by_chunks_are_the_rows_of_one_call(tiny_truth, monkeypatch):
-    """The kernel writes uint16 samples for 8- and 12-bit frames (one compiled signature); 8-bit rows go through a
-    uint16 buffer by chunks of ``NARROW_ROWS``: chunks of one band (32 rows) give the samples and surface ids of
-    the whole frame rendered at once."""
+def test_rows_rendered_on_threads_are_the_rows_of_one_thread(tiny_truth, monkeypatch):
+    """The bands of rows are rendered on the renderer's threads, 8-bit ones through a uint16 buffer (the kernel
+    writes uint16 samples for 8- and 12-bit frames: one compiled signature): the whole frame on two threads, on
+    one, and its rows submitted a band at a time (several calls in flight) give the same samples and surface
+    ids."""
     t = tiny_truth
-    renderer = raster.FrameRenderer(t["scene"], t["cam"], 0.96, samples=1, bits=8)
     C, R = t["eo"].centre_m[0] - t["origin"], t["eo"].rotation(0)
-    whole, ids = renderer.render(C, R, with_ids=True, noise_dn=2.0, noise_seed=7)
-    monkeypatch.setattr(raster, "NARROW_ROWS", raster.BAND_ROWS)
-    chunked, ids_chunked = renderer.render(C, R, with_ids=True, noise_dn=2.0, noise_seed=7)
+    expo = dict(noise_dn=2.0, noise_seed=7, with_ids=True)
+    monkeypatch.setattr(raster.numba, "get_num_threads", lambda: 2)
+    renderer = raster.FrameRenderer(t["scene"], t["cam"], 0.96, samples=1, bits=8)
+    whole, ids = renderer.render(C, R, **expo)
+    assert renderer._threads()._max_workers == 2
+    frame = renderer.setup(C, R)
+    jobs = [renderer.submit_rows(frame, r0, r0 + raster.BAND_ROWS, **expo)
+            for r0 in range(0, 240, raster.BAND_ROWS)]
+    banded = [job.result() for job in jobs]
+    monkeypatch.setattr(raster.numba, "get_num_threads", lambda: 1)
+    one, ids_one = raster.FrameRenderer(t["scene"], t["cam"], 0.96, samples=1, bits=8).render(C, R, **expo)
     assert whole.dtype == np.uint8 and whole.shape == (240, 432, 3) and whole.max() > 200
-    assert np.array_equal(whole, chunked) and np.array_equal(ids, ids_chunked)
+    assert np.array_equal(whole, one) and np.array_equal(ids, ids_one)
+    assert np.array_equal(whole, np.concatenate([b[0] for b in banded]))
+    assert np.array_equal(ids, np.concatenate([b[1] for b in banded]))
 
 
 def test_roof_corners_with_their_relief_displacement(tiny_truth):
