@@ -64,6 +64,7 @@ CONFOUNDED_WITH = {"focal": ("height",), "pp": PLAN_MODES, "tangential": PLAN_MO
 REPORTED_WITH = {"focal": ("height",), "pp": PLAN_MODES, "tangential": PLAN_MODES, "radial": ("height", "bending")}
 _MODE_GROUND = {"height": "height", "bending": "height", "tilt_east": "height", "tilt_north": "height",
                 "shift_east": "plan", "shift_north": "plan"}
+_UNOBSERVED_BY = {"height": "no height control point or DEM", "plan": "no plan control point"}
 MODE_NAMES = {"height": "the block height", "bending": "the block's bending", "tilt_east": "the east-west tilt",
               "tilt_north": "the north-south tilt", "shift_east": "the tie points' east position",
               "shift_north": "the tie points' north position"}
@@ -166,16 +167,16 @@ def _jointly_confounded(cc: CalibrationCovariance, free: dict, ground: GroundObs
         if bool(getattr(ground, _MODE_GROUND[m])):
             continue
         groups = [g for g in free if m in CONFOUNDED_WITH[g]]
-        if len(groups) < 2 or len(free) < 2:
+        if len(groups) < 2:
             continue
         r = _partial_correlation(cc, m, [i for g in free for i in free[g]], [])
         if not (math.isfinite(r) and r > CORRELATION_LIMIT):
             continue
         alone = {g: _partial_correlation(cc, m, free[g], []) for g in groups}
         g = max(alone, key=lambda k: alone[k] if math.isfinite(alone[k]) else -1.0)
-        what = "no height control point or DEM" if _MODE_GROUND[m] == "height" else "no plan control point"
         out[g] = (f"correlation {r:.3f} of the estimated groups together ({', '.join(free)}) with {MODE_NAMES[m]} "
-                  f"(limit {CORRELATION_LIMIT:g}; {g} alone {alone[g]:.3f}), which {what} observes")
+                  f"(limit {CORRELATION_LIMIT:g}; {g} alone {alone[g]:.3f}), which {_UNOBSERVED_BY[_MODE_GROUND[m]]} "
+                  f"observes")
     return out
 
 
@@ -197,9 +198,8 @@ def check_groups(cc: CalibrationCovariance, groups, cal: np.ndarray, cal_apriori
         for m in CONFOUNDED_WITH[g]:
             r = corr[m]
             if not observed[m] and math.isfinite(r) and r > CORRELATION_LIMIT:
-                what = "no height control point or DEM" if _MODE_GROUND[m] == "height" else "no plan control point"
-                reasons.append(f"correlation {r:.3f} with {MODE_NAMES[m]} (limit {CORRELATION_LIMIT:g}), which {what} "
-                               f"observes")
+                reasons.append(f"correlation {r:.3f} with {MODE_NAMES[m]} (limit {CORRELATION_LIMIT:g}), which "
+                               f"{_UNOBSERVED_BY[_MODE_GROUND[m]]} observes")
         if not math.isfinite(frac) or frac > SIGMA_LIMIT_FRACTION:
             reasons.append(f"its standard deviation moves the image corner by {sig_px:.1f} px, {100 * frac:.2f} % of "
                            f"the focal length (limit {100 * SIGMA_LIMIT_FRACTION:g} %)")
