@@ -130,3 +130,18 @@ def test_consolidated_report_has_flight_rows_and_no_json_dumps(adjusted):
     assert len(alts) >= 5 and all("Scale:" in a for a in alts)
     pdf = (root / "reports" / "report.pdf").read_bytes()
     assert pdf.count(b"/Type /Page\n") + pdf.count(b"/Type /Page ") >= 1 + 2 + len(alts)
+
+
+def test_the_template_places_every_figure_once(adjusted, monkeypatch):
+    """format_html hands every figure to the template, which alone decides where each goes: each appears once,
+    in its section, and one without a section of its own (or whose section is absent) after the rest."""
+    _, ba, rep = adjusted
+    figs = report.report_figures(rep, ba)
+    extra = RF.Figure("A figure without a section", "caption", "key", figs[0].fig)
+    extra._png = figs[0].png()
+    monkeypatch.setattr(report, "report_figures", lambda rep, ba=None: [*figs, extra])
+    html = report.format_html(rep, ba)
+    alts = re.findall(r"<img src='data:image/png;base64,[^']+' alt='([^.']*)\.", html)
+    assert sorted(alts) == sorted(f.title for f in [*figs, extra])
+    assert alts[-1] == extra.title and html.index("<h2>Flight acceptance</h2>") < html.index(
+        "alt='Flight: footprints on the terrain")
