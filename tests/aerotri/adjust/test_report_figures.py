@@ -132,6 +132,50 @@ def test_consolidated_report_has_flight_rows_and_no_json_dumps(adjusted):
     assert pdf.count(b"/Type /Page\n") + pdf.count(b"/Type /Page ") >= 1 + 2 + len(alts)
 
 
+def _frames_rep(names, nx=6, ny=4, seed=3):
+    rng = np.random.default_rng(seed)
+    return {"photos": [{"image_id": name, "rms_x_um": 3.0 + k, "rms_y_um": 2.5,
+                        "residual_grid": {"nx": nx, "ny": ny, "n": [5] * (nx * ny),
+                                          "mean_vx_um": rng.normal(0, 2, nx * ny).round(2).tolist(),
+                                          "mean_vy_um": rng.normal(0, 2, nx * ny).round(2).tolist()}}
+                       for k, name in enumerate(names)]}
+
+
+@pytest.mark.parametrize("names, nx, ny", [
+    ([f"3324c_2015_1004_0{5 + k // 4}_0{182 + k}_RGB" for k in range(8)], 6, 4),   # NGI's names, 8 frames
+    ([f"3324c_2015_1004_05_0{182 + k}_RGB" for k in range(4)], 4, 6),              # portrait frames
+    ([f"a_very_long_project_prefix_of_a_survey_flown_in_2026_strip_{k:02d}_frame_{k:04d}.tif" for k in range(13)],
+     6, 4),
+    (["IMG_0031.jpg"], 6, 4),
+])
+def test_frame_panel_titles_do_not_overlap(names, nx, ny):
+    """Each panel's title (the frame's name, its RMS below) stays within its column and clear of the other
+    panels and titles; a name too long for the column keeps its start and its end (NGI's 27-character names
+    overlapped their neighbours)."""
+    f = RF.image_residual_frames(_frames_rep(names, nx, ny), pixel_um=12.0)
+    fig = f.fig
+    fig.canvas.draw()
+    r = fig.canvas.get_renderer()
+    panels = [ax for ax in fig.axes if ax.get_title()]
+    assert len(panels) == len(names)
+    boxes = [ax.title.get_window_extent(r) for ax in panels]
+    for i, (ax, box) in enumerate(zip(panels, boxes)):
+        name, rms = ax.get_title().split("\n")
+        assert rms.endswith(" um")
+        if len(names[i]) <= 30:
+            assert name == names[i]
+        else:
+            head, tail = name.split("...")
+            assert names[i].startswith(head) and names[i].endswith(tail) and len(tail) >= 8
+        for j, other in enumerate(boxes):
+            if j != i:
+                assert not box.overlaps(other), (ax.get_title(), panels[j].get_title())
+        for other in panels:
+            assert not box.overlaps(other.get_window_extent(r))
+        fig_box = fig.bbox
+        assert fig_box.x0 <= box.x0 and box.x1 <= fig_box.x1
+
+
 def test_the_template_places_every_figure_once(adjusted, monkeypatch):
     """format_html hands every figure to the template, which alone decides where each goes: each appears once,
     in its section, and one without a section of its own (or whose section is absent) after the rest."""
