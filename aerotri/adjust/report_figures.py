@@ -132,7 +132,7 @@ def ground_residual_map(rep: dict) -> Figure | None:
     p95 = _p95(plan) or 1e-3
     scale = p95 / (0.08 * extent)  # the 95th percentile residual draws 8 % of the block
     key_m = nice_length(p95)
-    fig, ax = plt.subplots(figsize=(10, 8))
+    fig, ax = plt.subplots(figsize=(10, 8), layout="constrained")  # room for the legend below the map
     dz = np.nan_to_num(d[:, 2])
     lim = max(_p95(np.abs(d[:, 2])), 0.01)
     sc = None
@@ -154,7 +154,7 @@ def ground_residual_map(rep: dict) -> Figure | None:
     for k in worst:
         if not is_ctrl[k]:
             ax.annotate(ids[k], (x[k], y[k]), fontsize=7, color="tab:blue", xytext=(4, -9), textcoords="offset points")
-    ax.legend(loc="upper left", fontsize=8)
+    fig.legend(loc="outside lower center", ncols=2, fontsize=8)  # outside: inside, it hid the points' names
     ax.set_title("Ground residuals: adjusted - given (control), adjusted - measured (check)", loc="left", pad=16,
                  fontsize=11)
     return Figure("Control and check-point residual vectors",

@@ -176,6 +176,27 @@ def test_frame_panel_titles_do_not_overlap(names, nx, ny):
         assert fig_box.x0 <= box.x0 and box.x1 <= fig_box.x1
 
 
+def test_ground_residual_legend_hides_no_point_name():
+    """The legend sits outside the map: a control point in the map's upper left corner keeps its name in
+    view (the kite block's gcp09 sat under the legend)."""
+    ctrl = [{"id": f"gcp{k:02d}", "used": True, "given_m": [235000.0 + x, 3811000.0 + y, 0.0],
+             "residual_m": [0.5, -0.3, None]}
+            for k, (x, y) in enumerate([(0, 300), (10, 290), (150, 150), (300, 0), (300, 300), (20, 10)], start=4)]
+    chk = [{"id": "chk1", "d_m": [0.2, 0.1, 0.05], "measured_m": [235100.0, 3811200.0, 0.0]}]
+    fig = RF.ground_residual_map({"control_points": ctrl, "check_points": chk}).fig
+    fig.canvas.draw()
+    r = fig.canvas.get_renderer()
+    (legend,) = fig.legends
+    lb = legend.get_window_extent(r)
+    ax = fig.axes[0]
+    assert not lb.overlaps(ax.get_window_extent(r))
+    names = [t for t in ax.texts if t.get_text().startswith("gcp")]
+    assert len(names) == len(ctrl)
+    for t in names:
+        assert not lb.overlaps(t.get_window_extent(r))
+    assert [t.get_text() for t in legend.get_texts()] == ["check points (1)", "control points (6)"]
+
+
 def test_the_template_places_every_figure_once(adjusted, monkeypatch):
     """format_html hands every figure to the template, which alone decides where each goes: each appears once,
     in its section, and one without a section of its own (or whose section is absent) after the rest."""
