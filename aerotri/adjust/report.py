@@ -1082,15 +1082,8 @@ def format_html(rep: dict, ba=None) -> str:
     gnss = bool(rep.get("gnss_strips") or any(p.get("gnss_offset_m") for p in rep["photos"]))
     pairs = rep.get("image_pairs") or []
     rem = rep["removed_observations"]
-    figures = {f.title: f for f in report_figures(rep, ba)}
-    placed = {"Image residuals per frame", "Image residual histograms", "Control and check-point residual vectors",
-              "Von Gruber tie-point distribution"}
-    placed |= {"GNSS shift and drift per strip"} if gnss else set()
-    placed |= {"Flight: footprints on the terrain"} if fa else set()
-    placed |= {"Surface control"} if rep.get("surface_control") else set()
     ctx = dict(
-        project=str(rep["project"]), figures={t: f for t, f in figures.items() if t in placed},
-        unplaced=[f for t, f in figures.items() if t not in placed],  # any figure without a place of its own
+        project=str(rep["project"]), figures={f.title: f for f in report_figures(rep, ba)},  # the template places them
         options=T(["option", "value"], [[names.get(n, n.replace("_", " ").capitalize()),
                                          f"{v:g}" if isinstance(v, float) else v] for n, v in o.items()]),
         parameters=T(["", "X/Omega", "Y/Phi", "Z/Kappa", "XY"],

@@ -18,6 +18,7 @@ import numpy as np
 from aerotri.core.figures import png_bytes, pyplot
 
 MAX_FRAME_PANELS = 24  # image residual panels per figure (the frames with the largest RMS beyond that)
+FRAME_PANEL_IN = 2.2  # width of a frame's panel (inches)
 
 
 @dataclasses.dataclass
@@ -46,6 +47,23 @@ def nice_length(x: float) -> float:
         return 1.0
     e = 10.0 ** math.floor(math.log10(x))
     return max(m for m in (1.0, 2.0, 5.0, 10.0) if m * e <= x * 1.0000001) * e
+
+
+def fit_text(text: str, width_in: float, fontsize: float) -> str:
+    """``text``, or its start and end with "..." between, as much as is at most ``width_in`` inches wide in
+    the default font at ``fontsize`` points (image names that share a long prefix differ at their ends)."""
+    from matplotlib.textpath import TextPath
+
+    def fits(t: str) -> bool:
+        return TextPath((0, 0), t, size=fontsize).get_extents().width / 72.0 <= width_in
+
+    if fits(text):
+        return text
+    for keep in range(len(text) - 1, 1, -1):
+        short = f"{text[:keep // 2]}...{text[len(text) - (keep - keep // 2):]}"
+        if fits(short):
+            return short
+    return text[:1] + "..."
 
 
 def _fmt(x: float) -> str:
@@ -114,7 +132,7 @@ def ground_residual_map(rep: dict) -> Figure | None:
     p95 = _p95(plan) or 1e-3
     scale = p95 / (0.08 * extent)  # the 95th percentile residual draws 8 % of the block
     key_m = nice_length(p95)
-    fig, ax = plt.subplots(figsize=(10, 8))
+    fig, ax = plt.subplots(figsize=(10, 8), layout="constrained")  # room for the legend below the map
     dz = np.nan_to_num(d[:, 2])
     lim = max(_p95(np.abs(d[:, 2])), 0.01)
     sc = None
@@ -136,7 +154,7 @@ def ground_residual_map(rep: dict) -> Figure | None:
     for k in worst:
         if not is_ctrl[k]:
             ax.annotate(ids[k], (x[k], y[k]), fontsize=7, color="tab:blue", xytext=(4, -9), textcoords="offset points")
-    ax.legend(loc="upper left", fontsize=8)
+    fig.legend(loc="outside lower center", ncols=2, fontsize=8)  # outside: inside, it hid the points' names
     ax.set_title("Ground residuals: adjusted - given (control), adjusted - measured (check)", loc="left", pad=16,
                  fontsize=11)
     return Figure("Control and check-point residual vectors",
@@ -168,11 +186,16 @@ def image_residual_frames(rep: dict, pixel_um: float | None = None) -> Figure | 
     key_um = nice_length(vmax)
     cols = min(6, len(shown))
     rows = math.ceil(len(shown) / cols)
-    aspect = ny / nx
-    height_in = 2.4 * rows * aspect + 1.0
-    cell_in = 2.4 * 0.8 / nx  # panels about 80 % of their 2.4 in slot
-    scale = vmax / (0.9 * cell_in)  # um per inch: the 95th percentile mean residual spans 0.9 of a cell
-    fig, axs = plt.subplots(rows, cols, figsize=(2.4 * cols, height_in), squeeze=False)
+    # inches: panels FRAME_PANEL_IN wide, ``gap`` apart, each under its two-line title (the frame's name, its RMS;
+    # ``title_h``), below the key's strip (``key_h``); a name wider than its column is shortened in the middle
+    panel_w, gap, title_h, key_h, margin = FRAME_PANEL_IN, 0.2, 0.45, 0.55, 0.1
+    panel_h = panel_w * ny / nx
+    width_in = cols * panel_w + (cols - 1) * gap + 2 * margin
+    height_in = key_h + rows * (title_h + panel_h) + margin
+    scale = vmax / (0.9 * panel_w / nx)  # um per inch: the 95th percentile mean residual spans 0.9 of a cell
+    fig, axs = plt.subplots(rows, cols, figsize=(width_in, height_in), squeeze=False)
+    fig.subplots_adjust(left=margin / width_in, right=1 - margin / width_in, bottom=margin / height_in,
+                        top=1 - (key_h + title_h) / height_in, wspace=gap / panel_w, hspace=title_h / panel_h)
 
     q = None
     for ax, p in zip(axs.ravel(), shown):
@@ -194,13 +217,12 @@ def image_residual_frames(rep: dict, pixel_um: float | None = None) -> Figure | 
         ax.set_xticks([])
         ax.set_yticks([])
         rms = math.hypot(p["rms_x_um"] or 0, p["rms_y_um"] or 0) / math.sqrt(2)
-        ax.set_title(f"{p['image_id']}  {rms:.1f} um", fontsize=8)
+        ax.set_title(f"{fit_text(str(p['image_id']), panel_w + gap / 2, 8)}\n{rms:.1f} um", fontsize=8)
     for ax in axs.ravel()[len(shown):]:
         ax.axis("off")
     px = f" ({key_um / pixel_um:.2g} px)" if pixel_um else ""
-    fig.subplots_adjust(top=1 - 0.8 / height_in, hspace=0.35)
     # the key in its own strip above the panels, drawn with the panels' scale (um per inch)
-    kax = fig.add_axes([0.13, 1 - 0.55 / height_in, 0.5, 0.5 / height_in])
+    kax = fig.add_axes([(margin + 0.4) / width_in, 1 - key_h / height_in, 0.5, 0.5 / height_in])  # the arrow in view
     kax.axis("off")
     kax.set_xlim(0, 1)
     kax.set_ylim(0, 1)

@@ -174,9 +174,11 @@ def _convert(value, tp, cons: Constraints, where: str, base_dir):
     return value
 
 
-def from_table(cls, table: dict, where: str, base_dir=None):
+def from_table(cls, table: dict, where: str, base_dir=None, *, sources: typing.Mapping[str, str] | None = None):
     """``cls(**table)`` with every key and value checked; ``where`` names the table (e.g.
-    ``P/project.toml [corners]``), ``base_dir`` anchors relative file names."""
+    ``P/project.toml [corners]``), ``base_dir`` anchors relative file names. ``sources``: key -> what gave
+    its value when not the file itself (e.g. ``--set flight.strips=0``); a refused value of such a key
+    is named by it first, as the user typed it."""
     if not isinstance(table, dict):
         raise ConfigError(f"{where}: expected a table of settings")
     hints = typing.get_type_hints(cls)
@@ -195,7 +197,12 @@ def from_table(cls, table: dict, where: str, base_dir=None):
             sub = f"{where[:-1]}.{key}]" if where.endswith("]") else f"{where} [{key}]"
         else:
             sub = f"{where} {key}"
-        kwargs[key] = _convert(value, hints[key], constraints(fields[key]), sub, base_dir)
+        try:
+            kwargs[key] = _convert(value, hints[key], constraints(fields[key]), sub, base_dir)
+        except ConfigError as exc:
+            if sources and key in sources:
+                raise ConfigError(f"{sources[key]}: {exc}") from None
+            raise
     try:
         return cls(**kwargs)
     except ConfigError:

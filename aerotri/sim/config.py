@@ -59,16 +59,9 @@ def load_preset(name_or_path: str, overrides: list[str] | tuple[str, ...] = ()) 
         cfg = tomllib.loads(path.read_text())
     except tomllib.TOMLDecodeError as exc:
         raise InputError(f"{path}: not valid TOML ({exc})") from None
-    cfg = _apply_overrides(cfg, overrides)
-    try:
-        preset = _typed(cfg, str(path))
-        _check_across_tables(preset, str(path))
-    except InputError as exc:  # a value given with --set: the message names the option as typed
-        given = [o for o in overrides if "=" in o and "[{}] {}".format(*o.split("=", 1)[0].strip().split(".", 1))
-                 in str(exc)]
-        if given:
-            raise type(exc)(f"--set {given[-1]}: {exc}") from None
-        raise
+    cfg, given = _apply_overrides(cfg, overrides)
+    preset = _typed(cfg, str(path), given)
+    _check_across_tables(preset, str(path), given)
     return preset
 
 
@@ -274,9 +267,10 @@ def _table_classes() -> dict:
     return {f.name: hints[f.name] for f in dataclasses.fields(Preset) if f.name != "chain"}
 
 
-def _typed(cfg: dict, source: str) -> Preset:
+def _typed(cfg: dict, source: str, given: dict[tuple[str, str], str]) -> Preset:
     """The TOML document as a ``Preset``: every table's keys, types, ranges and choices checked by ``from_table``
-    (a missing table or key, an unknown one, a wrong type or a value out of range: ``ConfigError``)."""
+    (a missing table or key, an unknown one, a wrong type or a value out of range: ``ConfigError``; one set
+    with ``--set``, ``given``, is named as typed)."""
     classes = _table_classes()
     unknown = [k for k in cfg if k not in classes and k != "chain"]
     if unknown:
@@ -284,7 +278,9 @@ def _typed(cfg: dict, source: str) -> Preset:
     missing = [name for name, cls in classes.items() if name not in cfg and default_settings(cls) is None]
     if missing:
         raise InputError(f"{source}: missing table [{missing[0]}]")
-    tables = {name: from_table(cls, cfg.get(name, {}), f"{source} [{name}]") for name, cls in classes.items()}
+    tables = {name: from_table(cls, cfg.get(name, {}), f"{source} [{name}]",
+                               sources={k: v for (t, k), v in given.items() if t == name})
+              for name, cls in classes.items()}
     return Preset(**tables, chain=copy.deepcopy(cfg.get("chain", {})))
 
 
@@ -300,10 +296,12 @@ def _is_field(section: str, name: str) -> bool:
     return cls is not None and any(f.name == name for f in dataclasses.fields(cls))
 
 
-def _apply_overrides(cfg: dict, overrides) -> dict:
+def _apply_overrides(cfg: dict, overrides) -> tuple[dict, dict[tuple[str, str], str]]:
     """``--set section.key=value`` items (TOML syntax for the value) on the preset's TOML document: the key must
-    be a field of that table; a number where the preset (or the field's default) has a number."""
+    be a field of that table; a number where the preset (or the field's default) has a number. Returns the
+    document and (section, key) -> the option as typed (``--set section.key=value``; the last of a key)."""
     cfg = copy.deepcopy(cfg)
+    given = {}
     for item in overrides:
         if "=" not in item or "." not in item.split("=", 1)[0]:
             raise InputError(f"--set {item!r}: expected section.key=value, e.g. flight.side_overlap=0.3")
@@ -320,14 +318,20 @@ def _apply_overrides(cfg: dict, overrides) -> dict:
         if isinstance(old, (int, float)) and not isinstance(old, bool) and not isinstance(parsed, (int, float)):
             raise InputError(f"--set {item!r}: {key} must be a number")
         cfg[section][name] = float(parsed) if isinstance(old, float) and isinstance(parsed, int) else parsed
-    return cfg
+        given[(section, name)] = f"--set {item}"
+    return cfg, given
 
 
-def _check_across_tables(preset: Preset, source: str) -> None:
-    """What no single field can check: the ranges' order, and flying heights that clear the scene."""
+def _check_across_tables(preset: Preset, source: str, given: dict[tuple[str, str], str]) -> None:
+    """What no single field can check: the ranges' order, and flying heights that clear the scene (a value set
+    with ``--set``, ``given``, named as typed)."""
+    def refused(section: str, key: str, message: str) -> InputError:
+        return InputError(f"{given[section, key]}: {message}" if (section, key) in given else message)
+
     lo, hi = preset.scene.building_height_m
     if lo > hi:
-        raise InputError(f"{source} [scene] building_height_m = [{lo}, {hi}]: expected [min, max] with min <= max")
+        raise refused("scene", "building_height_m",
+                      f"{source} [scene] building_height_m = [{lo}, {hi}]: expected [min, max] with min <= max")
     # Flying heights must clear the whole scene, the valley side and the tallest building with room
     # to spare, and the frames must see the ground.
     sc = preset.scene
@@ -336,10 +340,10 @@ def _check_across_tables(preset: Preset, source: str) -> None:
     for section in ("flight", "lidar"):
         h = getattr(preset, section).height_above_ground_m
         if h < top_m + hi + 50.0:
-            raise InputError(
-                f"{source} [{section}] height_above_ground_m = {h}: does not clear the terrain: the valley side "
-                f"rises about {top_m:.0f} m above the town and buildings reach {hi} m (need at least "
-                f"{top_m + hi + 50.0:.0f} m)")
+            raise refused(section, "height_above_ground_m",
+                          f"{source} [{section}] height_above_ground_m = {h}: does not clear the terrain: the valley "
+                          f"side rises about {top_m:.0f} m above the town and buildings reach {hi} m (need at least "
+                          f"{top_m + hi + 50.0:.0f} m)")
 
 
 def preset_reference() -> str:

@@ -319,34 +319,51 @@ def write_cog(path, array: np.ndarray, transform, crs, *, unit: str | None = Non
                      overview_resampling="average" if data.dtype.kind == "f" else "nearest")
 
 
-def hillshade(dem: np.ndarray, res_m: float, azimuth_deg: float = 315.0, altitude_deg: float = 45.0,
-              fill_value=None) -> np.ndarray:
-    """Hillshade 0..1 of a north-up DEM (NaN cells stay NaN). NaN cells count as ``fill_value`` in the
-    slopes of their neighbours (default: the DEM's mean; a window of a larger DEM passes that one's)."""
-    cos_slope, sin_slope, cos_rel, alt = _hillshade_terms(dem, res_m, azimuth_deg, altitude_deg, fill_value)
+def hillshade(dem: np.ndarray, res_m: float, azimuth_deg: float = 315.0, altitude_deg: float = 45.0) -> np.ndarray:
+    """Hillshade 0..1 of a north-up DEM (NaN cells stay NaN). The slopes come from the valid cells alone
+    (``gradient_of_valid``): a NaN neighbour is an edge, as the raster's own."""
+    cos_slope, sin_slope, cos_rel, alt = _hillshade_terms(dem, res_m, azimuth_deg, altitude_deg)
     shade = np.sin(alt) * cos_slope + np.cos(alt) * sin_slope * cos_rel
     return np.where(np.isfinite(dem), np.clip(shade, 0.0, 1.0), np.nan)
 
 
-def _hillshade_terms(dem, res_m, azimuth_deg, altitude_deg, fill_value):
+def gradient_of_valid(z: np.ndarray, step: float, axis: int) -> np.ndarray:
+    """dz / d(axis) of a grid with NaN holes, from valid cells only: ``np.gradient``'s central difference where
+    both neighbours are valid, else the one-sided difference to the valid one, else 0; NaN on NaN cells. A
+    neighbour that is nodata counts as the grid's edge: no slope against a fill value (a hillshade drew a
+    bright or dark rim along every nodata edge from that)."""
+    g = np.gradient(z, step, axis=axis)         # NaN wherever a neighbour is NaN
+    redo = np.isfinite(z) & ~np.isfinite(g)
+    if redo.any():                              # the cells along nodata edges only
+        zt, gt = np.moveaxis(z, axis, 0), np.moveaxis(g, axis, 0)     # views: writing gt writes g
+        at = np.nonzero(np.moveaxis(redo, axis, 0))
+        i, rest, n = at[0], at[1:], zt.shape[0]
+        here = zt[at]
+        ahead = (np.where(i + 1 < n, zt[(np.minimum(i + 1, n - 1), *rest)], np.nan) - here) / step
+        behind = (here - np.where(i > 0, zt[(np.maximum(i - 1, 0), *rest)], np.nan)) / step
+        gt[at] = np.where(np.isfinite(ahead), ahead, np.where(np.isfinite(behind), behind, 0.0))
+    g[~np.isfinite(z)] = np.nan               # np.gradient gives a NaN cell between two valid ones a value
+    return g
+
+
+def _hillshade_terms(dem, res_m, azimuth_deg, altitude_deg):
     """cos and sin of the slope (the DEM's dtype), cos(azimuth - aspect) (float64) and the altitude
     (radians): numpy's ufuncs in the dtypes ``hillshade`` always used, as its float32 results (numpy's
     own SIMD arctan, sin, cos) decide grey levels at their last bit."""
-    filled = np.where(np.isfinite(dem), dem, np.nanmean(dem) if fill_value is None else fill_value)
-    dz_dy, dz_dx = np.gradient(filled, res_m)
-    dz_dy = -dz_dy   # rows run north to south
+    dz_dy = -gradient_of_valid(dem, res_m, 0)   # rows run north to south
+    dz_dx = gradient_of_valid(dem, res_m, 1)
     slope = np.arctan(np.hypot(dz_dx, dz_dy))
     aspect = np.arctan2(-dz_dx, dz_dy)
     az, alt = np.radians(azimuth_deg), np.radians(altitude_deg)
     return np.cos(slope), np.sin(slope), np.cos(az - aspect), alt
 
 
-def hillshade_grey_of_dem(dem: np.ndarray, res_m: float, fill_value, azimuth_deg: float = 315.0,
+def hillshade_grey_of_dem(dem: np.ndarray, res_m: float, azimuth_deg: float = 315.0,
                           altitude_deg: float = 45.0) -> np.ndarray:
     """The grey levels (uint8, ``_GREY_LUT``) of ``hillshade(dem, ...)`` as matplotlib's grey colour map gives
     them (NaN black), with the float64 sum, clip, NaN test and grey level in one numba pass instead of eight
-    whole-array temporaries. ``fill_value``: as ``hillshade``'s (None: the DEM's mean)."""
-    cos_slope, sin_slope, cos_rel, alt = _hillshade_terms(dem, res_m, azimuth_deg, altitude_deg, fill_value)
+    whole-array temporaries."""
+    cos_slope, sin_slope, cos_rel, alt = _hillshade_terms(dem, res_m, azimuth_deg, altitude_deg)
     return _shade_grey(dem, (cos_slope, sin_slope, cos_rel), (float(np.sin(alt)), float(np.cos(alt))), _GREY_LUT)
 
 
@@ -696,9 +713,8 @@ def write_rasters(cloud, outdir, res_m: float, crs=None, *, tile_px: int = DEFAU
         raise ValueError("a CRS is needed for the rasters")
     _check_fill_radius(dem_fill_radius_px)
     grids = make_grids(cloud, res_m, dem_fill_radius_px=dem_fill_radius_px)
-    # The hillshade needs heights and cell size in one unit: from the metric grids (NaN cells count as the
-    # DEM's mean in their neighbours' slopes).
-    grey = hillshade_grey_of_dem(grids.dem, res_m, None)
+    # The hillshade needs heights and cell size in one unit: from the metric grids.
+    grey = hillshade_grey_of_dem(grids.dem, res_m)
     grids = grids.in_crs_units(units)
     tags = _tags(units, res_m)
 
@@ -823,18 +839,16 @@ def write_rasters_tiled(paths, outdir, res_m: float, crs=None, *, tile_px: int =
         used = _bin_points(inputs, args, grid, work, chunk_points)
         with contextlib.ExitStack() as working:     # the working GeoTIFFs, closed on errors too
             with rasterio.Env(**_GDAL_THREAD_ENV):
-                gtiffs, dem_sum, dem_n = _tiles_to_gtiffs(inputs, args, grid, used, work, working,
-                                                          transform=transform, tags=tags, chunk_points=chunk_points,
-                                                          footprint_cells=footprint_cells,
-                                                          dem_fill_radius_px=dem_fill_radius_px, threads=threads)
-            fill = np.float32(dem_sum / dem_n) if dem_n else np.float32(np.nan)
+                gtiffs = _tiles_to_gtiffs(inputs, args, grid, used, work, working, transform=transform, tags=tags,
+                                          chunk_points=chunk_points, footprint_cells=footprint_cells,
+                                          dem_fill_radius_px=dem_fill_radius_px, threads=threads)
 
             # Each task closes its working GeoTIFF first: the windows sit in GDAL's block cache (the demo's six
             # working rasters, 181 MB, fit in it) and are written out at the close, so the six closes run two
             # at a time beside the hillshade and the COGs instead of one after the other before them.
             def hillshade_png() -> None:
                 gtiffs["dem_m"].close()
-                _hillshade_png(work / "dem_m.tif", tmp / "hillshade.png", res_m, fill)
+                _hillshade_png(work / "dem_m.tif", tmp / "hillshade.png", res_m)
 
             def cog(name: str) -> None:
                 gtiffs[name].close()
@@ -919,8 +933,7 @@ def _run_threads(tasks) -> None:
 def _tile_grids(inputs: _Inputs, args, tile, work: Path, *, chunk_points: int, footprint_cells: int,
                 dem_fill_radius_px: float):
     """The grids of one tile's core from its binned points (``_bin_points``): float32 arrays north-up,
-    NODATA for no value, in the CRS's units, the DEM also in metres (``dem_m``); and the sum (float64)
-    and count of the core's DEM cells. Runs in a worker thread."""
+    NODATA for no value, in the CRS's units, the DEM also in metres (``dem_m``). Runs in a worker thread."""
     import os
 
     res_m, x0, y0 = args[:3]
@@ -936,10 +949,8 @@ def _tile_grids(inputs: _Inputs, args, tile, work: Path, *, chunk_points: int, f
     os.remove(bin_path)
     out = sums.core_grids(dem, footprint_cells, core, inputs.units)
     del sums, dem
-    finite = np.isfinite(out["dem_m"])
-    dem_sum, dem_n = float(out["dem_m"][finite].sum(dtype=np.float64)), int(finite.sum())
-    out["dem_m"][~finite] = NODATA
-    return out, dem_sum, dem_n
+    out["dem_m"][~np.isfinite(out["dem_m"])] = NODATA
+    return out
 
 
 def _tiles_to_gtiffs(inputs: _Inputs, args, grid, used, work: Path, working: contextlib.ExitStack, *, transform,
@@ -948,8 +959,7 @@ def _tiles_to_gtiffs(inputs: _Inputs, args, grid, used, work: Path, working: con
     at most one more waiting, largest first), the core written by window into tiled GeoTIFFs
     (``work/<name>.tif`` in the CRS's units, ``work/dem_m.tif`` the DEM in metres for the hillshade) as each
     tile is done. Returns the working GeoTIFFs, open (``working`` closes them: the caller closes each when it
-    copies it), and the sum and count of the DEM's cells (metres) for the hillshade's fill, summed in tile
-    order."""
+    copies it)."""
     import collections
     from concurrent.futures import FIRST_COMPLETED, ThreadPoolExecutor, wait
 
@@ -958,7 +968,6 @@ def _tiles_to_gtiffs(inputs: _Inputs, args, grid, used, work: Path, working: con
     res_m, x0, y0, nrows, ncols = args
     units = inputs.units
     tiles = list(_tile_windows(grid, nrows, ncols))
-    dem_sums = {}        # tile id -> (sum, count) of its core's DEM cells
     out = {}
     for name in RASTERS:
         ds = working.enter_context(_tiled_gtiff(work / f"{name}.tif", (nrows, ncols), transform,
@@ -999,23 +1008,15 @@ def _tiles_to_gtiffs(inputs: _Inputs, args, grid, used, work: Path, working: con
                         continue
                     done, _ = wait(running, return_when=FIRST_COMPLETED)
                     for future in done:
-                        tile = running.pop(future)
-                        grids, tile_sum, tile_n = future.result()
-                        dem_sums[tile[0]] = tile_sum, tile_n
-                        write(tile[3], grids)
-                        del grids
+                        write(running.pop(future)[3], future.result())
             except BaseException:
                 for f in running:
                     f.cancel()
                 raise
-    dem_sum, dem_n = 0.0, 0
-    for tid in sorted(dem_sums):       # in tile order, whatever order they finished in: the same float sum
-        dem_sum += dem_sums[tid][0]
-        dem_n += dem_sums[tid][1]
-    return out, dem_sum, dem_n
+    return out
 
 
-def _hillshade_png(dem_path: Path, png_path: Path, res_m: float, fill) -> None:
+def _hillshade_png(dem_path: Path, png_path: Path, res_m: float) -> None:
     """Pass 3: the hillshade PNG of the metric DEM (north-up, NODATA for none), computed by strips of
     rows as the PNG is written, each strip read with a one-row border (clipped to the raster, as
     ``np.gradient`` treats the raster's edges): no working hillshade file."""
@@ -1028,6 +1029,6 @@ def _hillshade_png(dem_path: Path, png_path: Path, res_m: float, fill) -> None:
         def read_rows(r0: int, r1: int) -> np.ndarray:
             b0, b1 = max(r0 - 1, 0), min(r1 + 1, nrows)
             dem = src.read(1, window=Window(0, b0, ncols, b1 - b0), masked=True).filled(np.nan)
-            return hillshade_grey_of_dem(dem, res_m, fill)[r0 - b0: r1 - b0]
+            return hillshade_grey_of_dem(dem, res_m)[r0 - b0: r1 - b0]
 
         _write_png_grey_as_rgba(png_path, read_rows, nrows, ncols)

@@ -479,8 +479,23 @@ def _overview_png(path, res: CheckResult, vmax: float, title: str) -> None:
     save_png(fig, path, dpi=100)
 
 
+def not_compared(r: StripCheckResult) -> dict[str, str]:
+    """Strip name -> why no cell of it was compared (its points and planar cells, and the strips it overlaps too
+    little or none), for each strip without differences."""
+    out = {}
+    for t in r.strips:
+        if t.minus_others.n_cells:
+            continue
+        others = [k[len(t.name) + 1:] if k.startswith(t.name + "-") else k[:-len(t.name) - 1]
+                  for k in r.skipped_pairs if k.startswith(t.name + "-") or k.endswith("-" + t.name)]
+        why = (f"too few common smooth cells with {', '.join(others)}" if others else "overlaps no other strip")
+        out[t.name] = f"{t.points} points, {t.planar_cells} planar cells: {why}"
+    return out
+
+
 def _html(path: Path, summary: StripCheckResult, title: str) -> None:
     from aerotri.core.pages import render
 
     # the page shows strips.json's numbers, under its names
-    path.write_text(render("strips_check.html.j2", package="lidarctl", s=_check_record(summary), title=title))
+    path.write_text(render("strips_check.html.j2", package="lidarctl", s=_check_record(summary),
+                           not_compared=not_compared(summary), title=title))

@@ -170,14 +170,45 @@ def test_hillshade_grey_of_dem_is_the_grey_of_the_hillshade(tmp_path):
     dem[100:140, 50:90] = 12.0                                   # flat: shade = sin(altitude)
     dem[rng.random(dem.shape) < 0.05] = np.nan
     for d in (dem.astype(np.float32), dem):
-        for fill in (None, np.float32(3.5)):
-            want = hillshade_grey(hillshade(d, 0.5, fill_value=fill))
-            got = hillshade_grey_of_dem(d, 0.5, np.nanmean(d) if fill is None else fill)
-            np.testing.assert_array_equal(got, want)
+        np.testing.assert_array_equal(hillshade_grey_of_dem(d, 0.5), hillshade_grey(hillshade(d, 0.5)))
     d32 = dem.astype(np.float32)
     with rasterio.open(tmp_path / "dem.tif", "w", driver="GTiff", width=d32.shape[1], height=d32.shape[0], count=1,
                        dtype="float32", nodata=NODATA, transform=from_origin(0, 0, 0.5, 0.5)) as ds:
         ds.write(np.where(np.isfinite(d32), d32, NODATA).astype(np.float32), 1)
-    _hillshade_png(tmp_path / "dem.tif", tmp_path / "h.png", 0.5, np.float32(3.5))
+    _hillshade_png(tmp_path / "dem.tif", tmp_path / "h.png", 0.5)
     back = np.round(mpimg.imread(tmp_path / "h.png") * 255).astype(np.uint8)
-    np.testing.assert_array_equal(back[..., 0], hillshade_grey(hillshade(d32, 0.5, fill_value=np.float32(3.5))))
+    np.testing.assert_array_equal(back[..., 0], hillshade_grey(hillshade(d32, 0.5)))
+
+
+def test_slopes_come_from_valid_cells_only():
+    """Central differences between valid neighbours, one-sided beside a nodata cell (as at the grid's edge), 0
+    with no valid neighbour along the axis."""
+    from lidarctl.rasters.products import gradient_of_valid
+
+    nan = np.nan
+    z = np.array([[nan, 1.0, 3.0, nan, 5.0, 6.0, 8.0, nan, 9.0]])
+    g = gradient_of_valid(z, 0.5, 1)
+    np.testing.assert_array_equal(g, [[nan, 4.0, 4.0, nan, 2.0, 3.0, 4.0, nan, 0.0]])
+    np.testing.assert_array_equal(gradient_of_valid(z.T, 0.5, 0), g.T)
+    full = np.arange(12.0).reshape(3, 4) ** 2
+    np.testing.assert_array_equal(gradient_of_valid(full, 2.0, 1), np.gradient(full, 2.0, axis=1))
+
+
+@pytest.mark.parametrize("dtype", [np.float32, np.float64])
+def test_hillshade_of_a_plane_with_nodata_has_no_rim(dtype):
+    """A tilted plane with a nodata border, a hole and a notch shades every valid cell alike: slopes against a
+    fill value (the DEM's mean) made a bright or dark rim along every nodata edge."""
+    from lidarctl.rasters.products import hillshade, hillshade_grey_of_dem
+
+    y, x = np.mgrid[0:60, 0:80] * 0.5
+    dem = (120.0 + 0.3 * x - 0.2 * y).astype(dtype)
+    dem[:, :7] = np.nan
+    dem[:4, :] = np.nan
+    dem[20:30, 30:45] = np.nan
+    dem[50:, 60:] = np.nan
+    hs = hillshade(dem, 0.5)
+    valid = np.isfinite(dem)
+    assert np.array_equal(np.isfinite(hs), valid)
+    assert np.ptp(hs[valid]) < (1e-4 if dtype is np.float32 else 1e-9)
+    grey = hillshade_grey_of_dem(dem, 0.5)
+    assert np.ptp(grey[valid].astype(int)) <= 1 and (grey[~valid] == 0).all()

@@ -130,3 +130,83 @@ def test_consolidated_report_has_flight_rows_and_no_json_dumps(adjusted):
     assert len(alts) >= 5 and all("Scale:" in a for a in alts)
     pdf = (root / "reports" / "report.pdf").read_bytes()
     assert pdf.count(b"/Type /Page\n") + pdf.count(b"/Type /Page ") >= 1 + 2 + len(alts)
+
+
+def _frames_rep(names, nx=6, ny=4, seed=3):
+    rng = np.random.default_rng(seed)
+    return {"photos": [{"image_id": name, "rms_x_um": 3.0 + k, "rms_y_um": 2.5,
+                        "residual_grid": {"nx": nx, "ny": ny, "n": [5] * (nx * ny),
+                                          "mean_vx_um": rng.normal(0, 2, nx * ny).round(2).tolist(),
+                                          "mean_vy_um": rng.normal(0, 2, nx * ny).round(2).tolist()}}
+                       for k, name in enumerate(names)]}
+
+
+@pytest.mark.parametrize("names, nx, ny", [
+    ([f"3324c_2015_1004_0{5 + k // 4}_0{182 + k}_RGB" for k in range(8)], 6, 4),   # NGI's names, 8 frames
+    ([f"3324c_2015_1004_05_0{182 + k}_RGB" for k in range(4)], 4, 6),              # portrait frames
+    ([f"a_very_long_project_prefix_of_a_survey_flown_in_2026_strip_{k:02d}_frame_{k:04d}.tif" for k in range(13)],
+     6, 4),
+    (["IMG_0031.jpg"], 6, 4),
+])
+def test_frame_panel_titles_do_not_overlap(names, nx, ny):
+    """Each panel's title (the frame's name, its RMS below) stays within its column and clear of the other
+    panels and titles; a name too long for the column keeps its start and its end (NGI's 27-character names
+    overlapped their neighbours)."""
+    f = RF.image_residual_frames(_frames_rep(names, nx, ny), pixel_um=12.0)
+    fig = f.fig
+    fig.canvas.draw()
+    r = fig.canvas.get_renderer()
+    panels = [ax for ax in fig.axes if ax.get_title()]
+    assert len(panels) == len(names)
+    boxes = [ax.title.get_window_extent(r) for ax in panels]
+    for i, (ax, box) in enumerate(zip(panels, boxes)):
+        name, rms = ax.get_title().split("\n")
+        assert rms.endswith(" um")
+        if len(names[i]) <= 30:
+            assert name == names[i]
+        else:
+            head, tail = name.split("...")
+            assert names[i].startswith(head) and names[i].endswith(tail) and len(tail) >= 8
+        for j, other in enumerate(boxes):
+            if j != i:
+                assert not box.overlaps(other), (ax.get_title(), panels[j].get_title())
+        for other in panels:
+            assert not box.overlaps(other.get_window_extent(r))
+        fig_box = fig.bbox
+        assert fig_box.x0 <= box.x0 and box.x1 <= fig_box.x1
+
+
+def test_ground_residual_legend_hides_no_point_name():
+    """The legend sits outside the map: a control point in the map's upper left corner keeps its name in
+    view (the kite block's gcp09 sat under the legend)."""
+    ctrl = [{"id": f"gcp{k:02d}", "used": True, "given_m": [235000.0 + x, 3811000.0 + y, 0.0],
+             "residual_m": [0.5, -0.3, None]}
+            for k, (x, y) in enumerate([(0, 300), (10, 290), (150, 150), (300, 0), (300, 300), (20, 10)], start=4)]
+    chk = [{"id": "chk1", "d_m": [0.2, 0.1, 0.05], "measured_m": [235100.0, 3811200.0, 0.0]}]
+    fig = RF.ground_residual_map({"control_points": ctrl, "check_points": chk}).fig
+    fig.canvas.draw()
+    r = fig.canvas.get_renderer()
+    (legend,) = fig.legends
+    lb = legend.get_window_extent(r)
+    ax = fig.axes[0]
+    assert not lb.overlaps(ax.get_window_extent(r))
+    names = [t for t in ax.texts if t.get_text().startswith("gcp")]
+    assert len(names) == len(ctrl)
+    for t in names:
+        assert not lb.overlaps(t.get_window_extent(r))
+    assert [t.get_text() for t in legend.get_texts()] == ["check points (1)", "control points (6)"]
+
+
+def test_the_template_places_every_figure_once(adjusted, monkeypatch):
+    """format_html hands every figure to the template, which alone decides where each goes: each appears once,
+    in its section, and one without a section of its own (or whose section is absent) after the rest."""
+    _, ba, rep = adjusted
+    figs = report.report_figures(rep, ba)
+    extra = RF.Figure("A figure without a section", "caption", "key", figs[0].fig)
+    extra._png = figs[0].png()
+    monkeypatch.setattr(report, "report_figures", lambda rep, ba=None: [*figs, extra])
+    html = report.format_html(rep, ba)
+    alts = re.findall(r"<img src='data:image/png;base64,[^']+' alt='([^.']*)\.", html)
+    assert sorted(alts) == sorted(f.title for f in [*figs, extra])
+    assert alts[-1] == extra.title and html.index("<h2>Flight acceptance</h2>") < html.index(
+        "alt='Flight: footprints on the terrain")

@@ -270,3 +270,26 @@ def test_adjust_without_options_takes_the_project_toml_settings_and_reports_thei
     assert rep["options"]["gps_shift_drift_correction"] == "Disabled"
     assert rep["settings"]["self_calibration"]["source"] == PROJECT_TOML
     assert rep["options"]["self_calibration"] == "Enabled (pp, radial)"
+
+
+def test_from_table_names_a_refused_key_by_the_source_that_gave_it():
+    """A key's value given elsewhere than the table's file (``sources``) is refused under that name first, the
+    file's other keys as before: a caller names the option as typed without reading the message."""
+    import dataclasses
+
+    from aerotri.core.errors import ConfigError
+    from aerotri.core.settings import from_table, setting
+
+    @dataclasses.dataclass(frozen=True)
+    class Flight:
+        strips: int = setting(2, min=1)
+        speed_mps: float = setting(60.0, min=1.0)
+
+    given = {"strips": "--set flight.strips=0"}
+    with pytest.raises(ConfigError) as exc:
+        from_table(Flight, {"strips": 0, "speed_mps": 50.0}, "p.toml [flight]", sources=given)
+    assert str(exc.value) == "--set flight.strips=0: p.toml [flight] strips = 0: out of range, expected >= 1"
+    with pytest.raises(ConfigError) as exc:  # the file's own key: no option to name
+        from_table(Flight, {"strips": 3, "speed_mps": 0.5}, "p.toml [flight]", sources=given)
+    assert str(exc.value).startswith("p.toml [flight] speed_mps = 0.5: out of range")
+    assert from_table(Flight, {"strips": 3}, "p.toml [flight]", sources=given) == Flight(strips=3)

@@ -90,3 +90,33 @@ def test_presets_page_is_current():
     page = Path(__file__).resolve().parents[3] / "docs" / "presets.md"
     assert page.read_text() == preset_reference() + "\n", "regenerate: python -c 'from aerotri.sim.config import " \
         "preset_reference; print(preset_reference())' > docs/presets.md"
+
+
+@pytest.mark.parametrize("overrides, start", [
+    (["flight.strips=0"], "--set flight.strips=0: "),
+    (["flight.strips=5", "flight.strips=0"], "--set flight.strips=0: "),  # the last of a key is the one used
+    (["scene.building_height_m=[50.0, 5.0]"], "--set scene.building_height_m=[50.0, 5.0]: "),
+    (["lidar.height_above_ground_m=150.0"], "--set lidar.height_above_ground_m=150.0: "),
+    (["flight.speed_mps=60", "lidar.height_above_ground_m=150.0"], "--set lidar.height_above_ground_m=150.0: "),
+])
+def test_a_refused_set_is_named_as_typed(overrides, start):
+    """The option as the user typed it leads the message, for a field's own check and for the checks across
+    tables alike; a refusal of the preset file's own value names no option."""
+    from aerotri.core.errors import InputError
+
+    with pytest.raises(InputError) as exc:
+        load_preset("tiny", overrides)
+    assert str(exc.value).startswith(start) and "tiny.toml [" in str(exc.value)
+
+
+def test_a_refused_preset_value_names_no_option(tmp_path):
+    from aerotri.core.errors import InputError
+    from aerotri.sim.config import PRESET_DIR
+
+    bad = tmp_path / "bad.toml"
+    text = (PRESET_DIR / "tiny.toml").read_text()
+    assert "\nstrips = 2\nframes_per_strip" in text
+    bad.write_text(text.replace("\nstrips = 2\nframes_per_strip", "\nstrips = 0\nframes_per_strip", 1))
+    with pytest.raises(InputError) as exc:
+        load_preset(str(bad), ["flight.speed_mps=60"])
+    assert str(exc.value).startswith(f"{bad} [flight] strips = 0: out of range")

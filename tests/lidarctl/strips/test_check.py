@@ -131,3 +131,28 @@ def test_bad_input_mixed_crs(clean_block, tmp_path):
     las.write(other)
     _assert_refused(_check([clean_block.paths[0], other], tmp_path / "out"), tmp_path / "out", "other_crs.las",
                     "differs from the CRS")
+
+
+def test_page_says_why_a_strip_was_not_compared_and_shows_small_sigmas(clean_block, tmp_path):
+    """A 50-point fragment of strip 3 (no planar cell) gets '-' with its counts and the strip it overlaps too
+    little, not a blank row; the 3D offsets' sigmas print as what they are (one below 1 mm here), never '0.000'."""
+    import re
+
+    las = laspy.read(clean_block.paths[2])
+    las.points = las.points[np.argsort(np.asarray(las.gps_time), kind="stable")[:50]]
+    las.write(tmp_path / "fragment.las")
+    out = tmp_path / "out"
+    r = _check([*clean_block.paths[:2], tmp_path / "fragment.las"], out)
+    assert r.exit_code == 0, r.output
+    s = read_strip_check(out / "strips.json")
+    frag = s.strips[2]
+    assert frag.points == 50 and frag.minus_others.n_cells == 0
+    page = (out / "index.html").read_text()
+    row = re.search(r"<tr><td>fragment</td>(.*?)</tr>", page, re.S).group(1)
+    assert "- (not compared: 50 points, 0 planar cells: too few common smooth cells with strip_2)" in row
+    shown = [float(v) for v in re.findall(r"\+- ([0-9.e-]+)", page)]
+    sigmas = [v for p in s.pairs for v in (p.offset_3d_b_minus_a.sigma_dx_m, p.offset_3d_b_minus_a.sigma_dy_m,
+                                           p.offset_3d_b_minus_a.sigma_dz_m)]
+    assert len(shown) == len(sigmas) and min(sigmas) < 0.001  # "%.3f": 0.001 for 0.00052, 0.000 below 0.0005
+    for v, sd in zip(shown, sigmas):
+        assert v > 0 and abs(v - sd) <= 0.2 * sd
