@@ -59,7 +59,8 @@ def _seeds(text: str) -> list[int]:
 
 def make_block(out: Path, terrain: str, gnss: str, ground: str, seed: int) -> tuple[Path, float]:
     """A simulated project; returns its folder and the a-priori focal length's relative error."""
-    from aerotri.sim.observations import geometric_block, write_block_project, write_terrain_dem, write_truth_observations
+    from aerotri.sim.observations import (geometric_block, write_block_project, write_terrain_dem,
+                                          write_truth_observations)
 
     err = FOCAL_ERRORS[seed % 3] * (1 if seed % 2 else -1)
     block = geometric_block(3, 6, seed=seed, lever_arm_m=(0.0, 0.0, 0.0), **TERRAIN[terrain], **GNSS[gnss])
@@ -125,7 +126,8 @@ def measure(root: Path, ground: str) -> dict:
             "corner_sigma_fraction": round(fc.corner_sigma_fraction, 6),
             "sigma_fraction": round(fc.sigma_fraction, 6), "gnss_height_fraction": round(fc.gnss_height_fraction, 6),
             "image_field_fraction": round(fc.image_field_fraction, 6),
-            "shares": {k: round(v, 4) for k, v in cc.focal_shares.items()}, "new_reason": fc.reason, "new_fixes_focal": fc.action == "fixed",
+            "shares": {k: round(v, 4) for k, v in cc.focal_shares.items()}, "new_reason": fc.reason,
+            "new_fixes_focal": fc.action == "fixed",
             "sigma0": round(float(res.sigma0), 4), "solve_cpu_s": round(cpu, 1)}
 
 
@@ -181,12 +183,14 @@ def main():
                     root, err = make_block(d, terrain, gnss, ground, seed)
                     m = {"name": f"{name}_{seed}", "variant": name, "seed": seed, "apriori_error_pct": 100 * err,
                          **measure(root, ground)}
-                    m["old_fixes"], m["new_fixes"] = old_rule(m), new_rule(m, FOCAL_SIGMA_MULTIPLE, FOCAL_TOLERANCE_FRACTION)
+                    m["old_fixes"] = old_rule(m)
+                    m["new_fixes"] = new_rule(m, FOCAL_SIGMA_MULTIPLE, FOCAL_TOLERANCE_FRACTION)
                     m["wrong"] = wrong(m)
                     rows.append(m)
                     shutil.rmtree(d, ignore_errors=True)
                     print(f"{m['name']}: err {m['error_pct']:+.3f} % ({m['error_sigmas']:+.1f} sd), sd "
-                          f"{100 * m['sigma_fraction']:.2f} %, field {100 * m['image_field_fraction']:.2f} %, gnss {100 * m['gnss_height_fraction']:.2f} %, corner "
+                          f"{100 * m['sigma_fraction']:.2f} %, field {100 * m['image_field_fraction']:.2f} %, gnss "
+                          f"{100 * m['gnss_height_fraction']:.2f} %, corner "
                           f"{100 * m['corner_sigma_fraction']:.2f} %, partial {m['partial_correlation']:.3f} joint "
                           f"{m['joint_correlation']:.3f}; wrong {m['wrong']}, old fixes {m['old_fixes']}, new fixes "
                           f"{m['new_fixes']}", flush=True)

@@ -179,7 +179,8 @@ def _focal_reasons(sigma_fraction: float, gnss_fraction: float, field_fraction: 
                    f"{100 * tol:g} %)")
     if not (field_fraction <= tol):
         out.append(f"an image-wide error as large as the residuals that the camera model does not hold (shear, "
-                   f"quadratic, cubic) moves the focal length by up to {100 * field_fraction:.2f} % (limit {100 * tol:g} %)")
+                   f"quadratic, cubic) moves the focal length by up to {100 * field_fraction:.2f} % (limit "
+                   f"{100 * tol:g} %)")
     return out
 
 

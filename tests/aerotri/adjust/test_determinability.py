@@ -93,7 +93,8 @@ def test_focal_of_a_flat_gnss_only_block_is_fixed_with_a_warning(flat, caplog):
     assert not focal.determinable and focal.action == "fixed"
     assert focal.correlations["height"] > 0.99 and not focal.ground_observed["height"]  # reported, not judged
     assert focal.reason.startswith("3 standard deviations are") and 0.005 < focal.sigma_fraction < 0.01
-    assert checks["pp"].determinable and checks["radial"].action == "fixed" and "block height" in checks["radial"].reason
+    assert checks["pp"].determinable
+    assert checks["radial"].action == "fixed" and "block height" in checks["radial"].reason
     assert ba.opts.self_calibration == ("pp",)
     assert ba.camera_adjusted.focal_px == pytest.approx(ba.camera_apriori.focal_px, abs=0.05)  # held
     assert any("focal fixed at its a-priori value" in r.getMessage() for r in caplog.records)
@@ -301,13 +302,15 @@ def test_the_focal_length_is_judged_by_what_determines_it():
 
     loose = judge(_constructed(25.0, 1.0, 4.0, 2.0))
     assert loose["focal"].correlations["height"] == pytest.approx(np.sqrt(2 / 3), abs=1e-6)
-    assert loose["focal"].corner_sigma_fraction < 0.01 and loose["focal"].sigma_fraction == pytest.approx(0.00884, abs=1e-5)
+    assert loose["focal"].corner_sigma_fraction < 0.01
+    assert loose["focal"].sigma_fraction == pytest.approx(0.00884, abs=1e-5)
     assert loose["focal"].action == "fixed" and loose["radial"].action == "estimated"
     assert loose["focal"].reason == "3 standard deviations are 2.65 % of the focal length (limit 1 %)"
     tight = judge(_constructed(2.0, 0.05, 4.0, 2.0))
     assert tight["focal"].correlations["height"] > 0.98 and tight["focal"].action == "estimated"
     assert tight["focal"].gnss_height_fraction == pytest.approx(0.002) and tight["focal"].reason is None
-    assert tight["radial"].action == "fixed" and tight["radial"].reason.startswith("correlation 0.988 with the block height")
+    assert tight["radial"].action == "fixed"
+    assert tight["radial"].reason.startswith("correlation 0.988 with the block height")
     assert tight["radial"].sigma_fraction is None
     heights = judge(_constructed(2.0, 0.05, 40.0, 2.0))["focal"]
     assert heights.action == "fixed" and heights.reason == (
