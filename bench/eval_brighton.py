@@ -111,8 +111,9 @@ def measure(name: str, root: Path, lidar: Path, settings) -> dict:
            "focal_px": {"apriori": round(0.5 * (sc["apriori"]["fx_px"] + sc["apriori"]["fy_px"]), 2),
                         "adjusted": round(0.5 * (sc["adjusted"]["fx_px"] + sc["adjusted"]["fy_px"]), 2)},
            "estimated": sc.get("estimated"), "fixed": sc.get("fixed"),
-           "determinability": [{k: c[k] for k in ("group", "action", "estimate", "sigma", "correlations",
-                                                  "corner_sigma_px", "corner_sigma_fraction", "reason")}
+           "determinability": [{k: c.get(k) for k in ("group", "action", "estimate", "sigma", "correlations",
+                                                      "corner_sigma_px", "corner_sigma_fraction", "sigma_fraction",
+                                                      "gnss_height_fraction", "image_field_fraction", "reason")}
                                for c in sc.get("determinability") or []],
            "geometry_modes": [{k: g[k] for k in ("mode", "sigma_m", "shares", "weak", "correlation_with_height")}
                               for g in rep.get("geometry_modes") or []],

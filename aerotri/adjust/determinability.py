@@ -4,37 +4,37 @@ A converged solve with a small sigma naught says nothing about whether the focal
 point were determined by the block or merely moved with something nothing else fixes. Each estimated group
 is judged at the solution by two tests (``CalibrationCovariance`` of ``geometry_modes``):
 
-1. **Confounded with a mode nothing on the ground observes.** The partial correlation of the group's
-   parameters with a mode of the tie points, the other estimated groups held (the multiple correlation of
-   the mode with the group after the other groups' share is taken out), over ``CORRELATION_LIMIT``, while no
-   observation of the ground fixes that mode:
+1. **Not determined by the block.**
 
-   - focal length <-> the block height (flat terrain, near-nadir frames and a datum from GNSS alone:
-     the focal length and the flying height above the ground are confounded; only the GNSS heights'
-     frame-to-frame differences and the images' tilts separate them, and any error in those goes into
-     the focal length; the Brighton Beach drone block: +34 % focal, tie points 10.5 m below the DEM with a
-     reported focal sigma of 0.5 %);
-   - radial distortion <-> the block height (a drone's wide-angle frames: on Brighton Beach without a DEM
+   - the focal length: over flat ground with near-nadir frames it scales the tie points' depths below the
+     cameras, so it is confounded with the flying height; what separates them is the GNSS heights'
+     frame-to-frame differences, control points with a height, a DEM, and the perspective of tilts and relief in
+     the tie points. Its correlation with the flying height says nothing about which of these determine it (0.999
+     on a simulated flat block whose survey GNSS determines it to 0.1 %; 0.72-0.90 on Brighton Beach's 18 drone
+     frames, whose estimate came out 21 % off the DEM solution): it is reported, not judged. The focal length is
+     judged against the tolerance ``FOCAL_TOLERANCE_FRACTION`` of itself: ``FOCAL_SIGMA_MULTIPLE`` standard
+     deviations within it (Brighton: sigma 25 px, 0.88 %; the estimate 21 % off), and within it also the largest
+     change of the estimate were every GNSS height off by its stated sigma in the pattern that moves it most (a
+     systematic error the independent-noise model averages away) and under one image-wide displacement field of
+     the residuals' size the camera model does not hold (shear, quadratic, cubic: the tie points' perspective is
+     all that determines it where the other two are weak, and a rolling shutter or a lens's residual distortion
+     bends that perspective) (``geometry_modes``: ``focal_gnss_height_px``, ``focal_image_field_px``).
+   - the other groups: the partial correlation of the group's parameters with a mode of the tie points, the
+     other estimated groups held (the multiple correlation of the mode with the group after the other groups'
+     share is taken out), over ``CORRELATION_LIMIT``, while no observation of the ground fixes that mode:
+     radial distortion <-> the block height (a drone's wide-angle frames: on Brighton Beach without a DEM
      the radial terms, correlation 0.93-0.96 with the height, took the tie points 2.9 m below the DEM even
-     with the focal length held at the DEM solution's value); its correlation with the block's bending (the
-     classic dome of a GNSS-only block) is reported, not judged: it is high wherever nothing observes the
-     bending (0.97 on a simulated block flown at two heights) while the bending itself stays small;
-   - principal point and decentring distortion <-> the tie points' mean plan position (with the projection
+     with the focal length held at the DEM solution's value; its correlation with the block's bending, the
+     classic dome of a GNSS-only block, is reported, not judged: it is high wherever nothing observes the
+     bending, 0.97 on a simulated block flown at two heights, while the bending itself stays small);
+     principal point and decentring distortion <-> the tie points' mean plan position (with the projection
      centres fixed by GNSS a principal-point offset is a common rotation of the frames, which moves the
-     ground in plan).
-
-   The height and the bending are observed on the ground by control points with a height (full or height
-   kind, in use) and by a DEM (surface control); the plan position by control points with plan
-   coordinates. With those in the block the correlation is harmless: the ground fixes the mode and the
-   parameter through it (4 full control points: correlation 0.95 with the height, focal within 1.5 sigma of
-   the truth on simulated blocks).
-
-   Groups that share a mode are also judged together: their joint multiple correlation with it over the
-   limit fixes the group of the largest correlation of its own (``_jointly_confounded``; the focal length and
-   the radial distortion both scale the image radius, and holding one hides the pair).
+     ground in plan). The height is observed on the ground by control points with a height (full or height
+     kind, in use) and by a DEM (surface control); the plan position by control points with plan coordinates.
 
 2. **Too loose to matter.** The group's standard deviation moves the image corner by more than
-   ``SIGMA_LIMIT_FRACTION`` of the focal length (that fraction of the flying height on the ground).
+   ``SIGMA_LIMIT_FRACTION`` of the focal length (that fraction of the flying height on the ground); the focal
+   length's own sigma test is the one above.
 
 A group failing either test is **fixed at its a-priori value** (the camera file's), and the block is
 solved again without it; the report and the console name the group, the test and its numbers, and the
@@ -56,10 +56,16 @@ from aerotri.adjust.geometry_modes import CAL_NAMES, MODES, PLAN_MODES, Calibrat
 
 CORRELATION_LIMIT = 0.9
 SIGMA_LIMIT_FRACTION = 0.01
-# per group: its Cal3DS2 entries' names, and the modes it can be confounded with (what observes them)
+# the focal length: within this fraction of itself at FOCAL_SIGMA_MULTIPLE standard deviations, and moved by no more
+# than that by GNSS heights off by their sigma or by an image-wide error of the residuals' size the camera model does
+# not hold (``geometry_modes``: ``focal_gnss_height_px``, ``focal_image_field_px``)
+FOCAL_TOLERANCE_FRACTION = 0.01
+FOCAL_SIGMA_MULTIPLE = 3.0
+# per group: its Cal3DS2 entries' names, and the modes it is judged against by correlation (what observes them;
+# the focal length is judged by what determines it instead: ``_focal_reasons``)
 GROUP_PARAMETERS = {"focal": ("fx_px", "fy_px"), "pp": ("u0_px", "v0_px"), "radial": ("k1", "k2"),
                     "tangential": ("p1", "p2")}
-CONFOUNDED_WITH = {"focal": ("height",), "pp": PLAN_MODES, "tangential": PLAN_MODES, "radial": ("height",)}
+CONFOUNDED_WITH = {"focal": (), "pp": PLAN_MODES, "tangential": PLAN_MODES, "radial": ("height",)}
 # the correlations reported (the bending of radial distortion besides: not judged)
 REPORTED_WITH = {"focal": ("height",), "pp": PLAN_MODES, "tangential": PLAN_MODES, "radial": ("height", "bending")}
 _MODE_GROUND = {"height": "height", "bending": "height", "tilt_east": "height", "tilt_north": "height",
@@ -85,6 +91,9 @@ class GroupCheck:
     determinable: bool
     reason: str | None  # why not (None: determinable)
     action: str  # "estimated", or "fixed" (at its a-priori value, solved again without it)
+    sigma_fraction: float | None = None  # focal: its standard deviation over it
+    gnss_height_fraction: float | None = None  # focal: its largest change, GNSS heights off by their sigma, over it
+    image_field_fraction: float | None = None  # focal: its largest change under an unmodelled image field, over it
 
 
 @dataclasses.dataclass(frozen=True)
@@ -156,27 +165,22 @@ def corner_sigma_px(group: str, cal: np.ndarray, cal_cov: np.ndarray, width: int
     return worst
 
 
-def _jointly_confounded(cc: CalibrationCovariance, free: dict, ground: GroundObservations) -> dict:
-    """group -> reason, for a mode nothing on the ground observes that the estimated groups *together* follow
-    (multiple correlation over ``CORRELATION_LIMIT``) while each passes alone with the others held: the focal
-    length and the radial distortion both scale the image radius, so holding one hides what the pair does with
-    the block height (Brighton Beach without a DEM: focal | radial 0.72, both together 0.90, the focal length
-    21 % off). The group of the largest correlation of its own with the mode is the one fixed."""
-    out = {}
-    for m in MODES:
-        if bool(getattr(ground, _MODE_GROUND[m])):
-            continue
-        groups = [g for g in free if m in CONFOUNDED_WITH[g]]
-        if len(groups) < 2:
-            continue
-        r = _partial_correlation(cc, m, [i for g in free for i in free[g]], [])
-        if not (math.isfinite(r) and r > CORRELATION_LIMIT):
-            continue
-        alone = {g: _partial_correlation(cc, m, free[g], []) for g in groups}
-        g = max(alone, key=lambda k: alone[k] if math.isfinite(alone[k]) else -1.0)
-        out[g] = (f"correlation {r:.3f} of the estimated groups together ({', '.join(free)}) with {MODE_NAMES[m]} "
-                  f"(limit {CORRELATION_LIMIT:g}; {g} alone {alone[g]:.3f}), which {_UNOBSERVED_BY[_MODE_GROUND[m]]} "
-                  f"observes")
+def _focal_reasons(sigma_fraction: float, gnss_fraction: float, field_fraction: float) -> list[str]:
+    """Why the block does not determine the focal length within ``FOCAL_TOLERANCE_FRACTION`` (the fractions: its
+    standard deviation, its largest change by GNSS heights off by their sigma and by an unmodelled image field, each
+    over the focal length)."""
+    tol, out = FOCAL_TOLERANCE_FRACTION, []
+    k = FOCAL_SIGMA_MULTIPLE
+    if not (k * sigma_fraction <= tol):
+        out.append(f"{k:g} standard deviations are {100 * k * sigma_fraction:.2f} % of the focal length (limit "
+                   f"{100 * tol:g} %)")
+    if not (gnss_fraction <= tol):
+        out.append(f"GNSS heights off by their sigma move the focal length by up to {100 * gnss_fraction:.2f} % (limit "
+                   f"{100 * tol:g} %)")
+    if not (field_fraction <= tol):
+        out.append(f"an image-wide error as large as the residuals that the camera model does not hold (shear, "
+                   f"quadratic, cubic) moves the focal length by up to {100 * field_fraction:.2f} % (limit "
+                   f"{100 * tol:g} %)")
     return out
 
 
@@ -187,7 +191,6 @@ def check_groups(cc: CalibrationCovariance, groups, cal: np.ndarray, cal_apriori
     free = {g: [CAL_NAMES.index(p) for p in GROUP_PARAMETERS[g]] for g in groups}
     f = 0.5 * (cal[0] + cal[1])
     out = []
-    joint = _jointly_confounded(cc, free, ground)
     for g in groups:
         others = [i for h in groups if h != g for i in free[h]]
         corr = {m: _partial_correlation(cc, m, free[g], others) for m in REPORTED_WITH[g]}
@@ -200,11 +203,16 @@ def check_groups(cc: CalibrationCovariance, groups, cal: np.ndarray, cal_apriori
             if not observed[m] and math.isfinite(r) and r > CORRELATION_LIMIT:
                 reasons.append(f"correlation {r:.3f} with {MODE_NAMES[m]} (limit {CORRELATION_LIMIT:g}), which "
                                f"{_UNOBSERVED_BY[_MODE_GROUND[m]]} observes")
-        if not math.isfinite(frac) or frac > SIGMA_LIMIT_FRACTION:
+        focal = None
+        if g == "focal":  # judged by what determines it (``_focal_reasons``), its sigma test among them
+            w = np.zeros(len(CAL_NAMES))
+            w[free[g]] = 1.0 / len(free[g])
+            focal = (float(np.sqrt(max(w @ cc.cal_cov @ w, 0.0))) / f, cc.focal_gnss_height_px / f,
+                     cc.focal_image_field_px / f)
+            reasons += _focal_reasons(*focal)
+        elif not math.isfinite(frac) or frac > SIGMA_LIMIT_FRACTION:
             reasons.append(f"its standard deviation moves the image corner by {sig_px:.1f} px, {100 * frac:.2f} % of "
                            f"the focal length (limit {100 * SIGMA_LIMIT_FRACTION:g} %)")
-        if g in joint and not reasons:
-            reasons.append(joint[g])
         names = GROUP_PARAMETERS[g]
         sd = np.sqrt(np.clip(np.diag(cc.cal_cov), 0.0, None))
         out.append(GroupCheck(
@@ -212,5 +220,6 @@ def check_groups(cc: CalibrationCovariance, groups, cal: np.ndarray, cal_apriori
             apriori={n: float(cal_apriori[CAL_NAMES.index(n)]) for n in names},
             sigma={n: float(sd[CAL_NAMES.index(n)]) for n in names}, corner_sigma_px=sig_px,
             corner_sigma_fraction=frac, correlations=corr, ground_observed=observed, determinable=not reasons,
-            reason="; ".join(reasons) or None, action="estimated" if not reasons else "fixed"))
+            reason="; ".join(reasons) or None, action="estimated" if not reasons else "fixed",
+            **(dict(zip(("sigma_fraction", "gnss_height_fraction", "image_field_fraction"), focal)) if focal else {})))
     return out

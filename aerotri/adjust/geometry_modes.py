@@ -36,6 +36,12 @@ from aerotri.adjust.keys import K_KEY
 from aerotri.adjust.surface import whitened
 from aerotri.adjust.variance_components import gnss_rows
 
+# displacement fields (x, y exponents of the image coordinates; component 0: x, 1: y) the camera model does not
+# hold: the shear (a rolling shutter's line delay while the frame moves across it), the quadratic and the cubic
+# terms beyond the radial distortion's (a lens or sensor's residual distortion, a film or sensor not flat)
+UNMODELLED_FIELDS = tuple((c, a, b) for c in (0, 1) for a, b in ((0, 1), (1, 0), (2, 0), (1, 1), (0, 2), (3, 0),
+                                                                 (2, 1), (1, 2), (0, 3)) if (c, a, b) not in
+                          ((0, 1, 0), (1, 0, 1)))
 MODES = ("height", "tilt_east", "tilt_north", "bending")
 PLAN_MODES = ("shift_east", "shift_north")  # the tie points' mean plan position (with self-calibration only)
 CAL_NAMES = ("fx_px", "fy_px", "skew_px", "u0_px", "v0_px", "k1", "k2", "p1", "p2")  # Cal3DS2 order
@@ -66,14 +72,22 @@ class CalibrationCovariance:
     each mode (``MODES``, then ``PLAN_MODES``) with each calibration parameter, the ``height`` row the flying
     height's (the tie points' mean height minus the projection centres': the block height where GNSS holds the
     centres); ``mode_var`` the modes' variances (the same row the flying height's); ``focal_shares``: which
-    observation groups determine the mean focal length (as the modes' shares); ``depth_m``: the median depth of the tie points below the cameras (the focal length's lever on
-    their heights)."""
+    observation groups determine the mean focal length (as the modes' shares); ``depth_m``: the median depth of the
+    tie points below the cameras (the focal length's lever on their heights); ``focal_gnss_height_px``,
+    ``focal_image_field_px``: how far systematic errors the model does not hold move the focal length
+    (``determinability``)."""
 
     cal_cov: np.ndarray
     cross: np.ndarray
     mode_var: np.ndarray
     focal_shares: dict
     depth_m: float
+    # the focal length's change (px) were every GNSS height off by its stated sigma in the pattern that moves it
+    # most: sum_i |d f / d z_i| sigma_z_i (a systematic error the independent-noise model averages away)
+    focal_gnss_height_px: float = float("nan")
+    # the focal length's largest change (px) under one image-wide displacement field the camera model does not hold
+    # (``UNMODELLED_FIELDS``), as large as the image residuals' sigma at the frame's edge
+    focal_image_field_px: float = float("nan")
 
     def correlation(self, mode: str, param: str | tuple) -> float:
         """Correlation of a mode with a calibration parameter, or with the mean of two (``("fx_px", "fy_px")``)."""
@@ -137,15 +151,27 @@ def _apply_q(block: G.Block, pr: PointRays, rc, l_p: np.ndarray, l_c: np.ndarray
     return u_p, u_c, var
 
 
-def _shares(block: G.Block, opts: G.SolveSettings, state: G.State, control_active, rc, pr: PointRays, *, u_p, u_c, var
-            ) -> dict:
-    """Group -> (M,) share of each functional's information ``u' H_k u / l'Q l`` (``priors``: the rest)."""
+def _shares(block: G.Block, opts: G.SolveSettings, state: G.State, control_active, rc, pr: PointRays, *, u_p, u_c, var,
+            fields_of: int | None = None) -> tuple[dict, np.ndarray | None]:
+    """Group -> (M,) share of each functional's information ``u' H_k u / l'Q l`` (``priors``: the rest); and for the
+    functional ``fields_of``, per ``UNMODELLED_FIELDS`` field ``g`` the same in every image, its change under ``g``
+    (``u' A' W g``) and ``g``'s largest magnitude over the rays (F, 2) (image coordinates: the rays' normalised ones;
+    the ratio of the two does not depend on their scale)."""
     share = {}
     share["image"] = np.zeros(len(u_c))
+    fields = None if fields_of is None else np.zeros((len(UNMODELLED_FIELDS), 2))
     for sl in pr.chunks():
         Jp, Jc, _, idx = pr.rays(sl)
         d_ray = np.einsum("kai,mki->mka", Jp, u_p[:, pr.pt[sl]]) + np.einsum("kaj,mkj->mka", Jc, u_c[:, idx])
         share["image"] += pr.weight * np.einsum("mka,mka->m", d_ray, d_ray)
+        if fields is not None:
+            im = pr.im[sl]
+            pc = np.einsum("kji,kj->ki", state.R_cv[im], state.points[pr.pt[sl]] - state.centre[im])
+            x, y = pc[:, 0] / pc[:, 2], pc[:, 1] / pc[:, 2]
+            for f, (c, a, b) in enumerate(UNMODELLED_FIELDS):
+                g = x**a * y**b
+                fields[f, 0] += pr.weight * float(d_ray[fields_of, :, c] @ g)
+                fields[f, 1] = max(fields[f, 1], float(np.max(np.abs(g), initial=0.0)))
     if block.gnss_local is not None:
         share["gnss"] = _gnss_information(block, opts, state, rc, u_c)
     ctrl = [c for c in np.flatnonzero(control_active) if pr.used[block.control_point[c]]]
@@ -158,7 +184,7 @@ def _shares(block: G.Block, opts: G.SolveSettings, state: G.State, control_activ
         share["surface"] = np.sum(np.einsum("pi,mpi->mp", B, u_p) ** 2, axis=1)
     share = {k: v / var for k, v in share.items()}
     share["priors"] = 1.0 - sum(share.values())
-    return share
+    return share, fields
 
 
 def _held(sh: dict) -> bool:
@@ -188,7 +214,8 @@ def geometry_modes(block: G.Block, opts: G.SolveSettings, state: G.State, obs_ac
         l_c[-2, rc.offset[K_KEY] + np.array([0, 1])] = 0.5
         l_c[-1, (pr.pose_offset[:, None] + np.arange(3, 6)).ravel()] = -(state.R_cv[:, 2, :] / block.n_images).ravel()
     u_p, u_c, var = _apply_q(block, pr, rc, l_p, l_c)
-    share = _shares(block, opts, state, control_active, rc, pr, u_p=u_p, u_c=u_c, var=var)
+    share, fields = _shares(block, opts, state, control_active, rc, pr, u_p=u_p, u_c=u_c, var=var,
+                            fields_of=len(l_p) - 2 if self_cal else None)
     out = []
     for m, name in enumerate(MODES):
         sh = {k: float(v[m]) for k, v in share.items()}
@@ -208,8 +235,11 @@ def geometry_modes(block: G.Block, opts: G.SolveSettings, state: G.State, obs_ac
     k = np.flatnonzero(~np.isin(block.obs_point, block.control_point) & np.asarray(obs_active, bool))
     depth = np.einsum("kji,kj->ki", state.R_cv[block.obs_image[k]],
                       state.points[block.obs_point[k]] - state.centre[block.obs_image[k]])[:, 2]
+    gnss_z_px = _gnss_heights(block, opts, state, rc, u_c[-2]) if block.gnss_local is not None else 0.0
+    # an image-wide field as large as the residuals' sigma (sigma0 times the a-priori sigma) where it is largest
+    field_px = float(np.max(np.abs(fields[:, 0]) / fields[:, 1])) * sigma0 / np.sqrt(pr.weight)
     cc = CalibrationCovariance(cal_cov, cross, mode_var, {g: float(v[-2]) for g, v in share.items()},
-                               float(np.median(depth)) if len(depth) else float("nan"))
+                               float(np.median(depth)) if len(depth) else float("nan"), gnss_z_px, field_px)
     if any(g == "focal" for g in opts.self_calibration):
         f = 0.5 * (state.cal[0] + state.cal[1])
         sigma_f = float(np.sqrt(max(var[-2], 0.0))) * sigma0
@@ -218,11 +248,21 @@ def geometry_modes(block: G.Block, opts: G.SolveSettings, state: G.State, obs_ac
     return out, cc
 
 
+def _gnss_change(block: G.Block, opts: G.SolveSettings, state: G.State, rc, u_c: np.ndarray) -> np.ndarray:
+    """(M, N, 3): each GNSS position's change (local east, north, up) under each functional's ``u``."""
+    rows = gnss_rows(block, opts, state)[1]
+    return np.stack([sum(u_c[:, rc.offset[k]:rc.offset[k] + J.shape[1]] @ J.T for k, J in row) for row in rows], axis=1)
+
+
 def _gnss_information(block: G.Block, opts: G.SolveSettings, state: G.State, rc, u_c: np.ndarray) -> np.ndarray:
     """``u' H_gnss u`` per mode: the GNSS positions' weighted change under each mode's ``u``."""
-    w = 1.0 / block.gnss_sigma_m**2
-    out = np.zeros(len(u_c))
-    for i, row in enumerate(gnss_rows(block, opts, state)[1]):
-        dg = sum(u_c[:, rc.offset[k]:rc.offset[k] + J.shape[1]] @ J.T for k, J in row)
-        out += np.sum(dg * dg * w[i], axis=1)
-    return out
+    dg = _gnss_change(block, opts, state, rc, u_c)
+    return np.einsum("mni,ni->m", dg * dg, 1.0 / block.gnss_sigma_m**2)
+
+
+def _gnss_heights(block: G.Block, opts: G.SolveSettings, state: G.State, rc, u_c: np.ndarray) -> float:
+    """The largest change of the functional of ``u`` (camera part ``u_c`` (n,)) were each GNSS height off by up to
+    its sigma: the estimate moves by ``u' A' W dy``, for the heights ``sum_i dz_i e_i / sigma_i^2`` (``dz`` the
+    height's change under ``u``), at most ``sum_i |dz_i| / sigma_i``."""
+    dz = _gnss_change(block, opts, state, rc, u_c[None])[0, :, 2]
+    return float(np.sum(np.abs(dz) / block.gnss_sigma_m[:, 2]))

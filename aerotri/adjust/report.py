@@ -285,6 +285,8 @@ def _check_dict(c) -> dict:
     d["correlations"] = {k: _f(v, 4) for k, v in d["correlations"].items()}
     d["corner_sigma_px"] = _f(d["corner_sigma_px"], 3)
     d["corner_sigma_fraction"] = _f(d["corner_sigma_fraction"], 6)
+    for key in ("sigma_fraction", "gnss_height_fraction", "image_field_fraction"):
+        d[key] = _f(d[key], 6)
     return d
 
 
@@ -823,6 +825,10 @@ def _self_calibration_txt(sc: dict) -> list[str]:
                      f": corner sigma {c['corner_sigma_px']:.2f} px ({100 * c['corner_sigma_fraction']:.3f} % of the "
                      f"focal length); correlation {corr}")
             L.append(f"  {'':11} {'estimate' if c['action'] == 'estimated' else 'refused estimate'}: {est}")
+            if c.get("sigma_fraction") is not None:
+                L.append(f"  {'':11} over the focal length: sigma {100 * c['sigma_fraction']:.3f} %, moved by up to "
+                         f"{100 * (c['gnss_height_fraction'] or 0.0):.3f} % by GNSS heights off by their sigma, "
+                         f"{100 * (c['image_field_fraction'] or 0.0):.3f} % by an unmodelled image field")
             if c["reason"]:
                 L.append(f"  {'':11} not determinable: {c['reason']}")
     return L
