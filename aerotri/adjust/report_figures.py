@@ -115,7 +115,8 @@ def _map_axes(ax, origin, extent_m: float) -> str:
 
 def ground_residual_map(rep: dict) -> Figure | None:
     """Control (triangles) and check points (circles) with their plan residual vectors (arrows, scale key
-    in metres) and the height residual as colour (colour bar in metres)."""
+    in metres) and the height residual as colour (colour bar in metres); points without a height residual
+    (plan-only control) in grey, and no colour bar when no point has one."""
     ctrl = [r for r in rep.get("control_points", []) if r.get("used") and r.get("given_m") and r.get("residual_m")]
     chk = [r for r in rep.get("check_points", []) if r.get("d_m") and None not in r["d_m"] and r.get("measured_m")]
     if not ctrl and not chk:
@@ -133,20 +134,23 @@ def ground_residual_map(rep: dict) -> Figure | None:
     scale = p95 / (0.08 * extent)  # the 95th percentile residual draws 8 % of the block
     key_m = nice_length(p95)
     fig, ax = plt.subplots(figsize=(10, 8), layout="constrained")  # room for the legend below the map
-    dz = np.nan_to_num(d[:, 2])
-    lim = max(_p95(np.abs(d[:, 2])), 0.01)
+    dz = d[:, 2]
+    has_dz = bool(np.isfinite(dz).any())  # plan-only control and no check point: no height to colour by
+    lim = max(_p95(np.abs(dz)), 0.01)
+    cmap = plt.colormaps["RdBu_r"].with_extremes(bad="0.8")  # grey: a point without a height residual
     sc = None
     for m, marker, label, size in ((~is_ctrl, "o", f"check points ({int((~is_ctrl).sum())})", 22),
                                    (is_ctrl, "^", f"control points ({int(is_ctrl.sum())})", 70)):
         if m.any():
-            sc = ax.scatter(x[m], y[m], c=dz[m], cmap="RdBu_r", vmin=-lim, vmax=lim, marker=marker, s=size,
-                            edgecolors="k", linewidths=0.4, label=label, zorder=3)
+            sc = ax.scatter(x[m], y[m], c=dz[m], cmap=cmap, vmin=-lim, vmax=lim, marker=marker, s=size,
+                            plotnonfinite=True, edgecolors="k", linewidths=0.4, label=label, zorder=3)
     q = ax.quiver(x, y, np.nan_to_num(d[:, 0]), np.nan_to_num(d[:, 1]), angles="xy", scale_units="xy", scale=scale,
                   width=0.0025, color=np.where(is_ctrl, "tab:red", "0.15").tolist(), zorder=4)
     ax.margins(0.06)
     ax.quiverkey(q, 0.97, 1.015, key_m, f"{_fmt(key_m)} m plan residual", labelpos="W", coordinates="axes")
     bar = _map_axes(ax, o, extent)
-    fig.colorbar(sc, ax=ax, shrink=0.8, label="height residual dZ (m)")
+    if has_dz:
+        fig.colorbar(sc, ax=ax, shrink=0.8, label="height residual dZ (m)")
     for r, xi, yi in zip(ctrl, x[is_ctrl], y[is_ctrl]):
         ax.annotate(str(r["id"]), (xi, yi), fontsize=7, xytext=(4, 4), textcoords="offset points")
     worst = np.argsort(-np.nan_to_num(plan))[:5]
@@ -159,8 +163,11 @@ def ground_residual_map(rep: dict) -> Figure | None:
                  fontsize=11)
     return Figure("Control and check-point residual vectors",
                   "Arrows: plan residual of each point (control red, check black; the five largest check "
-                  "residuals are named); marker colour: height residual.",
-                  f"arrow = {_fmt(key_m)} m on the ground; map scale bar {bar}; colour -{lim:.2f} .. +{lim:.2f} m dZ",
+                  "residuals are named); "
+                  + ("marker colour: height residual (grey: none)." if has_dz else
+                     "plan-only control: no height residuals."),
+                  f"arrow = {_fmt(key_m)} m on the ground; map scale bar {bar}; "
+                  + (f"colour -{lim:.2f} .. +{lim:.2f} m dZ" if has_dz else "no height residuals"),
                   fig)
 
 

@@ -56,7 +56,9 @@ class SurfaceSettings:
 
     cell_m: float | None = setting(None, min=0.0, min_open=True,
                                    help="Cell size (m) of the planes and difference rasters (default: about 12 "
-                                        "single returns per cell at the strips' density, at least 1 m).")
+                                        "single returns per cell at the strips' density, at least 1 m; a strip "
+                                        "under a quarter of the density most points are at is left out of it "
+                                        "and reported not compared).")
     min_points: int = setting(6, min=4, help="Single returns a cell needs for its plane.")
     max_rms_m: float = setting(0.10, min=0.0, min_open=True, help="Largest RMS residual of a planar cell (m).")
     max_multi_fraction: float = setting(0.3, min=0.0, max=1.0,
@@ -186,37 +188,62 @@ def _check_crs(sources, crs_arg):
     return first[1], first[2]
 
 
+# a strip sparser than this share of the density most points are at (a fragment, a few pulses along a whole
+# strip) is left out of the default cell: counted, it would make every other strip's cells more than twice as
+# wide (a 50-point strip spanning a full strip's box made them 44 m, and nothing was planar); it is reported
+# "not compared" instead
+SPARSE_DENSITY_SHARE = 0.25
+
+
 def _default_cell_m(sources, units: LengthUnits) -> float:
-    """About 12 points per cell at the density of the files' header boxes (the boxes overestimate the
-    area of a strip that is not axis-aligned: the cell comes out a bit large, never too small; a file of
-    several strips counts the points of its overlaps twice: a bit small there)."""
-    cell = np.sqrt(12.0 / max(_min_density(sources, units), 1e-9))
+    """About 12 points per cell at the lowest density of the files that are not far sparser than most points
+    (``SPARSE_DENSITY_SHARE``), density = points / header box (the boxes overestimate the area of a strip that
+    is not axis-aligned: the cell comes out a bit large, never too small; a file of several strips counts the
+    points of its overlaps twice: a bit small there)."""
+    dens = _densities(sources, units)
+    ref = _bulk_density(dens)
+    kept = {p: d for p, (n, d) in dens.items() if d >= SPARSE_DENSITY_SHARE * ref}
+    for p in dens.keys() - kept.keys():
+        log.info("%s: %d points, %.3g points/m2 (header box): too sparse to set the default cell size (most points "
+                 "at %.3g points/m2)", p, dens[p][0], dens[p][1], ref)
+    cell = np.sqrt(12.0 / max(min(kept.values()), 1e-9))
     return float(max(1.0, np.ceil(cell * 2.0) / 2.0))
 
 
-def _min_density(sources, units: LengthUnits) -> float:
-    """The lowest point density (points per m2) of the files' header boxes."""
-    dens = []
+def _densities(sources, units: LengthUnits) -> dict:
+    """File -> (points, point density in points per m2 of its header box)."""
+    out = {}
     for path in dict.fromkeys(s.path for s in sources):
         h = las.read_header(path)
         mins, maxs = np.asarray(h.mins, float), np.asarray(h.maxs, float)
         area = max((maxs[0] - mins[0]) * (maxs[1] - mins[1]) * units.xy_m ** 2, 1e-6)
-        dens.append(h.point_count / area)
-    return min(dens)
+        out[path] = (int(h.point_count), h.point_count / area)
+    return out
+
+
+def _bulk_density(dens: dict) -> float:
+    """The density most points are at: the points-weighted median of the files' densities (points per m2)."""
+    n = np.array([v[0] for v in dens.values()], float)
+    d = np.array([v[1] for v in dens.values()], float)
+    order = np.argsort(-d)
+    k = int(np.searchsorted(np.cumsum(n[order]), 0.5 * n.sum()))
+    return float(d[order][min(k, len(d) - 1)])
 
 
 def _check_cell(sources, units: LengthUnits, params) -> None:
-    """OptionError naming --cell-m when a given cell holds on average fewer points than a plane needs (at the
-    header boxes' density): every cell would be dropped and the strips reported as without a smooth surface."""
+    """OptionError naming --cell-m when a given cell holds on average fewer points than a plane needs at the
+    density most points are at (header boxes): every cell of most strips would be dropped and the strips
+    reported as without a smooth surface. A sparser strip (a fragment) does not refuse it: it is reported not
+    compared."""
     if params.cell_m is None:
         return
-    dens = _min_density(sources, units)
+    dens = _bulk_density(_densities(sources, units))
     # the header boxes may overstate a strip's area a few times (a diagonal strip): refused only beyond that
     if 4.0 * dens * params.cell_m ** 2 < params.min_points:
         raise OptionError(f"{params.cell_m:g} m: cells this small hold about {dens * params.cell_m ** 2:.2g} points at "
-                          f"the strips' density ({dens:.2f} points/m2), fewer than the {params.min_points} a plane "
-                          f"needs (--min-points); use at least {np.sqrt(params.min_points / dens):.2g} m",
-                          param="--cell-m")
+                          f"the density of most of the strips' points ({dens:.2f} points/m2), fewer than the "
+                          f"{params.min_points} a plane needs (--min-points); use at least "
+                          f"{np.sqrt(params.min_points / dens):.2g} m", param="--cell-m")
 
 
 def _grid(sources, units: LengthUnits, cell_m: float) -> Grid:

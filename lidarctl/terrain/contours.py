@@ -319,13 +319,9 @@ def write_contours(cs: ContourSet, path, crs, z_unit_name: str, z_unit_m: float)
 def preview_png(cs: ContourSet, dem: np.ndarray, transform, path, title: str = "") -> Path:
     """Contours (index lines thicker) over the DEM's hillshade."""
     plt = pyplot()
-    from scipy import ndimage
-
     from lidarctl.rasters.products import hillshade
 
-    # no shading where the filled nodata enters the gradient
-    hs = np.where(ndimage.binary_erosion(np.isfinite(dem), iterations=1, border_value=1),
-                  hillshade(dem, abs(transform.a)), np.nan)
+    hs = hillshade(dem, abs(transform.a))  # slopes from valid cells only: no rim along nodata to trim
     ny, nx = dem.shape
     extent = (transform.c, transform.c + nx * transform.a, transform.f + ny * transform.e, transform.f)
     h_in = min(12.0, 8.0 * ny / max(nx, 1)) + 0.8

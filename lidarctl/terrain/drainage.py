@@ -560,12 +560,10 @@ def preview_png(dem, transform, net: Network, path, title: str, dx_m: float) -> 
     plt = pyplot()
     import shapely
     from matplotlib.collections import LineCollection
-    from scipy import ndimage
 
     from lidarctl.rasters.products import hillshade
 
-    ok = np.isfinite(dem)
-    hs = np.where(ndimage.binary_erosion(ok, iterations=1, border_value=1), hillshade(dem, dx_m), np.nan)
+    hs = hillshade(dem, dx_m)  # slopes from valid cells only: no rim along nodata to trim
     ny, nx = dem.shape
     extent = (transform.c, transform.c + nx * transform.a, transform.f + ny * transform.e, transform.f)
     h_in = min(12.0, 8.0 * ny / max(nx, 1)) + 0.8

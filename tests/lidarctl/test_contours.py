@@ -209,3 +209,23 @@ def test_a_zero_level_reached_from_below_is_written_0(tmp_path):
                                   "--no-png"])
     assert r.exit_code == 0, r.output
     assert "from 0 to 3 ft" in r.output and "from -0" not in r.output and " -0 " not in r.output
+
+
+def test_map_shades_every_valid_cell_up_to_a_hole(tmp_path, monkeypatch):
+    """A tilted plane with a nodata hole: the contour map's hillshade covers every valid cell (the map no longer
+    trims a cell along nodata) in one grey (no rim: slopes from valid cells only)."""
+    from matplotlib.axes import Axes
+
+    r, c = np.mgrid[0:60, 0:60].astype(float)
+    z = 100.0 - 0.1 * c - 0.02 * r
+    z[25:35, 20:40] = np.nan
+    with rasterio.open(tmp_path / "dem.tif", "w", driver="GTiff", width=60, height=60, count=1, dtype="float32",
+                       crs="EPSG:32633", transform=from_origin(1000.0, 5000.0, 2.0, 2.0), nodata=-9999.0) as d:
+        d.write(np.where(np.isfinite(z), z, -9999.0).astype("float32"), 1)
+    drawn, imshow = [], Axes.imshow
+    monkeypatch.setattr(Axes, "imshow", lambda ax, a, *args, **kw: (drawn.append(np.asarray(a)), imshow(ax, a, *args, **kw))[1])
+    res = CliRunner().invoke(main, ["contours", str(tmp_path / "dem.tif"), str(tmp_path / "c.gpkg"), "--interval-m", "1"])
+    assert res.exit_code == 0, res.output
+    (hs,) = drawn
+    assert np.array_equal(np.isfinite(hs), np.isfinite(z))
+    assert np.ptp(hs[np.isfinite(hs)]) < 1e-4  # float32 heights; a grey level is 1/256

@@ -199,3 +199,27 @@ def test_zero_streams_say_why_and_what_to_change(tmp_path):
     r = CliRunner().invoke(main, ["drainage", str(tmp_path / "y.tif"), str(tmp_path / "o2"), "--min-area-m2", "20000"])
     assert r.exit_code == 0 and "0 streams" in r.output and "largest upstream area is 10,000 m2" in r.output
     assert "(given (--min-area-m2))" in r.output
+
+
+def _drawn_hillshade(monkeypatch):
+    """The arrays the map draws with imshow (the hillshade), recorded."""
+    from matplotlib.axes import Axes
+
+    drawn, imshow = [], Axes.imshow
+    monkeypatch.setattr(Axes, "imshow", lambda ax, a, *args, **kw: (drawn.append(np.asarray(a)), imshow(ax, a, *args, **kw))[1])
+    return drawn
+
+
+def test_map_shades_every_valid_cell_up_to_a_hole(tmp_path, monkeypatch):
+    """A tilted plane with a nodata hole: the drainage map's hillshade covers every valid cell (the map no longer
+    trims a cell along nodata) in one grey (no rim: slopes from valid cells only)."""
+    r, c = np.mgrid[0:60, 0:60].astype(float)
+    z = 100.0 - 0.1 * c - 0.02 * r
+    z[25:35, 20:40] = np.nan
+    _write(tmp_path / "dem.tif", z, "EPSG:32633", 2.0)
+    drawn = _drawn_hillshade(monkeypatch)
+    r = CliRunner().invoke(main, ["drainage", str(tmp_path / "dem.tif"), str(tmp_path / "o"), "--min-area-m2", "400"])
+    assert r.exit_code == 0, r.output
+    (hs,) = drawn
+    assert np.array_equal(np.isfinite(hs), np.isfinite(z))
+    assert np.ptp(hs[np.isfinite(hs)]) < 1e-4  # float32 heights; a grey level is 1/256

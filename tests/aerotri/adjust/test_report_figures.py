@@ -210,3 +210,29 @@ def test_the_template_places_every_figure_once(adjusted, monkeypatch):
     assert sorted(alts) == sorted(f.title for f in [*figs, extra])
     assert alts[-1] == extra.title and html.index("<h2>Flight acceptance</h2>") < html.index(
         "alt='Flight: footprints on the terrain")
+
+
+def _colour_bars(fig):
+    return [ax for ax in fig.axes if ax.get_label() == "<colorbar>"]
+
+
+def test_ground_residual_map_of_plan_only_control_has_no_height_colour_bar():
+    """Plan-only control (no height observation) and no check point: no dZ colour bar (the kite block showed a
+    +-0.01 m bar over nothing), the key says so; a check point with a height brings the bar back, the plan-only
+    control points drawn grey (no colour of a height residual they do not have)."""
+    ctrl = [{"id": f"gcp{k}", "used": True, "given_m": [235000.0 + 50 * k, 3811000.0 + 30 * k, 0.0],
+             "residual_m": [0.02 * k, -0.01, None]} for k in range(5)]
+    f = RF.ground_residual_map({"control_points": ctrl, "check_points": []})
+    assert _colour_bars(f.fig) == []
+    assert "plan-only control: no height residuals" in f.caption and "no height residuals" in f.key
+    assert "dZ" not in f.key
+    (pts,) = f.fig.axes[0].collections[:1]
+    assert len(pts.get_offsets()) == 5
+    chk = [{"id": "chk1", "d_m": [0.01, 0.02, -0.04], "measured_m": [235100.0, 3811050.0, 0.0]}]
+    f = RF.ground_residual_map({"control_points": ctrl, "check_points": chk})
+    (bar,) = _colour_bars(f.fig)
+    assert "dZ" in bar.get_ylabel() and "-0.04 .. +0.04 m dZ" in f.key
+    f.fig.canvas.draw()
+    check_pts, ctrl_pts = f.fig.axes[0].collections[:2]
+    assert np.allclose(ctrl_pts.get_facecolors()[:, :3], 0.8)  # grey: no height residual
+    assert not np.allclose(check_pts.get_facecolors()[:, :3], 0.8)

@@ -156,3 +156,28 @@ def test_page_says_why_a_strip_was_not_compared_and_shows_small_sigmas(clean_blo
     assert len(shown) == len(sigmas) and min(sigmas) < 0.001  # "%.3f": 0.001 for 0.00052, 0.000 below 0.0005
     for v, sd in zip(shown, sigmas):
         assert v > 0 and abs(v - sd) <= 0.2 * sd
+
+
+def test_a_sparse_strip_neither_sets_the_cell_nor_refuses_one(clean_block, tmp_path):
+    """50 points spread along the whole of strip 3 (its header box a full strip's): the default cell comes from
+    the strips that have points (it was 44 m from the sparse strip's box, and the check stopped with "no smooth
+    surface"), the sparse strip is reported not compared, and an explicit --cell-m is honoured (it was refused
+    "for the strips' density"); a cell too small for the dense strips is still refused, naming the option."""
+    las = laspy.read(clean_block.paths[2])
+    order = np.argsort(np.asarray(las.gps_time), kind="stable")
+    las.points = las.points[order[np.linspace(0, len(order) - 1, 50).astype(int)]]
+    las.write(tmp_path / "sparse.las")
+    assert np.ptp(np.asarray(las.x)) > 150.0  # along the whole strip
+    paths = [*clean_block.paths[:2], tmp_path / "sparse.las"]
+    for args, cell_m in (((), None), (("--cell-m", "3"), 3.0)):
+        out = tmp_path / f"out{len(args)}"
+        r = _check(paths, out, *args)
+        assert r.exit_code == 0, r.output
+        s = read_strip_check(out / "strips.json")
+        assert s.cell_m == cell_m if cell_m else 2.0 <= s.cell_m <= 5.0  # ~12 points a cell at ~1.2 points/m2
+        (p,) = s.pairs
+        assert (p.a, p.b) == ("strip_1", "strip_2") and p.diff.n_cells >= 50 and abs(p.diff.mean_m) < 0.005
+        assert s.strips[2].points == 50 and s.strips[2].minus_others.n_cells == 0
+        assert "not compared: 50 points, 0 planar cells" in (out / "index.html").read_text()
+    _assert_refused(_check(paths, tmp_path / "out_small", "--cell-m", "0.5"), tmp_path / "out_small", "--cell-m",
+                    "fewer than the 6 a plane needs")
