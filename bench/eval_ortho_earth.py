@@ -21,7 +21,12 @@ Make the project (about 100 CPU-s, 0.9 GB; frames identical to the block of ``be
       --set truth.raster_res_m=0.1 --set lidar.pulse_rate_hz=10000
 and its 0.5 m DEM and nDSM (every fifth cell of truth/dem.tif and dsm.tif from the third: the cell centres of 0.5 m).
 Usage: python bench/eval_ortho_earth.py --project DIR --dem DEM_0.5 --ndsm NDSM_0.5 --work SCRATCH
-       [--frame s01_002] [--res-m 0.1] [--key ...] [--out bench/results/true_ortho_roofs.json]
+       [--frames s01_002|all|ID,ID] [--eo truth/eo.txt] [--camera truth/camera.toml] [--res-m 0.1] [--key ...]
+       [--out bench/results/true_ortho_roofs.json]
+The demo with its adjusted orientation (the chain's at/eo.txt and at/camera.toml, its LiDAR DEM and nDSM; every
+frame; a copy of /work/ref/demo_chain/project): ``--project DIR --dem DIR/lidar_out/dem.tif --ndsm
+DIR/lidar_out/ndsm.tif --frames all --eo at/eo.txt --camera at/camera.toml --res-m 0.4 --key demo_adjusted_eo_...``.
+The figures pool the patches of every frame's whole ortho (before a mosaic keeps each cell's nadir-most frame).
 """
 
 from __future__ import annotations
@@ -49,8 +54,10 @@ def stats(dx_px, dy_px) -> dict:
 
 
 def radial_fit(x_m, y_m, de_m, dn_m, nadir) -> dict:
-    """Least squares of (dE, dN) = s (x - nadir) + (tE, tN): the scale in ppm and the shift in metres."""
-    ox, oy = x_m - nadir[0], y_m - nadir[1]
+    """Least squares of (dE, dN) = s (x - nadir) + (tE, tN): the scale in ppm and the shift in metres (``nadir``
+    (2,) or the nadir of each point's frame (N, 2))."""
+    nadir = np.broadcast_to(np.asarray(nadir, float), (len(x_m), 2))
+    ox, oy = x_m - nadir[:, 0], y_m - nadir[:, 1]
     n = len(x_m)
     A = np.zeros((2 * n, 3))
     A[:n, 0], A[n:, 0] = ox, oy
@@ -86,11 +93,12 @@ def rectify_to(path: Path, image, cam, C, R, dem, grid, earth: bool) -> float:
     from ortho.rectify import rectify_frame
 
     c0 = time.process_time()
+    bands = 1 if image.ndim == 2 else image.shape[2]  # in the frame's channel order: the check takes their mean
     with rasterio.Env(GDAL_TIFF_INTERNAL_MASK=True), \
-            rasterio.open(path, "w", **frame_profile(grid, 1, image.dtype.name)) as dst:
+            rasterio.open(path, "w", **frame_profile(grid, bands, image.dtype.name)) as dst:
         def sink(r0, c0_, o, m):
             w = Window(c0_, r0, m.shape[1], m.shape[0])
-            dst.write(o, window=w, indexes=[1])
+            dst.write(o, window=w, indexes=list(range(1, bands + 1)))
             dst.write_mask(m, window=w)
 
         rectify_frame(image, cam, C, R, dem, grid, sink=sink, sink_bands_first=True, earth=earth)
@@ -102,8 +110,10 @@ def main() -> None:
     ap.add_argument("--project", type=Path, required=True)
     ap.add_argument("--dem", type=Path, required=True)
     ap.add_argument("--ndsm", type=Path, required=True)
-    ap.add_argument("--work", type=Path, required=True, help="scratch folder for the two frame orthos")
-    ap.add_argument("--frame", default="s01_002")
+    ap.add_argument("--work", type=Path, required=True, help="scratch folder for the frame orthos")
+    ap.add_argument("--frames", default="s01_002", help="image ids, comma-separated, or 'all'")
+    ap.add_argument("--eo", default="truth/eo.txt", help="orientations, relative to the project")
+    ap.add_argument("--camera", default="truth/camera.toml", help="the camera of --eo, relative to the project")
     ap.add_argument("--res-m", type=float, default=0.1, help="the orthos' cell (the frames' GSD)")
     ap.add_argument("--key", default="dmc_1_frame_true_eo_open_ground_flat_vs_earth")
     ap.add_argument("--out", type=Path, default=REPO / "bench" / "results" / "true_ortho_roofs.json")
@@ -114,48 +124,58 @@ def main() -> None:
 
     from aerotri.geom.camera import BrownCamera
     from aerotri.geom.eo import read_eo
+    from aerotri.geom.images import read_native
     from aerotri.geom.local_frame import CameraOnEarth
     from ortho.check import check_against_reference
-    from ortho.dem import HeightRaster
+    from ortho.dem import open_height_raster, read_height_window
     from ortho.grid import GridToProject
-    from ortho.rectify import FrameFile, frame_grid
+    from ortho.rectify import WINDOWED_FRAME_BYTES, FrameFile, frame_grid
 
     p = args.project
-    eo = read_eo(p / "truth" / "eo.txt")
-    cam = BrownCamera.read(p / "truth" / "camera.toml")
-    k = eo.row(args.frame)
-    C, R = eo.centre_m[k], eo.rotation(k)
-    with rasterio.open(args.dem) as ds:
-        t = ds.transform
-        dem = HeightRaster(ds.read(1).astype(np.float32), t.c, t.f, t.a, ds.crs, str(args.dem))
-        crs = ds.crs
-    grid = frame_grid(cam, C, R, dem, args.res_m, crs, to_project=GridToProject(crs, crs), image_id=args.frame)
-    image = FrameFile(p / "images" / f"{args.frame}.tif")
-    earth = CameraOnEarth(crs, C, R)
-    result = {"project": str(p), "frame": args.frame, "grid_px": [grid.width, grid.height], "res_m": grid.res_m,
+    eo = read_eo(p / args.eo)
+    cam = BrownCamera.read(p / args.camera)
+    frames = eo.image_id if args.frames == "all" else args.frames.split(",")
+    with open_height_raster(args.dem, None) as ds:  # nodata as NaN
+        dem, crs = read_height_window(ds, tuple(ds.bounds)), ds.crs
+    result = {"project": str(p), "eo": args.eo, "camera": args.camera, "frames": list(frames), "res_m": args.res_m,
               "dem": str(args.dem), "ndsm": str(args.ndsm), "earth_ppm_note": "scale_ppm > 0: the DOM's ground moved "
               "away from the nadir (the flat mapping samples the frame too near its principal point)"}
     args.work.mkdir(parents=True, exist_ok=True)
-    patches = {}
-    for name, on_earth in (("flat", False), ("earth", True)):
-        path = args.work / f"{args.frame}_{name}.tif"
-        cpu_rect = rectify_to(path, image, cam, C, R, dem, grid, on_earth)
-        c1 = time.process_time()
-        pd, _ = check_against_reference(path, p / "truth" / "ortho.tif", args.ndsm)
-        x = grid.x_left_m + (pd.col_px + 0.5) * grid.res_m
-        y = grid.y_top_m - (pd.row_px + 0.5) * grid.res_m
-        patches[name] = (pd, x, y)
-        result[name] = {"open_ground": stats(pd.dx_px, pd.dy_px),
-                        "radial_fit": radial_fit(x, y, pd.de_m, pd.dn_m, C[:2]),
-                        "rectify_cpu_s": round(cpu_rect, 1), "check_cpu_s": round(time.process_time() - c1, 1)}
+    found = {"flat": [], "earth": []}  # per frame: dx, dy px, x, y m, nadir, predicted dx, dy (flat)
+    cpu = {"flat": [0.0, 0.0], "earth": [0.0, 0.0]}
+    for iid in frames:
+        k = eo.row(iid)
+        C, R = eo.centre_m[k], eo.rotation(k)
+        grid = frame_grid(cam, C, R, dem, args.res_m, crs, to_project=GridToProject(crs, crs), image_id=iid,
+                          partial=True)
+        path = p / "images" / f"{iid}.tif"
+        with rasterio.open(path) as ds:
+            big = ds.width * ds.height * ds.count * np.dtype(ds.dtypes[0]).itemsize > WINDOWED_FRAME_BYTES
+        image = FrameFile(path) if big else read_native(path, (cam.width, cam.height))[0]
+        for name, on_earth in (("flat", False), ("earth", True)):
+            out = args.work / f"{iid}_{name}.tif"
+            cpu[name][0] += rectify_to(out, image, cam, C, R, dem, grid, on_earth)
+            c1 = time.process_time()
+            pd, _ = check_against_reference(out, p / "truth" / "ortho.tif", args.ndsm)
+            cpu[name][1] += time.process_time() - c1
+            x = grid.x_left_m + (pd.col_px + 0.5) * grid.res_m
+            y = grid.y_top_m - (pd.row_px + 0.5) * grid.res_m
+            pred = predicted_flat(cam, C, R, CameraOnEarth(crs, C, R), x, y, dem.sample(x, y), grid.res_m) \
+                if name == "flat" else (np.zeros(0), np.zeros(0))
+            found[name].append((pd.dx_px, pd.dy_px, x, y, np.tile(C[:2], (len(x), 1)), *pred))
+        if isinstance(image, FrameFile):
+            image.close()
+    cat = {name: [np.concatenate(a) for a in zip(*rows)] for name, rows in found.items()}
+    for name in ("flat", "earth"):
+        dx, dy, x, y, nadir = cat[name][:5]
+        result[name] = {"open_ground": stats(dx, dy),
+                        "radial_fit": radial_fit(x, y, dx * args.res_m, -dy * args.res_m, nadir),
+                        "rectify_cpu_s": round(cpu[name][0], 1), "check_cpu_s": round(cpu[name][1], 1)}
         print(name, json.dumps(result[name]), flush=True)
-    image.close()
-    pd, x, y = patches["flat"]
-    z = dem.sample(x, y)
-    px, py = predicted_flat(cam, C, R, earth, x, y, z, grid.res_m)
+    dx, dy, x, y, nadir, px, py = cat["flat"]
     result["predicted_flat"] = stats(px, py)
-    result["predicted_flat"]["radial_fit"] = radial_fit(x, y, px * grid.res_m, -py * grid.res_m, C[:2])
-    result["flat_minus_predicted"] = stats(pd.dx_px - px, pd.dy_px - py)
+    result["predicted_flat"]["radial_fit"] = radial_fit(x, y, px * args.res_m, -py * args.res_m, nadir)
+    result["flat_minus_predicted"] = stats(dx - px, dy - py)
     result["cpu_s"] = round(time.process_time() - cpu0, 1)
     result["wall_s"] = round(time.perf_counter() - t0, 1)
     result["load_avg_1min_at_end"] = os.getloadavg()[0]

@@ -4,7 +4,9 @@ For every pixel of the output grid (processed in tiles): the ground position in 
 (interpolated from an anchor grid of the output->project CRS transform, exact for an identical CRS),
 the height bilinearly from the DEM (or DSM for a true ortho), the collinearity equations with the
 camera's lens model (``aerotri.geom.lens_kernels``, inlined into the kernels here) to image coordinates,
-then ``cv2.remap`` (bilinear default, cubic or Lanczos) with fixed-point maps written directly by the
+the point reaching the camera through the ENU frame at the projection centre as the orientations mean it
+(``FrameGeometry.earth``: scale factor, (R + h) / R, convergence and the earth's curvature; a projected CRS is
+not Cartesian), then ``cv2.remap`` (bilinear default, cubic or Lanczos) with fixed-point maps written directly by the
 kernel. Pixels outside the frame, behind the camera or over DEM nodata are invalid (mask 0, value 0).
 
 The collinearity is evaluated exactly at every output pixel in a compiled, vectorised kernel (about

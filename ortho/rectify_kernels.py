@@ -7,7 +7,7 @@ The kernels take their repeated argument groups as the NamedTuples of ``ortho.re
 field name): ``HeightGrid`` (a DEM or DSM: heights, top-left corner, cell size), ``AnchorGrid`` (a tile's project
 coordinates at every ``spacing``-th output pixel), ``AffineTile`` (a tile of the output grid in the project CRS:
 heights, first cell centre, cell size), ``FrameArgs`` (projection centre, object -> camera matrix, lens parameters,
-frame size, ``RayLimits``), ``RemapMaps`` (cv2.remap's fixed-point maps, mask and bounds, written),
+frame size, ``RayLimits``, the earth's 1 / radius: every kernel projects (dx, dy, ``earth_dz``) through the matrix), ``RemapMaps`` (cv2.remap's fixed-point maps, mask and bounds, written),
 ``ZBufferArgs`` (depth per cell, cell size, tolerance), ``MarchArgs`` and ``TilePoints`` (the march's bounds and
 settings; the points of a tile it tests).
 """
