@@ -159,6 +159,7 @@ class GridToProject:
                  operation: CrsTransformer | None = None, z_m: float = 0.0):
         self.tolerance_m = tolerance_m
         self.z_m = float(z_m)
+        self.project_crs = project_crs
         self.identity = CRS(output_crs) == CRS(project_crs) and (operation is None or operation.identity)
         self.operation = None if self.identity else operation or CrsTransformer(project_crs, output_crs)
         self._inverse = None if self.identity else self.operation.inverse()

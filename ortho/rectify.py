@@ -4,7 +4,9 @@ For every pixel of the output grid (processed in tiles): the ground position in 
 (interpolated from an anchor grid of the output->project CRS transform, exact for an identical CRS),
 the height bilinearly from the DEM (or DSM for a true ortho), the collinearity equations with the
 camera's lens model (``aerotri.geom.lens_kernels``, inlined into the kernels here) to image coordinates,
-then ``cv2.remap`` (bilinear default, cubic or Lanczos) with fixed-point maps written directly by the
+the point reaching the camera through the ENU frame at the projection centre as the orientations mean it
+(``FrameGeometry.earth``: scale factor, (R + h) / R, convergence and the earth's curvature; a projected CRS is
+not Cartesian), then ``cv2.remap`` (bilinear default, cubic or Lanczos) with fixed-point maps written directly by the
 kernel. Pixels outside the frame, behind the camera or over DEM nodata are invalid (mask 0, value 0).
 
 The collinearity is evaluated exactly at every output pixel in a compiled, vectorised kernel (about
@@ -42,6 +44,7 @@ import numpy as np
 
 from aerotri.core.errors import InputError
 from aerotri.geom.rotation import FLIP_YZ
+from aerotri.geom.local_frame import CameraOnEarth
 from ortho.grid import GridToProject, OrthoGrid
 
 # the compiled kernels (numba) live in ortho.rectify_kernels, imported by the functions that run them; the
@@ -96,9 +99,10 @@ class AffineTile(NamedTuple):
 
 
 class FrameArgs(NamedTuple):
-    """A frame as the kernels take it: projection centre (3,), the object -> computer-vision camera matrix M =
-    (R @ FLIP_YZ).T, the camera's kernel parameters (``Camera.kernel_params()``), the frame's size and its
-    ``RayLimits``."""
+    """A frame as the kernels take it: projection centre (3,), the object -> computer-vision camera matrix M
+    (``CameraOnEarth.M``; (R @ FLIP_YZ).T in a Cartesian CRS), the camera's kernel parameters
+    (``Camera.kernel_params()``), the frame's size, its ``RayLimits`` and the earth's 1 / radius (``earth_dz``; 0: the
+    flat collinearity)."""
 
     centre_m: np.ndarray
     M: np.ndarray
@@ -106,6 +110,7 @@ class FrameArgs(NamedTuple):
     width_px: int
     height_px: int
     limits: RayLimits
+    inv_radius: float = 0.0
 
 
 class RemapMaps(NamedTuple):
@@ -159,16 +164,22 @@ def _affine_tile(heights_m: np.ndarray, grid: OrthoGrid) -> AffineTile:
 @dataclasses.dataclass
 class FrameGeometry:
     """The per-frame inputs of the back-projection; cells whose ray to the projection centre is more than
-    ``max_view_angle_deg`` from the vertical (90: no limit) are not imaged."""
+    ``max_view_angle_deg`` from the vertical (90: no limit) are not imaged.
+
+    ``earth`` (``aerotri.geom.local_frame.CameraOnEarth``): project-CRS points reach the camera through the ENU frame
+    at the centre, as the adjustment computed the orientations and the simulator renders them (a projected CRS is
+    not Cartesian: at the presets' origin the flat collinearity puts the ground 400 ppm too near the nadir, 2.8 px
+    700 m from it at 0.1 m GSD). None: map coordinates taken as a Cartesian frame (exact for an engineering CRS)."""
 
     camera: Camera
     centre_m: np.ndarray
     R: np.ndarray
     max_view_angle_deg: float = 90.0
+    earth: CameraOnEarth | None = None
 
     def kernel_args(self):
         cam = self.camera
-        M = np.ascontiguousarray((np.asarray(self.R, float) @ FLIP_YZ).T)
+        M = np.ascontiguousarray((np.asarray(self.R, float) @ FLIP_YZ).T) if self.earth is None else self.earth.M
         return np.asarray(self.centre_m, dtype=np.float64), M, cam.kernel_params()
 
     def fold_r2(self) -> float:
@@ -184,7 +195,8 @@ class FrameGeometry:
     def kernel_frame(self) -> FrameArgs:
         """The frame as the kernels take it."""
         centre, M, params = self.kernel_args()
-        return FrameArgs(centre, M, params, self.camera.width, self.camera.height, self.ray_limits())
+        return FrameArgs(centre, M, params, self.camera.width, self.camera.height, self.ray_limits(),
+                         0.0 if self.earth is None else self.earth.inv_radius)
 
 
 def heights_on_grid(dem: HeightRaster, grid: OrthoGrid, out: np.ndarray | None = None) -> np.ndarray:
@@ -565,7 +577,7 @@ class FrameFile:
 def rectify_frame(image: np.ndarray, camera: Camera, centre_m, R, dem_dataset: HeightRaster, grid: OrthoGrid,
                   *, interpolation: str = "bilinear", to_project: GridToProject | None = None,
                   occlusion_dsm: HeightRaster | None = None, tile_px: int = 1024, sink=None, threads: int | None = None,
-                  sink_bands_first: bool = False, max_view_angle_deg: float = 90.0):
+                  sink_bands_first: bool = False, max_view_angle_deg: float = 90.0, earth: bool = True):
     """Orthorectify one frame onto ``grid``; returns (ortho (H, W[, bands]) of image dtype, mask uint8 255/0).
 
     ``image`` is (rows, cols[, bands]) in the camera's pixel convention, in memory, or a ``FrameFile``
@@ -585,12 +597,17 @@ def rectify_frame(image: np.ndarray, camera: Camera, centre_m, R, dem_dataset: H
 
     Tiles of ``tile_px`` are computed by ``threads`` threads (default: all cores); the result does
     not depend on the number of threads.
+
+    ``earth``: project-CRS points reach the camera through the ENU frame at the centre (``FrameGeometry``), as the
+    adjustment's orientations and the simulator's frames mean them; False: map coordinates taken as a Cartesian
+    frame (the rectifier until issue 42, kept for comparisons; the same in an engineering CRS).
     """
     if image.shape[0] != camera.height or image.shape[1] != camera.width:
         raise InputError(f"image is {image.shape[1]} x {image.shape[0]} px but the camera is {camera.width} x {camera.height} px")
     flag = _interpolation_flag(interpolation)
-    geometry = FrameGeometry(camera, np.asarray(centre_m, float), np.asarray(R, float), float(max_view_angle_deg))
     to_project = to_project or GridToProject(grid.crs, grid.crs)
+    geometry = FrameGeometry(camera, np.asarray(centre_m, float), np.asarray(R, float), float(max_view_angle_deg),
+                             CameraOnEarth(to_project.project_crs, centre_m, R) if earth else None)
     bands = () if image.ndim == 2 else (image.shape[2],)
     ortho = None if sink is not None else np.zeros((grid.height, grid.width) + bands, dtype=image.dtype)
     mask = None if sink is not None else np.zeros((grid.height, grid.width), dtype=np.uint8)

@@ -7,7 +7,7 @@ The kernels take their repeated argument groups as the NamedTuples of ``ortho.re
 field name): ``HeightGrid`` (a DEM or DSM: heights, top-left corner, cell size), ``AnchorGrid`` (a tile's project
 coordinates at every ``spacing``-th output pixel), ``AffineTile`` (a tile of the output grid in the project CRS:
 heights, first cell centre, cell size), ``FrameArgs`` (projection centre, object -> camera matrix, lens parameters,
-frame size, ``RayLimits``), ``RemapMaps`` (cv2.remap's fixed-point maps, mask and bounds, written),
+frame size, ``RayLimits``, the earth's 1 / radius: every kernel projects (dx, dy, ``earth_dz``) through the matrix), ``RemapMaps`` (cv2.remap's fixed-point maps, mask and bounds, written),
 ``ZBufferArgs`` (depth per cell, cell size, tolerance), ``MarchArgs`` and ``TilePoints`` (the march's bounds and
 settings; the points of a tile it tests).
 """
@@ -20,6 +20,7 @@ import numba
 import numpy as np
 
 from aerotri.geom.lens_kernels import to_pixel
+from aerotri.geom.local_frame import earth_dz
 
 _INVALID = -1.0e5  # image coordinate written for invalid pixels (far outside any frame)
 INTER_BITS = 5  # cv2.remap fixed-point maps: 1/32 px sub-pixel positions (what it uses internally anyway)
@@ -104,11 +105,12 @@ def _ground_to_image(r, c, anchors, dem, frame, margin):
     dx = X - centre[0]
     dy = Y - centre[1]
     dz = Z - centre[2]
-    zc = M[2, 0] * dx + M[2, 1] * dy + M[2, 2] * dz
+    dze = earth_dz(dx, dy, dz, frame.inv_radius)  # the camera sees the point there (dz in a Cartesian CRS)
+    zc = M[2, 0] * dx + M[2, 1] * dy + M[2, 2] * dze
     if zc <= 0.0:  # behind the camera
         return Z, 0.0, 0.0, False
-    xn = (M[0, 0] * dx + M[0, 1] * dy + M[0, 2] * dz) / zc
-    yn = (M[1, 0] * dx + M[1, 1] * dy + M[1, 2] * dz) / zc
+    xn = (M[0, 0] * dx + M[0, 1] * dy + M[0, 2] * dze) / zc
+    yn = (M[1, 0] * dx + M[1, 1] * dy + M[1, 2] * dze) / zc
     x, y = to_pixel(frame.cam, xn, yn)
     ok = (x >= margin and x <= frame.width_px - 1 - margin and y >= margin and y <= frame.height_px - 1 - margin
           and _within_limits(xn, yn, dx, dy, dz, frame.limits))
@@ -165,7 +167,7 @@ def _fixed_point_kernel(anchors, dem, frame, margin, maps, height_out):
     Not-imaged pixels point far outside the image, so cv2.remap with a constant border gives 0.
     Loop invariants are hoisted by hand (LLVM cannot prove the output arrays do not alias them)."""
     anchor_x, anchor_y = anchors.x_m, anchors.y_m
-    centre, M, cam, limits = frame.centre_m, frame.M, frame.cam, frame.limits
+    centre, M, cam, limits, inv_r = frame.centre_m, frame.M, frame.cam, frame.limits, frame.inv_radius
     map_int, map_frac, mask, bounds = maps
     rows, cols = height_out.shape
     inv_s = 1.0 / anchors.spacing_px
@@ -194,10 +196,11 @@ def _fixed_point_kernel(anchors, dem, frame, margin, maps, height_out):
             dx = X - c0
             dy = Y - c1
             dz = Z - c2
-            zc = m20 * dx + m21 * dy + m22 * dz
+            dze = earth_dz(dx, dy, dz, inv_r)
+            zc = m20 * dx + m21 * dy + m22 * dze
             inv_zc = 1.0 / zc
-            xn = (m00 * dx + m01 * dy + m02 * dz) * inv_zc
-            yn = (m10 * dx + m11 * dy + m12 * dz) * inv_zc
+            xn = (m00 * dx + m01 * dy + m02 * dze) * inv_zc
+            yn = (m10 * dx + m11 * dy + m12 * dze) * inv_zc
             x, y = to_pixel(cam, xn, yn)
             seen = (zc > 0.0) & _within_limits(xn, yn, dx, dy, dz, limits)
             ix_row[c], iy_row[c], mask_row[c] = _fixed_point_entry(x, y, seen, window, far)
@@ -385,7 +388,7 @@ def _fixed_point_kernel_affine(tile, frame, margin, maps):
     fail the range test.
     """
     heights, x0, y0, res = tile
-    centre, M, cam, limits = frame.centre_m, frame.M, frame.cam, frame.limits
+    centre, M, cam, limits, inv_r = frame.centre_m, frame.M, frame.cam, frame.limits, frame.inv_radius
     map_int, map_frac, mask, bounds = maps
     rows, cols = heights.shape
     window = (margin, frame.width_px - 1 - margin, margin, frame.height_px - 1 - margin)
@@ -404,10 +407,11 @@ def _fixed_point_kernel_affine(tile, frame, margin, maps):
         z_row, mask_row = heights[r], mask[r]
         for c in range(cols):
             dz = np.float64(z_row[c]) - centre[2]
-            zc = bz + c * sz + m22 * dz
+            dze = earth_dz(dx0 + c * res, dy, dz, inv_r)
+            zc = bz + c * sz + m22 * dze
             inv_zc = 1.0 / zc
-            xn = (bx + c * sx + m02 * dz) * inv_zc
-            yn = (by + c * sy + m12 * dz) * inv_zc
+            xn = (bx + c * sx + m02 * dze) * inv_zc
+            yn = (by + c * sy + m12 * dze) * inv_zc
             x, y = to_pixel(cam, xn, yn)
             seen = (zc > 0.0) & _within_limits(xn, yn, dx0 + c * res, dy, dz, limits)
             ix_row[c], iy_row[c], mask_row[c] = _fixed_point_entry(x, y, seen, window, far)
@@ -425,7 +429,7 @@ def _zbuffer_kernel(anchors, heights, frame, zbuffer, occluded, scatter):
     wrong place in the image. (The view angle does not apply: a surface seen beyond it may still hide ground within
     it.)"""
     anchor_x, anchor_y = anchors.x_m, anchors.y_m
-    centre, M, cam, fold_r2 = frame.centre_m, frame.M, frame.cam, frame.limits.fold_r2
+    centre, M, cam, fold_r2, inv_r = frame.centre_m, frame.M, frame.cam, frame.limits.fold_r2, frame.inv_radius
     width, height = frame.width_px, frame.height_px
     zbuf, cell_px, tolerance_m = zbuffer
     inv_s = 1.0 / anchors.spacing_px
@@ -449,7 +453,7 @@ def _zbuffer_kernel(anchors, heights, frame, zbuffer, occluded, scatter):
             Y = (1.0 - fr) * ((1.0 - fc) * ay0[j0] + fc * ay0[j0 + 1]) + fr * ((1.0 - fc) * ay1[j0] + fc * ay1[j0 + 1])
             dx = X - centre[0]
             dy = Y - centre[1]
-            dz = Z - centre[2]
+            dz = earth_dz(dx, dy, Z - centre[2], inv_r)
             zc = M[2, 0] * dx + M[2, 1] * dy + M[2, 2] * dz
             if zc <= 0.0:
                 continue
@@ -511,7 +515,7 @@ def _zbuffer_scatter_affine(tile, frame, zbuffer):
     as ``_zbuffer_kernel``) are not surface points, nor ends of a gap. Tiles must overlap by a row and a column for
     the gaps across their edges."""
     heights, x0, y0, res = tile
-    centre, M, cam, fold_r2 = frame.centre_m, frame.M, frame.cam, frame.limits.fold_r2
+    centre, M, cam, fold_r2, inv_r = frame.centre_m, frame.M, frame.cam, frame.limits.fold_r2, frame.inv_radius
     width, height = frame.width_px, frame.height_px
     zbuf, cell_px = zbuffer.depth_m, zbuffer.cell_px
     rows, cols = heights.shape
@@ -535,7 +539,7 @@ def _zbuffer_scatter_affine(tile, frame, zbuffer):
         bz = M[2, 1] * dy + M[2, 0] * dx0
         z_row = heights[r]
         for c in range(cols):
-            dz = np.float64(z_row[c]) - centre[2]
+            dz = earth_dz(dx0 + c * res, dy, np.float64(z_row[c]) - centre[2], inv_r)
             zc = bz + c * sz + m22 * dz
             inv_zc = 1.0 / zc
             xn = (bx + c * sx + m02 * dz) * inv_zc
@@ -578,7 +582,7 @@ def _zbuffer_test_maps(imaged, tile, frame, zbuffer, occluded, near_share):
     there ``near_share`` = that surface's depth / the pixel's (where the march looks first)."""
     map_int, mask = imaged
     heights, x0, y0, res = tile
-    centre, M = frame.centre_m, frame.M
+    centre, M, inv_r = frame.centre_m, frame.M, frame.inv_radius
     zbuf, cell_px, tolerance_m = zbuffer
     rows, cols = heights.shape
     zh, zw = zbuf.shape
@@ -595,7 +599,7 @@ def _zbuffer_test_maps(imaged, tile, frame, zbuffer, occluded, near_share):
         for c in range(cols):
             if mask_row[c] == 0:
                 continue
-            zc = bz + c * sz + m22 * (np.float64(z_row[c]) - centre[2])
+            zc = bz + c * sz + m22 * earth_dz(dx0 + c * res, dy, np.float64(z_row[c]) - centre[2], inv_r)
             i = min(np.int32((int_row[c, 1] + 0.5) * inv_cell), zh - 1)
             j = min(np.int32((int_row[c, 0] + 0.5) * inv_cell), zw - 1)
             if zc > zbuf[i, j] + tolerance_m:

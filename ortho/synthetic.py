@@ -18,6 +18,7 @@ import numpy as np
 
 from aerotri.geom.camera import Camera, BrownCamera
 from aerotri.geom.lens_kernels import to_normalised
+from aerotri.geom.local_frame import CameraOnEarth, earth_dz
 from aerotri.geom.rotation import FLIP_YZ
 from ortho.dem import HeightRaster
 from ortho.grid import OrthoGrid
@@ -108,13 +109,14 @@ def _sample_bilinear(a, u, v):
 @numba.njit(parallel=True, cache=True)
 def _render_kernel(reference, surface, pose, cam, out, valid, *, z_start, march, z_top):
     """The frame ``out`` (H, W, B) and its ``valid`` mask: each pixel's ray (camera ``pose`` (centre, Rcv: camera
-    (cv) to object axes), ``cam``: ``Camera.kernel_params``, a NamedTuple: numba's parallel loops do not take one
-    inside a tuple) meets the raster ``surface`` (heights, x_left, y_top, res; m),
+    (cv) to object axes, the earth's 1 / radius: the ray is straight in (dx, dy, ``earth_dz``), see
+    ``aerotri.geom.local_frame.CameraOnEarth``), ``cam``: ``Camera.kernel_params``, a NamedTuple: numba's parallel
+    loops do not take one inside a tuple) meets the raster ``surface`` (heights, x_left, y_top, res; m),
     at the fixed point of Z from ``z_start`` or (``march``) marching down from ``z_top``, and takes the bilinear
     sample of the orthophoto ``reference`` (bands, x_left, y_top, res) there."""
     ref, ref_x0, ref_y0, ref_res = reference
     dem, dem_x0, dem_y0, dem_res = surface
-    centre, Rcv = pose
+    centre, Rcv, inv_r = pose
     H, W, B = out.shape
     for r in numba.prange(H):
         for c in range(W):
@@ -126,8 +128,8 @@ def _render_kernel(reference, surface, pose, cam, out, valid, *, z_start, march,
             if d2 >= 0:
                 continue
             Z = z_start
-            X = 0.0
-            Y = 0.0
+            X = centre[0]
+            Y = centre[1]
             ok = True
             if march:
                 # first crossing below the surface, stepping 0.25 cell along the ray from above the top
@@ -141,7 +143,7 @@ def _render_kernel(reference, surface, pose, cam, out, valid, *, z_start, march,
                     zs = _sample_bilinear(dem, (X - dem_x0) / dem_res - 0.5, (dem_y0 - Y) / dem_res - 0.5)
                     if zs != zs:
                         break
-                    if centre[2] + t * d2 <= zs:
+                    if t * d2 <= earth_dz(t * d0, t * d1, zs - centre[2], inv_r):
                         hit = True
                         break
                     t_prev = t
@@ -155,13 +157,14 @@ def _render_kernel(reference, surface, pose, cam, out, valid, *, z_start, march,
                     X = centre[0] + tm * d0
                     Y = centre[1] + tm * d1
                     zs = _sample_bilinear(dem, (X - dem_x0) / dem_res - 0.5, (dem_y0 - Y) / dem_res - 0.5)
-                    if centre[2] + tm * d2 <= zs:
+                    if tm * d2 <= earth_dz(tm * d0, tm * d1, zs - centre[2], inv_r):
                         hi = tm
                     else:
                         lo = tm
-                Z = centre[2] + hi * d2
+                X = centre[0] + hi * d0
+                Y = centre[1] + hi * d1
             for _ in range(0 if march else 60):
-                t = (Z - centre[2]) / d2
+                t = earth_dz(X - centre[0], Y - centre[1], Z - centre[2], inv_r) / d2  # X, Y: the last estimate
                 X = centre[0] + t * d0
                 Y = centre[1] + t * d1
                 Zn = _sample_bilinear(dem, (X - dem_x0) / dem_res - 0.5, (dem_y0 - Y) / dem_res - 0.5)
@@ -174,9 +177,10 @@ def _render_kernel(reference, surface, pose, cam, out, valid, *, z_start, march,
                 Z = Zn
             if not ok:
                 continue
-            t = (Z - centre[2]) / d2
-            X = centre[0] + t * d0
-            Y = centre[1] + t * d1
+            if not march:
+                t = earth_dz(X - centre[0], Y - centre[1], Z - centre[2], inv_r) / d2
+                X = centre[0] + t * d0
+                Y = centre[1] + t * d1
             u = (X - ref_x0) / ref_res - 0.5
             v = (ref_y0 - Y) / ref_res - 0.5
             if not (u >= 0 and v >= 0 and u <= ref.shape[1] - 1 and v <= ref.shape[0] - 1):
@@ -188,20 +192,29 @@ def _render_kernel(reference, surface, pose, cam, out, valid, *, z_start, march,
 
 
 def render_frame(reference: np.ndarray, reference_grid: OrthoGrid, dem: HeightRaster, camera: Camera, centre_m, R,
-                 *, march: bool = False):
+                 *, march: bool = False, crs=None):
     """Render a frame (height, width, bands) uint8 and its validity mask from a ground-truth orthophoto.
 
     ``march``: intersect rays by marching (needed for a DSM with vertical walls); otherwise by
-    fixed-point iteration on Z (smooth DEMs).
+    fixed-point iteration on Z (smooth DEMs). The world is in ``crs`` (default the reference grid's; None: map
+    coordinates taken as a Cartesian frame): the camera sees it through the ENU frame at its centre, as a camera
+    over the earth does and ``ortho.rectify`` maps it (``aerotri.geom.local_frame.CameraOnEarth``), ``R`` referring
+    to the grid axes at the centre as eo.txt does.
     """
     ref = np.ascontiguousarray(reference if reference.ndim == 3 else reference[:, :, None]).astype(np.float32)
     out = np.zeros((camera.height, camera.width, ref.shape[2]), np.uint8)
     valid = np.zeros((camera.height, camera.width), np.bool_)
-    Rcv = np.ascontiguousarray(np.asarray(R, float) @ FLIP_YZ)
-    cam = camera.kernel_params()
+    crs = reference_grid.crs if crs is None else crs
+    C = np.asarray(centre_m, float)
     z0 = float(np.nanmean(dem.heights_m))
+    if crs is None:
+        Rcv, inv_r = np.ascontiguousarray(np.asarray(R, float) @ FLIP_YZ), 0.0
+    else:  # camera-frame coordinates M (dx, dy, earth_dz): the rays (dx, dy, earth_dz) = t M^-1 (xn, yn, 1)
+        earth = CameraOnEarth(crs, C, R)
+        Rcv, inv_r = np.ascontiguousarray(np.linalg.inv(earth.M)), earth.inv_radius
+    cam = camera.kernel_params()
     _render_kernel((ref, reference_grid.x_left_m, reference_grid.y_top_m, reference_grid.res_m),
-                   (dem.heights_m, dem.x_left_m, dem.y_top_m, dem.res_m), (np.asarray(centre_m, float), Rcv), cam,
+                   (dem.heights_m, dem.x_left_m, dem.y_top_m, dem.res_m), (C, Rcv, float(inv_r)), cam,
                    out, valid, z_start=z0, march=bool(march), z_top=float(np.nanmax(dem.heights_m)) + 0.1)
     return (out if reference.ndim == 3 else out[:, :, 0]), valid
 
@@ -284,7 +297,8 @@ def write_synthetic_project(root, *, strips: int = 2, frames_per_strip: int = 3,
     write_text_atomic(root / "at" / "camera.toml", camera.to_toml())
     write_eo(root / "truth" / "eo.txt", eo)
     for i, iid in enumerate(ids):
-        img, _ = render_frame(ortho_truth, grid, dsm, camera, eo.centre_m[i], eo.rotation(i), march=bool(buildings))
+        img, _ = render_frame(ortho_truth, grid, dsm, camera, eo.centre_m[i], eo.rotation(i), march=bool(buildings),
+                              crs=crs)
         cv2.imwrite(str(root / "images" / f"{iid}.tif"), cv2.cvtColor(img, cv2.COLOR_RGB2BGR))
     for name, hr in (("lidar_out/dem.tif", dem), ("truth/dem.tif", dem), ("truth/dsm.tif", dsm)):
         write_geotiff(root / name, hr.heights_m, hr.x_left_m, hr.y_top_m, hr.res_m, crs)

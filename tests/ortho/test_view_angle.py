@@ -200,7 +200,8 @@ def test_no_surface_beyond_the_lens_fold_stands_in_a_true_orthos_zbuffer(output_
     assert imaged.sum() > 5000 and np.all(r[imaged] <= fold * 1.002)
     # the true ortho of a plane (nothing hides anything) is the conventional one
     img = (np.arange(cam.height * cam.width) % 251).astype(np.uint8).reshape(cam.height, cam.width)
-    conventional = rectify_frame(img, cam, C, R, dsm, grid, to_project=to_project, tile_px=128)
-    true = rectify_frame(img, cam, C, R, dsm, grid, to_project=to_project, tile_px=128, occlusion_dsm=dsm)
+    # the flat collinearity, as the geometry above (``FrameGeometry`` without the earth) and the plane's depth
+    conventional = rectify_frame(img, cam, C, R, dsm, grid, to_project=to_project, tile_px=128, earth=False)
+    true = rectify_frame(img, cam, C, R, dsm, grid, to_project=to_project, tile_px=128, occlusion_dsm=dsm, earth=False)
     assert np.array_equal(conventional[1], true[1]) and np.array_equal(conventional[0], true[0])
     assert np.array_equal(conventional[1] > 0, imaged)
