@@ -9,17 +9,23 @@ beside it, every found one (building on a footprint), the kind of surface its hi
 * split pulses: the share of multi-return points in the 3 x 3 cells around it (at least 0.4: crowns and
   hedges split the pulse, a roof stops it; roof edges split it too);
 * AHN3's class of that return (6: AHN3's operators call it building);
-* for the low cells: the share of returns more than 1 m below their cell's highest one (3 x 3 cells).
+* for the low cells: the share of returns more than 1 m below their cell's highest one (3 x 3 cells);
+* pulses through to the ground (third round): the last returns of split pulses at most 0.5 m above the
+  ground over the first returns above it (3 x 3 cells; a roof stops every pulse, a hedge or crown lets a
+  share through: ``pierced_growth_max_fraction`` of the classification).
 
 A rule that removes a kind of cell removes its found area too: the "found_m2" beside each "false_m2" is
 what completeness would lose. Also per quarter: the false area by distance from the footprint, and
 the cells at the height of the roof next to them (eaves: within 1.5 m of the highest found roof within
 1.5 m); the per-point building PA / UA against AHN3's class 6 per quarter. With ``--low H`` the same for
-the classification with ``low_growth_max_height_m = H``.
+the classification with ``low_growth_max_height_m = H`` (``--pierced F``: ``pierced_growth_max_fraction = F``),
+each on the rules shipped before the third round; with ``--before`` for those rules (no low-growth and no
+pierced-growth test).
 Figures: bench/results/buildings_bgt_false_<quarter>.png (found grey, false red, missed blue over the
-BGT outlines; the height of the highest return above the ground; the split-pulse share).
+BGT outlines; the height of the highest return above the ground; the split-pulse share; the share of
+pulses through to the ground), ``..._before_<quarter>.png`` for ``--before``.
 Writes bench/results/buildings_bgt_false_area.json.
-Run: nice .venv/bin/python bench/eval_buildings_bgt_false.py [--low 3]
+Run: nice .venv/bin/python bench/eval_buildings_bgt_false.py [--low 3.5] [--pierced 0.1] [--before]
 """
 
 from __future__ import annotations
@@ -48,6 +54,9 @@ from lidarctl.classify import class_grid as cg  # noqa: E402
 from lidarctl.classify.pipeline import BUILDING, GROUND, ClassifySettings  # noqa: E402
 
 SPLIT_SHARE = 0.4
+PIERCED_BANDS = {"under 0.1": (0.0, 0.1), "0.1-0.2": (0.1, 0.2), "0.2-0.3": (0.2, 0.3), "0.3 and more": (0.3, np.inf)}
+GROUND_LEVEL_M = 0.5     # the classification's wall_min_height_m: returns this close to the ground are on it
+BEFORE = {"low_growth_max_height_m": 0.0, "pierced_growth_max_fraction": 0.0}
 LOW_M = (1.5, 4.0)
 DISTANCE_BANDS_M = {"0.5-1.5 m": (0.0, 1.5), "1.5-3 m": (1.5, 3.0), "over 3 m": (3.0, np.inf)}
 BOXES = {"north-west": (84830, 84890, 447520, 447580), "north-east": (84880, 85005, 447485, 447620)}
@@ -56,13 +65,14 @@ BOXES = {"north-west": (84830, 84890, 447520, 447580), "north-east": (84880, 850
 @dataclasses.dataclass(frozen=True)
 class CellKinds:
     """Per 0.5 m cell of the scoring grid: height of the highest return above the ground (m), split-pulse
-    share and share of returns more than 1 m below their cell's top (both over the 3 x 3 cells), AHN3's
-    class of the highest return, and the height of the highest found
+    share, share of returns more than 1 m below their cell's top and share of the pulses through to the
+    ground (all over the 3 x 3 cells), AHN3's class of the highest return, and the height of the highest found
     roof within 1.5 m (m above the ground; -inf where none)."""
 
     hag_m: np.ndarray
     split_share: np.ndarray
     below_share: np.ndarray
+    pierced_share: np.ndarray
     ahn3_class: np.ndarray
     roof_near_m: np.ndarray
 
@@ -94,8 +104,16 @@ def cell_kinds(classified: Path, laz: Path, grid: cg.ClassGrid, found: np.ndarra
     below = c.z < c.z[top.ravel()[flat]] - 1.0
     n_below = np.bincount(flat[below], minlength=size).reshape(shape).astype(float)
     below_share = ndimage.correlate(n_below, k3) / np.maximum(ndimage.correlate(n, k3), 1.0)
+    # pulses through to the ground: last returns of split pulses on it over first returns above it
+    hag_pt = c.z - dem.ravel()[flat]
+    on_ground = hag_pt <= GROUND_LEVEL_M
+    through = (c.number_of_returns > 1) & (c.return_number == c.number_of_returns) & on_ground
+    above = (c.return_number == 1) & ~on_ground
+    n_through = ndimage.correlate(np.bincount(flat[through], minlength=size).reshape(shape).astype(float), k3)
+    n_above = ndimage.correlate(np.bincount(flat[above], minlength=size).reshape(shape).astype(float), k3)
+    pierced = n_through / np.maximum(n_above, 1.0)
     roof_near = ndimage.maximum_filter(np.where(found, hag, -np.inf), size=7)
-    return CellKinds(hag, split, below_share, ref.classification[top], roof_near)
+    return CellKinds(hag, split, below_share, pierced, ref.classification[top], roof_near)
 
 
 def kinds(k: CellKinds) -> dict:
@@ -146,6 +164,14 @@ def diagnose(classified: Path, laz: Path, polys: list, split_xy: tuple, png_stem
                 f"over {t:g}": {"false_m2": float((fp & low & (k.below_share > t)).sum() * a),
                                 "found_m2": float((tp & low & (k.below_share > t)).sum() * a)}
                 for t in (0.1, 0.2, 0.3, 0.4)},
+            "by_share_of_pulses_through_to_the_ground": {
+                b: {"false_m2": float((fp & (k.pierced_share >= lo) & (k.pierced_share < hi)).sum() * a),
+                    "false_ahn3_unclassified_m2": float((fp & (k.pierced_share >= lo) & (k.pierced_share < hi)
+                                                         & (k.ahn3_class == 1)).sum() * a),
+                    "found_m2": float((tp & (k.pierced_share >= lo) & (k.pierced_share < hi)).sum() * a)}
+                for b, (lo, hi) in PIERCED_BANDS.items()},
+            "false_m2_by_ahn3_class": {str(int(v)): float((k.ahn3_class[fp] == v).sum() * a)
+                                       for v in np.unique(k.ahn3_class[fp])},
             "false_pieces": int(n_obj),
             "false_m2_in_pieces_touching_a_found_footprint": float(np.isin(lab, touching[touching > 0]).sum() * a),
             "false_m2_by_distance": {b: float((fp & (dist_m > lo) & (dist_m <= hi)).sum() * a)
@@ -170,7 +196,7 @@ def per_point_building(classified: Path, laz: Path, split_xy: tuple) -> dict:
 def plot(grid, ref, fp, tp, fn, scored, k: CellKinds, polys, name, box, path: Path):
     t = grid.transform
     extent = (t.c, t.c + t.a * grid.shape[1], t.f + t.e * grid.shape[0], t.f)
-    fig, axs = plt.subplots(1, 3, figsize=(24, 8.5))
+    fig, axs = plt.subplots(1, 4, figsize=(32, 8.5))
     st = np.ones(grid.shape + (3,))
     st[scored] = (0.9, 0.9, 0.9)
     st[tp], st[fp], st[fn] = (0.55, 0.55, 0.55), (1.0, 0.0, 0.0), (0.0, 0.0, 1.0)
@@ -182,6 +208,9 @@ def plot(grid, ref, fp, tp, fn, scored, k: CellKinds, polys, name, box, path: Pa
     im = axs[2].imshow(k.split_share, extent=extent, cmap="magma", vmin=0, vmax=1, interpolation="nearest")
     plt.colorbar(im, ax=axs[2], shrink=0.7)
     axs[2].set_title("split-pulse share, 3 x 3 cells")
+    im = axs[3].imshow(k.pierced_share, extent=extent, cmap="magma", vmin=0, vmax=0.5, interpolation="nearest")
+    plt.colorbar(im, ax=axs[3], shrink=0.7)
+    axs[3].set_title("pulses through to the ground, 3 x 3 cells")
     for ax in axs:
         for p in polys:
             ax.plot(*p.exterior.xy, "k-" if ax is axs[0] else "c-", lw=0.8)
@@ -199,9 +228,14 @@ def main(argv=None) -> int:
     c = io.read_cloud(laz, crs=bgt.CRS)
     split_xy = (float(np.median(c.x)), float(np.median(c.y)))
     runs = {"defaults": {}}
-    if "--low" in argv:
+    if "--before" in argv:
+        runs["before"] = BEFORE
+    if "--low" in argv:     # on the rules shipped before the third round
         h = float(argv[argv.index("--low") + 1])
-        runs[f"low_growth_max_height_m {h:g}"] = {"low_growth_max_height_m": h}
+        runs[f"low_growth_max_height_m {h:g}"] = {**BEFORE, "low_growth_max_height_m": h}
+    if "--pierced" in argv:     # likewise
+        f = float(argv[argv.index("--pierced") + 1])
+        runs[f"pierced_growth_max_fraction {f:g}"] = {**BEFORE, "pierced_growth_max_fraction": f}
     t0, load0 = time.perf_counter(), os.getloadavg()[0]
     result = {"command": "bench/eval_buildings_bgt_false.py " + " ".join(argv),"data": "ahn3_cropped_1.laz vs the BGT footprints (bgt_pand.sqlite); scoring of eval_buildings_bgt.py",
               "split_share_min": SPLIT_SHARE, "low_m": list(LOW_M)}
@@ -209,7 +243,7 @@ def main(argv=None) -> int:
         for key, overrides in runs.items():
             path = Path(tmp) / "classified.laz"
             tiles.classify_file(laz, path, crs=bgt.CRS, params=dataclasses.replace(ClassifySettings(), **overrides))
-            png = "buildings_bgt_false" if key == "defaults" else None
+            png = {"defaults": "buildings_bgt_false", "before": "buildings_bgt_false_before"}.get(key)
             result[key] = {"overrides": overrides, "quarters": diagnose(path, laz, polys, split_xy, png),
                            "per_point_vs_ahn3": per_point_building(path, laz, split_xy)}
     result["seconds"] = time.perf_counter() - t0
