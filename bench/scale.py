@@ -24,8 +24,8 @@ Full-size Z/I DMC frames (issue 41): ``--size dmc`` (the ``dmc_block`` preset: 1
 ``--size dmc_3x8`` (its 3 strips x 8 frames subset, dmc_block_subset_3x8) write bench/results/scale_dmc.json with, beside
 the table, each stage's per-unit costs (s per frame, per GP of frames, per GP of DOM, per M points), their
 projection to 3,000 frames and 2 billion points, the AT and DOM accuracy against the simulator's truth in GSD,
-and, once both sizes ran, the ratio of their per-unit CPU costs (limits: 3 h, 12 GB). ``--size dmc_2x4`` (2 x 4
-frames, dmc_block_subset_2x4) is a second, smaller size of the same preset; ``--key`` stores a run under its own
+and, once both sizes ran, the ratio of their per-unit CPU costs (limits: 3 h, 12 GB). ``--size dmc_2x4`` and
+``dmc_2x2`` (2 x 4 and 2 x 2 frames, dmc_block_subset_2x4 / _2x2) are smaller sizes of the same preset; ``--key`` stores a run under its own
 entry (a run of other code kept beside it) and ``--compare SMALL LARGE`` sets any two entries side by side: per
 stage the per-unit CPU ratio, the CPU split into a fixed and a per-unit part by the line through both runs, and the
 3,000-frame projection from the larger with the fixed part counted once. The run's load average is sampled every
@@ -71,10 +71,13 @@ SIZES = {"full": ("scale", []), "quarter": ("scale", ["flight.strips=5", "flight
          # full-size Z/I DMC frames (13824 x 7680 px, 12-bit, ZSTD tiles; issue 41): the whole block and the 3 x 8
          # subset bench/sim_dmc.py makes (the dmc_block preset shrinks its scene, objects and LiDAR with the flight)
          "dmc": ("dmc_block", []), "dmc_3x8": ("dmc_block", ["flight.strips=3", "flight.frames_per_strip=8"]),
-         "dmc_2x4": ("dmc_block", ["flight.strips=2", "flight.frames_per_strip=4"])}
-DMC_SIZES = ("dmc", "dmc_3x8", "dmc_2x4")
+         "dmc_2x4": ("dmc_block", ["flight.strips=2", "flight.frames_per_strip=4"]),
+         "dmc_2x2": ("dmc_block", ["flight.strips=2", "flight.frames_per_strip=2"]),
+         "dmc_2x6": ("dmc_block", ["flight.strips=2", "flight.frames_per_strip=6"])}
+DMC_SIZES = ("dmc", "dmc_3x8", "dmc_2x6", "dmc_2x4", "dmc_2x2")
 # folder names of bench/sim_dmc.py
-DMC_BLOCKS = {"dmc": "dmc_block", "dmc_3x8": "dmc_block_subset_3x8", "dmc_2x4": "dmc_block_subset_2x4"}
+DMC_BLOCKS = {"dmc": "dmc_block", "dmc_3x8": "dmc_block_subset_3x8", "dmc_2x4": "dmc_block_subset_2x4",
+              "dmc_2x2": "dmc_block_subset_2x2", "dmc_2x6": "dmc_block_subset_2x6"}
 DMC_LIMIT_WALL_MIN, DMC_LIMIT_PEAK_GB = 180.0, 12.0  # issue 41: the whole chain under 3 hours and 12 GB
 PROJECT_FRAMES, PROJECT_POINTS = 3000, 2e9  # the production block the per-unit costs are projected to
 SCENE_COUNTS = ("buildings", "single_trees", "tree_clusters", "slope_trees", "bushes", "ponds")
@@ -436,16 +439,27 @@ def constancy(results: dict) -> dict | None:
     return dict(cpu_ratio_full_over_3x8=ratio, within_25_pct={st: 0.75 <= r <= 1.25 for st, r in ratio.items()})
 
 
-def compare_sizes(small: dict, large: dict) -> dict:
+def interior_dom_gp_per_frame(preset: str = "dmc_block") -> float:
+    """The DOM a frame adds inside a large block, in GP at the frame's GSD: its forward base times the strip
+    spacing (the edges of a small block add more per frame: its DOM per frame overstates a 3,000-frame block's)."""
+    from aerotri.sim import load_preset
+
+    cfg = load_preset(preset)
+    f, c = cfg.flight, cfg.camera
+    return (1 - f.forward_overlap) * c.height * (1 - f.side_overlap) * c.width / 1e9
+
+
+def compare_sizes(small: dict, large: dict, dom_gp_per_frame: float | None = None) -> dict:
     """Two DMC runs of the same code at two block sizes, per stage: the larger's per-unit CPU cost over the
     smaller's (constant within 25 %: 0.75-1.25), and the stage's CPU split into a fixed part and a per-unit part
     by the line through both (cpu = fixed + per_unit x units; a fixed part below zero: the cost grows faster than
     the units); the projection to 3,000 frames and 2 G points from the larger run with its fixed part counted
-    once, beside the plain per-unit one (``projection``)."""
+    once, beside the plain per-unit one (``projection``); the DOM at ``dom_gp_per_frame`` (default: the larger
+    block's DOM per frame)."""
     su, lu = small["unit_costs"], large["unit_costs"]
     blk = large["block_numbers"]
     per_frame_gp = blk["image_width_px"] * blk["image_height_px"] / 1e9
-    dom_per_frame = (large.get("dom_gp") or 0.0) / blk["frames"]
+    dom_per_frame = dom_gp_per_frame if dom_gp_per_frame is not None else (large.get("dom_gp") or 0.0) / blk["frames"]
     target = {"frame": PROJECT_FRAMES, "GP of frames": PROJECT_FRAMES * per_frame_gp,
               "GP of DOM": PROJECT_FRAMES * dom_per_frame, "M points": PROJECT_POINTS / 1e6}
     stages = {}
@@ -476,7 +490,8 @@ def print_comparison(results: dict, out: Path, small: str, large: str) -> int:
     for k in (small, large):
         if "unit_costs" not in results.get(k, {}):
             sys.exit(f"{out}: no DMC entry {k!r} with unit costs (entries: {', '.join(results)})")
-    c = results[f"constancy_{large}_over_{small}"] = compare_sizes(results[small], results[large])
+    c = results[f"constancy_{large}_over_{small}"] = compare_sizes(results[small], results[large],
+                                                                   interior_dom_gp_per_frame())
     out.write_text(json.dumps(results, indent=1) + "\n")
     print(f"per-unit CPU costs, {large} over {small}; CPU = fixed + per unit x units through both runs")
     print(f"{'stage':<14} {'unit':<13} {'CPU/unit small':>14} {'large':>9} {'ratio':>6} {'fixed CPU s':>11} "
@@ -486,7 +501,8 @@ def print_comparison(results: dict, out: Path, small: str, large: str) -> int:
               f"{v['ratio']:>6.2f}{' ' if v['within_25_pct'] else '*'}{v['fixed_cpu_s']:>10.1f} "
               f"{v['marginal_cpu_s_per_unit']:>9.3f} {v['fixed_share_of_large']:>11} {v['projected_cpu_h']:>10.2f} "
               f"{v['projected_cpu_h_plain']:>8.2f}")
-    print(f"projected to {c['frames']} frames, {c['lidar_points'] / 1e9:.0f} G points, {c['dom_gp']} GP of DOM: "
+    print(f"projected to {c['frames']} frames, {c['lidar_points'] / 1e9:.0f} G points, {c['dom_gp']} GP of DOM "
+          f"(a frame's base x strip spacing): "
           f"{c['projected_cpu_h']} CPU-h with the fixed parts once ({c['projected_cpu_h_plain']} CPU-h per unit "
           f"of the larger run); * outside 25 %")
     return 0

@@ -188,6 +188,10 @@ def test_two_sizes_fixed_and_per_unit_parts(scale, tmp_path, capsys):
     assert c["match"]["projected_cpu_h"] == pytest.approx((40 + 2 * 3000) / 3600, abs=0.01)
     # the DOM of 3,000 frames at the larger block's DOM per frame: 150 GP
     assert c["mosaic"]["projected_cpu_h"] == pytest.approx((30 + 200 * 150) / 3600, abs=0.01)
+    # inside a large block a DMC frame adds its base (40 % of 7680 px) times the strip spacing (70 % of 13824 px)
+    assert scale.interior_dom_gp_per_frame() == pytest.approx(0.4 * 7680 * 0.7 * 13824 / 1e9)
+    c = scale.compare_sizes(small, large, dom_gp_per_frame=0.03)["stages"]
+    assert c["mosaic"]["projected_cpu_h"] == pytest.approx((30 + 200 * 90) / 3600, abs=0.01)
     out = tmp_path / "scale_dmc.json"
     out.write_text(json.dumps({"a": small, "b": large, "constancy": {"kept": 1}}))
     assert scale.main(["--compare", "a", "b", "--out", str(out)]) == 0
