@@ -478,7 +478,21 @@ def compare_sizes(small: dict, large: dict, dom_gp_per_frame: float | None = Non
                           fixed_share_of_large=round(fixed / cl, 2) if cl > 0 else None,
                           projected_cpu_h=round((fixed + per_unit * n) / 3600, 2),
                           projected_cpu_h_plain=round(c["cpu_s"] * n / 3600, 2))
-    return dict(stages=stages, projected_cpu_h=round(sum(v["projected_cpu_h"] for v in stages.values()), 1),
+    if "mosaic" in stages and small.get("frames_gp") and large.get("frames_gp"):
+        # the mosaic reads every frame ortho over a DOM pixel (3.6 of them inside a 60/30 % block, fewer at a
+        # small block's edges): its cost per GP of frames, beside the one per GP of DOM; not in the sums
+        ns, nl = small["frames_gp"], large["frames_gp"]
+        cs, cl = stages["mosaic"]["cpu_s"]
+        per_unit = (cl - cs) / (nl - ns)
+        stages_extra = {"mosaic per GP of frames": dict(
+            unit="GP of frames", units=[ns, nl], ratio=round((cl / nl) / (cs / ns), 2),
+            cpu_per_unit_s=[round(cs / ns, 3), round(cl / nl, 3)], fixed_cpu_s=round(cl - per_unit * nl, 1),
+            marginal_cpu_s_per_unit=round(per_unit, 3),
+            projected_cpu_h=round((cl - per_unit * nl + per_unit * target["GP of frames"]) / 3600, 2))}
+    else:
+        stages_extra = {}
+    return dict(stages=stages, alternatives=stages_extra,
+                projected_cpu_h=round(sum(v["projected_cpu_h"] for v in stages.values()), 1),
                 projected_cpu_h_plain=round(sum(v["projected_cpu_h_plain"] for v in stages.values()), 1),
                 frames=PROJECT_FRAMES, lidar_points=PROJECT_POINTS, dom_gp=round(target["GP of DOM"], 1),
                 assumes="each stage's CPU linear in its units (frames, frame GP, DOM GP at the larger block's DOM per "
@@ -501,6 +515,9 @@ def print_comparison(results: dict, out: Path, small: str, large: str) -> int:
               f"{v['ratio']:>6.2f}{' ' if v['within_25_pct'] else '*'}{v['fixed_cpu_s']:>10.1f} "
               f"{v['marginal_cpu_s_per_unit']:>9.3f} {v['fixed_share_of_large']:>11} {v['projected_cpu_h']:>10.2f} "
               f"{v['projected_cpu_h_plain']:>8.2f}")
+    for st, v in c["alternatives"].items():
+        print(f"  {st}: {v['cpu_per_unit_s'][0]:.3f} / {v['cpu_per_unit_s'][1]:.3f} CPU-s, ratio {v['ratio']:.2f}, "
+              f"fixed {v['fixed_cpu_s']:.1f} CPU-s, projected {v['projected_cpu_h']:.2f} CPU-h (not in the sum)")
     print(f"projected to {c['frames']} frames, {c['lidar_points'] / 1e9:.0f} G points, {c['dom_gp']} GP of DOM "
           f"(a frame's base x strip spacing): "
           f"{c['projected_cpu_h']} CPU-h with the fixed parts once ({c['projected_cpu_h_plain']} CPU-h per unit "
