@@ -24,12 +24,13 @@ Full-size Z/I DMC frames (issue 41): ``--size dmc`` (the ``dmc_block`` preset: 1
 ``--size dmc_3x8`` (its 3 strips x 8 frames subset, dmc_block_subset_3x8) write bench/results/scale_dmc.json with, beside
 the table, each stage's per-unit costs (s per frame, per GP of frames, per GP of DOM, per M points), their
 projection to 3,000 frames and 2 billion points, the AT and DOM accuracy against the simulator's truth in GSD,
-and, once both sizes ran, the ratio of their per-unit CPU costs (limits: 3 h, 12 GB). ``--size dmc_2x4`` and
-``dmc_2x2`` (2 x 4 and 2 x 2 frames, dmc_block_subset_2x4 / _2x2) are smaller sizes of the same preset; ``--key`` stores a run under its own
-entry (a run of other code kept beside it) and ``--compare SMALL LARGE`` sets any two entries side by side: per
-stage the per-unit CPU ratio, the CPU split into a fixed and a per-unit part by the line through both runs, and the
-3,000-frame projection from the larger with the fixed part counted once. The run's load average is sampled every
-10 s and each stage gets the mean over its interval (column "load")
+and, once both sizes ran, the ratio of their per-unit CPU costs (limits: 3 h, 12 GB). ``--size dmc_2x6``,
+``dmc_2x4`` and ``dmc_2x2`` (2 strips of 6, 4, 2 frames; dmc_block_subset_2x6 ...) are smaller sizes of the same
+preset; ``--key`` stores a run under its own entry (a run of other code kept beside it) and ``--compare SMALL
+LARGE`` sets any two entries side by side: per stage the per-unit CPU ratio, the CPU split into a fixed and a
+per-unit part by the line through both runs, and the 3,000-frame projection from the larger with the fixed part
+counted once (the DOM at a frame's base x strip spacing). The run's load average is sampled every 10 s and each
+stage gets the mean over its interval (column "load").
 
 Writes bench/results/scale.json (one entry per block size, kept across runs of the other size).
 
