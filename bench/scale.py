@@ -24,7 +24,13 @@ Full-size Z/I DMC frames (issue 41): ``--size dmc`` (the ``dmc_block`` preset: 1
 ``--size dmc_3x8`` (its 3 strips x 8 frames subset, dmc_block_subset_3x8) write bench/results/scale_dmc.json with, beside
 the table, each stage's per-unit costs (s per frame, per GP of frames, per GP of DOM, per M points), their
 projection to 3,000 frames and 2 billion points, the AT and DOM accuracy against the simulator's truth in GSD,
-and, once both sizes ran, the ratio of their per-unit CPU costs (limits: 3 h, 12 GB).
+and, once both sizes ran, the ratio of their per-unit CPU costs (limits: 3 h, 12 GB). ``--size dmc_2x6``,
+``dmc_2x4`` and ``dmc_2x2`` (2 strips of 6, 4, 2 frames; dmc_block_subset_2x6 ...) are smaller sizes of the same
+preset; ``--key`` stores a run under its own entry (a run of other code kept beside it) and ``--compare SMALL
+LARGE`` sets any two entries side by side: per stage the per-unit CPU ratio, the CPU split into a fixed and a
+per-unit part by the line through both runs, and the 3,000-frame projection from the larger with the fixed part
+counted once (the DOM at a frame's base x strip spacing). The run's load average is sampled every 10 s and each
+stage gets the mean over its interval (column "load").
 
 Writes bench/results/scale.json (one entry per block size, kept across runs of the other size).
 
@@ -36,6 +42,8 @@ Usage:
   python bench/scale.py --size full --print-command    # the generation command, to run it elsewhere
   python bench/scale.py --size dmc_3x8                 # the chain on the DMC subset -> bench/results/scale_dmc.json
   python bench/scale.py --size dmc_3x8 --table-only --run-dir DIR  # tabulate a run made by hand (aerotri run DIR)
+  python bench/scale.py --size dmc_2x4 --key dmc_2x4_f0d557a   # a run kept under its own entry
+  python bench/scale.py --compare dmc_2x4_f0d557a dmc_3x8_f0d557a  # per-unit costs of two entries
 """
 
 from __future__ import annotations
@@ -63,9 +71,14 @@ SIZES = {"full": ("scale", []), "quarter": ("scale", ["flight.strips=5", "flight
          "eighth": ("scale", ["flight.strips=3", "flight.frames_per_strip=10"]), "tiny": ("tiny", []),
          # full-size Z/I DMC frames (13824 x 7680 px, 12-bit, ZSTD tiles; issue 41): the whole block and the 3 x 8
          # subset bench/sim_dmc.py makes (the dmc_block preset shrinks its scene, objects and LiDAR with the flight)
-         "dmc": ("dmc_block", []), "dmc_3x8": ("dmc_block", ["flight.strips=3", "flight.frames_per_strip=8"])}
-DMC_SIZES = ("dmc", "dmc_3x8")
-DMC_BLOCKS = {"dmc": "dmc_block", "dmc_3x8": "dmc_block_subset_3x8"}  # folder names of bench/sim_dmc.py
+         "dmc": ("dmc_block", []), "dmc_3x8": ("dmc_block", ["flight.strips=3", "flight.frames_per_strip=8"]),
+         "dmc_2x4": ("dmc_block", ["flight.strips=2", "flight.frames_per_strip=4"]),
+         "dmc_2x2": ("dmc_block", ["flight.strips=2", "flight.frames_per_strip=2"]),
+         "dmc_2x6": ("dmc_block", ["flight.strips=2", "flight.frames_per_strip=6"])}
+DMC_SIZES = ("dmc", "dmc_3x8", "dmc_2x6", "dmc_2x4", "dmc_2x2")
+# folder names of bench/sim_dmc.py
+DMC_BLOCKS = {"dmc": "dmc_block", "dmc_3x8": "dmc_block_subset_3x8", "dmc_2x4": "dmc_block_subset_2x4",
+              "dmc_2x2": "dmc_block_subset_2x2", "dmc_2x6": "dmc_block_subset_2x6"}
 DMC_LIMIT_WALL_MIN, DMC_LIMIT_PEAK_GB = 180.0, 12.0  # issue 41: the whole chain under 3 hours and 12 GB
 PROJECT_FRAMES, PROJECT_POINTS = 3000, 2e9  # the production block the per-unit costs are projected to
 SCENE_COUNTS = ("buildings", "single_trees", "tree_clusters", "slope_trees", "bushes", "ponds")
@@ -87,6 +100,7 @@ COLUMNS = (FRAMES, POINTS, MP)
 # (their peak is the chain's, not the LiDAR's); left out of the LiDAR peak compared between block sizes.
 CHECKS = ("dom_check", "height_check", "lidar_eval", "report")
 INPUTS = ("project.toml", "camera.toml", "gnss.txt", "images", "lidar")
+LOAD_SAMPLE_S = 10.0  # how often the run's load average is sampled
 
 
 def _load() -> list[float]:
@@ -116,8 +130,8 @@ def size_overrides(size: str) -> tuple[str, list[str]]:
     from aerotri.sim import lidar_plan, load_preset
 
     preset, flight = SIZES[size]
-    if not flight or size in DMC_SIZES:
-        return preset, []
+    if not flight or size in DMC_SIZES:  # dmc_block shrinks its scene, objects and LiDAR with the flight itself
+        return preset, flight
     full = load_preset(preset)
     ratio = lidar_plan(load_preset(preset, flight)).scene_km2 / lidar_plan(full).scene_km2
     return preset, flight + [f"scene.{k}={max(1, round(getattr(full.scene, k) * ratio))}" for k in SCENE_COUNTS]
@@ -168,13 +182,40 @@ def run_chain(block: Path, run_dir: Path, scheduler: str | None, workers: int | 
     if workers:
         cmd += ["--workers", str(workers)]
     load0 = _load()
+    samples = []  # [epoch s, 1, 5, 15 min load] every LOAD_SAMPLE_S: each stage's load from its interval
     with measure() as u:
-        proc = subprocess.run(cmd)
+        proc = subprocess.Popen(cmd)
+        while True:
+            samples.append([round(time.time(), 1), *_load()])
+            try:
+                proc.wait(timeout=LOAD_SAMPLE_S)
+                break
+            except subprocess.TimeoutExpired:
+                continue
+    samples.append([round(time.time(), 1), *_load()])
     # the largest process of the run (RUSAGE_CHILDREN; None when an earlier child of this script was larger)
     largest = round(u.workers_peak_rss_mb, 1) if u.workers_peak_rss_mb else None
     return dict(returncode=proc.returncode, wall_s=round(u.wall_s, 1), cpu_s=round(u.cpu_s, 1),
                 largest_process_peak_rss_mb=largest, load_avg_before=load0, load_avg_after=_load(),
-                command=" ".join(["aerotri"] + cmd[1:]))
+                command=" ".join(["aerotri"] + cmd[1:]), load_samples=samples)
+
+
+def stage_load(rows: list[dict], run_dir: Path, samples: list | None) -> None:
+    """Each done stage's mean 1-min load average over its interval (its stamp's time minus its wall time) from
+    the run's load samples, into the row as ``load_1min``: the other work on the machine while it ran."""
+    if not samples:
+        return
+    t = np.array([s[0] for s in samples])
+    load1 = np.array([s[1] for s in samples])
+    for r in rows:
+        stamp = run_dir / "work" / "stages" / f"{r['stage']}.json"
+        if r["status"] != "done" or not stamp.exists():
+            continue
+        end = stamp.stat().st_mtime
+        inside = (t >= end - r["wall_s"]) & (t <= end)
+        if not inside.any():  # a stage shorter than the sampling step: the sample nearest its end
+            inside = np.abs(t - end) == np.abs(t - end).min()
+        r["load_1min"] = round(float(load1[inside].mean()), 2)
 
 
 def stage_records(run_dir: Path) -> list[dict]:
@@ -238,7 +279,7 @@ def stage_rows(records: list[dict], blk: dict) -> list[dict]:
 
 def format_table(rows: list[dict]) -> str:
     head = (f"{'stage':<14} {'status':<22} {'wall s':>8} {'CPU s':>8} {'peak RSS MB':>11} "
-            f"{FRAMES:>10} {POINTS:>12} {MP:>8}")
+            f"{FRAMES:>10} {POINTS:>12} {MP:>8} {'load':>5}")
     lines = [head, "-" * len(head)]
 
     def num(v, width, fmt):
@@ -247,7 +288,7 @@ def format_table(rows: list[dict]) -> str:
     for r in rows:
         lines.append(f"{r['stage']:<14} {r['status'][:22]:<22} {r['wall_s']:>8.1f} {num(r['cpu_s'], 8, '.1f')} "
                      f"{num(r['peak_rss_mb'], 11, '.0f')} {num(r[FRAMES], 10, ',.1f')} {num(r[POINTS], 12, ',.0f')} "
-                     f"{num(r[MP], 8, '.2f')}")
+                     f"{num(r[MP], 8, '.2f')} {num(r.get('load_1min'), 5, '.1f')}")
     return "\n".join(lines)
 
 
@@ -391,12 +432,98 @@ def dmc_entry(block: Path, run_dir: Path, blk: dict, rows: list[dict]) -> dict:
 def constancy(results: dict) -> dict | None:
     """The per-unit CPU costs of the two DMC block sizes side by side: the larger over the smaller, per stage
     (within 25 %: 0.75-1.25)."""
-    if not all(s in results and "unit_costs" in results[s] for s in DMC_SIZES):
+    if not all(s in results and "unit_costs" in results[s] for s in ("dmc", "dmc_3x8")):
         return None
     big, small = results["dmc"]["unit_costs"], results["dmc_3x8"]["unit_costs"]
     ratio = {st: round(big[st]["cpu_s"] / small[st]["cpu_s"], 2) for st in big
              if st in small and small[st]["cpu_s"] > 0}
     return dict(cpu_ratio_full_over_3x8=ratio, within_25_pct={st: 0.75 <= r <= 1.25 for st, r in ratio.items()})
+
+
+def interior_dom_gp_per_frame(preset: str = "dmc_block") -> float:
+    """The DOM a frame adds inside a large block, in GP at the frame's GSD: its forward base times the strip
+    spacing (the edges of a small block add more per frame: its DOM per frame overstates a 3,000-frame block's)."""
+    from aerotri.sim import load_preset
+
+    cfg = load_preset(preset)
+    f, c = cfg.flight, cfg.camera
+    return (1 - f.forward_overlap) * c.height * (1 - f.side_overlap) * c.width / 1e9
+
+
+def compare_sizes(small: dict, large: dict, dom_gp_per_frame: float | None = None) -> dict:
+    """Two DMC runs of the same code at two block sizes, per stage: the larger's per-unit CPU cost over the
+    smaller's (constant within 25 %: 0.75-1.25), and the stage's CPU split into a fixed part and a per-unit part
+    by the line through both (cpu = fixed + per_unit x units; a fixed part below zero: the cost grows faster than
+    the units); the projection to 3,000 frames and 2 G points from the larger run with its fixed part counted
+    once, beside the plain per-unit one (``projection``); the DOM at ``dom_gp_per_frame`` (default: the larger
+    block's DOM per frame)."""
+    su, lu = small["unit_costs"], large["unit_costs"]
+    blk = large["block_numbers"]
+    per_frame_gp = blk["image_width_px"] * blk["image_height_px"] / 1e9
+    dom_per_frame = dom_gp_per_frame if dom_gp_per_frame is not None else (large.get("dom_gp") or 0.0) / blk["frames"]
+    target = {"frame": PROJECT_FRAMES, "GP of frames": PROJECT_FRAMES * per_frame_gp,
+              "GP of DOM": PROJECT_FRAMES * dom_per_frame, "M points": PROJECT_POINTS / 1e6}
+    stages = {}
+    for st, c in lu.items():
+        if st not in su or su[st]["cpu_s"] <= 0 or su[st]["unit"] != c["unit"]:
+            continue
+        ns, nl = su[st]["units"], c["units"]
+        cs, cl = su[st]["cpu_s"] * ns, c["cpu_s"] * nl  # the stage's CPU seconds at each size
+        per_unit = (cl - cs) / (nl - ns)
+        fixed = cl - per_unit * nl
+        n = target[c["unit"]]
+        stages[st] = dict(unit=c["unit"], units=[ns, nl], cpu_s=[round(cs, 1), round(cl, 1)],
+                          cpu_per_unit_s=[su[st]["cpu_s"], c["cpu_s"]], ratio=round(c["cpu_s"] / su[st]["cpu_s"], 2),
+                          within_25_pct=bool(0.75 <= c["cpu_s"] / su[st]["cpu_s"] <= 1.25),
+                          fixed_cpu_s=round(fixed, 1), marginal_cpu_s_per_unit=round(per_unit, 3),
+                          fixed_share_of_large=round(fixed / cl, 2) if cl > 0 else None,
+                          projected_cpu_h=round((fixed + per_unit * n) / 3600, 2),
+                          projected_cpu_h_plain=round(c["cpu_s"] * n / 3600, 2))
+    if "mosaic" in stages and small.get("frames_gp") and large.get("frames_gp"):
+        # the mosaic reads every frame ortho over a DOM pixel (3.6 of them inside a 60/30 % block, fewer at a
+        # small block's edges): its cost per GP of frames, beside the one per GP of DOM; not in the sums
+        ns, nl = small["frames_gp"], large["frames_gp"]
+        cs, cl = stages["mosaic"]["cpu_s"]
+        per_unit = (cl - cs) / (nl - ns)
+        stages_extra = {"mosaic per GP of frames": dict(
+            unit="GP of frames", units=[ns, nl], ratio=round((cl / nl) / (cs / ns), 2),
+            cpu_per_unit_s=[round(cs / ns, 3), round(cl / nl, 3)], fixed_cpu_s=round(cl - per_unit * nl, 1),
+            marginal_cpu_s_per_unit=round(per_unit, 3),
+            projected_cpu_h=round((cl - per_unit * nl + per_unit * target["GP of frames"]) / 3600, 2))}
+    else:
+        stages_extra = {}
+    return dict(stages=stages, alternatives=stages_extra,
+                projected_cpu_h=round(sum(v["projected_cpu_h"] for v in stages.values()), 1),
+                projected_cpu_h_plain=round(sum(v["projected_cpu_h_plain"] for v in stages.values()), 1),
+                frames=PROJECT_FRAMES, lidar_points=PROJECT_POINTS, dom_gp=round(target["GP of DOM"], 1),
+                assumes="each stage's CPU linear in its units (frames, frame GP, DOM GP at the larger block's DOM per "
+                        "frame, LiDAR points) through the two runs; the fixed part once; CPU, not wall (the load)")
+
+
+def print_comparison(results: dict, out: Path, small: str, large: str) -> int:
+    """``--compare SMALL LARGE``: ``compare_sizes`` of two entries, stored as ``constancy_LARGE_over_SMALL``."""
+    for k in (small, large):
+        if "unit_costs" not in results.get(k, {}):
+            sys.exit(f"{out}: no DMC entry {k!r} with unit costs (entries: {', '.join(results)})")
+    c = results[f"constancy_{large}_over_{small}"] = compare_sizes(results[small], results[large],
+                                                                   interior_dom_gp_per_frame())
+    out.write_text(json.dumps(results, indent=1) + "\n")
+    print(f"per-unit CPU costs, {large} over {small}; CPU = fixed + per unit x units through both runs")
+    print(f"{'stage':<14} {'unit':<13} {'CPU/unit small':>14} {'large':>9} {'ratio':>6} {'fixed CPU s':>11} "
+          f"{'per unit':>9} {'fixed share':>11} {'3,000 fr h':>10} {'plain h':>8}")
+    for st, v in c["stages"].items():
+        print(f"{st:<14} {v['unit']:<13} {v['cpu_per_unit_s'][0]:>14.3f} {v['cpu_per_unit_s'][1]:>9.3f} "
+              f"{v['ratio']:>6.2f}{' ' if v['within_25_pct'] else '*'}{v['fixed_cpu_s']:>10.1f} "
+              f"{v['marginal_cpu_s_per_unit']:>9.3f} {v['fixed_share_of_large']:>11} {v['projected_cpu_h']:>10.2f} "
+              f"{v['projected_cpu_h_plain']:>8.2f}")
+    for st, v in c["alternatives"].items():
+        print(f"  {st}: {v['cpu_per_unit_s'][0]:.3f} / {v['cpu_per_unit_s'][1]:.3f} CPU-s, ratio {v['ratio']:.2f}, "
+              f"fixed {v['fixed_cpu_s']:.1f} CPU-s, projected {v['projected_cpu_h']:.2f} CPU-h (not in the sum)")
+    print(f"projected to {c['frames']} frames, {c['lidar_points'] / 1e9:.0f} G points, {c['dom_gp']} GP of DOM "
+          f"(a frame's base x strip spacing): "
+          f"{c['projected_cpu_h']} CPU-h with the fixed parts once ({c['projected_cpu_h_plain']} CPU-h per unit "
+          f"of the larger run); * outside 25 %")
+    return 0
 
 
 def dmc_lines(e: dict) -> list[str]:
@@ -433,9 +560,15 @@ def main(argv=None) -> int:
     ap.add_argument("--workers", type=int, help="passed to aerotri run")
     ap.add_argument("--run-dir", type=Path, help="the run folder (default: the block's folder name + _run beside it)")
     ap.add_argument("--out", type=Path, help="results file (default bench/results/scale.json; DMC sizes bench/results/scale_dmc.json)")
+    ap.add_argument("--key", help="the run's entry in the results file (default: the size), e.g. to keep an older run")
+    ap.add_argument("--compare", nargs=2, metavar=("SMALL", "LARGE"),
+                    help="two DMC entries of the results file: their per-unit CPU costs side by side, each stage's "
+                         "fixed and per-unit part, the projection from the larger without its fixed part")
     args = ap.parse_args(argv)
-    dmc = args.size in DMC_SIZES
+    dmc = args.size in DMC_SIZES or bool(args.compare)
     args.out = args.out or ROOT / "bench" / "results" / ("scale_dmc.json" if dmc else "scale.json")
+    if args.compare:
+        return print_comparison(json.loads(args.out.read_text()) if args.out.exists() else {}, args.out, *args.compare)
 
     block = args.block or BLOCKS / (DMC_BLOCKS[args.size] if dmc else
                                     "scale" if args.size == "full" else f"scale_{args.size}")
@@ -444,7 +577,8 @@ def main(argv=None) -> int:
         return 0
     run_dir = args.run_dir or block.parent / f"{block.name}_run"
     results = json.loads(args.out.read_text()) if args.out.exists() else {}
-    entry = dict(results.get(args.size, {})) if args.table_only else {}
+    key = args.key or args.size
+    entry = dict(results.get(key, {})) if args.table_only else {}
     if args.generate or args.generate_only:
         if (block / "truth" / "truth.json").exists():
             print(f"{block}: block exists, reusing it", flush=True)
@@ -453,7 +587,7 @@ def main(argv=None) -> int:
             print(f"generated in {g['wall_s'] / 60:.1f} min, CPU {g['cpu_s'] / 60:.1f} min, peak RSS "
                   f"{g['peak_rss_mb']:.0f} MB, load {g['load_avg_before']} -> {g['load_avg_after']}", flush=True)
         if args.generate_only:
-            results[args.size] = dict(results.get(args.size, {}), **entry)
+            results[key] = dict(results.get(key, {}), **entry)
             args.out.parent.mkdir(parents=True, exist_ok=True)
             args.out.write_text(json.dumps(results, indent=1) + "\n")
             return 0
@@ -465,6 +599,7 @@ def main(argv=None) -> int:
     blk = block_numbers(block)
     run = None if args.table_only else run_chain(block, run_dir, args.scheduler, args.workers)
     rows = stage_rows(stage_records(run_dir), blk)
+    stage_load(rows, run_dir, (run or entry.get("run") or {}).get("load_samples"))
     summary = run_dir / "work" / "run_summary.json"
     chain_load = ({k: v for k, v in json.loads(summary.read_text()).items() if k.startswith("load_avg")}
                   if summary.exists() else {})
@@ -478,14 +613,14 @@ def main(argv=None) -> int:
         entry["run"] = run
     if not args.table_only:
         entry["measured_utc"] = time.strftime("%Y-%m-%d %H:%M", time.gmtime())
-    results[args.size] = dict(results.get(args.size, {}), **entry)
+    results[key] = dict(results.get(key, {}), **entry)
     args.out.parent.mkdir(parents=True, exist_ok=True)
     args.out.write_text(json.dumps(results, indent=1) + "\n")
 
-    print(f"\n{args.size} block: {blk['frames']} frames of {blk['image_width_px']} x {blk['image_height_px']} px, "
+    print(f"\n{key} block: {blk['frames']} frames of {blk['image_width_px']} x {blk['image_height_px']} px, "
           f"{blk['lidar_points'] / 1e6:.2f} M LiDAR points in {blk['lidar_strips']} strips, {blk['scene_km2']} km2")
     print(format_table(rows))
-    print(verdict_line(args.size, entry["verdict"]))
+    print(verdict_line(key, entry["verdict"]))
     if dmc:
         print("\n".join(dmc_lines(entry)))
         results["constancy"] = constancy(results)

@@ -166,3 +166,54 @@ def test_dmc_unit_costs_projection_and_constancy(scale):
     v = scale.verdict(rows, dict(returncode=0, wall_s=3600.0), scale.DMC_LIMIT_WALL_MIN, scale.DMC_LIMIT_PEAK_GB)
     assert v["under_180_min"] and v["under_12_gb"]
     assert "limit 180 min: within" in scale.verdict_line("dmc_3x8", v)
+
+
+def test_two_sizes_fixed_and_per_unit_parts(scale, tmp_path, capsys):
+    """--compare: two runs whose stage CPU is fixed + per unit x units give back both parts, the ratio of their
+    per-unit costs and the projection with the fixed part counted once."""
+    def entry(frames, points_m, dom_gp):
+        blk = dict(frames=frames, image_width_px=13824, image_height_px=7680, lidar_points=points_m * 1e6)
+        cpu = {"classify": 300.0 + 12.0 * points_m, "match": 40.0 + 2.0 * frames, "mosaic": 30.0 + 200.0 * dom_gp}
+        records = [dict(stage=st, status="done", seconds=c, cpu_s=c, peak_rss_mb=1000.0) for st, c in cpu.items()]
+        rows = scale.stage_rows(records, dict(blk, scene_km2=1.0))
+        return dict(block_numbers=blk, dom_gp=dom_gp, unit_costs=scale.unit_costs(rows, blk, dom_gp))
+
+    small, large = entry(8, 25, 0.4), entry(24, 69, 1.2)
+    c = scale.compare_sizes(small, large)["stages"]
+    assert c["classify"]["fixed_cpu_s"] == pytest.approx(300.0, abs=1.0)
+    assert c["classify"]["marginal_cpu_s_per_unit"] == pytest.approx(12.0, abs=0.01)
+    assert c["match"]["fixed_cpu_s"] == pytest.approx(40.0, abs=0.1) and c["match"]["units"] == [8, 24]
+    # per frame 7 s against 3.67 s: the fixed part makes the small block's unit cost 1.9 x the large one's
+    assert c["match"]["ratio"] == pytest.approx((40 / 24 + 2) / (40 / 8 + 2), abs=0.01) and not c["match"]["within_25_pct"]
+    assert c["match"]["projected_cpu_h"] == pytest.approx((40 + 2 * 3000) / 3600, abs=0.01)
+    # the DOM of 3,000 frames at the larger block's DOM per frame: 150 GP
+    assert c["mosaic"]["projected_cpu_h"] == pytest.approx((30 + 200 * 150) / 3600, abs=0.01)
+    # inside a large block a DMC frame adds its base (40 % of 7680 px) times the strip spacing (70 % of 13824 px)
+    assert scale.interior_dom_gp_per_frame() == pytest.approx(0.4 * 7680 * 0.7 * 13824 / 1e9)
+    c = scale.compare_sizes(small, large, dom_gp_per_frame=0.03)["stages"]
+    assert c["mosaic"]["projected_cpu_h"] == pytest.approx((30 + 200 * 90) / 3600, abs=0.01)
+    out = tmp_path / "scale_dmc.json"
+    out.write_text(json.dumps({"a": small, "b": large, "constancy": {"kept": 1}}))
+    assert scale.main(["--compare", "a", "b", "--out", str(out)]) == 0
+    results = json.loads(out.read_text())
+    assert results["constancy"] == {"kept": 1} and results["constancy_b_over_a"]["stages"]["match"]["ratio"] < 0.75
+    assert "match" in capsys.readouterr().out
+    with pytest.raises(SystemExit, match="no DMC entry 'c'"):
+        scale.main(["--compare", "a", "c", "--out", str(out)])
+
+
+def test_stage_load_from_the_samples_over_its_interval(scale, tmp_path):
+    import os
+
+    stages = tmp_path / "work" / "stages"
+    stages.mkdir(parents=True)
+    for name, end in (("strips", 1000.0), ("classify", 1100.0), ("report", 1103.0)):
+        (stages / f"{name}.json").write_text("{}")
+        os.utime(stages / f"{name}.json", (end, end))
+    rows = [dict(stage="strips", status="done", wall_s=95.0), dict(stage="classify", status="done", wall_s=95.0),
+            dict(stage="report", status="done", wall_s=1.0), dict(stage="control", status="skipped", wall_s=0.0)]
+    samples = [[t, 1.0 if t <= 1000 else 3.0, 0.0, 0.0] for t in range(900, 1101, 10)]
+    scale.stage_load(rows, tmp_path, samples)
+    assert rows[0]["load_1min"] == 1.0 and rows[1]["load_1min"] == 3.0
+    assert rows[2]["load_1min"] == 3.0  # shorter than the sampling step: the sample nearest its end
+    assert "load_1min" not in rows[3]
