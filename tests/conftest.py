@@ -65,6 +65,62 @@ def built_once(tmp_path_factory, name: str, build: Callable[[Path], None]) -> Pa
     return out
 
 
+# where the workers' and the background builds' per-kernel numba locks are (the run's common temporary folder)
+NUMBA_LOCKS_ENV = "AEROTRI_TEST_NUMBA_LOCKS"
+NUMBA_LOCK_WAIT_S = 300.0  # then compile anyway: a wait can never turn into a deadlock
+
+
+def share_numba_compilations(folder: Path) -> None:
+    """Compile each cached numba kernel in one process of the run and load it from numba's cache in the others.
+
+    Patches ``numba``'s ``Dispatcher.compile`` in this process: before compiling a kernel with ``cache=True`` for a
+    signature it has not loaded, the process takes an ``flock`` of that kernel in ``folder`` (under the compiler's
+    own process lock, so that the threads of one process take them in one order); a process that needs the kernel
+    while another compiles it waits, and then numba finds it in the cache (it reads the cache index from disk on
+    each load) instead of compiling it a second time. Per kernel, not per signature: the index file of a kernel
+    is then also written by one process at a time. Kernels without ``cache=True`` are compiled as before."""
+    import fcntl
+    import hashlib
+    import time
+
+    from numba.core import dispatcher, sigutils
+    from numba.core.caching import NullCache
+    from numba.core.compiler_lock import global_compiler_lock
+
+    compile_ = dispatcher.Dispatcher.compile
+    if getattr(compile_, "shared_by_lock", False):
+        return
+    folder.mkdir(parents=True, exist_ok=True)
+    held: set[str] = set()  # kernels this process holds the lock of (a recursive kernel compiles inside its own)
+
+    def compile(self, sig):
+        cache = self._cache
+        if isinstance(cache, NullCache) or tuple(sigutils.normalize_signature(sig)[0]) in self.overloads:
+            return compile_(self, sig)
+        key = hashlib.sha1(cache._cache_file._index_path.encode()).hexdigest()[:20]
+        with global_compiler_lock:
+            if key in held:
+                return compile_(self, sig)
+            with open(folder / f"{key}.lock", "w") as lock:
+                deadline = time.monotonic() + NUMBA_LOCK_WAIT_S
+                while True:
+                    try:
+                        fcntl.flock(lock, fcntl.LOCK_EX | fcntl.LOCK_NB)
+                        break
+                    except BlockingIOError:
+                        if time.monotonic() > deadline:
+                            break
+                        time.sleep(0.05)
+                held.add(key)
+                try:  # loads the kernel from the cache when another process has just compiled it
+                    return compile_(self, sig)
+                finally:
+                    held.discard(key)
+
+    compile.shared_by_lock = True
+    dispatcher.Dispatcher.compile = compile
+
+
 def _build_tiny(out: Path) -> None:
     from aerotri.sim import load_preset, simulate
 
@@ -106,6 +162,16 @@ def pytest_collection_modifyitems(session, config, items) -> None:
         return folder_rank[folder(item)], module_needs[item.path], module_rank[item.path]
 
     items.sort(key=key)  # stable: file order within a module
+
+
+def pytest_sessionstart(session) -> None:
+    """On an xdist worker: :func:`share_numba_compilations` in the run's common temporary folder (before the
+    collection, which imports the kernels), also for the background builds this worker starts."""
+    if not os.environ.get("PYTEST_XDIST_WORKER"):
+        return
+    folder = session.config._tmp_path_factory.getbasetemp().parent / "numba-locks"  # as in built_once
+    os.environ[NUMBA_LOCKS_ENV] = str(folder)
+    share_numba_compilations(folder)
 
 
 def pytest_collection_finish(session) -> None:
@@ -161,6 +227,8 @@ def build_once(tmp_path_factory) -> Callable[[str, Callable[[Path], None]], Path
 
 if __name__ == "__main__":  # the background build of pytest_collection_finish (the lock is inherited)
     name, out, done = sys.argv[1], Path(sys.argv[2]), Path(sys.argv[3])
+    if os.environ.get(NUMBA_LOCKS_ENV):
+        share_numba_compilations(Path(os.environ[NUMBA_LOCKS_ENV]))
     shutil.rmtree(out, ignore_errors=True)
     SHARED_BUILDS[name][0](out)
     done.touch()

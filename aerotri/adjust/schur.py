@@ -606,7 +606,7 @@ _sum_of_squares_parallel = numba.njit(parallel=True, cache=True)(_variant(_sum_o
 def point_increments(Vinv, bp, W, Z, obs_image, start, *, d_pose, d_cal):
     """``_point_increments``, in parallel for blocks of ``PARALLEL_MIN_RAYS`` rays or more."""
     f = _point_increments_parallel if len(obs_image) >= PARALLEL_MIN_RAYS else _point_increments_serial
-    return f(_PointBlocks(Vinv, bp, W, Z), obs_image, start, d_pose, d_cal)
+    return f(_PointBlocks(Vinv, bp, W, Z), obs_image, start, d_pose, np.require(d_cal, float, "CW"))  # one signature
 
 
 def sum_of_squares(xy, obs_image, row, centre, R_cv, points, *, cal, inv_sigma, huber_k):

@@ -82,7 +82,9 @@ class HeightGrid:
         else:
             z = self.z if self.z.dtype in (np.float32, np.float64) else self.z.astype(float)
             z = np.ascontiguousarray(z)
-            h, hx, hy = _sample_cubic(z, float(self.x0), float(self.y0), float(self.res), xb, yb)
+            # writable x, y (broadcast_to gives read-only views or writable copies): numba compiles one signature
+            h, hx, hy = _sample_cubic(z, float(self.x0), float(self.y0), float(self.res),
+                                      np.require(xb, requirements="W"), np.require(yb, requirements="W"))
             if len(xb) >= 10_000:  # only large calls are worth keeping
                 self._last = (xb.copy(), yb.copy(), h.copy(), hx.copy(), hy.copy())
         return h.reshape(shape), hx.reshape(shape), hy.reshape(shape)

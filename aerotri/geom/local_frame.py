@@ -176,7 +176,8 @@ class MapAnchors:
             self._grow(int(idx.max()) + 1)
         m = np.empty_like(p)
         stale = np.zeros(len(p), dtype=bool)
-        _taylor(self.p0, self.m0, self.J0, idx, p, tol=self.tol_m, m=m, stale=stale)
+        # idx contiguous (a caller's index may be a strided view): numba compiles one signature
+        _taylor(self.p0, self.m0, self.J0, np.ascontiguousarray(idx), p, tol=self.tol_m, m=m, stale=stale)
         if stale.any():
             k = np.flatnonzero(stale)
             slot = idx[k]

@@ -166,8 +166,8 @@ class FrameSetup:
         margin = CELL_MARGIN_PX + float(sample_reach_px)
         rmin, rmax = _cell_rows(PX, PY, W, H, margin)
         self.cell_box = _cell_boxes(PX, PY, margin)
-        self.cell_start, self.cell_list = _bin(rmin, rmax, np.maximum(self.cell_box[:, 0], 0),
-                                               np.minimum(self.cell_box[:, 1], W - 1), tiles)
+        self.cell_start, self.cell_list = _bin(*_int64(rmin, rmax, np.maximum(self.cell_box[:, 0], 0),
+                                                       np.minimum(self.cell_box[:, 1], W - 1)), tiles)
         # building triangles whose ground box meets the region
         if len(look.tv):
             sel = np.flatnonzero((look.tri_hi[:, 0] >= xmin) & (look.tri_lo[:, 0] <= xmax)
@@ -178,8 +178,8 @@ class FrameSetup:
         TV = np.ascontiguousarray(e.to_camera(look.tv[sel] - self.C).reshape(-1, 3, 3))  # camera-frame vertices
         self.TV = TV
         self.tri_box = _vertex_boxes(TV.reshape(-1, 3), 3, params, W, H)
-        self.tri_start, self.tri_list = _bin(self.tri_box[:, 2], self.tri_box[:, 3], self.tri_box[:, 0],
-                                             self.tri_box[:, 1], tiles)
+        self.tri_start, self.tri_list = _bin(*_int64(self.tri_box[:, 2], self.tri_box[:, 3], self.tri_box[:, 0],
+                                                     self.tri_box[:, 1]), tiles)
         # crowns: the 8 corners of each crown's box
         if len(look.tc):
             reach = look.ta[:, 0]
@@ -203,8 +203,8 @@ class FrameSetup:
         d_c = look.tc[selk] - self.C
         self.tree_G = np.ascontiguousarray(D_inv @ np.linalg.inv(e.jacobian(d_c)))
         self.tree_s = np.ascontiguousarray(-np.einsum("kij,kj->ki", self.tree_G, e.to_camera(d_c)))
-        self.tree_start, self.tree_list = _bin(self.tree_box[:, 2], self.tree_box[:, 3], self.tree_box[:, 0],
-                                               self.tree_box[:, 1], tiles)
+        self.tree_start, self.tree_list = _bin(*_int64(self.tree_box[:, 2], self.tree_box[:, 3], self.tree_box[:, 0],
+                                                       self.tree_box[:, 1]), tiles)
 
     def _ground_region(self, look: SceneLook):
         """Ground box (local x, y) that the frame's rays cross between the scene's lowest and highest
@@ -329,6 +329,12 @@ def _vertex_boxes(Vc, per_item, params, W, H):
         box[k, 2] = max(0, int(math.floor(y0)) - 2)
         box[k, 3] = min(H - 1, int(math.ceil(y1)) + 2)
     return box
+
+
+def _int64(*arrays) -> list[np.ndarray]:
+    """``_bin``'s index arrays as contiguous int64 (the cells' are int32, the boxes' column slices): numba compiles
+    it for one signature."""
+    return [np.ascontiguousarray(a, dtype=np.int64) for a in arrays]
 
 
 @numba.njit(cache=True)

@@ -364,7 +364,9 @@ def hillshade_grey_of_dem(dem: np.ndarray, res_m: float, azimuth_deg: float = 31
     them (NaN black), with the float64 sum, clip, NaN test and grey level in one numba pass instead of eight
     whole-array temporaries."""
     cos_slope, sin_slope, cos_rel, alt = _hillshade_terms(dem, res_m, azimuth_deg, altitude_deg)
-    return _shade_grey(dem, (cos_slope, sin_slope, cos_rel), (float(np.sin(alt)), float(np.cos(alt))), _GREY_LUT)
+    # a contiguous DEM (a window of a larger one is a strided view): numba compiles one signature per dtype
+    sun = float(np.sin(alt)), float(np.cos(alt))
+    return _shade_grey(np.ascontiguousarray(dem), (cos_slope, sin_slope, cos_rel), sun, _GREY_LUT)
 
 
 @numba.njit(cache=True, nogil=True)
@@ -509,7 +511,8 @@ def _bin_points(inputs: _Inputs, args, grid, work: Path, chunk_points: int) -> n
         for x, y, z, cls, rn, inten in _read_ahead(chunks):
             count = np.zeros(grid.n_tiles + 1, np.int64)
             rec = np.empty(_membership_count(x, y, lay, count), _BIN_DTYPE)     # the memberships' records, by tile
-            n_ground += _gather_records(rec, count, _ChunkPoints(x, y, z, cls, rn, inten), lay)
+            # classes contiguous (a strided record field of some files): numba compiles one signature
+            n_ground += _gather_records(rec, count, _ChunkPoints(x, y, z, np.ascontiguousarray(cls), rn, inten), lay)
             for tid in np.flatnonzero(count[1:] > count[:-1]):
                 used[tid] = True
                 with open(work / f"tile_{tid}.bin", "ab") as fh:

@@ -482,7 +482,7 @@ def _accumulate(accs, s, chunk, *, x, y, z, sel, multi, ang, t, grid, z_ref, ext
     i0, j0 = int(i.min()), int(j.min())
     nr, nc = int(i.max()) - i0 + 1, int(j.max()) - j0 + 1
     if nr * nc <= DENSE_CELLS_PER_POINT * len(w) + 4096:
-        box, S, A = _cell_sums(x, y, z, sel=sel, single=use, ang=ang, t=t,
+        box, S, A = _cell_sums(x, y, z, sel=sel, single=use, ang=ang, t=np.ascontiguousarray(t),  # one signature
                                ex=ex if ex is not None else np.zeros((len(x), 0)), x0=grid.x0, y0=grid.y0,
                                cell_m=cell_m, z_ref=z_ref, i0=i0, j0=j0, nr=nr, nc=nc)
         ids = (i0 + box // nc) * grid.ncols + j0 + box % nc  # ascending as box
