@@ -479,7 +479,7 @@ def _overview_png(path, res: CheckResult, vmax: float, title: str) -> None:
     save_png(fig, path, dpi=100)
 
 
-def not_compared(r: StripCheckResult) -> dict[str, str]:
+def _not_compared(r: StripCheckResult) -> dict[str, str]:
     """Strip name -> why no cell of it was compared (its points and planar cells, and the strips it overlaps too
     little or none), for each strip without differences."""
     out = {}
@@ -498,4 +498,4 @@ def _html(path: Path, summary: StripCheckResult, title: str) -> None:
 
     # the page shows strips.json's numbers, under its names
     path.write_text(render("strips_check.html.j2", package="lidarctl", s=_check_record(summary),
-                           not_compared=not_compared(summary), title=title))
+                           not_compared=_not_compared(summary), title=title))
