@@ -151,9 +151,10 @@ def _apply_q(block: G.Block, pr: PointRays, rc, l_p: np.ndarray, l_c: np.ndarray
     return u_p, u_c, var
 
 
-def _shares(block: G.Block, opts: G.SolveSettings, state: G.State, control_active, rc, pr: PointRays, *, u_p, u_c, var,
+def _shares(block: G.Block, state: G.State, control_active, pr: PointRays, *, u_p, u_c, var, gnss_change,
             fields_of: int | None = None) -> tuple[dict, np.ndarray | None]:
-    """Group -> (M,) share of each functional's information ``u' H_k u / l'Q l`` (``priors``: the rest); and for the
+    """Group -> (M,) share of each functional's information ``u' H_k u / l'Q l`` (``priors``: the rest; ``gnss_change``:
+    ``_gnss_change`` of the same ``u``, None without GNSS); and for the
     functional ``fields_of``, per ``UNMODELLED_FIELDS`` field ``g`` the same in every image, its change under ``g``
     (``u' A' W g``) and ``g``'s largest magnitude over the rays (F, 2) (image coordinates: the rays' normalised ones;
     the ratio of the two does not depend on their scale)."""
@@ -172,8 +173,8 @@ def _shares(block: G.Block, opts: G.SolveSettings, state: G.State, control_activ
                 g = x**a * y**b
                 fields[f, 0] += pr.weight * float(d_ray[fields_of, :, c] @ g)
                 fields[f, 1] = max(fields[f, 1], float(np.max(np.abs(g), initial=0.0)))
-    if block.gnss_local is not None:
-        share["gnss"] = _gnss_information(block, opts, state, rc, u_c)
+    if gnss_change is not None:
+        share["gnss"] = _gnss_information(block, gnss_change)
     ctrl = [c for c in np.flatnonzero(control_active) if pr.used[block.control_point[c]]]
     if ctrl:
         P = np.linalg.inv(block.control_cov_local[ctrl])
@@ -214,7 +215,9 @@ def geometry_modes(block: G.Block, opts: G.SolveSettings, state: G.State, obs_ac
         l_c[-2, rc.offset[K_KEY] + np.array([0, 1])] = 0.5
         l_c[-1, (pr.pose_offset[:, None] + np.arange(3, 6)).ravel()] = -(state.R_cv[:, 2, :] / block.n_images).ravel()
     u_p, u_c, var = _apply_q(block, pr, rc, l_p, l_c)
-    share, fields = _shares(block, opts, state, control_active, rc, pr, u_p=u_p, u_c=u_c, var=var,
+    # the GNSS positions' change under each functional, once: their information and the focal length's GNSS test
+    dg = _gnss_change(block, opts, state, rc, u_c) if block.gnss_local is not None else None
+    share, fields = _shares(block, state, control_active, pr, u_p=u_p, u_c=u_c, var=var, gnss_change=dg,
                             fields_of=len(l_p) - 2 if self_cal else None)
     out = []
     for m, name in enumerate(MODES):
@@ -235,7 +238,7 @@ def geometry_modes(block: G.Block, opts: G.SolveSettings, state: G.State, obs_ac
     k = np.flatnonzero(~np.isin(block.obs_point, block.control_point) & np.asarray(obs_active, bool))
     depth = np.einsum("kji,kj->ki", state.R_cv[block.obs_image[k]],
                       state.points[block.obs_point[k]] - state.centre[block.obs_image[k]])[:, 2]
-    gnss_z_px = _gnss_heights(block, opts, state, rc, u_c[-2]) if block.gnss_local is not None else 0.0
+    gnss_z_px = _gnss_heights(block, dg[-2]) if dg is not None else 0.0
     # an image-wide field as large as the residuals' sigma (sigma0 times the a-priori sigma) where it is largest
     field_px = float(np.max(np.abs(fields[:, 0]) / fields[:, 1])) * sigma0 / np.sqrt(pr.weight)
     cc = CalibrationCovariance(cal_cov, cross, mode_var, {g: float(v[-2]) for g, v in share.items()},
@@ -254,15 +257,16 @@ def _gnss_change(block: G.Block, opts: G.SolveSettings, state: G.State, rc, u_c:
     return np.stack([sum(u_c[:, rc.offset[k]:rc.offset[k] + J.shape[1]] @ J.T for k, J in row) for row in rows], axis=1)
 
 
-def _gnss_information(block: G.Block, opts: G.SolveSettings, state: G.State, rc, u_c: np.ndarray) -> np.ndarray:
-    """``u' H_gnss u`` per mode: the GNSS positions' weighted change under each mode's ``u``."""
-    dg = _gnss_change(block, opts, state, rc, u_c)
+def _gnss_information(block: G.Block, dg: np.ndarray) -> np.ndarray:
+    """``u' H_gnss u`` per mode: the GNSS positions' weighted change under each mode's ``u`` (``dg``:
+    ``_gnss_change``)."""
     return np.einsum("mni,ni->m", dg * dg, 1.0 / block.gnss_sigma_m**2)
 
 
-def _gnss_heights(block: G.Block, opts: G.SolveSettings, state: G.State, rc, u_c: np.ndarray) -> float:
-    """The largest change of the functional of ``u`` (camera part ``u_c`` (n,)) were each GNSS height off by up to
-    its sigma: the estimate moves by ``u' A' W dy``, for the heights ``sum_i dz_i e_i / sigma_i^2`` (``dz`` the
-    height's change under ``u``), at most ``sum_i |dz_i| / sigma_i``."""
-    dz = _gnss_change(block, opts, state, rc, u_c[None])[0, :, 2]
+def _gnss_heights(block: G.Block, dg: np.ndarray) -> float:
+    """The largest change of the functional of ``u`` were each GNSS height off by up to its sigma (``dg`` (N, 3): the
+    GNSS positions' change under ``u``, a row of ``_gnss_change``): the estimate moves by ``u' A' W dy``, for the
+    heights ``sum_i dz_i e_i / sigma_i^2`` (``dz`` the height's change under ``u``), at most ``sum_i |dz_i| /
+    sigma_i``."""
+    dz = dg[:, 2]
     return float(np.sum(np.abs(dz) / block.gnss_sigma_m[:, 2]))
