@@ -95,9 +95,12 @@ def share_numba_compilations(folder: Path) -> None:
 
     def compile(self, sig):
         cache = self._cache
-        if isinstance(cache, NullCache) or tuple(sigutils.normalize_signature(sig)[0]) in self.overloads:
+        # the cache's index file names the kernel (numba's private attributes: another numba compiles unshared)
+        index = getattr(getattr(cache, "_cache_file", None), "_index_path", None)
+        if (isinstance(cache, NullCache) or not isinstance(index, str)
+                or tuple(sigutils.normalize_signature(sig)[0]) in self.overloads):
             return compile_(self, sig)
-        key = hashlib.sha1(cache._cache_file._index_path.encode()).hexdigest()[:20]
+        key = hashlib.sha1(index.encode()).hexdigest()[:20]
         with global_compiler_lock:
             if key in held:
                 return compile_(self, sig)

@@ -93,8 +93,6 @@ class LocalFrame:
         return U @ Vt
 
 
-
-
 class CameraOnEarth:
     """A frame's object -> camera transformation for points in the project CRS: map coordinates (x, y, h) -> ENU at
     the projection centre (``LocalFrame``) -> the computer-vision camera frame (x right, y down, z along the viewing
