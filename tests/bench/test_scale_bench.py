@@ -217,3 +217,31 @@ def test_stage_load_from_the_samples_over_its_interval(scale, tmp_path):
     assert rows[0]["load_1min"] == 1.0 and rows[1]["load_1min"] == 3.0
     assert rows[2]["load_1min"] == 3.0  # shorter than the sampling step: the sample nearest its end
     assert "load_1min" not in rows[3]
+
+
+def test_a_resumed_run_marks_the_stages_an_earlier_run_made(scale, tmp_path):
+    """``--resume``: the stages the chain skipped keep their earlier run's figures, marked as such in the rows, the
+    table and the unit costs, and get no load from this run's samples."""
+    import os
+
+    stages = tmp_path / "work" / "stages"
+    stages.mkdir(parents=True)
+    usage = dict(cpu_s=50.0, peak_rss_mb=900.0)
+    (stages / "classify.json").write_text(json.dumps(dict(seconds=120.0, usage=usage, result=dict(points=6_000_000))))
+    (stages / "match.json").write_text(json.dumps(dict(seconds=10.0, usage=dict(cpu_s=8.0, peak_rss_mb=500.0))))
+    for name, end in (("classify", 500.0), ("match", 1100.0)):
+        os.utime(stages / f"{name}.json", (end, end))
+    (tmp_path / "work" / "run_summary.json").write_text(json.dumps({"stages": [
+        dict(stage="classify", status="skipped (up to date)", seconds=0.0),
+        dict(stage="match", status="done", seconds=10.0, cpu_s=8.0, peak_rss_mb=500.0)]}))
+    records = scale.stage_records(tmp_path)
+    rows = scale.stage_rows(records, BLOCK)
+    assert rows[0]["earlier_run"] and rows[0]["cpu_s"] == 50.0 and rows[0]["wall_s"] == 120.0
+    assert "earlier_run" not in rows[1]
+    scale.stage_load(rows, tmp_path, [[t, 2.0, 0.0, 0.0] for t in range(1000, 1101, 10)])
+    assert "load_1min" not in rows[0] and rows[1]["load_1min"] == 2.0
+    assert "done (earlier run)" in scale.format_table(rows)
+    costs = scale.unit_costs(rows, BLOCK, None)
+    assert costs["classify"]["earlier_run"] and "earlier_run" not in costs["match"]
+    with pytest.raises(SystemExit, match="no project to resume"):
+        scale.run_chain(tmp_path, tmp_path / "nothing", None, None, resume=True)
