@@ -425,6 +425,12 @@ def accuracy(block: Path, run_dir: Path, rows: list[dict]) -> dict:
     if dom and "rms_xy_m" in rec.get("dom_check", {}):
         m = rec["dom_check"]["rms_xy_m"]
         out["dom"] = dict(rms_xy_m=round(m, 4), rms_xy_gsd=round(m / gsd, 2), patches=rec["dom_check"].get("count"))
+    qa = run_dir / "reports" / "summary.json"
+    if qa.exists():  # the chain's QA verdict and the items that failed it
+        q = json.loads(qa.read_text())
+        out["qa_verdict"] = dict(overall=q.get("overall"), passed=q.get("passed"), failed=[
+            {k: c.get(k) for k in ("id", "value", "limit", "unit", "note")}
+            for c in q.get("checks", []) if c.get("verdict") == "fail"])
     return out
 
 
@@ -556,6 +562,10 @@ def dmc_lines(e: dict) -> list[str]:
     if "dom" in a:
         lines.append(f"DOM against truth/ortho.tif: RMS XY {a['dom']['rms_xy_m']} m ({a['dom']['rms_xy_gsd']} GSD), "
                      f"{a['dom']['patches']} patches")
+    if "qa_verdict" in a:
+        v = a["qa_verdict"]
+        lines.append(f"QA verdict {v['overall']}: " + ("; ".join(f"{c['id']} {c['value']} (limit {c['limit']})"
+                                                           for c in v["failed"]) or "no item failed"))
     return lines
 
 

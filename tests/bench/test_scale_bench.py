@@ -245,3 +245,20 @@ def test_a_resumed_run_marks_the_stages_an_earlier_run_made(scale, tmp_path):
     assert costs["classify"]["earlier_run"] and "earlier_run" not in costs["match"]
     with pytest.raises(SystemExit, match="no project to resume"):
         scale.run_chain(tmp_path, tmp_path / "nothing", None, None, resume=True)
+
+
+def test_the_chains_qa_verdict_and_its_failed_items(scale, tmp_path):
+    """A DMC entry's accuracy carries the chain's QA verdict (reports/summary.json) with the items that failed it."""
+    (tmp_path / "block" / "truth").mkdir(parents=True)
+    (tmp_path / "block" / "truth" / "truth.json").write_text(json.dumps(dict(BLOCK, gsd_m=0.1)))
+    (tmp_path / "run" / "reports").mkdir(parents=True)
+    checks = [dict(id="seam_misalignment_rms_px", value=0.33, limit=1.0, unit="px", verdict="pass", note="1151"),
+              dict(id="flight_forward_overlap_min_pct", value=53.1, limit=56.0, unit="%", verdict="fail",
+                   note="worst at s02_003")]
+    (tmp_path / "run" / "reports" / "summary.json").write_text(json.dumps(dict(overall="fail", passed=1, checks=checks)))
+    a = scale.accuracy(tmp_path / "block", tmp_path / "run", [])
+    assert a["gsd_m"] == 0.1 and a["qa_verdict"] == dict(overall="fail", passed=1, failed=[dict(
+        id="flight_forward_overlap_min_pct", value=53.1, limit=56.0, unit="%", note="worst at s02_003")])
+    lines = scale.dmc_lines(dict(frames_gp=1.0, dom_gp=None, unit_costs={}, accuracy=a, projection=dict(
+        frames=3000, lidar_points=2e9, dom_gp=0, wall_h=0, cpu_h=0, stages={}, assumes="")))
+    assert "QA verdict fail: flight_forward_overlap_min_pct 53.1 (limit 56.0)" in lines
