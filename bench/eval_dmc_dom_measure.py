@@ -8,7 +8,9 @@ and splits them by the class of ``truth/classes.tif`` under each patch centre (1
 water): the DOM check's listed patches (the first 20,000 of ``dom_report.json``), the share above 3 GSD, their
 classes and directions (the roads run at 12 and 102 deg from east), the RMS without them; the seams' patches
 recomputed as ``seam_misalignment`` does (same windows, nDSM below 0.5 m, NCC >= 0.7), with their positions, split
-on / off roads and along a strip / across strips. Writes bench/results/dmc_dom_measure.json under ``--key``.
+on / off roads and along a strip / across strips; and the listed patches by the shape of their texture (the
+structure tensor's eigenvalue ratio, ``anisotropy``: a road's edges give texture in one direction only). Writes
+bench/results/dmc_dom_measure.json under ``--key`` (``--anisotropy-only``: that split added to the key's entry).
 
 Usage: python bench/eval_dmc_dom_measure.py RUN_DIR BLOCK_DIR --key dmc_2x4_cccbc0a
 """
@@ -113,19 +115,60 @@ def dom_patches(root: Path, classes: Classes) -> dict:
                                                                                       range=(0, 180))[0].tolist()))
 
 
+def anisotropy(root: Path, patch_px: int = 48) -> dict:
+    """The DOM check's listed patches by the shape of their texture: the ratio of the small to the large eigenvalue
+    of the patch's gradient structure tensor (Sobel, over the DOM patch; 0: texture in one direction only, a road's
+    edges; 1: a corner's). Per ratio band the patches, their RMS and share above 3 GSD; and the RMS of the patches at
+    or above each threshold (what the DOM check would report with such a test)."""
+    import cv2
+
+    rep = json.loads((root / "ortho" / "dom_report.json").read_text())
+    P = rep["patches"]
+    d = np.hypot([p["de_m"] for p in P], [p["dn_m"] for p in P]) / rep["gsd_m"]
+    ratio = np.full(len(P), np.nan)
+    half = patch_px // 2
+    with rasterio.open(rep["dom"]) as ds:
+        for k, p in enumerate(P):
+            r0, c0 = int(round(p["row_px"] - (patch_px - 1) / 2.0)), int(round(p["col_px"] - (patch_px - 1) / 2.0))
+            a = ds.read(1, window=rasterio.windows.Window(c0, r0, patch_px, patch_px)).astype(np.float32)
+            if a.shape != (patch_px, patch_px):
+                continue
+            gx, gy = cv2.Sobel(a, cv2.CV_32F, 1, 0), cv2.Sobel(a, cv2.CV_32F, 0, 1)
+            j = np.array([[np.sum(gx * gx), np.sum(gx * gy)], [np.sum(gx * gy), np.sum(gy * gy)]], float)
+            w = np.linalg.eigvalsh(j)
+            ratio[k] = w[0] / w[1] if w[1] > 0 else 0.0
+    ok = np.isfinite(ratio)
+    bands = [0.0, 0.05, 0.1, 0.2, 0.3, 0.5, 1.01]
+    out = dict(patch_px=patch_px, read=int(ok.sum()), bands=[], at_or_above={})
+    for lo, hi in zip(bands[:-1], bands[1:]):
+        s = ok & (ratio >= lo) & (ratio < hi)
+        out["bands"].append(dict(ratio_from=lo, ratio_to=min(hi, 1.0), **_rms(d[s]),
+                                 above_3_gsd_pct=round(100.0 * float((d[s] > 3).mean()), 2) if s.any() else None))
+    for t in (0.05, 0.1, 0.15, 0.2, 0.3):
+        s = ok & (ratio >= t)
+        out["at_or_above"][str(t)] = dict(kept_pct=round(100.0 * float(s.sum()) / max(int(ok.sum()), 1), 1), **_rms(d[s]),
+                                          above_3_gsd_pct=round(100.0 * float((d[s] > 3).mean()), 2))
+    return out
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("run_dir", type=Path)
     ap.add_argument("block", type=Path, help="the simulated block (its truth/classes.tif)")
     ap.add_argument("--key", required=True)
+    ap.add_argument("--anisotropy-only", action="store_true", help="add the texture-shape split to the key's entry")
     ap.add_argument("--out", type=Path, default=ROOT / "bench" / "results" / "dmc_dom_measure.json")
     args = ap.parse_args(argv)
     classes = Classes(args.block / "truth" / "classes.tif")
     t0 = time.process_time()
-    entry = dict(run_dir=str(args.run_dir), dom_check_gsd=dom_patches(args.run_dir, classes),
-                 seams_px=seam_patches(args.run_dir, classes), measured_utc=time.strftime("%Y-%m-%d %H:%M", time.gmtime()))
-    entry["cpu_s"] = round(time.process_time() - t0, 1)
     results = json.loads(args.out.read_text()) if args.out.exists() else {}
+    if args.anisotropy_only:  # added to the run's entry
+        entry = dict(results.get(args.key, {}), dom_check_anisotropy=anisotropy(args.run_dir))
+    else:
+        entry = dict(run_dir=str(args.run_dir), dom_check_gsd=dom_patches(args.run_dir, classes),
+                     seams_px=seam_patches(args.run_dir, classes), dom_check_anisotropy=anisotropy(args.run_dir),
+                     measured_utc=time.strftime("%Y-%m-%d %H:%M", time.gmtime()))
+    entry["cpu_s" if not args.anisotropy_only else "anisotropy_cpu_s"] = round(time.process_time() - t0, 1)
     results[args.key] = entry
     args.out.write_text(json.dumps(results, indent=1) + "\n")
     print(json.dumps(entry, indent=1))
