@@ -204,7 +204,8 @@ def main() -> None:
     common = sorted(set(out["flat"]["check_d_m"]) & set(out["earth"]["check_d_m"]))
     out["check_points_common"] = {"count": len(common)}
     for variant in ("flat", "earth"):
-        d = np.array([out[variant].pop("check_d_m")[p] for p in common], float).reshape(-1, 3)
+        check_d = out[variant].pop("check_d_m")
+        d = np.array([check_d[p] for p in common], float).reshape(-1, 3)
         out["check_points_common"][variant] = {"rms_xy_m": float(np.sqrt(np.mean(d[:, 0] ** 2 + d[:, 1] ** 2))),
                                                "rms_z_m": float(np.sqrt(np.mean(d[:, 2] ** 2))),
                                                "mean_m": [float(v) for v in d.mean(axis=0)]}
