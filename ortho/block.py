@@ -39,6 +39,7 @@ from aerotri.core.errors import InputError
 from aerotri.core.project import Project
 from aerotri.core.records import to_record
 from aerotri.core.settings import Resolved, settings_of
+from aerotri.geom.local_frame import FramesOnEarth
 from aerotri.geom.rotation import rotation_matrix_opk
 from aerotri.core.atomic import atomic_dir, atomic_path, remove_leftovers, write_text_atomic
 from aerotri.core.errors import OptionError
@@ -692,8 +693,6 @@ def _link_or_copy(src: Path, dst: Path) -> None:
 def _plane_footprint_bounds(camera, C, R, z_lo, z_hi, image_id, *, crs=None):
     """Bounds (project CRS) of the frame footprint between two horizontal planes (to pick the DEM window); ``crs``:
     the project CRS, whose map points the frame sees over the earth (``FramesOnEarth``; None: a Cartesian frame)."""
-    from aerotri.geom.local_frame import FramesOnEarth
-
     frame = FramesOnEarth(crs, C, R)
     x, y = border_pixels(camera, 16)
     d = frame.rays_local(camera, 0, x, y)
