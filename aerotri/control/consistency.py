@@ -1,8 +1,8 @@
 """Multi-ray intersection of a corner's image measurements and rejection of inconsistent rays.
 
-A corner measured in k >= 2 frames is intersected in object space (least squares over the rays);
-rays whose reprojection residual exceeds ``tol_px`` are dropped one at a time, worst first, while
-three or more remain. With two rays left a residual above the tolerance rejects the corner. The
+A corner measured in k >= 2 frames is intersected in object space (least squares over the rays, in the Cartesian
+frame of ``FramesOnEarth``); rays whose reprojection residual exceeds ``tol_px`` are dropped one at a time, worst
+first, while three or more remain. With two rays left a residual above the tolerance rejects the corner. The
 intersected point is finally compared with the LiDAR corner (type I error ``alpha`` on the
 Mahalanobis distance with LiDAR, image and orientation uncertainty): a wrong corner that the frames
 agree on (e.g. the foot of the wall instead of the eave) is far from the LiDAR position in height.

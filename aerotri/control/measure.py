@@ -4,7 +4,8 @@ Pixel convention as in ``aerotri.geom.camera``: origin at the centre of the top-
 
 Method (per frame):
 1. Prediction: the corner and its two roof edges (object directions from the LiDAR bearings) are
-   projected with the current orientation; the search radius follows from the corner's standard
+   projected with the current orientation, as a camera over the earth sees them (``FramesOnEarth``: a projected
+   CRS is not Cartesian); the search radius follows from the corner's standard
    deviations propagated into the image plus the orientation uncertainty (``eo_sigma_px``).
 2. Candidates: straight edges with the predicted directions (a line detector with known direction,
    i.e. a Hough transform restricted to the two LiDAR edge directions, on the colour gradient), shifted
