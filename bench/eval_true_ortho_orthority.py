@@ -265,10 +265,11 @@ def main() -> None:
                                    text=True).stdout.strip()
     from aerotri.core.atomic import write_text_atomic
 
-    doc = out
+    doc = json.loads(args.out.read_text()) if args.out.exists() else {}
     if args.key:  # the other keys (earlier runs) stay as they were
-        doc = json.loads(args.out.read_text()) if args.out.exists() else {}
         doc[args.key] = out
+    else:
+        doc.update(out)
     write_text_atomic(args.out, json.dumps(doc, indent=1) + "\n")
     print(f"wrote {args.out}")
 
