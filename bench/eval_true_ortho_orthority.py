@@ -15,10 +15,11 @@ the same 0.4 m cells on whole multiples of the cell size, bilinear resampling:
 
 Roofs: every frame ortho against the simulator's true orthophoto (truth/ortho.tif) at the simulator's roof corners
 (truth/roof_corners.csv) that lie in it, ``ortho.check.measure_roof_patches`` (patches of max(24 m, 48 px),
-masked NCC over the valid cells, patches at least 80 % valid; the demo's run of 2026-11 a phase correlation), pooled over the frames: RMS and median plan displacement (m, GSD) over the corners each
-way measured, and over the corner patches every way measured (the same patches). Also: the share of each frame's
-cells that orthority fills on the DSM and our true ortho leaves out as occluded (there orthority shows the surface in
-front: the roof mapped a second time).
+masked NCC over the valid cells, patches at least 80 % valid; the JSON's top-level run: a phase correlation), pooled
+over the frames: RMS and median plan displacement (m, GSD) over the corners each way measured, and over the corner
+patches every way measured (the same patches). Also: the share of each frame's cells that orthority fills on the DSM
+and our true ortho leaves out as occluded (there orthority shows the surface in front: the roof mapped a second
+time).
 
 A full-size DMC frame (``--frames``, the simulator's exact DEM and DSM and true orientation; the project is read
 only: its images and truth are linked, not copied) adds the open ground (``--ndsm``: ``ortho.check.
@@ -29,6 +30,7 @@ ground through ``CameraOnEarth``; a rectifier that takes easting, northing and h
 
 Usage: python bench/eval_true_ortho_orthority.py [--project /work/ref/demo_chain/project] [--work DIR]
        [--frames ID,..] [--eo REL] [--camera REL] [--dem REL] [--dsm REL] [--res-m M] [--ndsm PATH] [--key KEY]
+(REL: relative to the project, or an absolute path: e.g. the orientation and LiDAR rasters of a chain run)
 e.g. the DMC frame: --project /work/bench_blocks/dmc_block_subset_2x2 --frames s01_002 --eo truth/eo.txt
 --camera truth/camera.toml --dem truth/dem.tif --dsm truth/dsm.tif --res-m 0.1 --ndsm NDSM --key dmc_frame_s01_002
 """
