@@ -85,6 +85,7 @@ class BlockAdjustment:
     self_calibration_requested: tuple = ()  # the groups asked for (opts.self_calibration: those estimated)
     calibration_checks: list = dataclasses.field(default_factory=list)  # determinability.GroupCheck, every group
     dem_checks: list = dataclasses.field(default_factory=list)  # dem_check.DemCheck: surface control DEM, check DEM
+    check_from_lidar: int = 0  # check points that are corners of the project's LiDAR (share its strip offsets)
 
 
 def _settings_from_project(project: Project, s: AdjustSettings | None) -> AdjustSettings:
@@ -508,16 +509,24 @@ def _surface_control(project: Project, st: AdjustSettings, frame: LocalFrame, po
     planes = read_roof_planes(st.planes, crs, heights, st.plane_sigma_m) if st.planes is not None and not check else None
     # the frame's map heights are in the horizontal CRS's height unit (geom.crs.transform's convention)
     units = (linear_unit_m(crs), height_unit_m(horizontal_crs(crs)))
-    if st.surface_bias_sigma_m is not None:
-        bias_xy = bias_z = float(st.surface_bias_sigma_m)
-    elif planes is not None:
+    bias_xy = bias_z = surface_bias_sigma(project, st, planes)
+    if st.surface_bias_sigma_m is None and planes is not None:
         bias_xy, bias_z = planes.sigma_strip_xy_m, planes.sigma_strip_z_m
-    else:
-        bias_xy = bias_z = DEFAULT_SURFACE_BIAS_SIGMA_M
     return SurfaceControl(dem, frame, sigma_m=float(st.surface_sigma_m), ndsm=ndsm, max_ndsm_m=float(st.max_ndsm_m),
                           planes=planes, map_unit_m=units, bias_sigma_xy_m=bias_xy, bias_sigma_z_m=bias_z,
                           bias_cell_m=float(st.surface_bias_cell_m) / units[0],
                           bias_length_m=float(st.surface_bias_length_m) / units[0])
+
+
+def surface_bias_sigma(project: Project, st: AdjustSettings, planes=None) -> float:
+    """The surface control's systematic error (m) the covariances carry: ``surface_bias_sigma_m`` when set; else
+    for the project's LiDAR DEM (lidar_out/dem.tif) or roof planes ``DEFAULT_SURFACE_BIAS_SIGMA_M`` (the roof
+    planes' own strip sigmas replace it where given), for a DEM from elsewhere none (its systematic error is the
+    user's to state: the report calls the sigmas formal)."""
+    if st.surface_bias_sigma_m is not None:
+        return float(st.surface_bias_sigma_m)
+    lidar_dem = st.dem is not None and Path(st.dem).resolve() == project.dem_path.resolve()
+    return DEFAULT_SURFACE_BIAS_SIGMA_M if lidar_dem or planes is not None else 0.0
 
 
 def _lidar_control(project: Project, control: ControlPoints) -> np.ndarray:
@@ -746,6 +755,7 @@ def finish(prepared: PreparedBlock, result: AdjustmentResult) -> BlockAdjustment
         control_index_of_point={int(j): c for c, j in enumerate(block.control_point)}, check=check, gnss_map=gnss_map,
         gnss_residual_m=gres, n_tie_points=p.n_tie_points, check_obs=chk_obs, components=p.components,
         left_out=p.left_out, datum_notes=list(p.datum_notes), dem_checks=dem_checks,
+        check_from_lidar=int(_lidar_control(p.project, chk).sum()) if len(chk) else 0,
     )
 
 

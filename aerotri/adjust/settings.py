@@ -76,9 +76,10 @@ class AdjustSettings:
                             "georeferencing error, shared by all the DEM's (and roof planes') points of a cell of "
                             "surface_bias_cell_m, which the adjustment cannot average away; added to the covariances "
                             "of the orientations, object and check points (not estimated: the solution is the same). "
-                            "Default: the strip sigmas of the roof planes (lidarctl corners), else "
-                            "DEFAULT_SURFACE_BIAS_SIGMA_M; 0: the surface's points taken as independent (formal "
-                            "sigmas, too small by the LiDAR's strip errors).")
+                            "Default for the project's LiDAR (lidar_out/dem.tif, roof planes): the strip sigmas of "
+                            "the roof planes (lidarctl corners), else 0.03 m; for a DEM from elsewhere 0. 0: the "
+                            "surface's points taken as independent (formal sigmas: too small by the DEM's "
+                            "systematic error).")
     surface_bias_cell_m: float = setting(500.0, min=1.0, help="Width (m) across the flight direction over which the "
                                                               "surface's systematic error is taken as one offset: "
                                                               "about a LiDAR strip's swath.")

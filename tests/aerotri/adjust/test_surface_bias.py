@@ -56,8 +56,9 @@ def _normalised_rms(ba, truth_path):
 
 def test_orientation_sigmas_contain_the_truth_over_a_lidar_dem_with_strip_offsets(biased_block):
     root, settings = biased_block
-    formal = adjust_project(root, dataclasses.replace(settings, surface_bias_sigma_m=0.0))
-    ba = adjust_project(root, settings)
+    # a DEM given from outside the project's LiDAR stages: its systematic error is the user's to state
+    formal = adjust_project(root, settings)
+    ba = adjust_project(root, dataclasses.replace(settings, surface_bias_sigma_m=0.03))
     # the consider parameter changes the covariances only: the same solution
     np.testing.assert_allclose(ba.eo_map.centre_m, formal.eo_map.centre_m, atol=1e-6)
     assert formal.result.surface_bias is None
