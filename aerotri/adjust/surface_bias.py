@@ -191,7 +191,7 @@ def point_covariance(bias: SurfaceBias, rays, n_points: int) -> np.ndarray | Non
     out = np.full((n_points, 3, 3), np.nan)
     order = np.argsort(rays.pt, kind="stable")
     pt_sorted = rays.pt[order]
-    step = max(1, 20_000_000 // (3 * K))  # rays per chunk: the chunk's (rays, 3, K) at 160 MB
+    step = max(1, 10_000_000 // (16 * K))  # rays per chunk: their gathered sensitivities (rays, 6 or 15, K) at 80 MB
     bounds = np.unique(np.r_[np.searchsorted(pt_sorted, pt_sorted[::step]), len(order)])  # whole points per chunk
     for lo, hi in zip(bounds[:-1], bounds[1:]):
         k = order[lo:hi]

@@ -10,8 +10,10 @@ import pytest
 import rasterio
 
 from aerotri.adjust.pipeline import adjust_project, project_settings
+from aerotri.adjust.report import build_report, format_txt, optimistic_sigmas
 from aerotri.adjust.surface_bias import flight_direction
 from aerotri.core.project import Project
+from aerotri.core.records import to_record
 from aerotri.geom.eo import read_eo
 from aerotri.sim.command import simulate_command
 
@@ -73,6 +75,25 @@ def test_orientation_sigmas_contain_the_truth_over_a_lidar_dem_with_strip_offset
     # the object points carry it too (their own intersection's 5 cm dominate; the offsets' 3 cm add in quadrature)
     ratio = np.nanmedian(ba.points_sigma_map[:, 2]) / np.nanmedian(formal.points_sigma_map[:, 2])
     assert 1.05 < ratio < 1.4, ratio
+    # and the check points (intersected with the orientations' joint covariance; their rays' own 3-5 cm dominate)
+    chk = [k for k, c in ba.check.items() if np.isfinite(c["sigma_m"][2])]
+    r = np.array([ba.check[k]["sigma_m"][2] / formal.check[k]["sigma_m"][2] for k in chk])
+    assert len(r) and r.min() > 1.0 - 1e-9 and np.median(r) > 1.01, r
+    # the report says which: considered, or formal
+    for adj, considered, words in ((ba, True, "LiDAR strip offsets in the sigmas"), (formal, False, "formal")):
+        rec = to_record(build_report(adj))
+        assert rec["surface_control"]["systematic"]["considered"] is considered
+        assert words in format_txt(rec)
+
+
+def test_optimistic_sigmas_are_a_weakness_of_the_verdict():
+    rng = np.random.default_rng(3)
+    n = rng.normal(size=(300, 3))
+    assert optimistic_sigmas(n) is None
+    assert optimistic_sigmas(n * [1.0, 1.0, 1.4]) is None  # beyond the chi-square test, within 1.5
+    msg = optimistic_sigmas(n * [1.0, 1.0, 2.5])
+    assert msg.startswith("Sigmas too small: the 300 check points") and "beyond 1.5 in Z" in msg
+    assert optimistic_sigmas(n[:4] * 5) is None  # too few check points to judge
 
 
 def test_flight_direction_of_strips_east_west_and_north_south():
