@@ -6,9 +6,11 @@ share that offset, yet the adjustment weighs them as independent: with 6,500 poi
 comes out known to a millimetre, while it follows the LiDAR's strip offsets of several centimetres (the full-size DMC
 block: orientations 5-11 sigmas off in height and omega, issue 41).
 
-Model: the surface is offset by an unknown 3D shift ``b = (dx, dy, dz)`` (map axes, metres), constant over a cell of
-``cell_m`` x ``cell_m`` (about a LiDAR strip's width) and independent between cells, each with the prior sigma of the
-LiDAR's georeferencing error (plan ``sigma_xy_m``, height ``sigma_z_m``). It is not estimated (nothing in the block
+Model: the surface is offset by an unknown 3D shift ``b = (dx, dy, dz)`` (map axes, metres), constant over a cell
+``cell_m`` across by ``length_m`` along the block's flight direction (about a LiDAR strip's swath across; along, a
+strip's error holds for kilometres) and independent between cells, each with the prior sigma of the LiDAR's
+georeferencing error (plan ``sigma_xy_m``, height ``sigma_z_m``). Control points that are corners of the same
+LiDAR carry the shift of their cell too (their given coordinates move with it). It is not estimated (nothing in the block
 separates it from the surface: the solution stays as it is) but considered (Schmidt's consider covariance): the
 solution's sensitivity to each cell's shift, ``S_k = d x / d b_k``, adds ``sum_k S_k sigma_k^2 S_k'`` to its
 covariance. A surface observation ``e = h - DEM(x, y)`` changes under a shift by ``de/d(dx, dy, dz) = (DEM_x,
@@ -35,8 +37,8 @@ MAX_SENSITIVITY_ENTRIES = 25_000_000  # reduced unknowns x cell parameters held 
 
 @dataclasses.dataclass(frozen=True)
 class SurfaceBias:
-    """The considered surface offsets: ``cells`` cells of ``cell_m`` (map units), prior sigmas (m); the surface
-    observations considered (``point`` their block points, ``cell`` their cells, ``g`` (M, 3, 3) their whitened
+    """The considered surface offsets: ``cells`` cells of ``cell_m`` x ``length_m`` (map units, across x along the
+    flight), prior sigmas (m); the surface (and LiDAR control) observations considered (``point`` their block points, ``cell`` their cells, ``g`` (M, 3, 3) their whitened
     point Jacobian times whitened partials); and the reduced unknowns' sensitivity times the sigmas, ``scaled``
     (n, 3 cells): column ``3 c + q`` the change of the solution when cell ``c`` shifts by one sigma along axis
     ``q`` (x, y, z)."""
