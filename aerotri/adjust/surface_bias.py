@@ -100,9 +100,12 @@ def _observations(block: G.Block, state: G.State, rays, control_active) -> tuple
     observations of the active points, and the control points from the same LiDAR (``lidar_control``) whose given
     coordinates carry the offset: ``r = C^-1/2 (X - given)``, ``given`` moved by ``d local / d map`` times it."""
     sc = block.surface
-    pts = np.flatnonzero(np.asarray(block.surface_active, bool) & rays.used)
-    e, J, sigma = sc.observe(state.points[pts])
-    partial, xy = sc.offset_partials(state.points[pts])
+    held = np.zeros(block.n_points, bool)  # the active control points: unknowns of their own, no surface observation
+    held[block.control_point[np.asarray(control_active, bool)]] = True
+    pts = np.flatnonzero(np.asarray(block.surface_active, bool) & rays.used & ~held)
+    sub = sc.of_points(pts)  # the points' own map anchors and roof faces
+    e, J, sigma = sub.observe(state.points[pts])
+    partial, xy = sub.offset_partials(state.points[pts])
     ok = np.isfinite(e) & np.isfinite(J).all(axis=1) & np.isfinite(partial).all(axis=1)
     pts, J, sigma, partial, xy = pts[ok], J[ok], sigma[ok], partial[ok], xy[ok]
     g = np.einsum("mi,mq->miq", J / sigma[:, None], partial / sigma[:, None])

@@ -3,12 +3,14 @@ LiDAR strip offsets, the reported sigmas contain the truth; taken as independent
 
 from __future__ import annotations
 
+import copy
 import dataclasses
 
 import numpy as np
 import pytest
 import rasterio
 
+from aerotri.adjust import graph as G
 from aerotri.adjust.pipeline import adjust_project, project_settings
 from aerotri.adjust.report import build_report, format_txt, optimistic_sigmas
 from aerotri.adjust.surface_bias import flight_direction
@@ -84,6 +86,31 @@ def test_orientation_sigmas_contain_the_truth_over_a_lidar_dem_with_strip_offset
         rec = to_record(build_report(adj))
         assert rec["surface_control"]["systematic"]["considered"] is considered
         assert words in format_txt(rec)
+
+
+def test_the_sensitivity_is_the_solutions_change_when_the_dem_shifts(biased_block):
+    """S = d solution / d offset (one solve with the reduced covariance's factor) against solving again with the
+    whole DEM 1 cm higher, from the converged solution: the projection centres rise by what S says."""
+    root, settings = biased_block
+    ba = adjust_project(root, dataclasses.replace(settings, surface_bias_sigma_m=0.03))
+    r = ba.result
+    block, opts, state = r.block, r.opts, r.state
+
+    def solve(b):
+        gr = G.build_graph(b, opts, state, r.obs_active, r.control_active, robust=False)
+        values, _ = G.optimize(gr, opts)
+        return G.state_from_values(values, b, opts, state, tie=gr.tie)
+
+    shifted = copy.copy(block)
+    shifted.surface = dataclasses.replace(block.surface, dem=dataclasses.replace(block.surface.dem,
+                                                                                  z=block.surface.dem.z + 0.01))
+    dz = solve(shifted).centre[:, 2] - solve(block).centre[:, 2]
+    bias, rc = r.surface_bias, r.marginals
+    dv = bias.scaled[:, 2::3].sum(axis=1) / bias.sigma_z_m * 0.01  # every cell 1 cm up
+    pose = np.array([rc.offset[G.X(i)] for i in range(block.n_images)])[:, None] + np.arange(3, 6)
+    predicted = np.einsum("nij,nj->ni", state.R_cv, dv[pose])[:, 2]  # pose tangent: centre change R v
+    assert 0.004 < dz.min() and dz.max() < 0.0101, dz
+    np.testing.assert_allclose(predicted, dz, rtol=0.02, atol=2e-5)
 
 
 def test_optimistic_sigmas_are_a_weakness_of_the_verdict():
