@@ -965,6 +965,9 @@ def format_txt(rep: dict) -> str:
                  f"the height RMS limit"
                  + ("; focal_height: the focal length's sigma as the height change it makes at the tie points' "
                     "depth, judged in SELF-CALIBRATION" if any(g["mode"] == "focal_height" for g in gm) else "") + ")")
+        if ((rep.get("surface_control") or {}).get("systematic") or {}).get("considered"):
+            L.append("  (sigmas formal: the surface's points as independent; the LiDAR strip offsets of SURFACE CONTROL "
+                     "are not in them, as they are in the orientations' and points' sigmas)")
         L.append("")
     comp = rep.get("components") or {}
     if comp.get("adjusted", 1) > 1 or comp.get("left_out"):
