@@ -67,10 +67,19 @@ def adjust_without_control(root: Path) -> dict:
         adjust_pipeline.read_control_points = orig
 
 
+def _truth_frames(root: Path, eo):
+    """The true orientations over the earth, as the simulator rendered the frames (issue 42)."""
+    from aerotri.core.project import Project
+    from aerotri.geom.local_frame import FramesOnEarth
+
+    return FramesOnEarth(Project.open(root).crs, eo.centre_m, eo.rotations())
+
+
 def truth_projection_errors(root: Path, image_points: Path, points: Path) -> dict:
     """Measured - true image position of every transferred corner observation (px), by kind."""
     cam = BrownCamera.read(root / "truth" / "camera.toml")
     eo = read_eo(root / "truth" / "eo.txt")
+    frames = _truth_frames(root, eo)
     t = truth_roof_corners(root)
     kind = {r["id"]: r["kind"] for r in csv.DictReader(open(points))}
     xyz = {r["id"]: np.array([float(r["x"]), float(r["y"]), float(r["z"])]) for r in csv.DictReader(open(points))}
@@ -83,7 +92,7 @@ def truth_projection_errors(root: Path, image_points: Path, points: Path) -> dic
         if d[k] > 1.5:
             continue  # a LiDAR corner without a true roof corner nearby (not counted)
         i = ix[r["image_id"]]
-        x, y, _ = cam.project(t.xyz_m[k], eo.centre_m[i], eo.rotation(i))
+        x, y, _ = frames.project(cam, i, t.xyz_m[k][None])
         e = np.array([float(r["x_px"]) - x[0], float(r["y_px"]) - y[0]])
         out.setdefault(kind[r["point_id"]], []).append(e)
     return {k: np.array(v) for k, v in out.items()}
@@ -93,6 +102,7 @@ def rejected_vs_truth(root: Path, transfer: dict, corners_csv: Path) -> dict:
     """Of the measurements rejected in the image / dropped as inconsistent: how many were really wrong."""
     cam = BrownCamera.read(root / "truth" / "camera.toml")
     eo = read_eo(root / "truth" / "eo.txt")
+    frames = _truth_frames(root, eo)
     ix = dict(zip(eo.image_id, range(len(eo.image_id))))  # image id -> row
     t = truth_roof_corners(root)
     lid = {r["id"]: np.array([float(r["x"]), float(r["y"])]) for r in csv.DictReader(open(corners_csv))}
@@ -111,7 +121,7 @@ def rejected_vs_truth(root: Path, transfer: dict, corners_csv: Path) -> dict:
                 rec["no_truth"] += 1
                 continue
             i = ix[iid]
-            x, y, _ = cam.project(t.xyz_m[k], eo.centre_m[i], eo.rotation(i))
+            x, y, _ = frames.project(cam, i, t.xyz_m[k][None])
             err = float(np.hypot(f["x_px"] - x[0], f["y_px"] - y[0]))
             rec["wrong_gt_1px" if err > 1.0 else "right_le_1px"] += 1
     return stats

@@ -36,8 +36,10 @@ from aerotri.control.corners import read_corners  # noqa: E402
 from aerotri.control.pipeline import summary, transfer_control  # noqa: E402
 from aerotri.control.settings import ControlSettings  # noqa: E402
 from aerotri.core.atomic import write_text_atomic  # noqa: E402
+from aerotri.core.project import Project  # noqa: E402
 from aerotri.geom.camera import BrownCamera  # noqa: E402
 from aerotri.geom.eo import read_eo  # noqa: E402
+from aerotri.geom.local_frame import FramesOnEarth  # noqa: E402
 
 
 def truth_visibility(root: Path, res) -> dict:
@@ -59,6 +61,7 @@ def truth_visibility(root: Path, res) -> dict:
     accel = raycast.build_accel(scene)
     cam = BrownCamera.read(root / "truth" / "camera.toml")
     eo = read_eo(root / "truth" / "eo.txt")
+    on_earth = FramesOnEarth(Project.open(root).crs, eo.centre_m, eo.rotations())  # as the simulator rendered
     t = truth_roof_corners(root)
     frames = Counter(k for k, _ in res.predicted)
     out = Counter()
@@ -72,7 +75,7 @@ def truth_visibility(root: Path, res) -> dict:
         X = t.xyz_m[int(np.argmin(d))]
         seen = 0
         for i in range(len(eo.image_id)):
-            x, y, _ = cam.project(X[None], eo.centre_m[i], eo.rotation(i))
+            x, y, _ = on_earth.project(cam, i, X[None])
             if cam.inside(np.atleast_1d(x), np.atleast_1d(y), margin_px=2.0)[0]:
                 # 5 cm above the eave, so the roof the corner belongs to does not block its own ray
                 seen += bool(visible(accel, eo.centre_m[i] - origin, (X - origin + [0, 0, 0.05])[None], tol_m=0.1)[0])
@@ -135,9 +138,10 @@ def main(argv=None):
         s = ControlSettings(chips=False)
         rec = {"project": str(root), "preset": truth["preset"], "seed": truth["seed"], "gsd_m": truth["gsd_m"],
                "buildings": truth["buildings"], "true_roof_corners": truth["roof_corners"]}
+        crs = Project.open(root).crs  # the frames over the earth (issue 42)
         off = transfer_control(corners, camera, eo, root / "images",
-                               dataclasses.replace(s, layout=dataclasses.replace(s.layout, fallback=False)))
-        on = transfer_control(corners, camera, eo, root / "images", s)
+                               dataclasses.replace(s, layout=dataclasses.replace(s.layout, fallback=False)), crs=crs)
+        on = transfer_control(corners, camera, eo, root / "images", s, crs=crs)
         rec["fallback_off"] = layout_numbers(off)
         rec["fallback_on"] = layout_numbers(on)
         rec["too_few_rays_truth_visibility"] = truth_visibility(root, off)

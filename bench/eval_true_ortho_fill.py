@@ -30,7 +30,7 @@ r = 0.2 m (half a DOM cell of 0.4 m) and 0.25 m (half a DSM cell) by another fra
 every seen cell (``filled_from_a_frame_that_sees_share`` of ``bench/results/true_ortho_occlusion.json``, the same
 figure as ``fill_share`` here).
 
-Usage: python bench/eval_true_ortho_fill.py [--work DIR] [--blocks demo,tall] [--out FILE]
+Usage: python bench/eval_true_ortho_fill.py [--work DIR] [--blocks demo,tall] [--out FILE] [--key KEY]
 (``DIR`` the ``--work`` of eval_true_ortho_occlusion.py, run first). Writes bench/results/true_ortho_fill.json.
 """
 
@@ -38,6 +38,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import subprocess
 import sys
 import time
@@ -48,6 +49,8 @@ import numpy as np
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
 sys.path.insert(0, str(REPO / "bench"))
+
+from aerotri.core.atomic import write_text_atomic  # noqa: E402
 
 CLEARANCES_M = (0.2, 0.25)
 
@@ -181,17 +184,27 @@ def main() -> None:
     ap.add_argument("--work", type=Path, default=REPO / "out" / "true_ortho_occlusion")
     ap.add_argument("--blocks", default="demo,tall")
     ap.add_argument("--out", type=Path, default=REPO / "bench" / "results" / "true_ortho_fill.json")
+    ap.add_argument("--key", default=None,
+                    help="write this run under KEY of --out (its blocks merged), every other key kept; "
+                         "default: the top-level blocks")
     args = ap.parse_args()
-    out = {"clearances_m": list(CLEARANCES_M), "blocks": {}}
-    if args.out.exists():
-        out["blocks"] = json.loads(args.out.read_text()).get("blocks", {})
+    doc = json.loads(args.out.read_text()) if args.out.exists() else {}
+    out = {"clearances_m": list(CLEARANCES_M),
+           "blocks": (doc.get(args.key, {}) if args.key else doc).get("blocks", {})}
+    cpu0 = time.process_time()
     for name in args.blocks.split(","):
         out["blocks"][name] = measure_block(args.work, name)
         print(name, json.dumps(out["blocks"][name], indent=1), flush=True)
     out["commit"] = subprocess.run(["git", "-C", str(REPO), "rev-parse", "HEAD"], capture_output=True,
                                    text=True).stdout.strip()
+    out["command"] = "python bench/eval_true_ortho_fill.py " + " ".join(sys.argv[1:])
+    out["cpu_s"], out["load_avg_1min_at_end"] = round(time.process_time() - cpu0, 1), os.getloadavg()[0]
+    if args.key:  # the other keys (earlier runs) stay as they were
+        doc[args.key] = out
+    else:
+        doc.update(out)
     args.out.parent.mkdir(parents=True, exist_ok=True)
-    args.out.write_text(json.dumps(out, indent=1) + "\n")
+    write_text_atomic(args.out, json.dumps(doc, indent=1) + "\n")
     print(f"wrote {args.out}")
 
 

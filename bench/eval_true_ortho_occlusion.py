@@ -14,8 +14,9 @@ The truth is the simulated scene itself, rebuilt from the preset and seed of ``t
 
 Figures, per block and way (``conventional``, ``true_ortho``):
 
-- roofs: the roof-corner displacement of ``bench/eval_true_ortho.py`` (24 m patches, phase correlation against
-  ``truth/ortho.tif``), metres and GSD;
+- roofs: the roof-corner displacement of ``bench/eval_true_ortho.py`` (24 m patches against ``truth/ortho.tif``,
+  ``ortho.check.measure_roof_patches``: masked NCC over the valid cells; runs before issue 42's roofs work, a phase
+  correlation with nodata set to the patch mean), metres and GSD;
 - source frame of each DOM cell, as ``ortho mosaic`` picks it: the seam label's frame where its ortho has a value,
   else the valid frame of the nearest nadir point (cells of the feather zone counted with their label's frame);
 - occluded ground: ground cells hidden in the nadir-most frame covering them (nearest nadir point); of those some
@@ -33,10 +34,12 @@ Figures, per block and way (``conventional``, ``true_ortho``):
   seam), px.
 
 Usage: python bench/eval_true_ortho_occlusion.py [--demo /work/ref/demo_chain/project] [--tall DIR] [--work DIR]
+       [--blocks demo,tall] [--chain NAME=DIR] [--key KEY]
 The tall block: ``DIR`` made by ``aerotri sim DIR --preset tall`` (simulated when missing); its frames are rectified
 with the true orientation and camera (``truth/eo.txt``, ``truth/camera.toml``) on the simulator's DEM and DSM
 (``truth/dem.tif``, ``truth/dsm.tif``, nDSM their difference): it has no chain run. The demo uses the chain's
-adjusted orientation and LiDAR rasters (``/work/ref/demo_chain``) as ``bench/eval_true_ortho.py``.
+adjusted orientation and LiDAR rasters (``/work/ref/demo_chain``) as ``bench/eval_true_ortho.py``; so does a block
+``--chain NAME=DIR`` (e.g. the tall block after ``aerotri run``: the chain's LiDAR rasters and adjusted orientation).
 Writes bench/results/true_ortho_occlusion.json.
 """
 
@@ -44,6 +47,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import shutil
 import subprocess
 import sys
@@ -55,6 +59,8 @@ import numpy as np
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
 sys.path.insert(0, str(REPO / "bench"))
+
+from aerotri.core.atomic import write_text_atomic  # noqa: E402
 
 VISIBLE_TOL_M = 0.2  # the first hit within this of the ground point: the frame sees it
 GHOST_MARGIN_M = 1.0  # ghosts also counted beyond this distance from the nearest roof cell
@@ -565,20 +571,34 @@ def main() -> None:
     ap.add_argument("--reuse", action="store_true", help="measure the DOMs an earlier run left in --work")
     ap.add_argument("--remosaic", action="store_true",
                     help="mosaic the frame orthos an earlier run left in --work again, then measure")
+    ap.add_argument("--chain", action="append", default=[], metavar="NAME=DIR",
+                    help="a block NAME (for --blocks) that is a project the chain ran (aerotri run: at/eo.txt, "
+                         "lidar_out/dem.tif, dsm.tif, ndsm.tif), rectified and measured as the demo; repeatable")
+    ap.add_argument("--key", default=None,
+                    help="write this run under KEY of --out (its blocks merged), every other key kept; "
+                         "default: the top-level blocks")
     args = ap.parse_args()
-    if "tall" in args.blocks and not (args.tall / "truth" / "truth.json").exists():
+    if "tall" in args.blocks.split(",") and not (args.tall / "truth" / "truth.json").exists():
         subprocess.run([str(Path(sys.executable).with_name("aerotri")), "sim", str(args.tall), "--preset", "tall"],
                        check=True)
-    out = {"visible_tol_m": VISIBLE_TOL_M, "ghost_margin_m": GHOST_MARGIN_M, "end_reach_m": END_REACH_M, "blocks": {}}
-    if args.out.exists():
-        out["blocks"] = json.loads(args.out.read_text()).get("blocks", {})
+    doc = json.loads(args.out.read_text()) if args.out.exists() else {}
+    out = {"visible_tol_m": VISIBLE_TOL_M, "ghost_margin_m": GHOST_MARGIN_M, "end_reach_m": END_REACH_M,
+           "blocks": (doc.get(args.key, {}) if args.key else doc).get("blocks", {})}
+    cpu0 = time.process_time()
+    chains = dict(c.split("=", 1) for c in args.chain)
     for name in args.blocks.split(","):
-        src = args.demo if name == "demo" else args.tall
+        src = Path(chains[name]) if name in chains else args.demo if name == "demo" else args.tall
         out["blocks"][name] = run_block(name, src, args.work, tall=name == "tall", reuse=args.reuse,
                                         remosaic=args.remosaic)
     out["commit"] = subprocess.run(["git", "-C", str(REPO), "rev-parse", "HEAD"], capture_output=True,
                                    text=True).stdout.strip()
-    args.out.write_text(json.dumps(out, indent=1) + "\n")
+    out["command"] = "python bench/eval_true_ortho_occlusion.py " + " ".join(sys.argv[1:])
+    out["cpu_s"], out["load_avg_1min_at_end"] = round(time.process_time() - cpu0, 1), os.getloadavg()[0]
+    if args.key:  # the other keys (earlier runs) stay as they were
+        doc[args.key] = out
+    else:
+        doc.update(out)
+    write_text_atomic(args.out, json.dumps(doc, indent=1) + "\n")
     print(f"wrote {args.out}")
 
 

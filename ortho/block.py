@@ -39,6 +39,7 @@ from aerotri.core.errors import InputError
 from aerotri.core.project import Project
 from aerotri.core.records import to_record
 from aerotri.core.settings import Resolved, settings_of
+from aerotri.geom.local_frame import FramesOnEarth
 from aerotri.geom.rotation import rotation_matrix_opk
 from aerotri.core.atomic import atomic_dir, atomic_path, remove_leftovers, write_text_atomic
 from aerotri.core.errors import OptionError
@@ -273,10 +274,10 @@ def _frame_image(path, expect_size):
     return read_native(path, expect_size)
 
 
-def _require_coverage(task: FrameTask, C, R, heights, *, what: str, path, extent) -> float:
+def _require_coverage(task: FrameTask, C, R, heights, *, what: str, path, extent, crs) -> float:
     """Share of the frame whose ground the height raster covers (``covered_share``): a warning naming the frame
     and the share left as nodata when it is partial, an InputError naming the raster's extent when it is none."""
-    share = covered_share(task.camera, C, R, heights)
+    share = covered_share(task.camera, C, R, heights, crs=crs)
     b = extent
     where = f"its extent: X {b[0]:.1f} .. {b[2]:.1f}, Y {b[1]:.1f} .. {b[3]:.1f} in the project CRS"
     if share == 0.0:
@@ -298,7 +299,7 @@ def _rectify_frame_task(task: FrameTask) -> dict:
     height_op = task.height_operation.build() if task.height_operation else None
     C = np.asarray(task.centre_m, float)
     R = rotation_matrix_opk(*task.opk_deg)
-    ground_bounds = _plane_footprint_bounds(task.camera, C, R, zlo - 5.0, zhi + 5.0, task.image_id)
+    ground_bounds = _plane_footprint_bounds(task.camera, C, R, zlo - 5.0, zhi + 5.0, task.image_id, crs=project_crs)
     with open_height_raster(task.dem_path, project_crs, "DEM") as dem_ds, _raster_read(task.dem_path, "DEM"):
         dem = read_height_window(dem_ds, ground_bounds, margin_m=4 * dem_ds.transform.a, what="DEM", frame=task.image_id,
                                  height_operation=height_op)
@@ -309,7 +310,7 @@ def _rectify_frame_task(task: FrameTask) -> dict:
             heights = read_height_window(dsm_ds, ground_bounds, margin_m=4 * dsm_ds.transform.a, what="DSM",
                                          frame=task.image_id, height_operation=height_op)
             extent, what, path = tuple(dsm_ds.bounds), "DSM", task.dsm_path
-    covered = _require_coverage(task, C, R, heights, what=what, path=path, extent=extent)
+    covered = _require_coverage(task, C, R, heights, what=what, path=path, extent=extent, crs=project_crs)
     grid = frame_grid(task.camera, C, R, dem, task.res_m, out_crs, to_project=to_project, image_id=task.image_id,
                       partial=True, max_view_angle_deg=task.max_view_angle_deg)
     image, band_order = _frame_image(task.image_path, (task.camera.width, task.camera.height))
@@ -503,7 +504,7 @@ def check_frame_sizes(block: BlockInputs, eo_idx: dict, zlo: float, zhi: float, 
     for image_id in block.images.image_id:
         i = eo_idx[image_id]
         x0, y0, x1, y1 = _plane_footprint_bounds(block.camera, block.eo.centre_m[i], block.eo.rotation(i), zlo, zhi,
-                                                 image_id)
+                                                 image_id, crs=block.project_crs)
         if to_output is not None:
             xs, ys, _ = to_output.transform([x0, x1, x0, x1], [y0, y0, y1, y1], [zlo] * 4)
             x0, x1, y0, y1 = float(np.min(xs)), float(np.max(xs)), float(np.min(ys)), float(np.max(ys))
@@ -689,18 +690,19 @@ def _link_or_copy(src: Path, dst: Path) -> None:
         shutil.copy2(src, dst)
 
 
-def _plane_footprint_bounds(camera, C, R, z_lo, z_hi, image_id):
-    """Bounds (project CRS) of the frame footprint between two horizontal planes (to pick the DEM window)."""
+def _plane_footprint_bounds(camera, C, R, z_lo, z_hi, image_id, *, crs=None):
+    """Bounds (project CRS) of the frame footprint between two horizontal planes (to pick the DEM window); ``crs``:
+    the project CRS, whose map points the frame sees over the earth (``FramesOnEarth``; None: a Cartesian frame)."""
+    frame = FramesOnEarth(crs, C, R)
     x, y = border_pixels(camera, 16)
-    d = camera.rays(x, y, R)
+    d = frame.rays_local(camera, 0, x, y)
     if np.any(d[:, 2] >= -1e-6):
         raise InputError(f"{image_id}: some rays of the frame do not point downwards (check its omega/phi/kappa)")
     pts = []
     for z in (z_lo, z_hi):
-        t = (z - C[2]) / d[:, 2]
-        if np.any(t <= 0):
+        if z >= C[2]:
             raise InputError(f"{image_id}: the projection centre (Z = {C[2]:.1f} m) is below the DEM heights ({z:.1f} m)")
-        pts.append(C[:2] + t[:, None] * d[:, :2])
+        pts.append(frame.at_height(0, d, z)[:, :2])
     p = np.concatenate(pts)
     return (float(p[:, 0].min()), float(p[:, 1].min()), float(p[:, 0].max()), float(p[:, 1].max()))
 

@@ -175,8 +175,8 @@ def _footprint_bounds(root: Path, z_lo_m: float, z_hi_m: float, margin_m: float 
     from ortho.block import _plane_footprint_bounds, load_block
 
     block = load_block(root)
-    b = np.array([_plane_footprint_bounds(block.camera, block.eo.centre_m[i], block.eo.rotation(i), z_lo_m, z_hi_m, iid)
-                  for i, iid in enumerate(block.eo.image_id)])
+    b = np.array([_plane_footprint_bounds(block.camera, block.eo.centre_m[i], block.eo.rotation(i), z_lo_m, z_hi_m, iid,
+                                          crs=block.project_crs) for i, iid in enumerate(block.eo.image_id)])
     return (float(b[:, 0].min()) - margin_m, float(b[:, 1].min()) - margin_m, float(b[:, 2].max()) + margin_m,
             float(b[:, 3].max()) + margin_m)
 

@@ -44,7 +44,7 @@ import numpy as np
 
 from aerotri.core.errors import InputError
 from aerotri.geom.rotation import FLIP_YZ
-from aerotri.geom.local_frame import CameraOnEarth
+from aerotri.geom.local_frame import CameraOnEarth, FramesOnEarth
 from ortho.grid import GridToProject, OrthoGrid
 
 # the compiled kernels (numba) live in ortho.rectify_kernels, imported by the functions that run them; the
@@ -727,26 +727,32 @@ def _extent_text(heights: HeightRaster, extent_m) -> str:
     return f"(its extent: X {b[0]:.1f} .. {b[2]:.1f}, Y {b[1]:.1f} .. {b[3]:.1f})"
 
 
+_HEIGHTS_CRS = object()  # ``intersect_rays_with_heights``'s default: the height raster's CRS
+
+
 def intersect_rays_with_heights(camera: Camera, centre_m, R, x_px, y_px, heights: HeightRaster, *, z_start_m: float,
                                 iterations: int = 30, image_id: str = "frame", uncovered: str = "raise",
-                                extent_m=None):
+                                extent_m=None, crs=_HEIGHTS_CRS):
     """Ground points (N, 3) where the rays of pixels meet the height raster (fixed-point iteration on Z).
+
+    The rays leave the camera over the earth (``FramesOnEarth``; ``crs``: the project CRS of ``centre_m``, ``R``
+    and the heights, default ``heights.crs``; None: a Cartesian frame): in a projected CRS a ray is no straight line
+    of easting, northing and height (400 ppm at the presets' origin: a DMC frame's footprint 0.28 m short 700 m from
+    the nadir, against the grid's 2-cell pad).
 
     A ray that leaves the raster or meets nodata: ``uncovered="raise"`` raises InputError naming the frame
     and the raster's extent (``extent_m``: the whole file's, xmin, ymin, xmax, ymax; default the window in
     ``heights``); ``uncovered="plane"`` returns it on the plane Z = ``z_start_m`` and, as a second result,
     which rays met the raster (bool (N,)). Rays that do not point downwards always raise.
     """
-    C = np.asarray(centre_m, float)
-    d = camera.rays(x_px, y_px, R)
+    frame = FramesOnEarth(heights.crs if crs is _HEIGHTS_CRS else crs, centre_m, R)
+    d = frame.rays_local(camera, 0, x_px, y_px)
     if np.any(d[:, 2] >= -1e-6):
         raise InputError(f"{image_id}: some rays of the frame do not point downwards (check omega/phi/kappa)")
     Z = np.full(len(d), float(z_start_m))
     covered = np.ones(len(d), bool)
     for _ in range(iterations):
-        t = (Z - C[2]) / d[:, 2]
-        X = C[0] + t * d[:, 0]
-        Y = C[1] + t * d[:, 1]
+        X, Y, _ = frame.at_height(0, d, Z).T
         Zn = heights.sample(X, Y)
         lost = ~np.isfinite(Zn)
         if np.any(lost & covered):
@@ -763,14 +769,13 @@ def intersect_rays_with_heights(camera: Camera, centre_m, R, x_px, y_px, heights
             Z = Zn
             break
         Z = np.where(covered, 0.5 * (Z + Zn), float(z_start_m))
-    t = (Z - C[2]) / d[:, 2]
-    ground = np.stack([C[0] + t * d[:, 0], C[1] + t * d[:, 1], Z], axis=-1)
+    ground = frame.at_height(0, d, Z)
     return (ground, covered) if uncovered == "plane" else ground
 
 
-def covered_share(camera: Camera, centre_m, R, heights: HeightRaster, per_side: int = 33) -> float:
+def covered_share(camera: Camera, centre_m, R, heights: HeightRaster, per_side: int = 33, crs=_HEIGHTS_CRS) -> float:
     """Share of the frame (a ``per_side`` x ``per_side`` lattice of its pixels) whose rays meet the height
-    raster on valid heights (1.0: all of it; 0.0: none)."""
+    raster on valid heights (1.0: all of it; 0.0: none). ``crs``: as ``intersect_rays_with_heights``."""
     if not np.isfinite(heights.heights_m).any():
         return 0.0
     zlo, zhi = heights.finite_range()
@@ -778,7 +783,7 @@ def covered_share(camera: Camera, centre_m, R, heights: HeightRaster, per_side: 
     v = np.linspace(0.0, camera.height - 1.0, per_side)
     x, y = (a.ravel() for a in np.meshgrid(u, v))
     _, covered = intersect_rays_with_heights(camera, centre_m, R, x, y, heights, z_start_m=0.5 * (zlo + zhi),
-                                             uncovered="plane")
+                                             uncovered="plane", crs=crs)
     return float(np.mean(covered))
 
 
@@ -791,11 +796,13 @@ def frame_grid(camera: Camera, centre_m, R, heights: HeightRaster, res_m: float,
     point on the plane of the raster's mid height, so the grid holds the whole frame and the uncovered
     part becomes nodata in the ortho; otherwise such a ray is an InputError. With ``max_view_angle_deg``
     the footprint is cut to the cone of rays within that angle of the vertical (at the raster's lowest
-    height, where the cone is widest): an oblique frame's far field, which the ortho masks, takes no grid."""
+    height, where the cone is widest): an oblique frame's far field, which the ortho masks, takes no grid. The
+    frame's rays over the earth (``intersect_rays_with_heights``) in ``to_project.project_crs``."""
     x, y = border_pixels(camera)
     zlo, zhi = heights.finite_range()
     ground = intersect_rays_with_heights(camera, centre_m, R, x, y, heights, z_start_m=0.5 * (zlo + zhi),
-                                         image_id=image_id, uncovered="plane" if partial else "raise")
+                                         image_id=image_id, uncovered="plane" if partial else "raise",
+                                         crs=to_project.project_crs)
     if partial:
         ground = ground[0]
     if max_view_angle_deg < 90.0:
@@ -810,9 +817,10 @@ def frame_grid(camera: Camera, centre_m, R, heights: HeightRaster, res_m: float,
 
 def footprint_polygon_xy(camera: Camera, centre_m, R, heights: HeightRaster, *, to_project: GridToProject,
                          image_id: str = "frame", per_side: int = 16) -> np.ndarray:
-    """Footprint ring (N, 2) in output-CRS coordinates."""
+    """Footprint ring (N, 2) in output-CRS coordinates (the rays over the earth, as ``frame_grid``)."""
     x, y = border_pixels(camera, per_side)
     zlo, zhi = heights.finite_range()
-    g = intersect_rays_with_heights(camera, centre_m, R, x, y, heights, z_start_m=0.5 * (zlo + zhi), image_id=image_id)
+    g = intersect_rays_with_heights(camera, centre_m, R, x, y, heights, z_start_m=0.5 * (zlo + zhi), image_id=image_id,
+                                    crs=to_project.project_crs)
     ox, oy = to_project.to_output(g[:, 0], g[:, 1])
     return np.stack([ox, oy], axis=-1)

@@ -35,6 +35,7 @@ from aerotri.core.settings import click_option
 @click_option(AdjustSettings, "dem", "--dem", type=click.Path(dir_okay=False, path_type=Path))
 @click_option(AdjustSettings, "check_dem", "--check-dem", type=click.Path(dir_okay=False, path_type=Path))
 @click_option(AdjustSettings, "surface_sigma_m", "--surface-sigma-m")
+@click_option(AdjustSettings, "surface_bias_sigma_m", "--surface-bias-sigma-m")
 @click_option(AdjustSettings, "ndsm", "--ndsm", type=click.Path(dir_okay=False, path_type=Path))
 @click_option(AdjustSettings, "max_ndsm_m", "--max-ndsm-m")
 @click_option(AdjustSettings, "lidar_surface", "--lidar-surface/--no-lidar-surface")

@@ -48,7 +48,7 @@ from aerotri.geom.camera import BrownCamera, project_camera
 from aerotri.geom.eo import ExteriorOrientations, check_block_crs, read_eo, read_gnss
 from aerotri.core.atomic import commit_outputs, committed
 from aerotri.core.errors import InputError, OptionError, SolveError
-from aerotri.adjust.settings import AdjustSettings, for_project
+from aerotri.adjust.settings import DEFAULT_SURFACE_BIAS_SIGMA_M, AdjustSettings, for_project
 from aerotri.core.project import Project
 from aerotri.core.settings import Resolved, resolve, settings_of
 from aerotri.geom.rotation import FLIP_YZ, opk_from_matrix
@@ -85,6 +85,7 @@ class BlockAdjustment:
     self_calibration_requested: tuple = ()  # the groups asked for (opts.self_calibration: those estimated)
     calibration_checks: list = dataclasses.field(default_factory=list)  # determinability.GroupCheck, every group
     dem_checks: list = dataclasses.field(default_factory=list)  # dem_check.DemCheck: surface control DEM, check DEM
+    check_from_lidar: int = 0  # check points that are corners of the project's LiDAR (share its strip offsets)
 
 
 def _settings_from_project(project: Project, s: AdjustSettings | None) -> AdjustSettings:
@@ -508,8 +509,42 @@ def _surface_control(project: Project, st: AdjustSettings, frame: LocalFrame, po
     planes = read_roof_planes(st.planes, crs, heights, st.plane_sigma_m) if st.planes is not None and not check else None
     # the frame's map heights are in the horizontal CRS's height unit (geom.crs.transform's convention)
     units = (linear_unit_m(crs), height_unit_m(horizontal_crs(crs)))
+    bias_xy = bias_z = surface_bias_sigma(project, st, planes)
+    if st.surface_bias_sigma_m is None and planes is not None:
+        bias_xy, bias_z = planes.sigma_strip_xy_m, planes.sigma_strip_z_m
     return SurfaceControl(dem, frame, sigma_m=float(st.surface_sigma_m), ndsm=ndsm, max_ndsm_m=float(st.max_ndsm_m),
-                          planes=planes, map_unit_m=units)
+                          planes=planes, map_unit_m=units, bias_sigma_xy_m=bias_xy, bias_sigma_z_m=bias_z,
+                          bias_cell_m=float(st.surface_bias_cell_m) / units[0],
+                          bias_length_m=float(st.surface_bias_length_m) / units[0])
+
+
+def surface_bias_sigma(project: Project, st: AdjustSettings, planes=None) -> float:
+    """The surface control's systematic error (m) the covariances carry: ``surface_bias_sigma_m`` when set; else
+    for the project's LiDAR DEM (lidar_out/dem.tif) or roof planes ``DEFAULT_SURFACE_BIAS_SIGMA_M`` (the roof
+    planes' own strip sigmas replace it where given), for a DEM from elsewhere none (its systematic error is the
+    user's to state: the report calls the sigmas formal)."""
+    if st.surface_bias_sigma_m is not None:
+        return float(st.surface_bias_sigma_m)
+    lidar_dem = st.dem is not None and Path(st.dem).resolve() == project.dem_path.resolve()
+    return DEFAULT_SURFACE_BIAS_SIGMA_M if lidar_dem or planes is not None else 0.0
+
+
+def _lidar_control(project: Project, control: ControlPoints) -> np.ndarray:
+    """Per control point: a corner of the project's LiDAR (lidar_out/corners.csv: the same id within 1 cm), whose
+    given coordinates share the LiDAR's strip offsets with its DEM and roof planes."""
+    out = np.zeros(len(control.id), bool)
+    if not len(control.id) or not project.corners_path.is_file():
+        return out
+    import csv
+
+    try:
+        with open(project.corners_path, newline="") as f:
+            corners = {r["id"]: (float(r["x"]), float(r["y"]), float(r["z"])) for r in csv.DictReader(f)}
+    except (OSError, KeyError, ValueError, TypeError):
+        return out  # not a corners file this adjustment can read: its control is taken as independent
+    for c, (pid, xyz) in enumerate(zip(control.id, control.xyz_m)):
+        out[c] = pid in corners and bool(np.all(np.abs(np.subtract(corners[pid], xyz)) < 0.01))
+    return out
 
 
 def prepare_project(root, settings: AdjustSettings | None = None) -> tuple[PreparedBlock, G.State]:
@@ -546,6 +581,7 @@ def prepare_project(root, settings: AdjustSettings | None = None) -> tuple[Prepa
         correction = "offset" if correction == "none" else correction
     if st.dem is not None:
         block.surface = _surface_control(project, st, frame, approx_pos_map)
+        block.surface.lidar_control = _lidar_control(project, ctrl_used)
     check_surface = _surface_control(project, st, frame, approx_pos_map, check=True) if st.check_dem is not None else None
     opts = G.SolveSettings(
         image_sigma_px=float(st.image_sigma_px), gnss_correction=correction,
@@ -719,6 +755,7 @@ def finish(prepared: PreparedBlock, result: AdjustmentResult) -> BlockAdjustment
         control_index_of_point={int(j): c for c, j in enumerate(block.control_point)}, check=check, gnss_map=gnss_map,
         gnss_residual_m=gres, n_tie_points=p.n_tie_points, check_obs=chk_obs, components=p.components,
         left_out=p.left_out, datum_notes=list(p.datum_notes), dem_checks=dem_checks,
+        check_from_lidar=int(_lidar_control(p.project, chk).sum()) if len(chk) else 0,
     )
 
 

@@ -480,6 +480,32 @@ def _limit(check, more: str = "") -> str:
     return f"{p:g} m ({check.source}{more})" if p == h else f"{p:g} / {h:g} m (plan / height; {check.source}{more})"
 
 
+OPTIMISTIC_NORMALISED_RMS = 1.5  # check points off by more than this many of their sigmas (RMS): sigmas too small
+OPTIMISTIC_ALPHA = 0.01  # and the chi-square test of their normalised errors fails at this level
+
+
+def optimistic_sigmas(normalised: np.ndarray) -> str | None:
+    """The verdict's finding when the check points' errors in their propagated sigmas (adjusted - measured over
+    sqrt(sigma_adjusted^2 + sigma_given^2); (n, 3)) show the sigmas too small: a component whose RMS exceeds
+    ``OPTIMISTIC_NORMALISED_RMS`` and whose sum of squares fails the chi-square test at ``OPTIMISTIC_ALPHA``
+    (at least 5 check points); else None."""
+    from scipy.stats import chi2
+
+    nz = np.asarray(normalised, dtype=float).reshape(-1, 3)
+    if len(nz) < 5:
+        return None
+    rms = np.sqrt(np.mean(nz**2, axis=0))
+    limit = chi2.ppf(1.0 - OPTIMISTIC_ALPHA, len(nz))
+    bad = [ax for ax, r, q in zip("XYZ", rms, np.sum(nz**2, axis=0)) if r > OPTIMISTIC_NORMALISED_RMS and q > limit]
+    if not bad:
+        return None
+    return (f"Sigmas too small: the {len(nz)} check points are off by {' / '.join(f'{r:.2f}' for r in rms)} of their "
+            f"propagated sigmas (RMS X / Y / Z; about 1 expected, beyond {OPTIMISTIC_NORMALISED_RMS:g} in "
+            f"{', '.join(bad)}): the reported precision of the orientations and points claims more than the block "
+            f"holds (an error source the adjustment does not model: the DEM's or the control's systematic error, "
+            f"the GNSS, the camera).")
+
+
 SIGMA0_PLAUSIBLE = (0.8, 1.25)  # beyond, the a-priori image sigma is off by more than a fifth
 
 
@@ -532,6 +558,9 @@ def _key_statistics(ba, height_limit_m: float) -> dict:
         weaknesses.append(f"GNSS residuals trend along strips beyond {_limit(udc)} and {udc.k:g} standard errors: a "
                           f"drift the solve does not model (gnss_correction = \"{opts.gnss_correction}\"): "
                           + "; ".join(udc.reasons()) + ". " + advice)
+    optimistic = optimistic_sigmas(_check_rows(ba)[2])
+    if optimistic:
+        weaknesses.append(optimistic)
     if ba.left_out:
         n = sum(len(lo.image_ids) for lo in ba.left_out)
         weaknesses.append(f"{n} images in {len(ba.left_out)} part(s) that no tie point connects to the block and "
@@ -652,6 +681,7 @@ class AdjustmentReport:
     check_sum_m: list | None
     check_rms_m: list | None
     check_normalised_rms: list | None
+    check_points_from_lidar: int  # corners of the surface control's LiDAR: their agreement does not test its datum
     photos: list
     image_pairs: list
     removed_observations: list
@@ -711,6 +741,7 @@ def build_report(ba, map_scale: str = "1:5000", terrain: str = "flat", tolerance
         "check_sum_m": _lst(dchk.sum(axis=0), 4) if len(dchk) else None,
         "check_rms_m": _lst(_rms(dchk), 4) if len(dchk) else None,
         "check_normalised_rms": _lst(_rms(nchk), 3) if len(nchk) else None,
+        "check_points_from_lidar": int(getattr(ba, "check_from_lidar", 0)),
         "photos": _photo_rows(ba, res),
         "image_pairs": _pair_rows(ba, res, ba.camera_apriori.pixel_um),
         "removed_observations": removed,
@@ -755,7 +786,34 @@ def _surface_control(ba) -> dict | None:
         d["classes"] = {name: rounded(c) for name, c in d["classes"].items()}
     if d.get("plane_sigma_strip_m"):
         d["plane_sigma_strip_m"] = list(d["plane_sigma_strip_m"])
+    d["systematic"] = _surface_systematic(ba)
     return d
+
+
+def _surface_systematic(ba) -> dict:
+    """The surface's systematic error as the covariances carry it (``surface_bias``): the LiDAR strip sigmas, the
+    cells, the observations and LiDAR control points sharing them; ``considered`` false: the sigmas are formal."""
+    b, sc = ba.result.surface_bias, ba.block.surface
+    if b is None:
+        return {"considered": False, "sigma_xy_m": _f(sc.bias_sigma_xy_m, 4) if sc is not None else None,
+                "sigma_z_m": _f(sc.bias_sigma_z_m, 4) if sc is not None else None}
+    lidar_ctrl = int(np.sum(sc.lidar_control)) if sc.lidar_control is not None else 0
+    return {"considered": True, "sigma_xy_m": _f(b.sigma_xy_m, 4), "sigma_z_m": _f(b.sigma_z_m, 4),
+            "cell_across_m": _f(b.cell_m, 1), "cell_along_m": _f(b.length_m, 1),
+            "flight_direction_deg": _f(b.direction_deg, 1), "cells": int(b.cells),
+            "observations": int(len(b.point)), "lidar_control_points": lidar_ctrl}
+
+
+def _systematic_txt(sy: dict) -> str:
+    if not sy.get("considered"):
+        return ("  the surface's systematic error is not in the sigmas (surface_bias_sigma_m 0 or not stated for a DEM "
+                "from elsewhere): the orientation and point sigmas are formal, the surface's points taken as "
+                "independent, and too small by the DEM's systematic error (a LiDAR's strip offsets: 0.03 m)")
+    return (f"  LiDAR strip offsets in the sigmas: {sy['sigma_xy_m']:.3f} m plan, {sy['sigma_z_m']:.3f} m height per cell "
+            f"of {sy['cell_across_m']:g} x {sy['cell_along_m']:g} m (across x along the flight; {sy['cells']} cells, "
+            f"{sy['observations']} observations, {sy['lidar_control_points']} control points from the LiDAR), added "
+            "to the covariances of the orientations, object and check points (a consider parameter: the solution "
+            "is not changed by it)")
 
 
 def _surface_txt(sc: dict) -> list[str]:
@@ -770,6 +828,8 @@ def _surface_txt(sc: dict) -> list[str]:
         L.append(f"  roof planes {sc['planes']} ({sc['n_planes']} faces), sigma: the plane fit + LiDAR strip "
                  f"{sxy:.3f} m plan, {sz:.3f} m height, along the normal")
         L.append("  residual: point height - DEM (ground), distance above the plane along its normal (roof planes)")
+    if sc.get("systematic"):
+        L.append(_systematic_txt(sc["systematic"]))
     rows = list(sc["classes"].items()) + [("all", sc)] if roofs else [("ground (DEM)", sc)]
     L.append(f"  {'class':14}{'candidates':>11}{'used':>8}{'rejected':>9}{'rms (m)':>9}{'median (m)':>11}"
              f"{'norm. rms':>10}")
@@ -905,6 +965,9 @@ def format_txt(rep: dict) -> str:
                  f"the height RMS limit"
                  + ("; focal_height: the focal length's sigma as the height change it makes at the tie points' "
                     "depth, judged in SELF-CALIBRATION" if any(g["mode"] == "focal_height" for g in gm) else "") + ")")
+        if ((rep.get("surface_control") or {}).get("systematic") or {}).get("considered"):
+            L.append("  (sigmas formal: the surface's points as independent; the LiDAR strip offsets of SURFACE CONTROL "
+                     "are not in them, as they are in the orientations' and points' sigmas)")
         L.append("")
     comp = rep.get("components") or {}
     if comp.get("adjusted", 1) > 1 or comp.get("left_out"):
@@ -955,6 +1018,9 @@ def format_txt(rep: dict) -> str:
         L.append(f"{'sum':>12}" + " " * 84 + "".join(_v(x, 9, 3) for x in rep["check_sum_m"]))
         L.append(f"{'rms':>12}" + " " * 84 + "".join(_v(x, 9, 3) for x in rep["check_rms_m"]))
         L.append("  normalised check errors (d / sigma), RMS X Y Z: " + " ".join(f"{x:.2f}" for x in rep["check_normalised_rms"]))
+        if rep.get("check_points_from_lidar"):
+            L.append(f"  {rep['check_points_from_lidar']} check points are corners of the same LiDAR as the surface "
+                     "control: they share its strip offsets, so their agreement does not test the LiDAR's datum")
     if rep["self_calibration"]:
         L += [""] + _self_calibration_txt(rep["self_calibration"])
     if rep["gnss_strips"]:

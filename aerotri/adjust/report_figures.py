@@ -113,6 +113,15 @@ def _map_axes(ax, origin, extent_m: float) -> str:
     return f"{_fmt(bar)} m"
 
 
+def _named_checks(named: int, checks: int) -> str:
+    """The caption's words for the check points named on the map: none, all of them, or the largest few."""
+    if named == 0:
+        return "; no check points"
+    if named == checks:
+        return "; every check point named" if checks > 1 else "; the check point named"
+    return f"; the {named} largest check residuals named"
+
+
 def ground_residual_map(rep: dict) -> Figure | None:
     """Control (triangles) and check points (circles) with their plan residual vectors (arrows, scale key
     in metres) and the height residual as colour (colour bar in metres); points without a height residual
@@ -153,17 +162,18 @@ def ground_residual_map(rep: dict) -> Figure | None:
         fig.colorbar(sc, ax=ax, shrink=0.8, label="height residual dZ (m)")
     for r, xi, yi in zip(ctrl, x[is_ctrl], y[is_ctrl]):
         ax.annotate(str(r["id"]), (xi, yi), fontsize=7, xytext=(4, 4), textcoords="offset points")
-    worst = np.argsort(-np.nan_to_num(plan))[:5]
+    # the largest plan residuals among the check points (control points are all named above)
+    check_idx = np.flatnonzero(~is_ctrl)
+    worst = check_idx[np.argsort(-np.nan_to_num(plan[check_idx]), kind="stable")[:5]]
     ids = [str(r["id"]) for r in ctrl] + [str(r["id"]) for r in chk]
     for k in worst:
-        if not is_ctrl[k]:
-            ax.annotate(ids[k], (x[k], y[k]), fontsize=7, color="tab:blue", xytext=(4, -9), textcoords="offset points")
+        ax.annotate(ids[k], (x[k], y[k]), fontsize=7, color="tab:blue", xytext=(4, -9), textcoords="offset points")
     fig.legend(loc="outside lower center", ncols=2, fontsize=8)  # outside: inside, it hid the points' names
     ax.set_title("Ground residuals: adjusted - given (control), adjusted - measured (check)", loc="left", pad=16,
                  fontsize=11)
     return Figure("Control and check-point residual vectors",
-                  "Arrows: plan residual of each point (control red, check black; the five largest check "
-                  "residuals are named); "
+                  "Arrows: plan residual of each point (control red, check black"
+                  + _named_checks(len(worst), len(chk)) + "); "
                   + ("marker colour: height residual (grey: none)." if has_dz else
                      "plan-only control: no height residuals."),
                   f"arrow = {_fmt(key_m)} m on the ground; map scale bar {bar}; "

@@ -80,6 +80,10 @@ class AdjustmentRecord:
     control_to_tie_ratio: float | None = None  # RMS image residual of control over that of the ties
     datum_notes: tuple[str, ...] = ()  # what the datum rests on when GNSS does not carry it
     surface_control: tuple[SurfaceControlClass, ...] = ()  # per class of ground, or the DEM as one; () without
+    # the surface's systematic error (LiDAR strip offsets) as the sigmas carry it: report.json
+    # surface_control.systematic ("considered" false: the orientations' and points' sigmas are formal); None without
+    surface_systematic: dict | None = None
+    check_points_from_lidar: int = 0  # check points that are corners of the surface control's LiDAR
 
     @property
     def sigma0_in_px(self) -> float | None:
@@ -131,7 +135,9 @@ def adjustment_record(d: dict, path="at/report.json") -> AdjustmentRecord:
         check_normalised_rms=_xyz(d.get("check_normalised_rms")), flight_acceptance=d.get("flight_acceptance") or None,
         control_to_tie_ratio=_number((d.get("image_residuals") or {}).get("control_to_tie_ratio")),
         datum_notes=tuple(str(n) for n in d.get("datum") or ()),
-        surface_control=_surface_control(d.get("surface_control")))
+        surface_control=_surface_control(d.get("surface_control")),
+        surface_systematic=(d.get("surface_control") or {}).get("systematic"),
+        check_points_from_lidar=int(d.get("check_points_from_lidar") or 0))
 
 
 def read_adjustment_report(path) -> AdjustmentRecord:

@@ -15,6 +15,8 @@ from typing import ClassVar
 from aerotri.core.settings import PROJECT_TOML, DEFAULT, Resolved, setting
 
 GNSS_CORRECTIONS = ("none", "shift", "shift_drift")
+# a LiDAR strip's georeferencing error, plan and height (m): lidarctl corners' sigma_strip_xy_m and sigma_strip_z_m
+DEFAULT_SURFACE_BIAS_SIGMA_M = 0.03
 # the self-calibration of a camera that is the EXIF's nominal one (focal length from EXIF, principal point at the
 # centre, no distortion: aerotri.exchange.exif), when none is asked for: a consumer wide-angle lens's radial
 # distortion is tens of pixels at the corners (Brighton Beach's FC300S: 60 px), which its tie points determine; the
@@ -69,6 +71,21 @@ class AdjustSettings:
                                                      "lidar_out/dem.tif when there, see lidar_surface).")
     surface_sigma_m: float = setting(0.15, min=0.0, min_open=True,
                                      help="Stated precision of the DEM heights (m); the slope adds to it.")
+    surface_bias_sigma_m: float | None = setting(
+        None, min=0.0, help="Systematic error of the surface control, plan and height (m): a LiDAR strip's "
+                            "georeferencing error, shared by all the DEM's (and roof planes') points of a cell of "
+                            "surface_bias_cell_m, which the adjustment cannot average away; added to the covariances "
+                            "of the orientations, object and check points (not estimated: the solution is the same). "
+                            "Default for the project's LiDAR (lidar_out/dem.tif, roof planes): the strip sigmas of "
+                            "the roof planes (lidarctl corners), else 0.03 m; for a DEM from elsewhere 0. 0: the "
+                            "surface's points taken as independent (formal sigmas: too small by the DEM's "
+                            "systematic error).")
+    surface_bias_cell_m: float = setting(500.0, min=1.0, help="Width (m) across the flight direction over which the "
+                                                              "surface's systematic error is taken as one offset: "
+                                                              "about a LiDAR strip's swath.")
+    surface_bias_length_m: float = setting(5000.0, min=1.0, help="Length (m) along the flight direction over which "
+                                                                 "the surface's systematic error is taken as one "
+                                                                 "offset (a LiDAR strip's error holds along it).")
     ndsm: Path | None = setting(None, path=True, help="nDSM (height above ground) that tells tie points on roofs and "
                                                       "trees from those on the ground (default: lidar_out/ndsm.tif "
                                                       "with the LiDAR DEM, else none: robust only).")

@@ -17,6 +17,7 @@ from aerotri.adjust.surface import SurfaceStats, surface_stats
 from aerotri.core.errors import SolveError
 from aerotri.adjust.check_points import intersect_with_covariance
 from aerotri.adjust.cpp_output import counting
+from aerotri.adjust import surface_bias as sb
 from aerotri.adjust.covariance import ReducedCovariance, point_rays
 from aerotri.adjust.geometry_modes import geometry_modes
 from aerotri.adjust.covariance import point_covariances as point_covariances_rcs
@@ -72,6 +73,7 @@ class AdjustmentResult:
     geometry: list | None = None  # geometry_modes.GeometryMode: how well the block's height modes are determined
     calibration: object | None = None  # geometry_modes.CalibrationCovariance (self-calibration only)
     behind_camera: tuple[int, int] = (0, 0)  # gtsam's CheiralityException lines, (point, camera) pairs (cpp_output)
+    surface_bias: object | None = None  # surface_bias.SurfaceBias: the surface's systematic error in the covariances
 
 
 def adjust_block(block: G.Block, opts: G.SolveSettings, state0: G.State, **kwargs) -> AdjustmentResult:
@@ -217,7 +219,7 @@ def _adjust_block(
             break
     sigma0 = float(np.sqrt(info.chi2 / info.dof)) if info.dof > 0 else float("nan")
 
-    pose_cov = point_cov = cal_cov = marg = None
+    pose_cov = point_cov = cal_cov = marg = bias = None
     components, factors, geometry, calibration = None, None, None, None
     if compute_marginals:
         t0 = time.perf_counter()
@@ -268,6 +270,18 @@ def _adjust_block(
                                                        sigma0=sigma0, rays=rays)
             if values.exists(G.K_KEY):
                 cal_cov = marg.marginalCovariance(G.K_KEY) * s2
+            bias = _surface_bias(block, opts, state, obs_active, control_active, marg, rays)
+            if bias is not None:
+                # the surface's systematic error in every covariance reported (the solution stays as it is)
+                pose_cov = pose_cov + sb.pose_covariance(bias, marg, block.n_images)
+                if point_cov is not None:
+                    add = sb.point_covariance(bias, rays or point_rays(block, state, obs_active, opts.image_sigma_px,
+                                                                       marg, bool(opts.self_calibration)),
+                                              block.n_points)
+                    point_cov = point_cov if add is None else point_cov + add
+                if cal_cov is not None:
+                    cal_cov = cal_cov + sb.key_covariance(bias, marg, G.K_KEY)
+                marg = sb.ConsideredCovariance(marg, bias, s2)
         timings["marginals_s"] += time.perf_counter() - t0
     v, r, _ = residuals_and_redundancy(state)
     timings["total_s"] = time.perf_counter() - t_start
@@ -279,7 +293,7 @@ def _adjust_block(
         log.info(f"surface control: {stats.used} points used, {stats.rejected} rejected, height - DEM RMS {rms}")
     return AdjustmentResult(
         state, info, sigma0, obs_active, control_active, removed, rejected, v, r, pose_cov, point_cov, cal_cov, marg,
-        iterations, timings, stats, use, components, factors, block, opts, geometry, calibration,
+        iterations, timings, stats, use, components, factors, block, opts, geometry, calibration, surface_bias=bias,
     )
 
 
@@ -385,6 +399,25 @@ def _drop_weak_points(block: G.Block, obs_active, state: G.State | None = None, 
         ev[used] = np.linalg.eigvalsh(N[used])
         weak |= used & ~is_control & (ev[:, 0] * max_cond < ev[:, 2])
     obs_active &= ~weak[block.obs_point]
+
+
+def _surface_bias(block: G.Block, opts: G.SolveSettings, state: G.State, obs_active, control_active, marg, rays
+                  ) -> sb.SurfaceBias | None:
+    """The surface control's systematic error as a consider parameter (``surface_bias``), or None (no surface, or
+    its bias sigmas zero)."""
+    sc = block.surface
+    if sc is None or block.surface_active is None or not (sc.bias_sigma_xy_m > 0 or sc.bias_sigma_z_m > 0):
+        return None
+    if rays is None:
+        rays = point_rays(block, state, obs_active, opts.image_sigma_px, marg, bool(opts.self_calibration))
+    bias = sb.surface_bias(block, state, rays, marg, control_active=control_active, cell_m=sc.bias_cell_m,
+                           length_m=sc.bias_length_m,
+                           sigma_xy_m=sc.bias_sigma_xy_m, sigma_z_m=sc.bias_sigma_z_m)
+    if bias is not None:
+        log.info(f"surface bias: {len(bias.point)} surface points in {bias.cells} cells of {bias.cell_m:g} x "
+                 f"{bias.length_m:g} map units (across x along the flight), "
+                 f"sigma {sc.bias_sigma_xy_m:g} / {sc.bias_sigma_z_m:g} m (plan / height) added to the covariances")
+    return bias
 
 
 def _marginals(gr, values, block, obs_active):

@@ -361,6 +361,15 @@ class SurfaceControl:
     # coordinates given are (``of_points``), None: all of them in order
     anchors: MapAnchors | None = None
     index: np.ndarray | None = None
+    # the surface's systematic error (a LiDAR strip's georeferencing error, m, plan and height), taken as one 3D
+    # offset per cell of ``bias_cell_m`` map units: considered in the covariances (``surface_bias``), 0: none
+    bias_sigma_xy_m: float = 0.0
+    bias_sigma_z_m: float = 0.0
+    bias_cell_m: float = 500.0  # across the flight direction (map units)
+    bias_length_m: float = 5000.0  # along it
+    # (C,) bool per control point of the block: from the same LiDAR (lidarctl corners), its given coordinates
+    # carry the same offset
+    lidar_control: np.ndarray | None = None
 
     def __post_init__(self):
         if self.anchors is None:
@@ -421,6 +430,23 @@ class SurfaceControl:
         if len(roof):  # metres along the plane's normal: the unit normal in the local frame
             J[roof] /= s[:, None]
         return e, J, sigma
+
+    def offset_partials(self, coords_local: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(d e / d (dx, dy, dz) (M, 3), map x y (M, 2)) of points (M, 3) in the local frame: how each residual of
+        ``observe`` changes when the surface (DEM and roof planes) is offset by (dx, dy, dz) metres along the map
+        axes, as a LiDAR strip's georeferencing error offsets it: ``(DEM_x, DEM_y, -1)`` in metres per metre, on a
+        roof face ``(a, b, -1) / s`` (the distance along the normal)."""
+        p = np.asarray(coords_local, dtype=float)
+        m, _ = self._map(p, jacobian=False)
+        _, hx, hy = self.dem.sample(m[:, 0], m[:, 1])
+        xy_m, z_m = self.map_unit_m
+        out = np.column_stack([hx * z_m / xy_m, hy * z_m / xy_m, -np.ones(len(p))])
+        face = self._faces(m)
+        roof = np.flatnonzero(face >= 0)
+        if len(roof):
+            a, b, _ = self.planes.abc[face[roof]].T
+            out[roof] = np.column_stack([a, b, -np.ones(len(roof))]) / np.sqrt(1.0 + a * a + b * b)[:, None]
+        return out, m[:, :2]
 
     def candidates(self, coords_local: np.ndarray) -> np.ndarray:
         """Points that may lie on the ground (inside the DEM and, with an nDSM, not on an object) or on a roof

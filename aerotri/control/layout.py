@@ -26,6 +26,7 @@ import dataclasses
 import numpy as np
 
 from aerotri.control.settings import LayoutSettings
+from aerotri.geom.local_frame import FramesOnEarth
 from aerotri.geom.strips import strips_from_track
 
 
@@ -66,15 +67,15 @@ class Strip:
     base_m: float
 
 
-def ground_footprints(camera, centres_m, Rs, ground_z_m: float) -> np.ndarray:
-    """Ground footprint corners (N, 4, 2) of the frames on the horizontal plane Z = ground_z_m."""
+def ground_footprints(camera, centres_m, Rs, ground_z_m: float, frames=None) -> np.ndarray:
+    """Ground footprint corners (N, 4, 2) of the frames on the horizontal plane Z = ground_z_m; ``frames``: these
+    frames over the earth (``aerotri.geom.local_frame.FramesOnEarth``; None: the coordinates of a Cartesian frame)."""
+    frames = frames if frames is not None else FramesOnEarth.cartesian(centres_m, Rs)
     w, h = camera.width - 1, camera.height - 1
     px = np.array([[0, 0], [w, 0], [w, h], [0, h]], float)
     out = np.zeros((len(centres_m), 4, 2))
     for i in range(len(centres_m)):
-        d = camera.rays(px[:, 0], px[:, 1], Rs[i])
-        s = (ground_z_m - centres_m[i, 2]) / d[:, 2]
-        out[i] = centres_m[i, :2] + s[:, None] * d[:, :2]
+        out[i] = frames.at_height(i, frames.rays_local(camera, i, px[:, 0], px[:, 1]), ground_z_m)[:, :2]
     return out
 
 
@@ -86,11 +87,11 @@ def block_axes(centres_m, strip):
     return u, np.array([-u[1], u[0]])
 
 
-def strips_of_block(camera, centres_m, Rs, ground_z_m: float, strip=None):
-    """Strip geometry on the common block axes; strips sorted across track."""
+def strips_of_block(camera, centres_m, Rs, ground_z_m: float, strip=None, frames=None):
+    """Strip geometry on the common block axes; strips sorted across track (``frames``: ``ground_footprints``)."""
     strip = strips_from_track(centres_m) if strip is None else np.asarray(strip)
     u, w = block_axes(centres_m, strip)
-    fp = ground_footprints(camera, centres_m, Rs, ground_z_m)
+    fp = ground_footprints(camera, centres_m, Rs, ground_z_m, frames)
     origin = centres_m[:, :2].mean(axis=0)
     out = []
     for s in np.unique(strip):
@@ -161,17 +162,18 @@ def candidate_tiers(n_frames, primary, roof, min_frames: int) -> np.ndarray:
 
 def select_control(xy_m, score, n_frames, *, camera, centres_m, Rs, ground_z_m, rule: LayoutSettings | None = None,
                    strip=None, residual_ratio=None, tier=None,
-                   check=None) -> tuple[np.ndarray, list[LayoutTarget], float]:
+                   check=None, frames=None) -> tuple[np.ndarray, list[LayoutTarget], float]:
     """Kind per corner ("full", "height", "check", or "candidate": a fallback corner not chosen), the
     layout targets, the base (m).
 
     xy_m (N, 2): accepted corners; score (N,); n_frames (N,): frames each corner was accepted in;
     residual_ratio (N,): largest multi-ray residual / tolerance (0..1), None for none; tier (N,): the
     candidate set of each corner (``candidate_tiers``; None: tier 0 for every corner in ``min_frames``
-    frames, none for the others); check (N,): corners that are check points when not chosen (None: all).
+    frames, none for the others); check (N,): corners that are check points when not chosen (None: all); frames:
+    the frames over the earth (``ground_footprints``).
     """
     rule = rule or LayoutSettings()
-    strips, origin, u, w = strips_of_block(camera, centres_m, Rs, ground_z_m, strip)
+    strips, origin, u, w = strips_of_block(camera, centres_m, Rs, ground_z_m, strip, frames)
     base = float(np.median([st.base_m for st in strips]))
     radius = rule.search_radius_baselines * base
     if tier is None:

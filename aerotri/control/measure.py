@@ -4,7 +4,8 @@ Pixel convention as in ``aerotri.geom.camera``: origin at the centre of the top-
 
 Method (per frame):
 1. Prediction: the corner and its two roof edges (object directions from the LiDAR bearings) are
-   projected with the current orientation; the search radius follows from the corner's standard
+   projected with the current orientation, as a camera over the earth sees them (``FramesOnEarth``: a projected
+   CRS is not Cartesian); the search radius follows from the corner's standard
    deviations propagated into the image plus the orientation uncertainty (``eo_sigma_px``).
 2. Candidates: straight edges with the predicted directions (a line detector with known direction,
    i.e. a Hough transform restricted to the two LiDAR edge directions, on the colour gradient), shifted
@@ -45,27 +46,49 @@ class Measurement:
 
 
 # -- prediction -------------------------------------------------------------------------------------
-def predict(camera, centre_m, R, xyz_m, edge_dir_m, sigma_m, *, eo_sigma_px: float = 1.0, window_k: float = 3.0,
+@dataclasses.dataclass(frozen=True)
+class CornerPoints:
+    """Corners and the points that give their image edge directions and uncertainty, in the Cartesian frame of
+    ``FramesOnEarth`` (``corner_points``: transformed once for all frames): the corners (N, 3), the corners moved
+    +- ``step_m`` along each roof edge (N, 2, 2, 3: edge, sign +/-) and by their standard deviation along each map
+    axis (N, 3, 3)."""
+
+    xyz: np.ndarray
+    along_edges: np.ndarray
+    by_sigma: np.ndarray
+
+
+def corner_points(frames, xyz_m, edge_dir_m, sigma_m, step_m: float = 2.0) -> CornerPoints:
+    """``CornerPoints`` of corners (N, 3) with horizontal roof-edge directions (N, 2, 3) and standard deviations
+    (N, 3) in the project CRS (``frames``: ``aerotri.geom.local_frame.FramesOnEarth``)."""
+    xyz_m = np.atleast_2d(np.asarray(xyz_m, dtype=float))
+    edge_dir_m, sigma_m = np.asarray(edge_dir_m, dtype=float), np.asarray(sigma_m, dtype=float)
+    n = len(xyz_m)
+    along = np.stack([np.stack([xyz_m + step_m * edge_dir_m[:, j], xyz_m - step_m * edge_dir_m[:, j]], axis=1)
+                      for j in range(2)], axis=1)  # (N, 2, 2, 3)
+    by_sigma = np.stack([xyz_m + np.eye(3)[a] * sigma_m[:, a : a + 1] for a in range(3)], axis=1)  # (N, 3, 3)
+    local = frames.to_local(np.concatenate([xyz_m, along.reshape(-1, 3), by_sigma.reshape(-1, 3)]))
+    return CornerPoints(local[:n], local[n : 5 * n].reshape(n, 2, 2, 3), local[5 * n :].reshape(n, 3, 3))
+
+
+def predict(camera, frames, i: int, points: CornerPoints, *, eo_sigma_px: float = 1.0, window_k: float = 3.0,
             min_radius_px: float = 4.0, max_radius_px: float = 25.0):
-    """Project corners (N, 3) and their edge directions (N, 2, 3) into one frame.
+    """Project corners (``corner_points``) and their edge directions into frame ``i`` of ``frames``
+    (``FramesOnEarth``: a camera over the earth).
 
     Returns x_px, y_px (N,), image edge directions (N, 2, 2) (unit, sign arbitrary), sigma_px (N,)
     (corner standard deviations propagated into the image, radial) and the search radius (N,) in px.
     """
-    xyz_m = np.atleast_2d(xyz_m)
-    x, y, depth = camera.project(xyz_m, centre_m, R)
-    step_m = 2.0
-    dirs = np.zeros((len(xyz_m), 2, 2))
+    x, y, depth = frames.project_local(camera, i, points.xyz)
+    dirs = np.zeros((len(x), 2, 2))
     for j in range(2):
-        xa, ya, _ = camera.project(xyz_m + step_m * edge_dir_m[:, j], centre_m, R)
-        xb, yb, _ = camera.project(xyz_m - step_m * edge_dir_m[:, j], centre_m, R)
+        xa, ya, _ = frames.project_local(camera, i, points.along_edges[:, j, 0])
+        xb, yb, _ = frames.project_local(camera, i, points.along_edges[:, j, 1])
         d = np.stack([xa - xb, ya - yb], axis=-1)
         dirs[:, j] = d / np.linalg.norm(d, axis=-1, keepdims=True)
-    var = np.zeros(len(xyz_m))
+    var = np.zeros(len(x))
     for a in range(3):
-        dp = np.zeros(3)
-        dp[a] = 1.0
-        xs, ys, _ = camera.project(xyz_m + dp * sigma_m[:, a : a + 1], centre_m, R)
+        xs, ys, _ = frames.project_local(camera, i, points.by_sigma[:, a])
         var += (xs - x) ** 2 + (ys - y) ** 2
     sigma_px = np.sqrt(var)
     radius = np.clip(window_k * np.hypot(sigma_px, eo_sigma_px), min_radius_px, max_radius_px)

@@ -21,7 +21,7 @@ import numpy as np
 from aerotri.control.consistency import check_rays
 from aerotri.control.corners import LidarCorners, ManualMeasurements, read_corners, read_manual
 from aerotri.control.layout import LayoutTarget, candidate_tiers, empty_target_text, select_control
-from aerotri.control.measure import Measurement, measure_in_image, predict
+from aerotri.control.measure import Measurement, corner_points, measure_in_image, predict
 from aerotri.control.settings import ControlSettings
 from aerotri.core.errors import InputError, OptionError
 from aerotri.core.log import track
@@ -31,6 +31,7 @@ from aerotri.core.settings import Resolved, settings_of
 from aerotri.geom.camera import BrownCamera, orientations_camera
 from aerotri.geom.eo import ExteriorOrientations, read_eo
 from aerotri.geom.images import FrameWindows, find_image
+from aerotri.geom.local_frame import FramesOnEarth
 
 log = logging.getLogger(__name__)
 
@@ -93,16 +94,16 @@ class ReviewPage:
     chips: dict[str, bytes]
 
 
-def _measure_frames(corners: LidarCorners, camera: BrownCamera, *, eo: ExteriorOrientations, images_dir: Path,
-                    idx: np.ndarray, manual_k: dict, s: ControlSettings) -> tuple[dict, dict]:
+def _measure_frames(corners: LidarCorners, camera: BrownCamera, *, eo: ExteriorOrientations, frames: FramesOnEarth,
+                    images_dir: Path, idx: np.ndarray, manual_k: dict, s: ControlSettings) -> tuple[dict, dict]:
     """Measurements and predictions {(corner index, image index): ...} of the corners ``idx`` in every frame
-    they are predicted in, then the manual measurements in place of the automatic ones."""
-    dirs_m = corners.edge_directions_m()
-    Rs = eo.rotations()
+    they are predicted in (``frames``: the orientations ``eo`` over the earth), then the manual measurements in place
+    of the automatic ones."""
+    points = corner_points(frames, corners.xyz_m[idx], corners.edge_directions_m()[idx], corners.sigma_m[idx])
     meas, pred = {}, {}
     for i, iid in enumerate(track(eo.image_id, "control transfer", "frames")):
-        x, y, d, _, radius = predict(camera, eo.centre_m[i], Rs[i], corners.xyz_m[idx], dirs_m[idx], corners.sigma_m[idx],
-                                     eo_sigma_px=s.measure.eo_sigma_px, window_k=s.measure.window_k,
+        x, y, d, _, radius = predict(camera, frames, i, points, eo_sigma_px=s.measure.eo_sigma_px,
+                                     window_k=s.measure.window_k,
                                      min_radius_px=s.measure.min_radius_px, max_radius_px=s.measure.max_radius_px)
         inside = camera.inside(x, y, margin_px=2.0)
         has_manual = any(i == j for _, j in manual_k)
@@ -121,10 +122,9 @@ def _measure_frames(corners: LidarCorners, camera: BrownCamera, *, eo: ExteriorO
     return meas, pred
 
 
-def _check_corners(corners: LidarCorners, camera: BrownCamera, eo: ExteriorOrientations, idx: np.ndarray,
+def _check_corners(corners: LidarCorners, camera: BrownCamera, frames: FramesOnEarth, idx: np.ndarray,
                    meas: dict, s: ControlSettings) -> dict:
     """Multi-ray check of every corner in ``idx`` over its accepted image measurements: {corner index: RayCheck}."""
-    Rs = eo.rotations()
     by_corner: dict[int, list[int]] = {}
     for (k, i), m in meas.items():
         if m.ok:
@@ -133,7 +133,7 @@ def _check_corners(corners: LidarCorners, camera: BrownCamera, eo: ExteriorOrien
     for k in idx:
         imgs = sorted(by_corner.get(int(k), []))
         xy = np.array([[meas[(k, i)].x_px, meas[(k, i)].y_px] for i in imgs]).reshape(-1, 2)
-        rays[int(k)] = check_rays(camera, eo.centre_m[imgs], Rs[imgs], xy, corners.xyz_m[k], corners.sigma_m[k],
+        rays[int(k)] = check_rays(camera, frames, imgs, xy, corners.xyz_m[k], corners.sigma_m[k],
                                   tol_px=s.tol_px, sigma_px=s.image_sigma_px, datum_sigma_m=s.datum_sigma_m,
                                   alpha=s.alpha)
         rays[int(k)].images = imgs
@@ -141,7 +141,7 @@ def _check_corners(corners: LidarCorners, camera: BrownCamera, eo: ExteriorOrien
 
 
 def _select(corners: LidarCorners, camera: BrownCamera, eo: ExteriorOrientations, primary: np.ndarray, rays: dict,
-            s: ControlSettings) -> tuple[np.ndarray, list[LayoutTarget], float]:
+            s: ControlSettings, frames: FramesOnEarth) -> tuple[np.ndarray, list[LayoutTarget], float]:
     """Kind of every corner (full / height / check among the accepted ones of the ``primary`` set,
     candidate for accepted fallback corners not chosen, rejected, not_measured), the layout targets
     (``corner``: index into ``corners``) and the base (m)."""
@@ -162,7 +162,7 @@ def _select(corners: LidarCorners, camera: BrownCamera, eo: ExteriorOrientations
         kk, targets, base = select_control(corners.xyz_m[accepted, :2].reshape(-1, 2), corners.score[accepted],
                                            n_frames, camera=camera, centres_m=eo.centre_m, Rs=eo.rotations(),
                                            ground_z_m=ground_z, rule=s.layout, residual_ratio=worst / s.tol_px,
-                                           tier=tier, check=primary[accepted])
+                                           tier=tier, check=primary[accepted], frames=frames)
         kind[accepted] = kk
         targets = [t if t.corner is None else dataclasses.replace(t, corner=int(accepted[t.corner])) for t in targets]
     return kind, targets, base
@@ -240,8 +240,11 @@ def why_empty(res: "TransferResult", t: LayoutTarget, s: ControlSettings) -> str
 
 def transfer_control(corners: LidarCorners, camera: BrownCamera, eo: ExteriorOrientations, images_dir,
                      settings: ControlSettings | None = None,
-                     manual: ManualMeasurements | None = None) -> TransferResult:
+                     manual: ManualMeasurements | None = None, *, crs) -> TransferResult:
     """Measure the corners in every frame, check them across frames, select control by the layout rule.
+
+    ``crs``: the project CRS of the corners and orientations, whose map coordinates the frames see over the earth
+    (``FramesOnEarth``); None, given explicitly: a Cartesian frame (a folder without project.toml, local metres).
 
     When a layout target gets no usable corner in ``min_frames`` frames and ``settings.layout.fallback``
     is on, the corners not measured yet (those lidarctl did not mark usable) within its search radius are
@@ -255,18 +258,21 @@ def transfer_control(corners: LidarCorners, camera: BrownCamera, eo: ExteriorOri
     primary = corners.usable.copy() if s.usable_only else np.ones(len(corners), bool)
     primary[[k for k, _ in manual_k]] = True
     idx = np.flatnonzero(primary)
-    meas, pred = _measure_frames(corners, camera, eo=eo, images_dir=Path(images_dir), idx=idx, manual_k=manual_k, s=s)
-    rays = _check_corners(corners, camera, eo, idx, meas, s)
-    kind, targets, base = _select(corners, camera, eo, primary, rays, s)
+    frames = FramesOnEarth(crs, eo.centre_m, eo.rotations())
+    meas, pred = _measure_frames(corners, camera, eo=eo, frames=frames, images_dir=Path(images_dir), idx=idx,
+                                 manual_k=manual_k, s=s)
+    rays = _check_corners(corners, camera, frames, idx, meas, s)
+    kind, targets, base = _select(corners, camera, eo, primary, rays, s, frames)
     extra = _near_unfilled_targets(corners, targets, ~primary) if s.layout.fallback else np.zeros(0, int)
     if len(extra):
         log.info(f"{sum(t.tier != 'usable' for t in targets)} layout targets without a usable corner: measuring "
                  f"{len(extra)} more corners near them")
-        m2, p2 = _measure_frames(corners, camera, eo=eo, images_dir=Path(images_dir), idx=extra, manual_k={}, s=s)
+        m2, p2 = _measure_frames(corners, camera, eo=eo, frames=frames, images_dir=Path(images_dir), idx=extra,
+                                 manual_k={}, s=s)
         meas.update(m2)
         pred.update(p2)
-        rays.update(_check_corners(corners, camera, eo, extra, meas, s))
-        kind, targets, base = _select(corners, camera, eo, primary, rays, s)
+        rays.update(_check_corners(corners, camera, frames, extra, meas, s))
+        kind, targets, base = _select(corners, camera, eo, primary, rays, s, frames)
     res = TransferResult(corners, list(eo.image_id), meas, pred, rays, kind, targets, base, set(manual_k), primary)
     res.targets = [t if t.corner is not None else dataclasses.replace(t, empty_reason=why_empty(res, t, s))
                    for t in targets]
@@ -520,7 +526,7 @@ def run_control(root, corners_path=None, eo_path=None, camera_path=None, manual_
     camera, _ = orientations_camera(Project.open(paths.root) if camera_path is None else None, eo_path, camera_path)
     manual = (read_manual(manual_path, corners.id, eo.image_id, camera, corners_path, eo_path)
               if manual_path else None)
-    res = transfer_control(corners, camera, eo, paths.images_dir, s, manual)
+    res = transfer_control(corners, camera, eo, paths.images_dir, s, manual, crs=crs)
     sm = summary(res)
     if sm.corners_accepted == 0:
         raise InputError(f"no corner could be measured consistently in two or more frames ({sm.corners_measured} "

@@ -31,6 +31,7 @@ from aerotri.core.project import Project
 from aerotri.core.textio import read_json
 from aerotri.exchange.adjusted import AdjustedBlock
 from aerotri.exchange.commit import ExportFile
+from aerotri.geom.local_frame import FramesOnEarth
 
 log = logging.getLogger(__name__)
 
@@ -85,23 +86,24 @@ def footprints(project: Project, block: AdjustedBlock) -> tuple[list[str], list[
             sampler = _dem_sampler(ds)
             surface = f"DEM {project.dem_path}"
         ids, outlines, opk = [], [], []
+        # the frames over the earth, in the adjustment's own ENU frame (a Cartesian CRS: the map coordinates)
+        frames = FramesOnEarth(project.crs, eo.centre_m, eo.rotations(), frame=block.frame)
         for i in range(len(eo)):
-            C = eo.centre_m[i]
-            d = cam.rays(xy[:, 0], xy[:, 1], eo.rotation(i))
+            d = frames.rays_local(cam, i, xy[:, 0], xy[:, 1])
             if not np.all(d[:, 2] < -1e-9):
                 log.warning(f"{eo.image_id[i]}: rays at the frame's edge do not reach the ground (an oblique frame "
                             f"seeing the horizon); no footprint")
                 continue
             z = np.full(len(xy), mean_h)
             for _ in range(DEM_ITERATIONS if sampler else 0):
-                p = C + ((z - C[2]) / d[:, 2])[:, None] * d
+                p = frames.at_height(i, d, z)
                 zs = sampler(p[:, 0], p[:, 1])
                 z_new = np.where(np.isfinite(zs), zs, z)
                 done = np.max(np.abs(z_new - z)) < 1e-3
                 z = z_new
                 if done:
                     break
-            outlines.append(C + ((z - C[2]) / d[:, 2])[:, None] * d)
+            outlines.append(frames.at_height(i, d, z))
             ids.append(eo.image_id[i])
             opk.append(eo.opk_deg[i])
     return ids, outlines, np.array(opk).reshape(-1, 3), surface

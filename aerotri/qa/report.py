@@ -146,6 +146,19 @@ def _roofs_row(section: str, dom_check, project: Project) -> QaCheck:
                   f"corners: {source}{kind}; not judged")
 
 
+def _sigma_basis(at) -> str | None:
+    """What the adjustment's reported sigmas contain, for the reader who trusts them: with surface control, whether
+    the surface's systematic error (the LiDAR's strip offsets) is in them or they are formal."""
+    sy = at.surface_systematic
+    if sy is None:
+        return None
+    if sy.get("considered"):
+        return (f"formal, plus the surface control's systematic error ({sy.get('sigma_xy_m')} m plan, "
+                f"{sy.get('sigma_z_m')} m height per LiDAR strip cell)")
+    return ("formal only: the surface control's points taken as independent (no systematic error stated); the "
+            "sigmas are too small by the DEM's systematic error")
+
+
 def _sigma0_limit_px(tol: dict, ks: KeyStatistics, s0_px: float) -> float | None:
     """The self-check limit of sigma naught in the camera's pixels: ``sigma0_max_px`` (digital cameras: a
     fraction of a pixel, whatever its size), or a contract's ``sigma0_max_um`` on the image over the pixel
@@ -458,7 +471,8 @@ def build_qa_report(root, *, tolerance_file=None, terrain: str | None = None, sc
     ks_info = dict(sigma0_um=ks.sigma0_um, iterations=ks.iterations) if ks else dict(sigma0_um=None, iterations=None)
     info = dict(
         adjustment=dict(**ks_info, counts=at.counts or None,
-                        check_normalised_rms=list(at.check_normalised_rms) if at.check_normalised_rms else None)
+                        check_normalised_rms=list(at.check_normalised_rms) if at.check_normalised_rms else None,
+                        sigmas=_sigma_basis(at), check_points_from_lidar=at.check_points_from_lidar or None)
         if at else None,
         control_transfer=(ctl.summary or None) if ctl else None,
         lidar_strips=strips,

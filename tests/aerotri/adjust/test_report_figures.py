@@ -236,3 +236,24 @@ def test_ground_residual_map_of_plan_only_control_has_no_height_colour_bar():
     check_pts, ctrl_pts = f.fig.axes[0].collections[:2]
     assert np.allclose(ctrl_pts.get_facecolors()[:, :3], 0.8)  # grey: no height residual
     assert not np.allclose(check_pts.get_facecolors()[:, :3], 0.8)
+
+
+def test_ground_residual_map_names_the_largest_check_residuals_and_says_how_many():
+    """The blue names are the largest plan residuals among the check points (a large control residual no longer
+    takes one of the five places), and the caption says what is named: none without check points (the kite's
+    map said "the five largest check residuals are named" over control points alone), all of few."""
+    ctrl = [{"id": f"gcp{k}", "used": True, "given_m": [235000.0 + 50 * k, 3811000.0, 0.0],
+             "residual_m": [1.0 + k, 0.0, 0.0]} for k in range(3)]  # larger than every check residual
+    chk = [{"id": f"chk{k}", "d_m": [0.01 * k, 0.0, 0.0], "measured_m": [235000.0 + 20 * k, 3811100.0, 0.0]}
+           for k in range(8)]
+
+    def blue_names(f):
+        return sorted(t.get_text() for t in f.fig.axes[0].texts if t.get_color() == "tab:blue")
+
+    f = RF.ground_residual_map({"control_points": ctrl, "check_points": chk})
+    assert blue_names(f) == ["chk3", "chk4", "chk5", "chk6", "chk7"]
+    assert "the 5 largest check residuals named" in f.caption
+    f = RF.ground_residual_map({"control_points": ctrl, "check_points": chk[5:]})
+    assert blue_names(f) == ["chk5", "chk6", "chk7"] and "every check point named" in f.caption
+    f = RF.ground_residual_map({"control_points": ctrl, "check_points": []})
+    assert blue_names(f) == [] and "no check points" in f.caption and "largest" not in f.caption

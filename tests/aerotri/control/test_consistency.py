@@ -6,6 +6,7 @@ import numpy as np
 
 from aerotri.geom.camera import BrownCamera
 from aerotri.control.consistency import check_rays
+from aerotri.geom.local_frame import FramesOnEarth
 from aerotri.geom.rotation import rotation_matrix_opk
 
 CAM = BrownCamera(focal_mm=120.0, pixel_um=96.0, width=1728, height=960)
@@ -26,7 +27,7 @@ def observe(P, centres, Rs, noise_px=0.0, seed=1):
 def test_consistent_rays_recover_the_point():
     P = np.array([200.0, 30.0, 320.0])
     c, R = frames()
-    r = check_rays(CAM, c, R, observe(P, c, R, 0.2), P, np.array([0.1, 0.1, 0.05]))
+    r = check_rays(CAM, FramesOnEarth.cartesian(c, R), np.arange(len(c)), observe(P, c, R, 0.2), P, np.array([0.1, 0.1, 0.05]))
     assert r.ok and r.kept.all()
     assert np.linalg.norm(r.point_m - P) < 0.5
     assert np.all(r.residual_px < 1.0)
@@ -37,7 +38,7 @@ def test_one_wrong_ray_of_four_is_dropped():
     c, R = frames()
     xy = observe(P, c, R, 0.2)
     xy[2] += [3.0, -2.0]
-    r = check_rays(CAM, c, R, xy, P, np.array([0.1, 0.1, 0.05]))
+    r = check_rays(CAM, FramesOnEarth.cartesian(c, R), np.arange(len(c)), xy, P, np.array([0.1, 0.1, 0.05]))
     assert r.ok
     assert r.kept.tolist() == [True, True, False, True]
 
@@ -48,12 +49,12 @@ def test_two_disagreeing_rays_reject_the_corner():
     xy = observe(P, c, R)
     # a shift across the base (image x for kappa = -90 deg) cannot be absorbed by the intersection
     xy[1, 0] += 4.0
-    r = check_rays(CAM, c, R, xy, P, np.array([0.1, 0.1, 0.05]))
+    r = check_rays(CAM, FramesOnEarth.cartesian(c, R), np.arange(len(c)), xy, P, np.array([0.1, 0.1, 0.05]))
     assert not r.ok and r.reason == "inconsistent_rays"
     # a shift along the base (image y) is a parallax: the rays meet, but 4 m off the LiDAR corner in height
     xy = observe(P, c, R)
     xy[1, 1] += 4.0
-    r = check_rays(CAM, c, R, xy, P, np.array([0.1, 0.1, 0.05]))
+    r = check_rays(CAM, FramesOnEarth.cartesian(c, R), np.arange(len(c)), xy, P, np.array([0.1, 0.1, 0.05]))
     assert np.all(r.residual_px < 1e-6)
     assert not r.ok and r.reason == "lidar_mismatch" and abs(r.lidar_diff_m[2]) > 3.0
 
@@ -63,7 +64,7 @@ def test_frames_agreeing_on_the_wrong_point_disagree_with_the_lidar():
     P = np.array([200.0, 30.0, 320.0])
     c, R = frames()
     xy = observe(P - [0, 0, 12.0], c, R, 0.2)
-    r = check_rays(CAM, c, R, xy, P, np.array([0.1, 0.1, 0.05]))
+    r = check_rays(CAM, FramesOnEarth.cartesian(c, R), np.arange(len(c)), xy, P, np.array([0.1, 0.1, 0.05]))
     assert not r.ok and r.reason == "lidar_mismatch"
     assert abs(r.lidar_diff_m[2] + 12.0) < 1.0
 
@@ -71,5 +72,5 @@ def test_frames_agreeing_on_the_wrong_point_disagree_with_the_lidar():
 def test_a_single_ray_is_too_few():
     P = np.array([200.0, 30.0, 320.0])
     c, R = frames(1)
-    r = check_rays(CAM, c, R, observe(P, c, R), P, np.array([0.1, 0.1, 0.05]))
+    r = check_rays(CAM, FramesOnEarth.cartesian(c, R), np.arange(len(c)), observe(P, c, R), P, np.array([0.1, 0.1, 0.05]))
     assert not r.ok and r.reason == "too_few_rays"

@@ -72,7 +72,7 @@ def truth_px(k: int, i: int) -> np.ndarray:
 
 
 def test_corners_are_measured_at_their_true_projections(frames):
-    res = transfer_control(corners(), CAM, EO, frames, ControlSettings())
+    res = transfer_control(corners(), CAM, EO, frames, ControlSettings(), crs=None)
     assert len(res.measurements) == 12  # 4 corners x 3 frames
     err = [np.hypot(*(np.array([m.x_px, m.y_px]) - truth_px(k, i))) for (k, i), m in res.measurements.items()]
     assert all(m.ok for m in res.measurements.values()), {key: m.reason for key, m in res.measurements.items()}
@@ -91,7 +91,7 @@ def test_corners_are_measured_at_their_true_projections(frames):
 
 
 def test_a_corner_off_in_height_and_one_outside_every_frame_are_rejected(frames):
-    res = transfer_control(corners(z_error_m=1.5, far=True), CAM, EO, frames, ControlSettings())
+    res = transfer_control(corners(z_error_m=1.5, far=True), CAM, EO, frames, ControlSettings(), crs=None)
     assert res.rays[0].reason == "lidar_mismatch" and abs(res.rays[0].lidar_diff_m[2] + 1.5) < 0.1
     assert res.rays[4].reason == "too_few_rays" and not any(k == 4 for k, _ in res.measurements)
     assert res.kind[0] == res.kind[4] == "rejected"
@@ -101,14 +101,15 @@ def test_a_corner_off_in_height_and_one_outside_every_frame_are_rejected(frames)
 
 def test_manual_measurements_replace_the_automatic_ones(frames):
     t = truth_px(1, 2) + [0.4, -0.2]
-    res = transfer_control(corners(), CAM, EO, frames, ControlSettings(), manual=ManualMeasurements(("C2",), ("f3",), np.array([t], float)))
+    res = transfer_control(corners(), CAM, EO, frames, ControlSettings(),
+                           manual=ManualMeasurements(("C2",), ("f3",), np.array([t], float)), crs=None)
     m = res.measurements[(1, 2)]
     assert m.ok and m.reason == "manual" and (m.x_px, m.y_px) == tuple(t)
     assert summary(res).manual_measurements == 1
 
 
 def test_output_files(frames):
-    res = transfer_control(corners(z_error_m=1.5), CAM, EO, frames, ControlSettings())
+    res = transfer_control(corners(z_error_m=1.5), CAM, EO, frames, ControlSettings(), crs=None)
     texts = output_texts(res)
     pts = list(csv.DictReader(texts.points_csv.splitlines()))
     assert [p["id"] for p in pts] == ["C2", "C3", "C4"]  # the rejected corner is no control
@@ -162,7 +163,7 @@ def test_an_empty_layout_target_measures_fallback_corners_and_says_why_when_it_s
     c = corners(z_error_m=1.5, far=True)
     c.usable[:] = False
     c.usable[0] = True
-    res = transfer_control(c, CAM, EO, frames, ControlSettings(layout=LayoutSettings(search_radius_baselines=2.0)))
+    res = transfer_control(c, CAM, EO, frames, ControlSettings(layout=LayoutSettings(search_radius_baselines=2.0)), crs=None)
     sm = summary(res)
     # C1 fails the LiDAR check, so every target was empty: C2-C4 (not usable) were measured and fill three
     assert res.rays[0].reason == "lidar_mismatch"
@@ -180,18 +181,18 @@ def test_an_empty_layout_target_measures_fallback_corners_and_says_why_when_it_s
     assert sum(t["empty_reason"] is not None for t in rep["layout_targets"]) == 1
 
     off = transfer_control(c, CAM, EO, frames, ControlSettings(layout=LayoutSettings(search_radius_baselines=2.0,
-                                                                                     fallback=False)))
+                                                                                     fallback=False)), crs=None)
     assert sorted(off.rays) == [0] and all(t.corner is None for t in off.targets)
     assert off.targets[0].empty_reason == ("2 LiDAR corners within 12.0 m: 1 rejected by consistency (lidar "
                                            "mismatch); 1 not measured (not marked usable; fallback off)")
     # out of reach: the nearest corner is named
-    near = transfer_control(c, CAM, EO, frames, ControlSettings(layout=LayoutSettings(search_radius_baselines=0.2)))
+    near = transfer_control(c, CAM, EO, frames, ControlSettings(layout=LayoutSettings(search_radius_baselines=0.2)), crs=None)
     assert re.fullmatch(r"no LiDAR roof corner within 1\.2 m of the target \(nearest \d+\.\d m away\)",
                         near.targets[0].empty_reason)
 
 
 def test_too_few_rays_by_cause(frames):
-    res = transfer_control(corners(far=True), CAM, EO, frames, ControlSettings())
+    res = transfer_control(corners(far=True), CAM, EO, frames, ControlSettings(), crs=None)
     assert summary(res).too_few_rays_by_cause == {"in_no_frame": 1}
 
 

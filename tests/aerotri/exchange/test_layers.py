@@ -15,6 +15,7 @@ from aerotri.exchange import export_project
 from aerotri.geom.camera import oriented_camera
 from aerotri.core.project import Project
 from aerotri.geom.eo import read_eo
+from aerotri.geom.local_frame import LocalFrame
 
 
 def _read(path, layer):
@@ -76,11 +77,15 @@ def test_footprints_lie_on_the_dem_and_on_the_frame_edges(adjusted_tiny, tmp_pat
     assert crs == "EPSG:32649" and list(cols_["image_id"]) == eo.image_id
     assert np.allclose(np.column_stack([cols_["omega_deg"], cols_["phi_deg"], cols_["kappa_deg"]]), eo.opk_deg)
     cam, _ = oriented_camera(project)
+    truth_frame = LocalFrame("EPSG:32649", eo.centre_m.mean(axis=0) + [2000.0, -1000.0, -500.0])
     for i, poly in enumerate(polys):
         assert poly.is_valid and poly.area > 0
         v = shapely.get_coordinates(poly, include_z=True)[:-1]
         assert np.abs(v[:, 2] - plane(v[:, 0], v[:, 1])).max() < 0.03 * cell
-        x, y, _ = cam.project(v, eo.centre_m[i], eo.rotation(i))
+        # through the earth (issue 42: EPSG:32649 is not Cartesian; the straight rays' footprints were 1.1-2.1 px off)
+        C = eo.centre_m[i]
+        R_enu = truth_frame.rotation_local_from_map(C)[0] @ eo.rotation(i)
+        x, y, _ = cam.project(truth_frame.to_local(v), truth_frame.to_local(C)[0], R_enu)
         on_edge = np.minimum.reduce([np.abs(x + 0.5), np.abs(x - cam.width + 0.5), np.abs(y + 0.5), np.abs(y - cam.height + 0.5)])
         assert on_edge.max() < 1e-3
 
