@@ -43,6 +43,7 @@ Usage:
   python bench/scale.py --size dmc_3x8                 # the chain on the DMC subset -> bench/results/scale_dmc.json
   python bench/scale.py --size dmc_3x8 --table-only --run-dir DIR  # tabulate a run made by hand (aerotri run DIR)
   python bench/scale.py --size dmc_2x4 --key dmc_2x4_f0d557a   # a run kept under its own entry
+  python bench/scale.py --size dmc_2x4 --run-dir DIR --resume --key K  # resume a run folder (stamps removed: re-run)
   python bench/scale.py --compare dmc_2x4_f0d557a dmc_3x8_f0d557a  # per-unit costs of two entries
 """
 
@@ -169,12 +170,18 @@ def block_numbers(block: Path) -> dict:
                 lidar_strips=truth["lidar_strips"], scene_km2=round(truth["scene_width_m"] * truth["scene_height_m"] / 1e6, 2))
 
 
-def run_chain(block: Path, run_dir: Path, scheduler: str | None, workers: int | None) -> dict:
-    """A fresh run folder with the block's inputs, ``aerotri run`` over it; the run's record."""
-    if run_dir.exists():
-        shutil.rmtree(run_dir)
-    run_dir.mkdir(parents=True)
-    _link_tree(block, run_dir)
+def run_chain(block: Path, run_dir: Path, scheduler: str | None, workers: int | None, resume: bool = False) -> dict:
+    """A fresh run folder with the block's inputs, ``aerotri run`` over it; the run's record. ``resume``: the run
+    folder as it is (``aerotri run`` skips the stages whose stamps are current, e.g. a copy of an earlier run with
+    the stamps of the stages to re-run removed)."""
+    if resume:
+        if not (run_dir / "project.toml").exists():
+            sys.exit(f"{run_dir}: no project to resume (--resume runs the chain in an existing run folder)")
+    else:
+        if run_dir.exists():
+            shutil.rmtree(run_dir)
+        run_dir.mkdir(parents=True)
+        _link_tree(block, run_dir)
     cmd = [str(BIN / "aerotri"), "run", str(run_dir), "--reference", str(block / "truth" / "ortho.tif"),
            "--points", str(block / "truth" / "checkpoints.csv")]
     if scheduler:
@@ -209,7 +216,7 @@ def stage_load(rows: list[dict], run_dir: Path, samples: list | None) -> None:
     load1 = np.array([s[1] for s in samples])
     for r in rows:
         stamp = run_dir / "work" / "stages" / f"{r['stage']}.json"
-        if r["status"] != "done" or not stamp.exists():
+        if r["status"] != "done" or not stamp.exists() or r.get("earlier_run"):  # not in this run's samples
             continue
         end = stamp.stat().st_mtime
         inside = (t >= end - r["wall_s"]) & (t <= end)
@@ -255,6 +262,8 @@ def stage_rows(records: list[dict], blk: dict) -> list[dict]:
         row = dict(stage=r["stage"], status=r["status"], wall_s=r.get("seconds", 0.0), cpu_s=r.get("cpu_s"),
                    peak_rss_mb=None, lidar=POINTS in units and r["stage"] not in CHECKS,
                    **{c: None for c in COLUMNS})
+        if r.get("earlier_run"):  # a resumed run skipped it: the figures are of the run that made it
+            row["earlier_run"] = True
         if "peak_rss_mb" in r:
             row["peak_rss_mb"] = round(r["peak_rss_mb"] + r.get("workers_peak_rss_mb", 0.0), 1)
         dt = row["wall_s"]
@@ -286,7 +295,8 @@ def format_table(rows: list[dict]) -> str:
         return f"{'-':>{width}}" if v is None else f"{v:>{width}{fmt}}"
 
     for r in rows:
-        lines.append(f"{r['stage']:<14} {r['status'][:22]:<22} {r['wall_s']:>8.1f} {num(r['cpu_s'], 8, '.1f')} "
+        status = r["status"] + (" (earlier run)" if r.get("earlier_run") else "")
+        lines.append(f"{r['stage']:<14} {status[:22]:<22} {r['wall_s']:>8.1f} {num(r['cpu_s'], 8, '.1f')} "
                      f"{num(r['peak_rss_mb'], 11, '.0f')} {num(r[FRAMES], 10, ',.1f')} {num(r[POINTS], 12, ',.0f')} "
                      f"{num(r[MP], 8, '.2f')} {num(r.get('load_1min'), 5, '.1f')}")
     return "\n".join(lines)
@@ -356,7 +366,8 @@ def unit_costs(rows: list[dict], blk: dict, dom_gp: float | None) -> dict:
         else:
             continue
         out[st] = dict(unit=unit, units=round(n, 4), wall_s=round(r["wall_s"] / n, 3),
-                       cpu_s=round((r["cpu_s"] or 0.0) / n, 3), peak_rss_mb=r["peak_rss_mb"])
+                       cpu_s=round((r["cpu_s"] or 0.0) / n, 3), peak_rss_mb=r["peak_rss_mb"],
+                       **({"earlier_run": True} if r.get("earlier_run") else {}))
     return out
 
 
@@ -414,6 +425,12 @@ def accuracy(block: Path, run_dir: Path, rows: list[dict]) -> dict:
     if dom and "rms_xy_m" in rec.get("dom_check", {}):
         m = rec["dom_check"]["rms_xy_m"]
         out["dom"] = dict(rms_xy_m=round(m, 4), rms_xy_gsd=round(m / gsd, 2), patches=rec["dom_check"].get("count"))
+    qa = run_dir / "reports" / "summary.json"
+    if qa.exists():  # the chain's QA verdict and the items that failed it
+        q = json.loads(qa.read_text())
+        out["qa_verdict"] = dict(overall=q.get("overall"), passed=q.get("passed"), failed=[
+            {k: c.get(k) for k in ("id", "value", "limit", "unit", "note")}
+            for c in q.get("checks", []) if c.get("verdict") == "fail"])
     return out
 
 
@@ -545,6 +562,10 @@ def dmc_lines(e: dict) -> list[str]:
     if "dom" in a:
         lines.append(f"DOM against truth/ortho.tif: RMS XY {a['dom']['rms_xy_m']} m ({a['dom']['rms_xy_gsd']} GSD), "
                      f"{a['dom']['patches']} patches")
+    if "qa_verdict" in a:
+        v = a["qa_verdict"]
+        lines.append(f"QA verdict {v['overall']}: " + ("; ".join(f"{c['id']} {c['value']} (limit {c['limit']})"
+                                                           for c in v["failed"]) or "no item failed"))
     return lines
 
 
@@ -559,6 +580,8 @@ def main(argv=None) -> int:
     ap.add_argument("--scheduler", help="passed to aerotri run (default: its own)")
     ap.add_argument("--workers", type=int, help="passed to aerotri run")
     ap.add_argument("--run-dir", type=Path, help="the run folder (default: the block's folder name + _run beside it)")
+    ap.add_argument("--resume", action="store_true",
+                    help="run the chain in the run folder as it is (its current stages skipped) instead of a fresh one")
     ap.add_argument("--out", type=Path, help="results file (default bench/results/scale.json; DMC sizes bench/results/scale_dmc.json)")
     ap.add_argument("--key", help="the run's entry in the results file (default: the size), e.g. to keep an older run")
     ap.add_argument("--compare", nargs=2, metavar=("SMALL", "LARGE"),
@@ -597,7 +620,7 @@ def main(argv=None) -> int:
     if args.table_only and not (run_dir / "work").is_dir():
         sys.exit(f"{run_dir}: no run of the {args.size} block yet")
     blk = block_numbers(block)
-    run = None if args.table_only else run_chain(block, run_dir, args.scheduler, args.workers)
+    run = None if args.table_only else run_chain(block, run_dir, args.scheduler, args.workers, args.resume)
     rows = stage_rows(stage_records(run_dir), blk)
     stage_load(rows, run_dir, (run or entry.get("run") or {}).get("load_samples"))
     summary = run_dir / "work" / "run_summary.json"

@@ -17,7 +17,7 @@ def surface_options(f):
     """The options of ``SurfaceSettings`` (what counts as a smooth surface), in metres and degrees."""
     for name, decl in reversed([("cell_m", "--cell-m"), ("min_points", "--min-points"), ("max_rms_m", "--max-rms-m"),
                                 ("max_multi_fraction", "--max-multi-fraction"), ("edge_tol_m", "--edge-tol-m"),
-                                ("max_slope_deg", "--max-slope-deg")]):
+                                ("max_slope_deg", "--max-slope-deg"), ("max_dz_m", "--max-dz-m")]):
         f = click_option(SurfaceSettings, name, decl)(f)
     return f
 
@@ -51,7 +51,8 @@ def check(strip_paths, outdir, crs, png, **kw):
     for p in s.pairs:
         d = p.diff
         click.echo(f"{p.b} - {p.a}: {d.n_cells} cells, mean {d.mean_m:+.3f} m, RMS {d.rms_m:.3f} m, "
-                   f"NMAD {d.nmad_m:.3f} m")
+                   f"NMAD {d.nmad_m:.3f} m" + (f" ({p.different_surface_cells} cells of different surfaces left out)"
+                                               if p.different_surface_cells else ""))
     a = s.all_pairs
     click.echo(f"{outdir}: {len(s.pairs)} pairs of {len(s.strips)} strips, RMS {a.rms_m:.3f} m, "
                f"NMAD {a.nmad_m:.3f} m ({s.points:,} points, {s.points_per_s:,.0f} points/s)")

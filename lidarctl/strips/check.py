@@ -114,7 +114,8 @@ class Offset3d:
 @dataclasses.dataclass(frozen=True)
 class PairCheck:
     """One overlapping pair: dz = z_b - z_a on the common smooth cells, against a's scan angle, the 3D
-    offset (None: fewer than 10 shared planar cells) and the files written for it (names in OUTDIR)."""
+    offset (None: fewer than 10 shared planar cells), the files written for it (names in OUTDIR) and the
+    common smooth cells left out as two different surfaces (``SurfaceSettings.max_dz_m``)."""
 
     a: str
     b: str
@@ -125,6 +126,7 @@ class PairCheck:
     offset_3d_b_minus_a: Offset3d | None
     raster: str | None = None
     png: str | None = None
+    different_surface_cells: int = 0
 
 
 @dataclasses.dataclass(frozen=True)
@@ -168,7 +170,8 @@ class StripCheckResult:
 
 def _pair_record(p: PairCheck) -> dict:
     fit = p.vs_scan_angle_a.fit
-    out = {"a": p.a, "b": p.b, "common_planar_cells": p.common_planar_cells, **to_record(p.diff, drop_none=True),
+    out = {"a": p.a, "b": p.b, "common_planar_cells": p.common_planar_cells,
+           "different_surface_cells": p.different_surface_cells, **to_record(p.diff, drop_none=True),
            "area_m2": p.area_m2,
            "vs_scan_angle_a": {"bins": [dataclasses.asdict(b) for b in p.vs_scan_angle_a.bins],
                                "fit": dataclasses.asdict(fit) if fit is not None else {}},
@@ -199,7 +202,7 @@ def _pair_of(d: dict) -> PairCheck:
     o = d["offset_3d_b_minus_a"]
     return PairCheck(d["a"], d["b"], d["common_planar_cells"], DiffStats.of_record(d), d["area_m2"],
                      ScanProfile(tuple(ScanBin(**b) for b in v["bins"]), RollFit(**v["fit"]) if v["fit"] else None),
-                     Offset3d(**o) if o else None, d.get("raster"), d.get("png"))
+                     Offset3d(**o) if o else None, d.get("raster"), d.get("png"), d.get("different_surface_cells", 0))
 
 
 def _check_of(d: dict) -> StripCheckResult:
@@ -337,7 +340,7 @@ def analyse(ss: StripSet, params: SurfaceSettings, paths, min_cells: int = 20) -
         per_strip[p.b].append(p.dz_m)
         pair_out.append(PairCheck(p.a, p.b, p.common_cells, stats(p.dz_m), float(len(p.dz_m) * ss.grid.cell_m ** 2),
                                   scan_profile(p.dz_m, p.scan_angle_a_deg, p.u_a_m),
-                                  pair_offset_3d(by_name[p.a], by_name[p.b])))
+                                  pair_offset_3d(by_name[p.a], by_name[p.b]), different_surface_cells=p.apart_cells))
     strip_out = []
     for s in ss.strips:
         d = np.concatenate(per_strip[s.name]) if per_strip[s.name] else np.zeros(0)

@@ -217,3 +217,48 @@ def test_stage_load_from_the_samples_over_its_interval(scale, tmp_path):
     assert rows[0]["load_1min"] == 1.0 and rows[1]["load_1min"] == 3.0
     assert rows[2]["load_1min"] == 3.0  # shorter than the sampling step: the sample nearest its end
     assert "load_1min" not in rows[3]
+
+
+def test_a_resumed_run_marks_the_stages_an_earlier_run_made(scale, tmp_path):
+    """``--resume``: the stages the chain skipped keep their earlier run's figures, marked as such in the rows, the
+    table and the unit costs, and get no load from this run's samples."""
+    import os
+
+    stages = tmp_path / "work" / "stages"
+    stages.mkdir(parents=True)
+    usage = dict(cpu_s=50.0, peak_rss_mb=900.0)
+    (stages / "classify.json").write_text(json.dumps(dict(seconds=120.0, usage=usage, result=dict(points=6_000_000))))
+    (stages / "match.json").write_text(json.dumps(dict(seconds=10.0, usage=dict(cpu_s=8.0, peak_rss_mb=500.0))))
+    for name, end in (("classify", 500.0), ("match", 1100.0)):
+        os.utime(stages / f"{name}.json", (end, end))
+    (tmp_path / "work" / "run_summary.json").write_text(json.dumps({"stages": [
+        dict(stage="classify", status="skipped (up to date)", seconds=0.0),
+        dict(stage="match", status="done", seconds=10.0, cpu_s=8.0, peak_rss_mb=500.0)]}))
+    records = scale.stage_records(tmp_path)
+    rows = scale.stage_rows(records, BLOCK)
+    assert rows[0]["earlier_run"] and rows[0]["cpu_s"] == 50.0 and rows[0]["wall_s"] == 120.0
+    assert "earlier_run" not in rows[1]
+    scale.stage_load(rows, tmp_path, [[t, 2.0, 0.0, 0.0] for t in range(1000, 1101, 10)])
+    assert "load_1min" not in rows[0] and rows[1]["load_1min"] == 2.0
+    assert "done (earlier run)" in scale.format_table(rows)
+    costs = scale.unit_costs(rows, BLOCK, None)
+    assert costs["classify"]["earlier_run"] and "earlier_run" not in costs["match"]
+    with pytest.raises(SystemExit, match="no project to resume"):
+        scale.run_chain(tmp_path, tmp_path / "nothing", None, None, resume=True)
+
+
+def test_the_chains_qa_verdict_and_its_failed_items(scale, tmp_path):
+    """A DMC entry's accuracy carries the chain's QA verdict (reports/summary.json) with the items that failed it."""
+    (tmp_path / "block" / "truth").mkdir(parents=True)
+    (tmp_path / "block" / "truth" / "truth.json").write_text(json.dumps(dict(BLOCK, gsd_m=0.1)))
+    (tmp_path / "run" / "reports").mkdir(parents=True)
+    checks = [dict(id="seam_misalignment_rms_px", value=0.33, limit=1.0, unit="px", verdict="pass", note="1151"),
+              dict(id="flight_forward_overlap_min_pct", value=53.1, limit=56.0, unit="%", verdict="fail",
+                   note="worst at s02_003")]
+    (tmp_path / "run" / "reports" / "summary.json").write_text(json.dumps(dict(overall="fail", passed=1, checks=checks)))
+    a = scale.accuracy(tmp_path / "block", tmp_path / "run", [])
+    assert a["gsd_m"] == 0.1 and a["qa_verdict"] == dict(overall="fail", passed=1, failed=[dict(
+        id="flight_forward_overlap_min_pct", value=53.1, limit=56.0, unit="%", note="worst at s02_003")])
+    lines = scale.dmc_lines(dict(frames_gp=1.0, dom_gp=None, unit_costs={}, accuracy=a, projection=dict(
+        frames=3000, lidar_points=2e9, dom_gp=0, wall_h=0, cpu_h=0, stages={}, assumes="")))
+    assert "QA verdict fail: flight_forward_overlap_min_pct 53.1 (limit 56.0)" in lines

@@ -181,3 +181,32 @@ def test_a_sparse_strip_neither_sets_the_cell_nor_refuses_one(clean_block, tmp_p
         assert "not compared: 50 points, 0 planar cells" in (out / "index.html").read_text()
     _assert_refused(_check(paths, tmp_path / "out_small", "--cell-m", "0.5"), tmp_path / "out_small", "--cell-m",
                     "fewer than the 6 a plane needs")
+
+
+def test_a_surface_one_strip_sees_alone_is_left_out_and_counted(clean_block, tmp_path):
+    """A flat 16 x 16 m patch of open ground 8 m higher in strip 2 only (as a strip looking in under a roof's eave
+    sees the ground where the other sees the roof): its inner cells are planar in both strips, 8 m apart. They are
+    left out of the pair's statistics and counted (RMS at the noise level, as without the patch); with --max-dz-m
+    beyond the step they count and the RMS is the patch's."""
+    las = laspy.read(clean_block.paths[1])
+    x, y = np.asarray(las.x) - 500000.0, np.asarray(las.y) - 5400000.0  # the strips' origin (conftest X0, Y0)
+    patch = (np.abs(x - 50.0) <= 8.0) & (np.abs(y - 20.0) <= 8.0)  # open ground in the overlap of strips 1 and 2
+    assert patch.sum() > 200
+    las.z = np.asarray(las.z) + 8.0 * patch
+    las.write(tmp_path / "strip_2.las")
+    paths = [clean_block.paths[0], tmp_path / "strip_2.las"]
+    (kept,) = read_pairs(paths, tmp_path / "out")
+    assert kept.different_surface_cells >= 2 and kept.diff.n_cells >= 50
+    assert abs(kept.diff.mean_m) < 0.005 and kept.diff.rms_m < 0.02  # two planes of 2 cm noise: about 1 cm
+    (counted,) = read_pairs(paths, tmp_path / "out_all", "--max-dz-m", "20")
+    assert counted.different_surface_cells == 0
+    assert counted.diff.n_cells == kept.diff.n_cells + kept.different_surface_cells
+    assert counted.diff.rms_m > 0.5  # 8 m on a few cells of ~100
+    assert json.loads((tmp_path / "out" / "strips.json").read_text())["pairs"][0]["different_surface_cells"] \
+        == kept.different_surface_cells
+
+
+def read_pairs(paths, out, *args):
+    r = _check(paths, out, *args)
+    assert r.exit_code == 0, r.output
+    return read_strip_check(out / "strips.json").pairs
