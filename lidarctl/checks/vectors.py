@@ -196,13 +196,13 @@ def buffer_overlap(prod: list, ref: list, buffer: float, *, window: float | None
             lr, lp = lr + r_in.length, lp + p_in.length
             grown = (x0 - buffer, y0 - buffer, x1 + buffer, y1 + buffer)
             if r_in.length:
-                near_p = _clipped_union(P, tree_p, grown)
-                if near_p.length:
-                    matched_ref += r_in.intersection(near_p.buffer(buffer)).length
+                near_p = _clipped_buffers(P, tree_p, grown, buffer)
+                if not near_p.is_empty:
+                    matched_ref += r_in.intersection(near_p).length
             if p_in.length:
-                near_r = _clipped_union(R, tree_r, grown)
-                if near_r.length:
-                    matched_prod += p_in.intersection(near_r.buffer(buffer)).length
+                near_r = _clipped_buffers(R, tree_r, grown, buffer)
+                if not near_r.is_empty:
+                    matched_prod += p_in.intersection(near_r).length
     return Overlap(lr, lp, 100 * matched_ref / lr if lr else None, 100 * matched_prod / lp if lp else None)
 
 
@@ -214,6 +214,19 @@ def _clipped_union(lines: np.ndarray, tree, rect: tuple) -> object:
     if not len(hits):
         return shapely.LineString()
     return shapely.union_all(shapely.clip_by_rect(lines[hits], *rect))
+
+
+def _clipped_buffers(lines: np.ndarray, tree, rect: tuple, buffer: float) -> object:
+    """The area within ``buffer`` of ``lines`` (STRtree ``tree``) clipped to the rectangle ``rect``: the union of
+    each clipped line's buffer. GEOS buffers the union of a layer's lines (noded into thousands of pieces where
+    they cross) 100 times slower (4.3 against 0.04 CPU-s for 60 random-walk lines of 40 vertices) into a polygon
+    that differs only in how its arcs are cut into chords (areas in the 4th digit, lengths inside in the 5th)."""
+    import shapely
+
+    hits = tree.query(shapely.box(*rect))
+    if not len(hits):
+        return shapely.Polygon()
+    return shapely.union_all(shapely.buffer(shapely.clip_by_rect(lines[hits], *rect), buffer))
 
 
 def check_vectors(product_path, reference_path, params: VectorCheckSettings = VectorCheckSettings()) -> VectorCheck:

@@ -538,7 +538,7 @@ def _plane_offsets_kernel(points, query, nb, dist, min_points, robust):
         if m < min_points:
             continue
         a = np.array([[s_uu, s_uv, s_u], [s_uv, s_vv, s_v], [s_u, s_v, s_1]]) + 1e-9 * np.eye(3)
-        coef = np.linalg.solve(a, np.array([s_uh, s_vh, s_h]))
+        coef = _solve3(a, np.array([s_uh, s_vh, s_h]))
         res = np.empty(m)
         ss = 0.0
         j = 0
@@ -550,9 +550,55 @@ def _plane_offsets_kernel(points, query, nb, dist, min_points, robust):
             ss += e * e
             res[j] = abs(e)
             j += 1
-        spread[i] = 1.4826 * np.median(res) if robust else np.sqrt(ss / m)
+        spread[i] = 1.4826 * _median_small(res) if robust else np.sqrt(ss / m)
         dz[i] = -coef[2]
     return dz, spread
+
+
+# np.linalg.solve and np.median in the kernel above took about 10 of its 13 CPU-s of compilation (parallel) on a
+# fresh clone (numba's LAPACK binding and quickselect); these two compile in a fraction of a second.
+@numba.njit(cache=True)
+def _solve3(a, b):
+    """x of a x = b for a 3 x 3 ``a`` (both overwritten): LU with partial pivoting (the first largest pivot of
+    a column, rows scaled by its reciprocal, as LAPACK's dgetf2), then unit-lower and upper substitution."""
+    for j in range(3):
+        p = j
+        for i in range(j + 1, 3):
+            if abs(a[i, j]) > abs(a[p, j]):
+                p = i
+        if p != j:
+            for c in range(3):
+                a[j, c], a[p, c] = a[p, c], a[j, c]
+            b[j], b[p] = b[p], b[j]
+        r = 1.0 / a[j, j]
+        for i in range(j + 1, 3):
+            a[i, j] *= r
+            for c in range(j + 1, 3):
+                a[i, c] -= a[i, j] * a[j, c]
+    for i in range(1, 3):
+        for c in range(i):
+            b[i] -= a[i, c] * b[c]
+    for i in range(2, -1, -1):
+        for c in range(i + 1, 3):
+            b[i] -= a[i, c] * b[c]
+        b[i] /= a[i, i]
+    return b
+
+
+@numba.njit(cache=True)
+def _median_small(v):
+    """np.median of a short finite array (sorted in place by insertion): the middle value, or the mean of the
+    two middle values."""
+    n = len(v)
+    for i in range(1, n):
+        t = v[i]
+        j = i - 1
+        while j >= 0 and v[j] > t:
+            v[j + 1] = v[j]
+            j -= 1
+        v[j + 1] = t
+    h = n >> 1
+    return (v[h - 1] + v[h]) / 2 if n & 1 == 0 else v[h]
 
 
 class _GrowingNeighbours:

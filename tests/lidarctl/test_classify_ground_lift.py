@@ -73,3 +73,19 @@ def test_single_return_low_objects_leave_the_ground_only_when_single_returns_are
     assert judged[lifted].mean() > 0.1
     assert judged[~lifted].sum() <= 0.001 * (~lifted).sum()
     assert not classify.lifted_ground(x, y, z, everything, spacing, 4.0, intercepted=single, judge_single=False).any()
+
+
+def test_the_plane_kernels_small_solve_and_median_equal_numpys():
+    """The plane offsets' 3 x 3 solve and median (numba helpers that compile in a fraction of a second, instead
+    of numba's LAPACK binding and quickselect) against np.linalg.solve and np.median."""
+    rng = np.random.default_rng(7)
+    for _ in range(200):
+        uv = rng.normal(0, 2.0, (12, 2))
+        g = np.c_[uv, np.ones(12)]
+        a, b = g.T @ g + 1e-9 * np.eye(3), g.T @ rng.normal(0, 1, 12)
+        assert np.allclose(classify._solve3(a.copy(), b.copy()), np.linalg.solve(a, b), rtol=1e-12, atol=1e-12)
+    a = np.array([[0.0, 2.0, 1.0], [1.0, 1.0, 0.0], [3.0, 0.0, 1.0]])  # a zero first pivot: rows are swapped
+    assert np.allclose(classify._solve3(a.copy(), np.array([1.0, 2.0, 3.0])), np.linalg.solve(a, [1.0, 2.0, 3.0]))
+    for n in (1, 2, 5, 6, 12):
+        v = rng.normal(0, 1, n)
+        assert classify._median_small(v.copy()) == np.median(v)
