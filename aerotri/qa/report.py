@@ -30,7 +30,7 @@ from aerotri.control.layout import empty_target_text
 from aerotri.control.pipeline import read_control_transfer
 from aerotri.core.atomic import atomic_path, write_text_atomic
 from aerotri.core.errors import InputError, StageOrderError
-from aerotri.core.textio import read_record
+from aerotri.core.textio import read_json, read_record
 from aerotri.core.project import Project
 from aerotri.core.records import to_record
 from aerotri.core.figures import pyplot
@@ -115,6 +115,42 @@ def _check(check_id: str, section: str, name: str, value, limit, unit: str, *, n
     else:
         verdict = "pass" if value <= limit else "fail"
     return QaCheck(check_id, section, name, value, limit, unit, note, verdict, key)
+
+
+
+def leave_one_out_rows(project: Project, section: str) -> list[QaCheck]:
+    """The leave-one-out check of the control points (``at/leave_one_out.json``, ``aerotri adjust
+    --leave-one-out``): plan RMS (height RMS when points with measured heights were checked) beside the points'
+    own plan scatter about the block. Reported, not judged: the points left out are control, not the independent
+    check points a standard counts; for a block without check points (the kite block) it is the only measure of
+    the block's accuracy on the ground. None without the file; a file older than ``at/report.json`` (an
+    adjustment since without the check) is named as such."""
+    path = project.at_dir / "leave_one_out.json"
+    if not path.is_file():
+        return []
+    rec = read_json(path, "leave-one-out record")
+    n = rec.get("checked") if isinstance(rec, dict) else None
+    if not isinstance(n, int) or isinstance(n, bool):
+        raise InputError(f"{path}: expected a JSON object with 'checked' (the number of points checked)")
+    rms_xy, rms_z, scatter = rec.get("rms_xy_m"), rec.get("rms_z_m"), rec.get("control_scatter") or {}
+    if path.stat().st_mtime < project.adjustment_report_path.stat().st_mtime:
+        return [_check("leave_one_out_rms_xy_m", section, "leave-one-out control points, plan RMS", None, None, "m",
+                       note=f"{path.name} is older than the adjustment (at/report.json), not shown: run aerotri "
+                            f"adjust --leave-one-out again")]
+    left = ", ".join(map(str, rec.get("not_checked") or []))
+    note = f"{n} control points each left out in turn" + (f" ({left}: fewer than 2 rays, not checked)" if left else "")
+    if isinstance(scatter.get("rms_xy_dof_corrected_m"), (int, float)):
+        note += (f"; the control points' own plan scatter about the block {scatter['rms_xy_dof_corrected_m']:.3f} m "
+                 f"({scatter.get('n')} points): a block that adds no error of its own gives about that figure")
+    note += "; control, not independent check points: not judged (at/leave_one_out.json)"
+    rows = []
+    if isinstance(rms_xy, (int, float)):
+        rows.append(_check("leave_one_out_rms_xy_m", section, "leave-one-out control points, plan RMS", rms_xy, None,
+                           "m", note=note))
+    if isinstance(rms_z, (int, float)):
+        rows.append(_check("leave_one_out_rms_z_m", section, "leave-one-out control points, height RMS", rms_z, None,
+                           "m", note=note))
+    return rows
 
 
 def _roofs_row(section: str, dom_check, project: Project) -> QaCheck:
@@ -378,6 +414,8 @@ def build_qa_report(root, *, tolerance_file=None, terrain: str | None = None, sc
                                                             "control coordinates) is worth compensating" if ratio > 10.0
                                                             else "about 4 is normal, around 10 points at a systematic "
                                                             "error") + "; not judged"))
+    if at:
+        rows += leave_one_out_rows(project, sec)
     chk = at.check_rms_m if at else None
     if chk and None not in chk:
         n = at.check_points
