@@ -70,7 +70,7 @@ def footprint_dem(project: Project) -> tuple[Path | None, str]:
     surface-control DEM (``at/report.json``); (None, why) when none of them is a file now."""
     if project.dem_path.is_file():
         return project.dem_path, "the LiDAR stages' DEM"
-    index = project.frames_dir / "index.json"
+    index = project.frames_index_path
     if index.is_file():
         f = ((read_json(index, "frame ortho index").get("inputs") or {}).get("dem") or {}).get("file")
         if isinstance(f, str) and (project.root / f).is_file():  # relative to the project, or absolute

@@ -30,7 +30,7 @@ from aerotri.control.layout import empty_target_text
 from aerotri.control.pipeline import read_control_transfer
 from aerotri.core.atomic import atomic_path, write_text_atomic
 from aerotri.core.errors import InputError, StageOrderError
-from aerotri.core.textio import read_json, read_record
+from aerotri.core.textio import read_record
 from aerotri.core.project import Project
 from aerotri.core.records import to_record
 from aerotri.core.figures import pyplot
@@ -128,28 +128,27 @@ def leave_one_out_rows(project: Project, section: str) -> list[QaCheck]:
     path = project.at_dir / "leave_one_out.json"
     if not path.is_file():
         return []
-    rec = read_json(path, "leave-one-out record")
-    n = rec.get("checked") if isinstance(rec, dict) else None
-    if not isinstance(n, int) or isinstance(n, bool):
-        raise InputError(f"{path}: expected a JSON object with 'checked' (the number of points checked)")
-    rms_xy, rms_z, scatter = rec.get("rms_xy_m"), rec.get("rms_z_m"), rec.get("control_scatter") or {}
+    from aerotri.adjust.leave_one_out import read_leave_one_out
+
+    loo = read_leave_one_out(path)
     if path.stat().st_mtime < project.adjustment_report_path.stat().st_mtime:
         return [_check("leave_one_out_rms_xy_m", section, "leave-one-out control points, plan RMS", None, None, "m",
                        note=f"{path.name} is older than the adjustment (at/report.json), not shown: run aerotri "
                             f"adjust --leave-one-out again")]
-    left = ", ".join(map(str, rec.get("not_checked") or []))
-    note = f"{n} control points each left out in turn" + (f" ({left}: fewer than 2 rays, not checked)" if left else "")
-    if isinstance(scatter.get("rms_xy_dof_corrected_m"), (int, float)):
-        note += (f"; the control points' own plan scatter about the block {scatter['rms_xy_dof_corrected_m']:.3f} m "
-                 f"({scatter.get('n')} points): a block that adds no error of its own gives about that figure")
+    left = ", ".join(loo.not_checked)
+    note = f"{loo.checked} control points each left out in turn and checked" + (
+        f" ({left}: fewer than 2 rays without it, not checked)" if left else "")
+    if loo.scatter_rms_xy_dof_m is not None:
+        note += (f"; the control points' own plan scatter about the block {loo.scatter_rms_xy_dof_m:.3f} m "
+                 f"({loo.scatter_n} points): a block that adds no error of its own gives about that figure")
     note += "; control, not independent check points: not judged (at/leave_one_out.json)"
     rows = []
-    if isinstance(rms_xy, (int, float)):
-        rows.append(_check("leave_one_out_rms_xy_m", section, "leave-one-out control points, plan RMS", rms_xy, None,
-                           "m", note=note))
-    if isinstance(rms_z, (int, float)):
-        rows.append(_check("leave_one_out_rms_z_m", section, "leave-one-out control points, height RMS", rms_z, None,
-                           "m", note=note))
+    if loo.rms_xy_m is not None:
+        rows.append(_check("leave_one_out_rms_xy_m", section, "leave-one-out control points, plan RMS", loo.rms_xy_m,
+                           None, "m", note=note))
+    if loo.rms_z_m is not None:
+        rows.append(_check("leave_one_out_rms_z_m", section, "leave-one-out control points, height RMS", loo.rms_z_m,
+                           None, "m", note=note))
     return rows
 
 

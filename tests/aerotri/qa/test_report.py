@@ -312,9 +312,20 @@ def test_leave_one_out_is_reported_beside_the_control_scatter(tmp_path):
     row = write_qa_report(p).check("leave_one_out_rms_xy_m")
     want = float(np.sqrt((1.2**2 + 0.5**2 + 0.9**2 + 0.7**2) / 2))
     assert abs(row.value - want) < 1e-4 and row.verdict is None and row.unit == "m"
-    assert "1.700 m" in row.note and "c: fewer than 2 rays" in row.note and "not judged" in row.note
+    assert "1.700 m" in row.note and "c: fewer than 2 rays" in row.note and row.note.startswith("2 control points") and "not judged" in row.note
     assert not write_qa_report(p).has("leave_one_out_rms_z_m")  # plan-only points: no height RMS
     t = (p / "at" / "report.json").stat().st_mtime
     os.utime(path, (t - 60, t - 60))  # an adjustment since, without the check
     row = write_qa_report(p).check("leave_one_out_rms_xy_m")
     assert row.value is None and row.verdict is None and "older than the adjustment" in row.note
+
+
+def test_a_leave_one_out_record_that_is_not_one_is_named(tmp_path):
+    import pytest
+
+    from aerotri.core.errors import InputError
+
+    p = _project(tmp_path, None, 0.18)
+    (p / "at" / "leave_one_out.json").write_text(json.dumps({"checked": 3}))
+    with pytest.raises(InputError, match="leave_one_out.json: not a leave-one-out record: KeyError"):
+        write_qa_report(p)
