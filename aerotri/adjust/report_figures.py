@@ -101,12 +101,19 @@ def scale_bar(ax, length: float, label: str, thickness: float):
     return sb
 
 
+def offset_label(axis: str, origin: float) -> str:
+    """``easting - 235 000 (m)``; a negative origin (a CRS whose false easting leaves the block west of 0: NGI's
+    Lo25) as ``easting + 60 000 (m)``, not ``easting - -60 000``."""
+    sign = "-" if origin >= 0 else "+"
+    return f"{axis} {sign} {abs(origin):,.0f} (m)".replace(",", " ")
+
+
 def _map_axes(ax, origin, extent_m: float) -> str:
     """Axis labels relative to ``origin``, equal aspect, plain tick labels and a scale bar; returns its text."""
     ax.set_aspect("equal")
     ax.ticklabel_format(useOffset=False, style="plain")
-    ax.set_xlabel(f"easting - {origin[0]:,.0f} (m)".replace(",", " "))
-    ax.set_ylabel(f"northing - {origin[1]:,.0f} (m)".replace(",", " "))
+    ax.set_xlabel(offset_label("easting", origin[0]))
+    ax.set_ylabel(offset_label("northing", origin[1]))
     bar = nice_length(extent_m / 5.0)
     ax.add_artist(scale_bar(ax, bar, f"{_fmt(bar)} m", extent_m / 300.0))
     ax.grid(True, color="0.9", lw=0.5)

@@ -257,3 +257,15 @@ def test_ground_residual_map_names_the_largest_check_residuals_and_says_how_many
     assert blue_names(f) == ["chk5", "chk6", "chk7"] and "every check point named" in f.caption
     f = RF.ground_residual_map({"control_points": ctrl, "check_points": []})
     assert blue_names(f) == [] and "no check points" in f.caption and "largest" not in f.caption
+
+
+def test_map_axes_of_a_block_west_of_the_false_origin_read_plus():
+    """NGI's Lo25 coordinates are negative: the map figures' axes read 'easting - -60 000 (m)'; now '+ 60 000'."""
+    ctrl = [{"id": f"gcp{k}", "used": True, "given_m": [-59000.0 + 500 * k, -3730000.0 + 300 * k, 400.0],
+             "residual_m": [0.2 * k, -0.1, 0.05]} for k in range(5)]
+    ax = RF.ground_residual_map({"control_points": ctrl, "check_points": []}).fig.axes[0]
+    assert re.fullmatch(r"easting \+ \d[\d ]* \(m\)", ax.get_xlabel()), ax.get_xlabel()
+    assert re.fullmatch(r"northing \+ 3 7\d\d \d{3} \(m\)", ax.get_ylabel()), ax.get_ylabel()
+    ctrl = [{**c, "given_m": [235000.0 + 50 * k, 3811000.0 + 30 * k, 0.0]} for k, c in enumerate(ctrl)]
+    ax = RF.ground_residual_map({"control_points": ctrl, "check_points": []}).fig.axes[0]
+    assert ax.get_xlabel().startswith("easting - 23") and ax.get_ylabel().startswith("northing - 3 81")
