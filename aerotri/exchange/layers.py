@@ -101,11 +101,16 @@ def footprints(project: Project, block: AdjustedBlock) -> tuple[list[str], list[
 
             # checked as every DEM reader checks it (a CRS, 2 x 2 cells, one band of finite heights)
             ds = stack.enter_context(open_north_up(dem_path, "DEM", heights=True))
-            if not same_horizontal(parse_crs(ds.crs, str(dem_path)), parse_crs(block.crs)):
+            if same_horizontal(parse_crs(ds.crs, str(dem_path)), parse_crs(block.crs)):
+                sampler = _dem_sampler(ds)
+                surface = f"DEM {dem_path}, {dem_source}"
+            elif dem_path == project.dem_path:
                 raise InputError(f"{dem_path}: DEM in {ds.crs.to_string()}, the project in {block.crs}; "
                                  f"footprints need the DEM in the project CRS")
-            sampler = _dem_sampler(ds)
-            surface = f"DEM {dem_path}, {dem_source}"
+            else:  # a DEM from elsewhere (the orthos warp it): the export goes on as it did before it was used
+                surface += f" ({dem_path}, {dem_source}, is in {ds.crs.to_string()}, not the project CRS)"
+                log.warning(f"{dem_path}: DEM in {ds.crs.to_string()}, the project in {block.crs}; footprints on "
+                            f"the mean height of the adjusted points")
         ids, outlines, opk = [], [], []
         # the frames over the earth, in the adjustment's own ENU frame (a Cartesian CRS: the map coordinates)
         frames = FramesOnEarth(project.crs, eo.centre_m, eo.rotations(), frame=block.frame)

@@ -145,3 +145,26 @@ def test_dem_in_another_crs_is_refused(adjusted_tiny, tmp_path):
     with pytest.raises(InputError, match="DEM in EPSG:32650"):
         export_project(root, ["gpkg"], tmp_path / "out")
     assert not (tmp_path / "out").exists()
+
+
+def test_a_frame_ortho_dem_in_another_crs_falls_back_to_the_mean_height(adjusted_tiny, tmp_path, caplog):
+    """The orthos' DEM may be in another CRS (ortho rectify warps it): the export goes on, on the adjusted points'
+    mean height as before that DEM was used, and says why (the LiDAR stages' DEM in another CRS stays refused)."""
+    import json
+
+    import rasterio
+    from rasterio.transform import from_origin
+
+    root = _copy(adjusted_tiny, tmp_path)
+    project = Project.open(root)
+    (root / "dem").mkdir()
+    with rasterio.open(root / "dem" / "utm50.tif", "w", driver="GTiff", width=4, height=4, count=1, dtype="float32",
+                       crs="EPSG:32650", transform=from_origin(0, 0, 1, 1)) as ds:
+        ds.write(np.full((1, 4, 4), 100.0, np.float32))
+    project.frames_dir.mkdir(parents=True)
+    (project.frames_dir / "index.json").write_text(json.dumps({"inputs": {"dem": {"file": "dem/utm50.tif"}}}))
+    export_project(root, ["gpkg"], tmp_path / "out")
+    _, polys, _ = _read(tmp_path / "out" / "layers" / "block.gpkg", "footprints")
+    z = np.concatenate([shapely.get_coordinates(p, include_z=True)[:, 2] for p in polys])
+    assert np.ptp(z) < 1e-6 and abs(z[0] - 100.0) > 1.0  # one height: the points' mean, not the DEM's 100 m
+    assert "utm50.tif: DEM in EPSG:32650" in caplog.text
