@@ -214,3 +214,33 @@ def _record(loo: LeaveOneOut) -> dict:
         "note": "each control point left out in turn; adjusted (intersected with the orientations the others "
                 "hold) minus given, project CRS; plan-only points in plan only. control_scatter: the points' "
                 "plan residuals with all of them in the adjustment, the reference for the plan RMS"}
+
+
+@dataclasses.dataclass(frozen=True)
+class LeaveOneOutSummary:
+    """``at/leave_one_out.json`` as the report reads it: plan (height) RMS of the checked points (m, None: none),
+    the points not checked (fewer than 2 rays) and the control points' own plan scatter about the block."""
+
+    checked: int
+    not_checked: tuple[str, ...]
+    rms_xy_m: float | None
+    rms_z_m: float | None
+    scatter_n: int
+    scatter_rms_xy_dof_m: float | None
+
+
+def read_leave_one_out(path) -> LeaveOneOutSummary:
+    """The record ``run_leave_one_out`` writes; InputError naming the file when it is not one."""
+    from aerotri.core.textio import read_json, record_error
+
+    d = read_json(path, "leave-one-out record")
+
+    def opt(v):
+        return None if v is None else float(v)
+
+    try:
+        s = d["control_scatter"]
+        return LeaveOneOutSummary(int(d["checked"]), tuple(str(i) for i in d["not_checked"]), opt(d["rms_xy_m"]),
+                                  opt(d["rms_z_m"]), int(s["n"]), opt(s["rms_xy_dof_corrected_m"]))
+    except (AttributeError, KeyError, TypeError, ValueError) as exc:
+        raise record_error(path, "leave-one-out record", exc) from None

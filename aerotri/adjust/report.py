@@ -996,8 +996,11 @@ def format_txt(rep: dict) -> str:
         vals = [r["residual_m"][a] for r in used if r["residual_m"][a] is not None]
         if vals:
             L.append(f"  obs {ax} = {len(vals):4d}  rms = {np.sqrt(np.mean(np.square(vals))):8.4f} m  chv = {np.max(np.abs(vals)):8.4f} m")
-    L += ["", "Control points (residual = adjusted - given, m; image rms in um)",
-          f"{'id':>12} {'kind':>10} {'used':>5} {'rays':>4} {'dX':>9} {'dY':>9} {'dZ':>9} {'img um':>8}"]
+    # a table without rows reads as one cut off: say there is none (the HTML leaves the table out)
+    L += ["", "Control points (residual = adjusted - given, m; image rms in um)" if rep["control_points"] else
+          "Control points: none in the adjustment",
+          f"{'id':>12} {'kind':>10} {'used':>5} {'rays':>4} {'dX':>9} {'dY':>9} {'dZ':>9} {'img um':>8}"][
+        :3 if rep["control_points"] else 2]
     for r in rep["control_points"]:
         d = r["residual_m"]
         used = {"used": "yes", "rejected": "NO", "no rays": "no"}[r.get("status", "used" if r["used"] else "rejected")]
@@ -1008,8 +1011,10 @@ def format_txt(rep: dict) -> str:
         L.append(f"  not used (no active image ray; held only by its given coordinates): {', '.join(map(str, no_rays))}")
     if rep["rejected_control"]:
         L += ["", "Control points failing the test (excluded):"] + [f"  {x['id']}  w = {x['w']}" for x in rep["rejected_control"]]
-    L += ["", "Check points (d = adjusted - measured, m)",
-          f"{'id':>12} {'X':>13} {'Y':>13} {'Z':>9} {'X adj':>13} {'Y adj':>13} {'Z adj':>9} {'dX':>8} {'dY':>8} {'dZ':>8}"]
+    L += ["", "Check points (d = adjusted - measured, m)" if rep["check_points"] else
+          "Check points: none in the adjustment",
+          f"{'id':>12} {'X':>13} {'Y':>13} {'Z':>9} {'X adj':>13} {'Y adj':>13} {'Z adj':>9} {'dX':>8} {'dY':>8} {'dZ':>8}"][
+        :3 if rep["check_points"] else 2]
     for r in rep["check_points"]:
         m, a, d = r["measured_m"], r["adjusted_m"], r["d_m"]
         L.append(f"{r['id']:>12}" + _v(m[0], 14, 3) + _v(m[1], 14, 3) + _v(m[2], 10, 3) + _v(a[0], 14, 3) + _v(a[1], 14, 3)

@@ -88,27 +88,54 @@ def _p95(a) -> float:
     return float(np.percentile(a, 95)) if len(a) else 0.0
 
 
-def scale_bar(ax, length: float, label: str, thickness: float):
-    """A bar of ``length`` data units with its label, anchored in the lower left of ``ax`` (framed)."""
+def scale_bar(ax, length: float, label: str, thickness: float, loc: str = "lower left"):
+    """A bar of ``length`` data units with its label, anchored at ``loc`` of ``ax`` (framed)."""
     from matplotlib.offsetbox import AnchoredOffsetbox, AuxTransformBox, TextArea, VPacker
     from matplotlib.patches import Rectangle
 
     bar = AuxTransformBox(ax.transData)
     bar.add_artist(Rectangle((0, 0), length, thickness, facecolor="black", edgecolor="black"))
     box = VPacker(children=[bar, TextArea(label)], align="center", pad=0, sep=3)
-    sb = AnchoredOffsetbox(loc="lower left", child=box, pad=0.4, borderpad=0.5, frameon=True)
+    sb = AnchoredOffsetbox(loc=loc, child=box, pad=0.4, borderpad=0.5, frameon=True)
     sb.scale_bar_label = label  # what the bar says, for checks
     return sb
 
 
-def _map_axes(ax, origin, extent_m: float) -> str:
-    """Axis labels relative to ``origin``, equal aspect, plain tick labels and a scale bar; returns its text."""
+def offset_label(axis: str, origin: float) -> str:
+    """``easting - 235 000 (m)``; a negative origin (a CRS whose false easting leaves the block west of 0: NGI's
+    Lo25) as ``easting + 60 000 (m)``, not ``easting - -60 000``."""
+    sign = "-" if origin >= 0 else "+"
+    return f"{axis} {sign} {abs(origin):,.0f} (m)".replace(",", " ")
+
+
+SCALE_BAR_CORNERS = ("lower left", "lower right", "upper left", "upper right")
+SCALE_BAR_BOX = (0.3, 0.15)  # the corner a scale bar covers, in axes fractions (width, height)
+
+
+def scale_bar_corner(ax, points_xy=None) -> str:
+    """The first corner of ``SCALE_BAR_CORNERS`` with the fewest of ``points_xy`` (data coordinates, e.g. the
+    points and their arrows' tips) under the scale bar's box, so that the bar hides none that another corner
+    would not: the lower left unless points are there (the test block's gcp01 sat under the bar)."""
+    if points_xy is None or not len(points_xy):
+        return SCALE_BAR_CORNERS[0]
+    (x0, x1), (y0, y1) = ax.get_xlim(), ax.get_ylim()
+    p = np.asarray(points_xy, float)
+    fx, fy = (p[:, 0] - x0) / (x1 - x0), (p[:, 1] - y0) / (y1 - y0)
+    w, h = SCALE_BAR_BOX
+    count = [int(np.sum(((fx > 1 - w) if "right" in c else (fx < w)) & ((fy > 1 - h) if "upper" in c else (fy < h))))
+             for c in SCALE_BAR_CORNERS]
+    return SCALE_BAR_CORNERS[int(np.argmin(count))]
+
+
+def _map_axes(ax, origin, extent_m: float, points_xy=None) -> str:
+    """Axis labels relative to ``origin``, equal aspect, plain tick labels and a scale bar in the corner that
+    covers the fewest of ``points_xy`` (``scale_bar_corner``); returns its text."""
     ax.set_aspect("equal")
     ax.ticklabel_format(useOffset=False, style="plain")
-    ax.set_xlabel(f"easting - {origin[0]:,.0f} (m)".replace(",", " "))
-    ax.set_ylabel(f"northing - {origin[1]:,.0f} (m)".replace(",", " "))
+    ax.set_xlabel(offset_label("easting", origin[0]))
+    ax.set_ylabel(offset_label("northing", origin[1]))
     bar = nice_length(extent_m / 5.0)
-    ax.add_artist(scale_bar(ax, bar, f"{_fmt(bar)} m", extent_m / 300.0))
+    ax.add_artist(scale_bar(ax, bar, f"{_fmt(bar)} m", extent_m / 300.0, loc=scale_bar_corner(ax, points_xy)))
     ax.grid(True, color="0.9", lw=0.5)
     return f"{_fmt(bar)} m"
 
@@ -119,7 +146,7 @@ def _named_checks(named: int, checks: int) -> str:
         return "; no check points"
     if named == checks:
         return "; every check point named" if checks > 1 else "; the check point named"
-    return f"; the {named} largest check residuals named"
+    return f"; the {named} largest check-point plan residuals named"
 
 
 def ground_residual_map(rep: dict) -> Figure | None:
@@ -155,9 +182,13 @@ def ground_residual_map(rep: dict) -> Figure | None:
                             plotnonfinite=True, edgecolors="k", linewidths=0.4, label=label, zorder=3)
     q = ax.quiver(x, y, np.nan_to_num(d[:, 0]), np.nan_to_num(d[:, 1]), angles="xy", scale_units="xy", scale=scale,
                   width=0.0025, color=np.where(is_ctrl, "tab:red", "0.15").tolist(), zorder=4)
+    # the arrows' tips inside the map too: a residual beyond the 95th percentile drew past the frame, cut off
+    tips = np.column_stack([x + np.nan_to_num(d[:, 0]) / scale, y + np.nan_to_num(d[:, 1]) / scale])
+    ax.update_datalim(tips)
     ax.margins(0.06)
+    ax.autoscale_view()
     ax.quiverkey(q, 0.97, 1.015, key_m, f"{_fmt(key_m)} m plan residual", labelpos="W", coordinates="axes")
-    bar = _map_axes(ax, o, extent)
+    bar = _map_axes(ax, o, extent, np.vstack([np.column_stack([x, y]), tips]))
     if has_dz:
         fig.colorbar(sc, ax=ax, shrink=0.8, label="height residual dZ (m)")
     for r, xi, yi in zip(ctrl, x[is_ctrl], y[is_ctrl]):

@@ -9,8 +9,10 @@ Layers (the same in both files):
   (project CRS axes, metres; a coordinate the point does not control has no residual: NULL);
 - ``footprints``: each frame's outline on the ground (``image_id``, ``omega_deg``, ``phi_deg``, ``kappa_deg``):
   ``EDGE_POINTS`` points along each image edge (pixel-area corners included), their rays through the adjusted
-  camera and orientation (``at/eo.txt``) intersected with the LiDAR DEM (``lidar/dem.tif``) when the project
-  has one, else with the mean height of the adjusted points (a frame whose edge rays miss the ground has none);
+  camera and orientation (``at/eo.txt``) intersected with the project's DEM (``footprint_dem``: the LiDAR
+  stages' ``lidar_out/dem.tif``, else the DEM the frame orthos were rectified on, else the adjustment's
+  surface-control DEM), else with the mean height of the adjusted points (a frame whose edge rays miss the
+  ground has none);
 - ``projection_centres``: the frames' adjusted centres.
 
 In the KML every placemark also has a ``Name`` (its point or image id), which KML viewers show.
@@ -62,6 +64,24 @@ def _dem_sampler(ds):
     return sample
 
 
+def footprint_dem(project: Project) -> tuple[Path | None, str]:
+    """The DEM the footprints are draped on and where it came from: ``lidar_out/dem.tif``, else the DEM of the
+    frame orthos (``ortho/frames/index.json``: the footprints then outline the orthos), else the adjustment's
+    surface-control DEM (``at/report.json``); (None, why) when none of them is a file now."""
+    if project.dem_path.is_file():
+        return project.dem_path, "the LiDAR stages' DEM"
+    index = project.frames_index_path
+    if index.is_file():
+        f = ((read_json(index, "frame ortho index").get("inputs") or {}).get("dem") or {}).get("file")
+        if isinstance(f, str) and (project.root / f).is_file():  # relative to the project, or absolute
+            return project.root / f, f"the DEM of the frame orthos ({index})"
+    if project.adjustment_report_path.is_file():
+        f = (read_json(project.adjustment_report_path, "adjustment report").get("surface_control") or {}).get("dem")
+        if isinstance(f, str) and Path(f).is_absolute() and Path(f).is_file():
+            return Path(f), f"the adjustment's surface control ({project.adjustment_report_path})"
+    return None, "no DEM: no lidar_out/dem.tif, no frame orthos, no surface control"
+
+
 def footprints(project: Project, block: AdjustedBlock) -> tuple[list[str], list[np.ndarray], np.ndarray, str]:
     """(image ids, (M, 3) outline per frame in the project CRS, omega-phi-kappa (N, 3), surface used)."""
     from aerotri.geom.camera import oriented_camera
@@ -74,17 +94,23 @@ def footprints(project: Project, block: AdjustedBlock) -> tuple[list[str], list[
     surface = f"mean height of the adjusted points ({mean_h:.2f})"
     with contextlib.ExitStack() as stack:
         sampler = None
-        if project.dem_path.is_file():
+        dem_path, dem_source = footprint_dem(project)
+        if dem_path is not None:
             from aerotri.geom.crs.definition import parse_crs, same_horizontal
             from aerotri.geom.crs.raster_warp import open_north_up
 
             # checked as every DEM reader checks it (a CRS, 2 x 2 cells, one band of finite heights)
-            ds = stack.enter_context(open_north_up(project.dem_path, "DEM", heights=True))
-            if not same_horizontal(parse_crs(ds.crs, str(project.dem_path)), parse_crs(block.crs)):
-                raise InputError(f"{project.dem_path}: DEM in {ds.crs.to_string()}, the project in {block.crs}; "
+            ds = stack.enter_context(open_north_up(dem_path, "DEM", heights=True))
+            if same_horizontal(parse_crs(ds.crs, str(dem_path)), parse_crs(block.crs)):
+                sampler = _dem_sampler(ds)
+                surface = f"DEM {dem_path}, {dem_source}"
+            elif dem_path == project.dem_path:
+                raise InputError(f"{dem_path}: DEM in {ds.crs.to_string()}, the project in {block.crs}; "
                                  f"footprints need the DEM in the project CRS")
-            sampler = _dem_sampler(ds)
-            surface = f"DEM {project.dem_path}"
+            else:  # a DEM from elsewhere (the orthos warp it): the export goes on as it did before it was used
+                surface += f" ({dem_path}, {dem_source}, is in {ds.crs.to_string()}, not the project CRS)"
+                log.warning(f"{dem_path}: DEM in {ds.crs.to_string()}, the project in {block.crs}; footprints on "
+                            f"the mean height of the adjusted points")
         ids, outlines, opk = [], [], []
         # the frames over the earth, in the adjustment's own ENU frame (a Cartesian CRS: the map coordinates)
         frames = FramesOnEarth(project.crs, eo.centre_m, eo.rotations(), frame=block.frame)

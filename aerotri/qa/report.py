@@ -117,6 +117,41 @@ def _check(check_id: str, section: str, name: str, value, limit, unit: str, *, n
     return QaCheck(check_id, section, name, value, limit, unit, note, verdict, key)
 
 
+
+def leave_one_out_rows(project: Project, section: str) -> list[QaCheck]:
+    """The leave-one-out check of the control points (``at/leave_one_out.json``, ``aerotri adjust
+    --leave-one-out``): plan RMS (height RMS when points with measured heights were checked) beside the points'
+    own plan scatter about the block. Reported, not judged: the points left out are control, not the independent
+    check points a standard counts; for a block without check points (the kite block) it is the only measure of
+    the block's accuracy on the ground. None without the file; a file older than ``at/report.json`` (an
+    adjustment since without the check) is named as such."""
+    path = project.at_dir / "leave_one_out.json"
+    if not path.is_file():
+        return []
+    from aerotri.adjust.leave_one_out import read_leave_one_out
+
+    loo = read_leave_one_out(path)
+    if path.stat().st_mtime < project.adjustment_report_path.stat().st_mtime:
+        return [_check("leave_one_out_rms_xy_m", section, "leave-one-out control points, plan RMS", None, None, "m",
+                       note=f"{path.name} is older than the adjustment (at/report.json), not shown: run aerotri "
+                            f"adjust --leave-one-out again")]
+    left = ", ".join(loo.not_checked)
+    note = f"{loo.checked} control points each left out in turn and checked" + (
+        f" ({left}: fewer than 2 rays without it, not checked)" if left else "")
+    if loo.scatter_rms_xy_dof_m is not None:
+        note += (f"; the control points' own plan scatter about the block {loo.scatter_rms_xy_dof_m:.3f} m "
+                 f"({loo.scatter_n} points): a block that adds no error of its own gives about that figure")
+    note += "; control, not independent check points: not judged (at/leave_one_out.json)"
+    rows = []
+    if loo.rms_xy_m is not None:
+        rows.append(_check("leave_one_out_rms_xy_m", section, "leave-one-out control points, plan RMS", loo.rms_xy_m,
+                           None, "m", note=note))
+    if loo.rms_z_m is not None:
+        rows.append(_check("leave_one_out_rms_z_m", section, "leave-one-out control points, height RMS", loo.rms_z_m,
+                           None, "m", note=note))
+    return rows
+
+
 def _roofs_row(section: str, dom_check, project: Project) -> QaCheck:
     """The DOM check's roofs row (``ortho.check.DomCheck``): RMS of the displacements at roof corners, not judged
     against the table (roofs stand in place only in a true ortho checked against a true orthophoto; in a conventional
@@ -391,6 +426,8 @@ def build_qa_report(root, *, tolerance_file=None, terrain: str | None = None, sc
                                                             "control coordinates) is worth compensating" if ratio > 10.0
                                                             else "about 4 is normal, around 10 points at a systematic "
                                                             "error") + "; not judged"))
+    if at:
+        rows += leave_one_out_rows(project, sec)
     chk = at.check_rms_m if at else None
     if chk and None not in chk:
         n = at.check_points

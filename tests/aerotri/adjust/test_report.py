@@ -64,6 +64,22 @@ def test_text_layout_is_isat_then_patb(ba):
     assert html.count("data:image/png;base64,") >= 1 and "Key Statistics" in html
 
 
+
+def test_text_says_when_there_are_no_control_or_check_points(ba):
+    """The NGI and kite blocks' report.txt printed the control / check table headers with no row under them (the
+    HTML leaves the empty tables out): now one line saying there is none; with points the table as before."""
+    rep = to_record(report.build_report(ba))
+    assert rep["control_points"] and rep["check_points"]
+    txt = report.format_txt(rep)
+    assert "Control points (residual = adjusted - given" in txt and "Check points (d = adjusted - measured" in txt
+    assert "none in the adjustment" not in txt
+    txt = report.format_txt({**rep, "control_points": [], "check_points": [], "check_sum_m": None})
+    lines = txt.splitlines()
+    for head in ("Control points: none in the adjustment", "Check points: none in the adjustment"):
+        k = lines.index(head)
+        assert not lines[k + 1].split()[:1] == ["id"]  # no header row under it
+    assert "Control points (residual" not in txt and "Check points (d =" not in txt
+
 def test_image_pairs_count_shared_points_and_their_residuals(ba):
     """Per pair of frames: the tie points both see, and the RMS of both frames' residuals on them, checked
     against a direct count over the points."""

@@ -252,8 +252,51 @@ def test_ground_residual_map_names_the_largest_check_residuals_and_says_how_many
 
     f = RF.ground_residual_map({"control_points": ctrl, "check_points": chk})
     assert blue_names(f) == ["chk3", "chk4", "chk5", "chk6", "chk7"]
-    assert "the 5 largest check residuals named" in f.caption
+    assert "the 5 largest check-point plan residuals named" in f.caption
     f = RF.ground_residual_map({"control_points": ctrl, "check_points": chk[5:]})
     assert blue_names(f) == ["chk5", "chk6", "chk7"] and "every check point named" in f.caption
     f = RF.ground_residual_map({"control_points": ctrl, "check_points": []})
     assert blue_names(f) == [] and "no check points" in f.caption and "largest" not in f.caption
+
+
+def test_map_axes_of_a_block_west_of_the_false_origin_read_plus():
+    """NGI's Lo25 coordinates are negative: the map figures' axes read 'easting - -60 000 (m)'; now '+ 60 000'."""
+    ctrl = [{"id": f"gcp{k}", "used": True, "given_m": [-59000.0 + 500 * k, -3730000.0 + 300 * k, 400.0],
+             "residual_m": [0.2 * k, -0.1, 0.05]} for k in range(5)]
+    ax = RF.ground_residual_map({"control_points": ctrl, "check_points": []}).fig.axes[0]
+    assert re.fullmatch(r"easting \+ \d[\d ]* \(m\)", ax.get_xlabel()), ax.get_xlabel()
+    assert re.fullmatch(r"northing \+ 3 7\d\d \d{3} \(m\)", ax.get_ylabel()), ax.get_ylabel()
+    ctrl = [{**c, "given_m": [235000.0 + 50 * k, 3811000.0 + 30 * k, 0.0]} for k, c in enumerate(ctrl)]
+    ax = RF.ground_residual_map({"control_points": ctrl, "check_points": []}).fig.axes[0]
+    assert ax.get_xlabel().startswith("easting - 23") and ax.get_ylabel().startswith("northing - 3 81")
+
+
+def test_ground_residual_map_shows_every_arrow_and_keeps_the_scale_bar_off_the_points():
+    """A simulated block's map cut chk04's arrow (3 x the 95th percentile) at the frame and hid gcp01 under the
+    scale bar in the lower left: every arrow's tip is now inside the axes, and the bar takes a corner without
+    points (the lower left while it is free)."""
+    from matplotlib.offsetbox import AnchoredOffsetbox
+
+    rng = np.random.default_rng(3)
+    xy = rng.uniform(0, 2000, (20, 2)) + [418000.0, 3378000.0]
+    d = rng.normal(0, 0.02, (20, 3))
+    d[7, :2] = [0.0, 0.3]  # the largest, pointing north from near the top
+    xy[7] = [419000.0, 3380000.0]
+    ctrl = [{"id": "gcp01", "used": True, "given_m": [418000.0, 3378000.0, 0.0], "residual_m": [0.01, 0.01, 0.0]}]
+    chk = [{"id": f"chk{k}", "d_m": list(v), "measured_m": [*p, 0.0]} for k, (p, v) in enumerate(zip(xy, d))]
+    f = RF.ground_residual_map({"control_points": ctrl, "check_points": chk})
+    ax = f.fig.axes[0]
+    q = next(c for c in ax.collections if hasattr(c, "U"))
+    tips = q.get_offsets() + np.column_stack([q.U, q.V]) / q.scale
+    (x0, x1), (y0, y1) = ax.get_xlim(), ax.get_ylim()
+    assert np.all((tips[:, 0] >= x0) & (tips[:, 0] <= x1) & (tips[:, 1] >= y0) & (tips[:, 1] <= y1))
+    (bar,) = [a for a in ax.get_children() if isinstance(a, AnchoredOffsetbox)]
+    assert bar.loc != AnchoredOffsetbox.codes["lower left"]  # gcp01 is there
+    corner = {v: k for k, v in AnchoredOffsetbox.codes.items()}[bar.loc]
+    assert RF.scale_bar_corner(ax, q.get_offsets()) == corner
+    # points along the diagonal from the lower right to the upper left: the lower left is free, the bar stays there
+    line = [{"id": f"c{k}", "d_m": [0.01, 0.01, 0.0], "measured_m": [418000.0 + 100 * k, 3380000.0 - 100 * k, 0.0]}
+            for k in range(21)]
+    f = RF.ground_residual_map({"control_points": [], "check_points": line})
+    (bar,) = [a for a in f.fig.axes[0].get_children() if isinstance(a, AnchoredOffsetbox)]
+    assert bar.loc == AnchoredOffsetbox.codes["lower left"]

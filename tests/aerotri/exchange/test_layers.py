@@ -53,9 +53,15 @@ def test_geopackage_points_and_residuals(adjusted_tiny, tmp_path):
     assert np.allclose(shapely.get_coordinates(centres, include_z=True), eo.centre_m, atol=1e-9)
 
 
-def test_footprints_lie_on_the_dem_and_on_the_frame_edges(adjusted_tiny, tmp_path):
+@pytest.mark.parametrize("dem_from", ["lidar_out", "frame_orthos", "surface_control"])
+def test_footprints_lie_on_the_dem_and_on_the_frame_edges(adjusted_tiny, tmp_path, dem_from):
     """A tilted plane as the project's DEM: every footprint vertex is on the plane (to the DEM cell's
-    nearest-value sampling: the plane's change across a cell) and projects back onto the frame's outer edge."""
+    nearest-value sampling: the plane's change across a cell) and projects back onto the frame's outer edge.
+    The DEM is the LiDAR stages' product, or, in a project without LiDAR (the NGI block: the footprints were
+    up to 288 m off the orthos' edges on the points' mean height), the DEM the frame orthos were rectified on
+    (``ortho/frames/index.json``) or the adjustment's surface-control DEM (``at/report.json``)."""
+    import json
+
     import rasterio
     from rasterio.transform import from_origin
 
@@ -68,10 +74,19 @@ def test_footprints_lie_on_the_dem_and_on_the_frame_edges(adjusted_tiny, tmp_pat
     rows, cols = np.mgrid[0:n, 0:n]
     xs, ys = x0 + (cols + 0.5) * cell, y0 - (rows + 0.5) * cell
     plane = lambda x, y: 120.0 + 0.02 * (x - x0) - 0.01 * (y0 - y)  # noqa: E731
-    project.dem_path.parent.mkdir(parents=True, exist_ok=True)
-    with rasterio.open(project.dem_path, "w", driver="GTiff", width=n, height=n, count=1, dtype="float32",
+    dem = {"lidar_out": project.dem_path, "frame_orthos": root / "dem" / "plane.tif",
+           "surface_control": tmp_path / "elsewhere" / "plane.tif"}[dem_from]
+    dem.parent.mkdir(parents=True, exist_ok=True)
+    with rasterio.open(dem, "w", driver="GTiff", width=n, height=n, count=1, dtype="float32",
                        crs="EPSG:32649", transform=from_origin(x0, y0, cell, cell)) as ds:
         ds.write(plane(xs, ys).astype(np.float32)[None])
+    if dem_from == "frame_orthos":  # as ortho rectify records it: relative to the project folder
+        project.frames_dir.mkdir(parents=True)
+        (project.frames_dir / "index.json").write_text(json.dumps({"inputs": {"dem": {"file": "dem/plane.tif"}}}))
+    elif dem_from == "surface_control":  # as aerotri adjust --dem records it
+        report = read_json(project.adjustment_report_path)
+        report["surface_control"] = {"dem": str(dem)}
+        project.adjustment_report_path.write_text(json.dumps(report))
     export_project(root, ["gpkg"], tmp_path / "out")
     crs, polys, cols_ = _read(tmp_path / "out" / "layers" / "block.gpkg", "footprints")
     assert crs == "EPSG:32649" and list(cols_["image_id"]) == eo.image_id
@@ -130,3 +145,26 @@ def test_dem_in_another_crs_is_refused(adjusted_tiny, tmp_path):
     with pytest.raises(InputError, match="DEM in EPSG:32650"):
         export_project(root, ["gpkg"], tmp_path / "out")
     assert not (tmp_path / "out").exists()
+
+
+def test_a_frame_ortho_dem_in_another_crs_falls_back_to_the_mean_height(adjusted_tiny, tmp_path, caplog):
+    """The orthos' DEM may be in another CRS (ortho rectify warps it): the export goes on, on the adjusted points'
+    mean height as before that DEM was used, and says why (the LiDAR stages' DEM in another CRS stays refused)."""
+    import json
+
+    import rasterio
+    from rasterio.transform import from_origin
+
+    root = _copy(adjusted_tiny, tmp_path)
+    project = Project.open(root)
+    (root / "dem").mkdir()
+    with rasterio.open(root / "dem" / "utm50.tif", "w", driver="GTiff", width=4, height=4, count=1, dtype="float32",
+                       crs="EPSG:32650", transform=from_origin(0, 0, 1, 1)) as ds:
+        ds.write(np.full((1, 4, 4), 100.0, np.float32))
+    project.frames_dir.mkdir(parents=True)
+    (project.frames_dir / "index.json").write_text(json.dumps({"inputs": {"dem": {"file": "dem/utm50.tif"}}}))
+    export_project(root, ["gpkg"], tmp_path / "out")
+    _, polys, _ = _read(tmp_path / "out" / "layers" / "block.gpkg", "footprints")
+    z = np.concatenate([shapely.get_coordinates(p, include_z=True)[:, 2] for p in polys])
+    assert np.ptp(z) < 1e-6 and abs(z[0] - 100.0) > 1.0  # one height: the points' mean, not the DEM's 100 m
+    assert "utm50.tif: DEM in EPSG:32650" in caplog.text

@@ -288,3 +288,44 @@ def test_control_to_tie_residual_ratio_row(tmp_path):
         row = out.check("control_to_tie_residual_ratio")
         assert row.value == ratio and row.limit is None and row.verdict is None and word in row.note
         assert out.overall == "pass"  # not judged: it does not fail the report
+
+
+def test_leave_one_out_is_reported_beside_the_control_scatter(tmp_path):
+    """The kite block (plan-only targets, no check points, `--leave-one-out`): the report said "not testable: no
+    check points" and nowhere gave the leave-one-out plan RMS of at/leave_one_out.json (2.08 m against the targets'
+    own scatter 1.90 m). Now a row, not judged, with the scatter; an older file than the adjustment is named."""
+    import os
+
+    import numpy as np
+
+    from aerotri.adjust.leave_one_out import ControlScatter, LeaveOneOut, LeftOutPoint, _record
+
+    p = _project(tmp_path, None, 0.18)
+    assert not write_qa_report(p).has("leave_one_out_rms_xy_m")
+    nan3 = (float("nan"),) * 3
+    pts = (LeftOutPoint("a", "horizontal", 2, (0.0, 0.0, 0.0), (1.2, -0.5, 0.0), nan3, 1.0),
+           LeftOutPoint("b", "horizontal", 3, (10.0, 0.0, 0.0), (9.1, 0.7, 0.0), nan3, 1.0),
+           LeftOutPoint("c", "horizontal", 1, (5.0, 5.0, 0.0), nan3, nan3, 1.0))
+    loo = LeaveOneOut(pts, ControlScatter(2, 0.9, 1.7, {}), 3.0)
+    path = p / "at" / "leave_one_out.json"
+    path.write_text(json.dumps(_record(loo)))
+    row = write_qa_report(p).check("leave_one_out_rms_xy_m")
+    want = float(np.sqrt((1.2**2 + 0.5**2 + 0.9**2 + 0.7**2) / 2))
+    assert abs(row.value - want) < 1e-4 and row.verdict is None and row.unit == "m"
+    assert "1.700 m" in row.note and "c: fewer than 2 rays" in row.note and row.note.startswith("2 control points") and "not judged" in row.note
+    assert not write_qa_report(p).has("leave_one_out_rms_z_m")  # plan-only points: no height RMS
+    t = (p / "at" / "report.json").stat().st_mtime
+    os.utime(path, (t - 60, t - 60))  # an adjustment since, without the check
+    row = write_qa_report(p).check("leave_one_out_rms_xy_m")
+    assert row.value is None and row.verdict is None and "older than the adjustment" in row.note
+
+
+def test_a_leave_one_out_record_that_is_not_one_is_named(tmp_path):
+    import pytest
+
+    from aerotri.core.errors import InputError
+
+    p = _project(tmp_path, None, 0.18)
+    (p / "at" / "leave_one_out.json").write_text(json.dumps({"checked": 3}))
+    with pytest.raises(InputError, match="leave_one_out.json: not a leave-one-out record: KeyError"):
+        write_qa_report(p)
