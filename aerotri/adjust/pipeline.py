@@ -834,7 +834,10 @@ def write_outputs(ba: BlockAdjustment, root, html: bool = True, out_dir=None,
     camera = None
     if not project.adjusted_camera_path.is_file() and project.camera_path.is_file():
         camera = (project_camera(project), str(project.camera_path))
-    qa = qa_settings(root, project_block_scale(project, ba.points_map[:, 2], camera=camera))
+    # the positions of this adjustment: a block without gnss.txt has no others yet, and its table would fall back to
+    # the default 1:5000 while reports/ (after at/eo.txt is written) chooses by the block's GSD (the kite block)
+    positions = (ba.eo_map.centre_m, "the adjusted projection centres")
+    qa = qa_settings(root, project_block_scale(project, ba.points_map[:, 2], camera=camera, positions=positions))
     built = report.build_report(ba, qa.map_scale, qa.terrain, qa.tolerances, project_terrain(project))
     if settings_record is None:  # a library caller's own settings
         settings_record = settings_of(ba.settings, AdjustSettings).record()

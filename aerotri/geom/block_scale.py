@@ -53,11 +53,13 @@ def block_scale(camera, centre_z, ground_z, height_unit_m: float, how: str) -> B
 
 
 def project_block_scale(project, ground_heights=None, ground_source: str = "the adjusted tie points", *,
-                        camera: tuple | None = None) -> BlockScale:
+                        camera: tuple | None = None, positions: tuple | None = None) -> BlockScale:
     """The block's GSD and platform from the project folder (module docstring); ``ground_heights``: heights
     of the ground in the CRS's height unit (e.g. the adjustment's tie points) when there is neither a DEM nor
     a mean terrain height. The camera is the one the orientations belong to (``oriented_camera``: the
-    adjustment's at/camera.toml, else the nominal camera.toml), or ``camera``, (camera, source), when given. A
+    adjustment's at/camera.toml, else the nominal camera.toml), or ``camera``, (camera, source), when given. The
+    frames' positions are ``positions``, ((N, 3) map coordinates, source), when given (an adjustment writing its
+    report before its eo.txt: a block without GNSS has neither file yet), else at/eo.txt's, else gnss.txt's. A
     ``BlockScale`` without GSD says what was missing."""
     from aerotri.geom.camera import oriented_camera
     from aerotri.geom.crs.definition import height_unit_m, project_crs
@@ -68,7 +70,9 @@ def project_block_scale(project, ground_heights=None, ground_source: str = "the 
     camera, cam_src = camera if camera is not None else oriented_camera(project)
     cam = f"{Path(cam_src).name if 'self-calibrated' not in cam_src else 'self-calibrated camera'} " \
           f"(f {camera.focal_mm:g} mm, pixel {camera.pixel_um:g} um)"
-    if project.eo_path.is_file():
+    if positions is not None:
+        pos, src = np.asarray(positions[0], dtype=float), positions[1]
+    elif project.eo_path.is_file():
         pos, src = read_eo(project.eo_path).centre_m, "at/eo.txt"
     elif project.gnss_path.is_file():
         pos, src = read_gnss(project.gnss_path).position_m, "gnss.txt"

@@ -208,3 +208,19 @@ def test_ngi_dmc_block_is_manned_and_gets_a_map_scale_table(shared_data, tmp_pat
     t = qa_settings(root, block).table
     assert t.key == "1:10000" and "coarser than every shipped table" in t.reason
     assert t.limits["flight_tilt_max_deg"] == 2.0 and math.isclose(t.limits["rms_xy_m"], 0.35)
+
+
+def test_a_block_without_gnss_is_scaled_by_the_adjustment_s_own_centres(tmp_path):
+    """A block without gnss.txt (the kite) has no frame positions before its first eo.txt: the adjustment's report
+    chose the default 1:5000 table while reports/ (after at/eo.txt) chose by the block's GSD. With the adjusted
+    centres passed in, both choose the drone table."""
+    root = _project(tmp_path / "kite", DRONE, 40.0)
+    centres = np.array([[float(v) for v in line.split()[1:]] for line in (root / "gnss.txt").read_text().splitlines()])
+    (root / "gnss.txt").unlink()
+    (root / "project.toml").write_text('[project]\nname = "t"\ncrs = "EPSG:32615"\n')  # no mean terrain height
+    ground = np.full(50, GROUND_M)
+    assert project_block_scale(Project.open(root), ground).gsd_m is None  # no positions: the default table
+    block = project_block_scale(Project.open(root), ground, positions=(centres, "the adjusted projection centres"))
+    assert block.platform == "uas" and block.height_above_ground_m == pytest.approx(40.0)
+    assert "the adjusted projection centres" in block.how
+    assert qa_settings(root, block).table.key == "ASPRS2023 H7.1cm V10cm UAS"
