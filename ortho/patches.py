@@ -56,9 +56,9 @@ MIN_PATCH_PX = 8  # smaller patches carry too little texture for a correlation p
 
 # Smallest ratio of the small to the large eigenvalue of a reference patch's gradient structure tensor for the
 # patch to be matched (0: texture in one direction only, 1: the same in every direction). Chosen on the DMC 2x4
-# block (cccbc0a run, 20,000 listed 48 px patches of its DOM check against the truth): patches of ratio 0.05-0.1
-# still had 9 % above 3 GSD, those of 0.1-0.2 0.3 %; scored on the 2x6 block: DOM RMS 0.89 -> 0.32 GSD with
-# 86.6 % of the patches kept (bench/eval_dmc_dom_measure.py, bench/results/dmc_dom_measure.json)
+# block (cccbc0a run, its 136,098 open-ground 48 px patches against the truth): RMS 0.888 -> 0.727 / 0.390 / 0.354
+# GSD at 0.05 / 0.1 / 0.2, share above 3 GSD 3.11 -> 1.89 / 0.06 / 0.01 % (0.1 the knee, 13.1 % left out); scored
+# on the 2x6: 0.889 -> 0.335 GSD, 13.1 % left out (bench/eval_dom_aperture.py, dmc_dom_measure.json "aperture_test")
 MIN_TEXTURE_RATIO = 0.1
 
 
