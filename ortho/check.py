@@ -3,7 +3,8 @@
 Patch matching (``ortho.patches``): the DOM is cut into square patches on a regular grid; each
 textured patch is located in the reference orthophoto (resampled onto the DOM grid) by normalised
 cross-correlation. The displacement is DOM position minus reference position, in pixels (x right,
-y down) and in metres (dE east, dN north).
+y down) and in metres (dE east, dN north). Patches whose reference texture runs in one direction only (roads: the
+aperture problem, ``ortho.patches.MIN_TEXTURE_RATIO``) are left out and counted (``left_out_one_direction``).
 
 Roofs (against a true orthophoto as the reference): a patch centred on every roof corner (``--roof-corners`` CSV,
 else the outline corners of the nDSM's buildings) correlated with the reference over the cells valid in both
@@ -41,7 +42,7 @@ from aerotri.core.textio import read_record, read_text, record_error
 from aerotri.core.figures import pyplot, save_png
 from aerotri.geom.crs.definition import height_unit_m, parse_crs
 from aerotri.geom.crs.raster_warp import open_north_up
-from ortho.patches import MIN_PATCH_PX, PatchDisplacements, match_patches, parabola_peak
+from ortho.patches import MIN_PATCH_PX, MIN_TEXTURE_RATIO, PatchDisplacements, match_patches, parabola_peak
 from ortho.settings import CheckSettings
 
 # GDAL's block cache during check (``aerotri.core.gdal_cache``): the DOM, reference and nDSM blocks of the blocks
@@ -104,6 +105,8 @@ class DomCheck:
     roof_corners_from: str | None = None  # the roofs row: where the corners came from (a file, the nDSM)
     roofs_why: str | None = None  # the roofs row: why none were measured, when it says
     json_path: str | None = None  # the report's own file (dom_report.json), as it names itself
+    one_direction: int | None = None  # open-ground patches left out as textured in one direction only (roads)
+    one_direction_pct: float | None = None  # their share (%) of the patches measured and left out
 
 
 _DISPLACEMENT_FIELDS = frozenset(f.name for f in dataclasses.fields(Displacement))
@@ -124,8 +127,10 @@ def _dom_check_of(d: dict) -> DomCheck:
     row = d.get("roofs")
     roofs = None if row is None else Displacement.of_record({k: v for k, v in row.items() if k in _DISPLACEMENT_FIELDS})
     row = row or {}
+    one = d.get("left_out_one_direction") or {}
     return DomCheck(Displacement.of_record(d["displacement"]), seams.get("rms_px"), seams.get("patches"), roofs,
-                    row.get("corners"), row.get("corners_from"), row.get("why"), d.get("json"))
+                    row.get("corners"), row.get("corners_from"), row.get("why"), d.get("json"), one.get("patches"),
+                    one.get("pct"))
 
 
 def displacement_statistics(de_m, dn_m, res_m: float) -> Displacement:
@@ -323,7 +328,7 @@ def _operation_to(dom_path, other_path, params, allow_ballpark: bool, what: str)
 
 def check_against_reference(dom_path, reference_path, ndsm_path=None, max_ndsm_m: float = 0.5, *, block_px: int = 2048,
                             patch_px: int = 48, step_px: int = 48, search_px: int = 6, min_ncc: float = 0.7,
-                            reference_operation=None, ndsm_operation=None):
+                            reference_operation=None, ndsm_operation=None, min_texture_ratio: float = MIN_TEXTURE_RATIO):
     """Patch displacements of a DOM against a reference orthophoto, block by block (bounded memory: a block
     of the DOM, the reference and nDSM resampled onto it, GDAL's cache at ``CHECK_CACHE_BYTES``; only the
     patches' numbers are kept, five per patch).
@@ -332,7 +337,8 @@ def check_against_reference(dom_path, reference_path, ndsm_path=None, max_ndsm_m
     is resampled onto each DOM block (bilinear; nDSM by maximum so that patches touching objects drop).
     A reference or nDSM in another CRS is mapped through ``reference_operation`` / ``ndsm_operation``
     (DOM CRS -> its CRS; ``aerotri.geom.crs.transform.CrsTransformer``), by default PROJ's operation when
-    it is rigorous (a ballpark one is refused).
+    it is rigorous (a ballpark one is refused). Patches of texture in one direction only (``min_texture_ratio``,
+    ``ortho.patches.match_patches``) are left out; their centres are in the result's ``one_direction_*``.
     """
     import rasterio
     from rasterio.enums import Resampling
@@ -370,10 +376,13 @@ def check_against_reference(dom_path, reference_path, ndsm_path=None, max_ndsm_m
                                               operation=ndsm_operation)
                     keep = nvalid & (nd[0] * ndsm_unit_m <= max_ndsm_m)
                 p = match_patches(d, np.moveaxis(rimg, 0, -1), dmask, rvalid, res_m=res, patch_px=patch_px,
-                                  step_px=step_px, search_px=search_px, min_ncc=min_ncc, keep=keep)
+                                  step_px=step_px, search_px=search_px, min_ncc=min_ncc, keep=keep,
+                                  min_texture_ratio=min_texture_ratio)
                 # a patch belongs to the block whose core holds its centre (no duplicates from halos)
                 core = (p.row_px < block_px) & (p.col_px < block_px)
-                p = p.select(core)
+                one = (p.one_direction_row_px < block_px) & (p.one_direction_col_px < block_px)
+                p = dataclasses.replace(p.select(core), one_direction_row_px=p.one_direction_row_px[one] + r0,
+                                        one_direction_col_px=p.one_direction_col_px[one] + c0)
                 p.row_px += r0
                 p.col_px += c0
                 pieces.append(p)
@@ -381,7 +390,8 @@ def check_against_reference(dom_path, reference_path, ndsm_path=None, max_ndsm_m
             if ndsm is not None:
                 ndsm.close()
         cat = lambda f: np.concatenate([getattr(q, f) for q in pieces]) if pieces else np.zeros(0)
-        return PatchDisplacements(cat("row_px"), cat("col_px"), cat("dx_px"), cat("dy_px"), cat("ncc"), res), (dom.width, dom.height)
+        return PatchDisplacements(cat("row_px"), cat("col_px"), cat("dx_px"), cat("dy_px"), cat("ncc"), res,
+                                  cat("one_direction_row_px"), cat("one_direction_col_px")), (dom.width, dom.height)
 
 
 def check_points(points_path, res_m: float, dom_bounds=None) -> tuple[Displacement, dict]:
@@ -731,6 +741,11 @@ def run_check(project_root, settings: CheckSettings | Resolved | None = None, *,
         # the statistics take every patch; the report lists and the plot draws at most MAX_LISTED of them,
         # evenly spread (a gigapixel DOM has millions: the JSON and the plot stay the size of a demo's)
         listed = patches.select(_spread(len(patches), MAX_LISTED))
+        left_out = len(patches.one_direction_row_px)
+        report["left_out_one_direction"] = {
+            "why": "texture in one direction (the aperture problem: the NCC peak slides along a road)",
+            "min_texture_ratio": MIN_TEXTURE_RATIO, "patches": left_out,
+            "pct": round(100.0 * left_out / max(left_out + len(patches), 1), 2)}
         report.update(patches_total=len(patches), patches_listed=len(listed),
                       patches=[{"row_px": float(r), "col_px": float(c), "de_m": float(a), "dn_m": float(b),
                                 "ncc": float(n)}

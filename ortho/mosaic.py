@@ -1740,13 +1740,15 @@ class SeamPair:
 @dataclasses.dataclass(frozen=True)
 class SeamMisalignment:
     """``seam_misalignment``: the patch size (px), the patches of all seams, their RMS and largest displacement
-    (px; None without patches) and every seam's (dom_report.json's ``seams`` is ``to_record`` of it)."""
+    (px; None without patches) and every seam's (dom_report.json's ``seams`` is ``to_record`` of it); the patches
+    left out as textured in one direction only (``ortho.patches.MIN_TEXTURE_RATIO``, roads)."""
 
     patch_px: int
     patches: int
     rms_px: float | None
     max_px: float | None
     per_seam: tuple[SeamPair, ...]
+    one_direction: int = 0
 
 
 def seam_misalignment(root, *, patch_px: int = 32, search_px: int = 4, spacing_cells: int = 4, min_ncc: float = 0.7,
@@ -1780,7 +1782,7 @@ def seam_misalignment(root, *, patch_px: int = 32, search_px: int = 4, spacing_c
     to_project = index_operation(index)
     half = patch_px // 2 + search_px
     size = 2 * half
-    per_seam, all_d = [], []
+    per_seam, all_d, one_direction = [], [], 0
     for (i, j), rc in seam_samples(labels, spacing_cells):
         # mosaic pixel of each patch's upper-left corner
         R = ((rc[:, 0] + 0.5) * factor).astype(int) - half
@@ -1810,10 +1812,11 @@ def seam_misalignment(root, *, patch_px: int = 32, search_px: int = 4, spacing_c
                                       res_m=mosaic.res_m, patch_px=patch_px, step_px=patch_px, search_px=search_px,
                                       min_ncc=min_ncc, keep=None if keep is None else keep[win])
                     ds_list.extend(np.hypot(p.dx_px, p.dy_px).tolist())
+                    one_direction += len(p.one_direction_row_px)
         d = np.array(ds_list)
         all_d.extend(ds_list)
         per_seam.append(SeamPair(names[i], names[j], int(len(d)), float(np.sqrt(np.mean(d ** 2))) if len(d) else None,
                                  float(d.max()) if len(d) else None))
     d = np.array(all_d)
     return SeamMisalignment(patch_px, int(len(d)), float(np.sqrt(np.mean(d ** 2))) if len(d) else None,
-                            float(d.max()) if len(d) else None, tuple(per_seam))
+                            float(d.max()) if len(d) else None, tuple(per_seam), one_direction)
