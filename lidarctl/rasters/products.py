@@ -875,7 +875,8 @@ def write_rasters_tiled(paths, outdir, res_m: float, crs=None, *, tile_px: int =
 
     The raster grid covers the union of the files' header bounds. It is cut into square tiles of
     ``tile_px`` cells; each tile is computed over its window grown by ``buffer_px`` cells on every
-    side (the points there are binned into a temporary file per tile in one pass over the files) and
+    side (the points there are binned per tile in one pass over the files: in memory up to
+    ``_bin_memory_bytes``, in a temporary file per tile beyond) and
     only its core is written, by windows, into tiled GeoTIFFs, which are copied block by block into
     COGs (ZSTD level 1, predictor 3); the hillshade is computed by strips of rows of the written DEM as the
     PNG is written.
@@ -888,8 +889,8 @@ def write_rasters_tiled(paths, outdir, res_m: float, crs=None, *, tile_px: int =
     equal wherever ``buffer_px >= 2 * dem_fill_radius_px + 2``. ``bench/lidar_rasters.py``
     measures the difference and the memory.
 
-    Temporary disk space: 28 bytes per point and buffer copy, plus the uncompressed-size GeoTIFFs
-    at worst, in a hidden folder in ``outdir``, removed at the end, also on errors.
+    Temporary disk space: 28 bytes per point and buffer copy beyond the memory budget, plus the
+    uncompressed-size GeoTIFFs at worst, in a hidden folder in ``outdir``, removed at the end, also on errors.
     """
     import rasterio
     from rasterio.transform import from_origin as _from_origin
